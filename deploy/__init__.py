@@ -1,0 +1,1 @@
+"""Deployment configurations (TOML) and scripts for `fedtrack launch`."""

@@ -1,0 +1,95 @@
+"""JSON Lines I/O with strict validation: every error names the file and line."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+
+
+class InputError(ValueError):
+    """Invalid input data; the message names the file and line."""
+
+
+def read_jsonl(path: str | Path) -> Iterator[tuple[int, dict[str, Any]]]:
+    """Yield ``(line_number, object)`` for each non-blank line; bad JSON raises InputError."""
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"{p}: file does not exist")
+    with p.open() as fh:
+        for lineno, line in enumerate(fh, start=1):
+            if not line.strip():
+                continue
+            try:
+                obj = json.loads(line)
+            except json.JSONDecodeError as exc:
+                raise InputError(f"{p}:{lineno}: invalid JSON: {exc.msg}") from exc
+            if not isinstance(obj, dict):
+                raise InputError(f"{p}:{lineno}: expected a JSON object")
+            yield lineno, obj
+
+
+def write_jsonl(path: str | Path, rows: list[dict[str, Any]]) -> None:
+    """Write one JSON object per line (numpy arrays become lists)."""
+    with Path(path).open("w") as fh:
+        for row in rows:
+            fh.write(json.dumps(row, default=_to_builtin) + "\n")
+
+
+def _to_builtin(obj: Any) -> Any:
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    raise TypeError(f"not JSON serializable: {type(obj).__name__}")
+
+
+def require(obj: dict[str, Any], key: str, where: str) -> Any:
+    if key not in obj:
+        raise InputError(f"{where}: missing field {key!r}")
+    return obj[key]
+
+
+def as_float(value: Any, name: str, where: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise InputError(f"{where}: {name} must be a finite number, got {value!r}")
+    return float(value)
+
+
+def as_vector(value: Any, name: str, where: str, size: int | None = None) -> np.ndarray:
+    """A finite 1-D float vector (of length ``size`` if given)."""
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{where}: {name} must be a list of numbers") from exc
+    if arr.ndim != 1 or (size is not None and arr.shape[0] != size):
+        want = f"length {size}" if size is not None else "a flat list"
+        raise InputError(f"{where}: {name} must be {want}, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise InputError(f"{where}: {name} contains NaN or infinity")
+    return arr
+
+
+def as_covariance(value: Any, name: str, where: str, size: int | None = None,
+                  rtol: float = 1e-9) -> np.ndarray:
+    """A finite, symmetric, positive-definite square matrix."""
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{where}: {name} must be a square matrix of numbers") from exc
+    if arr.ndim != 2 or arr.shape[0] != arr.shape[1] or (size is not None and arr.shape[0] != size):
+        want = f"{size}x{size}" if size is not None else "square"
+        raise InputError(f"{where}: {name} must be {want}, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise InputError(f"{where}: {name} contains NaN or infinity")
+    scale = max(float(np.max(np.abs(arr))), 1e-300)
+    if np.max(np.abs(arr - arr.T)) > rtol * scale:
+        raise InputError(f"{where}: {name} is not symmetric")
+    try:
+        np.linalg.cholesky(arr)
+    except np.linalg.LinAlgError as exc:
+        raise InputError(f"{where}: {name} is not positive definite") from exc
+    return arr

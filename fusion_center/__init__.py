@@ -1,0 +1,1 @@
+"""Fusion of local estimates: centralized, federated (with reset), decentralized; VDIE."""

@@ -1,0 +1,1 @@
+"""Local (per-sensor) estimators: Kalman core, IMM, PDA/HPDA, radar EKFs."""
