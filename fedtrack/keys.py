@@ -1,0 +1,99 @@
+"""Zenoh key expressions of one deployment: ``fedtrack/<deployment>/...``.
+
+Every key a service publishes, subscribes to or queries comes from :class:`Keys`;
+no module builds key strings itself. Passing ``None`` for an id gives the
+single-chunk wildcard ``*`` (for subscribers).
+
+==============================  ===========================  =================
+key (under fedtrack/<dep>/)     payload (fedtrack.wire)      publisher
+==============================  ===========================  =================
+sensor/<id>/meas                Measurement                  sensor <id>
+local/<id>/estimate             LocalEstimate                local filter <id>
+fusion/reset/<id>               Reset                        fusion center
+fusion/track                    FusedTrack                   fusion center
+fusion/event                    ManeuverEvent                fusion center
+fusion/state (queryable)        FusedTrack (reply)           fusion center
+health/<role>/<id>              Health                       every service
+alive/<role>/<id> (liveliness)  none (token)                 every service
+==============================  ===========================  =================
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+ROOT = "fedtrack"
+DEFAULT_DEPLOYMENT = "default"
+MAX_ID_LENGTH = 64
+_FORBIDDEN = frozenset("/*$?#")
+
+
+class InvalidName(ValueError):
+    """A deployment, role or id that cannot be one key-expression chunk."""
+
+
+def check_id(value: object, what: str = "id") -> str:
+    """Return ``value`` if it is a usable key chunk, else raise :class:`InvalidName` naming ``what``.
+
+    A chunk is a non-empty string of at most 64 printable characters without
+    ``/ * $ ? #`` or whitespace.
+    """
+    if not isinstance(value, str):
+        raise InvalidName(f"{what} must be a string, got {type(value).__name__}")
+    if not value:
+        raise InvalidName(f"{what} must not be empty")
+    if len(value) > MAX_ID_LENGTH:
+        raise InvalidName(f"{what} is longer than {MAX_ID_LENGTH} characters")
+    bad = sorted({c for c in value if c in _FORBIDDEN or not c.isprintable() or c.isspace()})
+    if bad:
+        raise InvalidName(f"{what} {value!r} contains forbidden character(s) {''.join(bad)!r}")
+    return value
+
+
+@dataclass(frozen=True)
+class Keys:
+    """Key expressions of deployment ``deployment`` (validated on construction)."""
+
+    deployment: str = DEFAULT_DEPLOYMENT
+
+    def __post_init__(self) -> None:
+        check_id(self.deployment, "deployment")
+
+    def _key(self, *chunks: str) -> str:
+        return "/".join((ROOT, self.deployment, *chunks))
+
+    @staticmethod
+    def _chunk(value: str | None, what: str) -> str:
+        return "*" if value is None else check_id(value, what)
+
+    def sensor_meas(self, sensor: str | None = None) -> str:
+        """``sensor/<id>/meas``: a sensor's measurements."""
+        return self._key("sensor", self._chunk(sensor, "sensor id"), "meas")
+
+    def local_estimate(self, sensor: str | None = None) -> str:
+        """``local/<id>/estimate``: the local filter of sensor ``<id>``."""
+        return self._key("local", self._chunk(sensor, "sensor id"), "estimate")
+
+    def fusion_reset(self, sensor: str | None = None) -> str:
+        """``fusion/reset/<id>``: the fusion center's reset of local filter ``<id>``."""
+        return self._key("fusion", "reset", self._chunk(sensor, "sensor id"))
+
+    def fusion_track(self) -> str:
+        """``fusion/track``: the fused track, one per scan."""
+        return self._key("fusion", "track")
+
+    def fusion_event(self) -> str:
+        """``fusion/event``: maneuver onset / model change / end events."""
+        return self._key("fusion", "event")
+
+    def fusion_state(self) -> str:
+        """``fusion/state``: queryable answering with the latest fused track."""
+        return self._key("fusion", "state")
+
+    def health(self, role: str | None = None, service_id: str | None = None) -> str:
+        """``health/<role>/<id>``: periodic :class:`fedtrack.wire.Health` of a service."""
+        return self._key("health", self._chunk(role, "role"), self._chunk(service_id, "service id"))
+
+    def alive(self, role: str | None = None, service_id: str | None = None) -> str:
+        """``alive/<role>/<id>``: liveliness token held while a service is ready."""
+        return self._key("alive", self._chunk(role, "role"), self._chunk(service_id, "service id"))

@@ -1,0 +1,669 @@
+"""Typed wire messages of the distributed pipeline, encoded with msgpack.
+
+Usage::
+
+    payload = encode(Measurement(sensor="s1", seq=3, t=0.3, kind="position",
+                                 z=[1.0, 2.0], R=np.eye(2)))
+    msg = decode(payload, Measurement)      # raises WireError naming the field
+
+Every message is a frozen dataclass that validates itself on construction, so an
+object of these types is always valid: decoding and building one in Python run
+the same checks. Arrays are stored as read-only float64 numpy arrays and
+covariances are exactly symmetric (symmetrized after the tolerance check).
+
+On the wire a message is a msgpack map ``{"schema": SCHEMA_VERSION, "type":
+<class name>, <field>: <value>, ...}``. Every field is present (optional ones
+may be nil); unknown fields are rejected. A numpy array is a map ``{"dtype":
+"float64" | "int64", "shape": [d0, ...], "data": <little-endian bytes>}``.
+The full contract is in ``docs/wire.md``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, ClassVar, TypeVar
+
+import msgpack
+import numpy as np
+
+from fedtrack.jsonl import InputError
+from fedtrack.keys import InvalidName, check_id
+
+SCHEMA_VERSION = 1
+MAX_PAYLOAD_BYTES = 256 * 1024
+MAX_ARRAY_ELEMENTS = 4096
+MAX_DETECTIONS = 256
+MAX_STRING_LENGTH = 256
+MAX_LIST_ITEMS = 64
+MAX_MAP_ITEMS = 32
+SYMMETRY_RTOL = 1e-9
+PD_RTOL = 1e-12
+MEASUREMENT_KINDS = ("position", "radar", "sonar")
+EVENT_KINDS = ("onset", "new-ca", "end")
+WIRE_DTYPES = {"float64": np.dtype("<f8"), "int64": np.dtype("<i8")}
+_INT64_MAX = 2**63 - 1
+_ENVELOPE = ("schema", "type")
+
+
+class WireError(ValueError):
+    """A message that cannot be encoded or decoded; ``field`` names the offending field."""
+
+    def __init__(self, field_name: str, reason: str) -> None:
+        super().__init__(f"{field_name}: {reason}")
+        self.field = field_name
+        self.reason = reason
+
+
+# ---------------------------------------------------------------- field validators
+# Each takes (value, path) and returns the normalized value or raises WireError(path, ...).
+
+def _identifier(value: Any, path: str) -> str:
+    try:
+        return check_id(value, "value")
+    except InvalidName as exc:
+        raise WireError(path, str(exc).removeprefix("value ")) from None
+
+
+def _text(value: Any, path: str) -> str:
+    if not isinstance(value, str):
+        raise WireError(path, f"expected a string, got {type(value).__name__}")
+    if len(value) > MAX_STRING_LENGTH:
+        raise WireError(path, f"string longer than {MAX_STRING_LENGTH} characters")
+    return value
+
+
+def _choice(*options: str) -> Callable[[Any, str], str]:
+    def check(value: Any, path: str) -> str:
+        if not isinstance(value, str) or value not in options:
+            raise WireError(path, f"expected one of {', '.join(options)}; got {value!r}")
+        return value
+    return check
+
+
+def _count(value: Any, path: str) -> int:
+    """A non-negative 64-bit integer."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise WireError(path, f"expected an integer, got {type(value).__name__}")
+    if not 0 <= int(value) <= _INT64_MAX:
+        raise WireError(path, f"must be in [0, 2**63), got {value}")
+    return int(value)
+
+
+def _real(value: Any, path: str) -> float:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise WireError(path, f"expected a number, got {type(value).__name__}")
+    if not math.isfinite(value):
+        raise WireError(path, f"must be finite, got {value}")
+    return float(value)
+
+
+def _flag(value: Any, path: str) -> bool:
+    if not isinstance(value, (bool, np.bool_)):
+        raise WireError(path, f"expected true or false, got {type(value).__name__}")
+    return bool(value)
+
+
+def _array(value: Any, path: str, ndim: int) -> np.ndarray:
+    """A finite read-only float64 array of ``ndim`` dimensions within the size bound."""
+    try:
+        arr = np.asarray(value)
+        if arr.dtype.kind not in "fiu":
+            raise TypeError(f"dtype {arr.dtype}")
+        arr = arr.astype(np.float64, copy=arr.flags.writeable)
+    except (TypeError, ValueError) as exc:
+        raise WireError(path, f"expected an array of real numbers ({exc})") from None
+    if arr.ndim != ndim:
+        raise WireError(path, f"expected {ndim} dimension(s), got shape {arr.shape}")
+    if arr.size > MAX_ARRAY_ELEMENTS:
+        raise WireError(path, f"{arr.size} elements exceed the limit of {MAX_ARRAY_ELEMENTS}")
+    if not np.all(np.isfinite(arr)):
+        raise WireError(path, "contains NaN or infinity")
+    arr.setflags(write=False)
+    return arr
+
+
+def _vector(value: Any, path: str) -> np.ndarray:
+    return _array(value, path, 1)
+
+
+def _covariance(value: Any, path: str) -> np.ndarray:
+    """Square, symmetric within SYMMETRY_RTOL, positive definite (eigenvalue ratio > PD_RTOL)."""
+    arr = _array(value, path, 2)
+    if arr.shape[0] != arr.shape[1]:
+        raise WireError(path, f"expected a square matrix, got shape {arr.shape}")
+    if arr.size == 0:
+        return arr
+    scale = float(np.max(np.abs(arr)))
+    if np.max(np.abs(arr - arr.T)) > SYMMETRY_RTOL * scale:
+        raise WireError(path, "not symmetric")
+    sym = 0.5 * (arr + arr.T)
+    eig = np.linalg.eigvalsh(sym)
+    if not eig[0] > PD_RTOL * eig[-1] or eig[-1] <= 0.0:
+        raise WireError(path, f"not positive definite (eigenvalues {eig[0]:.3g} .. {eig[-1]:.3g})")
+    sym.setflags(write=False)
+    return sym
+
+
+def _optional(check: Callable[[Any, str], Any]) -> Callable[[Any, str], Any]:
+    def optional(value: Any, path: str) -> Any:
+        return None if value is None else check(value, path)
+    return optional
+
+
+def _sequence(value: Any, path: str, limit: int) -> list[Any]:
+    if not isinstance(value, (list, tuple)):
+        raise WireError(path, f"expected a list, got {type(value).__name__}")
+    if len(value) > limit:
+        raise WireError(path, f"{len(value)} items exceed the limit of {limit}")
+    return list(value)
+
+
+def _mapping(value: Any, path: str) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise WireError(path, f"expected a map, got {type(value).__name__}")
+    if len(value) > MAX_MAP_ITEMS:
+        raise WireError(path, f"{len(value)} entries exceed the limit of {MAX_MAP_ITEMS}")
+    for key in value:
+        _identifier(key, f"{path} key {key!r}")
+    return value
+
+
+def _identifiers(value: Any, path: str) -> tuple[str, ...]:
+    return tuple(_identifier(v, f"{path}[{i}]") for i, v in enumerate(_sequence(value, path, MAX_LIST_ITEMS)))
+
+
+def _counters(value: Any, path: str) -> dict[str, int]:
+    return {k: _count(v, f"{path}.{k}") for k, v in _mapping(value, path).items()}
+
+
+def _extra_value(value: Any, path: str) -> float | str | tuple[float, ...] | dict[str, float]:
+    if isinstance(value, str):
+        return _text(value, path)
+    if isinstance(value, (list, tuple)):
+        return tuple(_real(v, f"{path}[{i}]") for i, v in enumerate(_sequence(value, path, MAX_LIST_ITEMS)))
+    if isinstance(value, dict):
+        return {k: _real(v, f"{path}.{k}") for k, v in _mapping(value, path).items()}
+    return _real(value, path)
+
+
+def _extra(value: Any, path: str) -> dict[str, Any]:
+    extra = {k: _extra_value(v, f"{path}.{k}") for k, v in _mapping(value, path).items()}
+    reserved = sorted(set(extra) & {f.name for f in dataclasses.fields(FusedTrack)})
+    if reserved:
+        raise WireError(f"{path}.{reserved[0]}", "key is reserved for a FusedTrack field")
+    return extra
+
+
+def _check_square(P: np.ndarray, n: int, path: str, against: str) -> None:
+    if P.shape != (n, n):
+        raise WireError(path, f"expected shape ({n}, {n}) to match {against}, got {P.shape}")
+
+
+# ---------------------------------------------------------------- records
+
+class _Record:
+    """Base of every record: validates and normalizes fields in ``__post_init__``.
+
+    ``_fields`` maps field name -> validator; ``_arrays`` names the fields carried as
+    wire arrays; ``_records`` maps a field to the nested record class of its item(s).
+    Top-level messages prefix errors with their class name.
+    """
+
+    _fields: ClassVar[dict[str, Callable[[Any, str], Any]]] = {}
+    _arrays: ClassVar[tuple[str, ...]] = ()
+    _records: ClassVar[dict[str, type[_Record]]] = {}
+    _top_level: ClassVar[bool] = True
+
+    def __post_init__(self) -> None:
+        try:
+            for name, check in self._fields.items():
+                object.__setattr__(self, name, check(getattr(self, name), name))
+            self._check()
+        except WireError as exc:
+            if not self._top_level:
+                raise
+            raise WireError(f"{type(self).__name__}.{exc.field}", exc.reason) from None
+
+    def _check(self) -> None:
+        """Cross-field checks (shapes); fields are already normalized."""
+
+
+@dataclass(frozen=True, eq=False)
+class Detection(_Record):
+    """One sonar detection: position measurement ``z`` (d,) and signal ``amplitude``."""
+
+    z: np.ndarray
+    amplitude: float
+
+    _fields = {"z": _vector, "amplitude": _real}
+    _arrays = ("z",)
+    _top_level = False
+
+
+def _detections(value: Any, path: str) -> tuple[Detection, ...]:
+    items = _sequence(value, path, MAX_DETECTIONS)
+    out = []
+    for i, item in enumerate(items):
+        try:
+            out.append(item if isinstance(item, Detection) else Detection(*item))
+        except (TypeError, WireError) as exc:
+            where = f"{path}[{i}]" + (f".{exc.field}" if isinstance(exc, WireError) else "")
+            raise WireError(where, getattr(exc, "reason", "expected a Detection or (z, amplitude)")) from None
+    return tuple(out)
+
+
+@dataclass(frozen=True, eq=False)
+class ManeuverInfo(_Record):
+    """A local filter's maneuver detection: input estimate ``u`` (k,) with covariance ``gamma`` (k, k)."""
+
+    detected: bool
+    onset: float
+    u: np.ndarray
+    gamma: np.ndarray
+
+    _fields = {"detected": _flag, "onset": _real, "u": _vector, "gamma": _covariance}
+    _arrays = ("u", "gamma")
+    _top_level = False
+
+    def _check(self) -> None:
+        _check_square(self.gamma, self.u.shape[0], "gamma", "u")
+
+
+def _maneuver_info(value: Any, path: str) -> ManeuverInfo | None:
+    if value is None or isinstance(value, ManeuverInfo):
+        return value
+    if not isinstance(value, dict):
+        raise WireError(path, f"expected a maneuver record, got {type(value).__name__}")
+    try:
+        return ManeuverInfo(**value)
+    except TypeError as exc:
+        raise WireError(path, str(exc)) from None
+    except WireError as exc:
+        raise WireError(f"{path}.{exc.field}", exc.reason) from None
+
+
+@dataclass(frozen=True, eq=False)
+class Measurement(_Record):
+    """One scan of one sensor.
+
+    ``position``/``radar``: ``z`` (m,) with noise covariance ``R`` (m, m), no detections;
+    radar also carries ``sensor_position`` (2 or 3,). ``sonar``: ``z`` empty, each
+    detection's ``z`` is (d,) with covariance ``R`` (d, d). ``stamp_ns`` is the wall-clock
+    publish time (``time.time_ns()``), for end-to-end latency.
+    """
+
+    sensor: str
+    seq: int
+    t: float
+    kind: str
+    z: np.ndarray
+    R: np.ndarray
+    detections: tuple[Detection, ...] = ()
+    sensor_position: np.ndarray | None = None
+    stamp_ns: int = field(default_factory=time.time_ns)
+
+    _fields = {"sensor": _identifier, "seq": _count, "t": _real, "kind": _choice(*MEASUREMENT_KINDS),
+               "z": _vector, "R": _covariance, "detections": _detections,
+               "sensor_position": _optional(_vector), "stamp_ns": _count}
+    _arrays = ("z", "R", "sensor_position")
+    _records = {"detections": Detection}
+
+    def _check(self) -> None:
+        if self.kind == "sonar":
+            if self.z.size:
+                raise WireError("z", "must be empty for sonar (detections carry the positions)")
+            for i, det in enumerate(self.detections):
+                if det.z.shape[0] != self.R.shape[0]:
+                    raise WireError(f"detections[{i}].z", f"length {det.z.shape[0]} does not match R "
+                                    f"{self.R.shape}")
+        else:
+            if self.z.size == 0:
+                raise WireError("z", f"must not be empty for kind {self.kind}")
+            if self.detections:
+                raise WireError("detections", "only sonar measurements carry detections")
+            _check_square(self.R, self.z.shape[0], "R", "z")
+        if self.R.size == 0:
+            raise WireError("R", "must not be empty")
+        if self.kind == "radar" and self.sensor_position is None:
+            raise WireError("sensor_position", "required for radar")
+        if self.sensor_position is not None and self.sensor_position.shape[0] not in (2, 3):
+            raise WireError("sensor_position", f"expected 2 or 3 coordinates, got {self.sensor_position.shape[0]}")
+
+
+@dataclass(frozen=True, eq=False)
+class LocalEstimate(_Record):
+    """A local filter's posterior ``(x, P)`` and prior ``(x_prior, P_prior)`` for scan ``seq``.
+
+    ``stamp_ns`` is the stamp of the measurement it processed; ``degraded`` lists
+    flags such as ``"no-measurement"`` (empty when healthy).
+    """
+
+    sensor: str
+    seq: int
+    t: float
+    model: str
+    x: np.ndarray
+    P: np.ndarray
+    x_prior: np.ndarray
+    P_prior: np.ndarray
+    stamp_ns: int
+    maneuver: ManeuverInfo | None = None
+    degraded: tuple[str, ...] = ()
+
+    _fields = {"sensor": _identifier, "seq": _count, "t": _real, "model": _identifier, "x": _vector,
+               "P": _covariance, "x_prior": _vector, "P_prior": _covariance, "stamp_ns": _count,
+               "maneuver": _maneuver_info, "degraded": _identifiers}
+    _arrays = ("x", "P", "x_prior", "P_prior")
+    _records = {"maneuver": ManeuverInfo}
+
+    def _check(self) -> None:
+        n = self.x.shape[0]
+        if n == 0:
+            raise WireError("x", "must not be empty")
+        _check_square(self.P, n, "P", "x")
+        if self.x_prior.shape != (n,):
+            raise WireError("x_prior", f"expected shape ({n},) to match x, got {self.x_prior.shape}")
+        _check_square(self.P_prior, n, "P_prior", "x")
+
+
+@dataclass(frozen=True, eq=False)
+class Reset(_Record):
+    """The fusion center's reset of local filter ``sensor`` for scan ``seq``.
+
+    ``P`` is already scaled by the sensor's sharing factor ``beta`` in (0, 1], so the
+    local filter adopts ``(x, P)`` as is; ``beta`` is carried for bookkeeping.
+    """
+
+    sensor: str
+    seq: int
+    t: float
+    model: str
+    x: np.ndarray
+    P: np.ndarray
+    beta: float
+
+    _fields = {"sensor": _identifier, "seq": _count, "t": _real, "model": _identifier, "x": _vector,
+               "P": _covariance, "beta": _real}
+    _arrays = ("x", "P")
+
+    def _check(self) -> None:
+        if self.x.shape[0] == 0:
+            raise WireError("x", "must not be empty")
+        _check_square(self.P, self.x.shape[0], "P", "x")
+        if not 0.0 < self.beta <= 1.0:
+            raise WireError("beta", f"must be in (0, 1], got {self.beta}")
+
+
+@dataclass(frozen=True, eq=False)
+class FusedTrack(_Record):
+    """The fused track of scan ``seq``.
+
+    ``sensors``: the sensors fused in this scan; ``stamp_ns``: earliest measurement
+    stamp of the scan; ``extra``: small map of str -> float | str | list of floats |
+    map of floats (IMM mode probabilities, existence, status, active group, ...).
+    """
+
+    seq: int
+    t: float
+    model: str
+    x: np.ndarray
+    P: np.ndarray
+    maneuver: bool
+    degraded: bool
+    sensors: tuple[str, ...]
+    stamp_ns: int
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    _fields = {"seq": _count, "t": _real, "model": _identifier, "x": _vector, "P": _covariance,
+               "maneuver": _flag, "degraded": _flag, "sensors": _identifiers, "stamp_ns": _count,
+               "extra": _extra}
+    _arrays = ("x", "P")
+
+    def _check(self) -> None:
+        if self.x.shape[0] == 0:
+            raise WireError("x", "must not be empty")
+        _check_square(self.P, self.x.shape[0], "P", "x")
+
+
+@dataclass(frozen=True, eq=False)
+class ManeuverEvent(_Record):
+    """Maneuver ``onset`` detected / ``new-ca`` model started / maneuver ``end``."""
+
+    seq: int
+    t: float
+    kind: str
+    onset: float
+    u: np.ndarray
+    statistic: float
+
+    _fields = {"seq": _count, "t": _real, "kind": _choice(*EVENT_KINDS), "onset": _real, "u": _vector,
+               "statistic": _real}
+    _arrays = ("u",)
+
+
+@dataclass(frozen=True, eq=False)
+class Health(_Record):
+    """Periodic status of service ``role``/``id``: counters such as received, rejected, published."""
+
+    role: str
+    id: str
+    seq: int
+    counters: dict[str, int]
+    status: str
+
+    _fields = {"role": _identifier, "id": _identifier, "seq": _count, "counters": _counters, "status": _text}
+
+
+Message = Measurement | LocalEstimate | Reset | FusedTrack | ManeuverEvent | Health
+MESSAGE_TYPES: tuple[type[_Record], ...] = (Measurement, LocalEstimate, Reset, FusedTrack, ManeuverEvent, Health)
+M = TypeVar("M", bound=_Record)
+
+
+# ---------------------------------------------------------------- encoding
+
+def _encode_array(arr: np.ndarray) -> dict[str, Any]:
+    return {"dtype": "float64", "shape": list(arr.shape), "data": arr.astype("<f8").tobytes()}
+
+
+def _encode_record(rec: _Record) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for f in dataclasses.fields(rec):  # type: ignore[arg-type]
+        value = getattr(rec, f.name)
+        if value is None:
+            out[f.name] = None
+        elif f.name in rec._arrays:
+            out[f.name] = _encode_array(value)
+        elif f.name in rec._records:
+            out[f.name] = ([_encode_record(v) for v in value] if isinstance(value, tuple)
+                           else _encode_record(value))
+        elif isinstance(value, tuple):
+            out[f.name] = list(value)
+        elif isinstance(value, dict):
+            out[f.name] = {k: list(v) if isinstance(v, tuple) else v for k, v in value.items()}
+        else:
+            out[f.name] = value
+    return out
+
+
+def encode(msg: Message) -> bytes:
+    """msgpack bytes of ``msg``; WireError if it exceeds MAX_PAYLOAD_BYTES."""
+    if not isinstance(msg, MESSAGE_TYPES):
+        raise WireError("message", f"not a wire message type: {type(msg).__name__}")
+    name = type(msg).__name__
+    payload = msgpack.packb({"schema": SCHEMA_VERSION, "type": name, **_encode_record(msg)}, use_bin_type=True)
+    if len(payload) > MAX_PAYLOAD_BYTES:
+        raise WireError(name, f"encoded size {len(payload)} bytes exceeds the limit of {MAX_PAYLOAD_BYTES}")
+    return payload
+
+
+# ---------------------------------------------------------------- decoding
+
+def _decode_array(value: Any, path: str) -> np.ndarray | None:
+    if value is None:
+        return None
+    if not isinstance(value, dict) or set(value) != {"dtype", "shape", "data"}:
+        raise WireError(path, "expected an array map {dtype, shape, data}")
+    dtype = WIRE_DTYPES.get(value["dtype"]) if isinstance(value["dtype"], str) else None
+    if dtype is None:
+        raise WireError(f"{path}.dtype", f"expected 'float64' or 'int64', got {value['dtype']!r}")
+    shape = value["shape"]
+    if (not isinstance(shape, list) or len(shape) > 2
+            or not all(isinstance(d, int) and not isinstance(d, bool) and 0 <= d <= MAX_ARRAY_ELEMENTS
+                       for d in shape)):
+        raise WireError(f"{path}.shape", f"expected a list of at most 2 sizes in [0, {MAX_ARRAY_ELEMENTS}], "
+                        f"got {shape!r}")
+    size = math.prod(shape)
+    if size > MAX_ARRAY_ELEMENTS:
+        raise WireError(path, f"{size} elements exceed the limit of {MAX_ARRAY_ELEMENTS}")
+    data = value["data"]
+    if not isinstance(data, bytes) or len(data) != size * dtype.itemsize:
+        got = f"{len(data)} bytes" if isinstance(data, bytes) else type(data).__name__
+        raise WireError(f"{path}.data", f"expected {size * dtype.itemsize} bytes for shape {shape}, got {got}")
+    return np.frombuffer(data, dtype=dtype).reshape(shape)
+
+
+def _decode_record(cls: type[M], obj: Any, path: str, envelope: tuple[str, ...] = ()) -> M:
+    if not isinstance(obj, dict):
+        raise WireError(path, f"expected a map, got {type(obj).__name__}")
+    names = [f.name for f in dataclasses.fields(cls)]  # type: ignore[arg-type]
+    unknown = sorted((str(k) for k in obj if k not in names and k not in envelope))
+    if unknown:
+        raise WireError(f"{path}.{unknown[0]}", "unknown field")
+    missing = [n for n in names if n not in obj]
+    if missing:
+        raise WireError(f"{path}.{missing[0]}", "missing field")
+    kwargs: dict[str, Any] = {}
+    for name in names:
+        value = obj[name]
+        where = f"{path}.{name}"
+        if name in cls._arrays:
+            value = _decode_array(value, where)
+        elif name in cls._records and value is not None:
+            sub = cls._records[name]
+            if isinstance(value, list):
+                value = [_decode_record(sub, v, f"{where}[{i}]")
+                         for i, v in enumerate(_sequence(value, where, MAX_DETECTIONS))]
+            else:
+                value = _decode_record(sub, value, where)
+        kwargs[name] = value
+    try:
+        return cls(**kwargs)
+    except WireError as exc:
+        if cls._top_level:
+            raise
+        raise WireError(f"{path}.{exc.field}", exc.reason) from None
+
+
+def decode(payload: bytes | bytearray | memoryview, expected_type: type[M]) -> M:
+    """Decode and validate a payload that must hold a message of ``expected_type``.
+
+    Raises WireError (naming the field) for anything else: garbage bytes, a
+    different schema version or type, unknown/missing fields, wrong types,
+    shapes or dtypes, NaN/inf, non-symmetric or non-PD covariances, size bounds.
+    """
+    name = expected_type.__name__
+    if not isinstance(payload, (bytes, bytearray, memoryview)):
+        raise WireError("payload", f"expected bytes, got {type(payload).__name__}")
+    if len(payload) > MAX_PAYLOAD_BYTES:
+        raise WireError("payload", f"{len(payload)} bytes exceed the limit of {MAX_PAYLOAD_BYTES}")
+    try:
+        obj = msgpack.unpackb(payload, raw=False, strict_map_key=True, use_list=True)
+    except Exception as exc:  # msgpack raises many types (ExtraData, StackError, ValueError, ...)
+        raise WireError("payload", f"not valid msgpack ({type(exc).__name__}: {exc})") from None
+    if not isinstance(obj, dict):
+        raise WireError("payload", f"expected a msgpack map, got {type(obj).__name__}")
+    schema = obj.get("schema")
+    if "schema" not in obj:
+        raise WireError(f"{name}.schema", "missing field")
+    if isinstance(schema, bool) or schema != SCHEMA_VERSION:
+        raise WireError(f"{name}.schema", f"unsupported schema version {schema!r} (expected {SCHEMA_VERSION})")
+    if obj.get("type") != name:
+        raise WireError(f"{name}.type", f"expected {name!r}, got {obj.get('type')!r}")
+    return _decode_record(expected_type, obj, name, _ENVELOPE)
+
+
+# ---------------------------------------------------------------- replay JSON lines
+
+_REPLAY_MEASUREMENT_KEYS = frozenset({"t", "sensor", "z", "R", "sensor_position", "detections", "seq", "kind",
+                                      "stamp_ns"})
+
+
+def measurement_to_replay(m: Measurement) -> dict[str, Any]:
+    """The replay-input line ``{"t", "sensor", "z", "R"}`` (+ ``sensor_position``, ``detections``)."""
+    row: dict[str, Any] = {"t": m.t, "sensor": m.sensor, "z": m.z.tolist(), "R": m.R.tolist()}
+    if m.sensor_position is not None:
+        row["sensor_position"] = m.sensor_position.tolist()
+    if m.kind == "sonar":
+        row["detections"] = [{"z": d.z.tolist(), "amplitude": d.amplitude} for d in m.detections]
+    return row
+
+
+def _json_field(obj: dict[str, Any], key: str, where: str) -> Any:
+    if key not in obj:
+        raise InputError(f"{where}: missing field {key!r}")
+    return obj[key]
+
+
+def _json_array(value: Any, key: str, where: str) -> np.ndarray:
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{where}: {key} must be a (nested) list of numbers") from None
+
+
+def measurement_from_replay(obj: dict[str, Any], where: str, seq: int = 0) -> Measurement:
+    """Inverse of :func:`measurement_to_replay`; ``kind`` is inferred when absent
+    (detections -> sonar, sensor_position -> radar, else position). ``seq`` is used
+    unless the line has one. Raises InputError naming ``where`` and the field.
+    """
+    unknown = sorted(set(obj) - _REPLAY_MEASUREMENT_KEYS)
+    if unknown:
+        raise InputError(f"{where}: unknown field {unknown[0]!r}")
+    kind = obj.get("kind", "sonar" if "detections" in obj else "radar" if "sensor_position" in obj else "position")
+    detections = obj.get("detections", [])
+    if not isinstance(detections, list) or not all(isinstance(d, dict) for d in detections):
+        raise InputError(f"{where}: detections must be a list of {{\"z\", \"amplitude\"}} objects")
+    try:
+        return Measurement(
+            sensor=_json_field(obj, "sensor", where), seq=obj.get("seq", seq), t=_json_field(obj, "t", where),
+            kind=kind, z=_json_array(_json_field(obj, "z", where), "z", where),
+            R=_json_array(_json_field(obj, "R", where), "R", where),
+            detections=tuple((_json_array(_json_field(d, "z", f"{where}: detections[{i}]"), "z", where),
+                              _json_field(d, "amplitude", f"{where}: detections[{i}]"))
+                             for i, d in enumerate(detections)),
+            sensor_position=(None if obj.get("sensor_position") is None
+                             else _json_array(obj["sensor_position"], "sensor_position", where)),
+            stamp_ns=obj.get("stamp_ns", 0))
+    except WireError as exc:
+        raise InputError(f"{where}: {exc}") from None
+
+
+_TRACK_DEFAULT_KEYS = ("t", "x", "P", "model", "maneuver", "degraded", "seq", "sensors")
+
+
+def track_to_replay(track: FusedTrack) -> dict[str, Any]:
+    """The replay-output line ``{"t", "x", "P", "model", "maneuver", "degraded", "seq", "sensors"}``
+    plus the ``extra`` entries as top-level fields."""
+    row: dict[str, Any] = {"t": track.t, "x": track.x.tolist(), "P": track.P.tolist(), "model": track.model,
+                           "maneuver": track.maneuver, "degraded": track.degraded, "seq": track.seq,
+                           "sensors": list(track.sensors)}
+    row.update({k: list(v) if isinstance(v, tuple) else v for k, v in track.extra.items()})
+    return row
+
+
+def track_from_replay(obj: dict[str, Any], where: str, seq: int = 0) -> FusedTrack:
+    """Inverse of :func:`track_to_replay`. ``degraded`` (false), ``seq`` (the argument),
+    ``sensors`` ([]) and ``stamp_ns`` (0) may be absent; other keys become ``extra``."""
+    extra = {k: v for k, v in obj.items() if k not in _TRACK_DEFAULT_KEYS and k != "stamp_ns"}
+    try:
+        return FusedTrack(
+            seq=obj.get("seq", seq), t=_json_field(obj, "t", where), model=_json_field(obj, "model", where),
+            x=_json_array(_json_field(obj, "x", where), "x", where),
+            P=_json_array(_json_field(obj, "P", where), "P", where),
+            maneuver=_json_field(obj, "maneuver", where), degraded=obj.get("degraded", False),
+            sensors=obj.get("sensors", ()), stamp_ns=obj.get("stamp_ns", 0), extra=extra)
+    except WireError as exc:
+        raise InputError(f"{where}: {exc}") from None
