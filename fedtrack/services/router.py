@@ -1,0 +1,23 @@
+"""``fedtrack serve router``: the Zenoh router every other service connects to.
+
+A Python session in router mode (no separate zenohd needed), listening on
+``tcp/127.0.0.1:7447`` unless ``--listen`` says otherwise, with multicast scouting
+off. It holds the liveliness token ``alive/router/<id>`` and publishes Health.
+"""
+
+from __future__ import annotations
+
+from fedtrack.services.base import Service, service_kwargs, service_parser
+from fedtrack.zsession import DEFAULT_ROUTER
+
+
+class Router(Service):
+    """Routes data between the client sessions; handles no messages itself."""
+
+    role = "router"
+
+
+def main(argv: list[str]) -> int:
+    parser = service_parser("router", "run the Zenoh router of a deployment", listen_default=(DEFAULT_ROUTER,))
+    args = parser.parse_args(argv)
+    return Router(**service_kwargs(parser, args, mode="router")).run()

@@ -1,0 +1,145 @@
+"""Open and close Zenoh sessions the same way in every fedtrack process.
+
+Always: multicast scouting off (no LAN discovery; endpoints are explicit), shared
+memory off (no ``/dev/shm/*.zenoh`` leftovers), fast reconnection (retry every
+0.1 s growing to 1 s), and ``connect/timeout_ms`` so a client started before its
+router waits for it instead of failing. ``close_session`` never blocks longer
+than its deadline (``close()`` can take ~12 s against a frozen peer).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import threading
+from dataclasses import dataclass
+from typing import Any
+
+import zenoh
+
+from fedtrack.keys import DEFAULT_DEPLOYMENT, InvalidName, check_id
+
+DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
+MODES = ("client", "peer", "router")
+_ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/\S+$")
+
+
+class SessionError(RuntimeError):
+    """The Zenoh session could not be opened (bad endpoint, no router within the timeout, ...)."""
+
+
+@dataclass(frozen=True)
+class SessionOptions:
+    """How to open a session.
+
+    ``connect_timeout_s``: how long ``open`` waits for a ``connect`` endpoint (a
+    negative value waits forever). ``lease_ms``: link lease, i.e. how fast a frozen
+    peer is declared dead (None keeps Zenoh's 10 s).
+    """
+
+    mode: str = "client"
+    connect: tuple[str, ...] = (DEFAULT_ROUTER,)
+    listen: tuple[str, ...] = ()
+    connect_timeout_s: float = 10.0
+    lease_ms: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"mode must be one of {', '.join(MODES)}, got {self.mode!r}")
+        for ep in (*self.connect, *self.listen):
+            check_endpoint(ep)
+        if self.mode == "client" and not self.connect:
+            raise ValueError("a client needs at least one --connect endpoint")
+        if self.lease_ms is not None and self.lease_ms < 100:
+            raise ValueError(f"lease_ms must be >= 100, got {self.lease_ms}")
+
+
+def check_endpoint(endpoint: str) -> str:
+    """Return ``endpoint`` if it looks like ``proto/address`` (e.g. ``tcp/127.0.0.1:7447``)."""
+    if not _ENDPOINT.match(endpoint):
+        raise ValueError(f"invalid endpoint {endpoint!r} (expected e.g. tcp/127.0.0.1:7447)")
+    return endpoint
+
+
+def make_config(opts: SessionOptions) -> zenoh.Config:
+    """The ``zenoh.Config`` for ``opts`` (see the module docstring for the fixed settings)."""
+    settings: dict[str, Any] = {
+        "mode": opts.mode,
+        "connect/endpoints": list(opts.connect),
+        "listen/endpoints": list(opts.listen),
+        "connect/timeout_ms": -1 if opts.connect_timeout_s < 0 else int(opts.connect_timeout_s * 1000),
+        "connect/retry": {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2},
+        "scouting/multicast/enabled": False,
+        "transport/shared_memory/enabled": False,
+    }
+    if opts.mode == "router":
+        settings["scouting/delay"] = 0
+    if opts.lease_ms is not None:
+        settings["transport/link/tx/lease"] = opts.lease_ms
+    config = zenoh.Config()
+    for key, value in settings.items():
+        config.insert_json5(key, json.dumps(value))
+    return config
+
+
+def open_session(opts: SessionOptions) -> zenoh.Session:
+    """Open a session; a failure (e.g. no router within the timeout) raises SessionError."""
+    try:
+        return zenoh.open(make_config(opts))
+    except zenoh.ZError as exc:
+        where = f"connect {', '.join(opts.connect)}" if opts.connect else f"listen {', '.join(opts.listen)}"
+        raise SessionError(f"cannot open a zenoh {opts.mode} session ({where}): {exc}") from None
+
+
+def close_session(session: zenoh.Session, deadline_s: float = 2.0) -> bool:
+    """Close ``session`` within ``deadline_s``; False if it did not finish (the process may exit anyway)."""
+    def close() -> None:
+        try:
+            session.close()
+        except zenoh.ZError:
+            pass
+
+    thread = threading.Thread(target=close, name="zenoh-close", daemon=True)
+    thread.start()
+    thread.join(deadline_s)
+    return not thread.is_alive()
+
+
+def _endpoint_arg(value: str) -> str:
+    try:
+        return check_endpoint(value)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def _deployment_arg(value: str) -> str:
+    try:
+        return check_id(value, "deployment")
+    except InvalidName as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def add_endpoint_args(parser: argparse.ArgumentParser, listen_default: tuple[str, ...] = ()) -> None:
+    """Add ``--connect``, ``--listen``, ``--deployment``, ``--connect-timeout``, ``--lease-ms``."""
+    group = parser.add_argument_group("zenoh")
+    group.add_argument("--connect", action="append", type=_endpoint_arg, metavar="ENDPOINT",
+                       help=f"endpoint to connect to, repeatable (default: {DEFAULT_ROUTER} "
+                            "for clients, none for a router)")
+    group.add_argument("--listen", action="append", type=_endpoint_arg, metavar="ENDPOINT",
+                       help=f"endpoint to listen on, repeatable (default: {', '.join(listen_default) or 'none'})")
+    group.add_argument("--deployment", default=DEFAULT_DEPLOYMENT, type=_deployment_arg,
+                       help="key prefix fedtrack/<deployment>/... (default: %(default)s)")
+    group.add_argument("--connect-timeout", type=float, default=10.0, metavar="SECONDS",
+                       help="wait this long for a connect endpoint; negative = forever (default: %(default)s)")
+    group.add_argument("--lease-ms", type=int, default=None, metavar="MS",
+                       help="link lease: a frozen peer is declared dead after this (default: zenoh's 10000)")
+    parser.set_defaults(_listen_default=tuple(listen_default))
+
+
+def options_from_args(args: argparse.Namespace, mode: str = "client") -> SessionOptions:
+    """SessionOptions from the arguments added by :func:`add_endpoint_args`."""
+    connect = tuple(args.connect) if args.connect else ((DEFAULT_ROUTER,) if mode == "client" else ())
+    listen = tuple(args.listen) if args.listen else args._listen_default
+    return SessionOptions(mode=mode, connect=connect, listen=listen,
+                          connect_timeout_s=args.connect_timeout, lease_ms=args.lease_ms)
