@@ -1,0 +1,342 @@
+"""Scan-by-scan multi-sensor trackers: kf, federated-kf, decentralized-kf, fvdie, dvdie.
+
+The maths lives in pure round functions (:func:`federated_round`,
+:func:`decentralized_round`, ...) that the networked services call too; the classes
+here only hold the current state records between scans. Every tracker batches over
+leading axes of ``zs`` (Monte Carlo runs): ``zs`` is ``(..., N, 2)``.
+
+Initialization (shared by all algorithms so they are comparable to round-off):
+each sensor's first measurement gives a one-point local estimate, position ``z_i``
+with covariance ``R_i`` and zero velocity with variance ``N * init_speed_std^2``; the
+first fused estimate is their information sum (which is the centralized one-point
+initialization with velocity variance ``init_speed_std^2``). With ``x0``/``P0`` in the
+config, every filter instead starts from that prior at the first scan's time and
+updates with the first scan.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import lru_cache
+from typing import NamedTuple
+
+import numpy as np
+
+from fedtrack.config import ConfigError
+from fusion_center.fusion import (
+    centralized_update,
+    decentralized_fuse,
+    equal_sharing,
+    federated_fuse,
+    federated_local_step,
+    federated_reset,
+    validate_sharing,
+)
+from fusion_center.vdie import (
+    EVENT_END,
+    EVENT_NEW_CA,
+    EVENT_NONE,
+    EVENT_ONSET,
+    CentreState,
+    VdieParams,
+    dvdie_centre_step,
+    embed_cv,
+    vdie_init,
+    vdie_step,
+)
+from local_filters.kalman import GaussianState, from_information, information, predict, update
+from local_filters.models import LinearModel, ca_model, cv_model
+
+ALGORITHMS = ("kf", "federated-kf", "decentralized-kf", "fvdie", "dvdie")
+
+
+@dataclass(frozen=True)
+class FusionConfig:
+    """Configuration of the fusion trackers (TOML table ``[fusion]``; see README)."""
+
+    q: float = 0.25
+    init_speed_std: float = 500.0
+    sharing: tuple[float, ...] | None = None
+    x0: tuple[float, ...] | None = None
+    P0: tuple[tuple[float, ...], ...] | None = None
+    vdie: VdieParams = field(default_factory=VdieParams)
+
+    def validate(self) -> None:
+        if not self.q > 0:
+            raise ConfigError("q: process noise must be > 0")
+        if not self.init_speed_std > 0:
+            raise ConfigError("init_speed_std: must be > 0")
+        if self.sharing is not None:
+            try:
+                validate_sharing(np.asarray(self.sharing))
+            except ValueError as exc:
+                raise ConfigError(f"sharing: {exc}") from exc
+        if (self.x0 is None) != (self.P0 is None):
+            raise ConfigError("x0: x0 and P0 must be given together")
+        if self.x0 is not None:
+            if len(self.x0) != 4 or not np.all(np.isfinite(self.x0)):
+                raise ConfigError("x0: must be 4 finite numbers [x, vx, y, vy]")
+            P0 = np.asarray(self.P0, dtype=float)
+            if P0.shape != (4, 4) or not np.allclose(P0, P0.T) or np.any(np.linalg.eigvalsh(P0) <= 0):
+                raise ConfigError("P0: must be a symmetric positive-definite 4x4 matrix")
+
+    def betas(self, n_sensors: int) -> np.ndarray:
+        if self.sharing is None:
+            return equal_sharing(n_sensors)
+        if len(self.sharing) != n_sensors:
+            raise ConfigError(f"sharing: {len(self.sharing)} factors for {n_sensors} sensors")
+        return np.asarray(self.sharing, dtype=float)
+
+
+@lru_cache(maxsize=64)
+def models_for(dt: float, q: float) -> tuple[LinearModel, LinearModel]:
+    """CV and CA models for a scan interval ``dt`` (cached: matrices are built once)."""
+    return cv_model(dt, q), ca_model(dt, q)
+
+
+class ScanEstimate(NamedTuple):
+    """One scan's fused estimate (CA layout; CV runs carry placeholder accelerations)."""
+
+    x: np.ndarray
+    P: np.ndarray
+    is_ca: np.ndarray
+    event: np.ndarray  # vdie EVENT_* code (always EVENT_NONE for the plain KFs)
+
+
+def one_point_init(zs: np.ndarray, Rs: np.ndarray, speed_var: float) -> GaussianState:
+    """Per-sensor one-point CV estimates ``(..., N, 4)`` from position measurements."""
+    batch = zs.shape[:-1]
+    x = np.zeros(batch + (4,))
+    x[..., 0], x[..., 2] = zs[..., 0], zs[..., 1]
+    P = np.zeros(batch + (4, 4))
+    P[..., [0, 0, 2, 2], [0, 2, 0, 2]] = np.broadcast_to(Rs, batch + (2, 2)).reshape(batch + (4,))
+    P[..., 1, 1] = P[..., 3, 3] = speed_var
+    return GaussianState(x, P)
+
+
+def fuse_independent(local: GaussianState, present: np.ndarray | None) -> GaussianState:
+    """Information sum over the sensor axis of the present local estimates."""
+    Y, y = information(local)
+    w = np.ones(local.x.shape[:-1]) if present is None else np.asarray(present, dtype=float)
+    return from_information(np.einsum("...i,...ijk->...jk", w, Y), np.einsum("...i,...ij->...j", w, y))
+
+
+def masked(present: np.ndarray | None, post: GaussianState, prior: GaussianState) -> GaussianState:
+    """Posterior where the sensor reported, prior where it did not."""
+    if present is None:
+        return post
+    m = np.asarray(present, dtype=bool)
+    return GaussianState(np.where(m[..., None], post.x, prior.x), np.where(m[..., None, None], post.P, prior.P))
+
+
+class FederatedRound(NamedTuple):
+    master_prior: GaussianState
+    fused: GaussianState
+    local_prior: GaussianState
+    local_post: GaussianState
+
+
+def federated_round(fused_prev: GaussianState, model: LinearModel, zs: np.ndarray, Rs: np.ndarray,
+                    betas: np.ndarray, present: np.ndarray | None) -> FederatedRound:
+    """Reset (20)-(22), local filters (9)-(12), master fusion (15)-(16)."""
+    local = federated_reset(fused_prev, betas)
+    local_prior, local_post = federated_local_step(local, zs, model.F, model.Q, model.H, Rs, betas, present)
+    master_prior = predict(fused_prev, model.F, model.Q)
+    partial = present is not None and not np.all(present)
+    fused = federated_fuse(local_post, betas, present if partial else None, master_prior if partial else None)
+    return FederatedRound(master_prior, fused, local_prior, local_post)
+
+
+def local_kf_step(local: GaussianState, model: LinearModel, zs: np.ndarray, Rs: np.ndarray,
+                  present: np.ndarray | None) -> tuple[GaussianState, GaussianState]:
+    """Stand-alone local Kalman filters (full Q, no feedback): ``(prior, posterior)``."""
+    prior = predict(local, model.F, model.Q)
+    post, _ = update(prior, zs, model.H, Rs)
+    return prior, masked(present, post, prior)
+
+
+class Tracker:
+    """Base class: keeps the scan clock and the common initialization."""
+
+    name = ""
+
+    def __init__(self, n_sensors: int, config: FusionConfig | None = None) -> None:
+        self.config = config or FusionConfig()
+        self.n_sensors = n_sensors
+        self.betas = self.config.betas(n_sensors)
+        self.t: float | None = None
+
+    def step(self, t: float, zs: np.ndarray, Rs: np.ndarray,
+             present: np.ndarray | None = None) -> ScanEstimate:
+        """Process one scan at time ``t``; ``present`` (N,) marks the sensors that reported."""
+        if present is not None:
+            present = np.asarray(present, dtype=bool)
+            if not present.any():
+                raise ValueError("a scan needs at least one measurement")
+            zs = np.where(present[:, None], zs, 0.0)
+            if np.all(present):
+                present = None
+        if self.t is None:
+            self.t = t
+            if self.config.x0 is None:
+                speed_var = self.n_sensors * self.config.init_speed_std ** 2
+                return self._start(one_point_init(zs, Rs, speed_var), present, t)
+            x0 = np.broadcast_to(np.asarray(self.config.x0), zs.shape[:-2] + (4,))
+            P0 = np.broadcast_to(np.asarray(self.config.P0), zs.shape[:-2] + (4, 4))
+            self._start_prior(GaussianState(x0.copy(), P0.copy()), t)
+        dt = t - self.t
+        if dt < 0:
+            raise ValueError(f"scan time {t} is before the previous scan {self.t}")
+        self.t = t
+        cv, ca = models_for(round(dt, 12), self.config.q)
+        return self._update(cv, ca, zs, Rs, present, t)
+
+    def _start(self, local: GaussianState, present: np.ndarray | None, t: float) -> ScanEstimate:
+        raise NotImplementedError
+
+    def _start_prior(self, prior: GaussianState, t: float) -> None:
+        raise NotImplementedError
+
+    def _update(self, cv: LinearModel, ca: LinearModel, zs: np.ndarray, Rs: np.ndarray,
+                present: np.ndarray | None, t: float) -> ScanEstimate:
+        raise NotImplementedError
+
+
+def _cv_estimate(state: GaussianState) -> ScanEstimate:
+    x, P = embed_cv(state.x, state.P)
+    batch = state.x.shape[:-1]
+    return ScanEstimate(x, P, np.zeros(batch, dtype=bool), np.full(batch, EVENT_NONE))
+
+
+class CentralizedKF(Tracker):
+    """The reference: one CV Kalman filter updating with every sensor's measurement (5)-(8)."""
+
+    name = "kf"
+
+    def _start(self, local: GaussianState, present: np.ndarray | None, t: float) -> ScanEstimate:
+        self.state = fuse_independent(local, present)
+        return _cv_estimate(self.state)
+
+    def _start_prior(self, prior: GaussianState, t: float) -> None:
+        self.state = prior
+
+    def _update(self, cv, ca, zs, Rs, present, t):
+        prior = predict(self.state, cv.F, cv.Q)
+        if present is None:
+            self.state = centralized_update(prior, zs, cv.H, Rs)
+        else:
+            idx = np.flatnonzero(present)
+            self.state = centralized_update(prior, zs[..., idx, :], cv.H, Rs[..., idx, :, :])
+        return _cv_estimate(self.state)
+
+
+class FederatedKF(CentralizedKF):
+    """Federated CV filter with reset at every scan (equal to :class:`CentralizedKF`)."""
+
+    name = "federated-kf"
+
+    def _update(self, cv, ca, zs, Rs, present, t):
+        self.state = federated_round(self.state, cv, zs, Rs, self.betas, present).fused
+        return _cv_estimate(self.state)
+
+
+class DecentralizedKF(Tracker):
+    """Stand-alone local CV filters fused by the Hashemipour form (no feedback)."""
+
+    name = "decentralized-kf"
+
+    def _start(self, local: GaussianState, present: np.ndarray | None, t: float) -> ScanEstimate:
+        self.local = local
+        self.centre = fuse_independent(local, present)
+        return _cv_estimate(self.centre)
+
+    def _start_prior(self, prior: GaussianState, t: float) -> None:
+        self.centre = prior
+        self.local = GaussianState(np.repeat(prior.x[..., None, :], self.n_sensors, axis=-2),
+                                   np.repeat(prior.P[..., None, :, :], self.n_sensors, axis=-3))
+
+    def _update(self, cv, ca, zs, Rs, present, t):
+        local_prior, self.local = local_kf_step(self.local, cv, zs, Rs, present)
+        self.centre = decentralized_fuse(predict(self.centre, cv.F, cv.Q), local_prior, self.local)
+        return _cv_estimate(self.centre)
+
+
+class FVDIE(CentralizedKF):
+    """Federated variable-dimension filter with input estimation at the master."""
+
+    name = "fvdie"
+
+    def _start(self, local, present, t):
+        est = super()._start(local, present, t)
+        self._init_vdie(t)
+        return est
+
+    def _start_prior(self, prior, t):
+        super()._start_prior(prior, t)
+        self._init_vdie(t)
+
+    def _init_vdie(self, t: float) -> None:
+        x, P = embed_cv(self.state.x, self.state.P)
+        self.vdie = vdie_init(x, P, np.zeros(x.shape[:-1], dtype=bool), self.config.vdie, t)
+
+    def _update(self, cv, ca, zs, Rs, present, t):
+        def step_fn(post_prev: GaussianState, model: LinearModel) -> tuple[GaussianState, GaussianState]:
+            rnd = federated_round(post_prev, model, zs, Rs, self.betas, present)
+            return rnd.master_prior, rnd.fused
+
+        self.vdie, events, _ = vdie_step(self.vdie, t, cv, ca, self.config.vdie, step_fn)
+        return ScanEstimate(self.vdie.x, self.vdie.P, self.vdie.is_ca, events.kind)
+
+
+def scan_event(local_kinds: np.ndarray) -> np.ndarray:
+    """One event per scan from the locals' events: a detection (onset, new-ca) wins over an end."""
+    detection = (local_kinds == EVENT_ONSET) | (local_kinds == EVENT_NEW_CA)
+    det = np.where(detection, local_kinds, EVENT_NONE).max(axis=-1)
+    ended = (local_kinds == EVENT_END).any(axis=-1)
+    return np.where(det != EVENT_NONE, det, np.where(ended, EVENT_END, EVENT_NONE))
+
+
+class DVDIE(DecentralizedKF):
+    """Single-sensor VDIE in every local filter; the centre fuses without feedback."""
+
+    name = "dvdie"
+
+    def _start(self, local, present, t):
+        est = super()._start(local, present, t)
+        self._init_vdie(t)
+        return est
+
+    def _start_prior(self, prior, t):
+        super()._start_prior(prior, t)
+        self._init_vdie(t)
+
+    def _init_vdie(self, t: float) -> None:
+        x, P = embed_cv(self.local.x, self.local.P)
+        self.vdie = vdie_init(x, P, np.zeros(x.shape[:-1], dtype=bool), self.config.vdie, t)
+        cx, cP = embed_cv(self.centre.x, self.centre.P)
+        self.centre_state = CentreState(cx, cP, np.zeros(cx.shape[:-1], dtype=bool))
+
+    def _update(self, cv, ca, zs, Rs, present, t):
+        def step_fn(post_prev: GaussianState, model: LinearModel) -> tuple[GaussianState, GaussianState]:
+            return local_kf_step(post_prev, model, zs, Rs, present)
+
+        before = self.vdie
+        self.vdie, events, trace = vdie_step(before, t, cv, ca, self.config.vdie, step_fn)
+        self.centre_state = dvdie_centre_step(self.centre_state, cv, ca, before, self.vdie, events, trace)
+        return ScanEstimate(self.centre_state.x, self.centre_state.P, self.centre_state.is_ca,
+                            scan_event(events.kind))
+
+
+TRACKERS: dict[str, type[Tracker]] = {
+    cls.name: cls for cls in (CentralizedKF, FederatedKF, DecentralizedKF, FVDIE, DVDIE)
+}
+
+
+def make_tracker(algorithm: str, n_sensors: int, config: FusionConfig | None = None) -> Tracker:
+    """A fresh tracker by algorithm name (one of :data:`ALGORITHMS`)."""
+    try:
+        cls = TRACKERS[algorithm]
+    except KeyError as exc:
+        raise ValueError(f"unknown fusion algorithm {algorithm!r}; choose from {', '.join(ALGORITHMS)}") from exc
+    return cls(n_sensors, config)
+
