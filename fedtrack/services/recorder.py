@@ -6,12 +6,14 @@ output, one line per FusedTrack, see :func:`fedtrack.wire.track_to_replay`),
 flushed line by line, in scan (``seq``) order. It publishes only its Health.
 
 Ordering: messages from several sensors arrive interleaved, so lines are buffered
-per ``seq`` and a scan is written (sorted by ``t``, then sensor id) once every
+per ``seq`` (the scan index, shared by all sensors) and a scan is written, sorted
+by ``t`` then sensor id, once it has waited ``SETTLE_S`` (so the other sensors'
+messages of that scan, published at about the same time, can arrive) and every
 source seen so far has sent that scan or a later one. A source that goes silent
 cannot hold the file back for long: a scan is also written when it has waited
 ``MAX_WAIT_S`` or when more than ``REORDER_WINDOW`` scans are buffered. A message
 for an already written scan is still written (never lost), out of order, and
-counted in the ``late`` counter.
+counted in the ``*_late`` counter of the Health.
 """
 
 from __future__ import annotations
@@ -19,22 +21,26 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any, Callable, TextIO
 
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
 from fedtrack.wire import FusedTrack, Measurement, measurement_to_replay, track_to_replay
 
 REORDER_WINDOW = 64
+SETTLE_S = 0.2
 MAX_WAIT_S = 1.0
 
 
 class SeqOrderedWriter:
     """A JSON Lines file written in ``(seq, sort key)`` order from interleaved sources."""
 
-    def __init__(self, path: Path, window: int = REORDER_WINDOW, max_wait_s: float = MAX_WAIT_S) -> None:
+    def __init__(self, path: Path, window: int = REORDER_WINDOW, settle_s: float = SETTLE_S,
+                 max_wait_s: float = MAX_WAIT_S, clock: Callable[[], float] = time.monotonic) -> None:
         self.path = path
         self.window = window
+        self.settle_s = settle_s
         self.max_wait_s = max_wait_s
+        self.clock = clock
         self.late = 0
         self.written = 0
         self._fh: TextIO = path.open("w")
@@ -51,18 +57,19 @@ class SeqOrderedWriter:
             self._write(line)
             return
         self._pending.setdefault(seq, []).append((sort_key, line))
-        self._first_seen.setdefault(seq, time.monotonic())
+        self._first_seen.setdefault(seq, self.clock())
         self._latest[source] = max(self._latest.get(source, -1), seq)
         self.release()
 
     def release(self, everything: bool = False) -> None:
         """Write the buffered scans that are complete, too old, or beyond the window."""
         watermark = min(self._latest.values(), default=-1)
-        now = time.monotonic()
+        now = self.clock()
         while self._pending:
             seq = min(self._pending)
-            if not (everything or seq <= watermark or len(self._pending) > self.window
-                    or now - self._first_seen[seq] > self.max_wait_s):
+            waited = now - self._first_seen[seq]
+            if not (everything or (seq <= watermark and waited >= self.settle_s) or waited >= self.max_wait_s
+                    or len(self._pending) > self.window):
                 return
             for _, line in sorted(self._pending.pop(seq), key=lambda item: item[0]):
                 self._write(line)
@@ -84,7 +91,7 @@ class Recorder(Service):
     """Subscribes to every sensor's measurements and to the fused track; writes replay files."""
 
     role = "recorder"
-    tick_period_s = 0.2
+    tick_period_s = 0.05
 
     def __init__(self, out: Path, **kwargs: Any) -> None:
         super().__init__(**kwargs)

@@ -1,0 +1,275 @@
+"""Zenoh plumbing: sessions, the Service base class, and router + recorder as real processes.
+
+Loopback only, multicast scouting off, every process and session is stopped in a
+``finally`` with bounded timeouts.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import pytest
+import zenoh
+
+from fedtrack.keys import Keys
+from fedtrack.services.base import QueryHandler, Service, Subscription
+from fedtrack.wire import (Detection, FusedTrack, Health, ManeuverEvent, Measurement, decode, encode,
+                           measurement_to_replay)
+from fedtrack.zsession import SessionError, SessionOptions, close_session, make_config, open_session
+
+ROOT = Path(__file__).resolve().parents[1]
+WAIT_S = 10.0
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def wait_until(predicate: Callable[[], bool], timeout: float = WAIT_S) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.02)
+    return predicate()
+
+
+def spawn(args: list[str], log: Path) -> subprocess.Popen[bytes]:
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    with log.open("wb") as fh:
+        return subprocess.Popen([sys.executable, "-m", "fedtrack.cli", "serve", *args], cwd=ROOT, env=env,
+                                stdout=fh, stderr=subprocess.STDOUT)
+
+
+def terminate(proc: subprocess.Popen[bytes], timeout: float = 5.0) -> int:
+    """SIGTERM, then SIGKILL after ``timeout``; returns the exit code."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout)
+    return int(proc.returncode)
+
+
+def client(port: int) -> zenoh.Session:
+    return open_session(SessionOptions(connect=(f"tcp/127.0.0.1:{port}",), connect_timeout_s=5.0))
+
+
+def collect(session: zenoh.Session, key: str, msg_type: type) -> tuple[list[Any], Any]:
+    """Subscribe to ``key``; returns the list the decoded messages are appended to, and the subscriber."""
+    received: list[Any] = []
+    sub = session.declare_subscriber(key, lambda s: received.append(decode(s.payload.to_bytes(), msg_type)))
+    return received, sub
+
+
+def alive(session: zenoh.Session, key: str) -> bool:
+    return any(r.ok is not None for r in session.liveliness().get(key, timeout=0.5))
+
+
+def measurement(sensor: str, seq: int, **kw: Any) -> Measurement:
+    return Measurement(sensor=sensor, seq=seq, t=0.1 * seq, kind="position", z=np.array([seq, -1.0]),
+                       R=np.eye(2), **kw)
+
+
+def test_config_always_disables_scouting_and_shared_memory() -> None:
+    cfg = make_config(SessionOptions(mode="router", connect=(), listen=("tcp/127.0.0.1:0",), lease_ms=1000))
+    assert json.loads(cfg.get_json("scouting/multicast/enabled")) is False
+    assert json.loads(cfg.get_json("transport/shared_memory/enabled")) is False
+    assert json.loads(cfg.get_json("listen/endpoints")) == ["tcp/127.0.0.1:0"]
+    assert json.loads(cfg.get_json("transport/link/tx/lease")) == 1000
+    with pytest.raises(ValueError, match="invalid endpoint"):
+        SessionOptions(connect=("127.0.0.1:7447",))
+    with pytest.raises(ValueError, match="client needs"):
+        SessionOptions(connect=())
+
+
+def test_client_without_router_fails_after_its_timeout() -> None:
+    start = time.monotonic()
+    with pytest.raises(SessionError, match="cannot open a zenoh client session"):
+        open_session(SessionOptions(connect=(f"tcp/127.0.0.1:{free_port()}",), connect_timeout_s=0.3))
+    assert time.monotonic() - start < 5.0
+
+
+def test_router_and_recorder_processes(tmp_path: Path) -> None:
+    """A client publishes good and malformed payloads; the recorder writes the good ones in seq
+    order and counts the bad one in its Health; both services exit 0 on SIGTERM."""
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    keys = Keys("t1")
+    out = tmp_path / "rec"
+    router = spawn(["router", "--listen", endpoint, "--deployment", "t1"], tmp_path / "router.log")
+    recorder: subprocess.Popen[bytes] | None = None
+    session: zenoh.Session | None = None
+    try:
+        recorder = spawn(["recorder", "--connect", endpoint, "--deployment", "t1", "--id", "rec",
+                          "--health-period", "0.2", "--out", str(out)], tmp_path / "recorder.log")
+        session = client(port)
+        health, _health_sub = collect(session, keys.health("recorder", "rec"), Health)
+        assert wait_until(lambda: alive(session, keys.alive("recorder", "rec"))), "recorder never became ready"
+        assert alive(session, keys.alive("router", "router"))
+
+        sonar = Measurement(sensor="b", seq=0, t=0.0, kind="sonar", z=np.zeros(0), R=np.eye(2),
+                            detections=tuple(Detection(np.array([i, 2.0 * i]), 1.0 + i) for i in range(200)))
+        assert len(encode(sonar)) > 3072  # large enough for zenoh's shared-memory path (disabled)
+        track = FusedTrack(seq=0, t=0.0, model="cv", x=np.ones(4), P=np.eye(4), maneuver=False, degraded=True,
+                           sensors=("a",), stamp_ns=5, extra={"existence": 0.5})
+        session.put(keys.sensor_meas("a"), encode(measurement("a", 1)))  # seq 1 before seq 0: reordered
+        session.put(keys.sensor_meas("a"), b"\x93not a message")
+        session.put(keys.sensor_meas("b"), encode(sonar))
+        session.put(keys.fusion_track(), encode(track))
+        assert wait_until(lambda: bool(health) and health[-1].counters["received"] == 3
+                          and health[-1].counters["rejected"] == 1), f"health: {health[-1:]}"
+
+        assert terminate(recorder) == 0
+        assert health[-1].status == "stopped"  # the final Health before exiting
+        lines = [json.loads(x) for x in (out / "measurements.jsonl").read_text().splitlines()]
+        assert [line["sensor"] for line in lines] == ["b", "a"]
+        assert lines[0] == json.loads(json.dumps(measurement_to_replay(sonar)))
+        assert lines[1] == {"t": 0.1, "sensor": "a", "z": [1.0, -1.0], "R": [[1.0, 0.0], [0.0, 1.0]]}
+        tracks = [json.loads(x) for x in (out / "tracks.jsonl").read_text().splitlines()]
+        assert tracks == [{"t": 0.0, "x": [1.0] * 4, "P": np.eye(4).tolist(), "model": "cv", "maneuver": False,
+                           "degraded": True, "seq": 0, "sensors": ["a"], "existence": 0.5}]
+        log = (tmp_path / "recorder.log").read_text()
+        assert "rejected a message on fedtrack/t1/sensor/a/meas: payload: not valid msgpack" in log
+        assert "Traceback" not in log
+        assert wait_until(lambda: not alive(session, keys.alive("recorder", "rec")), 3.0)
+    finally:
+        if session is not None:
+            close_session(session)
+        if recorder is not None:
+            terminate(recorder)
+        router_code = terminate(router)
+    assert router_code == 0, (tmp_path / "router.log").read_text()
+
+
+def test_cli_user_errors_are_clean(tmp_path: Path) -> None:
+    bad = subprocess.run([sys.executable, "-m", "fedtrack.cli", "serve", "recorder", "--connect", "localhost:1",
+                          "--out", str(tmp_path)], cwd=ROOT, capture_output=True, text=True, timeout=30)
+    assert bad.returncode == 2 and "--connect: invalid endpoint 'localhost:1'" in bad.stderr
+    nobody = subprocess.run([sys.executable, "-m", "fedtrack.cli", "serve", "recorder", "--connect",
+                             f"tcp/127.0.0.1:{free_port()}", "--connect-timeout", "0.3", "--out", str(tmp_path)],
+                            cwd=ROOT, capture_output=True, text=True, timeout=30)
+    assert nobody.returncode == 1 and "cannot open a zenoh client session" in nobody.stderr
+    assert "Traceback" not in nobody.stderr
+
+
+class Echo(Service):
+    """Test service: answers fusion/state, turns measurements into events, crashes on seq 99."""
+
+    role = "echo"
+    tick_period_s = 0.05
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self.ticks = 0
+        self.stopped = False
+        self.last: Measurement | None = None
+
+    def subscriptions(self) -> list[Subscription]:
+        return [Subscription(self.keys.sensor_meas(), Measurement, self.on_measurement)]
+
+    def queryables(self) -> list[QueryHandler]:
+        return [QueryHandler(self.keys.fusion_state(), self.state)]
+
+    def on_measurement(self, msg: Measurement) -> None:
+        if msg.seq == 99:
+            raise ZeroDivisionError("boom")
+        self.last = msg
+        self.publish(self.keys.fusion_event(), ManeuverEvent(seq=msg.seq, t=msg.t, kind="onset", onset=msg.t,
+                                                             u=msg.z, statistic=1.0))
+
+    def state(self) -> FusedTrack | None:
+        if self.last is None:
+            return None
+        return FusedTrack(seq=self.last.seq, t=self.last.t, model="cv", x=np.zeros(4), P=np.eye(4),
+                          maneuver=False, degraded=False, sensors=(self.last.sensor,), stamp_ns=self.last.stamp_ns)
+
+    def on_tick(self) -> None:
+        self.ticks += 1
+
+    def on_stop(self) -> None:
+        self.stopped = True
+
+
+def run_in_thread(service: Service) -> tuple[threading.Thread, list[int]]:
+    code: list[int] = []
+    thread = threading.Thread(target=lambda: code.append(service.run()), daemon=True)
+    thread.start()
+    return thread, code
+
+
+def query_state(session: zenoh.Session, keys: Keys) -> list[FusedTrack]:
+    return [decode(r.ok.payload.to_bytes(), FusedTrack) for r in session.get(keys.fusion_state(), timeout=2.0)
+            if r.ok is not None]
+
+
+def test_service_handlers_queryable_ticks_and_crash() -> None:
+    port = free_port()
+    keys = Keys("t2")
+    router = open_session(SessionOptions(mode="router", connect=(), listen=(f"tcp/127.0.0.1:{port}",)))
+    session: zenoh.Session | None = None
+    service = Echo(service_id="e1", options=SessionOptions(connect=(f"tcp/127.0.0.1:{port}",)),
+                   deployment="t2", health_period_s=0.1)
+    thread, code = run_in_thread(service)
+    try:
+        session = client(port)
+        events, _sub = collect(session, keys.fusion_event(), ManeuverEvent)
+        assert wait_until(lambda: alive(session, keys.alive("echo", "e1")))
+        assert query_state(session, keys) == []  # handler returned None: no reply
+        session.put(keys.sensor_meas("s1"), encode(measurement("s1", 3, stamp_ns=42)))
+        assert wait_until(lambda: len(events) == 1)
+        assert events[0].seq == 3 and events[0].u.tolist() == [3.0, -1.0]
+        state = query_state(session, keys)
+        assert len(state) == 1 and state[0].seq == 3 and state[0].stamp_ns == 42
+        assert service.counters["published"] == 1 and service.counters["received"] == 1
+        assert wait_until(lambda: service.ticks > 0)
+
+        session.put(keys.sensor_meas("s1"), encode(measurement("s1", 99)))
+        thread.join(WAIT_S)
+        assert code == [1]  # a handler error ends the service non-zero
+        assert service.stopped
+        assert wait_until(lambda: not alive(session, keys.alive("echo", "e1")), 3.0)
+    finally:
+        service.stop()
+        thread.join(WAIT_S)
+        if session is not None:
+            close_session(session)
+        close_session(router)
+
+
+def test_service_stop_is_clean_and_publishes_final_health() -> None:
+    port = free_port()
+    keys = Keys("t3")
+    router = open_session(SessionOptions(mode="router", connect=(), listen=(f"tcp/127.0.0.1:{port}",)))
+    session = client(port)
+    service = Echo(service_id="e2", options=SessionOptions(connect=(f"tcp/127.0.0.1:{port}",)), deployment="t3")
+    health, _sub = collect(session, keys.health("echo", "e2"), Health)
+    thread, code = run_in_thread(service)
+    try:
+        assert wait_until(lambda: alive(session, keys.alive("echo", "e2")))
+        session.put(keys.sensor_meas("s1"), encode(measurement("s1", 1))[:-3])  # truncated payload
+        assert wait_until(lambda: service.counters["rejected"] == 1)
+        service.stop()
+        thread.join(WAIT_S)
+        assert code == [0] and service.stopped
+        assert wait_until(lambda: bool(health) and health[-1].status == "stopped")
+        assert health[-1].counters["rejected"] == 1 and health[-1].counters["received"] == 0
+    finally:
+        service.stop()
+        thread.join(WAIT_S)
+        close_session(session)
+        close_session(router)
