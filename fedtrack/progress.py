@@ -17,14 +17,17 @@ class Progress:
         self.stream = stream if stream is not None else sys.stderr
         self._start = time.monotonic()
         self._last_draw = 0.0
+        self._tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self._last_decile = -1
 
     def __enter__(self) -> "Progress":
         self._draw(force=True)
         return self
 
     def __exit__(self, *exc: object) -> None:
-        self._draw(force=True)
-        self.stream.write("\n")
+        if self._tty:
+            self._draw(force=True)
+            self.stream.write("\n")
         self.stream.flush()
 
     def advance(self, n: int = 1) -> None:
@@ -32,17 +35,25 @@ class Progress:
         self._draw()
 
     def _draw(self, force: bool = False) -> None:
+        """Redraw in place on a terminal; elsewhere (logs, CI) one line per 10 %."""
         now = time.monotonic()
-        if not force and now - self._last_draw < 0.1 and self.done < self.total:
-            return
-        self._last_draw = now
         frac = self.done / self.total
+        if self._tty:
+            if not force and now - self._last_draw < 0.1 and self.done < self.total:
+                return
+        else:
+            decile = int(frac * 10)
+            if decile == self._last_decile:
+                return
+            self._last_decile = decile
+        self._last_draw = now
         width = 30
         filled = int(round(width * frac))
         elapsed = now - self._start
         eta = elapsed / frac - elapsed if frac > 0 else float("nan")
+        prefix, suffix = ("\r", "") if self._tty else ("", "\n")
         self.stream.write(
-            f"\r{self.label} [{'#' * filled}{'.' * (width - filled)}] "
-            f"{self.done}/{self.total} {elapsed:5.1f}s eta {eta:5.1f}s"
+            f"{prefix}{self.label} [{'#' * filled}{'.' * (width - filled)}] "
+            f"{self.done}/{self.total} {elapsed:5.1f}s eta {eta:5.1f}s{suffix}"
         )
         self.stream.flush()

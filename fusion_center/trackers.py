@@ -56,6 +56,7 @@ class FusionConfig:
 
     q: float = 0.25
     init_speed_std: float = 500.0
+    sensors: tuple[str, ...] | None = None
     sharing: tuple[float, ...] | None = None
     x0: tuple[float, ...] | None = None
     P0: tuple[tuple[float, ...], ...] | None = None
@@ -66,6 +67,10 @@ class FusionConfig:
             raise ConfigError("q: process noise must be > 0")
         if not self.init_speed_std > 0:
             raise ConfigError("init_speed_std: must be > 0")
+        if self.sensors is not None and len(set(self.sensors)) != len(self.sensors):
+            raise ConfigError("sensors: sensor ids must be unique")
+        if self.sharing is not None and self.sensors is not None and len(self.sharing) != len(self.sensors):
+            raise ConfigError(f"sharing: {len(self.sharing)} factors for {len(self.sensors)} sensors")
         if self.sharing is not None:
             try:
                 validate_sharing(np.asarray(self.sharing))

@@ -97,3 +97,13 @@ def simulate_positions(truth: np.ndarray, Rs: np.ndarray, rng: np.random.Generat
     L = np.linalg.cholesky(Rs)
     w = np.einsum("nij,rknj->rkni", L, rng.normal(size=(runs, K, n_sensors, 2)))
     return truth[:, :, None, :][..., [0, 3]] + w
+
+
+def measurement_lines(times: np.ndarray, zs: np.ndarray, Rs: np.ndarray,
+                      sensor_ids: list[str]) -> list[dict[str, object]]:
+    """One run's measurements ``zs (K, N, 2)`` as replay input lines, scan by scan."""
+    return [
+        {"t": float(t), "sensor": sid, "z": zs[k, i].tolist(), "R": Rs[i].tolist()}
+        for k, t in enumerate(times)
+        for i, sid in enumerate(sensor_ids)
+    ]

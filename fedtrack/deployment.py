@@ -1,0 +1,54 @@
+"""Deployment configuration: which services run, where they meet, how sensors are paced."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from fedtrack.config import ConfigError
+
+MODES = ("federated", "decentralized")
+PACINGS = ("lockstep", "realtime")
+
+
+@dataclass(frozen=True)
+class SensorConfig:
+    """One ``[[sensor]]`` table: a simulated position sensor."""
+
+    id: str
+    R: tuple[tuple[float, float], tuple[float, float]] = ((100.0, 5.0), (5.0, 100.0))
+
+    def validate(self) -> None:
+        if not self.id or any(c in self.id for c in "/*$?#@ "):
+            raise ConfigError(f"id: {self.id!r} is not a valid sensor id (no '/', '*', '$', '?', '#', '@', spaces)")
+        (a, b), (c, d) = self.R
+        if not all(math.isfinite(v) for v in (a, b, c, d)) or b != c or a <= 0 or a * d - b * c <= 0:
+            raise ConfigError("R: must be a finite symmetric positive-definite 2x2 matrix")
+
+
+@dataclass(frozen=True)
+class DeploymentConfig:
+    """The ``[deployment]`` table."""
+
+    name: str = "demo"
+    mode: str = "federated"
+    scenario: int = 1
+    seed: int = 1
+    pacing: str = "lockstep"
+    speed: float = 1.0
+    deadline_s: float = 2.0
+    router_listen: str = "tcp/127.0.0.1:7447"
+
+    def validate(self) -> None:
+        if self.mode not in MODES:
+            raise ConfigError(f"mode: must be one of {', '.join(MODES)}, got {self.mode!r}")
+        if self.pacing not in PACINGS:
+            raise ConfigError(f"pacing: must be one of {', '.join(PACINGS)}, got {self.pacing!r}")
+        if self.scenario not in (1, 2):
+            raise ConfigError(f"scenario: paper 004 has scenarios 1 and 2, got {self.scenario}")
+        if not self.speed > 0:
+            raise ConfigError("speed: must be > 0")
+        if not self.deadline_s > 0:
+            raise ConfigError("deadline_s: must be > 0")
+        if not self.name or any(c in self.name for c in "/*$?#@ "):
+            raise ConfigError(f"name: {self.name!r} is not a valid deployment name")

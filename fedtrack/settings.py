@@ -1,0 +1,29 @@
+"""The top-level TOML configuration shared by `replay`, `launch` and `demo`.
+
+Every section is optional; unknown sections or keys fail at start naming the key.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from fedtrack.config import load_toml, parse_dataclass
+from fedtrack.deployment import DeploymentConfig, SensorConfig
+from fusion_center.trackers import FusionConfig
+
+
+@dataclass(frozen=True)
+class Settings:
+    """``[fusion]``, ``[deployment]`` and ``[[sensor]]`` tables."""
+
+    fusion: FusionConfig = field(default_factory=FusionConfig)
+    deployment: DeploymentConfig = field(default_factory=DeploymentConfig)
+    sensor: tuple[SensorConfig, ...] = ()
+
+
+def load_settings(path: Path | None) -> Settings:
+    """Parse a config file (or the defaults when ``path`` is None)."""
+    if path is None:
+        return Settings()
+    return parse_dataclass(Settings, load_toml(path))
