@@ -656,8 +656,9 @@ def track_to_replay(track: FusedTrack) -> dict[str, Any]:
 
 def track_from_replay(obj: dict[str, Any], where: str, seq: int = 0) -> FusedTrack:
     """Inverse of :func:`track_to_replay`. ``degraded`` (false), ``seq`` (the argument),
-    ``sensors`` ([]) and ``stamp_ns`` (0) may be absent; other keys become ``extra``."""
-    extra = {k: v for k, v in obj.items() if k not in _TRACK_DEFAULT_KEYS and k != "stamp_ns"}
+    ``sensors`` ([]) and ``stamp_ns`` (0) may be absent; other keys become ``extra``,
+    except null-valued ones (e.g. ``"event": null`` of the fusion replay), which count as absent."""
+    extra = {k: v for k, v in obj.items() if k not in _TRACK_DEFAULT_KEYS and k != "stamp_ns" and v is not None}
     try:
         return FusedTrack(
             seq=obj.get("seq", seq), t=_json_field(obj, "t", where), model=_json_field(obj, "model", where),

@@ -254,6 +254,11 @@ def test_size_bounds() -> None:
     big = FusedTrack(seq=0, t=0.0, model="cv", x=np.zeros(64), P=np.eye(64), maneuver=False, degraded=False,
                      sensors=(), stamp_ns=0, extra={f"k{i}": tuple(range(64)) for i in range(32)})
     assert_same(big, decode(encode(big), FusedTrack))
+    d = 64  # a sonar scan at every bound: 256 detections of the largest z whose R fits the element bound
+    widest = Measurement(sensor="s", seq=0, t=0.0, kind="sonar", z=[], R=np.eye(d),
+                         detections=[(np.ones(d), 1.0)] * wire.MAX_DETECTIONS)
+    assert len(encode(widest)) < 200 * 1024
+    assert_same(widest, decode(encode(widest), Measurement))
 
 
 def test_construction_validates_like_decoding() -> None:
@@ -287,7 +292,7 @@ def test_track_replay_round_trip_puts_extra_at_top_level() -> None:
     assert row["mode_probabilities"] == [0.25, 0.75] and row["seq"] == 9 and row["degraded"] is False
     assert_same(dataclasses.replace(tr, stamp_ns=0), wire.track_from_replay(row, "t.jsonl:1"))
     minimal = wire.track_from_replay({"t": 1.0, "x": [0, 0], "P": [[1, 0], [0, 1]], "model": "cv",
-                                      "maneuver": False}, "t.jsonl:2", seq=5)
+                                      "maneuver": False, "event": None}, "t.jsonl:2", seq=5)
     assert minimal.seq == 5 and minimal.sensors == () and minimal.extra == {} and minimal.degraded is False
 
 

@@ -132,12 +132,15 @@ class Service:
 
     # ------------------------------------------------------------ API for subclasses
     def publish(self, key: str, msg: Message) -> None:
-        """Encode ``msg`` and put it on ``key`` (reliable, blocking congestion control)."""
+        """Encode ``msg`` and put it on ``key`` (reliable, blocking congestion control).
+
+        Call it from the hooks and handlers (the worker thread), not from other threads.
+        """
         self._put(key, msg)
         self.counters["published"] += 1
 
     def count(self, name: str, n: int = 1) -> None:
-        """Add ``n`` to counter ``name`` (reported in Health)."""
+        """Add ``n`` to counter ``name`` (reported in Health, which allows 32 counters in all)."""
         self.counters[name] = self.counters.get(name, 0) + n
 
     def stop(self) -> None:
@@ -240,6 +243,9 @@ class Service:
                 self._dispatch(self._queue.get_nowait())
             except queue.Empty:
                 return
+        left = self._queue.qsize()
+        self.counters["dropped"] += left
+        self.log.warning("stopped with %d queued message(s) unhandled after %.1f s", left, DRAIN_DEADLINE_S)
 
     def _dispatch(self, item: tuple[Any, ...]) -> None:
         kind, index, key, payload = item
