@@ -13,6 +13,7 @@ import argparse
 import json
 import re
 import threading
+import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -104,6 +105,22 @@ def close_session(session: zenoh.Session, deadline_s: float = 2.0) -> bool:
     thread.start()
     thread.join(deadline_s)
     return not thread.is_alive()
+
+
+def alive_keys(session: zenoh.Session, key: str, timeout_s: float = 0.5) -> set[str]:
+    """Keys of the liveliness tokens currently matching ``key`` (e.g. ``Keys.alive()``)."""
+    return {str(r.ok.key_expr) for r in session.liveliness().get(key, timeout=timeout_s) if r.ok is not None}
+
+
+def wait_alive(session: zenoh.Session, keys: list[str], timeout_s: float) -> set[str]:
+    """Wait until a liveliness token exists for every key in ``keys``; returns those still missing."""
+    deadline = time.monotonic() + timeout_s
+    missing = set(keys)
+    while True:
+        missing = {k for k in missing if not alive_keys(session, k, 0.5)}
+        if not missing or time.monotonic() >= deadline:
+            return missing
+        time.sleep(0.05)
 
 
 def _endpoint_arg(value: str) -> str:

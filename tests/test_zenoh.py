@@ -25,7 +25,8 @@ from fedtrack.keys import Keys
 from fedtrack.services.base import QueryHandler, Service, Subscription
 from fedtrack.wire import (Detection, FusedTrack, Health, ManeuverEvent, Measurement, decode, encode,
                            measurement_to_replay)
-from fedtrack.zsession import SessionError, SessionOptions, close_session, make_config, open_session
+from fedtrack.zsession import (SessionError, SessionOptions, alive_keys, close_session, make_config, open_session,
+                               wait_alive)
 
 ROOT = Path(__file__).resolve().parents[1]
 WAIT_S = 10.0
@@ -76,10 +77,6 @@ def collect(session: zenoh.Session, key: str, msg_type: type) -> tuple[list[Any]
     return received, sub
 
 
-def alive(session: zenoh.Session, key: str) -> bool:
-    return any(r.ok is not None for r in session.liveliness().get(key, timeout=0.5))
-
-
 def measurement(sensor: str, seq: int, **kw: Any) -> Measurement:
     return Measurement(sensor=sensor, seq=seq, t=0.1 * seq, kind="position", z=np.array([seq, -1.0]),
                        R=np.eye(2), **kw)
@@ -119,8 +116,8 @@ def test_router_and_recorder_processes(tmp_path: Path) -> None:
                           "--health-period", "0.2", "--out", str(out)], tmp_path / "recorder.log")
         session = client(port)
         health, _health_sub = collect(session, keys.health("recorder", "rec"), Health)
-        assert wait_until(lambda: alive(session, keys.alive("recorder", "rec"))), "recorder never became ready"
-        assert alive(session, keys.alive("router", "router"))
+        assert wait_alive(session, [keys.alive("recorder", "rec"), keys.alive("router", "router")], WAIT_S) == set()
+        assert alive_keys(session, keys.alive()) == {keys.alive("recorder", "rec"), keys.alive("router", "router")}
 
         sonar = Measurement(sensor="b", seq=0, t=0.0, kind="sonar", z=np.zeros(0), R=np.eye(2),
                             detections=tuple(Detection(np.array([i, 2.0 * i]), 1.0 + i) for i in range(200)))
@@ -146,7 +143,7 @@ def test_router_and_recorder_processes(tmp_path: Path) -> None:
         log = (tmp_path / "recorder.log").read_text()
         assert "rejected a message on fedtrack/t1/sensor/a/meas: payload: not valid msgpack" in log
         assert "Traceback" not in log
-        assert wait_until(lambda: not alive(session, keys.alive("recorder", "rec")), 3.0)
+        assert wait_until(lambda: not alive_keys(session, keys.alive("recorder")), 3.0)
     finally:
         if session is not None:
             close_session(session)
@@ -228,7 +225,7 @@ def test_service_handlers_queryable_ticks_and_crash() -> None:
     try:
         session = client(port)
         events, _sub = collect(session, keys.fusion_event(), ManeuverEvent)
-        assert wait_until(lambda: alive(session, keys.alive("echo", "e1")))
+        assert wait_alive(session, [keys.alive("echo", "e1")], WAIT_S) == set()
         assert query_state(session, keys) == []  # handler returned None: no reply
         session.put(keys.sensor_meas("s1"), encode(measurement("s1", 3, stamp_ns=42)))
         assert wait_until(lambda: len(events) == 1)
@@ -241,8 +238,8 @@ def test_service_handlers_queryable_ticks_and_crash() -> None:
         session.put(keys.sensor_meas("s1"), encode(measurement("s1", 99)))
         thread.join(WAIT_S)
         assert code == [1]  # a handler error ends the service non-zero
-        assert service.stopped
-        assert wait_until(lambda: not alive(session, keys.alive("echo", "e1")), 3.0)
+        assert service.stopped and service.status == "failed"
+        assert wait_until(lambda: not alive_keys(session, keys.alive("echo", "e1")), 3.0)
     finally:
         service.stop()
         thread.join(WAIT_S)
@@ -260,7 +257,7 @@ def test_service_stop_is_clean_and_publishes_final_health() -> None:
     health, _sub = collect(session, keys.health("echo", "e2"), Health)
     thread, code = run_in_thread(service)
     try:
-        assert wait_until(lambda: alive(session, keys.alive("echo", "e2")))
+        assert wait_alive(session, [keys.alive("echo", "e2")], WAIT_S) == set()
         session.put(keys.sensor_meas("s1"), encode(measurement("s1", 1))[:-3])  # truncated payload
         assert wait_until(lambda: service.counters["rejected"] == 1)
         service.stop()

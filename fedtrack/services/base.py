@@ -26,7 +26,8 @@ counted in ``counters["rejected"]`` and logged (rate-limited), never fatal.
 Lifecycle of ``run()``: open the session -> declare subscribers and queryables ->
 ``on_start()`` -> declare the liveliness token ``alive/<role>/<id>`` -> loop until
 SIGTERM/SIGINT or ``stop()`` -> undeclare subscribers, process what is already
-queued -> ``on_stop()`` -> final Health (status "stopped") -> close the session
+queued -> ``on_stop()`` -> final Health (status "stopped", or "failed" after an
+error) -> close the session
 within a deadline. Returns 0 on a clean stop, 1 if a handler raised (logged with
 its traceback), 2 for a user error (OSError, ConfigError, InputError) and 1 if the
 session could not be opened.
@@ -315,12 +316,12 @@ class Service:
             self.log.critical("on_stop failed: %s", exc, exc_info=True)
             code = code or 1
         try:
-            self.status = "stopped"
+            self.status = "stopped" if code == 0 else "failed"
             self._put(self.keys.health(self.role, self.id), self._health())
+            for pub in self._publishers.values():
+                pub.undeclare()
         except (zenoh.ZError, WireError) as exc:
             self.log.warning("final health not sent: %s", exc)
-        for pub in self._publishers.values():
-            pub.undeclare()
         self._publishers.clear()
         assert self.session is not None
         if not close_session(self.session, CLOSE_DEADLINE_S):
