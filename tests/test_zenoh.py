@@ -270,3 +270,17 @@ def test_service_stop_is_clean_and_publishes_final_health() -> None:
         thread.join(WAIT_S)
         close_session(session)
         close_session(router)
+
+
+def test_recorder_with_unusable_output_exits_2(tmp_path: Path) -> None:
+    from fedtrack.services.recorder import Recorder
+
+    port = free_port()
+    blocker = tmp_path / "not-a-dir"
+    blocker.write_text("")
+    router = open_session(SessionOptions(mode="router", connect=(), listen=(f"tcp/127.0.0.1:{port}",)))
+    try:
+        recorder = Recorder(out=blocker, service_id="r", options=SessionOptions(connect=(f"tcp/127.0.0.1:{port}",)))
+        assert recorder.run() == 2 and recorder.status == "failed"
+    finally:
+        close_session(router)
