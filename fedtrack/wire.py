@@ -247,11 +247,15 @@ def _detections(value: Any, path: str) -> tuple[Detection, ...]:
     items = _sequence(value, path, MAX_DETECTIONS)
     out = []
     for i, item in enumerate(items):
+        if isinstance(item, Detection):
+            out.append(item)
+            continue
+        if not isinstance(item, (tuple, list)) or len(item) != 2:
+            raise WireError(f"{path}[{i}]", "expected a Detection or a (z, amplitude) pair")
         try:
-            out.append(item if isinstance(item, Detection) else Detection(*item))
-        except (TypeError, WireError) as exc:
-            where = f"{path}[{i}]" + (f".{exc.field}" if isinstance(exc, WireError) else "")
-            raise WireError(where, getattr(exc, "reason", "expected a Detection or (z, amplitude)")) from None
+            out.append(Detection(*item))
+        except WireError as exc:
+            raise WireError(f"{path}[{i}].{exc.field}", exc.reason) from None
     return tuple(out)
 
 

@@ -267,6 +267,8 @@ def test_construction_validates_like_decoding() -> None:
     with pytest.raises(WireError, match=r"^Measurement\.detections\[1\]\.z: contains NaN"):
         Measurement(sensor="s", seq=0, t=0.0, kind="sonar", z=[], R=np.eye(2),
                     detections=[([0.0, 0.0], 1.0), ([np.nan, 0.0], 1.0)])
+    with pytest.raises(WireError, match=r"^Measurement\.detections\[0\]: expected a Detection or a \(z, amplitude\)"):
+        Measurement(sensor="s", seq=0, t=0.0, kind="sonar", z=[], R=np.eye(2), detections=[[0.0, 0.0, 1.0]])
     with pytest.raises(WireError, match=r"^LocalEstimate\.maneuver\.u: expected an array"):
         dataclasses.replace(local_estimate(), maneuver={"detected": True, "onset": 0.0, "u": ["a"], "gamma": [[1]]})
     with pytest.raises(WireError, match=r"^message: not a wire message type"):
