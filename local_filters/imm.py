@@ -29,19 +29,22 @@ probability exceeds ``t_a``, then ``h`` is activated. With the groups (10) this 
 rule (1) (from ``M_1`` to ``M_j`` via ``m_j``) and rule (2) (from ``M_j`` back to ``M_1``
 via ``m_1``).
 
-VSIMM termination (paper 000 eq. (8) and the text above it). The printed statistic
-``t^mu = mu^{M_o} / mu^{M_a}`` with "terminate ``M_a`` when it is small" reads backwards
-(a small ratio favours ``M_a``), and thresholds 0.85/0.93 below one fit a probability,
-not a ratio. Our reading (documented in ``docs/imm.md``):
+VSIMM termination (paper 000 eq. (8) and the text above it). Group probability
+``mu^G = sum_{i in G} mu_k^i`` over the union (shared models count for both groups);
+group likelihood ``L^G = sum_{i in G} mu(k|k-1)^i L^i / sum_{i in G} mu(k|k-1)^i``;
+products of likelihood ratios are kept as log sums from the activation instant ``k0``.
+The printed statistic ``t^mu = mu^{M_o} / mu^{M_a}`` with "terminate ``M_a`` when it is
+small" reads backwards (a small ratio favours ``M_a``), and thresholds 0.85/0.93 below
+one fit a probability, not a ratio. Two rules are implemented (``Thresholds.rule``):
 
-* ``t^mu = sum_{i in M_a} mu_k^i``: the probability of the activated group within the
-  union (shared models count for both groups);
-* ``t^L = prod_{kappa=k0}^{k} L^{M_a}_kappa / L^{M_o}_kappa`` with the group likelihood
-  ``L^G = sum_{i in G} mu(k|k-1)^i L^i / sum_{i in G} mu(k|k-1)^i`` (kept as a log sum);
-* terminate ``M_o`` if ``t^mu > t_2^mu`` and ``t^L > t_2^L``; terminate ``M_a`` if
-  ``t^mu < t_1^mu`` and ``t^L < t_1^L``; otherwise keep running the union.
+* ``group-probability`` (default, our reading): ``t^mu = mu^{M_a}`` and
+  ``t^L = prod L^{M_a} / L^{M_o}``; terminate ``M_o`` if ``t^mu > t_2^mu`` and
+  ``t^L > t_2^L``; terminate ``M_a`` if ``t^mu < t_1^mu`` and ``t^L < t_1^L``.
+* ``as-printed``: ``t^mu = mu^{M_o} / mu^{M_a}`` and ``t^L = prod L^{M_o} / L^{M_a}``;
+  terminate ``M_a`` if ``t^mu < t_1^mu`` and ``t^L < t_1^L``; terminate ``M_o`` if
+  ``t^mu > t_2^mu`` and ``t^L > t_2^L`` (literally the paper's text).
 
-The test also runs at the activation instant ``k0`` itself. While the union runs the
+Otherwise the union keeps running. The test also runs at the activation instant ``k0``. While the union runs the
 activation logic is suspended (paper 000 section 2, third property).
 
 All maths is batched over a leading axis (Monte Carlo runs). The variable-structure
@@ -52,6 +55,7 @@ done is proportional to the number of models actually run.
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
@@ -65,6 +69,9 @@ ALGORITHMS = (FSIMM, VSIMM, AO_VSIMM)
 
 NO_GROUP = -1
 KEEP_UNION, DROP_OLD, DROP_NEW = 0, 1, 2
+GROUP_PROBABILITY = "group-probability"  # our corrected reading of the termination rule
+AS_PRINTED = "as-printed"  # paper 000 eq. (8) and the text above it, literally
+TERMINATION_RULES = (GROUP_PROBABILITY, AS_PRINTED)
 
 
 class ModelBank(NamedTuple):
@@ -98,13 +105,14 @@ def make_bank(names: tuple[str, ...], acc: np.ndarray, Pi: np.ndarray,
 
 
 class Thresholds(NamedTuple):
-    """Activation ``t_a`` and VSIMM termination thresholds, paper 000 eq. (8)."""
+    """Activation ``t_a``, VSIMM termination thresholds (paper 000 eq. (8)) and termination rule."""
 
     t_a: float = 0.4
     mu_low: float = 0.85
     mu_high: float = 0.93
     lr_low: float = 0.9
     lr_high: float = 1.0
+    rule: str = GROUP_PROBABILITY
 
 
 class IMMState(NamedTuple):
@@ -173,8 +181,11 @@ def mix(state: IMMState, Pi: np.ndarray) -> tuple[GaussianState, np.ndarray]:
     w = Pi * state.mu[..., :, None]  # (..., Ms, Md), pi_ji mu_j
     c = w.sum(axis=-2)  # eq. (3)
     reachable = c > 0.0
-    w = np.where(reachable[..., None, :], w / np.where(reachable, c, 1.0)[..., None, :],
-                 state.mu[..., :, None])  # eq. (5) mixing weights mu^{j|i}
+    if reachable.all():
+        w = w / c[..., None, :]  # eq. (5) mixing weights mu^{j|i}
+    else:
+        w = np.where(reachable[..., None, :], w / np.where(reachable, c, 1.0)[..., None, :],
+                     state.mu[..., :, None])
     x0 = np.einsum("...ji,...jn->...in", w, state.x)  # eq. (5)
     d = state.x[..., :, None, :] - x0[..., None, :, :]  # (..., Ms, Md, n)
     P0 = (np.einsum("...ji,...jab->...iab", w, state.P)
@@ -235,22 +246,34 @@ def fsimm_step(state: IMMState, Pi: np.ndarray, u: np.ndarray, model: LinearMode
     return posterior(model_cycle(state, Pi, u, model, z, R))
 
 
-def initial_imm(x0: np.ndarray, P0: np.ndarray, mu0: np.ndarray) -> IMMState:
-    """Every model starts from ``x0 (R, n)``, ``P0 (R, n, n)`` with probabilities ``mu0 (M,)``."""
-    R, M = x0.shape[0], mu0.shape[0]
-    return IMMState(np.repeat(x0[:, None], M, axis=1), np.repeat(P0[:, None], M, axis=1),
-                    np.broadcast_to(mu0, (R, M)).copy())
-
-
 # ------------------------------------------------------------------ variable structure
+
+
+@lru_cache(maxsize=None)
+def _active(groups: tuple[tuple[int, ...], ...], old: int, new: int) -> np.ndarray:
+    members = set(groups[old]) | (set(groups[new]) if new != NO_GROUP else set())
+    out = np.array(sorted(members), dtype=int)
+    out.flags.writeable = False
+    return out
 
 
 def active_models(bank: ModelBank, old: int, new: int) -> np.ndarray:
     """Sorted model indices of group ``old`` (union with group ``new`` when activated)."""
-    members = set(bank.groups[old])
-    if new != NO_GROUP:
-        members |= set(bank.groups[new])
-    return np.array(sorted(members), dtype=int)
+    return _active(bank.groups, old, new)
+
+
+@lru_cache(maxsize=None)
+def _switch(groups: tuple[tuple[int, ...], ...], old: int, target: int,
+            union: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Models to initialize, the final set and its positions in ``[running, fresh]``."""
+    running = _active(groups, old, NO_GROUP)
+    fresh = np.array(sorted(set(groups[target]) - set(running.tolist())), dtype=int)
+    final = _active(groups, target, old if union else NO_GROUP)
+    slot = {int(m): i for i, m in enumerate(np.concatenate([running, fresh]))}
+    order = np.array([slot[int(m)] for m in final], dtype=int)
+    for a in (fresh, order):
+        a.flags.writeable = False
+    return fresh, final, order
 
 
 def initial_vs(bank: ModelBank, group: int, x0: np.ndarray, P0: np.ndarray) -> VSState:
@@ -272,14 +295,20 @@ def group_log_likelihood(c: Cycle, member: np.ndarray) -> np.ndarray:
 
 def termination(c: Cycle, post: IMMState, in_old: np.ndarray, in_new: np.ndarray,
                 log_lr: np.ndarray, th: Thresholds) -> tuple[np.ndarray, np.ndarray]:
-    """VSIMM termination test (paper 000 eq. (8), our reading; see module docstring).
+    """VSIMM termination test (paper 000 eq. (8)); see the module docstring for the two rules.
 
-    Returns the updated ``log t^L`` and the decision ``KEEP_UNION``/``DROP_OLD``/``DROP_NEW``.
+    ``log_lr`` accumulates ``log prod L^{M_a} / L^{M_o}`` since activation. Returns it
+    updated and the decision ``KEEP_UNION``/``DROP_OLD``/``DROP_NEW`` per run.
     """
     log_lr = log_lr + group_log_likelihood(c, in_new) - group_log_likelihood(c, in_old)
-    t_mu = np.sum(np.where(in_new, post.mu, 0.0), axis=-1)
-    drop_old = (t_mu > th.mu_high) & (log_lr > np.log(th.lr_high))
-    drop_new = (t_mu < th.mu_low) & (log_lr < np.log(th.lr_low))
+    p_new = np.sum(np.where(in_new, post.mu, 0.0), axis=-1)
+    if th.rule == AS_PRINTED:  # t^mu = mu^{M_o} / mu^{M_a}, t^L = prod L^{M_o} / L^{M_a}
+        t_mu = np.sum(np.where(in_old, post.mu, 0.0), axis=-1) / p_new
+        drop_new = (t_mu < th.mu_low) & (-log_lr < np.log(th.lr_low))
+        drop_old = (t_mu > th.mu_high) & (-log_lr > np.log(th.lr_high))
+    else:  # t^mu = P(M_a), t^L = prod L^{M_a} / L^{M_o}
+        drop_old = (p_new > th.mu_high) & (log_lr > np.log(th.lr_high))
+        drop_new = (p_new < th.mu_low) & (log_lr < np.log(th.lr_low))
     decision = np.where(drop_old, DROP_OLD, np.where(drop_new, DROP_NEW, KEEP_UNION))
     return log_lr, decision
 
@@ -297,7 +326,7 @@ def activation(bank: ModelBank, idx: np.ndarray, current: np.ndarray, c: Cycle, 
     return np.where(fire, cand, NO_GROUP)
 
 
-def _rows(a: IMMState | Cycle | GaussianState, sel: np.ndarray):  # type: ignore[no-untyped-def]
+def _rows(a: IMMState | Cycle | GaussianState, sel: np.ndarray | slice):  # type: ignore[no-untyped-def]
     """Select runs ``sel`` of a (nested) record of arrays."""
     if isinstance(a, np.ndarray):
         return a[sel]
@@ -310,8 +339,9 @@ class _Writer:
     def __init__(self, bank: ModelBank, s: VSState) -> None:
         R, _, n = s.x.shape
         self.bank = bank
-        self.state = VSState(s.x.copy(), s.P.copy(), np.zeros_like(s.mu), s.old.copy(),
-                             s.new.copy(), s.log_lr.copy())
+        # x, P of models outside the next active set are never read: no need to copy them
+        self.state = VSState(np.empty_like(s.x), np.empty_like(s.P), np.zeros_like(s.mu),
+                             s.old.copy(), s.new.copy(), s.log_lr.copy())
         self.out = StepOutput(GaussianState(np.zeros((R, n)), np.zeros((R, n, n))),
                               np.zeros((R, 2)), np.zeros_like(s.mu), s.old.copy(), s.new.copy(),
                               np.zeros(R, dtype=int))
@@ -364,13 +394,8 @@ def _activate(bank: ModelBank, algorithm: str, w: _Writer, rows: np.ndarray, idx
     and applies the termination test at once. Runs are batched by the sizes of ``M_n``
     and of the final set.
     """
-    pairs = {}
-    for o, g in set(zip(old.tolist(), target.tolist())):
-        running = active_models(bank, o, NO_GROUP)
-        fresh = np.array(sorted(set(bank.groups[g]) - set(running.tolist())), dtype=int)
-        final = active_models(bank, g, NO_GROUP if algorithm == AO_VSIMM else o)
-        slot = {int(m): i for i, m in enumerate(np.concatenate([running, fresh]))}
-        pairs[(o, g)] = (fresh, final, np.array([slot[int(m)] for m in final], dtype=int))
+    pairs = {(o, g): _switch(bank.groups, o, g, algorithm == VSIMM)
+             for o, g in set(zip(old.tolist(), target.tolist()))}
     batches: dict[tuple[int, int], list[int]] = {}
     for r, key in enumerate(zip(old.tolist(), target.tolist())):
         batches.setdefault((pairs[key][0].size, pairs[key][1].size), []).append(r)
@@ -417,7 +442,7 @@ def vs_step(bank: ModelBank, algorithm: str, s: VSState, model: LinearModel, z: 
     for i, a in enumerate(sets):
         by_size.setdefault(a.size, []).append(i)
     for size, which in by_size.items():
-        rows = np.flatnonzero(np.isin(first, which))
+        rows = np.arange(first.size) if len(by_size) == 1 else np.flatnonzero(np.isin(first, which))
         table = np.zeros((codes.size, size), dtype=int)
         table[which] = [sets[i] for i in which]
         idx = table[first[rows]]  # (b, M) running models per run
@@ -428,25 +453,59 @@ def vs_step(bank: ModelBank, algorithm: str, s: VSState, model: LinearModel, z: 
         old, new = s.old[rows], s.new[rows]
         w.output(rows, idx, post, old, new, size)
         union = new != NO_GROUP
+        if union.all():
+            _terminate(w, rows, idx, c, post, old, new, s.log_lr[rows], th)
+            continue
+        single: np.ndarray | slice = slice(None)
         if union.any():
             _terminate(w, rows[union], idx[union], _rows(c, union), _rows(post, union),
                        old[union], new[union], s.log_lr[rows[union]], th)
-        single = np.flatnonzero(~union)
-        target = activation(bank, idx[single], old[single], _rows(c, single), _rows(post, single),
-                            th.t_a)
-        stay = single[target == NO_GROUP]
-        w.keep(rows[stay], idx[stay], _rows(post, stay), np.ones(idx[stay].shape, dtype=bool),
-               old[stay], new[stay])
-        fire = single[target != NO_GROUP]
+            single = np.flatnonzero(~union)
+            rows, idx, old, new, prev = rows[single], idx[single], old[single], new[single], _rows(prev, single)
+            c, post, Rr = _rows(c, single), _rows(post, single), Rr[single] if R.ndim > 2 else R
+        target = activation(bank, idx, old, c, post, th.t_a)
+        stay = target == NO_GROUP
+        sel = slice(None) if stay.all() else stay
+        w.keep(rows[sel], idx[sel], _rows(post, sel), np.ones(idx[sel].shape, dtype=bool),
+               old[sel], new[sel])
+        fire = np.flatnonzero(~stay)
         if fire.size:
             _activate(bank, algorithm, w, rows[fire], idx[fire], _rows(prev, fire), _rows(c, fire),
-                      old[fire], target[target != NO_GROUP], Pi, u, model, z[rows[fire]],
+                      old[fire], target[fire], Pi, u, model, z[rows[fire]],
                       Rr[fire] if R.ndim > 2 else R, th)
     return w.state, w.out
 
 
+def initial_state(bank: ModelBank, algorithm: str, group: int, x0: np.ndarray,
+                  P0: np.ndarray) -> VSState:
+    """Every model starts at ``x0 (R, n)``, ``P0 (R, n, n)``; uniform mode probabilities over
+    all models (FSIMM) or over ``group`` (VSIMM, activation-only VSIMM)."""
+    if algorithm == FSIMM:
+        R = x0.shape[0]
+        mu = np.full((R, bank.size), 1.0 / bank.size)
+        return VSState(np.repeat(x0[:, None], bank.size, axis=1),
+                       np.repeat(P0[:, None], bank.size, axis=1), mu,
+                       np.full(R, NO_GROUP), np.full(R, NO_GROUP), np.zeros(R))
+    return initial_vs(bank, group, x0, P0)
+
+
+def step(bank: ModelBank, algorithm: str, s: VSState, model: LinearModel, z: np.ndarray,
+         R: np.ndarray, th: Thresholds, Pi: np.ndarray | None = None) -> tuple[VSState, StepOutput]:
+    """One step of any of the three estimators, with the same per-run outputs."""
+    if algorithm != FSIMM:
+        return vs_step(bank, algorithm, s, model, z, R, th, Pi)
+    Pi = bank.Pi if Pi is None else Pi
+    post = fsimm_step(IMMState(s.x, s.P, s.mu), Pi, mode_inputs(model, bank.acc), model, z, R)
+    nxt = VSState(post.x, post.P, post.mu, s.old, s.new, s.log_lr)
+    out = StepOutput(combine(post), post.mu @ bank.acc, post.mu, s.old, s.new,
+                     np.full(s.old.shape, bank.size))
+    return nxt, out
+
+
 def group_label(bank: ModelBank, old: int, new: int) -> str:
-    """``"M2"`` for a single group, ``"M2+M1"`` for a VSIMM union (old first)."""
+    """``"all"`` (FSIMM), ``"M2"`` for a single group, ``"M2+M1"`` for a VSIMM union (old first)."""
+    if old == NO_GROUP:
+        return "all"
     if new == NO_GROUP:
         return bank.group_names[old]
     return f"{bank.group_names[old]}+{bank.group_names[new]}"

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from fedtrack.config import ConfigError, load_toml, parse_dataclass
-from local_filters.imm import ModelBank, Thresholds, make_bank
+from local_filters.imm import TERMINATION_RULES, GROUP_PROBABILITY, ModelBank, Thresholds, make_bank
 
 
 @dataclass(frozen=True)
@@ -78,6 +78,7 @@ class IMMConfig:
     activation_threshold: float = 0.4  # t_a, eq. (8)
     termination_probability: tuple[float, float] = (0.85, 0.93)  # t_1^mu, t_2^mu, eq. (8)
     termination_likelihood_ratio: tuple[float, float] = (0.9, 1.0)  # t_1^L, t_2^L, eq. (8)
+    termination_rule: str = GROUP_PROBABILITY  # or "as-printed" (see local_filters.imm)
     initial_group: str = ""  # empty: the first group
     x0: tuple[float, float, float, float] | None = None  # [x, vx, y, vy]; None: from first z
     P0: tuple[tuple[float, ...], ...] | None = None
@@ -129,6 +130,8 @@ class IMMConfig:
         lo, hi = self.termination_likelihood_ratio
         if not 0.0 < lo <= hi:
             raise ConfigError("termination_likelihood_ratio: need 0 < t1 <= t2")
+        if self.termination_rule not in TERMINATION_RULES:
+            raise ConfigError(f"termination_rule: expected one of {', '.join(TERMINATION_RULES)}")
         if not (np.isfinite(self.q) and self.q > 0):
             raise ConfigError("q: must be a positive number")
         if self.initial_position_std <= 0 or self.initial_velocity_std <= 0:
@@ -149,7 +152,7 @@ class IMMConfig:
 
     def thresholds(self) -> Thresholds:
         return Thresholds(self.activation_threshold, *self.termination_probability,
-                          *self.termination_likelihood_ratio)
+                          *self.termination_likelihood_ratio, self.termination_rule)
 
     def initial_group_index(self) -> int:
         return [g.name for g in self.groups].index(self.initial_group) if self.initial_group else 0
