@@ -63,12 +63,15 @@ class VdieParams:
     p: int = 2
     detect_sigma: float = 3.0
     cv_sigma: float = 0.5
+    min_samples: int = 2
 
     def validate(self) -> None:
         if self.window < 1:
             raise ConfigError("window: must be >= 1")
         if self.p < 1:
             raise ConfigError("p: must be >= 1")
+        if not 1 <= self.min_samples <= self.window:
+            raise ConfigError("min_samples: must be between 1 and window")
         if not self.detect_sigma > 0:
             raise ConfigError("detect_sigma: must be > 0")
         if not self.cv_sigma > 0:
@@ -145,6 +148,7 @@ class BestCandidate(NamedTuple):
     gamma: np.ndarray  # (..., 2, 2)
     T_omega: np.ndarray  # (..., n, n)
     onset: np.ndarray  # (...,)
+    count: np.ndarray  # (...,) scans the estimate rests on
 
 
 def bank_best(bank: CandidateBank) -> BestCandidate:
@@ -163,7 +167,13 @@ def bank_best(bank: CandidateBank) -> BestCandidate:
 
     info = pick(safe_info)
     gamma = symmetrize(np.linalg.solve(info, np.broadcast_to(np.eye(2), info.shape)))
-    return BestCandidate(pick(stat), pick(u_all), gamma, pick(bank.T_omega), pick(bank.onset))
+    return BestCandidate(pick(stat), pick(u_all), gamma, pick(bank.T_omega), pick(bank.onset), pick(bank.count))
+
+
+def detected(best: BestCandidate, params: "VdieParams") -> np.ndarray:
+    """(68): ``u' Gamma^-1 u > h`` at the most likely onset, once that estimate rests on
+    at least ``min_samples`` scans (a one-scan estimate is too noisy to compensate with)."""
+    return (best.statistic > params.h_detect) & (best.count >= params.min_samples)
 
 
 def bank_push(bank: CandidateBank, onset: float, pulse: bool, clear: np.ndarray) -> CandidateBank:
@@ -261,7 +271,7 @@ def vdie_step(state: VdieState, t: float, cv: LinearModel, ca: LinearModel, para
     # --- CV branch: step-input estimation over the candidate onsets (57)-(67)
     bank_cv = bank_accumulate(state.bank_cv, cv.F, cv.B, False, prior_cv, post_cv)
     best_cv = bank_best(bank_cv)
-    onset_det = best_cv.statistic > params.h_detect  # (68)
+    onset_det = detected(best_cv, params)
     # (69)-(71): x_s = [x + T B u; u], P_s with the T B Gamma cross terms (CA order)
     TB = best_cv.T_omega @ cv.B
     x_sw = np.zeros(batch + (6,))
@@ -286,7 +296,7 @@ def vdie_step(state: VdieState, t: float, cv: LinearModel, ca: LinearModel, para
     end_det = (ca_steps >= params.p) & (acc_stats.sum(axis=-1) < params.h_cv)
     bank_ca = bank_accumulate(state.bank_ca, ca.F, ca.B, True, prior_ca, post_ca)
     best_ca = bank_best(bank_ca)
-    pulse_det = ~end_det & (best_ca.statistic > params.h_detect)
+    pulse_det = ~end_det & detected(best_ca, params)
     TB6 = best_ca.T_omega @ ca.B
     x_pulse = post_ca.x + mat_vec(TB6, best_ca.u)  # (82)
     P_pulse = symmetrize(post_ca.P + TB6 @ best_ca.gamma @ transpose(TB6))  # (83)
