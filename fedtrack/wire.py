@@ -261,14 +261,18 @@ def _detections(value: Any, path: str) -> tuple[Detection, ...]:
 
 @dataclass(frozen=True, eq=False)
 class ManeuverInfo(_Record):
-    """A local filter's maneuver detection: input estimate ``u`` (k,) with covariance ``gamma`` (k, k)."""
+    """A local filter's maneuver decision at this scan: ``event`` (onset / new-ca / end),
+    whether it is a detection (onset, new-ca), the estimated onset time and input ``u`` (k,)
+    with covariance ``gamma`` (k, k)."""
 
+    event: str
     detected: bool
     onset: float
     u: np.ndarray
     gamma: np.ndarray
 
-    _fields = {"detected": _flag, "onset": _real, "u": _vector, "gamma": _covariance}
+    _fields = {"event": _choice(*EVENT_KINDS), "detected": _flag, "onset": _real, "u": _vector,
+               "gamma": _covariance}
     _arrays = ("u", "gamma")
     _top_level = False
 
@@ -341,8 +345,10 @@ class Measurement(_Record):
 class LocalEstimate(_Record):
     """A local filter's posterior ``(x, P)`` and prior ``(x_prior, P_prior)`` for scan ``seq``.
 
-    ``stamp_ns`` is the stamp of the measurement it processed; ``degraded`` lists
-    flags such as ``"no-measurement"`` (empty when healthy).
+    ``model`` names the posterior's model; the prior is in the model the filter updated
+    with, which differs from ``model`` (and so may differ in dimension) in a scan where
+    a variable-dimension filter switched. ``stamp_ns`` is the stamp of the measurement it
+    processed; ``degraded`` lists flags such as ``"init"`` (no prior: a first estimate).
     """
 
     sensor: str
@@ -368,17 +374,19 @@ class LocalEstimate(_Record):
         if n == 0:
             raise WireError("x", "must not be empty")
         _check_square(self.P, n, "P", "x")
-        if self.x_prior.shape != (n,):
-            raise WireError("x_prior", f"expected shape ({n},) to match x, got {self.x_prior.shape}")
-        _check_square(self.P_prior, n, "P_prior", "x")
+        if self.x_prior.shape[0] == 0:
+            raise WireError("x_prior", "must not be empty")
+        _check_square(self.P_prior, self.x_prior.shape[0], "P_prior", "x_prior")
 
 
 @dataclass(frozen=True, eq=False)
 class Reset(_Record):
     """The fusion center's reset of local filter ``sensor`` for scan ``seq``.
 
-    ``P`` is already scaled by the sensor's sharing factor ``beta`` in (0, 1], so the
-    local filter adopts ``(x, P)`` as is; ``beta`` is carried for bookkeeping.
+    ``P`` is already scaled by the sensor's sharing factor (paper 004's ``beta_i >= 1``:
+    ``P_i = beta_i P``, eq. (20)), so the local filter adopts ``(x, P)`` as is and uses
+    ``Q_i = beta_i Q`` (eq. (22)). The ``beta`` field carries the information share
+    ``1 / beta_i`` in (0, 1] (Carlson's convention).
     """
 
     sensor: str

@@ -40,7 +40,7 @@ def sonar(n_det: int = 3) -> Measurement:
 
 
 def local_estimate(maneuver: bool = True) -> LocalEstimate:
-    info = ManeuverInfo(detected=True, onset=0.3, u=RNG.normal(size=2), gamma=spd(2)) if maneuver else None
+    info = ManeuverInfo(event="onset", detected=True, onset=0.3, u=RNG.normal(size=2), gamma=spd(2)) if maneuver else None
     return LocalEstimate(sensor="s1", seq=7, t=0.7, model="ca", x=RNG.normal(size=6), P=spd(6),
                          x_prior=RNG.normal(size=6), P_prior=spd(6), stamp_ns=20, maneuver=info,
                          degraded=("late",))
@@ -176,12 +176,12 @@ def expect(payload: bytes, msg_type: type, field: str, reason: str) -> None:
     (position, {"z": {"dtype": "float64", "shape": [2], "data": b"\x00" * 8}}, "Measurement.z.data", "16 bytes"),
     (position, {"z": {"dtype": "float64", "shape": [1, 1, 2], "data": b"\x00" * 16}}, "Measurement.z.shape", ""),
     (position, {"z": {"dtype": "float64", "shape": [-2], "data": b""}}, "Measurement.z.shape", ""),
-    (local_estimate, {"x_prior": arr(np.zeros(4))}, "LocalEstimate.x_prior", "match x"),
+    (local_estimate, {"x_prior": arr(np.zeros(4))}, "LocalEstimate.P_prior", "match x_prior"),
     (local_estimate, {"P_prior": arr(np.eye(4))}, "LocalEstimate.P_prior", "match x"),
     (fused, {"P": arr(np.eye(6))}, "FusedTrack.P", "match x"),
-    (local_estimate, {"maneuver": {"detected": True, "onset": 0.1, "u": arr([1.0, 2.0]), "gamma": arr(np.eye(3))}},
+    (local_estimate, {"maneuver": {"event": "onset", "detected": True, "onset": 0.1, "u": arr([1.0, 2.0]), "gamma": arr(np.eye(3))}},
      "LocalEstimate.maneuver.gamma", "match u"),
-    (local_estimate, {"maneuver": {"detected": 1, "onset": 0.1, "u": arr([1.0]), "gamma": arr(np.eye(1))}},
+    (local_estimate, {"maneuver": {"event": "onset", "detected": 1, "onset": 0.1, "u": arr([1.0]), "gamma": arr(np.eye(1))}},
      "LocalEstimate.maneuver.detected", "true or false"),
     (position, {"sensor": None}, "Measurement.sensor", "string"),
     (position, {"sensor": "a/b"}, "Measurement.sensor", "forbidden"),
@@ -270,7 +270,7 @@ def test_construction_validates_like_decoding() -> None:
     with pytest.raises(WireError, match=r"^Measurement\.detections\[0\]: expected a Detection or a \(z, amplitude\)"):
         Measurement(sensor="s", seq=0, t=0.0, kind="sonar", z=[], R=np.eye(2), detections=[[0.0, 0.0, 1.0]])
     with pytest.raises(WireError, match=r"^LocalEstimate\.maneuver\.u: expected an array"):
-        dataclasses.replace(local_estimate(), maneuver={"detected": True, "onset": 0.0, "u": ["a"], "gamma": [[1]]})
+        dataclasses.replace(local_estimate(), maneuver={"event": "onset", "detected": True, "onset": 0.0, "u": ["a"], "gamma": [[1]]})
     with pytest.raises(WireError, match=r"^message: not a wire message type"):
         encode({"schema": 1})  # type: ignore[arg-type]
 
