@@ -353,6 +353,7 @@ class _Writer:
         o = self.out
         o.est.x[rows], o.est.P[rows] = est.x, est.P
         o.acc[rows] = np.einsum("bi,bia->ba", post.mu, self.bank.acc[idx])
+        o.mu[rows] = 0.0  # an activation re-writes the step's output over a different set
         o.mu[rows[:, None], idx] = post.mu
         o.old[rows], o.new[rows], o.models_run[rows] = old, new, run
 
