@@ -156,17 +156,17 @@ def _plot(result: dict[str, Any], plots_dir: Path) -> list[Path]:
         fig.savefig(path, dpi=110)
         plt.close(fig)
         paths.append(path)
-        fig, ax = plt.subplots(figsize=(8, 3.5))
-        for i, (key, labels) in enumerate(res["active_groups_run0"].items()):
-            names = sorted(set(labels.values()), key=lambda s: (len(s), s))
+        runs0 = res["active_groups_run0"]
+        names = sorted({v for labels in runs0.values() for v in labels.values()}, key=lambda s: (len(s), s))
+        fig, ax = plt.subplots(figsize=(8, 0.8 + 0.3 * len(names)))
+        for i, (key, labels) in enumerate(runs0.items()):
             ks = [int(k) for k in labels]
-            ax.step(ks, [names.index(v) + 0.08 * i for v in labels.values()], where="post", label=key)
-            for j, n in enumerate(names):
-                ax.annotate(n, (0, j), fontsize=6, xytext=(-30, 0), textcoords="offset points")
-        ax.set_title(f"{scen}: active group(s) of run 0 (labels per filter; offset for legibility)")
+            ax.step(ks, [names.index(v) + 0.1 * (i - 1) for v in labels.values()], where="post", label=key)
+        ax.set_yticks(range(len(names)), names, fontsize=7)
+        ax.set_title(f"{scen}: active group(s) of run 0 (union = old+activated; lines offset)")
         ax.set_xlabel("k (s)")
-        ax.set_yticks([])
-        ax.legend(fontsize=8)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="upper right")
         fig.tight_layout()
         path = plots_dir / f"vsimm_{scen}_active_groups_run0.png"
         fig.savefig(path, dpi=110)
