@@ -239,6 +239,16 @@ def amplitude_ranks(amplitude: np.ndarray, inside: np.ndarray) -> np.ndarray:
     return np.argsort(np.argsort(key, axis=-1, kind="stable"), axis=-1, kind="stable") + 1
 
 
+def _at_least_one(g: Gated, amplitude: np.ndarray) -> tuple[Gated, np.ndarray]:
+    """Pad a scan without detections with one detection outside the gate (for argmax)."""
+    if g.nu.shape[-2] > 0:
+        return g, amplitude
+    shape = g.nu.shape[:-2] + (1,)
+    return (g._replace(nu=np.zeros(shape + g.nu.shape[-1:]), d2=np.full(shape, np.inf),
+                       inside=np.zeros(shape, dtype=bool), log_n=np.full(shape, -np.inf)),
+            np.ones(shape))
+
+
 def hpda_hypothesise(g: Gated, amplitude: np.ndarray, c: Constants) -> HPDAHypothesis:
     """HPDA hypothesiser: eqs (10)-(14) as corrected by the errata, then alpha and eq (16).
 
@@ -248,6 +258,7 @@ def hpda_hypothesise(g: Gated, amplitude: np.ndarray, c: Constants) -> HPDAHypot
                + (m - l) P_G P_D (1 - exp(-u / (1 + rho))) / (1 - exp(-u)) / V_G)``,
     the three clutter terms being those of the corrected eq (13).
     """
+    g, amplitude = _at_least_one(g, amplitude)
     inside = g.inside
     m = np.sum(inside, axis=-1)
     rank = amplitude_ranks(amplitude, inside)
@@ -292,6 +303,7 @@ def hpda_update(pred: GaussianState, g: Gated, hyp: HPDAHypothesis) -> GaussianS
     With no gated detection ``beta* = 0`` and ``alpha = (1 - P_D P_G C_g) / (1 - P_D P_G)``,
     which is the M_0 covariance ``P_bar + m_f KSK'``.
     """
+    g, _ = _at_least_one(g, np.zeros(g.nu.shape[:-1]))
     nu = np.take_along_axis(g.nu, hyp.index[..., None, None], axis=-2)[..., 0, :]
     Knu = mat_vec(g.K, nu)
     KSK = g.K @ g.S @ transpose(g.K)

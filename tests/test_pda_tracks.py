@@ -1,0 +1,108 @@
+"""Track manager (initiation / confirmation / deletion) and ``fedtrack replay`` for pda-ai / hpda."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fedtrack.config import ConfigError
+from fedtrack.jsonl import InputError
+from local_filters.pda import PDAParams
+from local_filters.pda_replay import replay_pda
+from local_filters.pda_tracks import ExistenceConfig, initial_manager, manager_step, tracker_spec
+
+R = 225.0 * np.eye(2)
+
+
+@pytest.mark.parametrize("algorithm", ["pda-ai", "hpda"])
+def test_clean_target_is_confirmed_after_three_updates_then_deleted(algorithm: str):
+    spec = tracker_spec(algorithm, PDAParams(pd=0.9, clutter_density=1e-5), ExistenceConfig())
+    rng = np.random.default_rng(0)
+    ms = initial_manager()
+    statuses = []
+    for k in range(12):
+        pos = np.array([1000.0 + 100.0 * k, 2000.0])
+        visible = k < 8
+        z = (pos + rng.normal(size=2) * 15.0)[None, :] if visible else np.zeros((0, 2))
+        amp = np.full(len(z), spec.c.tau + 40.0)
+        ms, rep = manager_step(spec, ms, 25.0 * k, z, amp, R)
+        statuses.append((len(rep.tracks), int(rep.tracks.confirmed.sum()), len(rep.deleted)))
+    # born at scan 1 from the pair (0, 1); updated at 2, 3, 4
+    assert statuses[1] == (1, 0, 0)
+    first_confirmed = next(k for k, s in enumerate(statuses) if s[1] == 1)
+    assert first_confirmed <= 4
+    # tentative duplicates of the target are pruned once confirmed: one confirmed track
+    assert all(s[1] == 1 for s in statuses[first_confirmed:8])
+    # without detections the existence decays below the deletion threshold
+    assert statuses[-1][0] == 0
+    assert sum(s[2] for s in statuses[8:]) >= 1
+
+
+def test_no_track_from_detections_too_far_apart():
+    spec = tracker_spec("hpda", PDAParams(), ExistenceConfig(max_speed=10.0))
+    ms = initial_manager()
+    ms, _ = manager_step(spec, ms, 0.0, np.array([[0.0, 0.0]]), np.array([30.0]), R)
+    ms, rep = manager_step(spec, ms, 25.0, np.array([[251.0, 0.0]]), np.array([30.0]), R)
+    assert len(rep.tracks) == 0
+    ms, rep = manager_step(spec, ms, 50.0, np.array([[490.0, 0.0]]), np.array([30.0]), R)
+    assert len(rep.tracks) == 1
+
+
+def write_scans(path: Path, scans: list[dict]) -> Path:
+    path.write_text("".join(json.dumps(s) + "\n" for s in scans))
+    return path
+
+
+def good_scan(t: float, x: float) -> dict:
+    return {"t": t, "sensor": "s1", "detections": [{"z": [x, 0.0], "amplitude": 40.0}],
+            "R": [[225.0, 0.0], [0.0, 225.0]]}
+
+
+@pytest.mark.parametrize("algorithm", ["pda-ai", "hpda"])
+def test_replay_outputs_statuses(tmp_path: Path, algorithm: str):
+    scans = [good_scan(25.0 * k, 100.0 * k) for k in range(6)] + [
+        {**good_scan(25.0 * k, 0.0), "detections": []} for k in range(6, 10)]
+    meas = write_scans(tmp_path / "in.jsonl", scans)
+    out = tmp_path / "out.jsonl"
+    n = replay_pda(algorithm, meas, None, out)
+    rows = [json.loads(line) for line in out.read_text().splitlines()]
+    assert n == len(rows) > 0
+    assert {r["status"] for r in rows} == {"tentative", "confirmed", "deleted"}
+    for r in rows:
+        assert len(r["x"]) == 6 and np.array(r["P"]).shape == (6, 6) and 0 <= r["existence"] <= 1
+    conf = [r for r in rows if r["status"] == "confirmed"]
+    assert abs(conf[-1]["x"][1] - 4.0) < 1.0  # 100 m per 25 s along x
+
+
+@pytest.mark.parametrize("bad, message", [
+    ({"t": float("nan")}, ":2: t must be a finite number"),
+    ({"detections": [{"z": [1.0], "amplitude": 3.0}]}, ":2: detections[0].z must be length 2"),
+    ({"detections": [{"z": [1.0, 2.0], "amplitude": 0.0}]}, ":2: detections[0].amplitude must be positive"),
+    ({"detections": [{"z": [1.0, 2.0]}]}, "missing field 'amplitude'"),
+    ({"R": [[1.0, 0.5], [0.0, 1.0]]}, ":2: R is not symmetric"),
+    ({"R": [[1.0, 2.0], [2.0, 1.0]]}, ":2: R is not positive definite"),
+    ({"t": -5.0}, ":2: t = -5.0 is earlier than the previous scan"),
+    ({"sensor": 3}, ":2: sensor must be a non-empty string"),
+])
+def test_replay_rejects_bad_input_naming_the_line(tmp_path: Path, bad: dict, message: str):
+    meas = tmp_path / "in.jsonl"
+    meas.write_text(json.dumps(good_scan(0.0, 0.0)) + "\n"
+                    + json.dumps({**good_scan(25.0, 100.0), **bad}).replace("NaN", "NaN") + "\n")
+    with pytest.raises(InputError) as exc:
+        replay_pda("hpda", meas, None, tmp_path / "out.jsonl")
+    assert message in str(exc.value) and str(meas) in str(exc.value)
+
+
+@pytest.mark.parametrize("text, key", [
+    ("[tracker]\npd = 0.9\nbogus = 1\n", "tracker.bogus"),
+    ("[existence]\nconfirm_scans = 0\n", "existence.confirm_scans"),
+    ("[tracker]\npd = 1.5\n", "tracker.pd"),
+    ("unknown = 1\n", "unknown"),
+])
+def test_replay_config_is_strict(tmp_path: Path, text: str, key: str):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(text)
+    meas = write_scans(tmp_path / "in.jsonl", [good_scan(0.0, 0.0)])
+    with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
+        replay_pda("pda-ai", meas, cfg, tmp_path / "out.jsonl")
