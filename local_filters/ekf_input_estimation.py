@@ -114,6 +114,25 @@ def _push(buf: np.ndarray, new: np.ndarray, axis: int) -> np.ndarray:
     return np.concatenate([np.delete(buf, 0, axis=axis), np.expand_dims(new, axis)], axis=axis)
 
 
+def window_covariance(Ho: np.ndarray, Sig: np.ndarray, F: np.ndarray, Rs: np.ndarray) -> np.ndarray:
+    """Full stacked covariance ``D1`` (N, 3W, 3W) of the window residuals (eq. (29), errata).
+
+    Block ``(i, j) = H_i Sigma_i (F^(j-i))' H_j' + delta_ij R_i`` for ``j >= i`` (the transpose
+    below the diagonal); ``Ho`` (N, W, 3, n), ``Sig`` (N, W, n, n), ``Rs`` (N, W, 3, 3).
+    """
+    N, W = Ho.shape[:2]
+    Fp = np.stack([np.linalg.matrix_power(F, d) for d in range(W)])
+    i, j = np.meshgrid(np.arange(W), np.arange(W), indexing="ij")
+    d = np.abs(j - i)
+    A = Ho @ Sig  # H_i Sigma_i
+    HF = np.einsum("nijab,ijbc->nijac", Ho[:, j], Fp[d])  # H_j F^|j-i|, (N, W, W, 3, n)
+    upper = np.einsum("nijab,nijcb->nijac", A[:, i], HF)  # block (i, j) for j >= i
+    blocks = np.where((j >= i)[None, :, :, None, None], upper,
+                      np.swapaxes(np.swapaxes(upper, 1, 2), -1, -2))
+    blocks[:, np.arange(W), np.arange(W)] += Rs
+    return symmetrize(blocks.transpose(0, 1, 3, 2, 4).reshape(N, 3 * W, 3 * W))
+
+
 def estimate_input(model: MotionModel3D, x0: np.ndarray, P0: np.ndarray, zs: np.ndarray,
                    Rs: np.ndarray, Ks: np.ndarray, Hs: np.ndarray, u_applied: np.ndarray,
                    sensor_position: np.ndarray) -> InputEstimate:
@@ -139,16 +158,7 @@ def estimate_input(model: MotionModel3D, x0: np.ndarray, P0: np.ndarray, zs: np.
     Ho = radar_jacobian(xo, model, sensor_position)  # (N, W, 3, n)
     Y1 = radar_residual(xo, zs, model, sensor_position).reshape(N, 3 * W)  # eq. (28)
     S1 = (Ho @ np.stack(senss)).reshape(N, 3 * W, 3)  # eq. (28)
-    Fp = np.stack([np.linalg.matrix_power(F, d) for d in range(W)])
-    i, j = np.meshgrid(np.arange(W), np.arange(W), indexing="ij")
-    d = np.abs(j - i)
-    A = Ho @ Sg  # H_i Sigma_i
-    HF = np.einsum("nijab,ijbc->nijac", Ho[:, j], Fp[d])  # H_j F^|j-i|, (N, W, W, 3, n)
-    upper = np.einsum("nijab,nijcb->nijac", A[:, i], HF)  # block (i, j) for j >= i
-    blocks = np.where((j >= i)[None, :, :, None, None], upper,
-                      np.swapaxes(np.swapaxes(upper, 1, 2), -1, -2))
-    blocks[:, np.arange(W), np.arange(W)] += Rs
-    D1 = symmetrize(blocks.transpose(0, 1, 3, 2, 4).reshape(N, 3 * W, 3 * W))  # eq. (29)
+    D1 = window_covariance(Ho, Sg, F, Rs)  # eq. (29)
     DinvS = np.linalg.solve(D1, S1)
     info = symmetrize(transpose(S1) @ DinvS)
     u = np.linalg.solve(info, np.einsum("nka,nk->na", DinvS, Y1)[..., None])[..., 0]  # eq. (27)

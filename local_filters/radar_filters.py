@@ -21,7 +21,7 @@ from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
-from fedtrack.config import ConfigError
+from fedtrack.config import ConfigError, parse_dataclass
 from fedtrack.jsonl import InputError, as_covariance, as_float, as_vector, require
 from fedtrack.progress import Progress
 from local_filters.ekf import CV3, MotionModel3D, ekf_step, motion_model_3d, two_point_init
@@ -188,6 +188,7 @@ class RadarFilter:
     afterwards ``{"t", "x", "P", "model", "maneuver"}`` with ``x`` in the 3-D CV order
     ``[x, vx, y, vy, z, vz]``. The sampling interval is the time difference of consecutive
     measurements; when it (or the sensor position) changes, the input-estimation window restarts.
+    The state is kept as a batch of one so the batched filter functions apply unchanged.
     """
 
     def __init__(self, algorithm: str, config: EkfConfig, ts_model: TSModel | None = None) -> None:
@@ -213,23 +214,21 @@ class RadarFilter:
         if model is None or not np.isclose(dt, model.T, rtol=1e-9, atol=0.0):
             model = motion_model_3d(CV3, dt, self.config.q)
         if self._state is None:
-            self._state = self.kind.init(last.z, m.z, m.R, model, m.sensor_position)
+            self._state = self.kind.init(last.z[None], m.z[None], m.R, model, m.sensor_position)
         else:
             state = self._state
             restart = (model is not self._model) or not np.array_equal(m.sensor_position, last.sensor_position)
             if restart and hasattr(state, "count"):
                 state = state._replace(count=np.zeros_like(state.count))
-            self._state = self.kind.step(state, m.z, m.R, model, m.sensor_position)
+            self._state = self.kind.step(state, m.z[None], m.R, model, m.sensor_position)
         self._model = model
-        x, P, man = self.kind.estimate(self._state, model)
-        return {"t": m.t, "x": x.tolist(), "P": P.tolist(), "model": self.kind.label(bool(man)),
-                "maneuver": bool(man)}
+        x, P, man = self.kind.estimate(self._state, model)  # batch of one
+        return {"t": m.t, "x": x[0].tolist(), "P": P[0].tolist(),
+                "model": self.kind.label(bool(man[0])), "maneuver": bool(man[0])}
 
 
 def make_radar_filter(name: str, config: dict[str, Any] | EkfConfig | None = None) -> RadarFilter:
     """A :class:`RadarFilter` for algorithm ``name`` from a config table (strict keys) or object."""
-    from fedtrack.config import parse_dataclass
-
     if name not in CONFIG_CLASSES:
         raise ConfigError(f"algorithm: unknown radar filter {name!r} (expected one of {ALGORITHMS})")
     cls = CONFIG_CLASSES[name]

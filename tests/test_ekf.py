@@ -1,0 +1,195 @@
+"""3-D radar EKF, EKF with direct input estimation (paper 002), radar step API and replay."""
+
+import json
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from fedtrack.config import ConfigError
+from fedtrack.jsonl import InputError, write_jsonl
+from local_filters.ekf import ekf_step, ekf_update, motion_model_3d, radar_h, radar_jacobian
+from local_filters.ekf_input_estimation import (InputEstimationParams, estimate_input, ie_init,
+                                                ie_step, window_covariance)
+from local_filters.kalman import GaussianState, nees
+from local_filters.radar_filters import EkfIEConfig, filter_kind, make_radar_filter, run_batch
+from local_filters.radar_replay import replay_radar
+from sensors.radar import RadarConfig, radar_scans, simulate
+
+SENSOR = np.zeros(3)
+R = RadarConfig().R
+
+
+@pytest.mark.parametrize("name", ["cv", "ca"])
+def test_analytic_jacobian_matches_finite_differences(name):
+    m = motion_model_3d(name, 0.02, 1.0)
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        x = rng.normal(size=m.dim) * 10.0
+        x[m.pos] = rng.uniform(-5000, 5000, size=3)
+        H = radar_jacobian(x, m, SENSOR)
+        fd = np.zeros_like(H)
+        for i in range(m.dim):
+            e = np.zeros(m.dim)
+            e[i] = 1e-3
+            fd[:, i] = (radar_h(x + e, m, SENSOR) - radar_h(x - e, m, SENSOR)) / 2e-3
+        scale = np.max(np.abs(H), axis=1, keepdims=True)
+        assert np.max(np.abs(H - fd) / scale) < 1e-6
+
+
+def test_nees_in_95_band_on_straight_cv_trajectory():
+    """100 runs of a CV target with the filter's own process noise: ANEES per step in band."""
+    runs, K, q, T = 100, 250, 1.0, 0.02
+    m = motion_model_3d("cv", T, q)
+    rng = np.random.default_rng(7)
+    m0 = np.array([3000.0, -150.0, 1000.0, 120.0, 800.0, 10.0])
+    P0 = np.diag([400.0, 100.0, 400.0, 100.0, 400.0, 100.0])
+    x = m0 + rng.normal(size=(runs, 6)) @ np.linalg.cholesky(P0).T
+    s = GaussianState(np.broadcast_to(m0, (runs, 6)).copy(), np.broadcast_to(P0, (runs, 6, 6)).copy())
+    Lq = np.linalg.cholesky(m.Q + 1e-12 * np.eye(6))
+    sig = np.sqrt(np.diag(R))
+    anees = []
+    for _ in range(K):
+        x = x @ m.F.T + rng.normal(size=(runs, 6)) @ Lq.T
+        z = radar_h(x, m, SENSOR) + rng.normal(size=(runs, 3)) * sig
+        s = ekf_step(s, z, R, m, SENSOR).state
+        anees.append(np.mean(nees(x - s.x, s.P)))
+    lo, hi = chi2.ppf([0.025, 0.975], 6 * runs) / runs
+    inside = np.mean((np.array(anees) >= lo) & (np.array(anees) <= hi))
+    assert inside >= 0.9, inside
+    assert lo <= np.mean(anees) <= hi
+
+
+def test_azimuth_residual_is_wrapped_across_pi():
+    m = motion_model_3d("cv", 0.02, 1.0)
+    x = np.array([-3000.0, 0.0, 1e-3, 0.0, 500.0, 0.0])  # azimuth just below +pi
+    P = np.diag([100.0, 10.0, 100.0, 10.0, 100.0, 10.0])
+    z = radar_h(x, m, SENSOR) + np.array([0.0, 0.0, 0.0])
+    z[1] = -np.pi + 1e-4  # the same direction measured just past the branch cut
+    upd = ekf_update(GaussianState(x, P), z, R, m, SENSOR)
+    assert abs(upd.innovation.nu[1]) < 2e-3
+    assert np.linalg.norm(upd.state.x[m.pos] - x[m.pos]) < 5.0
+
+
+def test_window_covariance_equals_explicit_stacking():
+    """D1 of eq. (29) equals A P0 A' + C Q C' + R for the stacked linear map, exactly."""
+    rng = np.random.default_rng(2)
+    m = motion_model_3d("cv", 0.1, 2.0)
+    W, n = 5, 6
+    Hs = rng.normal(size=(1, W, 3, n))
+    Rs = np.broadcast_to(np.diag([4.0, 1.0, 2.0]), (1, W, 3, 3))
+    A0 = rng.normal(size=(n, n))
+    P0 = A0 @ A0.T + np.eye(n)
+    Sig, Sigs = P0, []
+    for _ in range(W):
+        Sig = m.F @ Sig @ m.F.T + m.Q
+        Sigs.append(Sig)
+    D1 = window_covariance(Hs, np.stack(Sigs)[None], m.F, Rs)[0]
+    # explicit: e_j = F^j e0 + sum_{l<j} F^(j-1-l) w_l, residual_j = H_j e_j + v_j
+    A = np.zeros((3 * W, n))
+    C = np.zeros((3 * W, n * W))
+    for j in range(1, W + 1):
+        A[3 * (j - 1):3 * j] = Hs[0, j - 1] @ np.linalg.matrix_power(m.F, j)
+        for l in range(j):
+            C[3 * (j - 1):3 * j, n * l:n * (l + 1)] = Hs[0, j - 1] @ np.linalg.matrix_power(m.F, j - 1 - l)
+    explicit = A @ P0 @ A.T + C @ np.kron(np.eye(W), m.Q) @ C.T + np.kron(np.eye(W), Rs[0, 0])
+    np.testing.assert_allclose(D1, explicit, rtol=1e-9, atol=1e-9 * np.max(np.abs(explicit)))
+
+
+def test_gls_recovers_a_constant_input_from_noise_free_measurements():
+    m = motion_model_3d("cv", 0.02, 1.0)
+    W = 30
+    u_true = np.array([[12.0, -20.0, 5.0]])
+    x = np.array([[3000.0, -100.0, 2000.0, 150.0, 700.0, 0.0]])
+    x0 = x.copy()
+    zs = []
+    for _ in range(W):
+        x = x @ m.F.T + u_true @ m.G.T
+        zs.append(radar_h(x, m, SENSOR))
+    zs = np.stack(zs, axis=1)
+    P0 = np.broadcast_to(np.eye(6) * 1e-2, (1, 6, 6))
+    zeros = np.zeros((1, W, 6, 3)), np.zeros((1, W, 3, 6))
+    est = estimate_input(m, x0, P0, zs, np.broadcast_to(R, (1, W, 3, 3)), *zeros,
+                         np.zeros((1, 3)), SENSOR)
+    np.testing.assert_allclose(est.u, u_true, rtol=1e-3)
+    # with the true input already applied the residuals vanish and so does the increment
+    est2 = estimate_input(m, x0, P0, zs, np.broadcast_to(R, (1, W, 3, 3)), *zeros, u_true, SENSOR)
+    np.testing.assert_allclose(est2.u, 0.0, atol=1e-9)
+
+
+def _run(algorithm: str, cfg: RadarConfig, runs: int, seed: int, K: int):
+    traj, zs = simulate(cfg, runs, np.random.default_rng(seed))
+    m = motion_model_3d("cv", cfg.T, 1.0)
+    res = run_batch(filter_kind(algorithm, EkfIEConfig()), zs[:, :K], cfg.R, SENSOR, m)
+    return traj, res
+
+
+def test_input_estimation_detects_the_turn_and_removes_the_lag():
+    cfg = RadarConfig(straight_s=4.0)
+    K = 200 + 500  # 4 s straight, 10 s of turn
+    traj, ekf = _run("ekf", cfg, 4, 11, K)
+    _, ie = _run("ekf-ie", cfg, 4, 11, K)
+    onset = np.argmax(ie.maneuver, axis=1) * cfg.T
+    assert np.all(ie.maneuver.any(axis=1))
+    assert np.all((onset > 4.0) & (onset < 7.0)), onset
+    assert not ie.maneuver[:, :traj.turn_start].any()
+    np.testing.assert_array_equal(ie.x[:, 1:traj.turn_start], ekf.x[:, 1:traj.turn_start])
+
+    def rms(r):  # last 3 s
+        e = r.x[:, K - 150:K][..., [0, 2, 4]] - traj.pos[K - 150:K]
+        return np.sqrt(np.mean(np.sum(e ** 2, axis=-1)))
+
+    assert rms(ie) < rms(ekf) / 3.0
+
+
+@pytest.mark.parametrize("algorithm", ["ekf", "ekf-ie"])
+def test_step_api_equals_batched_run(algorithm):
+    cfg = RadarConfig(straight_s=2.0)
+    lines = list(radar_scans(cfg, seed=4))[:400]
+    filt = make_radar_filter(algorithm, {})
+    outs = [filt.step(line) for line in lines]
+    assert outs[0] is None
+    zs = np.array([ln["z"] for ln in lines])[None]
+    res = run_batch(filter_kind(algorithm, EkfIEConfig()), zs, cfg.R, SENSOR,
+                    motion_model_3d("cv", cfg.T, 1.0))
+    got = np.array([o["x"] for o in outs[1:]])
+    np.testing.assert_allclose(got, res.x[0, 1:], rtol=1e-9, atol=1e-6)
+    assert [o["maneuver"] for o in outs[1:]] == res.maneuver[0, 1:].tolist()
+    if algorithm == "ekf-ie":
+        assert any(o["maneuver"] for o in outs[1:]) and outs[-1]["model"] == "cv+input"
+
+
+def test_replay_validates_input_and_config(tmp_path):
+    lines = list(radar_scans(RadarConfig(straight_s=1.0), seed=1))[:30]
+    good = tmp_path / "m.jsonl"
+    write_jsonl(good, lines)
+    out = tmp_path / "o.jsonl"
+    assert replay_radar("ekf-ie", good, None, out) == 29
+    row = json.loads(out.read_text().splitlines()[0])
+    assert set(row) == {"t", "x", "P", "model", "maneuver"} and len(row["x"]) == 6
+    bad = [dict(ln) for ln in lines]
+    bad[4]["R"] = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]]
+    write_jsonl(tmp_path / "b.jsonl", bad)
+    with pytest.raises(InputError, match=r"b.jsonl:5: R is not positive definite"):
+        replay_radar("ekf", tmp_path / "b.jsonl", None, out)
+    bad = [dict(ln) for ln in lines]
+    bad[7]["t"] = bad[6]["t"]
+    write_jsonl(tmp_path / "c.jsonl", bad)
+    with pytest.raises(InputError, match=r"c.jsonl:8: t must increase"):
+        replay_radar("ekf", tmp_path / "c.jsonl", None, out)
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("q = 1.0\nmodel = 'x.npz'\n")
+    with pytest.raises(ConfigError, match="unknown config key model"):
+        replay_radar("ekf-ie", good, cfg, out)
+    cfg.write_text("window = 1\n")
+    with pytest.raises(ConfigError, match="window"):
+        replay_radar("ekf-ie", good, cfg, out)
+    cfg.write_text(f"model = '{tmp_path / 'missing.npz'}'\n")
+    with pytest.raises(ConfigError, match="does not exist"):
+        replay_radar("ekf-tsfuzzy", good, cfg, out)
+
+
+def test_input_estimation_params_thresholds():
+    p = InputEstimationParams(window=10, p_false_alarm=0.01, p_input=0.05)
+    assert p.eta_window == pytest.approx(chi2.ppf(0.99, 30), rel=1e-12)
+    assert p.eta_input == pytest.approx(chi2.ppf(0.95, 3), rel=1e-12)
