@@ -40,6 +40,7 @@ from fusion_center.vdie import (
     CentreState,
     VdieParams,
     dvdie_centre_step,
+    local_reports,
     embed_cv,
     vdie_init,
     vdie_step,
@@ -327,7 +328,8 @@ class DVDIE(DecentralizedKF):
 
         before = self.vdie
         self.vdie, events, trace = vdie_step(before, t, cv, ca, self.config.vdie, step_fn)
-        self.centre_state = dvdie_centre_step(self.centre_state, cv, ca, before, self.vdie, events, trace)
+        reports = local_reports(before, self.vdie, events, trace)
+        self.centre_state = dvdie_centre_step(self.centre_state, cv, ca, reports)
         return ScanEstimate(self.centre_state.x, self.centre_state.P, self.centre_state.is_ca,
                             scan_event(events.kind))
 

@@ -214,6 +214,7 @@ class VdieEvents(NamedTuple):
     statistic: np.ndarray  # best u' Gamma^-1 u of the active bank
     onset: np.ndarray
     u: np.ndarray  # (..., 2)
+    gamma: np.ndarray  # (..., 2, 2) covariance of u, eq. (64)
 
 
 def embed_cv(x4: np.ndarray, P4: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -317,6 +318,7 @@ def vdie_step(state: VdieState, t: float, cv: LinearModel, ca: LinearModel, para
         np.where(is_ca, best_ca.statistic, best_cv.statistic),
         np.where(is_ca, best_ca.onset, best_cv.onset),
         np.where(is_ca[..., None], best_ca.u, best_cv.u),
+        np.where(is_ca[..., None, None], best_ca.gamma, best_cv.gamma),
     )
     new_state = VdieState(
         x, P, new_is_ca,
@@ -354,42 +356,60 @@ def _embedded_information(state: GaussianState, is_ca: np.ndarray) -> tuple[np.n
     return np.where(is_ca[..., None, None], Y6, Yc), np.where(is_ca[..., None], y6, yc)
 
 
+class LocalReports(NamedTuple):
+    """What the DVDIE centre knows of each local filter at one scan (sensor axis, CA layout).
+
+    ``was_ca``: the model the local updated with; ``x``/``P``/``is_ca``: its estimate after
+    the scan (compensated, possibly switched); ``kind``: its EVENT_* decision; ``prior`` /
+    ``post``: the Kalman prior and posterior of its update (``post`` equals ``x``/``P``
+    when ``kind`` is EVENT_NONE).
+    """
+
+    was_ca: np.ndarray
+    x: np.ndarray
+    P: np.ndarray
+    is_ca: np.ndarray
+    kind: np.ndarray
+    prior: GaussianState
+    post: GaussianState
+
+
+def local_reports(before: VdieState, now: VdieState, events: VdieEvents, trace: FilterTrace) -> LocalReports:
+    """Reports of locals run in-process (replay, Monte Carlo)."""
+    return LocalReports(before.is_ca, now.x, now.P, now.is_ca, events.kind, trace.prior, trace.post)
+
+
 def dvdie_centre_step(centre: CentreState, cv: LinearModel, ca: LinearModel,
-                      local_before: VdieState, local_now: VdieState, local_events: VdieEvents,
-                      local_trace: FilterTrace) -> CentreState:
+                      reports: LocalReports, restart: bool = False) -> CentreState:
     """Decentralized fusion of single-sensor VDIE local filters, without feedback.
 
-    Local arrays have a sensor axis before the state axes. The centre works in CA if
-    any local is in CA, else in CV. In a scan where no local switched model or
-    compensated its state, the centre runs the Hashemipour form: its own prediction
-    plus every local's information increment ``Y_i(k|k) - Y_i(k|k-1)`` (a position-only
-    term, embedded across model dimensions), which is exact. When a local switches or
-    compensates, its estimate is no longer a Kalman update of its prior, so the centre
-    re-initializes from the locals' current estimates fused as if independent
-    (``Y = sum Y_i``; a CV local carries no acceleration information). That ignores the
-    cross-correlation through the common process noise: the correlation function the
-    paper says a decentralized structure cannot afford to compute.
+    The centre works in CA if any local is in CA, else in CV. In a scan where no local
+    switched model or compensated its state, the centre runs the Hashemipour form: its
+    own prediction plus every local's information increment ``Y_i(k|k) - Y_i(k|k-1)``
+    (a position-only term, embedded across model dimensions), which is exact. When a
+    local switches or compensates, its estimate is no longer a Kalman update of its
+    prior, so the centre re-initializes from the locals' current estimates fused as if
+    independent (``Y = sum Y_i``; a CV local carries no acceleration information). That
+    ignores the cross-correlation through the common process noise: the correlation
+    function the paper says a decentralized structure cannot afford to compute.
+    ``restart`` forces that re-initialization (a local filter restarted: no prior).
     """
-    any_ca = local_now.is_ca.any(axis=-1)
-    reinit = (local_events.kind != EVENT_NONE).any(axis=-1) | (any_ca != centre.is_ca)
-    was_ca = local_before.is_ca
+    any_ca = reports.is_ca.any(axis=-1)
+    reinit = (reports.kind != EVENT_NONE).any(axis=-1) | (any_ca != centre.is_ca) | restart
 
     # local information increments: 6-D for CA locals, 4-D (embedded) for CV locals
-    Yu, yu = _embedded_information(local_trace.post, was_ca)
-    Yp, yp = _embedded_information(local_trace.prior, was_ca)
+    Yu, yu = _embedded_information(reports.post, reports.was_ca)
+    Yp, yp = _embedded_information(reports.prior, reports.was_ca)
     dY, dy = (Yu - Yp).sum(axis=-3), (yu - yp).sum(axis=-2)
 
-    c_prior_cv = predict(cv_part(centre.x, centre.P), cv.F, cv.Q)
-    Ypc, ypc = information(c_prior_cv)
+    Ypc, ypc = information(predict(cv_part(centre.x, centre.P), cv.F, cv.Q))
     Y_cv = Ypc + dY[..., CV_IN_CA[:, None], CV_IN_CA[None, :]]
     y_cv = ypc + dy[..., CV_IN_CA]
-    prior_ca_x, prior_ca_P = centre.x, centre.P
-    c_prior_ca = predict(GaussianState(prior_ca_x, prior_ca_P), ca.F, ca.Q)
-    Ypa, ypa = information(c_prior_ca)
+    Ypa, ypa = information(predict(GaussianState(centre.x, centre.P), ca.F, ca.Q))
     Y_ca, y_ca = Ypa + dY, ypa + dy
 
     # re-initialization: locals' current estimates fused as independent
-    Y_loc, y_loc = _embedded_information(GaussianState(local_now.x, local_now.P), local_now.is_ca)
+    Y_loc, y_loc = _embedded_information(GaussianState(reports.x, reports.P), reports.is_ca)
     Y_re, y_re = Y_loc.sum(axis=-3), y_loc.sum(axis=-2)
 
     Y4 = np.where(reinit[..., None, None], Y_re[..., CV_IN_CA[:, None], CV_IN_CA[None, :]], Y_cv)

@@ -1,0 +1,177 @@
+"""The fusion centre of the distributed pipeline, working from received local estimates.
+
+:class:`FederatedCentre` (FVDIE) fuses the local posteriors (15)-(16), runs the input
+estimator on the fused quantities and returns the resets (20)-(22);
+:class:`DecentralizedCentre` (DVDIE) fuses single-sensor VDIE locals without feedback.
+Both call the same functions as ``fusion_center.trackers`` (used by ``fedtrack
+replay``), so a healthy deployment reproduces ``replay`` to round-off. A scan whose
+local estimates did not all arrive is fused from those that did (sharing factors
+renormalized, see :func:`fusion_center.fusion.federated_fuse`) and marked degraded.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from fusion_center.fusion import federated_fuse, federated_reset
+from fusion_center.trackers import FusionConfig, ScanEstimate, fuse_independent, models_for, scan_event
+from fusion_center.vdie import (
+    EVENT_NAMES,
+    EVENT_NONE,
+    CentreState,
+    LocalReports,
+    VdieEvents,
+    cv_part,
+    dvdie_centre_step,
+    embed_cv,
+    vdie_init,
+    vdie_step,
+)
+from local_filters.distributed import LocalOutput
+from local_filters.kalman import GaussianState, predict
+from local_filters.models import CA, LinearModel
+
+EVENT_CODES = {name: code for code, name in EVENT_NAMES.items()}
+
+
+class ResetCommand(NamedTuple):
+    """What local filter ``i`` adopts after a scan: ``x``, ``P = beta_i P_fused`` in ``model``."""
+
+    model: str
+    x: np.ndarray
+    P: np.ndarray
+    share: float  # 1 / beta_i
+
+
+class CentreResult(NamedTuple):
+    estimate: ScanEstimate  # CA layout
+    events: VdieEvents | None  # the master's own decision (federated)
+    resets: dict[str, ResetCommand]
+
+
+def _own_order(x: np.ndarray, P: np.ndarray, is_ca: bool) -> GaussianState:
+    return GaussianState(x, P) if is_ca else cv_part(x, P)
+
+
+class FederatedCentre:
+    """FVDIE master: fusion (15)-(16), input estimation on fused quantities, reset (20)-(22)."""
+
+    def __init__(self, sensors: list[str], config: FusionConfig) -> None:
+        self.sensors = list(sensors)
+        self.config = config
+        self.betas = config.betas(len(sensors))
+        self.vdie = None
+        self.t: float | None = None
+
+    @property
+    def model(self) -> str:
+        return CA if self.vdie is not None and bool(self.vdie.is_ca) else "cv"
+
+    def fuse(self, t: float, outputs: dict[str, LocalOutput]) -> CentreResult:
+        present = np.array([s in outputs for s in self.sensors])
+        if self.vdie is None:
+            if self.config.x0 is None:
+                locals_ = self._stack(outputs, lambda o: GaussianState(o.x, o.P), present, None)
+                fused = fuse_independent(locals_, present)
+                self._start(embed_cv(fused.x, fused.P), t)
+                return self._result(None)
+            self._start(embed_cv(np.asarray(self.config.x0, float), np.asarray(self.config.P0, float)), t)
+        cv, ca = models_for(round(t - self.t, 12), self.config.q)
+        self.t = t
+        current = self.model
+
+        def step_fn(post_prev: GaussianState, model: LinearModel) -> tuple[GaussianState, GaussianState]:
+            master_prior = predict(post_prev, model.F, model.Q)
+            if model.name != current:  # the branch no run is in: never selected
+                return master_prior, master_prior
+            posts = self._stack(outputs, lambda o: GaussianState(o.x, o.P), present, master_prior)
+            partial = not present.all()
+            fused = federated_fuse(posts, self.betas, present if partial else None,
+                                   master_prior if partial else None)
+            return master_prior, fused
+
+        self.vdie, events, _ = vdie_step(self.vdie, t, cv, ca, self.config.vdie, step_fn)
+        return self._result(events)
+
+    def _start(self, xp: tuple[np.ndarray, np.ndarray], t: float) -> None:
+        self.vdie = vdie_init(xp[0], xp[1], np.zeros((), dtype=bool), self.config.vdie, t)
+        self.t = t
+
+    def _stack(self, outputs: dict[str, LocalOutput], pick, present: np.ndarray,
+               fill: GaussianState | None) -> GaussianState:
+        states = [pick(outputs[s]) if s in outputs else fill for s in self.sensors]
+        if fill is None:  # first scan: absent sensors get a harmless placeholder, masked out
+            ref = next(st for st in states if st is not None)
+            states = [st if st is not None else GaussianState(ref.x, ref.P) for st in states]
+        return GaussianState(np.stack([s.x for s in states]), np.stack([s.P for s in states]))
+
+    def _result(self, events: VdieEvents | None) -> CentreResult:
+        is_ca = bool(self.vdie.is_ca)
+        kind = int(events.kind) if events is not None else EVENT_NONE
+        est = ScanEstimate(self.vdie.x, self.vdie.P, np.asarray(is_ca), np.asarray(kind))
+        own = _own_order(self.vdie.x, self.vdie.P, is_ca)
+        local = federated_reset(own, self.betas)
+        resets = {s: ResetCommand(CA if is_ca else "cv", local.x[i], local.P[i], float(1.0 / self.betas[i]))
+                  for i, s in enumerate(self.sensors)}
+        return CentreResult(est, events, resets)
+
+
+class DecentralizedCentre:
+    """DVDIE centre: Hashemipour fusion of single-sensor VDIE locals, without feedback."""
+
+    def __init__(self, sensors: list[str], config: FusionConfig) -> None:
+        self.sensors = list(sensors)
+        self.config = config
+        self.state: CentreState | None = None
+        self.t: float | None = None
+
+    def fuse(self, t: float, outputs: dict[str, LocalOutput]) -> CentreResult:
+        got = [s for s in self.sensors if s in outputs]
+        if self.state is None and self.config.x0 is None:
+            posts = GaussianState(np.stack([outputs[s].x for s in got]), np.stack([outputs[s].P for s in got]))
+            fused = fuse_independent(posts, None)
+            self.state = CentreState(*embed_cv(fused.x, fused.P), np.zeros((), dtype=bool))
+            self.t = t
+            return self._result(EVENT_NONE)
+        if self.state is None:
+            x0, P0 = embed_cv(np.asarray(self.config.x0, float), np.asarray(self.config.P0, float))
+            self.state = CentreState(x0, P0, np.zeros((), dtype=bool))
+            self.t = t
+        cv, ca = models_for(round(t - self.t, 12), self.config.q)
+        self.t = t
+        received = [outputs[s] for s in got]
+        reports = stack_reports(received)
+        restart = any(o.init for o in received)
+        self.state = dvdie_centre_step(self.state, cv, ca, reports, restart)
+        return self._result(int(scan_event(reports.kind)))
+
+    def _result(self, kind: int) -> CentreResult:
+        est = ScanEstimate(self.state.x, self.state.P, np.asarray(self.state.is_ca), np.asarray(kind))
+        return CentreResult(est, None, {})
+
+
+def _layout(x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
+    """A CV (4) or CA (6) estimate in the CA layout, and whether it is CA."""
+    if x.shape[0] == 6:
+        return x, P, True
+    return (*embed_cv(x, P), False)
+
+
+def stack_reports(outputs: list[LocalOutput]) -> LocalReports:
+    """Received local outputs as the DVDIE centre's :class:`LocalReports` (sensor axis first)."""
+    xs, Ps, now_ca, was_ca, kinds, pxs, pPs = [], [], [], [], [], [], []
+    for o in outputs:
+        x, P, is_ca = _layout(o.x, o.P)
+        xs.append(x)
+        Ps.append(P)
+        now_ca.append(is_ca)
+        px, pP, p_ca = _layout(o.x_prior, o.P_prior)
+        pxs.append(px)
+        pPs.append(pP)
+        was_ca.append(p_ca)
+        kinds.append(EVENT_CODES.get(o.event, EVENT_NONE) if o.event else EVENT_NONE)
+    x, P = np.stack(xs), np.stack(Ps)
+    return LocalReports(np.array(was_ca), x, P, np.array(now_ca), np.array(kinds),
+                        GaussianState(np.stack(pxs), np.stack(pPs)), GaussianState(x, P))
