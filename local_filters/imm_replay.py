@@ -8,24 +8,20 @@ Output lines: ``t``, ``sensor``, ``x`` (``[x, vx, y, vy]``), ``P``, ``accelerati
 (``sum mu_i a_i``), ``mode_probabilities`` (model name -> probability, 0 for models not
 running) and ``active_group`` (``all`` for FSIMM, ``M2``, or ``M2+M1`` for a VSIMM union).
 
-Time steps: the motion model uses the actual ``dt`` between measurements; the transition
-matrix is applied once per measurement (it is per step in paper 000, T = 1 s). The prior
-is taken to hold at the first measurement's time, so the first line is a measurement
-update only (``dt = 0``: ``F = I``, no process noise, no acceleration, no mode switch);
-the same holds for later lines with a repeated timestamp.
+Time steps and the prior: see :mod:`local_filters.imm_tracker`.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
 from fedtrack.jsonl import InputError, as_covariance, as_float, as_vector, read_jsonl, require, write_jsonl
-from local_filters.imm import ALGORITHMS, group_label, initial_state, step
-from local_filters.imm_config import IMMConfig, load_imm_config
-from local_filters.models import cv_model
+from local_filters.imm import ALGORITHMS
+from local_filters.imm_config import load_imm_config
+from local_filters.imm_tracker import IMMTracker
 
 
 class Measurement(NamedTuple):
@@ -57,33 +53,12 @@ def read_measurements(path: Path) -> list[Measurement]:
     return out
 
 
-def prior(cfg: IMMConfig, first: Measurement) -> tuple[np.ndarray, np.ndarray]:
-    """``x0``, ``P0`` from the config, or centred on the first measurement at rest."""
-    sp, sv = cfg.initial_position_std, cfg.initial_velocity_std
-    P0 = np.array(cfg.P0) if cfg.P0 is not None else np.diag([sp * sp, sv * sv, sp * sp, sv * sv])
-    x0 = np.array(cfg.x0) if cfg.x0 is not None else np.array([first.z[0], 0.0, first.z[1], 0.0])
-    return x0, P0
-
-
 def replay_imm(algorithm: str, measurements: Path, config: Path | None, out: Path) -> int:
     """Run ``algorithm`` over ``measurements`` and write one estimate per line to ``out``."""
     if algorithm not in ALGORITHMS:
         raise InputError(f"unknown IMM algorithm {algorithm!r} (expected one of {', '.join(ALGORITHMS)})")
-    cfg = load_imm_config(config)
-    data = read_measurements(measurements)
-    bank, th = cfg.bank(), cfg.thresholds()
-    x0, P0 = prior(cfg, data[0])
-    state = initial_state(bank, algorithm, cfg.initial_group_index(), x0[None], P0[None])
-    rows: list[dict[str, Any]] = []
-    t_prev = data[0].t
-    for m in data:
-        dt = m.t - t_prev
-        Pi = bank.Pi if dt > 0 else np.eye(bank.size)
-        state, o = step(bank, algorithm, state, cv_model(dt, cfg.q), m.z[None], m.R, th, Pi)
-        rows.append({"t": m.t, "sensor": m.sensor, "x": o.est.x[0].tolist(), "P": o.est.P[0].tolist(),
-                     "acceleration": o.acc[0].tolist(),
-                     "mode_probabilities": dict(zip(bank.names, o.mu[0].tolist())),
-                     "active_group": group_label(bank, int(o.old[0]), int(o.new[0]))})
-        t_prev = m.t
+    tracker = IMMTracker(load_imm_config(config), algorithm)
+    rows = [{"sensor": m.sensor, **tracker.update(m.t, m.z, m.R).as_dict()}
+            for m in read_measurements(measurements)]
     write_jsonl(out, rows)
     return len(rows)

@@ -1,0 +1,98 @@
+"""The IMM tracker service over Zenoh: measurements in, FusedTrack with mode probabilities out."""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fedtrack.keys import Keys
+from fedtrack.wire import FusedTrack, Measurement, decode, encode
+from fedtrack.zsession import SessionOptions, close_session, open_session, wait_alive
+from local_filters.imm_config import IMMConfig
+from local_filters.imm_service import IMMService
+from local_filters.imm_tracker import IMMTracker
+from sensors.imm_scenarios import simulate
+
+WAIT_S = 10.0
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def wait_until(predicate, timeout: float = WAIT_S) -> bool:  # type: ignore[no-untyped-def]
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.02)
+    return predicate()
+
+
+def test_service_tracks_like_the_replay_tracker():
+    port = free_port()
+    keys = Keys("imm-t1")
+    router = open_session(SessionOptions(mode="router", connect=(), listen=(f"tcp/127.0.0.1:{port}",)))
+    session = open_session(SessionOptions(connect=(f"tcp/127.0.0.1:{port}",), connect_timeout_s=5.0))
+    service = IMMService("radar-1", "ao-vsimm", IMMConfig(), service_id="imm-1",
+                         options=SessionOptions(connect=(f"tcp/127.0.0.1:{port}",)), deployment="imm-t1")
+    code: list[int] = []
+    thread = threading.Thread(target=lambda: code.append(service.run()), daemon=True)
+    tracks: list[FusedTrack] = []
+    sub = session.declare_subscriber(keys.fusion_track(), lambda s: tracks.append(decode(s.payload.to_bytes(), FusedTrack)))
+    thread.start()
+    try:
+        assert wait_alive(session, [keys.alive("imm", "imm-1")], WAIT_S) == set()
+        truth = simulate("S1", 1, np.random.default_rng(5), steps=40)
+        R = 400.0 * np.eye(2)
+        ref = IMMTracker(IMMConfig(), "ao-vsimm")
+        expected = []
+        for k in range(40):
+            session.put(keys.sensor_meas("radar-1"), encode(Measurement(
+                sensor="radar-1", seq=k, t=float(k + 1), kind="position", z=truth.z[0, k], R=R)))
+            expected.append(ref.update(float(k + 1), truth.z[0, k], R))
+        # skipped: another dimension, an older time
+        session.put(keys.sensor_meas("radar-1"), encode(Measurement(
+            sensor="radar-1", seq=98, t=50.0, kind="position", z=np.zeros(3), R=np.eye(3))))
+        session.put(keys.sensor_meas("radar-1"), encode(Measurement(
+            sensor="radar-1", seq=99, t=2.0, kind="position", z=np.zeros(2), R=R)))
+        assert wait_until(lambda: service.counters.get("out_of_order", 0) == 1)
+        assert len(tracks) == 40 and service.counters["unsupported"] == 1
+        for got, want in zip(tracks, expected):
+            np.testing.assert_allclose(got.x, want.x, rtol=1e-12)
+            assert got.extra["active_group"] == want.active_group
+            assert got.extra["mode_probabilities"] == pytest.approx(want.mode_probabilities, abs=1e-15)
+            assert got.sensors == ("radar-1",) and got.model == "ao-vsimm"
+        assert not tracks[20].maneuver and tracks[-1].maneuver  # S1 maneuvers from k = 31
+        service.stop()
+        thread.join(WAIT_S)
+        assert code == [0]
+    finally:
+        service.stop()
+        thread.join(WAIT_S)
+        sub.undeclare()
+        close_session(session)
+        close_session(router)
+
+
+def test_cli_rejects_a_bad_config_cleanly(tmp_path: Path):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("transition_matrix = 1\n")
+    run = subprocess.run([sys.executable, "-m", "fedtrack.cli", "serve", "imm", "--sensor", "s1", "--config", str(cfg),
+                          "--connect", f"tcp/127.0.0.1:{free_port()}", "--connect-timeout", "0.3"],
+                         cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and "unknown config key transition_matrix" in run.stderr
+    assert "Traceback" not in run.stderr
+    bad_id = subprocess.run([sys.executable, "-m", "fedtrack.cli", "serve", "imm", "--sensor", "a/b"],
+                            cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert bad_id.returncode == 2 and "--sensor" in bad_id.stderr and "Traceback" not in bad_id.stderr
