@@ -143,7 +143,9 @@ def scan(rng: np.random.Generator, config: SonarConfig, k: int, x_true: np.ndarr
 def sonar_scans(config: SonarConfig, seed: int) -> Iterator[dict[str, Any]]:
     """Yield one replay-format line per scan plus ``truth`` (the true CA state).
 
-    ``{"t", "sensor", "detections": [{"z", "amplitude"}], "R", "truth"}``; clutter is uniform
+    ``{"t", "sensor", "kind": "sonar", "z": [], "detections": [{"z", "amplitude"}], "R",
+    "truth"}`` (without ``truth`` it is what ``fedtrack.wire.measurement_from_replay``
+    reads); clutter is uniform
     over the square of half-width ``region_half_width`` centred on the true target; the
     target is not detected during the first ``blackout_scans`` scans.
     """
@@ -156,6 +158,8 @@ def sonar_scans(config: SonarConfig, seed: int) -> Iterator[dict[str, Any]]:
         yield {
             "t": float(t),
             "sensor": config.sensor,
+            "kind": "sonar",
+            "z": [],
             "detections": [{"z": dets.z[j].tolist(), "amplitude": float(dets.amplitude[j])}
                            for j in order],
             "R": R,
