@@ -275,7 +275,10 @@ def hpda_hypothesise(g: Gated, amplitude: np.ndarray, c: Constants) -> HPDAHypot
     log_beta = _masked(log_t - log_f, inside)  # (14)
     index = np.argmax(log_beta, axis=-1)
     found = m > 0
-    pick = lambda arr: np.take_along_axis(arr, index[..., None], axis=-1)[..., 0]  # noqa: E731
+
+    def pick(arr: np.ndarray) -> np.ndarray:
+        return np.take_along_axis(arr, index[..., None], axis=-1)[..., 0]
+
     beta = np.where(found, np.exp(pick(log_beta)), 0.0)
     log_pl = log_rank_probability(pick(rank), m, c.snr)  # (17)
     pl = np.where(found, np.exp(log_pl), 0.0)
