@@ -9,6 +9,7 @@ from fedtrack.config import ConfigError
 
 MODES = ("federated", "decentralized")
 PACINGS = ("lockstep", "realtime")
+ROLES = ("router", "sensor", "local-filter", "fusion-center", "recorder")
 
 
 @dataclass(frozen=True)
@@ -38,8 +39,27 @@ class DeploymentConfig:
     speed: float = 1.0
     deadline_s: float = 2.0
     router_listen: str = "tcp/127.0.0.1:7447"
+    connect: tuple[str, ...] | None = None
+    services: tuple[str, ...] = ROLES
+    local_sensors: tuple[str, ...] | None = None
+    out: str = "fedtrack-out"
+    ready_timeout_s: float = 30.0
+
+    @property
+    def connect_endpoints(self) -> tuple[str, ...]:
+        """Where clients connect: ``connect`` if given, else this host's router."""
+        if self.connect:
+            return self.connect
+        if not self.router_listen:
+            raise ConfigError("connect: no endpoint to connect to (set deployment.connect or router_listen)")
+        return (self.router_listen,)
 
     def validate(self) -> None:
+        for role in self.services:
+            if role not in ROLES:
+                raise ConfigError(f"services: unknown role {role!r} (roles: {', '.join(ROLES)})")
+        if not self.ready_timeout_s > 0:
+            raise ConfigError("ready_timeout_s: must be > 0")
         if self.mode not in MODES:
             raise ConfigError(f"mode: must be one of {', '.join(MODES)}, got {self.mode!r}")
         if self.pacing not in PACINGS:

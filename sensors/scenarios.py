@@ -10,6 +10,7 @@ assume (0.5^2 m^2/s^4 per axis, errata), so filter consistency (NEES) is testabl
 
 from __future__ import annotations
 
+import zlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -97,6 +98,18 @@ def simulate_positions(truth: np.ndarray, Rs: np.ndarray, rng: np.random.Generat
     L = np.linalg.cholesky(Rs)
     w = np.einsum("nij,rknj->rkni", L, rng.normal(size=(runs, K, n_sensors, 2)))
     return truth[:, :, None, :][..., [0, 3]] + w
+
+
+def deployment_truth(scenario: Scenario, seed: int) -> np.ndarray:
+    """The one true trajectory ``(K, 6)`` every sensor of a deployment observes."""
+    return simulate_truth(scenario, 1, np.random.default_rng(np.random.SeedSequence([seed, 0])))[0]
+
+
+def sensor_measurements(truth: np.ndarray, R: np.ndarray, seed: int, sensor_id: str) -> np.ndarray:
+    """Sensor ``sensor_id``'s measurements ``(K, 2)`` of ``truth``, with its own seeded noise."""
+    entropy = [seed, 1, zlib.crc32(sensor_id.encode())]
+    rng = np.random.default_rng(np.random.SeedSequence(entropy))
+    return simulate_positions(truth[None], np.asarray(R)[None], rng)[0, :, 0]
 
 
 def measurement_lines(times: np.ndarray, zs: np.ndarray, Rs: np.ndarray,

@@ -1,0 +1,156 @@
+"""``fedtrack serve fusion-center --sensors ID,ID,... --mode federated|decentralized``.
+
+Collects ``local/<id>/estimate`` per scan (``seq``) and fuses scan k when every expected
+local estimate has arrived, or when ``deadline_s`` has passed since the first one did
+(then it fuses those it has, renormalizing the sharing factors, and marks the track
+degraded). Scans are fused in order. Publishes, per scan: the resets
+``fusion/reset/<id>`` (federated), the track ``fusion/track``, and on a maneuver decision
+``fusion/event``. ``fusion/state`` answers with the latest track.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fedtrack.config import ConfigError
+from fedtrack.deployment import MODES
+from fedtrack.services.base import QueryHandler, Service, Subscription, service_kwargs, service_parser
+from fedtrack.settings import load_settings
+from fedtrack.wire import FusedTrack, LocalEstimate, ManeuverEvent, Reset
+from fusion_center.centre import CentreResult, DecentralizedCentre, FederatedCentre
+from fusion_center.vdie import EVENT_NAMES, EVENT_NONE
+from local_filters.distributed import LocalOutput
+from local_filters.models import CA_ACC, CV_IN_CA
+
+
+class ScanBuffer:
+    """Local estimates of one scan, as they arrive."""
+
+    def __init__(self, t: float, now: float) -> None:
+        self.t = t
+        self.first_arrival = now
+        self.outputs: dict[str, LocalOutput] = {}
+        self.stamps: list[int] = []
+
+
+class FusionCenterService(Service):
+    role = "fusion-center"
+    tick_period_s = 0.01
+
+    def __init__(self, sensors: list[str], mode: str, centre: FederatedCentre | DecentralizedCentre,
+                 deadline_s: float, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self.sensors = sensors
+        self.mode = mode
+        self.centre = centre
+        self.deadline_s = deadline_s
+        self.scans: dict[int, ScanBuffer] = {}
+        self.next_seq: int | None = None
+        self.last_track: FusedTrack | None = None
+
+    def subscriptions(self) -> list[Subscription]:
+        return [Subscription(self.keys.local_estimate(), LocalEstimate, self.on_estimate)]
+
+    def queryables(self) -> list[QueryHandler]:
+        return [QueryHandler(self.keys.fusion_state(), lambda: self.last_track)]
+
+    def on_estimate(self, msg: LocalEstimate) -> None:
+        if msg.sensor not in self.sensors:
+            self.count("unknown_sensor")
+            return
+        if self.next_seq is not None and msg.seq < self.next_seq:
+            self.count("late")
+            return
+        buf = self.scans.setdefault(msg.seq, ScanBuffer(msg.t, time.monotonic()))
+        if msg.sensor in buf.outputs or msg.t != buf.t:
+            self.count("inconsistent")
+            self.log.warning("scan %d: duplicate or inconsistent estimate from %s ignored", msg.seq, msg.sensor)
+            return
+        buf.outputs[msg.sensor] = LocalOutput(
+            msg.model, np.asarray(msg.x), np.asarray(msg.P), np.asarray(msg.x_prior), np.asarray(msg.P_prior),
+            init="init" in msg.degraded,
+            event=msg.maneuver.event if msg.maneuver is not None else None)
+        buf.stamps.append(msg.stamp_ns)
+        self.fuse_ready()
+
+    def on_tick(self) -> None:
+        self.fuse_ready()
+
+    def fuse_ready(self) -> None:
+        """Fuse complete scans in order; a scan whose deadline passed is fused as it is."""
+        now = time.monotonic()
+        while self.scans:
+            if self.next_seq is None or self.next_seq not in self.scans:
+                oldest = min(self.scans)
+                # nothing at all arrived for next_seq: skip it once a later scan is overdue
+                if self.next_seq is not None and now - self.scans[oldest].first_arrival < self.deadline_s:
+                    return
+                if self.next_seq is not None:
+                    self.count("skipped_scans", oldest - self.next_seq)
+                self.next_seq = oldest
+            buf = self.scans[self.next_seq]
+            complete = len(buf.outputs) == len(self.sensors)
+            if not complete and now - buf.first_arrival < self.deadline_s:
+                return
+            del self.scans[self.next_seq]
+            self.fuse_scan(self.next_seq, buf, degraded=not complete)
+            self.next_seq += 1
+
+    def fuse_scan(self, seq: int, buf: ScanBuffer, degraded: bool) -> None:
+        result = self.centre.fuse(buf.t, buf.outputs)
+        if degraded:
+            self.count("degraded_scans")
+        for sensor, cmd in result.resets.items():
+            self.publish(self.keys.fusion_reset(sensor), Reset(sensor=sensor, seq=seq, t=buf.t, model=cmd.model,
+                                                               x=cmd.x, P=cmd.P, beta=cmd.share))
+        track = make_track(seq, buf, result, degraded, [s for s in self.sensors if s in buf.outputs])
+        self.publish(self.keys.fusion_track(), track)
+        self.last_track = track
+        self.count("scans_fused")
+        kind = int(result.estimate.event)
+        if kind != EVENT_NONE:
+            self.count(f"events_{EVENT_NAMES[kind].replace('-', '_')}")
+            ev = result.events
+            self.publish(self.keys.fusion_event(), ManeuverEvent(
+                seq=seq, t=buf.t, kind=EVENT_NAMES[kind],
+                onset=float(ev.onset) if ev is not None else buf.t,
+                u=np.asarray(ev.u) if ev is not None else np.asarray(result.estimate.x[CA_ACC]),
+                statistic=float(ev.statistic) if ev is not None else 0.0))
+
+
+def make_track(seq: int, buf: ScanBuffer, result: CentreResult, degraded: bool, sensors: list[str]) -> FusedTrack:
+    est = result.estimate
+    is_ca = bool(est.is_ca)
+    idx = np.arange(6) if is_ca else CV_IN_CA
+    kind = int(est.event)
+    extra = {"event": EVENT_NAMES[kind]} if kind != EVENT_NONE else {}
+    return FusedTrack(seq=seq, t=buf.t, model="ca" if is_ca else "cv", x=est.x[idx], P=est.P[np.ix_(idx, idx)],
+                      maneuver=is_ca, degraded=degraded, sensors=tuple(sensors), stamp_ns=min(buf.stamps),
+                      extra=extra)
+
+
+def main(argv: list[str]) -> int:
+    parser = service_parser("fusion-center", "fuse the local estimates of a deployment")
+    parser.add_argument("--sensors", help="comma-separated sensor ids (default: fusion.sensors of the config)")
+    parser.add_argument("--mode", choices=MODES, help="overrides deployment.mode")
+    parser.add_argument("--config", type=Path, help="deployment TOML ([deployment], [fusion], [[sensor]])")
+    parser.add_argument("--deadline", type=float, help="seconds to wait for a scan's estimates (overrides config)")
+    args = parser.parse_args(argv)
+    settings = load_settings(args.config)
+    sensors = (args.sensors.split(",") if args.sensors else
+               list(settings.fusion.sensors or [s.id for s in settings.sensor]))
+    if not sensors or len(set(sensors)) != len(sensors) or not all(sensors):
+        raise ConfigError("fusion.sensors: need one or more distinct sensor ids (or --sensors a,b,c)")
+    if settings.fusion.sensors is not None and list(settings.fusion.sensors) != sensors:
+        raise ConfigError("fusion.sensors: --sensors disagrees with the config's sensor list")
+    deadline = args.deadline if args.deadline is not None else settings.deployment.deadline_s
+    if deadline <= 0:
+        parser.error("--deadline must be > 0")
+    mode = args.mode or settings.deployment.mode
+    centre_cls = FederatedCentre if mode == "federated" else DecentralizedCentre
+    centre = centre_cls(sensors, settings.fusion)
+    return FusionCenterService(sensors, mode, centre, deadline, **service_kwargs(parser, args)).run()

@@ -1,0 +1,132 @@
+"""``fedtrack serve local-filter --sensor ID --mode federated|decentralized``.
+
+Subscribes to ``sensor/<ID>/meas`` and publishes ``local/<ID>/estimate``.
+
+* federated: the FVDIE local filter. Scan k+1 is processed only after the centre's
+  reset of scan k has been applied (``fusion/reset/<ID>``); if that reset has not come
+  within the deployment's ``deadline_s``, the filter goes on from its own estimate and
+  flags the estimate ``no-reset`` (counted in ``no_reset``).
+* decentralized: the DVDIE local filter, a stand-alone single-sensor VDIE.
+
+Measurements are processed in ``seq`` order; one that arrives for a scan already
+processed is counted in ``late`` and dropped (never silently).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fedtrack.config import ConfigError
+from fedtrack.deployment import MODES
+from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
+from fedtrack.settings import load_settings
+from fedtrack.wire import LocalEstimate, ManeuverInfo, Measurement, Reset
+from local_filters.distributed import FederatedLocalFilter, LocalOutput, VdieLocalFilter
+
+
+class LocalFilterService(Service):
+    """One sensor's local filter."""
+
+    role = "local-filter"
+    tick_period_s = 0.02
+
+    def __init__(self, sensor: str, mode: str, filt: FederatedLocalFilter | VdieLocalFilter,
+                 reset_timeout_s: float, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self.sensor = sensor
+        self.mode = mode
+        self.filter = filt
+        self.reset_timeout_s = reset_timeout_s
+        self.pending: dict[int, Measurement] = {}
+        self.processed_up_to = -1
+        self.reset_up_to = -1
+        self.waiting_since: float | None = None
+
+    def subscriptions(self) -> list[Subscription]:
+        subs = [Subscription(self.keys.sensor_meas(self.sensor), Measurement, self.on_measurement)]
+        if self.mode == "federated":
+            subs.append(Subscription(self.keys.fusion_reset(self.sensor), Reset, self.on_reset))
+        return subs
+
+    def on_measurement(self, msg: Measurement) -> None:
+        if msg.kind != "position" or msg.z.shape != (2,):
+            self.count("wrong_kind")
+            self.log.warning("ignored a %s measurement of dimension %d: this filter takes 2-D positions",
+                             msg.kind, msg.z.shape[0])
+            return
+        if msg.seq <= self.processed_up_to or msg.seq in self.pending:
+            self.count("late")
+            return
+        self.pending[msg.seq] = msg
+        self.process_ready()
+
+    def on_reset(self, msg: Reset) -> None:
+        if msg.seq != self.processed_up_to or msg.seq <= self.reset_up_to:
+            self.count("stale_reset")  # only the reset of the scan just processed applies
+            return
+        assert isinstance(self.filter, FederatedLocalFilter)
+        self.filter.apply_reset(msg.t, msg.x, msg.P)
+        self.reset_up_to = msg.seq
+        self.process_ready()
+
+    def on_tick(self) -> None:
+        self.process_ready()
+
+    def process_ready(self) -> None:
+        """Process pending scans in order while their precondition (reset) holds."""
+        while self.pending:
+            seq = min(self.pending)
+            if self.mode == "federated" and self.processed_up_to >= 0 and self.reset_up_to < self.processed_up_to:
+                now = time.monotonic()
+                if self.waiting_since is None:
+                    self.waiting_since = now
+                if now - self.waiting_since < self.reset_timeout_s:
+                    return
+                self.count("no_reset")
+                self.reset_up_to = self.processed_up_to  # go on from the local estimate
+                self._process(self.pending.pop(seq), ("no-reset",))
+            else:
+                self._process(self.pending.pop(seq), ())
+            self.waiting_since = None
+
+    def _process(self, msg: Measurement, flags: tuple[str, ...]) -> None:
+        out = self.filter.process(msg.t, np.asarray(msg.z), np.asarray(msg.R))
+        self.processed_up_to = msg.seq
+        self.publish(self.keys.local_estimate(self.sensor), to_message(self.sensor, msg, out, flags))
+
+
+def to_message(sensor: str, meas: Measurement, out: LocalOutput, flags: tuple[str, ...]) -> LocalEstimate:
+    maneuver = None
+    if out.event is not None:
+        maneuver = ManeuverInfo(event=out.event, detected=out.event in ("onset", "new-ca"), onset=out.onset,
+                                u=out.u, gamma=out.gamma)
+    return LocalEstimate(sensor=sensor, seq=meas.seq, t=meas.t, model=out.model, x=out.x, P=out.P,
+                         x_prior=out.x_prior, P_prior=out.P_prior, stamp_ns=meas.stamp_ns, maneuver=maneuver,
+                         degraded=(("init",) if out.init else ()) + flags)
+
+
+def main(argv: list[str]) -> int:
+    parser = service_parser("local-filter", "run one sensor's local filter")
+    parser.add_argument("--sensor", required=True, help="the sensor id this filter serves")
+    parser.add_argument("--mode", choices=MODES, help="overrides deployment.mode")
+    parser.add_argument("--config", type=Path, help="deployment TOML ([deployment], [fusion], [[sensor]])")
+    args = parser.parse_args(argv)
+    if args.id == "local-filter":
+        args.id = args.sensor
+    settings = load_settings(args.config)
+    mode = args.mode or settings.deployment.mode
+    sensors = settings.fusion.sensors or tuple(s.id for s in settings.sensor)
+    if args.sensor not in sensors:
+        raise ConfigError(f"fusion.sensors: sensor {args.sensor!r} is not listed ({', '.join(sensors) or 'empty'})")
+    n = len(sensors)
+    if mode == "federated":
+        beta = float(settings.fusion.betas(n)[sensors.index(args.sensor)])
+        filt: FederatedLocalFilter | VdieLocalFilter = FederatedLocalFilter(beta, n, settings.fusion)
+    else:
+        filt = VdieLocalFilter(n, settings.fusion)
+    return LocalFilterService(args.sensor, mode, filt, settings.deployment.deadline_s,
+                              **service_kwargs(parser, args)).run()

@@ -1,0 +1,144 @@
+"""``fedtrack serve sensor``: a simulated sensor publishing its scans over Zenoh.
+
+Pacing:
+
+* ``lockstep``: scan k+1 is published once the fused track of scan k is out (or after
+  ``--lockstep-timeout`` seconds without it, counted in ``lockstep_timeouts``), so a
+  whole scenario runs as fast as the pipeline allows;
+* ``realtime``: one scan every ``T / speed`` seconds of wall time.
+
+After its last scan the sensor waits for that scan's fused track (lockstep) or one
+fusion deadline (realtime) and exits 0.
+
+Kinds: ``position`` (paper 004 scenario, the deployment's default) and, where the
+cluttered-sensor and radar modules are installed, ``sonar`` and ``radar``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+
+from fedtrack.deployment import PACINGS
+from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
+from fedtrack.settings import Settings, load_settings
+from fedtrack.wire import FusedTrack, Measurement, measurement_from_replay
+from sensors.scenarios import deployment_truth, paper004_scenario, sensor_measurements
+
+KINDS = ("position", "sonar", "radar")
+
+
+def position_scans(settings: Settings, sensor_id: str) -> Iterator[dict[str, Any]]:
+    """Replay-format lines of one position sensor in the deployment's paper 004 scenario."""
+    dep = settings.deployment
+    scenario = paper004_scenario(dep.scenario)
+    R = next((np.array(s.R) for s in settings.sensor if s.id == sensor_id), None)
+    if R is None:
+        R = np.array([[100.0, 5.0], [5.0, 100.0]])
+    truth = deployment_truth(scenario, dep.seed)
+    zs = sensor_measurements(truth, R, dep.seed, sensor_id)
+    for t, z in zip(scenario.times, zs):
+        yield {"t": float(t), "sensor": sensor_id, "z": z.tolist(), "R": R.tolist()}
+
+
+def scan_source(kind: str, settings: Settings, sensor_id: str) -> tuple[list[dict[str, Any]], float]:
+    """All scans of the sensor as replay lines, and the scan period."""
+    if kind == "position":
+        lines = list(position_scans(settings, sensor_id))
+    elif kind == "sonar":
+        from sensors.sonar import deployment_scans as sonar_deployment_scans
+
+        lines = list(sonar_deployment_scans(settings, sensor_id))
+    else:
+        from sensors.radar import deployment_scans as radar_deployment_scans
+
+        lines = list(radar_deployment_scans(settings, sensor_id))
+    period = lines[1]["t"] - lines[0]["t"] if len(lines) > 1 else 1.0
+    return lines, period
+
+
+class SensorService(Service):
+    """Publishes ``sensor/<id>/meas`` scan by scan."""
+
+    role = "sensor"
+    tick_period_s = 0.01
+
+    def __init__(self, lines: list[dict[str, Any]], period_s: float, pacing: str, speed: float,
+                 lockstep_timeout_s: float, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self.lines = lines
+        self.pacing = pacing
+        self.interval_s = period_s / speed
+        self.lockstep_timeout_s = lockstep_timeout_s
+        self.next_seq = 0
+        self.last_publish = -float("inf")
+        self.fused_up_to = -1
+
+    def subscriptions(self) -> list[Subscription]:
+        return [Subscription(self.keys.fusion_track(), FusedTrack, self.on_track)]
+
+    def on_track(self, msg: FusedTrack) -> None:
+        self.fused_up_to = max(self.fused_up_to, msg.seq)
+
+    def on_tick(self) -> None:
+        now = time.monotonic()
+        if self.next_seq >= len(self.lines):
+            waited = now - self.last_publish
+            if self.fused_up_to >= len(self.lines) - 1 or waited >= self.lockstep_timeout_s:
+                self.stop()
+            return
+        if self.pacing == "lockstep":
+            due = self.next_seq == 0 or self.fused_up_to >= self.next_seq - 1
+            if not due and now - self.last_publish >= self.lockstep_timeout_s:
+                self.count("lockstep_timeouts")
+                due = True
+        else:
+            due = now - self.last_publish >= self.interval_s
+        if due:
+            self.publish_scan(now)
+
+    def publish_scan(self, now: float) -> None:
+        seq = self.next_seq
+        line = self.lines[seq]
+        msg = measurement_from_replay(line, f"scan {seq}", seq=seq)
+        self.publish(self.keys.sensor_meas(self.id), Measurement(
+            sensor=msg.sensor, seq=seq, t=msg.t, kind=msg.kind, z=msg.z, R=msg.R, detections=msg.detections,
+            sensor_position=msg.sensor_position, stamp_ns=time.time_ns()))
+        self.count("scans")
+        self.next_seq += 1
+        self.last_publish = now
+
+
+def add_sensor_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", type=Path, help="deployment TOML ([deployment], [[sensor]])")
+    parser.add_argument("--kind", choices=KINDS, default="position")
+    parser.add_argument("--scenario", type=int, choices=(1, 2), help="paper 004 scenario (overrides config)")
+    parser.add_argument("--seed", type=int, help="deployment seed (overrides config)")
+    parser.add_argument("--pacing", choices=PACINGS, help="overrides config (default lockstep)")
+    parser.add_argument("--speed", type=float, help="real-time speed-up factor (overrides config)")
+    parser.add_argument("--lockstep-timeout", type=float, default=5.0, metavar="SECONDS",
+                        help="publish the next scan anyway after this long without a fused track")
+
+
+def main(argv: list[str]) -> int:
+    parser = service_parser("sensor", "publish a simulated sensor's scans")
+    add_sensor_args(parser)
+    args = parser.parse_args(argv)
+    settings = load_settings(args.config)
+    dep = settings.deployment
+    overrides = {k: v for k, v in (("scenario", args.scenario), ("seed", args.seed), ("pacing", args.pacing),
+                                   ("speed", args.speed)) if v is not None}
+    if overrides:
+        from dataclasses import replace
+
+        settings = replace(settings, deployment=replace(dep, **overrides))
+        settings.deployment.validate()
+    if args.lockstep_timeout <= 0:
+        parser.error("--lockstep-timeout must be > 0")
+    lines, period = scan_source(args.kind, settings, args.id)
+    return SensorService(lines, period, settings.deployment.pacing, settings.deployment.speed,
+                         args.lockstep_timeout, **service_kwargs(parser, args)).run()
