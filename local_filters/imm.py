@@ -384,8 +384,8 @@ def _terminate(w: _Writer, rows: np.ndarray, idx: np.ndarray, c: Cycle,
 
 
 def _activate(bank: ModelBank, algorithm: str, w: _Writer, rows: np.ndarray, idx: np.ndarray,
-              prev: IMMState, c: Cycle, old: np.ndarray, target: np.ndarray, Pi: np.ndarray,
-              u: np.ndarray, model: LinearModel, z: np.ndarray, R: np.ndarray,
+              prev: IMMState, c: Cycle, fire: np.ndarray, old: np.ndarray, target: np.ndarray,
+              Pi: np.ndarray, u: np.ndarray, model: LinearModel, z: np.ndarray, R: np.ndarray,
               th: Thresholds) -> None:
     """Initialize the newly activated models (eqs. (2)-(6)) and re-run the cycle at ``k``.
 
@@ -396,10 +396,11 @@ def _activate(bank: ModelBank, algorithm: str, w: _Writer, rows: np.ndarray, idx
     and of the final set.
     """
     pairs = {(o, g): _switch(bank.groups, o, g, algorithm == VSIMM)
-             for o, g in set(zip(old.tolist(), target.tolist()))}
+             for o, g in set(zip(old[fire].tolist(), target[fire].tolist()))}
     batches: dict[tuple[int, int], list[int]] = {}
-    for r, key in enumerate(zip(old.tolist(), target.tolist())):
-        batches.setdefault((pairs[key][0].size, pairs[key][1].size), []).append(r)
+    for r in fire.tolist():
+        fresh, final, _ = pairs[(int(old[r]), int(target[r]))]
+        batches.setdefault((fresh.size, final.size), []).append(r)
     for (n_fresh, _), members in batches.items():
         sel = np.array(members)
         keys = list(zip(old[sel].tolist(), target[sel].tolist()))
@@ -418,8 +419,7 @@ def _activate(bank: ModelBank, algorithm: str, w: _Writer, rows: np.ndarray, idx
             w.keep(rows[sel], final, post, np.ones(final.shape, dtype=bool), target[sel], none)
         else:
             w.output(rows[sel], final, post, old[sel], target[sel], run)
-            _terminate(w, rows[sel], final, joint, post, old[sel], target[sel],
-                       np.zeros(sel.size), th)
+            _terminate(w, rows[sel], final, joint, post, old[sel], target[sel], np.zeros(sel.size), th)
 
 
 def vs_step(bank: ModelBank, algorithm: str, s: VSState, model: LinearModel, z: np.ndarray,
@@ -434,7 +434,7 @@ def vs_step(bank: ModelBank, algorithm: str, s: VSState, model: LinearModel, z: 
     if algorithm not in (VSIMM, AO_VSIMM):
         raise ValueError(f"unknown variable-structure algorithm {algorithm!r}")
     Pi = bank.Pi if Pi is None else Pi
-    u = mode_inputs(model, bank.acc)
+    u_all = mode_inputs(model, bank.acc)
     w = _Writer(bank, s)
     G = len(bank.groups)
     codes, first = np.unique(s.old * (G + 1) + s.new + 1, return_inverse=True)
@@ -449,31 +449,29 @@ def vs_step(bank: ModelBank, algorithm: str, s: VSState, model: LinearModel, z: 
         idx = table[first[rows]]  # (b, M) running models per run
         prev = IMMState(s.x[rows[:, None], idx], s.P[rows[:, None], idx], s.mu[rows[:, None], idx])
         Rr = R[rows] if R.ndim > 2 else R
-        c = model_cycle(prev, Pi[idx[:, :, None], idx[:, None, :]], u[idx], model, z[rows], Rr)
+        c = model_cycle(prev, Pi[idx[:, :, None], idx[:, None, :]], u_all[idx], model, z[rows], Rr)
         post = posterior(c)
         old, new = s.old[rows], s.new[rows]
-        w.output(rows, idx, post, old, new, size)
         union = new != NO_GROUP
-        if union.all():
-            _terminate(w, rows, idx, c, post, old, new, s.log_lr[rows], th)
-            continue
-        single: np.ndarray | slice = slice(None)
         if union.any():
-            _terminate(w, rows[union], idx[union], _rows(c, union), _rows(post, union),
-                       old[union], new[union], s.log_lr[rows[union]], th)
-            single = np.flatnonzero(~union)
-            rows, idx, old, new, prev = rows[single], idx[single], old[single], new[single], _rows(prev, single)
-            c, post, Rr = _rows(c, single), _rows(post, single), Rr[single] if R.ndim > 2 else R
-        target = activation(bank, idx, old, c, post, th.t_a)
-        stay = target == NO_GROUP
+            u = slice(None) if union.all() else union
+            u_post = _rows(post, u)
+            w.output(rows[u], idx[u], u_post, old[u], new[u], size)
+            _terminate(w, rows[u], idx[u], _rows(c, u), u_post, old[u], new[u], s.log_lr[rows[u]], th)
+            if union.all():
+                continue
+        single = slice(None) if not union.any() else np.flatnonzero(~union)
+        target = np.full(rows.size, NO_GROUP)
+        target[single] = activation(bank, idx[single], old[single], _rows(c, single), _rows(post, single), th.t_a)
+        stay = (target == NO_GROUP) & ~union
         sel = slice(None) if stay.all() else stay
-        w.keep(rows[sel], idx[sel], _rows(post, sel), np.ones(idx[sel].shape, dtype=bool),
-               old[sel], new[sel])
-        fire = np.flatnonzero(~stay)
+        s_post = _rows(post, sel)
+        w.output(rows[sel], idx[sel], s_post, old[sel], new[sel], size)
+        w.keep(rows[sel], idx[sel], s_post, np.ones(idx[sel].shape, dtype=bool), old[sel], new[sel])
+        fire = np.flatnonzero(target != NO_GROUP)
         if fire.size:
-            _activate(bank, algorithm, w, rows[fire], idx[fire], _rows(prev, fire), _rows(c, fire),
-                      old[fire], target[fire], Pi, u, model, z[rows[fire]],
-                      Rr[fire] if R.ndim > 2 else R, th)
+            _activate(bank, algorithm, w, rows, idx, prev, c, fire, old, target, Pi, u_all, model,
+                      z[rows], Rr, th)
     return w.state, w.out
 
 
