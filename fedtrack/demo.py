@@ -126,7 +126,7 @@ def plot(out: Path, settings: Settings) -> Path:
     truth = [json.loads(x) for x in (out / "truth.jsonl").read_text().splitlines()]
     meas = [json.loads(x) for x in (out / "measurements.jsonl").read_text().splitlines()]
     tracks = [json.loads(x) for x in (out / "tracks.jsonl").read_text().splitlines()]
-    fig, ax = plt.subplots(figsize=(8, 8))
+    fig, (ax, ax_err) = plt.subplots(1, 2, figsize=(14, 6), gridspec_kw={"width_ratios": [1.1, 1]})
     ax.plot([p["x"] / 1e3 for p in truth], [p["y"] / 1e3 for p in truth], "k-", lw=2, label="truth")
     for sid in sorted({m["sensor"] for m in meas}):
         pts = np.array([m["z"] for m in meas if m["sensor"] == sid]) / 1e3
@@ -143,7 +143,27 @@ def plot(out: Path, settings: Settings) -> Path:
     ax.set_aspect("equal")
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best", fontsize=8)
-    ax.set_title(f"fedtrack demo: scenario {settings.deployment.scenario}, {settings.deployment.mode}, "
+    ax.set_title("truth, measurements and fused track")
+
+    truth_at = {p["t"]: (p["x"], p["y"]) for p in truth}
+    t_tr = np.array([t["t"] for t in tracks])
+    err = np.array([np.hypot(p[0] * 1e3 - truth_at[t][0], p[1] * 1e3 - truth_at[t][1]) for t, p in zip(t_tr, xy)])
+    for sid in sorted({m["sensor"] for m in meas}):
+        mm = [m for m in meas if m["sensor"] == sid]
+        e = [np.hypot(m["z"][0] - truth_at[m["t"]][0], m["z"][1] - truth_at[m["t"]][1]) for m in mm]
+        ax_err.plot([m["t"] for m in mm], e, ".", ms=3, alpha=0.4, label=f"sensor {sid} measurement error")
+    ax_err.plot(t_tr, err, "r-", lw=1.5, label="fused position error")
+    for seg in paper004_scenario(settings.deployment.scenario).segments:
+        ax_err.axvspan(seg.t_start, seg.t_end, color="0.85", zorder=0)
+    for t in tracks:
+        if t.get("event") in ("onset", "new-ca"):
+            ax_err.axvline(t["t"], color="r", ls=":", lw=0.8)
+    ax_err.set_xlabel("time [s] (grey: true maneuvers; dotted: detections)")
+    ax_err.set_ylabel("position error [m]")
+    ax_err.grid(True, alpha=0.3)
+    ax_err.legend(loc="upper right", fontsize=8)
+    ax_err.set_title("position error against truth")
+    fig.suptitle(f"fedtrack demo: scenario {settings.deployment.scenario}, {settings.deployment.mode}, "
                  f"{len(settings.sensor)} sensors")
     path = out / "tracks.png"
     fig.tight_layout()
