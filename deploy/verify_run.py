@@ -1,0 +1,103 @@
+"""Check a recorded deployment: every scan fused, finite, and equal to the offline replay.
+
+``python -m deploy.verify_run --config CONFIG.toml --run DIR`` reads ``DIR/tracks.jsonl``
+and ``DIR/measurements.jsonl`` (written by the recorder), replays the measurements with
+the deployment's algorithm (``fvdie`` for federated, ``dvdie`` for decentralized) and
+prints a JSON verdict. Exit code 0 when the run is complete and matches the replay,
+1 when it does not, 2 for a missing or unreadable file or a bad config.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fedtrack.config import ConfigError
+from fedtrack.demo import REPLAY_ALGORITHM
+from fedtrack.jsonl import InputError, read_jsonl
+from fedtrack.settings import load_settings
+from fusion_center.replay import replay_fusion
+from sensors.scenarios import paper004_scenario
+
+TOLERANCE = 1e-9
+
+
+@dataclass(frozen=True)
+class RunCheck:
+    """What :func:`verify_run` found."""
+
+    scans: int
+    scans_expected: int
+    measurements: int
+    measurements_expected: int
+    degraded: int
+    finite: bool
+    max_replay_diff: float
+
+    @property
+    def ok(self) -> bool:
+        return (self.scans == self.scans_expected and self.measurements == self.measurements_expected
+                and self.degraded == 0 and self.finite and self.max_replay_diff <= TOLERANCE)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {**self.__dict__, "tolerance": TOLERANCE, "ok": self.ok}
+
+
+def _rows(path: Path) -> list[dict[str, Any]]:
+    return [obj for _, obj in read_jsonl(path)]
+
+
+def _relative_diff(a: list[Any], b: list[Any]) -> float:
+    """Largest ``|a - b| / max(1, |b|)`` over the entries (inf on a shape mismatch)."""
+    x, y = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    if x.shape != y.shape:
+        return float("inf")
+    return float(np.max(np.abs(x - y) / np.maximum(1.0, np.abs(y)), initial=0.0))
+
+
+def verify_run(config: Path, run_dir: Path) -> RunCheck:
+    """Compare ``run_dir/tracks.jsonl`` with the replay of ``run_dir/measurements.jsonl``."""
+    settings = load_settings(config)
+    n_sensors = len(settings.fusion.sensors or settings.sensor)
+    expected = len(paper004_scenario(settings.deployment.scenario).times)
+    tracks = _rows(run_dir / "tracks.jsonl")
+    measurements = _rows(run_dir / "measurements.jsonl")
+    with tempfile.TemporaryDirectory() as tmp:
+        replay_path = Path(tmp) / "replay.jsonl"
+        replay_fusion(REPLAY_ALGORITHM[settings.deployment.mode], run_dir / "measurements.jsonl", config,
+                      replay_path)
+        replay = _rows(replay_path)
+    diff = float("inf") if len(replay) != len(tracks) else max(
+        (max(abs(tr["t"] - rp["t"]), _relative_diff(tr["x"], rp["x"]), _relative_diff(tr["P"], rp["P"]),
+             0.0 if tr["model"] == rp["model"] else float("inf"))
+         for tr, rp in zip(tracks, replay)), default=float("inf"))
+    finite = all(np.all(np.isfinite(np.asarray(tr["x"], dtype=float)))
+                 and np.all(np.isfinite(np.asarray(tr["P"], dtype=float))) for tr in tracks)
+    return RunCheck(scans=len(tracks), scans_expected=expected, measurements=len(measurements),
+                    measurements_expected=expected * n_sensors,
+                    degraded=sum(bool(tr.get("degraded")) for tr in tracks), finite=finite, max_replay_diff=diff)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m deploy.verify_run", description=__doc__.splitlines()[0])
+    parser.add_argument("--config", required=True, type=Path, help="the deployment TOML of the fusion host")
+    parser.add_argument("--run", required=True, type=Path, help="the recorder's output directory")
+    args = parser.parse_args(argv)
+    try:
+        check = verify_run(args.config, args.run)
+    except (OSError, ConfigError, InputError) as exc:
+        print(f"verify_run: error: {exc}", file=sys.stderr)
+        return 2
+    print(json.dumps(check.as_dict()))
+    return 0 if check.ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,54 @@
+"""Wait until services of a deployment are up: ``python -m deploy.wait_ready ROLE/ID ...``.
+
+Opens a Zenoh client session to ``--connect`` (waiting for the router to appear) and
+polls the liveliness tokens ``fedtrack/<deployment>/alive/<role>/<id>``. Use it on the
+sensor hosts of a multi-host deployment before ``fedtrack launch``, so that no scan is
+published before the fusion center and the recorder listen. Exit code 0 when every
+service is up, 1 (naming the missing ones) after ``--timeout`` seconds, 2 for bad arguments.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+from fedtrack.keys import InvalidName, Keys
+from fedtrack.zsession import SessionError, SessionOptions, close_session, open_session, wait_alive
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m deploy.wait_ready", description=__doc__.splitlines()[0])
+    parser.add_argument("services", nargs="+", metavar="ROLE/ID", help="e.g. fusion-center/fusion recorder/recorder")
+    parser.add_argument("--connect", required=True, action="append", help="router endpoint, e.g. tcp/10.47.0.1:7447")
+    parser.add_argument("--deployment", required=True, help="deployment name ([deployment] name)")
+    parser.add_argument("--timeout", type=float, default=30.0, help="seconds (default: %(default)s)")
+    args = parser.parse_args(argv)
+    if not args.timeout > 0:
+        parser.error("--timeout must be > 0")
+    deadline = time.monotonic() + args.timeout
+    try:
+        keys = Keys(args.deployment)
+        wanted = [keys.alive(*s.split("/", 1)) for s in args.services if "/" in s]
+        if len(wanted) != len(args.services):
+            parser.error("services must be given as ROLE/ID")
+        session = open_session(SessionOptions(mode="client", connect=tuple(args.connect),
+                                              connect_timeout_s=args.timeout))
+    except (InvalidName, ValueError) as exc:
+        parser.error(str(exc))
+    except SessionError as exc:
+        print(f"wait_ready: {exc}", file=sys.stderr)
+        return 1
+    try:
+        missing = wait_alive(session, wanted, max(deadline - time.monotonic(), 0.0))
+    finally:
+        close_session(session)
+    if missing:
+        print(f"wait_ready: not up after {args.timeout:g} s: {', '.join(sorted(missing))}", file=sys.stderr)
+        return 1
+    print(f"wait_ready: up: {', '.join(args.services)}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
