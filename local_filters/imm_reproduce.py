@@ -69,8 +69,12 @@ def _deadlock(bank: ModelBank, old: np.ndarray, new: np.ndarray, window: tuple[i
     union = new[sl] != NO_GROUP
     never = ~active.any(axis=0)
     first_k = np.where(active.any(axis=0), np.argmax(active, axis=0) + first, -1)
+    labels, counts = np.unique([group_label(bank, int(o), int(n)) for o, n in
+                                zip(old[sl].ravel(), new[sl].ravel())], return_counts=True)
+    share = {str(lab): float(c) / old[sl].size for lab, c in zip(labels, counts)}
     return {"window": [first, last], "group": name,
             "runs_never_activating_fraction": float(np.mean(never)),
+            "active_group_share": dict(sorted(share.items(), key=lambda kv: -kv[1])[:6]),
             "first_activation_k_run0": int(first_k[0]) if first_k[0] > 0 else None,
             "union_steps_fraction": float(np.mean(union))}
 
