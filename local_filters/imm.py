@@ -44,21 +44,24 @@ one fit a probability, not a ratio. Two rules are implemented (``Thresholds.rule
   terminate ``M_a`` if ``t^mu < t_1^mu`` and ``t^L < t_1^L``; terminate ``M_o`` if
   ``t^mu > t_2^mu`` and ``t^L > t_2^L`` (literally the paper's text).
 
-Otherwise the union keeps running. The test also runs at the activation instant ``k0``. While the union runs the
-activation logic is suspended (paper 000 section 2, third property).
+Otherwise the union keeps running. The test also runs at the activation instant ``k0``.
+While the union runs the activation logic is suspended (paper 000 section 2, third
+property).
 
 All maths is batched over a leading axis (Monte Carlo runs). The variable-structure
-filters keep a *dense* per-run record over the whole model set (inactive slots are
-zero) and each step groups the runs that share an active configuration, so the work
-done is proportional to the number of models actually run.
+filters keep a *dense* per-run record over the whole model set (models not running have
+``mu = 0``) and each step runs, in one batched cycle, the runs whose active sets have the
+same size, with per-run model indices; so the work done is proportional to the number of
+models actually run.
 """
 
 from __future__ import annotations
 
 from functools import lru_cache
-from typing import NamedTuple
+from typing import NamedTuple, TypeVar
 
 import numpy as np
+
 from local_filters.kalman import GaussianState, log_likelihood, predict, symmetrize, update
 from local_filters.models import LinearModel
 
@@ -67,6 +70,7 @@ VSIMM = "vsimm"
 AO_VSIMM = "ao-vsimm"
 ALGORITHMS = (FSIMM, VSIMM, AO_VSIMM)
 
+_Rec = TypeVar("_Rec")  # a record of arrays (IMMState, Cycle, GaussianState) or an array
 NO_GROUP = -1
 KEEP_UNION, DROP_OLD, DROP_NEW = 0, 1, 2
 GROUP_PROBABILITY = "group-probability"  # our corrected reading of the termination rule
@@ -326,11 +330,11 @@ def activation(bank: ModelBank, idx: np.ndarray, current: np.ndarray, c: Cycle, 
     return np.where(fire, cand, NO_GROUP)
 
 
-def _rows(a: IMMState | Cycle | GaussianState, sel: np.ndarray | slice):  # type: ignore[no-untyped-def]
+def _rows(a: _Rec, sel: np.ndarray | slice) -> _Rec:
     """Select runs ``sel`` of a (nested) record of arrays."""
     if isinstance(a, np.ndarray):
-        return a[sel]
-    return type(a)(*(_rows(f, sel) for f in a))
+        return a[sel]  # type: ignore[return-value]
+    return type(a)(*(_rows(f, sel) for f in a))  # type: ignore[arg-type]
 
 
 class _Writer:
