@@ -98,7 +98,7 @@ class InputEstimate(NamedTuple):
 
 def ie_init(z0: np.ndarray, z1: np.ndarray, R: np.ndarray, model: MotionModel3D,
             sensor_position: np.ndarray, params: InputEstimationParams) -> IEState:
-    """Two-point initialization in CV mode with empty window buffers."""
+    """Two-point initialization in CV mode with empty window buffers (``z0``, ``z1``: (N, 3))."""
     s = two_point_init(z0, z1, R, model, sensor_position)
     batch, n, W = s.x.shape[:-1], model.dim, params.window
     return IEState(
@@ -198,7 +198,6 @@ def ie_step(state: IEState, z: np.ndarray, R: np.ndarray, model: MotionModel3D,
         P[sel] = symmetrize(P[sel] + M @ L @ transpose(M))  # eq. (34) corrected
         u[sel] = np.where(significant[apply, None], total[apply], 0.0)
         maneuver[sel] = significant[apply]
-        count = count.copy()
         count[sel] = 0
         xs[sel, -1], Ps[sel, -1] = x[sel], P[sel]
     return IEState(GaussianState(x, P), u, maneuver, count, xs, Ps, zs, Rs, Ks, Hs, nis_buf)

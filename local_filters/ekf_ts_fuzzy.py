@@ -3,7 +3,7 @@
 Paper 003 trains on "noise-free minus noisy measurement", which needs ground truth at run time
 (errata). The model inputs here are run-time quantities only: the Cartesian innovation
 ``c_k = sensor + cartesian(z_k) - position(x(k|k-1))`` (converted measurement minus predicted
-position), smoothed by an exponential moving average with time constant ``tau`` s
+position), smoothed by an exponential moving average with time constant ``TAU_S`` = 0.3 s
 (``e <- e + a (c - e)``, ``a = 1 - exp(-T/tau)``), 3 inputs as in the paper's Figure 2. A CV
 EKF lagging a maneuver shows a persistent mean innovation, so the smoothed innovation predicts
 the EKF's error. The model outputs the EKF's error ``truth - x(k|k)`` in position and velocity
@@ -24,7 +24,9 @@ from local_filters.kalman import GaussianState
 from local_filters.ts_fuzzy import TSModel, predict
 from sensors.radar import cartesian_from_polar
 
-TAU_S = 1.0  # smoothing time constant of the innovation feature, s
+# Smoothing time constant of the innovation feature, s: chosen among 0.1, 0.2, 0.3, 0.5, 1 s by an
+# affine fit on 5 training-stream runs (seed 1) scored on 5 other training-stream runs (seed 2).
+TAU_S = 0.3
 
 
 class TSState(NamedTuple):

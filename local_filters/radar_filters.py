@@ -26,7 +26,7 @@ from fedtrack.jsonl import InputError, as_covariance, as_float, as_vector, requi
 from fedtrack.progress import Progress
 from local_filters.ekf import CV3, MotionModel3D, ekf_step, motion_model_3d, two_point_init
 from local_filters.ekf_input_estimation import InputEstimationParams, ie_init, ie_step
-from local_filters.ekf_ts_fuzzy import compensated, ts_init, ts_step
+from local_filters.ekf_ts_fuzzy import TAU_S, compensated, ts_init, ts_step
 from local_filters.ts_fuzzy import TSModel, load_model
 
 ALGORITHMS = ("ekf", "ekf-ie", "ekf-tsfuzzy")
@@ -100,6 +100,14 @@ def _no_maneuver(x: np.ndarray) -> np.ndarray:
     return np.zeros(x.shape[:-1], bool)
 
 
+def load_compatible_model(path: Path) -> TSModel:
+    """Load a TS model trained on the features this code computes (same smoothing constant)."""
+    ts, meta = load_model(path)
+    if "tau_s" not in meta or not np.isclose(float(meta["tau_s"]), TAU_S):
+        raise ConfigError(f"model: {path} was trained with another feature smoothing constant; retrain it")
+    return ts
+
+
 def filter_kind(algorithm: str, config: EkfConfig, ts_model: TSModel | None = None) -> FilterKind:
     """The batched functions of ``algorithm`` (``ts_model`` overrides the configured file)."""
     if algorithm == "ekf":
@@ -113,7 +121,7 @@ def filter_kind(algorithm: str, config: EkfConfig, ts_model: TSModel | None = No
                           lambda man: "cv+input" if man else CV3)
     if algorithm == "ekf-tsfuzzy":
         assert isinstance(config, EkfTsFuzzyConfig)
-        ts = ts_model if ts_model is not None else load_model(config.model_path)[0]
+        ts = ts_model if ts_model is not None else load_compatible_model(config.model_path)
         return FilterKind(ts_init, ts_step,
                           lambda s, m: (compensated(s, ts, m), s.filt.P, _no_maneuver(s.ema)),
                           lambda _: "cv+ts-fuzzy")

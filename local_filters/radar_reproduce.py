@@ -21,8 +21,8 @@ from typing import Any
 import numpy as np
 
 from local_filters.ekf import CV3, motion_model_3d
-from local_filters.radar_filters import (MODEL_ENV, EkfConfig, EkfIEConfig, EkfTsFuzzyConfig,
-                                         FilterKind, filter_kind, run_batch)
+from local_filters.radar_filters import (MODEL_ENV, EkfIEConfig, EkfTsFuzzyConfig, FilterKind,
+                                         filter_kind, load_compatible_model, run_batch)
 from local_filters.ts_fuzzy import GAParams, load_model
 from local_filters.ts_fuzzy_train import EVAL_TAG, TRAIN_TAG, scenario_rng, train
 from sensors.radar import G0, RadarConfig, Trajectory, simulate
@@ -48,13 +48,23 @@ def _bootstrap_se(stat: Any, n: int, rng: np.random.Generator) -> float:
     return float(np.std(vals, ddof=1))
 
 
+def _squared_pos_error(err: np.ndarray) -> np.ndarray:
+    """Squared 3-D position error (runs, K-1) from the first estimate on."""
+    return np.sum(err ** 2, axis=-1)[:, 1:]
+
+
+def _segment_mean_rms(sq: np.ndarray, idx: np.ndarray, sl: slice) -> float:
+    """Time average over ``sl`` of the RMS (over runs ``idx``) position error."""
+    return float(np.mean(np.sqrt(np.mean(sq[idx][:, sl], axis=0))))
+
+
 def _metrics(err: np.ndarray, man: np.ndarray, turn: int, rng: np.random.Generator) -> dict[str, Any]:
     """Metrics of position errors ``err`` (runs, K, 3) (NaN at index 0)."""
-    sq = np.sum(err ** 2, axis=-1)[:, 1:]
+    sq = _squared_pos_error(err)
     t0 = turn - 1  # index of the turn start in sq
 
     def seg(idx: np.ndarray, sl: slice) -> float:
-        return float(np.mean(np.sqrt(np.mean(sq[idx][:, sl], axis=0))))
+        return _segment_mean_rms(sq, idx, sl)
 
     allr = np.arange(err.shape[0])
     rms_axis = np.sqrt(np.mean(err ** 2, axis=0))
@@ -79,10 +89,10 @@ def _run_filters(kinds: dict[str, FilterKind], zs: np.ndarray, radar: RadarConfi
 def _paired_ratio(errs: dict[str, np.ndarray], num: str, den: str, sl: slice,
                   rng: np.random.Generator) -> tuple[float, float]:
     """Ratio of segment mean-RMS errors of two filters on the same runs, with bootstrap SE."""
-    sq = {k: np.sum(v ** 2, axis=-1)[:, 1:][:, sl] for k, v in errs.items()}
+    sq = {k: _squared_pos_error(v) for k, v in errs.items()}
 
     def ratio(idx: np.ndarray) -> float:
-        return float(np.mean(np.sqrt(sq[num][idx].mean(0))) / np.mean(np.sqrt(sq[den][idx].mean(0))))
+        return _segment_mean_rms(sq[num], idx, sl) / _segment_mean_rms(sq[den], idx, sl)
 
     n = next(iter(sq.values())).shape[0]
     return ratio(np.arange(n)), _bootstrap_se(ratio, n, rng)
@@ -178,8 +188,8 @@ def reproduce_ts_fuzzy(runs: int, seed: int, json_path: Path, plots_dir: Path | 
     radar, cfg = RadarConfig(), EkfTsFuzzyConfig()
     env_path = os.environ.get(MODEL_ENV, "")
     if env_path:
-        ts, meta = load_model(env_path)
-        training = {"source": env_path, **{k: v.item() for k, v in meta.items()}}
+        ts = load_compatible_model(Path(env_path))
+        training = {"source": env_path, **{k: v.item() for k, v in load_model(env_path)[1].items()}}
     else:
         ts, summary = train(TS_TRAIN_RUNS, seed, GAParams(), cfg.q)
         training = {"source": "trained by this command", "train_tag": TRAIN_TAG, "train_seed": seed,

@@ -19,7 +19,7 @@ import numpy as np
 from fedtrack.config import ConfigError
 from fedtrack.progress import Progress
 from local_filters.ekf import CV3, motion_model_3d
-from local_filters.ekf_ts_fuzzy import error_components, ts_init, ts_step
+from local_filters.ekf_ts_fuzzy import TAU_S, error_components, ts_init, ts_step
 from local_filters.radar_filters import EkfConfig
 from local_filters.ts_fuzzy import GAParams, TSModel, identify, save_model
 from sensors.radar import RadarConfig, simulate
@@ -66,7 +66,8 @@ def train(runs: int, seed: int, ga: GAParams, q: float = EkfConfig.q) -> tuple[T
 
 
 def _model_meta(runs: int, seed: int, q: float, summary: dict[str, float]) -> dict[str, float | int]:
-    return {"train_tag": TRAIN_TAG, "train_seed": seed, "train_runs": runs, "q": q, **summary}
+    return {"train_tag": TRAIN_TAG, "train_seed": seed, "train_runs": runs, "q": q, "tau_s": TAU_S,
+            **summary}
 
 
 def main(argv: list[str]) -> int:

@@ -9,8 +9,7 @@ from scipy.stats import chi2
 from fedtrack.config import ConfigError
 from fedtrack.jsonl import InputError, write_jsonl
 from local_filters.ekf import ekf_step, ekf_update, motion_model_3d, radar_h, radar_jacobian
-from local_filters.ekf_input_estimation import (InputEstimationParams, estimate_input, ie_init,
-                                                ie_step, window_covariance)
+from local_filters.ekf_input_estimation import InputEstimationParams, estimate_input, window_covariance
 from local_filters.kalman import GaussianState, nees
 from local_filters.radar_filters import EkfIEConfig, filter_kind, make_radar_filter, run_batch
 from local_filters.radar_replay import replay_radar
