@@ -7,19 +7,26 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from fedtrack.config import load_toml, parse_dataclass
 from fedtrack.deployment import DeploymentConfig, SensorConfig
 from fusion_center.trackers import FusionConfig
+from sensors.radar import RadarConfig
+from sensors.sonar import SonarConfig
 
 
 @dataclass(frozen=True)
 class Settings:
-    """``[fusion]``, ``[deployment]`` and ``[[sensor]]`` tables."""
+    """``[fusion]``, ``[deployment]``, ``[[sensor]]``; ``[sonar]`` / ``[radar]`` for those sensor
+    kinds and ``[radar_filter]`` (checked by the radar filter chosen with ``--filter``)."""
 
     fusion: FusionConfig = field(default_factory=FusionConfig)
     deployment: DeploymentConfig = field(default_factory=DeploymentConfig)
     sensor: tuple[SensorConfig, ...] = ()
+    sonar: SonarConfig = field(default_factory=SonarConfig)
+    radar: RadarConfig = field(default_factory=RadarConfig)
+    radar_filter: Any = None
 
 
 def load_settings(path: Path | None) -> Settings:

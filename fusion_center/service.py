@@ -62,6 +62,9 @@ class FusionCenterService(Service):
         if msg.sensor not in self.sensors:
             self.count("unknown_sensor")
             return
+        if msg.model not in ("cv", "ca") or msg.x.shape[0] != (6 if msg.model == "ca" else 4):
+            self.count("wrong_model")  # e.g. a 3-D radar filter's estimate: not a 2-D CV/CA state
+            return
         if self.next_seq is not None and msg.seq < self.next_seq:
             self.count("late")
             return

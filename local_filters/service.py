@@ -7,6 +7,8 @@ Subscribes to ``sensor/<ID>/meas`` and publishes ``local/<ID>/estimate``.
   within the deployment's ``deadline_s``, the filter goes on from its own estimate and
   flags the estimate ``no-reset`` (counted in ``no_reset``).
 * decentralized: the DVDIE local filter, a stand-alone single-sensor VDIE.
+* ``--filter ekf|ekf-ie|ekf-tsfuzzy``: a 3-D radar filter (papers 002/003) on a radar
+  sensor's measurements (see :class:`RadarLocalFilterService`).
 
 Measurements are processed in ``seq`` order; one that arrives for a scan already
 processed is counted in ``late`` and dropped (never silently).
@@ -24,8 +26,12 @@ from fedtrack.config import ConfigError
 from fedtrack.deployment import MODES
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
 from fedtrack.settings import load_settings
-from fedtrack.wire import LocalEstimate, ManeuverInfo, Measurement, Reset
+from fedtrack.jsonl import InputError
+from fedtrack.wire import LocalEstimate, ManeuverInfo, Measurement, Reset, measurement_to_replay
 from local_filters.distributed import FederatedLocalFilter, LocalOutput, VdieLocalFilter
+from local_filters.radar_filters import RadarFilter, make_radar_filter
+
+FILTERS = ("vdie", "ekf", "ekf-ie", "ekf-tsfuzzy")
 
 
 class LocalFilterService(Service):
@@ -99,6 +105,48 @@ class LocalFilterService(Service):
         self.publish(self.keys.local_estimate(self.sensor), to_message(self.sensor, msg, out, flags))
 
 
+class RadarLocalFilterService(Service):
+    """A 3-D radar local filter (``--filter ekf|ekf-ie|ekf-tsfuzzy``) publishing its estimates.
+
+    The state is 3-D (``[x, vx, y, vy, z, vz]``, model ``cv3``/``ca3`` as the filter labels
+    it); the 2-D federated fusion center does not fuse such estimates (it counts them as
+    ``wrong_model``). The filter keeps no prior for the wire, so ``x_prior``/``P_prior``
+    repeat the posterior and the estimate is flagged ``no-prior``.
+    """
+
+    role = "local-filter"
+
+    def __init__(self, sensor: str, filt: RadarFilter, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self.sensor = sensor
+        self.filter = filt
+        self.processed_up_to = -1
+
+    def subscriptions(self) -> list[Subscription]:
+        return [Subscription(self.keys.sensor_meas(self.sensor), Measurement, self.on_measurement)]
+
+    def on_measurement(self, msg: Measurement) -> None:
+        if msg.kind != "radar":
+            self.count("wrong_kind")
+            return
+        if msg.seq <= self.processed_up_to:
+            self.count("late")
+            return
+        try:
+            est = self.filter.step(measurement_to_replay(msg), where=f"scan {msg.seq}")
+        except InputError as exc:
+            self.count("rejected_input")
+            self.log.warning("%s", exc)
+            return
+        self.processed_up_to = msg.seq
+        if est is None:  # the first measurement only starts the two-point initialization
+            return
+        x, P = np.asarray(est["x"]), np.asarray(est["P"])
+        self.publish(self.keys.local_estimate(self.sensor), LocalEstimate(
+            sensor=self.sensor, seq=msg.seq, t=msg.t, model=est["model"], x=x, P=P, x_prior=x, P_prior=P,
+            stamp_ns=msg.stamp_ns, degraded=("no-prior",)))
+
+
 def to_message(sensor: str, meas: Measurement, out: LocalOutput, flags: tuple[str, ...]) -> LocalEstimate:
     maneuver = None
     if out.event is not None:
@@ -114,10 +162,16 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--sensor", required=True, help="the sensor id this filter serves")
     parser.add_argument("--mode", choices=MODES, help="overrides deployment.mode")
     parser.add_argument("--config", type=Path, help="deployment TOML ([deployment], [fusion], [[sensor]])")
+    parser.add_argument("--filter", choices=FILTERS, default="vdie",
+                        help="vdie: the 2-D federated/DVDIE local filter (default); ekf, ekf-ie, ekf-tsfuzzy: "
+                             "3-D radar filters configured by [radar_filter]")
     args = parser.parse_args(argv)
     if args.id == "local-filter":
         args.id = args.sensor
     settings = load_settings(args.config)
+    if args.filter != "vdie":
+        radar = make_radar_filter(args.filter, settings.radar_filter)
+        return RadarLocalFilterService(args.sensor, radar, **service_kwargs(parser, args)).run()
     mode = args.mode or settings.deployment.mode
     sensors = settings.fusion.sensors or tuple(s.id for s in settings.sensor)
     if args.sensor not in sensors:

@@ -10,14 +10,16 @@ Pacing:
 After its last scan the sensor waits for that scan's fused track (lockstep) or one
 fusion deadline (realtime) and exits 0.
 
-Kinds: ``position`` (paper 004 scenario, the deployment's default) and, where the
-cluttered-sensor and radar modules are installed, ``sonar`` and ``radar``.
+Kinds: ``position`` (paper 004 scenario with the ``[[sensor]]`` R, the default),
+``sonar`` (cluttered scans with amplitudes, paper 001, table ``[sonar]``) and ``radar``
+(range/azimuth/elevation, paper 002, table ``[radar]``); all seeded by ``deployment.seed``.
 """
 
 from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -27,7 +29,9 @@ from fedtrack.deployment import PACINGS
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
 from fedtrack.settings import Settings, load_settings
 from fedtrack.wire import FusedTrack, Measurement, measurement_from_replay
+from sensors.radar import radar_scans
 from sensors.scenarios import deployment_truth, paper004_scenario, sensor_measurements
+from sensors.sonar import sonar_scans
 
 KINDS = ("position", "sonar", "radar")
 
@@ -46,17 +50,15 @@ def position_scans(settings: Settings, sensor_id: str) -> Iterator[dict[str, Any
 
 
 def scan_source(kind: str, settings: Settings, sensor_id: str) -> tuple[list[dict[str, Any]], float]:
-    """All scans of the sensor as replay lines, and the scan period."""
+    """All scans of the sensor as replay lines (without the simulator's truth), and the scan period."""
+    seed = settings.deployment.seed
     if kind == "position":
         lines = list(position_scans(settings, sensor_id))
     elif kind == "sonar":
-        from sensors.sonar import deployment_scans as sonar_deployment_scans
-
-        lines = list(sonar_deployment_scans(settings, sensor_id))
+        lines = list(sonar_scans(replace(settings.sonar, sensor=sensor_id), seed))
     else:
-        from sensors.radar import deployment_scans as radar_deployment_scans
-
-        lines = list(radar_deployment_scans(settings, sensor_id))
+        lines = list(radar_scans(replace(settings.radar, sensor=sensor_id), seed))
+    lines = [{k: v for k, v in line.items() if k != "truth"} for line in lines]
     period = lines[1]["t"] - lines[0]["t"] if len(lines) > 1 else 1.0
     return lines, period
 
@@ -133,8 +135,6 @@ def main(argv: list[str]) -> int:
     overrides = {k: v for k, v in (("scenario", args.scenario), ("seed", args.seed), ("pacing", args.pacing),
                                    ("speed", args.speed)) if v is not None}
     if overrides:
-        from dataclasses import replace
-
         settings = replace(settings, deployment=replace(dep, **overrides))
         settings.deployment.validate()
     if args.lockstep_timeout <= 0:
