@@ -23,7 +23,7 @@ import numpy as np
 from fedtrack.config import to_toml
 from fedtrack.deployment import MODES, DeploymentConfig, SensorConfig
 from fedtrack.jsonl import write_jsonl
-from fedtrack.launcher import LaunchError, LaunchReport, run_deployment
+from fedtrack.launcher import LaunchError, LaunchReport, ServiceFailed, run_deployment
 from fedtrack.settings import Settings
 from fusion_center.trackers import FusionConfig
 from sensors.scenarios import DEFAULT_R, deployment_truth, paper004_scenario
@@ -194,11 +194,14 @@ def main(argv: list[str]) -> int:
                                       for t, s in zip(scenario.times, truth)])
     print(f"fedtrack demo: {args.sensors} sensors, scenario {args.scenario}, {args.mode}; output in {out}",
           file=sys.stderr)
+    failure = None
     try:
         report = run_deployment(settings, out / "config.toml", out)
     except KeyboardInterrupt:
         print("fedtrack demo: stopped; every service was shut down", file=sys.stderr)
         return 130
+    except ServiceFailed as exc:  # the scenario ran to its end without some service
+        report, failure = exc.report, str(exc)
     except LaunchError as exc:
         print(f"fedtrack demo: {exc}", file=sys.stderr)
         return 1
@@ -208,4 +211,7 @@ def main(argv: list[str]) -> int:
     print_summary(summary)
     print(f"\nwrote {out}/: measurements.jsonl tracks.jsonl truth.jsonl summary.json config.toml {png.name}")
     print(f"reproduce the tracks with: {summary['replay_command']}")
+    if failure is not None:
+        print(f"fedtrack demo: {failure}", file=sys.stderr)
+        return 1
     return 0

@@ -32,10 +32,11 @@ from fedtrack.zsession import SessionOptions, close_session, open_session, wait_
 
 STOP_GRACE_S = 5.0
 PR_SET_PDEATHSIG = 1
+ESSENTIAL_ROLES = ("router", "fusion-center", "recorder")
 
 
 class LaunchError(RuntimeError):
-    """A service failed to start or died."""
+    """A service failed to start or an essential service died."""
 
 
 @dataclass
@@ -66,6 +67,7 @@ class LaunchReport:
     measurements: dict[str, int] = field(default_factory=dict)
     health: dict[str, dict[str, int]] = field(default_factory=dict)
     exit_codes: dict[str, int] = field(default_factory=dict)
+    failed: list[str] = field(default_factory=list)
     wall_s: float = 0.0
 
     def latency_percentiles(self) -> tuple[float, float]:
@@ -76,6 +78,14 @@ class LaunchReport:
 
     def rejected(self) -> int:
         return sum(c.get("rejected", 0) for c in self.health.values())
+
+
+class ServiceFailed(LaunchError):
+    """The deployment ran to its end, but some service failed; ``report`` holds what was seen."""
+
+    def __init__(self, report: LaunchReport, message: str) -> None:
+        super().__init__(message)
+        self.report = report
 
 
 def _die_with_parent() -> None:
@@ -139,10 +149,18 @@ class Launcher:
                                    preexec_fn=_die_with_parent, env=env)
         log.close()
 
-    def _check_alive(self, group: list[ServiceProcess]) -> None:
+    def _check_alive(self, group: list[ServiceProcess], starting: bool = False) -> None:
+        """A failed essential service (or any service while starting) ends the deployment;
+        a failed sensor or local filter is reported and the rest goes on degraded."""
         for sp in group:
-            if sp.proc is not None and sp.proc.poll() is not None and sp.proc.returncode != 0:
+            if sp.proc is None or sp.proc.poll() is None or sp.proc.returncode == 0:
+                continue
+            if starting or sp.role in ESSENTIAL_ROLES:
                 raise LaunchError(f"{sp.name} exited with code {sp.proc.returncode}:\n{sp.log_tail()}")
+            if sp.name not in self.report.failed:
+                self.report.failed.append(sp.name)
+                sys.stderr.write(f"\nfedtrack launch: {sp.name} died (exit code {sp.proc.returncode}); "
+                                 "continuing without it\n")
 
     def stop_all(self) -> None:
         """SIGTERM every child still running (reverse start order), SIGKILL after a grace period."""
@@ -237,7 +255,8 @@ class Launcher:
         if failed and not self._stop.is_set():
             name = next(iter(failed))
             sp = next(p for p in self.plan if p.name == name)
-            raise LaunchError(f"{name} exited with code {failed[name]}:\n{sp.log_tail()}")
+            raise ServiceFailed(self.report, f"{', '.join(failed)} failed; {name} exited with code "
+                                f"{failed[name]}:\n{sp.log_tail()}")
         return self.report
 
     def _wait_ready(self, group: list[ServiceProcess], timeout_s: float) -> None:
@@ -245,7 +264,7 @@ class Launcher:
         want = [self.keys.alive(sp.role, sp.id) for sp in group]
         deadline = time.monotonic() + timeout_s
         while True:
-            self._check_alive(group)
+            self._check_alive(group, starting=True)
             if self._stop.is_set():
                 raise KeyboardInterrupt
             missing = sorted(wait_alive(self._session, want, timeout_s=0.2))
@@ -260,6 +279,8 @@ class Launcher:
         while not self._stop.is_set():
             self._check_alive(self.plan)
             if sensors and all(sp.proc.poll() is not None for sp in sensors):
+                break
+            if not sensors and all(sp.proc.poll() is not None for sp in self.plan):
                 break
             now = time.monotonic()
             if not self.quiet and now - last_print >= (0.2 if tty else 2.0):
@@ -299,10 +320,13 @@ def main(argv: list[str]) -> int:
     except KeyboardInterrupt:
         print("fedtrack launch: stopped; every service was shut down", file=sys.stderr)
         return 130
+    except ServiceFailed as exc:
+        report = exc.report
+        print(f"fedtrack launch: {exc}", file=sys.stderr)
     except LaunchError as exc:
         print(f"fedtrack launch: {exc}", file=sys.stderr)
         return 1
     p50, p99 = report.latency_percentiles()
     print(f"scans fused {report.scans_fused}, latency p50 {p50:.2f} ms p99 {p99:.2f} ms, "
           f"rejected messages {report.rejected()}, {report.wall_s:.1f} s")
-    return 0
+    return 1 if report.failed or any(c not in (0, None) for c in report.exit_codes.values()) else 0

@@ -1,9 +1,12 @@
 """``fedtrack serve fusion-center --sensors ID,ID,... --mode federated|decentralized``.
 
 Collects ``local/<id>/estimate`` per scan (``seq``) and fuses scan k when every expected
-local estimate has arrived, or when ``deadline_s`` has passed since the first one did
-(then it fuses those it has, renormalizing the sharing factors, and marks the track
-degraded). Scans are fused in order. Publishes, per scan: the resets
+local filter has reported, except those whose liveliness token ``alive/local-filter/<id>``
+went away (their process died), or
+when ``deadline_s`` has passed since the first estimate arrived. A scan fused without
+every configured sensor uses those it has (sharing factors renormalized) and is marked
+degraded; a dead local filter (its token gone within milliseconds of the process dying)
+costs no waiting, a frozen one costs the deadline. Scans are fused in order. Publishes, per scan: the resets
 ``fusion/reset/<id>`` (federated), the track ``fusion/track``, and on a maneuver decision
 ``fusion/event``. ``fusion/state`` answers with the latest track.
 """
@@ -15,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import zenoh
 
 from fedtrack.config import ConfigError
 from fedtrack.deployment import MODES
@@ -51,6 +55,24 @@ class FusionCenterService(Service):
         self.scans: dict[int, ScanBuffer] = {}
         self.next_seq: int | None = None
         self.last_track: FusedTrack | None = None
+        self.gone: set[str] = set()  # local filters whose liveliness token went away
+        self._liveliness: Any = None
+
+    def on_start(self) -> None:
+        self._liveliness = self.session.liveliness().declare_subscriber(
+            self.keys.alive("local-filter"), self._on_liveliness, history=True)
+
+    def on_stop(self) -> None:
+        if self._liveliness is not None:
+            self._liveliness.undeclare()
+
+    def _on_liveliness(self, sample: Any) -> None:
+        """Zenoh thread: track local filters that died (set updates are atomic)."""
+        sensor = str(sample.key_expr).rsplit("/", 1)[-1]
+        if sample.kind == zenoh.SampleKind.PUT:
+            self.gone.discard(sensor)
+        else:
+            self.gone.add(sensor)
 
     def subscriptions(self) -> list[Subscription]:
         return [Subscription(self.keys.local_estimate(), LocalEstimate, self.on_estimate)]
@@ -97,7 +119,8 @@ class FusionCenterService(Service):
                 self.next_seq = oldest
             buf = self.scans[self.next_seq]
             complete = len(buf.outputs) == len(self.sensors)
-            if not complete and now - buf.first_arrival < self.deadline_s:
+            waiting_for = [s for s in self.sensors if s not in buf.outputs and s not in self.gone]
+            if waiting_for and now - buf.first_arrival < self.deadline_s:
                 return
             del self.scans[self.next_seq]
             self.fuse_scan(self.next_seq, buf, degraded=not complete)

@@ -115,3 +115,41 @@ def test_sigterm_stops_every_process(tmp_path):
             proc.wait(timeout=10)
         for pid in deployment_pids(name):
             os.kill(pid, signal.SIGKILL)
+
+
+def test_dead_local_filter_degrades_without_waiting_and_equals_replay(tmp_path):
+    """Kill local filter c mid-run: the centre stops waiting for it at once (liveliness), the
+    remaining scans are fused from a and b (renormalized sharing) and still equal replay."""
+    cfg, name = deployment(tmp_path, "federated")
+    proc = subprocess.Popen(launch_cmd(cfg, tmp_path), stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        tracks_path = tmp_path / "tracks.jsonl"
+        deadline = time.monotonic() + 60
+        while not (tracks_path.exists() and len(tracks_path.read_text().splitlines()) >= 20):
+            assert time.monotonic() < deadline and proc.poll() is None, "no progress"
+            time.sleep(0.05)
+        victim = [pid for pid in deployment_pids(name)
+                  if b"--sensor c" in Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ")]
+        assert len(victim) == 1
+        os.kill(victim[0], signal.SIGKILL)
+        _, err = proc.communicate(timeout=120)
+        assert proc.returncode == 1  # the run completed, but a service failed
+        assert b"local-filter/c died" in err
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=10)
+    tracks = rows(tmp_path / "tracks.jsonl")
+    assert len(tracks) == 101
+    degraded = [t for t in tracks if t["degraded"]]
+    assert 50 <= len(degraded) <= 82 and all(t["sensors"] == ["a", "b"] for t in degraded)
+    # replay of exactly what was fused (c's measurements dropped where c was missing) matches
+    fused_by = {t["t"]: set(t["sensors"]) for t in tracks}
+    meas = [m for m in rows(tmp_path / "measurements.jsonl") if m["sensor"] in fused_by[m["t"]]]
+    (tmp_path / "fused-measurements.jsonl").write_text("".join(json.dumps(m) + "\n" for m in meas))
+    out = tmp_path / "replay.jsonl"
+    assert cli_main(["replay", "--algorithm", "fvdie", "--config", str(cfg),
+                     "--measurements", str(tmp_path / "fused-measurements.jsonl"), "--out", str(out)]) == 0
+    for net, rep in zip(tracks, rows(out)):
+        assert net["model"] == rep["model"] and net["degraded"] == rep["degraded"]
+        np.testing.assert_allclose(net["x"], rep["x"], rtol=1e-9, atol=1e-9)
