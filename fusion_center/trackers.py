@@ -267,19 +267,26 @@ class DecentralizedKF(Tracker):
         return _cv_estimate(self.centre)
 
 
-class FVDIE(CentralizedKF):
-    """Federated variable-dimension filter with input estimation at the master."""
-
-    name = "fvdie"
+class VdieStart:
+    """Mixin: after the base tracker's start, set up the variable-dimension state (``_init_vdie``)."""
 
     def _start(self, local, present, t):
-        est = super()._start(local, present, t)
+        est = super()._start(local, present, t)  # type: ignore[misc]
         self._init_vdie(t)
         return est
 
     def _start_prior(self, prior, t):
-        super()._start_prior(prior, t)
+        super()._start_prior(prior, t)  # type: ignore[misc]
         self._init_vdie(t)
+
+    def _init_vdie(self, t: float) -> None:
+        raise NotImplementedError
+
+
+class FVDIE(VdieStart, CentralizedKF):
+    """Federated variable-dimension filter with input estimation at the master."""
+
+    name = "fvdie"
 
     def _init_vdie(self, t: float) -> None:
         x, P = embed_cv(self.state.x, self.state.P)
@@ -302,19 +309,10 @@ def scan_event(local_kinds: np.ndarray) -> np.ndarray:
     return np.where(det != EVENT_NONE, det, np.where(ended, EVENT_END, EVENT_NONE))
 
 
-class DVDIE(DecentralizedKF):
+class DVDIE(VdieStart, DecentralizedKF):
     """Single-sensor VDIE in every local filter; the centre fuses without feedback."""
 
     name = "dvdie"
-
-    def _start(self, local, present, t):
-        est = super()._start(local, present, t)
-        self._init_vdie(t)
-        return est
-
-    def _start_prior(self, prior, t):
-        super()._start_prior(prior, t)
-        self._init_vdie(t)
 
     def _init_vdie(self, t: float) -> None:
         x, P = embed_cv(self.local.x, self.local.P)
