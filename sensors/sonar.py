@@ -145,9 +145,8 @@ def sonar_scans(config: SonarConfig, seed: int) -> Iterator[dict[str, Any]]:
 
     ``{"t", "sensor", "kind": "sonar", "z": [], "detections": [{"z", "amplitude"}], "R",
     "truth"}`` (without ``truth`` it is what ``fedtrack.wire.measurement_from_replay``
-    reads); clutter is uniform
-    over the square of half-width ``region_half_width`` centred on the true target; the
-    target is not detected during the first ``blackout_scans`` scans.
+    reads). Clutter is uniform over the square of half-width ``region_half_width`` centred
+    on the true target; the target is not detected during the first ``blackout_scans`` scans.
     """
     rng = np.random.default_rng(seed)
     times, states = truth_states(config.scenario)
