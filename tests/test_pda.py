@@ -95,7 +95,7 @@ def test_pda_ai_without_amplitude_information_equals_textbook_pda():
 @pytest.mark.parametrize("algorithm", ["pda", "hpda"])
 def test_no_clutter_unit_pd_equals_kalman(algorithm: str):
     rng = np.random.default_rng(2)
-    p = PDAParams(pd=1.0 - 1e-15, clutter_density=1e-300, snr=20.0)
+    p = PDAParams(pd=1.0, clutter_density=1e-300, snr=20.0)  # lambda = 0 exactly is 0/0 in alpha
     c = constants(p)
     truth = np.array([0.0, 3.0, 0.0, 0.0, -2.0, 0.0])
     st = kf = two_point_init(np.zeros(2), np.array([75.0, -50.0]), 25.0, R, 0.01)
