@@ -82,6 +82,10 @@ class Keys:
         """``fusion/track``: the fused track, one per scan."""
         return self._key("fusion", "track")
 
+    def tracker_track(self, tracker: str | None = None, sensor: str | None = None) -> str:
+        """``tracker/<tracker>/<sensor>/track``: a single-sensor tracker's tracks (``imm``, ``hpda``)."""
+        return self._key("tracker", self._chunk(tracker, "tracker"), self._chunk(sensor, "sensor id"), "track")
+
     def fusion_event(self) -> str:
         """``fusion/event``: maneuver onset / model change / end events."""
         return self._key("fusion", "event")

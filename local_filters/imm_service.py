@@ -2,7 +2,7 @@
 IMM tracker service (FSIMM, VSIMM or activation-only VSIMM of paper 000).
 
 Consumes ``Measurement`` (kind ``position``, 2-D ``z``) on ``sensor/<ID>/meas`` and
-publishes one ``FusedTrack`` per measurement on ``fusion/track``: ``model`` is the
+publishes one ``FusedTrack`` per measurement on ``tracker/imm/<ID>/track``: ``model`` is the
 algorithm, ``x = [x, vx, y, vy]``, ``sensors = [ID]``, ``maneuver`` is true when the most
 probable mode has a non-zero acceleration, and ``extra`` carries ``mode_probabilities``
 (model name -> probability), ``active_group`` and ``acceleration`` (``sum mu_i a_i``).
@@ -50,7 +50,7 @@ class IMMService(Service):
             return
         p = self.tracker.update(msg.t, msg.z, msg.R)
         best = max(p.mode_probabilities, key=p.mode_probabilities.__getitem__)
-        self.publish(self.keys.fusion_track(), FusedTrack(
+        self.publish(self.keys.tracker_track("imm", self.sensor), FusedTrack(
             seq=msg.seq, t=p.t, model=self.tracker.algorithm, x=p.x, P=p.P,
             maneuver=bool(self.moving[self.tracker.bank.names.index(best)]), degraded=False,
             sensors=(self.sensor,), stamp_ns=msg.stamp_ns,

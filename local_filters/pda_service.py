@@ -3,7 +3,7 @@ cluttered-sensor tracker service (HPDA or IPDA-AI track initiation and tracking,
 
 Consumes sonar ``Measurement``s (kind ``sonar``, 2-D detections with amplitudes) on
 ``sensor/<ID>/meas``, runs the track manager of :mod:`local_filters.pda_tracks`, and
-publishes one ``FusedTrack`` per *confirmed* track per scan on ``fusion/track`` (the
+publishes one ``FusedTrack`` per *confirmed* track per scan on ``tracker/hpda/<ID>/track`` (the
 convention of the IMM service): ``model`` is the algorithm, ``x`` the Singer state
 ``[x, vx, ax, y, vy, ay]``, ``sensors = [ID]``, ``maneuver`` false, and ``extra`` carries
 ``existence``, ``status`` (``confirmed``) and ``track`` (the track id). Measurements of
@@ -56,7 +56,7 @@ class PDAService(Service):
         tracks = rep.tracks
         self.counters["live_tracks"] = len(tracks)
         for i in np.flatnonzero(tracks.confirmed):
-            self.publish(self.keys.fusion_track(), FusedTrack(
+            self.publish(self.keys.tracker_track("hpda", self.sensor), FusedTrack(
                 seq=msg.seq, t=msg.t, model=self.spec.algorithm, x=tracks.state.x[i], P=tracks.state.P[i],
                 maneuver=False, degraded=False, sensors=(self.sensor,), stamp_ns=msg.stamp_ns,
                 extra={"existence": float(tracks.existence[i]), "status": "confirmed",

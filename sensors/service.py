@@ -81,7 +81,9 @@ class SensorService(Service):
         self.fused_up_to = -1
 
     def subscriptions(self) -> list[Subscription]:
-        return [Subscription(self.keys.fusion_track(), FusedTrack, self.on_track)]
+        """Lockstep pacing follows the fused track and any single-sensor tracker of this sensor."""
+        return [Subscription(self.keys.fusion_track(), FusedTrack, self.on_track),
+                Subscription(self.keys.tracker_track(None, self.id), FusedTrack, self.on_track)]
 
     def on_track(self, msg: FusedTrack) -> None:
         self.fused_up_to = max(self.fused_up_to, msg.seq)

@@ -49,7 +49,7 @@ def test_service_tracks_like_the_replay_tracker():
     code: list[int] = []
     thread = threading.Thread(target=lambda: code.append(service.run()), daemon=True)
     tracks: list[FusedTrack] = []
-    sub = session.declare_subscriber(keys.fusion_track(), lambda s: tracks.append(decode(s.payload.to_bytes(), FusedTrack)))
+    sub = session.declare_subscriber(keys.tracker_track("imm"), lambda s: tracks.append(decode(s.payload.to_bytes(), FusedTrack)))
     thread.start()
     try:
         assert wait_alive(session, [keys.alive("imm", "imm-1")], WAIT_S) == set()

@@ -47,7 +47,7 @@ def test_service_confirms_the_sonar_target() -> None:
     session = open_session(opts)
     try:
         tracks: list[FusedTrack] = []
-        session.declare_subscriber(keys.fusion_track(),
+        session.declare_subscriber(keys.tracker_track("hpda"),
                                    lambda s: tracks.append(decode(s.payload.to_bytes(), FusedTrack)))
         assert wait_alive(session, [keys.alive("hpda", "h1")], WAIT_S) == set()
         cfg = SonarConfig(clutter_density=2.5e-5, region_half_width=300.0)

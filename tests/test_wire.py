@@ -254,10 +254,10 @@ def test_size_bounds() -> None:
     big = FusedTrack(seq=0, t=0.0, model="cv", x=np.zeros(64), P=np.eye(64), maneuver=False, degraded=False,
                      sensors=(), stamp_ns=0, extra={f"k{i}": tuple(range(64)) for i in range(32)})
     assert_same(big, decode(encode(big), FusedTrack))
-    d = 64  # a sonar scan at every bound: 256 detections of the largest z whose R fits the element bound
+    d = 64  # a sonar scan at every bound: MAX_DETECTIONS detections of the largest z whose R fits the element bound
     widest = Measurement(sensor="s", seq=0, t=0.0, kind="sonar", z=[], R=np.eye(d),
                          detections=[(np.ones(d), 1.0)] * wire.MAX_DETECTIONS)
-    assert len(encode(widest)) < 200 * 1024
+    assert len(encode(widest)) < wire.MAX_PAYLOAD_BYTES
     assert_same(widest, decode(encode(widest), Measurement))
 
 
