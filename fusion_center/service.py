@@ -45,11 +45,10 @@ class FusionCenterService(Service):
     role = "fusion-center"
     tick_period_s = 0.01
 
-    def __init__(self, sensors: list[str], mode: str, centre: FederatedCentre | DecentralizedCentre,
+    def __init__(self, sensors: list[str], centre: FederatedCentre | DecentralizedCentre,
                  deadline_s: float, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.sensors = sensors
-        self.mode = mode
         self.centre = centre
         self.deadline_s = deadline_s
         self.scans: dict[int, ScanBuffer] = {}
@@ -179,4 +178,4 @@ def main(argv: list[str]) -> int:
     mode = args.mode or settings.deployment.mode
     centre_cls = FederatedCentre if mode == "federated" else DecentralizedCentre
     centre = centre_cls(sensors, settings.fusion)
-    return FusionCenterService(sensors, mode, centre, deadline, **service_kwargs(parser, args)).run()
+    return FusionCenterService(sensors, centre, deadline, **service_kwargs(parser, args)).run()
