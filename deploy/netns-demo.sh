@@ -86,6 +86,7 @@ log "run $TAG, output in $OUT, python $PY, timeout ${TIMEOUT_S}s"
 addr() { case $1 in a) echo "$SUBNET.1" ;; b) echo "$SUBNET.2" ;; c) echo "$SUBNET.3" ;; esac; }
 ip netns add "$NS_SW" 2>"$OUT/netns-error.txt" || skip "ip netns add failed: $(tr '\n' ' ' <"$OUT/netns-error.txt")"
 CREATED_NS+=("$NS_SW")
+rm -f "$OUT/netns-error.txt"
 ip -n "$NS_SW" link set lo up
 ip -n "$NS_SW" link add br0 type bridge
 ip -n "$NS_SW" link set br0 up

@@ -1,0 +1,1 @@
+"""Benchmarks behind ``fedtrack bench``: deployment latency/throughput and the estimation core."""

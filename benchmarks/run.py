@@ -1,0 +1,250 @@
+"""``fedtrack bench``: deployment latency and throughput, and the estimation core, side by side.
+
+For each sensor count (``--sensors 2,4,8``) a whole federated deployment (router,
+sensors, local filters, fusion center; no recorder) runs on loopback twice, interleaved
+with the other counts so that the machine's load drifts over all of them alike:
+
+* ``realtime`` pacing at ``speed = 10`` (paper 004 scenario, T = 1 s: 10 scans/s per
+  sensor): latency from a sensor's publish to the fused track's arrival at the monitor,
+  p50 and p99, measured from the FIRST sensor's publish of the scan (what
+  ``fedtrack launch`` prints; it includes the sensors' clock skew, since realtime sensors
+  are not phase-aligned) and from the LAST one (the pipeline's own latency, once every
+  measurement of the scan is out);
+* ``lockstep`` pacing: fused scans per second between the first and the last track.
+
+Then the estimation-core micro-benchmark (:mod:`benchmarks.kf_micro`). Results are
+printed as a table with ratios to the smallest sensor count, and written as JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.metadata
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from benchmarks.kf_micro import bench_kf
+from fedtrack.demo import demo_settings, free_port, write_config
+from fedtrack.launcher import LaunchError, Launcher, service_plan
+from fedtrack.progress import Progress
+from fedtrack.settings import Settings
+from fedtrack.wire import FusedTrack, Measurement, WireError, decode
+
+REALTIME_SPEED = 10.0  # scenario T = 1 s -> 10 scans/s
+BENCH_SERVICES = ("router", "sensor", "local-filter", "fusion-center")
+QUICK_SCANS = 20
+FULL_KF_RUNS, QUICK_KF_RUNS = 2000, 200
+KF_LOOP_RUNS, KF_ROUNDS = 50, 5
+
+
+class BenchLauncher(Launcher):
+    """A launcher that also keeps each measurement's stamp and each track's arrival time,
+    and stops the deployment after ``max_scans`` fused scans (None: at the scenario's end)."""
+
+    def __init__(self, settings: Settings, plan: list[Any], max_scans: int | None) -> None:
+        super().__init__(settings, plan, quiet=True)
+        self.max_scans = max_scans
+        self.limit_reached = False
+        self.meas_stamps: dict[int, list[int]] = {}
+        self.track_arrivals: dict[int, int] = {}
+
+    def _on_meas(self, sample: zenoh.Sample) -> None:
+        super()._on_meas(sample)
+        try:
+            m = decode(sample.payload.to_bytes(), Measurement)
+        except WireError:
+            return
+        with self._lock:
+            self.meas_stamps.setdefault(m.seq, []).append(m.stamp_ns)
+
+    def _on_track(self, sample: zenoh.Sample) -> None:
+        now = time.time_ns()
+        super()._on_track(sample)
+        try:
+            track = decode(sample.payload.to_bytes(), FusedTrack)
+        except WireError:
+            return
+        with self._lock:
+            self.track_arrivals[track.seq] = now
+            if self.max_scans is not None and len(self.track_arrivals) >= self.max_scans:
+                self.limit_reached = True
+                self.request_stop()
+
+
+def percentiles(values: list[float]) -> dict[str, float]:
+    """p50/p99 and the sample count (NaN when empty)."""
+    if not values:
+        return {"p50": float("nan"), "p99": float("nan"), "n": 0}
+    p50, p99 = np.percentile(values, [50, 99])
+    return {"p50": float(p50), "p99": float(p99), "n": len(values)}
+
+
+def summarize_run(launcher: BenchLauncher, n_sensors: int) -> dict[str, Any]:
+    """Latencies (first/last publish), sensor skew, scan rate and health of one deployment."""
+    arrivals = launcher.track_arrivals
+    first, last, skew = [], [], []
+    for seq, arrival in arrivals.items():
+        stamps = launcher.meas_stamps.get(seq, [])
+        if len(stamps) == n_sensors:  # every measurement of the scan was seen by the monitor
+            first.append((arrival - min(stamps)) / 1e6)
+            last.append((arrival - max(stamps)) / 1e6)
+            skew.append((max(stamps) - min(stamps)) / 1e6)
+    times = sorted(arrivals.values())
+    rate = (len(times) - 1) / ((times[-1] - times[0]) / 1e9) if len(times) > 1 and times[-1] > times[0] else 0.0
+    fusion = launcher.report.health.get("fusion-center/fusion", {})
+    return {
+        "scans_fused": len(arrivals),
+        "latency_first_publish_ms": percentiles(first),
+        "latency_last_publish_ms": percentiles(last),
+        "sensor_skew_ms": percentiles(skew),
+        "scans_per_s": rate,
+        "degraded_scans": int(fusion.get("degraded_scans", 0)),
+        "rejected_messages": launcher.report.rejected(),
+        "wall_s": launcher.report.wall_s,
+    }
+
+
+def run_one(n_sensors: int, pacing: str, max_scans: int | None, seed: int) -> dict[str, Any]:
+    """One deployment on free loopback ports, in a temporary directory."""
+    with tempfile.TemporaryDirectory(prefix="fedtrack-bench-") as tmp:
+        out = Path(tmp)
+        base = demo_settings(n_sensors, 1, "federated", seed, free_port(), out)
+        settings = replace(base, deployment=replace(
+            base.deployment, name="bench", pacing=pacing, speed=REALTIME_SPEED if pacing == "realtime" else 1.0,
+            services=BENCH_SERVICES))
+        write_config(settings, out / "config.toml")
+        launcher = BenchLauncher(settings, service_plan(settings, out / "config.toml", out, out / "logs"), max_scans)
+        try:
+            launcher.run()
+        except KeyboardInterrupt:
+            if not launcher.limit_reached:
+                raise
+        return {"sensors": n_sensors, "pacing": pacing, **summarize_run(launcher, n_sensors)}
+
+
+def values_of(runs: list[dict[str, Any]], path: tuple[str, ...]) -> list[float]:
+    """The value at ``path`` (nested keys) of every run."""
+    values = []
+    for r in runs:
+        v: Any = r
+        for key in path:
+            v = v[key]
+        values.append(float(v))
+    return values
+
+
+def median_of(runs: list[dict[str, Any]], path: tuple[str, ...]) -> float:
+    values = values_of(runs, path)
+    return float(np.median(values)) if values else float("nan")
+
+
+def summarize(runs: list[dict[str, Any]], counts: list[int]) -> dict[str, dict[str, Any]]:
+    """Per sensor count: medians over repeats (and the per-repeat values), ratios to the smallest count."""
+    table: dict[str, dict[str, Any]] = {}
+    for n in counts:
+        rt = [r for r in runs if r["sensors"] == n and r["pacing"] == "realtime" and "error" not in r]
+        ls = [r for r in runs if r["sensors"] == n and r["pacing"] == "lockstep" and "error" not in r]
+        table[str(n)] = {
+            "latency_first_p50_ms": median_of(rt, ("latency_first_publish_ms", "p50")),
+            "latency_first_p99_ms": median_of(rt, ("latency_first_publish_ms", "p99")),
+            "latency_last_p50_ms": median_of(rt, ("latency_last_publish_ms", "p50")),
+            "latency_last_p99_ms": median_of(rt, ("latency_last_publish_ms", "p99")),
+            "sensor_skew_p50_ms": median_of(rt, ("sensor_skew_ms", "p50")),
+            "realtime_scans_per_s": median_of(rt, ("scans_per_s",)),
+            "lockstep_scans_per_s": median_of(ls, ("scans_per_s",)),
+            "repeats_latency_last_p50_ms": values_of(rt, ("latency_last_publish_ms", "p50")),
+            "repeats_lockstep_scans_per_s": values_of(ls, ("scans_per_s",)),
+        }
+    ref = table[str(counts[0])]
+    for row in table.values():
+        row["latency_last_p50_ratio"] = row["latency_last_p50_ms"] / ref["latency_last_p50_ms"]
+        row["lockstep_rate_ratio"] = row["lockstep_scans_per_s"] / ref["lockstep_scans_per_s"]
+    return table
+
+
+def print_table(table: dict[str, dict[str, Any]], kf: dict[str, Any], counts: list[int]) -> None:
+    print(f"\nfedtrack bench: federated, realtime at {REALTIME_SPEED:g} scans/s (latency) and lockstep (rate); "
+          f"ratios to {counts[0]} sensors")
+    head = (f"{'sensors':>7}  {'lat p50/p99 from last publish':>30}  {'ratio':>5}  "
+            f"{'from first publish':>19}  {'skew p50':>8}  {'lockstep scans/s':>16}  {'ratio':>5}")
+    print(head)
+    for n, row in table.items():
+        print(f"{n:>7}  {row['latency_last_p50_ms']:>13.2f} / {row['latency_last_p99_ms']:<8.2f} ms    "
+              f"{row['latency_last_p50_ratio']:>5.2f}  {row['latency_first_p50_ms']:>7.1f} / "
+              f"{row['latency_first_p99_ms']:<8.1f}ms  {row['sensor_skew_p50_ms']:>6.1f}ms  "
+              f"{row['lockstep_scans_per_s']:>16.1f}  {row['lockstep_rate_ratio']:>5.2f}")
+    print(f"\nestimation core, CV Kalman scan-update ({kf['runs_batched']} runs batched, "
+          f"{kf['runs_loop']} in loops, {kf['rounds']} alternating rounds; ratio = time per update / batched)")
+    for name, m in kf["methods"].items():
+        if isinstance(m, str):
+            print(f"  {name:<9} {m}")
+        else:
+            print(f"  {name:<9} {m['us_per_update_median']:9.2f} us/update  ratio {m['ratio_to_batched_median']:7.1f} "
+                  f"(rounds {m['ratio_to_batched_min']:.1f}-{m['ratio_to_batched_max']:.1f})  "
+                  f"max rel diff {m['max_rel_diff_to_batched']:.1e}")
+
+
+def sensor_counts(text: str) -> list[int]:
+    try:
+        counts = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--sensors: expected comma-separated integers, got {text!r}") from None
+    if not counts or any(not 1 <= n <= 32 for n in counts) or len(set(counts)) != len(counts):
+        raise argparse.ArgumentTypeError(f"--sensors: need distinct counts between 1 and 32, got {text!r}")
+    return counts
+
+
+def versions() -> dict[str, str]:
+    return {"python": platform.python_version(), "numpy": np.__version__,
+            "eclipse-zenoh": importlib.metadata.version("eclipse-zenoh"), "cpus": str(os.cpu_count())}
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="fedtrack bench", description=__doc__.splitlines()[0])
+    parser.add_argument("--sensors", type=sensor_counts, default=[2, 4, 8], help="sensor counts (default 2,4,8)")
+    parser.add_argument("--quick", action="store_true",
+                        help=f"smoke test: {QUICK_SCANS} scans per deployment, {QUICK_KF_RUNS} KF runs")
+    parser.add_argument("--repeats", type=int, default=1, help="deployments per count and pacing (default 1)")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--json", type=Path, default=Path("bench.json"), help="output JSON (default bench.json)")
+    args = parser.parse_args(argv)
+    if args.repeats < 1:
+        parser.error("--repeats must be >= 1")
+    counts = sorted(args.sensors)
+    max_scans = QUICK_SCANS if args.quick else None
+    start = time.monotonic()
+    runs: list[dict[str, Any]] = []
+    with Progress(args.repeats * len(counts) * 2 + KF_ROUNDS, "bench") as progress:
+        for _ in range(args.repeats):
+            for n in counts:
+                for pacing in ("realtime", "lockstep"):
+                    try:
+                        runs.append(run_one(n, pacing, max_scans, args.seed))
+                    except LaunchError as exc:
+                        print(f"\nfedtrack bench: {n} sensors, {pacing}: {exc}", file=sys.stderr)
+                        runs.append({"sensors": n, "pacing": pacing, "error": str(exc)})
+                    progress.advance()
+        kf = bench_kf(QUICK_KF_RUNS if args.quick else FULL_KF_RUNS, KF_LOOP_RUNS, KF_ROUNDS, args.seed,
+                      tick=progress.advance)
+    table = summarize(runs, counts)
+    result = {
+        "sensors": counts, "quick": args.quick, "repeats": args.repeats, "seed": args.seed,
+        "mode": "federated", "realtime_speed": REALTIME_SPEED, "max_scans": max_scans,
+        "deployments": runs, "summary": table, "kf_micro": kf, "versions": versions(),
+        "wall_time_s": time.monotonic() - start,
+    }
+    args.json.parent.mkdir(parents=True, exist_ok=True)
+    args.json.write_text(json.dumps(result, indent=2))
+    print_table(table, kf, counts)
+    print(f"\nwrote {args.json} ({result['wall_time_s']:.0f} s)")
+    return 1 if any("error" in r for r in runs) else 0

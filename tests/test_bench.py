@@ -1,0 +1,61 @@
+"""Smoke test of ``fedtrack bench --quick --sensors 2``: it runs and writes the expected JSON.
+
+No timing assertions (the machine is shared); only structure, counts and the exact
+agreement of the batched and looped Kalman filters.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from benchmarks.kf_micro import make_data, run_batched, run_loop
+from benchmarks.run import QUICK_SCANS, sensor_counts
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_bench_quick_writes_expected_json(tmp_path: Path) -> None:
+    out = tmp_path / "bench.json"
+    proc = subprocess.run([sys.executable, "-m", "fedtrack.cli", "bench", "--quick", "--sensors", "2",
+                           "--json", str(out)], cwd=REPO, capture_output=True, text=True, timeout=80)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "lockstep scans/s" in proc.stdout
+    result = json.loads(out.read_text())
+    assert {"sensors", "quick", "deployments", "summary", "kf_micro", "versions", "wall_time_s"} <= set(result)
+    assert result["sensors"] == [2] and result["quick"] is True
+    assert sorted(r["pacing"] for r in result["deployments"]) == ["lockstep", "realtime"]
+    for run in result["deployments"]:
+        assert run["scans_fused"] >= QUICK_SCANS
+        assert run["degraded_scans"] == 0 and run["rejected_messages"] == 0
+        assert run["latency_last_publish_ms"]["n"] > 0
+        assert math.isfinite(run["latency_last_publish_ms"]["p99"]) and run["scans_per_s"] > 0
+    row = result["summary"]["2"]
+    assert {"latency_last_p50_ms", "latency_last_p99_ms", "latency_first_p50_ms", "latency_first_p99_ms",
+            "lockstep_scans_per_s", "lockstep_rate_ratio", "latency_last_p50_ratio"} <= set(row)
+    assert row["lockstep_rate_ratio"] == 1.0 and row["latency_last_p50_ratio"] == 1.0
+    methods = result["kf_micro"]["methods"]
+    assert {"batched", "loop", "filterpy"} <= set(methods)
+    assert methods["loop"]["max_rel_diff_to_batched"] <= 1e-12
+    assert methods["filterpy"] == "not installed" or methods["filterpy"]["max_rel_diff_to_batched"] < 1e-6
+
+
+def test_batched_and_looped_kf_agree_exactly() -> None:
+    model, R, data = make_data(runs=7, seed=3)
+    batched, looped = run_batched(model, R, data), run_loop(model, R, data)
+    np.testing.assert_allclose(looped.x, batched.x, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(looped.P, batched.P, rtol=1e-12, atol=1e-9)
+    assert np.allclose(batched.P, np.swapaxes(batched.P, -1, -2))
+
+
+@pytest.mark.parametrize("text", ["", "0", "2,2", "two", "33"])
+def test_bad_sensor_counts_are_rejected(text: str) -> None:
+    with pytest.raises(argparse.ArgumentTypeError, match="--sensors"):
+        sensor_counts(text)
