@@ -113,14 +113,16 @@ def filter_kind(algorithm: str, config: EkfConfig, ts_model: TSModel | None = No
     if algorithm == "ekf":
         return FilterKind(two_point_init, lambda s, *a: ekf_step(s, *a).state,
                           lambda s, m: (s.x, s.P, _no_maneuver(s.x)), lambda _: CV3)
+    if algorithm in CONFIG_CLASSES and not isinstance(config, CONFIG_CLASSES[algorithm]):
+        raise ConfigError(f"config for {algorithm} must be a {CONFIG_CLASSES[algorithm].__name__}")
     if algorithm == "ekf-ie":
-        assert isinstance(config, EkfIEConfig)
+        assert isinstance(config, EkfIEConfig)  # narrowed by the check above
         p = config.params
         return FilterKind(partial(ie_init, params=p), partial(ie_step, params=p),
                           lambda s, m: (s.filt.x, s.filt.P, s.maneuver),
                           lambda man: "cv+input" if man else CV3)
     if algorithm == "ekf-tsfuzzy":
-        assert isinstance(config, EkfTsFuzzyConfig)
+        assert isinstance(config, EkfTsFuzzyConfig)  # narrowed by the check above
         ts = ts_model if ts_model is not None else load_compatible_model(config.model_path)
         return FilterKind(ts_init, ts_step,
                           lambda s, m: (compensated(s, ts, m), s.filt.P, _no_maneuver(s.ema)),
