@@ -198,9 +198,9 @@ def sensor_counts(text: str) -> list[int]:
     try:
         counts = [int(v) for v in text.split(",") if v.strip()]
     except ValueError:
-        raise argparse.ArgumentTypeError(f"--sensors: expected comma-separated integers, got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
     if not counts or any(not 1 <= n <= 32 for n in counts) or len(set(counts)) != len(counts):
-        raise argparse.ArgumentTypeError(f"--sensors: need distinct counts between 1 and 32, got {text!r}")
+        raise argparse.ArgumentTypeError(f"need distinct sensor counts between 1 and 32, got {text!r}")
     return counts
 
 
@@ -243,8 +243,12 @@ def main(argv: list[str]) -> int:
         "deployments": runs, "summary": table, "kf_micro": kf, "versions": versions(),
         "wall_time_s": time.monotonic() - start,
     }
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps(result, indent=2))
     print_table(table, kf, counts)
+    try:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(result, indent=2))
+    except OSError as exc:
+        print(f"fedtrack bench: cannot write {args.json}: {exc}", file=sys.stderr)
+        return 2
     print(f"\nwrote {args.json} ({result['wall_time_s']:.0f} s)")
     return 1 if any("error" in r for r in runs) else 0
