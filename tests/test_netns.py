@@ -12,6 +12,7 @@ import re
 import shutil
 import signal
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -44,7 +45,7 @@ def test_netns_demo_three_hosts(tmp_path: Path) -> None:
     reason = netns_unavailable()
     if reason is not None:
         pytest.skip(f"ip netns unavailable: {reason}")
-    env = dict(os.environ, NETNS_DEMO_TIMEOUT_S=str(SCRIPT_TIMEOUT_S))
+    env = dict(os.environ, NETNS_DEMO_TIMEOUT_S=str(SCRIPT_TIMEOUT_S), FEDTRACK_PYTHON=sys.executable)
     proc = subprocess.Popen(["bash", str(SCRIPT), str(tmp_path)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, env=env)
     try:
