@@ -31,54 +31,17 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import zenoh
 
 from benchmarks.kf_micro import bench_kf
 from fedtrack.demo import demo_settings, free_port, write_config
 from fedtrack.launcher import LaunchError, Launcher, service_plan
 from fedtrack.progress import Progress
-from fedtrack.settings import Settings
-from fedtrack.wire import FusedTrack, Measurement, WireError, decode
 
 REALTIME_SPEED = 10.0  # scenario T = 1 s -> 10 scans/s
 BENCH_SERVICES = ("router", "sensor", "local-filter", "fusion-center")
 QUICK_SCANS = 20
 FULL_KF_RUNS, QUICK_KF_RUNS = 2000, 200
 KF_LOOP_RUNS, KF_ROUNDS = 50, 5
-
-
-class BenchLauncher(Launcher):
-    """A launcher that also keeps each measurement's stamp and each track's arrival time,
-    and stops the deployment after ``max_scans`` fused scans (None: at the scenario's end)."""
-
-    def __init__(self, settings: Settings, plan: list[Any], max_scans: int | None) -> None:
-        super().__init__(settings, plan, quiet=True)
-        self.max_scans = max_scans
-        self.limit_reached = False
-        self.meas_stamps: dict[int, list[int]] = {}
-        self.track_arrivals: dict[int, int] = {}
-
-    def _on_meas(self, sample: zenoh.Sample) -> None:
-        super()._on_meas(sample)
-        try:
-            m = decode(sample.payload.to_bytes(), Measurement)
-        except WireError:
-            return
-        with self._lock:
-            self.meas_stamps.setdefault(m.seq, []).append(m.stamp_ns)
-
-    def _on_track(self, sample: zenoh.Sample) -> None:
-        now = time.time_ns()
-        super()._on_track(sample)
-        try:
-            track = decode(sample.payload.to_bytes(), FusedTrack)
-        except WireError:
-            return
-        with self._lock:
-            self.track_arrivals[track.seq] = now
-            if self.max_scans is not None and len(self.track_arrivals) >= self.max_scans:
-                self.limit_reached = True
-                self.request_stop()
 
 
 def percentiles(values: list[float]) -> dict[str, float]:
@@ -89,12 +52,12 @@ def percentiles(values: list[float]) -> dict[str, float]:
     return {"p50": float(p50), "p99": float(p99), "n": len(values)}
 
 
-def summarize_run(launcher: BenchLauncher, n_sensors: int) -> dict[str, Any]:
+def summarize_run(launcher: Launcher, n_sensors: int) -> dict[str, Any]:
     """Latencies (first/last publish), sensor skew, scan rate and health of one deployment."""
-    arrivals = launcher.track_arrivals
+    arrivals = launcher.report.track_arrivals_ns
     first, last, skew = [], [], []
     for seq, arrival in arrivals.items():
-        stamps = launcher.meas_stamps.get(seq, [])
+        stamps = launcher.report.publish_stamps_ns.get(seq, [])
         if len(stamps) == n_sensors:  # every measurement of the scan was seen by the monitor
             first.append((arrival - min(stamps)) / 1e6)
             last.append((arrival - max(stamps)) / 1e6)
@@ -123,12 +86,9 @@ def run_one(n_sensors: int, pacing: str, max_scans: int | None, seed: int) -> di
             base.deployment, name="bench", pacing=pacing, speed=REALTIME_SPEED if pacing == "realtime" else 1.0,
             services=BENCH_SERVICES))
         write_config(settings, out / "config.toml")
-        launcher = BenchLauncher(settings, service_plan(settings, out / "config.toml", out, out / "logs"), max_scans)
-        try:
-            launcher.run()
-        except KeyboardInterrupt:
-            if not launcher.limit_reached:
-                raise
+        launcher = Launcher(settings, service_plan(settings, out / "config.toml", out, out / "logs"), quiet=True,
+                            max_scans=max_scans)
+        launcher.run()
         return {"sensors": n_sensors, "pacing": pacing, **summarize_run(launcher, n_sensors)}
 
 

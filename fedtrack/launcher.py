@@ -65,6 +65,8 @@ class LaunchReport:
     scans_fused: int = 0
     latencies_ms: list[float] = field(default_factory=list)
     measurements: dict[str, int] = field(default_factory=dict)
+    track_arrivals_ns: dict[int, int] = field(default_factory=dict)  # seq -> wall-clock arrival
+    publish_stamps_ns: dict[int, list[int]] = field(default_factory=dict)  # seq -> sensors' publish stamps
     health: dict[str, dict[str, int]] = field(default_factory=dict)
     exit_codes: dict[str, int] = field(default_factory=dict)
     failed: list[str] = field(default_factory=list)
@@ -126,13 +128,25 @@ def service_plan(settings: Settings, config_path: Path, out_dir: Path, log_dir: 
     return plan
 
 
+def align_realtime_sensors(plan: list[ServiceProcess], lead_s: float = 3.0) -> None:
+    """Give every sensor of the plan one wall-clock start time (realtime pacing schedules
+    scan k at start + k T / speed, so the sensors stay in step and do not drift)."""
+    start_at = time.time() + lead_s
+    for sp in plan:
+        if sp.role == "sensor":
+            sp.argv = [a for a in sp.argv] + ["--start-at", f"{start_at:.6f}"]
+
+
 class Launcher:
     """Runs a plan of service processes and watches the deployment over Zenoh."""
 
-    def __init__(self, settings: Settings, plan: list[ServiceProcess], quiet: bool = False) -> None:
+    def __init__(self, settings: Settings, plan: list[ServiceProcess], quiet: bool = False,
+                 max_scans: int | None = None) -> None:
         self.settings = settings
         self.plan = plan
         self.quiet = quiet
+        self.max_scans = max_scans
+        self._enough = threading.Event()
         self.keys = Keys(settings.deployment.name)
         self.report = LaunchReport()
         self._lock = threading.Lock()
@@ -198,6 +212,9 @@ class Launcher:
         with self._lock:
             self.report.scans_fused += 1
             self.report.latencies_ms.append((now - track.stamp_ns) / 1e6)
+            self.report.track_arrivals_ns[track.seq] = now
+            if self.max_scans is not None and self.report.scans_fused >= self.max_scans:
+                self._enough.set()
 
     def _on_meas(self, sample: zenoh.Sample) -> None:
         try:
@@ -206,6 +223,7 @@ class Launcher:
             return
         with self._lock:
             self.report.measurements[m.sensor] = self.report.measurements.get(m.sensor, 0) + 1
+            self.report.publish_stamps_ns.setdefault(m.seq, []).append(m.stamp_ns)
 
     def _on_health(self, sample: zenoh.Sample) -> None:
         try:
@@ -241,6 +259,8 @@ class Launcher:
             for sp in others:
                 self._start(sp)
             self._wait_ready(routers + others, dep.ready_timeout_s)
+            if dep.pacing == "realtime":
+                align_realtime_sensors(sensors)
             for sp in sensors:
                 self._start(sp)
             self._watch(sensors, start)
@@ -278,7 +298,7 @@ class Launcher:
         last_print = 0.0
         while not self._stop.is_set():
             self._check_alive(self.plan)
-            if sensors and all(sp.proc.poll() is not None for sp in sensors):
+            if sensors and all(sp.proc.poll() is not None for sp in sensors) or self._enough.is_set():
                 break
             if not sensors and all(sp.proc.poll() is not None for sp in self.plan):
                 break

@@ -175,7 +175,7 @@ def print_summary(result: dict[str, Any]) -> None:
             cells = "".join(f"{f['table1'][str(t)]:8.2f}+-{f['table1_stderr'][str(t)]:<4.2f}" for t in TABLE1_TIMES)
             print(f"  {name:5}{cells}")
             if sname == "1" and name in PAPER_TABLE1:
-                print(f"  paper" + "".join(f"{v:14.2f}" for v in PAPER_TABLE1[name]))
+                print("  paper" + "".join(f"{v:14.2f}" for v in PAPER_TABLE1[name]))
         for name in ("fvdie", "dvdie"):
             f = scen["filters"][name]
             print(f"  false detections/run {name}: {f['false_detections_per_run']:.2f} "

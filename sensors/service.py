@@ -5,7 +5,8 @@ Pacing:
 * ``lockstep``: scan k+1 is published once the fused track of scan k is out (or after
   ``--lockstep-timeout`` seconds without it, counted in ``lockstep_timeouts``), so a
   whole scenario runs as fast as the pipeline allows;
-* ``realtime``: one scan every ``T / speed`` seconds of wall time.
+* ``realtime``: scan k at wall-clock time ``start + k T / speed`` (``--start-at``; the
+  launcher gives all sensors of a deployment the same start, so they stay in step).
 
 After its last scan the sensor waits for that scan's fused track (lockstep) or one
 fusion deadline (realtime) and exits 0.
@@ -70,12 +71,13 @@ class SensorService(Service):
     tick_period_s = 0.01
 
     def __init__(self, lines: list[dict[str, Any]], period_s: float, pacing: str, speed: float,
-                 lockstep_timeout_s: float, **kwargs: Any) -> None:
+                 lockstep_timeout_s: float, start_at: float | None = None, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.lines = lines
         self.pacing = pacing
         self.interval_s = period_s / speed
         self.lockstep_timeout_s = lockstep_timeout_s
+        self.start_at = start_at  # wall-clock time of scan 0 (realtime); None: when ready
         self.next_seq = 0
         self.last_publish = -float("inf")
         self.fused_up_to = -1
@@ -101,7 +103,9 @@ class SensorService(Service):
                 self.count("lockstep_timeouts")
                 due = True
         else:
-            due = now - self.last_publish >= self.interval_s
+            if self.start_at is None:
+                self.start_at = time.time()
+            due = time.time() >= self.start_at + self.next_seq * self.interval_s
         if due:
             self.publish_scan(now)
 
@@ -126,6 +130,9 @@ def add_sensor_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--speed", type=float, help="real-time speed-up factor (overrides config)")
     parser.add_argument("--lockstep-timeout", type=float, default=5.0, metavar="SECONDS",
                         help="publish the next scan anyway after this long without a fused track")
+    parser.add_argument("--start-at", type=float, metavar="EPOCH_S",
+                        help="realtime pacing: wall-clock time (Unix seconds) of scan 0, shared by the sensors "
+                             "of a deployment (default: when this sensor is ready)")
 
 
 def main(argv: list[str]) -> int:
@@ -143,4 +150,4 @@ def main(argv: list[str]) -> int:
         parser.error("--lockstep-timeout must be > 0")
     lines, period = scan_source(args.kind, settings, args.id)
     return SensorService(lines, period, settings.deployment.pacing, settings.deployment.speed,
-                         args.lockstep_timeout, **service_kwargs(parser, args)).run()
+                         args.lockstep_timeout, args.start_at, **service_kwargs(parser, args)).run()
