@@ -15,7 +15,7 @@ import re
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Callable
 
 import zenoh
 
@@ -130,11 +130,17 @@ def _endpoint_arg(value: str) -> str:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def _deployment_arg(value: str) -> str:
-    try:
-        return check_id(value, "deployment")
-    except InvalidName as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
+def id_arg(what: str) -> Callable[[str], str]:
+    """An argparse ``type`` accepting one key chunk (``check_id``), e.g. ``id_arg("sensor id")``."""
+    def parse(value: str) -> str:
+        try:
+            return check_id(value, what)
+        except InvalidName as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+    return parse
+
+
+_deployment_arg = id_arg("deployment")
 
 
 def add_endpoint_args(parser: argparse.ArgumentParser, listen_default: tuple[str, ...] = ()) -> None:

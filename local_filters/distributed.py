@@ -15,7 +15,7 @@ from typing import NamedTuple
 import numpy as np
 
 from fusion_center.trackers import FusionConfig, local_kf_step, models_for, one_point_init
-from fusion_center.vdie import EVENT_NONE, EVENT_NAMES, VdieEvents, cv_part, embed_cv, vdie_init, vdie_step
+from fusion_center.vdie import EVENT_NAMES, EVENT_NONE, VdieEvents, cv_part, embed_cv, vdie_init, vdie_step
 from local_filters.kalman import GaussianState, predict, update
 from local_filters.models import CA, CV
 

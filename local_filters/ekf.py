@@ -21,8 +21,7 @@ from typing import NamedTuple
 import numpy as np
 
 from local_filters.kalman import GaussianState, Innovation, mat_vec, predict, transpose, update
-from sensors.radar import (cartesian_from_polar, cartesian_from_polar_jacobian,
-                           polar_from_cartesian, wrap_angle)
+from sensors.radar import cartesian_from_polar, cartesian_from_polar_jacobian, polar_from_cartesian, wrap_angle
 
 CV3 = "cv"
 CA3 = "ca"

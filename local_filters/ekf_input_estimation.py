@@ -35,8 +35,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from fedtrack.config import ConfigError
-from local_filters.ekf import (MotionModel3D, ekf_step, radar_jacobian, radar_residual,
-                               two_point_init)
+from local_filters.ekf import MotionModel3D, ekf_step, radar_jacobian, radar_residual, two_point_init
 from local_filters.kalman import GaussianState, mat_vec, normalized_innovation_squared, symmetrize, transpose
 
 

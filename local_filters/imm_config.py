@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from fedtrack.config import ConfigError, load_toml, parse_dataclass
-from local_filters.imm import TERMINATION_RULES, GROUP_PROBABILITY, ModelBank, Thresholds, make_bank
+from local_filters.imm import GROUP_PROBABILITY, TERMINATION_RULES, ModelBank, Thresholds, make_bank
 
 
 @dataclass(frozen=True)

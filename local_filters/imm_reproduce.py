@@ -22,8 +22,18 @@ from typing import Any
 import numpy as np
 
 from fedtrack.progress import Progress
-from local_filters.imm import (AO_VSIMM, AS_PRINTED, FSIMM, GROUP_PROBABILITY, NO_GROUP, VSIMM,
-                               ModelBank, group_label, initial_state, step)
+from local_filters.imm import (
+    AO_VSIMM,
+    AS_PRINTED,
+    FSIMM,
+    GROUP_PROBABILITY,
+    NO_GROUP,
+    VSIMM,
+    ModelBank,
+    group_label,
+    initial_state,
+    step,
+)
 from local_filters.imm_config import IMMConfig
 from local_filters.models import cv_model
 from sensors.imm_scenarios import PERIOD, R_MEAS, T_SAMPLE, simulate

@@ -17,9 +17,10 @@ from pathlib import Path
 import numpy as np
 
 from fedtrack.config import ConfigError
-from fedtrack.keys import InvalidName, check_id
+from fedtrack.keys import check_id
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
 from fedtrack.wire import MAX_MAP_ITEMS, FusedTrack, Measurement
+from fedtrack.zsession import id_arg
 from local_filters.imm import ALGORITHMS, AO_VSIMM
 from local_filters.imm_config import IMMConfig, load_imm_config
 from local_filters.imm_tracker import IMMTracker
@@ -60,14 +61,10 @@ class IMMService(Service):
 
 def main(argv: list[str]) -> int:
     parser = service_parser("imm", "single-sensor IMM tracker (FSIMM, VSIMM, activation-only VSIMM)")
-    parser.add_argument("--sensor", required=True, help="sensor id whose measurements to track")
+    parser.add_argument("--sensor", required=True, type=id_arg("--sensor"), help="sensor id whose measurements to track")
     parser.add_argument("--algorithm", default=AO_VSIMM, choices=ALGORITHMS, help="(default: %(default)s)")
     parser.add_argument("--config", help="IMM TOML configuration (default: paper 000's model set)")
     args = parser.parse_args(argv)
-    try:
-        check_id(args.sensor, "--sensor")
-    except InvalidName as exc:
-        parser.error(str(exc))
     kwargs = service_kwargs(parser, args)
     cfg = load_imm_config(Path(args.config) if args.config else None)  # ConfigError: the CLI exits 2
     return IMMService(args.sensor, args.algorithm, cfg, **kwargs).run()

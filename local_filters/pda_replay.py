@@ -26,7 +26,13 @@ from fedtrack.config import load_toml, parse_dataclass
 from fedtrack.jsonl import InputError, as_covariance, as_float, as_vector, read_jsonl, require
 from local_filters.pda import PDAParams
 from local_filters.pda_tracks import (
-    ExistenceConfig, ScanReport, TrackerSpec, TrackSet, initial_manager, manager_step, tracker_spec,
+    ExistenceConfig,
+    ScanReport,
+    TrackerSpec,
+    TrackSet,
+    initial_manager,
+    manager_step,
+    tracker_spec,
 )
 
 

@@ -28,7 +28,13 @@ from local_filters.kalman import predict
 from local_filters.pda import PDAParams, associate, constants, gate, gate_box, singer_model, truth_d2, two_point_init
 from local_filters.pda_tracks import ExistenceConfig, initial_manager, manager_step, tracker_spec
 from sensors.sonar import (
-    ScenarioConfig, SonarConfig, clutter_in_boxes, concat, scan, target_detections, truth_states,
+    ScenarioConfig,
+    SonarConfig,
+    clutter_in_boxes,
+    concat,
+    scan,
+    target_detections,
+    truth_states,
 )
 
 PDS = (0.8, 0.9, 0.95)

@@ -20,9 +20,10 @@ from pathlib import Path
 import numpy as np
 
 from fedtrack.config import ConfigError
-from fedtrack.keys import InvalidName, check_id
+from fedtrack.keys import check_id
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
 from fedtrack.wire import FusedTrack, Measurement
+from fedtrack.zsession import id_arg
 from local_filters.pda import ALGORITHMS
 from local_filters.pda_replay import PDAReplayConfig, load_config
 from local_filters.pda_tracks import ManagerState, TrackerSpec, initial_manager, manager_step, tracker_spec
@@ -66,14 +67,10 @@ class PDAService(Service):
 
 def main(argv: list[str]) -> int:
     parser = service_parser("hpda", "cluttered-sensor tracker with track initiation (HPDA or IPDA-AI)")
-    parser.add_argument("--sensor", required=True, help="sonar sensor id whose scans to track")
+    parser.add_argument("--sensor", required=True, type=id_arg("--sensor"), help="sonar sensor id whose scans to track")
     parser.add_argument("--algorithm", default="hpda", choices=ALGORITHMS, help="(default: %(default)s)")
     parser.add_argument("--config", help="TOML with [tracker] and [existence] tables (see docs/hpda.md)")
     args = parser.parse_args(argv)
-    try:
-        check_id(args.sensor, "--sensor")
-    except InvalidName as exc:
-        parser.error(str(exc))
     kwargs = service_kwargs(parser, args)
     try:
         service = PDAService(args.sensor, args.algorithm,

@@ -26,8 +26,15 @@ from fedtrack.config import ConfigError
 from local_filters.kalman import GaussianState, predict
 from local_filters.models import LinearModel
 from local_filters.pda import (
-    ALGORITHMS, Constants, PDAParams, associate, constants, existence_update, gate,
-    singer_model, two_point_init,
+    ALGORITHMS,
+    Constants,
+    PDAParams,
+    associate,
+    constants,
+    existence_update,
+    gate,
+    singer_model,
+    two_point_init,
 )
 
 

@@ -21,8 +21,15 @@ from typing import Any
 import numpy as np
 
 from local_filters.ekf import CV3, motion_model_3d
-from local_filters.radar_filters import (MODEL_ENV, EkfIEConfig, EkfTsFuzzyConfig, FilterKind,
-                                         filter_kind, load_compatible_model, run_batch)
+from local_filters.radar_filters import (
+    MODEL_ENV,
+    EkfIEConfig,
+    EkfTsFuzzyConfig,
+    FilterKind,
+    filter_kind,
+    load_compatible_model,
+    run_batch,
+)
 from local_filters.ts_fuzzy import GAParams, load_model
 from local_filters.ts_fuzzy_train import EVAL_TAG, TRAIN_TAG, scenario_rng, train
 from sensors.radar import G0, RadarConfig, Trajectory, simulate

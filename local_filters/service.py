@@ -24,10 +24,11 @@ import numpy as np
 
 from fedtrack.config import ConfigError
 from fedtrack.deployment import MODES
+from fedtrack.jsonl import InputError
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
 from fedtrack.settings import load_settings
-from fedtrack.jsonl import InputError
 from fedtrack.wire import LocalEstimate, ManeuverInfo, Measurement, Reset, measurement_to_replay
+from fedtrack.zsession import id_arg
 from local_filters.distributed import FederatedLocalFilter, LocalOutput, VdieLocalFilter
 from local_filters.radar_filters import RadarFilter, make_radar_filter
 
@@ -159,7 +160,7 @@ def to_message(sensor: str, meas: Measurement, out: LocalOutput, flags: tuple[st
 
 def main(argv: list[str]) -> int:
     parser = service_parser("local-filter", "run one sensor's local filter")
-    parser.add_argument("--sensor", required=True, help="the sensor id this filter serves")
+    parser.add_argument("--sensor", required=True, type=id_arg("--sensor"), help="the sensor id this filter serves")
     parser.add_argument("--mode", choices=MODES, help="overrides deployment.mode")
     parser.add_argument("--config", type=Path, help="deployment TOML ([deployment], [fusion], [[sensor]])")
     parser.add_argument("--filter", choices=FILTERS, default="vdie",

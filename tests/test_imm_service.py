@@ -2,17 +2,16 @@
 
 from __future__ import annotations
 
-import socket
 import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from fedtrack.keys import Keys
+from support import WAIT_S, free_port, wait_until
 from fedtrack.wire import FusedTrack, Measurement, decode, encode
 from fedtrack.zsession import SessionOptions, close_session, open_session, wait_alive
 from local_filters.imm_config import IMMConfig
@@ -20,23 +19,9 @@ from local_filters.imm_service import IMMService
 from local_filters.imm_tracker import IMMTracker
 from sensors.imm_scenarios import simulate
 
-WAIT_S = 10.0
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def wait_until(predicate, timeout: float = WAIT_S) -> bool:  # type: ignore[no-untyped-def]
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.02)
-    return predicate()
 
 
 def test_service_tracks_like_the_replay_tracker():

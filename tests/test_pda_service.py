@@ -2,37 +2,22 @@
 
 from __future__ import annotations
 
-import socket
 import threading
-import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
 from fedtrack.keys import Keys
+from support import WAIT_S, free_port, wait_until
 from fedtrack.wire import FusedTrack, Measurement, decode, encode, measurement_from_replay
 from fedtrack.zsession import SessionOptions, close_session, open_session, wait_alive
 from local_filters.pda_replay import PDAReplayConfig
 from local_filters.pda_service import PDAService, main
 from sensors.sonar import SonarConfig, sonar_scans
 
-WAIT_S = 10.0
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def wait_until(predicate: Callable[[], bool], timeout: float = WAIT_S) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.02)
-    return predicate()
 
 
 def test_service_confirms_the_sonar_target() -> None:

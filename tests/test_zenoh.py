@@ -9,19 +9,19 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import threading
 import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import pytest
 import zenoh
 
 from fedtrack.keys import Keys
+from support import WAIT_S, free_port, wait_until
 from fedtrack.services.base import QueryHandler, Service, Subscription
 from fedtrack.wire import (Detection, FusedTrack, Health, ManeuverEvent, Measurement, decode, encode,
                            measurement_to_replay)
@@ -29,22 +29,8 @@ from fedtrack.zsession import (SessionError, SessionOptions, alive_keys, close_s
                                wait_alive)
 
 ROOT = Path(__file__).resolve().parents[1]
-WAIT_S = 10.0
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def wait_until(predicate: Callable[[], bool], timeout: float = WAIT_S) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.02)
-    return predicate()
 
 
 def spawn(args: list[str], log: Path) -> subprocess.Popen[bytes]:
