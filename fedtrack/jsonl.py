@@ -93,3 +93,14 @@ def as_covariance(value: Any, name: str, where: str, size: int | None = None,
     except np.linalg.LinAlgError as exc:
         raise InputError(f"{where}: {name} is not positive definite") from exc
     return arr
+
+
+def position_line(obj: dict[str, Any], where: str) -> tuple[float, str, np.ndarray, np.ndarray]:
+    """``(t, sensor, z, R)`` of a 2-D position measurement line ``{"t", "sensor", "z", "R"}``."""
+    t = as_float(require(obj, "t", where), "t", where)
+    sensor = require(obj, "sensor", where)
+    if not isinstance(sensor, str) or not sensor:
+        raise InputError(f"{where}: sensor must be a non-empty string, got {sensor!r}")
+    z = as_vector(require(obj, "z", where), "z", where, size=2)
+    R = as_covariance(require(obj, "R", where), "R", where, size=2)
+    return t, sensor, z, R

@@ -14,7 +14,7 @@ from typing import Any, Iterator, NamedTuple
 
 import numpy as np
 
-from fedtrack.jsonl import InputError, as_covariance, as_float, as_vector, read_jsonl, require
+from fedtrack.jsonl import InputError, position_line, read_jsonl
 from fedtrack.settings import load_settings
 from fusion_center.trackers import ScanEstimate, make_tracker
 from fusion_center.vdie import EVENT_NAMES
@@ -34,12 +34,7 @@ def read_scans(path: Path) -> list[Scan]:
     scans: list[Scan] = []
     for lineno, obj in read_jsonl(path):
         where = f"{path}:{lineno}"
-        t = as_float(require(obj, "t", where), "t", where)
-        sensor = require(obj, "sensor", where)
-        if not isinstance(sensor, str) or not sensor:
-            raise InputError(f"{where}: sensor must be a non-empty string")
-        z = as_vector(require(obj, "z", where), "z", where, size=2)
-        R = as_covariance(require(obj, "R", where), "R", where, size=2)
+        t, sensor, z, R = position_line(obj, where)
         if scans and t < scans[-1].t:
             raise InputError(f"{where}: timestamp {t} goes backwards (previous scan at {scans[-1].t})")
         if not scans or t > scans[-1].t:

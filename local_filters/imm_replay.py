@@ -18,7 +18,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from fedtrack.jsonl import InputError, as_covariance, as_float, as_vector, read_jsonl, require, write_jsonl
+from fedtrack.jsonl import InputError, position_line, read_jsonl, write_jsonl
 from local_filters.imm import ALGORITHMS
 from local_filters.imm_config import load_imm_config
 from local_filters.imm_tracker import IMMTracker
@@ -36,12 +36,7 @@ def read_measurements(path: Path) -> list[Measurement]:
     out: list[Measurement] = []
     for lineno, obj in read_jsonl(path):
         where = f"{path}:{lineno}"
-        t = as_float(require(obj, "t", where), "t", where)
-        sensor = require(obj, "sensor", where)
-        if not isinstance(sensor, str) or not sensor:
-            raise InputError(f"{where}: sensor must be a non-empty string, got {sensor!r}")
-        z = as_vector(require(obj, "z", where), "z", where, size=2)
-        R = as_covariance(require(obj, "R", where), "R", where, size=2)
+        t, sensor, z, R = position_line(obj, where)
         if out and t < out[-1].t:
             raise InputError(f"{where}: t = {t} is earlier than the previous line's t = {out[-1].t}")
         if out and sensor != out[0].sensor:
