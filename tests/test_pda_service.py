@@ -45,7 +45,8 @@ def test_service_confirms_the_sonar_target() -> None:
         session.put(keys.sensor_meas("sonar1"), encode(position))
         assert wait_until(lambda: service.counters.get("unsupported", 0) == 1)
         assert wait_until(lambda: service.counters["received"] == len(lines) + 1)
-        assert tracks, "no confirmed track published"
+        # tracks reach this subscriber asynchronously: wait for the last scan's, not just the input count
+        assert wait_until(lambda: any(tr.t == lines[-1]["t"] for tr in tracks)), "no confirmed track at the last scan"
         last = [tr for tr in tracks if tr.t == lines[-1]["t"]]
         errors = [np.linalg.norm(tr.x[[0, 3]] - truth[tr.t]) for tr in last]
         best = last[int(np.argmin(errors))]
