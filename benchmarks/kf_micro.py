@@ -1,6 +1,6 @@
 """Micro-benchmark of the estimation core: one CV Kalman scan-update over Monte Carlo runs.
 
-Three implementations of the same maths (``local_filters.kalman``: predict, then the
+Three implementations of the same maths (``fedtrack.local_filters.linear.kalman``: predict, then the
 Joseph-form update) on the same seeded data, paper 004 scenario 1 measured by one
 position sensor:
 
@@ -21,9 +21,9 @@ from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
-from local_filters.kalman import GaussianState, predict, update
-from local_filters.models import LinearModel, cv_model
-from sensors.scenarios import DEFAULT_R, paper004_scenario, simulate_positions, simulate_truth
+from fedtrack.local_filters.linear.kalman import GaussianState, predict, update
+from fedtrack.local_filters.linear.models import LinearModel, cv_model
+from fedtrack.sensors.scenarios import DEFAULT_R, paper004_scenario, simulate_positions, simulate_truth
 
 INIT_VEL_VAR = 500.0 ** 2  # m^2/s^2, as the fusion trackers' init_speed_std default
 

@@ -12,7 +12,7 @@ with the other counts so that the machine's load drifts over all of them alike:
   measurement of the scan is out);
 * ``lockstep`` pacing: fused scans per second between the first and the last track.
 
-Then the estimation-core micro-benchmark (:mod:`benchmarks.kf_micro`). Results are
+Then the estimation-core micro-benchmark (:mod:`fedtrack.benchmarks.kf_micro`). Results are
 printed as a table with ratios to the smallest sensor count, and written as JSON.
 """
 
@@ -32,10 +32,10 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.kf_micro import bench_kf
-from fedtrack.demo import demo_settings, free_port, write_config
-from fedtrack.launcher import LaunchError, Launcher, service_plan
-from fedtrack.progress import Progress
+from fedtrack.benchmarks.kf_micro import bench_kf
+from fedtrack.deploy.demo import demo_settings, free_port, write_config
+from fedtrack.deploy.launcher import Launcher, LaunchError, service_plan
+from fedtrack.progress import progress_bar
 
 REALTIME_SPEED = 10.0  # scenario T = 1 s -> 10 scans/s
 BENCH_SERVICES = ("router", "sensor", "local-filter", "fusion-center")
@@ -184,7 +184,7 @@ def main(argv: list[str]) -> int:
     max_scans = QUICK_SCANS if args.quick else None
     start = time.monotonic()
     runs: list[dict[str, Any]] = []
-    with Progress(args.repeats * len(counts) * 2 + KF_ROUNDS, "bench") as progress:
+    with progress_bar(args.repeats * len(counts) * 2 + KF_ROUNDS, "bench") as progress:
         for _ in range(args.repeats):
             for n in counts:
                 for pacing in ("realtime", "lockstep"):
@@ -193,9 +193,9 @@ def main(argv: list[str]) -> int:
                     except LaunchError as exc:
                         print(f"\nfedtrack bench: {n} sensors, {pacing}: {exc}", file=sys.stderr)
                         runs.append({"sensors": n, "pacing": pacing, "error": str(exc)})
-                    progress.advance()
+                    progress.update()
         kf = bench_kf(QUICK_KF_RUNS if args.quick else FULL_KF_RUNS, KF_LOOP_RUNS, KF_ROUNDS, args.seed,
-                      tick=progress.advance)
+                      tick=progress.update)
     table = summarize(runs, counts)
     result = {
         "sensors": counts, "quick": args.quick, "repeats": args.repeats, "seed": args.seed,

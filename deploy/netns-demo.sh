@@ -14,7 +14,7 @@
 # <tag> is "ftnd<PID>" so concurrent runs never share a name. Steps: start host A
 # (router + fusion center + recorder), wait until its services are alive as seen from
 # host B, start hosts B and C (sensors + local filters) together, wait for them to end,
-# stop host A (the recorder flushes), then python -m deploy.verify_run checks that every
+# stop host A (the recorder flushes), then python -m fedtrack.deploy.verify_run checks that every
 # scan was fused and that tracks.jsonl equals the offline replay of measurements.jsonl.
 #
 # On exit, whatever happened (trap EXIT): TERM then KILL every process started here
@@ -127,7 +127,7 @@ wait_rc() {  # wait_rc PID VAR: wait for PID (a child of this shell), store its 
 launch a
 PID_A=${PIDS[-1]}
 log "host A ($(addr a)) started: router, fusion-center, recorder"
-(cd "$REPO" && timeout "$(remaining)" ip netns exec "${TAG}b" "$PY" -m deploy.wait_ready \
+(cd "$REPO" && timeout "$(remaining)" ip netns exec "${TAG}b" "$PY" -m fedtrack.deploy.wait_ready \
     --connect "tcp/$(addr a):7447" --deployment multihost --timeout 45 fusion-center/fusion recorder/recorder) \
     2>"$OUT/wait-ready.log" || fail "host A not reachable/ready from host B: $(tail -n 3 "$OUT/wait-ready.log"); host A log: $(tail -n 5 "$OUT/launch-a.log")"
 log "host A is up as seen from host B ($(addr b)); starting hosts B and C"
@@ -150,7 +150,7 @@ tail -n 1 "$OUT/launch-b.log" | sed 's/^/netns-demo: host B: /' >&2
 tail -n 1 "$OUT/launch-c.log" | sed 's/^/netns-demo: host C: /' >&2
 
 # ------------------------------------------------------------------ verify
-(cd "$REPO" && "$PY" -m deploy.verify_run --config "$OUT/config/host-a.toml" --run "$OUT/host-a") \
+(cd "$REPO" && "$PY" -m fedtrack.deploy.verify_run --config "$OUT/config/host-a.toml" --run "$OUT/host-a") \
     >"$OUT/verify.json" || fail "verification: $(cat "$OUT/verify.json")"
 log "verified: $(cat "$OUT/verify.json")"
 log "OK in $((SECONDS - START)) s"

@@ -1,6 +1,6 @@
 """Check a recorded deployment: every scan fused, finite, and equal to the offline replay.
 
-``python -m deploy.verify_run --config CONFIG.toml --run DIR`` reads ``DIR/tracks.jsonl``
+``python -m fedtrack.deploy.verify_run --config CONFIG.toml --run DIR`` reads ``DIR/tracks.jsonl``
 and ``DIR/measurements.jsonl`` (written by the recorder), replays the measurements with
 the deployment's algorithm (``fvdie`` for federated, ``dvdie`` for decentralized) and
 prints a JSON verdict. Exit code 0 when the run is complete and matches the replay,
@@ -20,11 +20,11 @@ from typing import Any
 import numpy as np
 
 from fedtrack.config import ConfigError
-from fedtrack.demo import REPLAY_ALGORITHM
+from fedtrack.deploy.demo import REPLAY_ALGORITHM
+from fedtrack.deploy.settings import load_settings
+from fedtrack.fusion_center.replay import replay_fusion
 from fedtrack.jsonl import InputError, read_jsonl
-from fedtrack.settings import load_settings
-from fusion_center.replay import replay_fusion
-from sensors.scenarios import paper004_scenario
+from fedtrack.sensors.scenarios import paper004_scenario
 
 TOLERANCE = 1e-9
 
@@ -86,7 +86,7 @@ def verify_run(config: Path, run_dir: Path) -> RunCheck:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m deploy.verify_run", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m fedtrack.deploy.verify_run", description=__doc__.splitlines()[0])
     parser.add_argument("--config", required=True, type=Path, help="the deployment TOML of the fusion host")
     parser.add_argument("--run", required=True, type=Path, help="the recorder's output directory")
     args = parser.parse_args(argv)

@@ -1,4 +1,4 @@
-"""Wait until services of a deployment are up: ``python -m deploy.wait_ready ROLE/ID ...``.
+"""Wait until services of a deployment are up: ``python -m fedtrack.deploy.wait_ready ROLE/ID ...``.
 
 Opens a Zenoh client session to ``--connect`` (waiting for the router to appear) and
 polls the liveliness tokens ``fedtrack/<deployment>/alive/<role>/<id>``. Use it on the
@@ -14,11 +14,17 @@ import sys
 import time
 
 from fedtrack.keys import InvalidName, Keys
-from fedtrack.zsession import SessionError, SessionOptions, close_session, open_session, wait_alive
+from fedtrack.zsession import (
+    SessionError,
+    SessionOptions,
+    close_session,
+    open_session,
+    wait_alive,
+)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m deploy.wait_ready", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m fedtrack.deploy.wait_ready", description=__doc__.splitlines()[0])
     parser.add_argument("services", nargs="+", metavar="ROLE/ID", help="e.g. fusion-center/fusion recorder/recorder")
     parser.add_argument("--connect", required=True, action="append", help="router endpoint, e.g. tcp/10.47.0.1:7447")
     parser.add_argument("--deployment", required=True, help="deployment name ([deployment] name)")

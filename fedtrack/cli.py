@@ -18,50 +18,50 @@ from fedtrack.jsonl import InputError
 
 # name -> "module:function(runs, seed, json_path, plots_dir) -> dict"
 REPRODUCERS: dict[str, str] = {
-    "fvdie": "fusion_center.reproduce:reproduce_fvdie",
-    "vsimm": "local_filters.imm_reproduce:reproduce_vsimm",
-    "hpda": "local_filters.pda_reproduce:reproduce_hpda",
-    "input-estimation": "local_filters.radar_reproduce:reproduce_input_estimation",
-    "ts-fuzzy": "local_filters.radar_reproduce:reproduce_ts_fuzzy",
+    "fvdie": "fedtrack.experiments.fvdie:reproduce_fvdie",
+    "vsimm": "fedtrack.experiments.vsimm:reproduce_vsimm",
+    "hpda": "fedtrack.experiments.hpda:reproduce_hpda",
+    "input-estimation": "fedtrack.experiments.radar:reproduce_input_estimation",
+    "ts-fuzzy": "fedtrack.experiments.radar:reproduce_ts_fuzzy",
 }
 
 # algorithm -> "module:function(measurements, config, out) -> int (lines written)"
 REPLAY_ALGORITHMS: dict[str, str] = {
-    "kf": "fusion_center.replay:replay_fusion",
-    "federated-kf": "fusion_center.replay:replay_fusion",
-    "decentralized-kf": "fusion_center.replay:replay_fusion",
-    "fvdie": "fusion_center.replay:replay_fusion",
-    "dvdie": "fusion_center.replay:replay_fusion",
-    "fsimm": "local_filters.imm_replay:replay_imm",
-    "vsimm": "local_filters.imm_replay:replay_imm",
-    "ao-vsimm": "local_filters.imm_replay:replay_imm",
-    "pda-ai": "local_filters.pda_replay:replay_pda",
-    "hpda": "local_filters.pda_replay:replay_pda",
-    "ekf": "local_filters.radar_replay:replay_radar",
-    "ekf-ie": "local_filters.radar_replay:replay_radar",
-    "ekf-tsfuzzy": "local_filters.radar_replay:replay_radar",
+    "kf": "fedtrack.fusion_center.replay:replay_fusion",
+    "federated-kf": "fedtrack.fusion_center.replay:replay_fusion",
+    "decentralized-kf": "fedtrack.fusion_center.replay:replay_fusion",
+    "fvdie": "fedtrack.fusion_center.replay:replay_fusion",
+    "dvdie": "fedtrack.fusion_center.replay:replay_fusion",
+    "fsimm": "fedtrack.local_filters.imm.replay:replay_imm",
+    "vsimm": "fedtrack.local_filters.imm.replay:replay_imm",
+    "ao-vsimm": "fedtrack.local_filters.imm.replay:replay_imm",
+    "pda-ai": "fedtrack.local_filters.pda.replay:replay_pda",
+    "hpda": "fedtrack.local_filters.pda.replay:replay_pda",
+    "ekf": "fedtrack.local_filters.radar.replay:replay_radar",
+    "ekf-ie": "fedtrack.local_filters.radar.replay:replay_radar",
+    "ekf-tsfuzzy": "fedtrack.local_filters.radar.replay:replay_radar",
 }
 
 # role -> "module:function(argv) -> int"
 SERVICES: dict[str, str] = {
     "router": "fedtrack.services.router:main",
-    "sensor": "sensors.service:main",
-    "local-filter": "local_filters.service:main",
-    "fusion-center": "fusion_center.service:main",
+    "sensor": "fedtrack.sensors.service:main",
+    "local-filter": "fedtrack.local_filters.service:main",
+    "fusion-center": "fedtrack.fusion_center.service:main",
     "recorder": "fedtrack.services.recorder:main",
-    "imm": "local_filters.imm_service:main",
-    "hpda": "local_filters.pda_service:main",
+    "imm": "fedtrack.local_filters.imm.service:main",
+    "hpda": "fedtrack.local_filters.pda.service:main",
 }
 
 # name -> "module:function(argv) -> int"
 TRAINERS: dict[str, str] = {
-    "ts-fuzzy": "local_filters.ts_fuzzy_train:main",
+    "ts-fuzzy": "fedtrack.experiments.ts_fuzzy_training:main",
 }
 
 COMMANDS: dict[str, str] = {
-    "demo": "fedtrack.demo:main",
-    "launch": "fedtrack.launcher:main",
-    "bench": "benchmarks.run:main",
+    "demo": "fedtrack.deploy.demo:main",
+    "launch": "fedtrack.deploy.launcher:main",
+    "bench": "fedtrack.benchmarks.run:main",
 }
 
 

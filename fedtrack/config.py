@@ -109,6 +109,27 @@ def parse_dataclass(cls: type[T], table: dict[str, Any], where: str = "") -> T:
     return obj
 
 
+#: The top-level tables of the one configuration file. Each service parses the tables it
+#: uses (:func:`load_tables`); the others must be known names, so that a typo still fails.
+TABLES = ("fusion", "deployment", "sensor", "sonar", "radar", "radar_filter")
+
+
+def load_tables(path: str | Path | None, schema: type[T]) -> T:
+    """Parse the tables of dataclass ``schema`` from the config file (defaults when ``path`` is None).
+
+    Tables of :data:`TABLES` that ``schema`` does not hold are left to the services that use
+    them; any other top-level name is an error.
+    """
+    if path is None:
+        return schema()
+    data = load_toml(path)
+    own = {f.name for f in dataclasses.fields(schema)}  # type: ignore[arg-type]
+    unknown = sorted(set(data) - own - set(TABLES))
+    if unknown:
+        raise ConfigError(f"unknown config key {unknown[0]} (tables: {', '.join(sorted(set(TABLES) | own))})")
+    return parse_dataclass(schema, {k: v for k, v in data.items() if k in own})
+
+
 def to_toml(table: dict[str, Any]) -> str:
     """Serialize a (nested) dict of scalars, lists and tables to TOML text."""
     lines: list[str] = []

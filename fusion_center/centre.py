@@ -3,10 +3,10 @@
 :class:`FederatedCentre` (FVDIE) fuses the local posteriors (15)-(16), runs the input
 estimator on the fused quantities and returns the resets (20)-(22);
 :class:`DecentralizedCentre` (DVDIE) fuses single-sensor VDIE locals without feedback.
-Both call the same functions as ``fusion_center.trackers`` (used by ``fedtrack
+Both call the same functions as ``fedtrack.fusion_center.trackers`` (used by ``fedtrack
 replay``), so a healthy deployment reproduces ``replay`` to round-off. A scan whose
 local estimates did not all arrive is fused from those that did (sharing factors
-renormalized, see :func:`fusion_center.fusion.federated_fuse`) and marked degraded.
+renormalized, see :func:`fedtrack.fusion_center.fusion.federated_fuse`) and marked degraded.
 """
 
 from __future__ import annotations
@@ -15,9 +15,13 @@ from typing import NamedTuple
 
 import numpy as np
 
-from fusion_center.fusion import federated_fuse, federated_reset
-from fusion_center.trackers import FusionConfig, ScanEstimate, fuse_independent, models_for, scan_event
-from fusion_center.vdie import (
+from fedtrack.fusion_center.fusion import federated_fuse, federated_reset
+from fedtrack.fusion_center.trackers import ScanEstimate, fuse_independent, scan_event
+from fedtrack.local_filters.linear.kalman import GaussianState, predict
+from fedtrack.local_filters.linear.models import CA, LinearModel
+from fedtrack.local_filters.linear.tracking import models_for
+from fedtrack.local_filters.vdie.config import FusionConfig
+from fedtrack.local_filters.vdie.estimation import (
     EVENT_NAMES,
     EVENT_NONE,
     CentreState,
@@ -29,9 +33,7 @@ from fusion_center.vdie import (
     vdie_init,
     vdie_step,
 )
-from local_filters.distributed import LocalOutput
-from local_filters.kalman import GaussianState, predict
-from local_filters.models import CA, LinearModel
+from fedtrack.local_filters.vdie.local import LocalOutput
 
 EVENT_CODES = {name: code for code, name in EVENT_NAMES.items()}
 

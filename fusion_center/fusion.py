@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from local_filters.kalman import (
+from fedtrack.local_filters.linear.kalman import (
     GaussianState,
     from_information,
     information,
@@ -21,23 +21,6 @@ from local_filters.kalman import (
     symmetrize,
     update,
 )
-
-
-def equal_sharing(n_sensors: int) -> np.ndarray:
-    """Default sharing factors ``beta_i = N`` (so ``sum 1/beta_i = 1``)."""
-    return np.full(n_sensors, float(n_sensors))
-
-
-def validate_sharing(betas: np.ndarray) -> np.ndarray:
-    """Check eq. (17): ``sum 1/beta_i = 1`` and ``0 < 1/beta_i <= 1``."""
-    b = np.asarray(betas, dtype=float)
-    if b.ndim != 1 or b.size == 0 or not np.all(np.isfinite(b)):
-        raise ValueError("sharing factors must be a non-empty list of finite numbers")
-    if np.any(b < 1.0):
-        raise ValueError("every sharing factor beta_i must be >= 1 (0 < 1/beta_i <= 1)")
-    if abs(np.sum(1.0 / b) - 1.0) > 1e-9:
-        raise ValueError(f"sharing factors must satisfy sum(1/beta_i) = 1, got {np.sum(1.0 / b):.6g}")
-    return b
 
 
 def centralized_update(prior: GaussianState, zs: np.ndarray, H: np.ndarray,

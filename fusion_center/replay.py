@@ -14,11 +14,12 @@ from typing import Any, Iterator, NamedTuple
 
 import numpy as np
 
+from fedtrack.config import load_tables
+from fedtrack.fusion_center.trackers import ScanEstimate, make_tracker
 from fedtrack.jsonl import InputError, position_line, read_jsonl
-from fedtrack.settings import load_settings
-from fusion_center.trackers import ScanEstimate, make_tracker
-from fusion_center.vdie import EVENT_NAMES
-from local_filters.models import CV_IN_CA
+from fedtrack.local_filters.linear.models import CV_IN_CA
+from fedtrack.local_filters.vdie.config import PipelineSettings
+from fedtrack.local_filters.vdie.estimation import EVENT_NAMES
 
 
 class Scan(NamedTuple):
@@ -97,7 +98,7 @@ def replay_scans(algorithm: str, scans: list[Scan], sensors: list[str], config: 
 
 def replay_fusion(algorithm: str, measurements: Path, config: Path | None, out: Path) -> int:
     """Entry point of ``fedtrack replay --algorithm kf|federated-kf|decentralized-kf|fvdie|dvdie``."""
-    settings = load_settings(config)
+    settings = load_tables(config, PipelineSettings)
     scans = read_scans(measurements)
     sensors = sensor_order(scans, settings.fusion.sensors)
     settings.fusion.betas(len(sensors))  # fails early if the sharing factors do not fit

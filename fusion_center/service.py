@@ -20,15 +20,25 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from fedtrack.config import ConfigError
+from fedtrack.config import ConfigError, load_tables
 from fedtrack.deployment import MODES
-from fedtrack.services.base import QueryHandler, Service, Subscription, service_kwargs, service_parser
-from fedtrack.settings import load_settings
+from fedtrack.fusion_center.centre import (
+    CentreResult,
+    DecentralizedCentre,
+    FederatedCentre,
+)
+from fedtrack.local_filters.linear.models import CA_ACC, CV_IN_CA
+from fedtrack.local_filters.vdie.config import PipelineSettings
+from fedtrack.local_filters.vdie.estimation import EVENT_NAMES, EVENT_NONE
+from fedtrack.local_filters.vdie.local import LocalOutput
+from fedtrack.services.base import (
+    QueryHandler,
+    Service,
+    Subscription,
+    service_kwargs,
+    service_parser,
+)
 from fedtrack.wire import FusedTrack, LocalEstimate, ManeuverEvent, Reset
-from fusion_center.centre import CentreResult, DecentralizedCentre, FederatedCentre
-from fusion_center.vdie import EVENT_NAMES, EVENT_NONE
-from local_filters.distributed import LocalOutput
-from local_filters.models import CA_ACC, CV_IN_CA
 
 
 class ScanBuffer:
@@ -165,7 +175,7 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--config", type=Path, help="deployment TOML ([deployment], [fusion], [[sensor]])")
     parser.add_argument("--deadline", type=float, help="seconds to wait for a scan's estimates (overrides config)")
     args = parser.parse_args(argv)
-    settings = load_settings(args.config)
+    settings = load_tables(args.config, PipelineSettings)
     sensors = (args.sensors.split(",") if args.sensors else
                list(settings.fusion.sensors or [s.id for s in settings.sensor]))
     if not sensors or len(set(sensors)) != len(sensors) or not all(sensors):

@@ -16,88 +16,44 @@ updates with the first scan.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
 
-from fedtrack.config import ConfigError
-from fusion_center.fusion import (
+from fedtrack.fusion_center.fusion import (
     centralized_update,
     decentralized_fuse,
-    equal_sharing,
     federated_fuse,
     federated_local_step,
     federated_reset,
-    validate_sharing,
 )
-from fusion_center.vdie import (
+from fedtrack.local_filters.linear.kalman import (
+    GaussianState,
+    from_information,
+    information,
+    predict,
+)
+from fedtrack.local_filters.linear.models import LinearModel
+from fedtrack.local_filters.linear.tracking import (
+    local_kf_step,
+    models_for,
+    one_point_init,
+)
+from fedtrack.local_filters.vdie.config import FusionConfig
+from fedtrack.local_filters.vdie.estimation import (
     EVENT_END,
     EVENT_NEW_CA,
     EVENT_NONE,
     EVENT_ONSET,
     CentreState,
-    VdieParams,
     dvdie_centre_step,
-    local_reports,
     embed_cv,
+    local_reports,
     vdie_init,
     vdie_step,
 )
-from local_filters.kalman import GaussianState, from_information, information, predict, update
-from local_filters.models import LinearModel, ca_model, cv_model
 
 ALGORITHMS = ("kf", "federated-kf", "decentralized-kf", "fvdie", "dvdie")
-
-
-@dataclass(frozen=True)
-class FusionConfig:
-    """Configuration of the fusion trackers (TOML table ``[fusion]``; see README)."""
-
-    q: float = 0.25
-    init_speed_std: float = 500.0
-    sensors: tuple[str, ...] | None = None
-    sharing: tuple[float, ...] | None = None
-    x0: tuple[float, ...] | None = None
-    P0: tuple[tuple[float, ...], ...] | None = None
-    vdie: VdieParams = field(default_factory=VdieParams)
-
-    def validate(self) -> None:
-        if not self.q > 0:
-            raise ConfigError("q: process noise must be > 0")
-        if not self.init_speed_std > 0:
-            raise ConfigError("init_speed_std: must be > 0")
-        if self.sensors is not None and len(set(self.sensors)) != len(self.sensors):
-            raise ConfigError("sensors: sensor ids must be unique")
-        if self.sharing is not None and self.sensors is not None and len(self.sharing) != len(self.sensors):
-            raise ConfigError(f"sharing: {len(self.sharing)} factors for {len(self.sensors)} sensors")
-        if self.sharing is not None:
-            try:
-                validate_sharing(np.asarray(self.sharing))
-            except ValueError as exc:
-                raise ConfigError(f"sharing: {exc}") from exc
-        if (self.x0 is None) != (self.P0 is None):
-            raise ConfigError("x0: x0 and P0 must be given together")
-        if self.x0 is not None:
-            if len(self.x0) != 4 or not np.all(np.isfinite(self.x0)):
-                raise ConfigError("x0: must be 4 finite numbers [x, vx, y, vy]")
-            P0 = np.asarray(self.P0, dtype=float)
-            if P0.shape != (4, 4) or not np.allclose(P0, P0.T) or np.any(np.linalg.eigvalsh(P0) <= 0):
-                raise ConfigError("P0: must be a symmetric positive-definite 4x4 matrix")
-
-    def betas(self, n_sensors: int) -> np.ndarray:
-        if self.sharing is None:
-            return equal_sharing(n_sensors)
-        if len(self.sharing) != n_sensors:
-            raise ConfigError(f"sharing: {len(self.sharing)} factors for {n_sensors} sensors")
-        return np.asarray(self.sharing, dtype=float)
-
-
-@lru_cache(maxsize=64)
-def models_for(dt: float, q: float) -> tuple[LinearModel, LinearModel]:
-    """CV and CA models for a scan interval ``dt`` (cached: matrices are built once)."""
-    return cv_model(dt, q), ca_model(dt, q)
 
 
 class ScanEstimate(NamedTuple):
@@ -109,30 +65,11 @@ class ScanEstimate(NamedTuple):
     event: np.ndarray  # vdie EVENT_* code (always EVENT_NONE for the plain KFs)
 
 
-def one_point_init(zs: np.ndarray, Rs: np.ndarray, speed_var: float) -> GaussianState:
-    """Per-sensor one-point CV estimates ``(..., N, 4)`` from position measurements."""
-    batch = zs.shape[:-1]
-    x = np.zeros(batch + (4,))
-    x[..., 0], x[..., 2] = zs[..., 0], zs[..., 1]
-    P = np.zeros(batch + (4, 4))
-    P[..., [0, 0, 2, 2], [0, 2, 0, 2]] = np.broadcast_to(Rs, batch + (2, 2)).reshape(batch + (4,))
-    P[..., 1, 1] = P[..., 3, 3] = speed_var
-    return GaussianState(x, P)
-
-
 def fuse_independent(local: GaussianState, present: np.ndarray | None) -> GaussianState:
     """Information sum over the sensor axis of the present local estimates."""
     Y, y = information(local)
     w = np.ones(local.x.shape[:-1]) if present is None else np.asarray(present, dtype=float)
     return from_information(np.einsum("...i,...ijk->...jk", w, Y), np.einsum("...i,...ij->...j", w, y))
-
-
-def masked(present: np.ndarray | None, post: GaussianState, prior: GaussianState) -> GaussianState:
-    """Posterior where the sensor reported, prior where it did not."""
-    if present is None:
-        return post
-    m = np.asarray(present, dtype=bool)
-    return GaussianState(np.where(m[..., None], post.x, prior.x), np.where(m[..., None, None], post.P, prior.P))
 
 
 class FederatedRound(NamedTuple):
@@ -151,14 +88,6 @@ def federated_round(fused_prev: GaussianState, model: LinearModel, zs: np.ndarra
     partial = present is not None and not np.all(present)
     fused = federated_fuse(local_post, betas, present if partial else None, master_prior if partial else None)
     return FederatedRound(master_prior, fused, local_prior, local_post)
-
-
-def local_kf_step(local: GaussianState, model: LinearModel, zs: np.ndarray, Rs: np.ndarray,
-                  present: np.ndarray | None) -> tuple[GaussianState, GaussianState]:
-    """Stand-alone local Kalman filters (full Q, no feedback): ``(prior, posterior)``."""
-    prior = predict(local, model.F, model.Q)
-    post, _ = update(prior, zs, model.H, Rs)
-    return prior, masked(present, post, prior)
 
 
 class Tracker:

@@ -22,15 +22,25 @@ from typing import Any
 
 import numpy as np
 
-from fedtrack.config import ConfigError
+from fedtrack.config import ConfigError, load_tables
 from fedtrack.deployment import MODES
 from fedtrack.jsonl import InputError
+from fedtrack.local_filters.radar.filters import RadarFilter, make_radar_filter
+from fedtrack.local_filters.vdie.config import PipelineSettings
+from fedtrack.local_filters.vdie.local import (
+    FederatedLocalFilter,
+    LocalOutput,
+    VdieLocalFilter,
+)
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
-from fedtrack.settings import load_settings
-from fedtrack.wire import LocalEstimate, ManeuverInfo, Measurement, Reset, measurement_to_replay
+from fedtrack.wire import (
+    LocalEstimate,
+    ManeuverInfo,
+    Measurement,
+    Reset,
+    measurement_to_replay,
+)
 from fedtrack.zsession import id_arg
-from local_filters.distributed import FederatedLocalFilter, LocalOutput, VdieLocalFilter
-from local_filters.radar_filters import RadarFilter, make_radar_filter
 
 FILTERS = ("vdie", "ekf", "ekf-ie", "ekf-tsfuzzy")
 
@@ -169,7 +179,7 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
     if args.id == "local-filter":
         args.id = args.sensor
-    settings = load_settings(args.config)
+    settings = load_tables(args.config, PipelineSettings)
     if args.filter != "vdie":
         radar = make_radar_filter(args.filter, settings.radar_filter)
         return RadarLocalFilterService(args.sensor, radar, **service_kwargs(parser, args)).run()

@@ -14,8 +14,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from local_filters.kalman import mat_vec
-from local_filters.models import cv_model
+from fedtrack.local_filters.linear.kalman import mat_vec
+from fedtrack.local_filters.linear.models import cv_model
 
 # (first k, last k, [ax, ay]) in m/s^2, paper 000 eq. (12)
 PROFILES: dict[str, tuple[tuple[int, int, tuple[float, float]], ...]] = {

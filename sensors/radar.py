@@ -25,39 +25,9 @@ from typing import Any, Iterator, NamedTuple
 import numpy as np
 
 from fedtrack.config import ConfigError
+from fedtrack.local_filters.radar.measurement import polar_from_cartesian, wrap_angle
 
 G0 = 9.80665  # standard gravity, m/s^2, used only to state accelerations in g
-
-
-def wrap_angle(a: np.ndarray) -> np.ndarray:
-    """Wrap angles to (-pi, pi]."""
-    return a - 2.0 * np.pi * np.ceil((a - np.pi) / (2.0 * np.pi))
-
-
-def polar_from_cartesian(d: np.ndarray) -> np.ndarray:
-    """``[r, az, el]`` (..., 3) of relative positions ``d`` (..., 3) (paper 002 eq. (39))."""
-    rho = np.hypot(d[..., 0], d[..., 1])
-    return np.stack([np.sqrt(rho * rho + d[..., 2] ** 2), np.arctan2(d[..., 1], d[..., 0]),
-                     np.arctan2(d[..., 2], rho)], axis=-1)
-
-
-def cartesian_from_polar(z: np.ndarray) -> np.ndarray:
-    """Relative position (..., 3) of ``[r, az, el]`` (paper 003 eq. (4), corrected: z = r sin(el))."""
-    r, az, el = z[..., 0], z[..., 1], z[..., 2]
-    return np.stack([r * np.cos(az) * np.cos(el), r * np.sin(az) * np.cos(el), r * np.sin(el)],
-                    axis=-1)
-
-
-def cartesian_from_polar_jacobian(z: np.ndarray) -> np.ndarray:
-    """Jacobian (..., 3, 3) of :func:`cartesian_from_polar` with respect to ``[r, az, el]``."""
-    r, az, el = z[..., 0], z[..., 1], z[..., 2]
-    ca, sa, ce, se = np.cos(az), np.sin(az), np.cos(el), np.sin(el)
-    rows = [
-        [ca * ce, -r * sa * ce, -r * ca * se],
-        [sa * ce, r * ca * ce, -r * sa * se],
-        [se, np.zeros_like(r), r * ce],
-    ]
-    return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
 
 
 @dataclass(frozen=True)

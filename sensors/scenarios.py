@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from local_filters.models import cv_model
+from fedtrack.local_filters.linear.models import cv_model
 
 DEFAULT_R = np.array([[100.0, 5.0], [5.0, 100.0]])
 

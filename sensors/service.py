@@ -20,24 +20,39 @@ from __future__ import annotations
 
 import argparse
 import time
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Iterator
 
 import numpy as np
 
-from fedtrack.deployment import PACINGS
+from fedtrack.config import load_tables
+from fedtrack.deployment import PACINGS, DeploymentConfig, SensorConfig
+from fedtrack.sensors.radar import RadarConfig, radar_scans
+from fedtrack.sensors.scenarios import (
+    deployment_truth,
+    paper004_scenario,
+    sensor_measurements,
+)
+from fedtrack.sensors.sonar import SonarConfig, sonar_scans
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
-from fedtrack.settings import Settings, load_settings
 from fedtrack.wire import FusedTrack, Measurement, measurement_from_replay
-from sensors.radar import radar_scans
-from sensors.scenarios import deployment_truth, paper004_scenario, sensor_measurements
-from sensors.sonar import sonar_scans
 
 KINDS = ("position", "sonar", "radar")
 
 
-def position_scans(settings: Settings, sensor_id: str) -> Iterator[dict[str, Any]]:
+
+@dataclass(frozen=True)
+class SensorSettings:
+    """The tables a simulated sensor reads: ``[deployment]``, ``[[sensor]]``, ``[sonar]``, ``[radar]``."""
+
+    deployment: DeploymentConfig = field(default_factory=DeploymentConfig)
+    sensor: tuple[SensorConfig, ...] = ()
+    sonar: SonarConfig = field(default_factory=SonarConfig)
+    radar: RadarConfig = field(default_factory=RadarConfig)
+
+
+def position_scans(settings: SensorSettings, sensor_id: str) -> Iterator[dict[str, Any]]:
     """Replay-format lines of one position sensor in the deployment's paper 004 scenario."""
     dep = settings.deployment
     scenario = paper004_scenario(dep.scenario)
@@ -50,7 +65,7 @@ def position_scans(settings: Settings, sensor_id: str) -> Iterator[dict[str, Any
         yield {"t": float(t), "sensor": sensor_id, "z": z.tolist(), "R": R.tolist()}
 
 
-def scan_source(kind: str, settings: Settings, sensor_id: str) -> tuple[list[dict[str, Any]], float]:
+def scan_source(kind: str, settings: SensorSettings, sensor_id: str) -> tuple[list[dict[str, Any]], float]:
     """All scans of the sensor as replay lines (without the simulator's truth), and the scan period."""
     seed = settings.deployment.seed
     if kind == "position":
@@ -139,7 +154,7 @@ def main(argv: list[str]) -> int:
     parser = service_parser("sensor", "publish a simulated sensor's scans")
     add_sensor_args(parser)
     args = parser.parse_args(argv)
-    settings = load_settings(args.config)
+    settings = load_tables(args.config, SensorSettings)
     dep = settings.deployment
     overrides = {k: v for k, v in (("scenario", args.scenario), ("seed", args.seed), ("pacing", args.pacing),
                                    ("speed", args.speed)) if v is not None}

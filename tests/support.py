@@ -5,7 +5,7 @@ from __future__ import annotations
 import time
 from typing import Callable
 
-from fedtrack.demo import free_port
+from fedtrack.deploy.demo import free_port
 
 WAIT_S = 10.0
 

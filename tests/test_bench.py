@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmarks.kf_micro import make_data, run_batched, run_loop
-from benchmarks.run import QUICK_SCANS, sensor_counts
+from fedtrack.benchmarks.kf_micro import make_data, run_batched, run_loop
+from fedtrack.benchmarks.run import QUICK_SCANS, sensor_counts
 
 REPO = Path(__file__).resolve().parents[1]
 

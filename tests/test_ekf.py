@@ -8,12 +8,12 @@ from scipy.stats import chi2
 
 from fedtrack.config import ConfigError
 from fedtrack.jsonl import InputError, write_jsonl
-from local_filters.ekf import ekf_step, ekf_update, motion_model_3d, radar_h, radar_jacobian
-from local_filters.ekf_input_estimation import InputEstimationParams, estimate_input, window_covariance
-from local_filters.kalman import GaussianState, nees
-from local_filters.radar_filters import EkfIEConfig, filter_kind, make_radar_filter, run_batch
-from local_filters.radar_replay import replay_radar
-from sensors.radar import RadarConfig, radar_scans, simulate
+from fedtrack.local_filters.linear.kalman import GaussianState, nees
+from fedtrack.local_filters.radar.ekf import ekf_step, ekf_update, motion_model_3d, radar_h, radar_jacobian
+from fedtrack.local_filters.radar.filters import EkfIEConfig, filter_kind, make_radar_filter, run_batch
+from fedtrack.local_filters.radar.input_estimation import InputEstimationParams, estimate_input, window_covariance
+from fedtrack.local_filters.radar.replay import replay_radar
+from fedtrack.sensors.radar import RadarConfig, radar_scans, simulate
 
 SENSOR = np.zeros(3)
 R = RadarConfig().R

@@ -3,10 +3,19 @@
 import numpy as np
 import pytest
 
-from fusion_center.fusion import validate_sharing
-from fusion_center.trackers import FusionConfig, Tracker, make_tracker, models_for
-from fusion_center.vdie import EVENT_ONSET, VdieParams, bank_accumulate, bank_best, bank_empty, bank_push
-from local_filters.kalman import GaussianState, predict, update
+from fedtrack.local_filters.linear.tracking import validate_sharing
+from fedtrack.fusion_center.trackers import Tracker, make_tracker
+from fedtrack.local_filters.linear.kalman import GaussianState, predict, update
+from fedtrack.local_filters.linear.tracking import models_for
+from fedtrack.local_filters.vdie.config import FusionConfig
+from fedtrack.local_filters.vdie.estimation import (
+    EVENT_ONSET,
+    VdieParams,
+    bank_accumulate,
+    bank_best,
+    bank_empty,
+    bank_push,
+)
 
 
 def random_setup(n_sensors: int, rng: np.random.Generator) -> tuple[np.ndarray, tuple[float, ...]]:
@@ -68,9 +77,9 @@ class CentralizedVDIE(Tracker):
         return est
 
     def _update(self, cv, ca, zs, Rs, present, t):
-        from fusion_center.fusion import centralized_update
-        from fusion_center.trackers import ScanEstimate
-        from fusion_center.vdie import vdie_step
+        from fedtrack.fusion_center.fusion import centralized_update
+        from fedtrack.fusion_center.trackers import ScanEstimate
+        from fedtrack.local_filters.vdie.estimation import vdie_step
 
         def step_fn(post_prev, model):
             prior = predict(post_prev, model.F, model.Q)
@@ -81,7 +90,7 @@ class CentralizedVDIE(Tracker):
 
 
 def test_fvdie_equals_centralized_vdie_through_model_switches():
-    from sensors.scenarios import paper004_scenario, simulate_positions, simulate_truth
+    from fedtrack.sensors.scenarios import paper004_scenario, simulate_positions, simulate_truth
 
     rng = np.random.default_rng(2)
     Rs, betas = random_setup(3, rng)

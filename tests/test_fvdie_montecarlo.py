@@ -4,15 +4,15 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from fusion_center.reproduce import (
+from fedtrack.experiments.fvdie import (
     PAPER_TABLE1,
     TABLE1_TIMES,
+    cv_segment_nees,
     run_tracker,
     summarize,
-    cv_segment_nees,
 )
-from fusion_center.trackers import FusionConfig
-from sensors.scenarios import DEFAULT_R, paper004_scenario, simulate_positions, simulate_truth
+from fedtrack.local_filters.vdie.config import FusionConfig
+from fedtrack.sensors.scenarios import DEFAULT_R, paper004_scenario, simulate_positions, simulate_truth
 
 RUNS = 200
 

@@ -8,15 +8,35 @@ import numpy as np
 import pytest
 
 from fedtrack.config import ConfigError, parse_dataclass
-from local_filters.imm import (AO_VSIMM, AS_PRINTED, DROP_NEW, DROP_OLD, FSIMM, GROUP_PROBABILITY,
-                               KEEP_UNION, NO_GROUP, VSIMM, Cycle, IMMState, Thresholds,
-                               activation, active_models, combine, group_log_likelihood,
-                               initial_state, make_bank, mode_inputs, model_cycle, posterior, step,
-                               termination)
-from local_filters.imm_config import IMMConfig, paper_transition
-from local_filters.kalman import GaussianState, predict, update
-from local_filters.models import cv_model
-from sensors.imm_scenarios import X0, acceleration_profile, simulate
+from fedtrack.local_filters.imm.config import IMMConfig, paper_transition
+from fedtrack.local_filters.imm.filter import (
+    AO_VSIMM,
+    AS_PRINTED,
+    DROP_NEW,
+    DROP_OLD,
+    FSIMM,
+    GROUP_PROBABILITY,
+    KEEP_UNION,
+    NO_GROUP,
+    VSIMM,
+    Cycle,
+    IMMState,
+    Thresholds,
+    activation,
+    active_models,
+    combine,
+    group_log_likelihood,
+    initial_state,
+    make_bank,
+    mode_inputs,
+    model_cycle,
+    posterior,
+    step,
+    termination,
+)
+from fedtrack.local_filters.linear.kalman import GaussianState, predict, update
+from fedtrack.local_filters.linear.models import cv_model
+from fedtrack.sensors.imm_scenarios import X0, acceleration_profile, simulate
 
 R = 400.0 * np.eye(2)
 P0 = np.diag([400.0, 900.0, 400.0, 900.0])
@@ -221,7 +241,7 @@ def test_scenario_profiles_and_truth_model():
 
 
 def test_config_errors_name_the_key(tmp_path: Path):
-    from local_filters.imm_config import load_imm_config
+    from fedtrack.local_filters.imm.config import load_imm_config
 
     def fails(text: str, match: str) -> None:
         p = tmp_path / "c.toml"
@@ -241,7 +261,7 @@ def test_config_errors_name_the_key(tmp_path: Path):
 
 
 def test_example_config_loads_and_runs():
-    from local_filters.imm_config import load_imm_config
+    from fedtrack.local_filters.imm.config import load_imm_config
 
     cfg = load_imm_config(Path(__file__).resolve().parents[1] / "deploy" / "imm-3model.toml")
     bank = cfg.bank()

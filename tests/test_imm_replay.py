@@ -11,11 +11,11 @@ import pytest
 from fedtrack.cli import main as cli_main
 from fedtrack.config import ConfigError
 from fedtrack.jsonl import InputError
-from local_filters.imm import FSIMM, initial_state, step
-from local_filters.imm_config import IMMConfig
-from local_filters.imm_replay import replay_imm
-from local_filters.models import cv_model
-from sensors.imm_scenarios import simulate
+from fedtrack.local_filters.imm.config import IMMConfig
+from fedtrack.local_filters.imm.filter import FSIMM, initial_state, step
+from fedtrack.local_filters.imm.replay import replay_imm
+from fedtrack.local_filters.linear.models import cv_model
+from fedtrack.sensors.imm_scenarios import simulate
 
 R = [[400.0, 0.0], [0.0, 400.0]]
 
@@ -116,7 +116,7 @@ def test_repeated_timestamp_is_an_update_only(tmp_path: Path):
 
 
 def test_reproduce_json_shape_and_plots(tmp_path: Path):
-    from local_filters.imm_reproduce import reproduce_vsimm
+    from fedtrack.experiments.vsimm import reproduce_vsimm
 
     res = reproduce_vsimm(runs=2, seed=3, json_path=tmp_path / "r.json", plots_dir=tmp_path / "plots")
     on_disk = json.loads((tmp_path / "r.json").read_text())

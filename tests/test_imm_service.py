@@ -9,15 +9,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support import WAIT_S, free_port, wait_until
 
 from fedtrack.keys import Keys
-from support import WAIT_S, free_port, wait_until
+from fedtrack.local_filters.imm.config import IMMConfig
+from fedtrack.local_filters.imm.service import IMMService
+from fedtrack.local_filters.imm.tracker import IMMTracker
+from fedtrack.sensors.imm_scenarios import simulate
 from fedtrack.wire import FusedTrack, Measurement, decode, encode
 from fedtrack.zsession import SessionOptions, close_session, open_session, wait_alive
-from local_filters.imm_config import IMMConfig
-from local_filters.imm_service import IMMService
-from local_filters.imm_tracker import IMMTracker
-from sensors.imm_scenarios import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from local_filters.kalman import GaussianState, log_likelihood, predict, update, Innovation
-from local_filters.models import ca_model, cv_model, cv_to_ca, ca_to_cv
+from fedtrack.local_filters.linear.kalman import GaussianState, Innovation, log_likelihood, predict, update
+from fedtrack.local_filters.linear.models import ca_model, ca_to_cv, cv_model, cv_to_ca
 
 R = np.array([[100.0, 5.0], [5.0, 100.0]])
 

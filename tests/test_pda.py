@@ -7,13 +7,24 @@ import pytest
 from scipy.integrate import quad_vec
 from scipy.linalg import expm
 
-from local_filters.kalman import GaussianState, predict, update
-from local_filters.pda import (
-    PDAParams, amplitude_ranks, associate, constants, existence_update, gate, hpda_hypothesise, hpda_update,
-    log_amplitude_ratio, log_rank_probability, pda_ai_hypothesise, pda_update, singer_model,
+from fedtrack.local_filters.linear.kalman import GaussianState, predict, update
+from fedtrack.local_filters.pda.association import (
+    PDAParams,
+    amplitude_ranks,
+    associate,
+    constants,
+    existence_update,
+    gate,
+    hpda_hypothesise,
+    hpda_update,
+    log_amplitude_ratio,
+    log_rank_probability,
+    pda_ai_hypothesise,
+    pda_update,
+    singer_model,
     two_point_init,
 )
-from sensors.sonar import ScenarioConfig, SonarConfig, sonar_scans, truth_states
+from fedtrack.sensors.sonar import ScenarioConfig, SonarConfig, sonar_scans, truth_states
 
 R = 225.0 * np.eye(2)
 MODEL = singer_model(25.0, 0.01, 500.0)

@@ -7,17 +7,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from support import WAIT_S, free_port, wait_until
 
 from fedtrack.keys import Keys
-from support import WAIT_S, free_port, wait_until
+from fedtrack.local_filters.pda.replay import PDAReplayConfig
+from fedtrack.local_filters.pda.service import PDAService, main
+from fedtrack.sensors.sonar import SonarConfig, sonar_scans
 from fedtrack.wire import FusedTrack, Measurement, decode, encode, measurement_from_replay
 from fedtrack.zsession import SessionOptions, close_session, open_session, wait_alive
-from local_filters.pda_replay import PDAReplayConfig
-from local_filters.pda_service import PDAService, main
-from sensors.sonar import SonarConfig, sonar_scans
-
-
-
 
 
 def test_service_confirms_the_sonar_target() -> None:

@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 
 from fedtrack.cli import main as cli_main
-from fedtrack.demo import free_port, write_config
+from fedtrack.deploy.demo import free_port, write_config
+from fedtrack.deploy.settings import Settings
 from fedtrack.deployment import DeploymentConfig, SensorConfig
-from fedtrack.settings import Settings
-from fusion_center.trackers import FusionConfig
+from fedtrack.local_filters.vdie.config import FusionConfig
 
 SENSORS = (("a", ((100.0, 5.0), (5.0, 100.0))), ("b", ((60.0, -10.0), (-10.0, 150.0))),
            ("c", ((220.0, 30.0), (30.0, 90.0))))

@@ -6,9 +6,14 @@ import numpy as np
 import pytest
 
 from fedtrack.config import ConfigError, parse_dataclass
-from local_filters.radar_filters import parse_measurement
-from sensors.radar import (RadarConfig, cartesian_from_polar, cartesian_from_polar_jacobian,
-                           polar_from_cartesian, radar_scans, trajectory, wrap_angle)
+from fedtrack.local_filters.radar.filters import parse_measurement
+from fedtrack.local_filters.radar.measurement import (
+    cartesian_from_polar,
+    cartesian_from_polar_jacobian,
+    polar_from_cartesian,
+    wrap_angle,
+)
+from fedtrack.sensors.radar import RadarConfig, radar_scans, trajectory
 
 
 def test_trajectory_is_the_exact_banked_half_circle():

@@ -8,7 +8,7 @@ import pytest
 
 from fedtrack.cli import main
 from fedtrack.jsonl import write_jsonl
-from sensors.scenarios import measurement_lines, paper004_scenario, simulate_positions, simulate_truth
+from fedtrack.sensors.scenarios import measurement_lines, paper004_scenario, simulate_positions, simulate_truth
 
 
 def read_out(path: Path) -> list[dict]:

@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 
 from fedtrack.config import ConfigError
-from local_filters.ekf import motion_model_3d
-from local_filters.radar_filters import EkfTsFuzzyConfig, filter_kind, run_batch
-from local_filters.ts_fuzzy import GAParams, TSModel, identify, load_model, predict, rls, save_model
-from local_filters.ts_fuzzy_train import EVAL_TAG, main, scenario_rng
-from sensors.radar import RadarConfig, simulate
+from fedtrack.experiments.ts_fuzzy_training import EVAL_TAG, main, scenario_rng
+from fedtrack.local_filters.radar.ekf import motion_model_3d
+from fedtrack.local_filters.radar.filters import EkfTsFuzzyConfig, filter_kind, run_batch
+from fedtrack.local_filters.radar.ts_fuzzy import GAParams, TSModel, identify, load_model, predict, rls, save_model
+from fedtrack.sensors.radar import RadarConfig, simulate
 
 
 def test_block_rls_equals_sample_by_sample_and_least_squares():

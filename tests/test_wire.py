@@ -12,8 +12,19 @@ import pytest
 from fedtrack import wire
 from fedtrack.jsonl import InputError
 from fedtrack.keys import InvalidName, Keys
-from fedtrack.wire import (Detection, FusedTrack, Health, LocalEstimate, ManeuverEvent, ManeuverInfo, Measurement,
-                           Reset, WireError, decode, encode)
+from fedtrack.wire import (
+    Detection,
+    FusedTrack,
+    Health,
+    LocalEstimate,
+    ManeuverEvent,
+    ManeuverInfo,
+    Measurement,
+    Reset,
+    WireError,
+    decode,
+    encode,
+)
 
 RNG = np.random.default_rng(7)
 

@@ -19,14 +19,29 @@ from typing import Any
 import numpy as np
 import pytest
 import zenoh
+from support import WAIT_S, free_port, wait_until
 
 from fedtrack.keys import Keys
-from support import WAIT_S, free_port, wait_until
 from fedtrack.services.base import QueryHandler, Service, Subscription
-from fedtrack.wire import (Detection, FusedTrack, Health, ManeuverEvent, Measurement, decode, encode,
-                           measurement_to_replay)
-from fedtrack.zsession import (SessionError, SessionOptions, alive_keys, close_session, make_config, open_session,
-                               wait_alive)
+from fedtrack.wire import (
+    Detection,
+    FusedTrack,
+    Health,
+    ManeuverEvent,
+    Measurement,
+    decode,
+    encode,
+    measurement_to_replay,
+)
+from fedtrack.zsession import (
+    SessionError,
+    SessionOptions,
+    alive_keys,
+    close_session,
+    make_config,
+    open_session,
+    wait_alive,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -51,7 +51,14 @@ from fedtrack.config import ConfigError
 from fedtrack.jsonl import InputError
 from fedtrack.keys import DEFAULT_DEPLOYMENT, InvalidName, Keys, check_id
 from fedtrack.wire import Health, Message, WireError, decode, encode
-from fedtrack.zsession import SessionError, SessionOptions, add_endpoint_args, close_session, open_session, options_from_args
+from fedtrack.zsession import (
+    SessionError,
+    SessionOptions,
+    add_endpoint_args,
+    close_session,
+    open_session,
+    options_from_args,
+)
 
 QUEUE_SIZE = 10_000
 REJECT_LOG_INTERVAL_S = 5.0

@@ -24,7 +24,12 @@ from pathlib import Path
 from typing import Any, Callable, TextIO
 
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
-from fedtrack.wire import FusedTrack, Measurement, measurement_to_replay, track_to_replay
+from fedtrack.wire import (
+    FusedTrack,
+    Measurement,
+    measurement_to_replay,
+    track_to_replay,
+)
 
 REORDER_WINDOW = 64
 SETTLE_S = 0.2

@@ -1,0 +1,352 @@
+"""``fedtrack launch CONFIG.toml``: start every service of a deployment as separate processes.
+
+Order: router -> local filters, fusion center, recorder -> (all announced by liveliness)
+-> sensors. While it runs it shows scans fused, per-sensor scan rates and the latency
+from a sensor's publish to the fused track's arrival. It ends when the sensors have
+published their last scan (then stops the rest), or on Ctrl-C / SIGTERM (stops
+everything, no orphans: every child also gets SIGTERM if the launcher dies). Exit code
+0 when every service ended cleanly, 1 naming the service that failed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from fedtrack.deploy.settings import Settings, load_settings
+from fedtrack.keys import Keys
+from fedtrack.wire import FusedTrack, Health, Measurement, WireError, decode
+from fedtrack.zsession import SessionOptions, close_session, open_session, wait_alive
+
+STOP_GRACE_S = 5.0
+PR_SET_PDEATHSIG = 1
+ESSENTIAL_ROLES = ("router", "fusion-center", "recorder")
+
+
+class LaunchError(RuntimeError):
+    """A service failed to start or an essential service died."""
+
+
+@dataclass
+class ServiceProcess:
+    role: str
+    id: str
+    argv: list[str]
+    log_path: Path
+    proc: subprocess.Popen[bytes] | None = None
+
+    @property
+    def name(self) -> str:
+        return f"{self.role}/{self.id}"
+
+    def log_tail(self, lines: int = 15) -> str:
+        try:
+            return "\n".join(self.log_path.read_text(errors="replace").splitlines()[-lines:])
+        except OSError:
+            return "(no log)"
+
+
+@dataclass
+class LaunchReport:
+    """What the launcher observed: per-scan latencies, tracks seen, final health counters."""
+
+    scans_fused: int = 0
+    latencies_ms: list[float] = field(default_factory=list)
+    measurements: dict[str, int] = field(default_factory=dict)
+    track_arrivals_ns: dict[int, int] = field(default_factory=dict)  # seq -> wall-clock arrival
+    publish_stamps_ns: dict[int, list[int]] = field(default_factory=dict)  # seq -> sensors' publish stamps
+    health: dict[str, dict[str, int]] = field(default_factory=dict)
+    exit_codes: dict[str, int] = field(default_factory=dict)
+    failed: list[str] = field(default_factory=list)
+    wall_s: float = 0.0
+
+    def latency_percentiles(self) -> tuple[float, float]:
+        if not self.latencies_ms:
+            return float("nan"), float("nan")
+        p50, p99 = np.percentile(self.latencies_ms, [50, 99])
+        return float(p50), float(p99)
+
+    def rejected(self) -> int:
+        return sum(c.get("rejected", 0) for c in self.health.values())
+
+
+class ServiceFailed(LaunchError):
+    """The deployment ran to its end, but some service failed; ``report`` holds what was seen."""
+
+    def __init__(self, report: LaunchReport, message: str) -> None:
+        super().__init__(message)
+        self.report = report
+
+
+def _die_with_parent() -> None:
+    """Child side: receive SIGTERM if the launcher dies (Linux prctl), then start a new group."""
+    try:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    except OSError:
+        pass
+
+
+def service_plan(settings: Settings, config_path: Path, out_dir: Path, log_dir: Path) -> list[ServiceProcess]:
+    """The processes this host starts, in start order (sensors last)."""
+    dep = settings.deployment
+    connect = [a for ep in dep.connect_endpoints for a in ("--connect", ep)]
+    common = ["--deployment", dep.name, *connect]
+    base = [sys.executable, "-m", "fedtrack.cli", "serve"]
+    sensors = [s.id for s in settings.sensor]
+    here = [s for s in sensors if dep.local_sensors is None or s in dep.local_sensors]
+    plan: list[ServiceProcess] = []
+
+    def add(role: str, sid: str, args: list[str]) -> None:
+        plan.append(ServiceProcess(role, sid, base + [role, "--id", sid] + args,
+                                   log_dir / f"{role}-{sid}.log"))
+
+    if "router" in dep.services and dep.router_listen:
+        add("router", "router", ["--deployment", dep.name, "--listen", dep.router_listen])
+    cfg = ["--config", str(config_path)]
+    if "local-filter" in dep.services:
+        for s in here:
+            add("local-filter", s, ["--sensor", s, *cfg, *common])
+    if "fusion-center" in dep.services:
+        add("fusion-center", "fusion", [*cfg, *common])
+    if "recorder" in dep.services:
+        add("recorder", "recorder", ["--out", str(out_dir), *common])
+    if "sensor" in dep.services:
+        for s in here:
+            add("sensor", s, [*cfg, *common])
+    return plan
+
+
+def align_realtime_sensors(plan: list[ServiceProcess], lead_s: float = 3.0) -> None:
+    """Give every sensor of the plan one wall-clock start time (realtime pacing schedules
+    scan k at start + k T / speed, so the sensors stay in step and do not drift)."""
+    start_at = time.time() + lead_s
+    for sp in plan:
+        if sp.role == "sensor":
+            sp.argv = [a for a in sp.argv] + ["--start-at", f"{start_at:.6f}"]
+
+
+class Launcher:
+    """Runs a plan of service processes and watches the deployment over Zenoh."""
+
+    def __init__(self, settings: Settings, plan: list[ServiceProcess], quiet: bool = False,
+                 max_scans: int | None = None) -> None:
+        self.settings = settings
+        self.plan = plan
+        self.quiet = quiet
+        self.max_scans = max_scans
+        self._enough = threading.Event()
+        self.keys = Keys(settings.deployment.name)
+        self.report = LaunchReport()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._session: zenoh.Session | None = None
+        self._subs: list[Any] = []
+
+    # ------------------------------------------------------------ processes
+    def _start(self, sp: ServiceProcess) -> None:
+        sp.log_path.parent.mkdir(parents=True, exist_ok=True)
+        log = sp.log_path.open("wb")
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        sp.proc = subprocess.Popen(sp.argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                   preexec_fn=_die_with_parent, env=env)
+        log.close()
+
+    def _check_alive(self, group: list[ServiceProcess], starting: bool = False) -> None:
+        """A failed essential service (or any service while starting) ends the deployment;
+        a failed sensor or local filter is reported and the rest goes on degraded."""
+        for sp in group:
+            if sp.proc is None or sp.proc.poll() is None or sp.proc.returncode == 0:
+                continue
+            if starting or sp.role in ESSENTIAL_ROLES:
+                raise LaunchError(f"{sp.name} exited with code {sp.proc.returncode}:\n{sp.log_tail()}")
+            if sp.name not in self.report.failed:
+                self.report.failed.append(sp.name)
+                sys.stderr.write(f"\nfedtrack launch: {sp.name} died (exit code {sp.proc.returncode}); "
+                                 "continuing without it\n")
+
+    def stop_all(self) -> None:
+        """SIGTERM every child still running (reverse start order), SIGKILL after a grace period."""
+        running = [sp for sp in reversed(self.plan) if sp.proc is not None and sp.proc.poll() is None]
+        for sp in running:
+            sp.proc.send_signal(signal.SIGTERM)
+        deadline = time.monotonic() + STOP_GRACE_S
+        for sp in running:
+            try:
+                sp.proc.wait(timeout=max(deadline - time.monotonic(), 0.05))
+            except subprocess.TimeoutExpired:
+                sp.proc.kill()
+                sp.proc.wait(timeout=5)
+        for sp in self.plan:
+            if sp.proc is not None:
+                self.report.exit_codes[sp.name] = sp.proc.returncode
+
+    # ------------------------------------------------------------ zenoh monitoring
+    def _open_monitor(self) -> None:
+        opts = SessionOptions(mode="client", connect=self.settings.deployment.connect_endpoints,
+                              connect_timeout_s=self.settings.deployment.ready_timeout_s)
+        self._session = open_session(opts)
+        self._subs = [
+            self._session.declare_subscriber(self.keys.fusion_track(), self._on_track),
+            self._session.declare_subscriber(self.keys.sensor_meas(), self._on_meas),
+            self._session.declare_subscriber(self.keys.health(), self._on_health),
+        ]
+
+    def _on_track(self, sample: zenoh.Sample) -> None:
+        now = time.time_ns()
+        try:
+            track = decode(sample.payload.to_bytes(), FusedTrack)
+        except WireError:
+            return
+        with self._lock:
+            self.report.scans_fused += 1
+            self.report.latencies_ms.append((now - track.stamp_ns) / 1e6)
+            self.report.track_arrivals_ns[track.seq] = now
+            if self.max_scans is not None and self.report.scans_fused >= self.max_scans:
+                self._enough.set()
+
+    def _on_meas(self, sample: zenoh.Sample) -> None:
+        try:
+            m = decode(sample.payload.to_bytes(), Measurement)
+        except WireError:
+            return
+        with self._lock:
+            self.report.measurements[m.sensor] = self.report.measurements.get(m.sensor, 0) + 1
+            self.report.publish_stamps_ns.setdefault(m.seq, []).append(m.stamp_ns)
+
+    def _on_health(self, sample: zenoh.Sample) -> None:
+        try:
+            h = decode(sample.payload.to_bytes(), Health)
+        except WireError:
+            return
+        with self._lock:
+            self.report.health[f"{h.role}/{h.id}"] = dict(h.counters)
+
+    def _status_line(self, start: float) -> str:
+        with self._lock:
+            elapsed = max(time.monotonic() - start, 1e-9)
+            rates = " ".join(f"{s}:{n / elapsed:.0f}/s" for s, n in sorted(self.report.measurements.items()))
+            lat = self.report.latencies_ms[-50:]
+            last = f"{np.median(lat):.1f} ms" if lat else "-"
+            return f"scans fused {self.report.scans_fused}  sensors {rates or '-'}  latency(p50 last 50) {last}"
+
+    # ------------------------------------------------------------ run
+    def request_stop(self) -> None:
+        self._stop.set()
+
+    def run(self) -> LaunchReport:
+        """Start, wait for the sensors to finish (or a stop request), stop everything."""
+        start = time.monotonic()
+        dep = self.settings.deployment
+        sensors = [sp for sp in self.plan if sp.role == "sensor"]
+        others = [sp for sp in self.plan if sp.role not in ("sensor", "router")]
+        routers = [sp for sp in self.plan if sp.role == "router"]
+        try:
+            for sp in routers:
+                self._start(sp)
+            self._open_monitor()
+            for sp in others:
+                self._start(sp)
+            self._wait_ready(routers + others, dep.ready_timeout_s)
+            if dep.pacing == "realtime":
+                align_realtime_sensors(sensors)
+            for sp in sensors:
+                self._start(sp)
+            self._watch(sensors, start)
+        finally:
+            self.stop_all()
+            for sub in self._subs:
+                sub.undeclare()
+            if self._session is not None:
+                close_session(self._session)
+            self.report.wall_s = time.monotonic() - start
+        failed = {n: c for n, c in self.report.exit_codes.items() if c not in (0, None)}
+        if failed and not self._stop.is_set():
+            name = next(iter(failed))
+            sp = next(p for p in self.plan if p.name == name)
+            raise ServiceFailed(self.report, f"{', '.join(failed)} failed; {name} exited with code "
+                                f"{failed[name]}:\n{sp.log_tail()}")
+        return self.report
+
+    def _wait_ready(self, group: list[ServiceProcess], timeout_s: float) -> None:
+        assert self._session is not None
+        want = [self.keys.alive(sp.role, sp.id) for sp in group]
+        deadline = time.monotonic() + timeout_s
+        while True:
+            self._check_alive(group, starting=True)
+            if self._stop.is_set():
+                raise KeyboardInterrupt
+            missing = sorted(wait_alive(self._session, want, timeout_s=0.2))
+            if not missing:
+                return
+            if time.monotonic() > deadline:
+                raise LaunchError(f"not ready after {timeout_s:g} s: {', '.join(missing)}")
+
+    def _watch(self, sensors: list[ServiceProcess], start: float) -> None:
+        tty = sys.stderr.isatty()
+        last_print = 0.0
+        while not self._stop.is_set():
+            self._check_alive(self.plan)
+            if sensors and all(sp.proc.poll() is not None for sp in sensors) or self._enough.is_set():
+                break
+            if not sensors and all(sp.proc.poll() is not None for sp in self.plan):
+                break
+            now = time.monotonic()
+            if not self.quiet and now - last_print >= (0.2 if tty else 2.0):
+                sys.stderr.write(("\r" if tty else "") + self._status_line(start) + ("" if tty else "\n"))
+                sys.stderr.flush()
+                last_print = now
+            time.sleep(0.05)
+        if not self.quiet:
+            sys.stderr.write(("\r" if tty else "") + self._status_line(start) + "\n")
+        if self._stop.is_set():
+            raise KeyboardInterrupt
+
+
+def install_stop_handlers(launcher: Launcher) -> None:
+    """Ctrl-C and SIGTERM ask the launcher to stop everything cleanly."""
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: launcher.request_stop())
+
+
+def run_deployment(settings: Settings, config_path: Path, out_dir: Path, quiet: bool = False) -> LaunchReport:
+    """Launch the services of ``settings`` on this host and wait for the scenario to end."""
+    plan = service_plan(settings, config_path, out_dir, out_dir / "logs")
+    launcher = Launcher(settings, plan, quiet=quiet)
+    install_stop_handlers(launcher)
+    return launcher.run()
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="fedtrack launch", description=__doc__.splitlines()[0])
+    parser.add_argument("config", type=Path, help="deployment TOML (see deploy/)")
+    parser.add_argument("--out", type=Path, help="recorder output and logs (default: deployment.out)")
+    args = parser.parse_args(argv)
+    settings = load_settings(args.config)
+    out = args.out or Path(settings.deployment.out)
+    try:
+        report = run_deployment(settings, args.config.resolve(), out)
+    except KeyboardInterrupt:
+        print("fedtrack launch: stopped; every service was shut down", file=sys.stderr)
+        return 130
+    except ServiceFailed as exc:
+        report = exc.report
+        print(f"fedtrack launch: {exc}", file=sys.stderr)
+    except LaunchError as exc:
+        print(f"fedtrack launch: {exc}", file=sys.stderr)
+        return 1
+    p50, p99 = report.latency_percentiles()
+    print(f"scans fused {report.scans_fused}, latency p50 {p50:.2f} ms p99 {p99:.2f} ms, "
+          f"rejected messages {report.rejected()}, {report.wall_s:.1f} s")
+    return 1 if report.failed or any(c not in (0, None) for c in report.exit_codes.values()) else 0

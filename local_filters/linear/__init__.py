@@ -1,0 +1,1 @@
+"""Linear-Gaussian building blocks: Kalman steps, motion models, one-point initialisation."""

@@ -1,0 +1,211 @@
+"""Track initiation, confirmation and deletion with IPDA-AI or HPDA existence (paper 001).
+
+Pure functions over an immutable :class:`ManagerState`; every live track is updated in one
+batched call (leading axis = tracks). Per scan:
+
+1. every track is predicted (Singer model over the scan interval), gated and updated by
+   its data association (PDA-AI or HPDA); its existence follows eq (8)/(9) (IPDA-AI) or
+   eq (15)/(16) (HPDA);
+2. a track whose existence exceeds ``confirm_threshold`` on ``confirm_scans`` consecutive
+   updates is confirmed; one whose existence falls below ``delete_threshold`` is deleted;
+3. detections outside the gates of all confirmed tracks are *unassociated*; each pair
+   (unassociated detection of the previous scan, unassociated detection of this scan)
+   closer than ``max_speed * dt`` starts a tentative track by two-point differencing with
+   existence ``initial_existence``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import NamedTuple
+
+import numpy as np
+
+from fedtrack.config import ConfigError
+from fedtrack.local_filters.linear.kalman import GaussianState, predict
+from fedtrack.local_filters.linear.models import LinearModel
+from fedtrack.local_filters.pda.association import (
+    ALGORITHMS,
+    Constants,
+    PDAParams,
+    associate,
+    constants,
+    existence_update,
+    gate,
+    singer_model,
+    two_point_init,
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class ExistenceConfig:
+    """Existence and initiation parameters (TOML table ``[existence]``)."""
+
+    p11: float = 0.98
+    p21: float = 0.0
+    initial_existence: float = 0.2
+    confirm_threshold: float = 0.6
+    confirm_scans: int = 3
+    delete_threshold: float = 0.02
+    max_speed: float = 10.0
+
+    def validate(self) -> None:
+        for name in ("p11", "p21"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ConfigError(f"{name}: must lie in [0, 1], got {getattr(self, name)}")
+        for name in ("initial_existence", "confirm_threshold", "delete_threshold"):
+            if not 0.0 < getattr(self, name) < 1.0:
+                raise ConfigError(f"{name}: must lie in (0, 1), got {getattr(self, name)}")
+        if self.confirm_scans < 1:
+            raise ConfigError(f"confirm_scans: must be >= 1, got {self.confirm_scans}")
+        if not self.max_speed > 0.0:
+            raise ConfigError(f"max_speed: must be > 0, got {self.max_speed}")
+
+
+class TrackerSpec(NamedTuple):
+    """Everything fixed about a tracker: algorithm, its parameters and derived constants."""
+
+    algorithm: str
+    params: PDAParams
+    existence: ExistenceConfig
+    c: Constants
+
+
+def tracker_spec(algorithm: str, params: PDAParams, existence: ExistenceConfig) -> TrackerSpec:
+    if algorithm not in ALGORITHMS:
+        raise ConfigError(f"algorithm: expected one of {ALGORITHMS}, got {algorithm!r}")
+    return TrackerSpec(algorithm, params, existence, constants(params))
+
+
+@functools.lru_cache(maxsize=256)
+def _model(dt: float, sigma_a: float, tau_s: float) -> LinearModel:
+    return singer_model(dt, sigma_a, tau_s)
+
+
+class TrackSet(NamedTuple):
+    """Tracks along a leading axis."""
+
+    ids: np.ndarray  # (N,) int
+    state: GaussianState  # (N, 6), (N, 6, 6)
+    existence: np.ndarray  # (N,)
+    streak: np.ndarray  # (N,) consecutive updates above the confirmation threshold
+    confirmed: np.ndarray  # (N,) bool
+
+    def take(self, idx: np.ndarray) -> "TrackSet":
+        return TrackSet(self.ids[idx], GaussianState(self.state.x[idx], self.state.P[idx]),
+                        self.existence[idx], self.streak[idx], self.confirmed[idx])
+
+    def __len__(self) -> int:  # type: ignore[override]
+        return int(self.ids.shape[0])
+
+
+def empty_tracks() -> TrackSet:
+    return TrackSet(np.zeros(0, dtype=np.int64), GaussianState(np.zeros((0, 6)), np.zeros((0, 6, 6))),
+                    np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool))
+
+
+def join(a: TrackSet, b: TrackSet) -> TrackSet:
+    return TrackSet(np.concatenate([a.ids, b.ids]),
+                    GaussianState(np.concatenate([a.state.x, b.state.x]),
+                                  np.concatenate([a.state.P, b.state.P])),
+                    np.concatenate([a.existence, b.existence]),
+                    np.concatenate([a.streak, b.streak]),
+                    np.concatenate([a.confirmed, b.confirmed]))
+
+
+class ManagerState(NamedTuple):
+    """Live tracks, time of the last scan and its unassociated detections."""
+
+    tracks: TrackSet
+    t: float | None
+    pending: np.ndarray  # (U, 2)
+    next_id: int
+
+
+class ScanReport(NamedTuple):
+    """Result of one scan: live tracks after the scan and those deleted by it."""
+
+    tracks: TrackSet
+    deleted: TrackSet
+    newly_confirmed: np.ndarray  # (N,) bool over ``tracks``
+
+
+def initial_manager() -> ManagerState:
+    return ManagerState(empty_tracks(), None, np.zeros((0, 2)), 0)
+
+
+def _update_tracks(spec: TrackerSpec, tracks: TrackSet, dt: float, z: np.ndarray,
+                   amplitude: np.ndarray, R: np.ndarray) -> tuple[TrackSet, np.ndarray]:
+    """Predict, gate, associate and update every track; returns the updated tracks and the
+    (N, M) gate membership."""
+    p = spec.params
+    model = _model(dt, p.sigma_a, p.tau_s)
+    pred = predict(tracks.state, model.F, model.Q)
+    n = len(tracks)
+    zz = np.broadcast_to(z, (n,) + z.shape)
+    aa = np.broadcast_to(amplitude, (n,) + amplitude.shape)
+    g = gate(pred, zz, np.ones(zz.shape[:-1], dtype=bool), model.H, R, spec.c)
+    post, log_lr = associate(spec.algorithm, pred, g, aa, spec.c)
+    e = spec.existence
+    mu = existence_update(tracks.existence, log_lr, e.p11, e.p21)
+    streak = np.where(mu > e.confirm_threshold, tracks.streak + 1, 0)
+    confirmed = tracks.confirmed | (streak >= e.confirm_scans)
+    return TrackSet(tracks.ids, post, mu, streak, confirmed), g.inside
+
+
+def duplicates(tracks: TrackSet, senior: np.ndarray, R: np.ndarray, c: Constants) -> np.ndarray:
+    """Confirmed tracks that duplicate a kept confirmed track: each position lies in the
+    other's gate (mutual, so a diverged track with a huge gate prunes nothing).
+
+    Confirmed tracks are kept greedily (previously confirmed first, then by existence).
+    Tentative tracks are never pruned here: they cannot start inside a confirmed gate.
+    """
+    n = len(tracks)
+    if not np.any(tracks.confirmed):
+        return np.zeros(n, dtype=bool)
+    pos = tracks.state.x[:, [0, 3]]
+    S = tracks.state.P[:, [0, 3]][:, :, [0, 3]] + R
+    diff = pos[None, :, :] - pos[:, None, :]  # (kept j, other i, 2)
+    d2 = np.einsum("jik,jik->ji", diff, np.linalg.solve(S[:, None], diff[..., None])[..., 0])
+    mutual = (d2 <= c.gamma) & (d2.T <= c.gamma)
+    dup = np.zeros(n, dtype=bool)
+    order = np.lexsort((-tracks.existence, ~senior))
+    for j in order[tracks.confirmed[order]]:
+        if not dup[j]:
+            near = mutual[j] & tracks.confirmed
+            near[j] = False
+            dup |= near
+    return dup
+
+
+def manager_step(spec: TrackerSpec, ms: ManagerState, t: float, z: np.ndarray,
+                 amplitude: np.ndarray, R: np.ndarray) -> tuple[ManagerState, ScanReport]:
+    """Process one scan (detections ``z`` (M, 2), ``amplitude`` (M,), covariance ``R``)."""
+    e = spec.existence
+    dt = 0.0 if ms.t is None else float(t - ms.t)
+    tracks = ms.tracks
+    was_confirmed = tracks.confirmed
+    claimed = np.zeros(z.shape[0], dtype=bool)
+    if len(tracks):
+        tracks, inside = _update_tracks(spec, tracks, dt, z, amplitude, R)
+        claimed = np.any(inside & tracks.confirmed[:, None], axis=0)
+    newly = tracks.confirmed & ~was_confirmed
+    keep = (tracks.existence >= e.delete_threshold) & ~duplicates(tracks, was_confirmed, R, spec.c)
+    deleted = tracks.take(~keep)
+    tracks, newly = tracks.take(keep), newly[keep]
+    free = z[~claimed]
+    if dt > 0.0 and len(ms.pending) and len(free):
+        dist = np.linalg.norm(free[:, None, :] - ms.pending[None, :, :], axis=-1)
+        i, j = np.nonzero(dist <= e.max_speed * dt)
+        if i.size:
+            born = two_point_init(ms.pending[j], free[i], dt, R, spec.params.sigma_a)
+            ids = ms.next_id + np.arange(i.size)
+            new = TrackSet(ids, born, np.full(i.size, e.initial_existence),
+                           np.zeros(i.size, dtype=np.int64), np.zeros(i.size, dtype=bool))
+            tracks = join(tracks, new)
+            newly = np.concatenate([newly, np.zeros(i.size, dtype=bool)])
+            ms = ms._replace(next_id=ms.next_id + i.size)
+    pending = free if dt > 0.0 or ms.t is None else np.concatenate([ms.pending, free])
+    return (ManagerState(tracks, float(t), pending, ms.next_id),
+            ScanReport(tracks, deleted, newly))

@@ -1,0 +1,162 @@
+"""Extended Kalman filter for 3-D radar (range, azimuth, elevation), paper 002 section 2.
+
+State orders (3-D; the 2-D orders of :mod:`fedtrack.local_filters.linear.models` extended by a z block):
+
+* CV: ``[x, vx, y, vy, z, vz]``
+* CA: ``[x, vx, ax, y, vy, ay, z, vz, az]``
+
+Motion: discrete white-acceleration models, ``Q = q G G'`` with per-axis gain ``[T^2/2, T]'``
+(CV) or ``[T^2/2, T, 1]'`` (CA). Measurement: ``h(x) = [r, az, el]`` of the position relative
+to the sensor (paper 002 eq. (39), atan2 per the errata), linearized with the analytic
+Jacobian at the predicted state (eq. (11)); the angle residuals are wrapped to (-pi, pi].
+The update reuses the Joseph-form :func:`fedtrack.local_filters.linear.kalman.update` on the pseudo-measurement
+``H x_pred + wrap(z - h(x_pred))`` so that the innovation it forms is the wrapped residual.
+All functions batch over leading axes (Monte Carlo runs).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from fedtrack.local_filters.linear.kalman import (
+    GaussianState,
+    Innovation,
+    mat_vec,
+    predict,
+    transpose,
+    update,
+)
+from fedtrack.local_filters.radar.measurement import (
+    cartesian_from_polar,
+    cartesian_from_polar_jacobian,
+    polar_from_cartesian,
+    wrap_angle,
+)
+
+CV3 = "cv"
+CA3 = "ca"
+
+
+class MotionModel3D(NamedTuple):
+    """3-D linear motion model: ``F``, ``Q = q G G'``, noise/input gain ``G`` (n x 3), indices."""
+
+    name: str
+    T: float
+    q: float
+    F: np.ndarray
+    Q: np.ndarray
+    G: np.ndarray
+    pos: np.ndarray
+    vel: np.ndarray
+
+    @property
+    def dim(self) -> int:
+        return self.F.shape[0]
+
+
+def motion_model_3d(name: str, T: float, q: float) -> MotionModel3D:
+    """``cv`` or ``ca`` 3-D model: one per-axis block per Cartesian axis (x, then y, then z)."""
+    if name == CV3:
+        f = np.array([[1.0, T], [0.0, 1.0]])
+        g = np.array([[0.5 * T * T], [T]])
+    elif name == CA3:
+        f = np.array([[1.0, T, 0.5 * T * T], [0.0, 1.0, T], [0.0, 0.0, 1.0]])
+        g = np.array([[0.5 * T * T], [T], [1.0]])
+    else:
+        raise ValueError(f"unknown motion model {name!r} (expected 'cv' or 'ca')")
+    F = np.kron(np.eye(3), f)
+    G = np.kron(np.eye(3), g)
+    m = f.shape[0]
+    return MotionModel3D(name, T, q, F, q * G @ G.T, G, np.arange(3) * m, np.arange(3) * m + 1)
+
+
+def position(x: np.ndarray, model: MotionModel3D) -> np.ndarray:
+    """Cartesian position (..., 3) of states (..., n)."""
+    return x[..., model.pos]
+
+
+def radar_h(x: np.ndarray, model: MotionModel3D, sensor_position: np.ndarray) -> np.ndarray:
+    """Predicted measurement ``h(x) = [r, az, el]`` (paper 002 eq. (39))."""
+    return polar_from_cartesian(position(x, model) - sensor_position)
+
+
+def radar_jacobian(x: np.ndarray, model: MotionModel3D, sensor_position: np.ndarray) -> np.ndarray:
+    """Analytic Jacobian ``dh/dx`` (..., 3, n) at ``x`` (paper 002 eq. (11))."""
+    d = position(x, model) - sensor_position
+    dx, dy, dz = d[..., 0], d[..., 1], d[..., 2]
+    rho2 = dx * dx + dy * dy
+    rho = np.sqrt(rho2)
+    r2 = rho2 + dz * dz
+    r = np.sqrt(r2)
+    zero = np.zeros_like(dx)
+    J = np.stack([
+        np.stack([dx / r, dy / r, dz / r], axis=-1),
+        np.stack([-dy / rho2, dx / rho2, zero], axis=-1),
+        np.stack([-dx * dz / (r2 * rho), -dy * dz / (r2 * rho), rho / r2], axis=-1),
+    ], axis=-2)
+    H = np.zeros(x.shape[:-1] + (3, model.dim))
+    H[..., model.pos] = J
+    return H
+
+
+def radar_residual(x: np.ndarray, z: np.ndarray, model: MotionModel3D,
+                   sensor_position: np.ndarray) -> np.ndarray:
+    """``z - h(x)`` with the azimuth and elevation residuals wrapped to (-pi, pi]."""
+    nu = z - radar_h(x, model, sensor_position)
+    return np.concatenate([nu[..., :1], wrap_angle(nu[..., 1:])], axis=-1)
+
+
+class EkfUpdate(NamedTuple):
+    """Posterior, the innovation it used, the Jacobian ``H`` and the gain ``K``."""
+
+    state: GaussianState
+    innovation: Innovation
+    H: np.ndarray
+    K: np.ndarray
+
+
+def ekf_update(pred: GaussianState, z: np.ndarray, R: np.ndarray, model: MotionModel3D,
+               sensor_position: np.ndarray) -> EkfUpdate:
+    """EKF measurement update (paper 002 eqs. (4), (5), (7); Joseph form)."""
+    H = radar_jacobian(pred.x, model, sensor_position)
+    nu = radar_residual(pred.x, z, model, sensor_position)
+    post, inn = update(pred, mat_vec(H, pred.x) + nu, H, R)
+    K = transpose(np.linalg.solve(inn.S, H @ pred.P))  # K = P H' S^-1, eq. (5)
+    return EkfUpdate(post, inn, H, K)
+
+
+def ekf_step(state: GaussianState, z: np.ndarray, R: np.ndarray, model: MotionModel3D,
+             sensor_position: np.ndarray, u_effect: np.ndarray | None = None) -> EkfUpdate:
+    """Predict (eq. (6), optionally with a known input effect ``B u``) then update."""
+    return ekf_update(predict(state, model.F, model.Q, u_effect), z, R, model, sensor_position)
+
+
+def two_point_init(z0: np.ndarray, z1: np.ndarray, R: np.ndarray, model: MotionModel3D,
+                   sensor_position: np.ndarray, acc_std: float = 30.0) -> GaussianState:
+    """Two-point differencing initialization at the time of ``z1``.
+
+    Positions ``p_i = sensor + cartesian(z_i)`` with covariance ``J_i R J_i'`` (J the Jacobian
+    of the polar-to-Cartesian map); velocity ``(p1 - p0)/T``; CA accelerations 0 with
+    standard deviation ``acc_std``.
+    """
+    T = model.T
+    p0, p1 = (sensor_position + cartesian_from_polar(z) for z in (z0, z1))
+    J0, J1 = (cartesian_from_polar_jacobian(z) for z in (z0, z1))
+    C0, C1 = J0 @ R @ transpose(J0), J1 @ R @ transpose(J1)
+    batch = p1.shape[:-1]
+    n = model.dim
+    x = np.zeros(batch + (n,))
+    P = np.zeros(batch + (n, n))
+    x[..., model.pos] = p1
+    x[..., model.vel] = (p1 - p0) / T
+    ip, iv = model.pos, model.vel
+    P[..., ip[:, None], ip[None, :]] = C1
+    P[..., ip[:, None], iv[None, :]] = C1 / T
+    P[..., iv[:, None], ip[None, :]] = C1 / T
+    P[..., iv[:, None], iv[None, :]] = (C0 + C1) / (T * T)
+    if model.name == CA3:
+        ia = model.pos + 2
+        P[..., ia, ia] = acc_std ** 2
+    return GaussianState(x, 0.5 * (P + transpose(P)))

@@ -1,0 +1,263 @@
+"""The three radar local filters behind one interface: configs, a batched runner, a step API.
+
+Algorithms: ``ekf`` (plain CV EKF), ``ekf-ie`` (EKF with direct input estimation, paper 002),
+``ekf-tsfuzzy`` (EKF with TS-fuzzy error compensation, paper 003). All use the 3-D CV state
+``[x, vx, y, vy, z, vz]`` and start with two-point differencing on the first two measurements.
+
+* :func:`filter_kind` gives batched ``init``/``step``/``estimate`` functions (pure, over the
+  leading Monte Carlo axis); :func:`run_batch` runs one over measurement arrays.
+* :func:`make_radar_filter` gives a :class:`RadarFilter` whose ``.step(meas)`` takes one
+  replay-format measurement dict and returns an estimate dict (or ``None`` while it needs a
+  second measurement to initialize). The lead can wrap it as a distributed local filter.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from functools import partial
+from pathlib import Path
+from typing import Any, Callable, NamedTuple
+
+import numpy as np
+
+from fedtrack.config import ConfigError, parse_dataclass
+from fedtrack.jsonl import InputError, as_covariance, as_float, as_vector, require
+from fedtrack.local_filters.radar.ekf import (
+    CV3,
+    MotionModel3D,
+    ekf_step,
+    motion_model_3d,
+    two_point_init,
+)
+from fedtrack.local_filters.radar.input_estimation import (
+    InputEstimationParams,
+    ie_init,
+    ie_step,
+)
+from fedtrack.local_filters.radar.ts_fuzzy import TSModel, load_model
+from fedtrack.local_filters.radar.ts_fuzzy_ekf import (
+    TAU_S,
+    compensated,
+    ts_init,
+    ts_step,
+)
+from fedtrack.progress import progress_bar
+
+ALGORITHMS = ("ekf", "ekf-ie", "ekf-tsfuzzy")
+MODEL_ENV = "FEDTRACK_TS_FUZZY_MODEL"
+MEASUREMENT_KEYS = {"t", "sensor", "z", "R", "sensor_position", "truth"}
+
+
+@dataclass(frozen=True)
+class EkfConfig:
+    """``q``: white-acceleration variance of the CV model, (m/s^2)^2."""
+
+    q: float = 1.0
+
+    def validate(self) -> None:
+        if not self.q > 0.0:
+            raise ConfigError("q: must be > 0")
+
+
+@dataclass(frozen=True)
+class EkfIEConfig(EkfConfig):
+    """Plain EKF keys plus the input-estimation window and test probabilities."""
+
+    window: int = 100
+    p_false_alarm: float = 1e-3
+    p_input: float = 1e-3
+
+    def validate(self) -> None:
+        super().validate()
+        self.params.validate()
+
+    @property
+    def params(self) -> InputEstimationParams:
+        return InputEstimationParams(self.window, self.p_false_alarm, self.p_input)
+
+
+@dataclass(frozen=True)
+class EkfTsFuzzyConfig(EkfConfig):
+    """Plain EKF keys plus ``model``: the ``.npz`` from ``fedtrack train ts-fuzzy``.
+
+    Empty means the path in the environment variable ``FEDTRACK_TS_FUZZY_MODEL``.
+    """
+
+    model: str = ""
+
+    @property
+    def model_path(self) -> Path:
+        path = self.model or os.environ.get(MODEL_ENV, "")
+        if not path:
+            raise ConfigError(f"model: no TS-fuzzy model given (set the key or ${MODEL_ENV})")
+        return Path(path)
+
+
+CONFIG_CLASSES: dict[str, type[EkfConfig]] = {
+    "ekf": EkfConfig, "ekf-ie": EkfIEConfig, "ekf-tsfuzzy": EkfTsFuzzyConfig}
+
+
+class FilterKind(NamedTuple):
+    """Batched functions of one algorithm.
+
+    ``init(z0, z1, R, model, sensor_position)``, ``step(state, z, R, model, sensor_position)``,
+    ``estimate(state, model) -> (x, P, maneuver)``; ``label(maneuver) -> model name``.
+    """
+
+    init: Callable[..., Any]
+    step: Callable[..., Any]
+    estimate: Callable[..., tuple[np.ndarray, np.ndarray, np.ndarray]]
+    label: Callable[[bool], str]
+
+
+def _no_maneuver(x: np.ndarray) -> np.ndarray:
+    return np.zeros(x.shape[:-1], bool)
+
+
+def load_compatible_model(path: Path) -> TSModel:
+    """Load a TS model trained on the features this code computes (same smoothing constant)."""
+    ts, meta = load_model(path)
+    if "tau_s" not in meta or not np.isclose(float(meta["tau_s"]), TAU_S):
+        raise ConfigError(f"model: {path} was trained with another feature smoothing constant; retrain it")
+    return ts
+
+
+def filter_kind(algorithm: str, config: EkfConfig, ts_model: TSModel | None = None) -> FilterKind:
+    """The batched functions of ``algorithm`` (``ts_model`` overrides the configured file)."""
+    if algorithm == "ekf":
+        return FilterKind(two_point_init, lambda s, *a: ekf_step(s, *a).state,
+                          lambda s, m: (s.x, s.P, _no_maneuver(s.x)), lambda _: CV3)
+    if algorithm in CONFIG_CLASSES and not isinstance(config, CONFIG_CLASSES[algorithm]):
+        raise ConfigError(f"config for {algorithm} must be a {CONFIG_CLASSES[algorithm].__name__}")
+    if algorithm == "ekf-ie":
+        assert isinstance(config, EkfIEConfig)  # narrowed by the check above
+        p = config.params
+        return FilterKind(partial(ie_init, params=p), partial(ie_step, params=p),
+                          lambda s, m: (s.filt.x, s.filt.P, s.maneuver),
+                          lambda man: "cv+input" if man else CV3)
+    if algorithm == "ekf-tsfuzzy":
+        assert isinstance(config, EkfTsFuzzyConfig)  # narrowed by the check above
+        ts = ts_model if ts_model is not None else load_compatible_model(config.model_path)
+        return FilterKind(ts_init, ts_step,
+                          lambda s, m: (compensated(s, ts, m), s.filt.P, _no_maneuver(s.ema)),
+                          lambda _: "cv+ts-fuzzy")
+    raise ConfigError(f"algorithm: unknown radar filter {algorithm!r} (expected one of {ALGORITHMS})")
+
+
+class BatchResult(NamedTuple):
+    """Estimates (runs, K, n) and maneuver flags (runs, K); index 0 (before init) is NaN/False."""
+
+    x: np.ndarray
+    maneuver: np.ndarray
+    P: np.ndarray | None
+
+
+def run_batch(kind: FilterKind, zs: np.ndarray, R: np.ndarray, sensor_position: np.ndarray,
+              model: MotionModel3D, label: str = "", keep_cov: bool = False) -> BatchResult:
+    """Run a filter over measurements ``zs`` (runs, K, 3) taken every ``model.T`` seconds."""
+    N, K = zs.shape[:2]
+    n = model.dim
+    x = np.full((N, K, n), np.nan)
+    man = np.zeros((N, K), bool)
+    P = np.full((N, K, n, n), np.nan) if keep_cov else None
+    state = kind.init(zs[:, 0], zs[:, 1], R, model, sensor_position)
+
+    def record(k: int) -> None:
+        xe, Pe, me = kind.estimate(state, model)
+        x[:, k], man[:, k] = xe, me
+        if P is not None:
+            P[:, k] = Pe
+
+    record(1)
+    with progress_bar(K - 2, label or "filter") as bar:
+        for k in range(2, K):
+            state = kind.step(state, zs[:, k], R, model, sensor_position)
+            record(k)
+            bar.update()
+    return BatchResult(x, man, P)
+
+
+class Measurement(NamedTuple):
+    """One validated radar measurement."""
+
+    t: float
+    sensor: str
+    z: np.ndarray
+    R: np.ndarray
+    sensor_position: np.ndarray
+
+
+def parse_measurement(obj: dict[str, Any], where: str) -> Measurement:
+    """Validate a replay-format measurement dict; errors name ``where`` and the field."""
+    unknown = sorted(set(obj) - MEASUREMENT_KEYS)
+    if unknown:
+        raise InputError(f"{where}: unknown field {unknown[0]!r} (allowed: {', '.join(sorted(MEASUREMENT_KEYS))})")
+    sensor = require(obj, "sensor", where)
+    if not isinstance(sensor, str) or not sensor:
+        raise InputError(f"{where}: sensor must be a non-empty string")
+    z = as_vector(require(obj, "z", where), "z", where, 3)
+    if z[0] <= 0.0:
+        raise InputError(f"{where}: z[0] (range) must be > 0")
+    if abs(z[2]) >= np.pi / 2:
+        raise InputError(f"{where}: z[2] (elevation) must be in (-pi/2, pi/2)")
+    return Measurement(as_float(require(obj, "t", where), "t", where), sensor, z,
+                       as_covariance(require(obj, "R", where), "R", where, 3),
+                       as_vector(require(obj, "sensor_position", where), "sensor_position", where, 3))
+
+
+class RadarFilter:
+    """Single-target, single-radar filter fed one measurement dict at a time (thin I/O wrapper).
+
+    ``step(meas)`` returns ``None`` for the first measurement (initialization needs two) and
+    afterwards ``{"t", "x", "P", "model", "maneuver"}`` with ``x`` in the 3-D CV order
+    ``[x, vx, y, vy, z, vz]``. The sampling interval is the time difference of consecutive
+    measurements; when it (or the sensor position) changes, the input-estimation window restarts.
+    The state is kept as a batch of one so the batched filter functions apply unchanged.
+    """
+
+    def __init__(self, algorithm: str, config: EkfConfig, ts_model: TSModel | None = None) -> None:
+        self.kind = filter_kind(algorithm, config, ts_model)
+        self.config = config
+        self._state: Any = None
+        self._last: Measurement | None = None
+        self._model: MotionModel3D | None = None
+
+    def step(self, meas: dict[str, Any], where: str = "measurement") -> dict[str, Any] | None:
+        m = parse_measurement(meas, where)
+        last = self._last
+        if last is not None:
+            if m.sensor != last.sensor:
+                raise InputError(f"{where}: sensor {m.sensor!r} differs from {last.sensor!r} (one radar per filter)")
+            if not m.t > last.t:
+                raise InputError(f"{where}: t must increase (got {m.t} after {last.t})")
+        self._last = m
+        if last is None:
+            return None
+        dt = m.t - last.t
+        model = self._model
+        if model is None or not np.isclose(dt, model.T, rtol=1e-9, atol=0.0):
+            model = motion_model_3d(CV3, dt, self.config.q)
+        if self._state is None:
+            self._state = self.kind.init(last.z[None], m.z[None], m.R, model, m.sensor_position)
+        else:
+            state = self._state
+            restart = (model is not self._model) or not np.array_equal(m.sensor_position, last.sensor_position)
+            if restart and hasattr(state, "count"):
+                state = state._replace(count=np.zeros_like(state.count))
+            self._state = self.kind.step(state, m.z[None], m.R, model, m.sensor_position)
+        self._model = model
+        x, P, man = self.kind.estimate(self._state, model)  # batch of one
+        return {"t": m.t, "x": x[0].tolist(), "P": P[0].tolist(),
+                "model": self.kind.label(bool(man[0])), "maneuver": bool(man[0])}
+
+
+def make_radar_filter(name: str, config: dict[str, Any] | EkfConfig | None = None) -> RadarFilter:
+    """A :class:`RadarFilter` for algorithm ``name`` from a config table (strict keys) or object."""
+    if name not in CONFIG_CLASSES:
+        raise ConfigError(f"algorithm: unknown radar filter {name!r} (expected one of {ALGORITHMS})")
+    cls = CONFIG_CLASSES[name]
+    cfg = config if isinstance(config, EkfConfig) else parse_dataclass(cls, config or {})
+    if type(cfg) is not cls:
+        raise ConfigError(f"config for {name} must be a {cls.__name__}")
+    return RadarFilter(name, cfg)

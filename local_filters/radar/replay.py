@@ -1,0 +1,34 @@
+"""``fedtrack replay --algorithm ekf|ekf-ie|ekf-tsfuzzy``: radar filters over recorded measurements.
+
+Input lines: ``{"t", "sensor", "z": [r, az, el], "R": 3x3, "sensor_position": [x, y, z]}`` (an
+optional ``truth`` field, as written by :func:`fedtrack.sensors.radar.radar_scans`, is ignored; any other
+field is an error). Output lines, one per input line from the second on (two-point
+initialization): ``{"t", "x": [x, vx, y, vy, z, vz], "P": 6x6, "model", "maneuver"}``.
+The TOML config is one flat table with the keys of the algorithm's config class in
+:mod:`fedtrack.local_filters.radar.filters` (unknown keys are rejected).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from fedtrack.config import ConfigError, load_toml
+from fedtrack.jsonl import InputError, read_jsonl, write_jsonl
+from fedtrack.local_filters.radar.filters import ALGORITHMS, make_radar_filter
+
+
+def replay_radar(algorithm: str, measurements: Path, config: Path | None, out: Path) -> int:
+    """Run ``algorithm`` over ``measurements``; write estimates to ``out``; return their number."""
+    if algorithm not in ALGORITHMS:
+        raise ConfigError(f"algorithm: {algorithm!r} is not a radar filter ({', '.join(ALGORITHMS)})")
+    table = load_toml(config) if config is not None else {}
+    filt = make_radar_filter(algorithm, table)
+    rows = []
+    for lineno, obj in read_jsonl(measurements):
+        est = filt.step(obj, where=f"{measurements}:{lineno}")
+        if est is not None:
+            rows.append(est)
+    if not rows:
+        raise InputError(f"{measurements}: need at least two measurements to initialize the filter")
+    write_jsonl(out, rows)
+    return len(rows)

@@ -1,0 +1,433 @@
+"""Variable-dimension filtering with input estimation (paper 004 section III).
+
+One estimator, :func:`vdie_step`, drives any linear filter through the CV/CA model
+switches; what "the filter" is comes in as a step function:
+
+* FVDIE: the federated filter (local filters + fusion + reset). Input estimation runs
+  at the master on fused quantities, which makes (57)-(59), (66) the exact
+  centralized least-squares input estimate (errata).
+* DVDIE: each local filter is a single-sensor VDIE on its own innovations; the
+  centre fuses without feedback (:func:`dvdie_centre_step`).
+
+States are batched: every array has leading batch axes (Monte Carlo runs, and for
+DVDIE sensors). A run's state is stored in the CA order ``[x, vx, ax, y, vy, ay]``
+whatever its model; for a run in CV the acceleration entries are placeholders
+(mean 0, variance 1, no correlation) that are never read.
+
+Equation readings (see ``../shared/papers/README.md``):
+
+* (58): the middle ``P(j|j-1)`` is ``P(j|j)``; ``[F T(j-1) + I] B``; the inverse
+  covers the whole first sum. Then ``W(j) = Theta' (sum_i H_i' S_i^-1 H_i) Theta``
+  and ``X(j) = Theta' (sum_i H_i' S_i^-1 eps_i)`` by (60)-(61) with master quantities.
+* (67): ``2 [J(0) - J(u)] = u' Gamma^-1 u``, compared with a chi-square(2) threshold.
+* (69): the stacked ``[x, vx, y, vy, ax, ay]`` is permuted into the CA order.
+* (72)-(74): we keep (74), ``T_omega(n) = I``: the pulse ``B u`` is added to the
+  state at the onset ``n`` after its update, so ``x(n+1) = F [x(n) + B u]``: the
+  acceleration component jumps at ``n`` and acts from the interval ``[n, n+1]`` on.
+* (81): the acceleration significance statistic ``a' P_aa^-1 a`` summed over the
+  last ``p`` steps, compared with ``h'``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, NamedTuple
+
+import numpy as np
+from scipy.stats import chi2, norm
+
+from fedtrack.config import ConfigError
+from fedtrack.local_filters.linear.kalman import (
+    GaussianState,
+    from_information,
+    information,
+    mat_vec,
+    predict,
+    symmetrize,
+    transpose,
+)
+from fedtrack.local_filters.linear.models import CA_ACC, CV_IN_CA, LinearModel
+
+EVENT_NONE, EVENT_ONSET, EVENT_NEW_CA, EVENT_END = 0, 1, 2, 3
+EVENT_NAMES = {EVENT_ONSET: "onset", EVENT_NEW_CA: "new-ca", EVENT_END: "end"}
+
+
+def sigma_to_chi2(k_sigma: float, dof: int) -> float:
+    """Chi-square threshold with the same tail probability as a two-sided ``k`` sigma Gaussian test."""
+    return float(chi2.isf(2.0 * norm.sf(k_sigma), dof))
+
+
+@dataclass(frozen=True)
+class VdieParams:
+    """Maneuver-detection parameters (paper 004 section IV: window 6, p = 2, "3 sigma", "0.5 sigma").
+
+    ``h_detect`` is compared with ``u' Gamma^-1 u`` (chi-square, 2 dof); the default is the
+    3-sigma two-sided tail probability 0.0027, i.e. 11.83. ``h_cv`` is compared with the
+    sum over ``p`` steps of ``a' P_aa^-1 a`` (chi-square, 2p dof); the default is the 0.5-sigma
+    tail probability 0.617, i.e. 2.66 for p = 2.
+    """
+
+    window: int = 6
+    p: int = 2
+    detect_sigma: float = 3.0
+    cv_sigma: float = 0.5
+    min_samples: int = 2
+
+    def validate(self) -> None:
+        if self.window < 1:
+            raise ConfigError("window: must be >= 1")
+        if self.p < 1:
+            raise ConfigError("p: must be >= 1")
+        if not 1 <= self.min_samples <= self.window:
+            raise ConfigError("min_samples: must be between 1 and window")
+        if not self.detect_sigma > 0:
+            raise ConfigError("detect_sigma: must be > 0")
+        if not self.cv_sigma > 0:
+            raise ConfigError("cv_sigma: must be > 0")
+
+    @property
+    def h_detect(self) -> float:
+        return sigma_to_chi2(self.detect_sigma, 2)
+
+    @property
+    def h_cv(self) -> float:
+        return sigma_to_chi2(self.cv_sigma, 2 * self.p)
+
+
+class CandidateBank(NamedTuple):
+    """Recursive input estimators for the last ``W`` candidate onset times (eq. (66)).
+
+    ``T_omega`` (..., W, n, n): maneuver compensation matrix ``T^Omega_n(k)`` (eqs. (38), (74)).
+    ``info`` (..., W, 2, 2): ``Gamma^-1 = sum_j W(j)``. ``psi`` (..., W, 2): ``Psi = sum_j X(j)``.
+    ``count`` (..., W): samples accumulated; -1 marks an empty slot. ``onset`` (..., W): ``n``.
+    """
+
+    T_omega: np.ndarray
+    info: np.ndarray
+    psi: np.ndarray
+    count: np.ndarray
+    onset: np.ndarray
+
+
+def bank_empty(batch: tuple[int, ...], window: int, n: int) -> CandidateBank:
+    return CandidateBank(
+        np.zeros(batch + (window, n, n)), np.zeros(batch + (window, 2, 2)),
+        np.zeros(batch + (window, 2)), np.full(batch + (window,), -1, dtype=np.int64),
+        np.zeros(batch + (window,)),
+    )
+
+
+def bank_accumulate(bank: CandidateBank, F: np.ndarray, B: np.ndarray, pulse: bool,
+                    prior: GaussianState, post: GaussianState) -> CandidateBank:
+    """Add step ``j``'s terms to every live candidate.
+
+    ``A = F T^Omega(j-1) + I`` for a step input (CV, eq. (50)) or ``F T^Omega(j-1)`` for a
+    pulse input (CA, eq. (75)); ``Theta = A B``;
+    ``W(j) = Theta' [P^-1(j|j-1) - P^-1(j|j-1) P(j|j) P^-1(j|j-1)] Theta`` (58, corrected),
+    ``X(j) = Theta' P^-1(j|j-1) [x(j|j) - x(j|j-1)]`` (59),
+    ``T^Omega(j) = [I - K H] A = P(j|j) P^-1(j|j-1) A`` (35)/(74) via (37).
+    """
+    n = F.shape[-1]
+    Y_pred = symmetrize(np.linalg.solve(prior.P, np.broadcast_to(np.eye(n), prior.P.shape)))
+    M = symmetrize(Y_pred - Y_pred @ post.P @ Y_pred)
+    innov_info = mat_vec(Y_pred, post.x - prior.x)
+    L = post.P @ Y_pred
+    A = F @ bank.T_omega
+    if not pulse:
+        A = A + np.eye(n)
+    Theta = A @ B  # (..., W, n, 2)
+    W_j = transpose(Theta) @ M[..., None, :, :] @ Theta
+    X_j = np.einsum("...wni,...n->...wi", Theta, innov_info)
+    live = bank.count >= 0
+    return CandidateBank(
+        np.where(live[..., None, None], L[..., None, :, :] @ A, bank.T_omega),
+        np.where(live[..., None, None], bank.info + W_j, bank.info),
+        np.where(live[..., None], bank.psi + X_j, bank.psi),
+        np.where(live, bank.count + 1, bank.count),
+        bank.onset,
+    )
+
+
+class BestCandidate(NamedTuple):
+    """The onset maximizing (67) and its input estimate."""
+
+    statistic: np.ndarray  # (...,) u' Gamma^-1 u
+    u: np.ndarray  # (..., 2)
+    gamma: np.ndarray  # (..., 2, 2)
+    T_omega: np.ndarray  # (..., n, n)
+    onset: np.ndarray  # (...,)
+    count: np.ndarray  # (...,) scans the estimate rests on
+
+
+def bank_best(bank: CandidateBank) -> BestCandidate:
+    """``u = Gamma Psi`` (66) for every candidate and the argmax of ``u' Gamma^-1 u`` (67)."""
+    live = bank.count >= 1
+    safe_info = np.where(live[..., None, None], bank.info, np.eye(2))
+    u_all = np.linalg.solve(safe_info, bank.psi[..., None])[..., 0]
+    stat = np.where(live, np.einsum("...i,...i->...", u_all, bank.psi), -np.inf)
+    idx = np.argmax(stat, axis=-1)
+
+    axis = idx.ndim
+
+    def pick(a: np.ndarray) -> np.ndarray:
+        sel = idx.reshape(idx.shape + (1,) * (a.ndim - axis))
+        return np.take_along_axis(a, sel, axis=axis).squeeze(axis=axis)
+
+    info = pick(safe_info)
+    gamma = symmetrize(np.linalg.solve(info, np.broadcast_to(np.eye(2), info.shape)))
+    return BestCandidate(pick(stat), pick(u_all), gamma, pick(bank.T_omega), pick(bank.onset), pick(bank.count))
+
+
+def detected(best: BestCandidate, params: "VdieParams") -> np.ndarray:
+    """(68): ``u' Gamma^-1 u > h`` at the most likely onset, once that estimate rests on
+    at least ``min_samples`` scans (a one-scan estimate is too noisy to compensate with)."""
+    return (best.statistic > params.h_detect) & (best.count >= params.min_samples)
+
+
+def bank_push(bank: CandidateBank, onset: float, pulse: bool, clear: np.ndarray) -> CandidateBank:
+    """Start a candidate with onset ``n = onset`` and retire the oldest (sliding window).
+
+    ``clear`` (batch bool) empties the bank first (after a model switch or compensation).
+    ``T^Omega(n)`` is 0 for a step input (35) and ``I`` for a pulse (74).
+    """
+    n = bank.T_omega.shape[-1]
+    cleared = np.where(clear[..., None], -1, bank.count)
+    start = np.eye(n) if pulse else np.zeros((n, n))
+    batch = bank.count.shape[:-1]
+    return CandidateBank(
+        np.concatenate([np.broadcast_to(start, batch + (1, n, n)), bank.T_omega[..., :-1, :, :]], axis=-3),
+        np.concatenate([np.zeros(batch + (1, 2, 2)), bank.info[..., :-1, :, :]], axis=-3),
+        np.concatenate([np.zeros(batch + (1, 2)), bank.psi[..., :-1, :]], axis=-2),
+        np.concatenate([np.zeros(batch + (1,), dtype=np.int64), cleared[..., :-1]], axis=-1),
+        np.concatenate([np.full(batch + (1,), float(onset)), bank.onset[..., :-1]], axis=-1),
+    )
+
+
+class VdieState(NamedTuple):
+    """Batched state of a variable-dimension filter with input estimation."""
+
+    x: np.ndarray  # (..., 6) CA order
+    P: np.ndarray  # (..., 6, 6)
+    is_ca: np.ndarray  # (...,) bool
+    bank_cv: CandidateBank  # step-input candidates, n = 4
+    bank_ca: CandidateBank  # pulse-input candidates, n = 6
+    acc_stats: np.ndarray  # (..., p) last p values of a' P_aa^-1 a (newest first)
+    ca_steps: np.ndarray  # (...,) steps spent in CA
+
+
+class VdieEvents(NamedTuple):
+    """What the detector decided at one step (per batch element)."""
+
+    kind: np.ndarray  # EVENT_* code
+    statistic: np.ndarray  # best u' Gamma^-1 u of the active bank
+    onset: np.ndarray
+    u: np.ndarray  # (..., 2)
+    gamma: np.ndarray  # (..., 2, 2) covariance of u, eq. (64)
+
+
+def embed_cv(x4: np.ndarray, P4: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Store a CV state in the CA layout with placeholder acceleration entries."""
+    batch = x4.shape[:-1]
+    x = np.zeros(batch + (6,))
+    x[..., CV_IN_CA] = x4
+    P = np.zeros(batch + (6, 6))
+    P[..., CV_IN_CA[:, None], CV_IN_CA[None, :]] = P4
+    P[..., CA_ACC, CA_ACC] = 1.0
+    return x, P
+
+
+def cv_part(x: np.ndarray, P: np.ndarray) -> GaussianState:
+    return GaussianState(x[..., CV_IN_CA], P[..., CV_IN_CA[:, None], CV_IN_CA[None, :]])
+
+
+def vdie_init(x: np.ndarray, P: np.ndarray, is_ca: np.ndarray, params: VdieParams,
+              t0: float) -> VdieState:
+    """Start in the given model (``x``/``P`` in the CA layout) with empty candidate banks."""
+    batch = is_ca.shape
+    clear = np.ones(batch, dtype=bool)
+    bank_cv = bank_push(bank_empty(batch, params.window, 4), t0, False, clear)
+    bank_ca = bank_push(bank_empty(batch, params.window, 6), t0, True, clear)
+    return VdieState(x, P, is_ca.copy(), bank_cv, bank_ca, np.zeros(batch + (params.p,)),
+                     np.zeros(batch, dtype=np.int64))
+
+
+StepFn = Callable[[GaussianState, LinearModel], tuple[GaussianState, GaussianState]]
+
+
+def _where_state(mask: np.ndarray, a: GaussianState, b: GaussianState) -> GaussianState:
+    return GaussianState(np.where(mask[..., None], a.x, b.x), np.where(mask[..., None, None], a.P, b.P))
+
+
+class FilterTrace(NamedTuple):
+    """The prior and posterior of the filter update a step made, in its model (CA layout)."""
+
+    prior: GaussianState
+    post: GaussianState
+
+
+def vdie_step(state: VdieState, t: float, cv: LinearModel, ca: LinearModel, params: VdieParams,
+              step_fn: StepFn) -> tuple[VdieState, VdieEvents, FilterTrace]:
+    """One scan: filter in the current model, detect, switch models, compensate.
+
+    ``step_fn(posterior_{k-1}, model) -> (prior_k, posterior_k)`` is the filter
+    (federated round or single-sensor KF). Both model branches are computed for the
+    whole batch and selected per element, so runs in different models stay batched.
+    """
+    batch = state.is_ca.shape
+    prior_cv, post_cv = step_fn(cv_part(state.x, state.P), cv)
+    prior_ca, post_ca = step_fn(GaussianState(state.x, state.P), ca)
+
+    # --- CV branch: step-input estimation over the candidate onsets (57)-(67)
+    bank_cv = bank_accumulate(state.bank_cv, cv.F, cv.B, False, prior_cv, post_cv)
+    best_cv = bank_best(bank_cv)
+    onset_det = detected(best_cv, params)
+    # (69)-(71): x_s = [x + T B u; u], P_s with the T B Gamma cross terms (CA order)
+    TB = best_cv.T_omega @ cv.B
+    x_sw = np.zeros(batch + (6,))
+    x_sw[..., CV_IN_CA] = post_cv.x + mat_vec(TB, best_cv.u)
+    x_sw[..., CA_ACC] = best_cv.u
+    P_sw = np.zeros(batch + (6, 6))
+    TBG = TB @ best_cv.gamma
+    P_sw[..., CV_IN_CA[:, None], CV_IN_CA[None, :]] = post_cv.P + TBG @ transpose(TB)
+    P_sw[..., CV_IN_CA[:, None], CA_ACC[None, :]] = TBG
+    P_sw[..., CA_ACC[:, None], CV_IN_CA[None, :]] = transpose(TBG)
+    P_sw[..., CA_ACC[:, None], CA_ACC[None, :]] = best_cv.gamma
+    x_cv_out, P_cv_out = embed_cv(post_cv.x, post_cv.P)
+    cv_x = np.where(onset_det[..., None], x_sw, x_cv_out)
+    cv_P = np.where(onset_det[..., None, None], symmetrize(P_sw), P_cv_out)
+
+    # --- CA branch: acceleration significance (81), then pulse-input estimation (79)-(83)
+    acc = post_ca.x[..., CA_ACC]
+    P_aa = post_ca.P[..., CA_ACC[:, None], CA_ACC[None, :]]
+    acc_stat = np.einsum("...i,...i->...", acc, np.linalg.solve(P_aa, acc[..., None])[..., 0])
+    acc_stats = np.concatenate([acc_stat[..., None], state.acc_stats[..., :-1]], axis=-1)
+    ca_steps = state.ca_steps + 1
+    end_det = (ca_steps >= params.p) & (acc_stats.sum(axis=-1) < params.h_cv)
+    bank_ca = bank_accumulate(state.bank_ca, ca.F, ca.B, True, prior_ca, post_ca)
+    best_ca = bank_best(bank_ca)
+    pulse_det = ~end_det & detected(best_ca, params)
+    TB6 = best_ca.T_omega @ ca.B
+    x_pulse = post_ca.x + mat_vec(TB6, best_ca.u)  # (82)
+    P_pulse = symmetrize(post_ca.P + TB6 @ best_ca.gamma @ transpose(TB6))  # (83)
+    x_end, P_end = embed_cv(*cv_part(post_ca.x, post_ca.P))
+    ca_x = np.where(end_det[..., None], x_end, np.where(pulse_det[..., None], x_pulse, post_ca.x))
+    ca_P = np.where(end_det[..., None, None], P_end,
+                    np.where(pulse_det[..., None, None], P_pulse, post_ca.P))
+
+    is_ca = state.is_ca
+    kind = np.where(is_ca, np.where(end_det, EVENT_END, np.where(pulse_det, EVENT_NEW_CA, EVENT_NONE)),
+                    np.where(onset_det, EVENT_ONSET, EVENT_NONE))
+    new_is_ca = np.where(is_ca, ~end_det, onset_det)
+    x = np.where(is_ca[..., None], ca_x, cv_x)
+    P = np.where(is_ca[..., None, None], ca_P, cv_P)
+    changed = kind != EVENT_NONE
+    events = VdieEvents(
+        kind,
+        np.where(is_ca, best_ca.statistic, best_cv.statistic),
+        np.where(is_ca, best_ca.onset, best_cv.onset),
+        np.where(is_ca[..., None], best_ca.u, best_cv.u),
+        np.where(is_ca[..., None, None], best_ca.gamma, best_cv.gamma),
+    )
+    new_state = VdieState(
+        x, P, new_is_ca,
+        bank_push(bank_cv, t, False, changed | new_is_ca),
+        bank_push(bank_ca, t, True, changed | ~new_is_ca),
+        np.where(new_is_ca[..., None] & ~changed[..., None], acc_stats, 0.0),
+        np.where(new_is_ca & ~changed, ca_steps, 0),
+    )
+    trace = FilterTrace(
+        _where_state(is_ca, prior_ca, GaussianState(*embed_cv(prior_cv.x, prior_cv.P))),
+        _where_state(is_ca, post_ca, GaussianState(*embed_cv(post_cv.x, post_cv.P))),
+    )
+    return new_state, events, trace
+
+
+# ---------------------------------------------------------------- DVDIE centre
+
+class CentreState(NamedTuple):
+    """The DVDIE centre's fused estimate (CA layout) and its model."""
+
+    x: np.ndarray
+    P: np.ndarray
+    is_ca: np.ndarray
+
+
+def _embedded_information(state: GaussianState, is_ca: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Information of a CA-layout state; a CV state carries no acceleration information."""
+    Y6, y6 = information(state)
+    cv = cv_part(state.x, state.P)
+    Y4, y4 = information(cv)
+    Yc = np.zeros_like(Y6)
+    yc = np.zeros_like(y6)
+    Yc[..., CV_IN_CA[:, None], CV_IN_CA[None, :]] = Y4
+    yc[..., CV_IN_CA] = y4
+    return np.where(is_ca[..., None, None], Y6, Yc), np.where(is_ca[..., None], y6, yc)
+
+
+class LocalReports(NamedTuple):
+    """What the DVDIE centre knows of each local filter at one scan (sensor axis, CA layout).
+
+    ``was_ca``: the model the local updated with; ``x``/``P``/``is_ca``: its estimate after
+    the scan (compensated, possibly switched); ``kind``: its EVENT_* decision; ``prior`` /
+    ``post``: the Kalman prior and posterior of its update (``post`` equals ``x``/``P``
+    when ``kind`` is EVENT_NONE).
+    """
+
+    was_ca: np.ndarray
+    x: np.ndarray
+    P: np.ndarray
+    is_ca: np.ndarray
+    kind: np.ndarray
+    prior: GaussianState
+    post: GaussianState
+
+
+def local_reports(before: VdieState, now: VdieState, events: VdieEvents, trace: FilterTrace) -> LocalReports:
+    """Reports of locals run in-process (replay, Monte Carlo)."""
+    return LocalReports(before.is_ca, now.x, now.P, now.is_ca, events.kind, trace.prior, trace.post)
+
+
+def dvdie_centre_step(centre: CentreState, cv: LinearModel, ca: LinearModel,
+                      reports: LocalReports, restart: bool = False) -> CentreState:
+    """Decentralized fusion of single-sensor VDIE local filters, without feedback.
+
+    The centre works in CA if any local is in CA, else in CV. In a scan where no local
+    switched model or compensated its state, the centre runs the Hashemipour form: its
+    own prediction plus every local's information increment ``Y_i(k|k) - Y_i(k|k-1)``
+    (a position-only term, embedded across model dimensions), which is exact. When a
+    local switches or compensates, its estimate is no longer a Kalman update of its
+    prior, so the centre re-initializes from the locals' current estimates fused as if
+    independent (``Y = sum Y_i``; a CV local carries no acceleration information). That
+    ignores the cross-correlation through the common process noise: the correlation
+    function the paper says a decentralized structure cannot afford to compute.
+    ``restart`` forces that re-initialization (a local filter restarted: no prior).
+    """
+    any_ca = reports.is_ca.any(axis=-1)
+    reinit = (reports.kind != EVENT_NONE).any(axis=-1) | (any_ca != centre.is_ca) | restart
+
+    # local information increments: 6-D for CA locals, 4-D (embedded) for CV locals
+    Yu, yu = _embedded_information(reports.post, reports.was_ca)
+    Yp, yp = _embedded_information(reports.prior, reports.was_ca)
+    dY, dy = (Yu - Yp).sum(axis=-3), (yu - yp).sum(axis=-2)
+
+    Ypc, ypc = information(predict(cv_part(centre.x, centre.P), cv.F, cv.Q))
+    Y_cv = Ypc + dY[..., CV_IN_CA[:, None], CV_IN_CA[None, :]]
+    y_cv = ypc + dy[..., CV_IN_CA]
+    Ypa, ypa = information(predict(GaussianState(centre.x, centre.P), ca.F, ca.Q))
+    Y_ca, y_ca = Ypa + dY, ypa + dy
+
+    # re-initialization: locals' current estimates fused as independent
+    Y_loc, y_loc = _embedded_information(GaussianState(reports.x, reports.P), reports.is_ca)
+    Y_re, y_re = Y_loc.sum(axis=-3), y_loc.sum(axis=-2)
+
+    Y4 = np.where(reinit[..., None, None], Y_re[..., CV_IN_CA[:, None], CV_IN_CA[None, :]], Y_cv)
+    y4 = np.where(reinit[..., None], y_re[..., CV_IN_CA], y_cv)
+    Y6 = np.where(reinit[..., None, None], Y_re, Y_ca)
+    y6 = np.where(reinit[..., None], y_re, y_ca)
+    # a CA centre has acceleration information (some local is in CA); a CV centre ignores Y6
+    Y6 = np.where(any_ca[..., None, None], Y6, np.eye(6))
+    est_cv = from_information(symmetrize(Y4), y4)
+    est_ca = from_information(symmetrize(Y6), y6)
+    x_cv, P_cv = embed_cv(est_cv.x, est_cv.P)
+    return CentreState(np.where(any_ca[..., None], est_ca.x, x_cv),
+                       np.where(any_ca[..., None, None], est_ca.P, P_cv), any_ca)
