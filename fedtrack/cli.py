@@ -21,8 +21,8 @@ REPRODUCERS: dict[str, str] = {
     "fvdie": "fedtrack.experiments.fvdie:reproduce_fvdie",
     "vsimm": "fedtrack.experiments.vsimm:reproduce_vsimm",
     "hpda": "fedtrack.experiments.hpda:reproduce_hpda",
-    "input-estimation": "fedtrack.experiments.radar:reproduce_input_estimation",
-    "ts-fuzzy": "fedtrack.experiments.radar:reproduce_ts_fuzzy",
+    "input-estimation": "fedtrack.experiments.input_estimation:reproduce_input_estimation",
+    "ts-fuzzy": "fedtrack.experiments.ts_fuzzy:reproduce_ts_fuzzy",
 }
 
 # algorithm -> "module:function(measurements, config, out) -> int (lines written)"
@@ -55,7 +55,7 @@ SERVICES: dict[str, str] = {
 
 # name -> "module:function(argv) -> int"
 TRAINERS: dict[str, str] = {
-    "ts-fuzzy": "fedtrack.experiments.ts_fuzzy_training:main",
+    "ts-fuzzy": "fedtrack.experiments.ts_fuzzy:main",
 }
 
 COMMANDS: dict[str, str] = {

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from fedtrack.config import ConfigError
-from fedtrack.experiments.ts_fuzzy_training import EVAL_TAG, main, scenario_rng
+from fedtrack.experiments.input_estimation import EVAL_TAG, scenario_rng
+from fedtrack.experiments.ts_fuzzy import main
 from fedtrack.local_filters.radar.ekf import motion_model_3d
 from fedtrack.local_filters.radar.filters import EkfTsFuzzyConfig, filter_kind, run_batch
 from fedtrack.local_filters.radar.ts_fuzzy import GAParams, TSModel, identify, load_model, predict, rls, save_model

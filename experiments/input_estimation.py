@@ -1,6 +1,6 @@
-"""``fedtrack reproduce input-estimation`` (paper 002) and ``fedtrack reproduce ts-fuzzy`` (paper 003).
+"""``fedtrack reproduce input-estimation`` (paper 002); its radar Monte Carlo metrics serve paper 003 too.
 
-Both run seeded Monte Carlo over paper 002's radar scenario (see :mod:`fedtrack.sensors.radar`) and
+It runs seeded Monte Carlo over paper 002's radar scenario (see :mod:`fedtrack.sensors.radar`) and
 report, per filter under ``"filters"``: the per-time-step RMS position error per axis
 (``rms_pos_x``/``_y``/``_z``, over runs, aligned with the top-level ``t``; index 0 is before
 initialization and is null), ``mean_rms_pos_straight`` / ``mean_rms_pos_turn`` (time average of
@@ -13,33 +13,35 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from fedtrack.experiments.ts_fuzzy_training import EVAL_TAG, TRAIN_TAG, scenario_rng, train
 from fedtrack.local_filters.radar.ekf import CV3, motion_model_3d
 from fedtrack.local_filters.radar.filters import (
-    MODEL_ENV,
     EkfIEConfig,
-    EkfTsFuzzyConfig,
     FilterKind,
     filter_kind,
-    load_compatible_model,
     run_batch,
 )
-from fedtrack.local_filters.radar.ts_fuzzy import GAParams, load_model
 from fedtrack.sensors.radar import G0, RadarConfig, Trajectory, simulate
 
+TRAIN_TAG = 0
+EVAL_TAG = 1
+
+
+def scenario_rng(tag: int, seed: int) -> np.random.Generator:
+    """The noise stream of a (training or evaluation) set of runs."""
+    return np.random.default_rng([tag, seed])
+
+
 BOOTSTRAP = 200
-TS_TRAIN_RUNS = 20
 STATE_LABELS = ("x", "vx", "y", "vy", "z", "vz")
 
 
-def _scenario_json(radar: RadarConfig, traj: Trajectory) -> dict[str, Any]:
+def scenario_json(radar: RadarConfig, traj: Trajectory) -> dict[str, Any]:
     return {"rate_hz": radar.rate_hz, "sigma_range_m": radar.sigma_range,
             "sigma_azimuth_rad": radar.sigma_azimuth, "sigma_elevation_rad": radar.sigma_elevation,
             "speed_m_s": radar.speed, "turn_radius_m": radar.turn_radius,
@@ -65,7 +67,7 @@ def _segment_mean_rms(sq: np.ndarray, idx: np.ndarray, sl: slice) -> float:
     return float(np.mean(np.sqrt(np.mean(sq[idx][:, sl], axis=0))))
 
 
-def _metrics(err: np.ndarray, man: np.ndarray, turn: int, rng: np.random.Generator) -> dict[str, Any]:
+def metrics(err: np.ndarray, man: np.ndarray, turn: int, rng: np.random.Generator) -> dict[str, Any]:
     """Metrics of position errors ``err`` (runs, K, 3) (NaN at index 0)."""
     sq = _squared_pos_error(err)
     t0 = turn - 1  # index of the turn start in sq
@@ -86,7 +88,7 @@ def _metrics(err: np.ndarray, man: np.ndarray, turn: int, rng: np.random.Generat
     return out
 
 
-def _run_filters(kinds: dict[str, FilterKind], zs: np.ndarray, radar: RadarConfig, q: float
+def run_filters(kinds: dict[str, FilterKind], zs: np.ndarray, radar: RadarConfig, q: float
                  ) -> dict[str, Any]:
     model = motion_model_3d(CV3, radar.T, q)
     sensor = np.asarray(radar.sensor_position, float)
@@ -105,12 +107,12 @@ def _paired_ratio(errs: dict[str, np.ndarray], num: str, den: str, sl: slice,
     return ratio(np.arange(n)), _bootstrap_se(ratio, n, rng)
 
 
-def _write(result: dict[str, Any], json_path: Path) -> None:
+def write(result: dict[str, Any], json_path: Path) -> None:
     json_path.parent.mkdir(parents=True, exist_ok=True)
     json_path.write_text(json.dumps(result, indent=1))
 
 
-def _plot_x_error(t: np.ndarray, filters: dict[str, Any], turn_t: float, path: Path, title: str) -> None:
+def plot_x_error(t: np.ndarray, filters: dict[str, Any], turn_t: float, path: Path, title: str) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -135,15 +137,15 @@ def reproduce_input_estimation(runs: int, seed: int, json_path: Path, plots_dir:
     radar, cfg = RadarConfig(), EkfIEConfig()
     traj, zs = simulate(radar, runs, np.random.default_rng(seed))
     kinds = {"ekf": filter_kind("ekf", cfg), "ekf_ie": filter_kind("ekf-ie", cfg)}
-    res = _run_filters(kinds, zs, radar, cfg.q)
+    res = run_filters(kinds, zs, radar, cfg.q)
     rng = np.random.default_rng([seed, 99])
     errs = {k: r.x[..., [0, 2, 4]] - traj.pos for k, r in res.items()}
-    filters = {k: _metrics(errs[k], res[k].maneuver, traj.turn_start, rng) for k in kinds}
+    filters = {k: metrics(errs[k], res[k].maneuver, traj.turn_start, rng) for k in kinds}
     t0 = traj.turn_start - 1
     turn_ratio = _paired_ratio(errs, "ekf_ie", "ekf", slice(t0, None), rng)
     straight_ratio = _paired_ratio(errs, "ekf_ie", "ekf", slice(0, t0), rng)
     result = {
-        "paper": "002", "runs": runs, "seed": seed, "scenario": _scenario_json(radar, traj),
+        "paper": "002", "runs": runs, "seed": seed, "scenario": scenario_json(radar, traj),
         "config": {"q": cfg.q, "window": cfg.window, "p_false_alarm": cfg.p_false_alarm,
                    "p_input": cfg.p_input, "eta_window": cfg.params.eta_window,
                    "eta_input": cfg.params.eta_input},
@@ -156,76 +158,8 @@ def reproduce_input_estimation(runs: int, seed: int, json_path: Path, plots_dir:
     }
     if plots_dir is not None:
         plots_dir.mkdir(parents=True, exist_ok=True)
-        _plot_x_error(traj.t, filters, traj.t[traj.turn_start], plots_dir / "fig4_x_error.png",
+        plot_x_error(traj.t, filters, traj.t[traj.turn_start], plots_dir / "fig4_x_error.png",
                       f"Paper 002 Fig. 4: x-axis RMS error ({runs} runs)")
     result["wall_time_s"] = time.perf_counter() - wall0
-    _write(result, json_path)
-    return result
-
-
-def _plot_state_sq(t: np.ndarray, sq: dict[str, np.ndarray], path: Path, runs: int) -> None:
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(3, 2, figsize=(10, 8), sharex=True)
-    for c, label in enumerate(STATE_LABELS):
-        ax = axes[c // 2, c % 2]
-        for name, s in sq.items():
-            ax.semilogy(t[1:], s[1:, c], label=name, lw=0.8)
-        ax.set_ylabel(f"mean sq. error {label}" + (" (m/s)^2" if label.startswith("v") else " (m^2)"))
-        ax.grid(True, which="both", alpha=0.3)
-    axes[0, 0].legend()
-    for ax in axes[-1]:
-        ax.set_xlabel("time (s)")
-    fig.suptitle(f"Paper 003 Fig. 3: squared error per state, mean over {runs} held-out runs")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-
-
-def reproduce_ts_fuzzy(runs: int, seed: int, json_path: Path, plots_dir: Path | None) -> dict:
-    """Paper 003: plain CV EKF vs TS-fuzzy compensated EKF on held-out runs.
-
-    The model is loaded from ``$FEDTRACK_TS_FUZZY_MODEL`` if set; otherwise it is trained here
-    (``TS_TRAIN_RUNS`` runs, paper GA settings) on the training stream of ``seed``. Evaluation
-    runs use the evaluation stream, disjoint from every training stream.
-    """
-    wall0 = time.perf_counter()
-    radar, cfg = RadarConfig(), EkfTsFuzzyConfig()
-    env_path = os.environ.get(MODEL_ENV, "")
-    if env_path:
-        ts = load_compatible_model(Path(env_path))
-        training = {"source": env_path, **{k: v.item() for k, v in load_model(env_path)[1].items()}}
-    else:
-        ts, summary = train(TS_TRAIN_RUNS, seed, GAParams(), cfg.q)
-        training = {"source": "trained by this command", "train_tag": TRAIN_TAG, "train_seed": seed,
-                    "train_runs": TS_TRAIN_RUNS, **summary}
-    traj, zs = simulate(radar, runs, scenario_rng(EVAL_TAG, seed))
-    kinds = {"ekf": filter_kind("ekf", cfg), "ekf_tsfuzzy": filter_kind("ekf-tsfuzzy", cfg, ts)}
-    res = _run_filters(kinds, zs, radar, cfg.q)
-    rng = np.random.default_rng([seed, 98])
-    truth = traj.state(CV3)
-    filters = {k: _metrics(r.x[..., [0, 2, 4]] - traj.pos, r.maneuver, traj.turn_start, rng)
-               for k, r in res.items()}
-    sq = {k: np.mean((r.x - truth) ** 2, axis=0) for k, r in res.items()}
-    for k in kinds:
-        filters[k]["mse_state"] = dict(zip(STATE_LABELS, np.nanmean(sq[k], axis=0).tolist()))
-    better = [a < b for a, b in zip(filters["ekf_tsfuzzy"]["mse_pos_axis"], filters["ekf"]["mse_pos_axis"])]
-    result = {
-        "paper": "003", "runs": runs, "seed": seed, "scenario": _scenario_json(radar, traj),
-        "training": training,
-        "evaluation_seeds": {"stream": f"numpy default_rng([{EVAL_TAG}, {seed}])", "runs": runs,
-                             "disjoint_from_training": True,
-                             "note": f"training uses default_rng([{TRAIN_TAG}, seed]); the tags differ"},
-        "t": traj.t.tolist(), "filters": filters,
-        "acceptance": {"tsfuzzy_lower_mse_each_axis": all(better), "per_axis": better},
-    }
-    if plots_dir is not None:
-        plots_dir.mkdir(parents=True, exist_ok=True)
-        _plot_state_sq(traj.t, sq, plots_dir / "fig3_squared_errors.png", runs)
-        _plot_x_error(traj.t, filters, traj.t[traj.turn_start], plots_dir / "ts_fuzzy_x_error.png",
-                      f"EKF vs TS-fuzzy compensated EKF: x-axis RMS error ({runs} runs)")
-    result["wall_time_s"] = time.perf_counter() - wall0
-    _write(result, json_path)
+    write(result, json_path)
     return result
