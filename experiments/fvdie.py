@@ -50,7 +50,7 @@ def run_tracker(algorithm: str, times: np.ndarray, zs: np.ndarray, Rs: np.ndarra
     xs, Ps, modes, events = [], [], [], []
     start = time.process_time()
     for k, t in enumerate(times):
-        est = tracker.step(float(t), zs[:, k], Rs)
+        est = tracker.step_batch(float(t), zs[:, k], Rs)
         xs.append(est.x)
         Ps.append(est.P)
         modes.append(est.is_ca)

@@ -1,3 +1,6 @@
-"""fedtrack: shared plumbing (CLI, config, I/O formats, progress, wire protocol)."""
+"""fedtrack: distributed multi-sensor target tracking and fusion over Eclipse Zenoh.
 
-__version__ = "0.1.0"
+This package is the ground plumbing (wire protocol, keys, sessions, config, JSON Lines,
+service base); the estimator families, the fusion centre, simulation, deployment and
+reproductions are its subpackages (see README, Layout).
+"""

@@ -15,11 +15,10 @@ from typing import Any, Iterator, NamedTuple
 import numpy as np
 
 from fedtrack.config import load_tables
-from fedtrack.fusion_center.trackers import ScanEstimate, make_tracker
+from fedtrack.fusion_center.trackers import ModelEstimate, make_tracker
 from fedtrack.jsonl import InputError, position_line, read_jsonl
-from fedtrack.local_filters.linear.models import CV_IN_CA
+from fedtrack.local_filters.linear.models import CA
 from fedtrack.local_filters.vdie.config import PipelineSettings
-from fedtrack.local_filters.vdie.estimation import EVENT_NAMES
 
 
 class Scan(NamedTuple):
@@ -62,21 +61,18 @@ def sensor_order(scans: list[Scan], configured: tuple[str, ...] | None) -> list[
     return list(configured)
 
 
-def estimate_record(t: float, est: ScanEstimate, sensors: list[str], n_sensors: int,
+def estimate_record(t: float, est: ModelEstimate, sensors: list[str], n_sensors: int,
                     extra: dict[str, Any] | None = None) -> dict[str, Any]:
     """One output line; ``x``/``P`` in the model's own state order (CV 4-D or CA 6-D)."""
-    is_ca = bool(est.is_ca)
-    idx = np.arange(6) if is_ca else CV_IN_CA
-    event = int(est.event)
     rec = {
         "t": t,
-        "x": est.x[idx].tolist(),
-        "P": est.P[np.ix_(idx, idx)].tolist(),
-        "model": "ca" if is_ca else "cv",
-        "maneuver": is_ca,
+        "x": est.x.tolist(),
+        "P": est.P.tolist(),
+        "model": est.model,
+        "maneuver": est.model == CA,
         "sensors": sensors,
         "degraded": len(sensors) < n_sensors,
-        "event": EVENT_NAMES.get(event),
+        "event": est.event,
     }
     if extra:
         rec.update(extra)

@@ -33,7 +33,7 @@ from fedtrack.local_filters.linear.kalman import (
     information,
     predict,
 )
-from fedtrack.local_filters.linear.models import LinearModel
+from fedtrack.local_filters.linear.models import CA, CV, CV_IN_CA, LinearModel
 from fedtrack.local_filters.linear.tracking import (
     local_kf_step,
     models_for,
@@ -42,6 +42,7 @@ from fedtrack.local_filters.linear.tracking import (
 from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.local_filters.vdie.estimation import (
     EVENT_END,
+    EVENT_NAMES,
     EVENT_NEW_CA,
     EVENT_NONE,
     EVENT_ONSET,
@@ -63,6 +64,22 @@ class ScanEstimate(NamedTuple):
     P: np.ndarray
     is_ca: np.ndarray
     event: np.ndarray  # vdie EVENT_* code (always EVENT_NONE for the plain KFs)
+
+
+class ModelEstimate(NamedTuple):
+    """One scan's estimate in the state order of the filter's current model."""
+
+    model: str  # "cv" or "ca"
+    x: np.ndarray  # (4,) CV [x, vx, y, vy] or (6,) CA [x, vx, ax, y, vy, ay]
+    P: np.ndarray
+    event: str | None  # "onset" / "new-ca" / "end" / None
+
+
+def model_estimate(est: ScanEstimate) -> ModelEstimate:
+    """The unbatched :class:`ScanEstimate` ``est`` in its model's own state order."""
+    is_ca = bool(est.is_ca)
+    idx = np.arange(6) if is_ca else CV_IN_CA
+    return ModelEstimate(CA if is_ca else CV, est.x[idx], est.P[np.ix_(idx, idx)], EVENT_NAMES.get(int(est.event)))
 
 
 def fuse_independent(local: GaussianState, present: np.ndarray | None) -> GaussianState:
@@ -102,8 +119,23 @@ class Tracker:
         self.t: float | None = None
 
     def step(self, t: float, zs: np.ndarray, Rs: np.ndarray,
-             present: np.ndarray | None = None) -> ScanEstimate:
-        """Process one scan at time ``t``; ``present`` (N,) marks the sensors that reported."""
+             present: np.ndarray | None = None) -> ModelEstimate:
+        """Process one scan at time ``t`` (``zs`` is ``(N, 2)``, ``Rs`` ``(N, 2, 2)``).
+
+        ``present`` (N,) marks the sensors that reported. Returns the estimate in the state
+        order of the model the filter is in: CV ``[x, vx, y, vy]`` or CA ``[x, vx, ax, y, vy, ay]``.
+        """
+        if np.ndim(zs) != 2:
+            raise ValueError(f"step takes one scan (N, 2); use step_batch for batches, got {np.shape(zs)}")
+        return model_estimate(self.step_batch(t, zs, Rs, present))
+
+    def step_batch(self, t: float, zs: np.ndarray, Rs: np.ndarray,
+                   present: np.ndarray | None = None) -> ScanEstimate:
+        """Process one scan of a batch (``zs`` is ``(..., N, 2)``: Monte Carlo runs).
+
+        Runs may be in different models, so the estimate is in the CA layout with the CV runs'
+        accelerations as placeholders (:class:`ScanEstimate`).
+        """
         if present is not None:
             present = np.asarray(present, dtype=bool)
             if not present.any():

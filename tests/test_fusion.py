@@ -3,10 +3,9 @@
 import numpy as np
 import pytest
 
-from fedtrack.local_filters.linear.tracking import validate_sharing
 from fedtrack.fusion_center.trackers import Tracker, make_tracker
 from fedtrack.local_filters.linear.kalman import GaussianState, predict, update
-from fedtrack.local_filters.linear.tracking import models_for
+from fedtrack.local_filters.linear.tracking import models_for, validate_sharing
 from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.local_filters.vdie.estimation import (
     EVENT_ONSET,
@@ -101,7 +100,7 @@ def test_fvdie_equals_centralized_vdie_through_model_switches():
     fed, cen = make_tracker("fvdie", 3, cfg), CentralizedVDIE(3, cfg)
     switches = 0
     for k, t in enumerate(scenario.times):
-        a, b = fed.step(float(t), zs[:, k], Rs), cen.step(float(t), zs[:, k], Rs)
+        a, b = fed.step_batch(float(t), zs[:, k], Rs), cen.step_batch(float(t), zs[:, k], Rs)
         np.testing.assert_array_equal(a.is_ca, b.is_ca)
         assert max_rel(a.x, b.x) < 1e-9 and max_rel(a.P, b.P) < 1e-9
         switches += int(np.sum(a.event != 0))
@@ -141,3 +140,25 @@ def test_vdie_thresholds_documented_values():
     assert p.h_detect == pytest.approx(11.83, abs=0.01)  # 3 sigma, chi-square(2)
     assert p.h_cv == pytest.approx(2.66, abs=0.01)  # 0.5 sigma, chi-square(4) for p = 2
     assert EVENT_ONSET == 1
+
+
+def test_step_returns_the_layout_of_the_current_model():
+    """``Tracker.step`` gives CV ``[x, vx, y, vy]`` in CV and CA 6-D in CA, equal to ``step_batch``."""
+    from fedtrack.local_filters.linear.models import CV_IN_CA
+    from fedtrack.sensors.scenarios import DEFAULT_R, paper004_scenario, simulate_positions, simulate_truth
+
+    scen = paper004_scenario(1)
+    rng = np.random.default_rng(3)
+    Rs = np.array([DEFAULT_R, DEFAULT_R])
+    zs = simulate_positions(simulate_truth(scen, 1, rng), Rs, rng)[0]
+    single, batch = make_tracker("fvdie", 2), make_tracker("fvdie", 2)
+    seen = set()
+    for k, t in enumerate(scen.times):
+        est, ref = single.step(float(t), zs[k], Rs), batch.step_batch(float(t), zs[k][None], Rs)
+        idx = np.arange(6) if est.model == "ca" else CV_IN_CA
+        assert est.x.shape == (len(idx),) and est.P.shape == (len(idx), len(idx))
+        np.testing.assert_array_equal(est.x, ref.x[0][idx])
+        seen.add(est.model)
+    assert seen == {"cv", "ca"}
+    with pytest.raises(ValueError, match="step_batch"):
+        single.step(1e3, zs[:2][None], Rs)
