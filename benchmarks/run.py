@@ -1,4 +1,4 @@
-"""``fedtrack bench``: deployment latency and throughput, and the estimation core, side by side.
+"""fedtrack bench: deployment latency and throughput, and the estimation core, side by side.
 
 For each sensor count (``--sensors 2,4,8``) a whole federated deployment (router,
 sensors, local filters, fusion center; no recorder) runs on loopback twice, interleaved

@@ -1,4 +1,4 @@
-"""``fedtrack demo``: the whole deployment on this machine, then a summary.
+"""fedtrack demo: the whole deployment on this machine, then a summary.
 
 Router, N sensors, their local filters, the fusion center and the recorder run as
 separate processes over Zenoh on loopback (paper 004 scenario, lockstep pacing). The

@@ -1,4 +1,4 @@
-"""``fedtrack launch CONFIG.toml``: start every service of a deployment as separate processes.
+"""fedtrack launch CONFIG.toml: start every service of a deployment as separate processes.
 
 Order: router -> local filters, fusion center, recorder -> (all announced by liveliness)
 -> sensors. While it runs it shows scans fused, per-sensor scan rates and the latency

@@ -1,4 +1,4 @@
-"""Wait until services of a deployment are up: ``python -m fedtrack.deploy.wait_ready ROLE/ID ...``.
+"""Wait until services of a deployment are up: python -m fedtrack.deploy.wait_ready ROLE/ID ...
 
 Opens a Zenoh client session to ``--connect`` (waiting for the router to appear) and
 polls the liveliness tokens ``fedtrack/<deployment>/alive/<role>/<id>``. Use it on the

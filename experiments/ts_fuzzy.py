@@ -1,4 +1,4 @@
-"""Paper 003: ``fedtrack train ts-fuzzy`` and ``fedtrack reproduce ts-fuzzy``.
+"""Paper 003: fedtrack train ts-fuzzy and fedtrack reproduce ts-fuzzy.
 
 Training: simulate radar runs, build TS training data, identify by GA + RLS.
 Training data (paper 003 section 2.2, with run-time inputs per the errata): the plain CV EKF

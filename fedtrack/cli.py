@@ -1,4 +1,4 @@
-"""The ``fedtrack`` console command: demo, launch, serve, replay, reproduce, train, bench.
+"""fedtrack: distributed multi-sensor target tracking and fusion over Eclipse Zenoh.
 
 Sub-commands dispatch to functions named in the registries below (``module:function``)
 and are imported lazily, so ``fedtrack --help`` stays fast and one estimator's
@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.metadata
 import sys
 from pathlib import Path
 from typing import Any, Callable
@@ -94,8 +95,34 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     return 0
 
 
+def version() -> str:
+    """``fedtrack X.Y.Z (zenoh A.B.C, Python D.E.F)``."""
+    def of(dist: str) -> str:
+        try:
+            return importlib.metadata.version(dist)
+        except importlib.metadata.PackageNotFoundError:
+            return "not installed"
+    return (f"fedtrack {of('fedtrack')} (eclipse-zenoh {of('eclipse-zenoh')}, "
+            f"Python {sys.version.split()[0]})")
+
+
+def _registry_parser(sub: Any, name: str, help_text: str, key: str, registry: dict[str, str],
+                     what: str) -> None:
+    """``fedtrack NAME KEY ...``: the rest of the command line goes to the registered entry point.
+
+    ``fedtrack NAME --help`` lists the choices; ``fedtrack NAME KEY --help`` is the entry's own help.
+    """
+    p = sub.add_parser(name, help=help_text, description=help_text, add_help=False,
+                       epilog=f"'fedtrack {name} {key.upper()} --help' shows the options of one {what}.")
+    p.add_argument(key, nargs="?", choices=sorted(registry), metavar=key.upper(),
+                   help=f"one of: {', '.join(sorted(registry))}")
+    p.add_argument("-h", "--help", action="store_true", help="show this help message and exit")
+    p.set_defaults(func=None, registry=registry, key=key, parser=p)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="fedtrack", description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=version())
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     rep = sub.add_parser("reproduce", help="seeded Monte Carlo reproduction of a paper")
@@ -113,13 +140,8 @@ def build_parser() -> argparse.ArgumentParser:
     rpl.add_argument("--out", required=True)
     rpl.set_defaults(func=_cmd_replay)
 
-    srv = sub.add_parser("serve", help="run one service process", add_help=False)
-    srv.add_argument("role", choices=sorted(SERVICES))
-    srv.set_defaults(func=None, registry=SERVICES, key="role")
-
-    trn = sub.add_parser("train", help="train a learned component", add_help=False)
-    trn.add_argument("name", choices=sorted(TRAINERS))
-    trn.set_defaults(func=None, registry=TRAINERS, key="name")
+    _registry_parser(sub, "serve", "run one service process", "role", SERVICES, "role")
+    _registry_parser(sub, "train", "train a learned component", "name", TRAINERS, "trainer")
 
     for name, help_text in (("demo", "the main job: a whole deployment on one machine"),
                             ("launch", "start every service of a deployment config"),
@@ -138,8 +160,17 @@ def main(argv: list[str] | None = None) -> int:
             if rest:
                 parser.error(f"unrecognized arguments: {' '.join(rest)}")
             return int(args.func(args) or 0)
-        target = args.registry[args.command if args.key is None else getattr(args, args.key)]
-        return int(resolve(target)(rest) or 0)
+        if args.key is None:
+            return int(resolve(args.registry[args.command])(rest) or 0)
+        choice = getattr(args, args.key)
+        if choice is None:
+            if args.help:
+                args.parser.print_help()
+                return 0
+            args.parser.error(f"the following arguments are required: {args.key.upper()}")
+        if args.help:
+            rest = [*rest, "--help"]
+        return int(resolve(args.registry[choice])(rest) or 0)
     except (ConfigError, InputError) as exc:
         print(f"fedtrack: error: {exc}", file=sys.stderr)
         return 2
