@@ -85,7 +85,7 @@ def _model_meta(runs: int, seed: int, q: float, summary: dict[str, float]) -> di
 
 def main(argv: list[str]) -> int:
     """``fedtrack train ts-fuzzy --runs N --seed S --out MODEL.npz [GA options]``."""
-    ap = argparse.ArgumentParser(prog="fedtrack train ts-fuzzy", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="fedtrack train ts-fuzzy", description="train the TS-fuzzy error model of paper 003: simulate radar runs, identify by GA + RLS")
     ap.add_argument("--runs", type=int, default=20, help="simulated training runs (default 20)")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--out", required=True, help="output model file (.npz)")
