@@ -66,12 +66,7 @@ def settings_table(settings: Settings) -> dict[str, Any]:
 
 
 def write_config(settings: Settings, path: Path) -> None:
-    table = settings_table(settings)
-    sensors = table.pop("sensor")
-    text = to_toml(table)
-    for s in sensors:
-        text += f'\n[[sensor]]\nid = "{s["id"]}"\nR = {json.dumps(s["R"])}\n'
-    path.write_text(text)
+    path.write_text(to_toml(settings_table(settings)))
 
 
 def summarize(out: Path, settings: Settings, report: LaunchReport) -> dict[str, Any]:

@@ -1,6 +1,8 @@
-"""The top-level TOML configuration shared by `replay`, `launch` and `demo`.
+"""The deployment tables of the configuration file, as ``launch`` and ``demo`` read them.
 
-Every section is optional; unknown sections or keys fail at start naming the key.
+Every table is optional; unknown tables or keys fail at start naming the file, the table
+and the key. ``launch`` checks every table of the file (also ``[imm]`` and ``[pda]``, which
+it does not use itself), so that a typo fails before any process starts.
 """
 
 from __future__ import annotations
@@ -9,8 +11,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from fedtrack.config import load_toml, parse_dataclass
+from fedtrack.config import load_tables
 from fedtrack.deployment import DeploymentConfig, SensorConfig
+from fedtrack.local_filters.imm.config import IMMConfig
+from fedtrack.local_filters.pda.replay import PDAReplayConfig
 from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.sensors.radar import RadarConfig
 from fedtrack.sensors.sonar import SonarConfig
@@ -19,7 +23,8 @@ from fedtrack.sensors.sonar import SonarConfig
 @dataclass(frozen=True)
 class Settings:
     """``[fusion]``, ``[deployment]``, ``[[sensor]]``; ``[sonar]`` / ``[radar]`` for those sensor
-    kinds and ``[radar_filter]`` (checked by the radar filter chosen with ``--filter``)."""
+    kinds, ``[radar_filter]`` (checked by the radar filter chosen with ``--filter``), ``[imm]``
+    and ``[pda]``."""
 
     fusion: FusionConfig = field(default_factory=FusionConfig)
     deployment: DeploymentConfig = field(default_factory=DeploymentConfig)
@@ -27,10 +32,10 @@ class Settings:
     sonar: SonarConfig = field(default_factory=SonarConfig)
     radar: RadarConfig = field(default_factory=RadarConfig)
     radar_filter: Any = None
+    imm: IMMConfig = field(default_factory=IMMConfig)
+    pda: PDAReplayConfig = field(default_factory=PDAReplayConfig)
 
 
 def load_settings(path: Path | None) -> Settings:
     """Parse a config file (or the defaults when ``path`` is None)."""
-    if path is None:
-        return Settings()
-    return parse_dataclass(Settings, load_toml(path))
+    return load_tables(path, Settings)

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import tomllib
 import types
 import typing
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, Iterator, TypeVar
 
 T = TypeVar("T")
 
@@ -109,29 +110,43 @@ def parse_dataclass(cls: type[T], table: dict[str, Any], where: str = "") -> T:
     return obj
 
 
-#: The top-level tables of the one configuration file. Each service parses the tables it
-#: uses (:func:`load_tables`); the others must be known names, so that a typo still fails.
-TABLES = ("fusion", "deployment", "sensor", "sonar", "radar", "radar_filter")
+#: The top-level tables of the one configuration file read by ``replay``, ``serve`` and
+#: ``launch``. Each consumer parses the tables it uses (:func:`load_tables`); the others must
+#: be known names, so that a typo still fails.
+TABLES = ("fusion", "deployment", "sensor", "sonar", "radar", "radar_filter", "imm", "pda")
+
+
+@contextlib.contextmanager
+def in_file(path: str | Path | None) -> Iterator[None]:
+    """Prefix a :class:`ConfigError` raised inside the block with ``path`` (``FILE: ...``)."""
+    try:
+        yield
+    except ConfigError as exc:
+        if path is None or str(exc).startswith(f"{path}:"):
+            raise
+        raise ConfigError(f"{path}: {exc}") from exc
 
 
 def load_tables(path: str | Path | None, schema: type[T]) -> T:
     """Parse the tables of dataclass ``schema`` from the config file (defaults when ``path`` is None).
 
     Tables of :data:`TABLES` that ``schema`` does not hold are left to the services that use
-    them; any other top-level name is an error.
+    them; any other top-level name is an error. Errors name the file, the table and the key
+    (``FILE: unknown config key imm.foo ...``).
     """
     if path is None:
         return schema()
     data = load_toml(path)
     own = {f.name for f in dataclasses.fields(schema)}  # type: ignore[arg-type]
     unknown = sorted(set(data) - own - set(TABLES))
-    if unknown:
-        raise ConfigError(f"unknown config key {unknown[0]} (tables: {', '.join(sorted(set(TABLES) | own))})")
-    return parse_dataclass(schema, {k: v for k, v in data.items() if k in own})
+    with in_file(path):
+        if unknown:
+            raise ConfigError(f"unknown config key {unknown[0]} (tables: {', '.join(sorted(set(TABLES) | own))})")
+        return parse_dataclass(schema, {k: v for k, v in data.items() if k in own})
 
 
 def to_toml(table: dict[str, Any]) -> str:
-    """Serialize a (nested) dict of scalars, lists and tables to TOML text."""
+    """Serialize a (nested) dict of scalars, lists, tables and lists of tables to TOML text."""
     lines: list[str] = []
 
     def fmt(v: Any) -> str:
@@ -145,17 +160,26 @@ def to_toml(table: dict[str, Any]) -> str:
             return "[" + ", ".join(fmt(x) for x in v) + "]"
         raise TypeError(f"cannot write {type(v).__name__} to TOML")
 
-    def emit(tbl: dict[str, Any], path: str) -> None:
-        scalars = {k: v for k, v in tbl.items() if not isinstance(v, dict) and v is not None}
+    def is_array_of_tables(v: Any) -> bool:
+        return isinstance(v, (list, tuple)) and bool(v) and all(isinstance(x, dict) for x in v)
+
+    def emit(tbl: dict[str, Any], path: str, header: str = "") -> None:
+        scalars = {k: v for k, v in tbl.items()
+                   if not isinstance(v, dict) and not is_array_of_tables(v) and v is not None}
         tables = {k: v for k, v in tbl.items() if isinstance(v, dict)}
-        if path and (scalars or not tables):
-            lines.append(f"[{path}]")
+        arrays = {k: v for k, v in tbl.items() if is_array_of_tables(v)}
+        if header or (path and (scalars or not (tables or arrays))):
+            lines.append(header or f"[{path}]")
         for k, v in scalars.items():
             lines.append(f"{k} = {fmt(v)}")
-        if scalars:
+        if scalars or header:
             lines.append("")
         for k, v in tables.items():
             emit(v, f"{path}.{k}" if path else k)
+        for k, items in arrays.items():
+            for item in items:
+                sub = f"{path}.{k}" if path else k
+                emit(item, sub, f"[[{sub}]]")
 
     emit(table, "")
     return "\n".join(lines).rstrip() + "\n"

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from pathlib import Path
 
-from fedtrack.config import ConfigError
+from fedtrack.config import ConfigError, in_file, load_tables, load_toml
 
 MODES = ("federated", "decentralized")
 PACINGS = ("lockstep", "realtime")
@@ -72,3 +73,23 @@ class DeploymentConfig:
             raise ConfigError("deadline_s: must be > 0")
         if not self.name or any(c in self.name for c in "/*$?#@ "):
             raise ConfigError(f"name: {self.name!r} is not a valid deployment name")
+
+
+@dataclass(frozen=True)
+class DeploymentSettings:
+    """Only the ``[deployment]`` table of a configuration file."""
+
+    deployment: DeploymentConfig = field(default_factory=DeploymentConfig)
+
+
+def deployment_of(path: str | Path | None) -> DeploymentConfig | None:
+    """The ``[deployment]`` table of the file at ``path``; None without a file or without that table."""
+    if path is None or "deployment" not in load_toml(path):
+        return None
+    return load_tables(path, DeploymentSettings).deployment
+
+
+def endpoints_of(path: str | Path, dep: DeploymentConfig) -> tuple[str, ...]:
+    """Where a client of ``dep`` connects (errors name the file)."""
+    with in_file(path):
+        return dep.connect_endpoints

@@ -47,6 +47,25 @@ def _to_builtin(obj: Any) -> Any:
     raise TypeError(f"not JSON serializable: {type(obj).__name__}")
 
 
+#: Fields every measurement line may carry besides its format's own: ``kind``, ``seq`` and
+#: ``stamp_ns`` (as the recorder and ``fedtrack.wire.measurement_to_replay`` write them) and
+#: ``truth`` (written by the simulators, ignored by the estimators).
+COMMON_FIELDS = frozenset({"t", "sensor", "R", "kind", "seq", "stamp_ns", "truth"})
+POSITION_FIELDS = COMMON_FIELDS | {"z"}
+SONAR_FIELDS = COMMON_FIELDS | {"z", "detections"}
+RADAR_FIELDS = COMMON_FIELDS | {"z", "sensor_position"}
+
+
+def check_fields(obj: dict[str, Any], allowed: frozenset[str], kind: str, where: str) -> None:
+    """The one rule for input lines: a field outside ``allowed``, or a ``kind`` other than
+    ``kind``, is an :class:`InputError` naming ``file:line`` and the field."""
+    unknown = sorted(set(obj) - allowed)
+    if unknown:
+        raise InputError(f"{where}: unknown field {unknown[0]!r} (allowed: {', '.join(sorted(allowed))})")
+    if obj.get("kind", kind) != kind:
+        raise InputError(f"{where}: kind must be {kind!r} here, got {obj['kind']!r}")
+
+
 def require(obj: dict[str, Any], key: str, where: str) -> Any:
     if key not in obj:
         raise InputError(f"{where}: missing field {key!r}")
@@ -97,6 +116,7 @@ def as_covariance(value: Any, name: str, where: str, size: int | None = None,
 
 def position_line(obj: dict[str, Any], where: str) -> tuple[float, str, np.ndarray, np.ndarray]:
     """``(t, sensor, z, R)`` of a 2-D position measurement line ``{"t", "sensor", "z", "R"}``."""
+    check_fields(obj, POSITION_FIELDS, "position", where)
     t = as_float(require(obj, "t", where), "t", where)
     sensor = require(obj, "sensor", where)
     if not isinstance(sensor, str) or not sensor:

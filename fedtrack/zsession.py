@@ -147,12 +147,13 @@ def add_endpoint_args(parser: argparse.ArgumentParser, listen_default: tuple[str
     """Add ``--connect``, ``--listen``, ``--deployment``, ``--connect-timeout``, ``--lease-ms``."""
     group = parser.add_argument_group("zenoh")
     group.add_argument("--connect", action="append", type=_endpoint_arg, metavar="ENDPOINT",
-                       help=f"endpoint to connect to, repeatable (default: {DEFAULT_ROUTER} "
-                            "for clients, none for a router)")
+                       help="endpoint to connect to, repeatable (default: deployment.connect of --config, "
+                            f"else {DEFAULT_ROUTER} for clients, none for a router)")
     group.add_argument("--listen", action="append", type=_endpoint_arg, metavar="ENDPOINT",
                        help=f"endpoint to listen on, repeatable (default: {', '.join(listen_default) or 'none'})")
-    group.add_argument("--deployment", default=DEFAULT_DEPLOYMENT, type=_deployment_arg,
-                       help="key prefix fedtrack/<deployment>/... (default: %(default)s)")
+    group.add_argument("--deployment", type=_deployment_arg,
+                       help="key prefix fedtrack/<deployment>/... (default: deployment.name of --config, "
+                            f"else {DEFAULT_DEPLOYMENT})")
     group.add_argument("--connect-timeout", type=float, default=10.0, metavar="SECONDS",
                        help="wait this long for a connect endpoint; negative = forever (default: %(default)s)")
     group.add_argument("--lease-ms", type=int, default=None, metavar="MS",

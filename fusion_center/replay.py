@@ -14,7 +14,7 @@ from typing import Any, Iterator, NamedTuple
 
 import numpy as np
 
-from fedtrack.config import load_tables
+from fedtrack.config import in_file, load_tables
 from fedtrack.fusion_center.trackers import ModelEstimate, make_tracker
 from fedtrack.jsonl import InputError, position_line, read_jsonl
 from fedtrack.local_filters.linear.models import CA
@@ -97,7 +97,8 @@ def replay_fusion(algorithm: str, measurements: Path, config: Path | None, out: 
     settings = load_tables(config, PipelineSettings)
     scans = read_scans(measurements)
     sensors = sensor_order(scans, settings.fusion.sensors)
-    settings.fusion.betas(len(sensors))  # fails early if the sharing factors do not fit
+    with in_file(config):
+        settings.fusion.betas(len(sensors))  # fails early if the sharing factors do not fit
     n = 0
     with out.open("w") as fh:
         for rec in replay_scans(algorithm, scans, sensors, settings.fusion):

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from fedtrack.config import ConfigError, load_tables
+from fedtrack.config import ConfigError, in_file, load_tables
 from fedtrack.deployment import MODES
 from fedtrack.fusion_center.centre import (
     CentreResult,
@@ -178,10 +178,11 @@ def main(argv: list[str]) -> int:
     settings = load_tables(args.config, PipelineSettings)
     sensors = (args.sensors.split(",") if args.sensors else
                list(settings.fusion.sensors or [s.id for s in settings.sensor]))
-    if not sensors or len(set(sensors)) != len(sensors) or not all(sensors):
-        raise ConfigError("fusion.sensors: need one or more distinct sensor ids (or --sensors a,b,c)")
-    if settings.fusion.sensors is not None and list(settings.fusion.sensors) != sensors:
-        raise ConfigError("fusion.sensors: --sensors disagrees with the config's sensor list")
+    with in_file(args.config):
+        if not sensors or len(set(sensors)) != len(sensors) or not all(sensors):
+            raise ConfigError("fusion.sensors: need one or more distinct sensor ids (or --sensors a,b,c)")
+        if settings.fusion.sensors is not None and list(settings.fusion.sensors) != sensors:
+            raise ConfigError("fusion.sensors: --sensors disagrees with the config's sensor list")
     deadline = args.deadline if args.deadline is not None else settings.deployment.deadline_s
     if deadline <= 0:
         parser.error("--deadline must be > 0")

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from fedtrack.config import ConfigError, load_tables
+from fedtrack.config import ConfigError, in_file, load_tables
 from fedtrack.deployment import MODES
 from fedtrack.jsonl import InputError
 from fedtrack.local_filters.radar.filters import RadarFilter, make_radar_filter
@@ -181,15 +181,18 @@ def main(argv: list[str]) -> int:
         args.id = args.sensor
     settings = load_tables(args.config, PipelineSettings)
     if args.filter != "vdie":
-        radar = make_radar_filter(args.filter, settings.radar_filter)
+        with in_file(args.config):
+            radar = make_radar_filter(args.filter, settings.radar_filter)
         return RadarLocalFilterService(args.sensor, radar, **service_kwargs(parser, args)).run()
     mode = args.mode or settings.deployment.mode
     sensors = settings.fusion.sensors or tuple(s.id for s in settings.sensor)
-    if args.sensor not in sensors:
-        raise ConfigError(f"fusion.sensors: sensor {args.sensor!r} is not listed ({', '.join(sensors) or 'empty'})")
-    n = len(sensors)
+    with in_file(args.config):
+        if args.sensor not in sensors:
+            raise ConfigError(f"fusion.sensors: sensor {args.sensor!r} is not listed ({', '.join(sensors) or 'empty'})")
+        n = len(sensors)
+        betas = settings.fusion.betas(n)
     if mode == "federated":
-        beta = float(settings.fusion.betas(n)[sensors.index(args.sensor)])
+        beta = float(betas[sensors.index(args.sensor)])
         filt: FederatedLocalFilter | VdieLocalFilter = FederatedLocalFilter(beta, n, settings.fusion)
     else:
         filt = VdieLocalFilter(n, settings.fusion)

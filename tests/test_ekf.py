@@ -177,13 +177,13 @@ def test_replay_validates_input_and_config(tmp_path):
     with pytest.raises(InputError, match=r"c.jsonl:8: t must increase"):
         replay_radar("ekf", tmp_path / "c.jsonl", None, out)
     cfg = tmp_path / "c.toml"
-    cfg.write_text("q = 1.0\nmodel = 'x.npz'\n")
-    with pytest.raises(ConfigError, match="unknown config key model"):
+    cfg.write_text("[radar_filter]\nq = 1.0\nmodel = 'x.npz'\n")
+    with pytest.raises(ConfigError, match=r"c\.toml: unknown config key radar_filter\.model"):
         replay_radar("ekf-ie", good, cfg, out)
-    cfg.write_text("window = 1\n")
+    cfg.write_text("[radar_filter]\nwindow = 1\n")
     with pytest.raises(ConfigError, match="window"):
         replay_radar("ekf-ie", good, cfg, out)
-    cfg.write_text(f"model = '{tmp_path / 'missing.npz'}'\n")
+    cfg.write_text(f"[radar_filter]\nmodel = '{tmp_path / 'missing.npz'}'\n")
     with pytest.raises(ConfigError, match="does not exist"):
         replay_radar("ekf-tsfuzzy", good, cfg, out)
 

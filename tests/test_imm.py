@@ -249,15 +249,16 @@ def test_config_errors_name_the_key(tmp_path: Path):
         with pytest.raises(ConfigError, match=match):
             load_imm_config(p)
 
-    fails("tresholds = 1\n", "unknown config key tresholds")
-    fails('[[models]]\nname = "a"\nacceleration = [0, 0]\nspeed = 3\n', r"unknown config key models\[0\]\.speed")
-    fails('[[models]]\nname = "a"\nacceleration = [0, 0]\n', "transition: expected a 1x1")
-    fails('transition = [[0.5, 0.6], [0.5, 0.5]]\n[[models]]\nname = "a"\nacceleration = [0, 0]\n'
-          '[[models]]\nname = "b"\nacceleration = [1, 0]\n[[groups]]\nname = "G"\nmodels = ["a", "b"]\n',
+    fails("[imm]\ntresholds = 1\n", r"c\.toml: unknown config key imm\.tresholds")
+    fails("tresholds = 1\n", r"c\.toml: unknown config key tresholds")
+    fails('[[imm.models]]\nname = "a"\nacceleration = [0, 0]\nspeed = 3\n', r"unknown config key imm\.models\[0\]\.speed")
+    fails('[[imm.models]]\nname = "a"\nacceleration = [0, 0]\n', "imm.transition: expected a 1x1")
+    fails('[imm]\ntransition = [[0.5, 0.6], [0.5, 0.5]]\n[[imm.models]]\nname = "a"\nacceleration = [0, 0]\n'
+          '[[imm.models]]\nname = "b"\nacceleration = [1, 0]\n[[imm.groups]]\nname = "G"\nmodels = ["a", "b"]\n',
           "transition: row 0")
-    fails('[[groups]]\nname = "G"\nmodels = ["m1", "m99"]\n', "unknown model 'm99'")
-    fails('termination_rule = "backwards"\n', "termination_rule")
-    fails('activation_threshold = 1.5\n', "activation_threshold")
+    fails('[[imm.groups]]\nname = "G"\nmodels = ["m1", "m99"]\n', "unknown model 'm99'")
+    fails('[imm]\ntermination_rule = "backwards"\n', "imm.termination_rule")
+    fails('[imm]\nactivation_threshold = 1.5\n', "imm.activation_threshold")
 
 
 def test_example_config_loads_and_runs():

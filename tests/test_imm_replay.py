@@ -54,7 +54,7 @@ def test_replay_matches_the_batched_filter(tmp_path: Path):
     rows, z = scenario_lines(40)
     x0 = [float(z[0, 0]), 340.0, float(z[0, 1]), 340.0]
     cfg_path = tmp_path / "c.toml"
-    cfg_path.write_text(f"x0 = {x0}\nP0 = [[400.0, 0, 0, 0], [0, 900.0, 0, 0], [0, 0, 400.0, 0], [0, 0, 0, 900.0]]\n")
+    cfg_path.write_text(f"[imm]\nx0 = {x0}\nP0 = [[400.0, 0, 0, 0], [0, 900.0, 0, 0], [0, 0, 400.0, 0], [0, 0, 0, 900.0]]\n")
     replay_imm("fsimm", write_lines(tmp_path / "m.jsonl", rows), cfg_path, tmp_path / "o.jsonl")
     out = [json.loads(line) for line in (tmp_path / "o.jsonl").read_text().splitlines()]
     cfg = IMMConfig()
@@ -97,12 +97,12 @@ def test_missing_field_and_bad_config_through_the_cli(tmp_path: Path, capsys):
     assert "m.jsonl:2: missing field 'R'" in capsys.readouterr().err
     good = write_lines(tmp_path / "g.jsonl", scenario_lines(3)[0])
     cfg = tmp_path / "c.toml"
-    cfg.write_text("activation_treshold = 0.5\n")
+    cfg.write_text("[imm]\nactivation_treshold = 0.5\n")
     assert cli_main(["replay", "--algorithm", "vsimm", "--measurements", str(good), "--config", str(cfg),
                      "--out", str(tmp_path / "o.jsonl")]) == 2
-    assert "unknown config key activation_treshold" in capsys.readouterr().err
+    assert f"{cfg}: unknown config key imm.activation_treshold" in capsys.readouterr().err
     with pytest.raises(ConfigError, match="x0"):
-        cfg.write_text("x0 = [1.0, 2.0]\n")
+        cfg.write_text("[imm]\nx0 = [1.0, 2.0]\n")
         replay_imm("fsimm", good, cfg, tmp_path / "o.jsonl")
 
 

@@ -73,11 +73,11 @@ def test_service_tracks_like_the_replay_tracker():
 
 def test_cli_rejects_a_bad_config_cleanly(tmp_path: Path):
     cfg = tmp_path / "c.toml"
-    cfg.write_text("transition_matrix = 1\n")
+    cfg.write_text("[imm]\ntransition_matrix = 1\n")
     run = subprocess.run([sys.executable, "-m", "fedtrack.cli", "serve", "imm", "--sensor", "s1", "--config", str(cfg),
                           "--connect", f"tcp/127.0.0.1:{free_port()}", "--connect-timeout", "0.3"],
                          cwd=ROOT, capture_output=True, text=True, timeout=60)
-    assert run.returncode == 2 and "unknown config key transition_matrix" in run.stderr
+    assert run.returncode == 2 and f"{cfg}: unknown config key imm.transition_matrix" in run.stderr
     assert "Traceback" not in run.stderr
     bad_id = subprocess.run([sys.executable, "-m", "fedtrack.cli", "serve", "imm", "--sensor", "a/b"],
                             cwd=ROOT, capture_output=True, text=True, timeout=60)

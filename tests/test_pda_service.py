@@ -61,6 +61,6 @@ def test_service_confirms_the_sonar_target() -> None:
 
 def test_bad_config_is_a_clean_error(tmp_path: Path, capsys: Any) -> None:
     cfg = tmp_path / "bad.toml"
-    cfg.write_text("[tracker]\nsnr = -1.0\n")
+    cfg.write_text("[pda.tracker]\nsnr = -1.0\n")
     assert main(["--sensor", "sonar1", "--config", str(cfg)]) == 2
-    assert "tracker.snr" in capsys.readouterr().err
+    assert f"{cfg}: pda.tracker.snr" in capsys.readouterr().err

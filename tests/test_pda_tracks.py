@@ -95,10 +95,10 @@ def test_replay_rejects_bad_input_naming_the_line(tmp_path: Path, bad: dict, mes
 
 
 @pytest.mark.parametrize("text, key", [
-    ("[tracker]\npd = 0.9\nbogus = 1\n", "tracker.bogus"),
-    ("[existence]\nconfirm_scans = 0\n", "existence.confirm_scans"),
-    ("[tracker]\npd = 1.5\n", "tracker.pd"),
-    ("unknown = 1\n", "unknown"),
+    ("[pda.tracker]\npd = 0.9\nbogus = 1\n", "c.toml: unknown config key pda.tracker.bogus"),
+    ("[pda.existence]\nconfirm_scans = 0\n", "c.toml: pda.existence.confirm_scans"),
+    ("[pda.tracker]\npd = 1.5\n", "c.toml: pda.tracker.pd"),
+    ("[tracker]\npd = 0.9\n", "c.toml: unknown config key tracker"),
 ])
 def test_replay_config_is_strict(tmp_path: Path, text: str, key: str):
     cfg = tmp_path / "c.toml"

@@ -48,6 +48,7 @@ from typing import Any, Callable, ClassVar
 import zenoh
 
 from fedtrack.config import ConfigError
+from fedtrack.deployment import deployment_of, endpoints_of
 from fedtrack.jsonl import InputError
 from fedtrack.keys import DEFAULT_DEPLOYMENT, InvalidName, Keys, check_id
 from fedtrack.wire import Health, Message, WireError, decode, encode
@@ -347,7 +348,18 @@ def service_parser(role: str, description: str, listen_default: tuple[str, ...] 
 
 
 def service_kwargs(parser: argparse.ArgumentParser, args: argparse.Namespace, mode: str = "client") -> dict[str, Any]:
-    """``Service.__init__`` keyword arguments from parsed arguments (bad values end in ``parser.error``)."""
+    """``Service.__init__`` keyword arguments from parsed arguments (bad values end in ``parser.error``).
+
+    A ``[deployment]`` table in ``--config`` gives the defaults of ``--deployment`` (its ``name``)
+    and, for clients, ``--connect`` (its ``connect``, else ``router_listen``).
+    """
+    config = getattr(args, "config", None)
+    dep = deployment_of(config)
+    if dep is not None:
+        args.deployment = args.deployment or dep.name
+        if mode == "client" and not args.connect:
+            args.connect = list(endpoints_of(config, dep))
+    args.deployment = args.deployment or DEFAULT_DEPLOYMENT
     try:
         check_id(args.id, "--id")
         if args.health_period <= 0:

@@ -3,7 +3,8 @@
 Defaults are paper 000: the 13 acceleration modes of eq. (9), the 5 groups of eq. (10)
 (first model = the group's centre, used by the activation logic) and the 13x13
 transition matrix (11) as read in the errata (row = from). Any other set can be given
-in TOML; unknown keys fail naming the key (``fedtrack.config.parse_dataclass``).
+in the ``[imm]`` table of the configuration file (``[[imm.models]]``, ``[[imm.groups]]``);
+unknown keys fail naming the file, the table and the key (``fedtrack.config.load_tables``).
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fedtrack.config import ConfigError, load_toml, parse_dataclass
+from fedtrack.config import ConfigError, load_tables
 from fedtrack.local_filters.imm.filter import (
     GROUP_PROBABILITY,
     TERMINATION_RULES,
@@ -74,7 +75,7 @@ def _matrix_rows(Pi: np.ndarray) -> tuple[tuple[float, ...], ...]:
 
 @dataclass(frozen=True)
 class IMMConfig:
-    """Everything an IMM run needs besides the measurements (keys of the replay TOML)."""
+    """Everything an IMM run needs besides the measurements (the ``[imm]`` table)."""
 
     models: tuple[ModelSpec, ...] = field(default_factory=_paper_models)
     groups: tuple[GroupSpec, ...] = field(default_factory=_paper_groups)
@@ -164,8 +165,13 @@ class IMMConfig:
         return [g.name for g in self.groups].index(self.initial_group) if self.initial_group else 0
 
 
+@dataclass(frozen=True)
+class IMMSettings:
+    """The table the IMM replay and ``serve imm`` read from the configuration file."""
+
+    imm: IMMConfig = field(default_factory=IMMConfig)
+
+
 def load_imm_config(path: Path | None) -> IMMConfig:
-    """Paper defaults, overridden by the TOML file at ``path`` if given."""
-    if path is None:
-        return IMMConfig()
-    return parse_dataclass(IMMConfig, load_toml(path), "")
+    """Paper defaults, overridden by the ``[imm]`` table of the file at ``path`` if given."""
+    return load_tables(path, IMMSettings).imm

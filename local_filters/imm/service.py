@@ -63,7 +63,7 @@ def main(argv: list[str]) -> int:
     parser = service_parser("imm", "single-sensor IMM tracker (FSIMM, VSIMM, activation-only VSIMM)")
     parser.add_argument("--sensor", required=True, type=id_arg("--sensor"), help="sensor id whose measurements to track")
     parser.add_argument("--algorithm", default=AO_VSIMM, choices=ALGORITHMS, help="(default: %(default)s)")
-    parser.add_argument("--config", help="IMM TOML configuration (default: paper 000's model set)")
+    parser.add_argument("--config", help="configuration file; reads [imm] (default: paper 000's model set)")
     args = parser.parse_args(argv)
     kwargs = service_kwargs(parser, args)
     cfg = load_imm_config(Path(args.config) if args.config else None)  # ConfigError: the CLI exits 2

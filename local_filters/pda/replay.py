@@ -1,6 +1,7 @@
 """``fedtrack replay --algorithm pda-ai|hpda``: the track manager over recorded sonar scans.
 
-Input (JSON Lines, one scan a line; other keys such as ``truth`` are ignored)::
+Input (JSON Lines, one scan a line; ``z`` (empty), ``kind``, ``seq``, ``stamp_ns`` and ``truth``
+may be present and are ignored; any other field is an error naming ``file:line``)::
 
     {"t": float, "sensor": str, "detections": [{"z": [x, y], "amplitude": a}, ...], "R": [[..]]}
 
@@ -22,12 +23,14 @@ from typing import Any, Iterator, NamedTuple
 
 import numpy as np
 
-from fedtrack.config import load_toml, parse_dataclass
+from fedtrack.config import load_tables
 from fedtrack.jsonl import (
+    SONAR_FIELDS,
     InputError,
     as_covariance,
     as_float,
     as_vector,
+    check_fields,
     read_jsonl,
     require,
 )
@@ -45,15 +48,22 @@ from fedtrack.local_filters.pda.tracks import (
 
 @dataclasses.dataclass(frozen=True)
 class PDAReplayConfig:
-    """TOML file: tables ``[tracker]`` (:class:`PDAParams`) and ``[existence]``."""
+    """The ``[pda]`` table: ``[pda.tracker]`` (:class:`PDAParams`) and ``[pda.existence]``."""
 
     tracker: PDAParams = PDAParams()
     existence: ExistenceConfig = ExistenceConfig()
 
 
+@dataclasses.dataclass(frozen=True)
+class PDASettings:
+    """The table the PDA replay and ``serve hpda`` read from the configuration file."""
+
+    pda: PDAReplayConfig = PDAReplayConfig()
+
+
 def load_config(path: Path | None) -> PDAReplayConfig:
-    """Strict config (unknown keys fail, naming the key); defaults without a file."""
-    return PDAReplayConfig() if path is None else parse_dataclass(PDAReplayConfig, load_toml(path))
+    """Strict config (unknown keys fail, naming the file, table and key); defaults without a file."""
+    return load_tables(path, PDASettings).pda
 
 
 class Scan(NamedTuple):
@@ -67,7 +77,8 @@ class Scan(NamedTuple):
 
 
 def parse_scan(obj: dict[str, Any], where: str) -> Scan:
-    """Validate one line: finite numbers, shapes, symmetric PD ``R``, positive amplitudes."""
+    """Validate one line: known fields, finite numbers, shapes, symmetric PD ``R``, positive amplitudes."""
+    check_fields(obj, SONAR_FIELDS, "sonar", where)
     t = as_float(require(obj, "t", where), "t", where)
     sensor = require(obj, "sensor", where)
     if not isinstance(sensor, str) or not sensor:

@@ -22,7 +22,7 @@ from typing import Any, Callable, NamedTuple
 import numpy as np
 
 from fedtrack.config import ConfigError, parse_dataclass
-from fedtrack.jsonl import InputError, as_covariance, as_float, as_vector, require
+from fedtrack.jsonl import RADAR_FIELDS, InputError, as_covariance, as_float, as_vector, check_fields, require
 from fedtrack.local_filters.radar.ekf import (
     CV3,
     MotionModel3D,
@@ -46,7 +46,6 @@ from fedtrack.progress import progress_bar
 
 ALGORITHMS = ("ekf", "ekf-ie", "ekf-tsfuzzy")
 MODEL_ENV = "FEDTRACK_TS_FUZZY_MODEL"
-MEASUREMENT_KEYS = {"t", "sensor", "z", "R", "sensor_position", "truth"}
 
 
 @dataclass(frozen=True)
@@ -190,9 +189,7 @@ class Measurement(NamedTuple):
 
 def parse_measurement(obj: dict[str, Any], where: str) -> Measurement:
     """Validate a replay-format measurement dict; errors name ``where`` and the field."""
-    unknown = sorted(set(obj) - MEASUREMENT_KEYS)
-    if unknown:
-        raise InputError(f"{where}: unknown field {unknown[0]!r} (allowed: {', '.join(sorted(MEASUREMENT_KEYS))})")
+    check_fields(obj, RADAR_FIELDS, "radar", where)
     sensor = require(obj, "sensor", where)
     if not isinstance(sensor, str) or not sensor:
         raise InputError(f"{where}: sensor must be a non-empty string")
@@ -253,11 +250,11 @@ class RadarFilter:
 
 
 def make_radar_filter(name: str, config: dict[str, Any] | EkfConfig | None = None) -> RadarFilter:
-    """A :class:`RadarFilter` for algorithm ``name`` from a config table (strict keys) or object."""
+    """A :class:`RadarFilter` for algorithm ``name`` from a ``[radar_filter]`` table (strict keys) or object."""
     if name not in CONFIG_CLASSES:
         raise ConfigError(f"algorithm: unknown radar filter {name!r} (expected one of {ALGORITHMS})")
     cls = CONFIG_CLASSES[name]
-    cfg = config if isinstance(config, EkfConfig) else parse_dataclass(cls, config or {})
+    cfg = config if isinstance(config, EkfConfig) else parse_dataclass(cls, config or {}, "radar_filter")
     if type(cfg) is not cls:
         raise ConfigError(f"config for {name} must be a {cls.__name__}")
     return RadarFilter(name, cfg)

@@ -1,28 +1,37 @@
 """``fedtrack replay --algorithm ekf|ekf-ie|ekf-tsfuzzy``: radar filters over recorded measurements.
 
-Input lines: ``{"t", "sensor", "z": [r, az, el], "R": 3x3, "sensor_position": [x, y, z]}`` (an
-optional ``truth`` field, as written by :func:`fedtrack.sensors.radar.radar_scans`, is ignored; any other
-field is an error). Output lines, one per input line from the second on (two-point
+Input lines: ``{"t", "sensor", "z": [r, az, el], "R": 3x3, "sensor_position": [x, y, z]}`` (the
+optional ``truth`` (written by :func:`fedtrack.sensors.radar.radar_scans`), ``kind``, ``seq`` and
+``stamp_ns`` are ignored; any other field is an error naming ``file:line``). Output lines, one per input line from the second on (two-point
 initialization): ``{"t", "x": [x, vx, y, vy, z, vz], "P": 6x6, "model", "maneuver"}``.
-The TOML config is one flat table with the keys of the algorithm's config class in
-:mod:`fedtrack.local_filters.radar.filters` (unknown keys are rejected).
+The configuration file's ``[radar_filter]`` table holds the keys of the algorithm's config
+class in :mod:`fedtrack.local_filters.radar.filters` (unknown keys are rejected).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
-from fedtrack.config import ConfigError, load_toml
+from fedtrack.config import ConfigError, in_file, load_tables
 from fedtrack.jsonl import InputError, read_jsonl, write_jsonl
 from fedtrack.local_filters.radar.filters import ALGORITHMS, make_radar_filter
+
+
+@dataclass(frozen=True)
+class RadarFilterSettings:
+    """The table the radar replay reads: ``[radar_filter]`` (checked by the chosen filter)."""
+
+    radar_filter: Any = None
 
 
 def replay_radar(algorithm: str, measurements: Path, config: Path | None, out: Path) -> int:
     """Run ``algorithm`` over ``measurements``; write estimates to ``out``; return their number."""
     if algorithm not in ALGORITHMS:
         raise ConfigError(f"algorithm: {algorithm!r} is not a radar filter ({', '.join(ALGORITHMS)})")
-    table = load_toml(config) if config is not None else {}
-    filt = make_radar_filter(algorithm, table)
+    with in_file(config):
+        filt = make_radar_filter(algorithm, load_tables(config, RadarFilterSettings).radar_filter)
     rows = []
     for lineno, obj in read_jsonl(measurements):
         est = filt.step(obj, where=f"{measurements}:{lineno}")

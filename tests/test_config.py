@@ -1,0 +1,102 @@
+"""One configuration language: one file configures every service; errors name file, table, key;
+unknown fields of every input format are errors naming ``file:line`` and the field."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from fedtrack.cli import main
+from fedtrack.config import ConfigError, load_tables
+from fedtrack.deploy.settings import load_settings
+from fedtrack.local_filters.imm.config import load_imm_config
+from fedtrack.local_filters.pda.replay import load_config as load_pda_config
+from fedtrack.local_filters.radar.filters import make_radar_filter
+from fedtrack.local_filters.radar.replay import RadarFilterSettings
+from fedtrack.local_filters.vdie.config import PipelineSettings
+from fedtrack.sensors.service import SensorSettings
+from fedtrack.services.base import service_kwargs, service_parser
+
+EVERY = Path(__file__).resolve().parents[1] / "deploy" / "every-service.toml"
+
+
+def test_one_file_configures_every_service() -> None:
+    launch = load_settings(EVERY)
+    assert launch.deployment.name == "every" and [s.id for s in launch.sensor] == ["1", "2"]
+    pipeline = load_tables(EVERY, PipelineSettings)  # fusion replay, local filter, fusion center
+    assert pipeline.sensor_ids == ("1", "2") and pipeline.fusion.vdie.window == 6
+    sensor = load_tables(EVERY, SensorSettings)
+    assert sensor.sonar.pd == 0.9 and sensor.radar.rate_hz == 50.0
+    assert load_imm_config(EVERY).q == 100.0
+    pda = load_pda_config(EVERY)
+    assert pda.tracker.pd == 0.9 and pda.existence.confirm_scans == 3
+    table = load_tables(EVERY, RadarFilterSettings).radar_filter
+    for algorithm in ("ekf", "ekf-ie"):
+        assert make_radar_filter(algorithm, table).config.q == 1.0
+
+
+def test_serve_config_sets_deployment_and_connect() -> None:
+    parser = service_parser("fusion-center", "test")
+    parser.add_argument("--config", type=Path)
+    kwargs = service_kwargs(parser, parser.parse_args(["--config", str(EVERY)]))
+    assert kwargs["deployment"] == "every" and kwargs["options"].connect == ("tcp/127.0.0.1:7447",)
+    explicit = parser.parse_args(["--config", str(EVERY), "--deployment", "other", "--connect", "tcp/127.0.0.1:1"])
+    kwargs = service_kwargs(parser, explicit)
+    assert kwargs["deployment"] == "other" and kwargs["options"].connect == ("tcp/127.0.0.1:1",)
+    assert service_kwargs(parser, parser.parse_args([]))["deployment"] == "default"
+
+
+def _pipeline(path: Path) -> PipelineSettings:
+    return load_tables(path, PipelineSettings)
+
+
+@pytest.mark.parametrize("text, message, consumers, algorithm", [
+    ("[imm]\nfoo = 1\n", "unknown config key imm.foo", (load_imm_config,), "fsimm"),
+    ("[pda.existence]\nfoo = 1\n", "unknown config key pda.existence.foo", (load_pda_config,), "hpda"),
+    ("[deployment]\nnmae = 'x'\n", "unknown config key deployment.nmae", (_pipeline,), "kf"),
+    ("[fusoin]\nq = 1.0\n", "unknown config key fusoin", (_pipeline, load_imm_config, load_pda_config), "fvdie"),
+])
+def test_config_errors_name_file_table_and_key(tmp_path: Path, text: str, message: str, consumers: tuple,
+                                               algorithm: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """The table's consumers and ``launch`` (which checks every table) name file, table and key."""
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(text)
+    for load in (load_settings, *consumers):
+        with pytest.raises(ConfigError, match=f"^{cfg}: {message}"):
+            load(cfg)
+    meas = tmp_path / "m.jsonl"
+    meas.write_text(json.dumps(SONAR if algorithm == "hpda" else POSITION) + "\n")
+    assert main(["replay", "--algorithm", algorithm, "--measurements", str(meas), "--config", str(cfg),
+                 "--out", str(tmp_path / "o.jsonl")]) == 2
+    assert f"{cfg}: {message}" in capsys.readouterr().err
+
+
+POSITION = {"t": 0.0, "sensor": "1", "z": [1.0, 2.0], "R": [[1.0, 0.0], [0.0, 1.0]]}
+SONAR = {"t": 0.0, "sensor": "s", "z": [], "R": [[1.0, 0.0], [0.0, 1.0]],
+         "detections": [{"z": [1.0, 2.0], "amplitude": 30.0}]}
+RADAR = {"t": 0.0, "sensor": "r", "z": [2000.0, 0.1, 0.2], "R": [[225.0, 0, 0], [0, 4e-6, 0], [0, 0, 4e-6]],
+         "sensor_position": [0.0, 0.0, 0.0]}
+
+
+@pytest.mark.parametrize("algorithm, line", [
+    ("kf", POSITION), ("fvdie", POSITION), ("fsimm", POSITION), ("hpda", SONAR), ("ekf", RADAR)])
+def test_unknown_input_field_names_file_line_and_field(tmp_path: Path, algorithm: str, line: dict,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    meas = tmp_path / "m.jsonl"
+    second = {**line, "t": 1.0, "truth": [0.0], "bogus": 1}
+    meas.write_text(json.dumps(line) + "\n" + json.dumps(second) + "\n")
+    assert main(["replay", "--algorithm", algorithm, "--measurements", str(meas),
+                 "--out", str(tmp_path / "o.jsonl")]) == 2
+    assert f"{meas}:2: unknown field 'bogus'" in capsys.readouterr().err
+
+
+def test_effective_config_round_trips(tmp_path: Path) -> None:
+    """``demo`` writes the effective configuration (``to_toml``); it reads back identical."""
+    from fedtrack.config import to_toml
+    from fedtrack.deploy.demo import settings_table
+
+    settings = load_settings(EVERY)
+    (tmp_path / "c.toml").write_text(to_toml(settings_table(settings)))
+    assert load_settings(tmp_path / "c.toml") == settings
