@@ -1,7 +1,7 @@
 """Interacting multiple model (IMM) estimators over mode-conditioned CV Kalman filters.
 
 Paper 000 (Choi & Song, "The activation-only VSIMM algorithm for maneuvering target
-tracking") with the corrected standard forms of its errata (``/work/shared/papers/README.md``):
+tracking") with the corrected standard forms of its errata (docs/papers.md):
 
 * Each mode ``m`` is a CV Kalman filter whose prediction carries the mode's known
   acceleration: ``x(k|k-1) = F x0 + G a_m`` (eqs. (7), (9); errata "+ G a_m").

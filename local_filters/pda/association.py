@@ -1,6 +1,6 @@
 """PDA-AI, HPDA and their track-existence recursions (paper 001), as pure batched functions.
 
-Corrected standard forms (paper 001 errata, /work/shared/papers/README.md):
+Corrected standard forms (paper 001 errata, docs/papers.md):
 
 * (4): the amplitude term of the numerator is ``A_i`` (the printed ``A_j`` is a typo);
   ``C_gamma = P(n/2 + 1, gamma/2) / P(n/2, gamma/2)`` (regularized lower incomplete

@@ -14,7 +14,7 @@ DVDIE sensors). A run's state is stored in the CA order ``[x, vx, ax, y, vy, ay]
 whatever its model; for a run in CV the acceleration entries are placeholders
 (mean 0, variance 1, no correlation) that are never read.
 
-Equation readings (see ``../shared/papers/README.md``):
+Equation readings (see the errata in docs/papers.md):
 
 * (58): the middle ``P(j|j-1)`` is ``P(j|j)``; ``[F T(j-1) + I] B``; the inverse
   covers the whole first sum. Then ``W(j) = Theta' (sum_i H_i' S_i^-1 H_i) Theta``
