@@ -20,6 +20,7 @@ from fedtrack.fusion_center.trackers import make_tracker
 from fedtrack.local_filters.linear.kalman import nees
 from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.local_filters.vdie.estimation import EVENT_NEW_CA, EVENT_ONSET
+from fedtrack.experiments.tables import announce
 from fedtrack.progress import progress_bar
 from fedtrack.sensors.scenarios import DEFAULT_R, Scenario, paper004_scenario, simulate_positions, simulate_truth
 
@@ -125,6 +126,8 @@ def reproduce_fvdie(runs: int, seed: int, json_path: Path, plots_dir: Path | Non
     """Monte Carlo of FVDIE, DVDIE and kf on paper 004 scenarios 1 and 2 with two sensors."""
     if runs < 2:
         raise ValueError("--runs must be at least 2 (standard errors need two runs)")
+    announce(f"reproduce fvdie: paper 004, FVDIE, DVDIE and the centralized KF with two sensors on "
+             f"scenarios 1 and 2, {runs} Monte Carlo runs each, seed {seed}")
     wall = time.perf_counter()
     config = FusionConfig()
     settle_s = config.vdie.window * 1.0

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from fedtrack.experiments.tables import announce, pm, print_table
 from fedtrack.local_filters.linear.kalman import predict
 from fedtrack.local_filters.pda.association import (
     PDAParams,
@@ -196,8 +197,10 @@ def table2(runs: int, seed: int, progress: tqdm) -> dict[str, Any]:
 
 def reproduce_hpda(runs: int, seed: int, json_path: Path, plots_dir: Path | None) -> dict[str, Any]:
     """Both tables of paper 001; writes ``json_path`` (and PNGs to ``plots_dir``)."""
-    wall0 = time.perf_counter()
     cells = [(pd, lam) for pd in PDS for lam in LAMBDAS]
+    announce(f"reproduce hpda: paper 001, Table 1 (PDA-AI vs HPDA track loss, {len(cells)} (P_D, lambda) cells) "
+             f"and Table 2 (IPDA-AI vs HPDA initiation), {runs} Monte Carlo runs each, seed {seed}")
+    wall0 = time.perf_counter()
     result: dict[str, Any] = {"runs": runs, "seed": seed, "track_loss_rule": TRACK_LOSS_RULE}
     with progress_bar(len(cells) + 2 * runs, "reproduce hpda") as progress:
         rows = []
@@ -211,7 +214,28 @@ def reproduce_hpda(runs: int, seed: int, json_path: Path, plots_dir: Path | None
     json_path.write_text(json.dumps(result, indent=1))
     if plots_dir is not None:
         plot_all(result, seed, plots_dir)
+    print_summary(result)
     return result
+
+
+def print_summary(result: dict[str, Any]) -> None:
+    """Table 1 (track loss per cell, paper beside ours) and Table 2 (initiation time bins)."""
+    rows = [[f"{c['pd']:g}", f"{c['lambda']:g}",
+             pm(c["pda_ai"]["track_loss_pct"], c["pda_ai"]["stderr_pct"], 1),
+             f"{c['paper']['pda_ai']['track_loss_pct']:g}",
+             pm(c["hpda"]["track_loss_pct"], c["hpda"]["stderr_pct"], 1),
+             f"{c['paper']['hpda']['track_loss_pct']:g}",
+             pm(c["hpda_minus_pda_ai"]["pct"], c["hpda_minus_pda_ai"]["paired_stderr_pct"], 1)]
+            for c in result["table1"]]
+    print_table(f"Table 1: track loss [%] (+- standard error), {result['runs']} runs per cell",
+                ["P_D", "lambda", "PDA-AI", "paper", "HPDA", "paper", "HPDA - PDA-AI"], rows)
+    t2 = result["table2"]
+    bins = [f"{lo:g}-{hi:g} s" for lo, hi in t2["bins_s"]]
+    rows = [[name, *(f"{n} ({p})" for n, p in zip(t2[key]["counts"], t2["paper"][key])), str(t2[key]["never"]),
+             pm(t2[key]["mean_s"], None, 1), f"{t2[key]['false_confirmed_per_run_in_blackout']:.2f}"]
+            for key, name in (("ipda_ai", "IPDA-AI"), ("hpda", "HPDA"))]
+    print_table(f"Table 2: confirmation time, runs per bin (paper's count in brackets), P_D = {t2['pd']:g}, "
+                f"lambda = {t2['lambda']:g}", ["tracker", *bins, "never", "mean [s]", "false/run"], rows)
 
 
 # Figures (paper 001 Figs. 2-4) for ``--plots DIR``.

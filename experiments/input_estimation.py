@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from fedtrack.experiments.tables import announce, pm, print_table
 from fedtrack.local_filters.radar.ekf import CV3, motion_model_3d
 from fedtrack.local_filters.radar.filters import (
     EkfIEConfig,
@@ -133,6 +134,8 @@ def plot_x_error(t: np.ndarray, filters: dict[str, Any], turn_t: float, path: Pa
 
 def reproduce_input_estimation(runs: int, seed: int, json_path: Path, plots_dir: Path | None) -> dict:
     """Paper 002: plain CV EKF vs EKF with direct input estimation over ``runs`` runs."""
+    announce(f"reproduce input-estimation: paper 002, CV EKF vs EKF with direct input estimation on the "
+             f"3-D radar turn scenario, {runs} Monte Carlo runs, seed {seed}")
     wall0 = time.perf_counter()
     radar, cfg = RadarConfig(), EkfIEConfig()
     traj, zs = simulate(radar, runs, np.random.default_rng(seed))
@@ -162,4 +165,19 @@ def reproduce_input_estimation(runs: int, seed: int, json_path: Path, plots_dir:
                       f"Paper 002 Fig. 4: x-axis RMS error ({runs} runs)")
     result["wall_time_s"] = time.perf_counter() - wall0
     write(result, json_path)
+    print_summary(result)
+    acc = result["acceptance"]
+    print(f"  turn RMS ratio EKF-IE / EKF {pm(acc['turn_ratio_ie_over_ekf'], acc['turn_ratio_se'], 3)} "
+          f"(at most 1/3: {acc['turn_ratio_at_most_one_third']}), straight ratio "
+          f"{pm(acc['straight_ratio_ie_over_ekf'], acc['straight_ratio_se'], 3)}")
     return result
+
+
+def print_summary(result: dict[str, Any]) -> None:
+    """Position RMS on the straight and the turn segments, maneuver flags, per-axis MSE (papers 002, 003)."""
+    rows = [[name, pm(f["mean_rms_pos_straight"], f["mean_rms_pos_straight_se"]),
+             pm(f["mean_rms_pos_turn"], f["mean_rms_pos_turn_se"]), f"{f['maneuver_fraction_turn']:.2f}",
+             " / ".join(f"{v:.1f}" for v in f["mse_pos_axis"])]
+            for name, f in result["filters"].items()]
+    print_table(f"paper {result['paper']}: position error, {result['runs']} runs (seed {result['seed']})",
+                ["filter", "RMS straight [m]", "RMS turn [m]", "maneuver flag (turn)", "MSE x / y / z [m^2]"], rows)

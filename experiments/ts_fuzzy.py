@@ -25,11 +25,13 @@ from fedtrack.experiments.input_estimation import (
     TRAIN_TAG,
     metrics,
     plot_x_error,
+    print_summary,
     run_filters,
     scenario_json,
     scenario_rng,
     write,
 )
+from fedtrack.experiments.tables import announce
 from fedtrack.local_filters.radar.ekf import CV3, motion_model_3d
 from fedtrack.local_filters.radar.filters import (
     MODEL_ENV,
@@ -129,21 +131,33 @@ def _plot_state_sq(t: np.ndarray, sq: dict[str, np.ndarray], path: Path, runs: i
     plt.close(fig)
 
 
-def reproduce_ts_fuzzy(runs: int, seed: int, json_path: Path, plots_dir: Path | None) -> dict:
+def reproduce_ts_fuzzy(runs: int, seed: int, json_path: Path, plots_dir: Path | None,
+                       model: Path | None = None) -> dict:
     """Paper 003: plain CV EKF vs TS-fuzzy compensated EKF on held-out runs.
 
-    The model is loaded from ``$FEDTRACK_TS_FUZZY_MODEL`` if set; otherwise it is trained here
-    (``TS_TRAIN_RUNS`` runs, paper GA settings) on the training stream of ``seed``. Evaluation
-    runs use the evaluation stream, disjoint from every training stream.
+    The model is loaded from ``model`` (``--model``), else from ``$FEDTRACK_TS_FUZZY_MODEL`` if
+    set; otherwise it is trained here (``TS_TRAIN_RUNS`` runs, paper GA settings) on the training
+    stream of ``seed``, which takes minutes. Evaluation runs use the evaluation stream, disjoint
+    from every training stream.
     """
     wall0 = time.perf_counter()
     radar, cfg = RadarConfig(), EkfTsFuzzyConfig()
-    env_path = os.environ.get(MODEL_ENV, "")
-    if env_path:
-        ts = load_compatible_model(Path(env_path))
-        training = {"source": env_path, **{k: v.item() for k, v in load_model(env_path)[1].items()}}
+    model = model or (Path(os.environ[MODEL_ENV]) if os.environ.get(MODEL_ENV) else None)
+    what = f"CV EKF vs TS-fuzzy compensated EKF on the 3-D radar turn scenario, {runs} runs, seed {seed}"
+    if model is not None:
+        if not model.is_file():
+            raise ConfigError(f"--model: {model} does not exist")
+        announce(f"reproduce ts-fuzzy: paper 003, {what}; model {model}")
+        ts = load_compatible_model(model)
+        training = {"source": str(model), **{k: v.item() for k, v in load_model(model)[1].items()}}
     else:
-        ts, summary = train(TS_TRAIN_RUNS, seed, GAParams(), cfg.q)
+        ga = GAParams()
+        announce(f"reproduce ts-fuzzy: paper 003, {what}.\n"
+                 f"No model given (--model PATH or ${MODEL_ENV}): training a model: {ga.generations} generations "
+                 f"of {ga.population} (GA, then RLS) on {TS_TRAIN_RUNS} simulated runs; this takes minutes. "
+                 "'fedtrack train ts-fuzzy --out MODEL.npz' saves a model for --model.")
+        ts, summary = train(TS_TRAIN_RUNS, seed, ga, cfg.q)
+        announce(f"trained: {summary['rules']} rules in {summary['train_wall_s']:.0f} s; evaluating")
         training = {"source": "trained by this command", "train_tag": TRAIN_TAG, "train_seed": seed,
                     "train_runs": TS_TRAIN_RUNS, **summary}
     traj, zs = simulate(radar, runs, scenario_rng(EVAL_TAG, seed))
@@ -173,4 +187,7 @@ def reproduce_ts_fuzzy(runs: int, seed: int, json_path: Path, plots_dir: Path | 
                       f"EKF vs TS-fuzzy compensated EKF: x-axis RMS error ({runs} runs)")
     result["wall_time_s"] = time.perf_counter() - wall0
     write(result, json_path)
+    print_summary(result)
+    print(f"  model: {training['source']}; TS-fuzzy MSE below the EKF's on every axis: "
+          f"{result['acceptance']['tsfuzzy_lower_mse_each_axis']}")
     return result

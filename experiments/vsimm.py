@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from fedtrack.experiments.tables import announce, pm, print_table
 from fedtrack.local_filters.imm.config import IMMConfig
 from fedtrack.local_filters.imm.filter import (
     AO_VSIMM,
@@ -207,6 +208,8 @@ def reproduce_vsimm(runs: int, seed: int, json_path: Path, plots_dir: Path | Non
     """Run S1 and S2 with ``runs`` Monte Carlo runs, write the JSON (and plots), return the dict."""
     if runs < 1:
         raise ValueError("runs must be at least 1")
+    announce(f"reproduce vsimm: paper 000, FSIMM, VSIMM, AO-VSIMM (and VSIMM as printed) on scenarios "
+             f"{' and '.join(SCENARIOS)}, {runs} Monte Carlo runs each, seed {seed}")
     start = time.monotonic()
     cfg = IMMConfig()
     rng = np.random.default_rng(seed)
@@ -219,4 +222,16 @@ def reproduce_vsimm(runs: int, seed: int, json_path: Path, plots_dir: Path | Non
     json_path.write_text(json.dumps(out, indent=1))
     if plots_dir is not None:
         _plot(out, plots_dir)
+    print_summary(out)
     return out
+
+
+def print_summary(result: dict[str, Any]) -> None:
+    """Per scenario: acceleration RMS (mean over runs +- standard error), ratios to FSIMM, models, CPU."""
+    for scen, sres in result["scenarios"].items():
+        rows = [[name, pm(f["per_run_rms_acc"]["mean"], f["per_run_rms_acc"]["se"]),
+                 pm(f["per_run_rms_acc_ratio_to_fsimm"]["mean"], f["per_run_rms_acc_ratio_to_fsimm"]["se"], 3),
+                 f"{f['models_run_per_step']:.2f}", f"{f['cpu_ratio_to_fsimm']:.2f}"]
+                for name, f in sres["filters"].items()]
+        print_table(f"scenario {scen}: acceleration RMS error [m/s^2], {result['runs']} runs",
+                    ["filter", "RMS acc +- se", "ratio to FSIMM", "models/step", "CPU / FSIMM"], rows)

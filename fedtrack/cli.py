@@ -80,8 +80,9 @@ def resolve(target: str) -> Callable[..., Any]:
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
     fn = resolve(REPRODUCERS[args.name])
+    extra = {"model": Path(args.model)} if args.model else {}
     result = fn(runs=args.runs, seed=args.seed, json_path=Path(args.json),
-                plots_dir=Path(args.plots) if args.plots else None)
+                plots_dir=Path(args.plots) if args.plots else None, **extra)
     print(f"wrote {args.json} ({result.get('runs', args.runs)} runs, "
           f"{result.get('wall_time_s', float('nan')):.1f} s)")
     return 0
@@ -127,10 +128,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     rep = sub.add_parser("reproduce", help="seeded Monte Carlo reproduction of a paper")
     rep.add_argument("name", choices=sorted(REPRODUCERS))
-    rep.add_argument("--runs", type=int, default=500)
-    rep.add_argument("--seed", type=int, default=1)
+    rep.add_argument("--runs", type=int, default=500, help="Monte Carlo runs (default: %(default)s)")
+    rep.add_argument("--seed", type=int, default=1, help="random seed (default: %(default)s)")
     rep.add_argument("--json", required=True, help="output JSON path")
     rep.add_argument("--plots", help="directory for PNG figures")
+    rep.add_argument("--model", metavar="PATH", help="ts-fuzzy only: a trained model (fedtrack train ts-fuzzy --out "
+                     "PATH) instead of training one, which takes minutes")
     rep.set_defaults(func=_cmd_reproduce)
 
     rpl = sub.add_parser("replay", help="run an estimator over recorded measurements (JSON Lines)")
@@ -159,6 +162,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.func is not None:
             if rest:
                 parser.error(f"unrecognized arguments: {' '.join(rest)}")
+            if getattr(args, "model", None) and args.name != "ts-fuzzy":
+                parser.error("--model applies to reproduce ts-fuzzy only")
             return int(args.func(args) or 0)
         if args.key is None:
             return int(resolve(args.registry[args.command])(rest) or 0)

@@ -1,0 +1,53 @@
+"""Every ``fedtrack reproduce`` says what it does and prints its results table; ts-fuzzy takes
+``--model`` and announces the training it would otherwise do."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from fedtrack import cli
+
+TITLES = {"fvdie": "x position RMS error", "vsimm": "acceleration RMS error", "hpda": "Table 2:",
+          "input-estimation": "paper 002: position error", "ts-fuzzy": "paper 003: position error"}
+
+
+@pytest.fixture(scope="module")
+def tiny_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("model") / "m.npz"
+    assert cli.main(["train", "ts-fuzzy", "--runs", "2", "--generations", "2", "--population", "8",
+                     "--out", str(out)]) == 0
+    return out
+
+
+@pytest.mark.parametrize("name", sorted(cli.REPRODUCERS))
+def test_reproduce_announces_and_prints_its_table(name: str, tmp_path: Path, tiny_model: Path,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    model = ["--model", str(tiny_model)] if name == "ts-fuzzy" else []
+    capsys.readouterr()
+    assert cli.main(["reproduce", name, "--runs", "2", "--seed", "3", "--json", str(tmp_path / "r.json"), *model]) == 0
+    out, err = capsys.readouterr()
+    assert f"reproduce {name}: paper" in err
+    assert TITLES[name] in out and "+-" in out, out
+
+
+def test_ts_fuzzy_says_it_trains(tmp_path: Path, tiny_model: Path, monkeypatch: pytest.MonkeyPatch,
+                                 capsys: pytest.CaptureFixture[str]) -> None:
+    from fedtrack.experiments import ts_fuzzy
+    from fedtrack.local_filters.radar.ts_fuzzy import load_model
+
+    trained = []
+
+    def fake_train(runs: int, seed: int, ga: object, q: float) -> tuple:
+        trained.append(ga)
+        return load_model(tiny_model)[0], {"rules": 1, "train_wall_s": 0.0}
+
+    monkeypatch.delenv(ts_fuzzy.MODEL_ENV, raising=False)
+    monkeypatch.setattr(ts_fuzzy, "train", fake_train)
+    assert cli.main(["reproduce", "ts-fuzzy", "--runs", "2", "--json", str(tmp_path / "r.json")]) == 0
+    assert f"training a model: {ts_fuzzy.GAParams().generations} generations" in capsys.readouterr().err
+    assert len(trained) == 1
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["reproduce", "vsimm", "--runs", "2", "--json", str(tmp_path / "v.json"), "--model", str(tiny_model)])
+    assert exc.value.code == 2
