@@ -177,17 +177,22 @@ class Launcher:
                                  "continuing without it\n")
 
     def stop_all(self) -> None:
-        """SIGTERM every child still running (reverse start order), SIGKILL after a grace period."""
+        """SIGTERM every child still running (reverse start order), SIGKILL after a grace period.
+
+        The routers go last, once the others have exited: their final Health (counters after
+        the last line was written) still reaches the monitor, so the report's counters are final.
+        """
         running = [sp for sp in reversed(self.plan) if sp.proc is not None and sp.proc.poll() is None]
-        for sp in running:
-            sp.proc.send_signal(signal.SIGTERM)
-        deadline = time.monotonic() + STOP_GRACE_S
-        for sp in running:
-            try:
-                sp.proc.wait(timeout=max(deadline - time.monotonic(), 0.05))
-            except subprocess.TimeoutExpired:
-                sp.proc.kill()
-                sp.proc.wait(timeout=5)
+        for group in ([sp for sp in running if sp.role != "router"], [sp for sp in running if sp.role == "router"]):
+            for sp in group:
+                sp.proc.send_signal(signal.SIGTERM)
+            deadline = time.monotonic() + STOP_GRACE_S
+            for sp in group:
+                try:
+                    sp.proc.wait(timeout=max(deadline - time.monotonic(), 0.05))
+                except subprocess.TimeoutExpired:
+                    sp.proc.kill()
+                    sp.proc.wait(timeout=5)
         for sp in self.plan:
             if sp.proc is not None:
                 self.report.exit_codes[sp.name] = sp.proc.returncode
@@ -346,7 +351,7 @@ def main(argv: list[str]) -> int:
     except LaunchError as exc:
         print(f"fedtrack launch: {exc}", file=sys.stderr)
         return 1
-    p50, p99 = report.latency_percentiles()
-    print(f"scans fused {report.scans_fused}, latency p50 {p50:.2f} ms p99 {p99:.2f} ms, "
-          f"rejected messages {report.rejected()}, {report.wall_s:.1f} s")
+    from fedtrack.deploy.report import finish  # after the run: matplotlib only loads now
+
+    finish(out, settings, report, args.config.resolve(), "fedtrack launch")
     return 1 if report.failed or any(c not in (0, None) for c in report.exit_codes.values()) else 0

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from fedtrack.config import ConfigError
-from fedtrack.deploy.demo import REPLAY_ALGORITHM
+from fedtrack.deploy.report import REPLAY_ALGORITHM
 from fedtrack.deploy.settings import load_settings
 from fedtrack.fusion_center.replay import replay_fusion
 from fedtrack.jsonl import InputError, read_jsonl

@@ -16,7 +16,6 @@ import queue
 import sys
 import time
 
-import zenoh
 from wire_contract import decode, from_array, session
 
 

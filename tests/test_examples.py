@@ -11,7 +11,6 @@ from pathlib import Path
 
 import msgpack
 import zenoh
-
 from support import free_port
 
 ROOT = Path(__file__).resolve().parents[1]

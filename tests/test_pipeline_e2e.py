@@ -57,6 +57,14 @@ def test_network_tracks_equal_replay(tmp_path, mode, algorithm):
     meas = rows(tmp_path / "measurements.jsonl")
     assert len(tracks) == 101 and len(meas) == 303
     assert not any(t["degraded"] for t in tracks)
+    assert all("event" in t for t in tracks)  # the replay's field, null when no decision
+    # launch writes truth, summary and plot like the demo; the recorder's counters are final
+    assert len(rows(tmp_path / "truth.jsonl")) == 101 and (tmp_path / "tracks.png").stat().st_size > 0
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["scans"] == 101 and summary["rms_position_error_m"] < 20.0
+    recorder = summary["health"]["recorder/recorder"]
+    assert recorder["measurements_written"] == 303 and recorder["tracks_written"] == 101
+    assert "fedtrack launch summary" in proc.stdout
     out = tmp_path / "replay.jsonl"
     assert cli_main(["replay", "--algorithm", algorithm, "--config", str(cfg),
                      "--measurements", str(tmp_path / "measurements.jsonl"), "--out", str(out)]) == 0

@@ -2,7 +2,8 @@
 
 Writes ``DIR/measurements.jsonl`` (replay input, one line per Measurement, see
 :func:`fedtrack.wire.measurement_to_replay`) and ``DIR/tracks.jsonl`` (replay
-output, one line per FusedTrack, see :func:`fedtrack.wire.track_to_replay`),
+output, one line per FusedTrack, see :func:`fedtrack.wire.track_to_replay`, with ``event``
+always present as in the fusion replay: null when the scan took no maneuver decision),
 flushed line by line, in scan (``seq``) order. It publishes only its Health.
 
 Ordering: messages from several sensors arrive interleaved, so lines are buffered
@@ -121,7 +122,9 @@ class Recorder(Service):
 
     def on_track(self, msg: FusedTrack) -> None:
         assert self._tracks is not None
-        self._tracks.add("fusion", msg.seq, (msg.t,), track_to_replay(msg))
+        row = track_to_replay(msg)
+        row.setdefault("event", None)  # the fusion replay's field: null when no maneuver decision
+        self._tracks.add("fusion", msg.seq, (msg.t,), row)
         self._update_counters()
 
     def on_tick(self) -> None:

@@ -1,0 +1,169 @@
+"""What ``demo`` and ``launch`` write and print after a run: truth, summary and plot.
+
+In the output directory: ``truth.jsonl`` (the simulated target of the deployment's paper 004
+scenario and seed, when this host ran fedtrack's simulated sensors), ``summary.json`` (scans,
+fused RMS position error against truth, maneuver events, latency, rejected messages, every
+service's final Health counters, exit codes) and ``tracks.png`` (truth, measurements, fused
+track and its error), next to the recorder's ``measurements.jsonl`` and ``tracks.jsonl``.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from fedtrack.deploy.settings import Settings
+from fedtrack.jsonl import write_jsonl
+from fedtrack.sensors.scenarios import deployment_truth, paper004_scenario
+
+if TYPE_CHECKING:
+    from fedtrack.deploy.launcher import LaunchReport
+
+REPLAY_ALGORITHM = {"federated": "fvdie", "decentralized": "dvdie"}
+
+
+def _lines(path: Path) -> list[dict[str, Any]]:
+    return [json.loads(line) for line in path.read_text().splitlines()] if path.is_file() else []
+
+
+def write_truth(out: Path, settings: Settings) -> Path:
+    """``truth.jsonl``: the target of the deployment's scenario and seed, one line per scan."""
+    scenario = paper004_scenario(settings.deployment.scenario)
+    truth = deployment_truth(scenario, settings.deployment.seed)
+    path = out / "truth.jsonl"
+    write_jsonl(path, [{"t": float(t), "x": float(s[0]), "vx": float(s[1]), "ax": float(s[2]),
+                        "y": float(s[3]), "vy": float(s[4]), "ay": float(s[5])}
+                       for t, s in zip(scenario.times, truth)])
+    return path
+
+
+def _position(track: dict[str, Any]) -> tuple[float, float]:
+    return track["x"][0], track["x"][3 if track["model"] == "ca" else 2]
+
+
+def summarize(out: Path, settings: Settings, report: LaunchReport, config_path: Path) -> dict[str, Any]:
+    """The summary of a run: from the recorder's files in ``out`` (when this host recorded)
+    and what the launcher saw; errors against truth only when ``truth.jsonl`` was written."""
+    dep = settings.deployment
+    tracks = _lines(out / "tracks.jsonl")
+    truth = {p["t"]: p for p in _lines(out / "truth.jsonl")}
+    pos_err = [np.hypot(x - truth[tr["t"]]["x"], y - truth[tr["t"]]["y"])
+               for tr in tracks if tr["t"] in truth for x, y in [_position(tr)]]
+    p50, p99 = report.latency_percentiles()
+    events = [{"t": tr["t"], "event": tr["event"]} for tr in tracks if tr.get("event")]
+    return {
+        "scans": len(tracks) if tracks else report.scans_fused,
+        "scans_expected": len(truth) or None,
+        "degraded_scans": sum(bool(tr.get("degraded")) for tr in tracks),
+        "rms_position_error_m": float(np.sqrt(np.mean(np.square(pos_err)))) if pos_err else None,
+        "maneuver_events": events,
+        "maneuvers_detected_at": [e["t"] for e in events if e["event"] in ("onset", "new-ca")],
+        "latency_ms": {"p50": p50, "p99": p99, "samples": len(report.latencies_ms)},
+        "rejected_messages": report.rejected(),
+        "health": report.health,
+        "exit_codes": report.exit_codes,
+        "wall_time_s": report.wall_s,
+        "mode": dep.mode,
+        "sensors": [s.id for s in settings.sensor],
+        "replay_command": (f"fedtrack replay --algorithm {REPLAY_ALGORITHM[dep.mode]} "
+                           f"--config {config_path} --measurements {out / 'measurements.jsonl'} "
+                           f"--out {out / 'replay.jsonl'}"),
+    }
+
+
+def print_summary(summary: dict[str, Any], title: str) -> None:
+    rms = summary["rms_position_error_m"]
+    expected = f" of {summary['scans_expected']}" if summary["scans_expected"] else ""
+    rows = [
+        ("mode", summary["mode"]),
+        ("sensors", ", ".join(summary["sensors"])),
+        ("scans fused", f"{summary['scans']}{expected} ({summary['degraded_scans']} degraded)"),
+        ("fused RMS position error", f"{rms:.2f} m" if rms is not None else "n/a (no truth or no tracks here)"),
+        ("maneuver events", ", ".join(f"{e['event']}@{e['t']:g}s" for e in summary["maneuver_events"]) or "none"),
+        ("latency publish->track", f"p50 {summary['latency_ms']['p50']:.2f} ms, p99 {summary['latency_ms']['p99']:.2f} ms"),
+        ("rejected messages", str(summary["rejected_messages"])),
+        ("wall time", f"{summary['wall_time_s']:.1f} s"),
+    ]
+    width = max(len(k) for k, _ in rows)
+    print(f"\n{title} summary")
+    for k, v in rows:
+        print(f"  {k:<{width}}  {v}")
+
+
+def plot(out: Path, settings: Settings, title: str) -> Path | None:
+    """``tracks.png``; None when this host has no truth, measurements or tracks to draw."""
+    if not all((out / f).is_file() and (out / f).stat().st_size for f in ("truth.jsonl", "measurements.jsonl", "tracks.jsonl")):
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    truth = [json.loads(x) for x in (out / "truth.jsonl").read_text().splitlines()]
+    meas = [json.loads(x) for x in (out / "measurements.jsonl").read_text().splitlines()]
+    tracks = [json.loads(x) for x in (out / "tracks.jsonl").read_text().splitlines()]
+    fig, (ax, ax_err) = plt.subplots(1, 2, figsize=(14, 6), gridspec_kw={"width_ratios": [1.1, 1]})
+    ax.plot([p["x"] / 1e3 for p in truth], [p["y"] / 1e3 for p in truth], "k-", lw=2, label="truth")
+    for sid in sorted({m["sensor"] for m in meas}):
+        pts = np.array([m["z"] for m in meas if m["sensor"] == sid]) / 1e3
+        ax.plot(pts[:, 0], pts[:, 1], ".", ms=3, alpha=0.5, label=f"sensor {sid} measurements")
+    xy = np.array([[t["x"][0], t["x"][3 if t["model"] == "ca" else 2]] for t in tracks]) / 1e3
+    ax.plot(xy[:, 0], xy[:, 1], "r-", lw=1, label="fused track")
+    ca = np.array([t["model"] == "ca" for t in tracks])
+    ax.plot(xy[ca, 0], xy[ca, 1], "r^", ms=4, label="fused, CA model (maneuver)")
+    for t, p in zip(tracks, xy):
+        if t.get("event") == "onset":
+            ax.annotate(f"onset {t['t']:g}s", p, textcoords="offset points", xytext=(8, 0), fontsize=8)
+    ax.set_xlabel("x [km]")
+    ax.set_ylabel("y [km]")
+    ax.set_aspect("equal")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best", fontsize=8)
+    ax.set_title("truth, measurements and fused track")
+
+    truth_at = {p["t"]: (p["x"], p["y"]) for p in truth}
+    t_tr = np.array([t["t"] for t in tracks])
+    err = np.array([np.hypot(p[0] * 1e3 - truth_at[t][0], p[1] * 1e3 - truth_at[t][1]) for t, p in zip(t_tr, xy)])
+    for sid in sorted({m["sensor"] for m in meas}):
+        mm = [m for m in meas if m["sensor"] == sid]
+        e = [np.hypot(m["z"][0] - truth_at[m["t"]][0], m["z"][1] - truth_at[m["t"]][1]) for m in mm]
+        ax_err.plot([m["t"] for m in mm], e, ".", ms=3, alpha=0.4, label=f"sensor {sid} measurement error")
+    ax_err.plot(t_tr, err, "r-", lw=1.5, label="fused position error")
+    for seg in paper004_scenario(settings.deployment.scenario).segments:
+        ax_err.axvspan(seg.t_start, seg.t_end, color="0.85", zorder=0)
+    for t in tracks:
+        if t.get("event") in ("onset", "new-ca"):
+            ax_err.axvline(t["t"], color="r", ls=":", lw=0.8)
+    ax_err.set_xlabel("time [s] (grey: true maneuvers; dotted: detections)")
+    ax_err.set_ylabel("position error [m]")
+    ax_err.grid(True, alpha=0.3)
+    ax_err.legend(loc="upper right", fontsize=8)
+    ax_err.set_title("position error against truth")
+    fig.suptitle(f"{title}: scenario {settings.deployment.scenario}, {settings.deployment.mode}, "
+                 f"{len(settings.sensor)} sensors")
+    path = out / "tracks.png"
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def finish(out: Path, settings: Settings, report: LaunchReport, config_path: Path, title: str) -> dict[str, Any]:
+    """Write truth (when this host simulated the sensors), summary and plot; print the summary."""
+    files = [f for f in ("measurements.jsonl", "tracks.jsonl", "config.toml") if (out / f).is_file()]
+    if "sensor" in settings.deployment.services:
+        files.append(write_truth(out, settings).name)
+    summary = summarize(out, settings, report, config_path)
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    files.append("summary.json")
+    png = plot(out, settings, title)
+    if png is not None:
+        files.append(png.name)
+    print_summary(summary, title)
+    print(f"\nwrote {out}/: {' '.join(files)}")
+    if "tracks.jsonl" in files:
+        print(f"reproduce the tracks with: {summary['replay_command']}")
+    return summary
