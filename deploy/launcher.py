@@ -18,13 +18,14 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import zenoh
 
+from fedtrack.deploy.report import LaunchReport, finish
 from fedtrack.deploy.settings import Settings, load_settings
 from fedtrack.keys import Keys
 from fedtrack.wire import FusedTrack, Health, Measurement, WireError, decode
@@ -56,30 +57,6 @@ class ServiceProcess:
             return "\n".join(self.log_path.read_text(errors="replace").splitlines()[-lines:])
         except OSError:
             return "(no log)"
-
-
-@dataclass
-class LaunchReport:
-    """What the launcher observed: per-scan latencies, tracks seen, final health counters."""
-
-    scans_fused: int = 0
-    latencies_ms: list[float] = field(default_factory=list)
-    measurements: dict[str, int] = field(default_factory=dict)
-    track_arrivals_ns: dict[int, int] = field(default_factory=dict)  # seq -> wall-clock arrival
-    publish_stamps_ns: dict[int, list[int]] = field(default_factory=dict)  # seq -> sensors' publish stamps
-    health: dict[str, dict[str, int]] = field(default_factory=dict)
-    exit_codes: dict[str, int] = field(default_factory=dict)
-    failed: list[str] = field(default_factory=list)
-    wall_s: float = 0.0
-
-    def latency_percentiles(self) -> tuple[float, float]:
-        if not self.latencies_ms:
-            return float("nan"), float("nan")
-        p50, p99 = np.percentile(self.latencies_ms, [50, 99])
-        return float(p50), float(p99)
-
-    def rejected(self) -> int:
-        return sum(c.get("rejected", 0) for c in self.health.values())
 
 
 class ServiceFailed(LaunchError):
@@ -351,7 +328,5 @@ def main(argv: list[str]) -> int:
     except LaunchError as exc:
         print(f"fedtrack launch: {exc}", file=sys.stderr)
         return 1
-    from fedtrack.deploy.report import finish  # after the run: matplotlib only loads now
-
     finish(out, settings, report, args.config.resolve(), "fedtrack launch")
     return 1 if report.failed or any(c not in (0, None) for c in report.exit_codes.values()) else 0

@@ -10,8 +10,9 @@ track and its error), next to the recorder's ``measurements.jsonl`` and ``tracks
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -19,10 +20,31 @@ from fedtrack.deploy.settings import Settings
 from fedtrack.jsonl import write_jsonl
 from fedtrack.sensors.scenarios import deployment_truth, paper004_scenario
 
-if TYPE_CHECKING:
-    from fedtrack.deploy.launcher import LaunchReport
-
 REPLAY_ALGORITHM = {"federated": "fvdie", "decentralized": "dvdie"}
+
+
+@dataclass
+class LaunchReport:
+    """What the launcher observed: per-scan latencies, tracks seen, final health counters."""
+
+    scans_fused: int = 0
+    latencies_ms: list[float] = field(default_factory=list)
+    measurements: dict[str, int] = field(default_factory=dict)
+    track_arrivals_ns: dict[int, int] = field(default_factory=dict)  # seq -> wall-clock arrival
+    publish_stamps_ns: dict[int, list[int]] = field(default_factory=dict)  # seq -> sensors' publish stamps
+    health: dict[str, dict[str, int]] = field(default_factory=dict)
+    exit_codes: dict[str, int] = field(default_factory=dict)
+    failed: list[str] = field(default_factory=list)
+    wall_s: float = 0.0
+
+    def latency_percentiles(self) -> tuple[float, float]:
+        if not self.latencies_ms:
+            return float("nan"), float("nan")
+        p50, p99 = np.percentile(self.latencies_ms, [50, 99])
+        return float(p50), float(p99)
+
+    def rejected(self) -> int:
+        return sum(c.get("rejected", 0) for c in self.health.values())
 
 
 def _lines(path: Path) -> list[dict[str, Any]]:
