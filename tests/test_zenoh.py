@@ -140,7 +140,8 @@ def test_router_and_recorder_processes(tmp_path: Path) -> None:
         assert lines[1] == {"t": 0.1, "sensor": "a", "z": [1.0, -1.0], "R": [[1.0, 0.0], [0.0, 1.0]]}
         tracks = [json.loads(x) for x in (out / "tracks.jsonl").read_text().splitlines()]
         assert tracks == [{"t": 0.0, "x": [1.0] * 4, "P": np.eye(4).tolist(), "model": "cv", "maneuver": False,
-                           "degraded": True, "seq": 0, "sensors": ["a"], "existence": 0.5}]
+                           "degraded": True, "seq": 0, "sensors": ["a"], "existence": 0.5,
+                           "event": None}]
         log = (tmp_path / "recorder.log").read_text()
         assert "rejected a message on fedtrack/t1/sensor/a/meas: payload: not valid msgpack" in log
         assert "Traceback" not in log
