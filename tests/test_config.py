@@ -100,3 +100,13 @@ def test_effective_config_round_trips(tmp_path: Path) -> None:
     settings = load_settings(EVERY)
     (tmp_path / "c.toml").write_text(to_toml(settings_table(settings)))
     assert load_settings(tmp_path / "c.toml") == settings
+
+
+def test_router_listens_where_the_deployment_table_says(tmp_path: Path) -> None:
+    cfg = tmp_path / "r.toml"
+    cfg.write_text('[deployment]\nname = "r"\nrouter_listen = "tcp/127.0.0.1:7999"\n')
+    parser = service_parser("router", "test", listen_default=("tcp/127.0.0.1:7447",))
+    parser.add_argument("--config", type=Path)
+    kwargs = service_kwargs(parser, parser.parse_args(["--config", str(cfg)]), mode="router")
+    assert kwargs["deployment"] == "r" and kwargs["options"].listen == ("tcp/127.0.0.1:7999",)
+    assert kwargs["options"].connect == ()

@@ -350,8 +350,9 @@ def service_parser(role: str, description: str, listen_default: tuple[str, ...] 
 def service_kwargs(parser: argparse.ArgumentParser, args: argparse.Namespace, mode: str = "client") -> dict[str, Any]:
     """``Service.__init__`` keyword arguments from parsed arguments (bad values end in ``parser.error``).
 
-    A ``[deployment]`` table in ``--config`` gives the defaults of ``--deployment`` (its ``name``)
-    and, for clients, ``--connect`` (its ``connect``, else ``router_listen``).
+    A ``[deployment]`` table in ``--config`` gives the defaults of ``--deployment`` (its ``name``),
+    for clients ``--connect`` (its ``connect``, else ``router_listen``) and for a router
+    ``--listen`` (its ``router_listen``).
     """
     config = getattr(args, "config", None)
     dep = deployment_of(config)
@@ -359,6 +360,8 @@ def service_kwargs(parser: argparse.ArgumentParser, args: argparse.Namespace, mo
         args.deployment = args.deployment or dep.name
         if mode == "client" and not args.connect:
             args.connect = list(endpoints_of(config, dep))
+        if mode == "router" and not args.listen and dep.router_listen:
+            args.listen = [dep.router_listen]
     args.deployment = args.deployment or DEFAULT_DEPLOYMENT
     try:
         check_id(args.id, "--id")

@@ -24,6 +24,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable, TextIO
 
+from fedtrack.deployment import deployment_of
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
 from fedtrack.wire import (
     FusedTrack,
@@ -148,6 +149,13 @@ class Recorder(Service):
 
 def main(argv: list[str]) -> int:
     parser = service_parser("recorder", "record measurements and fused tracks as replayable JSON Lines")
-    parser.add_argument("--out", required=True, type=Path, help="output directory (created if missing)")
+    parser.add_argument("--out", type=Path, help="output directory, created if missing (default: deployment.out "
+                        "of --config)")
+    parser.add_argument("--config", type=Path, help="configuration file; reads [deployment] (name, connect, out)")
     args = parser.parse_args(argv)
-    return Recorder(out=args.out, **service_kwargs(parser, args)).run()
+    kwargs = service_kwargs(parser, args)
+    dep = deployment_of(args.config)
+    out = args.out or (Path(dep.out) if dep is not None else None)
+    if out is None:
+        parser.error("--out is required (or --config with a [deployment] table)")
+    return Recorder(out=out, **kwargs).run()

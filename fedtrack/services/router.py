@@ -1,11 +1,13 @@
 """``fedtrack serve router``: the Zenoh router every other service connects to.
 
 A Python session in router mode (no separate zenohd needed), listening on
-``tcp/127.0.0.1:7447`` unless ``--listen`` says otherwise, with multicast scouting
-off. It holds the liveliness token ``alive/router/<id>`` and publishes Health.
+``--listen``, else ``deployment.router_listen`` of ``--config``, else
+``tcp/127.0.0.1:7447``, with multicast scouting off. It holds the liveliness token ``alive/router/<id>`` and publishes Health.
 """
 
 from __future__ import annotations
+
+from pathlib import Path
 
 from fedtrack.services.base import Service, service_kwargs, service_parser
 from fedtrack.zsession import DEFAULT_ROUTER
@@ -19,5 +21,6 @@ class Router(Service):
 
 def main(argv: list[str]) -> int:
     parser = service_parser("router", "run the Zenoh router of a deployment", listen_default=(DEFAULT_ROUTER,))
+    parser.add_argument("--config", type=Path, help="configuration file; reads [deployment] (name, router_listen)")
     args = parser.parse_args(argv)
     return Router(**service_kwargs(parser, args, mode="router")).run()
