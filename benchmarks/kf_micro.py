@@ -25,7 +25,7 @@ from fedtrack.local_filters.linear.kalman import GaussianState, predict, update
 from fedtrack.local_filters.linear.models import LinearModel, cv_model
 from fedtrack.sensors.scenarios import DEFAULT_R, paper004_scenario, simulate_positions, simulate_truth
 
-INIT_VEL_VAR = 500.0 ** 2  # m^2/s^2, as the fusion trackers' init_speed_std default
+INIT_VEL_VAR = 500.0 ** 2  # m^2/s^2, as the fusion trackers' initial_velocity_std default
 
 
 class KfData(NamedTuple):

@@ -14,7 +14,7 @@ from typing import Any, Iterator, NamedTuple
 
 import numpy as np
 
-from fedtrack.config import in_file, load_tables
+from fedtrack.config import ConfigError, in_file, load_tables
 from fedtrack.fusion_center.trackers import ModelEstimate, make_tracker
 from fedtrack.jsonl import InputError, position_line, read_jsonl
 from fedtrack.local_filters.linear.models import CA
@@ -57,7 +57,7 @@ def sensor_order(scans: list[Scan], configured: tuple[str, ...] | None) -> list[
         return seen
     unknown = [s for s in seen if s not in configured]
     if unknown:
-        raise InputError(f"measurements name sensor {unknown[0]!r}, which fusion.sensors does not list")
+        raise ConfigError(f"fusion.sensors: does not list sensor {unknown[0]!r} of the measurements")
     return list(configured)
 
 
@@ -96,8 +96,8 @@ def replay_fusion(algorithm: str, measurements: Path, config: Path | None, out: 
     """Entry point of ``fedtrack replay --algorithm kf|federated-kf|decentralized-kf|fvdie|dvdie``."""
     settings = load_tables(config, PipelineSettings)
     scans = read_scans(measurements)
-    sensors = sensor_order(scans, settings.fusion.sensors)
     with in_file(config):
+        sensors = sensor_order(scans, settings.fusion.sensors)
         settings.fusion.betas(len(sensors))  # fails early if the sharing factors do not fit
     n = 0
     with out.open("w") as fh:

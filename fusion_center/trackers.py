@@ -7,9 +7,9 @@ leading axes of ``zs`` (Monte Carlo runs): ``zs`` is ``(..., N, 2)``.
 
 Initialization (shared by all algorithms so they are comparable to round-off):
 each sensor's first measurement gives a one-point local estimate, position ``z_i``
-with covariance ``R_i`` and zero velocity with variance ``N * init_speed_std^2``; the
+with covariance ``R_i`` and zero velocity with variance ``N * initial_velocity_std^2``; the
 first fused estimate is their information sum (which is the centralized one-point
-initialization with velocity variance ``init_speed_std^2``). With ``x0``/``P0`` in the
+initialization with velocity variance ``initial_velocity_std^2``). With ``x0``/``P0`` in the
 config, every filter instead starts from that prior at the first scan's time and
 updates with the first scan.
 """
@@ -146,7 +146,7 @@ class Tracker:
         if self.t is None:
             self.t = t
             if self.config.x0 is None:
-                speed_var = self.n_sensors * self.config.init_speed_std ** 2
+                speed_var = self.n_sensors * self.config.initial_velocity_std ** 2
                 return self._start(one_point_init(zs, Rs, speed_var), present, t)
             x0 = np.broadcast_to(np.asarray(self.config.x0), zs.shape[:-2] + (4,))
             P0 = np.broadcast_to(np.asarray(self.config.P0), zs.shape[:-2] + (4, 4))

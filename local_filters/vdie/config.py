@@ -18,7 +18,7 @@ class FusionConfig:
     """Configuration of the fusion trackers (TOML table ``[fusion]``; see README)."""
 
     q: float = 0.25
-    init_speed_std: float = 500.0
+    initial_velocity_std: float = 500.0
     sensors: tuple[str, ...] | None = None
     sharing: tuple[float, ...] | None = None
     x0: tuple[float, ...] | None = None
@@ -28,8 +28,8 @@ class FusionConfig:
     def validate(self) -> None:
         if not self.q > 0:
             raise ConfigError("q: process noise must be > 0")
-        if not self.init_speed_std > 0:
-            raise ConfigError("init_speed_std: must be > 0")
+        if not self.initial_velocity_std > 0:
+            raise ConfigError("initial_velocity_std: must be > 0")
         if self.sensors is not None and len(set(self.sensors)) != len(self.sensors):
             raise ConfigError("sensors: sensor ids must be unique")
         if self.sharing is not None and self.sensors is not None and len(self.sharing) != len(self.sensors):

@@ -52,7 +52,7 @@ def _initial(config: FusionConfig, n_sensors: int, z: np.ndarray, R: np.ndarray,
              scale: float) -> tuple[GaussianState, bool]:
     """One-point estimate (velocity variance ``N v^2``) or the configured prior ``(x0, scale P0)``."""
     if config.x0 is None:
-        local = one_point_init(z[None, :], R[None], n_sensors * config.init_speed_std ** 2)
+        local = one_point_init(z[None, :], R[None], n_sensors * config.initial_velocity_std ** 2)
         return GaussianState(local.x[0], local.P[0]), True
     return GaussianState(np.asarray(config.x0, dtype=float), scale * np.asarray(config.P0, dtype=float)), False
 
