@@ -98,7 +98,7 @@ def service_plan(settings: Settings, config_path: Path, out_dir: Path, log_dir: 
     if "fusion-center" in dep.services:
         add("fusion-center", "fusion", [*cfg, *common])
     if "recorder" in dep.services:
-        add("recorder", "recorder", ["--out", str(out_dir), *common])
+        add("recorder", "recorder", ["--db", str(out_dir / "recording.db"), "--out", str(out_dir), *common])
     if "sensor" in dep.services:
         for s in here:
             add("sensor", s, [*cfg, *common])

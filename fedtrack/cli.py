@@ -63,6 +63,7 @@ COMMANDS: dict[str, str] = {
     "demo": "fedtrack.deploy.demo:main",
     "launch": "fedtrack.deploy.launcher:main",
     "bench": "fedtrack.benchmarks.run:main",
+    "export": "fedtrack.recording:main",
 }
 
 
@@ -148,7 +149,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     for name, help_text in (("demo", "the main job: a whole deployment on one machine"),
                             ("launch", "start every service of a deployment config"),
-                            ("bench", "benchmarks (ratios measured side by side)")):
+                            ("bench", "benchmarks (ratios measured side by side)"),
+                            ("export", "a recording database's measurements as replay input")):
         p = sub.add_parser(name, help=help_text, add_help=False)
         p.set_defaults(func=None, registry=COMMANDS, key=None)
     return parser

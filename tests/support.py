@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+import signal
+import subprocess
 import time
-from typing import Callable
+from pathlib import Path
+from typing import Any, Callable
 
 from fedtrack.deploy.demo import free_port
 
 WAIT_S = 10.0
 
-__all__ = ["WAIT_S", "free_port", "wait_until"]
+__all__ = ["WAIT_S", "Deployment", "free_port", "wait_until"]
 
 
 def wait_until(predicate: Callable[[], bool], timeout: float = WAIT_S) -> bool:
@@ -20,3 +23,99 @@ def wait_until(predicate: Callable[[], bool], timeout: float = WAIT_S) -> bool:
             return True
         time.sleep(0.02)
     return predicate()
+
+
+class Deployment:
+    """A deployment whose processes the test starts, kills and restarts itself (from ``service_plan``).
+
+    ``tracks`` collects ``(FusedTrack, payload)`` as the test's own client sees them live.
+    """
+
+    def __init__(self, tmp_path: Path, n_sensors: int = 2, seed: int = 1, pacing: str = "lockstep",
+                 speed: float = 1.0, deadline_s: float = 2.0) -> None:
+        from dataclasses import replace
+
+        from fedtrack.deploy.demo import demo_settings, write_config
+        from fedtrack.deploy.launcher import service_plan
+        from fedtrack.keys import Keys
+
+        self.tmp_path = tmp_path
+        self.port = free_port()
+        settings = demo_settings(n_sensors, 1, "federated", seed, self.port, tmp_path)
+        name = f"t{time.monotonic_ns() % 10**9}"
+        self.settings = replace(settings, deployment=replace(settings.deployment, name=name, pacing=pacing,
+                                                             speed=speed, deadline_s=deadline_s))
+        self.config = tmp_path / "config.toml"
+        write_config(self.settings, self.config)
+        self.keys = Keys(name)
+        self.plan = {sp.name: sp for sp in service_plan(self.settings, self.config, tmp_path, tmp_path / "logs")}
+        self.procs: dict[str, subprocess.Popen[bytes]] = {}
+        self.tracks: list[tuple[Any, bytes]] = []
+        self.session: Any = None
+        self._subs: list[Any] = []
+
+    def spawn(self, name: str) -> None:
+        sp = self.plan[name]
+        sp.log_path.parent.mkdir(parents=True, exist_ok=True)
+        with sp.log_path.open("ab") as log:
+            self.procs[name] = subprocess.Popen(sp.argv, stdout=log, stderr=subprocess.STDOUT,
+                                                stdin=subprocess.DEVNULL)
+
+    def wait_alive(self, names: list[str], timeout: float = 30.0) -> None:
+        from fedtrack.zsession import wait_alive
+
+        keys = [self.keys.alive(*name.split("/")) for name in names]
+        missing = wait_alive(self.session, keys, timeout)
+        assert not missing, f"not alive: {missing}; logs in {self.tmp_path / 'logs'}"
+
+    def start(self, sensors: bool = True) -> None:
+        from fedtrack.wire import FusedTrack, decode
+        from fedtrack.zsession import SessionOptions, open_session
+
+        self.spawn("router/router")
+        self.session = open_session(SessionOptions(connect=(f"tcp/127.0.0.1:{self.port}",),
+                                                   connect_timeout_s=20.0))
+        self._subs.append(self.session.declare_subscriber(
+            self.keys.fusion_track(),
+            lambda s: self.tracks.append((decode(s.payload.to_bytes(), FusedTrack), s.payload.to_bytes()))))
+        others = [n for n, sp in self.plan.items() if sp.role not in ("router", "sensor")]
+        for name in others:
+            self.spawn(name)
+        self.wait_alive(["router/router", *others])
+        if sensors:
+            self.start_sensors()
+
+    def start_sensors(self) -> None:
+        for name, sp in self.plan.items():
+            if sp.role == "sensor":
+                self.spawn(name)
+
+    def kill(self, name: str, sig: int = signal.SIGKILL) -> None:
+        proc = self.procs[name]
+        proc.send_signal(sig)
+        proc.wait(10)
+
+    def wait_sensors_done(self, timeout: float = 90.0) -> bool:
+        sensors = [p for n, p in self.procs.items() if self.plan[n].role == "sensor"]
+        return wait_until(lambda: all(p.poll() is not None for p in sensors), timeout)
+
+    def stop(self, name: str, timeout: float = 10.0) -> int:
+        proc = self.procs[name]
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(5)
+        return int(proc.returncode)
+
+    def close(self) -> None:
+        from fedtrack.zsession import close_session
+
+        for sub in self._subs:
+            sub.undeclare()
+        if self.session is not None:
+            close_session(self.session)
+        for name in reversed(list(self.procs)):
+            self.stop(name)

@@ -282,7 +282,7 @@ def test_recorder_with_unusable_output_exits_2(tmp_path: Path) -> None:
     blocker.write_text("")
     router = open_session(SessionOptions(mode="router", connect=(), listen=(f"tcp/127.0.0.1:{port}",)))
     try:
-        recorder = Recorder(out=blocker, service_id="r", options=SessionOptions(connect=(f"tcp/127.0.0.1:{port}",)))
+        recorder = Recorder(db=blocker / "r.db", out=blocker, service_id="r", options=SessionOptions(connect=(f"tcp/127.0.0.1:{port}",)))
         assert recorder.run() == 2 and recorder.status == "failed"
     finally:
         close_session(router)

@@ -1,0 +1,206 @@
+"""The recorder's SQLite database (WAL mode) and ``fedtrack export``.
+
+Schema (version 1; ``id`` is the arrival order, ``received_ns`` the recorder's wall
+clock at arrival, ``payload`` the message's msgpack bytes exactly as received, so
+every row decodes back to the message with :func:`fedtrack.wire.decode`):
+
+================  ==============================================  =========================
+table             columns besides id, received_ns, payload        unique (one row per ...)
+================  ==============================================  =========================
+``measurements``  sensor, seq, t, kind, stamp_ns                  (sensor, seq)
+``estimates``     sensor, seq, t, model, stamp_ns                 (sensor, seq)
+``tracks``        seq, t, model, degraded, sensors, stamp_ns      (seq)
+``events``        seq, t, kind                                    (seq, kind)
+``meta``          key, value (``schema_version``)                 (key)
+================  ==============================================  =========================
+
+Every table with a ``t`` has an index on ``t``; the unique keys double as the index
+on ``sensor``. A message whose unique key is already stored is not stored again: a
+byte-identical copy (a redelivery from Zenoh's history or recovery) counts as a
+duplicate, a different one as a conflict (the first row stays).
+
+Durability: ``journal_mode=WAL``, ``synchronous=FULL``, and every row is its own
+transaction, committed (and fsynced) before the next message is handled: a row that
+was committed survives SIGKILL of the recorder and a power loss.
+
+``fedtrack export --db PATH --out FILE.jsonl [--tracks FILE.jsonl]`` writes the
+measurements in the ``replay`` input format, in scan order (``t``, then arrival), so
+that ``fedtrack replay`` always accepts what was recorded, and optionally the fused
+tracks in the replay output format (``seq`` order).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sqlite3
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+from fedtrack.jsonl import InputError
+from fedtrack.wire import (
+    FusedTrack,
+    LocalEstimate,
+    ManeuverEvent,
+    Measurement,
+    Message,
+    WireError,
+    decode,
+    measurement_to_replay,
+    track_to_replay,
+)
+
+SCHEMA_VERSION = 1
+RECORDED, DUPLICATE, CONFLICT = "recorded", "duplicate", "conflict"
+
+
+@dataclass(frozen=True)
+class Table:
+    """One message type's table: its columns (taken from the message) and its unique key."""
+
+    name: str
+    msg_type: type
+    columns: dict[str, str]  # column -> SQL type
+    unique: tuple[str, ...]
+    values: Callable[[Any], tuple[Any, ...]]
+
+    def ddl(self) -> list[str]:
+        cols = ", ".join(f"{c} {sql} NOT NULL" for c, sql in self.columns.items())
+        stmts = [f"CREATE TABLE IF NOT EXISTS {self.name} (id INTEGER PRIMARY KEY, {cols}, "
+                 f"received_ns INTEGER NOT NULL, payload BLOB NOT NULL, UNIQUE ({', '.join(self.unique)}))"]
+        if "t" in self.columns:
+            stmts.append(f"CREATE INDEX IF NOT EXISTS {self.name}_t ON {self.name} (t)")
+        return stmts
+
+
+TABLES: tuple[Table, ...] = (
+    Table("measurements", Measurement,
+          {"sensor": "TEXT", "seq": "INTEGER", "t": "REAL", "kind": "TEXT", "stamp_ns": "INTEGER"},
+          ("sensor", "seq"), lambda m: (m.sensor, m.seq, m.t, m.kind, m.stamp_ns)),
+    Table("estimates", LocalEstimate,
+          {"sensor": "TEXT", "seq": "INTEGER", "t": "REAL", "model": "TEXT", "stamp_ns": "INTEGER"},
+          ("sensor", "seq"), lambda e: (e.sensor, e.seq, e.t, e.model, e.stamp_ns)),
+    Table("tracks", FusedTrack,
+          {"seq": "INTEGER", "t": "REAL", "model": "TEXT", "degraded": "INTEGER", "sensors": "TEXT",
+           "stamp_ns": "INTEGER"},
+          ("seq",), lambda f: (f.seq, f.t, f.model, int(f.degraded), ",".join(f.sensors), f.stamp_ns)),
+    Table("events", ManeuverEvent, {"seq": "INTEGER", "t": "REAL", "kind": "TEXT"},
+          ("seq", "kind"), lambda e: (e.seq, e.t, e.kind)),
+)
+TABLE_OF: dict[type, Table] = {table.msg_type: table for table in TABLES}
+
+
+class Recording:
+    """An open recording database (created with the schema if new)."""
+
+    def __init__(self, path: Path, readonly: bool = False) -> None:
+        self.path = path
+        if readonly:
+            if not path.is_file():
+                raise InputError(f"{path}: no such recording database")
+            self.db = sqlite3.connect(f"file:{path}?mode=ro", uri=True, isolation_level=None)
+        else:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self.db = sqlite3.connect(path, isolation_level=None)  # autocommit: one transaction per row
+        try:
+            self.db.execute("PRAGMA busy_timeout = 5000")
+            if not readonly:
+                self.db.execute("PRAGMA journal_mode = WAL")
+                self.db.execute("PRAGMA synchronous = FULL")
+                self._create()
+            self._check_version()
+        except sqlite3.DatabaseError as exc:
+            self.db.close()
+            raise InputError(f"{path}: not a fedtrack recording ({exc})") from None
+
+    def _create(self) -> None:
+        self.db.execute("BEGIN")
+        self.db.execute("CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL)")
+        self.db.execute("INSERT OR IGNORE INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
+        for table in TABLES:
+            for stmt in table.ddl():
+                self.db.execute(stmt)
+        self.db.execute("COMMIT")
+
+    def _check_version(self) -> None:
+        row = self.db.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()
+        if row is None or row[0] != str(SCHEMA_VERSION):
+            raise InputError(f"{self.path}: recording schema version {row and row[0]}, expected {SCHEMA_VERSION}")
+
+    def add(self, msg: Message, payload: bytes) -> str:
+        """Store ``msg`` (received as ``payload``) and commit; returns RECORDED, DUPLICATE or CONFLICT."""
+        table = TABLE_OF[type(msg)]
+        values = table.values(msg)
+        cols = list(table.columns)
+        cur = self.db.execute(
+            f"INSERT INTO {table.name} ({', '.join(cols)}, received_ns, payload) "
+            f"VALUES ({', '.join('?' * (len(cols) + 2))}) ON CONFLICT DO NOTHING",
+            (*values, time.time_ns(), payload))
+        if cur.rowcount == 1:
+            return RECORDED
+        key = {c: v for c, v in zip(cols, values) if c in table.unique}
+        where = " AND ".join(f"{c} = ?" for c in key)
+        stored = self.db.execute(f"SELECT payload FROM {table.name} WHERE {where}", tuple(key.values())).fetchone()
+        return DUPLICATE if stored is not None and bytes(stored[0]) == payload else CONFLICT
+
+    def count(self, msg_type: type) -> int:
+        return int(self.db.execute(f"SELECT COUNT(*) FROM {TABLE_OF[msg_type].name}").fetchone()[0])
+
+    def messages(self, msg_type: type, order: str) -> Iterator[Any]:
+        """The stored messages of ``msg_type`` in ``order`` (an ORDER BY clause of the table's columns)."""
+        table = TABLE_OF[msg_type]
+        for rowid, payload in self.db.execute(f"SELECT id, payload FROM {table.name} ORDER BY {order}"):
+            try:
+                yield decode(bytes(payload), msg_type)
+            except WireError as exc:
+                raise InputError(f"{self.path}: {table.name} row {rowid}: {exc}") from None
+
+    def export(self, measurements: Path | None = None, tracks: Path | None = None) -> tuple[int, int]:
+        """Write the replay-format measurements (scan order) and tracks (seq order); returns the line counts."""
+        counts = [0, 0]
+        for i, (path, msg_type, order, convert) in enumerate((
+                (measurements, Measurement, "t, id", measurement_to_replay),
+                (tracks, FusedTrack, "seq", _track_row))):
+            if path is None:
+                continue
+            tmp = path.with_name(path.name + ".part")
+            try:
+                with tmp.open("w") as fh:
+                    for msg in self.messages(msg_type, order):
+                        fh.write(json.dumps(convert(msg)) + "\n")
+                        counts[i] += 1
+                tmp.replace(path)
+            except OSError as exc:
+                raise InputError(f"{path}: cannot write: {exc.strerror or exc}") from None
+        return counts[0], counts[1]
+
+    def close(self) -> None:
+        self.db.close()
+
+
+def _track_row(track: FusedTrack) -> dict[str, Any]:
+    """``track_to_replay`` with ``event`` always present (null when the scan took no maneuver decision),
+    as the fusion replay writes it."""
+    row = track_to_replay(track)
+    row.setdefault("event", None)
+    return row
+
+
+def main(argv: list[str]) -> int:
+    """``fedtrack export``: a recording's measurements (and tracks) as replayable JSON Lines."""
+    parser = argparse.ArgumentParser(prog="fedtrack export",
+                                     description="write a recording's measurements as replay input (JSON Lines)")
+    parser.add_argument("--db", required=True, type=Path, help="recording database (fedtrack serve recorder --db)")
+    parser.add_argument("--out", required=True, type=Path, help="measurements, replay input format")
+    parser.add_argument("--tracks", type=Path, help="also write the fused tracks here (replay output format)")
+    args = parser.parse_args(argv)
+    recording = Recording(args.db, readonly=True)
+    try:
+        n_meas, n_tracks = recording.export(args.out, args.tracks)
+    finally:
+        recording.close()
+    print(f"wrote {n_meas} measurements to {args.out}" + (f", {n_tracks} tracks to {args.tracks}" if args.tracks
+                                                           else ""))
+    return 0
