@@ -78,7 +78,7 @@ def test_network_tracks_equal_replay(tmp_path, mode, algorithm):
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["scans"] == 101 and summary["rms_position_error_m"] < 20.0
     recorder = summary["health"]["recorder/recorder"]
-    assert recorder["measurements_written"] == 303 and recorder["tracks_written"] == 101
+    assert recorder["measurements_recorded"] == 303 and recorder["tracks_recorded"] == 101
     assert "fedtrack launch summary" in proc.stdout
     out = tmp_path / "replay.jsonl"
     assert cli_main(["replay", "--algorithm", algorithm, "--config", str(cfg),
