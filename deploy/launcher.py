@@ -59,6 +59,15 @@ class ServiceProcess:
             return "(no log)"
 
 
+class Stopped(KeyboardInterrupt):
+    """Ctrl-C or SIGTERM stopped the deployment; every service was shut down. ``report`` holds
+    what was seen up to then (a host without sensors normally ends this way)."""
+
+    def __init__(self, report: LaunchReport) -> None:
+        super().__init__()
+        self.report = report
+
+
 class ServiceFailed(LaunchError):
     """The deployment ran to its end, but some service failed; ``report`` holds what was seen."""
 
@@ -234,6 +243,7 @@ class Launcher:
         sensors = [sp for sp in self.plan if sp.role == "sensor"]
         others = [sp for sp in self.plan if sp.role not in ("sensor", "router")]
         routers = [sp for sp in self.plan if sp.role == "router"]
+        stopped = False
         try:
             for sp in routers:
                 self._start(sp)
@@ -246,6 +256,8 @@ class Launcher:
             for sp in sensors:
                 self._start(sp)
             self._watch(sensors, start)
+        except KeyboardInterrupt:
+            stopped = True
         finally:
             self.stop_all()
             for sub in self._subs:
@@ -253,6 +265,8 @@ class Launcher:
             if self._session is not None:
                 close_session(self._session)
             self.report.wall_s = time.monotonic() - start
+        if stopped:
+            raise Stopped(self.report)
         failed = {n: c for n, c in self.report.exit_codes.items() if c not in (0, None)}
         if failed and not self._stop.is_set():
             name = next(iter(failed))
@@ -317,11 +331,12 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
     settings = load_settings(args.config)
     out = args.out or Path(settings.deployment.out)
+    code = None
     try:
         report = run_deployment(settings, args.config.resolve(), out)
-    except KeyboardInterrupt:
+    except Stopped as exc:
+        report, code = exc.report, 130
         print("fedtrack launch: stopped; every service was shut down", file=sys.stderr)
-        return 130
     except ServiceFailed as exc:
         report = exc.report
         print(f"fedtrack launch: {exc}", file=sys.stderr)
@@ -329,4 +344,6 @@ def main(argv: list[str]) -> int:
         print(f"fedtrack launch: {exc}", file=sys.stderr)
         return 1
     finish(out, settings, report, args.config.resolve(), "fedtrack launch")
+    if code is not None:
+        return code
     return 1 if report.failed or any(c not in (0, None) for c in report.exit_codes.values()) else 0

@@ -79,3 +79,6 @@ def test_third_party_sensor_and_subscriber_against_a_launched_deployment(tmp_pat
     assert launch.returncode == 130
     recorded = (tmp_path / "out" / "tracks.jsonl").read_text().splitlines()
     assert len(recorded) == SCANS + 3
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())  # written after the stop too
+    assert summary["scans"] == SCANS + 3 and summary["health"]["recorder/recorder"]["tracks_written"] == SCANS + 3
+    assert not (tmp_path / "out" / "truth.jsonl").exists()  # no simulated sensors on this host: no truth
