@@ -80,5 +80,5 @@ def test_third_party_sensor_and_subscriber_against_a_launched_deployment(tmp_pat
     recorded = (tmp_path / "out" / "tracks.jsonl").read_text().splitlines()
     assert len(recorded) == SCANS + 3
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())  # written after the stop too
-    assert summary["scans"] == SCANS + 3 and summary["health"]["recorder/recorder"]["tracks_written"] == SCANS + 3
+    assert summary["scans"] == SCANS + 3 and summary["health"]["recorder/recorder"]["tracks_recorded"] == SCANS + 3
     assert not (tmp_path / "out" / "truth.jsonl").exists()  # no simulated sensors on this host: no truth
