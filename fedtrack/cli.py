@@ -89,7 +89,25 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+def check_config(path: str | Path | None) -> None:
+    """Check every table of the configuration file, whichever command reads which tables, so
+    that a typo anywhere fails the same way everywhere (``FILE: unknown config key imm.foo``)."""
+    if path is not None:
+        resolve("fedtrack.deploy.settings:load_settings")(Path(path))
+
+
+def _config_arg(argv: list[str]) -> str | None:
+    """The value of ``--config`` in a sub-command's own arguments (None if absent)."""
+    for i, arg in enumerate(argv):
+        if arg == "--config" and i + 1 < len(argv):
+            return argv[i + 1]
+        if arg.startswith("--config="):
+            return arg.split("=", 1)[1]
+    return None
+
+
 def _cmd_replay(args: argparse.Namespace) -> int:
+    check_config(args.config)
     fn = resolve(REPLAY_ALGORITHMS[args.algorithm])
     n = fn(algorithm=args.algorithm, measurements=Path(args.measurements),
            config=Path(args.config) if args.config else None, out=Path(args.out))
@@ -177,6 +195,8 @@ def main(argv: list[str] | None = None) -> int:
             args.parser.error(f"the following arguments are required: {args.key.upper()}")
         if args.help:
             rest = [*rest, "--help"]
+        elif args.command == "serve":
+            check_config(_config_arg(rest))
         return int(resolve(args.registry[choice])(rest) or 0)
     except (ConfigError, InputError) as exc:
         print(f"fedtrack: error: {exc}", file=sys.stderr)

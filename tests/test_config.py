@@ -68,8 +68,11 @@ def test_config_errors_name_file_table_and_key(tmp_path: Path, text: str, messag
             load(cfg)
     meas = tmp_path / "m.jsonl"
     meas.write_text(json.dumps(SONAR if algorithm == "hpda" else POSITION) + "\n")
-    assert main(["replay", "--algorithm", algorithm, "--measurements", str(meas), "--config", str(cfg),
-                 "--out", str(tmp_path / "o.jsonl")]) == 2
+    for alg in (algorithm, "kf"):  # the CLI checks every table, whichever the algorithm reads
+        assert main(["replay", "--algorithm", alg, "--measurements", str(meas), "--config", str(cfg),
+                     "--out", str(tmp_path / "o.jsonl")]) == 2
+        assert f"{cfg}: {message}" in capsys.readouterr().err
+    assert main(["serve", "router", "--config", str(cfg)]) == 2  # before any session opens
     assert f"{cfg}: {message}" in capsys.readouterr().err
 
 
