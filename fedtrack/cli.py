@@ -41,6 +41,10 @@ REPLAY_ALGORITHMS: dict[str, str] = {
     "ekf": "fedtrack.local_filters.radar.replay:replay_radar",
     "ekf-ie": "fedtrack.local_filters.radar.replay:replay_radar",
     "ekf-tsfuzzy": "fedtrack.local_filters.radar.replay:replay_radar",
+    "mtt-local": "fedtrack.fusion_center.mtt.replay:replay_mtt",
+    "mtt-centralized": "fedtrack.fusion_center.mtt.replay:replay_mtt",
+    "mtt-federated": "fedtrack.fusion_center.mtt.replay:replay_mtt",
+    "mtt-decentralized": "fedtrack.fusion_center.mtt.replay:replay_mtt",
 }
 
 # role -> "module:function(argv) -> int"
@@ -109,8 +113,11 @@ def _config_arg(argv: list[str]) -> str | None:
 def _cmd_replay(args: argparse.Namespace) -> int:
     check_config(args.config)
     fn = resolve(REPLAY_ALGORITHMS[args.algorithm])
+    options = {k: v for k, v in (("period", args.period), ("sensor", args.sensor)) if v is not None}
+    if options and not args.algorithm.startswith("mtt-"):
+        raise ConfigError(f"--{next(iter(options))} applies to the mtt-* algorithms only")
     n = fn(algorithm=args.algorithm, measurements=Path(args.measurements),
-           config=Path(args.config) if args.config else None, out=Path(args.out))
+           config=Path(args.config) if args.config else None, out=Path(args.out), **options)
     print(f"wrote {n} estimates to {args.out}")
     return 0
 
@@ -160,6 +167,8 @@ def build_parser() -> argparse.ArgumentParser:
     rpl.add_argument("--measurements", required=True)
     rpl.add_argument("--config", help="TOML configuration")
     rpl.add_argument("--out", required=True)
+    rpl.add_argument("--period", type=float, help="mtt-*: seconds between track pictures (default [mtt] period)")
+    rpl.add_argument("--sensor", help="mtt-local: the sensor whose tracker runs")
     rpl.set_defaults(func=_cmd_replay)
 
     _registry_parser(sub, "serve", "run one service process", "role", SERVICES, "role")

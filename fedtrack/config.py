@@ -44,6 +44,11 @@ def _coerce(value: Any, annotation: Any, key: str) -> Any:
             except ConfigError as exc:
                 errors.append(str(exc))
         raise ConfigError(errors[0] if errors else f"{key}: invalid value {value!r}")
+    if origin is dict:
+        if not isinstance(value, dict):
+            raise ConfigError(f"{key}: expected a table, got {value!r}")
+        key_type, value_type = args if args else (str, Any)
+        return {_coerce(k, key_type, key): _coerce(v, value_type, f"{key}.{k}") for k, v in value.items()}
     if origin in (tuple, list):
         if not isinstance(value, (list, tuple)):
             raise ConfigError(f"{key}: expected a list, got {type(value).__name__}")
@@ -113,7 +118,7 @@ def parse_dataclass(cls: type[T], table: dict[str, Any], where: str = "") -> T:
 #: The top-level tables of the one configuration file read by ``replay``, ``serve`` and
 #: ``launch``. Each consumer parses the tables it uses (:func:`load_tables`); the others must
 #: be known names, so that a typo still fails.
-TABLES = ("fusion", "deployment", "sensor", "sonar", "radar", "radar_filter", "imm", "pda")
+TABLES = ("fusion", "deployment", "sensor", "sonar", "radar", "radar_filter", "imm", "pda", "mtt")
 
 
 @contextlib.contextmanager

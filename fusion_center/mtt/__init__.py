@@ -1,0 +1,1 @@
+"""Multi-target fusion: track-to-track centre with out-of-sequence buffers, engines, replay."""

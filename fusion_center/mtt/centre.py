@@ -1,0 +1,221 @@
+"""Track-to-track fusion centre: association of local tracks, exact fusion, feedback, track life.
+
+Input: for each sensor scan, the local tracker's :class:`LocalReport` (its tracks after the
+scan, the linearized observation of every track the scan detected, the tracks it retired).
+
+* **Association.** A local track keeps the central track it was mapped to (so ids do not
+  swap at crossings). An unmapped local track is associated by a chi-square test on the
+  difference of the two estimates, ``d' (P_l + P_c)^-1 d`` against the quantile of
+  ``association_gate_probability`` (dof = local state size), and an assignment
+  (``linear_sum_assignment``) over the scan's unmapped tracks and the central tracks that
+  have no track of this sensor yet; the rest start central tracks. A mapped pair that fails
+  the test ``unmap_after`` times in a row is unmapped (hysteresis) and associated afresh.
+* **Fusion.** The centre fuses each local observation (``H, R, z``) into its central track at
+  the observation's time, predicting the central track there; out-of-sequence observations
+  up to ``max_lag`` old are fused exactly (:mod:`.central_track`), older ones are counted as
+  late. Because it fuses what each detection added and never a local estimate, there is no
+  double counting: the result equals a centralized filter of the same detections.
+* **Federated** (``feedback``): after fusing, the centre resets the local track to the
+  central estimate with ``P_i = beta_i P`` (``beta_i`` = the number of live sensors, so the
+  shares sum to one and renormalize when sensors join or leave); the local tracker then
+  predicts with ``Q_i = beta_i Q`` (paper 004 eqs. (17)-(22)). **Decentralized**: no feedback.
+* **Life.** A central track is confirmed once any of its local tracks is; it is deleted when
+  no local track maps to it any more or none supported it for ``central_timeout`` seconds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from fedtrack.fusion_center.mtt.central_track import CentralTrack, fuse, start, state_at
+from fedtrack.local_filters.mtt.config import MttConfig
+
+LocalKey = tuple[str, int]  # (sensor, local track id)
+
+
+class LocalReport(NamedTuple):
+    """One local tracker's output for one scan, local tracks in the local state size ``d``."""
+
+    sensor: str
+    t: float
+    ids: np.ndarray  # (N,) every live local track
+    x: np.ndarray  # (N, d)
+    P: np.ndarray  # (N, d, d)
+    confirmed: np.ndarray  # (N,)
+    detected: np.ndarray  # (N,) bool: tracks this scan updated or started
+    obs_H: np.ndarray  # (K, m, d) for the detected tracks in order
+    obs_R: np.ndarray  # (K, m, m)
+    obs_z: np.ndarray  # (K, m)
+    started: np.ndarray  # (K,) bool: the detected track started at this scan
+    retired: np.ndarray  # ids deleted by this scan
+
+
+class Reset(NamedTuple):
+    """Federated feedback for one local track: ``x`` and ``beta_i P`` at ``t`` (local state size)."""
+
+    sensor: str
+    local_id: int
+    t: float
+    x: np.ndarray
+    P: np.ndarray
+
+
+@dataclass
+class Counters:
+    fused: int = 0
+    late: int = 0
+    started: int = 0
+    deleted: int = 0
+    unmapped: int = 0
+
+
+@dataclass
+class TrackToTrackCentre:
+    """Central tracks of dimension ``dim`` (4 or 6) fused from local trackers' reports."""
+
+    cfg: MttConfig
+    dim: int
+    feedback: bool
+    tracks: dict[int, CentralTrack] = field(default_factory=dict)
+    mapping: dict[LocalKey, int] = field(default_factory=dict)
+    strikes: dict[LocalKey, int] = field(default_factory=dict)
+    last_support: dict[int, float] = field(default_factory=dict)
+    sensor_seen: dict[str, float] = field(default_factory=dict)
+    next_id: int = 0
+    counters: Counters = field(default_factory=Counters)
+
+    def live_sensors(self, now: float) -> list[str]:
+        return sorted(s for s, t in self.sensor_seen.items() if now - t <= self.cfg.central_timeout)
+
+    def _embed(self, H: np.ndarray) -> np.ndarray:
+        """A local observation matrix in the central state (2-D states are the prefix of 3-D)."""
+        if H.shape[-1] == self.dim:
+            return H
+        out = np.zeros(H.shape[:-1] + (self.dim,))
+        out[..., : H.shape[-1]] = H
+        return out
+
+    def _central_start(self, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        d = x.shape[0]
+        if d == self.dim:
+            return x.copy(), P.copy()
+        xc, Pc = np.zeros(self.dim), np.zeros((self.dim, self.dim))
+        xc[:d], Pc[:d, :d] = x, P
+        Pc[4, 4], Pc[5, 5] = self.cfg.init_z_std**2, self.cfg.init_velocity_std**2
+        return xc, Pc
+
+    def ingest(self, report: LocalReport) -> list[Reset]:
+        """Fuse one local tracker's scan; returns the federated resets (empty when decentralized)."""
+        cfg, t, s = self.cfg, report.t, report.sensor
+        self.sensor_seen[s] = max(self.sensor_seen.get(s, t), t)
+        for lid in report.retired.tolist():
+            if self.mapping.pop((s, lid), None) is not None:
+                self.counters.unmapped += 1
+            self.strikes.pop((s, lid), None)
+        d = report.x.shape[1]
+        det_rows = np.flatnonzero(report.detected)
+        # hysteresis: a mapped local track inconsistent with its central track unmap_after times in a row
+        unmapped_rows = []
+        for k, row in enumerate(det_rows.tolist()):
+            key = (s, int(report.ids[row]))
+            cid = self.mapping.get(key)
+            if cid is not None and cid in self.tracks and not report.started[k]:
+                xc, Pc = state_at(self.tracks[cid], t, cfg.q, cfg.noise_model)
+                diff = report.x[row] - xc[:d]
+                d2 = float(diff @ np.linalg.solve(report.P[row] + Pc[:d, :d], diff))
+                if d2 > cfg.thresholds.association[d]:
+                    self.strikes[key] = self.strikes.get(key, 0) + 1
+                    if self.strikes[key] >= cfg.unmap_after:
+                        del self.mapping[key]
+                        self.strikes.pop(key)
+                        self.counters.unmapped += 1
+                else:
+                    self.strikes.pop(key, None)
+            if self.mapping.get(key) not in self.tracks:
+                self.mapping.pop(key, None)
+                unmapped_rows.append(k)
+        fresh = self._associate(report, det_rows, unmapped_rows)
+        beta = float(max(len(self.live_sensors(t)), 1))
+        resets = []
+        for k, row in enumerate(det_rows.tolist()):
+            key = (s, int(report.ids[row]))
+            cid = self.mapping[key]
+            track = self.tracks[cid]
+            if key in fresh:
+                xc, Pc = track.x, track.P  # started from this local estimate: nothing more to fuse
+            else:
+                obs = (self._embed(report.obs_H[k]), report.obs_R[k], report.obs_z[k])
+                done = fuse(track, t, obs, cfg.q, cfg.noise_model, cfg.max_lag)
+                if done is None:
+                    self.counters.late += 1
+                    continue
+                track, xc, Pc = done
+                self.counters.fused += 1
+            if report.confirmed[row] and not track.confirmed:
+                track = track._replace(confirmed=True)
+            self.tracks[cid] = track
+            self.last_support[cid] = max(self.last_support.get(cid, t), t)
+            if self.feedback:
+                resets.append(Reset(s, key[1], t, xc[:d].copy(), beta * Pc[:d, :d]))
+        return resets
+
+    def _associate(self, report: LocalReport, det_rows: np.ndarray, unmapped: list[int]) -> set[LocalKey]:
+        """Map the scan's unmapped local tracks; returns those that started central tracks."""
+        fresh: set[LocalKey] = set()
+        if not unmapped:
+            return fresh
+        cfg, t, s = self.cfg, report.t, report.sensor
+        taken = {cid for (sensor, _), cid in self.mapping.items() if sensor == s}
+        cands = [cid for cid in self.tracks if cid not in taken]
+        rows = det_rows[unmapped]
+        d = report.x.shape[1]
+        assigned: dict[int, int] = {}
+        if cands:
+            states = [state_at(self.tracks[c], t, cfg.q, cfg.noise_model) for c in cands]
+            xc = np.stack([x[:d] for x, _ in states])
+            Pc = np.stack([P[:d, :d] for _, P in states])
+            diff = report.x[rows][:, None, :] - xc[None, :, :]  # (U, C, d)
+            C = report.P[rows][:, None] + Pc[None]
+            L = np.linalg.cholesky(C)
+            w = np.linalg.solve(L, diff[..., None])[..., 0]
+            d2 = np.sum(w * w, axis=-1)
+            logdet = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
+            gated = d2 <= cfg.thresholds.association[d]
+            if gated.any():
+                cost = np.where(gated, d2 + logdet, 1e12)
+                ri, ci = linear_sum_assignment(cost)
+                for r, c in zip(ri.tolist(), ci.tolist()):
+                    if gated[r, c]:
+                        assigned[r] = cands[c]
+        for u in range(len(unmapped)):
+            row = int(rows[u])
+            key = (s, int(report.ids[row]))
+            if u in assigned:
+                self.mapping[key] = assigned[u]
+                continue
+            x, P = self._central_start(report.x[row], report.P[row])
+            cid = self.next_id
+            self.next_id += 1
+            self.tracks[cid] = start(cid, t, x, P, bool(report.confirmed[row]))
+            self.mapping[key] = cid
+            fresh.add(key)
+            self.counters.started += 1
+        return fresh
+
+    def prune(self, now: float) -> None:
+        """Delete central tracks no local track maps to, or unsupported for ``central_timeout``."""
+        mapped = set(self.mapping.values())
+        for cid in list(self.tracks):
+            if cid not in mapped or now - self.last_support.get(cid, now) > self.cfg.central_timeout:
+                del self.tracks[cid]
+                self.last_support.pop(cid, None)
+                self.counters.deleted += 1
+        for key in [k for k, cid in self.mapping.items() if cid not in self.tracks]:
+            del self.mapping[key]
+
+    def sensors_of(self, cid: int) -> list[str]:
+        return sorted({s for (s, _), c in self.mapping.items() if c == cid})

@@ -1,0 +1,200 @@
+"""The multi-target algorithms as engines fed one sensor scan at a time, in arrival order.
+
+* ``mtt-local``: one sensor's :func:`tracker_step` alone.
+* ``mtt-centralized``: one tracker of every sensor's detections (measurement-level fusion,
+  the optimum the others are measured against). Out-of-sequence scans up to ``max_lag`` old
+  are fused exactly by rolling the tracker back to its state before the scan and
+  re-running the later scans in time order (association included); older ones are late.
+* ``mtt-federated`` / ``mtt-decentralized``: one local tracker per sensor (its scans in
+  order) and the :class:`TrackToTrackCentre` (with or without reset feedback).
+
+``picture(T)`` is every track predicted to ``T`` from the data up to ``T``.
+"""
+
+from __future__ import annotations
+
+import bisect
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from fedtrack.fusion_center.mtt.central_track import state_at
+from fedtrack.fusion_center.mtt.centre import LocalReport, TrackToTrackCentre
+from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.mtt.models import motion, predict_tracks
+from fedtrack.local_filters.mtt.scan import SensorScan
+from fedtrack.local_filters.mtt.tracker import (
+    TrackerState,
+    initial_state,
+    track_params,
+    tracker_step,
+)
+
+ALGORITHMS = ("mtt-local", "mtt-centralized", "mtt-federated", "mtt-decentralized")
+
+
+def track_record(tid: int, x: np.ndarray, P: np.ndarray, confirmed: bool, sensors: list[str]) -> dict[str, Any]:
+    """One track of a picture line (docs/multitarget-formats.md)."""
+    k = x.shape[0] // 2
+    return {"id": int(tid), "pos": x[0::2][:k].tolist(), "vel": x[1::2][:k].tolist(), "x": x.tolist(),
+            "P": P.tolist(), "model": "cv", "status": "confirmed" if confirmed else "tentative",
+            "sensors": sensors}
+
+
+def tracker_picture(state: TrackerState, T: float, cfg: MttConfig, sensors: list[str]) -> list[dict[str, Any]]:
+    tr = state.tracks
+    if not tr.size:
+        return []
+    x, P = tr.x, tr.P
+    if state.t is not None and T > state.t:
+        x, P = predict_tracks(x, P, motion(x.shape[1], round(T - state.t, 12), cfg.q, cfg.noise_model))
+    return [track_record(i, x[k], P[k], bool(tr.confirmed[k]), sensors) for k, i in enumerate(tr.ids.tolist())]
+
+
+@dataclass
+class Engine:
+    cfg: MttConfig
+    dim: int
+    late: int = 0
+    scans: int = 0
+
+    def ingest(self, scan: SensorScan) -> None:
+        raise NotImplementedError
+
+    def picture(self, T: float) -> list[dict[str, Any]]:
+        raise NotImplementedError
+
+    def counters(self) -> dict[str, int]:
+        return {"scans": self.scans, "late": self.late}
+
+
+@dataclass
+class LocalEngine(Engine):
+    """``mtt-local``: the tracker of ``sensor``; other sensors' scans are ignored."""
+
+    sensor: str = ""
+    state: TrackerState | None = None
+
+    def ingest(self, scan: SensorScan) -> None:
+        if scan.sensor != self.sensor:
+            return
+        if self.state is None:
+            self.state = initial_state(self.dim)
+        if self.state.t is not None and scan.t < self.state.t:
+            self.late += 1
+            return
+        self.scans += 1
+        self.state = tracker_step(self.state, scan, track_params(self.cfg, scan.sensor, self.dim)).state
+
+    def picture(self, T: float) -> list[dict[str, Any]]:
+        return [] if self.state is None else tracker_picture(self.state, T, self.cfg, [self.sensor])
+
+
+@dataclass
+class CentralizedEngine(Engine):
+    """``mtt-centralized`` with roll-back for out-of-sequence scans."""
+
+    times: list[float] = field(default_factory=list)  # scans kept for re-running, time order
+    kept: list[SensorScan] = field(default_factory=list)
+    after: list[TrackerState] = field(default_factory=list)  # state after each kept scan
+    base: TrackerState | None = None  # state before the first kept scan
+
+    def _step(self, state: TrackerState, scan: SensorScan) -> TrackerState:
+        return tracker_step(state, scan, track_params(self.cfg, scan.sensor, self.dim)).state
+
+    def ingest(self, scan: SensorScan) -> None:
+        if self.base is None:
+            self.base = initial_state(self.dim)
+        newest = self.times[-1] if self.times else -np.inf
+        if scan.t < newest - self.cfg.max_lag or (self.base.t is not None and scan.t < self.base.t):
+            self.late += 1
+            return
+        self.scans += 1
+        k = bisect.bisect_right(self.times, scan.t)
+        state = self.after[k - 1] if k else self.base
+        self.times.insert(k, scan.t)
+        self.kept.insert(k, scan)
+        del self.after[k:]
+        for s in self.kept[k:]:
+            state = self._step(state, s)
+            self.after.append(state)
+        horizon = self.times[-1] - self.cfg.max_lag
+        drop = bisect.bisect_left(self.times, horizon)
+        if drop:
+            self.base = self.after[drop - 1]
+            del self.times[:drop], self.kept[:drop], self.after[:drop]
+
+    def state_at(self, T: float) -> TrackerState | None:
+        k = bisect.bisect_right(self.times, T)
+        return self.after[k - 1] if k else self.base
+
+    def picture(self, T: float) -> list[dict[str, Any]]:
+        state = self.state_at(T)
+        if state is None:
+            return []
+        senders = sorted({s.sensor for s in self.kept})
+        return tracker_picture(state, T, self.cfg, senders)
+
+
+@dataclass
+class TrackToTrackEngine(Engine):
+    """``mtt-federated`` (``feedback``) or ``mtt-decentralized``: local trackers plus the centre."""
+
+    feedback: bool = True
+    local: dict[str, TrackerState] = field(default_factory=dict)
+    centre: TrackToTrackCentre | None = None
+
+    def ingest(self, scan: SensorScan) -> None:
+        if self.centre is None:
+            self.centre = TrackToTrackCentre(self.cfg, self.dim, self.feedback)
+        d = 6 if scan.sensor_position is not None else 4
+        state = self.local.get(scan.sensor) or initial_state(d)
+        if state.t is not None and scan.t < state.t:
+            self.late += 1  # a sensor's own scans out of order: its link is not FIFO
+            return
+        self.scans += 1
+        beta = float(max(len(self.centre.live_sensors(scan.t)), 1)) if self.feedback else 1.0
+        res = tracker_step(state, scan, track_params(self.cfg, scan.sensor, d), q_scale=beta)
+        tr = res.state.tracks
+        started = tr.age[res.detected] == 1
+        report = LocalReport(scan.sensor, scan.t, tr.ids, tr.x, tr.P, tr.confirmed, res.detected,
+                             *res.observations, started, res.retired)
+        resets = self.centre.ingest(report)
+        if resets:
+            x, P = tr.x.copy(), tr.P.copy()
+            row = {int(i): k for k, i in enumerate(tr.ids.tolist())}
+            for r in resets:
+                x[row[r.local_id]], P[row[r.local_id]] = r.x, r.P
+            tr = tr._replace(x=x, P=P)
+        self.local[scan.sensor] = res.state._replace(tracks=tr)
+        self.centre.prune(scan.t)
+
+    def picture(self, T: float) -> list[dict[str, Any]]:
+        if self.centre is None:
+            return []
+        c = self.centre
+        out = []
+        for cid, track in sorted(c.tracks.items()):
+            x, P = state_at(track, T, self.cfg.q, self.cfg.noise_model)
+            out.append(track_record(cid, x, P, track.confirmed, c.sensors_of(cid)))
+        return out
+
+    def counters(self) -> dict[str, int]:
+        out = super().counters()
+        if self.centre is not None:
+            out.update({f"centre_{k}": v for k, v in vars(self.centre.counters).items()})
+            out["late"] += self.centre.counters.late
+        return out
+
+
+def make_engine(algorithm: str, cfg: MttConfig, dim: int, sensor: str | None = None) -> Engine:
+    if algorithm == "mtt-local":
+        if not sensor:
+            raise ValueError("mtt-local needs --sensor ID")
+        return LocalEngine(cfg, dim, sensor=sensor)
+    if algorithm == "mtt-centralized":
+        return CentralizedEngine(cfg, dim)
+    if algorithm in ("mtt-federated", "mtt-decentralized"):
+        return TrackToTrackEngine(cfg, dim, feedback=algorithm == "mtt-federated")
+    raise ValueError(f"unknown multi-target algorithm {algorithm!r}")

@@ -1,0 +1,115 @@
+"""The ``[mtt]`` table: multi-target tracking, local trackers and the track-to-track centre."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+
+from fedtrack.config import ConfigError
+from fedtrack.keys import InvalidName, check_id
+
+NOISE_MODELS = ("continuous", "discrete")
+
+
+@dataclass(frozen=True)
+class SensorOverride:
+    """``[mtt.sensor.<id>]``: detection probability and clutter density of one sensor."""
+
+    pd: float | None = None
+    clutter_density: float | None = None
+
+
+@dataclass(frozen=True)
+class MttConfig:
+    """Multi-target tracking parameters (see docs/multitarget.md for the rules they drive)."""
+
+    q: float = 1.0
+    noise_model: str = "continuous"
+    pd: float = 0.9
+    clutter_density: float = 1e-7
+    gate_probability: float = 0.999
+    max_lag: float = 3.0
+    period: float = 1.0
+    picture_delay: float = 0.0
+    init_velocity_std: float = 30.0
+    init_z_std: float = 1000.0
+    sensors: tuple[str, ...] | str = "any"
+    confirm_hits: int = 3
+    confirm_window: int = 4
+    delete_misses: int = 3
+    sharing: str = "equal"
+    association_gate_probability: float = 0.9999
+    unmap_after: int = 3
+    central_timeout: float = 5.0
+    sensor: dict[str, SensorOverride] = field(default_factory=dict)
+
+    def validate(self) -> None:
+        positive = {"q": self.q, "period": self.period, "init_velocity_std": self.init_velocity_std,
+                    "init_z_std": self.init_z_std,
+                    "central_timeout": self.central_timeout}
+        for key, value in positive.items():
+            if not value > 0:
+                raise ConfigError(f"{key}: must be > 0")
+        if self.noise_model not in NOISE_MODELS:
+            raise ConfigError(f"noise_model: must be one of {', '.join(NOISE_MODELS)}")
+        for key in ("max_lag", "picture_delay", "clutter_density"):
+            if not getattr(self, key) >= 0:
+                raise ConfigError(f"{key}: must be >= 0")
+        for key in ("pd", "gate_probability", "association_gate_probability"):
+            if not 0 < getattr(self, key) < 1 and not (key == "pd" and self.pd == 1):
+                raise ConfigError(f"{key}: must be in (0, 1)" + (" or 1" if key == "pd" else ""))
+        if not 1 <= self.confirm_hits <= self.confirm_window:
+            raise ConfigError("confirm_hits: must be in 1..confirm_window")
+        if self.delete_misses < 1 or self.unmap_after < 1:
+            raise ConfigError("delete_misses, unmap_after: must be >= 1")
+        if self.sharing != "equal":
+            raise ConfigError("sharing: only 'equal' (beta_i = number of live sensors) is supported")
+        if isinstance(self.sensors, str) and self.sensors != "any":
+            raise ConfigError('sensors: a list of sensor ids or "any"')
+        for sid in (() if isinstance(self.sensors, str) else self.sensors) + tuple(self.sensor):
+            try:
+                check_id(sid)
+            except InvalidName as exc:
+                raise ConfigError(f"sensors: {exc}") from exc
+        for sid, over in self.sensor.items():
+            if over.pd is not None and not 0 < over.pd <= 1:
+                raise ConfigError(f"sensor.{sid}.pd: must be in (0, 1]")
+            if over.clutter_density is not None and not over.clutter_density >= 0:
+                raise ConfigError(f"sensor.{sid}.clutter_density: must be >= 0")
+
+    def allows(self, sensor: str) -> bool:
+        return self.sensors == "any" or sensor in self.sensors
+
+    def pd_of(self, sensor: str) -> float:
+        over = self.sensor.get(sensor)
+        return self.pd if over is None or over.pd is None else over.pd
+
+    def clutter_of(self, sensor: str) -> float:
+        over = self.sensor.get(sensor)
+        return self.clutter_density if over is None or over.clutter_density is None else over.clutter_density
+
+    @cached_property
+    def thresholds(self) -> "Thresholds":
+        return Thresholds.of(self.gate_probability, self.association_gate_probability)
+
+
+@dataclass(frozen=True)
+class Thresholds:
+    """Chi-square gates by dimension (2, 3 for detections; 4, 6 for track differences)."""
+
+    gate: dict[int, float]
+    association: dict[int, float]
+
+    @staticmethod
+    def of(gate_probability: float, association_probability: float) -> "Thresholds":
+        from scipy.special import chdtri
+
+        return Thresholds({m: float(chdtri(m, 1.0 - gate_probability)) for m in (2, 3)},
+                          {m: float(chdtri(m, 1.0 - association_probability)) for m in (2, 3, 4, 6)})
+
+
+@dataclass(frozen=True)
+class MttSettings:
+    """The tables the multi-target replay and services read."""
+
+    mtt: MttConfig = field(default_factory=MttConfig)

@@ -1,0 +1,101 @@
+"""Motion and measurement models of the multi-target trackers, batched over tracks.
+
+State orders: 2-D ``[x, vx, y, vy]`` (D = 4), 3-D ``[x, vx, y, vy, z, vz]`` (D = 6).
+
+Motion: constant velocity per axis with white-noise acceleration. ``noise_model =
+"continuous"`` integrates a continuous white noise of intensity ``q`` [m^2/s^3] over the
+interval (``Q_axis = q [[dt^3/3, dt^2/2], [dt^2/2, dt]]``, Stone Soup's
+``ConstantVelocity(noise_diff_coeff=q)``), which is consistent over irregular intervals;
+``"discrete"`` is the piecewise-constant acceleration of paper 004 (``Q_axis = q G G'``,
+``G = [dt^2/2, dt]'``, ``q`` in (m/s^2)^2), used to compare with the single-target mode.
+
+Measurements: a 2-D position sensor sees ``[x, y]`` (``H`` picks them from either state);
+a radar sees ``[range, azimuth, elevation]`` of the position relative to its
+``sensor_position`` (paper 002 eq. (39)), linearized at the predicted state.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from typing import NamedTuple
+
+import numpy as np
+
+from fedtrack.local_filters.radar.ekf import CV3, motion_model_3d, radar_h, radar_jacobian
+from fedtrack.local_filters.radar.measurement import cartesian_from_polar, cartesian_from_polar_jacobian, wrap_angle
+
+POSITION_INDEX = {4: (0, 2), 6: (0, 2, 4)}
+RADAR_LAYOUT = motion_model_3d(CV3, 1.0, 1.0)  # only its position indices (0, 2, 4) are used
+
+
+class Motion(NamedTuple):
+    F: np.ndarray  # (D, D)
+    Q: np.ndarray  # (D, D)
+
+
+@lru_cache(maxsize=256)
+def motion(dim: int, dt: float, q: float, noise_model: str = "continuous") -> Motion:
+    """CV transition and process noise for ``dim`` = 4 or 6 over ``dt`` seconds."""
+    f = np.array([[1.0, dt], [0.0, 1.0]])
+    if noise_model == "continuous":
+        qa = q * np.array([[dt**3 / 3.0, dt**2 / 2.0], [dt**2 / 2.0, dt]])
+    else:
+        g = np.array([dt**2 / 2.0, dt])
+        qa = q * np.outer(g, g)
+    axes = dim // 2
+    F, Q = np.kron(np.eye(axes), f), np.kron(np.eye(axes), qa)
+    F.setflags(write=False)
+    Q.setflags(write=False)
+    return Motion(F, Q)
+
+
+def predict_tracks(x: np.ndarray, P: np.ndarray, m: Motion, q_scale: float | np.ndarray = 1.0
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Predict a batch ``x`` (N, D), ``P`` (N, D, D); ``Q`` scaled by ``q_scale`` (federated ``beta_i``)."""
+    xp = x @ m.F.T
+    Pp = m.F @ P @ m.F.T + np.asarray(q_scale)[..., None, None] * m.Q
+    return xp, 0.5 * (Pp + np.swapaxes(Pp, -1, -2))
+
+
+def position_matrix(dim: int, m: int = 2) -> np.ndarray:
+    """``H`` (m, dim) that picks the first ``m`` position coordinates of the state."""
+    H = np.zeros((m, dim))
+    H[np.arange(m), list(POSITION_INDEX[dim][:m])] = 1.0
+    return H
+
+
+class Linearized(NamedTuple):
+    """A measurement model at a batch of states: ``z ~ zhat + H (x - x0)``."""
+
+    zhat: np.ndarray  # (N, m)
+    H: np.ndarray  # (N, m, D)
+    angular: tuple[int, ...]  # measurement components that are angles (residuals wrapped)
+
+
+def linearize(x: np.ndarray, sensor_position: np.ndarray | None) -> Linearized:
+    """Position sensor (``sensor_position`` None) or radar at the states ``x`` (N, D)."""
+    n, dim = x.shape
+    if sensor_position is None:
+        H = position_matrix(dim)
+        return Linearized(x[:, [0, 2]], np.broadcast_to(H, (n, 2, dim)), ())
+    if dim != 6:
+        raise ValueError("a radar needs the 3-D state [x, vx, y, vy, z, vz]")
+    return Linearized(radar_h(x, RADAR_LAYOUT, sensor_position), radar_jacobian(x, RADAR_LAYOUT, sensor_position),
+                      (1,))
+
+
+def residuals(z: np.ndarray, lin: Linearized) -> np.ndarray:
+    """Innovations ``z_j - zhat_i`` (N, M, m), angles wrapped to (-pi, pi]."""
+    nu = z[None, :, :] - lin.zhat[:, None, :]
+    for k in lin.angular:
+        nu[..., k] = wrap_angle(nu[..., k])
+    return nu
+
+
+def position_from_detection(z: np.ndarray, R: np.ndarray, sensor_position: np.ndarray | None
+                            ) -> tuple[np.ndarray, np.ndarray]:
+    """Cartesian positions (M, k) and their covariances (M, k, k) of detections ``z`` (M, m)."""
+    if sensor_position is None:
+        return z.copy(), np.broadcast_to(R, (z.shape[0],) + R.shape).copy()
+    J = cartesian_from_polar_jacobian(z)
+    return sensor_position + cartesian_from_polar(z), J @ R @ np.swapaxes(J, -1, -2)

@@ -1,0 +1,72 @@
+"""One sensor scan of detections: the multi-target input line and its validation.
+
+Line format (JSON Lines, one line per sensor scan, in arrival order)::
+
+    {"t": s, "sensor": id, "R": [[..]], "detections": [{"z": [..], "amplitude": a?}, ...],
+     "sensor_position": [x, y, z]?}
+
+A line with ``sensor_position`` is a radar scan (``z`` = range [m], azimuth, elevation
+[rad]); without it, a 2-D position scan (``z`` = [x, y] [m]).
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from fedtrack.jsonl import COMMON_FIELDS, InputError, as_covariance, as_float, as_vector, check_fields, require
+from fedtrack.keys import InvalidName, check_id
+
+SCAN_FIELDS = COMMON_FIELDS | {"detections", "sensor_position"}
+DETECTION_FIELDS = frozenset({"z", "amplitude"})
+MAX_DETECTIONS = 100_000
+
+
+class SensorScan(NamedTuple):
+    t: float
+    sensor: str
+    R: np.ndarray  # (m, m)
+    z: np.ndarray  # (M, m)
+    amplitude: np.ndarray | None  # (M,) when every detection carries one
+    sensor_position: np.ndarray | None  # (3,) for a radar
+
+    @property
+    def dim(self) -> int:
+        return self.R.shape[0]
+
+
+def parse_scan(obj: dict[str, Any], where: str) -> SensorScan:
+    """Validate one multi-target input line (errors name ``where`` = ``file:line`` and the field)."""
+    check_fields(obj, SCAN_FIELDS, obj.get("kind", "mtt"), where)
+    t = as_float(require(obj, "t", where), "t", where)
+    sensor = require(obj, "sensor", where)
+    if not isinstance(sensor, str):
+        raise InputError(f"{where}: sensor must be a string id, got {sensor!r}")
+    try:
+        check_id(sensor)
+    except InvalidName as exc:
+        raise InputError(f"{where}: sensor: {exc}") from exc
+    sp = obj.get("sensor_position")
+    sensor_position = None if sp is None else as_vector(sp, "sensor_position", where, 3)
+    m = 2 if sensor_position is None else 3
+    R = as_covariance(require(obj, "R", where), "R", where, m)
+    dets = require(obj, "detections", where)
+    if not isinstance(dets, list) or len(dets) > MAX_DETECTIONS:
+        raise InputError(f"{where}: detections must be a list of at most {MAX_DETECTIONS} objects")
+    z = np.empty((len(dets), m))
+    amp = np.empty(len(dets))
+    has_amp = 0
+    for j, det in enumerate(dets):
+        if not isinstance(det, dict):
+            raise InputError(f"{where}: detections[{j}] must be an object")
+        check_fields(det, DETECTION_FIELDS, "detection", f"{where}: detections[{j}]")
+        z[j] = as_vector(require(det, "z", where), f"detections[{j}].z", where, m)
+        if "amplitude" in det:
+            amp[j] = as_float(det["amplitude"], f"detections[{j}].amplitude", where)
+            has_amp += 1
+    if 0 < has_amp < len(dets):
+        raise InputError(f"{where}: amplitude must be given for every detection of a scan or for none")
+    if sensor_position is not None and np.any(z[:, 0] <= 0):
+        raise InputError(f"{where}: radar range must be > 0")
+    return SensorScan(t, sensor, R, z, amp if has_amp else None, sensor_position)

@@ -1,0 +1,260 @@
+"""Local multi-target tracker: chi-square gating, global nearest neighbour, M-of-N track logic.
+
+One scan (:func:`tracker_step`), all maths batched over the track axis:
+
+1. Predict every track to the scan time (CV, :mod:`fedtrack.local_filters.mtt.models`).
+2. Gate: ``d2_ij = nu_ij' S_i^-1 nu_ij`` with ``S_i = H_i P_i H_i' + R`` against the
+   chi-square quantile of ``gate_probability`` (m = 2 or 3 degrees of freedom).
+3. Assign (global nearest neighbour): ``scipy.optimize.linear_sum_assignment`` on the
+   gated pairs with cost ``d2_ij + ln det(2 pi S_i) + 2 ln(lambda (1 - P_D) / P_D)``
+   (minus twice the log-likelihood ratio of "track i made detection j" against "detection
+   j is clutter and track i was missed"); a pair whose cost is not negative is not assigned.
+   The problem is split into the connected components of the gating graph first, so a
+   scan with many well separated targets costs many tiny assignments.
+4. Update assigned tracks (EKF for radars, Joseph form); unassigned detections start
+   tentative tracks: position from the detection and its covariance, zero velocity with
+   ``init_velocity_std`` per axis (and, for a 2-D detection in a 3-D state, altitude 0
+   with ``init_z_std``).
+5. Track logic: a track is confirmed once it has ``confirm_hits`` detections within its
+   first ``confirm_window`` scans; a tentative track that can no longer reach that is
+   deleted; a confirmed track is deleted after ``delete_misses`` consecutive misses.
+   Ids are integers in order of creation, never reused.
+
+Each updated or started track carries its detection as a linearized observation
+``(H, R, z - h(x0) + H x0)`` at the linearization point ``x0`` (the track's prediction;
+for a start, the detection's Cartesian position with its covariance): what a fusion centre
+needs to fuse the local tracks exactly (docs/multitarget.md).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.mtt.models import (
+    Linearized,
+    linearize,
+    motion,
+    position_from_detection,
+    position_matrix,
+    predict_tracks,
+    residuals,
+)
+from fedtrack.local_filters.mtt.scan import SensorScan
+
+LOG_2PI = math.log(2.0 * math.pi)
+
+
+class TrackParams(NamedTuple):
+    """What one tracker needs per scan (built from ``[mtt]`` by :func:`track_params`)."""
+
+    dim: int
+    q: float
+    noise_model: str
+    init_velocity_std: float
+    init_z_std: float
+    pd: float
+    clutter_density: float
+    gate: dict[int, float]
+    confirm_hits: int
+    confirm_window: int
+    delete_misses: int
+
+
+def track_params(cfg: MttConfig, sensor: str | None, dim: int) -> TrackParams:
+    """Parameters of the tracker of ``sensor`` (None: a tracker of every sensor's detections)."""
+    return TrackParams(dim, cfg.q, cfg.noise_model, cfg.init_velocity_std, cfg.init_z_std,
+                       cfg.pd if sensor is None else cfg.pd_of(sensor),
+                       cfg.clutter_density if sensor is None else cfg.clutter_of(sensor),
+                       cfg.thresholds.gate, cfg.confirm_hits, cfg.confirm_window, cfg.delete_misses)
+
+
+class TrackSet(NamedTuple):
+    """Live tracks, batched: ``x`` (N, D), ``P`` (N, D, D)."""
+
+    ids: np.ndarray
+    x: np.ndarray
+    P: np.ndarray
+    hits: np.ndarray
+    age: np.ndarray  # scans since the start, the starting one included
+    misses: np.ndarray  # consecutive misses
+    confirmed: np.ndarray
+
+    def take(self, idx: np.ndarray) -> "TrackSet":
+        return TrackSet(*(a[idx] for a in self))
+
+    @property
+    def size(self) -> int:
+        return int(self.ids.shape[0])
+
+
+class TrackerState(NamedTuple):
+    tracks: TrackSet
+    t: float | None
+    next_id: int
+
+
+class Observation(NamedTuple):
+    """What one detection says about its track, linearized: ``z ~ N(H x, R)`` (batched, K tracks).
+
+    ``z = z_det - h(x0) + H x0`` at the linearization point ``x0``; exact for position sensors.
+    """
+
+    H: np.ndarray  # (K, m, D)
+    R: np.ndarray  # (K, m, m)
+    z: np.ndarray  # (K, m)
+
+
+class ScanResult(NamedTuple):
+    state: TrackerState
+    detected: np.ndarray  # (N,) bool over state.tracks: updated or started by this scan
+    observations: Observation  # for the detected tracks, in order
+    retired: np.ndarray  # ids deleted by this scan
+
+
+def empty_tracks(dim: int) -> TrackSet:
+    return TrackSet(np.zeros(0, np.int64), np.zeros((0, dim)), np.zeros((0, dim, dim)), np.zeros(0, np.int64),
+                    np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, bool))
+
+
+def initial_state(dim: int) -> TrackerState:
+    return TrackerState(empty_tracks(dim), None, 0)
+
+
+def _concat(a: TrackSet, b: TrackSet) -> TrackSet:
+    return TrackSet(*(np.concatenate([u, v]) for u, v in zip(a, b)))
+
+
+def innovation_covariance(P: np.ndarray, lin: Linearized, R: np.ndarray) -> np.ndarray:
+    S = lin.H @ P @ np.swapaxes(lin.H, -1, -2) + R
+    return 0.5 * (S + np.swapaxes(S, -1, -2))
+
+
+def gate_distances(nu: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Squared Mahalanobis distances ``d2`` (N, M) and ``ln det S`` (N,) by Cholesky solves."""
+    L = np.linalg.cholesky(S)
+    w = np.linalg.solve(L, np.swapaxes(nu, -1, -2))  # (N, m, M)
+    logdet = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
+    return np.sum(w * w, axis=-2), logdet
+
+
+def assign(cost: np.ndarray, gated: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Global nearest neighbour over gated pairs with negative cost: ``(tracks, detections)``."""
+    usable = gated & (cost < 0.0)
+    rows, cols = np.nonzero(usable)
+    if rows.size == 0:
+        return rows, cols
+    n, m = cost.shape
+    graph = coo_matrix((np.ones(rows.size), (rows, n + cols)), shape=(n + m, n + m))
+    _, label = connected_components(graph, directed=False)
+    comp = label[rows]
+    order = np.argsort(comp, kind="stable")
+    rows, cols, comp = rows[order], cols[order], comp[order]
+    starts = np.flatnonzero(np.r_[True, comp[1:] != comp[:-1]])
+    ends = np.r_[starts[1:], rows.size]
+    single = ends - starts == 1
+    out_r, out_c = [rows[starts[single]]], [cols[starts[single]]]
+    for s, e in zip(starts[~single], ends[~single]):
+        r_u, c_u = np.unique(rows[s:e]), np.unique(cols[s:e])
+        sub = np.where(usable[np.ix_(r_u, c_u)], cost[np.ix_(r_u, c_u)], 0.0)
+        ri, ci = linear_sum_assignment(sub)
+        keep = usable[r_u[ri], c_u[ci]]
+        out_r.append(r_u[ri][keep])
+        out_c.append(c_u[ci][keep])
+    return np.concatenate(out_r), np.concatenate(out_c)
+
+
+def kalman_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray, R: np.ndarray,
+                  S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Batched Joseph-form update with the gain solved from ``S``."""
+    PHt = P @ np.swapaxes(H, -1, -2)
+    K = np.swapaxes(np.linalg.solve(S, np.swapaxes(PHt, -1, -2)), -1, -2)
+    xn = x + np.einsum("nij,nj->ni", K, nu)
+    A = np.eye(x.shape[-1]) - K @ H
+    Pn = A @ P @ np.swapaxes(A, -1, -2) + K @ R @ np.swapaxes(K, -1, -2)
+    return xn, 0.5 * (Pn + np.swapaxes(Pn, -1, -2))
+
+
+def start_tracks(scan: SensorScan, det: np.ndarray, params: TrackParams, first_id: int
+                 ) -> tuple[TrackSet, Observation]:
+    """Tentative tracks from the detections ``det`` of ``scan`` (one-point initialization)."""
+    d = params.dim
+    pos, Ppos = position_from_detection(scan.z[det], scan.R, scan.sensor_position)
+    k = pos.shape[1]
+    n = pos.shape[0]
+    pidx = [0, 2, 4][:k]
+    x = np.zeros((n, d))
+    x[:, pidx] = pos
+    P = np.zeros((n, d, d))
+    P[np.ix_(np.arange(n), pidx, pidx)] = Ppos
+    for v in (1, 3, 5)[: d // 2]:
+        P[:, v, v] = params.init_velocity_std**2
+    if d == 6 and k == 2:
+        P[:, 4, 4] = params.init_z_std**2
+    obs = Observation(np.broadcast_to(position_matrix(d, k), (n, k, d)).copy(), Ppos, pos)
+    one = np.ones(n, np.int64)
+    ids = first_id + np.arange(n, dtype=np.int64)
+    return TrackSet(ids, x, P, one, one.copy(), np.zeros(n, np.int64), one >= params.confirm_hits), obs
+
+
+def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
+                 q_scale: float | np.ndarray = 1.0) -> ScanResult:
+    """Process one scan (times must not decrease); ``q_scale`` scales ``Q`` (federated ``beta_i``)."""
+    tracks = state.tracks
+    d = params.dim
+    if state.t is not None and scan.t < state.t:
+        raise ValueError(f"scan at t = {scan.t} is before the tracker's time {state.t}")
+    if tracks.size and state.t is not None and scan.t > state.t:
+        x, P = predict_tracks(tracks.x, tracks.P, motion(d, round(scan.t - state.t, 12), params.q,
+                                                          params.noise_model), q_scale)
+    else:
+        x, P = tracks.x.copy(), tracks.P.copy()
+    m = scan.dim
+    n_det = scan.z.shape[0]
+    assigned = np.zeros(tracks.size, bool)
+    obs_upd = Observation(np.zeros((0, m, d)), np.zeros((0, m, m)), np.zeros((0, m)))
+    used = np.zeros(n_det, bool)
+    if tracks.size and n_det:
+        lin = linearize(x, scan.sensor_position)
+        nu = residuals(scan.z, lin)
+        S = innovation_covariance(P, lin, scan.R)
+        d2, logdet = gate_distances(nu, S)
+        gated = d2 <= params.gate[m]
+        pd = params.pd
+        if pd >= 1.0:
+            bias = -1e6  # no missed detections: any gated pair beats a miss
+        else:
+            bias = 2.0 * math.log(max(params.clutter_density, 1e-300) * (1.0 - pd) / pd)
+        cost = d2 + logdet[:, None] + m * LOG_2PI + bias
+        ti, dj = assign(cost, gated)
+        order = np.argsort(ti)
+        ti, dj = ti[order], dj[order]
+        if ti.size:
+            H, R = lin.H[ti], scan.R
+            nu_a, x0 = nu[ti, dj], x[ti]
+            x[ti], P[ti] = kalman_update(x0, P[ti], nu_a, H, R, S[ti])
+            obs_upd = Observation(H, np.broadcast_to(R, (ti.size, m, m)).copy(),
+                                  nu_a + np.einsum("nij,nj->ni", H, x0))
+            assigned[ti] = True
+            used[dj] = True
+    hits = tracks.hits + assigned
+    age = tracks.age + 1
+    misses = np.where(assigned, 0, tracks.misses + 1)
+    confirmed = tracks.confirmed | (hits >= params.confirm_hits)
+    live = np.where(confirmed, misses < params.delete_misses,
+                    params.confirm_window - age >= params.confirm_hits - hits)
+    updated = TrackSet(tracks.ids, x, P, hits, age, misses, confirmed)
+    kept = updated.take(live)
+    new, obs_new = start_tracks(scan, np.flatnonzero(~used), params, state.next_id)
+    detected = np.concatenate([assigned[live], np.ones(new.size, bool)])
+    keep_info = live[assigned]
+    return ScanResult(TrackerState(_concat(kept, new), scan.t, state.next_id + new.size), detected,
+                      Observation(*(np.concatenate([u[keep_info], v]) for u, v in zip(obs_upd, obs_new))),
+                      tracks.ids[~live])
+
