@@ -25,7 +25,9 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from fedtrack.config import in_file
 from fedtrack.deploy.report import LaunchReport, finish
+from fedtrack.deploy.security import LAUNCHER, identity, write_configs
 from fedtrack.deploy.settings import Settings, load_settings
 from fedtrack.keys import Keys
 from fedtrack.wire import FusedTrack, Health, Measurement, WireError, decode
@@ -114,6 +116,27 @@ def service_plan(settings: Settings, config_path: Path, out_dir: Path, log_dir: 
     return plan
 
 
+def apply_zenoh_settings(settings: Settings, config_path: Path, out_dir: Path,
+                         plan: list[ServiceProcess]) -> str | None:
+    """Hand every service of ``plan`` its Zenoh configuration (``[zenoh]`` table, see
+    :mod:`fedtrack.deploy.security`) with ``--zenoh-config``; returns the launcher monitor's file."""
+    dep = settings.deployment
+    endpoints = [*([dep.router_listen] if dep.router_listen else []), *dep.connect_endpoints]
+
+    def ident(sp: ServiceProcess) -> str:
+        return identity(sp.role, sp.id)
+
+    identities = sorted({ident(sp) for sp in plan} | {identity("sensor", s.id) for s in settings.sensor}
+                        | {"router", "fusion", "recorder"})
+    with in_file(config_path):
+        paths = write_configs(settings.zenoh, config_path.parent, Keys(dep.name), endpoints, identities, out_dir)
+    if not paths:
+        return None
+    for sp in plan:
+        sp.argv = [*sp.argv, "--zenoh-config", str(paths[ident(sp)])]
+    return str(paths[LAUNCHER])
+
+
 def align_realtime_sensors(plan: list[ServiceProcess], lead_s: float = 3.0) -> None:
     """Give every sensor of the plan one wall-clock start time (realtime pacing schedules
     scan k at start + k T / speed, so the sensors stay in step and do not drift)."""
@@ -127,8 +150,9 @@ class Launcher:
     """Runs a plan of service processes and watches the deployment over Zenoh."""
 
     def __init__(self, settings: Settings, plan: list[ServiceProcess], quiet: bool = False,
-                 max_scans: int | None = None) -> None:
+                 max_scans: int | None = None, zenoh_config: str | None = None) -> None:
         self.settings = settings
+        self.zenoh_config = zenoh_config
         self.plan = plan
         self.quiet = quiet
         self.max_scans = max_scans
@@ -186,7 +210,8 @@ class Launcher:
     # ------------------------------------------------------------ zenoh monitoring
     def _open_monitor(self) -> None:
         opts = SessionOptions(mode="client", connect=self.settings.deployment.connect_endpoints,
-                              connect_timeout_s=self.settings.deployment.ready_timeout_s)
+                              connect_timeout_s=self.settings.deployment.ready_timeout_s,
+                              config_file=self.zenoh_config)
         self._session = open_session(opts)
         self._subs = [
             self._session.declare_subscriber(self.keys.fusion_track(), self._on_track),
@@ -319,7 +344,8 @@ def install_stop_handlers(launcher: Launcher) -> None:
 def run_deployment(settings: Settings, config_path: Path, out_dir: Path, quiet: bool = False) -> LaunchReport:
     """Launch the services of ``settings`` on this host and wait for the scenario to end."""
     plan = service_plan(settings, config_path, out_dir, out_dir / "logs")
-    launcher = Launcher(settings, plan, quiet=quiet)
+    monitor_config = apply_zenoh_settings(settings, config_path, out_dir, plan)
+    launcher = Launcher(settings, plan, quiet=quiet, zenoh_config=monitor_config)
     install_stop_handlers(launcher)
     return launcher.run()
 

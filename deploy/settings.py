@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from fedtrack.config import load_tables
+from fedtrack.deploy.security import ZenohSettings
 from fedtrack.deployment import DeploymentConfig, SensorConfig
 from fedtrack.local_filters.imm.config import IMMConfig
 from fedtrack.local_filters.pda.replay import PDAReplayConfig
@@ -24,7 +25,7 @@ from fedtrack.sensors.sonar import SonarConfig
 class Settings:
     """``[fusion]``, ``[deployment]``, ``[[sensor]]``; ``[sonar]`` / ``[radar]`` for those sensor
     kinds, ``[radar_filter]`` (checked by the radar filter chosen with ``--filter``), ``[imm]``
-    and ``[pda]``."""
+    and ``[pda]``; ``[zenoh]`` (the services' Zenoh configuration, :mod:`fedtrack.deploy.security`)."""
 
     fusion: FusionConfig = field(default_factory=FusionConfig)
     deployment: DeploymentConfig = field(default_factory=DeploymentConfig)
@@ -34,6 +35,7 @@ class Settings:
     radar_filter: Any = None
     imm: IMMConfig = field(default_factory=IMMConfig)
     pda: PDAReplayConfig = field(default_factory=PDAReplayConfig)
+    zenoh: ZenohSettings = field(default_factory=ZenohSettings)
 
 
 def load_settings(path: Path | None) -> Settings:

@@ -5,6 +5,10 @@ memory off (no ``/dev/shm/*.zenoh`` leftovers), fast reconnection (retry every
 0.1 s growing to 1 s), and ``connect/timeout_ms`` so a client started before its
 router waits for it instead of failing. ``close_session`` never blocks longer
 than its deadline (``close()`` can take ~12 s against a frozen peer).
+
+``--zenoh-config FILE`` (``SessionOptions.config_file``): a Zenoh JSON5 configuration
+file loaded first (TLS certificates, access control, authentication, ...); the
+settings above and the endpoints are then applied on top of it.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ from fedtrack.keys import DEFAULT_DEPLOYMENT, InvalidName, check_id
 
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
 MODES = ("client", "peer", "router")
+_RUST_LOCATION = re.compile(r"\s+at \S+\.rs:\d+\.?")
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/\S+$")
 
 
@@ -44,6 +49,7 @@ class SessionOptions:
     listen: tuple[str, ...] = ()
     connect_timeout_s: float = 10.0
     lease_ms: int | None = None
+    config_file: str | None = None
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -54,6 +60,8 @@ class SessionOptions:
             raise ValueError("a client needs at least one --connect endpoint")
         if self.lease_ms is not None and self.lease_ms < 100:
             raise ValueError(f"lease_ms must be >= 100, got {self.lease_ms}")
+        if self.config_file is not None:
+            load_config_file(self.config_file)
 
 
 def check_endpoint(endpoint: str) -> str:
@@ -61,6 +69,15 @@ def check_endpoint(endpoint: str) -> str:
     if not _ENDPOINT.match(endpoint):
         raise ValueError(f"invalid endpoint {endpoint!r} (expected e.g. tcp/127.0.0.1:7447)")
     return endpoint
+
+
+def load_config_file(path: str) -> zenoh.Config:
+    """A ``zenoh.Config`` from a JSON5 file; ValueError naming the file if it cannot be used."""
+    try:
+        return zenoh.Config.from_file(path)
+    except (zenoh.ZError, OSError, ValueError) as exc:
+        text = " ".join(line.strip() for line in str(exc).splitlines() if line.strip()) or type(exc).__name__
+        raise ValueError(f"zenoh config {path}: {_RUST_LOCATION.sub('', text)}") from None
 
 
 def make_config(opts: SessionOptions) -> zenoh.Config:
@@ -78,7 +95,7 @@ def make_config(opts: SessionOptions) -> zenoh.Config:
         settings["scouting/delay"] = 0
     if opts.lease_ms is not None:
         settings["transport/link/tx/lease"] = opts.lease_ms
-    config = zenoh.Config()
+    config = load_config_file(opts.config_file) if opts.config_file is not None else zenoh.Config()
     for key, value in settings.items():
         config.insert_json5(key, json.dumps(value))
     return config
@@ -144,7 +161,7 @@ _deployment_arg = id_arg("deployment")
 
 
 def add_endpoint_args(parser: argparse.ArgumentParser, listen_default: tuple[str, ...] = ()) -> None:
-    """Add ``--connect``, ``--listen``, ``--deployment``, ``--connect-timeout``, ``--lease-ms``."""
+    """Add ``--connect``, ``--listen``, ``--deployment``, ``--connect-timeout``, ``--lease-ms``, ``--zenoh-config``."""
     group = parser.add_argument_group("zenoh")
     group.add_argument("--connect", action="append", type=_endpoint_arg, metavar="ENDPOINT",
                        help="endpoint to connect to, repeatable (default: deployment.connect of --config, "
@@ -158,6 +175,9 @@ def add_endpoint_args(parser: argparse.ArgumentParser, listen_default: tuple[str
                        help="wait this long for a connect endpoint; negative = forever (default: %(default)s)")
     group.add_argument("--lease-ms", type=int, default=None, metavar="MS",
                        help="link lease: a frozen peer is declared dead after this (default: zenoh's 10000)")
+    group.add_argument("--zenoh-config", metavar="FILE",
+                       help="Zenoh JSON5 configuration loaded first (TLS, access control); fedtrack's settings "
+                            "and the endpoints are applied on top")
     parser.set_defaults(_listen_default=tuple(listen_default))
 
 
@@ -166,4 +186,5 @@ def options_from_args(args: argparse.Namespace, mode: str = "client") -> Session
     connect = tuple(args.connect) if args.connect else ((DEFAULT_ROUTER,) if mode == "client" else ())
     listen = tuple(args.listen) if args.listen else args._listen_default
     return SessionOptions(mode=mode, connect=connect, listen=listen,
-                          connect_timeout_s=args.connect_timeout, lease_ms=args.lease_ms)
+                          connect_timeout_s=args.connect_timeout, lease_ms=args.lease_ms,
+                          config_file=args.zenoh_config)

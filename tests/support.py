@@ -32,25 +32,33 @@ class Deployment:
     """
 
     def __init__(self, tmp_path: Path, n_sensors: int = 2, seed: int = 1, pacing: str = "lockstep",
-                 speed: float = 1.0, deadline_s: float = 2.0) -> None:
+                 speed: float = 1.0, deadline_s: float = 2.0, tls_dir: Path | None = None) -> None:
         from dataclasses import replace
 
         from fedtrack.deploy.demo import demo_settings, write_config
-        from fedtrack.deploy.launcher import service_plan
+        from fedtrack.deploy.launcher import apply_zenoh_settings, service_plan
+        from fedtrack.deploy.security import ZenohSettings
         from fedtrack.keys import Keys
 
         self.tmp_path = tmp_path
         self.port = free_port()
         settings = demo_settings(n_sensors, 1, "federated", seed, self.port, tmp_path)
         name = f"t{time.monotonic_ns() % 10**9}"
+        proto = "tls" if tls_dir is not None else "tcp"
+        self.endpoint = f"{proto}/127.0.0.1:{self.port}"
         self.settings = replace(settings, deployment=replace(settings.deployment, name=name, pacing=pacing,
-                                                             speed=speed, deadline_s=deadline_s))
+                                                             speed=speed, deadline_s=deadline_s,
+                                                             router_listen=self.endpoint),
+                                zenoh=ZenohSettings(tls_dir=str(tls_dir) if tls_dir is not None else None))
         self.config = tmp_path / "config.toml"
         write_config(self.settings, self.config)
         self.keys = Keys(name)
-        self.plan = {sp.name: sp for sp in service_plan(self.settings, self.config, tmp_path, tmp_path / "logs")}
+        plan = service_plan(self.settings, self.config, tmp_path, tmp_path / "logs")
+        self.zenoh_config = apply_zenoh_settings(self.settings, self.config, tmp_path, plan)
+        self.plan = {sp.name: sp for sp in plan}
         self.procs: dict[str, subprocess.Popen[bytes]] = {}
         self.tracks: list[tuple[Any, bytes]] = []
+        self.health: dict[str, dict[str, int]] = {}
         self.session: Any = None
         self._subs: list[Any] = []
 
@@ -69,15 +77,20 @@ class Deployment:
         assert not missing, f"not alive: {missing}; logs in {self.tmp_path / 'logs'}"
 
     def start(self, sensors: bool = True) -> None:
-        from fedtrack.wire import FusedTrack, decode
+        from fedtrack.wire import FusedTrack, Health, decode
         from fedtrack.zsession import SessionOptions, open_session
 
+        def on_health(sample: Any) -> None:
+            h = decode(sample.payload.to_bytes(), Health)
+            self.health[f"{h.role}/{h.id}"] = dict(h.counters)
+
         self.spawn("router/router")
-        self.session = open_session(SessionOptions(connect=(f"tcp/127.0.0.1:{self.port}",),
-                                                   connect_timeout_s=20.0))
+        self.session = open_session(SessionOptions(connect=(self.endpoint,), connect_timeout_s=20.0,
+                                                   config_file=self.zenoh_config))
         self._subs.append(self.session.declare_subscriber(
             self.keys.fusion_track(),
             lambda s: self.tracks.append((decode(s.payload.to_bytes(), FusedTrack), s.payload.to_bytes()))))
+        self._subs.append(self.session.declare_subscriber(self.keys.health(), on_health))
         others = [n for n, sp in self.plan.items() if sp.role not in ("router", "sensor")]
         for name in others:
             self.spawn(name)

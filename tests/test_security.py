@@ -1,0 +1,148 @@
+"""Authenticated transport (deploy/secure): mutual TLS and the router's access control.
+
+Certificates are made in tmp_path with deploy/secure/make-certs.sh (openssl); loopback only.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+from support import Deployment
+
+from fedtrack.config import ConfigError
+from fedtrack.deploy.security import MAKE_CERTS, access_control, identity
+from fedtrack.fusion_center.replay import replay_fusion
+from fedtrack.keys import Keys
+from fedtrack.recording import Recording
+from fedtrack.wire import FusedTrack, LocalEstimate, Measurement, Reset, decode, encode
+from fedtrack.zsession import SessionError, SessionOptions, close_session, open_session
+
+pytestmark = [pytest.mark.security,
+              pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl is not installed")]
+MARK = 4242.4242  # the first coordinate of every forged message's state or measurement
+MARK_BYTES = np.array([MARK]).tobytes()  # arrays travel as little-endian float64 bytes
+
+
+def client_config(path: Path, ca: Path, cert: Path | None) -> str:
+    tls = {"root_ca_certificate": str(ca), "enable_mtls": True}
+    if cert is not None:
+        tls.update(connect_certificate=str(cert), connect_private_key=str(cert.with_suffix(".key")))
+    path.write_text(json.dumps({"transport": {"link": {"tls": tls}}}))
+    return str(path)
+
+
+def test_identities_and_rules() -> None:
+    assert [identity(r, i) for r, i in (("sensor", "3"), ("local-filter", "3"), ("fusion-center", "fusion"),
+                                         ("recorder", "recorder"))] == ["sensor-3", "sensor-3", "fusion", "recorder"]
+    acl = access_control(Keys("d"), ["fusion", "sensor-1"])
+    own = {r["id"]: r["key_exprs"] for r in acl["rules"]}
+    assert "fedtrack/d/sensor/1/meas" in own["own-sensor-1"] and "fedtrack/d/local/1/estimate" in own["own-sensor-1"]
+    assert not any("fusion" in k or "sensor/2" in k for k in own["own-sensor-1"])
+    assert "fedtrack/d/fusion/**" in own["own-fusion"] and acl["default_permission"] == "deny"
+
+
+def test_launch_refuses_tcp_endpoints_with_tls_dir(tmp_path: Path) -> None:
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('[zenoh]\ntls_dir = "certs"\n[deployment]\nrouter_listen = "tcp/127.0.0.1:1"\n'
+                   '[[sensor]]\nid = "1"\n')
+    done = subprocess.run([sys.executable, "-m", "fedtrack.cli", "launch", str(cfg)], capture_output=True,
+                          text=True, timeout=60)
+    assert done.returncode == 2 and "zenoh.tls_dir: endpoint tcp/127.0.0.1:1 is not tls/" in done.stderr
+    assert str(cfg) in done.stderr and "Traceback" not in done.stderr
+    with pytest.raises(ConfigError):
+        from fedtrack.deploy.security import ZenohSettings
+        ZenohSettings(config="a.json5", tls_dir="b").validate()
+
+
+def test_mutual_tls_and_access_control(tmp_path: Path) -> None:
+    """No certificate or a foreign CA: no session. Sensor 1's identity forging sensor 2's
+    measurements and estimates, resets and tracks: denied at the router, so the centre, the
+    recorder and every subscriber never see them, and the tracks equal the replay of the
+    genuine measurements."""
+    certs = tmp_path / "certs"
+    dep = Deployment(tmp_path, tls_dir=certs)  # makes the certificates
+    ca = certs / "ca.pem"
+    rogue_dir = tmp_path / "rogue"
+    subprocess.run(["sh", str(MAKE_CERTS), str(rogue_dir), "sensor-1"], check=True, capture_output=True, timeout=60)
+    forger = None
+    try:
+        dep.start(sensors=False)
+        for name, cert, ca_file in (("none", None, ca), ("foreign", rogue_dir / "sensor-1.pem", rogue_dir / "ca.pem")):
+            with pytest.raises(SessionError):
+                open_session(SessionOptions(connect=(dep.endpoint,), connect_timeout_s=1.0,
+                                            config_file=client_config(tmp_path / f"{name}.json5", ca_file, cert)))
+        forger = open_session(SessionOptions(connect=(dep.endpoint,), connect_timeout_s=5.0,
+                                             config_file=client_config(tmp_path / "s1.json5", ca,
+                                                                       certs / "sensor-1.pem")))
+        seen: list[str] = []
+        spy = dep.session.declare_subscriber(f"fedtrack/{dep.keys.deployment}/**",
+                                             lambda s: seen.append(str(s.key_expr)) if MARK_BYTES in
+                                             s.payload.to_bytes() else None)
+        forged = forgeries(dep.keys)
+        stop = threading.Event()
+
+        def flood() -> None:
+            while not stop.is_set():
+                for key, payload in forged:
+                    forger.put(key, payload)
+                stop.wait(0.005)
+        thread = threading.Thread(target=flood, daemon=True)
+        thread.start()
+        dep.start_sensors()
+        assert dep.wait_sensors_done(90.0)
+        stop.set()
+        thread.join(5)
+        spy.undeclare()
+        for name in ("recorder/recorder", "fusion-center/fusion", "local-filter/1", "local-filter/2"):
+            assert dep.stop(name) == 0  # each sends its final Health
+    finally:
+        if forger is not None:
+            close_session(forger)
+        dep.close()
+    assert seen == []
+    centre = dep.health["fusion-center/fusion"]
+    assert centre["received"] == 202 and centre["scans_fused"] == 101, centre
+    for sid in ("1", "2"):
+        assert dep.health[f"local-filter/{sid}"]["received"] == 101 + 101, dep.health  # meas + resets
+    rec = Recording(tmp_path / "recording.db", readonly=True)
+    assert rec.count(Measurement) == 202 and rec.count(LocalEstimate) == 202 and rec.count(FusedTrack) == 101
+    assert all(m.z[0] != MARK for m in rec.messages(Measurement, "id"))
+    rec.export(tmp_path / "m.jsonl")
+    rec.close()
+    replay_fusion("fvdie", tmp_path / "m.jsonl", dep.config, tmp_path / "replay.jsonl")
+    replayed = [json.loads(line) for line in (tmp_path / "replay.jsonl").read_text().splitlines()]
+    live = sorted((t for t, _ in dep.tracks), key=lambda t: t.seq)
+    assert len(live) == len(replayed) == 101
+    for tr, rp in zip(live, replayed):
+        np.testing.assert_allclose(tr.x, rp["x"], rtol=1e-9, atol=1e-6)
+
+
+def forgeries(keys: Keys) -> list[tuple[str, bytes]]:
+    """Plausible messages sensor 1's identity has no right to publish (all carrying MARK)."""
+    x, P = np.array([MARK, 10.0, 2000.0, 5.0]), np.eye(4) * 100.0
+    out: list[tuple[str, bytes]] = []
+    for seq in range(0, 101, 10):
+        out.append((keys.sensor_meas("2"), encode(Measurement(sensor="2", seq=seq, t=float(seq), kind="position",
+                                                             z=np.array([MARK, 5e4]), R=np.eye(2)))))
+        out.append((keys.local_estimate("2"), encode(LocalEstimate(
+            sensor="2", seq=seq, t=float(seq), model="cv", x=x, P=P, x_prior=x, P_prior=P, stamp_ns=1))))
+        for sid in ("1", "2"):
+            out.append((keys.fusion_reset(sid), encode(Reset(sensor=sid, seq=seq, t=float(seq), model="cv", x=x,
+                                                             P=P, beta=0.5))))
+        out.append((keys.fusion_track(), encode(FusedTrack(seq=seq, t=float(seq), model="cv", x=x, P=P,
+                                                           maneuver=False, degraded=False, sensors=("1",),
+                                                           stamp_ns=1))))
+    return out
+
+
+def test_forged_payloads_carry_the_mark() -> None:
+    forged = forgeries(Keys("d"))
+    assert len(forged) == 5 * 11 and all(MARK_BYTES in p for _, p in forged)
+    assert decode(forged[0][1], Measurement).z[0] == MARK
