@@ -115,8 +115,8 @@ def ensure_certificates(tls_dir: Path, identities: list[str]) -> None:
     if shutil.which("openssl") is None:
         raise ConfigError(f"zenoh.tls_dir: {tls_dir} lacks certificates for {', '.join(missing)} and openssl is not "
                           "installed to make them")
-    done = subprocess.run(["sh", str(MAKE_CERTS), str(tls_dir), *missing], check=False, capture_output=True, text=True,
-                          timeout=120)
+    done = subprocess.run(["sh", str(MAKE_CERTS), str(tls_dir), *missing], check=False, capture_output=True,
+                          text=True, timeout=120)
     if done.returncode != 0:
         raise ConfigError(f"zenoh.tls_dir: making certificates in {tls_dir} failed: {done.stderr.strip()[-300:]}")
 
