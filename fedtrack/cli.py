@@ -63,7 +63,13 @@ TRAINERS: dict[str, str] = {
     "ts-fuzzy": "fedtrack.experiments.ts_fuzzy:main",
 }
 
+# name -> "module:function(argv) -> int"
+SIMULATORS: dict[str, str] = {
+    "multitarget": "fedtrack.sensors.multitarget:main",
+}
+
 COMMANDS: dict[str, str] = {
+    "evaluate": "fedtrack.fusion_center.mtt.evaluation:main",
     "demo": "fedtrack.deploy.demo:main",
     "launch": "fedtrack.deploy.launcher:main",
     "bench": "fedtrack.benchmarks.run:main",
@@ -173,11 +179,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     _registry_parser(sub, "serve", "run one service process", "role", SERVICES, "role")
     _registry_parser(sub, "train", "train a learned component", "name", TRAINERS, "trainer")
+    _registry_parser(sub, "simulate", "simulate a scenario to replay", "scenario", SIMULATORS, "scenario")
 
     for name, help_text in (("demo", "the main job: a whole deployment on one machine"),
                             ("launch", "start every service of a deployment config"),
                             ("bench", "benchmarks (ratios measured side by side)"),
-                            ("export", "a recording database's measurements as replay input")):
+                            ("export", "a recording database's measurements as replay input"),
+                            ("evaluate", "GOSPA, OSPA, id switches, RMSE and NEES of track pictures against truth")):
         p = sub.add_parser(name, help=help_text, add_help=False)
         p.set_defaults(func=None, registry=COMMANDS, key=None)
     return parser

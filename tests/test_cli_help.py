@@ -20,6 +20,7 @@ def _help_cases() -> list[list[str]]:
     cases: list[list[str]] = [[], *([name] for name in sub.choices)]
     cases += [["serve", role] for role in cli.SERVICES]
     cases += [["train", name] for name in cli.TRAINERS]
+    cases += [["simulate", name] for name in cli.SIMULATORS]
     cases += [["reproduce", name] for name in cli.REPRODUCERS]
     return cases
 

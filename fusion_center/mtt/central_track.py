@@ -32,6 +32,7 @@ class CentralTrack(NamedTuple):
     id: int
     history: tuple[Fused, ...]  # time order; history[0] is the checkpoint (older ones folded)
     confirmed: bool
+    hits: int  # detections fused, the start included
 
     @property
     def t(self) -> float:
@@ -66,7 +67,7 @@ def update(x: np.ndarray, P: np.ndarray, obs: Observation1) -> tuple[np.ndarray,
 
 
 def start(track_id: int, t: float, x: np.ndarray, P: np.ndarray, confirmed: bool) -> CentralTrack:
-    return CentralTrack(track_id, (Fused(t, None, x, P),), confirmed)
+    return CentralTrack(track_id, (Fused(t, None, x, P),), confirmed, 1)
 
 
 def state_at(track: CentralTrack, t: float, q: float, noise_model: str) -> tuple[np.ndarray, np.ndarray]:
@@ -102,6 +103,6 @@ def fuse(track: CentralTrack, t: float, obs: Observation1, q: float, noise_model
     first = 0
     while first + 1 < len(out) and out[first + 1].t < horizon:
         first += 1
-    new = CentralTrack(track.id, tuple(out[first:]), track.confirmed)
+    new = CentralTrack(track.id, tuple(out[first:]), track.confirmed, track.hits + 1)
     assert at_t is not None
     return new, at_t[0], at_t[1]

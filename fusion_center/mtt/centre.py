@@ -19,7 +19,8 @@ scan, the linearized observation of every track the scan detected, the tracks it
   central estimate with ``P_i = beta_i P`` (``beta_i`` = the number of live sensors, so the
   shares sum to one and renormalize when sensors join or leave); the local tracker then
   predicts with ``Q_i = beta_i Q`` (paper 004 eqs. (17)-(22)). **Decentralized**: no feedback.
-* **Life.** A central track is confirmed once any of its local tracks is; it is deleted when
+* **Life.** A central track is confirmed once any of its local tracks is, or once tracks of two
+  or more sensors gave it ``confirm_hits + 1`` detections; it is deleted when
   no local track maps to it any more or none supported it for ``central_timeout`` seconds.
 """
 
@@ -71,6 +72,7 @@ class Counters:
     started: int = 0
     deleted: int = 0
     unmapped: int = 0
+    merged: int = 0
 
 
 @dataclass
@@ -155,13 +157,53 @@ class TrackToTrackCentre:
                     continue
                 track, xc, Pc = done
                 self.counters.fused += 1
-            if report.confirmed[row] and not track.confirmed:
+            if not track.confirmed and (report.confirmed[row] or (track.hits >= cfg.confirm_hits + 1
+                                                                  and len(self.sensors_of(cid)) > 1)):
                 track = track._replace(confirmed=True)
             self.tracks[cid] = track
             self.last_support[cid] = max(self.last_support.get(cid, t), t)
             if self.feedback:
                 resets.append(Reset(s, key[1], t, xc[:d].copy(), beta * Pc[:d, :d]))
+        self._merge_duplicates({self.mapping[(s, int(report.ids[row]))] for row in det_rows.tolist()
+                                if (s, int(report.ids[row])) in self.mapping}, t)
         return resets
+
+    def _merge_duplicates(self, updated: set[int], t: float) -> None:
+        """Merge a central track into an older one that passes the track-to-track test and shares
+        no sensor with it (two sensors' tracks of one target that missed each other at the start)."""
+        if len(self.tracks) < 2:
+            return
+        cfg = self.cfg
+        ids = sorted(self.tracks)
+        states = [state_at(self.tracks[c], t, cfg.q, cfg.noise_model) for c in ids]
+        X = np.stack([x for x, _ in states])
+        P = np.stack([P for _, P in states])
+        sensors = {c: set(self.sensors_of(c)) for c in ids}
+        gate = cfg.thresholds.association[self.dim]
+        for cid in sorted(updated):
+            if cid not in self.tracks:
+                continue
+            k = ids.index(cid)
+            diff = X - X[k]
+            near = np.flatnonzero(np.sum(diff[:, [0, 2]] ** 2, axis=1) < 25.0 * (P[:, 0, 0] + P[:, 2, 2] + P[k, 0, 0]
+                                                                              + P[k, 2, 2]))
+            for j in near.tolist():
+                other = ids[j]
+                if other == cid or other not in self.tracks or sensors[cid] & sensors[other]:
+                    continue
+                d2 = float(diff[j] @ np.linalg.solve(P[j] + P[k], diff[j]))
+                if d2 > gate:
+                    continue
+                keep, drop = min(cid, other), max(cid, other)
+                for key in [key for key, c in self.mapping.items() if c == drop]:
+                    self.mapping[key] = keep
+                kept = self.tracks[keep]
+                self.tracks[keep] = kept._replace(confirmed=kept.confirmed or self.tracks[drop].confirmed)
+                del self.tracks[drop]
+                self.last_support[keep] = max(self.last_support.get(keep, t), self.last_support.pop(drop, t))
+                sensors[keep] = sensors[keep] | sensors.pop(drop)
+                self.counters.merged += 1
+                break
 
     def _associate(self, report: LocalReport, det_rows: np.ndarray, unmapped: list[int]) -> set[LocalKey]:
         """Map the scan's unmapped local tracks; returns those that started central tracks."""

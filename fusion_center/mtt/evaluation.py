@@ -1,0 +1,233 @@
+"""Multi-target tracking metrics: GOSPA (with its parts), OSPA, id switches, fragmentations, RMSE, NEES.
+
+* GOSPA with ``alpha = 2`` (Rahmathullah, García-Fernández, Svensson, "Generalized optimal
+  sub-pattern assignment metric", FUSION 2017): for truth positions ``X`` (n) and track
+  positions ``Y`` (m), ``GOSPA^p = min over assignments of sum d(x, y)^p + c^p / 2 (n + m - 2|A|)``
+  where only pairs with ``d < c`` are assigned. It splits into ``localisation`` (the sum over
+  assigned pairs), ``missed`` (``c^p / 2`` per unassigned truth) and ``false`` (``c^p / 2``
+  per unassigned track): ``GOSPA = (localisation + missed + false)^(1/p)``. The parts are
+  reported in that p-th power scale so that they add up.
+* OSPA (Schuhmacher, Vo, Vo, "A consistent metric for performance evaluation of multi-object
+  filters", IEEE TSP 2008): ``(1/max(n, m) (min sum min(d, c)^p + c^p |m - n|))^(1/p)``.
+* Both assignments use ``scipy.optimize.linear_sum_assignment`` on ``min(d, c)^p``.
+* Per truth, the sequence of assigned track ids gives **id switches** (the id changes from one
+  assigned picture to the next assigned one) and **fragmentations** (an assigned stretch ends
+  and a later one starts).
+* Position RMSE over assigned pairs; NEES of the full state over assigned pairs whose state
+  sizes agree, its mean and the fraction inside the two-sided 95% chi-square band.
+
+Only confirmed tracks are evaluated unless ``all_tracks``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+from scipy.special import chdtri
+
+from fedtrack.jsonl import InputError, read_jsonl
+
+
+class SetDistance(NamedTuple):
+    gospa: float
+    localisation: float
+    missed: float
+    false: float
+    ospa: float
+    pairs: list[tuple[int, int]]  # (truth index, track index) with d < c
+
+
+def set_distance(truth: np.ndarray, tracks: np.ndarray, c: float, p: float) -> SetDistance:
+    """GOSPA (alpha = 2) and OSPA between position sets ``truth`` (n, k) and ``tracks`` (m, k)."""
+    n, m = len(truth), len(tracks)
+    half = c**p / 2.0
+    if n == 0 or m == 0:
+        gospa_p = half * (n + m)
+        return SetDistance(gospa_p ** (1 / p), 0.0, half * n, half * m, 0.0 if n == m else c, [])
+    d = np.linalg.norm(truth[:, None, :] - tracks[None, :, :], axis=-1)
+    cost = np.minimum(d, c) ** p
+    ri, ci = linear_sum_assignment(cost)
+    close = d[ri, ci] < c
+    loc = float(np.sum(d[ri, ci][close] ** p))
+    k = int(np.sum(close))
+    missed, false = half * (n - k), half * (m - k)
+    ospa = (float(np.sum(cost[ri, ci])) + c**p * abs(m - n)) / max(n, m)
+    pairs = [(int(r), int(q)) for r, q, ok in zip(ri, ci, close) if ok]
+    return SetDistance((loc + missed + false) ** (1 / p), loc, missed, false, ospa ** (1 / p), pairs)
+
+
+def id_changes(sequence: list[int | None]) -> tuple[int, int]:
+    """``(switches, fragmentations)`` of one truth's assigned-track sequence (None: unassigned)."""
+    switches = fragments = 0
+    last: int | None = None
+    gap = False
+    for tid in sequence:
+        if tid is None:
+            gap = last is not None
+            continue
+        if last is not None and tid != last:
+            switches += 1
+        if gap:
+            fragments += 1
+            gap = False
+        last = tid
+    return switches, fragments
+
+
+def _load(path: Path, key: str) -> list[tuple[float, list[dict[str, Any]]]]:
+    out = []
+    for lineno, obj in read_jsonl(path):
+        where = f"{path}:{lineno}"
+        if not isinstance(obj.get("t"), (int, float)) or not isinstance(obj.get(key), list):
+            raise InputError(f"{where}: expected {{\"t\": number, \"{key}\": [...]}}")
+        for j, item in enumerate(obj[key]):
+            if not isinstance(item, dict) or not isinstance(item.get("x"), list) or "id" not in item:
+                raise InputError(f"{where}: {key}[{j}] needs \"id\" and \"x\"")
+        out.append((float(obj["t"]), obj[key]))
+    return out
+
+
+def _positions(x: list[float]) -> np.ndarray:
+    return np.asarray(x, float)[0::2][: len(x) // 2]
+
+
+def _stack(states: list[list[float]]) -> np.ndarray:
+    """Positions (n, k) of states; (0, 3) when there are none."""
+    return np.array([_positions(x) for x in states]) if states else np.zeros((0, 3))
+
+
+def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2.0,
+             all_tracks: bool = False) -> dict[str, Any]:
+    """Every metric of the module docstring over the pictures that have a truth line at their time."""
+    truth = {round(t, 6): items for t, items in _load(truth_path, "targets")}
+    series: list[dict[str, float]] = []
+    sequences: dict[Any, list[int | None]] = {}
+    sq_err: list[float] = []
+    nees: list[tuple[float, int]] = []
+    skipped = 0
+    for t, items in _load(tracks_path, "tracks"):
+        targets = truth.get(round(t, 6))
+        if targets is None:
+            skipped += 1
+            continue
+        shown = [tr for tr in items if all_tracks or tr.get("status", "confirmed") == "confirmed"]
+        X, Y = _stack([g["x"] for g in targets]), _stack([tr["x"] for tr in shown])
+        k = min(X.shape[1], Y.shape[1])
+        dist = set_distance(X[:, :k], Y[:, :k], c, p)
+        series.append({"t": t, "gospa": dist.gospa, "localisation": dist.localisation, "missed": dist.missed,
+                       "false": dist.false, "ospa": dist.ospa, "truths": len(X), "tracks": len(Y)})
+        assigned = dict(dist.pairs)
+        for i, g in enumerate(targets):
+            j = assigned.get(i)
+            sequences.setdefault(g["id"], []).append(None if j is None else shown[j]["id"])
+            if j is None:
+                continue
+            sq_err.append(float(np.sum((X[i, :k] - Y[j, :k]) ** 2)))
+            xt, xe = np.asarray(g["x"], float), np.asarray(shown[j]["x"], float)
+            if "P" in shown[j] and xt.shape == xe.shape:
+                P = np.asarray(shown[j]["P"], float)
+                e = xt - xe
+                nees.append((float(e @ np.linalg.solve(P, e)), xt.size))
+    if not series:
+        raise InputError(f"{tracks_path}: no picture has a truth line at its time in {truth_path}")
+    switches = fragments = 0
+    for seq in sequences.values():
+        s, f = id_changes(seq)
+        switches, fragments = switches + s, fragments + f
+    inside = [lo <= v <= hi for v, dof in nees for lo, hi in [(chdtri(dof, 0.975), chdtri(dof, 0.025))]]
+    mean = {key: float(np.mean([row[key] for row in series])) for key in ("gospa", "localisation", "missed",
+                                                                          "false", "ospa")}
+    return {
+        "c": c, "p": p, "alpha": 2, "pictures": len(series), "pictures_without_truth": skipped,
+        "mean": mean, "id_switches": switches, "fragmentations": fragments,
+        "position_rmse": math.sqrt(float(np.mean(sq_err))) if sq_err else None,
+        "nees_mean": float(np.mean([v for v, _ in nees])) if nees else None,
+        "nees_dof": nees[0][1] if nees else None,
+        "nees_inside_95": float(np.mean(inside)) if inside else None,
+        "series": series,
+    }
+
+
+def plot(result: dict[str, Any], tracks_path: Path, truth_path: Path, out: Path) -> None:
+    """Tracks over truth (x-y) and GOSPA with its parts over time."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(14, 6))
+    paths: dict[Any, list[np.ndarray]] = {}
+    for _, targets in _load(truth_path, "targets"):
+        for g in targets:
+            paths.setdefault(("truth", g["id"]), []).append(_positions(g["x"])[:2])
+    for _, items in _load(tracks_path, "tracks"):
+        for tr in items:
+            if tr.get("status", "confirmed") == "confirmed":
+                paths.setdefault(("track", tr["id"]), []).append(_positions(tr["x"])[:2])
+    for (kind, _), pts in paths.items():
+        a = np.array(pts)
+        if kind == "truth":
+            ax1.plot(a[:, 0], a[:, 1], color="0.6", lw=2.5, zorder=1)
+        else:
+            ax1.plot(a[:, 0], a[:, 1], lw=1.0, zorder=2)
+    ax1.set_title("confirmed tracks (colours) over truth (grey)")
+    ax1.set_xlabel("x [m]")
+    ax1.set_ylabel("y [m]")
+    ax1.set_aspect("equal", adjustable="datalim")
+    t = [r["t"] for r in result["series"]]
+    p = result["p"]
+    ax2.plot(t, [r["gospa"] for r in result["series"]], "k-", lw=1.5, label="GOSPA")
+    for key, style in (("localisation", "b--"), ("missed", "r:"), ("false", "g-.")):
+        ax2.plot(t, [r[key] ** (1 / p) for r in result["series"]], style, lw=1.0, label=f"{key} (p-th root)")
+    ax2.set_xlabel("t [s]")
+    ax2.set_ylabel("[m]")
+    ax2.set_title(f"GOSPA (c = {result['c']:g} m, p = {p:g}, alpha = 2): mean {result['mean']['gospa']:.1f} m")
+    ax2.legend()
+    ax2.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="fedtrack evaluate", description="GOSPA, OSPA, id switches, "
+                                     "fragmentations, RMSE and NEES of a track picture file against truth")
+    parser.add_argument("--tracks", required=True, type=Path)
+    parser.add_argument("--truth", required=True, type=Path)
+    parser.add_argument("--c", type=float, default=100.0, help="cut-off distance [m] (default 100)")
+    parser.add_argument("--p", type=float, default=2.0, help="order (default 2)")
+    parser.add_argument("--alpha", type=float, default=2.0, help="GOSPA alpha (only 2 is supported)")
+    parser.add_argument("--all-tracks", action="store_true", help="evaluate tentative tracks too")
+    parser.add_argument("--json", type=Path, help="write the full result (with the per-picture series)")
+    parser.add_argument("--plot", type=Path, help="PNG: tracks over truth and GOSPA over time")
+    args = parser.parse_args(argv)
+    if args.alpha != 2:
+        parser.error("--alpha: only alpha = 2 (the decomposable GOSPA) is supported")
+    if not (args.c > 0 and args.p >= 1):
+        parser.error("--c must be > 0 and --p >= 1")
+    for path in (args.json, args.plot):
+        if path is not None and not path.parent.is_dir():
+            raise InputError(f"{path}: the folder {path.parent} does not exist")
+    result = evaluate(args.tracks, args.truth, args.c, args.p, args.all_tracks)
+    m = result["mean"]
+    print(f"pictures {result['pictures']} (without truth: {result['pictures_without_truth']})")
+    print(f"mean GOSPA {m['gospa']:.2f} m (c = {args.c:g}, p = {args.p:g}, alpha = 2): localisation "
+          f"{m['localisation']:.1f}, missed {m['missed']:.1f}, false {m['false']:.1f} (p-th power parts)")
+    print(f"mean OSPA {m['ospa']:.2f} m; id switches {result['id_switches']}; fragmentations "
+          f"{result['fragmentations']}")
+    rmse, nees = result["position_rmse"], result["nees_mean"]
+    print(f"position RMSE {rmse:.2f} m" if rmse is not None else "position RMSE -", end="; ")
+    print(f"NEES mean {nees:.2f} ({result['nees_dof']} dof), {100 * result['nees_inside_95']:.1f}% inside the "
+          f"95% band" if nees is not None else "NEES -")
+    if args.json:
+        args.json.write_text(json.dumps(result))
+    if args.plot:
+        plot(result, args.tracks, args.truth, args.plot)
+        print(f"wrote {args.plot}")
+    return 0

@@ -1,0 +1,74 @@
+"""``fedtrack simulate multitarget`` and ``fedtrack evaluate`` (GOSPA, OSPA, id switches, NEES)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fedtrack.cli import main as cli
+from fedtrack.config import load_tables
+from fedtrack.fusion_center.mtt.evaluation import evaluate, id_changes, set_distance
+from fedtrack.local_filters.mtt.config import MttSettings
+
+
+def test_gospa_and_ospa_on_hand_computed_sets() -> None:
+    truth = np.array([[0.0, 0.0], [10.0, 0.0]])
+    d = set_distance(truth, np.array([[0.0, 3.0]]), c=100.0, p=2.0)
+    assert (d.localisation, d.missed, d.false) == (9.0, 5000.0, 0.0)
+    assert d.gospa == pytest.approx(math.sqrt(5009.0))
+    assert d.ospa == pytest.approx(math.sqrt((9.0 + 100.0**2) / 2))
+    far = set_distance(truth, np.array([[0.0, 3.0], [500.0, 500.0]]), c=100.0, p=2.0)
+    assert (far.localisation, far.missed, far.false) == (9.0, 5000.0, 5000.0)
+    assert far.gospa**2 == pytest.approx(far.localisation + far.missed + far.false)
+    empty = set_distance(np.zeros((0, 2)), np.zeros((0, 2)), 100.0, 2.0)
+    assert empty.gospa == 0.0 and empty.ospa == 0.0
+    assert set_distance(truth, np.zeros((0, 2)), 100.0, 1.0).gospa == pytest.approx(100.0)
+
+
+def test_id_switches_and_fragmentations() -> None:
+    assert id_changes([1, 1, None, 1, 2, 2, None, None, 2]) == (1, 2)
+    assert id_changes([None, 3, 3, 3]) == (0, 0)
+
+
+def test_evaluate_counts_a_swap_and_nees(tmp_path: Path) -> None:
+    truth, tracks = [], []
+    P = np.diag([4.0, 1.0, 4.0, 1.0]).tolist()
+    for k in range(6):
+        a, b = [10.0 * k, 1.0, 0.0, 0.0], [10.0 * k, 1.0, 500.0, 0.0]
+        truth.append({"t": float(k), "targets": [{"id": 0, "x": a}, {"id": 1, "x": b}]})
+        ids = (5, 6) if k < 3 else (6, 5)  # the tracks swap targets at k = 3
+        tracks.append({"t": float(k), "tracks": [{"id": ids[0], "x": a, "P": P, "status": "confirmed"},
+                                                  {"id": ids[1], "x": b, "P": P, "status": "confirmed"}]})
+    (tmp_path / "u.jsonl").write_text("".join(json.dumps(r) + "\n" for r in truth))
+    (tmp_path / "t.jsonl").write_text("".join(json.dumps(r) + "\n" for r in tracks))
+    res = evaluate(tmp_path / "t.jsonl", tmp_path / "u.jsonl")
+    assert res["id_switches"] == 2 and res["fragmentations"] == 0
+    assert res["mean"]["gospa"] == 0.0 and res["position_rmse"] == 0.0 and res["nees_mean"] == 0.0
+
+
+def test_simulate_replay_evaluate(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    out = tmp_path / "sim"
+    assert cli(["simulate", "multitarget", "--targets", "6", "--duration", "40", "--sensors",
+                "pos:1.0,pos:0.7,radar:1.3", "--seed", "3", "--out", str(out)]) == 0
+    lines = [json.loads(x) for x in (out / "measurements.jsonl").read_text().splitlines()]
+    assert any(b["t"] < a["t"] for a, b in zip(lines, lines[1:])), "out-of-sequence lines"
+    for sensor in ("s1", "s2", "r3"):
+        times = [x["t"] for x in lines if x["sensor"] == sensor]
+        assert times == sorted(times) and len(times) >= 30  # a sensor's link is FIFO
+    assert all("sensor_position" in x for x in lines if x["sensor"] == "r3")
+    cfg = load_tables(out / "config.toml", MttSettings).mtt
+    assert cfg.sensors == ("s1", "s2", "r3") and cfg.sensor["r3"].clutter_density > 0
+    truth = [json.loads(x) for x in (out / "truth.jsonl").read_text().splitlines()]
+    assert len(truth) == 41 and len(truth[0]["targets"][0]["x"]) == 6
+    assert cli(["replay", "--algorithm", "mtt-federated", "--config", str(out / "config.toml"),
+                "--measurements", str(out / "measurements.jsonl"), "--out", str(tmp_path / "t.jsonl")]) == 0
+    assert cli(["evaluate", "--tracks", str(tmp_path / "t.jsonl"), "--truth", str(out / "truth.jsonl"),
+                "--json", str(tmp_path / "e.json"), "--plot", str(tmp_path / "e.png")]) == 0
+    res = json.loads((tmp_path / "e.json").read_text())
+    assert res["pictures"] >= 38 and res["mean"]["gospa"] < 100.0
+    assert (tmp_path / "e.png").stat().st_size > 10_000
+    assert "mean GOSPA" in capsys.readouterr().out
