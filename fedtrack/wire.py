@@ -35,6 +35,8 @@ from fedtrack.keys import InvalidName, check_id
 SCHEMA_VERSION = 1
 MAX_PAYLOAD_BYTES = 2 * 1024 * 1024
 MAX_ARRAY_ELEMENTS = 4096
+MAX_MAGNITUDE = 1e100  # no quantity of the contract comes near; squares stay finite
+
 MAX_DETECTIONS = 2048
 MAX_STRING_LENGTH = 256
 MAX_LIST_ITEMS = 64
@@ -121,6 +123,8 @@ def _array(value: Any, path: str, ndim: int) -> np.ndarray:
         raise WireError(path, f"{arr.size} elements exceed the limit of {MAX_ARRAY_ELEMENTS}")
     if not np.all(np.isfinite(arr)):
         raise WireError(path, "contains NaN or infinity")
+    if arr.size and float(np.max(np.abs(arr))) > MAX_MAGNITUDE:
+        raise WireError(path, f"values beyond +-{MAX_MAGNITUDE:g} (overflow-scale)")
     arr.setflags(write=False)
     return arr
 
@@ -140,7 +144,10 @@ def _covariance(value: Any, path: str) -> np.ndarray:
     if np.max(np.abs(arr - arr.T)) > SYMMETRY_RTOL * scale:
         raise WireError(path, "not symmetric")
     sym = 0.5 * (arr + arr.T)
-    eig = np.linalg.eigvalsh(sym)
+    try:
+        eig = np.linalg.eigvalsh(sym)
+    except np.linalg.LinAlgError:
+        raise WireError(path, "eigenvalues could not be computed") from None
     if not eig[0] > PD_RTOL * eig[-1] or eig[-1] <= 0.0:
         raise WireError(path, f"not positive definite (eigenvalues {eig[0]:.3g} .. {eig[-1]:.3g})")
     sym.setflags(write=False)

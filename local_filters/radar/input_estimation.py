@@ -29,10 +29,11 @@ A CV EKF (``[x, vx, y, vy, z, vz]``) runs unchanged until a maneuver is detected
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import NamedTuple
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import chdtri
 
 from fedtrack.config import ConfigError
 from fedtrack.local_filters.linear.kalman import (
@@ -66,15 +67,15 @@ class InputEstimationParams:
             if not 0.0 < getattr(self, name) < 1.0:
                 raise ConfigError(f"{name}: must be in (0, 1)")
 
-    @property
+    @cached_property
     def eta_window(self) -> float:
         """Threshold eta1 of eq. (18): chi-square with 3W degrees of freedom."""
-        return float(chi2.isf(self.p_false_alarm, 3 * self.window))
+        return float(chdtri(3 * self.window, self.p_false_alarm))
 
-    @property
+    @cached_property
     def eta_input(self) -> float:
         """Significance threshold of the input estimate, chi-square with 3 degrees of freedom."""
-        return float(chi2.isf(self.p_input, 3))
+        return float(chdtri(3, self.p_input))
 
 
 class IEState(NamedTuple):

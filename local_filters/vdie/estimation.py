@@ -31,10 +31,11 @@ Equation readings (see the errata in docs/papers.md):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Callable, NamedTuple
 
 import numpy as np
-from scipy.stats import chi2, norm
+from scipy.special import chdtri, ndtr
 
 from fedtrack.config import ConfigError
 from fedtrack.local_filters.linear.kalman import (
@@ -54,7 +55,7 @@ EVENT_NAMES = {EVENT_ONSET: "onset", EVENT_NEW_CA: "new-ca", EVENT_END: "end"}
 
 def sigma_to_chi2(k_sigma: float, dof: int) -> float:
     """Chi-square threshold with the same tail probability as a two-sided ``k`` sigma Gaussian test."""
-    return float(chi2.isf(2.0 * norm.sf(k_sigma), dof))
+    return float(chdtri(dof, 2.0 * ndtr(-k_sigma)))  # chi2.isf(2 norm.sf(k), dof), without scipy.stats
 
 
 @dataclass(frozen=True)
@@ -85,11 +86,11 @@ class VdieParams:
         if not self.cv_sigma > 0:
             raise ConfigError("cv_sigma: must be > 0")
 
-    @property
+    @cached_property
     def h_detect(self) -> float:
         return sigma_to_chi2(self.detect_sigma, 2)
 
-    @property
+    @cached_property
     def h_cv(self) -> float:
         return sigma_to_chi2(self.cv_sigma, 2 * self.p)
 
