@@ -6,6 +6,12 @@ from a sensor's publish to the fused track's arrival. It ends when the sensors h
 published their last scan (then stops the rest), or on Ctrl-C / SIGTERM (stops
 everything, no orphans: every child also gets SIGTERM if the launcher dies). Exit code
 0 when every service ended cleanly, 1 naming the service that failed.
+
+Supervision: a service that exits with a non-zero code (or a signal) after start-up is
+restarted after a backoff (``RESTART_BACKOFF_S``, doubling up to ``RESTART_BACKOFF_MAX_S``),
+the reason logged, at most ``MAX_RESTARTS`` times per service. Beyond that, an essential
+service (router, fusion center, recorder) stops the deployment cleanly (exit 1); a
+sensor or local filter is left out and the rest goes on degraded (exit 1 at the end).
 """
 
 from __future__ import annotations
@@ -36,6 +42,19 @@ from fedtrack.zsession import SessionOptions, close_session, open_session, wait_
 STOP_GRACE_S = 5.0
 PR_SET_PDEATHSIG = 1
 ESSENTIAL_ROLES = ("router", "fusion-center", "recorder")
+MAX_RESTARTS = 3
+RESTART_BACKOFF_S = 0.5
+RESTART_BACKOFF_MAX_S = 4.0
+
+
+def describe_exit(code: int) -> str:
+    """``exit code 3`` or ``signal SIGKILL``."""
+    if code < 0:
+        try:
+            return f"signal {signal.Signals(-code).name}"
+        except ValueError:
+            return f"signal {-code}"
+    return f"exit code {code}"
 
 
 class LaunchError(RuntimeError):
@@ -163,28 +182,55 @@ class Launcher:
         self._stop = threading.Event()
         self._session: zenoh.Session | None = None
         self._subs: list[Any] = []
+        self._restart_at: dict[str, float] = {}  # service -> monotonic time of its pending restart
 
     # ------------------------------------------------------------ processes
     def _start(self, sp: ServiceProcess) -> None:
         sp.log_path.parent.mkdir(parents=True, exist_ok=True)
-        log = sp.log_path.open("wb")
+        log = sp.log_path.open("ab" if sp.proc is not None else "wb")  # a restart appends to the log
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         sp.proc = subprocess.Popen(sp.argv, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
                                    preexec_fn=_die_with_parent, env=env)
         log.close()
 
     def _check_alive(self, group: list[ServiceProcess], starting: bool = False) -> None:
-        """A failed essential service (or any service while starting) ends the deployment;
-        a failed sensor or local filter is reported and the rest goes on degraded."""
+        """Any service failing while starting ends the deployment; later, a failed service is
+        restarted after a backoff, up to MAX_RESTARTS times (see the module docstring)."""
+        now = time.monotonic()
         for sp in group:
-            if sp.proc is None or sp.proc.poll() is None or sp.proc.returncode == 0:
+            if sp.proc is None or sp.proc.poll() is None or sp.proc.returncode == 0 or sp.name in self.report.failed:
                 continue
-            if starting or sp.role in ESSENTIAL_ROLES:
-                raise LaunchError(f"{sp.name} exited with code {sp.proc.returncode}:\n{sp.log_tail()}")
-            if sp.name not in self.report.failed:
+            reason = describe_exit(sp.proc.returncode)
+            if starting:
+                raise LaunchError(f"{sp.name} exited with {reason}:\n{sp.log_tail()}")
+            due = self._restart_at.get(sp.name)
+            if due is not None:
+                if now >= due:
+                    del self._restart_at[sp.name]
+                    self._start(sp)
+                continue
+            done = self.report.restarts.get(sp.name, 0)
+            if done >= MAX_RESTARTS:
+                if sp.role in ESSENTIAL_ROLES:
+                    raise LaunchError(f"{sp.name} exited with {reason} after {done} restarts (limit "
+                                      f"{MAX_RESTARTS}); stopping the deployment:\n{sp.log_tail()}")
                 self.report.failed.append(sp.name)
-                sys.stderr.write(f"\nfedtrack launch: {sp.name} died (exit code {sp.proc.returncode}); "
-                                 "continuing without it\n")
+                self._say(f"{sp.name} exited with {reason} after {done} restarts (limit {MAX_RESTARTS}); "
+                          "continuing without it")
+                continue
+            delay = min(RESTART_BACKOFF_S * 2 ** done, RESTART_BACKOFF_MAX_S)
+            self.report.restarts[sp.name] = done + 1
+            self._restart_at[sp.name] = now + delay
+            self._say(f"{sp.name} exited with {reason}; restart {done + 1} of {MAX_RESTARTS} in {delay:g} s")
+
+    def _finished(self, sp: ServiceProcess) -> bool:
+        """Ended for good: exited 0, or given up after MAX_RESTARTS."""
+        return sp.proc is not None and sp.proc.poll() is not None and (sp.proc.returncode == 0
+                                                                       or sp.name in self.report.failed)
+
+    def _say(self, text: str) -> None:
+        sys.stderr.write(f"\nfedtrack launch: {text}\n")
+        sys.stderr.flush()
 
     def stop_all(self) -> None:
         """SIGTERM every child still running (reverse start order), SIGKILL after a grace period.
@@ -319,9 +365,9 @@ class Launcher:
         last_print = 0.0
         while not self._stop.is_set():
             self._check_alive(self.plan)
-            if sensors and all(sp.proc.poll() is not None for sp in sensors) or self._enough.is_set():
+            if sensors and all(self._finished(sp) for sp in sensors) or self._enough.is_set():
                 break
-            if not sensors and all(sp.proc.poll() is not None for sp in self.plan):
+            if not sensors and all(self._finished(sp) for sp in self.plan):
                 break
             now = time.monotonic()
             if not self.quiet and now - last_print >= (0.2 if tty else 2.0):

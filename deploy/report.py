@@ -35,6 +35,7 @@ class LaunchReport:
     health: dict[str, dict[str, int]] = field(default_factory=dict)
     exit_codes: dict[str, int] = field(default_factory=dict)
     failed: list[str] = field(default_factory=list)
+    restarts: dict[str, int] = field(default_factory=dict)  # service -> times the launcher restarted it
     wall_s: float = 0.0
 
     def latency_percentiles(self) -> tuple[float, float]:
@@ -87,6 +88,7 @@ def summarize(out: Path, settings: Settings, report: LaunchReport, config_path: 
         "rejected_messages": report.rejected(),
         "health": report.health,
         "exit_codes": report.exit_codes,
+        "restarts": report.restarts,
         "wall_time_s": report.wall_s,
         "mode": dep.mode,
         "sensors": [s.id for s in settings.sensor],

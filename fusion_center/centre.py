@@ -75,7 +75,9 @@ class FederatedCentre:
         present = np.array([s in outputs for s in self.sensors])
         if self.vdie is None:
             if self.config.x0 is None:
-                locals_ = self._stack(outputs, lambda o: GaussianState(o.x, o.P), present, None)
+                # a restarted centre may meet locals in CA: start from their CV part
+                locals_ = self._stack(outputs, lambda o: cv_part(o.x, o.P) if o.x.shape[0] == 6
+                                      else GaussianState(o.x, o.P), present, None)
                 fused = fuse_independent(locals_, present)
                 self._start(embed_cv(fused.x, fused.P), t)
                 return self._result(None)
@@ -88,9 +90,12 @@ class FederatedCentre:
             master_prior = predict(post_prev, model.F, model.Q)
             if model.name != current:  # the branch no run is in: never selected
                 return master_prior, master_prior
-            posts = self._stack(outputs, lambda o: GaussianState(o.x, o.P), present, master_prior)
-            partial = not present.all()
-            fused = federated_fuse(posts, self.betas, present if partial else None,
+            # a local still in the other model (e.g. back after a gap) is left out of this scan
+            usable = {s: o for s, o in outputs.items() if o.x.shape[0] == master_prior.x.shape[0]}
+            mask = np.array([s in usable for s in self.sensors])
+            posts = self._stack(usable, lambda o: GaussianState(o.x, o.P), mask, master_prior)
+            partial = not mask.all()
+            fused = federated_fuse(posts, self.betas, mask if partial else None,
                                    master_prior if partial else None)
             return master_prior, fused
 

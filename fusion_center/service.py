@@ -2,13 +2,15 @@
 
 Collects ``local/<id>/estimate`` per scan (``seq``) and fuses scan k when every expected
 local filter has reported, except those whose liveliness token ``alive/local-filter/<id>``
-went away (their process died), or
-when ``deadline_s`` has passed since the first estimate arrived. A scan fused without
+or ``alive/sensor/<id>`` went away (the process died; logged), or when ``deadline_s``
+has passed since the first estimate arrived. A scan fused without
 every configured sensor uses those it has (sharing factors renormalized) and is marked
 degraded; a dead local filter (its token gone within milliseconds of the process dying)
 costs no waiting, a frozen one costs the deadline. Scans are fused in order. Publishes, per scan: the resets
 ``fusion/reset/<id>`` (federated), the track ``fusion/track``, and on a maneuver decision
-``fusion/event``. ``fusion/state`` answers with the latest track.
+``fusion/event``. ``fusion/state`` answers with the latest track (restarted sensors and
+local filters resume from it). A centre restarted mid-run rebuilds its state from the
+first scan of local estimates it receives (counter ``rebuilt``).
 """
 
 from __future__ import annotations
@@ -64,24 +66,30 @@ class FusionCenterService(Service):
         self.scans: dict[int, ScanBuffer] = {}
         self.next_seq: int | None = None
         self.last_track: FusedTrack | None = None
-        self.gone: set[str] = set()  # local filters whose liveliness token went away
-        self._liveliness: Any = None
+        self.gone: set[str] = set()  # sensors whose sensor or local filter liveliness token went away
+        self._gone: dict[str, set[str]] = {"sensor": set(), "local-filter": set()}
+        self._liveliness: list[Any] = []
 
     def on_start(self) -> None:
-        self._liveliness = self.session.liveliness().declare_subscriber(
-            self.keys.alive("local-filter"), self._on_liveliness, history=True)
+        self._liveliness = [self.session.liveliness().declare_subscriber(
+            self.keys.alive(role), lambda s, role=role: self._on_liveliness(role, s), history=True)
+            for role in self._gone]
 
     def on_stop(self) -> None:
-        if self._liveliness is not None:
-            self._liveliness.undeclare()
+        for sub in self._liveliness:
+            sub.undeclare()
 
-    def _on_liveliness(self, sample: Any) -> None:
-        """Zenoh thread: track local filters that died (set updates are atomic)."""
+    def _on_liveliness(self, role: str, sample: Any) -> None:
+        """Zenoh thread: track sensors and local filters that died (set rebinding is atomic)."""
         sensor = str(sample.key_expr).rsplit("/", 1)[-1]
         if sample.kind == zenoh.SampleKind.PUT:
-            self.gone.discard(sensor)
+            if sensor in self._gone[role]:
+                self.log.warning("%s %s is back", role, sensor)
+            self._gone[role].discard(sensor)
         else:
-            self.gone.add(sensor)
+            self._gone[role].add(sensor)
+            self.log.warning("%s %s is gone (liveliness): fusing without it", role, sensor)
+        self.gone = self._gone["sensor"] | self._gone["local-filter"]
 
     def subscriptions(self) -> list[Subscription]:
         return [Subscription(self.keys.local_estimate(), LocalEstimate, self.on_estimate)]
@@ -125,6 +133,7 @@ class FusionCenterService(Service):
                     return
                 if self.next_seq is not None:
                     self.count("skipped_scans", oldest - self.next_seq)
+                    self.log.warning("scans %d..%d: no estimate arrived (skipped)", self.next_seq, oldest - 1)
                 self.next_seq = oldest
             buf = self.scans[self.next_seq]
             complete = len(buf.outputs) == len(self.sensors)
@@ -136,6 +145,9 @@ class FusionCenterService(Service):
             self.next_seq += 1
 
     def fuse_scan(self, seq: int, buf: ScanBuffer, degraded: bool) -> None:
+        if self.last_track is None and seq > 0:
+            self.count("rebuilt")
+            self.log.warning("started mid-run (a restart): state rebuilt from the local estimates of scan %d", seq)
         result = self.centre.fuse(buf.t, buf.outputs)
         if degraded:
             self.count("degraded_scans")

@@ -4,8 +4,11 @@ Subscribes to ``sensor/<ID>/meas`` and publishes ``local/<ID>/estimate``.
 
 * federated: the FVDIE local filter. Scan k+1 is processed only after the centre's
   reset of scan k has been applied (``fusion/reset/<ID>``); if that reset has not come
-  within the deployment's ``deadline_s``, the filter goes on from its own estimate and
-  flags the estimate ``no-reset`` (counted in ``no_reset``).
+  within the deployment's ``deadline_s``, or at once when the centre's liveliness token
+  is gone, the filter goes on alone from its own estimate (logged once) and flags the
+  estimate ``no-reset`` (counted in ``no_reset``) until resets come again. On start, and
+  after a gap in its measurements, it adopts the centre's latest track (``fusion/state``)
+  and rejoins from the scan after it (counted in ``rejoined``; gaps in ``gaps``).
 * decentralized: the DVDIE local filter, a stand-alone single-sensor VDIE.
 * ``--filter ekf|ekf-ie|ekf-tsfuzzy``: a 3-D radar filter (papers 002/003) on a radar
   sensor's measurements (see :class:`RadarLocalFilterService`).
@@ -21,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import zenoh
 
 from fedtrack.config import ConfigError, in_file, load_tables
 from fedtrack.deployment import MODES
@@ -34,6 +38,7 @@ from fedtrack.local_filters.vdie.local import (
 )
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
 from fedtrack.wire import (
+    FusedTrack,
     LocalEstimate,
     ManeuverInfo,
     Measurement,
@@ -62,12 +67,44 @@ class LocalFilterService(Service):
         self.processed_up_to = -1
         self.reset_up_to = -1
         self.waiting_since: float | None = None
+        self.alone = False  # carrying on without resets (the fusion centre is silent or gone)
+        self.centre_gone = False  # the fusion centre's liveliness token went away
+        self._liveliness: Any = None
 
     def subscriptions(self) -> list[Subscription]:
         subs = [Subscription(self.keys.sensor_meas(self.sensor), Measurement, self.on_measurement)]
         if self.mode == "federated":
             subs.append(Subscription(self.keys.fusion_reset(self.sensor), Reset, self.on_reset))
         return subs
+
+    def on_start(self) -> None:
+        if self.mode == "federated":
+            self._liveliness = self.session.liveliness().declare_subscriber(
+                self.keys.alive("fusion-center"), self._on_centre_liveliness)
+        self.rejoin("started")
+
+    def on_stop(self) -> None:
+        if self._liveliness is not None:
+            self._liveliness.undeclare()
+
+    def _on_centre_liveliness(self, sample: Any) -> None:
+        """Zenoh thread: a dead fusion centre is not waited for (its resets cannot come)."""
+        self.centre_gone = sample.kind == zenoh.SampleKind.DELETE
+
+    def rejoin(self, why: str) -> None:
+        """Federated: adopt the fusion centre's latest track (``fusion/state``), if there is one, as a
+        reset (``P`` scaled by this filter's sharing factor) and go on from the scan after it."""
+        if self.mode != "federated":
+            return
+        assert isinstance(self.filter, FederatedLocalFilter)
+        for track in self.query(self.keys.fusion_state(), FusedTrack)[:1]:
+            if track.seq <= self.processed_up_to:
+                return
+            self.filter.apply_reset(track.t, np.asarray(track.x), self.filter.beta * np.asarray(track.P))
+            self.processed_up_to = self.reset_up_to = track.seq
+            self.count("rejoined")
+            self.log.warning("%s: rejoined from the fusion centre's state of scan %d (t=%g, %s)", why, track.seq,
+                             track.t, track.model)
 
     def on_measurement(self, msg: Measurement) -> None:
         if msg.kind != "position" or msg.z.shape != (2,):
@@ -78,6 +115,15 @@ class LocalFilterService(Service):
         if msg.seq <= self.processed_up_to or msg.seq in self.pending:
             self.count("late")
             return
+        expected = max([self.processed_up_to, *self.pending]) + 1
+        if self.processed_up_to >= 0 and msg.seq > expected:
+            self.count("gaps", msg.seq - expected)
+            self.log.warning("measurements %d..%d of sensor %s never arrived", expected, msg.seq - 1, self.sensor)
+            if not self.pending:
+                self.rejoin(f"after the gap {expected}..{msg.seq - 1}")
+                if msg.seq <= self.processed_up_to:
+                    self.count("late")
+                    return
         self.pending[msg.seq] = msg
         self.process_ready()
 
@@ -88,6 +134,9 @@ class LocalFilterService(Service):
         assert isinstance(self.filter, FederatedLocalFilter)
         self.filter.apply_reset(msg.t, msg.x, msg.P)
         self.reset_up_to = msg.seq
+        if self.alone:
+            self.alone = False
+            self.log.warning("resets from the fusion centre resumed at scan %d", msg.seq)
         self.process_ready()
 
     def on_tick(self) -> None:
@@ -101,9 +150,14 @@ class LocalFilterService(Service):
                 now = time.monotonic()
                 if self.waiting_since is None:
                     self.waiting_since = now
-                if now - self.waiting_since < self.reset_timeout_s:
+                if not (self.alone or self.centre_gone) and now - self.waiting_since < self.reset_timeout_s:
                     return
                 self.count("no_reset")
+                if not self.alone:
+                    self.alone = True
+                    why = ("the fusion centre is gone (liveliness)" if self.centre_gone else
+                           f"no reset for scan {self.processed_up_to} within {self.reset_timeout_s:g} s")
+                    self.log.warning("%s: carrying on alone (estimates flagged no-reset)", why)
                 self.reset_up_to = self.processed_up_to  # go on from the local estimate
                 self._process(self.pending.pop(seq), ("no-reset",))
             else:

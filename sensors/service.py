@@ -19,6 +19,7 @@ Kinds: ``position`` (paper 004 scenario with the ``[[sensor]]`` R, the default),
 from __future__ import annotations
 
 import argparse
+import math
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -101,6 +102,20 @@ class SensorService(Service):
         """Lockstep pacing follows the fused track and any single-sensor tracker of this sensor."""
         return [Subscription(self.keys.fusion_track(), FusedTrack, self.on_track),
                 Subscription(self.keys.tracker_track(None, self.id), FusedTrack, self.on_track)]
+
+    def on_start(self) -> None:
+        """A restarted sensor resumes at the current scan: the one due now (realtime) or the one
+        after the fusion centre's latest track (lockstep); its missed scans are not sent."""
+        if self.pacing == "realtime" and self.start_at is not None and time.time() > self.start_at:
+            self.next_seq = min(math.ceil((time.time() - self.start_at) / self.interval_s), len(self.lines))
+        elif self.pacing == "lockstep":
+            latest = self.query(self.keys.fusion_state(), FusedTrack)
+            if latest:
+                self.fused_up_to = latest[0].seq
+                self.next_seq = min(latest[0].seq + 1, len(self.lines))
+        if self.next_seq:
+            self.log.warning("resuming at scan %d (a restart: scans before it are not sent)", self.next_seq)
+            self.count("resumed_at", self.next_seq)
 
     def on_track(self, msg: FusedTrack) -> None:
         self.fused_up_to = max(self.fused_up_to, msg.seq)

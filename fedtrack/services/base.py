@@ -63,7 +63,7 @@ from fedtrack.config import ConfigError
 from fedtrack.deployment import deployment_of, endpoints_of
 from fedtrack.jsonl import InputError
 from fedtrack.keys import DEFAULT_DEPLOYMENT, InvalidName, Keys, check_id
-from fedtrack.wire import Health, Message, WireError, decode, encode
+from fedtrack.wire import M, Health, Message, WireError, decode, encode
 from fedtrack.zsession import (
     SessionError,
     SessionOptions,
@@ -143,6 +143,8 @@ class Service:
         self._last_reject_log = -float("inf")
         self._suppressed_rejects = 0
         self._missed = 0
+        self._router_outages = 0
+        self._router_lost_at: float | None = None
         self._miss_lock = threading.Lock()
 
     # ------------------------------------------------------------ hooks
@@ -172,6 +174,23 @@ class Service:
         self._put(key, msg)
         self.counters["published"] += 1
 
+    def query(self, key: str, msg_type: type[M], timeout_s: float = 1.0) -> list[M]:
+        """``get`` on ``key``: the valid replies decoded as ``msg_type`` (invalid ones are counted in ``rejected``).
+
+        Call it from the hooks (e.g. ``on_start``); it blocks until the replies are in or ``timeout_s``.
+        """
+        assert self.session is not None
+        out: list[M] = []
+        for reply in self.session.get(key, timeout=timeout_s):
+            if reply.ok is None:
+                continue
+            try:
+                out.append(decode(reply.ok.payload.to_bytes(), msg_type))
+            except WireError as exc:
+                self.counters["rejected"] += 1
+                self._log_rejected(key, exc)
+        return out
+
     def count(self, name: str, n: int = 1) -> None:
         """Add ``n`` to counter ``name`` (reported in Health, which allows 32 counters in all)."""
         self.counters[name] = self.counters.get(name, 0) + n
@@ -199,6 +218,9 @@ class Service:
             self.on_start()
             token = self.session.liveliness().declare_token(self.keys.alive(self.role, self.id))
             self._inputs.append(token)
+            if self.options.mode == "client":
+                self._inputs.append(self.session.liveliness().declare_subscriber(
+                    self.keys.alive("router"), self._on_router, history=True))
             self.log.info("ready (%s)", self.keys.alive(self.role, self.id))
             self._loop()
             self._close_inputs()
@@ -246,6 +268,18 @@ class Service:
             def on_query(query: zenoh.Query, index: int = index) -> None:
                 self._enqueue(("query", index, str(query.key_expr), query))
             self._inputs.append(self.session.declare_queryable(qh.key, on_query))
+
+    def _on_router(self, sample: zenoh.Sample) -> None:
+        """Zenoh thread: log the router's loss (the link closed) and its return, with the outage's length."""
+        if sample.kind == zenoh.SampleKind.DELETE:
+            self._router_lost_at = time.monotonic()
+            with self._miss_lock:
+                self._router_outages += 1
+            self.log.warning("router %s is gone: reconnecting", str(sample.key_expr).rsplit("/", 1)[-1])
+        elif self._router_lost_at is not None:
+            self.log.warning("router %s is back after %.2f s", str(sample.key_expr).rsplit("/", 1)[-1],
+                             time.monotonic() - self._router_lost_at)
+            self._router_lost_at = None
 
     def _on_miss(self, miss: zenoh.ext.Miss) -> None:
         """Zenoh thread: samples an advanced subscriber lost for good (gone from the publisher's cache)."""
@@ -351,9 +385,11 @@ class Service:
 
     def _health(self) -> Health:
         self._health_seq += 1
-        if self._missed:
-            with self._miss_lock:
+        with self._miss_lock:
+            if self._missed:
                 self.counters["missed"] = self._missed
+            if self._router_outages:
+                self.counters["router_outages"] = self._router_outages
         return Health(role=self.role, id=self.id, seq=self._health_seq, counters=dict(self.counters),
                       status=self.status)
 
