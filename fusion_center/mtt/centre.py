@@ -84,11 +84,28 @@ class TrackToTrackCentre:
     feedback: bool
     tracks: dict[int, CentralTrack] = field(default_factory=dict)
     mapping: dict[LocalKey, int] = field(default_factory=dict)
+    members: dict[int, set[LocalKey]] = field(default_factory=dict)  # the mapping reversed
     strikes: dict[LocalKey, int] = field(default_factory=dict)
     last_support: dict[int, float] = field(default_factory=dict)
     sensor_seen: dict[str, float] = field(default_factory=dict)
     next_id: int = 0
     counters: Counters = field(default_factory=Counters)
+
+    def _map(self, key: LocalKey, cid: int) -> None:
+        self._unmap(key)
+        self.mapping[key] = cid
+        self.members.setdefault(cid, set()).add(key)
+
+    def _unmap(self, key: LocalKey) -> bool:
+        cid = self.mapping.pop(key, None)
+        if cid is None:
+            return False
+        keys = self.members.get(cid)
+        if keys is not None:
+            keys.discard(key)
+            if not keys:
+                del self.members[cid]
+        return True
 
     def live_sensors(self, now: float) -> list[str]:
         return sorted(s for s, t in self.sensor_seen.items() if now - t <= self.cfg.central_timeout)
@@ -115,7 +132,7 @@ class TrackToTrackCentre:
         cfg, t, s = self.cfg, report.t, report.sensor
         self.sensor_seen[s] = max(self.sensor_seen.get(s, t), t)
         for lid in report.retired.tolist():
-            if self.mapping.pop((s, lid), None) is not None:
+            if self._unmap((s, lid)):
                 self.counters.unmapped += 1
             self.strikes.pop((s, lid), None)
         d = report.x.shape[1]
@@ -132,13 +149,13 @@ class TrackToTrackCentre:
                 if d2 > cfg.thresholds.association[d]:
                     self.strikes[key] = self.strikes.get(key, 0) + 1
                     if self.strikes[key] >= cfg.unmap_after:
-                        del self.mapping[key]
+                        self._unmap(key)
                         self.strikes.pop(key)
                         self.counters.unmapped += 1
                 else:
                     self.strikes.pop(key, None)
             if self.mapping.get(key) not in self.tracks:
-                self.mapping.pop(key, None)
+                self._unmap(key)
                 unmapped_rows.append(k)
         fresh = self._associate(report, det_rows, unmapped_rows)
         beta = float(max(len(self.live_sensors(t)), 1))
@@ -175,33 +192,33 @@ class TrackToTrackCentre:
             return
         cfg = self.cfg
         ids = sorted(self.tracks)
+        row = {c: k for k, c in enumerate(ids)}
         states = [state_at(self.tracks[c], t, cfg.q, cfg.noise_model) for c in ids]
         X = np.stack([x for x, _ in states])
         P = np.stack([P for _, P in states])
-        sensors = {c: set(self.sensors_of(c)) for c in ids}
         gate = cfg.thresholds.association[self.dim]
         for cid in sorted(updated):
             if cid not in self.tracks:
                 continue
-            k = ids.index(cid)
+            k = row[cid]
             diff = X - X[k]
             near = np.flatnonzero(np.sum(diff[:, [0, 2]] ** 2, axis=1) < 25.0 * (P[:, 0, 0] + P[:, 2, 2] + P[k, 0, 0]
                                                                               + P[k, 2, 2]))
             for j in near.tolist():
                 other = ids[j]
-                if other == cid or other not in self.tracks or sensors[cid] & sensors[other]:
+                if other == cid or other not in self.tracks or \
+                        set(self.sensors_of(cid)) & set(self.sensors_of(other)):
                     continue
                 d2 = float(diff[j] @ np.linalg.solve(P[j] + P[k], diff[j]))
                 if d2 > gate:
                     continue
                 keep, drop = min(cid, other), max(cid, other)
-                for key in [key for key, c in self.mapping.items() if c == drop]:
-                    self.mapping[key] = keep
+                for key in list(self.members.get(drop, ())):
+                    self._map(key, keep)
                 kept = self.tracks[keep]
                 self.tracks[keep] = kept._replace(confirmed=kept.confirmed or self.tracks[drop].confirmed)
                 del self.tracks[drop]
                 self.last_support[keep] = max(self.last_support.get(keep, t), self.last_support.pop(drop, t))
-                sensors[keep] = sensors[keep] | sensors.pop(drop)
                 self.counters.merged += 1
                 break
 
@@ -211,7 +228,7 @@ class TrackToTrackCentre:
         if not unmapped:
             return fresh
         cfg, t, s = self.cfg, report.t, report.sensor
-        taken = {cid for (sensor, _), cid in self.mapping.items() if sensor == s}
+        taken = {cid for cid, keys in self.members.items() if any(sensor == s for sensor, _ in keys)}
         cands = [cid for cid in self.tracks if cid not in taken]
         rows = det_rows[unmapped]
         d = report.x.shape[1]
@@ -237,27 +254,27 @@ class TrackToTrackCentre:
             row = int(rows[u])
             key = (s, int(report.ids[row]))
             if u in assigned:
-                self.mapping[key] = assigned[u]
+                self._map(key, assigned[u])
                 continue
             x, P = self._central_start(report.x[row], report.P[row])
             cid = self.next_id
             self.next_id += 1
             self.tracks[cid] = start(cid, t, x, P, bool(report.confirmed[row]))
-            self.mapping[key] = cid
+            self._map(key, cid)
             fresh.add(key)
             self.counters.started += 1
         return fresh
 
     def prune(self, now: float) -> None:
         """Delete central tracks no local track maps to, or unsupported for ``central_timeout``."""
-        mapped = set(self.mapping.values())
+        mapped = self.members
         for cid in list(self.tracks):
             if cid not in mapped or now - self.last_support.get(cid, now) > self.cfg.central_timeout:
                 del self.tracks[cid]
                 self.last_support.pop(cid, None)
                 self.counters.deleted += 1
         for key in [k for k, cid in self.mapping.items() if cid not in self.tracks]:
-            del self.mapping[key]
+            self._unmap(key)
 
     def sensors_of(self, cid: int) -> list[str]:
-        return sorted({s for (s, _), c in self.mapping.items() if c == cid})
+        return sorted({s for s, _ in self.members.get(cid, ())})

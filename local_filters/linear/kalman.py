@@ -9,6 +9,7 @@ quadratic forms use linear solves or Cholesky factors.
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
@@ -36,8 +37,10 @@ def symmetrize(P: np.ndarray) -> np.ndarray:
 
 
 def mat_vec(A: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """``A v`` broadcast over leading axes."""
-    return np.einsum("...ij,...j->...i", A, v)
+    """``A v`` broadcast over leading axes (a plain product when neither is batched)."""
+    if A.ndim == 2 and v.ndim == 1:
+        return A @ v
+    return np.matmul(A, v[..., None])[..., 0]
 
 
 def transpose(A: np.ndarray) -> np.ndarray:
@@ -69,15 +72,22 @@ def update(state: GaussianState, z: np.ndarray, H: np.ndarray,
     ``P+ = (I - K H) P (I - K H)' + K R K'``.
     Returns the posterior and the innovation it used.
     """
-    inn = innovation(state, z, H, R)
-    PHt = state.P @ transpose(H)
-    # K' = S^-1 (H P)  (S and P symmetric), so K = solve(S, PH')'
-    K = transpose(np.linalg.solve(inn.S, transpose(PHt)))
+    HP = H @ state.P
+    S = symmetrize(HP @ transpose(H) + R)
+    inn = Innovation(z - mat_vec(H, state.x), S)
+    # K' = S^-1 (H P)  (S and P symmetric), so K = solve(S, HP)'
+    K = transpose(np.linalg.solve(S, HP))
     x = state.x + mat_vec(K, inn.nu)
-    n = state.P.shape[-1]
-    A = np.eye(n) - K @ H
+    A = _identity(state.P.shape[-1]) - K @ H
     P = A @ state.P @ transpose(A) + K @ R @ transpose(K)
     return GaussianState(x, symmetrize(P)), inn
+
+
+@lru_cache(maxsize=16)
+def _identity(n: int) -> np.ndarray:
+    eye = np.eye(n)
+    eye.setflags(write=False)
+    return eye
 
 
 def log_likelihood(inn: Innovation) -> np.ndarray:
