@@ -170,7 +170,9 @@ def versions() -> dict[str, str]:
 
 
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="fedtrack bench", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="fedtrack bench [pipeline]", description=__doc__.splitlines()[0],
+                                     epilog="Other suites: fedtrack bench kernels|montecarlo|multitarget|all "
+                                            "[--json PATH] [--quick] (docs/bench.md).")
     parser.add_argument("--sensors", type=sensor_counts, default=[2, 4, 8], help="sensor counts (default 2,4,8)")
     parser.add_argument("--quick", action="store_true",
                         help=f"smoke test: {QUICK_SCANS} scans per deployment, {QUICK_KF_RUNS} KF runs")

@@ -72,7 +72,7 @@ COMMANDS: dict[str, str] = {
     "evaluate": "fedtrack.fusion_center.mtt.evaluation:main",
     "demo": "fedtrack.deploy.demo:main",
     "launch": "fedtrack.deploy.launcher:main",
-    "bench": "fedtrack.benchmarks.run:main",
+    "bench": "fedtrack.benchmarks.suites:main",
     "export": "fedtrack.recording:main",
 }
 

@@ -60,3 +60,22 @@ def test_batched_and_looped_kf_agree_exactly() -> None:
 def test_bad_sensor_counts_are_rejected(text: str) -> None:
     with pytest.raises(argparse.ArgumentTypeError, match="sensor counts|integers"):
         sensor_counts(text)
+
+
+def test_bench_kernels_quick_reports_ratios_side_by_side(tmp_path: Path) -> None:
+    out = tmp_path / "kernels.json"
+    proc = subprocess.run([sys.executable, "-m", "fedtrack.cli", "bench", "kernels", "--quick", "--json", str(out)],
+                          cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    result = json.loads(out.read_text())
+    assert set(result["ratios"]) >= {"kf_vs_filterpy", "kf_vs_stonesoup", "ekf_vs_filterpy", "ekf_vs_stonesoup",
+                                     "imm13_vs_filterpy", "aovsimm_vs_fsimm_cpu", "pda_vs_stonesoup"}
+    assert set(result["batched_target_steps_per_s"]) == {"1", "100", "10000"}
+    assert all(v > 0 for v in result["batched_target_steps_per_s"].values())
+    times = result["kernels"]["seconds_per_step"]
+    assert times["kf"]["fedtrack"] > 0 and times["kf"]["numpy_floor"] > 0
+    for lib in ("filterpy", "stonesoup"):
+        if lib in result["kernels"]["missing"]:
+            assert result["ratios"][f"kf_vs_{lib}"] is None and lib in proc.stderr
+        else:
+            assert result["ratios"][f"kf_vs_{lib}"] == times["kf"]["fedtrack"] / times["kf"][lib]

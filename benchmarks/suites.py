@@ -1,0 +1,153 @@
+"""``fedtrack bench [kernels | montecarlo | multitarget | pipeline | all] [--json PATH] [--quick]``.
+
+* ``kernels``: CV KF and radar EKF steps against FilterPy, Stone Soup and a numpy floor;
+  batched KF target-steps per second (:mod:`fedtrack.benchmarks.kernels`).
+* ``montecarlo``: wall time of ``reproduce fvdie --runs 500`` and ``reproduce hpda --runs 500``.
+* ``multitarget``: a 1,000-target, 4-sensor (1 Hz) scenario replayed by ``mtt-centralized``
+  and ``mtt-federated`` (seconds per scan, speed against real time, peak RSS of the process),
+  and mean GOSPA on the simulator's default scenario for every sensor's own tracker and the
+  three fusions.
+* ``pipeline``: the deployment latency bench (:mod:`fedtrack.benchmarks.run`, its options).
+* ``all``: all of them, and the start-up costs (``fedtrack --help``, importing the fusion
+  centre). The JSON carries the keys of issue 14; what this version does not measure yet
+  (IMM and PDA against FilterPy / Stone Soup, the raw Zenoh floor) is ``null`` and listed
+  under ``not_measured``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from fedtrack.jsonl import InputError
+
+SUITES = ("kernels", "montecarlo", "multitarget", "pipeline", "all")
+RATIO_KEYS = ("kf_vs_filterpy", "kf_vs_stonesoup", "ekf_vs_filterpy", "ekf_vs_stonesoup", "imm13_vs_filterpy",
+              "aovsimm_vs_fsimm_cpu", "pda_vs_stonesoup")
+
+
+def fedtrack_cmd(*args: str) -> list[str]:
+    return [sys.executable, "-m", "fedtrack.cli", *args]
+
+
+def timed(cmd: list[str], cwd: Path | None = None) -> tuple[float, float]:
+    """Wall seconds and peak RSS (MB) of one child process; a failure is an error."""
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    _, status, usage = os.wait4(proc.pid, 0)
+    wall = time.perf_counter() - t0
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd[2:])} failed: {err.strip().splitlines()[-1:]}")
+    return wall, usage.ru_maxrss / 1024.0
+
+
+def bench_montecarlo(quick: bool) -> dict[str, Any]:
+    runs = "20" if quick else "500"
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in ("fvdie", "hpda"):
+            wall, _ = timed(fedtrack_cmd("reproduce", name, "--runs", runs, "--seed", "1", "--json",
+                                         str(Path(tmp) / f"{name}.json")))
+            out[f"{name}_{runs}"] = wall
+    return out
+
+
+def bench_multitarget(quick: bool) -> dict[str, Any]:
+    targets, duration = (50, 20.0) if quick else (1000, 60.0)
+    out: dict[str, Any] = {"scale": {"targets": targets, "sensors": 4, "period_s": 1.0, "duration_s": duration}}
+    with tempfile.TemporaryDirectory() as tmp:
+        sim = Path(tmp) / "scale"
+        timed(fedtrack_cmd("simulate", "multitarget", "--targets", str(targets), "--duration", str(duration),
+                           "--sensors", "pos:1.0,pos:1.0,pos:1.0,pos:1.0", "--seed", "2", "--out", str(sim)))
+        scans = sum(1 for _ in (sim / "measurements.jsonl").open())
+        for algorithm in ("mtt-centralized", "mtt-federated"):
+            wall, rss = timed(fedtrack_cmd("replay", "--algorithm", algorithm, "--config", str(sim / "config.toml"),
+                                           "--measurements", str(sim / "measurements.jsonl"),
+                                           "--out", str(sim / f"{algorithm}.jsonl")))
+            out["scale"][algorithm] = {"wall_s": wall, "s_per_scan": wall / scans,
+                                       "x_real_time": duration / wall, "max_rss_mb": rss}
+        default = Path(tmp) / "default"
+        args = ["--duration", "60"] if quick else []
+        timed(fedtrack_cmd("simulate", "multitarget", "--seed", "1", "--out", str(default), *args))
+        gospa: dict[str, float] = {}
+        runs = [(a, []) for a in ("mtt-centralized", "mtt-federated", "mtt-decentralized")]
+        runs += [(f"mtt-local:{s}", ["--sensor", s]) for s in ("s1", "s2", "s3")]
+        for name, extra in runs:
+            tracks = default / f"{name.replace(':', '-')}.jsonl"
+            timed(fedtrack_cmd("replay", "--algorithm", name.split(":")[0], *extra, "--config",
+                               str(default / "config.toml"), "--measurements", str(default / "measurements.jsonl"),
+                               "--out", str(tracks)))
+            result = default / "eval.json"
+            timed(fedtrack_cmd("evaluate", "--tracks", str(tracks), "--truth", str(default / "truth.jsonl"),
+                               "--json", str(result)))
+            gospa[name] = json.loads(result.read_text())["mean"]["gospa"]
+        best_local = min(v for k, v in gospa.items() if k.startswith("mtt-local"))
+        out["gospa_default"] = gospa
+        out["gospa_ratios"] = {"federated_vs_best_local": gospa["mtt-federated"] / best_local,
+                               "decentralized_vs_best_local": gospa["mtt-decentralized"] / best_local,
+                               "centralized_vs_best_local": gospa["mtt-centralized"] / best_local,
+                               "federated_vs_centralized": gospa["mtt-federated"] / gospa["mtt-centralized"]}
+    return out
+
+
+def bench_startup() -> dict[str, float]:
+    help_s, _ = timed([sys.executable, "-m", "fedtrack.cli", "--help"])
+    import_s, _ = timed([sys.executable, "-c", "import fedtrack.fusion_center.service"])
+    return {"help_s": help_s, "import_fusion_center_s": import_s}
+
+
+def main(argv: list[str]) -> int:
+    suite = argv[0] if argv and argv[0] in SUITES else "pipeline"
+    if suite == "pipeline":  # the deployment bench and its own options (the default suite)
+        from fedtrack.benchmarks.run import main as pipeline_main
+        return pipeline_main(argv[1:] if argv and argv[0] == "pipeline" else argv)
+    parser = argparse.ArgumentParser(prog=f"fedtrack bench {suite}", description=__doc__.splitlines()[0])
+    parser.add_argument("--json", type=Path, default=Path("bench.json"), help="output JSON (default bench.json)")
+    parser.add_argument("--quick", action="store_true", help="small sizes (a smoke test; the numbers mean little)")
+    args = parser.parse_args(argv[1:])
+    args.suite = suite
+    rest: list[str] = []
+    if not args.json.parent.is_dir():
+        raise InputError(f"{args.json}: the folder {args.json.parent} does not exist")
+    result: dict[str, Any] = {"suite": args.suite, "quick": args.quick, "ratios": dict.fromkeys(RATIO_KEYS),
+                              "not_measured": []}
+    if args.suite in ("kernels", "all"):
+        from fedtrack.benchmarks.kernels import bench_kernels
+        kernels = bench_kernels(args.quick)
+        result["kernels"] = kernels
+        result["ratios"].update({k: v for k, v in kernels["ratios"].items() if k in RATIO_KEYS})
+        result["batched_target_steps_per_s"] = kernels["batched_target_steps_per_s"]
+        if kernels["missing"]:
+            print(f"fedtrack bench: {', '.join(kernels['missing'])} not installed (pip install 'fedtrack[bench]'): "
+                  "those comparisons are skipped", file=sys.stderr)
+    if args.suite in ("montecarlo", "all"):
+        result["montecarlo_s"] = bench_montecarlo(args.quick)
+    if args.suite in ("multitarget", "all"):
+        result["multitarget"] = bench_multitarget(args.quick)
+    if args.suite == "all":
+        result["import_s"] = bench_startup()
+        with tempfile.TemporaryDirectory() as tmp:
+            pipeline_json = Path(tmp) / "pipeline.json"
+            from fedtrack.benchmarks.run import main as pipeline_main
+            pipeline_main(["--json", str(pipeline_json)] + (["--quick"] if args.quick else []) + rest)
+            result["pipeline_bench"] = json.loads(pipeline_json.read_text())
+        result["pipeline"] = {n: {"p50_ms": row["latency_last_p50_ms"], "p99_ms": row["latency_last_p99_ms"],
+                                  "floor_p50_ms": None, "scans_per_s": row["lockstep_scans_per_s"],
+                                  "max_rss_mb": None}
+                              for n, row in result["pipeline_bench"].get("summary", {}).items()}
+    result["not_measured"] = sorted(k for k, v in result["ratios"].items() if v is None)
+    if args.suite == "all":
+        result["not_measured"] += ["pipeline floor_p50_ms", "pipeline max_rss_mb"]
+    args.json.write_text(json.dumps(result, indent=2))
+    print(json.dumps({k: v for k, v in result.items() if k not in ("kernels", "pipeline_bench")}, indent=1))
+    print(f"wrote {args.json}")
+    return 0
