@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -272,3 +273,27 @@ def test_example_config_loads_and_runs():
     for k in range(60):
         s, out = step(bank, AO_VSIMM, s, cv_model(1.0, cfg.q), truth.z[:, k], R, cfg.thresholds())
     assert out.mu.sum() == pytest.approx(1.0, abs=1e-12)
+
+
+def test_transitions_scale_with_the_interval() -> None:
+    """``Pi^(dt/T)``: unchanged at the nominal interval, squared over two, a stochastic root over half."""
+    from fedtrack.local_filters.imm.filter import transition_over
+    from fedtrack.local_filters.imm.tracker import IMMTracker
+
+    Pi = IMMConfig().bank().Pi
+    assert transition_over(Pi, 1.0) is Pi
+    np.testing.assert_allclose(transition_over(Pi, 2.0), Pi @ Pi, rtol=1e-12)
+    np.testing.assert_array_equal(transition_over(Pi, 0.0), np.eye(len(Pi)))
+    half = transition_over(Pi, 0.5)
+    assert np.all(half >= 0) and np.allclose(half.sum(axis=1), 1.0)
+    np.testing.assert_allclose(half @ half, Pi, atol=1e-3)  # clipping makes the root approximate
+    # a tracker sampled at 2 s equals one whose matrix is given per 2 s, Pi^2, at the nominal interval
+    z = [np.array([300.0 * k, 20.0 * k * k]) for k in range(8)]
+    R = np.eye(2) * 1e4
+    irregular = IMMTracker(IMMConfig(), "fsimm")
+    squared = IMMTracker(dataclasses.replace(IMMConfig(), transition=tuple(map(tuple, Pi @ Pi)),
+                                             transition_interval=2.0), "fsimm")
+    for k, zk in enumerate(z):
+        a, b = irregular.update(2.0 * k, zk, R), squared.update(2.0 * k, zk, R)
+        np.testing.assert_allclose(a.x, b.x, rtol=1e-9)
+        assert a.mode_probabilities == pytest.approx(b.mode_probabilities, rel=1e-9)

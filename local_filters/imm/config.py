@@ -91,8 +91,11 @@ class IMMConfig:
     P0: tuple[tuple[float, ...], ...] | None = None
     initial_position_std: float = 1000.0  # m, when x0 is not given
     initial_velocity_std: float = 400.0  # m/s, when x0 is not given
+    transition_interval: float = 1.0  # s: the sampling interval the transition matrix is given for
 
     def validate(self) -> None:
+        if not self.transition_interval > 0:
+            raise ConfigError("transition_interval: must be > 0")
         names = [m.name for m in self.models]
         if not names:
             raise ConfigError("models: at least one model is required")

@@ -103,6 +103,24 @@ class ModelBank(NamedTuple):
         return len(self.names)
 
 
+def transition_over(Pi: np.ndarray, steps: float) -> np.ndarray:
+    """The mode transition matrix over ``steps`` nominal intervals: ``Pi^steps``.
+
+    An integer power is exact (a Markov chain sampled ``steps`` times); a fractional one comes
+    from the eigen-decomposition (``scipy.linalg.fractional_matrix_power``), with round-off
+    imaginary parts and tiny negative entries removed and every row renormalized to sum to one.
+    ``steps = 0`` (repeated timestamps) gives the identity.
+    """
+    if steps == 1.0:
+        return Pi
+    if float(steps).is_integer():
+        return np.linalg.matrix_power(Pi, int(steps))
+    from scipy.linalg import fractional_matrix_power
+
+    out = np.clip(np.real(fractional_matrix_power(Pi, steps)), 0.0, None)
+    return out / out.sum(axis=1, keepdims=True)
+
+
 def make_bank(names: tuple[str, ...], acc: np.ndarray, Pi: np.ndarray,
               groups: tuple[tuple[int, ...], ...], group_names: tuple[str, ...]) -> ModelBank:
     """A :class:`ModelBank` with its membership and centre tables."""

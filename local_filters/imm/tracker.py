@@ -3,8 +3,9 @@
 The prior is taken to hold at the first measurement's time, so the first measurement
 is an update only (``dt = 0``: ``F = I``, no process noise, no acceleration input, no
 mode switch); so is any later measurement with a repeated timestamp. Otherwise the
-motion model uses the actual ``dt`` and the transition matrix is applied once per
-measurement (it is per step in paper 000, where T = 1 s).
+motion model uses the actual ``dt`` and the mode transitions use ``Pi^(dt / T)`` with
+``T = transition_interval`` (the paper's 1 s): unchanged at the nominal interval, ``Pi^2``
+over a missed measurement, a fractional power for irregular sampling.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from fedtrack.local_filters.imm.filter import (
     group_label,
     initial_state,
     step,
+    transition_over,
 )
 from fedtrack.local_filters.linear.models import cv_model
 
@@ -72,7 +74,7 @@ class IMMTracker:
             self.state = initial_state(self.bank, self.algorithm, self.cfg.initial_group_index(), x0[None], P0[None])
             self.t = t
         dt = t - self.t  # type: ignore[operator]
-        Pi = self.bank.Pi if dt > 0 else np.eye(self.bank.size)
+        Pi = transition_over(self.bank.Pi, round(dt / self.cfg.transition_interval, 9))
         self.state, out = step(self.bank, self.algorithm, self.state, cv_model(dt, self.cfg.q), z[None], R,
                                self.thresholds, Pi)
         self.t = t
