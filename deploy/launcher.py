@@ -43,6 +43,7 @@ STOP_GRACE_S = 5.0
 PR_SET_PDEATHSIG = 1
 ESSENTIAL_ROLES = ("router", "fusion-center", "recorder")
 MAX_RESTARTS = 3
+SNAPSHOT = "fusion-center.snapshot"  # the fusion center's state, for its restarts within this run
 RESTART_BACKOFF_S = 0.5
 RESTART_BACKOFF_MAX_S = 4.0
 
@@ -126,7 +127,7 @@ def service_plan(settings: Settings, config_path: Path, out_dir: Path, log_dir: 
         for s in here:
             add("local-filter", s, ["--sensor", s, *cfg, *common])
     if "fusion-center" in dep.services:
-        add("fusion-center", "fusion", [*cfg, *common])
+        add("fusion-center", "fusion", [*cfg, *common, "--snapshot", str(out_dir / SNAPSHOT)])
     if "recorder" in dep.services:
         add("recorder", "recorder", ["--db", str(out_dir / "recording.db"), "--out", str(out_dir), *common])
     if "sensor" in dep.services:
@@ -315,6 +316,9 @@ class Launcher:
         others = [sp for sp in self.plan if sp.role not in ("sensor", "router")]
         routers = [sp for sp in self.plan if sp.role == "router"]
         stopped = False
+        for sp in self.plan:  # a snapshot left by an earlier run must not be resumed from
+            if "--snapshot" in sp.argv:
+                Path(sp.argv[sp.argv.index("--snapshot") + 1]).unlink(missing_ok=True)
         try:
             for sp in routers:
                 self._start(sp)

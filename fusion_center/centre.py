@@ -73,15 +73,16 @@ class FederatedCentre:
 
     def fuse(self, t: float, outputs: dict[str, LocalOutput]) -> CentreResult:
         present = np.array([s in outputs for s in self.sensors])
-        if self.vdie is None:
-            if self.config.x0 is None:
-                # a restarted centre may meet locals in CA: start from their CV part
-                locals_ = self._stack(outputs, lambda o: cv_part(o.x, o.P) if o.x.shape[0] == 6
-                                      else GaussianState(o.x, o.P), present, None)
-                fused = fuse_independent(locals_, present)
-                self._start(embed_cv(fused.x, fused.P), t)
-                return self._result(None)
+        if self.vdie is None and self.config.x0 is not None:
             self._start(embed_cv(np.asarray(self.config.x0, float), np.asarray(self.config.P0, float)), t)
+        elif self.vdie is None or all(o.init for o in outputs.values()):
+            # start, or every local went on alone (no reset: (15)-(16) do not apply): fuse them as
+            # independent estimates; a restarted centre may meet locals in CA: their CV part
+            locals_ = self._stack(outputs, lambda o: cv_part(o.x, o.P) if o.x.shape[0] == 6
+                                  else GaussianState(o.x, o.P), present, None)
+            fused = fuse_independent(locals_, present)
+            self._start(embed_cv(fused.x, fused.P), t)
+            return self._result(None)
         cv, ca = models_for(round(t - self.t, 12), self.config.q)
         self.t = t
         current = self.model

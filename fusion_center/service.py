@@ -9,12 +9,18 @@ degraded; a dead local filter (its token gone within milliseconds of the process
 costs no waiting, a frozen one costs the deadline. Scans are fused in order. Publishes, per scan: the resets
 ``fusion/reset/<id>`` (federated), the track ``fusion/track``, and on a maneuver decision
 ``fusion/event``. ``fusion/state`` answers with the latest track (restarted sensors and
-local filters resume from it). A centre restarted mid-run rebuilds its state from the
-first scan of local estimates it receives (counter ``rebuilt``).
+local filters resume from it). With ``--snapshot PATH`` (``launch`` gives
+``OUT/fusion-center.snapshot`` and removes it when a run starts) the centre pickles its
+state after every scan (written atomically) and a restarted centre resumes from it
+(counter ``restored``) if it missed at most ``SNAPSHOT_MAX_GAP`` scans; otherwise (the
+local filters went on alone meanwhile), and without a snapshot, it rebuilds its state
+from the first scan of local estimates it receives, as at start-up (counter ``rebuilt``).
 """
 
 from __future__ import annotations
 
+import os
+import pickle
 import time
 from pathlib import Path
 from typing import Any
@@ -40,7 +46,10 @@ from fedtrack.services.base import (
     service_kwargs,
     service_parser,
 )
-from fedtrack.wire import FusedTrack, LocalEstimate, ManeuverEvent, Reset
+from fedtrack.wire import FusedTrack, LocalEstimate, ManeuverEvent, Reset, decode, encode
+
+
+SNAPSHOT_MAX_GAP = 3  # scans missed beyond which a restored snapshot is dropped for a rebuild
 
 
 class ScanBuffer:
@@ -58,8 +67,10 @@ class FusionCenterService(Service):
     tick_period_s = 0.01
 
     def __init__(self, sensors: list[str], centre: FederatedCentre | DecentralizedCentre,
-                 deadline_s: float, **kwargs: Any) -> None:
+                 deadline_s: float, snapshot: Path | None = None, **kwargs: Any) -> None:
         super().__init__(**kwargs)
+        self.snapshot = snapshot
+        self.restored = False  # resumed from the snapshot, no scan fused since
         self.sensors = sensors
         self.centre = centre
         self.deadline_s = deadline_s
@@ -71,9 +82,39 @@ class FusionCenterService(Service):
         self._liveliness: list[Any] = []
 
     def on_start(self) -> None:
+        self._restore()
         self._liveliness = [self.session.liveliness().declare_subscriber(
             self.keys.alive(role), lambda s, role=role: self._on_liveliness(role, s), history=True)
             for role in self._gone]
+
+    def _restore(self) -> None:
+        """Resume from ``--snapshot`` if it holds this deployment's centre (a restart mid-run)."""
+        if self.snapshot is None or not self.snapshot.is_file():
+            return
+        try:
+            state = pickle.loads(self.snapshot.read_bytes())
+            centre, track = state["centre"], decode(state["track"], FusedTrack)
+            usable = (state["deployment"] == self.keys.deployment and type(centre) is type(self.centre)
+                      and centre.sensors == self.sensors)
+        except Exception as exc:  # unreadable or from another version: start fresh, say so
+            self.log.warning("snapshot %s unusable (%s: %s): starting fresh", self.snapshot, type(exc).__name__, exc)
+            return
+        if not usable:
+            self.log.warning("snapshot %s is of another deployment or sensor list: starting fresh", self.snapshot)
+            return
+        self.centre, self.last_track, self.next_seq = centre, track, track.seq + 1
+        self.restored = True
+        self.count("restored")
+        self.log.warning("restored the state of scan %d (t=%g) from %s", track.seq, track.t, self.snapshot)
+
+    def _save(self, track: FusedTrack) -> None:
+        """Write the state after ``track`` to ``--snapshot`` (atomically: a kill leaves the previous one)."""
+        if self.snapshot is None:
+            return
+        tmp = self.snapshot.with_name(self.snapshot.name + ".tmp")
+        tmp.write_bytes(pickle.dumps({"deployment": self.keys.deployment, "centre": self.centre,
+                                      "track": encode(track)}))
+        os.replace(tmp, self.snapshot)
 
     def on_stop(self) -> None:
         for sub in self._liveliness:
@@ -114,7 +155,7 @@ class FusionCenterService(Service):
             return
         buf.outputs[msg.sensor] = LocalOutput(
             msg.model, np.asarray(msg.x), np.asarray(msg.P), np.asarray(msg.x_prior), np.asarray(msg.P_prior),
-            init="init" in msg.degraded,
+            init="init" in msg.degraded or "no-reset" in msg.degraded,  # not conditioned on the last reset
             event=msg.maneuver.event if msg.maneuver is not None else None)
         buf.stamps.append(msg.stamp_ns)
         self.fuse_ready()
@@ -134,6 +175,14 @@ class FusionCenterService(Service):
                 if self.next_seq is not None:
                     self.count("skipped_scans", oldest - self.next_seq)
                     self.log.warning("scans %d..%d: no estimate arrived (skipped)", self.next_seq, oldest - 1)
+                    if self.restored and oldest - self.next_seq > SNAPSHOT_MAX_GAP:
+                        # the local filters went on alone meanwhile: their estimates describe the target
+                        # better than the snapshot predicted over the gap
+                        self.centre = type(self.centre)(self.sensors, self.centre.config)
+                        self.last_track = None
+                        self.log.warning("snapshot %d scans old: rebuilding from the local estimates instead",
+                                         oldest - self.next_seq)
+                self.restored = False
                 self.next_seq = oldest
             buf = self.scans[self.next_seq]
             complete = len(buf.outputs) == len(self.sensors)
@@ -145,9 +194,10 @@ class FusionCenterService(Service):
             self.next_seq += 1
 
     def fuse_scan(self, seq: int, buf: ScanBuffer, degraded: bool) -> None:
-        if self.last_track is None and seq > 0:
+        if seq > 0 and (self.last_track is None or all(o.init for o in buf.outputs.values())):
             self.count("rebuilt")
-            self.log.warning("started mid-run (a restart): state rebuilt from the local estimates of scan %d", seq)
+            why = "started mid-run (a restart)" if self.last_track is None else "every local filter went on alone"
+            self.log.warning("%s: state rebuilt from the local estimates of scan %d", why, seq)
         result = self.centre.fuse(buf.t, buf.outputs)
         if degraded:
             self.count("degraded_scans")
@@ -157,6 +207,7 @@ class FusionCenterService(Service):
         track = make_track(seq, buf, result, degraded, [s for s in self.sensors if s in buf.outputs])
         self.publish(self.keys.fusion_track(), track)
         self.last_track = track
+        self._save(track)
         self.count("scans_fused")
         kind = int(result.estimate.event)
         if kind != EVENT_NONE:
@@ -186,6 +237,8 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--mode", choices=MODES, help="overrides deployment.mode")
     parser.add_argument("--config", type=Path, help="deployment TOML ([deployment], [fusion], [[sensor]])")
     parser.add_argument("--deadline", type=float, help="seconds to wait for a scan's estimates (overrides config)")
+    parser.add_argument("--snapshot", type=Path, help="write the state here after every scan; resume from it at start "
+                        "(a restart mid-run)")
     args = parser.parse_args(argv)
     settings = load_tables(args.config, PipelineSettings)
     sensors = (args.sensors.split(",") if args.sensors else
@@ -201,4 +254,5 @@ def main(argv: list[str]) -> int:
     mode = args.mode or settings.deployment.mode
     centre_cls = FederatedCentre if mode == "federated" else DecentralizedCentre
     centre = centre_cls(sensors, settings.fusion)
-    return FusionCenterService(sensors, centre, deadline, **service_kwargs(parser, args)).run()
+    return FusionCenterService(sensors, centre, deadline, snapshot=args.snapshot,
+                               **service_kwargs(parser, args)).run()
