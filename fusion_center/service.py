@@ -48,7 +48,6 @@ from fedtrack.services.base import (
 )
 from fedtrack.wire import FusedTrack, LocalEstimate, ManeuverEvent, Reset, decode, encode
 
-
 SNAPSHOT_MAX_GAP = 3  # scans missed beyond which a restored snapshot is dropped for a rebuild
 
 
