@@ -47,6 +47,13 @@ REPLAY_ALGORITHMS: dict[str, str] = {
     "mtt-decentralized": "fedtrack.fusion_center.mtt.replay:replay_mtt",
 }
 
+# replay option -> the algorithms that take it
+REPLAY_OPTIONS: dict[str, tuple[str, ...]] = {
+    "period": ("mtt-local", "mtt-centralized", "mtt-federated", "mtt-decentralized"),
+    "sensor": ("mtt-local",),
+    "status": ("pda-ai", "hpda"),
+}
+
 # role -> "module:function(argv) -> int"
 SERVICES: dict[str, str] = {
     "router": "fedtrack.services.router:main",
@@ -119,9 +126,11 @@ def _config_arg(argv: list[str]) -> str | None:
 def _cmd_replay(args: argparse.Namespace) -> int:
     check_config(args.config)
     fn = resolve(REPLAY_ALGORITHMS[args.algorithm])
-    options = {k: v for k, v in (("period", args.period), ("sensor", args.sensor)) if v is not None}
-    if options and not args.algorithm.startswith("mtt-"):
-        raise ConfigError(f"--{next(iter(options))} applies to the mtt-* algorithms only")
+    options = {k: v for k, v in (("period", args.period), ("sensor", args.sensor), ("status", args.status))
+               if v is not None}
+    for key in options:
+        if args.algorithm not in REPLAY_OPTIONS[key]:
+            raise ConfigError(f"--{key} applies to {', '.join(REPLAY_OPTIONS[key])} only")
     n = fn(algorithm=args.algorithm, measurements=Path(args.measurements),
            config=Path(args.config) if args.config else None, out=Path(args.out), **options)
     print(f"wrote {n} estimates to {args.out}")
@@ -175,6 +184,8 @@ def build_parser() -> argparse.ArgumentParser:
     rpl.add_argument("--out", required=True)
     rpl.add_argument("--period", type=float, help="mtt-*: seconds between track pictures (default [mtt] period)")
     rpl.add_argument("--sensor", help="mtt-local: the sensor whose tracker runs")
+    rpl.add_argument("--status", choices=("all", "confirmed"),
+                     help="pda-ai, hpda: write every track (default) or the confirmed ones only")
     rpl.set_defaults(func=_cmd_replay)
 
     _registry_parser(sub, "serve", "run one service process", "role", SERVICES, "role")

@@ -106,3 +106,31 @@ def test_replay_config_is_strict(tmp_path: Path, text: str, key: str):
     meas = write_scans(tmp_path / "in.jsonl", [good_scan(0.0, 0.0)])
     with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
         replay_pda("pda-ai", meas, cfg, tmp_path / "out.jsonl")
+
+
+def test_births_pair_each_detection_once_and_tentative_tracks_are_bounded() -> None:
+    from fedtrack.local_filters.pda.tracks import TrackSet, pair_births, surplus_tentative
+
+    dist = np.array([[1.0, 2.0, 9.0], [1.5, 8.0, 9.0], [9.0, 9.0, 9.0]])
+    cur, prev = pair_births(dist, reach=5.0)
+    assert sorted(zip(cur.tolist(), prev.tolist())) == [(0, 1), (1, 0)]  # least total distance, one each
+    n = 6
+    tracks = TrackSet(np.arange(n), None, np.array([0.9, 0.1, 0.5, 0.3, 0.8, 0.2]), np.zeros(n, np.int64),
+                      np.array([True, False, False, False, True, False]))
+    surplus = surplus_tentative(tracks, np.ones(n, bool), limit=2)
+    assert surplus.tolist() == [False, True, False, False, False, True]  # keeps tentative 2 and 3
+
+
+def test_replay_writes_confirmed_tracks_only_on_request(tmp_path) -> None:
+    import json
+
+    from fedtrack.local_filters.pda.replay import replay_pda
+    from fedtrack.sensors.sonar import SonarConfig, sonar_scans
+
+    meas = tmp_path / "m.jsonl"
+    meas.write_text("".join(json.dumps({k: v for k, v in line.items() if k != "truth"}) + "\n"
+                            for line in list(sonar_scans(SonarConfig(), 3))[:30]))
+    n_all = replay_pda("hpda", meas, None, tmp_path / "all.jsonl")
+    n_conf = replay_pda("hpda", meas, None, tmp_path / "conf.jsonl", status="confirmed")
+    rows = [json.loads(x) for x in (tmp_path / "conf.jsonl").read_text().splitlines()]
+    assert 0 < n_conf < n_all and all(r["status"] == "confirmed" for r in rows)

@@ -23,7 +23,7 @@ from typing import Any, Iterator, NamedTuple
 
 import numpy as np
 
-from fedtrack.config import load_tables
+from fedtrack.config import ConfigError, load_tables
 from fedtrack.jsonl import (
     SONAR_FIELDS,
     InputError,
@@ -125,6 +125,9 @@ def report_rows(t: float, sensor: str, rep: ScanReport) -> list[dict[str, Any]]:
             + _rows(t, sensor, rep.deleted, np.full(len(rep.deleted), "deleted")))
 
 
+STATUSES = ("all", "confirmed")
+
+
 def run(spec: TrackerSpec, scans: Iterator[Scan]) -> Iterator[dict[str, Any]]:
     """Track-manager output lines for a stream of scans."""
     ms = initial_manager()
@@ -134,14 +137,20 @@ def run(spec: TrackerSpec, scans: Iterator[Scan]) -> Iterator[dict[str, Any]]:
         yield from report_rows(s.t, s.sensor, rep)
 
 
-def replay_pda(algorithm: str, measurements: Path, config: Path | None, out: Path) -> int:
-    """Replay ``measurements`` with ``algorithm`` (``pda-ai`` or ``hpda``); returns lines written."""
+def replay_pda(algorithm: str, measurements: Path, config: Path | None, out: Path, status: str = "all") -> int:
+    """Replay ``measurements`` with ``algorithm`` (``pda-ai`` or ``hpda``); returns lines written.
+
+    ``status = "confirmed"`` writes the confirmed tracks only (and not the tentative or deleted ones).
+    """
+    if status not in STATUSES:
+        raise ConfigError(f"--status: one of {', '.join(STATUSES)}, got {status!r}")
     cfg = load_config(config)
     spec = tracker_spec(algorithm, cfg.tracker, cfg.existence)
     n = 0
     out.parent.mkdir(parents=True, exist_ok=True)
     with out.open("w") as fh:
         for row in run(spec, read_scans(measurements)):
-            fh.write(json.dumps(row) + "\n")
-            n += 1
+            if status == "all" or row["status"] == status:
+                fh.write(json.dumps(row) + "\n")
+                n += 1
     return n

@@ -8,10 +8,14 @@ batched call (leading axis = tracks). Per scan:
    eq (15)/(16) (HPDA);
 2. a track whose existence exceeds ``confirm_threshold`` on ``confirm_scans`` consecutive
    updates is confirmed; one whose existence falls below ``delete_threshold`` is deleted;
-3. detections outside the gates of all confirmed tracks are *unassociated*; each pair
+3. detections outside the gates of all confirmed tracks are *unassociated*; pairs
    (unassociated detection of the previous scan, unassociated detection of this scan)
-   closer than ``max_speed * dt`` starts a tentative track by two-point differencing with
-   existence ``initial_existence``.
+   closer than ``max_speed * dt`` start tentative tracks by two-point differencing with
+   existence ``initial_existence``, each detection in at most one pair (the pairing of
+   least total distance, ``linear_sum_assignment``): a detection starts one hypothesis, not
+   one per neighbour, so births grow with the clutter, not with its square;
+4. at most ``max_tentative`` tentative tracks live: beyond that the least likely (lowest
+   existence) are deleted, so that dense clutter cannot grow the track list without bound.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import functools
 from typing import NamedTuple
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from fedtrack.config import ConfigError
 from fedtrack.local_filters.linear.kalman import GaussianState, predict
@@ -49,6 +54,7 @@ class ExistenceConfig:
     confirm_scans: int = 3
     delete_threshold: float = 0.02
     max_speed: float = 10.0
+    max_tentative: int = 200
 
     def validate(self) -> None:
         for name in ("p11", "p21"):
@@ -59,6 +65,8 @@ class ExistenceConfig:
                 raise ConfigError(f"{name}: must lie in (0, 1), got {getattr(self, name)}")
         if self.confirm_scans < 1:
             raise ConfigError(f"confirm_scans: must be >= 1, got {self.confirm_scans}")
+        if self.max_tentative < 1:
+            raise ConfigError(f"max_tentative: must be >= 1, got {self.max_tentative}")
         if not self.max_speed > 0.0:
             raise ConfigError(f"max_speed: must be > 0, got {self.max_speed}")
 
@@ -179,6 +187,28 @@ def duplicates(tracks: TrackSet, senior: np.ndarray, R: np.ndarray, c: Constants
     return dup
 
 
+def pair_births(dist: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray]:
+    """One-to-one pairs (current, previous) within ``reach`` of least total distance."""
+    close = dist <= reach
+    rows, cols = np.flatnonzero(close.any(axis=1)), np.flatnonzero(close.any(axis=0))
+    if not rows.size:
+        return rows, cols
+    sub = dist[np.ix_(rows, cols)]
+    ri, ci = linear_sum_assignment(np.where(sub <= reach, sub, 1e12))
+    ok = sub[ri, ci] <= reach
+    return rows[ri[ok]], cols[ci[ok]]
+
+
+def surplus_tentative(tracks: TrackSet, keep: np.ndarray, limit: int) -> np.ndarray:
+    """Mask of the kept tentative tracks beyond the ``limit`` most likely ones."""
+    tentative = np.flatnonzero(keep & ~tracks.confirmed)
+    out = np.zeros(len(tracks), dtype=bool)
+    if tentative.size > limit:
+        order = tentative[np.argsort(-tracks.existence[tentative], kind="stable")]
+        out[order[limit:]] = True
+    return out
+
+
 def manager_step(spec: TrackerSpec, ms: ManagerState, t: float, z: np.ndarray,
                  amplitude: np.ndarray, R: np.ndarray) -> tuple[ManagerState, ScanReport]:
     """Process one scan (detections ``z`` (M, 2), ``amplitude`` (M,), covariance ``R``)."""
@@ -192,12 +222,13 @@ def manager_step(spec: TrackerSpec, ms: ManagerState, t: float, z: np.ndarray,
         claimed = np.any(inside & tracks.confirmed[:, None], axis=0)
     newly = tracks.confirmed & ~was_confirmed
     keep = (tracks.existence >= e.delete_threshold) & ~duplicates(tracks, was_confirmed, R, spec.c)
+    keep &= ~surplus_tentative(tracks, keep, e.max_tentative)
     deleted = tracks.take(~keep)
     tracks, newly = tracks.take(keep), newly[keep]
     free = z[~claimed]
     if dt > 0.0 and len(ms.pending) and len(free):
         dist = np.linalg.norm(free[:, None, :] - ms.pending[None, :, :], axis=-1)
-        i, j = np.nonzero(dist <= e.max_speed * dt)
+        i, j = pair_births(dist, e.max_speed * dt)
         if i.size:
             born = two_point_init(ms.pending[j], free[i], dt, R, spec.params.sigma_a)
             ids = ms.next_id + np.arange(i.size)
