@@ -121,3 +121,35 @@ def test_recorder_killed_and_restarted_mid_run_records_every_track_once(tmp_path
         assert tr.model == rp["model"] and tr.t == rp["t"]
         np.testing.assert_allclose(tr.x, rp["x"], rtol=1e-9, atol=1e-6)
         np.testing.assert_allclose(tr.P, rp["P"], rtol=1e-9, atol=1e-6)
+
+
+WRITER = """
+import sys
+import numpy as np
+from pathlib import Path
+from fedtrack.recording import Recording
+from fedtrack.wire import Measurement, encode
+rec = Recording(Path(sys.argv[1]))
+for seq in range(100000):
+    m = Measurement(sensor="a", seq=seq, t=float(seq), kind="position", z=np.zeros(2), R=np.eye(2), stamp_ns=1)
+    rec.add(m, encode(m))
+    print(seq, flush=True)  # committed
+"""
+
+
+@pytest.mark.faults
+def test_a_committed_row_survives_sigkill(tmp_path: Path) -> None:
+    db = tmp_path / "r.db"
+    proc = subprocess.Popen([sys.executable, "-c", WRITER, str(db)], stdout=subprocess.PIPE, text=True)
+    try:
+        lines = [proc.stdout.readline() for _ in range(random.randrange(50, 300))]
+        proc.kill()
+        proc.wait(10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    committed = int(lines[-1])
+    con = sqlite3.connect(db)
+    stored = con.execute("SELECT MAX(seq), COUNT(*) FROM measurements").fetchone()
+    con.close()
+    assert stored[0] >= committed and stored[1] == stored[0] + 1
