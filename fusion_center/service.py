@@ -132,7 +132,7 @@ class FusionCenterService(Service):
         self.gone = self._gone["sensor"] | self._gone["local-filter"]
 
     def subscriptions(self) -> list[Subscription]:
-        return [Subscription(self.keys.local_estimate(), LocalEstimate, self.on_estimate)]
+        return [Subscription(self.keys.local_estimate(), LocalEstimate, self.on_estimate, recover=True)]
 
     def queryables(self) -> list[QueryHandler]:
         return [QueryHandler(self.keys.fusion_state(), lambda: self.last_track)]

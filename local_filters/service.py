@@ -72,9 +72,9 @@ class LocalFilterService(Service):
         self._liveliness: Any = None
 
     def subscriptions(self) -> list[Subscription]:
-        subs = [Subscription(self.keys.sensor_meas(self.sensor), Measurement, self.on_measurement)]
+        subs = [Subscription(self.keys.sensor_meas(self.sensor), Measurement, self.on_measurement, recover=True)]
         if self.mode == "federated":
-            subs.append(Subscription(self.keys.fusion_reset(self.sensor), Reset, self.on_reset))
+            subs.append(Subscription(self.keys.fusion_reset(self.sensor), Reset, self.on_reset, recover=True))
         return subs
 
     def on_start(self) -> None:

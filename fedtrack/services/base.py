@@ -91,6 +91,8 @@ class Subscription:
     ``history``: a ``zenoh.ext`` advanced subscriber that also fetches what the publishers
     still hold in their caches when it starts (or when a publisher appears) and recovers
     samples it missed (publisher heartbeats); the handler may then see a message twice.
+    ``recover`` (implied by ``history``): only the recovery of samples lost in transit (e.g.
+    while the router restarts), delivered late but in order.
     ``raw``: the handler also gets the payload bytes (``handler(msg, payload)``).
     """
 
@@ -98,6 +100,7 @@ class Subscription:
     msg_type: type
     handler: Callable[..., None]
     history: bool = False
+    recover: bool = False
     raw: bool = False
 
 
@@ -255,10 +258,10 @@ class Service:
             def on_sample(sample: zenoh.Sample, index: int = index) -> None:
                 if sample.kind == zenoh.SampleKind.PUT:
                     self._enqueue(("sample", index, str(sample.key_expr), sample.payload.to_bytes()))
-            if sub.history:
+            if sub.history or sub.recover:
+                history = zenoh.ext.HistoryConfig(detect_late_publishers=True) if sub.history else None
                 adv = zenoh.ext.declare_advanced_subscriber(
-                    self.session, sub.key, on_sample,
-                    history=zenoh.ext.HistoryConfig(detect_late_publishers=True),
+                    self.session, sub.key, on_sample, history=history,
                     recovery=zenoh.ext.RecoveryConfig(heartbeat=True), subscriber_detection=True)
                 self._inputs.append(adv)
                 self._inputs.append(adv.sample_miss_listener(self._on_miss))
