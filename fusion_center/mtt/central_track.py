@@ -106,3 +106,14 @@ def fuse(track: CentralTrack, t: float, obs: Observation1, q: float, noise_model
     new = CentralTrack(track.id, tuple(out[first:]), track.confirmed, track.hits + 1)
     assert at_t is not None
     return new, at_t[0], at_t[1]
+
+
+def append(track: CentralTrack, t: float, obs: Observation1, x: np.ndarray, P: np.ndarray, max_lag: float
+           ) -> CentralTrack:
+    """The track after an in-order observation at ``t`` (``t`` >= its newest) whose posterior is ``(x, P)``."""
+    out = track.history + (Fused(t, obs, x, P),)
+    horizon = t - max_lag
+    first = 0
+    while first + 1 < len(out) and out[first + 1].t < horizon:
+        first += 1
+    return CentralTrack(track.id, out[first:], track.confirmed, track.hits + 1)

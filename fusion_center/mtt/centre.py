@@ -31,9 +31,12 @@ from typing import NamedTuple
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
 
-from fedtrack.fusion_center.mtt.central_track import CentralTrack, fuse, start, state_at
+from fedtrack.fusion_center.mtt.central_track import CentralTrack, append, fuse, start, state_at
 from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.mtt.models import predict_batch
+from fedtrack.local_filters.mtt.tracker import kalman_update
 
 LocalKey = tuple[str, int]  # (sensor, local track id)
 
@@ -137,53 +140,101 @@ class TrackToTrackCentre:
             self.strikes.pop((s, lid), None)
         d = report.x.shape[1]
         det_rows = np.flatnonzero(report.detected)
+        keys = [(s, int(i)) for i in report.ids[det_rows].tolist()]
         # hysteresis: a mapped local track inconsistent with its central track unmap_after times in a row
-        unmapped_rows = []
-        for k, row in enumerate(det_rows.tolist()):
-            key = (s, int(report.ids[row]))
-            cid = self.mapping.get(key)
-            if cid is not None and cid in self.tracks and not report.started[k]:
-                xc, Pc = state_at(self.tracks[cid], t, cfg.q, cfg.noise_model)
-                diff = report.x[row] - xc[:d]
-                d2 = float(diff @ np.linalg.solve(report.P[row] + Pc[:d, :d], diff))
-                if d2 > cfg.thresholds.association[d]:
-                    self.strikes[key] = self.strikes.get(key, 0) + 1
-                    if self.strikes[key] >= cfg.unmap_after:
-                        self._unmap(key)
-                        self.strikes.pop(key)
-                        self.counters.unmapped += 1
-                else:
+        check = [k for k, key in enumerate(keys) if self.mapping.get(key) in self.tracks and not report.started[k]]
+        if check:
+            xc, Pc = self._priors([self.mapping[keys[k]] for k in check], t)
+            rows = det_rows[check]
+            diff = report.x[rows] - xc[:, :d]
+            d2 = np.einsum("ni,ni->n", diff, np.linalg.solve(report.P[rows] + Pc[:, :d, :d], diff[..., None])[..., 0])
+            for k, bad in zip(check, (d2 > cfg.thresholds.association[d]).tolist()):
+                key = keys[k]
+                if not bad:
                     self.strikes.pop(key, None)
-            if self.mapping.get(key) not in self.tracks:
-                self._unmap(key)
-                unmapped_rows.append(k)
+                    continue
+                self.strikes[key] = self.strikes.get(key, 0) + 1
+                if self.strikes[key] >= cfg.unmap_after:
+                    self._unmap(key)
+                    self.strikes.pop(key)
+                    self.counters.unmapped += 1
+        unmapped_rows = [k for k, key in enumerate(keys) if self.mapping.get(key) not in self.tracks]
+        for k in unmapped_rows:
+            self._unmap(keys[k])
         fresh = self._associate(report, det_rows, unmapped_rows)
+        posterior = self._fuse_scan(report, keys, fresh, t)
         beta = float(max(len(self.live_sensors(t)), 1))
         resets = []
-        for k, row in enumerate(det_rows.tolist()):
-            key = (s, int(report.ids[row]))
+        for k, key in enumerate(keys):
+            if k not in posterior:
+                continue
             cid = self.mapping[key]
             track = self.tracks[cid]
-            if key in fresh:
-                xc, Pc = track.x, track.P  # started from this local estimate: nothing more to fuse
-            else:
-                obs = (self._embed(report.obs_H[k]), report.obs_R[k], report.obs_z[k])
-                done = fuse(track, t, obs, cfg.q, cfg.noise_model, cfg.max_lag)
-                if done is None:
-                    self.counters.late += 1
-                    continue
-                track, xc, Pc = done
-                self.counters.fused += 1
-            if not track.confirmed and (report.confirmed[row] or (track.hits >= cfg.confirm_hits + 1
-                                                                  and len(self.sensors_of(cid)) > 1)):
-                track = track._replace(confirmed=True)
-            self.tracks[cid] = track
+            if not track.confirmed and (report.confirmed[det_rows[k]] or (track.hits >= cfg.confirm_hits + 1
+                                                                          and len(self.sensors_of(cid)) > 1)):
+                self.tracks[cid] = track._replace(confirmed=True)
             self.last_support[cid] = max(self.last_support.get(cid, t), t)
             if self.feedback:
+                xc, Pc = posterior[k]
                 resets.append(Reset(s, key[1], t, xc[:d].copy(), beta * Pc[:d, :d]))
-        self._merge_duplicates({self.mapping[(s, int(report.ids[row]))] for row in det_rows.tolist()
-                                if (s, int(report.ids[row])) in self.mapping}, t)
+        self._merge_duplicates({self.mapping[key] for key in keys if key in self.mapping}, t)
         return resets
+
+    def _priors(self, cids: list[int], t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Central estimates at ``t`` (batched); a track newer than ``t`` gives its estimate at ``t``."""
+        cfg = self.cfg
+        last = [self.tracks[c].history[-1] for c in cids]
+        x = np.stack([h.x for h in last])
+        P = np.stack([h.P for h in last])
+        dt = np.array([t - h.t for h in last])
+        xp, Pp = predict_batch(x, P, np.maximum(dt, 0.0), cfg.q, cfg.noise_model)
+        for k in np.flatnonzero(dt < 0).tolist():
+            xp[k], Pp[k] = state_at(self.tracks[cids[k]], t, cfg.q, cfg.noise_model)
+        return xp, Pp
+
+    def _fuse_scan(self, report: LocalReport, keys: list[LocalKey], fresh: set[LocalKey], t: float
+                   ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+        """Fuse the scan's observations; returns the posterior at ``t`` per detected row that was fused.
+
+        In-order observations of distinct central tracks are fused in one batched Kalman update;
+        out-of-sequence ones (and a second observation of one central track) one by one.
+        """
+        cfg = self.cfg
+        out: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        batch, single, seen = [], [], set()
+        for k, key in enumerate(keys):
+            cid = self.mapping[key]
+            if key in fresh:
+                out[k] = (self.tracks[cid].x, self.tracks[cid].P)  # started from this local estimate
+            elif self.tracks[cid].t <= t and cid not in seen:
+                batch.append(k)
+                seen.add(cid)
+            else:
+                single.append(k)
+        if batch:
+            cids = [self.mapping[keys[k]] for k in batch]
+            x, P = self._priors(cids, t)
+            H = self._embed(report.obs_H[batch])
+            R, z = report.obs_R[batch], report.obs_z[batch]
+            S = H @ P @ np.swapaxes(H, -1, -2) + R
+            nu = z - np.einsum("nij,nj->ni", H, x)
+            x, P = kalman_update(x, P, nu, H, R, 0.5 * (S + np.swapaxes(S, -1, -2)))
+            for j, (k, cid) in enumerate(zip(batch, cids)):
+                obs = (H[j], R[j], z[j])
+                self.tracks[cid] = append(self.tracks[cid], t, obs, x[j], P[j], cfg.max_lag)
+                out[k] = (x[j], P[j])
+            self.counters.fused += len(batch)
+        for k in single:
+            cid = self.mapping[keys[k]]
+            obs = (self._embed(report.obs_H[k]), report.obs_R[k], report.obs_z[k])
+            done = fuse(self.tracks[cid], t, obs, cfg.q, cfg.noise_model, cfg.max_lag)
+            if done is None:
+                self.counters.late += 1
+                continue
+            self.tracks[cid], xc, Pc = done
+            out[k] = (xc, Pc)
+            self.counters.fused += 1
+        return out
 
     def _merge_duplicates(self, updated: set[int], t: float) -> None:
         """Merge a central track into an older one that passes the track-to-track test and shares
@@ -193,24 +244,26 @@ class TrackToTrackCentre:
         cfg = self.cfg
         ids = sorted(self.tracks)
         row = {c: k for k, c in enumerate(ids)}
-        states = [state_at(self.tracks[c], t, cfg.q, cfg.noise_model) for c in ids]
-        X = np.stack([x for x, _ in states])
-        P = np.stack([P for _, P in states])
+        X, P = self._priors(ids, t)
         gate = cfg.thresholds.association[self.dim]
-        for cid in sorted(updated):
-            if cid not in self.tracks:
+        # candidate pairs: positions closer than 5 sigma of the larger position spread
+        spread = np.sqrt(P[:, 0, 0] + P[:, 2, 2])
+        tree = cKDTree(X[:, [0, 2]])
+        mine = [row[c] for c in sorted(updated) if c in row]
+        if not mine:
+            return
+        reach = 5.0 * (spread[mine] + spread.max())
+        for k, near in zip(mine, tree.query_ball_point(X[mine][:, [0, 2]], reach)):
+            cid = ids[k]
+            if cid not in self.tracks or len(near) < 2:
                 continue
-            k = row[cid]
-            diff = X - X[k]
-            near = np.flatnonzero(np.sum(diff[:, [0, 2]] ** 2, axis=1) < 25.0 * (P[:, 0, 0] + P[:, 2, 2] + P[k, 0, 0]
-                                                                              + P[k, 2, 2]))
-            for j in near.tolist():
+            for j in sorted(near):
                 other = ids[j]
                 if other == cid or other not in self.tracks or \
                         set(self.sensors_of(cid)) & set(self.sensors_of(other)):
                     continue
-                d2 = float(diff[j] @ np.linalg.solve(P[j] + P[k], diff[j]))
-                if d2 > gate:
+                diff = X[j] - X[k]
+                if float(diff @ np.linalg.solve(P[j] + P[k], diff)) > gate:
                     continue
                 keep, drop = min(cid, other), max(cid, other)
                 for key in list(self.members.get(drop, ())):

@@ -49,6 +49,24 @@ def motion(dim: int, dt: float, q: float, noise_model: str = "continuous") -> Mo
     return Motion(F, Q)
 
 
+def predict_batch(x: np.ndarray, P: np.ndarray, dt: np.ndarray, q: float, noise_model: str = "continuous"
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Predict each of a batch (N, D) over its own interval ``dt`` (N,) (what :func:`motion` gives per track)."""
+    n, dim = x.shape
+    if noise_model == "continuous":
+        q11, q12, q22 = q * dt**3 / 3.0, q * dt**2 / 2.0, q * dt
+    else:
+        q11, q12, q22 = q * dt**4 / 4.0, q * dt**3 / 2.0, q * dt**2
+    F = np.broadcast_to(np.eye(dim), (n, dim, dim)).copy()
+    Q = np.zeros((n, dim, dim))
+    for a in range(0, dim, 2):
+        F[:, a, a + 1] = dt
+        Q[:, a, a], Q[:, a, a + 1], Q[:, a + 1, a], Q[:, a + 1, a + 1] = q11, q12, q12, q22
+    xp = np.einsum("nij,nj->ni", F, x)
+    Pp = F @ P @ np.swapaxes(F, -1, -2) + Q
+    return xp, 0.5 * (Pp + np.swapaxes(Pp, -1, -2))
+
+
 def predict_tracks(x: np.ndarray, P: np.ndarray, m: Motion, q_scale: float | np.ndarray = 1.0
                    ) -> tuple[np.ndarray, np.ndarray]:
     """Predict a batch ``x`` (N, D), ``P`` (N, D, D); ``Q`` scaled by ``q_scale`` (federated ``beta_i``)."""
