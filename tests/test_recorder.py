@@ -72,11 +72,11 @@ def test_recorder_killed_and_restarted_mid_run_records_every_track_once(tmp_path
     replay to the tracks seen live."""
     seed = int(os.environ.get("FEDTRACK_FAULT_SEED", random.randrange(10**6)))
     rng = random.Random(seed)
-    dep = Deployment(tmp_path, pacing="realtime", speed=20.0)  # 101 scans in about 5 s
+    dep = Deployment(tmp_path, pacing="realtime", speed=12.0)  # 101 scans in about 8.5 s
     try:
         dep.start()
         assert wait_until(lambda: len(dep.tracks) >= 1, 30.0)
-        time.sleep(rng.uniform(0.0, 2.5))
+        time.sleep(rng.uniform(0.0, 3.0))  # the restart must be up before the sensors end (their caches go)
         dep.kill("recorder/recorder")
         killed_at = len(dep.tracks)
         time.sleep(rng.uniform(0.2, 0.8))
