@@ -32,6 +32,7 @@ PAPER_TABLE1 = {
 }
 PAPER_FALSE_DETECTIONS = {"1": {"fvdie": 3.38, "dvdie": 5.74}, "2": {"fvdie": 3.20, "dvdie": 5.92}}
 CV_NEES_WINDOW = (5.0, 29.0)  # non-maneuvering segment used for the NEES check (after start-up)
+CV_SEGMENT = (20.0, 30.0)  # the CV segment before the first maneuver, where false onsets cost accuracy
 
 
 class MonteCarloRun(NamedTuple):
@@ -86,6 +87,22 @@ def rms_with_stderr(err: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return rms, se
 
 
+def segment_rms(err: np.ndarray) -> tuple[float, float]:
+    """RMS over runs and scans (``err``: runs x scans) and its standard error over runs."""
+    per_run = (err ** 2).mean(axis=1)
+    rms = float(np.sqrt(per_run.mean()))
+    return rms, float(per_run.std(ddof=1) / np.sqrt(len(per_run)) / max(2.0 * rms, 1e-300))
+
+
+def segment_ratio(err_a: np.ndarray, err_b: np.ndarray) -> tuple[float, float]:
+    """RMS ratio a / b over runs and scans (runs x scans, the same runs) and its paired
+    delta-method standard error over runs."""
+    ma, mb = (err_a ** 2).mean(axis=1), (err_b ** 2).mean(axis=1)
+    ratio = float(np.sqrt(ma.mean() / mb.mean()))
+    influence = 0.5 * ratio * (ma / ma.mean() - mb / mb.mean())
+    return ratio, float(influence.std(ddof=1) / np.sqrt(len(ma)))
+
+
 def summarize(run: MonteCarloRun, truth: np.ndarray, times: np.ndarray, scenario: Scenario,
               settle_s: float) -> dict[str, Any]:
     err = run.x - truth
@@ -100,6 +117,9 @@ def summarize(run: MonteCarloRun, truth: np.ndarray, times: np.ndarray, scenario
         out[f"rms_{name}"] = r.tolist()
     out["table1"] = {str(t): float(rms["pos_x"][0][i]) for t, i in zip(TABLE1_TIMES, idx)}
     out["table1_stderr"] = {str(t): float(rms["pos_x"][1][i]) for t, i in zip(TABLE1_TIMES, idx)}
+    seg = (times >= CV_SEGMENT[0]) & (times <= CV_SEGMENT[1])
+    seg_rms, seg_se = segment_rms(err[:, seg, 0])
+    out["cv_segment"] = {"t": list(CV_SEGMENT), "rms_pos_x": seg_rms, "stderr": seg_se}
     out["false_detections_per_run"] = float(false_per_run.mean())
     out["false_detections_stderr"] = float(false_per_run.std(ddof=1) / np.sqrt(len(false_per_run)))
     out["detections_per_run"] = float(detection.sum(axis=1).mean())
@@ -138,7 +158,8 @@ def reproduce_fvdie(runs: int, seed: int, json_path: Path, plots_dir: Path | Non
         "runs": runs, "seed": seed, "sensors": 2, "R": DEFAULT_R.tolist(), "q": config.q,
         "vdie": {"window": config.vdie.window, "p": config.vdie.p, "h_detect": config.vdie.h_detect,
                  "h_cv": config.vdie.h_cv, "detect_sigma": config.vdie.detect_sigma,
-                 "cv_sigma": config.vdie.cv_sigma},
+                 "cv_sigma": config.vdie.cv_sigma, "min_samples": config.vdie.min_samples,
+                 "detect_correction": config.vdie.detect_correction},
         "paper": {"table1": PAPER_TABLE1, "false_detections_per_run": PAPER_FALSE_DETECTIONS},
         "scenarios": {},
     }
@@ -151,15 +172,21 @@ def reproduce_fvdie(runs: int, seed: int, json_path: Path, plots_dir: Path | Non
             times = scenario.times
             filters = {}
             nees_report = None
+            seg = (times >= CV_SEGMENT[0]) & (times <= CV_SEGMENT[1])
+            seg_err = {}
             for name in FILTERS:
                 run = run_tracker(name, times, zs, Rs, config, progress)
                 filters[name] = summarize(run, truth, times, scenario, settle_s)
+                seg_err[name] = (run.x - truth)[:, seg, 0]
                 if name == "kf":
                     nees_report = cv_segment_nees(run, truth, times)
             result["scenarios"][scenario.name] = {
                 "false_detection_rule": false_detection_rule(scenario, settle_s),
+                "maneuvers": [[seg.t_start, seg.t_end] for seg in scenario.segments],
                 "filters": filters,
                 "kf_cv_segment_nees": nees_report,
+                "cv_segment_fvdie_over_dvdie": dict(zip(("ratio", "stderr"),
+                                                        segment_ratio(seg_err["fvdie"], seg_err["dvdie"]))),
             }
     result["wall_time_s"] = time.perf_counter() - wall
     json_path.parent.mkdir(parents=True, exist_ok=True)
@@ -174,17 +201,22 @@ def print_summary(result: dict[str, Any]) -> None:
     """Table 1 and false detections next to the paper's values."""
     for sname, scen in result["scenarios"].items():
         print(f"\nscenario {sname}: x position RMS error [m] (+- standard error), {result['runs']} runs")
-        print("  t    " + "".join(f"{t:>14}" for t in TABLE1_TIMES))
+        lo, hi = CV_SEGMENT
+        print("  t    " + f"{f'CV {lo:g}-{hi:g}':>14}" + "".join(f"{t:>14}" for t in TABLE1_TIMES))
         for name in FILTERS:
             f = scen["filters"][name]
+            seg = f"{f['cv_segment']['rms_pos_x']:8.2f}+-{f['cv_segment']['stderr']:<4.2f}"
             cells = "".join(f"{f['table1'][str(t)]:8.2f}+-{f['table1_stderr'][str(t)]:<4.2f}" for t in TABLE1_TIMES)
-            print(f"  {name:5}{cells}")
+            print(f"  {name:5}{seg}{cells}")
             if sname == "1" and name in PAPER_TABLE1:
-                print("  paper" + "".join(f"{v:14.2f}" for v in PAPER_TABLE1[name]))
+                print("  paper" + " " * 14 + "".join(f"{v:14.2f}" for v in PAPER_TABLE1[name]))
         for name in ("fvdie", "dvdie"):
             f = scen["filters"][name]
             print(f"  false detections/run {name}: {f['false_detections_per_run']:.2f} "
                   f"+- {f['false_detections_stderr']:.2f} (paper {PAPER_FALSE_DETECTIONS[sname][name]})")
+        r = scen["cv_segment_fvdie_over_dvdie"]
+        print(f"  CV segment {lo:g}-{hi:g} s, fvdie / dvdie RMS in the same runs: {r['ratio']:.3f} "
+              f"+- {r['stderr']:.3f}")
         n = scen["kf_cv_segment_nees"]
         print(f"  kf NEES on the CV segment: time average {n['time_average']:.2f} (4 dof), "
               f"{100 * n['fraction_in_band']:.0f}% of scans in the 95% band")
@@ -192,7 +224,8 @@ def print_summary(result: dict[str, Any]) -> None:
 
 
 def plot_rms(result: dict[str, Any], plots_dir: Path) -> list[Path]:
-    """Figures 5-8 of the paper: RMS position and velocity error vs time, all filters."""
+    """Figures 5-8 of the paper: RMS position and velocity error vs time, all filters, the
+    maneuvers shaded and the paper's Table 1 values (scenario 1, x) as markers."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -201,14 +234,20 @@ def plot_rms(result: dict[str, Any], plots_dir: Path) -> list[Path]:
     plots_dir.mkdir(parents=True, exist_ok=True)
     paths = []
     figure_no = {("1", "x"): 5, ("1", "y"): 6, ("2", "x"): 7, ("2", "y"): 8}
-    styles = {"fvdie": "-", "dvdie": "--", "kf": ":"}
+    styles = {"fvdie": ("-", "C0"), "dvdie": ("--", "C1"), "kf": (":", "C2")}
     for (sname, axis), fig_no in figure_no.items():
         scen = result["scenarios"][sname]
         fig, axes = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
         for ax, quantity, unit in ((axes[0], "pos", "m"), (axes[1], "vel", "m/s")):
+            for i, (t0, t1) in enumerate(scen.get("maneuvers", [])):
+                ax.axvspan(t0, t1, color="0.85", zorder=0, label="maneuver" if i == 0 else None)
             for name in FILTERS:
                 f = scen["filters"][name]
-                ax.plot(f["t"], f[f"rms_{quantity}_{axis}"], styles[name], label=name.upper())
+                line, color = styles[name]
+                ax.plot(f["t"], f[f"rms_{quantity}_{axis}"], line, color=color, label=name.upper())
+                if (sname, axis, quantity) == ("1", "x", "pos") and name in PAPER_TABLE1:
+                    ax.plot(TABLE1_TIMES, PAPER_TABLE1[name], "o" if name == "fvdie" else "s",
+                            color=color, mfc="none", label=f"paper {name.upper()} (Table 1)")
             ax.set_yscale("log")
             ax.set_ylabel(f"RMS {quantity} error {axis} [{unit}]")
             ax.grid(True, which="both", alpha=0.3)

@@ -48,6 +48,13 @@ FILTERS: tuple[tuple[str, str, str], ...] = (
     ("vsimm_as_printed", VSIMM, AS_PRINTED),
 )
 SCENARIOS = ("S1", "S2")
+# Curves that nearly coincide stay visible: FSIMM wide and pale underneath, the others thin on top.
+LINE_STYLES: dict[str, dict[str, Any]] = {
+    "fsimm": {"lw": 3.5, "alpha": 0.45, "color": "C0", "zorder": 1},
+    "vsimm": {"lw": 1.3, "ls": (0, (4, 2)), "color": "C1", "zorder": 3},
+    "ao_vsimm": {"lw": 1.3, "ls": "-", "color": "C2", "zorder": 2},
+    "vsimm_as_printed": {"lw": 1.0, "ls": ":", "color": "C3", "zorder": 4},
+}
 # Filter prior: x0 ~ N(truth, P0); the paper does not give one.
 P0_STD = np.array([20.0, 30.0, 20.0, 30.0])
 # cpu_s sums, over the steps, the minimum of this many timings of the same (pure) step:
@@ -172,8 +179,7 @@ def _plot(result: dict[str, Any], plots_dir: Path) -> list[Path]:
         fig, axes = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
         for ax, comp, fig_no in zip(axes, ("x", "y"), figure_numbers[scen]):
             for key, entry in res["filters"].items():
-                ax.plot(entry["t"], entry[f"rms_acc_{comp}"], label=key, lw=1.2,
-                        ls="--" if key == "vsimm_as_printed" else "-")
+                ax.plot(entry["t"], entry[f"rms_acc_{comp}"], label=key, **LINE_STYLES.get(key, {}))
             ax.set_ylabel(f"RMSE a_{comp} (m/s^2)")
             ax.set_title(f"{scen}: acceleration RMSE, {comp.upper()} axis (paper fig. {fig_no}), "
                          f"{result['runs']} runs")

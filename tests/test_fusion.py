@@ -137,7 +137,9 @@ def test_sharing_factor_validation():
 
 def test_vdie_thresholds_documented_values():
     p = VdieParams()
-    assert p.h_detect == pytest.approx(11.83, abs=0.01)  # 3 sigma, chi-square(2)
+    assert p.candidates_tested == 5  # window 6, min_samples 2
+    assert p.h_detect == pytest.approx(15.05, abs=0.01)  # 3 sigma per scan, Sidak over 5 candidates
+    assert VdieParams(detect_correction="none").h_detect == pytest.approx(11.83, abs=0.01)  # 3 sigma each
     assert p.h_cv == pytest.approx(2.66, abs=0.01)  # 0.5 sigma, chi-square(4) for p = 2
     assert EVENT_ONSET == 1
 

@@ -5,13 +5,17 @@ import pytest
 from scipy.stats import chi2
 
 from fedtrack.experiments.fvdie import (
+    PAPER_FALSE_DETECTIONS,
     PAPER_TABLE1,
     TABLE1_TIMES,
+    CV_SEGMENT,
     cv_segment_nees,
     run_tracker,
+    segment_ratio,
     summarize,
 )
 from fedtrack.local_filters.vdie.config import FusionConfig
+from fedtrack.local_filters.vdie.estimation import VdieParams
 from fedtrack.sensors.scenarios import DEFAULT_R, paper004_scenario, simulate_positions, simulate_truth
 
 RUNS = 200
@@ -72,13 +76,13 @@ def test_fvdie_meets_table1(results):
 
 
 @pytest.mark.parametrize("number", [1, 2])
-def test_fvdie_false_detections_below_dvdie(results, number):
+def test_fvdie_false_detections_at_most_the_papers(results, number):
     s = results[number]["summary"]
-    assert s["fvdie"]["false_detections_per_run"] <= 3.4
-    # the difference must exceed the Monte Carlo noise (2 standard errors of the difference)
-    diff = s["dvdie"]["false_detections_per_run"] - s["fvdie"]["false_detections_per_run"]
+    assert s["fvdie"]["false_detections_per_run"] <= PAPER_FALSE_DETECTIONS[str(number)]["fvdie"]
+    # never more than DVDIE's beyond the Monte Carlo noise (2 standard errors of the difference)
+    diff = s["fvdie"]["false_detections_per_run"] - s["dvdie"]["false_detections_per_run"]
     se = np.hypot(s["dvdie"]["false_detections_stderr"], s["fvdie"]["false_detections_stderr"])
-    assert diff > 2 * se
+    assert diff < 2 * se
 
 
 def test_kf_never_detects_and_maneuvers_are_detected(results):
@@ -87,3 +91,27 @@ def test_kf_never_detects_and_maneuvers_are_detected(results):
     # every FVDIE run detects both maneuver onsets within 3 s
     times = [np.array(d) for d in s["fvdie"]["detection_times"]]
     assert all(np.any((d > 30) & (d <= 33)) and np.any((d > 70) & (d <= 73)) for d in times)
+
+
+def test_false_onsets_cost_fvdie_at_most_3_percent_on_the_cv_segment():
+    """Issue 15: with the window-corrected threshold, FVDIE's CV-segment RMS is within 3% of
+    DVDIE's in the same runs, and clearly below FVDIE's with every candidate onset tested at
+    3 sigma (1,000 runs of the scans up to t = 30, before any maneuver)."""
+    scenario = paper004_scenario(1)
+    keep = scenario.times <= CV_SEGMENT[1]
+    times = scenario.times[keep]
+    rng = np.random.default_rng(2024)
+    truth = simulate_truth(scenario, 1000, rng)[:, keep]
+    Rs = np.array([DEFAULT_R, DEFAULT_R])
+    zs = simulate_positions(truth, Rs, rng)
+    seg = times >= CV_SEGMENT[0]
+
+    def seg_err(name: str, config: FusionConfig) -> np.ndarray:
+        return (run_tracker(name, times, zs, Rs, config).x - truth)[:, seg, 0]
+
+    fvdie = seg_err("fvdie", FusionConfig())
+    ratio, se = segment_ratio(fvdie, seg_err("dvdie", FusionConfig()))
+    assert ratio < 1.03, (ratio, se)
+    uncorrected = seg_err("fvdie", FusionConfig(vdie=VdieParams(detect_correction="none")))
+    gain, se_gain = segment_ratio(fvdie, uncorrected)
+    assert gain < 1 - 2 * se_gain, (gain, se_gain)

@@ -51,6 +51,7 @@ from fedtrack.local_filters.linear.models import CA_ACC, CV_IN_CA, LinearModel
 
 EVENT_NONE, EVENT_ONSET, EVENT_NEW_CA, EVENT_END = 0, 1, 2, 3
 EVENT_NAMES = {EVENT_ONSET: "onset", EVENT_NEW_CA: "new-ca", EVENT_END: "end"}
+DETECT_CORRECTIONS = ("sidak", "none")
 
 
 def sigma_to_chi2(k_sigma: float, dof: int) -> float:
@@ -62,9 +63,14 @@ def sigma_to_chi2(k_sigma: float, dof: int) -> float:
 class VdieParams:
     """Maneuver-detection parameters (paper 004 section IV: window 6, p = 2, "3 sigma", "0.5 sigma").
 
-    ``h_detect`` is compared with ``u' Gamma^-1 u`` (chi-square, 2 dof); the default is the
-    3-sigma two-sided tail probability 0.0027, i.e. 11.83. ``h_cv`` is compared with the
-    sum over ``p`` steps of ``a' P_aa^-1 a`` (chi-square, 2p dof); the default is the 0.5-sigma
+    ``h_detect`` is compared with ``u' Gamma^-1 u`` (chi-square, 2 dof) at the most likely
+    onset. "3 sigma" (``detect_sigma``) is the detector's false-alarm probability per scan,
+    0.0027. The detector tests the maximum of ``window - min_samples + 1`` candidate onsets
+    (67), so with ``detect_correction = "sidak"`` (default) each candidate is tested at the
+    Sidak level ``1 - (1 - 0.0027)^(1/5)`` = 5.4e-4, i.e. h = 15.05; ``"none"`` tests each
+    candidate at 0.0027 (h = 11.83), which lets the maximum over the window raise false
+    onsets (see docs/papers.md, "FVDIE false onsets"). ``h_cv`` is compared with the sum
+    over ``p`` steps of ``a' P_aa^-1 a`` (chi-square, 2p dof); the default is the 0.5-sigma
     tail probability 0.617, i.e. 2.66 for p = 2.
     """
 
@@ -73,6 +79,7 @@ class VdieParams:
     detect_sigma: float = 3.0
     cv_sigma: float = 0.5
     min_samples: int = 2
+    detect_correction: str = "sidak"
 
     def validate(self) -> None:
         if self.window < 1:
@@ -85,10 +92,20 @@ class VdieParams:
             raise ConfigError("detect_sigma: must be > 0")
         if not self.cv_sigma > 0:
             raise ConfigError("cv_sigma: must be > 0")
+        if self.detect_correction not in DETECT_CORRECTIONS:
+            raise ConfigError(f"detect_correction: must be one of {', '.join(DETECT_CORRECTIONS)}")
+
+    @property
+    def candidates_tested(self) -> int:
+        """Candidate onsets whose estimate rests on ``min_samples`` scans or more (the max in (67))."""
+        return self.window - self.min_samples + 1
 
     @cached_property
     def h_detect(self) -> float:
-        return sigma_to_chi2(self.detect_sigma, 2)
+        tail = 2.0 * float(ndtr(-self.detect_sigma))
+        if self.detect_correction == "sidak":
+            tail = -float(np.expm1(np.log1p(-tail) / self.candidates_tested))  # 1 - (1 - tail)^(1/m)
+        return float(chdtri(2, tail))
 
     @cached_property
     def h_cv(self) -> float:
