@@ -219,3 +219,40 @@ def test_input_errors_name_the_line_and_field(tmp_path: Path) -> None:
     path = write_lines(tmp_path / "bad.jsonl", [good, {**good, "sensor": "z"}])
     with pytest.raises(InputError, match="bad.jsonl:2: sensor 'z' is not in mtt.sensors"):
         replay_mtt("mtt-federated", path, cfg, tmp_path / "o.jsonl")
+
+
+def test_centre_life_rules_use_every_sensors_scans(tmp_path: Path) -> None:
+    """A coherent ghost seen by one sensor only stays tentative at the centre while another
+    sensor is live (and is confirmed when that sensor is the only one); a target that dies is
+    deleted at the centre within two scans of each sensor tracking it."""
+    rng = np.random.default_rng(3)
+    times = np.arange(0.0, 30.0)
+    target = crossing_truth(times, np.array([0.0, 10.0, 0.0, 5.0]))
+    ghost = crossing_truth(times, np.array([600.0, -8.0, 300.0, 4.0]))
+    death = 20
+
+    def rows_for(sensors: tuple[str, ...]) -> list[dict]:
+        rows = []
+        for k, t in enumerate(times):
+            for s in sensors:
+                dets = [] if k >= death else [{"z": (target[k, [0, 2]] + rng.multivariate_normal([0, 0], R_POS)).tolist()}]
+                if s == "a":
+                    dets.append({"z": (ghost[k, [0, 2]] + rng.multivariate_normal([0, 0], R_POS)).tolist()})
+                rows.append({"t": float(t) + (0.5 if s == "b" else 0.0), "sensor": s, "R": R_POS, "detections": dets})
+        return rows
+
+    def confirmed_near(pic: dict, truth: np.ndarray, k: int) -> int:
+        return sum(tr["status"] == "confirmed" and np.hypot(*(np.array(tr["pos"]) - truth[k, [0, 2]])) < 100
+                   for tr in pic["tracks"])
+
+    cfg = config(tmp_path / "c.toml", q=1.0, pd=0.95, clutter_density=1e-7)
+    for algorithm in ("mtt-federated", "mtt-decentralized"):
+        replay_mtt(algorithm, write_lines(tmp_path / "m.jsonl", rows_for(("a", "b"))), cfg, tmp_path / "o.jsonl")
+        pictures = {int(p["t"]): p for p in read_pictures(tmp_path / "o.jsonl")}
+        assert all(confirmed_near(pictures[k], target, k) == 1 for k in range(5, death)), algorithm
+        assert all(confirmed_near(pictures[k], ghost, k) == 0 for k in pictures), algorithm
+        # each of a and b (period 1 s) misses the dead target twice: gone 2 s after its last scan
+        assert all(confirmed_near(pictures[k], target, k - 1) == 0 for k in range(death + 2, len(times))), algorithm
+        replay_mtt(algorithm, write_lines(tmp_path / "m1.jsonl", rows_for(("a",))), cfg, tmp_path / "o1.jsonl")
+        alone = {int(p["t"]): p for p in read_pictures(tmp_path / "o1.jsonl")}
+        assert all(confirmed_near(alone[k], ghost, k) == 1 for k in range(5, len(times))), algorithm

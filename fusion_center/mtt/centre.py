@@ -19,13 +19,21 @@ scan, the linearized observation of every track the scan detected, the tracks it
   central estimate with ``P_i = beta_i P`` (``beta_i`` = the number of live sensors, so the
   shares sum to one and renormalize when sensors join or leave); the local tracker then
   predicts with ``Q_i = beta_i Q`` (paper 004 eqs. (17)-(22)). **Decentralized**: no feedback.
-* **Life.** A central track is confirmed once any of its local tracks is, or once tracks of two
-  or more sensors gave it ``confirm_hits + 1`` detections; it is deleted when
-  no local track maps to it any more or none supported it for ``central_timeout`` seconds.
+* **Life.** A central track is confirmed by the centralized tracker's M-of-N rule applied to
+  the scans of every sensor: ``confirm_hits`` detections among the last ``confirm_window``
+  sensor scans the centre received since the track started (the starting scan included). A
+  false local track of one sensor gets no detections from the others' scans and stays
+  tentative; with one live sensor the rule is that sensor's own. A confirmed track is deleted
+  once every sensor that tracks it (a local track maps to it) missed it on its last
+  ``CENTRAL_MISSES`` (2) scans since its last detection (``delete_misses`` when one sensor
+  tracks it): a target that died goes within two scans of the slowest sensor instead of
+  lingering until every local tracker deleted its track. It is also deleted when no local
+  track maps to it any more or none supported it for ``central_timeout`` seconds.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -39,6 +47,11 @@ from fedtrack.local_filters.mtt.models import predict_batch
 from fedtrack.local_filters.mtt.tracker import kalman_update
 
 LocalKey = tuple[str, int]  # (sensor, local track id)
+# A confirmed track that two or more sensors track is deleted once each of them missed it on
+# its last CENTRAL_MISSES scans since its last detection: (1 - P_D)^4 = 1e-4 or less for a live
+# target with P_D = 0.9, where the centralized rule's 3 misses in a row (1e-3) drop a live
+# target about once a minute among 60 targets seen by 3 sensors.
+CENTRAL_MISSES = 2
 
 
 class LocalReport(NamedTuple):
@@ -91,6 +104,8 @@ class TrackToTrackCentre:
     strikes: dict[LocalKey, int] = field(default_factory=dict)
     last_support: dict[int, float] = field(default_factory=dict)
     sensor_seen: dict[str, float] = field(default_factory=dict)
+    recent_hits: dict[int, deque[bool]] = field(default_factory=dict)  # tentative tracks' last scans
+    misses: dict[int, dict[str, int]] = field(default_factory=dict)  # per tracking sensor, scans missed in a row
     next_id: int = 0
     counters: Counters = field(default_factory=Counters)
 
@@ -169,16 +184,51 @@ class TrackToTrackCentre:
             if k not in posterior:
                 continue
             cid = self.mapping[key]
-            track = self.tracks[cid]
-            if not track.confirmed and (report.confirmed[det_rows[k]] or (track.hits >= cfg.confirm_hits + 1
-                                                                          and len(self.sensors_of(cid)) > 1)):
-                self.tracks[cid] = track._replace(confirmed=True)
             self.last_support[cid] = max(self.last_support.get(cid, t), t)
             if self.feedback:
                 xc, Pc = posterior[k]
                 resets.append(Reset(s, key[1], t, xc[:d].copy(), beta * Pc[:d, :d]))
+        self._count_scan(s, {self.mapping[keys[k]] for k in posterior})
         self._merge_duplicates({self.mapping[key] for key in keys if key in self.mapping}, t)
         return resets
+
+    def _count_scan(self, sensor: str, detected: set[int]) -> None:
+        """One sensor scan of the centralized life rules: M-of-N confirmation of tentative
+        tracks; a confirmed track that this sensor tracks (a local track maps to it) and did not
+        detect misses, and is deleted after ``delete_misses`` consecutive misses."""
+        cfg = self.cfg
+        for table in (self.recent_hits, self.misses):
+            for cid in [c for c in table if c not in self.tracks]:
+                del table[cid]
+        dead = []
+        for cid, track in self.tracks.items():
+            hit = cid in detected
+            if track.confirmed:
+                streak = self.misses.setdefault(cid, {})
+                if hit:
+                    streak.clear()
+                    continue
+                streak[sensor] = streak.get(sensor, 0) + 1
+                tracking = {s for s, _ in self.members.get(cid, ())}
+                need = CENTRAL_MISSES if len(tracking) > 1 else cfg.delete_misses
+                if tracking and all(streak.get(s, 0) >= need for s in tracking):
+                    dead.append(cid)
+                continue
+            window = self.recent_hits.setdefault(cid, deque(maxlen=cfg.confirm_window))
+            window.append(hit)
+            if sum(window) >= cfg.confirm_hits:
+                self.tracks[cid] = track._replace(confirmed=True)
+                del self.recent_hits[cid]
+        for cid in dead:
+            self._delete(cid)
+
+    def _delete(self, cid: int) -> None:
+        del self.tracks[cid]
+        self.last_support.pop(cid, None)
+        self.misses.pop(cid, None)
+        for key in list(self.members.get(cid, ())):
+            self._unmap(key)
+        self.counters.deleted += 1
 
     def _priors(self, cids: list[int], t: float) -> tuple[np.ndarray, np.ndarray]:
         """Central estimates at ``t`` (batched); a track newer than ``t`` gives its estimate at ``t``."""
@@ -312,7 +362,7 @@ class TrackToTrackCentre:
             x, P = self._central_start(report.x[row], report.P[row])
             cid = self.next_id
             self.next_id += 1
-            self.tracks[cid] = start(cid, t, x, P, bool(report.confirmed[row]))
+            self.tracks[cid] = start(cid, t, x, P, False)
             self._map(key, cid)
             fresh.add(key)
             self.counters.started += 1
@@ -320,14 +370,9 @@ class TrackToTrackCentre:
 
     def prune(self, now: float) -> None:
         """Delete central tracks no local track maps to, or unsupported for ``central_timeout``."""
-        mapped = self.members
         for cid in list(self.tracks):
-            if cid not in mapped or now - self.last_support.get(cid, now) > self.cfg.central_timeout:
-                del self.tracks[cid]
-                self.last_support.pop(cid, None)
-                self.counters.deleted += 1
-        for key in [k for k, cid in self.mapping.items() if cid not in self.tracks]:
-            self._unmap(key)
+            if cid not in self.members or now - self.last_support.get(cid, now) > self.cfg.central_timeout:
+                self._delete(cid)
 
     def sensors_of(self, cid: int) -> list[str]:
         return sorted({s for s, _ in self.members.get(cid, ())})
