@@ -5,8 +5,10 @@
 * ``montecarlo``: wall time of ``reproduce fvdie --runs 500`` and ``reproduce hpda --runs 500``.
 * ``multitarget``: a 1,000-target, 4-sensor (1 Hz) scenario replayed by ``mtt-centralized``
   and ``mtt-federated`` (seconds per scan, speed against real time, peak RSS of the process),
-  and mean GOSPA on the simulator's default scenario for every sensor's own tracker and the
-  three fusions.
+  and mean GOSPA on the simulator's default scenario for every sensor's own tracker, the
+  three fusions and Stone Soup's GNN tracker on each sensor's detections and on all of them
+  (:mod:`fedtrack.benchmarks.stonesoup_mtt`, with the ``bench`` extra), every picture holding
+  every scan up to its time (``picture_delay = max_lag``).
 * ``pipeline``: the deployment latency bench (:mod:`fedtrack.benchmarks.run`, its options).
 * ``all``: all of them, and the start-up costs (``fedtrack --help``, importing the fusion
   centre). The JSON carries the keys of issue 14; what this version does not measure yet
@@ -78,16 +80,21 @@ def bench_multitarget(quick: bool) -> dict[str, Any]:
         default = Path(tmp) / "default"
         args = ["--duration", "60"] if quick else []
         timed(fedtrack_cmd("simulate", "multitarget", "--seed", "1", "--out", str(default), *args))
-        gospa: dict[str, float] = {}
+        # every picture holds every scan up to its time (Stone Soup gets the scans time-sorted)
+        config = default / "complete.toml"
+        config.write_text((default / "config.toml").read_text().replace("[mtt]\n", "[mtt]\npicture_delay = 3.0\n", 1))
+        sensors = ("s1", "s2", "s3")
         runs = [(a, []) for a in ("mtt-centralized", "mtt-federated", "mtt-decentralized")]
-        runs += [(f"mtt-local:{s}", ["--sensor", s]) for s in ("s1", "s2", "s3")]
+        runs += [(f"mtt-local:{s}", ["--sensor", s]) for s in sensors]
+        tracks = {name: default / f"{name.replace(':', '-')}.jsonl" for name, _ in runs}
         for name, extra in runs:
-            tracks = default / f"{name.replace(':', '-')}.jsonl"
-            timed(fedtrack_cmd("replay", "--algorithm", name.split(":")[0], *extra, "--config",
-                               str(default / "config.toml"), "--measurements", str(default / "measurements.jsonl"),
-                               "--out", str(tracks)))
+            timed(fedtrack_cmd("replay", "--algorithm", name.split(":")[0], *extra, "--config", str(config),
+                               "--measurements", str(default / "measurements.jsonl"), "--out", str(tracks[name])))
+        out["stonesoup_gnn_s"] = stonesoup_runs(default, config, sensors, tracks)
+        gospa: dict[str, float] = {}
+        for name, path in tracks.items():
             result = default / "eval.json"
-            timed(fedtrack_cmd("evaluate", "--tracks", str(tracks), "--truth", str(default / "truth.jsonl"),
+            timed(fedtrack_cmd("evaluate", "--tracks", str(path), "--truth", str(default / "truth.jsonl"),
                                "--json", str(result)))
             gospa[name] = json.loads(result.read_text())["mean"]["gospa"]
         best_local = min(v for k, v in gospa.items() if k.startswith("mtt-local"))
@@ -96,7 +103,35 @@ def bench_multitarget(quick: bool) -> dict[str, Any]:
                                "decentralized_vs_best_local": gospa["mtt-decentralized"] / best_local,
                                "centralized_vs_best_local": gospa["mtt-centralized"] / best_local,
                                "federated_vs_centralized": gospa["mtt-federated"] / gospa["mtt-centralized"]}
+        if "stonesoup:all" in gospa:
+            out["gospa_ratios"]["centralized_vs_stonesoup"] = gospa["mtt-centralized"] / gospa["stonesoup:all"]
+            for s in sensors:
+                out["gospa_ratios"][f"local_{s}_vs_stonesoup"] = gospa[f"mtt-local:{s}"] / gospa[f"stonesoup:{s}"]
     return out
+
+
+def stonesoup_runs(default: Path, config: Path, sensors: tuple[str, ...], tracks: dict[str, Path]
+                   ) -> dict[str, float] | None:
+    """Stone Soup's GNN tracker on each sensor's detections and on all of them (adds to ``tracks``);
+    wall seconds per run, or None without the ``bench`` extra."""
+    try:
+        import stonesoup  # noqa: F401
+    except ImportError:
+        print("fedtrack bench: stonesoup not installed (pip install 'fedtrack[bench]'): the multi-target "
+              "comparison with Stone Soup is skipped", file=sys.stderr)
+        return None
+    from fedtrack.benchmarks.stonesoup_mtt import read_scans, stonesoup_gnn
+    from fedtrack.config import load_tables
+    from fedtrack.local_filters.mtt.config import MttSettings
+
+    cfg = load_tables(config, MttSettings).mtt
+    wall = {}
+    for name, only in [("stonesoup:all", None)] + [(f"stonesoup:{s}", {s}) for s in sensors]:
+        tracks[name] = default / f"{name.replace(':', '-')}.jsonl"
+        t0 = time.perf_counter()
+        stonesoup_gnn(read_scans(default / "measurements.jsonl", only), cfg, tracks[name])
+        wall[name] = time.perf_counter() - t0
+    return wall
 
 
 def bench_startup() -> dict[str, float]:

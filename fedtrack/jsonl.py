@@ -14,22 +14,45 @@ class InputError(ValueError):
     """Invalid input data; the message names the file and line."""
 
 
-def read_jsonl(path: str | Path) -> Iterator[tuple[int, dict[str, Any]]]:
-    """Yield ``(line_number, object)`` for each non-blank line; bad JSON raises InputError."""
-    p = Path(path)
+def check_readable(p: Path) -> None:
+    """An InputError naming ``p`` unless it is an existing regular file."""
     if not p.exists():
         raise InputError(f"{p}: file does not exist")
-    with p.open() as fh:
-        for lineno, line in enumerate(fh, start=1):
-            if not line.strip():
-                continue
-            try:
-                obj = json.loads(line)
-            except json.JSONDecodeError as exc:
-                raise InputError(f"{p}:{lineno}: invalid JSON: {exc.msg}") from exc
-            if not isinstance(obj, dict):
-                raise InputError(f"{p}:{lineno}: expected a JSON object")
-            yield lineno, obj
+    if p.is_dir():
+        raise InputError(f"{p}: is a directory, not a file")
+
+
+def read_jsonl(path: str | Path) -> Iterator[tuple[int, dict[str, Any]]]:
+    """Yield ``(line_number, object)`` for each non-blank line; anything that is not UTF-8 JSON
+    objects, one per line (binary, UTF-16, nesting too deep, unreadable), raises InputError
+    naming the file and line."""
+    p = Path(path)
+    check_readable(p)
+    try:
+        with p.open("rb") as fh:
+            for lineno, raw in enumerate(fh, start=1):
+                if raw.strip():
+                    yield lineno, _parse_line(p, lineno, raw)
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read: {exc.strerror or exc}") from exc
+
+
+def _parse_line(p: Path, lineno: int, raw: bytes) -> dict[str, Any]:
+    where = f"{p}:{lineno}"
+    try:
+        line = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        hint = " (UTF-16?)" if raw[:2] in (b"\xff\xfe", b"\xfe\xff") else ""
+        raise InputError(f"{where}: not UTF-8 text{hint}: byte {exc.start}") from exc
+    try:
+        obj = json.loads(line)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{where}: invalid JSON: {exc.msg}") from exc
+    except RecursionError as exc:
+        raise InputError(f"{where}: invalid JSON: nested too deeply") from exc
+    if not isinstance(obj, dict):
+        raise InputError(f"{where}: expected a JSON object")
+    return obj
 
 
 def write_jsonl(path: str | Path, rows: list[dict[str, Any]]) -> None:

@@ -256,3 +256,26 @@ def test_centre_life_rules_use_every_sensors_scans(tmp_path: Path) -> None:
         replay_mtt(algorithm, write_lines(tmp_path / "m1.jsonl", rows_for(("a",))), cfg, tmp_path / "o1.jsonl")
         alone = {int(p["t"]): p for p in read_pictures(tmp_path / "o1.jsonl")}
         assert all(confirmed_near(alone[k], ghost, k) == 1 for k in range(5, len(times))), algorithm
+
+
+def test_local_picture_with_delay_comes_from_the_data_up_to_its_time(tmp_path: Path) -> None:
+    """One sensor's scans arrive in order: a picture delay changes nothing in ``mtt-local``'s
+    pictures (a picture must not come from a state after its time)."""
+    rng = np.random.default_rng(5)
+    times = np.arange(0.0, 20.0, 0.7)
+    truth = crossing_truth(times, np.array([0.0, 15.0, 0.0, -10.0]))
+    rows = [{"t": float(t), "sensor": "a", "R": R_POS,
+             "detections": [{"z": (truth[k, [0, 2]] + rng.multivariate_normal([0, 0], R_POS)).tolist()}]}
+            for k, t in enumerate(times)]
+    measurements = write_lines(tmp_path / "m.jsonl", rows)
+    outs = []
+    for delay in (0.0, 3.0):
+        cfg = config(tmp_path / f"c{delay}.toml", q=1.0, pd=0.95, clutter_density=1e-7, max_lag=3.0,
+                     picture_delay=delay)
+        replay_mtt("mtt-local", measurements, cfg, tmp_path / f"o{delay}.jsonl", sensor="a")
+        outs.append(read_pictures(tmp_path / f"o{delay}.jsonl"))
+    assert len(outs[0]) == len(outs[1]) > 15
+    for a, b in zip(*outs):
+        assert a["t"] == b["t"] and len(a["tracks"]) == len(b["tracks"])
+        for ta, tb in zip(a["tracks"], b["tracks"]):
+            np.testing.assert_allclose(ta["x"], tb["x"], atol=1e-9)

@@ -71,24 +71,32 @@ class Engine:
 
 @dataclass
 class LocalEngine(Engine):
-    """``mtt-local``: the tracker of ``sensor``; other sensors' scans are ignored."""
+    """``mtt-local``: the tracker of ``sensor``; other sensors' scans are ignored. It keeps its
+    states of the last ``max(max_lag, picture_delay)`` seconds so that a picture at ``T`` comes
+    from the state after the last scan up to ``T``."""
 
     sensor: str = ""
-    state: TrackerState | None = None
+    times: list[float] = field(default_factory=list)
+    states: list[TrackerState] = field(default_factory=list)
 
     def ingest(self, scan: SensorScan) -> None:
         if scan.sensor != self.sensor:
             return
-        if self.state is None:
-            self.state = initial_state(self.dim)
-        if self.state.t is not None and scan.t < self.state.t:
+        if self.times and scan.t < self.times[-1]:
             self.late += 1
             return
         self.scans += 1
-        self.state = tracker_step(self.state, scan, track_params(self.cfg, scan.sensor, self.dim)).state
+        state = self.states[-1] if self.states else initial_state(self.dim)
+        self.times.append(scan.t)
+        self.states.append(tracker_step(state, scan, track_params(self.cfg, scan.sensor, self.dim)).state)
+        horizon = scan.t - max(self.cfg.max_lag, self.cfg.picture_delay)
+        drop = bisect.bisect_left(self.times, horizon) - 1  # keep the last state before the horizon
+        if drop > 0:
+            del self.times[:drop], self.states[:drop]
 
     def picture(self, T: float) -> list[dict[str, Any]]:
-        return [] if self.state is None else tracker_picture(self.state, T, self.cfg, [self.sensor])
+        k = bisect.bisect_right(self.times, T)
+        return [] if not k else tracker_picture(self.states[k - 1], T, self.cfg, [self.sensor])
 
 
 @dataclass

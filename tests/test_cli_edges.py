@@ -1,0 +1,74 @@
+"""Every file a command reads or writes fails cleanly: one line naming the file, exit 2, no traceback."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+BAD_INPUTS = {
+    "binary": lambda p: p.write_bytes(bytes(range(256)) * 4),
+    "utf16": lambda p: p.write_bytes('{"t": 0.0, "sensor": "s1"}\n'.encode("utf-16")),
+    "deep_json": lambda p: p.write_text("[" * 100_000 + "]" * 100_000 + "\n"),
+    "directory": lambda p: p.mkdir(),
+    "missing": lambda p: None,
+}
+
+# (command, the argument that takes the bad file); {bad} and {out} are filled in
+COMMANDS = {
+    "replay measurements": ["replay", "--algorithm", "kf", "--measurements", "{bad}", "--out", "{out}"],
+    "replay mtt measurements": ["replay", "--algorithm", "mtt-centralized", "--measurements", "{bad}", "--out", "{out}"],
+    "replay hpda measurements": ["replay", "--algorithm", "hpda", "--measurements", "{bad}", "--out", "{out}"],
+    "replay config": ["replay", "--algorithm", "kf", "--config", "{bad}", "--measurements", "{good}", "--out", "{out}"],
+    "evaluate tracks": ["evaluate", "--tracks", "{bad}", "--truth", "{truth}"],
+    "evaluate truth": ["evaluate", "--tracks", "{good}", "--truth", "{bad}"],
+    "launch config": ["launch", "{bad}"],
+    "serve config": ["serve", "fusion-center", "--config", "{bad}"],
+    "export db": ["export", "--db", "{bad}", "--out", "{out}"],
+}
+
+
+def run(args: list[str], timeout: float = 60.0) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "fedtrack.cli", *args], capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def assert_one_line_error(proc: subprocess.CompletedProcess, name: str) -> None:
+    assert proc.returncode == 2, (proc.returncode, proc.stderr[-2000:])
+    assert "Traceback" not in proc.stderr, proc.stderr[-2000:]
+    lines = [line for line in proc.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and name in lines[0], proc.stderr[-2000:]
+
+
+@pytest.fixture(scope="module")
+def good(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    folder = tmp_path_factory.mktemp("good")
+    (folder / "tracks.jsonl").write_text('{"t": 0.0, "tracks": []}\n')
+    (folder / "truth.jsonl").write_text('{"t": 0.0, "targets": []}\n')
+    return {"good": folder / "tracks.jsonl", "truth": folder / "truth.jsonl"}
+
+
+# the readers are shared: every kind of bad file through two commands, two kinds through the rest
+CASES = [(c, k) for c in ("replay measurements", "replay config") for k in sorted(BAD_INPUTS)]
+CASES += [(c, k) for c in sorted(COMMANDS) if c not in ("replay measurements", "replay config")
+          for k in ("directory", "utf16")]
+
+
+@pytest.mark.parametrize(("command", "kind"), CASES)
+def test_bad_input_file_is_one_line_naming_it(tmp_path: Path, good: dict[str, Path], command: str, kind: str) -> None:
+    bad = tmp_path / f"bad_{kind}"
+    BAD_INPUTS[kind](bad)
+    args = [a.format(bad=bad, out=tmp_path / "out.jsonl", **good) for a in COMMANDS[command]]
+    assert_one_line_error(run(args), bad.name)
+
+
+@pytest.mark.parametrize("out_arg", [["--out", "{missing}/o.jsonl"], ["--out", "{dir}"]])
+def test_output_in_a_missing_folder_or_on_a_directory(tmp_path: Path, out_arg: list[str]) -> None:
+    measurements = tmp_path / "m.jsonl"
+    measurements.write_text('{"t": 0.0, "sensor": "s1", "z": [1.0, 2.0], "R": [[100.0, 0.0], [0.0, 100.0]]}\n')
+    (tmp_path / "adir").mkdir()
+    out = [a.format(missing=tmp_path / "nowhere", dir=tmp_path / "adir") for a in out_arg]
+    proc = run(["replay", "--algorithm", "kf", "--measurements", str(measurements), *out])
+    assert_one_line_error(proc, Path(out[1]).name)
