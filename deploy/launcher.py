@@ -31,10 +31,11 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from fedtrack.config import in_file
+from fedtrack.config import ConfigError, in_file
 from fedtrack.deploy.report import LaunchReport, finish
 from fedtrack.deploy.security import LAUNCHER, identity, write_configs
-from fedtrack.deploy.settings import Settings, load_settings
+from fedtrack.deploy.settings import Settings, check_launchable, load_settings
+from fedtrack.deployment import listen_address, port_in_use
 from fedtrack.keys import Keys
 from fedtrack.wire import FusedTrack, Health, Measurement, WireError, decode
 from fedtrack.zsession import SessionOptions, close_session, open_session, wait_alive
@@ -322,6 +323,7 @@ class Launcher:
         try:
             for sp in routers:
                 self._start(sp)
+            self._wait_listening(routers, dep.ready_timeout_s)
             self._open_monitor()
             for sp in others:
                 self._start(sp)
@@ -349,6 +351,22 @@ class Launcher:
             raise ServiceFailed(self.report, f"{', '.join(failed)} failed; {name} exited with code "
                                 f"{failed[name]}:\n{sp.log_tail()}")
         return self.report
+
+    def _wait_listening(self, routers: list[ServiceProcess], timeout_s: float) -> None:
+        """Until the router listens on its port; a router that exits first fails the launch at once."""
+        endpoint = self.settings.deployment.router_listen
+        if not routers or not endpoint.startswith(("tcp/", "tls/")):
+            return
+        deadline = time.monotonic() + timeout_s
+        while not port_in_use(endpoint):
+            for sp in routers:
+                if sp.proc is not None and sp.proc.poll() is not None:
+                    last = sp.log_tail(1).strip()
+                    raise LaunchError(f"router exited with code {sp.proc.returncode} before listening on "
+                                      f"{endpoint}: {last}")
+            if time.monotonic() > deadline:
+                raise LaunchError(f"router not listening on {endpoint} after {timeout_s:g} s")
+            time.sleep(0.05)
 
     def _wait_ready(self, group: list[ServiceProcess], timeout_s: float) -> None:
         assert self._session is not None
@@ -393,6 +411,10 @@ def install_stop_handlers(launcher: Launcher) -> None:
 
 def run_deployment(settings: Settings, config_path: Path, out_dir: Path, quiet: bool = False) -> LaunchReport:
     """Launch the services of ``settings`` on this host and wait for the scenario to end."""
+    dep = settings.deployment
+    if "router" in dep.services and dep.router_listen and port_in_use(dep.router_listen):
+        raise ConfigError(f"{config_path}: deployment.router_listen: port {listen_address(dep.router_listen, '')[1]} "
+                          f"for the router is already in use ({dep.router_listen})")
     plan = service_plan(settings, config_path, out_dir, out_dir / "logs")
     monitor_config = apply_zenoh_settings(settings, config_path, out_dir, plan)
     launcher = Launcher(settings, plan, quiet=quiet, zenoh_config=monitor_config)
@@ -406,6 +428,7 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--out", type=Path, help="recorder output and logs (default: deployment.out)")
     args = parser.parse_args(argv)
     settings = load_settings(args.config)
+    check_launchable(settings, args.config)
     out = args.out or Path(settings.deployment.out)
     code = None
     try:

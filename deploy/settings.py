@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from fedtrack.config import load_tables
+from fedtrack.config import ConfigError, in_file, load_tables
 from fedtrack.deploy.security import ZenohSettings
 from fedtrack.deployment import DeploymentConfig, SensorConfig
 from fedtrack.local_filters.imm.config import IMMConfig
@@ -36,6 +36,22 @@ class Settings:
     imm: IMMConfig = field(default_factory=IMMConfig)
     pda: PDAReplayConfig = field(default_factory=PDAReplayConfig)
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
+
+
+def check_launchable(settings: Settings, path: Path) -> None:
+    """What ``launch`` must know before it starts any process (other commands read the same file
+    for their own tables and need no sensors): a ConfigError naming ``path`` and the field."""
+    ids = [s.id for s in settings.sensor]
+    with in_file(path):
+        for sid in ids:
+            if ids.count(sid) > 1:
+                raise ConfigError(f"sensor: duplicate id {sid!r} (each [[sensor]] needs its own id)")
+        if settings.fusion.sensors is not None and len(settings.fusion.sensors) == 0:
+            raise ConfigError("fusion.sensors: empty list (omit it to use the [[sensor]] ids)")
+        users = {"sensor", "local-filter", "fusion-center"} & set(settings.deployment.services)
+        if users and not ids and not settings.fusion.sensors:
+            raise ConfigError(f"sensor: no [[sensor]] table, but the services {', '.join(sorted(users))} "
+                              "need at least one sensor")
 
 
 def load_settings(path: Path | None) -> Settings:

@@ -73,6 +73,35 @@ class DeploymentConfig:
             raise ConfigError("deadline_s: must be > 0")
         if not self.name or any(c in self.name for c in "/*$?#@ "):
             raise ConfigError(f"name: {self.name!r} is not a valid deployment name")
+        if self.router_listen:
+            listen_address(self.router_listen, "router_listen")
+        for endpoint in self.connect or ():
+            listen_address(endpoint, "connect")
+
+
+def listen_address(endpoint: str, field: str) -> tuple[str, int]:
+    """``(host, port)`` of a Zenoh endpoint ``PROTO/HOST:PORT``; a ConfigError naming ``field`` if malformed."""
+    proto, _, address = endpoint.partition("/")
+    host, _, port = address.partition("#")[0].rpartition(":")
+    if not proto or not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ConfigError(f"{field}: {endpoint!r} is not PROTO/HOST:PORT with a port in 1-65535")
+    return host.strip("[]"), int(port)
+
+
+def port_in_use(endpoint: str) -> bool:
+    """True when a TCP endpoint's port on this host cannot be bound (another process holds it)."""
+    import socket
+
+    if not endpoint.startswith(("tcp/", "tls/")):
+        return False
+    host, port = listen_address(endpoint, "router_listen")
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as probe:
+        try:
+            probe.bind((host, port))
+        except OSError:
+            return True
+    return False
 
 
 @dataclass(frozen=True)

@@ -72,3 +72,50 @@ def test_output_in_a_missing_folder_or_on_a_directory(tmp_path: Path, out_arg: l
     out = [a.format(missing=tmp_path / "nowhere", dir=tmp_path / "adir") for a in out_arg]
     proc = run(["replay", "--algorithm", "kf", "--measurements", str(measurements), *out])
     assert_one_line_error(proc, Path(out[1]).name)
+
+
+LAUNCH_BASE = """
+[deployment]
+name = "edges"
+router_listen = "tcp/127.0.0.1:{port}"
+
+[[sensor]]
+id = "1"
+
+[[sensor]]
+id = "2"
+"""
+LAUNCH_CASES = {
+    "no sensor": (lambda b: b[: b.index("[[sensor]]")], "no [[sensor]] table"),
+    "duplicate sensor": (lambda b: b.replace('id = "2"', 'id = "1"'), "duplicate id '1'"),
+    "empty fusion sensors": (lambda b: b + "\n[fusion]\nsensors = []\n", "fusion.sensors: empty list"),
+    "bad port": (lambda b: b.replace("{port}", "99999"), "router_listen"),
+    "bad endpoint": (lambda b: b.replace("tcp/127.0.0.1:{port}", "localhost"), "router_listen"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(LAUNCH_CASES))
+def test_launch_validates_the_whole_deployment_before_starting_anything(tmp_path: Path, case: str) -> None:
+    edit, expected = LAUNCH_CASES[case]
+    config = tmp_path / "deploy.toml"
+    config.write_text(edit(LAUNCH_BASE).replace("{port}", "7447"))
+    proc = run(["launch", str(config), "--out", str(tmp_path / "out")])
+    assert_one_line_error(proc, config.name)
+    assert expected in proc.stderr
+    assert not (tmp_path / "out" / "logs").exists()  # no process was started
+
+
+def test_busy_router_port_fails_at_once_naming_port_and_role(tmp_path: Path) -> None:
+    import socket
+    import time
+
+    with socket.socket() as holder:
+        holder.bind(("127.0.0.1", 0))
+        holder.listen()
+        port = holder.getsockname()[1]
+        t0 = time.monotonic()
+        proc = run(["demo", "--port", str(port), "--out", str(tmp_path / "out")], timeout=30)
+        elapsed = time.monotonic() - t0
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr[-2000:]
+    assert f"port {port} for the router is already in use" in proc.stderr.splitlines()[-1]
+    assert elapsed < 10.0  # the issue's bound is 2 s; a loaded CI machine needs ~1 s to import
