@@ -66,6 +66,19 @@ class Keys:
     def _chunk(value: str | None, what: str) -> str:
         return "*" if value is None else check_id(value, what)
 
+    def sender(self, key: str) -> str | None:
+        """The sensor or service id a concrete key names as its publisher's (``sensor/<id>/meas``,
+        ``local/<id>/estimate``, ``fusion/reset/<id>``, ``health/<role>/<id>``), else None."""
+        parts = key.split("/")
+        if len(parts) < 4 or parts[0] != ROOT or parts[1] != self.deployment:
+            return None
+        rest = parts[2:]
+        if len(rest) == 3 and (rest[0], rest[2]) in (("sensor", "meas"), ("local", "estimate")):
+            return rest[1]
+        if len(rest) == 3 and rest[0] in ("health", "fusion") and (rest[0] == "health" or rest[1] == "reset"):
+            return rest[2]
+        return None
+
     def sensor_meas(self, sensor: str | None = None) -> str:
         """``sensor/<id>/meas``: a sensor's measurements."""
         return self._key("sensor", self._chunk(sensor, "sensor id"), "meas")

@@ -41,6 +41,7 @@ from fedtrack.local_filters.vdie.estimation import EVENT_NAMES, EVENT_NONE
 from fedtrack.local_filters.vdie.local import LocalOutput
 from fedtrack.services.base import (
     QueryHandler,
+    Rejected,
     Service,
     Subscription,
     service_kwargs,
@@ -66,8 +67,9 @@ class FusionCenterService(Service):
     tick_period_s = 0.01
 
     def __init__(self, sensors: list[str], centre: FederatedCentre | DecentralizedCentre,
-                 deadline_s: float, snapshot: Path | None = None, **kwargs: Any) -> None:
+                 deadline_s: float, snapshot: Path | None = None, max_seq_jump: int = 1000, **kwargs: Any) -> None:
         super().__init__(**kwargs)
+        self.max_seq_jump = max_seq_jump
         self.snapshot = snapshot
         self.restored = False  # resumed from the snapshot, no scan fused since
         self.sensors = sensors
@@ -139,19 +141,27 @@ class FusionCenterService(Service):
 
     def on_estimate(self, msg: LocalEstimate) -> None:
         if msg.sensor not in self.sensors:
-            self.count("unknown_sensor")
-            return
+            raise Rejected("unknown_sensor", f"{msg.sensor!r} is not one of {', '.join(self.sensors)}")
         if msg.model not in ("cv", "ca") or msg.x.shape[0] != (6 if msg.model == "ca" else 4):
-            self.count("wrong_model")  # e.g. a 3-D radar filter's estimate: not a 2-D CV/CA state
-            return
+            # e.g. a 3-D radar filter's estimate: not a 2-D CV/CA state
+            raise Rejected("wrong_model", f"a {msg.x.shape[0]}-D {msg.model!r} state: this centre fuses 4-D cv "
+                           "and 6-D ca states")
         if self.next_seq is not None and msg.seq < self.next_seq:
             self.count("late")
             return
+        if self.next_seq is not None and msg.seq - self.next_seq > self.max_seq_jump:
+            raise Rejected("seq_jump", f"scan {msg.seq} is more than {self.max_seq_jump} ahead of {self.next_seq}")
+        buf = self.scans.get(msg.seq)
+        if buf is not None and msg.t != buf.t:
+            raise Rejected("time_jump", f"scan {msg.seq} at t={msg.t}, its other estimates at t={buf.t}")
+        if buf is not None and msg.sensor in buf.outputs:
+            first = buf.outputs[msg.sensor]
+            same = (first.model == msg.model and np.array_equal(first.x, msg.x) and np.array_equal(first.P, msg.P))
+            if same:
+                self.count("duplicate")
+                return
+            raise Rejected("conflict", f"scan {msg.seq}: a second, different estimate of {msg.sensor} (the first stays)")
         buf = self.scans.setdefault(msg.seq, ScanBuffer(msg.t, time.monotonic()))
-        if msg.sensor in buf.outputs or msg.t != buf.t:
-            self.count("inconsistent")
-            self.log.warning("scan %d: duplicate or inconsistent estimate from %s ignored", msg.seq, msg.sensor)
-            return
         buf.outputs[msg.sensor] = LocalOutput(
             msg.model, np.asarray(msg.x), np.asarray(msg.P), np.asarray(msg.x_prior), np.asarray(msg.P_prior),
             init="init" in msg.degraded or "no-reset" in msg.degraded,  # not conditioned on the last reset
@@ -254,4 +264,4 @@ def main(argv: list[str]) -> int:
     centre_cls = FederatedCentre if mode == "federated" else DecentralizedCentre
     centre = centre_cls(sensors, settings.fusion)
     return FusionCenterService(sensors, centre, deadline, snapshot=args.snapshot,
-                               **service_kwargs(parser, args)).run()
+                               max_seq_jump=settings.deployment.max_seq_jump, **service_kwargs(parser, args)).run()

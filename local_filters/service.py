@@ -36,7 +36,7 @@ from fedtrack.local_filters.vdie.local import (
     LocalOutput,
     VdieLocalFilter,
 )
-from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
+from fedtrack.services.base import Rejected, Service, Subscription, service_kwargs, service_parser
 from fedtrack.wire import (
     FusedTrack,
     LocalEstimate,
@@ -57,9 +57,11 @@ class LocalFilterService(Service):
     tick_period_s = 0.02
 
     def __init__(self, sensor: str, mode: str, filt: FederatedLocalFilter | VdieLocalFilter,
-                 reset_timeout_s: float, **kwargs: Any) -> None:
+                 reset_timeout_s: float, max_seq_jump: int = 1000, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.sensor = sensor
+        self.max_seq_jump = max_seq_jump
+        self.processed_t: float | None = None  # time of the scan processed last
         self.mode = mode
         self.filter = filt
         self.reset_timeout_s = reset_timeout_s
@@ -116,6 +118,8 @@ class LocalFilterService(Service):
             self.count("late")
             return
         expected = max([self.processed_up_to, *self.pending]) + 1
+        if self.processed_up_to >= 0 and msg.seq - expected > self.max_seq_jump:
+            raise Rejected("seq_jump", f"scan {msg.seq} is more than {self.max_seq_jump} ahead of {expected}")
         if self.processed_up_to >= 0 and msg.seq > expected:
             self.count("gaps", msg.seq - expected)
             self.log.warning("measurements %d..%d of sensor %s never arrived", expected, msg.seq - 1, self.sensor)
@@ -131,6 +135,11 @@ class LocalFilterService(Service):
         if msg.seq != self.processed_up_to or msg.seq <= self.reset_up_to:
             self.count("stale_reset")  # only the reset of the scan just processed applies
             return
+        if msg.t != self.processed_t:
+            raise Rejected("time_jump", f"reset of scan {msg.seq} at t={msg.t}, the scan was at t={self.processed_t}")
+        if {"cv": 4, "ca": 6}.get(msg.model) != msg.x.shape[0]:
+            raise Rejected("wrong_model", f"reset of a {msg.x.shape[0]}-D {msg.model!r} state: this filter takes "
+                           "a 4-D cv or 6-D ca state")
         assert isinstance(self.filter, FederatedLocalFilter)
         self.filter.apply_reset(msg.t, msg.x, msg.P)
         self.reset_up_to = msg.seq
@@ -167,6 +176,7 @@ class LocalFilterService(Service):
     def _process(self, msg: Measurement, flags: tuple[str, ...]) -> None:
         out = self.filter.process(msg.t, np.asarray(msg.z), np.asarray(msg.R))
         self.processed_up_to = msg.seq
+        self.processed_t = msg.t
         self.publish(self.keys.local_estimate(self.sensor), to_message(self.sensor, msg, out, flags))
 
 
@@ -251,4 +261,4 @@ def main(argv: list[str]) -> int:
     else:
         filt = VdieLocalFilter(n, settings.fusion)
     return LocalFilterService(args.sensor, mode, filt, settings.deployment.deadline_s,
-                              **service_kwargs(parser, args)).run()
+                              settings.deployment.max_seq_jump, **service_kwargs(parser, args)).run()

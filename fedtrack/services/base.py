@@ -21,7 +21,10 @@ queue (blocking when full, so nothing is dropped while running); a single worker
 thread (the one calling ``run``) decodes, validates and calls the handlers, the
 queryable handlers, ``on_tick`` and the health publisher, so subclasses need no
 locks. Every payload is decoded with :func:`fedtrack.wire.decode`; a bad one is
-counted in ``counters["rejected"]`` and logged (rate-limited), never fatal.
+counted in ``counters["rejected"]`` and logged (rate-limited), never fatal. A payload whose
+sender id is not the id in its key, and a decoded message a handler refuses by raising
+:class:`Rejected` (before changing any state), are counted in ``rejected`` and in
+``rejected_<reason>`` (docs/wire.md, "Rejections").
 
 Every publisher is a ``zenoh.ext`` advanced publisher that keeps its last
 ``CACHE_SAMPLES`` messages per key and sends a heartbeat every ``HEARTBEAT_S``: a
@@ -73,6 +76,14 @@ from fedtrack.zsession import (
     options_from_args,
 )
 
+def check_sender(keys: Keys, key: str, msg: Message) -> None:
+    """Rejected("sender") when the id in the payload is not the id in the key it came on."""
+    named = keys.sender(key)
+    claimed = getattr(msg, "sensor", None) if not isinstance(msg, Health) else msg.id
+    if named is not None and claimed is not None and claimed != named:
+        raise Rejected("sender", f"payload from {claimed!r} on the key of {named!r}")
+
+
 QUEUE_SIZE = 10_000
 REJECT_LOG_INTERVAL_S = 5.0
 CLOSE_DEADLINE_S = 2.0
@@ -114,6 +125,15 @@ class QueryHandler:
 
 class HandlerError(RuntimeError):
     """A subscription, query or tick handler raised: the service stops with exit code 1."""
+
+
+class Rejected(Exception):
+    """Raised by a handler, before it changes any state, to reject a decoded message: counted in
+    ``rejected`` and ``rejected_<reason>``, logged (rate-limited), never fatal."""
+
+    def __init__(self, reason: str, detail: str) -> None:
+        super().__init__(f"{reason}: {detail}")
+        self.reason = reason
 
 
 class Service:
@@ -360,23 +380,35 @@ class Service:
         sub = self._subscriptions[index]
         try:
             msg = decode(payload, sub.msg_type)
+            check_sender(self.keys, key, msg)
         except WireError as exc:
             self.counters["rejected"] += 1
             self._log_rejected(key, exc)
             return
+        except Rejected as exc:
+            self._reject(key, exc)
+            return
         self.counters["received"] += 1
-        self._call(f"message on {key}", sub.handler, *((msg, payload) if sub.raw else (msg,)))
+        try:
+            self._call(f"message on {key}", sub.handler, *((msg, payload) if sub.raw else (msg,)))
+        except Rejected as exc:
+            self._reject(key, exc)
+
+    def _reject(self, key: str, exc: Rejected) -> None:
+        self.counters["rejected"] += 1
+        self.count(f"rejected_{exc.reason}")
+        self._log_rejected(key, exc)
 
     def _call(self, what: str, fn: Callable[..., Any], *args: Any) -> Any:
         try:
             return fn(*args)
-        except (OSError, ConfigError, InputError, HandlerError):
+        except (OSError, ConfigError, InputError, HandlerError, Rejected):
             raise
         except Exception as exc:
             raise HandlerError(f"{type(self).__name__} failed handling {what}: {type(exc).__name__}: {exc}") \
                 from exc
 
-    def _log_rejected(self, key: str, exc: WireError) -> None:
+    def _log_rejected(self, key: str, exc: Exception) -> None:
         now = time.monotonic()
         if now - self._last_reject_log < REJECT_LOG_INTERVAL_S:
             self._suppressed_rejects += 1

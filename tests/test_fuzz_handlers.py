@@ -1,0 +1,170 @@
+"""Fuzzing the handlers: hostile messages interleaved with a real scan stream never change what a
+service publishes; each is a counted rejection (or a counted late/duplicate), never an exception.
+
+Two local filters (decentralized mode) and the fusion center run in-process on the paper-004
+scenario; their handlers are driven through the service's own dispatch (decode, sender check,
+handler), so the path is the one a Zenoh sample takes. Hypothesis inserts, per example, 100
+hostile messages built from the genuine ones: a sender that is not the key's, an unknown
+sensor, a wrong model or state size, a sequence number far ahead, a time that is not the
+scan's, a second different estimate for a sensor and scan, overflow-scale values, garbage.
+100 examples: 10,000 hostile messages through each of the two handlers.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from fedtrack.fusion_center.centre import DecentralizedCentre
+from fedtrack.fusion_center.service import FusionCenterService
+from fedtrack.keys import Keys
+from fedtrack.local_filters.service import LocalFilterService
+from fedtrack.local_filters.vdie.config import FusionConfig
+from fedtrack.local_filters.vdie.local import VdieLocalFilter
+from fedtrack.sensors.scenarios import DEFAULT_R, paper004_scenario, simulate_positions, simulate_truth
+from fedtrack.wire import FusedTrack, LocalEstimate, Measurement, encode
+from fedtrack.zsession import SessionOptions
+
+pytestmark = pytest.mark.fuzz
+
+SENSORS = ("1", "2")
+SCANS = 34  # the first maneuver starts at t = 30
+HOSTILE = 100  # per example and handler
+EXAMPLES = 100
+KEYS = Keys("fuzz")
+OPTIONS = SessionOptions(connect=("tcp/127.0.0.1:1",))
+KINDS = ("sender", "unknown_sensor", "wrong_model", "seq_jump", "time_jump", "conflict", "overflow", "garbage")
+
+
+def measurements() -> dict[str, list[Measurement]]:
+    scenario = paper004_scenario(1)
+    rng = np.random.default_rng(9)
+    Rs = np.array([DEFAULT_R, DEFAULT_R])
+    zs = simulate_positions(simulate_truth(scenario, 1, rng), Rs, rng)[0]
+    return {s: [Measurement(sensor=s, seq=k, t=float(scenario.times[k]), kind="position", z=zs[k, i],
+                            R=Rs[i], stamp_ns=k + 1) for k in range(SCANS)] for i, s in enumerate(SENSORS)}
+
+
+MEASUREMENTS = measurements()
+
+
+class Pipeline:
+    """The services, their dispatch, and what they published."""
+
+    def __init__(self) -> None:
+        config = FusionConfig()
+        self.published: list[tuple[str, Any]] = []
+        self.locals = {s: LocalFilterService(s, "decentralized", VdieLocalFilter(len(SENSORS), config), 0.5,
+                                             service_id=s, options=OPTIONS, deployment=KEYS.deployment)
+                       for s in SENSORS}
+        self.centre = FusionCenterService(list(SENSORS), DecentralizedCentre(list(SENSORS), config), 0.5,
+                                          service_id="fusion", options=OPTIONS, deployment=KEYS.deployment)
+        for svc in (*self.locals.values(), self.centre):
+            svc._subscriptions = svc.subscriptions()
+            svc.publish = lambda key, msg: self.published.append((key, msg))  # type: ignore[method-assign]
+
+    @staticmethod
+    def send(svc: Any, key: str, payload: bytes) -> None:
+        svc._dispatch(("sample", 0, key, payload))
+
+    def measurement(self, sensor: str, key_sensor: str, payload: bytes) -> None:
+        target = self.locals.get(key_sensor, self.locals[sensor])
+        self.send(target, KEYS.sensor_meas(key_sensor), payload)
+
+    def estimate(self, key_sensor: str, payload: bytes) -> None:
+        self.send(self.centre, KEYS.local_estimate(key_sensor), payload)
+
+    def estimates_of_last_scan(self) -> list[LocalEstimate]:
+        return [m for _, m in self.published if isinstance(m, LocalEstimate)]
+
+    def tracks(self) -> list[FusedTrack]:
+        return [m for _, m in self.published if isinstance(m, FusedTrack)]
+
+    def rejected(self) -> int:
+        counted = ("rejected", "late", "duplicate", "stale_reset")
+        return sum(svc.counters.get(c, 0) for svc in (*self.locals.values(), self.centre) for c in counted)
+
+
+def run(attacks: dict[int, list[tuple[str, str, float]]] | None = None) -> Pipeline:
+    """The stream scan by scan: sensor 1's measurement and estimate, the hostile messages of the
+    scan, sensor 2's (which completes the scan); returns the pipeline."""
+    pipe = Pipeline()
+    for k in range(SCANS):
+        for s in SENSORS:
+            meas = MEASUREMENTS[s][k]
+            pipe.measurement(s, s, encode(meas))
+            est = pipe.estimates_of_last_scan()[-1]
+            pipe.estimate(s, encode(est))
+            if s == SENSORS[0]:
+                for kind, target, value in (attacks or {}).get(k, []):
+                    hostile(pipe, kind, target, value, meas, est)
+    return pipe
+
+
+def hostile(pipe: Pipeline, kind: str, target: str, value: float, meas: Measurement, est: LocalEstimate) -> None:
+    """One hostile measurement (``target`` "meas") or estimate ("est") derived from the genuine ones."""
+    other = SENSORS[1]
+    if target == "meas":
+        if kind == "sender":
+            pipe.measurement(meas.sensor, other, encode(meas))
+        elif kind in ("seq_jump", "conflict"):
+            jump = 10_000 if kind == "seq_jump" else 0
+            pipe.measurement(meas.sensor, meas.sensor, encode(replace(meas, seq=meas.seq + jump, z=meas.z + value)))
+        elif kind == "time_jump":
+            pipe.measurement(meas.sensor, meas.sensor, encode(replace(meas, seq=meas.seq - 1, t=meas.t + value)))
+        elif kind == "overflow":
+            pipe.measurement(meas.sensor, meas.sensor, encode(meas).replace(b"\x00" * 4, b"\x7f\xef\xff\xff", 1))
+        else:
+            pipe.measurement(meas.sensor, meas.sensor, bytes(int(abs(value) * 7 + i) % 256 for i in range(40)))
+        return
+    if kind == "sender":
+        pipe.estimate(other, encode(est))
+    elif kind == "unknown_sensor":
+        pipe.estimate("rogue", encode(replace(est, sensor="rogue")))
+    elif kind == "wrong_model":
+        pipe.estimate(est.sensor, encode(replace(est, model="cv3", x=np.zeros(6), P=np.eye(6),
+                                                 x_prior=np.zeros(6), P_prior=np.eye(6))))
+    elif kind == "seq_jump":
+        pipe.estimate(est.sensor, encode(replace(est, seq=est.seq + 2**62)))
+    elif kind == "time_jump":
+        pipe.estimate(other, encode(replace(est, sensor=other, t=est.t + 1e6 + abs(value))))
+    elif kind == "conflict":
+        pipe.estimate(est.sensor, encode(replace(est, x=est.x + 100.0 + value)))
+    elif kind == "overflow":
+        pipe.estimate(est.sensor, encode(est).replace(b"\x00" * 4, b"\x7f\xef\xff\xff", 1))
+    else:
+        pipe.estimate(est.sensor, bytes(int(abs(value) * 13 + i) % 256 for i in range(60)))
+
+
+CLEAN = run()
+
+
+def test_the_clean_stream_is_tracked() -> None:
+    tracks = CLEAN.tracks()
+    assert [t.seq for t in tracks] == list(range(SCANS)) and CLEAN.rejected() == 0
+    assert any(t.maneuver for t in tracks[31:])
+
+
+attack = st.tuples(st.integers(1, SCANS - 1), st.sampled_from(KINDS), st.sampled_from(("meas", "est")),
+                   st.floats(-1e3, 1e3, allow_nan=False))
+
+
+@settings(max_examples=EXAMPLES, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@given(st.lists(attack, min_size=HOSTILE, max_size=HOSTILE))
+def test_hostile_messages_are_counted_and_change_nothing(attacks: list[tuple[int, str, str, float]]) -> None:
+    by_scan: dict[int, list[tuple[str, str, float]]] = {}
+    for k, kind, target, value in attacks:
+        by_scan.setdefault(k, []).append((kind, target, value))
+    pipe = run(by_scan)
+    clean, got = CLEAN.tracks(), pipe.tracks()
+    assert [t.seq for t in got] == [t.seq for t in clean]
+    for a, b in zip(got, clean):
+        np.testing.assert_array_equal(a.x, b.x)
+        np.testing.assert_array_equal(a.P, b.P)
+    assert pipe.rejected() == HOSTILE
