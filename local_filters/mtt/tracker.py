@@ -170,6 +170,17 @@ def assign(cost: np.ndarray, gated: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return np.concatenate(out_r), np.concatenate(out_c)
 
 
+def assign_by_precedence(cost: np.ndarray, gated: np.ndarray, confirmed: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """Confirmed tracks take their detections first, tentative tracks share what is left (so a
+    tentative track started on clutter never takes a confirmed track's detection)."""
+    ti, dj = assign(cost, gated & confirmed[:, None])
+    free = np.ones(cost.shape[1], bool)
+    free[dj] = False
+    tj, dk = assign(cost, gated & ~confirmed[:, None] & free[None, :])
+    return np.concatenate([ti, tj]), np.concatenate([dj, dk])
+
+
 def kalman_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray, R: np.ndarray,
                   S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Batched Joseph-form update with the gain solved from ``S``."""
@@ -232,7 +243,7 @@ def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
         else:
             bias = 2.0 * math.log(max(params.clutter_density, 1e-300) * (1.0 - pd) / pd)
         cost = d2 + logdet[:, None] + m * LOG_2PI + bias
-        ti, dj = assign(cost, gated)
+        ti, dj = assign_by_precedence(cost, gated, tracks.confirmed)
         order = np.argsort(ti)
         ti, dj = ti[order], dj[order]
         if ti.size:
