@@ -1,4 +1,4 @@
-"""``fedtrack bench [kernels | montecarlo | multitarget | pipeline | all] [--json PATH] [--quick]``.
+"""``fedtrack bench [kernels | montecarlo | multitarget | pipeline | soak | all] [--json PATH] [--quick]``.
 
 * ``kernels``: CV KF and radar EKF steps against FilterPy, Stone Soup and a numpy floor;
   batched KF target-steps per second (:mod:`fedtrack.benchmarks.kernels`).
@@ -10,6 +10,8 @@
   (:mod:`fedtrack.benchmarks.stonesoup_mtt`, with the ``bench`` extra), every picture holding
   every scan up to its time (``picture_delay = max_lag``).
 * ``pipeline``: the deployment latency bench (:mod:`fedtrack.benchmarks.run`, its options).
+* ``soak``: a long deployment at the lockstep rate (:mod:`fedtrack.benchmarks.soak`; 10 minutes
+  by default, not part of ``all``).
 * ``all``: all of them, and the start-up costs (``fedtrack --help``, importing the fusion
   centre). The JSON carries the keys of issue 14; what this version does not measure yet
   (IMM and PDA against FilterPy / Stone Soup, the raw Zenoh floor) is ``null`` and listed
@@ -30,7 +32,7 @@ from typing import Any
 
 from fedtrack.jsonl import InputError
 
-SUITES = ("kernels", "montecarlo", "multitarget", "pipeline", "all")
+SUITES = ("kernels", "montecarlo", "multitarget", "pipeline", "soak", "all")
 RATIO_KEYS = ("kf_vs_filterpy", "kf_vs_stonesoup", "ekf_vs_filterpy", "ekf_vs_stonesoup", "imm13_vs_filterpy",
               "aovsimm_vs_fsimm_cpu", "pda_vs_stonesoup")
 
@@ -142,6 +144,9 @@ def bench_startup() -> dict[str, float]:
 
 def main(argv: list[str]) -> int:
     suite = argv[0] if argv and argv[0] in SUITES else "pipeline"
+    if suite == "soak":  # 10 minutes by default: not part of "all"
+        from fedtrack.benchmarks.soak import main as soak_main
+        return soak_main(argv[1:])
     if suite == "pipeline":  # the deployment bench and its own options (the default suite)
         from fedtrack.benchmarks.run import main as pipeline_main
         return pipeline_main(argv[1:] if argv and argv[0] == "pipeline" else argv)

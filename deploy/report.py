@@ -18,7 +18,7 @@ import numpy as np
 
 from fedtrack.deploy.settings import Settings
 from fedtrack.jsonl import write_jsonl
-from fedtrack.sensors.scenarios import deployment_truth, paper004_scenario
+from fedtrack.sensors.scenarios import deployment_scenario, deployment_truth, paper004_scenario
 
 REPLAY_ALGORITHM = {"federated": "fvdie", "decentralized": "dvdie"}
 
@@ -54,7 +54,7 @@ def _lines(path: Path) -> list[dict[str, Any]]:
 
 def write_truth(out: Path, settings: Settings) -> Path:
     """``truth.jsonl``: the target of the deployment's scenario and seed, one line per scan."""
-    scenario = paper004_scenario(settings.deployment.scenario)
+    scenario = deployment_scenario(settings.deployment.scenario, settings.deployment.duration_s)
     truth = deployment_truth(scenario, settings.deployment.seed)
     path = out / "truth.jsonl"
     write_jsonl(path, [{"t": float(t), "x": float(s[0]), "vx": float(s[1]), "ax": float(s[2]),

@@ -24,7 +24,7 @@ from fedtrack.deploy.report import REPLAY_ALGORITHM
 from fedtrack.deploy.settings import load_settings
 from fedtrack.fusion_center.replay import replay_fusion
 from fedtrack.jsonl import InputError, read_jsonl
-from fedtrack.sensors.scenarios import paper004_scenario
+from fedtrack.sensors.scenarios import deployment_scenario
 
 TOLERANCE = 1e-9
 
@@ -66,7 +66,7 @@ def verify_run(config: Path, run_dir: Path) -> RunCheck:
     """Compare ``run_dir/tracks.jsonl`` with the replay of ``run_dir/measurements.jsonl``."""
     settings = load_settings(config)
     n_sensors = len(settings.fusion.sensors or settings.sensor)
-    expected = len(paper004_scenario(settings.deployment.scenario).times)
+    expected = len(deployment_scenario(settings.deployment.scenario, settings.deployment.duration_s).times)
     tracks = _rows(run_dir / "tracks.jsonl")
     measurements = _rows(run_dir / "measurements.jsonl")
     with tempfile.TemporaryDirectory() as tmp:

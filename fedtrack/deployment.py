@@ -40,6 +40,7 @@ class DeploymentConfig:
     speed: float = 1.0
     deadline_s: float = 2.0
     max_seq_jump: int = 1000
+    duration_s: float = 100.0
     router_listen: str = "tcp/127.0.0.1:7447"
     connect: tuple[str, ...] | None = None
     services: tuple[str, ...] = ROLES
@@ -72,6 +73,8 @@ class DeploymentConfig:
             raise ConfigError("speed: must be > 0")
         if not self.deadline_s > 0:
             raise ConfigError("deadline_s: must be > 0")
+        if not self.duration_s > 0:
+            raise ConfigError("duration_s: must be > 0")
         if not self.max_seq_jump >= 1:
             raise ConfigError("max_seq_jump: must be >= 1")
         if not self.name or any(c in self.name for c in "/*$?#@ "):

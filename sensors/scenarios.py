@@ -10,6 +10,7 @@ assume (0.5^2 m^2/s^4 per axis, errata), so filter consistency (NEES) is testabl
 
 from __future__ import annotations
 
+import dataclasses
 import zlib
 from dataclasses import dataclass
 
@@ -98,6 +99,12 @@ def simulate_positions(truth: np.ndarray, Rs: np.ndarray, rng: np.random.Generat
     L = np.linalg.cholesky(Rs)
     w = np.einsum("nij,rknj->rkni", L, rng.normal(size=(runs, K, n_sensors, 2)))
     return truth[:, :, None, :][..., [0, 3]] + w
+
+
+def deployment_scenario(number: int, duration_s: float) -> Scenario:
+    """Paper 004 scenario ``number`` run for ``duration_s`` seconds (the paper: 100; after the
+    last maneuver the target goes on at constant velocity)."""
+    return dataclasses.replace(paper004_scenario(number), duration=duration_s)
 
 
 def deployment_truth(scenario: Scenario, seed: int) -> np.ndarray:

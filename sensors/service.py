@@ -31,8 +31,8 @@ from fedtrack.config import load_tables
 from fedtrack.deployment import PACINGS, DeploymentConfig, SensorConfig
 from fedtrack.sensors.radar import RadarConfig, radar_scans
 from fedtrack.sensors.scenarios import (
+    deployment_scenario,
     deployment_truth,
-    paper004_scenario,
     sensor_measurements,
 )
 from fedtrack.sensors.sonar import SonarConfig, sonar_scans
@@ -56,7 +56,7 @@ class SensorSettings:
 def position_scans(settings: SensorSettings, sensor_id: str) -> Iterator[dict[str, Any]]:
     """Replay-format lines of one position sensor in the deployment's paper 004 scenario."""
     dep = settings.deployment
-    scenario = paper004_scenario(dep.scenario)
+    scenario = deployment_scenario(dep.scenario, dep.duration_s)
     R = next((np.array(s.R) for s in settings.sensor if s.id == sensor_id), None)
     if R is None:
         R = np.array([[100.0, 5.0], [5.0, 100.0]])

@@ -113,3 +113,15 @@ def test_router_listens_where_the_deployment_table_says(tmp_path: Path) -> None:
     kwargs = service_kwargs(parser, parser.parse_args(["--config", str(cfg)]), mode="router")
     assert kwargs["deployment"] == "r" and kwargs["options"].listen == ("tcp/127.0.0.1:7999",)
     assert kwargs["options"].connect == ()
+
+
+def test_deployment_duration_extends_the_scenario_at_constant_velocity() -> None:
+    import numpy as np
+
+    from fedtrack.sensors.scenarios import deployment_scenario, deployment_truth, paper004_scenario
+
+    paper, longer = paper004_scenario(1), deployment_scenario(1, 250.0)
+    assert len(longer.times) == 251 and longer.segments == paper.segments
+    a, b = deployment_truth(paper, 3), deployment_truth(longer, 3)
+    np.testing.assert_allclose(b[:101], a, atol=1e-9)  # the paper's 100 s unchanged
+    assert np.all(b[101:, [2, 5]] == 0.0)  # no commanded acceleration after the last maneuver

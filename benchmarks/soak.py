@@ -1,0 +1,129 @@
+"""``fedtrack bench soak [--minutes 10] [--sensors 4] [--json PATH]``: a long deployment at the
+maximum (lockstep) rate, outside CI (issue 13).
+
+``fedtrack launch`` runs a federated deployment of ``--sensors`` position sensors whose scenario
+lasts longer than the soak (``[deployment] duration_s``); after ``--minutes`` the bench stops it
+with SIGINT (the launcher's own Ctrl-C path: every service stops cleanly and the summary is
+written). Every 5 s it samples the resident set size (``VmRSS``) of every process of the
+deployment from ``/proc``. Reported: scans fused and their rate, scans lost (fused degraded,
+i.e. without some sensor's estimate, or skipped), every process's RSS in the first and the last
+minute (medians) and its growth, and the launcher's exit code.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+SAMPLE_S = 5.0
+MAX_RATE = 60.0  # scans per second the scenario is sized for (lockstep reaches ~20 here)
+
+
+def deployment_processes(name: str) -> dict[int, str]:
+    """``pid -> role/id`` of the live ``fedtrack serve`` processes of deployment ``name``."""
+    out = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            argv = (entry / "cmdline").read_bytes().decode(errors="replace").split("\0")
+        except OSError:
+            continue
+        if "serve" in argv and name in argv:
+            role = argv[argv.index("serve") + 1]
+            ident = argv[argv.index("--id") + 1] if "--id" in argv else role
+            out[int(entry.name)] = f"{role}/{ident}"
+    return out
+
+
+def rss_mb(pid: int) -> float | None:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        return None
+    return None
+
+
+def median(values: list[float]) -> float:
+    ordered = sorted(values)
+    return ordered[len(ordered) // 2]
+
+
+def run_soak(minutes: float, sensors: int, out: Path) -> dict[str, Any]:
+    from fedtrack.deploy.demo import demo_settings, free_port, write_config
+
+    name = f"soak{os.getpid()}"
+    settings = demo_settings(sensors, 1, "federated", 1, free_port(), out)
+    duration = minutes * 60.0 * MAX_RATE
+    settings = replace(settings, deployment=replace(settings.deployment, name=name, duration_s=duration))
+    config = out / "config.toml"
+    write_config(settings, config)
+    log = (out / "launch.log").open("w")
+    launch = subprocess.Popen([sys.executable, "-m", "fedtrack.cli", "launch", str(config), "--out", str(out)],
+                              stdout=log, stderr=subprocess.STDOUT)
+    samples: dict[str, list[tuple[float, float]]] = {}
+    t0 = time.monotonic()
+    try:
+        while time.monotonic() - t0 < minutes * 60.0 and launch.poll() is None:
+            now = time.monotonic() - t0
+            for pid, who in deployment_processes(name).items():
+                rss = rss_mb(pid)
+                if rss is not None:
+                    samples.setdefault(who, []).append((now, rss))
+            time.sleep(SAMPLE_S)
+    finally:
+        if launch.poll() is None:
+            launch.send_signal(signal.SIGINT)
+        code = launch.wait(120)
+        log.close()
+    summary = json.loads((out / "summary.json").read_text())
+    fusion = next((h for k, h in summary["health"].items() if k.startswith("fusion-center")), {})
+    lost = summary["degraded_scans"] + fusion.get("skipped_scans", 0)
+    processes = {}
+    for who, series in sorted(samples.items()):
+        first = [r for t, r in series if t <= 60.0]
+        last = [r for t, r in series if t >= series[-1][0] - 60.0]
+        start, end = median(first), median(last)
+        processes[who] = {"rss_first_minute_mb": start, "rss_last_minute_mb": end,
+                          "growth_pct": 100.0 * (end - start) / start, "samples": len(series)}
+    return {"minutes": minutes, "sensors": sensors, "launch_exit_code": code, "wall_s": summary["wall_time_s"],
+            "scans_fused": summary["scans"], "scans_per_s": summary["scans"] / summary["wall_time_s"],
+            "degraded_scans": summary["degraded_scans"], "skipped_scans": fusion.get("skipped_scans", 0),
+            "scans_lost": lost, "latency_ms": summary.get("latency_ms"), "processes": processes,
+            "max_rss_growth_pct": max((p["growth_pct"] for p in processes.values()), default=None)}
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="fedtrack bench soak", description=__doc__.splitlines()[0])
+    parser.add_argument("--minutes", type=float, default=10.0, help="length of the soak (default 10)")
+    parser.add_argument("--sensors", type=int, default=4, help="position sensors (default 4)")
+    parser.add_argument("--json", type=Path, default=Path("soak.json"), help="output JSON (default soak.json)")
+    parser.add_argument("--out", type=Path, help="keep the deployment's files here (default: a temporary folder)")
+    args = parser.parse_args(argv)
+    if not args.minutes > 0 or not 1 <= args.sensors <= 32:
+        parser.error("--minutes must be > 0 and --sensors between 1 and 32")
+    if not args.json.parent.is_dir():
+        parser.error(f"{args.json}: the folder {args.json.parent} does not exist")
+    with tempfile.TemporaryDirectory() as tmp:
+        out = args.out or Path(tmp)
+        out.mkdir(parents=True, exist_ok=True)
+        print(f"fedtrack bench soak: {args.sensors} sensors, {args.minutes:g} min at the lockstep rate", file=sys.stderr)
+        result = run_soak(args.minutes, args.sensors, out)
+    args.json.write_text(json.dumps(result, indent=2))
+    print(json.dumps({k: v for k, v in result.items() if k != "processes"}, indent=1))
+    for who, p in result["processes"].items():
+        print(f"  {who:24} RSS {p['rss_first_minute_mb']:7.1f} -> {p['rss_last_minute_mb']:7.1f} MB "
+              f"({p['growth_pct']:+.1f} %)")
+    print(f"wrote {args.json}")
+    return 0
