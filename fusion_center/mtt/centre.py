@@ -91,6 +91,28 @@ class Counters:
     merged: int = 0
 
 
+def candidate_pairs(pos: np.ndarray, spread: np.ndarray, rows: list[int], gate: float) -> list[list[int]]:
+    """For each of ``rows``, every track ``j`` within ``sqrt(gate) (spread_k + spread_j)`` of it
+    (``spread``: root of the x-y position variances): a pair farther apart fails the chi-square
+    test ``d' (P_j + P_k)^-1 d <= gate``, whose x-y marginal alone needs
+    ``|dxy|^2 <= gate tr(P_xy,j + P_xy,k) <= gate (spread_j + spread_k)^2``.
+
+    One k-d tree query per row with the reach of the largest spread among the ordinary tracks,
+    plus a direct check against the few tracks with a larger spread (tentative tracks with a
+    large velocity uncertainty), so that one of them does not make every query cover the region.
+    """
+    factor = float(np.sqrt(gate))
+    big_spread = float(np.quantile(spread, 0.9))
+    big = np.flatnonzero(spread > big_spread)
+    tree = cKDTree(pos)
+    out = tree.query_ball_point(pos[rows], factor * (spread[rows] + big_spread))
+    if big.size:
+        reach = factor * (spread[rows][:, None] + spread[big][None, :])
+        close = np.linalg.norm(pos[rows][:, None, :] - pos[big][None, :, :], axis=-1) <= reach
+        out = [sorted(set(near) | set(big[close[i]].tolist())) for i, near in enumerate(out)]
+    return out
+
+
 @dataclass
 class TrackToTrackCentre:
     """Central tracks of dimension ``dim`` (4 or 6) fused from local trackers' reports."""
@@ -296,21 +318,18 @@ class TrackToTrackCentre:
         row = {c: k for k, c in enumerate(ids)}
         X, P = self._priors(ids, t)
         gate = cfg.thresholds.association[self.dim]
-        # candidate pairs: positions closer than 5 sigma of the larger position spread
-        spread = np.sqrt(P[:, 0, 0] + P[:, 2, 2])
-        tree = cKDTree(X[:, [0, 2]])
         mine = [row[c] for c in sorted(updated) if c in row]
         if not mine:
             return
-        reach = 5.0 * (spread[mine] + spread.max())
-        for k, near in zip(mine, tree.query_ball_point(X[mine][:, [0, 2]], reach)):
+        sensors = {c: {s for s, _ in keys} for c, keys in self.members.items()}
+        for k, near in zip(mine, candidate_pairs(X[:, [0, 2]], np.sqrt(P[:, 0, 0] + P[:, 2, 2]), mine, gate)):
             cid = ids[k]
             if cid not in self.tracks or len(near) < 2:
                 continue
             for j in sorted(near):
                 other = ids[j]
                 if other == cid or other not in self.tracks or \
-                        set(self.sensors_of(cid)) & set(self.sensors_of(other)):
+                        sensors.get(cid, set()) & sensors.get(other, set()):
                     continue
                 diff = X[j] - X[k]
                 if float(diff @ np.linalg.solve(P[j] + P[k], diff)) > gate:
@@ -318,6 +337,7 @@ class TrackToTrackCentre:
                 keep, drop = min(cid, other), max(cid, other)
                 for key in list(self.members.get(drop, ())):
                     self._map(key, keep)
+                sensors[keep] = sensors.get(keep, set()) | sensors.pop(drop, set())
                 kept = self.tracks[keep]
                 self.tracks[keep] = kept._replace(confirmed=kept.confirmed or self.tracks[drop].confirmed)
                 del self.tracks[drop]
