@@ -62,6 +62,7 @@ class LocalFilterService(Service):
         self.sensor = sensor
         self.max_seq_jump = max_seq_jump
         self.processed_t: float | None = None  # time of the scan processed last
+        self.applied: Reset | None = None  # the reset applied last
         self.mode = mode
         self.filter = filt
         self.reset_timeout_s = reset_timeout_s
@@ -132,6 +133,13 @@ class LocalFilterService(Service):
         self.process_ready()
 
     def on_reset(self, msg: Reset) -> None:
+        if self.applied is not None and msg.seq == self.applied.seq:
+            same = (msg.t == self.applied.t and msg.model == self.applied.model
+                    and np.array_equal(msg.x, self.applied.x) and np.array_equal(msg.P, self.applied.P))
+            if same:
+                self.count("duplicate")
+                return
+            raise Rejected("conflict", f"a second, different reset of scan {msg.seq} (the first stays)")
         if msg.seq != self.processed_up_to or msg.seq <= self.reset_up_to:
             self.count("stale_reset")  # only the reset of the scan just processed applies
             return
@@ -143,6 +151,7 @@ class LocalFilterService(Service):
         assert isinstance(self.filter, FederatedLocalFilter)
         self.filter.apply_reset(msg.t, msg.x, msg.P)
         self.reset_up_to = msg.seq
+        self.applied = msg
         if self.alone:
             self.alone = False
             self.log.warning("resets from the fusion centre resumed at scan %d", msg.seq)

@@ -1,13 +1,14 @@
 """Fuzzing the handlers: hostile messages interleaved with a real scan stream never change what a
 service publishes; each is a counted rejection (or a counted late/duplicate), never an exception.
 
-Two local filters (decentralized mode) and the fusion center run in-process on the paper-004
-scenario; their handlers are driven through the service's own dispatch (decode, sender check,
-handler), so the path is the one a Zenoh sample takes. Hypothesis inserts, per example, 100
-hostile messages built from the genuine ones: a sender that is not the key's, an unknown
-sensor, a wrong model or state size, a sequence number far ahead, a time that is not the
-scan's, a second different estimate for a sensor and scan, overflow-scale values, garbage.
-100 examples: 10,000 hostile messages through each of the two handlers.
+Two federated local filters and the fusion center run in-process on the paper-004 scenario,
+resets included; their handlers are driven through the service's own dispatch (decode, sender
+check, handler), so the path is the one a Zenoh sample takes. Hypothesis inserts, per example,
+100 hostile messages built from the genuine ones (measurements, estimates and resets): a
+sender that is not the key's, an unknown sensor, a wrong model or state size, a sequence
+number far ahead, a time that is not the scan's, a second different message for a sensor and
+scan, overflow-scale values, garbage. 100 examples: 10,000 hostile messages, a third of them
+through each of the three handlers (measurement, estimate, reset).
 """
 
 from __future__ import annotations
@@ -20,14 +21,14 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from fedtrack.fusion_center.centre import DecentralizedCentre
+from fedtrack.fusion_center.centre import FederatedCentre
 from fedtrack.fusion_center.service import FusionCenterService
 from fedtrack.keys import Keys
 from fedtrack.local_filters.service import LocalFilterService
 from fedtrack.local_filters.vdie.config import FusionConfig
-from fedtrack.local_filters.vdie.local import VdieLocalFilter
+from fedtrack.local_filters.vdie.local import FederatedLocalFilter
 from fedtrack.sensors.scenarios import DEFAULT_R, paper004_scenario, simulate_positions, simulate_truth
-from fedtrack.wire import FusedTrack, LocalEstimate, Measurement, encode
+from fedtrack.wire import FusedTrack, LocalEstimate, Measurement, Reset, encode
 from fedtrack.zsession import SessionOptions
 
 pytestmark = pytest.mark.fuzz
@@ -59,18 +60,22 @@ class Pipeline:
     def __init__(self) -> None:
         config = FusionConfig()
         self.published: list[tuple[str, Any]] = []
-        self.locals = {s: LocalFilterService(s, "decentralized", VdieLocalFilter(len(SENSORS), config), 0.5,
+        n = len(SENSORS)
+        self.locals = {s: LocalFilterService(s, "federated", FederatedLocalFilter(float(n), n, config), 0.5,
                                              service_id=s, options=OPTIONS, deployment=KEYS.deployment)
                        for s in SENSORS}
-        self.centre = FusionCenterService(list(SENSORS), DecentralizedCentre(list(SENSORS), config), 0.5,
+        self.centre = FusionCenterService(list(SENSORS), FederatedCentre(list(SENSORS), config), 0.5,
                                           service_id="fusion", options=OPTIONS, deployment=KEYS.deployment)
         for svc in (*self.locals.values(), self.centre):
             svc._subscriptions = svc.subscriptions()
             svc.publish = lambda key, msg: self.published.append((key, msg))  # type: ignore[method-assign]
 
     @staticmethod
-    def send(svc: Any, key: str, payload: bytes) -> None:
-        svc._dispatch(("sample", 0, key, payload))
+    def send(svc: Any, key: str, payload: bytes, subscription: int = 0) -> None:
+        svc._dispatch(("sample", subscription, key, payload))
+
+    def reset(self, key_sensor: str, payload: bytes) -> None:
+        self.send(self.locals.get(key_sensor, self.locals[SENSORS[0]]), KEYS.fusion_reset(key_sensor), payload, 1)
 
     def measurement(self, sensor: str, key_sensor: str, payload: bytes) -> None:
         target = self.locals.get(key_sensor, self.locals[sensor])
@@ -95,15 +100,49 @@ def run(attacks: dict[int, list[tuple[str, str, float]]] | None = None) -> Pipel
     scan, sensor 2's (which completes the scan); returns the pipeline."""
     pipe = Pipeline()
     for k in range(SCANS):
+        scan_attacks = (attacks or {}).get(k, [])
         for s in SENSORS:
             meas = MEASUREMENTS[s][k]
             pipe.measurement(s, s, encode(meas))
             est = pipe.estimates_of_last_scan()[-1]
             pipe.estimate(s, encode(est))
             if s == SENSORS[0]:
-                for kind, target, value in (attacks or {}).get(k, []):
-                    hostile(pipe, kind, target, value, meas, est)
+                for kind, target, value in scan_attacks:
+                    if target != "reset":
+                        hostile(pipe, kind, target, value, meas, est)
+        # the scan is fused: hostile resets arrive before the centre's own (which then apply),
+        # a conflicting one after it
+        resets = [m for _, m in pipe.published if isinstance(m, Reset) and m.seq == k]
+        assert len(resets) == len(SENSORS) or k == 0
+        hostile_resets = [(kind, value) for kind, target, value in scan_attacks if target == "reset" and resets]
+        for kind, value in hostile_resets:
+            if kind != "conflict":
+                hostile_reset(pipe, kind, value, resets[0])
+        for r in resets:
+            pipe.reset(r.sensor, encode(r))
+        for kind, value in hostile_resets:
+            if kind == "conflict":
+                pipe.reset(resets[0].sensor, encode(replace(resets[0], x=resets[0].x + 1.0 + abs(value))))
     return pipe
+
+
+def hostile_reset(pipe: Pipeline, kind: str, value: float, reset: Reset) -> None:
+    """A hostile reset for the scan just fused, sent before the centre's own reset (a conflicting
+    one, sent after it, is built in :func:`run`)."""
+    other = next(s for s in SENSORS if s != reset.sensor)
+    if kind in ("sender", "unknown_sensor"):
+        pipe.reset(other, encode(reset))
+    elif kind == "wrong_model":  # a 3-D radar state: no 2-D filter can take it
+        pipe.reset(reset.sensor, encode(replace(reset, model="cv3", x=np.zeros(6), P=np.eye(6))))
+    elif kind == "seq_jump":
+        pipe.reset(reset.sensor, encode(replace(reset, seq=reset.seq + 2**40)))
+    elif kind == "time_jump":
+        pipe.reset(reset.sensor, encode(replace(reset, t=reset.t + 1.0 + abs(value), x=reset.x + value)))
+
+    elif kind == "overflow":
+        pipe.reset(reset.sensor, encode(reset).replace(b"\x00" * 4, b"\x7f\xef\xff\xff", 1))
+    else:
+        pipe.reset(reset.sensor, bytes(int(abs(value) * 11 + i) % 256 for i in range(50)))
 
 
 def hostile(pipe: Pipeline, kind: str, target: str, value: float, meas: Measurement, est: LocalEstimate) -> None:
@@ -150,7 +189,7 @@ def test_the_clean_stream_is_tracked() -> None:
     assert any(t.maneuver for t in tracks[31:])
 
 
-attack = st.tuples(st.integers(1, SCANS - 1), st.sampled_from(KINDS), st.sampled_from(("meas", "est")),
+attack = st.tuples(st.integers(1, SCANS - 1), st.sampled_from(KINDS), st.sampled_from(("meas", "est", "reset")),
                    st.floats(-1e3, 1e3, allow_nan=False))
 
 
