@@ -40,6 +40,7 @@ class DeploymentConfig:
     speed: float = 1.0
     deadline_s: float = 2.0
     max_seq_jump: int = 1000
+    max_time_jump_s: float = 3600.0
     duration_s: float = 100.0
     router_listen: str = "tcp/127.0.0.1:7447"
     connect: tuple[str, ...] | None = None
@@ -75,6 +76,8 @@ class DeploymentConfig:
             raise ConfigError("deadline_s: must be > 0")
         if not self.duration_s > 0:
             raise ConfigError("duration_s: must be > 0")
+        if not self.max_time_jump_s > 0:
+            raise ConfigError("max_time_jump_s: must be > 0")
         if not self.max_seq_jump >= 1:
             raise ConfigError("max_seq_jump: must be >= 1")
         if not self.name or any(c in self.name for c in "/*$?#@ "):

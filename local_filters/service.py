@@ -36,7 +36,14 @@ from fedtrack.local_filters.vdie.local import (
     LocalOutput,
     VdieLocalFilter,
 )
-from fedtrack.services.base import Rejected, Service, Subscription, service_kwargs, service_parser
+from fedtrack.services.base import (
+    Rejected,
+    Service,
+    Subscription,
+    check_time_jump,
+    service_kwargs,
+    service_parser,
+)
 from fedtrack.wire import (
     FusedTrack,
     LocalEstimate,
@@ -57,10 +64,12 @@ class LocalFilterService(Service):
     tick_period_s = 0.02
 
     def __init__(self, sensor: str, mode: str, filt: FederatedLocalFilter | VdieLocalFilter,
-                 reset_timeout_s: float, max_seq_jump: int = 1000, **kwargs: Any) -> None:
+                 reset_timeout_s: float, max_seq_jump: int = 1000, max_time_jump_s: float = 3600.0,
+                 **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.sensor = sensor
         self.max_seq_jump = max_seq_jump
+        self.max_time_jump_s = max_time_jump_s
         self.processed_t: float | None = None  # time of the scan processed last
         self.applied: Reset | None = None  # the reset applied last
         self.mode = mode
@@ -121,6 +130,7 @@ class LocalFilterService(Service):
         expected = max([self.processed_up_to, *self.pending]) + 1
         if self.processed_up_to >= 0 and msg.seq - expected > self.max_seq_jump:
             raise Rejected("seq_jump", f"scan {msg.seq} is more than {self.max_seq_jump} ahead of {expected}")
+        check_time_jump(self.processed_t, msg.t, self.max_time_jump_s)
         if self.processed_up_to >= 0 and msg.seq > expected:
             self.count("gaps", msg.seq - expected)
             self.log.warning("measurements %d..%d of sensor %s never arrived", expected, msg.seq - 1, self.sensor)
@@ -270,4 +280,5 @@ def main(argv: list[str]) -> int:
     else:
         filt = VdieLocalFilter(n, settings.fusion)
     return LocalFilterService(args.sensor, mode, filt, settings.deployment.deadline_s,
-                              settings.deployment.max_seq_jump, **service_kwargs(parser, args)).run()
+                              settings.deployment.max_seq_jump, settings.deployment.max_time_jump_s,
+                              **service_kwargs(parser, args)).run()

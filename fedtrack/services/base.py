@@ -56,7 +56,7 @@ import signal
 import sys
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Callable, ClassVar
 
 import zenoh
@@ -66,7 +66,7 @@ from fedtrack.config import ConfigError
 from fedtrack.deployment import deployment_of, endpoints_of
 from fedtrack.jsonl import InputError
 from fedtrack.keys import DEFAULT_DEPLOYMENT, InvalidName, Keys, check_id
-from fedtrack.wire import M, Health, Message, WireError, decode, encode
+from fedtrack.wire import Health, M, Measurement, Message, WireError, decode, encode
 from fedtrack.zsession import (
     SessionError,
     SessionOptions,
@@ -76,12 +76,43 @@ from fedtrack.zsession import (
     options_from_args,
 )
 
+
 def check_sender(keys: Keys, key: str, msg: Message) -> None:
     """Rejected("sender") when the id in the payload is not the id in the key it came on."""
     named = keys.sender(key)
     claimed = getattr(msg, "sensor", None) if not isinstance(msg, Health) else msg.id
     if named is not None and claimed is not None and claimed != named:
         raise Rejected("sender", f"payload from {claimed!r} on the key of {named!r}")
+
+
+def check_time_jump(last: float | None, t: float, bound: float) -> None:
+    """Rejected("time_jump") when ``t`` is more than ``bound`` seconds after ``last``: predicting
+    over such a gap would leave a tracker's covariance meaningless (a forged or broken clock)."""
+    if last is not None and t - last > bound:
+        raise Rejected("time_jump", f"t = {t} is {t - last:.6g} s after the last scan (max_time_jump_s = {bound:g})")
+
+
+class ScanOrder:
+    """The last scan a single-sensor tracker took: a repeat of it is counted ``duplicate`` (if
+    identical) or rejected as a ``conflict`` (a different message for the same scan, which would
+    otherwise update the track twice); an older scan is rejected as ``late``."""
+
+    def __init__(self) -> None:
+        self.last: Message | None = None
+
+    def check(self, msg: Measurement) -> bool:
+        """False for a duplicate to ignore; raises Rejected for a conflict or a late scan."""
+        last = self.last
+        if last is None or msg.seq > last.seq:  # type: ignore[attr-defined]
+            return True
+        if msg.seq < last.seq:  # type: ignore[attr-defined]
+            raise Rejected("late", f"scan {msg.seq} after scan {last.seq}")  # type: ignore[attr-defined]
+        if encode(replace(msg, stamp_ns=0)) == encode(replace(last, stamp_ns=0)):  # type: ignore[arg-type]
+            return False
+        raise Rejected("conflict", f"a second, different message for scan {msg.seq} (the first stays)")
+
+    def took(self, msg: Measurement) -> None:
+        self.last = msg
 
 
 QUEUE_SIZE = 10_000

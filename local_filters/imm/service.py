@@ -16,12 +16,20 @@ from pathlib import Path
 
 import numpy as np
 
-from fedtrack.config import ConfigError
+from fedtrack.config import ConfigError, load_tables
+from fedtrack.deployment import DeploymentSettings
 from fedtrack.keys import check_id
 from fedtrack.local_filters.imm.config import IMMConfig, load_imm_config
 from fedtrack.local_filters.imm.filter import ALGORITHMS, AO_VSIMM
 from fedtrack.local_filters.imm.tracker import IMMTracker
-from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
+from fedtrack.services.base import (
+    ScanOrder,
+    Service,
+    Subscription,
+    check_time_jump,
+    service_kwargs,
+    service_parser,
+)
 from fedtrack.wire import MAX_MAP_ITEMS, FusedTrack, Measurement
 from fedtrack.zsession import id_arg
 
@@ -31,8 +39,11 @@ class IMMService(Service):
 
     role = "imm"
 
-    def __init__(self, sensor: str, algorithm: str, cfg: IMMConfig, **kwargs: object) -> None:
+    def __init__(self, sensor: str, algorithm: str, cfg: IMMConfig, max_time_jump_s: float = 3600.0,
+                 **kwargs: object) -> None:
         super().__init__(**kwargs)  # type: ignore[arg-type]
+        self.max_time_jump_s = max_time_jump_s
+        self.order = ScanOrder()
         if len(cfg.models) > MAX_MAP_ITEMS:
             raise ConfigError(f"models: at most {MAX_MAP_ITEMS} models fit FusedTrack.extra, got {len(cfg.models)}")
         self.sensor = check_id(sensor, "--sensor")
@@ -49,7 +60,12 @@ class IMMService(Service):
         if self.tracker.t is not None and msg.t < self.tracker.t:
             self.count("out_of_order")
             return
+        check_time_jump(self.tracker.t, msg.t, self.max_time_jump_s)
+        if not self.order.check(msg):
+            self.count("duplicate")
+            return
         p = self.tracker.update(msg.t, msg.z, msg.R)
+        self.order.took(msg)
         best = max(p.mode_probabilities, key=p.mode_probabilities.__getitem__)
         self.publish(self.keys.tracker_track("imm", self.sensor), FusedTrack(
             seq=msg.seq, t=p.t, model=self.tracker.algorithm, x=p.x, P=p.P,
@@ -66,5 +82,7 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--config", help="configuration file; reads [imm] (default: paper 000's model set)")
     args = parser.parse_args(argv)
     kwargs = service_kwargs(parser, args)
-    cfg = load_imm_config(Path(args.config) if args.config else None)  # ConfigError: the CLI exits 2
-    return IMMService(args.sensor, args.algorithm, cfg, **kwargs).run()
+    path = Path(args.config) if args.config else None
+    cfg = load_imm_config(path)  # ConfigError: the CLI exits 2
+    jump = load_tables(path, DeploymentSettings).deployment.max_time_jump_s
+    return IMMService(args.sensor, args.algorithm, cfg, jump, **kwargs).run()

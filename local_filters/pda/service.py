@@ -19,7 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from fedtrack.config import ConfigError
+from fedtrack.config import ConfigError, load_tables
+from fedtrack.deployment import DeploymentSettings
 from fedtrack.keys import check_id
 from fedtrack.local_filters.pda.association import ALGORITHMS
 from fedtrack.local_filters.pda.replay import PDAReplayConfig, load_config
@@ -30,7 +31,14 @@ from fedtrack.local_filters.pda.tracks import (
     manager_step,
     tracker_spec,
 )
-from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
+from fedtrack.services.base import (
+    ScanOrder,
+    Service,
+    Subscription,
+    check_time_jump,
+    service_kwargs,
+    service_parser,
+)
 from fedtrack.wire import FusedTrack, Measurement
 from fedtrack.zsession import id_arg
 
@@ -40,8 +48,11 @@ class PDAService(Service):
 
     role = "hpda"
 
-    def __init__(self, sensor: str, algorithm: str, cfg: PDAReplayConfig, **kwargs: object) -> None:
+    def __init__(self, sensor: str, algorithm: str, cfg: PDAReplayConfig, max_time_jump_s: float = 3600.0,
+                 **kwargs: object) -> None:
         super().__init__(**kwargs)  # type: ignore[arg-type]
+        self.max_time_jump_s = max_time_jump_s
+        self.order = ScanOrder()
         self.sensor = check_id(sensor, "--sensor")
         self.spec: TrackerSpec = tracker_spec(algorithm, cfg.tracker, cfg.existence)
         self.manager: ManagerState = initial_manager()
@@ -56,10 +67,15 @@ class PDAService(Service):
         if self.manager.t is not None and msg.t < self.manager.t:
             self.count("out_of_order")
             return
+        check_time_jump(self.manager.t, msg.t, self.max_time_jump_s)
+        if not self.order.check(msg):
+            self.count("duplicate")
+            return
         z = np.array([d.z for d in msg.detections]).reshape(-1, 2)
         amp = np.array([d.amplitude for d in msg.detections])
         keep = amp >= self.spec.c.tau
         self.manager, rep = manager_step(self.spec, self.manager, msg.t, z[keep], amp[keep], msg.R)
+        self.order.took(msg)
         tracks = rep.tracks
         self.counters["live_tracks"] = len(tracks)
         for i in np.flatnonzero(tracks.confirmed):
@@ -78,9 +94,10 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--config", help="configuration file; reads [pda.tracker] and [pda.existence] (see docs/hpda.md)")
     args = parser.parse_args(argv)
     kwargs = service_kwargs(parser, args)
+    path = Path(args.config) if args.config else None
     try:
-        service = PDAService(args.sensor, args.algorithm,
-                             load_config(Path(args.config) if args.config else None), **kwargs)
+        service = PDAService(args.sensor, args.algorithm, load_config(path),
+                             load_tables(path, DeploymentSettings).deployment.max_time_jump_s, **kwargs)
     except ConfigError as exc:
         print(f"fedtrack serve hpda: error: {exc}", file=sys.stderr)
         return 2
