@@ -22,14 +22,7 @@ from fedtrack.keys import check_id
 from fedtrack.local_filters.imm.config import IMMConfig, load_imm_config
 from fedtrack.local_filters.imm.filter import ALGORITHMS, AO_VSIMM
 from fedtrack.local_filters.imm.tracker import IMMTracker
-from fedtrack.services.base import (
-    ScanOrder,
-    Service,
-    Subscription,
-    check_time_jump,
-    service_kwargs,
-    service_parser,
-)
+from fedtrack.services.base import ScanOrder, Service, Subscription, check_time_jump, service_kwargs, service_parser
 from fedtrack.wire import MAX_MAP_ITEMS, FusedTrack, Measurement
 from fedtrack.zsession import id_arg
 

@@ -31,14 +31,7 @@ from fedtrack.local_filters.pda.tracks import (
     manager_step,
     tracker_spec,
 )
-from fedtrack.services.base import (
-    ScanOrder,
-    Service,
-    Subscription,
-    check_time_jump,
-    service_kwargs,
-    service_parser,
-)
+from fedtrack.services.base import ScanOrder, Service, Subscription, check_time_jump, service_kwargs, service_parser
 from fedtrack.wire import FusedTrack, Measurement
 from fedtrack.zsession import id_arg
 
