@@ -201,11 +201,51 @@ def batched_rate(targets: int, steps: int, rounds: int) -> float:
     return targets / per_step(run, steps, rounds)
 
 
+def imm_runners(steps: int) -> dict[str, Callable[[int], Any]]:
+    """13-model FSIMM step (paper 000's mode set, one target): fedtrack's ``step`` against
+    FilterPy's ``IMMEstimator`` over 13 Kalman filters whose control input is each mode's
+    acceleration (``B = G a_m``, ``u = 1``), with the same transition matrix and measurements."""
+    from fedtrack.local_filters.imm.config import IMMConfig
+    from fedtrack.local_filters.imm.filter import FSIMM, initial_state, mode_inputs, step
+
+    cfg = IMMConfig()
+    bank, th = cfg.bank(), cfg.thresholds()
+    model = cv_model(1.0, cfg.q)
+    inputs = mode_inputs(model, bank.acc)
+    zs = cv_data(steps, seed=4)
+    x0, P0 = np.array([100.0, 0.0, -50.0, 0.0]), np.diag([100.0, 1e4, 100.0, 1e4])
+
+    def fedtrack_run(n: int) -> None:
+        s = initial_state(bank, FSIMM, 0, x0[None], P0[None])
+        for k in range(n):
+            s, _ = step(bank, FSIMM, s, model, zs[k][None], R_POS, th, bank.Pi)
+
+    runners: dict[str, Callable[[int], Any]] = {"fedtrack": fedtrack_run}
+    if available("filterpy"):
+        from filterpy.kalman import IMMEstimator, KalmanFilter
+
+        def filterpy_run(n: int) -> None:
+            filters = []
+            for m in range(bank.size):
+                kf = KalmanFilter(dim_x=4, dim_z=2, dim_u=1)
+                kf.F, kf.Q, kf.H, kf.R = model.F, model.Q, model.H, R_POS
+                kf.B, kf.x, kf.P = inputs[m][:, None], x0.copy(), P0.copy()
+                filters.append(kf)
+            imm = IMMEstimator(filters, np.full(bank.size, 1.0 / bank.size), bank.Pi)
+            u = np.ones(1)
+            for k in range(n):
+                imm.predict(u)
+                imm.update(zs[k])
+        runners["filterpy"] = filterpy_run
+    return runners
+
+
 def bench_kernels(quick: bool = False) -> dict[str, Any]:
     steps, rounds = (200, 3) if quick else (2000, 5)
     out: dict[str, Any] = {"seconds_per_step": {}, "ratios": {}, "missing": []}
-    for name, runners in (("kf", cv_runners(steps)), ("ekf", ekf_runners(steps))):
-        times = {lib: per_step(run, steps, rounds) for lib, run in runners.items()}
+    for name, runners, n_steps in (("kf", cv_runners(steps), steps), ("ekf", ekf_runners(steps), steps),
+                                   ("imm13", imm_runners(steps // 10), steps // 10)):
+        times = {lib: per_step(run, n_steps, rounds) for lib, run in runners.items()}
         out["seconds_per_step"][name] = times
         for other in ("filterpy", "stonesoup", "numpy_floor"):
             if other in times:
