@@ -171,7 +171,7 @@ def versions() -> dict[str, str]:
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="fedtrack bench [pipeline]", description=__doc__.splitlines()[0],
-                                     epilog="Other suites: fedtrack bench kernels|montecarlo|multitarget|soak|all "
+                                     epilog="Other suites: fedtrack bench kernels|montecarlo|multitarget|soak|hpda-soak|all "
                                             "[--json PATH] [--quick] (docs/bench.md).")
     parser.add_argument("--sensors", type=sensor_counts, default=[2, 4, 8], help="sensor counts (default 2,4,8)")
     parser.add_argument("--quick", action="store_true",

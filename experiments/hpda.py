@@ -12,6 +12,10 @@ Table 2: the track-initiation experiment, one run at a time through the multi-tr
 manager (:mod:`fedtrack.local_filters.pda.tracks`): clutter over a square around the target, no
 target detections on the first 5 scans, time from the first target detection opportunity
 to the first confirmed track holding the true position in its gate.
+
+False tracks (per Table 1 cell, beside the track loss): the same manager, run with initiation
+over all 61 scans with clutter over the Table 2 square, on ``FALSE_TRACK_RUNS`` runs per cell
+(fewer if ``runs`` is smaller); a confirmed track that does not hold the target is false. Reported per 100 scans.
 """
 
 from __future__ import annotations
@@ -36,7 +40,7 @@ from fedtrack.local_filters.pda.association import (
     truth_d2,
     two_point_init,
 )
-from fedtrack.local_filters.pda.tracks import ExistenceConfig, initial_manager, manager_step, tracker_spec
+from fedtrack.local_filters.pda.tracks import ExistenceConfig, TrackSet, initial_manager, manager_step, tracker_spec
 from fedtrack.progress import progress_bar
 from fedtrack.sensors.sonar import (
     ScenarioConfig,
@@ -79,6 +83,11 @@ TABLE2_LAMBDA = 2.5e-5
 TABLE2_HALF_WIDTH = 500.0
 BLACKOUT_SCANS = 5
 TARGET_RADIUS = 4.0 * SIGMA_R  # a confirmed track "holds the target" within this distance
+PAPER_RULE = ExistenceConfig(false_track_rate=0.0, one_track_per_detection=False)
+FALSE_TRACK_RUNS = 4  # the manager runs one scan at a time: 244 scans per cell and tracker
+FALSE_TRACK_RULE = ("confirmed tracks not holding the target (true position outside the gate or farther than "
+                    f"{TARGET_RADIUS:g} m), per 100 scans, with initiation over all 61 scans, clutter over a "
+                    f"{2 * TABLE2_HALF_WIDTH:g} m square, {FALSE_TRACK_RUNS} runs per cell")
 
 
 def _params(pd: float, lam: float) -> PDAParams:
@@ -142,14 +151,53 @@ def table1_cell(pd: float, lam: float, runs: int, rng: np.random.Generator) -> d
     return row
 
 
-def initiation_time(algorithm: str, seed: int, run: int) -> tuple[float, int]:
+def holds_target(tracks: TrackSet, x: np.ndarray, R: np.ndarray, gamma: float) -> np.ndarray:
+    """Tracks with the true position in their gate and within ``TARGET_RADIUS`` of their estimate."""
+    e = tracks.state.x[:, [0, 3]] - x[[0, 3]]
+    S = tracks.state.P[:, [0, 3]][:, :, [0, 3]] + R
+    d2 = np.einsum("ni,ni->n", e, np.linalg.solve(S, e[..., None])[..., 0])
+    return (d2 <= gamma) & (np.linalg.norm(e, axis=-1) <= TARGET_RADIUS)
+
+
+def false_track_run(algorithm: str, pd: float, lam: float, rng: np.random.Generator) -> np.ndarray:
+    """Confirmed tracks not holding the target, per scan, over one run of the scenario with
+    initiation (clutter over the Table 2 square)."""
+    cfg = SonarConfig(pd=pd, clutter_density=lam, snr=SNR, sigma_r=SIGMA_R, region_half_width=TABLE2_HALF_WIDTH)
+    spec = tracker_spec(algorithm, _params(pd, lam), ExistenceConfig())
+    times, truth = truth_states(cfg.scenario)
+    R = SIGMA_R**2 * np.eye(2)
+    ms = initial_manager()
+    false = np.zeros(len(times), dtype=int)
+    for k, (t, x) in enumerate(zip(times, truth)):
+        dets = scan(rng, cfg, k, x)
+        ms, rep = manager_step(spec, ms, t, dets.z, dets.amplitude, R)
+        conf = rep.tracks.take(rep.tracks.confirmed)
+        false[k] = int(np.sum(~holds_target(conf, x, R, spec.c.gamma)))
+    return false
+
+
+def false_track_cell(pd: float, lam: float, runs: int, seed: int, cell: int) -> dict[str, Any]:
+    """Confirmed false tracks per 100 scans (mean over runs, standard error) for both trackers."""
+    out: dict[str, Any] = {"runs": runs}
+    for name, algorithm in INITIATION.items():
+        t0 = time.process_time()
+        per_run = np.array([false_track_run(algorithm, pd, lam, np.random.default_rng([seed, 3, cell, r]))
+                            for r in range(runs)])
+        rate = 100.0 * per_run.mean(axis=1)
+        out[name] = {"per_100_scans": float(rate.mean()),
+                     "stderr": float(rate.std(ddof=1) / np.sqrt(runs)) if runs > 1 else float("nan"),
+                     "max_in_a_scan": int(per_run.max()), "cpu_s": time.process_time() - t0}
+    return out
+
+
+def initiation_time(algorithm: str, seed: int, run: int, rule: ExistenceConfig) -> tuple[float, int]:
     """Seconds from the first target detection opportunity to the first confirmed track
     holding the target (true position in its gate and within ``TARGET_RADIUS`` of its
     estimate); ``inf`` if that never happens. Also returns the number of (false) tracks
     confirmed during the clutter-only blackout scans."""
     cfg = SonarConfig(pd=TABLE2_PD, clutter_density=TABLE2_LAMBDA, snr=SNR, sigma_r=SIGMA_R,
                       region_half_width=TABLE2_HALF_WIDTH, blackout_scans=BLACKOUT_SCANS)
-    spec = tracker_spec(algorithm, _params(TABLE2_PD, TABLE2_LAMBDA), ExistenceConfig())
+    spec = tracker_spec(algorithm, _params(TABLE2_PD, TABLE2_LAMBDA), rule)
     rng = np.random.default_rng([seed, 2, run])
     times, truth = truth_states(cfg.scenario)
     R = SIGMA_R**2 * np.eye(2)
@@ -162,27 +210,20 @@ def initiation_time(algorithm: str, seed: int, run: int) -> tuple[float, int]:
         conf = rep.tracks.confirmed
         if k < BLACKOUT_SCANS:
             false_tracks += int(np.sum(rep.newly_confirmed))
-        if k >= BLACKOUT_SCANS and np.any(conf):
-            e = rep.tracks.state.x[conf][:, [0, 3]] - x[[0, 3]]
-            S = rep.tracks.state.P[conf][:, [0, 3]][:, :, [0, 3]] + R
-            d2 = np.einsum("ni,ni->n", e, np.linalg.solve(S, e[..., None])[..., 0])
-            if np.any((d2 <= spec.c.gamma) & (np.linalg.norm(e, axis=-1) <= TARGET_RADIUS)):
-                return float(t - t_first), false_tracks
+        if k >= BLACKOUT_SCANS and np.any(holds_target(rep.tracks.take(conf), x, R, spec.c.gamma)):
+            return float(t - t_first), false_tracks
     return float("inf"), false_tracks
 
 
-def table2(runs: int, seed: int, progress: tqdm) -> dict[str, Any]:
-    """Initiation-time counts per bin for IPDA-AI and HPDA initiation."""
-    out: dict[str, Any] = {"bins_s": [list(b) for b in BINS], "pd": TABLE2_PD, "lambda": TABLE2_LAMBDA,
-                           "region_half_width_m": TABLE2_HALF_WIDTH, "blackout_scans": BLACKOUT_SCANS,
-                           "time_origin": "first scan with a target detection opportunity",
-                           "paper": {k: list(v) for k, v in PAPER_TABLE2.items()}}
+def initiation_counts(runs: int, seed: int, rule: ExistenceConfig, progress: tqdm) -> dict[str, Any]:
+    """Initiation-time counts per bin for IPDA-AI and HPDA initiation under one confirmation rule."""
+    out: dict[str, Any] = {}
     for name, algorithm in INITIATION.items():
         t0 = time.process_time()
         times = np.empty(runs)
         false_tracks = np.empty(runs)
         for r in range(runs):
-            times[r], false_tracks[r] = initiation_time(algorithm, seed, r)
+            times[r], false_tracks[r] = initiation_time(algorithm, seed, r, rule)
             progress.update()
         counts = [int(np.sum((times >= lo) & (times < hi))) for lo, hi in BINS]
         finite = np.isfinite(times)
@@ -195,17 +236,33 @@ def table2(runs: int, seed: int, progress: tqdm) -> dict[str, Any]:
     return out
 
 
+def table2(runs: int, seed: int, progress: tqdm) -> dict[str, Any]:
+    """Table 2 under the paper's confirmation rule (``ipda_ai``, ``hpda``) and under fedtrack's
+    default rule (``default_rule``: the false-track test and one track per detection)."""
+    out: dict[str, Any] = {"bins_s": [list(b) for b in BINS], "pd": TABLE2_PD, "lambda": TABLE2_LAMBDA,
+                           "region_half_width_m": TABLE2_HALF_WIDTH, "blackout_scans": BLACKOUT_SCANS,
+                           "time_origin": "first scan with a target detection opportunity",
+                           "paper": {k: list(v) for k, v in PAPER_TABLE2.items()}}
+    out.update(initiation_counts(runs, seed, PAPER_RULE, progress))
+    out["default_rule"] = initiation_counts(runs, seed, ExistenceConfig(), progress)
+    return out
+
+
 def reproduce_hpda(runs: int, seed: int, json_path: Path, plots_dir: Path | None) -> dict[str, Any]:
     """Both tables of paper 001; writes ``json_path`` (and PNGs to ``plots_dir``)."""
     cells = [(pd, lam) for pd in PDS for lam in LAMBDAS]
     announce(f"reproduce hpda: paper 001, Table 1 (PDA-AI vs HPDA track loss, {len(cells)} (P_D, lambda) cells) "
              f"and Table 2 (IPDA-AI vs HPDA initiation), {runs} Monte Carlo runs each, seed {seed}")
     wall0 = time.perf_counter()
-    result: dict[str, Any] = {"runs": runs, "seed": seed, "track_loss_rule": TRACK_LOSS_RULE}
-    with progress_bar(len(cells) + 2 * runs, "reproduce hpda") as progress:
+    false_runs = min(runs, FALSE_TRACK_RUNS)
+    result: dict[str, Any] = {"runs": runs, "seed": seed, "track_loss_rule": TRACK_LOSS_RULE,
+                              "false_track_rule": FALSE_TRACK_RULE}
+    with progress_bar(2 * len(cells) + 4 * runs, "reproduce hpda") as progress:
         rows = []
         for i, (pd, lam) in enumerate(cells):
             rows.append(table1_cell(pd, lam, runs, np.random.default_rng([seed, 1, i])))
+            progress.update()
+            rows[-1]["false_tracks"] = false_track_cell(pd, lam, false_runs, seed, i)
             progress.update()
         result["table1"] = rows
         result["table2"] = table2(runs, seed, progress)
@@ -229,13 +286,26 @@ def print_summary(result: dict[str, Any]) -> None:
             for c in result["table1"]]
     print_table(f"Table 1: track loss [%] (+- standard error), {result['runs']} runs per cell",
                 ["P_D", "lambda", "PDA-AI", "paper", "HPDA", "paper", "HPDA - PDA-AI"], rows)
+    rows = [[f"{c['pd']:g}", f"{c['lambda']:g}",
+             *(f"{pm(c['false_tracks'][k]['per_100_scans'], c['false_tracks'][k]['stderr'], 2)} "
+               f"(max {c['false_tracks'][k]['max_in_a_scan']})" for k in ("ipda_ai", "hpda"))]
+            for c in result["table1"]]
+    print_table(f"Confirmed false tracks per 100 scans (+- standard error; most in one scan), with initiation, "
+                f"{result['table1'][0]['false_tracks']['runs']} runs of 61 scans per cell",
+                ["P_D", "lambda", "IPDA-AI", "HPDA"], rows)
     t2 = result["table2"]
     bins = [f"{lo:g}-{hi:g} s" for lo, hi in t2["bins_s"]]
     rows = [[name, *(f"{n} ({p})" for n, p in zip(t2[key]["counts"], t2["paper"][key])), str(t2[key]["never"]),
              pm(t2[key]["mean_s"], None, 1), f"{t2[key]['false_confirmed_per_run_in_blackout']:.2f}"]
             for key, name in (("ipda_ai", "IPDA-AI"), ("hpda", "HPDA"))]
+    rows += [[f"{name}, default rule", *(str(n) for n in t2["default_rule"][key]["counts"]),
+              str(t2["default_rule"][key]["never"]), pm(t2["default_rule"][key]["mean_s"], None, 1),
+              f"{t2['default_rule'][key]['false_confirmed_per_run_in_blackout']:.2f}"]
+             for key, name in (("ipda_ai", "IPDA-AI"), ("hpda", "HPDA"))]
     print_table(f"Table 2: confirmation time, runs per bin (paper's count in brackets), P_D = {t2['pd']:g}, "
-                f"lambda = {t2['lambda']:g}", ["tracker", *bins, "never", "mean [s]", "false/run"], rows)
+                f"lambda = {t2['lambda']:g}; the paper's confirmation rule, then fedtrack's default "
+                "(false-track test, one track per detection)",
+                ["tracker", *bins, "never", "mean [s]", "false/run"], rows)
 
 
 # Figures (paper 001 Figs. 2-4) for ``--plots DIR``.

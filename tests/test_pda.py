@@ -296,3 +296,33 @@ def test_truth_and_sonar_scans():
     amps = np.concatenate([[d["amplitude"] for d in ln["detections"]] for ln in lines])
     assert amps.min() >= cfg.tau
     assert list(sonar_scans(cfg, 3))[5] == lines[5]  # seeded
+
+
+@pytest.mark.parametrize("algorithm", ["pda-ai", "hpda"])
+def test_candidate_detections_give_the_full_scans_association(algorithm: str) -> None:
+    """Gathering each track's candidate detections (k-d tree) changes nothing but the cost."""
+    from fedtrack.local_filters.pda.association import candidates, original_index, scan_evidence
+
+    rng = np.random.default_rng(3)
+    p = PDAParams(clutter_density=1e-4)
+    c = constants(p)
+    model = singer_model(25.0, p.sigma_a, p.tau_s)
+    n, m = 30, 80
+    x = np.zeros((n, 6))
+    x[:, [0, 3]] = rng.uniform(-300, 300, (n, 2))
+    P = np.diag([400.0, 1.0, 1e-4, 400.0, 1.0, 1e-4]) * rng.uniform(0.2, 5.0, (n, 1, 1))
+    st = GaussianState(x, P)
+    z = rng.uniform(-400, 400, (m, 2))
+    amp = c.tau + rng.exponential(3.0, m)
+    R = 225.0 * np.eye(2)
+    full = gate(st, np.broadcast_to(z, (n, m, 2)), np.ones((n, m), bool), model.H, R, c)
+    index, valid = candidates(st, z, model.H, R, c)
+    assert index.shape[1] < m and np.all(np.sum(valid, axis=1) >= np.sum(full.inside, axis=1))
+    small = gate(st, z[index], valid, model.H, R, c)
+    a, lr_a = associate(algorithm, st, full, np.broadcast_to(amp, (n, m)), c)
+    b, lr_b = associate(algorithm, st, small, amp[index], c)
+    np.testing.assert_allclose(b.x, a.x, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(b.P, a.P, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(lr_b, lr_a, rtol=1e-12, atol=1e-12)
+    ev_a, ev_b = scan_evidence(full, np.broadcast_to(amp, (n, m)), c), scan_evidence(small, amp[index], c)
+    np.testing.assert_array_equal(original_index(ev_b.dominant, index), ev_a.dominant)

@@ -116,7 +116,7 @@ def test_births_pair_each_detection_once_and_tentative_tracks_are_bounded() -> N
     assert sorted(zip(cur.tolist(), prev.tolist())) == [(0, 1), (1, 0)]  # least total distance, one each
     n = 6
     tracks = TrackSet(np.arange(n), None, np.array([0.9, 0.1, 0.5, 0.3, 0.8, 0.2]), np.zeros(n, np.int64),
-                      np.array([True, False, False, False, True, False]))
+                      np.array([True, False, False, False, True, False]), np.zeros(n), np.zeros(n))
     surplus = surplus_tentative(tracks, np.ones(n, bool), limit=2)
     assert surplus.tolist() == [False, True, False, False, False, True]  # keeps tentative 2 and 3
 
@@ -134,3 +134,59 @@ def test_replay_writes_confirmed_tracks_only_on_request(tmp_path) -> None:
     n_conf = replay_pda("hpda", meas, None, tmp_path / "conf.jsonl", status="confirmed")
     rows = [json.loads(x) for x in (tmp_path / "conf.jsonl").read_text().splitlines()]
     assert 0 < n_conf < n_all and all(r["status"] == "confirmed" for r in rows)
+
+
+def dense_run(algorithm: str, existence: ExistenceConfig, scans: int = 40, seed: int = 7) -> tuple[list[int], list[int], list[bool]]:
+    """One target in ~200 clutter detections a scan (lambda 5e-5 over 2 km x 2 km); the tracker
+    keeps its default lambda (half the true one). Per scan: false confirmed tracks, confirmed
+    tracks, and whether a confirmed track is within 60 m of the target."""
+    from fedtrack.sensors.sonar import ScenarioConfig, SonarConfig, sonar_scans
+
+    cfg = SonarConfig(clutter_density=5e-5, scenario=ScenarioConfig(duration=25.0 * scans))
+    spec = tracker_spec(algorithm, PDAParams(), existence)
+    ms = initial_manager()
+    false, confirmed, held = [], [], []
+    for k, line in zip(range(scans), sonar_scans(cfg, seed)):
+        z = np.array([d["z"] for d in line["detections"]]).reshape(-1, 2)
+        amp = np.array([d["amplitude"] for d in line["detections"]])
+        ms, rep = manager_step(spec, ms, line["t"], z, amp, np.array(line["R"]))
+        pos = rep.tracks.state.x[rep.tracks.confirmed][:, [0, 3]]
+        near = np.linalg.norm(pos - np.array(line["truth"])[[0, 3]], axis=1) < 60.0
+        false.append(int(np.sum(~near)))
+        confirmed.append(len(pos))
+        held.append(bool(np.any(near)))
+    return false, confirmed, held
+
+
+@pytest.mark.parametrize("algorithm", ["pda-ai", "hpda"])
+def test_dense_clutter_confirms_the_target_and_few_false_tracks(algorithm: str) -> None:
+    false, confirmed, held = dense_run(algorithm, ExistenceConfig())
+    assert np.mean(false) <= 0.5 and max(confirmed) <= 3
+    assert np.mean(held[20:]) >= 0.8  # the target is confirmed and kept
+
+
+def test_dense_clutter_without_the_false_track_rules_confirms_many(monkeypatch) -> None:
+    """The same run with the evidence test off and no shared-detection pruning: the rules are
+    what keeps the false tracks out."""
+    import fedtrack.local_filters.pda.tracks as tracks
+
+    monkeypatch.setattr(tracks, "shared_detection_losers", lambda dominant, evidence, senior: np.zeros(dominant.shape[0], bool))
+    false, _, _ = dense_run("pda-ai", ExistenceConfig(false_track_rate=0.0), scans=25)
+    assert np.mean(false) > 1.0
+
+
+def test_one_detection_supports_one_tentative_track() -> None:
+    from fedtrack.local_filters.pda.tracks import shared_detection_losers
+
+    dominant = np.array([3, 3, 3, -1, 5, 5, 3])
+    evidence = np.array([10.0, 30.0, 20.0, 99.0, 1.0, 2.0, 0.0])
+    senior = np.array([False, False, False, False, False, False, True])
+    # detection 3: the confirmed track (6) ranks first whatever its evidence; detection 5: the larger evidence
+    assert shared_detection_losers(dominant, evidence, senior).tolist() == [True, True, True, False, True, False, False]
+
+
+def test_evidence_threshold_grows_with_the_births_of_a_scan() -> None:
+    e = ExistenceConfig(false_track_rate=0.01)
+    assert e.evidence_threshold(1) == pytest.approx(np.log(100.0))
+    assert e.evidence_threshold(200) == pytest.approx(np.log(20000.0))
+    assert ExistenceConfig(false_track_rate=0.0).evidence_threshold(200) == -np.inf

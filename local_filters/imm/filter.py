@@ -65,6 +65,7 @@ import numpy as np
 from fedtrack.local_filters.linear.kalman import (
     GaussianState,
     log_likelihood,
+    logsumexp,
     predict,
     symmetrize,
     update,
@@ -231,15 +232,6 @@ def model_cycle(state: IMMState, Pi: np.ndarray, u: np.ndarray, model: LinearMod
     pred = predict(mixed, model.F, model.Q, u_effect=u)  # eq. (7) with the mode as noise mean
     post, inn = update(pred, z[..., None, :], model.H, R[..., None, :, :] if R.ndim > 2 else R)
     return Cycle(post, log_pred, log_likelihood(inn))  # L_k^i = N(nu; 0, S^i), eq. (1)
-
-
-def logsumexp(a: np.ndarray, axis: int = -1, keepdims: bool = False) -> np.ndarray:
-    """``log sum exp a`` along ``axis``, stable; all ``-inf`` gives ``-inf``."""
-    m = np.max(a, axis=axis, keepdims=True)
-    m = np.where(np.isfinite(m), m, 0.0)
-    with np.errstate(divide="ignore"):
-        out = np.log(np.sum(np.exp(a - m), axis=axis, keepdims=True)) + m
-    return out if keepdims else np.squeeze(out, axis=axis)
 
 
 def join(a: Cycle, b: Cycle, order: np.ndarray) -> Cycle:

@@ -7,7 +7,10 @@ batched call (leading axis = tracks). Per scan:
    its data association (PDA-AI or HPDA); its existence follows eq (8)/(9) (IPDA-AI) or
    eq (15)/(16) (HPDA);
 2. a track whose existence exceeds ``confirm_threshold`` on ``confirm_scans`` consecutive
-   updates is confirmed; one whose existence falls below ``delete_threshold`` is deleted;
+   updates, and whose evidence passes the false-track test below, is confirmed; one whose
+   existence falls below ``delete_threshold`` is deleted; with ``one_track_per_detection``
+   one detection supports one tentative track (:func:`shared_detection_losers`): the others
+   are deleted;
 3. detections outside the gates of all confirmed tracks are *unassociated*; pairs
    (unassociated detection of the previous scan, unassociated detection of this scan)
    closer than ``max_speed * dt`` start tentative tracks by two-point differencing with
@@ -16,6 +19,16 @@ batched call (leading axis = tracks). Per scan:
    one per neighbour, so births grow with the clutter, not with its square;
 4. at most ``max_tentative`` tentative tracks live: beyond that the least likely (lowest
    existence) are deleted, so that dense clutter cannot grow the track list without bound.
+
+False-track test: a track's *evidence* is the sum, since its birth, of the log likelihood
+ratio of eq (9) (amplitude-aided, all gated detections; for HPDA too). Under clutter alone its
+exponential is a non-negative martingale of mean 1, so by Ville's inequality it ever reaches
+``a`` with probability at most ``1/a``. A track born with ``B - 1`` others on its scan must
+reach ``a = B / false_track_rate``: that scan's births then confirm at most
+``false_track_rate`` clutter tracks on average, however dense the clutter. A target's
+amplitudes give a likelihood ratio of ``e^10`` or more per detection at rho = 20, so the test
+costs it little. ``false_track_rate = 0`` and ``one_track_per_detection = false`` give the
+paper's rule alone.
 """
 
 from __future__ import annotations
@@ -35,9 +48,13 @@ from fedtrack.local_filters.pda.association import (
     Constants,
     PDAParams,
     associate,
+    candidates,
     constants,
     existence_update,
     gate,
+    mahalanobis2,
+    original_index,
+    scan_evidence,
     singer_model,
     two_point_init,
 )
@@ -55,6 +72,14 @@ class ExistenceConfig:
     delete_threshold: float = 0.02
     max_speed: float = 10.0
     max_tentative: int = 200
+    false_track_rate: float = 0.01
+    one_track_per_detection: bool = True
+
+    def evidence_threshold(self, births: int) -> float:
+        """``log(births / false_track_rate)``; ``-inf`` with the test off."""
+        if self.false_track_rate == 0.0:
+            return -np.inf
+        return float(np.log(births / self.false_track_rate))
 
     def validate(self) -> None:
         for name in ("p11", "p21"):
@@ -69,6 +94,8 @@ class ExistenceConfig:
             raise ConfigError(f"max_tentative: must be >= 1, got {self.max_tentative}")
         if not self.max_speed > 0.0:
             raise ConfigError(f"max_speed: must be > 0, got {self.max_speed}")
+        if not self.false_track_rate >= 0.0:
+            raise ConfigError(f"false_track_rate: must be >= 0, got {self.false_track_rate}")
 
 
 class TrackerSpec(NamedTuple):
@@ -99,27 +126,35 @@ class TrackSet(NamedTuple):
     existence: np.ndarray  # (N,)
     streak: np.ndarray  # (N,) consecutive updates above the confirmation threshold
     confirmed: np.ndarray  # (N,) bool
+    evidence: np.ndarray  # (N,) sum of eq (9) log likelihood ratios since birth
+    evidence_needed: np.ndarray  # (N,) false-track test threshold on ``evidence``
 
     def take(self, idx: np.ndarray) -> "TrackSet":
         return TrackSet(self.ids[idx], GaussianState(self.state.x[idx], self.state.P[idx]),
-                        self.existence[idx], self.streak[idx], self.confirmed[idx])
+                        *(a[idx] for a in self[2:]))
 
     def __len__(self) -> int:  # type: ignore[override]
         return int(self.ids.shape[0])
 
 
 def empty_tracks() -> TrackSet:
-    return TrackSet(np.zeros(0, dtype=np.int64), GaussianState(np.zeros((0, 6)), np.zeros((0, 6, 6))),
-                    np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool))
+    return new_tracks(np.zeros(0, dtype=np.int64), GaussianState(np.zeros((0, 6)), np.zeros((0, 6, 6))),
+                      0.0, -np.inf)
+
+
+def new_tracks(ids: np.ndarray, state: GaussianState, existence: float,
+               evidence_needed: float) -> TrackSet:
+    """Tentative tracks just born, with no streak and no evidence yet."""
+    n = ids.shape[0]
+    return TrackSet(ids, state, np.full(n, existence), np.zeros(n, dtype=np.int64),
+                    np.zeros(n, dtype=bool), np.zeros(n), np.full(n, evidence_needed))
 
 
 def join(a: TrackSet, b: TrackSet) -> TrackSet:
     return TrackSet(np.concatenate([a.ids, b.ids]),
                     GaussianState(np.concatenate([a.state.x, b.state.x]),
                                   np.concatenate([a.state.P, b.state.P])),
-                    np.concatenate([a.existence, b.existence]),
-                    np.concatenate([a.streak, b.streak]),
-                    np.concatenate([a.confirmed, b.confirmed]))
+                    *(np.concatenate([u, v]) for u, v in zip(a[2:], b[2:])))
 
 
 class ManagerState(NamedTuple):
@@ -143,23 +178,54 @@ def initial_manager() -> ManagerState:
     return ManagerState(empty_tracks(), None, np.zeros((0, 2)), 0)
 
 
+class Updated(NamedTuple):
+    """Tracks after one scan's update, with what the scan said about each."""
+
+    tracks: TrackSet
+    inside: np.ndarray  # (N, M) gate membership
+    shared_losers: np.ndarray  # (N,) tentative tracks pruned by :func:`shared_detection_losers`
+
+
+def shared_detection_losers(dominant: np.ndarray, evidence: np.ndarray, senior: np.ndarray) -> np.ndarray:
+    """Tentative tracks whose dominant detection (association weight >= 1/2) is also another
+    track's, where that other track ranks first: previously confirmed first, then the larger
+    evidence (this scan's included). One detection supports one track, so a target's strong
+    detections cannot confirm a swarm of tracks born around it."""
+    strong = np.flatnonzero(dominant >= 0)
+    order = strong[np.lexsort((-evidence[strong], ~senior[strong], dominant[strong]))]
+    first = np.ones(order.size, dtype=bool)
+    first[1:] = dominant[order][1:] != dominant[order][:-1]
+    losers = np.zeros(dominant.shape[0], dtype=bool)
+    losers[order[~first]] = True
+    return losers & ~senior
+
+
 def _update_tracks(spec: TrackerSpec, tracks: TrackSet, dt: float, z: np.ndarray,
-                   amplitude: np.ndarray, R: np.ndarray) -> tuple[TrackSet, np.ndarray]:
-    """Predict, gate, associate and update every track; returns the updated tracks and the
-    (N, M) gate membership."""
+                   amplitude: np.ndarray, R: np.ndarray) -> Updated:
+    """Predict, gate, associate and update every track, then confirm those that pass."""
     p = spec.params
     model = _model(dt, p.sigma_a, p.tau_s)
     pred = predict(tracks.state, model.F, model.Q)
     n = len(tracks)
-    zz = np.broadcast_to(z, (n,) + z.shape)
-    aa = np.broadcast_to(amplitude, (n,) + amplitude.shape)
-    g = gate(pred, zz, np.ones(zz.shape[:-1], dtype=bool), model.H, R, spec.c)
+    index, valid = candidates(pred, z, model.H, R, spec.c)
+    aa = amplitude[index]
+    g = gate(pred, z[index], valid, model.H, R, spec.c)
     post, log_lr = associate(spec.algorithm, pred, g, aa, spec.c)
+    said = scan_evidence(g, aa, spec.c)
+    dominant = original_index(said.dominant, index)
+    evidence = tracks.evidence + said.log_lr
     e = spec.existence
+    losers = (shared_detection_losers(dominant, evidence, tracks.confirmed) if e.one_track_per_detection
+              else np.zeros(n, dtype=bool))
     mu = existence_update(tracks.existence, log_lr, e.p11, e.p21)
     streak = np.where(mu > e.confirm_threshold, tracks.streak + 1, 0)
-    confirmed = tracks.confirmed | (streak >= e.confirm_scans)
-    return TrackSet(tracks.ids, post, mu, streak, confirmed), g.inside
+    passed = (streak >= e.confirm_scans) & (evidence >= tracks.evidence_needed) & ~losers
+    confirmed = tracks.confirmed | passed
+    inside = np.zeros((n, z.shape[0]), dtype=bool)
+    rows, cols = np.nonzero(g.inside)
+    inside[rows, index[rows, cols]] = True
+    return Updated(TrackSet(tracks.ids, post, mu, streak, confirmed, evidence, tracks.evidence_needed),
+                   inside, losers)
 
 
 def duplicates(tracks: TrackSet, senior: np.ndarray, R: np.ndarray, c: Constants) -> np.ndarray:
@@ -175,7 +241,7 @@ def duplicates(tracks: TrackSet, senior: np.ndarray, R: np.ndarray, c: Constants
     pos = tracks.state.x[:, [0, 3]]
     S = tracks.state.P[:, [0, 3]][:, :, [0, 3]] + R
     diff = pos[None, :, :] - pos[:, None, :]  # (kept j, other i, 2)
-    d2 = np.einsum("jik,jik->ji", diff, np.linalg.solve(S[:, None], diff[..., None])[..., 0])
+    d2 = mahalanobis2(S[:, None], diff)
     mutual = (d2 <= c.gamma) & (d2.T <= c.gamma)
     dup = np.zeros(n, dtype=bool)
     order = np.lexsort((-tracks.existence, ~senior))
@@ -217,11 +283,13 @@ def manager_step(spec: TrackerSpec, ms: ManagerState, t: float, z: np.ndarray,
     tracks = ms.tracks
     was_confirmed = tracks.confirmed
     claimed = np.zeros(z.shape[0], dtype=bool)
+    losers = np.zeros(len(tracks), dtype=bool)
     if len(tracks):
-        tracks, inside = _update_tracks(spec, tracks, dt, z, amplitude, R)
+        tracks, inside, losers = _update_tracks(spec, tracks, dt, z, amplitude, R)
         claimed = np.any(inside & tracks.confirmed[:, None], axis=0)
     newly = tracks.confirmed & ~was_confirmed
-    keep = (tracks.existence >= e.delete_threshold) & ~duplicates(tracks, was_confirmed, R, spec.c)
+    keep = (tracks.existence >= e.delete_threshold) & ~losers
+    keep &= ~duplicates(tracks, was_confirmed, R, spec.c)
     keep &= ~surplus_tentative(tracks, keep, e.max_tentative)
     deleted = tracks.take(~keep)
     tracks, newly = tracks.take(keep), newly[keep]
@@ -232,9 +300,7 @@ def manager_step(spec: TrackerSpec, ms: ManagerState, t: float, z: np.ndarray,
         if i.size:
             born = two_point_init(ms.pending[j], free[i], dt, R, spec.params.sigma_a)
             ids = ms.next_id + np.arange(i.size)
-            new = TrackSet(ids, born, np.full(i.size, e.initial_existence),
-                           np.zeros(i.size, dtype=np.int64), np.zeros(i.size, dtype=bool))
-            tracks = join(tracks, new)
+            tracks = join(tracks, new_tracks(ids, born, e.initial_existence, e.evidence_threshold(i.size)))
             newly = np.concatenate([newly, np.zeros(i.size, dtype=bool)])
             ms = ms._replace(next_id=ms.next_id + i.size)
     pending = free if dt > 0.0 or ms.t is None else np.concatenate([ms.pending, free])
