@@ -6,6 +6,11 @@ output directory receives ``measurements.jsonl``, ``tracks.jsonl``, ``truth.json
 ``summary.json``, ``config.toml`` (the effective configuration: ``fedtrack replay
 --algorithm fvdie --config DIR/config.toml --measurements DIR/measurements.jsonl``
 reproduces ``tracks.jsonl``), ``tracks.png`` and the services' logs under ``logs/``.
+
+``--scenario multitarget``: the live multi-target deployment of :mod:`fedtrack.deploy.multitarget`
+instead (20 targets, three position sensors with periods 1.0, 0.7 and 1.3 s, clutter, 60 s of
+scenario at 5x real time); ``fedtrack replay --algorithm mtt-federated --config DIR/config.toml
+--measurements DIR/measurements.jsonl`` reproduces its ``tracks.jsonl``.
 """
 
 from __future__ import annotations
@@ -23,11 +28,16 @@ from fedtrack.deploy.launcher import (
     ServiceFailed,
     run_deployment,
 )
+from fedtrack.deploy.multitarget import finish_multitarget
 from fedtrack.deploy.report import finish
-from fedtrack.deploy.settings import Settings
+from fedtrack.deploy.settings import MultitargetSettings, Settings
 from fedtrack.deployment import MODES, DeploymentConfig, SensorConfig
+from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.vdie.config import FusionConfig
+from fedtrack.sensors.multitarget import Scenario, clutter_density, parse_spec
 from fedtrack.sensors.scenarios import DEFAULT_R
+
+MULTITARGET_SPEED = 5.0  # the live multi-target demo runs at 5x real time
 
 
 def free_port() -> int:
@@ -46,6 +56,19 @@ def demo_settings(n_sensors: int, scenario: int, mode: str, seed: int, port: int
                                     router_listen=f"tcp/127.0.0.1:{port}", out=str(out)),
         sensor=tuple(SensorConfig(id=i, R=r) for i in ids),  # type: ignore[arg-type]
     )
+
+
+def multitarget_settings(mode: str, seed: int, port: int, out: Path) -> Settings:
+    """A live multi-target deployment of the default scenario (``mode`` federated or decentralized)."""
+    mt = MultitargetSettings(algorithm=f"mtt-{mode}")
+    specs = parse_spec(mt.sensors)
+    scenario = Scenario(targets=mt.targets, duration=mt.duration, pd=mt.pd, clutter=mt.clutter)
+    return Settings(
+        deployment=DeploymentConfig(name="demo", mode=mode, seed=seed, pacing="realtime", speed=MULTITARGET_SPEED,
+                                    router_listen=f"tcp/127.0.0.1:{port}", out=str(out)),
+        mtt=MttConfig(pd=mt.pd, clutter_density=clutter_density(specs[0], scenario),
+                      sensors=tuple(s.id for s in specs)),
+        multitarget=mt)
 
 
 def settings_table(settings: Settings) -> dict[str, Any]:
@@ -67,7 +90,8 @@ def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="fedtrack demo", description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("fedtrack-out"), help="output directory")
     parser.add_argument("--sensors", type=int, default=2, help="number of sensors (default 2)")
-    parser.add_argument("--scenario", type=int, choices=(1, 2), default=1)
+    parser.add_argument("--scenario", choices=("1", "2", "multitarget"), default="1",
+                        help="paper 004 scenario 1 or 2, or the live multi-target deployment (default 1)")
     parser.add_argument("--mode", choices=MODES, default="federated")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--port", type=int, help="router port on 127.0.0.1 (default: a free one)")
@@ -76,10 +100,15 @@ def main(argv: list[str]) -> int:
         parser.error("--sensors must be between 1 and 32")
     out = args.out.resolve()
     out.mkdir(parents=True, exist_ok=True)
-    settings = demo_settings(args.sensors, args.scenario, args.mode, args.seed, args.port or free_port(), out)
+    port = args.port or free_port()
+    if args.scenario == "multitarget":
+        settings = multitarget_settings(args.mode, args.seed, port, out)
+        what = f"multitarget, {settings.multitarget.targets} targets, sensors {settings.multitarget.sensors}"  # type: ignore[union-attr]
+    else:
+        settings = demo_settings(args.sensors, int(args.scenario), args.mode, args.seed, port, out)
+        what = f"{args.sensors} sensors, scenario {args.scenario}"
     write_config(settings, out / "config.toml")
-    print(f"fedtrack demo: {args.sensors} sensors, scenario {args.scenario}, {args.mode}; output in {out}",
-          file=sys.stderr)
+    print(f"fedtrack demo: {what}, {args.mode}; output in {out}", file=sys.stderr)
     failure = None
     try:
         report = run_deployment(settings, out / "config.toml", out)
@@ -91,7 +120,10 @@ def main(argv: list[str]) -> int:
     except LaunchError as exc:
         print(f"fedtrack demo: {exc}", file=sys.stderr)
         return 1
-    finish(out, settings, report, out / "config.toml", "fedtrack demo")
+    if settings.multitarget is not None:
+        finish_multitarget(out, report, "fedtrack demo")
+    else:
+        finish(out, settings, report, out / "config.toml", "fedtrack demo")
     if failure is not None:
         print(f"fedtrack demo: {failure}", file=sys.stderr)
         return 1

@@ -32,6 +32,14 @@ import numpy as np
 import zenoh
 
 from fedtrack.config import ConfigError, in_file
+from fedtrack.deploy.multitarget import (
+    SCENARIO_DIR,
+    check_multitarget,
+    finish_multitarget,
+    prepare,
+    sensor_ids,
+    service_args,
+)
 from fedtrack.deploy.report import LaunchReport, finish
 from fedtrack.deploy.security import LAUNCHER, identity, write_configs
 from fedtrack.deploy.settings import Settings, check_launchable, load_settings
@@ -57,6 +65,9 @@ def describe_exit(code: int) -> str:
         except ValueError:
             return f"signal {-code}"
     return f"exit code {code}"
+
+
+STOP_STAGE = {"fusion-center": 1, "mtt-centre": 1, "recorder": 2, "router": 3}  # others 0
 
 
 class LaunchError(RuntimeError):
@@ -124,6 +135,13 @@ def service_plan(settings: Settings, config_path: Path, out_dir: Path, log_dir: 
     if "router" in dep.services and dep.router_listen:
         add("router", "router", ["--deployment", dep.name, "--listen", dep.router_listen])
     cfg = ["--config", str(config_path)]
+    if settings.multitarget is not None:
+        if "recorder" in dep.services:
+            add("recorder", "recorder", ["--db", str(out_dir / "recording.db"), "--out", str(out_dir), *common])
+        for role, sid, args in service_args(settings, out_dir / SCENARIO_DIR / "measurements.jsonl"):
+            if role not in ("sensor", "mtt-local") or sid in here_mtt(settings):
+                add(role, sid, [*args, *cfg, *common])
+        return plan
     if "local-filter" in dep.services:
         for s in here:
             add("local-filter", s, ["--sensor", s, *cfg, *common])
@@ -135,6 +153,14 @@ def service_plan(settings: Settings, config_path: Path, out_dir: Path, log_dir: 
         for s in here:
             add("sensor", s, [*cfg, *common])
     return plan
+
+
+def here_mtt(settings: Settings) -> list[str]:
+    """The multi-target scenario's sensors this host runs (``deployment.local_sensors``, default all)."""
+    assert settings.multitarget is not None
+    ids = sensor_ids(settings.multitarget)
+    local = settings.deployment.local_sensors
+    return [s for s in ids if local is None or s in local]
 
 
 def apply_zenoh_settings(settings: Settings, config_path: Path, out_dir: Path,
@@ -235,13 +261,16 @@ class Launcher:
         sys.stderr.flush()
 
     def stop_all(self) -> None:
-        """SIGTERM every child still running (reverse start order), SIGKILL after a grace period.
+        """SIGTERM every child still running, stage by stage, SIGKILL after a grace period.
 
-        The routers go last, once the others have exited: their final Health (counters after
-        the last line was written) still reaches the monitor, so the report's counters are final.
+        Stages: sensors and local filters, then the fusion centres (whose last output, such as
+        a multi-target centre's final pictures, still reaches the recorder), then the
+        recorder, then the routers: their final Health (counters after the last line was
+        written) still reaches the monitor, so the report's counters are final.
         """
         running = [sp for sp in reversed(self.plan) if sp.proc is not None and sp.proc.poll() is None]
-        for group in ([sp for sp in running if sp.role != "router"], [sp for sp in running if sp.role == "router"]):
+        stages = [[sp for sp in running if STOP_STAGE.get(sp.role, 0) == k] for k in range(4)]
+        for group in stages:
             for sp in group:
                 sp.proc.send_signal(signal.SIGTERM)
             deadline = time.monotonic() + STOP_GRACE_S
@@ -265,6 +294,7 @@ class Launcher:
             self._session.declare_subscriber(self.keys.fusion_track(), self._on_track),
             self._session.declare_subscriber(self.keys.sensor_meas(), self._on_meas),
             self._session.declare_subscriber(self.keys.health(), self._on_health),
+            self._session.declare_subscriber(self.keys.mtt_picture(), self._on_picture),
         ]
 
     def _on_track(self, sample: zenoh.Sample) -> None:
@@ -279,6 +309,10 @@ class Launcher:
             self.report.track_arrivals_ns[track.seq] = now
             if self.max_scans is not None and self.report.scans_fused >= self.max_scans:
                 self._enough.set()
+
+    def _on_picture(self, sample: zenoh.Sample) -> None:
+        with self._lock:
+            self.report.pictures += 1
 
     def _on_meas(self, sample: zenoh.Sample) -> None:
         try:
@@ -303,6 +337,8 @@ class Launcher:
             rates = " ".join(f"{s}:{n / elapsed:.0f}/s" for s, n in sorted(self.report.measurements.items()))
             lat = self.report.latencies_ms[-50:]
             last = f"{np.median(lat):.1f} ms" if lat else "-"
+            if self.settings.multitarget is not None:
+                return f"pictures {self.report.pictures}  sensors {rates or '-'}"
             return f"scans fused {self.report.scans_fused}  sensors {rates or '-'}  latency(p50 last 50) {last}"
 
     # ------------------------------------------------------------ run
@@ -415,6 +451,9 @@ def run_deployment(settings: Settings, config_path: Path, out_dir: Path, quiet: 
     if "router" in dep.services and dep.router_listen and port_in_use(dep.router_listen):
         raise ConfigError(f"{config_path}: deployment.router_listen: port {listen_address(dep.router_listen, '')[1]} "
                           f"for the router is already in use ({dep.router_listen})")
+    if settings.multitarget is not None:
+        check_multitarget(settings, config_path)
+        prepare(settings, out_dir)
     plan = service_plan(settings, config_path, out_dir, out_dir / "logs")
     monitor_config = apply_zenoh_settings(settings, config_path, out_dir, plan)
     launcher = Launcher(settings, plan, quiet=quiet, zenoh_config=monitor_config)
@@ -442,7 +481,10 @@ def main(argv: list[str]) -> int:
     except LaunchError as exc:
         print(f"fedtrack launch: {exc}", file=sys.stderr)
         return 1
-    finish(out, settings, report, args.config.resolve(), "fedtrack launch")
+    if settings.multitarget is not None:
+        finish_multitarget(out, report, "fedtrack launch")
+    else:
+        finish(out, settings, report, args.config.resolve(), "fedtrack launch")
     if code is not None:
         return code
     return 1 if report.failed or any(c not in (0, None) for c in report.exit_codes.values()) else 0

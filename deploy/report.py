@@ -28,6 +28,7 @@ class LaunchReport:
     """What the launcher observed: per-scan latencies, tracks seen, final health counters."""
 
     scans_fused: int = 0
+    pictures: int = 0  # multi-target pictures seen
     latencies_ms: list[float] = field(default_factory=list)
     measurements: dict[str, int] = field(default_factory=dict)
     track_arrivals_ns: dict[int, int] = field(default_factory=dict)  # seq -> wall-clock arrival

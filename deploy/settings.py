@@ -15,17 +15,41 @@ from fedtrack.config import ConfigError, in_file, load_tables
 from fedtrack.deploy.security import ZenohSettings
 from fedtrack.deployment import DeploymentConfig, SensorConfig
 from fedtrack.local_filters.imm.config import IMMConfig
+from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.pda.replay import PDAReplayConfig
 from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.sensors.radar import RadarConfig
 from fedtrack.sensors.sonar import SonarConfig
 
 
+MTT_ALGORITHMS = ("mtt-federated", "mtt-decentralized", "mtt-centralized")
+
+
+@dataclass(frozen=True)
+class MultitargetSettings:
+    """``[multitarget]``: a live multi-target deployment and its simulated scenario (the options of
+    ``fedtrack simulate multitarget``; the seed is ``deployment.seed``)."""
+
+    algorithm: str = "mtt-federated"
+    targets: int = 20
+    sensors: str = "pos:1.0,pos:0.7,pos:1.3"
+    duration: float = 60.0
+    pd: float = 0.9
+    clutter: float = 10.0
+
+    def validate(self) -> None:
+        if self.algorithm not in MTT_ALGORITHMS:
+            raise ConfigError(f"algorithm: must be one of {', '.join(MTT_ALGORITHMS)}, got {self.algorithm!r}")
+        if self.targets < 1 or not self.duration > 0 or not 0 < self.pd <= 1 or self.clutter < 0:
+            raise ConfigError("need targets >= 1, duration > 0, 0 < pd <= 1, clutter >= 0")
+
+
 @dataclass(frozen=True)
 class Settings:
     """``[fusion]``, ``[deployment]``, ``[[sensor]]``; ``[sonar]`` / ``[radar]`` for those sensor
     kinds, ``[radar_filter]`` (checked by the radar filter chosen with ``--filter``), ``[imm]``
-    and ``[pda]``; ``[zenoh]`` (the services' Zenoh configuration, :mod:`fedtrack.deploy.security`)."""
+    and ``[pda]``; ``[mtt]`` and ``[multitarget]`` (a live multi-target deployment,
+    :mod:`fedtrack.deploy.multitarget`); ``[zenoh]`` (the services' Zenoh configuration, :mod:`fedtrack.deploy.security`)."""
 
     fusion: FusionConfig = field(default_factory=FusionConfig)
     deployment: DeploymentConfig = field(default_factory=DeploymentConfig)
@@ -35,6 +59,8 @@ class Settings:
     radar_filter: Any = None
     imm: IMMConfig = field(default_factory=IMMConfig)
     pda: PDAReplayConfig = field(default_factory=PDAReplayConfig)
+    mtt: MttConfig = field(default_factory=MttConfig)
+    multitarget: MultitargetSettings | None = None
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
 
 
@@ -49,7 +75,7 @@ def check_launchable(settings: Settings, path: Path) -> None:
         if settings.fusion.sensors is not None and len(settings.fusion.sensors) == 0:
             raise ConfigError("fusion.sensors: empty list (omit it to use the [[sensor]] ids)")
         users = {"sensor", "local-filter", "fusion-center"} & set(settings.deployment.services)
-        if users and not ids and not settings.fusion.sensors:
+        if users and settings.multitarget is None and not ids and not settings.fusion.sensors:
             raise ConfigError(f"sensor: no [[sensor]] table, but the services {', '.join(sorted(users))} "
                               "need at least one sensor")
 

@@ -83,7 +83,7 @@ TABLE2_LAMBDA = 2.5e-5
 TABLE2_HALF_WIDTH = 500.0
 BLACKOUT_SCANS = 5
 TARGET_RADIUS = 4.0 * SIGMA_R  # a confirmed track "holds the target" within this distance
-PAPER_RULE = ExistenceConfig(false_track_rate=0.0, one_track_per_detection=False)
+PAPER_RULE = ExistenceConfig(false_track_rate=0.0, one_track_per_detection=False, clutter_from_scans=False)
 FALSE_TRACK_RUNS = 4  # the manager runs one scan at a time: 244 scans per cell and tracker
 FALSE_TRACK_RULE = ("confirmed tracks not holding the target (true position outside the gate or farther than "
                     f"{TARGET_RADIUS:g} m), per 100 scans, with initiation over all 61 scans, clutter over a "

@@ -63,6 +63,8 @@ SERVICES: dict[str, str] = {
     "recorder": "fedtrack.services.recorder:main",
     "imm": "fedtrack.local_filters.imm.service:main",
     "hpda": "fedtrack.local_filters.pda.service:main",
+    "mtt-local": "fedtrack.local_filters.mtt.service:main",
+    "mtt-centre": "fedtrack.fusion_center.mtt.service:main",
 }
 
 # name -> "module:function(argv) -> int"

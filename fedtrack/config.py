@@ -125,7 +125,8 @@ def parse_dataclass(cls: type[T], table: dict[str, Any], where: str = "") -> T:
 #: The top-level tables of the one configuration file read by ``replay``, ``serve`` and
 #: ``launch``. Each consumer parses the tables it uses (:func:`load_tables`); the others must
 #: be known names, so that a typo still fails.
-TABLES = ("fusion", "deployment", "sensor", "sonar", "radar", "radar_filter", "imm", "pda", "mtt", "zenoh")
+TABLES = ("fusion", "deployment", "sensor", "sonar", "radar", "radar_filter", "imm", "pda", "mtt", "multitarget",
+          "zenoh")
 
 
 @contextlib.contextmanager

@@ -68,14 +68,16 @@ class Keys:
 
     def sender(self, key: str) -> str | None:
         """The sensor or service id a concrete key names as its publisher's (``sensor/<id>/meas``,
-        ``local/<id>/estimate``, ``fusion/reset/<id>``, ``health/<role>/<id>``), else None."""
+        ``local/<id>/estimate``, ``local/<id>/tracks``, ``fusion/reset/<id>``,
+        ``fusion/mtt-resets/<id>``, ``health/<role>/<id>``), else None."""
         parts = key.split("/")
         if len(parts) < 4 or parts[0] != ROOT or parts[1] != self.deployment:
             return None
         rest = parts[2:]
-        if len(rest) == 3 and (rest[0], rest[2]) in (("sensor", "meas"), ("local", "estimate")):
+        if len(rest) == 3 and (rest[0], rest[2]) in (("sensor", "meas"), ("local", "estimate"), ("local", "tracks")):
             return rest[1]
-        if len(rest) == 3 and rest[0] in ("health", "fusion") and (rest[0] == "health" or rest[1] == "reset"):
+        if len(rest) == 3 and rest[0] in ("health", "fusion") and (rest[0] == "health"
+                                                                    or rest[1] in ("reset", "mtt-resets")):
             return rest[2]
         return None
 
@@ -90,6 +92,18 @@ class Keys:
     def fusion_reset(self, sensor: str | None = None) -> str:
         """``fusion/reset/<id>``: the fusion center's reset of local filter ``<id>``."""
         return self._key("fusion", "reset", self._chunk(sensor, "sensor id"))
+
+    def mtt_report(self, sensor: str | None = None) -> str:
+        """``local/<id>/tracks``: the local multi-target tracker of sensor ``<id>`` (``TrackReport``)."""
+        return self._key("local", self._chunk(sensor, "sensor id"), "tracks")
+
+    def mtt_resets(self, sensor: str | None = None) -> str:
+        """``fusion/mtt-resets/<id>``: the multi-target centre's resets of sensor ``<id>``'s tracker."""
+        return self._key("fusion", "mtt-resets", self._chunk(sensor, "sensor id"))
+
+    def mtt_picture(self) -> str:
+        """``fusion/picture``: the multi-target centre's track picture, every period (``TrackPicture``)."""
+        return self._key("fusion", "picture")
 
     def fusion_track(self) -> str:
         """``fusion/track``: the fused track, one per scan."""

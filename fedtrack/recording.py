@@ -11,6 +11,7 @@ table             columns besides id, received_ns, payload        unique (one ro
 ``estimates``     sensor, seq, t, model, stamp_ns                 (sensor, seq)
 ``tracks``        seq, t, model, degraded, sensors, stamp_ns      (seq)
 ``events``        seq, t, kind                                    (seq, kind)
+``pictures``      seq, t, stamp_ns (multi-target ``TrackPicture``)  (seq)
 ``meta``          key, value (``schema_version``)                 (key)
 ================  ==============================================  =========================
 
@@ -26,7 +27,11 @@ was committed survives SIGKILL of the recorder and a power loss.
 ``fedtrack export --db PATH --out FILE.jsonl [--tracks FILE.jsonl]`` writes the
 measurements in the ``replay`` input format, in scan order (``t``, then arrival), so
 that ``fedtrack replay`` always accepts what was recorded, and optionally the fused
-tracks in the replay output format (``seq`` order).
+tracks in the replay output format (``seq`` order). A multi-target recording (one with
+pictures) is written in the centre's processing order instead (the scans each picture
+lists, picture by picture, then any scan the centre never processed, in arrival order):
+the order ``replay --algorithm mtt-*`` must follow to give the recorded pictures, which
+are the tracks file (one picture a line).
 """
 
 from __future__ import annotations
@@ -46,9 +51,11 @@ from fedtrack.wire import (
     ManeuverEvent,
     Measurement,
     Message,
+    TrackPicture,
     WireError,
     decode,
     measurement_to_replay,
+    picture_to_replay,
     track_to_replay,
 )
 
@@ -88,6 +95,8 @@ TABLES: tuple[Table, ...] = (
           ("seq",), lambda f: (f.seq, f.t, f.model, int(f.degraded), ",".join(f.sensors), f.stamp_ns)),
     Table("events", ManeuverEvent, {"seq": "INTEGER", "t": "REAL", "kind": "TEXT"},
           ("seq", "kind"), lambda e: (e.seq, e.t, e.kind)),
+    Table("pictures", TrackPicture, {"seq": "INTEGER", "t": "REAL", "stamp_ns": "INTEGER"},
+          ("seq",), lambda p: (p.seq, p.t, p.stamp_ns)),
 )
 TABLE_OF: dict[type, Table] = {table.msg_type: table for table in TABLES}
 
@@ -146,7 +155,11 @@ class Recording:
         return DUPLICATE if stored is not None and bytes(stored[0]) == payload else CONFLICT
 
     def count(self, msg_type: type) -> int:
-        return int(self.db.execute(f"SELECT COUNT(*) FROM {TABLE_OF[msg_type].name}").fetchone()[0])
+        """Rows of ``msg_type`` (0 for a table an older recording, opened read-only, does not have)."""
+        try:
+            return int(self.db.execute(f"SELECT COUNT(*) FROM {TABLE_OF[msg_type].name}").fetchone()[0])
+        except sqlite3.OperationalError:
+            return 0
 
     def messages(self, msg_type: type, order: str) -> Iterator[Any]:
         """The stored messages of ``msg_type`` in ``order`` (an ORDER BY clause of the table's columns)."""
@@ -158,26 +171,44 @@ class Recording:
                 raise InputError(f"{self.path}: {table.name} row {rowid}: {exc}") from None
 
     def export(self, measurements: Path | None = None, tracks: Path | None = None) -> tuple[int, int]:
-        """Write the replay-format measurements (scan order) and tracks (seq order); returns the line counts."""
-        counts = [0, 0]
-        for i, (path, msg_type, order, convert) in enumerate((
-                (measurements, Measurement, "t, id", measurement_to_replay),
-                (tracks, FusedTrack, "seq", _track_row))):
-            if path is None:
-                continue
-            tmp = path.with_name(path.name + ".part")
-            try:
-                with tmp.open("w") as fh:
-                    for msg in self.messages(msg_type, order):
-                        fh.write(json.dumps(convert(msg)) + "\n")
-                        counts[i] += 1
-                tmp.replace(path)
-            except OSError as exc:
-                raise InputError(f"{path}: cannot write: {exc.strerror or exc}") from None
-        return counts[0], counts[1]
+        """Write the replay-format measurements and tracks (see the module docstring); returns the line counts."""
+        if self.count(TrackPicture):
+            rows: tuple[Iterator[dict[str, Any]], Iterator[dict[str, Any]]] = (
+                self._scans_in_centre_order(),
+                (picture_to_replay(p) for p in self.messages(TrackPicture, "seq") if not p.closing))
+        else:
+            rows = ((measurement_to_replay(m) for m in self.messages(Measurement, "t, id")),
+                    (_track_row(f) for f in self.messages(FusedTrack, "seq")))
+        return _write_lines(measurements, rows[0]), _write_lines(tracks, rows[1])
+
+    def _scans_in_centre_order(self) -> Iterator[dict[str, Any]]:
+        scans = {(m.sensor, m.seq): m for m in self.messages(Measurement, "id")}
+        for pic in self.messages(TrackPicture, "seq"):
+            for key in zip(pic.fused_sensors, pic.fused_seqs):
+                if key in scans:
+                    yield measurement_to_replay(scans.pop(key))
+        for m in scans.values():
+            yield measurement_to_replay(m)
 
     def close(self) -> None:
         self.db.close()
+
+
+def _write_lines(path: Path | None, rows: Iterator[dict[str, Any]]) -> int:
+    """``rows`` as JSON Lines, written atomically (through ``path.part``); 0 when ``path`` is None."""
+    if path is None:
+        return 0
+    n = 0
+    tmp = path.with_name(path.name + ".part")
+    try:
+        with tmp.open("w") as fh:
+            for row in rows:
+                fh.write(json.dumps(row) + "\n")
+                n += 1
+        tmp.replace(path)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot write: {exc.strerror or exc}") from None
+    return n
 
 
 def _track_row(track: FusedTrack) -> dict[str, Any]:

@@ -43,7 +43,8 @@ MAX_LIST_ITEMS = 64
 MAX_MAP_ITEMS = 32
 SYMMETRY_RTOL = 1e-9
 PD_RTOL = 1e-12
-MEASUREMENT_KINDS = ("position", "radar", "sonar")
+MEASUREMENT_KINDS = ("position", "radar", "sonar", "scan")
+MAX_TRACKS = 2048  # tracks in one multi-target report or picture
 EVENT_KINDS = ("onset", "new-ca", "end")
 WIRE_DTYPES = {"float64": np.dtype("<f8"), "int64": np.dtype("<i8")}
 _INT64_MAX = 2**63 - 1
@@ -306,8 +307,11 @@ class Measurement(_Record):
 
     ``position``/``radar``: ``z`` (m,) with noise covariance ``R`` (m, m), no detections;
     radar also carries ``sensor_position`` (2 or 3,). ``sonar``: ``z`` empty, each
-    detection's ``z`` is (d,) with covariance ``R`` (d, d). ``stamp_ns`` is the wall-clock
-    publish time (``time.time_ns()``), for end-to-end latency.
+    detection's ``z`` is (d,) with covariance ``R`` (d, d). ``scan``: a multi-target sensor's
+    scan (docs/multitarget-formats.md): ``z`` empty, detections as for sonar (amplitude 0 on
+    every detection when the sensor gives none), ``sensor_position`` (3,) for a radar (then
+    each ``z`` is range, azimuth, elevation). ``stamp_ns`` is the wall-clock publish time
+    (``time.time_ns()``), for end-to-end latency.
     """
 
     sensor: str
@@ -327,9 +331,9 @@ class Measurement(_Record):
     _records = {"detections": Detection}
 
     def _check(self) -> None:
-        if self.kind == "sonar":
+        if self.kind in ("sonar", "scan"):
             if self.z.size:
-                raise WireError("z", "must be empty for sonar (detections carry the positions)")
+                raise WireError("z", f"must be empty for {self.kind} (detections carry the positions)")
             for i, det in enumerate(self.detections):
                 if det.z.shape[0] != self.R.shape[0]:
                     raise WireError(f"detections[{i}].z", f"length {det.z.shape[0]} does not match R "
@@ -338,7 +342,7 @@ class Measurement(_Record):
             if self.z.size == 0:
                 raise WireError("z", f"must not be empty for kind {self.kind}")
             if self.detections:
-                raise WireError("detections", "only sonar measurements carry detections")
+                raise WireError("detections", "only sonar and scan measurements carry detections")
             _check_square(self.R, self.z.shape[0], "R", "z")
         if self.R.size == 0:
             raise WireError("R", "must not be empty")
@@ -463,6 +467,191 @@ class ManeuverEvent(_Record):
     _arrays = ("u",)
 
 
+def _items(cls: type[_Record], limit: int = MAX_TRACKS) -> Callable[[Any, str], tuple[Any, ...]]:
+    """A list of nested ``cls`` records (decoded ones arrive built)."""
+    def check(value: Any, path: str) -> tuple[Any, ...]:
+        items = _sequence(value, path, limit)
+        for i, item in enumerate(items):
+            if not isinstance(item, cls):
+                raise WireError(f"{path}[{i}]", f"expected a {cls.__name__}")
+        return tuple(items)
+    return check
+
+
+def _counts(value: Any, path: str) -> tuple[int, ...]:
+    return tuple(_count(v, f"{path}[{i}]") for i, v in enumerate(_sequence(value, path, MAX_TRACKS)))
+
+
+def _state_of(rec: Any) -> None:
+    """``x`` non-empty and ``P`` square of its size."""
+    if rec.x.shape[0] == 0:
+        raise WireError("x", "must not be empty")
+    _check_square(rec.P, rec.x.shape[0], "P", "x")
+
+
+def _one_size(items: tuple[Any, ...], path: str) -> int | None:
+    sizes = {it.x.shape[0] for it in items}
+    if len(sizes) > 1:
+        raise WireError(path, f"tracks of different state sizes {sorted(sizes)}")
+    return sizes.pop() if sizes else None
+
+
+@dataclass(frozen=True, eq=False)
+class LocalTrack(_Record):
+    """One track of a local multi-target tracker: ``id`` (stable), state, whether it is
+    confirmed and whether this scan updated or started it."""
+
+    id: int
+    x: np.ndarray
+    P: np.ndarray
+    confirmed: bool
+    detected: bool
+
+    _fields = {"id": _count, "x": _vector, "P": _covariance, "confirmed": _flag, "detected": _flag}
+    _arrays = ("x", "P")
+    _top_level = False
+
+    def _check(self) -> None:
+        _state_of(self)
+
+
+@dataclass(frozen=True, eq=False)
+class Observation(_Record):
+    """The (linearized) observation a detected local track used: ``z = H x + v``, ``v ~ N(0, R)``;
+    ``started`` if the track started from it."""
+
+    H: np.ndarray
+    R: np.ndarray
+    z: np.ndarray
+    started: bool
+
+    _fields = {"H": lambda v, p: _array(v, p, 2), "R": _covariance, "z": _vector, "started": _flag}
+    _arrays = ("H", "R", "z")
+    _top_level = False
+
+    def _check(self) -> None:
+        m = self.z.shape[0]
+        if m == 0:
+            raise WireError("z", "must not be empty")
+        _check_square(self.R, m, "R", "z")
+        if self.H.shape[0] != m:
+            raise WireError("H", f"expected {m} rows to match z, got shape {self.H.shape}")
+
+
+@dataclass(frozen=True, eq=False)
+class TrackReport(_Record):
+    """A local multi-target tracker's output for scan ``seq`` of ``sensor``: every live track,
+    one observation per detected track (in track order), and the ids this scan deleted."""
+
+    sensor: str
+    seq: int
+    t: float
+    tracks: tuple[LocalTrack, ...]
+    observations: tuple[Observation, ...]
+    retired: tuple[int, ...]
+    stamp_ns: int
+
+    _fields = {"sensor": _identifier, "seq": _count, "t": _real, "tracks": _items(LocalTrack),
+               "observations": _items(Observation), "retired": _counts, "stamp_ns": _count}
+    _records = {"tracks": LocalTrack, "observations": Observation}
+
+    def _check(self) -> None:
+        d = _one_size(self.tracks, "tracks")
+        if len({tr.id for tr in self.tracks}) != len(self.tracks):
+            raise WireError("tracks", "track ids are not unique")
+        if len(self.observations) != sum(tr.detected for tr in self.tracks):
+            raise WireError("observations", "expected one per detected track")
+        for i, ob in enumerate(self.observations):
+            if ob.H.shape[1] != d:
+                raise WireError(f"observations[{i}].H", f"expected {d} columns to match the tracks, got {ob.H.shape}")
+
+
+@dataclass(frozen=True, eq=False)
+class LocalReset(_Record):
+    """Federated feedback for local track ``id``: adopt ``(x, P)`` (``P`` already scaled)."""
+
+    id: int
+    x: np.ndarray
+    P: np.ndarray
+
+    _fields = {"id": _count, "x": _vector, "P": _covariance}
+    _arrays = ("x", "P")
+    _top_level = False
+
+    def _check(self) -> None:
+        _state_of(self)
+
+
+@dataclass(frozen=True, eq=False)
+class TrackResets(_Record):
+    """The multi-target centre's answer to ``sensor``'s report ``seq`` (federated mode): the
+    resets of its local tracks and ``q_scale``, the process-noise factor (number of live
+    sensors) its tracker uses for its next scan."""
+
+    sensor: str
+    seq: int
+    t: float
+    q_scale: float
+    resets: tuple[LocalReset, ...]
+
+    _fields = {"sensor": _identifier, "seq": _count, "t": _real, "q_scale": _real, "resets": _items(LocalReset)}
+    _records = {"resets": LocalReset}
+
+    def _check(self) -> None:
+        if not 1.0 <= self.q_scale <= MAX_TRACKS:
+            raise WireError("q_scale", f"must be in [1, {MAX_TRACKS}], got {self.q_scale}")
+        _one_size(self.resets, "resets")
+
+
+@dataclass(frozen=True, eq=False)
+class PictureTrack(_Record):
+    """One central track of a picture, predicted to the picture's time."""
+
+    id: int
+    x: np.ndarray
+    P: np.ndarray
+    confirmed: bool
+    sensors: tuple[str, ...]
+
+    _fields = {"id": _count, "x": _vector, "P": _covariance, "confirmed": _flag, "sensors": _identifiers}
+    _arrays = ("x", "P")
+    _top_level = False
+
+    def _check(self) -> None:
+        _state_of(self)
+
+
+@dataclass(frozen=True, eq=False)
+class TrackPicture(_Record):
+    """The multi-target centre's picture number ``seq`` at ``t`` (every ``period`` seconds), and
+    the scans it processed since the previous picture, in its processing order
+    (``fused_sensors[i]``, ``fused_seqs[i]``): the order a replay of the recorded scans must
+    follow. A ``closing`` record (the last one, on a clean stop) is no picture: it has no
+    tracks and only lists the scans processed after the last picture."""
+
+    seq: int
+    t: float
+    tracks: tuple[PictureTrack, ...]
+    fused_sensors: tuple[str, ...]
+    fused_seqs: tuple[int, ...]
+    stamp_ns: int
+    closing: bool = False
+
+    _fields = {"seq": _count, "t": _real, "tracks": _items(PictureTrack),
+               "fused_sensors": lambda v, p: tuple(_identifier(x, f"{p}[{i}]")
+                                                   for i, x in enumerate(_sequence(v, p, MAX_TRACKS))),
+               "fused_seqs": _counts, "stamp_ns": _count, "closing": _flag}
+    _records = {"tracks": PictureTrack}
+
+    def _check(self) -> None:
+        if len(self.fused_sensors) != len(self.fused_seqs):
+            raise WireError("fused_seqs", "expected one per fused_sensors entry")
+        if self.closing and self.tracks:
+            raise WireError("tracks", "a closing record has no tracks")
+        if len({tr.id for tr in self.tracks}) != len(self.tracks):
+            raise WireError("tracks", "track ids are not unique")
+
+
 @dataclass(frozen=True, eq=False)
 class Health(_Record):
     """Periodic status of service ``role``/``id``: counters such as received, rejected, published."""
@@ -476,8 +665,10 @@ class Health(_Record):
     _fields = {"role": _identifier, "id": _identifier, "seq": _count, "counters": _counters, "status": _text}
 
 
-Message = Measurement | LocalEstimate | Reset | FusedTrack | ManeuverEvent | Health
-MESSAGE_TYPES: tuple[type[_Record], ...] = (Measurement, LocalEstimate, Reset, FusedTrack, ManeuverEvent, Health)
+Message = (Measurement | LocalEstimate | Reset | FusedTrack | ManeuverEvent | Health | TrackReport | TrackResets
+           | TrackPicture)
+MESSAGE_TYPES: tuple[type[_Record], ...] = (Measurement, LocalEstimate, Reset, FusedTrack, ManeuverEvent, Health,
+                                            TrackReport, TrackResets, TrackPicture)
 M = TypeVar("M", bound=_Record)
 
 
@@ -611,13 +802,36 @@ _REPLAY_MEASUREMENT_KEYS = frozenset({"t", "sensor", "z", "R", "sensor_position"
 
 
 def measurement_to_replay(m: Measurement) -> dict[str, Any]:
-    """The replay-input line ``{"t", "sensor", "z", "R"}`` (+ ``sensor_position``, ``detections``)."""
+    """The replay-input line ``{"t", "sensor", "z", "R"}`` (+ ``sensor_position``, ``detections``);
+    a multi-target ``scan`` gives the multi-target line (docs/multitarget-formats.md)."""
+    if m.kind == "scan":
+        with_amplitude = any(d.amplitude != 0 for d in m.detections)
+        line: dict[str, Any] = {"t": m.t, "sensor": m.sensor, "R": m.R.tolist(),
+                                "detections": [{"z": d.z.tolist(), "amplitude": d.amplitude} if with_amplitude
+                                               else {"z": d.z.tolist()} for d in m.detections]}
+        if m.sensor_position is not None:
+            line["sensor_position"] = m.sensor_position.tolist()
+        return line
     row: dict[str, Any] = {"t": m.t, "sensor": m.sensor, "z": m.z.tolist(), "R": m.R.tolist()}
     if m.sensor_position is not None:
         row["sensor_position"] = m.sensor_position.tolist()
     if m.kind == "sonar":
         row["detections"] = [{"z": d.z.tolist(), "amplitude": d.amplitude} for d in m.detections]
     return row
+
+
+def picture_track_row(tid: int, x: np.ndarray, P: np.ndarray, confirmed: bool, sensors: list[str]) -> dict[str, Any]:
+    """One track of a multi-target picture line (docs/multitarget-formats.md)."""
+    k = x.shape[0] // 2
+    return {"id": int(tid), "pos": x[0::2][:k].tolist(), "vel": x[1::2][:k].tolist(), "x": x.tolist(),
+            "P": P.tolist(), "model": "cv", "status": "confirmed" if confirmed else "tentative",
+            "sensors": sensors}
+
+
+def picture_to_replay(pic: TrackPicture) -> dict[str, Any]:
+    """The picture line ``{"t", "tracks": [...]}`` that ``replay --algorithm mtt-*`` writes."""
+    return {"t": pic.t, "tracks": [picture_track_row(tr.id, tr.x, tr.P, tr.confirmed, list(tr.sensors))
+                                   for tr in pic.tracks]}
 
 
 def _json_field(obj: dict[str, Any], key: str, where: str) -> Any:

@@ -14,6 +14,10 @@ fusion deadline (realtime) and exits 0.
 Kinds: ``position`` (paper 004 scenario with the ``[[sensor]]`` R, the default),
 ``sonar`` (cluttered scans with amplitudes, paper 001, table ``[sonar]``) and ``radar``
 (range/azimuth/elevation, paper 002, table ``[radar]``); all seeded by ``deployment.seed``.
+``scan``: a multi-target sensor publishing its own lines of a multi-target measurements file
+(``--measurements``, as ``fedtrack simulate multitarget`` writes it), in time order, scan
+``k`` at wall-clock time ``start + t_k / speed`` (realtime pacing only: each sensor keeps its
+own period and phase).
 """
 
 from __future__ import annotations
@@ -29,6 +33,8 @@ import numpy as np
 
 from fedtrack.config import load_tables
 from fedtrack.deployment import PACINGS, DeploymentConfig, SensorConfig
+from fedtrack.jsonl import InputError, read_jsonl
+from fedtrack.local_filters.mtt.scan import SensorScan, parse_scan, scan_to_measurement
 from fedtrack.sensors.radar import RadarConfig, radar_scans
 from fedtrack.sensors.scenarios import (
     deployment_scenario,
@@ -39,7 +45,7 @@ from fedtrack.sensors.sonar import SonarConfig, sonar_scans
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
 from fedtrack.wire import FusedTrack, Measurement, measurement_from_replay
 
-KINDS = ("position", "sonar", "radar")
+KINDS = ("position", "sonar", "radar", "scan")
 
 
 
@@ -87,9 +93,12 @@ class SensorService(Service):
     tick_period_s = 0.01
 
     def __init__(self, lines: list[dict[str, Any]], period_s: float, pacing: str, speed: float,
-                 lockstep_timeout_s: float, start_at: float | None = None, **kwargs: Any) -> None:
+                 lockstep_timeout_s: float, start_at: float | None = None, scans: list[SensorScan] | None = None,
+                 **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.lines = lines
+        self.scans = scans  # multi-target scans (kind scan), published at their own times
+        self.speed = speed
         self.pacing = pacing
         self.interval_s = period_s / speed
         self.lockstep_timeout_s = lockstep_timeout_s
@@ -107,7 +116,7 @@ class SensorService(Service):
         """A restarted sensor resumes at the current scan: the one due now (realtime) or the one
         after the fusion centre's latest track (lockstep); its missed scans are not sent."""
         if self.pacing == "realtime" and self.start_at is not None and time.time() > self.start_at:
-            self.next_seq = min(math.ceil((time.time() - self.start_at) / self.interval_s), len(self.lines))
+            self.next_seq = sum(1 for when in self._times() if when < time.time() - self.start_at)
         elif self.pacing == "lockstep":
             latest = self.query(self.keys.fusion_state(), FusedTrack)
             if latest:
@@ -135,12 +144,24 @@ class SensorService(Service):
         else:
             if self.start_at is None:
                 self.start_at = time.time()
-            due = time.time() >= self.start_at + self.next_seq * self.interval_s
+            due = time.time() >= self.start_at + self._times()[self.next_seq]
         if due:
             self.publish_scan(now)
 
+    def _times(self) -> list[float]:
+        """Seconds after the start at which each scan is due (realtime)."""
+        if self.scans is not None:
+            return [scan.t / self.speed for scan in self.scans]
+        return [k * self.interval_s for k in range(len(self.lines))]
+
     def publish_scan(self, now: float) -> None:
         seq = self.next_seq
+        if self.scans is not None:
+            self.publish(self.keys.sensor_meas(self.id), scan_to_measurement(self.scans[seq], seq, time.time_ns()))
+            self.count("scans")
+            self.next_seq += 1
+            self.last_publish = now
+            return
         line = self.lines[seq]
         msg = measurement_from_replay(line, f"scan {seq}", seq=seq)
         self.publish(self.keys.sensor_meas(self.id), Measurement(
@@ -154,6 +175,8 @@ class SensorService(Service):
 def add_sensor_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=Path, help="deployment TOML ([deployment], [[sensor]])")
     parser.add_argument("--kind", choices=KINDS, default="position")
+    parser.add_argument("--measurements", type=Path,
+                        help="kind scan: the multi-target measurements file whose lines of this sensor to publish")
     parser.add_argument("--scenario", type=int, choices=(1, 2), help="paper 004 scenario (overrides config)")
     parser.add_argument("--seed", type=int, help="deployment seed (overrides config)")
     parser.add_argument("--pacing", choices=PACINGS, help="overrides config (default lockstep)")
@@ -178,6 +201,21 @@ def main(argv: list[str]) -> int:
         settings.deployment.validate()
     if args.lockstep_timeout <= 0:
         parser.error("--lockstep-timeout must be > 0")
+    if args.kind == "scan":
+        if args.measurements is None or settings.deployment.pacing != "realtime":
+            parser.error("--kind scan needs --measurements FILE and realtime pacing")
+        scans = own_scans(args.measurements, args.id)
+        return SensorService([{} for _ in scans], 1.0, "realtime", settings.deployment.speed, args.lockstep_timeout,
+                             args.start_at, scans=scans, **service_kwargs(parser, args)).run()
     lines, period = scan_source(args.kind, settings, args.id)
     return SensorService(lines, period, settings.deployment.pacing, settings.deployment.speed,
                          args.lockstep_timeout, args.start_at, **service_kwargs(parser, args)).run()
+
+
+def own_scans(path: Path, sensor: str) -> list[SensorScan]:
+    """The scans of ``sensor`` in a multi-target measurements file, in time order (InputError if none)."""
+    scans = [parse_scan(obj, f"{path}:{lineno}") for lineno, obj in read_jsonl(path)]
+    own = sorted((s for s in scans if s.sensor == sensor), key=lambda s: s.t)
+    if not own:
+        raise InputError(f"{path}: no scan of sensor {sensor!r}")
+    return own

@@ -15,13 +15,24 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from test_wire import event, fused, health, local_estimate, position, reset
+from test_wire import (
+    event,
+    fused,
+    health,
+    local_estimate,
+    position,
+    reset,
+    track_picture,
+    track_report,
+    track_resets,
+)
 
 from fedtrack.wire import MESSAGE_TYPES, WireError, decode, encode
 
 pytestmark = pytest.mark.fuzz
 
-SAMPLES = {type(m): m for m in (position(), local_estimate(), reset(), fused(), event(), health())}
+SAMPLES = {type(m): m for m in (position(), local_estimate(), reset(), fused(), event(), health(), track_report(),
+                                track_resets(), track_picture())}
 PAYLOADS = 10_000  # per message type
 
 numbers = st.one_of(st.integers(min_value=-(2**63), max_value=2**64 - 1),

@@ -17,10 +17,17 @@ from fedtrack.wire import (
     FusedTrack,
     Health,
     LocalEstimate,
+    LocalReset,
+    LocalTrack,
     ManeuverEvent,
     ManeuverInfo,
     Measurement,
+    Observation,
+    PictureTrack,
     Reset,
+    TrackPicture,
+    TrackReport,
+    TrackResets,
     WireError,
     decode,
     encode,
@@ -359,3 +366,44 @@ def test_encoder_refuses_payloads_over_the_limit(monkeypatch: pytest.MonkeyPatch
     monkeypatch.setattr(wire, "MAX_PAYLOAD_BYTES", len(encode(msg)) - 1)
     with pytest.raises(WireError, match=r"^Measurement: encoded size \d+ bytes exceeds the limit"):
         encode(msg)
+
+
+def track_report() -> TrackReport:
+    return TrackReport(sensor="s2", seq=11, t=1.1, tracks=(LocalTrack(4, RNG.normal(size=4), spd(4), True, True),
+                                                           LocalTrack(7, RNG.normal(size=4), spd(4), False, False)),
+                       observations=(Observation(RNG.normal(size=(2, 4)), spd(2), RNG.normal(size=2), False),),
+                       retired=(1, 3), stamp_ns=23)
+
+
+def track_resets() -> TrackResets:
+    return TrackResets(sensor="s2", seq=11, t=1.1, q_scale=3.0,
+                       resets=(LocalReset(4, RNG.normal(size=4), spd(4)),))
+
+
+def track_picture() -> TrackPicture:
+    return TrackPicture(seq=2, t=2.0, tracks=(PictureTrack(9, RNG.normal(size=6), spd(6), True, ("s1", "s2")),),
+                        fused_sensors=("s1", "s2"), fused_seqs=(5, 7), stamp_ns=24)
+
+
+def scan() -> Measurement:
+    return Measurement(sensor="s3", seq=2, t=0.2, kind="scan", z=np.zeros(0), R=spd(3),
+                       detections=((np.array([900.0, 0.1, 0.02]), 0.0),), sensor_position=np.zeros(3), stamp_ns=5)
+
+
+@pytest.mark.parametrize("make", [track_report, track_resets, track_picture, scan])
+def test_multitarget_messages_round_trip(make) -> None:
+    msg = make()
+    back = decode(encode(msg), type(msg))
+    assert encode(back) == encode(msg)
+
+
+@pytest.mark.parametrize("change, field", [
+    (lambda m: TrackReport(**{**vars(m), "tracks": m.tracks + (m.tracks[0],)}), "tracks"),  # repeated id
+    (lambda m: TrackReport(**{**vars(m), "observations": ()}), "observations"),  # one per detected track
+    (lambda m: TrackResets(**{**vars(track_resets()), "q_scale": 0.5}), "q_scale"),
+    (lambda m: TrackPicture(**{**vars(track_picture()), "fused_seqs": (5,)}), "fused_seqs"),
+    (lambda m: TrackPicture(**{**vars(track_picture()), "closing": True}), "tracks"),  # a closing record has none
+])
+def test_multitarget_messages_are_checked(change, field: str) -> None:
+    with pytest.raises(WireError, match=field):
+        change(track_report())

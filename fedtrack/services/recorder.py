@@ -1,7 +1,7 @@
 """``fedtrack serve recorder --db PATH [--out DIR]``: record a deployment durably in SQLite.
 
-Every measurement, local estimate, fused track and maneuver event is a row of the
-database (schema and durability: :mod:`fedtrack.recording`), committed before the next
+Every measurement, local estimate, fused track, maneuver event and multi-target picture
+is a row of the database (schema and durability: :mod:`fedtrack.recording`), committed before the next
 message is handled, so a SIGKILL loses nothing that was committed. The recorder
 subscribes with ``zenoh.ext`` advanced subscribers (history + recovery): restarted on
 the same database it receives what the publishers still hold in their caches (what
@@ -40,7 +40,8 @@ class Recorder(Service):
 
     def subscriptions(self) -> list[Subscription]:
         keys = {"measurements": self.keys.sensor_meas(), "estimates": self.keys.local_estimate(),
-                "tracks": self.keys.fusion_track(), "events": self.keys.fusion_event()}
+                "tracks": self.keys.fusion_track(), "events": self.keys.fusion_event(),
+                "pictures": self.keys.mtt_picture()}
         return [Subscription(keys[t.name], t.msg_type, self.on_message, history=True, raw=True) for t in TABLES]
 
     def on_start(self) -> None:

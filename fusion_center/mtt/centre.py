@@ -35,7 +35,6 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass, field
-from typing import NamedTuple
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -43,6 +42,7 @@ from scipy.spatial import cKDTree
 
 from fedtrack.fusion_center.mtt.central_track import CentralTrack, append, fuse, start, state_at
 from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.mtt.local import LocalReport, Reset
 from fedtrack.local_filters.mtt.models import predict_batch
 from fedtrack.local_filters.mtt.tracker import kalman_update
 
@@ -52,33 +52,6 @@ LocalKey = tuple[str, int]  # (sensor, local track id)
 # target with P_D = 0.9, where the centralized rule's 3 misses in a row (1e-3) drop a live
 # target about once a minute among 60 targets seen by 3 sensors.
 CENTRAL_MISSES = 2
-
-
-class LocalReport(NamedTuple):
-    """One local tracker's output for one scan, local tracks in the local state size ``d``."""
-
-    sensor: str
-    t: float
-    ids: np.ndarray  # (N,) every live local track
-    x: np.ndarray  # (N, d)
-    P: np.ndarray  # (N, d, d)
-    confirmed: np.ndarray  # (N,)
-    detected: np.ndarray  # (N,) bool: tracks this scan updated or started
-    obs_H: np.ndarray  # (K, m, d) for the detected tracks in order
-    obs_R: np.ndarray  # (K, m, m)
-    obs_z: np.ndarray  # (K, m)
-    started: np.ndarray  # (K,) bool: the detected track started at this scan
-    retired: np.ndarray  # ids deleted by this scan
-
-
-class Reset(NamedTuple):
-    """Federated feedback for one local track: ``x`` and ``beta_i P`` at ``t`` (local state size)."""
-
-    sensor: str
-    local_id: int
-    t: float
-    x: np.ndarray
-    P: np.ndarray
 
 
 @dataclass
@@ -387,6 +360,15 @@ class TrackToTrackCentre:
             fresh.add(key)
             self.counters.started += 1
         return fresh
+
+    def answer(self, report: LocalReport) -> tuple[list[Reset], float]:
+        """Everything the centre does with one report: fuse it, then delete unsupported central
+        tracks; returns the resets for its sensor and the process-noise factor (the number of
+        live sensors, 1 when decentralized) for that sensor's next scan."""
+        resets = self.ingest(report)
+        q_scale = float(max(len(self.live_sensors(report.t)), 1)) if self.feedback else 1.0
+        self.prune(report.t)
+        return resets, q_scale
 
     def prune(self, now: float) -> None:
         """Delete central tracks no local track maps to, or unsupported for ``central_timeout``."""

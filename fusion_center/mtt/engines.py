@@ -20,26 +20,23 @@ from typing import Any
 import numpy as np
 
 from fedtrack.fusion_center.mtt.central_track import state_at
-from fedtrack.fusion_center.mtt.centre import LocalReport, TrackToTrackCentre
+from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
 from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.mtt.local import (
+    LocalReport,
+    LocalTracker,
+    Reset,
+    adopt,
+    is_late,
+    local_step,
+    new_local_tracker,
+)
 from fedtrack.local_filters.mtt.models import motion, predict_tracks
 from fedtrack.local_filters.mtt.scan import SensorScan
-from fedtrack.local_filters.mtt.tracker import (
-    TrackerState,
-    initial_state,
-    track_params,
-    tracker_step,
-)
+from fedtrack.local_filters.mtt.tracker import TrackerState, initial_state, track_params, tracker_step
+from fedtrack.wire import picture_track_row
 
 ALGORITHMS = ("mtt-local", "mtt-centralized", "mtt-federated", "mtt-decentralized")
-
-
-def track_record(tid: int, x: np.ndarray, P: np.ndarray, confirmed: bool, sensors: list[str]) -> dict[str, Any]:
-    """One track of a picture line (docs/multitarget-formats.md)."""
-    k = x.shape[0] // 2
-    return {"id": int(tid), "pos": x[0::2][:k].tolist(), "vel": x[1::2][:k].tolist(), "x": x.tolist(),
-            "P": P.tolist(), "model": "cv", "status": "confirmed" if confirmed else "tentative",
-            "sensors": sensors}
 
 
 def tracker_picture(state: TrackerState, T: float, cfg: MttConfig, sensors: list[str]) -> list[dict[str, Any]]:
@@ -49,7 +46,7 @@ def tracker_picture(state: TrackerState, T: float, cfg: MttConfig, sensors: list
     x, P = tr.x, tr.P
     if state.t is not None and T > state.t:
         x, P = predict_tracks(x, P, motion(x.shape[1], round(T - state.t, 12), cfg.q, cfg.noise_model))
-    return [track_record(i, x[k], P[k], bool(tr.confirmed[k]), sensors) for k, i in enumerate(tr.ids.tolist())]
+    return [picture_track_row(i, x[k], P[k], bool(tr.confirmed[k]), sensors) for k, i in enumerate(tr.ids.tolist())]
 
 
 @dataclass
@@ -147,36 +144,31 @@ class CentralizedEngine(Engine):
 
 @dataclass
 class TrackToTrackEngine(Engine):
-    """``mtt-federated`` (``feedback``) or ``mtt-decentralized``: local trackers plus the centre."""
+    """``mtt-federated`` (``feedback``) or ``mtt-decentralized``: local trackers plus the centre.
+
+    A scan goes through its sensor's tracker (:func:`local_step`), the report through the centre,
+    and the centre's resets and next process-noise factor (the number of live sensors) back to
+    the tracker (:func:`adopt`): what the live services do message by message."""
 
     feedback: bool = True
-    local: dict[str, TrackerState] = field(default_factory=dict)
+    local: dict[str, LocalTracker] = field(default_factory=dict)
     centre: TrackToTrackCentre | None = None
 
     def ingest(self, scan: SensorScan) -> None:
+        tracker = self.local.get(scan.sensor) or new_local_tracker(scan)
+        if is_late(tracker, scan):
+            self.late += 1
+            return
+        tracker, report = local_step(tracker, scan, self.cfg)
+        resets, q_scale = self.fuse(report)
+        self.local[scan.sensor] = adopt(tracker, resets, q_scale)
+
+    def fuse(self, report: LocalReport) -> tuple[list[Reset], float]:
+        """The centre's part of a scan, as the live centre does it per report."""
         if self.centre is None:
             self.centre = TrackToTrackCentre(self.cfg, self.dim, self.feedback)
-        d = 6 if scan.sensor_position is not None else 4
-        state = self.local.get(scan.sensor) or initial_state(d)
-        if state.t is not None and scan.t < state.t:
-            self.late += 1  # a sensor's own scans out of order: its link is not FIFO
-            return
         self.scans += 1
-        beta = float(max(len(self.centre.live_sensors(scan.t)), 1)) if self.feedback else 1.0
-        res = tracker_step(state, scan, track_params(self.cfg, scan.sensor, d), q_scale=beta)
-        tr = res.state.tracks
-        started = tr.age[res.detected] == 1
-        report = LocalReport(scan.sensor, scan.t, tr.ids, tr.x, tr.P, tr.confirmed, res.detected,
-                             *res.observations, started, res.retired)
-        resets = self.centre.ingest(report)
-        if resets:
-            x, P = tr.x.copy(), tr.P.copy()
-            row = {int(i): k for k, i in enumerate(tr.ids.tolist())}
-            for r in resets:
-                x[row[r.local_id]], P[row[r.local_id]] = r.x, r.P
-            tr = tr._replace(x=x, P=P)
-        self.local[scan.sensor] = res.state._replace(tracks=tr)
-        self.centre.prune(scan.t)
+        return self.centre.answer(report)
 
     def picture(self, T: float) -> list[dict[str, Any]]:
         if self.centre is None:
@@ -185,7 +177,7 @@ class TrackToTrackEngine(Engine):
         out = []
         for cid, track in sorted(c.tracks.items()):
             x, P = state_at(track, T, self.cfg.q, self.cfg.noise_model)
-            out.append(track_record(cid, x, P, track.confirmed, c.sensors_of(cid)))
+            out.append(picture_track_row(cid, x, P, track.confirmed, c.sensors_of(cid)))
         return out
 
     def counters(self) -> dict[str, int]:

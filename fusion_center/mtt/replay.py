@@ -11,6 +11,7 @@ scan up to ``T`` that is not late.
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass
 import json
 import math
 import sys
@@ -36,21 +37,45 @@ def read_scans(path: Path, cfg: MttConfig) -> list[SensorScan]:
     return scans
 
 
+@dataclass
+class PictureClock:
+    """When pictures are due: the picture at ``T = k period`` once a scan later than
+    ``T + delay`` arrives (``high`` is the latest scan time seen), the rest at the end."""
+
+    period: float
+    delay: float
+    k: int | None = None
+    high: float = -math.inf
+
+    def due(self, t: float) -> list[float]:
+        """Picture times due before a scan at ``t`` is ingested."""
+        if self.k is None:
+            self.k = math.ceil(t / self.period - 1e-9)
+        self.high = max(self.high, t)
+        out = []
+        while self.k * self.period + self.delay < self.high:
+            out.append(self.k * self.period)
+            self.k += 1
+        return out
+
+    def final(self) -> list[float]:
+        """Picture times still due at the end of the data."""
+        out = []
+        while self.k is not None and self.k * self.period <= self.high + 1e-9:
+            out.append(self.k * self.period)
+            self.k += 1
+        return out
+
+
 def pictures(engine: Engine, scans: list[SensorScan], period: float, delay: float) -> Iterator[dict[str, Any]]:
     """Feed ``scans`` in arrival order and yield each picture once the data has passed its time."""
-    if not scans:
-        return
-    k = math.ceil(scans[0].t / period - 1e-9)
-    high = -math.inf
+    clock = PictureClock(period, delay)
     for scan in scans:
-        high = max(high, scan.t)
-        while k * period + delay < high:
-            yield {"t": k * period, "tracks": engine.picture(k * period)}
-            k += 1
+        for T in clock.due(scan.t):
+            yield {"t": T, "tracks": engine.picture(T)}
         engine.ingest(scan)
-    while k * period <= high + 1e-9:
-        yield {"t": k * period, "tracks": engine.picture(k * period)}
-        k += 1
+    for T in clock.final():
+        yield {"t": T, "tracks": engine.picture(T)}
 
 
 def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Path,

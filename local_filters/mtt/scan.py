@@ -17,6 +17,7 @@ import numpy as np
 
 from fedtrack.jsonl import COMMON_FIELDS, InputError, as_covariance, as_float, as_vector, check_fields, require
 from fedtrack.keys import InvalidName, check_id
+from fedtrack.wire import Measurement
 
 SCAN_FIELDS = COMMON_FIELDS | {"detections", "sensor_position"}
 DETECTION_FIELDS = frozenset({"z", "amplitude"})
@@ -70,3 +71,27 @@ def parse_scan(obj: dict[str, Any], where: str) -> SensorScan:
     if sensor_position is not None and np.any(z[:, 0] <= 0):
         raise InputError(f"{where}: radar range must be > 0")
     return SensorScan(t, sensor, R, z, amp if has_amp else None, sensor_position)
+
+
+def scan_to_measurement(scan: SensorScan, seq: int, stamp_ns: int) -> Measurement:
+    """The wire form (``kind = "scan"``; amplitude 0 on every detection when the scan has none)."""
+    amp = scan.amplitude if scan.amplitude is not None else np.zeros(scan.z.shape[0])
+    return Measurement(sensor=scan.sensor, seq=seq, t=scan.t, kind="scan", z=np.zeros(0), R=scan.R,
+                       detections=tuple(zip(scan.z, amp.tolist())), sensor_position=scan.sensor_position,
+                       stamp_ns=stamp_ns)
+
+
+def scan_from_measurement(msg: Measurement) -> SensorScan:
+    """Inverse of :func:`scan_to_measurement`; ValueError naming the field for a measurement that
+    is not a valid multi-target scan (another kind, wrong sizes, a radar range <= 0)."""
+    if msg.kind != "scan":
+        raise ValueError(f"kind: expected 'scan', got {msg.kind!r}")
+    m = 2 if msg.sensor_position is None else 3
+    if msg.R.shape != (m, m) or (msg.sensor_position is not None and msg.sensor_position.shape != (3,)):
+        raise ValueError(f"R: expected ({m}, {m}) for a {'radar' if m == 3 else 'position'} scan, got {msg.R.shape}")
+    z = np.array([d.z for d in msg.detections]).reshape(-1, m)
+    amp = np.array([d.amplitude for d in msg.detections])
+    if msg.sensor_position is not None and np.any(z[:, 0] <= 0):
+        raise ValueError("detections: radar range must be > 0")
+    return SensorScan(msg.t, msg.sensor, np.array(msg.R), z, amp if np.any(amp != 0) else None,
+                      None if msg.sensor_position is None else np.array(msg.sensor_position))

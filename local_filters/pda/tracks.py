@@ -74,6 +74,7 @@ class ExistenceConfig:
     max_tentative: int = 200
     false_track_rate: float = 0.01
     one_track_per_detection: bool = True
+    clutter_from_scans: bool = True
 
     def evidence_threshold(self, births: int) -> float:
         """``log(births / false_track_rate)``; ``-inf`` with the test off."""
@@ -158,12 +159,40 @@ def join(a: TrackSet, b: TrackSet) -> TrackSet:
 
 
 class ManagerState(NamedTuple):
-    """Live tracks, time of the last scan and its unassociated detections."""
+    """Live tracks, time of the last scan and its unassociated detections; the decayed sums of
+    clutter counts and areas behind the scans' own clutter density estimate."""
 
     tracks: TrackSet
     t: float | None
     pending: np.ndarray  # (U, 2)
     next_id: int
+    clutter_count: float = 0.0
+    clutter_area: float = 0.0
+
+
+CLUTTER_MEMORY = 0.8  # weight of the previous scans in the clutter density estimate
+MIN_CLUTTER_SAMPLE = 20  # detections a scan needs to say something about the clutter density
+
+
+def scan_clutter(z: np.ndarray) -> tuple[float, float]:
+    """Clutter count and area of one scan: ``M - 1`` detections (one may be a target) over their
+    bounding box, each side widened by ``(M + 1) / (M - 1)`` (the expected range of ``M``
+    uniform points is ``(M - 1) / (M + 1)`` of the interval); ``(0, 0)`` for small scans."""
+    m = z.shape[0]
+    if m < MIN_CLUTTER_SAMPLE:
+        return 0.0, 0.0
+    sides = (np.max(z, axis=0) - np.min(z, axis=0)) * (m + 1) / (m - 1)
+    return float(m - 1), float(np.prod(sides))
+
+
+def scan_constants(spec: TrackerSpec, ms: ManagerState) -> Constants:
+    """The association constants for the next scan: with ``clutter_from_scans`` the clutter
+    density is the larger of the configured one and the scans' own estimate, so that a scene
+    denser than configured cannot raise the likelihood ratios of clutter above 1 (which would
+    void the false-track test and let clutter tracks confirm and live on)."""
+    if not spec.existence.clutter_from_scans or ms.clutter_area <= 0.0:
+        return spec.c
+    return spec.c._replace(lam=max(spec.c.lam, ms.clutter_count / ms.clutter_area))
 
 
 class ScanReport(NamedTuple):
@@ -200,18 +229,18 @@ def shared_detection_losers(dominant: np.ndarray, evidence: np.ndarray, senior: 
     return losers & ~senior
 
 
-def _update_tracks(spec: TrackerSpec, tracks: TrackSet, dt: float, z: np.ndarray,
+def _update_tracks(spec: TrackerSpec, c: Constants, tracks: TrackSet, dt: float, z: np.ndarray,
                    amplitude: np.ndarray, R: np.ndarray) -> Updated:
     """Predict, gate, associate and update every track, then confirm those that pass."""
     p = spec.params
     model = _model(dt, p.sigma_a, p.tau_s)
     pred = predict(tracks.state, model.F, model.Q)
     n = len(tracks)
-    index, valid = candidates(pred, z, model.H, R, spec.c)
+    index, valid = candidates(pred, z, model.H, R, c)
     aa = amplitude[index]
-    g = gate(pred, z[index], valid, model.H, R, spec.c)
-    post, log_lr = associate(spec.algorithm, pred, g, aa, spec.c)
-    said = scan_evidence(g, aa, spec.c)
+    g = gate(pred, z[index], valid, model.H, R, c)
+    post, log_lr = associate(spec.algorithm, pred, g, aa, c)
+    said = scan_evidence(g, aa, c)
     dominant = original_index(said.dominant, index)
     evidence = tracks.evidence + said.log_lr
     e = spec.existence
@@ -279,17 +308,18 @@ def manager_step(spec: TrackerSpec, ms: ManagerState, t: float, z: np.ndarray,
                  amplitude: np.ndarray, R: np.ndarray) -> tuple[ManagerState, ScanReport]:
     """Process one scan (detections ``z`` (M, 2), ``amplitude`` (M,), covariance ``R``)."""
     e = spec.existence
+    c = scan_constants(spec, ms)
     dt = 0.0 if ms.t is None else float(t - ms.t)
     tracks = ms.tracks
     was_confirmed = tracks.confirmed
     claimed = np.zeros(z.shape[0], dtype=bool)
     losers = np.zeros(len(tracks), dtype=bool)
     if len(tracks):
-        tracks, inside, losers = _update_tracks(spec, tracks, dt, z, amplitude, R)
+        tracks, inside, losers = _update_tracks(spec, c, tracks, dt, z, amplitude, R)
         claimed = np.any(inside & tracks.confirmed[:, None], axis=0)
     newly = tracks.confirmed & ~was_confirmed
     keep = (tracks.existence >= e.delete_threshold) & ~losers
-    keep &= ~duplicates(tracks, was_confirmed, R, spec.c)
+    keep &= ~duplicates(tracks, was_confirmed, R, c)
     keep &= ~surplus_tentative(tracks, keep, e.max_tentative)
     deleted = tracks.take(~keep)
     tracks, newly = tracks.take(keep), newly[keep]
@@ -304,5 +334,7 @@ def manager_step(spec: TrackerSpec, ms: ManagerState, t: float, z: np.ndarray,
             newly = np.concatenate([newly, np.zeros(i.size, dtype=bool)])
             ms = ms._replace(next_id=ms.next_id + i.size)
     pending = free if dt > 0.0 or ms.t is None else np.concatenate([ms.pending, free])
-    return (ManagerState(tracks, float(t), pending, ms.next_id),
+    count, area = scan_clutter(z)
+    return (ManagerState(tracks, float(t), pending, ms.next_id, CLUTTER_MEMORY * ms.clutter_count + count,
+                         CLUTTER_MEMORY * ms.clutter_area + area),
             ScanReport(tracks, deleted, newly))

@@ -1,0 +1,173 @@
+"""``fedtrack serve mtt-centre --algorithm mtt-federated|mtt-decentralized|mtt-centralized
+[--dim 4|6] [--config TOML]``: the multi-target fusion centre.
+
+Track-to-track (``mtt-federated``, ``mtt-decentralized``): consumes the local trackers'
+``TrackReport`` s (``local/*/tracks``) and runs :meth:`TrackToTrackCentre.answer` on each, in
+arrival order; federated, it answers each report with the sensor's ``TrackResets``
+(``fusion/mtt-resets/<id>``). Measurement level (``mtt-centralized``): consumes the sensors'
+scans (``sensor/*/meas``) and runs the centralized tracker (roll-back for out-of-sequence
+scans). Every ``period`` seconds of data it publishes a ``TrackPicture`` (``fusion/picture``)
+by the replay's rule (:class:`fedtrack.fusion_center.mtt.replay.PictureClock`), carrying the
+scans it processed since the previous picture in its processing order; on a clean stop it
+publishes the pictures still due. ``fedtrack replay`` of the recorded scans in that order
+gives the same pictures.
+
+``--dim``: the central state size, 6 when any sensor is a radar (the replay's rule on the
+recorded scans). Rejected (docs/wire.md#rejections): a sensor the config does not allow
+(``unknown_sensor``), a report of another state size or a scan of another kind
+(``wrong_model``), a second, different message for a (sensor, scan) already taken
+(``conflict``; an identical one is a ``duplicate``) and a scan number more than
+``[deployment] max_seq_jump`` ahead of the sensor's last (``seq_jump``).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from fedtrack.config import ConfigError, load_tables
+from fedtrack.deployment import DeploymentSettings
+from fedtrack.fusion_center.mtt.engines import CentralizedEngine, TrackToTrackEngine
+from fedtrack.fusion_center.mtt.replay import PictureClock
+from fedtrack.local_filters.mtt.config import MttConfig, MttSettings
+from fedtrack.local_filters.mtt.local import report_from_wire, resets_to_wire
+from fedtrack.local_filters.mtt.scan import scan_from_measurement
+from fedtrack.services.base import Rejected, Service, Subscription, service_kwargs, service_parser
+from fedtrack.wire import Measurement, PictureTrack, TrackPicture, TrackReport, encode
+
+ALGORITHMS = ("mtt-federated", "mtt-decentralized", "mtt-centralized")
+
+
+class ReceivedScans:
+    """Per sensor, the scan numbers taken (with their payloads, for duplicates and conflicts)."""
+
+    def __init__(self, max_seq_jump: int) -> None:
+        self.max_seq_jump = max_seq_jump
+        self.taken: dict[str, dict[int, bytes]] = {}
+
+    def take(self, sensor: str, seq: int, body: bytes) -> bool:
+        """True for a new scan; False for an identical repeat; Rejected for a conflict or a jump."""
+        seen = self.taken.setdefault(sensor, {})
+        if seq in seen:
+            if seen[seq] == body:
+                return False
+            raise Rejected("conflict", f"a second, different message for scan {seq} of {sensor!r} (the first stays)")
+        if seen and seq > max(seen) + self.max_seq_jump:
+            raise Rejected("seq_jump", f"scan {seq} of {sensor!r} is more than {self.max_seq_jump} after {max(seen)}")
+        seen[seq] = body
+        if len(seen) > 4 * self.max_seq_jump:
+            del seen[min(seen)]
+        return True
+
+
+class MttCentreService(Service):
+    """The multi-target fusion centre."""
+
+    role = "mtt-centre"
+
+    def __init__(self, algorithm: str, cfg: MttConfig, dim: int = 4, max_seq_jump: int = 1000,
+                 **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        if algorithm not in ALGORITHMS:
+            raise ConfigError(f"algorithm: expected one of {', '.join(ALGORITHMS)}, got {algorithm!r}")
+        self.algorithm = algorithm
+        self.cfg = cfg
+        self.dim = dim
+        self.received = ReceivedScans(max_seq_jump)
+        self.engine: CentralizedEngine | TrackToTrackEngine = (
+            CentralizedEngine(cfg, dim) if algorithm == "mtt-centralized"
+            else TrackToTrackEngine(cfg, dim, feedback=algorithm == "mtt-federated"))
+        self.clock = PictureClock(cfg.period, cfg.picture_delay)
+        self.order: list[tuple[str, int]] = []  # scans processed since the last picture
+        self.pictures = 0
+
+    def subscriptions(self) -> list[Subscription]:
+        if self.algorithm == "mtt-centralized":
+            return [Subscription(self.keys.sensor_meas(), Measurement, self.on_scan)]
+        return [Subscription(self.keys.mtt_report(), TrackReport, self.on_report)]
+
+    def _admit(self, sensor: str, seq: int, msg: Any) -> bool:
+        if not self.cfg.allows(sensor):
+            raise Rejected("unknown_sensor", f"sensor {sensor!r} is not in mtt.sensors")
+        return self.received.take(sensor, seq, encode(replace(msg, stamp_ns=0)))
+
+    def _process(self, sensor: str, seq: int, t: float, work: Callable[[], None]) -> None:
+        """Publish the pictures due before data at ``t``, then do ``work`` and note the scan."""
+        for T in self.clock.due(t):
+            self._publish_picture(T)
+        work()
+        self.order.append((sensor, seq))
+
+    def on_scan(self, msg: Measurement) -> None:
+        try:
+            scan = scan_from_measurement(msg)
+        except ValueError as exc:
+            raise Rejected("wrong_model", str(exc)) from None
+        if scan.sensor_position is not None and self.dim != 6:
+            raise Rejected("wrong_model", "a radar scan at a 2-D centre (--dim 4)")
+        if not self._admit(msg.sensor, msg.seq, msg):
+            self.count("duplicate")
+            return
+        self._process(msg.sensor, msg.seq, msg.t, lambda: self.engine.ingest(scan))
+
+    def on_report(self, msg: TrackReport) -> None:
+        d = msg.tracks[0].x.shape[0] if msg.tracks else None
+        if d is not None and (d not in (4, 6) or d > self.dim):
+            raise Rejected("wrong_model", f"local state of size {d} at a centre of size {self.dim}")
+        if not self._admit(msg.sensor, msg.seq, msg):
+            self.count("duplicate")
+            return
+        report = report_from_wire(msg)
+        engine = self.engine
+        assert isinstance(engine, TrackToTrackEngine)
+
+        def fuse() -> None:
+            resets, q_scale = engine.fuse(report)
+            if engine.feedback:
+                self.publish(self.keys.mtt_resets(msg.sensor),
+                             resets_to_wire(msg.sensor, msg.seq, msg.t, resets, q_scale))
+        self._process(msg.sensor, msg.seq, msg.t, fuse)
+
+    def _publish_picture(self, T: float, closing: bool = False) -> None:
+        tracks = () if closing else tuple(
+            PictureTrack(row["id"], np.array(row["x"]), np.array(row["P"]), row["status"] == "confirmed",
+                         tuple(row["sensors"])) for row in self.engine.picture(T))
+        self.publish(self.keys.mtt_picture(), TrackPicture(
+            seq=self.pictures, t=T, tracks=tracks, fused_sensors=tuple(s for s, _ in self.order),
+            fused_seqs=tuple(q for _, q in self.order), stamp_ns=time.time_ns(), closing=closing))
+        self.pictures += 1
+        self.order = []
+        self.counters["pictures"] = self.pictures
+        for name, value in self.engine.counters().items():
+            self.counters[name] = value
+
+    def on_stop(self) -> None:
+        """The pictures still due at the end of the data (as the replay writes them), then the
+        closing record of the scans processed after the last picture."""
+        for T in self.clock.final():
+            self._publish_picture(T)
+        if self.order:
+            self._publish_picture(self.clock.high, closing=True)
+
+
+def main(argv: list[str]) -> int:
+    parser = service_parser("mtt-centre", "the multi-target fusion centre")
+    parser.add_argument("--algorithm", choices=ALGORITHMS, default="mtt-federated", help="(default: %(default)s)")
+    parser.add_argument("--dim", type=int, choices=(4, 6), default=4,
+                        help="central state size: 6 when any sensor is a radar (default: %(default)s)")
+    parser.add_argument("--config", help="configuration file; reads [mtt] and [deployment] (docs/multitarget.md)")
+    args = parser.parse_args(argv)
+    kwargs = service_kwargs(parser, args)
+    path = Path(args.config) if args.config else None
+    try:
+        cfg = load_tables(path, MttSettings).mtt
+        dep = load_tables(path, DeploymentSettings).deployment
+    except ConfigError as exc:
+        print(f"fedtrack serve mtt-centre: error: {exc}", file=sys.stderr)
+        return 2
+    return MttCentreService(args.algorithm, cfg, args.dim, dep.max_seq_jump, **kwargs).run()

@@ -1,0 +1,126 @@
+"""A sensor's local multi-target tracker as the fusion centre sees it: the report of each scan,
+the federated resets it adopts, and both as wire messages.
+
+The replay engine (:mod:`fedtrack.fusion_center.mtt.engines`) and the live service
+(:mod:`fedtrack.local_filters.mtt.service`) run the same :func:`local_step` and
+:func:`adopt`, so a deployment and the replay of its recorded scans agree exactly.
+
+Federated timing: the process-noise factor ``q_scale`` (``beta_i``, the number of live
+sensors) a tracker uses for a scan is the one the centre returned with the resets of the
+tracker's previous report (1 before the first answer), so a live tracker never needs to
+know what the centre knows at the moment its next scan arrives.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from fedtrack import wire
+from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.mtt.scan import SensorScan
+from fedtrack.local_filters.mtt.tracker import TrackerState, initial_state, track_params, tracker_step
+
+
+class LocalReport(NamedTuple):
+    """One local tracker's output for one scan, local tracks in the local state size ``d``."""
+
+    sensor: str
+    t: float
+    ids: np.ndarray  # (N,) every live local track
+    x: np.ndarray  # (N, d)
+    P: np.ndarray  # (N, d, d)
+    confirmed: np.ndarray  # (N,)
+    detected: np.ndarray  # (N,) bool: tracks this scan updated or started
+    obs_H: np.ndarray  # (K, m, d) for the detected tracks in order
+    obs_R: np.ndarray  # (K, m, m)
+    obs_z: np.ndarray  # (K, m)
+    started: np.ndarray  # (K,) bool: the detected track started at this scan
+    retired: np.ndarray  # ids deleted by this scan
+
+
+class Reset(NamedTuple):
+    """Federated feedback for one local track: ``x`` and ``beta_i P`` at ``t`` (local state size)."""
+
+    sensor: str
+    local_id: int
+    t: float
+    x: np.ndarray
+    P: np.ndarray
+
+
+class LocalTracker(NamedTuple):
+    """A local tracker's state and the process-noise factor for its next scan."""
+
+    state: TrackerState
+    q_scale: float = 1.0
+
+
+def new_local_tracker(scan: SensorScan) -> LocalTracker:
+    """An empty tracker for the sensor of ``scan`` (a 3-D state for a radar)."""
+    return LocalTracker(initial_state(6 if scan.sensor_position is not None else 4))
+
+
+def is_late(tracker: LocalTracker, scan: SensorScan) -> bool:
+    """A sensor's own scan older than its tracker (its link is not FIFO): dropped and counted."""
+    return tracker.state.t is not None and scan.t < tracker.state.t
+
+
+def local_step(tracker: LocalTracker, scan: SensorScan, cfg: MttConfig) -> tuple[LocalTracker, LocalReport]:
+    """Track one scan (not late) and report it."""
+    d = tracker.state.tracks.x.shape[1]
+    res = tracker_step(tracker.state, scan, track_params(cfg, scan.sensor, d), q_scale=tracker.q_scale)
+    tr = res.state.tracks
+    started = tr.age[res.detected] == 1
+    report = LocalReport(scan.sensor, scan.t, tr.ids, tr.x, tr.P, tr.confirmed, res.detected,
+                         *res.observations, started, res.retired)
+    return tracker._replace(state=res.state), report
+
+
+def adopt(tracker: LocalTracker, resets: list[Reset], q_scale: float) -> LocalTracker:
+    """Take the centre's resets (by local track id; ids no longer live are ignored) and the
+    process-noise factor for the next scan."""
+    tr = tracker.state.tracks
+    if resets:
+        x, P = tr.x.copy(), tr.P.copy()
+        row = {int(i): k for k, i in enumerate(tr.ids.tolist())}
+        for r in resets:
+            k = row.get(r.local_id)
+            if k is not None:
+                x[k], P[k] = r.x, r.P
+        tr = tr._replace(x=x, P=P)
+    return LocalTracker(tracker.state._replace(tracks=tr), q_scale)
+
+
+# ---------------------------------------------------------------- wire
+
+def report_to_wire(report: LocalReport, seq: int, stamp_ns: int) -> wire.TrackReport:
+    tracks = tuple(wire.LocalTrack(int(i), report.x[k], report.P[k], bool(report.confirmed[k]),
+                                   bool(report.detected[k])) for k, i in enumerate(report.ids.tolist()))
+    observations = tuple(wire.Observation(report.obs_H[j], report.obs_R[j], report.obs_z[j], bool(report.started[j]))
+                         for j in range(report.obs_z.shape[0]))
+    return wire.TrackReport(sensor=report.sensor, seq=seq, t=report.t, tracks=tracks, observations=observations,
+                            retired=tuple(int(i) for i in report.retired.tolist()), stamp_ns=stamp_ns)
+
+
+def report_from_wire(msg: wire.TrackReport) -> LocalReport:
+    d = msg.tracks[0].x.shape[0] if msg.tracks else 4
+    m = msg.observations[0].z.shape[0] if msg.observations else 2
+    tracks, obs = msg.tracks, msg.observations
+    return LocalReport(
+        msg.sensor, msg.t, np.array([tr.id for tr in tracks], dtype=np.int64),
+        np.array([tr.x for tr in tracks]).reshape(-1, d), np.array([tr.P for tr in tracks]).reshape(-1, d, d),
+        np.array([tr.confirmed for tr in tracks], dtype=bool), np.array([tr.detected for tr in tracks], dtype=bool),
+        np.array([o.H for o in obs]).reshape(-1, m, d), np.array([o.R for o in obs]).reshape(-1, m, m),
+        np.array([o.z for o in obs]).reshape(-1, m), np.array([o.started for o in obs], dtype=bool),
+        np.array(msg.retired, dtype=np.int64))
+
+
+def resets_to_wire(sensor: str, seq: int, t: float, resets: list[Reset], q_scale: float) -> wire.TrackResets:
+    return wire.TrackResets(sensor=sensor, seq=seq, t=t, q_scale=q_scale,
+                            resets=tuple(wire.LocalReset(r.local_id, r.x, r.P) for r in resets))
+
+
+def resets_from_wire(msg: wire.TrackResets) -> list[Reset]:
+    return [Reset(msg.sensor, r.id, msg.t, np.array(r.x), np.array(r.P)) for r in msg.resets]

@@ -1,0 +1,156 @@
+"""``fedtrack serve mtt-local --sensor ID [--mode federated|decentralized] [--config TOML]``: one
+sensor's local multi-target tracker.
+
+Consumes the sensor's scans (``Measurement`` of kind ``scan`` on ``sensor/<ID>/meas``), runs
+:func:`fedtrack.local_filters.mtt.local.local_step` on each in order and publishes a
+``TrackReport`` on ``local/<ID>/tracks``. Federated: after each report it holds the next scans
+until the centre's ``TrackResets`` for that report (``fusion/mtt-resets/<ID>``) has been
+adopted, so that its tracker sees exactly what the replay's does; after ``--reset-timeout``
+seconds without them it goes on (counted in ``reset_timeouts``; from then on the live tracks
+may differ from the replay). A scan older than the tracker (the sensor's link reordered it)
+is dropped and counted ``late``, as in the replay.
+
+Rejected (docs/wire.md#rejections): a measurement of another kind or shape (``wrong_model``),
+a sensor the config does not allow (``unknown_sensor``), a scan number more than
+``[deployment] max_seq_jump`` ahead (``seq_jump``) or a time more than ``max_time_jump_s``
+ahead (``time_jump``), a second different scan with a number already taken (``conflict``;
+an identical one is a ``duplicate``), resets for a report not awaiting them (``unexpected``)
+or of another state size (``wrong_model``).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections import deque
+from dataclasses import replace
+from pathlib import Path
+
+from fedtrack.config import ConfigError, load_tables
+from fedtrack.deployment import DeploymentSettings
+from fedtrack.keys import check_id
+from fedtrack.local_filters.mtt.config import MttConfig, MttSettings
+from fedtrack.local_filters.mtt.local import (
+    LocalTracker,
+    adopt,
+    is_late,
+    local_step,
+    new_local_tracker,
+    report_to_wire,
+    resets_from_wire,
+)
+from fedtrack.local_filters.mtt.scan import SensorScan, scan_from_measurement
+from fedtrack.services.base import Rejected, Service, Subscription, check_time_jump, service_kwargs, service_parser
+from fedtrack.wire import Measurement, TrackResets, encode
+from fedtrack.zsession import id_arg
+
+MODES = ("federated", "decentralized")
+
+
+class MttLocalService(Service):
+    """The local multi-target tracker of one sensor."""
+
+    role = "mtt-local"
+    tick_period_s = 0.05
+
+    def __init__(self, sensor: str, federated: bool, cfg: MttConfig, reset_timeout_s: float = 2.0,
+                 max_seq_jump: int = 1000, max_time_jump_s: float = 3600.0, **kwargs: object) -> None:
+        super().__init__(**kwargs)  # type: ignore[arg-type]
+        self.sensor = check_id(sensor, "--sensor")
+        self.federated = federated
+        self.cfg = cfg
+        self.reset_timeout_s = reset_timeout_s
+        self.max_seq_jump = max_seq_jump
+        self.max_time_jump_s = max_time_jump_s
+        self.tracker: LocalTracker | None = None
+        self.queue: deque[tuple[int, SensorScan, int]] = deque()  # (seq, scan, stamp) waiting
+        self.taken: dict[int, bytes] = {}  # seq -> payload (without stamp) of scans accepted, for conflicts
+        self.last_seq: int | None = None
+        self.last_t: float | None = None
+        self.awaiting: int | None = None  # report whose resets are due (federated)
+        self.awaiting_since = 0.0
+
+    def subscriptions(self) -> list[Subscription]:
+        subs = [Subscription(self.keys.sensor_meas(self.sensor), Measurement, self.on_scan)]
+        if self.federated:
+            subs.append(Subscription(self.keys.mtt_resets(self.sensor), TrackResets, self.on_resets))
+        return subs
+
+    def on_scan(self, msg: Measurement) -> None:
+        try:
+            scan = scan_from_measurement(msg)
+        except ValueError as exc:
+            raise Rejected("wrong_model", str(exc)) from None
+        if not self.cfg.allows(msg.sensor):
+            raise Rejected("unknown_sensor", f"sensor {msg.sensor!r} is not in mtt.sensors")
+        body = encode(replace(msg, stamp_ns=0))
+        if msg.seq in self.taken:
+            if self.taken[msg.seq] == body:
+                self.count("duplicate")
+                return
+            raise Rejected("conflict", f"a second, different scan {msg.seq} (the first stays)")
+        if self.last_seq is not None and msg.seq > self.last_seq + self.max_seq_jump:
+            raise Rejected("seq_jump", f"scan {msg.seq} is more than {self.max_seq_jump} after {self.last_seq}")
+        check_time_jump(self.last_t, msg.t, self.max_time_jump_s)
+        self.taken[msg.seq] = body
+        if len(self.taken) > 4 * self.max_seq_jump:
+            del self.taken[min(self.taken)]
+        self.last_seq = msg.seq if self.last_seq is None else max(self.last_seq, msg.seq)
+        self.last_t = msg.t if self.last_t is None else max(self.last_t, msg.t)
+        self.queue.append((msg.seq, scan, msg.stamp_ns))
+        self._advance()
+
+    def on_resets(self, msg: TrackResets) -> None:
+        if self.awaiting is None or msg.seq != self.awaiting:
+            raise Rejected("unexpected", f"resets for report {msg.seq}, awaiting {self.awaiting}")
+        assert self.tracker is not None
+        d = self.tracker.state.tracks.x.shape[1]
+        if msg.resets and msg.resets[0].x.shape[0] != d:
+            raise Rejected("wrong_model", f"resets of size {msg.resets[0].x.shape[0]} for a {d}-D tracker")
+        self.tracker = adopt(self.tracker, resets_from_wire(msg), msg.q_scale)
+        self.awaiting = None
+        self._advance()
+
+    def on_tick(self) -> None:
+        if self.awaiting is not None and time.monotonic() - self.awaiting_since > self.reset_timeout_s:
+            self.count("reset_timeouts")
+            self.log.warning("no resets for report %d after %.1f s: going on without them",
+                             self.awaiting, self.reset_timeout_s)
+            self.awaiting = None
+            self._advance()
+
+    def _advance(self) -> None:
+        """Track the waiting scans, in arrival order, while no resets are due."""
+        while self.queue and self.awaiting is None:
+            seq, scan, stamp = self.queue.popleft()
+            tracker = self.tracker or new_local_tracker(scan)
+            if is_late(tracker, scan):
+                self.count("late")
+                continue
+            self.tracker, report = local_step(tracker, scan, self.cfg)
+            self.publish(self.keys.mtt_report(self.sensor), report_to_wire(report, seq, stamp))
+            self.count("reports")
+            if self.federated:
+                self.awaiting, self.awaiting_since = seq, time.monotonic()
+
+
+def main(argv: list[str]) -> int:
+    parser = service_parser("mtt-local", "one sensor's local multi-target tracker")
+    parser.add_argument("--sensor", required=True, type=id_arg("--sensor"), help="sensor id whose scans to track")
+    parser.add_argument("--mode", choices=MODES, default="federated", help="(default: %(default)s)")
+    parser.add_argument("--config", help="configuration file; reads [mtt] and [deployment] (docs/multitarget.md)")
+    parser.add_argument("--reset-timeout", type=float, default=2.0, metavar="SECONDS",
+                        help="federated: go on without the centre's resets after this long (default: %(default)s)")
+    args = parser.parse_args(argv)
+    if args.reset_timeout <= 0:
+        parser.error("--reset-timeout must be > 0")
+    kwargs = service_kwargs(parser, args)
+    path = Path(args.config) if args.config else None
+    try:
+        cfg = load_tables(path, MttSettings).mtt
+        dep = load_tables(path, DeploymentSettings).deployment
+    except ConfigError as exc:
+        print(f"fedtrack serve mtt-local: error: {exc}", file=sys.stderr)
+        return 2
+    return MttLocalService(args.sensor, args.mode == "federated", cfg, args.reset_timeout, dep.max_seq_jump,
+                           dep.max_time_jump_s, **kwargs).run()

@@ -1,0 +1,109 @@
+"""Live multi-target fusion over a loopback Zenoh router: local trackers, the centre and the
+recorder as services (in threads of this process), scans published by the test; the recorded
+pictures equal ``replay --algorithm mtt-*`` of the recorded scans in the centre's order."""
+
+from __future__ import annotations
+
+import json
+import threading
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from support import WAIT_S, free_port, wait_until
+
+from fedtrack.fusion_center.mtt.replay import replay_mtt
+from fedtrack.fusion_center.mtt.service import MttCentreService
+from fedtrack.keys import Keys
+from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.mtt.scan import parse_scan, scan_to_measurement
+from fedtrack.local_filters.mtt.service import MttLocalService
+from fedtrack.recording import Recording
+from fedtrack.sensors.multitarget import Scenario, parse_spec, simulate
+from fedtrack.services.recorder import Recorder
+from fedtrack.wire import TrackPicture, decode, encode
+from fedtrack.zsession import SessionOptions, close_session, open_session, wait_alive
+
+SENSORS = "pos:1.0,pos:0.7,pos:1.3"
+
+
+def scenario(tmp_path: Path) -> tuple[list[dict[str, Any]], MttConfig, Path]:
+    out = tmp_path / "scenario"
+    simulate(Scenario(targets=6, duration=25.0, clutter=3.0), parse_spec(SENSORS), 5, out)
+    lines = [json.loads(x) for x in (out / "measurements.jsonl").read_text().splitlines()]
+    return lines, MttConfig(sensors=("s1", "s2", "s3"), max_lag=3.0, clutter_density=3.0 / 5000.0**2), out
+
+
+def run_live(tmp_path: Path, algorithm: str) -> tuple[Path, list[TrackPicture], dict[str, int]]:
+    lines, cfg, _ = scenario(tmp_path)
+    port = free_port()
+    keys = Keys("mttlive")
+    router = open_session(SessionOptions(mode="router", connect=(), listen=(f"tcp/127.0.0.1:{port}",)))
+    opts = SessionOptions(connect=(f"tcp/127.0.0.1:{port}",), connect_timeout_s=5.0)
+    common = {"options": opts, "deployment": "mttlive"}
+    sensors = sorted({line["sensor"] for line in lines})
+    services: list[Any] = [Recorder(tmp_path / "rec.db", tmp_path / "out", service_id="rec", **common)]
+    centre = MttCentreService(algorithm, cfg, 4, service_id="centre", **common)
+    services.append(centre)
+    if algorithm != "mtt-centralized":
+        federated = algorithm == "mtt-federated"
+        services += [MttLocalService(s, federated, cfg, 5.0, service_id=s, **common) for s in sensors]
+    threads = [threading.Thread(target=svc.run, daemon=True) for svc in services]
+    for th in threads:
+        th.start()
+    session = open_session(opts)
+    pictures: list[TrackPicture] = []
+    session.declare_subscriber(keys.mtt_picture(), lambda s: pictures.append(decode(s.payload.to_bytes(), TrackPicture)))
+    try:
+        want = [keys.alive(svc.role, svc.id) for svc in services]
+        assert wait_alive(session, want, WAIT_S) == set()
+        seq: dict[str, int] = {}
+        for line in lines:  # arrival order; each sensor's own scans in order
+            scan = parse_scan(line, "test")
+            seq[scan.sensor] = seq.get(scan.sensor, -1) + 1
+            session.put(keys.sensor_meas(scan.sensor), encode(scan_to_measurement(scan, seq[scan.sensor], 1)))
+        processed = lambda: sum(len(p.fused_seqs) for p in pictures) + len(centre.order)  # noqa: E731
+        expected = len(lines) if algorithm == "mtt-centralized" else None
+        if expected is None:  # late scans stop at the local trackers
+            assert wait_until(lambda: sum(svc.counters.get("reports", 0) + svc.counters.get("late", 0)
+                                          for svc in services[2:]) == len(lines), timeout=30.0)
+            expected = sum(svc.counters.get("reports", 0) for svc in services[2:])
+        assert wait_until(lambda: processed() == expected, timeout=30.0)
+        counters = dict(centre.counters)
+        for svc in services[1:]:  # local trackers and the centre first: its last pictures reach the recorder
+            svc.stop()
+        for th in threads[1:]:
+            th.join(WAIT_S)
+        assert wait_until(lambda: services[0].counters.get("pictures_recorded", 0) == centre.pictures)
+        services[0].stop()
+        threads[0].join(WAIT_S)
+    finally:
+        close_session(session)
+        close_session(router)
+    return tmp_path / "out", pictures, counters
+
+
+@pytest.mark.parametrize("algorithm", ["mtt-federated", "mtt-decentralized", "mtt-centralized"])
+def test_live_pictures_equal_the_replay_of_the_recording(tmp_path: Path, algorithm: str) -> None:
+    out, pictures, counters = run_live(tmp_path, algorithm)
+    assert counters.get("rejected", 0) == 0 and len(pictures) >= 20
+    live = [json.loads(x) for x in (out / "tracks.jsonl").read_text().splitlines()]
+    assert len(live) == sum(not p.closing for p in pictures) and sum(len(p["tracks"]) for p in live) > 50
+    config = tmp_path / "mtt.toml"
+    config.write_text('[mtt]\nsensors = ["s1", "s2", "s3"]\nmax_lag = 3.0\nclutter_density = 1.2e-7\n')
+    replayed = tmp_path / "replayed.jsonl"
+    replay_mtt(algorithm, out / "measurements.jsonl", config, replayed)
+    again = [json.loads(x) for x in replayed.read_text().splitlines()]
+    assert [p["t"] for p in again] == [p["t"] for p in live]
+    for a, b in zip(live, again):
+        assert [tr["id"] for tr in a["tracks"]] == [tr["id"] for tr in b["tracks"]]
+        for ta, tb in zip(a["tracks"], b["tracks"]):
+            np.testing.assert_allclose(ta["x"], tb["x"], rtol=1e-9, atol=1e-9)
+            np.testing.assert_allclose(ta["P"], tb["P"], rtol=1e-9, atol=1e-9)
+            assert (ta["status"], ta["sensors"]) == (tb["status"], tb["sensors"])
+    recording = Recording(tmp_path / "rec.db", readonly=True)
+    try:
+        assert recording.count(TrackPicture) == len(pictures)
+    finally:
+        recording.close()
