@@ -45,7 +45,7 @@ from fedtrack.deploy.security import LAUNCHER, identity, write_configs
 from fedtrack.deploy.settings import Settings, check_launchable, load_settings
 from fedtrack.deployment import listen_address, port_in_use
 from fedtrack.keys import Keys
-from fedtrack.wire import FusedTrack, Health, Measurement, WireError, decode
+from fedtrack.wire import FusedTrack, Health, Measurement, TrackPicture, WireError, decode
 from fedtrack.zsession import SessionOptions, close_session, open_session, wait_alive
 
 STOP_GRACE_S = 5.0
@@ -311,8 +311,16 @@ class Launcher:
                 self._enough.set()
 
     def _on_picture(self, sample: zenoh.Sample) -> None:
+        now = time.time_ns()
+        try:
+            pic = decode(sample.payload.to_bytes(), TrackPicture)
+        except WireError:
+            return
+        if pic.closing:
+            return
         with self._lock:
             self.report.pictures += 1
+            self.report.picture_arrivals.append((pic.t, now))
 
     def _on_meas(self, sample: zenoh.Sample) -> None:
         try:
@@ -321,7 +329,10 @@ class Launcher:
             return
         with self._lock:
             self.report.measurements[m.sensor] = self.report.measurements.get(m.sensor, 0) + 1
-            self.report.publish_stamps_ns.setdefault(m.seq, []).append(m.stamp_ns)
+            if m.kind == "scan":
+                self.report.scan_stamps.append((m.t, m.stamp_ns))
+            else:
+                self.report.publish_stamps_ns.setdefault(m.seq, []).append(m.stamp_ns)
 
     def _on_health(self, sample: zenoh.Sample) -> None:
         try:
@@ -482,7 +493,7 @@ def main(argv: list[str]) -> int:
         print(f"fedtrack launch: {exc}", file=sys.stderr)
         return 1
     if settings.multitarget is not None:
-        finish_multitarget(out, report, "fedtrack launch")
+        finish_multitarget(out, report, "fedtrack launch", settings.mtt.picture_delay)
     else:
         finish(out, settings, report, args.config.resolve(), "fedtrack launch")
     if code is not None:

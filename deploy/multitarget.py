@@ -20,6 +20,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from fedtrack.config import ConfigError, in_file
 from fedtrack.deploy.report import LaunchReport
 from fedtrack.deploy.settings import MultitargetSettings, Settings
@@ -75,8 +77,10 @@ def service_args(settings: Settings, measurements: Path) -> list[tuple[str, str,
     return plan
 
 
-def finish_multitarget(out: Path, report: LaunchReport, title: str) -> dict[str, Any]:
-    """Truth, summary (with GOSPA) and plot of a multi-target run; prints the summary."""
+def finish_multitarget(out: Path, report: LaunchReport, title: str, delay: float = 0.0) -> dict[str, Any]:
+    """Truth, summary (with GOSPA and the picture latency: from the publish of the scan that
+    makes a picture due, ``delay`` = ``[mtt] picture_delay``, to its arrival at the launcher)
+    and plot of a multi-target run; prints the summary."""
     truth = out / "truth.jsonl"
     shutil.copyfile(out / SCENARIO_DIR / "truth.jsonl", truth)
     tracks = out / "tracks.jsonl"
@@ -87,6 +91,10 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str) -> dict[str,
         png = out / "tracks.png"
         plot(result, tracks, truth, png)
         summary.update({k: v for k, v in result.items() if k != "series"})
+    latencies = report.picture_latencies_ms(delay)
+    if latencies:
+        summary["picture_latency_ms"] = {"p50": float(np.percentile(latencies, 50)),
+                                         "p99": float(np.percentile(latencies, 99)), "pictures": len(latencies)}
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     mean = summary.get("mean")
     if mean:
@@ -95,6 +103,10 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str) -> dict[str,
               f"p = {summary['p']:g}): localisation {mean['localisation'] ** (1 / summary['p']):.1f} m, "
               f"{mean['missed'] / unit:.2f} missed targets and {mean['false'] / unit:.2f} false tracks a picture; "
               f"{summary['rejected']} messages rejected", file=sys.stderr)
+    if latencies:
+        lat = summary["picture_latency_ms"]
+        print(f"{title}: picture latency p50 {lat['p50']:.1f} ms, p99 {lat['p99']:.1f} ms (from the publish of the "
+              "scan that makes a picture due)", file=sys.stderr)
     else:
         print(f"{title}: no picture was recorded (see {out}/logs/)", file=sys.stderr)
     print(f"wrote {out}/: measurements.jsonl tracks.jsonl truth.jsonl summary.json tracks.png")

@@ -9,6 +9,7 @@ track and its error), next to the recorder's ``measurements.jsonl`` and ``tracks
 
 from __future__ import annotations
 
+import bisect
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,6 +30,8 @@ class LaunchReport:
 
     scans_fused: int = 0
     pictures: int = 0  # multi-target pictures seen
+    scan_stamps: list[tuple[float, int]] = field(default_factory=list)  # (scan t, publish ns), multi-target
+    picture_arrivals: list[tuple[float, int]] = field(default_factory=list)  # (picture T, arrival ns)
     latencies_ms: list[float] = field(default_factory=list)
     measurements: dict[str, int] = field(default_factory=dict)
     track_arrivals_ns: dict[int, int] = field(default_factory=dict)  # seq -> wall-clock arrival
@@ -44,6 +47,19 @@ class LaunchReport:
             return float("nan"), float("nan")
         p50, p99 = np.percentile(self.latencies_ms, [50, 99])
         return float(p50), float(p99)
+
+    def picture_latencies_ms(self, delay: float) -> list[float]:
+        """Per picture at ``T``: its arrival minus the publish time of the first scan later than
+        ``T + delay`` (the one that made it due), in ms (pictures published at the end, with no
+        later scan, are left out)."""
+        scans = sorted(self.scan_stamps)
+        times = [t for t, _ in scans]
+        out = []
+        for T, arrival in self.picture_arrivals:
+            k = bisect.bisect_right(times, T + delay)
+            if k < len(scans):  # realtime sensors publish in time order: the first later scan
+                out.append((arrival - scans[k][1]) / 1e6)
+        return out
 
     def rejected(self) -> int:
         return sum(c.get("rejected", 0) for c in self.health.values())

@@ -156,10 +156,12 @@ def _registry_parser(sub: Any, name: str, help_text: str, key: str, registry: di
 
     ``fedtrack NAME --help`` lists the choices; ``fedtrack NAME KEY --help`` is the entry's own help.
     """
+    listing = "\n".join(f"  {entry}" for entry in sorted(registry))
     p = sub.add_parser(name, help=help_text, description=help_text, add_help=False,
-                       epilog=f"'fedtrack {name} {key.upper()} --help' shows the options of one {what}.")
-    p.add_argument(key, nargs="?", choices=sorted(registry), metavar=key.upper(),
-                   help=f"one of: {', '.join(sorted(registry))}")
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog=f"{what}s:\n{listing}\n\n'fedtrack {name} {key.upper()} --help' shows the "
+                              f"options of one {what}.")
+    p.add_argument(key, nargs="?", choices=sorted(registry), metavar=key.upper(), help=f"the {what} (listed below)")
     p.add_argument("-h", "--help", action="store_true", help="show this help message and exit")
     p.set_defaults(func=None, registry=registry, key=key, parser=p)
 

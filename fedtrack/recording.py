@@ -28,10 +28,11 @@ was committed survives SIGKILL of the recorder and a power loss.
 measurements in the ``replay`` input format, in scan order (``t``, then arrival), so
 that ``fedtrack replay`` always accepts what was recorded, and optionally the fused
 tracks in the replay output format (``seq`` order). A multi-target recording (one with
-pictures) is written in the centre's processing order instead (the scans each picture
-lists, picture by picture, then any scan the centre never processed, in arrival order):
-the order ``replay --algorithm mtt-*`` must follow to give the recorded pictures, which
-are the tracks file (one picture a line).
+pictures) is written in the centre's processing order instead (the scans and departures each
+picture lists, picture by picture): the order ``replay --algorithm mtt-*`` must follow to give
+the recorded pictures, which are the tracks file (one picture a line). Scans the centre never
+processed (no local tracker took them, or it dropped them as late) go to
+``unprocessed.jsonl`` beside the measurements file, in arrival order.
 """
 
 from __future__ import annotations
@@ -173,22 +174,28 @@ class Recording:
     def export(self, measurements: Path | None = None, tracks: Path | None = None) -> tuple[int, int]:
         """Write the replay-format measurements and tracks (see the module docstring); returns the line counts."""
         if self.count(TrackPicture):
+            processed, unprocessed = self._scans_in_centre_order()
+            if measurements is not None:
+                _write_lines(measurements.with_name("unprocessed.jsonl"), iter(unprocessed))
             rows: tuple[Iterator[dict[str, Any]], Iterator[dict[str, Any]]] = (
-                self._scans_in_centre_order(),
-                (picture_to_replay(p) for p in self.messages(TrackPicture, "seq") if not p.closing))
+                iter(processed), (picture_to_replay(p) for p in self.messages(TrackPicture, "seq") if not p.closing))
         else:
             rows = ((measurement_to_replay(m) for m in self.messages(Measurement, "t, id")),
                     (_track_row(f) for f in self.messages(FusedTrack, "seq")))
         return _write_lines(measurements, rows[0]), _write_lines(tracks, rows[1])
 
-    def _scans_in_centre_order(self) -> Iterator[dict[str, Any]]:
+    def _scans_in_centre_order(self) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+        """Replay lines of the scans and departures the pictures list, in that order; and the
+        recorded scans they do not list, in arrival order."""
         scans = {(m.sensor, m.seq): m for m in self.messages(Measurement, "id")}
+        processed: list[dict[str, Any]] = []
         for pic in self.messages(TrackPicture, "seq"):
-            for key in zip(pic.fused_sensors, pic.fused_seqs):
-                if key in scans:
-                    yield measurement_to_replay(scans.pop(key))
-        for m in scans.values():
-            yield measurement_to_replay(m)
+            for i, key in enumerate(zip(pic.fused_sensors, pic.fused_seqs)):
+                if i in pic.left:
+                    processed.append({"t": pic.t, "sensor": key[0], "left": True})
+                elif key in scans:
+                    processed.append(measurement_to_replay(scans.pop(key)))
+        return processed, [measurement_to_replay(m) for m in scans.values()]
 
     def close(self) -> None:
         self.db.close()

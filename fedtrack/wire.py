@@ -626,8 +626,10 @@ class TrackPicture(_Record):
     """The multi-target centre's picture number ``seq`` at ``t`` (every ``period`` seconds), and
     the scans it processed since the previous picture, in its processing order
     (``fused_sensors[i]``, ``fused_seqs[i]``): the order a replay of the recorded scans must
-    follow. A ``closing`` record (the last one, on a clean stop) is no picture: it has no
-    tracks and only lists the scans processed after the last picture."""
+    follow. The entries at the positions ``left`` are no scans but departures: the centre
+    dropped that sensor there (its ``fused_seqs`` entry is 0). A ``closing`` record (the last
+    one, on a clean stop) is no picture: it has no tracks and only lists what the centre
+    processed after the last picture."""
 
     seq: int
     t: float
@@ -636,16 +638,19 @@ class TrackPicture(_Record):
     fused_seqs: tuple[int, ...]
     stamp_ns: int
     closing: bool = False
+    left: tuple[int, ...] = ()
 
     _fields = {"seq": _count, "t": _real, "tracks": _items(PictureTrack),
                "fused_sensors": lambda v, p: tuple(_identifier(x, f"{p}[{i}]")
                                                    for i, x in enumerate(_sequence(v, p, MAX_TRACKS))),
-               "fused_seqs": _counts, "stamp_ns": _count, "closing": _flag}
+               "fused_seqs": _counts, "stamp_ns": _count, "closing": _flag, "left": _counts}
     _records = {"tracks": PictureTrack}
 
     def _check(self) -> None:
         if len(self.fused_sensors) != len(self.fused_seqs):
             raise WireError("fused_seqs", "expected one per fused_sensors entry")
+        if len(set(self.left)) != len(self.left) or any(i >= len(self.fused_seqs) for i in self.left):
+            raise WireError("left", "expected distinct positions in the fused lists")
         if self.closing and self.tracks:
             raise WireError("tracks", "a closing record has no tracks")
         if len({tr.id for tr in self.tracks}) != len(self.tracks):

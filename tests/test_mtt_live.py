@@ -4,8 +4,10 @@ pictures equal ``replay --algorithm mtt-*`` of the recorded scans in the centre'
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +24,7 @@ from fedtrack.local_filters.mtt.service import MttLocalService
 from fedtrack.recording import Recording
 from fedtrack.sensors.multitarget import Scenario, parse_spec, simulate
 from fedtrack.services.recorder import Recorder
-from fedtrack.wire import TrackPicture, decode, encode
+from fedtrack.wire import TrackPicture, TrackResets, decode, encode
 from fedtrack.zsession import SessionOptions, close_session, open_session, wait_alive
 
 SENSORS = "pos:1.0,pos:0.7,pos:1.3"
@@ -107,3 +109,90 @@ def test_live_pictures_equal_the_replay_of_the_recording(tmp_path: Path, algorit
         assert recording.count(TrackPicture) == len(pictures)
     finally:
         recording.close()
+
+
+def test_sensors_join_and_leave_at_run_time(tmp_path: Path) -> None:
+    """s3 (not in a config that allows "any") starts a third of the way in: a join, no restart;
+    s1's tracker stops two thirds in: its liveliness is lost, it is dropped within 1 s, the
+    sharing factors are renormalized and no central track that s2 or s3 still sees is lost; the
+    recording still replays to the live pictures, departure included."""
+    lines, cfg, _ = scenario(tmp_path)
+    cfg = dataclasses.replace(cfg, sensors="any")
+    port = free_port()
+    keys = Keys("mttjoin")
+    router = open_session(SessionOptions(mode="router", connect=(), listen=(f"tcp/127.0.0.1:{port}",)))
+    opts = SessionOptions(connect=(f"tcp/127.0.0.1:{port}",), connect_timeout_s=5.0)
+    common = {"options": opts, "deployment": "mttjoin"}
+    recorder = Recorder(tmp_path / "rec.db", tmp_path / "out", service_id="rec", **common)
+    centre = MttCentreService("mtt-federated", cfg, 4, service_id="centre", **common)
+    local = {s: MttLocalService(s, True, cfg, 5.0, service_id=s, **common) for s in ("s1", "s2", "s3")}
+    threads = {svc.id: threading.Thread(target=svc.run, daemon=True) for svc in (recorder, centre, *local.values())}
+    for name in ("rec", "centre", "s1", "s2"):
+        threads[name].start()
+    session = open_session(opts)
+    resets: list[Any] = []
+    session.declare_subscriber(keys.mtt_resets("s2"), lambda s: resets.append(decode(s.payload.to_bytes(), TrackResets)))
+    seq: dict[str, int] = {}
+
+    def publish(part: list[dict[str, Any]]) -> None:
+        for line in part:
+            scan = parse_scan(line, "test")
+            seq[scan.sensor] = seq.get(scan.sensor, -1) + 1
+            session.put(keys.sensor_meas(scan.sensor), encode(scan_to_measurement(scan, seq[scan.sensor], 1)))
+
+    def settled() -> bool:
+        return wait_until(lambda: all(svc.awaiting is None and not svc.queue for svc in local.values()), timeout=20.0)
+
+    try:
+        assert wait_alive(session, [keys.alive(r, i) for r, i in (("recorder", "rec"), ("mtt-centre", "centre"),
+                                                                    ("mtt-local", "s1"), ("mtt-local", "s2"))],
+                          WAIT_S) == set()
+        third = len(lines) // 3
+        publish(lines[:third])
+        assert settled()
+        threads["s3"].start()  # joins while the deployment runs
+        assert wait_alive(session, [keys.alive("mtt-local", "s3")], WAIT_S) == set()
+        publish(lines[third:2 * third])
+        assert settled()
+        assert max(r.q_scale for r in resets) == 3.0
+        fusion = centre.engine.centre
+        seen = {cid for cid in fusion.tracks if set(fusion.sensors_of(cid)) & {"s2", "s3"}}
+        assert any("s3" in fusion.sensors_of(cid) for cid in fusion.tracks)
+        local["s1"].stop()
+        threads["s1"].join(WAIT_S)
+        stopped = time.monotonic()
+        assert wait_until(lambda: centre.counters.get("sensors_left", 0) == 1, timeout=5.0)
+        assert time.monotonic() - stopped < 1.0
+        assert seen <= set(fusion.tracks)  # the departure loses no track that s2 or s3 still sees
+        assert not any("s1" in fusion.sensors_of(cid) for cid in fusion.tracks)
+        before = len(resets)
+        publish(lines[2 * third:])
+        assert settled()
+        assert resets[-1].q_scale == 2.0 and len(resets) > before
+        for svc in (local["s2"], local["s3"], centre):
+            svc.stop()
+        for name in ("s2", "s3", "centre"):
+            threads[name].join(WAIT_S)
+        assert wait_until(lambda: recorder.counters.get("pictures_recorded", 0) == centre.pictures)
+        recorder.stop()
+        threads["rec"].join(WAIT_S)
+    finally:
+        close_session(session)
+        close_session(router)
+    out = tmp_path / "out"
+    live = [json.loads(x) for x in (out / "tracks.jsonl").read_text().splitlines()]
+    recorded = [json.loads(x) for x in (out / "measurements.jsonl").read_text().splitlines()]
+    assert sum(1 for x in recorded if x.get("left")) == 1
+    assert (out / "unprocessed.jsonl").read_text().count('"s1"') > 0  # s1's last scans, never tracked
+    assert any("s3" in tr["sensors"] for p in live for tr in p["tracks"])
+    assert not any("s1" in tr["sensors"] for tr in live[-1]["tracks"])
+    config = tmp_path / "mtt.toml"
+    config.write_text('[mtt]\nsensors = ["s1", "s2", "s3"]\nmax_lag = 3.0\nclutter_density = 1.2e-7\n')
+    replayed = tmp_path / "replayed.jsonl"
+    replay_mtt("mtt-federated", out / "measurements.jsonl", config, replayed)
+    again = [json.loads(x) for x in replayed.read_text().splitlines()]
+    assert len(again) == len(live)
+    for a, b in zip(live, again):
+        assert [(t["id"], t["sensors"]) for t in a["tracks"]] == [(t["id"], t["sensors"]) for t in b["tracks"]]
+        for ta, tb in zip(a["tracks"], b["tracks"]):
+            np.testing.assert_allclose(ta["x"], tb["x"], rtol=1e-9, atol=1e-9)

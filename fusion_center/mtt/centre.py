@@ -62,6 +62,7 @@ class Counters:
     deleted: int = 0
     unmapped: int = 0
     merged: int = 0
+    left: int = 0
 
 
 def candidate_pairs(pos: np.ndarray, spread: np.ndarray, rows: list[int], gate: float) -> list[list[int]]:
@@ -119,6 +120,19 @@ class TrackToTrackCentre:
             if not keys:
                 del self.members[cid]
         return True
+
+    def drop_sensor(self, sensor: str) -> None:
+        """A sensor left (its tracker's liveliness was lost, or it fell silent): it no longer
+        counts as live (the other trackers' sharing factors are renormalized from their next
+        answer on) nor in the deletion rule, and its local tracks leave their central tracks
+        (a central track left without any is deleted by the next :meth:`prune`)."""
+        self.sensor_seen.pop(sensor, None)
+        for key in [k for k in self.mapping if k[0] == sensor]:
+            self._unmap(key)
+            self.strikes.pop(key, None)
+        for per_sensor in self.misses.values():
+            per_sensor.pop(sensor, None)
+        self.counters.left += 1
 
     def live_sensors(self, now: float) -> list[str]:
         return sorted(s for s, t in self.sensor_seen.items() if now - t <= self.cfg.central_timeout)

@@ -62,6 +62,9 @@ class Engine:
     def picture(self, T: float) -> list[dict[str, Any]]:
         raise NotImplementedError
 
+    def leave(self, sensor: str) -> None:
+        """A departure (:class:`SensorLeft`): only the track-to-track centre keeps per-sensor state."""
+
     def counters(self) -> dict[str, int]:
         return {"scans": self.scans, "late": self.late}
 
@@ -162,6 +165,10 @@ class TrackToTrackEngine(Engine):
         tracker, report = local_step(tracker, scan, self.cfg)
         resets, q_scale = self.fuse(report)
         self.local[scan.sensor] = adopt(tracker, resets, q_scale)
+
+    def leave(self, sensor: str) -> None:
+        if self.centre is not None:
+            self.centre.drop_sensor(sensor)
 
     def fuse(self, report: LocalReport) -> tuple[list[Reset], float]:
         """The centre's part of a scan, as the live centre does it per report."""

@@ -22,15 +22,16 @@ from fedtrack.config import ConfigError, load_tables
 from fedtrack.fusion_center.mtt.engines import ALGORITHMS, Engine, make_engine
 from fedtrack.jsonl import InputError, read_jsonl
 from fedtrack.local_filters.mtt.config import MttConfig, MttSettings
-from fedtrack.local_filters.mtt.scan import SensorScan, parse_scan
+from fedtrack.local_filters.mtt.scan import SensorLeft, SensorScan, parse_line
 
 
-def read_scans(path: Path, cfg: MttConfig) -> list[SensorScan]:
-    """Every line of ``path``, validated; a sensor the config does not allow is an error."""
-    scans = []
+def read_scans(path: Path, cfg: MttConfig) -> list[SensorScan | SensorLeft]:
+    """Every line of ``path`` (scans and departures), validated; a sensor the config does not
+    allow is an error."""
+    scans: list[SensorScan | SensorLeft] = []
     for lineno, obj in read_jsonl(path):
         where = f"{path}:{lineno}"
-        scan = parse_scan(obj, where)
+        scan = parse_line(obj, where)
         if not cfg.allows(scan.sensor):
             raise InputError(f"{where}: sensor {scan.sensor!r} is not in mtt.sensors")
         scans.append(scan)
@@ -67,10 +68,14 @@ class PictureClock:
         return out
 
 
-def pictures(engine: Engine, scans: list[SensorScan], period: float, delay: float) -> Iterator[dict[str, Any]]:
+def pictures(engine: Engine, scans: list[SensorScan | SensorLeft], period: float,
+             delay: float) -> Iterator[dict[str, Any]]:
     """Feed ``scans`` in arrival order and yield each picture once the data has passed its time."""
     clock = PictureClock(period, delay)
     for scan in scans:
+        if isinstance(scan, SensorLeft):
+            engine.leave(scan.sensor)
+            continue
         for T in clock.due(scan.t):
             yield {"t": T, "tracks": engine.picture(T)}
         engine.ingest(scan)
@@ -95,7 +100,7 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
     scans = read_scans(measurements, cfg)
     if sensor is not None and not any(s.sensor == sensor for s in scans):
         raise InputError(f"{measurements}: no scan of sensor {sensor!r}")
-    own = [s for s in scans if sensor is None or s.sensor == sensor]
+    own = [s for s in scans if isinstance(s, SensorScan) and (sensor is None or s.sensor == sensor)]
     dim = 6 if any(s.sensor_position is not None for s in own) else 4
     engine = make_engine(algorithm, cfg, dim, sensor)
     n = 0

@@ -12,6 +12,14 @@ scans it processed since the previous picture in its processing order; on a clea
 publishes the pictures still due. ``fedtrack replay`` of the recorded scans in that order
 gives the same pictures.
 
+Sensors join by publishing (any sensor ``[mtt] sensors`` allows, at any time). A sensor
+leaves when its tracker's liveliness token (``alive/mtt-local/<id>``; for ``mtt-centralized``
+the sensor's own, ``alive/sensor/<id>``) disappears, or when nothing of it arrived for
+``[mtt] leave_after_s`` seconds of wall-clock time: within one tick (50 ms) the centre drops it
+(:meth:`TrackToTrackCentre.drop_sensor`: no longer live, so the others' sharing factors are
+renormalized; its local tracks leave their central tracks) and lists the departure in the next
+picture, so that the replay drops it at the same point.
+
 ``--dim``: the central state size, 6 when any sensor is a radar (the replay's rule on the
 recorded scans). Rejected (docs/wire.md#rejections): a sensor the config does not allow
 (``unknown_sensor``), a report of another state size or a scan of another kind
@@ -24,11 +32,13 @@ from __future__ import annotations
 
 import sys
 import time
+from collections import deque
 from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
+import zenoh
 
 from fedtrack.config import ConfigError, load_tables
 from fedtrack.deployment import DeploymentSettings
@@ -69,6 +79,7 @@ class MttCentreService(Service):
     """The multi-target fusion centre."""
 
     role = "mtt-centre"
+    tick_period_s = 0.05
 
     def __init__(self, algorithm: str, cfg: MttConfig, dim: int = 4, max_seq_jump: int = 1000,
                  **kwargs: Any) -> None:
@@ -84,7 +95,33 @@ class MttCentreService(Service):
             else TrackToTrackEngine(cfg, dim, feedback=algorithm == "mtt-federated"))
         self.clock = PictureClock(cfg.period, cfg.picture_delay)
         self.order: list[tuple[str, int]] = []  # scans processed since the last picture
+        self.left_at: list[int] = []  # positions in ``order`` that are departures
         self.pictures = 0
+        self.last_heard: dict[str, float] = {}  # sensor -> monotonic time of its last message
+        self.gone: deque[str] = deque()  # liveliness lost (filled by a Zenoh thread)
+
+    def on_start(self) -> None:
+        assert self.session is not None
+        role = "sensor" if self.algorithm == "mtt-centralized" else "mtt-local"
+        self._inputs.append(self.session.liveliness().declare_subscriber(self.keys.alive(role), self._on_alive))
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        """Zenoh thread: a tracker's (or sensor's) token went away; the worker drops it (on_tick)."""
+        if sample.kind == zenoh.SampleKind.DELETE:
+            self.gone.append(str(sample.key_expr).rsplit("/", 1)[-1])
+
+    def on_tick(self) -> None:
+        now = time.monotonic()
+        silent = [s for s, heard in self.last_heard.items() if now - heard > self.cfg.leave_after_s]
+        while self.gone:
+            silent.append(self.gone.popleft())
+        for sensor in dict.fromkeys(silent):
+            if self.last_heard.pop(sensor, None) is not None:
+                self.engine.leave(sensor)
+                self.left_at.append(len(self.order))
+                self.order.append((sensor, 0))
+                self.count("sensors_left")
+                self.log.info("sensor %s left: dropped from fusion", sensor)
 
     def subscriptions(self) -> list[Subscription]:
         if self.algorithm == "mtt-centralized":
@@ -102,6 +139,7 @@ class MttCentreService(Service):
             self._publish_picture(T)
         work()
         self.order.append((sensor, seq))
+        self.last_heard[sensor] = time.monotonic()
 
     def on_scan(self, msg: Measurement) -> None:
         try:
@@ -139,9 +177,10 @@ class MttCentreService(Service):
                          tuple(row["sensors"])) for row in self.engine.picture(T))
         self.publish(self.keys.mtt_picture(), TrackPicture(
             seq=self.pictures, t=T, tracks=tracks, fused_sensors=tuple(s for s, _ in self.order),
-            fused_seqs=tuple(q for _, q in self.order), stamp_ns=time.time_ns(), closing=closing))
+            fused_seqs=tuple(q for _, q in self.order), stamp_ns=time.time_ns(), closing=closing,
+            left=tuple(self.left_at)))
         self.pictures += 1
-        self.order = []
+        self.order, self.left_at = [], []
         self.counters["pictures"] = self.pictures
         for name, value in self.engine.counters().items():
             self.counters[name] = value

@@ -41,12 +41,13 @@ class MttConfig:
     association_gate_probability: float = 0.9999
     unmap_after: int = 3
     central_timeout: float = 5.0
+    leave_after_s: float = 5.0
     sensor: dict[str, SensorOverride] = field(default_factory=dict)
 
     def validate(self) -> None:
         positive = {"q": self.q, "period": self.period, "init_velocity_std": self.init_velocity_std,
                     "init_z_std": self.init_z_std,
-                    "central_timeout": self.central_timeout}
+                    "central_timeout": self.central_timeout, "leave_after_s": self.leave_after_s}
         for key, value in positive.items():
             if not value > 0:
                 raise ConfigError(f"{key}: must be > 0")

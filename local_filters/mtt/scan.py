@@ -6,7 +6,8 @@ Line format (JSON Lines, one line per sensor scan, in arrival order)::
      "sensor_position": [x, y, z]?}
 
 A line with ``sensor_position`` is a radar scan (``z`` = range [m], azimuth, elevation
-[rad]); without it, a 2-D position scan (``z`` = [x, y] [m]).
+[rad]); without it, a 2-D position scan (``z`` = [x, y] [m]). A line ``{"t", "sensor",
+"left": true}`` records that a live centre dropped the sensor there (:class:`SensorLeft`).
 """
 
 from __future__ import annotations
@@ -35,6 +36,33 @@ class SensorScan(NamedTuple):
     @property
     def dim(self) -> int:
         return self.R.shape[0]
+
+
+class SensorLeft(NamedTuple):
+    """A departure line ``{"t": s, "sensor": id, "left": true}``: from here on the centre no
+    longer counts ``sensor`` (a live centre writes one where it dropped a sensor; ``t`` is the
+    data time of the picture that recorded it, for information)."""
+
+    t: float
+    sensor: str
+
+
+LEFT_FIELDS = frozenset({"t", "sensor", "left"})
+
+
+def parse_line(obj: dict[str, Any], where: str) -> SensorScan | SensorLeft:
+    """A scan line, or a departure line (one with ``"left": true``)."""
+    if "left" not in obj:
+        return parse_scan(obj, where)
+    check_fields(obj, LEFT_FIELDS, "departure", where)
+    if obj["left"] is not True:
+        raise InputError(f"{where}: left must be true")
+    sensor = require(obj, "sensor", where)
+    try:
+        check_id(sensor)
+    except (InvalidName, TypeError) as exc:
+        raise InputError(f"{where}: sensor: {exc}") from exc
+    return SensorLeft(as_float(require(obj, "t", where), "t", where), sensor)
 
 
 def parse_scan(obj: dict[str, Any], where: str) -> SensorScan:
