@@ -45,6 +45,7 @@ SYMMETRY_RTOL = 1e-9
 PD_RTOL = 1e-12
 MEASUREMENT_KINDS = ("position", "radar", "sonar", "scan")
 MAX_TRACKS = 2048  # tracks in one multi-target report or picture
+MAX_BATCH_ELEMENTS = MAX_TRACKS * 36  # a batched array: MAX_TRACKS 6x6 covariances
 EVENT_KINDS = ("onset", "new-ca", "end")
 WIRE_DTYPES = {"float64": np.dtype("<f8"), "int64": np.dtype("<i8")}
 _INT64_MAX = 2**63 - 1
@@ -109,8 +110,8 @@ def _flag(value: Any, path: str) -> bool:
     return bool(value)
 
 
-def _array(value: Any, path: str, ndim: int) -> np.ndarray:
-    """A finite read-only float64 array of ``ndim`` dimensions within the size bound."""
+def _array(value: Any, path: str, ndim: int, limit: int = MAX_ARRAY_ELEMENTS) -> np.ndarray:
+    """A finite read-only float64 array of ``ndim`` dimensions within the size bound ``limit``."""
     try:
         arr = np.asarray(value)
         if arr.dtype.kind not in "fiu":
@@ -120,8 +121,8 @@ def _array(value: Any, path: str, ndim: int) -> np.ndarray:
         raise WireError(path, f"expected an array of real numbers ({exc})") from None
     if arr.ndim != ndim:
         raise WireError(path, f"expected {ndim} dimension(s), got shape {arr.shape}")
-    if arr.size > MAX_ARRAY_ELEMENTS:
-        raise WireError(path, f"{arr.size} elements exceed the limit of {MAX_ARRAY_ELEMENTS}")
+    if arr.size > limit:
+        raise WireError(path, f"{arr.size} elements exceed the limit of {limit}")
     if not np.all(np.isfinite(arr)):
         raise WireError(path, "contains NaN or infinity")
     if arr.size and float(np.max(np.abs(arr))) > MAX_MAGNITUDE:
@@ -467,194 +468,174 @@ class ManeuverEvent(_Record):
     _arrays = ("u",)
 
 
-def _items(cls: type[_Record], limit: int = MAX_TRACKS) -> Callable[[Any, str], tuple[Any, ...]]:
-    """A list of nested ``cls`` records (decoded ones arrive built)."""
-    def check(value: Any, path: str) -> tuple[Any, ...]:
-        items = _sequence(value, path, limit)
-        for i, item in enumerate(items):
-            if not isinstance(item, cls):
-                raise WireError(f"{path}[{i}]", f"expected a {cls.__name__}")
-        return tuple(items)
-    return check
-
-
 def _counts(value: Any, path: str) -> tuple[int, ...]:
     return tuple(_count(v, f"{path}[{i}]") for i, v in enumerate(_sequence(value, path, MAX_TRACKS)))
 
 
-def _state_of(rec: Any) -> None:
-    """``x`` non-empty and ``P`` square of its size."""
-    if rec.x.shape[0] == 0:
+def _flags(value: Any, path: str) -> tuple[bool, ...]:
+    return tuple(_flag(v, f"{path}[{i}]") for i, v in enumerate(_sequence(value, path, MAX_TRACKS)))
+
+
+def _batch(value: Any, path: str) -> np.ndarray:
+    """A 2-D array of a batch of tracks (up to MAX_BATCH_ELEMENTS elements)."""
+    return _array(value, path, 2, MAX_BATCH_ELEMENTS)
+
+
+def _covariance_stack(P: np.ndarray, n: int, d: int, path: str) -> np.ndarray:
+    """``P`` (n d, d): ``n`` covariances stacked, each symmetric within SYMMETRY_RTOL and positive
+    definite (eigenvalue ratio > PD_RTOL), checked in one batched call; returned symmetrized."""
+    if P.shape != (n * d, d):
+        raise WireError(path, f"expected shape ({n * d}, {d}) for {n} stacked {d}x{d} covariances, got {P.shape}")
+    if n == 0 or d == 0:
+        return P
+    stack = P.reshape(n, d, d)
+    scale = np.max(np.abs(stack), axis=(1, 2))
+    bad = np.max(np.abs(stack - np.swapaxes(stack, 1, 2)), axis=(1, 2)) > SYMMETRY_RTOL * scale
+    if np.any(bad):
+        raise WireError(f"{path}[{int(np.argmax(bad))}]", "not symmetric")
+    sym = 0.5 * (stack + np.swapaxes(stack, 1, 2))
+    try:
+        eig = np.linalg.eigvalsh(sym)
+    except np.linalg.LinAlgError:
+        raise WireError(path, "eigenvalues could not be computed") from None
+    bad = ~(eig[:, 0] > PD_RTOL * eig[:, -1]) | (eig[:, -1] <= 0.0)
+    if np.any(bad):
+        k = int(np.argmax(bad))
+        raise WireError(f"{path}[{k}]", f"not positive definite (eigenvalues {eig[k, 0]:.3g} .. {eig[k, -1]:.3g})")
+    out = sym.reshape(n * d, d)
+    out.setflags(write=False)
+    return out
+
+
+def _track_batch(ids: tuple[int, ...], x: np.ndarray, P: np.ndarray) -> tuple[int, np.ndarray]:
+    """Checks ``n`` tracks: unique ids, ``x`` (n, d), ``P`` (n d, d) covariances; returns d and ``P``."""
+    n = len(ids)
+    if x.shape[0] != n:
+        raise WireError("x", f"expected one row per id ({n}), got shape {x.shape}")
+    if len(set(ids)) != n:
+        raise WireError("ids", "track ids are not unique")
+    d = x.shape[1]
+    if n and d == 0:
         raise WireError("x", "must not be empty")
-    _check_square(rec.P, rec.x.shape[0], "P", "x")
-
-
-def _one_size(items: tuple[Any, ...], path: str) -> int | None:
-    sizes = {it.x.shape[0] for it in items}
-    if len(sizes) > 1:
-        raise WireError(path, f"tracks of different state sizes {sorted(sizes)}")
-    return sizes.pop() if sizes else None
-
-
-@dataclass(frozen=True, eq=False)
-class LocalTrack(_Record):
-    """One track of a local multi-target tracker: ``id`` (stable), state, whether it is
-    confirmed and whether this scan updated or started it."""
-
-    id: int
-    x: np.ndarray
-    P: np.ndarray
-    confirmed: bool
-    detected: bool
-
-    _fields = {"id": _count, "x": _vector, "P": _covariance, "confirmed": _flag, "detected": _flag}
-    _arrays = ("x", "P")
-    _top_level = False
-
-    def _check(self) -> None:
-        _state_of(self)
-
-
-@dataclass(frozen=True, eq=False)
-class Observation(_Record):
-    """The (linearized) observation a detected local track used: ``z = H x + v``, ``v ~ N(0, R)``;
-    ``started`` if the track started from it."""
-
-    H: np.ndarray
-    R: np.ndarray
-    z: np.ndarray
-    started: bool
-
-    _fields = {"H": lambda v, p: _array(v, p, 2), "R": _covariance, "z": _vector, "started": _flag}
-    _arrays = ("H", "R", "z")
-    _top_level = False
-
-    def _check(self) -> None:
-        m = self.z.shape[0]
-        if m == 0:
-            raise WireError("z", "must not be empty")
-        _check_square(self.R, m, "R", "z")
-        if self.H.shape[0] != m:
-            raise WireError("H", f"expected {m} rows to match z, got shape {self.H.shape}")
+    return d, _covariance_stack(P, n, d, "P")
 
 
 @dataclass(frozen=True, eq=False)
 class TrackReport(_Record):
-    """A local multi-target tracker's output for scan ``seq`` of ``sensor``: every live track,
-    one observation per detected track (in track order), and the ids this scan deleted."""
+    """A local multi-target tracker's output for scan ``seq`` of ``sensor``: its ``n`` live tracks
+    batched (``ids``; ``x`` (n, d); ``P`` (n d, d), the covariances stacked; ``confirmed``;
+    ``detected``: updated or started by this scan), the (linearized) observation each of the
+    ``k`` detected tracks used, in track order (``obs_H`` (k m, d), ``obs_R`` (k m, m) stacked,
+    ``obs_z`` (k, m): ``z ~ N(H x, R)``; ``started``: the track started from it), and the ids
+    this scan deleted (``retired``)."""
 
     sensor: str
     seq: int
     t: float
-    tracks: tuple[LocalTrack, ...]
-    observations: tuple[Observation, ...]
+    ids: tuple[int, ...]
+    x: np.ndarray
+    P: np.ndarray
+    confirmed: tuple[bool, ...]
+    detected: tuple[bool, ...]
+    obs_H: np.ndarray
+    obs_R: np.ndarray
+    obs_z: np.ndarray
+    started: tuple[bool, ...]
     retired: tuple[int, ...]
     stamp_ns: int
 
-    _fields = {"sensor": _identifier, "seq": _count, "t": _real, "tracks": _items(LocalTrack),
-               "observations": _items(Observation), "retired": _counts, "stamp_ns": _count}
-    _records = {"tracks": LocalTrack, "observations": Observation}
+    _fields = {"sensor": _identifier, "seq": _count, "t": _real, "ids": _counts, "x": _batch, "P": _batch,
+               "confirmed": _flags, "detected": _flags, "obs_H": _batch, "obs_R": _batch, "obs_z": _batch,
+               "started": _flags, "retired": _counts, "stamp_ns": _count}
+    _arrays = ("x", "P", "obs_H", "obs_R", "obs_z")
 
     def _check(self) -> None:
-        d = _one_size(self.tracks, "tracks")
-        if len({tr.id for tr in self.tracks}) != len(self.tracks):
-            raise WireError("tracks", "track ids are not unique")
-        if len(self.observations) != sum(tr.detected for tr in self.tracks):
-            raise WireError("observations", "expected one per detected track")
-        for i, ob in enumerate(self.observations):
-            if ob.H.shape[1] != d:
-                raise WireError(f"observations[{i}].H", f"expected {d} columns to match the tracks, got {ob.H.shape}")
-
-
-@dataclass(frozen=True, eq=False)
-class LocalReset(_Record):
-    """Federated feedback for local track ``id``: adopt ``(x, P)`` (``P`` already scaled)."""
-
-    id: int
-    x: np.ndarray
-    P: np.ndarray
-
-    _fields = {"id": _count, "x": _vector, "P": _covariance}
-    _arrays = ("x", "P")
-    _top_level = False
-
-    def _check(self) -> None:
-        _state_of(self)
+        n = len(self.ids)
+        d, P = _track_batch(self.ids, self.x, self.P)
+        object.__setattr__(self, "P", P)
+        if len(self.confirmed) != n or len(self.detected) != n:
+            raise WireError("detected", f"expected confirmed and detected for each of the {n} tracks")
+        k = sum(self.detected)
+        m = self.obs_z.shape[1]
+        if self.obs_z.shape[0] != k or len(self.started) != k:
+            raise WireError("obs_z", f"expected one observation per detected track ({k})")
+        if k and m == 0:
+            raise WireError("obs_z", "must not be empty")
+        if self.obs_H.shape != (k * m, d):
+            raise WireError("obs_H", f"expected shape ({k * m}, {d}), got {self.obs_H.shape}")
+        object.__setattr__(self, "obs_R", _covariance_stack(self.obs_R, k, m, "obs_R"))
 
 
 @dataclass(frozen=True, eq=False)
 class TrackResets(_Record):
     """The multi-target centre's answer to ``sensor``'s report ``seq`` (federated mode): the
-    resets of its local tracks and ``q_scale``, the process-noise factor (number of live
-    sensors) its tracker uses for its next scan."""
+    resets of local tracks ``ids`` (``x`` (n, d), ``P`` (n d, d) stacked, already scaled) and
+    ``q_scale``, the process-noise factor (number of live sensors) for its next scan."""
 
     sensor: str
     seq: int
     t: float
     q_scale: float
-    resets: tuple[LocalReset, ...]
+    ids: tuple[int, ...]
+    x: np.ndarray
+    P: np.ndarray
 
-    _fields = {"sensor": _identifier, "seq": _count, "t": _real, "q_scale": _real, "resets": _items(LocalReset)}
-    _records = {"resets": LocalReset}
+    _fields = {"sensor": _identifier, "seq": _count, "t": _real, "q_scale": _real, "ids": _counts,
+               "x": _batch, "P": _batch}
+    _arrays = ("x", "P")
 
     def _check(self) -> None:
         if not 1.0 <= self.q_scale <= MAX_TRACKS:
             raise WireError("q_scale", f"must be in [1, {MAX_TRACKS}], got {self.q_scale}")
-        _one_size(self.resets, "resets")
+        object.__setattr__(self, "P", _track_batch(self.ids, self.x, self.P)[1])
 
 
-@dataclass(frozen=True, eq=False)
-class PictureTrack(_Record):
-    """One central track of a picture, predicted to the picture's time."""
-
-    id: int
-    x: np.ndarray
-    P: np.ndarray
-    confirmed: bool
-    sensors: tuple[str, ...]
-
-    _fields = {"id": _count, "x": _vector, "P": _covariance, "confirmed": _flag, "sensors": _identifiers}
-    _arrays = ("x", "P")
-    _top_level = False
-
-    def _check(self) -> None:
-        _state_of(self)
+def _id_lists(value: Any, path: str) -> tuple[tuple[str, ...], ...]:
+    return tuple(_identifiers(v, f"{path}[{i}]") for i, v in enumerate(_sequence(value, path, MAX_TRACKS)))
 
 
 @dataclass(frozen=True, eq=False)
 class TrackPicture(_Record):
-    """The multi-target centre's picture number ``seq`` at ``t`` (every ``period`` seconds), and
-    the scans it processed since the previous picture, in its processing order
-    (``fused_sensors[i]``, ``fused_seqs[i]``): the order a replay of the recorded scans must
-    follow. The entries at the positions ``left`` are no scans but departures: the centre
-    dropped that sensor there (its ``fused_seqs`` entry is 0). A ``closing`` record (the last
-    one, on a clean stop) is no picture: it has no tracks and only lists what the centre
-    processed after the last picture."""
+    """The multi-target centre's picture number ``seq`` at ``t`` (every ``period`` seconds): its
+    tracks predicted to ``t`` (``ids``, ``x`` (n, d), ``P`` (n d, d) stacked, ``confirmed``,
+    ``sensors`` per track), and the scans it processed since the previous picture, in its
+    processing order (``fused_sensors[i]``, ``fused_seqs[i]``): the order a replay of the
+    recorded scans must follow. The entries at the positions ``left`` are no scans but
+    departures: the centre dropped that sensor there (its ``fused_seqs`` entry is 0). A
+    ``closing`` record (the last one, on a clean stop) is no picture: it has no tracks and only
+    lists what the centre processed after the last picture."""
 
     seq: int
     t: float
-    tracks: tuple[PictureTrack, ...]
+    ids: tuple[int, ...]
+    x: np.ndarray
+    P: np.ndarray
+    confirmed: tuple[bool, ...]
+    sensors: tuple[tuple[str, ...], ...]
     fused_sensors: tuple[str, ...]
     fused_seqs: tuple[int, ...]
     stamp_ns: int
     closing: bool = False
     left: tuple[int, ...] = ()
 
-    _fields = {"seq": _count, "t": _real, "tracks": _items(PictureTrack),
+    _fields = {"seq": _count, "t": _real, "ids": _counts, "x": _batch, "P": _batch, "confirmed": _flags,
+               "sensors": _id_lists,
                "fused_sensors": lambda v, p: tuple(_identifier(x, f"{p}[{i}]")
                                                    for i, x in enumerate(_sequence(v, p, MAX_TRACKS))),
                "fused_seqs": _counts, "stamp_ns": _count, "closing": _flag, "left": _counts}
-    _records = {"tracks": PictureTrack}
+    _arrays = ("x", "P")
 
     def _check(self) -> None:
+        n = len(self.ids)
+        object.__setattr__(self, "P", _track_batch(self.ids, self.x, self.P)[1])
+        if len(self.confirmed) != n or len(self.sensors) != n:
+            raise WireError("sensors", f"expected confirmed and sensors for each of the {n} tracks")
         if len(self.fused_sensors) != len(self.fused_seqs):
             raise WireError("fused_seqs", "expected one per fused_sensors entry")
         if len(set(self.left)) != len(self.left) or any(i >= len(self.fused_seqs) for i in self.left):
             raise WireError("left", "expected distinct positions in the fused lists")
-        if self.closing and self.tracks:
-            raise WireError("tracks", "a closing record has no tracks")
-        if len({tr.id for tr in self.tracks}) != len(self.tracks):
-            raise WireError("tracks", "track ids are not unique")
+        if self.closing and n:
+            raise WireError("ids", "a closing record has no tracks")
 
 
 @dataclass(frozen=True, eq=False)
@@ -716,7 +697,7 @@ def encode(msg: Message) -> bytes:
 
 # ---------------------------------------------------------------- decoding
 
-def _decode_array(value: Any, path: str) -> np.ndarray | None:
+def _decode_array(value: Any, path: str, limit: int = MAX_ARRAY_ELEMENTS) -> np.ndarray | None:
     if value is None:
         return None
     if not isinstance(value, dict) or set(value) != {"dtype", "shape", "data"}:
@@ -726,13 +707,11 @@ def _decode_array(value: Any, path: str) -> np.ndarray | None:
         raise WireError(f"{path}.dtype", f"expected 'float64' or 'int64', got {value['dtype']!r}")
     shape = value["shape"]
     if (not isinstance(shape, list) or len(shape) > 2
-            or not all(isinstance(d, int) and not isinstance(d, bool) and 0 <= d <= MAX_ARRAY_ELEMENTS
-                       for d in shape)):
-        raise WireError(f"{path}.shape", f"expected a list of at most 2 sizes in [0, {MAX_ARRAY_ELEMENTS}], "
-                        f"got {shape!r}")
+            or not all(isinstance(d, int) and not isinstance(d, bool) and 0 <= d <= limit for d in shape)):
+        raise WireError(f"{path}.shape", f"expected a list of at most 2 sizes in [0, {limit}], got {shape!r}")
     size = math.prod(shape)
-    if size > MAX_ARRAY_ELEMENTS:
-        raise WireError(path, f"{size} elements exceed the limit of {MAX_ARRAY_ELEMENTS}")
+    if size > limit:
+        raise WireError(path, f"{size} elements exceed the limit of {limit}")
     data = value["data"]
     if not isinstance(data, bytes) or len(data) != size * dtype.itemsize:
         got = f"{len(data)} bytes" if isinstance(data, bytes) else type(data).__name__
@@ -755,7 +734,7 @@ def _decode_record(cls: type[M], obj: Any, path: str, envelope: tuple[str, ...] 
         value = obj[name]
         where = f"{path}.{name}"
         if name in cls._arrays:
-            value = _decode_array(value, where)
+            value = _decode_array(value, where, MAX_BATCH_ELEMENTS if cls._fields[name] is _batch else MAX_ARRAY_ELEMENTS)
         elif name in cls._records and value is not None:
             sub = cls._records[name]
             if isinstance(value, list):
@@ -835,8 +814,9 @@ def picture_track_row(tid: int, x: np.ndarray, P: np.ndarray, confirmed: bool, s
 
 def picture_to_replay(pic: TrackPicture) -> dict[str, Any]:
     """The picture line ``{"t", "tracks": [...]}`` that ``replay --algorithm mtt-*`` writes."""
-    return {"t": pic.t, "tracks": [picture_track_row(tr.id, tr.x, tr.P, tr.confirmed, list(tr.sensors))
-                                   for tr in pic.tracks]}
+    d = pic.x.shape[1]
+    return {"t": pic.t, "tracks": [picture_track_row(i, pic.x[k], pic.P[k * d:(k + 1) * d], pic.confirmed[k],
+                                                     list(pic.sensors[k])) for k, i in enumerate(pic.ids)]}
 
 
 def _json_field(obj: dict[str, Any], key: str, where: str) -> Any:

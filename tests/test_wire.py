@@ -17,13 +17,9 @@ from fedtrack.wire import (
     FusedTrack,
     Health,
     LocalEstimate,
-    LocalReset,
-    LocalTrack,
     ManeuverEvent,
     ManeuverInfo,
     Measurement,
-    Observation,
-    PictureTrack,
     Reset,
     TrackPicture,
     TrackReport,
@@ -369,20 +365,19 @@ def test_encoder_refuses_payloads_over_the_limit(monkeypatch: pytest.MonkeyPatch
 
 
 def track_report() -> TrackReport:
-    return TrackReport(sensor="s2", seq=11, t=1.1, tracks=(LocalTrack(4, RNG.normal(size=4), spd(4), True, True),
-                                                           LocalTrack(7, RNG.normal(size=4), spd(4), False, False)),
-                       observations=(Observation(RNG.normal(size=(2, 4)), spd(2), RNG.normal(size=2), False),),
+    return TrackReport(sensor="s2", seq=11, t=1.1, ids=(4, 7), x=RNG.normal(size=(2, 4)),
+                       P=np.concatenate([spd(4), spd(4)]), confirmed=(True, False), detected=(True, False),
+                       obs_H=RNG.normal(size=(2, 4)), obs_R=spd(2), obs_z=RNG.normal(size=(1, 2)), started=(False,),
                        retired=(1, 3), stamp_ns=23)
 
 
 def track_resets() -> TrackResets:
-    return TrackResets(sensor="s2", seq=11, t=1.1, q_scale=3.0,
-                       resets=(LocalReset(4, RNG.normal(size=4), spd(4)),))
+    return TrackResets(sensor="s2", seq=11, t=1.1, q_scale=3.0, ids=(4,), x=RNG.normal(size=(1, 4)), P=spd(4))
 
 
 def track_picture() -> TrackPicture:
-    return TrackPicture(seq=2, t=2.0, tracks=(PictureTrack(9, RNG.normal(size=6), spd(6), True, ("s1", "s2")),),
-                        fused_sensors=("s1", "s2"), fused_seqs=(5, 7), stamp_ns=24)
+    return TrackPicture(seq=2, t=2.0, ids=(9,), x=RNG.normal(size=(1, 6)), P=spd(6), confirmed=(True,),
+                        sensors=(("s1", "s2"),), fused_sensors=("s1", "s2"), fused_seqs=(5, 7), stamp_ns=24)
 
 
 def scan() -> Measurement:
@@ -398,11 +393,12 @@ def test_multitarget_messages_round_trip(make) -> None:
 
 
 @pytest.mark.parametrize("change, field", [
-    (lambda m: TrackReport(**{**vars(m), "tracks": m.tracks + (m.tracks[0],)}), "tracks"),  # repeated id
-    (lambda m: TrackReport(**{**vars(m), "observations": ()}), "observations"),  # one per detected track
+    (lambda m: TrackReport(**{**vars(m), "ids": (4, 4)}), "ids"),  # repeated id
+    (lambda m: TrackReport(**{**vars(m), "obs_z": np.zeros((0, 2)), "started": ()}), "obs_z"),  # one per detected
+    (lambda m: TrackReport(**{**vars(m), "P": np.concatenate([spd(4), -spd(4)])}), "P"),  # not PD
     (lambda m: TrackResets(**{**vars(track_resets()), "q_scale": 0.5}), "q_scale"),
     (lambda m: TrackPicture(**{**vars(track_picture()), "fused_seqs": (5,)}), "fused_seqs"),
-    (lambda m: TrackPicture(**{**vars(track_picture()), "closing": True}), "tracks"),  # a closing record has none
+    (lambda m: TrackPicture(**{**vars(track_picture()), "closing": True}), "ids"),  # a closing record has none
 ])
 def test_multitarget_messages_are_checked(change, field: str) -> None:
     with pytest.raises(WireError, match=field):

@@ -48,7 +48,7 @@ from fedtrack.local_filters.mtt.config import MttConfig, MttSettings
 from fedtrack.local_filters.mtt.local import report_from_wire, resets_to_wire
 from fedtrack.local_filters.mtt.scan import scan_from_measurement
 from fedtrack.services.base import Rejected, Service, Subscription, service_kwargs, service_parser
-from fedtrack.wire import Measurement, PictureTrack, TrackPicture, TrackReport, encode
+from fedtrack.wire import Measurement, TrackPicture, TrackReport, encode
 
 ALGORITHMS = ("mtt-federated", "mtt-decentralized", "mtt-centralized")
 
@@ -154,7 +154,7 @@ class MttCentreService(Service):
         self._process(msg.sensor, msg.seq, msg.t, lambda: self.engine.ingest(scan))
 
     def on_report(self, msg: TrackReport) -> None:
-        d = msg.tracks[0].x.shape[0] if msg.tracks else None
+        d = msg.x.shape[1] if msg.ids else None
         if d is not None and (d not in (4, 6) or d > self.dim):
             raise Rejected("wrong_model", f"local state of size {d} at a centre of size {self.dim}")
         if not self._admit(msg.sensor, msg.seq, msg):
@@ -172,11 +172,13 @@ class MttCentreService(Service):
         self._process(msg.sensor, msg.seq, msg.t, fuse)
 
     def _publish_picture(self, T: float, closing: bool = False) -> None:
-        tracks = () if closing else tuple(
-            PictureTrack(row["id"], np.array(row["x"]), np.array(row["P"]), row["status"] == "confirmed",
-                         tuple(row["sensors"])) for row in self.engine.picture(T))
+        rows = [] if closing else self.engine.picture(T)
+        d = len(rows[0]["x"]) if rows else self.dim
         self.publish(self.keys.mtt_picture(), TrackPicture(
-            seq=self.pictures, t=T, tracks=tracks, fused_sensors=tuple(s for s, _ in self.order),
+            seq=self.pictures, t=T, ids=tuple(row["id"] for row in rows),
+            x=np.array([row["x"] for row in rows]).reshape(-1, d), P=np.array([row["P"] for row in rows]).reshape(-1, d),
+            confirmed=tuple(row["status"] == "confirmed" for row in rows),
+            sensors=tuple(tuple(row["sensors"]) for row in rows), fused_sensors=tuple(s for s, _ in self.order),
             fused_seqs=tuple(q for _, q in self.order), stamp_ns=time.time_ns(), closing=closing,
             left=tuple(self.left_at)))
         self.pictures += 1

@@ -96,31 +96,34 @@ def adopt(tracker: LocalTracker, resets: list[Reset], q_scale: float) -> LocalTr
 # ---------------------------------------------------------------- wire
 
 def report_to_wire(report: LocalReport, seq: int, stamp_ns: int) -> wire.TrackReport:
-    tracks = tuple(wire.LocalTrack(int(i), report.x[k], report.P[k], bool(report.confirmed[k]),
-                                   bool(report.detected[k])) for k, i in enumerate(report.ids.tolist()))
-    observations = tuple(wire.Observation(report.obs_H[j], report.obs_R[j], report.obs_z[j], bool(report.started[j]))
-                         for j in range(report.obs_z.shape[0]))
-    return wire.TrackReport(sensor=report.sensor, seq=seq, t=report.t, tracks=tracks, observations=observations,
-                            retired=tuple(int(i) for i in report.retired.tolist()), stamp_ns=stamp_ns)
+    d = report.x.shape[1]
+    k, m = report.obs_z.shape
+    return wire.TrackReport(
+        sensor=report.sensor, seq=seq, t=report.t, ids=tuple(report.ids.tolist()), x=report.x,
+        P=report.P.reshape(-1, d), confirmed=tuple(report.confirmed.tolist()),
+        detected=tuple(report.detected.tolist()), obs_H=report.obs_H.reshape(k * m, d),
+        obs_R=report.obs_R.reshape(k * m, m), obs_z=report.obs_z, started=tuple(report.started.tolist()),
+        retired=tuple(report.retired.tolist()), stamp_ns=stamp_ns)
 
 
 def report_from_wire(msg: wire.TrackReport) -> LocalReport:
-    d = msg.tracks[0].x.shape[0] if msg.tracks else 4
-    m = msg.observations[0].z.shape[0] if msg.observations else 2
-    tracks, obs = msg.tracks, msg.observations
-    return LocalReport(
-        msg.sensor, msg.t, np.array([tr.id for tr in tracks], dtype=np.int64),
-        np.array([tr.x for tr in tracks]).reshape(-1, d), np.array([tr.P for tr in tracks]).reshape(-1, d, d),
-        np.array([tr.confirmed for tr in tracks], dtype=bool), np.array([tr.detected for tr in tracks], dtype=bool),
-        np.array([o.H for o in obs]).reshape(-1, m, d), np.array([o.R for o in obs]).reshape(-1, m, m),
-        np.array([o.z for o in obs]).reshape(-1, m), np.array([o.started for o in obs], dtype=bool),
-        np.array(msg.retired, dtype=np.int64))
+    d = msg.x.shape[1]
+    k, m = msg.obs_z.shape
+    return LocalReport(msg.sensor, msg.t, np.array(msg.ids, dtype=np.int64), np.array(msg.x),
+                       np.array(msg.P).reshape(-1, d, d), np.array(msg.confirmed, dtype=bool),
+                       np.array(msg.detected, dtype=bool), np.array(msg.obs_H).reshape(k, m, d),
+                       np.array(msg.obs_R).reshape(k, m, m), np.array(msg.obs_z), np.array(msg.started, dtype=bool),
+                       np.array(msg.retired, dtype=np.int64))
 
 
 def resets_to_wire(sensor: str, seq: int, t: float, resets: list[Reset], q_scale: float) -> wire.TrackResets:
-    return wire.TrackResets(sensor=sensor, seq=seq, t=t, q_scale=q_scale,
-                            resets=tuple(wire.LocalReset(r.local_id, r.x, r.P) for r in resets))
+    d = resets[0].x.shape[0] if resets else 0
+    return wire.TrackResets(sensor=sensor, seq=seq, t=t, q_scale=q_scale, ids=tuple(r.local_id for r in resets),
+                            x=np.array([r.x for r in resets]).reshape(-1, d),
+                            P=np.array([r.P for r in resets]).reshape(-1, d))
 
 
 def resets_from_wire(msg: wire.TrackResets) -> list[Reset]:
-    return [Reset(msg.sensor, r.id, msg.t, np.array(r.x), np.array(r.P)) for r in msg.resets]
+    d = msg.x.shape[1]
+    return [Reset(msg.sensor, i, msg.t, np.array(msg.x[k]), np.array(msg.P[k * d:(k + 1) * d]))
+            for k, i in enumerate(msg.ids)]

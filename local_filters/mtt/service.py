@@ -105,8 +105,8 @@ class MttLocalService(Service):
             raise Rejected("unexpected", f"resets for report {msg.seq}, awaiting {self.awaiting}")
         assert self.tracker is not None
         d = self.tracker.state.tracks.x.shape[1]
-        if msg.resets and msg.resets[0].x.shape[0] != d:
-            raise Rejected("wrong_model", f"resets of size {msg.resets[0].x.shape[0]} for a {d}-D tracker")
+        if msg.ids and msg.x.shape[1] != d:
+            raise Rejected("wrong_model", f"resets of size {msg.x.shape[1]} for a {d}-D tracker")
         self.tracker = adopt(self.tracker, resets_from_wire(msg), msg.q_scale)
         self.awaiting = None
         self._advance()
