@@ -10,6 +10,9 @@ cost per step is that of any linear-Gaussian model.
   ``ExtendedKalmanFilter``, Stone Soup's ``ExtendedKalmanUpdater`` with
   ``CartesianToElevationBearingRange``.
 * Batched CV Kalman steps at 1, 100 and 10,000 targets: target-steps per second.
+* PDA scan of one CV track with 1, 5 and 20 detections in its gate: fedtrack's PDA-AI
+  functions without amplitudes (plain PDA) against Stone Soup's ``PDAHypothesiser`` and
+  ``PDAUpdater`` (``pda_vs_stonesoup`` is the 20-detection ratio).
 
 Every library runs the same model and data; each timing is the median of interleaved rounds,
 and ratios are fedtrack's time over the other's, measured in the same run. FilterPy and Stone
@@ -240,16 +243,78 @@ def imm_runners(steps: int) -> dict[str, Callable[[int], Any]]:
     return runners
 
 
+PDA_CLUTTER, PDA_PD = 1e-4, 0.9
+
+
+def pda_runners(steps: int, detections: int) -> dict[str, Callable[[int], Any]]:
+    """One PDA scan of one CV track (predict, gate, association probabilities, update) with
+    ``detections`` detections in its gate: fedtrack's PDA-AI functions with no amplitude (plain
+    PDA, eqs (4)-(5)) against Stone Soup's ``PDAHypothesiser`` + ``PDAUpdater`` on the same data."""
+    from fedtrack.local_filters.pda.association import PDAParams, constants, gate, pda_ai_hypothesise, pda_update
+
+    model = cv_model(1.0, Q_CV)
+    c = constants(PDAParams(pd=PDA_PD, clutter_density=PDA_CLUTTER))
+    rng = np.random.default_rng(5)
+    truth = cv_data(steps, seed=6)
+    scans = truth[:, None, :] + 4.0 * rng.standard_normal((steps, detections, 2))  # all inside the gate
+    x0, P0 = np.array([100.0, 10.0, -50.0, 5.0]), np.diag([100.0, 4.0, 100.0, 4.0])
+    no_amplitude = np.zeros((1, detections))
+    valid = np.ones((1, detections), dtype=bool)
+
+    def fedtrack_run(n: int) -> None:
+        s = GaussianState(x0[None], P0[None])
+        for k in range(n):
+            pred = predict(s, model.F, model.Q)
+            g = gate(pred, scans[k][None], valid, model.H, R_POS, c)
+            s = pda_update(pred, g, pda_ai_hypothesise(g, no_amplitude, c), c)
+
+    runners: dict[str, Callable[[int], Any]] = {"fedtrack": fedtrack_run}
+    if available("stonesoup"):
+        runners["stonesoup"] = stonesoup_pda(scans, x0, P0, c.pg)
+    return runners
+
+
+def stonesoup_pda(scans: np.ndarray, x0: np.ndarray, P0: np.ndarray, pg: float) -> Callable[[int], Any]:
+    from stonesoup.hypothesiser.probability import PDAHypothesiser
+    from stonesoup.models.measurement.linear import LinearGaussian
+    from stonesoup.models.transition.linear import CombinedLinearGaussianTransitionModel, ConstantVelocity
+    from stonesoup.predictor.kalman import KalmanPredictor
+    from stonesoup.types.detection import Detection
+    from stonesoup.types.state import GaussianState as SSState
+    from stonesoup.types.track import Track
+    from stonesoup.updater.kalman import KalmanUpdater
+    from stonesoup.updater.probability import PDAUpdater
+
+    transition = CombinedLinearGaussianTransitionModel([ConstantVelocity(Q_CV), ConstantVelocity(Q_CV)])
+    measurement = LinearGaussian(ndim_state=4, mapping=(0, 2), noise_covar=R_POS)
+    predictor = KalmanPredictor(transition)
+    hypothesiser = PDAHypothesiser(predictor, KalmanUpdater(measurement), clutter_spatial_density=PDA_CLUTTER,
+                                   prob_detect=PDA_PD, prob_gate=pg)
+    updater = PDAUpdater(measurement)
+    t0 = datetime(2026, 1, 1)
+
+    def run(n: int) -> None:
+        track = Track([SSState(x0.reshape(-1, 1), P0, timestamp=t0)])
+        for k in range(n):
+            ts = t0 + timedelta(seconds=k + 1)
+            dets = {Detection(z.reshape(-1, 1), timestamp=ts, measurement_model=measurement) for z in scans[k]}
+            track.append(updater.update(hypothesiser.hypothesise(track, dets, ts)))
+    return run
+
+
 def bench_kernels(quick: bool = False) -> dict[str, Any]:
     steps, rounds = (200, 3) if quick else (2000, 5)
     out: dict[str, Any] = {"seconds_per_step": {}, "ratios": {}, "missing": []}
+    pda = [(f"pda{m}", pda_runners(steps // 10, m), steps // 10) for m in (1, 5, 20)]
     for name, runners, n_steps in (("kf", cv_runners(steps), steps), ("ekf", ekf_runners(steps), steps),
-                                   ("imm13", imm_runners(steps // 10), steps // 10)):
+                                   ("imm13", imm_runners(steps // 10), steps // 10), *pda):
         times = {lib: per_step(run, n_steps, rounds) for lib, run in runners.items()}
         out["seconds_per_step"][name] = times
         for other in ("filterpy", "stonesoup", "numpy_floor"):
             if other in times:
                 out["ratios"][f"{name}_vs_{other}"] = times["fedtrack"] / times[other]
+    if "pda20_vs_stonesoup" in out["ratios"]:
+        out["ratios"]["pda_vs_stonesoup"] = out["ratios"]["pda20_vs_stonesoup"]  # the issue's key: 20 detections
     out["missing"] = [m for m in ("filterpy", "stonesoup") if not available(m)]
     out["batched_target_steps_per_s"] = {str(n): batched_rate(n, max(steps // (1 + n // 100), 5), rounds)
                                          for n in (1, 100, 10_000)}
