@@ -23,7 +23,6 @@ own period and phase).
 from __future__ import annotations
 
 import argparse
-import math
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path

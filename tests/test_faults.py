@@ -193,8 +193,8 @@ def test_kill_and_restart_fusion_centre(tmp_path: Path) -> None:
     rebuilt = run.log_time("fusion-center-fusion", "state rebuilt from the local estimates")
     assert run.log_time("fusion-center-fusion", "restored the state of scan") is not None  # then too old
     after = [k for k in seqs if first_after is not None and k >= first_after][:3]
-    n = report("kill fusion centre", run, after, alone and alone - run.killed_at,
-               rebuilt and rebuilt - run.killed_at)
+    report("kill fusion centre", run, after, alone and alone - run.killed_at,
+           rebuilt and rebuilt - run.killed_at)
     assert lost and first_after is not None and alone is not None and rebuilt is not None
     assert run.launcher.report.restarts == {"fusion-center/fusion": 1}
     # the snapshot is too old (the local filters went on alone): the state is rebuilt from their
