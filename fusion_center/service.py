@@ -47,7 +47,7 @@ from fedtrack.services.base import (
     service_kwargs,
     service_parser,
 )
-from fedtrack.wire import FusedTrack, LocalEstimate, ManeuverEvent, Reset, decode, encode
+from fedtrack.wire import PD_RTOL, FusedTrack, LocalEstimate, ManeuverEvent, Reset, decode, encode
 
 SNAPSHOT_MAX_GAP = 3  # scans missed beyond which a restored snapshot is dropped for a rebuild
 
@@ -208,6 +208,15 @@ class FusionCenterService(Service):
             why = "started mid-run (a restart)" if self.last_track is None else "every local filter went on alone"
             self.log.warning("%s: state rebuilt from the local estimates of scan %d", why, seq)
         result = self.centre.fuse(buf.t, buf.outputs)
+        if not all(positive_definite(P) for P in [result.estimate.P, *(c.P for c in result.resets.values())]):
+            # a local's prior that is not its share of the centre's (e.g. rejoined from an older
+            # centre state after its sensor's gap) can make the federated sum indefinite: rather
+            # than publish it (or fail), start again from the local estimates, as after a restart
+            self.count("rebuilt_not_positive_definite")
+            self.log.warning("scan %d: fused covariance not positive definite: state rebuilt from the local "
+                             "estimates", seq)
+            self.centre = type(self.centre)(self.sensors, self.centre.config)
+            result = self.centre.fuse(buf.t, buf.outputs)
         if degraded:
             self.count("degraded_scans")
         for sensor, cmd in result.resets.items():
@@ -227,6 +236,14 @@ class FusionCenterService(Service):
                 onset=float(ev.onset) if ev is not None else buf.t,
                 u=np.asarray(ev.u) if ev is not None else np.asarray(result.estimate.x[CA_ACC]),
                 statistic=float(ev.statistic) if ev is not None else 0.0))
+
+
+def positive_definite(P: np.ndarray) -> bool:
+    """Positive definite as the wire requires it (eigenvalue ratio above ``PD_RTOL``)."""
+    if not np.all(np.isfinite(P)):
+        return False
+    eig = np.linalg.eigvalsh(0.5 * (P + P.T))
+    return bool(eig[-1] > 0.0 and eig[0] > PD_RTOL * eig[-1])
 
 
 def make_track(seq: int, buf: ScanBuffer, result: CentreResult, degraded: bool, sensors: list[str]) -> FusedTrack:

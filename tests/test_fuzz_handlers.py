@@ -207,3 +207,32 @@ def test_hostile_messages_are_counted_and_change_nothing(attacks: list[tuple[int
         np.testing.assert_array_equal(a.x, b.x)
         np.testing.assert_array_equal(a.P, b.P)
     assert pipe.rejected() == HOSTILE
+
+
+def test_an_indefinite_fusion_is_rebuilt_from_the_local_estimates(monkeypatch: Any) -> None:
+    """If the federated sum comes out indefinite (a local's prior that is not its share of the
+    centre's), the centre starts again from the local estimates instead of failing on the reset."""
+    pipe = Pipeline()
+    centre = pipe.centre.centre
+    real_fuse = type(centre).fuse
+    calls = {"n": 0}
+
+    def fuse_once_indefinite(self: Any, t: float, outputs: Any) -> Any:
+        result = real_fuse(self, t, outputs)
+        calls["n"] += 1
+        if calls["n"] == 10:  # scan 9: spoil the estimate and every reset
+            bad = np.diag([-1.0] + [1.0] * (result.estimate.P.shape[0] - 1))
+            return result._replace(estimate=result.estimate._replace(P=bad),
+                                   resets={s: c._replace(P=bad[: c.P.shape[0], : c.P.shape[0]])
+                                           for s, c in result.resets.items()})
+        return result
+
+    monkeypatch.setattr(type(centre), "fuse", fuse_once_indefinite)
+    for k in range(12):
+        for s in SENSORS:
+            pipe.measurement(s, s, encode(MEASUREMENTS[s][k]))
+            pipe.estimate(s, encode(pipe.estimates_of_last_scan()[-1]))
+        for r in [m for _, m in pipe.published if isinstance(m, Reset) and m.seq == k]:
+            pipe.reset(r.sensor, encode(r))
+    assert [t.seq for t in pipe.tracks()] == list(range(12))
+    assert pipe.centre.counters.get("rebuilt_not_positive_definite") == 1
