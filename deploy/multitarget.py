@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from fedtrack.config import ConfigError, in_file
+from fedtrack.jsonl import InputError
 from fedtrack.deploy.report import LaunchReport
 from fedtrack.deploy.settings import MultitargetSettings, Settings
 from fedtrack.fusion_center.mtt.evaluation import evaluate, plot
@@ -45,7 +46,7 @@ def check_multitarget(settings: Settings, path: Path) -> None:
                               "(set pacing = \"realtime\")")
         try:
             ids = sensor_ids(mt)
-        except Exception as exc:  # parse_spec raises InputError / ValueError naming the item
+        except InputError as exc:
             raise ConfigError(f"multitarget.sensors: {exc}") from None
         unknown = [s for s in ids if not settings.mtt.allows(s)]
         if unknown:

@@ -23,6 +23,7 @@ own period and phase).
 from __future__ import annotations
 
 import argparse
+import bisect
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -97,9 +98,12 @@ class SensorService(Service):
         super().__init__(**kwargs)
         self.lines = lines
         self.scans = scans  # multi-target scans (kind scan), published at their own times
-        self.speed = speed
         self.pacing = pacing
         self.interval_s = period_s / speed
+        # seconds after the start at which each scan is due (realtime)
+        self.due_s = ([scan.t / speed for scan in scans] if scans is not None
+                      else [k * self.interval_s for k in range(len(lines))])
+        self.total = len(self.due_s)
         self.lockstep_timeout_s = lockstep_timeout_s
         self.start_at = start_at  # wall-clock time of scan 0 (realtime); None: when ready
         self.next_seq = 0
@@ -115,12 +119,12 @@ class SensorService(Service):
         """A restarted sensor resumes at the current scan: the one due now (realtime) or the one
         after the fusion centre's latest track (lockstep); its missed scans are not sent."""
         if self.pacing == "realtime" and self.start_at is not None and time.time() > self.start_at:
-            self.next_seq = sum(1 for when in self._times() if when < time.time() - self.start_at)
+            self.next_seq = bisect.bisect_left(self.due_s, time.time() - self.start_at)
         elif self.pacing == "lockstep":
             latest = self.query(self.keys.fusion_state(), FusedTrack)
             if latest:
                 self.fused_up_to = latest[0].seq
-                self.next_seq = min(latest[0].seq + 1, len(self.lines))
+                self.next_seq = min(latest[0].seq + 1, self.total)
         if self.next_seq:
             self.log.warning("resuming at scan %d (a restart: scans before it are not sent)", self.next_seq)
             self.count("resumed_at", self.next_seq)
@@ -130,9 +134,9 @@ class SensorService(Service):
 
     def on_tick(self) -> None:
         now = time.monotonic()
-        if self.next_seq >= len(self.lines):
+        if self.next_seq >= self.total:
             waited = now - self.last_publish
-            if self.fused_up_to >= len(self.lines) - 1 or waited >= self.lockstep_timeout_s:
+            if self.fused_up_to >= self.total - 1 or waited >= self.lockstep_timeout_s:
                 self.stop()
             return
         if self.pacing == "lockstep":
@@ -143,15 +147,9 @@ class SensorService(Service):
         else:
             if self.start_at is None:
                 self.start_at = time.time()
-            due = time.time() >= self.start_at + self._times()[self.next_seq]
+            due = time.time() >= self.start_at + self.due_s[self.next_seq]
         if due:
             self.publish_scan(now)
-
-    def _times(self) -> list[float]:
-        """Seconds after the start at which each scan is due (realtime)."""
-        if self.scans is not None:
-            return [scan.t / self.speed for scan in self.scans]
-        return [k * self.interval_s for k in range(len(self.lines))]
 
     def publish_scan(self, now: float) -> None:
         seq = self.next_seq
@@ -204,7 +202,7 @@ def main(argv: list[str]) -> int:
         if args.measurements is None or settings.deployment.pacing != "realtime":
             parser.error("--kind scan needs --measurements FILE and realtime pacing")
         scans = own_scans(args.measurements, args.id)
-        return SensorService([{} for _ in scans], 1.0, "realtime", settings.deployment.speed, args.lockstep_timeout,
+        return SensorService([], 1.0, "realtime", settings.deployment.speed, args.lockstep_timeout,
                              args.start_at, scans=scans, **service_kwargs(parser, args)).run()
     lines, period = scan_source(args.kind, settings, args.id)
     return SensorService(lines, period, settings.deployment.pacing, settings.deployment.speed,

@@ -24,7 +24,7 @@ from fedtrack.local_filters.mtt.service import MttLocalService
 from fedtrack.recording import Recording
 from fedtrack.sensors.multitarget import Scenario, parse_spec, simulate
 from fedtrack.services.recorder import Recorder
-from fedtrack.wire import TrackPicture, TrackResets, decode, encode
+from fedtrack.wire import TrackPicture, TrackReport, TrackResets, decode, encode
 from fedtrack.zsession import SessionOptions, close_session, open_session, wait_alive
 
 SENSORS = "pos:1.0,pos:0.7,pos:1.3"
@@ -202,3 +202,18 @@ def test_sensors_join_and_leave_at_run_time(tmp_path: Path) -> None:
         assert [(t["id"], t["sensors"]) for t in a["tracks"]] == [(t["id"], t["sensors"]) for t in b["tracks"]]
         for ta, tb in zip(a["tracks"], b["tracks"]):
             np.testing.assert_allclose(ta["x"], tb["x"], rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("d", [4, 6])
+def test_empty_reports_and_resets_cross_the_wire(d: int) -> None:
+    """A tracker with no track yet and a centre answering with no reset (the first scans)."""
+    from fedtrack.local_filters.mtt.local import LocalReport, report_from_wire, report_to_wire, resets_from_wire, resets_to_wire
+
+    m = 3 if d == 6 else 2
+    empty = LocalReport("s1", 0.5, np.zeros(0, np.int64), np.zeros((0, d)), np.zeros((0, d, d)), np.zeros(0, bool),
+                        np.zeros(0, bool), np.zeros((0, m, d)), np.zeros((0, m, m)), np.zeros((0, m)),
+                        np.zeros(0, bool), np.zeros(0, np.int64))
+    back = report_from_wire(decode(encode(report_to_wire(empty, 3, 7)), TrackReport))
+    assert back.x.shape == (0, d) and back.P.shape == (0, d, d) and back.obs_H.shape == (0, m, d)
+    resets = decode(encode(resets_to_wire("s1", 3, 0.5, [], 2.0, d)), TrackResets)
+    assert resets.x.shape == (0, d) and resets_from_wire(resets) == []

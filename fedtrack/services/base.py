@@ -115,6 +115,32 @@ class ScanOrder:
         self.last = msg
 
 
+class ReceivedScans:
+    """Per sensor, the scan numbers a multi-target service took (with their payloads, stamps
+    cleared): an identical repeat is a duplicate (``take`` returns False), a different message
+    with a number already taken a ``conflict``, a number more than ``max_seq_jump`` past the
+    sensor's highest a ``seq_jump`` (both Rejected). Scans may come in any order."""
+
+    def __init__(self, max_seq_jump: int) -> None:
+        self.max_seq_jump = max_seq_jump
+        self.taken: dict[str, dict[int, bytes]] = {}
+
+    def take(self, msg: Message) -> bool:
+        sensor, seq = msg.sensor, msg.seq  # type: ignore[union-attr]
+        body = encode(replace(msg, stamp_ns=0))  # type: ignore[type-var]
+        seen = self.taken.setdefault(sensor, {})
+        if seq in seen:
+            if seen[seq] == body:
+                return False
+            raise Rejected("conflict", f"a second, different message for scan {seq} of {sensor!r} (the first stays)")
+        if seen and seq > max(seen) + self.max_seq_jump:
+            raise Rejected("seq_jump", f"scan {seq} of {sensor!r} is more than {self.max_seq_jump} after {max(seen)}")
+        seen[seq] = body
+        if len(seen) > 4 * self.max_seq_jump:
+            del seen[min(seen)]
+        return True
+
+
 QUEUE_SIZE = 10_000
 REJECT_LOG_INTERVAL_S = 5.0
 CLOSE_DEADLINE_S = 2.0

@@ -33,7 +33,6 @@ from __future__ import annotations
 import sys
 import time
 from collections import deque
-from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -41,38 +40,15 @@ import numpy as np
 import zenoh
 
 from fedtrack.config import ConfigError, load_tables
-from fedtrack.deployment import DeploymentSettings
 from fedtrack.fusion_center.mtt.engines import CentralizedEngine, TrackToTrackEngine
 from fedtrack.fusion_center.mtt.replay import PictureClock
-from fedtrack.local_filters.mtt.config import MttConfig, MttSettings
+from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
 from fedtrack.local_filters.mtt.local import report_from_wire, resets_to_wire
 from fedtrack.local_filters.mtt.scan import scan_from_measurement
-from fedtrack.services.base import Rejected, Service, Subscription, service_kwargs, service_parser
-from fedtrack.wire import Measurement, TrackPicture, TrackReport, encode
+from fedtrack.services.base import ReceivedScans, Rejected, Service, Subscription, service_kwargs, service_parser
+from fedtrack.wire import Measurement, TrackPicture, TrackReport
 
 ALGORITHMS = ("mtt-federated", "mtt-decentralized", "mtt-centralized")
-
-
-class ReceivedScans:
-    """Per sensor, the scan numbers taken (with their payloads, for duplicates and conflicts)."""
-
-    def __init__(self, max_seq_jump: int) -> None:
-        self.max_seq_jump = max_seq_jump
-        self.taken: dict[str, dict[int, bytes]] = {}
-
-    def take(self, sensor: str, seq: int, body: bytes) -> bool:
-        """True for a new scan; False for an identical repeat; Rejected for a conflict or a jump."""
-        seen = self.taken.setdefault(sensor, {})
-        if seq in seen:
-            if seen[seq] == body:
-                return False
-            raise Rejected("conflict", f"a second, different message for scan {seq} of {sensor!r} (the first stays)")
-        if seen and seq > max(seen) + self.max_seq_jump:
-            raise Rejected("seq_jump", f"scan {seq} of {sensor!r} is more than {self.max_seq_jump} after {max(seen)}")
-        seen[seq] = body
-        if len(seen) > 4 * self.max_seq_jump:
-            del seen[min(seen)]
-        return True
 
 
 class MttCentreService(Service):
@@ -128,10 +104,10 @@ class MttCentreService(Service):
             return [Subscription(self.keys.sensor_meas(), Measurement, self.on_scan)]
         return [Subscription(self.keys.mtt_report(), TrackReport, self.on_report)]
 
-    def _admit(self, sensor: str, seq: int, msg: Any) -> bool:
-        if not self.cfg.allows(sensor):
-            raise Rejected("unknown_sensor", f"sensor {sensor!r} is not in mtt.sensors")
-        return self.received.take(sensor, seq, encode(replace(msg, stamp_ns=0)))
+    def _admit(self, msg: Measurement | TrackReport) -> bool:
+        if not self.cfg.allows(msg.sensor):
+            raise Rejected("unknown_sensor", f"sensor {msg.sensor!r} is not in mtt.sensors")
+        return self.received.take(msg)
 
     def _process(self, sensor: str, seq: int, t: float, work: Callable[[], None]) -> None:
         """Publish the pictures due before data at ``t``, then do ``work`` and note the scan."""
@@ -148,7 +124,7 @@ class MttCentreService(Service):
             raise Rejected("wrong_model", str(exc)) from None
         if scan.sensor_position is not None and self.dim != 6:
             raise Rejected("wrong_model", "a radar scan at a 2-D centre (--dim 4)")
-        if not self._admit(msg.sensor, msg.seq, msg):
+        if not self._admit(msg):
             self.count("duplicate")
             return
         self._process(msg.sensor, msg.seq, msg.t, lambda: self.engine.ingest(scan))
@@ -157,7 +133,7 @@ class MttCentreService(Service):
         d = msg.x.shape[1] if msg.ids else None
         if d is not None and (d not in (4, 6) or d > self.dim):
             raise Rejected("wrong_model", f"local state of size {d} at a centre of size {self.dim}")
-        if not self._admit(msg.sensor, msg.seq, msg):
+        if not self._admit(msg):
             self.count("duplicate")
             return
         report = report_from_wire(msg)
@@ -168,7 +144,7 @@ class MttCentreService(Service):
             resets, q_scale = engine.fuse(report)
             if engine.feedback:
                 self.publish(self.keys.mtt_resets(msg.sensor),
-                             resets_to_wire(msg.sensor, msg.seq, msg.t, resets, q_scale))
+                             resets_to_wire(msg.sensor, msg.seq, msg.t, resets, q_scale, msg.x.shape[1]))
         self._process(msg.sensor, msg.seq, msg.t, fuse)
 
     def _publish_picture(self, T: float, closing: bool = False) -> None:
@@ -206,9 +182,8 @@ def main(argv: list[str]) -> int:
     kwargs = service_kwargs(parser, args)
     path = Path(args.config) if args.config else None
     try:
-        cfg = load_tables(path, MttSettings).mtt
-        dep = load_tables(path, DeploymentSettings).deployment
+        settings = load_tables(path, MttServiceSettings)
     except ConfigError as exc:
         print(f"fedtrack serve mtt-centre: error: {exc}", file=sys.stderr)
         return 2
-    return MttCentreService(args.algorithm, cfg, args.dim, dep.max_seq_jump, **kwargs).run()
+    return MttCentreService(args.algorithm, settings.mtt, args.dim, settings.deployment.max_seq_jump, **kwargs).run()

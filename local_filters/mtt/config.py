@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 from fedtrack.config import ConfigError
+from fedtrack.deployment import DeploymentConfig
 from fedtrack.keys import InvalidName, check_id
 
 NOISE_MODELS = ("continuous", "discrete")
@@ -114,3 +115,11 @@ class MttSettings:
     """The tables the multi-target replay and services read."""
 
     mtt: MttConfig = field(default_factory=MttConfig)
+
+
+@dataclass(frozen=True)
+class MttServiceSettings:
+    """The tables ``serve mtt-local`` and ``serve mtt-centre`` read: ``[mtt]`` and ``[deployment]``."""
+
+    mtt: MttConfig = field(default_factory=MttConfig)
+    deployment: DeploymentConfig = field(default_factory=DeploymentConfig)

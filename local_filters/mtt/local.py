@@ -116,8 +116,9 @@ def report_from_wire(msg: wire.TrackReport) -> LocalReport:
                        np.array(msg.retired, dtype=np.int64))
 
 
-def resets_to_wire(sensor: str, seq: int, t: float, resets: list[Reset], q_scale: float) -> wire.TrackResets:
-    d = resets[0].x.shape[0] if resets else 0
+def resets_to_wire(sensor: str, seq: int, t: float, resets: list[Reset], q_scale: float, d: int
+                   ) -> wire.TrackResets:
+    """The resets (possibly none) of a tracker whose states have size ``d``."""
     return wire.TrackResets(sensor=sensor, seq=seq, t=t, q_scale=q_scale, ids=tuple(r.local_id for r in resets),
                             x=np.array([r.x for r in resets]).reshape(-1, d),
                             P=np.array([r.P for r in resets]).reshape(-1, d))

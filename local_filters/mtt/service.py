@@ -23,13 +23,11 @@ from __future__ import annotations
 import sys
 import time
 from collections import deque
-from dataclasses import replace
 from pathlib import Path
 
 from fedtrack.config import ConfigError, load_tables
-from fedtrack.deployment import DeploymentSettings
 from fedtrack.keys import check_id
-from fedtrack.local_filters.mtt.config import MttConfig, MttSettings
+from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
 from fedtrack.local_filters.mtt.local import (
     LocalTracker,
     adopt,
@@ -40,8 +38,16 @@ from fedtrack.local_filters.mtt.local import (
     resets_from_wire,
 )
 from fedtrack.local_filters.mtt.scan import SensorScan, scan_from_measurement
-from fedtrack.services.base import Rejected, Service, Subscription, check_time_jump, service_kwargs, service_parser
-from fedtrack.wire import Measurement, TrackResets, encode
+from fedtrack.services.base import (
+    ReceivedScans,
+    Rejected,
+    Service,
+    Subscription,
+    check_time_jump,
+    service_kwargs,
+    service_parser,
+)
+from fedtrack.wire import Measurement, TrackResets
 from fedtrack.zsession import id_arg
 
 MODES = ("federated", "decentralized")
@@ -60,12 +66,10 @@ class MttLocalService(Service):
         self.federated = federated
         self.cfg = cfg
         self.reset_timeout_s = reset_timeout_s
-        self.max_seq_jump = max_seq_jump
         self.max_time_jump_s = max_time_jump_s
         self.tracker: LocalTracker | None = None
         self.queue: deque[tuple[int, SensorScan, int]] = deque()  # (seq, scan, stamp) waiting
-        self.taken: dict[int, bytes] = {}  # seq -> payload (without stamp) of scans accepted, for conflicts
-        self.last_seq: int | None = None
+        self.received = ReceivedScans(max_seq_jump)
         self.last_t: float | None = None
         self.awaiting: int | None = None  # report whose resets are due (federated)
         self.awaiting_since = 0.0
@@ -83,19 +87,10 @@ class MttLocalService(Service):
             raise Rejected("wrong_model", str(exc)) from None
         if not self.cfg.allows(msg.sensor):
             raise Rejected("unknown_sensor", f"sensor {msg.sensor!r} is not in mtt.sensors")
-        body = encode(replace(msg, stamp_ns=0))
-        if msg.seq in self.taken:
-            if self.taken[msg.seq] == body:
-                self.count("duplicate")
-                return
-            raise Rejected("conflict", f"a second, different scan {msg.seq} (the first stays)")
-        if self.last_seq is not None and msg.seq > self.last_seq + self.max_seq_jump:
-            raise Rejected("seq_jump", f"scan {msg.seq} is more than {self.max_seq_jump} after {self.last_seq}")
         check_time_jump(self.last_t, msg.t, self.max_time_jump_s)
-        self.taken[msg.seq] = body
-        if len(self.taken) > 4 * self.max_seq_jump:
-            del self.taken[min(self.taken)]
-        self.last_seq = msg.seq if self.last_seq is None else max(self.last_seq, msg.seq)
+        if not self.received.take(msg):
+            self.count("duplicate")
+            return
         self.last_t = msg.t if self.last_t is None else max(self.last_t, msg.t)
         self.queue.append((msg.seq, scan, msg.stamp_ns))
         self._advance()
@@ -147,10 +142,10 @@ def main(argv: list[str]) -> int:
     kwargs = service_kwargs(parser, args)
     path = Path(args.config) if args.config else None
     try:
-        cfg = load_tables(path, MttSettings).mtt
-        dep = load_tables(path, DeploymentSettings).deployment
+        settings = load_tables(path, MttServiceSettings)
     except ConfigError as exc:
         print(f"fedtrack serve mtt-local: error: {exc}", file=sys.stderr)
         return 2
-    return MttLocalService(args.sensor, args.mode == "federated", cfg, args.reset_timeout, dep.max_seq_jump,
-                           dep.max_time_jump_s, **kwargs).run()
+    dep = settings.deployment
+    return MttLocalService(args.sensor, args.mode == "federated", settings.mtt, args.reset_timeout,
+                           dep.max_seq_jump, dep.max_time_jump_s, **kwargs).run()

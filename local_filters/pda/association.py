@@ -265,7 +265,6 @@ class Evidence(NamedTuple):
 
     log_lr: np.ndarray  # (...) log(1 - delta_k) of eq (9)
     dominant: np.ndarray  # (...) the detection most likely the target's, -1 if none has beta >= 1/2
-    log_n: np.ndarray  # (...) log N(nu; 0, S) of that detection (-inf if none)
 
 
 def scan_evidence(g: Gated, amplitude: np.ndarray, c: Constants) -> Evidence:
@@ -274,12 +273,10 @@ def scan_evidence(g: Gated, amplitude: np.ndarray, c: Constants) -> Evidence:
     product is a martingale) and the detection that holds most of the association weight."""
     log_num, log_den = _pda_terms(g, log_amplitude_ratio(amplitude, c), c)
     if log_num.shape[-1] == 0:
-        none = np.full(log_den.shape, -1)
-        return Evidence(log_den - np.log(c.lam), none, np.full(log_den.shape, -np.inf))
+        return Evidence(log_den - np.log(c.lam), np.full(log_den.shape, -1))
     best = np.argmax(log_num, axis=-1)
     strong = np.take_along_axis(log_num, best[..., None], axis=-1)[..., 0] - log_den >= np.log(0.5)
-    log_n = np.take_along_axis(g.log_n, best[..., None], axis=-1)[..., 0]
-    return Evidence(log_den - np.log(c.lam), np.where(strong, best, -1), np.where(strong, log_n, -np.inf))
+    return Evidence(log_den - np.log(c.lam), np.where(strong, best, -1))
 
 
 def pda_update(pred: GaussianState, g: Gated, hyp: PDAHypotheses, c: Constants) -> GaussianState:

@@ -27,8 +27,10 @@ exponential is a non-negative martingale of mean 1, so by Ville's inequality it 
 reach ``a = B / false_track_rate``: that scan's births then confirm at most
 ``false_track_rate`` clutter tracks on average, however dense the clutter. A target's
 amplitudes give a likelihood ratio of ``e^10`` or more per detection at rho = 20, so the test
-costs it little. ``false_track_rate = 0`` and ``one_track_per_detection = false`` give the
-paper's rule alone.
+costs it little. The association also uses the larger of the configured clutter density and
+the scans' own estimate (``clutter_from_scans``, :func:`scan_constants`): the bound needs the
+clutter likelihood ratio to average 1. ``false_track_rate = 0``, ``one_track_per_detection =
+false`` and ``clutter_from_scans = false`` give the paper's rule alone.
 """
 
 from __future__ import annotations
