@@ -7,6 +7,10 @@ dependencies never slow another's start-up.
 
 from __future__ import annotations
 
+from fedtrack.process_tuning import tune_process
+
+tune_process()  # before numpy is imported: one BLAS thread, malloc keeps its pages
+
 import argparse
 import importlib
 import importlib.metadata

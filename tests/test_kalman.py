@@ -3,7 +3,14 @@
 import numpy as np
 import pytest
 
-from fedtrack.local_filters.linear.kalman import GaussianState, Innovation, log_likelihood, predict, update
+from fedtrack.local_filters.linear.kalman import (
+    GaussianState,
+    Innovation,
+    log_likelihood,
+    predict,
+    solve_spd,
+    update,
+)
 from fedtrack.local_filters.linear.models import ca_model, ca_to_cv, cv_model, cv_to_ca
 
 R = np.array([[100.0, 5.0], [5.0, 100.0]])
@@ -72,3 +79,22 @@ def test_cv_ca_round_trip():
     xb, Pb = ca_to_cv(xs, Ps)
     np.testing.assert_array_equal(xb, x)
     np.testing.assert_array_equal(Pb, P)
+
+
+@pytest.mark.parametrize("m", [1, 2, 3])
+@pytest.mark.parametrize("batch", [(), (7,), (3, 5)])
+def test_solve_spd_equals_a_lapack_solve(m, batch):
+    """The closed forms (m = 1, 2) and the fallback agree with ``np.linalg.solve`` to round-off."""
+    rng = np.random.default_rng(m)
+    A = rng.normal(size=batch + (m, m))
+    S = A @ np.swapaxes(A, -1, -2) + 0.1 * np.eye(m)
+    B = rng.normal(size=batch + (m, 4))
+    np.testing.assert_allclose(solve_spd(S, B), np.linalg.solve(S, B), rtol=1e-10, atol=1e-12)
+
+
+def test_solve_spd_falls_back_to_lapack_on_a_singular_matrix():
+    """A 2x2 with zero determinant is not divided by: LAPACK's error is raised, as before."""
+    with pytest.raises(np.linalg.LinAlgError):
+        solve_spd(np.ones((2, 2)), np.ones((2, 3)))
+    with pytest.raises(np.linalg.LinAlgError):
+        solve_spd(np.ones((4, 2, 2)), np.ones((4, 2, 3)))

@@ -43,16 +43,50 @@ def logsumexp(a: np.ndarray, axis: int = -1, keepdims: bool = False) -> np.ndarr
     return out if keepdims else np.squeeze(out, axis=axis)
 
 
+_HALF = np.array(0.5)  # a 0-d array multiplies a 4x4 in 0.5 us, the Python float in 0.7 us
+
+
 def symmetrize(P: np.ndarray) -> np.ndarray:
-    """``(P + P')/2`` over the last two axes."""
-    return 0.5 * (P + P.swapaxes(-1, -2))  # the method: np.swapaxes's wrapper costs 3x more on 4x4
+    """``(P + P')/2`` over the last two axes.
+
+    The transpose is copied first: adding a transposed 4x4 view takes 1.3 us, the copy and a
+    contiguous add 0.9 us (the method, not ``np.swapaxes``, whose wrapper costs 3x more).
+    """
+    return _HALF * (P + P.swapaxes(-1, -2).copy())
 
 
 def mat_vec(A: np.ndarray, v: np.ndarray) -> np.ndarray:
     """``A v`` broadcast over leading axes (a plain product when neither is batched)."""
-    if A.ndim == 2 and v.ndim == 1:
-        return A @ v
-    return np.matmul(A, v[..., None])[..., 0]
+    if A.ndim == 2:
+        return A.dot(v) if v.ndim == 1 else v.dot(A.T)
+    if A.shape[-1] > 3:
+        return np.matmul(A, v[..., None])[..., 0]
+    out = A[..., 0] * v[..., :1]  # a short row: a sum of scaled columns (a third of matmul's time)
+    for j in range(1, A.shape[-1]):
+        out += A[..., j] * v[..., j:j + 1]
+    return out
+
+
+def batched_product(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """``X Y`` over leading axes, fast for stacks of small matrices.
+
+    numpy's stacked matmul costs about 80 ns a 4x4 product. A constant (2-D) factor instead
+    folds the stack into one BLAS product, and a short inner dimension (at most 3) is summed as
+    outer products; 10,000 4x4 products by a constant take 0.14 ms instead of 0.8 ms.
+    """
+    if Y.ndim == 2:
+        if X.ndim == 2:
+            return X.dot(Y)
+        return X.reshape(-1, X.shape[-1]).dot(Y).reshape(X.shape[:-1] + Y.shape[-1:])
+    if X.ndim == 2:  # C Y = (Y' C')'
+        return batched_product(Y.swapaxes(-1, -2), X.T).swapaxes(-1, -2)
+    inner = X.shape[-1]
+    if inner > 3:
+        return np.matmul(X, Y)
+    out = X[..., :, :1] * Y[..., :1, :]
+    for j in range(1, inner):
+        out += X[..., :, j:j + 1] * Y[..., j:j + 1, :]
+    return out
 
 
 def transpose(A: np.ndarray) -> np.ndarray:
@@ -62,37 +96,100 @@ def transpose(A: np.ndarray) -> np.ndarray:
 def predict(state: GaussianState, F: np.ndarray, Q: np.ndarray,
             u_effect: np.ndarray | None = None) -> GaussianState:
     """Time update: ``x = F x (+ B u)``, ``P = F P F' + Q`` (paper 004 eqs. (5), (7))."""
+    mm = np.ndarray.dot if F.ndim == 2 and state.P.ndim == 2 else batched_product
     x = mat_vec(F, state.x)
     if u_effect is not None:
         x = x + u_effect
-    P = F @ state.P @ transpose(F) + Q
+    P = mm(mm(F, state.P), F.swapaxes(-1, -2)) + Q
     return GaussianState(x, symmetrize(P))
 
 
 def innovation(state: GaussianState, z: np.ndarray, H: np.ndarray, R: np.ndarray) -> Innovation:
     """``nu = z - H x``, ``S = H P H' + R``."""
     nu = z - mat_vec(H, state.x)
-    S = symmetrize(H @ state.P @ transpose(H) + R)
+    S = symmetrize(np.matmul(np.matmul(H, state.P), transpose(H)) + R)
     return Innovation(nu, S)
+
+
+class KalmanUpdate(NamedTuple):
+    """Posterior, the innovation it used and the gain ``K`` (..., n, m)."""
+
+    state: GaussianState
+    innovation: Innovation
+    gain: np.ndarray
+
+
+def solve_spd(S: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """``S^-1 B`` for symmetric positive definite ``S`` (..., m, m) and ``B`` (..., m, k).
+
+    For m <= 3 by the adjugate over the determinant (Cramer's rule; a LAPACK solve costs 6 us
+    on one small matrix, the closed form 1.5-3 us, in Python floats when ``S`` is one matrix);
+    a solve for larger m, and wherever a determinant is not positive.
+    """
+    m = S.shape[-1]
+    if m == 2 and S.ndim == 2:  # the commonest case first: one 2-D position measurement
+        (a, b), (_, d) = S.tolist()
+        det = a * d - b * b
+        if det > 0.0:
+            r = 1.0 / det
+            return np.array([[d * r, -b * r], [-b * r, a * r]]).dot(B)
+    if m == 1:
+        return B / S
+    if m > 3:
+        return np.linalg.solve(S, B)
+    one = S.ndim == 2
+    e = S.tolist() if one else [[S[..., i, j] for j in range(m)] for i in range(m)]
+    adj, det = _symmetric_adjugate(e)
+    if not (det > 0.0 if one else np.all(det > 0.0)):
+        return np.linalg.solve(S, B)
+    r = 1.0 / det
+    inv = [[c * r for c in row] for row in adj]
+    if one:
+        return np.array(inv).dot(B)
+    out = np.empty(np.broadcast_shapes(S.shape[:-2], B.shape[:-2]) + B.shape[-2:])
+    for i in range(m):  # row i of S^-1 B, elementwise over the stack
+        out[..., i, :] = inv[i][0][..., None] * B[..., 0, :]
+        for j in range(1, m):
+            out[..., i, :] += inv[i][j][..., None] * B[..., j, :]
+    return out
+
+
+def _symmetric_adjugate(e: list) -> tuple[list, object]:
+    """Adjugate and determinant of a symmetric 2x2 or 3x3 matrix given by its entries (floats or arrays)."""
+    if len(e) == 2:
+        (a, b), (_, d) = e
+        return [[d, -b], [-b, a]], a * d - b * b
+    (a, b, c), (_, d, f), (_, _, g) = e
+    A11, A12, A13 = d * g - f * f, c * f - b * g, b * f - c * d
+    A22, A23, A33 = a * g - c * c, b * c - a * f, a * d - b * b
+    return [[A11, A12, A13], [A12, A22, A23], [A13, A23, A33]], a * A11 + b * A12 + c * A13
+
+
+def update_residual(state: GaussianState, nu: np.ndarray, H: np.ndarray, R: np.ndarray) -> KalmanUpdate:
+    """Measurement update in Joseph form given the innovation ``nu`` (``z - h(x)`` for an EKF).
+
+    ``S = H P H' + R``, ``K = P H' S^-1`` (``K' = S^-1 H P``, P and S symmetric),
+    ``x+ = x + K nu``, ``P+ = (I - K H) P (I - K H)' + K R K'``.
+    """
+    P = state.P
+    mm = np.ndarray.dot if P.ndim == 2 and H.ndim == 2 and R.ndim == 2 else batched_product
+    HP = mm(H, P)
+    S = symmetrize(mm(HP, H.swapaxes(-1, -2)) + R)
+    K = solve_spd(S, HP).swapaxes(-1, -2)
+    x = state.x + mat_vec(K, nu)
+    A = _identity(P.shape[-1]) - mm(K, H)
+    P = mm(mm(A, P), A.swapaxes(-1, -2)) + mm(mm(K, R), K.swapaxes(-1, -2))
+    return KalmanUpdate(GaussianState(x, symmetrize(P)), Innovation(nu, S), K)
 
 
 def update(state: GaussianState, z: np.ndarray, H: np.ndarray,
            R: np.ndarray) -> tuple[GaussianState, Innovation]:
-    """Measurement update in Joseph form.
+    """Measurement update in Joseph form (:func:`update_residual` with ``nu = z - H x``).
 
-    ``K = P H' S^-1`` (by a solve with ``S``), ``x+ = x + K nu``,
-    ``P+ = (I - K H) P (I - K H)' + K R K'``.
     Returns the posterior and the innovation it used.
     """
-    HP = H @ state.P
-    S = symmetrize(HP @ transpose(H) + R)
-    inn = Innovation(z - mat_vec(H, state.x), S)
-    # K' = S^-1 (H P)  (S and P symmetric), so K = solve(S, HP)'
-    K = transpose(np.linalg.solve(S, HP))
-    x = state.x + mat_vec(K, inn.nu)
-    A = _identity(state.P.shape[-1]) - K @ H
-    P = A @ state.P @ transpose(A) + K @ R @ transpose(K)
-    return GaussianState(x, symmetrize(P)), inn
+    post = update_residual(state, z - mat_vec(H, state.x), H, R)
+    return post.state, post.innovation
 
 
 @lru_cache(maxsize=16)

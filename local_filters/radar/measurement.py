@@ -9,6 +9,8 @@ Azimuth is wrapped to (-pi, pi]. Shared by the radar filters and the radar simul
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -19,9 +21,15 @@ def wrap_angle(a: np.ndarray) -> np.ndarray:
 
 def polar_from_cartesian(d: np.ndarray) -> np.ndarray:
     """``[r, az, el]`` (..., 3) of relative positions ``d`` (..., 3) (paper 002 eq. (39))."""
-    rho = np.hypot(d[..., 0], d[..., 1])
-    return np.stack([np.sqrt(rho * rho + d[..., 2] ** 2), np.arctan2(d[..., 1], d[..., 0]),
-                     np.arctan2(d[..., 2], rho)], axis=-1)
+    if d.ndim == 1:  # one position: Python floats, a third of the cost of 0-d numpy arithmetic
+        dx, dy, dz = d.tolist()
+        rho = math.hypot(dx, dy)
+        return np.array([math.sqrt(rho * rho + dz ** 2), math.atan2(dy, dx), math.atan2(dz, rho)])
+    dx, dy, dz = d[..., 0], d[..., 1], d[..., 2]
+    rho = np.hypot(dx, dy)
+    out = np.empty(d.shape)
+    out[..., 0], out[..., 1], out[..., 2] = np.sqrt(rho * rho + dz ** 2), np.arctan2(dy, dx), np.arctan2(dz, rho)
+    return out
 
 
 def cartesian_from_polar(z: np.ndarray) -> np.ndarray:
