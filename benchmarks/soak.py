@@ -26,6 +26,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from fedtrack.deploy.procstat import process_usage
 from fedtrack.services.base import CACHE_SAMPLES
 
 SAMPLE_S = 5.0
@@ -50,13 +51,8 @@ def deployment_processes(name: str) -> dict[int, str]:
 
 
 def rss_mb(pid: int) -> float | None:
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
-    except OSError:
-        return None
-    return None
+    usage = process_usage(pid)
+    return None if usage is None else usage.rss_mb
 
 
 def median(values: list[float]) -> float:

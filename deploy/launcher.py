@@ -40,6 +40,7 @@ from fedtrack.deploy.multitarget import (
     sensor_ids,
     service_args,
 )
+from fedtrack.deploy.procstat import process_usage
 from fedtrack.deploy.report import LaunchReport, finish
 from fedtrack.deploy.security import LAUNCHER, identity, write_configs
 from fedtrack.deploy.settings import Settings, check_launchable, load_settings
@@ -67,6 +68,7 @@ def describe_exit(code: int) -> str:
     return f"exit code {code}"
 
 
+USAGE_SAMPLE_S = 0.5  # how often the launcher samples its services' peak RSS and CPU time
 STOP_STAGE = {"fusion-center": 1, "mtt-centre": 1, "recorder": 2, "router": 3}  # others 0
 
 
@@ -251,6 +253,14 @@ class Launcher:
             self._restart_at[sp.name] = now + delay
             self._say(f"{sp.name} exited with {reason}; restart {done + 1} of {MAX_RESTARTS} in {delay:g} s")
 
+    def _sample_usage(self) -> None:
+        """Record every running service's peak RSS and CPU time so far (the last sample before it exits)."""
+        for sp in self.plan:
+            if sp.proc is not None and sp.proc.poll() is None:
+                usage = process_usage(sp.proc.pid)
+                if usage is not None:
+                    self.report.processes[sp.name] = {"max_rss_mb": usage.peak_rss_mb, "cpu_s": usage.cpu_s}
+
     def _finished(self, sp: ServiceProcess) -> bool:
         """Ended for good: exited 0, or given up after MAX_RESTARTS."""
         return sp.proc is not None and sp.proc.poll() is not None and (sp.proc.returncode == 0
@@ -268,6 +278,7 @@ class Launcher:
         recorder, then the routers: their final Health (counters after the last line was
         written) still reaches the monitor, so the report's counters are final.
         """
+        self._sample_usage()
         running = [sp for sp in reversed(self.plan) if sp.proc is not None and sp.proc.poll() is None]
         stages = [[sp for sp in running if STOP_STAGE.get(sp.role, 0) == k] for k in range(4)]
         for group in stages:
@@ -431,9 +442,12 @@ class Launcher:
 
     def _watch(self, sensors: list[ServiceProcess], start: float) -> None:
         tty = sys.stderr.isatty()
-        last_print = 0.0
+        last_print = last_sample = 0.0
         while not self._stop.is_set():
             self._check_alive(self.plan)
+            if time.monotonic() - last_sample >= USAGE_SAMPLE_S:
+                self._sample_usage()
+                last_sample = time.monotonic()
             if sensors and all(self._finished(sp) for sp in sensors) or self._enough.is_set():
                 break
             if not sensors and all(self._finished(sp) for sp in self.plan):

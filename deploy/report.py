@@ -40,6 +40,7 @@ class LaunchReport:
     exit_codes: dict[str, int] = field(default_factory=dict)
     failed: list[str] = field(default_factory=list)
     restarts: dict[str, int] = field(default_factory=dict)  # service -> times the launcher restarted it
+    processes: dict[str, dict[str, float]] = field(default_factory=dict)  # service -> peak RSS (MB), CPU (s)
     wall_s: float = 0.0
 
     def latency_percentiles(self) -> tuple[float, float]:

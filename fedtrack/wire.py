@@ -123,9 +123,10 @@ def _array(value: Any, path: str, ndim: int, limit: int = MAX_ARRAY_ELEMENTS) ->
         raise WireError(path, f"expected {ndim} dimension(s), got shape {arr.shape}")
     if arr.size > limit:
         raise WireError(path, f"{arr.size} elements exceed the limit of {limit}")
-    if not np.all(np.isfinite(arr)):
-        raise WireError(path, "contains NaN or infinity")
-    if arr.size and float(np.max(np.abs(arr))) > MAX_MAGNITUDE:
+    # one reduction for both checks: NaN fails every comparison, infinity exceeds the bound
+    if arr.size and not np.abs(arr).max() <= MAX_MAGNITUDE:
+        if not np.isfinite(arr).all():
+            raise WireError(path, "contains NaN or infinity")
         raise WireError(path, f"values beyond +-{MAX_MAGNITUDE:g} (overflow-scale)")
     arr.setflags(write=False)
     return arr
@@ -142,8 +143,8 @@ def _covariance(value: Any, path: str) -> np.ndarray:
         raise WireError(path, f"expected a square matrix, got shape {arr.shape}")
     if arr.size == 0:
         return arr
-    scale = float(np.max(np.abs(arr)))
-    if np.max(np.abs(arr - arr.T)) > SYMMETRY_RTOL * scale:
+    scale = float(np.abs(arr).max())
+    if np.abs(arr - arr.T).max() > SYMMETRY_RTOL * scale:
         raise WireError(path, "not symmetric")
     sym = 0.5 * (arr + arr.T)
     try:
@@ -213,6 +214,9 @@ def _check_square(P: np.ndarray, n: int, path: str, against: str) -> None:
 
 # ---------------------------------------------------------------- records
 
+R = TypeVar("R", bound="_Record")
+
+
 class _Record:
     """Base of every record: validates and normalizes fields in ``__post_init__``.
 
@@ -238,6 +242,34 @@ class _Record:
 
     def _check(self) -> None:
         """Cross-field checks (shapes); fields are already normalized."""
+
+    @classmethod
+    def unchecked(cls: type[R], **values: Any) -> R:
+        """A record of this process's own computed values, built without the field checks.
+
+        Decoding is the trust boundary: it checks every field of every message received. A
+        service's own outgoing messages (estimates, resets, tracks, reports, pictures) skip a
+        second check at build time; their covariances are validated once, by the receiver (a
+        ``LocalEstimate``'s two eigen-decompositions were half of its build). Array fields are
+        taken as float64 arrays in their wire layout (stacked covariances already stacked);
+        defaults apply as in the constructor.
+        """
+        rec = object.__new__(cls)
+        for f in dataclasses.fields(cls):  # type: ignore[arg-type]
+            if f.name in values:
+                value = values.pop(f.name)
+            elif f.default is not dataclasses.MISSING:
+                value = f.default
+            elif f.default_factory is not dataclasses.MISSING:
+                value = f.default_factory()
+            else:
+                raise TypeError(f"{cls.__name__}.unchecked: missing field {f.name!r}")
+            if f.name in cls._arrays and value is not None:
+                value = np.asarray(value, dtype=np.float64)
+            object.__setattr__(rec, f.name, value)
+        if values:
+            raise TypeError(f"{cls.__name__}.unchecked: unknown field(s) {', '.join(sorted(values))}")
+        return rec
 
 
 @dataclass(frozen=True, eq=False)
@@ -651,11 +683,11 @@ class Health(_Record):
     _fields = {"role": _identifier, "id": _identifier, "seq": _count, "counters": _counters, "status": _text}
 
 
+M = TypeVar("M", bound=_Record)
 Message = (Measurement | LocalEstimate | Reset | FusedTrack | ManeuverEvent | Health | TrackReport | TrackResets
            | TrackPicture)
 MESSAGE_TYPES: tuple[type[_Record], ...] = (Measurement, LocalEstimate, Reset, FusedTrack, ManeuverEvent, Health,
                                             TrackReport, TrackResets, TrackPicture)
-M = TypeVar("M", bound=_Record)
 
 
 # ---------------------------------------------------------------- encoding

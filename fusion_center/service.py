@@ -219,11 +219,11 @@ class FusionCenterService(Service):
             result = self.centre.fuse(buf.t, buf.outputs)
         if degraded:
             self.count("degraded_scans")
-        for sensor, cmd in result.resets.items():
-            self.publish(self.keys.fusion_reset(sensor), Reset(sensor=sensor, seq=seq, t=buf.t, model=cmd.model,
-                                                               x=cmd.x, P=cmd.P, beta=cmd.share))
         track = make_track(seq, buf, result, degraded, [s for s in self.sensors if s in buf.outputs])
-        self.publish(self.keys.fusion_track(), track)
+        self.publish(self.keys.fusion_track(), track)  # the output first; the resets are for the next scan
+        for sensor, cmd in result.resets.items():
+            self.publish(self.keys.fusion_reset(sensor), Reset.unchecked(
+                sensor=sensor, seq=seq, t=buf.t, model=cmd.model, x=cmd.x, P=cmd.P, beta=cmd.share))
         self.last_track = track
         self._save(track)
         self.count("scans_fused")
@@ -252,7 +252,7 @@ def make_track(seq: int, buf: ScanBuffer, result: CentreResult, degraded: bool, 
     idx = np.arange(6) if is_ca else CV_IN_CA
     kind = int(est.event)
     extra = {"event": EVENT_NAMES[kind]} if kind != EVENT_NONE else {}
-    return FusedTrack(seq=seq, t=buf.t, model="ca" if is_ca else "cv", x=est.x[idx], P=est.P[np.ix_(idx, idx)],
+    return FusedTrack.unchecked(seq=seq, t=buf.t, model="ca" if is_ca else "cv", x=est.x[idx], P=est.P[np.ix_(idx, idx)],
                       maneuver=is_ca, degraded=degraded, sensors=tuple(sensors), stamp_ns=min(buf.stamps),
                       extra=extra)
 

@@ -236,7 +236,7 @@ class RadarLocalFilterService(Service):
         if est is None:  # the first measurement only starts the two-point initialization
             return
         x, P = np.asarray(est["x"]), np.asarray(est["P"])
-        self.publish(self.keys.local_estimate(self.sensor), LocalEstimate(
+        self.publish(self.keys.local_estimate(self.sensor), LocalEstimate.unchecked(
             sensor=self.sensor, seq=msg.seq, t=msg.t, model=est["model"], x=x, P=P, x_prior=x, P_prior=P,
             stamp_ns=msg.stamp_ns, degraded=("no-prior",)))
 
@@ -246,7 +246,7 @@ def to_message(sensor: str, meas: Measurement, out: LocalOutput, flags: tuple[st
     if out.event is not None:
         maneuver = ManeuverInfo(event=out.event, detected=out.event in ("onset", "new-ca"), onset=out.onset,
                                 u=out.u, gamma=out.gamma)
-    return LocalEstimate(sensor=sensor, seq=meas.seq, t=meas.t, model=out.model, x=out.x, P=out.P,
+    return LocalEstimate.unchecked(sensor=sensor, seq=meas.seq, t=meas.t, model=out.model, x=out.x, P=out.P,
                          x_prior=out.x_prior, P_prior=out.P_prior, stamp_ns=meas.stamp_ns, maneuver=maneuver,
                          degraded=(("init",) if out.init else ()) + flags)
 

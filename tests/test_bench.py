@@ -25,14 +25,19 @@ REPO = Path(__file__).resolve().parents[1]
 def test_bench_quick_writes_expected_json(tmp_path: Path) -> None:
     out = tmp_path / "bench.json"
     proc = subprocess.run([sys.executable, "-m", "fedtrack.cli", "bench", "--quick", "--sensors", "2",
-                           "--json", str(out)], cwd=REPO, capture_output=True, text=True, timeout=80)
+                           "--json", str(out)], cwd=REPO, capture_output=True, text=True, timeout=150)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert "lockstep scans/s" in proc.stdout
     result = json.loads(out.read_text())
     assert {"sensors", "quick", "deployments", "summary", "kf_micro", "versions", "wall_time_s"} <= set(result)
     assert result["sensors"] == [2] and result["quick"] is True
-    assert sorted(r["pacing"] for r in result["deployments"]) == ["lockstep", "realtime"]
-    for run in result["deployments"]:
+    assert sorted(r["pacing"] for r in result["deployments"]) == ["floor", "lockstep", "realtime"]
+    floor = next(r for r in result["deployments"] if r["pacing"] == "floor")
+    assert floor["steady_scans"] > 0 and 0 < floor["p50_ms"] <= floor["p99_ms"]
+    assert set(floor["payload_bytes"]) == {"meas", "est", "track", "reset"}
+    for run in (r for r in result["deployments"] if r["pacing"] != "floor"):
+        assert {"router/router", "fusion-center/fusion", "local-filter/1", "sensor/1"} <= set(run["processes"])
+        assert all(p["max_rss_mb"] > 0 and p["cpu_s"] >= 0 for p in run["processes"].values())
         assert run["scans_fused"] >= QUICK_SCANS
         # degraded scans depend on timing (a loaded machine, the early stop): reported, not asserted
         assert isinstance(run["degraded_scans"], int) and run["rejected_messages"] == 0
@@ -40,7 +45,9 @@ def test_bench_quick_writes_expected_json(tmp_path: Path) -> None:
         assert math.isfinite(run["latency_last_publish_ms"]["p99"]) and run["scans_per_s"] > 0
     row = result["summary"]["2"]
     assert {"latency_last_p50_ms", "latency_last_p99_ms", "latency_first_p50_ms", "latency_first_p99_ms",
-            "lockstep_scans_per_s", "lockstep_rate_ratio", "latency_last_p50_ratio"} <= set(row)
+            "lockstep_scans_per_s", "lockstep_rate_ratio", "latency_last_p50_ratio", "floor_p50_ms",
+            "startup_latency_last_p99_ms", "p50_vs_floor", "max_rss_mb"} <= set(row)
+    assert math.isfinite(row["floor_p50_ms"]) and row["max_rss_mb"] > 0
     assert row["lockstep_rate_ratio"] == 1.0 and row["latency_last_p50_ratio"] == 1.0
     methods = result["kf_micro"]["methods"]
     assert {"batched", "loop", "filterpy"} <= set(methods)

@@ -150,7 +150,7 @@ class MttCentreService(Service):
     def _publish_picture(self, T: float, closing: bool = False) -> None:
         rows = [] if closing else self.engine.picture(T)
         d = len(rows[0]["x"]) if rows else self.dim
-        self.publish(self.keys.mtt_picture(), TrackPicture(
+        self.publish(self.keys.mtt_picture(), TrackPicture.unchecked(
             seq=self.pictures, t=T, ids=tuple(row["id"] for row in rows),
             x=np.array([row["x"] for row in rows]).reshape(-1, d), P=np.array([row["P"] for row in rows]).reshape(-1, d),
             confirmed=tuple(row["status"] == "confirmed" for row in rows),

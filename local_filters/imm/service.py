@@ -60,7 +60,7 @@ class IMMService(Service):
         p = self.tracker.update(msg.t, msg.z, msg.R)
         self.order.took(msg)
         best = max(p.mode_probabilities, key=p.mode_probabilities.__getitem__)
-        self.publish(self.keys.tracker_track("imm", self.sensor), FusedTrack(
+        self.publish(self.keys.tracker_track("imm", self.sensor), FusedTrack.unchecked(
             seq=msg.seq, t=p.t, model=self.tracker.algorithm, x=p.x, P=p.P,
             maneuver=bool(self.moving[self.tracker.bank.names.index(best)]), degraded=False,
             sensors=(self.sensor,), stamp_ns=msg.stamp_ns,

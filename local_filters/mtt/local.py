@@ -98,7 +98,7 @@ def adopt(tracker: LocalTracker, resets: list[Reset], q_scale: float) -> LocalTr
 def report_to_wire(report: LocalReport, seq: int, stamp_ns: int) -> wire.TrackReport:
     d = report.x.shape[1]
     k, m = report.obs_z.shape
-    return wire.TrackReport(
+    return wire.TrackReport.unchecked(
         sensor=report.sensor, seq=seq, t=report.t, ids=tuple(report.ids.tolist()), x=report.x,
         P=report.P.reshape(-1, d), confirmed=tuple(report.confirmed.tolist()),
         detected=tuple(report.detected.tolist()), obs_H=report.obs_H.reshape(k * m, d),
@@ -119,7 +119,7 @@ def report_from_wire(msg: wire.TrackReport) -> LocalReport:
 def resets_to_wire(sensor: str, seq: int, t: float, resets: list[Reset], q_scale: float, d: int
                    ) -> wire.TrackResets:
     """The resets (possibly none) of a tracker whose states have size ``d``."""
-    return wire.TrackResets(sensor=sensor, seq=seq, t=t, q_scale=q_scale, ids=tuple(r.local_id for r in resets),
+    return wire.TrackResets.unchecked(sensor=sensor, seq=seq, t=t, q_scale=q_scale, ids=tuple(r.local_id for r in resets),
                             x=np.array([r.x for r in resets]).reshape(-1, d),
                             P=np.array([r.P for r in resets]).reshape(-1, d))
 

@@ -72,7 +72,7 @@ class PDAService(Service):
         tracks = rep.tracks
         self.counters["live_tracks"] = len(tracks)
         for i in np.flatnonzero(tracks.confirmed):
-            self.publish(self.keys.tracker_track("hpda", self.sensor), FusedTrack(
+            self.publish(self.keys.tracker_track("hpda", self.sensor), FusedTrack.unchecked(
                 seq=msg.seq, t=msg.t, model=self.spec.algorithm, x=tracks.state.x[i], P=tracks.state.P[i],
                 maneuver=False, degraded=False, sensors=(self.sensor,), stamp_ns=msg.stamp_ns,
                 extra={"existence": float(tracks.existence[i]), "status": "confirmed",
