@@ -279,3 +279,38 @@ def test_local_picture_with_delay_comes_from_the_data_up_to_its_time(tmp_path: P
         assert a["t"] == b["t"] and len(a["tracks"]) == len(b["tracks"])
         for ta, tb in zip(a["tracks"], b["tracks"]):
             np.testing.assert_allclose(ta["x"], tb["x"], atol=1e-9)
+
+
+@pytest.mark.parametrize("radar", [False, True])
+def test_gated_pairs_are_those_of_the_full_scan(radar: bool) -> None:
+    """The k-d tree candidates lose no pair of the dense N x M gate, with the same distances."""
+    from fedtrack.local_filters.mtt.models import linearize
+    from fedtrack.local_filters.mtt.tracker import gate, innovation_covariance
+    from fedtrack.local_filters.radar.measurement import polar_from_cartesian, wrap_angle
+
+    rng = np.random.default_rng(5)
+    n, m_det = 300, 400
+    x = np.zeros((n, 6))
+    x[:, [0, 2, 4]] = rng.uniform(-2000, 2000, (n, 3)) + [0, 0, 3000]
+    A = rng.normal(size=(n, 6, 6)) * 30
+    P = A @ np.swapaxes(A, -1, -2) + 100 * np.eye(6)
+    if radar:
+        sensor = np.array([-5000.0, 100.0, 0.0])
+        z = polar_from_cartesian(rng.uniform(-2000, 2000, (m_det, 3)) + [0, 0, 3000] - sensor)
+        R = np.diag([25.0, 1e-5, 1e-5])
+    else:
+        sensor, R = None, np.array([[400.0, 50.0], [50.0, 300.0]])
+        z = np.concatenate([x[:200, [0, 2]] + rng.normal(size=(200, 2)) * 40, rng.uniform(-2000, 2000, (m_det - 200, 2))])
+    lin = linearize(x if radar else x[:, :4], sensor)
+    S = innovation_covariance(P if radar else P[:, :4, :4], lin, R)
+    g, logdet = gate(z, lin, S, 9.21)
+    nu = z[None] - lin.zhat[:, None]
+    for k in lin.angular:
+        nu[..., k] = wrap_angle(nu[..., k])
+    d2 = np.einsum("nmi,nmi->nm", nu, np.linalg.solve(S[:, None], nu[..., None])[..., 0])
+    rows, cols = np.nonzero(d2 <= 9.21)
+    assert rows.size > 30  # the test has pairs to lose
+    got = sorted(zip(g.rows.tolist(), g.cols.tolist()))
+    assert got == sorted(zip(rows.tolist(), cols.tolist()))
+    np.testing.assert_allclose(g.d2[np.lexsort((g.cols, g.rows))], d2[rows, cols], rtol=1e-9)
+    np.testing.assert_allclose(logdet, np.linalg.slogdet(S)[1], rtol=1e-12)

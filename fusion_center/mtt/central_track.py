@@ -14,7 +14,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from fedtrack.local_filters.mtt.models import motion, predict_tracks
+from fedtrack.local_filters.mtt.models import predict_batch
+from fedtrack.local_filters.mtt.tracker import kalman_update
 
 Observation1 = tuple[np.ndarray, np.ndarray, np.ndarray]  # H (m, D), R (m, m), z (m,)
 
@@ -47,65 +48,73 @@ class CentralTrack(NamedTuple):
         return self.history[-1].P
 
 
-def predict_to(x: np.ndarray, P: np.ndarray, dt: float, q: float, noise_model: str
-               ) -> tuple[np.ndarray, np.ndarray]:
-    if dt == 0.0:
-        return x, P
-    xp, Pp = predict_tracks(x[None], P[None], motion(x.shape[0], round(dt, 12), q, noise_model))
-    return xp[0], Pp[0]
-
-
-def update(x: np.ndarray, P: np.ndarray, obs: Observation1) -> tuple[np.ndarray, np.ndarray]:
-    """Kalman update with a linearized observation (Joseph form, gain by a solve)."""
-    H, R, z = obs
-    S = H @ P @ H.T + R
-    K = np.linalg.solve(S, H @ P).T
-    x = x + K @ (z - H @ x)
-    A = np.eye(x.shape[0]) - K @ H
-    P = A @ P @ A.T + K @ R @ K.T
-    return x, 0.5 * (P + P.T)
-
-
 def start(track_id: int, t: float, x: np.ndarray, P: np.ndarray, confirmed: bool) -> CentralTrack:
     return CentralTrack(track_id, (Fused(t, None, x, P),), confirmed, 1)
 
 
-def state_at(track: CentralTrack, t: float, q: float, noise_model: str) -> tuple[np.ndarray, np.ndarray]:
-    """The track's estimate at ``t`` from the observations up to ``t`` (``t`` >= its checkpoint)."""
-    k = len(track.history) - 1
-    while k > 0 and track.history[k].t > t:
-        k -= 1
-    h = track.history[k]
-    return predict_to(h.x, h.P, max(t - h.t, 0.0), q, noise_model)
+def states_at(tracks: list[CentralTrack], t: float, q: float, noise_model: str) -> tuple[np.ndarray, np.ndarray]:
+    """The estimates (N, D), (N, D, D) of non-empty ``tracks`` at ``t`` from their observations up
+    to ``t`` (``t`` >= each checkpoint), in one batched prediction."""
+    base = []
+    for track in tracks:
+        k = len(track.history) - 1
+        while k > 0 and track.history[k].t > t:
+            k -= 1
+        base.append(track.history[k])
+    dt = np.round(np.array([max(t - h.t, 0.0) for h in base]), 12)
+    return predict_batch(np.stack([h.x for h in base]), np.stack([h.P for h in base]), dt, q, noise_model)
 
 
-def fuse(track: CentralTrack, t: float, obs: Observation1, q: float, noise_model: str, max_lag: float
-         ) -> tuple[CentralTrack, np.ndarray, np.ndarray] | None:
-    """Fuse ``obs`` taken at ``t``; returns the new track and its posterior at ``t``, or None if late."""
-    hist = track.history
-    if t < hist[0].t or t < hist[-1].t - max_lag:
-        return None
-    k = len(hist)
-    while k > 1 and hist[k - 1].t > t:
-        k -= 1
-    redo = [Fused(t, obs, hist[0].x, hist[0].P)] + list(hist[k:])
-    out = list(hist[:k])
-    at_t: tuple[np.ndarray, np.ndarray] | None = None
-    for item in redo:
-        prev = out[-1]
-        x, P = predict_to(prev.x, prev.P, item.t - prev.t, q, noise_model)
-        assert item.obs is not None
-        x, P = update(x, P, item.obs)
-        out.append(Fused(item.t, item.obs, x, P))
-        if at_t is None:
-            at_t = (x, P)
-    horizon = out[-1].t - max_lag
-    first = 0
-    while first + 1 < len(out) and out[first + 1].t < horizon:
-        first += 1
-    new = CentralTrack(track.id, tuple(out[first:]), track.confirmed, track.hits + 1)
-    assert at_t is not None
-    return new, at_t[0], at_t[1]
+def fuse_many(tracks: list[CentralTrack], t: float, obs: list[Observation1], q: float, noise_model: str,
+              max_lag: float) -> list[tuple[CentralTrack, np.ndarray, np.ndarray] | None]:
+    """Fuse observation ``obs[i]``, taken at ``t``, into ``tracks[i]`` (distinct tracks); per track the
+    new track and its posterior at ``t``, or None if the observation is late.
+
+    Each track's observations from ``t`` on are fused again in time order from the posterior
+    before ``t``; the re-processing goes step by step over all the tracks at once, one batched
+    prediction and Joseph-form update per step and measurement size.
+    """
+    done: list[tuple[CentralTrack, np.ndarray, np.ndarray] | None] = [None] * len(tracks)
+    out: dict[int, list[Fused]] = {}
+    redo: dict[int, list[Fused]] = {}
+    for i, (track, o) in enumerate(zip(tracks, obs)):
+        hist = track.history
+        if t < hist[0].t or t < hist[-1].t - max_lag:
+            continue  # late
+        k = len(hist)
+        while k > 1 and hist[k - 1].t > t:
+            k -= 1
+        out[i] = list(hist[:k])
+        redo[i] = [Fused(t, o, hist[0].x, hist[0].P)] + list(hist[k:])
+    step = 0
+    while True:
+        by_size: dict[int, list[int]] = {}
+        for i, items in redo.items():
+            if len(items) > step:
+                by_size.setdefault(items[step].obs[0].shape[0], []).append(i)  # type: ignore[index]
+        if not by_size:
+            break
+        for group in by_size.values():
+            prev = [out[i][-1] for i in group]
+            items = [redo[i][step] for i in group]
+            dt = np.round(np.array([item.t - p.t for item, p in zip(items, prev)]), 12)
+            x, P = predict_batch(np.stack([p.x for p in prev]), np.stack([p.P for p in prev]), dt, q, noise_model)
+            H, R, z = (np.stack(a) for a in zip(*(item.obs for item in items)))  # type: ignore[misc]
+            S = H @ P @ np.swapaxes(H, -1, -2) + R
+            nu = z - np.einsum("nij,nj->ni", H, x)
+            x, P = kalman_update(x, P, nu, H, R, 0.5 * (S + np.swapaxes(S, -1, -2)))
+            for j, (i, item) in enumerate(zip(group, items)):
+                out[i].append(Fused(item.t, item.obs, x[j], P[j]))
+        step += 1
+    for i, fused in out.items():
+        at_t = fused[len(fused) - len(redo[i])]
+        horizon = fused[-1].t - max_lag
+        first = 0
+        while first + 1 < len(fused) and fused[first + 1].t < horizon:
+            first += 1
+        track = tracks[i]
+        done[i] = (CentralTrack(track.id, tuple(fused[first:]), track.confirmed, track.hits + 1), at_t.x, at_t.P)
+    return done
 
 
 def append(track: CentralTrack, t: float, obs: Observation1, x: np.ndarray, P: np.ndarray, max_lag: float

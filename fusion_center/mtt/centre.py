@@ -40,10 +40,9 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
-from fedtrack.fusion_center.mtt.central_track import CentralTrack, append, fuse, start, state_at
+from fedtrack.fusion_center.mtt.central_track import CentralTrack, append, fuse_many, start, states_at
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import LocalReport, Reset
-from fedtrack.local_filters.mtt.models import predict_batch
 from fedtrack.local_filters.mtt.tracker import kalman_update
 
 LocalKey = tuple[str, int]  # (sensor, local track id)
@@ -241,15 +240,7 @@ class TrackToTrackCentre:
 
     def _priors(self, cids: list[int], t: float) -> tuple[np.ndarray, np.ndarray]:
         """Central estimates at ``t`` (batched); a track newer than ``t`` gives its estimate at ``t``."""
-        cfg = self.cfg
-        last = [self.tracks[c].history[-1] for c in cids]
-        x = np.stack([h.x for h in last])
-        P = np.stack([h.P for h in last])
-        dt = np.array([t - h.t for h in last])
-        xp, Pp = predict_batch(x, P, np.maximum(dt, 0.0), cfg.q, cfg.noise_model)
-        for k in np.flatnonzero(dt < 0).tolist():
-            xp[k], Pp[k] = state_at(self.tracks[cids[k]], t, cfg.q, cfg.noise_model)
-        return xp, Pp
+        return states_at([self.tracks[c] for c in cids], t, self.cfg.q, self.cfg.noise_model)
 
     def _fuse_scan(self, report: LocalReport, keys: list[LocalKey], fresh: set[LocalKey], t: float
                    ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
@@ -283,16 +274,23 @@ class TrackToTrackCentre:
                 self.tracks[cid] = append(self.tracks[cid], t, obs, x[j], P[j], cfg.max_lag)
                 out[k] = (x[j], P[j])
             self.counters.fused += len(batch)
-        for k in single:
-            cid = self.mapping[keys[k]]
-            obs = (self._embed(report.obs_H[k]), report.obs_R[k], report.obs_z[k])
-            done = fuse(self.tracks[cid], t, obs, cfg.q, cfg.noise_model, cfg.max_lag)
-            if done is None:
-                self.counters.late += 1
-                continue
-            self.tracks[cid], xc, Pc = done
-            out[k] = (xc, Pc)
-            self.counters.fused += 1
+        while single:  # distinct central tracks at once; a second observation of one in the next round
+            now, later, taken = [], [], set()
+            for k in single:
+                cid = self.mapping[keys[k]]
+                (later if cid in taken else now).append(k)
+                taken.add(cid)
+            cids = [self.mapping[keys[k]] for k in now]
+            obs = [(self._embed(report.obs_H[k]), report.obs_R[k], report.obs_z[k]) for k in now]
+            for k, cid, done in zip(now, cids, fuse_many([self.tracks[c] for c in cids], t, obs, cfg.q,
+                                                          cfg.noise_model, cfg.max_lag)):
+                if done is None:
+                    self.counters.late += 1
+                    continue
+                self.tracks[cid], xc, Pc = done
+                out[k] = (xc, Pc)
+                self.counters.fused += 1
+            single = later
         return out
 
     def _merge_duplicates(self, updated: set[int], t: float) -> None:
@@ -309,17 +307,22 @@ class TrackToTrackCentre:
         if not mine:
             return
         sensors = {c: {s for s, _ in keys} for c, keys in self.members.items()}
-        for k, near in zip(mine, candidate_pairs(X[:, [0, 2]], np.sqrt(P[:, 0, 0] + P[:, 2, 2]), mine, gate)):
+        near = candidate_pairs(X[:, [0, 2]], np.sqrt(P[:, 0, 0] + P[:, 2, 2]), mine, gate)
+        K = np.fromiter((k for k, js in zip(mine, near) for _ in js), dtype=np.int64)
+        J = np.fromiter((j for js in near for j in js), dtype=np.int64, count=K.size)
+        diff = X[J] - X[K]  # the chi-square test of every candidate pair at once
+        passes = np.einsum("ni,ni->n", diff, np.linalg.solve(P[J] + P[K], diff[..., None])[..., 0]) <= gate
+        close: dict[int, list[int]] = {}
+        for k, j in zip(K[passes].tolist(), J[passes].tolist()):
+            if j != k:
+                close.setdefault(k, []).append(j)
+        for k, js in zip(mine, near):
             cid = ids[k]
-            if cid not in self.tracks or len(near) < 2:
+            if cid not in self.tracks or len(js) < 2:
                 continue
-            for j in sorted(near):
+            for j in sorted(close.get(k, ())):
                 other = ids[j]
-                if other == cid or other not in self.tracks or \
-                        sensors.get(cid, set()) & sensors.get(other, set()):
-                    continue
-                diff = X[j] - X[k]
-                if float(diff @ np.linalg.solve(P[j] + P[k], diff)) > gate:
+                if other not in self.tracks or sensors.get(cid, set()) & sensors.get(other, set()):
                     continue
                 keep, drop = min(cid, other), max(cid, other)
                 for key in list(self.members.get(drop, ())):
@@ -344,9 +347,8 @@ class TrackToTrackCentre:
         d = report.x.shape[1]
         assigned: dict[int, int] = {}
         if cands:
-            states = [state_at(self.tracks[c], t, cfg.q, cfg.noise_model) for c in cands]
-            xc = np.stack([x[:d] for x, _ in states])
-            Pc = np.stack([P[:d, :d] for _, P in states])
+            xc, Pc = self._priors(cands, t)
+            xc, Pc = xc[:, :d], Pc[:, :d, :d]
             diff = report.x[rows][:, None, :] - xc[None, :, :]  # (U, C, d)
             C = report.P[rows][:, None] + Pc[None]
             L = np.linalg.cholesky(C)

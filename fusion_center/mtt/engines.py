@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from fedtrack.fusion_center.mtt.central_track import state_at
+from fedtrack.fusion_center.mtt.central_track import states_at
 from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import (
@@ -181,11 +181,12 @@ class TrackToTrackEngine(Engine):
         if self.centre is None:
             return []
         c = self.centre
-        out = []
-        for cid, track in sorted(c.tracks.items()):
-            x, P = state_at(track, T, self.cfg.q, self.cfg.noise_model)
-            out.append(picture_track_row(cid, x, P, track.confirmed, c.sensors_of(cid)))
-        return out
+        if not c.tracks:
+            return []
+        ids = sorted(c.tracks)
+        X, P = states_at([c.tracks[cid] for cid in ids], T, self.cfg.q, self.cfg.noise_model)
+        return [picture_track_row(cid, X[k], P[k], c.tracks[cid].confirmed, c.sensors_of(cid))
+                for k, cid in enumerate(ids)]
 
     def counters(self) -> dict[str, int]:
         out = super().counters()

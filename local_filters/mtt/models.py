@@ -22,7 +22,7 @@ from typing import NamedTuple
 import numpy as np
 
 from fedtrack.local_filters.radar.ekf import CV3, motion_model_3d, radar_h, radar_jacobian
-from fedtrack.local_filters.radar.measurement import cartesian_from_polar, cartesian_from_polar_jacobian, wrap_angle
+from fedtrack.local_filters.radar.measurement import cartesian_from_polar, cartesian_from_polar_jacobian
 
 POSITION_INDEX = {4: (0, 2), 6: (0, 2, 4)}
 RADAR_LAYOUT = motion_model_3d(CV3, 1.0, 1.0)  # only its position indices (0, 2, 4) are used
@@ -100,14 +100,6 @@ def linearize(x: np.ndarray, sensor_position: np.ndarray | None) -> Linearized:
         raise ValueError("a radar needs the 3-D state [x, vx, y, vy, z, vz]")
     return Linearized(radar_h(x, RADAR_LAYOUT, sensor_position), radar_jacobian(x, RADAR_LAYOUT, sensor_position),
                       (1,))
-
-
-def residuals(z: np.ndarray, lin: Linearized) -> np.ndarray:
-    """Innovations ``z_j - zhat_i`` (N, M, m), angles wrapped to (-pi, pi]."""
-    nu = z[None, :, :] - lin.zhat[:, None, :]
-    for k in lin.angular:
-        nu[..., k] = wrap_angle(nu[..., k])
-    return nu
 
 
 def position_from_detection(z: np.ndarray, R: np.ndarray, sensor_position: np.ndarray | None

@@ -35,7 +35,9 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
+from fedtrack.local_filters.linear.kalman import mat_vec
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.models import (
     Linearized,
@@ -44,9 +46,9 @@ from fedtrack.local_filters.mtt.models import (
     position_from_detection,
     position_matrix,
     predict_tracks,
-    residuals,
 )
 from fedtrack.local_filters.mtt.scan import SensorScan
+from fedtrack.local_filters.radar.measurement import wrap_angle
 
 LOG_2PI = math.log(2.0 * math.pi)
 
@@ -136,49 +138,86 @@ def innovation_covariance(P: np.ndarray, lin: Linearized, R: np.ndarray) -> np.n
     return 0.5 * (S + np.swapaxes(S, -1, -2))
 
 
-def gate_distances(nu: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Squared Mahalanobis distances ``d2`` (N, M) and ``ln det S`` (N,) by Cholesky solves."""
+class Gated(NamedTuple):
+    """The (track, detection) pairs inside the chi-square gate, with their innovations."""
+
+    rows: np.ndarray  # (K,) track index
+    cols: np.ndarray  # (K,) detection index
+    nu: np.ndarray  # (K, m) innovation z_j - zhat_i, angles wrapped
+    d2: np.ndarray  # (K,) squared Mahalanobis distance
+
+
+def candidate_pairs(z: np.ndarray, lin: Linearized, S: np.ndarray, gate: float) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs that may pass the gate ``nu' S^-1 nu <= gate``: for a position sensor those within
+    ``sqrt(gate trace S_i)`` of the predicted position (a ball holding the gate ellipsoid), found
+    with a k-d tree, so a scan costs O(N K) instead of O(N M); every pair for a radar (its
+    azimuth residual wraps, so Euclidean balls in measurement space do not hold its gates)."""
+    n, m = S.shape[0], z.shape[0]
+    if lin.angular:
+        return np.repeat(np.arange(n), m), np.tile(np.arange(m), n)
+    radius = np.sqrt(gate * np.trace(S, axis1=-2, axis2=-1))
+    near = cKDTree(z).query_ball_point(lin.zhat, radius)
+    counts = np.fromiter((len(a) for a in near), dtype=np.int64, count=n)
+    cols = np.fromiter((j for a in near for j in a), dtype=np.int64, count=int(counts.sum()))
+    return np.repeat(np.arange(n), counts), cols
+
+
+def gate(z: np.ndarray, lin: Linearized, S: np.ndarray, gate_d2: float) -> tuple[Gated, np.ndarray]:
+    """The gated pairs and ``ln det S`` (N,) per track (by Cholesky factors: ``d2 = |L^-1 nu|^2``)."""
+    rows, cols = candidate_pairs(z, lin, S, gate_d2)
     L = np.linalg.cholesky(S)
-    w = np.linalg.solve(L, np.swapaxes(nu, -1, -2))  # (N, m, M)
     logdet = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
-    return np.sum(w * w, axis=-2), logdet
+    nu = z[cols] - lin.zhat[rows]
+    for k in lin.angular:
+        nu[:, k] = wrap_angle(nu[:, k])
+    L_inv = np.linalg.solve(L, np.broadcast_to(np.eye(S.shape[-1]), S.shape))
+    w = mat_vec(L_inv[rows], nu)
+    d2 = np.sum(w * w, axis=-1)
+    inside = d2 <= gate_d2
+    return Gated(rows[inside], cols[inside], nu[inside], d2[inside]), logdet
 
 
-def assign(cost: np.ndarray, gated: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Global nearest neighbour over gated pairs with negative cost: ``(tracks, detections)``."""
-    usable = gated & (cost < 0.0)
-    rows, cols = np.nonzero(usable)
-    if rows.size == 0:
-        return rows, cols
-    n, m = cost.shape
-    graph = coo_matrix((np.ones(rows.size), (rows, n + cols)), shape=(n + m, n + m))
+def assign(n_tracks: int, n_detections: int, rows: np.ndarray, cols: np.ndarray, cost: np.ndarray) -> np.ndarray:
+    """Global nearest neighbour over candidate pairs (``rows``, ``cols``) with negative ``cost``:
+    the indices of the chosen pairs. Solved per connected component of the pair graph."""
+    usable = np.flatnonzero(cost < 0.0)
+    if usable.size == 0:
+        return usable
+    r, c = rows[usable], cols[usable]
+    graph = coo_matrix((np.ones(usable.size), (r, n_tracks + c)),
+                       shape=(n_tracks + n_detections, n_tracks + n_detections))
     _, label = connected_components(graph, directed=False)
-    comp = label[rows]
+    comp = label[r]
     order = np.argsort(comp, kind="stable")
-    rows, cols, comp = rows[order], cols[order], comp[order]
+    usable, r, c, comp = usable[order], r[order], c[order], comp[order]
     starts = np.flatnonzero(np.r_[True, comp[1:] != comp[:-1]])
-    ends = np.r_[starts[1:], rows.size]
+    ends = np.r_[starts[1:], usable.size]
     single = ends - starts == 1
-    out_r, out_c = [rows[starts[single]]], [cols[starts[single]]]
+    chosen = [usable[starts[single]]]
     for s, e in zip(starts[~single], ends[~single]):
-        r_u, c_u = np.unique(rows[s:e]), np.unique(cols[s:e])
-        sub = np.where(usable[np.ix_(r_u, c_u)], cost[np.ix_(r_u, c_u)], 0.0)
+        r_u, r_i = np.unique(r[s:e], return_inverse=True)
+        c_u, c_i = np.unique(c[s:e], return_inverse=True)
+        sub = np.zeros((r_u.size, c_u.size))
+        pair = np.full((r_u.size, c_u.size), -1)
+        sub[r_i, c_i] = cost[usable[s:e]]
+        pair[r_i, c_i] = usable[s:e]
         ri, ci = linear_sum_assignment(sub)
-        keep = usable[r_u[ri], c_u[ci]]
-        out_r.append(r_u[ri][keep])
-        out_c.append(c_u[ci][keep])
-    return np.concatenate(out_r), np.concatenate(out_c)
+        picked = pair[ri, ci]
+        chosen.append(picked[picked >= 0])
+    return np.concatenate(chosen)
 
 
-def assign_by_precedence(cost: np.ndarray, gated: np.ndarray, confirmed: np.ndarray
-                         ) -> tuple[np.ndarray, np.ndarray]:
+def assign_by_precedence(n_detections: int, g: Gated, cost: np.ndarray, confirmed: np.ndarray) -> np.ndarray:
     """Confirmed tracks take their detections first, tentative tracks share what is left (so a
-    tentative track started on clutter never takes a confirmed track's detection)."""
-    ti, dj = assign(cost, gated & confirmed[:, None])
-    free = np.ones(cost.shape[1], bool)
-    free[dj] = False
-    tj, dk = assign(cost, gated & ~confirmed[:, None] & free[None, :])
-    return np.concatenate([ti, tj]), np.concatenate([dj, dk])
+    tentative track started on clutter never takes a confirmed track's detection). Returns the
+    indices of the chosen pairs."""
+    n = confirmed.size
+    first = np.flatnonzero(confirmed[g.rows])
+    picked = first[assign(n, n_detections, g.rows[first], g.cols[first], cost[first])]
+    free = np.ones(n_detections, bool)
+    free[g.cols[picked]] = False
+    second = np.flatnonzero(~confirmed[g.rows] & free[g.cols])
+    return np.concatenate([picked, second[assign(n, n_detections, g.rows[second], g.cols[second], cost[second])]])
 
 
 def kalman_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray, R: np.ndarray,
@@ -233,22 +272,20 @@ def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
     used = np.zeros(n_det, bool)
     if tracks.size and n_det:
         lin = linearize(x, scan.sensor_position)
-        nu = residuals(scan.z, lin)
         S = innovation_covariance(P, lin, scan.R)
-        d2, logdet = gate_distances(nu, S)
-        gated = d2 <= params.gate[m]
+        g, logdet = gate(scan.z, lin, S, params.gate[m])
         pd = params.pd
         if pd >= 1.0:
             bias = -1e6  # no missed detections: any gated pair beats a miss
         else:
             bias = 2.0 * math.log(max(params.clutter_density, 1e-300) * (1.0 - pd) / pd)
-        cost = d2 + logdet[:, None] + m * LOG_2PI + bias
-        ti, dj = assign_by_precedence(cost, gated, tracks.confirmed)
-        order = np.argsort(ti)
-        ti, dj = ti[order], dj[order]
+        cost = g.d2 + logdet[g.rows] + m * LOG_2PI + bias
+        chosen = assign_by_precedence(n_det, g, cost, tracks.confirmed)
+        chosen = chosen[np.argsort(g.rows[chosen])]
+        ti, dj = g.rows[chosen], g.cols[chosen]
         if ti.size:
             H, R = lin.H[ti], scan.R
-            nu_a, x0 = nu[ti, dj], x[ti]
+            nu_a, x0 = g.nu[chosen], x[ti]
             x[ti], P[ti] = kalman_update(x0, P[ti], nu_a, H, R, S[ti])
             obs_upd = Observation(H, np.broadcast_to(R, (ti.size, m, m)).copy(),
                                   nu_a + np.einsum("nij,nj->ni", H, x0))

@@ -82,17 +82,21 @@ def radar_h(x: np.ndarray, model: MotionModel3D, sensor_position: np.ndarray) ->
 
 
 def radar_jacobian(x: np.ndarray, model: MotionModel3D, sensor_position: np.ndarray) -> np.ndarray:
-    """Analytic Jacobian ``dh/dx`` (..., 3, n) at ``x`` (paper 002 eq. (11)).
+    """Analytic Jacobian ``dh/dx`` (..., 3, n) at ``x`` (paper 002 eq. (11))."""
+    return jacobian_at_offset(position(x, model) - sensor_position, model)
 
-    One state is differenced in Python floats: a third of the cost of 0-d numpy arithmetic.
+
+def jacobian_at_offset(d: np.ndarray, model: MotionModel3D) -> np.ndarray:
+    """:func:`radar_jacobian` from the offsets ``d`` (..., 3) of the positions from the sensor.
+
+    One offset is handled in Python floats: a third of the cost of 0-d numpy arithmetic.
     """
-    d = position(x, model) - sensor_position
     dx, dy, dz = d.tolist() if d.ndim == 1 else (d[..., 0], d[..., 1], d[..., 2])
     rho2 = dx * dx + dy * dy
     rho = rho2 ** 0.5
     r2 = rho2 + dz * dz
     r = r2 ** 0.5
-    H = np.zeros(x.shape[:-1] + (3, model.dim))
+    H = np.zeros(d.shape[:-1] + (3, model.dim))
     px, py, pz = model.pos.tolist()
     H[..., 0, px], H[..., 0, py], H[..., 0, pz] = dx / r, dy / r, dz / r
     H[..., 1, px], H[..., 1, py] = -dy / rho2, dx / rho2
@@ -103,7 +107,12 @@ def radar_jacobian(x: np.ndarray, model: MotionModel3D, sensor_position: np.ndar
 def radar_residual(x: np.ndarray, z: np.ndarray, model: MotionModel3D,
                    sensor_position: np.ndarray) -> np.ndarray:
     """``z - h(x)`` with the azimuth and elevation residuals wrapped to (-pi, pi]."""
-    nu = z - radar_h(x, model, sensor_position)
+    return residual_at_offset(position(x, model) - sensor_position, z)
+
+
+def residual_at_offset(d: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """:func:`radar_residual` from the offsets ``d`` (..., 3) of the positions from the sensor."""
+    nu = z - polar_from_cartesian(d)
     nu[..., 1:] = wrap_angle(nu[..., 1:])
     return nu
 
@@ -120,8 +129,9 @@ class EkfUpdate(NamedTuple):
 def ekf_update(pred: GaussianState, z: np.ndarray, R: np.ndarray, model: MotionModel3D,
                sensor_position: np.ndarray) -> EkfUpdate:
     """EKF measurement update (paper 002 eqs. (4), (5), (7); Joseph form)."""
-    H = radar_jacobian(pred.x, model, sensor_position)
-    nu = radar_residual(pred.x, z, model, sensor_position)
+    d = position(pred.x, model) - sensor_position  # one offset for h (eq. (39)) and its Jacobian
+    H = jacobian_at_offset(d, model)
+    nu = residual_at_offset(d, z)
     post = update_residual(pred, nu, H, R)  # K = P H' S^-1, eq. (5)
     return EkfUpdate(post.state, post.innovation, H, post.gain)
 
