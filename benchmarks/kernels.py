@@ -43,12 +43,19 @@ def available(module: str) -> bool:
 
 def per_step(run: Callable[[int], Any], steps: int, rounds: int) -> float:
     """Median over ``rounds`` of the seconds per step of ``run(steps)``."""
-    times = []
+    return side_by_side({"run": run}, steps, rounds)["run"]
+
+
+def side_by_side(runners: dict[str, Callable[[int], Any]], steps: int, rounds: int) -> dict[str, float]:
+    """Per runner, the median over ``rounds`` of the seconds per step of ``run(steps)``, the
+    runners taking turns round by round so that the shared machine's load drifts over all alike."""
+    times: dict[str, list[float]] = {name: [] for name in runners}
     for _ in range(rounds):
-        t0 = time.perf_counter()
-        run(steps)
-        times.append((time.perf_counter() - t0) / steps)
-    return float(np.median(times))
+        for name, run in runners.items():
+            t0 = time.perf_counter()
+            run(steps)
+            times[name].append((time.perf_counter() - t0) / steps)
+    return {name: float(np.median(values)) for name, values in times.items()}
 
 
 def cv_data(steps: int, seed: int = 1) -> np.ndarray:
@@ -250,7 +257,8 @@ def pda_runners(steps: int, detections: int) -> dict[str, Callable[[int], Any]]:
     """One PDA scan of one CV track (predict, gate, association probabilities, update) with
     ``detections`` detections in its gate: fedtrack's PDA-AI functions with no amplitude (plain
     PDA, eqs (4)-(5)) against Stone Soup's ``PDAHypothesiser`` + ``PDAUpdater`` on the same data."""
-    from fedtrack.local_filters.pda.association import PDAParams, constants, gate, pda_ai_hypothesise, pda_update
+    from fedtrack.local_filters.pda.association import constants, gate, pda_ai_hypothesise, pda_update
+    from fedtrack.local_filters.pda.config import PDAParams
 
     model = cv_model(1.0, Q_CV)
     c = constants(PDAParams(pd=PDA_PD, clutter_density=PDA_CLUTTER))
@@ -303,12 +311,12 @@ def stonesoup_pda(scans: np.ndarray, x0: np.ndarray, P0: np.ndarray, pg: float) 
 
 
 def bench_kernels(quick: bool = False) -> dict[str, Any]:
-    steps, rounds = (200, 3) if quick else (2000, 5)
+    steps, rounds = (200, 3) if quick else (2000, 7)
     out: dict[str, Any] = {"seconds_per_step": {}, "ratios": {}, "missing": []}
     pda = [(f"pda{m}", pda_runners(steps // 10, m), steps // 10) for m in (1, 5, 20)]
     for name, runners, n_steps in (("kf", cv_runners(steps), steps), ("ekf", ekf_runners(steps), steps),
                                    ("imm13", imm_runners(steps // 10), steps // 10), *pda):
-        times = {lib: per_step(run, n_steps, rounds) for lib, run in runners.items()}
+        times = side_by_side(runners, n_steps, rounds)
         out["seconds_per_step"][name] = times
         for other in ("filterpy", "stonesoup", "numpy_floor"):
             if other in times:

@@ -16,7 +16,7 @@ from fedtrack.deploy.security import ZenohSettings
 from fedtrack.deployment import DeploymentConfig, SensorConfig
 from fedtrack.local_filters.imm.config import IMMConfig
 from fedtrack.local_filters.mtt.config import MttConfig
-from fedtrack.local_filters.pda.replay import PDAReplayConfig
+from fedtrack.local_filters.pda.config import PDAReplayConfig
 from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.sensors.radar import RadarConfig
 from fedtrack.sensors.sonar import SonarConfig

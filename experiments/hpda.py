@@ -40,7 +40,8 @@ from fedtrack.local_filters.pda.association import (
     truth_d2,
     two_point_init,
 )
-from fedtrack.local_filters.pda.tracks import ExistenceConfig, TrackSet, initial_manager, manager_step, tracker_spec
+from fedtrack.local_filters.pda.config import ExistenceConfig
+from fedtrack.local_filters.pda.tracks import TrackSet, initial_manager, manager_step, tracker_spec
 from fedtrack.progress import progress_bar
 from fedtrack.sensors.sonar import (
     ScenarioConfig,

@@ -12,7 +12,7 @@ from fedtrack.cli import main
 from fedtrack.config import ConfigError, load_tables
 from fedtrack.deploy.settings import load_settings
 from fedtrack.local_filters.imm.config import load_imm_config
-from fedtrack.local_filters.pda.replay import load_config as load_pda_config
+from fedtrack.local_filters.pda.config import load_config as load_pda_config
 from fedtrack.local_filters.radar.filters import make_radar_filter
 from fedtrack.local_filters.radar.replay import RadarFilterSettings
 from fedtrack.local_filters.vdie.config import PipelineSettings

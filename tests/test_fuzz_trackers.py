@@ -21,7 +21,7 @@ from hypothesis import strategies as st
 from fedtrack.keys import Keys
 from fedtrack.local_filters.imm.config import load_imm_config
 from fedtrack.local_filters.imm.service import IMMService
-from fedtrack.local_filters.pda.replay import load_config
+from fedtrack.local_filters.pda.config import load_config
 from fedtrack.local_filters.pda.service import PDAService
 from fedtrack.sensors.sonar import SonarConfig, sonar_scans
 from fedtrack.wire import FusedTrack, Measurement, encode, measurement_from_replay

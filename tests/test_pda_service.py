@@ -10,7 +10,7 @@ import numpy as np
 from support import WAIT_S, free_port, wait_until
 
 from fedtrack.keys import Keys
-from fedtrack.local_filters.pda.replay import PDAReplayConfig
+from fedtrack.local_filters.pda.config import PDAReplayConfig
 from fedtrack.local_filters.pda.service import PDAService, main
 from fedtrack.sensors.sonar import SonarConfig, sonar_scans
 from fedtrack.wire import FusedTrack, Measurement, decode, encode, measurement_from_replay

@@ -8,9 +8,9 @@ import pytest
 
 from fedtrack.config import ConfigError
 from fedtrack.jsonl import InputError
-from fedtrack.local_filters.pda.association import PDAParams
+from fedtrack.local_filters.pda.config import ExistenceConfig, PDAParams
 from fedtrack.local_filters.pda.replay import replay_pda
-from fedtrack.local_filters.pda.tracks import ExistenceConfig, initial_manager, manager_step, tracker_spec
+from fedtrack.local_filters.pda.tracks import initial_manager, manager_step, tracker_spec
 
 R = 225.0 * np.eye(2)
 

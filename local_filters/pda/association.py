@@ -23,7 +23,6 @@ State order is the Singer state in CA order ``[x, vx, ax, y, vy, ay]``.
 
 from __future__ import annotations
 
-import dataclasses
 from typing import NamedTuple
 
 import numpy as np
@@ -31,7 +30,6 @@ from scipy.linalg import expm
 from scipy.spatial import cKDTree
 from scipy.special import betaln, expit, gammainc, gammaln
 
-from fedtrack.config import ConfigError
 from fedtrack.local_filters.linear.kalman import (
     LOG_2PI,
     GaussianState,
@@ -41,36 +39,9 @@ from fedtrack.local_filters.linear.kalman import (
     transpose,
 )
 from fedtrack.local_filters.linear.models import LinearModel
+from fedtrack.local_filters.pda.config import PDAParams
 
 MEAS_DIM = 2
-
-
-@dataclasses.dataclass(frozen=True)
-class PDAParams:
-    """Data-association parameters shared by PDA-AI and HPDA (TOML table ``[tracker]``).
-
-    ``clutter_density`` is lambda, the density of clutter detections *after* thresholding
-    (per m^2); the threshold tau follows from ``pd`` and ``snr`` (assumption 3), so
-    ``P_FA = exp(-tau)`` only normalizes the clutter amplitude density.
-    """
-
-    pd: float = 0.9
-    clutter_density: float = 2.5e-5
-    snr: float = 20.0
-    gate: float = 9.21
-    sigma_a: float = 0.01
-    tau_s: float = 500.0
-
-    def validate(self) -> None:
-        if not 0.0 < self.pd < 1.0:
-            raise ConfigError(f"pd: must lie in (0, 1), got {self.pd}")
-        if not self.clutter_density > 0.0:
-            raise ConfigError(f"clutter_density: must be > 0, got {self.clutter_density}")
-        if not self.snr >= 0.0:
-            raise ConfigError(f"snr: must be >= 0, got {self.snr}")
-        for name in ("gate", "sigma_a", "tau_s"):
-            if not getattr(self, name) > 0.0:
-                raise ConfigError(f"{name}: must be > 0, got {getattr(self, name)}")
 
 
 class Constants(NamedTuple):

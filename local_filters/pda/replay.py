@@ -16,14 +16,13 @@ above it only).
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from pathlib import Path
 from typing import Any, Iterator, NamedTuple
 
 import numpy as np
 
-from fedtrack.config import ConfigError, load_tables
+from fedtrack.config import ConfigError
 from fedtrack.jsonl import (
     SONAR_FIELDS,
     InputError,
@@ -34,9 +33,8 @@ from fedtrack.jsonl import (
     read_jsonl,
     require,
 )
-from fedtrack.local_filters.pda.association import PDAParams
+from fedtrack.local_filters.pda.config import load_config
 from fedtrack.local_filters.pda.tracks import (
-    ExistenceConfig,
     ScanReport,
     TrackerSpec,
     TrackSet,
@@ -44,26 +42,6 @@ from fedtrack.local_filters.pda.tracks import (
     manager_step,
     tracker_spec,
 )
-
-
-@dataclasses.dataclass(frozen=True)
-class PDAReplayConfig:
-    """The ``[pda]`` table: ``[pda.tracker]`` (:class:`PDAParams`) and ``[pda.existence]``."""
-
-    tracker: PDAParams = PDAParams()
-    existence: ExistenceConfig = ExistenceConfig()
-
-
-@dataclasses.dataclass(frozen=True)
-class PDASettings:
-    """The table the PDA replay and ``serve hpda`` read from the configuration file."""
-
-    pda: PDAReplayConfig = PDAReplayConfig()
-
-
-def load_config(path: Path | None) -> PDAReplayConfig:
-    """Strict config (unknown keys fail, naming the file, table and key); defaults without a file."""
-    return load_tables(path, PDASettings).pda
 
 
 class Scan(NamedTuple):

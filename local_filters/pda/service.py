@@ -23,7 +23,7 @@ from fedtrack.config import ConfigError, load_tables
 from fedtrack.deployment import DeploymentSettings
 from fedtrack.keys import check_id
 from fedtrack.local_filters.pda.association import ALGORITHMS
-from fedtrack.local_filters.pda.replay import PDAReplayConfig, load_config
+from fedtrack.local_filters.pda.config import PDAReplayConfig, load_config
 from fedtrack.local_filters.pda.tracks import (
     ManagerState,
     TrackerSpec,

@@ -35,7 +35,6 @@ false`` and ``clutter_from_scans = false`` give the paper's rule alone.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 from typing import NamedTuple
 
@@ -45,6 +44,7 @@ from scipy.optimize import linear_sum_assignment
 from fedtrack.config import ConfigError
 from fedtrack.local_filters.linear.kalman import GaussianState, predict
 from fedtrack.local_filters.linear.models import LinearModel
+from fedtrack.local_filters.pda.config import ExistenceConfig
 from fedtrack.local_filters.pda.association import (
     ALGORITHMS,
     Constants,
@@ -60,45 +60,6 @@ from fedtrack.local_filters.pda.association import (
     singer_model,
     two_point_init,
 )
-
-
-@dataclasses.dataclass(frozen=True)
-class ExistenceConfig:
-    """Existence and initiation parameters (TOML table ``[existence]``)."""
-
-    p11: float = 0.98
-    p21: float = 0.0
-    initial_existence: float = 0.2
-    confirm_threshold: float = 0.6
-    confirm_scans: int = 3
-    delete_threshold: float = 0.02
-    max_speed: float = 10.0
-    max_tentative: int = 200
-    false_track_rate: float = 0.01
-    one_track_per_detection: bool = True
-    clutter_from_scans: bool = True
-
-    def evidence_threshold(self, births: int) -> float:
-        """``log(births / false_track_rate)``; ``-inf`` with the test off."""
-        if self.false_track_rate == 0.0:
-            return -np.inf
-        return float(np.log(births / self.false_track_rate))
-
-    def validate(self) -> None:
-        for name in ("p11", "p21"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise ConfigError(f"{name}: must lie in [0, 1], got {getattr(self, name)}")
-        for name in ("initial_existence", "confirm_threshold", "delete_threshold"):
-            if not 0.0 < getattr(self, name) < 1.0:
-                raise ConfigError(f"{name}: must lie in (0, 1), got {getattr(self, name)}")
-        if self.confirm_scans < 1:
-            raise ConfigError(f"confirm_scans: must be >= 1, got {self.confirm_scans}")
-        if self.max_tentative < 1:
-            raise ConfigError(f"max_tentative: must be >= 1, got {self.max_tentative}")
-        if not self.max_speed > 0.0:
-            raise ConfigError(f"max_speed: must be > 0, got {self.max_speed}")
-        if not self.false_track_rate >= 0.0:
-            raise ConfigError(f"false_track_rate: must be >= 0, got {self.false_track_rate}")
 
 
 class TrackerSpec(NamedTuple):

@@ -1,0 +1,99 @@
+"""Configuration of the PDA trackers (``[pda.tracker]``, ``[pda.existence]``): dataclasses only,
+so that loading a deployment's settings imports none of the trackers' maths (and its scipy).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+
+from fedtrack.config import ConfigError, load_tables
+
+
+@dataclasses.dataclass(frozen=True)
+class PDAParams:
+    """Data-association parameters shared by PDA-AI and HPDA (TOML table ``[tracker]``).
+
+    ``clutter_density`` is lambda, the density of clutter detections *after* thresholding
+    (per m^2); the threshold tau follows from ``pd`` and ``snr`` (assumption 3), so
+    ``P_FA = exp(-tau)`` only normalizes the clutter amplitude density.
+    """
+
+    pd: float = 0.9
+    clutter_density: float = 2.5e-5
+    snr: float = 20.0
+    gate: float = 9.21
+    sigma_a: float = 0.01
+    tau_s: float = 500.0
+
+    def validate(self) -> None:
+        if not 0.0 < self.pd < 1.0:
+            raise ConfigError(f"pd: must lie in (0, 1), got {self.pd}")
+        if not self.clutter_density > 0.0:
+            raise ConfigError(f"clutter_density: must be > 0, got {self.clutter_density}")
+        if not self.snr >= 0.0:
+            raise ConfigError(f"snr: must be >= 0, got {self.snr}")
+        for name in ("gate", "sigma_a", "tau_s"):
+            if not getattr(self, name) > 0.0:
+                raise ConfigError(f"{name}: must be > 0, got {getattr(self, name)}")
+
+
+@dataclasses.dataclass(frozen=True)
+class ExistenceConfig:
+    """Existence and initiation parameters (TOML table ``[existence]``)."""
+
+    p11: float = 0.98
+    p21: float = 0.0
+    initial_existence: float = 0.2
+    confirm_threshold: float = 0.6
+    confirm_scans: int = 3
+    delete_threshold: float = 0.02
+    max_speed: float = 10.0
+    max_tentative: int = 200
+    false_track_rate: float = 0.01
+    one_track_per_detection: bool = True
+    clutter_from_scans: bool = True
+
+    def evidence_threshold(self, births: int) -> float:
+        """``log(births / false_track_rate)``; ``-inf`` with the test off."""
+        if self.false_track_rate == 0.0:
+            return -np.inf
+        return float(np.log(births / self.false_track_rate))
+
+    def validate(self) -> None:
+        for name in ("p11", "p21"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ConfigError(f"{name}: must lie in [0, 1], got {getattr(self, name)}")
+        for name in ("initial_existence", "confirm_threshold", "delete_threshold"):
+            if not 0.0 < getattr(self, name) < 1.0:
+                raise ConfigError(f"{name}: must lie in (0, 1), got {getattr(self, name)}")
+        if self.confirm_scans < 1:
+            raise ConfigError(f"confirm_scans: must be >= 1, got {self.confirm_scans}")
+        if self.max_tentative < 1:
+            raise ConfigError(f"max_tentative: must be >= 1, got {self.max_tentative}")
+        if not self.max_speed > 0.0:
+            raise ConfigError(f"max_speed: must be > 0, got {self.max_speed}")
+        if not self.false_track_rate >= 0.0:
+            raise ConfigError(f"false_track_rate: must be >= 0, got {self.false_track_rate}")
+
+
+@dataclasses.dataclass(frozen=True)
+class PDAReplayConfig:
+    """The ``[pda]`` table: ``[pda.tracker]`` (:class:`PDAParams`) and ``[pda.existence]``."""
+
+    tracker: PDAParams = PDAParams()
+    existence: ExistenceConfig = ExistenceConfig()
+
+
+@dataclasses.dataclass(frozen=True)
+class PDASettings:
+    """The table the PDA replay and ``serve hpda`` read from the configuration file."""
+
+    pda: PDAReplayConfig = PDAReplayConfig()
+
+
+def load_config(path: Path | None) -> PDAReplayConfig:
+    """Strict config (unknown keys fail, naming the file, table and key); defaults without a file."""
+    return load_tables(path, PDASettings).pda
