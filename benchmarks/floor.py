@@ -59,15 +59,10 @@ def _session(endpoint: str) -> Any:
 
 
 def _serve_until_killed(session: Any, alive_key: str) -> None:
-    token = session.liveliness().declare_token(alive_key)
-    try:
-        while True:
-            time.sleep(1.0)
-    except KeyboardInterrupt:
-        pass
-    finally:
-        token.undeclare()
-        close_session(session)
+    """Declare ``alive_key`` and serve the callbacks until the bench terminates the process."""
+    _token = session.liveliness().declare_token(alive_key)  # held: a collected token is undeclared
+    while True:
+        time.sleep(1.0)
 
 
 def run_source(a: argparse.Namespace) -> None:

@@ -15,7 +15,7 @@ from typing import NamedTuple
 import numpy as np
 
 from fedtrack.local_filters.mtt.models import predict_batch
-from fedtrack.local_filters.mtt.tracker import kalman_update
+from fedtrack.local_filters.linear.kalman import GaussianState, update
 
 Observation1 = tuple[np.ndarray, np.ndarray, np.ndarray]  # H (m, D), R (m, m), z (m,)
 
@@ -100,9 +100,7 @@ def fuse_many(tracks: list[CentralTrack], t: float, obs: list[Observation1], q: 
             dt = np.round(np.array([item.t - p.t for item, p in zip(items, prev)]), 12)
             x, P = predict_batch(np.stack([p.x for p in prev]), np.stack([p.P for p in prev]), dt, q, noise_model)
             H, R, z = (np.stack(a) for a in zip(*(item.obs for item in items)))  # type: ignore[misc]
-            S = H @ P @ np.swapaxes(H, -1, -2) + R
-            nu = z - np.einsum("nij,nj->ni", H, x)
-            x, P = kalman_update(x, P, nu, H, R, 0.5 * (S + np.swapaxes(S, -1, -2)))
+            x, P = update(GaussianState(x, P), z, H, R)[0]
             for j, (i, item) in enumerate(zip(group, items)):
                 out[i].append(Fused(item.t, item.obs, x[j], P[j]))
         step += 1
@@ -115,14 +113,3 @@ def fuse_many(tracks: list[CentralTrack], t: float, obs: list[Observation1], q: 
         track = tracks[i]
         done[i] = (CentralTrack(track.id, tuple(fused[first:]), track.confirmed, track.hits + 1), at_t.x, at_t.P)
     return done
-
-
-def append(track: CentralTrack, t: float, obs: Observation1, x: np.ndarray, P: np.ndarray, max_lag: float
-           ) -> CentralTrack:
-    """The track after an in-order observation at ``t`` (``t`` >= its newest) whose posterior is ``(x, P)``."""
-    out = track.history + (Fused(t, obs, x, P),)
-    horizon = t - max_lag
-    first = 0
-    while first + 1 < len(out) and out[first + 1].t < horizon:
-        first += 1
-    return CentralTrack(track.id, out[first:], track.confirmed, track.hits + 1)

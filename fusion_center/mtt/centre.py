@@ -40,10 +40,9 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
-from fedtrack.fusion_center.mtt.central_track import CentralTrack, append, fuse_many, start, states_at
+from fedtrack.fusion_center.mtt.central_track import CentralTrack, fuse_many, start, states_at
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import LocalReport, Reset
-from fedtrack.local_filters.mtt.tracker import kalman_update
 
 LocalKey = tuple[str, int]  # (sensor, local track id)
 # A confirmed track that two or more sensors track is deleted once each of them missed it on
@@ -246,42 +245,28 @@ class TrackToTrackCentre:
                    ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
         """Fuse the scan's observations; returns the posterior at ``t`` per detected row that was fused.
 
-        In-order observations of distinct central tracks are fused in one batched Kalman update;
-        out-of-sequence ones (and a second observation of one central track) one by one.
+        The observations of distinct central tracks are fused together (:func:`fuse_many`: in
+        order, or out of sequence with the later ones fused again); a second observation of one
+        central track in the next round.
         """
         cfg = self.cfg
         out: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        batch, single, seen = [], [], set()
+        pending = []
         for k, key in enumerate(keys):
-            cid = self.mapping[key]
             if key in fresh:
+                cid = self.mapping[key]
                 out[k] = (self.tracks[cid].x, self.tracks[cid].P)  # started from this local estimate
-            elif self.tracks[cid].t <= t and cid not in seen:
-                batch.append(k)
-                seen.add(cid)
             else:
-                single.append(k)
-        if batch:
-            cids = [self.mapping[keys[k]] for k in batch]
-            x, P = self._priors(cids, t)
-            H = self._embed(report.obs_H[batch])
-            R, z = report.obs_R[batch], report.obs_z[batch]
-            S = H @ P @ np.swapaxes(H, -1, -2) + R
-            nu = z - np.einsum("nij,nj->ni", H, x)
-            x, P = kalman_update(x, P, nu, H, R, 0.5 * (S + np.swapaxes(S, -1, -2)))
-            for j, (k, cid) in enumerate(zip(batch, cids)):
-                obs = (H[j], R[j], z[j])
-                self.tracks[cid] = append(self.tracks[cid], t, obs, x[j], P[j], cfg.max_lag)
-                out[k] = (x[j], P[j])
-            self.counters.fused += len(batch)
-        while single:  # distinct central tracks at once; a second observation of one in the next round
+                pending.append(k)
+        H_all = self._embed(report.obs_H)
+        while pending:
             now, later, taken = [], [], set()
-            for k in single:
+            for k in pending:
                 cid = self.mapping[keys[k]]
                 (later if cid in taken else now).append(k)
                 taken.add(cid)
             cids = [self.mapping[keys[k]] for k in now]
-            obs = [(self._embed(report.obs_H[k]), report.obs_R[k], report.obs_z[k]) for k in now]
+            obs = [(H_all[k], report.obs_R[k], report.obs_z[k]) for k in now]
             for k, cid, done in zip(now, cids, fuse_many([self.tracks[c] for c in cids], t, obs, cfg.q,
                                                           cfg.noise_model, cfg.max_lag)):
                 if done is None:
@@ -290,7 +275,7 @@ class TrackToTrackCentre:
                 self.tracks[cid], xc, Pc = done
                 out[k] = (xc, Pc)
                 self.counters.fused += 1
-            single = later
+            pending = later
         return out
 
     def _merge_duplicates(self, updated: set[int], t: float) -> None:

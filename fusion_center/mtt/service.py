@@ -30,7 +30,6 @@ recorded scans). Rejected (docs/wire.md#rejections): a sensor the config does no
 
 from __future__ import annotations
 
-import sys
 import time
 from collections import deque
 from pathlib import Path
@@ -181,9 +180,5 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
     kwargs = service_kwargs(parser, args)
     path = Path(args.config) if args.config else None
-    try:
-        settings = load_tables(path, MttServiceSettings)
-    except ConfigError as exc:
-        print(f"fedtrack serve mtt-centre: error: {exc}", file=sys.stderr)
-        return 2
+    settings = load_tables(path, MttServiceSettings)  # a ConfigError is the CLI's one-line error
     return MttCentreService(args.algorithm, settings.mtt, args.dim, settings.deployment.max_seq_jump, **kwargs).run()

@@ -20,12 +20,12 @@ or of another state size (``wrong_model``).
 
 from __future__ import annotations
 
-import sys
 import time
 from collections import deque
 from pathlib import Path
 
-from fedtrack.config import ConfigError, load_tables
+from fedtrack.config import load_tables
+from fedtrack.deployment import MODES
 from fedtrack.keys import check_id
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
 from fedtrack.local_filters.mtt.local import (
@@ -49,9 +49,6 @@ from fedtrack.services.base import (
 )
 from fedtrack.wire import Measurement, TrackResets
 from fedtrack.zsession import id_arg
-
-MODES = ("federated", "decentralized")
-
 
 class MttLocalService(Service):
     """The local multi-target tracker of one sensor."""
@@ -141,11 +138,7 @@ def main(argv: list[str]) -> int:
         parser.error("--reset-timeout must be > 0")
     kwargs = service_kwargs(parser, args)
     path = Path(args.config) if args.config else None
-    try:
-        settings = load_tables(path, MttServiceSettings)
-    except ConfigError as exc:
-        print(f"fedtrack serve mtt-local: error: {exc}", file=sys.stderr)
-        return 2
+    settings = load_tables(path, MttServiceSettings)  # a ConfigError is the CLI's one-line error
     dep = settings.deployment
     return MttLocalService(args.sensor, args.mode == "federated", settings.mtt, args.reset_timeout,
                            dep.max_seq_jump, dep.max_time_jump_s, **kwargs).run()

@@ -35,9 +35,9 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
-from fedtrack.local_filters.linear.kalman import mat_vec
+from fedtrack.local_filters.linear.gating import gate_ball_pairs
+from fedtrack.local_filters.linear.kalman import GaussianState, mat_vec, update_residual
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.models import (
     Linearized,
@@ -147,24 +147,16 @@ class Gated(NamedTuple):
     d2: np.ndarray  # (K,) squared Mahalanobis distance
 
 
-def candidate_pairs(z: np.ndarray, lin: Linearized, S: np.ndarray, gate: float) -> tuple[np.ndarray, np.ndarray]:
-    """Pairs that may pass the gate ``nu' S^-1 nu <= gate``: for a position sensor those within
-    ``sqrt(gate trace S_i)`` of the predicted position (a ball holding the gate ellipsoid), found
-    with a k-d tree, so a scan costs O(N K) instead of O(N M); every pair for a radar (its
-    azimuth residual wraps, so Euclidean balls in measurement space do not hold its gates)."""
-    n, m = S.shape[0], z.shape[0]
-    if lin.angular:
-        return np.repeat(np.arange(n), m), np.tile(np.arange(m), n)
-    radius = np.sqrt(gate * np.trace(S, axis1=-2, axis2=-1))
-    near = cKDTree(z).query_ball_point(lin.zhat, radius)
-    counts = np.fromiter((len(a) for a in near), dtype=np.int64, count=n)
-    cols = np.fromiter((j for a in near for j in a), dtype=np.int64, count=int(counts.sum()))
-    return np.repeat(np.arange(n), counts), cols
-
-
 def gate(z: np.ndarray, lin: Linearized, S: np.ndarray, gate_d2: float) -> tuple[Gated, np.ndarray]:
-    """The gated pairs and ``ln det S`` (N,) per track (by Cholesky factors: ``d2 = |L^-1 nu|^2``)."""
-    rows, cols = candidate_pairs(z, lin, S, gate_d2)
+    """The gated pairs and ``ln det S`` (N,) per track (by Cholesky factors: ``d2 = |L^-1 nu|^2``).
+
+    Only a position sensor's pairs within the balls of :func:`gate_ball_pairs` are computed; a
+    radar's azimuth residual wraps, so it keeps every pair."""
+    if lin.angular:
+        n, m = S.shape[0], z.shape[0]
+        rows, cols = np.repeat(np.arange(n), m), np.tile(np.arange(m), n)
+    else:
+        rows, cols = gate_ball_pairs(z, lin.zhat, S, gate_d2)
     L = np.linalg.cholesky(S)
     logdet = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
     nu = z[cols] - lin.zhat[rows]
@@ -218,17 +210,6 @@ def assign_by_precedence(n_detections: int, g: Gated, cost: np.ndarray, confirme
     free[g.cols[picked]] = False
     second = np.flatnonzero(~confirmed[g.rows] & free[g.cols])
     return np.concatenate([picked, second[assign(n, n_detections, g.rows[second], g.cols[second], cost[second])]])
-
-
-def kalman_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray, R: np.ndarray,
-                  S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Batched Joseph-form update with the gain solved from ``S``."""
-    PHt = P @ np.swapaxes(H, -1, -2)
-    K = np.swapaxes(np.linalg.solve(S, np.swapaxes(PHt, -1, -2)), -1, -2)
-    xn = x + np.einsum("nij,nj->ni", K, nu)
-    A = np.eye(x.shape[-1]) - K @ H
-    Pn = A @ P @ np.swapaxes(A, -1, -2) + K @ R @ np.swapaxes(K, -1, -2)
-    return xn, 0.5 * (Pn + np.swapaxes(Pn, -1, -2))
 
 
 def start_tracks(scan: SensorScan, det: np.ndarray, params: TrackParams, first_id: int
@@ -286,7 +267,7 @@ def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
         if ti.size:
             H, R = lin.H[ti], scan.R
             nu_a, x0 = g.nu[chosen], x[ti]
-            x[ti], P[ti] = kalman_update(x0, P[ti], nu_a, H, R, S[ti])
+            x[ti], P[ti] = update_residual(GaussianState(x0, P[ti]), nu_a, H, R).state  # Joseph form
             obs_upd = Observation(H, np.broadcast_to(R, (ti.size, m, m)).copy(),
                                   nu_a + np.einsum("nij,nj->ni", H, x0))
             assigned[ti] = True

@@ -27,7 +27,6 @@ from typing import NamedTuple
 
 import numpy as np
 from scipy.linalg import expm
-from scipy.spatial import cKDTree
 from scipy.special import betaln, expit, gammainc, gammaln
 
 from fedtrack.local_filters.linear.kalman import (
@@ -38,6 +37,7 @@ from fedtrack.local_filters.linear.kalman import (
     symmetrize,
     transpose,
 )
+from fedtrack.local_filters.linear.gating import gate_ball_pairs
 from fedtrack.local_filters.linear.models import LinearModel
 from fedtrack.local_filters.pda.config import PDAParams
 
@@ -174,13 +174,11 @@ def candidates(pred: GaussianState, z: np.ndarray, H: np.ndarray, R: np.ndarray,
     n = pred.x.shape[0]
     if z.shape[0] == 0 or n == 0:
         return np.zeros((n, 0), dtype=np.int64), np.zeros((n, 0), dtype=bool)
-    S = H @ pred.P @ H.T + R
-    radius = np.sqrt(c.gamma * np.trace(S, axis1=-2, axis2=-1))
-    near = cKDTree(z).query_ball_point(mat_vec(H, pred.x), radius)
-    counts = np.fromiter((len(a) for a in near), dtype=np.int64, count=n)
+    rows, cols = gate_ball_pairs(z, mat_vec(H, pred.x), H @ pred.P @ H.T + R, c.gamma)
+    counts = np.bincount(rows, minlength=n)
     valid = np.arange(max(1, int(counts.max()))) < counts[:, None]
     index = np.zeros(valid.shape, dtype=np.int64)
-    index[valid] = np.concatenate([np.asarray(a, dtype=np.int64) for a in near])
+    index[valid] = cols
     return index, valid
 
 

@@ -14,12 +14,11 @@ published and ``live_tracks`` of the last scan.
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 
-from fedtrack.config import ConfigError, load_tables
+from fedtrack.config import load_tables
 from fedtrack.deployment import DeploymentSettings
 from fedtrack.keys import check_id
 from fedtrack.local_filters.pda.association import ALGORITHMS
@@ -88,10 +87,5 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
     kwargs = service_kwargs(parser, args)
     path = Path(args.config) if args.config else None
-    try:
-        service = PDAService(args.sensor, args.algorithm, load_config(path),
-                             load_tables(path, DeploymentSettings).deployment.max_time_jump_s, **kwargs)
-    except ConfigError as exc:
-        print(f"fedtrack serve hpda: error: {exc}", file=sys.stderr)
-        return 2
-    return service.run()
+    return PDAService(args.sensor, args.algorithm, load_config(path),  # ConfigError: the CLI's one-line error
+                      load_tables(path, DeploymentSettings).deployment.max_time_jump_s, **kwargs).run()
