@@ -11,7 +11,8 @@ from support import WAIT_S, free_port, wait_until
 
 from fedtrack.keys import Keys
 from fedtrack.local_filters.pda.config import PDAReplayConfig
-from fedtrack.local_filters.pda.service import PDAService, main
+from fedtrack.cli import main
+from fedtrack.local_filters.pda.service import PDAService
 from fedtrack.sensors.sonar import SonarConfig, sonar_scans
 from fedtrack.wire import FusedTrack, Measurement, decode, encode, measurement_from_replay
 from fedtrack.zsession import SessionOptions, close_session, open_session, wait_alive
@@ -62,5 +63,5 @@ def test_service_confirms_the_sonar_target() -> None:
 def test_bad_config_is_a_clean_error(tmp_path: Path, capsys: Any) -> None:
     cfg = tmp_path / "bad.toml"
     cfg.write_text("[pda.tracker]\nsnr = -1.0\n")
-    assert main(["--sensor", "sonar1", "--config", str(cfg)]) == 2
+    assert main(["serve", "hpda", "--sensor", "sonar1", "--config", str(cfg)]) == 2  # the CLI's one-line error
     assert f"{cfg}: pda.tracker.snr" in capsys.readouterr().err
