@@ -9,7 +9,10 @@
   and mean GOSPA on the simulator's default scenario for every sensor's own tracker, the
   three fusions and Stone Soup's GNN tracker on each sensor's detections and on all of them
   (:mod:`fedtrack.benchmarks.stonesoup_mtt`, with the ``bench`` extra), every picture holding
-  every scan up to its time (``picture_delay = max_lag``).
+  every scan up to its time (``picture_delay = max_lag``); then two live deployments
+  (:func:`bench_live`): 200 targets and 4 sensors at real time (picture latency), and sensors
+  joining and leaving (``deploy/join-leave.toml``'s script: the join's association delay, the
+  kill's detection time, central tracks lost).
 * ``pipeline``: the deployment latency bench (:mod:`fedtrack.benchmarks.run`, its options).
 * ``soak``: a long deployment at the lockstep rate (:mod:`fedtrack.benchmarks.soak`; 10 minutes
   by default, not part of ``all``).
@@ -124,6 +127,55 @@ def bench_multitarget(quick: bool) -> dict[str, Any]:
     return out
 
 
+LIVE_CONFIG = """
+[deployment]
+name = "bench-{name}"
+seed = 1
+pacing = "realtime"
+speed = {speed}
+router_listen = "tcp/127.0.0.1:{port}"
+ready_timeout_s = 60.0
+
+[multitarget]
+algorithm = "mtt-federated"
+targets = {targets}
+sensors = "{sensors}"
+duration = {duration}
+{schedule}
+
+[mtt]
+clutter_density = 4e-7
+sensors = "any"
+"""
+
+
+def bench_live(quick: bool) -> dict[str, Any]:
+    """Two live deployments through ``fedtrack launch`` (separate processes, loopback router):
+    ``keep_up``, 200 targets and 4 sensors (periods 1.0 / 0.7 / 1.3 / 0.9 s) for 60 s at real
+    time (picture latency from a sensor's publish); ``join_leave``, 60 targets, s1 and s2 from
+    the start, s3 joining at 30 s and s1 killed at 60 s of 90 s (the script of
+    ``deploy/join-leave.toml``; ``summary.json``'s ``membership``)."""
+    from fedtrack.deploy.demo import free_port
+
+    runs = {"keep_up": {"targets": 200 if not quick else 20, "sensors": "pos:1.0,pos:0.7,pos:1.3,pos:0.9",
+                        "duration": 60.0 if not quick else 15.0, "speed": 1.0 if not quick else 3.0, "schedule": ""},
+            "join_leave": {"targets": 60 if not quick else 10, "sensors": "pos:1.0,pos:0.7,pos:1.3",
+                           "duration": 90.0 if not quick else 24.0, "speed": 1.0 if not quick else 3.0,
+                           "schedule": "join_at = { s3 = 30.0 }\nkill_at = { s1 = 60.0 }" if not quick
+                           else "join_at = { s3 = 8.0 }\nkill_at = { s1 = 16.0 }"}}
+    out: dict[str, Any] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, run in runs.items():
+            config = Path(tmp) / f"{name}.toml"
+            config.write_text(LIVE_CONFIG.format(name=name.replace("_", "-"), port=free_port(), **run))
+            folder = Path(tmp) / name
+            wall, _ = timed(fedtrack_cmd("launch", str(config), "--out", str(folder)))
+            summary = json.loads((folder / "summary.json").read_text())
+            out[name] = {"wall_s": wall, **{k: summary.get(k) for k in (
+                "pictures", "picture_latency_ms", "mean", "exit_codes", "restarts", "rejected", "membership")}}
+    return out
+
+
 def stonesoup_runs(default: Path, config: Path, sensors: tuple[str, ...], tracks: dict[str, Path]
                    ) -> dict[str, float] | None:
     """Stone Soup's GNN tracker on each sensor's detections and on all of them (adds to ``tracks``);
@@ -191,6 +243,7 @@ def main(argv: list[str]) -> int:
         result["montecarlo_s"] = montecarlo
     if args.suite in ("multitarget", "all"):
         result["multitarget"] = bench_multitarget(args.quick)
+        result["multitarget"]["live"] = bench_live(args.quick)
     if args.suite == "all":
         result["import_s"] = bench_startup()
         with tempfile.TemporaryDirectory() as tmp:

@@ -121,7 +121,7 @@ def main(argv: list[str]) -> int:
         print(f"fedtrack demo: {exc}", file=sys.stderr)
         return 1
     if settings.multitarget is not None:
-        finish_multitarget(out, report, "fedtrack demo", settings.mtt.picture_delay)
+        finish_multitarget(out, report, "fedtrack demo", settings)
     else:
         finish(out, settings, report, out / "config.toml", "fedtrack demo")
     if failure is not None:

@@ -56,6 +56,7 @@ MAX_RESTARTS = 3
 SNAPSHOT = "fusion-center.snapshot"  # the fusion center's state, for its restarts within this run
 RESTART_BACKOFF_S = 0.5
 RESTART_BACKOFF_MAX_S = 4.0
+JOIN_LEAD_S = 2.0  # a joining sensor's processes start this long before its join time
 
 
 def describe_exit(code: int) -> str:
@@ -83,6 +84,9 @@ class ServiceProcess:
     argv: list[str]
     log_path: Path
     proc: subprocess.Popen[bytes] | None = None
+    join_at_s: float | None = None  # scenario seconds: started then (``[multitarget] join_at``)
+    kill_at_s: float | None = None  # scenario seconds: SIGKILLed then, never restarted (``kill_at``)
+    killed: bool = False
 
     @property
     def name(self) -> str:
@@ -140,9 +144,12 @@ def service_plan(settings: Settings, config_path: Path, out_dir: Path, log_dir: 
     if settings.multitarget is not None:
         if "recorder" in dep.services:
             add("recorder", "recorder", ["--db", str(out_dir / "recording.db"), "--out", str(out_dir), *common])
+        mt = settings.multitarget
         for role, sid, args in service_args(settings, out_dir / SCENARIO_DIR / "measurements.jsonl"):
             if role not in ("sensor", "mtt-local") or sid in here_mtt(settings):
                 add(role, sid, [*args, *cfg, *common])
+                if role in ("sensor", "mtt-local"):
+                    plan[-1].join_at_s, plan[-1].kill_at_s = mt.join_at.get(sid), mt.kill_at.get(sid)
         return plan
     if "local-filter" in dep.services:
         for s in here:
@@ -186,13 +193,14 @@ def apply_zenoh_settings(settings: Settings, config_path: Path, out_dir: Path,
     return str(paths[LAUNCHER])
 
 
-def align_realtime_sensors(plan: list[ServiceProcess], lead_s: float = 3.0) -> None:
+def align_realtime_sensors(plan: list[ServiceProcess], lead_s: float = 3.0) -> float:
     """Give every sensor of the plan one wall-clock start time (realtime pacing schedules
-    scan k at start + k T / speed, so the sensors stay in step and do not drift)."""
+    scan k at start + k T / speed, so the sensors stay in step and do not drift); returns it."""
     start_at = time.time() + lead_s
     for sp in plan:
         if sp.role == "sensor":
             sp.argv = [a for a in sp.argv] + ["--start-at", f"{start_at:.6f}"]
+    return start_at
 
 
 class Launcher:
@@ -213,6 +221,7 @@ class Launcher:
         self._session: zenoh.Session | None = None
         self._subs: list[Any] = []
         self._restart_at: dict[str, float] = {}  # service -> monotonic time of its pending restart
+        self._epoch: float | None = None  # wall-clock time of the sensors' scenario time 0
 
     # ------------------------------------------------------------ processes
     def _start(self, sp: ServiceProcess) -> None:
@@ -228,7 +237,8 @@ class Launcher:
         restarted after a backoff, up to MAX_RESTARTS times (see the module docstring)."""
         now = time.monotonic()
         for sp in group:
-            if sp.proc is None or sp.proc.poll() is None or sp.proc.returncode == 0 or sp.name in self.report.failed:
+            if (sp.proc is None or sp.proc.poll() is None or sp.proc.returncode == 0 or sp.name in self.report.failed
+                    or sp.killed):
                 continue
             reason = describe_exit(sp.proc.returncode)
             if starting:
@@ -262,9 +272,32 @@ class Launcher:
                     self.report.processes[sp.name] = {"max_rss_mb": usage.peak_rss_mb, "cpu_s": usage.cpu_s}
 
     def _finished(self, sp: ServiceProcess) -> bool:
-        """Ended for good: exited 0, or given up after MAX_RESTARTS."""
-        return sp.proc is not None and sp.proc.poll() is not None and (sp.proc.returncode == 0
+        """Ended for good: exited 0, killed by the schedule, or given up after MAX_RESTARTS."""
+        return sp.proc is not None and sp.proc.poll() is not None and (sp.proc.returncode == 0 or sp.killed
                                                                        or sp.name in self.report.failed)
+
+    def _follow_schedule(self) -> None:
+        """``[multitarget] join_at`` / ``kill_at``: start a joining sensor's processes
+        ``JOIN_LEAD_S`` before its join time (its sensor publishes only the scans from then on);
+        SIGKILL a leaving sensor's processes at their time (a crash: nothing is said to the
+        centre, and the launcher does not restart them)."""
+        if self._epoch is None:
+            return
+        speed = self.settings.deployment.speed
+        now = time.time()
+        for sp in self.plan:
+            if sp.join_at_s is not None and sp.proc is None and now >= self._epoch + sp.join_at_s / speed - JOIN_LEAD_S:
+                self._start(sp)
+                self.report.events.append(("started", sp.name, now))
+                if not self.quiet:
+                    self._say(f"{sp.name} started (joins at t = {sp.join_at_s:g} s)")
+            if (sp.kill_at_s is not None and not sp.killed and sp.proc is not None
+                    and now >= self._epoch + sp.kill_at_s / speed):
+                sp.proc.kill()
+                sp.killed = True
+                self.report.events.append(("killed", sp.name, now))
+                if not self.quiet:
+                    self._say(f"{sp.name} killed (SIGKILL at t = {sp.kill_at_s:g} s)")
 
     def _say(self, text: str) -> None:
         sys.stderr.write(f"\nfedtrack launch: {text}\n")
@@ -372,7 +405,7 @@ class Launcher:
         start = time.monotonic()
         dep = self.settings.deployment
         sensors = [sp for sp in self.plan if sp.role == "sensor"]
-        others = [sp for sp in self.plan if sp.role not in ("sensor", "router")]
+        others = [sp for sp in self.plan if sp.role not in ("sensor", "router") and sp.join_at_s is None]
         routers = [sp for sp in self.plan if sp.role == "router"]
         stopped = False
         for sp in self.plan:  # a snapshot left by an earlier run must not be resumed from
@@ -387,9 +420,10 @@ class Launcher:
                 self._start(sp)
             self._wait_ready(routers + others, dep.ready_timeout_s)
             if dep.pacing == "realtime":
-                align_realtime_sensors(sensors)
+                self._epoch = align_realtime_sensors(sensors)
             for sp in sensors:
-                self._start(sp)
+                if sp.join_at_s is None:
+                    self._start(sp)
             self._watch(sensors, start)
         except KeyboardInterrupt:
             stopped = True
@@ -402,7 +436,7 @@ class Launcher:
             self.report.wall_s = time.monotonic() - start
         if stopped:
             raise Stopped(self.report)
-        failed = {n: c for n, c in self.report.exit_codes.items() if c not in (0, None)}
+        failed = {n: c for n, c in self.report.exit_codes.items() if c not in (0, None) and n not in self.report.killed}
         if failed and not self._stop.is_set():
             name = next(iter(failed))
             sp = next(p for p in self.plan if p.name == name)
@@ -444,6 +478,7 @@ class Launcher:
         tty = sys.stderr.isatty()
         last_print = last_sample = 0.0
         while not self._stop.is_set():
+            self._follow_schedule()
             self._check_alive(self.plan)
             if time.monotonic() - last_sample >= USAGE_SAMPLE_S:
                 self._sample_usage()
@@ -507,9 +542,9 @@ def main(argv: list[str]) -> int:
         print(f"fedtrack launch: {exc}", file=sys.stderr)
         return 1
     if settings.multitarget is not None:
-        finish_multitarget(out, report, "fedtrack launch", settings.mtt.picture_delay)
+        finish_multitarget(out, report, "fedtrack launch", settings)
     else:
         finish(out, settings, report, args.config.resolve(), "fedtrack launch")
     if code is not None:
         return code
-    return 1 if report.failed or any(c not in (0, None) for c in report.exit_codes.values()) else 0
+    return 1 if report.failed or any(c not in (0, None) and n not in report.killed for n, c in report.exit_codes.items()) else 0

@@ -14,7 +14,9 @@ latency, counters, exit codes) and ``tracks.png``.
 
 from __future__ import annotations
 
+import datetime
 import json
+import re
 import shutil
 import sys
 from pathlib import Path
@@ -27,6 +29,9 @@ from fedtrack.jsonl import InputError
 from fedtrack.deploy.report import LaunchReport
 from fedtrack.deploy.settings import MultitargetSettings, Settings
 from fedtrack.fusion_center.mtt.evaluation import evaluate, plot
+from fedtrack.fusion_center.mtt.membership import membership
+from fedtrack.fusion_center.mtt.replay import read_scans
+from fedtrack.local_filters.mtt.scan import SensorScan
 from fedtrack.sensors.multitarget import Scenario, parse_spec, simulate
 
 SCENARIO_DIR = "scenario"
@@ -51,6 +56,12 @@ def check_multitarget(settings: Settings, path: Path) -> None:
         unknown = [s for s in ids if not settings.mtt.allows(s)]
         if unknown:
             raise ConfigError(f"mtt.sensors: does not allow the scenario's sensor {unknown[0]!r}")
+        for key in ("join_at", "kill_at"):
+            stray = [s for s in getattr(mt, key) if s not in ids]
+            if stray:
+                raise ConfigError(f"multitarget.{key}.{stray[0]}: not a sensor of the scenario ({', '.join(ids)})")
+        if mt.join_at and set(mt.join_at) >= set(ids):
+            raise ConfigError("multitarget.join_at: at least one sensor must run from the start")
 
 
 def prepare(settings: Settings, out: Path) -> Path:
@@ -74,14 +85,86 @@ def service_args(settings: Settings, measurements: Path) -> list[tuple[str, str,
     if mt.algorithm != "mtt-centralized":
         mode = "federated" if mt.algorithm == "mtt-federated" else "decentralized"
         plan += [("mtt-local", s, ["--sensor", s, "--mode", mode]) for s in ids]
-    plan += [("sensor", s, ["--kind", "scan", "--measurements", str(measurements)]) for s in ids]
+    plan += [("sensor", s, ["--kind", "scan", "--measurements", str(measurements),
+                            *(["--join-at", repr(mt.join_at[s])] if s in mt.join_at else [])]) for s in ids]
     return plan
 
 
-def finish_multitarget(out: Path, report: LaunchReport, title: str, delay: float = 0.0) -> dict[str, Any]:
+DEPARTURE_LOG = re.compile(r"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}) .* sensor (\S+) left: dropped from fusion")
+
+
+def departures_logged(log: Path) -> dict[str, float]:
+    """Sensor -> wall-clock time at which the centre dropped it, from the centre's log."""
+    out: dict[str, float] = {}
+    if log.is_file():
+        for line in log.read_text(errors="replace").splitlines():
+            hit = DEPARTURE_LOG.match(line)
+            if hit:
+                stamp = datetime.datetime.strptime(hit.group(1), "%Y-%m-%d %H:%M:%S,%f").timestamp()
+                out.setdefault(hit.group(2), stamp)
+    return out
+
+
+def membership_summary(out: Path, report: LaunchReport, settings: Settings) -> dict[str, Any]:
+    """``[multitarget] join_at`` / ``kill_at`` as they happened: per joining sensor, how many of
+    its own scans its local tracks took to share a central track with another sensor; per killed
+    sensor, how long the centre took to drop it and the central tracks another sensor supported
+    that were lost (:mod:`fedtrack.fusion_center.mtt.membership`, on the recording)."""
+    mt = settings.multitarget
+    assert mt is not None
+    killed: dict[str, float] = {}  # sensor -> wall-clock time its first process was killed
+    for what, name, when in report.events:
+        if what == "killed":
+            sensor = name.split("/", 1)[1]
+            killed[sensor] = min(killed.get(sensor, when), when)
+    dropped = departures_logged(out / "logs" / "mtt-centre-centre.log")
+    summary: dict[str, Any] = {"joined": {}, "left": {}}
+    for sensor, when in killed.items():
+        summary["left"][sensor] = {"killed_at": when, "dropped_after_s": dropped[sensor] - when if sensor in dropped else None}
+    measurements = out / "measurements.jsonl"
+    if mt.algorithm == "mtt-centralized" or not measurements.is_file():
+        return summary
+    scans = read_scans(measurements, settings.mtt)
+    dim = 6 if any(isinstance(s, SensorScan) and s.sensor_position is not None for s in scans) else 4
+    joined, left = membership(scans, settings.mtt, dim, mt.algorithm == "mtt-federated", set(mt.join_at))
+    for j in joined:
+        delays = j.scans_to_associate
+        summary["joined"][j.sensor] = {
+            "first_t": j.first_t, "tracks_associated": len(delays),
+            "scans_to_associate": {"median": float(np.median(delays)) if delays else None,
+                                   "max": max(delays, default=None),
+                                   "within_3": sum(d <= 3 for d in delays) / len(delays) if delays else None},
+            "never_associated_confirmed": j.never_associated}
+    for lv in left:
+        if lv.sensor not in killed:
+            continue  # a clean stop at the end of the run
+        row = summary["left"][lv.sensor]
+        row.update({"t": lv.t, "supported_by_others": lv.supported, "lost": lv.lost})
+    return summary
+
+
+def print_membership(summary: dict[str, Any], title: str) -> None:
+    for sensor, j in summary["joined"].items():
+        d = j["scans_to_associate"]
+        if j["tracks_associated"]:
+            print(f"{title}: {sensor} joined at t = {j['first_t']:.1f} s: {j['tracks_associated']} of its tracks "
+                  f"associated with another sensor's, {100 * d['within_3']:.0f} % within 3 of its scans (median "
+                  f"{d['median']:g}, max {d['max']}); {j['never_associated_confirmed']} confirmed tracks never did",
+                  file=sys.stderr)
+    for sensor, lv in summary["left"].items():
+        after = lv.get("dropped_after_s")
+        said = "not dropped" if after is None else f"dropped {after:.2f} s after the kill"
+        lost = f"; {len(lv['lost'])} of the {lv['supported_by_others']} central tracks others supported lost" \
+            if "lost" in lv else ""
+        print(f"{title}: {sensor} killed: {said}{lost}", file=sys.stderr)
+
+
+def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Settings) -> dict[str, Any]:
     """Truth, summary (with GOSPA and the picture latency: from the publish of the scan that
-    makes a picture due, ``delay`` = ``[mtt] picture_delay``, to its arrival at the launcher)
-    and plot of a multi-target run; prints the summary."""
+    makes a picture due, delayed by ``[mtt] picture_delay``, to its arrival at the launcher;
+    with ``join_at`` / ``kill_at``, what they did) and plot of a multi-target run; prints the
+    summary."""
+    delay = settings.mtt.picture_delay
     truth = out / "truth.jsonl"
     shutil.copyfile(out / SCENARIO_DIR / "truth.jsonl", truth)
     tracks = out / "tracks.jsonl"
@@ -96,6 +179,8 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, delay: float
     if latencies:
         summary["picture_latency_ms"] = {"p50": float(np.percentile(latencies, 50)),
                                          "p99": float(np.percentile(latencies, 99)), "pictures": len(latencies)}
+    if report.events:
+        summary["membership"] = membership_summary(out, report, settings)
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     mean = summary.get("mean")
     if mean:
@@ -110,5 +195,7 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, delay: float
               "scan that makes a picture due)", file=sys.stderr)
     else:
         print(f"{title}: no picture was recorded (see {out}/logs/)", file=sys.stderr)
+    if "membership" in summary:
+        print_membership(summary["membership"], title)
     print(f"wrote {out}/: measurements.jsonl tracks.jsonl truth.jsonl summary.json tracks.png")
     return summary

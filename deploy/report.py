@@ -41,7 +41,13 @@ class LaunchReport:
     failed: list[str] = field(default_factory=list)
     restarts: dict[str, int] = field(default_factory=dict)  # service -> times the launcher restarted it
     processes: dict[str, dict[str, float]] = field(default_factory=dict)  # service -> peak RSS (MB), CPU (s)
+    events: list[tuple[str, str, float]] = field(default_factory=list)  # (started | killed, service, wall time)
     wall_s: float = 0.0
+
+    @property
+    def killed(self) -> set[str]:
+        """Services the schedule killed (``[multitarget] kill_at``): their -9 is not a failure."""
+        return {name for what, name, _ in self.events if what == "killed"}
 
     def latency_percentiles(self) -> tuple[float, float]:
         if not self.latencies_ms:

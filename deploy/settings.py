@@ -36,12 +36,21 @@ class MultitargetSettings:
     duration: float = 60.0
     pd: float = 0.9
     clutter: float = 10.0
+    join_at: dict[str, float] = field(default_factory=dict)  # sensor -> scenario seconds it starts at
+    kill_at: dict[str, float] = field(default_factory=dict)  # sensor -> scenario seconds it is killed at
 
     def validate(self) -> None:
         if self.algorithm not in MTT_ALGORITHMS:
             raise ConfigError(f"algorithm: must be one of {', '.join(MTT_ALGORITHMS)}, got {self.algorithm!r}")
         if self.targets < 1 or not self.duration > 0 or not 0 < self.pd <= 1 or self.clutter < 0:
             raise ConfigError("need targets >= 1, duration > 0, 0 < pd <= 1, clutter >= 0")
+        for key in ("join_at", "kill_at"):
+            for sensor, t in getattr(self, key).items():
+                if not 0 < t < self.duration:
+                    raise ConfigError(f"{key}.{sensor}: must be inside the scenario (0, duration = {self.duration:g})")
+        for sensor, t in self.kill_at.items():
+            if self.join_at.get(sensor, 0.0) >= t:
+                raise ConfigError(f"kill_at.{sensor}: must be after join_at.{sensor}")
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,8 @@ Kinds: ``position`` (paper 004 scenario with the ``[[sensor]]`` R, the default),
 ``scan``: a multi-target sensor publishing its own lines of a multi-target measurements file
 (``--measurements``, as ``fedtrack simulate multitarget`` writes it), in time order, scan
 ``k`` at wall-clock time ``start + t_k / speed`` (realtime pacing only: each sensor keeps its
-own period and phase).
+own period and phase; ``--join-at T``: only its scans from ``T`` on, for a sensor that joins a
+running deployment).
 """
 
 from __future__ import annotations
@@ -183,6 +184,9 @@ def add_sensor_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--start-at", type=float, metavar="EPOCH_S",
                         help="realtime pacing: wall-clock time (Unix seconds) of scan 0, shared by the sensors "
                              "of a deployment (default: when this sensor is ready)")
+    parser.add_argument("--join-at", type=float, metavar="SECONDS",
+                        help="kind scan: publish only the scans at t >= SECONDS (a sensor that joins a running "
+                             "deployment; scan times count from --start-at)")
 
 
 def main(argv: list[str]) -> int:
@@ -202,6 +206,8 @@ def main(argv: list[str]) -> int:
         if args.measurements is None or settings.deployment.pacing != "realtime":
             parser.error("--kind scan needs --measurements FILE and realtime pacing")
         scans = own_scans(args.measurements, args.id)
+        if args.join_at is not None:
+            scans = [s for s in scans if s.t >= args.join_at]
         return SensorService([], 1.0, "realtime", settings.deployment.speed, args.lockstep_timeout,
                              args.start_at, scans=scans, **service_kwargs(parser, args)).run()
     lines, period = scan_source(args.kind, settings, args.id)

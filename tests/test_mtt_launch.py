@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 from support import free_port
 
 CONFIG = """
@@ -76,4 +77,60 @@ def test_a_multitarget_launch_needs_realtime_pacing(tmp_path: Path) -> None:
     proc = subprocess.run([sys.executable, "-m", "fedtrack.cli", "launch", str(config), "--out", str(tmp_path / "o")],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and "deployment.pacing" in proc.stderr and "Traceback" not in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
+
+
+def test_a_sensor_joins_and_another_is_killed_during_a_launch(tmp_path: Path) -> None:
+    """``join_at`` / ``kill_at``: s3 (which the config does not name) starts a third of the way in,
+    s1's tracker and sensor are SIGKILLed two thirds in; nothing restarts, the centre drops s1
+    within 1 s, s3's tracks associate within 3 of its scans, no central track that another sensor
+    supported is lost, and the recording still replays to the live pictures."""
+    config = tmp_path / "mtt.toml"
+    text = CONFIG.format(port=free_port(), algorithm="mtt-federated")
+    text = text.replace('sensors = "pos:1.0,radar:1.3,pos:0.7"', 'sensors = "pos:1.0,pos:0.7,pos:1.3"')
+    text = text.replace("duration = 16.0", "duration = 30.0\njoin_at = { s3 = 10.0 }\nkill_at = { s1 = 20.0 }")
+    text = text.replace('sensors = ["s1", "r2", "s3"]', 'sensors = "any"').replace("[mtt.sensor.r2]\n", "")
+    text = text.replace("clutter_density = 1e-8\n", "")
+    config.write_text(text)
+    out = tmp_path / "out"
+    proc = subprocess.run([sys.executable, "-m", "fedtrack.cli", "launch", str(config), "--out", str(out)],
+                          capture_output=True, text=True, timeout=180)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["restarts"] == {} and summary["rejected"] == 0
+    codes = summary["exit_codes"]
+    assert codes.pop("mtt-local/s1") == -9 and codes.pop("sensor/s1") == -9 and set(codes.values()) == {0}
+    joined, left = summary["membership"]["joined"]["s3"], summary["membership"]["left"]["s1"]
+    assert joined["first_t"] >= 10.0 and joined["tracks_associated"] >= 3
+    assert joined["scans_to_associate"]["max"] <= 3
+    assert 0 <= left["dropped_after_s"] < 1.0 and left["supported_by_others"] >= 3 and left["lost"] == []
+    assert "s3 joined at" in proc.stderr and "s1 killed: dropped" in proc.stderr
+    live = [json.loads(x) for x in (out / "tracks.jsonl").read_text().splitlines()]
+    assert any("s3" in tr["sensors"] for tr in live[-1]["tracks"])
+    assert not any("s1" in tr["sensors"] for tr in live[-1]["tracks"])
+    replayed = tmp_path / "replay.jsonl"
+    subprocess.run([sys.executable, "-m", "fedtrack.cli", "replay", "--algorithm", "mtt-federated", "--config",
+                    str(config), "--measurements", str(out / "measurements.jsonl"), "--out", str(replayed)],
+                   check=True, capture_output=True, timeout=60)
+    again = [json.loads(x) for x in replayed.read_text().splitlines()]
+    assert len(again) == len(live)
+    for a, b in zip(live, again):
+        assert [(t["id"], t["sensors"]) for t in a["tracks"]] == [(t["id"], t["sensors"]) for t in b["tracks"]]
+        for ta, tb in zip(a["tracks"], b["tracks"]):
+            np.testing.assert_allclose(ta["x"], tb["x"], rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("extra, field", [
+    ("join_at = { s3 = 40.0 }", "multitarget.join_at.s3"),
+    ("kill_at = { s1 = 5.0 }\njoin_at = { s1 = 8.0 }", "multitarget.kill_at.s1"),
+    ("join_at = { s9 = 5.0 }", "multitarget.join_at.s9"),
+    ("join_at = { s1 = 5.0, r2 = 5.0, s3 = 5.0 }", "multitarget.join_at"),
+])
+def test_a_wrong_join_or_kill_schedule_fails_at_start(tmp_path: Path, extra: str, field: str) -> None:
+    config = tmp_path / "mtt.toml"
+    config.write_text(CONFIG.format(port=free_port(), algorithm="mtt-federated").replace(
+        "duration = 16.0", f"duration = 16.0\n{extra}"))
+    proc = subprocess.run([sys.executable, "-m", "fedtrack.cli", "launch", str(config), "--out", str(tmp_path / "o")],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and field in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1

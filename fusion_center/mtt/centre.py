@@ -9,7 +9,11 @@ scan, the linearized observation of every track the scan detected, the tracks it
   ``association_gate_probability`` (dof = local state size), and an assignment
   (``linear_sum_assignment``) over the scan's unmapped tracks and the central tracks that
   have no track of this sensor yet; the rest start central tracks. A mapped pair that fails
-  the test ``unmap_after`` times in a row is unmapped (hysteresis) and associated afresh.
+  the test ``unmap_after`` times in a row is unmapped (hysteresis) and associated afresh. A
+  confirmed local track alone on its central track (it started it and no other sensor's track
+  joined) takes part in every association of its sensor's scans, so that a track that narrowly
+  failed the test at its start (one detection, no velocity) joins the others' central track once
+  it passes; its own central track, left without a local track, is deleted.
 * **Fusion.** The centre fuses each local observation (``H, R, z``) into its central track at
   the observation's time, predicting the central track there; out-of-sequence observations
   up to ``max_lag`` old are fused exactly (:mod:`.central_track`), older ones are counted as
@@ -183,7 +187,9 @@ class TrackToTrackCentre:
         unmapped_rows = [k for k, key in enumerate(keys) if self.mapping.get(key) not in self.tracks]
         for k in unmapped_rows:
             self._unmap(keys[k])
-        fresh = self._associate(report, det_rows, unmapped_rows)
+        alone = [k for k, key in enumerate(keys) if report.confirmed[det_rows[k]] and key in self.mapping
+                 and self.members.get(self.mapping[key]) == {key}]
+        fresh = self._associate(report, det_rows, unmapped_rows, alone)
         posterior = self._fuse_scan(report, keys, fresh, t)
         beta = float(max(len(self.live_sensors(t)), 1))
         resets = []
@@ -320,15 +326,19 @@ class TrackToTrackCentre:
                 self.counters.merged += 1
                 break
 
-    def _associate(self, report: LocalReport, det_rows: np.ndarray, unmapped: list[int]) -> set[LocalKey]:
-        """Map the scan's unmapped local tracks; returns those that started central tracks."""
+    def _associate(self, report: LocalReport, det_rows: np.ndarray, unmapped: list[int], alone: list[int]
+                   ) -> set[LocalKey]:
+        """Map the scan's unmapped local tracks (those not associated start central tracks) and
+        move its confirmed local tracks that are alone on their central tracks to central tracks of
+        other sensors that pass the test (their own central tracks, left without a local track,
+        go at the next :meth:`prune`); returns the local tracks that started central tracks."""
         fresh: set[LocalKey] = set()
-        if not unmapped:
+        if not unmapped and not alone:
             return fresh
         cfg, t, s = self.cfg, report.t, report.sensor
         taken = {cid for cid, keys in self.members.items() if any(sensor == s for sensor, _ in keys)}
         cands = [cid for cid in self.tracks if cid not in taken]
-        rows = det_rows[unmapped]
+        rows = det_rows[unmapped + alone]
         d = report.x.shape[1]
         assigned: dict[int, int] = {}
         if cands:
@@ -347,11 +357,13 @@ class TrackToTrackCentre:
                 for r, c in zip(ri.tolist(), ci.tolist()):
                     if gated[r, c]:
                         assigned[r] = cands[c]
-        for u in range(len(unmapped)):
+        for u in range(len(unmapped) + len(alone)):
             row = int(rows[u])
             key = (s, int(report.ids[row]))
             if u in assigned:
                 self._map(key, assigned[u])
+                continue
+            if u >= len(unmapped):
                 continue
             x, P = self._central_start(report.x[row], report.P[row])
             cid = self.next_id
