@@ -649,9 +649,10 @@ class TrackPicture(_Record):
     stamp_ns: int
     closing: bool = False
     left: tuple[int, ...] = ()
+    ca: tuple[bool, ...] = ()  # per track: in the CA model (``[mtt] maneuver``); empty: every track CV
 
     _fields = {"seq": _count, "t": _real, "ids": _counts, "x": _batch, "P": _batch, "confirmed": _flags,
-               "sensors": _id_lists,
+               "sensors": _id_lists, "ca": _flags,
                "fused_sensors": lambda v, p: tuple(_identifier(x, f"{p}[{i}]")
                                                    for i, x in enumerate(_sequence(v, p, MAX_TRACKS))),
                "fused_seqs": _counts, "stamp_ns": _count, "closing": _flag, "left": _counts}
@@ -664,6 +665,8 @@ class TrackPicture(_Record):
             raise WireError("sensors", f"expected confirmed and sensors for each of the {n} tracks")
         if len(self.fused_sensors) != len(self.fused_seqs):
             raise WireError("fused_seqs", "expected one per fused_sensors entry")
+        if len(self.ca) not in (0, n):
+            raise WireError("ca", f"expected none or one for each of the {n} tracks")
         if len(set(self.left)) != len(self.left) or any(i >= len(self.fused_seqs) for i in self.left):
             raise WireError("left", "expected distinct positions in the fused lists")
         if self.closing and n:
@@ -836,11 +839,13 @@ def measurement_to_replay(m: Measurement) -> dict[str, Any]:
     return row
 
 
-def picture_track_row(tid: int, x: np.ndarray, P: np.ndarray, confirmed: bool, sensors: list[str]) -> dict[str, Any]:
-    """One track of a multi-target picture line (docs/multitarget-formats.md)."""
+def picture_track_row(tid: int, x: np.ndarray, P: np.ndarray, confirmed: bool, sensors: list[str],
+                      model: str = "cv") -> dict[str, Any]:
+    """One track of a multi-target picture line (docs/multitarget-formats.md); ``x`` is the CV
+    state (a CA track's marginal), ``model`` the track's motion model."""
     k = x.shape[0] // 2
     return {"id": int(tid), "pos": x[0::2][:k].tolist(), "vel": x[1::2][:k].tolist(), "x": x.tolist(),
-            "P": P.tolist(), "model": "cv", "status": "confirmed" if confirmed else "tentative",
+            "P": P.tolist(), "model": model, "status": "confirmed" if confirmed else "tentative",
             "sensors": sensors}
 
 
@@ -848,7 +853,8 @@ def picture_to_replay(pic: TrackPicture) -> dict[str, Any]:
     """The picture line ``{"t", "tracks": [...]}`` that ``replay --algorithm mtt-*`` writes."""
     d = pic.x.shape[1]
     return {"t": pic.t, "tracks": [picture_track_row(i, pic.x[k], pic.P[k * d:(k + 1) * d], pic.confirmed[k],
-                                                     list(pic.sensors[k])) for k, i in enumerate(pic.ids)]}
+                                                     list(pic.sensors[k]), "ca" if pic.ca and pic.ca[k] else "cv")
+                                   for k, i in enumerate(pic.ids)]}
 
 
 def _json_field(obj: dict[str, Any], key: str, where: str) -> Any:

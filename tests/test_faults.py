@@ -197,17 +197,18 @@ def test_kill_and_restart_fusion_centre(tmp_path: Path) -> None:
            rebuilt and rebuilt - run.killed_at)
     assert alone is not None
     assert run.launcher.report.restarts == {"fusion-center/fusion": 1}
-    if lost:
-        # the snapshot is too old (the local filters went on alone): the state is rebuilt from their
-        # estimates at the first scan after the restart (and while they are still alone); the filter
-        # then converges like at start-up: 10 to 20 scans later the error is near the no-fault run's
-        assert first_after is not None and rebuilt is not None
-        resumed = first_after
-    else:
+    if rebuilt is None:
         # a restart quick enough for the snapshot (at most SNAPSHOT_MAX_GAP scans old): the centre
-        # resumed from it and fused the missed scans from the publishers' history, degraded
-        assert rebuilt is None
+        # resumed from it and fused the missed scans from the publishers' history, degraded, none lost
+        assert not lost, lost
         resumed = KILL_AT_SCAN + 1
+    else:
+        # the snapshot was too old (the local filters went on alone): the state is rebuilt from their
+        # estimates (the scans it missed meanwhile are lost, or fused from the publishers' history if
+        # the rebuild came first); the filter then converges like at start-up: 10 to 20 scans later
+        # the error is near the no-fault run's
+        assert not lost or first_after is not None
+        resumed = first_after if first_after is not None else KILL_AT_SCAN + 1
     base = position_error(list(run.replay().values()))
     live = position_error(tracks)
     later = [k for k in seqs if k >= resumed + 10][:10]

@@ -31,6 +31,7 @@ from fedtrack.local_filters.mtt.local import (
     local_step,
     new_local_tracker,
 )
+from fedtrack.local_filters.mtt.maneuver import predicted_view
 from fedtrack.local_filters.mtt.models import motion, predict_tracks
 from fedtrack.local_filters.mtt.scan import SensorScan
 from fedtrack.local_filters.mtt.tracker import TrackerState, initial_state, track_params, tracker_step
@@ -45,8 +46,12 @@ def tracker_picture(state: TrackerState, T: float, cfg: MttConfig, sensors: list
         return []
     x, P = tr.x, tr.P
     if state.t is not None and T > state.t:
-        x, P = predict_tracks(x, P, motion(x.shape[1], round(T - state.t, 12), cfg.q, cfg.noise_model))
-    return [picture_track_row(i, x[k], P[k], bool(tr.confirmed[k]), sensors) for k, i in enumerate(tr.ids.tolist())]
+        if tr.man is not None:  # each track in its own model (maneuver handling)
+            x, P = predicted_view(tr.man, T - state.t, cfg.q, cfg.noise_model)
+        else:
+            x, P = predict_tracks(x, P, motion(x.shape[1], round(T - state.t, 12), cfg.q, cfg.noise_model))
+    return [picture_track_row(i, x[k], P[k], bool(tr.confirmed[k]), sensors, model)
+            for k, (i, model) in enumerate(zip(tr.ids.tolist(), tr.models))]
 
 
 @dataclass
@@ -109,7 +114,7 @@ class CentralizedEngine(Engine):
     base: TrackerState | None = None  # state before the first kept scan
 
     def _step(self, state: TrackerState, scan: SensorScan) -> TrackerState:
-        return tracker_step(state, scan, track_params(self.cfg, scan.sensor, self.dim)).state
+        return tracker_step(state, scan, track_params(self.cfg, scan.sensor, self.dim, every_sensor=True)).state
 
     def ingest(self, scan: SensorScan) -> None:
         if self.base is None:
@@ -158,7 +163,7 @@ class TrackToTrackEngine(Engine):
     centre: TrackToTrackCentre | None = None
 
     def ingest(self, scan: SensorScan) -> None:
-        tracker = self.local.get(scan.sensor) or new_local_tracker(scan)
+        tracker = self.local.get(scan.sensor) or new_local_tracker(scan, self.feedback)
         if is_late(tracker, scan):
             self.late += 1
             return

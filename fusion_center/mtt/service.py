@@ -155,7 +155,8 @@ class MttCentreService(Service):
             confirmed=tuple(row["status"] == "confirmed" for row in rows),
             sensors=tuple(tuple(row["sensors"]) for row in rows), fused_sensors=tuple(s for s, _ in self.order),
             fused_seqs=tuple(q for _, q in self.order), stamp_ns=time.time_ns(), closing=closing,
-            left=tuple(self.left_at)))
+            left=tuple(self.left_at), ca=tuple(row["model"] == "ca" for row in rows)
+            if any(row["model"] == "ca" for row in rows) else ()))
         self.pictures += 1
         self.order, self.left_at = [], []
         self.counters["pictures"] = self.pictures

@@ -8,8 +8,13 @@ from functools import cached_property
 from fedtrack.config import ConfigError
 from fedtrack.deployment import DeploymentConfig
 from fedtrack.keys import InvalidName, check_id
+from fedtrack.local_filters.vdie.estimation import VdieParams
 
 NOISE_MODELS = ("continuous", "discrete")
+MANEUVER_MODES = ("none", "vdie")  # per-track maneuver handling (local_filters/mtt/maneuver.py)
+# candidate onsets of a sensor's tracker (one per scan): 15 scans, where paper 004's 6 misses the
+# gentle turns of the simulator's targets (docs/multitarget.md#maneuvers)
+MTT_VDIE_WINDOW = 15
 
 
 @dataclass(frozen=True)
@@ -43,6 +48,8 @@ class MttConfig:
     unmap_after: int = 3
     central_timeout: float = 5.0
     leave_after_s: float = 5.0
+    maneuver: str = "none"
+    vdie: VdieParams = field(default_factory=lambda: VdieParams(window=MTT_VDIE_WINDOW))
     sensor: dict[str, SensorOverride] = field(default_factory=dict)
 
     def validate(self) -> None:
@@ -54,6 +61,8 @@ class MttConfig:
                 raise ConfigError(f"{key}: must be > 0")
         if self.noise_model not in NOISE_MODELS:
             raise ConfigError(f"noise_model: must be one of {', '.join(NOISE_MODELS)}")
+        if self.maneuver not in MANEUVER_MODES:
+            raise ConfigError(f"maneuver: must be one of {', '.join(MANEUVER_MODES)}")
         for key in ("max_lag", "picture_delay", "clutter_density"):
             if not getattr(self, key) >= 0:
                 raise ConfigError(f"{key}: must be >= 0")
@@ -78,6 +87,11 @@ class MttConfig:
                 raise ConfigError(f"sensor.{sid}.pd: must be in (0, 1]")
             if over.clutter_density is not None and not over.clutter_density >= 0:
                 raise ConfigError(f"sensor.{sid}.clutter_density: must be >= 0")
+
+    @property
+    def listed_sensors(self) -> int:
+        """How many sensors ``sensors`` names (1 for ``"any"``)."""
+        return 1 if isinstance(self.sensors, str) else max(len(self.sensors), 1)
 
     def allows(self, sensor: str) -> bool:
         return self.sensors == "any" or sensor in self.sensors

@@ -55,11 +55,12 @@ class LocalTracker(NamedTuple):
 
     state: TrackerState
     q_scale: float = 1.0
+    feedback: bool = False  # federated: the centre's resets own its state (no maneuver handling)
 
 
-def new_local_tracker(scan: SensorScan) -> LocalTracker:
+def new_local_tracker(scan: SensorScan, feedback: bool = False) -> LocalTracker:
     """An empty tracker for the sensor of ``scan`` (a 3-D state for a radar)."""
-    return LocalTracker(initial_state(6 if scan.sensor_position is not None else 4))
+    return LocalTracker(initial_state(6 if scan.sensor_position is not None else 4), feedback=feedback)
 
 
 def is_late(tracker: LocalTracker, scan: SensorScan) -> bool:
@@ -70,7 +71,8 @@ def is_late(tracker: LocalTracker, scan: SensorScan) -> bool:
 def local_step(tracker: LocalTracker, scan: SensorScan, cfg: MttConfig) -> tuple[LocalTracker, LocalReport]:
     """Track one scan (not late) and report it."""
     d = tracker.state.tracks.x.shape[1]
-    res = tracker_step(tracker.state, scan, track_params(cfg, scan.sensor, d), q_scale=tracker.q_scale)
+    res = tracker_step(tracker.state, scan, track_params(cfg, scan.sensor, d, tracker.feedback),
+                       q_scale=tracker.q_scale)
     tr = res.state.tracks
     started = tr.age[res.detected] == 1
     report = LocalReport(scan.sensor, scan.t, tr.ids, tr.x, tr.P, tr.confirmed, res.detected,
@@ -90,7 +92,7 @@ def adopt(tracker: LocalTracker, resets: list[Reset], q_scale: float) -> LocalTr
             if k is not None:
                 x[k], P[k] = r.x, r.P
         tr = tr._replace(x=x, P=P)
-    return LocalTracker(tracker.state._replace(tracks=tr), q_scale)
+    return tracker._replace(state=tracker.state._replace(tracks=tr), q_scale=q_scale)
 
 
 # ---------------------------------------------------------------- wire

@@ -83,6 +83,15 @@ def parse_scan(obj: dict[str, Any], where: str) -> SensorScan:
     dets = require(obj, "detections", where)
     if not isinstance(dets, list) or len(dets) > MAX_DETECTIONS:
         raise InputError(f"{where}: detections must be a list of at most {MAX_DETECTIONS} objects")
+    if all(type(det) is dict and det.keys() == {"z"} for det in dets):  # the common case, batched
+        try:
+            z = np.asarray([det["z"] for det in dets], dtype=float)
+        except (TypeError, ValueError):
+            z = None  # a malformed one: the loop below names it
+        if z is not None and z.shape == (len(dets), m) and np.all(np.isfinite(z)):
+            if sensor_position is not None and np.any(z[:, 0] <= 0):
+                raise InputError(f"{where}: radar range must be > 0")
+            return SensorScan(t, sensor, R, z, None, sensor_position)
     z = np.empty((len(dets), m))
     amp = np.empty(len(dets))
     has_amp = 0

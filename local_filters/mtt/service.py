@@ -115,7 +115,7 @@ class MttLocalService(Service):
         """Track the waiting scans, in arrival order, while no resets are due."""
         while self.queue and self.awaiting is None:
             seq, scan, stamp = self.queue.popleft()
-            tracker = self.tracker or new_local_tracker(scan)
+            tracker = self.tracker or new_local_tracker(scan, self.federated)
             if is_late(tracker, scan):
                 self.count("late")
                 continue

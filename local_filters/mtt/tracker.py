@@ -28,7 +28,9 @@ needs to fuse the local tracks exactly (docs/multitarget.md).
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
@@ -38,6 +40,7 @@ from scipy.sparse.csgraph import connected_components
 
 from fedtrack.local_filters.linear.gating import gate_ball_pairs
 from fedtrack.local_filters.linear.kalman import GaussianState, mat_vec, update_residual
+from fedtrack.local_filters.mtt import maneuver
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.models import (
     Linearized,
@@ -49,6 +52,7 @@ from fedtrack.local_filters.mtt.models import (
 )
 from fedtrack.local_filters.mtt.scan import SensorScan
 from fedtrack.local_filters.radar.measurement import wrap_angle
+from fedtrack.local_filters.vdie.estimation import VdieParams, VdieState
 
 LOG_2PI = math.log(2.0 * math.pi)
 
@@ -67,18 +71,34 @@ class TrackParams(NamedTuple):
     confirm_hits: int
     confirm_window: int
     delete_misses: int
+    maneuver: VdieParams | None = None  # per-track VDIE (2-D position trackers), None: CV only
 
 
-def track_params(cfg: MttConfig, sensor: str | None, dim: int) -> TrackParams:
-    """Parameters of the tracker of ``sensor`` (None: a tracker of every sensor's detections)."""
+def track_params(cfg: MttConfig, sensor: str | None, dim: int, feedback: bool = False,
+                 every_sensor: bool = False) -> TrackParams:
+    """Parameters of the tracker of ``sensor`` (None: a tracker of every sensor's detections) for
+    one scan of ``sensor``; ``every_sensor``: the tracker takes every sensor's scans.
+    ``[mtt] maneuver = "vdie"`` applies to 2-D trackers without federated feedback (the centre's
+    resets own a federated tracker's state, and its central tracks are CV)."""
+    vdie = None
+    if cfg.maneuver == "vdie" and dim == 4 and not feedback:
+        vdie = _every_sensor_window(cfg.vdie, cfg.listed_sensors) if every_sensor else cfg.vdie
     return TrackParams(dim, cfg.q, cfg.noise_model, cfg.init_velocity_std, cfg.init_z_std,
                        cfg.pd if sensor is None else cfg.pd_of(sensor),
                        cfg.clutter_density if sensor is None else cfg.clutter_of(sensor),
-                       cfg.thresholds.gate, cfg.confirm_hits, cfg.confirm_window, cfg.delete_misses)
+                       cfg.thresholds.gate, cfg.confirm_hits, cfg.confirm_window, cfg.delete_misses, vdie)
+
+
+@lru_cache(maxsize=16)
+def _every_sensor_window(vdie: VdieParams, sensors: int) -> VdieParams:
+    """A tracker of every sensor's scans (``mtt-centralized``) keeps ``window`` candidate onsets
+    per sensor the config lists, so that its window spans about the same time as a sensor's own."""
+    return dataclasses.replace(vdie, window=vdie.window * sensors)
 
 
 class TrackSet(NamedTuple):
-    """Live tracks, batched: ``x`` (N, D), ``P`` (N, D, D)."""
+    """Live tracks, batched: ``x`` (N, D), ``P`` (N, D, D) (with maneuver handling, the CV view
+    of ``man``, every track's VDIE state: :mod:`fedtrack.local_filters.mtt.maneuver`)."""
 
     ids: np.ndarray
     x: np.ndarray
@@ -87,9 +107,17 @@ class TrackSet(NamedTuple):
     age: np.ndarray  # scans since the start, the starting one included
     misses: np.ndarray  # consecutive misses
     confirmed: np.ndarray
+    man: VdieState | None = None
 
     def take(self, idx: np.ndarray) -> "TrackSet":
-        return TrackSet(*(a[idx] for a in self))
+        return TrackSet(*(a[idx] for a in self[:-1]), None if self.man is None else maneuver.take(self.man, idx))
+
+    @property
+    def models(self) -> list[str]:
+        """Each track's motion model, ``"cv"`` or ``"ca"``."""
+        if self.man is None:
+            return ["cv"] * self.size
+        return ["ca" if ca else "cv" for ca in self.man.is_ca.tolist()]
 
     @property
     def size(self) -> int:
@@ -130,7 +158,11 @@ def initial_state(dim: int) -> TrackerState:
 
 
 def _concat(a: TrackSet, b: TrackSet) -> TrackSet:
-    return TrackSet(*(np.concatenate([u, v]) for u, v in zip(a, b)))
+    if a.man is None or b.man is None:
+        man = b.man if a.size == 0 else a.man if b.size == 0 else None
+    else:
+        man = maneuver.concat(a.man, b.man)
+    return TrackSet(*(np.concatenate([u, v]) for u, v in zip(a[:-1], b[:-1])), man)
 
 
 def innovation_covariance(P: np.ndarray, lin: Linearized, R: np.ndarray) -> np.ndarray:
@@ -231,7 +263,8 @@ def start_tracks(scan: SensorScan, det: np.ndarray, params: TrackParams, first_i
     obs = Observation(np.broadcast_to(position_matrix(d, k), (n, k, d)).copy(), Ppos, pos)
     one = np.ones(n, np.int64)
     ids = first_id + np.arange(n, dtype=np.int64)
-    return TrackSet(ids, x, P, one, one.copy(), np.zeros(n, np.int64), one >= params.confirm_hits), obs
+    man = None if params.maneuver is None else maneuver.start(x, P, scan.t, params.maneuver)
+    return TrackSet(ids, x, P, one, one.copy(), np.zeros(n, np.int64), one >= params.confirm_hits, man), obs
 
 
 def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
@@ -241,9 +274,12 @@ def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
     d = params.dim
     if state.t is not None and scan.t < state.t:
         raise ValueError(f"scan at t = {scan.t} is before the tracker's time {state.t}")
-    if tracks.size and state.t is not None and scan.t > state.t:
-        x, P = predict_tracks(tracks.x, tracks.P, motion(d, round(scan.t - state.t, 12), params.q,
-                                                          params.noise_model), q_scale)
+    dt = 0.0 if state.t is None else scan.t - state.t
+    man = tracks.man if params.maneuver is not None else None
+    if man is not None and tracks.size:
+        x, P = maneuver.predicted_view(man, dt, params.q, params.noise_model, q_scale)
+    elif tracks.size and dt > 0:
+        x, P = predict_tracks(tracks.x, tracks.P, motion(d, round(dt, 12), params.q, params.noise_model), q_scale)
     else:
         x, P = tracks.x.copy(), tracks.P.copy()
     m = scan.dim
@@ -251,6 +287,7 @@ def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
     assigned = np.zeros(tracks.size, bool)
     obs_upd = Observation(np.zeros((0, m, d)), np.zeros((0, m, m)), np.zeros((0, m)))
     used = np.zeros(n_det, bool)
+    ti = dj = np.zeros(0, np.int64)
     if tracks.size and n_det:
         lin = linearize(x, scan.sensor_position)
         S = innovation_covariance(P, lin, scan.R)
@@ -267,18 +304,23 @@ def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
         if ti.size:
             H, R = lin.H[ti], scan.R
             nu_a, x0 = g.nu[chosen], x[ti]
-            x[ti], P[ti] = update_residual(GaussianState(x0, P[ti]), nu_a, H, R).state  # Joseph form
+            if man is None:
+                x[ti], P[ti] = update_residual(GaussianState(x0, P[ti]), nu_a, H, R).state  # Joseph form
             obs_upd = Observation(H, np.broadcast_to(R, (ti.size, m, m)).copy(),
                                   nu_a + np.einsum("nij,nj->ni", H, x0))
             assigned[ti] = True
             used[dj] = True
+    if man is not None and tracks.size:
+        step = maneuver.maneuver_step(man, scan.t, dt, params.q, params.noise_model, params.maneuver,
+                                      ti, scan.z[dj], scan.R, q_scale)
+        (x, P), man = step.view, step.state
     hits = tracks.hits + assigned
     age = tracks.age + 1
     misses = np.where(assigned, 0, tracks.misses + 1)
     confirmed = tracks.confirmed | (hits >= params.confirm_hits)
     live = np.where(confirmed, misses < params.delete_misses,
                     params.confirm_window - age >= params.confirm_hits - hits)
-    updated = TrackSet(tracks.ids, x, P, hits, age, misses, confirmed)
+    updated = TrackSet(tracks.ids, x, P, hits, age, misses, confirmed, man)
     kept = updated.take(live)
     new, obs_new = start_tracks(scan, np.flatnonzero(~used), params, state.next_id)
     detected = np.concatenate([assigned[live], np.ones(new.size, bool)])

@@ -157,11 +157,14 @@ def bank_accumulate(bank: CandidateBank, F: np.ndarray, B: np.ndarray, pulse: bo
     W_j = transpose(Theta) @ M[..., None, :, :] @ Theta
     X_j = np.einsum("...wni,...n->...wi", Theta, innov_info)
     live = bank.count >= 0
+    # a step without a measurement (a multi-target track's missed scan) or of zero length adds
+    # nothing to the estimate and is not counted as a sample
+    informative = np.any(W_j != 0.0, axis=(-2, -1))
     return CandidateBank(
         np.where(live[..., None, None], L[..., None, :, :] @ A, bank.T_omega),
         np.where(live[..., None, None], bank.info + W_j, bank.info),
         np.where(live[..., None], bank.psi + X_j, bank.psi),
-        np.where(live, bank.count + 1, bank.count),
+        np.where(live, bank.count + informative, bank.count),
         bank.onset,
     )
 
@@ -179,8 +182,13 @@ class BestCandidate(NamedTuple):
 
 def bank_best(bank: CandidateBank) -> BestCandidate:
     """``u = Gamma Psi`` (66) for every candidate and the argmax of ``u' Gamma^-1 u`` (67)."""
-    live = bank.count >= 1
-    safe_info = np.where(live[..., None, None], bank.info, np.eye(2))
+    info = bank.info
+    det = info[..., 0, 0] * info[..., 1, 1] - info[..., 0, 1] * info[..., 1, 0]
+    scale = info[..., 0, 0] + info[..., 1, 1]
+    # a candidate whose samples do not determine both input components (in a multi-target
+    # tracker: only zero-length steps since its onset) has no estimate yet
+    live = (bank.count >= 1) & (det > 1e-12 * scale * scale)
+    safe_info = np.where(live[..., None, None], info, np.eye(2))
     u_all = np.linalg.solve(safe_info, bank.psi[..., None])[..., 0]
     stat = np.where(live, np.einsum("...i,...i->...", u_all, bank.psi), -np.inf)
     idx = np.argmax(stat, axis=-1)
