@@ -97,16 +97,24 @@ def bench_multitarget(quick: bool) -> dict[str, Any]:
         default = Path(tmp) / "default"
         args = ["--duration", "60"] if quick else []
         timed(fedtrack_cmd("simulate", "multitarget", "--seed", "1", "--out", str(default), *args))
-        # every picture holds every scan up to its time (Stone Soup gets the scans time-sorted)
+        # every picture holds every scan up to its time (Stone Soup gets the scans time-sorted); our
+        # trackers with their maneuver handling (VDIE per track), and also without it ("cv:" rows)
         config = default / "complete.toml"
-        config.write_text((default / "config.toml").read_text().replace("[mtt]\n", "[mtt]\npicture_delay = 3.0\n", 1))
+        config.write_text((default / "config.toml").read_text().replace(
+            "[mtt]\n", '[mtt]\npicture_delay = 3.0\nmaneuver = "vdie"\n', 1))
+        cv_config = default / "complete-cv.toml"
+        cv_config.write_text(config.read_text().replace('maneuver = "vdie"\n', "", 1))
         sensors = ("s1", "s2", "s3")
         runs = [(a, []) for a in ("mtt-centralized", "mtt-federated", "mtt-decentralized")]
         runs += [(f"mtt-local:{s}", ["--sensor", s]) for s in sensors]
         tracks = {name: default / f"{name.replace(':', '-')}.jsonl" for name, _ in runs}
+        out["replay_s"] = {}
         for name, extra in runs:
-            timed(fedtrack_cmd("replay", "--algorithm", name.split(":")[0], *extra, "--config", str(config),
-                               "--measurements", str(default / "measurements.jsonl"), "--out", str(tracks[name])))
+            for prefix, cfg_path in (("", config), ("cv:", cv_config)):
+                tracks[prefix + name] = default / f"{prefix.strip(':')}{name.replace(':', '-')}.jsonl"
+                out["replay_s"][prefix + name], _ = timed(fedtrack_cmd(
+                    "replay", "--algorithm", name.split(":")[0], *extra, "--config", str(cfg_path),
+                    "--measurements", str(default / "measurements.jsonl"), "--out", str(tracks[prefix + name])))
         out["stonesoup_gnn_s"] = stonesoup_runs(default, config, sensors, tracks)
         gospa: dict[str, float] = {}
         for name, path in tracks.items():
@@ -115,6 +123,7 @@ def bench_multitarget(quick: bool) -> dict[str, Any]:
                                "--json", str(result)))
             gospa[name] = json.loads(result.read_text())["mean"]["gospa"]
         best_local = min(v for k, v in gospa.items() if k.startswith("mtt-local"))
+        cv = {k[3:]: v for k, v in gospa.items() if k.startswith("cv:")}
         out["gospa_default"] = gospa
         out["gospa_ratios"] = {"federated_vs_best_local": gospa["mtt-federated"] / best_local,
                                "decentralized_vs_best_local": gospa["mtt-decentralized"] / best_local,
@@ -122,8 +131,10 @@ def bench_multitarget(quick: bool) -> dict[str, Any]:
                                "federated_vs_centralized": gospa["mtt-federated"] / gospa["mtt-centralized"]}
         if "stonesoup:all" in gospa:
             out["gospa_ratios"]["centralized_vs_stonesoup"] = gospa["mtt-centralized"] / gospa["stonesoup:all"]
+            out["gospa_ratios"]["cv_centralized_vs_stonesoup"] = cv["mtt-centralized"] / gospa["stonesoup:all"]
             for s in sensors:
                 out["gospa_ratios"][f"local_{s}_vs_stonesoup"] = gospa[f"mtt-local:{s}"] / gospa[f"stonesoup:{s}"]
+                out["gospa_ratios"][f"cv_local_{s}_vs_stonesoup"] = cv[f"mtt-local:{s}"] / gospa[f"stonesoup:{s}"]
     return out
 
 

@@ -839,22 +839,25 @@ def measurement_to_replay(m: Measurement) -> dict[str, Any]:
     return row
 
 
-def picture_track_row(tid: int, x: np.ndarray, P: np.ndarray, confirmed: bool, sensors: list[str],
-                      model: str = "cv") -> dict[str, Any]:
-    """One track of a multi-target picture line (docs/multitarget-formats.md); ``x`` is the CV
-    state (a CA track's marginal), ``model`` the track's motion model."""
-    k = x.shape[0] // 2
-    return {"id": int(tid), "pos": x[0::2][:k].tolist(), "vel": x[1::2][:k].tolist(), "x": x.tolist(),
-            "P": P.tolist(), "model": model, "status": "confirmed" if confirmed else "tentative",
-            "sensors": sensors}
+def picture_rows(ids: list[int], X: np.ndarray, P: np.ndarray, confirmed: list[bool], sensors: list[list[str]],
+                 models: list[str] | None = None) -> list[dict[str, Any]]:
+    """The tracks of a multi-target picture line (docs/multitarget-formats.md), from batched
+    states ``X`` (n, d), ``P`` (n, d, d): ``x`` is the CV state (a CA track's marginal), ``models``
+    each track's motion model (all ``"cv"`` when None)."""
+    k = X.shape[1] // 2
+    xs, Ps = X.tolist(), P.tolist()
+    models = models or ["cv"] * len(ids)
+    return [{"id": int(tid), "pos": x[0::2][:k], "vel": x[1::2][:k], "x": x, "P": cov, "model": model,
+             "status": "confirmed" if conf else "tentative", "sensors": list(sens)}
+            for tid, x, cov, conf, sens, model in zip(ids, xs, Ps, confirmed, sensors, models)]
 
 
 def picture_to_replay(pic: TrackPicture) -> dict[str, Any]:
     """The picture line ``{"t", "tracks": [...]}`` that ``replay --algorithm mtt-*`` writes."""
     d = pic.x.shape[1]
-    return {"t": pic.t, "tracks": [picture_track_row(i, pic.x[k], pic.P[k * d:(k + 1) * d], pic.confirmed[k],
-                                                     list(pic.sensors[k]), "ca" if pic.ca and pic.ca[k] else "cv")
-                                   for k, i in enumerate(pic.ids)]}
+    models = ["ca" if ca else "cv" for ca in pic.ca] if pic.ca else None
+    return {"t": pic.t, "tracks": picture_rows(list(pic.ids), pic.x, pic.P.reshape(-1, d, d), list(pic.confirmed),
+                                               [list(s) for s in pic.sensors], models)}
 
 
 def _json_field(obj: dict[str, Any], key: str, where: str) -> Any:

@@ -57,12 +57,13 @@ def states_at(tracks: list[CentralTrack], t: float, q: float, noise_model: str) 
     to ``t`` (``t`` >= each checkpoint), in one batched prediction."""
     base = []
     for track in tracks:
-        k = len(track.history) - 1
-        while k > 0 and track.history[k].t > t:
+        hist = track.history
+        k = len(hist) - 1
+        while k > 0 and hist[k].t > t:
             k -= 1
-        base.append(track.history[k])
-    dt = np.round(np.array([max(t - h.t, 0.0) for h in base]), 12)
-    return predict_batch(np.stack([h.x for h in base]), np.stack([h.P for h in base]), dt, q, noise_model)
+        base.append(hist[k])
+    dt = np.round(np.maximum(t - np.array([h.t for h in base]), 0.0), 12)
+    return predict_batch(np.array([h.x for h in base]), np.array([h.P for h in base]), dt, q, noise_model)
 
 
 def fuse_many(tracks: list[CentralTrack], t: float, obs: list[Observation1], q: float, noise_model: str,
@@ -75,8 +76,8 @@ def fuse_many(tracks: list[CentralTrack], t: float, obs: list[Observation1], q: 
     prediction and Joseph-form update per step and measurement size.
     """
     done: list[tuple[CentralTrack, np.ndarray, np.ndarray] | None] = [None] * len(tracks)
-    out: dict[int, list[Fused]] = {}
-    redo: dict[int, list[Fused]] = {}
+    out: dict[int, list[Fused]] = {}  # per track: the kept history, then what is fused
+    redo: dict[int, list[Fused]] = {}  # per track: the observations to fuse, from ``t`` on
     for i, (track, o) in enumerate(zip(tracks, obs)):
         hist = track.history
         if t < hist[0].t or t < hist[-1].t - max_lag:
@@ -85,25 +86,26 @@ def fuse_many(tracks: list[CentralTrack], t: float, obs: list[Observation1], q: 
         while k > 1 and hist[k - 1].t > t:
             k -= 1
         out[i] = list(hist[:k])
-        redo[i] = [Fused(t, o, hist[0].x, hist[0].P)] + list(hist[k:])
+        redo[i] = [Fused(t, o, hist[0].x, hist[0].P), *hist[k:]]
+    pending = list(redo)
     step = 0
-    while True:
+    while pending:
         by_size: dict[int, list[int]] = {}
-        for i, items in redo.items():
-            if len(items) > step:
-                by_size.setdefault(items[step].obs[0].shape[0], []).append(i)  # type: ignore[index]
-        if not by_size:
-            break
+        for i in pending:
+            by_size.setdefault(redo[i][step].obs[0].shape[0], []).append(i)  # type: ignore[index]
         for group in by_size.values():
             prev = [out[i][-1] for i in group]
             items = [redo[i][step] for i in group]
-            dt = np.round(np.array([item.t - p.t for item, p in zip(items, prev)]), 12)
-            x, P = predict_batch(np.stack([p.x for p in prev]), np.stack([p.P for p in prev]), dt, q, noise_model)
-            H, R, z = (np.stack(a) for a in zip(*(item.obs for item in items)))  # type: ignore[misc]
+            dt = np.round(np.array([item.t for item in items]) - np.array([p.t for p in prev]), 12)
+            x, P = predict_batch(np.array([p.x for p in prev]), np.array([p.P for p in prev]), dt, q, noise_model)
+            H = np.array([item.obs[0] for item in items])  # type: ignore[index]
+            R = np.array([item.obs[1] for item in items])  # type: ignore[index]
+            z = np.array([item.obs[2] for item in items])  # type: ignore[index]
             x, P = update(GaussianState(x, P), z, H, R)[0]
-            for j, (i, item) in enumerate(zip(group, items)):
-                out[i].append(Fused(item.t, item.obs, x[j], P[j]))
+            for i, item, xj, Pj in zip(group, items, x, P):
+                out[i].append(Fused(item.t, item.obs, xj, Pj))
         step += 1
+        pending = [i for i in pending if len(redo[i]) > step]
     for i, fused in out.items():
         at_t = fused[len(fused) - len(redo[i])]
         horizon = fused[-1].t - max_lag

@@ -289,15 +289,18 @@ class TrackToTrackCentre:
         no sensor with it (two sensors' tracks of one target that missed each other at the start)."""
         if len(self.tracks) < 2:
             return
+        sensors = {c: {s for s, _ in self.members.get(c, ())} for c in updated if c in self.tracks}
+        # a track that every sensor with a local track supports shares a sensor with any other
+        everyone = {s for s, _ in self.mapping}
+        updated = {c for c, seen in sensors.items() if seen != everyone}
+        if not updated:
+            return
         cfg = self.cfg
         ids = sorted(self.tracks)
         row = {c: k for k, c in enumerate(ids)}
         X, P = self._priors(ids, t)
         gate = cfg.thresholds.association[self.dim]
-        mine = [row[c] for c in sorted(updated) if c in row]
-        if not mine:
-            return
-        sensors = {c: {s for s, _ in keys} for c, keys in self.members.items()}
+        mine = [row[c] for c in sorted(updated)]
         near = candidate_pairs(X[:, [0, 2]], np.sqrt(P[:, 0, 0] + P[:, 2, 2]), mine, gate)
         K = np.fromiter((k for k, js in zip(mine, near) for _ in js), dtype=np.int64)
         J = np.fromiter((j for js in near for j in js), dtype=np.int64, count=K.size)
@@ -313,8 +316,13 @@ class TrackToTrackCentre:
                 continue
             for j in sorted(close.get(k, ())):
                 other = ids[j]
-                if other not in self.tracks or sensors.get(cid, set()) & sensors.get(other, set()):
+                if other not in self.tracks:
                     continue
+                for c in (cid, other):
+                    if c not in sensors:
+                        sensors[c] = {s for s, _ in self.members.get(c, ())}
+                if not sensors[other] or sensors[cid] & sensors[other]:
+                    continue  # shares a sensor, or no local track maps to it any more (pruned next)
                 keep, drop = min(cid, other), max(cid, other)
                 for key in list(self.members.get(drop, ())):
                     self._map(key, keep)

@@ -35,7 +35,7 @@ from fedtrack.local_filters.mtt.maneuver import predicted_view
 from fedtrack.local_filters.mtt.models import motion, predict_tracks
 from fedtrack.local_filters.mtt.scan import SensorScan
 from fedtrack.local_filters.mtt.tracker import TrackerState, initial_state, track_params, tracker_step
-from fedtrack.wire import picture_track_row
+from fedtrack.wire import picture_rows
 
 ALGORITHMS = ("mtt-local", "mtt-centralized", "mtt-federated", "mtt-decentralized")
 
@@ -50,8 +50,7 @@ def tracker_picture(state: TrackerState, T: float, cfg: MttConfig, sensors: list
             x, P = predicted_view(tr.man, T - state.t, cfg.q, cfg.noise_model)
         else:
             x, P = predict_tracks(x, P, motion(x.shape[1], round(T - state.t, 12), cfg.q, cfg.noise_model))
-    return [picture_track_row(i, x[k], P[k], bool(tr.confirmed[k]), sensors, model)
-            for k, (i, model) in enumerate(zip(tr.ids.tolist(), tr.models))]
+    return picture_rows(tr.ids.tolist(), x, P, tr.confirmed.tolist(), [sensors] * tr.size, tr.models)
 
 
 @dataclass
@@ -190,8 +189,7 @@ class TrackToTrackEngine(Engine):
             return []
         ids = sorted(c.tracks)
         X, P = states_at([c.tracks[cid] for cid in ids], T, self.cfg.q, self.cfg.noise_model)
-        return [picture_track_row(cid, X[k], P[k], c.tracks[cid].confirmed, c.sensors_of(cid))
-                for k, cid in enumerate(ids)]
+        return picture_rows(ids, X, P, [c.tracks[cid].confirmed for cid in ids], [c.sensors_of(cid) for cid in ids])
 
     def counters(self) -> dict[str, int]:
         out = super().counters()

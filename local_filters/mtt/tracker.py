@@ -218,17 +218,30 @@ def assign(n_tracks: int, n_detections: int, rows: np.ndarray, cols: np.ndarray,
     ends = np.r_[starts[1:], usable.size]
     single = ends - starts == 1
     chosen = [usable[starts[single]]]
-    for s, e in zip(starts[~single], ends[~single]):
-        r_u, r_i = np.unique(r[s:e], return_inverse=True)
-        c_u, c_i = np.unique(c[s:e], return_inverse=True)
-        sub = np.zeros((r_u.size, c_u.size))
-        pair = np.full((r_u.size, c_u.size), -1)
-        sub[r_i, c_i] = cost[usable[s:e]]
-        pair[r_i, c_i] = usable[s:e]
-        ri, ci = linear_sum_assignment(sub)
-        picked = pair[ri, ci]
-        chosen.append(picked[picked >= 0])
+    if not np.all(single):
+        local_r, n_r = _rank_in_component(r, comp)
+        local_c, n_c = _rank_in_component(c, comp)
+        for s, e in zip(starts[~single], ends[~single]):
+            k = comp[s]
+            sub = np.zeros((n_r[k], n_c[k]))
+            pair = np.full((n_r[k], n_c[k]), -1)
+            sub[local_r[s:e], local_c[s:e]] = cost[usable[s:e]]
+            pair[local_r[s:e], local_c[s:e]] = usable[s:e]
+            ri, ci = linear_sum_assignment(sub)
+            picked = pair[ri, ci]
+            chosen.append(picked[picked >= 0])
     return np.concatenate(chosen)
+
+
+def _rank_in_component(v: np.ndarray, comp: np.ndarray) -> tuple[np.ndarray, dict[int, int]]:
+    """Per pair, the rank of its value ``v`` among the distinct values of its component, and the
+    number of distinct values per component (what ``np.unique`` per component gives, at once)."""
+    key = np.unique(np.column_stack([comp, v]), axis=0, return_inverse=True)
+    distinct, inverse = key[0], key[1].ravel()
+    first = np.r_[True, distinct[1:, 0] != distinct[:-1, 0]]
+    start = np.maximum.accumulate(np.where(first, np.arange(distinct.shape[0]), 0))
+    counts = np.diff(np.r_[np.flatnonzero(first), distinct.shape[0]])
+    return (np.arange(distinct.shape[0]) - start)[inverse], dict(zip(distinct[first, 0].tolist(), counts.tolist()))
 
 
 def assign_by_precedence(n_detections: int, g: Gated, cost: np.ndarray, confirmed: np.ndarray) -> np.ndarray:
