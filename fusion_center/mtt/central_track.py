@@ -78,15 +78,35 @@ def fuse_many(tracks: list[CentralTrack], t: float, obs: list[Observation1], q: 
     done: list[tuple[CentralTrack, np.ndarray, np.ndarray] | None] = [None] * len(tracks)
     out: dict[int, list[Fused]] = {}  # per track: the kept history, then what is fused
     redo: dict[int, list[Fused]] = {}  # per track: the observations to fuse, from ``t`` on
+    in_order: dict[int, list[int]] = {}  # by measurement size: tracks with nothing after ``t``
     for i, (track, o) in enumerate(zip(tracks, obs)):
         hist = track.history
         if t < hist[0].t or t < hist[-1].t - max_lag:
             continue  # late
+        if t >= hist[-1].t:
+            in_order.setdefault(o[0].shape[0], []).append(i)
+            continue
         k = len(hist)
         while k > 1 and hist[k - 1].t > t:
             k -= 1
         out[i] = list(hist[:k])
         redo[i] = [Fused(t, o, hist[0].x, hist[0].P), *hist[k:]]
+    for group in in_order.values():  # the common case: one batched step, no re-processing
+        prev = [tracks[i].history[-1] for i in group]
+        items = [obs[i] for i in group]
+        dt = np.round(t - np.array([p.t for p in prev]), 12)
+        x, P = predict_batch(np.array([p.x for p in prev]), np.array([p.P for p in prev]), dt, q, noise_model)
+        x, P = update(GaussianState(x, P), np.array([o[2] for o in items]), np.array([o[0] for o in items]),
+                      np.array([o[1] for o in items]))[0]
+        horizon = t - max_lag
+        for i, o, xj, Pj in zip(group, items, x, P):
+            track = tracks[i]
+            fused = track.history + (Fused(t, o, xj, Pj),)
+            first = 0
+            while fused[first + 1].t < horizon:  # the last entry is at t >= horizon
+                first += 1
+            done[i] = (CentralTrack(track.id, fused[first:] if first else fused, track.confirmed, track.hits + 1),
+                       xj, Pj)
     pending = list(redo)
     step = 0
     while pending:

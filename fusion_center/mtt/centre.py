@@ -41,12 +41,12 @@ from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
 from fedtrack.fusion_center.mtt.central_track import CentralTrack, fuse_many, start, states_at
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import LocalReport, Reset
+from fedtrack.local_filters.mtt.tracker import assign
 
 LocalKey = tuple[str, int]  # (sensor, local track id)
 # A confirmed track that two or more sensors track is deleted once each of them missed it on
@@ -54,6 +54,7 @@ LocalKey = tuple[str, int]  # (sensor, local track id)
 # target with P_D = 0.9, where the centralized rule's 3 misses in a row (1e-3) drop a live
 # target about once a minute among 60 targets seen by 3 sensors.
 CENTRAL_MISSES = 2
+ASSOCIATION_SHIFT = 1e6  # larger than any gated pair's d2 + ln det
 
 
 @dataclass
@@ -166,9 +167,10 @@ class TrackToTrackCentre:
             self.strikes.pop((s, lid), None)
         d = report.x.shape[1]
         det_rows = np.flatnonzero(report.detected)
-        keys = [(s, int(i)) for i in report.ids[det_rows].tolist()]
+        keys = [(s, i) for i in report.ids[det_rows].tolist()]
+        started = report.started.tolist()
         # hysteresis: a mapped local track inconsistent with its central track unmap_after times in a row
-        check = [k for k, key in enumerate(keys) if self.mapping.get(key) in self.tracks and not report.started[k]]
+        check = [k for k, key in enumerate(keys) if not started[k] and self.mapping.get(key) in self.tracks]
         if check:
             xc, Pc = self._priors([self.mapping[keys[k]] for k in check], t)
             rows = det_rows[check]
@@ -187,20 +189,21 @@ class TrackToTrackCentre:
         unmapped_rows = [k for k, key in enumerate(keys) if self.mapping.get(key) not in self.tracks]
         for k in unmapped_rows:
             self._unmap(keys[k])
-        alone = [k for k, key in enumerate(keys) if report.confirmed[det_rows[k]] and key in self.mapping
-                 and self.members.get(self.mapping[key]) == {key}]
+        confirmed = report.confirmed[det_rows].tolist()
+        alone = [k for k, key in enumerate(keys) if confirmed[k] and key in self.mapping
+                 and len(self.members.get(self.mapping[key], ())) == 1]
         fresh = self._associate(report, det_rows, unmapped_rows, alone)
         posterior = self._fuse_scan(report, keys, fresh, t)
         beta = float(max(len(self.live_sensors(t)), 1))
-        resets = []
-        for k, key in enumerate(keys):
-            if k not in posterior:
-                continue
-            cid = self.mapping[key]
+        fused = [k for k in range(len(keys)) if k in posterior]
+        for k in fused:
+            cid = self.mapping[keys[k]]
             self.last_support[cid] = max(self.last_support.get(cid, t), t)
-            if self.feedback:
-                xc, Pc = posterior[k]
-                resets.append(Reset(s, key[1], t, xc[:d].copy(), beta * Pc[:d, :d]))
+        resets = []
+        if self.feedback and fused:
+            X = np.array([posterior[k][0][:d] for k in fused])
+            P = beta * np.array([posterior[k][1][:d, :d] for k in fused])
+            resets = [Reset(s, keys[k][1], t, x, Pk) for k, x, Pk in zip(fused, X, P)]
         self._count_scan(s, {self.mapping[keys[k]] for k in posterior})
         self._merge_duplicates({self.mapping[key] for key in keys if key in self.mapping}, t)
         return resets
@@ -352,19 +355,24 @@ class TrackToTrackCentre:
         if cands:
             xc, Pc = self._priors(cands, t)
             xc, Pc = xc[:, :d], Pc[:, :d, :d]
-            diff = report.x[rows][:, None, :] - xc[None, :, :]  # (U, C, d)
-            C = report.P[rows][:, None] + Pc[None]
-            L = np.linalg.cholesky(C)
-            w = np.linalg.solve(L, diff[..., None])[..., 0]
+            U, C = report.x[rows], report.P[rows]
+            # candidate pairs within the chi-square test's reach (k-d tree), then the test on them
+            pos = np.concatenate([U[:, [0, 2]], xc[:, [0, 2]]])
+            spread = np.sqrt(np.concatenate([C[:, 0, 0] + C[:, 2, 2], Pc[:, 0, 0] + Pc[:, 2, 2]]))
+            gate = cfg.thresholds.association[d]
+            near = candidate_pairs(pos, spread, list(range(len(rows))), gate)
+            ri = np.fromiter((u for u, js in enumerate(near) for j in js if j >= len(rows)), dtype=np.int64)
+            ci = np.fromiter((j - len(rows) for js in near for j in js if j >= len(rows)), dtype=np.int64,
+                             count=ri.size)
+            L = np.linalg.cholesky(C[ri] + Pc[ci])
+            w = np.linalg.solve(L, (U[ri] - xc[ci])[..., None])[..., 0]
             d2 = np.sum(w * w, axis=-1)
             logdet = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
-            gated = d2 <= cfg.thresholds.association[d]
-            if gated.any():
-                cost = np.where(gated, d2 + logdet, 1e12)
-                ri, ci = linear_sum_assignment(cost)
-                for r, c in zip(ri.tolist(), ci.tolist()):
-                    if gated[r, c]:
-                        assigned[r] = cands[c]
+            inside = d2 <= gate
+            ri, ci, cost = ri[inside], ci[inside], d2[inside] + logdet[inside]
+            # most gated pairs first, then the least cost: a shift makes every gated pair's cost negative
+            picked = assign(len(rows), len(cands), ri, ci, cost - ASSOCIATION_SHIFT)
+            assigned = {int(ri[k]): cands[int(ci[k])] for k in picked}
         for u in range(len(unmapped) + len(alone)):
             row = int(rows[u])
             key = (s, int(report.ids[row]))
