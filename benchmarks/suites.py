@@ -4,8 +4,8 @@
   batched KF target-steps per second (:mod:`fedtrack.benchmarks.kernels`).
 * ``montecarlo``: wall time of ``reproduce fvdie --runs 500`` and ``reproduce hpda --runs 500``, and
   AO-VSIMM's CPU time over FSIMM's (``aovsimm_vs_fsimm_cpu``) in ``reproduce vsimm --runs 200``.
-* ``multitarget``: a 1,000-target, 4-sensor (1 Hz) scenario replayed by ``mtt-centralized``
-  and ``mtt-federated`` (seconds per scan, speed against real time, peak RSS of the process),
+* ``multitarget``: a 1,000-target, 4-sensor (1 Hz) scenario replayed by ``mtt-centralized``,
+  ``mtt-federated`` and ``mtt-decentralized`` (seconds per scan, speed against real time, peak RSS of the process),
   and mean GOSPA on the simulator's default scenario for every sensor's own tracker, the
   three fusions and Stone Soup's GNN tracker on each sensor's detections and on all of them
   (:mod:`fedtrack.benchmarks.stonesoup_mtt`, with the ``bench`` extra), every picture holding
@@ -48,15 +48,33 @@ def fedtrack_cmd(*args: str) -> list[str]:
 
 def timed(cmd: list[str], cwd: Path | None = None) -> tuple[float, float]:
     """Wall seconds and peak RSS (MB) of one child process; a failure is an error."""
+    wall, rss, _ = timed_with_log(cmd, cwd)
+    return wall, rss
+
+
+def timed_with_log(cmd: list[str], cwd: Path | None = None) -> tuple[float, float, str]:
+    """:func:`timed` and the child's stderr."""
     t0 = time.perf_counter()
-    proc = subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    _, status, usage = os.wait4(proc.pid, 0)
-    wall = time.perf_counter() - t0
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
+    with tempfile.TemporaryFile() as log:
+        proc = subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.DEVNULL, stderr=log)
+        _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - t0
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        log.seek(0)
+        err = log.read().decode(errors="replace")
     if proc.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd[2:])} failed: {err.strip().splitlines()[-1:]}")
-    return wall, usage.ru_maxrss / 1024.0
+    return wall, usage.ru_maxrss / 1024.0, err
+
+
+def stages_of(log: str) -> dict[str, float]:
+    """The ``seconds per input scan by stage`` line a multi-target replay prints."""
+    for line in log.splitlines():
+        if "seconds per input scan by stage:" in line:
+            body = line.split("by stage:", 1)[1].rsplit("(", 1)[0]
+            return {name.strip(): float(value) for name, value in
+                    (part.strip().rsplit(" ", 1) for part in body.split(",") if part.strip())}
+    return {}
 
 
 def bench_montecarlo(quick: bool) -> dict[str, Any]:
@@ -88,12 +106,12 @@ def bench_multitarget(quick: bool) -> dict[str, Any]:
         timed(fedtrack_cmd("simulate", "multitarget", "--targets", str(targets), "--duration", str(duration),
                            "--sensors", "pos:1.0,pos:1.0,pos:1.0,pos:1.0", "--seed", "2", "--out", str(sim)))
         scans = sum(1 for _ in (sim / "measurements.jsonl").open())
-        for algorithm in ("mtt-centralized", "mtt-federated"):
-            wall, rss = timed(fedtrack_cmd("replay", "--algorithm", algorithm, "--config", str(sim / "config.toml"),
-                                           "--measurements", str(sim / "measurements.jsonl"),
-                                           "--out", str(sim / f"{algorithm}.jsonl")))
-            out["scale"][algorithm] = {"wall_s": wall, "s_per_scan": wall / scans,
-                                       "x_real_time": duration / wall, "max_rss_mb": rss}
+        for algorithm in ("mtt-centralized", "mtt-federated", "mtt-decentralized"):
+            wall, rss, log = timed_with_log(fedtrack_cmd(
+                "replay", "--algorithm", algorithm, "--config", str(sim / "config.toml"),
+                "--measurements", str(sim / "measurements.jsonl"), "--out", str(sim / f"{algorithm}.jsonl")))
+            out["scale"][algorithm] = {"wall_s": wall, "s_per_scan": wall / scans, "x_real_time": duration / wall,
+                                       "max_rss_mb": rss, "s_per_scan_by_stage": stages_of(log)}
         default = Path(tmp) / "default"
         args = ["--duration", "60"] if quick else []
         timed(fedtrack_cmd("simulate", "multitarget", "--seed", "1", "--out", str(default), *args))

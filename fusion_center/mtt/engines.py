@@ -14,6 +14,7 @@
 from __future__ import annotations
 
 import bisect
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -59,9 +60,16 @@ class Engine:
     dim: int
     late: int = 0
     scans: int = 0
+    stage_s: dict[str, float] = field(default_factory=dict)  # wall seconds per stage (replay's report)
 
     def ingest(self, scan: SensorScan) -> None:
         raise NotImplementedError
+
+    def took(self, stage: str, since: float) -> float:
+        """Add the time since ``since`` (``time.perf_counter``) to ``stage``; returns now."""
+        now = time.perf_counter()
+        self.stage_s[stage] = self.stage_s.get(stage, 0.0) + now - since
+        return now
 
     def picture(self, T: float) -> list[dict[str, Any]]:
         raise NotImplementedError
@@ -92,7 +100,9 @@ class LocalEngine(Engine):
         self.scans += 1
         state = self.states[-1] if self.states else initial_state(self.dim)
         self.times.append(scan.t)
+        start = time.perf_counter()
         self.states.append(tracker_step(state, scan, track_params(self.cfg, scan.sensor, self.dim)).state)
+        self.took("tracker", start)
         horizon = scan.t - max(self.cfg.max_lag, self.cfg.picture_delay)
         drop = bisect.bisect_left(self.times, horizon) - 1  # keep the last state before the horizon
         if drop > 0:
@@ -128,9 +138,11 @@ class CentralizedEngine(Engine):
         self.times.insert(k, scan.t)
         self.kept.insert(k, scan)
         del self.after[k:]
+        start = time.perf_counter()
         for s in self.kept[k:]:
             state = self._step(state, s)
             self.after.append(state)
+        self.took("tracker", start)
         horizon = self.times[-1] - self.cfg.max_lag
         drop = bisect.bisect_left(self.times, horizon)
         if drop:
@@ -166,9 +178,13 @@ class TrackToTrackEngine(Engine):
         if is_late(tracker, scan):
             self.late += 1
             return
+        start = time.perf_counter()
         tracker, report = local_step(tracker, scan, self.cfg)
+        start = self.took("local trackers", start)
         resets, q_scale = self.fuse(report)
+        start = self.took("centre", start)
         self.local[scan.sensor] = adopt(tracker, resets, q_scale)
+        self.took("local trackers", start)
 
     def leave(self, sensor: str) -> None:
         if self.centre is not None:

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import json
 import math
 import sys
+import time
 from pathlib import Path
 from typing import Any, Iterator
 
@@ -77,10 +78,17 @@ def pictures(engine: Engine, scans: list[SensorScan | SensorLeft], period: float
             engine.leave(scan.sensor)
             continue
         for T in clock.due(scan.t):
-            yield {"t": T, "tracks": engine.picture(T)}
+            yield _picture(engine, T)
         engine.ingest(scan)
     for T in clock.final():
-        yield {"t": T, "tracks": engine.picture(T)}
+        yield _picture(engine, T)
+
+
+def _picture(engine: Engine, T: float) -> dict[str, Any]:
+    start = time.perf_counter()
+    picture = {"t": T, "tracks": engine.picture(T)}
+    engine.took("pictures", start)
+    return picture
 
 
 def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Path,
@@ -97,7 +105,9 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
         raise ConfigError(f"{config}: mtt.picture_delay must be <= mtt.max_lag")
     if (algorithm == "mtt-local") != (sensor is not None):
         raise ConfigError("--sensor ID is required by mtt-local and only by it")
+    start = time.perf_counter()
     scans = read_scans(measurements, cfg)
+    read_s = time.perf_counter() - start
     if sensor is not None and not any(s.sensor == sensor for s in scans):
         raise InputError(f"{measurements}: no scan of sensor {sensor!r}")
     own = [s for s in scans if isinstance(s, SensorScan) and (sensor is None or s.sensor == sensor)]
@@ -106,9 +116,15 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
     n = 0
     with out.open("w") as fh:
         for pic in pictures(engine, scans, cfg.period, cfg.picture_delay):
+            start = time.perf_counter()
             fh.write(json.dumps(pic) + "\n")
+            engine.took("writing", start)
             n += 1
     counts = engine.counters()
     print(f"{algorithm}: {counts['scans']} scans fused, {counts['late']} late (older than max_lag) dropped",
           file=sys.stderr)
+    stages = {"reading": read_s, **engine.stage_s}
+    print(f"{algorithm}: seconds per input scan by stage: "
+          + ", ".join(f"{name} {sec / max(len(scans), 1):.4f}" for name, sec in stages.items())
+          + f" ({len(scans)} scans)", file=sys.stderr)
     return n
