@@ -132,3 +132,17 @@ class Deployment:
             close_session(self.session)
         for name in reversed(list(self.procs)):
             self.stop(name)
+
+
+def assert_same_pictures(live: list[dict[str, Any]], again: list[dict[str, Any]]) -> None:
+    """Two multi-target picture streams (a live run and the replay of its recording) are the same:
+    the same times, track ids, statuses and sensors, states and covariances to 1e-9."""
+    import numpy as np
+
+    assert [p["t"] for p in again] == [p["t"] for p in live]
+    for a, b in zip(live, again):
+        assert [(t["id"], t["status"], t["sensors"]) for t in a["tracks"]] == \
+            [(t["id"], t["status"], t["sensors"]) for t in b["tracks"]]
+        for ta, tb in zip(a["tracks"], b["tracks"]):
+            np.testing.assert_allclose(ta["x"], tb["x"], rtol=1e-9, atol=1e-9)
+            np.testing.assert_allclose(ta["P"], tb["P"], rtol=1e-9, atol=1e-9)

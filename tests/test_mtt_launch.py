@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from support import free_port
+from support import assert_same_pictures, free_port
 
 CONFIG = """
 [deployment]
@@ -61,14 +61,7 @@ def test_live_multitarget_deployment_equals_its_replay(tmp_path: Path) -> None:
     subprocess.run([sys.executable, "-m", "fedtrack.cli", "replay", "--algorithm", "mtt-federated", "--config",
                     str(config), "--measurements", str(out / "measurements.jsonl"), "--out", str(replayed)],
                    check=True, capture_output=True, timeout=60)
-    again = [json.loads(x) for x in replayed.read_text().splitlines()]
-    assert [p["t"] for p in again] == [p["t"] for p in live]
-    for a, b in zip(live, again):
-        assert [(t["id"], t["status"], t["sensors"]) for t in a["tracks"]] == \
-            [(t["id"], t["status"], t["sensors"]) for t in b["tracks"]]
-        for ta, tb in zip(a["tracks"], b["tracks"]):
-            np.testing.assert_allclose(ta["x"], tb["x"], rtol=1e-9, atol=1e-9)
-            np.testing.assert_allclose(ta["P"], tb["P"], rtol=1e-9, atol=1e-9)
+    assert_same_pictures(live, [json.loads(x) for x in replayed.read_text().splitlines()])
 
 
 def test_a_multitarget_launch_needs_realtime_pacing(tmp_path: Path) -> None:
@@ -112,12 +105,7 @@ def test_a_sensor_joins_and_another_is_killed_during_a_launch(tmp_path: Path) ->
     subprocess.run([sys.executable, "-m", "fedtrack.cli", "replay", "--algorithm", "mtt-federated", "--config",
                     str(config), "--measurements", str(out / "measurements.jsonl"), "--out", str(replayed)],
                    check=True, capture_output=True, timeout=60)
-    again = [json.loads(x) for x in replayed.read_text().splitlines()]
-    assert len(again) == len(live)
-    for a, b in zip(live, again):
-        assert [(t["id"], t["sensors"]) for t in a["tracks"]] == [(t["id"], t["sensors"]) for t in b["tracks"]]
-        for ta, tb in zip(a["tracks"], b["tracks"]):
-            np.testing.assert_allclose(ta["x"], tb["x"], rtol=1e-9, atol=1e-9)
+    assert_same_pictures(live, [json.loads(x) for x in replayed.read_text().splitlines()])
 
 
 @pytest.mark.parametrize("extra, field", [

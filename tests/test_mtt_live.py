@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from support import WAIT_S, free_port, wait_until
+from support import WAIT_S, assert_same_pictures, free_port, wait_until
 
 from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.fusion_center.mtt.service import MttCentreService
@@ -96,14 +96,7 @@ def test_live_pictures_equal_the_replay_of_the_recording(tmp_path: Path, algorit
     config.write_text('[mtt]\nsensors = ["s1", "s2", "s3"]\nmax_lag = 3.0\nclutter_density = 1.2e-7\n')
     replayed = tmp_path / "replayed.jsonl"
     replay_mtt(algorithm, out / "measurements.jsonl", config, replayed)
-    again = [json.loads(x) for x in replayed.read_text().splitlines()]
-    assert [p["t"] for p in again] == [p["t"] for p in live]
-    for a, b in zip(live, again):
-        assert [tr["id"] for tr in a["tracks"]] == [tr["id"] for tr in b["tracks"]]
-        for ta, tb in zip(a["tracks"], b["tracks"]):
-            np.testing.assert_allclose(ta["x"], tb["x"], rtol=1e-9, atol=1e-9)
-            np.testing.assert_allclose(ta["P"], tb["P"], rtol=1e-9, atol=1e-9)
-            assert (ta["status"], ta["sensors"]) == (tb["status"], tb["sensors"])
+    assert_same_pictures(live, [json.loads(x) for x in replayed.read_text().splitlines()])
     recording = Recording(tmp_path / "rec.db", readonly=True)
     try:
         assert recording.count(TrackPicture) == len(pictures)
@@ -196,12 +189,7 @@ def test_sensors_join_and_leave_at_run_time(tmp_path: Path) -> None:
     config.write_text('[mtt]\nsensors = ["s1", "s2", "s3"]\nmax_lag = 3.0\nclutter_density = 1.2e-7\n')
     replayed = tmp_path / "replayed.jsonl"
     replay_mtt("mtt-federated", out / "measurements.jsonl", config, replayed)
-    again = [json.loads(x) for x in replayed.read_text().splitlines()]
-    assert len(again) == len(live)
-    for a, b in zip(live, again):
-        assert [(t["id"], t["sensors"]) for t in a["tracks"]] == [(t["id"], t["sensors"]) for t in b["tracks"]]
-        for ta, tb in zip(a["tracks"], b["tracks"]):
-            np.testing.assert_allclose(ta["x"], tb["x"], rtol=1e-9, atol=1e-9)
+    assert_same_pictures(live, [json.loads(x) for x in replayed.read_text().splitlines()])
 
 
 @pytest.mark.parametrize("d", [4, 6])
