@@ -173,7 +173,10 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Se
     if tracks.is_file() and tracks.stat().st_size:
         result = evaluate(tracks, truth)
         png = out / "tracks.png"
-        plot(result, tracks, truth, png)
+        mt = settings.multitarget
+        events = {} if mt is None else {**{f"{sid} joins": t for sid, t in mt.join_at.items()},
+                                        **{f"{sid} killed": t for sid, t in mt.kill_at.items()}}
+        plot(result, tracks, truth, png, events)
         summary.update({k: v for k, v in result.items() if k != "series"})
     latencies = report.picture_latencies_ms(delay)
     if latencies:

@@ -154,8 +154,10 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
     }
 
 
-def plot(result: dict[str, Any], tracks_path: Path, truth_path: Path, out: Path) -> None:
-    """Tracks over truth (x-y) and GOSPA with its parts over time."""
+def plot(result: dict[str, Any], tracks_path: Path, truth_path: Path, out: Path,
+         events: dict[str, float] | None = None) -> None:
+    """Tracks over truth (x-y) and GOSPA with its parts over time, with ``events`` (label ->
+    time, such as a sensor joining) marked."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -185,6 +187,10 @@ def plot(result: dict[str, Any], tracks_path: Path, truth_path: Path, out: Path)
     ax2.plot(t, [r["gospa"] for r in result["series"]], "k-", lw=1.5, label="GOSPA")
     for key, style in (("localisation", "b--"), ("missed", "r:"), ("false", "g-.")):
         ax2.plot(t, [r[key] ** (1 / p) for r in result["series"]], style, lw=1.0, label=f"{key} (p-th root)")
+    for label, when in (events or {}).items():
+        ax2.axvline(when, color="0.4", lw=1.0, ls="--")
+        ax2.annotate(label, (when, 0.97), xycoords=("data", "axes fraction"), rotation=90, ha="right", va="top",
+                     fontsize=8, color="0.3")
     ax2.set_xlabel("t [s]")
     ax2.set_ylabel("[m]")
     ax2.set_title(f"GOSPA (c = {result['c']:g} m, p = {p:g}, alpha = 2): mean {result['mean']['gospa']:.1f} m")
