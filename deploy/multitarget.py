@@ -30,8 +30,7 @@ from fedtrack.deploy.report import LaunchReport
 from fedtrack.deploy.settings import MultitargetSettings, Settings
 from fedtrack.fusion_center.mtt.evaluation import evaluate, plot
 from fedtrack.fusion_center.mtt.membership import membership
-from fedtrack.fusion_center.mtt.replay import read_scans
-from fedtrack.local_filters.mtt.scan import SensorScan
+from fedtrack.fusion_center.mtt.replay import read_scans, state_dim
 from fedtrack.sensors.multitarget import Scenario, parse_spec, simulate
 
 SCENARIO_DIR = "scenario"
@@ -125,8 +124,7 @@ def membership_summary(out: Path, report: LaunchReport, settings: Settings) -> d
     if mt.algorithm == "mtt-centralized" or not measurements.is_file():
         return summary
     scans = read_scans(measurements, settings.mtt)
-    dim = 6 if any(isinstance(s, SensorScan) and s.sensor_position is not None for s in scans) else 4
-    joined, left = membership(scans, settings.mtt, dim, mt.algorithm == "mtt-federated", set(mt.join_at))
+    joined, left = membership(scans, settings.mtt, state_dim(scans), mt.algorithm == "mtt-federated", set(mt.join_at))
     for j in joined:
         delays = j.scans_to_associate
         summary["joined"][j.sensor] = {

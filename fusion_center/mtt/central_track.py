@@ -66,18 +66,39 @@ def states_at(tracks: list[CentralTrack], t: float, q: float, noise_model: str) 
     return predict_batch(np.array([h.x for h in base]), np.array([h.P for h in base]), dt, q, noise_model)
 
 
+def _step(prev: list[Fused], t: np.ndarray, obs: list[Observation1], q: float, noise_model: str
+          ) -> tuple[np.ndarray, np.ndarray]:
+    """Posteriors after predicting each ``prev[i]`` to ``t[i]`` and fusing ``obs[i]`` (one measurement
+    size), batched."""
+    dt = np.round(t - np.array([p.t for p in prev]), 12)
+    x, P = predict_batch(np.array([p.x for p in prev]), np.array([p.P for p in prev]), dt, q, noise_model)
+    H, R, z = (np.array(a) for a in zip(*obs))
+    return update(GaussianState(x, P), z, H, R)[0]
+
+
+def _trimmed(track: CentralTrack, fused: tuple[Fused, ...], max_lag: float) -> CentralTrack:
+    """``track`` with history ``fused`` (time order), entries older than ``max_lag`` before the
+    newest folded into the checkpoint (the last one before that horizon)."""
+    horizon = fused[-1].t - max_lag
+    first = 0
+    while first + 1 < len(fused) and fused[first + 1].t < horizon:
+        first += 1
+    return CentralTrack(track.id, fused[first:] if first else fused, track.confirmed, track.hits + 1)
+
+
 def fuse_many(tracks: list[CentralTrack], t: float, obs: list[Observation1], q: float, noise_model: str,
               max_lag: float) -> list[tuple[CentralTrack, np.ndarray, np.ndarray] | None]:
     """Fuse observation ``obs[i]``, taken at ``t``, into ``tracks[i]`` (distinct tracks); per track the
     new track and its posterior at ``t``, or None if the observation is late.
 
-    Each track's observations from ``t`` on are fused again in time order from the posterior
-    before ``t``; the re-processing goes step by step over all the tracks at once, one batched
-    prediction and Joseph-form update per step and measurement size.
+    An observation at or after a track's newest is one batched step for all such tracks. For the
+    others, each track's observations from ``t`` on are fused again in time order from the
+    posterior before ``t``; the re-processing goes step by step over all those tracks at once, one
+    batched prediction and Joseph-form update per step and measurement size.
     """
     done: list[tuple[CentralTrack, np.ndarray, np.ndarray] | None] = [None] * len(tracks)
     out: dict[int, list[Fused]] = {}  # per track: the kept history, then what is fused
-    redo: dict[int, list[Fused]] = {}  # per track: the observations to fuse, from ``t`` on
+    redo: dict[int, list[tuple[float, Observation1]]] = {}  # per track: what to fuse, from ``t`` on
     in_order: dict[int, list[int]] = {}  # by measurement size: tracks with nothing after ``t``
     for i, (track, o) in enumerate(zip(tracks, obs)):
         hist = track.history
@@ -90,48 +111,27 @@ def fuse_many(tracks: list[CentralTrack], t: float, obs: list[Observation1], q: 
         while k > 1 and hist[k - 1].t > t:
             k -= 1
         out[i] = list(hist[:k])
-        redo[i] = [Fused(t, o, hist[0].x, hist[0].P), *hist[k:]]
-    for group in in_order.values():  # the common case: one batched step, no re-processing
-        prev = [tracks[i].history[-1] for i in group]
-        items = [obs[i] for i in group]
-        dt = np.round(t - np.array([p.t for p in prev]), 12)
-        x, P = predict_batch(np.array([p.x for p in prev]), np.array([p.P for p in prev]), dt, q, noise_model)
-        x, P = update(GaussianState(x, P), np.array([o[2] for o in items]), np.array([o[0] for o in items]),
-                      np.array([o[1] for o in items]))[0]
-        horizon = t - max_lag
-        for i, o, xj, Pj in zip(group, items, x, P):
-            track = tracks[i]
-            fused = track.history + (Fused(t, o, xj, Pj),)
-            first = 0
-            while fused[first + 1].t < horizon:  # the last entry is at t >= horizon
-                first += 1
-            done[i] = (CentralTrack(track.id, fused[first:] if first else fused, track.confirmed, track.hits + 1),
-                       xj, Pj)
+        redo[i] = [(t, o)] + [(h.t, h.obs) for h in hist[k:]]  # type: ignore[misc]
+    for group in in_order.values():
+        x, P = _step([tracks[i].history[-1] for i in group], np.full(len(group), t), [obs[i] for i in group],
+                     q, noise_model)
+        for i, xj, Pj in zip(group, x, P):
+            done[i] = (_trimmed(tracks[i], tracks[i].history + (Fused(t, obs[i], xj, Pj),), max_lag), xj, Pj)
     pending = list(redo)
     step = 0
     while pending:
         by_size: dict[int, list[int]] = {}
         for i in pending:
-            by_size.setdefault(redo[i][step].obs[0].shape[0], []).append(i)  # type: ignore[index]
+            by_size.setdefault(redo[i][step][1][0].shape[0], []).append(i)
         for group in by_size.values():
-            prev = [out[i][-1] for i in group]
             items = [redo[i][step] for i in group]
-            dt = np.round(np.array([item.t for item in items]) - np.array([p.t for p in prev]), 12)
-            x, P = predict_batch(np.array([p.x for p in prev]), np.array([p.P for p in prev]), dt, q, noise_model)
-            H = np.array([item.obs[0] for item in items])  # type: ignore[index]
-            R = np.array([item.obs[1] for item in items])  # type: ignore[index]
-            z = np.array([item.obs[2] for item in items])  # type: ignore[index]
-            x, P = update(GaussianState(x, P), z, H, R)[0]
-            for i, item, xj, Pj in zip(group, items, x, P):
-                out[i].append(Fused(item.t, item.obs, xj, Pj))
+            x, P = _step([out[i][-1] for i in group], np.array([ti for ti, _ in items]), [o for _, o in items],
+                         q, noise_model)
+            for i, (ti, o), xj, Pj in zip(group, items, x, P):
+                out[i].append(Fused(ti, o, xj, Pj))
         step += 1
         pending = [i for i in pending if len(redo[i]) > step]
     for i, fused in out.items():
         at_t = fused[len(fused) - len(redo[i])]
-        horizon = fused[-1].t - max_lag
-        first = 0
-        while first + 1 < len(fused) and fused[first + 1].t < horizon:
-            first += 1
-        track = tracks[i]
-        done[i] = (CentralTrack(track.id, tuple(fused[first:]), track.confirmed, track.hits + 1), at_t.x, at_t.P)
+        done[i] = (_trimmed(tracks[i], tuple(fused), max_lag), at_t.x, at_t.P)
     return done

@@ -225,7 +225,7 @@ class TrackToTrackCentre:
                     streak.clear()
                     continue
                 streak[sensor] = streak.get(sensor, 0) + 1
-                tracking = {s for s, _ in self.members.get(cid, ())}
+                tracking = self._sensor_set(cid)
                 need = CENTRAL_MISSES if len(tracking) > 1 else cfg.delete_misses
                 if tracking and all(streak.get(s, 0) >= need for s in tracking):
                     dead.append(cid)
@@ -292,7 +292,7 @@ class TrackToTrackCentre:
         no sensor with it (two sensors' tracks of one target that missed each other at the start)."""
         if len(self.tracks) < 2:
             return
-        sensors = {c: {s for s, _ in self.members.get(c, ())} for c in updated if c in self.tracks}
+        sensors = {c: self._sensor_set(c) for c in updated if c in self.tracks}
         # a track that every sensor with a local track supports shares a sensor with any other
         everyone = {s for s, _ in self.mapping}
         updated = {c for c, seen in sensors.items() if seen != everyone}
@@ -323,7 +323,7 @@ class TrackToTrackCentre:
                     continue
                 for c in (cid, other):
                     if c not in sensors:
-                        sensors[c] = {s for s, _ in self.members.get(c, ())}
+                        sensors[c] = self._sensor_set(c)
                 if not sensors[other] or sensors[cid] & sensors[other]:
                     continue  # shares a sensor, or no local track maps to it any more (pruned next)
                 keep, drop = min(cid, other), max(cid, other)
@@ -406,4 +406,8 @@ class TrackToTrackCentre:
                 self._delete(cid)
 
     def sensors_of(self, cid: int) -> list[str]:
-        return sorted({s for s, _ in self.members.get(cid, ())})
+        return sorted(self._sensor_set(cid))
+
+    def _sensor_set(self, cid: int) -> set[str]:
+        """The sensors whose local tracks map to central track ``cid``."""
+        return {s for s, _ in self.members.get(cid, ())}

@@ -16,7 +16,7 @@ from __future__ import annotations
 import bisect
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -41,17 +41,36 @@ from fedtrack.wire import picture_rows
 ALGORITHMS = ("mtt-local", "mtt-centralized", "mtt-federated", "mtt-decentralized")
 
 
-def tracker_picture(state: TrackerState, T: float, cfg: MttConfig, sensors: list[str]) -> list[dict[str, Any]]:
+class PictureTracks(NamedTuple):
+    """The tracks of one picture, batched, every track predicted to the picture's time: what the
+    replay writes as rows (:meth:`rows`) and the live centre sends as a ``TrackPicture``."""
+
+    ids: list[int]
+    x: np.ndarray  # (n, d) CV states (a CA track's marginal)
+    P: np.ndarray  # (n, d, d)
+    confirmed: list[bool]
+    sensors: list[list[str]]
+    models: list[str]  # "cv" or "ca" per track
+
+    def rows(self) -> list[dict[str, Any]]:
+        return picture_rows(self.ids, self.x, self.P, self.confirmed, self.sensors, self.models)
+
+
+def no_tracks(dim: int) -> PictureTracks:
+    return PictureTracks([], np.zeros((0, dim)), np.zeros((0, dim, dim)), [], [], [])
+
+
+def tracker_picture(state: TrackerState, T: float, cfg: MttConfig, sensors: list[str]) -> PictureTracks:
     tr = state.tracks
     if not tr.size:
-        return []
+        return no_tracks(tr.x.shape[1])
     x, P = tr.x, tr.P
     if state.t is not None and T > state.t:
         if tr.man is not None:  # each track in its own model (maneuver handling)
             x, P = predicted_view(tr.man, T - state.t, cfg.q, cfg.noise_model)
         else:
             x, P = predict_tracks(x, P, motion(x.shape[1], round(T - state.t, 12), cfg.q, cfg.noise_model))
-    return picture_rows(tr.ids.tolist(), x, P, tr.confirmed.tolist(), [sensors] * tr.size, tr.models)
+    return PictureTracks(tr.ids.tolist(), x, P, tr.confirmed.tolist(), [sensors] * tr.size, tr.models)
 
 
 @dataclass
@@ -71,7 +90,8 @@ class Engine:
         self.stage_s[stage] = self.stage_s.get(stage, 0.0) + now - since
         return now
 
-    def picture(self, T: float) -> list[dict[str, Any]]:
+    def picture(self, T: float) -> PictureTracks:
+        """Every track predicted to ``T`` from the data up to ``T``."""
         raise NotImplementedError
 
     def leave(self, sensor: str) -> None:
@@ -108,9 +128,9 @@ class LocalEngine(Engine):
         if drop > 0:
             del self.times[:drop], self.states[:drop]
 
-    def picture(self, T: float) -> list[dict[str, Any]]:
+    def picture(self, T: float) -> PictureTracks:
         k = bisect.bisect_right(self.times, T)
-        return [] if not k else tracker_picture(self.states[k - 1], T, self.cfg, [self.sensor])
+        return no_tracks(self.dim) if not k else tracker_picture(self.states[k - 1], T, self.cfg, [self.sensor])
 
 
 @dataclass
@@ -153,10 +173,10 @@ class CentralizedEngine(Engine):
         k = bisect.bisect_right(self.times, T)
         return self.after[k - 1] if k else self.base
 
-    def picture(self, T: float) -> list[dict[str, Any]]:
+    def picture(self, T: float) -> PictureTracks:
         state = self.state_at(T)
         if state is None:
-            return []
+            return no_tracks(self.dim)
         senders = sorted({s.sensor for s in self.kept})
         return tracker_picture(state, T, self.cfg, senders)
 
@@ -197,15 +217,14 @@ class TrackToTrackEngine(Engine):
         self.scans += 1
         return self.centre.answer(report)
 
-    def picture(self, T: float) -> list[dict[str, Any]]:
-        if self.centre is None:
-            return []
+    def picture(self, T: float) -> PictureTracks:
         c = self.centre
-        if not c.tracks:
-            return []
+        if c is None or not c.tracks:
+            return no_tracks(self.dim)
         ids = sorted(c.tracks)
         X, P = states_at([c.tracks[cid] for cid in ids], T, self.cfg.q, self.cfg.noise_model)
-        return picture_rows(ids, X, P, [c.tracks[cid].confirmed for cid in ids], [c.sensors_of(cid) for cid in ids])
+        return PictureTracks(ids, X, P, [c.tracks[cid].confirmed for cid in ids], [c.sensors_of(cid) for cid in ids],
+                             ["cv"] * len(ids))
 
     def counters(self) -> dict[str, int]:
         out = super().counters()

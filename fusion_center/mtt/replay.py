@@ -39,6 +39,13 @@ def read_scans(path: Path, cfg: MttConfig) -> list[SensorScan | SensorLeft]:
     return scans
 
 
+def state_dim(scans: list[SensorScan | SensorLeft], sensor: str | None = None) -> int:
+    """The state size of a tracker of ``scans`` (of ``sensor``'s only, if given): 6 when any is a
+    radar's, else 4."""
+    return 6 if any(isinstance(s, SensorScan) and s.sensor_position is not None
+                    and (sensor is None or s.sensor == sensor) for s in scans) else 4
+
+
 @dataclass
 class PictureClock:
     """When pictures are due: the picture at ``T = k period`` once a scan later than
@@ -86,7 +93,7 @@ def pictures(engine: Engine, scans: list[SensorScan | SensorLeft], period: float
 
 def _picture(engine: Engine, T: float) -> dict[str, Any]:
     start = time.perf_counter()
-    picture = {"t": T, "tracks": engine.picture(T)}
+    picture = {"t": T, "tracks": engine.picture(T).rows()}
     engine.took("pictures", start)
     return picture
 
@@ -110,8 +117,7 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
     read_s = time.perf_counter() - start
     if sensor is not None and not any(s.sensor == sensor for s in scans):
         raise InputError(f"{measurements}: no scan of sensor {sensor!r}")
-    own = [s for s in scans if isinstance(s, SensorScan) and (sensor is None or s.sensor == sensor)]
-    dim = 6 if any(s.sensor_position is not None for s in own) else 4
+    dim = state_dim(scans, sensor)
     engine = make_engine(algorithm, cfg, dim, sensor)
     n = 0
     with out.open("w") as fh:

@@ -35,11 +35,10 @@ from collections import deque
 from pathlib import Path
 from typing import Any, Callable
 
-import numpy as np
 import zenoh
 
 from fedtrack.config import ConfigError, load_tables
-from fedtrack.fusion_center.mtt.engines import CentralizedEngine, TrackToTrackEngine
+from fedtrack.fusion_center.mtt.engines import CentralizedEngine, TrackToTrackEngine, no_tracks
 from fedtrack.fusion_center.mtt.replay import PictureClock
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
 from fedtrack.local_filters.mtt.local import report_from_wire, resets_to_wire
@@ -147,16 +146,14 @@ class MttCentreService(Service):
         self._process(msg.sensor, msg.seq, msg.t, fuse)
 
     def _publish_picture(self, T: float, closing: bool = False) -> None:
-        rows = [] if closing else self.engine.picture(T)
-        d = len(rows[0]["x"]) if rows else self.dim
+        tracks = no_tracks(self.dim) if closing else self.engine.picture(T)
+        d = tracks.x.shape[1]
+        ca = tuple(model == "ca" for model in tracks.models)
         self.publish(self.keys.mtt_picture(), TrackPicture.unchecked(
-            seq=self.pictures, t=T, ids=tuple(row["id"] for row in rows),
-            x=np.array([row["x"] for row in rows]).reshape(-1, d), P=np.array([row["P"] for row in rows]).reshape(-1, d),
-            confirmed=tuple(row["status"] == "confirmed" for row in rows),
-            sensors=tuple(tuple(row["sensors"]) for row in rows), fused_sensors=tuple(s for s, _ in self.order),
-            fused_seqs=tuple(q for _, q in self.order), stamp_ns=time.time_ns(), closing=closing,
-            left=tuple(self.left_at), ca=tuple(row["model"] == "ca" for row in rows)
-            if any(row["model"] == "ca" for row in rows) else ()))
+            seq=self.pictures, t=T, ids=tuple(tracks.ids), x=tracks.x, P=tracks.P.reshape(-1, d),
+            confirmed=tuple(tracks.confirmed), sensors=tuple(tuple(s) for s in tracks.sensors),
+            fused_sensors=tuple(s for s, _ in self.order), fused_seqs=tuple(q for _, q in self.order),
+            stamp_ns=time.time_ns(), closing=closing, left=tuple(self.left_at), ca=ca if any(ca) else ()))
         self.pictures += 1
         self.order, self.left_at = [], []
         self.counters["pictures"] = self.pictures
