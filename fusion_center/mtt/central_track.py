@@ -1,137 +1,229 @@
-"""One central track with an out-of-sequence buffer: exact fusion of observations in time order.
+"""Central tracks as arrays, each with an out-of-sequence buffer: exact fusion in time order.
 
-A central track keeps the observations it fused during the last ``max_lag`` seconds, each
-with the posterior after it. An observation older than the newest one is inserted in time
-order and the observations after it are fused again from the posterior before it (buffer
-and reprocess): the result equals fusing the time-sorted observations, to round-off. An
-observation older than ``max_lag`` (or than the oldest kept posterior) is late and not fused.
-Why this and not a retrodiction method: see docs/multitarget.md.
+Every central track has a slot in a table of arrays. A slot keeps the observations its track
+fused during the last ``max_lag`` seconds, each with the posterior after it, in a ring buffer
+(oldest first; the oldest entry is the checkpoint: the posterior before the kept observations,
+older ones folded into it). An observation at or after the newest is one batched prediction
+and update over every such track of a report. An older one is inserted in time order and the
+observations after it are fused again from the posterior before it (buffer and reprocess):
+the result equals fusing the time-sorted observations, to round-off. An observation older than
+``max_lag`` (or than the checkpoint) is late and not fused. Why this and not a retrodiction
+method: see docs/multitarget.md.
+
+The maths is :func:`predict_batch` and the Joseph-form :func:`update`; this module only
+gathers their inputs from the slots and scatters the results back, so that the centre's cost
+per report is a handful of array operations, not a walk over Python objects per track.
 """
 
 from __future__ import annotations
-
-from typing import NamedTuple
 
 import numpy as np
 
 from fedtrack.local_filters.mtt.models import predict_batch
 from fedtrack.local_filters.linear.kalman import GaussianState, update
 
-Observation1 = tuple[np.ndarray, np.ndarray, np.ndarray]  # H (m, D), R (m, m), z (m,)
+
+def _grown(a: np.ndarray, rows: int, depth: int | None = None) -> np.ndarray:
+    """``a`` zero-padded to ``rows`` rows (and ``depth`` ring entries along axis 1)."""
+    if depth is None:
+        out = np.zeros((rows,) + a.shape[1:], a.dtype)
+        out[: a.shape[0]] = a
+    else:
+        out = np.zeros((rows, depth) + a.shape[2:], a.dtype)
+        out[: a.shape[0], : a.shape[1]] = a
+    return out
 
 
-class Fused(NamedTuple):
-    """An observation at ``t`` and the posterior ``(x, P)`` after fusing it."""
+class CentralTracks:
+    """The central tracks of dimension ``dim``: ids, confirmation, states and buffers by slot.
 
-    t: float
-    obs: Observation1 | None  # None: the track's starting state
-    x: np.ndarray
-    P: np.ndarray
-
-
-class CentralTrack(NamedTuple):
-    id: int
-    history: tuple[Fused, ...]  # time order; history[0] is the checkpoint (older ones folded)
-    confirmed: bool
-    hits: int  # detections fused, the start included
-
-    @property
-    def t(self) -> float:
-        return self.history[-1].t
-
-    @property
-    def x(self) -> np.ndarray:
-        return self.history[-1].x
-
-    @property
-    def P(self) -> np.ndarray:
-        return self.history[-1].P
-
-
-def start(track_id: int, t: float, x: np.ndarray, P: np.ndarray, confirmed: bool) -> CentralTrack:
-    return CentralTrack(track_id, (Fused(t, None, x, P),), confirmed, 1)
-
-
-def states_at(tracks: list[CentralTrack], t: float, q: float, noise_model: str) -> tuple[np.ndarray, np.ndarray]:
-    """The estimates (N, D), (N, D, D) of non-empty ``tracks`` at ``t`` from their observations up
-    to ``t`` (``t`` >= each checkpoint), in one batched prediction."""
-    base = []
-    for track in tracks:
-        hist = track.history
-        k = len(hist) - 1
-        while k > 0 and hist[k].t > t:
-            k -= 1
-        base.append(hist[k])
-    dt = np.round(np.maximum(t - np.array([h.t for h in base]), 0.0), 12)
-    return predict_batch(np.array([h.x for h in base]), np.array([h.P for h in base]), dt, q, noise_model)
-
-
-def _step(prev: list[Fused], t: np.ndarray, obs: list[Observation1], q: float, noise_model: str
-          ) -> tuple[np.ndarray, np.ndarray]:
-    """Posteriors after predicting each ``prev[i]`` to ``t[i]`` and fusing ``obs[i]`` (one measurement
-    size), batched."""
-    dt = np.round(t - np.array([p.t for p in prev]), 12)
-    x, P = predict_batch(np.array([p.x for p in prev]), np.array([p.P for p in prev]), dt, q, noise_model)
-    H, R, z = (np.array(a) for a in zip(*obs))
-    return update(GaussianState(x, P), z, H, R)[0]
-
-
-def _trimmed(track: CentralTrack, fused: tuple[Fused, ...], max_lag: float) -> CentralTrack:
-    """``track`` with history ``fused`` (time order), entries older than ``max_lag`` before the
-    newest folded into the checkpoint (the last one before that horizon)."""
-    horizon = fused[-1].t - max_lag
-    first = 0
-    while first + 1 < len(fused) and fused[first + 1].t < horizon:
-        first += 1
-    return CentralTrack(track.id, fused[first:] if first else fused, track.confirmed, track.hits + 1)
-
-
-def fuse_many(tracks: list[CentralTrack], t: float, obs: list[Observation1], q: float, noise_model: str,
-              max_lag: float) -> list[tuple[CentralTrack, np.ndarray, np.ndarray] | None]:
-    """Fuse observation ``obs[i]``, taken at ``t``, into ``tracks[i]`` (distinct tracks); per track the
-    new track and its posterior at ``t``, or None if the observation is late.
-
-    An observation at or after a track's newest is one batched step for all such tracks. For the
-    others, each track's observations from ``t`` on are fused again in time order from the
-    posterior before ``t``; the re-processing goes step by step over all those tracks at once, one
-    batched prediction and Joseph-form update per step and measurement size.
+    Ring entry ``j`` (0 = oldest) of slot ``s`` is at ``(head[s] + j) % depth``; ``count[s]``
+    entries are live. Per entry: time ``t``, posterior ``x``, ``P``, and the observation fused
+    there (``m`` rows of ``H``, ``R``, ``z``; ``m = 0`` for a track's starting state).
     """
-    done: list[tuple[CentralTrack, np.ndarray, np.ndarray] | None] = [None] * len(tracks)
-    out: dict[int, list[Fused]] = {}  # per track: the kept history, then what is fused
-    redo: dict[int, list[tuple[float, Observation1]]] = {}  # per track: what to fuse, from ``t`` on
-    in_order: dict[int, list[int]] = {}  # by measurement size: tracks with nothing after ``t``
-    for i, (track, o) in enumerate(zip(tracks, obs)):
-        hist = track.history
-        if t < hist[0].t or t < hist[-1].t - max_lag:
-            continue  # late
-        if t >= hist[-1].t:
-            in_order.setdefault(o[0].shape[0], []).append(i)
-            continue
-        k = len(hist)
-        while k > 1 and hist[k - 1].t > t:
-            k -= 1
-        out[i] = list(hist[:k])
-        redo[i] = [(t, o)] + [(h.t, h.obs) for h in hist[k:]]  # type: ignore[misc]
-    for group in in_order.values():
-        x, P = _step([tracks[i].history[-1] for i in group], np.full(len(group), t), [obs[i] for i in group],
-                     q, noise_model)
-        for i, xj, Pj in zip(group, x, P):
-            done[i] = (_trimmed(tracks[i], tracks[i].history + (Fused(t, obs[i], xj, Pj),), max_lag), xj, Pj)
-    pending = list(redo)
-    step = 0
-    while pending:
-        by_size: dict[int, list[int]] = {}
-        for i in pending:
-            by_size.setdefault(redo[i][step][1][0].shape[0], []).append(i)
-        for group in by_size.values():
-            items = [redo[i][step] for i in group]
-            x, P = _step([out[i][-1] for i in group], np.array([ti for ti, _ in items]), [o for _, o in items],
-                         q, noise_model)
-            for i, (ti, o), xj, Pj in zip(group, items, x, P):
-                out[i].append(Fused(ti, o, xj, Pj))
-        step += 1
-        pending = [i for i in pending if len(redo[i]) > step]
-    for i, fused in out.items():
-        at_t = fused[len(fused) - len(redo[i])]
-        done[i] = (_trimmed(tracks[i], tuple(fused), max_lag), at_t.x, at_t.P)
-    return done
+
+    def __init__(self, dim: int, q: float, noise_model: str, max_lag: float, capacity: int = 64, depth: int = 8):
+        self.dim, self.q, self.noise_model, self.max_lag = dim, q, noise_model, max_lag
+        mmax = dim // 2  # a position (2 or 3) or a radar's (range, azimuth, elevation)
+        self.slot: dict[int, int] = {}  # central track id -> slot
+        self.free: list[int] = list(range(capacity - 1, -1, -1))
+        self.ids = np.full(capacity, -1, dtype=np.int64)
+        self.confirmed = np.zeros(capacity, dtype=bool)
+        self.head = np.zeros(capacity, dtype=np.int64)
+        self.count = np.zeros(capacity, dtype=np.int64)
+        self.t = np.zeros((capacity, depth))
+        self.x = np.zeros((capacity, depth, dim))
+        self.P = np.zeros((capacity, depth, dim, dim))
+        self.m = np.zeros((capacity, depth), dtype=np.int64)
+        self.H = np.zeros((capacity, depth, mmax, dim))
+        self.R = np.zeros((capacity, depth, mmax, mmax))
+        self.z = np.zeros((capacity, depth, mmax))
+
+    _RING = ("t", "x", "P", "m", "H", "R", "z")
+    _PER_SLOT = ("ids", "confirmed", "head", "count")
+
+    @property
+    def capacity(self) -> int:
+        return self.ids.shape[0]
+
+    @property
+    def depth(self) -> int:
+        return self.t.shape[1]
+
+    def __contains__(self, cid: object) -> bool:
+        return cid in self.slot
+
+    def __len__(self) -> int:
+        return len(self.slot)
+
+    def live(self) -> np.ndarray:
+        """The slots of every track, in increasing id (the order the tracks were started)."""
+        slots = np.flatnonzero(self.ids >= 0)
+        return slots[np.argsort(self.ids[slots], kind="stable")]
+
+    def slots_of(self, cids: list[int]) -> np.ndarray:
+        return np.array([self.slot[c] for c in cids], dtype=np.int64)
+
+    def _grow(self, capacity: int, depth: int) -> None:
+        """Re-allocate to ``capacity`` slots of ``depth`` entries (ring entries unrolled to 0..)."""
+        old = self.capacity
+        if depth != self.depth:
+            order = (self.head[:, None] + np.arange(self.depth)) % self.depth
+            for name in self._RING:
+                a = getattr(self, name)
+                setattr(self, name, np.take_along_axis(a, order.reshape(order.shape + (1,) * (a.ndim - 2)), axis=1))
+            self.head[:] = 0
+        for name in self._RING:
+            setattr(self, name, _grown(getattr(self, name), capacity, depth))
+        for name in self._PER_SLOT:
+            setattr(self, name, _grown(getattr(self, name), capacity))
+        self.ids[old:] = -1
+        self.free = list(range(capacity - 1, old - 1, -1)) + self.free
+
+    def start(self, cid: int, t: float, x: np.ndarray, P: np.ndarray) -> int:
+        """A tentative track ``cid`` from the estimate ``(x, P)`` at ``t``; returns its slot."""
+        if not self.free:
+            self._grow(2 * self.capacity, self.depth)
+        s = self.free.pop()
+        self.slot[cid] = s
+        self.ids[s], self.confirmed[s], self.head[s], self.count[s] = cid, False, 0, 1
+        self.t[s, 0], self.x[s, 0], self.P[s, 0], self.m[s, 0] = t, x, P, 0
+        return s
+
+    def delete(self, cid: int) -> None:
+        s = self.slot.pop(cid)
+        self.ids[s], self.count[s] = -1, 0
+        self.free.append(s)
+
+    def _pos(self, slots: np.ndarray, j: np.ndarray) -> np.ndarray:
+        return (self.head[slots] + j) % self.depth
+
+    def latest(self, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Time, state and covariance after each slot's newest observation."""
+        p = self._pos(slots, self.count[slots] - 1)
+        return self.t[slots, p], self.x[slots, p], self.P[slots, p]
+
+    def _newer_than(self, slots: np.ndarray, t: float | np.ndarray, or_at: bool = False) -> np.ndarray:
+        """Per slot, how many live entries are newer than ``t`` (or at it, with ``or_at``): a suffix
+        of the ring, whose entries are in time order."""
+        rel = (np.arange(self.depth) - self.head[slots][:, None]) % self.depth
+        live = rel < self.count[slots][:, None]
+        times, t = self.t[slots], np.asarray(t).reshape(-1, 1)
+        return np.count_nonzero(live & (times >= t if or_at else times > t), axis=1)
+
+    def states_at(self, slots: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """The estimates (N, D), (N, D, D) of ``slots`` at ``t`` from their observations up to ``t``
+        (a track whose checkpoint is newer than ``t`` gives its checkpoint), one batched prediction."""
+        k = np.maximum(self.count[slots] - 1 - self._newer_than(slots, t), 0)
+        p = self._pos(slots, k)
+        dt = np.round(np.maximum(t - self.t[slots, p], 0.0), 12)
+        return predict_batch(self.x[slots, p], self.P[slots, p], dt, self.q, self.noise_model)
+
+    def _step(self, t0: np.ndarray, x: np.ndarray, P: np.ndarray, t: np.ndarray, H: np.ndarray, R: np.ndarray,
+              z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Posteriors after predicting each ``(x, P)`` from ``t0`` to ``t`` and fusing ``(H, R, z)``."""
+        xp, Pp = predict_batch(x, P, np.round(t - t0, 12), self.q, self.noise_model)
+        return update(GaussianState(xp, Pp), z, H, R)[0]
+
+    def _write(self, slots: np.ndarray, j: np.ndarray, t: np.ndarray, x: np.ndarray, P: np.ndarray,
+               H: np.ndarray, R: np.ndarray, z: np.ndarray) -> None:
+        """Ring entry ``j`` of each slot: the observation ``(H, R, z)`` at ``t`` and the posterior after it."""
+        p = self._pos(slots, j)
+        m = H.shape[1]
+        self.t[slots, p], self.x[slots, p], self.P[slots, p], self.m[slots, p] = t, x, P, m
+        self.H[slots, p, :m], self.R[slots, p, :m, :m], self.z[slots, p, :m] = H, R, z
+
+    def _trim(self, slots: np.ndarray) -> None:
+        """Fold the entries older than ``max_lag`` before each slot's newest into its checkpoint
+        (the last entry before that horizon becomes the oldest)."""
+        before = self.count[slots] - self._newer_than(slots, self.latest(slots)[0] - self.max_lag, or_at=True)
+        first = np.maximum(before - 1, 0)  # the newest entry before the horizon is the checkpoint
+        self.head[slots] = (self.head[slots] + first) % self.depth
+        self.count[slots] -= first
+
+    def fuse(self, slots: np.ndarray, t: float, H: np.ndarray, R: np.ndarray, z: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Fuse observation ``(H[i], R[i], z[i])`` (one size ``m``), taken at ``t``, into distinct
+        ``slots[i]``; returns which were fused (False: late) and each posterior at ``t``.
+
+        The tracks whose newest observation is not after ``t`` take one batched step. For the
+        others, the observations from ``t`` on are fused again in time order from the posterior
+        before ``t``, step by step over all those tracks at once (one batched prediction and
+        update per step and observation size).
+        """
+        n = slots.shape[0]
+        x_out, P_out = np.zeros((n, self.dim)), np.zeros((n, self.dim, self.dim))
+        t_new = self.latest(slots)[0]
+        oldest = self.t[slots, self.head[slots]]
+        ok = (t >= oldest) & (t >= t_new - self.max_lag)
+        ahead = ok & (t >= t_new)
+        if ahead.any():
+            i = np.flatnonzero(ahead)
+            s = slots[i]
+            self._reserve(s, 1)
+            _, x0, P0 = self.latest(s)
+            x_out[i], P_out[i] = self._step(t_new[i], x0, P0, np.full(i.size, t), H[i], R[i], z[i])
+            self._write(s, self.count[s], np.full(i.size, t), x_out[i], P_out[i], H[i], R[i], z[i])
+            self.count[s] += 1
+            self._trim(s)
+        behind = np.flatnonzero(ok & ~ahead)
+        if behind.size:
+            x_out[behind], P_out[behind] = self._reprocess(slots[behind], t, H[behind], R[behind], z[behind])
+        return ok, x_out, P_out
+
+    def _reserve(self, slots: np.ndarray, extra: int) -> None:
+        """Room for ``extra`` more entries in each of ``slots`` (doubles the ring depth if needed)."""
+        need = int(self.count[slots].max(initial=0)) + extra
+        if need > self.depth:
+            self._grow(self.capacity, max(2 * self.depth, need))
+
+    def _reprocess(self, slots: np.ndarray, t: float, H: np.ndarray, R: np.ndarray, z: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        """Insert observations older than their tracks' newest and fuse the later ones again."""
+        self._reserve(slots, 1)
+        n_after = self._newer_than(slots, t)
+        keep = self.count[slots] - n_after  # entries up to t stay (>= 1: the checkpoint is not after t)
+        # the observations to fuse again, gathered before the ring is rewritten: (n, most after)
+        later = np.arange(int(n_after.max()))
+        pos = (self.head[slots][:, None] + keep[:, None] + later) % self.depth
+        rows = slots[:, None]
+        old_t, old_m = self.t[rows, pos], self.m[rows, pos]
+        old_H, old_R, old_z = self.H[rows, pos], self.R[rows, pos], self.z[rows, pos]
+        p = self._pos(slots, keep - 1)
+        t_prev, x_prev, P_prev = self.t[slots, p], self.x[slots, p], self.P[slots, p]
+        every = np.arange(slots.size)
+        x_at, P_at = self._step(t_prev, x_prev, P_prev, np.full(slots.size, t), H, R, z)
+        self._write(slots, keep, np.full(slots.size, t), x_at, P_at, H, R, z)
+        t_prev[:], x_prev, P_prev = t, x_at.copy(), P_at.copy()
+        for j in later.tolist():
+            again = every[n_after > j]
+            sizes = old_m[again, j]
+            for m in np.unique(sizes).tolist():
+                g = again[sizes == m]
+                tg, Hg, Rg, zg = old_t[g, j], old_H[g, j, :m], old_R[g, j, :m, :m], old_z[g, j, :m]
+                x_prev[g], P_prev[g] = self._step(t_prev[g], x_prev[g], P_prev[g], tg, Hg, Rg, zg)
+                self._write(slots[g], keep[g] + 1 + j, tg, x_prev[g], P_prev[g], Hg, Rg, zg)
+                t_prev[g] = tg
+        self.count[slots] = keep + n_after + 1
+        self._trim(slots)
+        return x_at, P_at

@@ -37,13 +37,12 @@ scan, the linearized observation of every track the scan detected, the tracks it
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from fedtrack.fusion_center.mtt.central_track import CentralTrack, fuse_many, start, states_at
+from fedtrack.fusion_center.mtt.central_track import CentralTracks
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import LocalReport, Reset
 from fedtrack.local_filters.mtt.tracker import assign
@@ -90,28 +89,64 @@ def candidate_pairs(pos: np.ndarray, spread: np.ndarray, rows: list[int], gate: 
     return out
 
 
+def _padded(a: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """``a`` in the corner of a zero array of ``shape`` (no larger than needed: ``a`` fits)."""
+    if a.shape == shape:
+        return a
+    out = np.zeros(shape, a.dtype)
+    out[tuple(slice(0, n) for n in a.shape)] = a
+    return out
+
+
 @dataclass
 class TrackToTrackCentre:
-    """Central tracks of dimension ``dim`` (4 or 6) fused from local trackers' reports."""
+    """Central tracks of dimension ``dim`` (4 or 6) fused from local trackers' reports.
+
+    The central tracks' states live in :class:`CentralTracks`; the life rules' counts in arrays
+    by the same slots, one column per sensor seen (``sensor_names``)."""
 
     cfg: MttConfig
     dim: int
     feedback: bool
-    tracks: dict[int, CentralTrack] = field(default_factory=dict)
     mapping: dict[LocalKey, int] = field(default_factory=dict)
     members: dict[int, set[LocalKey]] = field(default_factory=dict)  # the mapping reversed
     strikes: dict[LocalKey, int] = field(default_factory=dict)
-    last_support: dict[int, float] = field(default_factory=dict)
     sensor_seen: dict[str, float] = field(default_factory=dict)
-    recent_hits: dict[int, deque[bool]] = field(default_factory=dict)  # tentative tracks' last scans
-    misses: dict[int, dict[str, int]] = field(default_factory=dict)  # per tracking sensor, scans missed in a row
+    sensor_names: list[str] = field(default_factory=list)  # column order of the per-sensor arrays
     next_id: int = 0
     counters: Counters = field(default_factory=Counters)
+
+    def __post_init__(self) -> None:
+        cfg = self.cfg
+        self.tracks = CentralTracks(self.dim, cfg.q, cfg.noise_model, cfg.max_lag)
+        self._column: dict[str, int] = {}
+        self.support = np.zeros((0, 0), dtype=np.int64)  # local tracks of each sensor mapped to a slot
+        self.streak = np.zeros((0, 0), dtype=np.int64)  # a confirmed slot's misses in a row per sensor
+        self.window = np.zeros((0, cfg.confirm_window), dtype=bool)  # a tentative slot's last scans
+        self.last_support = np.zeros(0)  # when a local observation was last fused into a slot
+        self._fit()
+
+    def _fit(self) -> None:
+        """Size the per-slot arrays to the track table's capacity and the sensors seen."""
+        rows, cols = self.tracks.capacity, len(self.sensor_names)
+        self.support = _padded(self.support, (rows, cols))
+        self.streak = _padded(self.streak, (rows, cols))
+        self.window = _padded(self.window, (rows, self.cfg.confirm_window))
+        self.last_support = _padded(self.last_support, (rows,))
+
+    def _col(self, sensor: str) -> int:
+        col = self._column.get(sensor)
+        if col is None:
+            col = self._column[sensor] = len(self.sensor_names)
+            self.sensor_names.append(sensor)
+            self._fit()
+        return col
 
     def _map(self, key: LocalKey, cid: int) -> None:
         self._unmap(key)
         self.mapping[key] = cid
         self.members.setdefault(cid, set()).add(key)
+        self.support[self.tracks.slot[cid], self._col(key[0])] += 1
 
     def _unmap(self, key: LocalKey) -> bool:
         cid = self.mapping.pop(key, None)
@@ -122,6 +157,9 @@ class TrackToTrackCentre:
             keys.discard(key)
             if not keys:
                 del self.members[cid]
+        slot = self.tracks.slot.get(cid)
+        if slot is not None:
+            self.support[slot, self._column[key[0]]] -= 1
         return True
 
     def drop_sensor(self, sensor: str) -> None:
@@ -133,8 +171,8 @@ class TrackToTrackCentre:
         for key in [k for k in self.mapping if k[0] == sensor]:
             self._unmap(key)
             self.strikes.pop(key, None)
-        for per_sensor in self.misses.values():
-            per_sensor.pop(sensor, None)
+        if sensor in self._column:
+            self.streak[:, self._column[sensor]] = 0
         self.counters.left += 1
 
     def live_sensors(self, now: float) -> list[str]:
@@ -157,10 +195,22 @@ class TrackToTrackCentre:
         Pc[4, 4], Pc[5, 5] = self.cfg.init_z_std**2, self.cfg.init_velocity_std**2
         return xc, Pc
 
+    def _start(self, t: float, x: np.ndarray, P: np.ndarray) -> int:
+        """A new tentative central track at ``t``; returns its id."""
+        cid = self.next_id
+        self.next_id += 1
+        slot = self.tracks.start(cid, t, *self._central_start(x, P))
+        self._fit()
+        self.support[slot], self.streak[slot], self.window[slot] = 0, 0, False
+        self.last_support[slot] = t
+        self.counters.started += 1
+        return cid
+
     def ingest(self, report: LocalReport) -> list[Reset]:
         """Fuse one local tracker's scan; returns the federated resets (empty when decentralized)."""
         cfg, t, s = self.cfg, report.t, report.sensor
         self.sensor_seen[s] = max(self.sensor_seen.get(s, t), t)
+        col = self._col(s)
         for lid in report.retired.tolist():
             if self._unmap((s, lid)):
                 self.counters.unmapped += 1
@@ -192,118 +242,99 @@ class TrackToTrackCentre:
         confirmed = report.confirmed[det_rows].tolist()
         alone = [k for k, key in enumerate(keys) if confirmed[k] and key in self.mapping
                  and len(self.members.get(self.mapping[key], ())) == 1]
-        fresh = self._associate(report, det_rows, unmapped_rows, alone)
-        posterior = self._fuse_scan(report, keys, fresh, t)
+        fresh = self._associate(report, det_rows, col, unmapped_rows, alone)
+        slots = self.tracks.slots_of([self.mapping[key] for key in keys])
+        fused, x_post, P_post = self._fuse_scan(report, slots, np.array([key in fresh for key in keys], dtype=bool), t)
         beta = float(max(len(self.live_sensors(t)), 1))
-        fused = [k for k in range(len(keys)) if k in posterior]
-        for k in fused:
-            cid = self.mapping[keys[k]]
-            self.last_support[cid] = max(self.last_support.get(cid, t), t)
+        rows = np.flatnonzero(fused)
+        supported = slots[rows]
+        self.last_support[supported] = np.maximum(self.last_support[supported], t)
         resets = []
-        if self.feedback and fused:
-            X = np.array([posterior[k][0][:d] for k in fused])
-            P = beta * np.array([posterior[k][1][:d, :d] for k in fused])
-            resets = [Reset(s, keys[k][1], t, x, Pk) for k, x, Pk in zip(fused, X, P)]
-        self._count_scan(s, {self.mapping[keys[k]] for k in posterior})
+        if self.feedback and rows.size:
+            X, P = x_post[rows, :d], beta * P_post[rows, :d, :d]
+            resets = [Reset(s, keys[k][1], t, x, Pk) for k, x, Pk in zip(rows.tolist(), X, P)]
+        self._count_scan(col, supported)
         self._merge_duplicates({self.mapping[key] for key in keys if key in self.mapping}, t)
         return resets
 
-    def _count_scan(self, sensor: str, detected: set[int]) -> None:
-        """One sensor scan of the centralized life rules: M-of-N confirmation of tentative
-        tracks; a confirmed track that this sensor tracks (a local track maps to it) and did not
-        detect misses, and is deleted after ``delete_misses`` consecutive misses."""
-        cfg = self.cfg
-        for table in (self.recent_hits, self.misses):
-            for cid in [c for c in table if c not in self.tracks]:
-                del table[cid]
-        dead = []
-        for cid, track in self.tracks.items():
-            hit = cid in detected
-            if track.confirmed:
-                streak = self.misses.setdefault(cid, {})
-                if hit:
-                    streak.clear()
-                    continue
-                streak[sensor] = streak.get(sensor, 0) + 1
-                tracking = self._sensor_set(cid)
-                need = CENTRAL_MISSES if len(tracking) > 1 else cfg.delete_misses
-                if tracking and all(streak.get(s, 0) >= need for s in tracking):
-                    dead.append(cid)
-                continue
-            window = self.recent_hits.setdefault(cid, deque(maxlen=cfg.confirm_window))
-            window.append(hit)
-            if sum(window) >= cfg.confirm_hits:
-                self.tracks[cid] = track._replace(confirmed=True)
-                del self.recent_hits[cid]
-        for cid in dead:
+    def _count_scan(self, col: int, detected: np.ndarray) -> None:
+        """One scan of sensor column ``col`` in the centralized life rules: M-of-N confirmation of
+        tentative tracks; a confirmed track that this sensor tracks (a local track maps to it) and
+        did not detect misses, and is deleted after ``delete_misses`` consecutive misses
+        (``CENTRAL_MISSES`` of each tracking sensor when several track it)."""
+        cfg, tracks = self.cfg, self.tracks
+        live = np.flatnonzero(tracks.ids >= 0)
+        hit = np.zeros(tracks.capacity, dtype=bool)
+        hit[detected] = True
+        confirmed = tracks.confirmed[live]
+        old = live[confirmed]
+        self.streak[old[hit[old]]] = 0
+        missed = old[~hit[old]]
+        self.streak[missed, col] += 1
+        tracking = self.support[missed] > 0
+        n_tracking = tracking.sum(axis=1)
+        need = np.where(n_tracking > 1, CENTRAL_MISSES, cfg.delete_misses)[:, None]
+        dead = missed[(n_tracking > 0) & np.all(~tracking | (self.streak[missed] >= need), axis=1)]
+        young = live[~confirmed]
+        window = np.concatenate([self.window[young, 1:], hit[young, None]], axis=1)
+        self.window[young] = window
+        tracks.confirmed[young[window.sum(axis=1) >= cfg.confirm_hits]] = True
+        for cid in tracks.ids[dead].tolist():
             self._delete(cid)
 
     def _delete(self, cid: int) -> None:
-        del self.tracks[cid]
-        self.last_support.pop(cid, None)
-        self.misses.pop(cid, None)
         for key in list(self.members.get(cid, ())):
             self._unmap(key)
+        self.tracks.delete(cid)
         self.counters.deleted += 1
 
     def _priors(self, cids: list[int], t: float) -> tuple[np.ndarray, np.ndarray]:
         """Central estimates at ``t`` (batched); a track newer than ``t`` gives its estimate at ``t``."""
-        return states_at([self.tracks[c] for c in cids], t, self.cfg.q, self.cfg.noise_model)
+        return self.tracks.states_at(self.tracks.slots_of(cids), t)
 
-    def _fuse_scan(self, report: LocalReport, keys: list[LocalKey], fresh: set[LocalKey], t: float
-                   ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-        """Fuse the scan's observations; returns the posterior at ``t`` per detected row that was fused.
+    def _fuse_scan(self, report: LocalReport, slots: np.ndarray, fresh: np.ndarray, t: float
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Fuse the scan's observations into their central tracks' ``slots``; returns per detected
+        row whether it was fused (or started its track: ``fresh``) and the posterior at ``t``.
 
-        The observations of distinct central tracks are fused together (:func:`fuse_many`: in
-        order, or out of sequence with the later ones fused again); a second observation of one
+        The observations of distinct central tracks are fused together (:meth:`CentralTracks.fuse`:
+        in order, or out of sequence with the later ones fused again); a second observation of one
         central track in the next round.
         """
-        cfg = self.cfg
-        out: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        pending = []
-        for k, key in enumerate(keys):
-            if key in fresh:
-                cid = self.mapping[key]
-                out[k] = (self.tracks[cid].x, self.tracks[cid].P)  # started from this local estimate
-            else:
-                pending.append(k)
+        n = slots.size
+        ok, X, P = fresh.copy(), np.zeros((n, self.dim)), np.zeros((n, self.dim, self.dim))
+        started = np.flatnonzero(fresh)
+        X[started], P[started] = self.tracks.latest(slots[started])[1:]  # started from this local estimate
         H_all = self._embed(report.obs_H)
-        while pending:
-            now, later, taken = [], [], set()
-            for k in pending:
-                cid = self.mapping[keys[k]]
-                (later if cid in taken else now).append(k)
-                taken.add(cid)
-            cids = [self.mapping[keys[k]] for k in now]
-            obs = [(H_all[k], report.obs_R[k], report.obs_z[k]) for k in now]
-            for k, cid, done in zip(now, cids, fuse_many([self.tracks[c] for c in cids], t, obs, cfg.q,
-                                                          cfg.noise_model, cfg.max_lag)):
-                if done is None:
-                    self.counters.late += 1
-                    continue
-                self.tracks[cid], xc, Pc = done
-                out[k] = (xc, Pc)
-                self.counters.fused += 1
-            pending = later
-        return out
+        pending = np.flatnonzero(~fresh)
+        while pending.size:
+            now = pending[np.sort(np.unique(slots[pending], return_index=True)[1])]
+            done, x_now, P_now = self.tracks.fuse(slots[now], t, H_all[now], report.obs_R[now], report.obs_z[now])
+            ok[now], X[now], P[now] = done, x_now, P_now
+            self.counters.fused += int(done.sum())
+            self.counters.late += int(done.size - done.sum())
+            pending = np.setdiff1d(pending, now)
+        return ok, X, P
 
     def _merge_duplicates(self, updated: set[int], t: float) -> None:
         """Merge a central track into an older one that passes the track-to-track test and shares
         no sensor with it (two sensors' tracks of one target that missed each other at the start)."""
-        if len(self.tracks) < 2:
+        tracks = self.tracks
+        if len(tracks) < 2 or not updated:
             return
-        sensors = {c: self._sensor_set(c) for c in updated if c in self.tracks}
         # a track that every sensor with a local track supports shares a sensor with any other
-        everyone = {s for s, _ in self.mapping}
-        updated = {c for c, seen in sensors.items() if seen != everyone}
-        if not updated:
+        everyone = self.support.any(axis=0)
+        mine_slots = tracks.slots_of(sorted(updated))
+        mine_slots = mine_slots[((self.support[mine_slots] > 0) != everyone).any(axis=1)]
+        if not mine_slots.size:
             return
         cfg = self.cfg
-        ids = sorted(self.tracks)
-        row = {c: k for k, c in enumerate(ids)}
-        X, P = self._priors(ids, t)
+        live = tracks.live()
+        row = np.empty(tracks.capacity, dtype=np.int64)
+        row[live] = np.arange(live.size)
+        X, P = tracks.states_at(live, t)
         gate = cfg.thresholds.association[self.dim]
-        mine = [row[c] for c in sorted(updated)]
+        mine = row[mine_slots].tolist()
         near = candidate_pairs(X[:, [0, 2]], np.sqrt(P[:, 0, 0] + P[:, 2, 2]), mine, gate)
         K = np.fromiter((k for k, js in zip(mine, near) for _ in js), dtype=np.int64)
         J = np.fromiter((j for js in near for j in js), dtype=np.int64, count=K.size)
@@ -313,32 +344,29 @@ class TrackToTrackCentre:
         for k, j in zip(K[passes].tolist(), J[passes].tolist()):
             if j != k:
                 close.setdefault(k, []).append(j)
+        ids = tracks.ids[live].tolist()
         for k, js in zip(mine, near):
-            cid = ids[k]
-            if cid not in self.tracks or len(js) < 2:
+            if ids[k] not in tracks or len(js) < 2:
                 continue
             for j in sorted(close.get(k, ())):
-                other = ids[j]
-                if other not in self.tracks:
+                cid, other = ids[k], ids[j]
+                if other not in tracks:
                     continue
-                for c in (cid, other):
-                    if c not in sensors:
-                        sensors[c] = self._sensor_set(c)
-                if not sensors[other] or sensors[cid] & sensors[other]:
+                mask, other_mask = self.support[live[k]] > 0, self.support[live[j]] > 0
+                if not other_mask.any() or (mask & other_mask).any():
                     continue  # shares a sensor, or no local track maps to it any more (pruned next)
                 keep, drop = min(cid, other), max(cid, other)
                 for key in list(self.members.get(drop, ())):
                     self._map(key, keep)
-                sensors[keep] = sensors.get(keep, set()) | sensors.pop(drop, set())
-                kept = self.tracks[keep]
-                self.tracks[keep] = kept._replace(confirmed=kept.confirmed or self.tracks[drop].confirmed)
-                del self.tracks[drop]
-                self.last_support[keep] = max(self.last_support.get(keep, t), self.last_support.pop(drop, t))
+                ks, ds = tracks.slot[keep], tracks.slot[drop]
+                tracks.confirmed[ks] |= tracks.confirmed[ds]
+                self.last_support[ks] = max(self.last_support[ks], self.last_support[ds])
+                tracks.delete(drop)
                 self.counters.merged += 1
                 break
 
-    def _associate(self, report: LocalReport, det_rows: np.ndarray, unmapped: list[int], alone: list[int]
-                   ) -> set[LocalKey]:
+    def _associate(self, report: LocalReport, det_rows: np.ndarray, col: int, unmapped: list[int],
+                   alone: list[int]) -> set[LocalKey]:
         """Map the scan's unmapped local tracks (those not associated start central tracks) and
         move its confirmed local tracks that are alone on their central tracks to central tracks of
         other sensors that pass the test (their own central tracks, left without a local track,
@@ -347,13 +375,13 @@ class TrackToTrackCentre:
         if not unmapped and not alone:
             return fresh
         cfg, t, s = self.cfg, report.t, report.sensor
-        taken = {cid for cid, keys in self.members.items() if any(sensor == s for sensor, _ in keys)}
-        cands = [cid for cid in self.tracks if cid not in taken]
+        live = self.tracks.live()
+        cands = live[self.support[live, col] == 0]  # central tracks without a track of this sensor
         rows = det_rows[unmapped + alone]
         d = report.x.shape[1]
         assigned: dict[int, int] = {}
-        if cands:
-            xc, Pc = self._priors(cands, t)
+        if cands.size:
+            xc, Pc = self.tracks.states_at(cands, t)
             xc, Pc = xc[:, :d], Pc[:, :d, :d]
             U, C = report.x[rows], report.P[rows]
             # candidate pairs within the chi-square test's reach (k-d tree), then the test on them
@@ -371,23 +399,17 @@ class TrackToTrackCentre:
             inside = d2 <= gate
             ri, ci, cost = ri[inside], ci[inside], d2[inside] + logdet[inside]
             # most gated pairs first, then the least cost: a shift makes every gated pair's cost negative
-            picked = assign(len(rows), len(cands), ri, ci, cost - ASSOCIATION_SHIFT)
-            assigned = {int(ri[k]): cands[int(ci[k])] for k in picked}
+            picked = assign(len(rows), cands.size, ri, ci, cost - ASSOCIATION_SHIFT)
+            cand_ids = self.tracks.ids[cands]
+            assigned = {int(ri[k]): int(cand_ids[ci[k]]) for k in picked}
         for u in range(len(unmapped) + len(alone)):
             row = int(rows[u])
             key = (s, int(report.ids[row]))
             if u in assigned:
                 self._map(key, assigned[u])
-                continue
-            if u >= len(unmapped):
-                continue
-            x, P = self._central_start(report.x[row], report.P[row])
-            cid = self.next_id
-            self.next_id += 1
-            self.tracks[cid] = start(cid, t, x, P, False)
-            self._map(key, cid)
-            fresh.add(key)
-            self.counters.started += 1
+            elif u < len(unmapped):
+                self._map(key, self._start(t, report.x[row], report.P[row]))
+                fresh.add(key)
         return fresh
 
     def answer(self, report: LocalReport) -> tuple[list[Reset], float]:
@@ -401,13 +423,12 @@ class TrackToTrackCentre:
 
     def prune(self, now: float) -> None:
         """Delete central tracks no local track maps to, or unsupported for ``central_timeout``."""
-        for cid in list(self.tracks):
-            if cid not in self.members or now - self.last_support.get(cid, now) > self.cfg.central_timeout:
-                self._delete(cid)
+        live = np.flatnonzero(self.tracks.ids >= 0)
+        gone = (self.support[live].sum(axis=1) == 0) | (now - self.last_support[live] > self.cfg.central_timeout)
+        for cid in self.tracks.ids[live[gone]].tolist():
+            self._delete(cid)
 
-    def sensors_of(self, cid: int) -> list[str]:
-        return sorted(self._sensor_set(cid))
-
-    def _sensor_set(self, cid: int) -> set[str]:
-        """The sensors whose local tracks map to central track ``cid``."""
-        return {s for s, _ in self.members.get(cid, ())}
+    def sensors_of(self, slots: np.ndarray) -> list[list[str]]:
+        """The sensors whose local tracks map to each central track slot."""
+        names = self.sensor_names
+        return [sorted(names[c] for c in np.flatnonzero(row).tolist()) for row in (self.support[slots] > 0)]

@@ -20,7 +20,6 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from fedtrack.fusion_center.mtt.central_track import states_at
 from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import (
@@ -221,10 +220,10 @@ class TrackToTrackEngine(Engine):
         c = self.centre
         if c is None or not c.tracks:
             return no_tracks(self.dim)
-        ids = sorted(c.tracks)
-        X, P = states_at([c.tracks[cid] for cid in ids], T, self.cfg.q, self.cfg.noise_model)
-        return PictureTracks(ids, X, P, [c.tracks[cid].confirmed for cid in ids], [c.sensors_of(cid) for cid in ids],
-                             ["cv"] * len(ids))
+        slots = c.tracks.live()
+        X, P = c.tracks.states_at(slots, T)
+        return PictureTracks(c.tracks.ids[slots].tolist(), X, P, c.tracks.confirmed[slots].tolist(),
+                             c.sensors_of(slots), ["cv"] * slots.size)
 
     def counters(self) -> dict[str, int]:
         out = super().counters()
