@@ -195,7 +195,8 @@ def test_sensors_join_and_leave_at_run_time(tmp_path: Path) -> None:
 @pytest.mark.parametrize("d", [4, 6])
 def test_empty_reports_and_resets_cross_the_wire(d: int) -> None:
     """A tracker with no track yet and a centre answering with no reset (the first scans)."""
-    from fedtrack.local_filters.mtt.local import LocalReport, report_from_wire, report_to_wire, resets_from_wire, resets_to_wire
+    from fedtrack.local_filters.mtt.local import (LocalReport, no_resets, report_from_wire, report_to_wire,
+                                                  resets_from_wire, resets_to_wire)
 
     m = 3 if d == 6 else 2
     empty = LocalReport("s1", 0.5, np.zeros(0, np.int64), np.zeros((0, d)), np.zeros((0, d, d)), np.zeros(0, bool),
@@ -203,5 +204,6 @@ def test_empty_reports_and_resets_cross_the_wire(d: int) -> None:
                         np.zeros(0, bool), np.zeros(0, np.int64))
     back = report_from_wire(decode(encode(report_to_wire(empty, 3, 7)), TrackReport))
     assert back.x.shape == (0, d) and back.P.shape == (0, d, d) and back.obs_H.shape == (0, m, d)
-    resets = decode(encode(resets_to_wire("s1", 3, 0.5, [], 2.0, d)), TrackResets)
-    assert resets.x.shape == (0, d) and resets_from_wire(resets) == []
+    resets = decode(encode(resets_to_wire(3, no_resets("s1", 0.5, d), 2.0)), TrackResets)
+    back_resets = resets_from_wire(resets)
+    assert resets.x.shape == (0, d) and back_resets.ids.size == 0 and back_resets.P.shape == (0, d, d)

@@ -17,6 +17,8 @@ per report is a handful of array operations, not a walk over Python objects per 
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 
 from fedtrack.local_filters.mtt.models import predict_batch
@@ -75,6 +77,10 @@ class CentralTracks:
 
     def __len__(self) -> int:
         return len(self.slot)
+
+    def __iter__(self) -> Iterator[int]:
+        """The ids of every track, increasing."""
+        return iter(self.ids[self.live()].tolist())
 
     def live(self) -> np.ndarray:
         """The slots of every track, in increasing id (the order the tracks were started)."""

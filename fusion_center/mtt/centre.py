@@ -44,7 +44,7 @@ from scipy.spatial import cKDTree
 
 from fedtrack.fusion_center.mtt.central_track import CentralTracks
 from fedtrack.local_filters.mtt.config import MttConfig
-from fedtrack.local_filters.mtt.local import LocalReport, Reset
+from fedtrack.local_filters.mtt.local import LocalReport, Resets, no_resets
 from fedtrack.local_filters.mtt.tracker import assign
 
 LocalKey = tuple[str, int]  # (sensor, local track id)
@@ -206,7 +206,7 @@ class TrackToTrackCentre:
         self.counters.started += 1
         return cid
 
-    def ingest(self, report: LocalReport) -> list[Reset]:
+    def ingest(self, report: LocalReport) -> Resets:
         """Fuse one local tracker's scan; returns the federated resets (empty when decentralized)."""
         cfg, t, s = self.cfg, report.t, report.sensor
         self.sensor_seen[s] = max(self.sensor_seen.get(s, t), t)
@@ -249,10 +249,9 @@ class TrackToTrackCentre:
         rows = np.flatnonzero(fused)
         supported = slots[rows]
         self.last_support[supported] = np.maximum(self.last_support[supported], t)
-        resets = []
+        resets = no_resets(s, t, d)
         if self.feedback and rows.size:
-            X, P = x_post[rows, :d], beta * P_post[rows, :d, :d]
-            resets = [Reset(s, keys[k][1], t, x, Pk) for k, x, Pk in zip(rows.tolist(), X, P)]
+            resets = Resets(s, t, report.ids[det_rows[rows]], x_post[rows, :d], beta * P_post[rows, :d, :d])
         self._count_scan(col, supported)
         self._merge_duplicates({self.mapping[key] for key in keys if key in self.mapping}, t)
         return resets
@@ -412,7 +411,7 @@ class TrackToTrackCentre:
                 fresh.add(key)
         return fresh
 
-    def answer(self, report: LocalReport) -> tuple[list[Reset], float]:
+    def answer(self, report: LocalReport) -> tuple[Resets, float]:
         """Everything the centre does with one report: fuse it, then delete unsupported central
         tracks; returns the resets for its sensor and the process-noise factor (the number of
         live sensors, 1 when decentralized) for that sensor's next scan."""
@@ -428,7 +427,14 @@ class TrackToTrackCentre:
         for cid in self.tracks.ids[live[gone]].tolist():
             self._delete(cid)
 
-    def sensors_of(self, slots: np.ndarray) -> list[list[str]]:
+    def sensors_of(self, cid: int) -> list[str]:
+        """The sensors whose local tracks map to central track ``cid``."""
+        return self.sensor_lists(np.array([self.tracks.slot[cid]]))[0]
+
+    def sensor_lists(self, slots: np.ndarray) -> list[list[str]]:
         """The sensors whose local tracks map to each central track slot."""
         names = self.sensor_names
-        return [sorted(names[c] for c in np.flatnonzero(row).tolist()) for row in (self.support[slots] > 0)]
+        codes = (self.support[slots] > 0) @ (1 << np.arange(len(names), dtype=np.int64))  # sensor sets as bits
+        unique, inverse = np.unique(codes, return_inverse=True)
+        sets = [sorted(names[c] for c in range(len(names)) if code >> c & 1) for code in unique.tolist()]
+        return [list(sets[k]) for k in inverse.tolist()]

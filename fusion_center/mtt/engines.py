@@ -25,7 +25,7 @@ from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import (
     LocalReport,
     LocalTracker,
-    Reset,
+    Resets,
     adopt,
     is_late,
     local_step,
@@ -209,7 +209,7 @@ class TrackToTrackEngine(Engine):
         if self.centre is not None:
             self.centre.drop_sensor(sensor)
 
-    def fuse(self, report: LocalReport) -> tuple[list[Reset], float]:
+    def fuse(self, report: LocalReport) -> tuple[Resets, float]:
         """The centre's part of a scan, as the live centre does it per report."""
         if self.centre is None:
             self.centre = TrackToTrackCentre(self.cfg, self.dim, self.feedback)
@@ -223,7 +223,7 @@ class TrackToTrackEngine(Engine):
         slots = c.tracks.live()
         X, P = c.tracks.states_at(slots, T)
         return PictureTracks(c.tracks.ids[slots].tolist(), X, P, c.tracks.confirmed[slots].tolist(),
-                             c.sensors_of(slots), ["cv"] * slots.size)
+                             c.sensor_lists(slots), ["cv"] * slots.size)
 
     def counters(self) -> dict[str, int]:
         out = super().counters()

@@ -142,7 +142,7 @@ class MttCentreService(Service):
             resets, q_scale = engine.fuse(report)
             if engine.feedback:
                 self.publish(self.keys.mtt_resets(msg.sensor),
-                             resets_to_wire(msg.sensor, msg.seq, msg.t, resets, q_scale, msg.x.shape[1]))
+                             resets_to_wire(msg.seq, resets, q_scale))
         self._process(msg.sensor, msg.seq, msg.t, fuse)
 
     def _publish_picture(self, T: float, closing: bool = False) -> None:

@@ -40,14 +40,19 @@ class LocalReport(NamedTuple):
     retired: np.ndarray  # ids deleted by this scan
 
 
-class Reset(NamedTuple):
-    """Federated feedback for one local track: ``x`` and ``beta_i P`` at ``t`` (local state size)."""
+class Resets(NamedTuple):
+    """Federated feedback for local tracks ``ids`` of one sensor: ``x`` (n, d) and ``beta_i P``
+    (n, d, d) at ``t`` (local state size)."""
 
     sensor: str
-    local_id: int
     t: float
+    ids: np.ndarray  # (n,) local track ids
     x: np.ndarray
     P: np.ndarray
+
+
+def no_resets(sensor: str, t: float, d: int) -> Resets:
+    return Resets(sensor, t, np.zeros(0, dtype=np.int64), np.zeros((0, d)), np.zeros((0, d, d)))
 
 
 class LocalTracker(NamedTuple):
@@ -80,17 +85,17 @@ def local_step(tracker: LocalTracker, scan: SensorScan, cfg: MttConfig) -> tuple
     return tracker._replace(state=res.state), report
 
 
-def adopt(tracker: LocalTracker, resets: list[Reset], q_scale: float) -> LocalTracker:
-    """Take the centre's resets (by local track id; ids no longer live are ignored) and the
-    process-noise factor for the next scan."""
+def adopt(tracker: LocalTracker, resets: Resets, q_scale: float) -> LocalTracker:
+    """Take the centre's resets (by local track id; ids no longer live are ignored; for an id
+    given twice, the last) and the process-noise factor for the next scan."""
     tr = tracker.state.tracks
-    if resets:
+    if resets.ids.size and tr.ids.size:
+        order = np.argsort(tr.ids, kind="stable")
+        at = np.minimum(np.searchsorted(tr.ids, resets.ids, sorter=order), tr.ids.size - 1)
+        rows = order[at]
+        live = tr.ids[rows] == resets.ids
         x, P = tr.x.copy(), tr.P.copy()
-        row = {int(i): k for k, i in enumerate(tr.ids.tolist())}
-        for r in resets:
-            k = row.get(r.local_id)
-            if k is not None:
-                x[k], P[k] = r.x, r.P
+        x[rows[live]], P[rows[live]] = resets.x[live], resets.P[live]
         tr = tr._replace(x=x, P=P)
     return tracker._replace(state=tracker.state._replace(tracks=tr), q_scale=q_scale)
 
@@ -118,15 +123,14 @@ def report_from_wire(msg: wire.TrackReport) -> LocalReport:
                        np.array(msg.retired, dtype=np.int64))
 
 
-def resets_to_wire(sensor: str, seq: int, t: float, resets: list[Reset], q_scale: float, d: int
-                   ) -> wire.TrackResets:
-    """The resets (possibly none) of a tracker whose states have size ``d``."""
-    return wire.TrackResets.unchecked(sensor=sensor, seq=seq, t=t, q_scale=q_scale, ids=tuple(r.local_id for r in resets),
-                            x=np.array([r.x for r in resets]).reshape(-1, d),
-                            P=np.array([r.P for r in resets]).reshape(-1, d))
+def resets_to_wire(seq: int, resets: Resets, q_scale: float) -> wire.TrackResets:
+    """The resets (possibly none) answering report ``seq``."""
+    d = resets.x.shape[1]
+    return wire.TrackResets.unchecked(sensor=resets.sensor, seq=seq, t=resets.t, q_scale=q_scale,
+                                      ids=tuple(resets.ids.tolist()), x=resets.x, P=resets.P.reshape(-1, d))
 
 
-def resets_from_wire(msg: wire.TrackResets) -> list[Reset]:
+def resets_from_wire(msg: wire.TrackResets) -> Resets:
     d = msg.x.shape[1]
-    return [Reset(msg.sensor, i, msg.t, np.array(msg.x[k]), np.array(msg.P[k * d:(k + 1) * d]))
-            for k, i in enumerate(msg.ids)]
+    return Resets(msg.sensor, msg.t, np.array(msg.ids, dtype=np.int64), np.array(msg.x),
+                  np.array(msg.P).reshape(-1, d, d))

@@ -1,0 +1,73 @@
+"""The centre's array store of central tracks: out-of-sequence fusion equals time-sorted fusion."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fedtrack.fusion_center.mtt.central_track import CentralTracks
+from fedtrack.local_filters.linear.kalman import GaussianState, update
+from fedtrack.local_filters.mtt.models import position_matrix, predict_batch
+
+Q = 0.5
+
+
+def sorted_kf(x0: np.ndarray, P0: np.ndarray, t0: float, obs: list[tuple[float, np.ndarray, np.ndarray, np.ndarray]]
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """A plain Kalman filter over the observations in time order."""
+    x, P, t = x0[None], P0[None], t0
+    for ti, H, R, z in sorted(obs, key=lambda o: o[0]):
+        x, P = predict_batch(x, P, np.array([ti - t]), Q)
+        x, P = update(GaussianState(x, P), z[None], H[None], R[None])[0]
+        t = ti
+    return x[0], P[0]
+
+
+def test_out_of_sequence_fusion_equals_time_sorted_fusion_across_ring_growth() -> None:
+    """Several tracks, observations of sizes 2 and 3 arriving shuffled (within ``max_lag``): every
+    track's state equals a KF over its time-sorted observations; the ring wraps and grows (more
+    observations than its first depth) and the table grows (more tracks than its capacity)."""
+    rng = np.random.default_rng(5)
+    dim, n_tracks, n_obs = 6, 5, 30
+    store = CentralTracks(dim, Q, "continuous", max_lag=1e9, capacity=2, depth=4)
+    x0 = rng.normal(size=(n_tracks, dim)) * 10.0
+    P0 = np.broadcast_to(np.eye(dim) * 100.0, (n_tracks, dim, dim))
+    for cid in range(n_tracks):
+        store.start(cid, 0.0, x0[cid], P0[cid])
+    observations: list[list[tuple[float, np.ndarray, np.ndarray, np.ndarray]]] = [[] for _ in range(n_tracks)]
+    times = np.round(rng.uniform(0.1, 20.0, size=n_obs), 3)
+    for t in times.tolist():  # arrival order: random, so most arrive out of sequence
+        m = int(rng.integers(2, 4))
+        H = position_matrix(dim, m)
+        R = np.eye(m) * float(rng.uniform(1.0, 9.0))
+        z = rng.normal(size=(n_tracks, m)) * 20.0
+        cids = rng.permutation(n_tracks)[: int(rng.integers(1, n_tracks + 1))]
+        ok, x_at, P_at = store.fuse(store.slots_of(cids.tolist()), t, np.repeat(H[None], cids.size, 0),
+                                    np.repeat(R[None], cids.size, 0), z[cids])
+        assert ok.all()
+        for i, c in enumerate(cids.tolist()):
+            observations[c].append((t, H, R, z[c]))
+            # the posterior at t: the observations up to t (arrival order among equal times)
+            x_ref, P_ref = sorted_kf(x0[c], P0[c], 0.0, [o for o in observations[c] if o[0] <= t])
+            np.testing.assert_allclose(x_at[i], x_ref, rtol=0, atol=1e-9 * max(1.0, np.abs(x_ref).max()))
+            np.testing.assert_allclose(P_at[i], P_ref, rtol=0, atol=1e-9 * np.abs(P_ref).max())
+    assert store.depth > 4 and store.capacity > 2
+    slots = store.slots_of(list(range(n_tracks)))
+    _, x, P = store.latest(slots)
+    for c in range(n_tracks):
+        x_ref, P_ref = sorted_kf(x0[c], P0[c], 0.0, observations[c])
+        np.testing.assert_allclose(x[c], x_ref, rtol=0, atol=1e-9 * max(1.0, np.abs(x_ref).max()))
+        np.testing.assert_allclose(P[c], P_ref, rtol=0, atol=1e-9 * np.abs(P_ref).max())
+
+
+def test_observations_older_than_max_lag_or_the_checkpoint_are_late() -> None:
+    store = CentralTracks(4, Q, "continuous", max_lag=2.0)
+    store.start(7, 10.0, np.zeros(4), np.eye(4))
+    H, R = position_matrix(4)[None], np.eye(2)[None]
+    slots = store.slots_of([7])
+    assert not store.fuse(slots, 9.0, H, R, np.zeros((1, 2)))[0][0]  # before the starting state
+    assert store.fuse(slots, 14.0, H, R, np.zeros((1, 2)))[0][0]
+    assert not store.fuse(slots, 11.5, H, R, np.zeros((1, 2)))[0][0]  # 2.5 s older than the newest
+    assert store.fuse(slots, 12.5, H, R, np.zeros((1, 2)))[0][0]
+    assert list(store) == [7] and 7 in store and len(store) == 1
+    store.delete(7)
+    assert list(store) == [] and 7 not in store
