@@ -218,33 +218,38 @@ class TrackToTrackCentre:
         d = report.x.shape[1]
         det_rows = np.flatnonzero(report.detected)
         keys = [(s, i) for i in report.ids[det_rows].tolist()]
+        cid_of = [self.mapping.get(key) for key in keys]  # a mapped local track's central track is live
         started = report.started.tolist()
         # hysteresis: a mapped local track inconsistent with its central track unmap_after times in a row
-        check = [k for k, key in enumerate(keys) if not started[k] and self.mapping.get(key) in self.tracks]
+        check = [k for k, cid in enumerate(cid_of) if cid is not None and not started[k]]
         if check:
-            xc, Pc = self._priors([self.mapping[keys[k]] for k in check], t)
+            xc, Pc = self._priors([cid_of[k] for k in check], t)
             rows = det_rows[check]
             diff = report.x[rows] - xc[:, :d]
             d2 = np.einsum("ni,ni->n", diff, np.linalg.solve(report.P[rows] + Pc[:, :d, :d], diff[..., None])[..., 0])
-            for k, bad in zip(check, (d2 > cfg.thresholds.association[d]).tolist()):
-                key = keys[k]
-                if not bad:
-                    self.strikes.pop(key, None)
-                    continue
+            bad = d2 > cfg.thresholds.association[d]
+            if self.strikes:
+                for k in np.flatnonzero(~bad).tolist():
+                    self.strikes.pop(keys[check[k]], None)
+            for k in np.flatnonzero(bad).tolist():
+                key = keys[check[k]]
                 self.strikes[key] = self.strikes.get(key, 0) + 1
                 if self.strikes[key] >= cfg.unmap_after:
                     self._unmap(key)
                     self.strikes.pop(key)
                     self.counters.unmapped += 1
-        unmapped_rows = [k for k, key in enumerate(keys) if self.mapping.get(key) not in self.tracks]
-        for k in unmapped_rows:
-            self._unmap(keys[k])
+                    cid_of[check[k]] = None
+        unmapped_rows = [k for k, cid in enumerate(cid_of) if cid is None]
         confirmed = report.confirmed[det_rows].tolist()
-        alone = [k for k, key in enumerate(keys) if confirmed[k] and key in self.mapping
-                 and len(self.members.get(self.mapping[key], ())) == 1]
+        alone = [k for k, cid in enumerate(cid_of) if cid is not None and confirmed[k]
+                 and len(self.members[cid]) == 1]
         fresh = self._associate(report, det_rows, col, unmapped_rows, alone)
-        slots = self.tracks.slots_of([self.mapping[key] for key in keys])
-        fused, x_post, P_post = self._fuse_scan(report, slots, np.array([key in fresh for key in keys], dtype=bool), t)
+        for k in unmapped_rows + alone:
+            cid_of[k] = self.mapping[keys[k]]
+        slots = self.tracks.slots_of(cid_of)
+        is_fresh = np.zeros(len(keys), dtype=bool)
+        is_fresh[[k for k in unmapped_rows if keys[k] in fresh]] = True
+        fused, x_post, P_post = self._fuse_scan(report, slots, is_fresh, t)
         beta = float(max(len(self.live_sensors(t)), 1))
         rows = np.flatnonzero(fused)
         supported = slots[rows]
@@ -253,7 +258,8 @@ class TrackToTrackCentre:
         if self.feedback and rows.size:
             resets = Resets(s, t, report.ids[det_rows[rows]], x_post[rows, :d], beta * P_post[rows, :d, :d])
         self._count_scan(col, supported)
-        self._merge_duplicates({self.mapping[key] for key in keys if key in self.mapping}, t)
+        cids = np.array(cid_of, dtype=np.int64)
+        self._merge_duplicates(set(cids[self.tracks.ids[slots] == cids].tolist()), t)  # still live
         return resets
 
     def _count_scan(self, col: int, detected: np.ndarray) -> None:
@@ -317,23 +323,25 @@ class TrackToTrackCentre:
 
     def _merge_duplicates(self, updated: set[int], t: float) -> None:
         """Merge a central track into an older one that passes the track-to-track test and shares
-        no sensor with it (two sensors' tracks of one target that missed each other at the start)."""
+        no sensor with it (two sensors' tracks of one target that missed each other at the start).
+
+        Both tracks of such a pair lack some sensor that has local tracks (a track supported by
+        every such sensor shares one with any other), so only those tracks are looked at."""
         tracks = self.tracks
         if len(tracks) < 2 or not updated:
             return
-        # a track that every sensor with a local track supports shares a sensor with any other
         everyone = self.support.any(axis=0)
-        mine_slots = tracks.slots_of(sorted(updated))
-        mine_slots = mine_slots[((self.support[mine_slots] > 0) != everyone).any(axis=1)]
-        if not mine_slots.size:
+        live = tracks.live()
+        partial = live[((self.support[live] > 0) != everyone).any(axis=1)]
+        mine_slots = np.intersect1d(tracks.slots_of(list(updated)), partial)
+        if not mine_slots.size or partial.size < 2:
             return
         cfg = self.cfg
-        live = tracks.live()
         row = np.empty(tracks.capacity, dtype=np.int64)
-        row[live] = np.arange(live.size)
-        X, P = tracks.states_at(live, t)
+        row[partial] = np.arange(partial.size)
+        X, P = tracks.states_at(partial, t)
         gate = cfg.thresholds.association[self.dim]
-        mine = row[mine_slots].tolist()
+        mine = np.sort(row[mine_slots]).tolist()  # in increasing id, as ``partial``
         near = candidate_pairs(X[:, [0, 2]], np.sqrt(P[:, 0, 0] + P[:, 2, 2]), mine, gate)
         K = np.fromiter((k for k, js in zip(mine, near) for _ in js), dtype=np.int64)
         J = np.fromiter((j for js in near for j in js), dtype=np.int64, count=K.size)
@@ -343,15 +351,15 @@ class TrackToTrackCentre:
         for k, j in zip(K[passes].tolist(), J[passes].tolist()):
             if j != k:
                 close.setdefault(k, []).append(j)
-        ids = tracks.ids[live].tolist()
-        for k, js in zip(mine, near):
-            if ids[k] not in tracks or len(js) < 2:
+        ids = tracks.ids[partial].tolist()
+        for k in mine:
+            if ids[k] not in tracks:
                 continue
             for j in sorted(close.get(k, ())):
                 cid, other = ids[k], ids[j]
                 if other not in tracks:
                     continue
-                mask, other_mask = self.support[live[k]] > 0, self.support[live[j]] > 0
+                mask, other_mask = self.support[partial[k]] > 0, self.support[partial[j]] > 0
                 if not other_mask.any() or (mask & other_mask).any():
                     continue  # shares a sensor, or no local track maps to it any more (pruned next)
                 keep, drop = min(cid, other), max(cid, other)
