@@ -203,25 +203,33 @@ def gate(z: np.ndarray, lin: Linearized, S: np.ndarray, gate_d2: float) -> tuple
 
 def assign(n_tracks: int, n_detections: int, rows: np.ndarray, cols: np.ndarray, cost: np.ndarray) -> np.ndarray:
     """Global nearest neighbour over candidate pairs (``rows``, ``cols``) with negative ``cost``:
-    the indices of the chosen pairs. Solved per connected component of the pair graph."""
+    the indices of the chosen pairs. Solved per connected component of the pair graph: a
+    component of one pair takes it, one of a single track or a single detection its cheapest
+    pair, the others ``linear_sum_assignment``."""
     usable = np.flatnonzero(cost < 0.0)
     if usable.size == 0:
         return usable
     r, c = rows[usable], cols[usable]
-    graph = coo_matrix((np.ones(usable.size), (r, n_tracks + c)),
-                       shape=(n_tracks + n_detections, n_tracks + n_detections))
+    n = n_tracks + n_detections
+    graph = coo_matrix((np.ones(usable.size), (r, n_tracks + c)), shape=(n, n))
     _, label = connected_components(graph, directed=False)
     comp = label[r]
     order = np.argsort(comp, kind="stable")
     usable, r, c, comp = usable[order], r[order], c[order], comp[order]
-    starts = np.flatnonzero(np.r_[True, comp[1:] != comp[:-1]])
-    ends = np.r_[starts[1:], usable.size]
-    single = ends - starts == 1
-    chosen = [usable[starts[single]]]
-    if not np.all(single):
-        local_r, n_r = _rank_in_component(r, comp)
-        local_c, n_c = _rank_in_component(c, comp)
-        for s, e in zip(starts[~single], ends[~single]):
+    local_r, n_r = _rank_in_component(r, comp, n)
+    local_c, n_c = _rank_in_component(c, comp, n)
+    star = (n_r[comp] == 1) | (n_c[comp] == 1)  # one track or one detection (or both: one pair)
+    # per star component, its cheapest pair (the first of equal ones)
+    by_cost = np.lexsort((np.arange(usable.size), cost[usable], comp))
+    by_cost = by_cost[star[by_cost]]
+    first = np.ones(by_cost.size, dtype=bool)
+    first[1:] = comp[by_cost[1:]] != comp[by_cost[:-1]]
+    chosen = [usable[by_cost[first]]]
+    full = np.flatnonzero(~star)
+    if full.size:
+        change = comp[full[1:]] != comp[full[:-1]]  # full components are contiguous runs of pairs
+        starts, ends = full[np.r_[True, change]], full[np.r_[change, True]] + 1
+        for s, e in zip(starts.tolist(), ends.tolist()):
             k = comp[s]
             sub = np.zeros((n_r[k], n_c[k]))
             pair = np.full((n_r[k], n_c[k]), -1)
@@ -233,15 +241,16 @@ def assign(n_tracks: int, n_detections: int, rows: np.ndarray, cols: np.ndarray,
     return np.concatenate(chosen)
 
 
-def _rank_in_component(v: np.ndarray, comp: np.ndarray) -> tuple[np.ndarray, dict[int, int]]:
-    """Per pair, the rank of its value ``v`` among the distinct values of its component, and the
-    number of distinct values per component (what ``np.unique`` per component gives, at once)."""
-    key = np.unique(np.column_stack([comp, v]), axis=0, return_inverse=True)
-    distinct, inverse = key[0], key[1].ravel()
-    first = np.r_[True, distinct[1:, 0] != distinct[:-1, 0]]
-    start = np.maximum.accumulate(np.where(first, np.arange(distinct.shape[0]), 0))
-    counts = np.diff(np.r_[np.flatnonzero(first), distinct.shape[0]])
-    return (np.arange(distinct.shape[0]) - start)[inverse], dict(zip(distinct[first, 0].tolist(), counts.tolist()))
+def _rank_in_component(v: np.ndarray, comp: np.ndarray, n_comp: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per pair, the rank of its value ``v`` (>= 0) among the distinct values of its component
+    ``comp`` (< ``n_comp``), and the number of distinct values per component (what ``np.unique``
+    per component gives, at once)."""
+    span = int(v.max()) + 1
+    distinct, inverse = np.unique(comp.astype(np.int64) * span + v, return_inverse=True)
+    owner = distinct // span
+    first = np.r_[True, owner[1:] != owner[:-1]]
+    start = np.maximum.accumulate(np.where(first, np.arange(distinct.size), 0))
+    return (np.arange(distinct.size) - start)[inverse.ravel()], np.bincount(owner, minlength=n_comp)
 
 
 def assign_by_precedence(n_detections: int, g: Gated, cost: np.ndarray, confirmed: np.ndarray) -> np.ndarray:
