@@ -403,3 +403,30 @@ def test_multitarget_messages_round_trip(make) -> None:
 def test_multitarget_messages_are_checked(change, field: str) -> None:
     with pytest.raises(WireError, match=field):
         change(track_report())
+
+
+@pytest.mark.parametrize("d", [4, 6])
+def test_picture_line_is_json_dumps_of_the_rows(d: int) -> None:
+    """The direct picture writer gives json.dumps' text exactly: symmetric and non-symmetric
+    covariances, NaN (json's spelling), mixed statuses, sensors and models."""
+    import json
+
+    from fedtrack.wire import picture_line, picture_rows
+
+    n = 7
+    X = RNG.normal(size=(n, d)) * 1e3
+    A = RNG.normal(size=(n, d, d))
+    P = A @ np.swapaxes(A, -1, -2)
+    P = 0.5 * (P + np.swapaxes(P, -1, -2))
+    ids, confirmed = list(range(3, 3 + n)), [k % 2 == 0 for k in range(n)]
+    sensors = [["s1", "s2"] if k % 3 else ['s"3'] for k in range(n)]
+    models = ["ca" if k == 2 else "cv" for k in range(n)]
+    skewed = P.copy()
+    skewed[:, 0, 1] += 1e-6
+    broken = X.copy()
+    broken[1, 0] = np.nan
+    for x, cov in ((X, P), (X, skewed), (broken, P)):
+        for m in (models, None):
+            expected = json.dumps({"t": 12.5, "tracks": picture_rows(ids, x, cov, confirmed, sensors, m)})
+            assert picture_line(12.5, ids, x, cov, confirmed, sensors, m) == expected
+    assert picture_line(0.0, [], np.zeros((0, d)), np.zeros((0, d, d)), [], []) == '{"t": 0.0, "tracks": []}'

@@ -16,7 +16,7 @@ from __future__ import annotations
 import bisect
 import time
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
@@ -35,14 +35,14 @@ from fedtrack.local_filters.mtt.maneuver import predicted_view
 from fedtrack.local_filters.mtt.models import motion, predict_tracks
 from fedtrack.local_filters.mtt.scan import SensorScan
 from fedtrack.local_filters.mtt.tracker import TrackerState, initial_state, track_params, tracker_step
-from fedtrack.wire import picture_rows
+from fedtrack.wire import picture_line
 
 ALGORITHMS = ("mtt-local", "mtt-centralized", "mtt-federated", "mtt-decentralized")
 
 
 class PictureTracks(NamedTuple):
     """The tracks of one picture, batched, every track predicted to the picture's time: what the
-    replay writes as rows (:meth:`rows`) and the live centre sends as a ``TrackPicture``."""
+    replay writes as a line (:meth:`line`) and the live centre sends as a ``TrackPicture``."""
 
     ids: list[int]
     x: np.ndarray  # (n, d) CV states (a CA track's marginal)
@@ -51,8 +51,9 @@ class PictureTracks(NamedTuple):
     sensors: list[list[str]]
     models: list[str]  # "cv" or "ca" per track
 
-    def rows(self) -> list[dict[str, Any]]:
-        return picture_rows(self.ids, self.x, self.P, self.confirmed, self.sensors, self.models)
+    def line(self, t: float) -> str:
+        """The picture's line in a tracks file (``{"t": t, "tracks": rows}`` as JSON)."""
+        return picture_line(t, self.ids, self.x, self.P, self.confirmed, self.sensors, self.models)
 
 
 def no_tracks(dim: int) -> PictureTracks:

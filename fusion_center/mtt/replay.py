@@ -12,15 +12,14 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
-import json
 import math
 import sys
 import time
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Iterator
 
 from fedtrack.config import ConfigError, load_tables
-from fedtrack.fusion_center.mtt.engines import ALGORITHMS, Engine, make_engine
+from fedtrack.fusion_center.mtt.engines import ALGORITHMS, Engine, PictureTracks, make_engine
 from fedtrack.jsonl import InputError, read_jsonl
 from fedtrack.local_filters.mtt.config import MttConfig, MttSettings
 from fedtrack.local_filters.mtt.scan import SensorLeft, SensorScan, parse_line
@@ -77,7 +76,7 @@ class PictureClock:
 
 
 def pictures(engine: Engine, scans: list[SensorScan | SensorLeft], period: float,
-             delay: float) -> Iterator[dict[str, Any]]:
+             delay: float) -> Iterator[tuple[float, PictureTracks]]:
     """Feed ``scans`` in arrival order and yield each picture once the data has passed its time."""
     clock = PictureClock(period, delay)
     for scan in scans:
@@ -91,11 +90,11 @@ def pictures(engine: Engine, scans: list[SensorScan | SensorLeft], period: float
         yield _picture(engine, T)
 
 
-def _picture(engine: Engine, T: float) -> dict[str, Any]:
+def _picture(engine: Engine, T: float) -> tuple[float, PictureTracks]:
     start = time.perf_counter()
-    picture = {"t": T, "tracks": engine.picture(T).rows()}
+    picture = engine.picture(T)
     engine.took("pictures", start)
-    return picture
+    return T, picture
 
 
 def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Path,
@@ -121,9 +120,9 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
     engine = make_engine(algorithm, cfg, dim, sensor)
     n = 0
     with out.open("w") as fh:
-        for pic in pictures(engine, scans, cfg.period, cfg.picture_delay):
+        for T, tracks in pictures(engine, scans, cfg.period, cfg.picture_delay):
             start = time.perf_counter()
-            fh.write(json.dumps(pic) + "\n")
+            fh.write(tracks.line(T) + "\n")
             engine.took("writing", start)
             n += 1
     counts = engine.counters()
