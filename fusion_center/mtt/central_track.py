@@ -159,10 +159,10 @@ class CentralTracks:
         self.t[slots, p], self.x[slots, p], self.P[slots, p], self.m[slots, p] = t, x, P, m
         self.H[slots, p, :m], self.R[slots, p, :m, :m], self.z[slots, p, :m] = H, R, z
 
-    def _trim(self, slots: np.ndarray) -> None:
-        """Fold the entries older than ``max_lag`` before each slot's newest into its checkpoint
-        (the last entry before that horizon becomes the oldest)."""
-        before = self.count[slots] - self._newer_than(slots, self.latest(slots)[0] - self.max_lag, or_at=True)
+    def _trim(self, slots: np.ndarray, t_newest: float | np.ndarray) -> None:
+        """Fold the entries older than ``max_lag`` before each slot's newest (at ``t_newest``) into
+        its checkpoint (the last entry before that horizon becomes the oldest)."""
+        before = self.count[slots] - self._newer_than(slots, np.asarray(t_newest) - self.max_lag, or_at=True)
         first = np.maximum(before - 1, 0)  # the newest entry before the horizon is the checkpoint
         self.head[slots] = (self.head[slots] + first) % self.depth
         self.count[slots] -= first
@@ -187,14 +187,15 @@ class CentralTracks:
             i = np.flatnonzero(ahead)
             s = slots[i]
             self._reserve(s, 1)
-            _, x0, P0 = self.latest(s)
-            x_out[i], P_out[i] = self._step(t_new[i], x0, P0, np.full(i.size, t), H[i], R[i], z[i])
+            p = self._pos(s, self.count[s] - 1)
+            x_out[i], P_out[i] = self._step(t_new[i], self.x[s, p], self.P[s, p], np.full(i.size, t), H[i], R[i], z[i])
             self._write(s, self.count[s], np.full(i.size, t), x_out[i], P_out[i], H[i], R[i], z[i])
             self.count[s] += 1
-            self._trim(s)
+            self._trim(s, t)
         behind = np.flatnonzero(ok & ~ahead)
         if behind.size:
-            x_out[behind], P_out[behind] = self._reprocess(slots[behind], t, H[behind], R[behind], z[behind])
+            x_out[behind], P_out[behind] = self._reprocess(slots[behind], t, H[behind], R[behind], z[behind],
+                                                           t_new[behind])
         return ok, x_out, P_out
 
     def _reserve(self, slots: np.ndarray, extra: int) -> None:
@@ -203,9 +204,10 @@ class CentralTracks:
         if need > self.depth:
             self._grow(self.capacity, max(2 * self.depth, need))
 
-    def _reprocess(self, slots: np.ndarray, t: float, H: np.ndarray, R: np.ndarray, z: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray]:
-        """Insert observations older than their tracks' newest and fuse the later ones again."""
+    def _reprocess(self, slots: np.ndarray, t: float, H: np.ndarray, R: np.ndarray, z: np.ndarray,
+                   t_newest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Insert observations older than their tracks' newest (at ``t_newest``) and fuse the later
+        ones again."""
         self._reserve(slots, 1)
         n_after = self._newer_than(slots, t)
         keep = self.count[slots] - n_after  # entries up to t stay (>= 1: the checkpoint is not after t)
@@ -231,5 +233,5 @@ class CentralTracks:
                 self._write(slots[g], keep[g] + 1 + j, tg, x_prev[g], P_prev[g], Hg, Rg, zg)
                 t_prev[g] = tg
         self.count[slots] = keep + n_after + 1
-        self._trim(slots)
+        self._trim(slots, t_newest)
         return x_at, P_at

@@ -51,19 +51,26 @@ def motion(dim: int, dt: float, q: float, noise_model: str = "continuous") -> Mo
 
 def predict_batch(x: np.ndarray, P: np.ndarray, dt: np.ndarray, q: float, noise_model: str = "continuous"
                   ) -> tuple[np.ndarray, np.ndarray]:
-    """Predict each of a batch (N, D) over its own interval ``dt`` (N,) (what :func:`motion` gives per track)."""
-    n, dim = x.shape
+    """Predict each of a batch (N, D) over its own interval ``dt`` (N,) (what :func:`motion` gives
+    per track). ``F = I + dt E`` (``E`` moves each velocity into its position), so ``F P F'`` is
+    two row and column operations instead of two stacked matrix products."""
     if noise_model == "continuous":
         q11, q12, q22 = q * dt**3 / 3.0, q * dt**2 / 2.0, q * dt
     else:
         q11, q12, q22 = q * dt**4 / 4.0, q * dt**3 / 2.0, q * dt**2
-    F = np.broadcast_to(np.eye(dim), (n, dim, dim)).copy()
-    Q = np.zeros((n, dim, dim))
+    dim = x.shape[1]
+    pos, vel = slice(0, dim, 2), slice(1, dim, 2)
+    xp = x.copy()
+    xp[:, pos] += dt[:, None] * x[:, vel]
+    FP = P.copy()
+    FP[:, pos, :] += dt[:, None, None] * P[:, vel, :]
+    Pp = FP.copy()
+    Pp[:, :, pos] += dt[:, None, None] * FP[:, :, vel]
     for a in range(0, dim, 2):
-        F[:, a, a + 1] = dt
-        Q[:, a, a], Q[:, a, a + 1], Q[:, a + 1, a], Q[:, a + 1, a + 1] = q11, q12, q12, q22
-    xp = np.einsum("nij,nj->ni", F, x)
-    Pp = F @ P @ np.swapaxes(F, -1, -2) + Q
+        Pp[:, a, a] += q11
+        Pp[:, a, a + 1] += q12
+        Pp[:, a + 1, a] += q12
+        Pp[:, a + 1, a + 1] += q22
     return xp, 0.5 * (Pp + np.swapaxes(Pp, -1, -2))
 
 
