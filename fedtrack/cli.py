@@ -13,7 +13,6 @@ tune_process()  # before numpy is imported: one BLAS thread, malloc keeps its pa
 
 import argparse
 import importlib
-import importlib.metadata
 import sys
 from pathlib import Path
 from typing import Any, Callable
@@ -145,6 +144,8 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
 def version() -> str:
     """``fedtrack X.Y.Z (zenoh A.B.C, Python D.E.F)``."""
+    import importlib.metadata  # only here: 50 ms of start-up for every other command
+
     def of(dist: str) -> str:
         try:
             return importlib.metadata.version(dist)
@@ -152,6 +153,19 @@ def version() -> str:
             return "not installed"
     return (f"fedtrack {of('fedtrack')} (eclipse-zenoh {of('eclipse-zenoh')}, "
             f"Python {sys.version.split()[0]})")
+
+
+class _VersionAction(argparse.Action):
+    """``--version``: prints :func:`version`, looked up only when asked for."""
+
+    def __init__(self, option_strings: list[str], dest: str = argparse.SUPPRESS, **kwargs: Any) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=argparse.SUPPRESS,
+                         help="show the versions of fedtrack, zenoh and Python, and exit")
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        print(version())
+        parser.exit()
 
 
 def _registry_parser(sub: Any, name: str, help_text: str, key: str, registry: dict[str, str],
@@ -172,7 +186,7 @@ def _registry_parser(sub: Any, name: str, help_text: str, key: str, registry: di
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="fedtrack", description=__doc__.splitlines()[0])
-    parser.add_argument("--version", action="version", version=version())
+    parser.add_argument("--version", action=_VersionAction)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     rep = sub.add_parser("reproduce", help="seeded Monte Carlo reproduction of a paper")
