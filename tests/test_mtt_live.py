@@ -207,3 +207,22 @@ def test_empty_reports_and_resets_cross_the_wire(d: int) -> None:
     resets = decode(encode(resets_to_wire(3, no_resets("s1", 0.5, d), 2.0)), TrackResets)
     back_resets = resets_from_wire(resets)
     assert resets.x.shape == (0, d) and back_resets.ids.size == 0 and back_resets.P.shape == (0, d, d)
+
+
+def test_a_report_with_observations_of_an_unusable_size_is_rejected() -> None:
+    """A well-formed report whose observations are not a position (2) or a radar's (3) within the
+    local state is rejected as wrong_model before the centre changes anything (it would not fit
+    the central tracks' buffers)."""
+    from fedtrack.services.base import Rejected
+
+    opts = SessionOptions(connect=(f"tcp/127.0.0.1:{free_port()}",), connect_timeout_s=0.5)  # never opened
+    centre = MttCentreService("mtt-federated", MttConfig(), 6, service_id="centre", options=opts, deployment="mttlive")
+    for d, m in ((4, 3), (6, 5), (4, 1)):
+        k = 1
+        report = TrackReport(sensor="s1", seq=1, t=1.0, ids=(0,), x=np.zeros((1, d)), P=np.eye(d),
+                             confirmed=(True,), detected=(True,), obs_H=np.ones((k * m, d)),
+                             obs_R=np.tile(np.eye(m), (k, 1)), obs_z=np.zeros((k, m)), started=(True,),
+                             retired=(), stamp_ns=1)
+        with pytest.raises(Rejected, match="wrong_model: observations of size"):
+            centre.on_report(report)
+    assert centre.engine.centre is None and centre.order == []

@@ -177,6 +177,8 @@ class CentralTracks:
         before ``t``, step by step over all those tracks at once (one batched prediction and
         update per step and observation size).
         """
+        if H.shape[1] > self.H.shape[2]:
+            raise ValueError(f"observations of size {H.shape[1]} in a {self.dim}-D central state")
         n = slots.shape[0]
         x_out, P_out = np.zeros((n, self.dim)), np.zeros((n, self.dim, self.dim))
         t_new = self.latest(slots)[0]

@@ -131,6 +131,9 @@ class MttCentreService(Service):
         d = msg.x.shape[1] if msg.ids else None
         if d is not None and (d not in (4, 6) or d > self.dim):
             raise Rejected("wrong_model", f"local state of size {d} at a centre of size {self.dim}")
+        m = msg.obs_z.shape[1]
+        if msg.obs_z.shape[0] and not (m in (2, 3) and m <= d // 2):  # a position, or a radar's 3
+            raise Rejected("wrong_model", f"observations of size {m} from a local state of size {d}")
         if not self._admit(msg):
             self.count("duplicate")
             return
