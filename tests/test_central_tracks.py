@@ -71,3 +71,26 @@ def test_observations_older_than_max_lag_or_the_checkpoint_are_late() -> None:
     assert list(store) == [7] and 7 in store and len(store) == 1
     store.delete(7)
     assert list(store) == [] and 7 not in store
+
+
+def test_a_track_keeps_at_most_max_entries() -> None:
+    """Observations that all stay within max_lag (one repeated time stamp) fold the oldest into
+    the checkpoint beyond MAX_ENTRIES: the ring stops growing, and the state still equals the KF
+    over every observation (folding loses nothing for in-order data)."""
+    from fedtrack.fusion_center.mtt.central_track import MAX_ENTRIES
+
+    store = CentralTracks(4, Q, "continuous", max_lag=5.0)
+    x0, P0 = np.zeros(4), np.eye(4) * 100.0
+    store.start(1, 0.0, x0, P0)
+    slots = store.slots_of([1])
+    H, R = position_matrix(4), np.eye(2)
+    obs = []
+    for k in range(MAX_ENTRIES + 40):
+        z = np.array([0.01 * k, -0.02 * k])
+        assert store.fuse(slots, 1.0, H[None], R[None], z[None])[0][0]
+        obs.append((1.0, H, R, z))
+    assert store.count[slots[0]] == MAX_ENTRIES and store.depth == MAX_ENTRIES
+    x_ref, P_ref = sorted_kf(x0, P0, 0.0, obs)
+    _, x, P = store.latest(slots)
+    np.testing.assert_allclose(x[0], x_ref, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(P[0], P_ref, rtol=0, atol=1e-9)

@@ -25,6 +25,13 @@ from fedtrack.local_filters.mtt.models import predict_batch
 from fedtrack.local_filters.linear.kalman import GaussianState, update
 
 
+# At most this many kept entries per central track (the ring's largest depth): far more than
+# max_lag seconds of any real sensor set hold (8 sensors at 10 Hz over 3 s: 240), so that a
+# sensor repeating one time stamp cannot grow every track's buffer without bound; beyond it the
+# oldest observation is folded into the checkpoint (an older one is then late).
+MAX_ENTRIES = 256
+
+
 def _grown(a: np.ndarray, rows: int, depth: int | None = None) -> np.ndarray:
     """``a`` zero-padded to ``rows`` rows (and ``depth`` ring entries along axis 1)."""
     if depth is None:
@@ -179,6 +186,10 @@ class CentralTracks:
         """
         if H.shape[1] > self.H.shape[2]:
             raise ValueError(f"observations of size {H.shape[1]} in a {self.dim}-D central state")
+        full = slots[self.count[slots] >= MAX_ENTRIES]
+        if full.size:  # fold the oldest kept observation into the checkpoint: memory stays bounded
+            self.head[full] = (self.head[full] + 1) % self.depth
+            self.count[full] -= 1
         n = slots.shape[0]
         x_out, P_out = np.zeros((n, self.dim)), np.zeros((n, self.dim, self.dim))
         t_new = self.latest(slots)[0]
