@@ -32,14 +32,12 @@ from fedtrack.local_filters.linear.kalman import GaussianState, update
 MAX_ENTRIES = 256
 
 
-def _grown(a: np.ndarray, rows: int, depth: int | None = None) -> np.ndarray:
-    """``a`` zero-padded to ``rows`` rows (and ``depth`` ring entries along axis 1)."""
-    if depth is None:
-        out = np.zeros((rows,) + a.shape[1:], a.dtype)
-        out[: a.shape[0]] = a
-    else:
-        out = np.zeros((rows, depth) + a.shape[2:], a.dtype)
-        out[: a.shape[0], : a.shape[1]] = a
+def padded(a: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
+    """``a`` in the corner of a zero array of ``shape`` (each axis at least ``a``'s)."""
+    if a.shape == shape:
+        return a
+    out = np.zeros(shape, a.dtype)
+    out[tuple(slice(0, n) for n in a.shape)] = a
     return out
 
 
@@ -107,9 +105,11 @@ class CentralTracks:
                 setattr(self, name, np.take_along_axis(a, order.reshape(order.shape + (1,) * (a.ndim - 2)), axis=1))
             self.head[:] = 0
         for name in self._RING:
-            setattr(self, name, _grown(getattr(self, name), capacity, depth))
+            a = getattr(self, name)
+            setattr(self, name, padded(a, (capacity, depth) + a.shape[2:]))
         for name in self._PER_SLOT:
-            setattr(self, name, _grown(getattr(self, name), capacity))
+            a = getattr(self, name)
+            setattr(self, name, padded(a, (capacity,) + a.shape[1:]))
         self.ids[old:] = -1
         self.free = list(range(capacity - 1, old - 1, -1)) + self.free
 

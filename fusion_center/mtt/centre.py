@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from fedtrack.fusion_center.mtt.central_track import CentralTracks
+from fedtrack.fusion_center.mtt.central_track import CentralTracks, padded
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import LocalReport, Resets, no_resets
 from fedtrack.local_filters.mtt.tracker import assign
@@ -89,15 +89,6 @@ def candidate_pairs(pos: np.ndarray, spread: np.ndarray, rows: list[int], gate: 
     return out
 
 
-def _padded(a: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
-    """``a`` in the corner of a zero array of ``shape`` (no larger than needed: ``a`` fits)."""
-    if a.shape == shape:
-        return a
-    out = np.zeros(shape, a.dtype)
-    out[tuple(slice(0, n) for n in a.shape)] = a
-    return out
-
-
 @dataclass
 class TrackToTrackCentre:
     """Central tracks of dimension ``dim`` (4 or 6) fused from local trackers' reports.
@@ -129,10 +120,10 @@ class TrackToTrackCentre:
     def _fit(self) -> None:
         """Size the per-slot arrays to the track table's capacity and the sensors seen."""
         rows, cols = self.tracks.capacity, len(self.sensor_names)
-        self.support = _padded(self.support, (rows, cols))
-        self.streak = _padded(self.streak, (rows, cols))
-        self.window = _padded(self.window, (rows, self.cfg.confirm_window))
-        self.last_support = _padded(self.last_support, (rows,))
+        self.support = padded(self.support, (rows, cols))
+        self.streak = padded(self.streak, (rows, cols))
+        self.window = padded(self.window, (rows, self.cfg.confirm_window))
+        self.last_support = padded(self.last_support, (rows,))
 
     def _col(self, sensor: str) -> int:
         col = self._column.get(sensor)
@@ -223,7 +214,7 @@ class TrackToTrackCentre:
         # hysteresis: a mapped local track inconsistent with its central track unmap_after times in a row
         check = [k for k, cid in enumerate(cid_of) if cid is not None and not started[k]]
         if check:
-            xc, Pc = self._priors([cid_of[k] for k in check], t)
+            xc, Pc = self.tracks.states_at(self.tracks.slots_of([cid_of[k] for k in check]), t)
             rows = det_rows[check]
             diff = report.x[rows] - xc[:, :d]
             d2 = np.einsum("ni,ni->n", diff, np.linalg.solve(report.P[rows] + Pc[:, :d, :d], diff[..., None])[..., 0])
@@ -258,8 +249,8 @@ class TrackToTrackCentre:
         if self.feedback and rows.size:
             resets = Resets(s, t, report.ids[det_rows[rows]], x_post[rows, :d], beta * P_post[rows, :d, :d])
         self._count_scan(col, supported)
-        cids = np.array(cid_of, dtype=np.int64)
-        self._merge_duplicates(set(cids[self.tracks.ids[slots] == cids].tolist()), t)  # still live
+        still_live = self.tracks.ids[slots] == np.array(cid_of, dtype=np.int64)
+        self._merge_duplicates(np.unique(slots[still_live]), t)
         return resets
 
     def _count_scan(self, col: int, detected: np.ndarray) -> None:
@@ -293,10 +284,6 @@ class TrackToTrackCentre:
         self.tracks.delete(cid)
         self.counters.deleted += 1
 
-    def _priors(self, cids: list[int], t: float) -> tuple[np.ndarray, np.ndarray]:
-        """Central estimates at ``t`` (batched); a track newer than ``t`` gives its estimate at ``t``."""
-        return self.tracks.states_at(self.tracks.slots_of(cids), t)
-
     def _fuse_scan(self, report: LocalReport, slots: np.ndarray, fresh: np.ndarray, t: float
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Fuse the scan's observations into their central tracks' ``slots``; returns per detected
@@ -321,19 +308,19 @@ class TrackToTrackCentre:
             pending = np.setdiff1d(pending, now)
         return ok, X, P
 
-    def _merge_duplicates(self, updated: set[int], t: float) -> None:
+    def _merge_duplicates(self, updated: np.ndarray, t: float) -> None:
         """Merge a central track into an older one that passes the track-to-track test and shares
         no sensor with it (two sensors' tracks of one target that missed each other at the start).
 
         Both tracks of such a pair lack some sensor that has local tracks (a track supported by
         every such sensor shares one with any other), so only those tracks are looked at."""
         tracks = self.tracks
-        if len(tracks) < 2 or not updated:
+        if len(tracks) < 2 or not updated.size:
             return
         everyone = self.support.any(axis=0)
         live = tracks.live()
         partial = live[((self.support[live] > 0) != everyone).any(axis=1)]
-        mine_slots = np.intersect1d(tracks.slots_of(list(updated)), partial)
+        mine_slots = np.intersect1d(updated, partial)  # ``updated``: the slots of this scan's tracks
         if not mine_slots.size or partial.size < 2:
             return
         cfg = self.cfg

@@ -209,8 +209,6 @@ def assign(n_tracks: int, n_detections: int, rows: np.ndarray, cols: np.ndarray,
     usable = np.flatnonzero(cost < 0.0)
     if usable.size == 0:
         return usable
-    if np.any(rows[usable][1:] < rows[usable][:-1]):  # the track-major order the graph is built in
-        usable = usable[np.argsort(rows[usable], kind="stable")]
     r, c = rows[usable], cols[usable]
     n = n_tracks + n_detections
     _, label = connected_components(_pair_graph(n_tracks, n, r, c), directed=False)
@@ -243,8 +241,10 @@ def assign(n_tracks: int, n_detections: int, rows: np.ndarray, cols: np.ndarray,
 
 
 def _pair_graph(n_tracks: int, n: int, r: np.ndarray, c: np.ndarray) -> csr_matrix:
-    """The bipartite graph of pairs (track ``r``, detection ``c``, ``r`` ascending) on ``n`` nodes
-    (tracks, then detections), built straight as CSR (a COO build and conversion cost 2.5x)."""
+    """The bipartite graph of pairs (track ``r``, detection ``c``) on ``n`` nodes (tracks, then
+    detections), built straight as CSR (a COO build and conversion cost 2.5x)."""
+    if np.any(r[1:] < r[:-1]):  # CSR lists each track's detections together
+        c = c[np.argsort(r, kind="stable")]
     indptr = np.zeros(n + 1, dtype=np.int32)
     indptr[1:n_tracks + 1] = np.cumsum(np.bincount(r, minlength=n_tracks))
     indptr[n_tracks + 1:] = indptr[n_tracks]
