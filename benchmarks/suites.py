@@ -120,6 +120,12 @@ def bench_multitarget(quick: bool) -> dict[str, Any]:
                 runs[algorithm].append(timed_with_log(fedtrack_cmd(
                     "replay", "--algorithm", algorithm, "--config", str(sim / "config.toml"),
                     "--measurements", str(sim / "measurements.jsonl"), "--out", str(sim / f"{algorithm}.jsonl"))))
+        # the central tracks' maneuver detector's cost: federated with [mtt] maneuver = "vdie", once
+        vdie_config = sim / "vdie.toml"
+        vdie_config.write_text((sim / "config.toml").read_text().replace("[mtt]\n", '[mtt]\nmaneuver = "vdie"\n', 1))
+        runs["mtt-federated:vdie"] = [timed_with_log(fedtrack_cmd(
+            "replay", "--algorithm", "mtt-federated", "--config", str(vdie_config),
+            "--measurements", str(sim / "measurements.jsonl"), "--out", str(sim / "vdie.jsonl")))]
         for algorithm, done in runs.items():
             wall, rss, log = min(done, key=lambda run: run[0])
             out["scale"][algorithm] = {"wall_s": wall, "s_per_scan": wall / scans, "x_real_time": duration / wall,
@@ -148,11 +154,15 @@ def bench_multitarget(quick: bool) -> dict[str, Any]:
                     "--measurements", str(default / "measurements.jsonl"), "--out", str(tracks[prefix + name])))
         out["stonesoup_gnn_s"] = stonesoup_runs(default, config, sensors, tracks)
         gospa: dict[str, float] = {}
+        out["maneuver_flags"] = {}  # evaluate's maneuver section, where a tracker flags maneuvers
         for name, path in tracks.items():
             result = default / "eval.json"
             timed(fedtrack_cmd("evaluate", "--tracks", str(path), "--truth", str(default / "truth.jsonl"),
                                "--json", str(result)))
-            gospa[name] = json.loads(result.read_text())["mean"]["gospa"]
+            evaluation = json.loads(result.read_text())
+            gospa[name] = evaluation["mean"]["gospa"]
+            if evaluation["maneuvers"]["onsets"]:
+                out["maneuver_flags"][name] = evaluation["maneuvers"]
         best_local = min(v for k, v in gospa.items() if k.startswith("mtt-local"))
         cv = {k[3:]: v for k, v in gospa.items() if k.startswith("cv:")}
         out["gospa_default"] = gospa

@@ -136,13 +136,17 @@ class Deployment:
 
 def assert_same_pictures(live: list[dict[str, Any]], again: list[dict[str, Any]]) -> None:
     """Two multi-target picture streams (a live run and the replay of its recording) are the same:
-    the same times, track ids, statuses and sensors, states and covariances to 1e-9."""
+    the same times, track ids, statuses, sensors and models, states and covariances to 1e-9, and
+    the same central maneuvers (``maneuver``)."""
     import numpy as np
 
     assert [p["t"] for p in again] == [p["t"] for p in live]
     for a, b in zip(live, again):
-        assert [(t["id"], t["status"], t["sensors"]) for t in a["tracks"]] == \
-            [(t["id"], t["status"], t["sensors"]) for t in b["tracks"]]
+        assert [(t["id"], t["status"], t["sensors"], t["model"], "maneuver" in t) for t in a["tracks"]] == \
+            [(t["id"], t["status"], t["sensors"], t["model"], "maneuver" in t) for t in b["tracks"]]
         for ta, tb in zip(a["tracks"], b["tracks"]):
             np.testing.assert_allclose(ta["x"], tb["x"], rtol=1e-9, atol=1e-9)
             np.testing.assert_allclose(ta["P"], tb["P"], rtol=1e-9, atol=1e-9)
+            if "maneuver" in ta:
+                for key in ("onset", "accel", "statistic"):
+                    np.testing.assert_allclose(ta["maneuver"][key], tb["maneuver"][key], rtol=1e-9, atol=1e-9)

@@ -32,6 +32,7 @@ clutter = 3.0
 [mtt]
 clutter_density = 1.2e-7
 sensors = ["s1", "r2", "s3"]
+maneuver = "vdie"
 
 [mtt.sensor.r2]
 clutter_density = 1e-8

@@ -385,7 +385,22 @@ def scan() -> Measurement:
                        detections=((np.array([900.0, 0.1, 0.02]), 0.0),), sensor_position=np.zeros(3), stamp_ns=5)
 
 
-@pytest.mark.parametrize("make", [track_report, track_resets, track_picture, scan])
+def maneuver_picture() -> TrackPicture:
+    """A picture of two central tracks, the second's maneuver detected."""
+    return TrackPicture(seq=3, t=3.0, ids=(9, 12), x=RNG.normal(size=(2, 4)), P=np.concatenate([spd(4), spd(4)]),
+                        confirmed=(True, False), sensors=(("s1",), ("s2",)), fused_sensors=(), fused_seqs=(),
+                        stamp_ns=25, maneuvering=(1,), maneuver=np.array([[2.1, 1.5, -0.5, 31.0]]))
+
+
+def test_a_picture_carries_central_maneuvers_to_its_replay_line() -> None:
+    from fedtrack.wire import picture_to_replay
+
+    rows = picture_to_replay(decode(encode(maneuver_picture()), TrackPicture))["tracks"]
+    assert "maneuver" not in rows[0]
+    assert rows[1]["maneuver"] == {"onset": 2.1, "accel": [1.5, -0.5], "statistic": 31.0}
+
+
+@pytest.mark.parametrize("make", [track_report, track_resets, track_picture, scan, maneuver_picture])
 def test_multitarget_messages_round_trip(make) -> None:
     msg = make()
     back = decode(encode(msg), type(msg))
@@ -399,6 +414,10 @@ def test_multitarget_messages_round_trip(make) -> None:
     (lambda m: TrackResets(**{**vars(track_resets()), "q_scale": 0.5}), "q_scale"),
     (lambda m: TrackPicture(**{**vars(track_picture()), "fused_seqs": (5,)}), "fused_seqs"),
     (lambda m: TrackPicture(**{**vars(track_picture()), "closing": True}), "ids"),  # a closing record has none
+    (lambda m: TrackPicture(**{**vars(maneuver_picture()), "maneuvering": (2,)}), "maneuvering"),  # no such track
+    (lambda m: TrackPicture(**{**vars(maneuver_picture()), "maneuvering": (0, 1)}), "maneuver"),  # one row short
+    (lambda m: TrackPicture(**{**vars(maneuver_picture()), "maneuver": None}), "maneuver"),
+    (lambda m: TrackPicture(**{**vars(maneuver_picture()), "maneuver": np.array([[np.nan, 0, 0, 1.0]])}), "maneuver"),
 ])
 def test_multitarget_messages_are_checked(change, field: str) -> None:
     with pytest.raises(WireError, match=field):

@@ -10,9 +10,11 @@ the result equals fusing the time-sorted observations, to round-off. An observat
 ``max_lag`` (or than the checkpoint) is late and not fused. Why this and not a retrodiction
 method: see docs/multitarget.md.
 
-The maths is :func:`predict_batch` and the Joseph-form :func:`update`; this module only
-gathers their inputs from the slots and scatters the results back, so that the centre's cost
-per report is a handful of array operations, not a walk over Python objects per track.
+The maths is :func:`predict_batch` and the Joseph-form :func:`update` (and, with a maneuver
+detector, :func:`.central_maneuver.input_step`, whose bank is kept per entry as the posterior
+is); this module only gathers their inputs from the slots and scatters the results back, so that
+the centre's cost per report is a handful of array operations, not a walk over Python objects
+per track.
 """
 
 from __future__ import annotations
@@ -21,8 +23,19 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from fedtrack.local_filters.mtt.models import predict_batch
+from fedtrack.fusion_center.mtt.central_maneuver import (
+    InputBank,
+    InputDetection,
+    input_step,
+    new_banks,
+    no_detection,
+)
 from fedtrack.local_filters.linear.kalman import GaussianState, update
+from fedtrack.local_filters.mtt.models import predict_batch
+from fedtrack.local_filters.vdie.estimation import VdieParams
+
+# one step's result beside the posterior: the maneuver detector's banks and detection, if any
+DetectorStep = tuple[InputBank, InputDetection] | None
 
 
 # At most this many kept entries per central track (the ring's largest depth): far more than
@@ -46,11 +59,15 @@ class CentralTracks:
 
     Ring entry ``j`` (0 = oldest) of slot ``s`` is at ``(head[s] + j) % depth``; ``count[s]``
     entries are live. Per entry: time ``t``, posterior ``x``, ``P``, and the observation fused
-    there (``m`` rows of ``H``, ``R``, ``z``; ``m = 0`` for a track's starting state).
+    there (``m`` rows of ``H``, ``R``, ``z``; ``m = 0`` for a track's starting state). With a
+    maneuver ``detector``, also the input estimator's bank after the entry (``bank_*``, the
+    fields of :class:`InputBank`) and its detection (``det_*``).
     """
 
-    def __init__(self, dim: int, q: float, noise_model: str, max_lag: float, capacity: int = 64, depth: int = 8):
+    def __init__(self, dim: int, q: float, noise_model: str, max_lag: float, capacity: int = 64, depth: int = 8,
+                 detector: VdieParams | None = None):
         self.dim, self.q, self.noise_model, self.max_lag = dim, q, noise_model, max_lag
+        self.detector = detector
         mmax = dim // 2  # a position (2 or 3) or a radar's (range, azimuth, elevation)
         self.slot: dict[int, int] = {}  # central track id -> slot
         self.free: list[int] = list(range(capacity - 1, -1, -1))
@@ -65,6 +82,14 @@ class CentralTracks:
         self.H = np.zeros((capacity, depth, mmax, dim))
         self.R = np.zeros((capacity, depth, mmax, mmax))
         self.z = np.zeros((capacity, depth, mmax))
+        self._ring = self._RING
+        if detector is not None:
+            for name, a in zip(InputBank._fields, new_banks(capacity * depth, detector.window, dim, 0.0)):
+                setattr(self, "bank_" + name, a.reshape((capacity, depth) + a.shape[1:]))
+            for name, a in zip(InputDetection._fields, no_detection(capacity * depth)):
+                setattr(self, "det_" + name, a.reshape((capacity, depth) + a.shape[1:]))
+            self._ring += tuple("bank_" + n for n in InputBank._fields) + tuple(
+                "det_" + n for n in InputDetection._fields)
 
     _RING = ("t", "x", "P", "m", "H", "R", "z")
     _PER_SLOT = ("ids", "confirmed", "head", "count")
@@ -100,11 +125,11 @@ class CentralTracks:
         old = self.capacity
         if depth != self.depth:
             order = (self.head[:, None] + np.arange(self.depth)) % self.depth
-            for name in self._RING:
+            for name in self._ring:
                 a = getattr(self, name)
                 setattr(self, name, np.take_along_axis(a, order.reshape(order.shape + (1,) * (a.ndim - 2)), axis=1))
             self.head[:] = 0
-        for name in self._RING:
+        for name in self._ring:
             a = getattr(self, name)
             setattr(self, name, padded(a, (capacity, depth) + a.shape[2:]))
         for name in self._PER_SLOT:
@@ -121,6 +146,9 @@ class CentralTracks:
         self.slot[cid] = s
         self.ids[s], self.confirmed[s], self.head[s], self.count[s] = cid, False, 0, 1
         self.t[s, 0], self.x[s, 0], self.P[s, 0], self.m[s, 0] = t, x, P, 0
+        if self.detector is not None:
+            self._write_detector(np.array([s]), np.zeros(1, dtype=np.int64),
+                                 (new_banks(1, self.detector.window, self.dim, t), no_detection(1)))
         return s
 
     def delete(self, cid: int) -> None:
@@ -144,27 +172,55 @@ class CentralTracks:
         times, t = self.t[slots], np.asarray(t).reshape(-1, 1)
         return np.count_nonzero(live & (times >= t if or_at else times > t), axis=1)
 
+    def _entry_at(self, slots: np.ndarray, t: float) -> np.ndarray:
+        """The ring position of each slot's newest entry up to ``t`` (the checkpoint if none)."""
+        return self._pos(slots, np.maximum(self.count[slots] - 1 - self._newer_than(slots, t), 0))
+
     def states_at(self, slots: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
         """The estimates (N, D), (N, D, D) of ``slots`` at ``t`` from their observations up to ``t``
         (a track whose checkpoint is newer than ``t`` gives its checkpoint), one batched prediction."""
-        k = np.maximum(self.count[slots] - 1 - self._newer_than(slots, t), 0)
-        p = self._pos(slots, k)
+        p = self._entry_at(slots, t)
         dt = np.round(np.maximum(t - self.t[slots, p], 0.0), 12)
         return predict_batch(self.x[slots, p], self.P[slots, p], dt, self.q, self.noise_model)
 
+    def maneuvers_at(self, slots: np.ndarray, t: float) -> InputDetection:
+        """The maneuver detector's result after each slot's newest observation up to ``t`` (the
+        entry :meth:`states_at` predicts from); no estimate without a detector."""
+        if self.detector is None:
+            return no_detection(slots.size)
+        p = self._entry_at(slots, t)
+        return InputDetection(*(getattr(self, "det_" + n)[slots, p] for n in InputDetection._fields))
+
+    def _bank_at(self, slots: np.ndarray, p: np.ndarray) -> InputBank | None:
+        if self.detector is None:
+            return None
+        return InputBank(*(getattr(self, "bank_" + n)[slots, p] for n in InputBank._fields))
+
     def _step(self, t0: np.ndarray, x: np.ndarray, P: np.ndarray, t: np.ndarray, H: np.ndarray, R: np.ndarray,
-              z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Posteriors after predicting each ``(x, P)`` from ``t0`` to ``t`` and fusing ``(H, R, z)``."""
-        xp, Pp = predict_batch(x, P, np.round(t - t0, 12), self.q, self.noise_model)
-        return update(GaussianState(xp, Pp), z, H, R)[0]
+              z: np.ndarray, bank: InputBank | None) -> tuple[np.ndarray, np.ndarray, DetectorStep]:
+        """Posteriors after predicting each ``(x, P)`` from ``t0`` to ``t`` and fusing ``(H, R, z)``,
+        and the maneuver detector's step from ``bank`` (None without a detector)."""
+        dt = np.round(t - t0, 12)
+        xp, Pp = predict_batch(x, P, dt, self.q, self.noise_model)
+        post = update(GaussianState(xp, Pp), z, H, R)[0]
+        return post.x, post.P, None if bank is None else input_step(bank, dt, xp, Pp, H, R, z, t)
 
     def _write(self, slots: np.ndarray, j: np.ndarray, t: np.ndarray, x: np.ndarray, P: np.ndarray,
-               H: np.ndarray, R: np.ndarray, z: np.ndarray) -> None:
-        """Ring entry ``j`` of each slot: the observation ``(H, R, z)`` at ``t`` and the posterior after it."""
+               H: np.ndarray, R: np.ndarray, z: np.ndarray, step: DetectorStep) -> None:
+        """Ring entry ``j`` of each slot: the observation ``(H, R, z)`` at ``t`` and the posterior
+        (and detector step) after it."""
         p = self._pos(slots, j)
         m = H.shape[1]
         self.t[slots, p], self.x[slots, p], self.P[slots, p], self.m[slots, p] = t, x, P, m
         self.H[slots, p, :m], self.R[slots, p, :m, :m], self.z[slots, p, :m] = H, R, z
+        if step is not None:
+            self._write_detector(slots, j, step)
+
+    def _write_detector(self, slots: np.ndarray, j: np.ndarray, step: tuple[InputBank, InputDetection]) -> None:
+        p = self._pos(slots, j)
+        for prefix, record in zip(("bank_", "det_"), step):
+            for name, a in zip(record._fields, record):
+                getattr(self, prefix + name)[slots, p] = a
 
     def _trim(self, slots: np.ndarray, t_newest: float | np.ndarray) -> None:
         """Fold the entries older than ``max_lag`` before each slot's newest (at ``t_newest``) into
@@ -201,8 +257,9 @@ class CentralTracks:
             s = slots[i]
             self._reserve(s, 1)
             p = self._pos(s, self.count[s] - 1)
-            x_out[i], P_out[i] = self._step(t_new[i], self.x[s, p], self.P[s, p], np.full(i.size, t), H[i], R[i], z[i])
-            self._write(s, self.count[s], np.full(i.size, t), x_out[i], P_out[i], H[i], R[i], z[i])
+            x_out[i], P_out[i], step = self._step(t_new[i], self.x[s, p], self.P[s, p], np.full(i.size, t),
+                                                  H[i], R[i], z[i], self._bank_at(s, p))
+            self._write(s, self.count[s], np.full(i.size, t), x_out[i], P_out[i], H[i], R[i], z[i], step)
             self.count[s] += 1
             self._trim(s, t)
         behind = np.flatnonzero(ok & ~ahead)
@@ -233,18 +290,24 @@ class CentralTracks:
         p = self._pos(slots, keep - 1)
         t_prev, x_prev, P_prev = self.t[slots, p], self.x[slots, p], self.P[slots, p]
         every = np.arange(slots.size)
-        x_at, P_at = self._step(t_prev, x_prev, P_prev, np.full(slots.size, t), H, R, z)
-        self._write(slots, keep, np.full(slots.size, t), x_at, P_at, H, R, z)
+        x_at, P_at, step = self._step(t_prev, x_prev, P_prev, np.full(slots.size, t), H, R, z,
+                                      self._bank_at(slots, p))
+        self._write(slots, keep, np.full(slots.size, t), x_at, P_at, H, R, z, step)
         t_prev[:], x_prev, P_prev = t, x_at.copy(), P_at.copy()
+        bank = None if step is None else step[0]  # each slot's bank after its latest re-fused entry
         for j in later.tolist():
             again = every[n_after > j]
             sizes = old_m[again, j]
             for m in np.unique(sizes).tolist():
                 g = again[sizes == m]
                 tg, Hg, Rg, zg = old_t[g, j], old_H[g, j, :m], old_R[g, j, :m, :m], old_z[g, j, :m]
-                x_prev[g], P_prev[g] = self._step(t_prev[g], x_prev[g], P_prev[g], tg, Hg, Rg, zg)
-                self._write(slots[g], keep[g] + 1 + j, tg, x_prev[g], P_prev[g], Hg, Rg, zg)
+                x_prev[g], P_prev[g], step = self._step(t_prev[g], x_prev[g], P_prev[g], tg, Hg, Rg, zg,
+                                                        None if bank is None else InputBank(*(a[g] for a in bank)))
+                self._write(slots[g], keep[g] + 1 + j, tg, x_prev[g], P_prev[g], Hg, Rg, zg, step)
                 t_prev[g] = tg
+                if step is not None:
+                    for a, new in zip(bank, step[0]):
+                        a[g] = new
         self.count[slots] = keep + n_after + 1
         self._trim(slots, t_newest)
         return x_at, P_at

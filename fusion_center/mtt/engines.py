@@ -50,10 +50,19 @@ class PictureTracks(NamedTuple):
     confirmed: list[bool]
     sensors: list[list[str]]
     models: list[str]  # "cv" or "ca" per track
+    # (n, 4) central tracks' detected maneuvers [onset, ax, ay, statistic], NaN rows where none;
+    # None where no central maneuver detector runs
+    maneuver: np.ndarray | None = None
+
+    def maneuvering(self) -> set[int]:
+        """The ids of the central tracks whose maneuver is detected."""
+        if self.maneuver is None:
+            return set()
+        return {self.ids[i] for i in np.flatnonzero(~np.isnan(self.maneuver[:, 0])).tolist()}
 
     def line(self, t: float) -> str:
         """The picture's line in a tracks file (``{"t": t, "tracks": rows}`` as JSON)."""
-        return picture_line(t, self.ids, self.x, self.P, self.confirmed, self.sensors, self.models)
+        return picture_line(t, self.ids, self.x, self.P, self.confirmed, self.sensors, self.models, self.maneuver)
 
 
 def no_tracks(dim: int) -> PictureTracks:
@@ -223,8 +232,13 @@ class TrackToTrackEngine(Engine):
             return no_tracks(self.dim)
         slots = c.tracks.live()
         X, P = c.tracks.states_at(slots, T)
+        maneuver = None
+        if c.tracks.detector is not None:
+            det = c.tracks.maneuvers_at(slots, T)
+            maneuver = np.column_stack([det.onset, det.u, det.statistic])
+            maneuver[~det.detected(c.tracks.detector)] = np.nan
         return PictureTracks(c.tracks.ids[slots].tolist(), X, P, c.tracks.confirmed[slots].tolist(),
-                             c.sensor_lists(slots), ["cv"] * slots.size)
+                             c.sensor_lists(slots), ["cv"] * slots.size, maneuver)
 
     def counters(self) -> dict[str, int]:
         out = super().counters()

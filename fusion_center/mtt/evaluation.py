@@ -15,6 +15,11 @@
   and a later one starts).
 * Position RMSE over assigned pairs; NEES of the full state over assigned pairs whose state
   sizes agree, its mean and the fraction inside the two-sided 95% chi-square band.
+* **Maneuver flags** (a track with a ``maneuver`` field, or in the CA model): the fraction of
+  assigned pairs flagged while the truth target accelerates by at least ``MANEUVER_ACCEL``
+  (its acceleration from the velocities of the truth lines around the picture) and while it
+  does not accelerate (below ``STRAIGHT_ACCEL``), and the number of **onsets** (a track flagged
+  in a picture and not in its previous one).
 
 Only confirmed tracks are evaluated unless ``all_tracks``.
 """
@@ -32,6 +37,9 @@ from scipy.optimize import linear_sum_assignment
 from scipy.special import chdtri
 
 from fedtrack.jsonl import InputError, read_jsonl
+
+MANEUVER_ACCEL = 1.0  # m/s^2: a truth target accelerating at least this much is maneuvering
+STRAIGHT_ACCEL = 0.01  # m/s^2: below this it moves straight at constant speed
 
 
 class SetDistance(NamedTuple):
@@ -102,10 +110,33 @@ def _stack(states: list[list[float]]) -> np.ndarray:
     return np.array([_positions(x) for x in states]) if states else np.zeros((0, 3))
 
 
+def truth_accelerations(lines: list[tuple[float, list[dict[str, Any]]]]) -> dict[tuple[float, Any], float]:
+    """``(t, id) -> |a|`` (m/s^2, horizontal) from the truth velocities of the lines before and
+    after ``t`` (central difference; not at the first and last line of a target)."""
+    out: dict[tuple[float, Any], float] = {}
+    for (t0, before), (t1, now), (t2, after) in zip(lines, lines[1:], lines[2:]):
+        v0 = {g["id"]: g["x"] for g in before}
+        for g in after:
+            if g["id"] in v0 and len(g["x"]) >= 4:
+                dv = np.asarray(g["x"], float)[[1, 3]] - np.asarray(v0[g["id"]], float)[[1, 3]]
+                out[(round(t1, 6), g["id"])] = float(np.hypot(*dv)) / (t2 - t0)
+    return out
+
+
+def flagged(track: dict[str, Any]) -> bool:
+    """A track whose maneuver is detected: a central track's ``maneuver``, or a track in CA."""
+    return "maneuver" in track or track.get("model") == "ca"
+
+
 def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2.0,
              all_tracks: bool = False) -> dict[str, Any]:
     """Every metric of the module docstring over the pictures that have a truth line at their time."""
-    truth = {round(t, 6): items for t, items in _load(truth_path, "targets")}
+    truth_lines = _load(truth_path, "targets")
+    truth = {round(t, 6): items for t, items in truth_lines}
+    accel = truth_accelerations(truth_lines)
+    flags = {"maneuvering": [0, 0], "straight": [0, 0]}  # [pairs, flagged]
+    was_flagged: dict[Any, bool] = {}
+    onsets = 0
     series: list[dict[str, float]] = []
     sequences: dict[Any, list[int | None]] = {}
     sq_err: list[float] = []
@@ -117,6 +148,10 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
             skipped += 1
             continue
         shown = [tr for tr in items if all_tracks or tr.get("status", "confirmed") == "confirmed"]
+        for tr in shown:
+            now = flagged(tr)
+            onsets += now and not was_flagged.get(tr["id"], False)
+            was_flagged[tr["id"]] = now
         X, Y = _stack([g["x"] for g in targets]), _stack([tr["x"] for tr in shown])
         k = min(X.shape[1], Y.shape[1])
         dist = set_distance(X[:, :k], Y[:, :k], c, p)
@@ -129,6 +164,12 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
             if j is None:
                 continue
             sq_err.append(float(np.sum((X[i, :k] - Y[j, :k]) ** 2)))
+            a = accel.get((round(t, 6), g["id"]))
+            kind = None if a is None else "maneuvering" if a >= MANEUVER_ACCEL else "straight" \
+                if a < STRAIGHT_ACCEL else None
+            if kind is not None:
+                flags[kind][0] += 1
+                flags[kind][1] += flagged(shown[j])
             xt, xe = np.asarray(g["x"], float), np.asarray(shown[j]["x"], float)
             if "P" in shown[j] and xt.shape == xe.shape:
                 P = np.asarray(shown[j]["P"], float)
@@ -150,6 +191,9 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
         "nees_mean": float(np.mean([v for v, _ in nees])) if nees else None,
         "nees_dof": nees[0][1] if nees else None,
         "nees_inside_95": float(np.mean(inside)) if inside else None,
+        "maneuvers": {"onsets": onsets, "maneuver_accel": MANEUVER_ACCEL, "straight_accel": STRAIGHT_ACCEL,
+                      **{f"{kind}_pairs": n for kind, (n, _) in flags.items()},
+                      **{f"flagged_while_{kind}": hit / n if n else None for kind, (n, hit) in flags.items()}},
         "series": series,
     }
 
@@ -231,6 +275,12 @@ def main(argv: list[str]) -> int:
     print(f"position RMSE {rmse:.2f} m" if rmse is not None else "position RMSE -", end="; ")
     print(f"NEES mean {nees:.2f} ({result['nees_dof']} dof), {100 * result['nees_inside_95']:.1f}% inside the "
           f"95% band" if nees is not None else "NEES -")
+    man = result["maneuvers"]
+    rate = {k: "-" if man[f"flagged_while_{k}"] is None else f"{100 * man[f'flagged_while_{k}']:.1f}%"
+            for k in ("maneuvering", "straight")}
+    print(f"maneuver flags: {rate['maneuvering']} of {man['maneuvering_pairs']} assigned pairs while the target "
+          f"accelerates (>= {MANEUVER_ACCEL:g} m/s^2), {rate['straight']} of {man['straight_pairs']} while it does "
+          f"not (< {STRAIGHT_ACCEL:g}); {man['onsets']} onsets")
     if args.json:
         args.json.write_text(json.dumps(result))
     if args.plot:

@@ -118,16 +118,22 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
         raise InputError(f"{measurements}: no scan of sensor {sensor!r}")
     dim = state_dim(scans, sensor)
     engine = make_engine(algorithm, cfg, dim, sensor)
-    n = 0
+    n = onsets = 0
+    maneuvering: set[int] = set()
     with out.open("w") as fh:
         for T, tracks in pictures(engine, scans, cfg.period, cfg.picture_delay):
             start = time.perf_counter()
             fh.write(tracks.line(T) + "\n")
             engine.took("writing", start)
             n += 1
+            now = tracks.maneuvering()
+            onsets, maneuvering = onsets + len(now - maneuvering), now
     counts = engine.counters()
     print(f"{algorithm}: {counts['scans']} scans fused, {counts['late']} late (older than max_lag) dropped",
           file=sys.stderr)
+    if algorithm in ("mtt-federated", "mtt-decentralized") and cfg.maneuver == "vdie":
+        print(f"{algorithm}: {onsets} maneuver onsets detected on central tracks (pictures with a track's "
+              "maneuver that the previous picture did not show)", file=sys.stderr)
     stages = {"reading": read_s, **engine.stage_s}
     print(f"{algorithm}: seconds per input scan by stage: "
           + ", ".join(f"{name} {sec / max(len(scans), 1):.4f}" for name, sec in stages.items())

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -15,6 +16,11 @@ MANEUVER_MODES = ("none", "vdie")  # per-track maneuver handling (local_filters/
 # candidate onsets of a sensor's tracker (one per scan): 15 scans, where paper 004's 6 misses the
 # gentle turns of the simulator's targets (docs/multitarget.md#maneuvers)
 MTT_VDIE_WINDOW = 15
+# candidate onsets of a central track's maneuver detector (one per fused observation): about 10 s
+# of three sensors' scans, so that the true onset is still a candidate when the detection comes
+# (5-7 s after it for a 3 m/s^2 maneuver under 10 m noise; docs/multitarget.md#maneuvers)
+CENTRAL_MANEUVER_WINDOW = 30
+MAX_CENTRAL_MANEUVER_WINDOW = 200  # its banks are kept per ring entry: memory grows with it
 
 
 @dataclass(frozen=True)
@@ -50,7 +56,16 @@ class MttConfig:
     leave_after_s: float = 5.0
     maneuver: str = "none"
     vdie: VdieParams = field(default_factory=lambda: VdieParams(window=MTT_VDIE_WINDOW))
+    central_maneuver_window: int = CENTRAL_MANEUVER_WINDOW
     sensor: dict[str, SensorOverride] = field(default_factory=dict)
+
+    @property
+    def central_detector(self) -> VdieParams | None:
+        """The central tracks' maneuver detector (``maneuver = "vdie"``): ``[mtt.vdie]`` over
+        ``central_maneuver_window`` fused observations; None without maneuver handling."""
+        if self.maneuver != "vdie":
+            return None
+        return dataclasses.replace(self.vdie, window=self.central_maneuver_window)
 
     def validate(self) -> None:
         positive = {"q": self.q, "period": self.period, "init_velocity_std": self.init_velocity_std,
@@ -69,6 +84,9 @@ class MttConfig:
         for key in ("pd", "gate_probability", "association_gate_probability"):
             if not 0 < getattr(self, key) < 1 and not (key == "pd" and self.pd == 1):
                 raise ConfigError(f"{key}: must be in (0, 1)" + (" or 1" if key == "pd" else ""))
+        if not self.vdie.min_samples <= self.central_maneuver_window <= MAX_CENTRAL_MANEUVER_WINDOW:
+            raise ConfigError(f"central_maneuver_window: must be in mtt.vdie.min_samples.."
+                              f"{MAX_CENTRAL_MANEUVER_WINDOW}")
         if not 1 <= self.confirm_hits <= self.confirm_window:
             raise ConfigError("confirm_hits: must be in 1..confirm_window")
         if self.delete_misses < 1 or self.unmap_after < 1:

@@ -180,28 +180,44 @@ class BestCandidate(NamedTuple):
     count: np.ndarray  # (...,) scans the estimate rests on
 
 
-def bank_best(bank: CandidateBank) -> BestCandidate:
-    """``u = Gamma Psi`` (66) for every candidate and the argmax of ``u' Gamma^-1 u`` (67)."""
-    info = bank.info
+class CandidateInputs(NamedTuple):
+    """Every candidate's input estimate ``u = Gamma Psi`` (66) and ``u' Gamma^-1 u`` (-inf for a
+    candidate without an estimate), and the index of the largest (67) along the candidate axis."""
+
+    best: np.ndarray  # (...,) index of the most likely onset
+    statistic: np.ndarray  # (..., W)
+    u: np.ndarray  # (..., W, 2)
+
+
+def candidate_inputs(info: np.ndarray, psi: np.ndarray, count: np.ndarray) -> CandidateInputs:
+    """(66)-(67) over the candidate axis from ``Gamma^-1`` (..., W, 2, 2), ``Psi`` (..., W, 2) and
+    the sample counts (..., W)."""
     det = info[..., 0, 0] * info[..., 1, 1] - info[..., 0, 1] * info[..., 1, 0]
     scale = info[..., 0, 0] + info[..., 1, 1]
     # a candidate whose samples do not determine both input components (in a multi-target
     # tracker: only zero-length steps since its onset) has no estimate yet
-    live = (bank.count >= 1) & (det > 1e-12 * scale * scale)
-    safe_info = np.where(live[..., None, None], info, np.eye(2))
-    u_all = np.linalg.solve(safe_info, bank.psi[..., None])[..., 0]
-    stat = np.where(live, np.einsum("...i,...i->...", u_all, bank.psi), -np.inf)
-    idx = np.argmax(stat, axis=-1)
+    live = (count >= 1) & (det > 1e-12 * scale * scale)
+    p0, p1 = psi[..., 0], psi[..., 1]
+    r = 1.0 / np.where(live, det, 1.0)  # the 2 x 2 solve (without an estimate: u = Psi, never used)
+    u_all = np.where(live[..., None], np.stack([(info[..., 1, 1] * p0 - info[..., 0, 1] * p1) * r,
+                                                (info[..., 0, 0] * p1 - info[..., 1, 0] * p0) * r], axis=-1), psi)
+    stat = np.where(live, u_all[..., 0] * p0 + u_all[..., 1] * p1, -np.inf)
+    return CandidateInputs(np.argmax(stat, axis=-1), stat, u_all)
 
+
+def bank_best(bank: CandidateBank) -> BestCandidate:
+    """``u = Gamma Psi`` (66) for every candidate and the argmax of ``u' Gamma^-1 u`` (67)."""
+    idx, stat, u_all = candidate_inputs(bank.info, bank.psi, bank.count)
     axis = idx.ndim
 
     def pick(a: np.ndarray) -> np.ndarray:
         sel = idx.reshape(idx.shape + (1,) * (a.ndim - axis))
         return np.take_along_axis(a, sel, axis=axis).squeeze(axis=axis)
 
-    info = pick(safe_info)
+    best_stat = pick(stat)
+    info = np.where(np.isfinite(best_stat)[..., None, None], pick(bank.info), np.eye(2))  # none: any Gamma
     gamma = symmetrize(np.linalg.solve(info, np.broadcast_to(np.eye(2), info.shape)))
-    return BestCandidate(pick(stat), pick(u_all), gamma, pick(bank.T_omega), pick(bank.onset), pick(bank.count))
+    return BestCandidate(best_stat, pick(u_all), gamma, pick(bank.T_omega), pick(bank.onset), pick(bank.count))
 
 
 def detected(best: BestCandidate, params: "VdieParams") -> np.ndarray:
