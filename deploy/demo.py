@@ -59,7 +59,8 @@ def demo_settings(n_sensors: int, scenario: int, mode: str, seed: int, port: int
 
 
 def multitarget_settings(mode: str, seed: int, port: int, out: Path) -> Settings:
-    """A live multi-target deployment of the default scenario (``mode`` federated or decentralized)."""
+    """A live multi-target deployment of the default scenario (``mode`` federated or decentralized),
+    with maneuver handling (maneuver events per central track)."""
     mt = MultitargetSettings(algorithm=f"mtt-{mode}")
     specs = parse_spec(mt.sensors)
     scenario = Scenario(targets=mt.targets, duration=mt.duration, pd=mt.pd, clutter=mt.clutter)
@@ -67,7 +68,7 @@ def multitarget_settings(mode: str, seed: int, port: int, out: Path) -> Settings
         deployment=DeploymentConfig(name="demo", mode=mode, seed=seed, pacing="realtime", speed=MULTITARGET_SPEED,
                                     router_listen=f"tcp/127.0.0.1:{port}", out=str(out)),
         mtt=MttConfig(pd=mt.pd, clutter_density=clutter_density(specs[0], scenario),
-                      sensors=tuple(s.id for s in specs)),
+                      sensors=tuple(s.id for s in specs), maneuver="vdie"),
         multitarget=mt)
 
 

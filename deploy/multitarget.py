@@ -190,6 +190,14 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Se
               f"p = {summary['p']:g}): localisation {mean['localisation'] ** (1 / summary['p']):.1f} m, "
               f"{mean['missed'] / unit:.2f} missed targets and {mean['false'] / unit:.2f} false tracks a picture; "
               f"{summary['rejected']} messages rejected", file=sys.stderr)
+    man = summary.get("maneuvers")
+    if man and man["onsets"]:
+        rate = {k: "-" if man[f"flagged_while_{k}"] is None else f"{100 * man[f'flagged_while_{k}']:.1f} %"
+                for k in ("maneuvering", "straight")}
+        print(f"{title}: {man['onsets']} maneuver onsets; flagged in {rate['maneuvering']} of the pictures of a target "
+              f"accelerating >= {man['maneuver_accel']:g} m/s^2, {rate['straight']} of one moving straight for "
+              f"{man['straight_for_s']:g} s",
+              file=sys.stderr)
     if latencies:
         lat = summary["picture_latency_ms"]
         print(f"{title}: picture latency p50 {lat['p50']:.1f} ms, p99 {lat['p99']:.1f} ms (from the publish of the "

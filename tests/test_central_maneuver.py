@@ -186,3 +186,20 @@ def test_track_to_track_replay_reports_central_maneuvers_without_changing_estima
     result = evaluate(tmp_path / "man.jsonl", tmp_path / "truth.jsonl")["maneuvers"]
     assert result["onsets"] >= 1 and result["flagged_while_maneuvering"] > 0.3
     assert result["flagged_while_straight"] == 0.0
+
+
+def test_truth_motion_classes() -> None:
+    """evaluate's truth classes: accelerating from 1 m/s^2 (central difference of the truth
+    velocities), straight only after 10 s without any acceleration, in between otherwise."""
+    from fedtrack.fusion_center.mtt.evaluation import truth_motion
+
+    x0, a, t_on, t_off = np.array([0.0, 10.0, 0.0, 0.0]), np.array([0.0, 2.0]), 20.0, 25.0
+    lines = []
+    for t in np.arange(0.0, 50.0):
+        x = ca_truth(x0, a, t_on, min(t, t_off))
+        x[0::2] += x[1::2] * max(t - t_off, 0.0)  # straight again after t_off
+        lines.append((float(t), [{"id": 7, "x": x.tolist()}]))
+    motion = truth_motion(lines)
+    assert motion[(5.0, 7)] == "between" and motion[(12.0, 7)] == "straight"  # 10 s into the data
+    assert motion[(22.0, 7)] == "maneuvering" and motion[(30.0, 7)] == "between"
+    assert motion[(36.0, 7)] == "straight" and (0.0, 7) not in motion and (49.0, 7) not in motion

@@ -18,8 +18,9 @@
 * **Maneuver flags** (a track with a ``maneuver`` field, or in the CA model): the fraction of
   assigned pairs flagged while the truth target accelerates by at least ``MANEUVER_ACCEL``
   (its acceleration from the velocities of the truth lines around the picture) and while it
-  does not accelerate (below ``STRAIGHT_ACCEL``), and the number of **onsets** (a track flagged
-  in a picture and not in its previous one).
+  moves straight (below ``STRAIGHT_ACCEL`` over the last ``STRAIGHT_FOR_S`` seconds: a
+  windowed detector's flag lingers for a while after a maneuver), and the number of **onsets**
+  (a track flagged in a picture and not in its previous one).
 
 Only confirmed tracks are evaluated unless ``all_tracks``.
 """
@@ -39,7 +40,8 @@ from scipy.special import chdtri
 from fedtrack.jsonl import InputError, read_jsonl
 
 MANEUVER_ACCEL = 1.0  # m/s^2: a truth target accelerating at least this much is maneuvering
-STRAIGHT_ACCEL = 0.01  # m/s^2: below this it moves straight at constant speed
+STRAIGHT_ACCEL = 0.01  # m/s^2: below this it moves straight at constant speed ...
+STRAIGHT_FOR_S = 10.0  # s: ... when it did over this long (the detectors' windows)
 
 
 class SetDistance(NamedTuple):
@@ -110,16 +112,27 @@ def _stack(states: list[list[float]]) -> np.ndarray:
     return np.array([_positions(x) for x in states]) if states else np.zeros((0, 3))
 
 
-def truth_accelerations(lines: list[tuple[float, list[dict[str, Any]]]]) -> dict[tuple[float, Any], float]:
-    """``(t, id) -> |a|`` (m/s^2, horizontal) from the truth velocities of the lines before and
-    after ``t`` (central difference; not at the first and last line of a target)."""
-    out: dict[tuple[float, Any], float] = {}
-    for (t0, before), (t1, now), (t2, after) in zip(lines, lines[1:], lines[2:]):
+def truth_motion(lines: list[tuple[float, list[dict[str, Any]]]]) -> dict[tuple[float, Any], str]:
+    """``(t, id) -> "maneuvering" | "straight" | "between"``: ``|a|`` (m/s^2, horizontal) from the
+    truth velocities of the lines before and after ``t`` (central difference; not at the first
+    and last line of a target) at least ``MANEUVER_ACCEL``, or below ``STRAIGHT_ACCEL`` at
+    every line of the last ``STRAIGHT_FOR_S`` seconds."""
+    accel: dict[Any, list[tuple[float, float]]] = {}
+    for (t0, before), (t1, _), (t2, after) in zip(lines, lines[1:], lines[2:]):
         v0 = {g["id"]: g["x"] for g in before}
         for g in after:
             if g["id"] in v0 and len(g["x"]) >= 4:
                 dv = np.asarray(g["x"], float)[[1, 3]] - np.asarray(v0[g["id"]], float)[[1, 3]]
-                out[(round(t1, 6), g["id"])] = float(np.hypot(*dv)) / (t2 - t0)
+                accel.setdefault(g["id"], []).append((round(t1, 6), float(np.hypot(*dv)) / (t2 - t0)))
+    out: dict[tuple[float, Any], str] = {}
+    for tid, series in accel.items():
+        last_turn = -math.inf  # the last time the target accelerated
+        for t, a in series:
+            if a >= STRAIGHT_ACCEL:
+                last_turn = t
+            out[(t, tid)] = ("maneuvering" if a >= MANEUVER_ACCEL else "straight"
+                             if t - last_turn >= STRAIGHT_FOR_S and t - series[0][0] >= STRAIGHT_FOR_S
+                             else "between")
     return out
 
 
@@ -133,7 +146,7 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
     """Every metric of the module docstring over the pictures that have a truth line at their time."""
     truth_lines = _load(truth_path, "targets")
     truth = {round(t, 6): items for t, items in truth_lines}
-    accel = truth_accelerations(truth_lines)
+    motion = truth_motion(truth_lines)
     flags = {"maneuvering": [0, 0], "straight": [0, 0]}  # [pairs, flagged]
     was_flagged: dict[Any, bool] = {}
     onsets = 0
@@ -164,10 +177,8 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
             if j is None:
                 continue
             sq_err.append(float(np.sum((X[i, :k] - Y[j, :k]) ** 2)))
-            a = accel.get((round(t, 6), g["id"]))
-            kind = None if a is None else "maneuvering" if a >= MANEUVER_ACCEL else "straight" \
-                if a < STRAIGHT_ACCEL else None
-            if kind is not None:
+            kind = motion.get((round(t, 6), g["id"]))
+            if kind in flags:
                 flags[kind][0] += 1
                 flags[kind][1] += flagged(shown[j])
             xt, xe = np.asarray(g["x"], float), np.asarray(shown[j]["x"], float)
@@ -192,6 +203,7 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
         "nees_dof": nees[0][1] if nees else None,
         "nees_inside_95": float(np.mean(inside)) if inside else None,
         "maneuvers": {"onsets": onsets, "maneuver_accel": MANEUVER_ACCEL, "straight_accel": STRAIGHT_ACCEL,
+                      "straight_for_s": STRAIGHT_FOR_S,
                       **{f"{kind}_pairs": n for kind, (n, _) in flags.items()},
                       **{f"flagged_while_{kind}": hit / n if n else None for kind, (n, hit) in flags.items()}},
         "series": series,
@@ -200,8 +212,8 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
 
 def plot(result: dict[str, Any], tracks_path: Path, truth_path: Path, out: Path,
          events: dict[str, float] | None = None) -> None:
-    """Tracks over truth (x-y) and GOSPA with its parts over time, with ``events`` (label ->
-    time, such as a sensor joining) marked."""
+    """Tracks over truth (x-y), where their maneuvers were flagged, and GOSPA with its parts over
+    time, with ``events`` (label -> time, such as a sensor joining) marked."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -209,6 +221,7 @@ def plot(result: dict[str, Any], tracks_path: Path, truth_path: Path, out: Path,
 
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(14, 6))
     paths: dict[Any, list[np.ndarray]] = {}
+    maneuvering: list[np.ndarray] = []
     for _, targets in _load(truth_path, "targets"):
         for g in targets:
             paths.setdefault(("truth", g["id"]), []).append(_positions(g["x"])[:2])
@@ -216,12 +229,18 @@ def plot(result: dict[str, Any], tracks_path: Path, truth_path: Path, out: Path,
         for tr in items:
             if tr.get("status", "confirmed") == "confirmed":
                 paths.setdefault(("track", tr["id"]), []).append(_positions(tr["x"])[:2])
+                if flagged(tr):
+                    maneuvering.append(_positions(tr["x"])[:2])
     for (kind, _), pts in paths.items():
         a = np.array(pts)
         if kind == "truth":
             ax1.plot(a[:, 0], a[:, 1], color="0.6", lw=2.5, zorder=1)
         else:
             ax1.plot(a[:, 0], a[:, 1], lw=1.0, zorder=2)
+    if maneuvering:
+        m = np.array(maneuvering)
+        ax1.scatter(m[:, 0], m[:, 1], s=9, c="red", marker="x", lw=0.8, zorder=3, label="maneuver flagged")
+        ax1.legend(loc="upper right", fontsize=8)
     ax1.set_title("confirmed tracks (colours) over truth (grey)")
     ax1.set_xlabel("x [m]")
     ax1.set_ylabel("y [m]")
@@ -279,8 +298,8 @@ def main(argv: list[str]) -> int:
     rate = {k: "-" if man[f"flagged_while_{k}"] is None else f"{100 * man[f'flagged_while_{k}']:.1f}%"
             for k in ("maneuvering", "straight")}
     print(f"maneuver flags: {rate['maneuvering']} of {man['maneuvering_pairs']} assigned pairs while the target "
-          f"accelerates (>= {MANEUVER_ACCEL:g} m/s^2), {rate['straight']} of {man['straight_pairs']} while it does "
-          f"not (< {STRAIGHT_ACCEL:g}); {man['onsets']} onsets")
+          f"accelerates (>= {MANEUVER_ACCEL:g} m/s^2), {rate['straight']} of {man['straight_pairs']} while it moves "
+          f"straight (< {STRAIGHT_ACCEL:g} m/s^2 for {STRAIGHT_FOR_S:g} s); {man['onsets']} onsets")
     if args.json:
         args.json.write_text(json.dumps(result))
     if args.plot:
