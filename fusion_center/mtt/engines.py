@@ -54,11 +54,13 @@ class PictureTracks(NamedTuple):
     # None where no central maneuver detector runs
     maneuver: np.ndarray | None = None
 
+    def maneuver_rows(self) -> list[int]:
+        """The positions of the central tracks whose maneuver is detected."""
+        return [] if self.maneuver is None else np.flatnonzero(~np.isnan(self.maneuver[:, 0])).tolist()
+
     def maneuvering(self) -> set[int]:
         """The ids of the central tracks whose maneuver is detected."""
-        if self.maneuver is None:
-            return set()
-        return {self.ids[i] for i in np.flatnonzero(~np.isnan(self.maneuver[:, 0])).tolist()}
+        return {self.ids[i] for i in self.maneuver_rows()}
 
     def line(self, t: float) -> str:
         """The picture's line in a tracks file (``{"t": t, "tracks": rows}`` as JSON)."""

@@ -35,7 +35,6 @@ from collections import deque
 from pathlib import Path
 from typing import Any, Callable
 
-import numpy as np
 import zenoh
 
 from fedtrack.config import ConfigError, load_tables
@@ -153,13 +152,13 @@ class MttCentreService(Service):
         tracks = no_tracks(self.dim) if closing else self.engine.picture(T)
         d = tracks.x.shape[1]
         ca = tuple(model == "ca" for model in tracks.models)
-        maneuvering = () if tracks.maneuver is None else tuple(np.flatnonzero(~np.isnan(tracks.maneuver[:, 0])).tolist())
+        maneuvering = tracks.maneuver_rows()
         self.publish(self.keys.mtt_picture(), TrackPicture.unchecked(
             seq=self.pictures, t=T, ids=tuple(tracks.ids), x=tracks.x, P=tracks.P.reshape(-1, d),
             confirmed=tuple(tracks.confirmed), sensors=tuple(tuple(s) for s in tracks.sensors),
             fused_sensors=tuple(s for s, _ in self.order), fused_seqs=tuple(q for _, q in self.order),
             stamp_ns=time.time_ns(), closing=closing, left=tuple(self.left_at), ca=ca if any(ca) else (),
-            maneuvering=maneuvering, maneuver=None if tracks.maneuver is None else tracks.maneuver[list(maneuvering)]))
+            maneuvering=tuple(maneuvering), maneuver=None if tracks.maneuver is None else tracks.maneuver[maneuvering]))
         self.pictures += 1
         self.order, self.left_at = [], []
         self.counters["pictures"] = self.pictures
