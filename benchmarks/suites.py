@@ -34,7 +34,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from fedtrack.jsonl import InputError
 
@@ -47,14 +47,23 @@ def fedtrack_cmd(*args: str) -> list[str]:
     return [sys.executable, "-m", "fedtrack.cli", *args]
 
 
+class ChildRun(NamedTuple):
+    """One child process: wall seconds, CPU seconds (user + system), peak RSS (MB), its stderr."""
+
+    wall: float
+    cpu: float
+    rss_mb: float
+    log: str
+
+
 def timed(cmd: list[str], cwd: Path | None = None) -> tuple[float, float]:
     """Wall seconds and peak RSS (MB) of one child process; a failure is an error."""
-    wall, rss, _ = timed_with_log(cmd, cwd)
-    return wall, rss
+    run = timed_with_log(cmd, cwd)
+    return run.wall, run.rss_mb
 
 
-def timed_with_log(cmd: list[str], cwd: Path | None = None) -> tuple[float, float, str]:
-    """:func:`timed` and the child's stderr."""
+def timed_with_log(cmd: list[str], cwd: Path | None = None) -> ChildRun:
+    """:func:`timed`, the child's CPU time and its stderr."""
     t0 = time.perf_counter()
     with tempfile.TemporaryFile() as log:
         proc = subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.DEVNULL, stderr=log)
@@ -65,7 +74,7 @@ def timed_with_log(cmd: list[str], cwd: Path | None = None) -> tuple[float, floa
         err = log.read().decode(errors="replace")
     if proc.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd[2:])} failed: {err.strip().splitlines()[-1:]}")
-    return wall, usage.ru_maxrss / 1024.0, err
+    return ChildRun(wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024.0, err)
 
 
 def stages_of(log: str) -> dict[str, float]:
@@ -114,7 +123,7 @@ def bench_multitarget(quick: bool) -> dict[str, Any]:
         # machine's speed changes by up to 1.7x within minutes, the fastest run is the least
         # disturbed (every run is kept in ``wall_s_runs``)
         algorithms = ("mtt-centralized", "mtt-federated", "mtt-decentralized")
-        runs: dict[str, list[tuple[float, float, str]]] = {a: [] for a in algorithms}
+        runs: dict[str, list[ChildRun]] = {a: [] for a in algorithms}
         for _ in range(1 if quick else SCALE_ROUNDS):
             for algorithm in algorithms:
                 runs[algorithm].append(timed_with_log(fedtrack_cmd(
@@ -127,10 +136,14 @@ def bench_multitarget(quick: bool) -> dict[str, Any]:
             "replay", "--algorithm", "mtt-federated", "--config", str(vdie_config),
             "--measurements", str(sim / "measurements.jsonl"), "--out", str(sim / "vdie.jsonl")))]
         for algorithm, done in runs.items():
-            wall, rss, log = min(done, key=lambda run: run[0])
-            out["scale"][algorithm] = {"wall_s": wall, "s_per_scan": wall / scans, "x_real_time": duration / wall,
-                                       "max_rss_mb": max(run[1] for run in done), "s_per_scan_by_stage": stages_of(log),
-                                       "wall_s_runs": [run[0] for run in done]}
+            fastest = min(done, key=lambda run: run.wall)
+            cpu = min(run.cpu for run in done)  # the process's own seconds on its one core
+            out["scale"][algorithm] = {"wall_s": fastest.wall, "s_per_scan": fastest.wall / scans,
+                                       "x_real_time": duration / fastest.wall, "cpu_s": cpu,
+                                       "x_real_time_cpu": duration / cpu,
+                                       "max_rss_mb": max(run.rss_mb for run in done),
+                                       "s_per_scan_by_stage": stages_of(fastest.log),
+                                       "wall_s_runs": [run.wall for run in done], "cpu_s_runs": [run.cpu for run in done]}
         default = Path(tmp) / "default"
         args = ["--duration", "60"] if quick else []
         timed(fedtrack_cmd("simulate", "multitarget", "--seed", "1", "--out", str(default), *args))

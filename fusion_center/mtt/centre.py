@@ -37,6 +37,7 @@ scan, the linearized observation of every track the scan detected, the tracks it
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -134,6 +135,14 @@ class TrackToTrackCentre:
             self._fit()
         return col
 
+    def _central_ids(self, keys: list[LocalKey]) -> np.ndarray:
+        """The central track each local track maps to (-1: none), as an array."""
+        return np.fromiter(map(self.mapping.get, keys, itertools.repeat(-1)), dtype=np.int64, count=len(keys))
+
+    def _slots(self, cids: np.ndarray) -> np.ndarray:
+        """The slots of the central tracks ``cids`` (live ids)."""
+        return np.fromiter(map(self.tracks.slot.__getitem__, cids.tolist()), dtype=np.int64, count=cids.size)
+
     def _map(self, key: LocalKey, cid: int) -> None:
         self._unmap(key)
         self.mapping[key] = cid
@@ -210,35 +219,37 @@ class TrackToTrackCentre:
         d = report.x.shape[1]
         det_rows = np.flatnonzero(report.detected)
         keys = [(s, i) for i in report.ids[det_rows].tolist()]
-        cid_of = [self.mapping.get(key) for key in keys]  # a mapped local track's central track is live
-        started = report.started.tolist()
+        cid = self._central_ids(keys)  # a mapped local track's central track is live; -1: unmapped
         # hysteresis: a mapped local track inconsistent with its central track unmap_after times in a row
-        check = [k for k, cid in enumerate(cid_of) if cid is not None and not started[k]]
-        if check:
-            xc, Pc = self.tracks.states_at(self.tracks.slots_of([cid_of[k] for k in check]), t)
+        check = np.flatnonzero((cid >= 0) & ~report.started)
+        if check.size:
+            xc, Pc = self.tracks.states_at(self._slots(cid[check]), t)
             rows = det_rows[check]
             diff = report.x[rows] - xc[:, :d]
             d2 = np.einsum("ni,ni->n", diff, np.linalg.solve(report.P[rows] + Pc[:, :d, :d], diff[..., None])[..., 0])
             bad = d2 > cfg.thresholds.association[d]
-            if self.strikes:
-                for k in np.flatnonzero(~bad).tolist():
-                    self.strikes.pop(keys[check[k]], None)
-            for k in np.flatnonzero(bad).tolist():
-                key = keys[check[k]]
+            if self.strikes:  # a consistent local track's strikes are forgiven
+                struck = [key for key in self.strikes if key[0] == s]
+                good = np.isin([lid for _, lid in struck], report.ids[rows[~bad]])
+                for key in itertools.compress(struck, good.tolist()):
+                    del self.strikes[key]
+            for k in check[bad].tolist():
+                key = keys[k]
                 self.strikes[key] = self.strikes.get(key, 0) + 1
                 if self.strikes[key] >= cfg.unmap_after:
                     self._unmap(key)
                     self.strikes.pop(key)
                     self.counters.unmapped += 1
-                    cid_of[check[k]] = None
-        unmapped_rows = [k for k, cid in enumerate(cid_of) if cid is None]
-        confirmed = report.confirmed[det_rows].tolist()
-        alone = [k for k, cid in enumerate(cid_of) if cid is not None and confirmed[k]
-                 and len(self.members[cid]) == 1]
+                    cid[k] = -1
+        mapped = np.flatnonzero(cid >= 0)
+        unmapped_rows = np.flatnonzero(cid < 0).tolist()
+        # confirmed local tracks alone on their central tracks (no other local track maps there)
+        lonely = report.confirmed[det_rows[mapped]] & (self.support[self._slots(cid[mapped])].sum(axis=1) == 1)
+        alone = mapped[lonely].tolist()
         fresh = self._associate(report, det_rows, col, unmapped_rows, alone)
         for k in unmapped_rows + alone:
-            cid_of[k] = self.mapping[keys[k]]
-        slots = self.tracks.slots_of(cid_of)
+            cid[k] = self.mapping[keys[k]]
+        slots = self._slots(cid)
         is_fresh = np.zeros(len(keys), dtype=bool)
         is_fresh[[k for k in unmapped_rows if keys[k] in fresh]] = True
         fused, x_post, P_post = self._fuse_scan(report, slots, is_fresh, t)
@@ -250,7 +261,7 @@ class TrackToTrackCentre:
         if self.feedback and rows.size:
             resets = Resets(s, t, report.ids[det_rows[rows]], x_post[rows, :d], beta * P_post[rows, :d, :d])
         self._count_scan(col, supported)
-        still_live = self.tracks.ids[slots] == np.array(cid_of, dtype=np.int64)
+        still_live = self.tracks.ids[slots] == cid
         self._merge_duplicates(np.unique(slots[still_live]), t)
         return resets
 
@@ -306,7 +317,7 @@ class TrackToTrackCentre:
             ok[now], X[now], P[now] = done, x_now, P_now
             self.counters.fused += int(done.sum())
             self.counters.late += int(done.size - done.sum())
-            pending = np.setdiff1d(pending, now)
+            pending = pending[~np.isin(pending, now, assume_unique=True)] if now.size < pending.size else now[:0]
         return ok, X, P
 
     def _merge_duplicates(self, updated: np.ndarray, t: float) -> None:

@@ -29,6 +29,7 @@ needs to fuse the local tracks exactly (docs/multitarget.md).
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 from functools import lru_cache
 from typing import NamedTuple
@@ -205,7 +206,8 @@ def assign(n_tracks: int, n_detections: int, rows: np.ndarray, cols: np.ndarray,
     """Global nearest neighbour over candidate pairs (``rows``, ``cols``) with negative ``cost``:
     the indices of the chosen pairs. Solved per connected component of the pair graph: a
     component of one pair takes it, one of a single track or a single detection its cheapest
-    pair, the others ``linear_sum_assignment``."""
+    pair, one of at most ``SMALL_COMPONENT`` on either side its best enumerated matching, the
+    others ``linear_sum_assignment``."""
     usable = np.flatnonzero(cost < 0.0)
     if usable.size == 0:
         return usable
@@ -224,9 +226,14 @@ def assign(n_tracks: int, n_detections: int, rows: np.ndarray, cols: np.ndarray,
     first = np.ones(by_cost.size, dtype=bool)
     first[1:] = comp[by_cost[1:]] != comp[by_cost[:-1]]
     chosen = [usable[by_cost[first]]]
-    full = np.flatnonzero(~star)
+    full = np.flatnonzero(~star)  # full components are contiguous runs of pairs
+    small = full[np.maximum(n_r, n_c)[comp[full]] <= SMALL_COMPONENT]
+    if small.size:
+        chosen.append(_assign_small(usable[small], comp[small], local_r[small], local_c[small], cost[usable[small]],
+                                    n_r, n_c))
+    full = full[np.maximum(n_r, n_c)[comp[full]] > SMALL_COMPONENT]
     if full.size:
-        change = comp[full[1:]] != comp[full[:-1]]  # full components are contiguous runs of pairs
+        change = comp[full[1:]] != comp[full[:-1]]
         starts, ends = full[np.r_[True, change]], full[np.r_[change, True]] + 1
         for s, e in zip(starts.tolist(), ends.tolist()):
             k = comp[s]
@@ -238,6 +245,42 @@ def assign(n_tracks: int, n_detections: int, rows: np.ndarray, cols: np.ndarray,
             picked = pair[ri, ci]
             chosen.append(picked[picked >= 0])
     return np.concatenate(chosen)
+
+
+# Components of at most this many tracks and detections are solved by enumerating their
+# matchings, all components of one shape at once (a 3 x 3 has 6): 93 % of a 1,000-target
+# scene's components, each of which cost a linear_sum_assignment call of about 10 us.
+SMALL_COMPONENT = 3
+
+
+@lru_cache(maxsize=None)
+def _injections(a: int, b: int) -> np.ndarray:
+    """Every injective map of ``a`` rows into ``b >= a`` columns, (count, a)."""
+    return np.array(list(itertools.permutations(range(b), a)), dtype=np.intp).reshape(-1, a)
+
+
+def _assign_small(pairs: np.ndarray, comp: np.ndarray, r: np.ndarray, c: np.ndarray, cost: np.ndarray,
+                  n_r: np.ndarray, n_c: np.ndarray) -> np.ndarray:
+    """The optimal matching of each small component (``pairs`` with component ``comp``, rank
+    ``r``, ``c`` in it, ``cost`` < 0; its sizes ``n_r``, ``n_c``): the matching of the smaller
+    side into the larger with the least total cost, a missing pair costing 0 and not kept (what
+    ``linear_sum_assignment`` gives on the component's dense matrix)."""
+    out = []
+    shape = n_r[comp] * (SMALL_COMPONENT + 1) + n_c[comp]
+    for code in np.unique(shape).tolist():
+        a, b = divmod(code, SMALL_COMPONENT + 1)
+        sel = np.flatnonzero(shape == code)
+        comps, row = np.unique(comp[sel], return_inverse=True)
+        rr, cc = (r[sel], c[sel]) if a <= b else (c[sel], r[sel])  # rows: the smaller side
+        a, b = min(a, b), max(a, b)
+        sub = np.zeros((comps.size, a, b))
+        pair = np.full((comps.size, a, b), -1)
+        sub[row, rr, cc], pair[row, rr, cc] = cost[sel], pairs[sel]
+        maps = _injections(a, b)
+        best = maps[np.argmin(sub[:, np.arange(a), maps].sum(axis=-1), axis=1)]  # (components, a)
+        picked = pair[np.arange(comps.size)[:, None], np.arange(a), best].ravel()
+        out.append(picked[picked >= 0])
+    return np.concatenate(out) if out else np.zeros(0, np.int64)
 
 
 def _pair_graph(n_tracks: int, n: int, r: np.ndarray, c: np.ndarray) -> csr_matrix:
