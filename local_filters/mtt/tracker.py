@@ -31,7 +31,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
-from functools import lru_cache
+from functools import cache, lru_cache
 from typing import NamedTuple
 
 import numpy as np
@@ -253,7 +253,7 @@ def assign(n_tracks: int, n_detections: int, rows: np.ndarray, cols: np.ndarray,
 SMALL_COMPONENT = 3
 
 
-@lru_cache(maxsize=None)
+@cache
 def _injections(a: int, b: int) -> np.ndarray:
     """Every injective map of ``a`` rows into ``b >= a`` columns, (count, a)."""
     return np.array(list(itertools.permutations(range(b), a)), dtype=np.intp).reshape(-1, a)
