@@ -9,6 +9,8 @@ azimuth, need every pair.)
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -22,6 +24,6 @@ def gate_ball_pairs(z: np.ndarray, centres: np.ndarray, S: np.ndarray, gate: flo
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     radius = np.sqrt(gate * np.trace(S, axis1=-2, axis2=-1))
     near = cKDTree(z).query_ball_point(centres, radius)
-    counts = np.fromiter((len(a) for a in near), dtype=np.int64, count=n)
-    cols = np.fromiter((j for a in near for j in a), dtype=np.int64, count=int(counts.sum()))
+    counts = np.fromiter(map(len, near), dtype=np.int64, count=n)
+    cols = np.fromiter(itertools.chain.from_iterable(near), dtype=np.int64, count=int(counts.sum()))
     return np.repeat(np.arange(n), counts), cols
