@@ -11,7 +11,7 @@ the result equals fusing the time-sorted observations, to round-off. An observat
 method: see docs/multitarget.md.
 
 The maths is :func:`predict_batch` and the Joseph-form :func:`update` (and, with a maneuver
-detector, :func:`.central_maneuver.input_step`, whose bank is kept per entry as the posterior
+detector, :func:`fedtrack.local_filters.vdie.input_bank.input_step`, whose bank is kept per entry as the posterior
 is); this module only gathers their inputs from the slots and scatters the results back, so that
 the centre's cost per report is a handful of array operations, not a walk over Python objects
 per track.
@@ -23,7 +23,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
-from fedtrack.fusion_center.mtt.central_maneuver import (
+from fedtrack.local_filters.vdie.input_bank import (
     InputBank,
     InputDetection,
     input_step,

@@ -35,6 +35,7 @@ from fedtrack.local_filters.mtt.maneuver import predicted_view
 from fedtrack.local_filters.mtt.models import motion, predict_tracks
 from fedtrack.local_filters.mtt.scan import SensorScan
 from fedtrack.local_filters.mtt.tracker import TrackerState, initial_state, track_params, tracker_step
+from fedtrack.local_filters.vdie.estimation import VdieParams
 from fedtrack.wire import picture_line
 
 ALGORITHMS = ("mtt-local", "mtt-centralized", "mtt-federated", "mtt-decentralized")
@@ -50,8 +51,8 @@ class PictureTracks(NamedTuple):
     confirmed: list[bool]
     sensors: list[list[str]]
     models: list[str]  # "cv" or "ca" per track
-    # (n, 4) central tracks' detected maneuvers [onset, ax, ay, statistic], NaN rows where none;
-    # None where no central maneuver detector runs
+    # (n, 4) detected maneuvers [onset, ax, ay, statistic] (central tracks, or a 3-D tracker's
+    # tracks), NaN rows where none; None where no maneuver detector runs
     maneuver: np.ndarray | None = None
 
     def maneuver_rows(self) -> list[int]:
@@ -71,7 +72,10 @@ def no_tracks(dim: int) -> PictureTracks:
     return PictureTracks([], np.zeros((0, dim)), np.zeros((0, dim, dim)), [], [], [])
 
 
-def tracker_picture(state: TrackerState, T: float, cfg: MttConfig, sensors: list[str]) -> PictureTracks:
+def tracker_picture(state: TrackerState, T: float, cfg: MttConfig, sensors: list[str],
+                    detector: VdieParams | None = None) -> PictureTracks:
+    """The tracker's tracks predicted to ``T``; ``detector``: the parameters its tracks' maneuver
+    detectors run with (3-D trackers), which decide what counts as detected."""
     tr = state.tracks
     if not tr.size:
         return no_tracks(tr.x.shape[1])
@@ -81,7 +85,8 @@ def tracker_picture(state: TrackerState, T: float, cfg: MttConfig, sensors: list
             x, P = predicted_view(tr.man, T - state.t, cfg.q, cfg.noise_model)
         else:
             x, P = predict_tracks(x, P, motion(x.shape[1], round(T - state.t, 12), cfg.q, cfg.noise_model))
-    return PictureTracks(tr.ids.tolist(), x, P, tr.confirmed.tolist(), [sensors] * tr.size, tr.models)
+    maneuver = None if tr.inputs is None or detector is None else tr.inputs.detection.picture_rows(detector)
+    return PictureTracks(tr.ids.tolist(), x, P, tr.confirmed.tolist(), [sensors] * tr.size, tr.models, maneuver)
 
 
 @dataclass
@@ -132,7 +137,7 @@ class LocalEngine(Engine):
         state = self.states[-1] if self.states else initial_state(self.dim)
         self.times.append(scan.t)
         start = time.perf_counter()
-        self.states.append(tracker_step(state, scan, track_params(self.cfg, scan.sensor, self.dim)).state)
+        self.states.append(tracker_step(state, scan, track_params(self.cfg, scan.sensor, self.dim, events=True)).state)
         self.took("tracker", start)
         horizon = scan.t - max(self.cfg.max_lag, self.cfg.picture_delay)
         drop = bisect.bisect_left(self.times, horizon) - 1  # keep the last state before the horizon
@@ -141,7 +146,10 @@ class LocalEngine(Engine):
 
     def picture(self, T: float) -> PictureTracks:
         k = bisect.bisect_right(self.times, T)
-        return no_tracks(self.dim) if not k else tracker_picture(self.states[k - 1], T, self.cfg, [self.sensor])
+        if not k:
+            return no_tracks(self.dim)
+        detector = track_params(self.cfg, self.sensor, self.dim, events=True).detector
+        return tracker_picture(self.states[k - 1], T, self.cfg, [self.sensor], detector)
 
 
 @dataclass
@@ -154,7 +162,8 @@ class CentralizedEngine(Engine):
     base: TrackerState | None = None  # state before the first kept scan
 
     def _step(self, state: TrackerState, scan: SensorScan) -> TrackerState:
-        return tracker_step(state, scan, track_params(self.cfg, scan.sensor, self.dim, every_sensor=True)).state
+        return tracker_step(state, scan, track_params(self.cfg, scan.sensor, self.dim, every_sensor=True,
+                                                   events=True)).state
 
     def ingest(self, scan: SensorScan) -> None:
         if self.base is None:
@@ -189,7 +198,8 @@ class CentralizedEngine(Engine):
         if state is None:
             return no_tracks(self.dim)
         senders = sorted({s.sensor for s in self.kept})
-        return tracker_picture(state, T, self.cfg, senders)
+        detector = track_params(self.cfg, None, self.dim, every_sensor=True, events=True).detector
+        return tracker_picture(state, T, self.cfg, senders, detector)
 
 
 @dataclass
@@ -236,9 +246,7 @@ class TrackToTrackEngine(Engine):
         X, P = c.tracks.states_at(slots, T)
         maneuver = None
         if c.tracks.detector is not None:
-            det = c.tracks.maneuvers_at(slots, T)
-            maneuver = np.column_stack([det.onset, det.u, det.statistic])
-            maneuver[~det.detected(c.tracks.detector)] = np.nan
+            maneuver = c.tracks.maneuvers_at(slots, T).picture_rows(c.tracks.detector)
         return PictureTracks(c.tracks.ids[slots].tolist(), X, P, c.tracks.confirmed[slots].tolist(),
                              c.sensor_lists(slots), ["cv"] * slots.size, maneuver)
 

@@ -119,6 +119,7 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
     dim = state_dim(scans, sensor)
     engine = make_engine(algorithm, cfg, dim, sensor)
     n = onsets = 0
+    detector = False  # whether the pictures carry maneuver events (a detector runs)
     maneuvering: set[int] = set()
     with out.open("w") as fh:
         for T, tracks in pictures(engine, scans, cfg.period, cfg.picture_delay):
@@ -126,14 +127,15 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
             fh.write(tracks.line(T) + "\n")
             engine.took("writing", start)
             n += 1
+            detector = detector or tracks.maneuver is not None
             now = tracks.maneuvering()
             onsets, maneuvering = onsets + len(now - maneuvering), now
     counts = engine.counters()
     print(f"{algorithm}: {counts['scans']} scans fused, {counts['late']} late (older than max_lag) dropped",
           file=sys.stderr)
-    if algorithm in ("mtt-federated", "mtt-decentralized") and cfg.maneuver == "vdie":
-        print(f"{algorithm}: {onsets} maneuver onsets detected on central tracks (pictures with a track's "
-              "maneuver that the previous picture did not show)", file=sys.stderr)
+    if detector:
+        print(f"{algorithm}: {onsets} maneuver onsets detected (pictures with a track's maneuver that the "
+              "previous picture did not show)", file=sys.stderr)
     stages = {"reading": read_s, **engine.stage_s}
     print(f"{algorithm}: seconds per input scan by stage: "
           + ", ".join(f"{name} {sec / max(len(scans), 1):.4f}" for name, sec in stages.items())

@@ -41,7 +41,7 @@ from scipy.sparse.csgraph import connected_components
 
 from fedtrack.local_filters.linear.gating import gate_ball_pairs
 from fedtrack.local_filters.linear.kalman import GaussianState, mat_vec, update_residual
-from fedtrack.local_filters.mtt import maneuver
+from fedtrack.local_filters.mtt import detector, maneuver
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.models import (
     Linearized,
@@ -73,21 +73,29 @@ class TrackParams(NamedTuple):
     confirm_window: int
     delete_misses: int
     maneuver: VdieParams | None = None  # per-track VDIE (2-D position trackers), None: CV only
+    detector: VdieParams | None = None  # per-track maneuver events (3-D trackers), None: none
 
 
 def track_params(cfg: MttConfig, sensor: str | None, dim: int, feedback: bool = False,
-                 every_sensor: bool = False) -> TrackParams:
+                 every_sensor: bool = False, events: bool = False) -> TrackParams:
     """Parameters of the tracker of ``sensor`` (None: a tracker of every sensor's detections) for
-    one scan of ``sensor``; ``every_sensor``: the tracker takes every sensor's scans.
-    ``[mtt] maneuver = "vdie"`` applies to 2-D trackers without federated feedback (the centre's
-    resets own a federated tracker's state, and its central tracks are CV)."""
-    vdie = None
-    if cfg.maneuver == "vdie" and dim == 4 and not feedback:
-        vdie = _every_sensor_window(cfg.vdie, cfg.listed_sensors) if every_sensor else cfg.vdie
+    one scan of ``sensor``; ``every_sensor``: the tracker takes every sensor's scans; ``events``:
+    its tracks are the output (``mtt-local``, ``mtt-centralized``), not reports to a centre.
+    ``[mtt] maneuver = "vdie"`` applies VDIE to 2-D trackers without federated feedback (the
+    centre's resets own a federated tracker's state, and its central tracks are CV), and the
+    maneuver detector (:mod:`.detector`, with VDIE's parameters and window) to the tracks of a
+    3-D tracker whose tracks are the output (a track-to-track centre runs its own on the
+    central tracks)."""
+    vdie = detect = None
+    if cfg.maneuver == "vdie":  # both over the window of the tracker's own scans
+        params = _every_sensor_window(cfg.vdie, cfg.listed_sensors) if every_sensor else cfg.vdie
+        vdie = params if dim == 4 and not feedback else None
+        detect = params if dim == 6 and events else None
     return TrackParams(dim, cfg.q, cfg.noise_model, cfg.init_velocity_std, cfg.init_z_std,
                        cfg.pd if sensor is None else cfg.pd_of(sensor),
                        cfg.clutter_density if sensor is None else cfg.clutter_of(sensor),
-                       cfg.thresholds.gate, cfg.confirm_hits, cfg.confirm_window, cfg.delete_misses, vdie)
+                       cfg.thresholds.gate, cfg.confirm_hits, cfg.confirm_window, cfg.delete_misses, vdie,
+                       detect)
 
 
 @lru_cache(maxsize=16)
@@ -99,7 +107,8 @@ def _every_sensor_window(vdie: VdieParams, sensors: int) -> VdieParams:
 
 class TrackSet(NamedTuple):
     """Live tracks, batched: ``x`` (N, D), ``P`` (N, D, D) (with maneuver handling, the CV view
-    of ``man``, every track's VDIE state: :mod:`fedtrack.local_filters.mtt.maneuver`)."""
+    of ``man``, every track's VDIE state: :mod:`fedtrack.local_filters.mtt.maneuver`; or, on a
+    3-D tracker, ``inputs``, every track's maneuver detector: :mod:`.detector`)."""
 
     ids: np.ndarray
     x: np.ndarray
@@ -109,9 +118,11 @@ class TrackSet(NamedTuple):
     misses: np.ndarray  # consecutive misses
     confirmed: np.ndarray
     man: VdieState | None = None
+    inputs: detector.TrackInputs | None = None
 
     def take(self, idx: np.ndarray) -> "TrackSet":
-        return TrackSet(*(a[idx] for a in self[:-1]), None if self.man is None else maneuver.take(self.man, idx))
+        return TrackSet(*(a[idx] for a in self[:-2]), None if self.man is None else maneuver.take(self.man, idx),
+                        None if self.inputs is None else detector.take(self.inputs, idx))
 
     @property
     def models(self) -> list[str]:
@@ -159,11 +170,13 @@ def initial_state(dim: int) -> TrackerState:
 
 
 def _concat(a: TrackSet, b: TrackSet) -> TrackSet:
-    if a.man is None or b.man is None:
-        man = b.man if a.size == 0 else a.man if b.size == 0 else None
-    else:
-        man = maneuver.concat(a.man, b.man)
-    return TrackSet(*(np.concatenate([u, v]) for u, v in zip(a[:-1], b[:-1])), man)
+    extras = []  # the per-track states beside x, P (None on an empty side: its tracker had no tracks)
+    for u, v, join in ((a.man, b.man, maneuver.concat), (a.inputs, b.inputs, detector.concat)):
+        if u is None or v is None:
+            extras.append(v if a.size == 0 else u if b.size == 0 else None)
+        else:
+            extras.append(join(u, v))
+    return TrackSet(*(np.concatenate([u, v]) for u, v in zip(a[:-2], b[:-2])), *extras)
 
 
 def innovation_covariance(P: np.ndarray, lin: Linearized, R: np.ndarray) -> np.ndarray:
@@ -339,7 +352,9 @@ def start_tracks(scan: SensorScan, det: np.ndarray, params: TrackParams, first_i
     one = np.ones(n, np.int64)
     ids = first_id + np.arange(n, dtype=np.int64)
     man = None if params.maneuver is None else maneuver.start(x, P, scan.t, params.maneuver)
-    return TrackSet(ids, x, P, one, one.copy(), np.zeros(n, np.int64), one >= params.confirm_hits, man), obs
+    inputs = None if params.detector is None else detector.start(n, d, scan.t, params.detector)
+    return TrackSet(ids, x, P, one, one.copy(), np.zeros(n, np.int64), one >= params.confirm_hits, man,
+                    inputs), obs
 
 
 def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
@@ -351,6 +366,7 @@ def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
         raise ValueError(f"scan at t = {scan.t} is before the tracker's time {state.t}")
     dt = 0.0 if state.t is None else scan.t - state.t
     man = tracks.man if params.maneuver is not None else None
+    inputs = tracks.inputs if params.detector is not None else None
     if man is not None and tracks.size:
         x, P = maneuver.predicted_view(man, dt, params.q, params.noise_model, q_scale)
     elif tracks.size and dt > 0:
@@ -379,10 +395,13 @@ def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
         if ti.size:
             H, R = lin.H[ti], scan.R
             nu_a, x0 = g.nu[chosen], x[ti]
+            P0 = P[ti]
             if man is None:
-                x[ti], P[ti] = update_residual(GaussianState(x0, P[ti]), nu_a, H, R).state  # Joseph form
+                x[ti], P[ti] = update_residual(GaussianState(x0, P0), nu_a, H, R).state  # Joseph form
             obs_upd = Observation(H, np.broadcast_to(R, (ti.size, m, m)).copy(),
                                   nu_a + np.einsum("nij,nj->ni", H, x0))
+            if inputs is not None:
+                inputs = detector.observe(inputs, ti, scan.t, x0, P0, *obs_upd)
             assigned[ti] = True
             used[dj] = True
     if man is not None and tracks.size:
@@ -395,7 +414,7 @@ def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
     confirmed = tracks.confirmed | (hits >= params.confirm_hits)
     live = np.where(confirmed, misses < params.delete_misses,
                     params.confirm_window - age >= params.confirm_hits - hits)
-    updated = TrackSet(tracks.ids, x, P, hits, age, misses, confirmed, man)
+    updated = TrackSet(tracks.ids, x, P, hits, age, misses, confirmed, man, inputs)
     kept = updated.take(live)
     new, obs_new = start_tracks(scan, np.flatnonzero(~used), params, state.next_id)
     detected = np.concatenate([assigned[live], np.ones(new.size, bool)])

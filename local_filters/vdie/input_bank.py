@@ -1,15 +1,19 @@
-"""Maneuver detection per central track: paper 004's input estimation on the central filter.
+"""Maneuver detection on a CV filter: paper 004's input estimation on the filter's innovations.
 
-Every central track runs, beside its CV filter, paper 004's least-squares input estimator
-(eqs. (57)-(68)) on its own innovations (``[mtt] maneuver = "vdie"``). Each of the track's
+Hosted by every central track of the track-to-track centre
+(:mod:`fedtrack.fusion_center.mtt.central_track`) and by every track of a 3-D tracker
+(:mod:`fedtrack.local_filters.mtt.detector`: radar ``mtt-local``, 3-D ``mtt-centralized``),
+whose tracks have no per-track VDIE. A track runs, beside its CV filter, paper 004's
+least-squares input estimator (eqs. (57)-(68)) on its own innovations (``[mtt] maneuver =
+"vdie"``; an EKF's linearized ones for a radar). Each of the track's
 last ``window`` fused observations is a candidate onset ``n``; for each, the constant
 horizontal acceleration ``u`` that best explains the innovations fused since ``n``, and
 ``u' Gamma^-1 u``. A maneuver is detected at an observation when the most likely candidate's
 statistic exceeds ``h_detect`` (``[mtt.vdie] detect_sigma``, Sidak-corrected over the tested
 candidates, as the trackers' VDIE) and rests on at least ``min_samples`` observations. The
-central estimate stays the CV filter of the fused detections (so the track-to-track fusions
-still equal the centralized filter); a detection is an event of that central track, carried
-by the pictures as its ``maneuver`` (onset time, estimated acceleration, statistic).
+estimate stays the CV filter (so the track-to-track fusions still equal the centralized
+filter); a detection is an event of that track, carried by the pictures as its ``maneuver``
+(onset time, estimated acceleration, statistic).
 
 Irregular intervals. Paper 004 carries the compensation matrix ``T`` (the bias per unit ``B u``)
 under one constant ``B``; a central track fuses observations at any times, and ``B`` depends on
@@ -62,6 +66,13 @@ class InputDetection(NamedTuple):
         """(68) with paper 004's threshold and the minimum sample count."""
         return (self.statistic > params.h_detect) & (self.count >= params.min_samples)
 
+    def picture_rows(self, params: VdieParams) -> np.ndarray:
+        """Per track ``[onset, ax, ay, statistic]`` of its detected maneuver, a row of NaN where
+        none (the pictures' ``maneuver``)."""
+        rows = np.column_stack([self.onset, self.u, self.statistic])
+        rows[~self.detected(params)] = np.nan
+        return rows
+
 
 def no_detection(n: int) -> InputDetection:
     return InputDetection(np.full(n, -np.inf), np.zeros((n, 2)), np.zeros(n), np.zeros(n, dtype=np.int64))
@@ -85,7 +96,7 @@ def input_step(bank: InputBank, dt: np.ndarray, x_prior: np.ndarray, P_prior: np
 
     Every candidate's columns go through each product at once (one (m, n) x (n, 2 W) product per
     track). A slot without a candidate (count -1) accumulates too, but is never read."""
-    n_tracks, window = bank.count.shape
+    n_tracks = bank.count.shape[0]
     G = bank.G
     Gp = G.copy()  # F G + B (CV: every position += dt velocity; B: a constant acceleration over dt)
     Gp[:, 0::2] += dt[:, None, None] * G[:, 1::2]
