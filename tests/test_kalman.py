@@ -98,3 +98,23 @@ def test_solve_spd_falls_back_to_lapack_on_a_singular_matrix():
         solve_spd(np.ones((2, 2)), np.ones((2, 3)))
     with pytest.raises(np.linalg.LinAlgError):
         solve_spd(np.ones((4, 2, 2)), np.ones((4, 2, 3)))
+
+
+@pytest.mark.parametrize("m", [2, 3, 4])
+def test_spd_inverse_logdet_equals_linalg(m: int) -> None:
+    """Closed form (m <= 3) or Cholesky: the inverse and log-determinant of LAPACK, also for
+    badly scaled matrices (a radar's metres and radians); a matrix that is not positive definite
+    raises as Cholesky does."""
+    from fedtrack.local_filters.linear.kalman import spd_inverse_logdet
+
+    rng = np.random.default_rng(m)
+    A = rng.normal(size=(50, m, m))
+    scale = np.array([10.0, 0.002, 0.002, 1.0])[:m]
+    S = (A @ A.swapaxes(1, 2) + np.eye(m)) * np.outer(scale, scale)
+    inv, logdet = spd_inverse_logdet(S)
+    np.testing.assert_allclose(inv * np.outer(scale, scale), np.linalg.inv(S) * np.outer(scale, scale),
+                               rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(logdet, np.linalg.slogdet(S)[1], rtol=1e-12, atol=1e-9)
+    S[3] = -np.eye(m)
+    with pytest.raises(np.linalg.LinAlgError):
+        spd_inverse_logdet(S)

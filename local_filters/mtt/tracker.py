@@ -40,7 +40,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
 from fedtrack.local_filters.linear.gating import gate_ball_pairs
-from fedtrack.local_filters.linear.kalman import GaussianState, mat_vec, update_residual
+from fedtrack.local_filters.linear.kalman import GaussianState, mat_vec, spd_inverse_logdet, update_residual
 from fedtrack.local_filters.mtt import detector, maneuver
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.models import (
@@ -194,7 +194,7 @@ class Gated(NamedTuple):
 
 
 def gate(z: np.ndarray, lin: Linearized, S: np.ndarray, gate_d2: float) -> tuple[Gated, np.ndarray]:
-    """The gated pairs and ``ln det S`` (N,) per track (by Cholesky factors: ``d2 = |L^-1 nu|^2``).
+    """The gated pairs and ``ln det S`` (N,) per track (``d2 = nu' S^-1 nu``).
 
     Only a position sensor's pairs within the balls of :func:`gate_ball_pairs` are computed; a
     radar's azimuth residual wraps, so it keeps every pair."""
@@ -203,14 +203,11 @@ def gate(z: np.ndarray, lin: Linearized, S: np.ndarray, gate_d2: float) -> tuple
         rows, cols = np.repeat(np.arange(n), m), np.tile(np.arange(m), n)
     else:
         rows, cols = gate_ball_pairs(z, lin.zhat, S, gate_d2)
-    L = np.linalg.cholesky(S)
-    logdet = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
+    S_inv, logdet = spd_inverse_logdet(S)
     nu = z[cols] - lin.zhat[rows]
     for k in lin.angular:
         nu[:, k] = wrap_angle(nu[:, k])
-    L_inv = np.linalg.solve(L, np.broadcast_to(np.eye(S.shape[-1]), S.shape))
-    w = mat_vec(L_inv[rows], nu)
-    d2 = np.sum(w * w, axis=-1)
+    d2 = np.sum(nu * mat_vec(S_inv[rows], nu), axis=-1)
     inside = d2 <= gate_d2
     return Gated(rows[inside], cols[inside], nu[inside], d2[inside]), logdet
 
