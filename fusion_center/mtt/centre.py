@@ -44,16 +44,11 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from fedtrack.fusion_center.mtt.central_track import CentralTracks, padded
-from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.mtt.config import CENTRAL_MISSES, MttConfig
 from fedtrack.local_filters.mtt.local import LocalReport, Resets, no_resets
 from fedtrack.local_filters.mtt.tracker import assign
 
 LocalKey = tuple[str, int]  # (sensor, local track id)
-# A confirmed track that two or more sensors track is deleted once each of them missed it on
-# its last CENTRAL_MISSES scans since its last detection: (1 - P_D)^4 = 1e-4 or less for a live
-# target with P_D = 0.9, where the centralized rule's 3 misses in a row (1e-3) drop a live
-# target about once a minute among 60 targets seen by 3 sensors.
-CENTRAL_MISSES = 2
 ASSOCIATION_SHIFT = 1e6  # larger than any gated pair's d2 + ln det
 
 

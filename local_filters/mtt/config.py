@@ -22,6 +22,11 @@ MTT_VDIE_WINDOW = 15
 CENTRAL_MANEUVER_WINDOW = 30
 MAX_CENTRAL_MANEUVER_WINDOW = 200  # its banks are kept per ring entry: memory grows with it
 
+# A confirmed track that several sensors see is deleted once each of them missed it on its
+# last CENTRAL_MISSES scans ((1 - P_D)^4 = 1e-4 or less for a live target with P_D = 0.9): the
+# track-to-track centre's rule per tracking sensor, and mtt-centralized's as misses in a row
+# over every sensor's scans (CENTRAL_MISSES per listed sensor).
+CENTRAL_MISSES = 2
 
 @dataclass(frozen=True)
 class SensorOverride:
