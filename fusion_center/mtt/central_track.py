@@ -117,8 +117,10 @@ class CentralTracks:
         slots = np.flatnonzero(self.ids >= 0)
         return slots[np.argsort(self.ids[slots], kind="stable")]
 
-    def slots_of(self, cids: list[int]) -> np.ndarray:
-        return np.array([self.slot[c] for c in cids], dtype=np.int64)
+    def slots_of(self, cids: list[int] | np.ndarray) -> np.ndarray:
+        """The slots of the live tracks ``cids``."""
+        ids = cids.tolist() if isinstance(cids, np.ndarray) else cids
+        return np.fromiter(map(self.slot.__getitem__, ids), dtype=np.int64, count=len(ids))
 
     def _grow(self, capacity: int, depth: int) -> None:
         """Re-allocate to ``capacity`` slots of ``depth`` entries (ring entries unrolled to 0..)."""

@@ -134,10 +134,6 @@ class TrackToTrackCentre:
         """The central track each local track maps to (-1: none), as an array."""
         return np.fromiter(map(self.mapping.get, keys, itertools.repeat(-1)), dtype=np.int64, count=len(keys))
 
-    def _slots(self, cids: np.ndarray) -> np.ndarray:
-        """The slots of the central tracks ``cids`` (live ids)."""
-        return np.fromiter(map(self.tracks.slot.__getitem__, cids.tolist()), dtype=np.int64, count=cids.size)
-
     def _map(self, key: LocalKey, cid: int) -> None:
         self._unmap(key)
         self.mapping[key] = cid
@@ -218,7 +214,7 @@ class TrackToTrackCentre:
         # hysteresis: a mapped local track inconsistent with its central track unmap_after times in a row
         check = np.flatnonzero((cid >= 0) & ~report.started)
         if check.size:
-            xc, Pc = self.tracks.states_at(self._slots(cid[check]), t)
+            xc, Pc = self.tracks.states_at(self.tracks.slots_of(cid[check]), t)
             rows = det_rows[check]
             diff = report.x[rows] - xc[:, :d]
             d2 = np.einsum("ni,ni->n", diff, np.linalg.solve(report.P[rows] + Pc[:, :d, :d], diff[..., None])[..., 0])
@@ -239,12 +235,12 @@ class TrackToTrackCentre:
         mapped = np.flatnonzero(cid >= 0)
         unmapped_rows = np.flatnonzero(cid < 0).tolist()
         # confirmed local tracks alone on their central tracks (no other local track maps there)
-        lonely = report.confirmed[det_rows[mapped]] & (self.support[self._slots(cid[mapped])].sum(axis=1) == 1)
+        lonely = report.confirmed[det_rows[mapped]] & (self.support[self.tracks.slots_of(cid[mapped])].sum(axis=1) == 1)
         alone = mapped[lonely].tolist()
         fresh = self._associate(report, det_rows, col, unmapped_rows, alone)
         for k in unmapped_rows + alone:
             cid[k] = self.mapping[keys[k]]
-        slots = self._slots(cid)
+        slots = self.tracks.slots_of(cid)
         is_fresh = np.zeros(len(keys), dtype=bool)
         is_fresh[[k for k in unmapped_rows if keys[k] in fresh]] = True
         fused, x_post, P_post = self._fuse_scan(report, slots, is_fresh, t)

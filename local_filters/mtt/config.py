@@ -28,6 +28,7 @@ MAX_CENTRAL_MANEUVER_WINDOW = 200  # its banks are kept per ring entry: memory g
 # over every sensor's scans (CENTRAL_MISSES per listed sensor).
 CENTRAL_MISSES = 2
 
+
 @dataclass(frozen=True)
 class SensorOverride:
     """``[mtt.sensor.<id>]``: detection probability and clutter density of one sensor."""

@@ -240,11 +240,11 @@ def assign(n_tracks: int, n_detections: int, rows: np.ndarray, cols: np.ndarray,
     first[1:] = comp[by_cost[1:]] != comp[by_cost[:-1]]
     chosen = [usable[by_cost[first]]]
     full = np.flatnonzero(~star)  # full components are contiguous runs of pairs
-    small = full[np.maximum(n_r, n_c)[comp[full]] <= SMALL_COMPONENT]
+    is_small = np.maximum(n_r, n_c)[comp[full]] <= SMALL_COMPONENT
+    small, full = full[is_small], full[~is_small]
     if small.size:
         chosen.append(_assign_small(usable[small], comp[small], local_r[small], local_c[small], cost[usable[small]],
                                     n_r, n_c))
-    full = full[np.maximum(n_r, n_c)[comp[full]] > SMALL_COMPONENT]
     if full.size:
         change = comp[full[1:]] != comp[full[:-1]]
         starts, ends = full[np.r_[True, change]], full[np.r_[change, True]] + 1

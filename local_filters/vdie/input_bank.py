@@ -29,7 +29,7 @@ With a constant interval ``G(j) = T(j) B``: paper 004's recursion. ``B(j) = [dt^
 the x and y axes (a 3-D track's vertical acceleration is not estimated).
 
 Exactness under re-processing: the bank after each observation is kept in that observation's
-ring entry (:mod:`.central_track`), so an out-of-sequence observation re-runs the estimator from
+ring entry (:mod:`fedtrack.fusion_center.mtt.central_track`), so an out-of-sequence observation re-runs the estimator from
 the entry before it, as it re-runs the filter: the statistics equal those of the time-sorted
 observations, to round-off.
 """
