@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from fedtrack.config import ConfigError
-from fedtrack.jsonl import InputError
+from fedtrack.jsonl import InputError, check_output, check_output_folder
 
 # name -> "module:function(runs, seed, json_path, plots_dir) -> dict"
 REPRODUCERS: dict[str, str] = {
@@ -102,6 +102,9 @@ def resolve(target: str) -> Callable[..., Any]:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
+    check_output(args.json)  # before minutes of Monte Carlo
+    if args.plots:
+        check_output_folder(args.plots)
     fn = resolve(REPRODUCERS[args.name])
     extra = {"model": Path(args.model)} if args.model else {}
     result = fn(runs=args.runs, seed=args.seed, json_path=Path(args.json),
@@ -128,7 +131,16 @@ def _config_arg(argv: list[str]) -> str | None:
     return None
 
 
+def replay_unit(algorithm: str) -> str:
+    """What one line of ``algorithm``'s replay output is: multi-target pictures, the sonar trackers'
+    track lines, every other algorithm's estimates."""
+    if algorithm.startswith("mtt-"):
+        return "pictures"
+    return "track lines" if algorithm in REPLAY_OPTIONS["status"] else "estimates"
+
+
 def _cmd_replay(args: argparse.Namespace) -> int:
+    check_output(args.out)
     check_config(args.config)
     fn = resolve(REPLAY_ALGORITHMS[args.algorithm])
     options = {k: v for k, v in (("period", args.period), ("sensor", args.sensor), ("status", args.status))
@@ -138,7 +150,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
             raise ConfigError(f"--{key} applies to {', '.join(REPLAY_OPTIONS[key])} only")
     n = fn(algorithm=args.algorithm, measurements=Path(args.measurements),
            config=Path(args.config) if args.config else None, out=Path(args.out), **options)
-    print(f"wrote {n} estimates to {args.out}")
+    print(f"wrote {n} {replay_unit(args.algorithm)} to {args.out}")
     return 0
 
 
@@ -224,41 +236,62 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _dispatch(parser: argparse.ArgumentParser, args: argparse.Namespace, rest: list[str]) -> int:
+    """Run the sub-command ``args`` names with the rest of the command line."""
+    if args.func is not None:
+        if rest:
+            parser.error(f"unrecognized arguments: {' '.join(rest)}")
+        if getattr(args, "model", None) and args.name != "ts-fuzzy":
+            parser.error("--model applies to reproduce ts-fuzzy only")
+        return int(args.func(args) or 0)
+    if args.key is None:
+        return int(resolve(args.registry[args.command])(rest) or 0)
+    choice = getattr(args, args.key)
+    if choice is None:
+        if args.help:
+            args.parser.print_help()
+            return 0
+        args.parser.error(f"the following arguments are required: {args.key.upper()}")
+    if args.help:
+        rest = [*rest, "--help"]
+    elif args.command == "serve":
+        check_config(_config_arg(rest))
+    return int(resolve(args.registry[choice])(rest) or 0)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
     args, rest = parser.parse_known_args(argv)
     try:
-        if args.func is not None:
-            if rest:
-                parser.error(f"unrecognized arguments: {' '.join(rest)}")
-            if getattr(args, "model", None) and args.name != "ts-fuzzy":
-                parser.error("--model applies to reproduce ts-fuzzy only")
-            return int(args.func(args) or 0)
-        if args.key is None:
-            return int(resolve(args.registry[args.command])(rest) or 0)
-        choice = getattr(args, args.key)
-        if choice is None:
-            if args.help:
-                args.parser.print_help()
-                return 0
-            args.parser.error(f"the following arguments are required: {args.key.upper()}")
-        if args.help:
-            rest = [*rest, "--help"]
-        elif args.command == "serve":
-            check_config(_config_arg(rest))
-        return int(resolve(args.registry[choice])(rest) or 0)
+        code = _dispatch(parser, args, rest)
+        sys.stdout.flush()  # here, so that a closed pipe is noticed below rather than at exit
+        return code
     except (ConfigError, InputError) as exc:
         print(f"fedtrack: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        return _closed_pipe()
     except OSError as exc:
         if exc.filename is None:
             raise
-        # a file that cannot be opened, read or written (a missing output folder included)
+        # a file that cannot be opened, read or written
         print(f"fedtrack: error: {exc.filename}: {exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130
+
+
+def _closed_pipe() -> int:
+    """The reader of standard output went away (``fedtrack evaluate ... | head -2``): end quietly
+    with 141 (128 + SIGPIPE, a shell's status for a command a closed pipe stopped). Standard output
+    is pointed at /dev/null so that the interpreter's final flush does not complain again."""
+    import os
+
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
+    return 141
 
 
 if __name__ == "__main__":

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from fedtrack.config import to_toml
-from fedtrack.jsonl import InputError
+from fedtrack.jsonl import InputError, check_output_folder, output_file
 from fedtrack.local_filters.radar.measurement import polar_from_cartesian, wrap_angle
 
 DT = 0.05
@@ -177,18 +177,19 @@ def clutter_density(spec: SensorSpec, sc: Scenario) -> float:
 
 
 def simulate(sc: Scenario, specs: list[SensorSpec], seed: int, out: Path) -> dict[str, Any]:
-    """Write ``measurements.jsonl``, ``truth.jsonl`` and ``config.toml`` to ``out``."""
+    """Write ``measurements.jsonl``, ``truth.jsonl`` and ``config.toml`` to ``out`` (a library
+    caller's folder is created; the command checks it first: :func:`main`)."""
     rng = np.random.default_rng(seed)
     three_d = any(s.kind == "radar" for s in specs)
     x, alive = simulate_truth(sc, three_d, rng)
     lines = [item for spec in specs for item in sensor_lines(spec, sc, x, alive, three_d, rng)]
     lines.sort(key=lambda item: item[0])
     out.mkdir(parents=True, exist_ok=True)
-    with (out / "measurements.jsonl").open("w") as fh:
+    with output_file(out / "measurements.jsonl") as fh:
         for _, line in lines:
             fh.write(json.dumps(line) + "\n")
     dims = [0, 1, 2, 3, 4, 5] if three_d else [0, 1, 2, 3]
-    with (out / "truth.jsonl").open("w") as fh:
+    with output_file(out / "truth.jsonl") as fh:
         for second in range(int(sc.duration) + 1):
             step = int(round(second / DT))
             targets = [{"id": int(i), "x": x[step, i, dims].tolist()} for i in np.flatnonzero(alive[step])]
@@ -199,31 +200,52 @@ def simulate(sc: Scenario, specs: list[SensorSpec], seed: int, out: Path) -> dic
     mtt["sensor"] = {s.id: {"clutter_density": clutter_density(s, sc)} for s in specs if s.kind == "radar"}
     if not mtt["sensor"]:
         del mtt["sensor"]
-    (out / "config.toml").write_text(to_toml({"mtt": mtt}))
+    with output_file(out / "config.toml") as fh:
+        fh.write(to_toml({"mtt": mtt}))
     out_of_order = sum(1 for a, b in zip(lines, lines[1:]) if b[1]["t"] < a[1]["t"])
     return {"scans": len(lines), "out_of_sequence": out_of_order, "targets": sc.targets,
             "sensors": [f"{s.id} ({s.kind}, {s.period:g} s)" for s in specs]}
 
 
+SENSOR_IDS = ("Sensor ids: the k-th sensor of --sensors (counted from 1) is s<k> for a position sensor and "
+              "r<k> for a radar: pos:1.0,radar:0.7 gives s1 and r2, the ids [mtt] sensors, [mtt.sensor.<id>] and "
+              "replay --sensor take.")
+
+
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="fedtrack simulate multitarget",
-                                     description="simulate a multi-target scenario for replay and evaluate")
-    parser.add_argument("--targets", type=int, default=Scenario.targets)
-    parser.add_argument("--sensors", default="pos:1.0,pos:0.7,pos:1.3",
-                        help="comma-separated KIND:PERIOD, KIND pos or radar (default pos:1.0,pos:0.7,pos:1.3)")
-    parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--duration", type=float, default=Scenario.duration, help="seconds (default 300)")
-    parser.add_argument("--pd", type=float, default=Scenario.pd)
-    parser.add_argument("--clutter", type=float, default=Scenario.clutter, help="false detections per scan")
-    parser.add_argument("--late", type=float, default=Scenario.late, help="fraction of scans delivered late")
-    parser.add_argument("--out", required=True, type=Path)
+                                     description="simulate a multi-target scenario for replay and evaluate: writes "
+                                     "measurements.jsonl (arrival order), truth.jsonl and config.toml into --out",
+                                     epilog=SENSOR_IDS)
+    parser.add_argument("--targets", type=int, default=Scenario.targets,
+                        help="number of targets (crossing pairs, turns, some born late or dying early; "
+                             "default: %(default)s)")
+    parser.add_argument("--sensors", default="pos:1.0,pos:0.7,pos:1.3", metavar="SPEC",
+                        help="comma-separated KIND:PERIOD, KIND pos (2-D position) or radar, PERIOD in seconds "
+                             "(default: %(default)s)")
+    parser.add_argument("--seed", type=int, default=1, help="seed of truth, noise, clutter and delays "
+                        "(default: %(default)s)")
+    parser.add_argument("--duration", type=float, default=Scenario.duration,
+                        help="seconds of scenario (default: %(default)s)")
+    parser.add_argument("--pd", type=float, default=Scenario.pd,
+                        help="probability that a sensor detects a target in a scan (default: %(default)s)")
+    parser.add_argument("--clutter", type=float, default=Scenario.clutter,
+                        help="mean number of false detections per scan (Poisson; default: %(default)s)")
+    parser.add_argument("--late", type=float, default=Scenario.late,
+                        help="fraction of scans delivered late, up to two of their sensor's periods "
+                             "(default: %(default)s)")
+    parser.add_argument("--out", required=True, type=Path, metavar="DIR",
+                        help="folder to write into (created if missing; its own folder must exist)")
     args = parser.parse_args(argv)
-    if args.targets < 1 or not args.duration > 0 or not 0 < args.pd <= 1 or args.clutter < 0 or not 0 <= args.late < 1:
-        parser.error("need --targets >= 1, --duration > 0, 0 < --pd <= 1, --clutter >= 0, 0 <= --late < 1")
-    if args.out.exists() and not args.out.is_dir():
-        raise InputError(f"{args.out}: exists and is not a folder")
+    for name, ok, rule in (("targets", args.targets >= 1, ">= 1"), ("duration", args.duration > 0, "> 0"),
+                           ("pd", 0 < args.pd <= 1, "in (0, 1]"), ("clutter", args.clutter >= 0, ">= 0"),
+                           ("late", 0 <= args.late < 1, "in [0, 1)")):
+        if not ok:
+            raise InputError(f"--{name}: must be {rule}, got {getattr(args, name):g}")
+    specs = parse_spec(args.sensors)
+    check_output_folder(args.out)
     sc = Scenario(targets=args.targets, duration=args.duration, pd=args.pd, clutter=args.clutter, late=args.late)
-    info = simulate(sc, parse_spec(args.sensors), args.seed, args.out)
+    info = simulate(sc, specs, args.seed, args.out)
     print(f"wrote {args.out}/measurements.jsonl ({info['scans']} scans, {info['out_of_sequence']} out of "
           f"sequence), truth.jsonl ({args.targets} targets), config.toml; sensors: {', '.join(info['sensors'])}")
     return 0

@@ -20,7 +20,9 @@
   (its acceleration from the velocities of the truth lines around the picture) and while it
   moves straight (below ``STRAIGHT_ACCEL`` over the last ``STRAIGHT_FOR_S`` seconds: a
   windowed detector's flag lingers for a while after a maneuver), and the number of **onsets**
-  (a track flagged in a picture and not in its previous one).
+  (a track flagged in a picture and not in its previous one); only when a detector ran (the
+  pictures' ``detector`` is not ``"none"``; a file that does not say: when some track is
+  flagged), "not applicable" (None) otherwise.
 
 Only confirmed tracks are evaluated unless ``all_tracks``.
 """
@@ -37,7 +39,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.special import chdtri
 
-from fedtrack.jsonl import InputError, read_jsonl
+from fedtrack.jsonl import InputError, check_output, is_number, output_file, read_jsonl
 
 MANEUVER_ACCEL = 1.0  # m/s^2: a truth target accelerating at least this much is maneuvering
 STRAIGHT_ACCEL = 0.01  # m/s^2: below this it moves straight at constant speed ...
@@ -90,17 +92,42 @@ def id_changes(sequence: list[int | None]) -> tuple[int, int]:
     return switches, fragments
 
 
+OTHER = {"tracks": "targets", "targets": "tracks"}  # a truth file given as tracks, or the reverse
+
+
 def _load(path: Path, key: str) -> list[tuple[float, list[dict[str, Any]]]]:
     out = []
     for lineno, obj in read_jsonl(path):
         where = f"{path}:{lineno}"
-        if not isinstance(obj.get("t"), (int, float)) or not isinstance(obj.get(key), list):
+        if key not in obj and OTHER[key] in obj:
+            raise InputError(f"{where}: has \"{OTHER[key]}\" where \"{key}\" is expected: give the "
+                             f"{'truth' if key == 'tracks' else 'tracks'} file to "
+                             f"--{'truth' if key == 'tracks' else 'tracks'}")
+        if not is_number(obj.get("t")) or not isinstance(obj.get(key), list):
             raise InputError(f"{where}: expected {{\"t\": number, \"{key}\": [...]}}")
         for j, item in enumerate(obj[key]):
-            if not isinstance(item, dict) or not isinstance(item.get("x"), list) or "id" not in item:
+            if not isinstance(item, dict) or "id" not in item:
                 raise InputError(f"{where}: {key}[{j}] needs \"id\" and \"x\"")
+            x = item.get("x")
+            if not isinstance(x, list) or len(x) not in (4, 6) or not all(is_number(v) for v in x):
+                raise InputError(f"{where}: {key}[{j}].x must be a state [x, vx, y, vy] or [x, vx, y, vy, z, vz] "
+                                 f"of finite numbers")
+            P = item.get("P")
+            if P is not None and (not isinstance(P, list) or len(P) != len(x)
+                                  or not all(isinstance(r, list) and len(r) == len(x) and all(is_number(v) for v in r)
+                                             for r in P)):
+                raise InputError(f"{where}: {key}[{j}].P must be a {len(x)}x{len(x)} matrix of finite numbers, "
+                                 "like x")
         out.append((float(obj["t"]), obj[key]))
     return out
+
+
+def file_head(path: Path) -> dict[str, Any]:
+    """The replay's ``algorithm`` and ``detector`` as the first picture of a tracks file gives them
+    (absent from files other tools wrote)."""
+    for _, obj in read_jsonl(path):
+        return {key: obj[key] for key in ("algorithm", "detector") if isinstance(obj.get(key), str)}
+    return {}
 
 
 def _positions(x: list[float]) -> np.ndarray:
@@ -145,6 +172,7 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
              all_tracks: bool = False) -> dict[str, Any]:
     """Every metric of the module docstring over the pictures that have a truth line at their time."""
     truth_lines = _load(truth_path, "targets")
+    head = file_head(tracks_path)
     truth = {round(t, 6): items for t, items in truth_lines}
     motion = truth_motion(truth_lines)
     flags = {"maneuvering": [0, 0], "straight": [0, 0]}  # [pairs, flagged]
@@ -193,33 +221,53 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
         s, f = id_changes(seq)
         switches, fragments = switches + s, fragments + f
     inside = [lo <= v <= hi for v, dof in nees for lo, hi in [(chdtri(dof, 0.975), chdtri(dof, 0.025))]]
+    detector = head.get("detector")
+    applicable = detector != "none" if detector is not None else any(was_flagged.values())
     mean = {key: float(np.mean([row[key] for row in series])) for key in ("gospa", "localisation", "missed",
                                                                           "false", "ospa")}
     return {
+        "algorithm": head.get("algorithm"),
         "c": c, "p": p, "alpha": 2, "pictures": len(series), "pictures_without_truth": skipped,
         "mean": mean, "id_switches": switches, "fragmentations": fragments,
         "position_rmse": math.sqrt(float(np.mean(sq_err))) if sq_err else None,
         "nees_mean": float(np.mean([v for v, _ in nees])) if nees else None,
         "nees_dof": nees[0][1] if nees else None,
         "nees_inside_95": float(np.mean(inside)) if inside else None,
-        "maneuvers": {"onsets": onsets, "maneuver_accel": MANEUVER_ACCEL, "straight_accel": STRAIGHT_ACCEL,
+        "maneuvers": {"detector": detector, "applicable": applicable, "onsets": onsets if applicable else None,
+                      "maneuver_accel": MANEUVER_ACCEL, "straight_accel": STRAIGHT_ACCEL,
                       "straight_for_s": STRAIGHT_FOR_S,
                       **{f"{kind}_pairs": n for kind, (n, _) in flags.items()},
-                      **{f"flagged_while_{kind}": hit / n if n else None for kind, (n, hit) in flags.items()}},
+                      **{f"flagged_while_{kind}": hit / n if n and applicable else None
+                         for kind, (n, hit) in flags.items()}},
         "series": series,
     }
 
 
+TRUTH_GREY = "0.6"
+
+
+def track_colours() -> list[tuple[float, float, float, float]]:
+    """The colours tracks cycle through: matplotlib's ``tab20`` without its greys (the truth is
+    drawn grey, so no track may look like an untracked target)."""
+    from matplotlib import colormaps
+
+    cmap = colormaps["tab20"]
+    return [rgba for rgba in (cmap(i) for i in range(cmap.N)) if max(rgba[:3]) - min(rgba[:3]) > 0.1]
+
+
 def plot(result: dict[str, Any], tracks_path: Path, truth_path: Path, out: Path,
-         events: dict[str, float] | None = None) -> None:
+         events: dict[str, float] | None = None, label: str | None = None) -> None:
     """Tracks over truth (x-y), where their maneuvers were flagged, and GOSPA with its parts over
-    time, with ``events`` (label -> time, such as a sensor joining) marked."""
+    time, with ``events`` (label -> time, such as a sensor joining) marked; the title names the
+    algorithm (``label``, else the file's) and the tracks file."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(14, 6))
+    fig.suptitle(f"{label or result.get('algorithm') or 'algorithm not recorded (--label)'}: {tracks_path.name}")
+    colours = track_colours()
     paths: dict[Any, list[np.ndarray]] = {}
     maneuvering: list[np.ndarray] = []
     for _, targets in _load(truth_path, "targets"):
@@ -231,12 +279,14 @@ def plot(result: dict[str, Any], tracks_path: Path, truth_path: Path, out: Path,
                 paths.setdefault(("track", tr["id"]), []).append(_positions(tr["x"])[:2])
                 if flagged(tr):
                     maneuvering.append(_positions(tr["x"])[:2])
+    n_tracks = 0
     for (kind, _), pts in paths.items():
         a = np.array(pts)
         if kind == "truth":
-            ax1.plot(a[:, 0], a[:, 1], color="0.6", lw=2.5, zorder=1)
+            ax1.plot(a[:, 0], a[:, 1], color=TRUTH_GREY, lw=2.5, zorder=1)
         else:
-            ax1.plot(a[:, 0], a[:, 1], lw=1.0, zorder=2)
+            ax1.plot(a[:, 0], a[:, 1], color=colours[n_tracks % len(colours)], lw=1.0, zorder=2)
+            n_tracks += 1
     if maneuvering:
         m = np.array(maneuvering)
         ax1.scatter(m[:, 0], m[:, 1], s=9, c="red", marker="x", lw=0.8, zorder=3, label="maneuver flagged")
@@ -260,32 +310,46 @@ def plot(result: dict[str, Any], tracks_path: Path, truth_path: Path, out: Path,
     ax2.legend()
     ax2.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(out, dpi=110)
+    with output_file(out, "wb") as fh:
+        fig.savefig(fh, dpi=110, format=out.suffix[1:] or "png")
     plt.close(fig)
 
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="fedtrack evaluate", description="GOSPA, OSPA, id switches, "
-                                     "fragmentations, RMSE and NEES of a track picture file against truth")
-    parser.add_argument("--tracks", required=True, type=Path)
-    parser.add_argument("--truth", required=True, type=Path)
-    parser.add_argument("--c", type=float, default=100.0, help="cut-off distance [m] (default 100)")
-    parser.add_argument("--p", type=float, default=2.0, help="order (default 2)")
-    parser.add_argument("--alpha", type=float, default=2.0, help="GOSPA alpha (only 2 is supported)")
-    parser.add_argument("--all-tracks", action="store_true", help="evaluate tentative tracks too")
-    parser.add_argument("--json", type=Path, help="write the full result (with the per-picture series)")
-    parser.add_argument("--plot", type=Path, help="PNG: tracks over truth and GOSPA over time")
+                                     "fragmentations, RMSE, NEES and maneuver flags of a track picture file against "
+                                     "truth")
+    parser.add_argument("--tracks", required=True, type=Path, metavar="T.jsonl",
+                        help="track pictures ({\"t\", \"tracks\": [...]} a line, as replay --algorithm mtt-* writes)")
+    parser.add_argument("--truth", required=True, type=Path, metavar="U.jsonl",
+                        help="truth ({\"t\", \"targets\": [...]} a line, as simulate multitarget writes)")
+    parser.add_argument("--c", type=float, default=100.0, help="cut-off distance [m] (default: %(default)s)")
+    parser.add_argument("--p", type=float, default=2.0, help="order (default: %(default)s)")
+    parser.add_argument("--alpha", type=float, default=2.0, help="GOSPA alpha; only 2 is supported "
+                        "(default: %(default)s)")
+    parser.add_argument("--all-tracks", action="store_true", help="evaluate tentative tracks too "
+                        "(default: confirmed tracks only)")
+    parser.add_argument("--json", type=Path, metavar="OUT.json",
+                        help="write the full result (with the per-picture series)")
+    parser.add_argument("--plot", type=Path, metavar="OUT.png", help="PNG: tracks over truth and GOSPA over time")
+    parser.add_argument("--label", help="the plot title's algorithm (default: the tracks file's \"algorithm\")")
     args = parser.parse_args(argv)
     if args.alpha != 2:
         parser.error("--alpha: only alpha = 2 (the decomposable GOSPA) is supported")
     if not (args.c > 0 and args.p >= 1):
         parser.error("--c must be > 0 and --p >= 1")
     for path in (args.json, args.plot):
-        if path is not None and not path.parent.is_dir():
-            raise InputError(f"{path}: the folder {path.parent} does not exist")
+        if path is not None:
+            check_output(path)
     result = evaluate(args.tracks, args.truth, args.c, args.p, args.all_tracks)
+    if args.json:  # the files first: a reader that stops early (| head) does not cost them
+        with output_file(args.json) as fh:
+            fh.write(json.dumps(result))
+    if args.plot:
+        plot(result, args.tracks, args.truth, args.plot, label=args.label)
     m = result["mean"]
-    print(f"pictures {result['pictures']} (without truth: {result['pictures_without_truth']})")
+    print(f"pictures {result['pictures']} (without truth: {result['pictures_without_truth']})"
+          + (f" of {result['algorithm']}" if result["algorithm"] else ""))
     print(f"mean GOSPA {m['gospa']:.2f} m (c = {args.c:g}, p = {args.p:g}, alpha = 2): localisation "
           f"{m['localisation']:.1f}, missed {m['missed']:.1f}, false {m['false']:.1f} (p-th power parts)")
     print(f"mean OSPA {m['ospa']:.2f} m; id switches {result['id_switches']}; fragmentations "
@@ -295,14 +359,16 @@ def main(argv: list[str]) -> int:
     print(f"NEES mean {nees:.2f} ({result['nees_dof']} dof), {100 * result['nees_inside_95']:.1f}% inside the "
           f"95% band" if nees is not None else "NEES -")
     man = result["maneuvers"]
-    rate = {k: "-" if man[f"flagged_while_{k}"] is None else f"{100 * man[f'flagged_while_{k}']:.1f}%"
-            for k in ("maneuvering", "straight")}
-    print(f"maneuver flags: {rate['maneuvering']} of {man['maneuvering_pairs']} assigned pairs while the target "
-          f"accelerates (>= {MANEUVER_ACCEL:g} m/s^2), {rate['straight']} of {man['straight_pairs']} while it moves "
-          f"straight (< {STRAIGHT_ACCEL:g} m/s^2 for {STRAIGHT_FOR_S:g} s); {man['onsets']} onsets")
-    if args.json:
-        args.json.write_text(json.dumps(result))
-    if args.plot:
-        plot(result, args.tracks, args.truth, args.plot)
-        print(f"wrote {args.plot}")
+    if not man["applicable"]:
+        print("maneuver flags: not applicable (no maneuver detector ran: the pictures' detector is "
+              f"{man['detector'] or 'not given and no track is flagged'})")
+    else:
+        rate = {k: "-" if man[f"flagged_while_{k}"] is None else f"{100 * man[f'flagged_while_{k}']:.1f}%"
+                for k in ("maneuvering", "straight")}
+        print(f"maneuver flags: {rate['maneuvering']} of {man['maneuvering_pairs']} assigned pairs while the target "
+              f"accelerates (>= {MANEUVER_ACCEL:g} m/s^2), {rate['straight']} of {man['straight_pairs']} while it "
+              f"moves straight (< {STRAIGHT_ACCEL:g} m/s^2 for {STRAIGHT_FOR_S:g} s); {man['onsets']} onsets")
+    for path in (args.json, args.plot):
+        if path is not None:
+            print(f"wrote {path}")
     return 0
