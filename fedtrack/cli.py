@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from fedtrack.config import ConfigError
-from fedtrack.jsonl import InputError, check_output, check_output_folder
+from fedtrack.jsonl import InputError, check_output, output_folder
 
 # name -> "module:function(runs, seed, json_path, plots_dir) -> dict"
 REPRODUCERS: dict[str, str] = {
@@ -104,7 +104,7 @@ def resolve(target: str) -> Callable[..., Any]:
 def _cmd_reproduce(args: argparse.Namespace) -> int:
     check_output(args.json)  # before minutes of Monte Carlo
     if args.plots:
-        check_output_folder(args.plots)
+        output_folder(args.plots)
     fn = resolve(REPRODUCERS[args.name])
     extra = {"model": Path(args.model)} if args.model else {}
     result = fn(runs=args.runs, seed=args.seed, json_path=Path(args.json),
@@ -202,24 +202,33 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     rep = sub.add_parser("reproduce", help="seeded Monte Carlo reproduction of a paper")
-    rep.add_argument("name", choices=sorted(REPRODUCERS))
+    rep.add_argument("name", choices=sorted(REPRODUCERS), metavar="NAME",
+                     help=f"the paper's experiment: {', '.join(sorted(REPRODUCERS))}")
     rep.add_argument("--runs", type=int, default=500, help="Monte Carlo runs (default: %(default)s)")
     rep.add_argument("--seed", type=int, default=1, help="random seed (default: %(default)s)")
-    rep.add_argument("--json", required=True, help="output JSON path")
-    rep.add_argument("--plots", help="directory for PNG figures")
+    rep.add_argument("--json", required=True, metavar="PATH", help="output JSON file (its folder must exist)")
+    rep.add_argument("--plots", metavar="DIR", help="folder for PNG figures (created if missing; its own folder "
+                     "must exist; default: no figures)")
     rep.add_argument("--model", metavar="PATH", help="ts-fuzzy only: a trained model (fedtrack train ts-fuzzy --out "
                      "PATH) instead of training one, which takes minutes")
     rep.set_defaults(func=_cmd_reproduce)
 
-    rpl = sub.add_parser("replay", help="run an estimator over recorded measurements (JSON Lines)")
-    rpl.add_argument("--algorithm", required=True, choices=sorted(REPLAY_ALGORITHMS))
-    rpl.add_argument("--measurements", required=True)
-    rpl.add_argument("--config", help="TOML configuration")
-    rpl.add_argument("--out", required=True)
-    rpl.add_argument("--period", type=float, help="mtt-*: seconds between track pictures (default [mtt] period)")
-    rpl.add_argument("--sensor", help="mtt-local: the sensor whose tracker runs")
+    rpl = sub.add_parser("replay", help="run an estimator over recorded measurements (JSON Lines)",
+                         description="run an estimator over recorded measurements (JSON Lines in, JSON Lines out)")
+    rpl.add_argument("--algorithm", required=True, choices=sorted(REPLAY_ALGORITHMS), metavar="NAME",
+                     help=f"the estimator: {', '.join(REPLAY_ALGORITHMS)}")
+    rpl.add_argument("--measurements", required=True, metavar="PATH",
+                     help="measurements, one JSON object a line (formats: README, docs/)")
+    rpl.add_argument("--config", metavar="TOML", help="configuration file (default: every table's defaults)")
+    rpl.add_argument("--out", required=True, metavar="PATH",
+                     help="output JSON Lines: estimates, track lines (pda-ai, hpda) or pictures (mtt-*); written "
+                          "whole or not at all; its folder must exist")
+    rpl.add_argument("--period", type=float, metavar="S",
+                     help="mtt-*: seconds between track pictures (default: [mtt] period, 1.0)")
+    rpl.add_argument("--sensor", metavar="ID", help="mtt-local (required there): the sensor whose tracker runs, "
+                     "e.g. s1 or r3 as simulate multitarget names them")
     rpl.add_argument("--status", choices=("all", "confirmed"),
-                     help="pda-ai, hpda: write every track (default) or the confirmed ones only")
+                     help="pda-ai, hpda: write every track or the confirmed ones only (default: all)")
     rpl.set_defaults(func=_cmd_replay)
 
     _registry_parser(sub, "serve", "run one service process", "role", SERVICES, "role")

@@ -44,15 +44,19 @@ def check_output(path: str | Path) -> Path:
     return p
 
 
-def check_output_folder(path: str | Path) -> Path:
-    """``path`` as a folder a command writes several files into: created if missing, but its own
-    folder must exist (the rule of :func:`check_output`: fedtrack creates what it is told to
-    write, never the folders above it); an InputError naming it otherwise."""
+def output_folder(path: str | Path) -> Path:
+    """``path`` as a folder a command writes several files into (``simulate --out DIR``): created
+    if missing, but its own folder must exist (the rule of :func:`check_output`: fedtrack creates
+    what it is told to write, never the folders above it); an InputError naming it otherwise."""
     p = Path(path)
     if p.exists() and not p.is_dir():
         raise InputError(f"{p}: exists and is not a folder")
     if not p.is_dir():
         check_output(p)
+        try:
+            p.mkdir()
+        except OSError as exc:
+            raise InputError(f"{p}: cannot create: {exc.strerror or exc}") from None
     return p
 
 
@@ -233,7 +237,7 @@ def as_vector(value: Any, name: str, where: str, size: int | None = None) -> np.
     if not isinstance(value, (list, tuple)):
         raise InputError(f"{where}: {name} must be {want}, got {_json_text(value)}")
     if arr.ndim != 1 or (size is not None and arr.shape[0] != size):
-        got = f"{len(value)} numbers" if arr.ndim == 1 else f"shape {arr.shape}"
+        got = str(len(value)) if arr.ndim == 1 else f"shape {arr.shape}"
         raise InputError(f"{where}: {name} must be {want}, got {got}")
     if not all(is_number(v) for v in value):
         raise _not_numbers(value, name, where, want)

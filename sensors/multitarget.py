@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from fedtrack.config import to_toml
-from fedtrack.jsonl import InputError, check_output_folder, output_file
+from fedtrack.jsonl import InputError, output_folder, output_file
 from fedtrack.local_filters.radar.measurement import polar_from_cartesian, wrap_angle
 
 DT = 0.05
@@ -243,7 +243,7 @@ def main(argv: list[str]) -> int:
         if not ok:
             raise InputError(f"--{name}: must be {rule}, got {getattr(args, name):g}")
     specs = parse_spec(args.sensors)
-    check_output_folder(args.out)
+    output_folder(args.out)
     sc = Scenario(targets=args.targets, duration=args.duration, pd=args.pd, clutter=args.clutter, late=args.late)
     info = simulate(sc, specs, args.seed, args.out)
     print(f"wrote {args.out}/measurements.jsonl ({info['scans']} scans, {info['out_of_sequence']} out of "
