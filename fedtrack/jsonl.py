@@ -8,7 +8,7 @@ import contextlib
 import json
 import math
 import os
-import tempfile
+import secrets
 from pathlib import Path
 from typing import IO, Any, Iterator
 
@@ -67,26 +67,19 @@ def output_file(path: str | Path, mode: str = "w") -> Iterator[IO[Any]]:
     an error half-way (a bad input line, Ctrl-C) leaves no half-written output and an existing
     file untouched. ``mode`` is ``"w"`` (text) or ``"wb"``."""
     p = check_output(path)
+    tmp = p.parent / f".{p.name}.{os.getpid()}.{secrets.token_hex(4)}.part"
     try:
-        fd, tmp = tempfile.mkstemp(dir=p.parent, prefix=f".{p.name}.", suffix=".part")
+        fh = open(tmp, mode.replace("w", "x"))  # a new file, with the mode the umask gives any output
     except OSError as exc:
         raise InputError(f"{p}: cannot write: {exc.strerror or exc}") from None
     try:
-        with os.fdopen(fd, mode) as fh:
+        with fh:
             yield fh
-        os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, p)
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
-
-
-def _umask() -> int:
-    """The process's umask (mkstemp creates 0600; an output gets the mode ``open`` would give it)."""
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
 
 
 def read_jsonl(path: str | Path) -> Iterator[tuple[int, dict[str, Any]]]:

@@ -213,7 +213,11 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
             if "P" in shown[j] and xt.shape == xe.shape:
                 P = np.asarray(shown[j]["P"], float)
                 e = xt - xe
-                nees.append((float(e @ np.linalg.solve(P, e)), xt.size))
+                try:
+                    nees.append((float(e @ np.linalg.solve(P, e)), xt.size))
+                except np.linalg.LinAlgError:
+                    raise InputError(f"{tracks_path}: the picture at t = {t:g}: track {shown[j]['id']}'s P is "
+                                     "singular (a covariance must be positive definite)") from None
     if not series:
         raise InputError(f"{tracks_path}: no picture has a truth line at its time in {truth_path}")
     switches = fragments = 0

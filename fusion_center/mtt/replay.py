@@ -66,12 +66,18 @@ class PictureClock:
     delay: float
     k: int | None = None
     high: float = -math.inf
+    departed: bool = False  # a sensor left after the latest scan
+
+    def left(self) -> None:
+        """A sensor left (a departure line, or a live centre dropping it)."""
+        self.departed = True
 
     def due(self, t: float) -> list[float]:
         """Picture times due before a scan at ``t`` is ingested."""
         if self.k is None:
             self.k = math.ceil(t / self.period - 1e-9)
         self.high = max(self.high, t)
+        self.departed = False
         out = []
         while self.k * self.period + self.delay < self.high:
             out.append(self.k * self.period)
@@ -80,9 +86,12 @@ class PictureClock:
 
     def final(self) -> list[float]:
         """Picture times still due at the end of the data: up to the first whole period at or after
-        the latest scan, so that the last picture holds every scan."""
+        the latest scan, so that the last picture holds every scan; but only up to the latest scan
+        when sensors left after it (the trackers of a live run that stopped before its centre:
+        a picture past the data would be made without them)."""
         out = []
-        while self.k is not None and (self.k - 1) * self.period < self.high - 1e-9:
+        while self.k is not None and ((self.k - 1) * self.period < self.high - 1e-9 if not self.departed
+                                      else self.k * self.period <= self.high + 1e-9):
             out.append(self.k * self.period)
             self.k += 1
         return out
@@ -95,6 +104,7 @@ def pictures(engine: Engine, scans: list[SensorScan | SensorLeft], period: float
     for scan in scans:
         if isinstance(scan, SensorLeft):
             engine.leave(scan.sensor)
+            clock.left()
             continue
         for T in clock.due(scan.t):
             yield _picture(engine, T)

@@ -92,6 +92,7 @@ class MttCentreService(Service):
         for sensor in dict.fromkeys(silent):
             if self.last_heard.pop(sensor, None) is not None:
                 self.engine.leave(sensor)
+                self.clock.left()
                 self.left_at.append(len(self.order))
                 self.order.append((sensor, 0))
                 self.count("sensors_left")
