@@ -228,9 +228,12 @@ def main(argv: list[str]) -> int:
     """``fedtrack export``: a recording's measurements (and tracks) as replayable JSON Lines."""
     parser = argparse.ArgumentParser(prog="fedtrack export",
                                      description="write a recording's measurements as replay input (JSON Lines)")
-    parser.add_argument("--db", required=True, type=Path, help="recording database (fedtrack serve recorder --db)")
-    parser.add_argument("--out", required=True, type=Path, help="measurements, replay input format")
-    parser.add_argument("--tracks", type=Path, help="also write the fused tracks here (replay output format)")
+    parser.add_argument("--db", required=True, type=Path, metavar="PATH",
+                        help="recording database (fedtrack serve recorder --db)")
+    parser.add_argument("--out", required=True, type=Path, metavar="FILE.jsonl",
+                        help="measurements, replay input format (its folder must exist)")
+    parser.add_argument("--tracks", type=Path, metavar="FILE.jsonl", help="also write the fused tracks, or the "
+                        "multi-target pictures, here (replay output format)")
     args = parser.parse_args(argv)
     for path in (args.out, args.tracks):
         if path is not None:
