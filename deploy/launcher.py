@@ -529,7 +529,8 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
     settings = load_settings(args.config)
     check_launchable(settings, args.config)
-    out = output_folder(args.out or Path(settings.deployment.out))
+    # --out follows every command's output rule; [deployment] out (fedtrack-out/<name>) is made as it is
+    out = output_folder(args.out) if args.out else Path(settings.deployment.out)
     code = None
     try:
         report = run_deployment(settings, args.config.resolve(), out)
