@@ -224,6 +224,19 @@ def test_the_final_picture_is_at_the_whole_period_after_the_last_scan(tmp_path: 
     assert f"wrote 5 pictures to {out}" in capsys.readouterr().out
 
 
+def test_departures_after_the_last_scan_keep_the_final_pictures_within_the_data() -> None:
+    """A live run whose trackers stopped before its centre ends in departure lines: a picture past
+    the data would be made without them, so the pictures stop at the latest scan (live and replay)."""
+    from fedtrack.fusion_center.mtt.replay import PictureClock
+
+    for departed, expected in ((False, [3.0, 4.0]), (True, [3.0])):
+        clock = PictureClock(period=1.0, delay=0.0)
+        assert [T for t in (0.0, 0.5, 1.2, 2.4, 3.5) for T in clock.due(t)] == [0.0, 1.0, 2.0]
+        if departed:
+            clock.left()
+        assert clock.final() == expected
+
+
 # --- item 7 (issue's 9, 10): maneuver rates only when a detector ran; the plot
 
 def _files(tmp_path: Path, **head: str) -> tuple[Path, Path]:
