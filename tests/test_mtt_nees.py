@@ -33,10 +33,12 @@ def test_process_noise_from_the_truths_maximum_acceleration_and_the_longest_peri
 def test_nees_inside_the_95_percent_band_on_the_default_scenario(tmp_path: Path) -> None:
     """The default scenario (seed 1: three sensors at 1.0 / 0.7 / 1.3 s, P_D 0.9, 10 false
     detections a scan, 300 s) with 20 of its 60 targets, replayed with the ``config.toml`` it
-    writes: for mtt-centralized, mtt-federated and mtt-local, at least 90% of the assigned pairs'
-    position NEES (2 dof) inside the two-sided 95% chi-square band, and at least 85% of the full
-    state's (4 dof; a CV filter with q > 0 over straight legs is conservative in velocity, see the
-    docs). Measured: position 0.956 / 0.955 / 0.951, state 0.869 / 0.868 / 0.874."""
+    writes, for mtt-centralized, mtt-federated and mtt-local: at least 95% of the assigned pairs'
+    position NEES (2 dof) inside the two-sided 95% chi-square band, at least 85% of the state's
+    (4 dof) while the truth accelerates, and at least 86% of the state's overall (a CV filter with
+    q > 0 is conservative in velocity on straight legs: docs/multitarget.md). Measured: position
+    0.961 / 0.960 / 0.959, accelerating 0.963 / 0.968 / 0.884, state 0.875 / 0.874 / 0.866; with
+    the earlier q = 1: 0.940 / 0.940 / 0.936, 0.447 / 0.447 / 0.398, 0.855 / 0.856 / 0.842."""
     simulate(Scenario(targets=20), parse_spec("pos:1.0,pos:0.7,pos:1.3"), 1, tmp_path)
     assert load_tables(tmp_path / "config.toml", MttSettings).mtt.q == pytest.approx(math.pi**2 / 4 * 1.3, abs=1e-6)
     inside = {}
@@ -47,6 +49,7 @@ def test_nees_inside_the_95_percent_band_on_the_default_scenario(tmp_path: Path)
         parts = {row["part"]: row for row in evaluate(out, tmp_path / "truth.jsonl")["nees"]}
         assert (parts["state"]["dof"], parts["position"]["dof"]) == (4, 2)
         assert parts["state"]["pairs"] > 4000
-        inside[algorithm] = (parts["position"]["inside_95"], parts["state"]["inside_95"])
-    for algorithm, (position, state) in inside.items():
-        assert position >= 0.90 and state >= 0.85, inside
+        inside[algorithm] = (parts["position"]["inside_95"], parts["state"]["maneuvering"]["inside_95"],
+                             parts["state"]["inside_95"])
+    for position, accelerating, state in inside.values():
+        assert position >= 0.95 and accelerating >= 0.85 and state >= 0.86, inside
