@@ -1,8 +1,9 @@
 """``fedtrack simulate multitarget``: many targets, asynchronous 2-D and radar sensors, clutter, delays.
 
 Truth: targets move at constant speed (8-30 m/s) with coordinated turns (a few per target,
-2-6 deg/s for 8-25 s: at most ``MAX_ACCELERATION`` = 3.14 m/s^2) in a square of half-width ``region`` metres; pairs of targets are aimed to pass
-the same point at the same time (crossings); some targets are born late or die early.
+2-6 deg/s for 8-25 s: at most ``MAX_ACCELERATION`` = pi m/s^2) in a square of half-width
+``region`` metres; pairs of targets are aimed to pass the same point at the same time
+(crossings); some targets are born late or die early.
 Radar scenarios give every target a constant altitude. Truth is integrated on a 0.05 s grid
 (exact per step for a constant turn rate).
 
@@ -39,7 +40,9 @@ from fedtrack.local_filters.radar.measurement import polar_from_cartesian, wrap_
 DT = 0.05
 SPEED = (8.0, 30.0)  # m/s, uniform
 TURN_RATE = (2.0, 6.0)  # deg/s, uniform, either sign
-MAX_ACCELERATION = float(np.deg2rad(TURN_RATE[1]) * SPEED[1])  # m/s^2: the fastest turn of the fastest target
+# m/s^2: the fastest turn of the fastest target (a crossing only slows a target down: its
+# meeting point, when clipped to the region, comes nearer)
+MAX_ACCELERATION = float(np.deg2rad(TURN_RATE[1]) * SPEED[1])
 
 
 @dataclass(frozen=True)

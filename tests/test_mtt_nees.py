@@ -15,15 +15,22 @@ from fedtrack.config import load_tables
 from fedtrack.fusion_center.mtt.evaluation import evaluate
 from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.local_filters.mtt.config import MttSettings
-from fedtrack.sensors.multitarget import (DT, MAX_ACCELERATION, Scenario, parse_spec, process_noise, simulate,
-                                          simulate_truth)
+from fedtrack.sensors.multitarget import (
+    DT,
+    MAX_ACCELERATION,
+    Scenario,
+    parse_spec,
+    process_noise,
+    simulate,
+    simulate_truth,
+)
 
 
 def test_process_noise_from_the_truths_maximum_acceleration_and_the_longest_period() -> None:
     """``q = (a_M / 2)^2 T``: a_M = 6 deg/s at 30 m/s = pi m/s^2, bounding every simulated truth's
     acceleration (finite differences of the 0.05 s grid), T the longest sensor period."""
     assert MAX_ACCELERATION == pytest.approx(math.pi, abs=1e-12)
-    x, alive = simulate_truth(Scenario(targets=60, duration=300.0), False, np.random.default_rng(1))
+    x, _ = simulate_truth(Scenario(targets=60, duration=300.0), False, np.random.default_rng(1))
     accel = np.hypot(*(np.diff(x[:, :, [1, 3]], axis=0) / DT).transpose(2, 0, 1))
     assert 0.9 * MAX_ACCELERATION < accel.max() <= MAX_ACCELERATION + 1e-9
     assert process_noise(parse_spec("pos:1.0,pos:0.7,pos:1.3")) == pytest.approx(math.pi**2 / 4 * 1.3, abs=1e-6)
