@@ -1,8 +1,9 @@
 """``fedtrack simulate multitarget``: many targets, asynchronous 2-D and radar sensors, clutter, delays.
 
-Truth: targets move at constant speed with coordinated turns (a few per target, 2-6 deg/s
-for 8-25 s) in a square of half-width ``region`` metres; pairs of targets are aimed to pass
-the same point at the same time (crossings); some targets are born late or die early.
+Truth: targets move at constant speed (8-30 m/s) with coordinated turns (a few per target,
+2-6 deg/s for 8-25 s: at most ``MAX_ACCELERATION`` = pi m/s^2) in a square of half-width
+``region`` metres; pairs of targets are aimed to pass the same point at the same time
+(crossings); some targets are born late or die early.
 Radar scenarios give every target a constant altitude. Truth is integrated on a 0.05 s grid
 (exact per step for a constant turn rate).
 
@@ -16,6 +17,9 @@ Delays: every scan reaches the tracker ``base_delay`` + an exponential jitter af
 and a fraction ``late`` of the scans (never the first) up to two periods later; a sensor's link
 is FIFO (a Zenoh publisher's samples arrive in order), so out-of-sequence lines come from the
 interleaving of sensors. ``measurements.jsonl`` is written in arrival order.
+
+``config.toml`` sets ``[mtt] q`` from the truth's maximum acceleration and the sensors' periods
+(:func:`process_noise`, docs/multitarget.md#covariance-consistency-nees).
 """
 
 from __future__ import annotations
@@ -34,6 +38,11 @@ from fedtrack.jsonl import InputError, output_folder, output_file
 from fedtrack.local_filters.radar.measurement import polar_from_cartesian, wrap_angle
 
 DT = 0.05
+SPEED = (8.0, 30.0)  # m/s, uniform
+TURN_RATE = (2.0, 6.0)  # deg/s, uniform, either sign
+# m/s^2: the fastest turn of the fastest target (a crossing only slows a target down: its
+# meeting point, when clipped to the region, comes nearer)
+MAX_ACCELERATION = float(np.deg2rad(TURN_RATE[1]) * SPEED[1])
 
 
 @dataclass(frozen=True)
@@ -52,7 +61,6 @@ class Scenario:
     clutter: float = 10.0
     late: float = 0.2
     base_delay: float = 0.05
-    q: float = 1.0
 
 
 def parse_spec(spec: str) -> list[SensorSpec]:
@@ -74,7 +82,7 @@ def simulate_truth(sc: Scenario, three_d: bool, rng: np.random.Generator) -> tup
     """States ``(steps, N, 6)`` ``[x, vx, y, vy, z, vz]`` on the ``DT`` grid and an alive mask ``(steps, N)``."""
     steps = int(round(sc.duration / DT)) + 1
     n = sc.targets
-    speed = rng.uniform(8.0, 30.0, n)
+    speed = rng.uniform(*SPEED, n)
     heading = rng.uniform(-np.pi, np.pi, n)
     pos = rng.uniform(-0.7 * sc.region, 0.7 * sc.region, (n, 2))
     # crossings: the second of each pair is aimed at the first one's position at a common time
@@ -86,13 +94,13 @@ def simulate_truth(sc: Scenario, three_d: bool, rng: np.random.Generator) -> tup
         heading[a] = math.atan2(*(meet - pos[a])[::-1])
         speed[a] = float(np.linalg.norm(meet - pos[a]) / tc)
         heading[b] = heading[a] + rng.choice([-1, 1]) * rng.uniform(0.5, 2.0)
-        speed[b] = rng.uniform(8.0, 30.0)
+        speed[b] = rng.uniform(*SPEED)
         pos[b] = meet - tc * speed[b] * np.array([np.cos(heading[b]), np.sin(heading[b])])
     omega = np.zeros((steps, n))
     for i in range(n):
         for _ in range(rng.integers(1, 4)):
             start = int(rng.uniform(0, sc.duration) / DT)
-            omega[start:start + int(rng.uniform(8, 25) / DT), i] = np.deg2rad(rng.uniform(2, 6)) * rng.choice([-1, 1])
+            omega[start:start + int(rng.uniform(8, 25) / DT), i] = np.deg2rad(rng.uniform(*TURN_RATE)) * rng.choice([-1, 1])
     alt = rng.uniform(300.0, 3000.0, n) if three_d else np.zeros(n)
     x = np.zeros((steps, n, 6))
     x[0, :, 0], x[0, :, 2], x[0, :, 4] = pos[:, 0], pos[:, 1], alt
@@ -160,6 +168,15 @@ def sensor_lines(spec: SensorSpec, sc: Scenario, x: np.ndarray, alive: np.ndarra
     return out
 
 
+def process_noise(specs: list[SensorSpec]) -> float:
+    """``[mtt] q`` [m^2/s^3] for this simulator: ``(a_M / 2)^2 T`` with ``a_M`` = ``MAX_ACCELERATION``
+    and ``T`` the longest sensor period. Bar-Shalom, Li, Kirubarajan (2001), sections 6.2.2 and
+    6.3.2: the velocity change over a scan interval, ``sqrt(q T)`` for a continuous white-noise
+    acceleration, should be ``0.5 a_M`` to ``a_M`` times ``T``; the lower end, since the targets
+    turn a fraction of the time and mostly below ``a_M``."""
+    return round((MAX_ACCELERATION / 2.0) ** 2 * max(s.period for s in specs), 6)
+
+
 def radar_range(sc: Scenario) -> tuple[float, float]:
     return 0.2 * sc.region, 2.6 * sc.region
 
@@ -194,7 +211,7 @@ def simulate(sc: Scenario, specs: list[SensorSpec], seed: int, out: Path) -> dic
             step = int(round(second / DT))
             targets = [{"id": int(i), "x": x[step, i, dims].tolist()} for i in np.flatnonzero(alive[step])]
             fh.write(json.dumps({"t": float(second), "targets": targets}) + "\n")
-    mtt: dict[str, Any] = {"q": sc.q, "pd": sc.pd, "clutter_density": clutter_density(specs[0], sc),
+    mtt: dict[str, Any] = {"q": process_noise(specs), "pd": sc.pd, "clutter_density": clutter_density(specs[0], sc),
                            "max_lag": 3.0, "period": 1.0, "init_velocity_std": 30.0,
                            "sensors": [s.id for s in specs]}
     mtt["sensor"] = {s.id: {"clutter_density": clutter_density(s, sc)} for s in specs if s.kind == "radar"}

@@ -13,8 +13,12 @@
 * Per truth, the sequence of assigned track ids gives **id switches** (the id changes from one
   assigned picture to the next assigned one) and **fragmentations** (an assigned stretch ends
   and a later one starts).
-* Position RMSE over assigned pairs; NEES of the full state over assigned pairs whose state
-  sizes agree, its mean and the fraction inside the two-sided 95% chi-square band.
+* Position RMSE over assigned pairs. **NEES** ``e' P^-1 e`` over the assigned pairs whose state
+  sizes agree, in two parts with their degrees of freedom: the full ``state`` (4 or 6) and the
+  ``position`` alone (its block of ``P``: 2 or 3); per part the mean, the fraction inside the
+  two-sided 95% chi-square band of its dof (a consistent filter puts 95% of its pairs there),
+  and both while the truth accelerates and while it moves straight (below), where a CV filter
+  errs in opposite directions (docs/multitarget.md#covariance-consistency-nees).
 * **Maneuver flags** (a track with a ``maneuver`` field, or in the CA model): the fraction of
   assigned pairs flagged while the truth target accelerates by at least ``MANEUVER_ACCEL``
   (its acceleration from the velocities of the truth lines around the picture) and while it
@@ -40,6 +44,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.special import chdtri
 
 from fedtrack.jsonl import InputError, check_output, is_number, output_file, read_jsonl
+from fedtrack.local_filters.linear.kalman import nees
 
 MANEUVER_ACCEL = 1.0  # m/s^2: a truth target accelerating at least this much is maneuvering
 STRAIGHT_ACCEL = 0.01  # m/s^2: below this it moves straight at constant speed ...
@@ -163,6 +168,31 @@ def truth_motion(lines: list[tuple[float, list[dict[str, Any]]]]) -> dict[tuple[
     return out
 
 
+def nees_parts(errors: list[np.ndarray], covariances: list[np.ndarray], motions: list[str | None]
+               ) -> list[dict[str, Any]]:
+    """NEES of the pairs (``errors`` truth minus estimate, ``covariances`` the estimate's ``P``),
+    per part (``state``, ``position``) and state size: pairs, dof, mean, the two-sided 95%
+    chi-square band and the fraction inside it, overall and per truth motion."""
+    out = []
+    for dim in sorted({e.size for e in errors}):
+        idx = [k for k, e in enumerate(errors) if e.size == dim]
+        e, P = np.array([errors[k] for k in idx]), np.array([covariances[k] for k in idx])
+        kinds = np.array([motions[k] for k in idx], dtype=object)
+        pos = np.arange(0, dim, 2)
+        for part, sel in (("state", np.arange(dim)), ("position", pos)):
+            v = nees(e[:, sel], P[:, sel[:, None], sel[None, :]])
+            lo, hi = float(chdtri(sel.size, 0.975)), float(chdtri(sel.size, 0.025))
+            inside = (v >= lo) & (v <= hi)
+            row: dict[str, Any] = {"part": part, "dof": int(sel.size), "pairs": int(v.size), "mean": float(v.mean()),
+                                   "band_95": [lo, hi], "inside_95": float(inside.mean())}
+            for kind in ("maneuvering", "straight"):
+                m = kinds == kind
+                row[kind] = {"pairs": int(m.sum()), "mean": float(v[m].mean()) if m.any() else None,
+                             "inside_95": float(inside[m].mean()) if m.any() else None}
+            out.append(row)
+    return out
+
+
 def flagged(track: dict[str, Any]) -> bool:
     """A track whose maneuver is detected: a central track's ``maneuver``, or a track in CA."""
     return "maneuver" in track or track.get("model") == "ca"
@@ -181,7 +211,9 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
     series: list[dict[str, float]] = []
     sequences: dict[Any, list[int | None]] = {}
     sq_err: list[float] = []
-    nees: list[tuple[float, int]] = []
+    errors: list[np.ndarray] = []
+    covariances: list[np.ndarray] = []
+    motions: list[str | None] = []
     skipped = 0
     for t, items in _load(tracks_path, "tracks"):
         targets = truth.get(round(t, 6))
@@ -212,19 +244,20 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
             xt, xe = np.asarray(g["x"], float), np.asarray(shown[j]["x"], float)
             if "P" in shown[j] and xt.shape == xe.shape:
                 P = np.asarray(shown[j]["P"], float)
-                e = xt - xe
                 try:
-                    nees.append((float(e @ np.linalg.solve(P, e)), xt.size))
+                    np.linalg.cholesky(P)
                 except np.linalg.LinAlgError:
                     raise InputError(f"{tracks_path}: the picture at t = {t:g}: track {shown[j]['id']}'s P is "
-                                     "singular (a covariance must be positive definite)") from None
+                                     "not positive definite (a covariance must be)") from None
+                errors.append(xt - xe)
+                covariances.append(P)
+                motions.append(kind)
     if not series:
         raise InputError(f"{tracks_path}: no picture has a truth line at its time in {truth_path}")
     switches = fragments = 0
     for seq in sequences.values():
         s, f = id_changes(seq)
         switches, fragments = switches + s, fragments + f
-    inside = [lo <= v <= hi for v, dof in nees for lo, hi in [(chdtri(dof, 0.975), chdtri(dof, 0.025))]]
     detector = head.get("detector")
     applicable = detector != "none" if detector is not None else any(was_flagged.values())
     mean = {key: float(np.mean([row[key] for row in series])) for key in ("gospa", "localisation", "missed",
@@ -234,9 +267,7 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
         "c": c, "p": p, "alpha": 2, "pictures": len(series), "pictures_without_truth": skipped,
         "mean": mean, "id_switches": switches, "fragmentations": fragments,
         "position_rmse": math.sqrt(float(np.mean(sq_err))) if sq_err else None,
-        "nees_mean": float(np.mean([v for v, _ in nees])) if nees else None,
-        "nees_dof": nees[0][1] if nees else None,
-        "nees_inside_95": float(np.mean(inside)) if inside else None,
+        "nees": nees_parts(errors, covariances, motions),
         "maneuvers": {"detector": detector, "applicable": applicable, "onsets": onsets if applicable else None,
                       "maneuver_accel": MANEUVER_ACCEL, "straight_accel": STRAIGHT_ACCEL,
                       "straight_for_s": STRAIGHT_FOR_S,
@@ -319,6 +350,20 @@ def plot(result: dict[str, Any], tracks_path: Path, truth_path: Path, out: Path,
     plt.close(fig)
 
 
+def nees_line(row: dict[str, Any]) -> str:
+    """One line of a :func:`nees_parts` row: dof, mean, the fraction inside the 95% band, and
+    both while the truth accelerates and while it moves straight."""
+    names = {("state", 4): "x, vx, y, vy", ("state", 6): "x, vx, y, vy, z, vz", ("position", 2): "x, y",
+             ("position", 3): "x, y, z"}
+    lo, hi = row["band_95"]
+    by = "; ".join(f"{label} {row[k]['mean']:.2f}, {100 * row[k]['inside_95']:.1f}% of {row[k]['pairs']}"
+                   for k, label in (("maneuvering", "while accelerating"), ("straight", "straight"))
+                   if row[k]["pairs"])
+    return (f"NEES {row['part']} ({names.get((row['part'], row['dof']), row['part'])}; {row['dof']} dof): mean "
+            f"{row['mean']:.2f} (consistent: {row['dof']}), {100 * row['inside_95']:.1f}% of {row['pairs']} "
+            f"assigned pairs inside the 95% band [{lo:.2f}, {hi:.2f}] (consistent: 95%)" + (f"; {by}" if by else ""))
+
+
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="fedtrack evaluate", description="GOSPA, OSPA, id switches, "
                                      "fragmentations, RMSE, NEES and maneuver flags of a track picture file against "
@@ -358,10 +403,12 @@ def main(argv: list[str]) -> int:
           f"{m['localisation']:.1f}, missed {m['missed']:.1f}, false {m['false']:.1f} (p-th power parts)")
     print(f"mean OSPA {m['ospa']:.2f} m; id switches {result['id_switches']}; fragmentations "
           f"{result['fragmentations']}")
-    rmse, nees = result["position_rmse"], result["nees_mean"]
-    print(f"position RMSE {rmse:.2f} m" if rmse is not None else "position RMSE -", end="; ")
-    print(f"NEES mean {nees:.2f} ({result['nees_dof']} dof), {100 * result['nees_inside_95']:.1f}% inside the "
-          f"95% band" if nees is not None else "NEES -")
+    rmse = result["position_rmse"]
+    print(f"position RMSE {rmse:.2f} m" if rmse is not None else "position RMSE -")
+    for row in result["nees"]:
+        print(nees_line(row))
+    if not result["nees"]:
+        print("NEES -: no assigned pair with a covariance and the truth's state size")
     man = result["maneuvers"]
     if not man["applicable"]:
         print("maneuver flags: not applicable (no maneuver detector ran: the pictures' detector is "
