@@ -14,6 +14,7 @@ from typing import Any
 from fedtrack.config import ConfigError, in_file, load_tables
 from fedtrack.deploy.security import ZenohSettings
 from fedtrack.deployment import DeploymentConfig, SensorConfig
+from fedtrack.geodetic import FrameConfig
 from fedtrack.local_filters.imm.config import IMMConfig
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.pda.config import PDAReplayConfig
@@ -71,6 +72,7 @@ class Settings:
     mtt: MttConfig = field(default_factory=MttConfig)
     multitarget: MultitargetSettings | None = None
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
+    frame: FrameConfig | None = None  # [frame]: the common frame's WGS-84 origin and sensor sites (fedtrack.geodetic)
 
 
 def check_launchable(settings: Settings, path: Path) -> None:
