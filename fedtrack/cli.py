@@ -78,6 +78,7 @@ TRAINERS: dict[str, str] = {
 # name -> "module:function(argv) -> int"
 SIMULATORS: dict[str, str] = {
     "multitarget": "fedtrack.sensors.multitarget:main",
+    "traffic": "fedtrack.sensors.traffic:main",
 }
 
 COMMANDS: dict[str, str] = {

@@ -58,6 +58,16 @@ def geodetic_from_enu(frame: Frame, enu: np.ndarray) -> np.ndarray:
     return np.stack(np.broadcast_arrays(lat, lon, h), axis=-1)
 
 
+def common_from_local_vectors(frame: Frame, lat: np.ndarray, lon: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Vectors (N, 3) given in the ENU axes at each point ``lat``, ``lon`` (N,) [deg] (a ground speed's
+    east, north, up), in the common frame's axes: ``R_origin R_point' v``."""
+    phi, lam = np.radians(np.asarray(lat, float)), np.radians(np.asarray(lon, float))
+    sp, cp, sl, cl = np.sin(phi), np.cos(phi), np.sin(lam), np.cos(lam)
+    e, n, u = v[..., 0], v[..., 1], v[..., 2]
+    ecef = np.stack([-sl * e - sp * cl * n + cp * cl * u, cl * e - sp * sl * n + cp * sl * u, cp * n + sp * u], axis=-1)
+    return ecef @ ecef_to_enu_rotation(frame.lat, frame.lon).T
+
+
 def site_from_geodetic(frame: Frame, lat: float, lon: float, h: float) -> RadarSite:
     """A radar standing at a WGS-84 point."""
     position = enu_from_geodetic(frame, np.array([lat]), np.array([lon]), np.array([h]))[0]
