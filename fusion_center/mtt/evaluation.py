@@ -13,6 +13,9 @@
 * Per truth, the sequence of assigned track ids gives **id switches** (the id changes from one
   assigned picture to the next assigned one) and **fragmentations** (an assigned stretch ends
   and a later one starts).
+* ``--horizontal``: GOSPA, OSPA and the RMSE on x, y only (a picture on the Earth, where a radar's
+  altitude is far worse than its horizontal position); the **altitude error** (RMSE and mean of
+  track minus truth z over the assigned pairs, when both are 3-D) is reported on its own.
 * Position RMSE over assigned pairs; NEES of the full state over assigned pairs whose state
   sizes agree, its mean and the fraction inside the two-sided 95% chi-square band.
 * **Maneuver flags** (a track with a ``maneuver`` field, or in the CA model): the fraction of
@@ -142,8 +145,9 @@ def flagged(track: dict[str, Any]) -> bool:
 
 
 def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2.0,
-             all_tracks: bool = False) -> dict[str, Any]:
-    """Every metric of the module docstring over the pictures that have a truth line at their time."""
+             all_tracks: bool = False, horizontal: bool = False) -> dict[str, Any]:
+    """Every metric of the module docstring over the pictures that have a truth line at their time
+    (``horizontal``: positions are x, y only; the altitude error is reported on its own either way)."""
     truth_lines = _load(truth_path, "targets")
     truth = {round(t, 6): items for t, items in truth_lines}
     motion = truth_motion(truth_lines)
@@ -153,6 +157,7 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
     series: list[dict[str, float]] = []
     sequences: dict[Any, list[int | None]] = {}
     sq_err: list[float] = []
+    alt_err: list[float] = []
     nees: list[tuple[float, int]] = []
     skipped = 0
     for t, items in _load(tracks_path, "tracks"):
@@ -166,7 +171,7 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
             onsets += now and not was_flagged.get(tr["id"], False)
             was_flagged[tr["id"]] = now
         X, Y = _stack([g["x"] for g in targets]), _stack([tr["x"] for tr in shown])
-        k = min(X.shape[1], Y.shape[1])
+        k = 2 if horizontal else min(X.shape[1], Y.shape[1])
         dist = set_distance(X[:, :k], Y[:, :k], c, p)
         series.append({"t": t, "gospa": dist.gospa, "localisation": dist.localisation, "missed": dist.missed,
                        "false": dist.false, "ospa": dist.ospa, "truths": len(X), "tracks": len(Y)})
@@ -177,6 +182,8 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
             if j is None:
                 continue
             sq_err.append(float(np.sum((X[i, :k] - Y[j, :k]) ** 2)))
+            if X.shape[1] > 2 and Y.shape[1] > 2:
+                alt_err.append(float(Y[j, 2] - X[i, 2]))
             kind = motion.get((round(t, 6), g["id"]))
             if kind in flags:
                 flags[kind][0] += 1
@@ -198,7 +205,9 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
     return {
         "c": c, "p": p, "alpha": 2, "pictures": len(series), "pictures_without_truth": skipped,
         "mean": mean, "id_switches": switches, "fragmentations": fragments,
-        "position_rmse": math.sqrt(float(np.mean(sq_err))) if sq_err else None,
+        "position_rmse": math.sqrt(float(np.mean(sq_err))) if sq_err else None, "horizontal": horizontal,
+        "altitude_rmse": math.sqrt(float(np.mean(np.square(alt_err)))) if alt_err else None,
+        "altitude_bias": float(np.mean(alt_err)) if alt_err else None,
         "nees_mean": float(np.mean([v for v, _ in nees])) if nees else None,
         "nees_dof": nees[0][1] if nees else None,
         "nees_inside_95": float(np.mean(inside)) if inside else None,
@@ -273,6 +282,8 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--p", type=float, default=2.0, help="order (default 2)")
     parser.add_argument("--alpha", type=float, default=2.0, help="GOSPA alpha (only 2 is supported)")
     parser.add_argument("--all-tracks", action="store_true", help="evaluate tentative tracks too")
+    parser.add_argument("--horizontal", action="store_true", help="GOSPA, OSPA and RMSE on x, y only (the "
+                        "altitude error is reported on its own either way)")
     parser.add_argument("--json", type=Path, help="write the full result (with the per-picture series)")
     parser.add_argument("--plot", type=Path, help="PNG: tracks over truth and GOSPA over time")
     args = parser.parse_args(argv)
@@ -283,10 +294,11 @@ def main(argv: list[str]) -> int:
     for path in (args.json, args.plot):
         if path is not None and not path.parent.is_dir():
             raise InputError(f"{path}: the folder {path.parent} does not exist")
-    result = evaluate(args.tracks, args.truth, args.c, args.p, args.all_tracks)
+    result = evaluate(args.tracks, args.truth, args.c, args.p, args.all_tracks, args.horizontal)
     m = result["mean"]
     print(f"pictures {result['pictures']} (without truth: {result['pictures_without_truth']})")
-    print(f"mean GOSPA {m['gospa']:.2f} m (c = {args.c:g}, p = {args.p:g}, alpha = 2): localisation "
+    print(f"mean GOSPA {m['gospa']:.2f} m (c = {args.c:g}, p = {args.p:g}, alpha = 2"
+          f"{', x-y' if args.horizontal else ''}): localisation "
           f"{m['localisation']:.1f}, missed {m['missed']:.1f}, false {m['false']:.1f} (p-th power parts)")
     print(f"mean OSPA {m['ospa']:.2f} m; id switches {result['id_switches']}; fragmentations "
           f"{result['fragmentations']}")
@@ -294,6 +306,9 @@ def main(argv: list[str]) -> int:
     print(f"position RMSE {rmse:.2f} m" if rmse is not None else "position RMSE -", end="; ")
     print(f"NEES mean {nees:.2f} ({result['nees_dof']} dof), {100 * result['nees_inside_95']:.1f}% inside the "
           f"95% band" if nees is not None else "NEES -")
+    if result["altitude_rmse"] is not None:
+        print(f"altitude error over the assigned pairs: RMSE {result['altitude_rmse']:.2f} m, mean "
+              f"{result['altitude_bias']:+.2f} m (track - truth)")
     man = result["maneuvers"]
     rate = {k: "-" if man[f"flagged_while_{k}"] is None else f"{100 * man[f'flagged_while_{k}']:.1f}%"
             for k in ("maneuvering", "straight")}
