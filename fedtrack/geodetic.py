@@ -13,12 +13,14 @@ is exact to round-off. Everything is batched over a leading axis (``(N, 3)`` arr
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from pathlib import Path
+from typing import Any, NamedTuple
 
 import numpy as np
+import orjson
 import pymap3d
 
-from fedtrack.config import ConfigError
+from fedtrack.config import ConfigError, load_tables
 
 
 class Frame(NamedTuple):
@@ -140,3 +142,42 @@ class FrameConfig:
     @property
     def frame(self) -> Frame:
         return Frame(*self.origin)
+
+
+@dataclass(frozen=True)
+class FrameSettings:
+    """The ``[frame]`` table alone, for the commands that read only it from a config file."""
+
+    frame: FrameConfig | None = None
+
+
+def load_frame(path: str | Path | None) -> FrameConfig | None:
+    """The config file's ``[frame]`` (None without a file or without the table)."""
+    return None if path is None else load_tables(path, FrameSettings).frame
+
+
+def add_geodetic(frame: Frame, rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Picture or truth rows (each with ``x`` = ``[x, vx, y, vy(, z, vz)]``) with ``lat``, ``lon`` [deg]
+    and, for a 3-D state, ``alt`` [m above the ellipsoid] beside ``x``; a 2-D state is placed on the
+    common frame's plane (z = 0)."""
+    if not rows:
+        return rows
+    pos = np.zeros((len(rows), 3))
+    for i, row in enumerate(rows):
+        p = row["x"][0::2][: len(row["x"]) // 2]
+        pos[i, : len(p)] = p
+    lla = geodetic_from_enu(frame, pos)
+    out = []
+    for row, (lat, lon, h) in zip(rows, lla.tolist()):
+        extra = {"lat": round(lat, 9), "lon": round(lon, 9)}
+        if len(row["x"]) >= 6:
+            extra["alt"] = round(h, 4)
+        out.append({**row, **extra})
+    return out
+
+
+def geodetic_line(line: str, frame: Frame) -> str:
+    """A tracks-file line (``{"t", "tracks"}``) with :func:`add_geodetic`'s fields in each track."""
+    obj = orjson.loads(line)
+    obj["tracks"] = add_geodetic(frame, obj["tracks"])
+    return orjson.dumps(obj).decode()

@@ -283,7 +283,8 @@ def build_truth(rec: Recording, frame: Frame, start: float, duration: float | No
 
 def parse_sensors(spec: str, frame: Frame, box: float,
                   rng: np.random.Generator) -> list[tuple[SensorSpec, RadarSite | None]]:
-    """``radar:4@49.1/2.1/90,pos:1,adsb:1`` -> sensors ``r1``, ``s2``, ``a3`` (a radar without a site on the box's edge)."""
+    """``radar:4@49.1/2.1/90,pos:1,adsb:1`` -> sensors ``r1``, ``s2``, ``a3`` (a radar without a site
+    stands on the box's edge)."""
     items = [item.strip().partition("@") for item in spec.split(",")]
     specs = parse_spec(",".join(base for base, _, _ in items), ("pos", "radar", "adsb"))
     out: list[tuple[SensorSpec, RadarSite | None]] = []
@@ -295,7 +296,8 @@ def parse_sensors(spec: str, frame: Frame, box: float,
             continue
         if not at:
             angle = rng.uniform(-np.pi, np.pi)
-            out.append((s, site_from_enu(frame, np.array([0.55 * box * np.cos(angle), 0.55 * box * np.sin(angle), 0.0]))))
+            edge = 0.55 * box * np.array([np.cos(angle), np.sin(angle), 0.0])
+            out.append((s, site_from_enu(frame, edge)))
             continue
         try:
             lat, lon, h = (float(v) for v in where.split("/"))

@@ -86,8 +86,8 @@ def test_pymap3d_published_examples() -> None:
     # straight up from the site: the site's own up, not the origin's (about 0.9 deg apart here)
     up = enu_from_aer(site, np.array([[0.0, np.pi / 2, 5.0]]))
     np.testing.assert_allclose(own_from_enu(site, up), [[0.0, 0.0, 5.0]], atol=1e-9)
-    np.testing.assert_allclose(up[0], enu_from_geodetic(frame, *pymap3d.aer2geodetic(0.0, 90.0, 5.0, 42.0, -82.0, 200.0)),
-                               atol=1e-6)
+    above = pymap3d.aer2geodetic(0.0, 90.0, 5.0, 42.0, -82.0, 200.0)
+    np.testing.assert_allclose(up[0], enu_from_geodetic(frame, *above), atol=1e-6)
     assert np.hypot(*(up - site.position)[0, :2]) > 0.05  # tilted against the origin's up by about 0.9 deg
     np.testing.assert_allclose(enu_from_geodetic(frame, *map(np.array, ([42.5], [-81.0], [0.0]))), [[0, 0, 0]],
                                atol=1e-9)
@@ -111,3 +111,16 @@ def test_frame_table_in_the_config_file(tmp_path) -> None:
     path.write_text("[frame]\norigen = [48.86, 2.35, 35.0]\n")
     with pytest.raises(ConfigError, match=r"c\.toml: unknown config key frame\.origen"):
         load_settings(path)
+
+
+def test_local_vectors_turned_into_the_common_frame() -> None:
+    """A velocity in the ENU axes at a point 300 km away is the common-frame displacement per second."""
+    from fedtrack.geodetic import common_from_local_vectors
+
+    frame = Frame(48.86, 2.35, 35.0)
+    lla = _grid(frame, 300e3, 200, np.random.default_rng(4))
+    v = np.random.default_rng(5).uniform(-250.0, 250.0, (200, 3))
+    ecef = _ecef(lla) + np.column_stack(pymap3d.enu2uvw(v[:, 0], v[:, 1], v[:, 2], lla[:, 0], lla[:, 1])) * 1e-3
+    moved = np.column_stack(pymap3d.ecef2geodetic(ecef[:, 0], ecef[:, 1], ecef[:, 2]))
+    expected = (enu_from_geodetic(frame, *moved.T) - enu_from_geodetic(frame, *lla.T)) * 1e3
+    np.testing.assert_allclose(common_from_local_vectors(frame, lla[:, 0], lla[:, 1], v), expected, atol=1e-5)

@@ -201,3 +201,55 @@ def test_cli_errors_and_help(tmp_path: Path, capsys: pytest.CaptureFixture[str])
     text = capsys.readouterr().out
     for word in ("baroaltitude", "ft/min", "vertical_rate", "onground", "seconds since 1970", "LAT/LON/H", "NACp"):
         assert word in text or word.lower() in text.lower(), word
+
+
+def test_tracks_on_the_earth_geojson_and_map(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Replay with a [frame] gives each track lat, lon, alt; export --geojson parses as GeoJSON whose
+    lines are the pictures' positions; evaluate --plot --config draws the map."""
+    out = tmp_path / "run"
+    assert main(["simulate", "traffic", "--source", str(DATA / "traffic_switzerland.csv.gz"), "--origin", "46.9,8.2",
+                 "--sensors", "radar:4@47.3/8.0/900,pos:2", "--seed", "3", "--start", "60", "--duration", "60",
+                 "--box", "250", "--out", str(out)]) == 0
+    config = out / "config.toml"
+    assert main(["replay", "--algorithm", "mtt-federated", "--config", str(config), "--measurements",
+                 str(out / "measurements.jsonl"), "--out", str(out / "tracks.jsonl")]) == 0
+    pictures = [json.loads(line) for line in (out / "tracks.jsonl").read_text().splitlines()]
+    rows = [r for p in pictures for r in p["tracks"]]
+    assert rows and all({"lat", "lon", "alt"} <= set(r) for r in rows)
+    enu = np.array([np.asarray(r["x"])[[0, 2, 4]] for r in rows])
+    lla = geodetic_from_enu(Frame(46.9, 8.2), enu)  # written to 1e-9 deg and 1e-4 m
+    np.testing.assert_allclose([[r["lat"], r["lon"]] for r in rows], lla[:, :2], atol=1e-9)
+    np.testing.assert_allclose([r["alt"] for r in rows], lla[:, 2], atol=1e-4)
+    geo = tmp_path / "picture.geojson"
+    assert main(["export", "--geojson", str(geo), "--config", str(config), "--tracks", str(out / "tracks.jsonl"),
+                 "--truth", str(out / "truth.jsonl")]) == 0
+    doc = json.loads(geo.read_text())
+    assert doc["type"] == "FeatureCollection"
+    kinds: dict[str, int] = {}
+    for f in doc["features"]:
+        assert f["type"] == "Feature" and set(f) == {"type", "geometry", "properties"}
+        g = f["geometry"]
+        assert g["type"] in ("LineString", "Point")
+        points = g["coordinates"] if g["type"] == "LineString" else [g["coordinates"]]
+        assert len(points) >= (2 if g["type"] == "LineString" else 1)
+        for p in points:  # RFC 7946: [lon, lat(, alt)] in degrees
+            assert len(p) in (2, 3) and -180 <= p[0] <= 180 and -90 <= p[1] <= 90
+        kinds[f["properties"]["kind"]] = kinds.get(f["properties"]["kind"], 0) + 1
+    confirmed = {r["id"] for r in rows if r["status"] == "confirmed"}
+    assert kinds["track"] == len(confirmed) and kinds["sensor"] == 1 and kinds["origin"] == 1
+    assert kinds["truth"] >= 20
+    site = next(f for f in doc["features"] if f["properties"]["kind"] == "sensor")
+    assert site["geometry"]["coordinates"] == [8.0, 47.3, 900.0] and site["properties"]["id"] == "r1"
+    # a track's line is its confirmed pictures' positions in time order
+    tid = min(confirmed)
+    line = next(f for f in doc["features"] if f["properties"] == {**f["properties"], "kind": "track", "id": tid})
+    mine = [(p["t"], r) for p in pictures for r in p["tracks"] if r["id"] == tid and r["status"] == "confirmed"]
+    assert line["properties"]["times"] == [t for t, _ in mine]
+    np.testing.assert_allclose(line["geometry"]["coordinates"], [[r["lon"], r["lat"], r["alt"]] for _, r in mine])
+    plot = tmp_path / "eval.png"
+    assert main(["evaluate", "--tracks", str(out / "tracks.jsonl"), "--truth", str(out / "truth.jsonl"), "--horizontal",
+                 "--plot", str(plot), "--config", str(config)]) == 0
+    assert (tmp_path / "eval-map.png").stat().st_size > 10_000
+    assert "altitude error over the assigned pairs" in capsys.readouterr().out
+    assert main(["export", "--geojson", str(geo), "--config", str(out / "none.toml"), "--truth",
+                 str(out / "truth.jsonl")]) == 2

@@ -40,6 +40,8 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.special import chdtri
 
+from fedtrack.fusion_center.mtt.earthmap import plot_map
+from fedtrack.geodetic import load_frame
 from fedtrack.jsonl import InputError, read_jsonl
 
 MANEUVER_ACCEL = 1.0  # m/s^2: a truth target accelerating at least this much is maneuvering
@@ -286,6 +288,8 @@ def main(argv: list[str]) -> int:
                         "altitude error is reported on its own either way)")
     parser.add_argument("--json", type=Path, help="write the full result (with the per-picture series)")
     parser.add_argument("--plot", type=Path, help="PNG: tracks over truth and GOSPA over time")
+    parser.add_argument("--config", type=Path, help="with --plot: a config whose [frame] puts the tracks on the "
+                        "Earth; the map (longitude / latitude, sensor sites marked) goes to PLOT's name + -map.png")
     args = parser.parse_args(argv)
     if args.alpha != 2:
         parser.error("--alpha: only alpha = 2 (the decomposable GOSPA) is supported")
@@ -320,4 +324,9 @@ def main(argv: list[str]) -> int:
     if args.plot:
         plot(result, args.tracks, args.truth, args.plot)
         print(f"wrote {args.plot}")
+        frame = load_frame(args.config)
+        if frame is not None:
+            where = args.plot.with_name(args.plot.stem + "-map.png")
+            plot_map(args.tracks, args.truth, frame, where)
+            print(f"wrote {where}")
     return 0
