@@ -329,7 +329,7 @@ def adsb_view(truth: Truth, period: float, report_period: np.ndarray,
     return moved, fresh & truth.alive[src, cols] & truth.alive
 
 
-def derived_tracker(truth: Truth, specs: list[SensorSpec], rec: Recording) -> dict[str, float]:
+def derived_tracker(truth: Truth, specs: list[SensorSpec]) -> dict[str, float]:
     """The tracker keys derived from the recording and the sensors (docs/geodetic.md)."""
     v = truth.x[..., [1, 3]]
     a = np.linalg.norm(np.diff(v, axis=0) / DT, axis=-1)[truth.alive[1:] & truth.alive[:-1]]
@@ -383,7 +383,7 @@ def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, star
                         "lat": round(float(g[0]), 8), "lon": round(float(g[1]), 8), "alt": round(float(g[2]), 3)}
                        for i, g in zip(live, lla)]
             fh.write(json.dumps({"t": float(second), "targets": targets}) + "\n")
-    derived = derived_tracker(truth, specs, rec)
+    derived = derived_tracker(truth, specs)
     mtt: dict[str, Any] = {**derived, "pd": pd, "clutter_density": clutter_density(specs[0], sc), "period": 1.0,
                            "sensors": [s.id for s in specs]}
     # every sensor its own density: a radar's per m rad^2, a position sensor's per m^2; an ADS-B receiver's
