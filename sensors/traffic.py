@@ -281,14 +281,18 @@ def build_truth(rec: Recording, frame: Frame, start: float, duration: float | No
     return Truth(t0, x[:, keep], alive[:, keep], [str(rec.icao24[p[0]]) for p, k in zip(pieces, keep) if k])
 
 
+def parse_kinds(spec: str) -> list[SensorSpec]:
+    """The sensors of ``KIND:PERIOD[@LAT/LON/H],...`` (``pos``, ``radar``, ``adsb``), sites left out."""
+    return parse_spec(",".join(item.strip().partition("@")[0] for item in spec.split(",")), ("pos", "radar", "adsb"))
+
+
 def parse_sensors(spec: str, frame: Frame, box: float,
                   rng: np.random.Generator) -> list[tuple[SensorSpec, RadarSite | None]]:
     """``radar:4@49.1/2.1/90,pos:1,adsb:1`` -> sensors ``r1``, ``s2``, ``a3`` (a radar without a site
     stands on the box's edge)."""
     items = [item.strip().partition("@") for item in spec.split(",")]
-    specs = parse_spec(",".join(base for base, _, _ in items), ("pos", "radar", "adsb"))
     out: list[tuple[SensorSpec, RadarSite | None]] = []
-    for s, (base, at, where) in zip(specs, items):
+    for s, (base, at, where) in zip(parse_kinds(spec), items):
         if s.kind != "radar":
             if at:
                 raise InputError(f"--sensors: {base}@{where}: only a radar takes a site")
