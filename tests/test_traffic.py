@@ -253,3 +253,18 @@ def test_tracks_on_the_earth_geojson_and_map(tmp_path: Path, capsys: pytest.Capt
     assert "altitude error over the assigned pairs" in capsys.readouterr().out
     assert main(["export", "--geojson", str(geo), "--config", str(out / "none.toml"), "--truth",
                  str(out / "truth.jsonl")]) == 2
+
+
+def test_parquet_reads_as_csv(tmp_path: Path) -> None:
+    """Parquet (the ``real`` extra's pyarrow; skipped where it is not installed) gives the CSV's samples."""
+    pq = pytest.importorskip("pyarrow.parquet")
+    import pyarrow as pa
+
+    src = read_recording(DATA / "traffic_switzerland.csv.gz")
+    table = pa.table({"time": src.t, "icao24": src.icao24.tolist(), "lat": src.lla[:, 0], "lon": src.lla[:, 1],
+                      "baroaltitude": src.lla[:, 2]})
+    pq.write_table(table, tmp_path / "a.parquet")
+    again = read_recording(tmp_path / "a.parquet")
+    np.testing.assert_array_equal(again.t, src.t)
+    np.testing.assert_array_equal(again.lla, src.lla)
+    assert np.isnan(again.velocity).all()
