@@ -50,7 +50,7 @@ from fedtrack.wire import FusedTrack, Health, Measurement, TrackPicture, WireErr
 from fedtrack.zsession import SessionOptions, close_session, open_session, wait_alive
 
 STOP_GRACE_S = 5.0
-RECORDER_GRACE_S = 60.0  # the recorder exports the run's files when it stops: 9 s for 557 pictures on a loaded machine
+RECORDER_GRACE_S = 20.0  # the recorder exports the run's files when it stops: 9 s for 557 pictures at load 20
 PR_SET_PDEATHSIG = 1
 ESSENTIAL_ROLES = ("router", "fusion-center", "recorder")
 MAX_RESTARTS = 3
