@@ -78,6 +78,7 @@ TRAINERS: dict[str, str] = {
 # name -> "module:function(argv) -> int"
 SIMULATORS: dict[str, str] = {
     "multitarget": "fedtrack.sensors.multitarget:main",
+    "traffic": "fedtrack.sensors.traffic:main",
 }
 
 COMMANDS: dict[str, str] = {
@@ -85,7 +86,7 @@ COMMANDS: dict[str, str] = {
     "demo": "fedtrack.deploy.demo:main",
     "launch": "fedtrack.deploy.launcher:main",
     "bench": "fedtrack.benchmarks.suites:main",
-    "export": "fedtrack.recording:main",
+    "export": "fedtrack.geojson:export_main",
 }
 
 
@@ -238,7 +239,8 @@ def build_parser() -> argparse.ArgumentParser:
     for name, help_text in (("demo", "the main job: a whole deployment on one machine"),
                             ("launch", "start every service of a deployment config"),
                             ("bench", "benchmarks (ratios measured side by side)"),
-                            ("export", "a recording database's measurements as replay input"),
+                            ("export", "a recording database's measurements as replay input; --geojson: tracks "
+                                       "and truth on the Earth"),
                             ("evaluate", "GOSPA, OSPA, id switches, RMSE and NEES of track pictures against truth")):
         p = sub.add_parser(name, help=help_text, add_help=False)
         p.set_defaults(func=None, registry=COMMANDS, key=None)

@@ -34,7 +34,8 @@ from typing import Any
 import numpy as np
 
 from fedtrack.config import to_toml
-from fedtrack.jsonl import InputError, output_folder, output_file
+from fedtrack.geodetic import RadarSite, aer_from_enu, enu_from_aer
+from fedtrack.jsonl import InputError, output_file, output_folder
 from fedtrack.local_filters.radar.measurement import polar_from_cartesian, wrap_angle
 
 DT = 0.05
@@ -63,8 +64,11 @@ class Scenario:
     base_delay: float = 0.05
 
 
-def parse_spec(spec: str) -> list[SensorSpec]:
-    """``pos:1.0,pos:0.7,radar:1.3`` -> sensors ``s1``, ``s2``, ``r3``."""
+ID_PREFIX = {"pos": "s", "radar": "r", "adsb": "a"}
+
+
+def parse_spec(spec: str, kinds: tuple[str, ...] = ("pos", "radar")) -> list[SensorSpec]:
+    """``pos:1.0,pos:0.7,radar:1.3`` -> sensors ``s1``, ``s2``, ``r3`` (``adsb``: ``a``, where ``kinds`` has it)."""
     out = []
     for k, item in enumerate(spec.split(","), start=1):
         kind, _, period = item.strip().partition(":")
@@ -72,9 +76,9 @@ def parse_spec(spec: str) -> list[SensorSpec]:
             value = float(period)
         except ValueError:
             value = float("nan")
-        if kind not in ("pos", "radar") or not value > 0:
-            raise InputError(f"--sensors: {item!r} is not KIND:PERIOD with KIND pos or radar and PERIOD > 0")
-        out.append(SensorSpec(f"{'s' if kind == 'pos' else 'r'}{k}", kind, value))
+        if kind not in kinds or not value > 0:
+            raise InputError(f"--sensors: {item!r} is not KIND:PERIOD with KIND {' or '.join(kinds)} and PERIOD > 0")
+        out.append(SensorSpec(f"{ID_PREFIX[kind]}{k}", kind, value))
     return out
 
 
@@ -123,20 +127,31 @@ def simulate_truth(sc: Scenario, three_d: bool, rng: np.random.Generator) -> tup
 
 
 def sensor_lines(spec: SensorSpec, sc: Scenario, x: np.ndarray, alive: np.ndarray, three_d: bool,
-                 rng: np.random.Generator) -> list[tuple[float, dict[str, Any]]]:
-    """``(arrival time, line)`` of every scan of one sensor."""
+                 rng: np.random.Generator, site: RadarSite | None = None,
+                 noise: np.ndarray | None = None) -> list[tuple[float, dict[str, Any]]]:
+    """``(arrival time, line)`` of every scan of one sensor.
+
+    A radar with a ``site`` on the Earth (:mod:`fedtrack.geodetic`) measures and errs in its own
+    frame (range, azimuth from north, elevation about its site's ENU axes); its detections are then
+    given, exactly, as range, azimuth and elevation about ``sensor_position`` in the common frame's
+    axes, the trackers' measurement model. Without a site it stands at a random point of the
+    region's edge and measures in the common frame's axes. ``noise``: a position sensor's ``R``
+    (default: 10-20 m per axis, drawn)."""
     phase = round(rng.uniform(0, spec.period) / DT) * DT
     times = np.arange(phase, sc.duration + 1e-9, spec.period)
     out: list[tuple[float, dict[str, Any]]] = []
     last_arrival = -np.inf
     if spec.kind == "pos":
         sd = rng.uniform(10.0, 20.0)
-        R = np.array([[sd**2, 0.3 * sd**2], [0.3 * sd**2, sd**2]])
+        R = np.array([[sd**2, 0.3 * sd**2], [0.3 * sd**2, sd**2]]) if noise is None else noise
         where = None
     else:
         R = np.diag([10.0**2, 0.002**2, 0.002**2])
-        angle = rng.uniform(-np.pi, np.pi)
-        where = np.array([1.1 * sc.region * np.cos(angle), 1.1 * sc.region * np.sin(angle), 0.0])
+        if site is None:
+            angle = rng.uniform(-np.pi, np.pi)
+            where = np.array([1.1 * sc.region * np.cos(angle), 1.1 * sc.region * np.sin(angle), 0.0])
+        else:
+            where = site.position
     L = np.linalg.cholesky(R)
     for k, t in enumerate(times):
         step = int(round(t / DT))
@@ -144,8 +159,10 @@ def sensor_lines(spec: SensorSpec, sc: Scenario, x: np.ndarray, alive: np.ndarra
         truth = x[step, live]
         if where is None:
             z = truth[:, [0, 2]]
-        else:
+        elif site is None:
             z = polar_from_cartesian(truth[:, [0, 2, 4]] - where)
+        else:
+            z = aer_from_enu(site, truth[:, [0, 2, 4]])[:, [2, 0, 1]]  # [range, az from north, el], own frame
         z = z + rng.standard_normal(z.shape) @ L.T
         n_false = rng.poisson(sc.clutter)
         if where is None:
@@ -154,6 +171,8 @@ def sensor_lines(spec: SensorSpec, sc: Scenario, x: np.ndarray, alive: np.ndarra
             clutter = np.column_stack([rng.uniform(*radar_range(sc), n_false), rng.uniform(-np.pi, np.pi, n_false),
                                        rng.uniform(0.0, radar_elevation(sc), n_false)])
         dets = np.concatenate([z, clutter])[rng.permutation(len(z) + n_false)]
+        if site is not None:
+            dets = polar_from_cartesian(enu_from_aer(site, dets[:, [1, 2, 0]]) - where)
         if where is not None:
             dets[:, 1] = wrap_angle(dets[:, 1])
         line: dict[str, Any] = {"t": round(float(t), 6), "sensor": spec.id, "R": R.tolist(),

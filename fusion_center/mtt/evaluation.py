@@ -13,6 +13,9 @@
 * Per truth, the sequence of assigned track ids gives **id switches** (the id changes from one
   assigned picture to the next assigned one) and **fragmentations** (an assigned stretch ends
   and a later one starts).
+* ``--horizontal``: GOSPA, OSPA and the RMSE on x, y only (a picture on the Earth, where a radar's
+  altitude is far worse than its horizontal position); the **altitude error** (RMSE and mean of
+  track minus truth z over the assigned pairs, when both are 3-D) is reported on its own.
 * Position RMSE over assigned pairs. **NEES** ``e' P^-1 e`` over the assigned pairs whose state
   sizes agree, in two parts with their degrees of freedom: the full ``state`` (4 or 6) and the
   ``position`` alone (its block of ``P``: 2 or 3); per part the mean, the fraction inside the
@@ -43,6 +46,8 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.special import chdtri
 
+from fedtrack.fusion_center.mtt.earthmap import plot_map
+from fedtrack.geodetic import load_frame
 from fedtrack.jsonl import InputError, check_output, is_number, output_file, read_jsonl
 from fedtrack.local_filters.linear.kalman import nees
 
@@ -199,8 +204,9 @@ def flagged(track: dict[str, Any]) -> bool:
 
 
 def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2.0,
-             all_tracks: bool = False) -> dict[str, Any]:
-    """Every metric of the module docstring over the pictures that have a truth line at their time."""
+             all_tracks: bool = False, horizontal: bool = False) -> dict[str, Any]:
+    """Every metric of the module docstring over the pictures that have a truth line at their time
+    (``horizontal``: positions are x, y only; the altitude error is reported on its own either way)."""
     truth_lines = _load(truth_path, "targets")
     head = file_head(tracks_path)
     truth = {round(t, 6): items for t, items in truth_lines}
@@ -214,6 +220,7 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
     errors: list[np.ndarray] = []
     covariances: list[np.ndarray] = []
     motions: list[str | None] = []
+    alt_err: list[float] = []
     skipped = 0
     for t, items in _load(tracks_path, "tracks"):
         targets = truth.get(round(t, 6))
@@ -226,7 +233,7 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
             onsets += now and not was_flagged.get(tr["id"], False)
             was_flagged[tr["id"]] = now
         X, Y = _stack([g["x"] for g in targets]), _stack([tr["x"] for tr in shown])
-        k = min(X.shape[1], Y.shape[1])
+        k = 2 if horizontal else min(X.shape[1], Y.shape[1])
         dist = set_distance(X[:, :k], Y[:, :k], c, p)
         series.append({"t": t, "gospa": dist.gospa, "localisation": dist.localisation, "missed": dist.missed,
                        "false": dist.false, "ospa": dist.ospa, "truths": len(X), "tracks": len(Y)})
@@ -237,6 +244,8 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
             if j is None:
                 continue
             sq_err.append(float(np.sum((X[i, :k] - Y[j, :k]) ** 2)))
+            if X.shape[1] > 2 and Y.shape[1] > 2:
+                alt_err.append(float(Y[j, 2] - X[i, 2]))
             kind = motion.get((round(t, 6), g["id"]))
             if kind in flags:
                 flags[kind][0] += 1
@@ -266,7 +275,9 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
         "algorithm": head.get("algorithm"),
         "c": c, "p": p, "alpha": 2, "pictures": len(series), "pictures_without_truth": skipped,
         "mean": mean, "id_switches": switches, "fragmentations": fragments,
-        "position_rmse": math.sqrt(float(np.mean(sq_err))) if sq_err else None,
+        "position_rmse": math.sqrt(float(np.mean(sq_err))) if sq_err else None, "horizontal": horizontal,
+        "altitude_rmse": math.sqrt(float(np.mean(np.square(alt_err)))) if alt_err else None,
+        "altitude_bias": float(np.mean(alt_err)) if alt_err else None,
         "nees": nees_parts(errors, covariances, motions),
         "maneuvers": {"detector": detector, "applicable": applicable, "onsets": onsets if applicable else None,
                       "maneuver_accel": MANEUVER_ACCEL, "straight_accel": STRAIGHT_ACCEL,
@@ -378,9 +389,14 @@ def main(argv: list[str]) -> int:
                         "(default: %(default)s)")
     parser.add_argument("--all-tracks", action="store_true", help="evaluate tentative tracks too "
                         "(default: confirmed tracks only)")
+    parser.add_argument("--horizontal", action="store_true", help="GOSPA, OSPA and RMSE on x, y only (the "
+                        "altitude error is reported on its own either way; default: every axis the states share)")
     parser.add_argument("--json", type=Path, metavar="OUT.json",
                         help="write the full result (with the per-picture series)")
     parser.add_argument("--plot", type=Path, metavar="OUT.png", help="PNG: tracks over truth and GOSPA over time")
+    parser.add_argument("--config", type=Path, metavar="C.toml", help="with --plot: a config whose [frame] puts the "
+                        "tracks on the Earth; the map (longitude / latitude, sensor sites marked) goes to PLOT's "
+                        "name + -map.png (default: none, no map)")
     parser.add_argument("--label", help="the plot title's algorithm (default: the tracks file's \"algorithm\")")
     args = parser.parse_args(argv)
     if args.alpha != 2:
@@ -390,16 +406,21 @@ def main(argv: list[str]) -> int:
     for path in (args.json, args.plot):
         if path is not None:
             check_output(path)
-    result = evaluate(args.tracks, args.truth, args.c, args.p, args.all_tracks)
+    result = evaluate(args.tracks, args.truth, args.c, args.p, args.all_tracks, args.horizontal)
+    frame = load_frame(args.config) if args.plot else None
+    map_png = args.plot.with_name(args.plot.stem + "-map.png") if frame is not None else None
     if args.json:  # the files first: a reader that stops early (| head) does not cost them
         with output_file(args.json) as fh:
             fh.write(json.dumps(result))
     if args.plot:
         plot(result, args.tracks, args.truth, args.plot, label=args.label)
+    if map_png is not None:
+        plot_map(args.tracks, args.truth, frame, map_png)
     m = result["mean"]
     print(f"pictures {result['pictures']} (without truth: {result['pictures_without_truth']})"
           + (f" of {result['algorithm']}" if result["algorithm"] else ""))
-    print(f"mean GOSPA {m['gospa']:.2f} m (c = {args.c:g}, p = {args.p:g}, alpha = 2): localisation "
+    print(f"mean GOSPA {m['gospa']:.2f} m (c = {args.c:g}, p = {args.p:g}, alpha = 2"
+          f"{', x-y' if args.horizontal else ''}): localisation "
           f"{m['localisation']:.1f}, missed {m['missed']:.1f}, false {m['false']:.1f} (p-th power parts)")
     print(f"mean OSPA {m['ospa']:.2f} m; id switches {result['id_switches']}; fragmentations "
           f"{result['fragmentations']}")
@@ -409,6 +430,9 @@ def main(argv: list[str]) -> int:
         print(nees_line(row))
     if not result["nees"]:
         print("NEES -: no assigned pair with a covariance and the truth's state size")
+    if result["altitude_rmse"] is not None:
+        print(f"altitude error over the assigned pairs: RMSE {result['altitude_rmse']:.2f} m, mean "
+              f"{result['altitude_bias']:+.2f} m (track - truth)")
     man = result["maneuvers"]
     if not man["applicable"]:
         print("maneuver flags: not applicable (no maneuver detector ran: the pictures' detector is "
@@ -419,7 +443,7 @@ def main(argv: list[str]) -> int:
         print(f"maneuver flags: {rate['maneuvering']} of {man['maneuvering_pairs']} assigned pairs while the target "
               f"accelerates (>= {MANEUVER_ACCEL:g} m/s^2), {rate['straight']} of {man['straight_pairs']} while it "
               f"moves straight (< {STRAIGHT_ACCEL:g} m/s^2 for {STRAIGHT_FOR_S:g} s); {man['onsets']} onsets")
-    for path in (args.json, args.plot):
+    for path in (args.json, args.plot, map_png):
         if path is not None:
             print(f"wrote {path}")
     return 0

@@ -12,15 +12,16 @@ after the latest scan (the last picture holds every scan).
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
 import math
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
 from fedtrack.config import ConfigError, did_you_mean, load_tables
 from fedtrack.fusion_center.mtt.engines import ALGORITHMS, Engine, PictureTracks, make_engine
+from fedtrack.geodetic import geodetic_line, load_frame
 from fedtrack.jsonl import InputError, check_output, output_file, read_jsonl
 from fedtrack.local_filters.mtt.config import MttConfig, MttSettings
 from fedtrack.local_filters.mtt.scan import SensorLeft, SensorScan, parse_line
@@ -142,6 +143,7 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
         raise InputError(f"{measurements}: no scan of sensor {sensor!r}")
     dim = state_dim(scans, sensor)
     engine = make_engine(algorithm, cfg, dim, sensor)
+    frame = load_frame(config)  # [frame]: the tracks on the Earth too (lat, lon, alt)
     n = onsets = 0
     detector = False  # whether the pictures carry maneuver events (a detector runs)
     maneuvering: set[int] = set()
@@ -149,7 +151,8 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
     with output_file(out) as fh:
         for T, tracks in pictures(engine, scans, cfg.period, cfg.picture_delay):
             start = time.perf_counter()
-            fh.write(tracks.line(T, head) + "\n")
+            line = tracks.line(T, head)
+            fh.write((line if frame is None else geodetic_line(line, frame.frame)) + "\n")
             engine.took("writing", start)
             n += 1
             detector = detector or tracks.maneuver is not None
