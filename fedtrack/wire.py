@@ -48,6 +48,12 @@ PD_RTOL = 1e-12
 MEASUREMENT_KINDS = ("position", "radar", "sonar", "scan")
 MAX_TRACKS = 2048  # tracks in one multi-target report or picture
 MAX_BATCH_ELEMENTS = MAX_TRACKS * 36  # a batched array: MAX_TRACKS 6x6 covariances
+# bounds of the msgpack structure itself, checked before any field is looked at (docs/wire.md, "Limits"):
+# the deepest message is 5 containers deep (Measurement -> detections -> detection -> z -> shape)
+MAX_DEPTH = 8
+MAX_CONTAINER_ITEMS = max(MAX_DETECTIONS, MAX_TRACKS)  # a list's items (a map's: 2 * MAX_MAP_ITEMS)
+MAX_ITEMS = MAX_TRACKS * (MAX_LIST_ITEMS + 16)  # items of all containers together (a picture's sensor lists)
+BRIEF_CHARS = 40  # an untrusted value in an error message: at most this much of it (:func:`brief`)
 EVENT_KINDS = ("onset", "new-ca", "end")
 WIRE_DTYPES = {"float64": np.dtype("<f8"), "int64": np.dtype("<i8")}
 _INT64_MAX = 2**63 - 1
@@ -61,6 +67,21 @@ class WireError(ValueError):
         super().__init__(f"{field_name}: {reason}")
         self.field = field_name
         self.reason = reason
+
+
+def brief(value: Any, limit: int = BRIEF_CHARS) -> str:
+    """A bounded description of an untrusted value for an error message or a log line: a
+    container by its type and size only (never its contents, so never a recursion), a string or
+    bytes by its first ``limit`` characters, anything else by at most ``limit`` characters of its repr."""
+    if isinstance(value, (dict, list, tuple, set)):
+        return f"<{type(value).__name__} of {len(value)}>"
+    if isinstance(value, (str, bytes, bytearray)):
+        more = f"... ({len(value)} in all)" if len(value) > limit else ""
+        return repr(value[:limit]) + more
+    if isinstance(value, (bool, int, float, np.integer, np.floating)) or value is None:
+        text = repr(value)
+        return text if len(text) <= limit else f"{text[:limit]}..."
+    return f"<{type(value).__name__}>"
 
 
 # ---------------------------------------------------------------- field validators
@@ -84,7 +105,7 @@ def _text(value: Any, path: str) -> str:
 def _choice(*options: str) -> Callable[[Any, str], str]:
     def check(value: Any, path: str) -> str:
         if not isinstance(value, str) or value not in options:
-            raise WireError(path, f"expected one of {', '.join(options)}; got {value!r}")
+            raise WireError(path, f"expected one of {', '.join(options)}; got {brief(value)}")
         return value
     return check
 
@@ -179,7 +200,7 @@ def _mapping(value: Any, path: str) -> dict[str, Any]:
     if len(value) > MAX_MAP_ITEMS:
         raise WireError(path, f"{len(value)} entries exceed the limit of {MAX_MAP_ITEMS}")
     for key in value:
-        _identifier(key, f"{path} key {key!r}")
+        _identifier(key, f"{path} key {brief(key)}")
     return value
 
 
@@ -751,11 +772,11 @@ def _decode_array(value: Any, path: str, limit: int = MAX_ARRAY_ELEMENTS) -> np.
         raise WireError(path, "expected an array map {dtype, shape, data}")
     dtype = WIRE_DTYPES.get(value["dtype"]) if isinstance(value["dtype"], str) else None
     if dtype is None:
-        raise WireError(f"{path}.dtype", f"expected 'float64' or 'int64', got {value['dtype']!r}")
+        raise WireError(f"{path}.dtype", f"expected 'float64' or 'int64', got {brief(value['dtype'])}")
     shape = value["shape"]
     if (not isinstance(shape, list) or len(shape) > 2
             or not all(isinstance(d, int) and not isinstance(d, bool) and 0 <= d <= limit for d in shape)):
-        raise WireError(f"{path}.shape", f"expected a list of at most 2 sizes in [0, {limit}], got {shape!r}")
+        raise WireError(f"{path}.shape", f"expected a list of at most 2 sizes in [0, {limit}], got {brief(shape)}")
     size = math.prod(shape)
     if size > limit:
         raise WireError(path, f"{size} elements exceed the limit of {limit}")
@@ -772,7 +793,7 @@ def _decode_record(cls: type[M], obj: Any, path: str, envelope: tuple[str, ...] 
     names = [f.name for f in dataclasses.fields(cls)]  # type: ignore[arg-type]
     unknown = sorted((str(k) for k in obj if k not in names and k not in envelope))
     if unknown:
-        raise WireError(f"{path}.{unknown[0]}", "unknown field")
+        raise WireError(f"{path}.{unknown[0][:BRIEF_CHARS]}", "unknown field")
     missing = [n for n in names if n not in obj]
     if missing:
         raise WireError(f"{path}.{missing[0]}", "missing field")
@@ -798,31 +819,65 @@ def _decode_record(cls: type[M], obj: Any, path: str, envelope: tuple[str, ...] 
         raise WireError(f"{path}.{exc.field}", exc.reason) from None
 
 
-def decode(payload: bytes | bytearray | memoryview, expected_type: type[M]) -> M:
-    """Decode and validate a payload that must hold a message of ``expected_type``.
-
-    Raises WireError (naming the field) for anything else: garbage bytes, a
-    different schema version or type, unknown/missing fields, wrong types,
-    shapes or dtypes, NaN/inf, non-symmetric or non-PD covariances, size bounds.
-    """
-    name = expected_type.__name__
+def unpack(payload: bytes | bytearray | memoryview) -> Any:
+    """The msgpack structure of an untrusted payload, within the limits: at most MAX_PAYLOAD_BYTES,
+    strings of at most 4 MAX_STRING_LENGTH bytes, byte strings of at most the largest array's data,
+    MAX_CONTAINER_ITEMS items in a list, 2 MAX_MAP_ITEMS entries in a map, no extension types
+    (msgpack's own limits, checked while it parses, without recursion), then nesting at most
+    MAX_DEPTH containers deep and MAX_ITEMS items in all (an iterative walk). WireError otherwise,
+    its message a bounded summary (never the payload)."""
     if not isinstance(payload, (bytes, bytearray, memoryview)):
         raise WireError("payload", f"expected bytes, got {type(payload).__name__}")
     if len(payload) > MAX_PAYLOAD_BYTES:
         raise WireError("payload", f"{len(payload)} bytes exceed the limit of {MAX_PAYLOAD_BYTES}")
     try:
-        obj = msgpack.unpackb(payload, raw=False, strict_map_key=True, use_list=True)
+        obj = msgpack.unpackb(payload, raw=False, strict_map_key=True, use_list=True,
+                              max_str_len=4 * MAX_STRING_LENGTH, max_bin_len=8 * MAX_BATCH_ELEMENTS,
+                              max_array_len=MAX_CONTAINER_ITEMS, max_map_len=2 * MAX_MAP_ITEMS, max_ext_len=0)
     except Exception as exc:  # msgpack raises many types (ExtraData, StackError, ValueError, ...)
-        raise WireError("payload", f"not valid msgpack ({type(exc).__name__}: {exc})") from None
+        raise WireError("payload", f"not valid msgpack within the limits ({type(exc).__name__}: "
+                                   f"{brief(str(exc), 2 * BRIEF_CHARS)})") from None
+    _check_structure(obj)
+    return obj
+
+
+def _check_structure(obj: Any) -> None:
+    """WireError if ``obj`` nests containers more than MAX_DEPTH deep or holds more than MAX_ITEMS
+    items in all (an explicit stack: no recursion on untrusted data)."""
+    if not isinstance(obj, (dict, list)):
+        return
+    stack: list[tuple[Any, int]] = [(obj, 1)]
+    items = 0
+    while stack:
+        value, depth = stack.pop()
+        if depth > MAX_DEPTH:
+            raise WireError("payload", f"containers nested more than {MAX_DEPTH} deep")
+        children = value.values() if isinstance(value, dict) else value
+        items += len(children)
+        if items > MAX_ITEMS:
+            raise WireError("payload", f"more than {MAX_ITEMS} items in all")
+        stack.extend((child, depth + 1) for child in children if isinstance(child, (dict, list)))
+
+
+def decode(payload: bytes | bytearray | memoryview, expected_type: type[M]) -> M:
+    """Decode and validate a payload that must hold a message of ``expected_type``.
+
+    Raises WireError (naming the field) for anything else: garbage bytes, a structure beyond
+    the limits of :func:`unpack` (checked first), a different schema version or type,
+    unknown/missing fields, wrong types, shapes or dtypes, NaN/inf, non-symmetric or non-PD
+    covariances, size bounds. Its message quotes no more than :func:`brief` of any value.
+    """
+    name = expected_type.__name__
+    obj = unpack(payload)
     if not isinstance(obj, dict):
         raise WireError("payload", f"expected a msgpack map, got {type(obj).__name__}")
     schema = obj.get("schema")
     if "schema" not in obj:
         raise WireError(f"{name}.schema", "missing field")
     if isinstance(schema, bool) or schema != SCHEMA_VERSION:
-        raise WireError(f"{name}.schema", f"unsupported schema version {schema!r} (expected {SCHEMA_VERSION})")
+        raise WireError(f"{name}.schema", f"unsupported schema version {brief(schema)} (expected {SCHEMA_VERSION})")
     if obj.get("type") != name:
-        raise WireError(f"{name}.type", f"expected {name!r}, got {obj.get('type')!r}")
+        raise WireError(f"{name}.type", f"expected {name!r}, got {brief(obj.get('type'))}")
     return _decode_record(expected_type, obj, name, _ENVELOPE)
 
 
