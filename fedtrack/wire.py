@@ -482,7 +482,9 @@ class FusedTrack(_Record):
 
     ``sensors``: the sensors fused in this scan; ``stamp_ns``: earliest measurement
     stamp of the scan; ``extra``: small map of str -> float | str | list of floats |
-    map of floats (IMM mode probabilities, existence, status, active group, ...).
+    map of floats (IMM mode probabilities, existence, status, active group, ...);
+    ``contested``: a second, different estimate of one sensor arrived for this scan (the
+    first was fused; either may be a forgery: docs/wire.md, "Contested scans").
     """
 
     seq: int
@@ -495,10 +497,11 @@ class FusedTrack(_Record):
     sensors: tuple[str, ...]
     stamp_ns: int
     extra: dict[str, Any] = field(default_factory=dict)
+    contested: bool = False
 
     _fields = {"seq": _count, "t": _real, "model": _identifier, "x": _vector, "P": _covariance,
                "maneuver": _flag, "degraded": _flag, "sensors": _identifiers, "stamp_ns": _count,
-               "extra": _extra}
+               "extra": _extra, "contested": _flag}
     _arrays = ("x", "P")
 
     def _check(self) -> None:
@@ -658,7 +661,9 @@ class TrackPicture(_Record):
     recorded scans must follow. The entries at the positions ``left`` are no scans but
     departures: the centre dropped that sensor there (its ``fused_seqs`` entry is 0). A
     ``closing`` record (the last one, on a clean stop) is no picture: it has no tracks and only
-    lists what the centre processed after the last picture."""
+    lists what the centre processed after the last picture. ``contested``: since the previous
+    picture a second, different message arrived for a (sensor, scan) the centre had already
+    taken (the first was fused; either may be a forgery: docs/wire.md, "Contested scans")."""
 
     seq: int
     t: float
@@ -677,12 +682,13 @@ class TrackPicture(_Record):
     # of the tracks whose maneuver is detected and one row [onset, ax, ay, statistic] for each
     maneuvering: tuple[int, ...] = ()
     maneuver: np.ndarray | None = None
+    contested: bool = False
 
     _fields = {"seq": _count, "t": _real, "ids": _counts, "x": _batch, "P": _batch, "confirmed": _flags,
                "sensors": _id_lists, "ca": _flags, "maneuvering": _counts, "maneuver": _optional(_batch),
                "fused_sensors": lambda v, p: tuple(_identifier(x, f"{p}[{i}]")
                                                    for i, x in enumerate(_sequence(v, p, MAX_TRACKS))),
-               "fused_seqs": _counts, "stamp_ns": _count, "closing": _flag, "left": _counts}
+               "fused_seqs": _counts, "stamp_ns": _count, "closing": _flag, "left": _counts, "contested": _flag}
     _arrays = ("x", "P", "maneuver")
 
     def _check(self) -> None:
@@ -940,15 +946,19 @@ def picture_line(t: float, ids: list[int], X: np.ndarray, P: np.ndarray, confirm
 
 
 def picture_to_replay(pic: TrackPicture) -> dict[str, Any]:
-    """The picture line ``{"t", "tracks": [...]}`` that ``replay --algorithm mtt-*`` writes."""
+    """The picture line ``{"t", "tracks": [...]}`` that ``replay --algorithm mtt-*`` writes
+    (plus ``"contested": true`` for a contested picture, which no replay writes)."""
     d = pic.x.shape[1]
     models = ["ca" if ca else "cv" for ca in pic.ca] if pic.ca else None
     maneuver = None
     if pic.maneuver is not None:
         maneuver = np.full((len(pic.ids), 4), np.nan)
         maneuver[list(pic.maneuvering)] = pic.maneuver
-    return {"t": pic.t, "tracks": picture_rows(list(pic.ids), pic.x, pic.P.reshape(-1, d, d), list(pic.confirmed),
+    line = {"t": pic.t, "tracks": picture_rows(list(pic.ids), pic.x, pic.P.reshape(-1, d, d), list(pic.confirmed),
                                                [list(s) for s in pic.sensors], models, maneuver)}
+    if pic.contested:
+        line["contested"] = True
+    return line
 
 
 def _json_field(obj: dict[str, Any], key: str, where: str) -> Any:
@@ -996,25 +1006,29 @@ _TRACK_DEFAULT_KEYS = ("t", "x", "P", "model", "maneuver", "degraded", "seq", "s
 
 def track_to_replay(track: FusedTrack) -> dict[str, Any]:
     """The replay-output line ``{"t", "x", "P", "model", "maneuver", "degraded", "seq", "sensors"}``
-    plus the ``extra`` entries as top-level fields."""
+    plus the ``extra`` entries as top-level fields, and ``"contested": true`` for a contested
+    track (which no replay writes)."""
     row: dict[str, Any] = {"t": track.t, "x": track.x.tolist(), "P": track.P.tolist(), "model": track.model,
                            "maneuver": track.maneuver, "degraded": track.degraded, "seq": track.seq,
                            "sensors": list(track.sensors)}
     row.update({k: list(v) if isinstance(v, tuple) else v for k, v in track.extra.items()})
+    if track.contested:
+        row["contested"] = True
     return row
 
 
 def track_from_replay(obj: dict[str, Any], where: str, seq: int = 0) -> FusedTrack:
     """Inverse of :func:`track_to_replay`. ``degraded`` (false), ``seq`` (the argument),
-    ``sensors`` ([]) and ``stamp_ns`` (0) may be absent; other keys become ``extra``,
+    ``sensors`` ([]), ``stamp_ns`` (0) and ``contested`` (false) may be absent; other keys become ``extra``,
     except null-valued ones (e.g. ``"event": null`` of the fusion replay), which count as absent."""
-    extra = {k: v for k, v in obj.items() if k not in _TRACK_DEFAULT_KEYS and k != "stamp_ns" and v is not None}
+    extra = {k: v for k, v in obj.items() if k not in (*_TRACK_DEFAULT_KEYS, "stamp_ns", "contested") and v is not None}
     try:
         return FusedTrack(
             seq=obj.get("seq", seq), t=_json_field(obj, "t", where), model=_json_field(obj, "model", where),
             x=_json_array(_json_field(obj, "x", where), "x", where),
             P=_json_array(_json_field(obj, "P", where), "P", where),
             maneuver=_json_field(obj, "maneuver", where), degraded=obj.get("degraded", False),
-            sensors=obj.get("sensors", ()), stamp_ns=obj.get("stamp_ns", 0), extra=extra)
+            sensors=obj.get("sensors", ()), stamp_ns=obj.get("stamp_ns", 0), extra=extra,
+            contested=obj.get("contested", False))
     except WireError as exc:
         raise InputError(f"{where}: {exc}") from None

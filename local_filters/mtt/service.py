@@ -44,6 +44,7 @@ from fedtrack.services.base import (
     Service,
     Subscription,
     check_time_jump,
+    require_finite,
     service_kwargs,
     service_parser,
 )
@@ -55,6 +56,9 @@ class MttLocalService(Service):
 
     role = "mtt-local"
     tick_period_s = 0.05
+    # the tracker is an immutable record (local_step and adopt return new ones); ``received`` is
+    # only changed once a scan was handled (compute, then commit)
+    state_attrs = ("tracker", "queue", "last_t", "awaiting", "awaiting_since")
 
     def __init__(self, sensor: str, federated: bool, cfg: MttConfig, reset_timeout_s: float = 2.0,
                  max_seq_jump: int = 1000, max_time_jump_s: float = 3600.0, **kwargs: object) -> None:
@@ -85,12 +89,13 @@ class MttLocalService(Service):
         if not self.cfg.allows(msg.sensor):
             raise Rejected("unknown_sensor", f"sensor {msg.sensor!r} is not in mtt.sensors")
         check_time_jump(self.last_t, msg.t, self.max_time_jump_s)
-        if not self.received.take(msg):
+        if not self.received.check(msg):
             self.count("duplicate")
             return
         self.last_t = msg.t if self.last_t is None else max(self.last_t, msg.t)
         self.queue.append((msg.seq, scan, msg.stamp_ns))
         self._advance()
+        self.received.take(msg)
 
     def on_resets(self, msg: TrackResets) -> None:
         if self.awaiting is None or msg.seq != self.awaiting:
@@ -115,15 +120,19 @@ class MttLocalService(Service):
         """Track the waiting scans, in arrival order, while no resets are due."""
         while self.queue and self.awaiting is None:
             seq, scan, stamp = self.queue.popleft()
-            tracker = self.tracker or new_local_tracker(scan, self.federated)
-            if is_late(tracker, scan):
-                self.count("late")
-                continue
-            self.tracker, report = local_step(tracker, scan, self.cfg)
-            self.publish(self.keys.mtt_report(self.sensor), report_to_wire(report, seq, stamp))
-            self.count("reports")
-            if self.federated:
-                self.awaiting, self.awaiting_since = seq, time.monotonic()
+            # a scan the tracker fails on is dropped (a rejection), the tracker as before it
+            with self.guarded(f"scan {seq}", key=self.keys.sensor_meas(self.sensor)):
+                tracker = self.tracker or new_local_tracker(scan, self.federated)
+                if is_late(tracker, scan):
+                    self.count("late")
+                    continue
+                tracker, report = local_step(tracker, scan, self.cfg)
+                require_finite(f"scan {seq}: the local tracks", report.x, report.P)
+                self.tracker = tracker
+                self.publish(self.keys.mtt_report(self.sensor), report_to_wire(report, seq, stamp))
+                self.count("reports")
+                if self.federated:
+                    self.awaiting, self.awaiting_since = seq, time.monotonic()
 
 
 def main(argv: list[str]) -> int:
