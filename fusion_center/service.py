@@ -129,8 +129,11 @@ class FusionCenterService(Service):
             sub.undeclare()
 
     def _on_liveliness(self, role: str, sample: Any) -> None:
-        """Zenoh thread: track sensors and local filters that died (set rebinding is atomic)."""
+        """Zenoh thread: track sensors and local filters that died (set rebinding is atomic); a
+        token of a sensor not configured changes nothing."""
         sensor = str(sample.key_expr).rsplit("/", 1)[-1]
+        if sensor not in self.sensors:
+            return
         if sample.kind == zenoh.SampleKind.PUT:
             if sensor in self._gone[role]:
                 self.log.warning("%s %s is back", role, sensor)

@@ -116,6 +116,10 @@ class LocalFilterService(Service):
         for track in self.query(self.keys.fusion_state(), FusedTrack)[:1]:
             if track.seq <= self.processed_up_to:
                 return
+            if {"cv": 4, "ca": 6}.get(track.model) != track.x.shape[0]:
+                self.note_rejected(self.keys.fusion_state(), Rejected(
+                    "wrong_model", f"fusion centre state of a {track.x.shape[0]}-D {track.model!r} state"))
+                return
             self.filter.apply_reset(track.t, np.asarray(track.x), self.filter.beta * np.asarray(track.P))
             self.processed_up_to = self.reset_up_to = track.seq
             self.count("rejoined")

@@ -249,6 +249,13 @@ def require_finite(what: str, *arrays: Any) -> None:
             raise Numerical(f"{what} is not finite")
 
 
+@dataclass
+class Attempt:
+    """What :meth:`Service.guarded` yields: ``failed`` once the block raised (and was undone)."""
+
+    failed: bool = False
+
+
 class Service:
     """Base class of a service process (see the module docstring)."""
 
@@ -516,22 +523,24 @@ class Service:
 
     @contextmanager
     def guarded(self, what: str, attrs: tuple[str, ...] | None = None, key: str | None = None,
-                size: int = 0) -> Iterator[None]:
+                size: int = 0) -> Iterator[Attempt]:
         """Run the block as one transaction: if it raises anything, the attributes ``attrs``
         (default ``state_attrs``), the counters and the status are put back as they were when
         it began, the failure is counted as a rejection (:func:`reason_of`) and logged (bounded),
-        and the service goes on. A handler that publishes does so last (compute, then commit),
-        so that nothing it failed on was sent."""
+        and the service goes on (the :class:`Attempt` yielded says ``failed``). A handler that
+        publishes does so last (compute, then commit), so that nothing it failed on was sent."""
         names = self.state_attrs if attrs is None else attrs
         saved = (pickle.dumps({name: getattr(self, name) for name in names}, protocol=pickle.HIGHEST_PROTOCOL),
                  dict(self.counters), self.status)
+        attempt = Attempt()
         try:
-            yield
+            yield attempt
         except Exception as exc:  # noqa: BLE001 - a handler must not end the service (module docstring)
             state, counters, status = saved
             for name, value in pickle.loads(state).items():
                 setattr(self, name, value)
             self.counters, self.status = counters, status
+            attempt.failed = True
             self._reject(key or what, size, exc)
 
     def note_rejected(self, key: str, exc: Rejected) -> None:

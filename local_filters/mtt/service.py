@@ -92,9 +92,10 @@ class MttLocalService(Service):
         if not self.received.check(msg):
             self.count("duplicate")
             return
-        self.last_t = msg.t if self.last_t is None else max(self.last_t, msg.t)
         self.queue.append((msg.seq, scan, msg.stamp_ns))
-        self._advance()
+        if msg.seq in self._advance():  # dropped: as if it never came
+            return
+        self.last_t = msg.t if self.last_t is None else max(self.last_t, msg.t)
         self.received.take(msg)
 
     def on_resets(self, msg: TrackResets) -> None:
@@ -116,12 +117,13 @@ class MttLocalService(Service):
             self.awaiting = None
             self._advance()
 
-    def _advance(self) -> None:
-        """Track the waiting scans, in arrival order, while no resets are due."""
+    def _advance(self) -> list[int]:
+        """Track the waiting scans, in arrival order, while no resets are due; returns the scan
+        numbers the tracker failed on (each dropped, a rejection, the state as before it)."""
+        failed = []
         while self.queue and self.awaiting is None:
             seq, scan, stamp = self.queue.popleft()
-            # a scan the tracker fails on is dropped (a rejection), the tracker as before it
-            with self.guarded(f"scan {seq}", key=self.keys.sensor_meas(self.sensor)):
+            with self.guarded(f"scan {seq}", key=self.keys.sensor_meas(self.sensor)) as attempt:
                 tracker = self.tracker or new_local_tracker(scan, self.federated)
                 if is_late(tracker, scan):
                     self.count("late")
@@ -133,6 +135,9 @@ class MttLocalService(Service):
                 self.count("reports")
                 if self.federated:
                     self.awaiting, self.awaiting_since = seq, time.monotonic()
+            if attempt.failed:
+                failed.append(seq)
+        return failed
 
 
 def main(argv: list[str]) -> int:
