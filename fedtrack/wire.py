@@ -858,11 +858,13 @@ def _check_structure(obj: Any) -> None:
         value, depth = stack.pop()
         if depth > MAX_DEPTH:
             raise WireError("payload", f"containers nested more than {MAX_DEPTH} deep")
-        children = value.values() if isinstance(value, dict) else value
+        children = value.values() if type(value) is dict else value
         items += len(children)
         if items > MAX_ITEMS:
             raise WireError("payload", f"more than {MAX_ITEMS} items in all")
-        stack.extend((child, depth + 1) for child in children if isinstance(child, (dict, list)))
+        kinds = set(map(type, children))  # msgpack builds exactly dict and list; most lists hold none
+        if dict in kinds or list in kinds:
+            stack.extend((child, depth + 1) for child in children if type(child) is dict or type(child) is list)
 
 
 def decode(payload: bytes | bytearray | memoryview, expected_type: type[M]) -> M:

@@ -22,6 +22,7 @@ from __future__ import annotations
 import os
 import pickle
 import time
+from hashlib import blake2b
 from pathlib import Path
 from typing import Any
 
@@ -52,6 +53,7 @@ from fedtrack.services.base import (
 from fedtrack.wire import PD_RTOL, FusedTrack, LocalEstimate, ManeuverEvent, Reset, decode, encode
 
 SNAPSHOT_MAX_GAP = 3  # scans missed beyond which a restored snapshot is dropped for a rebuild
+SNAPSHOT_MAGIC = b"fedtrack-centre-1\n"  # then a 32-byte BLAKE2b digest of the pickle, then the pickle
 
 
 class ScanBuffer:
@@ -100,7 +102,7 @@ class FusionCenterService(Service):
         if self.snapshot is None or not self.snapshot.is_file():
             return
         try:
-            state = pickle.loads(self.snapshot.read_bytes())
+            state = pickle.loads(checked_snapshot(self.snapshot.read_bytes()))
             centre, track = state["centre"], decode(state["track"], FusedTrack)
             usable = (state["deployment"] == self.keys.deployment and type(centre) is type(self.centre)
                       and centre.sensors == self.sensors)
@@ -120,8 +122,8 @@ class FusionCenterService(Service):
         if self.snapshot is None:
             return
         tmp = self.snapshot.with_name(self.snapshot.name + ".tmp")
-        tmp.write_bytes(pickle.dumps({"deployment": self.keys.deployment, "centre": self.centre,
-                                      "track": encode(track)}))
+        data = pickle.dumps({"deployment": self.keys.deployment, "centre": self.centre, "track": encode(track)})
+        tmp.write_bytes(SNAPSHOT_MAGIC + blake2b(data, digest_size=32).digest() + data)
         os.replace(tmp, self.snapshot)
 
     def on_stop(self) -> None:
@@ -264,6 +266,18 @@ class FusionCenterService(Service):
                 onset=float(ev.onset) if ev is not None else buf.t,
                 u=np.asarray(ev.u) if ev is not None else np.asarray(result.estimate.x[CA_ACC]),
                 statistic=float(ev.statistic) if ev is not None else 0.0))
+
+
+def checked_snapshot(raw: bytes) -> bytes:
+    """The pickle of a snapshot file whose digest matches (a file cut or corrupted on disk is
+    refused before anything unpickles it); ValueError otherwise."""
+    head = len(SNAPSHOT_MAGIC) + 32
+    if not raw.startswith(SNAPSHOT_MAGIC) or len(raw) < head:
+        raise ValueError("not a fedtrack centre snapshot")
+    data = raw[head:]
+    if blake2b(data, digest_size=32).digest() != raw[len(SNAPSHOT_MAGIC):head]:
+        raise ValueError("checksum mismatch (a corrupted or cut file)")
+    return data
 
 
 def usable(result: CentreResult) -> bool:

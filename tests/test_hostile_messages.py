@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import pickle
+from collections import deque
 from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable
@@ -70,15 +71,37 @@ def _matches(pattern: str, key: str) -> bool:
     return len(p) == len(k) and all(a in ("*", b) for a, b in zip(p, k))
 
 
+class Replies:
+    """Stands in for a service's Zenoh session in :meth:`Service.query`: the replies are ``payloads``."""
+
+    class _Reply:
+        def __init__(self, payload: bytes) -> None:
+            self.ok = self
+            self.payload = self
+            self._bytes = payload
+
+        def to_bytes(self) -> bytes:
+            return self._bytes
+
+    def __init__(self) -> None:
+        self.payloads: list[bytes] = []
+
+    def get(self, key: str, timeout: float) -> list[Any]:
+        return [self._Reply(p) for p in self.payloads]
+
+
 class Bus:
-    """In-process delivery of what the services publish, in publication order."""
+    """In-process delivery of what the services publish, in publication order (queries get the
+    replies a :class:`Replies` holds: none unless a test puts some there)."""
 
     def __init__(self, services: list[Service]) -> None:
         self.services = services
         self.published: list[tuple[str, Any]] = []
         self.pending: list[tuple[str, bytes]] = []
+        self._routes: dict[str, list[tuple[Service, int]]] = {}  # key -> its subscribers
         for svc in services:
             svc._subscriptions = svc.subscriptions()
+            svc.session = Replies()  # type: ignore[assignment]
             svc.publish = (lambda key, msg: (self.published.append((key, msg)),  # type: ignore[method-assign]
                                              self.pending.append((key, encode(msg)))))
 
@@ -90,20 +113,38 @@ class Bus:
     def drain(self) -> None:
         while self.pending:
             key, data = self.pending.pop(0)
-            for svc in self.services:
-                for index, sub in enumerate(svc._subscriptions):
-                    if _matches(sub.key, key):
-                        svc._dispatch(("sample", index, key, data))
+            if key not in self._routes:
+                self._routes[key] = [(svc, index) for svc in self.services
+                                     for index, sub in enumerate(svc._subscriptions) if _matches(sub.key, key)]
+            for svc, index in self._routes[key]:
+                svc._dispatch(("sample", index, key, data))
 
     def of(self, msg_type: type) -> list[Any]:
         return [m for _, m in self.published if isinstance(m, msg_type)]
 
 
-def fingerprint(svc: Service) -> dict[str, bytes]:
-    """Every attribute of ``svc`` but the base class's I/O ones, each pickled on its own after a
-    pickle round trip (equal bytes: equal values; the round trip makes the sharing of equal
-    objects, which pickle records by identity, the same as in a restored copy)."""
-    return {k: pickle.dumps(pickle.loads(pickle.dumps(v))) for k, v in vars(svc).items() if k not in INFRASTRUCTURE}
+def canonical(value: Any) -> Any:
+    """``value`` as nested tuples that compare equal exactly when the values are equal (arrays by
+    dtype, shape and bytes; floats by their bits, so NaN equals NaN; sets sorted; objects by their
+    attributes). For the tests' own state only: it recurses."""
+    if isinstance(value, np.ndarray):
+        return ("array", value.dtype.str, value.shape, value.tobytes())
+    if isinstance(value, (float, np.floating)):
+        return ("float", float(value).hex())
+    if isinstance(value, dict):
+        return ("dict", tuple((canonical(k), canonical(v)) for k, v in value.items()))
+    if isinstance(value, (set, frozenset)):
+        return ("set", tuple(sorted((canonical(v) for v in value), key=repr)))
+    if isinstance(value, (list, tuple, deque)):
+        return (type(value).__name__, tuple(canonical(v) for v in value))
+    if hasattr(value, "__dict__") and not callable(value):
+        return (type(value).__name__, canonical(vars(value)))
+    return value
+
+
+def fingerprint(svc: Service) -> dict[str, Any]:
+    """Every attribute of ``svc`` but the base class's I/O ones, :func:`canonical` (equal: equal state)."""
+    return {k: canonical(v) for k, v in vars(svc).items() if k not in INFRASTRUCTURE}
 
 
 # ---------------------------------------------------------------- the paper pipeline
