@@ -72,6 +72,7 @@ class FusionCenterService(Service):
     tick_period_s = 0.01
     # the centre's records are rebound, never changed in place: a pickle of these is the whole state
     state_attrs = ("centre", "scans", "next_seq", "last_track", "restored")
+    tick_state_attrs = ()  # on_tick checkpoints only when a scan is waiting (100 ticks a second)
 
     def __init__(self, sensors: list[str], centre: FederatedCentre | DecentralizedCentre,
                  deadline_s: float, snapshot: Path | None = None, max_seq_jump: int = 1000,
@@ -197,7 +198,9 @@ class FusionCenterService(Service):
         self.note_rejected(self.keys.local_estimate(msg.sensor), exc)
 
     def on_tick(self) -> None:
-        self.fuse_ready()
+        if self.scans:
+            with self.guarded("on_tick"):
+                self.fuse_ready()
 
     def fuse_ready(self) -> None:
         """Fuse complete scans in order; a scan whose deadline passed is fused as it is."""

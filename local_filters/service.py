@@ -66,6 +66,7 @@ class LocalFilterService(Service):
     # the filter rebinds its records (never changes them in place): a pickle of these is the whole state
     state_attrs = ("filter", "pending", "processed_up_to", "processed_t", "applied", "reset_up_to",
                    "waiting_since", "alone")
+    tick_state_attrs = ()  # on_tick checkpoints only when a scan is waiting (50 ticks a second)
 
     def __init__(self, sensor: str, mode: str, filt: FederatedLocalFilter | VdieLocalFilter,
                  reset_timeout_s: float, max_seq_jump: int = 1000, max_time_jump_s: float = 3600.0,
@@ -176,7 +177,9 @@ class LocalFilterService(Service):
         self.process_ready()
 
     def on_tick(self) -> None:
-        self.process_ready()
+        if self.pending:
+            with self.guarded("on_tick"):
+                self.process_ready()
 
     def process_ready(self) -> None:
         """Process pending scans in order while their precondition (reset) holds."""

@@ -335,8 +335,21 @@ def test_a_corrupted_snapshot_never_stops_the_centre(tmp_path: Path) -> None:
     good = snapshot.read_bytes()
     paper_scan(bus, 6)  # the estimates of scan 6, for the centres restored below
     estimate = next(e for e in bus.of(LocalEstimate) if e.seq == 6)
-    mutator = Mutator(SEED)
     outcomes = {"restored": 0, "fresh": 0}
+    quiet = logging.getLogger(centre.log.name)  # 10,000 "unusable snapshot" warnings would be the test's time
+    level = quiet.level
+    quiet.setLevel(logging.ERROR)
+    try:
+        restore_corrupted(good, estimate, outcomes)
+    finally:
+        quiet.setLevel(level)
+    print(f"\nsnapshots: {PAYLOADS} corrupted, {outcomes['restored']} restored, {outcomes['fresh']} started fresh")
+    assert sum(outcomes.values()) == PAYLOADS and outcomes["fresh"] > 0
+
+
+def restore_corrupted(good: bytes, estimate: LocalEstimate, outcomes: dict[str, int]) -> None:
+    """PAYLOADS centres restored from corruptions of the snapshot ``good``; every 500th then takes ``estimate``."""
+    mutator = Mutator(SEED)
     opts = SessionOptions(connect=("tcp/127.0.0.1:1",))
     for i in range(PAYLOADS):
         data = bytearray(good)
@@ -351,7 +364,6 @@ def test_a_corrupted_snapshot_never_stops_the_centre(tmp_path: Path) -> None:
         fresh = FusionCenterService(list(SENSORS), FederatedCentre(list(SENSORS), FusionConfig()), 0.5,
                                     snapshot=InMemory(bytes(data)), service_id="fusion",  # type: ignore[arg-type]
                                     options=opts, deployment=KEYS.deployment)
-        fresh.log.setLevel(logging.ERROR)  # 10,000 "unusable snapshot" warnings would be the test's time
         fresh._restore()
         outcomes["restored" if fresh.restored else "fresh"] += 1
         if i % 500 == 0:  # a restored centre still takes (or rejects) a scan
@@ -359,5 +371,3 @@ def test_a_corrupted_snapshot_never_stops_the_centre(tmp_path: Path) -> None:
             fresh.publish = lambda key, msg: None  # type: ignore[method-assign]
             fresh._dispatch(("sample", 0, KEYS.local_estimate(estimate.sensor), encode(estimate)))
             assert fresh.counters.get("rejected_handler_error", 0) == 0
-    print(f"\nsnapshots: {PAYLOADS} corrupted, {outcomes['restored']} restored, {outcomes['fresh']} started fresh")
-    assert sum(outcomes.values()) == PAYLOADS and outcomes["fresh"] > 0

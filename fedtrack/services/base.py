@@ -110,21 +110,20 @@ class ScanOrder:
     otherwise update the track twice); an older scan is rejected as ``late``."""
 
     def __init__(self) -> None:
-        self.last: Message | None = None
+        self.last: tuple[int, bytes] | None = None  # the scan number and payload (stamp cleared) taken last
 
     def check(self, msg: Measurement) -> bool:
         """False for a duplicate to ignore; raises Rejected for a conflict or a late scan."""
-        last = self.last
-        if last is None or msg.seq > last.seq:  # type: ignore[attr-defined]
+        if self.last is None or msg.seq > self.last[0]:
             return True
-        if msg.seq < last.seq:  # type: ignore[attr-defined]
-            raise Rejected("late", f"scan {msg.seq} after scan {last.seq}")  # type: ignore[attr-defined]
-        if encode(replace(msg, stamp_ns=0)) == encode(replace(last, stamp_ns=0)):  # type: ignore[arg-type]
+        if msg.seq < self.last[0]:
+            raise Rejected("late", f"scan {msg.seq} after scan {self.last[0]}")
+        if encode(replace(msg, stamp_ns=0)) == self.last[1]:
             return False
         raise Rejected("conflict", f"a second, different message for scan {msg.seq} (the first stays)")
 
     def took(self, msg: Measurement) -> None:
-        self.last = msg
+        self.last = (msg.seq, encode(replace(msg, stamp_ns=0)))
 
 
 class ReceivedScans:
