@@ -5,7 +5,8 @@ The paper pipeline and the multi-target deployment run in-process on the bus of
 ``test_hostile_messages`` (each service through its own dispatch: bounded decode, sender check,
 guarded handler). After each genuine message, ``PER_MESSAGE`` mutations of it are published on
 its key, so they reach every service subscribed to it (a measurement: the local filter, the IMM
-tracker and the recorder) in a state where the genuine one was plausible. A mutation is one of:
+tracker and the recorder) in a state where the genuine one was plausible (the multi-target scans:
+2,000 more measurements). A mutation is one of:
 a field (at any depth) replaced by a hostile value (nesting 9 to 1,000 deep, 2,049-item lists,
 5,000-character strings, NaN, infinity, 1e308, 2^64 - 1, wrong types, malformed array maps,
 extension types); an array's values scaled by up to 1e+-300 or one value made extreme; ``seq`` or
@@ -260,7 +261,8 @@ def test_every_handler_takes_10000_mutations_per_type_without_an_escape(tmp_path
     mbus = Bus(list(mtt_services(tmp_path / "mfuzzed").values()))
     counts = {t: sum(1 for p in mpublished if p[2] is t) for t in (TrackReport, TrackResets, TrackPicture)}
     scan_inputs = [(KEYS.sensor_meas(m.sensor), encode(m), Measurement) for m in scans]
-    fuzz_stream(mbus, scan_inputs, mutator, tally, -(-PAYLOADS // len(scans)), {Measurement})
+    # multi-target scans: 2,000 more Measurements (the paper stream above has 10,000)
+    fuzz_stream(mbus, scan_inputs, mutator, tally, -(-2_000 // len(scans)), {Measurement})
     for msg_type, n in counts.items():
         fuzz_stream(mbus, [p for p in mpublished if p[2] is msg_type], mutator, tally, -(-PAYLOADS // n), {msg_type})
 
