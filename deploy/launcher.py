@@ -179,7 +179,6 @@ def apply_zenoh_settings(settings: Settings, config_path: Path, out_dir: Path,
     """Hand every service of ``plan`` its Zenoh configuration (``[zenoh]`` table, see
     :mod:`fedtrack.deploy.security`) with ``--zenoh-config``; returns the launcher monitor's file."""
     dep = settings.deployment
-    endpoints = [*([dep.router_listen] if dep.router_listen else []), *dep.connect_endpoints]
 
     def ident(sp: ServiceProcess) -> str:
         return identity(sp.role, sp.id)
@@ -187,7 +186,7 @@ def apply_zenoh_settings(settings: Settings, config_path: Path, out_dir: Path,
     identities = sorted({ident(sp) for sp in plan} | {identity("sensor", s.id) for s in settings.sensor}
                         | {"router", "fusion", "recorder"})
     with in_file(config_path):
-        paths = write_configs(settings.zenoh, config_path.parent, Keys(dep.name), endpoints, identities, out_dir)
+        paths = write_configs(settings.zenoh, config_path.parent, Keys(dep.name), identities, out_dir)
     if not paths:
         return None
     for sp in plan:
