@@ -117,7 +117,7 @@ def identity(role: str, service_id: str) -> str:
     return "fusion" if role in CENTRE_ROLES else role
 
 
-def _own_keys(keys: Keys, ident: str) -> list[str]:
+def own_keys(keys: Keys, ident: str) -> list[str]:
     """The keys ``ident`` may publish on (health and liveliness of its roles included)."""
     if ident.startswith("sensor-"):
         sid = ident.removeprefix("sensor-")
@@ -148,7 +148,7 @@ def access_control(keys: Keys, identities: list[str]) -> dict[str, Any]:
     subjects: list[dict[str, Any]] = [{"id": "authenticated"}]
     policies: list[dict[str, Any]] = [{"rules": ["receive", "read", "adv-sub"], "subjects": ["authenticated"]}]
     for ident in identities:
-        own = _own_keys(keys, ident)
+        own = own_keys(keys, ident)
         subjects.append({"id": ident, "cert_common_names": [ident]})
         if own:
             rules.append({"id": f"own-{ident}", "messages": OWN_MESSAGES, "flows": ["ingress"],
