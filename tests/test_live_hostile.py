@@ -89,9 +89,9 @@ pytestmark = pytest.mark.fuzz
 
 PAPER_SCANS = 41  # paper 004 scenario 1 for 40 s (the first maneuver from 30 s), realtime at PAPER_SPEED scans/s
 PAPER_SPEED = 10.0
-MTT_DURATION_S, MTT_SPEED = 20.0, 5.0
+MTT_DURATION_S, MTT_SPEED = 20.0, 4.0
 ROUNDS = 3  # attack rounds, ROUND_GAP_S apart, once the pipeline runs
-ROUND_GAP_S = 0.3
+ROUND_GAP_S = 0.2
 DEEP = 1000
 PER_SENSOR = ("local-filter", "mtt-local")  # subscribe to their own sensor's keys only
 FAMILIES: dict[str, tuple[type, tuple[str, ...]]] = {  # key family -> (message, services subscribed)
@@ -259,7 +259,7 @@ class Attacker:
     def _attack(self) -> None:
         rng = np.random.default_rng(24)
         deadline = time.monotonic() + 60.0
-        while not self.stop.is_set() and self.outputs < 3 and time.monotonic() < deadline:
+        while not self.stop.is_set() and self.outputs < 2 and time.monotonic() < deadline:
             time.sleep(0.02)
         tokens: list[Any] = []
         start = time.time()
