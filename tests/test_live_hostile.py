@@ -457,9 +457,7 @@ def test_paper_pipeline_under_attack(tmp_path: Path, secure: bool) -> None:
         assert not [k for k, p in seen if p in attacker.absurd and k not in attacker.own], \
             "a forgery on a key sensor 1 does not own arrived"
     genuine = [decode(p, FusedTrack) for k, p in seen if k == keys.fusion_track() and p not in attacker.forged]
-    by_seq = {}
-    for track in genuine:
-        by_seq.setdefault(track.seq, track)
+    by_seq = {track.seq: track for track in genuine}  # the last one of a scan, should the centre correct it
     assert sorted(by_seq) == list(range(PAPER_SCANS)), sorted(by_seq)
     changed = [seq for seq, track in by_seq.items() if not same_track(track, clean[seq])]
     print(f"{title}: {len(changed)} of {PAPER_SCANS} fused tracks differ from the clean run's "
