@@ -40,8 +40,8 @@ counted in the ``rejected`` counter of every service that subscribes to its key.
   failure when it is the cause: a forged measurement or reset that reaches a local filter first
   changes its estimate, and only the fusion centre's estimate conflicts mark a track contested.
 
-The classes, messages per class and the counts are printed (``pytest -s``). Each run takes about
-8-12 s here (scenario, start-up, the attack, the stop); loopback only, free ports, multicast
+The classes, messages per class and the counts are printed (``pytest -s``). Each run takes 12-17 s
+here (start-up, the attack, the stop; 45 s for the file); loopback only, free ports, multicast
 scouting off, bounded waits, and only the processes the launcher started are stopped.
 """
 
@@ -344,7 +344,7 @@ def attack(tmp_path: Path, settings: Settings, secure: bool) -> tuple[LaunchRepo
     endpoint = settings.deployment.router_listen
     zdir = tmp_path / "zenoh"
     keys = Keys(settings.deployment.name)
-    attacker_sensor = sorted({sp.id for sp in launcher.plan if sp.role == "sensor"})[0]
+    attacker_sensor = min(sp.id for sp in launcher.plan if sp.role == "sensor")
     own = None
     if secure:
         own = set(own_keys(keys, identity("sensor", attacker_sensor)))
