@@ -92,7 +92,8 @@ from fedtrack.zsession import SessionOptions, close_session, open_session
 
 pytestmark = pytest.mark.fuzz
 
-PAPER_DURATION_S = 300.0  # paper 004 scenario 1 run on (301 scans), lockstep as in `fedtrack demo`; stopped after the attack
+PAPER_DURATION_S = 3000.0  # paper 004 scenario 1 run on, lockstep as in `fedtrack demo`; stopped after the attack
+# (forged fused tracks drive lockstep sensors ahead: the unauthenticated run went through 300 scans in 3 s)
 MTT_DURATION_S, MTT_SPEED = 60.0, 5.0  # the multi-target default's length; stopped after the attack
 SETTLE_S = 1.0  # after the attack, before the stop
 MIN_OUTPUTS = 8  # fused tracks or pictures the run must have produced
