@@ -3,7 +3,7 @@
 ``data/mtt_reference`` holds two seeded scenarios of ``fedtrack simulate multitarget`` (three
 position sensors; a radar and a position sensor), their configs, and a fingerprint of the
 pictures main 886cab1 (the tracker before the split) wrote for them with each algorithm, with
-``maneuver = "none"`` and ``"vdie"``: per track its id, status, sensors, model, and ``x . w``,
+``maneuver = "none"`` and ``"vdie"`` (the pictures at 886cab1's picture times): per track its id, status, sensors, model, and ``x . w``,
 ``w' P w`` and the maneuver numbers (``w = 1, 2, ...``), to compare to 1e-12.
 """
 
@@ -58,7 +58,9 @@ def replay_case(tmp_path: Path, scenario: str, maneuver: str, algorithm: str) ->
 def test_gnn_pictures_equal_main_886cab1(tmp_path: Path, scenario: str, maneuver: str, algorithm: str) -> None:
     expected = json.loads(gzip.decompress(REFERENCE.read_bytes()))[f"{scenario}-{maneuver}-{algorithm}"]
     got = fingerprint(replay_case(tmp_path, scenario, maneuver, algorithm))
-    assert [t for t, _ in got] == [t for t, _ in expected]
+    # since 886cab1 the replay also writes the picture at the first whole period after the last
+    # scan (issue 28 item 6): one more at the end
+    assert [t for t, _ in got][:len(expected)] == [t for t, _ in expected] and len(got) <= len(expected) + 1
     for (t, rows), (_, want) in zip(got, expected):
         assert [r[0] for r in rows] == [r[0] for r in want], f"track ids at t = {t}"
         assert [r[4] for r in rows] == [r[4] for r in want], f"status, sensors or model at t = {t}"
