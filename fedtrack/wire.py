@@ -127,6 +127,11 @@ def _real(value: Any, path: str) -> float:
     return float(value)
 
 
+def _scans(value: Any, path: str) -> tuple[int, ...]:
+    """Scan numbers (at most MAX_LIST_ITEMS): the contested scans an output names."""
+    return tuple(_count(v, f"{path}[{i}]") for i, v in enumerate(_sequence(value, path, MAX_LIST_ITEMS)))
+
+
 def _flag(value: Any, path: str) -> bool:
     if not isinstance(value, (bool, np.bool_)):
         raise WireError(path, f"expected true or false, got {type(value).__name__}")
@@ -415,7 +420,10 @@ class LocalEstimate(_Record):
     ``model`` names the posterior's model; the prior is in the model the filter updated
     with, which differs from ``model`` (and so may differ in dimension) in a scan where
     a variable-dimension filter switched. ``stamp_ns`` is the stamp of the measurement it
-    processed; ``degraded`` lists flags such as ``"init"`` (no prior: a first estimate).
+    processed; ``degraded`` lists flags such as ``"init"`` (no prior: a first estimate);
+    ``contested``: the scans (of this sensor) for which the local filter received a second,
+    different Measurement or Reset since its previous estimate (empty when none; docs/wire.md,
+    "Contested scans").
     """
 
     sensor: str
@@ -429,10 +437,11 @@ class LocalEstimate(_Record):
     stamp_ns: int
     maneuver: ManeuverInfo | None = None
     degraded: tuple[str, ...] = ()
+    contested: tuple[int, ...] = ()
 
     _fields = {"sensor": _identifier, "seq": _count, "t": _real, "model": _identifier, "x": _vector,
                "P": _covariance, "x_prior": _vector, "P_prior": _covariance, "stamp_ns": _count,
-               "maneuver": _maneuver_info, "degraded": _identifiers}
+               "maneuver": _maneuver_info, "degraded": _identifiers, "contested": _scans}
     _arrays = ("x", "P", "x_prior", "P_prior")
     _records = {"maneuver": ManeuverInfo}
 
@@ -483,8 +492,9 @@ class FusedTrack(_Record):
     ``sensors``: the sensors fused in this scan; ``stamp_ns``: earliest measurement
     stamp of the scan; ``extra``: small map of str -> float | str | list of floats |
     map of floats (IMM mode probabilities, existence, status, active group, ...);
-    ``contested``: a second, different estimate of one sensor arrived for this scan (the
-    first was fused; either may be a forgery: docs/wire.md, "Contested scans").
+    ``contested``: this track may be built on a forged message: a second, different message
+    arrived for a (sensor, scan) it depends on (the first was used; either may be the forgery);
+    ``extra["contested_scans"]`` then names those scans (docs/wire.md, "Contested scans").
     """
 
     seq: int
@@ -585,7 +595,9 @@ class TrackReport(_Record):
     ``detected``: updated or started by this scan), the (linearized) observation each of the
     ``k`` detected tracks used, in track order (``obs_H`` (k m, d), ``obs_R`` (k m, m) stacked,
     ``obs_z`` (k, m): ``z ~ N(H x, R)``; ``started``: the track started from it), and the ids
-    this scan deleted (``retired``)."""
+    this scan deleted (``retired``); ``contested``: the scans (of this sensor) for which the
+    tracker received a second, different Measurement or TrackResets since its previous report
+    (docs/wire.md, "Contested scans")."""
 
     sensor: str
     seq: int
@@ -601,10 +613,11 @@ class TrackReport(_Record):
     started: tuple[bool, ...]
     retired: tuple[int, ...]
     stamp_ns: int
+    contested: tuple[int, ...] = ()
 
     _fields = {"sensor": _identifier, "seq": _count, "t": _real, "ids": _counts, "x": _batch, "P": _batch,
                "confirmed": _flags, "detected": _flags, "obs_H": _batch, "obs_R": _batch, "obs_z": _batch,
-               "started": _flags, "retired": _counts, "stamp_ns": _count}
+               "started": _flags, "retired": _counts, "stamp_ns": _count, "contested": _scans}
     _arrays = ("x", "P", "obs_H", "obs_R", "obs_z")
 
     def _check(self) -> None:
@@ -663,7 +676,8 @@ class TrackPicture(_Record):
     ``closing`` record (the last one, on a clean stop) is no picture: it has no tracks and only
     lists what the centre processed after the last picture. ``contested``: since the previous
     picture a second, different message arrived for a (sensor, scan) the centre had already
-    taken (the first was fused; either may be a forgery: docs/wire.md, "Contested scans")."""
+    taken, or a report fused since then names contested scans of its local tracker (the first
+    message was used; either may be a forgery: docs/wire.md, "Contested scans")."""
 
     seq: int
     t: float

@@ -41,17 +41,22 @@ from fedtrack.local_filters.vdie.config import PipelineSettings
 from fedtrack.local_filters.vdie.estimation import EVENT_NAMES, EVENT_NONE
 from fedtrack.local_filters.vdie.local import LocalOutput
 from fedtrack.services.base import (
+    MAX_CONTESTED,
+    Conflict,
     Numerical,
     QueryHandler,
     Rejected,
     Service,
     Subscription,
     check_time_jump,
+    contested_extra,
+    digest,
     service_kwargs,
     service_parser,
 )
 from fedtrack.wire import PD_RTOL, FusedTrack, LocalEstimate, ManeuverEvent, Reset, decode, encode
 
+FUSED_KEPT = 64  # fused scans whose estimate digests are kept to tell a late conflict from a re-delivery
 SNAPSHOT_MAX_GAP = 3  # scans missed beyond which a restored snapshot is dropped for a rebuild
 SNAPSHOT_MAGIC = b"fedtrack-centre-1\n"  # then a 32-byte BLAKE2b digest of the pickle, then the pickle
 
@@ -64,14 +69,16 @@ class ScanBuffer:
         self.first_arrival = now
         self.outputs: dict[str, LocalOutput] = {}
         self.stamps: list[int] = []
+        self.digests: dict[str, bytes] = {}  # per sensor, the digest of the estimate taken
         self.contested = False  # a second, different estimate of one of its sensors arrived (docs/wire.md)
+        self.named: set[int] = set()  # contested scans its estimates name (their local filters')
 
 
 class FusionCenterService(Service):
     role = "fusion-center"
     tick_period_s = 0.01
     # the centre's records are rebound, never changed in place: a pickle of these is the whole state
-    state_attrs = ("centre", "scans", "next_seq", "last_track", "restored")
+    state_attrs = ("centre", "scans", "next_seq", "last_track", "restored", "fused", "contested_scans")
     tick_state_attrs = ()  # on_tick checkpoints only when a scan is waiting (100 ticks a second)
 
     def __init__(self, sensors: list[str], centre: FederatedCentre | DecentralizedCentre,
@@ -88,6 +95,7 @@ class FusionCenterService(Service):
         self.scans: dict[int, ScanBuffer] = {}
         self.next_seq: int | None = None
         self.last_track: FusedTrack | None = None
+        self.fused: dict[int, dict[str, bytes]] = {}  # the last FUSED_KEPT scans' estimate digests per sensor
         self.gone: set[str] = set()  # sensors whose sensor or local filter liveliness token went away
         self._gone: dict[str, set[str]] = {"sensor": set(), "local-filter": set()}
         self._liveliness: list[Any] = []
@@ -160,7 +168,13 @@ class FusionCenterService(Service):
             raise Rejected("wrong_model", f"a {msg.x.shape[0]}-D {msg.model!r} state: this centre fuses 4-D cv "
                            "and 6-D ca states")
         if self.next_seq is not None and msg.seq < self.next_seq:
-            self.count("late")
+            first = self.fused.get(msg.seq, {}).get(msg.sensor)
+            if first is None or first == digest(msg):
+                self.count("late")
+                return
+            # the scan's track is out: the next one says that it (and so what follows) may be forged
+            self.contest(self.keys.local_estimate(msg.sensor), Conflict(
+                msg.seq, f"scan {msg.seq}: a second, different estimate of {msg.sensor} after the scan was fused"))
             return
         if self.next_seq is not None and msg.seq - self.next_seq > self.max_seq_jump:
             raise Rejected("seq_jump", f"scan {msg.seq} is more than {self.max_seq_jump} ahead of {self.next_seq}")
@@ -170,7 +184,7 @@ class FusionCenterService(Service):
         check_time_jump(last_t, msg.t, self.max_time_jump_s)
         buf = self.scans.get(msg.seq)
         if buf is not None and msg.t != buf.t:
-            self.contest(buf, msg, Rejected("time_jump", f"scan {msg.seq} at t={msg.t}, its other estimates at t={buf.t}"))
+            self.contest_scan(buf, msg, Rejected("time_jump", f"scan {msg.seq} at t={msg.t}, its other estimates at t={buf.t}"))
             return
         if buf is not None and msg.sensor in buf.outputs:
             first = buf.outputs[msg.sensor]
@@ -178,8 +192,8 @@ class FusionCenterService(Service):
             if same:
                 self.count("duplicate")
                 return
-            self.contest(buf, msg, Rejected("conflict", f"scan {msg.seq}: a second, different estimate of {msg.sensor} "
-                                                   "(the first stays)"))
+            self.contest_scan(buf, msg, Rejected("conflict", f"scan {msg.seq}: a second, different estimate of "
+                                                        f"{msg.sensor} (the first stays)"))
             return
         buf = self.scans.setdefault(msg.seq, ScanBuffer(msg.t, time.monotonic()))
         buf.outputs[msg.sensor] = LocalOutput(
@@ -187,9 +201,11 @@ class FusionCenterService(Service):
             init="init" in msg.degraded or "no-reset" in msg.degraded,  # not conditioned on the last reset
             event=msg.maneuver.event if msg.maneuver is not None else None)
         buf.stamps.append(msg.stamp_ns)
+        buf.digests[msg.sensor] = digest(msg)
+        buf.named.update(msg.contested)
         self.fuse_ready()
 
-    def contest(self, buf: ScanBuffer, msg: LocalEstimate, exc: Rejected) -> None:
+    def contest_scan(self, buf: ScanBuffer, msg: LocalEstimate, exc: Rejected) -> None:
         """A second, different estimate for a scan still being collected: rejected (the first
         stays), and the scan's fused track is marked ``contested`` (either may be a forgery)."""
         if not buf.contested:
@@ -252,12 +268,16 @@ class FusionCenterService(Service):
                 raise Numerical(f"scan {seq}: fused covariance not positive definite, even rebuilt")
         if degraded:
             self.count("degraded_scans")
-        track = make_track(seq, buf, result, degraded, [s for s in self.sensors if s in buf.outputs])
+        named = tuple(sorted(buf.named | set(self.take_contested()) | ({seq} if buf.contested else set())))[:MAX_CONTESTED]
+        if named:
+            self.log.warning("scan %d: fused track contested (scans %s)", seq, list(named))
+        track = make_track(seq, buf, result, degraded, [s for s in self.sensors if s in buf.outputs], named)
         self.publish(self.keys.fusion_track(), track)  # the output first; the resets are for the next scan
         for sensor, cmd in result.resets.items():
             self.publish(self.keys.fusion_reset(sensor), Reset.unchecked(
                 sensor=sensor, seq=seq, t=buf.t, model=cmd.model, x=cmd.x, P=cmd.P, beta=cmd.share))
         self.last_track = track
+        self.fused = {q: d for q, d in self.fused.items() if q > seq - FUSED_KEPT} | {seq: buf.digests}
         self._save(track)
         self.count("scans_fused")
         kind = int(result.estimate.event)
@@ -297,16 +317,18 @@ def positive_definite(P: np.ndarray) -> bool:
     return bool(eig[-1] > 0.0 and eig[0] > PD_RTOL * eig[-1])
 
 
-def make_track(seq: int, buf: ScanBuffer, result: CentreResult, degraded: bool, sensors: list[str]) -> FusedTrack:
-    """The fused track of scan ``seq`` (``contested`` when the scan was, see :meth:`FusionCenterService.contest`)."""
+def make_track(seq: int, buf: ScanBuffer, result: CentreResult, degraded: bool, sensors: list[str],
+               contested: tuple[int, ...] = ()) -> FusedTrack:
+    """The fused track of scan ``seq``, ``contested`` (naming the scans in ``extra``) when it may be
+    built on a forged message (docs/wire.md, "Contested scans")."""
     est = result.estimate
     is_ca = bool(est.is_ca)
     idx = np.arange(6) if is_ca else CV_IN_CA
     kind = int(est.event)
-    extra = {"event": EVENT_NAMES[kind]} if kind != EVENT_NONE else {}
+    extra = ({"event": EVENT_NAMES[kind]} if kind != EVENT_NONE else {}) | contested_extra(contested)
     return FusedTrack.unchecked(seq=seq, t=buf.t, model="ca" if is_ca else "cv", x=est.x[idx], P=est.P[np.ix_(idx, idx)],
                       maneuver=is_ca, degraded=degraded, sensors=tuple(sensors), stamp_ns=min(buf.stamps),
-                      extra=extra, contested=buf.contested)
+                      extra=extra, contested=bool(contested))
 
 
 def main(argv: list[str]) -> int:

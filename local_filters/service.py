@@ -13,8 +13,12 @@ Subscribes to ``sensor/<ID>/meas`` and publishes ``local/<ID>/estimate``.
 * ``--filter ekf|ekf-ie|ekf-tsfuzzy``: a 3-D radar filter (papers 002/003) on a radar
   sensor's measurements (see :class:`RadarLocalFilterService`).
 
-Measurements are processed in ``seq`` order; one that arrives for a scan already
-processed is counted in ``late`` and dropped (never silently).
+Measurements are processed in ``seq`` order; one that arrives again for a scan already
+processed or waiting is counted in ``late`` and dropped (never silently) if it is the same
+message; a second, *different* measurement for such a scan, or a second, different reset of
+the scan whose reset was applied, is rejected (``conflict``), counted ``contested`` and named
+in the ``contested`` list of the next estimate published (the first message stays and may be
+the forgery: docs/wire.md, "Contested scans").
 """
 
 from __future__ import annotations
@@ -37,10 +41,12 @@ from fedtrack.local_filters.vdie.local import (
     VdieLocalFilter,
 )
 from fedtrack.services.base import (
+    Conflict,
     Rejected,
     Service,
     Subscription,
     check_time_jump,
+    digest,
     require_finite,
     service_kwargs,
     service_parser,
@@ -56,6 +62,7 @@ from fedtrack.wire import (
 from fedtrack.zsession import id_arg
 
 FILTERS = ("vdie", "ekf", "ekf-ie", "ekf-tsfuzzy")
+TAKEN_KEPT = 64  # processed scans whose measurement digest is kept to tell a conflict from a re-delivery
 
 
 class LocalFilterService(Service):
@@ -65,7 +72,7 @@ class LocalFilterService(Service):
     tick_period_s = 0.02
     # the filter rebinds its records (never changes them in place): a pickle of these is the whole state
     state_attrs = ("filter", "pending", "processed_up_to", "processed_t", "applied", "reset_up_to",
-                   "waiting_since", "alone")
+                   "waiting_since", "alone", "taken", "contested_scans")
     tick_state_attrs = ()  # on_tick checkpoints only when a scan is waiting (50 ticks a second)
 
     def __init__(self, sensor: str, mode: str, filt: FederatedLocalFilter | VdieLocalFilter,
@@ -81,6 +88,7 @@ class LocalFilterService(Service):
         self.filter = filt
         self.reset_timeout_s = reset_timeout_s
         self.pending: dict[int, Measurement] = {}
+        self.taken: dict[int, bytes] = {}  # digests of the last TAKEN_KEPT scans processed, by seq
         self.processed_up_to = -1
         self.reset_up_to = -1
         self.waiting_since: float | None = None
@@ -134,7 +142,12 @@ class LocalFilterService(Service):
                              msg.kind, msg.z.shape[0])
             return
         if msg.seq <= self.processed_up_to or msg.seq in self.pending:
-            self.count("late")
+            first = digest(self.pending[msg.seq]) if msg.seq in self.pending else self.taken.get(msg.seq)
+            if first is None or first == digest(msg):
+                self.count("late")
+                return
+            self.contest(self.keys.sensor_meas(self.sensor), Conflict(
+                msg.seq, f"a second, different measurement for scan {msg.seq} (the first stays)"))
             return
         expected = max([self.processed_up_to, *self.pending]) + 1
         if self.processed_up_to >= 0 and msg.seq - expected > self.max_seq_jump:
@@ -158,7 +171,9 @@ class LocalFilterService(Service):
             if same:
                 self.count("duplicate")
                 return
-            raise Rejected("conflict", f"a second, different reset of scan {msg.seq} (the first stays)")
+            self.contest(self.keys.fusion_reset(self.sensor), Conflict(
+                msg.seq, f"a second, different reset of scan {msg.seq} (the first stays)"))
+            return
         if msg.seq != self.processed_up_to or msg.seq <= self.reset_up_to:
             self.count("stale_reset")  # only the reset of the scan just processed applies
             return
@@ -211,7 +226,9 @@ class LocalFilterService(Service):
             require_finite(f"scan {msg.seq}: the local estimate", out.x, out.P, out.x_prior, out.P_prior)
             self.processed_up_to = msg.seq
             self.processed_t = msg.t
-            self.publish(self.keys.local_estimate(self.sensor), to_message(self.sensor, msg, out, flags))
+            self.taken = {seq: d for seq, d in self.taken.items() if seq > msg.seq - TAKEN_KEPT} | {msg.seq: digest(msg)}
+            self.publish(self.keys.local_estimate(self.sensor),
+                         to_message(self.sensor, msg, out, flags, self.take_contested()))
 
 
 class RadarLocalFilterService(Service):
@@ -258,14 +275,16 @@ class RadarLocalFilterService(Service):
             stamp_ns=msg.stamp_ns, degraded=("no-prior",)))
 
 
-def to_message(sensor: str, meas: Measurement, out: LocalOutput, flags: tuple[str, ...]) -> LocalEstimate:
+def to_message(sensor: str, meas: Measurement, out: LocalOutput, flags: tuple[str, ...],
+               contested: tuple[int, ...] = ()) -> LocalEstimate:
+    """The estimate of scan ``meas``; ``contested``: the scans it names contested (docs/wire.md)."""
     maneuver = None
     if out.event is not None:
         maneuver = ManeuverInfo(event=out.event, detected=out.event in ("onset", "new-ca"), onset=out.onset,
                                 u=out.u, gamma=out.gamma)
     return LocalEstimate.unchecked(sensor=sensor, seq=meas.seq, t=meas.t, model=out.model, x=out.x, P=out.P,
                          x_prior=out.x_prior, P_prior=out.P_prior, stamp_ns=meas.stamp_ns, maneuver=maneuver,
-                         degraded=(("init",) if out.init else ()) + flags)
+                         degraded=(("init",) if out.init else ()) + flags, contested=contested)
 
 
 def main(argv: list[str]) -> int:

@@ -104,13 +104,21 @@ def check_time_jump(last: float | None, t: float, bound: float) -> None:
         raise Rejected("time_jump", f"t = {t} is {t - last:.6g} s after the last scan (max_time_jump_s = {bound:g})")
 
 
+def digest(msg: Message) -> bytes:
+    """A 16-byte digest of ``msg`` with its ``stamp_ns`` (if it has one) cleared: two messages for
+    one (sensor, scan) are the same message when their digests are equal (a re-delivery), else a
+    conflict."""
+    plain = replace(msg, stamp_ns=0) if hasattr(msg, "stamp_ns") else msg  # type: ignore[type-var]
+    return blake2b(encode(plain), digest_size=16).digest()
+
+
 class ScanOrder:
     """The last scan a single-sensor tracker took: a repeat of it is counted ``duplicate`` (if
-    identical) or rejected as a ``conflict`` (a different message for the same scan, which would
-    otherwise update the track twice); an older scan is rejected as ``late``."""
+    identical) or rejected as a :class:`Conflict` (a different message for the same scan, which
+    would otherwise update the track twice); an older scan is rejected as ``late``."""
 
     def __init__(self) -> None:
-        self.last: tuple[int, bytes] | None = None  # the scan number and payload (stamp cleared) taken last
+        self.last: tuple[int, bytes] | None = None  # the scan number and digest of the message taken last
 
     def check(self, msg: Measurement) -> bool:
         """False for a duplicate to ignore; raises Rejected for a conflict or a late scan."""
@@ -118,19 +126,19 @@ class ScanOrder:
             return True
         if msg.seq < self.last[0]:
             raise Rejected("late", f"scan {msg.seq} after scan {self.last[0]}")
-        if encode(replace(msg, stamp_ns=0)) == self.last[1]:
+        if digest(msg) == self.last[1]:
             return False
-        raise Rejected("conflict", f"a second, different message for scan {msg.seq} (the first stays)")
+        raise Conflict(msg.seq, f"a second, different message for scan {msg.seq} (the first stays)")
 
     def took(self, msg: Measurement) -> None:
-        self.last = (msg.seq, encode(replace(msg, stamp_ns=0)))
+        self.last = (msg.seq, digest(msg))
 
 
 class ReceivedScans:
     """Per sensor, the scan numbers a multi-target service took (with a digest of their payloads,
     stamps cleared): an identical repeat is a duplicate (``check`` returns False), a different
-    message with a number already taken a ``conflict``, a number more than ``max_seq_jump`` past
-    the sensor's highest a ``seq_jump`` (both Rejected). Scans may come in any order. ``check``
+    message with a number already taken a :class:`Conflict`, a number more than ``max_seq_jump``
+    past the sensor's highest a ``seq_jump`` (both Rejected). Scans may come in any order. ``check``
     changes nothing; ``take`` records a checked message once its handling succeeded (so that a
     handler that fails in between leaves no trace)."""
 
@@ -138,18 +146,14 @@ class ReceivedScans:
         self.max_seq_jump = max_seq_jump
         self.taken: dict[str, dict[int, bytes]] = {}
 
-    @staticmethod
-    def _digest(msg: Message) -> bytes:
-        return blake2b(encode(replace(msg, stamp_ns=0)), digest_size=16).digest()  # type: ignore[type-var]
-
     def check(self, msg: Message) -> bool:
         """True for a new scan; False for an identical repeat; Rejected for a conflict or a seq jump."""
         sensor, seq = msg.sensor, msg.seq  # type: ignore[union-attr]
         seen = self.taken.get(sensor, {})
         if seq in seen:
-            if seen[seq] == self._digest(msg):
+            if seen[seq] == digest(msg):
                 return False
-            raise Rejected("conflict", f"a second, different message for scan {seq} of {sensor!r} (the first stays)")
+            raise Conflict(seq, f"a second, different message for scan {seq} of {sensor!r} (the first stays)")
         if seen and seq > max(seen) + self.max_seq_jump:
             raise Rejected("seq_jump", f"scan {seq} of {sensor!r} is more than {self.max_seq_jump} after {max(seen)}")
         return True
@@ -157,11 +161,17 @@ class ReceivedScans:
     def take(self, msg: Message) -> None:
         """Record ``msg`` (checked by :meth:`check`) as taken."""
         seen = self.taken.setdefault(msg.sensor, {})  # type: ignore[union-attr]
-        seen[msg.seq] = self._digest(msg)  # type: ignore[union-attr]
+        seen[msg.seq] = digest(msg)  # type: ignore[union-attr]
         if len(seen) > 4 * self.max_seq_jump:
             del seen[min(seen)]
 
 
+def contested_extra(scans: tuple[int, ...]) -> dict[str, list[float]]:
+    """The ``FusedTrack.extra`` entry naming the contested scans an output depends on (none: {})."""
+    return {"contested_scans": [float(s) for s in scans]} if scans else {}
+
+
+MAX_CONTESTED = 64  # contested scans one output names at most (wire: MAX_LIST_ITEMS)
 QUEUE_SIZE = 10_000
 REJECT_LOG_INTERVAL_S = 5.0
 CLOSE_DEADLINE_S = 2.0
@@ -208,6 +218,15 @@ class Rejected(Exception):
     def __init__(self, reason: str, detail: str) -> None:
         super().__init__(f"{reason}: {detail}")
         self.reason = reason
+
+
+class Conflict(Rejected):
+    """A second, different message for scan ``seq`` of one sender (the first stays): counted as
+    ``rejected_conflict`` and, by a service that calls :meth:`Service.contest`, ``contested``."""
+
+    def __init__(self, seq: int, detail: str) -> None:
+        super().__init__("conflict", detail)
+        self.seq = seq
 
 
 class Numerical(Rejected):
@@ -278,6 +297,7 @@ class Service:
         self.keys = Keys(deployment)
         self.health_period_s = health_period_s
         self.counters: dict[str, int] = {"received": 0, "rejected": 0, "published": 0, "dropped": 0}
+        self.contested_scans: list[int] = []  # scans contested since the last output (:meth:`contest`)
         self.status = "ok"
         self.log = logging.getLogger(f"fedtrack.{self.role}.{self.id}")
         self.session: zenoh.Session | None = None
@@ -541,6 +561,22 @@ class Service:
             self.counters, self.status = counters, status
             attempt.failed = True
             self._reject(key or what, size, exc)
+
+    def contest(self, key: str, exc: Conflict) -> None:
+        """A second, different message on ``key`` for scan ``exc.seq`` (the first stays, maybe
+        already used): rejected without undoing anything, counted ``contested`` once per scan,
+        and the scan named by this service's next output (:meth:`take_contested`; docs/wire.md,
+        "Contested scans")."""
+        if exc.seq not in self.contested_scans and len(self.contested_scans) < MAX_CONTESTED:
+            self.count("contested")
+            self.contested_scans.append(exc.seq)
+        self.note_rejected(key, exc)
+
+    def take_contested(self) -> tuple[int, ...]:
+        """The scans contested since the last output (sorted), which the output about to be
+        published names; the list starts again empty."""
+        scans, self.contested_scans = tuple(sorted(self.contested_scans)), []
+        return scans
 
     def note_rejected(self, key: str, exc: Rejected) -> None:
         """Count and log the rejection of a message on ``key`` without raising, for a handler that

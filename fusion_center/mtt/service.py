@@ -172,6 +172,8 @@ class MttCentreService(Service):
             raise Rejected("wrong_model", f"observations of size {m} from a local state of size {d}")
         if not self._admit(msg):
             return
+        if msg.contested:  # its local tracker took a conflicting scan or resets (docs/wire.md)
+            self.log.warning("report %d of %s names contested scans %s", msg.seq, msg.sensor, list(msg.contested))
         report = report_from_wire(msg)
         engine = self.engine
         assert isinstance(engine, TrackToTrackEngine)
@@ -182,6 +184,7 @@ class MttCentreService(Service):
                 self.publish(self.keys.mtt_resets(msg.sensor),
                              resets_to_wire(msg.seq, resets, q_scale))
         self._process(msg, fuse)
+        self.contested = self.contested or bool(msg.contested)  # the next picture includes this report
 
     def _picture(self, T: float, closing: bool = False) -> TrackPicture:
         """The next picture, at ``T`` (it lists the scans since the previous one)."""

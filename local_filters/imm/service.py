@@ -7,7 +7,9 @@ algorithm, ``x = [x, vx, y, vy]``, ``sensors = [ID]``, ``maneuver`` is true when
 probable mode has a non-zero acceleration, and ``extra`` carries ``mode_probabilities``
 (model name -> probability), ``active_group`` and ``acceleration`` (``sum mu_i a_i``).
 Measurements of another kind or dimension, or older than the last one, are skipped and
-counted (``unsupported``, ``out_of_order`` in Health).
+counted (``unsupported``, ``out_of_order`` in Health). A second, different measurement for the
+scan taken last is rejected (``conflict``), counted ``contested``, and the next track is
+flagged ``contested`` with the scan in ``extra["contested_scans"]`` (docs/wire.md).
 """
 
 from __future__ import annotations
@@ -23,10 +25,12 @@ from fedtrack.local_filters.imm.config import IMMConfig, load_imm_config
 from fedtrack.local_filters.imm.filter import ALGORITHMS, AO_VSIMM
 from fedtrack.local_filters.imm.tracker import IMMTracker
 from fedtrack.services.base import (
+    Conflict,
     ScanOrder,
     Service,
     Subscription,
     check_time_jump,
+    contested_extra,
     require_finite,
     service_kwargs,
     service_parser,
@@ -39,7 +43,7 @@ class IMMService(Service):
     """Runs one :class:`IMMTracker` on one sensor's position measurements."""
 
     role = "imm"
-    state_attrs = ("tracker", "order")  # the tracker rebinds its records: a pickle of it is its state
+    state_attrs = ("tracker", "order", "contested_scans")  # the tracker rebinds its records: a pickle of it is its state
 
     def __init__(self, sensor: str, algorithm: str, cfg: IMMConfig, max_time_jump_s: float = 3600.0,
                  **kwargs: object) -> None:
@@ -63,19 +67,24 @@ class IMMService(Service):
             self.count("out_of_order")
             return
         check_time_jump(self.tracker.t, msg.t, self.max_time_jump_s)
-        if not self.order.check(msg):
-            self.count("duplicate")
+        try:
+            if not self.order.check(msg):
+                self.count("duplicate")
+                return
+        except Conflict as exc:  # the first may be the forgery: the next output names the scan
+            self.contest(self.keys.sensor_meas(self.sensor), exc)
             return
         p = self.tracker.update(msg.t, msg.z, msg.R)
         require_finite(f"scan {msg.seq}: the IMM estimate", p.x, p.P, list(p.mode_probabilities.values()))
         self.order.took(msg)
         best = max(p.mode_probabilities, key=p.mode_probabilities.__getitem__)
+        contested = self.take_contested()
         self.publish(self.keys.tracker_track("imm", self.sensor), FusedTrack.unchecked(
             seq=msg.seq, t=p.t, model=self.tracker.algorithm, x=p.x, P=p.P,
             maneuver=bool(self.moving[self.tracker.bank.names.index(best)]), degraded=False,
-            sensors=(self.sensor,), stamp_ns=msg.stamp_ns,
+            sensors=(self.sensor,), stamp_ns=msg.stamp_ns, contested=bool(contested),
             extra={"mode_probabilities": p.mode_probabilities, "active_group": p.active_group,
-                   "acceleration": tuple(p.acceleration.tolist())}))
+                   "acceleration": tuple(p.acceleration.tolist()), **contested_extra(contested)}))
 
 
 def main(argv: list[str]) -> int:

@@ -100,7 +100,8 @@ def adopt(tracker: LocalTracker, resets: Resets, q_scale: float) -> LocalTracker
 
 # ---------------------------------------------------------------- wire
 
-def report_to_wire(report: LocalReport, seq: int, stamp_ns: int) -> wire.TrackReport:
+def report_to_wire(report: LocalReport, seq: int, stamp_ns: int, contested: tuple[int, ...] = ()) -> wire.TrackReport:
+    """The wire report of scan ``seq``; ``contested``: the scans it names contested (docs/wire.md)."""
     d = report.x.shape[1]
     k, m = report.obs_z.shape
     return wire.TrackReport.unchecked(
@@ -108,7 +109,7 @@ def report_to_wire(report: LocalReport, seq: int, stamp_ns: int) -> wire.TrackRe
         P=report.P.reshape(-1, d), confirmed=tuple(report.confirmed.tolist()),
         detected=tuple(report.detected.tolist()), obs_H=report.obs_H.reshape(k * m, d),
         obs_R=report.obs_R.reshape(k * m, m), obs_z=report.obs_z, started=tuple(report.started.tolist()),
-        retired=tuple(report.retired.tolist()), stamp_ns=stamp_ns)
+        retired=tuple(report.retired.tolist()), stamp_ns=stamp_ns, contested=contested)
 
 
 def report_from_wire(msg: wire.TrackReport) -> LocalReport:

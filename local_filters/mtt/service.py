@@ -16,9 +16,11 @@ older is dropped and counted ``late``, and one equal to a scan tracked before (a
 Rejected (docs/wire.md#rejections): a measurement of another kind or shape (``wrong_model``),
 a sensor the config does not allow (``unknown_sensor``), a scan number more than
 ``[deployment] max_seq_jump`` ahead (``seq_jump``) or a time more than ``max_time_jump_s``
-ahead (``time_jump``), a second different scan with a number already taken (``conflict``;
-an identical one is a ``duplicate``), resets for a report not awaiting them (``unexpected``)
-or of another state size (``wrong_model``).
+ahead (``time_jump``), a second different scan with a number already taken or second,
+different resets for the report whose resets it adopted (``conflict``; an identical one is a
+``duplicate``), resets for a report not awaiting them (``unexpected``) or of another state size
+(``wrong_model``). A conflict is also counted ``contested`` and named in the next report's
+``contested`` (the first message may have been the forgery: docs/wire.md, "Contested scans").
 """
 
 from __future__ import annotations
@@ -34,11 +36,13 @@ from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
 from fedtrack.local_filters.mtt.local import SensorTracker, report_to_wire, resets_from_wire
 from fedtrack.local_filters.mtt.scan import SensorScan, scan_from_measurement
 from fedtrack.services.base import (
+    Conflict,
     ReceivedScans,
     Rejected,
     Service,
     Subscription,
     check_time_jump,
+    digest,
     require_finite,
     service_kwargs,
     service_parser,
@@ -55,7 +59,8 @@ class MttLocalService(Service):
     # the tracker (a SensorTracker: its scans of the last max_lag seconds) changes in place and is
     # put back by the transaction if a scan fails; ``received`` is only changed once a scan was
     # handled (compute, then commit)
-    state_attrs = ("tracker", "queue", "last_t", "awaiting", "awaiting_since", "awaiting_scan")
+    state_attrs = ("tracker", "queue", "last_t", "awaiting", "awaiting_since", "awaiting_scan", "adopted",
+                   "contested_scans")
 
     def __init__(self, sensor: str, federated: bool, cfg: MttConfig, reset_timeout_s: float = 2.0,
                  max_seq_jump: int = 1000, max_time_jump_s: float = 3600.0, **kwargs: object) -> None:
@@ -72,6 +77,7 @@ class MttLocalService(Service):
         self.awaiting: int | None = None  # report whose resets are due (federated)
         self.awaiting_scan: SensorScan | None = None  # the scan of that report
         self.awaiting_since = 0.0
+        self.adopted: tuple[int, bytes] | None = None  # the report number and digest of the resets adopted last
 
     def subscriptions(self) -> list[Subscription]:
         subs = [Subscription(self.keys.sensor_meas(self.sensor), Measurement, self.on_scan)]
@@ -87,8 +93,12 @@ class MttLocalService(Service):
         if not self.cfg.allows(msg.sensor):
             raise Rejected("unknown_sensor", f"sensor {msg.sensor!r} is not in mtt.sensors")
         check_time_jump(self.last_t, msg.t, self.max_time_jump_s)
-        if not self.received.check(msg):
-            self.count("duplicate")
+        try:
+            if not self.received.check(msg):
+                self.count("duplicate")
+                return
+        except Conflict as exc:  # the first may be the forgery: the next report names the scan
+            self.contest(self.keys.sensor_meas(self.sensor), exc)
             return
         self.queue.append((msg.seq, scan, msg.stamp_ns))
         if msg.seq in self._advance():  # dropped: as if it never came
@@ -97,6 +107,13 @@ class MttLocalService(Service):
         self.received.take(msg)
 
     def on_resets(self, msg: TrackResets) -> None:
+        if self.adopted is not None and msg.seq == self.adopted[0]:
+            if digest(msg) == self.adopted[1]:
+                self.count("duplicate")
+                return
+            self.contest(self.keys.mtt_resets(self.sensor), Conflict(
+                msg.seq, f"second, different resets for report {msg.seq} (the first were adopted)"))
+            return
         if self.awaiting is None or msg.seq != self.awaiting:
             raise Rejected("unexpected", f"resets for report {msg.seq}, awaiting {self.awaiting}")
         assert self.tracker is not None and self.awaiting_scan is not None
@@ -104,6 +121,7 @@ class MttLocalService(Service):
         if msg.ids and msg.x.shape[1] != d:
             raise Rejected("wrong_model", f"resets of size {msg.x.shape[1]} for a {d}-D tracker")
         self.tracker.adopt(self.awaiting_scan, resets_from_wire(msg), msg.q_scale)
+        self.adopted = (msg.seq, digest(msg))
         self.awaiting = self.awaiting_scan = None
         self._advance()
 
@@ -132,7 +150,8 @@ class MttLocalService(Service):
                     continue
                 report, rerun = self.tracker.track(scan)
                 require_finite(f"scan {seq}: the local tracks", report.x, report.P)
-                self.publish(self.keys.mtt_report(self.sensor), report_to_wire(report, seq, stamp))
+                self.publish(self.keys.mtt_report(self.sensor),
+                             report_to_wire(report, seq, stamp, self.take_contested()))
                 self.count("reports")
                 if rerun:
                     self.count("rerun", rerun)

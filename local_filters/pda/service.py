@@ -9,7 +9,10 @@ convention of the IMM service): ``model`` is the algorithm, ``x`` the Singer sta
 ``existence``, ``status`` (``confirmed``) and ``track`` (the track id). Measurements of
 another kind or dimension, or older than the last one, are skipped and counted
 (``unsupported``, ``out_of_order`` in Health); Health also counts ``confirmed_tracks``
-published and ``live_tracks`` of the last scan.
+published and ``live_tracks`` of the last scan. A second, different measurement for the scan
+taken last is rejected (``conflict``), counted ``contested``, and the confirmed tracks of the
+next scan that has any are flagged ``contested`` with the scan in ``extra["contested_scans"]``
+(docs/wire.md).
 """
 
 from __future__ import annotations
@@ -31,10 +34,12 @@ from fedtrack.local_filters.pda.tracks import (
     tracker_spec,
 )
 from fedtrack.services.base import (
+    Conflict,
     ScanOrder,
     Service,
     Subscription,
     check_time_jump,
+    contested_extra,
     require_finite,
     service_kwargs,
     service_parser,
@@ -47,7 +52,7 @@ class PDAService(Service):
     """Runs the PDA-AI / HPDA track manager on one sonar's scans."""
 
     role = "hpda"
-    state_attrs = ("manager", "order")  # manager_step returns a new record: a pickle of it is the state
+    state_attrs = ("manager", "order", "contested_scans")  # manager_step returns a new record: a pickle of it is the state
 
     def __init__(self, sensor: str, algorithm: str, cfg: PDAReplayConfig, max_time_jump_s: float = 3600.0,
                  **kwargs: object) -> None:
@@ -69,8 +74,12 @@ class PDAService(Service):
             self.count("out_of_order")
             return
         check_time_jump(self.manager.t, msg.t, self.max_time_jump_s)
-        if not self.order.check(msg):
-            self.count("duplicate")
+        try:
+            if not self.order.check(msg):
+                self.count("duplicate")
+                return
+        except Conflict as exc:  # the first may be the forgery: the next output names the scan
+            self.contest(self.keys.sensor_meas(self.sensor), exc)
             return
         z = np.array([d.z for d in msg.detections]).reshape(-1, 2)
         amp = np.array([d.amplitude for d in msg.detections])
@@ -80,12 +89,14 @@ class PDAService(Service):
         require_finite(f"scan {msg.seq}: the tracks", tracks.state.x, tracks.state.P, tracks.existence)
         self.order.took(msg)
         self.counters["live_tracks"] = len(tracks)
-        for i in np.flatnonzero(tracks.confirmed):
+        confirmed = np.flatnonzero(tracks.confirmed)
+        contested = self.take_contested() if len(confirmed) else ()  # named by the next scan's tracks
+        for i in confirmed:
             self.publish(self.keys.tracker_track("hpda", self.sensor), FusedTrack.unchecked(
                 seq=msg.seq, t=msg.t, model=self.spec.algorithm, x=tracks.state.x[i], P=tracks.state.P[i],
                 maneuver=False, degraded=False, sensors=(self.sensor,), stamp_ns=msg.stamp_ns,
-                extra={"existence": float(tracks.existence[i]), "status": "confirmed",
-                       "track": float(tracks.ids[i])}))
+                contested=bool(contested), extra={"existence": float(tracks.existence[i]), "status": "confirmed",
+                                                  "track": float(tracks.ids[i]), **contested_extra(contested)}))
             self.count("confirmed_tracks")
 
 
