@@ -42,6 +42,7 @@ from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.local_filters.vdie.local import FederatedLocalFilter
 from fedtrack.recording import Recording
 from fedtrack.sensors.multitarget import Scenario, parse_spec, simulate
+from fedtrack.sensors.sonar import SonarConfig, sonar_scans
 from fedtrack.services.base import Service
 from fedtrack.services.recorder import Recorder
 from fedtrack.wire import (
@@ -54,6 +55,7 @@ from fedtrack.wire import (
     WireError,
     decode,
     encode,
+    measurement_from_replay,
 )
 from fedtrack.zsession import SessionOptions
 
@@ -456,3 +458,129 @@ def test_a_scan_the_centre_cannot_fuse_is_dropped_and_its_state_kept(tmp_path: P
     assert [t.seq for t in fused(bus)] == [s for s in range(SCANS) if s != k]
     assert states[k] == states[k - 1]
     assert k not in {r.seq for r in bus.of(Reset)} and k - 1 in {r.seq for r in bus.of(Reset)}
+
+
+# ---------------------------------------------------------------- issue 24 item 5: forgeries that arrive first
+
+def forged_measurement(sensor_msgs: list[Measurement], k: int, back: int = 5) -> Measurement:
+    """An older genuine measurement re-stamped with scan ``k``'s ``seq`` and ``t`` (plausible)."""
+    return replace(sensor_msgs[k - back], seq=k, t=sensor_msgs[k].t)
+
+
+def named(track: FusedTrack) -> list[int]:
+    return [int(s) for s in track.extra.get("contested_scans", [])]
+
+
+def test_a_forged_measurement_first_at_a_local_filter_and_the_imm_is_named_by_the_next_outputs(
+        tmp_path: Path) -> None:
+    """A forged measurement of sensor 1, scan k, arrives before the genuine one: the local filter
+    and the IMM tracker take it (their outputs of scan k are built on it, unflagged: nothing told
+    them apart yet). The genuine one is then a second, different message for that scan: rejected
+    (``conflict``), counted ``contested``, and named by the next outputs: the local estimate of
+    scan k + 1 (``contested = (k,)``), the fused track of scan k + 1 and the IMM's track of scan
+    k + 1 (``contested``, ``extra["contested_scans"] = [k]``). Before scan k all equals the clean run."""
+    clean, _ = paper_run(tmp_path / "clean")
+    k = 20
+
+    def forge(bus: Bus, scan: int) -> None:
+        if scan == k:
+            bus.put(KEYS.sensor_meas(SENSORS[0]), encode(forged_measurement(MEASUREMENTS[SENSORS[0]], k)))
+
+    attacked, services = paper_run(tmp_path / "attacked", forge)
+    for name in (f"local-{SENSORS[0]}", "imm"):
+        assert services[name].counters.get("contested") == 1, name
+        assert services[name].counters.get("rejected_conflict") == 1, name
+    assert services[f"local-{SENSORS[1]}"].counters.get("contested", 0) == 0
+    estimates = [e for e in attacked.of(LocalEstimate) if e.sensor == SENSORS[0]]
+    assert [(e.seq, e.contested) for e in estimates if e.contested] == [(k + 1, (k,))]
+    tracks = fused(attacked)
+    same_tracks(tracks[:k], fused(clean)[:k])
+    assert not np.array_equal(tracks[k].x, fused(clean)[k].x)  # the forgery was fused
+    assert [(t.seq, named(t)) for t in tracks if t.contested] == [(k + 1, [k])]
+    imm = [m for key, m in attacked.published if key == KEYS.tracker_track("imm", SENSORS[0])]
+    imm_clean = [m for key, m in clean.published if key == KEYS.tracker_track("imm", SENSORS[0])]
+    same_tracks(imm[:k], imm_clean[:k])
+    assert [(t.seq, named(t)) for t in imm if t.contested] == [(k + 1, [k])]
+    rows = list(Recording(tmp_path / "attacked" / "paper.db").messages(FusedTrack, "seq"))
+    assert [t.seq for t in rows if t.contested] == [k + 1]  # recorded as published
+
+
+def test_a_forged_reset_first_at_a_local_filter_flags_the_tracks_built_on_it(tmp_path: Path) -> None:
+    """A forged reset of scan k (the genuine reset's state moved by 50 m) reaches sensor 1's local
+    filter before the centre's: the filter adopts it, and when the genuine reset comes (a second,
+    different reset of scan k: ``conflict``) the next estimate names scan k, so that the first
+    fused track built on the forgery (scan k + 1) is ``contested`` and names it."""
+    clean, _ = paper_run(tmp_path / "clean")
+    k = 20
+    genuine = next(r for r in clean.of(Reset) if r.seq == k and r.sensor == SENSORS[0])
+    forged = replace(genuine, x=genuine.x + np.r_[50.0, 0.0, 50.0, 0.0, np.zeros(genuine.x.shape[0] - 4)])
+    services = paper_services(tmp_path / "attacked")
+    bus = Bus(list(services.values()))
+    for scan in range(SCANS):
+        if scan != k:
+            paper_scan(bus, scan)
+            continue
+        bus.put(KEYS.sensor_meas(SENSORS[0]), encode(MEASUREMENTS[SENSORS[0]][k]))
+        bus.put(KEYS.fusion_reset(SENSORS[0]), encode(forged))  # before the scan is fused
+        bus.put(KEYS.sensor_meas(SENSORS[1]), encode(MEASUREMENTS[SENSORS[1]][k]))
+    local = services[f"local-{SENSORS[0]}"]
+    assert local.counters.get("contested") == 1 and local.counters.get("rejected_conflict") == 1
+    tracks = fused(bus)
+    same_tracks(tracks[:k + 1], fused(clean)[:k + 1])  # the forged reset acts from scan k + 1
+    assert not np.array_equal(tracks[k + 1].x, fused(clean)[k + 1].x)
+    assert [(t.seq, named(t)) for t in tracks if t.contested] == [(k + 1, [k])]
+
+
+def test_a_forged_sonar_scan_first_at_the_hpda_tracker_is_named_by_its_next_tracks() -> None:
+    """HPDA: a forged sonar scan k (an older one re-stamped) arrives first and is tracked; the
+    genuine scan k is a ``conflict``, and the confirmed tracks of scan k + 1 are ``contested``,
+    naming scan k; before scan k the tracks equal the clean run's."""
+    stream = [measurement_from_replay({key: v for key, v in line.items() if key != "truth"}, "sonar", seq=i)
+              for i, line in enumerate(list(sonar_scans(SonarConfig(sensor="sonar1"), 3))[:14])]
+    k = 10
+    runs = []
+    for forge in (False, True):
+        svc = PDAService("sonar1", "hpda", load_config(None), service_id="hpda", options=OPTIONS,
+                         deployment=KEYS.deployment)
+        bus = Bus([svc])
+        for i, m in enumerate(stream):
+            if forge and i == k:
+                bus.put(KEYS.sensor_meas("sonar1"), encode(forged_measurement(stream, k, 3)))
+            bus.put(KEYS.sensor_meas("sonar1"), encode(m))
+        runs.append((bus.of(FusedTrack), svc))
+    (clean, _), (attacked, svc) = runs
+    assert svc.counters.get("contested") == 1 and svc.counters.get("rejected_conflict") == 1
+    same_tracks([t for t in attacked if t.seq < k], [t for t in clean if t.seq < k])
+    assert {t.seq for t in attacked if t.seq == k + 1} and all(t.contested for t in attacked if t.seq == k + 1)
+    assert {(t.seq, tuple(named(t))) for t in attacked if t.contested} == {(k + 1, (k,))}
+
+
+def test_a_forged_scan_first_at_a_multitarget_local_tracker_flags_the_next_report_and_picture(
+        tmp_path: Path) -> None:
+    """mtt-local: a forged scan of s1 (an older scan re-stamped with the next scan's ``seq`` and
+    ``t``) arrives before the genuine one and is tracked; the genuine one is a ``conflict``, the
+    local tracker's next report names that scan (``contested``), and the centre's picture that
+    fuses that report is ``contested``. Until the forged scan the pictures equal the clean run's."""
+    scans = mtt_lines(tmp_path)
+    at = [i for i, m in enumerate(scans) if m.sensor == "s1"][6]
+    older = [m for m in scans[:at] if m.sensor == "s1"][-3]
+    runs = []
+    for name, forge in (("clean", False), ("forged", True)):
+        services = mtt_services(tmp_path / name)
+        bus = Bus(list(services.values()))
+        for i, m in enumerate(scans):
+            if forge and i == at:
+                bus.put(KEYS.sensor_meas("s1"), encode(replace(older, seq=m.seq, t=m.t)))
+            bus.put(KEYS.sensor_meas(m.sensor), encode(m))
+        runs.append((bus, services))
+    (clean, _), (forged, services) = runs
+    assert services["s1"].counters.get("contested") == 1 and services["s1"].counters.get("rejected_conflict") == 1
+    reports = [r for key, r in forged.published if key == KEYS.mtt_report("s1")]
+    assert [(r.seq, r.contested) for r in reports if r.contested] == [(scans[at].seq + 1, (scans[at].seq,))]
+    pics = forged.of(TrackPicture)
+    flagged = [p.seq for p in pics if p.contested]
+    assert len(flagged) == 1
+    assert any(("s1", scans[at].seq + 1) == scan for scan in zip(pics[flagged[0]].fused_sensors,
+                                                                  pics[flagged[0]].fused_seqs))
+    first_changed = next(i for i, (a, b) in enumerate(zip(pictures(forged), pictures(clean))) if a != b)
+    assert pictures(forged)[:first_changed] == pictures(clean)[:first_changed] and first_changed <= flagged[0]
