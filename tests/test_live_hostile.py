@@ -41,8 +41,8 @@ counted in the ``rejected`` counter of every service that subscribes to its key.
   before it, reached a local filter from the forger first; the conflict became known only when
   the genuine message came, after the scan's track was out: docs/wire.md, "Contested scans").
 
-The classes, messages per class and the counts are printed (``pytest -s``). Each run takes 12-17 s
-here (start-up, the attack, the stop; 45 s for the file); loopback only, free ports, multicast
+The classes, messages per class and the counts are printed (``pytest -s``). Each run takes 12-25 s
+here (start-up, the attack, the stop; 45-61 s for the file); loopback only, free ports, multicast
 scouting off, bounded waits, and only the processes the launcher started are stopped.
 """
 

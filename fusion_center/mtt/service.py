@@ -44,6 +44,7 @@ from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
 from fedtrack.local_filters.mtt.local import report_from_wire, resets_to_wire
 from fedtrack.local_filters.mtt.scan import scan_from_measurement
 from fedtrack.services.base import (
+    Conflict,
     ReceivedScans,
     Rejected,
     Service,
@@ -130,9 +131,7 @@ class MttCentreService(Service):
                 return True
             self.count("duplicate")
             return False
-        except Rejected as exc:
-            if exc.reason != "conflict":
-                raise
+        except Conflict as exc:
             conflict = exc
         if not self.contested:
             self.count("contested")
