@@ -94,6 +94,7 @@ class LocalFilterService(Service):
         self.waiting_since: float | None = None
         self.alone = False  # carrying on without resets (the fusion centre is silent or gone)
         self.centre_gone = False  # the fusion centre's liveliness token went away
+        self._centres: frozenset[str] = frozenset()  # the fusion centre tokens alive
         self._liveliness: Any = None
 
     def subscriptions(self) -> list[Subscription]:
@@ -105,7 +106,7 @@ class LocalFilterService(Service):
     def on_start(self) -> None:
         if self.mode == "federated":
             self._liveliness = self.session.liveliness().declare_subscriber(
-                self.keys.alive("fusion-center"), self._on_centre_liveliness)
+                self.keys.alive("fusion-center"), self._on_centre_liveliness, history=True)
         self.rejoin("started")
 
     def on_stop(self) -> None:
@@ -113,8 +114,14 @@ class LocalFilterService(Service):
             self._liveliness.undeclare()
 
     def _on_centre_liveliness(self, sample: Any) -> None:
-        """Zenoh thread: a dead fusion centre is not waited for (its resets cannot come)."""
-        self.centre_gone = sample.kind == zenoh.SampleKind.DELETE
+        """Zenoh thread: a dead fusion centre is not waited for (its resets cannot come). It is gone
+        when no token under ``alive/fusion-center/`` is left: a token of another id declared and
+        withdrawn (a forgery, without authentication) does not end the wait for the real centre's
+        resets (set rebinding is atomic)."""
+        key = str(sample.key_expr)
+        gone = sample.kind == zenoh.SampleKind.DELETE
+        self._centres = self._centres - {key} if gone else self._centres | {key}
+        self.centre_gone = gone and not self._centres
 
     def rejoin(self, why: str) -> None:
         """Federated: adopt the fusion centre's latest track (``fusion/state``), if there is one, as a
