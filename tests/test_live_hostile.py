@@ -514,7 +514,7 @@ def test_paper_pipeline_under_attack(tmp_path: Path, secure: bool) -> None:
             "a forgery on a key sensor 1 does not own arrived"
     genuine = [decode(p, FusedTrack) for k, p in seen if k == keys.fusion_track() and p not in attacker.forged]
     by_seq = {track.seq: track for track in genuine}  # the last one of a scan, should the centre correct it
-    while by_seq[max(by_seq)].degraded:  # the stop: sensors and local filters leave first, the centre
+    while by_seq and by_seq[max(by_seq)].degraded:  # the stop: sensors and local filters leave first, the centre
         del by_seq[max(by_seq)]          # fused what it had (the last scan or two; no other is degraded)
     assert len(by_seq) >= MIN_OUTPUTS and {track.t for track in by_seq.values()} <= set(clean), sorted(by_seq)
     changed = [seq for seq, track in by_seq.items() if not same_track(track, clean[track.t])]
