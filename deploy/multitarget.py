@@ -195,7 +195,7 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Se
             plot(result, tracks, truth, png, events, label=label)
         else:  # on the Earth: the map in tracks.png, GOSPA over time beside it, and GeoJSON
             plot(result, tracks, truth, out / "gospa.png", events, label=label)
-            plot_map(tracks, truth, settings.frame, png)
+            plot_map(tracks, truth, settings.frame, png, label=label)
             (out / "tracks.geojson").write_text(json.dumps(feature_collection(settings.frame, tracks, truth)))
             written += " gospa.png tracks.geojson"
         summary.update({k: v for k, v in result.items() if k != "series"})

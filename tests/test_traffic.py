@@ -7,8 +7,10 @@ import json
 import tomllib
 from pathlib import Path
 
+import matplotlib.colors
 import numpy as np
 import pytest
+from matplotlib.figure import Figure
 
 from fedtrack.cli import main
 from fedtrack.geodetic import Frame, aer_from_enu, enu_from_geodetic, geodetic_from_enu, site_from_geodetic
@@ -203,7 +205,8 @@ def test_cli_errors_and_help(tmp_path: Path, capsys: pytest.CaptureFixture[str])
         assert word in text or word.lower() in text.lower(), word
 
 
-def test_tracks_on_the_earth_geojson_and_map(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_tracks_on_the_earth_geojson_and_map(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                             monkeypatch: pytest.MonkeyPatch) -> None:
     """Replay with a [frame] gives each track lat, lon, alt; export --geojson parses as GeoJSON whose
     lines are the pictures' positions; evaluate --plot --config draws the map."""
     out = tmp_path / "run"
@@ -247,9 +250,17 @@ def test_tracks_on_the_earth_geojson_and_map(tmp_path: Path, capsys: pytest.Capt
     assert line["properties"]["times"] == [t for t, _ in mine]
     np.testing.assert_allclose(line["geometry"]["coordinates"], [[r["lon"], r["lat"], r["alt"]] for _, r in mine])
     plot = tmp_path / "eval.png"
+    figures: list[Figure] = []
+    original = Figure.savefig
+    monkeypatch.setattr(Figure, "savefig", lambda self, *a, **k: (figures.append(self), original(self, *a, **k)))
     assert main(["evaluate", "--tracks", str(out / "tracks.jsonl"), "--truth", str(out / "truth.jsonl"), "--horizontal",
                  "--plot", str(plot), "--config", str(config)]) == 0
     assert (tmp_path / "eval-map.png").stat().st_size > 10_000
+    the_map = figures[-1]  # after evaluate's own plot: titled with the algorithm and the file, no grey track
+    assert the_map._suptitle.get_text() == "mtt-federated: tracks.jsonl"
+    colours = [matplotlib.colors.to_rgb(line.get_color()) for line in the_map.axes[0].get_lines()]
+    grey = [c for c in colours if len({round(v, 3) for v in c}) == 1]
+    assert len(grey) == kinds["truth"] and len(colours) == kinds["truth"] + kinds["track"]
     assert "altitude error over the assigned pairs" in capsys.readouterr().out
     assert main(["export", "--geojson", str(geo), "--config", str(out / "none.toml"), "--truth",
                  str(out / "truth.jsonl")]) == 2

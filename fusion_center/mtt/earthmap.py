@@ -14,23 +14,38 @@ from pathlib import Path
 from fedtrack.geodetic import FrameConfig
 from fedtrack.geojson import feature_collection
 
+TRUTH_GREY = "0.6"
 
-def plot_map(tracks: Path, truth: Path | None, frame: FrameConfig, out: Path, title: str = "") -> None:
-    """Write the map to ``out`` (PNG)."""
+
+def track_colours() -> list[tuple[float, float, float, float]]:
+    """The colours tracks cycle through: matplotlib's ``tab20`` without its greys (the truth is
+    drawn grey, so no track may look like an untracked target)."""
+    from matplotlib import colormaps
+
+    cmap = colormaps["tab20"]
+    return [rgba for rgba in (cmap(i) for i in range(cmap.N)) if max(rgba[:3]) - min(rgba[:3]) > 0.1]
+
+
+
+def plot_map(tracks: Path, truth: Path | None, frame: FrameConfig, out: Path, label: str | None = None) -> None:
+    """Write the map to ``out`` (PNG), titled with ``label`` (the algorithm) and the tracks file's name."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(9, 8))
+    colours = track_colours()
+    n_tracks = 0
     for feature in feature_collection(frame, tracks, truth)["features"]:
         kind, geometry = feature["properties"]["kind"], feature["geometry"]
         coords = geometry["coordinates"] if geometry["type"] == "LineString" else [geometry["coordinates"]]
         lon, lat = [c[0] for c in coords], [c[1] for c in coords]
         if kind == "truth":
-            ax.plot(lon, lat, color="0.65", lw=3.0, zorder=1)
+            ax.plot(lon, lat, color=TRUTH_GREY, lw=3.0, zorder=1)
         elif kind == "track":
-            ax.plot(lon, lat, lw=1.0, zorder=2)
+            ax.plot(lon, lat, color=colours[n_tracks % len(colours)], lw=1.0, zorder=2)
+            n_tracks += 1
         elif kind == "sensor":
             ax.scatter(lon, lat, marker="^", s=90, c="black", zorder=4)
             ax.annotate(feature["properties"]["id"], (lon[0], lat[0]), xytext=(6, 6), textcoords="offset points",
@@ -40,7 +55,8 @@ def plot_map(tracks: Path, truth: Path | None, frame: FrameConfig, out: Path, ti
     ax.set_aspect(1.0 / math.cos(math.radians(frame.origin[0])))
     ax.set_xlabel("longitude [deg]")
     ax.set_ylabel("latitude [deg]")
-    ax.set_title(title or "confirmed tracks (colours) over truth (grey); sensor sites ^")
+    fig.suptitle(f"{label or 'algorithm not recorded (--label)'}: {tracks.name}")
+    ax.set_title("confirmed tracks (colours) over truth (grey); sensor sites as triangles")
     ax.grid(alpha=0.3)
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()

@@ -46,7 +46,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.special import chdtri
 
-from fedtrack.fusion_center.mtt.earthmap import plot_map
+from fedtrack.fusion_center.mtt.earthmap import TRUTH_GREY, plot_map, track_colours
 from fedtrack.geodetic import load_frame
 from fedtrack.jsonl import InputError, check_output, is_number, output_file, read_jsonl
 from fedtrack.local_filters.linear.kalman import nees
@@ -289,18 +289,6 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
     }
 
 
-TRUTH_GREY = "0.6"
-
-
-def track_colours() -> list[tuple[float, float, float, float]]:
-    """The colours tracks cycle through: matplotlib's ``tab20`` without its greys (the truth is
-    drawn grey, so no track may look like an untracked target)."""
-    from matplotlib import colormaps
-
-    cmap = colormaps["tab20"]
-    return [rgba for rgba in (cmap(i) for i in range(cmap.N)) if max(rgba[:3]) - min(rgba[:3]) > 0.1]
-
-
 def plot(result: dict[str, Any], tracks_path: Path, truth_path: Path, out: Path,
          events: dict[str, float] | None = None, label: str | None = None) -> None:
     """Tracks over truth (x-y), where their maneuvers were flagged, and GOSPA with its parts over
@@ -415,7 +403,7 @@ def main(argv: list[str]) -> int:
     if args.plot:
         plot(result, args.tracks, args.truth, args.plot, label=args.label)
     if map_png is not None:
-        plot_map(args.tracks, args.truth, frame, map_png)
+        plot_map(args.tracks, args.truth, frame, map_png, label=args.label or result["algorithm"])
     m = result["mean"]
     print(f"pictures {result['pictures']} (without truth: {result['pictures_without_truth']})"
           + (f" of {result['algorithm']}" if result["algorithm"] else ""))
