@@ -5,13 +5,26 @@ approximation's error, the equivalent observation, and existence-based track man
 from __future__ import annotations
 
 import itertools
+import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy.special import chdtri
 
-from fedtrack.local_filters.linear.kalman import GaussianState, mat_vec, predict, update_residual
+from fedtrack.config import ConfigError
+from fedtrack.fusion_center.mtt.replay import replay_mtt
+from fedtrack.local_filters.linear.kalman import (
+    LOG_2PI,
+    GaussianState,
+    innovation_covariance,
+    mat_vec,
+    predict,
+    update_residual,
+)
 from fedtrack.local_filters.mtt import jipda
+from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.mtt.tracker import gate as chi2_gate
 from fedtrack.local_filters.mtt.models import Linearized, linearize, motion, predict_tracks
 from fedtrack.local_filters.pda.association import (
     PDAParams,
@@ -30,6 +43,19 @@ def position_lin(x: np.ndarray, H: np.ndarray) -> Linearized:
     return Linearized(mat_vec(H, x), np.broadcast_to(H, (x.shape[0],) + H.shape), ())
 
 
+def gated(pred: GaussianState, z: np.ndarray, lin: Linearized, R: np.ndarray, c) -> jipda.Pairs:
+    """The tracker's chi-square gate at ``c.gamma`` and each pair's ``ln N(nu; 0, S)``."""
+    g, logdet = chi2_gate(z, lin, innovation_covariance(pred.P, lin.H, R), c.gamma)
+    return jipda.Pairs(g.rows, g.cols, g.nu, g.d2, -0.5 * (g.d2 + logdet[g.rows] + R.shape[0] * LOG_2PI))
+
+
+def run_scan(pred: GaussianState, mu_bar: np.ndarray, z: np.ndarray, amp, lin: Linearized, R: np.ndarray, c,
+             max_events: int = jipda.MAX_EVENTS):
+    pairs = gated(pred, z, lin, R, c)
+    post, assoc = jipda.scan_update(pred, mu_bar, z, amp, lin, R, c, pairs, max_events)
+    return post, assoc, pairs
+
+
 def test_one_target_pd1_no_clutter_equals_kalman() -> None:
     rng = np.random.default_rng(1)
     R = np.array([[100.0, 20.0], [20.0, 64.0]])
@@ -46,14 +72,14 @@ def test_one_target_pd1_no_clutter_equals_kalman() -> None:
         x, P = predict_tracks(x, P, mot)
         kf = predict(kf, mot.F, mot.Q)
         mu_bar = existence_predict(mu, jipda.survival(1.0, 1.0, 0.98), 0.0)
-        out = jipda.scan_update(GaussianState(x, P), mu_bar, z, None, linearize(x, None), R, c)
+        post, assoc, _ = run_scan(GaussianState(x, P), mu_bar, z, None, linearize(x, None), R, c)
         kf = update_residual(kf, z[0] - kf.x[[0, 2]], linearize(kf.x[None], None).H[0], R).state
-        x, P, mu = out.state.x, out.state.P, out.association.existence
+        x, P, mu = post.x, post.P, assoc.existence
         mus.append(mu[0])
         np.testing.assert_allclose(x[0], kf.x, rtol=1e-9, atol=1e-9)
         np.testing.assert_allclose(P[0], kf.P, rtol=1e-9, atol=1e-9)
         np.testing.assert_array_equal(P[0], P[0].T)
-    assert out.association.beta0[0] < 1e-300 and out.association.beta[0] == 1.0
+    assert assoc.beta0[0] < 1e-300 and assoc.beta[0] == 1.0
     assert np.all(np.diff(mus) >= -1e-15) and mus[-1] > 1.0 - 1e-12
 
 
@@ -90,9 +116,9 @@ def test_separated_targets_equal_single_target_ipda_ai() -> None:
             amps += list(c.tau + rng.exponential(1.0, size=k))
         z, amp = np.array(dets), np.array(amps)
         pred = predict(joint, model.F, model.Q)
-        out = jipda.scan_update(pred, existence_predict(mu, p11, p21), z, amp, position_lin(pred.x, H), R, c)
-        assert np.bincount(jipda.pairs_of_scan(pred.x, pred.P, z, position_lin(pred.x, H), R, c)[0].cols).max() == 1
-        joint, mu = out.state, out.association.existence
+        joint, assoc, pairs = run_scan(pred, existence_predict(mu, p11, p21), z, amp, position_lin(pred.x, H), R, c)
+        assert np.bincount(pairs.cols).max() == 1  # no detection in two gates
+        mu = assoc.existence
         for i in range(n):  # paper 001's IPDA-AI on the full scan
             p = predict(single[i], model.F, model.Q)
             g = gate(p, z, np.ones(len(z), dtype=bool), H, R, c)
@@ -197,19 +223,20 @@ def test_equivalent_observation_gives_the_pda_mean() -> None:
     z = np.array([[10.0, 5.0], [40.0, -10.0], [30.0, 8.0], [-1e4, 0.0]])
     amp = c.tau + rng.exponential(3.0, size=len(z))
     lin = linearize(x, None)
-    out = jipda.scan_update(GaussianState(x, P), np.array([0.9, 0.5, 0.7]), z, amp, lin, R, c)
-    assert out.reported.tolist() == [True, True, False]
-    assert not np.all(out.association.exact[:2]) or np.all(out.association.exact)
-    for k, i in enumerate(np.flatnonzero(out.reported)):
-        obs = jipda.Observation(*(a[k] for a in out.observation))
-        kf = update_residual(GaussianState(x[i], P[i]), obs.z - obs.H @ x[i], obs.H, obs.R).state
-        np.testing.assert_allclose(kf.x, out.state.x[i], rtol=1e-10, atol=1e-9)
-    assert np.all(np.linalg.eigvalsh(out.state.P) > 0.0)
+    pred = GaussianState(x, P)
+    post, assoc, pairs = run_scan(pred, np.array([0.9, 0.5, 0.7]), z, amp, lin, R, c)
+    reported, (oH, oR, oz) = jipda.equivalent_observation(pred, lin, R, pairs, assoc)
+    assert reported.tolist() == [True, True, False]
+    assert np.bincount(pairs.cols, minlength=len(z))[:3].max() == 2  # tracks 0 and 1 share detections
+    for k, i in enumerate(np.flatnonzero(reported)):
+        kf = update_residual(GaussianState(x[i], P[i]), oz[k] - oH[k] @ x[i], oH[k], oR[k]).state
+        np.testing.assert_allclose(kf.x, post.x[i], rtol=1e-10, atol=1e-9)
+    assert np.all(np.linalg.eigvalsh(post.P) > 0.0)
     # track 2 sees nothing: existence decays as eq (8) with an empty gate
-    np.testing.assert_allclose(out.association.existence[2], existence_update(
+    np.testing.assert_allclose(assoc.existence[2], existence_update(
         np.array(0.7), np.log1p(-c.pd * c.pg), 1.0, 0.0), rtol=1e-12)
-    np.testing.assert_allclose(out.unclaimed[3], 1.0)
-    assert np.all(out.unclaimed[:3] < 1.0)
+    free = jipda.unclaimed(len(z), pairs.cols, assoc)
+    assert free[3] == 1.0 and np.all(free[:3] < 1.0)
 
 
 def test_derived_rules() -> None:
@@ -242,12 +269,64 @@ def test_clutter_births_rarely_confirm() -> None:
         x, P = predict_tracks(x, P, mot)
         k = rng.poisson(lam * 2000.0**2, size=n)
         z = np.repeat(x[:, [0, 2]], k, axis=0) + rng.uniform(-1000.0, 1000.0, size=(k.sum(), 2))
-        out = jipda.scan_update(GaussianState(x, P), existence_predict(mu, 0.98, 0.0), z, None,
-                                linearize(x, None), R, c)
-        x, P, mu = out.state.x, out.state.P, out.association.existence
+        post, assoc, _ = run_scan(GaussianState(x, P), existence_predict(mu, 0.98, 0.0), z, None,
+                                  linearize(x, None), R, c)
+        x, P, mu = post.x, post.P, assoc.existence
         confirmed, keep = jipda.manage(mu, ever, rules)
         ever |= confirmed & alive
         alive &= keep
     rate = ever.mean()
     assert rate <= jipda.FALSE_CONFIRM + 3.0 * np.sqrt(jipda.FALSE_CONFIRM * (1 - jipda.FALSE_CONFIRM) / n)
     assert not alive.all()  # clutter tracks die
+
+
+REFERENCE = Path(__file__).parent / "data" / "mtt_reference"
+
+
+def jipda_replay(tmp_path: Path, scenario: str, algorithm: str, scans: Path | None = None,
+                 extra: str = "") -> list[dict]:
+    cfg = tmp_path / f"{scenario}.toml"
+    cfg.write_text((REFERENCE / f"{scenario}.toml").read_text().replace(
+        "[mtt]\n", f'[mtt]\nassociator = "jipda"\n{extra}', 1))
+    out = tmp_path / f"{scenario}-{algorithm}-{'sorted' if scans else 'arrival'}.jsonl"
+    replay_mtt(algorithm, scans or REFERENCE / f"{scenario}-scans.jsonl", cfg, out,
+               sensor={"pos": "s2", "radar": "r1"}[scenario] if algorithm == "mtt-local" else None)
+    return [json.loads(line) for line in out.read_text().splitlines()]
+
+
+@pytest.mark.parametrize("scenario, algorithm", [(s, a) for s in ("pos", "radar")
+                                                 for a in ("mtt-local", "mtt-centralized")])
+def test_jipda_tracker_pictures_carry_existence(tmp_path: Path, scenario: str, algorithm: str) -> None:
+    pictures = jipda_replay(tmp_path, scenario, algorithm)
+    rows = [tr for pic in pictures for tr in pic["tracks"]]
+    assert rows and all(0.0 <= tr["existence"] <= 1.0 for tr in rows)
+    last = [tr for tr in pictures[-1]["tracks"] if tr["status"] == "confirmed"]
+    assert len(last) >= 2 and all(tr["existence"] > 0.5 for tr in last)
+    rules = jipda.derived_rules(0.9, 0.999)
+    assert all(tr["existence"] >= rules.delete * 0.98**2 for tr in rows)  # deleted below the threshold
+
+
+def test_jipda_centralized_out_of_sequence_equals_time_sorted(tmp_path: Path) -> None:
+    """Acceptance (d) for jipda: out-of-sequence scans within max_lag give the time-sorted pictures."""
+    lines = (REFERENCE / "pos-scans.jsonl").read_text().splitlines()
+    times = [json.loads(line)["t"] for line in lines]
+    assert times != sorted(times)  # the scenario has out-of-sequence scans
+    sorted_scans = tmp_path / "sorted.jsonl"
+    sorted_scans.write_text("\n".join(line for _, line in sorted(zip(times, lines), key=lambda p: p[0])) + "\n")
+    wait = "picture_delay = 3.0\n"  # = max_lag: a picture waits for every scan up to its time
+    arrival = jipda_replay(tmp_path, "pos", "mtt-centralized", extra=wait)
+    ordered = jipda_replay(tmp_path, "pos", "mtt-centralized", sorted_scans, extra=wait)
+    assert [p["t"] for p in arrival] == [p["t"] for p in ordered]
+    for a, b in zip(arrival, ordered):
+        assert [tr["id"] for tr in a["tracks"]] == [tr["id"] for tr in b["tracks"]]
+        for u, v in zip(a["tracks"], b["tracks"]):
+            np.testing.assert_allclose(u["x"], v["x"], rtol=1e-9, atol=1e-9)
+            np.testing.assert_allclose(u["P"], v["P"], rtol=1e-9, atol=1e-9)
+            assert u["existence"] == pytest.approx(v["existence"], rel=1e-9, abs=1e-12)
+            assert u["status"] == v["status"]
+
+
+def test_jipda_refuses_maneuver_handling() -> None:
+    with pytest.raises(ConfigError, match="maneuver"):
+        MttConfig(associator="jipda", maneuver="vdie").validate()
+    MttConfig(associator="jipda").validate()

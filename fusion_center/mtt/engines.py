@@ -33,10 +33,12 @@ from fedtrack.local_filters.mtt.local import (
     local_step,
     new_local_tracker,
 )
+from fedtrack.local_filters.mtt import jipda
 from fedtrack.local_filters.mtt.maneuver import predicted_view
 from fedtrack.local_filters.mtt.models import motion, predict_tracks
 from fedtrack.local_filters.mtt.scan import SensorScan
 from fedtrack.local_filters.mtt.tracker import TrackerState, TrackParams, initial_state, track_params, tracker_step
+from fedtrack.local_filters.pda.association import existence_predict
 from fedtrack.local_filters.vdie.estimation import VdieParams
 from fedtrack.wire import picture_line
 
@@ -56,6 +58,7 @@ class PictureTracks(NamedTuple):
     # (n, 4) detected maneuvers [onset, ax, ay, statistic] (central tracks, or a 3-D tracker's
     # tracks), NaN rows where none; None where no maneuver detector runs
     maneuver: np.ndarray | None = None
+    existence: list[float] | None = None  # per track (associators that keep it), None: not kept
 
     def maneuver_rows(self) -> list[int]:
         """The positions of the central tracks whose maneuver is detected."""
@@ -67,7 +70,8 @@ class PictureTracks(NamedTuple):
 
     def line(self, t: float) -> str:
         """The picture's line in a tracks file (``{"t": t, "tracks": rows}`` as JSON)."""
-        return picture_line(t, self.ids, self.x, self.P, self.confirmed, self.sensors, self.models, self.maneuver)
+        return picture_line(t, self.ids, self.x, self.P, self.confirmed, self.sensors, self.models, self.maneuver,
+                            self.existence)
 
 
 def central_params(cfg: MttConfig, sensor: str | None, dim: int) -> TrackParams:
@@ -106,7 +110,12 @@ def tracker_picture(state: TrackerState, T: float, cfg: MttConfig, sensors: list
         else:
             x, P = predict_tracks(x, P, motion(x.shape[1], round(T - state.t, 12), cfg.q, cfg.noise_model))
     maneuver = None if tr.inputs is None or detector is None else tr.inputs.detection.picture_rows(detector)
-    return PictureTracks(tr.ids.tolist(), x, P, tr.confirmed.tolist(), [sensors] * tr.size, tr.models, maneuver)
+    existence = None
+    if tr.existence is not None:  # predicted to T as the tracks are (jipda.survival)
+        existence = existence_predict(tr.existence, jipda.survival(max(T - (state.t or T), 0.0), 1.0,
+                                                                   jipda.SURVIVAL_PER_SECOND), 0.0).tolist()
+    return PictureTracks(tr.ids.tolist(), x, P, tr.confirmed.tolist(), [sensors] * tr.size, tr.models, maneuver,
+                         existence)
 
 
 @dataclass

@@ -56,6 +56,8 @@ class AssociationInput(NamedTuple):
     clutter_density: float
     amplitude: np.ndarray | None  # (M,) detection amplitudes, if the scan carries them
     memory: Any = None  # the associator's memory after the previous scan
+    gate_d2: float = float("inf")  # the chi-square gate of the scan's measurement size
+    dt: float = 0.0  # time since the tracker's previous scan (existence prediction)
 
 
 class Association(NamedTuple):

@@ -43,21 +43,24 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
-from fedtrack.local_filters.linear.kalman import LOG_2PI, GaussianState, mat_vec, solve_spd, transpose
-from fedtrack.local_filters.mtt.models import Linearized
-from fedtrack.local_filters.mtt.tracker import (
-    Observation,
-    _pair_graph,
-    _rank_in_component,
-    gate,
+from fedtrack.local_filters.linear.kalman import (
+    GaussianState,
     innovation_covariance,
+    mat_vec,
+    solve_spd,
+    spd_inverse_logdet,
+    transpose,
 )
+from fedtrack.local_filters.mtt import association
+from fedtrack.local_filters.mtt.gnn import _pair_graph, _rank_in_component
+from fedtrack.local_filters.mtt.models import Linearized
 from fedtrack.local_filters.pda.association import (
     Constants,
     Gated,
     PDAHypotheses,
     PDAParams,
     constants,
+    existence_predict,
     log_amplitude_ratio,
     pda_update,
 )
@@ -223,17 +226,6 @@ def _posterior(w0: np.ndarray, w: np.ndarray, rows: np.ndarray, mu_bar: np.ndarr
     return Association(mu, np.where(alive, missed * inv, 1.0), w * inv[rows], w, log_lr, exact)
 
 
-def pairs_of_scan(x: np.ndarray, P: np.ndarray, z: np.ndarray, lin: Linearized, R: np.ndarray,
-                  c: Constants) -> tuple[Pairs, np.ndarray, np.ndarray]:
-    """Gate a scan (the GNN tracker's chi-square gate at ``c.gamma``): the pairs, ``S`` (N, m, m)
-    and ``ln det S`` (N,)."""
-    S = innovation_covariance(P, lin, R)
-    g, logdet = gate(z, lin, S, c.gamma)
-    m = R.shape[0]
-    log_n = -0.5 * (g.d2 + logdet[g.rows] + m * LOG_2PI)
-    return Pairs(g.rows, g.cols, g.nu, g.d2, log_n), S, logdet
-
-
 def _padded(pairs: Pairs, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Each track's pairs in slots ``0..k-1``: (track, slot) of every pair and the valid mask (N, k)."""
     order = np.argsort(pairs.rows, kind="stable")
@@ -247,11 +239,13 @@ def _padded(pairs: Pairs, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return pairs.rows, slot, valid
 
 
-def update(pred: GaussianState, lin: Linearized, R: np.ndarray, pairs: Pairs, S: np.ndarray,
-           logdet: np.ndarray, assoc: Association, c: Constants) -> GaussianState:
+def update(pred: GaussianState, lin: Linearized, R: np.ndarray, pairs: Pairs, assoc: Association,
+           c: Constants) -> GaussianState:
     """Per track, PDA's mixture over its association hypotheses with the spread-of-means term and
     Joseph-form detected components (:func:`pda_update` with the JIPDA weights)."""
     n, m = pred.x.shape[0], R.shape[0]
+    S = innovation_covariance(pred.P, lin.H, R)
+    logdet = spd_inverse_logdet(S)[1] if n else np.zeros(0)
     K = transpose(solve_spd(S, lin.H @ pred.P)) if n else np.zeros(pred.x.shape + (m,))
     r, slot, valid = _padded(pairs, n)
     nu = np.zeros(valid.shape + (m,))
@@ -264,13 +258,13 @@ def update(pred: GaussianState, lin: Linearized, R: np.ndarray, pairs: Pairs, S:
 
 
 def equivalent_observation(pred: GaussianState, lin: Linearized, R: np.ndarray, pairs: Pairs,
-                           assoc: Association) -> tuple[np.ndarray, Observation]:
+                           assoc: Association) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """What a soft association reports to a fusion centre: for each track with ``beta_0 < 1``, the
     observation ``z ~ N(H x, R_eq)`` whose Kalman update from the prediction gives PDA's mean:
     ``z = H x_bar + nu_c / (1 - beta_0)`` (``nu_c = sum_j beta_j nu_j``),
     ``R_eq = (R + beta_0 H P_bar H') / (1 - beta_0)`` (so ``H P_bar H' + R_eq = S / (1 - beta_0)``).
     Its covariance update lacks the spread-of-means and missed-gate terms of PDA's (docs/jipda.md).
-    Returns the mask of the tracks that report and their observations."""
+    Returns the mask of the tracks that report and their observations ``(H, R_eq, z)``."""
     n, m = pred.x.shape[0], R.shape[0]
     nu_c = np.zeros((n, m))
     np.add.at(nu_c, pairs.rows, assoc.beta[:, None] * pairs.nu)
@@ -283,29 +277,54 @@ def equivalent_observation(pred: GaussianState, lin: Linearized, R: np.ndarray, 
     z = mat_vec(H, pred.x[rep]) + nu_c[rep] / hit[rep, None]
     mask = np.zeros(n, dtype=bool)
     mask[rep] = True
-    return mask, Observation(H.copy(), 0.5 * (R_eq + transpose(R_eq)), z)
+    return mask, (H.copy(), 0.5 * (R_eq + transpose(R_eq)), z)
 
 
-class ScanUpdate(NamedTuple):
-    """One scan's JIPDA result for every track, and what it leaves for new tracks."""
+# Existence survival per second of data time: paper 001's p11 = 0.98 per scan, taken at the
+# 1-s scan period of the multi-target sensors and compounded over any interval (:func:`survival`).
+SURVIVAL_PER_SECOND = 0.98
+SNR = PDAParams().snr  # paper 001's mean target SNR, for scans whose detections carry amplitudes
 
-    state: GaussianState  # (N, D), (N, D, D) posterior
-    association: Association
-    reported: np.ndarray  # (N,) bool: tracks that report an observation
-    observation: Observation  # for the reported tracks, in order
-    unclaimed: np.ndarray  # (M,) 1 - sum_i W_ij: P(no existing track made detection j)
+
+def scan_constants(pd: float, clutter_density: float, gate_d2: float, m: int) -> Constants:
+    """The constants of one scan of the tracker (:func:`jipda_constants` with :data:`SNR`)."""
+    return jipda_constants(pd, clutter_density, gate_d2, m, SNR)
+
+
+def associate_scan(inp: association.AssociationInput) -> association.Association:
+    """The tracker's associate role: existence predicted over ``inp.dt`` (:func:`survival`), the
+    joint association, and the tracker's view of it (every gated pair with its ``beta_ij``; a
+    detection is claimed, so starts no track, when the tracks' joint probability of having made it
+    is at least 1/2)."""
+    c = scan_constants(inp.pd, inp.clutter_density, inp.gate_d2, inp.dim)
+    mu = np.full(inp.n_tracks, BIRTH_EXISTENCE) if inp.existence is None else inp.existence
+    mu_bar = existence_predict(mu, survival(inp.dt, 1.0, SURVIVAL_PER_SECOND), 0.0)
+    pairs = Pairs(inp.rows, inp.cols, np.zeros((inp.rows.size, inp.dim)), np.zeros(inp.rows.size), inp.log_likelihood)
+    log_a = np.zeros(inp.n_detections) if inp.amplitude is None else log_amplitude_ratio(inp.amplitude, c)
+    assoc = associate(inp.n_detections, pairs, log_a, mu_bar, c)
+    claimed = unclaimed(inp.n_detections, inp.cols, assoc) <= 0.5
+    return association.Association(np.arange(inp.rows.size), assoc.beta, claimed, assoc.existence, None)
+
+
+def from_weights(rows: np.ndarray, beta: np.ndarray, existence: np.ndarray) -> Association:
+    """The association the update needs, from the tracker's view of :func:`associate_scan`."""
+    beta0 = np.clip(1.0 - np.bincount(rows, beta, minlength=existence.shape[0]), 0.0, 1.0)
+    return Association(existence, beta0, beta, existence[rows] * beta, np.zeros_like(existence),
+                       np.ones(existence.shape, dtype=bool))
+
+
+def unclaimed(n_det: int, cols: np.ndarray, assoc: Association) -> np.ndarray:
+    """``1 - sum_i W_ij`` (M,): the probability that no existing track made detection ``j``."""
+    return np.clip(1.0 - np.bincount(cols, assoc.joint, minlength=n_det), 0.0, 1.0)
 
 
 def scan_update(pred: GaussianState, mu_bar: np.ndarray, z: np.ndarray, amplitude: np.ndarray | None,
-                lin: Linearized, R: np.ndarray, c: Constants, max_events: int = MAX_EVENTS) -> ScanUpdate:
-    """Gate, associate jointly and update every predicted track with one scan."""
-    pairs, S, logdet = pairs_of_scan(pred.x, pred.P, z, lin, R, c)
+                lin: Linearized, R: np.ndarray, c: Constants, pairs: Pairs,
+                max_events: int = MAX_EVENTS) -> tuple[GaussianState, Association]:
+    """Associate jointly and update every predicted track with one gated scan (``pairs``)."""
     log_a = np.zeros(z.shape[0]) if amplitude is None else log_amplitude_ratio(amplitude, c)
     assoc = associate(z.shape[0], pairs, log_a, mu_bar, c, max_events)
-    post = update(pred, lin, R, pairs, S, logdet, assoc, c)
-    reported, obs = equivalent_observation(pred, lin, R, pairs, assoc)
-    unclaimed = np.clip(1.0 - np.bincount(pairs.cols, assoc.joint, minlength=z.shape[0]), 0.0, 1.0)
-    return ScanUpdate(post, assoc, reported, obs, unclaimed)
+    return update(pred, lin, R, pairs, assoc, c), assoc
 
 
 # Track management by existence (docs/jipda.md#track-management).
