@@ -248,7 +248,9 @@ def test_derived_rules() -> None:
     assert odds(low.delete) == pytest.approx(odds(0.1) * (1.0 - 0.5 * 0.999) ** 7)
     confirmed, keep = jipda.manage(np.array([0.95, 0.5, 1e-4]), np.array([False, True, True]), rules)
     assert confirmed.tolist() == [True, True, True] and keep.tolist() == [True, True, False]
-    np.testing.assert_allclose(jipda.birth_existence(np.array([1.0, 0.25]), rules), [0.1, 0.025])
+    odds_b = odds(jipda.birth_existence(np.array([1.0, 0.25]), 1))
+    np.testing.assert_allclose(odds_b, [odds(0.1), 0.25 * odds(0.1)], rtol=1e-12)
+    np.testing.assert_allclose(odds(jipda.birth_existence(np.array([1.0]), 30)), odds(0.1) / 30, rtol=1e-12)
 
 
 def test_clutter_births_rarely_confirm() -> None:

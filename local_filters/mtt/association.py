@@ -68,6 +68,7 @@ class Association(NamedTuple):
     claimed: np.ndarray  # (M,) bool: detections that start no track
     existence: np.ndarray | None = None  # (N,) posterior existence probabilities
     memory: Any = None  # given back at the next scan
+    birth: np.ndarray | None = None  # (M,) existence of a track started on each detection (None: initial_existence)
 
 
 class Associator(NamedTuple):

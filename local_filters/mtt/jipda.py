@@ -302,8 +302,10 @@ def associate_scan(inp: association.AssociationInput) -> association.Association
     pairs = Pairs(inp.rows, inp.cols, np.zeros((inp.rows.size, inp.dim)), np.zeros(inp.rows.size), inp.log_likelihood)
     log_a = np.zeros(inp.n_detections) if inp.amplitude is None else log_amplitude_ratio(inp.amplitude, c)
     assoc = associate(inp.n_detections, pairs, log_a, mu_bar, c)
-    claimed = unclaimed(inp.n_detections, inp.cols, assoc) <= 0.5
-    return association.Association(np.arange(inp.rows.size), assoc.beta, claimed, assoc.existence, None)
+    free = unclaimed(inp.n_detections, inp.cols, assoc)
+    claimed = free <= 0.5
+    return association.Association(np.arange(inp.rows.size), assoc.beta, claimed, assoc.existence, None,
+                                   birth_existence(free, int(np.sum(~claimed))))
 
 
 def from_weights(rows: np.ndarray, beta: np.ndarray, existence: np.ndarray) -> Association:
@@ -328,13 +330,13 @@ def scan_update(pred: GaussianState, mu_bar: np.ndarray, z: np.ndarray, amplitud
 
 
 # Track management by existence (docs/jipda.md#track-management).
-BIRTH_EXISTENCE = 0.1  # prior existence of a track started on a detection no track claims
-FALSE_CONFIRM = 0.01  # alpha: P(a track born on clutter is ever confirmed)
-LOST_TRUE = 0.01  # beta: P(a true track's run of misses reaches the deletion threshold from birth)
+BIRTH_EXISTENCE = 0.1  # prior probability that a scan's unclaimed detections hold a new target
+FALSE_CONFIRM = 0.01  # alpha: P(a track born on one scan's clutter is ever confirmed), per scan
+LOST_TRUE = 0.01  # beta: P(a true target gives the run of misses that deletes a lone new track)
 
 
 class ExistenceRules(NamedTuple):
-    birth: float  # prior existence of a new track (times its detection's unclaimed weight)
+    birth: float  # prior existence of a lone new track (see birth_existence)
     confirm: float  # confirmed once existence >= confirm
     delete: float  # deleted once existence < delete
 
@@ -350,13 +352,15 @@ def _prob(o: float) -> float:
 def derived_rules(pd: float, pg: float, birth: float = BIRTH_EXISTENCE, false_confirm: float = FALSE_CONFIRM,
                   lost: float = LOST_TRUE) -> ExistenceRules:
     """Thresholds from ``P_D`` and ``P_G``. Confirm at odds ``odds(birth) / false_confirm``: under
-    clutter alone a track's existence odds over its birth odds is a non-negative supermartingale of
-    mean at most 1 (the likelihood ratio of eq (9) has mean 1, survival only lowers it), so by
-    Ville's inequality it ever reaches ``1 / false_confirm`` with probability at most
-    ``false_confirm``. Delete below odds ``odds(birth) (1 - P_D P_G)^k``, ``k`` the fewest misses
-    in a row a true target gives with probability at most ``lost`` (each miss multiplies the odds
-    by ``1 - P_D P_G``): a new track dies after ``k`` misses, a confirmed one after about
-    ``k + log(1/false_confirm) / log(1/(1 - P_D P_G))``."""
+    clutter alone a track's existence odds over its birth odds ``o_j`` is a non-negative
+    supermartingale of mean at most 1 (the likelihood ratio of eq (9) has mean 1, survival only
+    lowers it), so by Ville's inequality it ever reaches the threshold with probability at most
+    ``o_j / odds_c``; a scan's births share ``odds(birth)`` (:func:`birth_existence`), so the
+    scan confirms a clutter track with probability at most ``false_confirm``. Delete below odds
+    ``odds(birth) (1 - P_D P_G)^k``, ``k`` the fewest misses in a row a target gives with
+    probability at most ``lost`` (each miss multiplies the odds by ``1 - P_D P_G``): a lone new
+    track dies after ``k`` misses (one of ``B`` births after ``log B / log(1/(1 - P_D P_G))``
+    fewer), a confirmed one after about ``k + log(1/false_confirm) / log(1/(1 - P_D P_G))``."""
     miss = 1.0 - pd * pg
     k = max(1, math.ceil(math.log(lost) / math.log(miss)))
     return ExistenceRules(birth, _prob(_odds(birth) / false_confirm), _prob(_odds(birth) * miss**k))
@@ -367,7 +371,11 @@ def manage(existence: np.ndarray, confirmed: np.ndarray, rules: ExistenceRules) 
     return confirmed | (existence >= rules.confirm), existence >= rules.delete
 
 
-def birth_existence(unclaimed: np.ndarray, rules: ExistenceRules) -> np.ndarray:
-    """Prior existence of the tracks started on each detection: ``birth`` times the probability that
-    no existing track made it (zero for a detection a track surely made)."""
-    return rules.birth * unclaimed
+def birth_existence(unclaimed: np.ndarray, births: int, birth: float = BIRTH_EXISTENCE) -> np.ndarray:
+    """Prior existence of the tracks started on each detection: the prior odds ``odds(birth)`` that
+    the scan holds a new target, shared by its ``births`` unclaimed detections, times the
+    probability that no existing track made the detection. Sharing the odds keeps the false
+    confirmations per scan (not per birth) below ``FALSE_CONFIRM`` however many detections start
+    tracks (Ville's bound, :func:`derived_rules`)."""
+    odds = _odds(birth) * unclaimed / max(births, 1)
+    return odds / (1.0 + odds)

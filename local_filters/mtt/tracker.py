@@ -251,7 +251,7 @@ def associate(state: TrackerState, gating: Gating | None, scan: SensorScan, para
     """Role 3: the associator's answer (nothing to associate without gated pairs, unless the
     associator keeps existence, which a scan without pairs still lowers)."""
     n, n_det = state.tracks.size, scan.z.shape[0]
-    if gating is None and (state.tracks.existence is None or n == 0):
+    if gating is None and params.initial_existence is None:
         return Association(np.zeros(0, np.int64), np.zeros(0), np.zeros(n_det, bool), state.tracks.existence,
                            state.memory)
     none = np.zeros(0, np.int64)
@@ -388,7 +388,10 @@ def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
     else:
         upd = role.update(tracks, pred, gating, assoc, scan, dt, params, q_scale)
     updated, live = (m_of_n if role.manage is None else role.manage)(upd.tracks, upd.detected, params)
-    new, obs_new = start_tracks(scan, np.flatnonzero(~assoc.claimed), params, state.next_id)
+    det = np.flatnonzero(~assoc.claimed)
+    new, obs_new = start_tracks(scan, det, params, state.next_id)
+    if assoc.birth is not None:
+        new = new._replace(existence=assoc.birth[det])
     detected = np.concatenate([upd.detected[live], np.ones(new.size, bool)])
     keep_info = live[upd.detected]
     return ScanResult(TrackerState(_concat(updated.take(live), new), scan.t, state.next_id + new.size, assoc.memory),
