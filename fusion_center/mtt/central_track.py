@@ -31,6 +31,7 @@ from fedtrack.local_filters.vdie.input_bank import (
     no_detection,
 )
 from fedtrack.local_filters.linear.kalman import GaussianState, update
+from fedtrack.local_filters.linear.tracking import rounded_interval
 from fedtrack.local_filters.mtt.models import predict_batch
 from fedtrack.local_filters.vdie.estimation import VdieParams
 
@@ -182,8 +183,8 @@ class CentralTracks:
         """The estimates (N, D), (N, D, D) of ``slots`` at ``t`` from their observations up to ``t``
         (a track whose checkpoint is newer than ``t`` gives its checkpoint), one batched prediction."""
         p = self._entry_at(slots, t)
-        dt = np.round(np.maximum(t - self.t[slots, p], 0.0), 12)
-        return predict_batch(self.x[slots, p], self.P[slots, p], dt, self.q, self.noise_model)
+        return predict_batch(self.x[slots, p], self.P[slots, p], np.maximum(t - self.t[slots, p], 0.0), self.q,
+                             self.noise_model)
 
     def maneuvers_at(self, slots: np.ndarray, t: float) -> InputDetection:
         """The maneuver detector's result after each slot's newest observation up to ``t`` (the
@@ -202,7 +203,7 @@ class CentralTracks:
               z: np.ndarray, bank: InputBank | None) -> tuple[np.ndarray, np.ndarray, DetectorStep]:
         """Posteriors after predicting each ``(x, P)`` from ``t0`` to ``t`` and fusing ``(H, R, z)``,
         and the maneuver detector's step from ``bank`` (None without a detector)."""
-        dt = np.round(t - t0, 12)
+        dt = rounded_interval(t - t0)
         xp, Pp = predict_batch(x, P, dt, self.q, self.noise_model)
         post = update(GaussianState(xp, Pp), z, H, R)[0]
         return post.x, post.P, None if bank is None else input_step(bank, dt, xp, Pp, H, R, z, t)

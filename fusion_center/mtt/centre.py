@@ -44,6 +44,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from fedtrack.fusion_center.mtt.central_track import CentralTracks, padded
+from fedtrack.local_filters.linear.gating import track_difference_d2
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.gnn import assign
 from fedtrack.local_filters.mtt.local import LocalReport, Resets, no_resets
@@ -223,7 +224,7 @@ class TrackToTrackCentre:
             xc, Pc = self.tracks.states_at(self.tracks.slots_of(cid[check]), t)
             rows = det_rows[check]
             diff = report.x[rows] - xc[:, :d]
-            d2 = np.einsum("ni,ni->n", diff, np.linalg.solve(report.P[rows] + Pc[:, :d, :d], diff[..., None])[..., 0])
+            d2 = track_difference_d2(diff, report.P[rows] + Pc[:, :d, :d])[0]
             bad = d2 > cfg.thresholds.association[d]
             if self.strikes:  # a consistent local track's strikes are forgiven
                 struck = [key for key in self.strikes if key[0] == s]
@@ -342,7 +343,7 @@ class TrackToTrackCentre:
         K = np.fromiter((k for k, js in zip(mine, near) for _ in js), dtype=np.int64)
         J = np.fromiter((j for js in near for j in js), dtype=np.int64, count=K.size)
         diff = X[J] - X[K]  # the chi-square test of every candidate pair at once
-        passes = np.einsum("ni,ni->n", diff, np.linalg.solve(P[J] + P[K], diff[..., None])[..., 0]) <= gate
+        passes = track_difference_d2(diff, P[J] + P[K])[0] <= gate
         close: dict[int, list[int]] = {}
         for k, j in zip(K[passes].tolist(), J[passes].tolist()):
             if j != k:
@@ -395,10 +396,7 @@ class TrackToTrackCentre:
             ri = np.fromiter((u for u, js in enumerate(near) for j in js if j >= len(rows)), dtype=np.int64)
             ci = np.fromiter((j - len(rows) for js in near for j in js if j >= len(rows)), dtype=np.int64,
                              count=ri.size)
-            L = np.linalg.cholesky(C[ri] + Pc[ci])
-            w = np.linalg.solve(L, (U[ri] - xc[ci])[..., None])[..., 0]
-            d2 = np.sum(w * w, axis=-1)
-            logdet = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
+            d2, logdet = track_difference_d2(U[ri] - xc[ci], C[ri] + Pc[ci])
             inside = d2 <= gate
             ri, ci, cost = ri[inside], ci[inside], d2[inside] + logdet[inside]
             # most gated pairs first, then the least cost: a shift makes every gated pair's cost negative

@@ -34,7 +34,7 @@ from fedtrack.local_filters.mtt.local import (
     new_local_tracker,
 )
 from fedtrack.local_filters.mtt.maneuver import predicted_view
-from fedtrack.local_filters.mtt.models import motion, predict_tracks
+from fedtrack.local_filters.mtt.models import predict_batch
 from fedtrack.local_filters.mtt.scan import SensorScan
 from fedtrack.local_filters.mtt.tracker import TrackerState, TrackParams, initial_state, track_params, tracker_step
 from fedtrack.local_filters.vdie.estimation import VdieParams
@@ -104,7 +104,7 @@ def tracker_picture(state: TrackerState, T: float, cfg: MttConfig, sensors: list
         if tr.man is not None:  # each track in its own model (maneuver handling)
             x, P = predicted_view(tr.man, T - state.t, cfg.q, cfg.noise_model)
         else:
-            x, P = predict_tracks(x, P, motion(x.shape[1], round(T - state.t, 12), cfg.q, cfg.noise_model))
+            x, P = predict_batch(x, P, T - state.t, cfg.q, cfg.noise_model)
     maneuver = None if tr.inputs is None or detector is None else tr.inputs.detection.picture_rows(detector)
     return PictureTracks(tr.ids.tolist(), x, P, tr.confirmed.tolist(), [sensors] * tr.size, tr.models, maneuver)
 
