@@ -172,7 +172,9 @@ def test_late_scans_beyond_max_lag_are_counted_and_dropped(tmp_path: Path, capsy
     rows.append({"t": 2.0, "sensor": "b", "R": R_POS, "detections": [{"z": [20.0, 0.0]}]})
     cfg = config(tmp_path / "c.toml", max_lag=3.0)
     replay_mtt("mtt-centralized", write_lines(tmp_path / "m.jsonl", rows), cfg, tmp_path / "o.jsonl")
-    assert "10 scans fused, 1 late" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "mtt-centralized: 10 scans fused\n" in err
+    assert "mtt-centralized: 1 scans late (older than max_lag before their tracker's newest), not fused\n" in err
 
 
 def test_crossing_targets_keep_their_ids(tmp_path: Path) -> None:

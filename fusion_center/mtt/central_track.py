@@ -68,6 +68,7 @@ class CentralTracks:
     def __init__(self, dim: int, q: float, noise_model: str, max_lag: float, capacity: int = 64, depth: int = 8,
                  detector: VdieParams | None = None):
         self.dim, self.q, self.noise_model, self.max_lag = dim, q, noise_model, max_lag
+        self.reprocessed = 0  # observations fused again after an older one was inserted before them
         self.detector = detector
         mmax = dim // 2  # a position (2 or 3) or a radar's (range, azimuth, elevation)
         self.slot: dict[int, int] = {}  # central track id -> slot
@@ -283,6 +284,7 @@ class CentralTracks:
         ones again."""
         self._reserve(slots, 1)
         n_after = self._newer_than(slots, t)
+        self.reprocessed += int(n_after.sum())
         keep = self.count[slots] - n_after  # entries up to t stay (>= 1: the checkpoint is not after t)
         # the observations to fuse again, gathered before the ring is rewritten: (n, most after)
         later = np.arange(int(n_after.max()))

@@ -16,8 +16,10 @@ scan, the linearized observation of every track the scan detected, the tracks it
   it passes; its own central track, left without a local track, is deleted.
 * **Fusion.** The centre fuses each local observation (``H, R, z``) into its central track at
   the observation's time, predicting the central track there; out-of-sequence observations
-  up to ``max_lag`` old are fused exactly (:mod:`.central_track`), older ones are counted as
-  late. Because it fuses what each detection added and never a local estimate, there is no
+  up to ``max_lag`` old are fused exactly (:mod:`.central_track`; each observation fused again
+  is counted ``reprocessed``), older ones are counted as late, and those older than their
+  central track's start (another sensor's scan of the target, delivered after the track was
+  started) as ``before_start``; neither is fused. Because it fuses what each detection added and never a local estimate, there is no
   double counting: the result equals a centralized filter of the same detections.
 * **Federated** (``feedback``): after fusing, the centre resets the local track to the
   central estimate with ``P_i = beta_i P`` (``beta_i`` = the number of live sensors, so the
@@ -61,8 +63,10 @@ ASSOCIATION_SHIFT = 1e6  # larger than any gated pair's d2 + ln det
 
 @dataclass
 class Counters:
-    fused: int = 0
-    late: int = 0
+    fused: int = 0  # local observations fused
+    late: int = 0  # local observations older than max_lag before their central track's newest: not fused
+    before_start: int = 0  # local observations older than their central track's start: not fused
+    reprocessed: int = 0  # observations fused again after an older one was inserted before them
     started: int = 0
     deleted: int = 0
     unmapped: int = 0
@@ -309,13 +313,17 @@ class TrackToTrackCentre:
         X[started], P[started] = self.tracks.latest(slots[started])[1:]  # started from this local estimate
         H_all = self._embed(report.obs_H)
         pending = np.flatnonzero(~fresh)
+        reprocessed = self.tracks.reprocessed
         while pending.size:
             now = pending[np.sort(np.unique(slots[pending], return_index=True)[1])]
+            too_old = t < self.tracks.latest(slots[now])[0] - self.cfg.max_lag
             done, x_now, P_now = self.tracks.fuse(slots[now], t, H_all[now], report.obs_R[now], report.obs_z[now])
             ok[now], X[now], P[now] = done, x_now, P_now
             self.counters.fused += int(done.sum())
-            self.counters.late += int(done.size - done.sum())
+            self.counters.late += int(np.count_nonzero(~done & too_old))
+            self.counters.before_start += int(np.count_nonzero(~done & ~too_old))
             pending = pending[~np.isin(pending, now, assume_unique=True)] if now.size < pending.size else now[:0]
+        self.counters.reprocessed += self.tracks.reprocessed - reprocessed
         return ok, X, P
 
     def _merge_duplicates(self, updated: np.ndarray, t: float) -> None:
