@@ -25,7 +25,7 @@ from fedtrack.local_filters.linear.kalman import (
 from fedtrack.local_filters.mtt import jipda
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.tracker import gate as chi2_gate
-from fedtrack.local_filters.mtt.models import Linearized, linearize, motion, predict_tracks
+from fedtrack.local_filters.mtt.models import Linearized, linearize, motion
 from fedtrack.local_filters.pda.association import (
     PDAParams,
     constants,
@@ -69,7 +69,7 @@ def test_one_target_pd1_no_clutter_equals_kalman() -> None:
     for _ in range(30):
         truth = mot.F @ truth + rng.multivariate_normal(np.zeros(4), mot.Q)
         z = (truth[[0, 2]] + rng.multivariate_normal(np.zeros(2), R))[None]
-        x, P = predict_tracks(x, P, mot)
+        x, P = predict(GaussianState(x, P), mot.F, mot.Q)
         kf = predict(kf, mot.F, mot.Q)
         mu_bar = existence_predict(mu, jipda.survival(1.0, 1.0, 0.98), 0.0)
         post, assoc, _ = run_scan(GaussianState(x, P), mu_bar, z, None, linearize(x, None), R, c)
@@ -268,7 +268,7 @@ def test_clutter_births_rarely_confirm() -> None:
     mu = np.full(n, rules.birth)
     ever, alive = np.zeros(n, dtype=bool), np.ones(n, dtype=bool)
     for _ in range(8):
-        x, P = predict_tracks(x, P, mot)
+        x, P = predict(GaussianState(x, P), mot.F, mot.Q)
         k = rng.poisson(lam * 2000.0**2, size=n)
         z = np.repeat(x[:, [0, 2]], k, axis=0) + rng.uniform(-1000.0, 1000.0, size=(k.sum(), 2))
         post, assoc, _ = run_scan(GaussianState(x, P), existence_predict(mu, 0.98, 0.0), z, None,
