@@ -24,8 +24,8 @@ from fedtrack.local_filters.linear.kalman import (
 )
 from fedtrack.local_filters.mtt import jipda
 from fedtrack.local_filters.mtt.config import MttConfig
-from fedtrack.local_filters.mtt.tracker import gate as chi2_gate
 from fedtrack.local_filters.mtt.models import Linearized, linearize, motion
+from fedtrack.local_filters.mtt.tracker import gate as chi2_gate
 from fedtrack.local_filters.pda.association import (
     PDAParams,
     constants,
@@ -52,8 +52,9 @@ def gated(pred: GaussianState, z: np.ndarray, lin: Linearized, R: np.ndarray, c)
 def run_scan(pred: GaussianState, mu_bar: np.ndarray, z: np.ndarray, amp, lin: Linearized, R: np.ndarray, c,
              max_events: int = jipda.MAX_EVENTS):
     pairs = gated(pred, z, lin, R, c)
-    post, assoc = jipda.scan_update(pred, mu_bar, z, amp, lin, R, c, pairs, max_events)
-    return post, assoc, pairs
+    log_a = np.zeros(len(z)) if amp is None else log_amplitude_ratio(amp, c)
+    assoc = jipda.associate(len(z), pairs, log_a, mu_bar, c, max_events)
+    return jipda.update(pred, lin, R, pairs, assoc, c), assoc, pairs
 
 
 def test_one_target_pd1_no_clutter_equals_kalman() -> None:
@@ -241,7 +242,7 @@ def test_equivalent_observation_gives_the_pda_mean() -> None:
 
 def test_derived_rules() -> None:
     rules = jipda.derived_rules(0.9, 0.999)
-    odds = lambda p: p / (1.0 - p)  # noqa: E731
+    odds = lambda p: p / (1.0 - p)
     assert odds(rules.confirm) == pytest.approx(odds(0.1) / 0.01)
     assert odds(rules.delete) == pytest.approx(odds(0.1) * (1.0 - 0.9 * 0.999) ** 3)  # 3 misses: 0.1 % <= 1 % < 2 misses
     low = jipda.derived_rules(0.5, 0.999)  # 7 misses in a row: 0.8 % <= 1 % < 6 misses

@@ -23,8 +23,8 @@ from typing import NamedTuple
 import numpy as np
 
 from fedtrack.fusion_center.mtt.centre import CENTRAL_MISSES, TrackToTrackCentre
-from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt import jipda
+from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.history import ScanHistory
 from fedtrack.local_filters.mtt.local import LocalReport, Resets, SensorTracker, is_duplicate
 from fedtrack.local_filters.mtt.maneuver import predicted_view

@@ -320,15 +320,6 @@ def unclaimed(n_det: int, cols: np.ndarray, assoc: Association) -> np.ndarray:
     return np.clip(1.0 - np.bincount(cols, assoc.joint, minlength=n_det), 0.0, 1.0)
 
 
-def scan_update(pred: GaussianState, mu_bar: np.ndarray, z: np.ndarray, amplitude: np.ndarray | None,
-                lin: Linearized, R: np.ndarray, c: Constants, pairs: Pairs,
-                max_events: int = MAX_EVENTS) -> tuple[GaussianState, Association]:
-    """Associate jointly and update every predicted track with one gated scan (``pairs``)."""
-    log_a = np.zeros(z.shape[0]) if amplitude is None else log_amplitude_ratio(amplitude, c)
-    assoc = associate(z.shape[0], pairs, log_a, mu_bar, c, max_events)
-    return update(pred, lin, R, pairs, assoc, c), assoc
-
-
 # Track management by existence (docs/jipda.md#track-management).
 BIRTH_EXISTENCE = 0.1  # prior probability that a scan's unclaimed detections hold a new target
 FALSE_CONFIRM = 0.01  # alpha: P(a track born on one scan's clutter is ever confirmed), per scan
