@@ -193,7 +193,20 @@ def test_event_table_counts_every_partial_matching() -> None:
             assert used.size == np.unique(used).size
 
 
-def lm_error(rng: np.random.Generator, n: int, n_det: int, runs: int) -> tuple[float, float]:
+def test_k_best_with_every_event_is_exact() -> None:
+    """Murty's k best events, with k the number of events, are all of them: the exact marginals."""
+    rng = np.random.default_rng(8)
+    c = constants(PDAParams(pd=0.9, clutter_density=1e-5, snr=0.0))
+    for n, n_det in [(2, 3), (3, 3), (4, 3), (3, 5)]:
+        _, pairs, mu_bar, log_a = random_cluster(rng, n, n_det, density=0.8)
+        exact = jipda.associate(n_det, pairs, log_a, mu_bar, c, max_events=10**9)
+        kbest = jipda.associate(n_det, pairs, log_a, mu_bar, c, max_events=0, k_best=jipda.event_count(n, n_det))
+        np.testing.assert_allclose(kbest.existence, exact.existence, rtol=1e-12)
+        np.testing.assert_allclose(kbest.beta, exact.beta, rtol=1e-10, atol=1e-14)
+
+
+def approximation_error(rng: np.random.Generator, n: int, n_det: int, runs: int) -> tuple[float, float]:
+    """Mean over random clusters of the largest error in existence, with the default approximation."""
     c = constants(PDAParams(pd=0.9, clutter_density=1e-5, snr=0.0))
     err_mu, err_beta = [], []
     for _ in range(runs):
@@ -207,12 +220,16 @@ def lm_error(rng: np.random.Generator, n: int, n_det: int, runs: int) -> tuple[f
     return float(np.mean(err_mu)), float(np.mean(err_beta))
 
 
-def test_linear_multitarget_error_at_the_limit() -> None:
-    """LM-IPDA against exact enumeration on clusters of the largest enumerated shapes (docs/jipda.md)."""
-    rng = np.random.default_rng(4)
+def test_approximations_error_at_the_limit(monkeypatch: pytest.MonkeyPatch) -> None:
+    """k-best (100 events) and LM-IPDA against exact enumeration on random clusters of the largest
+    enumerated shape, 6 x 5 (docs/jipda.md)."""
     assert jipda.event_count(6, 5) <= jipda.MAX_EVENTS < jipda.event_count(6, 6)
-    mu_err, beta_err = lm_error(rng, 6, 5, 20)
-    assert 1e-3 < mu_err < 0.3 and 1e-3 < beta_err < 0.5  # measured 0.15, 0.24 (docs/jipda.md)
+    k_mu, k_beta = approximation_error(np.random.default_rng(4), 6, 5, 10)
+    monkeypatch.setattr(jipda, "K_BEST_MAX_TRACKS", 0)
+    lm_mu, lm_beta = approximation_error(np.random.default_rng(4), 6, 5, 10)
+    assert 1e-4 < k_mu < 0.05 and 1e-4 < k_beta < 0.1  # measured 0.016, 0.032
+    assert 1e-3 < lm_mu < 0.3 and 1e-3 < lm_beta < 0.5  # measured 0.15, 0.24
+    assert k_mu < lm_mu / 3
 
 
 def test_equivalent_observation_gives_the_pda_mean() -> None:

@@ -20,12 +20,13 @@ For a track that shares no detection these are eqs (4), (5) and (8) exactly (its
 and "took j"): the single-target IPDA-AI. Tracks are split into clusters (connected components of
 the gating graph); a cluster is enumerated exactly when its number of joint events (every partial
 matching of its ``a`` tracks into its ``b`` detections, :func:`event_count`) is at most
-``MAX_EVENTS``, and otherwise approximated by the linear-multitarget rule (LM-IPDA, Musicki & La
-Scala 2008): track ``i`` sees detection ``j`` with the clutter density
-``lambda + sum_{s != i} p_sj P_sj / (1 - P_sj)``, ``p_sj = N_sj A_j / P_G`` the measurement density
-of track ``s`` and ``P_sj = P_D P_G mu_bar_s N_sj A_j / sum_k N_sk A_k`` the probability that ``j``
-is ``s``'s judged by ``s`` alone, and is then updated as a single-target IPDA. docs/jipda.md gives the limit's
-cost and the approximation's measured error.
+``MAX_EVENTS``; a larger one of at most ``K_BEST_MAX_TRACKS`` tracks sums its ``K_BEST`` most
+likely events (Murty, :func:`k_best_cluster`); a larger one still is approximated by the
+linear-multitarget rule (LM-IPDA, Musicki & La Scala 2008): track ``i`` sees detection ``j`` with
+the clutter density ``lambda + sum_{s != i} p_sj P_sj / (1 - P_sj)``, ``p_sj = N_sj A_j / P_G``
+the measurement density of track ``s`` and ``P_sj = P_D P_G mu_bar_s N_sj A_j / sum_k N_sk A_k``
+the probability that ``j`` is ``s``'s judged by ``s`` alone, and is then updated as a
+single-target IPDA. docs/jipda.md gives the limit's cost and the approximations' measured errors.
 
 State update per track: PDA's mixture over "missed" and each gated detection with the spread of
 the means, the detected components in Joseph form (:func:`~fedtrack.local_filters.pda.association.
@@ -35,11 +36,13 @@ Track management by existence: :func:`derived_rules`, :func:`manage`, :func:`bir
 
 from __future__ import annotations
 
+import heapq
 import math
 from functools import cache
 from typing import NamedTuple
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
@@ -68,8 +71,12 @@ from fedtrack.local_filters.pda.association import (
 # Exact enumeration up to this many joint events per cluster: clusters of one shape cost about
 # 0.2 ms per call plus 20-50 ns per event and track (docs/jipda.md), so 5,000 events (6 tracks x 5
 # detections, 5 x 6, 4 x 8, 3 x 15, 2 x 69) cost 0.25-1.1 ms a cluster; 6 x 6 (13,327) 4-6 ms,
-# 7 x 7 (130,922) 60-110 ms. Beyond, LM-IPDA.
+# 7 x 7 (130,922) 60-110 ms. Beyond, the K_BEST most likely events of a cluster of at most
+# K_BEST_MAX_TRACKS tracks (about K_BEST x a assignment problems of a x (a + b)), LM-IPDA for larger.
 MAX_EVENTS = 5000
+K_BEST = 100
+K_BEST_MAX_TRACKS = 12
+FORBIDDEN = 1e12  # cost of an ungated pair or a banned choice in Murty's assignment problems
 MIN_CLUTTER_DENSITY = 1e-300  # lambda = 0 (no clutter): every gated detection is some track's
 
 
@@ -146,6 +153,48 @@ def enumerate_clusters(log_pair: np.ndarray, log_miss: np.ndarray) -> np.ndarray
     return np.asarray((_marginal_map(a, b).T @ w.T).T).reshape(c, a, b + 1)
 
 
+def k_best_cluster(log_pair: np.ndarray, log_miss: np.ndarray, k: int) -> np.ndarray:
+    """Marginals ``W`` (a, b + 1) of one cluster from its ``k`` most likely joint events (Murty's
+    partitioning over ``linear_sum_assignment``), normalized over them: the event sum truncated to
+    its largest terms. The assignment matrix has a private "missed" column per track."""
+    a, b = log_pair.shape
+    cost = np.full((a, b + a), FORBIDDEN)
+    cost[:, :b] = np.where(np.isfinite(log_pair), -log_pair, FORBIDDEN)
+    cost[np.arange(a), b + np.arange(a)] = -log_miss
+
+    def solve(fixed: tuple[tuple[int, int], ...], banned: tuple[tuple[int, int], ...]):
+        m = cost.copy()
+        for i, j in banned:
+            m[i, j] = FORBIDDEN
+        for i, j in fixed:
+            keep = m[i, j]
+            m[i, :], m[:, j] = FORBIDDEN, FORBIDDEN
+            m[i, j] = keep
+        r, col = linear_sum_assignment(m)
+        total = m[r, col].sum()
+        return (total, tuple(col.tolist())) if total < FORBIDDEN / 2 else None
+
+    first = solve((), ())
+    heap = [(first[0], first[1], (), ())]
+    events: list[tuple[float, tuple[int, ...]]] = []
+    while heap and len(events) < k:
+        total, cols, fixed, banned = heapq.heappop(heap)
+        events.append((total, cols))
+        free = [i for i in range(a) if i not in dict(fixed)]
+        for t, i in enumerate(free):
+            child_fixed = fixed + tuple((f, cols[f]) for f in free[:t])
+            child = solve(child_fixed, banned + ((i, cols[i]),))
+            if child is not None:
+                heapq.heappush(heap, (child[0], child[1], child_fixed, banned + ((i, cols[i]),)))
+    totals = np.array([e[0] for e in events])
+    weights = np.exp(-(totals - totals.min()))
+    weights /= weights.sum()
+    W = np.zeros((a, b + 1))
+    for wt, (_, cols) in zip(weights, events):
+        W[np.arange(a), np.minimum(cols, b)] += wt
+    return W
+
+
 def _segment_logsumexp(values: np.ndarray, seg: np.ndarray, n: int) -> np.ndarray:
     """``log sum exp`` of ``values`` per segment id ``seg`` (< n); ``-inf`` for empty segments."""
     top = np.full(n, -np.inf)
@@ -176,10 +225,12 @@ def linear_multitarget(n: int, n_det: int, rows: np.ndarray, cols: np.ndarray, l
 
 
 def associate(n_det: int, pairs: Pairs, log_a: np.ndarray, mu_bar: np.ndarray, c: Constants,
-              max_events: int = MAX_EVENTS) -> Association:
+              max_events: int = MAX_EVENTS, k_best: int = K_BEST) -> Association:
     """Joint association and existence of ``mu_bar.size`` tracks over one scan of ``n_det``
     detections: ``pairs`` gated, ``log_a`` (n_det,) the detections' log amplitude ratios (zeros
-    without amplitudes). Clusters of at most ``max_events`` joint events are enumerated."""
+    without amplitudes). Clusters of at most ``max_events`` joint events are enumerated, larger
+    ones of at most ``K_BEST_MAX_TRACKS`` tracks summed over their ``k_best`` most likely events,
+    the rest approximated by LM-IPDA."""
     n = mu_bar.shape[0]
     rows, cols = pairs.rows, pairs.cols
     log_target = np.log(c.pd) + pairs.log_n + log_a[cols]
@@ -199,15 +250,19 @@ def associate(n_det: int, pairs: Pairs, log_a: np.ndarray, mu_bar: np.ndarray, c
         log_miss = np.log1p(-c.pd * c.pg * mu_bar)
         for (a, b), count in counts.items():
             sel = shared[(n_r[comp[shared]] == a) & (n_c[comp[shared]] == b)]
-            if count > max_events:
-                exact[rows[sel]] = False
+            if count > max_events and a > K_BEST_MAX_TRACKS:
+                exact[rows[sel]] = False  # LM-IPDA's answer stands
                 continue
             comps, k = np.unique(comp[sel], return_inverse=True)
             dense = np.full((comps.size, a, b), -np.inf)
             dense[k, local_r[sel], local_c[sel]] = log_pair[sel]
             track = np.zeros((comps.size, a), dtype=np.intp)
             track[k, local_r[sel]] = rows[sel]
-            W = enumerate_clusters(dense, log_miss[track])
+            if count <= max_events:
+                W = enumerate_clusters(dense, log_miss[track])
+            else:
+                W = np.stack([k_best_cluster(d, log_miss[t], k_best) for d, t in zip(dense, track)])
+                exact[rows[sel]] = False
             w[sel] = W[k, local_r[sel], local_c[sel]]
             w0[track] = W[:, :, b]
     return _posterior(w0, w, rows, mu_bar, c, exact)
@@ -257,9 +312,16 @@ def update(pred: GaussianState, lin: Linearized, R: np.ndarray, pairs: Pairs, as
     return pda_update(pred, g, PDAHypotheses(assoc.beta0, beta, assoc.log_lr), c, joseph=(lin.H, R))
 
 
+# A track reports an observation when it more likely than not made one of the scan's detections
+# (1 - beta_0 >= 1/2), as a hard associator reports the tracks it assigned: a track that merely
+# has clutter in a wide gate keeps no central track alive at a track-to-track centre.
+REPORT_DETECTED = 0.5
+
+
 def equivalent_observation(pred: GaussianState, lin: Linearized, R: np.ndarray, pairs: Pairs,
                            assoc: Association) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """What a soft association reports to a fusion centre: for each track with ``beta_0 < 1``, the
+    """What a soft association reports to a fusion centre: for each track with
+    ``1 - beta_0 >= REPORT_DETECTED``, the
     observation ``z ~ N(H x, R_eq)`` whose Kalman update from the prediction gives PDA's mean:
     ``z = H x_bar + nu_c / (1 - beta_0)`` (``nu_c = sum_j beta_j nu_j``),
     ``R_eq = (R + beta_0 H P_bar H') / (1 - beta_0)`` (so ``H P_bar H' + R_eq = S / (1 - beta_0)``).
@@ -269,7 +331,7 @@ def equivalent_observation(pred: GaussianState, lin: Linearized, R: np.ndarray, 
     nu_c = np.zeros((n, m))
     np.add.at(nu_c, pairs.rows, assoc.beta[:, None] * pairs.nu)
     hit = 1.0 - assoc.beta0
-    rep = np.flatnonzero(hit > 0.0)
+    rep = np.flatnonzero(hit >= REPORT_DETECTED)
     H = np.asarray(lin.H)[rep]
     HPH = H @ pred.P[rep] @ transpose(H)
     f = hit[rep, None, None]
