@@ -59,7 +59,7 @@ def test_own_out_of_sequence_scans_equal_time_sorted_delivery(tmp_path: Path, al
     (``picture_delay`` covers the two periods of lateness)."""
     arrived, in_time = scans(seed=7)
     assert own_scans_out_of_sequence(arrived, "a") >= 5
-    cfg = dict(max_lag=3.0, picture_delay=2.5, pd=0.95, clutter_density=1e-9)
+    cfg = {"max_lag": 3.0, "picture_delay": 2.5, "pd": 0.95, "clutter_density": 1e-9}
     got = replay(tmp_path, "arrived", arrived, algorithm, **cfg)
     assert "0 scans late" in capsys.readouterr().err
     want = replay(tmp_path, "sorted", in_time, algorithm, **cfg)
@@ -111,7 +111,7 @@ def test_live_local_trackers_fuse_own_out_of_sequence_scans_as_the_replay(tmp_pa
     from fedtrack.zsession import SessionOptions
 
     arrived, _ = scans(seed=7, duration=25.0)
-    mtt = dict(max_lag=3.0, picture_delay=2.5, pd=0.95, clutter_density=1e-9)
+    mtt = {"max_lag": 3.0, "picture_delay": 2.5, "pd": 0.95, "clutter_density": 1e-9}
     keys, opts = Keys("oos"), SessionOptions(connect=("tcp/127.0.0.1:1",))
     federated = algorithm == "mtt-federated"
     published: list[object] = []

@@ -23,6 +23,10 @@ from collections.abc import Iterator
 
 import numpy as np
 
+from fedtrack.local_filters.linear.kalman import GaussianState, update
+from fedtrack.local_filters.linear.tracking import rounded_interval
+from fedtrack.local_filters.mtt.models import predict_batch
+from fedtrack.local_filters.vdie.estimation import VdieParams
 from fedtrack.local_filters.vdie.input_bank import (
     InputBank,
     InputDetection,
@@ -30,10 +34,6 @@ from fedtrack.local_filters.vdie.input_bank import (
     new_banks,
     no_detection,
 )
-from fedtrack.local_filters.linear.kalman import GaussianState, update
-from fedtrack.local_filters.linear.tracking import rounded_interval
-from fedtrack.local_filters.mtt.models import predict_batch
-from fedtrack.local_filters.vdie.estimation import VdieParams
 
 # one step's result beside the posterior: the maneuver detector's banks and detection, if any
 DetectorStep = tuple[InputBank, InputDetection] | None

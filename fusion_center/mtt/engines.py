@@ -13,7 +13,6 @@
 
 from __future__ import annotations
 
-import bisect
 import dataclasses
 import time
 from dataclasses import dataclass, field
