@@ -140,5 +140,5 @@ def test_live_local_trackers_fuse_own_out_of_sequence_scans_as_the_replay(tmp_pa
     assert [p.t for p in live] == [p["t"] for p in want]
     for got, w in zip(live, want):
         assert list(got.ids) == [tr["id"] for tr in w["tracks"]]
-        np.testing.assert_allclose(np.asarray(got.x).reshape(-1, 4), np.array([tr["x"] for tr in w["tracks"]]).reshape(-1, 4),
-                                   rtol=1e-12, atol=1e-9)
+        want_x = np.array([tr["x"] for tr in w["tracks"]]).reshape(-1, 4)
+        np.testing.assert_allclose(np.asarray(got.x).reshape(-1, 4), want_x, rtol=1e-12, atol=1e-9)

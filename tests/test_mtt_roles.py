@@ -37,7 +37,8 @@ def fingerprint(path: Path) -> list:
             x, P = np.array(track["x"]), np.array(track["P"])
             w = np.arange(1.0, x.size + 1.0)
             man = track.get("maneuver")
-            m = 0.0 if man is None else man["onset"] + 2.0 * man["accel"][0] + 3.0 * man["accel"][1] + 4.0 * man["statistic"]
+            m = 0.0 if man is None else (man["onset"] + 2.0 * man["accel"][0] + 3.0 * man["accel"][1]
+                                         + 4.0 * man["statistic"])
             rest = json.dumps([track["status"], track["sensors"], track["model"], man is None])
             rows.append([track["id"], float(x @ w), float(w @ P @ w), m, hashlib.sha1(rest.encode()).hexdigest()[:8]])
         out.append([picture["t"], rows])
