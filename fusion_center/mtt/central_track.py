@@ -163,6 +163,10 @@ class CentralTracks:
     def _pos(self, slots: np.ndarray, j: np.ndarray) -> np.ndarray:
         return (self.head[slots] + j) % self.depth
 
+    def newest_t(self, slots: np.ndarray) -> np.ndarray:
+        """The time of each slot's newest observation."""
+        return self.t[slots, self._pos(slots, self.count[slots] - 1)]
+
     def latest(self, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Time, state and covariance after each slot's newest observation."""
         p = self._pos(slots, self.count[slots] - 1)
@@ -252,7 +256,7 @@ class CentralTracks:
             self.count[full] -= 1
         n = slots.shape[0]
         x_out, P_out = np.zeros((n, self.dim)), np.zeros((n, self.dim, self.dim))
-        t_new = self.latest(slots)[0]
+        t_new = self.newest_t(slots)
         oldest = self.t[slots, self.head[slots]]
         ok = (t >= oldest) & (t >= t_new - self.max_lag)
         ahead = ok & (t >= t_new)

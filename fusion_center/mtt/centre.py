@@ -317,12 +317,13 @@ class TrackToTrackCentre:
         reprocessed = self.tracks.reprocessed
         while pending.size:
             now = pending[np.sort(np.unique(slots[pending], return_index=True)[1])]
-            too_old = t < self.tracks.latest(slots[now])[0] - self.cfg.max_lag
+            newest = self.tracks.newest_t(slots[now])  # before the fusion
             done, x_now, P_now = self.tracks.fuse(slots[now], t, H_all[now], report.obs_R[now], report.obs_z[now])
             ok[now], X[now], P[now] = done, x_now, P_now
             self.counters.fused += int(done.sum())
-            self.counters.late += int(np.count_nonzero(~done & too_old))
-            self.counters.before_start += int(np.count_nonzero(~done & ~too_old))
+            late = int(np.count_nonzero(t < newest[~done] - self.cfg.max_lag))
+            self.counters.late += late
+            self.counters.before_start += int(done.size - done.sum()) - late
             pending = pending[~np.isin(pending, now, assume_unique=True)] if now.size < pending.size else now[:0]
         self.counters.reprocessed += self.tracks.reprocessed - reprocessed
         return ok, X, P
