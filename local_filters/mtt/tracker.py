@@ -247,9 +247,9 @@ def gate_scan(pred: GaussianState, scan: SensorScan, params: TrackParams) -> Gat
 def associate(state: TrackerState, gating: Gating | None, scan: SensorScan, params: TrackParams,
               dt: float = 0.0) -> Association:
     """Role 3: the associator's answer (nothing to associate without gated pairs, unless the
-    associator keeps existence, which a scan without pairs still lowers)."""
+    associator keeps the existence of tracks, which a scan without pairs still lowers)."""
     n, n_det = state.tracks.size, scan.z.shape[0]
-    if gating is None and params.initial_existence is None:
+    if gating is None and (params.initial_existence is None or n == 0):
         return Association(np.zeros(0, np.int64), np.zeros(0), np.zeros(n_det, bool), state.tracks.existence,
                            state.memory)
     none = np.zeros(0, np.int64)
@@ -376,6 +376,9 @@ def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
     tracks = state.tracks
     if state.t is not None and scan.t < state.t:
         raise ValueError(f"scan at t = {scan.t} is before the tracker's time {state.t}")
+    if params.initial_existence is not None and tracks.existence is None:  # an empty set keeping existence
+        tracks = tracks._replace(existence=np.zeros(tracks.size))
+        state = state._replace(tracks=tracks)
     dt = 0.0 if state.t is None else scan.t - state.t
     pred = predict(tracks, dt, params, q_scale)
     gating = gate_scan(pred, scan, params)
