@@ -6,6 +6,12 @@ the same point at the same time (crossings); some targets are born late or die e
 Radar scenarios give every target a constant altitude. Truth is integrated on a 0.05 s grid
 (exact per step for a constant turn rate).
 
+Formations (``--formation G``): targets fly in groups of ``G``, each group one of the above
+trajectories (its crossings, turns, birth and death) with its members side by side across the
+track, neighbours between one and two noise sigmas of the coarsest possible position sensor
+apart (``POS_SD_MAX`` to ``2 POS_SD_MAX``: 20-40 m). ``--scenario dense`` is issue 25's dense
+scenario: groups of three crossing other groups, P_D 0.8, 50 false detections per scan, 120 s.
+
 Sensors (``SPEC`` = comma-separated ``kind:period``, kind ``pos`` or ``radar``): each has its
 own period and a random phase; every target is detected with ``pd``; ``clutter`` false
 detections per scan on average (Poisson), uniform over the region (radar: over its range,
@@ -34,6 +40,7 @@ from fedtrack.jsonl import InputError
 from fedtrack.local_filters.radar.measurement import polar_from_cartesian, wrap_angle
 
 DT = 0.05
+POS_SD_MIN, POS_SD_MAX = 10.0, 20.0  # a position sensor's noise std per axis (m)
 
 
 @dataclass(frozen=True)
@@ -53,6 +60,14 @@ class Scenario:
     late: float = 0.2
     base_delay: float = 0.05
     q: float = 1.0
+    formation: int = 1  # targets per group
+
+
+# ``--scenario`` presets: options the command line did not set
+PRESETS: dict[str, dict[str, float]] = {
+    "default": {},
+    "dense": {"pd": 0.8, "clutter": 50.0, "duration": 120.0, "formation": 3},
+}
 
 
 def parse_spec(spec: str) -> list[SensorSpec]:
@@ -73,7 +88,7 @@ def parse_spec(spec: str) -> list[SensorSpec]:
 def simulate_truth(sc: Scenario, three_d: bool, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """States ``(steps, N, 6)`` ``[x, vx, y, vy, z, vz]`` on the ``DT`` grid and an alive mask ``(steps, N)``."""
     steps = int(round(sc.duration / DT)) + 1
-    n = sc.targets
+    n = -(-sc.targets // sc.formation)  # one trajectory per group
     speed = rng.uniform(8.0, 30.0, n)
     heading = rng.uniform(-np.pi, np.pi, n)
     pos = rng.uniform(-0.7 * sc.region, 0.7 * sc.region, (n, 2))
@@ -111,7 +126,24 @@ def simulate_truth(sc: Scenario, three_d: bool, rng: np.random.Generator) -> tup
     dies = np.where(rng.uniform(size=n) < 0.2, rng.uniform(0.5 * sc.duration, sc.duration, n), np.inf)
     t = np.arange(steps) * DT
     alive = (t[:, None] >= born[None]) & (t[:, None] <= dies[None])
-    return x, alive
+    if sc.formation == 1:
+        return x, alive
+    return formation(x, alive, sc.targets, sc.formation, rng)
+
+
+def formation(x: np.ndarray, alive: np.ndarray, targets: int, size: int, rng: np.random.Generator
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Groups of ``size`` from one trajectory each: member ``r`` of a group is its trajectory moved
+    ``r s`` across the initial heading (``s`` uniform in ``[POS_SD_MAX, 2 POS_SD_MAX]`` per group);
+    the same velocities and turns, so the formation holds."""
+    member = np.arange(targets)
+    group, rank = member // size, member % size
+    heading = np.arctan2(x[0, :, 3], x[0, :, 1])
+    spacing = rng.uniform(POS_SD_MAX, 2 * POS_SD_MAX, x.shape[1])
+    offset = np.zeros((targets, 6))
+    offset[:, 0] = -np.sin(heading[group]) * spacing[group] * rank
+    offset[:, 2] = np.cos(heading[group]) * spacing[group] * rank
+    return x[:, group] + offset, alive[:, group]
 
 
 def sensor_lines(spec: SensorSpec, sc: Scenario, x: np.ndarray, alive: np.ndarray, three_d: bool,
@@ -122,7 +154,7 @@ def sensor_lines(spec: SensorSpec, sc: Scenario, x: np.ndarray, alive: np.ndarra
     out: list[tuple[float, dict[str, Any]]] = []
     last_arrival = -np.inf
     if spec.kind == "pos":
-        sd = rng.uniform(10.0, 20.0)
+        sd = rng.uniform(POS_SD_MIN, POS_SD_MAX)
         R = np.array([[sd**2, 0.3 * sd**2], [0.3 * sd**2, sd**2]])
         where = None
     else:
@@ -208,21 +240,32 @@ def simulate(sc: Scenario, specs: list[SensorSpec], seed: int, out: Path) -> dic
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="fedtrack simulate multitarget",
                                      description="simulate a multi-target scenario for replay and evaluate")
+    parser.add_argument("--scenario", choices=sorted(PRESETS), default="default",
+                        help="default: the options' defaults; dense: issue 25's dense scenario, groups of three "
+                             "targets 20-40 m apart (within 2 sigma of the coarsest position sensor) crossing other "
+                             "groups, --pd 0.8 --clutter 50 --duration 120 --formation 3 (options given override)")
     parser.add_argument("--targets", type=int, default=Scenario.targets)
     parser.add_argument("--sensors", default="pos:1.0,pos:0.7,pos:1.3",
                         help="comma-separated KIND:PERIOD, KIND pos or radar (default pos:1.0,pos:0.7,pos:1.3)")
     parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--duration", type=float, default=Scenario.duration, help="seconds (default 300)")
-    parser.add_argument("--pd", type=float, default=Scenario.pd)
-    parser.add_argument("--clutter", type=float, default=Scenario.clutter, help="false detections per scan")
+    parser.add_argument("--duration", type=float, help="seconds (default 300)")
+    parser.add_argument("--pd", type=float, help=f"detection probability (default {Scenario.pd})")
+    parser.add_argument("--clutter", type=float, help=f"false detections per scan (default {Scenario.clutter:g})")
+    parser.add_argument("--formation", type=int, help="targets per group flying side by side (default 1)")
     parser.add_argument("--late", type=float, default=Scenario.late, help="fraction of scans delivered late")
     parser.add_argument("--out", required=True, type=Path)
     args = parser.parse_args(argv)
-    if args.targets < 1 or not args.duration > 0 or not 0 < args.pd <= 1 or args.clutter < 0 or not 0 <= args.late < 1:
-        parser.error("need --targets >= 1, --duration > 0, 0 < --pd <= 1, --clutter >= 0, 0 <= --late < 1")
+    for key in ("duration", "pd", "clutter", "formation"):
+        if getattr(args, key) is None:
+            setattr(args, key, PRESETS[args.scenario].get(key, getattr(Scenario, key)))
+    if (args.targets < 1 or not args.duration > 0 or not 0 < args.pd <= 1 or args.clutter < 0
+            or not 0 <= args.late < 1 or args.formation < 1):
+        parser.error("need --targets >= 1, --duration > 0, 0 < --pd <= 1, --clutter >= 0, 0 <= --late < 1, "
+                     "--formation >= 1")
     if args.out.exists() and not args.out.is_dir():
         raise InputError(f"{args.out}: exists and is not a folder")
-    sc = Scenario(targets=args.targets, duration=args.duration, pd=args.pd, clutter=args.clutter, late=args.late)
+    sc = Scenario(targets=args.targets, duration=args.duration, pd=args.pd, clutter=args.clutter, late=args.late,
+                  formation=int(args.formation))
     info = simulate(sc, parse_spec(args.sensors), args.seed, args.out)
     print(f"wrote {args.out}/measurements.jsonl ({info['scans']} scans, {info['out_of_sequence']} out of "
           f"sequence), truth.jsonl ({args.targets} targets), config.toml; sensors: {', '.join(info['sensors'])}")

@@ -320,8 +320,8 @@ REPORT_DETECTED = 0.5
 
 def equivalent_observation(pred: GaussianState, lin: Linearized, R: np.ndarray, pairs: Pairs,
                            assoc: Association) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """What a soft association reports to a fusion centre: for each track with
-    ``1 - beta_0 >= REPORT_DETECTED``, the
+    """What a soft association reports to a fusion centre: for each track that more likely than
+    not exists and made one of the scan's detections, ``mu (1 - beta_0) >= REPORT_DETECTED``, the
     observation ``z ~ N(H x, R_eq)`` whose Kalman update from the prediction gives PDA's mean:
     ``z = H x_bar + nu_c / (1 - beta_0)`` (``nu_c = sum_j beta_j nu_j``),
     ``R_eq = (R + beta_0 H P_bar H') / (1 - beta_0)`` (so ``H P_bar H' + R_eq = S / (1 - beta_0)``).
@@ -331,7 +331,7 @@ def equivalent_observation(pred: GaussianState, lin: Linearized, R: np.ndarray, 
     nu_c = np.zeros((n, m))
     np.add.at(nu_c, pairs.rows, assoc.beta[:, None] * pairs.nu)
     hit = 1.0 - assoc.beta0
-    rep = np.flatnonzero(hit >= REPORT_DETECTED)
+    rep = np.flatnonzero(assoc.existence * hit >= REPORT_DETECTED)
     H = np.asarray(lin.H)[rep]
     HPH = H @ pred.P[rep] @ transpose(H)
     f = hit[rep, None, None]
