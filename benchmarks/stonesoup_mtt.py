@@ -5,13 +5,16 @@ Our configuration of it, as close to fedtrack's ``mtt`` trackers as Stone Soup a
 
 * motion: ``ConstantVelocity(noise_diff_coeff = [mtt] q)`` per axis (the same continuous
   white-noise acceleration model as fedtrack's default ``noise_model``);
-* measurement: each line's own ``R`` through a ``LinearGaussian`` position model (position
-  sensors only; a radar input is refused);
-* ``KalmanPredictor`` / ``KalmanUpdater``; ``DistanceHypothesiser`` with the Mahalanobis
-  distance gated at the square root of the chi-square(2) quantile of ``gate_probability``;
-  ``GNNWith2DAssignment``;
+* measurement: each line's own ``R`` through a ``LinearGaussian`` position model, or for a radar
+  scan ``CartesianToElevationBearingRange`` about its ``sensor_position`` (our ``[r, az, el]``,
+  azimuth from x, is its ``[elevation, bearing, range]`` reordered, ``R`` with it); with a radar in
+  the input the state is 3-D (a third ``ConstantVelocity`` for z);
+* ``KalmanPredictor`` / ``KalmanUpdater`` (``ExtendedKalmanUpdater`` with a radar, the same on the
+  linear models); ``DistanceHypothesiser`` with the Mahalanobis distance gated at the square root
+  of the chi-square(m) quantile of ``gate_probability`` (m = 2, or 3 with a radar: one gate serves
+  every sensor); ``GNNWith2DAssignment``;
 * ``MultiMeasurementInitiator`` with ``min_points = confirm_hits`` from a prior with zero
-  velocity and ``init_velocity_std``; a tentative track is dropped after
+  velocity and ``init_velocity_std`` (and z = 0 with ``init_z_std``); a tentative track is dropped after
   ``confirm_window - confirm_hits + 1`` scans without an update, a confirmed one after
   ``delete_misses`` (``UpdateTimeStepsDeleter``: fedtrack's rules, counted in scans);
 * ``"gnn"``: ``MultiTargetTracker``; ``"jpda"``: ``JPDA`` over ``PDAHypothesiser`` (``[mtt]``
@@ -50,8 +53,6 @@ def read_scans(measurements: Path, sensors: set[str] | None) -> list[dict[str, A
     with measurements.open() as fh:
         for line in fh:
             row = json.loads(line)
-            if "sensor_position" in row:
-                raise ValueError(f"{measurements}: a radar scan; the Stone Soup anchor takes position sensors only")
             if sensors is None or row["sensor"] in sensors:
                 scans.append(row)
     scans.sort(key=lambda r: r["t"])
@@ -69,21 +70,26 @@ def stonesoup_tracker(scans: list[dict[str, Any]], mtt: Any, out: Path, associat
     from stonesoup.initiator.simple import MultiMeasurementInitiator
     from stonesoup.measures import Mahalanobis
     from stonesoup.models.measurement.linear import LinearGaussian
+    from stonesoup.models.measurement.nonlinear import CartesianToElevationBearingRange
     from stonesoup.models.transition.linear import CombinedLinearGaussianTransitionModel, ConstantVelocity
     from stonesoup.predictor.kalman import KalmanPredictor
     from stonesoup.tracker.simple import MultiTargetMixtureTracker, MultiTargetTracker
+    from stonesoup.types.angle import Bearing, Elevation
+    from stonesoup.types.array import StateVector
     from stonesoup.types.detection import Detection
     from stonesoup.types.state import GaussianState
-    from stonesoup.updater.kalman import KalmanUpdater
+    from stonesoup.updater.kalman import ExtendedKalmanUpdater, KalmanUpdater
 
-    transition = CombinedLinearGaussianTransitionModel([ConstantVelocity(mtt.q), ConstantVelocity(mtt.q)])
-    default_model = LinearGaussian(ndim_state=4, mapping=(0, 2), noise_covar=np.eye(2))
+    radar = any("sensor_position" in row for row in scans)
+    dim = 6 if radar else 4
+    transition = CombinedLinearGaussianTransitionModel([ConstantVelocity(mtt.q)] * (dim // 2))
+    default_model = LinearGaussian(ndim_state=dim, mapping=(0, 2), noise_covar=np.eye(2))
     predictor = KalmanPredictor(transition)
-    updater = KalmanUpdater(default_model)
-    gate = float(np.sqrt(chdtri(2, 1.0 - mtt.gate_probability)))
+    updater = (ExtendedKalmanUpdater if radar else KalmanUpdater)(default_model)
+    gate = float(np.sqrt(chdtri(3 if radar else 2, 1.0 - mtt.gate_probability)))
     gnn = GNNWith2DAssignment(DistanceHypothesiser(predictor, updater, Mahalanobis(), missed_distance=gate))
     v2 = mtt.init_velocity_std**2
-    prior = GaussianState(np.zeros((4, 1)), np.diag([1.0, v2, 1.0, v2]))
+    prior = GaussianState(np.zeros((dim, 1)), np.diag([1.0, v2, 1.0, v2, mtt.init_z_std**2, v2][:dim]))
     initiator = MultiMeasurementInitiator(
         prior, UpdateTimeStepsDeleter(mtt.confirm_window - mtt.confirm_hits + 1), gnn, updater,
         min_points=mtt.confirm_hits)
@@ -96,7 +102,7 @@ def stonesoup_tracker(scans: list[dict[str, Any]], mtt: Any, out: Path, associat
         tracker = MultiTargetMixtureTracker(initiator, deleter, None, jpda, updater)
     else:
         raise ValueError(f"association {association!r}: gnn or jpda")
-    models: dict[str, LinearGaussian] = {}
+    models: dict[str, Any] = {}
     ids: dict[Any, int] = {}
     pictures = 0
 
@@ -105,16 +111,25 @@ def stonesoup_tracker(scans: list[dict[str, Any]], mtt: Any, out: Path, associat
         for track in tracker.tracks:
             state = predictor.predict(track.state, timestamp=_stamp(T)) if track.timestamp < _stamp(T) else track.state
             x, P = np.asarray(state.state_vector, float).ravel(), np.asarray(state.covar, float)
-            rows.append({"id": ids.setdefault(track, len(ids)), "pos": [x[0], x[2]], "vel": [x[1], x[3]],
+            rows.append({"id": ids.setdefault(track, len(ids)), "pos": x[0::2].tolist(), "vel": x[1::2].tolist(),
                          "x": x.tolist(), "P": P.tolist(), "status": "confirmed", "sensors": []})
         return {"t": T, "tracks": sorted(rows, key=lambda r: r["id"])}
 
     def scan_detections(row: dict[str, Any]) -> set[Any]:
-        key = json.dumps(row["R"])
-        model = models.setdefault(key, LinearGaussian(ndim_state=4, mapping=(0, 2), noise_covar=np.asarray(row["R"])))
+        where = row.get("sensor_position")
+        key = json.dumps([row["R"], where])
         when = _stamp(row["t"])
-        return {Detection(np.asarray(d["z"], float).reshape(2, 1), timestamp=when, measurement_model=model)
-                for d in row["detections"]}
+        if where is None:
+            model = models.setdefault(key, LinearGaussian(ndim_state=dim, mapping=(0, 2),
+                                                          noise_covar=np.asarray(row["R"])))
+            return {Detection(np.asarray(d["z"], float).reshape(2, 1), timestamp=when, measurement_model=model)
+                    for d in row["detections"]}
+        order = [2, 1, 0]  # our [r, az, el] -> Stone Soup's [elevation, bearing, range]
+        model = models.setdefault(key, CartesianToElevationBearingRange(
+            ndim_state=6, mapping=(0, 2, 4), noise_covar=np.asarray(row["R"])[np.ix_(order, order)],
+            translation_offset=StateVector(where)))
+        return {Detection(StateVector([Elevation(d["z"][2]), Bearing(d["z"][1]), d["z"][0]]), timestamp=when,
+                          measurement_model=model) for d in row["detections"]}
 
     def times() -> Iterator[float]:
         T = np.ceil(scans[0]["t"] / mtt.period) * mtt.period if scans else 0.0

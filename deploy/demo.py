@@ -7,6 +7,11 @@ output directory receives ``measurements.jsonl``, ``tracks.jsonl``, ``truth.json
 --algorithm fvdie --config DIR/config.toml --measurements DIR/measurements.jsonl``
 reproduces ``tracks.jsonl``), ``tracks.png`` and the services' logs under ``logs/``.
 
+``--scenario traffic [--source FILE]``: the same live deployment on recorded air traffic (600 s of
+the committed Paris extract at 10x real time, two radars and a position sensor, docs/geodetic.md);
+``tracks.png`` is then a longitude / latitude map, ``gospa.png`` GOSPA over time, and
+``tracks.geojson`` the tracks and truth as GeoJSON.
+
 ``--scenario multitarget``: the live multi-target deployment of :mod:`fedtrack.deploy.multitarget`
 instead (20 targets, three position sensors with periods 1.0, 0.7 and 1.3 s, clutter, 60 s of
 scenario at 5x real time); ``fedtrack replay --algorithm mtt-federated --config DIR/config.toml
@@ -22,22 +27,31 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from fedtrack.config import to_toml
+import numpy as np
+
+from fedtrack.config import load_toml, parse_dataclass, to_toml
 from fedtrack.deploy.launcher import (
     LaunchError,
     ServiceFailed,
     run_deployment,
 )
-from fedtrack.deploy.multitarget import finish_multitarget
+from fedtrack.deploy.multitarget import SCENARIO_DIR, finish_multitarget, prepare
 from fedtrack.deploy.report import finish
 from fedtrack.deploy.settings import MultitargetSettings, Settings
 from fedtrack.deployment import MODES, DeploymentConfig, SensorConfig
+from fedtrack.geodetic import FrameConfig
+from fedtrack.jsonl import InputError, output_folder
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.sensors.multitarget import Scenario, clutter_density, parse_spec
 from fedtrack.sensors.scenarios import DEFAULT_R
+from fedtrack.sensors.traffic import read_recording
 
 MULTITARGET_SPEED = 5.0  # the live multi-target demo runs at 5x real time
+# the live recorded-traffic demo: 600 s of the committed Paris extract at 10x real time (docs/geodetic.md)
+TRAFFIC_EXTRACT = Path(__file__).resolve().parents[1] / "tests" / "data" / "traffic_paris.csv.gz"
+TRAFFIC_SENSORS = "radar:4@49.2/2.0/100,radar:5@48.6/2.9/100,pos:2"
+TRAFFIC_SPEED, TRAFFIC_DURATION, TRAFFIC_BOX, TRAFFIC_START = 10.0, 600.0, 150.0, 60.0
 
 
 def free_port() -> int:
@@ -72,6 +86,32 @@ def multitarget_settings(mode: str, seed: int, port: int, out: Path) -> Settings
         multitarget=mt)
 
 
+def traffic_settings(source: Path | None, mode: str, seed: int, port: int, out: Path) -> Settings:
+    """A live deployment on recorded air traffic: without ``source``, the committed Paris extract with
+    two radars and a position sensor (docs/geodetic.md); with it, the recording's median position as
+    the origin and radars on the box's edge. The tracker keys are the ones ``simulate traffic`` derives,
+    simulated here first (the launch simulates the same again into ``OUT/scenario``)."""
+    if source is None:
+        source, origin, sensors = TRAFFIC_EXTRACT, (48.86, 2.40, 0.0), TRAFFIC_SENSORS
+        if not source.is_file():
+            raise InputError(f"{source}: the committed extract is not here (a source checkout has it under "
+                             "tests/data/); give --source FILE")
+    else:
+        rec = read_recording(source)
+        origin = (float(np.median(rec.lla[:, 0])), float(np.median(rec.lla[:, 1])), 0.0)
+        sensors = "radar:4,radar:5,pos:2"
+    mt = MultitargetSettings(algorithm=f"mtt-{mode}", sensors=sensors, duration=TRAFFIC_DURATION, source=str(source),
+                             origin=origin, box=TRAFFIC_BOX, start=TRAFFIC_START)
+    draft = Settings(deployment=DeploymentConfig(seed=seed), multitarget=mt)
+    prepare(draft, out)
+    table = load_toml(out / SCENARIO_DIR / "config.toml")
+    return Settings(
+        deployment=DeploymentConfig(name="demo", mode=mode, seed=seed, pacing="realtime", speed=TRAFFIC_SPEED,
+                                    router_listen=f"tcp/127.0.0.1:{port}", out=str(out)),
+        mtt=parse_dataclass(MttConfig, table["mtt"], "mtt"), multitarget=mt,
+        frame=parse_dataclass(FrameConfig, table["frame"], "frame"))
+
+
 def settings_table(settings: Settings) -> dict[str, Any]:
     """The effective configuration as a TOML-ready dict (None values left out)."""
     def clean(obj: Any) -> Any:
@@ -89,20 +129,29 @@ def write_config(settings: Settings, path: Path) -> None:
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="fedtrack demo", description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("fedtrack-out"), help="output directory")
+    parser.add_argument("--out", type=Path, default=Path("fedtrack-out"),
+                        help="output folder (created if missing; its own folder must exist; default: %(default)s)")
     parser.add_argument("--sensors", type=int, default=2, help="number of sensors (default 2)")
-    parser.add_argument("--scenario", choices=("1", "2", "multitarget"), default="1",
-                        help="paper 004 scenario 1 or 2, or the live multi-target deployment (default 1)")
-    parser.add_argument("--mode", choices=MODES, default="federated")
-    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--scenario", choices=("1", "2", "multitarget", "traffic"), default="1",
+                        help="paper 004 scenario 1 or 2, the live multi-target deployment, or the live deployment "
+                             "on recorded air traffic (default: %(default)s)")
+    parser.add_argument("--source", type=Path, help="traffic: a recording (simulate traffic's input; default: the "
+                        "committed Paris extract)")
+    parser.add_argument("--mode", choices=MODES, default="federated",
+                        help="federated (FVDIE, reset feedback) or decentralized (DVDIE; default: %(default)s)")
+    parser.add_argument("--seed", type=int, default=1, help="seed of truth and noise (default: %(default)s)")
     parser.add_argument("--port", type=int, help="router port on 127.0.0.1 (default: a free one)")
     args = parser.parse_args(argv)
     if not 1 <= args.sensors <= 32:
         parser.error("--sensors must be between 1 and 32")
-    out = args.out.resolve()
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_folder(args.out).resolve()
     port = args.port or free_port()
-    if args.scenario == "multitarget":
+    if args.source is not None and args.scenario != "traffic":
+        parser.error("--source applies to --scenario traffic only")
+    if args.scenario == "traffic":
+        settings = traffic_settings(args.source, args.mode, args.seed, port, out)
+        what = f"recorded traffic from {settings.multitarget.source}, sensors {settings.multitarget.sensors}"  # type: ignore[union-attr]
+    elif args.scenario == "multitarget":
         settings = multitarget_settings(args.mode, args.seed, port, out)
         what = f"multitarget, {settings.multitarget.targets} targets, sensors {settings.multitarget.sensors}"  # type: ignore[union-attr]
     else:

@@ -45,11 +45,13 @@ from fedtrack.deploy.report import LaunchReport, finish
 from fedtrack.deploy.security import LAUNCHER, identity, write_configs
 from fedtrack.deploy.settings import Settings, check_launchable, load_settings
 from fedtrack.deployment import listen_address, port_in_use
+from fedtrack.jsonl import output_folder
 from fedtrack.keys import Keys
 from fedtrack.wire import FusedTrack, Health, Measurement, TrackPicture, WireError, decode
 from fedtrack.zsession import SessionOptions, close_session, open_session, wait_alive
 
 STOP_GRACE_S = 5.0
+RECORDER_GRACE_S = 20.0  # the recorder exports the run's files when it stops: 9 s for 557 pictures at load 20
 PR_SET_PDEATHSIG = 1
 ESSENTIAL_ROLES = ("router", "fusion-center", "recorder")
 MAX_RESTARTS = 3
@@ -317,7 +319,8 @@ class Launcher:
         for group in stages:
             for sp in group:
                 sp.proc.send_signal(signal.SIGTERM)
-            deadline = time.monotonic() + STOP_GRACE_S
+            deadline = time.monotonic() + (RECORDER_GRACE_S if any(sp.role == "recorder" for sp in group)
+                                           else STOP_GRACE_S)
             for sp in group:
                 try:
                     sp.proc.wait(timeout=max(deadline - time.monotonic(), 0.05))
@@ -528,7 +531,8 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
     settings = load_settings(args.config)
     check_launchable(settings, args.config)
-    out = args.out or Path(settings.deployment.out)
+    # --out follows every command's output rule; [deployment] out (fedtrack-out/<name>) is made as it is
+    out = output_folder(args.out) if args.out else Path(settings.deployment.out)
     code = None
     try:
         report = run_deployment(settings, args.config.resolve(), out)

@@ -25,19 +25,29 @@ from typing import Any
 import numpy as np
 
 from fedtrack.config import ConfigError, in_file
-from fedtrack.jsonl import InputError
 from fedtrack.deploy.report import LaunchReport
 from fedtrack.deploy.settings import MultitargetSettings, Settings
+from fedtrack.fusion_center.mtt.earthmap import plot_map
 from fedtrack.fusion_center.mtt.evaluation import evaluate, plot
 from fedtrack.fusion_center.mtt.membership import membership
 from fedtrack.fusion_center.mtt.replay import read_scans, state_dim
-from fedtrack.sensors.multitarget import Scenario, parse_spec, simulate
+from fedtrack.geodetic import Frame
+from fedtrack.geojson import feature_collection
+from fedtrack.jsonl import InputError
+from fedtrack.sensors.multitarget import Scenario, SensorSpec, parse_spec, simulate
+from fedtrack.sensors.traffic import parse_kinds, read_recording
+from fedtrack.sensors.traffic import simulate as simulate_traffic
 
 SCENARIO_DIR = "scenario"
 
 
+def sensor_specs(mt: MultitargetSettings) -> list[SensorSpec]:
+    """The scenario's sensors (a recorded-traffic scenario's may have sites and ADS-B receivers)."""
+    return parse_kinds(mt.sensors) if mt.source else parse_spec(mt.sensors)
+
+
 def sensor_ids(mt: MultitargetSettings) -> list[str]:
-    return [s.id for s in parse_spec(mt.sensors)]
+    return [s.id for s in sensor_specs(mt)]
 
 
 def check_multitarget(settings: Settings, path: Path) -> None:
@@ -67,8 +77,13 @@ def prepare(settings: Settings, out: Path) -> Path:
     """Simulate the scenario into ``out/scenario``; returns its measurements file."""
     mt = settings.multitarget
     assert mt is not None
-    scenario = Scenario(targets=mt.targets, duration=mt.duration, pd=mt.pd, clutter=mt.clutter, late=0.0)
     folder = out / SCENARIO_DIR
+    if mt.source:
+        assert mt.origin is not None
+        simulate_traffic(read_recording(Path(mt.source)), Frame(*mt.origin), mt.sensors, settings.deployment.seed,
+                         folder, mt.start, mt.duration, mt.box * 1e3, pd=mt.pd, clutter=mt.clutter, late=0.0)
+        return folder / "measurements.jsonl"
+    scenario = Scenario(targets=mt.targets, duration=mt.duration, pd=mt.pd, clutter=mt.clutter, late=0.0)
     simulate(scenario, parse_spec(mt.sensors), settings.deployment.seed, folder)
     return folder / "measurements.jsonl"
 
@@ -79,7 +94,7 @@ def service_args(settings: Settings, measurements: Path) -> list[tuple[str, str,
     mt = settings.multitarget
     assert mt is not None
     ids = sensor_ids(mt)
-    dim = "6" if any(s.kind == "radar" for s in parse_spec(mt.sensors)) else "4"
+    dim = "6" if any(s.kind == "radar" for s in sensor_specs(mt)) else "4"
     plan = [("mtt-centre", "centre", ["--algorithm", mt.algorithm, "--dim", dim])]
     if mt.algorithm != "mtt-centralized":
         mode = "federated" if mt.algorithm == "mtt-federated" else "decentralized"
@@ -168,13 +183,21 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Se
     tracks = out / "tracks.jsonl"
     summary: dict[str, Any] = {"pictures": 0, "exit_codes": report.exit_codes, "restarts": report.restarts,
                                "rejected": report.rejected(), "health": report.health, "wall_s": report.wall_s}
+    written = "measurements.jsonl tracks.jsonl truth.jsonl summary.json tracks.png"
     if tracks.is_file() and tracks.stat().st_size:
-        result = evaluate(tracks, truth)
+        result = evaluate(tracks, truth, horizontal=settings.frame is not None)
         png = out / "tracks.png"
         mt = settings.multitarget
         events = {} if mt is None else {**{f"{sid} joins": t for sid, t in mt.join_at.items()},
                                         **{f"{sid} killed": t for sid, t in mt.kill_at.items()}}
-        plot(result, tracks, truth, png, events)
+        label = None if mt is None else f"live {mt.algorithm}"
+        if settings.frame is None:
+            plot(result, tracks, truth, png, events, label=label)
+        else:  # on the Earth: the map in tracks.png, GOSPA over time beside it, and GeoJSON
+            plot(result, tracks, truth, out / "gospa.png", events, label=label)
+            plot_map(tracks, truth, settings.frame, png)
+            (out / "tracks.geojson").write_text(json.dumps(feature_collection(settings.frame, tracks, truth)))
+            written += " gospa.png tracks.geojson"
         summary.update({k: v for k, v in result.items() if k != "series"})
     latencies = report.picture_latencies_ms(delay)
     if latencies:
@@ -206,5 +229,5 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Se
         print(f"{title}: no picture was recorded (see {out}/logs/)", file=sys.stderr)
     if "membership" in summary:
         print_membership(summary["membership"], title)
-    print(f"wrote {out}/: measurements.jsonl tracks.jsonl truth.jsonl summary.json tracks.png")
+    print(f"wrote {out}/: {written}")
     return summary

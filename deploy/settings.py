@@ -14,13 +14,13 @@ from typing import Any
 from fedtrack.config import ConfigError, in_file, load_tables
 from fedtrack.deploy.security import ZenohSettings
 from fedtrack.deployment import DeploymentConfig, SensorConfig
+from fedtrack.geodetic import FrameConfig
 from fedtrack.local_filters.imm.config import IMMConfig
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.pda.config import PDAReplayConfig
 from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.sensors.radar import RadarConfig
 from fedtrack.sensors.sonar import SonarConfig
-
 
 MTT_ALGORITHMS = ("mtt-federated", "mtt-decentralized", "mtt-centralized")
 
@@ -38,12 +38,19 @@ class MultitargetSettings:
     clutter: float = 10.0
     join_at: dict[str, float] = field(default_factory=dict)  # sensor -> scenario seconds it starts at
     kill_at: dict[str, float] = field(default_factory=dict)  # sensor -> scenario seconds it is killed at
+    # recorded air traffic instead of simulated targets (``fedtrack simulate traffic``'s options; docs/geodetic.md)
+    source: str = ""  # the recording; empty: simulated targets
+    origin: tuple[float, float, float] | None = None  # the common frame's WGS-84 origin (required with source)
+    box: float = 100.0  # km
+    start: float = 0.0  # s after the recording's first sample
 
     def validate(self) -> None:
         if self.algorithm not in MTT_ALGORITHMS:
             raise ConfigError(f"algorithm: must be one of {', '.join(MTT_ALGORITHMS)}, got {self.algorithm!r}")
         if self.targets < 1 or not self.duration > 0 or not 0 < self.pd <= 1 or self.clutter < 0:
             raise ConfigError("need targets >= 1, duration > 0, 0 < pd <= 1, clutter >= 0")
+        if self.source and (self.origin is None or not self.box > 0 or self.start < 0):
+            raise ConfigError("source: needs origin = [lat, lon, h], box > 0 and start >= 0")
         for key in ("join_at", "kill_at"):
             for sensor, t in getattr(self, key).items():
                 if not 0 < t < self.duration:
@@ -71,6 +78,7 @@ class Settings:
     mtt: MttConfig = field(default_factory=MttConfig)
     multitarget: MultitargetSettings | None = None
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
+    frame: FrameConfig | None = None  # [frame]: the common frame's WGS-84 origin and sensor sites (fedtrack.geodetic)
 
 
 def check_launchable(settings: Settings, path: Path) -> None:

@@ -1,0 +1,183 @@
+"""Positions on the Earth: WGS-84 <-> the local east-north-up frame <-> each radar's own frame.
+
+A deployment's common frame is the east-north-up (ENU) tangent frame at its origin (``[frame]
+origin = [lat deg, lon deg, h m]``, height above the WGS-84 ellipsoid); the trackers' ``[x, y,
+z]`` are its east, north, up [m]. WGS-84 <-> ENU is pymap3d's (``geodetic2enu`` /
+``enu2geodetic``). A radar's own frame is the ENU frame at its site, in which it measures
+azimuth (from north, clockwise, in [0, 2 pi)), elevation (from the site's horizontal plane) and
+range: ``own = M (p - s)`` with ``s`` the site in the common frame and ``M = R_site R_origin'``
+(``R`` the ECEF -> ENU rotation at a latitude and longitude), a rigid motion, so the round trip
+is exact to round-off. Everything is batched over a leading axis (``(N, 3)`` arrays).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+import orjson
+import pymap3d
+
+from fedtrack.config import ConfigError, load_tables
+
+
+class Frame(NamedTuple):
+    """A common ENU frame: its origin in WGS-84 (degrees, degrees, metres above the ellipsoid)."""
+
+    lat: float
+    lon: float
+    h: float = 0.0
+
+
+class RadarSite(NamedTuple):
+    """A radar's site: ``position`` (3,) in the common frame, ``rotation`` (3, 3) from the common
+    frame's axes to the site's own ENU axes, ``geodetic`` (3,) lat, lon [deg], h [m]."""
+
+    position: np.ndarray
+    rotation: np.ndarray
+    geodetic: np.ndarray
+
+
+def ecef_to_enu_rotation(lat: float, lon: float) -> np.ndarray:
+    """The rotation (3, 3) from ECEF axes to the ENU axes at geodetic ``lat``, ``lon`` [deg]."""
+    phi, lam = np.radians(lat), np.radians(lon)
+    sp, cp, sl, cl = np.sin(phi), np.cos(phi), np.sin(lam), np.cos(lam)
+    return np.array([[-sl, cl, 0.0], [-sp * cl, -sp * sl, cp], [cp * cl, cp * sl, sp]])
+
+
+def enu_from_geodetic(frame: Frame, lat: np.ndarray, lon: np.ndarray, h: np.ndarray) -> np.ndarray:
+    """ENU positions (N, 3) [m] of WGS-84 points (N,) [deg, deg, m] in ``frame``."""
+    e, n, u = pymap3d.geodetic2enu(np.asarray(lat, float), np.asarray(lon, float), np.asarray(h, float), *frame)
+    return np.stack(np.broadcast_arrays(e, n, u), axis=-1)
+
+
+def geodetic_from_enu(frame: Frame, enu: np.ndarray) -> np.ndarray:
+    """``[lat deg, lon deg, h m]`` (N, 3) of ENU positions (N, 3) of ``frame``."""
+    enu = np.asarray(enu, float)
+    lat, lon, h = pymap3d.enu2geodetic(enu[..., 0], enu[..., 1], enu[..., 2], *frame)
+    return np.stack(np.broadcast_arrays(lat, lon, h), axis=-1)
+
+
+def common_from_local_vectors(frame: Frame, lat: np.ndarray, lon: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Vectors (N, 3) given in the ENU axes at each point ``lat``, ``lon`` (N,) [deg] (a ground speed's
+    east, north, up), in the common frame's axes: ``R_origin R_point' v``."""
+    phi, lam = np.radians(np.asarray(lat, float)), np.radians(np.asarray(lon, float))
+    sp, cp, sl, cl = np.sin(phi), np.cos(phi), np.sin(lam), np.cos(lam)
+    e, n, u = v[..., 0], v[..., 1], v[..., 2]
+    ecef = np.stack([-sl * e - sp * cl * n + cp * cl * u, cl * e - sp * sl * n + cp * sl * u, cp * n + sp * u], axis=-1)
+    return ecef @ ecef_to_enu_rotation(frame.lat, frame.lon).T
+
+
+def site_from_geodetic(frame: Frame, lat: float, lon: float, h: float) -> RadarSite:
+    """A radar standing at a WGS-84 point."""
+    position = enu_from_geodetic(frame, np.array([lat]), np.array([lon]), np.array([h]))[0]
+    rotation = ecef_to_enu_rotation(lat, lon) @ ecef_to_enu_rotation(frame.lat, frame.lon).T
+    return RadarSite(position, rotation, np.array([lat, lon, h], float))
+
+
+def site_from_enu(frame: Frame, position: np.ndarray) -> RadarSite:
+    """A radar standing at a point of the common frame."""
+    lat, lon, h = geodetic_from_enu(frame, np.asarray(position, float)).tolist()
+    site = site_from_geodetic(frame, lat, lon, h)
+    return site._replace(position=np.array(position, float))
+
+
+def own_from_enu(site: RadarSite, enu: np.ndarray) -> np.ndarray:
+    """Positions (N, 3) in the site's own ENU frame of common-frame positions (N, 3)."""
+    return (np.asarray(enu, float) - site.position) @ site.rotation.T
+
+
+def enu_from_own(site: RadarSite, own: np.ndarray) -> np.ndarray:
+    """Common-frame positions (N, 3) of positions (N, 3) in the site's own ENU frame."""
+    return np.asarray(own, float) @ site.rotation + site.position
+
+
+def aer_from_own(own: np.ndarray) -> np.ndarray:
+    """``[azimuth from north rad in [0, 2 pi), elevation rad, range m]`` (N, 3) of own-frame positions.
+
+    pymap3d's ``enu2aer`` without its rounding of components under 1 mm to zero (which would
+    cost the round trip its 1e-9 m)."""
+    e, n, u = own[..., 0], own[..., 1], own[..., 2]
+    rho = np.hypot(e, n)
+    return np.stack([np.mod(np.arctan2(e, n), 2 * np.pi), np.arctan2(u, rho), np.hypot(rho, u)], axis=-1)
+
+
+def own_from_aer(aer: np.ndarray) -> np.ndarray:
+    """Own-frame positions (N, 3) of ``[azimuth from north, elevation, range]`` (N, 3) (pymap3d's ``aer2enu``)."""
+    az, el, r = aer[..., 0], aer[..., 1], aer[..., 2]
+    rho = r * np.cos(el)
+    return np.stack([rho * np.sin(az), rho * np.cos(az), r * np.sin(el)], axis=-1)
+
+
+def aer_from_enu(site: RadarSite, enu: np.ndarray) -> np.ndarray:
+    """What the radar at ``site`` measures of common-frame positions: ``[az, el, range]`` (N, 3)."""
+    return aer_from_own(own_from_enu(site, enu))
+
+
+def enu_from_aer(site: RadarSite, aer: np.ndarray) -> np.ndarray:
+    """Common-frame positions (N, 3) of the radar's ``[az, el, range]`` (N, 3)."""
+    return enu_from_own(site, own_from_aer(np.asarray(aer, float)))
+
+
+def _check_geodetic(value: tuple[float, float, float], key: str) -> None:
+    lat, lon, h = value
+    if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 360.0 and -1.0e4 <= h <= 1.0e5):
+        raise ConfigError(f"{key}: expected [lat deg in [-90, 90], lon deg, h m in [-1e4, 1e5]], got {list(value)}")
+
+
+@dataclass(frozen=True)
+class FrameConfig:
+    """``[frame]``: the common frame's WGS-84 origin and (``[frame.sites]``) sensor sites in WGS-84."""
+
+    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    sites: dict[str, tuple[float, float, float]] = field(default_factory=dict)  # sensor id -> lat, lon, h
+
+    def validate(self) -> None:
+        _check_geodetic(self.origin, "origin")
+        for sid, where in self.sites.items():
+            _check_geodetic(where, f"sites.{sid}")
+
+    @property
+    def frame(self) -> Frame:
+        return Frame(*self.origin)
+
+
+@dataclass(frozen=True)
+class FrameSettings:
+    """The ``[frame]`` table alone, for the commands that read only it from a config file."""
+
+    frame: FrameConfig | None = None
+
+
+def load_frame(path: str | Path | None) -> FrameConfig | None:
+    """The config file's ``[frame]`` (None without a file or without the table)."""
+    return None if path is None else load_tables(path, FrameSettings).frame
+
+
+def add_geodetic(frame: Frame, rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Picture or truth rows (each with ``x`` = ``[x, vx, y, vy(, z, vz)]``) with ``lat``, ``lon`` [deg]
+    and, for a 3-D state, ``alt`` [m above the ellipsoid] beside ``x``; a 2-D state is placed on the
+    common frame's plane (z = 0)."""
+    if not rows:
+        return rows
+    pos = np.zeros((len(rows), 3))
+    for i, row in enumerate(rows):
+        p = row["x"][0::2][: len(row["x"]) // 2]
+        pos[i, : len(p)] = p
+    lla = geodetic_from_enu(frame, pos)
+    out = []
+    for row, (lat, lon, h) in zip(rows, lla.tolist()):
+        extra = {"lat": round(lat, 9), "lon": round(lon, 9)}
+        if len(row["x"]) >= 6:
+            extra["alt"] = round(h, 4)
+        out.append({**row, **extra})
+    return out
+
+
+def geodetic_line(line: str, frame: Frame) -> str:
+    """A tracks-file line (``{"t", "tracks"}``) with :func:`add_geodetic`'s fields in each track."""
+    obj = orjson.loads(line)
+    obj["tracks"] = add_geodetic(frame, obj["tracks"])
+    return orjson.dumps(obj).decode()

@@ -1,0 +1,94 @@
+"""``fedtrack export --geojson``: track pictures and truth on the Earth, as GeoJSON (RFC 7946).
+
+One ``FeatureCollection``: a ``LineString`` per confirmed track and per truth target through its
+positions in time order (``[lon, lat]`` or ``[lon, lat, alt]``, WGS-84 degrees and metres above
+the ellipsoid, as RFC 7946 orders them), with the times in ``properties.times``; a ``Point`` per
+sensor site of ``[frame.sites]`` and one for the frame's origin. A track that appears in one
+picture only is a ``Point``. Positions come from the rows' ``lat``, ``lon``, ``alt`` when they carry
+them (replay with a ``[frame]``, ``simulate traffic``'s truth), else from ``x`` in the config's frame.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from fedtrack.config import ConfigError
+from fedtrack.geodetic import Frame, FrameConfig, add_geodetic, load_frame
+from fedtrack.jsonl import InputError, read_jsonl
+
+
+def _paths(path: Path, key: str, frame: Frame, confirmed_only: bool) -> dict[Any, dict[str, Any]]:
+    """id -> ``{"coords": [...], "times": [...], "props": {...}}`` of a tracks or truth file."""
+    out: dict[Any, dict[str, Any]] = {}
+    for lineno, obj in read_jsonl(path):
+        where = f"{path}:{lineno}"
+        rows = obj.get(key)
+        if not isinstance(obj.get("t"), (int, float)) or not isinstance(rows, list):
+            raise InputError(f"{where}: expected {{\"t\": number, \"{key}\": [...]}}")
+        if confirmed_only:
+            rows = [r for r in rows if r.get("status", "confirmed") == "confirmed"]
+        try:
+            rows = [r if "lat" in r else add_geodetic(frame, [r])[0] for r in rows]
+        except (KeyError, TypeError, IndexError, ValueError) as exc:
+            raise InputError(f"{where}: {key}: each needs \"id\" and \"x\" ([x, vx, y, vy(, z, vz)])") from exc
+        for r in rows:
+            item = out.setdefault(r["id"], {"coords": [], "times": [], "props": {}})
+            point = [r["lon"], r["lat"]] + ([r["alt"]] if "alt" in r else [])
+            item["coords"].append(point)
+            item["times"].append(float(obj["t"]))
+            for extra in ("icao24", "sensors"):
+                if extra in r:
+                    item["props"][extra] = r[extra]
+    return out
+
+
+def feature_collection(frame_cfg: FrameConfig, tracks: Path | None, truth: Path | None) -> dict[str, Any]:
+    """The GeoJSON ``FeatureCollection`` of the module docstring."""
+    frame = frame_cfg.frame
+    features: list[dict[str, Any]] = []
+    for kind, path, key in (("truth", truth, "targets"), ("track", tracks, "tracks")):
+        if path is None:
+            continue
+        for tid, item in _paths(path, key, frame, kind == "track").items():
+            coords = item["coords"]
+            geometry = ({"type": "LineString", "coordinates": coords} if len(coords) > 1
+                        else {"type": "Point", "coordinates": coords[0]})
+            features.append({"type": "Feature", "geometry": geometry,
+                             "properties": {"kind": kind, "id": tid, "times": item["times"], **item["props"]}})
+    for sid, (lat, lon, h) in frame_cfg.sites.items():
+        features.append({"type": "Feature", "geometry": {"type": "Point", "coordinates": [lon, lat, h]},
+                         "properties": {"kind": "sensor", "id": sid}})
+    features.append({"type": "Feature", "geometry": {"type": "Point", "coordinates": [frame.lon, frame.lat, frame.h]},
+                     "properties": {"kind": "origin"}})
+    return {"type": "FeatureCollection", "features": features}
+
+
+def export_main(argv: list[str]) -> int:
+    """``fedtrack export``: ``--geojson`` here, a recording database's export otherwise."""
+    if not any(a == "--geojson" or a.startswith("--geojson=") for a in argv):
+        from fedtrack.recording import main
+
+        return main(argv)
+    parser = argparse.ArgumentParser(prog="fedtrack export --geojson",
+                                     description="track pictures and truth on the Earth as GeoJSON")
+    parser.add_argument("--geojson", required=True, type=Path, help="output file (.geojson)")
+    parser.add_argument("--config", required=True, type=Path, help="the TOML config with [frame] origin (and sites)")
+    parser.add_argument("--tracks", type=Path, help="a tracks file (replay's or the recorder's picture lines)")
+    parser.add_argument("--truth", type=Path, help="a truth file (simulate's truth.jsonl)")
+    args = parser.parse_args(argv)
+    if args.tracks is None and args.truth is None:
+        parser.error("give --tracks, --truth or both")
+    frame = load_frame(args.config)
+    if frame is None:
+        raise ConfigError(f"{args.config}: no [frame] table (its origin places the tracks on the Earth)")
+    collection = feature_collection(frame, args.tracks, args.truth)
+    if not args.geojson.parent.is_dir():
+        raise InputError(f"{args.geojson}: the folder {args.geojson.parent} does not exist")
+    args.geojson.write_text(json.dumps(collection))
+    kinds = [f["properties"]["kind"] for f in collection["features"]]
+    print(f"wrote {args.geojson}: {kinds.count('track')} tracks, {kinds.count('truth')} truth targets, "
+          f"{kinds.count('sensor')} sensor sites")
+    return 0

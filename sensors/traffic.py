@@ -1,0 +1,453 @@
+"""``fedtrack simulate traffic``: recorded air traffic as truth, sensors on the Earth simulated on it.
+
+Input: recorded state vectors (OpenSky's, or the ``traffic`` library's export), one row per
+aircraft and time; CSV, JSON Lines (either optionally gzipped) or Parquet (needs pyarrow: the
+``real`` extra). Truth: each airborne aircraft's samples in the common ENU frame about
+``--origin`` (:mod:`fedtrack.geodetic`), interpolated between samples by cubic Hermite pieces
+through the recorded positions and velocities; a gap longer than ``--max-gap`` ends a track and
+the next sample starts a new one (a new truth id). Sensors (:mod:`fedtrack.sensors.multitarget`'s
+``sensor_lines``): 2-D position plots, radars in their own frames at sites on the Earth, and
+ADS-B receivers; each with its period, phase, P_D, clutter and delays.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import gzip
+import io
+import json
+import math
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+from scipy.interpolate import CubicHermiteSpline
+from scipy.linalg import solveh_banded
+
+from fedtrack.config import to_toml
+from fedtrack.geodetic import (
+    Frame,
+    RadarSite,
+    common_from_local_vectors,
+    enu_from_geodetic,
+    geodetic_from_enu,
+    site_from_enu,
+    site_from_geodetic,
+)
+from fedtrack.jsonl import InputError, check_readable, read_jsonl
+from fedtrack.sensors.multitarget import DT, Scenario, SensorSpec, clutter_density, parse_spec, sensor_lines
+
+#: column -> accepted names (the first is ours; OpenSky's and the traffic library's follow)
+COLUMNS: dict[str, tuple[str, ...]] = {
+    "time": ("time", "timestamp", "ts"),
+    "icao24": ("icao24", "icao", "hex"),
+    "latitude": ("latitude", "lat"),
+    "longitude": ("longitude", "lon", "lng"),
+    "altitude": ("altitude", "baroaltitude", "baro_altitude", "alt"),
+    "groundspeed": ("groundspeed", "velocity", "ground_speed", "gs"),
+    "track": ("track", "heading", "true_track"),
+    "vertical_rate": ("vertical_rate", "vertrate", "vertical_speed"),
+    "onground": ("onground", "on_ground"),
+}
+REQUIRED = ("time", "icao24", "latitude", "longitude", "altitude")
+VELOCITY = ("groundspeed", "track", "vertical_rate")
+#: --units -> factors to m, m/s, m/s of altitude, ground speed, vertical rate
+UNITS = {"si": (1.0, 1.0, 1.0), "aviation": (0.3048, 1852.0 / 3600.0, 0.3048 / 60.0)}
+#: NACp -> EPU [m], the 95 % bound of the horizontal position error (DO-260B); sigma per axis = EPU / 2.448
+NACP_EPU = {7: 185.2, 8: 92.6, 9: 30.0, 10: 10.0, 11: 3.0}
+#: the reconciliation of recorded positions with recorded velocities (docs/geodetic.md)
+SIGMA_POSITION = 50.0  # m: a state vector's position is up to a second older or newer than its time
+SIGMA_VELOCITY = 0.5  # m/s: ground speed is reported to the knot, vertical rate to 64 ft/min
+SQUITTER_S = (0.4, 0.6)  # s: airborne position squitters at random intervals of 0.4-0.6 s (DO-260B)
+CHI2_2_95 = math.sqrt(-2.0 * math.log(0.05))  # the 95 % radius of a 2-D standard normal: 2.448
+
+HELP_COLUMNS = """input columns (names are matched case-insensitively; the first name is ours, the others
+OpenSky's and the traffic library's):
+  time           seconds since 1970 (UTC), or an ISO-8601 date and time (UTC when no zone):
+                 time, timestamp, ts
+  icao24         the aircraft's address: icao24, icao, hex
+  latitude       degrees (WGS-84): latitude, lat
+  longitude      degrees (WGS-84): longitude, lon, lng
+  altitude       barometric altitude, taken as height above the WGS-84 ellipsoid: altitude,
+                 baroaltitude, baro_altitude, alt
+  groundspeed    optional: groundspeed, velocity, ground_speed, gs
+  track          optional, degrees from true north: track, heading, true_track
+  vertical_rate  optional: vertical_rate, vertrate, vertical_speed
+  onground       optional, true/false: onground, on_ground (rows on the ground are dropped)
+units (--units): si (default, OpenSky's state vectors): altitude m, speeds m/s; aviation (the
+traffic library's export): altitude ft, ground speed kt, vertical rate ft/min.
+Without the three velocity columns the velocity is the derivative of the positions (numpy's gradient).
+
+sensors (--sensors, comma-separated KIND:PERIOD[@LAT/LON/H]):
+  pos:P          2-D position plots every P s (noise 10-20 m per axis)
+  radar:P@SITE   a radar scanning every P s at the WGS-84 site LAT/LON/H (deg, deg, m); without a
+                 site it stands on the box's edge; range 10 m, azimuth and elevation 2 mrad in its own frame
+  adsb:P         an ADS-B receiver publishing every P s the reports received since its last scan;
+                 each aircraft reports at its own rate (a period drawn in 0.4-0.6 s, DO-260B's
+                 squitter interval), its position moved to the scan time with its velocity;
+                 accuracy from --nacp; no clutter"""
+
+
+class Recording(NamedTuple):
+    """Airborne samples, sorted by aircraft then time: ``t`` [s since 1970], ``icao24``, ``lla`` (N, 3)
+    [deg, deg, m], ``velocity`` (N, 3) east, north, up [m/s] in the local axes (NaN: not recorded)."""
+
+    t: np.ndarray
+    icao24: np.ndarray
+    lla: np.ndarray
+    velocity: np.ndarray
+
+
+class Truth(NamedTuple):
+    """States ``x`` (steps, N, 6) ``[x, vx, y, vy, z, vz]`` on the ``DT`` grid from ``t0`` [s since
+    1970], ``alive`` (steps, N), each target's ``icao24`` (N,)."""
+
+    t0: float
+    x: np.ndarray
+    alive: np.ndarray
+    icao24: list[str]
+
+
+def _rows(path: Path) -> tuple[list[str], list[tuple[int, list[Any]]]]:
+    """``(column names, [(line or row number, values)])`` of a CSV, JSON Lines or Parquet file."""
+    name = path.name.lower()
+    opener = gzip.open if name.endswith(".gz") else open
+    base = name.removesuffix(".gz")
+    try:
+        if base.endswith(".parquet"):
+            try:
+                import pyarrow.parquet as pq
+            except ImportError as exc:
+                raise InputError(f"{path}: reading Parquet needs pyarrow (pip install 'fedtrack[real]')") from exc
+            table = pq.read_table(path).to_pydict()
+            cols = list(table)
+            return cols, [(i + 1, list(row)) for i, row in enumerate(zip(*table.values()))]
+        if base.endswith(".csv"):
+            with opener(path, "rt", newline="") as fh:
+                reader = csv.reader(fh)
+                cols = next(reader, [])
+                return cols, [(i, row) for i, row in enumerate(reader, start=2) if row]
+        if base.endswith((".jsonl", ".ndjson")):
+            if name.endswith(".gz"):
+                with gzip.open(path, "rb") as fh:
+                    text = fh.read()
+                tmp = [(i, json.loads(line)) for i, line in enumerate(io.BytesIO(text), start=1) if line.strip()]
+            else:
+                tmp = list(read_jsonl(path))
+            cols = sorted({k for _, obj in tmp for k in obj})
+            return cols, [(i, [obj.get(c) for c in cols]) for i, obj in tmp]
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, csv.Error) as exc:
+        raise InputError(f"{path}: cannot read: {exc}") from exc
+    raise InputError(f"{path}: unknown format (expected .csv, .jsonl or .parquet, optionally .gz)")
+
+
+def _seconds(value: Any, where: str) -> float:
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return float(value)
+    if isinstance(value, datetime):
+        stamp = value
+    else:
+        text = str(value).strip()
+        try:
+            return float(text)
+        except ValueError:
+            pass
+        try:
+            stamp = datetime.fromisoformat(text.replace("Z", "+00:00"))
+        except ValueError as exc:
+            raise InputError(f"{where}: time: {value!r} is neither seconds nor an ISO-8601 date") from exc
+    if stamp.tzinfo is None:
+        stamp = stamp.replace(tzinfo=timezone.utc)
+    return stamp.timestamp()
+
+
+def _number(value: Any, where: str, field: str) -> float:
+    if value is None or value == "":
+        return math.nan
+    try:
+        return float(value)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{where}: {field}: {value!r} is not a number") from exc
+
+
+def _flag(value: Any) -> bool:
+    return value is True or str(value).strip().lower() in ("true", "1", "t", "yes")
+
+
+def read_recording(path: Path, units: str = "si") -> Recording:
+    """The airborne samples of a recording (rows on the ground or without a position dropped)."""
+    check_readable(path)
+    names, rows = _rows(path)
+    lower = {n.lower(): i for i, n in enumerate(names)}
+    index: dict[str, int] = {}
+    for col, aliases in COLUMNS.items():
+        found = [lower[a] for a in aliases if a in lower]
+        if found:
+            index[col] = found[0]
+        elif col in REQUIRED:
+            raise InputError(f"{path}: no {col} column (accepted names: {', '.join(aliases)})")
+    has_velocity = all(c in index for c in VELOCITY)
+    k_alt, k_gs, k_vr = UNITS[units]
+    t, ids, lla, vel = [], [], [], []
+    for lineno, row in rows:
+        where = f"{path}:{lineno}"
+        if len(row) < len(names):
+            raise InputError(f"{where}: {len(row)} fields, the header has {len(names)}")
+        if "onground" in index and _flag(row[index["onground"]]):
+            continue
+        point = [_number(row[index[c]], where, c) for c in ("latitude", "longitude", "altitude")]
+        if not all(map(math.isfinite, point)):
+            continue
+        if not (-90 <= point[0] <= 90 and -180 <= point[1] <= 360):
+            raise InputError(f"{where}: latitude, longitude: {point[0]}, {point[1]} is not on the Earth")
+        t.append(_seconds(row[index["time"]], where))
+        ids.append(str(row[index["icao24"]]).strip().lower())
+        lla.append([point[0], point[1], point[2] * k_alt])
+        if has_velocity:
+            gs, trk, vr = (_number(row[index[c]], where, c) for c in VELOCITY)
+            a = math.radians(trk)
+            vel.append([gs * k_gs * math.sin(a), gs * k_gs * math.cos(a), vr * k_vr])
+        else:
+            vel.append([math.nan] * 3)
+    if not t:
+        raise InputError(f"{path}: no airborne sample with a position")
+    order = np.lexsort((np.array(t), np.array(ids)))
+    return Recording(np.array(t)[order], np.array(ids)[order], np.array(lla, float)[order],
+                     np.array(vel, float)[order])
+
+
+def segments(rec: Recording, max_gap: float) -> list[np.ndarray]:
+    """Row indices of each track: one aircraft's samples, a repeated (stale) position or time dropped,
+    split where the gap between samples exceeds ``max_gap`` [s]; tracks of one sample dropped."""
+    out = []
+    bounds = np.flatnonzero(np.r_[True, rec.icao24[1:] != rec.icao24[:-1], True])
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        rows = np.arange(a, b)
+        same = np.r_[False, (np.diff(rec.t[rows]) <= 0)
+                     | np.all(np.diff(rec.lla[rows, :2], axis=0) == 0, axis=1)]
+        rows = rows[~same]
+        for piece in np.split(rows, np.flatnonzero(np.diff(rec.t[rows]) > max_gap) + 1):
+            if len(piece) >= 2:
+                out.append(piece)
+    return out
+
+
+def reconcile(t: np.ndarray, pos: np.ndarray, vel: np.ndarray, sigma_p: float = SIGMA_POSITION,
+              sigma_v: float = SIGMA_VELOCITY) -> np.ndarray:
+    """Positions (n, 3) consistent with the recorded velocities: the least-squares ``s`` of
+    ``sum |s_k - p_k|^2 / sigma_p^2 + sum |s_k+1 - s_k - (v_k + v_k+1) dt_k / 2|^2 / (sigma_v dt_k)^2``,
+    a tridiagonal system (one solve for the three axes)."""
+    dt = np.diff(t)
+    w = 1.0 / (sigma_v * dt) ** 2
+    step = 0.5 * (vel[1:] + vel[:-1]) * dt[:, None]
+    diag = np.full(len(t), 1.0 / sigma_p**2)
+    diag[:-1] += w
+    diag[1:] += w
+    rhs = pos / sigma_p**2
+    rhs[:-1] -= w[:, None] * step
+    rhs[1:] += w[:, None] * step
+    return solveh_banded(np.vstack([np.r_[0.0, -w], diag]), rhs)
+
+
+def build_truth(rec: Recording, frame: Frame, start: float, duration: float | None, box: float,
+                max_gap: float) -> Truth:
+    """Truth on the ``DT`` grid from the first sample + ``start`` for ``duration`` s (None: to the last
+    sample); a target is alive between its track's first and last samples while inside the square of
+    side ``box`` [m] about the origin."""
+    t0 = float(rec.t.min()) + start
+    end = float(rec.t.max()) if duration is None else t0 + duration
+    if not end > t0:
+        raise InputError(f"--start {start:g}: after the recording's last sample")
+    steps = int(round((end - t0) / DT)) + 1
+    grid = t0 + np.arange(steps) * DT
+    pieces = [p for p in segments(rec, max_gap) if rec.t[p[-1]] >= t0 and rec.t[p[0]] <= end]
+    x = np.zeros((steps, len(pieces), 6))
+    alive = np.zeros((steps, len(pieces)), bool)
+    for j, rows in enumerate(pieces):
+        pos = enu_from_geodetic(frame, *rec.lla[rows].T)
+        vel = common_from_local_vectors(frame, rec.lla[rows, 0], rec.lla[rows, 1], rec.velocity[rows])
+        if np.any(np.isfinite(vel)):
+            pos = reconcile(rec.t[rows], pos, np.where(np.isfinite(vel), vel, np.gradient(pos, rec.t[rows], axis=0)))
+        vel = np.where(np.isfinite(vel), vel, np.gradient(pos, rec.t[rows], axis=0))
+        spline = CubicHermiteSpline(rec.t[rows], pos, vel)
+        live = (grid >= rec.t[rows[0]]) & (grid <= rec.t[rows[-1]])
+        p, v = spline(grid[live]), spline(grid[live], 1)
+        x[live, j] = np.stack([p[:, 0], v[:, 0], p[:, 1], v[:, 1], p[:, 2], v[:, 2]], axis=-1)
+        alive[live, j] = np.all(np.abs(p[:, :2]) <= box / 2, axis=1)
+    keep = alive.any(axis=0)
+    return Truth(t0, x[:, keep], alive[:, keep], [str(rec.icao24[p[0]]) for p, k in zip(pieces, keep) if k])
+
+
+def parse_kinds(spec: str) -> list[SensorSpec]:
+    """The sensors of ``KIND:PERIOD[@LAT/LON/H],...`` (``pos``, ``radar``, ``adsb``), sites left out."""
+    return parse_spec(",".join(item.strip().partition("@")[0] for item in spec.split(",")), ("pos", "radar", "adsb"))
+
+
+def parse_sensors(spec: str, frame: Frame, box: float,
+                  rng: np.random.Generator) -> list[tuple[SensorSpec, RadarSite | None]]:
+    """``radar:4@49.1/2.1/90,pos:1,adsb:1`` -> sensors ``r1``, ``s2``, ``a3`` (a radar without a site
+    stands on the box's edge)."""
+    items = [item.strip().partition("@") for item in spec.split(",")]
+    out: list[tuple[SensorSpec, RadarSite | None]] = []
+    for s, (base, at, where) in zip(parse_kinds(spec), items):
+        if s.kind != "radar":
+            if at:
+                raise InputError(f"--sensors: {base}@{where}: only a radar takes a site")
+            out.append((s, None))
+            continue
+        if not at:
+            angle = rng.uniform(-np.pi, np.pi)
+            edge = 0.55 * box * np.array([np.cos(angle), np.sin(angle), 0.0])
+            out.append((s, site_from_enu(frame, edge)))
+            continue
+        try:
+            lat, lon, h = (float(v) for v in where.split("/"))
+        except ValueError:
+            lat = math.nan
+        if not (-90 <= lat <= 90 and -180 <= lon <= 360):
+            raise InputError(f"--sensors: {base}@{where}: the site is not LAT/LON/H (degrees, degrees, metres)")
+        out.append((s, site_from_geodetic(frame, lat, lon, h)))
+    return out
+
+
+def adsb_view(truth: Truth, period: float, report_period: np.ndarray,
+              rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """What an ADS-B receiver publishing every ``period`` s holds of each target on the ``DT`` grid:
+    the target's last report (one every ``report_period`` s, its own rate, at a random phase) moved to
+    that time with the report's velocity, and whether a report arrived within the last ``period``."""
+    steps, n = truth.alive.shape
+    k = np.arange(steps)[:, None]
+    every = np.maximum(np.round(report_period / DT).astype(int), 1)[None, :]
+    phase = (rng.uniform(0, 1, n) * every[0]).astype(int)[None, :]
+    last = k - (k - phase) % every  # the step of each target's last report
+    fresh = (last >= 0) & (k - last < max(1, int(round(period / DT))))
+    src = np.clip(last, 0, steps - 1)
+    cols = np.arange(n)[None, :]
+    rep = truth.x[src, cols]
+    lag = (k - src) * DT
+    moved = rep.copy()
+    moved[..., [0, 2, 4]] += rep[..., [1, 3, 5]] * lag[..., None]
+    return moved, fresh & truth.alive[src, cols] & truth.alive
+
+
+def derived_tracker(truth: Truth, specs: list[SensorSpec]) -> dict[str, float]:
+    """The tracker keys derived from the recording and the sensors (docs/geodetic.md)."""
+    v = truth.x[..., [1, 3]]
+    a = np.linalg.norm(np.diff(v, axis=0) / DT, axis=-1)[truth.alive[1:] & truth.alive[:-1]]
+    a95 = float(np.quantile(a, 0.95)) if a.size else 1.0
+    longest = max(s.period for s in specs)
+    speed = np.linalg.norm(v, axis=-1)[truth.alive]
+    alt = truth.x[..., 4][truth.alive]
+    return {"q": round(max(a95, 0.1) ** 2 * longest, 3),
+            "init_velocity_std": round(float(speed.max()) / 2 if speed.size else 30.0, 1),
+            "init_z_std": round(max(float(np.abs(alt).max()) / 2 if alt.size else 1000.0, 1000.0), 1),
+            "max_lag": round(2 * longest + 1.0, 3),
+            "central_timeout": round(max(5.0, 2 * longest + 1.0), 3)}
+
+
+def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, start: float = 0.0,
+             duration: float | None = None, box: float = 100e3, max_gap: float = 30.0, pd: float = 0.9,
+             clutter: float = 10.0, late: float = 0.2, nacp: int = 9) -> dict[str, Any]:
+    """Write ``measurements.jsonl``, ``truth.jsonl`` and ``config.toml`` to ``out``."""
+    rng = np.random.default_rng(seed)
+    truth = build_truth(rec, frame, start, duration, box, max_gap)
+    if not truth.icao24:
+        raise InputError("no airborne aircraft inside the box during the window")
+    sensors = parse_sensors(spec, frame, box, rng)
+    specs = [s for s, _ in sensors]
+    steps = truth.alive.shape[0]
+    sc = Scenario(targets=len(truth.icao24), duration=(steps - 1) * DT, region=box / 2, pd=pd, clutter=clutter,
+                  late=late)
+    report_period = rng.uniform(*SQUITTER_S, len(truth.icao24))  # each aircraft's own rate
+    sd = NACP_EPU[nacp] / CHI2_2_95
+    lines = []
+    for s, site in sensors:
+        if s.kind == "adsb":
+            moved, fresh = adsb_view(truth, s.period, report_period, rng)
+            lines += sensor_lines(dataclasses.replace(s, kind="pos"), dataclasses.replace(sc, clutter=0.0), moved,
+                                  fresh, True, rng, noise=np.diag([sd**2, sd**2]))
+        else:
+            lines += sensor_lines(s, sc, truth.x, truth.alive, True, rng, site=site)
+    lines.sort(key=lambda item: item[0])
+    out.mkdir(parents=True, exist_ok=True)
+    with (out / "measurements.jsonl").open("w") as fh:
+        for _, line in lines:
+            fh.write(json.dumps(line) + "\n")
+    three_d = any(s.kind == "radar" for s in specs)
+    dims = [0, 1, 2, 3, 4, 5] if three_d else [0, 1, 2, 3]
+    with (out / "truth.jsonl").open("w") as fh:
+        for second in range(int(sc.duration) + 1):
+            step = int(round(second / DT))
+            live = np.flatnonzero(truth.alive[step])
+            lla = geodetic_from_enu(frame, truth.x[step][live][:, [0, 2, 4]]).reshape(-1, 3)
+            targets = [{"id": int(i), "x": truth.x[step, i, dims].tolist(), "icao24": truth.icao24[i],
+                        "lat": round(float(g[0]), 8), "lon": round(float(g[1]), 8), "alt": round(float(g[2]), 3)}
+                       for i, g in zip(live, lla)]
+            fh.write(json.dumps({"t": float(second), "targets": targets}) + "\n")
+    derived = derived_tracker(truth, specs)
+    mtt: dict[str, Any] = {**derived, "pd": pd, "clutter_density": clutter_density(specs[0], sc), "period": 1.0,
+                           "sensors": [s.id for s in specs]}
+    # every sensor its own density: a radar's per m rad^2, a position sensor's per m^2; an ADS-B receiver's
+    # false reports are none, written as one per (1000 km)^2 (the tracker's log takes no zero)
+    mtt["sensor"] = {s.id: {"clutter_density": 1e-12 if s.kind == "adsb" else clutter_density(s, sc)} for s in specs}
+    frame_table = {"origin": list(frame), "sites": {s.id: site.geodetic.tolist() for s, site in sensors if site}}
+    (out / "config.toml").write_text(to_toml({"mtt": mtt, "frame": frame_table}))
+    return {"scans": len(lines), "targets": len(truth.icao24), "start": truth.t0, "duration": sc.duration,
+            "most_alive": int(truth.alive.sum(axis=1).max()), "derived": derived,
+            "sensors": [f"{s.id} ({s.kind}, {s.period:g} s)" for s in specs]}
+
+
+def _origin(text: str) -> Frame:
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) not in (2, 3) or not (-90 <= values[0] <= 90 and -180 <= values[1] <= 360):
+        raise InputError(f"--origin: {text!r} is not LAT,LON[,H] (degrees, degrees, metres)")
+    return Frame(*values)
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="fedtrack simulate traffic", epilog=HELP_COLUMNS,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter,
+                                     description="recorded air traffic as truth; position sensors, radars and "
+                                                 "ADS-B on the Earth simulated on it, for replay and evaluate")
+    parser.add_argument("--source", required=True, type=Path, help="recorded state vectors (.csv, .jsonl, "
+                        ".parquet; .csv and .jsonl may be gzipped)")
+    parser.add_argument("--origin", required=True, help="LAT,LON[,H]: the common frame's origin (deg, deg, m)")
+    parser.add_argument("--sensors", default="radar:4,radar:5,pos:2",
+                        help="comma-separated KIND:PERIOD[@LAT/LON/H] (below; default radar:4,radar:5,pos:2)")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--out", required=True, type=Path)
+    parser.add_argument("--start", type=float, default=0.0, help="seconds after the first sample (default 0)")
+    parser.add_argument("--duration", type=float, help="seconds (default: to the last sample)")
+    parser.add_argument("--box", type=float, default=100.0,
+                        help="km: the side of the square about the origin whose aircraft are truth (default 100)")
+    parser.add_argument("--max-gap", type=float, default=30.0,
+                        help="seconds: a longer gap between an aircraft's samples ends its track (default 30)")
+    parser.add_argument("--units", choices=sorted(UNITS), default="si", help="input units (below; default si)")
+    parser.add_argument("--pd", type=float, default=0.9)
+    parser.add_argument("--clutter", type=float, default=10.0, help="false detections per scan (not ADS-B)")
+    parser.add_argument("--late", type=float, default=0.2, help="fraction of scans delivered late")
+    parser.add_argument("--nacp", type=int, choices=sorted(NACP_EPU), default=9,
+                        help="ADS-B navigation accuracy category: sigma per axis = EPU / 2.448 (9: 30 m EPU, "
+                             "12.3 m; default 9)")
+    args = parser.parse_args(argv)
+    if not (args.box > 0 and args.max_gap > 0 and args.start >= 0 and 0 < args.pd <= 1 and args.clutter >= 0
+            and 0 <= args.late < 1 and (args.duration is None or args.duration > 0)):
+        parser.error("need --box > 0, --max-gap > 0, --start >= 0, --duration > 0, 0 < --pd <= 1, --clutter >= 0, "
+                     "0 <= --late < 1")
+    if args.out.exists() and not args.out.is_dir():
+        raise InputError(f"{args.out}: exists and is not a folder")
+    frame = _origin(args.origin)
+    rec = read_recording(args.source, args.units)
+    info = simulate(rec, frame, args.sensors, args.seed, args.out, args.start, args.duration, args.box * 1e3,
+                    args.max_gap, args.pd, args.clutter, args.late, args.nacp)
+    print(f"wrote {args.out}/measurements.jsonl ({info['scans']} scans), truth.jsonl ({info['targets']} tracks of "
+          f"aircraft, at most {info['most_alive']} at once, {info['duration']:g} s from "
+          f"{datetime.fromtimestamp(info['start'], timezone.utc):%Y-%m-%d %H:%M:%S} UTC), config.toml; "
+          f"sensors: {', '.join(info['sensors'])}")
+    return 0

@@ -1,0 +1,270 @@
+"""``fedtrack simulate traffic``: recorded state vectors as truth, sensors on the Earth."""
+
+from __future__ import annotations
+
+import gzip
+import json
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fedtrack.cli import main
+from fedtrack.geodetic import Frame, aer_from_enu, enu_from_geodetic, geodetic_from_enu, site_from_geodetic
+from fedtrack.jsonl import InputError
+from fedtrack.local_filters.radar.measurement import cartesian_from_polar, polar_from_cartesian, wrap_angle
+from fedtrack.sensors.multitarget import DT, Scenario, SensorSpec, sensor_lines
+from fedtrack.sensors.traffic import (
+    Truth,
+    adsb_view,
+    build_truth,
+    read_recording,
+    reconcile,
+    segments,
+)
+
+DATA = Path(__file__).resolve().parent / "data"
+PARIS = Frame(48.86, 2.40, 0.0)
+
+
+def _write_csv(path: Path, header: str, rows: list[str]) -> Path:
+    path.write_text(header + "\n" + "\n".join(rows) + "\n")
+    return path
+
+
+def test_opensky_and_traffic_columns_and_units_read_alike(tmp_path: Path) -> None:
+    si = _write_csv(tmp_path / "a.csv", "time,icao24,lat,lon,baroaltitude,velocity,heading,vertrate,onground",
+                    ["1600000000,ABC123,48.0,2.0,3048.0,102.88888888888889,90.0,5.08,false",
+                     "1600000001,abc123,48.0,2.001,3053.08,102.88888888888889,90.0,5.08,False",
+                     "1600000002,abc123,48.0,2.002,0.0,0.0,0.0,0.0,true"])
+    aviation = tmp_path / "b.jsonl.gz"
+    with gzip.open(aviation, "wt") as fh:
+        for t, lon, alt in (("2020-09-13T12:26:40Z", 2.0, 10000.0), ("2020-09-13T12:26:41", 2.001, 10016.666666666666)):
+            fh.write(json.dumps({"timestamp": t, "icao24": "abc123", "latitude": 48.0, "longitude": lon,
+                                 "altitude": alt, "groundspeed": 200.0, "track": 90.0, "vertical_rate": 1000.0}) + "\n")
+    a, b = read_recording(si), read_recording(aviation, "aviation")
+    assert len(a.t) == 2  # the row on the ground is dropped
+    np.testing.assert_allclose(a.t, b.t, atol=1e-9)
+    np.testing.assert_allclose(a.lla, b.lla, atol=1e-9)
+    np.testing.assert_allclose(a.velocity, b.velocity, atol=1e-9)
+    np.testing.assert_allclose(a.velocity[0], [102.88888888888889, 0.0, 5.08], atol=1e-9)
+    assert list(a.icao24) == ["abc123", "abc123"]
+
+
+def test_bad_input_names_the_file_line_and_field(tmp_path: Path) -> None:
+    with pytest.raises(InputError, match=r"no altitude column \(accepted names: altitude, baroaltitude"):
+        read_recording(_write_csv(tmp_path / "a.csv", "time,icao24,lat,lon", ["1,a,48,2"]))
+    with pytest.raises(InputError, match=r"b\.csv:3: altitude: 'high' is not a number"):
+        read_recording(_write_csv(tmp_path / "b.csv", "time,icao24,lat,lon,alt", ["1,a,48,2,100", "2,a,48,2,high"]))
+    with pytest.raises(InputError, match=r"c\.csv:2: time: 'noon' is neither"):
+        read_recording(_write_csv(tmp_path / "c.csv", "time,icao24,lat,lon,alt", ["noon,a,48,2,100"]))
+    with pytest.raises(InputError, match="unknown format"):
+        read_recording(_write_csv(tmp_path / "d.txt", "time", ["1"]))
+
+
+def test_segments_drop_stale_positions_and_split_at_gaps(tmp_path: Path) -> None:
+    rows = [f"{t},a,48.0,{2.0 + 0.001 * t},1000" for t in (0, 1, 2, 3, 40, 41, 42)]
+    rows.insert(2, "1.5,a,48.0,2.001,1000")  # the position of t = 1 again: stale
+    rows += ["0,b,47.0,2.0,1000", "100,b,47.0,2.1,1000"]  # a gap of 100 s: two tracks of one sample each
+    rec = read_recording(_write_csv(tmp_path / "a.csv", "time,icao24,lat,lon,alt", rows))
+    pieces = segments(rec, max_gap=30.0)
+    assert [rec.t[p].tolist() for p in pieces] == [[0, 1, 2, 3], [40, 41, 42]]
+
+
+def test_reconcile_keeps_consistent_samples_and_follows_the_velocities() -> None:
+    t = np.array([0.0, 1.0, 2.5, 3.0, 10.0])
+    v = np.array([200.0, -50.0, 3.0])
+    pos = 1000.0 + t[:, None] * v
+    np.testing.assert_allclose(reconcile(t, pos, np.tile(v, (5, 1))), pos, atol=1e-9)
+    # positions jittered by +-40 m: the result keeps the recorded velocity between samples
+    jitter = np.array([[40.0, 0, 0], [-40, 0, 0], [40, 0, 0], [-40, 0, 0], [0, 0, 0]])
+    s = reconcile(t, pos + jitter, np.tile(v, (5, 1)))
+    steps = np.diff(s, axis=0) / np.diff(t)[:, None] - v
+    assert np.abs(steps).max() < 1.0 and np.abs(np.diff(pos + jitter, axis=0)[0] / 1.0 - v).max() == 80.0
+
+
+def test_truth_passes_through_the_samples_in_the_common_frame(tmp_path: Path) -> None:
+    """An aircraft flying east at 200 m/s 150 km from the origin: the truth at each sample time is the
+    sample's ENU position (the Earth's curvature included) and its velocity the turned recorded one."""
+    a, e2, phi = 6378137.0, 6.69437999014e-3, np.radians(48.86)
+    per_degree = (a / np.sqrt(1 - e2 * np.sin(phi) ** 2) + 10000.0) * np.cos(phi) * np.pi / 180  # along the parallel
+    rows = []
+    for k in range(60):
+        lon = 4.4 + k * 200.0 / per_degree
+        rows.append(f"{1000 + k},a,48.86,{lon},10000,200,90,0")
+    rec = read_recording(_write_csv(tmp_path / "a.csv", "time,icao24,lat,lon,alt,gs,track,vertical_rate", rows))
+    truth = build_truth(rec, PARIS, 0.0, None, 400e3, 30.0)
+    at = np.round((rec.t - truth.t0) / DT).astype(int)
+    expected = enu_from_geodetic(PARIS, *rec.lla.T)
+    np.testing.assert_allclose(truth.x[at, 0][:, [0, 2, 4]], expected, atol=1e-3)
+    assert expected[0, 2] < 10000.0 - 1500.0  # the Earth curves away below the origin's plane
+    assert truth.alive[at[0]:at[-1] + 1, 0].all() and not truth.alive[at[-1] + 1:, 0].any()
+    # the recorded east velocity, turned by the meridian convergence into the common axes
+    vel = truth.x[at[1:-1], 0][:, [1, 3, 5]]
+    assert np.abs(np.linalg.norm(vel[:, :2], axis=1) - 200.0).max() < 1.0
+    # the local east turned to the north by the meridians' convergence, (lon - lon0) sin(lat), about 1.5 deg
+    convergence = np.radians(rec.lla[1:-1, 1] - PARIS.lon) * np.sin(np.radians(48.86))
+    np.testing.assert_allclose(np.arctan2(vel[:, 1], vel[:, 0]), convergence, atol=np.radians(0.02))
+
+
+def _cv_truth(n: int, seconds: float, rng: np.random.Generator) -> Truth:
+    steps = int(round(seconds / DT)) + 1
+    t = np.arange(steps) * DT
+    p0 = np.column_stack([rng.uniform(-60e3, 60e3, (n, 2)), rng.uniform(3e3, 11e3, n)])
+    v = np.column_stack([rng.uniform(-200, 200, (n, 2)), np.zeros(n)])
+    pos = p0[None] + t[:, None, None] * v[None]
+    x = np.stack([pos[..., 0], np.broadcast_to(v[:, 0], pos.shape[:2]), pos[..., 1],
+                  np.broadcast_to(v[:, 1], pos.shape[:2]), pos[..., 2], np.zeros(pos.shape[:2])], axis=-1)
+    return Truth(0.0, x, np.ones((steps, n), bool), [f"{i:06x}" for i in range(n)])
+
+
+def test_radar_errs_in_its_own_frame_and_reports_in_the_trackers_model() -> None:
+    """A radar 150 km from the origin (its north turned by about 1.6 deg): its detections, read as
+    range, azimuth, elevation about ``sensor_position`` in the common axes, are the truth's plus R's
+    noise in that model (mean 0, variance 1 after scaling, within 4 standard errors), and the noise is
+    the radar's own azimuth and elevation's (2 mrad about its north and its horizontal plane)."""
+    rng = np.random.default_rng(7)
+    truth = _cv_truth(30, 300.0, rng)
+    site = site_from_geodetic(PARIS, 49.5, 4.0, 200.0)
+    sc = Scenario(targets=30, duration=300.0, region=75e3, pd=1.0, clutter=0.0, late=0.0)
+    lines = sensor_lines(SensorSpec("r1", "radar", 4.0), sc, truth.x, truth.alive, True, rng, site=site)
+    common, own = [], []
+    for _, line in lines:
+        step = int(round(line["t"] / DT))
+        z = np.array([d["z"] for d in line["detections"]])
+        where = np.array(line["sensor_position"])
+        p = truth.x[step][:, [0, 2, 4]]
+        # match each detection with its aircraft: the nearest truth
+        back = where + cartesian_from_polar(z)
+        idx = np.argmin(np.linalg.norm(back[:, None] - p[None], axis=-1), axis=1)
+        r = z - polar_from_cartesian(p[idx] - where)
+        r[:, 1] = wrap_angle(r[:, 1])
+        common.append(r / np.sqrt(np.diag(line["R"])))
+        o = aer_from_enu(site, back) - aer_from_enu(site, p[idx])
+        o[:, 0] = wrap_angle(o[:, 0])
+        own.append(o)
+    common, own = np.concatenate(common), np.concatenate(own)
+    se = 1.0 / np.sqrt(len(common))
+    assert np.all(np.abs(common.mean(axis=0)) < 4 * se)
+    assert np.all(np.abs(common.var(axis=0) - 1.0) < 4 * np.sqrt(2) * se)
+    np.testing.assert_allclose(own[:, :2].std(axis=0), [0.002, 0.002], rtol=4 * se)
+    np.testing.assert_allclose(own[:, 2].std(), 10.0, rtol=4 * np.sqrt(2) * se)
+
+
+def test_adsb_reports_move_to_the_scan_time() -> None:
+    rng = np.random.default_rng(3)
+    truth = _cv_truth(5, 20.0, rng)
+    period = rng.uniform(0.4, 0.6, 5)
+    moved, fresh = adsb_view(truth, 1.0, period, rng)
+    np.testing.assert_allclose(moved[fresh], truth.x[fresh], atol=1e-6)  # constant velocity: exact
+    assert fresh[round(1.0 / DT):].all()  # a report within every second of every aircraft
+    sparse = adsb_view(truth, 0.2, period, rng)[1]
+    assert 0.2 < sparse[20:].mean() < 0.6  # scans of 0.2 s: about 0.2 / 0.5 of them hold an aircraft
+
+
+def test_simulate_traffic_on_the_extract_then_replay(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "run"
+    code = main(["simulate", "traffic", "--source", str(DATA / "traffic_switzerland.csv.gz"), "--origin", "46.9,8.2",
+                 "--sensors", "radar:4@47.3/8.0/900,pos:2,adsb:1", "--seed", "2", "--start", "60", "--duration", "120",
+                 "--box", "250", "--out", str(out)])
+    assert code == 0
+    assert "at most" in capsys.readouterr().out
+    config = tomllib.loads((out / "config.toml").read_text())
+    assert config["frame"] == {"origin": [46.9, 8.2, 0.0], "sites": {"r1": [47.3, 8.0, 900.0]}}
+    assert config["mtt"]["sensors"] == ["r1", "s2", "a3"]
+    lines = [json.loads(line) for line in (out / "truth.jsonl").read_text().splitlines()]
+    assert len(lines) == 121 and min(len(line["targets"]) for line in lines) >= 20
+    g = lines[60]["targets"]
+    lla = np.array([[tg["lat"], tg["lon"], tg["alt"]] for tg in g])
+    enu = np.array([np.asarray(tg["x"])[[0, 2, 4]] for tg in g])
+    np.testing.assert_allclose(lla, geodetic_from_enu(Frame(46.9, 8.2), enu), atol=2e-3)
+    scans = [json.loads(line) for line in (out / "measurements.jsonl").read_text().splitlines()]
+    assert {s["sensor"] for s in scans} == {"r1", "s2", "a3"}
+    assert main(["replay", "--algorithm", "mtt-centralized", "--config", str(out / "config.toml"),
+                 "--measurements", str(out / "measurements.jsonl"), "--out", str(out / "tracks.jsonl")]) == 0
+
+
+def test_cli_errors_and_help(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["simulate", "traffic", "--source", str(tmp_path / "none.csv"), "--origin", "46.9,8.2",
+                 "--out", str(tmp_path / "o")]) == 2
+    assert "none.csv: file does not exist" in capsys.readouterr().err
+    assert main(["simulate", "traffic", "--source", str(DATA / "traffic_switzerland.csv.gz"), "--origin", "95,8",
+                 "--out", str(tmp_path / "o")]) == 2
+    assert "--origin: '95,8' is not LAT,LON[,H]" in capsys.readouterr().err
+    assert main(["simulate", "traffic", "--source", str(DATA / "traffic_switzerland.csv.gz"), "--origin", "46.9,8.2",
+                 "--sensors", "pos:1@47/8/0", "--out", str(tmp_path / "o")]) == 2
+    assert "only a radar takes a site" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+    with pytest.raises(SystemExit):
+        main(["simulate", "traffic", "--help"])
+    text = capsys.readouterr().out
+    for word in ("baroaltitude", "ft/min", "vertical_rate", "onground", "seconds since 1970", "LAT/LON/H", "NACp"):
+        assert word in text or word.lower() in text.lower(), word
+
+
+def test_tracks_on_the_earth_geojson_and_map(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Replay with a [frame] gives each track lat, lon, alt; export --geojson parses as GeoJSON whose
+    lines are the pictures' positions; evaluate --plot --config draws the map."""
+    out = tmp_path / "run"
+    assert main(["simulate", "traffic", "--source", str(DATA / "traffic_switzerland.csv.gz"), "--origin", "46.9,8.2",
+                 "--sensors", "radar:4@47.3/8.0/900,pos:2", "--seed", "3", "--start", "60", "--duration", "60",
+                 "--box", "250", "--out", str(out)]) == 0
+    config = out / "config.toml"
+    assert main(["replay", "--algorithm", "mtt-federated", "--config", str(config), "--measurements",
+                 str(out / "measurements.jsonl"), "--out", str(out / "tracks.jsonl")]) == 0
+    pictures = [json.loads(line) for line in (out / "tracks.jsonl").read_text().splitlines()]
+    rows = [r for p in pictures for r in p["tracks"]]
+    assert rows and all({"lat", "lon", "alt"} <= set(r) for r in rows)
+    enu = np.array([np.asarray(r["x"])[[0, 2, 4]] for r in rows])
+    lla = geodetic_from_enu(Frame(46.9, 8.2), enu)  # written to 1e-9 deg and 1e-4 m
+    np.testing.assert_allclose([[r["lat"], r["lon"]] for r in rows], lla[:, :2], atol=1e-9)
+    np.testing.assert_allclose([r["alt"] for r in rows], lla[:, 2], atol=1e-4)
+    geo = tmp_path / "picture.geojson"
+    assert main(["export", "--geojson", str(geo), "--config", str(config), "--tracks", str(out / "tracks.jsonl"),
+                 "--truth", str(out / "truth.jsonl")]) == 0
+    doc = json.loads(geo.read_text())
+    assert doc["type"] == "FeatureCollection"
+    kinds: dict[str, int] = {}
+    for f in doc["features"]:
+        assert f["type"] == "Feature" and set(f) == {"type", "geometry", "properties"}
+        g = f["geometry"]
+        assert g["type"] in ("LineString", "Point")
+        points = g["coordinates"] if g["type"] == "LineString" else [g["coordinates"]]
+        assert len(points) >= (2 if g["type"] == "LineString" else 1)
+        for p in points:  # RFC 7946: [lon, lat(, alt)] in degrees
+            assert len(p) in (2, 3) and -180 <= p[0] <= 180 and -90 <= p[1] <= 90
+        kinds[f["properties"]["kind"]] = kinds.get(f["properties"]["kind"], 0) + 1
+    confirmed = {r["id"] for r in rows if r["status"] == "confirmed"}
+    assert kinds["track"] == len(confirmed) and kinds["sensor"] == 1 and kinds["origin"] == 1
+    assert kinds["truth"] >= 20
+    site = next(f for f in doc["features"] if f["properties"]["kind"] == "sensor")
+    assert site["geometry"]["coordinates"] == [8.0, 47.3, 900.0] and site["properties"]["id"] == "r1"
+    # a track's line is its confirmed pictures' positions in time order
+    tid = min(confirmed)
+    line = next(f for f in doc["features"] if f["properties"] == {**f["properties"], "kind": "track", "id": tid})
+    mine = [(p["t"], r) for p in pictures for r in p["tracks"] if r["id"] == tid and r["status"] == "confirmed"]
+    assert line["properties"]["times"] == [t for t, _ in mine]
+    np.testing.assert_allclose(line["geometry"]["coordinates"], [[r["lon"], r["lat"], r["alt"]] for _, r in mine])
+    plot = tmp_path / "eval.png"
+    assert main(["evaluate", "--tracks", str(out / "tracks.jsonl"), "--truth", str(out / "truth.jsonl"), "--horizontal",
+                 "--plot", str(plot), "--config", str(config)]) == 0
+    assert (tmp_path / "eval-map.png").stat().st_size > 10_000
+    assert "altitude error over the assigned pairs" in capsys.readouterr().out
+    assert main(["export", "--geojson", str(geo), "--config", str(out / "none.toml"), "--truth",
+                 str(out / "truth.jsonl")]) == 2
+
+
+def test_parquet_reads_as_csv(tmp_path: Path) -> None:
+    """Parquet (the ``real`` extra's pyarrow; skipped where it is not installed) gives the CSV's samples."""
+    pq = pytest.importorskip("pyarrow.parquet")
+    import pyarrow as pa
+
+    src = read_recording(DATA / "traffic_switzerland.csv.gz")
+    table = pa.table({"time": src.t, "icao24": src.icao24.tolist(), "lat": src.lla[:, 0], "lon": src.lla[:, 1],
+                      "baroaltitude": src.lla[:, 2]})
+    pq.write_table(table, tmp_path / "a.parquet")
+    again = read_recording(tmp_path / "a.parquet")
+    np.testing.assert_array_equal(again.t, src.t)
+    np.testing.assert_array_equal(again.lla, src.lla)
+    assert np.isnan(again.velocity).all()
