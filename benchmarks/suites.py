@@ -201,43 +201,62 @@ def with_mtt_lines(config: Path, out: Path, lines: str) -> Path:
     return out
 
 
-def evaluate(tracks: Path, truth: Path) -> dict[str, Any]:
-    """``fedtrack evaluate``'s JSON for ``tracks`` against ``truth``."""
+def evaluate(tracks: Path, truth: Path, extra: list[str] | None = None) -> dict[str, Any]:
+    """``fedtrack evaluate``'s JSON for ``tracks`` against ``truth`` (``extra``: its options)."""
     result = tracks.with_suffix(".eval.json")
-    timed(fedtrack_cmd("evaluate", "--tracks", str(tracks), "--truth", str(truth), "--json", str(result)))
+    timed(fedtrack_cmd("evaluate", "--tracks", str(tracks), "--truth", str(truth), "--json", str(result),
+                       *(extra or [])))
     return json.loads(result.read_text())
 
 
-# issue 25's scenarios: ``simulate multitarget`` options (full, --quick)
-ASSOCIATION_SCENARIOS = {"default": (["--seed", "1"], ["--seed", "1", "--duration", "60"]),
-                         "dense": (["--scenario", "dense", "--seed", "1"],
-                                   ["--scenario", "dense", "--seed", "1", "--targets", "15", "--duration", "30"])}
-ASSOCIATION_RUNS = (("mtt-centralized", []), ("mtt-federated", []), ("mtt-local:s1", ["--sensor", "s1"]))
+# issue 25's scenarios: (``simulate`` arguments, the same with --quick, the sensor of the mtt-local row,
+# ``evaluate --horizontal``); the recorded one needs the repository's tests/data (an editable install)
+TRAFFIC_SOURCE = Path(__file__).resolve().parents[1] / "tests" / "data" / "traffic_paris.csv.gz"
+ASSOCIATION_SCENARIOS: dict[str, tuple[list[str], list[str], str, bool]] = {
+    "default": (["multitarget", "--seed", "1"], ["multitarget", "--seed", "1", "--targets", "15", "--duration", "30"], "s1", False),
+    "dense": (["multitarget", "--scenario", "dense", "--seed", "1"],
+              ["multitarget", "--scenario", "dense", "--seed", "1", "--targets", "15", "--duration", "30"], "s1", False),
+    "traffic": (["traffic", "--source", str(TRAFFIC_SOURCE), "--origin", "48.86,2.40", "--sensors",
+                 "radar:4@49.2/2.0/100,radar:5@48.6/2.9/100,pos:2", "--seed", "1", "--start", "60", "--box", "150",
+                 "--duration", "600"],
+                ["traffic", "--source", str(TRAFFIC_SOURCE), "--origin", "48.86,2.40", "--sensors",
+                 "radar:4@49.2/2.0/100,radar:5@48.6/2.9/100,pos:2", "--seed", "1", "--start", "60", "--box", "150",
+                 "--duration", "60"], "s3", True),
+}
 
 
 def bench_association(quick: bool) -> dict[str, Any]:
     """Mean GOSPA and its parts (``evaluate``'s means) per scenario, algorithm and associator: the
     scenario's own config with only ``associator`` changed and every picture holding every scan up
     to its time (``picture_delay = max_lag``); Stone Soup's GNN and JPDA trackers on all detections,
-    time-sorted (:mod:`fedtrack.benchmarks.stonesoup_mtt`); the bars' ratios."""
+    time-sorted (:mod:`fedtrack.benchmarks.stonesoup_mtt`); the bars' ratios. The recorded-traffic
+    scenario (Paris, docs/geodetic.md) is scored on x, y (``--horizontal``)."""
+    import tomllib
+
     out: dict[str, Any] = {"gospa": {}, "replay_s": {}}
     with tempfile.TemporaryDirectory() as tmp:
-        for scenario, (full, small) in ASSOCIATION_SCENARIOS.items():
+        for scenario, (full, small, own, horizontal) in ASSOCIATION_SCENARIOS.items():
+            if scenario == "traffic" and not TRAFFIC_SOURCE.exists():
+                print(f"fedtrack bench: {TRAFFIC_SOURCE} not found: the traffic scenario is skipped", file=sys.stderr)
+                continue
             folder = Path(tmp) / scenario
-            timed(fedtrack_cmd("simulate", "multitarget", "--out", str(folder), *(small if quick else full)))
+            timed(fedtrack_cmd("simulate", *(small if quick else full), "--out", str(folder)))
+            max_lag = tomllib.loads((folder / "config.toml").read_text())["mtt"]["max_lag"]
+            truth, extra_eval = folder / "truth.jsonl", ["--horizontal"] if horizontal else []
             table: dict[str, dict[str, Any]] = {}
             for associator in ("gnn", "jipda"):
                 config = with_mtt_lines(folder / "config.toml", folder / f"{associator}.toml",
-                                        f'picture_delay = 3.0\nassociator = "{associator}"')
-                for name, extra in ASSOCIATION_RUNS:
+                                        f'picture_delay = {max_lag}\nassociator = "{associator}"')
+                for name, extra in (("mtt-centralized", []), ("mtt-federated", []),
+                                    (f"mtt-local:{own}", ["--sensor", own])):
                     path = folder / f"{associator}-{name.replace(':', '-')}.jsonl"
                     out["replay_s"][f"{scenario}:{name}:{associator}"], _ = timed(fedtrack_cmd(
                         "replay", "--algorithm", name.split(":")[0], *extra, "--config", str(config),
                         "--measurements", str(folder / "measurements.jsonl"), "--out", str(path)))
-                    table.setdefault(name, {})[associator] = evaluate(path, folder / "truth.jsonl")["mean"]
+                    table.setdefault(name, {})[associator] = evaluate(path, truth, extra_eval)["mean"]
             for association, wall in (stonesoup_runs(folder, folder / "gnn.toml", (), {}, ("gnn", "jpda")) or {}).items():
                 path = folder / f"stonesoup-{association}.jsonl"
-                table.setdefault("stonesoup:all", {})[association] = evaluate(path, folder / "truth.jsonl")["mean"]
+                table.setdefault("stonesoup:all", {})[association] = evaluate(path, truth, extra_eval)["mean"]
                 out["replay_s"][f"{scenario}:stonesoup:{association}"] = wall
             out["gospa"][scenario] = table
     ratios = {f"{scenario}:{name}": row["jipda"]["gospa"] / row["gnn"]["gospa"]
