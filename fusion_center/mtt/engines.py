@@ -103,12 +103,11 @@ def tracker_picture(state: TrackerState, T: float, cfg: MttConfig, sensors: list
         else:
             x, P = predict_batch(x, P, T - state.t, cfg.q, cfg.noise_model)
     maneuver = None if tr.inputs is None or detector is None else tr.inputs.detection.picture_rows(detector)
-    existence, confirmed = None, tr.confirmed
-    if tr.existence is not None:  # predicted to T as the tracks are (jipda.survival); shown if likely
-        mu = existence_predict(tr.existence, jipda.survival(max(T - (state.t or T), 0.0), 1.0,
-                                                            jipda.SURVIVAL_PER_SECOND), 0.0)
-        existence, confirmed = mu.tolist(), jipda.shown(tr.confirmed, mu)
-    return PictureTracks(tr.ids.tolist(), x, P, confirmed.tolist(), [sensors] * tr.size, tr.models, maneuver,
+    existence = None
+    if tr.existence is not None:  # predicted to T as the tracks are (jipda.survival)
+        existence = existence_predict(tr.existence, jipda.survival(max(T - (state.t or T), 0.0), 1.0,
+                                                                   jipda.SURVIVAL_PER_SECOND), 0.0).tolist()
+    return PictureTracks(tr.ids.tolist(), x, P, tr.confirmed.tolist(), [sensors] * tr.size, tr.models, maneuver,
                          existence)
 
 

@@ -424,17 +424,6 @@ def manage(existence: np.ndarray, confirmed: np.ndarray, rules: ExistenceRules) 
     return confirmed | (existence >= rules.confirm), existence >= rules.delete
 
 
-# A picture shows a confirmed track whose existence is at least SHOW_EXISTENCE: the Bayes decision
-# for a set metric that charges a missed and a false target alike (GOSPA with alpha = 2 charges
-# each c^p / 2): showing a track costs (1 - mu) c^p / 2 in expectation, hiding it mu c^p / 2.
-SHOW_EXISTENCE = 0.5
-
-
-def shown(confirmed: np.ndarray, existence: np.ndarray) -> np.ndarray:
-    """The tracks a picture shows as confirmed: confirmed ones with ``existence >= SHOW_EXISTENCE``."""
-    return confirmed & (existence >= SHOW_EXISTENCE)
-
-
 def birth_existence(unclaimed: np.ndarray, births: int, birth: float = BIRTH_EXISTENCE) -> np.ndarray:
     """Prior existence of the tracks started on each detection: the prior odds ``odds(birth)`` that
     the scan holds a new target, shared by its ``births`` unclaimed detections, times the
