@@ -255,6 +255,13 @@ def test_equivalent_observation_gives_the_pda_mean() -> None:
         np.array(0.7), np.log1p(-c.pd * c.pg), 1.0, 0.0), rtol=1e-12)
     free = jipda.unclaimed(len(z), pairs.cols, assoc)
     assert free[3] == 1.0 and np.all(free[:3] < 1.0)
+    # a track reports when it more likely than not exists and made a detection, mu (1 - beta_0) >= 1/2:
+    # the same scan with a clutter-born track 0 (existence 0.001) leaves it silent though its gate holds z_0
+    _, faint, faint_pairs = run_scan(pred, np.array([0.001, 0.5, 0.7]), z, amp, lin, R, c)
+    silent, _ = jipda.equivalent_observation(pred, lin, R, faint_pairs, faint)
+    hit = faint.existence * faint.beta0 < faint.existence  # some detection given existence
+    assert hit[0] and 1.0 - faint.beta0[0] >= 0.5 and faint.existence[0] * (1.0 - faint.beta0[0]) < 0.5
+    assert silent.tolist() == (faint.existence * (1.0 - faint.beta0) >= 0.5).tolist() and not silent[0]
 
 
 def test_derived_rules() -> None:
