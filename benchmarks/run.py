@@ -10,7 +10,10 @@ with the other counts so that the machine's load drifts over all of them alike:
   ``fedtrack launch`` prints; it includes the sensors' clock skew, since realtime sensors
   are not phase-aligned) and from the LAST one (the pipeline's own latency, once every
   measurement of the scan is out);
-* ``lockstep`` pacing: fused scans per second between the first and the last track.
+* ``lockstep`` pacing: fused scans per second between the first and the last track;
+* for the largest count, ``realtime-tls``: the realtime deployment again, right after the plain
+  one, with mutual TLS and the router's access control (``fedtrack demo``'s default,
+  :mod:`fedtrack.deploy.security`): the latency cost of authentication, side by side.
 
 Latencies are the steady state: the scans of the first ``STARTUP_S`` seconds (sessions
 warming up, first-scan initialisation) are reported apart as ``startup``. Beside each
@@ -42,7 +45,7 @@ import numpy as np
 from fedtrack.benchmarks.floor import measure_floor
 from fedtrack.benchmarks.kf_micro import bench_kf
 from fedtrack.deploy.demo import demo_settings, free_port, write_config
-from fedtrack.deploy.launcher import Launcher, service_plan
+from fedtrack.deploy.launcher import Launcher, apply_zenoh_settings, service_plan
 from fedtrack.jsonl import check_output, output_file
 from fedtrack.progress import progress_bar
 
@@ -52,6 +55,7 @@ QUICK_SCANS = 20
 FULL_KF_RUNS, QUICK_KF_RUNS = 2000, 200
 KF_LOOP_RUNS, KF_ROUNDS = 50, 5
 STARTUP_S = 2.0  # seconds of scans at the start reported apart from the steady state
+TLS = "realtime-tls"  # the realtime deployment with mutual TLS and access control (largest sensor count)
 
 
 def percentiles(values: list[float]) -> dict[str, float]:
@@ -97,16 +101,20 @@ def summarize_run(launcher: Launcher, n_sensors: int, startup_scans: int) -> dic
 
 
 def run_one(n_sensors: int, pacing: str, max_scans: int | None, seed: int, startup_scans: int) -> dict[str, Any]:
-    """One deployment on free loopback ports, in a temporary directory."""
+    """One deployment on free loopback ports, in a temporary directory (``pacing`` ``realtime``,
+    ``lockstep``, or ``realtime-tls``: realtime with mutual TLS, certificates made there)."""
     with tempfile.TemporaryDirectory(prefix="fedtrack-bench-") as tmp:
         out = Path(tmp)
-        base = demo_settings(n_sensors, 1, "federated", seed, free_port(), out)
+        base = demo_settings(n_sensors, 1, "federated", seed, free_port(), out,
+                             tls_dir=out / "certs" if pacing == TLS else None)
+        realtime = pacing in ("realtime", TLS)
         settings = replace(base, deployment=replace(
-            base.deployment, name="bench", pacing=pacing, speed=REALTIME_SPEED if pacing == "realtime" else 1.0,
-            services=BENCH_SERVICES))
+            base.deployment, name="bench", pacing="realtime" if realtime else pacing,
+            speed=REALTIME_SPEED if realtime else 1.0, services=BENCH_SERVICES))
         write_config(settings, out / "config.toml")
-        launcher = Launcher(settings, service_plan(settings, out / "config.toml", out, out / "logs"), quiet=True,
-                            max_scans=max_scans)
+        plan = service_plan(settings, out / "config.toml", out, out / "logs")
+        launcher = Launcher(settings, plan, quiet=True, max_scans=max_scans,
+                            zenoh_config=apply_zenoh_settings(settings, out / "config.toml", out, plan))
         launcher.run()
         return {"sensors": n_sensors, "pacing": pacing, **summarize_run(launcher, n_sensors, startup_scans)}
 
@@ -140,6 +148,7 @@ def summarize(runs: list[dict[str, Any]], counts: list[int]) -> dict[str, dict[s
         rt = [r for r in runs if r["sensors"] == n and r["pacing"] == "realtime" and "error" not in r]
         ls = [r for r in runs if r["sensors"] == n and r["pacing"] == "lockstep" and "error" not in r]
         fl = [r for r in runs if r["sensors"] == n and r["pacing"] == "floor" and "error" not in r]
+        tls = [r for r in runs if r["sensors"] == n and r["pacing"] == TLS and "error" not in r]
         table[str(n)] = {
             "latency_first_p50_ms": median_of(rt, ("latency_first_publish_ms", "p50")),
             "latency_first_p99_ms": median_of(rt, ("latency_first_publish_ms", "p99")),
@@ -156,6 +165,15 @@ def summarize(runs: list[dict[str, Any]], counts: list[int]) -> dict[str, dict[s
             "repeats_latency_last_p50_ms": values_of(rt, ("latency_last_publish_ms", "p50")),
             "repeats_lockstep_scans_per_s": values_of(ls, ("scans_per_s",)),
         }
+        if tls:
+            row = table[str(n)]
+            row["tls_latency_last_p50_ms"] = median_of(tls, ("latency_last_publish_ms", "p50"))
+            row["tls_latency_last_p99_ms"] = median_of(tls, ("latency_last_publish_ms", "p99"))
+            row["tls_latency_first_p50_ms"] = median_of(tls, ("latency_first_publish_ms", "p50"))
+            row["tls_latency_first_p99_ms"] = median_of(tls, ("latency_first_publish_ms", "p99"))
+            row["tls_p50_cost_ms"] = row["tls_latency_last_p50_ms"] - row["latency_last_p50_ms"]
+            row["tls_p99_cost_ms"] = row["tls_latency_last_p99_ms"] - row["latency_last_p99_ms"]
+            row["repeats_tls_latency_last_p50_ms"] = values_of(tls, ("latency_last_publish_ms", "p50"))
     ref = table[str(counts[0])]
     for row in table.values():
         row["latency_last_p50_ratio"] = row["latency_last_p50_ms"] / ref["latency_last_p50_ms"]
@@ -180,6 +198,14 @@ def print_table(table: dict[str, dict[str, Any]], kf: dict[str, Any], counts: li
               f"{row['startup_latency_last_p99_ms']:<7.1f}  {row['latency_first_p50_ms']:>7.1f} / "
               f"{row['latency_first_p99_ms']:<8.1f}ms  {row['sensor_skew_p50_ms']:>6.1f}ms  "
               f"{row['lockstep_scans_per_s']:>16.1f}  {row['lockstep_rate_ratio']:>5.2f}  {row['max_rss_mb']:>5.0f} MB")
+    for n, row in table.items():
+        if "tls_latency_last_p50_ms" in row:
+            print(f"\nmutual TLS + access control, {n} sensors, realtime (side by side with the plain run above): "
+                  f"from last publish p50 / p99 {row['tls_latency_last_p50_ms']:.2f} / {row['tls_latency_last_p99_ms']:.2f} "
+                  f"ms against {row['latency_last_p50_ms']:.2f} / {row['latency_last_p99_ms']:.2f} ms plain "
+                  f"(cost {row['tls_p50_cost_ms']:+.2f} / {row['tls_p99_cost_ms']:+.2f} ms); from first publish "
+                  f"{row['tls_latency_first_p50_ms']:.2f} / {row['tls_latency_first_p99_ms']:.2f} ms against "
+                  f"{row['latency_first_p50_ms']:.2f} / {row['latency_first_p99_ms']:.2f} ms")
     print(f"\nestimation core, CV Kalman scan-update ({kf['runs_batched']} runs batched, "
           f"{kf['runs_loop']} in loops, {kf['rounds']} alternating rounds; ratio = time per update / batched)")
     for name, m in kf["methods"].items():
@@ -226,10 +252,13 @@ def main(argv: list[str]) -> int:
     startup_scans = QUICK_SCANS // 4 if args.quick else int(STARTUP_S * REALTIME_SPEED)
     start = time.monotonic()
     runs: list[dict[str, Any]] = []
-    with progress_bar(args.repeats * len(counts) * 3 + KF_ROUNDS, "bench") as progress:
-        for _ in range(args.repeats):
+    with progress_bar(args.repeats * (len(counts) * 3 + 1) + KF_ROUNDS, "bench") as progress:
+        for repeat in range(args.repeats):
             for n in counts:
-                for pacing in ("realtime", "floor", "lockstep"):
+                realtime = ["realtime", TLS] if n == counts[-1] else ["realtime"]
+                if repeat % 2:  # alternate which of the two goes first
+                    realtime.reverse()
+                for pacing in (*realtime, "floor", "lockstep"):
                     try:
                         if pacing == "floor":
                             scans = max([r["scans_fused"] for r in runs if r["sensors"] == n

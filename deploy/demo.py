@@ -12,6 +12,10 @@ the committed Paris extract at 10x real time, two radars and a position sensor, 
 ``tracks.png`` is then a longitude / latitude map, ``gospa.png`` GOSPA over time, and
 ``tracks.geojson`` the tracks and truth as GeoJSON.
 
+Every link is mutual TLS with the router's access control (:mod:`fedtrack.deploy.security`;
+certificates made on first use in ``OUT/certs/``, the per-service Zenoh files in ``OUT/zenoh/``),
+every scenario; ``--insecure``: plain TCP, as before this default.
+
 ``--scenario multitarget``: the live multi-target deployment of :mod:`fedtrack.deploy.multitarget`
 instead (20 targets, three position sensors with periods 1.0, 0.7 and 1.3 s, clutter, 60 s of
 scenario at 5x real time); ``fedtrack replay --algorithm mtt-federated --config DIR/config.toml
@@ -37,6 +41,7 @@ from fedtrack.deploy.launcher import (
 )
 from fedtrack.deploy.multitarget import SCENARIO_DIR, finish_multitarget, prepare
 from fedtrack.deploy.report import finish
+from fedtrack.deploy.security import ZenohSettings
 from fedtrack.deploy.settings import MultitargetSettings, Settings
 from fedtrack.deployment import MODES, DeploymentConfig, SensorConfig
 from fedtrack.geodetic import FrameConfig
@@ -52,6 +57,7 @@ MULTITARGET_SPEED = 5.0  # the live multi-target demo runs at 5x real time
 TRAFFIC_EXTRACT = Path(__file__).resolve().parents[1] / "tests" / "data" / "traffic_paris.csv.gz"
 TRAFFIC_SENSORS = "radar:4@49.2/2.0/100,radar:5@48.6/2.9/100,pos:2"
 TRAFFIC_SPEED, TRAFFIC_DURATION, TRAFFIC_BOX, TRAFFIC_START = 10.0, 600.0, 150.0, 60.0
+CERTS = "certs"  # the demo's certificates, in its output directory (made on first use)
 
 
 def free_port() -> int:
@@ -61,36 +67,51 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def demo_settings(n_sensors: int, scenario: int, mode: str, seed: int, port: int, out: Path) -> Settings:
+def transport(port: int, tls_dir: Path | None) -> tuple[str, ZenohSettings]:
+    """The router endpoint on loopback and the ``[zenoh]`` table: mutual TLS and access control with
+    the certificates in ``tls_dir`` (made on first use), or plain TCP when ``tls_dir`` is None."""
+    if tls_dir is None:
+        return f"tcp/127.0.0.1:{port}", ZenohSettings()
+    return f"tls/127.0.0.1:{port}", ZenohSettings(tls_dir=str(tls_dir))
+
+
+def demo_settings(n_sensors: int, scenario: int, mode: str, seed: int, port: int, out: Path,
+                  tls_dir: Path | None = None) -> Settings:
+    """The paper 004 deployment of ``fedtrack demo`` (``tls_dir``: see :func:`transport`)."""
     ids = tuple(str(i + 1) for i in range(n_sensors))
     r = tuple(tuple(row) for row in DEFAULT_R.tolist())
+    endpoint, zenoh = transport(port, tls_dir)
     return Settings(
         fusion=FusionConfig(sensors=ids),
         deployment=DeploymentConfig(name="demo", mode=mode, scenario=scenario, seed=seed, pacing="lockstep",
-                                    router_listen=f"tcp/127.0.0.1:{port}", out=str(out)),
+                                    router_listen=endpoint, out=str(out)),
         sensor=tuple(SensorConfig(id=i, R=r) for i in ids),  # type: ignore[arg-type]
+        zenoh=zenoh,
     )
 
 
-def multitarget_settings(mode: str, seed: int, port: int, out: Path) -> Settings:
+def multitarget_settings(mode: str, seed: int, port: int, out: Path, tls_dir: Path | None = None) -> Settings:
     """A live multi-target deployment of the default scenario (``mode`` federated or decentralized),
-    with maneuver handling (maneuver events per central track)."""
+    with maneuver handling (maneuver events per central track; ``tls_dir``: see :func:`transport`)."""
     mt = MultitargetSettings(algorithm=f"mtt-{mode}")
     specs = parse_spec(mt.sensors)
     scenario = Scenario(targets=mt.targets, duration=mt.duration, pd=mt.pd, clutter=mt.clutter)
+    endpoint, zenoh = transport(port, tls_dir)
     return Settings(
         deployment=DeploymentConfig(name="demo", mode=mode, seed=seed, pacing="realtime", speed=MULTITARGET_SPEED,
-                                    router_listen=f"tcp/127.0.0.1:{port}", out=str(out)),
+                                    router_listen=endpoint, out=str(out)),
         mtt=MttConfig(pd=mt.pd, clutter_density=clutter_density(specs[0], scenario),
                       sensors=tuple(s.id for s in specs), maneuver="vdie"),
-        multitarget=mt)
+        multitarget=mt, zenoh=zenoh)
 
 
-def traffic_settings(source: Path | None, mode: str, seed: int, port: int, out: Path) -> Settings:
+def traffic_settings(source: Path | None, mode: str, seed: int, port: int, out: Path,
+                     tls_dir: Path | None = None) -> Settings:
     """A live deployment on recorded air traffic: without ``source``, the committed Paris extract with
     two radars and a position sensor (docs/geodetic.md); with it, the recording's median position as
     the origin and radars on the box's edge. The tracker keys are the ones ``simulate traffic`` derives,
-    simulated here first (the launch simulates the same again into ``OUT/scenario``)."""
+    simulated here first (the launch simulates the same again into ``OUT/scenario``; ``tls_dir``: see
+    :func:`transport`)."""
     if source is None:
         source, origin, sensors = TRAFFIC_EXTRACT, (48.86, 2.40, 0.0), TRAFFIC_SENSORS
         if not source.is_file():
@@ -105,11 +126,12 @@ def traffic_settings(source: Path | None, mode: str, seed: int, port: int, out: 
     draft = Settings(deployment=DeploymentConfig(seed=seed), multitarget=mt)
     prepare(draft, out)
     table = load_toml(out / SCENARIO_DIR / "config.toml")
+    endpoint, zenoh = transport(port, tls_dir)
     return Settings(
         deployment=DeploymentConfig(name="demo", mode=mode, seed=seed, pacing="realtime", speed=TRAFFIC_SPEED,
-                                    router_listen=f"tcp/127.0.0.1:{port}", out=str(out)),
+                                    router_listen=endpoint, out=str(out)),
         mtt=parse_dataclass(MttConfig, table["mtt"], "mtt"), multitarget=mt,
-        frame=parse_dataclass(FrameConfig, table["frame"], "frame"))
+        frame=parse_dataclass(FrameConfig, table["frame"], "frame"), zenoh=zenoh)
 
 
 def settings_table(settings: Settings) -> dict[str, Any]:
@@ -141,22 +163,27 @@ def main(argv: list[str]) -> int:
                         help="federated (FVDIE, reset feedback) or decentralized (DVDIE; default: %(default)s)")
     parser.add_argument("--seed", type=int, default=1, help="seed of truth and noise (default: %(default)s)")
     parser.add_argument("--port", type=int, help="router port on 127.0.0.1 (default: a free one)")
+    parser.add_argument("--insecure", action="store_true",
+                        help="plain TCP without authentication (default: mutual TLS and access control, "
+                             f"certificates made on first use in OUT/{CERTS})")
     args = parser.parse_args(argv)
     if not 1 <= args.sensors <= 32:
         parser.error("--sensors must be between 1 and 32")
     out = output_folder(args.out).resolve()
     port = args.port or free_port()
+    tls_dir = None if args.insecure else Path(CERTS)  # relative to OUT/config.toml
     if args.source is not None and args.scenario != "traffic":
         parser.error("--source applies to --scenario traffic only")
     if args.scenario == "traffic":
-        settings = traffic_settings(args.source, args.mode, args.seed, port, out)
+        settings = traffic_settings(args.source, args.mode, args.seed, port, out, tls_dir)
         what = f"recorded traffic from {settings.multitarget.source}, sensors {settings.multitarget.sensors}"  # type: ignore[union-attr]
     elif args.scenario == "multitarget":
-        settings = multitarget_settings(args.mode, args.seed, port, out)
+        settings = multitarget_settings(args.mode, args.seed, port, out, tls_dir)
         what = f"multitarget, {settings.multitarget.targets} targets, sensors {settings.multitarget.sensors}"  # type: ignore[union-attr]
     else:
-        settings = demo_settings(args.sensors, int(args.scenario), args.mode, args.seed, port, out)
+        settings = demo_settings(args.sensors, int(args.scenario), args.mode, args.seed, port, out, tls_dir)
         what = f"{args.sensors} sensors, scenario {args.scenario}"
+    what += ", plain TCP (--insecure)" if args.insecure else ", mutual TLS and access control"
     write_config(settings, out / "config.toml")
     print(f"fedtrack demo: {what}, {args.mode}; output in {out}", file=sys.stderr)
     failure = None

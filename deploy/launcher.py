@@ -179,7 +179,6 @@ def apply_zenoh_settings(settings: Settings, config_path: Path, out_dir: Path,
     """Hand every service of ``plan`` its Zenoh configuration (``[zenoh]`` table, see
     :mod:`fedtrack.deploy.security`) with ``--zenoh-config``; returns the launcher monitor's file."""
     dep = settings.deployment
-    endpoints = [*([dep.router_listen] if dep.router_listen else []), *dep.connect_endpoints]
 
     def ident(sp: ServiceProcess) -> str:
         return identity(sp.role, sp.id)
@@ -187,7 +186,7 @@ def apply_zenoh_settings(settings: Settings, config_path: Path, out_dir: Path,
     identities = sorted({ident(sp) for sp in plan} | {identity("sensor", s.id) for s in settings.sensor}
                         | {"router", "fusion", "recorder"})
     with in_file(config_path):
-        paths = write_configs(settings.zenoh, config_path.parent, Keys(dep.name), endpoints, identities, out_dir)
+        paths = write_configs(settings.zenoh, config_path.parent, Keys(dep.name), identities, out_dir)
     if not paths:
         return None
     for sp in plan:
@@ -510,6 +509,14 @@ def install_stop_handlers(launcher: Launcher) -> None:
 
 def run_deployment(settings: Settings, config_path: Path, out_dir: Path, quiet: bool = False) -> LaunchReport:
     """Launch the services of ``settings`` on this host and wait for the scenario to end."""
+    launcher = prepare_launcher(settings, config_path, out_dir, quiet)
+    install_stop_handlers(launcher)
+    return launcher.run()
+
+
+def prepare_launcher(settings: Settings, config_path: Path, out_dir: Path, quiet: bool = False) -> Launcher:
+    """What :func:`run_deployment` does before it runs: the checks (port, multi-target scenario), the
+    plan and the Zenoh configurations; the launcher is ready to ``run()`` (from any thread)."""
     dep = settings.deployment
     if "router" in dep.services and dep.router_listen and port_in_use(dep.router_listen):
         raise ConfigError(f"{config_path}: deployment.router_listen: port {listen_address(dep.router_listen, '')[1]} "
@@ -519,9 +526,7 @@ def run_deployment(settings: Settings, config_path: Path, out_dir: Path, quiet: 
         prepare(settings, out_dir)
     plan = service_plan(settings, config_path, out_dir, out_dir / "logs")
     monitor_config = apply_zenoh_settings(settings, config_path, out_dir, plan)
-    launcher = Launcher(settings, plan, quiet=quiet, zenoh_config=monitor_config)
-    install_stop_handlers(launcher)
-    return launcher.run()
+    return Launcher(settings, plan, quiet=quiet, zenoh_config=monitor_config)
 
 
 def main(argv: list[str]) -> int:

@@ -6,32 +6,51 @@ monitor) a Zenoh configuration file (``--zenoh-config``) written to ``OUT/zenoh/
 * every link is mutual TLS: the router listens with its certificate and asks every client
   for one signed by the deployment's CA (``TLS_DIR/ca.pem``); a client without a valid
   certificate cannot open a session;
-* an identity is a certificate's common name: ``router``, ``fusion`` (the fusion center),
-  ``recorder``, ``launcher`` (the launcher's monitor), and ``sensor-<id>`` for sensor
-  ``<id>`` **and** its local filter (they run together on the sensor's host);
+* an identity is a certificate's common name: ``router``, ``fusion`` (the fusion center or the
+  multi-target centre), ``recorder``, ``launcher`` (the launcher's monitor), and ``sensor-<id>``
+  for sensor ``<id>`` **and** its local filter or local multi-target tracker (they run together
+  on the sensor's host);
 * the router's access control (default deny) lets every identity subscribe, query and
   receive anything of the deployment, and lets an identity publish, reply (its cache),
   declare queryables and liveliness tokens only on its own keys: ``sensor-<id>`` on
-  ``sensor/<id>/meas``, ``local/<id>/estimate`` and its health/alive keys; ``fusion``
-  on ``fusion/**`` (resets, tracks, events, the state queryable); the others on their
-  health/alive keys. A denied put is dropped at the router: nobody receives it.
+  ``sensor/<id>/meas``, ``local/<id>/estimate``, ``local/<id>/tracks`` and its health/alive
+  keys; ``fusion`` on ``fusion/**`` (resets, tracks, events, pictures, the state queryable);
+  the others on their health/alive keys. A denied put is dropped at the router: nobody receives it.
 
-Missing certificates are made with ``deploy/secure/make-certs.sh`` (openssl) on first use.
+Missing certificates are made on first use by :func:`make_certificates` (the ``cryptography``
+package, a dependency: nothing else is needed on a fresh machine); ``python -m
+fedtrack.deploy.security DIR IDENTITY...`` makes them by hand (for other hosts of a multi-host
+deployment).
+
+Without ``tls_dir``, ``launch`` refuses an endpoint off loopback unless ``[zenoh] insecure = true``
+says so explicitly (:func:`check_transport`): a bus that other machines can reach is
+authenticated unless the configuration opts out by name.
 """
 
 from __future__ import annotations
 
+import argparse
+import datetime
+import ipaddress
 import json
-import shutil
-import subprocess
+import os
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from cryptography import x509
+from cryptography.hazmat.primitives import hashes, serialization
+from cryptography.hazmat.primitives.asymmetric import ec
+from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+
 from fedtrack.config import ConfigError
+from fedtrack.deployment import DeploymentConfig, listen_address
 from fedtrack.keys import Keys
 
-MAKE_CERTS = Path(__file__).resolve().parent / "secure" / "make-certs.sh"
+CA_NAME = "fedtrack-ca"
+CERT_DAYS = 365  # validity of new certificates (``FEDTRACK_CERT_DAYS``)
+LOOPBACK_NAMES = ("localhost",)
 OWN_MESSAGES = ["put", "delete", "reply", "declare_queryable", "liveliness_token"]
 READ_MESSAGES = ["declare_subscriber", "query", "liveliness_query", "declare_liveliness_subscriber"]
 ALL_MESSAGES = OWN_MESSAGES + READ_MESSAGES
@@ -42,32 +61,71 @@ LAUNCHER = "launcher"
 class ZenohSettings:
     """The ``[zenoh]`` table: ``config`` (a Zenoh JSON5 file every service of this host loads)
     or ``tls_dir`` (mutual TLS + access control, certificates in that directory); relative
-    paths are relative to the configuration file."""
+    paths are relative to the configuration file. ``insecure = true``: plain links even off
+    loopback (without it, ``launch`` refuses them: :func:`check_transport`)."""
 
     config: str | None = None
     tls_dir: str | None = None
+    insecure: bool = False
 
     def validate(self) -> None:
         if self.config is not None and self.tls_dir is not None:
             raise ConfigError("tls_dir: give either config or tls_dir, not both")
+        if self.insecure and self.tls_dir is not None:
+            raise ConfigError("insecure: true contradicts tls_dir (mutual TLS); give one of them")
+
+
+def on_loopback(endpoint: str) -> bool:
+    """True when a ``PROTO/HOST:PORT`` endpoint's host is this machine's loopback (127.0.0.0/8, ::1, localhost)."""
+    host, _ = listen_address(endpoint, "endpoint")
+    if host in LOOPBACK_NAMES:
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:  # a host name: it may resolve anywhere
+        return False
+
+
+def check_transport(zenoh: ZenohSettings, dep: DeploymentConfig) -> None:
+    """Authenticated by default: an endpoint off loopback needs ``tls_dir`` or ``insecure = true``
+    (a ConfigError naming the field); with ``tls_dir`` every endpoint must be ``tls/``."""
+    fields = [*([("deployment.router_listen", dep.router_listen)] if dep.router_listen else []),
+              *(("deployment.connect", ep) for ep in dep.connect or ())]
+    if zenoh.tls_dir is not None:
+        for name, ep in fields:
+            if not ep.startswith("tls/"):
+                raise ConfigError(f"zenoh.tls_dir: endpoint {ep} is not tls/...: set {name} to tls/HOST:PORT "
+                                  "(mutual TLS)")
+        return
+    if zenoh.insecure:
+        return
+    for name, ep in fields:
+        if not on_loopback(ep):
+            raise ConfigError(f"{name}: {ep} is off loopback and [zenoh] has neither tls_dir (mutual TLS and "
+                              "access control) nor insecure = true (an explicit opt-out)")
+
+
+SENSOR_ROLES = ("sensor", "local-filter", "mtt-local")  # run on the sensor's host, under its identity
+CENTRE_ROLES = ("fusion-center", "mtt-centre")  # identity ``fusion``
 
 
 def identity(role: str, service_id: str) -> str:
-    """The certificate common name of a service (see the module docstring; a local filter's id is its sensor's)."""
-    if role in ("sensor", "local-filter"):
+    """The certificate common name of a service (see the module docstring; a local filter's or local
+    multi-target tracker's id is its sensor's)."""
+    if role in SENSOR_ROLES:
         return f"sensor-{service_id}"
-    return {"fusion-center": "fusion"}.get(role, role)
+    return "fusion" if role in CENTRE_ROLES else role
 
 
-def _own_keys(keys: Keys, ident: str) -> list[str]:
+def own_keys(keys: Keys, ident: str) -> list[str]:
     """The keys ``ident`` may publish on (health and liveliness of its roles included)."""
     if ident.startswith("sensor-"):
         sid = ident.removeprefix("sensor-")
-        data = [keys.sensor_meas(sid), keys.local_estimate(sid)]
-        roles = [("sensor", sid), ("local-filter", sid)]
+        data = [keys.sensor_meas(sid), keys.local_estimate(sid), keys.mtt_report(sid)]
+        roles = [(role, sid) for role in SENSOR_ROLES]
     elif ident == "fusion":
         data = [keys.fusion_track().rsplit("/", 1)[0] + "/**"]
-        roles = [("fusion-center", None)]
+        roles = [(role, None) for role in CENTRE_ROLES]
     elif ident == LAUNCHER:
         return []
     else:
@@ -90,7 +148,7 @@ def access_control(keys: Keys, identities: list[str]) -> dict[str, Any]:
     subjects: list[dict[str, Any]] = [{"id": "authenticated"}]
     policies: list[dict[str, Any]] = [{"rules": ["receive", "read", "adv-sub"], "subjects": ["authenticated"]}]
     for ident in identities:
-        own = _own_keys(keys, ident)
+        own = own_keys(keys, ident)
         subjects.append({"id": ident, "cert_common_names": [ident]})
         if own:
             rules.append({"id": f"own-{ident}", "messages": OWN_MESSAGES, "flows": ["ingress"],
@@ -107,22 +165,99 @@ def tls_config(tls_dir: Path, ident: str, router: bool) -> dict[str, Any]:
     return {"root_ca_certificate": str(tls_dir / "ca.pem"), "enable_mtls": True, side[0]: cert, side[1]: key}
 
 
+def _write_private(path: Path, data: bytes) -> None:
+    """Write ``data`` readable by the owner only (created with mode 0600, replaced atomically)."""
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "wb") as f:
+        f.write(data)
+    os.replace(tmp, path)
+
+
+def _certificate(subject: str, key: ec.EllipticCurvePrivateKey, issuer: x509.Name, signer: ec.EllipticCurvePrivateKey,
+                 ca: bool, sans: list[x509.GeneralName], days: int) -> x509.Certificate:
+    now = datetime.datetime.now(datetime.UTC)
+    builder = (x509.CertificateBuilder()
+               .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, subject)]))
+               .issuer_name(issuer).public_key(key.public_key()).serial_number(x509.random_serial_number())
+               .not_valid_before(now - datetime.timedelta(minutes=5)).not_valid_after(now + datetime.timedelta(days=days))
+               .add_extension(x509.BasicConstraints(ca=ca, path_length=None), critical=True))
+    if ca:
+        builder = builder.add_extension(x509.KeyUsage(
+            digital_signature=False, content_commitment=False, key_encipherment=False, data_encipherment=False,
+            key_agreement=False, key_cert_sign=True, crl_sign=True, encipher_only=False, decipher_only=False),
+            critical=True)
+    else:
+        builder = (builder.add_extension(x509.SubjectAlternativeName(sans), critical=False)
+                   .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH,
+                                                         ExtendedKeyUsageOID.CLIENT_AUTH]), critical=False))
+    return builder.sign(signer, hashes.SHA256())
+
+
+def subject_alt_names(extra: str = "") -> list[x509.GeneralName]:
+    """127.0.0.1 and localhost, plus ``extra`` (``FEDTRACK_CERT_SAN``: ``IP:10.47.0.1,DNS:host-a``)."""
+    names: list[x509.GeneralName] = [x509.IPAddress(ipaddress.ip_address("127.0.0.1")), x509.DNSName("localhost")]
+    for item in filter(None, (part.strip() for part in extra.split(","))):
+        kind, _, value = item.partition(":")
+        if kind == "IP":
+            try:
+                names.append(x509.IPAddress(ipaddress.ip_address(value)))
+            except ValueError:
+                raise ConfigError(f"FEDTRACK_CERT_SAN: {item!r} is not IP:ADDRESS") from None
+        elif kind == "DNS" and value:
+            names.append(x509.DNSName(value))
+        else:
+            raise ConfigError(f"FEDTRACK_CERT_SAN: {item!r} is neither IP:ADDRESS nor DNS:NAME")
+    return names
+
+
+def make_certificates(tls_dir: Path, identities: list[str], extra_san: str = "", days: int = CERT_DAYS) -> list[Path]:
+    """A CA (``ca.pem``, ``ca.key``) if ``tls_dir`` has none, and for each identity without one a
+    key and a certificate signed by it (``IDENTITY.pem``, ``IDENTITY.key``; CN = the identity,
+    which the router's access control matches; SAN = 127.0.0.1, localhost and ``extra_san``).
+    ECDSA P-256 keys, written with mode 0600. Returns the certificates made."""
+    for ident in identities:
+        if not ident or any(not (c.isalnum() or c in "._-") for c in ident):
+            raise ConfigError(f"bad identity {ident!r} (letters, digits, . _ -)")
+    tls_dir.mkdir(parents=True, exist_ok=True)
+    pem = serialization.Encoding.PEM
+    pkcs8 = serialization.PrivateFormat.PKCS8
+    made = []
+    ca_pem, ca_key_path = tls_dir / "ca.pem", tls_dir / "ca.key"
+    if not ca_pem.is_file():
+        ca_key = ec.generate_private_key(ec.SECP256R1())
+        ca_name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, CA_NAME)])
+        _write_private(ca_key_path, ca_key.private_bytes(pem, pkcs8, serialization.NoEncryption()))
+        _write_private(ca_pem, _certificate(CA_NAME, ca_key, ca_name, ca_key, True, [], days).public_bytes(pem))
+        made.append(ca_pem)
+    ca_cert = x509.load_pem_x509_certificate(ca_pem.read_bytes())
+    signer = serialization.load_pem_private_key(ca_key_path.read_bytes(), password=None)
+    if not isinstance(signer, ec.EllipticCurvePrivateKey):
+        raise ConfigError(f"{ca_key_path}: not an ECDSA key (make the directory again)")
+    sans = subject_alt_names(extra_san)
+    for ident in identities:
+        cert_path = tls_dir / f"{ident}.pem"
+        if cert_path.is_file():
+            continue
+        key = ec.generate_private_key(ec.SECP256R1())
+        _write_private(tls_dir / f"{ident}.key", key.private_bytes(pem, pkcs8, serialization.NoEncryption()))
+        _write_private(cert_path, _certificate(ident, key, ca_cert.subject, signer, False, sans, days).public_bytes(pem))
+        made.append(cert_path)
+    return made
+
+
 def ensure_certificates(tls_dir: Path, identities: list[str]) -> None:
-    """Make the CA and the certificates of ``identities`` that ``tls_dir`` lacks (openssl)."""
-    missing = [i for i in identities if not (tls_dir / f"{i}.pem").is_file()]
-    if not missing and (tls_dir / "ca.pem").is_file():
-        return
-    if shutil.which("openssl") is None:
-        raise ConfigError(f"zenoh.tls_dir: {tls_dir} lacks certificates for {', '.join(missing)} and openssl is not "
-                          "installed to make them")
-    done = subprocess.run(["sh", str(MAKE_CERTS), str(tls_dir), *missing], check=False, capture_output=True,
-                          text=True, timeout=120)
-    if done.returncode != 0:
-        raise ConfigError(f"zenoh.tls_dir: making certificates in {tls_dir} failed: {done.stderr.strip()[-300:]}")
+    """Make the CA and the certificates of ``identities`` that ``tls_dir`` lacks (a ConfigError naming
+    ``zenoh.tls_dir`` when it cannot); ``FEDTRACK_CERT_SAN`` / ``FEDTRACK_CERT_DAYS`` as for the CLI."""
+    try:
+        make_certificates(tls_dir, identities, os.environ.get("FEDTRACK_CERT_SAN", ""),
+                          int(os.environ.get("FEDTRACK_CERT_DAYS", CERT_DAYS)))
+    except (OSError, ValueError) as exc:
+        raise ConfigError(f"zenoh.tls_dir: making certificates in {tls_dir} failed: {exc}") from None
 
 
-def write_configs(settings: ZenohSettings, base_dir: Path, keys: Keys, endpoints: list[str],
-                  identities: list[str], out_dir: Path) -> dict[str, Path]:
+def write_configs(settings: ZenohSettings, base_dir: Path, keys: Keys, identities: list[str],
+                  out_dir: Path) -> dict[str, Path]:
     """Write one Zenoh config file per identity (``ident -> path``); empty without ``[zenoh]`` settings.
 
     With ``config`` every identity gets that file; with ``tls_dir`` each gets its own.
@@ -134,10 +269,6 @@ def write_configs(settings: ZenohSettings, base_dir: Path, keys: Keys, endpoints
         return {ident: path for ident in [*identities, LAUNCHER]}
     if settings.tls_dir is None:
         return {}
-    plain = [ep for ep in endpoints if not ep.startswith("tls/")]
-    if plain:
-        raise ConfigError(f"zenoh.tls_dir: endpoint {plain[0]} is not tls/...: set deployment.router_listen "
-                          "(and connect) to tls/HOST:PORT")
     tls_dir = (base_dir / settings.tls_dir).resolve()
     ensure_certificates(tls_dir, [*identities, LAUNCHER])
     out = out_dir / "zenoh"
@@ -150,3 +281,28 @@ def write_configs(settings: ZenohSettings, base_dir: Path, keys: Keys, endpoints
         paths[ident] = out / f"{ident}.json5"
         paths[ident].write_text(json.dumps(config, indent=2))
     return paths
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m fedtrack.deploy.security DIR IDENTITY...``: make the certificates by hand."""
+    parser = argparse.ArgumentParser(prog="python -m fedtrack.deploy.security",
+                                     description="Make a CA (if DIR has none) and a certificate per identity "
+                                                 "without one (router, fusion, recorder, launcher, sensor-<id>).")
+    parser.add_argument("dir", type=Path)
+    parser.add_argument("identities", nargs="+", metavar="IDENTITY")
+    parser.add_argument("--san", default=os.environ.get("FEDTRACK_CERT_SAN", ""),
+                        help="extra subject alternative names, e.g. IP:10.47.0.1,DNS:host-a (default: $FEDTRACK_CERT_SAN)")
+    parser.add_argument("--days", type=int, default=int(os.environ.get("FEDTRACK_CERT_DAYS", CERT_DAYS)),
+                        help="validity of new certificates (default: $FEDTRACK_CERT_DAYS, else %(default)s)")
+    args = parser.parse_args(argv)
+    try:
+        for path in make_certificates(args.dir, args.identities, args.san, args.days):
+            print(f"made {path}")
+    except (ConfigError, OSError) as exc:
+        print(f"fedtrack.deploy.security: {exc}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from fedtrack.config import ConfigError, in_file, load_tables
-from fedtrack.deploy.security import ZenohSettings
+from fedtrack.deploy.security import ZenohSettings, check_transport
 from fedtrack.deployment import DeploymentConfig, SensorConfig
 from fedtrack.geodetic import FrameConfig
 from fedtrack.local_filters.imm.config import IMMConfig
@@ -95,6 +95,7 @@ def check_launchable(settings: Settings, path: Path) -> None:
         if users and settings.multitarget is None and not ids and not settings.fusion.sensors:
             raise ConfigError(f"sensor: no [[sensor]] table, but the services {', '.join(sorted(users))} "
                               "need at least one sensor")
+        check_transport(settings.zenoh, settings.deployment)
 
 
 def load_settings(path: Path | None) -> Settings:

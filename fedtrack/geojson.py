@@ -17,7 +17,7 @@ from typing import Any
 
 from fedtrack.config import ConfigError
 from fedtrack.geodetic import Frame, FrameConfig, add_geodetic, load_frame
-from fedtrack.jsonl import InputError, read_jsonl
+from fedtrack.jsonl import InputError, check_output, output_file, read_jsonl
 
 
 def _paths(path: Path, key: str, frame: Frame, confirmed_only: bool) -> dict[Any, dict[str, Any]]:
@@ -74,20 +74,24 @@ def export_main(argv: list[str]) -> int:
         return main(argv)
     parser = argparse.ArgumentParser(prog="fedtrack export --geojson",
                                      description="track pictures and truth on the Earth as GeoJSON")
-    parser.add_argument("--geojson", required=True, type=Path, help="output file (.geojson)")
-    parser.add_argument("--config", required=True, type=Path, help="the TOML config with [frame] origin (and sites)")
-    parser.add_argument("--tracks", type=Path, help="a tracks file (replay's or the recorder's picture lines)")
-    parser.add_argument("--truth", type=Path, help="a truth file (simulate's truth.jsonl)")
+    parser.add_argument("--geojson", required=True, type=Path, metavar="OUT.geojson",
+                        help="output file (its folder must exist)")
+    parser.add_argument("--config", required=True, type=Path, metavar="C.toml",
+                        help="the TOML config with [frame] origin (and sites)")
+    parser.add_argument("--tracks", type=Path, metavar="T.jsonl",
+                        help="a tracks file (replay's or the recorder's picture lines; default: none)")
+    parser.add_argument("--truth", type=Path, metavar="U.jsonl", help="a truth file (simulate's truth.jsonl; "
+                        "default: none)")
     args = parser.parse_args(argv)
+    check_output(args.geojson)
     if args.tracks is None and args.truth is None:
         parser.error("give --tracks, --truth or both")
     frame = load_frame(args.config)
     if frame is None:
         raise ConfigError(f"{args.config}: no [frame] table (its origin places the tracks on the Earth)")
     collection = feature_collection(frame, args.tracks, args.truth)
-    if not args.geojson.parent.is_dir():
-        raise InputError(f"{args.geojson}: the folder {args.geojson.parent} does not exist")
-    args.geojson.write_text(json.dumps(collection))
+    with output_file(args.geojson) as fh:
+        fh.write(json.dumps(collection))
     kinds = [f["properties"]["kind"] for f in collection["features"]]
     print(f"wrote {args.geojson}: {kinds.count('track')} tracks, {kinds.count('truth')} truth targets, "
           f"{kinds.count('sensor')} sensor sites")

@@ -227,7 +227,10 @@ def _track_row(track: FusedTrack) -> dict[str, Any]:
 def main(argv: list[str]) -> int:
     """``fedtrack export``: a recording's measurements (and tracks) as replayable JSON Lines."""
     parser = argparse.ArgumentParser(prog="fedtrack export",
-                                     description="write a recording's measurements as replay input (JSON Lines)")
+                                     description="write a recording's measurements as replay input (JSON Lines)",
+                                     epilog="fedtrack export --geojson OUT.geojson --config C.toml [--tracks T.jsonl] "
+                                            "[--truth U.jsonl] writes track pictures and truth on the Earth as "
+                                            "GeoJSON instead (fedtrack export --geojson X --help)")
     parser.add_argument("--db", required=True, type=Path, metavar="PATH",
                         help="recording database (fedtrack serve recorder --db)")
     parser.add_argument("--out", required=True, type=Path, metavar="FILE.jsonl",

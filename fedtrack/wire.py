@@ -48,6 +48,12 @@ PD_RTOL = 1e-12
 MEASUREMENT_KINDS = ("position", "radar", "sonar", "scan")
 MAX_TRACKS = 2048  # tracks in one multi-target report or picture
 MAX_BATCH_ELEMENTS = MAX_TRACKS * 36  # a batched array: MAX_TRACKS 6x6 covariances
+# bounds of the msgpack structure itself, checked before any field is looked at (docs/wire.md, "Limits"):
+# the deepest message is 5 containers deep (Measurement -> detections -> detection -> z -> shape)
+MAX_DEPTH = 8
+MAX_CONTAINER_ITEMS = max(MAX_DETECTIONS, MAX_TRACKS)  # a list's items (a map's: 2 * MAX_MAP_ITEMS)
+MAX_ITEMS = MAX_TRACKS * (MAX_LIST_ITEMS + 16)  # items of all containers together (a picture's sensor lists)
+BRIEF_CHARS = 40  # an untrusted value in an error message: at most this much of it (:func:`brief`)
 EVENT_KINDS = ("onset", "new-ca", "end")
 WIRE_DTYPES = {"float64": np.dtype("<f8"), "int64": np.dtype("<i8")}
 _INT64_MAX = 2**63 - 1
@@ -61,6 +67,21 @@ class WireError(ValueError):
         super().__init__(f"{field_name}: {reason}")
         self.field = field_name
         self.reason = reason
+
+
+def brief(value: Any, limit: int = BRIEF_CHARS) -> str:
+    """A bounded description of an untrusted value for an error message or a log line: a
+    container by its type and size only (never its contents, so never a recursion), a string or
+    bytes by its first ``limit`` characters, anything else by at most ``limit`` characters of its repr."""
+    if isinstance(value, (dict, list, tuple, set)):
+        return f"<{type(value).__name__} of {len(value)}>"
+    if isinstance(value, (str, bytes, bytearray)):
+        more = f"... ({len(value)} in all)" if len(value) > limit else ""
+        return repr(value[:limit]) + more
+    if isinstance(value, (bool, int, float, np.integer, np.floating)) or value is None:
+        text = repr(value)
+        return text if len(text) <= limit else f"{text[:limit]}..."
+    return f"<{type(value).__name__}>"
 
 
 # ---------------------------------------------------------------- field validators
@@ -84,7 +105,7 @@ def _text(value: Any, path: str) -> str:
 def _choice(*options: str) -> Callable[[Any, str], str]:
     def check(value: Any, path: str) -> str:
         if not isinstance(value, str) or value not in options:
-            raise WireError(path, f"expected one of {', '.join(options)}; got {value!r}")
+            raise WireError(path, f"expected one of {', '.join(options)}; got {brief(value)}")
         return value
     return check
 
@@ -179,7 +200,7 @@ def _mapping(value: Any, path: str) -> dict[str, Any]:
     if len(value) > MAX_MAP_ITEMS:
         raise WireError(path, f"{len(value)} entries exceed the limit of {MAX_MAP_ITEMS}")
     for key in value:
-        _identifier(key, f"{path} key {key!r}")
+        _identifier(key, f"{path} key {brief(key)}")
     return value
 
 
@@ -461,7 +482,9 @@ class FusedTrack(_Record):
 
     ``sensors``: the sensors fused in this scan; ``stamp_ns``: earliest measurement
     stamp of the scan; ``extra``: small map of str -> float | str | list of floats |
-    map of floats (IMM mode probabilities, existence, status, active group, ...).
+    map of floats (IMM mode probabilities, existence, status, active group, ...);
+    ``contested``: a second, different estimate of one sensor arrived for this scan (the
+    first was fused; either may be a forgery: docs/wire.md, "Contested scans").
     """
 
     seq: int
@@ -474,10 +497,11 @@ class FusedTrack(_Record):
     sensors: tuple[str, ...]
     stamp_ns: int
     extra: dict[str, Any] = field(default_factory=dict)
+    contested: bool = False
 
     _fields = {"seq": _count, "t": _real, "model": _identifier, "x": _vector, "P": _covariance,
                "maneuver": _flag, "degraded": _flag, "sensors": _identifiers, "stamp_ns": _count,
-               "extra": _extra}
+               "extra": _extra, "contested": _flag}
     _arrays = ("x", "P")
 
     def _check(self) -> None:
@@ -637,7 +661,9 @@ class TrackPicture(_Record):
     recorded scans must follow. The entries at the positions ``left`` are no scans but
     departures: the centre dropped that sensor there (its ``fused_seqs`` entry is 0). A
     ``closing`` record (the last one, on a clean stop) is no picture: it has no tracks and only
-    lists what the centre processed after the last picture."""
+    lists what the centre processed after the last picture. ``contested``: since the previous
+    picture a second, different message arrived for a (sensor, scan) the centre had already
+    taken (the first was fused; either may be a forgery: docs/wire.md, "Contested scans")."""
 
     seq: int
     t: float
@@ -656,12 +682,13 @@ class TrackPicture(_Record):
     # of the tracks whose maneuver is detected and one row [onset, ax, ay, statistic] for each
     maneuvering: tuple[int, ...] = ()
     maneuver: np.ndarray | None = None
+    contested: bool = False
 
     _fields = {"seq": _count, "t": _real, "ids": _counts, "x": _batch, "P": _batch, "confirmed": _flags,
                "sensors": _id_lists, "ca": _flags, "maneuvering": _counts, "maneuver": _optional(_batch),
                "fused_sensors": lambda v, p: tuple(_identifier(x, f"{p}[{i}]")
                                                    for i, x in enumerate(_sequence(v, p, MAX_TRACKS))),
-               "fused_seqs": _counts, "stamp_ns": _count, "closing": _flag, "left": _counts}
+               "fused_seqs": _counts, "stamp_ns": _count, "closing": _flag, "left": _counts, "contested": _flag}
     _arrays = ("x", "P", "maneuver")
 
     def _check(self) -> None:
@@ -751,11 +778,11 @@ def _decode_array(value: Any, path: str, limit: int = MAX_ARRAY_ELEMENTS) -> np.
         raise WireError(path, "expected an array map {dtype, shape, data}")
     dtype = WIRE_DTYPES.get(value["dtype"]) if isinstance(value["dtype"], str) else None
     if dtype is None:
-        raise WireError(f"{path}.dtype", f"expected 'float64' or 'int64', got {value['dtype']!r}")
+        raise WireError(f"{path}.dtype", f"expected 'float64' or 'int64', got {brief(value['dtype'])}")
     shape = value["shape"]
     if (not isinstance(shape, list) or len(shape) > 2
             or not all(isinstance(d, int) and not isinstance(d, bool) and 0 <= d <= limit for d in shape)):
-        raise WireError(f"{path}.shape", f"expected a list of at most 2 sizes in [0, {limit}], got {shape!r}")
+        raise WireError(f"{path}.shape", f"expected a list of at most 2 sizes in [0, {limit}], got {brief(shape)}")
     size = math.prod(shape)
     if size > limit:
         raise WireError(path, f"{size} elements exceed the limit of {limit}")
@@ -772,7 +799,7 @@ def _decode_record(cls: type[M], obj: Any, path: str, envelope: tuple[str, ...] 
     names = [f.name for f in dataclasses.fields(cls)]  # type: ignore[arg-type]
     unknown = sorted((str(k) for k in obj if k not in names and k not in envelope))
     if unknown:
-        raise WireError(f"{path}.{unknown[0]}", "unknown field")
+        raise WireError(f"{path}.{unknown[0][:BRIEF_CHARS]}", "unknown field")
     missing = [n for n in names if n not in obj]
     if missing:
         raise WireError(f"{path}.{missing[0]}", "missing field")
@@ -798,31 +825,67 @@ def _decode_record(cls: type[M], obj: Any, path: str, envelope: tuple[str, ...] 
         raise WireError(f"{path}.{exc.field}", exc.reason) from None
 
 
-def decode(payload: bytes | bytearray | memoryview, expected_type: type[M]) -> M:
-    """Decode and validate a payload that must hold a message of ``expected_type``.
-
-    Raises WireError (naming the field) for anything else: garbage bytes, a
-    different schema version or type, unknown/missing fields, wrong types,
-    shapes or dtypes, NaN/inf, non-symmetric or non-PD covariances, size bounds.
-    """
-    name = expected_type.__name__
+def unpack(payload: bytes | bytearray | memoryview) -> Any:
+    """The msgpack structure of an untrusted payload, within the limits: at most MAX_PAYLOAD_BYTES,
+    strings of at most 4 MAX_STRING_LENGTH bytes, byte strings of at most the largest array's data,
+    MAX_CONTAINER_ITEMS items in a list, 2 MAX_MAP_ITEMS entries in a map, no extension types
+    (msgpack's own limits, checked while it parses, without recursion), then nesting at most
+    MAX_DEPTH containers deep and MAX_ITEMS items in all (an iterative walk). WireError otherwise,
+    its message a bounded summary (never the payload)."""
     if not isinstance(payload, (bytes, bytearray, memoryview)):
         raise WireError("payload", f"expected bytes, got {type(payload).__name__}")
     if len(payload) > MAX_PAYLOAD_BYTES:
         raise WireError("payload", f"{len(payload)} bytes exceed the limit of {MAX_PAYLOAD_BYTES}")
     try:
-        obj = msgpack.unpackb(payload, raw=False, strict_map_key=True, use_list=True)
+        obj = msgpack.unpackb(payload, raw=False, strict_map_key=True, use_list=True,
+                              max_str_len=4 * MAX_STRING_LENGTH, max_bin_len=8 * MAX_BATCH_ELEMENTS,
+                              max_array_len=MAX_CONTAINER_ITEMS, max_map_len=2 * MAX_MAP_ITEMS, max_ext_len=0)
     except Exception as exc:  # msgpack raises many types (ExtraData, StackError, ValueError, ...)
-        raise WireError("payload", f"not valid msgpack ({type(exc).__name__}: {exc})") from None
+        raise WireError("payload", f"not valid msgpack within the limits ({type(exc).__name__}: "
+                                   f"{brief(str(exc), 2 * BRIEF_CHARS)})") from None
+    _check_structure(obj)
+    return obj
+
+
+def _check_structure(obj: Any) -> None:
+    """WireError if ``obj`` nests containers more than MAX_DEPTH deep or holds more than MAX_ITEMS
+    items in all (an explicit stack: no recursion on untrusted data)."""
+    if not isinstance(obj, (dict, list)):
+        return
+    stack: list[tuple[Any, int]] = [(obj, 1)]
+    items = 0
+    while stack:
+        value, depth = stack.pop()
+        if depth > MAX_DEPTH:
+            raise WireError("payload", f"containers nested more than {MAX_DEPTH} deep")
+        children = value.values() if type(value) is dict else value
+        items += len(children)
+        if items > MAX_ITEMS:
+            raise WireError("payload", f"more than {MAX_ITEMS} items in all")
+        kinds = set(map(type, children))  # msgpack builds exactly dict and list; most lists hold none
+        if dict in kinds or list in kinds:
+            stack.extend((child, depth + 1) for child in children if type(child) is dict or type(child) is list)
+
+
+def decode(payload: bytes | bytearray | memoryview, expected_type: type[M]) -> M:
+    """Decode and validate a payload that must hold a message of ``expected_type``.
+
+    Raises WireError (naming the field) for anything else: garbage bytes, a structure beyond
+    the limits of :func:`unpack` (checked first), a different schema version or type,
+    unknown/missing fields, wrong types, shapes or dtypes, NaN/inf, non-symmetric or non-PD
+    covariances, size bounds. Its message quotes no more than :func:`brief` of any value.
+    """
+    name = expected_type.__name__
+    obj = unpack(payload)
     if not isinstance(obj, dict):
         raise WireError("payload", f"expected a msgpack map, got {type(obj).__name__}")
     schema = obj.get("schema")
     if "schema" not in obj:
         raise WireError(f"{name}.schema", "missing field")
     if isinstance(schema, bool) or schema != SCHEMA_VERSION:
-        raise WireError(f"{name}.schema", f"unsupported schema version {schema!r} (expected {SCHEMA_VERSION})")
+        raise WireError(f"{name}.schema", f"unsupported schema version {brief(schema)} (expected {SCHEMA_VERSION})")
     if obj.get("type") != name:
-        raise WireError(f"{name}.type", f"expected {name!r}, got {obj.get('type')!r}")
+        raise WireError(f"{name}.type", f"expected {name!r}, got {brief(obj.get('type'))}")
     return _decode_record(expected_type, obj, name, _ENVELOPE)
 
 
@@ -890,15 +953,19 @@ def picture_line(t: float, ids: list[int], X: np.ndarray, P: np.ndarray, confirm
 
 
 def picture_to_replay(pic: TrackPicture) -> dict[str, Any]:
-    """The picture line ``{"t", "tracks": [...]}`` that ``replay --algorithm mtt-*`` writes."""
+    """The picture line ``{"t", "tracks": [...]}`` that ``replay --algorithm mtt-*`` writes
+    (plus ``"contested": true`` for a contested picture, which no replay writes)."""
     d = pic.x.shape[1]
     models = ["ca" if ca else "cv" for ca in pic.ca] if pic.ca else None
     maneuver = None
     if pic.maneuver is not None:
         maneuver = np.full((len(pic.ids), 4), np.nan)
         maneuver[list(pic.maneuvering)] = pic.maneuver
-    return {"t": pic.t, "tracks": picture_rows(list(pic.ids), pic.x, pic.P.reshape(-1, d, d), list(pic.confirmed),
+    line = {"t": pic.t, "tracks": picture_rows(list(pic.ids), pic.x, pic.P.reshape(-1, d, d), list(pic.confirmed),
                                                [list(s) for s in pic.sensors], models, maneuver)}
+    if pic.contested:
+        line["contested"] = True
+    return line
 
 
 def _json_field(obj: dict[str, Any], key: str, where: str) -> Any:
@@ -946,25 +1013,29 @@ _TRACK_DEFAULT_KEYS = ("t", "x", "P", "model", "maneuver", "degraded", "seq", "s
 
 def track_to_replay(track: FusedTrack) -> dict[str, Any]:
     """The replay-output line ``{"t", "x", "P", "model", "maneuver", "degraded", "seq", "sensors"}``
-    plus the ``extra`` entries as top-level fields."""
+    plus the ``extra`` entries as top-level fields, and ``"contested": true`` for a contested
+    track (which no replay writes)."""
     row: dict[str, Any] = {"t": track.t, "x": track.x.tolist(), "P": track.P.tolist(), "model": track.model,
                            "maneuver": track.maneuver, "degraded": track.degraded, "seq": track.seq,
                            "sensors": list(track.sensors)}
     row.update({k: list(v) if isinstance(v, tuple) else v for k, v in track.extra.items()})
+    if track.contested:
+        row["contested"] = True
     return row
 
 
 def track_from_replay(obj: dict[str, Any], where: str, seq: int = 0) -> FusedTrack:
     """Inverse of :func:`track_to_replay`. ``degraded`` (false), ``seq`` (the argument),
-    ``sensors`` ([]) and ``stamp_ns`` (0) may be absent; other keys become ``extra``,
+    ``sensors`` ([]), ``stamp_ns`` (0) and ``contested`` (false) may be absent; other keys become ``extra``,
     except null-valued ones (e.g. ``"event": null`` of the fusion replay), which count as absent."""
-    extra = {k: v for k, v in obj.items() if k not in _TRACK_DEFAULT_KEYS and k != "stamp_ns" and v is not None}
+    extra = {k: v for k, v in obj.items() if k not in (*_TRACK_DEFAULT_KEYS, "stamp_ns", "contested") and v is not None}
     try:
         return FusedTrack(
             seq=obj.get("seq", seq), t=_json_field(obj, "t", where), model=_json_field(obj, "model", where),
             x=_json_array(_json_field(obj, "x", where), "x", where),
             P=_json_array(_json_field(obj, "P", where), "P", where),
             maneuver=_json_field(obj, "maneuver", where), degraded=obj.get("degraded", False),
-            sensors=obj.get("sensors", ()), stamp_ns=obj.get("stamp_ns", 0), extra=extra)
+            sensors=obj.get("sensors", ()), stamp_ns=obj.get("stamp_ns", 0), extra=extra,
+            contested=obj.get("contested", False))
     except WireError as exc:
         raise InputError(f"{where}: {exc}") from None

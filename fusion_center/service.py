@@ -22,6 +22,7 @@ from __future__ import annotations
 import os
 import pickle
 import time
+from hashlib import blake2b
 from pathlib import Path
 from typing import Any
 
@@ -40,16 +41,19 @@ from fedtrack.local_filters.vdie.config import PipelineSettings
 from fedtrack.local_filters.vdie.estimation import EVENT_NAMES, EVENT_NONE
 from fedtrack.local_filters.vdie.local import LocalOutput
 from fedtrack.services.base import (
+    Numerical,
     QueryHandler,
     Rejected,
     Service,
     Subscription,
+    check_time_jump,
     service_kwargs,
     service_parser,
 )
 from fedtrack.wire import PD_RTOL, FusedTrack, LocalEstimate, ManeuverEvent, Reset, decode, encode
 
 SNAPSHOT_MAX_GAP = 3  # scans missed beyond which a restored snapshot is dropped for a rebuild
+SNAPSHOT_MAGIC = b"fedtrack-centre-1\n"  # then a 32-byte BLAKE2b digest of the pickle, then the pickle
 
 
 class ScanBuffer:
@@ -60,16 +64,22 @@ class ScanBuffer:
         self.first_arrival = now
         self.outputs: dict[str, LocalOutput] = {}
         self.stamps: list[int] = []
+        self.contested = False  # a second, different estimate of one of its sensors arrived (docs/wire.md)
 
 
 class FusionCenterService(Service):
     role = "fusion-center"
     tick_period_s = 0.01
+    # the centre's records are rebound, never changed in place: a pickle of these is the whole state
+    state_attrs = ("centre", "scans", "next_seq", "last_track", "restored")
+    tick_state_attrs = ()  # on_tick checkpoints only when a scan is waiting (100 ticks a second)
 
     def __init__(self, sensors: list[str], centre: FederatedCentre | DecentralizedCentre,
-                 deadline_s: float, snapshot: Path | None = None, max_seq_jump: int = 1000, **kwargs: Any) -> None:
+                 deadline_s: float, snapshot: Path | None = None, max_seq_jump: int = 1000,
+                 max_time_jump_s: float = 3600.0, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.max_seq_jump = max_seq_jump
+        self.max_time_jump_s = max_time_jump_s
         self.snapshot = snapshot
         self.restored = False  # resumed from the snapshot, no scan fused since
         self.sensors = sensors
@@ -93,7 +103,7 @@ class FusionCenterService(Service):
         if self.snapshot is None or not self.snapshot.is_file():
             return
         try:
-            state = pickle.loads(self.snapshot.read_bytes())
+            state = pickle.loads(checked_snapshot(self.snapshot.read_bytes()))
             centre, track = state["centre"], decode(state["track"], FusedTrack)
             usable = (state["deployment"] == self.keys.deployment and type(centre) is type(self.centre)
                       and centre.sensors == self.sensors)
@@ -113,8 +123,8 @@ class FusionCenterService(Service):
         if self.snapshot is None:
             return
         tmp = self.snapshot.with_name(self.snapshot.name + ".tmp")
-        tmp.write_bytes(pickle.dumps({"deployment": self.keys.deployment, "centre": self.centre,
-                                      "track": encode(track)}))
+        data = pickle.dumps({"deployment": self.keys.deployment, "centre": self.centre, "track": encode(track)})
+        tmp.write_bytes(SNAPSHOT_MAGIC + blake2b(data, digest_size=32).digest() + data)
         os.replace(tmp, self.snapshot)
 
     def on_stop(self) -> None:
@@ -122,8 +132,11 @@ class FusionCenterService(Service):
             sub.undeclare()
 
     def _on_liveliness(self, role: str, sample: Any) -> None:
-        """Zenoh thread: track sensors and local filters that died (set rebinding is atomic)."""
+        """Zenoh thread: track sensors and local filters that died (set rebinding is atomic); a
+        token of a sensor not configured changes nothing."""
         sensor = str(sample.key_expr).rsplit("/", 1)[-1]
+        if sensor not in self.sensors:
+            return
         if sample.kind == zenoh.SampleKind.PUT:
             if sensor in self._gone[role]:
                 self.log.warning("%s %s is back", role, sensor)
@@ -151,16 +164,23 @@ class FusionCenterService(Service):
             return
         if self.next_seq is not None and msg.seq - self.next_seq > self.max_seq_jump:
             raise Rejected("seq_jump", f"scan {msg.seq} is more than {self.max_seq_jump} ahead of {self.next_seq}")
+        last_t = self.last_track.t if self.last_track is not None else None
+        if last_t is not None and msg.t <= last_t:
+            raise Rejected("time_jump", f"scan {msg.seq} at t={msg.t}, not after the last fused scan (t={last_t})")
+        check_time_jump(last_t, msg.t, self.max_time_jump_s)
         buf = self.scans.get(msg.seq)
         if buf is not None and msg.t != buf.t:
-            raise Rejected("time_jump", f"scan {msg.seq} at t={msg.t}, its other estimates at t={buf.t}")
+            self.contest(buf, msg, Rejected("time_jump", f"scan {msg.seq} at t={msg.t}, its other estimates at t={buf.t}"))
+            return
         if buf is not None and msg.sensor in buf.outputs:
             first = buf.outputs[msg.sensor]
             same = (first.model == msg.model and np.array_equal(first.x, msg.x) and np.array_equal(first.P, msg.P))
             if same:
                 self.count("duplicate")
                 return
-            raise Rejected("conflict", f"scan {msg.seq}: a second, different estimate of {msg.sensor} (the first stays)")
+            self.contest(buf, msg, Rejected("conflict", f"scan {msg.seq}: a second, different estimate of {msg.sensor} "
+                                                   "(the first stays)"))
+            return
         buf = self.scans.setdefault(msg.seq, ScanBuffer(msg.t, time.monotonic()))
         buf.outputs[msg.sensor] = LocalOutput(
             msg.model, np.asarray(msg.x), np.asarray(msg.P), np.asarray(msg.x_prior), np.asarray(msg.P_prior),
@@ -169,8 +189,18 @@ class FusionCenterService(Service):
         buf.stamps.append(msg.stamp_ns)
         self.fuse_ready()
 
+    def contest(self, buf: ScanBuffer, msg: LocalEstimate, exc: Rejected) -> None:
+        """A second, different estimate for a scan still being collected: rejected (the first
+        stays), and the scan's fused track is marked ``contested`` (either may be a forgery)."""
+        if not buf.contested:
+            self.count("contested")
+        buf.contested = True
+        self.note_rejected(self.keys.local_estimate(msg.sensor), exc)
+
     def on_tick(self) -> None:
-        self.fuse_ready()
+        if self.scans:
+            with self.guarded("on_tick"):
+                self.fuse_ready()
 
     def fuse_ready(self) -> None:
         """Fuse complete scans in order; a scan whose deadline passed is fused as it is."""
@@ -199,8 +229,9 @@ class FusionCenterService(Service):
             if waiting_for and now - buf.first_arrival < self.deadline_s:
                 return
             del self.scans[self.next_seq]
-            self.fuse_scan(self.next_seq, buf, degraded=not complete)
-            self.next_seq += 1
+            seq, self.next_seq = self.next_seq, self.next_seq + 1
+            with self.guarded(f"fusing scan {seq}"):  # a scan that fails is dropped, its state undone
+                self.fuse_scan(seq, buf, degraded=not complete)
 
     def fuse_scan(self, seq: int, buf: ScanBuffer, degraded: bool) -> None:
         if seq > 0 and (self.last_track is None or all(o.init for o in buf.outputs.values())):
@@ -208,7 +239,7 @@ class FusionCenterService(Service):
             why = "started mid-run (a restart)" if self.last_track is None else "every local filter went on alone"
             self.log.warning("%s: state rebuilt from the local estimates of scan %d", why, seq)
         result = self.centre.fuse(buf.t, buf.outputs)
-        if not all(positive_definite(P) for P in [result.estimate.P, *(c.P for c in result.resets.values())]):
+        if not usable(result):
             # a local's prior that is not its share of the centre's (e.g. rejoined from an older
             # centre state after its sensor's gap) can make the federated sum indefinite: rather
             # than publish it (or fail), start again from the local estimates, as after a restart
@@ -217,6 +248,8 @@ class FusionCenterService(Service):
                              "estimates", seq)
             self.centre = type(self.centre)(self.sensors, self.centre.config)
             result = self.centre.fuse(buf.t, buf.outputs)
+            if not usable(result):
+                raise Numerical(f"scan {seq}: fused covariance not positive definite, even rebuilt")
         if degraded:
             self.count("degraded_scans")
         track = make_track(seq, buf, result, degraded, [s for s in self.sensors if s in buf.outputs])
@@ -238,6 +271,24 @@ class FusionCenterService(Service):
                 statistic=float(ev.statistic) if ev is not None else 0.0))
 
 
+def checked_snapshot(raw: bytes) -> bytes:
+    """The pickle of a snapshot file whose digest matches (a file cut or corrupted on disk is
+    refused before anything unpickles it); ValueError otherwise."""
+    head = len(SNAPSHOT_MAGIC) + 32
+    if not raw.startswith(SNAPSHOT_MAGIC) or len(raw) < head:
+        raise ValueError("not a fedtrack centre snapshot")
+    data = raw[head:]
+    if blake2b(data, digest_size=32).digest() != raw[len(SNAPSHOT_MAGIC):head]:
+        raise ValueError("checksum mismatch (a corrupted or cut file)")
+    return data
+
+
+def usable(result: CentreResult) -> bool:
+    """A finite fused state whose covariance and resets are positive definite."""
+    return bool(np.all(np.isfinite(result.estimate.x))) and all(
+        positive_definite(P) for P in [result.estimate.P, *(c.P for c in result.resets.values())])
+
+
 def positive_definite(P: np.ndarray) -> bool:
     """Positive definite as the wire requires it (eigenvalue ratio above ``PD_RTOL``)."""
     if not np.all(np.isfinite(P)):
@@ -247,6 +298,7 @@ def positive_definite(P: np.ndarray) -> bool:
 
 
 def make_track(seq: int, buf: ScanBuffer, result: CentreResult, degraded: bool, sensors: list[str]) -> FusedTrack:
+    """The fused track of scan ``seq`` (``contested`` when the scan was, see :meth:`FusionCenterService.contest`)."""
     est = result.estimate
     is_ca = bool(est.is_ca)
     idx = np.arange(6) if is_ca else CV_IN_CA
@@ -254,7 +306,7 @@ def make_track(seq: int, buf: ScanBuffer, result: CentreResult, degraded: bool, 
     extra = {"event": EVENT_NAMES[kind]} if kind != EVENT_NONE else {}
     return FusedTrack.unchecked(seq=seq, t=buf.t, model="ca" if is_ca else "cv", x=est.x[idx], P=est.P[np.ix_(idx, idx)],
                       maneuver=is_ca, degraded=degraded, sensors=tuple(sensors), stamp_ns=min(buf.stamps),
-                      extra=extra)
+                      extra=extra, contested=buf.contested)
 
 
 def main(argv: list[str]) -> int:
@@ -281,4 +333,6 @@ def main(argv: list[str]) -> int:
     centre_cls = FederatedCentre if mode == "federated" else DecentralizedCentre
     centre = centre_cls(sensors, settings.fusion)
     return FusionCenterService(sensors, centre, deadline, snapshot=args.snapshot,
-                               max_seq_jump=settings.deployment.max_seq_jump, **service_kwargs(parser, args)).run()
+                               max_seq_jump=settings.deployment.max_seq_jump,
+                               max_time_jump_s=settings.deployment.max_time_jump_s,
+                               **service_kwargs(parser, args)).run()

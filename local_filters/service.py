@@ -41,6 +41,7 @@ from fedtrack.services.base import (
     Service,
     Subscription,
     check_time_jump,
+    require_finite,
     service_kwargs,
     service_parser,
 )
@@ -62,6 +63,10 @@ class LocalFilterService(Service):
 
     role = "local-filter"
     tick_period_s = 0.02
+    # the filter rebinds its records (never changes them in place): a pickle of these is the whole state
+    state_attrs = ("filter", "pending", "processed_up_to", "processed_t", "applied", "reset_up_to",
+                   "waiting_since", "alone")
+    tick_state_attrs = ()  # on_tick checkpoints only when a scan is waiting (50 ticks a second)
 
     def __init__(self, sensor: str, mode: str, filt: FederatedLocalFilter | VdieLocalFilter,
                  reset_timeout_s: float, max_seq_jump: int = 1000, max_time_jump_s: float = 3600.0,
@@ -111,6 +116,10 @@ class LocalFilterService(Service):
         assert isinstance(self.filter, FederatedLocalFilter)
         for track in self.query(self.keys.fusion_state(), FusedTrack)[:1]:
             if track.seq <= self.processed_up_to:
+                return
+            if {"cv": 4, "ca": 6}.get(track.model) != track.x.shape[0]:
+                self.note_rejected(self.keys.fusion_state(), Rejected(
+                    "wrong_model", f"fusion centre state of a {track.x.shape[0]}-D {track.model!r} state"))
                 return
             self.filter.apply_reset(track.t, np.asarray(track.x), self.filter.beta * np.asarray(track.P))
             self.processed_up_to = self.reset_up_to = track.seq
@@ -168,7 +177,9 @@ class LocalFilterService(Service):
         self.process_ready()
 
     def on_tick(self) -> None:
-        self.process_ready()
+        if self.pending:
+            with self.guarded("on_tick"):
+                self.process_ready()
 
     def process_ready(self) -> None:
         """Process pending scans in order while their precondition (reset) holds."""
@@ -193,10 +204,14 @@ class LocalFilterService(Service):
             self.waiting_since = None
 
     def _process(self, msg: Measurement, flags: tuple[str, ...]) -> None:
-        out = self.filter.process(msg.t, np.asarray(msg.z), np.asarray(msg.R))
-        self.processed_up_to = msg.seq
-        self.processed_t = msg.t
-        self.publish(self.keys.local_estimate(self.sensor), to_message(self.sensor, msg, out, flags))
+        """Filter scan ``msg`` (taken off ``pending``) and publish the estimate; a scan the filter
+        fails on is dropped, with the filter as it was before it (a rejection)."""
+        with self.guarded(f"scan {msg.seq}", key=self.keys.sensor_meas(self.sensor)):
+            out = self.filter.process(msg.t, np.asarray(msg.z), np.asarray(msg.R))
+            require_finite(f"scan {msg.seq}: the local estimate", out.x, out.P, out.x_prior, out.P_prior)
+            self.processed_up_to = msg.seq
+            self.processed_t = msg.t
+            self.publish(self.keys.local_estimate(self.sensor), to_message(self.sensor, msg, out, flags))
 
 
 class RadarLocalFilterService(Service):
@@ -209,6 +224,7 @@ class RadarLocalFilterService(Service):
     """
 
     role = "local-filter"
+    state_attrs = ("filter", "processed_up_to")
 
     def __init__(self, sensor: str, filt: RadarFilter, **kwargs: Any) -> None:
         super().__init__(**kwargs)
@@ -236,6 +252,7 @@ class RadarLocalFilterService(Service):
         if est is None:  # the first measurement only starts the two-point initialization
             return
         x, P = np.asarray(est["x"]), np.asarray(est["P"])
+        require_finite(f"scan {msg.seq}: the radar estimate", x, P)
         self.publish(self.keys.local_estimate(self.sensor), LocalEstimate.unchecked(
             sensor=self.sensor, seq=msg.seq, t=msg.t, model=est["model"], x=x, P=P, x_prior=x, P_prior=P,
             stamp_ns=msg.stamp_ns, degraded=("no-prior",)))

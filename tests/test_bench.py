@@ -31,7 +31,7 @@ def test_bench_quick_writes_expected_json(tmp_path: Path) -> None:
     result = json.loads(out.read_text())
     assert {"sensors", "quick", "deployments", "summary", "kf_micro", "versions", "wall_time_s"} <= set(result)
     assert result["sensors"] == [2] and result["quick"] is True
-    assert sorted(r["pacing"] for r in result["deployments"]) == ["floor", "lockstep", "realtime"]
+    assert sorted(r["pacing"] for r in result["deployments"]) == ["floor", "lockstep", "realtime", "realtime-tls"]
     floor = next(r for r in result["deployments"] if r["pacing"] == "floor")
     assert floor["steady_scans"] > 0 and 0 < floor["p50_ms"] <= floor["p99_ms"]
     assert set(floor["payload_bytes"]) == {"meas", "est", "track", "reset"}
@@ -49,6 +49,10 @@ def test_bench_quick_writes_expected_json(tmp_path: Path) -> None:
             "startup_latency_last_p99_ms", "p50_vs_floor", "max_rss_mb"} <= set(row)
     assert math.isfinite(row["floor_p50_ms"]) and row["max_rss_mb"] > 0
     assert row["lockstep_rate_ratio"] == 1.0 and row["latency_last_p50_ratio"] == 1.0
+    tls = next(r for r in result["deployments"] if r["pacing"] == "realtime-tls")
+    assert row["tls_latency_last_p50_ms"] == tls["latency_last_publish_ms"]["p50"] > 0
+    assert row["tls_p50_cost_ms"] == row["tls_latency_last_p50_ms"] - row["latency_last_p50_ms"]
+    assert "mutual TLS + access control, 2 sensors" in proc.stdout
     methods = result["kf_micro"]["methods"]
     assert {"batched", "loop", "filterpy"} <= set(methods)
     assert methods["loop"]["max_rel_diff_to_batched"] <= 1e-12

@@ -1,12 +1,12 @@
 """Authenticated transport (deploy/secure): mutual TLS and the router's access control.
 
-Certificates are made in tmp_path with deploy/secure/make-certs.sh (openssl); loopback only.
+Certificates are made in tmp_path (fedtrack.deploy.security, the cryptography package); loopback only.
 """
 
 from __future__ import annotations
 
 import json
-import shutil
+import stat
 import subprocess
 import sys
 import threading
@@ -17,15 +17,15 @@ import pytest
 from support import Deployment
 
 from fedtrack.config import ConfigError
-from fedtrack.deploy.security import MAKE_CERTS, access_control, identity
+from fedtrack.deploy.security import ZenohSettings, access_control, identity, make_certificates, on_loopback
+from fedtrack.deploy.settings import check_launchable, load_settings
 from fedtrack.fusion_center.replay import replay_fusion
 from fedtrack.keys import Keys
 from fedtrack.recording import Recording
 from fedtrack.wire import FusedTrack, LocalEstimate, Measurement, Reset, decode, encode
 from fedtrack.zsession import SessionError, SessionOptions, close_session, open_session
 
-pytestmark = [pytest.mark.security,
-              pytest.mark.skipif(shutil.which("openssl") is None, reason="openssl is not installed")]
+pytestmark = pytest.mark.security
 MARK = 4242.4242  # the first coordinate of every forged message's state or measurement
 MARK_BYTES = np.array([MARK]).tobytes()  # arrays travel as little-endian float64 bytes
 
@@ -39,13 +39,71 @@ def client_config(path: Path, ca: Path, cert: Path | None) -> str:
 
 
 def test_identities_and_rules() -> None:
-    assert [identity(r, i) for r, i in (("sensor", "3"), ("local-filter", "3"), ("fusion-center", "fusion"),
-                                         ("recorder", "recorder"))] == ["sensor-3", "sensor-3", "fusion", "recorder"]
+    assert [identity(r, i) for r, i in (("sensor", "3"), ("local-filter", "3"), ("mtt-local", "3"),
+                                         ("fusion-center", "fusion"), ("mtt-centre", "centre"), ("recorder", "recorder"))
+            ] == ["sensor-3", "sensor-3", "sensor-3", "fusion", "fusion", "recorder"]
     acl = access_control(Keys("d"), ["fusion", "sensor-1"])
     own = {r["id"]: r["key_exprs"] for r in acl["rules"]}
     assert "fedtrack/d/sensor/1/meas" in own["own-sensor-1"] and "fedtrack/d/local/1/estimate" in own["own-sensor-1"]
     assert not any("fusion" in k or "sensor/2" in k for k in own["own-sensor-1"])
+    assert "fedtrack/d/local/1/tracks" in own["own-sensor-1"] and "fedtrack/d/health/mtt-local/1" in own["own-sensor-1"]
     assert "fedtrack/d/fusion/**" in own["own-fusion"] and acl["default_permission"] == "deny"
+    assert "fedtrack/d/alive/mtt-centre/*" in own["own-fusion"]
+
+
+def test_certificates_made_once_with_private_keys(tmp_path: Path) -> None:
+    from cryptography import x509
+
+    made = make_certificates(tmp_path / "c", ["router", "sensor-1"], extra_san="IP:10.47.0.1,DNS:host-a")
+    assert [p.name for p in made] == ["ca.pem", "router.pem", "sensor-1.pem"]
+    assert make_certificates(tmp_path / "c", ["router", "sensor-1", "fusion"]) == [tmp_path / "c" / "fusion.pem"]
+    for name in ("ca.key", "router.key", "sensor-1.key", "fusion.key"):
+        assert stat.S_IMODE((tmp_path / "c" / name).stat().st_mode) == 0o600
+    cert = x509.load_pem_x509_certificate((tmp_path / "c" / "router.pem").read_bytes())
+    ca = x509.load_pem_x509_certificate((tmp_path / "c" / "ca.pem").read_bytes())
+    cert.verify_directly_issued_by(ca)
+    assert cert.subject.rfc4514_string() == "CN=router"
+    sans = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    assert {str(v) for v in sans.get_values_for_type(x509.IPAddress)} == {"127.0.0.1", "10.47.0.1"}
+    assert set(sans.get_values_for_type(x509.DNSName)) == {"localhost", "host-a"}
+    for bad in (["a/b"], [""]):
+        with pytest.raises(ConfigError):
+            make_certificates(tmp_path / "c", bad)
+    with pytest.raises(ConfigError):
+        make_certificates(tmp_path / "c", ["x"], extra_san="URI:nope")
+    done = subprocess.run([sys.executable, "-m", "fedtrack.deploy.security", str(tmp_path / "c"), "recorder"],
+                          capture_output=True, text=True, timeout=60, check=False)
+    assert done.returncode == 0 and done.stdout.strip() == f"made {tmp_path / 'c' / 'recorder.pem'}"
+
+
+@pytest.mark.parametrize("table, field", [
+    ('router_listen = "tcp/10.47.0.1:7447"', "deployment.router_listen"),
+    ('router_listen = "tcp/0.0.0.0:7447"', "deployment.router_listen"),
+    ('router_listen = ""\nconnect = ["tcp/127.0.0.1:7447", "tcp/host-a:7447"]', "deployment.connect"),
+])
+def test_launch_refuses_plain_endpoints_off_loopback(tmp_path: Path, table: str, field: str) -> None:
+    """Authenticated by default: off loopback, plain TCP needs ``[zenoh] insecure = true`` (exit 2,
+    one line naming the file and the field, before anything starts); with it the check passes."""
+    cfg = tmp_path / "c.toml"
+    body = f'[deployment]\n{table}\n[[sensor]]\nid = "1"\n'
+    cfg.write_text(body)
+    done = subprocess.run([sys.executable, "-m", "fedtrack.cli", "launch", str(cfg), "--out", str(tmp_path / "o")],
+                          capture_output=True, text=True, timeout=60, check=False)
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
+    assert done.stderr.startswith(f"fedtrack: error: {cfg}: {field}: ") and "off loopback" in done.stderr and "insecure" in done.stderr
+    assert not (tmp_path / "o").exists()
+    cfg.write_text("[zenoh]\ninsecure = true\n" + body)
+    check_launchable(load_settings(cfg), cfg)
+
+
+def test_loopback_needs_no_opt_out(tmp_path: Path) -> None:
+    assert all(on_loopback(ep) for ep in ("tcp/127.0.0.1:1", "tcp/127.3.0.1:1", "tcp/[::1]:1", "tls/localhost:1"))
+    assert not any(on_loopback(ep) for ep in ("tcp/10.0.0.1:1", "tcp/0.0.0.0:1", "tcp/[::]:1", "tcp/example:1"))
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('[deployment]\nrouter_listen = "tcp/127.0.0.1:7447"\n[[sensor]]\nid = "1"\n')
+    check_launchable(load_settings(cfg), cfg)
+    with pytest.raises(ConfigError, match="insecure"):
+        ZenohSettings(tls_dir="c", insecure=True).validate()
 
 
 def test_launch_refuses_tcp_endpoints_with_tls_dir(tmp_path: Path) -> None:
@@ -70,7 +128,7 @@ def test_mutual_tls_and_access_control(tmp_path: Path) -> None:
     dep = Deployment(tmp_path, tls_dir=certs)  # makes the certificates
     ca = certs / "ca.pem"
     rogue_dir = tmp_path / "rogue"
-    subprocess.run(["sh", str(MAKE_CERTS), str(rogue_dir), "sensor-1"], check=True, capture_output=True, timeout=60)
+    make_certificates(rogue_dir, ["sensor-1"])
     forger = None
     try:
         dep.start(sensors=False)

@@ -20,11 +20,18 @@ Threading model: Zenoh callbacks only copy the payload into one bounded FIFO
 queue (blocking when full, so nothing is dropped while running); a single worker
 thread (the one calling ``run``) decodes, validates and calls the handlers, the
 queryable handlers, ``on_tick`` and the health publisher, so subclasses need no
-locks. Every payload is decoded with :func:`fedtrack.wire.decode`; a bad one is
-counted in ``counters["rejected"]`` and logged (rate-limited), never fatal. A payload whose
-sender id is not the id in its key, and a decoded message a handler refuses by raising
-:class:`Rejected` (before changing any state), are counted in ``rejected`` and in
+locks. Every payload is decoded with :func:`fedtrack.wire.decode` (bounded: depth, sizes); a bad
+one is counted in ``counters["rejected"]`` and logged (rate-limited, a bounded summary: key, size,
+reason), never fatal. A payload whose sender id is not the id in its key, and a decoded message a
+handler refuses by raising :class:`Rejected`, are counted in ``rejected`` and in
 ``rejected_<reason>`` (docs/wire.md, "Rejections").
+
+Handlers cannot kill a service: each message handler, query handler and ``on_tick`` runs as one
+transaction (:meth:`Service.guarded`). The attributes a subclass names in ``state_attrs`` (the
+state its handlers change) are checkpointed (pickled) before it runs and restored if it raises
+anything; the message is then rejected (``rejected_numerical`` for a linear-algebra or
+floating-point failure or :class:`Numerical`, ``rejected_handler_error`` for anything else, a
+bug: logged with its exception and place) and the service goes on as if it had never come.
 
 Every publisher is a ``zenoh.ext`` advanced publisher that keeps its last
 ``CACHE_SAMPLES`` messages per key and sends a heartbeat every ``HEARTBEAT_S``: a
@@ -42,8 +49,8 @@ Lifecycle of ``run()``: open the session -> declare subscribers and queryables -
 SIGTERM/SIGINT or ``stop()`` -> undeclare subscribers, process what is already
 queued -> ``on_stop()`` -> final Health (status "stopped", or "failed" after an
 error) -> close the session
-within a deadline. Returns 0 on a clean stop, 1 if a handler raised (logged with
-its traceback), 2 for a user error (OSError, ConfigError, InputError) and 1 if the
+within a deadline. Returns 0 on a clean stop, 1 if ``on_start`` raised (logged with its
+traceback), 2 for a user error there (OSError, ConfigError, InputError) and 1 if the
 session could not be opened.
 """
 
@@ -51,14 +58,19 @@ from __future__ import annotations
 
 import argparse
 import logging
+import pickle
 import queue
 import signal
 import sys
 import threading
 import time
+import traceback
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
-from typing import Any, Callable, ClassVar
+from hashlib import blake2b
+from typing import Any, Callable, ClassVar, Iterator
 
+import numpy as np
 import zenoh
 import zenoh.ext
 
@@ -98,47 +110,56 @@ class ScanOrder:
     otherwise update the track twice); an older scan is rejected as ``late``."""
 
     def __init__(self) -> None:
-        self.last: Message | None = None
+        self.last: tuple[int, bytes] | None = None  # the scan number and payload (stamp cleared) taken last
 
     def check(self, msg: Measurement) -> bool:
         """False for a duplicate to ignore; raises Rejected for a conflict or a late scan."""
-        last = self.last
-        if last is None or msg.seq > last.seq:  # type: ignore[attr-defined]
+        if self.last is None or msg.seq > self.last[0]:
             return True
-        if msg.seq < last.seq:  # type: ignore[attr-defined]
-            raise Rejected("late", f"scan {msg.seq} after scan {last.seq}")  # type: ignore[attr-defined]
-        if encode(replace(msg, stamp_ns=0)) == encode(replace(last, stamp_ns=0)):  # type: ignore[arg-type]
+        if msg.seq < self.last[0]:
+            raise Rejected("late", f"scan {msg.seq} after scan {self.last[0]}")
+        if encode(replace(msg, stamp_ns=0)) == self.last[1]:
             return False
         raise Rejected("conflict", f"a second, different message for scan {msg.seq} (the first stays)")
 
     def took(self, msg: Measurement) -> None:
-        self.last = msg
+        self.last = (msg.seq, encode(replace(msg, stamp_ns=0)))
 
 
 class ReceivedScans:
-    """Per sensor, the scan numbers a multi-target service took (with their payloads, stamps
-    cleared): an identical repeat is a duplicate (``take`` returns False), a different message
-    with a number already taken a ``conflict``, a number more than ``max_seq_jump`` past the
-    sensor's highest a ``seq_jump`` (both Rejected). Scans may come in any order."""
+    """Per sensor, the scan numbers a multi-target service took (with a digest of their payloads,
+    stamps cleared): an identical repeat is a duplicate (``check`` returns False), a different
+    message with a number already taken a ``conflict``, a number more than ``max_seq_jump`` past
+    the sensor's highest a ``seq_jump`` (both Rejected). Scans may come in any order. ``check``
+    changes nothing; ``take`` records a checked message once its handling succeeded (so that a
+    handler that fails in between leaves no trace)."""
 
     def __init__(self, max_seq_jump: int) -> None:
         self.max_seq_jump = max_seq_jump
         self.taken: dict[str, dict[int, bytes]] = {}
 
-    def take(self, msg: Message) -> bool:
+    @staticmethod
+    def _digest(msg: Message) -> bytes:
+        return blake2b(encode(replace(msg, stamp_ns=0)), digest_size=16).digest()  # type: ignore[type-var]
+
+    def check(self, msg: Message) -> bool:
+        """True for a new scan; False for an identical repeat; Rejected for a conflict or a seq jump."""
         sensor, seq = msg.sensor, msg.seq  # type: ignore[union-attr]
-        body = encode(replace(msg, stamp_ns=0))  # type: ignore[type-var]
-        seen = self.taken.setdefault(sensor, {})
+        seen = self.taken.get(sensor, {})
         if seq in seen:
-            if seen[seq] == body:
+            if seen[seq] == self._digest(msg):
                 return False
             raise Rejected("conflict", f"a second, different message for scan {seq} of {sensor!r} (the first stays)")
         if seen and seq > max(seen) + self.max_seq_jump:
             raise Rejected("seq_jump", f"scan {seq} of {sensor!r} is more than {self.max_seq_jump} after {max(seen)}")
-        seen[seq] = body
+        return True
+
+    def take(self, msg: Message) -> None:
+        """Record ``msg`` (checked by :meth:`check`) as taken."""
+        seen = self.taken.setdefault(msg.sensor, {})  # type: ignore[union-attr]
+        seen[msg.seq] = self._digest(msg)  # type: ignore[union-attr]
         if len(seen) > 4 * self.max_seq_jump:
             del seen[min(seen)]
-        return True
 
 
 QUEUE_SIZE = 10_000
@@ -180,17 +201,58 @@ class QueryHandler:
     handler: Callable[[], Message | None]
 
 
-class HandlerError(RuntimeError):
-    """A subscription, query or tick handler raised: the service stops with exit code 1."""
-
-
 class Rejected(Exception):
-    """Raised by a handler, before it changes any state, to reject a decoded message: counted in
-    ``rejected`` and ``rejected_<reason>``, logged (rate-limited), never fatal."""
+    """Raised by a handler to reject a decoded message: counted in ``rejected`` and
+    ``rejected_<reason>``, logged (rate-limited), never fatal; the state is restored."""
 
     def __init__(self, reason: str, detail: str) -> None:
         super().__init__(f"{reason}: {detail}")
         self.reason = reason
+
+
+class Numerical(Rejected):
+    """A computation that came out non-finite or not positive definite: ``rejected_numerical``."""
+
+    def __init__(self, detail: str) -> None:
+        super().__init__("numerical", detail)
+
+
+NUMERICAL_ERRORS = (np.linalg.LinAlgError, FloatingPointError, OverflowError)
+LOG_CHARS = 300  # a log line's untrusted part (key, reason) is cut to this many characters
+
+
+def clip(text: str, limit: int = LOG_CHARS) -> str:
+    """``text`` cut to ``limit`` characters for a log line (its length said when cut)."""
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
+
+
+def text_of(exc: Exception) -> str:
+    """``str(exc)``, or its type's name if even that fails (an argument whose text recurses)."""
+    try:
+        return str(exc)
+    except Exception:  # noqa: BLE001
+        return f"<{type(exc).__name__} that cannot be shown>"
+
+
+def reason_of(exc: Exception) -> str:
+    """The rejection reason of an exception a handler raised (docs/wire.md, "Rejections")."""
+    if isinstance(exc, Rejected):
+        return exc.reason
+    return "numerical" if isinstance(exc, NUMERICAL_ERRORS) else "handler_error"
+
+
+def require_finite(what: str, *arrays: Any) -> None:
+    """:class:`Numerical` unless every value of ``arrays`` is finite (a result about to be kept)."""
+    for a in arrays:
+        if not np.all(np.isfinite(a)):
+            raise Numerical(f"{what} is not finite")
+
+
+@dataclass
+class Attempt:
+    """What :meth:`Service.guarded` yields: ``failed`` once the block raised (and was undone)."""
+
+    failed: bool = False
 
 
 class Service:
@@ -198,6 +260,13 @@ class Service:
 
     role: ClassVar[str] = "service"
     tick_period_s: ClassVar[float | None] = None  # call on_tick() this often (None: never)
+    # the attributes the handlers, queries and on_tick change: checkpointed before each and
+    # restored if it raises (:meth:`guarded`); attributes a handler only sets after everything
+    # that can fail (compute, then commit) need not be listed
+    state_attrs: ClassVar[tuple[str, ...]] = ()
+    # those on_tick changes (None: ``state_attrs``); a service whose tick is frequent and whose
+    # state is large names fewer and guards the rest itself
+    tick_state_attrs: ClassVar[tuple[str, ...] | None] = None
 
     def __init__(self, service_id: str, options: SessionOptions, deployment: str = DEFAULT_DEPLOYMENT,
                  health_period_s: float = 1.0) -> None:
@@ -220,8 +289,8 @@ class Service:
         self._subscriptions: list[Subscription] = []
         self._queryables: list[QueryHandler] = []
         self._health_seq = 0
-        self._last_reject_log = -float("inf")
-        self._suppressed_rejects = 0
+        self._last_log: dict[int, float] = {}  # log level -> monotonic time of the last rejection logged
+        self._suppressed: dict[int, int] = {}  # log level -> rejections not logged since
         self._missed = 0
         self._router_outages = 0
         self._router_lost_at: float | None = None
@@ -264,11 +333,12 @@ class Service:
         for reply in self.session.get(key, timeout=timeout_s):
             if reply.ok is None:
                 continue
+            payload = reply.ok.payload.to_bytes()
             try:
-                out.append(decode(reply.ok.payload.to_bytes(), msg_type))
+                out.append(decode(payload, msg_type))
             except WireError as exc:
                 self.counters["rejected"] += 1
-                self._log_rejected(key, exc)
+                self._log_rejected(key, len(payload), str(exc))
         return out
 
     def count(self, name: str, n: int = 1) -> None:
@@ -308,7 +378,7 @@ class Service:
         except (OSError, ConfigError, InputError) as exc:
             self.log.error("%s", exc)
             code = 2
-        except Exception as exc:  # a bug in a handler: report it clearly and exit non-zero
+        except Exception as exc:  # a bug in on_start: report it clearly and exit non-zero
             self.log.critical("fatal: %s", exc, exc_info=True)
             code = 1
         finally:
@@ -391,7 +461,8 @@ class Service:
                 pass
             now = time.monotonic()
             if now >= next_tick:
-                self._call("on_tick", self.on_tick)
+                with self.guarded("on_tick", self.tick_state_attrs):
+                    self.on_tick()
                 next_tick = max(next_tick + self.tick_period_s, now)  # type: ignore[operator]
             if now >= next_health:
                 self._put(self.keys.health(self.role, self.id), self._health())
@@ -429,8 +500,8 @@ class Service:
     def _dispatch(self, item: tuple[Any, ...]) -> None:
         kind, index, key, payload = item
         if kind == "query":
-            with payload as query:
-                reply = self._call(f"query on {key}", self._queryables[index].handler)
+            with payload as query, self.guarded(f"query on {key}"):
+                reply = self._queryables[index].handler()
                 if reply is not None:
                     query.reply(query.key_expr, encode(reply), encoding=_ENCODING)
             return
@@ -440,40 +511,64 @@ class Service:
             check_sender(self.keys, key, msg)
         except WireError as exc:
             self.counters["rejected"] += 1
-            self._log_rejected(key, exc)
+            self._log_rejected(key, len(payload), str(exc))
             return
         except Rejected as exc:
-            self._reject(key, exc)
+            self._reject(key, len(payload), exc)
             return
         self.counters["received"] += 1
-        try:
-            self._call(f"message on {key}", sub.handler, *((msg, payload) if sub.raw else (msg,)))
-        except Rejected as exc:
-            self._reject(key, exc)
+        with self.guarded(f"a message on {key}", key=key, size=len(payload)):
+            sub.handler(*((msg, payload) if sub.raw else (msg,)))
 
-    def _reject(self, key: str, exc: Rejected) -> None:
+    @contextmanager
+    def guarded(self, what: str, attrs: tuple[str, ...] | None = None, key: str | None = None,
+                size: int = 0) -> Iterator[Attempt]:
+        """Run the block as one transaction: if it raises anything, the attributes ``attrs``
+        (default ``state_attrs``), the counters and the status are put back as they were when
+        it began, the failure is counted as a rejection (:func:`reason_of`) and logged (bounded),
+        and the service goes on (the :class:`Attempt` yielded says ``failed``). A handler that
+        publishes does so last (compute, then commit), so that nothing it failed on was sent."""
+        names = self.state_attrs if attrs is None else attrs
+        saved = (pickle.dumps({name: getattr(self, name) for name in names}, protocol=pickle.HIGHEST_PROTOCOL),
+                 dict(self.counters), self.status)
+        attempt = Attempt()
+        try:
+            yield attempt
+        except Exception as exc:  # noqa: BLE001 - a handler must not end the service (module docstring)
+            state, counters, status = saved
+            for name, value in pickle.loads(state).items():
+                setattr(self, name, value)
+            self.counters, self.status = counters, status
+            attempt.failed = True
+            self._reject(key or what, size, exc)
+
+    def note_rejected(self, key: str, exc: Rejected) -> None:
+        """Count and log the rejection of a message on ``key`` without raising, for a handler that
+        keeps what it changed (e.g. a scan marked contested)."""
+        self._reject(key, 0, exc)
+
+    def _reject(self, key: str, size: int, exc: Exception) -> None:
+        reason = reason_of(exc)
         self.counters["rejected"] += 1
-        self.count(f"rejected_{exc.reason}")
-        self._log_rejected(key, exc)
+        self.count(f"rejected_{reason}")
+        if reason == "handler_error":  # a bug: say what and where, at error level
+            frame = traceback.extract_tb(exc.__traceback__)[-1] if exc.__traceback__ else None
+            where = f" at {frame.filename}:{frame.lineno} in {frame.name}" if frame else ""
+            self._log_rejected(key, size, f"{type(exc).__name__}: {text_of(exc)}{where}", logging.ERROR)
+        else:
+            self._log_rejected(key, size, text_of(exc))
 
-    def _call(self, what: str, fn: Callable[..., Any], *args: Any) -> Any:
-        try:
-            return fn(*args)
-        except (OSError, ConfigError, InputError, HandlerError, Rejected):
-            raise
-        except Exception as exc:
-            raise HandlerError(f"{type(self).__name__} failed handling {what}: {type(exc).__name__}: {exc}") \
-                from exc
-
-    def _log_rejected(self, key: str, exc: Exception) -> None:
+    def _log_rejected(self, key: str, size: int, reason: str, level: int = logging.WARNING) -> None:
+        """Log a rejection (at most one per REJECT_LOG_INTERVAL_S and level): the key, the payload's
+        size and the reason, each cut to LOG_CHARS, never the payload itself."""
         now = time.monotonic()
-        if now - self._last_reject_log < REJECT_LOG_INTERVAL_S:
-            self._suppressed_rejects += 1
+        if now - self._last_log.get(level, -float("inf")) < REJECT_LOG_INTERVAL_S:
+            self._suppressed[level] = self._suppressed.get(level, 0) + 1
             return
-        more = f" ({self._suppressed_rejects} more rejected since the last report)" if self._suppressed_rejects else ""
-        self.log.warning("rejected a message on %s: %s%s", key, exc, more)
-        self._last_reject_log = now
-        self._suppressed_rejects = 0
+        more = self._suppressed.pop(level, 0)
+        self.log.log(level, "rejected a message on %s (%d bytes): %s%s", clip(key), size, clip(reason),
+                     f" ({more} more rejected since the last report)" if more else "")
+        self._last_log[level] = now
 
     def _health(self) -> Health:
         self._health_seq += 1

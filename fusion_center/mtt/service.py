@@ -43,7 +43,15 @@ from fedtrack.fusion_center.mtt.replay import PictureClock
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
 from fedtrack.local_filters.mtt.local import report_from_wire, resets_to_wire
 from fedtrack.local_filters.mtt.scan import scan_from_measurement
-from fedtrack.services.base import ReceivedScans, Rejected, Service, Subscription, service_kwargs, service_parser
+from fedtrack.services.base import (
+    ReceivedScans,
+    Rejected,
+    Service,
+    Subscription,
+    require_finite,
+    service_kwargs,
+    service_parser,
+)
 from fedtrack.wire import Measurement, TrackPicture, TrackReport
 
 ALGORITHMS = ("mtt-federated", "mtt-decentralized", "mtt-centralized")
@@ -54,6 +62,10 @@ class MttCentreService(Service):
 
     role = "mtt-centre"
     tick_period_s = 0.05
+    # restored after a failed handler (the engine changes in place: pickled before each message;
+    # ``received`` is only changed once a message was handled); on_tick guards its departures itself
+    state_attrs = ("engine", "clock", "order", "left_at", "pictures", "last_heard", "contested")
+    tick_state_attrs = ()
 
     def __init__(self, algorithm: str, cfg: MttConfig, dim: int = 4, max_seq_jump: int = 1000,
                  **kwargs: Any) -> None:
@@ -73,6 +85,7 @@ class MttCentreService(Service):
         self.pictures = 0
         self.last_heard: dict[str, float] = {}  # sensor -> monotonic time of its last message
         self.gone: deque[str] = deque()  # liveliness lost (filled by a Zenoh thread)
+        self.contested = False  # a conflicting message since the last picture (docs/wire.md)
 
     def on_start(self) -> None:
         assert self.session is not None
@@ -90,7 +103,10 @@ class MttCentreService(Service):
         while self.gone:
             silent.append(self.gone.popleft())
         for sensor in dict.fromkeys(silent):
-            if self.last_heard.pop(sensor, None) is not None:
+            if sensor not in self.last_heard:
+                continue
+            with self.guarded(f"the departure of {sensor}"):
+                del self.last_heard[sensor]
                 self.engine.leave(sensor)
                 self.clock.left()
                 self.left_at.append(len(self.order))
@@ -104,17 +120,37 @@ class MttCentreService(Service):
         return [Subscription(self.keys.mtt_report(), TrackReport, self.on_report)]
 
     def _admit(self, msg: Measurement | TrackReport) -> bool:
+        """True for a new (sensor, scan). False for an identical repeat (counted ``duplicate``) and
+        for a second, different one: rejected, and the next picture is marked ``contested`` (the
+        first was fused)."""
         if not self.cfg.allows(msg.sensor):
             raise Rejected("unknown_sensor", f"sensor {msg.sensor!r} is not in mtt.sensors")
-        return self.received.take(msg)
+        try:
+            if self.received.check(msg):
+                return True
+            self.count("duplicate")
+            return False
+        except Rejected as exc:
+            if exc.reason != "conflict":
+                raise
+            conflict = exc
+        if not self.contested:
+            self.count("contested")
+        self.contested = True
+        self.note_rejected(self.keys.mtt_report(msg.sensor) if isinstance(msg, TrackReport)
+                           else self.keys.sensor_meas(msg.sensor), conflict)
+        return False
 
-    def _process(self, sensor: str, seq: int, t: float, work: Callable[[], None]) -> None:
-        """Publish the pictures due before data at ``t``, then do ``work`` and note the scan."""
-        for T in self.clock.due(t):
-            self._publish_picture(T)
+    def _process(self, msg: Measurement | TrackReport, work: Callable[[], None]) -> None:
+        """Make the pictures due before data at ``msg.t``, do ``work``, then publish them (compute,
+        then commit: a failed ``work`` undoes both) and note the scan."""
+        pictures = [self._picture(T) for T in self.clock.due(msg.t)]
         work()
-        self.order.append((sensor, seq))
-        self.last_heard[sensor] = time.monotonic()
+        for picture in pictures:
+            self.publish(self.keys.mtt_picture(), picture)
+        self.order.append((msg.sensor, msg.seq))
+        self.last_heard[msg.sensor] = time.monotonic()
+        self.received.take(msg)
 
     def on_scan(self, msg: Measurement) -> None:
         try:
@@ -124,9 +160,8 @@ class MttCentreService(Service):
         if scan.sensor_position is not None and self.dim != 6:
             raise Rejected("wrong_model", "a radar scan at a 2-D centre (--dim 4)")
         if not self._admit(msg):
-            self.count("duplicate")
             return
-        self._process(msg.sensor, msg.seq, msg.t, lambda: self.engine.ingest(scan))
+        self._process(msg, lambda: self.engine.ingest(scan))
 
     def on_report(self, msg: TrackReport) -> None:
         d = msg.x.shape[1] if msg.ids else None
@@ -136,7 +171,6 @@ class MttCentreService(Service):
         if msg.obs_z.shape[0] and not (m in (2, 3) and m <= d // 2):  # a position, or a radar's 3
             raise Rejected("wrong_model", f"observations of size {m} from a local state of size {d}")
         if not self._admit(msg):
-            self.count("duplicate")
             return
         report = report_from_wire(msg)
         engine = self.engine
@@ -147,24 +181,31 @@ class MttCentreService(Service):
             if engine.feedback:
                 self.publish(self.keys.mtt_resets(msg.sensor),
                              resets_to_wire(msg.seq, resets, q_scale))
-        self._process(msg.sensor, msg.seq, msg.t, fuse)
+        self._process(msg, fuse)
 
-    def _publish_picture(self, T: float, closing: bool = False) -> None:
+    def _picture(self, T: float, closing: bool = False) -> TrackPicture:
+        """The next picture, at ``T`` (it lists the scans since the previous one)."""
         tracks = no_tracks(self.dim) if closing else self.engine.picture(T)
+        require_finite(f"the picture at t={T}", tracks.x, tracks.P)
         d = tracks.x.shape[1]
         ca = tuple(model == "ca" for model in tracks.models)
         maneuvering = tracks.maneuver_rows()
-        self.publish(self.keys.mtt_picture(), TrackPicture.unchecked(
+        picture = TrackPicture.unchecked(
             seq=self.pictures, t=T, ids=tuple(tracks.ids), x=tracks.x, P=tracks.P.reshape(-1, d),
             confirmed=tuple(tracks.confirmed), sensors=tuple(tuple(s) for s in tracks.sensors),
             fused_sensors=tuple(s for s, _ in self.order), fused_seqs=tuple(q for _, q in self.order),
             stamp_ns=time.time_ns(), closing=closing, left=tuple(self.left_at), ca=ca if any(ca) else (),
-            maneuvering=tuple(maneuvering), maneuver=None if tracks.maneuver is None else tracks.maneuver[maneuvering]))
+            maneuvering=tuple(maneuvering), maneuver=None if tracks.maneuver is None else tracks.maneuver[maneuvering],
+            contested=self.contested)
         self.pictures += 1
-        self.order, self.left_at = [], []
+        self.order, self.left_at, self.contested = [], [], False
         self.counters["pictures"] = self.pictures
         for name, value in self.engine.counters().items():
             self.counters[name] = value
+        return picture
+
+    def _publish_picture(self, T: float, closing: bool = False) -> None:
+        self.publish(self.keys.mtt_picture(), self._picture(T, closing))
 
     def on_stop(self) -> None:
         """The pictures still due at the end of the data (as the replay writes them), then the

@@ -22,7 +22,15 @@ from fedtrack.keys import check_id
 from fedtrack.local_filters.imm.config import IMMConfig, load_imm_config
 from fedtrack.local_filters.imm.filter import ALGORITHMS, AO_VSIMM
 from fedtrack.local_filters.imm.tracker import IMMTracker
-from fedtrack.services.base import ScanOrder, Service, Subscription, check_time_jump, service_kwargs, service_parser
+from fedtrack.services.base import (
+    ScanOrder,
+    Service,
+    Subscription,
+    check_time_jump,
+    require_finite,
+    service_kwargs,
+    service_parser,
+)
 from fedtrack.wire import MAX_MAP_ITEMS, FusedTrack, Measurement
 from fedtrack.zsession import id_arg
 
@@ -31,6 +39,7 @@ class IMMService(Service):
     """Runs one :class:`IMMTracker` on one sensor's position measurements."""
 
     role = "imm"
+    state_attrs = ("tracker", "order")  # the tracker rebinds its records: a pickle of it is its state
 
     def __init__(self, sensor: str, algorithm: str, cfg: IMMConfig, max_time_jump_s: float = 3600.0,
                  **kwargs: object) -> None:
@@ -58,6 +67,7 @@ class IMMService(Service):
             self.count("duplicate")
             return
         p = self.tracker.update(msg.t, msg.z, msg.R)
+        require_finite(f"scan {msg.seq}: the IMM estimate", p.x, p.P, list(p.mode_probabilities.values()))
         self.order.took(msg)
         best = max(p.mode_probabilities, key=p.mode_probabilities.__getitem__)
         self.publish(self.keys.tracker_track("imm", self.sensor), FusedTrack.unchecked(

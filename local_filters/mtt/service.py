@@ -39,6 +39,7 @@ from fedtrack.services.base import (
     Service,
     Subscription,
     check_time_jump,
+    require_finite,
     service_kwargs,
     service_parser,
 )
@@ -51,6 +52,9 @@ class MttLocalService(Service):
 
     role = "mtt-local"
     tick_period_s = 0.05
+    # the tracker is an immutable record (local_step and adopt return new ones); ``received`` is
+    # only changed once a scan was handled (compute, then commit)
+    state_attrs = ("tracker", "queue", "last_t", "awaiting", "awaiting_since")
 
     def __init__(self, sensor: str, federated: bool, cfg: MttConfig, reset_timeout_s: float = 2.0,
                  max_seq_jump: int = 1000, max_time_jump_s: float = 3600.0, **kwargs: object) -> None:
@@ -82,12 +86,14 @@ class MttLocalService(Service):
         if not self.cfg.allows(msg.sensor):
             raise Rejected("unknown_sensor", f"sensor {msg.sensor!r} is not in mtt.sensors")
         check_time_jump(self.last_t, msg.t, self.max_time_jump_s)
-        if not self.received.take(msg):
+        if not self.received.check(msg):
             self.count("duplicate")
             return
-        self.last_t = msg.t if self.last_t is None else max(self.last_t, msg.t)
         self.queue.append((msg.seq, scan, msg.stamp_ns))
-        self._advance()
+        if msg.seq in self._advance():  # dropped: as if it never came
+            return
+        self.last_t = msg.t if self.last_t is None else max(self.last_t, msg.t)
+        self.received.take(msg)
 
     def on_resets(self, msg: TrackResets) -> None:
         if self.awaiting is None or msg.seq != self.awaiting:
@@ -108,25 +114,33 @@ class MttLocalService(Service):
             self.awaiting = self.awaiting_scan = None
             self._advance()
 
-    def _advance(self) -> None:
-        """Track the waiting scans, in arrival order, while no resets are due."""
+    def _advance(self) -> list[int]:
+        """Track the waiting scans, in arrival order, while no resets are due; returns the scan
+        numbers the tracker failed on (each dropped, a rejection; the state as before it unless the
+        failure came after :meth:`SensorTracker.track` changed its history, e.g. non-finite tracks)."""
+        failed = []
         while self.queue and self.awaiting is None:
             seq, scan, stamp = self.queue.popleft()
-            if self.tracker is None:
-                self.tracker = SensorTracker(scan, self.cfg, self.federated)
-            if self.tracker.is_late(scan):
-                self.count("late")
-                continue
-            if self.tracker.is_duplicate(scan):
-                self.count("duplicate")
-                continue
-            report, rerun = self.tracker.track(scan)
-            self.publish(self.keys.mtt_report(self.sensor), report_to_wire(report, seq, stamp))
-            self.count("reports")
-            if rerun:
-                self.count("rerun", rerun)
-            if self.federated:
-                self.awaiting, self.awaiting_since, self.awaiting_scan = seq, time.monotonic(), scan
+            with self.guarded(f"scan {seq}", key=self.keys.sensor_meas(self.sensor)) as attempt:
+                tracker = self.tracker or SensorTracker(scan, self.cfg, self.federated)
+                if tracker.is_late(scan):
+                    self.count("late")
+                    continue
+                if tracker.is_duplicate(scan):
+                    self.count("duplicate")
+                    continue
+                report, rerun = tracker.track(scan)
+                require_finite(f"scan {seq}: the local tracks", report.x, report.P)
+                self.tracker = tracker
+                self.publish(self.keys.mtt_report(self.sensor), report_to_wire(report, seq, stamp))
+                self.count("reports")
+                if rerun:
+                    self.count("rerun", rerun)
+                if self.federated:
+                    self.awaiting, self.awaiting_since, self.awaiting_scan = seq, time.monotonic(), scan
+            if attempt.failed:
+                failed.append(seq)
+        return failed
 
 
 def main(argv: list[str]) -> int:

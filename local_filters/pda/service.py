@@ -30,7 +30,15 @@ from fedtrack.local_filters.pda.tracks import (
     manager_step,
     tracker_spec,
 )
-from fedtrack.services.base import ScanOrder, Service, Subscription, check_time_jump, service_kwargs, service_parser
+from fedtrack.services.base import (
+    ScanOrder,
+    Service,
+    Subscription,
+    check_time_jump,
+    require_finite,
+    service_kwargs,
+    service_parser,
+)
 from fedtrack.wire import FusedTrack, Measurement
 from fedtrack.zsession import id_arg
 
@@ -39,6 +47,7 @@ class PDAService(Service):
     """Runs the PDA-AI / HPDA track manager on one sonar's scans."""
 
     role = "hpda"
+    state_attrs = ("manager", "order")  # manager_step returns a new record: a pickle of it is the state
 
     def __init__(self, sensor: str, algorithm: str, cfg: PDAReplayConfig, max_time_jump_s: float = 3600.0,
                  **kwargs: object) -> None:
@@ -67,8 +76,9 @@ class PDAService(Service):
         amp = np.array([d.amplitude for d in msg.detections])
         keep = amp >= self.spec.c.tau
         self.manager, rep = manager_step(self.spec, self.manager, msg.t, z[keep], amp[keep], msg.R)
-        self.order.took(msg)
         tracks = rep.tracks
+        require_finite(f"scan {msg.seq}: the tracks", tracks.state.x, tracks.state.P, tracks.existence)
+        self.order.took(msg)
         self.counters["live_tracks"] = len(tracks)
         for i in np.flatnonzero(tracks.confirmed):
             self.publish(self.keys.tracker_track("hpda", self.sensor), FusedTrack.unchecked(

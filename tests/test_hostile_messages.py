@@ -1,0 +1,458 @@
+"""The three hostile messages of issue 24, and handlers that fail half-way, against every service
+in-process (each driven through its own dispatch: bounded decode, sender check, guarded handler).
+
+A :class:`Bus` delivers what the services publish to the services subscribed to its key, one
+message at a time in publication order (as Zenoh does, without the network), so a whole
+deployment runs in one thread: the paper pipeline (two federated local filters, the fusion
+centre, an IMM tracker, a sonar HPDA tracker, the recorder) and the multi-target one (three
+federated local trackers, the centre, the recorder).
+"""
+
+from __future__ import annotations
+
+import logging
+import pickle
+from collections import deque
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import msgpack
+import numpy as np
+import pytest
+from test_fuzz_handlers import MEASUREMENTS, SCANS, SENSORS
+from test_fuzz_trackers import sonar_stream
+
+from fedtrack.fusion_center.centre import FederatedCentre
+from fedtrack.fusion_center.mtt.engines import TrackToTrackEngine
+from fedtrack.fusion_center.mtt.service import MttCentreService
+from fedtrack.fusion_center.service import FusionCenterService
+from fedtrack.keys import Keys
+from fedtrack.local_filters.imm.config import load_imm_config
+from fedtrack.local_filters.imm.service import IMMService
+from fedtrack.local_filters.imm.tracker import IMMTracker
+from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.mtt.scan import parse_scan, scan_to_measurement
+from fedtrack.local_filters.mtt.service import MttLocalService
+from fedtrack.local_filters.pda.config import load_config
+from fedtrack.local_filters.pda.service import PDAService
+from fedtrack.local_filters.service import LocalFilterService
+from fedtrack.local_filters.vdie.config import FusionConfig
+from fedtrack.local_filters.vdie.local import FederatedLocalFilter
+from fedtrack.recording import Recording
+from fedtrack.sensors.multitarget import Scenario, parse_spec, simulate
+from fedtrack.services.base import Service
+from fedtrack.services.recorder import Recorder
+from fedtrack.wire import (
+    FusedTrack,
+    Health,
+    LocalEstimate,
+    Measurement,
+    Reset,
+    TrackPicture,
+    WireError,
+    decode,
+    encode,
+)
+from fedtrack.zsession import SessionOptions
+
+KEYS = Keys("hostile")
+OPTIONS = SessionOptions(connect=("tcp/127.0.0.1:1",))  # never opened: the bus stands in for Zenoh
+MTT_SENSORS = ("s1", "s2", "s3")
+# what the base class keeps for itself (I/O, logging): the rest of a service's attributes is its state
+INFRASTRUCTURE = {"options", "keys", "log", "session", "_queue", "_publishers", "_inputs", "_subscriptions",
+                  "_queryables", "_miss_lock", "_last_log", "_suppressed", "publish", "counters", "recording",
+                  "_liveliness", "_dispatch"}
+
+
+def _matches(pattern: str, key: str) -> bool:
+    """Zenoh's ``*`` (one chunk) wildcard, the only one the services subscribe with."""
+    p, k = pattern.split("/"), key.split("/")
+    return len(p) == len(k) and all(a in ("*", b) for a, b in zip(p, k))
+
+
+class Replies:
+    """Stands in for a service's Zenoh session in :meth:`Service.query`: the replies are ``payloads``."""
+
+    class _Reply:
+        def __init__(self, payload: bytes) -> None:
+            self.ok = self
+            self.payload = self
+            self._bytes = payload
+
+        def to_bytes(self) -> bytes:
+            return self._bytes
+
+    def __init__(self) -> None:
+        self.payloads: list[bytes] = []
+
+    def get(self, key: str, timeout: float) -> list[Any]:
+        return [self._Reply(p) for p in self.payloads]
+
+
+class Bus:
+    """In-process delivery of what the services publish, in publication order (queries get the
+    replies a :class:`Replies` holds: none unless a test puts some there)."""
+
+    def __init__(self, services: list[Service]) -> None:
+        self.services = services
+        self.published: list[tuple[str, Any]] = []
+        self.pending: list[tuple[str, bytes]] = []
+        self._routes: dict[str, list[tuple[Service, int]]] = {}  # key -> its subscribers
+        for svc in services:
+            svc._subscriptions = svc.subscriptions()
+            svc.session = Replies()  # type: ignore[assignment]
+            svc.publish = (lambda key, msg: (self.published.append((key, msg)),  # type: ignore[method-assign]
+                                             self.pending.append((key, encode(msg)))))
+
+    def put(self, key: str, payload: bytes) -> None:
+        """Deliver ``payload`` on ``key`` (to every subscriber), then everything it caused."""
+        self.pending.append((key, payload))
+        self.drain()
+
+    def drain(self) -> None:
+        while self.pending:
+            key, data = self.pending.pop(0)
+            if key not in self._routes:
+                self._routes[key] = [(svc, index) for svc in self.services
+                                     for index, sub in enumerate(svc._subscriptions) if _matches(sub.key, key)]
+            for svc, index in self._routes[key]:
+                svc._dispatch(("sample", index, key, data))
+
+    def of(self, msg_type: type) -> list[Any]:
+        return [m for _, m in self.published if isinstance(m, msg_type)]
+
+
+def canonical(value: Any) -> Any:
+    """``value`` as nested tuples that compare equal exactly when the values are equal (arrays by
+    dtype, shape and bytes; floats by their bits, so NaN equals NaN; sets sorted; objects by their
+    attributes). For the tests' own state only: it recurses."""
+    if isinstance(value, np.ndarray):
+        return ("array", value.dtype.str, value.shape, value.tobytes())
+    if isinstance(value, (float, np.floating)):
+        return ("float", float(value).hex())
+    if isinstance(value, dict):
+        return ("dict", tuple((canonical(k), canonical(v)) for k, v in value.items()))
+    if isinstance(value, (set, frozenset)):
+        return ("set", tuple(sorted((canonical(v) for v in value), key=repr)))
+    if isinstance(value, (list, tuple, deque)):
+        return (type(value).__name__, tuple(canonical(v) for v in value))
+    if hasattr(value, "__dict__") and not callable(value):
+        return (type(value).__name__, canonical(vars(value)))
+    return value
+
+
+def fingerprint(svc: Service) -> dict[str, Any]:
+    """Every attribute of ``svc`` but the base class's I/O ones, :func:`canonical` (equal: equal state)."""
+    return {k: canonical(v) for k, v in vars(svc).items() if k not in INFRASTRUCTURE}
+
+
+# ---------------------------------------------------------------- the paper pipeline
+
+def paper_services(tmp_path: Path) -> dict[str, Service]:
+    config = FusionConfig()
+    n = len(SENSORS)
+    common: dict[str, Any] = {"options": OPTIONS, "deployment": KEYS.deployment}
+    services: dict[str, Service] = {
+        f"local-{s}": LocalFilterService(s, "federated", FederatedLocalFilter(float(n), n, config), 0.5,
+                                         service_id=s, **common) for s in SENSORS}
+    services["centre"] = FusionCenterService(list(SENSORS), FederatedCentre(list(SENSORS), config), 0.5,
+                                             service_id="fusion", **common)
+    services["imm"] = IMMService(SENSORS[0], "ao-vsimm", load_imm_config(None), service_id="imm", **common)
+    services["hpda"] = PDAService("sonar1", "hpda", load_config(None), service_id="hpda", **common)
+    recorder = Recorder(tmp_path / "paper.db", service_id="rec", **common)
+    recorder.on_start()
+    recorder.recording.db.execute("PRAGMA synchronous = OFF")  # type: ignore[union-attr]  # test speed only
+    services["recorder"] = recorder
+    return services
+
+
+SONAR = sonar_stream()
+
+
+def paper_scan(bus: Bus, k: int) -> None:
+    """Scan ``k``: each sensor's measurement (the estimates, fusion and resets follow on the bus)."""
+    for s in SENSORS:
+        bus.put(KEYS.sensor_meas(s), encode(MEASUREMENTS[s][k]))
+    if k < len(SONAR):
+        bus.put(KEYS.sensor_meas("sonar1"), encode(SONAR[k]))
+
+
+def paper_run(tmp_path: Path, before: Callable[[Bus, int], None] | None = None) -> tuple[Bus, dict[str, Service]]:
+    services = paper_services(tmp_path)
+    bus = Bus(list(services.values()))
+    for k in range(SCANS):
+        if before is not None:
+            before(bus, k)
+        paper_scan(bus, k)
+    return bus, services
+
+
+def same_tracks(a: list[FusedTrack], b: list[FusedTrack]) -> None:
+    assert [(t.seq, t.model, t.contested) for t in a] == [(t.seq, t.model, t.contested) for t in b]
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(x.x, y.x)
+        np.testing.assert_array_equal(x.P, y.P)
+
+
+def fused(bus: Bus) -> list[FusedTrack]:
+    return [m for key, m in bus.published if key == KEYS.fusion_track()]
+
+
+# ---------------------------------------------------------------- the multi-target deployment
+
+def mtt_lines(tmp_path: Path) -> list[Measurement]:
+    out = tmp_path / "mtt-scenario"
+    simulate(Scenario(targets=4, duration=12.0, clutter=2.0, late=0.0), parse_spec("pos:1.0,pos:0.7,pos:1.3"), 3, out)
+    seq: dict[str, int] = {}
+    msgs = []
+    for line in (out / "measurements.jsonl").read_text().splitlines():
+        scan = parse_scan(__import__("json").loads(line), "test")
+        seq[scan.sensor] = seq.get(scan.sensor, -1) + 1
+        msgs.append(scan_to_measurement(scan, seq[scan.sensor], 1))
+    return msgs
+
+
+def mtt_services(tmp_path: Path, algorithm: str = "mtt-federated") -> dict[str, Service]:
+    cfg = MttConfig(sensors=MTT_SENSORS, max_lag=3.0, clutter_density=2.0 / 5000.0**2)
+    common: dict[str, Any] = {"options": OPTIONS, "deployment": KEYS.deployment}
+    services: dict[str, Service] = {"centre": MttCentreService(algorithm, cfg, 4, service_id="centre", **common)}
+    if algorithm != "mtt-centralized":
+        services.update({s: MttLocalService(s, algorithm == "mtt-federated", cfg, 5.0, service_id=s, **common)
+                         for s in MTT_SENSORS})
+    recorder = Recorder(tmp_path / f"{algorithm}.db", service_id="rec", **common)
+    recorder.on_start()
+    recorder.recording.db.execute("PRAGMA synchronous = OFF")  # type: ignore[union-attr]
+    services["recorder"] = recorder
+    return services
+
+
+def pictures(bus: Bus) -> list[tuple[Any, ...]]:
+    return [(p.seq, p.t, p.ids, p.x.tobytes(), p.P.tobytes(), p.fused_sensors, p.fused_seqs, p.contested)
+            for p in bus.of(TrackPicture)]
+
+
+# ---------------------------------------------------------------- issue 24, message 1
+
+def deep_map(depth: int = 1000) -> bytes:
+    deep: Any = {}
+    for _ in range(depth):
+        deep = {"v": deep}
+    return msgpack.packb({"schema": 1, "type": deep, "role": deep}, use_bin_type=True)
+
+
+def test_a_1000_deep_map_on_any_key_is_one_counted_rejection(tmp_path: Path, caplog: Any) -> None:
+    """Issue 24: a map nested 1,000 deep killed every service with RecursionError while it
+    formatted the rejection. Sent on every key every service subscribes to (and decoded as the
+    Health that the launcher's monitor and the benchmarks read): one bounded rejection each."""
+    payload = deep_map()
+    with pytest.raises(WireError, match="nested more than"):
+        decode(payload, Health)
+    services = [*paper_services(tmp_path).values(), *mtt_services(tmp_path).values(),
+                mtt_services(tmp_path / "c", "mtt-centralized")["centre"]]
+    bus = Bus(services)
+    caplog.set_level(logging.WARNING)
+    for svc in services:
+        for index, sub in enumerate(svc._subscriptions):
+            key = sub.key.replace("*", "1")
+            before = fingerprint(svc)
+            svc._dispatch(("sample", index, key, payload))
+            assert fingerprint(svc) == before
+        assert svc.counters["rejected"] == len(svc._subscriptions) and svc.counters["received"] == 0
+    lines = [r.getMessage() for r in caplog.records if "rejected a message" in r.getMessage()]
+    assert len(lines) == len(services) and all(len(line) < 400 for line in lines), lines
+    assert all("containers nested more than 8 deep" in line for line in lines)
+    assert bus.published == []
+
+
+# ---------------------------------------------------------------- issue 24, message 2
+
+def test_an_estimate_far_ahead_of_its_scan_is_rejected_and_changes_nothing(tmp_path: Path) -> None:
+    """Issue 24: a LocalEstimate time-stamped far ahead of its scan, arriving before the scan's
+    genuine estimates, crashed the centre (LinAlgError) and changed the fused track. It is now
+    rejected (``time_jump``: more than ``max_time_jump_s`` after the last fused scan) and the
+    fused tracks equal the clean run's."""
+    clean, _ = paper_run(tmp_path / "clean")
+    forged_at = 12
+
+    def forge(bus: Bus, k: int) -> None:
+        if k == forged_at:
+            genuine = next(e for e in clean.of(LocalEstimate) if e.seq == k and e.sensor == SENSORS[0])
+            bus.put(KEYS.local_estimate(SENSORS[0]), encode(replace(genuine, t=genuine.t + 1e6)))
+
+    attacked, services = paper_run(tmp_path / "attacked", forge)
+    centre = services["centre"]
+    assert centre.counters.get("rejected_time_jump") == 1 and centre.counters["rejected"] == 1
+    assert centre.counters.get("contested", 0) == 0
+    same_tracks(fused(attacked), fused(clean))
+    assert len(fused(attacked)) == SCANS
+
+
+# ---------------------------------------------------------------- issue 24, message 3
+
+def test_a_replayed_estimate_arriving_first_marks_its_scan_contested(tmp_path: Path) -> None:
+    """Issue 24: an older genuine estimate re-published with the current scan's ``seq`` and ``t``
+    arrives before the genuine one and is fused (without authentication nothing tells them apart).
+    When the genuine one arrives, the scan's fused track is marked ``contested`` (Health counter
+    ``contested``); the other scans are the clean run's."""
+    clean, _ = paper_run(tmp_path / "clean")
+    forged_at = 20
+
+    def replay_old(bus: Bus, k: int) -> None:
+        if k == forged_at:
+            old = next(e for e in clean.of(LocalEstimate) if e.seq == k - 5 and e.sensor == SENSORS[0])
+            bus.put(KEYS.local_estimate(SENSORS[0]), encode(replace(old, seq=k, t=MEASUREMENTS[SENSORS[0]][k].t)))
+
+    attacked, services = paper_run(tmp_path / "attacked", replay_old)
+    centre = services["centre"]
+    assert centre.counters.get("contested") == 1 and centre.counters.get("rejected_conflict") == 1
+    tracks = fused(attacked)
+    assert [t.seq for t in tracks if t.contested] == [forged_at]
+    same_tracks(tracks[:forged_at], fused(clean)[:forged_at])
+    rows = list(Recording(tmp_path / "attacked" / "paper.db").messages(FusedTrack, "seq"))
+    assert [t.seq for t in rows if t.contested] == [forged_at]  # recorded as published
+
+
+def test_a_conflicting_report_marks_the_next_picture_contested(tmp_path: Path) -> None:
+    """The multi-target centre: a second, different report for a (sensor, scan) it already fused
+    is rejected and marks the next picture ``contested``; the pictures before it are unchanged."""
+    scans = mtt_lines(tmp_path)
+    runs = []
+    for name, forge in (("clean", False), ("forged", True)):
+        services = mtt_services(tmp_path / name)
+        bus = Bus(list(services.values()))
+        for i, m in enumerate(scans):
+            bus.put(KEYS.sensor_meas(m.sensor), encode(m))
+            if forge and i == len(scans) // 2:
+                report = [r for key, r in bus.published if key == KEYS.mtt_report(m.sensor)][-1]
+                bus.put(KEYS.mtt_report(m.sensor), encode(replace(report, t=report.t, x=report.x + 1.0)))
+        runs.append((bus, services))
+    (clean, _), (forged, services) = runs
+    assert services["centre"].counters.get("contested") == 1
+    assert services["centre"].counters.get("rejected_conflict") == 1
+    flagged = [p.seq for p in forged.of(TrackPicture) if p.contested]
+    assert len(flagged) == 1
+    assert pictures(forged)[:flagged[0]] == pictures(clean)[:flagged[0]]
+
+
+# ---------------------------------------------------------------- handlers that fail half-way
+
+def fail_once(real: Callable[..., Any], at: int, exc: Exception, after: bool = True) -> Callable[..., Any]:
+    """``real``, except that its ``at``-th call raises ``exc``: after running (so after changing
+    what it changes) or, with ``after`` false, before."""
+    calls = [0]
+
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        calls[0] += 1
+        if calls[0] == at and not after:
+            raise exc
+        out = real(*args, **kwargs)
+        if calls[0] == at:
+            raise exc
+        return out
+    wrapper.calls = calls  # type: ignore[attr-defined]
+    return wrapper
+
+
+def resend_after_a_failure(svc: Service, restored: list[bool]) -> None:
+    """Make ``svc`` check, after each message it rejected, that its state is what it was before
+    the message, and then take the same message again (a retransmission)."""
+    dispatch = svc._dispatch
+
+    def checked(item: tuple[Any, ...]) -> None:
+        before, rejected = fingerprint(svc), svc.counters["rejected"]
+        dispatch(item)
+        if svc.counters["rejected"] > rejected:
+            restored.append(fingerprint(svc) == before)
+            dispatch(item)
+    svc._dispatch = checked  # type: ignore[method-assign]
+
+
+def outputs(bus: Bus) -> dict[str, list[bytes]]:
+    """Everything published, per key, wall-clock stamps cleared."""
+    out: dict[str, list[bytes]] = {}
+    for key, msg in bus.published:
+        out.setdefault(key, []).append(encode(replace(msg, stamp_ns=0) if hasattr(msg, "stamp_ns") else msg))
+    return out
+
+
+def state_counters(svc: Service) -> dict[str, int]:
+    return {k: v for k, v in svc.counters.items() if not k.startswith("rejected") and k != "received"}
+
+
+PDA_SERVICE = __import__("fedtrack.local_filters.pda.service", fromlist=["manager_step"])
+MTT_LOCAL = __import__("fedtrack.local_filters.mtt.service", fromlist=["local_step"])
+FUSION_SERVICE = __import__("fedtrack.fusion_center.service", fromlist=["LocalOutput"])
+# family -> (service, patched owner, attribute, call that fails, exception, raised after the call, reason)
+FAILURES: dict[str, tuple[str, Any, str, int, Exception, bool, str]] = {
+    "local-filter": ("local-1", FederatedLocalFilter, "process", 21, np.linalg.LinAlgError("Singular matrix"),
+                     True, "numerical"),
+    "centre": ("centre", FUSION_SERVICE, "LocalOutput", 31, RuntimeError("a bug"), True, "handler_error"),
+    "imm": ("imm", IMMTracker, "update", 12, FloatingPointError("overflow"), True, "numerical"),
+    "hpda": ("hpda", PDA_SERVICE, "manager_step", 5, KeyError("a bug"), True, "handler_error"),
+    "recorder": ("recorder", Recording, "add", 40, OSError("disk full"), False, "handler_error"),
+    "mtt-local": ("s2", MTT_LOCAL, "local_step", 7, FloatingPointError("overflow"), True, "numerical"),
+    "mtt-centre": ("centre", TrackToTrackEngine, "fuse", 15, np.linalg.LinAlgError("Singular matrix"), True,
+                   "numerical"),
+}
+
+
+@pytest.mark.parametrize("family", sorted(FAILURES))
+def test_a_handler_failing_half_way_leaves_no_trace(tmp_path: Path, family: str, monkeypatch: Any) -> None:
+    """A handler that raises after changing its state (a numerical failure, or a bug) rejects the
+    message, counted by reason; the service's state is exactly as before the message, and the
+    same message sent again then gives exactly the clean run's outputs and counters."""
+    name, owner, attr, at, exc, after, reason = FAILURES[family]
+    multitarget = family.startswith("mtt")
+    scans = mtt_lines(tmp_path) if multitarget else []
+
+    def run(path: Path, failing: bool) -> tuple[Bus, Service, list[bool]]:
+        services = mtt_services(path) if multitarget else paper_services(path)
+        bus = Bus(list(services.values()))
+        restored: list[bool] = []
+        if failing:
+            resend_after_a_failure(services[name], restored)
+            monkeypatch.setattr(owner, attr, fail_once(getattr(owner, attr), at, exc, after))
+        if multitarget:
+            for m in scans:
+                bus.put(KEYS.sensor_meas(m.sensor), encode(m))
+        else:
+            for k in range(SCANS):
+                paper_scan(bus, k)
+        return bus, services[name], restored
+
+    clean, clean_svc, _ = run(tmp_path / "clean", False)
+    bus, svc, restored = run(tmp_path / "failing", True)
+    assert getattr(owner, attr).calls[0] > at  # the failure happened mid-run
+    assert restored == [True]
+    assert svc.counters.get(f"rejected_{reason}") == 1 and svc.counters["rejected"] == 1
+    assert state_counters(svc) == state_counters(clean_svc)
+    assert outputs(bus) == outputs(clean)
+    assert clean_svc.counters["rejected"] == 0
+
+
+def test_a_scan_the_centre_cannot_fuse_is_dropped_and_its_state_kept(tmp_path: Path, monkeypatch: Any) -> None:
+    """A fusion that fails numerically (a singular matrix inside the centre's step, after it
+    changed its state) drops that scan (``rejected_numerical``: no track, no resets), leaves the
+    centre's filter as it was before the scan, and the next scans are fused."""
+    k = 10
+    monkeypatch.setattr(FederatedCentre, "fuse", fail_once(FederatedCentre.fuse, k + 1,
+                                                           np.linalg.LinAlgError("Singular matrix")))
+    services = paper_services(tmp_path)
+    bus = Bus(list(services.values()))
+    centre: FusionCenterService = services["centre"]  # type: ignore[assignment]
+    states = []
+    for scan in range(SCANS):
+        paper_scan(bus, scan)
+        states.append(pickle.dumps(centre.centre))
+        for s in SENSORS:  # no reset for scan k: the local filters go on alone after their deadline
+            local: LocalFilterService = services[f"local-{s}"]  # type: ignore[assignment]
+            if local.pending:
+                local.waiting_since = -1e9
+                local.on_tick()
+        bus.drain()
+    assert centre.counters.get("rejected_numerical") == 1
+    assert [t.seq for t in fused(bus)] == [s for s in range(SCANS) if s != k]
+    assert states[k] == states[k - 1]
+    assert k not in {r.seq for r in bus.of(Reset)} and k - 1 in {r.seq for r in bus.of(Reset)}
