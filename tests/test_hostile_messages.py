@@ -382,7 +382,7 @@ def state_counters(svc: Service) -> dict[str, int]:
 
 
 PDA_SERVICE = __import__("fedtrack.local_filters.pda.service", fromlist=["manager_step"])
-MTT_LOCAL = __import__("fedtrack.local_filters.mtt.service", fromlist=["local_step"])
+MTT_LOCAL = __import__("fedtrack.local_filters.mtt.local", fromlist=["local_step"])  # SensorTracker's step
 FUSION_SERVICE = __import__("fedtrack.fusion_center.service", fromlist=["LocalOutput"])
 # family -> (service, patched owner, attribute, call that fails, exception, raised after the call, reason)
 FAILURES: dict[str, tuple[str, Any, str, int, Exception, bool, str]] = {

@@ -40,6 +40,13 @@ class ScanHistory(Generic[S, E]):
         newest, or before the checkpoint."""
         return bool(self.times) and t < self.times[-1] - self.max_lag or (self.base_t is not None and t < self.base_t)
 
+    def copy(self) -> ScanHistory[S, E]:
+        """An independent copy (the states and entries are immutable records: only the lists are copied)."""
+        other = ScanHistory(self.base, self.max_lag)
+        other.base_t, other.times = self.base_t, [*self.times]
+        other.entries, other.after = [*self.entries], [*self.after]
+        return other
+
     @property
     def newest(self) -> S:
         return self.after[-1] if self.after else self.base

@@ -170,6 +170,12 @@ class SensorTracker:
     def tracker(self) -> LocalTracker:
         return self.history.newest[0]
 
+    def copy(self) -> SensorTracker:
+        """An independent copy to track on, so that a failure leaves this one as it was."""
+        other = SensorTracker.__new__(SensorTracker)
+        other.cfg, other.history, other.issued = self.cfg, self.history.copy(), self.issued
+        return other
+
     def is_late(self, scan: SensorScan) -> bool:
         return self.history.is_late(scan.t)
 

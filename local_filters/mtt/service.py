@@ -116,13 +116,13 @@ class MttLocalService(Service):
 
     def _advance(self) -> list[int]:
         """Track the waiting scans, in arrival order, while no resets are due; returns the scan
-        numbers the tracker failed on (each dropped, a rejection; the state as before it unless the
-        failure came after :meth:`SensorTracker.track` changed its history, e.g. non-finite tracks)."""
+        numbers the tracker failed on (each dropped, a rejection, the state as before it: the scan is
+        tracked on a copy of the tracker, kept on success)."""
         failed = []
         while self.queue and self.awaiting is None:
             seq, scan, stamp = self.queue.popleft()
             with self.guarded(f"scan {seq}", key=self.keys.sensor_meas(self.sensor)) as attempt:
-                tracker = self.tracker or SensorTracker(scan, self.cfg, self.federated)
+                tracker = SensorTracker(scan, self.cfg, self.federated) if self.tracker is None else self.tracker.copy()
                 if tracker.is_late(scan):
                     self.count("late")
                     continue
