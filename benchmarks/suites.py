@@ -254,7 +254,9 @@ def bench_association(quick: bool) -> dict[str, Any]:
                         "replay", "--algorithm", name.split(":")[0], *extra, "--config", str(config),
                         "--measurements", str(folder / "measurements.jsonl"), "--out", str(path)))
                     table.setdefault(name, {})[associator] = evaluate(path, truth, extra_eval)["mean"]
-            for association, wall in (stonesoup_runs(folder, folder / "gnn.toml", (), {}, ("gnn", "jpda")) or {}).items():
+            # Stone Soup's JPDA enumerates joint events in Python: minutes even on --quick's sizes
+            for association, wall in stonesoup_associations(folder, folder / "gnn.toml",
+                                                            ("gnn",) if quick else ("gnn", "jpda")).items():
                 path = folder / f"stonesoup-{association}.jsonl"
                 table.setdefault("stonesoup:all", {})[association] = evaluate(path, truth, extra_eval)["mean"]
                 out["replay_s"][f"{scenario}:stonesoup:{association}"] = wall
@@ -327,35 +329,50 @@ def bench_live(quick: bool) -> dict[str, Any]:
     return out
 
 
-def stonesoup_runs(default: Path, config: Path, sensors: tuple[str, ...], tracks: dict[str, Path],
-                   associations: tuple[str, ...] = ("gnn",)) -> dict[str, float] | None:
-    """Stone Soup's trackers (``associations``: ``"gnn"``, ``"jpda"``) on each sensor's detections
-    and on all of them (adds to ``tracks``); wall seconds per run (keys ``stonesoup:all``,
-    ``stonesoup:s1``, ... for GNN alone, else the association's name: Stone Soup on all
-    detections), or None without the ``bench`` extra."""
+def stonesoup_config(config: Path) -> Any | None:
+    """``config``'s ``[mtt]`` for Stone Soup's trackers, or None without the ``bench`` extra."""
     try:
         import stonesoup  # noqa: F401
     except ImportError:
         print("fedtrack bench: stonesoup not installed (pip install 'fedtrack[bench]'): the multi-target "
               "comparison with Stone Soup is skipped", file=sys.stderr)
         return None
-    from fedtrack.benchmarks.stonesoup_mtt import read_scans, stonesoup_tracker
     from fedtrack.config import load_tables
     from fedtrack.local_filters.mtt.config import MttSettings
 
-    cfg = load_tables(config, MttSettings).mtt
+    return load_tables(config, MttSettings).mtt
+
+
+def stonesoup_runs(default: Path, config: Path, sensors: tuple[str, ...], tracks: dict[str, Path]
+                   ) -> dict[str, float] | None:
+    """Stone Soup's GNN tracker on each sensor's detections and on all of them (adds to ``tracks``);
+    wall seconds per run, or None without the ``bench`` extra."""
+    cfg = stonesoup_config(config)
+    if cfg is None:
+        return None
+    from fedtrack.benchmarks.stonesoup_mtt import read_scans, stonesoup_tracker
+
     wall = {}
-    if associations == ("gnn",):
-        for name, only in [("stonesoup:all", None)] + [(f"stonesoup:{s}", {s}) for s in sensors]:
-            tracks[name] = default / f"{name.replace(':', '-')}.jsonl"
-            t0 = time.perf_counter()
-            stonesoup_tracker(read_scans(default / "measurements.jsonl", only), cfg, tracks[name])
-            wall[name] = time.perf_counter() - t0
-        return wall
-    scans = read_scans(default / "measurements.jsonl", None)
+    for name, only in [("stonesoup:all", None)] + [(f"stonesoup:{s}", {s}) for s in sensors]:
+        tracks[name] = default / f"{name.replace(':', '-')}.jsonl"
+        t0 = time.perf_counter()
+        stonesoup_tracker(read_scans(default / "measurements.jsonl", only), cfg, tracks[name])
+        wall[name] = time.perf_counter() - t0
+    return wall
+
+
+def stonesoup_associations(folder: Path, config: Path, associations: tuple[str, ...]) -> dict[str, float]:
+    """Stone Soup's trackers (``"gnn"``, ``"jpda"``) on all of ``folder``'s detections, written to
+    ``stonesoup-<association>.jsonl``; wall seconds per run (none without the ``bench`` extra)."""
+    cfg = stonesoup_config(config)
+    if cfg is None:
+        return {}
+    from fedtrack.benchmarks.stonesoup_mtt import read_scans, stonesoup_tracker
+
+    scans, wall = read_scans(folder / "measurements.jsonl", None), {}
     for association in associations:
         t0 = time.perf_counter()
-        stonesoup_tracker(scans, cfg, default / f"stonesoup-{association}.jsonl", association)
+        stonesoup_tracker(scans, cfg, folder / f"stonesoup-{association}.jsonl", association)
         wall[association] = time.perf_counter() - t0
     return wall
 
