@@ -58,6 +58,8 @@ class AssociationInput(NamedTuple):
     clutter_density: float
     amplitude: np.ndarray | None  # (M,) detection amplitudes, if the scan carries them
     memory: Any = None  # the associator's memory after the previous scan
+    gate_d2: float = float("inf")  # the chi-square gate of the scan's measurement size
+    dt: float = 0.0  # time since the tracker's previous scan (existence prediction)
 
 
 class Association(NamedTuple):
@@ -68,6 +70,7 @@ class Association(NamedTuple):
     claimed: np.ndarray  # (M,) bool: detections that start no track
     existence: np.ndarray | None = None  # (N,) posterior existence probabilities
     memory: Any = None  # given back at the next scan
+    birth: np.ndarray | None = None  # (M,) existence of a track started on each detection (None: initial_existence)
 
 
 class Associator(NamedTuple):

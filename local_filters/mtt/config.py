@@ -24,7 +24,7 @@ MAX_CENTRAL_MANEUVER_WINDOW = 200  # its banks are kept per ring entry: memory g
 
 # [mtt] associator: the association methods of the multi-target tracker (local_filters/mtt/association.py)
 ASSOCIATORS = ("gnn", "jipda", "mht")
-NOT_YET = {"jipda": "issue 25 item 2", "mht": "issue 25 item 3"}  # named, not implemented yet
+NOT_YET = {"mht": "issue 25 item 3"}  # named, not implemented yet
 
 
 @dataclass(frozen=True)
@@ -88,6 +88,8 @@ class MttConfig:
                               'use "gnn"')
         if self.maneuver not in MANEUVER_MODES:
             raise ConfigError(f"maneuver: must be one of {', '.join(MANEUVER_MODES)}")
+        if self.associator == "jipda" and self.maneuver != "none":
+            raise ConfigError('maneuver: "vdie" works with associator = "gnn" only (jipda updates CV tracks)')
         for key in ("max_lag", "picture_delay", "clutter_density"):
             if not getattr(self, key) >= 0:
                 raise ConfigError(f"{key}: must be >= 0")

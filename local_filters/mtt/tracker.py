@@ -42,7 +42,7 @@ from fedtrack.local_filters.linear.kalman import (
     spd_inverse_logdet,
     update_residual,
 )
-from fedtrack.local_filters.mtt import detector, maneuver
+from fedtrack.local_filters.mtt import detector, jipda, maneuver
 from fedtrack.local_filters.mtt.association import Association, AssociationInput, Associator
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.gnn import GNN
@@ -101,7 +101,7 @@ def track_params(cfg: MttConfig, sensor: str | None, dim: int, feedback: bool = 
                        cfg.pd if sensor is None else cfg.pd_of(sensor),
                        cfg.clutter_density if sensor is None else cfg.clutter_of(sensor),
                        cfg.thresholds.gate, cfg.confirm_hits, cfg.confirm_window, cfg.delete_misses, vdie, detect,
-                       ASSOCIATORS[cfg.associator])
+                       ASSOCIATORS[cfg.associator], jipda.BIRTH_EXISTENCE if cfg.associator == "jipda" else None)
 
 
 N_ARRAYS = 7  # TrackSet's per-track arrays before the optional per-track states
@@ -244,16 +244,19 @@ def gate_scan(pred: GaussianState, scan: SensorScan, params: TrackParams) -> Gat
     return Gating(lin, g, -0.5 * (g.d2 + logdet[g.rows] + m * LOG_2PI))
 
 
-def associate(state: TrackerState, gating: Gating | None, scan: SensorScan, params: TrackParams) -> Association:
-    """Role 3: the associator's answer (nothing to associate without gated pairs' inputs)."""
+def associate(state: TrackerState, gating: Gating | None, scan: SensorScan, params: TrackParams,
+              dt: float = 0.0) -> Association:
+    """Role 3: the associator's answer (nothing to associate without gated pairs, unless the
+    associator keeps the existence of tracks, which a scan without pairs still lowers)."""
     n, n_det = state.tracks.size, scan.z.shape[0]
-    if gating is None:
+    if gating is None and (params.initial_existence is None or n == 0):
         return Association(np.zeros(0, np.int64), np.zeros(0), np.zeros(n_det, bool), state.tracks.existence,
                            state.memory)
-    g = gating.pairs
+    none = np.zeros(0, np.int64)
+    rows, cols, log_l = (none, none, np.zeros(0)) if gating is None else (*gating.pairs[:2], gating.log_likelihood)
     return params.associator.associate(AssociationInput(
-        n, n_det, g.rows, g.cols, gating.log_likelihood, scan.dim, state.tracks.confirmed, state.tracks.existence,
-        params.pd, params.clutter_density, scan.amplitude, state.memory))
+        n, n_det, rows, cols, log_l, scan.dim, state.tracks.confirmed, state.tracks.existence,
+        params.pd, params.clutter_density, scan.amplitude, state.memory, params.gate[scan.dim], dt))
 
 
 class Updated(NamedTuple):
@@ -307,6 +310,40 @@ def m_of_n(tracks: TrackSet, detected: np.ndarray, params: TrackParams) -> tuple
     return tracks._replace(hits=hits, age=age, misses=misses, confirmed=confirmed), live
 
 
+def jipda_update(tracks: TrackSet, pred: GaussianState, gating: Gating | None, assoc: Association,
+                 scan: SensorScan, dt: float, params: TrackParams, q_scale: float | np.ndarray = 1.0) -> Updated:
+    """Role 4 for ``jipda``: each track's PDA mixture over its gated detections (:func:`jipda.update`);
+    a track with ``beta_0 < 1`` is reported as detected with its equivalent observation
+    (:func:`jipda.equivalent_observation`)."""
+    d, m, n = params.dim, scan.dim, tracks.size
+    existence = assoc.existence
+    if gating is None or not assoc.pairs.size:
+        empty = Observation(np.zeros((0, m, d)), np.zeros((0, m, m)), np.zeros((0, m)))
+        return Updated(tracks._replace(x=pred.x, P=pred.P, existence=existence), np.zeros(n, bool), empty)
+    g = gating.pairs
+    c = jipda.scan_constants(params.pd, params.clutter_density, params.gate[m], m)
+    pairs = jipda.Pairs(g.rows, g.cols, g.nu, g.d2, gating.log_likelihood)
+    ja = jipda.from_weights(g.rows, assoc.weight, existence)
+    post = jipda.update(pred, gating.lin, scan.R, pairs, ja, c)
+    reported, obs = jipda.equivalent_observation(pred, gating.lin, scan.R, pairs, ja)
+    return Updated(tracks._replace(x=post.x, P=post.P, existence=existence), reported, Observation(*obs))
+
+
+def existence_manage(tracks: TrackSet, detected: np.ndarray, params: TrackParams) -> tuple[TrackSet, np.ndarray]:
+    """Role 6 for ``jipda``: confirmation and deletion by existence (:func:`jipda.derived_rules`);
+    the counts kept as :func:`m_of_n` keeps them."""
+    counted, _ = m_of_n(tracks, detected, params)
+    if tracks.existence is None:  # no tracks yet
+        return counted, np.zeros(tracks.size, bool)
+    pg = jipda.scan_constants(params.pd, params.clutter_density, params.gate[2], 2).pg
+    confirmed, live = jipda.manage(tracks.existence, tracks.confirmed, jipda.derived_rules(params.pd, pg))
+    return counted._replace(confirmed=confirmed), live
+
+
+JIPDA = Associator("jipda", jipda.associate_scan, jipda_update, existence_manage)
+ASSOCIATORS[JIPDA.name] = JIPDA
+
+
 def start_tracks(scan: SensorScan, det: np.ndarray, params: TrackParams, first_id: int
                  ) -> tuple[TrackSet, Observation]:
     """Tentative tracks from the detections ``det`` of ``scan`` (one-point initialization)."""
@@ -345,14 +382,17 @@ def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
     dt = 0.0 if state.t is None else scan.t - state.t
     pred = predict(tracks, dt, params, q_scale)
     gating = gate_scan(pred, scan, params)
-    assoc = associate(state, gating, scan, params)
+    assoc = associate(state, gating, scan, params, dt)
     role = params.associator
     if role.update is None:
         upd = hard_update(tracks, pred, gating, assoc, scan, dt, params, q_scale)
     else:
         upd = role.update(tracks, pred, gating, assoc, scan, dt, params, q_scale)
     updated, live = (m_of_n if role.manage is None else role.manage)(upd.tracks, upd.detected, params)
-    new, obs_new = start_tracks(scan, np.flatnonzero(~assoc.claimed), params, state.next_id)
+    det = np.flatnonzero(~assoc.claimed)
+    new, obs_new = start_tracks(scan, det, params, state.next_id)
+    if assoc.birth is not None:
+        new = new._replace(existence=assoc.birth[det])
     detected = np.concatenate([upd.detected[live], np.ones(new.size, bool)])
     keep_info = live[upd.detected]
     return ScanResult(TrackerState(_concat(updated.take(live), new), scan.t, state.next_id + new.size, assoc.memory),
