@@ -120,7 +120,7 @@ class MhtResult(NamedTuple):
     tracks: TrackSet  # the best hypothesis's tracks, by id
     detected: np.ndarray  # (N,) bool over tracks: updated or started by this scan
     observations: Observation  # for the detected tracks, in order
-    assigned: np.ndarray  # (A, 2) the best hypothesis's (track id, detection) pairs of this scan
+    assigned: np.ndarray  # (A, 2) the best hypothesis's (track id, detection) of this scan, started tracks not included
     retired: np.ndarray  # ids of the tracks that lost their last leaf at this scan
 
 
@@ -136,12 +136,16 @@ def score_increments(d2: np.ndarray, logdet: np.ndarray, m: int, params: MhtPara
     return inc, math.log1p(-tp.pd * params.pg)
 
 
-def best_extensions(n_det: int, r: np.ndarray, c: np.ndarray, gain: np.ndarray, k: int
+def best_extensions(n_det: int, r: np.ndarray, c: np.ndarray, gain: np.ndarray, k: int,
+                    names: np.ndarray | None = None, cache: dict | None = None
                     ) -> tuple[np.ndarray, list[np.ndarray]]:
     """The ``k`` best ways for rows to take one detection each of their candidate pairs
-    (``r``, ``c``, ``gain`` over a miss) or miss (gain 0), each detection at most once: the
-    total gains, best first, and per way the indices of the pairs it takes. Per connected
-    component of the pairs, Murty's k best; combined by the k best sums."""
+    (``r``, ``c``, ``gain`` over a miss) or miss (gain 0), each
+    detection at most once: the total gains, best first, and per way the indices of the pairs
+    it takes. Per connected component of the pairs: a component of one row ranks its pairs and
+    its miss, a larger one takes Murty's k best; combined by the k best sums. ``cache`` holds
+    the components solved already, by the ``names`` of their pairs (ascending): the global
+    hypotheses of a scan share most of them."""
     if r.size == 0:
         return np.zeros(1), [np.zeros(0, np.intp)]
     rows, r_local = np.unique(r, return_inverse=True)
@@ -149,27 +153,45 @@ def best_extensions(n_det: int, r: np.ndarray, c: np.ndarray, gain: np.ndarray, 
     graph = coo_matrix((np.ones(r.size), (r_local, rows.size + c)), shape=(n, n))
     _, label = connected_components(graph, directed=False)
     comp = label[r_local]
+    order = np.argsort(comp, kind="stable")
+    bounds = np.flatnonzero(np.r_[True, comp[order][1:] != comp[order][:-1], True])
     lists, ways = [], []
-    for k_comp in np.unique(comp).tolist():
-        sel = np.flatnonzero(comp == k_comp)
-        rr, r_of = np.unique(r_local[sel], return_inverse=True)
-        cc, c_of = np.unique(c[sel], return_inverse=True)
-        nr, nc = rr.size, cc.size
-        cost = np.full((nr, nc + nr), np.inf)
-        cost[r_of, c_of] = -gain[sel]
-        cost[np.arange(nr), nc + np.arange(nr)] = 0.0  # each row's own miss
-        pair = np.full((nr, nc + nr), -1)
-        pair[r_of, c_of] = sel
-        costs, cols = k_best_assignments(cost, k)
-        picked = pair[np.arange(nr), cols]  # (k', nr): -1 for a miss
+    for s, e in zip(bounds[:-1].tolist(), bounds[1:].tolist()):
+        sel = order[s:e]
+        key = names[sel].tobytes() if cache is not None else None
+        if key is not None and key in cache:
+            costs, picked = cache[key]
+        else:
+            costs, picked = _component_best(r_local[sel], c[sel], gain[sel], k)
+            if key is not None:
+                cache[key] = costs, picked
         lists.append(costs)
-        ways.append([p[p >= 0] for p in picked])
+        ways.append([sel[p[p >= 0]] for p in picked])
     sums, picks = k_best_sums(lists, k)
     return -sums, [np.concatenate([ways[j][i] for j, i in enumerate(row)]) for row in picks.tolist()]
 
 
+def _component_best(r: np.ndarray, c: np.ndarray, gain: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The k best assignments of one connected component of pairs: costs (minus the gains)
+    ascending and, per assignment and row, the index of its pair (-1: a miss)."""
+    rr, r_of = np.unique(r, return_inverse=True)
+    if rr.size == 1:  # one row: its miss and each of its pairs
+        options = np.r_[0.0, -gain]
+        best = np.argsort(options, kind="stable")[:k]
+        return options[best], (best - 1)[:, None]
+    cc, c_of = np.unique(c, return_inverse=True)
+    nr, nc = rr.size, cc.size
+    cost = np.full((nr, nc + nr), np.inf)
+    cost[r_of, c_of] = -gain
+    cost[np.arange(nr), nc + np.arange(nr)] = 0.0  # each row's own miss
+    pair = np.full((nr, nc + nr), -1)
+    pair[r_of, c_of] = np.arange(r.size)
+    costs, cols = k_best_assignments(cost, k)
+    return costs, pair[np.arange(nr), cols]
+
+
 def _extend(hyp_rows: np.ndarray, n_det: int, g_rows: np.ndarray, g_cols: np.ndarray, gain: np.ndarray,
-            confirmed: np.ndarray, params: MhtParams) -> tuple[np.ndarray, list[np.ndarray]]:
+            confirmed: np.ndarray, params: MhtParams, cache: dict) -> tuple[np.ndarray, list[np.ndarray]]:
     """The k best extensions of one hypothesis (its leaves ``hyp_rows``) over the gated pairs:
     their gains and chosen pair indices. ``"counts"``: confirmed leaves choose first, tentative
     ones among the detections left (gnn's precedence), each stage by its k best."""
@@ -177,17 +199,17 @@ def _extend(hyp_rows: np.ndarray, n_det: int, g_rows: np.ndarray, g_cols: np.nda
     mine[hyp_rows] = True
     pairs = np.flatnonzero(mine[g_rows])
     if params.management != "counts":
-        gains, ways = best_extensions(n_det, g_rows[pairs], g_cols[pairs], gain[pairs], params.k)
+        gains, ways = best_extensions(n_det, g_rows[pairs], g_cols[pairs], gain[pairs], params.k, pairs, cache)
         return gains, [pairs[w] for w in ways]
     first = pairs[confirmed[g_rows[pairs]]]
     second = pairs[~confirmed[g_rows[pairs]]]
     out_gain, out_ways = [], []
-    for g1, w1 in zip(*best_extensions(n_det, g_rows[first], g_cols[first], gain[first], params.k)):
+    for g1, w1 in zip(*best_extensions(n_det, g_rows[first], g_cols[first], gain[first], params.k, first, cache)):
         taken = first[w1]
         free = np.ones(n_det, bool)
         free[g_cols[taken]] = False
         rest = second[free[g_cols[second]]]
-        for g2, w2 in zip(*best_extensions(n_det, g_rows[rest], g_cols[rest], gain[rest], params.k)):
+        for g2, w2 in zip(*best_extensions(n_det, g_rows[rest], g_cols[rest], gain[rest], params.k, rest, cache)):
             out_gain.append(g1 + g2)
             out_ways.append(np.concatenate([taken, rest[w2]]))
     order = np.argsort(-np.array(out_gain), kind="stable")[:params.k]
@@ -227,8 +249,9 @@ def mht_step(state: MhtState, scan: SensorScan, params: MhtParams, q_scale: floa
     # 3. the k best extensions of every kept hypothesis
     values = hypothesis_values(state, params.birth_score)
     cand_value, cand_parent, cand_pairs = [], [], []
+    cache: dict = {}
     for h, row in enumerate(state.hyps):
-        gains, ways = _extend(np.flatnonzero(row), n_det, g_rows, g_cols, inc - miss, leaves.confirmed, params)
+        gains, ways = _extend(np.flatnonzero(row), n_det, g_rows, g_cols, inc - miss, leaves.confirmed, params, cache)
         cand_value.extend((values[h] + gains).tolist())
         cand_parent.extend([h] * len(ways))
         cand_pairs.extend(ways)
@@ -310,9 +333,10 @@ def mht_step(state: MhtState, scan: SensorScan, params: MhtParams, q_scale: floa
     obs_row[had_det] = np.arange(had_det.size)
     rows_best = obs_row[kept][best][det_best >= 0]
     result_tracks = state2.leaves.take(best)
+    took = (det_best >= 0) & (kept[best] < n_child)  # an existing track's detection
     retired = np.setdiff1d(leaves.ids, state2.leaves.ids)
     return MhtResult(state2, result_tracks, det_best >= 0, Observation(*(a[rows_best] for a in branch_obs)),
-                     np.stack([result_tracks.ids[det_best >= 0], det_best[det_best >= 0]], axis=1), retired)
+                     np.stack([result_tracks.ids[took], det_best[took]], axis=1), retired)
 
 
 def _join(a: TrackSet, b: TrackSet) -> TrackSet:

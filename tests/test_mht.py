@@ -1,0 +1,208 @@
+"""Track-oriented MHT (issue 25 item 3): Murty's k best assignments against brute force, the
+cluster-wise k best extensions, equivalence with gnn at window 1 and k = 1 (test (c)), the
+N-scan pruning and branch-cap invariants, and the score terms."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.mtt.kbest import k_best_assignments, k_best_sums
+from fedtrack.local_filters.mtt.mht import (
+    MhtParams,
+    best_extensions,
+    initial_mht_state,
+    mht_step,
+    score_increments,
+    sprt_thresholds,
+)
+from fedtrack.local_filters.mtt.scan import SensorScan
+from fedtrack.local_filters.mtt.tracker import initial_state, track_params, tracker_step
+from fedtrack.local_filters.pda.association import constants, log_amplitude_ratio
+from fedtrack.local_filters.pda.config import PDAParams
+from fedtrack.local_filters.radar.measurement import polar_from_cartesian
+
+
+def brute_force(cost: np.ndarray) -> list[float]:
+    """Every finite assignment's cost, ascending."""
+    n, m = cost.shape
+    totals = (cost[np.arange(n), list(p)].sum() for p in itertools.permutations(range(m), n))
+    return sorted(t for t in totals if np.isfinite(t))
+
+
+def test_k_best_assignments_equal_brute_force() -> None:
+    rng = np.random.default_rng(1)
+    checked = 0
+    for _ in range(200):
+        n = int(rng.integers(1, 5))
+        m = int(rng.integers(n, 7))
+        cost = rng.normal(size=(n, m))
+        cost[rng.random((n, m)) < 0.3] = np.inf  # forbidden pairs
+        k = int(rng.integers(1, 40))
+        every = brute_force(cost)
+        costs, cols = k_best_assignments(cost, k)
+        assert costs.size == min(k, len(every))
+        np.testing.assert_allclose(costs, every[:k], rtol=0, atol=1e-12)
+        for total, col in zip(costs, cols):  # each one a valid assignment of that cost
+            assert len(set(col.tolist())) == n
+            assert abs(cost[np.arange(n), col].sum() - total) < 1e-12
+        assert len({tuple(c) for c in cols.tolist()}) == costs.size  # no assignment twice
+        checked += costs.size
+    assert checked > 1000
+
+
+def test_k_best_sums_equal_brute_force() -> None:
+    rng = np.random.default_rng(2)
+    for _ in range(50):
+        lists = [np.sort(rng.normal(size=int(rng.integers(1, 5)))) for _ in range(int(rng.integers(1, 5)))]
+        k = int(rng.integers(1, 20))
+        every = sorted(sum(v) for v in itertools.product(*lists))
+        sums, picks = k_best_sums(lists, k)
+        np.testing.assert_allclose(sums, every[:k], atol=1e-12)
+        np.testing.assert_allclose([sum(lst[i] for lst, i in zip(lists, p)) for p in picks], sums, atol=1e-12)
+
+
+def test_best_extensions_equal_brute_force() -> None:
+    """Rows take one of their pairs or miss (gain 0), each detection at most once: the k best total
+    gains over several clusters (one-row ones among them) are the brute force's."""
+    rng = np.random.default_rng(3)
+    for _ in range(40):
+        n_rows, n_det = int(rng.integers(1, 6)), int(rng.integers(1, 7))
+        mask = rng.random((n_rows, n_det)) < 0.35
+        r, c = np.nonzero(mask)
+        gain = rng.normal(size=r.size) * 3
+        options = [[-1] + np.flatnonzero(r == i).tolist() for i in range(n_rows)]
+        every = []
+        for choice in itertools.product(*options):
+            taken = [p for p in choice if p >= 0]
+            if len({int(c[p]) for p in taken}) == len(taken):
+                every.append(sum(gain[p] for p in taken))
+        every.sort(reverse=True)
+        k = int(rng.integers(1, 15))
+        gains, ways = best_extensions(n_det, r, c, gain, k)
+        np.testing.assert_allclose(gains, every[:k], atol=1e-12)
+        for total, way in zip(gains, ways):
+            assert len(set(c[way].tolist())) == way.size and len(set(r[way].tolist())) == way.size
+            assert abs(gain[way].sum() - total) < 1e-12
+
+
+def crossing_scans(seed: int, radar: bool = False, steps: int = 40, clutter: float = 20.0
+                   ) -> tuple[list[SensorScan], float, list[np.ndarray]]:
+    """Six targets converging on a 1 km square (their paths cross), P_D 0.9, uniform clutter
+    over a 2 km square (Poisson, ``clutter`` a scan); 1 Hz. Radar: range 10 m, angles 2 mrad,
+    clutter uniform in range and azimuth."""
+    rng = np.random.default_rng(seed)
+    n, side = 6, 2000.0
+    start = rng.uniform(-side / 3, side / 3, (n, 2))
+    vel = (-start + rng.normal(0, 100, (n, 2))) / steps  # towards the centre: paths cross
+    truth, scans = [], []
+    sensor = np.array([-8000.0, 500.0, 0.0]) if radar else None
+    R = np.diag([100.0, 4e-6, 4e-6]) if radar else 100.0 * np.eye(2)
+    for k in range(steps):
+        p = start + vel * k
+        truth.append(p)
+        seen = p[rng.random(n) < 0.9]
+        n_false = rng.poisson(clutter)
+        if radar:
+            pos3 = np.column_stack([seen, np.full(len(seen), 1000.0)])
+            z = polar_from_cartesian(pos3 - sensor) + rng.normal(size=(len(seen), 3)) * np.sqrt(np.diag(R))
+            false = np.column_stack([rng.uniform(6000, 10000, n_false), rng.uniform(-0.15, 0.15, n_false),
+                                     rng.uniform(0.05, 0.2, n_false)])
+        else:
+            z = seen + rng.normal(0, 10.0, seen.shape)
+            false = rng.uniform(-side / 2, side / 2, (n_false, 2))
+        z = np.concatenate([z, false])[rng.permutation(len(z) + n_false)]
+        scans.append(SensorScan(float(k), "s1", R, z, None, sensor))
+    density = clutter / (4000 * 0.3 * 0.15) if radar else clutter / side**2  # per unit of the measurement space
+    return scans, density, truth
+
+
+@pytest.mark.parametrize("seed,radar", [(0, False), (1, False), (2, False), (3, False), (4, True)])
+def test_window_one_k_one_with_gnn_management_is_gnn(seed: int, radar: bool) -> None:
+    """Issue 25 acceptance (c): with a window of one scan, k = 1 and gnn's track management
+    (M-of-N counts, confirmed tracks first), the MHT makes gnn's assignments at every scan and
+    its tracks equal gnn's to 1e-9. gnn's cost ``-2 ln(P_D N / lambda (1 - P_D))`` is the MHT's
+    pair gain over a miss with a gate that holds every target detection, so P_G = 1 here."""
+    scans, density, _ = crossing_scans(seed, radar)
+    cfg = MttConfig(clutter_density=density)
+    dim = 6 if radar else 4
+    tp = track_params(cfg, "s1", dim)
+    mp = MhtParams(tp, window=1, k=1, max_branches=1, management="counts", pg=1.0,
+                   confirm_score=math.inf, delete_score=-math.inf)
+    gnn, mht = initial_state(dim), initial_mht_state(dim, 1)
+    worst, assigned, confirmed = 0.0, 0, 0
+    for scan in scans:
+        g = tracker_step(gnn, scan, tp)
+        h = mht_step(mht, scan, mp)
+        gnn, mht = g.state, h.state
+        a, b = gnn.tracks, h.tracks
+        assert np.array_equal(a.ids, b.ids)
+        assert np.array_equal(g.detected, h.detected) and np.array_equal(g.retired, h.retired)
+        assert np.array_equal(a.confirmed, b.confirmed) and np.array_equal(a.hits, b.hits)
+        assert len(mht.hyps) == 1 and mht.leaves.size == a.size  # one branch per track
+        worst = max(worst, np.abs(a.x - b.x).max(initial=0.0), np.abs(a.P - b.P).max(initial=0.0),
+                    *(np.abs(u - v).max(initial=0.0) for u, v in zip(g.observations, h.observations)))
+        old = a.ids[g.detected & (a.age > 1)]  # gnn's assignments of existing tracks at this scan
+        assert np.array_equal(np.sort(old), np.sort(h.assigned[:, 0]))
+        assigned += old.size
+        confirmed += int(a.confirmed.sum())
+    assert worst <= 1e-9
+    assert assigned > 150 and confirmed > 100  # there were assignments and confirmed tracks to compare
+
+
+def test_pruning_and_cap_invariants_and_confirmed_targets() -> None:
+    """Window 3, k 5, SPRT management on the crossing scenario with clutter: every hypothesis
+    holds at most one leaf per track and uses a detection once per scan; the leaves of a track
+    of the best hypothesis share its branch two scans back; at most ``max_branches`` leaves per
+    track; the picture's confirmed tracks sit on the targets."""
+    scans, density, truth = crossing_scans(7, clutter=30.0)
+    cfg = MttConfig(clutter_density=density)
+    tp = track_params(cfg, "s1", 4)
+    confirm, delete = sprt_thresholds(1e-4, 1e-2)
+    mp = MhtParams(tp, window=3, k=5, max_branches=3, management="score", pg=cfg.gate_probability,
+                   confirm_score=confirm, delete_score=delete)
+    state = initial_mht_state(4, 3)
+    several, errors = 0, []
+    for scan, p in zip(scans, truth):
+        res = mht_step(state, scan, mp)
+        state = res.state
+        ids = state.leaves.ids
+        for row in state.hyps:
+            assert np.unique(ids[row]).size == row.sum()
+        best = np.flatnonzero(state.hyps[0])
+        for leaf in best:
+            mine = ids == ids[leaf]
+            assert np.all(state.lineage[mine, 0] == state.lineage[leaf, 0])
+        assert np.bincount(ids).max(initial=0) <= 3
+        assert len(res.assigned[:, 1]) == np.unique(res.assigned[:, 1]).size
+        several += len(state.hyps) > 1
+        tr = res.tracks
+        if scan.t >= 10:
+            pos = tr.x[tr.confirmed][:, [0, 2]]
+            d = np.linalg.norm(pos[:, None] - p[None], axis=-1)
+            errors.append((d.min(axis=1) < 50).mean() if pos.size else 0.0)  # confirmed tracks on a target
+            errors.append((d.min(axis=0) < 50).mean() if pos.size else 0.0)  # targets with a confirmed track
+    assert several > 20  # the scenario had alternative hypotheses
+    assert np.mean(errors) > 0.9
+
+
+def test_score_terms() -> None:
+    """The detection increment is ``ln(P_D N(nu; 0, S) / lambda)`` plus paper 001's amplitude
+    log-ratio; the miss ``ln(1 - P_D P_G)``; Wald's thresholds."""
+    cfg = MttConfig(pd=0.8, clutter_density=1e-5)
+    tp = track_params(cfg, "s1", 4)
+    amp = constants(PDAParams(pd=0.8, clutter_density=1e-5, snr=10.0))
+    mp = MhtParams(tp, 1, 1, 1, "score", 0.99, 1.0, -1.0, amplitude=amp)
+    d2, logdet, a = np.array([0.5, 3.0]), np.array([9.0, 10.0]), np.array([5.0, 9.0])
+    inc, miss = score_increments(d2, logdet, 2, mp, a)
+    expect = np.log(0.8) - 0.5 * (d2 + logdet) - np.log(2 * np.pi) - np.log(1e-5) + log_amplitude_ratio(a, amp)
+    np.testing.assert_allclose(inc, expect, atol=1e-12)
+    assert miss == pytest.approx(np.log(1 - 0.8 * 0.99), abs=1e-15)
+    hi, lo = sprt_thresholds(1e-4, 1e-2)
+    assert hi == pytest.approx(np.log(0.99 / 1e-4)) and lo == pytest.approx(np.log(1e-2 / (1 - 1e-4)))
+    with pytest.raises(ValueError):
+        sprt_thresholds(0.6, 0.5)
