@@ -44,11 +44,17 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from fedtrack.fusion_center.mtt.central_track import CentralTracks, padded
-from fedtrack.local_filters.mtt.config import CENTRAL_MISSES, MttConfig
+from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.mtt.gnn import assign
 from fedtrack.local_filters.mtt.local import LocalReport, Resets, no_resets
-from fedtrack.local_filters.mtt.tracker import assign
 
 LocalKey = tuple[str, int]  # (sensor, local track id)
+
+# A confirmed track that several sensors see is deleted once each of them missed it on its
+# last CENTRAL_MISSES scans ((1 - P_D)^4 = 1e-4 or less for a live target with P_D = 0.9): the
+# track-to-track centre's rule per tracking sensor, and mtt-centralized's as misses in a row
+# over every sensor's scans (CENTRAL_MISSES per listed sensor: engines.central_params).
+CENTRAL_MISSES = 2
 ASSOCIATION_SHIFT = 1e6  # larger than any gated pair's d2 + ln det
 
 

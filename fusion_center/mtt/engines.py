@@ -14,13 +14,15 @@
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import time
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import NamedTuple
 
 import numpy as np
 
-from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
+from fedtrack.fusion_center.mtt.centre import CENTRAL_MISSES, TrackToTrackCentre
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import (
     LocalReport,
@@ -34,7 +36,7 @@ from fedtrack.local_filters.mtt.local import (
 from fedtrack.local_filters.mtt.maneuver import predicted_view
 from fedtrack.local_filters.mtt.models import motion, predict_tracks
 from fedtrack.local_filters.mtt.scan import SensorScan
-from fedtrack.local_filters.mtt.tracker import TrackerState, initial_state, track_params, tracker_step
+from fedtrack.local_filters.mtt.tracker import TrackerState, TrackParams, initial_state, track_params, tracker_step
 from fedtrack.local_filters.vdie.estimation import VdieParams
 from fedtrack.wire import picture_line
 
@@ -66,6 +68,24 @@ class PictureTracks(NamedTuple):
     def line(self, t: float) -> str:
         """The picture's line in a tracks file (``{"t": t, "tracks": rows}`` as JSON)."""
         return picture_line(t, self.ids, self.x, self.P, self.confirmed, self.sensors, self.models, self.maneuver)
+
+
+def central_params(cfg: MttConfig, sensor: str | None, dim: int) -> TrackParams:
+    """The parameters of ``mtt-centralized``'s tracker for a scan of ``sensor``: the fusion
+    centre's policy on a sensor's own tracker's. It counts misses over every sensor's scans, so a
+    confirmed track goes after ``CENTRAL_MISSES`` per listed sensor in a row (the track-to-track
+    centre's rule; 3 in a row dropped a live target of three sensors at P_D = 0.9 about once a
+    minute among 60), and its maneuver handling keeps ``window`` candidate onsets per listed
+    sensor, so that the window spans about the time a sensor's own does."""
+    p = track_params(cfg, sensor, dim, events=True)
+    n = cfg.listed_sensors
+    return p._replace(delete_misses=max(cfg.delete_misses, CENTRAL_MISSES * n),
+                      maneuver=_every_sensor_window(p.maneuver, n), detector=_every_sensor_window(p.detector, n))
+
+
+@lru_cache(maxsize=16)
+def _every_sensor_window(vdie: VdieParams | None, sensors: int) -> VdieParams | None:
+    return None if vdie is None else dataclasses.replace(vdie, window=vdie.window * sensors)
 
 
 def no_tracks(dim: int) -> PictureTracks:
@@ -162,8 +182,7 @@ class CentralizedEngine(Engine):
     base: TrackerState | None = None  # state before the first kept scan
 
     def _step(self, state: TrackerState, scan: SensorScan) -> TrackerState:
-        return tracker_step(state, scan, track_params(self.cfg, scan.sensor, self.dim, every_sensor=True,
-                                                   events=True)).state
+        return tracker_step(state, scan, central_params(self.cfg, scan.sensor, self.dim)).state
 
     def ingest(self, scan: SensorScan) -> None:
         if self.base is None:
@@ -198,7 +217,7 @@ class CentralizedEngine(Engine):
         if state is None:
             return no_tracks(self.dim)
         senders = sorted({s.sensor for s in self.kept})
-        detector = track_params(self.cfg, None, self.dim, every_sensor=True, events=True).detector
+        detector = central_params(self.cfg, None, self.dim).detector
         return tracker_picture(state, T, self.cfg, senders, detector)
 
 

@@ -98,11 +98,14 @@ def predict(state: GaussianState, F: np.ndarray, Q: np.ndarray,
     return GaussianState(x, symmetrize(P))
 
 
+def innovation_covariance(P: np.ndarray, H: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """``S = H P H' + R``, symmetric."""
+    return symmetrize(np.matmul(np.matmul(H, P), transpose(H)) + R)
+
+
 def innovation(state: GaussianState, z: np.ndarray, H: np.ndarray, R: np.ndarray) -> Innovation:
     """``nu = z - H x``, ``S = H P H' + R``."""
-    nu = z - mat_vec(H, state.x)
-    S = symmetrize(np.matmul(np.matmul(H, state.P), transpose(H)) + R)
-    return Innovation(nu, S)
+    return Innovation(z - mat_vec(H, state.x), innovation_covariance(state.P, H, R))
 
 
 class KalmanUpdate(NamedTuple):

@@ -22,11 +22,9 @@ MTT_VDIE_WINDOW = 15
 CENTRAL_MANEUVER_WINDOW = 30
 MAX_CENTRAL_MANEUVER_WINDOW = 200  # its banks are kept per ring entry: memory grows with it
 
-# A confirmed track that several sensors see is deleted once each of them missed it on its
-# last CENTRAL_MISSES scans ((1 - P_D)^4 = 1e-4 or less for a live target with P_D = 0.9): the
-# track-to-track centre's rule per tracking sensor, and mtt-centralized's as misses in a row
-# over every sensor's scans (CENTRAL_MISSES per listed sensor).
-CENTRAL_MISSES = 2
+# [mtt] associator: the association methods of the multi-target tracker (local_filters/mtt/association.py)
+ASSOCIATORS = ("gnn", "jipda", "mht")
+NOT_YET = {"jipda": "issue 25 item 2", "mht": "issue 25 item 3"}  # named, not implemented yet
 
 
 @dataclass(frozen=True)
@@ -61,6 +59,7 @@ class MttConfig:
     central_timeout: float = 5.0
     leave_after_s: float = 5.0
     maneuver: str = "none"
+    associator: str = "gnn"
     vdie: VdieParams = field(default_factory=lambda: VdieParams(window=MTT_VDIE_WINDOW))
     central_maneuver_window: int = CENTRAL_MANEUVER_WINDOW
     sensor: dict[str, SensorOverride] = field(default_factory=dict)
@@ -82,6 +81,11 @@ class MttConfig:
                 raise ConfigError(f"{key}: must be > 0")
         if self.noise_model not in NOISE_MODELS:
             raise ConfigError(f"noise_model: must be one of {', '.join(NOISE_MODELS)}")
+        if self.associator not in ASSOCIATORS:
+            raise ConfigError(f"associator: must be one of {', '.join(ASSOCIATORS)}")
+        if self.associator in NOT_YET:
+            raise ConfigError(f"associator: {self.associator!r} is not implemented yet ({NOT_YET[self.associator]}); "
+                              'use "gnn"')
         if self.maneuver not in MANEUVER_MODES:
             raise ConfigError(f"maneuver: must be one of {', '.join(MANEUVER_MODES)}")
         for key in ("max_lag", "picture_delay", "clutter_density"):

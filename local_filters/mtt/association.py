@@ -1,0 +1,77 @@
+"""The associator interface of the multi-target tracker (:mod:`.tracker`): what ``gnn``,
+``jipda`` and ``mht`` (``[mtt] associator``) each provide, and what the tracker gives them.
+
+The tracker runs one scan as a chain of roles, each a pure function over the batched track set:
+predict -> gate -> **associate** -> **update** -> initiate -> **confirm / delete**. The bold ones
+come from the :class:`Associator`; the others are shared.
+
+* ``associate(AssociationInput) -> Association`` (required). The input is the scan's gated
+  (track, detection) pairs with each pair's log-likelihood ``ln N(nu_ij; 0, S_i)`` (the gate's
+  ``d2``, ``ln det S`` and the ``m ln 2 pi`` term together), the tracks' confirmation and
+  existence probability, the sensor's ``P_D`` and clutter density, the detections' amplitudes
+  and the associator's own memory from the previous scan. The output lists the pairs that carry
+  weight (indices into the gated pairs) with their association probabilities: a **hard**
+  associator (``gnn``, the best global hypothesis of ``mht``) gives each track at most one pair,
+  with weight 1; a **soft** one (``jipda``) gives the marginal probability ``beta_ij`` of each
+  pair (``1 - sum_j beta_ij`` is the probability that the track was not detected). It also says
+  which detections may not start a track (``claimed``; ``jipda`` claims a detection whose
+  probability of being some track's exceeds its initiation threshold), the tracks' posterior
+  existence probabilities (None: the associator does not keep existence), and the memory it
+  wants back at the next scan (``mht``'s hypotheses; kept in the track order of ``rows``: the
+  tracker does not reorder it, so an associator with memory keeps it by track id).
+* ``update`` (optional; None: the tracker's Joseph-form update of each track by its one pair,
+  the hard case). A soft associator gives its mixture update (the PDA combination with the
+  spread-of-means term, ``local_filters/pda``): ``update(x, P, lin, scan, gated, association)
+  -> (x, P, detected, observations)`` with ``detected`` (N,) the tracks to report as detected
+  and their linearized observations ``(H, R, z)`` for a fusion centre, in track order.
+* ``manage`` (optional; None: M-of-N confirmation and deletion after ``delete_misses`` misses):
+  ``manage(tracks, detected, association, params) -> (tracks, live)``, the tracks with their
+  counts (and existence) after the scan and which stay; ``jipda`` confirms and deletes by
+  existence thresholds.
+
+Everything is batched over the tracks (N), the detections (M) and the gated pairs (K); an
+associator never sees a track or detection outside the gated pairs except through these arrays.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import numpy as np
+
+
+class AssociationInput(NamedTuple):
+    """What an associator gets for one scan."""
+
+    n_tracks: int
+    n_detections: int
+    rows: np.ndarray  # (K,) track of each gated pair
+    cols: np.ndarray  # (K,) detection of each gated pair
+    log_likelihood: np.ndarray  # (K,) ln N(nu_ij; 0, S_i)
+    dim: int  # measurement size m
+    confirmed: np.ndarray  # (N,) bool
+    existence: np.ndarray | None  # (N,) existence probabilities (None: not kept)
+    pd: float
+    clutter_density: float
+    amplitude: np.ndarray | None  # (M,) detection amplitudes, if the scan carries them
+    memory: Any = None  # the associator's memory after the previous scan
+
+
+class Association(NamedTuple):
+    """An associator's answer for one scan."""
+
+    pairs: np.ndarray  # (L,) indices into the gated pairs that carry weight
+    weight: np.ndarray  # (L,) association probability of each (1.0 for a hard associator)
+    claimed: np.ndarray  # (M,) bool: detections that start no track
+    existence: np.ndarray | None = None  # (N,) posterior existence probabilities
+    memory: Any = None  # given back at the next scan
+
+
+class Associator(NamedTuple):
+    """An association method as the tracker's pluggable roles (see the module docstring)."""
+
+    name: str
+    associate: Callable[[AssociationInput], Association]
+    update: Callable[..., Any] | None = None  # None: one pair per track, Joseph form
+    manage: Callable[..., Any] | None = None  # None: M-of-N confirmation, deletion after misses
