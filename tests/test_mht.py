@@ -5,17 +5,20 @@ N-scan pruning and branch-cap invariants, and the score terms."""
 from __future__ import annotations
 
 import itertools
-import math
+import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.fusion_center.mtt.replay import replay_mtt
+from fedtrack.local_filters.mtt.config import MhtConfig, MttConfig
 from fedtrack.local_filters.mtt.kbest import k_best_assignments, k_best_sums
 from fedtrack.local_filters.mtt.mht import (
     MhtParams,
     best_extensions,
     initial_mht_state,
+    mht_params,
     mht_step,
     score_increments,
     sprt_thresholds,
@@ -126,13 +129,14 @@ def test_window_one_k_one_with_gnn_management_is_gnn(seed: int, radar: bool) -> 
     """Issue 25 acceptance (c): with a window of one scan, k = 1 and gnn's track management
     (M-of-N counts, confirmed tracks first), the MHT makes gnn's assignments at every scan and
     its tracks equal gnn's to 1e-9. gnn's cost ``-2 ln(P_D N / lambda (1 - P_D))`` is the MHT's
-    pair gain over a miss with a gate that holds every target detection, so P_G = 1 here."""
+    pair gain over a miss with a gate that holds every target detection: ``"counts"`` management
+    takes P_G = 1 with gnn's rules."""
     scans, density, _ = crossing_scans(seed, radar)
     cfg = MttConfig(clutter_density=density)
     dim = 6 if radar else 4
     tp = track_params(cfg, "s1", dim)
-    mp = MhtParams(tp, window=1, k=1, max_branches=1, management="counts", pg=1.0,
-                   confirm_score=math.inf, delete_score=-math.inf)
+    mp = mht_params(MhtConfig(window=1, k=1, max_branches=1, management="counts"), tp, 3 if radar else 2)
+    assert mp.pg == 1.0
     gnn, mht = initial_state(dim), initial_mht_state(dim, 1)
     worst, assigned, confirmed = 0.0, 0, 0
     for scan in scans:
@@ -197,12 +201,67 @@ def test_score_terms() -> None:
     tp = track_params(cfg, "s1", 4)
     amp = constants(PDAParams(pd=0.8, clutter_density=1e-5, snr=10.0))
     mp = MhtParams(tp, 1, 1, 1, "score", 0.99, 1.0, -1.0, amplitude=amp)
-    d2, logdet, a = np.array([0.5, 3.0]), np.array([9.0, 10.0]), np.array([5.0, 9.0])
-    inc, miss = score_increments(d2, logdet, 2, mp, a)
-    expect = np.log(0.8) - 0.5 * (d2 + logdet) - np.log(2 * np.pi) - np.log(1e-5) + log_amplitude_ratio(a, amp)
+    log_n, a = np.array([-9.0, -12.5]), np.array([5.0, 9.0])
+    inc, miss = score_increments(log_n, mp, a)
+    expect = np.log(0.8) + log_n - np.log(1e-5) + log_amplitude_ratio(a, amp)
     np.testing.assert_allclose(inc, expect, atol=1e-12)
     assert miss == pytest.approx(np.log(1 - 0.8 * 0.99), abs=1e-15)
     hi, lo = sprt_thresholds(1e-4, 1e-2)
     assert hi == pytest.approx(np.log(0.99 / 1e-4)) and lo == pytest.approx(np.log(1e-2 / (1 - 1e-4)))
     with pytest.raises(ValueError):
         sprt_thresholds(0.6, 0.5)
+
+
+DATA = Path(__file__).parent / "data" / "mtt_reference"
+LOCAL_SENSOR = {"pos": "s2", "radar": "r1"}
+
+
+def replay_pictures(tmp_path: Path, scenario: str, algorithm: str, settings: str) -> list[dict]:
+    """``replay`` of a reference scenario (tests/test_mtt_roles.py) with extra ``[mtt]`` settings."""
+    cfg = tmp_path / f"{scenario}-{algorithm}-{len(settings)}.toml"
+    cfg.write_text((DATA / f"{scenario}.toml").read_text().replace("[mtt]\n", f"[mtt]\n{settings}", 1))
+    out = cfg.with_suffix(".jsonl")
+    replay_mtt(algorithm, DATA / f"{scenario}-scans.jsonl", cfg, out,
+               sensor=LOCAL_SENSOR[scenario] if algorithm == "mtt-local" else None)
+    return [json.loads(line) for line in out.read_text().splitlines()]
+
+
+GNN_MODEL = 'associator = "mht"\nmht = { window = 1, k = 1, management = "counts" }\n'
+
+
+@pytest.mark.parametrize("scenario", ["pos", "radar"])
+@pytest.mark.parametrize("algorithm", ["mtt-local", "mtt-centralized"])
+def test_tracker_with_mht_window_one_k_one_counts_equals_gnn(tmp_path: Path, scenario: str, algorithm: str) -> None:
+    """Acceptance (c) through the tracker: ``[mtt] associator = "mht"`` with ``[mtt.mht] window = 1,
+    k = 1, management = "counts"`` writes gnn's pictures (ids, status, sensors to the letter; x, P
+    to 1e-9), for mtt-local and mtt-centralized, position sensors and a radar."""
+    gnn = replay_pictures(tmp_path, scenario, algorithm, "")
+    mht = replay_pictures(tmp_path, scenario, algorithm, GNN_MODEL)
+    assert [p["t"] for p in gnn] == [p["t"] for p in mht]
+    tracks = 0
+    for a, b in zip(gnn, mht):
+        assert [t["id"] for t in a["tracks"]] == [t["id"] for t in b["tracks"]]
+        for ta, tb in zip(a["tracks"], b["tracks"]):
+            assert {k: v for k, v in ta.items() if k not in ("x", "P")} == \
+                {k: v for k, v in tb.items() if k not in ("x", "P")}
+            np.testing.assert_allclose(tb["x"], ta["x"], rtol=0, atol=1e-9)
+            np.testing.assert_allclose(tb["P"], ta["P"], rtol=0, atol=1e-9)
+            tracks += 1
+    assert tracks > 150
+
+
+@pytest.mark.parametrize("algorithm", ["mtt-local", "mtt-centralized"])
+def test_tracker_with_mht_defaults_follows_gnns_confirmed_tracks(tmp_path: Path, algorithm: str) -> None:
+    """``associator = "mht"`` with its defaults (window 3, k 10, SPRT) runs in the tracker: in the
+    second half of the position scenario (few false detections), every confirmed gnn track has a
+    confirmed mht track within 30 m and the other way round."""
+    gnn = replay_pictures(tmp_path, "pos", algorithm, "")
+    mht = replay_pictures(tmp_path, "pos", algorithm, 'associator = "mht"\n')
+    matched = 0
+    for a, b in list(zip(gnn, mht))[len(gnn) // 2:]:
+        pa = np.array([t["pos"][:2] for t in a["tracks"] if t["status"] == "confirmed"]).reshape(-1, 2)
+        pb = np.array([t["pos"][:2] for t in b["tracks"] if t["status"] == "confirmed"]).reshape(-1, 2)
+        d = np.linalg.norm(pa[:, None] - pb[None], axis=-1)
+        assert pa.shape == pb.shape and np.all(d.min(axis=1) < 30) and np.all(d.min(axis=0) < 30), a["t"]
+        matched += pa.shape[0]
+    assert matched > 50

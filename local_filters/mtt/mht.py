@@ -46,26 +46,32 @@ derivation: docs/multitarget.md#mht.
 from __future__ import annotations
 
 import math
+from functools import lru_cache, partial
 from typing import NamedTuple
 
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from fedtrack.local_filters.linear.kalman import LOG_2PI, GaussianState, update_residual
+from fedtrack.local_filters.linear.kalman import GaussianState, update_residual
+from fedtrack.local_filters.mtt.association import Associator
+from fedtrack.local_filters.mtt.config import MhtConfig
 from fedtrack.local_filters.mtt.kbest import k_best_assignments, k_best_sums
-from fedtrack.local_filters.mtt.models import linearize, motion, predict_tracks
 from fedtrack.local_filters.mtt.scan import SensorScan
 from fedtrack.local_filters.mtt.tracker import (
     Observation,
+    ScanResult,
+    TrackerState,
     TrackParams,
     TrackSet,
+    _concat,
     empty_tracks,
-    gate,
-    innovation_covariance,
+    gate_scan,
+    predict,
     start_tracks,
 )
-from fedtrack.local_filters.pda.association import Constants, log_amplitude_ratio
+from fedtrack.local_filters.pda.association import Constants, constants, log_amplitude_ratio
+from fedtrack.local_filters.pda.config import PDAParams
 
 MANAGEMENTS = ("score", "counts")
 
@@ -124,12 +130,11 @@ class MhtResult(NamedTuple):
     retired: np.ndarray  # ids of the tracks that lost their last leaf at this scan
 
 
-def score_increments(d2: np.ndarray, logdet: np.ndarray, m: int, params: MhtParams,
-                     amplitude: np.ndarray | None) -> tuple[np.ndarray, float]:
-    """Track-score increments: per gated pair ``ln(P_D N(nu; 0, S) / lambda)`` (+ the amplitude
-    log-ratio of its detection ``amplitude``), and a miss's ``ln(1 - P_D P_G)``."""
+def score_increments(log_n: np.ndarray, params: MhtParams, amplitude: np.ndarray | None) -> tuple[np.ndarray, float]:
+    """Track-score increments: per gated pair ``ln(P_D N(nu; 0, S) / lambda)`` from its
+    ``log_n = ln N(nu; 0, S)`` (+ the amplitude log-ratio of its detection ``amplitude``), and a
+    miss's ``ln(1 - P_D P_G)``."""
     tp = params.track
-    log_n = -0.5 * (d2 + logdet + m * LOG_2PI)
     inc = math.log(tp.pd) + log_n - math.log(max(tp.clutter_density, 1e-300))
     if amplitude is not None and params.amplitude is not None:
         inc = inc + log_amplitude_ratio(amplitude, params.amplitude)
@@ -230,22 +235,16 @@ def mht_step(state: MhtState, scan: SensorScan, params: MhtParams, q_scale: floa
     leaves, d = state.leaves, tp.dim
     if state.t is not None and scan.t < state.t:
         raise ValueError(f"scan at t = {scan.t} is before the tracker's time {state.t}")
-    dt = 0.0 if state.t is None else scan.t - state.t
-    if leaves.size and dt > 0:
-        x, P = predict_tracks(leaves.x, leaves.P, motion(d, round(dt, 12), tp.q, tp.noise_model), q_scale)
-    else:
-        x, P = leaves.x.copy(), leaves.P.copy()
+    x, P = predict(leaves, 0.0 if state.t is None else scan.t - state.t, tp, q_scale)
     m, n_det = scan.dim, scan.z.shape[0]
     g_rows = g_cols = np.zeros(0, np.int64)
-    nu = d2 = inc = np.zeros(0)
+    nu, inc = np.zeros((0, m)), np.zeros(0)
     miss = math.log1p(-tp.pd * params.pg)
-    if leaves.size and n_det:
-        lin = linearize(x, scan.sensor_position)
-        S = innovation_covariance(P, lin, scan.R)
-        g, logdet = gate(scan.z, lin, S, tp.gate[m])
-        g_rows, g_cols, nu, d2 = g
+    gating = gate_scan(GaussianState(x, P), scan, tp)
+    if gating is not None:
+        g_rows, g_cols, nu, _ = gating.pairs
         amp = None if scan.amplitude is None else scan.amplitude[g_cols]
-        inc, miss = score_increments(d2, logdet[g_rows], m, params, amp)
+        inc, miss = score_increments(gating.log_likelihood, params, amp)
     # 3. the k best extensions of every kept hypothesis
     values = hypothesis_values(state, params.birth_score)
     cand_value, cand_parent, cand_pairs = [], [], []
@@ -275,7 +274,7 @@ def mht_step(state: MhtState, scan: SensorScan, params: MhtParams, q_scale: floa
     cx, cP = x[parent_leaf], P[parent_leaf]
     obs = Observation(np.zeros((0, m, d)), np.zeros((0, m, m)), np.zeros((0, m)))
     if pidx.size:
-        lin_h = linearize(x[parent_leaf[hit]], scan.sensor_position).H
+        lin_h = gating.lin.H[parent_leaf[hit]]
         x0 = cx[hit]
         cx[hit], cP[hit] = update_residual(GaussianState(x0, cP[hit]), nu[pidx], lin_h, scan.R).state
         obs = Observation(lin_h, np.broadcast_to(scan.R, (pidx.size, m, m)).copy(),
@@ -316,7 +315,7 @@ def mht_step(state: MhtState, scan: SensorScan, params: MhtParams, q_scale: floa
     new_serial = state.next_branch + n_child + np.arange(fresh.size)
     starts = np.zeros((len(chosen), fresh.size), bool)
     starts[:, :] = ~used[:, fresh]
-    tracks = _join(children, new)
+    tracks = _concat(children, new)
     state2 = MhtState(tracks, np.concatenate([score, new_score]), np.concatenate([peak, new_score]),
                       np.concatenate([lineage, np.repeat(new_serial[:, None], params.window, axis=1)]),
                       np.concatenate([hyps & live, starts], axis=1), scan.t, state.next_id + fresh.size,
@@ -337,10 +336,6 @@ def mht_step(state: MhtState, scan: SensorScan, params: MhtParams, q_scale: floa
     retired = np.setdiff1d(leaves.ids, state2.leaves.ids)
     return MhtResult(state2, result_tracks, det_best >= 0, Observation(*(a[rows_best] for a in branch_obs)),
                      np.stack([result_tracks.ids[took], det_best[took]], axis=1), retired)
-
-
-def _join(a: TrackSet, b: TrackSet) -> TrackSet:
-    return TrackSet(*(np.concatenate([u, v]) for u, v in zip(a[:-2], b[:-2])))
 
 
 def _prune(state: MhtState, alive: np.ndarray, params: MhtParams) -> tuple[MhtState, np.ndarray]:
@@ -383,3 +378,43 @@ def best_tracks(state: MhtState) -> TrackSet:
     """The best global hypothesis's tracks, by id (the picture)."""
     best = np.flatnonzero(state.hyps[0]) if len(state.hyps) else np.zeros(0, np.intp)
     return state.leaves.take(best[np.argsort(state.leaves.ids[best], kind="stable")])
+
+
+# paper 001's mean target SNR for scans whose detections carry amplitudes (jipda's too)
+SNR = PDAParams().snr
+
+
+@lru_cache(maxsize=64)
+def scan_constants(pd: float, clutter_density: float, gate_d2: float, m: int) -> Constants:
+    """Paper 001's constants for an ``m``-dimensional scan gated at ``gate_d2``: ``P_G`` and the
+    amplitude threshold ``tau`` (the terms JIPDA scores its pairs with)."""
+    return constants(PDAParams(pd=pd, clutter_density=clutter_density, snr=SNR, gate=gate_d2), n=m)
+
+
+def mht_params(settings: MhtConfig, tp: TrackParams, m: int) -> MhtParams:
+    """The MHT's parameters for a scan of measurement size ``m``. ``"counts"`` management is
+    gnn's model too: its M-of-N rules and track precedence, and a gate that holds every target
+    detection (``P_G = 1`` in the miss term, gnn's cost), so that window 1 and k 1 are gnn."""
+    c = scan_constants(tp.pd, tp.clutter_density, tp.gate[m], m)
+    confirm, delete = sprt_thresholds(settings.false_track, settings.miss)
+    return MhtParams(tp, settings.window, settings.k, settings.max_branches, settings.management,
+                     1.0 if settings.management == "counts" else c.pg, confirm, delete, 0.0, c)
+
+
+def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale: float | np.ndarray,
+                 settings: MhtConfig) -> ScanResult:
+    """The tracker's scan with ``associator = "mht"``: :func:`mht_step` on the branches its
+    memory holds; the tracks are the best hypothesis's."""
+    memory = state.memory if state.memory is not None else initial_mht_state(params.dim, settings.window)
+    res = mht_step(memory, scan, mht_params(settings, params, scan.dim), q_scale)
+    return ScanResult(TrackerState(res.tracks, scan.t, res.state.next_id, res.state), res.detected,
+                      res.observations, res.retired)
+
+
+def associator(settings: MhtConfig) -> Associator:
+    """``[mtt] associator = "mht"`` with its ``[mtt.mht]`` settings (the whole scan: ``step``)."""
+    return Associator("mht", _no_chain, step=partial(tracker_step, settings=settings))
+
+
+def _no_chain(*_: object) -> None:
+    raise TypeError("mht takes the whole scan (Associator.step), not the tracker's chain")

@@ -103,7 +103,16 @@ def track_params(cfg: MttConfig, sensor: str | None, dim: int, feedback: bool = 
                        cfg.pd if sensor is None else cfg.pd_of(sensor),
                        cfg.clutter_density if sensor is None else cfg.clutter_of(sensor),
                        cfg.thresholds.gate, cfg.confirm_hits, cfg.confirm_window, cfg.delete_misses, vdie, detect,
-                       ASSOCIATORS[cfg.associator])
+                       associator_of(cfg))
+
+
+def associator_of(cfg: MttConfig) -> Associator:
+    """The :class:`Associator` ``[mtt] associator`` names (``mht``'s with its ``[mtt.mht]`` settings)."""
+    if cfg.associator == "mht":
+        from fedtrack.local_filters.mtt import mht  # mht builds on this module's roles
+
+        return mht.associator(cfg.mht)
+    return ASSOCIATORS[cfg.associator]
 
 
 N_ARRAYS = 7  # TrackSet's per-track arrays before the optional per-track states
@@ -341,6 +350,8 @@ def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
     tracks = state.tracks
     if state.t is not None and scan.t < state.t:
         raise ValueError(f"scan at t = {scan.t} is before the tracker's time {state.t}")
+    if params.associator.step is not None:
+        return params.associator.step(state, scan, params, q_scale)
     dt = 0.0 if state.t is None else scan.t - state.t
     pred = predict(tracks, dt, params, q_scale)
     gating = gate_scan(pred, scan, params)
