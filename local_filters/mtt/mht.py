@@ -1,90 +1,82 @@
-"""Track-oriented multiple-hypothesis tracking (MHT) as pure functions over batched branches.
+"""Track-oriented multiple-hypothesis tracking (MHT): the hypothesis maths, as pure functions
+over batched branches (``[mtt] associator = "mht"``; the tracker runs them in
+:func:`fedtrack.local_filters.mtt.tracker.mht_step`).
 
 Every target track is a tree of **branches** (its alternative detection histories); its live
-ones (leaves) are stored together, batched, as a :class:`TrackSet` whose ``ids`` name each
-leaf's track (its tree). A **global hypothesis** picks at most one leaf per track with no
-detection used twice; the ``k`` best are kept, as a boolean (hypotheses, leaves) matrix.
+ones (leaves) are stored together, batched, as the tracker's ``TrackSet`` whose ``ids`` name each
+leaf's track. A **global hypothesis** picks at most one leaf per track with no detection used
+twice; the ``k`` best are kept, as a boolean (hypotheses, leaves) matrix, best first.
 
-Per scan (:func:`mht_step`):
+Per scan:
 
-1. Predict every leaf; gate every leaf against the detections (:func:`.tracker.gate`).
-2. Score each gated pair with the track-score increments (log-likelihood ratios of "target"
-   against "clutter", Blackman & Popoli 6.2; :func:`score_increments`): a detection
-   ``ln(P_D N(nu; 0, S) / lambda)`` plus paper 001's amplitude log-ratio ``ln f1r(a)/f0r(a)``
-   (eqs (1), (2), (6), (7): :func:`~fedtrack.local_filters.pda.association.log_amplitude_ratio`)
-   when the detections carry amplitudes; a miss ``ln(1 - P_D P_G)``.
-3. Extend each kept global hypothesis by its ``k`` best assignments of the current scan
-   (:func:`best_extensions`): each of its leaves takes one gated detection or misses, each
-   detection at most once; the gain of a pair is its increment over the miss. The problem
-   is split into the connected components (clusters) of the leaves' gating graph; each
-   cluster's k best by Murty's algorithm over ``linear_sum_assignment``
-   (:func:`.kbest.k_best_assignments`), the hypothesis's k best as the k best sums over the
-   clusters (:func:`.kbest.k_best_sums`). Of all the extensions of all the hypotheses, the ``k``
-   best (hypothesis value plus gain) are kept. A detection that a kept hypothesis leaves
-   unused starts a new track (one tree per detection, the same in every hypothesis that
-   leaves it unused).
-4. The branches the kept hypotheses use are the new leaves: a miss branch keeps the
-   prediction, a detection branch is the (E)KF update (Joseph form) of its parent.
-5. Track management per branch: ``"score"`` (the SPRT, :func:`sprt_thresholds`) or
-   ``"counts"`` (gnn's M-of-N rules and its track precedence, for the equivalence with gnn).
-   A deleted branch leaves its track out of the hypotheses that used it.
-6. N-scan pruning: of every track of the best hypothesis, only the leaves that share its
-   branch ``window - 1`` scans back stay (``window = 1``: its leaf alone); at most
-   ``max_branches`` leaves per track (those of the best hypotheses first). A hypothesis that
-   used a removed leaf is dropped, a leaf that no hypothesis uses is removed.
+1. The tracker predicts every leaf and gates it against the detections (its ``predict`` and
+   ``gate_scan`` roles).
+2. Each gated pair is scored with the track-score increments (log-likelihood ratios of
+   "target" against "clutter", Blackman & Popoli 1999, 6.2; :func:`score_increments`): a
+   detection ``ln(P_D N(nu; 0, S) / lambda)`` plus paper 001's amplitude log-ratio
+   ``ln f1r(a) / f0r(a)`` (eqs (1), (2), (6), (7):
+   :func:`~fedtrack.local_filters.pda.association.log_amplitude_ratio`) when the detections carry
+   amplitudes; a miss ``ln(1 - P_D P_G)``. These are JIPDA's pair and miss factors
+   (``local_filters/mtt/jipda.py``) at existence 1, from the same constants (paper 001's
+   ``constants``: ``P_G``, the amplitude threshold ``tau``, the SNR).
+3. Each kept global hypothesis is extended by its ``k`` best assignments of the scan
+   (:func:`select_hypotheses`): each of its leaves takes one gated detection or misses, each
+   detection at most once; a pair's gain is its increment over the miss. The problem is split
+   into the connected components (clusters) of the leaves' gating graph; each cluster's k best
+   by Murty's algorithm over ``linear_sum_assignment`` (:func:`.kbest.k_best_assignments`), the
+   hypothesis's k best as the k best sums over its clusters (:func:`.kbest.k_best_sums`). Of all
+   the extensions of all the hypotheses the ``k`` best (hypothesis value plus gain) are kept. A
+   detection that a kept hypothesis leaves unused starts a new track there (one per detection).
+4. The branches the kept hypotheses use are the new leaves (:func:`branches`): a miss keeps the
+   prediction, a detection is the (E)KF update (Joseph form) of its parent.
+5. Track management per branch (:func:`manage`): ``"score"``, Wald's SPRT on the track score
+   (:func:`sprt_thresholds`), or ``"counts"``, gnn's M-of-N rules (with gnn's precedence of the
+   confirmed tracks in step 3 and P_G = 1, gnn's cost: :func:`mht_params`). A deleted branch
+   leaves its track out of the hypotheses that held it.
+6. :func:`prune`: N-scan pruning (of every track of the best hypothesis only the leaves that
+   share its branch ``window - 1`` scans back stay; ``window = 1``: its leaf alone), at most
+   ``max_branches`` leaves per track (those of the best hypotheses first); a hypothesis that
+   held a removed leaf is dropped, a leaf that no hypothesis holds is removed.
 
-The picture is the best hypothesis's leaves (:func:`best_tracks`).
-
-With ``window = 1`` and ``k = 1`` and ``"counts"`` management this is gnn: the one
-hypothesis is gnn's optimal assignment and N-scan pruning keeps exactly its branches
-(tests/test_mht.py, to 1e-9). The global hypotheses are extended scan by scan (Cox &
-Hingorani 1996: Murty's k best per hypothesis), so an assignment that leaves the k best at
-one scan cannot return at a later one: that is what ``k`` bounds. Defaults and their
-derivation: docs/multitarget.md#mht.
+The picture is the best hypothesis's tracks. With ``window = 1``, ``k = 1`` and ``"counts"`` this
+is gnn (tests/test_mht.py, to 1e-9). The global hypotheses are extended scan by scan (Cox &
+Hingorani 1996: Murty's k best per hypothesis), so an assignment that leaves the k best at one
+scan cannot come back later: that is what ``k`` bounds. Defaults and their derivation:
+docs/multitarget.md#track-oriented-mht-mtt-associator--mht.
 """
 
 from __future__ import annotations
 
 import math
-from functools import lru_cache, partial
-from typing import NamedTuple
+from functools import lru_cache
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from fedtrack.local_filters.linear.kalman import GaussianState, update_residual
-from fedtrack.local_filters.mtt.association import Associator
 from fedtrack.local_filters.mtt.config import MhtConfig
 from fedtrack.local_filters.mtt.kbest import k_best_assignments, k_best_sums
-from fedtrack.local_filters.mtt.scan import SensorScan
-from fedtrack.local_filters.mtt.tracker import (
-    Observation,
-    ScanResult,
-    TrackerState,
-    TrackParams,
-    TrackSet,
-    _concat,
-    empty_tracks,
-    gate_scan,
-    predict,
-    start_tracks,
-)
 from fedtrack.local_filters.pda.association import Constants, constants, log_amplitude_ratio
 from fedtrack.local_filters.pda.config import PDAParams
 
-MANAGEMENTS = ("score", "counts")
+# paper 001's mean target SNR for scans whose detections carry amplitudes (jipda's too)
+SNR = PDAParams().snr
 
 
 class MhtParams(NamedTuple):
-    """What the MHT needs per scan beside the tracker's :class:`TrackParams` (no maneuver handling)."""
+    """What the MHT needs for one scan (built by :func:`mht_params`)."""
 
-    track: TrackParams
+    pd: float
+    clutter_density: float
+    confirm_hits: int  # "counts" management: gnn's M-of-N
+    confirm_window: int
+    delete_misses: int
     window: int  # N: scans back to the branch that N-scan pruning keeps (1: the best leaf only)
     k: int  # global hypotheses kept
     max_branches: int  # leaves kept per track
     management: str  # "score" (SPRT) or "counts" (gnn's M-of-N and precedence)
-    pg: float  # gate probability P_G
+    pg: float  # gate probability P_G in the miss term
     confirm_score: float  # SPRT upper threshold ln((1 - beta) / alpha)
     delete_score: float  # SPRT lower threshold ln(beta / (1 - alpha))
     birth_score: float = 0.0  # a new track's score before its detection's amplitude: ln(beta_NT / lambda)
@@ -102,43 +94,64 @@ def sprt_thresholds(false_track: float, miss: float) -> tuple[float, float]:
     return math.log((1.0 - miss) / false_track), math.log(miss / (1.0 - false_track))
 
 
-class MhtState(NamedTuple):
-    """Every track's leaves, batched (``leaves.ids``: the track of each), their scores and
-    lineage, and the kept global hypotheses (best first)."""
+@lru_cache(maxsize=64)
+def scan_constants(pd: float, clutter_density: float, gate_d2: float, m: int) -> Constants:
+    """Paper 001's constants for an ``m``-dimensional scan gated at ``gate_d2``: ``P_G`` and the
+    amplitude threshold ``tau`` (what JIPDA scores its pairs with)."""
+    return constants(PDAParams(pd=pd, clutter_density=clutter_density, snr=SNR, gate=gate_d2), n=m)
 
-    leaves: TrackSet
+
+def mht_params(settings: MhtConfig, pd: float, clutter_density: float, gate_d2: float, m: int,
+               counts: tuple[int, int, int]) -> MhtParams:
+    """The MHT's parameters for a scan of measurement size ``m`` gated at ``gate_d2``; ``counts``
+    are gnn's ``(confirm_hits, confirm_window, delete_misses)``. ``"counts"`` management is gnn's
+    model too: its M-of-N rules and track precedence, and a gate that holds every target
+    detection (``P_G = 1`` in the miss term: gnn's cost), so that window 1 and k 1 are gnn."""
+    c = scan_constants(pd, clutter_density, gate_d2, m)
+    confirm, delete = sprt_thresholds(settings.false_track, settings.miss)
+    return MhtParams(pd, clutter_density, *counts, settings.window, settings.k, settings.max_branches,
+                     settings.management, 1.0 if settings.management == "counts" else c.pg, confirm, delete, 0.0, c)
+
+
+class MhtState(NamedTuple):
+    """The tracker's memory with ``associator = "mht"``: every track's leaves, batched (the
+    tracker's ``TrackSet``; ``leaves.ids``: the track of each), their scores and lineage, and the
+    kept global hypotheses (best first)."""
+
+    leaves: Any  # TrackSet of every leaf
     score: np.ndarray  # (L,) track score: the log-likelihood ratio of the leaf's history
     peak: np.ndarray  # (L,) the highest score along the leaf's history
     lineage: np.ndarray  # (L, window) branch serials of its ancestors, oldest first, its own last
     hyps: np.ndarray  # (K, L) bool: the leaves each global hypothesis holds
-    t: float | None
-    next_id: int
-    next_branch: int
+    next_branch: int  # the next branch serial
 
 
-def initial_mht_state(dim: int, window: int) -> MhtState:
-    return MhtState(empty_tracks(dim), np.zeros(0), np.zeros(0), np.zeros((0, window), np.int64),
-                    np.ones((1, 0), bool), None, 0, 0)
-
-
-class MhtResult(NamedTuple):
-    state: MhtState
-    tracks: TrackSet  # the best hypothesis's tracks, by id
-    detected: np.ndarray  # (N,) bool over tracks: updated or started by this scan
-    observations: Observation  # for the detected tracks, in order
-    assigned: np.ndarray  # (A, 2) the best hypothesis's (track id, detection) of this scan, started tracks not included
-    retired: np.ndarray  # ids of the tracks that lost their last leaf at this scan
+def initial_state(leaves: Any, window: int) -> MhtState:
+    """No leaves (``leaves``: an empty ``TrackSet``) and one empty hypothesis."""
+    return MhtState(leaves, np.zeros(0), np.zeros(0), np.zeros((0, window), np.int64), np.ones((1, 0), bool), 0)
 
 
 def score_increments(log_n: np.ndarray, params: MhtParams, amplitude: np.ndarray | None) -> tuple[np.ndarray, float]:
     """Track-score increments: per gated pair ``ln(P_D N(nu; 0, S) / lambda)`` from its
     ``log_n = ln N(nu; 0, S)`` (+ the amplitude log-ratio of its detection ``amplitude``), and a
     miss's ``ln(1 - P_D P_G)``."""
-    tp = params.track
-    inc = math.log(tp.pd) + log_n - math.log(max(tp.clutter_density, 1e-300))
+    inc = math.log(params.pd) + log_n - math.log(max(params.clutter_density, 1e-300))
     if amplitude is not None and params.amplitude is not None:
         inc = inc + log_amplitude_ratio(amplitude, params.amplitude)
-    return inc, math.log1p(-tp.pd * params.pg)
+    return inc, miss_increment(params)
+
+
+def miss_increment(params: MhtParams) -> float:
+    """``ln(1 - P_D P_G)``: the track produced no detection in its gate."""
+    return math.log1p(-params.pd * params.pg)
+
+
+def birth_scores(params: MhtParams, amplitude: np.ndarray | None, n: int) -> np.ndarray:
+    """The scores of ``n`` new tracks: ``birth_score`` plus their detections' amplitude log-ratios."""
+    score = np.full(n, params.birth_score)
+    if amplitude is not None and params.amplitude is not None:
+        score = score + log_amplitude_ratio(amplitude, params.amplitude)
+    return score
 
 
 def best_extensions(n_det: int, r: np.ndarray, c: np.ndarray, gain: np.ndarray, k: int,
@@ -221,143 +234,97 @@ def _extend(hyp_rows: np.ndarray, n_det: int, g_rows: np.ndarray, g_cols: np.nda
     return np.array(out_gain)[order], [out_ways[i] for i in order.tolist()]
 
 
-def hypothesis_values(state: MhtState, birth_score: float) -> np.ndarray:
+def hypothesis_values(hyps: np.ndarray, score: np.ndarray, birth_score: float) -> np.ndarray:
     """Each global hypothesis's value: the sum over its leaves of their score gained since birth
     (the log-likelihood ratio of its assignments against "every detection clutter or a new
-    track"; a new track counts 0, so a detection is given to a track exactly when that beats
-    a miss, gnn's rule)."""
-    return state.hyps.astype(float) @ (state.score - birth_score) if state.score.size else np.zeros(len(state.hyps))
+    track"; a new track counts 0, so a detection goes to a track exactly when that beats a miss,
+    gnn's rule)."""
+    return hyps.astype(float) @ (score - birth_score) if score.size else np.zeros(len(hyps))
 
 
-def mht_step(state: MhtState, scan: SensorScan, params: MhtParams, q_scale: float | np.ndarray = 1.0) -> MhtResult:
-    """Process one scan (times must not decrease); ``q_scale`` scales ``Q``."""
-    tp = params.track
-    leaves, d = state.leaves, tp.dim
-    if state.t is not None and scan.t < state.t:
-        raise ValueError(f"scan at t = {scan.t} is before the tracker's time {state.t}")
-    x, P = predict(leaves, 0.0 if state.t is None else scan.t - state.t, tp, q_scale)
-    m, n_det = scan.dim, scan.z.shape[0]
-    g_rows = g_cols = np.zeros(0, np.int64)
-    nu, inc = np.zeros((0, m)), np.zeros(0)
-    miss = math.log1p(-tp.pd * params.pg)
-    gating = gate_scan(GaussianState(x, P), scan, tp)
-    if gating is not None:
-        g_rows, g_cols, nu, _ = gating.pairs
-        amp = None if scan.amplitude is None else scan.amplitude[g_cols]
-        inc, miss = score_increments(gating.log_likelihood, params, amp)
-    # 3. the k best extensions of every kept hypothesis
-    values = hypothesis_values(state, params.birth_score)
+def select_hypotheses(state: MhtState, n_det: int, g_rows: np.ndarray, g_cols: np.ndarray, gain: np.ndarray,
+                      params: MhtParams) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Step 3: the k best extensions of all the kept hypotheses over the gated pairs (``g_rows``
+    leaf, ``g_cols`` detection, ``gain`` over a miss): each one's parent hypothesis and the
+    indices of the pairs it takes, best first."""
+    values = hypothesis_values(state.hyps, state.score, params.birth_score)
     cand_value, cand_parent, cand_pairs = [], [], []
     cache: dict = {}
     for h, row in enumerate(state.hyps):
-        gains, ways = _extend(np.flatnonzero(row), n_det, g_rows, g_cols, inc - miss, leaves.confirmed, params, cache)
+        gains, ways = _extend(np.flatnonzero(row), n_det, g_rows, g_cols, gain, state.leaves.confirmed, params, cache)
         cand_value.extend((values[h] + gains).tolist())
         cand_parent.extend([h] * len(ways))
         cand_pairs.extend(ways)
     keep = np.argsort(-np.array(cand_value), kind="stable")[:params.k]
-    parents = np.array(cand_parent, np.intp)[keep]
-    chosen = [cand_pairs[i] for i in keep.tolist()]
-    # 4. the branches the kept hypotheses use: key leaf * (n_det + 1) + detection + 1 (0: a miss)
-    keys_per_hyp = []
+    return np.array(cand_parent, np.intp)[keep], [cand_pairs[i] for i in keep.tolist()]
+
+
+class Branches(NamedTuple):
+    """Step 4: the branches the kept hypotheses use."""
+
+    parent: np.ndarray  # (C,) parent leaf of each child branch
+    pair: np.ndarray  # (C,) its gated pair (-1: a miss)
+    holds: np.ndarray  # (K, C) bool: the children each hypothesis holds
+    used: np.ndarray  # (K, M) bool: the detections each hypothesis gives to a track
+
+
+def branches(hyps: np.ndarray, parents: np.ndarray, chosen: list[np.ndarray], g_rows: np.ndarray,
+             g_cols: np.ndarray, n_leaves: int, n_det: int) -> Branches:
+    """The child branches of the hypotheses ``parents`` extended by the pairs ``chosen`` (one
+    child per distinct (leaf, pair or miss), shared by the hypotheses that hold it)."""
+    n_pairs = g_rows.size
+    keys_per_hyp = []  # leaf * (n_pairs + 1) + pair + 1 (0: a miss)
     for parent, pairs in zip(parents.tolist(), chosen):
-        det_of = np.full(leaves.size, -1)
-        det_of[g_rows[pairs]] = g_cols[pairs]
-        held = np.flatnonzero(state.hyps[parent])
-        keys_per_hyp.append(held * (n_det + 1) + det_of[held] + 1)
+        pair_of = np.full(n_leaves, -1)
+        pair_of[g_rows[pairs]] = pairs
+        held = np.flatnonzero(hyps[parent])
+        keys_per_hyp.append(held * (n_pairs + 1) + pair_of[held] + 1)
     keys, key_index = np.unique(np.concatenate(keys_per_hyp + [np.zeros(0, np.int64)]), return_inverse=True)
-    parent_leaf, det = np.divmod(keys, n_det + 1)
-    det = det - 1
-    hit = det >= 0
-    pair_of = np.full((leaves.size, n_det), -1)
-    pair_of[g_rows, g_cols] = np.arange(g_rows.size)
-    pidx = pair_of[parent_leaf[hit], det[hit]]
-    cx, cP = x[parent_leaf], P[parent_leaf]
-    obs = Observation(np.zeros((0, m, d)), np.zeros((0, m, m)), np.zeros((0, m)))
-    if pidx.size:
-        lin_h = gating.lin.H[parent_leaf[hit]]
-        x0 = cx[hit]
-        cx[hit], cP[hit] = update_residual(GaussianState(x0, cP[hit]), nu[pidx], lin_h, scan.R).state
-        obs = Observation(lin_h, np.broadcast_to(scan.R, (pidx.size, m, m)).copy(),
-                          nu[pidx] + np.einsum("nij,nj->ni", lin_h, x0))
-    old = leaves.take(parent_leaf)
-    score = state.score[parent_leaf] + np.where(hit, 0.0, miss)
-    score[hit] += inc[pidx]
-    peak = np.maximum(state.peak[parent_leaf], score)
-    hits = old.hits + hit
-    misses = np.where(hit, 0, old.misses + 1)
-    # 5. track management per branch
-    age = old.age + 1
-    if params.management == "counts":
-        confirmed = old.confirmed | (hits >= tp.confirm_hits)
-        live = np.where(confirmed, misses < tp.delete_misses, tp.confirm_window - age >= tp.confirm_hits - hits)
-    else:
-        confirmed = old.confirmed | (score >= params.confirm_score)
-        live = np.where(confirmed, score - peak > params.delete_score, score > params.delete_score)
-    children = TrackSet(old.ids, cx, cP, hits, age, misses, confirmed)
-    serial = state.next_branch + np.arange(keys.size)
-    lineage = np.concatenate([state.lineage[parent_leaf, 1:], serial[:, None]], axis=1)
-    n_child = keys.size
-    hyps = np.zeros((len(chosen), n_child), bool)
-    offsets = np.cumsum([0] + [kk.size for kk in keys_per_hyp])
-    for h in range(len(chosen)):
-        hyps[h, key_index[offsets[h]:offsets[h + 1]]] = True
-    # new tracks: a detection some kept hypothesis leaves unused
+    parent_leaf, pair = np.divmod(keys, n_pairs + 1)
+    holds = np.zeros((len(chosen), keys.size), bool)
     used = np.zeros((len(chosen), n_det), bool)
+    offsets = np.cumsum([0] + [kk.size for kk in keys_per_hyp])
     for h, pairs in enumerate(chosen):
+        holds[h, key_index[offsets[h]:offsets[h + 1]]] = True
         used[h, g_cols[pairs]] = True
-    fresh = np.flatnonzero(~used.all(axis=0)) if len(chosen) else np.arange(n_det)
-    new, obs_new = start_tracks(scan, fresh, tp, state.next_id)
-    new_score = np.full(fresh.size, params.birth_score)
-    if scan.amplitude is not None and params.amplitude is not None:
-        new_score = new_score + log_amplitude_ratio(scan.amplitude[fresh], params.amplitude)
-    if params.management == "score":
-        new = new._replace(confirmed=new_score >= params.confirm_score)
-    new_serial = state.next_branch + n_child + np.arange(fresh.size)
-    starts = np.zeros((len(chosen), fresh.size), bool)
-    starts[:, :] = ~used[:, fresh]
-    tracks = _concat(children, new)
-    state2 = MhtState(tracks, np.concatenate([score, new_score]), np.concatenate([peak, new_score]),
-                      np.concatenate([lineage, np.repeat(new_serial[:, None], params.window, axis=1)]),
-                      np.concatenate([hyps & live, starts], axis=1), scan.t, state.next_id + fresh.size,
-                      state.next_branch + n_child + fresh.size)
-    branch_obs = Observation(*(np.concatenate([u, v]) for u, v in zip(obs, obs_new)))
-    branch_det = np.concatenate([det, fresh])  # each new leaf's detection (-1: a miss)
-    alive = np.concatenate([live, np.ones(fresh.size, bool)])
-    state2, kept = _prune(state2, alive, params)
-    best = np.flatnonzero(state2.hyps[0]) if len(state2.hyps) else np.zeros(0, np.intp)
-    best = best[np.argsort(state2.leaves.ids[best], kind="stable")]
-    det_best = branch_det[kept][best]
-    had_det = np.flatnonzero(branch_det >= 0)  # rows of branch_obs, in branch order
-    obs_row = np.full(branch_det.size, -1)
-    obs_row[had_det] = np.arange(had_det.size)
-    rows_best = obs_row[kept][best][det_best >= 0]
-    result_tracks = state2.leaves.take(best)
-    took = (det_best >= 0) & (kept[best] < n_child)  # an existing track's detection
-    retired = np.setdiff1d(leaves.ids, state2.leaves.ids)
-    return MhtResult(state2, result_tracks, det_best >= 0, Observation(*(a[rows_best] for a in branch_obs)),
-                     np.stack([result_tracks.ids[took], det_best[took]], axis=1), retired)
+    return Branches(parent_leaf, pair - 1, holds, used)
 
 
-def _prune(state: MhtState, alive: np.ndarray, params: MhtParams) -> tuple[MhtState, np.ndarray]:
-    """N-scan pruning and the cap on leaves per track (module docstring, step 6), then the
-    leaves no hypothesis holds and duplicate hypotheses removed; hypotheses best first.
-    Returns the state and the indices of the leaves kept."""
+def manage(params: MhtParams, confirmed: np.ndarray, score: np.ndarray, peak: np.ndarray, hits: np.ndarray,
+           age: np.ndarray, misses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Step 5: each branch's confirmation and whether it stays. ``"score"``: confirmed once its
+    score reaches the SPRT's upper threshold; a tentative branch deleted at the lower one, a
+    confirmed one when its score has fallen that far below its peak (the test restarted at the
+    peak: "a false track since then"). ``"counts"``: gnn's M-of-N (``hits`` within the first
+    ``confirm_window`` scans; ``delete_misses`` misses in a row)."""
+    if params.management == "counts":
+        confirmed = confirmed | (hits >= params.confirm_hits)
+        live = np.where(confirmed, misses < params.delete_misses,
+                        params.confirm_window - age >= params.confirm_hits - hits)
+        return confirmed, live
+    confirmed = confirmed | (score >= params.confirm_score)
+    return confirmed, np.where(confirmed, score - peak > params.delete_score, score > params.delete_score)
+
+
+def prune(state: MhtState, alive: np.ndarray, params: MhtParams) -> tuple[MhtState, np.ndarray]:
+    """Step 6: N-scan pruning and the cap on leaves per track, after the branches not ``alive``
+    left their hypotheses; then the leaves no hypothesis holds and duplicate hypotheses removed,
+    hypotheses best first. Returns the state and the indices of the leaves kept."""
     hyps = state.hyps & alive
     ids = state.leaves.ids
     if hyps.shape[1] == 0:
         hyps = hyps[:1]
     elif hyps.shape[0]:
-        values = hyps.astype(float) @ (state.score - params.birth_score)
+        values = hypothesis_values(hyps, state.score, params.birth_score)
         hyps = hyps[np.argsort(-values, kind="stable")]
         _, first = np.unique(np.packbits(hyps, axis=1), axis=0, return_index=True)
         hyps = hyps[np.sort(first)]
     keep = alive.copy()
-    if hyps.shape[0]:
+    if hyps.shape[0] and ids.size:
         best = np.flatnonzero(hyps[0])  # N-scan pruning around the best hypothesis's branches
-        root = np.full(int(ids.max()) + 1 if ids.size else 0, -1)
+        root = np.full(int(ids.max()) + 1, -1)
         root[ids[best]] = state.lineage[best, 0]
-        pruned = (root[ids] >= 0) & (state.lineage[:, 0] != root[ids])
-        keep &= ~pruned
+        keep &= (root[ids] < 0) | (state.lineage[:, 0] == root[ids])
         # the cap: per track, the leaves of the best hypotheses first
         rank = np.where(hyps.any(axis=0), np.argmax(hyps, axis=0), hyps.shape[0])
         order = np.lexsort((rank, ids))
@@ -369,52 +336,5 @@ def _prune(state: MhtState, alive: np.ndarray, params: MhtParams) -> tuple[MhtSt
         hyps = hyps[~(hyps & ~keep).any(axis=1)]
         keep &= hyps.any(axis=0)
     idx = np.flatnonzero(keep)
-    out = MhtState(state.leaves.take(idx), state.score[idx], state.peak[idx], state.lineage[idx],
-                   hyps[:, idx], state.t, state.next_id, state.next_branch)
-    return out, idx
-
-
-def best_tracks(state: MhtState) -> TrackSet:
-    """The best global hypothesis's tracks, by id (the picture)."""
-    best = np.flatnonzero(state.hyps[0]) if len(state.hyps) else np.zeros(0, np.intp)
-    return state.leaves.take(best[np.argsort(state.leaves.ids[best], kind="stable")])
-
-
-# paper 001's mean target SNR for scans whose detections carry amplitudes (jipda's too)
-SNR = PDAParams().snr
-
-
-@lru_cache(maxsize=64)
-def scan_constants(pd: float, clutter_density: float, gate_d2: float, m: int) -> Constants:
-    """Paper 001's constants for an ``m``-dimensional scan gated at ``gate_d2``: ``P_G`` and the
-    amplitude threshold ``tau`` (the terms JIPDA scores its pairs with)."""
-    return constants(PDAParams(pd=pd, clutter_density=clutter_density, snr=SNR, gate=gate_d2), n=m)
-
-
-def mht_params(settings: MhtConfig, tp: TrackParams, m: int) -> MhtParams:
-    """The MHT's parameters for a scan of measurement size ``m``. ``"counts"`` management is
-    gnn's model too: its M-of-N rules and track precedence, and a gate that holds every target
-    detection (``P_G = 1`` in the miss term, gnn's cost), so that window 1 and k 1 are gnn."""
-    c = scan_constants(tp.pd, tp.clutter_density, tp.gate[m], m)
-    confirm, delete = sprt_thresholds(settings.false_track, settings.miss)
-    return MhtParams(tp, settings.window, settings.k, settings.max_branches, settings.management,
-                     1.0 if settings.management == "counts" else c.pg, confirm, delete, 0.0, c)
-
-
-def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale: float | np.ndarray,
-                 settings: MhtConfig) -> ScanResult:
-    """The tracker's scan with ``associator = "mht"``: :func:`mht_step` on the branches its
-    memory holds; the tracks are the best hypothesis's."""
-    memory = state.memory if state.memory is not None else initial_mht_state(params.dim, settings.window)
-    res = mht_step(memory, scan, mht_params(settings, params, scan.dim), q_scale)
-    return ScanResult(TrackerState(res.tracks, scan.t, res.state.next_id, res.state), res.detected,
-                      res.observations, res.retired)
-
-
-def associator(settings: MhtConfig) -> Associator:
-    """``[mtt] associator = "mht"`` with its ``[mtt.mht]`` settings (the whole scan: ``step``)."""
-    return Associator("mht", _no_chain, step=partial(tracker_step, settings=settings))
-
-
-def _no_chain(*_: object) -> None:
-    raise TypeError("mht takes the whole scan (Associator.step), not the tracker's chain")
+    return MhtState(state.leaves.take(idx), state.score[idx], state.peak[idx], state.lineage[idx], hyps[:, idx],
+                    state.next_branch), idx
