@@ -19,7 +19,7 @@ from fedtrack.fusion_center.fusion import federated_fuse, federated_reset
 from fedtrack.fusion_center.trackers import ScanEstimate, fuse_independent, scan_event
 from fedtrack.local_filters.linear.kalman import GaussianState, predict
 from fedtrack.local_filters.linear.models import CA, LinearModel
-from fedtrack.local_filters.linear.tracking import models_for
+from fedtrack.local_filters.linear.tracking import models_for, rounded_interval
 from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.local_filters.vdie.estimation import (
     EVENT_NAMES,
@@ -83,7 +83,7 @@ class FederatedCentre:
             fused = fuse_independent(locals_, present)
             self._start(embed_cv(fused.x, fused.P), t)
             return self._result(None)
-        cv, ca = models_for(round(t - self.t, 12), self.config.q)
+        cv, ca = models_for(rounded_interval(t - self.t), self.config.q)
         self.t = t
         current = self.model
 
@@ -147,7 +147,7 @@ class DecentralizedCentre:
             x0, P0 = embed_cv(np.asarray(self.config.x0, float), np.asarray(self.config.P0, float))
             self.state = CentreState(x0, P0, np.zeros((), dtype=bool))
             self.t = t
-        cv, ca = models_for(round(t - self.t, 12), self.config.q)
+        cv, ca = models_for(rounded_interval(t - self.t), self.config.q)
         self.t = t
         received = [outputs[s] for s in got]
         reports = stack_reports(received)

@@ -38,6 +38,7 @@ from fedtrack.local_filters.linear.tracking import (
     local_kf_step,
     models_for,
     one_point_init,
+    rounded_interval,
 )
 from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.local_filters.vdie.estimation import (
@@ -155,7 +156,7 @@ class Tracker:
         if dt < 0:
             raise ValueError(f"scan time {t} is before the previous scan {self.t}")
         self.t = t
-        cv, ca = models_for(round(dt, 12), self.config.q)
+        cv, ca = models_for(rounded_interval(dt), self.config.q)
         return self._update(cv, ca, zs, Rs, present, t)
 
     def _start(self, local: GaussianState, present: np.ndarray | None, t: float) -> ScanEstimate:

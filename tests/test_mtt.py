@@ -172,7 +172,9 @@ def test_late_scans_beyond_max_lag_are_counted_and_dropped(tmp_path: Path, capsy
     rows.append({"t": 2.0, "sensor": "b", "R": R_POS, "detections": [{"z": [20.0, 0.0]}]})
     cfg = config(tmp_path / "c.toml", max_lag=3.0)
     replay_mtt("mtt-centralized", write_lines(tmp_path / "m.jsonl", rows), cfg, tmp_path / "o.jsonl")
-    assert "10 scans fused, 1 late" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "mtt-centralized: 10 scans fused\n" in err
+    assert "mtt-centralized: 1 scans late (older than max_lag before their tracker's newest), not fused\n" in err
 
 
 def test_crossing_targets_keep_their_ids(tmp_path: Path) -> None:
@@ -285,7 +287,8 @@ def test_local_picture_with_delay_comes_from_the_data_up_to_its_time(tmp_path: P
 def test_gated_pairs_are_those_of_the_full_scan(radar: bool) -> None:
     """The k-d tree candidates lose no pair of the dense N x M gate, with the same distances."""
     from fedtrack.local_filters.mtt.models import linearize
-    from fedtrack.local_filters.mtt.tracker import gate, innovation_covariance
+    from fedtrack.local_filters.linear.kalman import innovation_covariance
+    from fedtrack.local_filters.mtt.tracker import gate
     from fedtrack.local_filters.radar.measurement import polar_from_cartesian, wrap_angle
 
     rng = np.random.default_rng(5)
@@ -302,7 +305,7 @@ def test_gated_pairs_are_those_of_the_full_scan(radar: bool) -> None:
         sensor, R = None, np.array([[400.0, 50.0], [50.0, 300.0]])
         z = np.concatenate([x[:200, [0, 2]] + rng.normal(size=(200, 2)) * 40, rng.uniform(-2000, 2000, (m_det - 200, 2))])
     lin = linearize(x if radar else x[:, :4], sensor)
-    S = innovation_covariance(P if radar else P[:, :4, :4], lin, R)
+    S = innovation_covariance(P if radar else P[:, :4, :4], lin.H, R)
     g, logdet = gate(z, lin, S, 9.21)
     nu = z[None] - lin.zhat[:, None]
     for k in lin.angular:

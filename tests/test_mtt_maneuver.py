@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from fedtrack.config import ConfigError, load_tables
+from fedtrack.fusion_center.mtt.engines import central_params
 from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.local_filters.mtt.config import MttConfig, MttSettings
 from fedtrack.local_filters.mtt.scan import SensorScan
@@ -128,7 +129,7 @@ def test_maneuver_settings_are_checked(tmp_path: Path) -> None:
     cfg = load_tables(None, MttSettings).mtt
     assert cfg.maneuver == "none" and cfg.vdie == VdieParams(window=15)
     listed = dataclasses.replace(cfg, maneuver="vdie", sensors=("a", "b", "c"))
-    assert track_params(listed, "a", 4, every_sensor=True).maneuver.window == 45
+    assert central_params(listed, "a", 4).maneuver.window == 45
     assert track_params(listed, "a", 4).maneuver.window == 15
     assert track_params(listed, "a", 4, feedback=True).maneuver is None  # federated: the centre owns the state
     assert track_params(listed, "a", 6).maneuver is None  # a radar tracker stays CV

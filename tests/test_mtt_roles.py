@@ -64,3 +64,22 @@ def test_gnn_pictures_equal_main_886cab1(tmp_path: Path, scenario: str, maneuver
         np.testing.assert_allclose(np.array([r[1:4] for r in rows]).reshape(-1, 3),
                                    np.array([r[1:4] for r in want]).reshape(-1, 3), rtol=1e-12, atol=1e-9,
                                    err_msg=f"t = {t}")
+
+
+def test_associator_key_selects_gnn_and_refuses_the_ones_to_come(tmp_path: Path) -> None:
+    from fedtrack.config import ConfigError, load_tables
+    from fedtrack.local_filters.mtt.config import ASSOCIATORS, NOT_YET, MttSettings
+    from fedtrack.local_filters.mtt.tracker import ASSOCIATORS as IMPLEMENTED
+    from fedtrack.local_filters.mtt.tracker import track_params
+
+    assert set(IMPLEMENTED) == set(ASSOCIATORS) - set(NOT_YET)
+    path = tmp_path / "c.toml"
+    path.write_text('[mtt]\nassociator = "gnn"\n')
+    assert track_params(load_tables(path, MttSettings).mtt, "s1", 4).associator.name == "gnn"
+    for name in NOT_YET:
+        path.write_text(f'[mtt]\nassociator = "{name}"\n')
+        with pytest.raises(ConfigError, match=f"associator: '{name}' is not implemented yet"):
+            load_tables(path, MttSettings)
+    path.write_text('[mtt]\nassociator = "pda"\n')
+    with pytest.raises(ConfigError, match="associator: must be one of gnn, jipda, mht"):
+        load_tables(path, MttSettings)

@@ -31,6 +31,7 @@ from fedtrack.local_filters.vdie.input_bank import (
     no_detection,
 )
 from fedtrack.local_filters.linear.kalman import GaussianState, update
+from fedtrack.local_filters.linear.tracking import rounded_interval
 from fedtrack.local_filters.mtt.models import predict_batch
 from fedtrack.local_filters.vdie.estimation import VdieParams
 
@@ -67,6 +68,7 @@ class CentralTracks:
     def __init__(self, dim: int, q: float, noise_model: str, max_lag: float, capacity: int = 64, depth: int = 8,
                  detector: VdieParams | None = None):
         self.dim, self.q, self.noise_model, self.max_lag = dim, q, noise_model, max_lag
+        self.reprocessed = 0  # observations fused again after an older one was inserted before them
         self.detector = detector
         mmax = dim // 2  # a position (2 or 3) or a radar's (range, azimuth, elevation)
         self.slot: dict[int, int] = {}  # central track id -> slot
@@ -182,8 +184,8 @@ class CentralTracks:
         """The estimates (N, D), (N, D, D) of ``slots`` at ``t`` from their observations up to ``t``
         (a track whose checkpoint is newer than ``t`` gives its checkpoint), one batched prediction."""
         p = self._entry_at(slots, t)
-        dt = np.round(np.maximum(t - self.t[slots, p], 0.0), 12)
-        return predict_batch(self.x[slots, p], self.P[slots, p], dt, self.q, self.noise_model)
+        return predict_batch(self.x[slots, p], self.P[slots, p], np.maximum(t - self.t[slots, p], 0.0), self.q,
+                             self.noise_model)
 
     def maneuvers_at(self, slots: np.ndarray, t: float) -> InputDetection:
         """The maneuver detector's result after each slot's newest observation up to ``t`` (the
@@ -202,7 +204,7 @@ class CentralTracks:
               z: np.ndarray, bank: InputBank | None) -> tuple[np.ndarray, np.ndarray, DetectorStep]:
         """Posteriors after predicting each ``(x, P)`` from ``t0`` to ``t`` and fusing ``(H, R, z)``,
         and the maneuver detector's step from ``bank`` (None without a detector)."""
-        dt = np.round(t - t0, 12)
+        dt = rounded_interval(t - t0)
         xp, Pp = predict_batch(x, P, dt, self.q, self.noise_model)
         post = update(GaussianState(xp, Pp), z, H, R)[0]
         return post.x, post.P, None if bank is None else input_step(bank, dt, xp, Pp, H, R, z, t)
@@ -282,6 +284,7 @@ class CentralTracks:
         ones again."""
         self._reserve(slots, 1)
         n_after = self._newer_than(slots, t)
+        self.reprocessed += int(n_after.sum())
         keep = self.count[slots] - n_after  # entries up to t stay (>= 1: the checkpoint is not after t)
         # the observations to fuse again, gathered before the ring is rewritten: (n, most after)
         later = np.arange(int(n_after.max()))

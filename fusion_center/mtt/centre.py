@@ -16,8 +16,10 @@ scan, the linearized observation of every track the scan detected, the tracks it
   it passes; its own central track, left without a local track, is deleted.
 * **Fusion.** The centre fuses each local observation (``H, R, z``) into its central track at
   the observation's time, predicting the central track there; out-of-sequence observations
-  up to ``max_lag`` old are fused exactly (:mod:`.central_track`), older ones are counted as
-  late. Because it fuses what each detection added and never a local estimate, there is no
+  up to ``max_lag`` old are fused exactly (:mod:`.central_track`; each observation fused again
+  is counted ``reprocessed``), older ones are counted as late, and those older than their
+  central track's start (another sensor's scan of the target, delivered after the track was
+  started) as ``before_start``; neither is fused. Because it fuses what each detection added and never a local estimate, there is no
   double counting: the result equals a centralized filter of the same detections.
 * **Federated** (``feedback``): after fusing, the centre resets the local track to the
   central estimate with ``P_i = beta_i P`` (``beta_i`` = the number of live sensors, so the
@@ -44,6 +46,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from fedtrack.fusion_center.mtt.central_track import CentralTracks, padded
+from fedtrack.local_filters.linear.gating import track_difference_d2
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.gnn import assign
 from fedtrack.local_filters.mtt.local import LocalReport, Resets, no_resets
@@ -60,8 +63,10 @@ ASSOCIATION_SHIFT = 1e6  # larger than any gated pair's d2 + ln det
 
 @dataclass
 class Counters:
-    fused: int = 0
-    late: int = 0
+    fused: int = 0  # local observations fused
+    late: int = 0  # local observations older than max_lag before their central track's newest: not fused
+    before_start: int = 0  # local observations older than their central track's start: not fused
+    reprocessed: int = 0  # observations fused again after an older one was inserted before them
     started: int = 0
     deleted: int = 0
     unmapped: int = 0
@@ -223,7 +228,7 @@ class TrackToTrackCentre:
             xc, Pc = self.tracks.states_at(self.tracks.slots_of(cid[check]), t)
             rows = det_rows[check]
             diff = report.x[rows] - xc[:, :d]
-            d2 = np.einsum("ni,ni->n", diff, np.linalg.solve(report.P[rows] + Pc[:, :d, :d], diff[..., None])[..., 0])
+            d2 = track_difference_d2(diff, report.P[rows] + Pc[:, :d, :d])[0]
             bad = d2 > cfg.thresholds.association[d]
             if self.strikes:  # a consistent local track's strikes are forgiven
                 struck = [key for key in self.strikes if key[0] == s]
@@ -308,13 +313,17 @@ class TrackToTrackCentre:
         X[started], P[started] = self.tracks.latest(slots[started])[1:]  # started from this local estimate
         H_all = self._embed(report.obs_H)
         pending = np.flatnonzero(~fresh)
+        reprocessed = self.tracks.reprocessed
         while pending.size:
             now = pending[np.sort(np.unique(slots[pending], return_index=True)[1])]
+            too_old = t < self.tracks.latest(slots[now])[0] - self.cfg.max_lag
             done, x_now, P_now = self.tracks.fuse(slots[now], t, H_all[now], report.obs_R[now], report.obs_z[now])
             ok[now], X[now], P[now] = done, x_now, P_now
             self.counters.fused += int(done.sum())
-            self.counters.late += int(done.size - done.sum())
+            self.counters.late += int(np.count_nonzero(~done & too_old))
+            self.counters.before_start += int(np.count_nonzero(~done & ~too_old))
             pending = pending[~np.isin(pending, now, assume_unique=True)] if now.size < pending.size else now[:0]
+        self.counters.reprocessed += self.tracks.reprocessed - reprocessed
         return ok, X, P
 
     def _merge_duplicates(self, updated: np.ndarray, t: float) -> None:
@@ -342,7 +351,7 @@ class TrackToTrackCentre:
         K = np.fromiter((k for k, js in zip(mine, near) for _ in js), dtype=np.int64)
         J = np.fromiter((j for js in near for j in js), dtype=np.int64, count=K.size)
         diff = X[J] - X[K]  # the chi-square test of every candidate pair at once
-        passes = np.einsum("ni,ni->n", diff, np.linalg.solve(P[J] + P[K], diff[..., None])[..., 0]) <= gate
+        passes = track_difference_d2(diff, P[J] + P[K])[0] <= gate
         close: dict[int, list[int]] = {}
         for k, j in zip(K[passes].tolist(), J[passes].tolist()):
             if j != k:
@@ -395,10 +404,7 @@ class TrackToTrackCentre:
             ri = np.fromiter((u for u, js in enumerate(near) for j in js if j >= len(rows)), dtype=np.int64)
             ci = np.fromiter((j - len(rows) for js in near for j in js if j >= len(rows)), dtype=np.int64,
                              count=ri.size)
-            L = np.linalg.cholesky(C[ri] + Pc[ci])
-            w = np.linalg.solve(L, (U[ri] - xc[ci])[..., None])[..., 0]
-            d2 = np.sum(w * w, axis=-1)
-            logdet = 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)
+            d2, logdet = track_difference_d2(U[ri] - xc[ci], C[ri] + Pc[ci])
             inside = d2 <= gate
             ri, ci, cost = ri[inside], ci[inside], d2[inside] + logdet[inside]
             # most gated pairs first, then the least cost: a shift makes every gated pair's cost negative

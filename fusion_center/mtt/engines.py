@@ -24,17 +24,10 @@ import numpy as np
 
 from fedtrack.fusion_center.mtt.centre import CENTRAL_MISSES, TrackToTrackCentre
 from fedtrack.local_filters.mtt.config import MttConfig
-from fedtrack.local_filters.mtt.local import (
-    LocalReport,
-    LocalTracker,
-    Resets,
-    adopt,
-    is_late,
-    local_step,
-    new_local_tracker,
-)
+from fedtrack.local_filters.mtt.history import ScanHistory
+from fedtrack.local_filters.mtt.local import LocalReport, Resets, SensorTracker, is_duplicate
 from fedtrack.local_filters.mtt.maneuver import predicted_view
-from fedtrack.local_filters.mtt.models import motion, predict_tracks
+from fedtrack.local_filters.mtt.models import predict_batch
 from fedtrack.local_filters.mtt.scan import SensorScan
 from fedtrack.local_filters.mtt.tracker import TrackerState, TrackParams, initial_state, track_params, tracker_step
 from fedtrack.local_filters.vdie.estimation import VdieParams
@@ -104,7 +97,7 @@ def tracker_picture(state: TrackerState, T: float, cfg: MttConfig, sensors: list
         if tr.man is not None:  # each track in its own model (maneuver handling)
             x, P = predicted_view(tr.man, T - state.t, cfg.q, cfg.noise_model)
         else:
-            x, P = predict_tracks(x, P, motion(x.shape[1], round(T - state.t, 12), cfg.q, cfg.noise_model))
+            x, P = predict_batch(x, P, T - state.t, cfg.q, cfg.noise_model)
     maneuver = None if tr.inputs is None or detector is None else tr.inputs.detection.picture_rows(detector)
     return PictureTracks(tr.ids.tolist(), x, P, tr.confirmed.tolist(), [sensors] * tr.size, tr.models, maneuver)
 
@@ -113,8 +106,10 @@ def tracker_picture(state: TrackerState, T: float, cfg: MttConfig, sensors: list
 class Engine:
     cfg: MttConfig
     dim: int
-    late: int = 0
-    scans: int = 0
+    late: int = 0  # scans older than max_lag (or than the tracker's checkpoint): not fused
+    scans: int = 0  # scans fused
+    duplicates: int = 0  # a scan equal to one fused before: not fused again
+    rerun: int = 0  # scans run again after an out-of-sequence scan before them
     stage_s: dict[str, float] = field(default_factory=dict)  # wall seconds per stage (replay's report)
 
     def ingest(self, scan: SensorScan) -> None:
@@ -134,116 +129,113 @@ class Engine:
         """A departure (:class:`SensorLeft`): only the track-to-track centre keeps per-sensor state."""
 
     def counters(self) -> dict[str, int]:
-        return {"scans": self.scans, "late": self.late}
+        return {"scans": self.scans, "late": self.late, "duplicates": self.duplicates, "rerun": self.rerun}
 
 
 @dataclass
-class LocalEngine(Engine):
-    """``mtt-local``: the tracker of ``sensor``; other sensors' scans are ignored. It keeps its
-    states of the last ``max(max_lag, picture_delay)`` seconds so that a picture at ``T`` comes
-    from the state after the last scan up to ``T``."""
+class ScanTrackerEngine(Engine):
+    """A tracker of scans with its :class:`ScanHistory`: out-of-sequence scans up to ``max_lag``
+    old fused exactly (the later ones run again from the state before them), older ones late.
+    It keeps the states of the last ``max_lag`` (>= ``picture_delay``) seconds, so a picture at
+    ``T`` comes from the state after the last scan up to ``T``."""
 
-    sensor: str = ""
-    times: list[float] = field(default_factory=list)
-    states: list[TrackerState] = field(default_factory=list)
+    history: ScanHistory[TrackerState, SensorScan] | None = None
 
-    def ingest(self, scan: SensorScan) -> None:
-        if scan.sensor != self.sensor:
-            return
-        if self.times and scan.t < self.times[-1]:
-            self.late += 1
-            return
-        self.scans += 1
-        state = self.states[-1] if self.states else initial_state(self.dim)
-        self.times.append(scan.t)
-        start = time.perf_counter()
-        self.states.append(tracker_step(state, scan, track_params(self.cfg, scan.sensor, self.dim, events=True)).state)
-        self.took("tracker", start)
-        horizon = scan.t - max(self.cfg.max_lag, self.cfg.picture_delay)
-        drop = bisect.bisect_left(self.times, horizon) - 1  # keep the last state before the horizon
-        if drop > 0:
-            del self.times[:drop], self.states[:drop]
+    def params(self, sensor: str | None) -> TrackParams:
+        raise NotImplementedError
 
-    def picture(self, T: float) -> PictureTracks:
-        k = bisect.bisect_right(self.times, T)
-        if not k:
-            return no_tracks(self.dim)
-        detector = track_params(self.cfg, self.sensor, self.dim, events=True).detector
-        return tracker_picture(self.states[k - 1], T, self.cfg, [self.sensor], detector)
-
-
-@dataclass
-class CentralizedEngine(Engine):
-    """``mtt-centralized`` with roll-back for out-of-sequence scans."""
-
-    times: list[float] = field(default_factory=list)  # scans kept for re-running, time order
-    kept: list[SensorScan] = field(default_factory=list)
-    after: list[TrackerState] = field(default_factory=list)  # state after each kept scan
-    base: TrackerState | None = None  # state before the first kept scan
+    def takes(self, scan: SensorScan) -> bool:
+        return True
 
     def _step(self, state: TrackerState, scan: SensorScan) -> TrackerState:
-        return tracker_step(state, scan, central_params(self.cfg, scan.sensor, self.dim)).state
+        return tracker_step(state, scan, self.params(scan.sensor)).state
 
     def ingest(self, scan: SensorScan) -> None:
-        if self.base is None:
-            self.base = initial_state(self.dim)
-        newest = self.times[-1] if self.times else -np.inf
-        if scan.t < newest - self.cfg.max_lag or (self.base.t is not None and scan.t < self.base.t):
+        if not self.takes(scan):
+            return
+        if self.history is None:
+            self.history = ScanHistory(initial_state(self.dim), self.cfg.max_lag)
+        if self.history.is_late(scan.t):
             self.late += 1
             return
+        if is_duplicate(self.history, scan, lambda s: s):
+            self.duplicates += 1
+            return
         self.scans += 1
-        k = bisect.bisect_right(self.times, scan.t)
-        state = self.after[k - 1] if k else self.base
-        self.times.insert(k, scan.t)
-        self.kept.insert(k, scan)
-        del self.after[k:]
         start = time.perf_counter()
-        for s in self.kept[k:]:
-            state = self._step(state, s)
-            self.after.append(state)
+        k = self.history.insert(scan.t, scan, self._step)
+        self.rerun += len(self.history.times) - 1 - k
         self.took("tracker", start)
-        horizon = self.times[-1] - self.cfg.max_lag
-        drop = bisect.bisect_left(self.times, horizon)
-        if drop:
-            self.base = self.after[drop - 1]
-            del self.times[:drop], self.kept[:drop], self.after[:drop]
+        self.history.fold()
 
-    def state_at(self, T: float) -> TrackerState | None:
-        k = bisect.bisect_right(self.times, T)
-        return self.after[k - 1] if k else self.base
+    def senders(self) -> list[str]:
+        raise NotImplementedError
 
     def picture(self, T: float) -> PictureTracks:
-        state = self.state_at(T)
-        if state is None:
+        if self.history is None:
             return no_tracks(self.dim)
-        senders = sorted({s.sensor for s in self.kept})
-        detector = central_params(self.cfg, None, self.dim).detector
-        return tracker_picture(state, T, self.cfg, senders, detector)
+        state = self.history.state_at(T)
+        return tracker_picture(state, T, self.cfg, self.senders(), self.params(None).detector)
+
+
+@dataclass
+class LocalEngine(ScanTrackerEngine):
+    """``mtt-local``: the tracker of ``sensor``; other sensors' scans are ignored."""
+
+    sensor: str = ""
+
+    def takes(self, scan: SensorScan) -> bool:
+        return scan.sensor == self.sensor
+
+    def params(self, sensor: str | None) -> TrackParams:
+        return track_params(self.cfg, self.sensor, self.dim, events=True)
+
+    def senders(self) -> list[str]:
+        return [self.sensor]
+
+
+@dataclass
+class CentralizedEngine(ScanTrackerEngine):
+    """``mtt-centralized``: one tracker of every sensor's scans, with the centre's policy
+    (:func:`central_params`)."""
+
+    def params(self, sensor: str | None) -> TrackParams:
+        return central_params(self.cfg, sensor, self.dim)
+
+    def senders(self) -> list[str]:
+        return sorted({s.sensor for s in self.history.entries}) if self.history is not None else []
 
 
 @dataclass
 class TrackToTrackEngine(Engine):
     """``mtt-federated`` (``feedback``) or ``mtt-decentralized``: local trackers plus the centre.
 
-    A scan goes through its sensor's tracker (:func:`local_step`), the report through the centre,
-    and the centre's resets and next process-noise factor (the number of live sensors) back to
-    the tracker (:func:`adopt`): what the live services do message by message."""
+    A scan goes through its sensor's tracker (:class:`SensorTracker`: out-of-sequence scans of the
+    sensor within ``max_lag`` fused exactly), the report through the centre, and the centre's
+    resets and next process-noise factor (the number of live sensors) back to the tracker:
+    what the live services do message by message."""
 
     feedback: bool = True
-    local: dict[str, LocalTracker] = field(default_factory=dict)
+    local: dict[str, SensorTracker] = field(default_factory=dict)
     centre: TrackToTrackCentre | None = None
 
     def ingest(self, scan: SensorScan) -> None:
-        tracker = self.local.get(scan.sensor) or new_local_tracker(scan, self.feedback)
-        if is_late(tracker, scan):
+        tracker = self.local.get(scan.sensor)
+        if tracker is None:
+            tracker = self.local[scan.sensor] = SensorTracker(scan, self.cfg, self.feedback)
+        if tracker.is_late(scan):
             self.late += 1
             return
+        if tracker.is_duplicate(scan):
+            self.duplicates += 1
+            return
         start = time.perf_counter()
-        tracker, report = local_step(tracker, scan, self.cfg)
+        report, rerun = tracker.track(scan)
+        self.rerun += rerun
         start = self.took("local trackers", start)
         resets, q_scale = self.fuse(report)
         start = self.took("centre", start)
-        self.local[scan.sensor] = adopt(tracker, resets, q_scale)
+        tracker.adopt(scan, resets, q_scale)
         self.took("local trackers", start)
 
     def leave(self, sensor: str) -> None:
@@ -273,7 +265,6 @@ class TrackToTrackEngine(Engine):
         out = super().counters()
         if self.centre is not None:
             out.update({f"centre_{k}": v for k, v in vars(self.centre.counters).items()})
-            out["late"] += self.centre.counters.late
         return out
 
 

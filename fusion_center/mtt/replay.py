@@ -97,6 +97,21 @@ def _picture(engine: Engine, T: float) -> tuple[float, PictureTracks]:
     return T, picture
 
 
+def counter_lines(counts: dict[str, int]) -> list[str]:
+    """What the engine's counters count, one line each (the centre's only for a centre)."""
+    lines = [f"{counts['scans']} scans fused",
+             f"{counts['late']} scans late (older than max_lag before their tracker's newest), not fused",
+             f"{counts['duplicates']} duplicate scans (equal to one fused before), not fused",
+             f"{counts['rerun']} scans run again after an out-of-sequence scan before them"]
+    if "centre_fused" in counts:
+        lines += [f"{counts['centre_fused']} centre observations fused",
+                  f"{counts['centre_reprocessed']} centre observations re-processed (fused again after an older one)",
+                  f"{counts['centre_late']} centre observations late (older than max_lag), not fused",
+                  f"{counts['centre_before_start']} centre observations older than their central track's start, "
+                  "not fused"]
+    return lines
+
+
 def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Path,
                period: float | None = None, sensor: str | None = None) -> int:
     """Entry point of ``fedtrack replay --algorithm mtt-*``; returns the number of pictures written."""
@@ -131,8 +146,8 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
             now = tracks.maneuvering()
             onsets, maneuvering = onsets + len(now - maneuvering), now
     counts = engine.counters()
-    print(f"{algorithm}: {counts['scans']} scans fused, {counts['late']} late (older than max_lag) dropped",
-          file=sys.stderr)
+    for line in counter_lines(counts):
+        print(f"{algorithm}: {line}", file=sys.stderr)
     if detector:
         print(f"{algorithm}: {onsets} maneuver onsets detected (pictures with a track's maneuver that the "
               "previous picture did not show)", file=sys.stderr)

@@ -27,3 +27,11 @@ def gate_ball_pairs(z: np.ndarray, centres: np.ndarray, S: np.ndarray, gate: flo
     counts = np.fromiter(map(len, near), dtype=np.int64, count=n)
     cols = np.fromiter(itertools.chain.from_iterable(near), dtype=np.int64, count=int(counts.sum()))
     return np.repeat(np.arange(n), counts), cols
+
+
+def track_difference_d2(diff: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The track-to-track chi-square statistic ``d' S^-1 d`` of differences ``diff`` (N, n) of two
+    estimates with ``S = P_a + P_b`` (N, n, n), and ``ln det S`` (N,), by a Cholesky factor."""
+    L = np.linalg.cholesky(S)
+    w = np.linalg.solve(L, diff[..., None])[..., 0]
+    return np.sum(w * w, axis=-1), 2.0 * np.sum(np.log(np.diagonal(L, axis1=-2, axis2=-1)), axis=-1)

@@ -32,6 +32,12 @@ def validate_sharing(betas: np.ndarray) -> np.ndarray:
     return b
 
 
+def rounded_interval(dt: float | np.ndarray) -> float | np.ndarray:
+    """A prediction interval rounded to 1e-12 s, so that one interval met as different
+    differences of times gives one model (and one cache entry of :func:`motion`)."""
+    return np.round(dt, 12) if isinstance(dt, np.ndarray) else round(dt, 12)
+
+
 @lru_cache(maxsize=64)
 def models_for(dt: float, q: float) -> tuple[LinearModel, LinearModel]:
     """CV and CA models for a scan interval ``dt`` (cached: matrices are built once)."""

@@ -13,12 +13,15 @@ know what the centre knows at the moment its next scan arrives.
 
 from __future__ import annotations
 
+import bisect
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
 
 from fedtrack import wire
 from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.mtt.history import ScanHistory
 from fedtrack.local_filters.mtt.scan import SensorScan
 from fedtrack.local_filters.mtt.tracker import TrackerState, initial_state, track_params, tracker_step
 
@@ -66,11 +69,6 @@ class LocalTracker(NamedTuple):
 def new_local_tracker(scan: SensorScan, feedback: bool = False) -> LocalTracker:
     """An empty tracker for the sensor of ``scan`` (a 3-D state for a radar)."""
     return LocalTracker(initial_state(6 if scan.sensor_position is not None else 4), feedback=feedback)
-
-
-def is_late(tracker: LocalTracker, scan: SensorScan) -> bool:
-    """A sensor's own scan older than its tracker (its link is not FIFO): dropped and counted."""
-    return tracker.state.t is not None and scan.t < tracker.state.t
 
 
 def local_step(tracker: LocalTracker, scan: SensorScan, cfg: MttConfig) -> tuple[LocalTracker, LocalReport]:
@@ -134,3 +132,93 @@ def resets_from_wire(msg: wire.TrackResets) -> Resets:
     d = msg.x.shape[1]
     return Resets(msg.sensor, msg.t, np.array(msg.ids, dtype=np.int64), np.array(msg.x),
                   np.array(msg.P).reshape(-1, d, d))
+
+
+# ---------------------------------------------------------------- out-of-sequence scans
+
+class Entry(NamedTuple):
+    """A scan in a sensor tracker's history and the centre's answer to its report (federated)."""
+
+    scan: SensorScan
+    feedback: tuple[Resets, float] | None = None  # resets and the next scan's q_scale
+
+
+Step = tuple[LocalTracker, LocalReport | None]  # the tracker after a scan (and its answer) and the scan's report
+
+
+class SensorTracker:
+    """One sensor's local tracker with its last ``max_lag`` seconds of scans
+    (:class:`ScanHistory`): the local side of ``mtt-federated`` / ``mtt-decentralized``, as the
+    replay and the live service run it.
+
+    A scan older than the tracker's newest, within ``max_lag``, is fused in time order: the
+    tracker goes back to its state before it, tracks it and runs the later scans again (each
+    adopting again the resets the centre sent for it), so the local tracks equal those of the
+    time-sorted scans (up to the resets, which the centre computed without the late scan). The
+    centre gets the report of the late scan, which it fuses out of sequence
+    (:mod:`fedtrack.fusion_center.mtt.central_track`); the later scans' reports are not sent
+    again. Local track ids are never reused: the tracks a re-run starts take new ids, and the
+    late scan's report retires the ids that the re-run no longer has.
+    """
+
+    def __init__(self, scan: SensorScan, cfg: MttConfig, feedback: bool = False) -> None:
+        self.cfg = cfg
+        self.history: ScanHistory[Step, Entry] = ScanHistory((new_local_tracker(scan, feedback), None), cfg.max_lag)
+        self.issued = 0  # local track ids issued so far
+
+    @property
+    def tracker(self) -> LocalTracker:
+        return self.history.newest[0]
+
+    def is_late(self, scan: SensorScan) -> bool:
+        return self.history.is_late(scan.t)
+
+    def is_duplicate(self, scan: SensorScan) -> bool:
+        """The same scan (time, detections, ``R``) is already in the history."""
+        return is_duplicate(self.history, scan, lambda e: e.scan)
+
+    def _step(self, prev: Step, entry: Entry) -> Step:
+        tracker = prev[0]
+        if tracker.state.next_id < self.issued:  # a re-run: ids already issued are not reused
+            tracker = tracker._replace(state=tracker.state._replace(next_id=self.issued))
+        tracker, report = local_step(tracker, entry.scan, self.cfg)
+        if entry.feedback is not None:
+            tracker = adopt(tracker, *entry.feedback)
+        self.issued = max(self.issued, tracker.state.next_id)
+        return tracker, report
+
+    def track(self, scan: SensorScan) -> tuple[LocalReport, int]:
+        """Track ``scan`` (neither late nor a duplicate): its report, and how many later scans
+        were run again."""
+        before = self.tracker.state.tracks.ids
+        k = self.history.insert(scan.t, Entry(scan), self._step)
+        report = self.history.after[k][1]
+        rerun = len(self.history.times) - 1 - k
+        if rerun:
+            gone = np.setdiff1d(before, self.tracker.state.tracks.ids)
+            report = report._replace(retired=np.union1d(report.retired, gone))
+        self.history.fold()
+        return report, rerun
+
+    def adopt(self, scan: SensorScan, resets: Resets, q_scale: float) -> None:
+        """The centre's answer to the report of ``scan`` (if the scan is still kept): adopted
+        there, and the later scans run again from it."""
+        h = self.history
+        for k in range(len(h.entries) - 1, -1, -1):
+            if h.entries[k].scan is scan:
+                h.entries[k] = Entry(scan, (resets, q_scale))
+                tracker, report = h.after[k]
+                h.after[k] = (adopt(tracker, resets, q_scale), report)
+                if k + 1 < len(h.entries):
+                    h.rerun(k + 1, self._step)
+                return
+
+
+def is_duplicate(history: ScanHistory, scan: SensorScan, scan_of: Callable[[object], SensorScan]) -> bool:
+    """Whether ``history`` holds a scan equal to ``scan`` (sensor, time, ``R``, detections)."""
+    lo, hi = bisect.bisect_left(history.times, scan.t), bisect.bisect_right(history.times, scan.t)
+    for entry in history.entries[lo:hi]:
+        other = scan_of(entry)
+        if other.sensor == scan.sensor and np.array_equal(other.z, scan.z) and np.array_equal(other.R, scan.R):
+            return True
+    return False

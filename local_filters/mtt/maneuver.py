@@ -34,6 +34,7 @@ import numpy as np
 
 from fedtrack.local_filters.linear.kalman import GaussianState, predict, update_residual
 from fedtrack.local_filters.linear.models import CA, CV, LinearModel
+from fedtrack.local_filters.linear.tracking import rounded_interval
 from fedtrack.local_filters.mtt.models import motion, position_matrix
 from fedtrack.local_filters.vdie.estimation import (
     EVENT_NONE,
@@ -96,7 +97,7 @@ def start(x: np.ndarray, P: np.ndarray, t: float, params: VdieParams) -> VdieSta
 def predicted_view(state: VdieState, dt: float, q: float, noise_model: str, q_scale: float | np.ndarray = 1.0
                    ) -> GaussianState:
     """Every track predicted ``dt`` ahead in its own model, as its CV view."""
-    cv, ca = maneuver_models(round(dt, 12), q, noise_model)
+    cv, ca = maneuver_models(rounded_interval(dt), q, noise_model)
     scale = np.asarray(q_scale)[..., None, None]
     as_cv = predict(cv_part(state.x, state.P), cv.F, scale * cv.Q)
     as_ca = cv_part(*predict(GaussianState(state.x, state.P), ca.F, scale * ca.Q))
@@ -116,7 +117,7 @@ def maneuver_step(state: VdieState, t: float, dt: float, q: float, noise_model: 
                   ) -> ManeuverStep:
     """One scan of every track: the tracks ``rows`` are updated with their detections ``z``
     (position sensors), the rest predicted."""
-    cv, ca = maneuver_models(round(dt, 12), q, noise_model)
+    cv, ca = maneuver_models(rounded_interval(dt), q, noise_model)
     scale = np.asarray(q_scale)[..., None, None]
 
     def step_fn(post: GaussianState, model: LinearModel) -> tuple[GaussianState, GaussianState]:

@@ -21,6 +21,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from fedtrack.local_filters.linear.tracking import rounded_interval
 from fedtrack.local_filters.radar.ekf import CV3, motion_model_3d, radar_h, radar_jacobian
 from fedtrack.local_filters.radar.measurement import cartesian_from_polar, cartesian_from_polar_jacobian
 
@@ -49,15 +50,19 @@ def motion(dim: int, dt: float, q: float, noise_model: str = "continuous") -> Mo
     return Motion(F, Q)
 
 
-def predict_batch(x: np.ndarray, P: np.ndarray, dt: np.ndarray, q: float, noise_model: str = "continuous"
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """Predict each of a batch (N, D) over its own interval ``dt`` (N,) (what :func:`motion` gives
-    per track). ``F = I + dt E`` (``E`` moves each velocity into its position), so ``F P F'`` is
-    two row and column operations instead of two stacked matrix products."""
+def predict_batch(x: np.ndarray, P: np.ndarray, dt: float | np.ndarray, q: float, noise_model: str = "continuous",
+                  q_scale: float | np.ndarray = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Predict each of a batch (N, D) over ``dt`` (a float, or (N,): each its own interval; rounded
+    by :func:`rounded_interval`) with the CV model of :func:`motion`, ``Q`` scaled by ``q_scale``
+    (federated ``beta_i``). ``F = I + dt E`` (``E`` moves each velocity into its position), so
+    ``F P F'`` is two row and column operations instead of two stacked matrix products."""
+    dt = np.broadcast_to(np.asarray(rounded_interval(dt), dtype=float), x.shape[:1])
+    scale = np.broadcast_to(np.asarray(q_scale, dtype=float), x.shape[:1])
     if noise_model == "continuous":
         q11, q12, q22 = q * dt**3 / 3.0, q * dt**2 / 2.0, q * dt
     else:
         q11, q12, q22 = q * dt**4 / 4.0, q * dt**3 / 2.0, q * dt**2
+    q11, q12, q22 = scale * q11, scale * q12, scale * q22
     dim = x.shape[1]
     pos, vel = slice(0, dim, 2), slice(1, dim, 2)
     xp = x.copy()
@@ -71,14 +76,6 @@ def predict_batch(x: np.ndarray, P: np.ndarray, dt: np.ndarray, q: float, noise_
         Pp[:, a, a + 1] += q12
         Pp[:, a + 1, a] += q12
         Pp[:, a + 1, a + 1] += q22
-    return xp, 0.5 * (Pp + np.swapaxes(Pp, -1, -2))
-
-
-def predict_tracks(x: np.ndarray, P: np.ndarray, m: Motion, q_scale: float | np.ndarray = 1.0
-                   ) -> tuple[np.ndarray, np.ndarray]:
-    """Predict a batch ``x`` (N, D), ``P`` (N, D, D); ``Q`` scaled by ``q_scale`` (federated ``beta_i``)."""
-    xp = x @ m.F.T
-    Pp = m.F @ P @ m.F.T + np.asarray(q_scale)[..., None, None] * m.Q
     return xp, 0.5 * (Pp + np.swapaxes(Pp, -1, -2))
 
 

@@ -7,8 +7,11 @@ Consumes the sensor's scans (``Measurement`` of kind ``scan`` on ``sensor/<ID>/m
 until the centre's ``TrackResets`` for that report (``fusion/mtt-resets/<ID>``) has been
 adopted, so that its tracker sees exactly what the replay's does; after ``--reset-timeout``
 seconds without them it goes on (counted in ``reset_timeouts``; from then on the live tracks
-may differ from the replay). A scan older than the tracker (the sensor's link reordered it)
-is dropped and counted ``late``, as in the replay.
+may differ from the replay). A scan older than the tracker's newest (the sensor's link reordered
+it) is fused in time order, the later scans run again (counted ``rerun``;
+:class:`fedtrack.local_filters.mtt.local.SensorTracker`), and reported; one more than ``max_lag``
+older is dropped and counted ``late``, and one equal to a scan tracked before (another number)
+``duplicate``, as in the replay.
 
 Rejected (docs/wire.md#rejections): a measurement of another kind or shape (``wrong_model``),
 a sensor the config does not allow (``unknown_sensor``), a scan number more than
@@ -28,15 +31,7 @@ from fedtrack.config import load_tables
 from fedtrack.deployment import MODES
 from fedtrack.keys import check_id
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
-from fedtrack.local_filters.mtt.local import (
-    LocalTracker,
-    adopt,
-    is_late,
-    local_step,
-    new_local_tracker,
-    report_to_wire,
-    resets_from_wire,
-)
+from fedtrack.local_filters.mtt.local import SensorTracker, report_to_wire, resets_from_wire
 from fedtrack.local_filters.mtt.scan import SensorScan, scan_from_measurement
 from fedtrack.services.base import (
     ReceivedScans,
@@ -64,11 +59,12 @@ class MttLocalService(Service):
         self.cfg = cfg
         self.reset_timeout_s = reset_timeout_s
         self.max_time_jump_s = max_time_jump_s
-        self.tracker: LocalTracker | None = None
+        self.tracker: SensorTracker | None = None
         self.queue: deque[tuple[int, SensorScan, int]] = deque()  # (seq, scan, stamp) waiting
         self.received = ReceivedScans(max_seq_jump)
         self.last_t: float | None = None
         self.awaiting: int | None = None  # report whose resets are due (federated)
+        self.awaiting_scan: SensorScan | None = None  # the scan of that report
         self.awaiting_since = 0.0
 
     def subscriptions(self) -> list[Subscription]:
@@ -95,12 +91,12 @@ class MttLocalService(Service):
     def on_resets(self, msg: TrackResets) -> None:
         if self.awaiting is None or msg.seq != self.awaiting:
             raise Rejected("unexpected", f"resets for report {msg.seq}, awaiting {self.awaiting}")
-        assert self.tracker is not None
-        d = self.tracker.state.tracks.x.shape[1]
+        assert self.tracker is not None and self.awaiting_scan is not None
+        d = self.tracker.tracker.state.tracks.x.shape[1]
         if msg.ids and msg.x.shape[1] != d:
             raise Rejected("wrong_model", f"resets of size {msg.x.shape[1]} for a {d}-D tracker")
-        self.tracker = adopt(self.tracker, resets_from_wire(msg), msg.q_scale)
-        self.awaiting = None
+        self.tracker.adopt(self.awaiting_scan, resets_from_wire(msg), msg.q_scale)
+        self.awaiting = self.awaiting_scan = None
         self._advance()
 
     def on_tick(self) -> None:
@@ -108,22 +104,28 @@ class MttLocalService(Service):
             self.count("reset_timeouts")
             self.log.warning("no resets for report %d after %.1f s: going on without them",
                              self.awaiting, self.reset_timeout_s)
-            self.awaiting = None
+            self.awaiting = self.awaiting_scan = None
             self._advance()
 
     def _advance(self) -> None:
         """Track the waiting scans, in arrival order, while no resets are due."""
         while self.queue and self.awaiting is None:
             seq, scan, stamp = self.queue.popleft()
-            tracker = self.tracker or new_local_tracker(scan, self.federated)
-            if is_late(tracker, scan):
+            if self.tracker is None:
+                self.tracker = SensorTracker(scan, self.cfg, self.federated)
+            if self.tracker.is_late(scan):
                 self.count("late")
                 continue
-            self.tracker, report = local_step(tracker, scan, self.cfg)
+            if self.tracker.is_duplicate(scan):
+                self.count("duplicate")
+                continue
+            report, rerun = self.tracker.track(scan)
             self.publish(self.keys.mtt_report(self.sensor), report_to_wire(report, seq, stamp))
             self.count("reports")
+            if rerun:
+                self.count("rerun", rerun)
             if self.federated:
-                self.awaiting, self.awaiting_since = seq, time.monotonic()
+                self.awaiting, self.awaiting_since, self.awaiting_scan = seq, time.monotonic(), scan
 
 
 def main(argv: list[str]) -> int:

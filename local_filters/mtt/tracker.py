@@ -52,8 +52,6 @@ from fedtrack.local_filters.mtt.models import (
     position_from_detection,
     position_matrix,
     predict_batch,
-    predict_tracks,
-    motion,
 )
 from fedtrack.local_filters.mtt.scan import SensorScan
 from fedtrack.local_filters.radar.measurement import wrap_angle
@@ -195,7 +193,7 @@ def predict(tracks: TrackSet, dt: float, params: TrackParams, q_scale: float | n
     if params.maneuver is not None and tracks.man is not None and tracks.size:
         return maneuver.predicted_view(tracks.man, dt, params.q, params.noise_model, q_scale)
     if tracks.size and dt > 0:
-        return GaussianState(*predict_tracks(tracks.x, tracks.P, motion(params.dim, round(dt, 12), params.q, params.noise_model), q_scale))
+        return GaussianState(*predict_batch(tracks.x, tracks.P, dt, params.q, params.noise_model, q_scale))
     return GaussianState(tracks.x.copy(), tracks.P.copy())
 
 

@@ -16,7 +16,7 @@ import numpy as np
 
 from fedtrack.local_filters.linear.kalman import GaussianState, predict, update
 from fedtrack.local_filters.linear.models import CA, CV
-from fedtrack.local_filters.linear.tracking import local_kf_step, models_for, one_point_init
+from fedtrack.local_filters.linear.tracking import local_kf_step, models_for, one_point_init, rounded_interval
 from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.local_filters.vdie.estimation import (
     EVENT_NAMES,
@@ -80,7 +80,7 @@ class FederatedLocalFilter:
                 self.state = start
                 return LocalOutput(CV, start.x, start.P, start.x, start.P, init=True)
             self.state = start
-        model = models_for(round(t - self.t, 12), self.config.q)[0 if self.state.x.shape[0] == 4 else 1]
+        model = models_for(rounded_interval(t - self.t), self.config.q)[0 if self.state.x.shape[0] == 4 else 1]
         prior = predict(self.state, model.F, self.beta * model.Q)  # (11) with Q_i = beta_i Q (22)
         post, _ = update(prior, z, model.H, R)  # (10), (12)
         self.state, self.t = post, t
@@ -104,7 +104,7 @@ class VdieLocalFilter:
             self.t = t
             if is_estimate:
                 return LocalOutput(CV, start.x, start.P, start.x, start.P, init=True)
-        cv, ca = models_for(round(t - self.t, 12), self.config.q)
+        cv, ca = models_for(rounded_interval(t - self.t), self.config.q)
         self.t = t
 
         def step_fn(post_prev: GaussianState, model):
