@@ -13,8 +13,14 @@ import pytest
 
 from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.local_filters.mtt.config import MhtConfig, MttConfig
-from fedtrack.local_filters.mtt.kbest import k_best_assignments, k_best_sums
-from fedtrack.local_filters.mtt.mht import best_extensions, mht_params, score_increments, sprt_thresholds
+from fedtrack.local_filters.mtt.mht import (
+    best_extensions,
+    k_best_assignments,
+    k_best_sums,
+    mht_params,
+    score_increments,
+    sprt_thresholds,
+)
 from fedtrack.local_filters.mtt.scan import SensorScan
 from fedtrack.local_filters.mtt.tracker import initial_state, mht_step, track_params, tracker_step
 from fedtrack.local_filters.pda.association import constants, log_amplitude_ratio
