@@ -80,7 +80,6 @@ class MhtParams(NamedTuple):
     pg: float  # gate probability P_G in the miss term
     confirm_score: float  # SPRT upper threshold ln((1 - beta) / alpha)
     delete_score: float  # SPRT lower threshold ln(beta / (1 - alpha))
-    birth_score: float = 0.0  # a new track's score before its detection's amplitude: ln(beta_NT / lambda)
     amplitude: Constants | None = None  # amplitude model (threshold tau, SNR); None: amplitudes ignored
 
 
@@ -111,7 +110,7 @@ def mht_params(settings: MhtConfig, pd: float, clutter_density: float, gate_d2: 
     c = scan_constants(pd, clutter_density, gate_d2, m)
     confirm, delete = sprt_thresholds(settings.false_track, settings.miss)
     return MhtParams(pd, clutter_density, *counts, settings.window, settings.k, settings.max_branches,
-                     settings.management, 1.0 if settings.management == "counts" else c.pg, confirm, delete, 0.0, c)
+                     settings.management, 1.0 if settings.management == "counts" else c.pg, confirm, delete, c)
 
 
 class MhtState(NamedTuple):
@@ -124,12 +123,14 @@ class MhtState(NamedTuple):
     peak: np.ndarray  # (L,) the highest score along the leaf's history
     lineage: np.ndarray  # (L, window) branch serials of its ancestors, oldest first, its own last
     hyps: np.ndarray  # (K, L) bool: the leaves each global hypothesis holds
+    value: np.ndarray  # (K,) each hypothesis's log-likelihood ratio (:func:`select_hypotheses`)
     next_branch: int  # the next branch serial
 
 
 def initial_state(leaves: Any, window: int) -> MhtState:
     """No leaves (``leaves``: an empty ``TrackSet``) and one empty hypothesis."""
-    return MhtState(leaves, np.zeros(0), np.zeros(0), np.zeros((0, window), np.int64), np.ones((1, 0), bool), 0)
+    return MhtState(leaves, np.zeros(0), np.zeros(0), np.zeros((0, window), np.int64), np.ones((1, 0), bool),
+                    np.zeros(1), 0)
 
 
 def score_increments(log_n: np.ndarray, params: MhtParams, amplitude: np.ndarray | None) -> tuple[np.ndarray, float]:
@@ -148,8 +149,9 @@ def miss_increment(params: MhtParams) -> float:
 
 
 def birth_scores(params: MhtParams, amplitude: np.ndarray | None, n: int) -> np.ndarray:
-    """The scores of ``n`` new tracks: ``birth_score`` plus their detections' amplitude log-ratios."""
-    score = np.full(n, params.birth_score)
+    """The scores of ``n`` new tracks: 0 (a new target as likely as clutter: the SPRT starts from
+    even odds) plus their detections' amplitude log-ratios."""
+    score = np.zeros(n)
     if amplitude is not None and params.amplitude is not None:
         score = score + log_amplitude_ratio(amplitude, params.amplitude)
     return score
@@ -235,29 +237,28 @@ def _extend(hyp_rows: np.ndarray, n_det: int, g_rows: np.ndarray, g_cols: np.nda
     return np.array(out_gain)[order], [out_ways[i] for i in order.tolist()]
 
 
-def hypothesis_values(hyps: np.ndarray, score: np.ndarray, birth_score: float) -> np.ndarray:
-    """Each global hypothesis's value: the sum over its leaves of their score gained since birth
-    (the log-likelihood ratio of its assignments against "every detection clutter or a new
-    track"; a new track counts 0, so a detection goes to a track exactly when that beats a miss,
-    gnn's rule)."""
-    return hyps.astype(float) @ (score - birth_score) if score.size else np.zeros(len(hyps))
-
-
-def select_hypotheses(state: MhtState, n_det: int, g_rows: np.ndarray, g_cols: np.ndarray, gain: np.ndarray,
-                      params: MhtParams) -> tuple[np.ndarray, list[np.ndarray]]:
+def select_hypotheses(state: MhtState, n_det: int, g_rows: np.ndarray, g_cols: np.ndarray, inc: np.ndarray,
+                      miss: float, params: MhtParams) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
     """Step 3: the k best extensions of all the kept hypotheses over the gated pairs (``g_rows``
-    leaf, ``g_cols`` detection, ``gain`` over a miss): each one's parent hypothesis and the
-    indices of the pairs it takes, best first."""
-    values = hypothesis_values(state.hyps, state.score, params.birth_score)
+    leaf, ``g_cols`` detection, score increment ``inc``; ``miss`` a miss's): each one's value,
+    parent hypothesis and the indices of the pairs it takes, best first.
+
+    A hypothesis's value is the log-likelihood ratio of its assignments so far against "every
+    detection clutter": the parent's plus this scan's increment of every track it holds (a
+    miss or its detection). A new track adds nothing (a detection starts one exactly where no
+    track takes it, gnn's rule), and a track deleted later keeps what it added: the value is
+    that of the detections' explanation, so two tracks sharing one target's detections pay a
+    miss at every scan and lose to one track that takes them all."""
     cand_value, cand_parent, cand_pairs = [], [], []
     cache: dict = {}
     for h, row in enumerate(state.hyps):
-        gains, ways = _extend(np.flatnonzero(row), n_det, g_rows, g_cols, gain, state.leaves.confirmed, params, cache)
-        cand_value.extend((values[h] + gains).tolist())
+        held = np.flatnonzero(row)
+        gains, ways = _extend(held, n_det, g_rows, g_cols, inc - miss, state.leaves.confirmed, params, cache)
+        cand_value.extend((state.value[h] + held.size * miss + gains).tolist())
         cand_parent.extend([h] * len(ways))
         cand_pairs.extend(ways)
     keep = np.argsort(-np.array(cand_value), kind="stable")[:params.k]
-    return np.array(cand_parent, np.intp)[keep], [cand_pairs[i] for i in keep.tolist()]
+    return np.array(cand_value)[keep], np.array(cand_parent, np.intp)[keep], [cand_pairs[i] for i in keep.tolist()]
 
 
 class Branches(NamedTuple):
@@ -309,17 +310,17 @@ def manage(params: MhtParams, confirmed: np.ndarray, score: np.ndarray, peak: np
 
 def prune(state: MhtState, alive: np.ndarray, params: MhtParams) -> tuple[MhtState, np.ndarray]:
     """Step 6: N-scan pruning and the cap on leaves per track, after the branches not ``alive``
-    left their hypotheses; then the leaves no hypothesis holds and duplicate hypotheses removed,
-    hypotheses best first. Returns the state and the indices of the leaves kept."""
-    hyps = state.hyps & alive
+    left their hypotheses (given best first) and a hypothesis equal to a better one was
+    dropped; then the leaves no hypothesis holds removed. Returns the state and the indices of
+    the leaves kept."""
+    hyps, value = state.hyps & alive, state.value  # best first
     ids = state.leaves.ids
     if hyps.shape[1] == 0:
-        hyps = hyps[:1]
-    elif hyps.shape[0]:
-        values = hypothesis_values(hyps, state.score, params.birth_score)
-        hyps = hyps[np.argsort(-values, kind="stable")]
+        hyps, value = hyps[:1], value[:1]
+    else:  # a hypothesis equal to a better one (after deletions) is dropped
         _, first = np.unique(np.packbits(hyps, axis=1), axis=0, return_index=True)
-        hyps = hyps[np.sort(first)]
+        first = np.sort(first)
+        hyps, value = hyps[first], value[first]
     keep = alive.copy()
     if hyps.shape[0] and ids.size:
         best = np.flatnonzero(hyps[0])  # N-scan pruning around the best hypothesis's branches
@@ -334,11 +335,12 @@ def prune(state: MhtState, alive: np.ndarray, params: MhtParams) -> tuple[MhtSta
         within = np.empty(order.size, np.int64)
         within[order] = np.arange(order.size) - start
         keep &= within < params.max_branches
-        hyps = hyps[~(hyps & ~keep).any(axis=1)]
+        whole = ~(hyps & ~keep).any(axis=1)
+        hyps, value = hyps[whole], value[whole]
         keep &= hyps.any(axis=0)
     idx = np.flatnonzero(keep)
     return MhtState(state.leaves.take(idx), state.score[idx], state.peak[idx], state.lineage[idx], hyps[:, idx],
-                    state.next_branch), idx
+                    value, state.next_branch), idx
 
 
 # ---------------------------------------------------------------- k best assignments

@@ -379,7 +379,7 @@ def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale
         g_rows, g_cols, nu, _ = gating.pairs
         inc, miss = mht.score_increments(gating.log_likelihood, mp,
                                          None if scan.amplitude is None else scan.amplitude[g_cols])
-    parents, chosen = mht.select_hypotheses(mem, n_det, g_rows, g_cols, inc - miss, mp)
+    value, parents, chosen = mht.select_hypotheses(mem, n_det, g_rows, g_cols, inc, miss, mp)
     br = mht.branches(mem.hyps, parents, chosen, g_rows, g_cols, leaves.size, n_det)
     hit = br.pair >= 0
     pidx = br.pair[hit]
@@ -408,7 +408,8 @@ def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale
     grown = mht.MhtState(_concat(children, new), np.concatenate([score, new_score]),
                          np.concatenate([peak, new_score]),
                          np.concatenate([lineage, np.repeat(serial[n_child:, None], settings.window, axis=1)]),
-                         np.concatenate([br.holds, ~br.used[:, fresh]], axis=1), int(mem.next_branch + serial.size))
+                         np.concatenate([br.holds, ~br.used[:, fresh]], axis=1), value,
+                         int(mem.next_branch + serial.size))
     branch_det = np.concatenate([np.where(hit, g_cols[np.maximum(br.pair, 0)], -1), fresh])  # -1: a miss
     branch_obs = np.full(branch_det.size, -1)  # each branch's row of the observations
     branch_obs[branch_det >= 0] = np.arange(pidx.size + fresh.size)
