@@ -365,12 +365,19 @@ def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale
              ) -> ScanResult:
     """The scan with ``associator = "mht"`` (:mod:`.mht`): the roles run on the branches its memory
     holds (every track's leaves) instead of the tracks; the tracks are the best global
-    hypothesis's, by id."""
+    hypothesis's, by id. The given tracks' ``x``, ``P`` replace those of the best hypothesis's
+    leaves first (a federated tracker's resets; otherwise they are those leaves')."""
     settings, d, m = params.mht, params.dim, scan.dim
     mem = state.memory if state.memory is not None else mht.initial_state(empty_tracks(d), settings.window)
     mp = mht.mht_params(settings, params.pd, params.clutter_density, params.gate[m], m,
                         (params.confirm_hits, params.confirm_window, params.delete_misses))
     leaves, n_det = mem.leaves, scan.z.shape[0]
+    best = np.flatnonzero(mem.hyps[0])
+    best = best[np.argsort(leaves.ids[best], kind="stable")]
+    if np.array_equal(leaves.ids[best], state.tracks.ids):  # the tracks as given (federated resets)
+        x, P = leaves.x.copy(), leaves.P.copy()
+        x[best], P[best] = state.tracks.x, state.tracks.P
+        leaves = leaves._replace(x=x, P=P)
     x, P = predict(leaves, 0.0 if state.t is None else scan.t - state.t, params, q_scale)
     gating = gate_scan(GaussianState(x, P), scan, params)
     g_rows = g_cols = np.zeros(0, np.int64)
