@@ -297,7 +297,9 @@ def manage(params: MhtParams, confirmed: np.ndarray, score: np.ndarray, peak: np
     """Step 5: each branch's confirmation and whether it stays. ``"score"``: confirmed once its
     score reaches the SPRT's upper threshold; a tentative branch deleted at the lower one, a
     confirmed one when its score has fallen that far below its peak (the test restarted at the
-    peak: "a false track since then"). ``"counts"``: gnn's M-of-N (``hits`` within the first
+    peak: "a false track since then") and it has missed ``delete_misses`` scans in a row (the
+    tracker's rule, which for a tracker of every sensor's scans is the fusion centre's: misses
+    over the merged stream). ``"counts"``: gnn's M-of-N (``hits`` within the first
     ``confirm_window`` scans; ``delete_misses`` misses in a row)."""
     if params.management == "counts":
         confirmed = confirmed | (hits >= params.confirm_hits)
@@ -305,7 +307,8 @@ def manage(params: MhtParams, confirmed: np.ndarray, score: np.ndarray, peak: np
                         params.confirm_window - age >= params.confirm_hits - hits)
         return confirmed, live
     confirmed = confirmed | (score >= params.confirm_score)
-    return confirmed, np.where(confirmed, score - peak > params.delete_score, score > params.delete_score)
+    kept = (score - peak > params.delete_score) | (misses < params.delete_misses)
+    return confirmed, np.where(confirmed, kept, score > params.delete_score)
 
 
 def prune(state: MhtState, alive: np.ndarray, params: MhtParams) -> tuple[MhtState, np.ndarray]:
