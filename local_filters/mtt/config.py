@@ -31,7 +31,7 @@ MHT_MANAGEMENTS = ("score", "counts")  # local_filters/mtt/mht.py
 @dataclass(frozen=True)
 class MhtConfig:
     """``[mtt.mht]``: the track-oriented MHT (``associator = "mht"``; the defaults and their
-    derivation: docs/multitarget.md#mht)."""
+    derivation: docs/mht.md)."""
 
     window: int = 3  # N: scans back to the branch N-scan pruning keeps
     k: int = 10  # global hypotheses kept

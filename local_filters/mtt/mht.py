@@ -42,7 +42,7 @@ The picture is the best hypothesis's tracks. With ``window = 1``, ``k = 1`` and 
 is gnn (tests/test_mht.py, to 1e-9). The global hypotheses are extended scan by scan (Cox &
 Hingorani 1996: Murty's k best per hypothesis), so an assignment that leaves the k best at one
 scan cannot come back later: that is what ``k`` bounds. Defaults and their derivation:
-docs/multitarget.md#track-oriented-mht-mtt-associator--mht.
+docs/mht.md.
 """
 
 from __future__ import annotations
