@@ -257,3 +257,25 @@ def test_tracker_with_mht_defaults_follows_gnns_confirmed_tracks(tmp_path: Path,
         assert pa.shape == pb.shape and np.all(d.min(axis=1) < 30) and np.all(d.min(axis=0) < 30), a["t"]
         matched += pa.shape[0]
     assert matched > 50
+
+
+def test_centralized_mht_out_of_sequence_equals_time_sorted(tmp_path: Path) -> None:
+    """Acceptance (d) for mht: ``mtt-centralized`` with ``associator = "mht"`` (defaults) on scans
+    that arrive out of sequence within ``max_lag`` writes the pictures of the time-sorted scans
+    (to 1e-9): the buffer-and-reprocess re-runs the MHT from its memory before the late scan."""
+    from test_mtt_out_of_sequence import replay, scans
+
+    arrived, in_time = scans(seed=3)
+    assert arrived != in_time
+    cfg = dict(max_lag=3.0, picture_delay=2.5, pd=0.95, clutter_density=1e-9, associator="mht")
+    got = replay(tmp_path, "arrived", arrived, "mtt-centralized", **cfg)
+    want = replay(tmp_path, "sorted", in_time, "mtt-centralized", **cfg)
+    assert [p["t"] for p in got] == [p["t"] for p in want]
+    tracks = 0
+    for a, b in zip(got, want):
+        assert [(t["id"], t["status"]) for t in a["tracks"]] == [(t["id"], t["status"]) for t in b["tracks"]]
+        for ta, tb in zip(a["tracks"], b["tracks"]):
+            np.testing.assert_allclose(ta["x"], tb["x"], rtol=0, atol=1e-9)
+            np.testing.assert_allclose(ta["P"], tb["P"], rtol=0, atol=1e-9)
+            tracks += ta["status"] == "confirmed"
+    assert tracks > 100
