@@ -267,7 +267,7 @@ def test_centralized_mht_out_of_sequence_equals_time_sorted(tmp_path: Path) -> N
 
     arrived, in_time = scans(seed=3)
     assert arrived != in_time
-    cfg = dict(max_lag=3.0, picture_delay=2.5, pd=0.95, clutter_density=1e-9, associator="mht")
+    cfg = {"max_lag": 3.0, "picture_delay": 2.5, "pd": 0.95, "clutter_density": 1e-9, "associator": "mht"}
     got = replay(tmp_path, "arrived", arrived, "mtt-centralized", **cfg)
     want = replay(tmp_path, "sorted", in_time, "mtt-centralized", **cfg)
     assert [p["t"] for p in got] == [p["t"] for p in want]
@@ -279,3 +279,29 @@ def test_centralized_mht_out_of_sequence_equals_time_sorted(tmp_path: Path) -> N
             np.testing.assert_allclose(ta["P"], tb["P"], rtol=0, atol=1e-9)
             tracks += ta["status"] == "confirmed"
     assert tracks > 100
+
+
+def test_scans_without_detections_and_with_amplitudes() -> None:
+    """Scans without detections (the tracks miss), detections far from every track (new tracks
+    only) and detections with amplitudes (their log-ratio in the score) go through ``mht``; two
+    targets 500 m apart end as two tracks whose scores differ by about their detections' amplitude
+    log-ratios."""
+    params = track_params(MttConfig(associator="mht"), "s1", 4)
+    state, R = initial_state(4), 100.0 * np.eye(2)
+    amp = [None, None, None, np.array([30.0, 3.0]), np.array([30.0, 3.0]), np.array([30.0, 3.0])]
+    zs = [np.zeros((0, 2)), [[0.0, 0.0], [500.0, 0.0]], np.zeros((0, 2)), [[1.0, 1.0], [501.0, 0.0]],
+          [[3.0, 2.0], [502.0, 0.0]], [[4.0, 2.0], [503.0, 0.0]]]
+    for t, (z, a) in enumerate(zip(zs, amp)):
+        res = tracker_step(state, SensorScan(float(t), "s1", R, np.asarray(z, float).reshape(-1, 2), a, None), params)
+        state = res.state
+        assert res.detected.sum() == len(z) or t < 2
+    tr = state.tracks
+    assert tr.size == 2
+    mem = state.memory
+    best = np.flatnonzero(mem.hyps[0])
+    score = dict(zip(mem.leaves.ids[best].tolist(), mem.score[best].tolist()))
+    near = {int(i): float(x) for i, x in zip(tr.ids, tr.x[:, 0])}
+    strong = min(near, key=lambda i: abs(near[i]))  # the track at x = 0 took the high amplitudes
+    weak = max(near, key=lambda i: abs(near[i]))
+    # amplitude 30 against 3 adds (30 - 3) rho / (1 + rho) per detection, three detections, rho = 20
+    assert score[strong] - score[weak] > 3 * 27 * 20 / 21 - 10

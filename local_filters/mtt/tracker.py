@@ -417,7 +417,9 @@ def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale
                          np.concatenate([lineage, np.repeat(serial[n_child:, None], settings.window, axis=1)]),
                          np.concatenate([br.holds, ~br.used[:, fresh]], axis=1), value,
                          int(mem.next_branch + serial.size))
-    branch_det = np.concatenate([np.where(hit, g_cols[np.maximum(br.pair, 0)], -1), fresh])  # -1: a miss
+    branch_det = np.full(n_child, -1)  # each branch's detection (-1: a miss), then the new tracks'
+    branch_det[hit] = g_cols[pidx]
+    branch_det = np.concatenate([branch_det, fresh])
     branch_obs = np.full(branch_det.size, -1)  # each branch's row of the observations
     branch_obs[branch_det >= 0] = np.arange(pidx.size + fresh.size)
     mem, kept = mht.prune(grown, np.concatenate([live, np.ones(fresh.size, bool)]), mp)
