@@ -59,7 +59,7 @@ def test_own_out_of_sequence_scans_equal_time_sorted_delivery(tmp_path: Path, al
     (``picture_delay`` covers the two periods of lateness)."""
     arrived, in_time = scans(seed=7)
     assert own_scans_out_of_sequence(arrived, "a") >= 5
-    cfg = dict(max_lag=3.0, picture_delay=2.5, pd=0.95, clutter_density=1e-9)
+    cfg = {"max_lag": 3.0, "picture_delay": 2.5, "pd": 0.95, "clutter_density": 1e-9}
     got = replay(tmp_path, "arrived", arrived, algorithm, **cfg)
     assert "0 scans late" in capsys.readouterr().err
     want = replay(tmp_path, "sorted", in_time, algorithm, **cfg)
@@ -95,3 +95,50 @@ def test_counters_say_what_they_count(tmp_path: Path, capsys: pytest.CaptureFixt
     assert "mtt-federated: 0 centre observations late (older than max_lag), not fused\n" in err
     reprocessed = int(err.split("centre observations re-processed")[0].rsplit(": ", 1)[1])
     assert reprocessed > 0
+
+
+@pytest.mark.parametrize("algorithm", ["mtt-federated", "mtt-decentralized"])
+def test_live_local_trackers_fuse_own_out_of_sequence_scans_as_the_replay(tmp_path: Path, algorithm: str) -> None:
+    """The live local services and centre, driven in-process through their own dispatch (the
+    path of a Zenoh sample; resets answered before the next scan), publish the pictures that
+    ``replay`` gives on the scans in that order, and count the re-runs."""
+    from fedtrack.fusion_center.mtt.service import MttCentreService
+    from fedtrack.keys import Keys
+    from fedtrack.local_filters.mtt.config import MttConfig
+    from fedtrack.local_filters.mtt.scan import parse_scan, scan_to_measurement
+    from fedtrack.local_filters.mtt.service import MttLocalService
+    from fedtrack.wire import TrackPicture, TrackReport, TrackResets, encode
+    from fedtrack.zsession import SessionOptions
+
+    arrived, _ = scans(seed=7, duration=25.0)
+    mtt = {"max_lag": 3.0, "picture_delay": 2.5, "pd": 0.95, "clutter_density": 1e-9}
+    keys, opts = Keys("oos"), SessionOptions(connect=("tcp/127.0.0.1:1",))
+    federated = algorithm == "mtt-federated"
+    published: list[object] = []
+    centre = MttCentreService(algorithm, MttConfig(**mtt), 4, service_id="centre", options=opts, deployment="oos")
+    local = {s: MttLocalService(s, federated, MttConfig(**mtt), 5.0, service_id=s, options=opts, deployment="oos")
+             for s in PERIODS}
+    for svc in (centre, *local.values()):
+        svc._subscriptions = svc.subscriptions()
+        svc.publish = lambda key, msg: published.append(msg)  # type: ignore[method-assign]
+    seq = dict.fromkeys(PERIODS, 0)
+    for row in arrived:
+        s = row["sensor"]
+        meas = scan_to_measurement(parse_scan(row, "test"), seq[s], 1)
+        seq[s] += 1
+        local[s]._dispatch(("sample", 0, keys.sensor_meas(s), encode(meas)))
+        report = next(m for m in reversed(published) if isinstance(m, TrackReport))
+        centre._dispatch(("sample", 0, keys.mtt_report(s), encode(report)))
+        if federated:
+            resets = next(m for m in reversed(published) if isinstance(m, TrackResets))
+            local[s]._dispatch(("sample", 1, keys.mtt_resets(s), encode(resets)))
+    centre.on_stop()
+    live = [m for m in published if isinstance(m, TrackPicture) and not m.closing]
+    assert local["a"].counters.get("rerun", 0) >= own_scans_out_of_sequence(arrived, "a")
+    assert local["a"].counters.get("late", 0) == 0 and local["a"].counters.get("rejected", 0) == 0
+    want = replay(tmp_path, "arrived", arrived, algorithm, **mtt)
+    assert [p.t for p in live] == [p["t"] for p in want]
+    for got, w in zip(live, want):
+        assert list(got.ids) == [tr["id"] for tr in w["tracks"]]
+        want_x = np.array([tr["x"] for tr in w["tracks"]]).reshape(-1, 4)
+        np.testing.assert_allclose(np.asarray(got.x).reshape(-1, 4), want_x, rtol=1e-12, atol=1e-9)

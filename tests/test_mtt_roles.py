@@ -37,7 +37,8 @@ def fingerprint(path: Path) -> list:
             x, P = np.array(track["x"]), np.array(track["P"])
             w = np.arange(1.0, x.size + 1.0)
             man = track.get("maneuver")
-            m = 0.0 if man is None else man["onset"] + 2.0 * man["accel"][0] + 3.0 * man["accel"][1] + 4.0 * man["statistic"]
+            m = 0.0 if man is None else (man["onset"] + 2.0 * man["accel"][0] + 3.0 * man["accel"][1]
+                                         + 4.0 * man["statistic"])
             rest = json.dumps([track["status"], track["sensors"], track["model"], man is None])
             rows.append([track["id"], float(x @ w), float(w @ P @ w), m, hashlib.sha1(rest.encode()).hexdigest()[:8]])
         out.append([picture["t"], rows])
@@ -83,3 +84,55 @@ def test_associator_key_selects_gnn_and_refuses_the_ones_to_come(tmp_path: Path)
     path.write_text('[mtt]\nassociator = "pda"\n')
     with pytest.raises(ConfigError, match="associator: must be one of gnn, jipda, mht"):
         load_tables(path, MttSettings)
+
+
+def test_a_soft_associator_with_memory_and_existence_plugs_in() -> None:
+    """An associator that gives every gated pair a share of weight, keeps existence, its own
+    update and track management, and a memory: the tracker carries all of it through a scan."""
+    from fedtrack.local_filters.linear.kalman import GaussianState, update_residual
+    from fedtrack.local_filters.mtt.association import Association, AssociationInput, Associator
+    from fedtrack.local_filters.mtt.config import MttConfig
+    from fedtrack.local_filters.mtt.scan import SensorScan
+    from fedtrack.local_filters.mtt.tracker import (
+        Observation,
+        Updated,
+        initial_state,
+        track_params,
+        tracker_step,
+    )
+
+    def associate(inp: AssociationInput) -> Association:
+        w = np.exp(inp.log_likelihood)
+        w = w / (np.bincount(inp.rows, weights=w, minlength=inp.n_tracks)[inp.rows] + 1e-300)
+        claimed = np.zeros(inp.n_detections, bool)
+        claimed[inp.cols] = True
+        return Association(np.arange(inp.rows.size), w, claimed, np.minimum(inp.existence + 0.1, 1.0),
+                           (inp.memory or 0) + 1)
+
+    def update(tracks, pred, gating, assoc, scan, dt, params, q_scale):  # the weighted mean innovation
+        m, d, n = scan.dim, params.dim, tracks.size
+        if gating is None:  # no tracks or no detections
+            return Updated(tracks._replace(x=pred.x, P=pred.P), np.zeros(n, bool),
+                           Observation(np.zeros((0, m, d)), np.zeros((0, m, m)), np.zeros((0, m))))
+        g = gating.pairs
+        nu = np.zeros((n, m))
+        np.add.at(nu, g.rows[assoc.pairs], assoc.weight[:, None] * g.nu[assoc.pairs])
+        x, P = update_residual(GaussianState(pred.x, pred.P), nu, gating.lin.H, scan.R).state
+        return Updated(tracks._replace(x=x, P=P, existence=assoc.existence), np.ones(n, bool),
+                       Observation(np.zeros((n, m, d)), np.zeros((n, m, m)), np.zeros((n, m))))
+
+    def manage(tracks, detected, params):
+        return tracks._replace(confirmed=tracks.existence > 0.75), np.ones(tracks.size, bool)
+
+    soft = Associator("soft", associate, update, manage)
+    params = track_params(MttConfig(), "s1", 4)._replace(associator=soft, initial_existence=0.5)
+    R = np.eye(2) * 100.0
+    state = initial_state(4)
+    for k in range(4):
+        z = np.array([[100.0 * k, 0.0], [100.0 * k + 5.0, 3.0]])
+        state = tracker_step(state, SensorScan(float(k), "s1", R, z if k else z[:1], None, None), params).state
+    assert state.memory == 3  # associate ran on scans 1, 2, 3
+    assert state.tracks.size == 1  # scan 0 started one track; the others' detections were claimed
+    np.testing.assert_allclose(state.tracks.existence, [0.8])
+    assert state.tracks.confirmed.tolist() == [True]
+    assert 200.0 < state.tracks.x[0, 0] < 305.0

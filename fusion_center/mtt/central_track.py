@@ -23,6 +23,10 @@ from collections.abc import Iterator
 
 import numpy as np
 
+from fedtrack.local_filters.linear.kalman import GaussianState, update
+from fedtrack.local_filters.linear.tracking import rounded_interval
+from fedtrack.local_filters.mtt.models import predict_batch
+from fedtrack.local_filters.vdie.estimation import VdieParams
 from fedtrack.local_filters.vdie.input_bank import (
     InputBank,
     InputDetection,
@@ -30,10 +34,6 @@ from fedtrack.local_filters.vdie.input_bank import (
     new_banks,
     no_detection,
 )
-from fedtrack.local_filters.linear.kalman import GaussianState, update
-from fedtrack.local_filters.linear.tracking import rounded_interval
-from fedtrack.local_filters.mtt.models import predict_batch
-from fedtrack.local_filters.vdie.estimation import VdieParams
 
 # one step's result beside the posterior: the maneuver detector's banks and detection, if any
 DetectorStep = tuple[InputBank, InputDetection] | None
@@ -163,6 +163,10 @@ class CentralTracks:
     def _pos(self, slots: np.ndarray, j: np.ndarray) -> np.ndarray:
         return (self.head[slots] + j) % self.depth
 
+    def newest_t(self, slots: np.ndarray) -> np.ndarray:
+        """The time of each slot's newest observation."""
+        return self.t[slots, self._pos(slots, self.count[slots] - 1)]
+
     def latest(self, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Time, state and covariance after each slot's newest observation."""
         p = self._pos(slots, self.count[slots] - 1)
@@ -252,7 +256,7 @@ class CentralTracks:
             self.count[full] -= 1
         n = slots.shape[0]
         x_out, P_out = np.zeros((n, self.dim)), np.zeros((n, self.dim, self.dim))
-        t_new = self.latest(slots)[0]
+        t_new = self.newest_t(slots)
         oldest = self.t[slots, self.head[slots]]
         ok = (t >= oldest) & (t >= t_new - self.max_lag)
         ahead = ok & (t >= t_new)

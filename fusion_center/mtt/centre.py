@@ -15,12 +15,13 @@ scan, the linearized observation of every track the scan detected, the tracks it
   failed the test at its start (one detection, no velocity) joins the others' central track once
   it passes; its own central track, left without a local track, is deleted.
 * **Fusion.** The centre fuses each local observation (``H, R, z``) into its central track at
-  the observation's time, predicting the central track there; out-of-sequence observations
-  up to ``max_lag`` old are fused exactly (:mod:`.central_track`; each observation fused again
-  is counted ``reprocessed``), older ones are counted as late, and those older than their
-  central track's start (another sensor's scan of the target, delivered after the track was
-  started) as ``before_start``; neither is fused. Because it fuses what each detection added and never a local estimate, there is no
-  double counting: the result equals a centralized filter of the same detections.
+  the observation's time, predicting the central track there; out-of-sequence observations up
+  to ``max_lag`` old are fused exactly (:mod:`.central_track`; each observation fused again is
+  counted ``reprocessed``), older ones are counted as late, and those older than their central
+  track's start (another sensor's scan of the target, delivered after the track was started) as
+  ``before_start``; neither is fused. Because it fuses what each detection added and never a
+  local estimate, there is no double counting: the result equals a centralized filter of the
+  same detections.
 * **Federated** (``feedback``): after fusing, the centre resets the local track to the
   central estimate with ``P_i = beta_i P`` (``beta_i`` = the number of live sensors, so the
   shares sum to one and renormalize when sensors join or leave); the local tracker then
@@ -316,12 +317,13 @@ class TrackToTrackCentre:
         reprocessed = self.tracks.reprocessed
         while pending.size:
             now = pending[np.sort(np.unique(slots[pending], return_index=True)[1])]
-            too_old = t < self.tracks.latest(slots[now])[0] - self.cfg.max_lag
+            newest = self.tracks.newest_t(slots[now])  # before the fusion
             done, x_now, P_now = self.tracks.fuse(slots[now], t, H_all[now], report.obs_R[now], report.obs_z[now])
             ok[now], X[now], P[now] = done, x_now, P_now
             self.counters.fused += int(done.sum())
-            self.counters.late += int(np.count_nonzero(~done & too_old))
-            self.counters.before_start += int(np.count_nonzero(~done & ~too_old))
+            late = int(np.count_nonzero(t < newest[~done] - self.cfg.max_lag))
+            self.counters.late += late
+            self.counters.before_start += int(done.size - done.sum()) - late
             pending = pending[~np.isin(pending, now, assume_unique=True)] if now.size < pending.size else now[:0]
         self.counters.reprocessed += self.tracks.reprocessed - reprocessed
         return ok, X, P

@@ -2,18 +2,18 @@
 
 * ``mtt-local``: one sensor's :func:`tracker_step` alone.
 * ``mtt-centralized``: one tracker of every sensor's detections (measurement-level fusion,
-  the optimum the others are measured against). Out-of-sequence scans up to ``max_lag`` old
-  are fused exactly by rolling the tracker back to its state before the scan and
-  re-running the later scans in time order (association included); older ones are late.
-* ``mtt-federated`` / ``mtt-decentralized``: one local tracker per sensor (its scans in
-  order) and the :class:`TrackToTrackCentre` (with or without reset feedback).
+  the optimum the others are measured against), with the fusion centre's policy
+  (:func:`central_params`).
+* ``mtt-federated`` / ``mtt-decentralized``: one local tracker per sensor
+  (:class:`SensorTracker`) and the :class:`TrackToTrackCentre` (with or without reset feedback).
 
-``picture(T)`` is every track predicted to ``T`` from the data up to ``T``.
-"""
+Every tracker of scans fuses out-of-sequence scans up to ``max_lag`` old exactly by rolling back
+to its state before the scan and re-running the later scans in time order (association
+included; :class:`ScanHistory`); older ones are late, repeated ones duplicates.
+``picture(T)`` is every track predicted to ``T`` from the data up to ``T``."""
 
 from __future__ import annotations
 
-import bisect
 import dataclasses
 import time
 from dataclasses import dataclass, field

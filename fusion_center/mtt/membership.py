@@ -52,7 +52,7 @@ def _shared(centre: TrackToTrackCentre, key: LocalKey) -> bool:
 def _lost(engine: TrackToTrackEngine, support: dict[int, set[LocalKey]]) -> list[int]:
     centre = engine.centre
     assert centre is not None
-    held = {(s, int(i)) for s, tr in engine.local.items() for i in tr.state.tracks.ids.tolist()}
+    held = {(s, int(i)) for s, tr in engine.local.items() for i in tr.tracker.state.tracks.ids.tolist()}
     return sorted(cid for cid, keys in support.items()
                   if cid not in centre.tracks and any(k in held and centre.mapping.get(k) not in centre.tracks
                                                       for k in keys))
@@ -90,7 +90,7 @@ def membership(scans: list[SensorScan | SensorLeft], cfg: MttConfig, dim: int, f
         if s in joiners and s in engine.local:
             done[s] = done.get(s, 0) + 1
             first_t.setdefault(s, item.t)
-            tracks = engine.local[s].state.tracks
+            tracks = engine.local[s].tracker.state.tracks
             for lid, conf in zip(tracks.ids.tolist(), tracks.confirmed.tolist()):
                 key = (s, int(lid))
                 first_seen.setdefault(key, done[s])

@@ -99,7 +99,7 @@ def _picture(engine: Engine, T: float) -> tuple[float, PictureTracks]:
 
 def counter_lines(counts: dict[str, int]) -> list[str]:
     """What the engine's counters count, one line each (the centre's only for a centre)."""
-    lines = [f"{counts['scans']} scans fused",
+    lines: list[str] = [f"{counts['scans']} scans fused",
              f"{counts['late']} scans late (older than max_lag before their tracker's newest), not fused",
              f"{counts['duplicates']} duplicate scans (equal to one fused before), not fused",
              f"{counts['rerun']} scans run again after an out-of-sequence scan before them"]
@@ -107,8 +107,8 @@ def counter_lines(counts: dict[str, int]) -> list[str]:
         lines += [f"{counts['centre_fused']} centre observations fused",
                   f"{counts['centre_reprocessed']} centre observations re-processed (fused again after an older one)",
                   f"{counts['centre_late']} centre observations late (older than max_lag), not fused",
-                  f"{counts['centre_before_start']} centre observations older than their central track's start, "
-                  "not fused"]
+                  (f"{counts['centre_before_start']} centre observations older than their central track's "
+                   "start, not fused")]
     return lines
 
 

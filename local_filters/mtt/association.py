@@ -19,19 +19,21 @@ come from the :class:`Associator`; the others are shared.
   existence probabilities (None: the associator does not keep existence), and the memory it
   wants back at the next scan (``mht``'s hypotheses; kept in the track order of ``rows``: the
   tracker does not reorder it, so an associator with memory keeps it by track id).
-* ``update`` (optional; None: the tracker's Joseph-form update of each track by its one pair,
-  the hard case). A soft associator gives its mixture update (the PDA combination with the
-  spread-of-means term, ``local_filters/pda``): ``update(x, P, lin, scan, gated, association)
-  -> (x, P, detected, observations)`` with ``detected`` (N,) the tracks to report as detected
-  and their linearized observations ``(H, R, z)`` for a fusion centre, in track order.
+* ``update`` (optional; None: :func:`~.tracker.hard_update`, the EKF update in Joseph form of
+  each track by its one pair, the hard case). A soft associator gives its mixture update (the
+  PDA combination with the spread-of-means term; ``local_filters/pda`` holds the single-target
+  form): ``update(tracks, pred, gating, association, scan, dt, params, q_scale) ->
+  tracker.Updated`` (the tracks with their posterior ``x``, ``P`` and existence, which tracks
+  to report as detected, and their linearized observations ``(H, R, z)`` for a fusion centre,
+  in track order). ``gating`` is None when the scan or the track set is empty.
 * ``step`` (optional; None: the chain above): an associator that predicts, gates and updates
   its own branches rather than the tracks (``mht``: each track's alternative histories) takes
   the whole scan, ``step(state, scan, params, q_scale) -> ScanResult``; its memory holds the
   branches and the tracker's tracks are its best global hypothesis's.
-* ``manage`` (optional; None: M-of-N confirmation and deletion after ``delete_misses`` misses):
-  ``manage(tracks, detected, association, params) -> (tracks, live)``, the tracks with their
-  counts (and existence) after the scan and which stay; ``jipda`` confirms and deletes by
-  existence thresholds.
+* ``manage`` (optional; None: :func:`~.tracker.m_of_n`, M-of-N confirmation and deletion after
+  ``delete_misses`` misses): ``manage(tracks, detected, params) -> (tracks, live)``, the tracks
+  with their counts after the scan and which stay; ``jipda`` confirms and deletes by existence
+  thresholds (``tracks.existence``). A new track's existence is ``params.initial_existence``.
 
 Everything is batched over the tracks (N), the detections (M) and the gated pairs (K); an
 associator never sees a track or detection outside the gated pairs except through these arrays.

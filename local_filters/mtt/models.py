@@ -52,17 +52,28 @@ def motion(dim: int, dt: float, q: float, noise_model: str = "continuous") -> Mo
 
 def predict_batch(x: np.ndarray, P: np.ndarray, dt: float | np.ndarray, q: float, noise_model: str = "continuous",
                   q_scale: float | np.ndarray = 1.0) -> tuple[np.ndarray, np.ndarray]:
-    """Predict each of a batch (N, D) over ``dt`` (a float, or (N,): each its own interval; rounded
-    by :func:`rounded_interval`) with the CV model of :func:`motion`, ``Q`` scaled by ``q_scale``
-    (federated ``beta_i``). ``F = I + dt E`` (``E`` moves each velocity into its position), so
-    ``F P F'`` is two row and column operations instead of two stacked matrix products."""
-    dt = np.broadcast_to(np.asarray(rounded_interval(dt), dtype=float), x.shape[:1])
-    scale = np.broadcast_to(np.asarray(q_scale, dtype=float), x.shape[:1])
+    """Predict each of a batch ``x`` (N, D), ``P`` (N, D, D) over ``dt`` with the CV model of
+    :func:`motion` (``dt`` rounded by :func:`rounded_interval`), ``Q`` scaled by ``q_scale``
+    (federated ``beta_i``, a float or (N,)).
+
+    One interval (a float, a tracker's scan): ``F P F'`` with the cached ``F``, two BLAS
+    products over the stack. Each its own (``dt`` (N,), central tracks at their own times):
+    ``F = I + dt E`` (``E`` moves each velocity into its position), so ``F P F'`` is two row and
+    column operations instead of building and multiplying a stack of ``F`` (at 1,000 tracks the
+    products cost half the row operations, which cost less than a stack of ``F``)."""
+    scale = np.asarray(q_scale, dtype=float)
+    if np.ndim(dt) == 0:
+        m = motion(x.shape[1], rounded_interval(float(dt)), q, noise_model)
+        xp = x @ m.F.T
+        Pp = m.F @ P @ m.F.T + scale[..., None, None] * m.Q
+        return xp, 0.5 * (Pp + np.swapaxes(Pp, -1, -2))
+    dt = rounded_interval(np.asarray(dt, dtype=float))
     if noise_model == "continuous":
         q11, q12, q22 = q * dt**3 / 3.0, q * dt**2 / 2.0, q * dt
     else:
         q11, q12, q22 = q * dt**4 / 4.0, q * dt**3 / 2.0, q * dt**2
-    q11, q12, q22 = scale * q11, scale * q12, scale * q22
+    if scale.ndim or scale != 1.0:
+        q11, q12, q22 = scale * q11, scale * q12, scale * q22
     dim = x.shape[1]
     pos, vel = slice(0, dim, 2), slice(1, dim, 2)
     xp = x.copy()

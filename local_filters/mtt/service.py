@@ -45,6 +45,7 @@ from fedtrack.services.base import (
 from fedtrack.wire import Measurement, TrackResets
 from fedtrack.zsession import id_arg
 
+
 class MttLocalService(Service):
     """The local multi-target tracker of one sensor."""
 

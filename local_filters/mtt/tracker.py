@@ -342,6 +342,9 @@ def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
         raise ValueError(f"scan at t = {scan.t} is before the tracker's time {state.t}")
     if params.associator.step is not None:
         return params.associator.step(state, scan, params, q_scale)
+    if params.initial_existence is not None and tracks.existence is None:  # an empty set keeping existence
+        tracks = tracks._replace(existence=np.zeros(tracks.size))
+        state = state._replace(tracks=tracks)
     dt = 0.0 if state.t is None else scan.t - state.t
     pred = predict(tracks, dt, params, q_scale)
     gating = gate_scan(pred, scan, params)
