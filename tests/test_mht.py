@@ -244,7 +244,7 @@ def test_tracker_with_mht_window_one_k_one_counts_equals_gnn(tmp_path: Path, sce
 
 @pytest.mark.parametrize("algorithm", ["mtt-local", "mtt-centralized"])
 def test_tracker_with_mht_defaults_follows_gnns_confirmed_tracks(tmp_path: Path, algorithm: str) -> None:
-    """``associator = "mht"`` with its defaults (window 3, k 10, SPRT) runs in the tracker: in the
+    """``associator = "mht"`` with its defaults (window 3, k 3, SPRT) runs in the tracker: in the
     second half of the position scenario (few false detections), every confirmed gnn track has a
     confirmed mht track within 30 m and the other way round."""
     gnn = replay_pictures(tmp_path, "pos", algorithm, "")

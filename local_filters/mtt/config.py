@@ -34,8 +34,8 @@ class MhtConfig:
     derivation: docs/mht.md)."""
 
     window: int = 3  # N: scans back to the branch N-scan pruning keeps
-    k: int = 10  # global hypotheses kept
-    max_branches: int = 10  # leaves kept per track
+    k: int = 3  # global hypotheses kept
+    max_branches: int = 3  # leaves kept per track
     management: str = "score"  # "score": the SPRT; "counts": gnn's M-of-N rules and likelihoods
     false_track: float = 1e-4  # alpha: probability of confirming a track started on clutter
     miss: float = 1e-2  # beta: probability of deleting a track on a real target
