@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from fedtrack.benchmarks.soak import median, rss_mb
+from fedtrack.jsonl import check_output, output_file
 from fedtrack.keys import Keys
 from fedtrack.sensors.sonar import ScenarioConfig, SonarConfig, sonar_scans
 from fedtrack.wire import FusedTrack, Health, decode, encode, measurement_from_replay
@@ -141,15 +142,17 @@ def run(minutes: float, clutter: float, rate: float, algorithm: str, seed: int) 
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="fedtrack bench hpda-soak", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--minutes", type=float, default=10.0, help="(default: %(default)s)")
+    parser.add_argument("--minutes", type=float, default=10.0, help="length of the soak (default: %(default)s)")
     parser.add_argument("--clutter", type=float, default=1.5e-4, help="clutter density per m^2 (default: %(default)s)")
     parser.add_argument("--rate", type=float, default=4.0, help="scans per second (default: %(default)s)")
-    parser.add_argument("--algorithm", default="hpda", choices=("hpda", "pda-ai"), help="(default: %(default)s)")
-    parser.add_argument("--seed", type=int, default=1, help="(default: %(default)s)")
+    parser.add_argument("--algorithm", default="hpda", choices=("hpda", "pda-ai"), help="the tracker (default: %(default)s)")
+    parser.add_argument("--seed", type=int, default=1, help="seed of the scenario (default: %(default)s)")
     parser.add_argument("--json", type=Path, help="write the result here")
     args = parser.parse_args(argv)
     if args.minutes < 1.0 or args.rate <= 0.0 or args.clutter <= 0.0:
         parser.error("--minutes must be >= 1, --rate and --clutter > 0")
+    if args.json:
+        check_output(args.json)
     result = run(args.minutes, args.clutter, args.rate, args.algorithm, args.seed)
     for m, row in enumerate(result["per_minute"]):
         print(f"minute {m + 1}: {row['scans']} scans, {row['scans_with_track']} with a track, "
@@ -159,6 +162,6 @@ def main(argv: list[str]) -> int:
     print("last / first minute:", {k: (round(v, 3) if v is not None else None)
                                    for k, v in result["last_over_first_minute"].items()})
     if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result, indent=1))
+        with output_file(args.json) as fh:
+            fh.write(json.dumps(result, indent=1))
     return 0 if result["tracker_exit_code"] == 0 else 1

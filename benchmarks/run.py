@@ -43,6 +43,7 @@ from fedtrack.benchmarks.floor import measure_floor
 from fedtrack.benchmarks.kf_micro import bench_kf
 from fedtrack.deploy.demo import demo_settings, free_port, write_config
 from fedtrack.deploy.launcher import Launcher, service_plan
+from fedtrack.jsonl import check_output, output_file
 from fedtrack.progress import progress_bar
 
 REALTIME_SPEED = 10.0  # scenario T = 1 s -> 10 scans/s
@@ -214,11 +215,12 @@ def main(argv: list[str]) -> int:
                         help=f"smoke test: {QUICK_SCANS} scans per deployment (the first {QUICK_SCANS // 4} "
                              f"counted as start-up), {QUICK_KF_RUNS} KF runs")
     parser.add_argument("--repeats", type=int, default=1, help="deployments per count and pacing (default 1)")
-    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--seed", type=int, default=1, help="seed of the simulated sensors (default: %(default)s)")
     parser.add_argument("--json", type=Path, default=Path("bench.json"), help="output JSON (default bench.json)")
     args = parser.parse_args(argv)
     if args.repeats < 1:
         parser.error("--repeats must be >= 1")
+    check_output(args.json)
     counts = sorted(args.sensors)
     max_scans = QUICK_SCANS if args.quick else None
     startup_scans = QUICK_SCANS // 4 if args.quick else int(STARTUP_S * REALTIME_SPEED)
@@ -249,11 +251,7 @@ def main(argv: list[str]) -> int:
         "wall_time_s": time.monotonic() - start,
     }
     print_table(table, kf, counts, startup_scans)
-    try:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result, indent=2))
-    except OSError as exc:
-        print(f"fedtrack bench: cannot write {args.json}: {exc}", file=sys.stderr)
-        return 2
+    with output_file(args.json) as fh:
+        fh.write(json.dumps(result, indent=2))
     print(f"\nwrote {args.json} ({result['wall_time_s']:.0f} s)")
     return 1 if any("error" in r for r in runs) else 0

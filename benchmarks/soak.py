@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from fedtrack.deploy.procstat import process_usage
+from fedtrack.jsonl import check_output, output_file, output_folder
 from fedtrack.services.base import CACHE_SAMPLES
 
 SAMPLE_S = 5.0
@@ -124,14 +125,15 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
     if not args.minutes > 0 or not 1 <= args.sensors <= 32:
         parser.error("--minutes must be > 0 and --sensors between 1 and 32")
-    if not args.json.parent.is_dir():
-        parser.error(f"{args.json}: the folder {args.json.parent} does not exist")
+    check_output(args.json)
+    if args.out is not None:
+        output_folder(args.out)
     with tempfile.TemporaryDirectory() as tmp:
         out = args.out or Path(tmp)
-        out.mkdir(parents=True, exist_ok=True)
         print(f"fedtrack bench soak: {args.sensors} sensors, {args.minutes:g} min at the lockstep rate", file=sys.stderr)
         result = run_soak(args.minutes, args.sensors, out)
-    args.json.write_text(json.dumps(result, indent=2))
+    with output_file(args.json) as fh:
+        fh.write(json.dumps(result, indent=2))
     print(json.dumps({k: v for k, v in result.items() if k != "processes"}, indent=1))
     for who, p in result["processes"].items():
         after = p["growth_after_caches_full_pct"]

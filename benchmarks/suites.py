@@ -36,7 +36,7 @@ import time
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from fedtrack.jsonl import InputError
+from fedtrack.jsonl import check_output, output_file
 
 SUITES = ("kernels", "montecarlo", "multitarget", "pipeline", "soak", "hpda-soak", "all")
 RATIO_KEYS = ("kf_vs_filterpy", "kf_vs_stonesoup", "ekf_vs_filterpy", "ekf_vs_stonesoup", "imm13_vs_filterpy",
@@ -288,8 +288,7 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv[1:])
     args.suite = suite
     rest: list[str] = []
-    if not args.json.parent.is_dir():
-        raise InputError(f"{args.json}: the folder {args.json.parent} does not exist")
+    check_output(args.json)
     result: dict[str, Any] = {"suite": args.suite, "quick": args.quick, "ratios": dict.fromkeys(RATIO_KEYS),
                               "not_measured": []}
     if args.suite in ("kernels", "all"):
@@ -321,7 +320,8 @@ def main(argv: list[str]) -> int:
                                   "max_rss_mb": row["max_rss_mb"]}
                               for n, row in result["pipeline_bench"].get("summary", {}).items()}
     result["not_measured"] = sorted(k for k, v in result["ratios"].items() if v is None)
-    args.json.write_text(json.dumps(result, indent=2))
+    with output_file(args.json) as fh:
+        fh.write(json.dumps(result, indent=2))
     print(json.dumps({k: v for k, v in result.items() if k not in ("kernels", "pipeline_bench")}, indent=1))
     print(f"wrote {args.json}")
     return 0

@@ -32,6 +32,7 @@ from fedtrack.deploy.multitarget import finish_multitarget
 from fedtrack.deploy.report import finish
 from fedtrack.deploy.settings import MultitargetSettings, Settings
 from fedtrack.deployment import MODES, DeploymentConfig, SensorConfig
+from fedtrack.jsonl import output_folder
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.sensors.multitarget import Scenario, clutter_density, parse_spec
@@ -89,18 +90,19 @@ def write_config(settings: Settings, path: Path) -> None:
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="fedtrack demo", description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("fedtrack-out"), help="output directory")
+    parser.add_argument("--out", type=Path, default=Path("fedtrack-out"),
+                        help="output folder (created if missing; its own folder must exist; default: %(default)s)")
     parser.add_argument("--sensors", type=int, default=2, help="number of sensors (default 2)")
     parser.add_argument("--scenario", choices=("1", "2", "multitarget"), default="1",
                         help="paper 004 scenario 1 or 2, or the live multi-target deployment (default 1)")
-    parser.add_argument("--mode", choices=MODES, default="federated")
-    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--mode", choices=MODES, default="federated",
+                        help="federated (FVDIE, reset feedback) or decentralized (DVDIE; default: %(default)s)")
+    parser.add_argument("--seed", type=int, default=1, help="seed of truth and noise (default: %(default)s)")
     parser.add_argument("--port", type=int, help="router port on 127.0.0.1 (default: a free one)")
     args = parser.parse_args(argv)
     if not 1 <= args.sensors <= 32:
         parser.error("--sensors must be between 1 and 32")
-    out = args.out.resolve()
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_folder(args.out).resolve()
     port = args.port or free_port()
     if args.scenario == "multitarget":
         settings = multitarget_settings(args.mode, args.seed, port, out)

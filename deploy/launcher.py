@@ -45,6 +45,7 @@ from fedtrack.deploy.report import LaunchReport, finish
 from fedtrack.deploy.security import LAUNCHER, identity, write_configs
 from fedtrack.deploy.settings import Settings, check_launchable, load_settings
 from fedtrack.deployment import listen_address, port_in_use
+from fedtrack.jsonl import output_folder
 from fedtrack.keys import Keys
 from fedtrack.wire import FusedTrack, Health, Measurement, TrackPicture, WireError, decode
 from fedtrack.zsession import SessionOptions, close_session, open_session, wait_alive
@@ -528,7 +529,8 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
     settings = load_settings(args.config)
     check_launchable(settings, args.config)
-    out = args.out or Path(settings.deployment.out)
+    # --out follows every command's output rule; [deployment] out (fedtrack-out/<name>) is made as it is
+    out = output_folder(args.out) if args.out else Path(settings.deployment.out)
     code = None
     try:
         report = run_deployment(settings, args.config.resolve(), out)

@@ -174,7 +174,7 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Se
         mt = settings.multitarget
         events = {} if mt is None else {**{f"{sid} joins": t for sid, t in mt.join_at.items()},
                                         **{f"{sid} killed": t for sid, t in mt.kill_at.items()}}
-        plot(result, tracks, truth, png, events)
+        plot(result, tracks, truth, png, events, label=None if mt is None else f"live {mt.algorithm}")
         summary.update({k: v for k, v in result.items() if k != "series"})
     latencies = report.picture_latencies_ms(delay)
     if latencies:

@@ -42,6 +42,7 @@ from fedtrack.local_filters.radar.filters import (
 )
 from fedtrack.local_filters.radar.ts_fuzzy import GAParams, TSModel, identify, load_model, save_model
 from fedtrack.local_filters.radar.ts_fuzzy_ekf import TAU_S, error_components, ts_init, ts_step
+from fedtrack.jsonl import check_output
 from fedtrack.progress import progress_bar
 from fedtrack.sensors.radar import RadarConfig, simulate
 
@@ -89,17 +90,18 @@ def main(argv: list[str]) -> int:
     """``fedtrack train ts-fuzzy --runs N --seed S --out MODEL.npz [GA options]``."""
     ap = argparse.ArgumentParser(prog="fedtrack train ts-fuzzy", description="train the TS-fuzzy error model of paper 003: simulate radar runs, identify by GA + RLS")
     ap.add_argument("--runs", type=int, default=20, help="simulated training runs (default 20)")
-    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--seed", type=int, default=1, help="seed of the training runs and the GA (default: %(default)s)")
     ap.add_argument("--out", required=True, help="output model file (.npz)")
-    ap.add_argument("--population", type=int, default=GAParams.population)
-    ap.add_argument("--generations", type=int, default=GAParams.generations)
-    ap.add_argument("--max-rules", type=int, default=GAParams.max_rules)
+    ap.add_argument("--population", type=int, default=GAParams.population,
+                    help="GA population size (default: %(default)s)")
+    ap.add_argument("--generations", type=int, default=GAParams.generations,
+                    help="GA generations (default: %(default)s)")
+    ap.add_argument("--max-rules", type=int, default=GAParams.max_rules,
+                    help="largest number of fuzzy rules the GA may choose (default: %(default)s)")
     args = ap.parse_args(argv)
     if args.runs < 1:
         ap.error("--runs must be >= 1")
-    out = Path(args.out)
-    if not out.parent.is_dir():
-        raise ConfigError(f"--out: directory {out.parent} does not exist")
+    out = check_output(args.out)
     ga = GAParams(population=args.population, generations=args.generations, max_rules=args.max_rules)
     ga.validate()
     model, summary = train(args.runs, args.seed, ga)

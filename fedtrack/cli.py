@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from fedtrack.config import ConfigError
-from fedtrack.jsonl import InputError
+from fedtrack.jsonl import InputError, check_output, output_folder
 
 # name -> "module:function(runs, seed, json_path, plots_dir) -> dict"
 REPRODUCERS: dict[str, str] = {
@@ -102,6 +102,9 @@ def resolve(target: str) -> Callable[..., Any]:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
+    check_output(args.json)  # before minutes of Monte Carlo
+    if args.plots:
+        output_folder(args.plots)
     fn = resolve(REPRODUCERS[args.name])
     extra = {"model": Path(args.model)} if args.model else {}
     result = fn(runs=args.runs, seed=args.seed, json_path=Path(args.json),
@@ -128,7 +131,16 @@ def _config_arg(argv: list[str]) -> str | None:
     return None
 
 
+def replay_unit(algorithm: str) -> str:
+    """What one line of ``algorithm``'s replay output is: multi-target pictures, the sonar trackers'
+    track lines, every other algorithm's estimates."""
+    if algorithm.startswith("mtt-"):
+        return "pictures"
+    return "track lines" if algorithm in REPLAY_OPTIONS["status"] else "estimates"
+
+
 def _cmd_replay(args: argparse.Namespace) -> int:
+    check_output(args.out)
     check_config(args.config)
     fn = resolve(REPLAY_ALGORITHMS[args.algorithm])
     options = {k: v for k, v in (("period", args.period), ("sensor", args.sensor), ("status", args.status))
@@ -138,7 +150,7 @@ def _cmd_replay(args: argparse.Namespace) -> int:
             raise ConfigError(f"--{key} applies to {', '.join(REPLAY_OPTIONS[key])} only")
     n = fn(algorithm=args.algorithm, measurements=Path(args.measurements),
            config=Path(args.config) if args.config else None, out=Path(args.out), **options)
-    print(f"wrote {n} estimates to {args.out}")
+    print(f"wrote {n} {replay_unit(args.algorithm)} to {args.out}")
     return 0
 
 
@@ -190,24 +202,33 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     rep = sub.add_parser("reproduce", help="seeded Monte Carlo reproduction of a paper")
-    rep.add_argument("name", choices=sorted(REPRODUCERS))
+    rep.add_argument("name", choices=sorted(REPRODUCERS), metavar="NAME",
+                     help=f"the paper's experiment: {', '.join(sorted(REPRODUCERS))}")
     rep.add_argument("--runs", type=int, default=500, help="Monte Carlo runs (default: %(default)s)")
     rep.add_argument("--seed", type=int, default=1, help="random seed (default: %(default)s)")
-    rep.add_argument("--json", required=True, help="output JSON path")
-    rep.add_argument("--plots", help="directory for PNG figures")
+    rep.add_argument("--json", required=True, metavar="PATH", help="output JSON file (its folder must exist)")
+    rep.add_argument("--plots", metavar="DIR", help="folder for PNG figures (created if missing; its own folder "
+                     "must exist; default: no figures)")
     rep.add_argument("--model", metavar="PATH", help="ts-fuzzy only: a trained model (fedtrack train ts-fuzzy --out "
                      "PATH) instead of training one, which takes minutes")
     rep.set_defaults(func=_cmd_reproduce)
 
-    rpl = sub.add_parser("replay", help="run an estimator over recorded measurements (JSON Lines)")
-    rpl.add_argument("--algorithm", required=True, choices=sorted(REPLAY_ALGORITHMS))
-    rpl.add_argument("--measurements", required=True)
-    rpl.add_argument("--config", help="TOML configuration")
-    rpl.add_argument("--out", required=True)
-    rpl.add_argument("--period", type=float, help="mtt-*: seconds between track pictures (default [mtt] period)")
-    rpl.add_argument("--sensor", help="mtt-local: the sensor whose tracker runs")
+    rpl = sub.add_parser("replay", help="run an estimator over recorded measurements (JSON Lines)",
+                         description="run an estimator over recorded measurements (JSON Lines in, JSON Lines out)")
+    rpl.add_argument("--algorithm", required=True, choices=sorted(REPLAY_ALGORITHMS), metavar="NAME",
+                     help=f"the estimator: {', '.join(REPLAY_ALGORITHMS)}")
+    rpl.add_argument("--measurements", required=True, metavar="PATH",
+                     help="measurements, one JSON object a line (formats: README, docs/)")
+    rpl.add_argument("--config", metavar="TOML", help="configuration file (default: every table's defaults)")
+    rpl.add_argument("--out", required=True, metavar="PATH",
+                     help="output JSON Lines: estimates, track lines (pda-ai, hpda) or pictures (mtt-*); written "
+                          "whole or not at all; its folder must exist")
+    rpl.add_argument("--period", type=float, metavar="S",
+                     help="mtt-*: seconds between track pictures (default: [mtt] period, 1.0)")
+    rpl.add_argument("--sensor", metavar="ID", help="mtt-local (required there): the sensor whose tracker runs, "
+                     "e.g. s1 or r3 as simulate multitarget names them")
     rpl.add_argument("--status", choices=("all", "confirmed"),
-                     help="pda-ai, hpda: write every track (default) or the confirmed ones only")
+                     help="pda-ai, hpda: write every track or the confirmed ones only (default: all)")
     rpl.set_defaults(func=_cmd_replay)
 
     _registry_parser(sub, "serve", "run one service process", "role", SERVICES, "role")
@@ -224,41 +245,62 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _dispatch(parser: argparse.ArgumentParser, args: argparse.Namespace, rest: list[str]) -> int:
+    """Run the sub-command ``args`` names with the rest of the command line."""
+    if args.func is not None:
+        if rest:
+            parser.error(f"unrecognized arguments: {' '.join(rest)}")
+        if getattr(args, "model", None) and args.name != "ts-fuzzy":
+            parser.error("--model applies to reproduce ts-fuzzy only")
+        return int(args.func(args) or 0)
+    if args.key is None:
+        return int(resolve(args.registry[args.command])(rest) or 0)
+    choice = getattr(args, args.key)
+    if choice is None:
+        if args.help:
+            args.parser.print_help()
+            return 0
+        args.parser.error(f"the following arguments are required: {args.key.upper()}")
+    if args.help:
+        rest = [*rest, "--help"]
+    elif args.command == "serve":
+        check_config(_config_arg(rest))
+    return int(resolve(args.registry[choice])(rest) or 0)
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
     args, rest = parser.parse_known_args(argv)
     try:
-        if args.func is not None:
-            if rest:
-                parser.error(f"unrecognized arguments: {' '.join(rest)}")
-            if getattr(args, "model", None) and args.name != "ts-fuzzy":
-                parser.error("--model applies to reproduce ts-fuzzy only")
-            return int(args.func(args) or 0)
-        if args.key is None:
-            return int(resolve(args.registry[args.command])(rest) or 0)
-        choice = getattr(args, args.key)
-        if choice is None:
-            if args.help:
-                args.parser.print_help()
-                return 0
-            args.parser.error(f"the following arguments are required: {args.key.upper()}")
-        if args.help:
-            rest = [*rest, "--help"]
-        elif args.command == "serve":
-            check_config(_config_arg(rest))
-        return int(resolve(args.registry[choice])(rest) or 0)
+        code = _dispatch(parser, args, rest)
+        sys.stdout.flush()  # here, so that a closed pipe is noticed below rather than at exit
+        return code
     except (ConfigError, InputError) as exc:
         print(f"fedtrack: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        return _closed_pipe()
     except OSError as exc:
         if exc.filename is None:
             raise
-        # a file that cannot be opened, read or written (a missing output folder included)
+        # a file that cannot be opened, read or written
         print(f"fedtrack: error: {exc.filename}: {exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130
+
+
+def _closed_pipe() -> int:
+    """The reader of standard output went away (``fedtrack evaluate ... | head -2``): end quietly
+    with 141 (128 + SIGPIPE, a shell's status for a command a closed pipe stopped). Standard output
+    is pointed at /dev/null so that the interpreter's final flush does not complain again."""
+    import os
+
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
+    return 141
 
 
 if __name__ == "__main__":

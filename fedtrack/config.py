@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import difflib
 import tomllib
 import types
 import typing
@@ -15,6 +16,13 @@ T = TypeVar("T")
 
 class ConfigError(ValueError):
     """A configuration value is missing, unknown or invalid; the message names the key."""
+
+
+def did_you_mean(name: str, choices: typing.Iterable[str], prefix: str = "") -> str:
+    """``": did you mean PREFIXchoice?"`` for the closest of ``choices`` to a mistyped ``name``
+    (difflib, similarity at least 0.6), else ``""``: the near-miss hint of every unknown key or field."""
+    close = difflib.get_close_matches(name, list(choices), n=1)
+    return f": did you mean {prefix}{close[0]}?" if close else ""
 
 
 def load_toml(path: str | Path) -> dict[str, Any]:
@@ -103,9 +111,9 @@ def parse_dataclass(cls: type[T], table: dict[str, Any], where: str = "") -> T:
     prefix = f"{where}." if where else ""
     unknown = sorted(set(table) - set(fields))
     if unknown:
-        raise ConfigError(
-            f"unknown config key {prefix}{unknown[0]!s} (allowed: {', '.join(sorted(fields))})"
-        )
+        hint = did_you_mean(str(unknown[0]), fields, prefix)
+        raise ConfigError(f"unknown config key {prefix}{unknown[0]!s}"
+                          + (hint or f" (allowed: {', '.join(sorted(fields))})"))
     kwargs = {}
     for name, value in table.items():
         kwargs[name] = _coerce(value, hints[name], f"{prefix}{name}")
@@ -154,7 +162,9 @@ def load_tables(path: str | Path | None, schema: type[T]) -> T:
     unknown = sorted(set(data) - own - set(TABLES))
     with in_file(path):
         if unknown:
-            raise ConfigError(f"unknown config key {unknown[0]} (tables: {', '.join(sorted(set(TABLES) | own))})")
+            tables = set(TABLES) | own
+            raise ConfigError(f"unknown config key {unknown[0]}"
+                              + (did_you_mean(unknown[0], tables) or f" (tables: {', '.join(sorted(tables))})"))
         return parse_dataclass(schema, {k: v for k, v in data.items() if k in own})
 
 

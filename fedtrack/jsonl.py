@@ -1,14 +1,21 @@
-"""JSON Lines I/O with strict validation: every error names the file and line."""
+"""JSON Lines I/O with strict validation: every error names the file and line; and the one way
+every command writes an output file (:func:`output_file`: checked up front, written whole or not
+at all)."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import os
+import secrets
 from pathlib import Path
-from typing import Any, Iterator
+from typing import IO, Any, Iterator
 
 import numpy as np
 import orjson
+
+from fedtrack.config import did_you_mean
 
 
 class InputError(ValueError):
@@ -21,6 +28,58 @@ def check_readable(p: Path) -> None:
         raise InputError(f"{p}: file does not exist")
     if p.is_dir():
         raise InputError(f"{p}: is a directory, not a file")
+
+
+def check_output(path: str | Path) -> Path:
+    """``path`` as an output file, or an InputError naming it: its folder must exist (fedtrack never
+    creates missing folders) and it must not be a folder itself. Every command checks its outputs
+    with this before it starts work, and :func:`output_file` checks again when it writes."""
+    p = Path(path)
+    if p.is_dir():
+        raise InputError(f"{p}: is a folder; name a file to write")
+    folder = p.parent
+    if not folder.is_dir():
+        raise InputError(f"{p}: the folder {folder} does not exist (fedtrack does not create folders; "
+                         "create it first)")
+    return p
+
+
+def output_folder(path: str | Path) -> Path:
+    """``path`` as a folder a command writes several files into (``simulate --out DIR``): created
+    if missing, but its own folder must exist (the rule of :func:`check_output`: fedtrack creates
+    what it is told to write, never the folders above it); an InputError naming it otherwise."""
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise InputError(f"{p}: exists and is not a folder")
+    if not p.is_dir():
+        check_output(p)
+        try:
+            p.mkdir()
+        except OSError as exc:
+            raise InputError(f"{p}: cannot create: {exc.strerror or exc}") from None
+    return p
+
+
+@contextlib.contextmanager
+def output_file(path: str | Path, mode: str = "w") -> Iterator[IO[Any]]:
+    """Write ``path`` whole or not at all: the block writes to a temporary file in the same folder,
+    renamed onto ``path`` when the block ends without an exception and removed when it raises, so
+    an error half-way (a bad input line, Ctrl-C) leaves no half-written output and an existing
+    file untouched. ``mode`` is ``"w"`` (text) or ``"wb"``."""
+    p = check_output(path)
+    tmp = p.parent / f".{p.name}.{os.getpid()}.{secrets.token_hex(4)}.part"
+    try:
+        fh = open(tmp, mode.replace("w", "x"))  # a new file, with the mode the umask gives any output
+    except OSError as exc:
+        raise InputError(f"{p}: cannot write: {exc.strerror or exc}") from None
+    try:
+        with fh:
+            yield fh
+        os.replace(tmp, p)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
 
 
 def read_jsonl(path: str | Path) -> Iterator[tuple[int, dict[str, Any]]]:
@@ -54,7 +113,10 @@ def _parse_line(p: Path, lineno: int, raw: bytes) -> dict[str, Any]:
     try:
         obj = json.loads(line)
     except json.JSONDecodeError as exc:
-        raise InputError(f"{where}: invalid JSON: {exc.msg}") from exc
+        word = line[exc.pos:exc.pos + 9].lower()
+        hint = (" (nan and infinity are not JSON numbers: a finite number is expected)"
+                if word.startswith(("nan", "inf", "-inf", "-nan")) else "")
+        raise InputError(f"{where}: invalid JSON at column {exc.colno}: {exc.msg}{hint}") from exc
     except RecursionError as exc:
         raise InputError(f"{where}: invalid JSON: nested too deeply") from exc
     if not isinstance(obj, dict):
@@ -63,8 +125,8 @@ def _parse_line(p: Path, lineno: int, raw: bytes) -> dict[str, Any]:
 
 
 def write_jsonl(path: str | Path, rows: list[dict[str, Any]]) -> None:
-    """Write one JSON object per line (numpy arrays become lists)."""
-    with Path(path).open("w") as fh:
+    """Write one JSON object per line (numpy arrays become lists), whole or not at all."""
+    with output_file(path) as fh:
         for row in rows:
             fh.write(json.dumps(row, default=_to_builtin) + "\n")
 
@@ -76,6 +138,19 @@ def _to_builtin(obj: Any) -> Any:
         return obj.item()
     raise TypeError(f"not JSON serializable: {type(obj).__name__}")
 
+
+#: Unknown fields that mean the file is of another format than the algorithm reads: the hint
+#: ``(the reader's kind, the field) -> what to do``.
+FORMAT_HINTS = {
+    ("position", "detections"): "this is a scan of detections: replay it with --algorithm mtt-local, "
+                                "mtt-centralized, mtt-federated or mtt-decentralized (pda-ai or hpda for sonar "
+                                "scans with amplitudes)",
+    ("position", "sensor_position"): "this is a radar line: replay it with --algorithm ekf, ekf-ie or ekf-tsfuzzy",
+    ("radar", "detections"): "this is a scan of detections: replay it with --algorithm mtt-*",
+    ("sonar", "sensor_position"): "this is a radar scan: replay it with --algorithm mtt-*",
+    ("mtt", "z"): "this is a single measurement, not a scan: replay it with --algorithm kf (or another "
+                  "single-target algorithm), or write a scan's detections as \"detections\": [{\"z\": [...]}]",
+}
 
 #: Fields every measurement line may carry besides its format's own: ``kind``, ``seq`` and
 #: ``stamp_ns`` (as the recorder and ``fedtrack.wire.measurement_to_replay`` write them) and
@@ -91,7 +166,10 @@ def check_fields(obj: dict[str, Any], allowed: frozenset[str], kind: str, where:
     ``kind``, is an :class:`InputError` naming ``file:line`` and the field."""
     unknown = sorted(set(obj) - allowed)
     if unknown:
-        raise InputError(f"{where}: unknown field {unknown[0]!r} (allowed: {', '.join(sorted(allowed))})")
+        field = str(unknown[0])
+        hint = FORMAT_HINTS.get((kind, field))
+        raise InputError(f"{where}: unknown field {field!r}" + (f": {hint}" if hint else did_you_mean(field, allowed)
+                         or f" (allowed: {', '.join(sorted(allowed))})"))
     if obj.get("kind", kind) != kind:
         raise InputError(f"{where}: kind must be {kind!r} here, got {obj['kind']!r}")
 
@@ -102,38 +180,76 @@ def require(obj: dict[str, Any], key: str, where: str) -> Any:
     return obj[key]
 
 
+def _json_text(value: Any) -> str:
+    """``value`` as it reads in the input: ``null``, ``"NaN" (a string)``, ``true``, ``NaN``."""
+    if isinstance(value, str):
+        return f"{json.dumps(value)} (a string)"
+    if isinstance(value, float) and not math.isfinite(value):
+        return "NaN" if math.isnan(value) else ("Infinity" if value > 0 else "-Infinity")
+    return json.dumps(value) if isinstance(value, (bool, type(None), int, float)) else type(value).__name__
+
+
+def is_number(value: Any) -> bool:
+    """A finite JSON number (not a boolean, not a string)."""
+    return not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
+
+
 def as_float(value: Any, name: str, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise InputError(f"{where}: {name} must be a finite number, got {value!r}")
+    if not is_number(value):
+        raise InputError(f"{where}: {name} must be a finite number, got {_json_text(value)}")
     return float(value)
+
+
+def _not_numbers(value: Any, name: str, where: str, want: str) -> InputError:
+    """The error naming the first entry of nested lists ``value`` that is not a finite number
+    (``z[0] must be a finite number, got null``), or saying what shape was expected."""
+    def first_bad(v: Any, path: str) -> tuple[str, Any] | None:
+        if isinstance(v, (list, tuple)):
+            for i, item in enumerate(v):
+                found = first_bad(item, f"{path}[{i}]")
+                if found:
+                    return found
+            return None
+        return None if is_number(v) else (path, v)
+    found = first_bad(value, name) if isinstance(value, (list, tuple)) else (name, value)
+    if found is None:
+        return InputError(f"{where}: {name} must be {want}")
+    at, bad = found
+    if at == name:
+        return InputError(f"{where}: {name} must be {want}, got {_json_text(bad)}")
+    return InputError(f"{where}: {at} must be a finite number, got {_json_text(bad)}")
 
 
 def as_vector(value: Any, name: str, where: str, size: int | None = None) -> np.ndarray:
     """A finite 1-D float vector (of length ``size`` if given)."""
+    want = f"a list of {size} numbers" if size is not None else "a list of numbers"
     try:
         arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"{where}: {name} must be a list of numbers") from exc
+    except (TypeError, ValueError):
+        raise _not_numbers(value, name, where, want) from None
+    if not isinstance(value, (list, tuple)):
+        raise InputError(f"{where}: {name} must be {want}, got {_json_text(value)}")
     if arr.ndim != 1 or (size is not None and arr.shape[0] != size):
-        want = f"length {size}" if size is not None else "a flat list"
-        raise InputError(f"{where}: {name} must be {want}, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise InputError(f"{where}: {name} contains NaN or infinity")
+        got = str(len(value)) if arr.ndim == 1 else f"shape {arr.shape}"
+        raise InputError(f"{where}: {name} must be {want}, got {got}")
+    if not all(is_number(v) for v in value):
+        raise _not_numbers(value, name, where, want)
     return arr
 
 
 def as_covariance(value: Any, name: str, where: str, size: int | None = None,
                   rtol: float = 1e-9) -> np.ndarray:
     """A finite, symmetric, positive-definite square matrix."""
+    want = f"a {size}x{size} matrix (a list of {size} rows of {size} numbers)" if size is not None \
+        else "a square matrix of numbers"
     try:
         arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"{where}: {name} must be a square matrix of numbers") from exc
+    except (TypeError, ValueError):
+        raise _not_numbers(value, name, where, want) from None
     if arr.ndim != 2 or arr.shape[0] != arr.shape[1] or (size is not None and arr.shape[0] != size):
-        want = f"{size}x{size}" if size is not None else "square"
         raise InputError(f"{where}: {name} must be {want}, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise InputError(f"{where}: {name} contains NaN or infinity")
+    if not np.all(np.isfinite(arr)) or not all(is_number(v) for row in value for v in row):
+        raise _not_numbers(value, name, where, want)
     scale = max(float(np.max(np.abs(arr))), 1e-300)
     if np.max(np.abs(arr - arr.T)) > rtol * scale:
         raise InputError(f"{where}: {name} is not symmetric")

@@ -45,7 +45,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
-from fedtrack.jsonl import InputError
+from fedtrack.jsonl import InputError, check_output, output_file
 from fedtrack.wire import (
     FusedTrack,
     LocalEstimate,
@@ -202,17 +202,15 @@ class Recording:
 
 
 def _write_lines(path: Path | None, rows: Iterator[dict[str, Any]]) -> int:
-    """``rows`` as JSON Lines, written atomically (through ``path.part``); 0 when ``path`` is None."""
+    """``rows`` as JSON Lines, written whole or not at all (:func:`output_file`); 0 when ``path`` is None."""
     if path is None:
         return 0
     n = 0
-    tmp = path.with_name(path.name + ".part")
     try:
-        with tmp.open("w") as fh:
+        with output_file(path) as fh:
             for row in rows:
                 fh.write(json.dumps(row) + "\n")
                 n += 1
-        tmp.replace(path)
     except OSError as exc:
         raise InputError(f"{path}: cannot write: {exc.strerror or exc}") from None
     return n
@@ -230,15 +228,22 @@ def main(argv: list[str]) -> int:
     """``fedtrack export``: a recording's measurements (and tracks) as replayable JSON Lines."""
     parser = argparse.ArgumentParser(prog="fedtrack export",
                                      description="write a recording's measurements as replay input (JSON Lines)")
-    parser.add_argument("--db", required=True, type=Path, help="recording database (fedtrack serve recorder --db)")
-    parser.add_argument("--out", required=True, type=Path, help="measurements, replay input format")
-    parser.add_argument("--tracks", type=Path, help="also write the fused tracks here (replay output format)")
+    parser.add_argument("--db", required=True, type=Path, metavar="PATH",
+                        help="recording database (fedtrack serve recorder --db)")
+    parser.add_argument("--out", required=True, type=Path, metavar="FILE.jsonl",
+                        help="measurements, replay input format (its folder must exist)")
+    parser.add_argument("--tracks", type=Path, metavar="FILE.jsonl", help="also write the fused tracks, or the "
+                        "multi-target pictures, here (replay output format)")
     args = parser.parse_args(argv)
+    for path in (args.out, args.tracks):
+        if path is not None:
+            check_output(path)
     recording = Recording(args.db, readonly=True)
     try:
         n_meas, n_tracks = recording.export(args.out, args.tracks)
+        unit = "pictures" if recording.count(TrackPicture) else "tracks"
     finally:
         recording.close()
-    print(f"wrote {n_meas} measurements to {args.out}" + (f", {n_tracks} tracks to {args.tracks}" if args.tracks
+    print(f"wrote {n_meas} measurements to {args.out}" + (f", {n_tracks} {unit} to {args.tracks}" if args.tracks
                                                            else ""))
     return 0

@@ -871,16 +871,17 @@ def picture_rows(ids: list[int], X: np.ndarray, P: np.ndarray, confirmed: list[b
 
 
 def picture_line(t: float, ids: list[int], X: np.ndarray, P: np.ndarray, confirmed: list[bool],
-                 sensors: list[list[str]], models: list[str] | None = None, maneuver: np.ndarray | None = None
-                 ) -> str:
-    """The line ``{"t": t, "tracks": picture_rows(...)}`` of a tracks file, by orjson (a picture of
-    1,000 tracks: 4 ms against json's 28; the same values, each float in its shortest exact
-    form). A picture with a non-finite number goes through ``json`` (which spells it ``NaN`` or
-    ``Infinity``; orjson would write ``null``)."""
-    rows = picture_rows(ids, X, P, confirmed, sensors, models, maneuver)
+                 sensors: list[list[str]], models: list[str] | None = None, maneuver: np.ndarray | None = None,
+                 head: dict[str, Any] | None = None) -> str:
+    """The line ``{"t": t, **head, "tracks": picture_rows(...)}`` of a tracks file (``head``: the
+    replay's ``algorithm`` and ``detector``), by orjson (a picture of 1,000 tracks: 4 ms against
+    json's 28; the same values, each float in its shortest exact form). A picture with a
+    non-finite number goes through ``json`` (which spells it ``NaN`` or ``Infinity``; orjson
+    would write ``null``)."""
+    line = {"t": t, **(head or {}), "tracks": picture_rows(ids, X, P, confirmed, sensors, models, maneuver)}
     if not (np.isfinite(X).all() and np.isfinite(P).all()):
-        return json.dumps({"t": t, "tracks": rows})
-    return orjson.dumps({"t": t, "tracks": rows}).decode()
+        return json.dumps(line)
+    return orjson.dumps(line).decode()
 
 
 def picture_to_replay(pic: TrackPicture) -> dict[str, Any]:

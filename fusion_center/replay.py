@@ -16,7 +16,7 @@ import numpy as np
 
 from fedtrack.config import ConfigError, in_file, load_tables
 from fedtrack.fusion_center.trackers import ModelEstimate, make_tracker
-from fedtrack.jsonl import InputError, position_line, read_jsonl
+from fedtrack.jsonl import InputError, output_file, position_line, read_jsonl
 from fedtrack.local_filters.linear.models import CA
 from fedtrack.local_filters.vdie.config import PipelineSettings
 
@@ -100,7 +100,7 @@ def replay_fusion(algorithm: str, measurements: Path, config: Path | None, out: 
         sensors = sensor_order(scans, settings.fusion.sensors)
         settings.fusion.betas(len(sensors))  # fails early if the sharing factors do not fit
     n = 0
-    with out.open("w") as fh:
+    with output_file(out) as fh:
         for rec in replay_scans(algorithm, scans, sensors, settings.fusion):
             fh.write(json.dumps(rec) + "\n")
             n += 1

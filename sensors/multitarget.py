@@ -1,8 +1,9 @@
 """``fedtrack simulate multitarget``: many targets, asynchronous 2-D and radar sensors, clutter, delays.
 
-Truth: targets move at constant speed with coordinated turns (a few per target, 2-6 deg/s
-for 8-25 s) in a square of half-width ``region`` metres; pairs of targets are aimed to pass
-the same point at the same time (crossings); some targets are born late or die early.
+Truth: targets move at constant speed (8-30 m/s) with coordinated turns (a few per target,
+2-6 deg/s for 8-25 s: at most ``MAX_ACCELERATION`` = pi m/s^2) in a square of half-width
+``region`` metres; pairs of targets are aimed to pass the same point at the same time
+(crossings); some targets are born late or die early.
 Radar scenarios give every target a constant altitude. Truth is integrated on a 0.05 s grid
 (exact per step for a constant turn rate).
 
@@ -16,6 +17,9 @@ Delays: every scan reaches the tracker ``base_delay`` + an exponential jitter af
 and a fraction ``late`` of the scans (never the first) up to two periods later; a sensor's link
 is FIFO (a Zenoh publisher's samples arrive in order), so out-of-sequence lines come from the
 interleaving of sensors. ``measurements.jsonl`` is written in arrival order.
+
+``config.toml`` sets ``[mtt] q`` from the truth's maximum acceleration and the sensors' periods
+(:func:`process_noise`, docs/multitarget.md#covariance-consistency-nees).
 """
 
 from __future__ import annotations
@@ -30,10 +34,15 @@ from typing import Any
 import numpy as np
 
 from fedtrack.config import to_toml
-from fedtrack.jsonl import InputError
+from fedtrack.jsonl import InputError, output_folder, output_file
 from fedtrack.local_filters.radar.measurement import polar_from_cartesian, wrap_angle
 
 DT = 0.05
+SPEED = (8.0, 30.0)  # m/s, uniform
+TURN_RATE = (2.0, 6.0)  # deg/s, uniform, either sign
+# m/s^2: the fastest turn of the fastest target (a crossing only slows a target down: its
+# meeting point, when clipped to the region, comes nearer)
+MAX_ACCELERATION = float(np.deg2rad(TURN_RATE[1]) * SPEED[1])
 
 
 @dataclass(frozen=True)
@@ -52,7 +61,6 @@ class Scenario:
     clutter: float = 10.0
     late: float = 0.2
     base_delay: float = 0.05
-    q: float = 1.0
 
 
 def parse_spec(spec: str) -> list[SensorSpec]:
@@ -74,7 +82,7 @@ def simulate_truth(sc: Scenario, three_d: bool, rng: np.random.Generator) -> tup
     """States ``(steps, N, 6)`` ``[x, vx, y, vy, z, vz]`` on the ``DT`` grid and an alive mask ``(steps, N)``."""
     steps = int(round(sc.duration / DT)) + 1
     n = sc.targets
-    speed = rng.uniform(8.0, 30.0, n)
+    speed = rng.uniform(*SPEED, n)
     heading = rng.uniform(-np.pi, np.pi, n)
     pos = rng.uniform(-0.7 * sc.region, 0.7 * sc.region, (n, 2))
     # crossings: the second of each pair is aimed at the first one's position at a common time
@@ -86,13 +94,13 @@ def simulate_truth(sc: Scenario, three_d: bool, rng: np.random.Generator) -> tup
         heading[a] = math.atan2(*(meet - pos[a])[::-1])
         speed[a] = float(np.linalg.norm(meet - pos[a]) / tc)
         heading[b] = heading[a] + rng.choice([-1, 1]) * rng.uniform(0.5, 2.0)
-        speed[b] = rng.uniform(8.0, 30.0)
+        speed[b] = rng.uniform(*SPEED)
         pos[b] = meet - tc * speed[b] * np.array([np.cos(heading[b]), np.sin(heading[b])])
     omega = np.zeros((steps, n))
     for i in range(n):
         for _ in range(rng.integers(1, 4)):
             start = int(rng.uniform(0, sc.duration) / DT)
-            omega[start:start + int(rng.uniform(8, 25) / DT), i] = np.deg2rad(rng.uniform(2, 6)) * rng.choice([-1, 1])
+            omega[start:start + int(rng.uniform(8, 25) / DT), i] = np.deg2rad(rng.uniform(*TURN_RATE)) * rng.choice([-1, 1])
     alt = rng.uniform(300.0, 3000.0, n) if three_d else np.zeros(n)
     x = np.zeros((steps, n, 6))
     x[0, :, 0], x[0, :, 2], x[0, :, 4] = pos[:, 0], pos[:, 1], alt
@@ -160,6 +168,15 @@ def sensor_lines(spec: SensorSpec, sc: Scenario, x: np.ndarray, alive: np.ndarra
     return out
 
 
+def process_noise(specs: list[SensorSpec]) -> float:
+    """``[mtt] q`` [m^2/s^3] for this simulator: ``(a_M / 2)^2 T`` with ``a_M`` = ``MAX_ACCELERATION``
+    and ``T`` the longest sensor period. Bar-Shalom, Li, Kirubarajan (2001), sections 6.2.2 and
+    6.3.2: the velocity change over a scan interval, ``sqrt(q T)`` for a continuous white-noise
+    acceleration, should be ``0.5 a_M`` to ``a_M`` times ``T``; the lower end, since the targets
+    turn a fraction of the time and mostly below ``a_M``."""
+    return round((MAX_ACCELERATION / 2.0) ** 2 * max(s.period for s in specs), 6)
+
+
 def radar_range(sc: Scenario) -> tuple[float, float]:
     return 0.2 * sc.region, 2.6 * sc.region
 
@@ -177,53 +194,75 @@ def clutter_density(spec: SensorSpec, sc: Scenario) -> float:
 
 
 def simulate(sc: Scenario, specs: list[SensorSpec], seed: int, out: Path) -> dict[str, Any]:
-    """Write ``measurements.jsonl``, ``truth.jsonl`` and ``config.toml`` to ``out``."""
+    """Write ``measurements.jsonl``, ``truth.jsonl`` and ``config.toml`` to ``out`` (a library
+    caller's folder is created; the command checks it first: :func:`main`)."""
     rng = np.random.default_rng(seed)
     three_d = any(s.kind == "radar" for s in specs)
     x, alive = simulate_truth(sc, three_d, rng)
     lines = [item for spec in specs for item in sensor_lines(spec, sc, x, alive, three_d, rng)]
     lines.sort(key=lambda item: item[0])
     out.mkdir(parents=True, exist_ok=True)
-    with (out / "measurements.jsonl").open("w") as fh:
+    with output_file(out / "measurements.jsonl") as fh:
         for _, line in lines:
             fh.write(json.dumps(line) + "\n")
     dims = [0, 1, 2, 3, 4, 5] if three_d else [0, 1, 2, 3]
-    with (out / "truth.jsonl").open("w") as fh:
+    with output_file(out / "truth.jsonl") as fh:
         for second in range(int(sc.duration) + 1):
             step = int(round(second / DT))
             targets = [{"id": int(i), "x": x[step, i, dims].tolist()} for i in np.flatnonzero(alive[step])]
             fh.write(json.dumps({"t": float(second), "targets": targets}) + "\n")
-    mtt: dict[str, Any] = {"q": sc.q, "pd": sc.pd, "clutter_density": clutter_density(specs[0], sc),
+    mtt: dict[str, Any] = {"q": process_noise(specs), "pd": sc.pd, "clutter_density": clutter_density(specs[0], sc),
                            "max_lag": 3.0, "period": 1.0, "init_velocity_std": 30.0,
                            "sensors": [s.id for s in specs]}
     mtt["sensor"] = {s.id: {"clutter_density": clutter_density(s, sc)} for s in specs if s.kind == "radar"}
     if not mtt["sensor"]:
         del mtt["sensor"]
-    (out / "config.toml").write_text(to_toml({"mtt": mtt}))
+    with output_file(out / "config.toml") as fh:
+        fh.write(to_toml({"mtt": mtt}))
     out_of_order = sum(1 for a, b in zip(lines, lines[1:]) if b[1]["t"] < a[1]["t"])
     return {"scans": len(lines), "out_of_sequence": out_of_order, "targets": sc.targets,
             "sensors": [f"{s.id} ({s.kind}, {s.period:g} s)" for s in specs]}
 
 
+SENSOR_IDS = ("Sensor ids: the k-th sensor of --sensors (counted from 1) is s<k> for a position sensor and "
+              "r<k> for a radar: pos:1.0,radar:0.7 gives s1 and r2, the ids [mtt] sensors, [mtt.sensor.<id>] and "
+              "replay --sensor take.")
+
+
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="fedtrack simulate multitarget",
-                                     description="simulate a multi-target scenario for replay and evaluate")
-    parser.add_argument("--targets", type=int, default=Scenario.targets)
-    parser.add_argument("--sensors", default="pos:1.0,pos:0.7,pos:1.3",
-                        help="comma-separated KIND:PERIOD, KIND pos or radar (default pos:1.0,pos:0.7,pos:1.3)")
-    parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--duration", type=float, default=Scenario.duration, help="seconds (default 300)")
-    parser.add_argument("--pd", type=float, default=Scenario.pd)
-    parser.add_argument("--clutter", type=float, default=Scenario.clutter, help="false detections per scan")
-    parser.add_argument("--late", type=float, default=Scenario.late, help="fraction of scans delivered late")
-    parser.add_argument("--out", required=True, type=Path)
+                                     description="simulate a multi-target scenario for replay and evaluate: writes "
+                                     "measurements.jsonl (arrival order), truth.jsonl and config.toml into --out",
+                                     epilog=SENSOR_IDS)
+    parser.add_argument("--targets", type=int, default=Scenario.targets,
+                        help="number of targets (crossing pairs, turns, some born late or dying early; "
+                             "default: %(default)s)")
+    parser.add_argument("--sensors", default="pos:1.0,pos:0.7,pos:1.3", metavar="SPEC",
+                        help="comma-separated KIND:PERIOD, KIND pos (2-D position) or radar, PERIOD in seconds "
+                             "(default: %(default)s)")
+    parser.add_argument("--seed", type=int, default=1, help="seed of truth, noise, clutter and delays "
+                        "(default: %(default)s)")
+    parser.add_argument("--duration", type=float, default=Scenario.duration,
+                        help="seconds of scenario (default: %(default)s)")
+    parser.add_argument("--pd", type=float, default=Scenario.pd,
+                        help="probability that a sensor detects a target in a scan (default: %(default)s)")
+    parser.add_argument("--clutter", type=float, default=Scenario.clutter,
+                        help="mean number of false detections per scan (Poisson; default: %(default)s)")
+    parser.add_argument("--late", type=float, default=Scenario.late,
+                        help="fraction of scans delivered late, up to two of their sensor's periods "
+                             "(default: %(default)s)")
+    parser.add_argument("--out", required=True, type=Path, metavar="DIR",
+                        help="folder to write into (created if missing; its own folder must exist)")
     args = parser.parse_args(argv)
-    if args.targets < 1 or not args.duration > 0 or not 0 < args.pd <= 1 or args.clutter < 0 or not 0 <= args.late < 1:
-        parser.error("need --targets >= 1, --duration > 0, 0 < --pd <= 1, --clutter >= 0, 0 <= --late < 1")
-    if args.out.exists() and not args.out.is_dir():
-        raise InputError(f"{args.out}: exists and is not a folder")
+    for name, ok, rule in (("targets", args.targets >= 1, ">= 1"), ("duration", args.duration > 0, "> 0"),
+                           ("pd", 0 < args.pd <= 1, "in (0, 1]"), ("clutter", args.clutter >= 0, ">= 0"),
+                           ("late", 0 <= args.late < 1, "in [0, 1)")):
+        if not ok:
+            raise InputError(f"--{name}: must be {rule}, got {getattr(args, name):g}")
+    specs = parse_spec(args.sensors)
+    output_folder(args.out)
     sc = Scenario(targets=args.targets, duration=args.duration, pd=args.pd, clutter=args.clutter, late=args.late)
-    info = simulate(sc, parse_spec(args.sensors), args.seed, args.out)
+    info = simulate(sc, specs, args.seed, args.out)
     print(f"wrote {args.out}/measurements.jsonl ({info['scans']} scans, {info['out_of_sequence']} out of "
           f"sequence), truth.jsonl ({args.targets} targets), config.toml; sensors: {', '.join(info['sensors'])}")
     return 0

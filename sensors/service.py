@@ -172,7 +172,8 @@ class SensorService(Service):
 
 def add_sensor_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=Path, help="deployment TOML ([deployment], [[sensor]])")
-    parser.add_argument("--kind", choices=KINDS, default="position")
+    parser.add_argument("--kind", choices=KINDS, default="position",
+                        help="what the sensor simulates or replays (default: %(default)s)")
     parser.add_argument("--measurements", type=Path,
                         help="kind scan: the multi-target measurements file whose lines of this sensor to publish")
     parser.add_argument("--scenario", type=int, choices=(1, 2), help="paper 004 scenario (overrides config)")
@@ -180,7 +181,8 @@ def add_sensor_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--pacing", choices=PACINGS, help="overrides config (default lockstep)")
     parser.add_argument("--speed", type=float, help="real-time speed-up factor (overrides config)")
     parser.add_argument("--lockstep-timeout", type=float, default=5.0, metavar="SECONDS",
-                        help="publish the next scan anyway after this long without a fused track")
+                        help="publish the next scan anyway after this long without a fused track "
+                             "(default: %(default)s)")
     parser.add_argument("--start-at", type=float, metavar="EPOCH_S",
                         help="realtime pacing: wall-clock time (Unix seconds) of scan 0, shared by the sensors "
                              "of a deployment (default: when this sensor is ready)")

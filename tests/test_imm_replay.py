@@ -69,8 +69,8 @@ def test_replay_matches_the_batched_filter(tmp_path: Path):
 
 @pytest.mark.parametrize("bad,match", [
     ({"t": 3.0}, r"m.jsonl:3: t = 3.0 is earlier"),
-    ({"z": [1.0]}, r"m.jsonl:4: z must be length 2"),
-    ({"z": [1.0, float("nan")]}, r"m.jsonl:4: z contains NaN"),
+    ({"z": [1.0]}, r"m.jsonl:4: z must be a list of 2 numbers, got 1"),
+    ({"z": [1.0, float("nan")]}, r"m.jsonl:4: z\[1\] must be a finite number, got NaN"),
     ({"R": [[400.0, 1.0], [0.0, 400.0]]}, r"m.jsonl:4: R is not symmetric"),
     ({"R": [[1.0, 2.0], [2.0, 1.0]]}, r"m.jsonl:4: R is not positive definite"),
     ({"sensor": "other"}, r"m.jsonl:4: sensor 'other' differs"),

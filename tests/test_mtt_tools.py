@@ -47,7 +47,29 @@ def test_evaluate_counts_a_swap_and_nees(tmp_path: Path) -> None:
     (tmp_path / "t.jsonl").write_text("".join(json.dumps(r) + "\n" for r in tracks))
     res = evaluate(tmp_path / "t.jsonl", tmp_path / "u.jsonl")
     assert res["id_switches"] == 2 and res["fragmentations"] == 0
-    assert res["mean"]["gospa"] == 0.0 and res["position_rmse"] == 0.0 and res["nees_mean"] == 0.0
+    assert res["mean"]["gospa"] == 0.0 and res["position_rmse"] == 0.0
+    assert [(r["part"], r["dof"], r["pairs"], r["mean"]) for r in res["nees"]] == [("state", 4, 12, 0.0),
+                                                                                  ("position", 2, 12, 0.0)]
+
+
+def test_evaluate_nees_per_part_dof_and_band(tmp_path: Path) -> None:
+    """Each pair's NEES by hand under P = diag(4, 1, 4, 1): errors (2, 1, 0, 0), (0.1, 0, 0, 0),
+    (8, 0, 0, 3) give 2, 0.0025, 25 for the state (4 dof) and 1, 0.0025, 16 for the position
+    (2 dof): one of three inside each band, the chi-square 2.5% and 97.5% quantiles of its dof."""
+    P = np.diag([4.0, 1.0, 4.0, 1.0]).tolist()
+    errors = [[2.0, 1.0, 0.0, 0.0], [0.1, 0.0, 0.0, 0.0], [8.0, 0.0, 0.0, 3.0]]  # NEES 2, 0.0025, 25
+    truth = [{"t": float(k), "targets": [{"id": 0, "x": [100.0, 1.0, 0.0, 0.0]}]} for k in range(3)]
+    tracks = [{"t": float(k), "tracks": [{"id": 1, "x": (np.array([100.0, 1.0, 0.0, 0.0]) - e).tolist(), "P": P}]}
+              for k, e in enumerate(errors)]
+    (tmp_path / "u.jsonl").write_text("".join(json.dumps(r) + "\n" for r in truth))
+    (tmp_path / "t.jsonl").write_text("".join(json.dumps(r) + "\n" for r in tracks))
+    state, position = evaluate(tmp_path / "t.jsonl", tmp_path / "u.jsonl")["nees"]
+    assert state["dof"] == 4 and position["dof"] == 2
+    assert state["mean"] == pytest.approx((2.0 + 0.0025 + 25.0) / 3, abs=1e-12)
+    assert position["mean"] == pytest.approx((1.0 + 0.0025 + 16.0) / 3, abs=1e-12)
+    assert state["band_95"] == pytest.approx([0.484419, 11.143287], abs=1e-6)
+    assert position["band_95"] == pytest.approx([0.050636, 7.377759], abs=1e-6)
+    assert state["inside_95"] == pytest.approx(1 / 3) and position["inside_95"] == pytest.approx(1 / 3)
 
 
 def test_simulate_replay_evaluate(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:

@@ -77,7 +77,7 @@ def test_replay_outputs_statuses(tmp_path: Path, algorithm: str):
 
 @pytest.mark.parametrize("bad, message", [
     ({"t": float("nan")}, ":2: t must be a finite number"),
-    ({"detections": [{"z": [1.0], "amplitude": 3.0}]}, ":2: detections[0].z must be length 2"),
+    ({"detections": [{"z": [1.0], "amplitude": 3.0}]}, ":2: detections[0].z must be a list of 2 numbers, got 1"),
     ({"detections": [{"z": [1.0, 2.0], "amplitude": 0.0}]}, ":2: detections[0].amplitude must be positive"),
     ({"detections": [{"z": [1.0, 2.0]}]}, "missing field 'amplitude'"),
     ({"R": [[1.0, 0.5], [0.0, 1.0]]}, ":2: R is not symmetric"),

@@ -56,7 +56,7 @@ def test_rows_are_stored_once_and_export_in_scan_order(tmp_path: Path) -> None:
     assert rows[1]["z"] == [1.0, 2.0]  # the first of the conflicting pair stays
     assert json.loads(tracks.read_text())["sensors"] == ["a", "b"]
 
-    for args, what in (([*cli, "--out", str(tmp_path / "missing" / "m.jsonl")], "cannot write"),
+    for args, what in (([*cli, "--out", str(tmp_path / "missing" / "m.jsonl")], "does not exist"),
                        ([sys.executable, "-m", "fedtrack.cli", "export", "--db", str(tmp_path / "none.db"),
                          "--out", str(out)], "no such recording database"),
                        ([sys.executable, "-m", "fedtrack.cli", "export", "--db", str(out), "--out",

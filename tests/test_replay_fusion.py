@@ -64,7 +64,7 @@ BAD_LINES = {
     "nan": ({"t": 1.0, "sensor": "a", "z": [float("nan"), 1.0], "R": [[1, 0], [0, 1]]}, "NaN"),
     "asym": ({"t": 1.0, "sensor": "a", "z": [0.0, 1.0], "R": [[1, 0.5], [0, 1]]}, "not symmetric"),
     "not_pd": ({"t": 1.0, "sensor": "a", "z": [0.0, 1.0], "R": [[1, 2], [2, 1]]}, "not positive definite"),
-    "shape": ({"t": 1.0, "sensor": "a", "z": [0.0, 1.0, 2.0], "R": [[1, 0], [0, 1]]}, "length 2"),
+    "shape": ({"t": 1.0, "sensor": "a", "z": [0.0, 1.0, 2.0], "R": [[1, 0], [0, 1]]}, "a list of 2 numbers, got 3"),
     "backwards": ({"t": -1.0, "sensor": "a", "z": [0.0, 1.0], "R": [[1, 0], [0, 1]]}, "backwards"),
     "missing": ({"t": 1.0, "sensor": "a", "R": [[1, 0], [0, 1]]}, "missing field 'z'"),
 }

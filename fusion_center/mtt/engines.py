@@ -18,7 +18,7 @@ import dataclasses
 import time
 from dataclasses import dataclass, field
 from functools import lru_cache
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -58,9 +58,10 @@ class PictureTracks(NamedTuple):
         """The ids of the central tracks whose maneuver is detected."""
         return {self.ids[i] for i in self.maneuver_rows()}
 
-    def line(self, t: float) -> str:
-        """The picture's line in a tracks file (``{"t": t, "tracks": rows}`` as JSON)."""
-        return picture_line(t, self.ids, self.x, self.P, self.confirmed, self.sensors, self.models, self.maneuver)
+    def line(self, t: float, head: dict[str, Any] | None = None) -> str:
+        """The picture's line in a tracks file (``{"t": t, **head, "tracks": rows}`` as JSON)."""
+        return picture_line(t, self.ids, self.x, self.P, self.confirmed, self.sensors, self.models, self.maneuver,
+                            head)
 
 
 def central_params(cfg: MttConfig, sensor: str | None, dim: int) -> TrackParams:

@@ -13,14 +13,20 @@
 * Per truth, the sequence of assigned track ids gives **id switches** (the id changes from one
   assigned picture to the next assigned one) and **fragmentations** (an assigned stretch ends
   and a later one starts).
-* Position RMSE over assigned pairs; NEES of the full state over assigned pairs whose state
-  sizes agree, its mean and the fraction inside the two-sided 95% chi-square band.
+* Position RMSE over assigned pairs. **NEES** ``e' P^-1 e`` over the assigned pairs whose state
+  sizes agree, in two parts with their degrees of freedom: the full ``state`` (4 or 6) and the
+  ``position`` alone (its block of ``P``: 2 or 3); per part the mean, the fraction inside the
+  two-sided 95% chi-square band of its dof (a consistent filter puts 95% of its pairs there),
+  and both while the truth accelerates and while it moves straight (below), where a CV filter
+  errs in opposite directions (docs/multitarget.md#covariance-consistency-nees).
 * **Maneuver flags** (a track with a ``maneuver`` field, or in the CA model): the fraction of
   assigned pairs flagged while the truth target accelerates by at least ``MANEUVER_ACCEL``
   (its acceleration from the velocities of the truth lines around the picture) and while it
   moves straight (below ``STRAIGHT_ACCEL`` over the last ``STRAIGHT_FOR_S`` seconds: a
   windowed detector's flag lingers for a while after a maneuver), and the number of **onsets**
-  (a track flagged in a picture and not in its previous one).
+  (a track flagged in a picture and not in its previous one); only when a detector ran (the
+  pictures' ``detector`` is not ``"none"``; a file that does not say: when some track is
+  flagged), "not applicable" (None) otherwise.
 
 Only confirmed tracks are evaluated unless ``all_tracks``.
 """
@@ -37,7 +43,8 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.special import chdtri
 
-from fedtrack.jsonl import InputError, read_jsonl
+from fedtrack.jsonl import InputError, check_output, is_number, output_file, read_jsonl
+from fedtrack.local_filters.linear.kalman import nees
 
 MANEUVER_ACCEL = 1.0  # m/s^2: a truth target accelerating at least this much is maneuvering
 STRAIGHT_ACCEL = 0.01  # m/s^2: below this it moves straight at constant speed ...
@@ -90,17 +97,42 @@ def id_changes(sequence: list[int | None]) -> tuple[int, int]:
     return switches, fragments
 
 
+OTHER = {"tracks": "targets", "targets": "tracks"}  # a truth file given as tracks, or the reverse
+
+
 def _load(path: Path, key: str) -> list[tuple[float, list[dict[str, Any]]]]:
     out = []
     for lineno, obj in read_jsonl(path):
         where = f"{path}:{lineno}"
-        if not isinstance(obj.get("t"), (int, float)) or not isinstance(obj.get(key), list):
+        if key not in obj and OTHER[key] in obj:
+            raise InputError(f"{where}: has \"{OTHER[key]}\" where \"{key}\" is expected: give the "
+                             f"{'truth' if key == 'tracks' else 'tracks'} file to "
+                             f"--{'truth' if key == 'tracks' else 'tracks'}")
+        if not is_number(obj.get("t")) or not isinstance(obj.get(key), list):
             raise InputError(f"{where}: expected {{\"t\": number, \"{key}\": [...]}}")
         for j, item in enumerate(obj[key]):
-            if not isinstance(item, dict) or not isinstance(item.get("x"), list) or "id" not in item:
+            if not isinstance(item, dict) or "id" not in item:
                 raise InputError(f"{where}: {key}[{j}] needs \"id\" and \"x\"")
+            x = item.get("x")
+            if not isinstance(x, list) or len(x) not in (4, 6) or not all(is_number(v) for v in x):
+                raise InputError(f"{where}: {key}[{j}].x must be a state [x, vx, y, vy] or [x, vx, y, vy, z, vz] "
+                                 f"of finite numbers")
+            P = item.get("P")
+            if P is not None and (not isinstance(P, list) or len(P) != len(x)
+                                  or not all(isinstance(r, list) and len(r) == len(x) and all(is_number(v) for v in r)
+                                             for r in P)):
+                raise InputError(f"{where}: {key}[{j}].P must be a {len(x)}x{len(x)} matrix of finite numbers, "
+                                 "like x")
         out.append((float(obj["t"]), obj[key]))
     return out
+
+
+def file_head(path: Path) -> dict[str, Any]:
+    """The replay's ``algorithm`` and ``detector`` as the first picture of a tracks file gives them
+    (absent from files other tools wrote)."""
+    for _, obj in read_jsonl(path):
+        return {key: obj[key] for key in ("algorithm", "detector") if isinstance(obj.get(key), str)}
+    return {}
 
 
 def _positions(x: list[float]) -> np.ndarray:
@@ -136,6 +168,31 @@ def truth_motion(lines: list[tuple[float, list[dict[str, Any]]]]) -> dict[tuple[
     return out
 
 
+def nees_parts(errors: list[np.ndarray], covariances: list[np.ndarray], motions: list[str | None]
+               ) -> list[dict[str, Any]]:
+    """NEES of the pairs (``errors`` truth minus estimate, ``covariances`` the estimate's ``P``),
+    per part (``state``, ``position``) and state size: pairs, dof, mean, the two-sided 95%
+    chi-square band and the fraction inside it, overall and per truth motion."""
+    out = []
+    for dim in sorted({e.size for e in errors}):
+        idx = [k for k, e in enumerate(errors) if e.size == dim]
+        e, P = np.array([errors[k] for k in idx]), np.array([covariances[k] for k in idx])
+        kinds = np.array([motions[k] for k in idx], dtype=object)
+        pos = np.arange(0, dim, 2)
+        for part, sel in (("state", np.arange(dim)), ("position", pos)):
+            v = nees(e[:, sel], P[:, sel[:, None], sel[None, :]])
+            lo, hi = float(chdtri(sel.size, 0.975)), float(chdtri(sel.size, 0.025))
+            inside = (v >= lo) & (v <= hi)
+            row: dict[str, Any] = {"part": part, "dof": int(sel.size), "pairs": int(v.size), "mean": float(v.mean()),
+                                   "band_95": [lo, hi], "inside_95": float(inside.mean())}
+            for kind in ("maneuvering", "straight"):
+                m = kinds == kind
+                row[kind] = {"pairs": int(m.sum()), "mean": float(v[m].mean()) if m.any() else None,
+                             "inside_95": float(inside[m].mean()) if m.any() else None}
+            out.append(row)
+    return out
+
+
 def flagged(track: dict[str, Any]) -> bool:
     """A track whose maneuver is detected: a central track's ``maneuver``, or a track in CA."""
     return "maneuver" in track or track.get("model") == "ca"
@@ -145,6 +202,7 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
              all_tracks: bool = False) -> dict[str, Any]:
     """Every metric of the module docstring over the pictures that have a truth line at their time."""
     truth_lines = _load(truth_path, "targets")
+    head = file_head(tracks_path)
     truth = {round(t, 6): items for t, items in truth_lines}
     motion = truth_motion(truth_lines)
     flags = {"maneuvering": [0, 0], "straight": [0, 0]}  # [pairs, flagged]
@@ -153,7 +211,9 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
     series: list[dict[str, float]] = []
     sequences: dict[Any, list[int | None]] = {}
     sq_err: list[float] = []
-    nees: list[tuple[float, int]] = []
+    errors: list[np.ndarray] = []
+    covariances: list[np.ndarray] = []
+    motions: list[str | None] = []
     skipped = 0
     for t, items in _load(tracks_path, "tracks"):
         targets = truth.get(round(t, 6))
@@ -184,42 +244,65 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
             xt, xe = np.asarray(g["x"], float), np.asarray(shown[j]["x"], float)
             if "P" in shown[j] and xt.shape == xe.shape:
                 P = np.asarray(shown[j]["P"], float)
-                e = xt - xe
-                nees.append((float(e @ np.linalg.solve(P, e)), xt.size))
+                try:
+                    np.linalg.cholesky(P)
+                except np.linalg.LinAlgError:
+                    raise InputError(f"{tracks_path}: the picture at t = {t:g}: track {shown[j]['id']}'s P is "
+                                     "not positive definite (a covariance must be)") from None
+                errors.append(xt - xe)
+                covariances.append(P)
+                motions.append(kind)
     if not series:
         raise InputError(f"{tracks_path}: no picture has a truth line at its time in {truth_path}")
     switches = fragments = 0
     for seq in sequences.values():
         s, f = id_changes(seq)
         switches, fragments = switches + s, fragments + f
-    inside = [lo <= v <= hi for v, dof in nees for lo, hi in [(chdtri(dof, 0.975), chdtri(dof, 0.025))]]
+    detector = head.get("detector")
+    applicable = detector != "none" if detector is not None else any(was_flagged.values())
     mean = {key: float(np.mean([row[key] for row in series])) for key in ("gospa", "localisation", "missed",
                                                                           "false", "ospa")}
     return {
+        "algorithm": head.get("algorithm"),
         "c": c, "p": p, "alpha": 2, "pictures": len(series), "pictures_without_truth": skipped,
         "mean": mean, "id_switches": switches, "fragmentations": fragments,
         "position_rmse": math.sqrt(float(np.mean(sq_err))) if sq_err else None,
-        "nees_mean": float(np.mean([v for v, _ in nees])) if nees else None,
-        "nees_dof": nees[0][1] if nees else None,
-        "nees_inside_95": float(np.mean(inside)) if inside else None,
-        "maneuvers": {"onsets": onsets, "maneuver_accel": MANEUVER_ACCEL, "straight_accel": STRAIGHT_ACCEL,
+        "nees": nees_parts(errors, covariances, motions),
+        "maneuvers": {"detector": detector, "applicable": applicable, "onsets": onsets if applicable else None,
+                      "maneuver_accel": MANEUVER_ACCEL, "straight_accel": STRAIGHT_ACCEL,
                       "straight_for_s": STRAIGHT_FOR_S,
                       **{f"{kind}_pairs": n for kind, (n, _) in flags.items()},
-                      **{f"flagged_while_{kind}": hit / n if n else None for kind, (n, hit) in flags.items()}},
+                      **{f"flagged_while_{kind}": hit / n if n and applicable else None
+                         for kind, (n, hit) in flags.items()}},
         "series": series,
     }
 
 
+TRUTH_GREY = "0.6"
+
+
+def track_colours() -> list[tuple[float, float, float, float]]:
+    """The colours tracks cycle through: matplotlib's ``tab20`` without its greys (the truth is
+    drawn grey, so no track may look like an untracked target)."""
+    from matplotlib import colormaps
+
+    cmap = colormaps["tab20"]
+    return [rgba for rgba in (cmap(i) for i in range(cmap.N)) if max(rgba[:3]) - min(rgba[:3]) > 0.1]
+
+
 def plot(result: dict[str, Any], tracks_path: Path, truth_path: Path, out: Path,
-         events: dict[str, float] | None = None) -> None:
+         events: dict[str, float] | None = None, label: str | None = None) -> None:
     """Tracks over truth (x-y), where their maneuvers were flagged, and GOSPA with its parts over
-    time, with ``events`` (label -> time, such as a sensor joining) marked."""
+    time, with ``events`` (label -> time, such as a sensor joining) marked; the title names the
+    algorithm (``label``, else the file's) and the tracks file."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(14, 6))
+    fig.suptitle(f"{label or result.get('algorithm') or 'algorithm not recorded (--label)'}: {tracks_path.name}")
+    colours = track_colours()
     paths: dict[Any, list[np.ndarray]] = {}
     maneuvering: list[np.ndarray] = []
     for _, targets in _load(truth_path, "targets"):
@@ -231,12 +314,14 @@ def plot(result: dict[str, Any], tracks_path: Path, truth_path: Path, out: Path,
                 paths.setdefault(("track", tr["id"]), []).append(_positions(tr["x"])[:2])
                 if flagged(tr):
                     maneuvering.append(_positions(tr["x"])[:2])
+    n_tracks = 0
     for (kind, _), pts in paths.items():
         a = np.array(pts)
         if kind == "truth":
-            ax1.plot(a[:, 0], a[:, 1], color="0.6", lw=2.5, zorder=1)
+            ax1.plot(a[:, 0], a[:, 1], color=TRUTH_GREY, lw=2.5, zorder=1)
         else:
-            ax1.plot(a[:, 0], a[:, 1], lw=1.0, zorder=2)
+            ax1.plot(a[:, 0], a[:, 1], color=colours[n_tracks % len(colours)], lw=1.0, zorder=2)
+            n_tracks += 1
     if maneuvering:
         m = np.array(maneuvering)
         ax1.scatter(m[:, 0], m[:, 1], s=9, c="red", marker="x", lw=0.8, zorder=3, label="maneuver flagged")
@@ -260,49 +345,81 @@ def plot(result: dict[str, Any], tracks_path: Path, truth_path: Path, out: Path,
     ax2.legend()
     ax2.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(out, dpi=110)
+    with output_file(out, "wb") as fh:
+        fig.savefig(fh, dpi=110, format=out.suffix[1:] or "png")
     plt.close(fig)
+
+
+def nees_line(row: dict[str, Any]) -> str:
+    """One line of a :func:`nees_parts` row: dof, mean, the fraction inside the 95% band, and
+    both while the truth accelerates and while it moves straight."""
+    names = {("state", 4): "x, vx, y, vy", ("state", 6): "x, vx, y, vy, z, vz", ("position", 2): "x, y",
+             ("position", 3): "x, y, z"}
+    lo, hi = row["band_95"]
+    by = "; ".join(f"{label} {row[k]['mean']:.2f}, {100 * row[k]['inside_95']:.1f}% of {row[k]['pairs']}"
+                   for k, label in (("maneuvering", "while accelerating"), ("straight", "straight"))
+                   if row[k]["pairs"])
+    return (f"NEES {row['part']} ({names.get((row['part'], row['dof']), row['part'])}; {row['dof']} dof): mean "
+            f"{row['mean']:.2f} (consistent: {row['dof']}), {100 * row['inside_95']:.1f}% of {row['pairs']} "
+            f"assigned pairs inside the 95% band [{lo:.2f}, {hi:.2f}] (consistent: 95%)" + (f"; {by}" if by else ""))
 
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="fedtrack evaluate", description="GOSPA, OSPA, id switches, "
-                                     "fragmentations, RMSE and NEES of a track picture file against truth")
-    parser.add_argument("--tracks", required=True, type=Path)
-    parser.add_argument("--truth", required=True, type=Path)
-    parser.add_argument("--c", type=float, default=100.0, help="cut-off distance [m] (default 100)")
-    parser.add_argument("--p", type=float, default=2.0, help="order (default 2)")
-    parser.add_argument("--alpha", type=float, default=2.0, help="GOSPA alpha (only 2 is supported)")
-    parser.add_argument("--all-tracks", action="store_true", help="evaluate tentative tracks too")
-    parser.add_argument("--json", type=Path, help="write the full result (with the per-picture series)")
-    parser.add_argument("--plot", type=Path, help="PNG: tracks over truth and GOSPA over time")
+                                     "fragmentations, RMSE, NEES and maneuver flags of a track picture file against "
+                                     "truth")
+    parser.add_argument("--tracks", required=True, type=Path, metavar="T.jsonl",
+                        help="track pictures ({\"t\", \"tracks\": [...]} a line, as replay --algorithm mtt-* writes)")
+    parser.add_argument("--truth", required=True, type=Path, metavar="U.jsonl",
+                        help="truth ({\"t\", \"targets\": [...]} a line, as simulate multitarget writes)")
+    parser.add_argument("--c", type=float, default=100.0, help="cut-off distance [m] (default: %(default)s)")
+    parser.add_argument("--p", type=float, default=2.0, help="order (default: %(default)s)")
+    parser.add_argument("--alpha", type=float, default=2.0, help="GOSPA alpha; only 2 is supported "
+                        "(default: %(default)s)")
+    parser.add_argument("--all-tracks", action="store_true", help="evaluate tentative tracks too "
+                        "(default: confirmed tracks only)")
+    parser.add_argument("--json", type=Path, metavar="OUT.json",
+                        help="write the full result (with the per-picture series)")
+    parser.add_argument("--plot", type=Path, metavar="OUT.png", help="PNG: tracks over truth and GOSPA over time")
+    parser.add_argument("--label", help="the plot title's algorithm (default: the tracks file's \"algorithm\")")
     args = parser.parse_args(argv)
     if args.alpha != 2:
         parser.error("--alpha: only alpha = 2 (the decomposable GOSPA) is supported")
     if not (args.c > 0 and args.p >= 1):
         parser.error("--c must be > 0 and --p >= 1")
     for path in (args.json, args.plot):
-        if path is not None and not path.parent.is_dir():
-            raise InputError(f"{path}: the folder {path.parent} does not exist")
+        if path is not None:
+            check_output(path)
     result = evaluate(args.tracks, args.truth, args.c, args.p, args.all_tracks)
+    if args.json:  # the files first: a reader that stops early (| head) does not cost them
+        with output_file(args.json) as fh:
+            fh.write(json.dumps(result))
+    if args.plot:
+        plot(result, args.tracks, args.truth, args.plot, label=args.label)
     m = result["mean"]
-    print(f"pictures {result['pictures']} (without truth: {result['pictures_without_truth']})")
+    print(f"pictures {result['pictures']} (without truth: {result['pictures_without_truth']})"
+          + (f" of {result['algorithm']}" if result["algorithm"] else ""))
     print(f"mean GOSPA {m['gospa']:.2f} m (c = {args.c:g}, p = {args.p:g}, alpha = 2): localisation "
           f"{m['localisation']:.1f}, missed {m['missed']:.1f}, false {m['false']:.1f} (p-th power parts)")
     print(f"mean OSPA {m['ospa']:.2f} m; id switches {result['id_switches']}; fragmentations "
           f"{result['fragmentations']}")
-    rmse, nees = result["position_rmse"], result["nees_mean"]
-    print(f"position RMSE {rmse:.2f} m" if rmse is not None else "position RMSE -", end="; ")
-    print(f"NEES mean {nees:.2f} ({result['nees_dof']} dof), {100 * result['nees_inside_95']:.1f}% inside the "
-          f"95% band" if nees is not None else "NEES -")
+    rmse = result["position_rmse"]
+    print(f"position RMSE {rmse:.2f} m" if rmse is not None else "position RMSE -")
+    for row in result["nees"]:
+        print(nees_line(row))
+    if not result["nees"]:
+        print("NEES -: no assigned pair with a covariance and the truth's state size")
     man = result["maneuvers"]
-    rate = {k: "-" if man[f"flagged_while_{k}"] is None else f"{100 * man[f'flagged_while_{k}']:.1f}%"
-            for k in ("maneuvering", "straight")}
-    print(f"maneuver flags: {rate['maneuvering']} of {man['maneuvering_pairs']} assigned pairs while the target "
-          f"accelerates (>= {MANEUVER_ACCEL:g} m/s^2), {rate['straight']} of {man['straight_pairs']} while it moves "
-          f"straight (< {STRAIGHT_ACCEL:g} m/s^2 for {STRAIGHT_FOR_S:g} s); {man['onsets']} onsets")
-    if args.json:
-        args.json.write_text(json.dumps(result))
-    if args.plot:
-        plot(result, args.tracks, args.truth, args.plot)
-        print(f"wrote {args.plot}")
+    if not man["applicable"]:
+        print("maneuver flags: not applicable (no maneuver detector ran: the pictures' detector is "
+              f"{man['detector'] or 'not given and no track is flagged'})")
+    else:
+        rate = {k: "-" if man[f"flagged_while_{k}"] is None else f"{100 * man[f'flagged_while_{k}']:.1f}%"
+                for k in ("maneuvering", "straight")}
+        print(f"maneuver flags: {rate['maneuvering']} of {man['maneuvering_pairs']} assigned pairs while the target "
+              f"accelerates (>= {MANEUVER_ACCEL:g} m/s^2), {rate['straight']} of {man['straight_pairs']} while it "
+              f"moves straight (< {STRAIGHT_ACCEL:g} m/s^2 for {STRAIGHT_FOR_S:g} s); {man['onsets']} onsets")
+    for path in (args.json, args.plot):
+        if path is not None:
+            print(f"wrote {path}")
     return 0

@@ -1,11 +1,12 @@
 """``fedtrack replay --algorithm mtt-local | mtt-centralized | mtt-federated | mtt-decentralized``.
 
 Reads one sensor scan per line in arrival order (:mod:`fedtrack.local_filters.mtt.scan`) and
-writes the track picture every ``period`` seconds: ``{"t", "tracks": [...]}`` with every
-track predicted to ``t``. The picture at ``T`` is written once a scan later than
-``T + picture_delay`` arrives (and at the end of the input): with ``picture_delay = 0`` it
-holds the data that had arrived by then; with ``picture_delay = max_lag`` it holds every
-scan up to ``T`` that is not late.
+writes the track picture every ``period`` seconds: ``{"t", "algorithm", "detector", "tracks":
+[...]}`` with every track predicted to ``t``. The picture at ``T`` is written once a scan later
+than ``T + picture_delay`` arrives: with ``picture_delay = 0`` it holds the data that had arrived
+by then; with ``picture_delay = max_lag`` it holds every scan up to ``T`` that is not late. At
+the end of the input the pictures still due are written, up to the first whole period at or
+after the latest scan (the last picture holds every scan).
 """
 
 from __future__ import annotations
@@ -18,9 +19,9 @@ import time
 from pathlib import Path
 from typing import Iterator
 
-from fedtrack.config import ConfigError, load_tables
+from fedtrack.config import ConfigError, did_you_mean, load_tables
 from fedtrack.fusion_center.mtt.engines import ALGORITHMS, Engine, PictureTracks, make_engine
-from fedtrack.jsonl import InputError, read_jsonl
+from fedtrack.jsonl import InputError, check_output, output_file, read_jsonl
 from fedtrack.local_filters.mtt.config import MttConfig, MttSettings
 from fedtrack.local_filters.mtt.scan import SensorLeft, SensorScan, parse_line
 
@@ -29,13 +30,24 @@ def read_scans(path: Path, cfg: MttConfig) -> list[SensorScan | SensorLeft]:
     """Every line of ``path`` (scans and departures), validated; a sensor the config does not
     allow is an error."""
     scans: list[SensorScan | SensorLeft] = []
+    kind: dict[str, tuple[bool, int]] = {}  # sensor -> (radar, line of its first scan)
     for lineno, obj in read_jsonl(path):
         where = f"{path}:{lineno}"
         scan = parse_line(obj, where)
         if not cfg.allows(scan.sensor):
-            raise InputError(f"{where}: sensor {scan.sensor!r} is not in mtt.sensors")
+            raise InputError(f"{where}: sensor {scan.sensor!r} is not in mtt.sensors"
+                             + did_you_mean(scan.sensor, cfg.sensors if isinstance(cfg.sensors, tuple) else ()))
+        if isinstance(scan, SensorScan):
+            radar, first = kind.setdefault(scan.sensor, (scan.sensor_position is not None, lineno))
+            if radar != (scan.sensor_position is not None):
+                raise InputError(f"{where}: sensor {scan.sensor!r} sent {_KIND[radar]} scans (line {first}) and "
+                                 f"now a {_KIND[not radar]} scan; a sensor's scans are all of one kind (give the "
+                                 "other kind's scans their own sensor id)")
         scans.append(scan)
     return scans
+
+
+_KIND = {True: "radar (sensor_position)", False: "2-D position"}
 
 
 def state_dim(scans: list[SensorScan | SensorLeft], sensor: str | None = None) -> int:
@@ -54,12 +66,18 @@ class PictureClock:
     delay: float
     k: int | None = None
     high: float = -math.inf
+    departed: bool = False  # a sensor left after the latest scan
+
+    def left(self) -> None:
+        """A sensor left (a departure line, or a live centre dropping it)."""
+        self.departed = True
 
     def due(self, t: float) -> list[float]:
         """Picture times due before a scan at ``t`` is ingested."""
         if self.k is None:
             self.k = math.ceil(t / self.period - 1e-9)
         self.high = max(self.high, t)
+        self.departed = False
         out = []
         while self.k * self.period + self.delay < self.high:
             out.append(self.k * self.period)
@@ -67,9 +85,13 @@ class PictureClock:
         return out
 
     def final(self) -> list[float]:
-        """Picture times still due at the end of the data."""
+        """Picture times still due at the end of the data: up to the first whole period at or after
+        the latest scan, so that the last picture holds every scan; but only up to the latest scan
+        when sensors left after it (the trackers of a live run that stopped before its centre:
+        a picture past the data would be made without them)."""
         out = []
-        while self.k is not None and self.k * self.period <= self.high + 1e-9:
+        while self.k is not None and ((self.k - 1) * self.period < self.high - 1e-9 if not self.departed
+                                      else self.k * self.period <= self.high + 1e-9):
             out.append(self.k * self.period)
             self.k += 1
         return out
@@ -82,6 +104,7 @@ def pictures(engine: Engine, scans: list[SensorScan | SensorLeft], period: float
     for scan in scans:
         if isinstance(scan, SensorLeft):
             engine.leave(scan.sensor)
+            clock.left()
             continue
         for T in clock.due(scan.t):
             yield _picture(engine, T)
@@ -126,6 +149,7 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
         raise ConfigError(f"{config}: mtt.picture_delay must be <= mtt.max_lag")
     if (algorithm == "mtt-local") != (sensor is not None):
         raise ConfigError("--sensor ID is required by mtt-local and only by it")
+    check_output(out)
     start = time.perf_counter()
     scans = read_scans(measurements, cfg)
     read_s = time.perf_counter() - start
@@ -136,10 +160,11 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
     n = onsets = 0
     detector = False  # whether the pictures carry maneuver events (a detector runs)
     maneuvering: set[int] = set()
-    with out.open("w") as fh:
+    head = {"algorithm": algorithm, "detector": cfg.maneuver}
+    with output_file(out) as fh:
         for T, tracks in pictures(engine, scans, cfg.period, cfg.picture_delay):
             start = time.perf_counter()
-            fh.write(tracks.line(T) + "\n")
+            fh.write(tracks.line(T, head) + "\n")
             engine.took("writing", start)
             n += 1
             detector = detector or tracks.maneuver is not None

@@ -92,6 +92,7 @@ class MttCentreService(Service):
         for sensor in dict.fromkeys(silent):
             if self.last_heard.pop(sensor, None) is not None:
                 self.engine.leave(sensor)
+                self.clock.left()
                 self.left_at.append(len(self.order))
                 self.order.append((sensor, 0))
                 self.count("sensors_left")
@@ -176,7 +177,7 @@ class MttCentreService(Service):
 
 def main(argv: list[str]) -> int:
     parser = service_parser("mtt-centre", "the multi-target fusion centre")
-    parser.add_argument("--algorithm", choices=ALGORITHMS, default="mtt-federated", help="(default: %(default)s)")
+    parser.add_argument("--algorithm", choices=ALGORITHMS, default="mtt-federated", help="the fusion of the local trackers' tracks (default: %(default)s)")
     parser.add_argument("--dim", type=int, choices=(4, 6), default=4,
                         help="central state size: 6 when any sensor is a radar (default: %(default)s)")
     parser.add_argument("--config", help="configuration file; reads [mtt] and [deployment] (docs/multitarget.md)")

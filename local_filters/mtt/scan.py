@@ -79,7 +79,14 @@ def parse_scan(obj: dict[str, Any], where: str) -> SensorScan:
     sp = obj.get("sensor_position")
     sensor_position = None if sp is None else as_vector(sp, "sensor_position", where, 3)
     m = 2 if sensor_position is None else 3
-    R = as_covariance(require(obj, "R", where), "R", where, m)
+    R = require(obj, "R", where)
+    if isinstance(R, list) and len(R) == 5 - m:  # the other kind's R: say what makes a scan a radar's
+        raise InputError(f"{where}: R is {5 - m}x{5 - m} but " + (
+            "the line has no sensor_position: a radar scan needs sensor_position [x, y, z] (and z = "
+            "[range, azimuth, elevation]); a 2-D position scan has a 2x2 R" if m == 2 else
+            "the line has sensor_position: a radar scan has a 3x3 R (range, azimuth, elevation); "
+            "a 2-D position scan has no sensor_position"))
+    R = as_covariance(R, "R", where, m)
     dets = require(obj, "detections", where)
     if not isinstance(dets, list) or len(dets) > MAX_DETECTIONS:
         raise InputError(f"{where}: detections must be a list of at most {MAX_DETECTIONS} objects")

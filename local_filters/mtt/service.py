@@ -132,7 +132,8 @@ class MttLocalService(Service):
 def main(argv: list[str]) -> int:
     parser = service_parser("mtt-local", "one sensor's local multi-target tracker")
     parser.add_argument("--sensor", required=True, type=id_arg("--sensor"), help="sensor id whose scans to track")
-    parser.add_argument("--mode", choices=MODES, default="federated", help="(default: %(default)s)")
+    parser.add_argument("--mode", choices=MODES, default="federated",
+                        help="federated: take the centre's resets; decentralized: none (default: %(default)s)")
     parser.add_argument("--config", help="configuration file; reads [mtt] and [deployment] (docs/multitarget.md)")
     parser.add_argument("--reset-timeout", type=float, default=2.0, metavar="SECONDS",
                         help="federated: go on without the centre's resets after this long (default: %(default)s)")

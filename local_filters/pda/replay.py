@@ -30,6 +30,7 @@ from fedtrack.jsonl import (
     as_float,
     as_vector,
     check_fields,
+    output_file,
     read_jsonl,
     require,
 )
@@ -125,8 +126,7 @@ def replay_pda(algorithm: str, measurements: Path, config: Path | None, out: Pat
     cfg = load_config(config)
     spec = tracker_spec(algorithm, cfg.tracker, cfg.existence)
     n = 0
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with out.open("w") as fh:
+    with output_file(out) as fh:
         for row in run(spec, read_scans(measurements)):
             if status == "all" or row["status"] == status:
                 fh.write(json.dumps(row) + "\n")

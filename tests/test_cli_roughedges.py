@@ -1,0 +1,289 @@
+"""Issue 28's rough edges of simulate / replay / evaluate / export, one test per item (4-10): input
+errors that say what would be right, outputs written whole or not at all, no folder created,
+a closed pipe, every option's help and README row, the final picture, evaluate's maneuver
+rates and plot."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from fedtrack import cli
+from fedtrack.cli import main
+
+README = Path(__file__).resolve().parent.parent / "README.md"
+R2 = [[100.0, 0.0], [0.0, 100.0]]
+R3 = [[100.0, 0.0, 0.0], [0.0, 1e-6, 0.0], [0.0, 0.0, 1e-6]]
+
+
+def scan(t: float, sensor: str = "s1", **extra: object) -> dict:
+    return {"t": t, "sensor": sensor, "R": R2, "detections": [{"z": [100.0 * t, 50.0]}], **extra}
+
+
+def write_lines(path: Path, rows: list[dict]) -> Path:
+    path.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    return path
+
+
+def one_line_error(capsys: pytest.CaptureFixture[str], code: int) -> str:
+    """The single stderr line of a command that failed with exit 2."""
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert code == 2 and len(lines) == 1 and "Traceback" not in err, (code, err)
+    return lines[0]
+
+
+# --- item 4: input problems: exit 2, one line naming file, line and field, saying what is right
+
+RADAR_SWITCH = [scan(0.0), scan(1.0), {**scan(2.0), "R": R3, "sensor_position": [0.0, 0.0, 0.0],
+                                       "detections": [{"z": [1000.0, 0.1, 0.1]}]}]
+BAD_LINES = {  # name -> (lines of the file, what the error must say)
+    "radar without sensor_position": ([{**scan(0.0), "R": R3, "detections": [{"z": [1000.0, 0.1, 0.1]}]}],
+                                      ":1: R is 3x3 but the line has no sensor_position: a radar scan needs "
+                                      "sensor_position"),
+    "null": ([{**scan(0.0), "detections": [{"z": [None, 0.4]}]}],
+             ":1: detections[0].z[0] must be a finite number, got null"),
+    "string NaN": ([{**scan(0.0), "detections": [{"z": ["NaN", 0.4]}]}],
+                   ':1: detections[0].z[0] must be a finite number, got "NaN" (a string)'),
+    "field near miss": ([{**scan(0.0), "sensor_positon": [0.0, 0.0, 0.0]}],
+                        ":1: unknown field 'sensor_positon': did you mean sensor_position?"),
+    "a sensor switching to radar": (RADAR_SWITCH, ":3: sensor 's1' sent 2-D position scans (line 1) and now a "
+                                                  "radar (sensor_position) scan"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_LINES))
+def test_bad_scan_lines_say_what_is_wrong_and_write_nothing(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                            case: str) -> None:
+    rows, expected = BAD_LINES[case]
+    path = write_lines(tmp_path / "m.jsonl", rows)
+    out = tmp_path / "out.jsonl"
+    code = main(["replay", "--algorithm", "mtt-federated", "--measurements", str(path), "--out", str(out)])
+    assert f"{path}{expected}" in one_line_error(capsys, code)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.jsonl"]  # no output, no temporary file
+
+
+def test_nan_token_names_line_and_column(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "m.jsonl"
+    line = '{"t": 1.0, "sensor": "s1", "R": [[1, 0], [0, 1]], "detections": [{"z": [nan, 0.4]}]}'
+    path.write_text(json.dumps(scan(0.0)) + "\n" + line + "\n")
+    code = main(["replay", "--algorithm", "mtt-local", "--sensor", "s1", "--measurements", str(path),
+                 "--out", str(tmp_path / "o.jsonl")])
+    assert (f"{path}:2: invalid JSON at column {line.index('nan') + 1}: Expecting value (nan and infinity are not "
+            "JSON numbers: a finite number is expected)") in one_line_error(capsys, code)
+
+
+def test_a_multitarget_file_given_to_kf_says_to_use_mtt(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = write_lines(tmp_path / "m.jsonl", [scan(0.0)])
+    code = main(["replay", "--algorithm", "kf", "--measurements", str(path), "--out", str(tmp_path / "o.jsonl")])
+    line = one_line_error(capsys, code)
+    assert f"{path}:1: unknown field 'detections'" in line and "--algorithm mtt-local" in line
+
+
+def test_a_mistyped_config_key_suggests_the_near_miss(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    config = tmp_path / "c.toml"
+    config.write_text("[mtt]\nclutter_densty = 1e-6\n")
+    path = write_lines(tmp_path / "m.jsonl", [scan(0.0)])
+    code = main(["replay", "--algorithm", "mtt-centralized", "--config", str(config), "--measurements", str(path),
+                 "--out", str(tmp_path / "o.jsonl")])
+    assert one_line_error(capsys, code) == (f"fedtrack: error: {config}: unknown config key mtt.clutter_densty: "
+                                            "did you mean mtt.clutter_density?")
+
+
+def test_a_failed_replay_leaves_the_previous_output_untouched(tmp_path: Path,
+                                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """The radar switch fails after pictures were made: nothing of them reaches ``--out``."""
+    rows = [scan(0.1 * k) for k in range(30)] + RADAR_SWITCH[2:]
+    path = write_lines(tmp_path / "m.jsonl", rows)
+    out = tmp_path / "out.jsonl"
+    out.write_text("the previous run\n")
+    code = main(["replay", "--algorithm", "mtt-centralized", "--measurements", str(path), "--out", str(out)])
+    one_line_error(capsys, code)
+    assert out.read_text() == "the previous run\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.jsonl", "out.jsonl"]
+
+
+def test_no_command_creates_a_missing_folder_and_all_say_so_alike(tmp_path: Path,
+                                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    measurements = write_lines(tmp_path / "m.jsonl", [scan(0.0), scan(1.0)])
+    truth = write_lines(tmp_path / "u.jsonl", [{"t": 0.0, "targets": []}])
+    missing = tmp_path / "missing"
+    commands = {
+        "simulate": ["simulate", "multitarget", "--targets", "2", "--duration", "5", "--out", str(missing / "o")],
+        "replay": ["replay", "--algorithm", "mtt-local", "--sensor", "s1", "--measurements", str(measurements),
+                   "--out", str(missing / "o")],
+        "evaluate": ["evaluate", "--tracks", str(truth), "--truth", str(truth), "--json", str(missing / "o")],
+        "export": ["export", "--db", str(tmp_path / "none.db"), "--out", str(missing / "o")],
+        "reproduce": ["reproduce", "fvdie", "--runs", "1", "--json", str(missing / "o")],
+    }
+    for name, argv in commands.items():
+        line = one_line_error(capsys, main(argv))
+        assert line == (f"fedtrack: error: {missing / 'o'}: the folder {missing} does not exist (fedtrack does not "
+                        "create folders; create it first)"), name
+    assert not missing.exists()
+
+
+def test_a_closed_pipe_ends_quietly(tmp_path: Path) -> None:
+    """``fedtrack evaluate ... | head -2`` once head has gone: no traceback, and --json is still written."""
+    tracks, truth = _files(tmp_path)
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # the reader is gone before anything is written
+    try:
+        proc = subprocess.run([sys.executable, "-m", "fedtrack.cli", "evaluate", "--tracks", str(tracks), "--truth",
+                               str(truth), "--json", str(tmp_path / "e.json")],
+                              stdout=write_end, stderr=subprocess.PIPE, text=True, timeout=60)
+    finally:
+        os.close(write_end)
+    assert proc.returncode == 141 and proc.stderr == "", proc.stderr
+    assert json.loads((tmp_path / "e.json").read_text())["pictures"] == 40
+
+
+# --- item 5: every option's meaning and default in --help; every option in the README's table
+
+def _parsers(argv: list[str]) -> list[argparse.ArgumentParser]:
+    """The parsers that print ``fedtrack ARGV --help``."""
+    seen: list[argparse.ArgumentParser] = []
+    original = argparse.ArgumentParser.print_help
+    argparse.ArgumentParser.print_help = lambda self, file=None: seen.append(self)  # type: ignore[method-assign]
+    try:
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):
+            main([*argv, "--help"])
+    finally:
+        argparse.ArgumentParser.print_help = original  # type: ignore[method-assign]
+    return seen
+
+
+BENCH_SUITES = ("pipeline", "kernels", "montecarlo", "multitarget", "soak", "hpda-soak", "all")
+COMMANDS = [["reproduce"], ["replay"], ["simulate", "multitarget"], ["evaluate"], ["export"], ["demo"],
+            ["launch"], ["train", "ts-fuzzy"], *(["bench", s] for s in BENCH_SUITES)]
+HELP_CASES = COMMANDS + [["serve", role] for role in cli.SERVICES]
+
+
+def _options(parser: argparse.ArgumentParser) -> list[argparse.Action]:
+    return [a for a in parser._actions if not isinstance(a, (argparse._HelpAction, argparse._SubParsersAction))
+            and a.dest != "help" and a.help != argparse.SUPPRESS]
+
+
+@pytest.mark.parametrize("argv", HELP_CASES, ids=" ".join)
+def test_every_option_has_its_meaning_and_default_in_help(argv: list[str]) -> None:
+    parsers = _parsers(argv)
+    assert parsers
+    for parser in parsers:
+        formatter = parser._get_formatter()
+        for action in _options(parser):
+            text = formatter._expand_help(action) if action.help else ""
+            name = "/".join(action.option_strings) or action.dest
+            assert re.sub(r"\(?default[^)]*\)?", "", text).strip(" ;,.()"), f"{parser.prog} {name}: no meaning"
+            if action.default not in (None, False, argparse.SUPPRESS):
+                assert "default" in text, f"{parser.prog} {name}: default {action.default!r} not in {text!r}"
+
+
+def _readme_row(argv: list[str]) -> str:
+    command = "bench" if argv[0] == "bench" else " ".join(argv)
+    rows = [line for line in README.read_text().splitlines() if line.startswith(f"| `fedtrack {command}")]
+    assert len(rows) == 1, command
+    return rows[0]
+
+
+@pytest.mark.parametrize("argv", COMMANDS, ids=" ".join)
+def test_the_readme_lists_every_option(argv: list[str]) -> None:
+    row = _readme_row(argv)
+    for parser in _parsers(argv):
+        for action in _options(parser):
+            for option in action.option_strings:
+                assert re.search(rf"{re.escape(option)}(?![\w-])", row), f"README: {' '.join(argv)} lacks {option}"
+
+
+def test_simulate_sensor_ids_are_documented(capsys: pytest.CaptureFixture[str]) -> None:
+    with contextlib.suppress(SystemExit):
+        main(["simulate", "multitarget", "--help"])
+    assert "s<k> for a position sensor and r<k> for a radar" in " ".join(capsys.readouterr().out.split())
+    assert "`r<k>`" in _readme_row(["simulate", "multitarget"])
+
+
+# --- item 6 (issue's 8): the last picture holds the end of the data; output lines are pictures
+
+def test_the_final_picture_is_at_the_whole_period_after_the_last_scan(tmp_path: Path,
+                                                                        capsys: pytest.CaptureFixture[str]) -> None:
+    path = write_lines(tmp_path / "m.jsonl", [scan(0.5 * k) for k in range(8)])  # t = 0 .. 3.5
+    out = tmp_path / "o.jsonl"
+    assert main(["replay", "--algorithm", "mtt-local", "--sensor", "s1", "--measurements", str(path),
+                 "--out", str(out)]) == 0
+    pictures = [json.loads(line) for line in out.read_text().splitlines()]
+    assert [p["t"] for p in pictures] == [0.0, 1.0, 2.0, 3.0, 4.0]
+    assert (pictures[-1]["algorithm"], pictures[-1]["detector"]) == ("mtt-local", "none")
+    assert f"wrote 5 pictures to {out}" in capsys.readouterr().out
+
+
+def test_departures_after_the_last_scan_keep_the_final_pictures_within_the_data() -> None:
+    """A live run whose trackers stopped before its centre ends in departure lines: a picture past
+    the data would be made without them, so the pictures stop at the latest scan (live and replay)."""
+    from fedtrack.fusion_center.mtt.replay import PictureClock
+
+    for departed, expected in ((False, [4.0]), (True, [])):
+        clock = PictureClock(period=1.0, delay=0.0)
+        assert [T for t in (0.0, 0.5, 1.2, 2.4, 3.5) for T in clock.due(t)] == [0.0, 1.0, 2.0, 3.0]
+        if departed:
+            clock.left()
+        assert clock.final() == expected
+
+
+# --- item 7 (issue's 9, 10): maneuver rates only when a detector ran; the plot
+
+def _files(tmp_path: Path, **head: str) -> tuple[Path, Path]:
+    truth = [{"t": float(k), "targets": [{"id": 1, "x": [10.0 * k, 10.0, 0.0, 0.0]},
+                                         {"id": 2, "x": [0.0, 0.0, 10.0 * k, 10.0]}]} for k in range(40)]
+    tracks = [{"t": float(k), **head, "tracks": [{"id": 5 + i, "x": g["x"], "status": "confirmed"}
+                                                 for i, g in enumerate(line["targets"])]}
+              for k, line in enumerate(truth)]
+    return write_lines(tmp_path / "tracks.jsonl", tracks), write_lines(tmp_path / "truth.jsonl", truth)
+
+
+def test_maneuver_flag_rates_only_when_a_detector_ran(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from fedtrack.fusion_center.mtt.evaluation import evaluate
+
+    tracks, truth = _files(tmp_path, algorithm="mtt-federated", detector="none")
+    man = evaluate(tracks, truth)["maneuvers"]
+    assert man["applicable"] is False and man["onsets"] is None and man["flagged_while_straight"] is None
+    assert main(["evaluate", "--tracks", str(tracks), "--truth", str(truth)]) == 0
+    assert "maneuver flags: not applicable (no maneuver detector ran" in capsys.readouterr().out
+    tracks, truth = _files(tmp_path, algorithm="mtt-federated", detector="vdie")
+    man = evaluate(tracks, truth)["maneuvers"]
+    assert man["applicable"] is True and man["onsets"] == 0 and man["flagged_while_straight"] == 0.0
+    assert main(["evaluate", "--tracks", str(tracks), "--truth", str(truth)]) == 0
+    printed = capsys.readouterr().out
+    assert "0.0% of 56 while it moves straight" in printed and "0 onsets" in printed
+
+
+@pytest.mark.parametrize("label", [None, "my tracker"])
+def test_plot_track_colours_are_never_grey_and_the_title_names_algorithm_and_file(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, label: str | None) -> None:
+    import matplotlib.colors
+    from matplotlib.figure import Figure
+
+    figures: list[Figure] = []
+    original = Figure.savefig
+    monkeypatch.setattr(Figure, "savefig", lambda self, *a, **k: (figures.append(self), original(self, *a, **k)))
+    tracks, truth = _files(tmp_path, algorithm="mtt-decentralized", detector="none")
+    rows = [json.loads(x) for x in tracks.read_text().splitlines()]
+    for row in rows:  # 24 tracks: more than any colour cycle without repeats
+        row["tracks"] = [{"id": j, "x": [100.0 * j + row["t"], 1.0, 0.0, 0.0], "status": "confirmed"}
+                         for j in range(24)]
+    write_lines(tracks, rows)
+    argv = ["evaluate", "--tracks", str(tracks), "--truth", str(truth), "--plot", str(tmp_path / "p.png")]
+    assert main(argv + (["--label", label] if label else [])) == 0
+    (fig,) = figures
+    title = fig._suptitle.get_text()
+    assert (label or "mtt-decentralized") in title and "tracks.jsonl" in title
+    lines = fig.axes[0].get_lines()
+    grey = [line for line in lines if len({round(c, 3) for c in matplotlib.colors.to_rgb(line.get_color())}) == 1]
+    assert len(grey) == 2 and len(lines) == 26  # the two truths alone are grey
