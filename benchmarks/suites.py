@@ -15,8 +15,9 @@
   joining and leaving (``deploy/join-leave.toml``'s script: the join's association delay, the
   kill's detection time, central tracks lost); and issue 25's association table
   (:func:`bench_association`): mean GOSPA and its parts on the default and the dense scenario for
-  ``gnn`` and ``jipda`` in ``mtt-centralized``, ``mtt-federated`` and ``mtt-local`` (s1) and for
-  Stone Soup's GNN and JPDA trackers on all detections, with ``jipda``'s 1,000-target speed.
+  ``gnn``, ``jipda`` and ``mht`` in ``mtt-centralized``, ``mtt-federated`` and ``mtt-local`` (s1)
+  and for Stone Soup's GNN and JPDA trackers on all detections, with ``jipda``'s and ``mht``'s
+  1,000-target speed.
 * ``pipeline``: the deployment latency bench (:mod:`fedtrack.benchmarks.run`, its options).
 * ``soak``: a long deployment at the lockstep rate (:mod:`fedtrack.benchmarks.soak`; 10 minutes
   by default, not part of ``all``).
@@ -128,10 +129,12 @@ def bench_multitarget(quick: bool) -> dict[str, Any]:
         algorithms = ("mtt-centralized", "mtt-federated", "mtt-decentralized")
         runs: dict[str, list[ChildRun]] = {a: [] for a in algorithms}
         # the central tracks' maneuver detector's cost (federated with [mtt] maneuver = "vdie") and
-        # jipda's (centralized and federated with [mtt] associator = "jipda"), in the first round
+        # jipda's (centralized and federated with [mtt] associator = "jipda") and mht's
+        # (centralized), in the first round
         variants = {"mtt-federated:vdie": ("mtt-federated", 'maneuver = "vdie"'),
                     "mtt-centralized:jipda": ("mtt-centralized", 'associator = "jipda"'),
-                    "mtt-federated:jipda": ("mtt-federated", 'associator = "jipda"')}
+                    "mtt-federated:jipda": ("mtt-federated", 'associator = "jipda"'),
+                    "mtt-centralized:mht": ("mtt-centralized", 'associator = "mht"')}
         configs = {a: sim / "config.toml" for a in algorithms}
         for name, (algorithm, line) in variants.items():
             configs[name] = with_mtt_lines(sim / "config.toml", sim / f"{name.replace(':', '-')}.toml", line)
@@ -244,7 +247,7 @@ def bench_association(quick: bool) -> dict[str, Any]:
             max_lag = tomllib.loads((folder / "config.toml").read_text())["mtt"]["max_lag"]
             truth, extra_eval = folder / "truth.jsonl", ["--horizontal"] if horizontal else []
             table: dict[str, dict[str, Any]] = {}
-            for associator in ("gnn", "jipda"):
+            for associator in ("gnn", "jipda", "mht"):
                 config = with_mtt_lines(folder / "config.toml", folder / f"{associator}.toml",
                                         f'picture_delay = {max_lag}\nassociator = "{associator}"')
                 for name, extra in (("mtt-centralized", []), ("mtt-federated", []),
@@ -261,10 +264,13 @@ def bench_association(quick: bool) -> dict[str, Any]:
                 table.setdefault("stonesoup:all", {})[association] = evaluate(path, truth, extra_eval)["mean"]
                 out["replay_s"][f"{scenario}:stonesoup:{association}"] = wall
             out["gospa"][scenario] = table
-    ratios = {f"{scenario}:{name}": row["jipda"]["gospa"] / row["gnn"]["gospa"]
-              for scenario, table in out["gospa"].items() for name, row in table.items() if "jipda" in row}
-    out["jipda_vs_gnn"] = ratios
+    for associator in ("jipda", "mht"):
+        out[f"{associator}_vs_gnn"] = {f"{scenario}:{name}": row[associator]["gospa"] / row["gnn"]["gospa"]
+                                       for scenario, table in out["gospa"].items() for name, row in table.items()
+                                       if associator in row}
+    ratios = out["jipda_vs_gnn"]
     out["bars"] = {"dense_centralized_jipda_vs_gnn_le_0.85": ratios["dense:mtt-centralized"] <= 0.85,
+                   "dense_centralized_mht_vs_gnn_le_0.85": out["mht_vs_gnn"]["dense:mtt-centralized"] <= 0.85,
                    "jipda_never_2pct_worse": max(ratios.values()) <= 1.02}
     print_association(out["gospa"])
     return out

@@ -1,4 +1,4 @@
-"""JIPDA with amplitude and existence (local_filters/mtt/jipda.py): exactness against the Kalman
+"""JIPDA with amplitude and existence (local_filters/mtt/associators/jipda.py): exactness against the Kalman
 filter and the single-target IPDA-AI, exact enumeration against brute force, the LM-IPDA
 approximation's error, the equivalent observation, and existence-based track management."""
 
@@ -22,7 +22,7 @@ from fedtrack.local_filters.linear.kalman import (
     predict,
     update_residual,
 )
-from fedtrack.local_filters.mtt import jipda
+from fedtrack.local_filters.mtt.associators import jipda
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.models import Linearized, linearize, motion
 from fedtrack.local_filters.mtt.tracker import gate as chi2_gate

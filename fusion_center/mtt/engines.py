@@ -23,7 +23,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from fedtrack.fusion_center.mtt.centre import CENTRAL_MISSES, TrackToTrackCentre
-from fedtrack.local_filters.mtt import jipda
+from fedtrack.local_filters.mtt.associators import jipda
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.history import ScanHistory
 from fedtrack.local_filters.mtt.local import LocalReport, Resets, SensorTracker, is_duplicate

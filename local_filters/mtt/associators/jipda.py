@@ -36,13 +36,11 @@ Track management by existence: :func:`derived_rules`, :func:`manage`, :func:`bir
 
 from __future__ import annotations
 
-import heapq
 import math
-from functools import cache
+from functools import cache, lru_cache
 from typing import NamedTuple
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
@@ -55,7 +53,7 @@ from fedtrack.local_filters.linear.kalman import (
     transpose,
 )
 from fedtrack.local_filters.mtt import association
-from fedtrack.local_filters.mtt.gnn import _pair_graph, _rank_in_component
+from fedtrack.local_filters.mtt.associators.gnn import _pair_graph, _rank_in_component, k_best_assignments
 from fedtrack.local_filters.mtt.models import Linearized
 from fedtrack.local_filters.pda.association import (
     Constants,
@@ -76,7 +74,6 @@ from fedtrack.local_filters.pda.association import (
 MAX_EVENTS = 5000
 K_BEST = 100
 K_BEST_MAX_TRACKS = 12
-FORBIDDEN = 1e12  # cost of an ungated pair or a banned choice in Murty's assignment problems
 MIN_CLUTTER_DENSITY = 1e-300  # lambda = 0 (no clutter): every gated detection is some track's
 
 
@@ -155,42 +152,17 @@ def enumerate_clusters(log_pair: np.ndarray, log_miss: np.ndarray) -> np.ndarray
 
 def k_best_cluster(log_pair: np.ndarray, log_miss: np.ndarray, k: int) -> np.ndarray:
     """Marginals ``W`` (a, b + 1) of one cluster from its ``k`` most likely joint events (Murty's
-    partitioning over ``linear_sum_assignment``), normalized over them: the event sum truncated to
+    partitioning, :func:`~.gnn.k_best_assignments`), normalized over them: the event sum truncated to
     its largest terms. The assignment matrix has a private "missed" column per track."""
     a, b = log_pair.shape
-    cost = np.full((a, b + a), FORBIDDEN)
-    cost[:, :b] = np.where(np.isfinite(log_pair), -log_pair, FORBIDDEN)
+    cost = np.full((a, b + a), np.inf)
+    cost[:, :b] = np.where(np.isfinite(log_pair), -log_pair, np.inf)  # an ungated pair: forbidden
     cost[np.arange(a), b + np.arange(a)] = -log_miss
-
-    def solve(fixed: tuple[tuple[int, int], ...], banned: tuple[tuple[int, int], ...]):
-        m = cost.copy()
-        for i, j in banned:
-            m[i, j] = FORBIDDEN
-        for i, j in fixed:
-            keep = m[i, j]
-            m[i, :], m[:, j] = FORBIDDEN, FORBIDDEN
-            m[i, j] = keep
-        r, col = linear_sum_assignment(m)
-        total = m[r, col].sum()
-        return (total, tuple(col.tolist())) if total < FORBIDDEN / 2 else None
-
-    first = solve((), ())
-    heap = [(first[0], first[1], (), ())]
-    events: list[tuple[float, tuple[int, ...]]] = []
-    while heap and len(events) < k:
-        total, cols, fixed, banned = heapq.heappop(heap)
-        events.append((total, cols))
-        free = [i for i in range(a) if i not in dict(fixed)]
-        for t, i in enumerate(free):
-            child_fixed = fixed + tuple((f, cols[f]) for f in free[:t])
-            child = solve(child_fixed, banned + ((i, cols[i]),))
-            if child is not None:
-                heapq.heappush(heap, (child[0], child[1], child_fixed, banned + ((i, cols[i]),)))
-    totals = np.array([e[0] for e in events])
+    totals, events = k_best_assignments(cost, k)
     weights = np.exp(-(totals - totals.min()))
     weights /= weights.sum()
     W = np.zeros((a, b + 1))
-    for wt, (_, cols) in zip(weights, events):
+    for wt, cols in zip(weights, events):
         W[np.arange(a), np.minimum(cols, b)] += wt
     return W
 
@@ -348,8 +320,10 @@ SURVIVAL_PER_SECOND = 0.98
 SNR = PDAParams().snr  # paper 001's mean target SNR, for scans whose detections carry amplitudes
 
 
+@lru_cache(maxsize=64)
 def scan_constants(pd: float, clutter_density: float, gate_d2: float, m: int) -> Constants:
-    """The constants of one scan of the tracker (:func:`jipda_constants` with :data:`SNR`)."""
+    """The constants of one scan of the tracker (:func:`jipda_constants` with :data:`SNR`; jipda's
+    and mht's: ``P_G``, ``C_gamma``, the amplitude threshold ``tau``)."""
     return jipda_constants(pd, clutter_density, gate_d2, m, SNR)
 
 
