@@ -256,9 +256,9 @@ def test_tracks_on_the_earth_geojson_and_map(tmp_path: Path, capsys: pytest.Capt
 
 
 def test_parquet_reads_as_csv(tmp_path: Path) -> None:
-    """Parquet (the ``real`` extra's pyarrow; skipped where it is not installed) gives the CSV's samples."""
-    pq = pytest.importorskip("pyarrow.parquet")
+    """Parquet (pyarrow: the ``real`` and ``dev`` extras) gives the CSV's samples."""
     import pyarrow as pa
+    import pyarrow.parquet as pq
 
     src = read_recording(DATA / "traffic_switzerland.csv.gz")
     table = pa.table({"time": src.t, "icao24": src.icao24.tolist(), "lat": src.lla[:, 0], "lon": src.lla[:, 1],
