@@ -1,5 +1,5 @@
-"""Stone Soup's multi-target GNN tracker on a ``replay`` input: the anchor of issue 12's GOSPA
-comparison (Stone Soup comes only from the ``bench`` extra).
+"""Stone Soup's multi-target GNN tracker and its JPDA tracker on a ``replay`` input: the anchors
+of issues 12 and 25's GOSPA comparisons (Stone Soup comes only from the ``bench`` extra).
 
 Our configuration of it, as close to fedtrack's ``mtt`` trackers as Stone Soup allows:
 
@@ -17,6 +17,11 @@ Our configuration of it, as close to fedtrack's ``mtt`` trackers as Stone Soup a
   velocity and ``init_velocity_std`` (and z = 0 with ``init_z_std``); a tentative track is dropped after
   ``confirm_window - confirm_hits + 1`` scans without an update, a confirmed one after
   ``delete_misses`` (``UpdateTimeStepsDeleter``: fedtrack's rules, counted in scans);
+* ``"gnn"``: ``MultiTargetTracker``; ``"jpda"``: ``JPDA`` over ``PDAHypothesiser`` (``[mtt]``
+  ``clutter_density``, ``pd`` and ``gate_probability``) in ``MultiTargetMixtureTracker``, which
+  reduces each track's mixture to one Gaussian and counts a scan as an update when some
+  detection outweighs the miss (what its deleter counts); its initiator is the GNN one above
+  (as in Stone Soup's JPDA tutorial);
 * Stone Soup has no out-of-sequence handling: it gets the scans sorted by time (as if it had
   waited for every late scan), which favours it.
 
@@ -54,17 +59,21 @@ def read_scans(measurements: Path, sensors: set[str] | None) -> list[dict[str, A
     return scans
 
 
-def stonesoup_gnn(scans: list[dict[str, Any]], mtt: Any, out: Path) -> dict[str, Any]:
-    """Run Stone Soup's GNN tracker over ``scans``; write the pictures to ``out``; return counts."""
+def stonesoup_tracker(scans: list[dict[str, Any]], mtt: Any, out: Path, association: str = "gnn") -> dict[str, Any]:
+    """Run Stone Soup's ``association`` (``"gnn"`` or ``"jpda"``) tracker over ``scans``; write the
+    pictures to ``out``; return counts."""
     from stonesoup.dataassociator.neighbour import GNNWith2DAssignment
+    from stonesoup.dataassociator.probability import JPDA
     from stonesoup.deleter.time import UpdateTimeStepsDeleter
     from stonesoup.hypothesiser.distance import DistanceHypothesiser
+    from stonesoup.hypothesiser.probability import PDAHypothesiser
     from stonesoup.initiator.simple import MultiMeasurementInitiator
     from stonesoup.measures import Mahalanobis
     from stonesoup.models.measurement.linear import LinearGaussian
     from stonesoup.models.measurement.nonlinear import CartesianToElevationBearingRange
     from stonesoup.models.transition.linear import CombinedLinearGaussianTransitionModel, ConstantVelocity
     from stonesoup.predictor.kalman import KalmanPredictor
+    from stonesoup.tracker.simple import MultiTargetMixtureTracker, MultiTargetTracker
     from stonesoup.types.angle import Bearing, Elevation
     from stonesoup.types.array import StateVector
     from stonesoup.types.detection import Detection
@@ -78,21 +87,28 @@ def stonesoup_gnn(scans: list[dict[str, Any]], mtt: Any, out: Path) -> dict[str,
     predictor = KalmanPredictor(transition)
     updater = (ExtendedKalmanUpdater if radar else KalmanUpdater)(default_model)
     gate = float(np.sqrt(chdtri(3 if radar else 2, 1.0 - mtt.gate_probability)))
-    associator = GNNWith2DAssignment(DistanceHypothesiser(predictor, updater, Mahalanobis(), missed_distance=gate))
+    gnn = GNNWith2DAssignment(DistanceHypothesiser(predictor, updater, Mahalanobis(), missed_distance=gate))
     v2 = mtt.init_velocity_std**2
     prior = GaussianState(np.zeros((dim, 1)), np.diag([1.0, v2, 1.0, v2, mtt.init_z_std**2, v2][:dim]))
     initiator = MultiMeasurementInitiator(
-        prior, UpdateTimeStepsDeleter(mtt.confirm_window - mtt.confirm_hits + 1), associator, updater,
+        prior, UpdateTimeStepsDeleter(mtt.confirm_window - mtt.confirm_hits + 1), gnn, updater,
         min_points=mtt.confirm_hits)
     deleter = UpdateTimeStepsDeleter(mtt.delete_misses)
+    if association == "gnn":
+        tracker = MultiTargetTracker(initiator, deleter, None, gnn, updater)
+    elif association == "jpda":
+        jpda = JPDA(PDAHypothesiser(predictor, updater, clutter_spatial_density=mtt.clutter_density,
+                                    prob_detect=mtt.pd, prob_gate=mtt.gate_probability))
+        tracker = MultiTargetMixtureTracker(initiator, deleter, None, jpda, updater)
+    else:
+        raise ValueError(f"association {association!r}: gnn or jpda")
     models: dict[str, Any] = {}
-    tracks: set[Any] = set()
     ids: dict[Any, int] = {}
     pictures = 0
 
     def picture(T: float) -> dict[str, Any]:
         rows = []
-        for track in tracks:
+        for track in tracker.tracks:
             state = predictor.predict(track.state, timestamp=_stamp(T)) if track.timestamp < _stamp(T) else track.state
             x, P = np.asarray(state.state_vector, float).ravel(), np.asarray(state.covar, float)
             rows.append({"id": ids.setdefault(track, len(ids)), "pos": x[0::2].tolist(), "vel": x[1::2].tolist(),
@@ -129,17 +145,7 @@ def stonesoup_gnn(scans: list[dict[str, Any]], mtt: Any, out: Path) -> dict[str,
                 fh.write(json.dumps(picture(T)) + "\n")
                 pictures += 1
                 T = next(next_picture)
-            when = _stamp(row["t"])
-            detections = scan_detections(row)
-            unassigned = set(detections)
-            for track, hypothesis in associator.associate(tracks, detections, when).items():
-                if hypothesis:
-                    track.append(updater.update(hypothesis))
-                    unassigned.discard(hypothesis.measurement)
-                else:
-                    track.append(hypothesis.prediction)
-            tracks -= deleter.delete_tracks(tracks)
-            tracks |= initiator.initiate(unassigned, when)
+            tracker.update_tracker(_stamp(row["t"]), scan_detections(row))
         if scans:
             fh.write(json.dumps(picture(T)) + "\n")
             pictures += 1

@@ -13,7 +13,11 @@
   every scan up to its time (``picture_delay = max_lag``); then two live deployments
   (:func:`bench_live`): 200 targets and 4 sensors at real time (picture latency), and sensors
   joining and leaving (``deploy/join-leave.toml``'s script: the join's association delay, the
-  kill's detection time, central tracks lost).
+  kill's detection time, central tracks lost); and issue 25's association table
+  (:func:`bench_association`): mean GOSPA and its parts on the default and the dense scenario for
+  ``gnn``, ``jipda`` and ``mht`` in ``mtt-centralized``, ``mtt-federated`` and ``mtt-local`` (s1)
+  and for Stone Soup's GNN and JPDA trackers on all detections, with ``jipda``'s and ``mht``'s
+  1,000-target speed.
 * ``pipeline``: the deployment latency bench (:mod:`fedtrack.benchmarks.run`, its options).
 * ``soak``: a long deployment at the lockstep rate (:mod:`fedtrack.benchmarks.soak`; 10 minutes
   by default, not part of ``all``).
@@ -124,17 +128,22 @@ def bench_multitarget(quick: bool) -> dict[str, Any]:
         # disturbed (every run is kept in ``wall_s_runs``)
         algorithms = ("mtt-centralized", "mtt-federated", "mtt-decentralized")
         runs: dict[str, list[ChildRun]] = {a: [] for a in algorithms}
-        for _ in range(1 if quick else SCALE_ROUNDS):
-            for algorithm in algorithms:
-                runs[algorithm].append(timed_with_log(fedtrack_cmd(
-                    "replay", "--algorithm", algorithm, "--config", str(sim / "config.toml"),
-                    "--measurements", str(sim / "measurements.jsonl"), "--out", str(sim / f"{algorithm}.jsonl"))))
-        # the central tracks' maneuver detector's cost: federated with [mtt] maneuver = "vdie", once
-        vdie_config = sim / "vdie.toml"
-        vdie_config.write_text((sim / "config.toml").read_text().replace("[mtt]\n", '[mtt]\nmaneuver = "vdie"\n', 1))
-        runs["mtt-federated:vdie"] = [timed_with_log(fedtrack_cmd(
-            "replay", "--algorithm", "mtt-federated", "--config", str(vdie_config),
-            "--measurements", str(sim / "measurements.jsonl"), "--out", str(sim / "vdie.jsonl")))]
+        # the central tracks' maneuver detector's cost (federated with [mtt] maneuver = "vdie") and
+        # jipda's (centralized and federated with [mtt] associator = "jipda") and mht's
+        # (centralized), in the first round
+        variants = {"mtt-federated:vdie": ("mtt-federated", 'maneuver = "vdie"'),
+                    "mtt-centralized:jipda": ("mtt-centralized", 'associator = "jipda"'),
+                    "mtt-federated:jipda": ("mtt-federated", 'associator = "jipda"'),
+                    "mtt-centralized:mht": ("mtt-centralized", 'associator = "mht"')}
+        configs = {a: sim / "config.toml" for a in algorithms}
+        for name, (algorithm, line) in variants.items():
+            configs[name] = with_mtt_lines(sim / "config.toml", sim / f"{name.replace(':', '-')}.toml", line)
+            runs[name] = []
+        for round_ in range(1 if quick else SCALE_ROUNDS):
+            for name in runs if round_ == 0 else algorithms:
+                runs[name].append(timed_with_log(fedtrack_cmd(
+                    "replay", "--algorithm", name.split(":")[0], "--config", str(configs[name]),
+                    "--measurements", str(sim / "measurements.jsonl"), "--out", str(sim / "scale.jsonl"))))
         for algorithm, done in runs.items():
             fastest = min(done, key=lambda run: run.wall)
             cpu = min(run.cpu for run in done)  # the process's own seconds on its one core
@@ -149,9 +158,8 @@ def bench_multitarget(quick: bool) -> dict[str, Any]:
         timed(fedtrack_cmd("simulate", "multitarget", "--seed", "1", "--out", str(default), *args))
         # every picture holds every scan up to its time (Stone Soup gets the scans time-sorted); our
         # trackers with their maneuver handling (VDIE per track), and also without it ("cv:" rows)
-        config = default / "complete.toml"
-        config.write_text((default / "config.toml").read_text().replace(
-            "[mtt]\n", '[mtt]\npicture_delay = 3.0\nmaneuver = "vdie"\n', 1))
+        config = with_mtt_lines(default / "config.toml", default / "complete.toml",
+                                'picture_delay = 3.0\nmaneuver = "vdie"')
         cv_config = default / "complete-cv.toml"
         cv_config.write_text(config.read_text().replace('maneuver = "vdie"\n', "", 1))
         sensors = ("s1", "s2", "s3")
@@ -169,10 +177,7 @@ def bench_multitarget(quick: bool) -> dict[str, Any]:
         gospa: dict[str, float] = {}
         out["maneuver_flags"] = {}  # evaluate's maneuver section, where a tracker flags maneuvers
         for name, path in tracks.items():
-            result = default / "eval.json"
-            timed(fedtrack_cmd("evaluate", "--tracks", str(path), "--truth", str(default / "truth.jsonl"),
-                               "--json", str(result)))
-            evaluation = json.loads(result.read_text())
+            evaluation = evaluate(path, default / "truth.jsonl")
             gospa[name] = evaluation["mean"]["gospa"]
             if evaluation["maneuvers"]["onsets"]:
                 out["maneuver_flags"][name] = evaluation["maneuvers"]
@@ -189,7 +194,96 @@ def bench_multitarget(quick: bool) -> dict[str, Any]:
             for s in sensors:
                 out["gospa_ratios"][f"local_{s}_vs_stonesoup"] = gospa[f"mtt-local:{s}"] / gospa[f"stonesoup:{s}"]
                 out["gospa_ratios"][f"cv_local_{s}_vs_stonesoup"] = cv[f"mtt-local:{s}"] / gospa[f"stonesoup:{s}"]
+    out["association"] = bench_association(quick)
     return out
+
+
+def with_mtt_lines(config: Path, out: Path, lines: str) -> Path:
+    """``config`` with ``lines`` added at the top of its ``[mtt]`` table, written to ``out``."""
+    out.write_text(config.read_text().replace("[mtt]\n", f"[mtt]\n{lines}\n", 1))
+    return out
+
+
+def evaluate(tracks: Path, truth: Path, extra: list[str] | None = None) -> dict[str, Any]:
+    """``fedtrack evaluate``'s JSON for ``tracks`` against ``truth`` (``extra``: its options)."""
+    result = tracks.with_suffix(".eval.json")
+    timed(fedtrack_cmd("evaluate", "--tracks", str(tracks), "--truth", str(truth), "--json", str(result),
+                       *(extra or [])))
+    return json.loads(result.read_text())
+
+
+# issue 25's scenarios: (``simulate`` arguments, the same with --quick, the sensor of the mtt-local row,
+# ``evaluate --horizontal``); the recorded one needs the repository's tests/data (an editable install)
+TRAFFIC_SOURCE = Path(__file__).resolve().parents[1] / "tests" / "data" / "traffic_paris.csv.gz"
+ASSOCIATION_SCENARIOS: dict[str, tuple[list[str], list[str], str, bool]] = {
+    "default": (["multitarget", "--seed", "1"], ["multitarget", "--seed", "1", "--targets", "15", "--duration", "30"], "s1", False),
+    "dense": (["multitarget", "--scenario", "dense", "--seed", "1"],
+              ["multitarget", "--scenario", "dense", "--seed", "1", "--targets", "15", "--duration", "30"], "s1", False),
+    "traffic": (["traffic", "--source", str(TRAFFIC_SOURCE), "--origin", "48.86,2.40", "--sensors",
+                 "radar:4@49.2/2.0/100,radar:5@48.6/2.9/100,pos:2", "--seed", "1", "--start", "60", "--box", "150",
+                 "--duration", "600"],
+                ["traffic", "--source", str(TRAFFIC_SOURCE), "--origin", "48.86,2.40", "--sensors",
+                 "radar:4@49.2/2.0/100,radar:5@48.6/2.9/100,pos:2", "--seed", "1", "--start", "60", "--box", "150",
+                 "--duration", "60"], "s3", True),
+}
+
+
+def bench_association(quick: bool) -> dict[str, Any]:
+    """Mean GOSPA and its parts (``evaluate``'s means) per scenario, algorithm and associator: the
+    scenario's own config with only ``associator`` changed and every picture holding every scan up
+    to its time (``picture_delay = max_lag``); Stone Soup's GNN and JPDA trackers on all detections,
+    time-sorted (:mod:`fedtrack.benchmarks.stonesoup_mtt`); the bars' ratios. The recorded-traffic
+    scenario (Paris, docs/geodetic.md) is scored on x, y (``--horizontal``)."""
+    import tomllib
+
+    out: dict[str, Any] = {"gospa": {}, "replay_s": {}}
+    with tempfile.TemporaryDirectory() as tmp:
+        for scenario, (full, small, own, horizontal) in ASSOCIATION_SCENARIOS.items():
+            if scenario == "traffic" and not TRAFFIC_SOURCE.exists():
+                print(f"fedtrack bench: {TRAFFIC_SOURCE} not found: the traffic scenario is skipped", file=sys.stderr)
+                continue
+            folder = Path(tmp) / scenario
+            timed(fedtrack_cmd("simulate", *(small if quick else full), "--out", str(folder)))
+            max_lag = tomllib.loads((folder / "config.toml").read_text())["mtt"]["max_lag"]
+            truth, extra_eval = folder / "truth.jsonl", ["--horizontal"] if horizontal else []
+            table: dict[str, dict[str, Any]] = {}
+            for associator in ("gnn", "jipda", "mht"):
+                config = with_mtt_lines(folder / "config.toml", folder / f"{associator}.toml",
+                                        f'picture_delay = {max_lag}\nassociator = "{associator}"')
+                for name, extra in (("mtt-centralized", []), ("mtt-federated", []),
+                                    (f"mtt-local:{own}", ["--sensor", own])):
+                    path = folder / f"{associator}-{name.replace(':', '-')}.jsonl"
+                    out["replay_s"][f"{scenario}:{name}:{associator}"], _ = timed(fedtrack_cmd(
+                        "replay", "--algorithm", name.split(":")[0], *extra, "--config", str(config),
+                        "--measurements", str(folder / "measurements.jsonl"), "--out", str(path)))
+                    table.setdefault(name, {})[associator] = evaluate(path, truth, extra_eval)["mean"]
+            # Stone Soup's JPDA enumerates joint events in Python: minutes even on --quick's sizes
+            for association, wall in stonesoup_associations(folder, folder / "gnn.toml",
+                                                            ("gnn",) if quick else ("gnn", "jpda")).items():
+                path = folder / f"stonesoup-{association}.jsonl"
+                table.setdefault("stonesoup:all", {})[association] = evaluate(path, truth, extra_eval)["mean"]
+                out["replay_s"][f"{scenario}:stonesoup:{association}"] = wall
+            out["gospa"][scenario] = table
+    for associator in ("jipda", "mht"):
+        out[f"{associator}_vs_gnn"] = {f"{scenario}:{name}": row[associator]["gospa"] / row["gnn"]["gospa"]
+                                       for scenario, table in out["gospa"].items() for name, row in table.items()
+                                       if associator in row}
+    ratios = out["jipda_vs_gnn"]
+    out["bars"] = {"dense_centralized_jipda_vs_gnn_le_0.85": ratios["dense:mtt-centralized"] <= 0.85,
+                   "dense_centralized_mht_vs_gnn_le_0.85": out["mht_vs_gnn"]["dense:mtt-centralized"] <= 0.85,
+                   "jipda_never_2pct_worse": max(ratios.values()) <= 1.02}
+    print_association(out["gospa"])
+    return out
+
+
+def print_association(gospa: dict[str, dict[str, dict[str, Any]]]) -> None:
+    """The association table on stderr: mean GOSPA (localisation / missed / false parts)."""
+    print("mean GOSPA (localisation / missed / false, p-th power parts)", file=sys.stderr)
+    for scenario, table in gospa.items():
+        for name, row in table.items():
+            cells = [f"{a} {m['gospa']:.2f} ({m['localisation']:.0f} / {m['missed']:.0f} / {m['false']:.0f})"
+                     for a, m in row.items()]
+            print(f"  {scenario:8s} {name:16s} " + "  ".join(cells), file=sys.stderr)
 
 
 LIVE_CONFIG = """
@@ -241,27 +335,51 @@ def bench_live(quick: bool) -> dict[str, Any]:
     return out
 
 
-def stonesoup_runs(default: Path, config: Path, sensors: tuple[str, ...], tracks: dict[str, Path]
-                   ) -> dict[str, float] | None:
-    """Stone Soup's GNN tracker on each sensor's detections and on all of them (adds to ``tracks``);
-    wall seconds per run, or None without the ``bench`` extra."""
+def stonesoup_config(config: Path) -> Any | None:
+    """``config``'s ``[mtt]`` for Stone Soup's trackers, or None without the ``bench`` extra."""
     try:
         import stonesoup  # noqa: F401
     except ImportError:
         print("fedtrack bench: stonesoup not installed (pip install 'fedtrack[bench]'): the multi-target "
               "comparison with Stone Soup is skipped", file=sys.stderr)
         return None
-    from fedtrack.benchmarks.stonesoup_mtt import read_scans, stonesoup_gnn
     from fedtrack.config import load_tables
     from fedtrack.local_filters.mtt.config import MttSettings
 
-    cfg = load_tables(config, MttSettings).mtt
+    return load_tables(config, MttSettings).mtt
+
+
+def stonesoup_runs(default: Path, config: Path, sensors: tuple[str, ...], tracks: dict[str, Path]
+                   ) -> dict[str, float] | None:
+    """Stone Soup's GNN tracker on each sensor's detections and on all of them (adds to ``tracks``);
+    wall seconds per run, or None without the ``bench`` extra."""
+    cfg = stonesoup_config(config)
+    if cfg is None:
+        return None
+    from fedtrack.benchmarks.stonesoup_mtt import read_scans, stonesoup_tracker
+
     wall = {}
     for name, only in [("stonesoup:all", None)] + [(f"stonesoup:{s}", {s}) for s in sensors]:
         tracks[name] = default / f"{name.replace(':', '-')}.jsonl"
         t0 = time.perf_counter()
-        stonesoup_gnn(read_scans(default / "measurements.jsonl", only), cfg, tracks[name])
+        stonesoup_tracker(read_scans(default / "measurements.jsonl", only), cfg, tracks[name])
         wall[name] = time.perf_counter() - t0
+    return wall
+
+
+def stonesoup_associations(folder: Path, config: Path, associations: tuple[str, ...]) -> dict[str, float]:
+    """Stone Soup's trackers (``"gnn"``, ``"jpda"``) on all of ``folder``'s detections, written to
+    ``stonesoup-<association>.jsonl``; wall seconds per run (none without the ``bench`` extra)."""
+    cfg = stonesoup_config(config)
+    if cfg is None:
+        return {}
+    from fedtrack.benchmarks.stonesoup_mtt import read_scans, stonesoup_tracker
+
+    scans, wall = read_scans(folder / "measurements.jsonl", None), {}
+    for association in associations:
+        t0 = time.perf_counter()
+        stonesoup_tracker(scans, cfg, folder / f"stonesoup-{association}.jsonl", association)
+        wall[association] = time.perf_counter() - t0
     return wall
 
 

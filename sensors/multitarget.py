@@ -7,6 +7,12 @@ Truth: targets move at constant speed (8-30 m/s) with coordinated turns (a few p
 Radar scenarios give every target a constant altitude. Truth is integrated on a 0.05 s grid
 (exact per step for a constant turn rate).
 
+Formations (``--formation G``): targets fly in groups of ``G``, each group one of the above
+trajectories (its crossings, turns, birth and death) with its members side by side across the
+track, neighbours between one and two noise sigmas of the coarsest possible position sensor
+apart (``POS_SD_MAX`` to ``2 POS_SD_MAX``: 20-40 m). ``--scenario dense`` is issue 25's dense
+scenario: groups of three crossing other groups, P_D 0.8, 50 false detections per scan, 120 s.
+
 Sensors (``SPEC`` = comma-separated ``kind:period``, kind ``pos`` or ``radar``): each has its
 own period and a random phase; every target is detected with ``pd``; ``clutter`` false
 detections per scan on average (Poisson), uniform over the region (radar: over its range,
@@ -44,6 +50,7 @@ TURN_RATE = (2.0, 6.0)  # deg/s, uniform, either sign
 # m/s^2: the fastest turn of the fastest target (a crossing only slows a target down: its
 # meeting point, when clipped to the region, comes nearer)
 MAX_ACCELERATION = float(np.deg2rad(TURN_RATE[1]) * SPEED[1])
+POS_SD_MIN, POS_SD_MAX = 10.0, 20.0  # a position sensor's noise std per axis (m)
 
 
 @dataclass(frozen=True)
@@ -62,6 +69,14 @@ class Scenario:
     clutter: float = 10.0
     late: float = 0.2
     base_delay: float = 0.05
+    formation: int = 1  # targets per group
+
+
+# ``--scenario`` presets: options the command line did not set
+PRESETS: dict[str, dict[str, float]] = {
+    "default": {},
+    "dense": {"pd": 0.8, "clutter": 50.0, "duration": 120.0, "formation": 3},
+}
 
 
 ID_PREFIX = {"pos": "s", "radar": "r", "adsb": "a"}
@@ -85,7 +100,7 @@ def parse_spec(spec: str, kinds: tuple[str, ...] = ("pos", "radar")) -> list[Sen
 def simulate_truth(sc: Scenario, three_d: bool, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """States ``(steps, N, 6)`` ``[x, vx, y, vy, z, vz]`` on the ``DT`` grid and an alive mask ``(steps, N)``."""
     steps = int(round(sc.duration / DT)) + 1
-    n = sc.targets
+    n = -(-sc.targets // sc.formation)  # one trajectory per group
     speed = rng.uniform(*SPEED, n)
     heading = rng.uniform(-np.pi, np.pi, n)
     pos = rng.uniform(-0.7 * sc.region, 0.7 * sc.region, (n, 2))
@@ -123,7 +138,24 @@ def simulate_truth(sc: Scenario, three_d: bool, rng: np.random.Generator) -> tup
     dies = np.where(rng.uniform(size=n) < 0.2, rng.uniform(0.5 * sc.duration, sc.duration, n), np.inf)
     t = np.arange(steps) * DT
     alive = (t[:, None] >= born[None]) & (t[:, None] <= dies[None])
-    return x, alive
+    if sc.formation == 1:
+        return x, alive
+    return formation(x, alive, sc.targets, sc.formation, rng)
+
+
+def formation(x: np.ndarray, alive: np.ndarray, targets: int, size: int, rng: np.random.Generator
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Groups of ``size`` from one trajectory each: member ``r`` of a group is its trajectory moved
+    ``r s`` across the initial heading (``s`` uniform in ``[POS_SD_MAX, 2 POS_SD_MAX]`` per group);
+    the same velocities and turns, so the formation holds."""
+    member = np.arange(targets)
+    group, rank = member // size, member % size
+    heading = np.arctan2(x[0, :, 3], x[0, :, 1])
+    spacing = rng.uniform(POS_SD_MAX, 2 * POS_SD_MAX, x.shape[1])
+    offset = np.zeros((targets, 6))
+    offset[:, 0] = -np.sin(heading[group]) * spacing[group] * rank
+    offset[:, 2] = np.cos(heading[group]) * spacing[group] * rank
+    return x[:, group] + offset, alive[:, group]
 
 
 def sensor_lines(spec: SensorSpec, sc: Scenario, x: np.ndarray, alive: np.ndarray, three_d: bool,
@@ -142,7 +174,7 @@ def sensor_lines(spec: SensorSpec, sc: Scenario, x: np.ndarray, alive: np.ndarra
     out: list[tuple[float, dict[str, Any]]] = []
     last_arrival = -np.inf
     if spec.kind == "pos":
-        sd = rng.uniform(10.0, 20.0)
+        sd = rng.uniform(POS_SD_MIN, POS_SD_MAX)
         R = np.array([[sd**2, 0.3 * sd**2], [0.3 * sd**2, sd**2]]) if noise is None else noise
         where = None
     else:
@@ -253,6 +285,10 @@ def main(argv: list[str]) -> int:
                                      description="simulate a multi-target scenario for replay and evaluate: writes "
                                      "measurements.jsonl (arrival order), truth.jsonl and config.toml into --out",
                                      epilog=SENSOR_IDS)
+    parser.add_argument("--scenario", choices=sorted(PRESETS), default="default",
+                        help="default: the options' defaults; dense: issue 25's dense scenario, groups of three "
+                             "targets 20-40 m apart (within 2 sigma of the coarsest position sensor) crossing other "
+                             "groups, --pd 0.8 --clutter 50 --duration 120 --formation 3 (options given override)")
     parser.add_argument("--targets", type=int, default=Scenario.targets,
                         help="number of targets (crossing pairs, turns, some born late or dying early; "
                              "default: %(default)s)")
@@ -261,26 +297,34 @@ def main(argv: list[str]) -> int:
                              "(default: %(default)s)")
     parser.add_argument("--seed", type=int, default=1, help="seed of truth, noise, clutter and delays "
                         "(default: %(default)s)")
-    parser.add_argument("--duration", type=float, default=Scenario.duration,
-                        help="seconds of scenario (default: %(default)s)")
-    parser.add_argument("--pd", type=float, default=Scenario.pd,
-                        help="probability that a sensor detects a target in a scan (default: %(default)s)")
-    parser.add_argument("--clutter", type=float, default=Scenario.clutter,
-                        help="mean number of false detections per scan (Poisson; default: %(default)s)")
+    parser.add_argument("--duration", type=float,
+                        help=f"seconds of scenario (default: {Scenario.duration:g}; dense: 120)")
+    parser.add_argument("--pd", type=float,
+                        help=f"probability that a sensor detects a target in a scan (default: {Scenario.pd:g}; "
+                             "dense: 0.8)")
+    parser.add_argument("--clutter", type=float,
+                        help=f"mean number of false detections per scan (Poisson; default: {Scenario.clutter:g}; "
+                             "dense: 50)")
+    parser.add_argument("--formation", type=int,
+                        help="targets per group flying side by side, 20-40 m apart (default: 1; dense: 3)")
     parser.add_argument("--late", type=float, default=Scenario.late,
                         help="fraction of scans delivered late, up to two of their sensor's periods "
                              "(default: %(default)s)")
     parser.add_argument("--out", required=True, type=Path, metavar="DIR",
                         help="folder to write into (created if missing; its own folder must exist)")
     args = parser.parse_args(argv)
+    for key in ("duration", "pd", "clutter", "formation"):
+        if getattr(args, key) is None:
+            setattr(args, key, PRESETS[args.scenario].get(key, getattr(Scenario, key)))
     for name, ok, rule in (("targets", args.targets >= 1, ">= 1"), ("duration", args.duration > 0, "> 0"),
                            ("pd", 0 < args.pd <= 1, "in (0, 1]"), ("clutter", args.clutter >= 0, ">= 0"),
-                           ("late", 0 <= args.late < 1, "in [0, 1)")):
+                           ("late", 0 <= args.late < 1, "in [0, 1)"), ("formation", args.formation >= 1, ">= 1")):
         if not ok:
             raise InputError(f"--{name}: must be {rule}, got {getattr(args, name):g}")
     specs = parse_spec(args.sensors)
     output_folder(args.out)
-    sc = Scenario(targets=args.targets, duration=args.duration, pd=args.pd, clutter=args.clutter, late=args.late)
+    sc = Scenario(targets=args.targets, duration=args.duration, pd=args.pd, clutter=args.clutter, late=args.late,
+                  formation=int(args.formation))
     info = simulate(sc, specs, args.seed, args.out)
     print(f"wrote {args.out}/measurements.jsonl ({info['scans']} scans, {info['out_of_sequence']} out of "
           f"sequence), truth.jsonl ({args.targets} targets), config.toml; sensors: {', '.join(info['sensors'])}")

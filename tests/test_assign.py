@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linear_sum_assignment
 
-from fedtrack.local_filters.mtt.gnn import assign
+from fedtrack.local_filters.mtt.associators.gnn import assign
 
 
 @settings(max_examples=200, deadline=None)

@@ -94,3 +94,26 @@ def test_simulate_replay_evaluate(tmp_path: Path, capsys: pytest.CaptureFixture)
     assert res["pictures"] >= 38 and res["mean"]["gospa"] < 100.0
     assert (tmp_path / "e.png").stat().st_size > 10_000
     assert "mean GOSPA" in capsys.readouterr().out
+
+
+def test_dense_scenario_flies_formations(tmp_path: Path) -> None:
+    """``--scenario dense``: its presets (P_D 0.8, 50 false detections, 120 s) unless given; groups of
+    three side by side 20-40 m apart (within 2 sigma of the coarsest position sensor), holding formation."""
+    out = tmp_path / "dense"
+    assert cli(["simulate", "multitarget", "--scenario", "dense", "--targets", "9", "--duration", "30",
+                "--seed", "2", "--out", str(out)]) == 0
+    cfg = load_tables(out / "config.toml", MttSettings).mtt
+    assert cfg.pd == 0.8 and math.isclose(cfg.clutter_density, 50.0 / 10_000.0**2)
+    lines = [json.loads(x) for x in (out / "measurements.jsonl").read_text().splitlines()]
+    assert 25 <= np.mean([len(x["detections"]) for x in lines]) - 9 * 0.8 <= 75  # Poisson(50) clutter
+    truth = [json.loads(x) for x in (out / "truth.jsonl").read_text().splitlines()]
+    assert len(truth) == 31
+    for picture in (truth[0], truth[-1]):
+        x = {tr["id"]: np.array(tr["x"]) for tr in picture["targets"]}
+        for lead in (i for i in (0, 3, 6) if i in x):
+            gaps = [np.hypot(*(x[lead + r][[0, 2]] - x[lead + r - 1][[0, 2]])) for r in (1, 2)]
+            assert all(20.0 - 1e-9 <= g <= 40.0 + 1e-9 for g in gaps), gaps
+            assert np.allclose(x[lead][[1, 3]], x[lead + 2][[1, 3]])  # one velocity: a formation
+    assert cli(["simulate", "multitarget", "--scenario", "dense", "--pd", "0.9", "--targets", "3", "--duration",
+                "5", "--out", str(tmp_path / "own")]) == 0
+    assert load_tables(tmp_path / "own" / "config.toml", MttSettings).mtt.pd == 0.9

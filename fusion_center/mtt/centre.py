@@ -49,7 +49,7 @@ from scipy.spatial import cKDTree
 from fedtrack.fusion_center.mtt.central_track import CentralTracks, padded
 from fedtrack.local_filters.linear.gating import track_difference_d2
 from fedtrack.local_filters.mtt.config import MttConfig
-from fedtrack.local_filters.mtt.gnn import assign
+from fedtrack.local_filters.mtt.associators.gnn import assign
 from fedtrack.local_filters.mtt.local import LocalReport, Resets, no_resets
 
 LocalKey = tuple[str, int]  # (sensor, local track id)

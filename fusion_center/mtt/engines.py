@@ -23,6 +23,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from fedtrack.fusion_center.mtt.centre import CENTRAL_MISSES, TrackToTrackCentre
+from fedtrack.local_filters.mtt.associators import jipda
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.history import ScanHistory
 from fedtrack.local_filters.mtt.local import LocalReport, Resets, SensorTracker, is_duplicate
@@ -30,6 +31,7 @@ from fedtrack.local_filters.mtt.maneuver import predicted_view
 from fedtrack.local_filters.mtt.models import predict_batch
 from fedtrack.local_filters.mtt.scan import SensorScan
 from fedtrack.local_filters.mtt.tracker import TrackerState, TrackParams, initial_state, track_params, tracker_step
+from fedtrack.local_filters.pda.association import existence_predict
 from fedtrack.local_filters.vdie.estimation import VdieParams
 from fedtrack.wire import picture_line
 
@@ -49,6 +51,7 @@ class PictureTracks(NamedTuple):
     # (n, 4) detected maneuvers [onset, ax, ay, statistic] (central tracks, or a 3-D tracker's
     # tracks), NaN rows where none; None where no maneuver detector runs
     maneuver: np.ndarray | None = None
+    existence: list[float] | None = None  # per track (associators that keep it), None: not kept
 
     def maneuver_rows(self) -> list[int]:
         """The positions of the central tracks whose maneuver is detected."""
@@ -61,7 +64,7 @@ class PictureTracks(NamedTuple):
     def line(self, t: float, head: dict[str, Any] | None = None) -> str:
         """The picture's line in a tracks file (``{"t": t, **head, "tracks": rows}`` as JSON)."""
         return picture_line(t, self.ids, self.x, self.P, self.confirmed, self.sensors, self.models, self.maneuver,
-                            head)
+                            self.existence, head)
 
 
 def central_params(cfg: MttConfig, sensor: str | None, dim: int) -> TrackParams:
@@ -100,7 +103,12 @@ def tracker_picture(state: TrackerState, T: float, cfg: MttConfig, sensors: list
         else:
             x, P = predict_batch(x, P, T - state.t, cfg.q, cfg.noise_model)
     maneuver = None if tr.inputs is None or detector is None else tr.inputs.detection.picture_rows(detector)
-    return PictureTracks(tr.ids.tolist(), x, P, tr.confirmed.tolist(), [sensors] * tr.size, tr.models, maneuver)
+    existence = None
+    if tr.existence is not None:  # predicted to T as the tracks are (jipda.survival)
+        existence = existence_predict(tr.existence, jipda.survival(max(T - (state.t or T), 0.0), 1.0,
+                                                                   jipda.SURVIVAL_PER_SECOND), 0.0).tolist()
+    return PictureTracks(tr.ids.tolist(), x, P, tr.confirmed.tolist(), [sensors] * tr.size, tr.models, maneuver,
+                         existence)
 
 
 @dataclass

@@ -26,6 +26,10 @@ come from the :class:`Associator`; the others are shared.
   tracker.Updated`` (the tracks with their posterior ``x``, ``P`` and existence, which tracks
   to report as detected, and their linearized observations ``(H, R, z)`` for a fusion centre,
   in track order). ``gating`` is None when the scan or the track set is empty.
+* ``step`` (optional; None: the chain above): an associator that predicts, gates and updates
+  its own branches rather than the tracks (``mht``: each track's alternative histories) takes
+  the whole scan, ``step(state, scan, params, q_scale) -> ScanResult``; its memory holds the
+  branches and the tracker's tracks are its best global hypothesis's.
 * ``manage`` (optional; None: :func:`~.tracker.m_of_n`, M-of-N confirmation and deletion after
   ``delete_misses`` misses): ``manage(tracks, detected, params) -> (tracks, live)``, the tracks
   with their counts after the scan and which stay; ``jipda`` confirms and deletes by existence
@@ -58,6 +62,8 @@ class AssociationInput(NamedTuple):
     clutter_density: float
     amplitude: np.ndarray | None  # (M,) detection amplitudes, if the scan carries them
     memory: Any = None  # the associator's memory after the previous scan
+    gate_d2: float = float("inf")  # the chi-square gate of the scan's measurement size
+    dt: float = 0.0  # time since the tracker's previous scan (existence prediction)
 
 
 class Association(NamedTuple):
@@ -68,6 +74,7 @@ class Association(NamedTuple):
     claimed: np.ndarray  # (M,) bool: detections that start no track
     existence: np.ndarray | None = None  # (N,) posterior existence probabilities
     memory: Any = None  # given back at the next scan
+    birth: np.ndarray | None = None  # (M,) existence of a track started on each detection (None: initial_existence)
 
 
 class Associator(NamedTuple):
@@ -77,3 +84,4 @@ class Associator(NamedTuple):
     associate: Callable[[AssociationInput], Association]
     update: Callable[..., Any] | None = None  # None: one pair per track, Joseph form
     manage: Callable[..., Any] | None = None  # None: M-of-N confirmation, deletion after misses
+    step: Callable[..., Any] | None = None  # the whole scan instead of the chain (mht: its branches)

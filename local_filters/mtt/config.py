@@ -24,7 +24,30 @@ MAX_CENTRAL_MANEUVER_WINDOW = 200  # its banks are kept per ring entry: memory g
 
 # [mtt] associator: the association methods of the multi-target tracker (local_filters/mtt/association.py)
 ASSOCIATORS = ("gnn", "jipda", "mht")
-NOT_YET = {"jipda": "issue 25 item 2", "mht": "issue 25 item 3"}  # named, not implemented yet
+NOT_YET: dict[str, str] = {}  # named, not implemented yet
+MHT_MANAGEMENTS = ("score", "counts")  # local_filters/mtt/associators/mht.py
+
+
+@dataclass(frozen=True)
+class MhtConfig:
+    """``[mtt.mht]``: the track-oriented MHT (``associator = "mht"``; the defaults and their
+    derivation: docs/mht.md)."""
+
+    window: int = 3  # N: scans back to the branch N-scan pruning keeps
+    k: int = 3  # global hypotheses kept
+    max_branches: int = 3  # leaves kept per track
+    management: str = "score"  # "score": the SPRT; "counts": gnn's M-of-N rules and likelihoods
+    false_track: float = 1e-4  # alpha: probability of confirming a track started on clutter
+    miss: float = 1e-2  # beta: probability of deleting a track on a real target
+
+    def validate(self) -> None:
+        for key in ("window", "k", "max_branches"):
+            if not getattr(self, key) >= 1:
+                raise ConfigError(f"{key}: must be >= 1")
+        if self.management not in MHT_MANAGEMENTS:
+            raise ConfigError(f"management: must be one of {', '.join(MHT_MANAGEMENTS)}")
+        if not (0 < self.false_track < 1 and 0 < self.miss < 1 and self.false_track + self.miss < 1):
+            raise ConfigError("false_track, miss: must be in (0, 1) with a sum below 1")
 
 
 @dataclass(frozen=True)
@@ -62,6 +85,7 @@ class MttConfig:
     associator: str = "gnn"
     vdie: VdieParams = field(default_factory=lambda: VdieParams(window=MTT_VDIE_WINDOW))
     central_maneuver_window: int = CENTRAL_MANEUVER_WINDOW
+    mht: MhtConfig = field(default_factory=MhtConfig)
     sensor: dict[str, SensorOverride] = field(default_factory=dict)
 
     @property
@@ -88,6 +112,8 @@ class MttConfig:
                               'use "gnn"')
         if self.maneuver not in MANEUVER_MODES:
             raise ConfigError(f"maneuver: must be one of {', '.join(MANEUVER_MODES)}")
+        if self.associator in ("jipda", "mht") and self.maneuver != "none":
+            raise ConfigError(f'maneuver: "vdie" works with associator = "gnn" only ({self.associator}\'s tracks are CV)')
         for key in ("max_lag", "picture_delay", "clutter_density"):
             if not getattr(self, key) >= 0:
                 raise ConfigError(f"{key}: must be >= 0")
@@ -145,7 +171,7 @@ class Thresholds:
     association: dict[int, float]
 
     @staticmethod
-    def of(gate_probability: float, association_probability: float) -> "Thresholds":
+    def of(gate_probability: float, association_probability: float) -> Thresholds:
         from scipy.special import chdtri
 
         return Thresholds({m: float(chdtri(m, 1.0 - gate_probability)) for m in (2, 3)},

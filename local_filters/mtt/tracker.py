@@ -44,8 +44,9 @@ from fedtrack.local_filters.linear.kalman import (
 )
 from fedtrack.local_filters.mtt import detector, maneuver
 from fedtrack.local_filters.mtt.association import Association, AssociationInput, Associator
-from fedtrack.local_filters.mtt.config import MttConfig
-from fedtrack.local_filters.mtt.gnn import GNN
+from fedtrack.local_filters.mtt.associators import jipda, mht
+from fedtrack.local_filters.mtt.associators.gnn import GNN
+from fedtrack.local_filters.mtt.config import MhtConfig, MttConfig
 from fedtrack.local_filters.mtt.models import (
     Linearized,
     linearize,
@@ -80,6 +81,7 @@ class TrackParams(NamedTuple):
     detector: VdieParams | None = None  # per-track maneuver events (3-D trackers), None: none
     associator: Associator = GNN
     initial_existence: float | None = None  # a new track's existence (associators that keep it)
+    mht: MhtConfig | None = None  # [mtt.mht] (associator = "mht")
 
 
 def track_params(cfg: MttConfig, sensor: str | None, dim: int, feedback: bool = False,
@@ -101,7 +103,8 @@ def track_params(cfg: MttConfig, sensor: str | None, dim: int, feedback: bool = 
                        cfg.pd if sensor is None else cfg.pd_of(sensor),
                        cfg.clutter_density if sensor is None else cfg.clutter_of(sensor),
                        cfg.thresholds.gate, cfg.confirm_hits, cfg.confirm_window, cfg.delete_misses, vdie, detect,
-                       ASSOCIATORS[cfg.associator])
+                       ASSOCIATORS[cfg.associator], jipda.BIRTH_EXISTENCE if cfg.associator == "jipda" else None,
+                       mht=cfg.mht if cfg.associator == "mht" else None)
 
 
 N_ARRAYS = 7  # TrackSet's per-track arrays before the optional per-track states
@@ -244,16 +247,19 @@ def gate_scan(pred: GaussianState, scan: SensorScan, params: TrackParams) -> Gat
     return Gating(lin, g, -0.5 * (g.d2 + logdet[g.rows] + m * LOG_2PI))
 
 
-def associate(state: TrackerState, gating: Gating | None, scan: SensorScan, params: TrackParams) -> Association:
-    """Role 3: the associator's answer (nothing to associate without gated pairs' inputs)."""
+def associate(state: TrackerState, gating: Gating | None, scan: SensorScan, params: TrackParams,
+              dt: float = 0.0) -> Association:
+    """Role 3: the associator's answer (nothing to associate without gated pairs, unless the
+    associator keeps the existence of tracks, which a scan without pairs still lowers)."""
     n, n_det = state.tracks.size, scan.z.shape[0]
-    if gating is None:
+    if gating is None and (params.initial_existence is None or n == 0):
         return Association(np.zeros(0, np.int64), np.zeros(0), np.zeros(n_det, bool), state.tracks.existence,
                            state.memory)
-    g = gating.pairs
+    none = np.zeros(0, np.int64)
+    rows, cols, log_l = (none, none, np.zeros(0)) if gating is None else (*gating.pairs[:2], gating.log_likelihood)
     return params.associator.associate(AssociationInput(
-        n, n_det, g.rows, g.cols, gating.log_likelihood, scan.dim, state.tracks.confirmed, state.tracks.existence,
-        params.pd, params.clutter_density, scan.amplitude, state.memory))
+        n, n_det, rows, cols, log_l, scan.dim, state.tracks.confirmed, state.tracks.existence,
+        params.pd, params.clutter_density, scan.amplitude, state.memory, params.gate[scan.dim], dt))
 
 
 class Updated(NamedTuple):
@@ -307,6 +313,40 @@ def m_of_n(tracks: TrackSet, detected: np.ndarray, params: TrackParams) -> tuple
     return tracks._replace(hits=hits, age=age, misses=misses, confirmed=confirmed), live
 
 
+def jipda_update(tracks: TrackSet, pred: GaussianState, gating: Gating | None, assoc: Association,
+                 scan: SensorScan, dt: float, params: TrackParams, q_scale: float | np.ndarray = 1.0) -> Updated:
+    """Role 4 for ``jipda``: each track's PDA mixture over its gated detections (:func:`jipda.update`);
+    a track with ``beta_0 < 1`` is reported as detected with its equivalent observation
+    (:func:`jipda.equivalent_observation`)."""
+    d, m, n = params.dim, scan.dim, tracks.size
+    existence = assoc.existence
+    if gating is None or not assoc.pairs.size:
+        empty = Observation(np.zeros((0, m, d)), np.zeros((0, m, m)), np.zeros((0, m)))
+        return Updated(tracks._replace(x=pred.x, P=pred.P, existence=existence), np.zeros(n, bool), empty)
+    g = gating.pairs
+    c = jipda.scan_constants(params.pd, params.clutter_density, params.gate[m], m)
+    pairs = jipda.Pairs(g.rows, g.cols, g.nu, g.d2, gating.log_likelihood)
+    ja = jipda.from_weights(g.rows, assoc.weight, existence)
+    post = jipda.update(pred, gating.lin, scan.R, pairs, ja, c)
+    reported, obs = jipda.equivalent_observation(pred, gating.lin, scan.R, pairs, ja)
+    return Updated(tracks._replace(x=post.x, P=post.P, existence=existence), reported, Observation(*obs))
+
+
+def existence_manage(tracks: TrackSet, detected: np.ndarray, params: TrackParams) -> tuple[TrackSet, np.ndarray]:
+    """Role 6 for ``jipda``: confirmation and deletion by existence (:func:`jipda.derived_rules`);
+    the counts kept as :func:`m_of_n` keeps them."""
+    counted, _ = m_of_n(tracks, detected, params)
+    if tracks.existence is None:  # no tracks yet
+        return counted, np.zeros(tracks.size, bool)
+    pg = jipda.scan_constants(params.pd, params.clutter_density, params.gate[2], 2).pg
+    confirmed, live = jipda.manage(tracks.existence, tracks.confirmed, jipda.derived_rules(params.pd, pg))
+    return counted._replace(confirmed=confirmed), live
+
+
+JIPDA = Associator("jipda", jipda.associate_scan, jipda_update, existence_manage)
+ASSOCIATORS[JIPDA.name] = JIPDA
+
+
 def start_tracks(scan: SensorScan, det: np.ndarray, params: TrackParams, first_id: int
                  ) -> tuple[TrackSet, Observation]:
     """Tentative tracks from the detections ``det`` of ``scan`` (one-point initialization)."""
@@ -339,23 +379,107 @@ def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
     tracks = state.tracks
     if state.t is not None and scan.t < state.t:
         raise ValueError(f"scan at t = {scan.t} is before the tracker's time {state.t}")
+    if params.associator.step is not None:
+        return params.associator.step(state, scan, params, q_scale)
     if params.initial_existence is not None and tracks.existence is None:  # an empty set keeping existence
         tracks = tracks._replace(existence=np.zeros(tracks.size))
         state = state._replace(tracks=tracks)
     dt = 0.0 if state.t is None else scan.t - state.t
     pred = predict(tracks, dt, params, q_scale)
     gating = gate_scan(pred, scan, params)
-    assoc = associate(state, gating, scan, params)
+    assoc = associate(state, gating, scan, params, dt)
     role = params.associator
     if role.update is None:
         upd = hard_update(tracks, pred, gating, assoc, scan, dt, params, q_scale)
     else:
         upd = role.update(tracks, pred, gating, assoc, scan, dt, params, q_scale)
     updated, live = (m_of_n if role.manage is None else role.manage)(upd.tracks, upd.detected, params)
-    new, obs_new = start_tracks(scan, np.flatnonzero(~assoc.claimed), params, state.next_id)
+    det = np.flatnonzero(~assoc.claimed)
+    new, obs_new = start_tracks(scan, det, params, state.next_id)
+    if assoc.birth is not None:
+        new = new._replace(existence=assoc.birth[det])
     detected = np.concatenate([upd.detected[live], np.ones(new.size, bool)])
     keep_info = live[upd.detected]
     return ScanResult(TrackerState(_concat(updated.take(live), new), scan.t, state.next_id + new.size, assoc.memory),
                       detected, Observation(*(np.concatenate([u[keep_info], v]) for u, v in zip(upd.observations,
                                                                                                  obs_new))),
                       tracks.ids[~live])
+
+
+def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale: float | np.ndarray = 1.0
+             ) -> ScanResult:
+    """The scan with ``associator = "mht"`` (:mod:`.mht`): the roles run on the branches its memory
+    holds (every track's leaves) instead of the tracks; the tracks are the best global
+    hypothesis's, by id. The given tracks' ``x``, ``P`` replace those of the best hypothesis's
+    leaves first (a federated tracker's resets; otherwise they are those leaves')."""
+    settings, d, m = params.mht, params.dim, scan.dim
+    mem = state.memory if state.memory is not None else mht.initial_state(empty_tracks(d), settings.window)
+    mp = mht.mht_params(settings, params.pd, params.clutter_density, params.gate[m], m,
+                        (params.confirm_hits, params.confirm_window, params.delete_misses))
+    leaves, n_det = mem.leaves, scan.z.shape[0]
+    best = np.flatnonzero(mem.hyps[0])
+    best = best[np.argsort(leaves.ids[best], kind="stable")]
+    if np.array_equal(leaves.ids[best], state.tracks.ids):  # the tracks as given (federated resets)
+        x, P = leaves.x.copy(), leaves.P.copy()
+        x[best], P[best] = state.tracks.x, state.tracks.P
+        leaves = leaves._replace(x=x, P=P)
+    x, P = predict(leaves, 0.0 if state.t is None else scan.t - state.t, params, q_scale)
+    gating = gate_scan(GaussianState(x, P), scan, params)
+    g_rows = g_cols = np.zeros(0, np.int64)
+    nu, inc, miss = np.zeros((0, m)), np.zeros(0), mht.miss_increment(mp)
+    if gating is not None:
+        g_rows, g_cols, nu, _ = gating.pairs
+        inc, miss = mht.score_increments(gating.log_likelihood, mp,
+                                         None if scan.amplitude is None else scan.amplitude[g_cols])
+    value, parents, chosen = mht.select_hypotheses(mem, n_det, g_rows, g_cols, inc, miss, mp)
+    br = mht.branches(mem.hyps, parents, chosen, g_rows, g_cols, leaves.size, n_det)
+    hit = br.pair >= 0
+    pidx = br.pair[hit]
+    cx, cP = x[br.parent], P[br.parent]
+    obs = Observation(np.zeros((0, m, d)), np.zeros((0, m, m)), np.zeros((0, m)))
+    if pidx.size:
+        H, x0 = gating.lin.H[g_rows[pidx]], cx[hit]
+        cx[hit], cP[hit] = update_residual(GaussianState(x0, cP[hit]), nu[pidx], H, scan.R).state
+        obs = Observation(H, np.broadcast_to(scan.R, (pidx.size, m, m)).copy(), nu[pidx] + np.einsum("nij,nj->ni", H, x0))
+    old = leaves.take(br.parent)
+    score = mem.score[br.parent] + np.where(hit, 0.0, miss)
+    score[hit] += inc[pidx]
+    peak = np.maximum(mem.peak[br.parent], score)
+    hits, age, misses = old.hits + hit, old.age + 1, np.where(hit, 0, old.misses + 1)
+    confirmed, live = mht.manage(mp, old.confirmed, score, peak, hits, age, misses)
+    children = TrackSet(old.ids, cx, cP, hits, age, misses, confirmed)
+    # a detection that some kept hypothesis leaves unused starts a track there
+    fresh = np.flatnonzero(~br.used.all(axis=0))
+    new, obs_new = start_tracks(scan, fresh, params, state.next_id)
+    new_score = mht.birth_scores(mp, None if scan.amplitude is None else scan.amplitude[fresh], fresh.size)
+    if mp.management == "score":
+        new = new._replace(confirmed=new_score >= mp.confirm_score)
+    n_child = br.parent.size
+    serial = mem.next_branch + np.arange(n_child + fresh.size)
+    lineage = np.concatenate([mem.lineage[br.parent, 1:], serial[:n_child, None]], axis=1)
+    grown = mht.MhtState(_concat(children, new), np.concatenate([score, new_score]),
+                         np.concatenate([peak, new_score]),
+                         np.concatenate([lineage, np.repeat(serial[n_child:, None], settings.window, axis=1)]),
+                         np.concatenate([br.holds, ~br.used[:, fresh]], axis=1), value,
+                         int(mem.next_branch + serial.size))
+    branch_det = np.full(n_child, -1)  # each branch's detection (-1: a miss), then the new tracks'
+    branch_det[hit] = g_cols[pidx]
+    branch_det = np.concatenate([branch_det, fresh])
+    branch_obs = np.full(branch_det.size, -1)  # each branch's row of the observations
+    branch_obs[branch_det >= 0] = np.arange(pidx.size + fresh.size)
+    mem, kept = mht.prune(grown, np.concatenate([live, np.ones(fresh.size, bool)]), mp)
+    best = np.flatnonzero(mem.hyps[0])
+    best = best[np.argsort(mem.leaves.ids[best], kind="stable")]
+    rows = branch_obs[kept[best]]
+    all_obs = [np.concatenate([u, v]) for u, v in zip(obs, obs_new)]
+    return ScanResult(TrackerState(mem.leaves.take(best), scan.t, state.next_id + fresh.size, mem), rows >= 0,
+                      Observation(*(a[rows[rows >= 0]] for a in all_obs)),
+                      np.setdiff1d(leaves.ids, mem.leaves.ids))
+
+
+def _whole_scan(*_: object) -> None:
+    raise TypeError("mht takes the whole scan (Associator.step), not the tracker's chain")
+
+
+MHT = Associator("mht", _whole_scan, step=mht_step)
+ASSOCIATORS[MHT.name] = MHT

@@ -248,18 +248,28 @@ def scan_evidence(g: Gated, amplitude: np.ndarray, c: Constants) -> Evidence:
     return Evidence(log_den - np.log(c.lam), np.where(strong, best, -1))
 
 
-def pda_update(pred: GaussianState, g: Gated, hyp: PDAHypotheses, c: Constants) -> GaussianState:
+def pda_update(pred: GaussianState, g: Gated, hyp: PDAHypotheses, c: Constants,
+               joseph: tuple[np.ndarray, np.ndarray] | None = None) -> GaussianState:
     """PDA(-AI) updater, section 2.1 (both the M_0 and the non-empty-gate case).
 
     ``x = x_bar + K sum beta_i nu_i``;
     ``P = P_bar + beta_0 m_f KSK' - (1 - beta_0) KSK' + K [sum beta_i nu_i nu_i' - nu nu'] K'``
     with ``m_f = P_D P_G (1 - C_gamma) / (1 - P_D P_G)``; an empty gate has ``beta_0 = 1``.
+    With ``joseph = (H, R)`` (``H`` (m, n) or per track (..., m, n)) the detected components'
+    covariance ``P_bar - KSK'`` is taken in Joseph form ``(I - KH) P_bar (I - KH)' + KRK'``
+    (equal in exact arithmetic, positive semidefinite under round-off; the JIPDA tracker's).
     """
     nu = np.einsum("...j,...ji->...i", hyp.beta, g.nu)
     spread = np.einsum("...j,...ji,...jk->...ik", hyp.beta, g.nu, g.nu) - nu[..., :, None] * nu[..., None, :]
     KSK = g.K @ g.S @ transpose(g.K)
     b0 = hyp.beta0[..., None, None]
-    P = pred.P + (b0 * c.miss_factor - (1.0 - b0)) * KSK + g.K @ spread @ transpose(g.K)
+    if joseph is None:
+        P = pred.P + (b0 * c.miss_factor - (1.0 - b0)) * KSK + g.K @ spread @ transpose(g.K)
+    else:
+        H, R = joseph
+        A = np.eye(pred.P.shape[-1]) - g.K @ H
+        detected = A @ pred.P @ transpose(A) + g.K @ R @ transpose(g.K)
+        P = b0 * (pred.P + c.miss_factor * KSK) + (1.0 - b0) * detected + g.K @ spread @ transpose(g.K)
     return GaussianState(pred.x + mat_vec(g.K, nu), symmetrize(P))
 
 
@@ -356,9 +366,15 @@ def hpda_update(pred: GaussianState, g: Gated, hyp: HPDAHypothesis) -> GaussianS
     return GaussianState(pred.x + hyp.beta[..., None] * Knu, symmetrize(P))
 
 
+def existence_predict(mu: np.ndarray, p11: float | np.ndarray, p21: float | np.ndarray) -> np.ndarray:
+    """The Markov chain prediction of eqs (8), (15): ``mu_bar = p11 mu + p21 (1 - mu)``
+    (``p11``, ``p21`` scalars or per track)."""
+    return p11 * mu + p21 * (1.0 - mu)
+
+
 def existence_update(mu: np.ndarray, log_lr: np.ndarray, p11: float, p21: float) -> np.ndarray:
     """Track existence, eqs (8) and (15) as corrected: ``logit mu = log(1 - delta) + logit mu_bar``."""
-    mu_bar = p11 * mu + p21 * (1.0 - mu)
+    mu_bar = existence_predict(mu, p11, p21)
     return expit(log_lr + _log(mu_bar) - _log(1.0 - mu_bar))
 
 

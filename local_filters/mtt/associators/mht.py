@@ -1,0 +1,350 @@
+"""Track-oriented multiple-hypothesis tracking (MHT): the hypothesis maths, as pure functions
+over batched branches (``[mtt] associator = "mht"``; the tracker runs them in
+:func:`fedtrack.local_filters.mtt.tracker.mht_step`).
+
+Every target track is a tree of **branches** (its alternative detection histories); its live
+ones (leaves) are stored together, batched, as the tracker's ``TrackSet`` whose ``ids`` name each
+leaf's track. A **global hypothesis** picks at most one leaf per track with no detection used
+twice; the ``k`` best are kept, as a boolean (hypotheses, leaves) matrix, best first.
+
+Per scan:
+
+1. The tracker predicts every leaf and gates it against the detections (its ``predict`` and
+   ``gate_scan`` roles).
+2. Each gated pair is scored with the track-score increments (log-likelihood ratios of
+   "target" against "clutter", Blackman & Popoli 1999, 6.2; :func:`score_increments`): a
+   detection ``ln(P_D N(nu; 0, S) / lambda)`` plus paper 001's amplitude log-ratio
+   ``ln f1r(a) / f0r(a)`` (eqs (1), (2), (6), (7):
+   :func:`~fedtrack.local_filters.pda.association.log_amplitude_ratio`) when the detections carry
+   amplitudes; a miss ``ln(1 - P_D P_G)``. These are JIPDA's pair and miss factors
+   (``local_filters/mtt/associators/jipda.py``) at existence 1, from the same constants (paper 001's
+   ``constants``: ``P_G``, the amplitude threshold ``tau``, the SNR: :func:`~.jipda.scan_constants`).
+3. Each kept global hypothesis is extended by its ``k`` best assignments of the scan
+   (:func:`select_hypotheses`): each of its leaves takes one gated detection or misses, each
+   detection at most once; a pair's gain is its increment over the miss. The problem is split
+   into the connected components (clusters) of the leaves' gating graph; each cluster's k best
+   by Murty's algorithm over ``linear_sum_assignment`` (:func:`~.gnn.k_best_assignments`), the
+   hypothesis's k best as the k best sums over its clusters (:func:`k_best_sums`). Of all
+   the extensions of all the hypotheses the ``k`` best (hypothesis value plus gain) are kept. A
+   detection that a kept hypothesis leaves unused starts a new track there (one per detection).
+4. The branches the kept hypotheses use are the new leaves (:func:`branches`): a miss keeps the
+   prediction, a detection is the (E)KF update (Joseph form) of its parent.
+5. Track management per branch (:func:`manage`): ``"score"``, Wald's SPRT on the track score
+   (:func:`sprt_thresholds`), or ``"counts"``, gnn's M-of-N rules (with gnn's precedence of the
+   confirmed tracks in step 3 and P_G = 1, gnn's cost: :func:`mht_params`). A deleted branch
+   leaves its track out of the hypotheses that held it.
+6. :func:`prune`: N-scan pruning (of every track of the best hypothesis only the leaves that
+   share its branch ``window - 1`` scans back stay; ``window = 1``: its leaf alone), at most
+   ``max_branches`` leaves per track (those of the best hypotheses first); a hypothesis that
+   held a removed leaf is dropped, a leaf that no hypothesis holds is removed.
+
+The picture is the best hypothesis's tracks. With ``window = 1``, ``k = 1`` and ``"counts"`` this
+is gnn (tests/test_mht.py, to 1e-9). The global hypotheses are extended scan by scan (Cox &
+Hingorani 1996: Murty's k best per hypothesis), so an assignment that leaves the k best at one
+scan cannot come back later: that is what ``k`` bounds. Defaults and their derivation:
+docs/mht.md.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, NamedTuple
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from fedtrack.local_filters.mtt.associators.gnn import k_best_assignments
+from fedtrack.local_filters.mtt.associators.jipda import scan_constants
+from fedtrack.local_filters.mtt.config import MhtConfig
+from fedtrack.local_filters.pda.association import Constants, log_amplitude_ratio
+
+
+class MhtParams(NamedTuple):
+    """What the MHT needs for one scan (built by :func:`mht_params`)."""
+
+    pd: float
+    clutter_density: float
+    confirm_hits: int  # "counts" management: gnn's M-of-N
+    confirm_window: int
+    delete_misses: int
+    window: int  # N: scans back to the branch that N-scan pruning keeps (1: the best leaf only)
+    k: int  # global hypotheses kept
+    max_branches: int  # leaves kept per track
+    management: str  # "score" (SPRT) or "counts" (gnn's M-of-N and precedence)
+    pg: float  # gate probability P_G in the miss term
+    confirm_score: float  # SPRT upper threshold ln((1 - beta) / alpha)
+    delete_score: float  # SPRT lower threshold ln(beta / (1 - alpha))
+    amplitude: Constants | None = None  # amplitude model (threshold tau, SNR); None: amplitudes ignored
+
+
+def sprt_thresholds(false_track: float, miss: float) -> tuple[float, float]:
+    """Wald's SPRT thresholds on a track score (a log-likelihood ratio of target against false
+    track): confirm at ``ln((1 - beta) / alpha)``, delete at ``ln(beta / (1 - alpha))``, where
+    ``alpha = false_track`` is the probability of confirming a track started on clutter and
+    ``beta = miss`` that of deleting a track on a real target (Wald 1947; Blackman & Popoli
+    6.2.4)."""
+    if not (0.0 < false_track < 1.0 and 0.0 < miss < 1.0 and false_track + miss < 1.0):
+        raise ValueError("sprt_thresholds: false_track and miss must be in (0, 1) with a sum below 1")
+    return math.log((1.0 - miss) / false_track), math.log(miss / (1.0 - false_track))
+
+
+def mht_params(settings: MhtConfig, pd: float, clutter_density: float, gate_d2: float, m: int,
+               counts: tuple[int, int, int]) -> MhtParams:
+    """The MHT's parameters for a scan of measurement size ``m`` gated at ``gate_d2``; ``counts``
+    are gnn's ``(confirm_hits, confirm_window, delete_misses)``. ``"counts"`` management is gnn's
+    model too: its M-of-N rules and track precedence, and a gate that holds every target
+    detection (``P_G = 1`` in the miss term: gnn's cost), so that window 1 and k 1 are gnn."""
+    c = scan_constants(pd, clutter_density, gate_d2, m)
+    confirm, delete = sprt_thresholds(settings.false_track, settings.miss)
+    return MhtParams(pd, clutter_density, *counts, settings.window, settings.k, settings.max_branches,
+                     settings.management, 1.0 if settings.management == "counts" else c.pg, confirm, delete, c)
+
+
+class MhtState(NamedTuple):
+    """The tracker's memory with ``associator = "mht"``: every track's leaves, batched (the
+    tracker's ``TrackSet``; ``leaves.ids``: the track of each), their scores and lineage, and the
+    kept global hypotheses (best first)."""
+
+    leaves: Any  # TrackSet of every leaf
+    score: np.ndarray  # (L,) track score: the log-likelihood ratio of the leaf's history
+    peak: np.ndarray  # (L,) the highest score along the leaf's history
+    lineage: np.ndarray  # (L, window) branch serials of its ancestors, oldest first, its own last
+    hyps: np.ndarray  # (K, L) bool: the leaves each global hypothesis holds
+    value: np.ndarray  # (K,) each hypothesis's log-likelihood ratio (:func:`select_hypotheses`)
+    next_branch: int  # the next branch serial
+
+
+def initial_state(leaves: Any, window: int) -> MhtState:
+    """No leaves (``leaves``: an empty ``TrackSet``) and one empty hypothesis."""
+    return MhtState(leaves, np.zeros(0), np.zeros(0), np.zeros((0, window), np.int64), np.ones((1, 0), bool),
+                    np.zeros(1), 0)
+
+
+def score_increments(log_n: np.ndarray, params: MhtParams, amplitude: np.ndarray | None) -> tuple[np.ndarray, float]:
+    """Track-score increments: per gated pair ``ln(P_D N(nu; 0, S) / lambda)`` from its
+    ``log_n = ln N(nu; 0, S)`` (+ the amplitude log-ratio of its detection ``amplitude``), and a
+    miss's ``ln(1 - P_D P_G)``."""
+    inc = math.log(params.pd) + log_n - math.log(max(params.clutter_density, 1e-300))
+    if amplitude is not None and params.amplitude is not None:
+        inc = inc + log_amplitude_ratio(amplitude, params.amplitude)
+    return inc, miss_increment(params)
+
+
+def miss_increment(params: MhtParams) -> float:
+    """``ln(1 - P_D P_G)``: the track produced no detection in its gate."""
+    return math.log1p(-params.pd * params.pg)
+
+
+def birth_scores(params: MhtParams, amplitude: np.ndarray | None, n: int) -> np.ndarray:
+    """The scores of ``n`` new tracks: 0 (a new target as likely as clutter: the SPRT starts from
+    even odds) plus their detections' amplitude log-ratios."""
+    score = np.zeros(n)
+    if amplitude is not None and params.amplitude is not None:
+        score = score + log_amplitude_ratio(amplitude, params.amplitude)
+    return score
+
+
+def best_extensions(n_det: int, r: np.ndarray, c: np.ndarray, gain: np.ndarray, k: int,
+                    names: np.ndarray | None = None, cache: dict | None = None
+                    ) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The ``k`` best ways for rows to take one detection each of their candidate pairs
+    (``r``, ``c``, ``gain`` over a miss) or miss (gain 0), each
+    detection at most once: the total gains, best first, and per way the indices of the pairs
+    it takes. Per connected component of the pairs: a component of one row ranks its pairs and
+    its miss, a larger one takes Murty's k best; combined by the k best sums. ``cache`` holds
+    the components solved already, by the ``names`` of their pairs (ascending): the global
+    hypotheses of a scan share most of them."""
+    if r.size == 0:
+        return np.zeros(1), [np.zeros(0, np.intp)]
+    rows, r_local = np.unique(r, return_inverse=True)
+    n = rows.size + n_det
+    graph = coo_matrix((np.ones(r.size), (r_local, rows.size + c)), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    comp = label[r_local]
+    order = np.argsort(comp, kind="stable")
+    bounds = np.flatnonzero(np.r_[True, comp[order][1:] != comp[order][:-1], True])
+    lists, ways = [], []
+    for s, e in zip(bounds[:-1].tolist(), bounds[1:].tolist()):
+        sel = order[s:e]
+        key = names[sel].tobytes() if cache is not None else None
+        if key is not None and key in cache:
+            costs, picked = cache[key]
+        else:
+            costs, picked = _component_best(r_local[sel], c[sel], gain[sel], k)
+            if key is not None:
+                cache[key] = costs, picked
+        lists.append(costs)
+        ways.append([sel[p[p >= 0]] for p in picked])
+    sums, picks = k_best_sums(lists, k)
+    return -sums, [np.concatenate([ways[j][i] for j, i in enumerate(row)]) for row in picks.tolist()]
+
+
+def _component_best(r: np.ndarray, c: np.ndarray, gain: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The k best assignments of one connected component of pairs: costs (minus the gains)
+    ascending and, per assignment and row, the index of its pair (-1: a miss)."""
+    rr, r_of = np.unique(r, return_inverse=True)
+    if rr.size == 1:  # one row: its miss and each of its pairs
+        options = np.r_[0.0, -gain]
+        best = np.argsort(options, kind="stable")[:k]
+        return options[best], (best - 1)[:, None]
+    cc, c_of = np.unique(c, return_inverse=True)
+    nr, nc = rr.size, cc.size
+    cost = np.full((nr, nc + nr), np.inf)
+    cost[r_of, c_of] = -gain
+    cost[np.arange(nr), nc + np.arange(nr)] = 0.0  # each row's own miss
+    pair = np.full((nr, nc + nr), -1)
+    pair[r_of, c_of] = np.arange(r.size)
+    costs, cols = k_best_assignments(cost, k)
+    return costs, pair[np.arange(nr), cols]
+
+
+def _extend(hyp_rows: np.ndarray, n_det: int, g_rows: np.ndarray, g_cols: np.ndarray, gain: np.ndarray,
+            confirmed: np.ndarray, params: MhtParams, cache: dict) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The k best extensions of one hypothesis (its leaves ``hyp_rows``) over the gated pairs:
+    their gains and chosen pair indices. ``"counts"``: confirmed leaves choose first, tentative
+    ones among the detections left (gnn's precedence), each stage by its k best."""
+    mine = np.zeros(confirmed.size, bool)
+    mine[hyp_rows] = True
+    pairs = np.flatnonzero(mine[g_rows])
+    if params.management != "counts":
+        gains, ways = best_extensions(n_det, g_rows[pairs], g_cols[pairs], gain[pairs], params.k, pairs, cache)
+        return gains, [pairs[w] for w in ways]
+    first = pairs[confirmed[g_rows[pairs]]]
+    second = pairs[~confirmed[g_rows[pairs]]]
+    out_gain, out_ways = [], []
+    for g1, w1 in zip(*best_extensions(n_det, g_rows[first], g_cols[first], gain[first], params.k, first, cache)):
+        taken = first[w1]
+        free = np.ones(n_det, bool)
+        free[g_cols[taken]] = False
+        rest = second[free[g_cols[second]]]
+        for g2, w2 in zip(*best_extensions(n_det, g_rows[rest], g_cols[rest], gain[rest], params.k, rest, cache)):
+            out_gain.append(g1 + g2)
+            out_ways.append(np.concatenate([taken, rest[w2]]))
+    order = np.argsort(-np.array(out_gain), kind="stable")[:params.k]
+    return np.array(out_gain)[order], [out_ways[i] for i in order.tolist()]
+
+
+def select_hypotheses(state: MhtState, n_det: int, g_rows: np.ndarray, g_cols: np.ndarray, inc: np.ndarray,
+                      miss: float, params: MhtParams) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    """Step 3: the k best extensions of all the kept hypotheses over the gated pairs (``g_rows``
+    leaf, ``g_cols`` detection, score increment ``inc``; ``miss`` a miss's): each one's value,
+    parent hypothesis and the indices of the pairs it takes, best first.
+
+    A hypothesis's value is the log-likelihood ratio of its assignments so far against "every
+    detection clutter": the parent's plus this scan's increment of every track it holds (a
+    miss or its detection). A new track adds nothing (a detection starts one exactly where no
+    track takes it, gnn's rule), and a track deleted later keeps what it added: the value is
+    that of the detections' explanation, so two tracks sharing one target's detections pay a
+    miss at every scan and lose to one track that takes them all."""
+    cand_value, cand_parent, cand_pairs = [], [], []
+    cache: dict = {}
+    for h, row in enumerate(state.hyps):
+        held = np.flatnonzero(row)
+        gains, ways = _extend(held, n_det, g_rows, g_cols, inc - miss, state.leaves.confirmed, params, cache)
+        cand_value.extend((state.value[h] + held.size * miss + gains).tolist())
+        cand_parent.extend([h] * len(ways))
+        cand_pairs.extend(ways)
+    keep = np.argsort(-np.array(cand_value), kind="stable")[:params.k]
+    return np.array(cand_value)[keep], np.array(cand_parent, np.intp)[keep], [cand_pairs[i] for i in keep.tolist()]
+
+
+class Branches(NamedTuple):
+    """Step 4: the branches the kept hypotheses use."""
+
+    parent: np.ndarray  # (C,) parent leaf of each child branch
+    pair: np.ndarray  # (C,) its gated pair (-1: a miss)
+    holds: np.ndarray  # (K, C) bool: the children each hypothesis holds
+    used: np.ndarray  # (K, M) bool: the detections each hypothesis gives to a track
+
+
+def branches(hyps: np.ndarray, parents: np.ndarray, chosen: list[np.ndarray], g_rows: np.ndarray,
+             g_cols: np.ndarray, n_leaves: int, n_det: int) -> Branches:
+    """The child branches of the hypotheses ``parents`` extended by the pairs ``chosen`` (one
+    child per distinct (leaf, pair or miss), shared by the hypotheses that hold it)."""
+    n_pairs = g_rows.size
+    keys_per_hyp = []  # leaf * (n_pairs + 1) + pair + 1 (0: a miss)
+    for parent, pairs in zip(parents.tolist(), chosen):
+        pair_of = np.full(n_leaves, -1)
+        pair_of[g_rows[pairs]] = pairs
+        held = np.flatnonzero(hyps[parent])
+        keys_per_hyp.append(held * (n_pairs + 1) + pair_of[held] + 1)
+    keys, key_index = np.unique(np.concatenate(keys_per_hyp + [np.zeros(0, np.int64)]), return_inverse=True)
+    parent_leaf, pair = np.divmod(keys, n_pairs + 1)
+    holds = np.zeros((len(chosen), keys.size), bool)
+    used = np.zeros((len(chosen), n_det), bool)
+    offsets = np.cumsum([0] + [kk.size for kk in keys_per_hyp])
+    for h, pairs in enumerate(chosen):
+        holds[h, key_index[offsets[h]:offsets[h + 1]]] = True
+        used[h, g_cols[pairs]] = True
+    return Branches(parent_leaf, pair - 1, holds, used)
+
+
+def manage(params: MhtParams, confirmed: np.ndarray, score: np.ndarray, peak: np.ndarray, hits: np.ndarray,
+           age: np.ndarray, misses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Step 5: each branch's confirmation and whether it stays. ``"score"``: confirmed once its
+    score reaches the SPRT's upper threshold; a tentative branch deleted at the lower one, a
+    confirmed one when its score has fallen that far below its peak (the test restarted at the
+    peak: "a false track since then") and it has missed ``delete_misses`` scans in a row (the
+    tracker's rule, which for a tracker of every sensor's scans is the fusion centre's: misses
+    over the merged stream). ``"counts"``: gnn's M-of-N (``hits`` within the first
+    ``confirm_window`` scans; ``delete_misses`` misses in a row)."""
+    if params.management == "counts":
+        confirmed = confirmed | (hits >= params.confirm_hits)
+        live = np.where(confirmed, misses < params.delete_misses,
+                        params.confirm_window - age >= params.confirm_hits - hits)
+        return confirmed, live
+    confirmed = confirmed | (score >= params.confirm_score)
+    kept = (score - peak > params.delete_score) | (misses < params.delete_misses)
+    return confirmed, np.where(confirmed, kept, score > params.delete_score)
+
+
+def prune(state: MhtState, alive: np.ndarray, params: MhtParams) -> tuple[MhtState, np.ndarray]:
+    """Step 6: N-scan pruning and the cap on leaves per track, after the branches not ``alive``
+    left their hypotheses (given best first) and a hypothesis equal to a better one was
+    dropped; then the leaves no hypothesis holds removed. Returns the state and the indices of
+    the leaves kept."""
+    hyps, value = state.hyps & alive, state.value  # best first
+    ids = state.leaves.ids
+    if hyps.shape[1] == 0:
+        hyps, value = hyps[:1], value[:1]
+    else:  # a hypothesis equal to a better one (after deletions) is dropped
+        _, first = np.unique(np.packbits(hyps, axis=1), axis=0, return_index=True)
+        first = np.sort(first)
+        hyps, value = hyps[first], value[first]
+    keep = alive.copy()
+    if hyps.shape[0] and ids.size:
+        best = np.flatnonzero(hyps[0])  # N-scan pruning around the best hypothesis's branches
+        root = np.full(int(ids.max()) + 1, -1)
+        root[ids[best]] = state.lineage[best, 0]
+        keep &= (root[ids] < 0) | (state.lineage[:, 0] == root[ids])
+        # the cap: per track, the leaves of the best hypotheses first
+        rank = np.where(hyps.any(axis=0), np.argmax(hyps, axis=0), hyps.shape[0])
+        order = np.lexsort((rank, ids))
+        first_of = np.r_[True, ids[order][1:] != ids[order][:-1]]
+        start = np.maximum.accumulate(np.where(first_of, np.arange(order.size), 0))
+        within = np.empty(order.size, np.int64)
+        within[order] = np.arange(order.size) - start
+        keep &= within < params.max_branches
+        whole = ~(hyps & ~keep).any(axis=1)
+        hyps, value = hyps[whole], value[whole]
+        keep &= hyps.any(axis=0)
+    idx = np.flatnonzero(keep)
+    return MhtState(state.leaves.take(idx), state.score[idx], state.peak[idx], state.lineage[idx], hyps[:, idx],
+                    value, state.next_branch), idx
+
+
+def k_best_sums(lists: list[np.ndarray], k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The ``k`` least sums taking one entry of each ascending list: the sums (k',) ascending
+    and the chosen index per list (k', len(lists)). The k best of ``A + B`` lie among the first
+    k of each, so lists are combined pairwise on their k x k outer sums."""
+    total = np.zeros(1)
+    picks = np.zeros((1, 0), np.intp)
+    for values in lists:
+        v = values[:k]
+        outer = (total[:, None] + v[None, :]).ravel()
+        order = np.argsort(outer, kind="stable")[:k]
+        parent, choice = np.divmod(order, v.size)
+        total = outer[order]
+        picks = np.concatenate([picks[parent], choice[:, None]], axis=1)
+    return total, picks

@@ -1,0 +1,307 @@
+"""Track-oriented MHT (issue 25 item 3): Murty's k best assignments against brute force, the
+cluster-wise k best extensions, equivalence with gnn at window 1 and k = 1 (test (c)), the
+N-scan pruning and branch-cap invariants, and the score terms."""
+
+from __future__ import annotations
+
+import itertools
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fedtrack.fusion_center.mtt.replay import replay_mtt
+from fedtrack.local_filters.mtt.associators.gnn import k_best_assignments
+from fedtrack.local_filters.mtt.associators.mht import (
+    best_extensions,
+    k_best_sums,
+    mht_params,
+    score_increments,
+    sprt_thresholds,
+)
+from fedtrack.local_filters.mtt.config import MhtConfig, MttConfig
+from fedtrack.local_filters.mtt.scan import SensorScan
+from fedtrack.local_filters.mtt.tracker import initial_state, mht_step, track_params, tracker_step
+from fedtrack.local_filters.pda.association import constants, log_amplitude_ratio
+from fedtrack.local_filters.pda.config import PDAParams
+from fedtrack.local_filters.radar.measurement import polar_from_cartesian
+
+
+def brute_force(cost: np.ndarray) -> list[float]:
+    """Every finite assignment's cost, ascending."""
+    n, m = cost.shape
+    totals = (cost[np.arange(n), list(p)].sum() for p in itertools.permutations(range(m), n))
+    return sorted(t for t in totals if np.isfinite(t))
+
+
+def test_k_best_assignments_equal_brute_force() -> None:
+    rng = np.random.default_rng(1)
+    checked = 0
+    for _ in range(200):
+        n = int(rng.integers(1, 5))
+        m = int(rng.integers(n, 7))
+        cost = rng.normal(size=(n, m))
+        cost[rng.random((n, m)) < 0.3] = np.inf  # forbidden pairs
+        k = int(rng.integers(1, 40))
+        every = brute_force(cost)
+        costs, cols = k_best_assignments(cost, k)
+        assert costs.size == min(k, len(every))
+        np.testing.assert_allclose(costs, every[:k], rtol=0, atol=1e-12)
+        for total, col in zip(costs, cols):  # each one a valid assignment of that cost
+            assert len(set(col.tolist())) == n
+            assert abs(cost[np.arange(n), col].sum() - total) < 1e-12
+        assert len({tuple(c) for c in cols.tolist()}) == costs.size  # no assignment twice
+        checked += costs.size
+    assert checked > 1000
+
+
+def test_k_best_sums_equal_brute_force() -> None:
+    rng = np.random.default_rng(2)
+    for _ in range(50):
+        lists = [np.sort(rng.normal(size=int(rng.integers(1, 5)))) for _ in range(int(rng.integers(1, 5)))]
+        k = int(rng.integers(1, 20))
+        every = sorted(sum(v) for v in itertools.product(*lists))
+        sums, picks = k_best_sums(lists, k)
+        np.testing.assert_allclose(sums, every[:k], atol=1e-12)
+        np.testing.assert_allclose([sum(lst[i] for lst, i in zip(lists, p)) for p in picks], sums, atol=1e-12)
+
+
+def test_best_extensions_equal_brute_force() -> None:
+    """Rows take one of their pairs or miss (gain 0), each detection at most once: the k best total
+    gains over several clusters (one-row ones among them) are the brute force's."""
+    rng = np.random.default_rng(3)
+    for _ in range(40):
+        n_rows, n_det = int(rng.integers(1, 6)), int(rng.integers(1, 7))
+        mask = rng.random((n_rows, n_det)) < 0.35
+        r, c = np.nonzero(mask)
+        gain = rng.normal(size=r.size) * 3
+        options = [[-1] + np.flatnonzero(r == i).tolist() for i in range(n_rows)]
+        every = []
+        for choice in itertools.product(*options):
+            taken = [p for p in choice if p >= 0]
+            if len({int(c[p]) for p in taken}) == len(taken):
+                every.append(sum(gain[p] for p in taken))
+        every.sort(reverse=True)
+        k = int(rng.integers(1, 15))
+        gains, ways = best_extensions(n_det, r, c, gain, k)
+        np.testing.assert_allclose(gains, every[:k], atol=1e-12)
+        for total, way in zip(gains, ways):
+            assert len(set(c[way].tolist())) == way.size and len(set(r[way].tolist())) == way.size
+            assert abs(gain[way].sum() - total) < 1e-12
+
+
+def crossing_scans(seed: int, radar: bool = False, steps: int = 40, clutter: float = 20.0
+                   ) -> tuple[list[SensorScan], float, list[np.ndarray]]:
+    """Six targets converging on a 1 km square (their paths cross), P_D 0.9, uniform clutter
+    over a 2 km square (Poisson, ``clutter`` a scan); 1 Hz. Radar: range 10 m, angles 2 mrad,
+    clutter uniform in range and azimuth."""
+    rng = np.random.default_rng(seed)
+    n, side = 6, 2000.0
+    start = rng.uniform(-side / 3, side / 3, (n, 2))
+    vel = (-start + rng.normal(0, 100, (n, 2))) / steps  # towards the centre: paths cross
+    truth, scans = [], []
+    sensor = np.array([-8000.0, 500.0, 0.0]) if radar else None
+    R = np.diag([100.0, 4e-6, 4e-6]) if radar else 100.0 * np.eye(2)
+    for k in range(steps):
+        p = start + vel * k
+        truth.append(p)
+        seen = p[rng.random(n) < 0.9]
+        n_false = rng.poisson(clutter)
+        if radar:
+            pos3 = np.column_stack([seen, np.full(len(seen), 1000.0)])
+            z = polar_from_cartesian(pos3 - sensor) + rng.normal(size=(len(seen), 3)) * np.sqrt(np.diag(R))
+            false = np.column_stack([rng.uniform(6000, 10000, n_false), rng.uniform(-0.15, 0.15, n_false),
+                                     rng.uniform(0.05, 0.2, n_false)])
+        else:
+            z = seen + rng.normal(0, 10.0, seen.shape)
+            false = rng.uniform(-side / 2, side / 2, (n_false, 2))
+        z = np.concatenate([z, false])[rng.permutation(len(z) + n_false)]
+        scans.append(SensorScan(float(k), "s1", R, z, None, sensor))
+    density = clutter / (4000 * 0.3 * 0.15) if radar else clutter / side**2  # per unit of the measurement space
+    return scans, density, truth
+
+
+@pytest.mark.parametrize("seed,radar", [(0, False), (1, False), (2, False), (3, False), (4, True)])
+def test_window_one_k_one_with_gnn_management_is_gnn(seed: int, radar: bool) -> None:
+    """Issue 25 acceptance (c): with a window of one scan, k = 1 and gnn's track management
+    (M-of-N counts, confirmed tracks first), the MHT makes gnn's assignments at every scan and
+    its tracks equal gnn's to 1e-9. gnn's cost ``-2 ln(P_D N / lambda (1 - P_D))`` is the MHT's
+    pair gain over a miss with a gate that holds every target detection: ``"counts"`` management
+    takes P_G = 1 with gnn's rules."""
+    scans, density, _ = crossing_scans(seed, radar)
+    cfg = MttConfig(clutter_density=density)
+    dim = 6 if radar else 4
+    gnn_params = track_params(cfg, "s1", dim)
+    mht_cfg = MttConfig(clutter_density=density, associator="mht",
+                        mht=MhtConfig(window=1, k=1, max_branches=1, management="counts"))
+    params = track_params(mht_cfg, "s1", dim)
+    assert mht_params(params.mht, params.pd, params.clutter_density, params.gate[2], 2, (3, 4, 3)).pg == 1.0
+    gnn, mht = initial_state(dim), initial_state(dim)
+    worst, assigned, confirmed = 0.0, 0, 0
+    for scan in scans:
+        g = tracker_step(gnn, scan, gnn_params)
+        h = mht_step(mht, scan, params)
+        gnn, mht = g.state, h.state
+        a, b = gnn.tracks, mht.tracks
+        assert np.array_equal(a.ids, b.ids)
+        assert np.array_equal(g.detected, h.detected) and np.array_equal(g.retired, h.retired)
+        assert np.array_equal(a.confirmed, b.confirmed) and np.array_equal(a.hits, b.hits)
+        assert len(mht.memory.hyps) == 1 and mht.memory.leaves.size == a.size  # one branch per track
+        # the same detections (in the observations) to the same tracks, the same estimates
+        worst = max(worst, np.abs(a.x - b.x).max(initial=0.0), np.abs(a.P - b.P).max(initial=0.0),
+                    *(np.abs(u - v).max(initial=0.0) for u, v in zip(g.observations, h.observations)))
+        assigned += int((g.detected & (a.age > 1)).sum())
+        confirmed += int(a.confirmed.sum())
+    assert worst <= 1e-9
+    assert assigned > 150 and confirmed > 100  # there were assignments and confirmed tracks to compare
+
+
+def test_pruning_and_cap_invariants_and_confirmed_targets() -> None:
+    """Window 3, k 5, at most 3 branches per track, SPRT management on the crossing scenario with
+    clutter: every hypothesis holds at most one leaf per track; the leaves of a track of the best
+    hypothesis share its branch two scans back; at most 3 leaves per track; the picture's
+    confirmed tracks sit on the targets."""
+    scans, density, truth = crossing_scans(7, clutter=30.0)
+    cfg = MttConfig(clutter_density=density, associator="mht", mht=MhtConfig(window=3, k=5, max_branches=3))
+    params = track_params(cfg, "s1", 4)
+    state = initial_state(4)
+    several, errors = 0, []
+    for scan, p in zip(scans, truth):
+        state = tracker_step(state, scan, params).state
+        mem = state.memory
+        ids = mem.leaves.ids
+        for row in mem.hyps:
+            assert np.unique(ids[row]).size == row.sum()
+        best = np.flatnonzero(mem.hyps[0])
+        for leaf in best:
+            assert np.all(mem.lineage[ids == ids[leaf], 0] == mem.lineage[leaf, 0])
+        assert np.bincount(ids).max(initial=0) <= 3
+        several += len(mem.hyps) > 1
+        tr = state.tracks
+        if scan.t >= 10:
+            pos = tr.x[tr.confirmed][:, [0, 2]]
+            d = np.linalg.norm(pos[:, None] - p[None], axis=-1)
+            errors.append((d.min(axis=1) < 50).mean() if pos.size else 0.0)  # confirmed tracks on a target
+            errors.append((d.min(axis=0) < 50).mean() if pos.size else 0.0)  # targets with a confirmed track
+    assert several > 20  # the scenario had alternative hypotheses
+    assert np.mean(errors) > 0.9
+
+
+def test_score_terms() -> None:
+    """The detection increment is ``ln(P_D N(nu; 0, S) / lambda)`` plus paper 001's amplitude
+    log-ratio; the miss ``ln(1 - P_D P_G)``; Wald's thresholds."""
+    amp = constants(PDAParams(pd=0.8, clutter_density=1e-5, snr=10.0))
+    mp = mht_params(MhtConfig(), 0.8, 1e-5, 9.21, 2, (3, 4, 3))._replace(pg=0.99, amplitude=amp)
+    log_n, a = np.array([-9.0, -12.5]), np.array([5.0, 9.0])
+    inc, miss = score_increments(log_n, mp, a)
+    expect = np.log(0.8) + log_n - np.log(1e-5) + log_amplitude_ratio(a, amp)
+    np.testing.assert_allclose(inc, expect, atol=1e-12)
+    assert miss == pytest.approx(np.log(1 - 0.8 * 0.99), abs=1e-15)
+    hi, lo = sprt_thresholds(1e-4, 1e-2)
+    assert hi == pytest.approx(np.log(0.99 / 1e-4)) and lo == pytest.approx(np.log(1e-2 / (1 - 1e-4)))
+    with pytest.raises(ValueError):
+        sprt_thresholds(0.6, 0.5)
+
+
+DATA = Path(__file__).parent / "data" / "mtt_reference"
+LOCAL_SENSOR = {"pos": "s2", "radar": "r1"}
+
+
+def replay_pictures(tmp_path: Path, scenario: str, algorithm: str, settings: str) -> list[dict]:
+    """``replay`` of a reference scenario (tests/test_mtt_roles.py) with extra ``[mtt]`` settings."""
+    cfg = tmp_path / f"{scenario}-{algorithm}-{len(settings)}.toml"
+    cfg.write_text((DATA / f"{scenario}.toml").read_text().replace("[mtt]\n", f"[mtt]\n{settings}", 1))
+    out = cfg.with_suffix(".jsonl")
+    replay_mtt(algorithm, DATA / f"{scenario}-scans.jsonl", cfg, out,
+               sensor=LOCAL_SENSOR[scenario] if algorithm == "mtt-local" else None)
+    return [json.loads(line) for line in out.read_text().splitlines()]
+
+
+GNN_MODEL = 'associator = "mht"\nmht = { window = 1, k = 1, management = "counts" }\n'
+
+
+@pytest.mark.parametrize("scenario", ["pos", "radar"])
+@pytest.mark.parametrize("algorithm", ["mtt-local", "mtt-centralized"])
+def test_tracker_with_mht_window_one_k_one_counts_equals_gnn(tmp_path: Path, scenario: str, algorithm: str) -> None:
+    """Acceptance (c) through the tracker: ``[mtt] associator = "mht"`` with ``[mtt.mht] window = 1,
+    k = 1, management = "counts"`` writes gnn's pictures (ids, status, sensors to the letter; x, P
+    to 1e-9), for mtt-local and mtt-centralized, position sensors and a radar."""
+    gnn = replay_pictures(tmp_path, scenario, algorithm, "")
+    mht = replay_pictures(tmp_path, scenario, algorithm, GNN_MODEL)
+    assert [p["t"] for p in gnn] == [p["t"] for p in mht]
+    tracks = 0
+    for a, b in zip(gnn, mht):
+        assert [t["id"] for t in a["tracks"]] == [t["id"] for t in b["tracks"]]
+        for ta, tb in zip(a["tracks"], b["tracks"]):
+            assert {k: v for k, v in ta.items() if k not in ("x", "P")} == \
+                {k: v for k, v in tb.items() if k not in ("x", "P")}
+            np.testing.assert_allclose(tb["x"], ta["x"], rtol=0, atol=1e-9)
+            np.testing.assert_allclose(tb["P"], ta["P"], rtol=0, atol=1e-9)
+            tracks += 1
+    assert tracks > 150
+
+
+@pytest.mark.parametrize("algorithm", ["mtt-local", "mtt-centralized"])
+def test_tracker_with_mht_defaults_follows_gnns_confirmed_tracks(tmp_path: Path, algorithm: str) -> None:
+    """``associator = "mht"`` with its defaults (window 3, k 3, SPRT) runs in the tracker: in the
+    second half of the position scenario (few false detections), every confirmed gnn track has a
+    confirmed mht track within 30 m and the other way round."""
+    gnn = replay_pictures(tmp_path, "pos", algorithm, "")
+    mht = replay_pictures(tmp_path, "pos", algorithm, 'associator = "mht"\n')
+    matched = 0
+    for a, b in list(zip(gnn, mht))[len(gnn) // 2:]:
+        pa = np.array([t["pos"][:2] for t in a["tracks"] if t["status"] == "confirmed"]).reshape(-1, 2)
+        pb = np.array([t["pos"][:2] for t in b["tracks"] if t["status"] == "confirmed"]).reshape(-1, 2)
+        d = np.linalg.norm(pa[:, None] - pb[None], axis=-1)
+        assert pa.shape == pb.shape and np.all(d.min(axis=1) < 30) and np.all(d.min(axis=0) < 30), a["t"]
+        matched += pa.shape[0]
+    assert matched > 50
+
+
+def test_centralized_mht_out_of_sequence_equals_time_sorted(tmp_path: Path) -> None:
+    """Acceptance (d) for mht: ``mtt-centralized`` with ``associator = "mht"`` (defaults) on scans
+    that arrive out of sequence within ``max_lag`` writes the pictures of the time-sorted scans
+    (to 1e-9): the buffer-and-reprocess re-runs the MHT from its memory before the late scan."""
+    from test_mtt_out_of_sequence import replay, scans
+
+    arrived, in_time = scans(seed=3)
+    assert arrived != in_time
+    cfg = {"max_lag": 3.0, "picture_delay": 2.5, "pd": 0.95, "clutter_density": 1e-9, "associator": "mht"}
+    got = replay(tmp_path, "arrived", arrived, "mtt-centralized", **cfg)
+    want = replay(tmp_path, "sorted", in_time, "mtt-centralized", **cfg)
+    assert [p["t"] for p in got] == [p["t"] for p in want]
+    tracks = 0
+    for a, b in zip(got, want):
+        assert [(t["id"], t["status"]) for t in a["tracks"]] == [(t["id"], t["status"]) for t in b["tracks"]]
+        for ta, tb in zip(a["tracks"], b["tracks"]):
+            np.testing.assert_allclose(ta["x"], tb["x"], rtol=0, atol=1e-9)
+            np.testing.assert_allclose(ta["P"], tb["P"], rtol=0, atol=1e-9)
+            tracks += ta["status"] == "confirmed"
+    assert tracks > 100
+
+
+def test_scans_without_detections_and_with_amplitudes() -> None:
+    """Scans without detections (the tracks miss), detections far from every track (new tracks
+    only) and detections with amplitudes (their log-ratio in the score) go through ``mht``; two
+    targets 500 m apart end as two tracks whose scores differ by about their detections' amplitude
+    log-ratios."""
+    params = track_params(MttConfig(associator="mht"), "s1", 4)
+    state, R = initial_state(4), 100.0 * np.eye(2)
+    amp = [None, None, None, np.array([30.0, 3.0]), np.array([30.0, 3.0]), np.array([30.0, 3.0])]
+    zs = [np.zeros((0, 2)), [[0.0, 0.0], [500.0, 0.0]], np.zeros((0, 2)), [[1.0, 1.0], [501.0, 0.0]],
+          [[3.0, 2.0], [502.0, 0.0]], [[4.0, 2.0], [503.0, 0.0]]]
+    for t, (z, a) in enumerate(zip(zs, amp)):
+        res = tracker_step(state, SensorScan(float(t), "s1", R, np.asarray(z, float).reshape(-1, 2), a, None), params)
+        state = res.state
+        assert res.detected.sum() == len(z) or t < 2
+    tr = state.tracks
+    assert tr.size == 2
+    mem = state.memory
+    best = np.flatnonzero(mem.hyps[0])
+    score = dict(zip(mem.leaves.ids[best].tolist(), mem.score[best].tolist()))
+    near = {int(i): float(x) for i, x in zip(tr.ids, tr.x[:, 0])}
+    strong = min(near, key=lambda i: abs(near[i]))  # the track at x = 0 took the high amplitudes
+    weak = max(near, key=lambda i: abs(near[i]))
+    # amplitude 30 against 3 adds (30 - 3) rho / (1 + rho) per detection, three detections, rho = 20
+    assert score[strong] - score[weak] > 3 * 27 * 20 / 21 - 10
