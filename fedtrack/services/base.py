@@ -572,6 +572,18 @@ class Service:
             self.contested_scans.append(exc.seq)
         self.note_rejected(key, exc)
 
+    def admitted(self, order: ScanOrder | ReceivedScans, msg: Measurement) -> bool:
+        """Whether a sensor's scan ``msg`` is new to ``order``: an identical repeat is counted
+        ``duplicate``, a second, different message for a scan already taken is contested
+        (:meth:`contest`); both are False, and the handler drops the message."""
+        try:
+            if order.check(msg):
+                return True
+            self.count("duplicate")
+        except Conflict as exc:  # the first may be the forgery: the next output names the scan
+            self.contest(self.keys.sensor_meas(msg.sensor), exc)
+        return False
+
     def take_contested(self) -> tuple[int, ...]:
         """The scans contested since the last output (sorted), which the output about to be
         published names; the list starts again empty."""

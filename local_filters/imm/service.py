@@ -25,7 +25,6 @@ from fedtrack.local_filters.imm.config import IMMConfig, load_imm_config
 from fedtrack.local_filters.imm.filter import ALGORITHMS, AO_VSIMM
 from fedtrack.local_filters.imm.tracker import IMMTracker
 from fedtrack.services.base import (
-    Conflict,
     ScanOrder,
     Service,
     Subscription,
@@ -67,12 +66,7 @@ class IMMService(Service):
             self.count("out_of_order")
             return
         check_time_jump(self.tracker.t, msg.t, self.max_time_jump_s)
-        try:
-            if not self.order.check(msg):
-                self.count("duplicate")
-                return
-        except Conflict as exc:  # the first may be the forgery: the next output names the scan
-            self.contest(self.keys.sensor_meas(self.sensor), exc)
+        if not self.admitted(self.order, msg):
             return
         p = self.tracker.update(msg.t, msg.z, msg.R)
         require_finite(f"scan {msg.seq}: the IMM estimate", p.x, p.P, list(p.mode_probabilities.values()))

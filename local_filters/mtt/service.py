@@ -93,12 +93,7 @@ class MttLocalService(Service):
         if not self.cfg.allows(msg.sensor):
             raise Rejected("unknown_sensor", f"sensor {msg.sensor!r} is not in mtt.sensors")
         check_time_jump(self.last_t, msg.t, self.max_time_jump_s)
-        try:
-            if not self.received.check(msg):
-                self.count("duplicate")
-                return
-        except Conflict as exc:  # the first may be the forgery: the next report names the scan
-            self.contest(self.keys.sensor_meas(self.sensor), exc)
+        if not self.admitted(self.received, msg):
             return
         self.queue.append((msg.seq, scan, msg.stamp_ns))
         if msg.seq in self._advance():  # dropped: as if it never came

@@ -34,7 +34,6 @@ from fedtrack.local_filters.pda.tracks import (
     tracker_spec,
 )
 from fedtrack.services.base import (
-    Conflict,
     ScanOrder,
     Service,
     Subscription,
@@ -74,12 +73,7 @@ class PDAService(Service):
             self.count("out_of_order")
             return
         check_time_jump(self.manager.t, msg.t, self.max_time_jump_s)
-        try:
-            if not self.order.check(msg):
-                self.count("duplicate")
-                return
-        except Conflict as exc:  # the first may be the forgery: the next output names the scan
-            self.contest(self.keys.sensor_meas(self.sensor), exc)
+        if not self.admitted(self.order, msg):
             return
         z = np.array([d.z for d in msg.detections]).reshape(-1, 2)
         amp = np.array([d.amplitude for d in msg.detections])
