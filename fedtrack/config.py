@@ -134,7 +134,7 @@ def parse_dataclass(cls: type[T], table: dict[str, Any], where: str = "") -> T:
 #: ``launch``. Each consumer parses the tables it uses (:func:`load_tables`); the others must
 #: be known names, so that a typo still fails.
 TABLES = ("fusion", "deployment", "sensor", "sonar", "radar", "radar_filter", "imm", "pda", "mtt", "multitarget",
-          "zenoh", "frame")
+          "zenoh", "frame", "regions")
 
 
 @contextlib.contextmanager

@@ -1,0 +1,204 @@
+"""Regions of a deployment's area: the shards of the fusion centre (issue 27).
+
+A deployment may divide its area into regions, each owned by one centre. ``[regions]`` gives
+them as a grid or as polygons (local frame, or WGS-84 through ``[frame]``)::
+
+    [regions]
+    margin = 2000.0                 # m: a track this near a region is also sent to it
+    grid = {origin = [-5000.0, -5000.0], cell = [5000.0, 5000.0], nx = 2, ny = 2}
+    # or, instead of grid:
+    [[regions.polygon]]
+    id = "north"
+    points = [[-5000.0, 0.0], [5000.0, 0.0], [5000.0, 5000.0], [-5000.0, 5000.0]]  # x, y [m]
+    # or lat_lon = [[lat, lon], ...] [deg] through [frame] origin
+
+Grid cell ``(i, j)`` (column ``i`` along x, row ``j`` along y) is region ``x<i>y<j>``; a
+polygon's id is its ``id``. Each id is one key-expression chunk (``.../region/<id>/...``).
+
+Every region is a polygon (a grid cell is a rectangle). :func:`distances` gives each
+position's distance to each region (0 inside: even-odd rule); :func:`region_of` the nearest
+region (the first containing one, and for a position outside every region the nearest, so
+that each track has exactly one owner); :func:`near_regions` every region within ``margin``
+(its own included): the regions a local tracker publishes a track's report to.
+
+``margin`` has no default: it must cover how far a track moves between two reports of the
+slowest sensor plus the association gate's reach of its position error (docs/multitarget.md
+#regions), which the deployment knows and this table does not.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from fedtrack.config import ConfigError, load_tables
+from fedtrack.geodetic import FrameConfig, enu_from_geodetic
+from fedtrack.keys import InvalidName, check_id
+
+MAX_REGIONS = 10_000
+
+
+class Regions(NamedTuple):
+    """``R`` regions as polygons padded to ``E`` vertices (the last vertex repeated)."""
+
+    ids: tuple[str, ...]
+    vertices: np.ndarray  # (R, E, 2) x, y [m] in the local frame
+    margin: float  # m
+
+
+@dataclass(frozen=True)
+class GridConfig:
+    """``[regions] grid``: ``nx`` x ``ny`` cells of ``cell`` [m] from ``origin`` (lower-left corner)."""
+
+    origin: tuple[float, float]
+    cell: tuple[float, float]
+    nx: int
+    ny: int
+
+    def validate(self) -> None:
+        if not all(np.isfinite(self.origin)):
+            raise ConfigError("origin: must be finite")
+        if not all(np.isfinite(c) and c > 0 for c in self.cell):
+            raise ConfigError("cell: both sizes must be > 0")
+        if not (self.nx >= 1 and self.ny >= 1 and self.nx * self.ny <= MAX_REGIONS):
+            raise ConfigError(f"nx, ny: must be >= 1 with nx * ny <= {MAX_REGIONS}")
+
+
+@dataclass(frozen=True)
+class PolygonConfig:
+    """``[[regions.polygon]]``: a region's id and its vertices, ``points`` (x, y [m]) or ``lat_lon`` [deg]."""
+
+    id: str
+    points: tuple[tuple[float, float], ...] = ()
+    lat_lon: tuple[tuple[float, float], ...] = ()
+
+    def validate(self) -> None:
+        try:
+            check_id(self.id, "id")
+        except InvalidName as exc:
+            raise ConfigError(str(exc)) from exc
+        if bool(self.points) == bool(self.lat_lon):
+            raise ConfigError(f"{self.id}: give exactly one of points, lat_lon")
+        corners = self.points or self.lat_lon
+        if len(corners) < 3 or not np.all(np.isfinite(corners)):
+            raise ConfigError(f"{self.id}: at least 3 finite vertices")
+        if self.lat_lon and not all(-90 <= lat <= 90 for lat, _ in self.lat_lon):
+            raise ConfigError(f"{self.id}: lat_lon latitudes must be in [-90, 90]")
+
+
+@dataclass(frozen=True)
+class RegionsConfig:
+    """``[regions]``: a grid or polygons, and the margin."""
+
+    margin: float
+    grid: GridConfig | None = None
+    polygon: tuple[PolygonConfig, ...] = ()
+
+    def validate(self) -> None:
+        if not (np.isfinite(self.margin) and self.margin >= 0):
+            raise ConfigError("margin: must be >= 0")
+        if (self.grid is None) == (not self.polygon):
+            raise ConfigError("give exactly one of grid, polygon")
+        ids = [p.id for p in self.polygon]
+        dup = sorted({i for i in ids if ids.count(i) > 1})
+        if dup:
+            raise ConfigError(f"polygon: id {dup[0]!r} given twice")
+        if len(ids) > MAX_REGIONS:
+            raise ConfigError(f"polygon: at most {MAX_REGIONS} regions")
+
+
+@dataclass(frozen=True)
+class RegionsSettings:
+    """The tables the regions are read from: ``[regions]`` and ``[frame]`` (for ``lat_lon``)."""
+
+    regions: RegionsConfig | None = None
+    frame: FrameConfig | None = None
+
+
+def grid_regions(origin: tuple[float, float], cell: tuple[float, float], nx: int, ny: int,
+                 margin: float) -> Regions:
+    """The ``nx`` x ``ny`` grid's cells as regions ``x<i>y<j>`` (``i`` fastest)."""
+    i, j = np.meshgrid(np.arange(nx), np.arange(ny))
+    lo = np.asarray(origin) + np.stack([i.ravel(), j.ravel()], axis=-1) * np.asarray(cell)  # (R, 2)
+    unit = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    ids = tuple(f"x{a}y{b}" for a, b in zip(i.ravel().tolist(), j.ravel().tolist()))
+    return Regions(ids, lo[:, None, :] + unit * np.asarray(cell), float(margin))
+
+
+def grid_over(positions: np.ndarray, nx: int, ny: int, margin: float) -> Regions:
+    """An ``nx`` x ``ny`` grid spanning the bounding box of ``positions`` (N, 2)."""
+    lo, hi = positions.min(axis=0), positions.max(axis=0)
+    return grid_regions(tuple(lo), tuple(np.maximum((hi - lo) / (nx, ny), 1e-9)), nx, ny, margin)
+
+
+def regions_of_config(cfg: RegionsConfig, frame: FrameConfig | None) -> Regions:
+    """The regions of a validated ``[regions]`` table (``frame`` converts ``lat_lon`` vertices)."""
+    if cfg.grid is not None:
+        g = cfg.grid
+        return grid_regions(g.origin, g.cell, g.nx, g.ny, cfg.margin)
+    polygons = []
+    for p in cfg.polygon:
+        if p.lat_lon:
+            if frame is None:
+                raise ConfigError(f"regions.polygon.{p.id}.lat_lon: needs [frame] origin")
+            lat, lon = np.asarray(p.lat_lon).T
+            polygons.append(enu_from_geodetic(frame.frame, lat, lon, np.zeros_like(lat))[:, :2])
+        else:
+            polygons.append(np.asarray(p.points, dtype=float))
+    size = max(len(v) for v in polygons)
+    padded = np.stack([np.concatenate([v, np.repeat(v[-1:], size - len(v), axis=0)]) for v in polygons])
+    return Regions(tuple(p.id for p in cfg.polygon), padded, cfg.margin)
+
+
+def load_regions(path: str | Path | None) -> Regions | None:
+    """The config file's regions (None without a file or without ``[regions]``)."""
+    if path is None:
+        return None
+    settings = load_tables(path, RegionsSettings)
+    if settings.regions is None:
+        return None
+    try:
+        return regions_of_config(settings.regions, settings.frame)
+    except ConfigError as exc:
+        raise ConfigError(f"{path}: {exc}") from exc
+
+
+def parse_grid_spec(spec: str) -> tuple[int, int]:
+    """``"NXxNY"`` (e.g. ``"2x2"``) as ``(nx, ny)``."""
+    parts = spec.lower().split("x")
+    if len(parts) != 2 or not all(p.isdigit() and int(p) >= 1 for p in parts) or int(parts[0]) * int(parts[1]) > MAX_REGIONS:
+        raise ConfigError(f"--regions: expected NXxNY (e.g. 2x2, at most {MAX_REGIONS} cells) or 'config', got {spec!r}")
+    return int(parts[0]), int(parts[1])
+
+
+def distances(regions: Regions, pos: np.ndarray) -> np.ndarray:
+    """The distance (N, R) [m] of each position (N, 2) to each region: 0 inside (even-odd rule),
+    else to the nearest edge."""
+    a = regions.vertices[None, :, :, :]  # (1, R, E, 2) edge starts
+    b = np.roll(regions.vertices, -1, axis=1)[None]  # edge ends (closing edge included)
+    p = np.asarray(pos, dtype=float)[:, None, None, :]  # (N, 1, 1, 2)
+    ab, ap = b - a, p - a
+    length2 = np.sum(ab * ab, axis=-1)
+    s = np.clip(np.sum(ap * ab, axis=-1) / np.where(length2 > 0, length2, 1.0), 0.0, 1.0)
+    edge = np.sqrt(np.sum((ap - s[..., None] * ab) ** 2, axis=-1)).min(axis=-1)  # (N, R)
+    ay, by, py = a[..., 1], b[..., 1], p[..., 1]
+    straddles = (ay > py) != (by > py)  # a padded (zero-length) edge never straddles
+    x_cross = a[..., 0] + (py - ay) * ab[..., 0] / np.where(straddles, by - ay, 1.0)
+    inside = np.count_nonzero(straddles & (p[..., 0] < x_cross), axis=-1) % 2 == 1
+    return np.where(inside, 0.0, edge)
+
+
+def region_of(regions: Regions, pos: np.ndarray) -> np.ndarray:
+    """The owning region's index (N,) of each position (N, 2): the first containing it, else the nearest."""
+    return np.argmin(distances(regions, pos), axis=1)
+
+
+def near_regions(regions: Regions, pos: np.ndarray) -> np.ndarray:
+    """(N, R) bool: the regions within ``margin`` of each position, its owner always included."""
+    d = distances(regions, pos)
+    near = d <= regions.margin
+    near[np.arange(d.shape[0]), np.argmin(d, axis=1)] = True
+    return near

@@ -1,0 +1,118 @@
+"""Regions of a deployment (local_filters/regions.py): config, ownership, margins."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fedtrack.config import ConfigError
+from fedtrack.geodetic import Frame, enu_from_geodetic
+from fedtrack.keys import check_id
+from fedtrack.local_filters.regions import (distances, grid_over, grid_regions, load_regions, near_regions,
+                                             parse_grid_spec, region_of)
+
+
+def test_grid_owner_is_the_cell_by_floor_and_margin_reaches_neighbours() -> None:
+    regions = grid_regions((-100.0, -50.0), (100.0, 50.0), 2, 2, margin=10.0)
+    assert regions.ids == ("x0y0", "x1y0", "x0y1", "x1y1")
+    assert all(check_id(i) == i for i in regions.ids)
+    rng = np.random.default_rng(5)
+    pos = rng.uniform((-100, -50), (100, 50), (2000, 2))
+    i = np.floor((pos[:, 0] + 100) / 100).astype(int)
+    j = np.floor((pos[:, 1] + 50) / 50).astype(int)
+    assert np.array_equal(region_of(regions, pos), i + 2 * j)
+    near = near_regions(regions, pos)
+    # a position within the margin of the x = 0 border is also in the cell across it
+    across = np.abs(pos[:, 0]) <= 10.0
+    assert np.all(near[across, (1 - i[across]) + 2 * j[across]])
+    far = (np.abs(pos[:, 0]) > 10.0) & (np.abs(pos[:, 1]) > 10.0)
+    assert np.all(near[far].sum(axis=1) == 1)
+
+
+def test_distance_to_a_rectangle_matches_the_closed_form() -> None:
+    regions = grid_regions((0.0, 0.0), (4.0, 2.0), 1, 1, margin=0.0)
+    rng = np.random.default_rng(1)
+    pos = rng.uniform(-10, 10, (500, 2))
+    dx = np.maximum.reduce([0 - pos[:, 0], pos[:, 0] - 4, np.zeros(500)])
+    dy = np.maximum.reduce([0 - pos[:, 1], pos[:, 1] - 2, np.zeros(500)])
+    assert np.allclose(distances(regions, pos)[:, 0], np.hypot(dx, dy), atol=1e-12)
+
+
+def test_outside_every_region_the_nearest_owns(tmp_path: Path) -> None:
+    regions = grid_regions((0.0, 0.0), (10.0, 10.0), 3, 1, margin=1.0)
+    assert region_of(regions, np.array([[-50.0, 5.0], [100.0, 5.0], [15.0, 40.0]])).tolist() == [0, 2, 1]
+
+
+def write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "c.toml"
+    path.write_text(text)
+    return path
+
+
+def test_concave_polygons_from_config(tmp_path: Path) -> None:
+    path = write(tmp_path, """
+[regions]
+margin = 1.0
+[[regions.polygon]]
+id = "ell"
+points = [[0, 0], [10, 0], [10, 2], [2, 2], [2, 10], [0, 10]]
+[[regions.polygon]]
+id = "rest"
+points = [[2, 2], [10, 2], [10, 10], [2, 10]]
+""")
+    regions = load_regions(path)
+    assert regions is not None and regions.ids == ("ell", "rest")
+    pos = np.array([[0.5, 9.0], [9.0, 0.5], [5.0, 5.0], [2.5, 5.0], [20.0, 20.0]])
+    assert region_of(regions, pos).tolist() == [0, 0, 1, 1, 1]
+    assert near_regions(regions, pos).tolist() == [[True, False], [True, False], [False, True], [True, True],
+                                                   [False, True]]
+
+
+def test_lat_lon_polygons_go_through_the_frame(tmp_path: Path) -> None:
+    path = write(tmp_path, """
+[frame]
+origin = [52.0, 4.0, 0.0]
+[regions]
+margin = 100.0
+[[regions.polygon]]
+id = "box"
+lat_lon = [[51.99, 3.99], [51.99, 4.01], [52.01, 4.01], [52.01, 3.99]]
+""")
+    regions = load_regions(path)
+    corner = enu_from_geodetic(Frame(52.0, 4.0, 0.0), np.array([51.99]), np.array([3.99]), np.zeros(1))[0, :2]
+    assert np.allclose(regions.vertices[0, 0], corner, atol=1e-9)
+    assert region_of(regions, np.zeros((1, 2))).tolist() == [0]
+
+
+@pytest.mark.parametrize("body, message", [
+    ("[regions]\ngrid = {origin = [0, 0], cell = [1, 1], nx = 2, ny = 2}\n", "missing config key regions.margin"),
+    ("[regions]\nmargin = 1.0\n", "give exactly one of grid, polygon"),
+    ("[regions]\nmargin = -1.0\ngrid = {origin = [0, 0], cell = [1, 1], nx = 2, ny = 2}\n", "margin: must be >= 0"),
+    ("[regions]\nmargin = 1.0\ngrid = {origin = [0, 0], cell = [0, 1], nx = 2, ny = 2}\n", "cell: both sizes"),
+    ("[regions]\nmargin = 1.0\ngrid = {origin = [0, 0], cell = [1, 1], nx = 0, ny = 2}\n", "nx, ny"),
+    ("[regions]\nmargin = 1.0\n[[regions.polygon]]\nid = \"a/b\"\npoints = [[0, 0], [1, 0], [0, 1]]\n",
+     "forbidden character"),
+    ("[regions]\nmargin = 1.0\n[[regions.polygon]]\nid = \"a\"\npoints = [[0, 0], [1, 0]]\n", "at least 3"),
+    ("[regions]\nmargin = 1.0\n[[regions.polygon]]\nid = \"a\"\nlat_lon = [[0, 0], [1, 0], [0, 1]]\n",
+     "needs [frame] origin"),
+    ("[regions]\nmargin = 1.0\nsize = 3\ngrid = {origin = [0, 0], cell = [1, 1], nx = 2, ny = 2}\n",
+     "unknown config key regions.size"),
+])
+def test_bad_regions_config_names_the_key(tmp_path: Path, body: str, message: str) -> None:
+    path = write(tmp_path, body)
+    with pytest.raises(ConfigError, match=message.replace("[", r"\[").replace("]", r"\]")) as exc:
+        load_regions(path)
+    assert str(exc.value).startswith(str(path))
+
+
+def test_grid_spec_and_grid_over_the_data() -> None:
+    assert parse_grid_spec("2x4") == (2, 4)
+    for bad in ("2", "0x2", "ax2", "2x2x2", "200x200"):
+        with pytest.raises(ConfigError, match="--regions"):
+            parse_grid_spec(bad)
+    pos = np.array([[0.0, 0.0], [10.0, 4.0], [3.0, 1.0]])
+    regions = grid_over(pos, 2, 2, 0.5)
+    assert np.allclose(regions.vertices[3, 2], [10.0, 4.0])
+    assert region_of(regions, pos).tolist() == [0, 3, 0]
