@@ -54,6 +54,7 @@ REPLAY_ALGORITHMS: dict[str, str] = {
 REPLAY_OPTIONS: dict[str, tuple[str, ...]] = {
     "period": ("mtt-local", "mtt-centralized", "mtt-federated", "mtt-decentralized"),
     "sensor": ("mtt-local",),
+    "regions": ("mtt-federated", "mtt-decentralized"),
     "status": ("pda-ai", "hpda"),
 }
 
@@ -144,7 +145,8 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     check_output(args.out)
     check_config(args.config)
     fn = resolve(REPLAY_ALGORITHMS[args.algorithm])
-    options = {k: v for k, v in (("period", args.period), ("sensor", args.sensor), ("status", args.status))
+    options = {k: v for k, v in (("period", args.period), ("sensor", args.sensor), ("status", args.status),
+                                                   ("regions", args.regions))
                if v is not None}
     for key in options:
         if args.algorithm not in REPLAY_OPTIONS[key]:
@@ -228,6 +230,10 @@ def build_parser() -> argparse.ArgumentParser:
                      help="mtt-*: seconds between track pictures (default: [mtt] period, 1.0)")
     rpl.add_argument("--sensor", metavar="ID", help="mtt-local (required there): the sensor whose tracker runs, "
                      "e.g. s1 or r3 as simulate multitarget names them")
+    rpl.add_argument("--regions", metavar="SPEC",
+                     help="mtt-federated, mtt-decentralized: a centre per region, tracks handed over at the "
+                          "borders; SPEC NXxNY (a grid over the detections' extent, e.g. 2x2) or config "
+                          "(the config's [regions]); docs/multitarget.md#regions")
     rpl.add_argument("--status", choices=("all", "confirmed"),
                      help="pda-ai, hpda: write every track or the confirmed ones only (default: all)")
     rpl.set_defaults(func=_cmd_replay)

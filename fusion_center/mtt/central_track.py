@@ -155,6 +155,27 @@ class CentralTracks:
                                  (new_banks(1, self.detector.window, self.dim, t), no_detection(1)))
         return s
 
+    def entries(self, cid: int) -> tuple[np.ndarray, ...]:
+        """Track ``cid``'s live ring entries in time order, one array per field of ``_ring`` (the
+        checkpoint first): its out-of-sequence buffer and maneuver detector, as a hand-over carries them."""
+        s = self.slot[cid]
+        order = self._pos(np.full(int(self.count[s]), s), np.arange(int(self.count[s])))
+        return tuple(getattr(self, name)[s, order].copy() for name in self._ring)
+
+    def place(self, cid: int, confirmed: bool, entries: tuple[np.ndarray, ...]) -> int:
+        """Track ``cid`` from another table's :meth:`entries` (a hand-over); returns its slot."""
+        if not self.free:
+            self._grow(2 * self.capacity, self.depth)
+        count = entries[0].shape[0]
+        if count > self.depth:
+            self._grow(self.capacity, max(2 * self.depth, count))
+        s = self.free.pop()
+        self.slot[cid] = s
+        self.ids[s], self.confirmed[s], self.head[s], self.count[s] = cid, confirmed, 0, count
+        for name, a in zip(self._ring, entries):
+            getattr(self, name)[s, :count] = a
+        return s
+
     def delete(self, cid: int) -> None:
         s = self.slot.pop(cid)
         self.ids[s], self.count[s] = -1, 0

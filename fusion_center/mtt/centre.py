@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -97,6 +98,25 @@ def candidate_pairs(pos: np.ndarray, spread: np.ndarray, rows: list[int], gate: 
     return out
 
 
+class HandOver(NamedTuple):
+    """Everything a central track's new owner needs (a region centre's track crossing a border,
+    :mod:`.shards`): its id, confirmation, ring entries (:meth:`CentralTracks.entries`: the states,
+    the observations within ``max_lag`` and the maneuver detector's banks), per sensor its local
+    tracks mapped there and its misses in a row, the M-of-N window, the time of its last fused
+    observation, and its local tracks with their association strikes."""
+
+    id: int
+    confirmed: bool
+    entries: tuple[np.ndarray, ...]
+    sensors: tuple[str, ...]
+    support: np.ndarray  # (S,) local tracks of each of ``sensors`` mapped to it
+    streak: np.ndarray  # (S,) misses in a row per sensor
+    window: np.ndarray  # (confirm_window,) its last scans' hits (tentative)
+    last_support: float
+    members: tuple[LocalKey, ...]
+    strikes: tuple[int, ...]  # per member
+
+
 @dataclass
 class TrackToTrackCentre:
     """Central tracks of dimension ``dim`` (4 or 6) fused from local trackers' reports.
@@ -113,6 +133,7 @@ class TrackToTrackCentre:
     sensor_seen: dict[str, float] = field(default_factory=dict)
     sensor_names: list[str] = field(default_factory=list)  # column order of the per-sensor arrays
     next_id: int = 0
+    id_step: int = 1  # ids next_id, next_id + id_step, ...: region r of R starts at r, steps by R (shards)
     counters: Counters = field(default_factory=Counters)
 
     def __post_init__(self) -> None:
@@ -202,7 +223,7 @@ class TrackToTrackCentre:
     def _start(self, t: float, x: np.ndarray, P: np.ndarray) -> int:
         """A new tentative central track at ``t``; returns its id."""
         cid = self.next_id
-        self.next_id += 1
+        self.next_id += self.id_step
         slot = self.tracks.start(cid, t, *self._central_start(x, P))
         self._fit()
         self.support[slot], self.streak[slot], self.window[slot] = 0, 0, False
@@ -438,6 +459,32 @@ class TrackToTrackCentre:
         gone = (self.support[live].sum(axis=1) == 0) | (now - self.last_support[live] > self.cfg.central_timeout)
         for cid in self.tracks.ids[live[gone]].tolist():
             self._delete(cid)
+
+    def hand_over(self, cid: int) -> HandOver:
+        """Remove central track ``cid`` (to a neighbour region's centre) and return its record."""
+        slot = self.tracks.slot[cid]
+        members = tuple(sorted(self.members.pop(cid, ())))
+        record = HandOver(cid, bool(self.tracks.confirmed[slot]), self.tracks.entries(cid), tuple(self.sensor_names),
+                          self.support[slot].copy(), self.streak[slot].copy(), self.window[slot].copy(),
+                          float(self.last_support[slot]), members, tuple(self.strikes.pop(k, 0) for k in members))
+        for key in members:
+            del self.mapping[key]
+        self.tracks.delete(cid)
+        return record
+
+    def take_over(self, record: HandOver) -> None:
+        """Continue a neighbour region's central track from its :meth:`hand_over` record."""
+        slot = self.tracks.place(record.id, record.confirmed, record.entries)
+        self._fit()
+        cols = [self._col(s) for s in record.sensors]
+        self.support[slot], self.streak[slot] = 0, 0
+        self.support[slot, cols], self.streak[slot, cols] = record.support, record.streak
+        self.window[slot], self.last_support[slot] = record.window, record.last_support
+        for key, strikes in zip(record.members, record.strikes):
+            self.mapping[key] = record.id
+            self.members.setdefault(record.id, set()).add(key)
+            if strikes:
+                self.strikes[key] = strikes
 
     def sensors_of(self, cid: int) -> list[str]:
         """The sensors whose local tracks map to central track ``cid``."""

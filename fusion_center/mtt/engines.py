@@ -23,6 +23,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from fedtrack.fusion_center.mtt.centre import CENTRAL_MISSES, TrackToTrackCentre
+from fedtrack.fusion_center.mtt.shards import ShardedCentre
 from fedtrack.local_filters.mtt.associators import jipda
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.history import ScanHistory
@@ -32,6 +33,7 @@ from fedtrack.local_filters.mtt.models import predict_batch
 from fedtrack.local_filters.mtt.scan import SensorScan
 from fedtrack.local_filters.mtt.tracker import TrackerState, TrackParams, initial_state, track_params, tracker_step
 from fedtrack.local_filters.pda.association import existence_predict
+from fedtrack.local_filters.regions import Regions
 from fedtrack.local_filters.vdie.estimation import VdieParams
 from fedtrack.wire import picture_line
 
@@ -226,7 +228,8 @@ class TrackToTrackEngine(Engine):
 
     feedback: bool = True
     local: dict[str, SensorTracker] = field(default_factory=dict)
-    centre: TrackToTrackCentre | None = None
+    centre: TrackToTrackCentre | ShardedCentre | None = None
+    regions: Regions | None = None  # a centre per region (:class:`ShardedCentre`), else one centre
 
     def ingest(self, scan: SensorScan) -> None:
         tracker = self.local.get(scan.sensor)
@@ -254,30 +257,60 @@ class TrackToTrackEngine(Engine):
     def fuse(self, report: LocalReport) -> tuple[Resets, float]:
         """The centre's part of a scan, as the live centre does it per report."""
         if self.centre is None:
-            self.centre = TrackToTrackCentre(self.cfg, self.dim, self.feedback)
+            self.centre = (TrackToTrackCentre(self.cfg, self.dim, self.feedback) if self.regions is None
+                           else ShardedCentre(self.cfg, self.dim, self.feedback, self.regions))
         self.scans += 1
         return self.centre.answer(report)
 
     def picture(self, T: float) -> PictureTracks:
-        c = self.centre
-        if c is None or not c.tracks:
+        if self.centre is None:
             return no_tracks(self.dim)
-        slots = c.tracks.live()
-        X, P = c.tracks.states_at(slots, T)
-        maneuver = None
-        if c.tracks.detector is not None:
-            maneuver = c.tracks.maneuvers_at(slots, T).picture_rows(c.tracks.detector)
-        return PictureTracks(c.tracks.ids[slots].tolist(), X, P, c.tracks.confirmed[slots].tolist(),
-                             c.sensor_lists(slots), ["cv"] * slots.size, maneuver)
+        if isinstance(self.centre, ShardedCentre):
+            return union_picture([centre_picture(c, T) for c in self.centre.centres], self.dim)
+        return centre_picture(self.centre, T)
 
     def counters(self) -> dict[str, int]:
         out = super().counters()
-        if self.centre is not None:
+        if isinstance(self.centre, ShardedCentre):
+            out.update({f"centre_{k}": v for k, v in self.centre.counters().items()})
+        elif self.centre is not None:
             out.update({f"centre_{k}": v for k, v in vars(self.centre.counters).items()})
         return out
 
 
-def make_engine(algorithm: str, cfg: MttConfig, dim: int, sensor: str | None = None) -> Engine:
+def centre_picture(c: TrackToTrackCentre, T: float) -> PictureTracks | None:
+    """A centre's central tracks predicted to ``T`` (None without tracks)."""
+    if not c.tracks:
+        return None
+    slots = c.tracks.live()
+    X, P = c.tracks.states_at(slots, T)
+    maneuver = None
+    if c.tracks.detector is not None:
+        maneuver = c.tracks.maneuvers_at(slots, T).picture_rows(c.tracks.detector)
+    return PictureTracks(c.tracks.ids[slots].tolist(), X, P, c.tracks.confirmed[slots].tolist(),
+                         c.sensor_lists(slots), ["cv"] * slots.size, maneuver)
+
+
+def union_picture(parts: list[PictureTracks | None], dim: int) -> PictureTracks:
+    """The regions' pictures as one, in increasing id (a track is in one region only)."""
+    parts = [p for p in parts if p is not None]
+    if not parts:
+        return no_tracks(dim)
+    ids = [i for p in parts for i in p.ids]
+    pick = np.argsort(ids, kind="stable").tolist()
+
+    def joined(name: str) -> list:
+        rows = [row for p in parts for row in getattr(p, name)]
+        return [rows[k] for k in pick]
+
+    maneuver = None if parts[0].maneuver is None else np.concatenate([p.maneuver for p in parts])[pick]
+    return PictureTracks(joined("ids"), np.concatenate([p.x for p in parts])[pick],
+                         np.concatenate([p.P for p in parts])[pick], joined("confirmed"), joined("sensors"),
+                         joined("models"), maneuver)
+
+
+def make_engine(algorithm: str, cfg: MttConfig, dim: int, sensor: str | None = None,
+                regions: Regions | None = None) -> Engine:
     if algorithm == "mtt-local":
         if not sensor:
             raise ValueError("mtt-local needs --sensor ID")
@@ -285,5 +318,5 @@ def make_engine(algorithm: str, cfg: MttConfig, dim: int, sensor: str | None = N
     if algorithm == "mtt-centralized":
         return CentralizedEngine(cfg, dim)
     if algorithm in ("mtt-federated", "mtt-decentralized"):
-        return TrackToTrackEngine(cfg, dim, feedback=algorithm == "mtt-federated")
+        return TrackToTrackEngine(cfg, dim, feedback=algorithm == "mtt-federated", regions=regions)
     raise ValueError(f"unknown multi-target algorithm {algorithm!r}")

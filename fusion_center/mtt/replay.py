@@ -19,12 +19,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
+import numpy as np
+
 from fedtrack.config import ConfigError, did_you_mean, load_tables
 from fedtrack.fusion_center.mtt.engines import ALGORITHMS, Engine, PictureTracks, make_engine
 from fedtrack.geodetic import geodetic_line, load_frame
 from fedtrack.jsonl import InputError, check_output, output_file, read_jsonl
 from fedtrack.local_filters.mtt.config import MttConfig, MttSettings
+from fedtrack.local_filters.mtt.models import position_from_detection
 from fedtrack.local_filters.mtt.scan import SensorLeft, SensorScan, parse_line
+from fedtrack.local_filters.regions import Regions, grid_over, load_regions, parse_grid_spec
 
 
 def read_scans(path: Path, cfg: MttConfig) -> list[SensorScan | SensorLeft]:
@@ -133,11 +137,29 @@ def counter_lines(counts: dict[str, int]) -> list[str]:
                   f"{counts['centre_late']} centre observations late (older than max_lag), not fused",
                   (f"{counts['centre_before_start']} centre observations older than their central track's "
                    "start, not fused")]
+    if "centre_handed_over" in counts:
+        lines.append(f"{counts['centre_handed_over']} central tracks handed over between regions")
     return lines
 
 
+def data_regions(spec: str, scans: list[SensorScan | SensorLeft], config: Path | None) -> Regions:
+    """``--regions SPEC``: ``config`` (the config file's ``[regions]``) or ``NXxNY``, a grid over the
+    extent of the detections' positions (margin: the config's, else 0)."""
+    configured = load_regions(config)
+    if spec == "config":
+        if configured is None:
+            raise ConfigError(f"--regions config: {config or 'no config file'} has no [regions] table")
+        return configured
+    nx, ny = parse_grid_spec(spec)
+    positions = [position_from_detection(s.z, s.R, s.sensor_position)[0][:, :2] for s in scans
+                 if isinstance(s, SensorScan) and s.z.size]
+    if not positions:
+        raise ConfigError("--regions: the measurements hold no detection to span a grid over")
+    return grid_over(np.concatenate(positions), nx, ny, 0.0 if configured is None else configured.margin)
+
+
 def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Path,
-               period: float | None = None, sensor: str | None = None) -> int:
+               period: float | None = None, sensor: str | None = None, regions: str | None = None) -> int:
     """Entry point of ``fedtrack replay --algorithm mtt-*``; returns the number of pictures written."""
     if algorithm not in ALGORITHMS:
         raise ConfigError(f"algorithm: unknown multi-target algorithm {algorithm!r}")
@@ -157,7 +179,8 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
     if sensor is not None and not any(s.sensor == sensor for s in scans):
         raise InputError(f"{measurements}: no scan of sensor {sensor!r}")
     dim = state_dim(scans, sensor)
-    engine = make_engine(algorithm, cfg, dim, sensor)
+    shards = None if regions is None else data_regions(regions, scans, config)
+    engine = make_engine(algorithm, cfg, dim, sensor, shards)
     frame = load_frame(config)  # [frame]: the tracks on the Earth too (lat, lon, alt)
     n = onsets = 0
     detector = False  # whether the pictures carry maneuver events (a detector runs)

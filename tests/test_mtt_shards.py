@@ -1,0 +1,133 @@
+"""The track-to-track centre sharded by region (fusion_center/mtt/shards.py, issue 27 item 2):
+one region equals the unsharded centre; on a grid, every track is in exactly one region's centre,
+hand-overs keep ids and estimates, and GOSPA stays within 2 % of the unsharded run. About 25 s."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import orjson
+import pytest
+
+from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
+from fedtrack.fusion_center.mtt.evaluation import evaluate
+from fedtrack.fusion_center.mtt.replay import replay_mtt
+from fedtrack.fusion_center.mtt.shards import ShardedCentre
+from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.sensors.multitarget import Scenario, parse_spec, simulate
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("shards")
+    simulate(Scenario(targets=40, duration=60.0), parse_spec("pos:1.0,pos:0.7,pos:1.3"), 3, out)
+    (out / "config.toml").write_text((out / "config.toml").read_text() + '\nmaneuver = "vdie"\n')
+    return out
+
+
+def pictures(path: Path) -> list[dict]:
+    return [orjson.loads(line) for line in path.read_text().splitlines()]
+
+
+def run(data: Path, algorithm: str, regions: str | None, name: str) -> Path:
+    out = data / f"{name}.jsonl"
+    replay_mtt(algorithm, data / "measurements.jsonl", data / "config.toml", out, regions=regions)
+    return out
+
+
+@pytest.mark.parametrize("algorithm", ["mtt-federated", "mtt-decentralized"])
+def test_one_region_is_the_unsharded_centre(data: Path, algorithm: str) -> None:
+    plain = pictures(run(data, algorithm, None, f"{algorithm}-plain"))
+    one = pictures(run(data, algorithm, "1x1", f"{algorithm}-one"))
+    assert len(plain) == len(one) == 60
+    for a, b in zip(plain, one):
+        assert [t["id"] for t in a["tracks"]] == [t["id"] for t in b["tracks"]]
+        for ta, tb in zip(a["tracks"], b["tracks"]):
+            assert np.allclose(ta["x"], tb["x"], rtol=0, atol=1e-9) and np.allclose(ta["P"], tb["P"], rtol=0, atol=1e-9)
+            assert ta["sensors"] == tb["sensors"] and ta["status"] == tb["status"]
+
+
+class Watch:
+    """Around every hand-over pass: no track in two centres, none lost, ids kept."""
+
+    def __init__(self) -> None:
+        self.moves = 0
+        self.lost = self.duplicated = 0
+
+    def wrap(self, original):  # noqa: ANN001, ANN201
+        def hand_over(centre: ShardedCentre) -> None:
+            before = {cid: (r, c.tracks.latest(np.array([c.tracks.slot[cid]]))[1][0])
+                      for r, c in enumerate(centre.centres) for cid in c.tracks}
+            original(centre)
+            after: dict[int, tuple[int, np.ndarray]] = {}
+            for r, c in enumerate(centre.centres):
+                for cid in c.tracks:
+                    self.duplicated += cid in after
+                    after[cid] = (r, c.tracks.latest(np.array([c.tracks.slot[cid]]))[1][0])
+            self.lost += len(set(before) - set(after))
+            self.duplicated += len(set(after) - set(before))
+            for cid, (r, x) in before.items():
+                if cid in after and after[cid][0] != r:
+                    self.moves += 1
+                    assert np.array_equal(after[cid][1], x)  # the estimate continues unbroken
+        return hand_over
+
+
+@pytest.mark.parametrize("spec", ["2x2", "4x4"])
+def test_grid_hands_tracks_over_losing_and_duplicating_none(data: Path, spec: str,
+                                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    watch = Watch()
+    monkeypatch.setattr(ShardedCentre, "hand_over", watch.wrap(ShardedCentre.hand_over))
+    sharded = run(data, "mtt-federated", spec, f"fed-{spec}")
+    plain = data / "mtt-federated-plain.jsonl"
+    if not plain.exists():
+        run(data, "mtt-federated", None, "mtt-federated-plain")
+    assert watch.moves >= (5 if spec == "2x2" else 15)  # 10 and 21 on this seed
+    assert (watch.lost, watch.duplicated) == (0, 0)
+    # ids unchanged across hand-overs: an unsharded track is one sharded track all along (where
+    # their estimates are equal: both fused the same observations)
+    ids: dict[int, int] = {}
+    shown = equal = 0
+    for a, b in zip(pictures(plain), pictures(sharded)):
+        assert len({t["id"] for t in b["tracks"]}) == len(b["tracks"])  # no id twice in a picture
+        by_state = {tuple(np.round(t["x"], 6)): t["id"] for t in b["tracks"]}
+        for t in a["tracks"]:
+            if t["status"] == "confirmed":
+                shown += 1
+                j = by_state.get(tuple(np.round(t["x"], 6)))
+                if j is not None:
+                    equal += 1
+                    assert ids.setdefault(t["id"], j) == j
+    assert equal >= 0.9 * shown  # 2 x 2: 2088 of 2088; 4 x 4: 2042 of 2088
+    g_plain = evaluate(plain, data / "truth.jsonl")["mean"]["gospa"]
+    g_sharded = evaluate(sharded, data / "truth.jsonl")["mean"]["gospa"]
+    # 2 x 2 (the issue's acceptance): within 2 %; 4 x 4 cells of 2.5 km on this 10 km scenario: not
+    # worse by more than 2 % (it was 2.4 % better: docs/multitarget.md#regions)
+    assert (abs(g_sharded - g_plain) if spec == "2x2" else g_sharded - g_plain) <= 0.02 * g_plain
+
+
+def test_hand_over_record_round_trip_is_exact(data: Path) -> None:
+    """A track handed to another centre and back is the track it was, to the bit."""
+    from fedtrack.fusion_center.mtt.engines import TrackToTrackEngine
+    from fedtrack.fusion_center.mtt.replay import read_scans
+
+    cfg = MttConfig(maneuver="vdie")
+    engine = TrackToTrackEngine(cfg, 4, feedback=True)
+    for scan in read_scans(data / "measurements.jsonl", cfg)[:60]:
+        engine.ingest(scan)
+    a = engine.centre
+    other = TrackToTrackCentre(cfg, 4, True)
+    cid = max(a.tracks, key=lambda c: len(a.members.get(c, ())))
+    entries, members = a.tracks.entries(cid), dict(a.mapping)
+    record = a.hand_over(cid)
+    assert cid not in a.tracks and not any(v == cid for v in a.mapping.values())
+    other.take_over(record)
+    back = other.hand_over(cid)
+    a.take_over(back)
+    assert a.mapping == members and back.members == record.members and back.strikes == record.strikes
+    for x, y in zip(entries, a.tracks.entries(cid)):
+        assert np.array_equal(x, y)
+    slot = a.tracks.slot[cid]
+    cols = [a.sensor_names.index(s) for s in record.sensors]
+    assert np.array_equal(a.support[slot, cols], record.support)
