@@ -1,4 +1,4 @@
-"""``fedtrack bench [kernels | montecarlo | multitarget | pipeline | soak | hpda-soak | all] [--json PATH] [--quick]``.
+"""``fedtrack bench [kernels | montecarlo | multitarget | scale | pipeline | soak | hpda-soak | all] [--json PATH] [--quick]``.
 
 * ``kernels``: CV KF and radar EKF steps against FilterPy, Stone Soup and a numpy floor;
   batched KF target-steps per second (:mod:`fedtrack.benchmarks.kernels`).
@@ -18,6 +18,8 @@
   ``gnn``, ``jipda`` and ``mht`` in ``mtt-centralized``, ``mtt-federated`` and ``mtt-local`` (s1)
   and for Stone Soup's GNN and JPDA trackers on all detections, with ``jipda``'s and ``mht``'s
   1,000-target speed.
+* ``scale``: the centre sharded by region, 1 / 2 / 4 / 8 regions at 1,000 targets
+  (:mod:`fedtrack.benchmarks.scale`; not part of ``all``).
 * ``pipeline``: the deployment latency bench (:mod:`fedtrack.benchmarks.run`, its options).
 * ``soak``: a long deployment at the lockstep rate (:mod:`fedtrack.benchmarks.soak`; 10 minutes
   by default, not part of ``all``).
@@ -42,7 +44,7 @@ from typing import Any, NamedTuple
 
 from fedtrack.jsonl import check_output, output_file
 
-SUITES = ("kernels", "montecarlo", "multitarget", "pipeline", "soak", "hpda-soak", "all")
+SUITES = ("kernels", "montecarlo", "multitarget", "scale", "pipeline", "soak", "hpda-soak", "all")
 RATIO_KEYS = ("kf_vs_filterpy", "kf_vs_stonesoup", "ekf_vs_filterpy", "ekf_vs_stonesoup", "imm13_vs_filterpy",
               "aovsimm_vs_fsimm_cpu", "pda_vs_stonesoup")
 
@@ -426,6 +428,9 @@ def main(argv: list[str]) -> int:
     if args.suite in ("multitarget", "all"):
         result["multitarget"] = bench_multitarget(args.quick)
         result["multitarget"]["live"] = bench_live(args.quick)
+    if args.suite == "scale":  # minutes: not part of "all"
+        from fedtrack.benchmarks.scale import bench_scale
+        result["scale"] = bench_scale(args.quick)
     if args.suite == "all":
         result["import_s"] = bench_startup()
         with tempfile.TemporaryDirectory() as tmp:

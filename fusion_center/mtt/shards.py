@@ -17,6 +17,7 @@ union of the centres' tracks in increasing id; a track is in exactly one centre 
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -53,10 +54,15 @@ class ShardedCentre:
     regions: Regions
     handed_over: int = 0
     centres: list[TrackToTrackCentre] = field(default_factory=list)
+    # CPU seconds (process time) spent in each region's centre (its reports, its hand-overs out
+    # and in) and in routing rows to regions (the local trackers' part in a live deployment)
+    cpu_s: list[float] = field(default_factory=list)
+    routing_s: float = 0.0
 
     def __post_init__(self) -> None:
         n = len(self.regions.ids)
         self.centres = [TrackToTrackCentre(self.cfg, self.dim, self.feedback, next_id=r, id_step=n) for r in range(n)]
+        self.cpu_s = [0.0] * n
 
     def route(self, report: LocalReport) -> np.ndarray:
         """The region (index) each of the report's rows goes to."""
@@ -69,10 +75,14 @@ class ShardedCentre:
 
     def answer(self, report: LocalReport) -> tuple[Resets, float]:
         """:meth:`TrackToTrackCentre.answer` of every region's centre on its rows, then the hand-overs."""
+        start = time.process_time()
         route = self.route(report)
+        self.routing_s += time.process_time() - start
         parts, q_scale = [], 1.0
         for r, c in enumerate(self.centres):
+            start = time.process_time()
             resets, q_scale = c.answer(sub_report(report, route == r))  # the same q_scale in each
+            self.cpu_s[r] += time.process_time() - start
             parts.append(resets)
         self.hand_over()
         return join_resets(parts), q_scale
@@ -81,14 +91,17 @@ class ShardedCentre:
         """Move each central track whose latest estimate left its owner's region to the new owner."""
         moving = []
         for r, c in enumerate(self.centres):
+            start = time.process_time()
             slots = c.tracks.live()
-            if not slots.size:
-                continue
-            owner = region_of(self.regions, c.tracks.latest(slots)[1][:, [0, 2]])
-            moving += [(int(o), c.hand_over(cid)) for cid, o in zip(c.tracks.ids[slots].tolist(), owner.tolist())
-                       if o != r]
+            if slots.size:
+                owner = region_of(self.regions, c.tracks.latest(slots)[1][:, [0, 2]])
+                moving += [(int(o), c.hand_over(cid)) for cid, o in zip(c.tracks.ids[slots].tolist(),
+                                                                         owner.tolist()) if o != r]
+            self.cpu_s[r] += time.process_time() - start
         for owner, record in moving:
+            start = time.process_time()
             self.centres[owner].take_over(record)
+            self.cpu_s[owner] += time.process_time() - start
         self.handed_over += len(moving)
 
     def drop_sensor(self, sensor: str) -> None:

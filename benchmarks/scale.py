@@ -1,0 +1,114 @@
+"""``fedtrack bench scale``: the track-to-track centre sharded by region (issue 27 item 3).
+
+The 1,000-target, 4-sensor (1 Hz) scenario of ``bench multitarget`` replayed by ``mtt-federated``
+in one process with 1, 2, 4 and 8 regions (grids 1x1, 2x1, 2x2, 4x2 over the detections' extent:
+:class:`ShardedCentre`, each region's centre run in turn). Per region: the CPU seconds spent in
+its centre object (process time around its reports and its hand-overs out and in), its state
+size (the bytes of its pickled centre: the tracks' arrays at their allocated capacity and the
+mapping: a proxy for its RSS share, not a process's RSS), its tracks at the end; per run: the
+hand-overs, mean GOSPA (c = 100 m, p = 2), the routing CPU seconds (the local trackers' part live).
+One region is the unsharded centre (identical pictures, tests/test_mtt_shards.py).
+
+The load model at 100 regions (:func:`load_model`): with tracks spread evenly over square cells
+of side ``L`` and margin ``m``, the share of tracks within ``m`` of a border is
+``1 - ((L - 2m) / L)^2``; a centre receives one report per scan of each sensor that sees its
+region (rows: its tracks times ``1 + margin share``), and hands over ``4 N_r v_mean / (pi L)``
+tracks a second (isotropic headings: the flux out of a square of ``N_r`` tracks).
+"""
+
+from __future__ import annotations
+
+import math
+import pickle
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fedtrack.fusion_center.mtt.engines import TrackToTrackEngine
+from fedtrack.fusion_center.mtt.evaluation import evaluate
+from fedtrack.fusion_center.mtt.replay import data_regions, pictures, read_scans, state_dim
+from fedtrack.fusion_center.mtt.shards import ShardedCentre
+from fedtrack.local_filters.mtt.config import MttSettings
+from fedtrack.local_filters.regions import distances, region_of
+from fedtrack.config import load_tables
+from fedtrack.jsonl import output_file
+from fedtrack.sensors.multitarget import SPEED, Scenario, parse_spec, simulate
+
+GRIDS = {1: "1x1", 2: "2x1", 4: "2x2", 8: "4x2"}
+MARGIN_M = 500.0  # docs/multitarget.md#regions: 30 m/s targets, 1 s scans, 10 m noise need ~ 75 m
+
+
+def margin_share(regions: Any, pos: np.ndarray) -> float:
+    """The share of positions (N, 2) within the margin of a region other than their owner's."""
+    d = distances(regions, pos)
+    d[np.arange(len(pos)), region_of(regions, pos)] = np.inf
+    return float(np.mean(d.min(axis=1) <= regions.margin)) if d.shape[1] > 1 else 0.0
+
+
+def load_model(regions: int, tracks: int, sensors: int, rate_hz: float, cell_m: float, margin_m: float,
+               speed: float) -> dict[str, float]:
+    """Per centre at ``regions`` square cells of side ``cell_m`` with ``tracks`` spread evenly,
+    ``sensors`` seeing each region, scanning at ``rate_hz``, targets at ``speed`` [m/s]."""
+    share = 1.0 - max(cell_m - 2 * margin_m, 0.0) ** 2 / cell_m**2
+    per = tracks / regions
+    return {"regions": regions, "tracks_per_centre": per, "margin_share": share,
+            "reports_per_s": sensors * rate_hz, "rows_per_s": per * sensors * rate_hz * (1 + share),
+            "hand_overs_per_s": 4 * per * speed / (math.pi * cell_m)}
+
+
+def bench_scale(quick: bool) -> dict[str, Any]:
+    targets, duration = (50, 20.0) if quick else (1000, 60.0)
+    out: dict[str, Any] = {"targets": targets, "sensors": 4, "period_s": 1.0, "duration_s": duration,
+                           "margin_m": MARGIN_M, "state_size": "bytes of each region's pickled centre", "runs": {}}
+    with tempfile.TemporaryDirectory() as tmp:
+        sim = Path(tmp)
+        sc = Scenario(targets=targets, duration=duration)
+        simulate(sc, parse_spec("pos:1.0,pos:1.0,pos:1.0,pos:1.0"), 2, sim)
+        (sim / "regions.toml").write_text((sim / "config.toml").read_text()
+                                          + f"\n[regions]\nmargin = {MARGIN_M}\n"
+                                          + "grid = {origin = [0, 0], cell = [1, 1], nx = 1, ny = 1}\n")
+        cfg = load_tables(sim / "config.toml", MttSettings).mtt
+        scans = read_scans(sim / "measurements.jsonl", cfg)
+        for n, spec in GRIDS.items():
+            regions = data_regions(spec, scans, sim / "regions.toml")
+            engine = TrackToTrackEngine(cfg, state_dim(scans), feedback=True, regions=regions)
+            path = sim / f"{n}.jsonl"
+            start = time.perf_counter()
+            with output_file(path) as fh:
+                for T, tracks in pictures(engine, scans, cfg.period, cfg.picture_delay):
+                    fh.write(tracks.line(T, {"algorithm": "mtt-federated"}) + "\n")
+            wall = time.perf_counter() - start
+            centre: ShardedCentre = engine.centre
+            last = engine.picture(scans[-1].t)
+            out["runs"][n] = {
+                "grid": spec, "wall_s": wall, "routing_cpu_s": centre.routing_s, "hand_overs": centre.handed_over,
+                "cpu_s": centre.cpu_s, "max_cpu_s": max(centre.cpu_s),
+                "state_bytes": [len(pickle.dumps(c)) for c in centre.centres],
+                "tracks": [len(c.tracks) for c in centre.centres],
+                "margin_share": margin_share(regions, last.x[:, [0, 2]]) if last.ids else 0.0,
+                "gospa": evaluate(path, sim / "truth.jsonl")["mean"]["gospa"]}
+            print(f"bench scale: {n} regions: {wall:.1f} s, {centre.handed_over} hand-overs", flush=True)
+        base = out["runs"][1]
+        for row in out["runs"].values():
+            row["max_cpu_vs_one"] = row["max_cpu_s"] / base["max_cpu_s"]
+            row["max_state_vs_one"] = max(row["state_bytes"]) / base["state_bytes"][0]
+            row["gospa_vs_one"] = row["gospa"] / base["gospa"] - 1.0
+        side = 2 * sc.region  # the simulated area's side [m]
+        speed = float(np.mean(SPEED))
+        out["model_100_regions"] = {
+            "this_area": load_model(100, targets, 4, 1.0, side / 10, MARGIN_M, speed),
+            # 1e5 air tracks over 1,000 km x 1,000 km, 8 radars of 12 s scans seeing each 100 km
+            # cell, 250 m/s; margin 250 m/s x 12 s + 4.3 x 200 m ~ 4 km (docs/multitarget.md#regions)
+            "national": load_model(100, 100_000, 8, 1 / 12, 1.0e5, 4_000.0, 250.0)}
+        # the model checked against the measured grids (cells of this area)
+        out["model_check"] = {n: {"margin_share_measured": row["margin_share"],
+                                  "margin_share_model": load_model(n, targets, 4, 1.0, side / math.sqrt(n),
+                                                                   MARGIN_M, speed)["margin_share"],
+                                  "hand_overs_per_s_measured": row["hand_overs"] / duration / n,
+                                  "hand_overs_per_s_model": load_model(n, targets, 4, 1.0, side / math.sqrt(n),
+                                                                       MARGIN_M, speed)["hand_overs_per_s"]}
+                              for n, row in out["runs"].items() if n in (4,)}
+    return out
