@@ -27,21 +27,21 @@ from typing import Any
 
 import numpy as np
 
+from fedtrack.config import load_tables
 from fedtrack.fusion_center.mtt.engines import TrackToTrackEngine
 from fedtrack.fusion_center.mtt.evaluation import evaluate
 from fedtrack.fusion_center.mtt.replay import data_regions, pictures, read_scans, state_dim
 from fedtrack.fusion_center.mtt.shards import ShardedCentre
-from fedtrack.local_filters.mtt.config import MttSettings
-from fedtrack.local_filters.regions import distances, region_of
-from fedtrack.config import load_tables
 from fedtrack.jsonl import output_file
+from fedtrack.local_filters.mtt.config import MttSettings
+from fedtrack.local_filters.regions import Regions, distances, region_of
 from fedtrack.sensors.multitarget import SPEED, Scenario, parse_spec, simulate
 
 GRIDS = {1: "1x1", 2: "2x1", 4: "2x2", 8: "4x2"}
 MARGIN_M = 500.0  # docs/multitarget.md#regions: 30 m/s targets, 1 s scans, 10 m noise need ~ 75 m
 
 
-def margin_share(regions: Any, pos: np.ndarray) -> float:
+def margin_share(regions: Regions, pos: np.ndarray) -> float:
     """The share of positions (N, 2) within the margin of a region other than their owner's."""
     d = distances(regions, pos)
     d[np.arange(len(pos)), region_of(regions, pos)] = np.inf

@@ -90,3 +90,24 @@ def test_bench_kernels_quick_reports_ratios_side_by_side(tmp_path: Path) -> None
             assert result["ratios"][f"kf_vs_{lib}"] is None and lib in proc.stderr
         else:
             assert result["ratios"][f"kf_vs_{lib}"] == times["kf"]["fedtrack"] / times["kf"][lib]
+
+
+def test_bench_scale_quick_reports_every_region(tmp_path: Path) -> None:
+    """``bench scale --quick`` (about 5 s): per region count, a CPU time and state size per region,
+    hand-overs, GOSPA; one region's GOSPA is the reference of the others."""
+    from fedtrack.benchmarks.scale import load_model
+
+    out = tmp_path / "scale.json"
+    proc = subprocess.run([sys.executable, "-m", "fedtrack.cli", "bench", "scale", "--quick", "--json", str(out)],
+                          cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    runs = json.loads(out.read_text())["scale"]["runs"]
+    assert sorted(runs, key=int) == ["1", "2", "4", "8"]
+    for n, row in runs.items():
+        assert len(row["cpu_s"]) == len(row["state_bytes"]) == len(row["tracks"]) == int(n)
+        assert all(c > 0 for c in row["cpu_s"]) and row["gospa"] > 0
+        assert row["gospa_vs_one"] == pytest.approx(row["gospa"] / runs["1"]["gospa"] - 1.0)
+    assert runs["1"]["hand_overs"] == 0 and runs["8"]["hand_overs"] > 0
+    # the model: no margin share when the margin is nil, all of it when it spans the cell
+    assert load_model(4, 100, 2, 1.0, 1000.0, 0.0, 10.0)["margin_share"] == 0.0
+    assert load_model(4, 100, 2, 1.0, 1000.0, 500.0, 10.0)["margin_share"] == 1.0

@@ -4,6 +4,7 @@ hand-overs keep ids and estimates, and GOSPA stays within 2 % of the unsharded r
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -55,11 +56,11 @@ class Watch:
         self.moves = 0
         self.lost = self.duplicated = 0
 
-    def wrap(self, original):  # noqa: ANN001, ANN201
-        def hand_over(centre: ShardedCentre) -> None:
+    def wrap(self, original: Callable[..., None]) -> Callable[..., None]:
+        def hand_over(centre: ShardedCentre, touched: list[list[int]]) -> None:
             before = {cid: (r, c.tracks.latest(np.array([c.tracks.slot[cid]]))[1][0])
                       for r, c in enumerate(centre.centres) for cid in c.tracks}
-            original(centre)
+            original(centre, touched)
             after: dict[int, tuple[int, np.ndarray]] = {}
             for r, c in enumerate(centre.centres):
                 for cid in c.tracks:
@@ -131,3 +132,17 @@ def test_hand_over_record_round_trip_is_exact(data: Path) -> None:
     slot = a.tracks.slot[cid]
     cols = [a.sensor_names.index(s) for s in record.sensors]
     assert np.array_equal(a.support[slot, cols], record.support)
+
+
+def test_regions_option_errors_name_the_option(data: Path, tmp_path: Path) -> None:
+    from fedtrack.config import ConfigError
+
+    out = tmp_path / "p.jsonl"
+    for spec, message in (("3", "--regions: expected NXxNY"), ("config", "has no \\[regions\\] table")):
+        with pytest.raises(ConfigError, match=message):
+            replay_mtt("mtt-federated", data / "measurements.jsonl", data / "config.toml", out, regions=spec)
+        assert not out.exists()
+    config = tmp_path / "c.toml"
+    config.write_text((data / "config.toml").read_text()
+                      + "\n[regions]\nmargin = 100.0\ngrid = {origin = [-5000, -5000], cell = [5000, 5000], nx = 2, ny = 2}\n")
+    assert replay_mtt("mtt-decentralized", data / "measurements.jsonl", config, out, regions="config") == 60

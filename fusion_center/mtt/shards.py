@@ -78,25 +78,28 @@ class ShardedCentre:
         start = time.process_time()
         route = self.route(report)
         self.routing_s += time.process_time() - start
-        parts, q_scale = [], 1.0
+        parts, touched, q_scale = [], [], 1.0
         for r, c in enumerate(self.centres):
             start = time.process_time()
-            resets, q_scale = c.answer(sub_report(report, route == r))  # the same q_scale in each
+            sub = sub_report(report, route == r)
+            resets, q_scale = c.answer(sub)  # the same q_scale in each
+            fused = {c.mapping.get((report.sensor, i)) for i in sub.ids[sub.detected].tolist()}
+            touched.append(sorted(cid for cid in fused if cid in c.tracks))
             self.cpu_s[r] += time.process_time() - start
             parts.append(resets)
-        self.hand_over()
+        self.hand_over(touched)
         return join_resets(parts), q_scale
 
-    def hand_over(self) -> None:
-        """Move each central track whose latest estimate left its owner's region to the new owner."""
+    def hand_over(self, touched: list[list[int]]) -> None:
+        """Move each central track whose latest estimate left its owner's region to the new owner;
+        only the tracks of ``touched`` (per region, those this report's rows were fused into) can
+        have moved."""
         moving = []
-        for r, c in enumerate(self.centres):
+        for r, (c, cids) in enumerate(zip(self.centres, touched)):
             start = time.process_time()
-            slots = c.tracks.live()
-            if slots.size:
-                owner = region_of(self.regions, c.tracks.latest(slots)[1][:, [0, 2]])
-                moving += [(int(o), c.hand_over(cid)) for cid, o in zip(c.tracks.ids[slots].tolist(),
-                                                                         owner.tolist()) if o != r]
+            if cids:
+                owner = region_of(self.regions, c.tracks.latest(c.tracks.slots_of(cids))[1][:, [0, 2]])
+                moving += [(int(o), c.hand_over(cid)) for cid, o in zip(cids, owner.tolist()) if o != r]
             self.cpu_s[r] += time.process_time() - start
         for owner, record in moving:
             start = time.process_time()
