@@ -1,6 +1,6 @@
 """The track-to-track centre sharded by region (fusion_center/mtt/shards.py, issue 27 item 2):
 one region equals the unsharded centre; on a grid, every track is in exactly one region's centre,
-hand-overs keep ids and estimates, and GOSPA stays within 2 % of the unsharded run. About 25 s."""
+hand-overs keep ids and estimates, and GOSPA stays within 2 % of the unsharded run. About 15 s."""
 
 from __future__ import annotations
 
