@@ -307,23 +307,26 @@ duration = {duration}
 [mtt]
 clutter_density = 4e-7
 sensors = "any"
+associator = "{associator}"
 """
 
 
 def bench_live(quick: bool) -> dict[str, Any]:
     """Two live deployments through ``fedtrack launch`` (separate processes, loopback router):
     ``keep_up``, 200 targets and 4 sensors (periods 1.0 / 0.7 / 1.3 / 0.9 s) for 60 s at real
-    time (picture latency from a sensor's publish); ``join_leave``, 60 targets, s1 and s2 from
+    time (picture latency from a sensor's publish), and the same with ``[mtt] associator = "jipda"``
+    (``keep_up_jipda``); ``join_leave``, 60 targets, s1 and s2 from
     the start, s3 joining at 30 s and s1 killed at 60 s of 90 s (the script of
     ``deploy/join-leave.toml``; ``summary.json``'s ``membership``)."""
     from fedtrack.deploy.demo import free_port
 
-    runs = {"keep_up": {"targets": 200 if not quick else 20, "sensors": "pos:1.0,pos:0.7,pos:1.3,pos:0.9",
-                        "duration": 60.0 if not quick else 15.0, "speed": 1.0 if not quick else 3.0, "schedule": ""},
+    keep_up = {"targets": 200 if not quick else 20, "sensors": "pos:1.0,pos:0.7,pos:1.3,pos:0.9",
+               "duration": 60.0 if not quick else 15.0, "speed": 1.0 if not quick else 3.0, "schedule": ""}
+    runs = {"keep_up": {**keep_up, "associator": "gnn"}, "keep_up_jipda": {**keep_up, "associator": "jipda"},
             "join_leave": {"targets": 60 if not quick else 10, "sensors": "pos:1.0,pos:0.7,pos:1.3",
                            "duration": 90.0 if not quick else 24.0, "speed": 1.0 if not quick else 3.0,
                            "schedule": "join_at = { s3 = 30.0 }\nkill_at = { s1 = 60.0 }" if not quick
-                           else "join_at = { s3 = 8.0 }\nkill_at = { s1 = 16.0 }"}}
+                           else "join_at = { s3 = 8.0 }\nkill_at = { s1 = 16.0 }", "associator": "gnn"}}
     out: dict[str, Any] = {}
     with tempfile.TemporaryDirectory() as tmp:
         for name, run in runs.items():
