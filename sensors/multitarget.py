@@ -22,7 +22,10 @@ azimuth and elevation cover). Position sensors have noise std 10-20 m per axis; 
 Delays: every scan reaches the tracker ``base_delay`` + an exponential jitter after its time,
 and a fraction ``late`` of the scans (never the first) up to two periods later; a sensor's link
 is FIFO (a Zenoh publisher's samples arrive in order), so out-of-sequence lines come from the
-interleaving of sensors. ``measurements.jsonl`` is written in arrival order.
+interleaving of sensors, unless ``fifo`` is False (``--non-fifo``: UDP, several paths, a
+store-and-forward relay), when a late scan arrives after its sensor's later scans and the
+trackers' own out-of-sequence handling is exercised. ``measurements.jsonl`` is written in
+arrival order.
 
 ``config.toml`` sets ``[mtt] q`` from the truth's maximum acceleration and the sensors' periods
 (:func:`process_noise`, docs/multitarget.md#covariance-consistency-nees).
@@ -70,6 +73,7 @@ class Scenario:
     late: float = 0.2
     base_delay: float = 0.05
     formation: int = 1  # targets per group
+    fifo: bool = True  # a sensor's scans arrive in their own order (False: a late scan may come after later ones)
 
 
 # ``--scenario`` presets: options the command line did not set
@@ -214,7 +218,7 @@ def sensor_lines(spec: SensorSpec, sc: Scenario, x: np.ndarray, alive: np.ndarra
         delay = sc.base_delay + rng.exponential(0.02)
         if k and rng.uniform() < sc.late:
             delay += rng.uniform(0, 2 * spec.period)
-        last_arrival = max(last_arrival, t + delay)
+        last_arrival = max(last_arrival, t + delay) if sc.fifo else t + delay
         out.append((last_arrival, line))
     return out
 
@@ -310,6 +314,10 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--late", type=float, default=Scenario.late,
                         help="fraction of scans delivered late, up to two of their sensor's periods "
                              "(default: %(default)s)")
+    parser.add_argument("--non-fifo", action="store_true",
+                        help="a sensor's link is not first-in-first-out: a late scan arrives after the same "
+                             "sensor's later scans, as over UDP or several paths (default: each sensor's scans "
+                             "arrive in their own order; lines of different sensors interleave either way)")
     parser.add_argument("--out", required=True, type=Path, metavar="DIR",
                         help="folder to write into (created if missing; its own folder must exist)")
     args = parser.parse_args(argv)
@@ -324,7 +332,7 @@ def main(argv: list[str]) -> int:
     specs = parse_spec(args.sensors)
     output_folder(args.out)
     sc = Scenario(targets=args.targets, duration=args.duration, pd=args.pd, clutter=args.clutter, late=args.late,
-                  formation=int(args.formation))
+                  formation=int(args.formation), fifo=not args.non_fifo)
     info = simulate(sc, specs, args.seed, args.out)
     print(f"wrote {args.out}/measurements.jsonl ({info['scans']} scans, {info['out_of_sequence']} out of "
           f"sequence), truth.jsonl ({args.targets} targets), config.toml; sensors: {', '.join(info['sensors'])}")
