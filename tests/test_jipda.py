@@ -220,6 +220,32 @@ def approximation_error(rng: np.random.Generator, n: int, n_det: int, runs: int)
     return float(np.mean(err_mu)), float(np.mean(err_beta))
 
 
+def test_top_events_are_murtys_k_best(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The bounded search finds the same k most likely events, in the same order, as Murty's
+    partitioning, and the cluster marginals agree to round-off, with and without the fallback."""
+    from fedtrack.local_filters.mtt.associators.gnn import k_best_assignments
+
+    rng = np.random.default_rng(11)
+    for _ in range(40):
+        a, b = int(rng.integers(2, 11)), int(rng.integers(2, 13))
+        log_pair = np.where(rng.random((a, b)) < 0.5, rng.normal(0.0, 3.0, (a, b)), -np.inf)
+        log_miss = np.log(rng.uniform(0.05, 0.9, a))
+        cost = np.full((a, b + a), np.inf)
+        cost[:, :b] = -log_pair
+        cost[np.arange(a), b + np.arange(a)] = -log_miss
+        totals, events = k_best_assignments(cost, 50)
+        found = jipda.top_events(log_pair, log_miss, 50)
+        assert found is not None
+        np.testing.assert_array_equal(found[1], np.minimum(events, b))
+        np.testing.assert_allclose(found[0], -totals, rtol=0, atol=1e-9)
+        searched = jipda.k_best_cluster(log_pair, log_miss, 50)
+        with monkeypatch.context() as m:
+            m.setattr(jipda, "FRONTIER_MAX", 0)  # every cluster to Murty
+            murty = jipda.k_best_cluster(log_pair, log_miss, 50)
+        np.testing.assert_allclose(searched, murty, rtol=0, atol=1e-12)
+        assert np.allclose(searched.sum(axis=1), 1.0)
+
+
 def test_approximations_error_at_the_limit(monkeypatch: pytest.MonkeyPatch) -> None:
     """k-best (100 events) and LM-IPDA against exact enumeration on random clusters of the largest
     enumerated shape, 6 x 5 (docs/jipda.md)."""
