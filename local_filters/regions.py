@@ -177,17 +177,19 @@ def parse_grid_spec(spec: str) -> tuple[int, int]:
 def distances(regions: Regions, pos: np.ndarray) -> np.ndarray:
     """The distance (N, R) [m] of each position (N, 2) to each region: 0 inside (even-odd rule),
     else to the nearest edge."""
-    a = regions.vertices[None, :, :, :]  # (1, R, E, 2) edge starts
-    b = np.roll(regions.vertices, -1, axis=1)[None]  # edge ends (closing edge included)
-    p = np.asarray(pos, dtype=float)[:, None, None, :]  # (N, 1, 1, 2)
-    ab, ap = b - a, p - a
-    length2 = np.sum(ab * ab, axis=-1)
-    s = np.clip(np.sum(ap * ab, axis=-1) / np.where(length2 > 0, length2, 1.0), 0.0, 1.0)
-    edge = np.sqrt(np.sum((ap - s[..., None] * ab) ** 2, axis=-1)).min(axis=-1)  # (N, R)
-    ay, by, py = a[..., 1], b[..., 1], p[..., 1]
-    straddles = (ay > py) != (by > py)  # a padded (zero-length) edge never straddles
-    x_cross = a[..., 0] + (py - ay) * ab[..., 0] / np.where(straddles, by - ay, 1.0)
-    inside = np.count_nonzero(straddles & (p[..., 0] < x_cross), axis=-1) % 2 == 1
+    ax, ay = regions.vertices[..., 0], regions.vertices[..., 1]  # (R, E) edge starts
+    b = np.roll(regions.vertices, -1, axis=1)  # edge ends (closing edge included)
+    abx, aby = b[..., 0] - ax, b[..., 1] - ay
+    length2 = abx * abx + aby * aby
+    p = np.asarray(pos, dtype=float)
+    px, py = p[:, 0, None, None], p[:, 1, None, None]  # (N, 1, 1); x and y apart: no size-2 axis to reduce
+    apx, apy = px - ax, py - ay  # (N, R, E)
+    s = np.clip((apx * abx + apy * aby) / np.where(length2 > 0, length2, 1.0), 0.0, 1.0)
+    ex, ey = apx - s * abx, apy - s * aby
+    edge = np.sqrt(ex * ex + ey * ey).min(axis=-1)  # (N, R)
+    straddles = (ay > py) != (b[..., 1] > py)  # a padded (zero-length) edge never straddles
+    x_cross = ax + (py - ay) * abx / np.where(straddles, b[..., 1] - ay, 1.0)
+    inside = np.count_nonzero(straddles & (px < x_cross), axis=-1) % 2 == 1
     return np.where(inside, 0.0, edge)
 
 

@@ -57,7 +57,7 @@ class Watch:
         self.lost = self.duplicated = 0
 
     def wrap(self, original: Callable[..., None]) -> Callable[..., None]:
-        def hand_over(centre: ShardedCentre, touched: list[list[int]]) -> None:
+        def hand_over(centre: ShardedCentre, touched: list[np.ndarray]) -> None:
             before = {cid: (r, c.tracks.latest(np.array([c.tracks.slot[cid]]))[1][0])
                       for r, c in enumerate(centre.centres) for cid in c.tracks}
             original(centre, touched)

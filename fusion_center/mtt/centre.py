@@ -163,7 +163,7 @@ class TrackToTrackCentre:
             self._fit()
         return col
 
-    def _central_ids(self, keys: list[LocalKey]) -> np.ndarray:
+    def central_ids(self, keys: list[LocalKey]) -> np.ndarray:
         """The central track each local track maps to (-1: none), as an array."""
         return np.fromiter(map(self.mapping.get, keys, itertools.repeat(-1)), dtype=np.int64, count=len(keys))
 
@@ -243,7 +243,7 @@ class TrackToTrackCentre:
         d = report.x.shape[1]
         det_rows = np.flatnonzero(report.detected)
         keys = [(s, i) for i in report.ids[det_rows].tolist()]
-        cid = self._central_ids(keys)  # a mapped local track's central track is live; -1: unmapped
+        cid = self.central_ids(keys)  # a mapped local track's central track is live; -1: unmapped
         # hysteresis: a mapped local track inconsistent with its central track unmap_after times in a row
         check = np.flatnonzero((cid >= 0) & ~report.started)
         if check.size:

@@ -81,25 +81,28 @@ class ShardedCentre:
         parts, touched, q_scale = [], [], 1.0
         for r, c in enumerate(self.centres):
             start = time.process_time()
-            sub = sub_report(report, route == r)
+            rows = route == r
+            sub = report if rows.all() else sub_report(report, rows)
             resets, q_scale = c.answer(sub)  # the same q_scale in each
-            fused = {c.mapping.get((report.sensor, i)) for i in sub.ids[sub.detected].tolist()}
-            touched.append(sorted(cid for cid in fused if cid in c.tracks))
+            fused = np.unique(c.central_ids([(report.sensor, i) for i in sub.ids[sub.detected].tolist()]))
+            touched.append(fused[np.isin(fused, c.tracks.ids) & (fused >= 0)])
             self.cpu_s[r] += time.process_time() - start
             parts.append(resets)
         self.hand_over(touched)
         return join_resets(parts), q_scale
 
-    def hand_over(self, touched: list[list[int]]) -> None:
+    def hand_over(self, touched: list[np.ndarray]) -> None:
         """Move each central track whose latest estimate left its owner's region to the new owner;
-        only the tracks of ``touched`` (per region, those this report's rows were fused into) can
-        have moved."""
+        only the tracks of ``touched`` (per region, the ids this report's rows were fused into, in
+        increasing order) can have moved; with one region none can."""
+        if len(self.centres) == 1:
+            return
         moving = []
         for r, (c, cids) in enumerate(zip(self.centres, touched)):
             start = time.process_time()
-            if cids:
+            if cids.size:
                 owner = region_of(self.regions, c.tracks.latest(c.tracks.slots_of(cids))[1][:, [0, 2]])
-                moving += [(int(o), c.hand_over(cid)) for cid, o in zip(cids, owner.tolist()) if o != r]
+                moving += [(int(o), c.hand_over(cid)) for cid, o in zip(cids.tolist(), owner.tolist()) if o != r]
             self.cpu_s[r] += time.process_time() - start
         for owner, record in moving:
             start = time.process_time()
