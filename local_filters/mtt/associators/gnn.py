@@ -29,11 +29,14 @@ def assign(n_tracks: int, n_detections: int, rows: np.ndarray, cols: np.ndarray,
     the indices of the chosen pairs. Solved per connected component of the pair graph: a
     component of one pair takes it, one of a single track or a single detection its cheapest
     pair, one of at most ``SMALL_COMPONENT`` on either side its best enumerated matching, the
-    others ``linear_sum_assignment``."""
+    others ``linear_sum_assignment``. When no track and no detection is in two pairs (the
+    fusion centre's few new local tracks of a scan, mostly), every pair is taken at once."""
     usable = np.flatnonzero(cost < 0.0)
     if usable.size == 0:
         return usable
     r, c = rows[usable], cols[usable]
+    if np.bincount(r).max() == 1 and np.bincount(c).max() == 1:
+        return usable
     n = n_tracks + n_detections
     _, label = connected_components(_pair_graph(n_tracks, n, r, c), directed=False)
     comp = label[r]
