@@ -148,6 +148,9 @@ class TrackToTrackCentre:
         self.streak = np.zeros((0, 0), dtype=np.int64)  # a confirmed slot's misses in a row per sensor
         self.window = np.zeros((0, cfg.confirm_window), dtype=bool)  # a tentative slot's last scans
         self.last_support = np.zeros(0)  # when a local observation was last fused into a slot
+        # the ids of the central tracks the last report's observations were fused into (or started):
+        # the only ones whose latest estimate moved (a region centre checks whether they left it)
+        self.moved = np.zeros(0, dtype=np.int64)
         self._fit()
 
     def _fit(self) -> None:
@@ -166,7 +169,7 @@ class TrackToTrackCentre:
             self._fit()
         return col
 
-    def central_ids(self, keys: list[LocalKey]) -> np.ndarray:
+    def _central_ids(self, keys: list[LocalKey]) -> np.ndarray:
         """The central track each local track maps to (-1: none), as an array."""
         return np.fromiter(map(self.mapping.get, keys, itertools.repeat(-1)), dtype=np.int64, count=len(keys))
 
@@ -246,7 +249,7 @@ class TrackToTrackCentre:
         d = report.x.shape[1]
         det_rows = np.flatnonzero(report.detected)
         keys = [(s, i) for i in report.ids[det_rows].tolist()]
-        cid = self.central_ids(keys)  # a mapped local track's central track is live; -1: unmapped
+        cid = self._central_ids(keys)  # a mapped local track's central track is live; -1: unmapped
         # hysteresis: a mapped local track inconsistent with its central track unmap_after times in a row
         check = np.flatnonzero((cid >= 0) & ~report.started)
         if check.size:
@@ -283,6 +286,7 @@ class TrackToTrackCentre:
         beta = float(max(len(self.live_sensors(t)), 1))
         rows = np.flatnonzero(fused)
         supported = slots[rows]
+        self.moved = np.unique(cid[rows])
         self.last_support[supported] = np.maximum(self.last_support[supported], t)
         resets = no_resets(s, t, d)
         if self.feedback and rows.size:

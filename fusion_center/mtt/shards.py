@@ -84,8 +84,7 @@ class ShardedCentre:
             rows = route == r
             sub = report if rows.all() else sub_report(report, rows)
             resets, q_scale = c.answer(sub)  # the same q_scale in each
-            fused = np.unique(c.central_ids([(report.sensor, i) for i in sub.ids[sub.detected].tolist()]))
-            touched.append(fused[np.isin(fused, c.tracks.ids) & (fused >= 0)])
+            touched.append(c.moved[np.isin(c.moved, c.tracks.ids)])  # not merged away or pruned
             self.cpu_s[r] += time.process_time() - start
             parts.append(resets)
         self.hand_over(touched)
@@ -93,8 +92,8 @@ class ShardedCentre:
 
     def hand_over(self, touched: list[np.ndarray]) -> None:
         """Move each central track whose latest estimate left its owner's region to the new owner;
-        only the tracks of ``touched`` (per region, the ids this report's rows were fused into, in
-        increasing order) can have moved; with one region none can."""
+        only the tracks of ``touched`` (per region, the ids this report's rows were fused into or
+        started, in increasing order) can have moved; with one region none can."""
         if len(self.centres) == 1:
             return
         moving = []
