@@ -69,20 +69,17 @@ def test_gnn_pictures_equal_main_886cab1(tmp_path: Path, scenario: str, maneuver
                                    err_msg=f"t = {t}")
 
 
-def test_associator_key_selects_gnn_and_refuses_the_ones_to_come(tmp_path: Path) -> None:
+def test_associator_key_selects_each_associator(tmp_path: Path) -> None:
     from fedtrack.config import ConfigError, load_tables
-    from fedtrack.local_filters.mtt.config import ASSOCIATORS, NOT_YET, MttSettings
+    from fedtrack.local_filters.mtt.config import ASSOCIATORS, MttSettings
     from fedtrack.local_filters.mtt.tracker import ASSOCIATORS as IMPLEMENTED
     from fedtrack.local_filters.mtt.tracker import track_params
 
-    assert set(IMPLEMENTED) == set(ASSOCIATORS) - set(NOT_YET)
+    assert set(IMPLEMENTED) == set(ASSOCIATORS)
     path = tmp_path / "c.toml"
-    path.write_text('[mtt]\nassociator = "gnn"\n')
-    assert track_params(load_tables(path, MttSettings).mtt, "s1", 4).associator.name == "gnn"
-    for name in NOT_YET:
+    for name in ASSOCIATORS:
         path.write_text(f'[mtt]\nassociator = "{name}"\n')
-        with pytest.raises(ConfigError, match=f"associator: '{name}' is not implemented yet"):
-            load_tables(path, MttSettings)
+        assert track_params(load_tables(path, MttSettings).mtt, "s1", 4).associator.name == name
     path.write_text('[mtt]\nassociator = "pda"\n')
     with pytest.raises(ConfigError, match="associator: must be one of gnn, jipda, mht"):
         load_tables(path, MttSettings)

@@ -24,7 +24,6 @@ MAX_CENTRAL_MANEUVER_WINDOW = 200  # its banks are kept per ring entry: memory g
 
 # [mtt] associator: the association methods of the multi-target tracker (local_filters/mtt/association.py)
 ASSOCIATORS = ("gnn", "jipda", "mht")
-NOT_YET: dict[str, str] = {}  # named, not implemented yet
 MHT_MANAGEMENTS = ("score", "counts")  # local_filters/mtt/associators/mht.py
 
 
@@ -107,9 +106,6 @@ class MttConfig:
             raise ConfigError(f"noise_model: must be one of {', '.join(NOISE_MODELS)}")
         if self.associator not in ASSOCIATORS:
             raise ConfigError(f"associator: must be one of {', '.join(ASSOCIATORS)}")
-        if self.associator in NOT_YET:
-            raise ConfigError(f"associator: {self.associator!r} is not implemented yet ({NOT_YET[self.associator]}); "
-                              'use "gnn"')
         if self.maneuver not in MANEUVER_MODES:
             raise ConfigError(f"maneuver: must be one of {', '.join(MANEUVER_MODES)}")
         if self.associator in ("jipda", "mht") and self.maneuver != "none":
