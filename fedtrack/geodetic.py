@@ -21,6 +21,7 @@ import orjson
 import pymap3d
 
 from fedtrack.config import ConfigError, load_tables
+from fedtrack.wire import with_geodetic
 
 
 class Frame(NamedTuple):
@@ -158,22 +159,24 @@ def load_frame(path: str | Path | None) -> FrameConfig | None:
 
 def add_geodetic(frame: Frame, rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Picture or truth rows (each with ``x`` = ``[x, vx, y, vy(, z, vz)]``) with ``lat``, ``lon`` [deg]
-    and, for a 3-D state, ``alt`` [m above the ellipsoid] beside ``x``; a 2-D state is placed on the
-    common frame's plane (z = 0)."""
+    and, for a 3-D state, ``alt`` [m above the ellipsoid] beside ``x`` (:func:`fedtrack.wire.with_geodetic`);
+    a 2-D state is placed on the common frame's plane (z = 0)."""
     if not rows:
         return rows
     pos = np.zeros((len(rows), 3))
     for i, row in enumerate(rows):
         p = row["x"][0::2][: len(row["x"]) // 2]
         pos[i, : len(p)] = p
-    lla = geodetic_from_enu(frame, pos)
-    out = []
-    for row, (lat, lon, h) in zip(rows, lla.tolist()):
-        extra = {"lat": round(lat, 9), "lon": round(lon, 9)}
-        if len(row["x"]) >= 6:
-            extra["alt"] = round(h, 4)
-        out.append({**row, **extra})
-    return out
+    return with_geodetic(rows, geodetic_from_enu(frame, pos))
+
+
+def geodetic_of_states(frame: Frame, X: np.ndarray) -> np.ndarray:
+    """``[lat, lon, h]`` (n, 3) of the positions of states ``X`` (n, 4 or 6; a 2-D state on z = 0):
+    what :func:`add_geodetic` computes for picture rows of these states."""
+    pos = np.zeros((X.shape[0], 3))
+    k = X.shape[1] // 2
+    pos[:, :k] = X[:, 0::2][:, :k]
+    return geodetic_from_enu(frame, pos)
 
 
 def geodetic_line(line: str, frame: Frame) -> str:

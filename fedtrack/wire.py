@@ -34,7 +34,7 @@ import orjson
 from fedtrack.jsonl import InputError
 from fedtrack.keys import InvalidName, check_id
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 MAX_PAYLOAD_BYTES = 2 * 1024 * 1024
 MAX_ARRAY_ELEMENTS = 4096
 MAX_MAGNITUDE = 1e100  # no quantity of the contract comes near; squares stay finite
@@ -544,6 +544,12 @@ def _flags(value: Any, path: str) -> tuple[bool, ...]:
     return tuple(_flag(v, f"{path}[{i}]") for i, v in enumerate(_sequence(value, path, MAX_TRACKS)))
 
 
+def _check_probabilities(p: np.ndarray | None, n: int, path: str = "existence") -> None:
+    """None, or one probability in [0, 1] for each of the ``n`` tracks."""
+    if p is not None and (p.shape != (n,) or not ((p >= 0.0) & (p <= 1.0)).all()):
+        raise WireError(path, f"expected one probability in [0, 1] for each of the {n} tracks")
+
+
 def _batch(value: Any, path: str) -> np.ndarray:
     """A 2-D array of a batch of tracks (up to MAX_BATCH_ELEMENTS elements)."""
     return _array(value, path, 2, MAX_BATCH_ELEMENTS)
@@ -614,11 +620,13 @@ class TrackReport(_Record):
     retired: tuple[int, ...]
     stamp_ns: int
     contested: tuple[int, ...] = ()
+    existence: np.ndarray | None = None  # (n,) each track's existence probability (jipda), else None
 
     _fields = {"sensor": _identifier, "seq": _count, "t": _real, "ids": _counts, "x": _batch, "P": _batch,
                "confirmed": _flags, "detected": _flags, "obs_H": _batch, "obs_R": _batch, "obs_z": _batch,
-               "started": _flags, "retired": _counts, "stamp_ns": _count, "contested": _scans}
-    _arrays = ("x", "P", "obs_H", "obs_R", "obs_z")
+               "started": _flags, "retired": _counts, "stamp_ns": _count, "contested": _scans,
+               "existence": _optional(_vector)}
+    _arrays = ("x", "P", "obs_H", "obs_R", "obs_z", "existence")
 
     def _check(self) -> None:
         n = len(self.ids)
@@ -635,6 +643,7 @@ class TrackReport(_Record):
         if self.obs_H.shape != (k * m, d):
             raise WireError("obs_H", f"expected shape ({k * m}, {d}), got {self.obs_H.shape}")
         object.__setattr__(self, "obs_R", _covariance_stack(self.obs_R, k, m, "obs_R"))
+        _check_probabilities(self.existence, n)
 
 
 @dataclass(frozen=True, eq=False)
@@ -697,13 +706,16 @@ class TrackPicture(_Record):
     maneuvering: tuple[int, ...] = ()
     maneuver: np.ndarray | None = None
     contested: bool = False
+    existence: np.ndarray | None = None  # (n,) each track's existence probability, None: not kept
+    lla: np.ndarray | None = None  # (n, 3) [lat deg, lon deg, h m] of each track ([frame] set), else None
 
     _fields = {"seq": _count, "t": _real, "ids": _counts, "x": _batch, "P": _batch, "confirmed": _flags,
                "sensors": _id_lists, "ca": _flags, "maneuvering": _counts, "maneuver": _optional(_batch),
                "fused_sensors": lambda v, p: tuple(_identifier(x, f"{p}[{i}]")
                                                    for i, x in enumerate(_sequence(v, p, MAX_TRACKS))),
-               "fused_seqs": _counts, "stamp_ns": _count, "closing": _flag, "left": _counts, "contested": _flag}
-    _arrays = ("x", "P", "maneuver")
+               "fused_seqs": _counts, "stamp_ns": _count, "closing": _flag, "left": _counts, "contested": _flag,
+               "existence": _optional(_vector), "lla": _optional(_batch)}
+    _arrays = ("x", "P", "maneuver", "existence", "lla")
 
     def _check(self) -> None:
         n = len(self.ids)
@@ -724,6 +736,10 @@ class TrackPicture(_Record):
             raise WireError("left", "expected distinct positions in the fused lists")
         if self.closing and n:
             raise WireError("ids", "a closing record has no tracks")
+        _check_probabilities(self.existence, n)
+        if self.lla is not None and (self.lla.shape != (n, 3) or not (np.abs(self.lla[:, 0]) <= 90.0).all()
+                                     or not (np.abs(self.lla[:, 1]) <= 180.0).all()):
+            raise WireError("lla", f"expected one row [lat, lon, h] (|lat| <= 90, |lon| <= 180) for each of the {n} tracks")
 
 
 @dataclass(frozen=True, eq=False)
@@ -930,12 +946,13 @@ def measurement_to_replay(m: Measurement) -> dict[str, Any]:
 
 def picture_rows(ids: list[int], X: np.ndarray, P: np.ndarray, confirmed: list[bool], sensors: list[list[str]],
                  models: list[str] | None = None, maneuver: np.ndarray | None = None,
-                 existence: list[float] | None = None) -> list[dict[str, Any]]:
+                 existence: list[float] | None = None, lla: np.ndarray | None = None) -> list[dict[str, Any]]:
     """The tracks of a multi-target picture line (docs/multitarget-formats.md), from batched
     states ``X`` (n, d), ``P`` (n, d, d): ``x`` is the CV state (a CA track's marginal), ``models``
     each track's motion model (all ``"cv"`` when None), ``maneuver`` (n, 4) each central track's
     detected maneuver ``[onset, ax, ay, statistic]`` (a row of NaN: none; None: no detector),
-    ``existence`` each track's existence probability (``[mtt] associator = "jipda"``; None: not kept)."""
+    ``existence`` each track's existence probability (``[mtt] associator = "jipda"``; None: not kept),
+    ``lla`` (n, 3) each track's WGS-84 position (:func:`with_geodetic`; None: no ``[frame]``)."""
     k = X.shape[1] // 2
     xs, Ps = X.tolist(), P.tolist()
     models = models or ["cv"] * len(ids)
@@ -949,7 +966,19 @@ def picture_rows(ids: list[int], X: np.ndarray, P: np.ndarray, confirmed: list[b
     if existence is not None:
         for row, e in zip(rows, existence):
             row["existence"] = e
-    return rows
+    return rows if lla is None else with_geodetic(rows, lla)
+
+
+def with_geodetic(rows: list[dict[str, Any]], lla: np.ndarray) -> list[dict[str, Any]]:
+    """Picture or truth rows with ``lat``, ``lon`` [deg] (9 decimals) and, for a 3-D state (``x`` of
+    6), ``alt`` [m above the ellipsoid] (4 decimals) from ``lla`` (n, 3), placed beside ``x``."""
+    out = []
+    for row, (lat, lon, h) in zip(rows, lla.tolist()):
+        extra = {"lat": round(lat, 9), "lon": round(lon, 9)}
+        if len(row["x"]) >= 6:
+            extra["alt"] = round(h, 4)
+        out.append({**row, **extra})
+    return out
 
 
 def picture_line(t: float, ids: list[int], X: np.ndarray, P: np.ndarray, confirmed: list[bool],
@@ -975,8 +1004,9 @@ def picture_to_replay(pic: TrackPicture) -> dict[str, Any]:
     if pic.maneuver is not None:
         maneuver = np.full((len(pic.ids), 4), np.nan)
         maneuver[list(pic.maneuvering)] = pic.maneuver
+    existence = None if pic.existence is None else pic.existence.tolist()
     line = {"t": pic.t, "tracks": picture_rows(list(pic.ids), pic.x, pic.P.reshape(-1, d, d), list(pic.confirmed),
-                                               [list(s) for s in pic.sensors], models, maneuver)}
+                                               [list(s) for s in pic.sensors], models, maneuver, existence, pic.lla)}
     if pic.contested:
         line["contested"] = True
     return line

@@ -150,3 +150,7 @@ def assert_same_pictures(live: list[dict[str, Any]], again: list[dict[str, Any]]
             if "maneuver" in ta:
                 for key in ("onset", "accel", "statistic"):
                     np.testing.assert_allclose(ta["maneuver"][key], tb["maneuver"][key], rtol=1e-9, atol=1e-9)
+            assert sorted(ta) == sorted(tb)  # existence and lat / lon / alt in both or neither
+            for key in ("existence", "lat", "lon", "alt"):
+                if key in ta:
+                    np.testing.assert_allclose(ta[key], tb[key], rtol=1e-9, atol=1e-9)

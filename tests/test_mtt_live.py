@@ -16,6 +16,7 @@ import pytest
 from support import WAIT_S, assert_same_pictures, free_port, wait_until
 
 from fedtrack.fusion_center.mtt.replay import replay_mtt
+from fedtrack.geodetic import Frame
 from fedtrack.fusion_center.mtt.service import MttCentreService
 from fedtrack.keys import Keys
 from fedtrack.local_filters.mtt.config import MttConfig
@@ -37,8 +38,10 @@ def scenario(tmp_path: Path) -> tuple[list[dict[str, Any]], MttConfig, Path]:
     return lines, MttConfig(sensors=("s1", "s2", "s3"), max_lag=3.0, clutter_density=3.0 / 5000.0**2), out
 
 
-def run_live(tmp_path: Path, algorithm: str) -> tuple[Path, list[TrackPicture], dict[str, int]]:
+def run_live(tmp_path: Path, algorithm: str, associator: str = "gnn",
+             frame: Frame | None = None) -> tuple[Path, list[TrackPicture], dict[str, int]]:
     lines, cfg, _ = scenario(tmp_path)
+    cfg = dataclasses.replace(cfg, associator=associator)
     port = free_port()
     keys = Keys("mttlive")
     router = open_session(SessionOptions(mode="router", connect=(), listen=(f"tcp/127.0.0.1:{port}",)))
@@ -46,7 +49,7 @@ def run_live(tmp_path: Path, algorithm: str) -> tuple[Path, list[TrackPicture], 
     common = {"options": opts, "deployment": "mttlive"}
     sensors = sorted({line["sensor"] for line in lines})
     services: list[Any] = [Recorder(tmp_path / "rec.db", tmp_path / "out", service_id="rec", **common)]
-    centre = MttCentreService(algorithm, cfg, 4, service_id="centre", **common)
+    centre = MttCentreService(algorithm, cfg, 4, frame=frame, service_id="centre", **common)
     services.append(centre)
     if algorithm != "mtt-centralized":
         federated = algorithm == "mtt-federated"
@@ -102,6 +105,26 @@ def test_live_pictures_equal_the_replay_of_the_recording(tmp_path: Path, algorit
         assert recording.count(TrackPicture) == len(pictures)
     finally:
         recording.close()
+
+
+@pytest.mark.parametrize("algorithm", ["mtt-federated", "mtt-centralized"])
+def test_live_pictures_carry_existence_and_the_earth(tmp_path: Path, algorithm: str) -> None:
+    """jipda's existence (the centre's from its local tracks' in ``TrackReport``) and, with
+    ``[frame]``, each track's latitude / longitude in the live ``TrackPicture``: the same rows as
+    the replay writes, to 1e-9."""
+    origin = (48.85, 2.35, 100.0)
+    out, pictures, counters = run_live(tmp_path, algorithm, "jipda", Frame(*origin))
+    assert counters.get("rejected", 0) == 0
+    live = [json.loads(x) for x in (out / "tracks.jsonl").read_text().splitlines()]
+    rows = [t for p in live for t in p["tracks"]]
+    assert len(rows) > 50 and all({"existence", "lat", "lon"} <= set(t) for t in rows)
+    assert all(0.0 <= t["existence"] <= 1.0 for t in rows) and abs(rows[0]["lat"] - origin[0]) < 0.1
+    config = tmp_path / "mtt.toml"
+    config.write_text('[mtt]\nsensors = ["s1", "s2", "s3"]\nmax_lag = 3.0\nclutter_density = 1.2e-7\n'
+                      'associator = "jipda"\n[frame]\norigin = [48.85, 2.35, 100.0]\n')
+    replayed = tmp_path / "replayed.jsonl"
+    replay_mtt(algorithm, out / "measurements.jsonl", config, replayed)
+    assert_same_pictures(live, [json.loads(x) for x in replayed.read_text().splitlines()])
 
 
 def test_sensors_join_and_leave_at_run_time(tmp_path: Path) -> None:

@@ -13,6 +13,7 @@ from fedtrack import wire
 from fedtrack.jsonl import InputError
 from fedtrack.keys import InvalidName, Keys
 from fedtrack.wire import (
+    SCHEMA_VERSION,
     Detection,
     FusedTrack,
     Health,
@@ -238,7 +239,8 @@ def test_missing_unknown_and_envelope_fields() -> None:
     expect(tampered(m, R=DELETE), Measurement, "Measurement.R", "missing field")
     expect(tampered(m, sensor_position=DELETE), Measurement, "Measurement.sensor_position", "missing field")
     expect(tampered(m, colour="red"), Measurement, "Measurement.colour", "unknown field")
-    expect(tampered(m, schema=2), Measurement, "Measurement.schema", "unsupported schema version 2")
+    expect(tampered(m, schema=SCHEMA_VERSION + 1), Measurement, "Measurement.schema",
+           f"unsupported schema version {SCHEMA_VERSION + 1}")
     expect(tampered(m, schema=DELETE), Measurement, "Measurement.schema", "missing")
     expect(tampered(m, type="Reset"), Measurement, "Measurement.type", "expected 'Measurement'")
     expect(encode(m), Health, "Health.type", "got 'Measurement'")
@@ -371,6 +373,17 @@ def track_report() -> TrackReport:
                        retired=(1, 3), stamp_ns=23)
 
 
+def existence_report() -> TrackReport:
+    """A report of jipda's local tracker: each track's existence beside its state."""
+    return TrackReport(**{**vars(track_report()), "existence": np.array([0.97, 0.4])})
+
+
+def earth_picture() -> TrackPicture:
+    """A picture with existence and each track's WGS-84 position (``[frame]`` set)."""
+    return TrackPicture(**{**vars(maneuver_picture()), "existence": np.array([0.99, 0.5]),
+                           "lla": np.array([[48.85, 2.35, 120.0], [-33.9, 151.2, 15.0]])})
+
+
 def track_resets() -> TrackResets:
     return TrackResets(sensor="s2", seq=11, t=1.1, q_scale=3.0, ids=(4,), x=RNG.normal(size=(1, 4)), P=spd(4))
 
@@ -400,7 +413,16 @@ def test_a_picture_carries_central_maneuvers_to_its_replay_line() -> None:
     assert rows[1]["maneuver"] == {"onset": 2.1, "accel": [1.5, -0.5], "statistic": 31.0}
 
 
-@pytest.mark.parametrize("make", [track_report, track_resets, track_picture, scan, maneuver_picture])
+def test_a_picture_carries_existence_and_the_earth_to_its_replay_line() -> None:
+    from fedtrack.wire import picture_to_replay
+
+    rows = picture_to_replay(decode(encode(earth_picture()), TrackPicture))["tracks"]
+    assert [(r["existence"], r["lat"], r["lon"], "alt" in r) for r in rows] == \
+        [(0.99, 48.85, 2.35, False), (0.5, -33.9, 151.2, False)]  # 2-D states: no altitude
+
+
+@pytest.mark.parametrize("make", [track_report, track_resets, track_picture, scan, maneuver_picture,
+                                  existence_report, earth_picture])
 def test_multitarget_messages_round_trip(make) -> None:
     msg = make()
     back = decode(encode(msg), type(msg))
@@ -418,6 +440,11 @@ def test_multitarget_messages_round_trip(make) -> None:
     (lambda m: TrackPicture(**{**vars(maneuver_picture()), "maneuvering": (0, 1)}), "maneuver"),  # one row short
     (lambda m: TrackPicture(**{**vars(maneuver_picture()), "maneuver": None}), "maneuver"),
     (lambda m: TrackPicture(**{**vars(maneuver_picture()), "maneuver": np.array([[np.nan, 0, 0, 1.0]])}), "maneuver"),
+    (lambda m: TrackReport(**{**vars(existence_report()), "existence": np.array([0.5, 1.5])}), "existence"),
+    (lambda m: TrackReport(**{**vars(existence_report()), "existence": np.array([0.5])}), "existence"),
+    (lambda m: TrackPicture(**{**vars(earth_picture()), "existence": np.array([-0.1, 0.5])}), "existence"),
+    (lambda m: TrackPicture(**{**vars(earth_picture()), "lla": np.array([[95.0, 2.0, 0.0], [0.0, 0.0, 0.0]])}), "lla"),
+    (lambda m: TrackPicture(**{**vars(earth_picture()), "lla": np.zeros((1, 3))}), "lla"),
 ])
 def test_multitarget_messages_are_checked(change, field: str) -> None:
     with pytest.raises(WireError, match=field):

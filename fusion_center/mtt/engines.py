@@ -230,6 +230,7 @@ class TrackToTrackEngine(Engine):
     local: dict[str, SensorTracker] = field(default_factory=dict)
     centre: TrackToTrackCentre | ShardedCentre | None = None
     regions: Regions | None = None  # a centre per region (:class:`ShardedCentre`), else one centre
+    existence: CentralExistence | None = None  # the local trackers keep existence (jipda)
 
     def ingest(self, scan: SensorScan) -> None:
         tracker = self.local.get(scan.sensor)
@@ -253,6 +254,8 @@ class TrackToTrackEngine(Engine):
     def leave(self, sensor: str) -> None:
         if self.centre is not None:
             self.centre.drop_sensor(sensor)
+        if self.existence is not None:
+            self.existence.leave(sensor)
 
     def fuse(self, report: LocalReport) -> tuple[Resets, float]:
         """The centre's part of a scan, as the live centre does it per report."""
@@ -260,14 +263,17 @@ class TrackToTrackEngine(Engine):
             self.centre = (TrackToTrackCentre(self.cfg, self.dim, self.feedback) if self.regions is None
                            else ShardedCentre(self.cfg, self.dim, self.feedback, self.regions))
         self.scans += 1
+        if report.existence is not None:
+            self.existence = self.existence or CentralExistence()
+            self.existence.report(report)
         return self.centre.answer(report)
 
     def picture(self, T: float) -> PictureTracks:
         if self.centre is None:
             return no_tracks(self.dim)
         if isinstance(self.centre, ShardedCentre):
-            return union_picture([centre_picture(c, T) for c in self.centre.centres], self.dim)
-        return centre_picture(self.centre, T)
+            return union_picture([centre_picture(c, T, self.existence) for c in self.centre.centres], self.dim)
+        return centre_picture(self.centre, T, self.existence)
 
     def counters(self) -> dict[str, int]:
         out = super().counters()
@@ -278,7 +284,39 @@ class TrackToTrackEngine(Engine):
         return out
 
 
-def centre_picture(c: TrackToTrackCentre, T: float) -> PictureTracks | None:
+@dataclass
+class CentralExistence:
+    """The existence of the track-to-track centre's tracks when the local trackers keep one (jipda:
+    ``TrackReport.existence``). The centre runs no existence recursion of its own: a central
+    track's existence is the largest among the local tracks mapped to it, each as its latest
+    report gave it (a target is there if any sensor's tracker is sure of it); a central track that
+    no local track holds any more keeps the value it had."""
+
+    local: dict[tuple[str, int], float] = field(default_factory=dict)  # (sensor, local id) -> latest
+    central: dict[int, float] = field(default_factory=dict)  # central id -> value of the last picture
+
+    def report(self, report: LocalReport) -> None:
+        assert report.existence is not None
+        for lid in report.retired.tolist():
+            self.local.pop((report.sensor, lid), None)
+        self.local.update(zip(((report.sensor, lid) for lid in report.ids.tolist()), report.existence.tolist()))
+
+    def leave(self, sensor: str) -> None:
+        for key in [k for k in self.local if k[0] == sensor]:
+            del self.local[key]
+
+    def of(self, c: TrackToTrackCentre, ids: list[int]) -> list[float]:
+        """The existence of central tracks ``ids`` of centre ``c`` (0.0 for one never reported)."""
+        best: dict[int, float] = {}
+        for key, cid in c.mapping.items():
+            e = self.local.get(key)
+            if e is not None and e > best.get(cid, -1.0):
+                best[cid] = e
+        self.central.update(best)
+        return [self.central.get(cid, 0.0) for cid in ids]
+
+
+def centre_picture(c: TrackToTrackCentre, T: float, existence: CentralExistence | None = None) -> PictureTracks | None:
     """A centre's central tracks predicted to ``T`` (None without tracks)."""
     if not c.tracks:
         return None
@@ -287,8 +325,9 @@ def centre_picture(c: TrackToTrackCentre, T: float) -> PictureTracks | None:
     maneuver = None
     if c.tracks.detector is not None:
         maneuver = c.tracks.maneuvers_at(slots, T).picture_rows(c.tracks.detector)
-    return PictureTracks(c.tracks.ids[slots].tolist(), X, P, c.tracks.confirmed[slots].tolist(),
-                         c.sensor_lists(slots), ["cv"] * slots.size, maneuver)
+    ids = c.tracks.ids[slots].tolist()
+    return PictureTracks(ids, X, P, c.tracks.confirmed[slots].tolist(), c.sensor_lists(slots), ["cv"] * slots.size,
+                         maneuver, None if existence is None else existence.of(c, ids))
 
 
 def union_picture(parts: list[PictureTracks | None], dim: int) -> PictureTracks:
@@ -306,7 +345,7 @@ def union_picture(parts: list[PictureTracks | None], dim: int) -> PictureTracks:
     maneuver = None if parts[0].maneuver is None else np.concatenate([p.maneuver for p in parts])[pick]
     return PictureTracks(joined("ids"), np.concatenate([p.x for p in parts])[pick],
                          np.concatenate([p.P for p in parts])[pick], joined("confirmed"), joined("sensors"),
-                         joined("models"), maneuver)
+                         joined("models"), maneuver, None if parts[0].existence is None else joined("existence"))
 
 
 def make_engine(algorithm: str, cfg: MttConfig, dim: int, sensor: str | None = None,

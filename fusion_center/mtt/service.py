@@ -35,11 +35,13 @@ from collections import deque
 from pathlib import Path
 from typing import Any, Callable
 
+import numpy as np
 import zenoh
 
 from fedtrack.config import ConfigError, load_tables
 from fedtrack.fusion_center.mtt.engines import CentralizedEngine, TrackToTrackEngine, no_tracks
 from fedtrack.fusion_center.mtt.replay import PictureClock
+from fedtrack.geodetic import Frame, geodetic_of_states
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
 from fedtrack.local_filters.mtt.local import report_from_wire, resets_to_wire
 from fedtrack.local_filters.mtt.scan import scan_from_measurement
@@ -69,8 +71,9 @@ class MttCentreService(Service):
     tick_state_attrs = ()
 
     def __init__(self, algorithm: str, cfg: MttConfig, dim: int = 4, max_seq_jump: int = 1000,
-                 **kwargs: Any) -> None:
+                 frame: Frame | None = None, **kwargs: Any) -> None:
         super().__init__(**kwargs)
+        self.frame = frame  # [frame]: each picture track's WGS-84 position too
         if algorithm not in ALGORITHMS:
             raise ConfigError(f"algorithm: expected one of {', '.join(ALGORITHMS)}, got {algorithm!r}")
         self.algorithm = algorithm
@@ -198,7 +201,8 @@ class MttCentreService(Service):
             fused_sensors=tuple(s for s, _ in self.order), fused_seqs=tuple(q for _, q in self.order),
             stamp_ns=time.time_ns(), closing=closing, left=tuple(self.left_at), ca=ca if any(ca) else (),
             maneuvering=tuple(maneuvering), maneuver=None if tracks.maneuver is None else tracks.maneuver[maneuvering],
-            contested=self.contested)
+            contested=self.contested, existence=None if tracks.existence is None else np.array(tracks.existence),
+            lla=None if self.frame is None else geodetic_of_states(self.frame, tracks.x))
         self.pictures += 1
         self.order, self.left_at, self.contested = [], [], False
         self.counters["pictures"] = self.pictures
@@ -228,4 +232,6 @@ def main(argv: list[str]) -> int:
     kwargs = service_kwargs(parser, args)
     path = Path(args.config) if args.config else None
     settings = load_tables(path, MttServiceSettings)  # a ConfigError is the CLI's one-line error
-    return MttCentreService(args.algorithm, settings.mtt, args.dim, settings.deployment.max_seq_jump, **kwargs).run()
+    frame = None if settings.frame is None else settings.frame.frame()
+    return MttCentreService(args.algorithm, settings.mtt, args.dim, settings.deployment.max_seq_jump, frame,
+                            **kwargs).run()

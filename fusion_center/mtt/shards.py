@@ -34,7 +34,8 @@ def sub_report(report: LocalReport, rows: np.ndarray) -> LocalReport:
     return report._replace(ids=report.ids[rows], x=report.x[rows], P=report.P[rows],
                            confirmed=report.confirmed[rows], detected=report.detected[rows],
                            obs_H=report.obs_H[det], obs_R=report.obs_R[det], obs_z=report.obs_z[det],
-                           started=report.started[det])
+                           started=report.started[det],
+                           existence=None if report.existence is None else report.existence[rows])
 
 
 def join_resets(parts: list[Resets]) -> Resets:

@@ -8,6 +8,7 @@ from functools import cached_property
 
 from fedtrack.config import ConfigError
 from fedtrack.deployment import DeploymentConfig
+from fedtrack.geodetic import FrameConfig
 from fedtrack.keys import InvalidName, check_id
 from fedtrack.local_filters.vdie.estimation import VdieParams
 
@@ -183,7 +184,9 @@ class MttSettings:
 
 @dataclass(frozen=True)
 class MttServiceSettings:
-    """The tables ``serve mtt-local`` and ``serve mtt-centre`` read: ``[mtt]`` and ``[deployment]``."""
+    """The tables ``serve mtt-local`` and ``serve mtt-centre`` read: ``[mtt]``, ``[deployment]`` and
+    ``[frame]`` (the centre's pictures carry each track's WGS-84 position when it is set)."""
 
     mtt: MttConfig = field(default_factory=MttConfig)
     deployment: DeploymentConfig = field(default_factory=DeploymentConfig)
+    frame: FrameConfig | None = None

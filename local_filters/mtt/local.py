@@ -41,6 +41,7 @@ class LocalReport(NamedTuple):
     obs_z: np.ndarray  # (K, m)
     started: np.ndarray  # (K,) bool: the detected track started at this scan
     retired: np.ndarray  # ids deleted by this scan
+    existence: np.ndarray | None = None  # (N,) each track's existence probability (jipda), else None
 
 
 class Resets(NamedTuple):
@@ -79,7 +80,7 @@ def local_step(tracker: LocalTracker, scan: SensorScan, cfg: MttConfig) -> tuple
     tr = res.state.tracks
     started = tr.age[res.detected] == 1
     report = LocalReport(scan.sensor, scan.t, tr.ids, tr.x, tr.P, tr.confirmed, res.detected,
-                         *res.observations, started, res.retired)
+                         *res.observations, started, res.retired, tr.existence)
     return tracker._replace(state=res.state), report
 
 
@@ -109,7 +110,7 @@ def report_to_wire(report: LocalReport, seq: int, stamp_ns: int, contested: tupl
         P=report.P.reshape(-1, d), confirmed=tuple(report.confirmed.tolist()),
         detected=tuple(report.detected.tolist()), obs_H=report.obs_H.reshape(k * m, d),
         obs_R=report.obs_R.reshape(k * m, m), obs_z=report.obs_z, started=tuple(report.started.tolist()),
-        retired=tuple(report.retired.tolist()), stamp_ns=stamp_ns, contested=contested)
+        retired=tuple(report.retired.tolist()), stamp_ns=stamp_ns, contested=contested, existence=report.existence)
 
 
 def report_from_wire(msg: wire.TrackReport) -> LocalReport:
@@ -119,7 +120,8 @@ def report_from_wire(msg: wire.TrackReport) -> LocalReport:
                        np.array(msg.P).reshape(-1, d, d), np.array(msg.confirmed, dtype=bool),
                        np.array(msg.detected, dtype=bool), np.array(msg.obs_H).reshape(k, m, d),
                        np.array(msg.obs_R).reshape(k, m, m), np.array(msg.obs_z), np.array(msg.started, dtype=bool),
-                       np.array(msg.retired, dtype=np.int64))
+                       np.array(msg.retired, dtype=np.int64),
+                       None if msg.existence is None else np.array(msg.existence))
 
 
 def resets_to_wire(seq: int, resets: Resets, q_scale: float) -> wire.TrackResets:
