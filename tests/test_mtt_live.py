@@ -249,3 +249,14 @@ def test_a_report_with_observations_of_an_unusable_size_is_rejected() -> None:
         with pytest.raises(Rejected, match="wrong_model: observations of size"):
             centre.on_report(report)
     assert centre.engine.centre is None and centre.order == []
+
+
+def test_the_centre_reads_its_frame_from_the_config(tmp_path: Path) -> None:
+    """``serve mtt-centre --config`` with ``[frame]`` puts WGS-84 positions in its pictures."""
+    from fedtrack.fusion_center.mtt.service import service_from_args
+
+    config = tmp_path / "c.toml"
+    config.write_text('[mtt]\nsensors = "any"\n[frame]\norigin = [48.85, 2.35, 100.0]\n')
+    centre = service_from_args(["--config", str(config), "--id", "c"])
+    assert centre.frame == Frame(48.85, 2.35, 100.0)
+    assert service_from_args(["--id", "c"]).frame is None

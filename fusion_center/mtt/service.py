@@ -222,16 +222,20 @@ class MttCentreService(Service):
             self._publish_picture(self.clock.high, closing=True)
 
 
-def main(argv: list[str]) -> int:
+def service_from_args(argv: list[str]) -> MttCentreService:
+    """The centre that ``serve mtt-centre ARGV`` runs (a ConfigError is the CLI's one-line error)."""
     parser = service_parser("mtt-centre", "the multi-target fusion centre")
     parser.add_argument("--algorithm", choices=ALGORITHMS, default="mtt-federated", help="the fusion of the local trackers' tracks (default: %(default)s)")
     parser.add_argument("--dim", type=int, choices=(4, 6), default=4,
                         help="central state size: 6 when any sensor is a radar (default: %(default)s)")
-    parser.add_argument("--config", help="configuration file; reads [mtt] and [deployment] (docs/multitarget.md)")
+    parser.add_argument("--config", help="configuration file; reads [mtt], [deployment] and [frame] (docs/multitarget.md)")
     args = parser.parse_args(argv)
     kwargs = service_kwargs(parser, args)
     path = Path(args.config) if args.config else None
-    settings = load_tables(path, MttServiceSettings)  # a ConfigError is the CLI's one-line error
-    frame = None if settings.frame is None else settings.frame.frame()
-    return MttCentreService(args.algorithm, settings.mtt, args.dim, settings.deployment.max_seq_jump, frame,
-                            **kwargs).run()
+    settings = load_tables(path, MttServiceSettings)
+    frame = None if settings.frame is None else settings.frame.frame
+    return MttCentreService(args.algorithm, settings.mtt, args.dim, settings.deployment.max_seq_jump, frame, **kwargs)
+
+
+def main(argv: list[str]) -> int:
+    return service_from_args(argv).run()
