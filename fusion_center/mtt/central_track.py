@@ -25,7 +25,7 @@ import numpy as np
 
 from fedtrack.local_filters.linear.kalman import GaussianState, update
 from fedtrack.local_filters.linear.tracking import rounded_interval
-from fedtrack.local_filters.mtt.models import predict_batch
+from fedtrack.local_filters.mtt.models import ModeRates, Modes, modes_predict, modes_update, predict_batch, start_modes
 from fedtrack.local_filters.vdie.estimation import VdieParams
 from fedtrack.local_filters.vdie.input_bank import (
     InputBank,
@@ -62,12 +62,14 @@ class CentralTracks:
     entries are live. Per entry: time ``t``, posterior ``x``, ``P``, and the observation fused
     there (``m`` rows of ``H``, ``R``, ``z``; ``m = 0`` for a track's starting state). With a
     maneuver ``detector``, also the input estimator's bank after the entry (``bank_*``, the
-    fields of :class:`InputBank`) and its detection (``det_*``).
+    fields of :class:`InputBank`) and its detection (``det_*``). With two motion ``modes``
+    (``process_noise = "imm"``), also each mode's posterior and probability (``mode_*``, the
+    fields of :class:`Modes`); ``x``, ``P`` are then their combination.
     """
 
     def __init__(self, dim: int, q: float, noise_model: str, max_lag: float, capacity: int = 64, depth: int = 8,
-                 detector: VdieParams | None = None):
-        self.dim, self.q, self.noise_model, self.max_lag = dim, q, noise_model, max_lag
+                 detector: VdieParams | None = None, modes: ModeRates | None = None):
+        self.dim, self.q, self.noise_model, self.max_lag, self.modes = dim, q, noise_model, max_lag, modes
         self.reprocessed = 0  # observations fused again after an older one was inserted before them
         self.detector = detector
         mmax = dim // 2  # a position (2 or 3) or a radar's (range, azimuth, elevation)
@@ -92,6 +94,11 @@ class CentralTracks:
                 setattr(self, "det_" + name, a.reshape((capacity, depth) + a.shape[1:]))
             self._ring += tuple("bank_" + n for n in InputBank._fields) + tuple(
                 "det_" + n for n in InputDetection._fields)
+        if modes is not None:
+            self.mode_x = np.zeros((capacity, depth, 2, dim))
+            self.mode_P = np.zeros((capacity, depth, 2, dim, dim))
+            self.mode_mu = np.zeros((capacity, depth, 2))
+            self._ring += tuple("mode_" + n for n in Modes._fields)
 
     _RING = ("t", "x", "P", "m", "H", "R", "z")
     _PER_SLOT = ("ids", "confirmed", "head", "count")
@@ -150,6 +157,8 @@ class CentralTracks:
         self.slot[cid] = s
         self.ids[s], self.confirmed[s], self.head[s], self.count[s] = cid, False, 0, 1
         self.t[s, 0], self.x[s, 0], self.P[s, 0], self.m[s, 0] = t, x, P, 0
+        if self.modes is not None:
+            self._write_modes(np.array([s]), np.zeros(1, dtype=np.int64), start_modes(x[None], P[None], self.modes))
         if self.detector is not None:
             self._write_detector(np.array([s]), np.zeros(1, dtype=np.int64),
                                  (new_banks(1, self.detector.window, self.dim, t), no_detection(1)))
@@ -209,8 +218,20 @@ class CentralTracks:
         """The estimates (N, D), (N, D, D) of ``slots`` at ``t`` from their observations up to ``t``
         (a track whose checkpoint is newer than ``t`` gives its checkpoint), one batched prediction."""
         p = self._entry_at(slots, t)
-        return predict_batch(self.x[slots, p], self.P[slots, p], np.maximum(t - self.t[slots, p], 0.0), self.q,
-                             self.noise_model)
+        dt = np.maximum(t - self.t[slots, p], 0.0)
+        if self.modes is not None:
+            return modes_predict(self._modes_at(slots, p), dt, self.q, self.noise_model, self.modes)[1]
+        return predict_batch(self.x[slots, p], self.P[slots, p], dt, self.q, self.noise_model)
+
+    def _modes_at(self, slots: np.ndarray, p: np.ndarray) -> Modes | None:
+        if self.modes is None:
+            return None
+        return Modes(*(getattr(self, "mode_" + n)[slots, p] for n in Modes._fields))
+
+    def _write_modes(self, slots: np.ndarray, j: np.ndarray, modes: Modes) -> None:
+        p = self._pos(slots, j)
+        for name, a in zip(Modes._fields, modes):
+            getattr(self, "mode_" + name)[slots, p] = a
 
     def maneuvers_at(self, slots: np.ndarray, t: float) -> InputDetection:
         """The maneuver detector's result after each slot's newest observation up to ``t`` (the
@@ -226,24 +247,32 @@ class CentralTracks:
         return InputBank(*(getattr(self, "bank_" + n)[slots, p] for n in InputBank._fields))
 
     def _step(self, t0: np.ndarray, x: np.ndarray, P: np.ndarray, t: np.ndarray, H: np.ndarray, R: np.ndarray,
-              z: np.ndarray, bank: InputBank | None) -> tuple[np.ndarray, np.ndarray, DetectorStep]:
-        """Posteriors after predicting each ``(x, P)`` from ``t0`` to ``t`` and fusing ``(H, R, z)``,
-        and the maneuver detector's step from ``bank`` (None without a detector)."""
+              z: np.ndarray, bank: InputBank | None, modes: Modes | None = None
+              ) -> tuple[np.ndarray, np.ndarray, DetectorStep, Modes | None]:
+        """Posteriors after predicting each ``(x, P)`` (or its ``modes``) from ``t0`` to ``t`` and
+        fusing ``(H, R, z)``, the maneuver detector's step from ``bank`` (None without a
+        detector) and the modes after (None without)."""
         dt = rounded_interval(t - t0)
-        xp, Pp = predict_batch(x, P, dt, self.q, self.noise_model)
-        post = update(GaussianState(xp, Pp), z, H, R)[0]
-        return post.x, post.P, None if bank is None else input_step(bank, dt, xp, Pp, H, R, z, t)
+        if modes is None:
+            xp, Pp = predict_batch(x, P, dt, self.q, self.noise_model)
+            post = update(GaussianState(xp, Pp), z, H, R)[0]
+        else:
+            pred, (xp, Pp) = modes_predict(modes, dt, self.q, self.noise_model, self.modes)
+            modes, post = modes_update(pred, z - np.einsum("kmd,kd->km", H, xp), H, R, xp)
+        return post.x, post.P, None if bank is None else input_step(bank, dt, xp, Pp, H, R, z, t), modes
 
     def _write(self, slots: np.ndarray, j: np.ndarray, t: np.ndarray, x: np.ndarray, P: np.ndarray,
-               H: np.ndarray, R: np.ndarray, z: np.ndarray, step: DetectorStep) -> None:
+               H: np.ndarray, R: np.ndarray, z: np.ndarray, step: DetectorStep, modes: Modes | None = None) -> None:
         """Ring entry ``j`` of each slot: the observation ``(H, R, z)`` at ``t`` and the posterior
-        (and detector step) after it."""
+        (and detector step, and modes) after it."""
         p = self._pos(slots, j)
         m = H.shape[1]
         self.t[slots, p], self.x[slots, p], self.P[slots, p], self.m[slots, p] = t, x, P, m
         self.H[slots, p, :m], self.R[slots, p, :m, :m], self.z[slots, p, :m] = H, R, z
         if step is not None:
             self._write_detector(slots, j, step)
+        if modes is not None:
+            self._write_modes(slots, j, modes)
 
     def _write_detector(self, slots: np.ndarray, j: np.ndarray, step: tuple[InputBank, InputDetection]) -> None:
         p = self._pos(slots, j)
@@ -286,9 +315,9 @@ class CentralTracks:
             s = slots[i]
             self._reserve(s, 1)
             p = self._pos(s, self.count[s] - 1)
-            x_out[i], P_out[i], step = self._step(t_new[i], self.x[s, p], self.P[s, p], np.full(i.size, t),
-                                                  H[i], R[i], z[i], self._bank_at(s, p))
-            self._write(s, self.count[s], np.full(i.size, t), x_out[i], P_out[i], H[i], R[i], z[i], step)
+            x_out[i], P_out[i], step, modes = self._step(t_new[i], self.x[s, p], self.P[s, p], np.full(i.size, t),
+                                                         H[i], R[i], z[i], self._bank_at(s, p), self._modes_at(s, p))
+            self._write(s, self.count[s], np.full(i.size, t), x_out[i], P_out[i], H[i], R[i], z[i], step, modes)
             self.count[s] += 1
             self._trim(s, t)
         behind = np.flatnonzero(ok & ~ahead)
@@ -320,9 +349,9 @@ class CentralTracks:
         p = self._pos(slots, keep - 1)
         t_prev, x_prev, P_prev = self.t[slots, p], self.x[slots, p], self.P[slots, p]
         every = np.arange(slots.size)
-        x_at, P_at, step = self._step(t_prev, x_prev, P_prev, np.full(slots.size, t), H, R, z,
-                                      self._bank_at(slots, p))
-        self._write(slots, keep, np.full(slots.size, t), x_at, P_at, H, R, z, step)
+        x_at, P_at, step, modes = self._step(t_prev, x_prev, P_prev, np.full(slots.size, t), H, R, z,
+                                             self._bank_at(slots, p), self._modes_at(slots, p))
+        self._write(slots, keep, np.full(slots.size, t), x_at, P_at, H, R, z, step, modes)
         t_prev[:], x_prev, P_prev = t, x_at.copy(), P_at.copy()
         bank = None if step is None else step[0]  # each slot's bank after its latest re-fused entry
         for j in later.tolist():
@@ -331,12 +360,17 @@ class CentralTracks:
             for m in np.unique(sizes).tolist():
                 g = again[sizes == m]
                 tg, Hg, Rg, zg = old_t[g, j], old_H[g, j, :m], old_R[g, j, :m, :m], old_z[g, j, :m]
-                x_prev[g], P_prev[g], step = self._step(t_prev[g], x_prev[g], P_prev[g], tg, Hg, Rg, zg,
-                                                        None if bank is None else InputBank(*(a[g] for a in bank)))
-                self._write(slots[g], keep[g] + 1 + j, tg, x_prev[g], P_prev[g], Hg, Rg, zg, step)
+                x_prev[g], P_prev[g], step, mode_g = self._step(
+                    t_prev[g], x_prev[g], P_prev[g], tg, Hg, Rg, zg,
+                    None if bank is None else InputBank(*(a[g] for a in bank)),
+                    None if modes is None else modes.take(g))
+                self._write(slots[g], keep[g] + 1 + j, tg, x_prev[g], P_prev[g], Hg, Rg, zg, step, mode_g)
                 t_prev[g] = tg
                 if step is not None:
                     for a, new in zip(bank, step[0]):
+                        a[g] = new
+                if mode_g is not None:  # each slot's modes after its latest re-fused entry
+                    for a, new in zip(modes, mode_g):
                         a[g] = new
         self.count[slots] = keep + n_after + 1
         self._trim(slots, t_newest)

@@ -142,7 +142,7 @@ class TrackToTrackCentre:
     def __post_init__(self) -> None:
         cfg = self.cfg
         self.tracks = CentralTracks(self.dim, cfg.q, cfg.noise_model, cfg.max_lag,
-                                    detector=cfg.central_detector)
+                                    detector=cfg.central_detector, modes=cfg.mode_rates)
         self._column: dict[str, int] = {}
         self.support = np.zeros((0, 0), dtype=np.int64)  # local tracks of each sensor mapped to a slot
         self.streak = np.zeros((0, 0), dtype=np.int64)  # a confirmed slot's misses in a row per sensor

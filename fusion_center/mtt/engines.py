@@ -29,7 +29,7 @@ from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.history import ScanHistory
 from fedtrack.local_filters.mtt.local import LocalReport, Resets, SensorTracker, is_duplicate
 from fedtrack.local_filters.mtt.maneuver import predicted_view
-from fedtrack.local_filters.mtt.models import predict_batch
+from fedtrack.local_filters.mtt.models import modes_predict, predict_batch
 from fedtrack.local_filters.mtt.scan import SensorScan
 from fedtrack.local_filters.mtt.tracker import TrackerState, TrackParams, initial_state, track_params, tracker_step
 from fedtrack.local_filters.pda.association import existence_predict
@@ -102,6 +102,8 @@ def tracker_picture(state: TrackerState, T: float, cfg: MttConfig, sensors: list
     if state.t is not None and T > state.t:
         if tr.man is not None:  # each track in its own model (maneuver handling)
             x, P = predicted_view(tr.man, T - state.t, cfg.q, cfg.noise_model)
+        elif tr.modes is not None:  # two modes per track: their combination
+            x, P = modes_predict(tr.modes, T - state.t, cfg.q, cfg.noise_model, cfg.mode_rates)[1]
         else:
             x, P = predict_batch(x, P, T - state.t, cfg.q, cfg.noise_model)
     maneuver = None if tr.inputs is None or detector is None else tr.inputs.detection.picture_rows(detector)

@@ -10,10 +10,13 @@ from fedtrack.config import ConfigError
 from fedtrack.deployment import DeploymentConfig
 from fedtrack.geodetic import FrameConfig
 from fedtrack.keys import InvalidName, check_id
+from fedtrack.local_filters.mtt.models import ModeRates
 from fedtrack.local_filters.vdie.estimation import VdieParams
 
 NOISE_MODELS = ("continuous", "discrete")
-MANEUVER_MODES = ("none", "vdie")  # per-track maneuver handling (local_filters/mtt/maneuver.py)
+MANEUVER_MODES = ("none", "vdie")
+# [mtt] process_noise: CV with q, or two modes per track, CV without noise and CV with q (models.Modes)
+PROCESS_NOISE = ("fixed", "imm")  # per-track maneuver handling (local_filters/mtt/maneuver.py)
 # candidate onsets of a sensor's tracker (one per scan): 15 scans, where paper 004's 6 misses the
 # gentle turns of the simulator's targets (docs/multitarget.md#maneuvers)
 MTT_VDIE_WINDOW = 15
@@ -64,6 +67,9 @@ class MttConfig:
 
     q: float = 1.0
     noise_model: str = "continuous"
+    process_noise: str = "fixed"
+    maneuver_s: float = 15.0  # mean maneuver duration (process_noise = "imm")
+    straight_s: float = 60.0  # mean time between maneuvers (process_noise = "imm")
     pd: float = 0.9
     clutter_density: float = 1e-7
     gate_probability: float = 0.999
@@ -96,8 +102,13 @@ class MttConfig:
             return None
         return dataclasses.replace(self.vdie, window=self.central_maneuver_window)
 
+    @property
+    def mode_rates(self) -> ModeRates | None:
+        """The two modes' switching rates (``process_noise = "imm"``), None: CV with ``q``."""
+        return ModeRates(1.0 / self.straight_s, 1.0 / self.maneuver_s) if self.process_noise == "imm" else None
+
     def validate(self) -> None:
-        positive = {"q": self.q, "period": self.period, "init_velocity_std": self.init_velocity_std,
+        positive = {"q": self.q, "maneuver_s": self.maneuver_s, "straight_s": self.straight_s, "period": self.period, "init_velocity_std": self.init_velocity_std,
                     "init_z_std": self.init_z_std,
                     "central_timeout": self.central_timeout, "leave_after_s": self.leave_after_s}
         for key, value in positive.items():
@@ -107,6 +118,11 @@ class MttConfig:
             raise ConfigError(f"noise_model: must be one of {', '.join(NOISE_MODELS)}")
         if self.associator not in ASSOCIATORS:
             raise ConfigError(f"associator: must be one of {', '.join(ASSOCIATORS)}")
+        if self.process_noise not in PROCESS_NOISE:
+            raise ConfigError(f"process_noise: must be one of {', '.join(PROCESS_NOISE)}")
+        if self.process_noise == "imm" and self.associator != "gnn":
+            raise ConfigError(f'process_noise: "imm" works with associator = "gnn" only ({self.associator}\'s tracks '
+                              'are CV)')
         if self.maneuver not in MANEUVER_MODES:
             raise ConfigError(f"maneuver: must be one of {', '.join(MANEUVER_MODES)}")
         if self.associator in ("jipda", "mht") and self.maneuver != "none":

@@ -21,6 +21,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from fedtrack.local_filters.imm.filter import Cycle, IMMState, combine, mix, posterior
+from fedtrack.local_filters.linear.kalman import GaussianState, log_likelihood, update_residual
 from fedtrack.local_filters.linear.tracking import rounded_interval
 from fedtrack.local_filters.radar.ekf import CV3, motion_model_3d, radar_h, radar_jacobian
 from fedtrack.local_filters.radar.measurement import cartesian_from_polar, cartesian_from_polar_jacobian
@@ -88,6 +90,81 @@ def predict_batch(x: np.ndarray, P: np.ndarray, dt: float | np.ndarray, q: float
         Pp[:, a + 1, a] += q12
         Pp[:, a + 1, a + 1] += q22
     return xp, 0.5 * (Pp + np.swapaxes(Pp, -1, -2))
+
+
+class Modes(NamedTuple):
+    """Each track's two motion modes (``[mtt] process_noise = "imm"``), batched: mode-conditioned
+    states ``x`` (N, 2, D), ``P`` (N, 2, D, D) and probabilities ``mu`` (N, 2); mode 0 is CV
+    without process noise (a straight leg), mode 1 CV with ``q`` (a maneuver)."""
+
+    x: np.ndarray
+    P: np.ndarray
+    mu: np.ndarray
+
+    def take(self, idx: np.ndarray) -> "Modes":
+        return Modes(self.x[idx], self.P[idx], self.mu[idx])
+
+
+class ModeRates(NamedTuple):
+    """The modes' switching rates [1/s]: straight to maneuver (``1 /`` the mean straight leg) and
+    back (``1 /`` the mean maneuver); docs/multitarget.md#covariance-consistency-nees."""
+
+    to_maneuver: float
+    to_straight: float
+
+    @property
+    def stationary(self) -> np.ndarray:
+        """The long-run mode probabilities (a new track's)."""
+        total = self.to_maneuver + self.to_straight
+        return np.array([self.to_straight / total, self.to_maneuver / total])
+
+
+def mode_transition(dt: float | np.ndarray, rates: ModeRates) -> np.ndarray:
+    """``Pi(dt)`` (2, 2) or (N, 2, 2), row = from: the two-state Markov chain of ``rates`` over
+    ``dt`` (closed form: ``p_01 = r_01 / r (1 - e^(-r dt))``, ``r = r_01 + r_10``)."""
+    total = rates.to_maneuver + rates.to_straight
+    decay = 1.0 - np.exp(-total * np.asarray(dt, dtype=float))
+    p01, p10 = rates.to_maneuver / total * decay, rates.to_straight / total * decay
+    return np.stack([np.stack([1.0 - p01, p01], -1), np.stack([p10, 1.0 - p10], -1)], -2)
+
+
+def start_modes(x: np.ndarray, P: np.ndarray, rates: ModeRates) -> Modes:
+    """New tracks' modes: both at ``(x, P)``, with the long-run probabilities."""
+    return Modes(np.repeat(x[:, None], 2, axis=1), np.repeat(P[:, None], 2, axis=1),
+                 np.broadcast_to(rates.stationary, (x.shape[0], 2)).copy())
+
+
+def modes_predict(modes: Modes, dt: float | np.ndarray, q: float, noise_model: str, rates: ModeRates,
+                  q_scale: float | np.ndarray = 1.0) -> tuple[Modes, GaussianState]:
+    """IMM mixing (:func:`fedtrack.local_filters.imm.filter.mix`, eqs. (3), (5), (6) of paper 000)
+    and each mode's prediction over ``dt`` (mode 0 without process noise); returns the predicted
+    modes (``mu``: the predicted probabilities) and their combination (the tracks' CV view)."""
+    n, _, d = modes.x.shape
+    mixed, log_pred = mix(IMMState(*modes), mode_transition(dt, rates))
+    scale = np.asarray(q_scale, dtype=float).reshape(-1, 1) * np.array([0.0, 1.0])
+    step = dt if np.ndim(dt) == 0 else np.repeat(np.asarray(dt, dtype=float), 2)
+    xp, Pp = predict_batch(mixed.x.reshape(-1, d), mixed.P.reshape(-1, d, d), step, q, noise_model,
+                           np.broadcast_to(scale, (n, 2)).reshape(-1))
+    pred = Modes(xp.reshape(n, 2, d), Pp.reshape(n, 2, d, d), np.exp(log_pred))
+    return pred, combine(IMMState(*pred))
+
+
+def modes_update(pred: Modes, nu: np.ndarray, H: np.ndarray, R: np.ndarray, x0: np.ndarray
+                 ) -> tuple[Modes, GaussianState]:
+    """Each mode of the tracks ``pred`` (K) updated with one detection each (``R`` (m, m) or
+    (K, m, m)): ``nu`` (K, m) the innovation at the combined prediction ``x0`` (K, D), where
+    ``H`` (K, m, D) is linearized (each
+    mode's innovation ``nu + H (x0 - x_j)``); probabilities by the modes' likelihoods (paper 000
+    eq. (1), in log space); returns the modes and their combination."""
+    k, _, d = pred.x.shape
+    m = nu.shape[1]
+    Hj = np.broadcast_to(H[:, None], (k, 2, m, d))
+    nu_j = nu[:, None, :] + np.einsum("kmd,kjd->kjm", H, x0[:, None, :] - pred.x)
+    Rj = np.broadcast_to(np.broadcast_to(R, (k, m, m))[:, None], (k, 2, m, m))
+    upd = update_residual(GaussianState(pred.x, pred.P), nu_j, Hj, Rj)
+    with np.errstate(divide="ignore"):
+        post = posterior(Cycle(upd.state, np.log(pred.mu), log_likelihood(upd.innovation)))
+    return Modes(*post), combine(post)
 
 
 def position_matrix(dim: int, m: int = 2) -> np.ndarray:

@@ -49,7 +49,12 @@ from fedtrack.local_filters.mtt.associators.gnn import GNN
 from fedtrack.local_filters.mtt.config import MhtConfig, MttConfig
 from fedtrack.local_filters.mtt.models import (
     Linearized,
+    ModeRates,
+    Modes,
     linearize,
+    modes_predict,
+    modes_update,
+    start_modes,
     position_from_detection,
     position_matrix,
     predict_batch,
@@ -82,6 +87,7 @@ class TrackParams(NamedTuple):
     associator: Associator = GNN
     initial_existence: float | None = None  # a new track's existence (associators that keep it)
     mht: MhtConfig | None = None  # [mtt.mht] (associator = "mht")
+    modes: ModeRates | None = None  # two motion modes per track (process_noise = "imm"), None: CV with q
 
 
 def track_params(cfg: MttConfig, sensor: str | None, dim: int, feedback: bool = False,
@@ -104,7 +110,8 @@ def track_params(cfg: MttConfig, sensor: str | None, dim: int, feedback: bool = 
                        cfg.clutter_density if sensor is None else cfg.clutter_of(sensor),
                        cfg.thresholds.gate, cfg.confirm_hits, cfg.confirm_window, cfg.delete_misses, vdie, detect,
                        ASSOCIATORS[cfg.associator], jipda.BIRTH_EXISTENCE if cfg.associator == "jipda" else None,
-                       mht=cfg.mht if cfg.associator == "mht" else None)
+                       mht=cfg.mht if cfg.associator == "mht" else None,
+                       modes=cfg.mode_rates if vdie is None and not feedback else None)
 
 
 N_ARRAYS = 7  # TrackSet's per-track arrays before the optional per-track states
@@ -126,12 +133,14 @@ class TrackSet(NamedTuple):
     man: VdieState | None = None
     inputs: detector.TrackInputs | None = None
     existence: np.ndarray | None = None
+    modes: Modes | None = None  # each track's two motion modes (process_noise = "imm"; x, P: their combination)
 
     def take(self, idx: np.ndarray) -> "TrackSet":
         return TrackSet(*(a[idx] for a in self[:N_ARRAYS]),
                         None if self.man is None else maneuver.take(self.man, idx),
                         None if self.inputs is None else detector.take(self.inputs, idx),
-                        None if self.existence is None else self.existence[idx])
+                        None if self.existence is None else self.existence[idx],
+                        None if self.modes is None else self.modes.take(idx))
 
     @property
     def models(self) -> list[str]:
@@ -182,7 +191,8 @@ def initial_state(dim: int) -> TrackerState:
 def _concat(a: TrackSet, b: TrackSet) -> TrackSet:
     extras = []  # the per-track states beside x, P (None on an empty side: its tracker had no tracks)
     for u, v, join in ((a.man, b.man, maneuver.concat), (a.inputs, b.inputs, detector.concat),
-                       (a.existence, b.existence, lambda u, v: np.concatenate([u, v]))):
+                       (a.existence, b.existence, lambda u, v: np.concatenate([u, v])),
+                       (a.modes, b.modes, lambda u, v: Modes(*(np.concatenate([p, r]) for p, r in zip(u, v))))):
         if u is None or v is None:
             extras.append(v if a.size == 0 else u if b.size == 0 else None)
         else:
@@ -191,7 +201,10 @@ def _concat(a: TrackSet, b: TrackSet) -> TrackSet:
 
 
 def predict(tracks: TrackSet, dt: float, params: TrackParams, q_scale: float | np.ndarray = 1.0) -> GaussianState:
-    """Role 1: every track predicted ``dt`` ahead (its CV view with maneuver handling)."""
+    """Role 1: every track predicted ``dt`` ahead (its CV view with maneuver handling; with two
+    modes, their combination after mixing: :func:`modes_predict`)."""
+    if params.modes is not None and tracks.modes is not None and tracks.size:
+        return modes_predict(tracks.modes, dt, params.q, params.noise_model, params.modes, q_scale)[1]
     if params.maneuver is not None and tracks.man is not None and tracks.size:
         return maneuver.predicted_view(tracks.man, dt, params.q, params.noise_model, q_scale)
     if tracks.size and dt > 0:
@@ -274,12 +287,15 @@ class Updated(NamedTuple):
 def hard_update(tracks: TrackSet, pred: GaussianState, gating: Gating | None, assoc: Association,
                 scan: SensorScan, dt: float, params: TrackParams, q_scale: float | np.ndarray = 1.0) -> Updated:
     """Role 4 for a hard association (each track at most one detection): the EKF update in
-    Joseph form, or the VDIE step with maneuver handling; the maneuver detector of a 3-D
-    tracker observes each update."""
+    Joseph form (of each mode, with two: :func:`modes_update`), or the VDIE step with maneuver
+    handling; the maneuver detector of a 3-D tracker observes each update."""
     d, m = params.dim, scan.dim
     x, P = pred
     man = tracks.man if params.maneuver is not None else None
     inputs = tracks.inputs if params.detector is not None else None
+    modes = None  # with two modes per track: each mode's prediction (what ``pred`` combines)
+    if params.modes is not None and tracks.modes is not None and tracks.size:
+        modes = modes_predict(tracks.modes, dt, params.q, params.noise_model, params.modes, q_scale)[0]
     assigned = np.zeros(tracks.size, bool)
     obs = Observation(np.zeros((0, m, d)), np.zeros((0, m, m)), np.zeros((0, m)))
     ti = dj = np.zeros(0, np.int64)
@@ -288,7 +304,10 @@ def hard_update(tracks: TrackSet, pred: GaussianState, gating: Gating | None, as
         ti, dj = g.rows[assoc.pairs], g.cols[assoc.pairs]
         H, R = gating.lin.H[ti], scan.R
         nu_a, x0, P0 = g.nu[assoc.pairs], x[ti], P[ti]
-        if man is None:
+        if modes is not None:
+            updated, (x[ti], P[ti]) = modes_update(modes.take(ti), nu_a, H, R, x0)
+            modes.x[ti], modes.P[ti], modes.mu[ti] = updated
+        elif man is None:
             x[ti], P[ti] = update_residual(GaussianState(x0, P0), nu_a, H, R).state
         obs = Observation(H, np.broadcast_to(R, (ti.size, m, m)).copy(), nu_a + np.einsum("nij,nj->ni", H, x0))
         if inputs is not None:
@@ -298,7 +317,8 @@ def hard_update(tracks: TrackSet, pred: GaussianState, gating: Gating | None, as
         step = maneuver.maneuver_step(man, scan.t, dt, params.q, params.noise_model, params.maneuver,
                                       ti, scan.z[dj], scan.R, q_scale)
         (x, P), man = step.view, step.state
-    return Updated(tracks._replace(x=x, P=P, man=man, inputs=inputs, existence=assoc.existence), assigned, obs)
+    return Updated(tracks._replace(x=x, P=P, man=man, inputs=inputs, existence=assoc.existence, modes=modes), assigned,
+                   obs)
 
 
 def m_of_n(tracks: TrackSet, detected: np.ndarray, params: TrackParams) -> tuple[TrackSet, np.ndarray]:
@@ -369,8 +389,9 @@ def start_tracks(scan: SensorScan, det: np.ndarray, params: TrackParams, first_i
     man = None if params.maneuver is None else maneuver.start(x, P, scan.t, params.maneuver)
     inputs = None if params.detector is None else detector.start(n, d, scan.t, params.detector)
     existence = None if params.initial_existence is None else np.full(n, params.initial_existence)
+    modes = None if params.modes is None else start_modes(x, P, params.modes)
     return TrackSet(ids, x, P, one, one.copy(), np.zeros(n, np.int64), one >= params.confirm_hits, man,
-                    inputs, existence), obs
+                    inputs, existence, modes), obs
 
 
 def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
