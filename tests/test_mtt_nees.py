@@ -4,6 +4,7 @@ and the simulator's process noise derived from its truth (docs/multitarget.md#co
 from __future__ import annotations
 
 import contextlib
+import functools
 import io
 import math
 from pathlib import Path
@@ -37,26 +38,59 @@ def test_process_noise_from_the_truths_maximum_acceleration_and_the_longest_peri
     assert process_noise(parse_spec("pos:0.5,radar:2.0")) == pytest.approx(math.pi**2 / 4 * 2.0, abs=1e-6)
 
 
-def test_nees_inside_the_95_percent_band_on_the_default_scenario(tmp_path: Path) -> None:
+@pytest.fixture(scope="module")
+def scenario(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The default scenario (seed 1: three sensors at 1.0 / 0.7 / 1.3 s, P_D 0.9, 10 false
-    detections a scan, 300 s) with 20 of its 60 targets, replayed with the ``config.toml`` it
-    writes, for mtt-centralized, mtt-federated and mtt-local: at least 95% of the assigned pairs'
-    position NEES (2 dof) inside the two-sided 95% chi-square band, at least 85% of the state's
-    (4 dof) while the truth accelerates, and at least 86% of the state's overall (a CV filter with
-    q > 0 is conservative in velocity on straight legs: docs/multitarget.md). Measured: position
+    detections a scan, 300 s) with 20 of its 60 targets, and the ``config.toml`` it writes."""
+    out = tmp_path_factory.mktemp("nees")
+    simulate(Scenario(targets=20), parse_spec("pos:1.0,pos:0.7,pos:1.3"), 1, out)
+    return out
+
+
+@functools.lru_cache(maxsize=None)
+def replayed(data: Path, algorithm: str, sensor: str | None, extra: str = "") -> dict:
+    """``evaluate`` of ``algorithm`` replayed with the scenario's config (plus ``extra`` [mtt] keys);
+    each once per module."""
+    config = data / f"config{len(extra)}.toml"
+    config.write_text((data / "config.toml").read_text().replace("[mtt]\n", "[mtt]\n" + extra, 1))
+    out = data / f"{algorithm}{len(extra)}.jsonl"
+    with contextlib.redirect_stderr(io.StringIO()):
+        replay_mtt(algorithm, data / "measurements.jsonl", config, out, sensor=sensor)
+    return evaluate(out, data / "truth.jsonl")
+
+
+ALGORITHMS = (("mtt-centralized", None), ("mtt-federated", None), ("mtt-local", "s1"))
+
+
+def test_nees_inside_the_95_percent_band_on_the_default_scenario(scenario: Path) -> None:
+    """Replayed with the ``config.toml`` the simulator writes, for mtt-centralized, mtt-federated
+    and mtt-local: at least 95% of the assigned pairs' position NEES (2 dof) inside the two-sided
+    95% chi-square band, at least 85% of the state's (4 dof) while the truth accelerates, and at
+    least 86% of the state's overall. Issue 28 asks 90% of the state's: not met (a CV filter with
+    q > 0 is conservative in velocity on straight legs; an adaptive level and an IMM were measured
+    and are below this: docs/multitarget.md#covariance-consistency-nees). Measured: position
     0.961 / 0.960 / 0.959, accelerating 0.963 / 0.968 / 0.884, state 0.875 / 0.874 / 0.866; with
     the earlier q = 1: 0.940 / 0.940 / 0.936, 0.447 / 0.447 / 0.398, 0.855 / 0.856 / 0.842."""
-    simulate(Scenario(targets=20), parse_spec("pos:1.0,pos:0.7,pos:1.3"), 1, tmp_path)
-    assert load_tables(tmp_path / "config.toml", MttSettings).mtt.q == pytest.approx(math.pi**2 / 4 * 1.3, abs=1e-6)
+    assert load_tables(scenario / "config.toml", MttSettings).mtt.q == pytest.approx(math.pi**2 / 4 * 1.3, abs=1e-6)
     inside = {}
-    for algorithm, sensor in (("mtt-centralized", None), ("mtt-federated", None), ("mtt-local", "s1")):
-        out = tmp_path / f"{algorithm}.jsonl"
-        with contextlib.redirect_stderr(io.StringIO()):
-            replay_mtt(algorithm, tmp_path / "measurements.jsonl", tmp_path / "config.toml", out, sensor=sensor)
-        parts = {row["part"]: row for row in evaluate(out, tmp_path / "truth.jsonl")["nees"]}
+    for algorithm, sensor in ALGORITHMS:
+        parts = {row["part"]: row for row in replayed(scenario, algorithm, sensor)["nees"]}
         assert (parts["state"]["dof"], parts["position"]["dof"]) == (4, 2)
         assert parts["state"]["pairs"] > 4000
         inside[algorithm] = (parts["position"]["inside_95"], parts["state"]["maneuvering"]["inside_95"],
                              parts["state"]["inside_95"])
     for position, accelerating, state in inside.values():
         assert position >= 0.95 and accelerating >= 0.85 and state >= 0.86, inside
+
+
+def test_imm_lowers_gospa_on_the_default_scenario(scenario: Path) -> None:
+    """``process_noise = "imm"`` on the same data (mtt-centralized, mtt-local): mean GOSPA at least
+    10% below the fixed q's (measured 32.3 against 42.0, 66.0 against 78.8), the position NEES
+    still at least 93% inside (0.953 / 0.942), the state's below the fixed q's (0.824 / 0.812
+    against 0.875 / 0.866: the combined covariance hedges for a maneuver on the straight legs)."""
+    for algorithm, sensor in ALGORITHMS[::2]:
+        fixed, imm = (replayed(scenario, algorithm, sensor, extra) for extra in ("", 'process_noise = "imm"\n'))
+        assert imm["mean"]["gospa"] <= 0.9 * fixed["mean"]["gospa"], (algorithm, imm["mean"], fixed["mean"])
+        parts = {row["part"]: row for row in imm["nees"]}
+        assert parts["position"]["inside_95"] >= 0.93, (algorithm, parts)
+        assert parts["state"]["inside_95"] < {row["part"]: row for row in fixed["nees"]}["state"]["inside_95"]
