@@ -47,7 +47,7 @@ def scenario(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def replayed(data: Path, algorithm: str, sensor: str | None, extra: str = "") -> dict:
     """``evaluate`` of ``algorithm`` replayed with the scenario's config (plus ``extra`` [mtt] keys);
     each once per module."""

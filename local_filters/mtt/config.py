@@ -14,9 +14,9 @@ from fedtrack.local_filters.mtt.models import ModeRates
 from fedtrack.local_filters.vdie.estimation import VdieParams
 
 NOISE_MODELS = ("continuous", "discrete")
-MANEUVER_MODES = ("none", "vdie")
+MANEUVER_MODES = ("none", "vdie")  # per-track maneuver handling (local_filters/mtt/maneuver.py)
 # [mtt] process_noise: CV with q, or two modes per track, CV without noise and CV with q (models.Modes)
-PROCESS_NOISE = ("fixed", "imm")  # per-track maneuver handling (local_filters/mtt/maneuver.py)
+PROCESS_NOISE = ("fixed", "imm")
 # candidate onsets of a sensor's tracker (one per scan): 15 scans, where paper 004's 6 misses the
 # gentle turns of the simulator's targets (docs/multitarget.md#maneuvers)
 MTT_VDIE_WINDOW = 15
@@ -108,8 +108,8 @@ class MttConfig:
         return ModeRates(1.0 / self.straight_s, 1.0 / self.maneuver_s) if self.process_noise == "imm" else None
 
     def validate(self) -> None:
-        positive = {"q": self.q, "maneuver_s": self.maneuver_s, "straight_s": self.straight_s, "period": self.period, "init_velocity_std": self.init_velocity_std,
-                    "init_z_std": self.init_z_std,
+        positive = {"q": self.q, "maneuver_s": self.maneuver_s, "straight_s": self.straight_s,
+                    "period": self.period, "init_velocity_std": self.init_velocity_std, "init_z_std": self.init_z_std,
                     "central_timeout": self.central_timeout, "leave_after_s": self.leave_after_s}
         for key, value in positive.items():
             if not value > 0:

@@ -8,6 +8,9 @@ interval (``Q_axis = q [[dt^3/3, dt^2/2], [dt^2/2, dt]]``, Stone Soup's
 ``ConstantVelocity(noise_diff_coeff=q)``), which is consistent over irregular intervals;
 ``"discrete"`` is the piecewise-constant acceleration of paper 004 (``Q_axis = q G G'``,
 ``G = [dt^2/2, dt]'``, ``q`` in (m/s^2)^2), used to compare with the single-target mode.
+With ``process_noise = "imm"`` every track carries two such modes (:class:`Modes`): CV
+without process noise and CV with ``q``, an IMM over them (:func:`modes_predict`,
+:func:`modes_update`).
 
 Measurements: a 2-D position sensor sees ``[x, y]`` (``H`` picks them from either state);
 a radar sees ``[range, azimuth, elevation]`` of the position relative to its
@@ -101,13 +104,13 @@ class Modes(NamedTuple):
     P: np.ndarray
     mu: np.ndarray
 
-    def take(self, idx: np.ndarray) -> "Modes":
+    def take(self, idx: np.ndarray) -> Modes:
         return Modes(self.x[idx], self.P[idx], self.mu[idx])
 
 
 class ModeRates(NamedTuple):
     """The modes' switching rates [1/s]: straight to maneuver (``1 /`` the mean straight leg) and
-    back (``1 /`` the mean maneuver); docs/multitarget.md#covariance-consistency-nees."""
+    back (``1 /`` the mean maneuver); docs/multitarget.md#the-90--bar-an-adaptive-level-and-an-imm-measured."""
 
     to_maneuver: float
     to_straight: float
@@ -152,10 +155,9 @@ def modes_predict(modes: Modes, dt: float | np.ndarray, q: float, noise_model: s
 def modes_update(pred: Modes, nu: np.ndarray, H: np.ndarray, R: np.ndarray, x0: np.ndarray
                  ) -> tuple[Modes, GaussianState]:
     """Each mode of the tracks ``pred`` (K) updated with one detection each (``R`` (m, m) or
-    (K, m, m)): ``nu`` (K, m) the innovation at the combined prediction ``x0`` (K, D), where
-    ``H`` (K, m, D) is linearized (each
-    mode's innovation ``nu + H (x0 - x_j)``); probabilities by the modes' likelihoods (paper 000
-    eq. (1), in log space); returns the modes and their combination."""
+    (K, m, m)): ``nu`` (K, m) the innovation at the combined prediction ``x0`` (K, D), where ``H``
+    (K, m, D) is linearized (each mode's innovation ``nu + H (x0 - x_j)``); probabilities by the
+    modes' likelihoods (paper 000 eq. (1), in log space); returns the modes and their combination."""
     k, _, d = pred.x.shape
     m = nu.shape[1]
     Hj = np.broadcast_to(H[:, None], (k, 2, m, d))

@@ -54,10 +54,10 @@ from fedtrack.local_filters.mtt.models import (
     linearize,
     modes_predict,
     modes_update,
-    start_modes,
     position_from_detection,
     position_matrix,
     predict_batch,
+    start_modes,
 )
 from fedtrack.local_filters.mtt.scan import SensorScan
 from fedtrack.local_filters.radar.measurement import wrap_angle
@@ -121,7 +121,9 @@ class TrackSet(NamedTuple):
     """Live tracks, batched: ``x`` (N, D), ``P`` (N, D, D) (with maneuver handling, the CV view
     of ``man``, every track's VDIE state: :mod:`fedtrack.local_filters.mtt.maneuver`; or, on a
     3-D tracker, ``inputs``, every track's maneuver detector: :mod:`.detector`; with an
-    associator that keeps it, ``existence``, every track's existence probability)."""
+    associator that keeps it, ``existence``, every track's existence probability; with
+    ``process_noise = "imm"``, ``modes``, every track's two motion modes, of which ``x``, ``P``
+    are the combination: :class:`~.models.Modes`)."""
 
     ids: np.ndarray
     x: np.ndarray
@@ -133,7 +135,7 @@ class TrackSet(NamedTuple):
     man: VdieState | None = None
     inputs: detector.TrackInputs | None = None
     existence: np.ndarray | None = None
-    modes: Modes | None = None  # each track's two motion modes (process_noise = "imm"; x, P: their combination)
+    modes: Modes | None = None
 
     def take(self, idx: np.ndarray) -> "TrackSet":
         return TrackSet(*(a[idx] for a in self[:N_ARRAYS]),
