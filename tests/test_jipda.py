@@ -297,8 +297,10 @@ def test_derived_rules() -> None:
     assert odds(rules.delete) == pytest.approx(odds(0.1) * (1.0 - 0.9 * 0.999) ** 3)  # 3 misses: 0.1 % <= 1 % < 2 misses
     low = jipda.derived_rules(0.5, 0.999)  # 7 misses in a row: 0.8 % <= 1 % < 6 misses
     assert odds(low.delete) == pytest.approx(odds(0.1) * (1.0 - 0.5 * 0.999) ** 7)
-    confirmed, keep = jipda.manage(np.array([0.95, 0.5, 1e-4]), np.array([False, True, True]), rules)
-    assert confirmed.tolist() == [True, True, True] and keep.tolist() == [True, True, False]
+    mu = np.array([0.95, 0.5, 0.49, 1e-4, 0.9])
+    confirmed, keep = jipda.manage(mu, np.array([False, True, True, True, False]), rules)
+    # reached the threshold; confirmed and still at least 1/2; below 1/2: back to tentative; not yet
+    assert confirmed.tolist() == [True, True, False, False, False] and keep.tolist() == [True] * 3 + [False, True]
     odds_b = odds(jipda.birth_existence(np.array([1.0, 0.25]), 1))
     np.testing.assert_allclose(odds_b, [odds(0.1), 0.25 * odds(0.1)], rtol=1e-12)
     np.testing.assert_allclose(odds(jipda.birth_existence(np.array([1.0]), 30)), odds(0.1) / 30, rtol=1e-12)

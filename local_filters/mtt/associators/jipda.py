@@ -374,9 +374,12 @@ def equivalent_observation(pred: GaussianState, lin: Linearized, R: np.ndarray, 
     return mask, (H.copy(), 0.5 * (R_eq + transpose(R_eq)), z)
 
 
-# Existence survival per second of data time: paper 001's p11 = 0.98 per scan, taken at the
-# 1-s scan period of the multi-target sensors and compounded over any interval (:func:`survival`).
-SURVIVAL_PER_SECOND = 0.98
+# A target's mean stay in a tracker's picture (its birth to its death or exit), the documented
+# assumption behind the survival probability (docs/jipda.md#survival-a-target-lifetime-assumption):
+# targets leave at the constant rate 1 / MEAN_LIFETIME, so p11 = exp(-dt / MEAN_LIFETIME) over any
+# interval dt; a factor of 10 in it moves the tracks' hide and delete decisions by one miss.
+MEAN_LIFETIME = 600.0
+SURVIVAL_PER_SECOND = math.exp(-1.0 / MEAN_LIFETIME)
 SNR = PDAParams().snr  # paper 001's mean target SNR, for scans whose detections carry amplitudes
 
 
@@ -422,10 +425,17 @@ FALSE_CONFIRM = 0.01  # alpha: P(a track born on one scan's clutter is ever conf
 LOST_TRUE = 0.01  # beta: P(a true target gives the run of misses that deletes a lone new track)
 
 
+# A confirmed track stays in the picture while it more likely than not exists: GOSPA with alpha = 2
+# charges a false and a missed target alike (c^p / 2), so showing a track of existence mu costs
+# (1 - mu) c^p / 2 and hiding it mu c^p / 2 (its localisation error aside).
+SHOW = 0.5
+
+
 class ExistenceRules(NamedTuple):
     birth: float  # prior existence of a lone new track (see birth_existence)
     confirm: float  # confirmed once existence >= confirm
     delete: float  # deleted once existence < delete
+    show: float = SHOW  # a confirmed track stays confirmed while existence >= show
 
 
 def _odds(p: float) -> float:
@@ -454,8 +464,11 @@ def derived_rules(pd: float, pg: float, birth: float = BIRTH_EXISTENCE, false_co
 
 
 def manage(existence: np.ndarray, confirmed: np.ndarray, rules: ExistenceRules) -> tuple[np.ndarray, np.ndarray]:
-    """Confirmed after this scan, and kept (existence not below the deletion threshold)."""
-    return confirmed | (existence >= rules.confirm), existence >= rules.delete
+    """Confirmed after this scan (existence reached ``confirm``, or the track was confirmed and its
+    existence is still at least ``show``: a confirmed track that falls below goes back to
+    tentative, out of the picture, until it reaches ``confirm`` again), and kept (existence not
+    below the deletion threshold)."""
+    return (existence >= rules.confirm) | (confirmed & (existence >= rules.show)), existence >= rules.delete
 
 
 def birth_existence(unclaimed: np.ndarray, births: int, birth: float = BIRTH_EXISTENCE) -> np.ndarray:
