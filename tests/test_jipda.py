@@ -22,6 +22,7 @@ from fedtrack.local_filters.linear.kalman import (
     predict,
     update_residual,
 )
+from fedtrack.local_filters.mtt.association import AssociationInput
 from fedtrack.local_filters.mtt.associators import jipda
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.models import Linearized, linearize, motion
@@ -304,6 +305,34 @@ def test_derived_rules() -> None:
     odds_b = odds(jipda.birth_existence(np.array([1.0, 0.25]), 1))
     np.testing.assert_allclose(odds_b, [odds(0.1), 0.25 * odds(0.1)], rtol=1e-12)
     np.testing.assert_allclose(odds(jipda.birth_existence(np.array([1.0]), 30)), odds(0.1) / 30, rtol=1e-12)
+
+
+@pytest.mark.parametrize("dt, misses", [(1.0, 3), (1.0 / 3.0, 4)])
+def test_an_ended_targets_track_leaves_the_picture(dt: float, misses: int) -> None:
+    """A track detected at every scan (dt apart) whose target then ends stays confirmed while its
+    existence is at least 1/2 and goes back to tentative at miss K = ceil(ln(p11 / (1 - p11)) /
+    ln(1 / (1 - P_D P_G))), p11 = exp(-dt / MEAN_LIFETIME) (docs/jipda.md): 3 at one 1-s sensor
+    (gnn deletes after 3), 4 at a centre of three (gnn's centre after 6); deleted later."""
+    pd, lam, gate_d2 = 0.9, 1e-7, float(chdtri(2, 1e-3))
+    pg = jipda.scan_constants(pd, lam, gate_d2, 2).pg
+    p11 = jipda.survival(dt, 1.0, jipda.SURVIVAL_PER_SECOND)
+    assert p11 == pytest.approx(np.exp(-dt / jipda.MEAN_LIFETIME), rel=1e-12)
+    assert misses == np.ceil(np.log(p11 / (1.0 - p11)) / -np.log1p(-pd * pg))
+    rules = jipda.derived_rules(pd, pg)
+    log_n = np.array([-np.log(2.0 * np.pi * 400.0)])  # a detection on the track, S = 400 I m^2
+    mu, confirmed, shown, kept = np.array([0.1]), np.array([False]), [], []
+    for k in range(40):
+        hit = k < 20
+        one = np.zeros(int(hit), np.int64)
+        out = jipda.associate_scan(AssociationInput(1, int(hit), one, one, log_n[:int(hit)], 2, confirmed, mu, pd,
+                                                    lam, None, None, gate_d2, dt))
+        mu = out.existence
+        confirmed, keep = jipda.manage(mu, confirmed, rules)
+        if not hit:
+            shown.append(bool(confirmed[0]))
+            kept.append(bool(keep[0]))
+    assert shown[:misses + 1] == [True] * (misses - 1) + [False, False]
+    assert kept[misses] and not all(kept)  # hidden first, deleted later
 
 
 def test_clutter_births_rarely_confirm() -> None:
