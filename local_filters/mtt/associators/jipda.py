@@ -375,9 +375,9 @@ def equivalent_observation(pred: GaussianState, lin: Linearized, R: np.ndarray, 
 
 
 # A target's mean stay in a tracker's picture (its birth to its death or exit), the documented
-# assumption behind the survival probability (docs/jipda.md#survival-a-target-lifetime-assumption):
-# targets leave at the constant rate 1 / MEAN_LIFETIME, so p11 = exp(-dt / MEAN_LIFETIME) over any
-# interval dt; a factor of 10 in it moves the tracks' hide and delete decisions by one miss.
+# assumption behind the survival probability (docs/jipda.md#track-management): targets leave at the
+# constant rate 1 / MEAN_LIFETIME, so p11 = exp(-dt / MEAN_LIFETIME) over any interval dt; a factor
+# of 1 / (1 - P_D P_G) in it (10 at P_D 0.9) moves the tracks' hide and delete decisions by one miss.
 MEAN_LIFETIME = 600.0
 SURVIVAL_PER_SECOND = math.exp(-1.0 / MEAN_LIFETIME)
 SNR = PDAParams().snr  # paper 001's mean target SNR, for scans whose detections carry amplitudes
