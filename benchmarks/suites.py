@@ -305,7 +305,7 @@ duration = {duration}
 {schedule}
 
 [mtt]
-clutter_density = 4e-7
+clutter_density = 1e-7
 sensors = "any"
 associator = "{associator}"
 """
