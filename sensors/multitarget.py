@@ -54,6 +54,7 @@ TURN_RATE = (2.0, 6.0)  # deg/s, uniform, either sign
 # meeting point, when clipped to the region, comes nearer)
 MAX_ACCELERATION = float(np.deg2rad(TURN_RATE[1]) * SPEED[1])
 POS_SD_MIN, POS_SD_MAX = 10.0, 20.0  # a position sensor's noise std per axis (m)
+RADAR_SD = (10.0, 0.002, 0.002)  # a radar's noise std: range (m), azimuth, elevation (rad)
 
 
 @dataclass(frozen=True)
@@ -171,8 +172,8 @@ def sensor_lines(spec: SensorSpec, sc: Scenario, x: np.ndarray, alive: np.ndarra
     frame (range, azimuth from north, elevation about its site's ENU axes); its detections are then
     given, exactly, as range, azimuth and elevation about ``sensor_position`` in the common frame's
     axes, the trackers' measurement model. Without a site it stands at a random point of the
-    region's edge and measures in the common frame's axes. ``noise``: a position sensor's ``R``
-    (default: 10-20 m per axis, drawn)."""
+    region's edge and measures in the common frame's axes. ``noise``: the sensor's ``R`` (default:
+    a position sensor's 10-20 m per axis, drawn; a radar's ``RADAR_SD``)."""
     phase = round(rng.uniform(0, spec.period) / DT) * DT
     times = np.arange(phase, sc.duration + 1e-9, spec.period)
     out: list[tuple[float, dict[str, Any]]] = []
@@ -182,7 +183,7 @@ def sensor_lines(spec: SensorSpec, sc: Scenario, x: np.ndarray, alive: np.ndarra
         R = np.array([[sd**2, 0.3 * sd**2], [0.3 * sd**2, sd**2]]) if noise is None else noise
         where = None
     else:
-        R = np.diag([10.0**2, 0.002**2, 0.002**2])
+        R = np.diag(np.square(RADAR_SD)) if noise is None else noise
         if site is None:
             angle = rng.uniform(-np.pi, np.pi)
             where = np.array([1.1 * sc.region * np.cos(angle), 1.1 * sc.region * np.sin(angle), 0.0])

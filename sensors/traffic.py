@@ -38,7 +38,15 @@ from fedtrack.geodetic import (
     site_from_geodetic,
 )
 from fedtrack.jsonl import InputError, check_readable, read_jsonl
-from fedtrack.sensors.multitarget import DT, Scenario, SensorSpec, clutter_density, parse_spec, sensor_lines
+from fedtrack.sensors.multitarget import (
+    DT,
+    RADAR_SD,
+    Scenario,
+    SensorSpec,
+    clutter_density,
+    parse_spec,
+    sensor_lines,
+)
 
 #: column -> accepted names (the first is ours; OpenSky's and the traffic library's follow)
 COLUMNS: dict[str, tuple[str, ...]] = {
@@ -81,10 +89,15 @@ units (--units): si (default, OpenSky's state vectors): altitude m, speeds m/s; 
 traffic library's export): altitude ft, ground speed kt, vertical rate ft/min.
 Without the three velocity columns the velocity is the derivative of the positions (numpy's gradient).
 
-sensors (--sensors, comma-separated KIND:PERIOD[@LAT/LON/H]):
-  pos:P          2-D position plots every P s (noise 10-20 m per axis)
-  radar:P@SITE   a radar scanning every P s at the WGS-84 site LAT/LON/H (deg, deg, m); without a
-                 site it stands on the box's edge; range 10 m, azimuth and elevation 2 mrad in its own frame
+sensors (--sensors, comma-separated KIND:PERIOD[/SIGMA...][@LAT/LON/H]):
+  pos:P[/S]      2-D position plots every P s; noise S m per axis (default: drawn in 10-20 m
+                 per axis, correlation 0.3)
+  radar:P[/SR/SA[/SE]][@SITE]
+                 a radar scanning every P s at the WGS-84 site LAT/LON/H (deg, deg, m); without a
+                 site it stands on the box's edge; noise in its own frame: range SR m, azimuth SA
+                 and elevation SE degrees (default 10 m, 2 mrad = 0.1146 deg, 2 mrad)
+  e.g. the set of published requirements in docs/geodetic.md:
+                 radar:4/70/0.08@49.2/2.0/100,radar:5/70/0.08@48.6/2.9/100,pos:2/106
   adsb:P         an ADS-B receiver publishing every P s the reports received since its last scan;
                  each aircraft reports at its own rate (a period drawn in 0.4-0.6 s, DO-260B's
                  squitter interval), its position moved to the scan time with its velocity;
@@ -282,26 +295,50 @@ def build_truth(rec: Recording, frame: Frame, start: float, duration: float | No
 
 
 def parse_kinds(spec: str) -> list[SensorSpec]:
-    """The sensors of ``KIND:PERIOD[@LAT/LON/H],...`` (``pos``, ``radar``, ``adsb``), sites left out."""
-    return parse_spec(",".join(item.strip().partition("@")[0] for item in spec.split(",")), ("pos", "radar", "adsb"))
+    """The sensors of ``KIND:PERIOD[/SIGMA...][@LAT/LON/H],...`` (``pos``, ``radar``, ``adsb``), noises
+    and sites left out."""
+    return parse_spec(",".join(item.strip().partition("@")[0].partition("/")[0] for item in spec.split(",")),
+                      ("pos", "radar", "adsb"))
+
+
+def parse_noise(kind: str, sigmas: str, item: str) -> np.ndarray | None:
+    """``R`` of a sensor's ``/SIGMA...`` (None when not given): ``pos`` ``/SIGMA`` m per axis; ``radar``
+    ``/SIGMA_R/SIGMA_AZ[/SIGMA_EL]`` in m, degrees, degrees (the elevation's default ``RADAR_SD``)."""
+    if not sigmas:
+        return None
+    sizes = {"pos": (1,), "radar": (2, 3)}.get(kind, ())
+    try:
+        values = [float(v) for v in sigmas.split("/")]
+    except ValueError:
+        values = []
+    if not sizes:
+        raise InputError(f"--sensors: {item!r}: an ADS-B receiver takes no noise (its accuracy is --nacp's)")
+    if len(values) not in sizes or not all(math.isfinite(v) and v > 0 for v in values):
+        form = "pos:P/SIGMA (m)" if kind == "pos" else "radar:P/SIGMA_R/SIGMA_AZ[/SIGMA_EL] (m, deg, deg)"
+        raise InputError(f"--sensors: {item!r}: the noise is {form}, each > 0")
+    if kind == "pos":
+        return np.eye(2) * values[0] ** 2
+    sd = [values[0], *np.radians(values[1:])] + list(RADAR_SD[len(values):])
+    return np.diag(np.square(sd))
 
 
 def parse_sensors(spec: str, frame: Frame, box: float,
-                  rng: np.random.Generator) -> list[tuple[SensorSpec, RadarSite | None]]:
-    """``radar:4@49.1/2.1/90,pos:1,adsb:1`` -> sensors ``r1``, ``s2``, ``a3`` (a radar without a site
-    stands on the box's edge)."""
+                  rng: np.random.Generator) -> list[tuple[SensorSpec, RadarSite | None, np.ndarray | None]]:
+    """``radar:4/70/0.08@49.1/2.1/90,pos:1/100,adsb:1`` -> sensors ``r1``, ``s2``, ``a3`` with their
+    sites (a radar without one stands on the box's edge) and noises (:func:`parse_noise`)."""
     items = [item.strip().partition("@") for item in spec.split(",")]
-    out: list[tuple[SensorSpec, RadarSite | None]] = []
+    out: list[tuple[SensorSpec, RadarSite | None, np.ndarray | None]] = []
     for s, (base, at, where) in zip(parse_kinds(spec), items):
+        noise = parse_noise(s.kind, base.partition("/")[2], base)
         if s.kind != "radar":
             if at:
                 raise InputError(f"--sensors: {base}@{where}: only a radar takes a site")
-            out.append((s, None))
+            out.append((s, None, noise))
             continue
         if not at:
             angle = rng.uniform(-np.pi, np.pi)
             edge = 0.55 * box * np.array([np.cos(angle), np.sin(angle), 0.0])
-            out.append((s, site_from_enu(frame, edge)))
+            out.append((s, site_from_enu(frame, edge), noise))
             continue
         try:
             lat, lon, h = (float(v) for v in where.split("/"))
@@ -309,7 +346,7 @@ def parse_sensors(spec: str, frame: Frame, box: float,
             lat = math.nan
         if not (-90 <= lat <= 90 and -180 <= lon <= 360):
             raise InputError(f"--sensors: {base}@{where}: the site is not LAT/LON/H (degrees, degrees, metres)")
-        out.append((s, site_from_geodetic(frame, lat, lon, h)))
+        out.append((s, site_from_geodetic(frame, lat, lon, h), noise))
     return out
 
 
@@ -357,20 +394,20 @@ def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, star
     if not truth.icao24:
         raise InputError("no airborne aircraft inside the box during the window")
     sensors = parse_sensors(spec, frame, box, rng)
-    specs = [s for s, _ in sensors]
+    specs = [s for s, _, _ in sensors]
     steps = truth.alive.shape[0]
     sc = Scenario(targets=len(truth.icao24), duration=(steps - 1) * DT, region=box / 2, pd=pd, clutter=clutter,
                   late=late)
     report_period = rng.uniform(*SQUITTER_S, len(truth.icao24))  # each aircraft's own rate
     sd = NACP_EPU[nacp] / CHI2_2_95
     lines = []
-    for s, site in sensors:
+    for s, site, noise in sensors:
         if s.kind == "adsb":
             moved, fresh = adsb_view(truth, s.period, report_period, rng)
             lines += sensor_lines(dataclasses.replace(s, kind="pos"), dataclasses.replace(sc, clutter=0.0), moved,
                                   fresh, True, rng, noise=np.diag([sd**2, sd**2]))
         else:
-            lines += sensor_lines(s, sc, truth.x, truth.alive, True, rng, site=site)
+            lines += sensor_lines(s, sc, truth.x, truth.alive, True, rng, site=site, noise=noise)
     lines.sort(key=lambda item: item[0])
     out.mkdir(parents=True, exist_ok=True)
     with (out / "measurements.jsonl").open("w") as fh:
@@ -393,7 +430,7 @@ def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, star
     # every sensor its own density: a radar's per m rad^2, a position sensor's per m^2; an ADS-B receiver's
     # false reports are none, written as one per (1000 km)^2 (the tracker's log takes no zero)
     mtt["sensor"] = {s.id: {"clutter_density": 1e-12 if s.kind == "adsb" else clutter_density(s, sc)} for s in specs}
-    frame_table = {"origin": list(frame), "sites": {s.id: site.geodetic.tolist() for s, site in sensors if site}}
+    frame_table = {"origin": list(frame), "sites": {s.id: site.geodetic.tolist() for s, site, _ in sensors if site}}
     (out / "config.toml").write_text(to_toml({"mtt": mtt, "frame": frame_table}))
     return {"scans": len(lines), "targets": len(truth.icao24), "start": truth.t0, "duration": sc.duration,
             "most_alive": int(truth.alive.sum(axis=1).max()), "derived": derived,

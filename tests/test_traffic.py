@@ -13,6 +13,7 @@ import pytest
 from matplotlib.figure import Figure
 
 from fedtrack.cli import main
+from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.geodetic import Frame, aer_from_enu, enu_from_geodetic, geodetic_from_enu, site_from_geodetic
 from fedtrack.jsonl import InputError
 from fedtrack.local_filters.radar.measurement import cartesian_from_polar, polar_from_cartesian, wrap_angle
@@ -21,6 +22,7 @@ from fedtrack.sensors.traffic import (
     Truth,
     adsb_view,
     build_truth,
+    parse_noise,
     read_recording,
     reconcile,
     segments,
@@ -279,3 +281,71 @@ def test_parquet_reads_as_csv(tmp_path: Path) -> None:
     np.testing.assert_array_equal(again.t, src.t)
     np.testing.assert_array_equal(again.lla, src.lla)
     assert np.isnan(again.velocity).all()
+
+
+def test_sensor_noise_in_the_spec(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``pos:P/SIGMA`` and ``radar:P/SIGMA_R/SIGMA_AZ[/SIGMA_EL]`` set the scans' ``R`` (m, deg, deg;
+    the elevation's default 2 mrad); a malformed one is a one-line error naming the item."""
+    np.testing.assert_allclose(parse_noise("pos", "106", "pos:2/106"), 106.0**2 * np.eye(2), rtol=1e-15)
+    np.testing.assert_allclose(parse_noise("radar", "70/0.08", "radar:4/70/0.08"),
+                               np.diag([70.0**2, np.radians(0.08) ** 2, 0.002**2]), rtol=1e-15)
+    np.testing.assert_allclose(parse_noise("radar", "70/0.08/0.5", "radar:4/70/0.08/0.5"),
+                               np.diag([70.0**2, np.radians(0.08) ** 2, np.radians(0.5) ** 2]), rtol=1e-15)
+    assert parse_noise("radar", "", "radar:4") is None
+    out = tmp_path / "run"
+    assert main(["simulate", "traffic", "--source", str(DATA / "traffic_switzerland.csv.gz"), "--origin", "46.9,8.2",
+                 "--sensors", "radar:4/70/0.08@47.3/8.0/900,pos:2/106,radar:5", "--seed", "2", "--duration", "30",
+                 "--box", "250", "--out", str(out)]) == 0
+    R = {}
+    for line in (out / "measurements.jsonl").read_text().splitlines():
+        scan = json.loads(line)
+        R.setdefault(scan["sensor"], scan["R"])
+    np.testing.assert_allclose(R["r1"], np.diag([70.0**2, np.radians(0.08) ** 2, 0.002**2]), rtol=1e-15)
+    np.testing.assert_allclose(R["s2"], 106.0**2 * np.eye(2), rtol=1e-15)
+    np.testing.assert_allclose(R["r3"], np.diag([10.0**2, 0.002**2, 0.002**2]), rtol=1e-15)
+    assert tomllib.loads((out / "config.toml").read_text())["mtt"]["sensors"] == ["r1", "s2", "r3"]
+    capsys.readouterr()
+    for spec, message in (("pos:2/0", "'pos:2/0': the noise is pos:P/SIGMA (m), each > 0"),
+                          ("radar:4/70@47/8/0", "'radar:4/70': the noise is radar:P/SIGMA_R/SIGMA_AZ[/SIGMA_EL]"),
+                          ("adsb:1/5", "'adsb:1/5': an ADS-B receiver takes no noise")):
+        assert main(["simulate", "traffic", "--source", str(DATA / "traffic_switzerland.csv.gz"), "--origin",
+                     "46.9,8.2", "--sensors", spec, "--out", str(tmp_path / "bad")]) == 2
+        assert message in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
+
+
+def test_radar_plots_update_the_tracks_2d_plots_started(tmp_path: Path) -> None:
+    """A position sensor starts every aircraft's track (``mtt-centralized``, 3-D: z = 0 with
+    ``init_z_std`` = 6 km); from 10 s a radar 20-170 km away sees them at 3-11 km up. Its plots update
+    those tracks, which take the altitude (sigma under 400 m, the radar's 2 mrad at that range; every
+    error within 5 sigma of their own P_zz, the mean squared normalized error under 2), and no second
+    track starts. Without relinearizing about the plot's altitude the range at z = 0 is short by about
+    z^2 / 2r (tens to hundreds of metres against 10 m of noise): no plot of the radar updated a track,
+    and every track kept z = 0 (sigma 7.5 km)."""
+    rng = np.random.default_rng(5)
+    n = 8
+    truth = _cv_truth(n, 90.0, rng)
+    sc = Scenario(targets=n, duration=90.0, region=75e3, pd=1.0, clutter=0.0, late=0.0)
+    lines = sensor_lines(SensorSpec("s1", "pos", 1.0), sc, truth.x, truth.alive, True, rng, noise=15.0**2 * np.eye(2))
+    lines += [item for item in sensor_lines(SensorSpec("r2", "radar", 4.0), sc, truth.x, truth.alive, True, rng)
+              if item[1]["t"] >= 10.0]
+    lines.sort(key=lambda item: item[0])
+    (tmp_path / "m.jsonl").write_text("".join(json.dumps(line) + "\n" for _, line in lines))
+    (tmp_path / "c.toml").write_text('[mtt]\nsensors = ["s1", "r2"]\nq = 1.0\ninit_velocity_std = 150.0\n'
+                                     'init_z_std = 6000.0\nclutter_density = 1e-9\n')
+    replay_mtt("mtt-centralized", tmp_path / "m.jsonl", tmp_path / "c.toml", tmp_path / "t.jsonl")
+    normalized = []
+    for line in (tmp_path / "t.jsonl").read_text().splitlines():
+        picture = json.loads(line)
+        if picture["t"] < 30.0:
+            continue
+        tracks = [tr for tr in picture["tracks"] if tr["status"] == "confirmed"]
+        assert len(tracks) == n, f"t = {picture['t']}: {len(tracks)} confirmed tracks of {n} aircraft"
+        p = truth.x[int(round(picture["t"] / DT))]
+        for tr in tracks:
+            x = np.asarray(tr["x"])
+            near = np.argmin(np.hypot(p[:, 0] - x[0], p[:, 2] - x[2]))
+            sd = np.sqrt(tr["P"][4][4])
+            assert sd < 400.0 and abs(x[4] - p[near, 4]) < 5 * sd, (picture["t"], tr["id"], x[4], p[near, 4], sd)
+            normalized.append((x[4] - p[near, 4]) / sd)
+    assert len(normalized) >= 50 * n and np.mean(np.square(normalized)) < 2.0
