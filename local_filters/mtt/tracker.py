@@ -6,7 +6,9 @@
    in its own model with ``[mtt] maneuver = "vdie"``, :mod:`.maneuver`).
 2. **gate** (:func:`gate_scan`): ``d2_ij = nu_ij' S_i^-1 nu_ij`` with ``S_i = H_i P_i H_i' + R``
    against the chi-square quantile of ``gate_probability`` (m = 2 or 3 degrees of freedom), and
-   each gated pair's log-likelihood ``ln N(nu_ij; 0, S_i) = -(d2_ij + ln det(2 pi S_i)) / 2``.
+   each gated pair's log-likelihood ``ln N(nu_ij; 0, S_i) = -(d2_ij + ln det(2 pi S_i)) / 2``; a
+   radar linearized at the predictions, or, for a track whose altitude is unobserved, about a
+   plot's altitude (:func:`relinearize_altitude`).
 3. **associate**: the :class:`~.association.Associator` that ``[mtt] associator`` names
    (:data:`ASSOCIATORS`; ``gnn``: :mod:`.gnn`). The interface, and how a soft associator
    (``jipda``) or one with memory (``mht``) plugs in: :mod:`.association`.
