@@ -55,7 +55,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from fedtrack.local_filters.mtt.associators.gnn import k_best_assignments
-from fedtrack.local_filters.mtt.associators.jipda import scan_constants
+from fedtrack.local_filters.mtt.associators.jipda import BIRTH_EXISTENCE, scan_constants
 from fedtrack.local_filters.mtt.config import MhtConfig
 from fedtrack.local_filters.pda.association import Constants, log_amplitude_ratio
 
@@ -73,8 +73,9 @@ class MhtParams(NamedTuple):
     max_branches: int  # leaves kept per track
     management: str  # "score" (SPRT) or "counts" (gnn's M-of-N and precedence)
     pg: float  # gate probability P_G in the miss term
-    confirm_score: float  # SPRT upper threshold ln((1 - beta) / alpha)
-    delete_score: float  # SPRT lower threshold ln(beta / (1 - alpha))
+    confirm_score: float  # confirmed at score ln odds(B) + ln((1 - beta) / alpha) (:func:`mht_params`)
+    delete_score: float  # a tentative track deleted at score ln odds(B) + ln(beta / (1 - alpha))
+    drop_score: float  # SPRT lower threshold ln(beta / (1 - alpha)): a confirmed track's fall from its peak
     amplitude: Constants | None = None  # amplitude model (threshold tau, SNR); None: amplitudes ignored
 
 
@@ -89,16 +90,26 @@ def sprt_thresholds(false_track: float, miss: float) -> tuple[float, float]:
     return math.log((1.0 - miss) / false_track), math.log(miss / (1.0 - false_track))
 
 
+# ln of jipda's prior odds that a scan's unused detections hold a new target (BIRTH_EXISTENCE)
+LOG_BIRTH_ODDS = math.log(BIRTH_EXISTENCE / (1.0 - BIRTH_EXISTENCE))
+
+
 def mht_params(settings: MhtConfig, pd: float, clutter_density: float, gate_d2: float, m: int,
                counts: tuple[int, int, int]) -> MhtParams:
     """The MHT's parameters for a scan of measurement size ``m`` gated at ``gate_d2``; ``counts``
     are gnn's ``(confirm_hits, confirm_window, delete_misses)``. ``"counts"`` management is gnn's
     model too: its M-of-N rules and track precedence, and a gate that holds every target
-    detection (``P_G = 1`` in the miss term: gnn's cost), so that window 1 and k 1 are gnn."""
+    detection (``P_G = 1`` in the miss term: gnn's cost), so that window 1 and k 1 are gnn.
+    ``"score"``: a track's score is its log posterior odds (:func:`birth_scores`), so Wald's
+    thresholds are moved by the prior log odds ``ln odds(B)`` of a lone birth: for one birth a
+    scan the SPRT on its likelihood ratio, for ``n`` births ``ln n`` more (jipda's shared birth
+    odds and Ville's bound: :func:`~.jipda.derived_rules`)."""
     c = scan_constants(pd, clutter_density, gate_d2, m)
     confirm, delete = sprt_thresholds(settings.false_track, settings.miss)
+    prior = LOG_BIRTH_ODDS if settings.management == "score" else 0.0
     return MhtParams(pd, clutter_density, *counts, settings.window, settings.k, settings.max_branches,
-                     settings.management, 1.0 if settings.management == "counts" else c.pg, confirm, delete, c)
+                     settings.management, 1.0 if settings.management == "counts" else c.pg, confirm + prior,
+                     delete + prior, delete, c)
 
 
 class MhtState(NamedTuple):
@@ -137,9 +148,11 @@ def miss_increment(params: MhtParams) -> float:
 
 
 def birth_scores(params: MhtParams, amplitude: np.ndarray | None, n: int) -> np.ndarray:
-    """The scores of ``n`` new tracks: 0 (a new target as likely as clutter: the SPRT starts from
-    even odds) plus their detections' amplitude log-ratios."""
-    score = np.zeros(n)
+    """The scores of ``n`` new tracks (started on one scan's unused detections), plus their
+    detections' amplitude log-ratios. ``"score"``: the prior log odds of each, ``ln(odds(B) / n)``
+    (jipda's birth prior ``B`` shared by the scan's births, :func:`~.jipda.birth_existence`;
+    Blackman & Popoli 6.2's initial score ``ln(beta_NT / beta_FA)``); ``"counts"``: 0."""
+    score = np.full(n, LOG_BIRTH_ODDS - math.log(max(n, 1)) if params.management == "score" else 0.0)
     if amplitude is not None and params.amplitude is not None:
         score = score + log_amplitude_ratio(amplitude, params.amplitude)
     return score
@@ -233,20 +246,39 @@ def select_hypotheses(state: MhtState, n_det: int, g_rows: np.ndarray, g_cols: n
 
     A hypothesis's value is the log-likelihood ratio of its assignments so far against "every
     detection clutter": the parent's plus this scan's increment of every track it holds (a
-    miss or its detection). A new track adds nothing (a detection starts one exactly where no
-    track takes it, gnn's rule), and a track deleted later keeps what it added: the value is
-    that of the detections' explanation, so two tracks sharing one target's detections pay a
-    miss at every scan and lose to one track that takes them all."""
+    miss or its detection; :func:`value_increments`). A new track adds nothing (a detection
+    starts one exactly where no track takes it, gnn's rule), and a track deleted later keeps
+    what it added: the value is that of the detections' explanation, so two tracks sharing one
+    target's detections pay a miss at every scan and lose to one track that takes them all."""
     cand_value, cand_parent, cand_pairs = [], [], []
     cache: dict = {}
+    leaf_miss, gain = value_increments(state.score, g_rows, inc, miss, params)
     for h, row in enumerate(state.hyps):
         held = np.flatnonzero(row)
-        gains, ways = _extend(held, n_det, g_rows, g_cols, inc - miss, state.leaves.confirmed, params, cache)
-        cand_value.extend((state.value[h] + held.size * miss + gains).tolist())
+        gains, ways = _extend(held, n_det, g_rows, g_cols, gain, state.leaves.confirmed, params, cache)
+        cand_value.extend((state.value[h] + leaf_miss[held].sum() + gains).tolist())
         cand_parent.extend([h] * len(ways))
         cand_pairs.extend(ways)
     keep = np.argsort(-np.array(cand_value), kind="stable")[:params.k]
     return np.array(cand_value)[keep], np.array(cand_parent, np.intp)[keep], [cand_pairs[i] for i in keep.tolist()]
+
+
+def value_increments(score: np.ndarray, g_rows: np.ndarray, inc: np.ndarray, miss: float, params: MhtParams
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Each leaf's value increment if it misses (L,), and each gated pair's gain over that miss
+    (K,). ``"counts"``: the score increments (``miss``; ``inc - miss``). ``"score"``: a track's
+    score is the log odds that it is a target rather than clutter, so the hypothesis keeps both
+    (the track, or its detections clutter): its log-likelihood ratio is
+    ``softplus(score) = ln(1 + e^score)``, and a scan adds ``softplus(score + increment) -
+    softplus(score)``. An established track (score >> 0) adds its increment; a new one (score
+    ``ln(odds(B) / n)`` << 0) little, so a target's detection goes to the track that holds it, not
+    to a track born beside it (Blackman & Popoli 6.2: a global hypothesis's score is the sum of
+    its tracks' scores, a track below 0 is left out as false)."""
+    if params.management == "counts":
+        return np.full(score.size, miss), inc - miss
+    base = np.logaddexp(0.0, score)
+    leaf_miss = np.logaddexp(0.0, score + miss) - base
+    return leaf_miss, np.logaddexp(0.0, score[g_rows] + inc) - base[g_rows] - leaf_miss[g_rows]
 
 
 class Branches(NamedTuple):
@@ -283,7 +315,8 @@ def branches(hyps: np.ndarray, parents: np.ndarray, chosen: list[np.ndarray], g_
 def manage(params: MhtParams, confirmed: np.ndarray, score: np.ndarray, peak: np.ndarray, hits: np.ndarray,
            age: np.ndarray, misses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Step 5: each branch's confirmation and whether it stays. ``"score"``: confirmed once its
-    score reaches the SPRT's upper threshold; a tentative branch deleted at the lower one, a
+    score reaches the SPRT's upper threshold (moved by the birth prior, :func:`mht_params`); a
+    tentative branch deleted at the lower one, a
     confirmed one when its score has fallen that far below its peak (the test restarted at the
     peak: "a false track since then") and it has missed ``delete_misses`` scans in a row (the
     tracker's rule, which for a tracker of every sensor's scans is the fusion centre's: misses
@@ -295,7 +328,7 @@ def manage(params: MhtParams, confirmed: np.ndarray, score: np.ndarray, peak: np
                         params.confirm_window - age >= params.confirm_hits - hits)
         return confirmed, live
     confirmed = confirmed | (score >= params.confirm_score)
-    kept = (score - peak > params.delete_score) | (misses < params.delete_misses)
+    kept = (score - peak > params.drop_score) | (misses < params.delete_misses)
     return confirmed, np.where(confirmed, kept, score > params.delete_score)
 
 
