@@ -307,6 +307,34 @@ def test_scans_without_detections_and_with_amplitudes() -> None:
     assert score[strong] - score[weak] > 3 * 27 * 20 / 21 - 10
 
 
+
+def test_an_established_track_keeps_its_detection_against_a_newborn() -> None:
+    """The hypothesis value marginalises each track's existence (:func:`value_increments`): of two
+    tracks gating one detection, an established one (score 15) takes it from a track born this scan
+    among 50 births (score ``ln(odds(B) / 50)``) that fits it better by 2 nats; between two
+    established tracks the better fit takes it; ``"counts"`` keeps the plain increments."""
+    from types import SimpleNamespace
+
+    from fedtrack.local_filters.mtt.associators.mht import MhtState, birth_scores, select_hypotheses, value_increments
+
+    mp = mht_params(MhtConfig(), 0.8, 5e-7, 9.21, 2, (3, 4, 3))
+    newborn = float(birth_scores(mp, None, 50)[0])
+    assert newborn == pytest.approx(np.log(0.1 / 0.9 / 50))
+    rows, cols, inc = np.array([0, 1]), np.array([0, 0]), np.array([5.0, 7.0])
+    miss = float(np.log1p(-mp.pd * mp.pg))
+    taker = {}
+    for name, scores in (("newborn", [15.0, newborn]), ("established", [15.0, 15.0])):
+        leaves = SimpleNamespace(confirmed=np.array([True, False]))
+        state = MhtState(leaves, np.array(scores), np.array(scores), np.zeros((2, 1), np.int64),
+                         np.ones((1, 2), bool), np.zeros(1), 2)
+        _, _, chosen = select_hypotheses(state, 1, rows, cols, inc, miss, mp)
+        taker[name] = int(rows[chosen[0]][0])
+    assert taker == {"newborn": 0, "established": 1}
+    counts = mp._replace(management="counts")
+    leaf_miss, gain = value_increments(np.array([15.0, newborn]), rows, inc, miss, counts)
+    np.testing.assert_allclose(leaf_miss, miss) and np.testing.assert_allclose(gain, inc - miss)
+
+
 def formation_scans(seed: int, steps: int = 60, clutter: float = 20.0) -> tuple[list[SensorScan], float, list[np.ndarray]]:
     """Three targets side by side 25 m apart (1.7 noise sigmas) flying together at 20 m/s, P_D 0.8,
     uniform clutter over a 2 km square; one sensor at 1 Hz, noise 15 m per axis."""
@@ -343,6 +371,5 @@ def test_formation_has_no_duplicate_tracks() -> None:
             dup += int((d.min(axis=1) < 100).sum() > 3)
             held += int((d.min(axis=0) < 40).sum())
             scans_seen += 1
-    print("DUP", dup, held, scans_seen)
     assert dup <= 0.05 * scans_seen, (dup, scans_seen)
     assert held >= 0.9 * 3 * scans_seen, (held, scans_seen)
