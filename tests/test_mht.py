@@ -310,8 +310,8 @@ def test_scans_without_detections_and_with_amplitudes() -> None:
 
 def test_an_established_track_keeps_its_detection_against_a_newborn() -> None:
     """The hypothesis value marginalises each track's existence (:func:`value_increments`): of two
-    tracks gating one detection, an established one (score 15) takes it from a track born this scan
-    among 50 births (score ``ln(odds(B) / 50)``) that fits it better by 2 nats; between two
+    tracks gating one detection, an established one (score 15) takes it from a track born last scan
+    (score ``ln odds(B)``, jipda's birth prior) that fits it better by 2 nats; between two
     established tracks the better fit takes it; ``"counts"`` keeps the plain increments."""
     from types import SimpleNamespace
 
@@ -319,7 +319,7 @@ def test_an_established_track_keeps_its_detection_against_a_newborn() -> None:
 
     mp = mht_params(MhtConfig(), 0.8, 5e-7, 9.21, 2, (3, 4, 3))
     newborn = float(birth_scores(mp, None, 50)[0])
-    assert newborn == pytest.approx(np.log(0.1 / 0.9 / 50))
+    assert newborn == pytest.approx(np.log(0.1 / 0.9))
     rows, cols, inc = np.array([0, 1]), np.array([0, 0]), np.array([5.0, 7.0])
     miss = float(np.log1p(-mp.pd * mp.pg))
     taker = {}

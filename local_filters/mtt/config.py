@@ -40,7 +40,7 @@ class MhtConfig:
     k: int = 3  # global hypotheses kept
     max_branches: int = 3  # leaves kept per track
     management: str = "score"  # "score": the SPRT; "counts": gnn's M-of-N rules and likelihoods
-    false_track: float = 1e-2  # alpha: probability that a scan's births confirm a track on clutter (jipda's FALSE_CONFIRM)
+    false_track: float = 1e-4  # alpha: probability of confirming a track started on clutter
     miss: float = 1e-2  # beta: probability of deleting a track on a real target
 
     def validate(self) -> None:

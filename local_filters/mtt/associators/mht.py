@@ -21,7 +21,8 @@ Per scan:
    ``constants``: ``P_G``, the amplitude threshold ``tau``, the SNR: :func:`~.jipda.scan_constants`).
 3. Each kept global hypothesis is extended by its ``k`` best assignments of the scan
    (:func:`select_hypotheses`): each of its leaves takes one gated detection or misses, each
-   detection at most once; a pair's gain is its increment over the miss. The problem is split
+   detection at most once; a pair's gain is what it adds to the hypothesis value over the miss,
+   each track's existence kept open (:func:`value_increments`). The problem is split
    into the connected components (clusters) of the leaves' gating graph; each cluster's k best
    by Murty's algorithm over ``linear_sum_assignment`` (:func:`~.gnn.k_best_assignments`), the
    hypothesis's k best as the k best sums over its clusters (:func:`k_best_sums`). Of all
@@ -101,9 +102,8 @@ def mht_params(settings: MhtConfig, pd: float, clutter_density: float, gate_d2: 
     model too: its M-of-N rules and track precedence, and a gate that holds every target
     detection (``P_G = 1`` in the miss term: gnn's cost), so that window 1 and k 1 are gnn.
     ``"score"``: a track's score is its log posterior odds (:func:`birth_scores`), so Wald's
-    thresholds are moved by the prior log odds ``ln odds(B)`` of a lone birth: for one birth a
-    scan the SPRT on its likelihood ratio, for ``n`` births ``ln n`` more (jipda's shared birth
-    odds and Ville's bound: :func:`~.jipda.derived_rules`)."""
+    thresholds are moved by the prior log odds ``ln odds(B)``: the SPRT on the track's likelihood
+    ratio since its birth."""
     c = scan_constants(pd, clutter_density, gate_d2, m)
     confirm, delete = sprt_thresholds(settings.false_track, settings.miss)
     prior = LOG_BIRTH_ODDS if settings.management == "score" else 0.0
@@ -148,11 +148,11 @@ def miss_increment(params: MhtParams) -> float:
 
 
 def birth_scores(params: MhtParams, amplitude: np.ndarray | None, n: int) -> np.ndarray:
-    """The scores of ``n`` new tracks (started on one scan's unused detections), plus their
-    detections' amplitude log-ratios. ``"score"``: the prior log odds of each, ``ln(odds(B) / n)``
-    (jipda's birth prior ``B`` shared by the scan's births, :func:`~.jipda.birth_existence`;
-    Blackman & Popoli 6.2's initial score ``ln(beta_NT / beta_FA)``); ``"counts"``: 0."""
-    score = np.full(n, LOG_BIRTH_ODDS - math.log(max(n, 1)) if params.management == "score" else 0.0)
+    """The scores of ``n`` new tracks, plus their detections' amplitude log-ratios. ``"score"``:
+    the prior log odds ``ln odds(B)`` that a detection no track takes is a new target (jipda's
+    prior ``B`` of a lone birth, :data:`~.jipda.BIRTH_EXISTENCE`; Blackman & Popoli 6.2's initial
+    score ``ln(beta_NT / beta_FA)``); ``"counts"``: 0."""
+    score = np.full(n, LOG_BIRTH_ODDS if params.management == "score" else 0.0)
     if amplitude is not None and params.amplitude is not None:
         score = score + log_amplitude_ratio(amplitude, params.amplitude)
     return score
@@ -270,10 +270,11 @@ def value_increments(score: np.ndarray, g_rows: np.ndarray, inc: np.ndarray, mis
     score is the log odds that it is a target rather than clutter, so the hypothesis keeps both
     (the track, or its detections clutter): its log-likelihood ratio is
     ``softplus(score) = ln(1 + e^score)``, and a scan adds ``softplus(score + increment) -
-    softplus(score)``. An established track (score >> 0) adds its increment; a new one (score
-    ``ln(odds(B) / n)`` << 0) little, so a target's detection goes to the track that holds it, not
-    to a track born beside it (Blackman & Popoli 6.2: a global hypothesis's score is the sum of
-    its tracks' scores, a track below 0 is left out as false)."""
+    softplus(score)``. An established track (score >> 0) gains its increment over its miss; a
+    track born last scan (score ``ln odds(B)`` = -2.2) about its increment plus that prior, so
+    a target's detection goes to the track that holds it unless it fits a track born beside it
+    better by some 4 nats (Blackman & Popoli 6.2: a global hypothesis's score is the sum of its
+    tracks' scores, a track below 0 left out as false)."""
     if params.management == "counts":
         return np.full(score.size, miss), inc - miss
     base = np.logaddexp(0.0, score)
