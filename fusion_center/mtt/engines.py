@@ -274,7 +274,7 @@ class TrackToTrackEngine(Engine):
         if self.centre is None:
             return no_tracks(self.dim)
         if isinstance(self.centre, ShardedCentre):
-            return union_picture([centre_picture(c, T, self.existence) for c in self.centre.centres], self.dim)
+            return union_picture([centre_picture(c.centre, T, self.existence) for c in self.centre.centres], self.dim)
         return centre_picture(self.centre, T, self.existence)
 
     def counters(self) -> dict[str, int]:
