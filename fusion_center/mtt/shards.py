@@ -75,13 +75,14 @@ class RegionCentre:
             free[free] = region_of(self.regions, report.x[free][:, [0, 2]]) == self.index
         return mine | free
 
-    def answer(self, report: LocalReport, elsewhere: np.ndarray) -> tuple[RegionAnswer, list[tuple[int, HandOver]]]:
+    def answer(self, report: LocalReport, elsewhere: np.ndarray
+               ) -> tuple[RegionAnswer, list[tuple[int, int, HandOver]]]:
         """Fuse the rows it takes of a sub-report, hand over the central tracks that left the region;
-        returns the answer and the hand-overs ``(new owner, record)``."""
+        returns the answer and the hand-overs ``(new owner, this centre's hand-over number, record)``."""
         take = self.taken(report, elsewhere)
         resets, q_scale = self.centre.answer(report if take.all() else sub_report(report, take))
         c = self.centre
-        moving: list[tuple[int, HandOver]] = []
+        moving: list[tuple[int, int, HandOver]] = []
         touched = c.moved[np.isin(c.moved, c.tracks.ids)]  # not merged away or pruned
         if touched.size and len(self.regions.ids) > 1:
             owner = region_of(self.regions, c.tracks.latest(c.tracks.slots_of(touched))[1][:, [0, 2]])
@@ -89,7 +90,8 @@ class RegionCentre:
                 if o != self.index:
                     record = c.hand_over(cid)
                     self.forwarded.update((key, o) for key in record.members)
-                    moving.append((o, record))
+                    moving.append((o, self.serial, record))
+                    self.serial += 1
         self.handed_over += len(moving)
         s = report.sensor
         held = report.ids[np.fromiter(((s, i) in c.mapping for i in report.ids.tolist()), dtype=bool,
@@ -192,7 +194,7 @@ class ShardedCentre:
             self.cpu_s[r] += time.process_time() - start
             answers.append(answer)
             moving += out
-        for owner, record in moving:
+        for owner, _, record in moving:
             start = time.process_time()
             self.centres[owner].take_over(record)
             self.cpu_s[owner] += time.process_time() - start

@@ -13,12 +13,14 @@ replay and in ``serve mtt-local``, so both send the same rows to the same centre
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
 
-from fedtrack.local_filters.mtt.local import LocalReport, Resets
+from fedtrack import wire
+from fedtrack.local_filters.mtt.local import LocalReport, Resets, resets_from_wire, resets_to_wire
 from fedtrack.local_filters.regions import Regions, near_regions
 
 
@@ -69,19 +71,22 @@ class RegionRouter:
                         (believed[mine] >= 0) & (believed[mine] != r)))
         return out
 
-    def learn(self, sent: list[LocalReport], answers: list[RegionAnswer]) -> None:
-        """The answers of every region (in order) to the sub-reports ``sent``: a local track a region
-        held before and no longer holds is forgotten, then the hand-overs (``moved``) and the holdings
-        (``held``) are noted, in region order."""
+    def learn(self, sent: list[LocalReport], answers: list[RegionAnswer], answering: list[int] | None = None) -> None:
+        """The answers of the regions ``answering`` (default: every region, in order) to the
+        sub-reports ``sent`` to them: a local track a region held before and no longer holds is
+        forgotten, then the hand-overs (``moved``) and the holdings (``held``) are noted, in region order."""
+        regions = list(range(len(answers))) if answering is None else answering
         before = dict(self.holder)
-        for r, (sub, answer) in enumerate(zip(sent, answers)):
+        for r, sub, answer in zip(regions, sent, answers):
             for lid in np.setdiff1d(sub.ids, answer.held).tolist():
                 if before.get(lid) == r and self.holder.get(lid) == r:
                     del self.holder[lid]
+        live = set(np.concatenate([sub.ids for sub in sent]).tolist()) if sent else set()
         for answer in answers:
             for lid, to in zip(answer.moved.tolist(), answer.moved_to.tolist()):
-                self.holder[lid] = to
-        for r, answer in enumerate(answers):
+                if lid in live:  # not retired since
+                    self.holder[lid] = to
+        for r, answer in zip(regions, answers):
             for lid in answer.held.tolist():
                 self.holder[lid] = r
 
@@ -94,3 +99,23 @@ def join_answers(answers: list[RegionAnswer]) -> tuple[Resets, float]:
     resets = first._replace(ids=np.concatenate([p.ids for p in parts]), x=np.concatenate([p.x for p in parts]),
                             P=np.concatenate([p.P for p in parts]))
     return resets, max(a.q_scale for a in answers)
+
+
+def answer_to_wire(seq: int, answer: RegionAnswer, regions: Regions, region: int) -> wire.TrackResets:
+    """Region ``region``'s answer to report ``seq`` as ``TrackResets`` with its region fields."""
+    msg = resets_to_wire(seq, answer.resets, answer.q_scale)
+    return wire.TrackResets.unchecked(**{f.name: getattr(msg, f.name) for f in dataclasses.fields(msg)},
+                                      region=regions.ids[region], held=tuple(answer.held.tolist()),
+                                      moved=tuple(answer.moved.tolist()),
+                                      moved_to=tuple(regions.ids[r] for r in answer.moved_to.tolist()))
+
+
+def answer_from_wire(msg: wire.TrackResets, regions: Regions) -> tuple[int, RegionAnswer]:
+    """The answering region's index and its answer; ValueError naming the field for a region or a
+    hand-over destination that is not one of ``regions``."""
+    index = {rid: r for r, rid in enumerate(regions.ids)}
+    if msg.region not in index or any(r not in index for r in msg.moved_to):
+        raise ValueError(f"region: {msg.region!r} or a moved_to region is not one of {', '.join(regions.ids)}")
+    return index[msg.region], RegionAnswer(resets_from_wire(msg), msg.q_scale, np.array(msg.held, dtype=np.int64),
+                                           np.array(msg.moved, dtype=np.int64),
+                                           np.array([index[r] for r in msg.moved_to], dtype=np.int64))
