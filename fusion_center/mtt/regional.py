@@ -153,9 +153,10 @@ class _Tracker:
     answers: dict[int, RegionAnswer] = field(default_factory=dict)
 
 
-def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions,
-                      entries: list[tuple[int, Entry]]) -> Iterator[tuple[float, PictureTracks]]:
-    """The merged pictures of a live region run from its recorded entries (module docstring)."""
+def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions, entries: list[tuple[int, Entry]],
+                      counts: dict[str, int]) -> Iterator[tuple[float, PictureTracks]]:
+    """The merged pictures of a live region run from its recorded entries (module docstring);
+    ``counts`` gets the trackers' scans and the centres' counters added up (the replay's report)."""
     R = len(regions.ids)
     engines = [RegionEngine(cfg, dim, feedback=feedback, regions=regions, index=r) for r in range(R)]
     clocks = [PictureClock(cfg.period, cfg.picture_delay) for _ in range(R)]
@@ -227,5 +228,10 @@ def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions
     for r in range(R):
         for T in clocks[r].final():
             shown[r][T] = engines[r].picture(T)
+    counts.update({"scans": len(firsts), "late": 0, "duplicates": 0, "rerun": 0})
+    for e in engines:
+        for k, v in e.counters().items():
+            if k.startswith("centre_") or k in ("handed_over", "in_flight"):
+                counts["centre_" + k.removeprefix("centre_")] = counts.get("centre_" + k.removeprefix("centre_"), 0) + v
     for T in sorted(set().union(*shown)):
         yield T, merge_pictures([s.get(T) for s in shown], dim)[0]

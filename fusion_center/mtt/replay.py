@@ -144,7 +144,8 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
         scans = [e[0] for _, e in entries if isinstance(e, tuple) and isinstance(e[0], SensorScan)]
         dim = state_dim(scans)
         engine = make_engine(algorithm, cfg, dim)
-        source = recorded_pictures(cfg, dim, algorithm == "mtt-federated", shards, entries)
+        recorded: dict[str, int] = {}
+        source = recorded_pictures(cfg, dim, algorithm == "mtt-federated", shards, entries, recorded)
     else:
         scans = read_scans(measurements, cfg)
         if sensor is not None and not any(s.sensor == sensor for s in scans):
@@ -153,6 +154,7 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
         shards = None if regions is None else data_regions(regions, scans, config)
         engine = make_engine(algorithm, cfg, dim, sensor, shards)
         source = pictures(engine, scans, cfg.period, cfg.picture_delay)
+        recorded = {}
     read_s = time.perf_counter() - start
     frame = load_frame(config)  # [frame]: the tracks on the Earth too (lat, lon, alt)
     n = onsets = 0
@@ -169,7 +171,7 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
             detector = detector or tracks.maneuver is not None
             now = tracks.maneuvering()
             onsets, maneuvering = onsets + len(now - maneuvering), now
-    counts = engine.counters()
+    counts = recorded or engine.counters()
     for line in counter_lines(counts):
         print(f"{algorithm}: {line}", file=sys.stderr)
     if detector:

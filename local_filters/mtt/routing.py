@@ -104,10 +104,10 @@ def join_answers(answers: list[RegionAnswer]) -> tuple[Resets, float]:
 def answer_to_wire(seq: int, answer: RegionAnswer, regions: Regions, region: int) -> wire.TrackResets:
     """Region ``region``'s answer to report ``seq`` as ``TrackResets`` with its region fields."""
     msg = resets_to_wire(seq, answer.resets, answer.q_scale)
-    return wire.TrackResets.unchecked(**{f.name: getattr(msg, f.name) for f in dataclasses.fields(msg)},
-                                      region=regions.ids[region], held=tuple(answer.held.tolist()),
-                                      moved=tuple(answer.moved.tolist()),
-                                      moved_to=tuple(regions.ids[r] for r in answer.moved_to.tolist()))
+    return wire.TrackResets.unchecked(**{**{f.name: getattr(msg, f.name) for f in dataclasses.fields(msg)},
+                                         "region": regions.ids[region], "held": tuple(answer.held.tolist()),
+                                         "moved": tuple(answer.moved.tolist()),
+                                         "moved_to": tuple(regions.ids[r] for r in answer.moved_to.tolist())})
 
 
 def answer_from_wire(msg: wire.TrackResets, regions: Regions) -> tuple[int, RegionAnswer]:
