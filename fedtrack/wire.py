@@ -743,15 +743,21 @@ class TrackPicture(_Record):
     # names the region that processed each entry of the fused lists (each region's in its order)
     handovers: tuple[int, ...] = ()
     regions: tuple[str, ...] = ()
+    # a region centre's picture: the positions of the tracks it handed over shortly before (shown
+    # until their new owner shows them) and the data time of each hand-over
+    in_flight: tuple[int, ...] = ()
+    in_flight_t: tuple[float, ...] = ()
 
     _fields = {"seq": _count, "t": _real, "ids": _counts, "x": _batch, "P": _batch, "confirmed": _flags,
                "sensors": _id_lists, "ca": _flags, "maneuvering": _counts, "maneuver": _optional(_batch),
                "fused_sensors": lambda v, p: _identifier_list(v, p, MAX_TRACKS),
                "fused_seqs": _counts, "stamp_ns": _count, "closing": _flag, "left": _counts, "contested": _flag,
                "existence": _optional(_vector), "lla": _optional(_batch),
-               "handovers": _counts, "regions": lambda v, p: _identifier_list(v, p, MAX_TRACKS)}
+               "handovers": _counts, "regions": lambda v, p: _identifier_list(v, p, MAX_TRACKS),
+               "in_flight": _counts, "in_flight_t": lambda v, p: tuple(
+                   _real(x, f"{p}[{i}]") for i, x in enumerate(_sequence(v, p, MAX_TRACKS)))}
     _arrays = ("x", "P", "maneuver", "existence", "lla")
-    _omitted = ("handovers", "regions")
+    _omitted = ("handovers", "regions", "in_flight", "in_flight_t")
 
     def _check(self) -> None:
         n = len(self.ids)
@@ -775,6 +781,9 @@ class TrackPicture(_Record):
             raise WireError("handovers", "expected distinct positions in the fused lists, none a departure")
         if len(self.regions) not in (0, len(self.fused_seqs)):
             raise WireError("regions", "expected none or one for each entry of the fused lists")
+        if (len(set(self.in_flight)) != len(self.in_flight) or any(i >= n for i in self.in_flight)
+                or len(self.in_flight_t) != len(self.in_flight)):
+            raise WireError("in_flight", f"expected distinct positions among the {n} tracks, each with its time")
         if self.closing and n:
             raise WireError("ids", "a closing record has no tracks")
         _check_probabilities(self.existence, n)

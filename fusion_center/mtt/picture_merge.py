@@ -27,8 +27,10 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from fedtrack.config import ConfigError
-from fedtrack.fusion_center.mtt.regional import merge_pictures
+from fedtrack.fusion_center.mtt.regional import RegionPicture, merge_pictures, rows_of
 from fedtrack.fusion_center.mtt.service import picture_message, picture_tracks
 from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
@@ -42,6 +44,17 @@ def entries_of(msg: TrackPicture, region: str) -> Entries:
     left, handovers = set(msg.left), set(msg.handovers)
     return [(s, q, "left" if i in left else "handover" if i in handovers else "scan", region)
             for i, (s, q) in enumerate(zip(msg.fused_sensors, msg.fused_seqs))]
+
+
+def region_picture_of(msg: TrackPicture) -> RegionPicture:
+    """A region centre's picture: its held tracks and its copies of tracks in flight."""
+    tracks = picture_tracks(msg)
+    if not msg.in_flight:
+        return RegionPicture(tracks)
+    flying = np.zeros(len(msg.ids), dtype=bool)
+    flying[list(msg.in_flight)] = True
+    order = np.argsort(msg.in_flight)
+    return RegionPicture(rows_of(tracks, ~flying), rows_of(tracks, flying), [msg.in_flight_t[k] for k in order.tolist()])
 
 
 class PictureMergeService(Service):
@@ -103,7 +116,7 @@ class PictureMergeService(Service):
 
     def _publish(self, T: float, parts: list[TrackPicture | None], contested: bool = False,
                  closing: bool = False) -> None:
-        tracks, twice = merge_pictures([None if p is None else picture_tracks(p) for p in parts], self.dim)
+        tracks, twice = merge_pictures([None if p is None else region_picture_of(p) for p in parts], self.dim)
         if twice:
             self.count("seen_twice", len(twice))
             self.log.warning("picture at t=%g: ids %s in two regions' pictures (the first region's taken)", T, twice)

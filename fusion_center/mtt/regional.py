@@ -22,7 +22,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from fedtrack.fusion_center.mtt.centre import HandOver
+from fedtrack.fusion_center.mtt.centre import HandOver, TrackToTrackCentre
 from fedtrack.fusion_center.mtt.engines import Engine, PictureTracks, centre_picture, no_tracks, union_picture
 from fedtrack.fusion_center.mtt.engines import PictureClock
 from fedtrack.fusion_center.mtt.shards import RegionCentre
@@ -34,23 +34,51 @@ from fedtrack.local_filters.mtt.scan import SensorLeft, SensorScan, parse_line
 from fedtrack.local_filters.regions import Regions
 
 
+class RegionPicture(NamedTuple):
+    """A region centre's picture: the tracks it holds, and copies of the ones it handed over within
+    ``IN_FLIGHT_PERIODS`` picture periods before (``flying``, each with the data time of its hand-over),
+    shown in the merged picture while no region shows the track as its own."""
+
+    held: PictureTracks
+    flying: PictureTracks | None = None
+    flying_t: list[float] = []
+
+
+# A handed-over track's copy is shown by its old owner for pictures up to this many periods after the
+# hand-over: a picture made by the old owner after it and by the new owner before the track arrived
+# (each makes a picture when the first data after its time arrives) still shows it. The new owner
+# takes it over milliseconds after, so two periods cover it; a track deleted by its new owner right
+# after a hand-over is shown that long at most.
+IN_FLIGHT_PERIODS = 2.0
+
+
 @dataclass
 class RegionEngine(Engine):
-    """One region's centre (:class:`RegionCentre`) as the live service and the replay run it."""
+    """One region's centre (:class:`RegionCentre`) as the live service and the replay run it, with
+    the copies of the tracks it handed over lately (:class:`RegionPicture`)."""
 
     feedback: bool = True
     regions: Regions | None = None
     index: int = 0
     region: RegionCentre = field(init=False)
+    shadow: TrackToTrackCentre = field(init=False)  # the tracks handed over lately, as they left
+    handed_t: dict[int, float] = field(default_factory=dict)  # their ids -> data time of the hand-over
 
     def __post_init__(self) -> None:
         assert self.regions is not None
         self.region = RegionCentre(self.cfg, self.dim, self.feedback, self.regions, self.index)
+        self.shadow = TrackToTrackCentre(self.cfg, self.dim, self.feedback)
 
     def answer(self, report: LocalReport, elsewhere: np.ndarray
                ) -> tuple[RegionAnswer, list[tuple[int, int, HandOver]]]:
         self.scans += 1
-        return self.region.answer(report, elsewhere)
+        answer, moving = self.region.answer(report, elsewhere)
+        for _, _, record in moving:
+            if record.id in self.handed_t:
+                self.shadow.hand_over(record.id)
+            self.shadow.take_over(record)
+            self.handed_t[record.id] = report.t
+        return answer, moving
 
     def take_over(self, record: HandOver) -> None:
         self.region.take_over(record)
@@ -61,13 +89,28 @@ class RegionEngine(Engine):
     def picture(self, T: float) -> PictureTracks:
         return centre_picture(self.region.centre, T) or no_tracks(self.dim)
 
+    def region_picture(self, T: float) -> RegionPicture:
+        """The held tracks and the copies still shown (those handed over within
+        ``IN_FLIGHT_PERIODS`` periods before ``T``, not held here again) predicted to ``T``."""
+        for cid, t in list(self.handed_t.items()):
+            if T >= t + IN_FLIGHT_PERIODS * self.cfg.period:
+                self.shadow.hand_over(cid)
+                del self.handed_t[cid]
+        held = self.picture(T)
+        flying = centre_picture(self.shadow, T)
+        if flying is None:
+            return RegionPicture(held)
+        keep = ~np.isin(flying.ids, held.ids)
+        flying = flying if keep.all() else rows_of(flying, keep)
+        return RegionPicture(held, flying, [self.handed_t[i] for i in flying.ids])
+
     def counters(self) -> dict[str, int]:
         r = self.region
         return {**super().counters(), **{f"centre_{k}": v for k, v in vars(r.centre.counters).items()},
                 "handed_over": r.handed_over, "taken_over": r.taken_over, "in_flight": r.in_flight}
 
 
-def _rows(p: PictureTracks, keep: np.ndarray) -> PictureTracks:
+def rows_of(p: PictureTracks, keep: np.ndarray) -> PictureTracks:
     """The tracks ``keep`` (bool) of a picture."""
     pick = np.flatnonzero(keep).tolist()
     return PictureTracks([p.ids[i] for i in pick], p.x[keep], p.P[keep], [p.confirmed[i] for i in pick],
@@ -76,20 +119,32 @@ def _rows(p: PictureTracks, keep: np.ndarray) -> PictureTracks:
                          None if p.existence is None else [p.existence[i] for i in pick])
 
 
-def merge_pictures(parts: list[PictureTracks | None], dim: int) -> tuple[PictureTracks, list[int]]:
+def merge_pictures(parts: list[RegionPicture | None], dim: int) -> tuple[PictureTracks, list[int]]:
     """The regions' pictures of one time (in region order; None: the region has none) as one, in
-    increasing id; an id in two regions' pictures (a hand-over between their pictures) is taken from
-    the first region. Returns it and the ids seen twice."""
+    increasing id: every held track, an id held in two regions' pictures (a hand-over between their
+    pictures) from the first region; then the handed-over copies of ids no region holds, the latest
+    hand-over's. Returns it and the ids held twice."""
     seen: set[int] = set()
     twice: list[int] = []
     kept: list[PictureTracks | None] = []
     for p in parts:
         if p is None:
             continue
-        keep = np.array([i not in seen for i in p.ids], dtype=bool)
-        twice += [i for i, k in zip(p.ids, keep.tolist()) if not k]
-        seen.update(p.ids)
-        kept.append(p if keep.all() else _rows(p, keep))
+        keep = np.array([i not in seen for i in p.held.ids], dtype=bool)
+        twice += [i for i, k in zip(p.held.ids, keep.tolist()) if not k]
+        seen.update(p.held.ids)
+        kept.append(p.held if keep.all() else rows_of(p.held, keep))
+    latest: dict[int, tuple[float, int]] = {}  # id -> (hand-over time, region position in parts)
+    for k, p in enumerate(parts):
+        if p is not None and p.flying is not None:
+            for i, t in zip(p.flying.ids, p.flying_t):
+                if i not in seen and t > latest.get(i, (-np.inf, 0))[0]:
+                    latest[i] = (t, k)
+    for k, p in enumerate(parts):
+        if p is not None and p.flying is not None:
+            keep = np.array([latest.get(i, (0.0, -1))[1] == k for i in p.flying.ids], dtype=bool)
+            if keep.any():
+                kept.append(rows_of(p.flying, keep))
     return union_picture(kept, dim), twice
 
 
@@ -171,7 +226,7 @@ def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions
                 firsts.add((scan.sensor, seq))
                 trackers.setdefault(scan.sensor, _Tracker([], RegionRouter(regions))).scans.append(entry)
     outbox: dict[tuple[int, int], HandOver] = {}
-    shown: list[dict[float, PictureTracks]] = [{} for _ in range(R)]
+    shown: list[dict[float, RegionPicture]] = [{} for _ in range(R)]
     index = {rid: r for r, rid in enumerate(regions.ids)}
 
     def report_of(sensor: str, seq: int) -> _Tracker | None:
@@ -202,7 +257,7 @@ def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions
             if tr is None:
                 return False
             for T in clocks[r].due(scan.t):
-                shown[r][T] = engines[r].picture(T)
+                shown[r][T] = engines[r].region_picture(T)
             answer, moving = engines[r].answer(*tr.parts[r])
             outbox.update(((r, serial), record) for _, serial, record in moving)
             tr.answers[r] = answer
@@ -227,7 +282,7 @@ def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions
                              f"or a hand-over that no region made first): {'; '.join(stuck)}")
     for r in range(R):
         for T in clocks[r].final():
-            shown[r][T] = engines[r].picture(T)
+            shown[r][T] = engines[r].region_picture(T)
     counts.update({"scans": len(firsts), "late": 0, "duplicates": 0, "rerun": 0})
     for e in engines:
         for k, v in e.counters().items():

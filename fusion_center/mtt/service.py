@@ -53,6 +53,7 @@ from fedtrack.fusion_center.mtt.engines import (
     PictureTracks,
     TrackToTrackEngine,
     no_tracks,
+    union_picture,
 )
 from fedtrack.fusion_center.mtt.regional import RegionEngine
 from fedtrack.fusion_center.mtt.shards import handover_from_wire, handover_to_wire
@@ -258,10 +259,18 @@ class MttCentreService(Service):
 
     def _picture(self, T: float, closing: bool = False) -> TrackPicture:
         """The next picture, at ``T`` (it lists the scans since the previous one)."""
-        tracks = no_tracks(self.dim) if closing else self.engine.picture(T)
+        flying: dict[int, float] = {}
+        if closing:
+            tracks = no_tracks(self.dim)
+        elif isinstance(self.engine, RegionEngine):  # its tracks and the copies of those it handed over lately
+            shown = self.engine.region_picture(T)
+            tracks = union_picture([shown.held, shown.flying], self.dim)
+            flying = dict(zip(shown.flying.ids, shown.flying_t)) if shown.flying is not None else {}
+        else:
+            tracks = self.engine.picture(T)
         require_finite(f"the picture at t={T}", tracks.x, tracks.P)
         picture = picture_message(self.pictures, T, tracks, self.order, self.left_at, self.contested, closing,
-                                  self.handovers_at,
+                                  self.handovers_at, flying=flying,
                                   lla=None if self.frame is None else geodetic_of_states(self.frame, tracks.x))
         self.pictures += 1
         self.order, self.left_at, self.contested, self.handovers_at = [], [], False, []
@@ -284,10 +293,12 @@ class MttCentreService(Service):
 
 def picture_message(seq: int, T: float, tracks: PictureTracks, order: list[tuple[str, int]], left: list[int],
                     contested: bool, closing: bool = False, handovers: list[int] | tuple[int, ...] = (),
-                    regions: tuple[str, ...] = (), lla: np.ndarray | None = None) -> TrackPicture:
+                    regions: tuple[str, ...] = (), lla: np.ndarray | None = None,
+                    flying: dict[int, float] | None = None) -> TrackPicture:
     """The ``TrackPicture`` of ``tracks`` at ``T``, listing the entries ``order`` processed since the
     previous one (``left``, ``handovers``: the positions that are departures and hand-overs taken
-    over; ``regions``: each entry's region, in a merged picture; ``lla``: the tracks on the Earth)."""
+    over; ``regions``: each entry's region, in a merged picture; ``lla``: the tracks on the Earth;
+    ``flying``: the ids of a region centre's copies of tracks it handed over, with the hand-overs' times)."""
     d = tracks.x.shape[1]
     ca = tuple(model == "ca" for model in tracks.models)
     maneuvering = tracks.maneuver_rows()
@@ -298,7 +309,9 @@ def picture_message(seq: int, T: float, tracks: PictureTracks, order: list[tuple
         stamp_ns=time.time_ns(), closing=closing, left=tuple(left), ca=ca if any(ca) else (),
         maneuvering=tuple(maneuvering), maneuver=None if tracks.maneuver is None else tracks.maneuver[maneuvering],
         contested=contested, existence=None if tracks.existence is None else np.array(tracks.existence), lla=lla,
-        handovers=tuple(handovers), regions=regions)
+        handovers=tuple(handovers), regions=regions,
+        in_flight=tuple(k for k, i in enumerate(tracks.ids) if flying and i in flying),
+        in_flight_t=tuple(flying[i] for i in tracks.ids if flying and i in flying))
 
 
 def picture_tracks(msg: TrackPicture) -> PictureTracks:
