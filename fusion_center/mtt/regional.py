@@ -36,8 +36,9 @@ from fedtrack.local_filters.regions import Regions
 
 class RegionPicture(NamedTuple):
     """A region centre's picture: the tracks it holds, and copies of the ones it handed over within
-    ``IN_FLIGHT_PERIODS`` picture periods before (``flying``, each with the data time of its hand-over),
-    shown in the merged picture while no region shows the track as its own."""
+    ``IN_FLIGHT_PERIODS`` picture periods before (``flying``, each with the latest data time the
+    centre had seen at its hand-over: reports from several sensors come out of time order), shown
+    in the merged picture while no region shows the track as its own."""
 
     held: PictureTracks
     flying: PictureTracks | None = None
@@ -62,7 +63,8 @@ class RegionEngine(Engine):
     index: int = 0
     region: RegionCentre = field(init=False)
     shadow: TrackToTrackCentre = field(init=False)  # the tracks handed over lately, as they left
-    handed_t: dict[int, float] = field(default_factory=dict)  # their ids -> data time of the hand-over
+    handed_t: dict[int, float] = field(default_factory=dict)  # their ids -> the latest data time at the hand-over
+    high: float = -np.inf  # the latest data time of the sub-reports so far
 
     def __post_init__(self) -> None:
         assert self.regions is not None
@@ -72,12 +74,13 @@ class RegionEngine(Engine):
     def answer(self, report: LocalReport, elsewhere: np.ndarray
                ) -> tuple[RegionAnswer, list[tuple[int, int, HandOver]]]:
         self.scans += 1
+        self.high = max(self.high, report.t)
         answer, moving = self.region.answer(report, elsewhere)
         for _, _, record in moving:
             if record.id in self.handed_t:
                 self.shadow.hand_over(record.id)
             self.shadow.take_over(record)
-            self.handed_t[record.id] = report.t
+            self.handed_t[record.id] = self.high
         return answer, moving
 
     def take_over(self, record: HandOver) -> None:
