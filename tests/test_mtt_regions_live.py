@@ -151,3 +151,51 @@ def test_region_centres_over_zenoh_equal_the_replay_of_their_recording(tmp_path:
     assert all(svc.counters.get("rejected", 0) == 0 for svc in everyone)
     live = [json.loads(x) for x in (tmp_path / "out" / "tracks.jsonl").read_text().splitlines()]
     check(tmp_path, algorithm, config, live)
+
+
+LAUNCH = """
+[deployment]
+name = "regionlaunch{port}"
+seed = 4
+pacing = "realtime"
+speed = 4.0
+router_listen = "tcp/127.0.0.1:{port}"
+ready_timeout_s = 60.0
+
+[multitarget]
+algorithm = "mtt-federated"
+targets = 10
+sensors = "pos:1.0,pos:0.7,pos:1.3"
+duration = 12.0
+clutter = 3.0
+
+[mtt]
+clutter_density = 1.2e-7
+sensors = ["s1", "s2", "s3"]
+
+[regions]
+margin = 500.0
+grid = {{origin = [-5000.0, -5000.0], cell = [5000.0, 10000.0], nx = 2, ny = 1}}
+"""
+
+
+def test_launch_starts_a_centre_per_region_and_the_merger(tmp_path: Path) -> None:
+    """``fedtrack launch`` with ``[regions]``: every role a process; the recorded merged pictures
+    equal ``replay --regions config`` of the recording."""
+    import subprocess
+    import sys
+
+    config = tmp_path / "regions.toml"
+    config.write_text(LAUNCH.format(port=free_port()))
+    out = tmp_path / "out"
+    proc = subprocess.run([sys.executable, "-m", "fedtrack.cli", "launch", str(config), "--out", str(out)],
+                          capture_output=True, text=True, timeout=180)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summary = json.loads((out / "summary.json").read_text())
+    assert {"mtt-centre/x0y0", "mtt-centre/x1y0", "picture/picture"} <= set(summary["exit_codes"])
+    assert set(summary["exit_codes"].values()) == {0} and summary["rejected"] == 0
+    live = [json.loads(x) for x in (out / "tracks.jsonl").read_text().splitlines()]
+    replayed = tmp_path / "replayed.jsonl"
+    replay_mtt("mtt-federated", out / "measurements.jsonl", config, replayed, regions="config")
+    assert_same_pictures(live, [json.loads(x) for x in replayed.read_text().splitlines()])
+    assert len(live) >= 8 and summary["health"]["picture/picture"]["pictures"] == len(live) + 1  # + closing
