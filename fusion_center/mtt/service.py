@@ -249,8 +249,10 @@ class MttCentreService(Service):
             record = handover_from_wire(msg, engine.region.centre)
         except ValueError as exc:
             raise Rejected("wrong_model", str(exc)) from None
-        if msg.id in engine.region.centre.tracks:
-            raise Rejected("conflict", f"central track {msg.id} is already here")
+        centre, R, here = engine.region.centre, len(engine.regions.ids), engine.index
+        if msg.id in centre.tracks or (msg.id % R == here and msg.id >= centre.next_id):
+            raise Rejected("conflict", f"central track {msg.id} is already here, or is an id this region has "
+                                       "not issued")
         engine.take_over(record)
         self.taken.add((msg.source, msg.serial))
         self.handovers_at.append(len(self.order))

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from fedtrack import wire
+from fedtrack.fusion_center.mtt.central_track import MAX_ENTRIES
 from fedtrack.fusion_center.mtt.centre import Counters, HandOver, LocalKey, TrackToTrackCentre
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import LocalReport, Resets
@@ -143,14 +144,22 @@ def handover_from_wire(msg: wire.HandOver, centre: TrackToTrackCentre) -> HandOv
         raise ValueError(f"ring: {msg.ring.shape[1]} values per entry and a window of {len(msg.window)} do not fit "
                          f"this centre's {sum(widths)} and {centre.cfg.confirm_window}")
     n = msg.ring.shape[0]
+    if n > MAX_ENTRIES:
+        raise ValueError(f"ring: {n} entries, at most {MAX_ENTRIES}")
     ring = np.array(msg.ring)
     ring.flat[list(msg.neg_inf)] = -np.inf
     entries, at = [], 0
     for name, shape, width in zip(tracks._ring, shapes, widths):
         dtype = getattr(tracks, name).dtype
         part = ring[:, at:at + width].reshape((n,) + shape)
-        entries.append(part.astype(dtype) if dtype != np.float64 else part)
+        if dtype != np.float64:  # counts (an observation's size, the detector's samples): small integers
+            if not np.all((part == np.round(part)) & (np.abs(part) <= MAX_ENTRIES)):
+                raise ValueError(f"ring: {name} must hold small integers")
+            part = part.astype(dtype)
+        entries.append(part)
         at += width
+    if not (np.all(entries[3] >= 0) and np.all(entries[3] <= tracks.H.shape[2]) and np.all(np.diff(entries[0]) >= 0)):
+        raise ValueError("ring: observation sizes out of range or entries out of time order")
     return HandOver(msg.id, msg.confirmed, tuple(entries), msg.sensors, np.array(msg.support, dtype=np.int64),
                     np.array(msg.streak, dtype=np.int64), np.array(msg.window, dtype=bool), msg.last_support,
                     tuple(zip(msg.member_sensors, msg.member_ids)), msg.strikes)
