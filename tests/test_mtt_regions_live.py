@@ -199,3 +199,39 @@ def test_launch_starts_a_centre_per_region_and_the_merger(tmp_path: Path) -> Non
     replay_mtt("mtt-federated", out / "measurements.jsonl", config, replayed, regions="config")
     assert_same_pictures(live, [json.loads(x) for x in replayed.read_text().splitlines()])
     assert len(live) >= 8 and summary["health"]["picture/picture"]["pictures"] == len(live) + 1  # + closing
+
+
+@pytest.mark.parametrize("extra", [{"maneuver": "vdie"}, {"process_noise": "imm"}])
+def test_a_hand_over_crosses_the_wire_exactly(tmp_path: Path, extra: dict[str, str]) -> None:
+    """A central track's record (maneuver detector banks with their minus infinities, or the two
+    motion modes) encoded, decoded and placed in another centre is the track it was, to the bit; a
+    record that does not fit the receiving centre is refused."""
+    import dataclasses
+
+    import numpy as np
+
+    from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
+    from fedtrack.fusion_center.mtt.engines import TrackToTrackEngine
+    from fedtrack.fusion_center.mtt.shards import handover_from_wire, handover_to_wire
+    from fedtrack.local_filters.mtt.scan import parse_line
+    from fedtrack.wire import decode
+
+    msgs, cfg, _ = scenario(tmp_path)
+    cfg = dataclasses.replace(cfg, **extra)
+    engine = TrackToTrackEngine(cfg, 4, feedback=True)
+    lines = (tmp_path / "scenario" / "measurements.jsonl").read_text().splitlines()[:60]
+    for line in lines:
+        engine.ingest(parse_line(json.loads(line), "test"))
+    a = engine.centre
+    assert isinstance(a, TrackToTrackCentre)
+    cid = max(a.tracks, key=lambda c: len(a.members.get(c, ())))
+    record = a.hand_over(cid)
+    back = handover_from_wire(decode(encode(handover_to_wire(record, "x0y0", 7)), HandOver), a)
+    assert back.members == record.members and back.strikes == record.strikes and back.sensors == record.sensors
+    for x, y in zip(record.entries, back.entries):
+        assert x.dtype == y.dtype and np.array_equal(x, y)
+    assert np.array_equal(back.support, record.support) and np.array_equal(back.window, record.window)
+    other = TrackToTrackCentre(cfg if "maneuver" not in extra else dataclasses.replace(cfg, maneuver="off"), 4, True)
+    if "maneuver" in extra:
+        with pytest.raises(ValueError, match="do not fit"):
+            handover_from_wire(handover_to_wire(record, "x0y0", 7), other)
