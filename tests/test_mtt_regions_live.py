@@ -235,3 +235,31 @@ def test_a_hand_over_crosses_the_wire_exactly(tmp_path: Path, extra: dict[str, s
     if "maneuver" in extra:
         with pytest.raises(ValueError, match="do not fit"):
             handover_from_wire(handover_to_wire(record, "x0y0", 7), other)
+
+
+def test_one_region_live_equals_the_unsharded_replay(tmp_path: Path) -> None:
+    """With one region, the live region centre, its tracker routing and the merge give the
+    unsharded centre's pictures: ``replay`` without regions of the recorded scans (their region
+    tags dropped) equals them, ids included."""
+    msgs, cfg, config = scenario(tmp_path)
+    config.write_text(CONFIG.replace("cell = [5000.0, 10000.0], nx = 2", "cell = [10000.0, 10000.0], nx = 1"))
+    centres, local, merger, recorder = services(tmp_path, "mtt-federated", config, cfg,
+                                                {"options": OPTIONS, "deployment": "hostile"})
+    recorder.on_start()
+    bus = Bus([*centres, *local, merger, recorder])
+    for m in msgs:
+        bus.put(Keys("hostile").sensor_meas(m.sensor), encode(m))
+    for svc in [*local, *centres, merger]:
+        svc.on_stop()
+        bus.drain()
+    recorder.on_stop()
+    out = tmp_path / "out"
+    plain = tmp_path / "plain.jsonl"
+    lines = [json.loads(x) for x in (out / "measurements.jsonl").read_text().splitlines()]
+    plain.write_text("".join(json.dumps({k: v for k, v in x.items() if k not in ("region", "seq")}) + "\n"
+                             for x in lines))
+    replayed = tmp_path / "replayed.jsonl"
+    replay_mtt("mtt-federated", plain, config, replayed)
+    live = [json.loads(x) for x in (out / "tracks.jsonl").read_text().splitlines()]
+    assert len(live) >= 25
+    assert_same_pictures(live, [json.loads(x) for x in replayed.read_text().splitlines()])
