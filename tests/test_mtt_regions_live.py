@@ -263,3 +263,29 @@ def test_one_region_live_equals_the_unsharded_replay(tmp_path: Path) -> None:
     live = [json.loads(x) for x in (out / "tracks.jsonl").read_text().splitlines()]
     assert len(live) >= 25
     assert_same_pictures(live, [json.loads(x) for x in replayed.read_text().splitlines()])
+
+
+def test_copies_of_tracks_handed_over_expire_even_when_they_share_a_local_track(tmp_path: Path) -> None:
+    """Two tracks handed over shortly one after the other with a local track moved between them
+    (it is a member of the later copy only): both copies are shown, then expire, without error
+    (a region centre once failed on every report after this)."""
+    from fedtrack.fusion_center.mtt.engines import TrackToTrackEngine
+    from fedtrack.fusion_center.mtt.regional import RegionEngine
+    from fedtrack.local_filters.mtt.scan import parse_line
+
+    _, cfg, config = scenario(tmp_path)
+    engine = TrackToTrackEngine(cfg, 4, feedback=True)
+    for line in (tmp_path / "scenario" / "measurements.jsonl").read_text().splitlines()[:60]:
+        engine.ingest(parse_line(json.loads(line), "test"))
+    c = engine.centre
+    a, b = sorted(c.tracks, key=lambda cid: -len(c.members.get(cid, ())))[:2]
+    first = c.hand_over(a)
+    second = c.hand_over(b)
+    second = second._replace(members=second.members + first.members[:1], strikes=second.strikes + (0,))
+    region = RegionEngine(cfg, 4, feedback=True, regions=load_regions(config), index=0)
+    region.high = 10.0
+    region.remember(first)
+    region.remember(second)
+    shown = region.region_picture(10.0).flying
+    assert shown is not None and sorted(shown.ids) == sorted([a, b])
+    assert region.region_picture(10.0 + 2 * cfg.period).flying is None and not region.handed_t

@@ -77,11 +77,17 @@ class RegionEngine(Engine):
         self.high = max(self.high, report.t)
         answer, moving = self.region.answer(report, elsewhere)
         for _, _, record in moving:
-            if record.id in self.handed_t:
-                self.shadow.hand_over(record.id)
-            self.shadow.take_over(record)
-            self.handed_t[record.id] = self.high
+            self.remember(record)
         return answer, moving
+
+    def remember(self, record: HandOver) -> None:
+        """Keep a copy of a track handed over (shown by :meth:`region_picture` for a while)."""
+        if record.id in self.handed_t:
+            self.shadow.hand_over(record.id)
+        for key in record.members:  # a local track is a member of its latest copy only
+            self.shadow._unmap(key)
+        self.shadow.take_over(record)
+        self.handed_t[record.id] = self.high
 
     def take_over(self, record: HandOver) -> None:
         self.region.take_over(record)
