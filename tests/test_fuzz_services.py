@@ -1,7 +1,8 @@
 """Fuzzing every decoder and handler of every service with a fast seeded mutation generator over
 valid encodings: at least 10,000 payloads per message type, 0 escapes.
 
-The paper pipeline and the multi-target deployment run in-process on the bus of
+The paper pipeline, the multi-target deployment and its region centres (their ``HandOver`` s) run
+in-process on the bus of
 ``test_hostile_messages`` (each service through its own dispatch: bounded decode, sender check,
 guarded handler). After each genuine message, mutations of it (10,000 per type in all) are published on
 its key, so they reach every service subscribed to it (a measurement: the local filter, the IMM
