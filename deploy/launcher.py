@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import ctypes
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -526,6 +527,8 @@ def prepare_launcher(settings: Settings, config_path: Path, out_dir: Path, quiet
     if settings.multitarget is not None:
         check_multitarget(settings, config_path)
         prepare(settings, out_dir)
+        if config_path.resolve() != (out_dir / "config.toml").resolve():  # ``demo`` writes it there itself
+            shutil.copyfile(config_path, out_dir / "config.toml")  # what ``replay --config OUT/config.toml`` reads
     plan = service_plan(settings, config_path, out_dir, out_dir / "logs")
     monitor_config = apply_zenoh_settings(settings, config_path, out_dir, plan)
     return Launcher(settings, plan, quiet=quiet, zenoh_config=monitor_config)

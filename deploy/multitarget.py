@@ -10,7 +10,9 @@ sensor id publishing its own scans at their own times (``serve sensor --kind sca
 pacing, ``[deployment] speed`` times real time). After the run: ``measurements.jsonl`` (the
 scans in the centre's processing order) and ``tracks.jsonl`` (one picture a line) from the
 recorder, ``truth.jsonl``, ``summary.json`` (GOSPA and the rest of ``fedtrack evaluate``,
-latency, counters, exit codes) and ``tracks.png``.
+latency, counters, exit codes, every process's peak RSS and CPU seconds), ``tracks.png`` and
+``config.toml`` (a copy of the launch config: ``replay --config OUT/config.toml`` of the
+recording, ``--regions config`` with ``[regions]``).
 """
 
 from __future__ import annotations
@@ -195,7 +197,7 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Se
     summary: dict[str, Any] = {"pictures": 0, "exit_codes": report.exit_codes, "restarts": report.restarts,
                                "rejected": report.rejected(), "health": report.health, "wall_s": report.wall_s,
                                "processes": report.processes}
-    written = "measurements.jsonl tracks.jsonl truth.jsonl summary.json tracks.png"
+    written = "measurements.jsonl tracks.jsonl truth.jsonl summary.json tracks.png config.toml"
     if tracks.is_file() and tracks.stat().st_size:
         result = evaluate(tracks, truth, horizontal=settings.frame is not None)
         png = out / "tracks.png"

@@ -196,7 +196,7 @@ def test_launch_starts_a_centre_per_region_and_the_merger(tmp_path: Path) -> Non
     assert set(summary["exit_codes"].values()) == {0} and summary["rejected"] == 0
     live = [json.loads(x) for x in (out / "tracks.jsonl").read_text().splitlines()]
     replayed = tmp_path / "replayed.jsonl"
-    replay_mtt("mtt-federated", out / "measurements.jsonl", config, replayed, regions="config")
+    replay_mtt("mtt-federated", out / "measurements.jsonl", out / "config.toml", replayed, regions="config")
     assert_same_pictures(live, [json.loads(x) for x in replayed.read_text().splitlines()])
     assert len(live) >= 5 and summary["health"]["picture/picture"]["pictures"] == len(live) + 1  # + closing
 
