@@ -24,9 +24,9 @@ from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.scan import parse_scan, scan_to_measurement
 from fedtrack.local_filters.mtt.service import MttLocalService
 from fedtrack.local_filters.regions import load_regions
+from fedtrack.sensors.multitarget import Scenario, parse_spec, simulate
 from fedtrack.services.base import Service
 from fedtrack.services.recorder import Recorder
-from fedtrack.sensors.multitarget import Scenario, parse_spec, simulate
 from fedtrack.wire import HandOver, encode
 from fedtrack.zsession import SessionOptions, close_session, open_session, wait_alive
 
@@ -216,7 +216,7 @@ def test_a_hand_over_crosses_the_wire_exactly(tmp_path: Path, extra: dict[str, s
     from fedtrack.local_filters.mtt.scan import parse_line
     from fedtrack.wire import decode
 
-    msgs, cfg, _ = scenario(tmp_path)
+    _, cfg, _ = scenario(tmp_path)
     cfg = dataclasses.replace(cfg, **extra)
     engine = TrackToTrackEngine(cfg, 4, feedback=True)
     lines = (tmp_path / "scenario" / "measurements.jsonl").read_text().splitlines()[:60]

@@ -5,8 +5,8 @@ hand-overs keep ids and estimates, and GOSPA stays within 2 % of the unsharded r
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import orjson

@@ -54,7 +54,8 @@ def region_picture_of(msg: TrackPicture) -> RegionPicture:
     flying = np.zeros(len(msg.ids), dtype=bool)
     flying[list(msg.in_flight)] = True
     order = np.argsort(msg.in_flight)
-    return RegionPicture(rows_of(tracks, ~flying), rows_of(tracks, flying), [msg.in_flight_t[k] for k in order.tolist()])
+    return RegionPicture(rows_of(tracks, ~flying), rows_of(tracks, flying),
+                         tuple(msg.in_flight_t[k] for k in order.tolist()))
 
 
 class PictureMergeService(Service):

@@ -23,8 +23,14 @@ from typing import NamedTuple
 import numpy as np
 
 from fedtrack.fusion_center.mtt.centre import HandOver, TrackToTrackCentre
-from fedtrack.fusion_center.mtt.engines import Engine, PictureTracks, centre_picture, no_tracks, union_picture
-from fedtrack.fusion_center.mtt.engines import PictureClock
+from fedtrack.fusion_center.mtt.engines import (
+    Engine,
+    PictureClock,
+    PictureTracks,
+    centre_picture,
+    no_tracks,
+    union_picture,
+)
 from fedtrack.fusion_center.mtt.shards import RegionCentre
 from fedtrack.jsonl import InputError, read_jsonl
 from fedtrack.local_filters.mtt.config import MttConfig
@@ -42,7 +48,7 @@ class RegionPicture(NamedTuple):
 
     held: PictureTracks
     flying: PictureTracks | None = None
-    flying_t: list[float] = []
+    flying_t: tuple[float, ...] = ()
 
 
 # A handed-over track's copy is shown by its old owner for pictures up to this many periods after the
@@ -111,7 +117,7 @@ class RegionEngine(Engine):
             return RegionPicture(held)
         keep = ~np.isin(flying.ids, held.ids)
         flying = flying if keep.all() else rows_of(flying, keep)
-        return RegionPicture(held, flying, [self.handed_t[i] for i in flying.ids])
+        return RegionPicture(held, flying, tuple(self.handed_t[i] for i in flying.ids))
 
     def counters(self) -> dict[str, int]:
         r = self.region

@@ -62,6 +62,7 @@ from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
 from fedtrack.local_filters.mtt.local import report_from_wire, resets_to_wire
 from fedtrack.local_filters.mtt.routing import answer_to_wire
 from fedtrack.local_filters.mtt.scan import scan_from_measurement
+from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.services.base import (
     Conflict,
     ReceivedScans,
@@ -72,7 +73,6 @@ from fedtrack.services.base import (
     service_kwargs,
     service_parser,
 )
-from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.wire import HandOver, Measurement, TrackPicture, TrackReport
 
 ALGORITHMS = ("mtt-federated", "mtt-decentralized", "mtt-centralized")
