@@ -144,7 +144,8 @@ def membership_summary(out: Path, report: LaunchReport, settings: Settings) -> d
         if what == "killed":
             sensor = name.split("/", 1)[1]
             killed[sensor] = min(killed.get(sensor, when), when)
-    dropped = departures_logged(out / "logs" / "mtt-centre-centre.log")
+    logs = sorted((out / "logs").glob("mtt-centre-*.log"))  # the centre's, or every region centre's (the first)
+    dropped = departures_logged(logs[0]) if logs else {}
     summary: dict[str, Any] = {"joined": {}, "left": {}}
     for sensor, when in killed.items():
         summary["left"][sensor] = {"killed_at": when, "dropped_after_s": dropped[sensor] - when if sensor in dropped else None}
