@@ -821,7 +821,8 @@ class HandOver(_Record):
     strikes: tuple[int, ...]
 
     _fields = {"source": _identifier, "serial": _count, "id": _count, "confirmed": _flag, "ring": _batch,
-               "neg_inf": _counts, "sensors": _identifiers, "support": _counts, "streak": _counts,
+               "neg_inf": _counts, "sensors": lambda v, p: _identifier_list(v, p, MAX_TRACKS), "support": _counts,
+               "streak": _counts,
                "window": _flags, "last_support": _real,
                "member_sensors": lambda v, p: _identifier_list(v, p, MAX_TRACKS), "member_ids": _counts,
                "strikes": _counts}

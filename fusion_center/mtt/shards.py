@@ -126,10 +126,12 @@ def handover_to_wire(record: HandOver, source: str, serial: int) -> wire.HandOve
     ring = np.concatenate([np.asarray(a, dtype=np.float64).reshape(n, -1) for a in record.entries], axis=1)
     neg = np.flatnonzero(np.isneginf(ring))
     ring = np.where(np.isneginf(ring), 0.0, ring)
+    used = np.flatnonzero((record.support != 0) | (record.streak != 0))  # the sensors of the track (0 elsewhere)
     return wire.HandOver.unchecked(
         source=source, serial=serial, id=record.id, confirmed=record.confirmed, ring=ring,
-        neg_inf=tuple(neg.tolist()), sensors=record.sensors, support=tuple(record.support.tolist()),
-        streak=tuple(record.streak.tolist()), window=tuple(record.window.tolist()), last_support=record.last_support,
+        neg_inf=tuple(neg.tolist()), sensors=tuple(record.sensors[k] for k in used.tolist()),
+        support=tuple(record.support[used].tolist()), streak=tuple(record.streak[used].tolist()),
+        window=tuple(record.window.tolist()), last_support=record.last_support,
         member_sensors=tuple(s for s, _ in record.members), member_ids=tuple(i for _, i in record.members),
         strikes=record.strikes)
 
