@@ -293,3 +293,15 @@ def test_copies_of_tracks_handed_over_expire_even_when_they_share_a_local_track(
     shown = region.region_picture(10.0).flying
     assert shown is not None and sorted(shown.ids) == sorted([a, b])
     assert region.region_picture(10.0 + 2 * cfg.period).flying is None and not region.handed_t
+
+
+def test_a_region_recording_needs_its_regions(tmp_path: Path) -> None:
+    """A region run's recording replayed without ``--regions config`` is a one-line error naming it."""
+    from fedtrack.config import ConfigError
+
+    (tmp_path / "m.jsonl").write_text('{"t": 1.0, "region": "x0y0", "handover": 0, "from": "x1y0"}\n')
+    (tmp_path / "c.toml").write_text(CONFIG)
+    for regions in (None, "2x2"):
+        with pytest.raises(ConfigError, match="region run's recording"):
+            replay_mtt("mtt-federated", tmp_path / "m.jsonl", tmp_path / "c.toml", tmp_path / "p.jsonl", regions=regions)
+    assert not (tmp_path / "p.jsonl").exists()

@@ -135,7 +135,11 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
         raise ConfigError("--sensor ID is required by mtt-local and only by it")
     check_output(out)
     start = time.perf_counter()
-    if regions is not None and algorithm != "mtt-local" and is_region_recording(measurements):
+    recording = is_region_recording(measurements)
+    if recording and (regions is None or algorithm == "mtt-local"):
+        raise ConfigError(f"{measurements}: a live region run's recording (its lines name their region): replay it "
+                          "with --algorithm mtt-federated or mtt-decentralized --regions config")
+    if recording:
         # a live region run's recording: each region centre in its recorded order (regional.py)
         if regions != "config":
             raise ConfigError("--regions: a region run's recording replays with --regions config (its regions)")
