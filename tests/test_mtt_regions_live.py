@@ -305,3 +305,23 @@ def test_a_region_recording_needs_its_regions(tmp_path: Path) -> None:
         with pytest.raises(ConfigError, match="region run's recording"):
             replay_mtt("mtt-federated", tmp_path / "m.jsonl", tmp_path / "c.toml", tmp_path / "p.jsonl", regions=regions)
     assert not (tmp_path / "p.jsonl").exists()
+
+
+def test_without_regions_the_messages_carry_no_region_field() -> None:
+    """The region fields are left out while empty: an unsharded deployment's reports, resets and
+    pictures are the bytes they were before regions existed (and decode as before)."""
+    import numpy as np
+
+    from fedtrack.wire import TrackPicture, TrackReport, TrackResets, decode
+
+    report = TrackReport(sensor="s1", seq=1, t=1.0, ids=(0,), x=np.zeros((1, 4)), P=np.eye(4), confirmed=(True,),
+                         detected=(False,), obs_H=np.zeros((0, 4)), obs_R=np.zeros((0, 2)), obs_z=np.zeros((0, 2)),
+                         started=(), retired=(), stamp_ns=1)
+    resets = TrackResets(sensor="s1", seq=1, t=1.0, q_scale=2.0, ids=(0,), x=np.zeros((1, 4)), P=np.eye(4))
+    picture = TrackPicture(seq=0, t=1.0, ids=(0,), x=np.zeros((1, 4)), P=np.eye(4), confirmed=(True,),
+                           sensors=(("s1",),), fused_sensors=("s1",), fused_seqs=(1,), stamp_ns=1)
+    for msg in (report, resets, picture):
+        payload = encode(msg)
+        assert not any(name in payload for name in (b"elsewhere", b"held", b"moved", b"region", b"handovers",
+                                                     b"in_flight"))
+        assert encode(decode(payload, type(msg))) == payload
