@@ -86,8 +86,8 @@ def bench_scale(quick: bool) -> dict[str, Any]:
             out["runs"][n] = {
                 "grid": spec, "wall_s": wall, "routing_cpu_s": centre.routing_s, "hand_overs": centre.handed_over,
                 "cpu_s": centre.cpu_s, "max_cpu_s": max(centre.cpu_s),
-                "state_bytes": [len(pickle.dumps(c)) for c in centre.centres],
-                "tracks": [len(c.tracks) for c in centre.centres],
+                "state_bytes": [len(pickle.dumps(c.centre)) for c in centre.centres],
+                "tracks": [len(c.centre.tracks) for c in centre.centres],
                 "margin_share": margin_share(regions, last.x[:, [0, 2]]) if last.ids else 0.0,
                 "gospa": evaluate(path, sim / "truth.jsonl")["mean"]["gospa"]}
             print(f"bench scale: {n} regions: {wall:.1f} s, {centre.handed_over} hand-overs", flush=True)

@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import ctypes
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -47,6 +48,7 @@ from fedtrack.deploy.settings import Settings, check_launchable, load_settings
 from fedtrack.deployment import listen_address, port_in_use
 from fedtrack.jsonl import output_folder
 from fedtrack.keys import Keys
+from fedtrack.local_filters.regions import load_regions
 from fedtrack.wire import FusedTrack, Health, Measurement, TrackPicture, WireError, decode
 from fedtrack.zsession import SessionOptions, close_session, open_session, wait_alive
 
@@ -72,7 +74,7 @@ def describe_exit(code: int) -> str:
 
 
 USAGE_SAMPLE_S = 0.5  # how often the launcher samples its services' peak RSS and CPU time
-STOP_STAGE = {"fusion-center": 1, "mtt-centre": 1, "recorder": 2, "router": 3}  # others 0
+STOP_STAGE = {"fusion-center": 1, "mtt-centre": 1, "picture": 2, "recorder": 3, "router": 4}  # others 0
 
 
 class LaunchError(RuntimeError):
@@ -147,7 +149,8 @@ def service_plan(settings: Settings, config_path: Path, out_dir: Path, log_dir: 
         if "recorder" in dep.services:
             add("recorder", "recorder", ["--db", str(out_dir / "recording.db"), "--out", str(out_dir), *common])
         mt = settings.multitarget
-        for role, sid, args in service_args(settings, out_dir / SCENARIO_DIR / "measurements.jsonl"):
+        for role, sid, args in service_args(settings, out_dir / SCENARIO_DIR / "measurements.jsonl",
+                                            load_regions(config_path)):
             if role not in ("sensor", "mtt-local") or sid in here_mtt(settings):
                 add(role, sid, [*args, *cfg, *common])
                 if role in ("sensor", "mtt-local"):
@@ -308,13 +311,13 @@ class Launcher:
         """SIGTERM every child still running, stage by stage, SIGKILL after a grace period.
 
         Stages: sensors and local filters, then the fusion centres (whose last output, such as
-        a multi-target centre's final pictures, still reaches the recorder), then the
-        recorder, then the routers: their final Health (counters after the last line was
+        a multi-target centre's final pictures, still reaches the recorder), then the picture
+        merger of region centres, then the recorder, then the routers: their final Health (counters after the last line was
         written) still reaches the monitor, so the report's counters are final.
         """
         self._sample_usage()
         running = [sp for sp in reversed(self.plan) if sp.proc is not None and sp.proc.poll() is None]
-        stages = [[sp for sp in running if STOP_STAGE.get(sp.role, 0) == k] for k in range(4)]
+        stages = [[sp for sp in running if STOP_STAGE.get(sp.role, 0) == k] for k in range(max(STOP_STAGE.values()) + 1)]
         for group in stages:
             for sp in group:
                 sp.proc.send_signal(signal.SIGTERM)
@@ -524,6 +527,8 @@ def prepare_launcher(settings: Settings, config_path: Path, out_dir: Path, quiet
     if settings.multitarget is not None:
         check_multitarget(settings, config_path)
         prepare(settings, out_dir)
+        if config_path.resolve() != (out_dir / "config.toml").resolve():  # ``demo`` writes it there itself
+            shutil.copyfile(config_path, out_dir / "config.toml")  # what ``replay --config OUT/config.toml`` reads
     plan = service_plan(settings, config_path, out_dir, out_dir / "logs")
     monitor_config = apply_zenoh_settings(settings, config_path, out_dir, plan)
     return Launcher(settings, plan, quiet=quiet, zenoh_config=monitor_config)

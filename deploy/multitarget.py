@@ -3,13 +3,16 @@
 
 Before any process starts, the ``[multitarget]`` scenario is simulated into ``OUT/scenario/``
 (:func:`fedtrack.sensors.multitarget.simulate`: truth and every sensor's scans). Then, as
-separate processes: the router, the recorder, the centre (``serve mtt-centre``), one local
+separate processes: the router, the recorder, the centre (``serve mtt-centre``; with ``[regions]``
+one ``serve mtt-centre --region RID`` per region and ``serve picture``), one local
 tracker per sensor (``serve mtt-local``; none for ``mtt-centralized``) and one sensor per
 sensor id publishing its own scans at their own times (``serve sensor --kind scan``, realtime
 pacing, ``[deployment] speed`` times real time). After the run: ``measurements.jsonl`` (the
 scans in the centre's processing order) and ``tracks.jsonl`` (one picture a line) from the
 recorder, ``truth.jsonl``, ``summary.json`` (GOSPA and the rest of ``fedtrack evaluate``,
-latency, counters, exit codes) and ``tracks.png``.
+latency, counters, exit codes, every process's peak RSS and CPU seconds), ``tracks.png`` and
+``config.toml`` (a copy of the launch config: ``replay --config OUT/config.toml`` of the
+recording, ``--regions config`` with ``[regions]``).
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ from fedtrack.fusion_center.mtt.replay import read_scans, state_dim
 from fedtrack.geodetic import Frame
 from fedtrack.geojson import feature_collection
 from fedtrack.jsonl import InputError
+from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.sensors.multitarget import Scenario, SensorSpec, parse_spec, simulate
 from fedtrack.sensors.traffic import parse_kinds, read_recording
 from fedtrack.sensors.traffic import simulate as simulate_traffic
@@ -71,6 +75,8 @@ def check_multitarget(settings: Settings, path: Path) -> None:
                 raise ConfigError(f"multitarget.{key}.{stray[0]}: not a sensor of the scenario ({', '.join(ids)})")
         if mt.join_at and set(mt.join_at) >= set(ids):
             raise ConfigError("multitarget.join_at: at least one sensor must run from the start")
+        if load_regions(path) is not None and mt.algorithm == "mtt-centralized":
+            raise ConfigError("regions: region centres run mtt-federated or mtt-decentralized, not mtt-centralized")
 
 
 def prepare(settings: Settings, out: Path) -> Path:
@@ -88,14 +94,21 @@ def prepare(settings: Settings, out: Path) -> Path:
     return folder / "measurements.jsonl"
 
 
-def service_args(settings: Settings, measurements: Path) -> list[tuple[str, str, list[str]]]:
+def service_args(settings: Settings, measurements: Path, regions: Regions | None = None
+                 ) -> list[tuple[str, str, list[str]]]:
     """``(role, id, role arguments)`` of the deployment's multi-target services, in start order
-    (sensors last); the caller adds ``--config`` and the Zenoh options."""
+    (sensors last); the caller adds ``--config`` and the Zenoh options. With ``regions`` (the
+    config's ``[regions]``): one centre per region (``serve mtt-centre --region RID``, id the
+    region's) and the picture merger (``serve picture``) instead of the single centre."""
     mt = settings.multitarget
     assert mt is not None
     ids = sensor_ids(mt)
     dim = "6" if any(s.kind == "radar" for s in sensor_specs(mt)) else "4"
-    plan = [("mtt-centre", "centre", ["--algorithm", mt.algorithm, "--dim", dim])]
+    if regions is None:
+        plan = [("mtt-centre", "centre", ["--algorithm", mt.algorithm, "--dim", dim])]
+    else:
+        plan = [("mtt-centre", rid, ["--algorithm", mt.algorithm, "--dim", dim, "--region", rid]) for rid in regions.ids]
+        plan.append(("picture", "picture", ["--dim", dim]))
     if mt.algorithm != "mtt-centralized":
         mode = "federated" if mt.algorithm == "mtt-federated" else "decentralized"
         plan += [("mtt-local", s, ["--sensor", s, "--mode", mode]) for s in ids]
@@ -131,7 +144,8 @@ def membership_summary(out: Path, report: LaunchReport, settings: Settings) -> d
         if what == "killed":
             sensor = name.split("/", 1)[1]
             killed[sensor] = min(killed.get(sensor, when), when)
-    dropped = departures_logged(out / "logs" / "mtt-centre-centre.log")
+    logs = sorted((out / "logs").glob("mtt-centre-*.log"))  # the centre's, or every region centre's (the first)
+    dropped = departures_logged(logs[0]) if logs else {}
     summary: dict[str, Any] = {"joined": {}, "left": {}}
     for sensor, when in killed.items():
         summary["left"][sensor] = {"killed_at": when, "dropped_after_s": dropped[sensor] - when if sensor in dropped else None}
@@ -182,8 +196,9 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Se
     shutil.copyfile(out / SCENARIO_DIR / "truth.jsonl", truth)
     tracks = out / "tracks.jsonl"
     summary: dict[str, Any] = {"pictures": 0, "exit_codes": report.exit_codes, "restarts": report.restarts,
-                               "rejected": report.rejected(), "health": report.health, "wall_s": report.wall_s}
-    written = "measurements.jsonl tracks.jsonl truth.jsonl summary.json tracks.png"
+                               "rejected": report.rejected(), "health": report.health, "wall_s": report.wall_s,
+                               "processes": report.processes}
+    written = "measurements.jsonl tracks.jsonl truth.jsonl summary.json tracks.png config.toml"
     if tracks.is_file() and tracks.stat().st_size:
         result = evaluate(tracks, truth, horizontal=settings.frame is not None)
         png = out / "tracks.png"

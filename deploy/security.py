@@ -106,7 +106,7 @@ def check_transport(zenoh: ZenohSettings, dep: DeploymentConfig) -> None:
 
 
 SENSOR_ROLES = ("sensor", "local-filter", "mtt-local")  # run on the sensor's host, under its identity
-CENTRE_ROLES = ("fusion-center", "mtt-centre")  # identity ``fusion``
+CENTRE_ROLES = ("fusion-center", "mtt-centre", "picture")  # identity ``fusion``
 
 
 def identity(role: str, service_id: str) -> str:
@@ -121,10 +121,11 @@ def own_keys(keys: Keys, ident: str) -> list[str]:
     """The keys ``ident`` may publish on (health and liveliness of its roles included)."""
     if ident.startswith("sensor-"):
         sid = ident.removeprefix("sensor-")
-        data = [keys.sensor_meas(sid), keys.local_estimate(sid), keys.mtt_report(sid)]
+        data = [keys.sensor_meas(sid), keys.local_estimate(sid), keys.mtt_report(sid), keys.region_report(None, sid)]
         roles = [(role, sid) for role in SENSOR_ROLES]
     elif ident == "fusion":
-        data = [keys.fusion_track().rsplit("/", 1)[0] + "/**"]
+        data = [keys.fusion_track().rsplit("/", 1)[0] + "/**", keys.region_resets(), keys.region_handover(),
+                keys.region_picture()]
         roles = [(role, None) for role in CENTRE_ROLES]
     elif ident == LAUNCHER:
         return []

@@ -69,6 +69,7 @@ SERVICES: dict[str, str] = {
     "hpda": "fedtrack.local_filters.pda.service:main",
     "mtt-local": "fedtrack.local_filters.mtt.service:main",
     "mtt-centre": "fedtrack.fusion_center.mtt.service:main",
+    "picture": "fedtrack.fusion_center.mtt.picture_merge:main",
 }
 
 # name -> "module:function(argv) -> int"
@@ -233,7 +234,8 @@ def build_parser() -> argparse.ArgumentParser:
     rpl.add_argument("--regions", metavar="SPEC",
                      help="mtt-federated, mtt-decentralized: a centre per region, tracks handed over at the "
                           "borders; SPEC NXxNY (a grid over the detections' extent, e.g. 2x2) or config "
-                          "(the config's [regions]); docs/multitarget.md#regions")
+                          "(the config's [regions]; also the replay of a live region run's recording, each "
+                          "centre in its recorded order); docs/multitarget.md#regions")
     rpl.add_argument("--status", choices=("all", "confirmed"),
                      help="pda-ai, hpda: write every track or the confirmed ones only (default: all)")
     rpl.set_defaults(func=_cmd_replay)

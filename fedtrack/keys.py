@@ -16,6 +16,9 @@ fusion/state (queryable)        FusedTrack (reply)           fusion center
 health/<role>/<id>              Health                       every service
 alive/<role>/<id> (liveliness)  none (token)                 every service
 ==============================  ===========================  =================
+
+The multi-target keys (``local/<id>/tracks``, ``fusion/mtt-resets/<id>``, ``fusion/picture``) and,
+with ``[regions]``, the region centres' ``region/<rid>/...`` keys are in docs/wire.md.
 """
 
 from __future__ import annotations
@@ -69,11 +72,16 @@ class Keys:
     def sender(self, key: str) -> str | None:
         """The sensor or service id a concrete key names as its publisher's (``sensor/<id>/meas``,
         ``local/<id>/estimate``, ``local/<id>/tracks``, ``fusion/reset/<id>``,
-        ``fusion/mtt-resets/<id>``, ``health/<role>/<id>``), else None."""
+        ``fusion/mtt-resets/<id>``, ``health/<role>/<id>``, ``region/<rid>/local/<id>/tracks``,
+        ``region/<rid>/mtt-resets/<id>``), else None."""
         parts = key.split("/")
         if len(parts) < 4 or parts[0] != ROOT or parts[1] != self.deployment:
             return None
         rest = parts[2:]
+        if len(rest) == 5 and rest[0] == "region" and (rest[2], rest[4]) == ("local", "tracks"):
+            return rest[3]
+        if len(rest) == 4 and rest[0] == "region" and rest[2] == "mtt-resets":
+            return rest[3]
         if len(rest) == 3 and (rest[0], rest[2]) in (("sensor", "meas"), ("local", "estimate"), ("local", "tracks")):
             return rest[1]
         if len(rest) == 3 and rest[0] in ("health", "fusion") and (rest[0] == "health"
@@ -100,6 +108,22 @@ class Keys:
     def mtt_resets(self, sensor: str | None = None) -> str:
         """``fusion/mtt-resets/<id>``: the multi-target centre's resets of sensor ``<id>``'s tracker."""
         return self._key("fusion", "mtt-resets", self._chunk(sensor, "sensor id"))
+
+    def region_report(self, region: str | None = None, sensor: str | None = None) -> str:
+        """``region/<rid>/local/<id>/tracks``: sensor ``<id>``'s tracker's sub-report for region ``<rid>``."""
+        return self._key("region", self._chunk(region, "region id"), "local", self._chunk(sensor, "sensor id"), "tracks")
+
+    def region_resets(self, region: str | None = None, sensor: str | None = None) -> str:
+        """``region/<rid>/mtt-resets/<id>``: region ``<rid>``'s centre's answer to sensor ``<id>``'s sub-report."""
+        return self._key("region", self._chunk(region, "region id"), "mtt-resets", self._chunk(sensor, "sensor id"))
+
+    def region_handover(self, region: str | None = None) -> str:
+        """``region/<rid>/handover``: central tracks handed to region ``<rid>``'s centre (``HandOver``)."""
+        return self._key("region", self._chunk(region, "region id"), "handover")
+
+    def region_picture(self, region: str | None = None) -> str:
+        """``region/<rid>/picture``: region ``<rid>``'s centre's picture (``TrackPicture``)."""
+        return self._key("region", self._chunk(region, "region id"), "picture")
 
     def mtt_picture(self) -> str:
         """``fusion/picture``: the multi-target centre's track picture, every period (``TrackPicture``)."""

@@ -32,7 +32,10 @@ pictures) is written in the centre's processing order instead (the scans and dep
 picture lists, picture by picture): the order ``replay --algorithm mtt-*`` must follow to give
 the recorded pictures, which are the tracks file (one picture a line). Scans the centre never
 processed (no local tracker took them, or it dropped them as late) go to
-``unprocessed.jsonl`` beside the measurements file, in arrival order.
+``unprocessed.jsonl`` beside the measurements file, in arrival order. A region run's merged
+pictures (``TrackPicture.regions``: docs/multitarget.md#regions) give one line per region entry,
+tagged ``"region"`` (scans with their ``"seq"``; hand-overs as ``{"t", "region", "handover": N,
+"from": region}``), each region's in its processing order.
 """
 
 from __future__ import annotations
@@ -189,13 +192,20 @@ class Recording:
         recorded scans they do not list, in arrival order."""
         scans = {(m.sensor, m.seq): m for m in self.messages(Measurement, "id")}
         processed: list[dict[str, Any]] = []
+        used: set[tuple[str, int]] = set()
         for pic in self.messages(TrackPicture, "seq"):
             for i, key in enumerate(zip(pic.fused_sensors, pic.fused_seqs)):
+                # a region run's merged picture: every entry of every region, tagged with it
+                # (a hand-over's entry names its sending region and its number: docs/multitarget.md#regions)
+                tag = {"region": pic.regions[i]} if pic.regions else {}
                 if i in pic.left:
-                    processed.append({"t": pic.t, "sensor": key[0], "left": True})
-                elif key in scans:
-                    processed.append(measurement_to_replay(scans.pop(key)))
-        return processed, [measurement_to_replay(m) for m in scans.values()]
+                    processed.append({"t": pic.t, "sensor": key[0], "left": True, **tag})
+                elif i in pic.handovers and tag:
+                    processed.append({"t": pic.t, "handover": key[1], "from": key[0], **tag})
+                elif key in scans and (tag or key not in used):
+                    processed.append({**measurement_to_replay(scans[key]), **({"seq": key[1], **tag} if tag else {})})
+                    used.add(key)
+        return processed, [measurement_to_replay(m) for key, m in scans.items() if key not in used]
 
     def close(self) -> None:
         self.db.close()

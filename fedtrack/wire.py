@@ -257,6 +257,10 @@ class _Record:
     _arrays: ClassVar[tuple[str, ...]] = ()
     _records: ClassVar[dict[str, type[_Record]]] = {}
     _top_level: ClassVar[bool] = True
+    # fields added for the region centres (issue 27): left out of the encoding while they hold their
+    # default and taken as the default when absent, so that a deployment without regions sends the
+    # same bytes as before they existed
+    _omitted: ClassVar[tuple[str, ...]] = ()
 
     def __post_init__(self) -> None:
         try:
@@ -621,12 +625,16 @@ class TrackReport(_Record):
     stamp_ns: int
     contested: tuple[int, ...] = ()
     existence: np.ndarray | None = None  # (n,) each track's existence probability (jipda), else None
+    # a region's sub-report (docs/multitarget.md#regions): per track, whether its tracker believes
+    # another region's centre holds it (empty: none does; omitted then)
+    elsewhere: tuple[bool, ...] = ()
 
     _fields = {"sensor": _identifier, "seq": _count, "t": _real, "ids": _counts, "x": _batch, "P": _batch,
                "confirmed": _flags, "detected": _flags, "obs_H": _batch, "obs_R": _batch, "obs_z": _batch,
                "started": _flags, "retired": _counts, "stamp_ns": _count, "contested": _scans,
-               "existence": _optional(_vector)}
+               "existence": _optional(_vector), "elsewhere": _flags}
     _arrays = ("x", "P", "obs_H", "obs_R", "obs_z", "existence")
+    _omitted = ("elsewhere",)
 
     def _check(self) -> None:
         n = len(self.ids)
@@ -634,6 +642,8 @@ class TrackReport(_Record):
         object.__setattr__(self, "P", P)
         if len(self.confirmed) != n or len(self.detected) != n:
             raise WireError("detected", f"expected confirmed and detected for each of the {n} tracks")
+        if len(self.elsewhere) not in (0, n):
+            raise WireError("elsewhere", f"expected none or one for each of the {n} tracks")
         k = sum(self.detected)
         m = self.obs_z.shape[1]
         if self.obs_z.shape[0] != k or len(self.started) != k:
@@ -650,7 +660,12 @@ class TrackReport(_Record):
 class TrackResets(_Record):
     """The multi-target centre's answer to ``sensor``'s report ``seq`` (federated mode): the
     resets of local tracks ``ids`` (``x`` (n, d), ``P`` (n d, d) stacked, already scaled) and
-    ``q_scale``, the process-noise factor (number of live sensors) for its next scan."""
+    ``q_scale``, the process-noise factor (number of live sensors) for its next scan.
+
+    A region centre's answer (docs/multitarget.md#regions; decentralized too, with no resets) also
+    names its ``region``, the local tracks of the sub-report it ``held`` after it, and the ones
+    it handed over since its last answer to this sensor (``moved``) with their new regions
+    (``moved_to``); without regions these fields are absent."""
 
     sensor: str
     seq: int
@@ -659,15 +674,29 @@ class TrackResets(_Record):
     ids: tuple[int, ...]
     x: np.ndarray
     P: np.ndarray
+    region: str | None = None
+    held: tuple[int, ...] = ()
+    moved: tuple[int, ...] = ()
+    moved_to: tuple[str, ...] = ()
 
     _fields = {"sensor": _identifier, "seq": _count, "t": _real, "q_scale": _real, "ids": _counts,
-               "x": _batch, "P": _batch}
+               "x": _batch, "P": _batch, "region": _optional(_identifier), "held": _counts, "moved": _counts,
+               "moved_to": lambda v, p: _identifier_list(v, p, MAX_TRACKS)}
     _arrays = ("x", "P")
+    _omitted = ("region", "held", "moved", "moved_to")
 
     def _check(self) -> None:
         if not 1.0 <= self.q_scale <= MAX_TRACKS:
             raise WireError("q_scale", f"must be in [1, {MAX_TRACKS}], got {self.q_scale}")
         object.__setattr__(self, "P", _track_batch(self.ids, self.x, self.P)[1])
+        if len(self.moved) != len(self.moved_to):
+            raise WireError("moved_to", "expected one region per moved track")
+        if self.region is None and (self.held or self.moved):
+            raise WireError("region", "held and moved come with the answering region")
+
+
+def _identifier_list(value: Any, path: str, limit: int) -> tuple[str, ...]:
+    return tuple(_identifier(x, f"{path}[{i}]") for i, x in enumerate(_sequence(value, path, limit)))
 
 
 def _id_lists(value: Any, path: str) -> tuple[tuple[str, ...], ...]:
@@ -708,14 +737,27 @@ class TrackPicture(_Record):
     contested: bool = False
     existence: np.ndarray | None = None  # (n,) each track's existence probability, None: not kept
     lla: np.ndarray | None = None  # (n, 3) [lat deg, lon deg, h m] of each track ([frame] set), else None
+    # region centres (docs/multitarget.md#regions; absent without regions): ``handovers``, the
+    # positions in the fused lists that are hand-overs taken over there (``fused_sensors``: the
+    # sending region, ``fused_seqs``: its hand-over number); in the merged picture, ``regions``
+    # names the region that processed each entry of the fused lists (each region's in its order)
+    handovers: tuple[int, ...] = ()
+    regions: tuple[str, ...] = ()
+    # a region centre's picture: the positions of the tracks it handed over shortly before (shown
+    # until their new owner shows them) and the data time of each hand-over
+    in_flight: tuple[int, ...] = ()
+    in_flight_t: tuple[float, ...] = ()
 
     _fields = {"seq": _count, "t": _real, "ids": _counts, "x": _batch, "P": _batch, "confirmed": _flags,
                "sensors": _id_lists, "ca": _flags, "maneuvering": _counts, "maneuver": _optional(_batch),
-               "fused_sensors": lambda v, p: tuple(_identifier(x, f"{p}[{i}]")
-                                                   for i, x in enumerate(_sequence(v, p, MAX_TRACKS))),
+               "fused_sensors": lambda v, p: _identifier_list(v, p, MAX_TRACKS),
                "fused_seqs": _counts, "stamp_ns": _count, "closing": _flag, "left": _counts, "contested": _flag,
-               "existence": _optional(_vector), "lla": _optional(_batch)}
+               "existence": _optional(_vector), "lla": _optional(_batch),
+               "handovers": _counts, "regions": lambda v, p: _identifier_list(v, p, MAX_TRACKS),
+               "in_flight": _counts, "in_flight_t": lambda v, p: tuple(
+                   _real(x, f"{p}[{i}]") for i, x in enumerate(_sequence(v, p, MAX_TRACKS)))}
     _arrays = ("x", "P", "maneuver", "existence", "lla")
+    _omitted = ("handovers", "regions", "in_flight", "in_flight_t")
 
     def _check(self) -> None:
         n = len(self.ids)
@@ -734,12 +776,71 @@ class TrackPicture(_Record):
             raise WireError("ca", f"expected none or one for each of the {n} tracks")
         if len(set(self.left)) != len(self.left) or any(i >= len(self.fused_seqs) for i in self.left):
             raise WireError("left", "expected distinct positions in the fused lists")
+        if (len(set(self.handovers)) != len(self.handovers) or set(self.handovers) & set(self.left)
+                or any(i >= len(self.fused_seqs) for i in self.handovers)):
+            raise WireError("handovers", "expected distinct positions in the fused lists, none a departure")
+        if len(self.regions) not in (0, len(self.fused_seqs)):
+            raise WireError("regions", "expected none or one for each entry of the fused lists")
+        if (len(set(self.in_flight)) != len(self.in_flight) or any(i >= n for i in self.in_flight)
+                or len(self.in_flight_t) != len(self.in_flight)):
+            raise WireError("in_flight", f"expected distinct positions among the {n} tracks, each with its time")
         if self.closing and n:
             raise WireError("ids", "a closing record has no tracks")
         _check_probabilities(self.existence, n)
         if self.lla is not None and (self.lla.shape != (n, 3) or not (np.abs(self.lla[:, 0]) <= 90.0).all()
                                      or not (np.abs(self.lla[:, 1]) <= 180.0).all()):
             raise WireError("lla", f"expected one row [lat, lon, h] (|lat| <= 90, |lon| <= 180) for each of the {n} tracks")
+
+
+@dataclass(frozen=True, eq=False)
+class HandOver(_Record):
+    """A region centre's central track ``id`` handed to the region its latest estimate entered
+    (docs/multitarget.md#regions), sent by region ``source`` as its hand-over number ``serial``:
+    ``confirmed``; ``ring`` (n, w), its ``n`` out-of-sequence buffer entries (the checkpoint
+    first), each the centre's ring fields flattened in their order (time, state, covariance, the
+    observation's size, H, R, z, and the maneuver detector's bank and detection when it runs;
+    ``-inf`` values, a detector's "no estimate yet", are 0 there and listed by their flat
+    positions in ``neg_inf``); per sensor of ``sensors`` its local tracks mapped to the track
+    (``support``) and misses in a row (``streak``); the M-of-N ``window``; ``last_support``, the
+    time of its last fused observation; its local tracks (``member_sensors[i]``,
+    ``member_ids[i]``) and their association ``strikes``."""
+
+    source: str
+    serial: int
+    id: int
+    confirmed: bool
+    ring: np.ndarray
+    neg_inf: tuple[int, ...]
+    sensors: tuple[str, ...]
+    support: tuple[int, ...]
+    streak: tuple[int, ...]
+    window: tuple[bool, ...]
+    last_support: float
+    member_sensors: tuple[str, ...]
+    member_ids: tuple[int, ...]
+    strikes: tuple[int, ...]
+
+    _fields = {"source": _identifier, "serial": _count, "id": _count, "confirmed": _flag, "ring": _batch,
+               "neg_inf": _counts, "sensors": lambda v, p: _identifier_list(v, p, MAX_TRACKS), "support": _counts,
+               "streak": _counts,
+               "window": _flags, "last_support": _real,
+               "member_sensors": lambda v, p: _identifier_list(v, p, MAX_TRACKS), "member_ids": _counts,
+               "strikes": _counts}
+    _arrays = ("ring",)
+
+    def _check(self) -> None:
+        if self.ring.shape[0] == 0 or self.ring.shape[1] == 0:
+            raise WireError("ring", "expected at least one entry")
+        if len(set(self.neg_inf)) != len(self.neg_inf) or any(i >= self.ring.size for i in self.neg_inf):
+            raise WireError("neg_inf", f"expected distinct positions among the {self.ring.size} ring values")
+        s = len(self.sensors)
+        if len(set(self.sensors)) != s or len(self.support) != s or len(self.streak) != s:
+            raise WireError("sensors", "expected distinct sensors, each with its support and streak")
+        n = len(self.member_ids)
+        if len(self.member_sensors) != n or len(self.strikes) != n:
+            raise WireError("member_ids", "expected a sensor and strikes for each member")
+        if len(set(zip(self.member_sensors, self.member_ids))) != n or not set(self.member_sensors) <= set(self.sensors):
+            raise WireError("member_sensors", "expected distinct members of the listed sensors")
 
 
 @dataclass(frozen=True, eq=False)
@@ -757,9 +858,9 @@ class Health(_Record):
 
 M = TypeVar("M", bound=_Record)
 Message = (Measurement | LocalEstimate | Reset | FusedTrack | ManeuverEvent | Health | TrackReport | TrackResets
-           | TrackPicture)
+           | TrackPicture | HandOver)
 MESSAGE_TYPES: tuple[type[_Record], ...] = (Measurement, LocalEstimate, Reset, FusedTrack, ManeuverEvent, Health,
-                                            TrackReport, TrackResets, TrackPicture)
+                                            TrackReport, TrackResets, TrackPicture, HandOver)
 
 
 # ---------------------------------------------------------------- encoding
@@ -772,6 +873,8 @@ def _encode_record(rec: _Record) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for f in dataclasses.fields(rec):  # type: ignore[arg-type]
         value = getattr(rec, f.name)
+        if f.name in rec._omitted and (value is None or value == () or value == f.default):
+            continue
         if value is None:
             out[f.name] = None
         elif f.name in rec._arrays:
@@ -830,11 +933,13 @@ def _decode_record(cls: type[M], obj: Any, path: str, envelope: tuple[str, ...] 
     unknown = sorted((str(k) for k in obj if k not in names and k not in envelope))
     if unknown:
         raise WireError(f"{path}.{unknown[0][:BRIEF_CHARS]}", "unknown field")
-    missing = [n for n in names if n not in obj]
+    missing = [n for n in names if n not in obj and n not in cls._omitted]
     if missing:
         raise WireError(f"{path}.{missing[0]}", "missing field")
     kwargs: dict[str, Any] = {}
     for name in names:
+        if name not in obj:  # an omitted field: its default
+            continue
         value = obj[name]
         where = f"{path}.{name}"
         if name in cls._arrays:

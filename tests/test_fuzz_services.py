@@ -1,7 +1,8 @@
 """Fuzzing every decoder and handler of every service with a fast seeded mutation generator over
 valid encodings: at least 10,000 payloads per message type, 0 escapes.
 
-The paper pipeline and the multi-target deployment run in-process on the bus of
+The paper pipeline, the multi-target deployment and its region centres (their ``HandOver`` s) run
+in-process on the bus of
 ``test_hostile_messages`` (each service through its own dispatch: bounded decode, sender check,
 guarded handler). After each genuine message, mutations of it (10,000 per type in all) are published on
 its key, so they reach every service subscribed to it (a measurement: the local filter, the IMM
@@ -36,6 +37,7 @@ import zenoh
 from test_fuzz_handlers import MEASUREMENTS, SCANS, SENSORS
 from test_hostile_messages import (
     KEYS,
+    OPTIONS,
     MTT_SENSORS,
     SONAR,
     Bus,
@@ -44,6 +46,8 @@ from test_hostile_messages import (
     paper_scan,
     paper_services,
 )
+from test_mtt_regions_live import scenario as region_scenario
+from test_mtt_regions_live import services as region_services
 from test_wire import health
 
 from fedtrack.fusion_center.centre import FederatedCentre
@@ -52,6 +56,7 @@ from fedtrack.local_filters.service import LocalFilterService
 from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.wire import (
     FusedTrack,
+    HandOver,
     Health,
     LocalEstimate,
     ManeuverEvent,
@@ -267,17 +272,41 @@ def test_every_handler_takes_10000_mutations_per_type_without_an_escape(tmp_path
     for msg_type, n in counts.items():
         fuzz_stream(mbus, [p for p in mpublished if p[2] is msg_type], mutator, tally, -(-PAYLOADS // n), {msg_type})
 
+    # region centres (issue 27): the hand-overs between the two regions' centres
+    rclean = region_bus(tmp_path / "rclean")
+
+    def regions(bus: Bus) -> None:
+        for m in rscans:
+            bus.put(KEYS.sensor_meas(m.sensor), encode(m))
+    rscans = region_scenario(tmp_path / "rscenario")[0]
+    handovers = [p for p in published_stream(rclean, regions) if p[2] is HandOver]
+    assert handovers
+    rbus = region_bus(tmp_path / "rfuzzed")
+    for m in rscans:  # the genuine stream first: each hand-over then meets the state it was made in
+        rbus.put(KEYS.sensor_meas(m.sensor), encode(m))
+    fuzz_stream(rbus, handovers, mutator, tally, -(-PAYLOADS // len(handovers)), {HandOver})
+
     # Health: no service subscribes to it; the launcher's monitor and the benchmarks decode it
     good = encode(health())
     for _ in range(PAYLOADS):
         tally.add("Health", rejected_by_decoder(mutator.mutate(good), Health))
     print("\n" + tally.report())
     names = {"Measurement", "LocalEstimate", "Reset", "FusedTrack", "FusedTrack reply", "ManeuverEvent",
-             "TrackReport", "TrackResets", "TrackPicture", "Health"}
+             "TrackReport", "TrackResets", "TrackPicture", "Health", "HandOver"}
     assert set(tally.rows) == names
     assert all(n >= PAYLOADS for n, _, _ in tally.rows.values()), tally.report()
     # every kind of outcome happened: not everything died in the decoder
     assert all(0 < d < n for n, d, _ in tally.rows.values()), tally.report()
+
+
+def region_bus(tmp_path: Path) -> Bus:
+    """The region deployment of ``test_mtt_regions_live`` (two region centres, three trackers, the
+    merger, the recorder) on a bus."""
+    _, cfg, config = region_scenario(tmp_path)
+    centres, local, merger, recorder = region_services(tmp_path, "mtt-federated", config, cfg,
+                                                       {"options": OPTIONS, "deployment": KEYS.deployment})
+    recorder.on_start()
+    return Bus([*centres, *local, merger, recorder])
 
 
 class InMemory:

@@ -15,6 +15,7 @@ included; :class:`ScanHistory`); older ones are late, repeated ones duplicates.
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from dataclasses import dataclass, field
 from functools import lru_cache
@@ -67,6 +68,46 @@ class PictureTracks(NamedTuple):
         """The picture's line in a tracks file (``{"t": t, **head, "tracks": rows}`` as JSON)."""
         return picture_line(t, self.ids, self.x, self.P, self.confirmed, self.sensors, self.models, self.maneuver,
                             self.existence, head)
+
+
+@dataclass
+class PictureClock:
+    """When pictures are due: the picture at ``T = k period`` once a scan later than
+    ``T + delay`` arrives (``high`` is the latest scan time seen), the rest at the end."""
+
+    period: float
+    delay: float
+    k: int | None = None
+    high: float = -math.inf
+    departed: bool = False  # a sensor left after the latest scan
+
+    def left(self) -> None:
+        """A sensor left (a departure line, or a live centre dropping it)."""
+        self.departed = True
+
+    def due(self, t: float) -> list[float]:
+        """Picture times due before a scan at ``t`` is ingested."""
+        if self.k is None:
+            self.k = math.ceil(t / self.period - 1e-9)
+        self.high = max(self.high, t)
+        self.departed = False
+        out = []
+        while self.k * self.period + self.delay < self.high:
+            out.append(self.k * self.period)
+            self.k += 1
+        return out
+
+    def final(self) -> list[float]:
+        """Picture times still due at the end of the data: up to the first whole period at or after
+        the latest scan, so that the last picture holds every scan; but only up to the latest scan
+        when sensors left after it (the trackers of a live run that stopped before its centre:
+        a picture past the data would be made without them)."""
+        out = []
+        while self.k is not None and ((self.k - 1) * self.period < self.high - 1e-9 if not self.departed
+                                      else self.k * self.period <= self.high + 1e-9):
+            out.append(self.k * self.period)
+            self.k += 1
+        return out
 
 
 def central_params(cfg: MttConfig, sensor: str | None, dim: int) -> TrackParams:
@@ -274,7 +315,7 @@ class TrackToTrackEngine(Engine):
         if self.centre is None:
             return no_tracks(self.dim)
         if isinstance(self.centre, ShardedCentre):
-            return union_picture([centre_picture(c, T, self.existence) for c in self.centre.centres], self.dim)
+            return union_picture([centre_picture(c.centre, T, self.existence) for c in self.centre.centres], self.dim)
         return centre_picture(self.centre, T, self.existence)
 
     def counters(self) -> dict[str, int]:

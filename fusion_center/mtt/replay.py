@@ -22,7 +22,8 @@ from typing import Iterator
 import numpy as np
 
 from fedtrack.config import ConfigError, did_you_mean, load_tables
-from fedtrack.fusion_center.mtt.engines import ALGORITHMS, Engine, PictureTracks, make_engine
+from fedtrack.fusion_center.mtt.engines import ALGORITHMS, Engine, PictureClock, PictureTracks, make_engine
+from fedtrack.fusion_center.mtt.regional import is_region_recording, read_region_entries, recorded_pictures
 from fedtrack.geodetic import geodetic_line, load_frame
 from fedtrack.jsonl import InputError, check_output, output_file, read_jsonl
 from fedtrack.local_filters.mtt.config import MttConfig, MttSettings
@@ -60,46 +61,6 @@ def state_dim(scans: list[SensorScan | SensorLeft], sensor: str | None = None) -
     radar's, else 4."""
     return 6 if any(isinstance(s, SensorScan) and s.sensor_position is not None
                     and (sensor is None or s.sensor == sensor) for s in scans) else 4
-
-
-@dataclass
-class PictureClock:
-    """When pictures are due: the picture at ``T = k period`` once a scan later than
-    ``T + delay`` arrives (``high`` is the latest scan time seen), the rest at the end."""
-
-    period: float
-    delay: float
-    k: int | None = None
-    high: float = -math.inf
-    departed: bool = False  # a sensor left after the latest scan
-
-    def left(self) -> None:
-        """A sensor left (a departure line, or a live centre dropping it)."""
-        self.departed = True
-
-    def due(self, t: float) -> list[float]:
-        """Picture times due before a scan at ``t`` is ingested."""
-        if self.k is None:
-            self.k = math.ceil(t / self.period - 1e-9)
-        self.high = max(self.high, t)
-        self.departed = False
-        out = []
-        while self.k * self.period + self.delay < self.high:
-            out.append(self.k * self.period)
-            self.k += 1
-        return out
-
-    def final(self) -> list[float]:
-        """Picture times still due at the end of the data: up to the first whole period at or after
-        the latest scan, so that the last picture holds every scan; but only up to the latest scan
-        when sensors left after it (the trackers of a live run that stopped before its centre:
-        a picture past the data would be made without them)."""
-        out = []
-        while self.k is not None and ((self.k - 1) * self.period < self.high - 1e-9 if not self.departed
-                                      else self.k * self.period <= self.high + 1e-9):
-            out.append(self.k * self.period)
-            self.k += 1
-        return out
 
 
 def pictures(engine: Engine, scans: list[SensorScan | SensorLeft], period: float,
@@ -174,20 +135,38 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
         raise ConfigError("--sensor ID is required by mtt-local and only by it")
     check_output(out)
     start = time.perf_counter()
-    scans = read_scans(measurements, cfg)
+    recording = is_region_recording(measurements)
+    if recording and (regions is None or algorithm == "mtt-local"):
+        raise ConfigError(f"{measurements}: a live region run's recording (its lines name their region): replay it "
+                          "with --algorithm mtt-federated or mtt-decentralized --regions config")
+    if recording:
+        # a live region run's recording: each region centre in its recorded order (regional.py)
+        if regions != "config":
+            raise ConfigError("--regions: a region run's recording replays with --regions config (its regions)")
+        shards = data_regions(regions, [], config)
+        entries = read_region_entries(measurements, shards)
+        scans = [e[0] for _, e in entries if isinstance(e, tuple) and isinstance(e[0], SensorScan)]
+        dim = state_dim(scans)
+        engine = make_engine(algorithm, cfg, dim)
+        recorded: dict[str, int] = {}
+        source = recorded_pictures(cfg, dim, algorithm == "mtt-federated", shards, entries, recorded)
+    else:
+        scans = read_scans(measurements, cfg)
+        if sensor is not None and not any(s.sensor == sensor for s in scans):
+            raise InputError(f"{measurements}: no scan of sensor {sensor!r}")
+        dim = state_dim(scans, sensor)
+        shards = None if regions is None else data_regions(regions, scans, config)
+        engine = make_engine(algorithm, cfg, dim, sensor, shards)
+        source = pictures(engine, scans, cfg.period, cfg.picture_delay)
+        recorded = {}
     read_s = time.perf_counter() - start
-    if sensor is not None and not any(s.sensor == sensor for s in scans):
-        raise InputError(f"{measurements}: no scan of sensor {sensor!r}")
-    dim = state_dim(scans, sensor)
-    shards = None if regions is None else data_regions(regions, scans, config)
-    engine = make_engine(algorithm, cfg, dim, sensor, shards)
     frame = load_frame(config)  # [frame]: the tracks on the Earth too (lat, lon, alt)
     n = onsets = 0
     detector = False  # whether the pictures carry maneuver events (a detector runs)
     maneuvering: set[int] = set()
     head = {"algorithm": algorithm, "detector": cfg.maneuver}
     with output_file(out) as fh:
-        for T, tracks in pictures(engine, scans, cfg.period, cfg.picture_delay):
+        for T, tracks in source:
             start = time.perf_counter()
             line = tracks.line(T, head)
             fh.write((line if frame is None else geodetic_line(line, frame.frame)) + "\n")
@@ -196,7 +175,7 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
             detector = detector or tracks.maneuver is not None
             now = tracks.maneuvering()
             onsets, maneuvering = onsets + len(now - maneuvering), now
-    counts = engine.counters()
+    counts = recorded or engine.counters()
     for line in counter_lines(counts):
         print(f"{algorithm}: {line}", file=sys.stderr)
     if detector:

@@ -7,7 +7,7 @@ arrival order; federated, it answers each report with the sensor's ``TrackResets
 (``fusion/mtt-resets/<id>``). Measurement level (``mtt-centralized``): consumes the sensors'
 scans (``sensor/*/meas``) and runs the centralized tracker (roll-back for out-of-sequence
 scans). Every ``period`` seconds of data it publishes a ``TrackPicture`` (``fusion/picture``)
-by the replay's rule (:class:`fedtrack.fusion_center.mtt.replay.PictureClock`), carrying the
+by the replay's rule (:class:`fedtrack.fusion_center.mtt.engines.PictureClock`), carrying the
 scans it processed since the previous picture in its processing order; on a clean stop it
 publishes the pictures still due. ``fedtrack replay`` of the recorded scans in that order
 gives the same pictures.
@@ -19,6 +19,14 @@ the sensor's own, ``alive/sensor/<id>``) disappears, or when nothing of it arriv
 (:meth:`TrackToTrackCentre.drop_sensor`: no longer live, so the others' sharing factors are
 renormalized; its local tracks leave their central tracks) and lists the departure in the next
 picture, so that the replay drops it at the same point.
+
+``--region RID`` (track-to-track only; the config's ``[regions]``, docs/multitarget.md#regions):
+the centre of one region. It takes the sub-reports ``region/RID/local/*/tracks`` and the
+hand-overs ``region/RID/handover`` in arrival order (:class:`fedtrack.fusion_center.mtt.regional.RegionEngine`),
+answers every sub-report on ``region/RID/mtt-resets/<id>`` (decentralized too: the answer says
+which local tracks it holds), sends the central tracks that left its region as ``HandOver``
+to ``region/<new>/handover`` and publishes its region's picture on ``region/RID/picture``, its
+fused lists naming the hand-overs it took over (``handovers``); ``serve picture`` merges them.
 
 ``--dim``: the central state size, 6 when any sensor is a radar (the replay's rule on the
 recorded scans). Rejected (docs/wire.md#rejections): a sensor the config does not allow
@@ -39,12 +47,22 @@ import numpy as np
 import zenoh
 
 from fedtrack.config import ConfigError, load_tables
-from fedtrack.fusion_center.mtt.engines import CentralizedEngine, TrackToTrackEngine, no_tracks
-from fedtrack.fusion_center.mtt.replay import PictureClock
+from fedtrack.fusion_center.mtt.engines import (
+    CentralizedEngine,
+    PictureClock,
+    PictureTracks,
+    TrackToTrackEngine,
+    no_tracks,
+    union_picture,
+)
+from fedtrack.fusion_center.mtt.regional import RegionEngine
+from fedtrack.fusion_center.mtt.shards import handover_from_wire, handover_to_wire
 from fedtrack.geodetic import Frame, geodetic_of_states
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
 from fedtrack.local_filters.mtt.local import report_from_wire, resets_to_wire
+from fedtrack.local_filters.mtt.routing import answer_to_wire
 from fedtrack.local_filters.mtt.scan import scan_from_measurement
+from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.services.base import (
     Conflict,
     ReceivedScans,
@@ -55,7 +73,7 @@ from fedtrack.services.base import (
     service_kwargs,
     service_parser,
 )
-from fedtrack.wire import Measurement, TrackPicture, TrackReport
+from fedtrack.wire import HandOver, Measurement, TrackPicture, TrackReport
 
 ALGORITHMS = ("mtt-federated", "mtt-decentralized", "mtt-centralized")
 
@@ -67,11 +85,13 @@ class MttCentreService(Service):
     tick_period_s = 0.05
     # restored after a failed handler (the engine changes in place: pickled before each message;
     # ``received`` is only changed once a message was handled); on_tick guards its departures itself
-    state_attrs = ("engine", "clock", "order", "left_at", "pictures", "last_heard", "contested")
+    state_attrs = ("engine", "clock", "order", "left_at", "pictures", "last_heard", "contested", "handovers_at",
+                   "taken")
     tick_state_attrs = ()
 
     def __init__(self, algorithm: str, cfg: MttConfig, dim: int = 4, max_seq_jump: int = 1000,
-                 frame: Frame | None = None, **kwargs: Any) -> None:
+                 frame: Frame | None = None, region: str | None = None, regions: Regions | None = None,
+                 **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.frame = frame  # [frame]: each picture track's WGS-84 position too
         if algorithm not in ALGORITHMS:
@@ -80,9 +100,20 @@ class MttCentreService(Service):
         self.cfg = cfg
         self.dim = dim
         self.received = ReceivedScans(max_seq_jump)
-        self.engine: CentralizedEngine | TrackToTrackEngine = (
-            CentralizedEngine(cfg, dim) if algorithm == "mtt-centralized"
-            else TrackToTrackEngine(cfg, dim, feedback=algorithm == "mtt-federated"))
+        self.region, self.regions = region, regions
+        self.engine: CentralizedEngine | TrackToTrackEngine | RegionEngine
+        feedback = algorithm == "mtt-federated"
+        if region is not None:
+            if algorithm == "mtt-centralized" or regions is None or region not in regions.ids:
+                raise ConfigError(f"--region {region}: needs a track-to-track algorithm and a config whose [regions] "
+                                  f"has it ({', '.join(regions.ids) if regions else 'no [regions]'})")
+            self.engine = RegionEngine(cfg, dim, feedback=feedback, regions=regions, index=regions.ids.index(region))
+        else:
+            self.engine = (CentralizedEngine(cfg, dim) if algorithm == "mtt-centralized"
+                           else TrackToTrackEngine(cfg, dim, feedback=feedback))
+        self.picture_key = self.keys.mtt_picture() if region is None else self.keys.region_picture(region)
+        self.handovers_at: list[int] = []  # positions in ``order`` that are hand-overs taken over
+        self.taken: set[tuple[str, int]] = set()  # (sending region, its hand-over number) taken over
         self.clock = PictureClock(cfg.period, cfg.picture_delay)
         self.order: list[tuple[str, int]] = []  # scans processed since the last picture
         self.left_at: list[int] = []  # positions in ``order`` that are departures
@@ -121,6 +152,9 @@ class MttCentreService(Service):
     def subscriptions(self) -> list[Subscription]:
         if self.algorithm == "mtt-centralized":
             return [Subscription(self.keys.sensor_meas(), Measurement, self.on_scan)]
+        if self.region is not None:
+            return [Subscription(self.keys.region_report(self.region), TrackReport, self.on_report),
+                    Subscription(self.keys.region_handover(self.region), HandOver, self.on_handover)]
         return [Subscription(self.keys.mtt_report(), TrackReport, self.on_report)]
 
     def _admit(self, msg: Measurement | TrackReport) -> bool:
@@ -149,7 +183,7 @@ class MttCentreService(Service):
         pictures = [self._picture(T) for T in self.clock.due(msg.t)]
         work()
         for picture in pictures:
-            self.publish(self.keys.mtt_picture(), picture)
+            self.publish(self.picture_key, picture)
         self.order.append((msg.sensor, msg.seq))
         self.last_heard[msg.sensor] = time.monotonic()
         self.received.take(msg)
@@ -178,6 +212,10 @@ class MttCentreService(Service):
             self.log.warning("report %d of %s names contested scans %s", msg.seq, msg.sensor, list(msg.contested))
         report = report_from_wire(msg)
         engine = self.engine
+        if isinstance(engine, RegionEngine):
+            self._process(msg, lambda: self._answer(engine, msg, report))
+            self.contested = self.contested or bool(msg.contested)
+            return
         assert isinstance(engine, TrackToTrackEngine)
 
         def fuse() -> None:
@@ -188,30 +226,63 @@ class MttCentreService(Service):
         self._process(msg, fuse)
         self.contested = self.contested or bool(msg.contested)  # the next picture includes this report
 
+    def _answer(self, engine: RegionEngine, msg: TrackReport, report: Any) -> None:
+        """A region centre's part of a sub-report: fuse, hand over, answer (sends last)."""
+        assert self.regions is not None
+        elsewhere = np.array(msg.elsewhere, dtype=bool) if msg.elsewhere else np.zeros(len(msg.ids), dtype=bool)
+        answer, moving = engine.answer(report, elsewhere)
+        for owner, serial, record in moving:
+            self.publish(self.keys.region_handover(self.regions.ids[owner]),
+                         handover_to_wire(record, self.regions.ids[engine.index], serial))
+        self.count("handed_over", len(moving))
+        self.publish(self.keys.region_resets(self.region, msg.sensor),
+                     answer_to_wire(msg.seq, answer, self.regions, engine.index))
+
+    def on_handover(self, msg: HandOver) -> None:
+        """A neighbour's central track taken over (listed in the next picture's fused lists)."""
+        engine = self.engine
+        assert isinstance(engine, RegionEngine)
+        if (msg.source, msg.serial) in self.taken:
+            self.count("duplicate")
+            return
+        try:
+            record = handover_from_wire(msg, engine.region.centre)
+        except ValueError as exc:
+            raise Rejected("wrong_model", str(exc)) from None
+        centre, R, here = engine.region.centre, len(engine.regions.ids), engine.index
+        if msg.id in centre.tracks or (msg.id % R == here and msg.id >= centre.next_id):
+            raise Rejected("conflict", f"central track {msg.id} is already here, or is an id this region has "
+                                       "not issued")
+        engine.take_over(record)
+        self.taken.add((msg.source, msg.serial))
+        self.handovers_at.append(len(self.order))
+        self.order.append((msg.source, msg.serial))
+        self.count("taken_over")
+
     def _picture(self, T: float, closing: bool = False) -> TrackPicture:
         """The next picture, at ``T`` (it lists the scans since the previous one)."""
-        tracks = no_tracks(self.dim) if closing else self.engine.picture(T)
+        flying: dict[int, float] = {}
+        if closing:
+            tracks = no_tracks(self.dim)
+        elif isinstance(self.engine, RegionEngine):  # its tracks and the copies of those it handed over lately
+            shown = self.engine.region_picture(T)
+            tracks = union_picture([shown.held, shown.flying], self.dim)
+            flying = dict(zip(shown.flying.ids, shown.flying_t)) if shown.flying is not None else {}
+        else:
+            tracks = self.engine.picture(T)
         require_finite(f"the picture at t={T}", tracks.x, tracks.P)
-        d = tracks.x.shape[1]
-        ca = tuple(model == "ca" for model in tracks.models)
-        maneuvering = tracks.maneuver_rows()
-        picture = TrackPicture.unchecked(
-            seq=self.pictures, t=T, ids=tuple(tracks.ids), x=tracks.x, P=tracks.P.reshape(-1, d),
-            confirmed=tuple(tracks.confirmed), sensors=tuple(tuple(s) for s in tracks.sensors),
-            fused_sensors=tuple(s for s, _ in self.order), fused_seqs=tuple(q for _, q in self.order),
-            stamp_ns=time.time_ns(), closing=closing, left=tuple(self.left_at), ca=ca if any(ca) else (),
-            maneuvering=tuple(maneuvering), maneuver=None if tracks.maneuver is None else tracks.maneuver[maneuvering],
-            contested=self.contested, existence=None if tracks.existence is None else np.array(tracks.existence),
-            lla=None if self.frame is None else geodetic_of_states(self.frame, tracks.x))
+        picture = picture_message(self.pictures, T, tracks, self.order, self.left_at, self.contested, closing,
+                                  self.handovers_at, flying=flying,
+                                  lla=None if self.frame is None else geodetic_of_states(self.frame, tracks.x))
         self.pictures += 1
-        self.order, self.left_at, self.contested = [], [], False
+        self.order, self.left_at, self.contested, self.handovers_at = [], [], False, []
         self.counters["pictures"] = self.pictures
         for name, value in self.engine.counters().items():
             self.counters[name] = value
         return picture
 
     def _publish_picture(self, T: float, closing: bool = False) -> None:
-        self.publish(self.keys.mtt_picture(), self._picture(T, closing))
+        self.publish(self.picture_key, self._picture(T, closing))
 
     def on_stop(self) -> None:
         """The pictures still due at the end of the data (as the replay writes them), then the
@@ -222,19 +293,60 @@ class MttCentreService(Service):
             self._publish_picture(self.clock.high, closing=True)
 
 
+def picture_message(seq: int, T: float, tracks: PictureTracks, order: list[tuple[str, int]], left: list[int],
+                    contested: bool, closing: bool = False, handovers: list[int] | tuple[int, ...] = (),
+                    regions: tuple[str, ...] = (), lla: np.ndarray | None = None,
+                    flying: dict[int, float] | None = None) -> TrackPicture:
+    """The ``TrackPicture`` of ``tracks`` at ``T``, listing the entries ``order`` processed since the
+    previous one (``left``, ``handovers``: the positions that are departures and hand-overs taken
+    over; ``regions``: each entry's region, in a merged picture; ``lla``: the tracks on the Earth;
+    ``flying``: the ids of a region centre's copies of tracks it handed over, with the hand-overs' times)."""
+    d = tracks.x.shape[1]
+    ca = tuple(model == "ca" for model in tracks.models)
+    maneuvering = tracks.maneuver_rows()
+    return TrackPicture.unchecked(
+        seq=seq, t=T, ids=tuple(tracks.ids), x=tracks.x, P=tracks.P.reshape(-1, d),
+        confirmed=tuple(tracks.confirmed), sensors=tuple(tuple(s) for s in tracks.sensors),
+        fused_sensors=tuple(s for s, _ in order), fused_seqs=tuple(q for _, q in order),
+        stamp_ns=time.time_ns(), closing=closing, left=tuple(left), ca=ca if any(ca) else (),
+        maneuvering=tuple(maneuvering), maneuver=None if tracks.maneuver is None else tracks.maneuver[maneuvering],
+        contested=contested, existence=None if tracks.existence is None else np.array(tracks.existence), lla=lla,
+        handovers=tuple(handovers), regions=regions,
+        in_flight=tuple(k for k, i in enumerate(tracks.ids) if flying and i in flying),
+        in_flight_t=tuple(flying[i] for i in tracks.ids if flying and i in flying))
+
+
+def picture_tracks(msg: TrackPicture) -> PictureTracks:
+    """The tracks of a ``TrackPicture`` (inverse of :func:`picture_message`'s)."""
+    n, d = len(msg.ids), msg.x.shape[1]
+    maneuver = None
+    if msg.maneuver is not None:
+        maneuver = np.full((n, 4), np.nan)
+        maneuver[list(msg.maneuvering)] = msg.maneuver
+    models = ["ca" if ca else "cv" for ca in msg.ca] if msg.ca else ["cv"] * n
+    return PictureTracks(list(msg.ids), np.array(msg.x), np.array(msg.P).reshape(n, d, d), list(msg.confirmed),
+                         [list(s) for s in msg.sensors], models, maneuver,
+                         None if msg.existence is None else msg.existence.tolist())
+
+
 def service_from_args(argv: list[str]) -> MttCentreService:
     """The centre that ``serve mtt-centre ARGV`` runs (a ConfigError is the CLI's one-line error)."""
     parser = service_parser("mtt-centre", "the multi-target fusion centre")
     parser.add_argument("--algorithm", choices=ALGORITHMS, default="mtt-federated", help="the fusion of the local trackers' tracks (default: %(default)s)")
     parser.add_argument("--dim", type=int, choices=(4, 6), default=4,
                         help="central state size: 6 when any sensor is a radar (default: %(default)s)")
-    parser.add_argument("--config", help="configuration file; reads [mtt], [deployment] and [frame] (docs/multitarget.md)")
+    parser.add_argument("--config", help="configuration file; reads [mtt], [deployment], [frame] and, with "
+                        "--region, [regions] (docs/multitarget.md)")
+    parser.add_argument("--region", metavar="RID", help="the centre of this region of the config's [regions] only "
+                        "(docs/multitarget.md#regions)")
     args = parser.parse_args(argv)
     kwargs = service_kwargs(parser, args)
     path = Path(args.config) if args.config else None
     settings = load_tables(path, MttServiceSettings)
     frame = None if settings.frame is None else settings.frame.frame
-    return MttCentreService(args.algorithm, settings.mtt, args.dim, settings.deployment.max_seq_jump, frame, **kwargs)
+    regions = load_regions(path) if args.region else None
+    return MttCentreService(args.algorithm, settings.mtt, args.dim, settings.deployment.max_seq_jump, frame,
+                            args.region, regions, **kwargs)
 
 
 def main(argv: list[str]) -> int:

@@ -1,18 +1,26 @@
-"""The track-to-track centre sharded by region: one :class:`TrackToTrackCentre` per region.
+"""The track-to-track centre sharded by region: one :class:`RegionCentre` per region.
 
 Each region's centre owns the central tracks whose latest estimate lies in its region
-(:func:`region_of`: the first region containing the position, else the nearest). A local
-track's row of a report goes to the centre owning the central track it is mapped to; an
-unmapped row to the centre owning the row's position. Every centre gets every report (its
-rows, possibly none), so that each counts every sensor's scans (the misses of its tracks, the
-live sensors behind the federated shares). After each report, a central track whose latest
-estimate left its owner's region is handed over (:class:`HandOver`: id, states, the
-out-of-sequence buffer, the maneuver detector, the life counts and the local-track mapping)
-to the new owner, where it continues unbroken.
+(:func:`region_of`: the first region containing the position, else the nearest). It gets every
+report of every local tracker as a sub-report (:mod:`fedtrack.local_filters.mtt.routing`: the
+rows near the region or believed held by it, each flagged ``elsewhere`` when the tracker believes
+another region holds it) and takes a row (:meth:`RegionCentre.taken`) when it holds the row's
+local track, or when the track is held by no region (not ``elsewhere``), was not handed over from
+here since the tracker last heard from this centre, and its position is in the region. It counts
+every sensor's scans (the misses of its tracks, the live sensors behind the federated shares) and
+answers every sub-report. After each sub-report, a central track whose latest estimate left the
+region is handed over (:class:`HandOver`: id, states, the out-of-sequence buffer, the maneuver
+detector, the life counts and the local-track mapping) to the new owner, where it continues
+unbroken; until the tracker has heard of it (the old owner's next answer) the old owner ignores
+that track's rows (counted ``in_flight``).
 
 Ids are unique without an allocator: region ``r`` of ``R`` numbers its tracks ``r, r + R,
 r + 2R, ...`` (with one region, the unsharded centre's ``0, 1, 2, ...``). The picture is the
-union of the centres' tracks in increasing id; a track is in exactly one centre at any time.
+union of the centres' tracks in increasing id.
+
+:class:`ShardedCentre` runs the region centres in turn on each report and hands tracks over at once
+(the replay of a scans file); :mod:`.picture_merge` replays a live run's recording, each centre in
+its own recorded order.
 """
 
 from __future__ import annotations
@@ -22,39 +30,157 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fedtrack.fusion_center.mtt.centre import Counters, TrackToTrackCentre
+from fedtrack import wire
+from fedtrack.fusion_center.mtt.central_track import MAX_ENTRIES
+from fedtrack.fusion_center.mtt.centre import Counters, HandOver, LocalKey, TrackToTrackCentre
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import LocalReport, Resets
+from fedtrack.local_filters.mtt.routing import RegionAnswer, RegionRouter, join_answers, sub_report
 from fedtrack.local_filters.regions import Regions, region_of
 
 
-def sub_report(report: LocalReport, rows: np.ndarray) -> LocalReport:
-    """The rows ``rows`` (bool over the report's tracks) of a report; its retired ids all kept."""
-    det = rows[report.detected]
-    return report._replace(ids=report.ids[rows], x=report.x[rows], P=report.P[rows],
-                           confirmed=report.confirmed[rows], detected=report.detected[rows],
-                           obs_H=report.obs_H[det], obs_R=report.obs_R[det], obs_z=report.obs_z[det],
-                           started=report.started[det],
-                           existence=None if report.existence is None else report.existence[rows])
-
-
-def join_resets(parts: list[Resets]) -> Resets:
-    """The resets of every region's centre for one report, as one."""
-    first = parts[0]
-    return first._replace(ids=np.concatenate([p.ids for p in parts]), x=np.concatenate([p.x for p in parts]),
-                          P=np.concatenate([p.P for p in parts]))
-
-
 @dataclass
-class ShardedCentre:
-    """One :class:`TrackToTrackCentre` per region of ``regions``, run in turn."""
+class RegionCentre:
+    """The centre of region ``index`` of ``regions``: a :class:`TrackToTrackCentre` numbering its
+    tracks ``index, index + R, ...``, and the local tracks it handed over that their trackers have
+    not heard of yet."""
 
     cfg: MttConfig
     dim: int
     feedback: bool
     regions: Regions
+    index: int
+    forwarded: dict[LocalKey, int] = field(default_factory=dict)  # handed over -> the new region
+    serial: int = 0  # hand-overs sent
     handed_over: int = 0
-    centres: list[TrackToTrackCentre] = field(default_factory=list)
+    taken_over: int = 0
+    in_flight: int = 0  # rows not fused: their central track was handed over, the tracker not yet told
+
+    def __post_init__(self) -> None:
+        self.centre = TrackToTrackCentre(self.cfg, self.dim, self.feedback, next_id=self.index,
+                                         id_step=len(self.regions.ids))
+
+    @property
+    def name(self) -> str:
+        return self.regions.ids[self.index]
+
+    def taken(self, report: LocalReport, elsewhere: np.ndarray) -> np.ndarray:
+        """The rows of a sub-report this centre fuses (bool per row)."""
+        s, ids = report.sensor, report.ids.tolist()
+        mapping, forwarded = self.centre.mapping, self.forwarded
+        mine = np.fromiter(((s, i) in mapping for i in ids), dtype=bool, count=len(ids))
+        gone = np.fromiter(((s, i) in forwarded for i in ids), dtype=bool, count=len(ids)) & ~mine
+        self.in_flight += int(gone.sum())
+        free = ~mine & ~gone & ~elsewhere
+        if free.any():
+            free[free] = region_of(self.regions, report.x[free][:, [0, 2]]) == self.index
+        return mine | free
+
+    def answer(self, report: LocalReport, elsewhere: np.ndarray
+               ) -> tuple[RegionAnswer, list[tuple[int, int, HandOver]]]:
+        """Fuse the rows it takes of a sub-report, hand over the central tracks that left the region;
+        returns the answer and the hand-overs ``(new owner, this centre's hand-over number, record)``."""
+        take = self.taken(report, elsewhere)
+        resets, q_scale = self.centre.answer(report if take.all() else sub_report(report, take))
+        c = self.centre
+        moving: list[tuple[int, int, HandOver]] = []
+        touched = c.moved[np.isin(c.moved, c.tracks.ids)]  # not merged away or pruned
+        if touched.size and len(self.regions.ids) > 1:
+            owner = region_of(self.regions, c.tracks.latest(c.tracks.slots_of(touched))[1][:, [0, 2]])
+            for cid, o in zip(touched.tolist(), owner.tolist()):
+                if o != self.index:
+                    record = c.hand_over(cid)
+                    self.forwarded.update((key, o) for key in record.members)
+                    moving.append((o, self.serial, record))
+                    self.serial += 1
+        self.handed_over += len(moving)
+        s = report.sensor
+        held = report.ids[np.fromiter(((s, i) in c.mapping for i in report.ids.tolist()), dtype=bool,
+                                      count=report.ids.size)]
+        told = [(key[1], r) for key, r in self.forwarded.items() if key[0] == s]
+        for lid, _ in told:
+            del self.forwarded[(s, lid)]
+        moved = np.array([lid for lid, _ in told], dtype=np.int64)
+        return RegionAnswer(resets, q_scale, held, moved, np.array([r for _, r in told], dtype=np.int64)), moving
+
+    def take_over(self, record: HandOver) -> None:
+        """Continue a neighbour's central track (a local track of it this centre mapped meanwhile
+        is moved to it)."""
+        for key in record.members:
+            self.centre._unmap(key)
+            self.forwarded.pop(key, None)
+        self.centre.take_over(record)
+        self.taken_over += 1
+
+    def drop_sensor(self, sensor: str) -> None:
+        self.centre.drop_sensor(sensor)
+        for key in [k for k in self.forwarded if k[0] == sensor]:
+            del self.forwarded[key]
+
+
+# ---------------------------------------------------------------- the hand-over on the wire
+
+def handover_to_wire(record: HandOver, source: str, serial: int) -> wire.HandOver:
+    """The wire form of a hand-over record (its ring entries flattened per entry)."""
+    n = record.entries[0].shape[0]
+    ring = np.concatenate([np.asarray(a, dtype=np.float64).reshape(n, -1) for a in record.entries], axis=1)
+    neg = np.flatnonzero(np.isneginf(ring))
+    ring = np.where(np.isneginf(ring), 0.0, ring)
+    used = np.flatnonzero((record.support != 0) | (record.streak != 0))  # the sensors of the track (0 elsewhere)
+    return wire.HandOver.unchecked(
+        source=source, serial=serial, id=record.id, confirmed=record.confirmed, ring=ring,
+        neg_inf=tuple(neg.tolist()), sensors=tuple(record.sensors[k] for k in used.tolist()),
+        support=tuple(record.support[used].tolist()), streak=tuple(record.streak[used].tolist()),
+        window=tuple(record.window.tolist()), last_support=record.last_support,
+        member_sensors=tuple(s for s, _ in record.members), member_ids=tuple(i for _, i in record.members),
+        strikes=record.strikes)
+
+
+def handover_from_wire(msg: wire.HandOver, centre: TrackToTrackCentre) -> HandOver:
+    """The record of a wire hand-over for ``centre`` (its ring fields' shapes); ValueError when the
+    message does not fit them (another state size, detector or M-of-N window)."""
+    tracks = centre.tracks
+    shapes = [getattr(tracks, name).shape[2:] for name in tracks._ring]
+    widths = [int(np.prod(s, dtype=np.int64)) for s in shapes]
+    if msg.ring.shape[1] != sum(widths) or len(msg.window) != centre.cfg.confirm_window:
+        raise ValueError(f"ring: {msg.ring.shape[1]} values per entry and a window of {len(msg.window)} do not fit "
+                         f"this centre's {sum(widths)} and {centre.cfg.confirm_window}")
+    n = msg.ring.shape[0]
+    if n > MAX_ENTRIES:
+        raise ValueError(f"ring: {n} entries, at most {MAX_ENTRIES}")
+    ring = np.array(msg.ring)
+    ring.flat[list(msg.neg_inf)] = -np.inf
+    entries, at = [], 0
+    for name, shape, width in zip(tracks._ring, shapes, widths):
+        dtype = getattr(tracks, name).dtype
+        part = ring[:, at:at + width].reshape((n,) + shape)
+        if dtype != np.float64:  # counts (an observation's size, the detector's samples): small integers
+            if not np.all((part == np.round(part)) & (np.abs(part) <= MAX_ENTRIES)):
+                raise ValueError(f"ring: {name} must hold small integers")
+            part = part.astype(dtype)
+        entries.append(part)
+        at += width
+    if not (np.all(entries[3] >= 0) and np.all(entries[3] <= tracks.H.shape[2]) and np.all(np.diff(entries[0]) >= 0)):
+        raise ValueError("ring: observation sizes out of range or entries out of time order")
+    return HandOver(msg.id, msg.confirmed, tuple(entries), msg.sensors, np.array(msg.support, dtype=np.int64),
+                    np.array(msg.streak, dtype=np.int64), np.array(msg.window, dtype=bool), msg.last_support,
+                    tuple(zip(msg.member_sensors, msg.member_ids)), msg.strikes)
+
+
+# ---------------------------------------------------------------- the replay of a scans file
+
+@dataclass
+class ShardedCentre:
+    """One :class:`RegionCentre` per region of ``regions``, run in turn on each report; the
+    trackers' routing (:class:`RegionRouter`) is kept here for them; hand-overs are taken over at
+    once (the order a live run gives when nothing overtakes)."""
+
+    cfg: MttConfig
+    dim: int
+    feedback: bool
+    regions: Regions
+    centres: list[RegionCentre] = field(default_factory=list)
+    routers: dict[str, RegionRouter] = field(default_factory=dict)
     # CPU seconds (process time) spent in each region's centre (its reports, its hand-overs out
     # and in) and in routing rows to regions (the local trackers' part in a live deployment)
     cpu_s: list[float] = field(default_factory=list)
@@ -62,60 +188,40 @@ class ShardedCentre:
 
     def __post_init__(self) -> None:
         n = len(self.regions.ids)
-        self.centres = [TrackToTrackCentre(self.cfg, self.dim, self.feedback, next_id=r, id_step=n) for r in range(n)]
+        self.centres = [RegionCentre(self.cfg, self.dim, self.feedback, self.regions, r) for r in range(n)]
         self.cpu_s = [0.0] * n
 
-    def route(self, report: LocalReport) -> np.ndarray:
-        """The region (index) each of the report's rows goes to."""
-        out = region_of(self.regions, report.x[:, [0, 2]]) if report.ids.size else np.zeros(0, dtype=np.int64)
-        for r, c in enumerate(self.centres):
-            mine = np.fromiter(((report.sensor, i) in c.mapping for i in report.ids.tolist()), dtype=bool,
-                               count=report.ids.size)
-            out[mine] = r
-        return out
-
     def answer(self, report: LocalReport) -> tuple[Resets, float]:
-        """:meth:`TrackToTrackCentre.answer` of every region's centre on its rows, then the hand-overs."""
+        """Every region centre's answer to its sub-report, the hand-overs taken over, the answers
+        learnt by the report's router; returns the joined resets and the process-noise factor."""
         start = time.process_time()
-        route = self.route(report)
+        router = self.routers.setdefault(report.sensor, RegionRouter(self.regions))
+        parts = router.split(report)
         self.routing_s += time.process_time() - start
-        parts, touched, q_scale = [], [], 1.0
-        for r, c in enumerate(self.centres):
+        answers, moving = [], []
+        for r, (c, (sub, elsewhere)) in enumerate(zip(self.centres, parts)):
             start = time.process_time()
-            rows = route == r
-            sub = report if rows.all() else sub_report(report, rows)
-            resets, q_scale = c.answer(sub)  # the same q_scale in each
-            touched.append(c.moved[np.isin(c.moved, c.tracks.ids)])  # not merged away or pruned
+            answer, out = c.answer(sub, elsewhere)
             self.cpu_s[r] += time.process_time() - start
-            parts.append(resets)
-        self.hand_over(touched)
-        return join_resets(parts), q_scale
-
-    def hand_over(self, touched: list[np.ndarray]) -> None:
-        """Move each central track whose latest estimate left its owner's region to the new owner;
-        only the tracks of ``touched`` (per region, the ids this report's rows were fused into or
-        started, in increasing order) can have moved; with one region none can."""
-        if len(self.centres) == 1:
-            return
-        moving = []
-        for r, (c, cids) in enumerate(zip(self.centres, touched)):
-            start = time.process_time()
-            if cids.size:
-                owner = region_of(self.regions, c.tracks.latest(c.tracks.slots_of(cids))[1][:, [0, 2]])
-                moving += [(int(o), c.hand_over(cid)) for cid, o in zip(cids.tolist(), owner.tolist()) if o != r]
-            self.cpu_s[r] += time.process_time() - start
-        for owner, record in moving:
+            answers.append(answer)
+            moving += out
+        for owner, _, record in moving:
             start = time.process_time()
             self.centres[owner].take_over(record)
             self.cpu_s[owner] += time.process_time() - start
-        self.handed_over += len(moving)
+        router.learn([sub for sub, _ in parts], answers)
+        return join_answers(answers)
+
+    @property
+    def handed_over(self) -> int:
+        return sum(c.handed_over for c in self.centres)
 
     def drop_sensor(self, sensor: str) -> None:
         for c in self.centres:
             c.drop_sensor(sensor)
 
     def counters(self) -> dict[str, int]:
-        """The centres' counters added up (a departure once), and the hand-overs."""
-        total = {k: sum(getattr(c.counters, k) for c in self.centres) for k in vars(Counters())}
-        total["left"] = self.centres[0].counters.left
-        return {**total, "handed_over": self.handed_over}
+        """The centres' counters added up (a departure once), the hand-overs and the rows in flight."""
+        total = {k: sum(getattr(c.centre.counters, k) for c in self.centres) for k in vars(Counters())}
+        total["left"] = self.centres[0].centre.counters.left
+        return {**total, "handed_over": self.handed_over, "in_flight": sum(c.in_flight for c in self.centres)}

@@ -21,6 +21,12 @@ different resets for the report whose resets it adopted (``conflict``; an identi
 ``duplicate``), resets for a report not awaiting them (``unexpected``) or of another state size
 (``wrong_model``). A conflict is also counted ``contested`` and named in the next report's
 ``contested`` (the first message may have been the forgery: docs/wire.md, "Contested scans").
+
+With ``[regions]`` in the config (docs/multitarget.md#regions) it publishes each report as one
+sub-report per region (:class:`fedtrack.local_filters.mtt.routing.RegionRouter`) on
+``region/<rid>/local/<ID>/tracks`` and, federated or decentralized, waits for every region
+centre's answer (``region/<rid>/mtt-resets/<ID>``) before its next scan: it learns from them
+which region holds which of its local tracks, and (federated) adopts their resets together.
 """
 
 from __future__ import annotations
@@ -33,8 +39,10 @@ from fedtrack.config import load_tables
 from fedtrack.deployment import MODES
 from fedtrack.keys import check_id
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
-from fedtrack.local_filters.mtt.local import SensorTracker, report_to_wire, resets_from_wire
+from fedtrack.local_filters.mtt.local import LocalReport, SensorTracker, report_to_wire, resets_from_wire
+from fedtrack.local_filters.mtt.routing import RegionAnswer, RegionRouter, answer_from_wire, join_answers
 from fedtrack.local_filters.mtt.scan import SensorScan, scan_from_measurement
+from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.services.base import (
     Conflict,
     ReceivedScans,
@@ -60,11 +68,16 @@ class MttLocalService(Service):
     # put back by the transaction if a scan fails; ``received`` is only changed once a scan was
     # handled (compute, then commit)
     state_attrs = ("tracker", "queue", "last_t", "awaiting", "awaiting_since", "awaiting_scan", "adopted",
-                   "contested_scans")
+                   "contested_scans", "router", "sent", "answers")
 
     def __init__(self, sensor: str, federated: bool, cfg: MttConfig, reset_timeout_s: float = 2.0,
-                 max_seq_jump: int = 1000, max_time_jump_s: float = 3600.0, **kwargs: object) -> None:
+                 max_seq_jump: int = 1000, max_time_jump_s: float = 3600.0, regions: Regions | None = None,
+                 **kwargs: object) -> None:
         super().__init__(**kwargs)  # type: ignore[arg-type]
+        self.regions = regions
+        self.router = None if regions is None else RegionRouter(regions)
+        self.sent: list[LocalReport] = []  # the sub-reports of the report awaiting answers (regions)
+        self.answers: dict[int, tuple[RegionAnswer, bytes]] = {}  # region -> its answer and digest
         self.sensor = check_id(sensor, "--sensor")
         self.federated = federated
         self.cfg = cfg
@@ -81,7 +94,9 @@ class MttLocalService(Service):
 
     def subscriptions(self) -> list[Subscription]:
         subs = [Subscription(self.keys.sensor_meas(self.sensor), Measurement, self.on_scan)]
-        if self.federated:
+        if self.regions is not None:
+            subs.append(Subscription(self.keys.region_resets(None, self.sensor), TrackResets, self.on_answer))
+        elif self.federated:
             subs.append(Subscription(self.keys.mtt_resets(self.sensor), TrackResets, self.on_resets))
         return subs
 
@@ -120,11 +135,48 @@ class MttLocalService(Service):
         self.awaiting = self.awaiting_scan = None
         self._advance()
 
+    def on_answer(self, msg: TrackResets) -> None:
+        """A region centre's answer to a sub-report (``[regions]``)."""
+        assert self.regions is not None and self.router is not None
+        try:
+            region, answer = answer_from_wire(msg, self.regions)
+        except ValueError as exc:
+            raise Rejected("unknown_region", str(exc)) from None
+        if msg.seq != self.awaiting or region in self.answers:
+            if region in self.answers and msg.seq == self.awaiting and digest(msg) == self.answers[region][1]:
+                self.count("duplicate")
+                return
+            raise Rejected("unexpected", f"answer of {msg.region} for report {msg.seq}, awaiting {self.awaiting}")
+        assert self.tracker is not None and self.awaiting_scan is not None
+        d = self.tracker.tracker.state.tracks.x.shape[1]
+        if msg.ids and msg.x.shape[1] != d:
+            raise Rejected("wrong_model", f"resets of size {msg.x.shape[1]} for a {d}-D tracker")
+        self.answers[region] = (answer, digest(msg))
+        if len(self.answers) == len(self.regions.ids):
+            self._learn()
+
+    def _learn(self) -> None:
+        """Every region answered (or the wait timed out): learn where the local tracks are held and,
+        federated, adopt the resets together; then go on."""
+        assert self.router is not None and self.tracker is not None and self.awaiting_scan is not None
+        got = sorted(self.answers)
+        answers = [self.answers[r][0] for r in got]
+        if answers:
+            self.router.learn([self.sent[r] for r in got], answers, got)
+            if self.federated:
+                self.tracker.adopt(self.awaiting_scan, *join_answers(answers))
+        self.awaiting = self.awaiting_scan = None
+        self.sent, self.answers = [], {}
+        self._advance()
+
     def on_tick(self) -> None:
         if self.awaiting is not None and time.monotonic() - self.awaiting_since > self.reset_timeout_s:
             self.count("reset_timeouts")
             self.log.warning("no resets for report %d after %.1f s: going on without them",
                              self.awaiting, self.reset_timeout_s)
+            if self.regions is not None:
+                self._learn()  # what the regions that answered said
+                return
             self.awaiting = self.awaiting_scan = None
             self._advance()
 
@@ -145,12 +197,19 @@ class MttLocalService(Service):
                     continue
                 report, rerun = self.tracker.track(scan)
                 require_finite(f"scan {seq}: the local tracks", report.x, report.P)
-                self.publish(self.keys.mtt_report(self.sensor),
-                             report_to_wire(report, seq, stamp, self.take_contested()))
+                contested = self.take_contested()
+                if self.router is not None and self.regions is not None:
+                    parts = self.router.split(report)
+                    for rid, (sub, elsewhere) in zip(self.regions.ids, parts):
+                        self.publish(self.keys.region_report(rid, self.sensor),
+                                     report_to_wire(sub, seq, stamp, contested, tuple(elsewhere.tolist())))
+                    self.sent, self.answers = [sub for sub, _ in parts], {}
+                else:
+                    self.publish(self.keys.mtt_report(self.sensor), report_to_wire(report, seq, stamp, contested))
                 self.count("reports")
                 if rerun:
                     self.count("rerun", rerun)
-                if self.federated:
+                if self.federated or self.regions is not None:
                     self.awaiting, self.awaiting_since, self.awaiting_scan = seq, time.monotonic(), scan
             if attempt.failed:
                 failed.append(seq)
@@ -173,4 +232,4 @@ def main(argv: list[str]) -> int:
     settings = load_tables(path, MttServiceSettings)  # a ConfigError is the CLI's one-line error
     dep = settings.deployment
     return MttLocalService(args.sensor, args.mode == "federated", settings.mtt, args.reset_timeout,
-                           dep.max_seq_jump, dep.max_time_jump_s, **kwargs).run()
+                           dep.max_seq_jump, dep.max_time_jump_s, load_regions(path), **kwargs).run()

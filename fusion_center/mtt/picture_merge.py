@@ -1,0 +1,159 @@
+"""``fedtrack serve picture --config TOML [--wait SECONDS]``: the region centres' pictures merged.
+
+Subscribes to every region's picture (``region/<rid>/picture`` for each region of the config's
+``[regions]``) and publishes one ``TrackPicture`` per picture time on ``fusion/picture`` (the
+recorder records it as the unsharded centre's): the union of the regions' tracks by id, each id
+once (an id in two regions' pictures, a hand-over between their pictures, is taken from the first
+region and counted ``seen_twice``; :func:`fedtrack.fusion_center.mtt.regional.merge_pictures`),
+and the fused lists of every region in region order, each entry tagged with its region
+(``regions``; ``left`` and ``handovers`` shifted to their positions), so that ``replay --regions
+config`` of the recording takes each region's entries in its order.
+
+A picture time is merged once every region has published its picture of that time, a later one
+(it has none of that time: it started later) or its closing record; after ``--wait`` seconds
+(from the first region's picture of that time) without one, it is merged without that region:
+counted ``missing_region``, logged, and the picture marked ``contested`` when the region had
+published before (a region's picture that comes after its time was merged is counted
+``late_picture``; its fused lists go into the next merged picture, its tracks nowhere: live and
+replay then differ at that picture). On a clean stop it merges what it holds and publishes a
+closing record with the regions' closing lists.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fedtrack.config import ConfigError
+from fedtrack.fusion_center.mtt.regional import RegionPicture, merge_pictures, rows_of
+from fedtrack.fusion_center.mtt.service import picture_message, picture_tracks
+from fedtrack.local_filters.regions import Regions, load_regions
+from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
+from fedtrack.wire import TrackPicture
+
+Entries = list[tuple[str, int, str, str]]  # (sensor or sending region, seq, kind: scan/left/handover, region)
+
+
+def entries_of(msg: TrackPicture, region: str) -> Entries:
+    """A region picture's fused lists as tagged entries."""
+    left, handovers = set(msg.left), set(msg.handovers)
+    return [(s, q, "left" if i in left else "handover" if i in handovers else "scan", region)
+            for i, (s, q) in enumerate(zip(msg.fused_sensors, msg.fused_seqs))]
+
+
+def region_picture_of(msg: TrackPicture) -> RegionPicture:
+    """A region centre's picture: its held tracks and its copies of tracks in flight."""
+    tracks = picture_tracks(msg)
+    if not msg.in_flight:
+        return RegionPicture(tracks)
+    flying = np.zeros(len(msg.ids), dtype=bool)
+    flying[list(msg.in_flight)] = True
+    order = np.argsort(msg.in_flight)
+    return RegionPicture(rows_of(tracks, ~flying), rows_of(tracks, flying),
+                         tuple(msg.in_flight_t[k] for k in order.tolist()))
+
+
+class PictureMergeService(Service):
+    """Merges the region centres' pictures into the deployment's picture."""
+
+    role = "picture"
+    tick_period_s = 0.05
+    state_attrs = ("pending", "started", "closing", "late", "merged_t", "seq")
+
+    def __init__(self, regions: Regions, dim: int = 4, wait_s: float = 2.0, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self.regions, self.dim, self.wait_s = regions, dim, wait_s
+        R = len(regions.ids)
+        self.pending: list[deque[TrackPicture]] = [deque() for _ in range(R)]
+        self.started = [False] * R  # the region published a picture
+        self.closing: list[TrackPicture | None] = [None] * R
+        self.late: list[Entries] = [[] for _ in range(R)]  # entries of pictures that came after their time
+        self.first_seen: dict[float, float] = {}  # picture time -> monotonic time of its first region picture
+        self.merged_t: float | None = None
+        self.seq = 0
+
+    def subscriptions(self) -> list[Subscription]:
+        return [Subscription(self.keys.region_picture(rid), TrackPicture, partial(self.on_picture, r))
+                for r, rid in enumerate(self.regions.ids)]
+
+    def on_picture(self, r: int, msg: TrackPicture) -> None:
+        self.started[r] = True
+        if msg.closing:
+            self.closing[r] = msg
+        elif self.merged_t is not None and msg.t <= self.merged_t:
+            self.count("late_picture")
+            self.log.warning("region %s's picture at t=%g came after that time was merged", self.regions.ids[r], msg.t)
+            self.late[r] += entries_of(msg, self.regions.ids[r])
+        else:
+            self.pending[r].append(msg)
+            self.first_seen.setdefault(msg.t, time.monotonic())
+        self._merge()
+
+    def on_tick(self) -> None:
+        self._merge()
+
+    def _merge(self, force: bool = False) -> None:
+        """Publish every picture time that is complete (or whose wait is over, or all when ``force``)."""
+        while True:
+            heads = [q[0].t for q in self.pending if q]
+            if not heads:
+                return
+            T = min(heads)
+            absent = [r for r, q in enumerate(self.pending) if not q and self.closing[r] is None]
+            if absent and not force and time.monotonic() - self.first_seen[T] < self.wait_s:
+                return
+            for r in absent:
+                self.count("missing_region")
+                self.log.warning("picture at t=%g merged without region %s", T, self.regions.ids[r])
+            parts = [q.popleft() if q and q[0].t == T else None for q in self.pending]
+            self._publish(T, parts, contested=any(self.started[r] for r in absent))
+            self.first_seen.pop(T, None)
+            self.merged_t = T
+
+    def _publish(self, T: float, parts: list[TrackPicture | None], contested: bool = False,
+                 closing: bool = False) -> None:
+        tracks, twice = merge_pictures([None if p is None else region_picture_of(p) for p in parts], self.dim)
+        if twice:
+            self.count("seen_twice", len(twice))
+            self.log.warning("picture at t=%g: ids %s in two regions' pictures (the first region's taken)", T, twice)
+        entries: Entries = []
+        for r, p in enumerate(parts):
+            entries += self.late[r] + ([] if p is None else entries_of(p, self.regions.ids[r]))
+            self.late[r] = []
+        order = [(s, q) for s, q, _, _ in entries]
+        left = [i for i, e in enumerate(entries) if e[2] == "left"]
+        handovers = [i for i, e in enumerate(entries) if e[2] == "handover"]
+        contested = contested or any(p is not None and p.contested for p in parts)
+        self.publish(self.keys.mtt_picture(), picture_message(
+            self.seq, T, tracks, order, left, contested, closing, handovers, tuple(e[3] for e in entries)))
+        self.seq += 1
+        self.counters["pictures"] = self.seq
+
+    def on_stop(self) -> None:
+        """The pictures still held, then one closing record of the regions' closing lists."""
+        self._merge(force=True)
+        if any(self.closing) or any(self.late):
+            self._publish(max((c.t for c in self.closing if c is not None), default=self.merged_t or 0.0),
+                          self.closing, closing=True)
+
+
+def main(argv: list[str]) -> int:
+    parser = service_parser("picture", "merge the region centres' pictures into one")
+    parser.add_argument("--config", required=True, help="configuration file; reads [regions] and [deployment]")
+    parser.add_argument("--dim", type=int, choices=(4, 6), default=4,
+                        help="central state size: 6 when any sensor is a radar (default: %(default)s)")
+    parser.add_argument("--wait", type=float, default=2.0, metavar="SECONDS",
+                        help="merge a picture time without a region after this long (default: %(default)s)")
+    args = parser.parse_args(argv)
+    if not args.wait > 0:
+        parser.error("--wait must be > 0")
+    kwargs = service_kwargs(parser, args)
+    regions = load_regions(Path(args.config))
+    if regions is None:
+        raise ConfigError(f"{args.config}: serve picture needs a [regions] table")
+    return PictureMergeService(regions, args.dim, args.wait, **kwargs).run()

@@ -1,0 +1,307 @@
+"""The live region centres' algorithm as engines, their pictures merged, and the replay of a live
+run's recording, each region centre in its own recorded order (docs/multitarget.md#regions).
+
+A live region centre (``serve mtt-centre --region RID``) runs a :class:`RegionEngine`: the
+:class:`RegionCentre` of its region, fed the sub-reports and the hand-overs in its arrival order,
+with its own :class:`PictureClock`. ``serve picture`` merges the regions' pictures of each time
+(:func:`merge_pictures`) and lists in the merged picture every region's processed entries, tagged
+with the region (``TrackPicture.regions``). :func:`recorded_pictures` replays such a recording:
+every region centre takes its entries in its recorded order, the local trackers track their
+scans in order and go on once every region answered (as the live trackers do), a hand-over is
+taken over where its region took it, and the pictures are made and merged as the live services
+made them; so the replay of a recording equals its live pictures.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from fedtrack.fusion_center.mtt.centre import HandOver, TrackToTrackCentre
+from fedtrack.fusion_center.mtt.engines import (
+    Engine,
+    PictureClock,
+    PictureTracks,
+    centre_picture,
+    no_tracks,
+    union_picture,
+)
+from fedtrack.fusion_center.mtt.shards import RegionCentre
+from fedtrack.jsonl import InputError, read_jsonl
+from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.mtt.local import LocalReport, SensorTracker
+from fedtrack.local_filters.mtt.routing import RegionAnswer, RegionRouter, join_answers
+from fedtrack.local_filters.mtt.scan import SensorLeft, SensorScan, parse_line
+from fedtrack.local_filters.regions import Regions
+
+
+class RegionPicture(NamedTuple):
+    """A region centre's picture: the tracks it holds, and copies of the ones it handed over within
+    ``IN_FLIGHT_PERIODS`` picture periods before (``flying``, each with the latest data time the
+    centre had seen at its hand-over: reports from several sensors come out of time order), shown
+    in the merged picture while no region shows the track as its own."""
+
+    held: PictureTracks
+    flying: PictureTracks | None = None
+    flying_t: tuple[float, ...] = ()
+
+
+# A handed-over track's copy is shown by its old owner for pictures up to this many periods after the
+# hand-over: a picture made by the old owner after it and by the new owner before the track arrived
+# (each makes a picture when the first data after its time arrives) still shows it. The new owner
+# takes it over milliseconds after, so two periods cover it; a track deleted by its new owner right
+# after a hand-over is shown that long at most.
+IN_FLIGHT_PERIODS = 2.0
+
+
+@dataclass
+class RegionEngine(Engine):
+    """One region's centre (:class:`RegionCentre`) as the live service and the replay run it, with
+    the copies of the tracks it handed over lately (:class:`RegionPicture`)."""
+
+    feedback: bool = True
+    regions: Regions | None = None
+    index: int = 0
+    region: RegionCentre = field(init=False)
+    shadow: TrackToTrackCentre = field(init=False)  # the tracks handed over lately, as they left
+    handed_t: dict[int, float] = field(default_factory=dict)  # their ids -> the latest data time at the hand-over
+    high: float = -np.inf  # the latest data time of the sub-reports so far
+
+    def __post_init__(self) -> None:
+        assert self.regions is not None
+        self.region = RegionCentre(self.cfg, self.dim, self.feedback, self.regions, self.index)
+        self.shadow = TrackToTrackCentre(self.cfg, self.dim, self.feedback)
+
+    def answer(self, report: LocalReport, elsewhere: np.ndarray
+               ) -> tuple[RegionAnswer, list[tuple[int, int, HandOver]]]:
+        self.scans += 1
+        self.high = max(self.high, report.t)
+        answer, moving = self.region.answer(report, elsewhere)
+        for _, _, record in moving:
+            self.remember(record)
+        return answer, moving
+
+    def remember(self, record: HandOver) -> None:
+        """Keep a copy of a track handed over (shown by :meth:`region_picture` for a while)."""
+        if record.id in self.handed_t:
+            self.shadow.hand_over(record.id)
+        for key in record.members:  # a local track is a member of its latest copy only
+            self.shadow._unmap(key)
+        self.shadow.take_over(record)
+        self.handed_t[record.id] = self.high
+
+    def take_over(self, record: HandOver) -> None:
+        self.region.take_over(record)
+
+    def leave(self, sensor: str) -> None:
+        self.region.drop_sensor(sensor)
+
+    def picture(self, T: float) -> PictureTracks:
+        return centre_picture(self.region.centre, T) or no_tracks(self.dim)
+
+    def region_picture(self, T: float) -> RegionPicture:
+        """The held tracks and the copies still shown (those handed over within
+        ``IN_FLIGHT_PERIODS`` periods before ``T``, not held here again) predicted to ``T``."""
+        for cid, t in list(self.handed_t.items()):
+            if T >= t + IN_FLIGHT_PERIODS * self.cfg.period:
+                self.shadow.hand_over(cid)
+                del self.handed_t[cid]
+        held = self.picture(T)
+        flying = centre_picture(self.shadow, T)
+        if flying is None:
+            return RegionPicture(held)
+        keep = ~np.isin(flying.ids, held.ids)
+        flying = flying if keep.all() else rows_of(flying, keep)
+        return RegionPicture(held, flying, tuple(self.handed_t[i] for i in flying.ids))
+
+    def counters(self) -> dict[str, int]:
+        r = self.region
+        return {**super().counters(), **{f"centre_{k}": v for k, v in vars(r.centre.counters).items()},
+                "handed_over": r.handed_over, "taken_over": r.taken_over, "in_flight": r.in_flight}
+
+
+def rows_of(p: PictureTracks, keep: np.ndarray) -> PictureTracks:
+    """The tracks ``keep`` (bool) of a picture."""
+    pick = np.flatnonzero(keep).tolist()
+    return PictureTracks([p.ids[i] for i in pick], p.x[keep], p.P[keep], [p.confirmed[i] for i in pick],
+                         [p.sensors[i] for i in pick], [p.models[i] for i in pick],
+                         None if p.maneuver is None else p.maneuver[keep],
+                         None if p.existence is None else [p.existence[i] for i in pick])
+
+
+def merge_pictures(parts: list[RegionPicture | None], dim: int) -> tuple[PictureTracks, list[int]]:
+    """The regions' pictures of one time (in region order; None: the region has none) as one, in
+    increasing id: every held track, an id held in two regions' pictures (a hand-over between their
+    pictures) from the first region; then the handed-over copies of ids no region holds, the latest
+    hand-over's. Returns it and the ids held twice."""
+    seen: set[int] = set()
+    twice: list[int] = []
+    kept: list[PictureTracks | None] = []
+    for p in parts:
+        if p is None:
+            continue
+        keep = np.array([i not in seen for i in p.held.ids], dtype=bool)
+        twice += [i for i, k in zip(p.held.ids, keep.tolist()) if not k]
+        seen.update(p.held.ids)
+        kept.append(p.held if keep.all() else rows_of(p.held, keep))
+    latest: dict[int, tuple[float, int]] = {}  # id -> (hand-over time, region position in parts)
+    for k, p in enumerate(parts):
+        if p is not None and p.flying is not None:
+            for i, t in zip(p.flying.ids, p.flying_t):
+                if i not in seen and t > latest.get(i, (-np.inf, 0))[0]:
+                    latest[i] = (t, k)
+    for k, p in enumerate(parts):
+        if p is not None and p.flying is not None:
+            keep = np.array([latest.get(i, (0.0, -1))[1] == k for i in p.flying.ids], dtype=bool)
+            if keep.any():
+                kept.append(rows_of(p.flying, keep))
+    return union_picture(kept, dim), twice
+
+
+# ---------------------------------------------------------------- the replay of a recording
+
+class Handed(NamedTuple):
+    """A recorded hand-over entry: region ``source``'s hand-over number ``serial``."""
+
+    source: str
+    serial: int
+
+
+Entry = tuple[SensorScan, int] | SensorLeft | Handed  # (scan, its number), a departure, a hand-over
+
+
+def read_region_entries(path: Path, regions: Regions) -> list[tuple[int, Entry]]:
+    """The entries of a live region run's recording (``measurements.jsonl``, every line tagged with
+    the ``region`` that processed it), as (region index, entry), in the recorded order."""
+    out: list[tuple[int, Entry]] = []
+    index = {rid: r for r, rid in enumerate(regions.ids)}
+    for lineno, obj in read_jsonl(path):
+        where = f"{path}:{lineno}"
+        rid = obj.pop("region", None) if isinstance(obj, dict) else None
+        if rid not in index:
+            raise InputError(f"{where}: region: expected one of the config's regions ({', '.join(regions.ids)}), "
+                             f"got {rid!r}")
+        if "handover" in obj:
+            if set(obj) != {"t", "handover", "from"} or obj["from"] not in index or not isinstance(obj["handover"], int):
+                raise InputError(f"{where}: a hand-over line is {{\"t\", \"region\", \"handover\": N, \"from\": region}}")
+            out.append((index[rid], Handed(obj["from"], obj["handover"])))
+            continue
+        seq = obj.pop("seq", None)
+        entry = parse_line(obj, where)
+        if isinstance(entry, SensorScan):
+            if not isinstance(seq, int) or isinstance(seq, bool) or seq < 0:
+                raise InputError(f"{where}: seq: a region run's scan line needs its scan number")
+            out.append((index[rid], (entry, seq)))
+        else:
+            out.append((index[rid], entry))
+    return out
+
+
+def is_region_recording(path: Path) -> bool:
+    """Whether the first line of ``path`` is tagged with a region (a live region run's recording)."""
+    for _, obj in read_jsonl(path):
+        return isinstance(obj, dict) and "region" in obj
+    return False
+
+
+@dataclass
+class _Tracker:
+    """A local tracker of the replay: its scans in order, its router, the report awaiting answers."""
+
+    scans: list[tuple[SensorScan, int]]
+    router: RegionRouter
+    tracker: SensorTracker | None = None
+    next: int = 0  # its next scan
+    seq: int | None = None  # the report awaiting answers
+    scan: SensorScan | None = None
+    parts: list[tuple[LocalReport, np.ndarray]] = field(default_factory=list)
+    answers: dict[int, RegionAnswer] = field(default_factory=dict)
+
+
+def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions, entries: list[tuple[int, Entry]],
+                      counts: dict[str, int]) -> Iterator[tuple[float, PictureTracks]]:
+    """The merged pictures of a live region run from its recorded entries (module docstring);
+    ``counts`` gets the trackers' scans and the centres' counters added up (the replay's report)."""
+    R = len(regions.ids)
+    engines = [RegionEngine(cfg, dim, feedback=feedback, regions=regions, index=r) for r in range(R)]
+    clocks = [PictureClock(cfg.period, cfg.picture_delay) for _ in range(R)]
+    queues: list[deque[Entry]] = [deque() for _ in range(R)]
+    trackers: dict[str, _Tracker] = {}
+    firsts: set[tuple[str, int]] = set()
+    for r, entry in entries:
+        queues[r].append(entry)
+        if isinstance(entry, tuple) and not isinstance(entry, (SensorLeft, Handed)):
+            scan, seq = entry
+            if (scan.sensor, seq) not in firsts:
+                firsts.add((scan.sensor, seq))
+                trackers.setdefault(scan.sensor, _Tracker([], RegionRouter(regions))).scans.append(entry)
+    outbox: dict[tuple[int, int], HandOver] = {}
+    shown: list[dict[float, RegionPicture]] = [{} for _ in range(R)]
+    index = {rid: r for r, rid in enumerate(regions.ids)}
+
+    def report_of(sensor: str, seq: int) -> _Tracker | None:
+        """The sensor's tracker with report ``seq`` made (tracking its next scan if it may), else None."""
+        tr = trackers[sensor]
+        if tr.seq is None and tr.next < len(tr.scans) and tr.scans[tr.next][1] == seq:
+            scan = tr.scans[tr.next][0]
+            tr.next += 1
+            if tr.tracker is None:
+                tr.tracker = SensorTracker(scan, cfg, feedback)
+            report, _ = tr.tracker.track(scan)
+            tr.seq, tr.scan, tr.parts, tr.answers = seq, scan, tr.router.split(report), {}
+        return tr if tr.seq == seq else None
+
+    def step(r: int, entry: Entry) -> bool:
+        """Region ``r`` takes ``entry`` if it can now (False: it waits for another region or tracker)."""
+        if isinstance(entry, Handed):
+            record = outbox.pop((index[entry.source], entry.serial), None)
+            if record is None:
+                return False
+            engines[r].take_over(record)
+        elif isinstance(entry, SensorLeft):
+            engines[r].leave(entry.sensor)
+            clocks[r].left()
+        else:
+            scan, seq = entry
+            tr = report_of(scan.sensor, seq)
+            if tr is None:
+                return False
+            for T in clocks[r].due(scan.t):
+                shown[r][T] = engines[r].region_picture(T)
+            answer, moving = engines[r].answer(*tr.parts[r])
+            outbox.update(((r, serial), record) for _, serial, record in moving)
+            tr.answers[r] = answer
+            if len(tr.answers) == R:
+                answers = [tr.answers[k] for k in range(R)]
+                tr.router.learn([sub for sub, _ in tr.parts], answers)
+                if feedback:
+                    assert tr.tracker is not None and tr.scan is not None
+                    tr.tracker.adopt(tr.scan, *join_answers(answers))
+                tr.seq = tr.scan = None
+        return True
+
+    while any(queues):
+        progress = False
+        for r in range(R):
+            while queues[r] and step(r, queues[r][0]):
+                queues[r].popleft()
+                progress = True
+        if not progress:
+            stuck = [f"{regions.ids[r]}: {q[0]!r:.80}" for r, q in enumerate(queues) if q]
+            raise InputError("the recorded region entries cannot be replayed in their order (a tracker's report "
+                             f"or a hand-over that no region made first): {'; '.join(stuck)}")
+    for r in range(R):
+        for T in clocks[r].final():
+            shown[r][T] = engines[r].region_picture(T)
+    counts.update({"scans": len(firsts), "late": 0, "duplicates": 0, "rerun": 0})
+    for e in engines:
+        for k, v in e.counters().items():
+            if k.startswith("centre_") or k in ("handed_over", "in_flight"):
+                counts["centre_" + k.removeprefix("centre_")] = counts.get("centre_" + k.removeprefix("centre_"), 0) + v
+    for T in sorted(set().union(*shown)):
+        yield T, merge_pictures([s.get(T) for s in shown], dim)[0]
