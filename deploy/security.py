@@ -46,6 +46,7 @@ from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
 from fedtrack.config import ConfigError
 from fedtrack.deployment import DeploymentConfig, listen_address
+from fedtrack.fusion_center.mtt.standby import PRIMARY_ROLE
 from fedtrack.keys import Keys
 
 CA_NAME = "fedtrack-ca"
@@ -90,7 +91,8 @@ def check_transport(zenoh: ZenohSettings, dep: DeploymentConfig) -> None:
     """Authenticated by default: an endpoint off loopback needs ``tls_dir`` or ``insecure = true``
     (a ConfigError naming the field); with ``tls_dir`` every endpoint must be ``tls/``."""
     fields = [*([("deployment.router_listen", dep.router_listen)] if dep.router_listen else []),
-              *(("deployment.connect", ep) for ep in dep.connect or ())]
+              *(("deployment.connect", ep) for ep in dep.connect or ()),
+              *(("deployment.router_connect", ep) for ep in dep.router_connect)]
     if zenoh.tls_dir is not None:
         for name, ep in fields:
             if not ep.startswith("tls/"):
@@ -126,7 +128,7 @@ def own_keys(keys: Keys, ident: str) -> list[str]:
     elif ident == "fusion":
         data = [keys.fusion_track().rsplit("/", 1)[0] + "/**", keys.region_resets(), keys.region_handover(),
                 keys.region_picture()]
-        roles = [(role, None) for role in CENTRE_ROLES]
+        roles = [(role, None) for role in (*CENTRE_ROLES, PRIMARY_ROLE)]  # a centre's primary token too
     elif ident == LAUNCHER:
         return []
     else:

@@ -57,6 +57,7 @@ from fedtrack.fusion_center.mtt.engines import (
 )
 from fedtrack.fusion_center.mtt.regional import RegionEngine
 from fedtrack.fusion_center.mtt.shards import handover_from_wire, handover_to_wire
+from fedtrack.fusion_center.mtt.standby import PRIMARY_ROLE, Standby
 from fedtrack.geodetic import Frame, geodetic_of_states
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
 from fedtrack.local_filters.mtt.local import report_from_wire, resets_to_wire
@@ -73,7 +74,7 @@ from fedtrack.services.base import (
     service_kwargs,
     service_parser,
 )
-from fedtrack.wire import HandOver, Measurement, TrackPicture, TrackReport
+from fedtrack.wire import HandOver, Measurement, Message, TrackPicture, TrackReport, TrackResets
 
 ALGORITHMS = ("mtt-federated", "mtt-decentralized", "mtt-centralized")
 
@@ -91,6 +92,7 @@ class MttCentreService(Service):
 
     def __init__(self, algorithm: str, cfg: MttConfig, dim: int = 4, max_seq_jump: int = 1000,
                  frame: Frame | None = None, region: str | None = None, regions: Regions | None = None,
+                 standby: bool = False,
                  **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.frame = frame  # [frame]: each picture track's WGS-84 position too
@@ -121,11 +123,16 @@ class MttCentreService(Service):
         self.last_heard: dict[str, float] = {}  # sensor -> monotonic time of its last message
         self.gone: deque[str] = deque()  # liveliness lost (filled by a Zenoh thread)
         self.contested = False  # a conflicting message since the last picture (docs/wire.md)
+        # failover (:mod:`.standby`): None for the primary, else the hot standby's withheld outputs
+        self.standby = Standby(self._scope(), time.monotonic()) if standby else None
+        self.primary_token: Any = None  # the liveliness token ``alive/mtt-primary/<scope>``, while primary
+        self.primary_seen: deque[tuple[bool, float]] = deque()  # the primary token's changes (a Zenoh thread)
 
     def on_start(self) -> None:
         assert self.session is not None
         role = "sensor" if self.algorithm == "mtt-centralized" else "mtt-local"
         self._inputs.append(self.session.liveliness().declare_subscriber(self.keys.alive(role), self._on_alive))
+        self._start_failover()
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         """Zenoh thread: a tracker's (or sensor's) token went away; the worker drops it (on_tick)."""
@@ -133,6 +140,7 @@ class MttCentreService(Service):
             self.gone.append(str(sample.key_expr).rsplit("/", 1)[-1])
 
     def on_tick(self) -> None:
+        self._failover_tick()
         now = time.monotonic()
         silent = [s for s, heard in self.last_heard.items() if now - heard > self.cfg.leave_after_s]
         while self.gone:
@@ -150,6 +158,9 @@ class MttCentreService(Service):
                 self.log.info("sensor %s left: dropped from fusion", sensor)
 
     def subscriptions(self) -> list[Subscription]:
+        return self._inputs_of_centre() + self._primary_outputs()
+
+    def _inputs_of_centre(self) -> list[Subscription]:
         if self.algorithm == "mtt-centralized":
             return [Subscription(self.keys.sensor_meas(), Measurement, self.on_scan)]
         if self.region is not None:
@@ -279,10 +290,80 @@ class MttCentreService(Service):
         self.counters["pictures"] = self.pictures
         for name, value in self.engine.counters().items():
             self.counters[name] = value
+        self._failover_counters()
         return picture
 
     def _publish_picture(self, T: float, closing: bool = False) -> None:
         self.publish(self.picture_key, self._picture(T, closing))
+
+    # ------------------------------------------------------------ failover (:mod:`.standby`)
+    def _scope(self) -> str:
+        """What this centre covers, the chunk of its primary token: its region, or ``all``."""
+        return self.region or "all"
+
+    def _start_failover(self) -> None:
+        """Watch the primary token; a primary claims it (refusing to start if another holds it)."""
+        assert self.session is not None
+        key = self.keys.alive(PRIMARY_ROLE, self._scope())
+        if self.standby is None:
+            if any(reply.ok is not None for reply in self.session.liveliness().get(key, timeout=1.0)):
+                raise ConfigError(f"{key}: this centre already has a primary; start another with --standby")
+            self.primary_token = self.session.liveliness().declare_token(key)
+            return
+        self._inputs.append(self.session.liveliness().declare_subscriber(key, self._on_primary, history=True))
+
+    def _on_primary(self, sample: zenoh.Sample) -> None:
+        """Zenoh thread: the primary token appeared or went; the worker acts on it (on_tick)."""
+        self.primary_seen.append((sample.kind == zenoh.SampleKind.PUT, time.monotonic()))
+
+    def _primary_outputs(self) -> list[Subscription]:
+        """A standby watches what its primary publishes (:meth:`Standby.sent`): the pictures, the
+        answers and (a region's) the hand-overs it sends to the other regions."""
+        if self.standby is None:
+            return []
+        if self.region is None:
+            return [Subscription(self.keys.mtt_picture(), TrackPicture, self._primary_sent),
+                    Subscription(self.keys.mtt_resets(), TrackResets, self._primary_sent)]
+        return [Subscription(self.keys.region_picture(self.region), TrackPicture, self._primary_sent),
+                Subscription(self.keys.region_resets(self.region), TrackResets, self._primary_sent),
+                Subscription(self.keys.region_handover(), HandOver, self._primary_sent)]
+
+    def _primary_sent(self, msg: TrackPicture | TrackResets | HandOver) -> None:
+        if self.standby is None or self.standby.primary or (isinstance(msg, HandOver) and msg.source != self.region):
+            return
+        self.standby.sent(msg, time.monotonic())
+
+    def publish(self, key: str, msg: Message) -> None:
+        """Publish, or, as a standby that has not taken over, withhold (:meth:`Standby.hold`)."""
+        if self.standby is None or self.standby.primary:
+            super().publish(key, msg)
+            return
+        self.standby.hold(key, msg, time.monotonic())
+        self.count("withheld")
+
+    def _failover_tick(self) -> None:
+        """A standby takes over once no primary token exists (:meth:`Standby.due`): it claims the
+        token and publishes what the dead primary never sent."""
+        standby = self.standby
+        if standby is None or standby.primary:
+            return
+        while self.primary_seen:
+            standby.token(*self.primary_seen.popleft())
+        if not standby.due(time.monotonic()):
+            return
+        assert self.session is not None
+        self.primary_token = self.session.liveliness().declare_token(self.keys.alive(PRIMARY_ROLE, self._scope()))
+        flushed = standby.take_over()
+        for key, msg in flushed:
+            self.publish(key, msg)
+        self.counters["took_over"] = 1
+        self.log.warning("took over as the primary of %s: published %d withheld output(s) the primary never sent; "
+                         "as a standby %d picture(s) equal to the primary's, %d differed (largest state difference "
+                         "%.3g)", self._scope(), len(flushed), standby.same, standby.differ, standby.max_difference)
+
+    def _failover_counters(self) -> None:
+        if self.standby is not None:
+            self.counters["standby_same"], self.counters["standby_differ"] = self.standby.same, self.standby.differ
 
     def on_stop(self) -> None:
         """The pictures still due at the end of the data (as the replay writes them), then the
@@ -339,6 +420,8 @@ def service_from_args(argv: list[str]) -> MttCentreService:
                         "--region, [regions] (docs/multitarget.md)")
     parser.add_argument("--region", metavar="RID", help="the centre of this region of the config's [regions] only "
                         "(docs/multitarget.md#regions)")
+    parser.add_argument("--standby", action="store_true",
+                        help="hot standby: run the centre, publish nothing until the primary is gone (docs/deploy.md)")
     args = parser.parse_args(argv)
     kwargs = service_kwargs(parser, args)
     path = Path(args.config) if args.config else None
@@ -346,7 +429,7 @@ def service_from_args(argv: list[str]) -> MttCentreService:
     frame = None if settings.frame is None else settings.frame.frame
     regions = load_regions(path) if args.region else None
     return MttCentreService(args.algorithm, settings.mtt, args.dim, settings.deployment.max_seq_jump, frame,
-                            args.region, regions, **kwargs)
+                            args.region, regions, standby=args.standby, **kwargs)
 
 
 def main(argv: list[str]) -> int:

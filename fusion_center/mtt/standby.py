@@ -1,0 +1,135 @@
+"""A region centre's hot standby (issue 27, failover): what it withholds and when it takes over.
+
+A standby (``serve mtt-centre --region RID --standby``) subscribes the region's inputs as its
+primary does and runs the same centre on them, but publishes nothing: every output it would
+publish (resets, hand-overs, pictures) is *withheld* here, under its identity (:func:`output_of`:
+a picture's time, the answered report's sensor and ``seq``, a hand-over's source region and
+number). It also watches the
+primary's outputs on the same keys: an output the primary sent is *settled* (dropped from the
+withheld ones, or, if the standby has not computed it yet, remembered so that it is dropped when
+it is), and a picture of the same time is compared with the standby's own (``same`` /
+``differ``, the largest state difference): what the standby would have said differently.
+
+The primary holds the liveliness token ``alive/mtt-primary/<RID>``. When it disappears (the
+primary's process or host died: about 3 ms for a killed process, the lease for a frozen one),
+the standby waits ``SETTLE_S`` (outputs the primary sent before dying, in flight on the same
+links, arrive first), declares the token itself and publishes what it withheld and the primary
+never sent (the answers, hand-overs and pictures that died with it, in the order it made them),
+then every output from its next message on: its tracks and their ids continue. It never
+publishes while a primary token exists; a standby that sees no primary token for
+``START_GRACE_S`` after it started takes over too (the primary died before it came up).
+
+Withheld outputs older than ``WITHHELD_S`` are forgotten (the primary was alive long after
+them, so it sent them, or they were lost between it and the standby).
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Hashable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fedtrack.wire import HandOver, Message, TrackPicture, TrackResets
+
+PRIMARY_ROLE = "mtt-primary"  # liveliness ``alive/mtt-primary/<region>``: held by the region's primary
+SETTLE_S = 0.2  # after the primary's token went, before the standby takes over
+START_GRACE_S = 2.0  # a standby that saw no primary for this long after it started takes over
+WITHHELD_S = 10.0  # a withheld output (or a settled one not yet made) is forgotten after this long
+
+
+
+def output_of(msg: Message) -> Hashable:
+    """An output's identity, the same for the primary's and the standby's copy of it."""
+    if isinstance(msg, TrackResets):
+        return ("resets", msg.sensor, msg.seq)
+    if isinstance(msg, HandOver):
+        return ("handover", msg.source, msg.serial)
+    if isinstance(msg, TrackPicture):  # by time: the clocks' grid is k period, also for a standby started late
+        return ("picture", msg.t, msg.closing)
+    raise TypeError(f"a centre does not publish {type(msg).__name__}")
+
+
+def picture_difference(mine: TrackPicture, theirs: TrackPicture) -> float | None:
+    """The largest state difference between two pictures of the same tracks (None: other ids)."""
+    if mine.ids != theirs.ids:
+        return None
+    return float(np.max(np.abs(mine.x - theirs.x))) if mine.ids else 0.0
+
+
+@dataclass
+class Standby:
+    """The standby's side of one region's failover (see the module docstring); times are
+    monotonic seconds, given by the caller."""
+
+    region: str
+    started: float
+    primary: bool = False
+    present: bool = False  # a primary token exists (liveliness)
+    absent_since: float | None = None  # when the token was last seen going (or the start)
+    held: OrderedDict[Hashable, tuple[float, str, Message]] = field(default_factory=OrderedDict)  # (made, key, msg)
+    settled: OrderedDict[Hashable, tuple[float, str, Message]] = field(default_factory=OrderedDict)  # (seen, "", msg)
+    same: int = 0  # pictures equal to the primary's (ids and states)
+    differ: int = 0  # pictures with other ids or states
+    max_difference: float = 0.0  # largest state difference among the pictures with the same ids
+
+    def __post_init__(self) -> None:
+        self.absent_since = self.started
+
+    def token(self, alive: bool, now: float) -> None:
+        """The primary token appeared (``alive``) or went."""
+        self.present = alive
+        self.absent_since = None if alive else now
+
+    def due(self, now: float) -> bool:
+        """Whether to take over now: no primary token for ``SETTLE_S`` (``START_GRACE_S`` when
+        none was ever seen since the start)."""
+        if self.primary or self.present or self.absent_since is None:
+            return False
+        wait = START_GRACE_S if self.absent_since == self.started else SETTLE_S
+        return now - self.absent_since >= wait
+
+    def hold(self, key: str, msg: Message, now: float) -> None:
+        """An output the standby made for ``key``: withheld, unless the primary sent it already."""
+        self._forget(now)
+        output = output_of(msg)
+        sent = self.settled.pop(output, None)
+        if sent is not None:
+            self._compare(msg, sent[2])
+            return
+        self.held[output] = (now, key, msg)
+
+    def sent(self, msg: Message, now: float) -> None:
+        """An output the primary sent: settled."""
+        self._forget(now)
+        output = output_of(msg)
+        mine = self.held.pop(output, None)
+        if mine is not None:
+            self._compare(mine[2], msg)
+            return
+        self.settled[output] = (now, "", msg)
+
+    def take_over(self) -> list[tuple[str, Message]]:
+        """Become the primary; returns the withheld outputs the primary never sent (key, message), in order."""
+        self.primary = True
+        out = [(key, msg) for _, key, msg in self.held.values()]
+        self.held.clear()
+        self.settled.clear()
+        return out
+
+    def _compare(self, mine: Message, theirs: Message) -> None:
+        if not isinstance(mine, TrackPicture) or not isinstance(theirs, TrackPicture):
+            return
+        diff = picture_difference(mine, theirs)
+        if diff == 0.0:
+            self.same += 1
+        else:
+            self.differ += 1
+        if diff is not None:
+            self.max_difference = max(self.max_difference, diff)
+
+    def _forget(self, now: float) -> None:
+        for table in (self.held, self.settled):
+            while table and now - next(iter(table.values()))[0] > WITHHELD_S:
+                table.popitem(last=False)
