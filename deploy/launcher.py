@@ -12,6 +12,13 @@ restarted after a backoff (``RESTART_BACKOFF_S``, doubling up to ``RESTART_BACKO
 the reason logged, at most ``MAX_RESTARTS`` times per service. Beyond that, an essential
 service (router, fusion center, recorder) stops the deployment cleanly (exit 1); a
 sensor or local filter is left out and the rest goes on degraded (exit 1 at the end).
+
+Failover (``[multitarget] standby = true``): every multi-target centre gets a hot standby
+(``<id>-standby``, ``serve mtt-centre --standby``), started once the primaries are ready. When a
+primary dies its standby takes over (:mod:`fedtrack.fusion_center.mtt.standby`) and the launcher
+restarts the dead process as the new standby; the report lists each failover (the centre's
+scope, when its primary token went, how long until the standby held it and until the scope's
+next picture arrived, in seconds and in scans of the slowest sensor).
 """
 
 from __future__ import annotations
@@ -39,13 +46,15 @@ from fedtrack.deploy.multitarget import (
     finish_multitarget,
     prepare,
     sensor_ids,
+    sensor_specs,
     service_args,
 )
 from fedtrack.deploy.procstat import process_usage
 from fedtrack.deploy.report import LaunchReport, finish
 from fedtrack.deploy.security import LAUNCHER, identity, write_configs
 from fedtrack.deploy.settings import Settings, check_launchable, load_settings
-from fedtrack.deployment import listen_address, port_in_use
+from fedtrack.deployment import ROLES, listen_address, port_in_use
+from fedtrack.fusion_center.mtt.standby import PRIMARY_ROLE
 from fedtrack.jsonl import output_folder
 from fedtrack.keys import Keys
 from fedtrack.local_filters.regions import load_regions
@@ -61,6 +70,7 @@ SNAPSHOT = "fusion-center.snapshot"  # the fusion center's state, for its restar
 RESTART_BACKOFF_S = 0.5
 RESTART_BACKOFF_MAX_S = 4.0
 JOIN_LEAD_S = 2.0  # a joining sensor's processes start this long before its join time
+ROUTER_DRAIN_S = 0.5  # a router joined to other hosts' routers is stopped this long after the rest (in-flight data)
 
 
 def describe_exit(code: int) -> str:
@@ -75,6 +85,28 @@ def describe_exit(code: int) -> str:
 
 USAGE_SAMPLE_S = 0.5  # how often the launcher samples its services' peak RSS and CPU time
 STOP_STAGE = {"fusion-center": 1, "mtt-centre": 1, "picture": 2, "recorder": 3, "router": 4}  # others 0
+
+
+@dataclass
+class Failover:
+    """A centre's primary token went (``lost_ns``, wall clock), its standby claimed it
+    (``took_over_ns``), and the first picture of its scope arrived after that (``covered_ns``)."""
+
+    scope: str
+    lost_ns: int
+    took_over_ns: int | None = None
+    covered_ns: int | None = None
+
+    def summary(self, epoch: float | None, speed: float, scan_s: float) -> dict[str, Any]:
+        """The report's entry: times in seconds after the loss, the loss in scenario seconds, and
+        the time to the next picture in scans of ``scan_s`` scenario seconds."""
+        def after(ns: int | None) -> float | None:
+            return None if ns is None else (ns - self.lost_ns) / 1e9
+        covered = after(self.covered_ns)
+        return {"scope": self.scope, "lost_at": self.lost_ns / 1e9,
+                "t": None if epoch is None else (self.lost_ns / 1e9 - epoch) * speed,
+                "took_over_after_s": after(self.took_over_ns), "covered_after_s": covered,
+                "scans": None if covered is None else covered * speed / scan_s}
 
 
 class LaunchError(RuntimeError):
@@ -95,6 +127,10 @@ class ServiceProcess:
     @property
     def name(self) -> str:
         return f"{self.role}/{self.id}"
+
+    @property
+    def standby(self) -> bool:
+        return "--standby" in self.argv
 
     def log_tail(self, lines: int = 15) -> str:
         try:
@@ -143,7 +179,8 @@ def service_plan(settings: Settings, config_path: Path, out_dir: Path, log_dir: 
                                    log_dir / f"{role}-{sid}.log"))
 
     if "router" in dep.services and dep.router_listen:
-        add("router", "router", ["--deployment", dep.name, "--listen", dep.router_listen])
+        peers = [a for ep in dep.router_connect for a in ("--connect", ep)]
+        add("router", "router", ["--deployment", dep.name, "--listen", dep.router_listen, *peers])
     cfg = ["--config", str(config_path)]
     if settings.multitarget is not None:
         if "recorder" in dep.services:
@@ -151,10 +188,12 @@ def service_plan(settings: Settings, config_path: Path, out_dir: Path, log_dir: 
         mt = settings.multitarget
         for role, sid, args in service_args(settings, out_dir / SCENARIO_DIR / "measurements.jsonl",
                                             load_regions(config_path)):
-            if role not in ("sensor", "mtt-local") or sid in here_mtt(settings):
+            if runs_here(settings, role, sid, args):
                 add(role, sid, [*args, *cfg, *common])
                 if role in ("sensor", "mtt-local"):
                     plan[-1].join_at_s, plan[-1].kill_at_s = mt.join_at.get(sid), mt.kill_at.get(sid)
+                if role == "mtt-centre" and mt.standby:
+                    add(role, f"{sid}-standby", [*args, *cfg, *common, "--standby"])
         return plan
     if "local-filter" in dep.services:
         for s in here:
@@ -167,6 +206,17 @@ def service_plan(settings: Settings, config_path: Path, out_dir: Path, log_dir: 
         for s in here:
             add("sensor", s, [*cfg, *common])
     return plan
+
+
+def runs_here(settings: Settings, role: str, sid: str, args: list[str]) -> bool:
+    """Whether this host runs a multi-target service: its role is in ``deployment.services``, a
+    sensor's services only for ``local_sensors``, a region's centre only for ``local_regions``."""
+    dep = settings.deployment
+    if role in ("sensor", "mtt-local") and sid not in here_mtt(settings):
+        return False
+    if "--region" in args and dep.local_regions is not None and args[args.index("--region") + 1] not in dep.local_regions:
+        return False
+    return role in dep.services or role not in ROLES
 
 
 def here_mtt(settings: Settings) -> list[str]:
@@ -225,6 +275,8 @@ class Launcher:
         self._session: zenoh.Session | None = None
         self._subs: list[Any] = []
         self._restart_at: dict[str, float] = {}  # service -> monotonic time of its pending restart
+        self._failovers: list[Failover] = []
+        self._stopping = False  # stop_all began: primary tokens going now are no failovers
         self._epoch: float | None = None  # wall-clock time of the sensors' scenario time 0
 
     # ------------------------------------------------------------ processes
@@ -251,6 +303,7 @@ class Launcher:
             if due is not None:
                 if now >= due:
                     del self._restart_at[sp.name]
+                    self._as_standby(sp)
                     self._start(sp)
                 continue
             done = self.report.restarts.get(sp.name, 0)
@@ -266,6 +319,13 @@ class Launcher:
             self.report.restarts[sp.name] = done + 1
             self._restart_at[sp.name] = now + delay
             self._say(f"{sp.name} exited with {reason}; restart {done + 1} of {MAX_RESTARTS} in {delay:g} s")
+
+    def _as_standby(self, sp: ServiceProcess) -> None:
+        """A centre with standbys restarts as a standby: its twin took over (or will) when it died."""
+        mt = self.settings.multitarget
+        if sp.role == "mtt-centre" and mt is not None and mt.standby and not sp.standby:
+            sp.argv = [*sp.argv, "--standby"]
+            self._say(f"{sp.name} restarts as a standby")
 
     def _sample_usage(self) -> None:
         """Record every running service's peak RSS and CPU time so far (the last sample before it exits)."""
@@ -313,12 +373,19 @@ class Launcher:
         Stages: sensors and local filters, then the fusion centres (whose last output, such as
         a multi-target centre's final pictures, still reaches the recorder), then the picture
         merger of region centres, then the recorder, then the routers: their final Health (counters after the last line was
-        written) still reaches the monitor, so the report's counters are final.
+        written) still reaches the monitor, so the report's counters are final. A router joined to
+        other hosts' routers (``router_connect``) goes ``ROUTER_DRAIN_S`` after the rest: measured in
+        deploy/netns-regions.sh, a region centre's final pictures were lost when its host's router
+        stopped at once.
         """
         self._sample_usage()
+        with self._lock:
+            self._stopping = True
         running = [sp for sp in reversed(self.plan) if sp.proc is not None and sp.proc.poll() is None]
         stages = [[sp for sp in running if STOP_STAGE.get(sp.role, 0) == k] for k in range(max(STOP_STAGE.values()) + 1)]
         for group in stages:
+            if self.settings.deployment.router_connect and any(sp.role == "router" for sp in group):
+                time.sleep(ROUTER_DRAIN_S)  # what the services sent last is still on its way to the other routers
             for sp in group:
                 sp.proc.send_signal(signal.SIGTERM)
             deadline = time.monotonic() + (RECORDER_GRACE_S if any(sp.role == "recorder" for sp in group)
@@ -344,6 +411,8 @@ class Launcher:
             self._session.declare_subscriber(self.keys.sensor_meas(), self._on_meas),
             self._session.declare_subscriber(self.keys.health(), self._on_health),
             self._session.declare_subscriber(self.keys.mtt_picture(), self._on_picture),
+            self._session.liveliness().declare_subscriber(self.keys.alive(PRIMARY_ROLE), self._on_primary_token),
+            self._session.declare_subscriber(self.keys.region_picture(), self._on_region_picture),
         ]
 
     def _on_track(self, sample: zenoh.Sample) -> None:
@@ -370,6 +439,33 @@ class Launcher:
         with self._lock:
             self.report.pictures += 1
             self.report.picture_arrivals.append((pic.t, now))
+            self._covered("all", now)
+
+    def _on_region_picture(self, sample: zenoh.Sample) -> None:
+        """A region centre's picture (``region/<rid>/picture``): covers its region after a failover."""
+        with self._lock:
+            self._covered(str(sample.key_expr).split("/")[-2], time.time_ns())
+
+    def _on_primary_token(self, sample: zenoh.Sample) -> None:
+        """A centre's primary token went (its primary died) or was claimed (its standby took over)."""
+        now, scope = time.time_ns(), str(sample.key_expr).rsplit("/", 1)[-1]
+        with self._lock:
+            if self._stopping:
+                return
+            if sample.kind == zenoh.SampleKind.DELETE:
+                self._failovers.append(Failover(scope, now))
+                self._say(f"the primary centre of {scope} is gone")
+                return
+            for f in self._failovers:
+                if f.scope == scope and f.took_over_ns is None:
+                    f.took_over_ns = now
+                    self._say(f"a standby took over {scope} after {(now - f.lost_ns) / 1e6:.0f} ms")
+
+    def _covered(self, scope: str, now: int) -> None:
+        """A picture of ``scope`` arrived: the first after a takeover ends that failover (lock held)."""
+        for f in self._failovers:
+            if f.scope == scope and f.took_over_ns is not None and f.covered_ns is None:
+                f.covered_ns = now
 
     def _on_meas(self, sample: zenoh.Sample) -> None:
         try:
@@ -410,7 +506,9 @@ class Launcher:
         start = time.monotonic()
         dep = self.settings.deployment
         sensors = [sp for sp in self.plan if sp.role == "sensor"]
-        others = [sp for sp in self.plan if sp.role not in ("sensor", "router") and sp.join_at_s is None]
+        others = [sp for sp in self.plan if sp.role not in ("sensor", "router") and sp.join_at_s is None
+                  and not sp.standby]
+        standbys = [sp for sp in self.plan if sp.standby]  # once their primaries hold the tokens
         routers = [sp for sp in self.plan if sp.role == "router"]
         stopped = False
         for sp in self.plan:  # a snapshot left by an earlier run must not be resumed from
@@ -424,6 +522,9 @@ class Launcher:
             for sp in others:
                 self._start(sp)
             self._wait_ready(routers + others, dep.ready_timeout_s)
+            for sp in standbys:
+                self._start(sp)
+            self._wait_ready(standbys, dep.ready_timeout_s)
             if dep.pacing == "realtime":
                 self._epoch = align_realtime_sensors(sensors)
             for sp in sensors:
@@ -439,6 +540,7 @@ class Launcher:
             if self._session is not None:
                 close_session(self._session)
             self.report.wall_s = time.monotonic() - start
+            self.report.failovers = [f.summary(self._epoch, dep.speed, self._scan_s()) for f in self._failovers]
         if stopped:
             raise Stopped(self.report)
         failed = {n: c for n, c in self.report.exit_codes.items() if c not in (0, None) and n not in self.report.killed}
@@ -448,6 +550,11 @@ class Launcher:
             raise ServiceFailed(self.report, f"{', '.join(failed)} failed; {name} exited with code "
                                 f"{failed[name]}:\n{sp.log_tail()}")
         return self.report
+
+    def _scan_s(self) -> float:
+        """The slowest sensor's period (scenario seconds): a failover's unit of time."""
+        mt = self.settings.multitarget
+        return 1.0 if mt is None else max(s.period for s in sensor_specs(mt))
 
     def _wait_listening(self, routers: list[ServiceProcess], timeout_s: float) -> None:
         """Until the router listens on its port; a router that exits first fails the launch at once."""

@@ -220,6 +220,8 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Se
                                          "p99": float(np.percentile(latencies, 99)), "pictures": len(latencies)}
     if report.events:
         summary["membership"] = membership_summary(out, report, settings)
+    if report.failovers:
+        summary["failovers"] = report.failovers
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     mean = summary.get("mean")
     if mean:
@@ -244,5 +246,10 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Se
         print(f"{title}: no picture was recorded (see {out}/logs/)", file=sys.stderr)
     if "membership" in summary:
         print_membership(summary["membership"], title)
+    for f in report.failovers:
+        said = {k: "-" if f[k] is None else f"{f[k]:.2f}" for k in ("t", "took_over_after_s", "covered_after_s", "scans")}
+        print(f"{title}: failover of {f['scope']}: primary lost at t = {said['t']} s, standby took over after "
+              f"{said['took_over_after_s']} s, next picture after {said['covered_after_s']} s ({said['scans']} scans "
+              "of the slowest sensor)", file=sys.stderr)
     print(f"wrote {out}/: {written}")
     return summary

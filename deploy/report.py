@@ -42,6 +42,8 @@ class LaunchReport:
     restarts: dict[str, int] = field(default_factory=dict)  # service -> times the launcher restarted it
     processes: dict[str, dict[str, float]] = field(default_factory=dict)  # service -> peak RSS (MB), CPU (s)
     events: list[tuple[str, str, float]] = field(default_factory=list)  # (started | killed, service, wall time)
+    # failovers of a centre (``[multitarget] standby``): per primary lost, what the launcher saw (launcher.Failover)
+    failovers: list[dict[str, Any]] = field(default_factory=list)
     wall_s: float = 0.0
 
     @property

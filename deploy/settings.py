@@ -38,6 +38,7 @@ class MultitargetSettings:
     clutter: float = 10.0
     join_at: dict[str, float] = field(default_factory=dict)  # sensor -> scenario seconds it starts at
     kill_at: dict[str, float] = field(default_factory=dict)  # sensor -> scenario seconds it is killed at
+    standby: bool = False  # a hot standby per centre (region), promoted when its primary dies (docs/deploy.md)
     # recorded air traffic instead of simulated targets (``fedtrack simulate traffic``'s options; docs/geodetic.md)
     source: str = ""  # the recording; empty: simulated targets
     origin: tuple[float, float, float] | None = None  # the common frame's WGS-84 origin (required with source)

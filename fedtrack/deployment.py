@@ -10,7 +10,7 @@ from fedtrack.config import ConfigError, in_file, load_tables, load_toml
 
 MODES = ("federated", "decentralized")
 PACINGS = ("lockstep", "realtime")
-ROLES = ("router", "sensor", "local-filter", "fusion-center", "recorder")
+ROLES = ("router", "sensor", "local-filter", "fusion-center", "recorder", "mtt-centre", "mtt-local", "picture")
 
 
 @dataclass(frozen=True)
@@ -43,9 +43,11 @@ class DeploymentConfig:
     max_time_jump_s: float = 3600.0
     duration_s: float = 100.0
     router_listen: str = "tcp/127.0.0.1:7447"
+    router_connect: tuple[str, ...] = ()  # other hosts' routers this host's router joins (one router per host)
     connect: tuple[str, ...] | None = None
     services: tuple[str, ...] = ROLES
     local_sensors: tuple[str, ...] | None = None
+    local_regions: tuple[str, ...] | None = None  # the region centres this host runs (default all)
     out: str = "fedtrack-out"
     ready_timeout_s: float = 30.0
 
@@ -86,6 +88,10 @@ class DeploymentConfig:
             listen_address(self.router_listen, "router_listen")
         for endpoint in self.connect or ():
             listen_address(endpoint, "connect")
+        for endpoint in self.router_connect:
+            listen_address(endpoint, "router_connect")
+        if self.router_connect and "router" not in self.services:
+            raise ConfigError("router_connect: needs a router on this host (\"router\" in services)")
 
 
 def listen_address(endpoint: str, field: str) -> tuple[str, int]:
