@@ -5,6 +5,11 @@ and ``DIR/measurements.jsonl`` (written by the recorder), replays the measuremen
 the deployment's algorithm (``fvdie`` for federated, ``dvdie`` for decentralized) and
 prints a JSON verdict. Exit code 0 when the run is complete and matches the replay,
 1 when it does not, 2 for a missing or unreadable file or a bad config.
+
+With ``[multitarget]`` in the config (a live multi-target deployment) the replay is ``fedtrack
+replay --algorithm <[multitarget] algorithm>``, with ``--regions config`` when the config has
+``[regions]``, and the verdict compares every picture: the same times, ids, statuses and
+sensors, states and covariances to ``TOLERANCE`` (relative, as above).
 """
 
 from __future__ import annotations
@@ -22,7 +27,9 @@ import numpy as np
 from fedtrack.config import ConfigError
 from fedtrack.deploy.report import REPLAY_ALGORITHM
 from fedtrack.deploy.settings import load_settings
+from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.fusion_center.replay import replay_fusion
+from fedtrack.local_filters.regions import load_regions
 from fedtrack.jsonl import InputError, read_jsonl
 from fedtrack.sensors.scenarios import deployment_scenario
 
@@ -85,13 +92,60 @@ def verify_run(config: Path, run_dir: Path) -> RunCheck:
                     degraded=sum(bool(tr.get("degraded")) for tr in tracks), finite=finite, max_replay_diff=diff)
 
 
+@dataclass(frozen=True)
+class PictureCheck:
+    """What :func:`verify_mtt_run` found: the live pictures against the replay's."""
+
+    pictures: int
+    replayed: int
+    regions: int  # 0: one centre
+    same_tracks: bool  # every picture's ids, statuses and sensors equal the replay's
+    confirmed: int  # confirmed tracks in all pictures
+    finite: bool
+    max_replay_diff: float
+
+    @property
+    def ok(self) -> bool:
+        return (self.pictures > 0 and self.pictures == self.replayed and self.same_tracks and self.finite
+                and self.max_replay_diff <= TOLERANCE)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {**self.__dict__, "tolerance": TOLERANCE, "ok": self.ok}
+
+
+def verify_mtt_run(config: Path, run_dir: Path) -> PictureCheck:
+    """Compare a multi-target run's ``tracks.jsonl`` with the replay of its ``measurements.jsonl``."""
+    settings = load_settings(config)
+    assert settings.multitarget is not None
+    regions = load_regions(config)
+    live = _rows(run_dir / "tracks.jsonl")
+    with tempfile.TemporaryDirectory() as tmp:
+        replay_path = Path(tmp) / "replay.jsonl"
+        replay_mtt(settings.multitarget.algorithm, run_dir / "measurements.jsonl", config, replay_path,
+                   regions=None if regions is None else "config")
+        replay = _rows(replay_path)
+
+    def shape(picture: dict[str, Any]) -> list[tuple[Any, ...]]:
+        return [(tr["id"], tr["status"], tr["sensors"]) for tr in picture["tracks"]]
+    same = len(live) == len(replay) and all(a["t"] == b["t"] and shape(a) == shape(b) for a, b in zip(live, replay))
+    diff = float("inf") if not same else max(
+        (max(_relative_diff(ta["x"], tb["x"]), _relative_diff(ta["P"], tb["P"]))
+         for a, b in zip(live, replay) for ta, tb in zip(a["tracks"], b["tracks"])), default=0.0)
+    finite = all(np.all(np.isfinite(np.asarray(tr["x"], dtype=float))) for p in live for tr in p["tracks"])
+    return PictureCheck(pictures=len(live), replayed=len(replay), regions=0 if regions is None else len(regions.ids),
+                        same_tracks=same, finite=finite, max_replay_diff=diff,
+                        confirmed=sum(tr["status"] == "confirmed" for p in live for tr in p["tracks"]))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m fedtrack.deploy.verify_run", description=__doc__.splitlines()[0])
     parser.add_argument("--config", required=True, type=Path, help="the deployment TOML of the fusion host")
     parser.add_argument("--run", required=True, type=Path, help="the recorder's output directory")
     args = parser.parse_args(argv)
     try:
-        check = verify_run(args.config, args.run)
+        check: RunCheck | PictureCheck = (verify_mtt_run(args.config, args.run)
+                                          if load_settings(args.config).multitarget is not None
+                                          else verify_run(args.config, args.run))
     except (OSError, ConfigError, InputError) as exc:
         print(f"verify_run: error: {exc}", file=sys.stderr)
         return 2
