@@ -29,8 +29,8 @@ from fedtrack.deploy.report import REPLAY_ALGORITHM
 from fedtrack.deploy.settings import load_settings
 from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.fusion_center.replay import replay_fusion
-from fedtrack.local_filters.regions import load_regions
 from fedtrack.jsonl import InputError, read_jsonl
+from fedtrack.local_filters.regions import load_regions
 from fedtrack.sensors.scenarios import deployment_scenario
 
 TOLERANCE = 1e-9
