@@ -28,7 +28,7 @@ from support import assert_same_pictures, free_port, wait_until
 from fedtrack.deploy.launcher import prepare_launcher
 from fedtrack.deploy.report import LaunchReport
 from fedtrack.deploy.settings import load_settings
-from fedtrack.fusion_center.mtt.standby import SETTLE_S, START_GRACE_S, WITHHELD_S, Standby
+from fedtrack.fusion_center.mtt.standby import SETTLE_S, START_GRACE_S, WITHHELD_S, Standby, next_after
 from fedtrack.local_filters.regions import load_regions, region_of
 from fedtrack.wire import TrackPicture, TrackResets
 
@@ -74,6 +74,20 @@ def test_a_standby_that_never_sees_a_primary_takes_over_after_the_start_grace_an
     sb.hold("pic", picture(0, (1,)), 5.0)
     sb.hold("pic", picture(1, (1,)), 5.0 + WITHHELD_S + 1.0)  # the first is forgotten
     assert [msg.seq for _, msg in sb.take_over()] == [1]
+
+
+def test_a_cold_standby_numbers_its_tracks_after_every_id_of_its_sequence_it_saw() -> None:
+    assert next_after(1, 4, [0, 5, 13, 2, 7]) == 17  # region 1 of 4: 1, 5, 9, 13 -> 17
+    assert next_after(21, 4, [5, 13]) == 21  # already ahead
+    assert next_after(0, 1, []) == 0
+    sb = Standby("x0y0", started=0.0)
+    sb.sent(resets(3), 1.0)
+    assert sb.cold is None
+    sb.sent(picture(4, (1,)), 1.0)  # the primary's fifth picture: this standby came late
+    assert sb.cold is True
+    hot = Standby("x0y0", started=0.0)
+    hot.sent(picture(0, (1,)), 1.0)
+    assert hot.cold is False
 
 
 CONFIG = """

@@ -57,7 +57,7 @@ from fedtrack.fusion_center.mtt.engines import (
 )
 from fedtrack.fusion_center.mtt.regional import RegionEngine
 from fedtrack.fusion_center.mtt.shards import handover_from_wire, handover_to_wire
-from fedtrack.fusion_center.mtt.standby import PRIMARY_ROLE, Standby
+from fedtrack.fusion_center.mtt.standby import PRIMARY_ROLE, Standby, next_after
 from fedtrack.geodetic import Frame, geodetic_of_states
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
 from fedtrack.local_filters.mtt.local import report_from_wire, resets_to_wire
@@ -332,6 +332,20 @@ class MttCentreService(Service):
         if self.standby is None or self.standby.primary or (isinstance(msg, HandOver) and msg.source != self.region):
             return
         self.standby.sent(msg, time.monotonic())
+        if self.standby.cold:
+            self._catch_up(msg)
+
+    def _catch_up(self, msg: TrackPicture | TrackResets | HandOver) -> None:
+        """A cold standby keeps its track ids and hand-over numbers ahead of its primary's
+        (:func:`.standby.next_after`)."""
+        engine = self.engine
+        region = engine.region if isinstance(engine, RegionEngine) else None
+        centre = region.centre if region is not None else getattr(engine, "centre", None)
+        if isinstance(msg, HandOver) and region is not None:
+            region.serial = max(region.serial, msg.serial + 1)
+        if centre is not None and isinstance(msg, (TrackPicture, HandOver)):
+            ids = msg.ids if isinstance(msg, TrackPicture) else (msg.id,)
+            centre.next_id = next_after(centre.next_id, centre.id_step, ids)
 
     def publish(self, key: str, msg: Message) -> None:
         """Publish, or, as a standby that has not taken over, withhold (:meth:`Standby.hold`)."""

@@ -21,12 +21,19 @@ publishes while a primary token exists; a standby that sees no primary token for
 
 Withheld outputs older than ``WITHHELD_S`` are forgotten (the primary was alive long after
 them, so it sent them, or they were lost between it and the standby).
+
+A standby started after its primary had published (the launcher's restart of a dead centre) is
+*cold*: the first picture of the primary it sees is not the first (``seq > 0``). It rebuilds its
+central tracks from the reports it gets, under ids of its own, so it keeps its numbering ahead of
+the primary's (:func:`next_after`: its next track id above every id of its scope the primary
+showed or handed over, its next hand-over number above the primary's), and after a take-over no
+id and no hand-over number is issued twice.
 """
 
 from __future__ import annotations
 
 from collections import OrderedDict
-from collections.abc import Hashable
+from collections.abc import Hashable, Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -51,6 +58,13 @@ def output_of(msg: Message) -> Hashable:
     raise TypeError(f"a centre does not publish {type(msg).__name__}")
 
 
+def next_after(current: int, step: int, seen: Iterable[int]) -> int:
+    """``current``, or, if an id of ``seen`` in its sequence (``current`` modulo ``step``) is not below
+    it, the next value of that sequence after the largest such id."""
+    mine = [i for i in seen if i % step == current % step and i >= current]
+    return max(mine) + step if mine else current
+
+
 def picture_difference(mine: TrackPicture, theirs: TrackPicture) -> float | None:
     """The largest state difference between two pictures of the same tracks (None: other ids)."""
     if mine.ids != theirs.ids:
@@ -70,6 +84,7 @@ class Standby:
     absent_since: float | None = None  # when the token was last seen going (or the start)
     held: OrderedDict[Hashable, tuple[float, str, Message]] = field(default_factory=OrderedDict)  # (made, key, msg)
     settled: OrderedDict[Hashable, tuple[float, str, Message]] = field(default_factory=OrderedDict)  # (seen, "", msg)
+    cold: bool | None = None  # started after the primary had published (None: no picture of it seen yet)
     same: int = 0  # pictures equal to the primary's (ids and states)
     differ: int = 0  # pictures with other ids or states
     max_difference: float = 0.0  # largest state difference among the pictures with the same ids
@@ -102,6 +117,8 @@ class Standby:
 
     def sent(self, msg: Message, now: float) -> None:
         """An output the primary sent: settled."""
+        if self.cold is None and isinstance(msg, TrackPicture):
+            self.cold = msg.seq > 0
         self._forget(now)
         output = output_of(msg)
         mine = self.held.pop(output, None)
