@@ -34,10 +34,10 @@ def test_two_region_centres_on_two_hosts_equal_the_replay(tmp_path: Path) -> Non
     proc = subprocess.Popen(["bash", str(SCRIPT), str(tmp_path)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, env=env)
     try:
-        out, err = proc.communicate(timeout=TEST_TIMEOUT_S)
+        _, err = proc.communicate(timeout=TEST_TIMEOUT_S)
     except subprocess.TimeoutExpired:
         proc.send_signal(signal.SIGTERM)  # the script's EXIT trap removes its namespaces and processes
-        out, err = proc.communicate(timeout=20)
+        _, err = proc.communicate(timeout=20)
         pytest.fail(f"netns-regions.sh did not finish within {TEST_TIMEOUT_S} s:\n{err[-3000:]}")
     assert proc.returncode == 0, f"netns-regions.sh exited {proc.returncode}:\n{err[-3000:]}"
     verdict = json.loads((tmp_path / "verify.json").read_text())
