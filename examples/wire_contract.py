@@ -13,7 +13,7 @@ from typing import Any
 import msgpack
 import zenoh
 
-SCHEMA = 1  # fedtrack.wire.SCHEMA_VERSION
+SCHEMA = 2  # fedtrack.wire.SCHEMA_VERSION
 ENCODING = "application/msgpack"
 
 

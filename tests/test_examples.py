@@ -82,3 +82,15 @@ def test_third_party_sensor_and_subscriber_against_a_launched_deployment(tmp_pat
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())  # written after the stop too
     assert summary["scans"] == SCANS + 3 and summary["health"]["recorder/recorder"]["tracks_recorded"] == SCANS + 3
     assert not (tmp_path / "out" / "truth.jsonl").exists()  # no simulated sensors on this host: no truth
+
+
+def test_the_examples_speak_the_current_schema() -> None:
+    """examples/wire_contract.py (no fedtrack import) names the schema version fedtrack speaks."""
+    import ast
+
+    from fedtrack.wire import SCHEMA_VERSION
+
+    tree = ast.parse((EXAMPLES / "wire_contract.py").read_text())
+    values = [node.value.value for node in tree.body if isinstance(node, ast.Assign)
+              and any(isinstance(t, ast.Name) and t.id == "SCHEMA" for t in node.targets)]
+    assert values == [SCHEMA_VERSION]
