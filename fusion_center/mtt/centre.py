@@ -162,9 +162,10 @@ class TrackToTrackCentre:
         self.streak = np.zeros((0, 0), dtype=np.int64)  # a confirmed slot's misses in a row per sensor
         self.window = np.zeros((0, cfg.confirm_window), dtype=bool)  # a tentative slot's last scans
         self.last_support = np.zeros(0)  # when a local observation was last fused into a slot
-        # the ids of the central tracks the last report's observations were fused into (or started):
-        # the only ones whose latest estimate moved (a region centre checks whether they left it)
-        self.moved = np.zeros(0, dtype=np.int64)
+        # the ids and slots of the central tracks the last report's observations were fused into (or
+        # started), one per fused row (an id may repeat; a track deleted since no longer has its id in
+        # its slot): the only ones whose latest estimate moved (a region centre checks whether they left it)
+        self.moved = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
         self._fit()
 
     def _fit(self) -> None:
@@ -300,7 +301,7 @@ class TrackToTrackCentre:
         beta = float(max(len(self.live_sensors(t)), 1))
         rows = np.flatnonzero(fused)
         supported = slots[rows]
-        self.moved = np.unique(cid[rows])
+        self.moved = cid[rows], supported
         self.last_support[supported] = np.maximum(self.last_support[supported], t)
         resets = no_resets(s, t, d)
         if self.feedback and rows.size:
