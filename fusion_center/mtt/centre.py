@@ -308,7 +308,7 @@ class TrackToTrackCentre:
             resets = Resets(s, t, report.ids[det_rows[rows]], x_post[rows, :d], beta * P_post[rows, :d, :d])
         self._count_scan(col, supported)
         still_live = self.tracks.ids[slots] == cid
-        self._merge_duplicates(np.unique(slots[still_live]), t)
+        self._merge_duplicates(slots[still_live], t)
         return resets
 
     def _count_scan(self, col: int, detected: np.ndarray) -> None:
@@ -380,18 +380,18 @@ class TrackToTrackCentre:
         tracks = self.tracks
         if len(tracks) < 2 or not updated.size:
             return
-        everyone = self.support.any(axis=0)
-        live = tracks.live()
-        partial = live[((self.support[live] > 0) != everyone).any(axis=1)]
-        mine_slots = np.intersect1d(updated, partial)  # ``updated``: the slots of this scan's tracks
-        if not mine_slots.size or partial.size < 2:
+        has = self.support > 0  # a free slot has none
+        partial = np.flatnonzero((has != has.any(axis=0)).any(axis=1) & (tracks.ids >= 0))
+        if partial.size < 2:
             return
-        cfg = self.cfg
-        row = np.empty(tracks.capacity, dtype=np.int64)
-        row[partial] = np.arange(partial.size)
+        mark = np.zeros(tracks.capacity, dtype=bool)
+        mark[updated] = True  # ``updated``: the slots of this scan's tracks
+        partial = partial[np.argsort(tracks.ids[partial])]  # in increasing id
+        mine = np.flatnonzero(mark[partial])
+        if not mine.size:
+            return
         X, P = tracks.states_at(partial, t)
-        gate = cfg.thresholds.association[self.dim]
-        mine = np.sort(row[mine_slots])  # in increasing id, as ``partial``
+        gate = self.cfg.thresholds.association[self.dim]
         pos, spread = X[:, [0, 2]], np.sqrt(P[:, 0, 0] + P[:, 2, 2])
         K, J = candidate_pairs(pos[mine], spread[mine], pos, spread, gate)
         K = mine[K]
@@ -487,6 +487,7 @@ class TrackToTrackCentre:
                           float(self.last_support[slot]), members, tuple(self.strikes.pop(k, 0) for k in members))
         for key in members:
             del self.mapping[key]
+        self.support[slot] = 0
         self.tracks.delete(cid)
         return record
 
