@@ -158,9 +158,10 @@ class CentralTracks:
         self.ids[s], self.confirmed[s], self.head[s], self.count[s] = cid, False, 0, 1
         self.t[s, 0], self.x[s, 0], self.P[s, 0], self.m[s, 0] = t, x, P, 0
         if self.modes is not None:
-            self._write_modes(np.array([s]), np.zeros(1, dtype=np.int64), start_modes(x[None], P[None], self.modes))
+            self._write_modes(np.array([s]), np.zeros(1, dtype=np.int64),  # head 0: position 0
+                              start_modes(x[None], P[None], self.modes))
         if self.detector is not None:
-            self._write_detector(np.array([s]), np.zeros(1, dtype=np.int64),
+            self._write_detector(np.array([s]), np.zeros(1, dtype=np.int64),  # head 0: position 0
                                  (new_banks(1, self.detector.window, self.dim, t), no_detection(1)))
         return s
 
@@ -228,8 +229,7 @@ class CentralTracks:
             return None
         return Modes(*(getattr(self, "mode_" + n)[slots, p] for n in Modes._fields))
 
-    def _write_modes(self, slots: np.ndarray, j: np.ndarray, modes: Modes) -> None:
-        p = self._pos(slots, j)
+    def _write_modes(self, slots: np.ndarray, p: np.ndarray, modes: Modes) -> None:
         for name, a in zip(Modes._fields, modes):
             getattr(self, "mode_" + name)[slots, p] = a
 
@@ -246,8 +246,8 @@ class CentralTracks:
             return None
         return InputBank(*(getattr(self, "bank_" + n)[slots, p] for n in InputBank._fields))
 
-    def _step(self, t0: np.ndarray, x: np.ndarray, P: np.ndarray, t: np.ndarray, H: np.ndarray, R: np.ndarray,
-              z: np.ndarray, bank: InputBank | None, modes: Modes | None = None
+    def _step(self, t0: np.ndarray, x: np.ndarray, P: np.ndarray, t: float | np.ndarray, H: np.ndarray,
+              R: np.ndarray, z: np.ndarray, bank: InputBank | None, modes: Modes | None = None
               ) -> tuple[np.ndarray, np.ndarray, DetectorStep, Modes | None]:
         """Posteriors after predicting each ``(x, P)`` (or its ``modes``) from ``t0`` to ``t`` and
         fusing ``(H, R, z)``, the maneuver detector's step from ``bank`` (None without a
@@ -261,21 +261,19 @@ class CentralTracks:
             modes, post = modes_update(pred, z - np.einsum("kmd,kd->km", H, xp), H, R, xp)
         return post.x, post.P, None if bank is None else input_step(bank, dt, xp, Pp, H, R, z, t), modes
 
-    def _write(self, slots: np.ndarray, j: np.ndarray, t: np.ndarray, x: np.ndarray, P: np.ndarray,
+    def _write(self, slots: np.ndarray, p: np.ndarray, t: float | np.ndarray, x: np.ndarray, P: np.ndarray,
                H: np.ndarray, R: np.ndarray, z: np.ndarray, step: DetectorStep, modes: Modes | None = None) -> None:
-        """Ring entry ``j`` of each slot: the observation ``(H, R, z)`` at ``t`` and the posterior
+        """Ring position ``p`` of each slot: the observation ``(H, R, z)`` at ``t`` and the posterior
         (and detector step, and modes) after it."""
-        p = self._pos(slots, j)
         m = H.shape[1]
         self.t[slots, p], self.x[slots, p], self.P[slots, p], self.m[slots, p] = t, x, P, m
         self.H[slots, p, :m], self.R[slots, p, :m, :m], self.z[slots, p, :m] = H, R, z
         if step is not None:
-            self._write_detector(slots, j, step)
+            self._write_detector(slots, p, step)
         if modes is not None:
-            self._write_modes(slots, j, modes)
+            self._write_modes(slots, p, modes)
 
-    def _write_detector(self, slots: np.ndarray, j: np.ndarray, step: tuple[InputBank, InputDetection]) -> None:
-        p = self._pos(slots, j)
+    def _write_detector(self, slots: np.ndarray, p: np.ndarray, step: tuple[InputBank, InputDetection]) -> None:
         for prefix, record in zip(("bank_", "det_"), step):
             for name, a in zip(record._fields, record):
                 getattr(self, prefix + name)[slots, p] = a
@@ -300,24 +298,36 @@ class CentralTracks:
         """
         if H.shape[1] > self.H.shape[2]:
             raise ValueError(f"observations of size {H.shape[1]} in a {self.dim}-D central state")
-        full = slots[self.count[slots] >= MAX_ENTRIES]
-        if full.size:  # fold the oldest kept observation into the checkpoint: memory stays bounded
-            self.head[full] = (self.head[full] + 1) % self.depth
-            self.count[full] -= 1
+        count = self.count[slots]
+        full = count >= MAX_ENTRIES
+        if full.any():  # fold the oldest kept observation into the checkpoint: memory stays bounded
+            f = slots[full]
+            self.head[f] = (self.head[f] + 1) % self.depth
+            self.count[f] -= 1
+            count = self.count[slots]
+        head = self.head[slots]
+        p = (head + count - 1) % self.depth  # each slot's newest entry
+        t_new = self.t[slots, p]
+        ok = (t >= self.t[slots, head]) & (t >= t_new - self.max_lag)
+        if ok.any() and int(count[ok].max()) + 1 > self.depth:  # room for one more entry in each
+            self._grow(self.capacity, max(2 * self.depth, int(count[ok].max()) + 1))
+            p = (self.head[slots] + count - 1) % self.depth
+        ahead = ok & (t >= t_new)
+        if slots.size and ahead.all():  # every observation after its track's newest (in order): one step
+            x_out, P_out, step, modes = self._step(t_new, self.x[slots, p], self.P[slots, p], t, H, R, z,
+                                                   self._bank_at(slots, p), self._modes_at(slots, p))
+            self._write(slots, (p + 1) % self.depth, t, x_out, P_out, H, R, z, step, modes)
+            self.count[slots] = count + 1
+            self._trim(slots, t)
+            return ok, x_out, P_out
         n = slots.shape[0]
         x_out, P_out = np.zeros((n, self.dim)), np.zeros((n, self.dim, self.dim))
-        t_new = self.newest_t(slots)
-        oldest = self.t[slots, self.head[slots]]
-        ok = (t >= oldest) & (t >= t_new - self.max_lag)
-        ahead = ok & (t >= t_new)
-        if ahead.any():
-            i = np.flatnonzero(ahead)
-            s = slots[i]
-            self._reserve(s, 1)
-            p = self._pos(s, self.count[s] - 1)
-            x_out[i], P_out[i], step, modes = self._step(t_new[i], self.x[s, p], self.P[s, p], np.full(i.size, t),
-                                                         H[i], R[i], z[i], self._bank_at(s, p), self._modes_at(s, p))
-            self._write(s, self.count[s], np.full(i.size, t), x_out[i], P_out[i], H[i], R[i], z[i], step, modes)
+        i = np.flatnonzero(ahead)
+        if i.size:
+            s, pi = slots[i], p[i]
+            x_out[i], P_out[i], step, modes = self._step(t_new[i], self.x[s, pi], self.P[s, pi], t, H[i], R[i], z[i],
+                                                         self._bank_at(s, pi), self._modes_at(s, pi))
+            self._write(s, (pi + 1) % self.depth, t, x_out[i], P_out[i], H[i], R[i], z[i], step, modes)
             self.count[s] += 1
             self._trim(s, t)
         behind = np.flatnonzero(ok & ~ahead)
@@ -326,17 +336,10 @@ class CentralTracks:
                                                            t_new[behind])
         return ok, x_out, P_out
 
-    def _reserve(self, slots: np.ndarray, extra: int) -> None:
-        """Room for ``extra`` more entries in each of ``slots`` (doubles the ring depth if needed)."""
-        need = int(self.count[slots].max(initial=0)) + extra
-        if need > self.depth:
-            self._grow(self.capacity, max(2 * self.depth, need))
-
     def _reprocess(self, slots: np.ndarray, t: float, H: np.ndarray, R: np.ndarray, z: np.ndarray,
                    t_newest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Insert observations older than their tracks' newest (at ``t_newest``) and fuse the later
-        ones again."""
-        self._reserve(slots, 1)
+        ones again (:meth:`fuse` made room for one more entry in each)."""
         n_after = self._newer_than(slots, t)
         self.reprocessed += int(n_after.sum())
         keep = self.count[slots] - n_after  # entries up to t stay (>= 1: the checkpoint is not after t)
@@ -349,9 +352,9 @@ class CentralTracks:
         p = self._pos(slots, keep - 1)
         t_prev, x_prev, P_prev = self.t[slots, p], self.x[slots, p], self.P[slots, p]
         every = np.arange(slots.size)
-        x_at, P_at, step, modes = self._step(t_prev, x_prev, P_prev, np.full(slots.size, t), H, R, z,
-                                             self._bank_at(slots, p), self._modes_at(slots, p))
-        self._write(slots, keep, np.full(slots.size, t), x_at, P_at, H, R, z, step, modes)
+        x_at, P_at, step, modes = self._step(t_prev, x_prev, P_prev, t, H, R, z, self._bank_at(slots, p),
+                                             self._modes_at(slots, p))
+        self._write(slots, self._pos(slots, keep), t, x_at, P_at, H, R, z, step, modes)
         t_prev[:], x_prev, P_prev = t, x_at.copy(), P_at.copy()
         bank = None if step is None else step[0]  # each slot's bank after its latest re-fused entry
         for j in later.tolist():
@@ -364,7 +367,8 @@ class CentralTracks:
                     t_prev[g], x_prev[g], P_prev[g], tg, Hg, Rg, zg,
                     None if bank is None else InputBank(*(a[g] for a in bank)),
                     None if modes is None else modes.take(g))
-                self._write(slots[g], keep[g] + 1 + j, tg, x_prev[g], P_prev[g], Hg, Rg, zg, step, mode_g)
+                self._write(slots[g], self._pos(slots[g], keep[g] + 1 + j), tg, x_prev[g], P_prev[g], Hg, Rg, zg,
+                            step, mode_g)
                 t_prev[g] = tg
                 if step is not None:
                     for a, new in zip(bank, step[0]):

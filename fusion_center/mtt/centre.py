@@ -354,19 +354,22 @@ class TrackToTrackCentre:
         n = slots.size
         ok, X, P = fresh.copy(), np.zeros((n, self.dim)), np.zeros((n, self.dim, self.dim))
         started = np.flatnonzero(fresh)
-        X[started], P[started] = self.tracks.latest(slots[started])[1:]  # started from this local estimate
+        if started.size:
+            X[started], P[started] = self.tracks.latest(slots[started])[1:]  # started from this local estimate
         H_all = self._embed(report.obs_H)
         pending = np.flatnonzero(~fresh)
         reprocessed = self.tracks.reprocessed
         while pending.size:
-            now = pending[np.sort(np.unique(slots[pending], return_index=True)[1])]
-            newest = self.tracks.newest_t(slots[now])  # before the fusion
+            distinct = np.bincount(slots[pending]).max() == 1  # one observation per central track: all at once
+            now = pending if distinct else pending[np.sort(np.unique(slots[pending], return_index=True)[1])]
             done, x_now, P_now = self.tracks.fuse(slots[now], t, H_all[now], report.obs_R[now], report.obs_z[now])
             ok[now], X[now], P[now] = done, x_now, P_now
-            self.counters.fused += int(done.sum())
-            late = int(np.count_nonzero(t < newest[~done] - self.cfg.max_lag))
-            self.counters.late += late
-            self.counters.before_start += int(done.size - done.sum()) - late
+            fused = int(np.count_nonzero(done))
+            self.counters.fused += fused
+            if fused < done.size:  # a track not fused into is as it was: its newest entry before the fusion
+                late = int(np.count_nonzero(t < self.tracks.newest_t(slots[now[~done]]) - self.cfg.max_lag))
+                self.counters.late += late
+                self.counters.before_start += done.size - fused - late
             pending = pending[~np.isin(pending, now, assume_unique=True)] if now.size < pending.size else now[:0]
         self.counters.reprocessed += self.tracks.reprocessed - reprocessed
         return ok, X, P
