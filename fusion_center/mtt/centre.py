@@ -184,9 +184,11 @@ class TrackToTrackCentre:
             self._fit()
         return col
 
-    def _central_ids(self, keys: list[LocalKey]) -> np.ndarray:
-        """The central track each local track maps to (-1: none), as an array."""
-        return np.fromiter(map(self.mapping.get, keys, itertools.repeat(-1)), dtype=np.int64, count=len(keys))
+    def _central_ids(self, keys: list[LocalKey]) -> tuple[np.ndarray, np.ndarray]:
+        """The central track each local track maps to (-1: none) and its slot (-1: none), as arrays."""
+        cids = list(map(self.mapping.get, keys, itertools.repeat(-1)))
+        slots = map(self.tracks.slot.get, cids, itertools.repeat(-1))
+        return np.array(cids, dtype=np.int64), np.fromiter(slots, dtype=np.int64, count=len(cids))
 
     def _map(self, key: LocalKey, cid: int) -> None:
         self._unmap(key)
@@ -264,20 +266,27 @@ class TrackToTrackCentre:
         d = report.x.shape[1]
         det_rows = np.flatnonzero(report.detected)
         keys = [(s, i) for i in report.ids[det_rows].tolist()]
-        cid = self._central_ids(keys)  # a mapped local track's central track is live; -1: unmapped
-        # hysteresis: a mapped local track inconsistent with its central track unmap_after times in a row
+        cid, slots = self._central_ids(keys)  # a mapped local track's central track is live; -1: unmapped
+        # the estimates at t of the central tracks of the rows to check and of those without a track
+        # of this sensor (the association's candidates), in one prediction; ``at``: each slot's row
         check = np.flatnonzero((cid >= 0) & ~report.started)
+        tracks = self.tracks
+        need = np.concatenate([slots[check], np.flatnonzero((self.support[:, col] == 0) & (tracks.ids >= 0))])
+        X, P = tracks.states_at(need, t)
+        at = np.empty(tracks.capacity, dtype=np.int64)
+        at[need] = np.arange(need.size)
+        # hysteresis: a mapped local track inconsistent with its central track unmap_after times in a row
         if check.size:
-            xc, Pc = self.tracks.states_at(self.tracks.slots_of(cid[check]), t)
             rows = det_rows[check]
-            diff = report.x[rows] - xc[:, :d]
-            d2 = track_difference_d2(diff, report.P[rows] + Pc[:, :d, :d])[0]
+            diff = report.x[rows] - X[:check.size, :d]
+            d2 = track_difference_d2(diff, report.P[rows] + P[:check.size, :d, :d])[0]
             bad = d2 > cfg.thresholds.association[d]
-            if self.strikes:  # a consistent local track's strikes are forgiven
-                struck = [key for key in self.strikes if key[0] == s]
-                good = np.isin([lid for _, lid in struck], report.ids[rows[~bad]])
-                for key in itertools.compress(struck, good.tolist()):
-                    del self.strikes[key]
+            struck = [key for key in self.strikes if key[0] == s]
+            if struck:  # a consistent local track's strikes are forgiven
+                good = set(report.ids[rows[~bad]].tolist())
+                for key in struck:
+                    if key[1] in good:
+                        del self.strikes[key]
             for k in check[bad].tolist():
                 key = keys[k]
                 self.strikes[key] = self.strikes.get(key, 0) + 1
@@ -285,29 +294,30 @@ class TrackToTrackCentre:
                     self._unmap(key)
                     self.strikes.pop(key)
                     self.counters.unmapped += 1
-                    cid[k] = -1
+                    cid[k] = slots[k] = -1
         mapped = np.flatnonzero(cid >= 0)
         unmapped_rows = np.flatnonzero(cid < 0).tolist()
         # confirmed local tracks alone on their central tracks (no other local track maps there)
-        lonely = report.confirmed[det_rows[mapped]] & (self.support[self.tracks.slots_of(cid[mapped])].sum(axis=1) == 1)
+        lonely = report.confirmed[det_rows[mapped]] & (self.support[slots[mapped]].sum(axis=1) == 1)
         alone = mapped[lonely].tolist()
-        fresh = self._associate(report, det_rows, col, unmapped_rows, alone)
+        fresh = self._associate(report, det_rows, col, unmapped_rows, alone, (X, P, at))
         for k in unmapped_rows + alone:
             cid[k] = self.mapping[keys[k]]
-        slots = self.tracks.slots_of(cid)
+            slots[k] = tracks.slot[cid[k]]
         is_fresh = np.zeros(len(keys), dtype=bool)
         is_fresh[[k for k in unmapped_rows if keys[k] in fresh]] = True
         fused, x_post, P_post = self._fuse_scan(report, slots, is_fresh, t)
-        beta = float(max(len(self.live_sensors(t)), 1))
         rows = np.flatnonzero(fused)
         supported = slots[rows]
         self.moved = cid[rows], supported
         self.last_support[supported] = np.maximum(self.last_support[supported], t)
-        resets = no_resets(s, t, d)
         if self.feedback and rows.size:
+            beta = float(max(len(self.live_sensors(t)), 1))
             resets = Resets(s, t, report.ids[det_rows[rows]], x_post[rows, :d], beta * P_post[rows, :d, :d])
+        else:
+            resets = no_resets(s, t, d)
         self._count_scan(col, supported)
-        still_live = self.tracks.ids[slots] == cid
+        still_live = tracks.ids[slots] == cid
         self._merge_duplicates(slots[still_live], t)
         return resets
 
@@ -426,23 +436,25 @@ class TrackToTrackCentre:
                 break
 
     def _associate(self, report: LocalReport, det_rows: np.ndarray, col: int, unmapped: list[int],
-                   alone: list[int]) -> set[LocalKey]:
+                   alone: list[int], states: tuple[np.ndarray, np.ndarray, np.ndarray]) -> set[LocalKey]:
         """Map the scan's unmapped local tracks (those not associated start central tracks) and
         move its confirmed local tracks that are alone on their central tracks to central tracks of
         other sensors that pass the test (their own central tracks, left without a local track,
-        go at the next :meth:`prune`); returns the local tracks that started central tracks."""
+        go at the next :meth:`prune`); returns the local tracks that started central tracks.
+        ``states``: the central tracks' estimates at the report's time and each slot's row there."""
         fresh: set[LocalKey] = set()
         if not unmapped and not alone:
             return fresh
         cfg, t, s = self.cfg, report.t, report.sensor
-        live = self.tracks.live()
-        cands = live[self.support[live, col] == 0]  # central tracks without a track of this sensor
+        ids = self.tracks.ids
+        cands = np.flatnonzero((self.support[:, col] == 0) & (ids >= 0))  # without a track of this sensor
+        cands = cands[np.argsort(ids[cands])]  # in increasing id
         rows = det_rows[unmapped + alone]
         d = report.x.shape[1]
         assigned: dict[int, int] = {}
         if cands.size:
-            xc, Pc = self.tracks.states_at(cands, t)
-            xc, Pc = xc[:, :d], Pc[:, :d, :d]
+            X, P, at = states
+            xc, Pc = X[at[cands], :d], P[at[cands], :d, :d]
             U, C = report.x[rows], report.P[rows]
             # candidate pairs within the chi-square test's reach, then the test on them
             gate = cfg.thresholds.association[d]
