@@ -194,13 +194,17 @@ class CentralTracks:
     def _pos(self, slots: np.ndarray, j: np.ndarray) -> np.ndarray:
         return (self.head[slots] + j) % self.depth
 
+    def newest(self, slots: np.ndarray) -> np.ndarray:
+        """The ring position of each slot's newest entry."""
+        return self._pos(slots, self.count[slots] - 1)
+
     def newest_t(self, slots: np.ndarray) -> np.ndarray:
         """The time of each slot's newest observation."""
-        return self.t[slots, self._pos(slots, self.count[slots] - 1)]
+        return self.t[slots, self.newest(slots)]
 
     def latest(self, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Time, state and covariance after each slot's newest observation."""
-        p = self._pos(slots, self.count[slots] - 1)
+        p = self.newest(slots)
         return self.t[slots, p], self.x[slots, p], self.P[slots, p]
 
     def _newer_than(self, slots: np.ndarray, t: float | np.ndarray, or_at: bool = False) -> np.ndarray:

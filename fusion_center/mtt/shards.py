@@ -108,11 +108,13 @@ class RegionCentre:
         ids, slots = c.moved  # only the tracks this report fused into (or started) can have left
         if ids.size and len(self.regions.ids) > 1:
             live = c.tracks.ids[slots] == ids  # not merged away, deleted or pruned since
-            x = c.tracks.latest(slots[live])[1]
+            sl = slots[live]
+            p = c.tracks.newest(sl)
+            x, y = c.tracks.x[sl, p, 0], c.tracks.x[sl, p, 2]  # the latest estimates' positions
             x0, x1, y0, y1 = self.interior  # a track inside it stays without a look at the regions
-            out = ~((x[:, 0] > x0) & (x[:, 0] < x1) & (x[:, 2] > y0) & (x[:, 2] < y1))
+            out = ~((x > x0) & (x < x1) & (y > y0) & (y < y1))
             cids, first = np.unique(ids[live][out], return_index=True)  # in increasing id
-            owner = region_of(self.regions, x[out][first][:, [0, 2]]) if cids.size else cids
+            owner = region_of(self.regions, np.stack([x[out][first], y[out][first]], axis=1)) if cids.size else cids
             for cid, o in zip(cids.tolist(), owner.tolist()):
                 if o != self.index:
                     record = c.hand_over(cid)
