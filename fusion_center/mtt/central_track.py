@@ -355,17 +355,19 @@ class CentralTracks:
         old_H, old_R, old_z = self.H[rows, pos], self.R[rows, pos], self.z[rows, pos]
         p = self._pos(slots, keep - 1)
         t_prev, x_prev, P_prev = self.t[slots, p], self.x[slots, p], self.P[slots, p]
-        every = np.arange(slots.size)
         x_at, P_at, step, modes = self._step(t_prev, x_prev, P_prev, t, H, R, z, self._bank_at(slots, p),
                                              self._modes_at(slots, p))
         self._write(slots, self._pos(slots, keep), t, x_at, P_at, H, R, z, step, modes)
         t_prev[:], x_prev, P_prev = t, x_at.copy(), P_at.copy()
         bank = None if step is None else step[0]  # each slot's bank after its latest re-fused entry
         for j in later.tolist():
-            again = every[n_after > j]
+            again = np.flatnonzero(n_after > j)
             sizes = old_m[again, j]
-            for m in np.unique(sizes).tolist():
-                g = again[sizes == m]
+            if sizes.min() == sizes.max():  # one observation size (the usual): one step, all at once if all
+                groups = [(int(sizes[0]), slice(None) if again.size == slots.size else again)]
+            else:
+                groups = [(m, again[sizes == m]) for m in np.unique(sizes).tolist()]
+            for m, g in groups:
                 tg, Hg, Rg, zg = old_t[g, j], old_H[g, j, :m], old_R[g, j, :m, :m], old_z[g, j, :m]
                 x_prev[g], P_prev[g], step, mode_g = self._step(
                     t_prev[g], x_prev[g], P_prev[g], tg, Hg, Rg, zg,
