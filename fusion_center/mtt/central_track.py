@@ -216,8 +216,14 @@ class CentralTracks:
         return np.count_nonzero(live & (times >= t if or_at else times > t), axis=1)
 
     def _entry_at(self, slots: np.ndarray, t: float) -> np.ndarray:
-        """The ring position of each slot's newest entry up to ``t`` (the checkpoint if none)."""
-        return self._pos(slots, np.maximum(self.count[slots] - 1 - self._newer_than(slots, t), 0))
+        """The ring position of each slot's newest entry up to ``t`` (the checkpoint if none): its
+        newest entry, unless that is after ``t`` (an out-of-sequence time)."""
+        p = self.newest(slots)
+        after = np.flatnonzero(self.t[slots, p] > t)
+        if after.size:
+            s = slots[after]
+            p[after] = self._pos(s, np.maximum(self.count[s] - 1 - self._newer_than(s, t), 0))
+        return p
 
     def states_at(self, slots: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
         """The estimates (N, D), (N, D, D) of ``slots`` at ``t`` from their observations up to ``t``

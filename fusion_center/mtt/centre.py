@@ -408,12 +408,17 @@ class TrackToTrackCentre:
         pos, spread = X[:, [0, 2]], np.sqrt(P[:, 0, 0] + P[:, 2, 2])
         K, J = candidate_pairs(pos[mine], spread[mine], pos, spread, gate)
         K = mine[K]
+        # a track never merges with itself, nor with one that shares a sensor with it (a track keeps
+        # its sensors, and a kept track gains the merged one's): only the other pairs are tested
+        tested = (K != J) & ~(has[partial[K]] & has[partial[J]]).any(axis=1)
+        K, J = K[tested], J[tested]
+        if not K.size:
+            return
         diff = X[J] - X[K]  # the chi-square test of every candidate pair at once
         passes = track_difference_d2(diff, P[J] + P[K])[0] <= gate
         close: dict[int, list[int]] = {}
         for k, j in zip(K[passes].tolist(), J[passes].tolist()):
-            if j != k:
-                close.setdefault(k, []).append(j)
+            close.setdefault(k, []).append(j)
         ids = tracks.ids[partial].tolist()
         for k in mine.tolist():
             if ids[k] not in tracks:
