@@ -259,9 +259,10 @@ class TrackToTrackCentre:
         cfg, t, s = self.cfg, report.t, report.sensor
         self.sensor_seen[s] = max(self.sensor_seen.get(s, t), t)
         col = self._col(s)
-        for lid in report.retired.tolist():
-            if self._unmap((s, lid)):
-                self.counters.unmapped += 1
+        for key in self.mapping.keys() & {(s, lid) for lid in report.retired.tolist()}:  # retired and mapped
+            self._unmap(key)
+            self.counters.unmapped += 1
+        for lid in report.retired.tolist() if self.strikes else ():
             self.strikes.pop((s, lid), None)
         d = report.x.shape[1]
         det_rows = np.flatnonzero(report.detected)
@@ -327,19 +328,18 @@ class TrackToTrackCentre:
         did not detect misses, and is deleted after ``delete_misses`` consecutive misses
         (``CENTRAL_MISSES`` of each tracking sensor when several track it)."""
         cfg, tracks = self.cfg, self.tracks
-        live = np.flatnonzero(tracks.ids >= 0)
         hit = np.zeros(tracks.capacity, dtype=bool)
         hit[detected] = True
-        confirmed = tracks.confirmed[live]
-        old = live[confirmed]
-        self.streak[old[hit[old]]] = 0
-        missed = old[~hit[old]]
+        live = tracks.ids >= 0
+        old = live & tracks.confirmed
+        self.streak[old & hit] = 0
+        missed = np.flatnonzero(old & ~hit)
         self.streak[missed, col] += 1
         tracking = self.support[missed] > 0
         n_tracking = tracking.sum(axis=1)
         need = np.where(n_tracking > 1, CENTRAL_MISSES, cfg.delete_misses)[:, None]
         dead = missed[(n_tracking > 0) & np.all(~tracking | (self.streak[missed] >= need), axis=1)]
-        young = live[~confirmed]
+        young = np.flatnonzero(live & ~tracks.confirmed)
         window = np.concatenate([self.window[young, 1:], hit[young, None]], axis=1)
         self.window[young] = window
         tracks.confirmed[young[window.sum(axis=1) >= cfg.confirm_hits]] = True
@@ -493,9 +493,9 @@ class TrackToTrackCentre:
 
     def prune(self, now: float) -> None:
         """Delete central tracks no local track maps to, or unsupported for ``central_timeout``."""
-        live = np.flatnonzero(self.tracks.ids >= 0)
-        gone = (self.support[live].sum(axis=1) == 0) | (now - self.last_support[live] > self.cfg.central_timeout)
-        for cid in self.tracks.ids[live[gone]].tolist():
+        ids = self.tracks.ids  # over every slot at once; only live ones are deleted
+        gone = ~self.support.any(axis=1) | (now - self.last_support > self.cfg.central_timeout)
+        for cid in ids[gone & (ids >= 0)].tolist():
             self._delete(cid)
 
     def hand_over(self, cid: int) -> HandOver:
