@@ -123,7 +123,7 @@ class CentralTracks:
 
     def live(self) -> np.ndarray:
         """The slots of every track, in increasing id (the order the tracks were started)."""
-        slots = np.flatnonzero(self.ids >= 0)
+        slots = (self.ids >= 0).nonzero()[0]
         return slots[np.argsort(self.ids[slots], kind="stable")]
 
     def slots_of(self, cids: list[int] | np.ndarray) -> np.ndarray:
@@ -219,7 +219,7 @@ class CentralTracks:
         """The ring position of each slot's newest entry up to ``t`` (the checkpoint if none): its
         newest entry, unless that is after ``t`` (an out-of-sequence time)."""
         p = self.newest(slots)
-        after = np.flatnonzero(self.t[slots, p] > t)
+        after = (self.t[slots, p] > t).nonzero()[0]
         if after.size:
             s = slots[after]
             p[after] = self._pos(s, np.maximum(self.count[s] - 1 - self._newer_than(s, t), 0))
@@ -332,7 +332,7 @@ class CentralTracks:
             return ok, x_out, P_out
         n = slots.shape[0]
         x_out, P_out = np.zeros((n, self.dim)), np.zeros((n, self.dim, self.dim))
-        i = np.flatnonzero(ahead)
+        i = ahead.nonzero()[0]
         if i.size:
             s, pi = slots[i], p[i]
             x_out[i], P_out[i], step, modes = self._step(t_new[i], self.x[s, pi], self.P[s, pi], t, H[i], R[i], z[i],
@@ -340,7 +340,7 @@ class CentralTracks:
             self._write(s, (pi + 1) % self.depth, t, x_out[i], P_out[i], H[i], R[i], z[i], step, modes)
             self.count[s] += 1
             self._trim(s, t)
-        behind = np.flatnonzero(ok & ~ahead)
+        behind = (ok & ~ahead).nonzero()[0]
         if behind.size:
             x_out[behind], P_out[behind] = self._reprocess(slots[behind], t, H[behind], R[behind], z[behind],
                                                            t_new[behind])
@@ -367,7 +367,7 @@ class CentralTracks:
         t_prev[:], x_prev, P_prev = t, x_at.copy(), P_at.copy()
         bank = None if step is None else step[0]  # each slot's bank after its latest re-fused entry
         for j in later.tolist():
-            again = np.flatnonzero(n_after > j)
+            again = (n_after > j).nonzero()[0]
             sizes = old_m[again, j]
             if sizes.min() == sizes.max():  # one observation size (the usual): one step, all at once if all
                 groups = [(int(sizes[0]), slice(None) if again.size == slots.size else again)]

@@ -104,7 +104,7 @@ def candidate_pairs(pos_q: np.ndarray, spread_q: np.ndarray, pos: np.ndarray, sp
         return np.nonzero(dx * dx + dy * dy <= reach * reach)
     kth = int(0.9 * (spread.size - 1))
     big_spread = float(np.partition(spread, kth)[kth])
-    big = np.flatnonzero(spread > big_spread)
+    big = (spread > big_spread).nonzero()[0]
     near = cKDTree(pos).query_ball_point(pos_q, factor * (spread_q + big_spread))
     if big.size:
         reach = factor * (spread_q[:, None] + spread[big][None, :])
@@ -265,14 +265,14 @@ class TrackToTrackCentre:
         for lid in report.retired.tolist() if self.strikes else ():
             self.strikes.pop((s, lid), None)
         d = report.x.shape[1]
-        det_rows = np.flatnonzero(report.detected)
+        det_rows = report.detected.nonzero()[0]
         keys = [(s, i) for i in report.ids[det_rows].tolist()]
         cid, slots = self._central_ids(keys)  # a mapped local track's central track is live; -1: unmapped
         # the estimates at t of the central tracks of the rows to check and of those without a track
         # of this sensor (the association's candidates), in one prediction; ``at``: each slot's row
-        check = np.flatnonzero((cid >= 0) & ~report.started)
+        check = ((cid >= 0) & ~report.started).nonzero()[0]
         tracks = self.tracks
-        need = np.concatenate([slots[check], np.flatnonzero((self.support[:, col] == 0) & (tracks.ids >= 0))])
+        need = np.concatenate([slots[check], ((self.support[:, col] == 0) & (tracks.ids >= 0)).nonzero()[0]])
         X, P = tracks.states_at(need, t)
         at = np.empty(tracks.capacity, dtype=np.int64)
         at[need] = np.arange(need.size)
@@ -296,8 +296,8 @@ class TrackToTrackCentre:
                     self.strikes.pop(key)
                     self.counters.unmapped += 1
                     cid[k] = slots[k] = -1
-        mapped = np.flatnonzero(cid >= 0)
-        unmapped_rows = np.flatnonzero(cid < 0).tolist()
+        mapped = (cid >= 0).nonzero()[0]
+        unmapped_rows = (cid < 0).nonzero()[0].tolist()
         # confirmed local tracks alone on their central tracks (no other local track maps there)
         lonely = report.confirmed[det_rows[mapped]] & (self.support[slots[mapped]].sum(axis=1) == 1)
         alone = mapped[lonely].tolist()
@@ -308,7 +308,7 @@ class TrackToTrackCentre:
         is_fresh = np.zeros(len(keys), dtype=bool)
         is_fresh[[k for k in unmapped_rows if keys[k] in fresh]] = True
         fused, x_post, P_post = self._fuse_scan(report, slots, is_fresh, t)
-        rows = np.flatnonzero(fused)
+        rows = fused.nonzero()[0]
         supported = slots[rows]
         self.moved = cid[rows], supported
         self.last_support[supported] = np.maximum(self.last_support[supported], t)
@@ -333,13 +333,13 @@ class TrackToTrackCentre:
         live = tracks.ids >= 0
         old = live & tracks.confirmed
         self.streak[old & hit] = 0
-        missed = np.flatnonzero(old & ~hit)
+        missed = (old & ~hit).nonzero()[0]
         self.streak[missed, col] += 1
         tracking = self.support[missed] > 0
         n_tracking = tracking.sum(axis=1)
         need = np.where(n_tracking > 1, CENTRAL_MISSES, cfg.delete_misses)[:, None]
-        dead = missed[(n_tracking > 0) & np.all(~tracking | (self.streak[missed] >= need), axis=1)]
-        young = np.flatnonzero(live & ~tracks.confirmed)
+        dead = missed[(n_tracking > 0) & (~tracking | (self.streak[missed] >= need)).all(axis=1)]
+        young = (live & ~tracks.confirmed).nonzero()[0]
         window = np.concatenate([self.window[young, 1:], hit[young, None]], axis=1)
         self.window[young] = window
         tracks.confirmed[young[window.sum(axis=1) >= cfg.confirm_hits]] = True
@@ -363,11 +363,11 @@ class TrackToTrackCentre:
         """
         n = slots.size
         ok, X, P = fresh.copy(), np.zeros((n, self.dim)), np.zeros((n, self.dim, self.dim))
-        started = np.flatnonzero(fresh)
+        started = fresh.nonzero()[0]
         if started.size:
             X[started], P[started] = self.tracks.latest(slots[started])[1:]  # started from this local estimate
         H_all = self._embed(report.obs_H)
-        pending = np.flatnonzero(~fresh)
+        pending = (~fresh).nonzero()[0]
         reprocessed = self.tracks.reprocessed
         while pending.size:
             distinct = np.bincount(slots[pending]).max() == 1  # one observation per central track: all at once
@@ -394,13 +394,13 @@ class TrackToTrackCentre:
         if len(tracks) < 2 or not updated.size:
             return
         has = self.support > 0  # a free slot has none
-        partial = np.flatnonzero((has != has.any(axis=0)).any(axis=1) & (tracks.ids >= 0))
+        partial = ((has != has.any(axis=0)).any(axis=1) & (tracks.ids >= 0)).nonzero()[0]
         if partial.size < 2:
             return
         mark = np.zeros(tracks.capacity, dtype=bool)
         mark[updated] = True  # ``updated``: the slots of this scan's tracks
         partial = partial[np.argsort(tracks.ids[partial])]  # in increasing id
-        mine = np.flatnonzero(mark[partial])
+        mine = mark[partial].nonzero()[0]
         if not mine.size:
             return
         X, P = tracks.states_at(partial, t)
@@ -452,7 +452,7 @@ class TrackToTrackCentre:
             return fresh
         cfg, t, s = self.cfg, report.t, report.sensor
         ids = self.tracks.ids
-        cands = np.flatnonzero((self.support[:, col] == 0) & (ids >= 0))  # without a track of this sensor
+        cands = ((self.support[:, col] == 0) & (ids >= 0)).nonzero()[0]  # without a track of this sensor
         cands = cands[np.argsort(ids[cands])]  # in increasing id
         rows = det_rows[unmapped + alone]
         d = report.x.shape[1]
