@@ -170,7 +170,7 @@ class CentralTracks:
         checkpoint first): its out-of-sequence buffer and maneuver detector, as a hand-over carries them."""
         s = self.slot[cid]
         order = self._pos(np.full(int(self.count[s]), s), np.arange(int(self.count[s])))
-        return tuple(getattr(self, name)[s, order].copy() for name in self._ring)
+        return tuple(getattr(self, name)[s, order] for name in self._ring)  # indexing by ``order`` copies
 
     def place(self, cid: int, confirmed: bool, entries: tuple[np.ndarray, ...]) -> int:
         """Track ``cid`` from another table's :meth:`entries` (a hand-over); returns its slot."""

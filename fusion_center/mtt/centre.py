@@ -399,7 +399,7 @@ class TrackToTrackCentre:
             return
         mark = np.zeros(tracks.capacity, dtype=bool)
         mark[updated] = True  # ``updated``: the slots of this scan's tracks
-        partial = partial[np.argsort(tracks.ids[partial])]  # in increasing id
+        partial = partial[tracks.ids[partial].argsort()]  # in increasing id
         mine = mark[partial].nonzero()[0]
         if not mine.size:
             return
@@ -453,7 +453,7 @@ class TrackToTrackCentre:
         cfg, t, s = self.cfg, report.t, report.sensor
         ids = self.tracks.ids
         cands = ((self.support[:, col] == 0) & (ids >= 0)).nonzero()[0]  # without a track of this sensor
-        cands = cands[np.argsort(ids[cands])]  # in increasing id
+        cands = cands[ids[cands].argsort()]  # in increasing id
         rows = det_rows[unmapped + alone]
         d = report.x.shape[1]
         assigned: dict[int, int] = {}
