@@ -269,7 +269,8 @@ class TrackToTrackCentre:
         keys = [(s, i) for i in report.ids[det_rows].tolist()]
         cid, slots = self._central_ids(keys)  # a mapped local track's central track is live; -1: unmapped
         # the estimates at t of the central tracks of the rows to check and of those without a track
-        # of this sensor (the association's candidates), in one prediction; ``at``: each slot's row
+        # of this sensor, in one prediction; ``at``: each slot's row. The association's candidates are
+        # among them: a track loses this sensor's last local track before it only by the check below
         check = ((cid >= 0) & ~report.started).nonzero()[0]
         tracks = self.tracks
         need = np.concatenate([slots[check], ((self.support[:, col] == 0) & (tracks.ids >= 0)).nonzero()[0]])
