@@ -123,7 +123,7 @@ class CentralTracks:
 
     def live(self) -> np.ndarray:
         """The slots of every track, in increasing id (the order the tracks were started)."""
-        slots = np.flatnonzero(self.ids >= 0)
+        slots = (self.ids >= 0).nonzero()[0]
         return slots[np.argsort(self.ids[slots], kind="stable")]
 
     def slots_of(self, cids: list[int] | np.ndarray) -> np.ndarray:
@@ -158,9 +158,10 @@ class CentralTracks:
         self.ids[s], self.confirmed[s], self.head[s], self.count[s] = cid, False, 0, 1
         self.t[s, 0], self.x[s, 0], self.P[s, 0], self.m[s, 0] = t, x, P, 0
         if self.modes is not None:
-            self._write_modes(np.array([s]), np.zeros(1, dtype=np.int64), start_modes(x[None], P[None], self.modes))
+            self._write_modes(np.array([s]), np.zeros(1, dtype=np.int64),  # head 0: position 0
+                              start_modes(x[None], P[None], self.modes))
         if self.detector is not None:
-            self._write_detector(np.array([s]), np.zeros(1, dtype=np.int64),
+            self._write_detector(np.array([s]), np.zeros(1, dtype=np.int64),  # head 0: position 0
                                  (new_banks(1, self.detector.window, self.dim, t), no_detection(1)))
         return s
 
@@ -169,7 +170,7 @@ class CentralTracks:
         checkpoint first): its out-of-sequence buffer and maneuver detector, as a hand-over carries them."""
         s = self.slot[cid]
         order = self._pos(np.full(int(self.count[s]), s), np.arange(int(self.count[s])))
-        return tuple(getattr(self, name)[s, order].copy() for name in self._ring)
+        return tuple(getattr(self, name)[s, order] for name in self._ring)  # indexing by ``order`` copies
 
     def place(self, cid: int, confirmed: bool, entries: tuple[np.ndarray, ...]) -> int:
         """Track ``cid`` from another table's :meth:`entries` (a hand-over); returns its slot."""
@@ -193,13 +194,17 @@ class CentralTracks:
     def _pos(self, slots: np.ndarray, j: np.ndarray) -> np.ndarray:
         return (self.head[slots] + j) % self.depth
 
+    def newest(self, slots: np.ndarray) -> np.ndarray:
+        """The ring position of each slot's newest entry."""
+        return self._pos(slots, self.count[slots] - 1)
+
     def newest_t(self, slots: np.ndarray) -> np.ndarray:
         """The time of each slot's newest observation."""
-        return self.t[slots, self._pos(slots, self.count[slots] - 1)]
+        return self.t[slots, self.newest(slots)]
 
     def latest(self, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Time, state and covariance after each slot's newest observation."""
-        p = self._pos(slots, self.count[slots] - 1)
+        p = self.newest(slots)
         return self.t[slots, p], self.x[slots, p], self.P[slots, p]
 
     def _newer_than(self, slots: np.ndarray, t: float | np.ndarray, or_at: bool = False) -> np.ndarray:
@@ -211,8 +216,14 @@ class CentralTracks:
         return np.count_nonzero(live & (times >= t if or_at else times > t), axis=1)
 
     def _entry_at(self, slots: np.ndarray, t: float) -> np.ndarray:
-        """The ring position of each slot's newest entry up to ``t`` (the checkpoint if none)."""
-        return self._pos(slots, np.maximum(self.count[slots] - 1 - self._newer_than(slots, t), 0))
+        """The ring position of each slot's newest entry up to ``t`` (the checkpoint if none): its
+        newest entry, unless that is after ``t`` (an out-of-sequence time)."""
+        p = self.newest(slots)
+        after = (self.t[slots, p] > t).nonzero()[0]
+        if after.size:
+            s = slots[after]
+            p[after] = self._pos(s, np.maximum(self.count[s] - 1 - self._newer_than(s, t), 0))
+        return p
 
     def states_at(self, slots: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
         """The estimates (N, D), (N, D, D) of ``slots`` at ``t`` from their observations up to ``t``
@@ -228,8 +239,7 @@ class CentralTracks:
             return None
         return Modes(*(getattr(self, "mode_" + n)[slots, p] for n in Modes._fields))
 
-    def _write_modes(self, slots: np.ndarray, j: np.ndarray, modes: Modes) -> None:
-        p = self._pos(slots, j)
+    def _write_modes(self, slots: np.ndarray, p: np.ndarray, modes: Modes) -> None:
         for name, a in zip(Modes._fields, modes):
             getattr(self, "mode_" + name)[slots, p] = a
 
@@ -246,8 +256,8 @@ class CentralTracks:
             return None
         return InputBank(*(getattr(self, "bank_" + n)[slots, p] for n in InputBank._fields))
 
-    def _step(self, t0: np.ndarray, x: np.ndarray, P: np.ndarray, t: np.ndarray, H: np.ndarray, R: np.ndarray,
-              z: np.ndarray, bank: InputBank | None, modes: Modes | None = None
+    def _step(self, t0: np.ndarray, x: np.ndarray, P: np.ndarray, t: float | np.ndarray, H: np.ndarray,
+              R: np.ndarray, z: np.ndarray, bank: InputBank | None, modes: Modes | None = None
               ) -> tuple[np.ndarray, np.ndarray, DetectorStep, Modes | None]:
         """Posteriors after predicting each ``(x, P)`` (or its ``modes``) from ``t0`` to ``t`` and
         fusing ``(H, R, z)``, the maneuver detector's step from ``bank`` (None without a
@@ -261,21 +271,19 @@ class CentralTracks:
             modes, post = modes_update(pred, z - np.einsum("kmd,kd->km", H, xp), H, R, xp)
         return post.x, post.P, None if bank is None else input_step(bank, dt, xp, Pp, H, R, z, t), modes
 
-    def _write(self, slots: np.ndarray, j: np.ndarray, t: np.ndarray, x: np.ndarray, P: np.ndarray,
+    def _write(self, slots: np.ndarray, p: np.ndarray, t: float | np.ndarray, x: np.ndarray, P: np.ndarray,
                H: np.ndarray, R: np.ndarray, z: np.ndarray, step: DetectorStep, modes: Modes | None = None) -> None:
-        """Ring entry ``j`` of each slot: the observation ``(H, R, z)`` at ``t`` and the posterior
+        """Ring position ``p`` of each slot: the observation ``(H, R, z)`` at ``t`` and the posterior
         (and detector step, and modes) after it."""
-        p = self._pos(slots, j)
         m = H.shape[1]
         self.t[slots, p], self.x[slots, p], self.P[slots, p], self.m[slots, p] = t, x, P, m
         self.H[slots, p, :m], self.R[slots, p, :m, :m], self.z[slots, p, :m] = H, R, z
         if step is not None:
-            self._write_detector(slots, j, step)
+            self._write_detector(slots, p, step)
         if modes is not None:
-            self._write_modes(slots, j, modes)
+            self._write_modes(slots, p, modes)
 
-    def _write_detector(self, slots: np.ndarray, j: np.ndarray, step: tuple[InputBank, InputDetection]) -> None:
-        p = self._pos(slots, j)
+    def _write_detector(self, slots: np.ndarray, p: np.ndarray, step: tuple[InputBank, InputDetection]) -> None:
         for prefix, record in zip(("bank_", "det_"), step):
             for name, a in zip(record._fields, record):
                 getattr(self, prefix + name)[slots, p] = a
@@ -300,43 +308,48 @@ class CentralTracks:
         """
         if H.shape[1] > self.H.shape[2]:
             raise ValueError(f"observations of size {H.shape[1]} in a {self.dim}-D central state")
-        full = slots[self.count[slots] >= MAX_ENTRIES]
-        if full.size:  # fold the oldest kept observation into the checkpoint: memory stays bounded
-            self.head[full] = (self.head[full] + 1) % self.depth
-            self.count[full] -= 1
+        count = self.count[slots]
+        full = count >= MAX_ENTRIES
+        if full.any():  # fold the oldest kept observation into the checkpoint: memory stays bounded
+            f = slots[full]
+            self.head[f] = (self.head[f] + 1) % self.depth
+            self.count[f] -= 1
+            count = self.count[slots]
+        head = self.head[slots]
+        p = (head + count - 1) % self.depth  # each slot's newest entry
+        t_new = self.t[slots, p]
+        ok = (t >= self.t[slots, head]) & (t >= t_new - self.max_lag)
+        if ok.any() and int(count[ok].max()) + 1 > self.depth:  # room for one more entry in each
+            self._grow(self.capacity, max(2 * self.depth, int(count[ok].max()) + 1))
+            p = (self.head[slots] + count - 1) % self.depth
+        ahead = ok & (t >= t_new)
+        if slots.size and ahead.all():  # every observation after its track's newest (in order): one step
+            x_out, P_out, step, modes = self._step(t_new, self.x[slots, p], self.P[slots, p], t, H, R, z,
+                                                   self._bank_at(slots, p), self._modes_at(slots, p))
+            self._write(slots, (p + 1) % self.depth, t, x_out, P_out, H, R, z, step, modes)
+            self.count[slots] = count + 1
+            self._trim(slots, t)
+            return ok, x_out, P_out
         n = slots.shape[0]
         x_out, P_out = np.zeros((n, self.dim)), np.zeros((n, self.dim, self.dim))
-        t_new = self.newest_t(slots)
-        oldest = self.t[slots, self.head[slots]]
-        ok = (t >= oldest) & (t >= t_new - self.max_lag)
-        ahead = ok & (t >= t_new)
-        if ahead.any():
-            i = np.flatnonzero(ahead)
-            s = slots[i]
-            self._reserve(s, 1)
-            p = self._pos(s, self.count[s] - 1)
-            x_out[i], P_out[i], step, modes = self._step(t_new[i], self.x[s, p], self.P[s, p], np.full(i.size, t),
-                                                         H[i], R[i], z[i], self._bank_at(s, p), self._modes_at(s, p))
-            self._write(s, self.count[s], np.full(i.size, t), x_out[i], P_out[i], H[i], R[i], z[i], step, modes)
+        i = ahead.nonzero()[0]
+        if i.size:
+            s, pi = slots[i], p[i]
+            x_out[i], P_out[i], step, modes = self._step(t_new[i], self.x[s, pi], self.P[s, pi], t, H[i], R[i], z[i],
+                                                         self._bank_at(s, pi), self._modes_at(s, pi))
+            self._write(s, (pi + 1) % self.depth, t, x_out[i], P_out[i], H[i], R[i], z[i], step, modes)
             self.count[s] += 1
             self._trim(s, t)
-        behind = np.flatnonzero(ok & ~ahead)
+        behind = (ok & ~ahead).nonzero()[0]
         if behind.size:
             x_out[behind], P_out[behind] = self._reprocess(slots[behind], t, H[behind], R[behind], z[behind],
                                                            t_new[behind])
         return ok, x_out, P_out
 
-    def _reserve(self, slots: np.ndarray, extra: int) -> None:
-        """Room for ``extra`` more entries in each of ``slots`` (doubles the ring depth if needed)."""
-        need = int(self.count[slots].max(initial=0)) + extra
-        if need > self.depth:
-            self._grow(self.capacity, max(2 * self.depth, need))
-
     def _reprocess(self, slots: np.ndarray, t: float, H: np.ndarray, R: np.ndarray, z: np.ndarray,
                    t_newest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Insert observations older than their tracks' newest (at ``t_newest``) and fuse the later
-        ones again."""
-        self._reserve(slots, 1)
+        ones again (:meth:`fuse` made room for one more entry in each)."""
         n_after = self._newer_than(slots, t)
         self.reprocessed += int(n_after.sum())
         keep = self.count[slots] - n_after  # entries up to t stay (>= 1: the checkpoint is not after t)
@@ -348,23 +361,26 @@ class CentralTracks:
         old_H, old_R, old_z = self.H[rows, pos], self.R[rows, pos], self.z[rows, pos]
         p = self._pos(slots, keep - 1)
         t_prev, x_prev, P_prev = self.t[slots, p], self.x[slots, p], self.P[slots, p]
-        every = np.arange(slots.size)
-        x_at, P_at, step, modes = self._step(t_prev, x_prev, P_prev, np.full(slots.size, t), H, R, z,
-                                             self._bank_at(slots, p), self._modes_at(slots, p))
-        self._write(slots, keep, np.full(slots.size, t), x_at, P_at, H, R, z, step, modes)
+        x_at, P_at, step, modes = self._step(t_prev, x_prev, P_prev, t, H, R, z, self._bank_at(slots, p),
+                                             self._modes_at(slots, p))
+        self._write(slots, self._pos(slots, keep), t, x_at, P_at, H, R, z, step, modes)
         t_prev[:], x_prev, P_prev = t, x_at.copy(), P_at.copy()
         bank = None if step is None else step[0]  # each slot's bank after its latest re-fused entry
         for j in later.tolist():
-            again = every[n_after > j]
+            again = (n_after > j).nonzero()[0]
             sizes = old_m[again, j]
-            for m in np.unique(sizes).tolist():
-                g = again[sizes == m]
+            if sizes.min() == sizes.max():  # one observation size (the usual): one step, all at once if all
+                groups = [(int(sizes[0]), slice(None) if again.size == slots.size else again)]
+            else:
+                groups = [(m, again[sizes == m]) for m in np.unique(sizes).tolist()]
+            for m, g in groups:
                 tg, Hg, Rg, zg = old_t[g, j], old_H[g, j, :m], old_R[g, j, :m, :m], old_z[g, j, :m]
                 x_prev[g], P_prev[g], step, mode_g = self._step(
                     t_prev[g], x_prev[g], P_prev[g], tg, Hg, Rg, zg,
                     None if bank is None else InputBank(*(a[g] for a in bank)),
                     None if modes is None else modes.take(g))
-                self._write(slots[g], keep[g] + 1 + j, tg, x_prev[g], P_prev[g], Hg, Rg, zg, step, mode_g)
+                self._write(slots[g], self._pos(slots[g], keep[g] + 1 + j), tg, x_prev[g], P_prev[g], Hg, Rg, zg,
+                            step, mode_g)
                 t_prev[g] = tg
                 if step is not None:
                     for a, new in zip(bank, step[0]):

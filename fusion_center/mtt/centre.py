@@ -76,29 +76,43 @@ class Counters:
     left: int = 0
 
 
-def candidate_pairs(pos: np.ndarray, spread: np.ndarray, rows: list[int], gate: float) -> list[list[int]]:
-    """For each of ``rows``, every track ``j`` within ``sqrt(gate) (spread_k + spread_j)`` of it
-    (``spread``: root of the x-y position variances): a pair farther apart fails the chi-square
-    test ``d' (P_j + P_k)^-1 d <= gate``, whose x-y marginal alone needs
-    ``|dxy|^2 <= gate tr(P_xy,j + P_xy,k) <= gate (spread_j + spread_k)^2``.
+# At most this many (query, position) pairs are tested directly rather than through a k-d tree:
+# building and querying a tree costs about 60 us at any size, the direct test about 1 us per
+# 1,000 pairs (measured: equal near 30,000 pairs); a centre's few unmapped local tracks or
+# merge candidates against its tracks are a few thousand pairs.
+DIRECT_PAIRS = 1 << 15
 
-    One k-d tree query per row with the reach of the largest spread among the ordinary tracks,
-    plus a direct check against the few tracks with a larger spread (tentative tracks with a
-    large velocity uncertainty), so that one of them does not make every query cover the region.
-    That reach (about the 90th percentile of the spreads, one partition instead of a quantile's
-    sort and interpolation) only splits the work: any value gives the same pairs.
+
+def candidate_pairs(pos_q: np.ndarray, spread_q: np.ndarray, pos: np.ndarray, spread: np.ndarray, gate: float
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """The pairs ``(i, j)`` of a query ``pos_q[i]`` and a position ``pos[j]`` that can pass the
+    chi-square test ``d' (P_i + P_j)^-1 d <= gate``, as two arrays (``i`` ascending, then ``j``):
+    its x-y marginal alone needs ``|dxy|^2 <= gate tr(P_xy,i + P_xy,j) <= gate (spread_i +
+    spread_j)^2`` (``spread``: root of the x-y position variances), so a pair farther apart fails.
+
+    Up to ``DIRECT_PAIRS`` pairs that bound is tested on every pair. Beyond, one k-d tree query
+    per query position with the reach of the largest spread among the ordinary positions (about
+    the 90th percentile of the spreads, one partition instead of a quantile's sort and
+    interpolation), plus a direct check against the few with a larger spread (tentative tracks
+    with a large velocity uncertainty), so that one of them does not make every query cover the
+    region; that gives some farther pairs too (the reach only splits the work: the test decides).
     """
     factor = float(np.sqrt(gate))
+    if pos_q.shape[0] * pos.shape[0] <= DIRECT_PAIRS:
+        dx, dy = pos_q[:, 0, None] - pos[:, 0], pos_q[:, 1, None] - pos[:, 1]
+        reach = factor * (spread_q[:, None] + spread)
+        return np.nonzero(dx * dx + dy * dy <= reach * reach)
     kth = int(0.9 * (spread.size - 1))
     big_spread = float(np.partition(spread, kth)[kth])
-    big = np.flatnonzero(spread > big_spread)
-    tree = cKDTree(pos)
-    out = tree.query_ball_point(pos[rows], factor * (spread[rows] + big_spread))
+    big = (spread > big_spread).nonzero()[0]
+    near = cKDTree(pos).query_ball_point(pos_q, factor * (spread_q + big_spread))
     if big.size:
-        reach = factor * (spread[rows][:, None] + spread[big][None, :])
-        close = np.linalg.norm(pos[rows][:, None, :] - pos[big][None, :, :], axis=-1) <= reach
-        out = [sorted(set(near) | set(big[close[i]].tolist())) for i, near in enumerate(out)]
-    return out
+        reach = factor * (spread_q[:, None] + spread[big][None, :])
+        close = np.linalg.norm(pos_q[:, None, :] - pos[big][None, :, :], axis=-1) <= reach
+        near = [sorted(set(js) | set(big[close[i]].tolist())) for i, js in enumerate(near)]
+    counts = np.fromiter(map(len, near), dtype=np.int64, count=len(near))
+    j = np.fromiter(itertools.chain.from_iterable(near), dtype=np.int64, count=int(counts.sum()))
+    return np.repeat(np.arange(len(near)), counts), j
 
 
 class HandOver(NamedTuple):
@@ -148,9 +162,10 @@ class TrackToTrackCentre:
         self.streak = np.zeros((0, 0), dtype=np.int64)  # a confirmed slot's misses in a row per sensor
         self.window = np.zeros((0, cfg.confirm_window), dtype=bool)  # a tentative slot's last scans
         self.last_support = np.zeros(0)  # when a local observation was last fused into a slot
-        # the ids of the central tracks the last report's observations were fused into (or started):
-        # the only ones whose latest estimate moved (a region centre checks whether they left it)
-        self.moved = np.zeros(0, dtype=np.int64)
+        # the ids and slots of the central tracks the last report's observations were fused into (or
+        # started), one per fused row (an id may repeat; a track deleted since no longer has its id in
+        # its slot): the only ones whose latest estimate moved (a region centre checks whether they left it)
+        self.moved = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
         self._fit()
 
     def _fit(self) -> None:
@@ -169,9 +184,11 @@ class TrackToTrackCentre:
             self._fit()
         return col
 
-    def _central_ids(self, keys: list[LocalKey]) -> np.ndarray:
-        """The central track each local track maps to (-1: none), as an array."""
-        return np.fromiter(map(self.mapping.get, keys, itertools.repeat(-1)), dtype=np.int64, count=len(keys))
+    def _central_ids(self, keys: list[LocalKey]) -> tuple[np.ndarray, np.ndarray]:
+        """The central track each local track maps to (-1: none) and its slot (-1: none), as arrays."""
+        cids = list(map(self.mapping.get, keys, itertools.repeat(-1)))
+        slots = map(self.tracks.slot.get, cids, itertools.repeat(-1))
+        return np.array(cids, dtype=np.int64), np.fromiter(slots, dtype=np.int64, count=len(cids))
 
     def _map(self, key: LocalKey, cid: int) -> None:
         self._unmap(key)
@@ -242,27 +259,36 @@ class TrackToTrackCentre:
         cfg, t, s = self.cfg, report.t, report.sensor
         self.sensor_seen[s] = max(self.sensor_seen.get(s, t), t)
         col = self._col(s)
-        for lid in report.retired.tolist():
-            if self._unmap((s, lid)):
-                self.counters.unmapped += 1
+        for key in self.mapping.keys() & {(s, lid) for lid in report.retired.tolist()}:  # retired and mapped
+            self._unmap(key)
+            self.counters.unmapped += 1
+        for lid in report.retired.tolist() if self.strikes else ():
             self.strikes.pop((s, lid), None)
         d = report.x.shape[1]
-        det_rows = np.flatnonzero(report.detected)
+        det_rows = report.detected.nonzero()[0]
         keys = [(s, i) for i in report.ids[det_rows].tolist()]
-        cid = self._central_ids(keys)  # a mapped local track's central track is live; -1: unmapped
+        cid, slots = self._central_ids(keys)  # a mapped local track's central track is live; -1: unmapped
+        # the estimates at t of the central tracks of the rows to check and of those without a track
+        # of this sensor, in one prediction; ``at``: each slot's row. The association's candidates are
+        # among them: a track loses this sensor's last local track before it only by the check below
+        check = ((cid >= 0) & ~report.started).nonzero()[0]
+        tracks = self.tracks
+        need = np.concatenate([slots[check], ((self.support[:, col] == 0) & (tracks.ids >= 0)).nonzero()[0]])
+        X, P = tracks.states_at(need, t)
+        at = np.empty(tracks.capacity, dtype=np.int64)
+        at[need] = np.arange(need.size)
         # hysteresis: a mapped local track inconsistent with its central track unmap_after times in a row
-        check = np.flatnonzero((cid >= 0) & ~report.started)
         if check.size:
-            xc, Pc = self.tracks.states_at(self.tracks.slots_of(cid[check]), t)
             rows = det_rows[check]
-            diff = report.x[rows] - xc[:, :d]
-            d2 = track_difference_d2(diff, report.P[rows] + Pc[:, :d, :d])[0]
+            diff = report.x[rows] - X[:check.size, :d]
+            d2 = track_difference_d2(diff, report.P[rows] + P[:check.size, :d, :d])[0]
             bad = d2 > cfg.thresholds.association[d]
-            if self.strikes:  # a consistent local track's strikes are forgiven
-                struck = [key for key in self.strikes if key[0] == s]
-                good = np.isin([lid for _, lid in struck], report.ids[rows[~bad]])
-                for key in itertools.compress(struck, good.tolist()):
-                    del self.strikes[key]
+            struck = [key for key in self.strikes if key[0] == s]
+            if struck:  # a consistent local track's strikes are forgiven
+                good = set(report.ids[rows[~bad]].tolist())
+                for key in struck:
+                    if key[1] in good:
+                        del self.strikes[key]
             for k in check[bad].tolist():
                 key = keys[k]
                 self.strikes[key] = self.strikes.get(key, 0) + 1
@@ -270,30 +296,31 @@ class TrackToTrackCentre:
                     self._unmap(key)
                     self.strikes.pop(key)
                     self.counters.unmapped += 1
-                    cid[k] = -1
-        mapped = np.flatnonzero(cid >= 0)
-        unmapped_rows = np.flatnonzero(cid < 0).tolist()
+                    cid[k] = slots[k] = -1
+        mapped = (cid >= 0).nonzero()[0]
+        unmapped_rows = (cid < 0).nonzero()[0].tolist()
         # confirmed local tracks alone on their central tracks (no other local track maps there)
-        lonely = report.confirmed[det_rows[mapped]] & (self.support[self.tracks.slots_of(cid[mapped])].sum(axis=1) == 1)
+        lonely = report.confirmed[det_rows[mapped]] & (self.support[slots[mapped]].sum(axis=1) == 1)
         alone = mapped[lonely].tolist()
-        fresh = self._associate(report, det_rows, col, unmapped_rows, alone)
+        fresh = self._associate(report, det_rows, col, unmapped_rows, alone, (X, P, at))
         for k in unmapped_rows + alone:
             cid[k] = self.mapping[keys[k]]
-        slots = self.tracks.slots_of(cid)
+            slots[k] = tracks.slot[cid[k]]
         is_fresh = np.zeros(len(keys), dtype=bool)
         is_fresh[[k for k in unmapped_rows if keys[k] in fresh]] = True
         fused, x_post, P_post = self._fuse_scan(report, slots, is_fresh, t)
-        beta = float(max(len(self.live_sensors(t)), 1))
-        rows = np.flatnonzero(fused)
+        rows = fused.nonzero()[0]
         supported = slots[rows]
-        self.moved = np.unique(cid[rows])
+        self.moved = cid[rows], supported
         self.last_support[supported] = np.maximum(self.last_support[supported], t)
-        resets = no_resets(s, t, d)
         if self.feedback and rows.size:
+            beta = float(max(len(self.live_sensors(t)), 1))
             resets = Resets(s, t, report.ids[det_rows[rows]], x_post[rows, :d], beta * P_post[rows, :d, :d])
+        else:
+            resets = no_resets(s, t, d)
         self._count_scan(col, supported)
-        still_live = self.tracks.ids[slots] == cid
-        self._merge_duplicates(np.unique(slots[still_live]), t)
+        still_live = tracks.ids[slots] == cid
+        self._merge_duplicates(slots[still_live], t)
         return resets
 
     def _count_scan(self, col: int, detected: np.ndarray) -> None:
@@ -302,19 +329,18 @@ class TrackToTrackCentre:
         did not detect misses, and is deleted after ``delete_misses`` consecutive misses
         (``CENTRAL_MISSES`` of each tracking sensor when several track it)."""
         cfg, tracks = self.cfg, self.tracks
-        live = np.flatnonzero(tracks.ids >= 0)
         hit = np.zeros(tracks.capacity, dtype=bool)
         hit[detected] = True
-        confirmed = tracks.confirmed[live]
-        old = live[confirmed]
-        self.streak[old[hit[old]]] = 0
-        missed = old[~hit[old]]
+        live = tracks.ids >= 0
+        old = live & tracks.confirmed
+        self.streak[old & hit] = 0
+        missed = (old & ~hit).nonzero()[0]
         self.streak[missed, col] += 1
         tracking = self.support[missed] > 0
         n_tracking = tracking.sum(axis=1)
         need = np.where(n_tracking > 1, CENTRAL_MISSES, cfg.delete_misses)[:, None]
-        dead = missed[(n_tracking > 0) & np.all(~tracking | (self.streak[missed] >= need), axis=1)]
-        young = live[~confirmed]
+        dead = missed[(n_tracking > 0) & (~tracking | (self.streak[missed] >= need)).all(axis=1)]
+        young = (live & ~tracks.confirmed).nonzero()[0]
         window = np.concatenate([self.window[young, 1:], hit[young, None]], axis=1)
         self.window[young] = window
         tracks.confirmed[young[window.sum(axis=1) >= cfg.confirm_hits]] = True
@@ -338,20 +364,23 @@ class TrackToTrackCentre:
         """
         n = slots.size
         ok, X, P = fresh.copy(), np.zeros((n, self.dim)), np.zeros((n, self.dim, self.dim))
-        started = np.flatnonzero(fresh)
-        X[started], P[started] = self.tracks.latest(slots[started])[1:]  # started from this local estimate
+        started = fresh.nonzero()[0]
+        if started.size:
+            X[started], P[started] = self.tracks.latest(slots[started])[1:]  # started from this local estimate
         H_all = self._embed(report.obs_H)
-        pending = np.flatnonzero(~fresh)
+        pending = (~fresh).nonzero()[0]
         reprocessed = self.tracks.reprocessed
         while pending.size:
-            now = pending[np.sort(np.unique(slots[pending], return_index=True)[1])]
-            newest = self.tracks.newest_t(slots[now])  # before the fusion
+            distinct = np.bincount(slots[pending]).max() == 1  # one observation per central track: all at once
+            now = pending if distinct else pending[np.sort(np.unique(slots[pending], return_index=True)[1])]
             done, x_now, P_now = self.tracks.fuse(slots[now], t, H_all[now], report.obs_R[now], report.obs_z[now])
             ok[now], X[now], P[now] = done, x_now, P_now
-            self.counters.fused += int(done.sum())
-            late = int(np.count_nonzero(t < newest[~done] - self.cfg.max_lag))
-            self.counters.late += late
-            self.counters.before_start += int(done.size - done.sum()) - late
+            fused = int(np.count_nonzero(done))
+            self.counters.fused += fused
+            if fused < done.size:  # a track not fused into is as it was: its newest entry before the fusion
+                late = int(np.count_nonzero(t < self.tracks.newest_t(slots[now[~done]]) - self.cfg.max_lag))
+                self.counters.late += late
+                self.counters.before_start += done.size - fused - late
             pending = pending[~np.isin(pending, now, assume_unique=True)] if now.size < pending.size else now[:0]
         self.counters.reprocessed += self.tracks.reprocessed - reprocessed
         return ok, X, P
@@ -365,29 +394,34 @@ class TrackToTrackCentre:
         tracks = self.tracks
         if len(tracks) < 2 or not updated.size:
             return
-        everyone = self.support.any(axis=0)
-        live = tracks.live()
-        partial = live[((self.support[live] > 0) != everyone).any(axis=1)]
-        mine_slots = np.intersect1d(updated, partial)  # ``updated``: the slots of this scan's tracks
-        if not mine_slots.size or partial.size < 2:
+        has = self.support > 0  # a free slot has none
+        partial = ((has != has.any(axis=0)).any(axis=1) & (tracks.ids >= 0)).nonzero()[0]
+        if partial.size < 2:
             return
-        cfg = self.cfg
-        row = np.empty(tracks.capacity, dtype=np.int64)
-        row[partial] = np.arange(partial.size)
+        mark = np.zeros(tracks.capacity, dtype=bool)
+        mark[updated] = True  # ``updated``: the slots of this scan's tracks
+        partial = partial[tracks.ids[partial].argsort()]  # in increasing id
+        mine = mark[partial].nonzero()[0]
+        if not mine.size:
+            return
         X, P = tracks.states_at(partial, t)
-        gate = cfg.thresholds.association[self.dim]
-        mine = np.sort(row[mine_slots]).tolist()  # in increasing id, as ``partial``
-        near = candidate_pairs(X[:, [0, 2]], np.sqrt(P[:, 0, 0] + P[:, 2, 2]), mine, gate)
-        K = np.fromiter((k for k, js in zip(mine, near) for _ in js), dtype=np.int64)
-        J = np.fromiter((j for js in near for j in js), dtype=np.int64, count=K.size)
+        gate = self.cfg.thresholds.association[self.dim]
+        pos, spread = X[:, [0, 2]], np.sqrt(P[:, 0, 0] + P[:, 2, 2])
+        K, J = candidate_pairs(pos[mine], spread[mine], pos, spread, gate)
+        K = mine[K]
+        # a track never merges with itself, nor with one that shares a sensor with it (a track keeps
+        # its sensors, and a kept track gains the merged one's): only the other pairs are tested
+        tested = (K != J) & ~(has[partial[K]] & has[partial[J]]).any(axis=1)
+        K, J = K[tested], J[tested]
+        if not K.size:
+            return
         diff = X[J] - X[K]  # the chi-square test of every candidate pair at once
         passes = track_difference_d2(diff, P[J] + P[K])[0] <= gate
         close: dict[int, list[int]] = {}
         for k, j in zip(K[passes].tolist(), J[passes].tolist()):
-            if j != k:
-                close.setdefault(k, []).append(j)
+            close.setdefault(k, []).append(j)
         ids = tracks.ids[partial].tolist()
-        for k in mine:
+        for k in mine.tolist():
             if ids[k] not in tracks:
                 continue
             for j in sorted(close.get(k, ())):
@@ -408,32 +442,30 @@ class TrackToTrackCentre:
                 break
 
     def _associate(self, report: LocalReport, det_rows: np.ndarray, col: int, unmapped: list[int],
-                   alone: list[int]) -> set[LocalKey]:
+                   alone: list[int], states: tuple[np.ndarray, np.ndarray, np.ndarray]) -> set[LocalKey]:
         """Map the scan's unmapped local tracks (those not associated start central tracks) and
         move its confirmed local tracks that are alone on their central tracks to central tracks of
         other sensors that pass the test (their own central tracks, left without a local track,
-        go at the next :meth:`prune`); returns the local tracks that started central tracks."""
+        go at the next :meth:`prune`); returns the local tracks that started central tracks.
+        ``states``: the central tracks' estimates at the report's time and each slot's row there."""
         fresh: set[LocalKey] = set()
         if not unmapped and not alone:
             return fresh
         cfg, t, s = self.cfg, report.t, report.sensor
-        live = self.tracks.live()
-        cands = live[self.support[live, col] == 0]  # central tracks without a track of this sensor
+        ids = self.tracks.ids
+        cands = ((self.support[:, col] == 0) & (ids >= 0)).nonzero()[0]  # without a track of this sensor
+        cands = cands[ids[cands].argsort()]  # in increasing id
         rows = det_rows[unmapped + alone]
         d = report.x.shape[1]
         assigned: dict[int, int] = {}
         if cands.size:
-            xc, Pc = self.tracks.states_at(cands, t)
-            xc, Pc = xc[:, :d], Pc[:, :d, :d]
+            X, P, at = states
+            xc, Pc = X[at[cands], :d], P[at[cands], :d, :d]
             U, C = report.x[rows], report.P[rows]
-            # candidate pairs within the chi-square test's reach (k-d tree), then the test on them
-            pos = np.concatenate([U[:, [0, 2]], xc[:, [0, 2]]])
-            spread = np.sqrt(np.concatenate([C[:, 0, 0] + C[:, 2, 2], Pc[:, 0, 0] + Pc[:, 2, 2]]))
+            # candidate pairs within the chi-square test's reach, then the test on them
             gate = cfg.thresholds.association[d]
-            near = candidate_pairs(pos, spread, list(range(len(rows))), gate)
-            ri = np.fromiter((u for u, js in enumerate(near) for j in js if j >= len(rows)), dtype=np.int64)
-            ci = np.fromiter((j - len(rows) for js in near for j in js if j >= len(rows)), dtype=np.int64,
-                             count=ri.size)
+            ri, ci = candidate_pairs(U[:, [0, 2]], np.sqrt(C[:, 0, 0] + C[:, 2, 2]), xc[:, [0, 2]],
+                                     np.sqrt(Pc[:, 0, 0] + Pc[:, 2, 2]), gate)
             d2, logdet = track_difference_d2(U[ri] - xc[ci], C[ri] + Pc[ci])
             inside = d2 <= gate
             ri, ci, cost = ri[inside], ci[inside], d2[inside] + logdet[inside]
@@ -462,9 +494,9 @@ class TrackToTrackCentre:
 
     def prune(self, now: float) -> None:
         """Delete central tracks no local track maps to, or unsupported for ``central_timeout``."""
-        live = np.flatnonzero(self.tracks.ids >= 0)
-        gone = (self.support[live].sum(axis=1) == 0) | (now - self.last_support[live] > self.cfg.central_timeout)
-        for cid in self.tracks.ids[live[gone]].tolist():
+        ids = self.tracks.ids  # over every slot at once; only live ones are deleted
+        gone = ~self.support.any(axis=1) | (now - self.last_support > self.cfg.central_timeout)
+        for cid in ids[gone & (ids >= 0)].tolist():
             self._delete(cid)
 
     def hand_over(self, cid: int) -> HandOver:
@@ -476,6 +508,7 @@ class TrackToTrackCentre:
                           float(self.last_support[slot]), members, tuple(self.strikes.pop(k, 0) for k in members))
         for key in members:
             del self.mapping[key]
+        self.support[slot] = 0
         self.tracks.delete(cid)
         return record
 

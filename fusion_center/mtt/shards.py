@@ -39,6 +39,26 @@ from fedtrack.local_filters.mtt.routing import RegionAnswer, RegionRouter, join_
 from fedtrack.local_filters.regions import Regions, region_of
 
 
+def interior(regions: Regions, r: int) -> np.ndarray:
+    """An open box ``(x0, x1, y0, y1)`` whose every point :func:`region_of` gives to region ``r``,
+    or NaNs (none known): a region that is an axis-parallel rectangle (a grid cell), shrunk by
+    ``1e-9`` of the largest coordinate (a point that far inside is inside by the even-odd rule, as
+    exactly computed), kept only if no earlier region's bounding box, grown as much, meets it
+    (such a point is at a distance > 0 from every earlier region, rounding included: region ``r``
+    is the first containing it)."""
+    v = regions.vertices
+    lo, hi = v.min(axis=1), v.max(axis=1)  # (R, 2) bounding boxes
+    eps = 1e-9 * max(float(np.abs(v).max()), 1.0)
+    corners = v[r]
+    ring = corners[np.any(corners != np.roll(corners, 1, axis=0), axis=1)]  # repeats dropped
+    step = ring != np.roll(ring, -1, axis=0)  # per edge: x changes, y changes
+    a, b = lo[r] + eps, hi[r] - eps
+    if (ring.shape[0] != 4 or not (np.array_equal(step[:, 0], ~step[:, 1]) and step[0, 0] != step[1, 0])
+            or np.any(a >= b) or np.any(np.all((lo[:r] - eps < b) & (hi[:r] + eps > a), axis=1))):
+        return np.full(4, np.nan)  # not a rectangle with axis-parallel edges, or an earlier region near
+    return np.array([a[0], b[0], a[1], b[1]])
+
+
 @dataclass
 class RegionCentre:
     """The centre of region ``index`` of ``regions``: a :class:`TrackToTrackCentre` numbering its
@@ -59,6 +79,7 @@ class RegionCentre:
     def __post_init__(self) -> None:
         self.centre = TrackToTrackCentre(self.cfg, self.dim, self.feedback, next_id=self.index,
                                          id_step=len(self.regions.ids))
+        self.interior = interior(self.regions, self.index)
 
     @property
     def name(self) -> str:
@@ -84,10 +105,17 @@ class RegionCentre:
         resets, q_scale = self.centre.answer(report if take.all() else sub_report(report, take))
         c = self.centre
         moving: list[tuple[int, int, HandOver]] = []
-        touched = c.moved[np.isin(c.moved, c.tracks.ids)]  # not merged away or pruned
-        if touched.size and len(self.regions.ids) > 1:
-            owner = region_of(self.regions, c.tracks.latest(c.tracks.slots_of(touched))[1][:, [0, 2]])
-            for cid, o in zip(touched.tolist(), owner.tolist()):
+        ids, slots = c.moved  # only the tracks this report fused into (or started) can have left
+        if ids.size and len(self.regions.ids) > 1:
+            live = c.tracks.ids[slots] == ids  # not merged away, deleted or pruned since
+            sl = slots[live]
+            p = c.tracks.newest(sl)
+            x, y = c.tracks.x[sl, p, 0], c.tracks.x[sl, p, 2]  # the latest estimates' positions
+            x0, x1, y0, y1 = self.interior  # a track inside it stays without a look at the regions
+            out = ~((x > x0) & (x < x1) & (y > y0) & (y < y1))
+            cids, first = np.unique(ids[live][out], return_index=True)  # in increasing id
+            owner = region_of(self.regions, np.stack([x[out][first], y[out][first]], axis=1)) if cids.size else cids
+            for cid, o in zip(cids.tolist(), owner.tolist()):
                 if o != self.index:
                     record = c.hand_over(cid)
                     self.forwarded.update((key, o) for key in record.members)

@@ -31,7 +31,7 @@ def assign(n_tracks: int, n_detections: int, rows: np.ndarray, cols: np.ndarray,
     pair, one of at most ``SMALL_COMPONENT`` on either side its best enumerated matching, the
     others ``linear_sum_assignment``. When no track and no detection is in two pairs (the
     fusion centre's few new local tracks of a scan, mostly), every pair is taken at once."""
-    usable = np.flatnonzero(cost < 0.0)
+    usable = (cost < 0.0).nonzero()[0]
     if usable.size == 0:
         return usable
     r, c = rows[usable], cols[usable]
@@ -51,7 +51,7 @@ def assign(n_tracks: int, n_detections: int, rows: np.ndarray, cols: np.ndarray,
     first = np.ones(by_cost.size, dtype=bool)
     first[1:] = comp[by_cost[1:]] != comp[by_cost[:-1]]
     chosen = [usable[by_cost[first]]]
-    full = np.flatnonzero(~star)  # full components are contiguous runs of pairs
+    full = (~star).nonzero()[0]  # full components are contiguous runs of pairs
     is_small = np.maximum(n_r, n_c)[comp[full]] <= SMALL_COMPONENT
     small, full = full[is_small], full[~is_small]
     if small.size:
@@ -94,7 +94,7 @@ def _assign_small(pairs: np.ndarray, comp: np.ndarray, r: np.ndarray, c: np.ndar
     shape = n_r[comp] * (SMALL_COMPONENT + 1) + n_c[comp]
     for code in np.unique(shape).tolist():
         a, b = divmod(code, SMALL_COMPONENT + 1)
-        sel = np.flatnonzero(shape == code)
+        sel = (shape == code).nonzero()[0]
         comps, row = np.unique(comp[sel], return_inverse=True)
         rr, cc = (r[sel], c[sel]) if a <= b else (c[sel], r[sel])  # rows: the smaller side
         a, b = min(a, b), max(a, b)
@@ -137,11 +137,11 @@ def assign_by_precedence(n_detections: int, rows: np.ndarray, cols: np.ndarray, 
     tentative track started on clutter never takes a confirmed track's detection). Returns the
     indices of the chosen pairs (``rows``, ``cols``)."""
     n = confirmed.size
-    first = np.flatnonzero(confirmed[rows])
+    first = confirmed[rows].nonzero()[0]
     picked = first[assign(n, n_detections, rows[first], cols[first], cost[first])]
     free = np.ones(n_detections, bool)
     free[cols[picked]] = False
-    second = np.flatnonzero(~confirmed[rows] & free[cols])
+    second = (~confirmed[rows] & free[cols]).nonzero()[0]
     return np.concatenate([picked, second[assign(n, n_detections, rows[second], cols[second], cost[second])]])
 
 
