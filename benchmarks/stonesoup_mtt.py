@@ -16,7 +16,11 @@ Our configuration of it, as close to fedtrack's ``mtt`` trackers as Stone Soup a
 * ``MultiMeasurementInitiator`` with ``min_points = confirm_hits`` from a prior with zero
   velocity and ``init_velocity_std`` (and z = 0 with ``init_z_std``); a tentative track is dropped after
   ``confirm_window - confirm_hits + 1`` scans without an update, a confirmed one after
-  ``delete_misses`` (``UpdateTimeStepsDeleter``: fedtrack's rules, counted in scans);
+  ``delete_misses`` (``UpdateTimeStepsDeleter``: fedtrack's rules, counted in scans), or on the
+  scans of several sensors after ``max(delete_misses, CENTRAL_MISSES x sensors)`` in a row,
+  ``mtt-centralized``'s rule (``fusion_center/mtt/engines.py::central_params``; before
+  2026-11-26 Stone Soup kept 3 there, which dropped live targets more often and dead targets'
+  tracks sooner than ours: docs/bench.md, the assocbench section);
 * ``"gnn"``: ``MultiTargetTracker``; ``"jpda"``: ``JPDA`` over ``PDAHypothesiser`` (``[mtt]``
   ``clutter_density``, ``pd`` and ``gate_probability``) in ``MultiTargetMixtureTracker``, which
   reduces each track's mixture to one Gaussian and counts a scan as an update when some
@@ -39,6 +43,8 @@ from typing import Any, Iterator
 
 import numpy as np
 from scipy.special import chdtri
+
+from fedtrack.fusion_center.mtt.centre import CENTRAL_MISSES
 
 EPOCH = datetime.datetime(2000, 1, 1)
 
@@ -93,7 +99,9 @@ def stonesoup_tracker(scans: list[dict[str, Any]], mtt: Any, out: Path, associat
     initiator = MultiMeasurementInitiator(
         prior, UpdateTimeStepsDeleter(mtt.confirm_window - mtt.confirm_hits + 1), gnn, updater,
         min_points=mtt.confirm_hits)
-    deleter = UpdateTimeStepsDeleter(mtt.delete_misses)
+    sensors = len({row["sensor"] for row in scans})
+    deleter = UpdateTimeStepsDeleter(max(mtt.delete_misses, CENTRAL_MISSES * sensors) if sensors > 1
+                                     else mtt.delete_misses)
     if association == "gnn":
         tracker = MultiTargetTracker(initiator, deleter, None, gnn, updater)
     elif association == "jpda":
