@@ -13,8 +13,8 @@ Our configuration of it, as close to fedtrack's ``mtt`` trackers as Stone Soup a
   linear models), in the Joseph form kept symmetric as ours (``use_joseph_cov``,
   ``force_symmetric_covariance``; since 2026-11-26: its default update lost positive definiteness
   on the recorded-traffic radars); ``DistanceHypothesiser`` with the Mahalanobis distance gated at
-  the square root of the chi-square(m) quantile of ``gate_probability`` (m = 2, or 3 with a radar: one gate serves
-  every sensor); ``GNNWith2DAssignment``;
+  the square root of the chi-square(m) quantile of ``gate_probability`` (m = 2, or 3 with a
+  radar: one gate serves every sensor); ``GNNWith2DAssignment``;
 * ``MultiMeasurementInitiator`` with ``min_points = confirm_hits`` from a prior with zero
   velocity and ``init_velocity_std`` (and z = 0 with ``init_z_std``); a tentative track is dropped after
   ``confirm_window - confirm_hits + 1`` scans without an update, a confirmed one after
