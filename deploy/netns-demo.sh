@@ -28,53 +28,17 @@
 # `ip`, or network namespaces unavailable; reason printed).
 set -euo pipefail
 
-HERE=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
-REPO=$(dirname "$HERE")
-if [[ -n "${FEDTRACK_PYTHON:-}" ]]; then PY=$FEDTRACK_PYTHON
-elif [[ -x "$REPO/.venv/bin/python" ]]; then PY=$REPO/.venv/bin/python
-else PY=python3
-fi
+NAME=netns-demo
+TAG="ftnd$$"
 TIMEOUT_S=${NETNS_DEMO_TIMEOUT_S:-80}
 SUBNET=${NETNS_DEMO_SUBNET:-10.47.0}
-TAG="ftnd$$"
-NS_SW=${TAG}sw
-HOSTS=(a b c)
+SUBNET_VAR=NETNS_DEMO_SUBNET
 OUT=${1:-$(mktemp -d "${TMPDIR:-/tmp}/fedtrack-netns.XXXXXX")}
-START=$SECONDS
-PIDS=()
-CREATED_NS=()
-
-log() { printf 'netns-demo: %s\n' "$*" >&2; }
-skip() { log "cannot run: $*"; exit 77; }
-fail() { log "FAILED: $*"; exit 1; }
-remaining() { echo $(( TIMEOUT_S - (SECONDS - START) )); }
-
-cleanup() {
-    local rc=$? pid ns
-    trap - EXIT INT TERM
-    for pid in "${PIDS[@]}"; do kill -TERM "$pid" 2>/dev/null || true; done
-    for _ in $(seq 50); do
-        local alive=0
-        for pid in "${PIDS[@]}"; do kill -0 "$pid" 2>/dev/null && alive=1; done
-        [[ $alive == 0 ]] && break
-        sleep 0.1
-    done
-    for pid in "${PIDS[@]}"; do kill -KILL "$pid" 2>/dev/null || true; done
-    for ns in "${CREATED_NS[@]}"; do
-        for pid in $(ip netns pids "$ns" 2>/dev/null); do kill -KILL "$pid" 2>/dev/null || true; done
-        ip netns del "$ns" 2>/dev/null || log "warning: could not delete namespace $ns"
-    done
-    [[ ${#CREATED_NS[@]} -gt 0 ]] && log "cleaned up namespaces ${CREATED_NS[*]}"
-    exit "$rc"
-}
-trap cleanup EXIT
-trap 'exit 130' INT TERM
-trap 'log "command failed (line $LINENO): $BASH_COMMAND"' ERR
+# shellcheck source=deploy/netns-common.sh
+source "$(dirname "${BASH_SOURCE[0]}")/netns-common.sh"
 
 # ------------------------------------------------------------------ preflight
-[[ $(id -u) == 0 ]] || skip "needs root (network namespaces), running as uid $(id -u)"
-command -v ip >/dev/null || skip "the 'ip' command (iproute2) is not installed"
-[[ $SUBNET =~ ^[0-9]+\.[0-9]+\.[0-9]+$ ]] || fail "NETNS_DEMO_SUBNET must be three octets, got '$SUBNET'"
+netns_preflight
 for f in host-a.toml host-b.toml host-c.toml; do
     [[ -f $HERE/multihost/$f ]] || fail "missing $HERE/multihost/$f"
 done
@@ -83,24 +47,7 @@ OUT=$(cd "$OUT" && pwd)
 log "run $TAG, output in $OUT, python $PY, timeout ${TIMEOUT_S}s"
 
 # ------------------------------------------------------------------ network
-addr() { case $1 in a) echo "$SUBNET.1" ;; b) echo "$SUBNET.2" ;; c) echo "$SUBNET.3" ;; esac; }
-ip netns add "$NS_SW" 2>"$OUT/netns-error.txt" || skip "ip netns add failed: $(tr '\n' ' ' <"$OUT/netns-error.txt")"
-CREATED_NS+=("$NS_SW")
-rm -f "$OUT/netns-error.txt"
-ip -n "$NS_SW" link set lo up
-ip -n "$NS_SW" link add br0 type bridge
-ip -n "$NS_SW" link set br0 up
-for h in "${HOSTS[@]}"; do
-    ns=$TAG$h
-    ip netns add "$ns"
-    CREATED_NS+=("$ns")
-    ip -n "$ns" link set lo up
-    ip -n "$ns" link add eth0 type veth peer name "port-$h" netns "$NS_SW"
-    ip -n "$NS_SW" link set "port-$h" master br0
-    ip -n "$NS_SW" link set "port-$h" up
-    ip -n "$ns" addr add "$(addr "$h")/24" dev eth0
-    ip -n "$ns" link set eth0 up
-done
+netns_network
 
 # ------------------------------------------------------------------ configs
 # The repository's host files name host A as 10.47.0.1; rewrite to this run's subnet.
@@ -117,11 +64,6 @@ launch() {  # launch HOST: fedtrack launch in namespace <tag>HOST, bounded by th
         "$PY" -m fedtrack.cli launch "$OUT/config/host-$h.toml" --out "$OUT/host-$h") \
         >"$OUT/launch-$h.log" 2>&1 &
     PIDS+=($!)
-}
-wait_rc() {  # wait_rc PID VAR: wait for PID (a child of this shell), store its exit code in VAR
-    local rc=0
-    wait "$1" || rc=$?
-    printf -v "$2" '%s' "$rc"
 }
 
 launch a
