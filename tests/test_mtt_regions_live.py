@@ -81,25 +81,32 @@ def check(tmp_path: Path, algorithm: str, config: Path, live: list[dict[str, Any
     assert len(live) >= 25 and sum(len(s) for s in shown) > 150
 
 
-@pytest.mark.parametrize("algorithm", ["mtt-federated", "mtt-decentralized"])
-def test_region_centres_on_the_bus_equal_the_replay_of_their_recording(tmp_path: Path, algorithm: str) -> None:
-    msgs, cfg, config = scenario(tmp_path)
+def run_on_bus(tmp_path: Path, algorithm: str, config: Path, cfg: Any, msgs: list[Any]) -> tuple[Any, Any, Any, Any, Bus]:
+    """The region deployment's services on the in-process bus: every scan published, then each
+    service stopped in order (trackers, centres, merger; the recorder last, writing its files);
+    returns the services and the bus (what crossed it)."""
     centres, local, merger, recorder = services(tmp_path, algorithm, config, cfg,
                                                 {"options": OPTIONS, "deployment": "hostile"})
     recorder.on_start()
-    everyone: list[Service] = [*centres, *local, merger, recorder]
-    bus = Bus(everyone)
+    bus = Bus([*centres, *local, merger, recorder])
     for m in msgs:
         bus.put(Keys("hostile").sensor_meas(m.sensor), encode(m))
     for svc in [*local, *centres, merger]:
         svc.on_stop()
         bus.drain()
     recorder.on_stop()
+    return centres, local, merger, recorder, bus
+
+
+@pytest.mark.parametrize("algorithm", ["mtt-federated", "mtt-decentralized"])
+def test_region_centres_on_the_bus_equal_the_replay_of_their_recording(tmp_path: Path, algorithm: str) -> None:
+    msgs, cfg, config = scenario(tmp_path)
+    centres, local, merger, recorder, bus = run_on_bus(tmp_path, algorithm, config, cfg, msgs)
     assert sum(c.counters.get("handed_over", 0) for c in centres) >= 2
     assert sum(c.counters.get("taken_over", 0) for c in centres) == sum(c.counters.get("handed_over", 0)
                                                                         for c in centres)
     assert merger.counters.get("seen_twice", 0) == 0 and merger.counters.get("missing_region", 0) == 0
-    assert all(svc.counters.get("rejected", 0) == 0 for svc in everyone)
+    assert all(svc.counters.get("rejected", 0) == 0 for svc in [*centres, *local, merger, recorder])
     assert bus.of(HandOver)
     live = [json.loads(x) for x in (tmp_path / "out" / "tracks.jsonl").read_text().splitlines()]
     merged = [p for key, p in bus.published if key == Keys("hostile").mtt_picture() and not p.closing]
@@ -247,16 +254,7 @@ def test_one_region_live_equals_the_unsharded_replay(tmp_path: Path) -> None:
     tags dropped) equals them, ids included."""
     msgs, cfg, config = scenario(tmp_path)
     config.write_text(CONFIG.replace("cell = [5000.0, 10000.0], nx = 2", "cell = [10000.0, 10000.0], nx = 1"))
-    centres, local, merger, recorder = services(tmp_path, "mtt-federated", config, cfg,
-                                                {"options": OPTIONS, "deployment": "hostile"})
-    recorder.on_start()
-    bus = Bus([*centres, *local, merger, recorder])
-    for m in msgs:
-        bus.put(Keys("hostile").sensor_meas(m.sensor), encode(m))
-    for svc in [*local, *centres, merger]:
-        svc.on_stop()
-        bus.drain()
-    recorder.on_stop()
+    centres, local, merger, recorder, _ = run_on_bus(tmp_path, "mtt-federated", config, cfg, msgs)
     out = tmp_path / "out"
     plain = tmp_path / "plain.jsonl"
     lines = [json.loads(x) for x in (out / "measurements.jsonl").read_text().splitlines()]
