@@ -260,3 +260,13 @@ def test_the_centre_reads_its_frame_from_the_config(tmp_path: Path) -> None:
     centre = service_from_args(["--config", str(config), "--id", "c"])
     assert centre.frame == Frame(48.85, 2.35, 100.0)
     assert service_from_args(["--id", "c"]).frame is None
+
+
+def test_central_existence_forgets_tracks_that_left_the_picture() -> None:
+    """The last values kept for central tracks no local track holds stay bounded: a track gone from
+    the picture (deleted, merged) is forgotten, the others kept."""
+    from fedtrack.fusion_center.mtt.engines import CentralExistence
+
+    existence = CentralExistence(central={1: 0.9, 2: 0.4, 5: 0.7})
+    existence.retain([2, 5, 8])
+    assert existence.central == {2: 0.4, 5: 0.7}

@@ -315,8 +315,13 @@ class TrackToTrackEngine(Engine):
         if self.centre is None:
             return no_tracks(self.dim)
         if isinstance(self.centre, ShardedCentre):
-            return union_picture([centre_picture(c.centre, T, self.existence) for c in self.centre.centres], self.dim)
-        return centre_picture(self.centre, T, self.existence)
+            picture = union_picture([centre_picture(c.centre, T, self.existence) for c in self.centre.centres],
+                                    self.dim)
+        else:
+            picture = centre_picture(self.centre, T, self.existence) or no_tracks(self.dim)
+        if self.existence is not None:
+            self.existence.retain(picture.ids)
+        return picture
 
     def counters(self) -> dict[str, int]:
         out = super().counters()
@@ -357,6 +362,10 @@ class CentralExistence:
                 best[cid] = e
         self.central.update(best)
         return [self.central.get(cid, 0.0) for cid in ids]
+
+    def retain(self, ids: list[int]) -> None:
+        """Forget the last values of central tracks no longer in the picture (deleted or merged)."""
+        self.central = {cid: self.central[cid] for cid in ids if cid in self.central}
 
 
 def centre_picture(c: TrackToTrackCentre, T: float, existence: CentralExistence | None = None) -> PictureTracks | None:
