@@ -368,11 +368,13 @@ REFERENCE = Path(__file__).parent / "data" / "mtt_reference"
 
 
 def jipda_replay(tmp_path: Path, scenario: str, algorithm: str, scans: Path | None = None,
-                 extra: str = "") -> list[dict]:
+                 extra: str = "", process_noise: str = "fixed") -> list[dict]:
+    """The reference scenario's pictures with jipda; ``process_noise`` stated (these tests check CV
+    tracks unless told otherwise, whatever the key's default)."""
     cfg = tmp_path / f"{scenario}.toml"
     cfg.write_text((REFERENCE / f"{scenario}.toml").read_text().replace(
-        "[mtt]\n", f'[mtt]\nassociator = "jipda"\n{extra}', 1))
-    out = tmp_path / f"{scenario}-{algorithm}-{'sorted' if scans else 'arrival'}.jsonl"
+        "[mtt]\n", f'[mtt]\nassociator = "jipda"\nprocess_noise = "{process_noise}"\n{extra}', 1))
+    out = tmp_path / f"{scenario}-{algorithm}-{process_noise}-{'sorted' if scans else 'arrival'}.jsonl"
     replay_mtt(algorithm, scans or REFERENCE / f"{scenario}-scans.jsonl", cfg, out,
                sensor={"pos": "s2", "radar": "r1"}[scenario] if algorithm == "mtt-local" else None)
     return [json.loads(line) for line in out.read_text().splitlines()]
@@ -390,16 +392,18 @@ def test_jipda_tracker_pictures_carry_existence(tmp_path: Path, scenario: str, a
     assert all(tr["existence"] >= rules.delete * 0.98**2 for tr in rows)  # deleted below the threshold
 
 
-def test_jipda_centralized_out_of_sequence_equals_time_sorted(tmp_path: Path) -> None:
-    """Acceptance (d) for jipda: out-of-sequence scans within max_lag give the time-sorted pictures."""
+@pytest.mark.parametrize("process_noise", ["fixed", "imm"])
+def test_jipda_centralized_out_of_sequence_equals_time_sorted(tmp_path: Path, process_noise: str) -> None:
+    """Acceptance (d) for jipda: out-of-sequence scans within max_lag give the time-sorted pictures;
+    with two motion modes per track too (IMM-jipda: the re-runs carry each track's modes)."""
     lines = (REFERENCE / "pos-scans.jsonl").read_text().splitlines()
     times = [json.loads(line)["t"] for line in lines]
     assert times != sorted(times)  # the scenario has out-of-sequence scans
     sorted_scans = tmp_path / "sorted.jsonl"
     sorted_scans.write_text("\n".join(line for _, line in sorted(zip(times, lines), key=lambda p: p[0])) + "\n")
     wait = "picture_delay = 3.0\n"  # = max_lag: a picture waits for every scan up to its time
-    arrival = jipda_replay(tmp_path, "pos", "mtt-centralized", extra=wait)
-    ordered = jipda_replay(tmp_path, "pos", "mtt-centralized", sorted_scans, extra=wait)
+    arrival = jipda_replay(tmp_path, "pos", "mtt-centralized", extra=wait, process_noise=process_noise)
+    ordered = jipda_replay(tmp_path, "pos", "mtt-centralized", sorted_scans, extra=wait, process_noise=process_noise)
     assert [p["t"] for p in arrival] == [p["t"] for p in ordered]
     for a, b in zip(arrival, ordered):
         assert [tr["id"] for tr in a["tracks"]] == [tr["id"] for tr in b["tracks"]]

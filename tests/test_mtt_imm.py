@@ -8,13 +8,27 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.special import chdtri
+from test_jipda import gated, jipda_replay
 from test_mtt_out_of_sequence import own_scans_out_of_sequence, replay, scans
 
 from fedtrack.config import ConfigError
 from fedtrack.fusion_center.mtt.central_track import CentralTracks
 from fedtrack.local_filters.imm.filter import IMMState, combine
+from fedtrack.local_filters.linear.kalman import GaussianState, Innovation, log_likelihood, update_residual
+from fedtrack.local_filters.mtt.associators import jipda
 from fedtrack.local_filters.mtt.config import MttConfig
-from fedtrack.local_filters.mtt.models import ModeRates, mode_transition, position_matrix
+from fedtrack.local_filters.mtt.models import (
+    ModeRates,
+    Modes,
+    linearize,
+    mode_transition,
+    modes_predict,
+    modes_update,
+    position_matrix,
+    start_modes,
+)
+from fedtrack.local_filters.pda.association import existence_predict
 
 RATES = ModeRates(1.0 / 60.0, 1.0 / 15.0)
 
@@ -94,10 +108,147 @@ def test_mode_transition_over_any_interval_is_the_markov_chain() -> None:
 
 def test_process_noise_key() -> None:
     MttConfig(process_noise="imm").validate()
+    MttConfig(process_noise="imm", associator="jipda").validate()
     assert MttConfig().mode_rates is None
     assert MttConfig(process_noise="imm", maneuver_s=10.0, straight_s=40.0).mode_rates == ModeRates(1 / 40, 1 / 10)
     for bad, message in (({"process_noise": "adaptive"}, "process_noise: must be one of fixed, imm"),
-                         ({"process_noise": "imm", "associator": "jipda"}, 'works with associator = "gnn" only'),
+                         ({"process_noise": "imm", "associator": "mht"}, 'works with associator = "gnn" or "jipda"'),
                          ({"maneuver_s": 0.0}, "maneuver_s: must be > 0")):
         with pytest.raises(ConfigError, match=message):
             MttConfig(**bad).validate()
+
+
+# IMM-jipda (``associator = "jipda"``, ``process_noise = "imm"``; docs/jipda.md#two-motion-modes-imm-jipda)
+
+R_JIPDA = np.array([[100.0, 20.0], [20.0, 64.0]])
+
+
+def jipda_cluster(rng: np.random.Generator, pd: float, clutter: float) -> tuple:
+    """Six tracks within 60 m of each other (their gates share detections), five of them detected,
+    clutter around: the predictions, the gated pairs and the joint association of :mod:`jipda`."""
+    n = 6
+    x = np.zeros((n, 4))
+    x[:, [0, 2]] = rng.uniform(-60.0, 60.0, size=(n, 2))
+    x[:, [1, 3]] = rng.normal(size=(n, 2)) * 10.0
+    A = rng.normal(size=(n, 4, 4)) * 3.0
+    P = A @ np.swapaxes(A, 1, 2) + np.diag([100.0, 60.0, 100.0, 60.0])
+    z = np.concatenate([x[:5, [0, 2]] + rng.multivariate_normal([0.0, 0.0], R_JIPDA, size=5),
+                        rng.uniform(-80.0, 80.0, size=(4, 2))])
+    pred, lin = GaussianState(x, P), linearize(x, None)
+    c = jipda.jipda_constants(pd, clutter, float(chdtri(2, 1e-3)), 2)
+    pairs = gated(pred, z, lin, R_JIPDA, c)
+    assoc = jipda.associate(len(z), pairs, np.zeros(len(z)), rng.uniform(0.3, 0.99, n), c)
+    return pred, lin, pairs, jipda.from_weights(pairs.rows, assoc.beta, assoc.existence), c
+
+
+def test_imm_jipda_with_equal_modes_is_jipda() -> None:
+    """Two modes with the same prediction (any probabilities): each detection's mode posterior is
+    the prior, so the modes keep their probabilities and each mode, and their combination, is
+    jipda's PDA update, to 1e-9; on a cluster of six tracks sharing detections in clutter."""
+    rng = np.random.default_rng(11)
+    for _ in range(5):
+        pred, lin, pairs, ja, c = jipda_cluster(rng, 0.9, 1e-4)
+        assert np.bincount(pairs.cols).max() > 1 and np.any((ja.beta0 > 1e-3) & (ja.beta0 < 0.999))
+        want = jipda.update(pred, lin, R_JIPDA, pairs, ja, c)
+        mu = rng.dirichlet([1.0, 1.0], size=pred.x.shape[0])
+        modes = Modes(np.repeat(pred.x[:, None], 2, 1), np.repeat(pred.P[:, None], 2, 1), mu)
+        got_modes, got = jipda.imm_update(modes, pred.x, lin, R_JIPDA, pairs, ja, c)
+        np.testing.assert_allclose(got_modes.mu, mu, rtol=1e-12, atol=1e-12)
+        for j in range(2):
+            np.testing.assert_allclose(got_modes.x[:, j], want.x, rtol=1e-9, atol=1e-9)
+            np.testing.assert_allclose(got_modes.P[:, j], want.P, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(got.x, want.x, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(got.P, want.P, rtol=1e-9, atol=1e-9)
+
+
+def test_imm_jipda_is_the_mixture_over_modes_and_events() -> None:
+    """Distinct modes on a cluster: the combined posterior is the moment-matched mixture over every
+    (mode ``j``, event ``i``) of that mode's Kalman update by detection ``i`` (a miss: the mode's
+    prediction with the missed-gate term), weighted ``beta_i pi_j|i`` with ``pi_j|i`` from each
+    mode's own likelihood of ``z_i`` (``beta_0 mu_j`` for a miss), to 1e-9; the modes'
+    probabilities are these weights summed per mode."""
+    rng = np.random.default_rng(12)
+    for _ in range(5):
+        pred, lin, pairs, ja, c = jipda_cluster(rng, 0.9, 1e-4)
+        n = pred.x.shape[0]
+        modes = Modes(np.stack([pred.x + rng.normal(size=(n, 4)) * 3.0, pred.x + rng.normal(size=(n, 4)) * 3.0], 1),
+                      np.stack([0.5 * pred.P, 2.0 * pred.P], 1), rng.dirichlet([1.0, 1.0], size=n))
+        x0 = combine(IMMState(*modes)).x
+        z = pairs.nu + pred.x[pairs.rows][:, [0, 2]]  # the detections, from the innovations at pred
+        lin0, H = linearize(x0, None), position_matrix(4)
+        pairs0 = pairs._replace(nu=z - x0[pairs.rows][:, [0, 2]])
+        got_modes, got = jipda.imm_update(modes, x0, lin0, R_JIPDA, pairs0, ja, c)
+        assert np.abs(got_modes.mu - modes.mu).max() > 1e-3  # the detections moved the probabilities
+        for t in range(n):
+            mine = np.flatnonzero(pairs.rows == t)
+            comps, weights = [], []
+            for j in range(2):
+                S = H @ modes.P[t, j] @ H.T + R_JIPDA
+                K = modes.P[t, j] @ H.T @ np.linalg.inv(S)
+                comps.append((modes.x[t, j], modes.P[t, j] + c.miss_factor * K @ S @ K.T))
+                weights.append(ja.beta0[t] * modes.mu[t, j])
+            for i in mine:
+                log_l = [log_likelihood(Innovation(z[i] - H @ modes.x[t, j], H @ modes.P[t, j] @ H.T + R_JIPDA))
+                         for j in range(2)]
+                pi = modes.mu[t] * np.exp(np.array(log_l) - max(log_l))
+                pi /= pi.sum()
+                for j in range(2):
+                    upd = update_residual(GaussianState(modes.x[t, j], modes.P[t, j]), z[i] - H @ modes.x[t, j],
+                                          H, R_JIPDA)
+                    comps.append(upd.state)
+                    weights.append(ja.beta[i] * pi[j])
+            w = np.array(weights)
+            x = np.einsum("k,kd->d", w, np.array([cx for cx, _ in comps]))
+            P = sum(wk * (cP + np.outer(cx - x, cx - x)) for wk, (cx, cP) in zip(w, comps))
+            np.testing.assert_allclose(got.x[t], x, rtol=1e-9, atol=1e-9)
+            np.testing.assert_allclose(got.P[t], P, rtol=1e-9, atol=1e-9)
+            np.testing.assert_allclose(got_modes.mu[t], [w[k::2].sum() for k in range(2)], rtol=1e-9, atol=1e-12)
+
+
+def test_imm_jipda_one_target_pd1_no_clutter_equals_gnns_imm() -> None:
+    """One target, P_D = 1, no clutter, a turn in the middle: IMM-jipda's modes (states,
+    covariances, probabilities) equal the hard IMM update of ``gnn``'s tracks
+    (:func:`~fedtrack.local_filters.mtt.models.modes_update`) at each of 40 scans, to 1e-9."""
+    rng = np.random.default_rng(13)
+    c = jipda.jipda_constants(1.0, 0.0, float(chdtri(2, 1e-9)), 2)
+    H = position_matrix(4)
+    x = np.array([[5.0, 0.0, -5.0, 0.0]])
+    soft = hard = start_modes(x, np.diag([100.0, 900.0, 100.0, 900.0])[None], RATES)
+    mu, pos, vel = np.array([0.5]), np.zeros(2), np.array([20.0, 0.0])
+    for k in range(40):
+        omega = 0.1 if 15 <= k < 25 else 0.0  # a 10-s turn at 0.1 rad/s
+        vel = np.array([[np.cos(omega), -np.sin(omega)], [np.sin(omega), np.cos(omega)]]) @ vel
+        pos = pos + vel
+        z = (pos + rng.multivariate_normal([0.0, 0.0], R_JIPDA))[None]
+        hard_pred, hard_comb = modes_predict(hard, 1.0, 1.0, "continuous", RATES)
+        hard, _ = modes_update(hard_pred, z - hard_comb.x[:, [0, 2]], H[None], R_JIPDA, hard_comb.x)
+        pred, comb = modes_predict(soft, 1.0, 1.0, "continuous", RATES)
+        lin = linearize(comb.x, None)
+        pairs = gated(comb, z, lin, R_JIPDA, c)
+        assoc = jipda.associate(1, pairs, np.zeros(1), existence_predict(mu, 0.98, 0.0), c)
+        mu = assoc.existence
+        soft, _ = jipda.imm_update(pred, comb.x, lin, R_JIPDA, pairs, jipda.from_weights(pairs.rows, assoc.beta, mu), c)
+        for a, b in zip(soft, hard):
+            np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-9)
+    assert 0.2 < hard.mu[0, 1] < 0.99  # both modes in play
+
+
+def test_imm_jipda_pinned_to_one_mode_equals_fixed(tmp_path: Path) -> None:
+    """``maneuver_s = inf``: the chain never leaves the maneuvering mode (CV with ``q``), so IMM-jipda's
+    pictures (state and existence) equal jipda's with ``process_noise = "fixed"`` to 1e-9, on the
+    reference scenarios (position sensors with out-of-sequence scans at the centre; a radar's own
+    tracker); with the default rates they differ (the modes are in use)."""
+    for scenario, algorithm in (("pos", "mtt-centralized"), ("radar", "mtt-local")):
+        fixed = jipda_replay(tmp_path, scenario, algorithm)
+        pinned = jipda_replay(tmp_path, scenario, algorithm, extra="maneuver_s = inf\n", process_noise="imm")
+        imm = jipda_replay(tmp_path, scenario, algorithm, process_noise="imm")
+        assert len(pinned) == len(fixed) >= 20
+        for a, b in zip(pinned, fixed):
+            assert [tr["id"] for tr in a["tracks"]] == [tr["id"] for tr in b["tracks"]]
+            for u, v in zip(a["tracks"], b["tracks"]):
+                np.testing.assert_allclose(u["x"], v["x"], rtol=1e-9, atol=1e-9)
+                np.testing.assert_allclose(u["P"], v["P"], rtol=1e-9, atol=1e-9)
+                assert u["existence"] == pytest.approx(v["existence"], rel=1e-9, abs=1e-12)
+                assert u["status"] == v["status"]
+        last_imm, last_fixed = imm[-1]["tracks"], fixed[-1]["tracks"]
+        assert last_imm and not np.allclose(last_imm[0]["P"], last_fixed[0]["P"], rtol=1e-3)

@@ -120,9 +120,8 @@ class MttConfig:
             raise ConfigError(f"associator: must be one of {', '.join(ASSOCIATORS)}")
         if self.process_noise not in PROCESS_NOISE:
             raise ConfigError(f"process_noise: must be one of {', '.join(PROCESS_NOISE)}")
-        if self.process_noise == "imm" and self.associator != "gnn":
-            raise ConfigError(f'process_noise: "imm" works with associator = "gnn" only ({self.associator}\'s tracks '
-                              'are CV)')
+        if self.process_noise == "imm" and self.associator == "mht":
+            raise ConfigError('process_noise: "imm" works with associator = "gnn" or "jipda" only (mht\'s tracks are CV)')
         if self.maneuver not in MANEUVER_MODES:
             raise ConfigError(f"maneuver: must be one of {', '.join(MANEUVER_MODES)}")
         if self.associator in ("jipda", "mht") and self.maneuver != "none":

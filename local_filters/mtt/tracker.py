@@ -321,6 +321,14 @@ def associate(state: TrackerState, gating: Gating | None, scan: SensorScan, para
         params.pd, params.clutter_density, scan.amplitude, state.memory, params.gate[scan.dim], dt))
 
 
+def predicted_modes(tracks: TrackSet, dt: float, params: TrackParams, q_scale: float | np.ndarray = 1.0
+                    ) -> Modes | None:
+    """With two modes per track, each mode's prediction (what :func:`predict` combines); else None."""
+    if params.modes is None or tracks.modes is None or not tracks.size:
+        return None
+    return modes_predict(tracks.modes, dt, params.q, params.noise_model, params.modes, q_scale)[0]
+
+
 class Updated(NamedTuple):
     """Role 4's result: the tracks after the scan (before confirmation and deletion), which were
     detected, and the detected tracks' observations in track order."""
@@ -339,9 +347,7 @@ def hard_update(tracks: TrackSet, pred: GaussianState, gating: Gating | None, as
     x, P = pred
     man = tracks.man if params.maneuver is not None else None
     inputs = tracks.inputs if params.detector is not None else None
-    modes = None  # with two modes per track: each mode's prediction (what ``pred`` combines)
-    if params.modes is not None and tracks.modes is not None and tracks.size:
-        modes = modes_predict(tracks.modes, dt, params.q, params.noise_model, params.modes, q_scale)[0]
+    modes = predicted_modes(tracks, dt, params, q_scale)
     assigned = np.zeros(tracks.size, bool)
     obs = Observation(np.zeros((0, m, d)), np.zeros((0, m, m)), np.zeros((0, m)))
     ti = dj = np.zeros(0, np.int64)
@@ -381,21 +387,28 @@ def m_of_n(tracks: TrackSet, detected: np.ndarray, params: TrackParams) -> tuple
 
 def jipda_update(tracks: TrackSet, pred: GaussianState, gating: Gating | None, assoc: Association,
                  scan: SensorScan, dt: float, params: TrackParams, q_scale: float | np.ndarray = 1.0) -> Updated:
-    """Role 4 for ``jipda``: each track's PDA mixture over its gated detections (:func:`jipda.update`);
-    a track with ``beta_0 < 1`` is reported as detected with its equivalent observation
-    (:func:`jipda.equivalent_observation`)."""
+    """Role 4 for ``jipda``: each track's PDA mixture over its gated detections (:func:`jipda.update`;
+    with two modes per track, each mode's with its own weights: :func:`jipda.imm_update`); a track
+    that more likely than not exists and was detected is reported with its equivalent observation
+    from the combined prediction (:func:`jipda.equivalent_observation`)."""
     d, m, n = params.dim, scan.dim, tracks.size
     existence = assoc.existence
+    modes = predicted_modes(tracks, dt, params, q_scale)
     if gating is None or not assoc.pairs.size:
         empty = Observation(np.zeros((0, m, d)), np.zeros((0, m, m)), np.zeros((0, m)))
-        return Updated(tracks._replace(x=pred.x, P=pred.P, existence=existence), np.zeros(n, bool), empty)
+        return Updated(tracks._replace(x=pred.x, P=pred.P, existence=existence, modes=modes), np.zeros(n, bool),
+                       empty)
     g = gating.pairs
     c = jipda.scan_constants(params.pd, params.clutter_density, params.gate[m], m)
     pairs = jipda.Pairs(g.rows, g.cols, g.nu, g.d2, gating.log_likelihood)
     ja = jipda.from_weights(g.rows, assoc.weight, existence)
-    post = jipda.update(pred, gating.lin, scan.R, pairs, ja, c)
+    if modes is None:
+        post = jipda.update(pred, gating.lin, scan.R, pairs, ja, c)
+    else:
+        modes, post = jipda.imm_update(modes, pred.x, gating.lin, scan.R, pairs, ja, c)
     reported, obs = jipda.equivalent_observation(pred, gating.lin, scan.R, pairs, ja)
-    return Updated(tracks._replace(x=post.x, P=post.P, existence=existence), reported, Observation(*obs))
+    return Updated(tracks._replace(x=post.x, P=post.P, existence=existence, modes=modes), reported,
+                   Observation(*obs))
 
 
 def existence_manage(tracks: TrackSet, detected: np.ndarray, params: TrackParams) -> tuple[TrackSet, np.ndarray]:

@@ -44,9 +44,12 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
+from fedtrack.local_filters.imm.filter import IMMState, combine
 from fedtrack.local_filters.linear.kalman import (
+    LOG_2PI,
     GaussianState,
     innovation_covariance,
+    logsumexp,
     mat_vec,
     solve_spd,
     spd_inverse_logdet,
@@ -54,7 +57,7 @@ from fedtrack.local_filters.linear.kalman import (
 )
 from fedtrack.local_filters.mtt import association
 from fedtrack.local_filters.mtt.associators.gnn import _pair_graph, _rank_in_component, k_best_assignments
-from fedtrack.local_filters.mtt.models import Linearized
+from fedtrack.local_filters.mtt.models import Linearized, Modes
 from fedtrack.local_filters.pda.association import (
     Constants,
     Gated,
@@ -342,6 +345,50 @@ def update(pred: GaussianState, lin: Linearized, R: np.ndarray, pairs: Pairs, as
     log_vg = c.log_cn + 0.5 * logdet + 0.5 * m * np.log(c.gamma)
     g = Gated(nu, S, K, d2, valid, log_n, log_vg)
     return pda_update(pred, g, PDAHypotheses(assoc.beta0, beta, assoc.log_lr), c, joseph=(lin.H, R))
+
+
+def mode_posteriors(log_n: np.ndarray, rows: np.ndarray, mu: np.ndarray, beta0: np.ndarray, beta: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """IMM-JIPDA's mode probabilities and each mode's association weights (docs/jipda.md#two-motion-
+    modes-imm-jipda): a detection's mode posterior ``pi_j|i = mu_j N_j(z_i) / sum_l mu_l N_l(z_i)``
+    (``log_n`` (K, k): ``ln N_j`` of each pair and mode; ``mu`` (N, k) the predicted mode
+    probabilities), a miss's ``pi_j|0 = mu_j``; ``mu_j+ = beta_0 mu_j + sum_i beta_i pi_j|i`` and
+    ``beta_i|j = beta_i pi_j|i / mu_j+`` (``beta_i`` where ``mu_j+ = 0``: the mode is never read).
+    Returns ``mu+`` (N, k), normalized, and ``beta_i|j`` (K, k); ``beta_0|j = 1 - sum_i beta_i|j``."""
+    with np.errstate(divide="ignore"):
+        log_w = np.log(mu[rows]) + log_n
+    pi = np.exp(log_w - logsumexp(log_w, axis=-1, keepdims=True))
+    post = beta0[:, None] * mu
+    np.add.at(post, rows, beta[:, None] * pi)
+    weights = np.divide(beta[:, None] * pi, post[rows], out=np.repeat(beta[:, None], mu.shape[1], axis=1),
+                        where=post[rows] > 0.0)
+    return post / post.sum(axis=1, keepdims=True), weights
+
+
+def imm_update(modes: Modes, x0: np.ndarray, lin: Linearized, R: np.ndarray, pairs: Pairs, assoc: Association,
+               c: Constants) -> tuple[Modes, GaussianState]:
+    """IMM-JIPDA's update of tracks with ``k`` motion modes (``modes``: each mode's prediction, of
+    which ``x0`` (N, D) is the combination, where ``lin`` and ``pairs`` were computed): mode ``j``
+    sees pair ``i`` with the innovation ``nu_i + H (x0 - x_j)`` and ``S_j = H P_j H' + R``
+    (:func:`mode_posteriors` weighs the events per mode), and each mode is updated by :func:`update`
+    (the PDA mixture) with its own weights, the ``N k`` modes as one batch. Returns the updated
+    modes and their combination (the tracks' ``x``, ``P``)."""
+    n, k, d = modes.x.shape
+    m = R.shape[0]
+    flat = GaussianState(modes.x.reshape(n * k, d), modes.P.reshape(n * k, d, d))
+    H = np.repeat(np.asarray(lin.H), k, axis=0)
+    shift = np.einsum("nmd,njd->njm", lin.H, modes.x - x0[:, None])  # each mode's zhat_j - zhat
+    rows = (pairs.rows[:, None] * k + np.arange(k)).ravel()  # pair i of mode j: row i k + j
+    nu = (pairs.nu[:, None] - shift[pairs.rows]).reshape(-1, m)
+    S_inv, logdet = spd_inverse_logdet(innovation_covariance(flat.P, H, R))
+    d2 = np.sum(nu * mat_vec(S_inv[rows], nu), axis=-1)
+    log_n = -0.5 * (d2 + logdet[rows] + m * LOG_2PI)
+    mu, beta = mode_posteriors(log_n.reshape(-1, k), pairs.rows, modes.mu, assoc.beta0, assoc.beta)
+    per_mode = from_weights(rows, beta.ravel(), np.repeat(assoc.existence, k))
+    post = update(flat, Linearized((lin.zhat[:, None] + shift).reshape(-1, m), H, lin.angular), R,
+                  Pairs(rows, np.repeat(pairs.cols, k), nu, d2, log_n), per_mode, c)
+    out = Modes(post.x.reshape(n, k, d), post.P.reshape(n, k, d, d), mu)
+    return out, combine(IMMState(*out))
 
 
 # A track reports an observation when it more likely than not made one of the scan's detections
