@@ -169,7 +169,7 @@ def test_imm_jipda_is_the_mixture_over_modes_and_events() -> None:
     probabilities are these weights summed per mode."""
     rng = np.random.default_rng(12)
     for _ in range(5):
-        pred, lin, pairs, ja, c = jipda_cluster(rng, 0.9, 1e-4)
+        pred, _, pairs, ja, c = jipda_cluster(rng, 0.9, 1e-4)
         n = pred.x.shape[0]
         modes = Modes(np.stack([pred.x + rng.normal(size=(n, 4)) * 3.0, pred.x + rng.normal(size=(n, 4)) * 3.0], 1),
                       np.stack([0.5 * pred.P, 2.0 * pred.P], 1), rng.dirichlet([1.0, 1.0], size=n))

@@ -30,7 +30,9 @@ single-target IPDA. docs/jipda.md gives the limit's cost and the approximations'
 
 State update per track: PDA's mixture over "missed" and each gated detection with the spread of
 the means, the detected components in Joseph form (:func:`~fedtrack.local_filters.pda.association.
-pda_update`). Reported to a fusion centre: the equivalent observation of :func:`equivalent_observation`.
+pda_update`). With two motion modes per track (``process_noise = "imm"``), each mode by the same mixture with its own
+weights (:func:`imm_update`, docs/jipda.md#two-motion-modes-imm-jipda). Reported to a fusion centre:
+the equivalent observation of :func:`equivalent_observation`.
 Track management by existence: :func:`derived_rules`, :func:`manage`, :func:`birth_existence`.
 """
 
@@ -349,10 +351,10 @@ def update(pred: GaussianState, lin: Linearized, R: np.ndarray, pairs: Pairs, as
 
 def mode_posteriors(log_n: np.ndarray, rows: np.ndarray, mu: np.ndarray, beta0: np.ndarray, beta: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
-    """IMM-JIPDA's mode probabilities and each mode's association weights (docs/jipda.md#two-motion-
-    modes-imm-jipda): a detection's mode posterior ``pi_j|i = mu_j N_j(z_i) / sum_l mu_l N_l(z_i)``
-    (``log_n`` (K, k): ``ln N_j`` of each pair and mode; ``mu`` (N, k) the predicted mode
-    probabilities), a miss's ``pi_j|0 = mu_j``; ``mu_j+ = beta_0 mu_j + sum_i beta_i pi_j|i`` and
+    """IMM-JIPDA's mode probabilities and each mode's association weights
+    (docs/jipda.md#two-motion-modes-imm-jipda): a detection's mode posterior
+    ``pi_j|i = mu_j N_j(z_i) / sum_l mu_l N_l(z_i)`` (``log_n`` (K, k): ``ln N_j`` of each pair and
+    mode; ``mu`` (N, k) the predicted mode probabilities), a miss's ``pi_j|0 = mu_j``; ``mu_j+ = beta_0 mu_j + sum_i beta_i pi_j|i`` and
     ``beta_i|j = beta_i pi_j|i / mu_j+`` (``beta_i`` where ``mu_j+ = 0``: the mode is never read).
     Returns ``mu+`` (N, k), normalized, and ``beta_i|j`` (K, k); ``beta_0|j = 1 - sum_i beta_i|j``."""
     with np.errstate(divide="ignore"):
@@ -378,7 +380,7 @@ def imm_update(modes: Modes, x0: np.ndarray, lin: Linearized, R: np.ndarray, pai
     flat = GaussianState(modes.x.reshape(n * k, d), modes.P.reshape(n * k, d, d))
     H = np.repeat(np.asarray(lin.H), k, axis=0)
     shift = np.einsum("nmd,njd->njm", lin.H, modes.x - x0[:, None])  # each mode's zhat_j - zhat
-    rows = (pairs.rows[:, None] * k + np.arange(k)).ravel()  # pair i of mode j: row i k + j
+    rows = (pairs.rows[:, None] * k + np.arange(k)).ravel()  # mode j of track t: row t k + j
     nu = (pairs.nu[:, None] - shift[pairs.rows]).reshape(-1, m)
     S_inv, logdet = spd_inverse_logdet(innovation_covariance(flat.P, H, R))
     d2 = np.sum(nu * mat_vec(S_inv[rows], nu), axis=-1)
