@@ -30,9 +30,9 @@ single-target IPDA. docs/jipda.md gives the limit's cost and the approximations'
 
 State update per track: PDA's mixture over "missed" and each gated detection with the spread of
 the means, the detected components in Joseph form (:func:`~fedtrack.local_filters.pda.association.
-pda_update`). With two motion modes per track (``process_noise = "imm"``), each mode by the same mixture with its own
-weights (:func:`imm_update`, docs/jipda.md#two-motion-modes-imm-jipda). Reported to a fusion centre:
-the equivalent observation of :func:`equivalent_observation`.
+pda_update`). With two motion modes per track (``process_noise = "imm"``), each mode by the same
+mixture with its own weights (:func:`imm_update`, docs/jipda.md#two-motion-modes-imm-jipda).
+Reported to a fusion centre: the equivalent observation of :func:`equivalent_observation`.
 Track management by existence: :func:`derived_rules`, :func:`manage`, :func:`birth_existence`.
 """
 
@@ -354,8 +354,9 @@ def mode_posteriors(log_n: np.ndarray, rows: np.ndarray, mu: np.ndarray, beta0: 
     """IMM-JIPDA's mode probabilities and each mode's association weights
     (docs/jipda.md#two-motion-modes-imm-jipda): a detection's mode posterior
     ``pi_j|i = mu_j N_j(z_i) / sum_l mu_l N_l(z_i)`` (``log_n`` (K, k): ``ln N_j`` of each pair and
-    mode; ``mu`` (N, k) the predicted mode probabilities), a miss's ``pi_j|0 = mu_j``; ``mu_j+ = beta_0 mu_j + sum_i beta_i pi_j|i`` and
-    ``beta_i|j = beta_i pi_j|i / mu_j+`` (``beta_i`` where ``mu_j+ = 0``: the mode is never read).
+    mode; ``mu`` (N, k) the predicted mode probabilities), a miss's ``pi_j|0 = mu_j``;
+    ``mu_j+ = beta_0 mu_j + sum_i beta_i pi_j|i`` and ``beta_i|j = beta_i pi_j|i / mu_j+``
+    (``beta_i`` where ``mu_j+ = 0``: the mode is never read).
     Returns ``mu+`` (N, k), normalized, and ``beta_i|j`` (K, k); ``beta_0|j = 1 - sum_i beta_i|j``."""
     with np.errstate(divide="ignore"):
         log_w = np.log(mu[rows]) + log_n
