@@ -110,8 +110,12 @@ def test_process_noise_key() -> None:
     MttConfig(process_noise="imm").validate()
     MttConfig(process_noise="imm", associator="jipda").validate()
     assert MttConfig().mode_rates is None
+    # "auto", the default: the associator's own (two modes for jipda; gnn's and mht's tracks CV)
+    assert [MttConfig(associator=a).motion for a in ("gnn", "jipda", "mht")] == ["fixed", "imm", "fixed"]
+    assert MttConfig(associator="jipda").mode_rates == ModeRates(1 / 60, 1 / 15)
+    assert MttConfig(associator="jipda", process_noise="fixed").mode_rates is None
     assert MttConfig(process_noise="imm", maneuver_s=10.0, straight_s=40.0).mode_rates == ModeRates(1 / 40, 1 / 10)
-    for bad, message in (({"process_noise": "adaptive"}, "process_noise: must be one of fixed, imm"),
+    for bad, message in (({"process_noise": "adaptive"}, "process_noise: must be one of auto, fixed, imm"),
                          ({"process_noise": "imm", "associator": "mht"}, 'works with associator = "gnn" or "jipda"'),
                          ({"maneuver_s": 0.0}, "maneuver_s: must be > 0")):
         with pytest.raises(ConfigError, match=message):

@@ -15,8 +15,11 @@ from fedtrack.local_filters.vdie.estimation import VdieParams
 
 NOISE_MODELS = ("continuous", "discrete")
 MANEUVER_MODES = ("none", "vdie")  # per-track maneuver handling (local_filters/mtt/maneuver.py)
-# [mtt] process_noise: CV with q, or two modes per track, CV without noise and CV with q (models.Modes)
-PROCESS_NOISE = ("fixed", "imm")
+# [mtt] process_noise: CV with q, or two modes per track, CV without noise and CV with q (models.Modes);
+# "auto" (the default) is each associator's own: two modes for jipda, CV for gnn (its pictures kept as
+# they were before the modes existed) and mht (whose branches are CV); docs/multitarget.md#parameters
+PROCESS_NOISE = ("auto", "fixed", "imm")
+AUTO_PROCESS_NOISE = {"gnn": "fixed", "jipda": "imm", "mht": "fixed"}
 # candidate onsets of a sensor's tracker (one per scan): 15 scans, where paper 004's 6 misses the
 # gentle turns of the simulator's targets (docs/multitarget.md#maneuvers)
 MTT_VDIE_WINDOW = 15
@@ -67,7 +70,7 @@ class MttConfig:
 
     q: float = 1.0
     noise_model: str = "continuous"
-    process_noise: str = "fixed"
+    process_noise: str = "auto"
     maneuver_s: float = 15.0  # mean maneuver duration (process_noise = "imm")
     straight_s: float = 60.0  # mean time between maneuvers (process_noise = "imm")
     pd: float = 0.9
@@ -103,9 +106,14 @@ class MttConfig:
         return dataclasses.replace(self.vdie, window=self.central_maneuver_window)
 
     @property
+    def motion(self) -> str:
+        """``process_noise`` resolved: ``"fixed"`` or ``"imm"`` (``"auto"``: the associator's own)."""
+        return AUTO_PROCESS_NOISE.get(self.associator, "fixed") if self.process_noise == "auto" else self.process_noise
+
+    @property
     def mode_rates(self) -> ModeRates | None:
         """The two modes' switching rates (``process_noise = "imm"``), None: CV with ``q``."""
-        return ModeRates(1.0 / self.straight_s, 1.0 / self.maneuver_s) if self.process_noise == "imm" else None
+        return ModeRates(1.0 / self.straight_s, 1.0 / self.maneuver_s) if self.motion == "imm" else None
 
     def validate(self) -> None:
         positive = {"q": self.q, "maneuver_s": self.maneuver_s, "straight_s": self.straight_s,
