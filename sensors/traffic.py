@@ -70,6 +70,12 @@ NACP_EPU = {7: 185.2, 8: 92.6, 9: 30.0, 10: 10.0, 11: 3.0}
 SIGMA_POSITION = 50.0  # m: a state vector's position is up to a second older or newer than its time
 SIGMA_VELOCITY = 0.5  # m/s: ground speed is reported to the knot, vertical rate to 64 ft/min
 SQUITTER_S = (0.4, 0.6)  # s: airborne position squitters at random intervals of 0.4-0.6 s (DO-260B)
+#: the trackers' two motion modes (``[mtt] process_noise = "imm"``) from civil air-traffic kinematics, not
+#: from a recording (docs/geodetic.md, "The motion model"): turns at 25 deg of bank or 3 deg/s, whichever
+#: is less (ICAO PANS-OPS), so a horizontal acceleration of at most g tan 25 deg = 4.57 m/s^2
+MANEUVER_ACCELERATION = 9.80665 * math.tan(math.radians(25.0))
+MANEUVER_S = 90.0 / 3.0  # s: a 90 deg heading change at the standard rate of 3 deg/s
+STRAIGHT_S = 120.0  # s: terminal-area legs between heading changes (holding legs 1-1.5 min, approach segments 1-3 min)
 CHI2_2_95 = math.sqrt(-2.0 * math.log(0.05))  # the 95 % radius of a 2-D standard normal: 2.448
 
 HELP_COLUMNS = """input columns (names are matched case-insensitively; the first name is ours, the others
@@ -370,15 +376,16 @@ def adsb_view(truth: Truth, period: float, report_period: np.ndarray,
     return moved, fresh & truth.alive[src, cols] & truth.alive
 
 
-def derived_tracker(truth: Truth, specs: list[SensorSpec]) -> dict[str, float]:
-    """The tracker keys derived from the recording and the sensors (docs/geodetic.md)."""
+def derived_tracker(truth: Truth, specs: list[SensorSpec]) -> dict[str, float | str]:
+    """The tracker keys derived from the recording, the sensors and civil air-traffic kinematics
+    (docs/geodetic.md): two motion modes, straight and maneuvering, the maneuvering one's ``q`` letting
+    the velocity change by ``MANEUVER_ACCELERATION`` times the longest sensor period over that period."""
     v = truth.x[..., [1, 3]]
-    a = np.linalg.norm(np.diff(v, axis=0) / DT, axis=-1)[truth.alive[1:] & truth.alive[:-1]]
-    a95 = float(np.quantile(a, 0.95)) if a.size else 1.0
     longest = max(s.period for s in specs)
     speed = np.linalg.norm(v, axis=-1)[truth.alive]
     alt = truth.x[..., 4][truth.alive]
-    return {"q": round(max(a95, 0.1) ** 2 * longest, 3),
+    return {"process_noise": "imm", "q": round(MANEUVER_ACCELERATION**2 * longest, 3), "maneuver_s": MANEUVER_S,
+            "straight_s": STRAIGHT_S,
             "init_velocity_std": round(float(speed.max()) / 2 if speed.size else 30.0, 1),
             "init_z_std": round(max(float(np.abs(alt).max()) / 2 if alt.size else 1000.0, 1000.0), 1),
             "max_lag": round(2 * longest + 1.0, 3),

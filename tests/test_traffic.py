@@ -177,6 +177,11 @@ def test_simulate_traffic_on_the_extract_then_replay(tmp_path: Path, capsys: pyt
     config = tomllib.loads((out / "config.toml").read_text())
     assert config["frame"] == {"origin": [46.9, 8.2, 0.0], "sites": {"r1": [47.3, 8.0, 900.0]}}
     assert config["mtt"]["sensors"] == ["r1", "s2", "a3"]
+    # two motion modes from civil kinematics (docs/geodetic.md): the maneuvering mode's q lets the velocity
+    # change by g tan(25 deg) over the longest period (4 s); a 90 deg turn at 3 deg/s; legs of 2 min
+    mtt = config["mtt"]
+    assert mtt["process_noise"] == "imm" and mtt["maneuver_s"] == 30.0 and mtt["straight_s"] == 120.0
+    assert mtt["q"] == pytest.approx((9.80665 * np.tan(np.radians(25.0))) ** 2 * 4.0, abs=1e-3)
     lines = [json.loads(line) for line in (out / "truth.jsonl").read_text().splitlines()]
     assert len(lines) == 121 and min(len(line["targets"]) for line in lines) >= 20
     g = lines[60]["targets"]
