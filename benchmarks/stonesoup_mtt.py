@@ -71,8 +71,9 @@ def stonesoup_tracker(scans: list[dict[str, Any]], mtt: Any, out: Path, associat
     """Run Stone Soup's ``association`` (``"gnn"`` or ``"jpda"``) tracker over ``scans``; write the
     pictures to ``out``; return counts."""
     from stonesoup.dataassociator.neighbour import GNNWith2DAssignment
-    from stonesoup.dataassociator.probability import JPDA
+    from stonesoup.dataassociator.probability import JPDAwithEHM
     from stonesoup.deleter.time import UpdateTimeStepsDeleter
+    from stonesoup.gater.distance import DistanceGater
     from stonesoup.hypothesiser.distance import DistanceHypothesiser
     from stonesoup.hypothesiser.probability import PDAHypothesiser
     from stonesoup.initiator.simple import MultiMeasurementInitiator
@@ -110,8 +111,10 @@ def stonesoup_tracker(scans: list[dict[str, Any]], mtt: Any, out: Path, associat
     if association == "gnn":
         tracker = MultiTargetTracker(initiator, deleter, None, gnn, updater)
     elif association == "jpda":
-        jpda = JPDA(PDAHypothesiser(predictor, updater, clutter_spatial_density=mtt.clutter_density,
-                                    prob_detect=mtt.pd, prob_gate=mtt.gate_probability))
+        # every detection hypothesised, then the GNN's gate (one gate for every sensor, as ours)
+        pda = PDAHypothesiser(predictor, updater, clutter_spatial_density=mtt.clutter_density, prob_detect=mtt.pd,
+                              prob_gate=mtt.gate_probability, include_all=True)
+        jpda = JPDAwithEHM(DistanceGater(pda, Mahalanobis(), gate_threshold=gate))
         tracker = MultiTargetMixtureTracker(initiator, deleter, None, jpda, updater)
     else:
         raise ValueError(f"association {association!r}: gnn or jpda")
