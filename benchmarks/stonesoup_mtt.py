@@ -23,8 +23,15 @@ Our configuration of it, as close to fedtrack's ``mtt`` trackers as Stone Soup a
   ``mtt-centralized``'s rule (``fusion_center/mtt/engines.py::central_params``; before
   2026-11-26 Stone Soup kept 3 there, which dropped live targets more often and dead targets'
   tracks sooner than ours: docs/bench.md, the assocbench section);
-* ``"gnn"``: ``MultiTargetTracker``; ``"jpda"``: ``JPDA`` over ``PDAHypothesiser`` (``[mtt]``
-  ``clutter_density``, ``pd`` and ``gate_probability``) in ``MultiTargetMixtureTracker``, which
+* ``"gnn"``: ``MultiTargetTracker``; ``"jpda"``: ``PDAHypothesiser`` (``[mtt]``
+  ``clutter_density``, ``pd``, ``prob_gate = gate_probability``, ``include_all``) wrapped in
+  ``DistanceGater(Mahalanobis(), gate_threshold = gate)``, the GNN's gate above, so both trackers
+  (and ours) see the same detections per track, and ``prob_gate`` is that gate's probability
+  (with a radar, the 3-dof gate holds a little more of a position sensor's 2-D detections);
+  the joint association probabilities by ``JPDAwithEHM``, Stone Soup's exact JPDA per cluster of
+  tracks sharing detections (its plain ``JPDA`` enumerates the product of every track's
+  hypotheses, about 1e13 joint events a scan on the default scenario, and never finished; on
+  10 targets the two give the same pictures to 1e-11); in ``MultiTargetMixtureTracker``, which
   reduces each track's mixture to one Gaussian and counts a scan as an update when some
   detection outweighs the miss (what its deleter counts); its initiator is the GNN one above
   (as in Stone Soup's JPDA tutorial);
