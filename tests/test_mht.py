@@ -122,18 +122,20 @@ def crossing_scans(seed: int, radar: bool = False, steps: int = 40, clutter: flo
     return scans, density, truth
 
 
+@pytest.mark.parametrize("motion", ["fixed", "imm"])
 @pytest.mark.parametrize("seed,radar", [(0, False), (1, False), (2, False), (3, False), (4, True)])
-def test_window_one_k_one_with_gnn_management_is_gnn(seed: int, radar: bool) -> None:
+def test_window_one_k_one_with_gnn_management_is_gnn(seed: int, radar: bool, motion: str) -> None:
     """Issue 25 acceptance (c): with a window of one scan, k = 1 and gnn's track management
     (M-of-N counts, confirmed tracks first), the MHT makes gnn's assignments at every scan and
     its tracks equal gnn's to 1e-9. gnn's cost ``-2 ln(P_D N / lambda (1 - P_D))`` is the MHT's
     pair gain over a miss with a gate that holds every target detection: ``"counts"`` management
-    takes P_G = 1 with gnn's rules."""
+    takes P_G = 1 with gnn's rules. With two motion modes per track (``process_noise = "imm"``)
+    on both sides, likewise: each branch carries its modes as a gnn track does."""
     scans, density, _ = crossing_scans(seed, radar)
-    cfg = MttConfig(clutter_density=density)
+    cfg = MttConfig(clutter_density=density, process_noise=motion)
     dim = 6 if radar else 4
     gnn_params = track_params(cfg, "s1", dim)
-    mht_cfg = MttConfig(clutter_density=density, associator="mht",
+    mht_cfg = MttConfig(clutter_density=density, associator="mht", process_noise=motion,
                         mht=MhtConfig(window=1, k=1, max_branches=1, management="counts"))
     params = track_params(mht_cfg, "s1", dim)
     assert mht_params(params.mht, params.pd, params.clutter_density, params.gate[2], 2, (3, 4, 3)).pg == 1.0
@@ -148,6 +150,9 @@ def test_window_one_k_one_with_gnn_management_is_gnn(seed: int, radar: bool) -> 
         assert np.array_equal(g.detected, h.detected) and np.array_equal(g.retired, h.retired)
         assert np.array_equal(a.confirmed, b.confirmed) and np.array_equal(a.hits, b.hits)
         assert len(mht.memory.hyps) == 1 and mht.memory.leaves.size == a.size  # one branch per track
+        assert (a.modes is None) == (b.modes is None) == (motion == "fixed")
+        if b.modes is not None and a.size:  # each track's modes, not only their combination
+            worst = max(worst, *(np.abs(u - v).max() for u, v in zip(a.modes, b.modes)))
         # the same detections (in the observations) to the same tracks, the same estimates
         worst = max(worst, np.abs(a.x - b.x).max(initial=0.0), np.abs(a.P - b.P).max(initial=0.0),
                     *(np.abs(u - v).max(initial=0.0) for u, v in zip(g.observations, h.observations)))
@@ -221,14 +226,18 @@ def replay_pictures(tmp_path: Path, scenario: str, algorithm: str, settings: str
 GNN_MODEL = 'associator = "mht"\nmht = { window = 1, k = 1, management = "counts" }\n'
 
 
-@pytest.mark.parametrize("scenario", ["pos", "radar"])
-@pytest.mark.parametrize("algorithm", ["mtt-local", "mtt-centralized"])
-def test_tracker_with_mht_window_one_k_one_counts_equals_gnn(tmp_path: Path, scenario: str, algorithm: str) -> None:
+@pytest.mark.parametrize("scenario,algorithm,motion", [
+    *itertools.product(["pos", "radar"], ["mtt-local", "mtt-centralized"], ["fixed"]),
+    ("pos", "mtt-centralized", "imm"), ("radar", "mtt-local", "imm")])
+def test_tracker_with_mht_window_one_k_one_counts_equals_gnn(tmp_path: Path, scenario: str, algorithm: str,
+                                                             motion: str) -> None:
     """Acceptance (c) through the tracker: ``[mtt] associator = "mht"`` with ``[mtt.mht] window = 1,
     k = 1, management = "counts"`` writes gnn's pictures (ids, status, sensors to the letter; x, P
-    to 1e-9), for mtt-local and mtt-centralized, position sensors and a radar."""
-    gnn = replay_pictures(tmp_path, scenario, algorithm, "")
-    mht = replay_pictures(tmp_path, scenario, algorithm, GNN_MODEL)
+    to 1e-9), for mtt-local and mtt-centralized, position sensors and a radar; with
+    ``process_noise = "imm"`` on both, gnn's two-mode pictures."""
+    noise = f'process_noise = "{motion}"\n'
+    gnn = replay_pictures(tmp_path, scenario, algorithm, noise)
+    mht = replay_pictures(tmp_path, scenario, algorithm, noise + GNN_MODEL)
     assert [p["t"] for p in gnn] == [p["t"] for p in mht]
     tracks = 0
     for a, b in zip(gnn, mht):
@@ -259,15 +268,18 @@ def test_tracker_with_mht_defaults_follows_gnns_confirmed_tracks(tmp_path: Path,
     assert matched > 50
 
 
-def test_centralized_mht_out_of_sequence_equals_time_sorted(tmp_path: Path) -> None:
+@pytest.mark.parametrize("motion", ["fixed", "imm"])
+def test_centralized_mht_out_of_sequence_equals_time_sorted(tmp_path: Path, motion: str) -> None:
     """Acceptance (d) for mht: ``mtt-centralized`` with ``associator = "mht"`` (defaults) on scans
     that arrive out of sequence within ``max_lag`` writes the pictures of the time-sorted scans
-    (to 1e-9): the buffer-and-reprocess re-runs the MHT from its memory before the late scan."""
+    (to 1e-9): the buffer-and-reprocess re-runs the MHT from its memory before the late scan
+    (with ``process_noise = "imm"``, from every leaf's modes)."""
     from test_mtt_out_of_sequence import replay, scans
 
     arrived, in_time = scans(seed=3)
     assert arrived != in_time
-    cfg = {"max_lag": 3.0, "picture_delay": 2.5, "pd": 0.95, "clutter_density": 1e-9, "associator": "mht"}
+    cfg = {"max_lag": 3.0, "picture_delay": 2.5, "pd": 0.95, "clutter_density": 1e-9, "associator": "mht",
+           "process_noise": motion}
     got = replay(tmp_path, "arrived", arrived, "mtt-centralized", **cfg)
     want = replay(tmp_path, "sorted", in_time, "mtt-centralized", **cfg)
     assert [p["t"] for p in got] == [p["t"] for p in want]

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from scipy.special import chdtri
 from test_jipda import gated, jipda_replay
+from test_mht import replay_pictures
 from test_mtt_out_of_sequence import own_scans_out_of_sequence, replay, scans
 
 from fedtrack.config import ConfigError
@@ -109,6 +110,7 @@ def test_mode_transition_over_any_interval_is_the_markov_chain() -> None:
 def test_process_noise_key() -> None:
     MttConfig(process_noise="imm").validate()
     MttConfig(process_noise="imm", associator="jipda").validate()
+    MttConfig(process_noise="imm", associator="mht").validate()
     assert MttConfig().mode_rates is None
     # "auto", the default: the associator's own (two modes for jipda; gnn's and mht's tracks CV)
     assert [MttConfig(associator=a).motion for a in ("gnn", "jipda", "mht")] == ["fixed", "imm", "fixed"]
@@ -116,7 +118,6 @@ def test_process_noise_key() -> None:
     assert MttConfig(associator="jipda", process_noise="fixed").mode_rates is None
     assert MttConfig(process_noise="imm", maneuver_s=10.0, straight_s=40.0).mode_rates == ModeRates(1 / 40, 1 / 10)
     for bad, message in (({"process_noise": "adaptive"}, "process_noise: must be one of auto, fixed, imm"),
-                         ({"process_noise": "imm", "associator": "mht"}, 'works with associator = "gnn" or "jipda"'),
                          ({"maneuver_s": 0.0}, "maneuver_s: must be > 0")):
         with pytest.raises(ConfigError, match=message):
             MttConfig(**bad).validate()
@@ -256,3 +257,26 @@ def test_imm_jipda_pinned_to_one_mode_equals_fixed(tmp_path: Path) -> None:
                 assert u["status"] == v["status"]
         last_imm, last_fixed = imm[-1]["tracks"], fixed[-1]["tracks"]
         assert last_imm and not np.allclose(last_imm[0]["P"], last_fixed[0]["P"], rtol=1e-3)
+
+
+@pytest.mark.parametrize("scenario,algorithm", [("pos", "mtt-centralized"), ("radar", "mtt-local")])
+def test_imm_mht_pinned_to_one_mode_equals_fixed(tmp_path: Path, scenario: str, algorithm: str) -> None:
+    """``associator = "mht"`` (its defaults: window 3, k 3, the SPRT) with two modes per branch and
+    ``maneuver_s = inf`` (the chain never leaves the mode with ``q``) writes mht's
+    ``process_noise = "fixed"`` pictures to 1e-9 (ids and status to the letter), on the reference
+    scenarios; with the default rates they differ (the modes are in use)."""
+    mht = 'associator = "mht"\n'
+    fixed = replay_pictures(tmp_path, scenario, algorithm, mht + 'process_noise = "fixed"\n')
+    pinned = replay_pictures(tmp_path, scenario, algorithm, mht + 'process_noise = "imm"\nmaneuver_s = inf\n')
+    imm = replay_pictures(tmp_path, scenario, algorithm, mht + 'process_noise = "imm"\n')
+    assert len(pinned) == len(fixed) >= 20
+    tracks = 0
+    for a, b in zip(pinned, fixed):
+        assert [(tr["id"], tr["status"]) for tr in a["tracks"]] == [(tr["id"], tr["status"]) for tr in b["tracks"]]
+        for u, v in zip(a["tracks"], b["tracks"]):
+            np.testing.assert_allclose(u["x"], v["x"], rtol=1e-9, atol=1e-9)
+            np.testing.assert_allclose(u["P"], v["P"], rtol=1e-9, atol=1e-9)
+            tracks += 1
+    assert tracks > 100
+    last_imm, last_fixed = imm[-1]["tracks"], fixed[-1]["tracks"]
+    assert last_imm and not np.allclose(last_imm[0]["P"], last_fixed[0]["P"], rtol=1e-3)

@@ -17,7 +17,8 @@ NOISE_MODELS = ("continuous", "discrete")
 MANEUVER_MODES = ("none", "vdie")  # per-track maneuver handling (local_filters/mtt/maneuver.py)
 # [mtt] process_noise: CV with q, or two modes per track, CV without noise and CV with q (models.Modes);
 # "auto" (the default) is each associator's own: two modes for jipda, CV for gnn (its pictures kept as
-# they were before the modes existed) and mht (whose branches are CV); docs/multitarget.md#parameters
+# they were before the modes existed) and mht (its pictures likewise; "imm" gives every branch the
+# modes: docs/mht.md); docs/multitarget.md#parameters
 PROCESS_NOISE = ("auto", "fixed", "imm")
 AUTO_PROCESS_NOISE = {"gnn": "fixed", "jipda": "imm", "mht": "fixed"}
 # candidate onsets of a sensor's tracker (one per scan): 15 scans, where paper 004's 6 misses the
@@ -128,8 +129,6 @@ class MttConfig:
             raise ConfigError(f"associator: must be one of {', '.join(ASSOCIATORS)}")
         if self.process_noise not in PROCESS_NOISE:
             raise ConfigError(f"process_noise: must be one of {', '.join(PROCESS_NOISE)}")
-        if self.process_noise == "imm" and self.associator == "mht":
-            raise ConfigError('process_noise: "imm" works with associator = "gnn" or "jipda" only (mht\'s tracks are CV)')
         if self.maneuver not in MANEUVER_MODES:
             raise ConfigError(f"maneuver: must be one of {', '.join(MANEUVER_MODES)}")
         if self.associator in ("jipda", "mht") and self.maneuver != "none":

@@ -329,6 +329,18 @@ def predicted_modes(tracks: TrackSet, dt: float, params: TrackParams, q_scale: f
     return modes_predict(tracks.modes, dt, params.q, params.noise_model, params.modes, q_scale)[0]
 
 
+def detection_update(x0: np.ndarray, P0: np.ndarray, modes: Modes | None, idx: np.ndarray, nu: np.ndarray,
+                     H: np.ndarray, R: np.ndarray) -> GaussianState:
+    """The predictions ``x0``, ``P0`` (K) each updated with one detection (innovation ``nu``, ``H``
+    linearized at ``x0``): the EKF in Joseph form; with two modes, each of the modes ``modes[idx]``
+    (:func:`modes_update`, written back into ``modes`` at ``idx``) and their combination."""
+    if modes is None:
+        return update_residual(GaussianState(x0, P0), nu, H, R).state
+    updated, combined = modes_update(modes.take(idx), nu, H, R, x0)
+    modes.x[idx], modes.P[idx], modes.mu[idx] = updated
+    return combined
+
+
 class Updated(NamedTuple):
     """Role 4's result: the tracks after the scan (before confirmation and deletion), which were
     detected, and the detected tracks' observations in track order."""
@@ -356,11 +368,8 @@ def hard_update(tracks: TrackSet, pred: GaussianState, gating: Gating | None, as
         ti, dj = g.rows[assoc.pairs], g.cols[assoc.pairs]
         H, R = gating.lin.H[ti], scan.R
         nu_a, x0, P0 = g.nu[assoc.pairs], x[ti], P[ti]
-        if modes is not None:
-            updated, (x[ti], P[ti]) = modes_update(modes.take(ti), nu_a, H, R, x0)
-            modes.x[ti], modes.P[ti], modes.mu[ti] = updated
-        elif man is None:
-            x[ti], P[ti] = update_residual(GaussianState(x0, P0), nu_a, H, R).state
+        if man is None:
+            x[ti], P[ti] = detection_update(x0, P0, modes, ti, nu_a, H, R)
         obs = Observation(H, np.broadcast_to(R, (ti.size, m, m)).copy(), nu_a + np.einsum("nij,nj->ni", H, x0))
         if inputs is not None:
             inputs = detector.observe(inputs, ti, scan.t, x0, P0, *obs)
@@ -489,7 +498,8 @@ def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
 def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale: float | np.ndarray = 1.0
              ) -> ScanResult:
     """The scan with ``associator = "mht"`` (:mod:`.mht`): the roles run on the branches its memory
-    holds (every track's leaves) instead of the tracks; the tracks are the best global
+    holds (every track's leaves) instead of the tracks, with two modes per leaf as
+    :func:`hard_update` on a track (``process_noise = "imm"``); the tracks are the best global
     hypothesis's, by id. The given tracks' ``x``, ``P`` replace those of the best hypothesis's
     leaves first (a federated tracker's resets; otherwise they are those leaves')."""
     settings, d, m = params.mht, params.dim, scan.dim
@@ -503,7 +513,9 @@ def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale
         x, P = leaves.x.copy(), leaves.P.copy()
         x[best], P[best] = state.tracks.x, state.tracks.P
         leaves = leaves._replace(x=x, P=P)
-    x, P = predict(leaves, 0.0 if state.t is None else scan.t - state.t, params, q_scale)
+    dt = 0.0 if state.t is None else scan.t - state.t
+    x, P = predict(leaves, dt, params, q_scale)
+    modes = predicted_modes(leaves, dt, params, q_scale)  # each leaf's modes (process_noise = "imm")
     gating = gate_scan(GaussianState(x, P), scan, params)
     g_rows = g_cols = np.zeros(0, np.int64)
     nu, inc, miss = np.zeros((0, m)), np.zeros(0), mht.miss_increment(mp)
@@ -516,10 +528,11 @@ def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale
     hit = br.pair >= 0
     pidx = br.pair[hit]
     cx, cP = x[br.parent], P[br.parent]
+    cmodes = None if modes is None else modes.take(br.parent)  # a miss keeps its parent's prediction
     obs = Observation(np.zeros((0, m, d)), np.zeros((0, m, m)), np.zeros((0, m)))
     if pidx.size:
         H, x0 = gating.lin.H[g_rows[pidx]], cx[hit]
-        cx[hit], cP[hit] = update_residual(GaussianState(x0, cP[hit]), nu[pidx], H, scan.R).state
+        cx[hit], cP[hit] = detection_update(x0, cP[hit], cmodes, np.flatnonzero(hit), nu[pidx], H, scan.R)
         obs = Observation(H, np.broadcast_to(scan.R, (pidx.size, m, m)).copy(), nu[pidx] + np.einsum("nij,nj->ni", H, x0))
     old = leaves.take(br.parent)
     score = mem.score[br.parent] + np.where(hit, 0.0, miss)
@@ -527,7 +540,7 @@ def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale
     peak = np.maximum(mem.peak[br.parent], score)
     hits, age, misses = old.hits + hit, old.age + 1, np.where(hit, 0, old.misses + 1)
     confirmed, live = mht.manage(mp, old.confirmed, score, peak, hits, age, misses)
-    children = TrackSet(old.ids, cx, cP, hits, age, misses, confirmed)
+    children = TrackSet(old.ids, cx, cP, hits, age, misses, confirmed, modes=cmodes)
     # a detection that some kept hypothesis leaves unused starts a track there
     fresh = np.flatnonzero(~br.used.all(axis=0))
     new, obs_new = start_tracks(scan, fresh, params, state.next_id)

@@ -29,7 +29,8 @@ Per scan:
    the extensions of all the hypotheses the ``k`` best (hypothesis value plus gain) are kept. A
    detection that a kept hypothesis leaves unused starts a new track there (one per detection).
 4. The branches the kept hypotheses use are the new leaves (:func:`branches`): a miss keeps the
-   prediction, a detection is the (E)KF update (Joseph form) of its parent.
+   prediction, a detection is the (E)KF update (Joseph form) of its parent; with ``process_noise =
+   "imm"`` every leaf carries its two motion modes, as a gnn track does (docs/mht.md).
 5. Track management per branch (:func:`manage`): ``"score"``, Wald's SPRT on the track score
    (:func:`sprt_thresholds`), or ``"counts"``, gnn's M-of-N rules (with gnn's precedence of the
    confirmed tracks in step 3 and P_G = 1, gnn's cost: :func:`mht_params`). A deleted branch
