@@ -4,6 +4,7 @@ hand-overs keep ids and estimates, and GOSPA stays within 2 % of the unsharded r
 
 from __future__ import annotations
 
+import pickle
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -149,3 +150,44 @@ def test_regions_option_errors_name_the_option(data: Path, tmp_path: Path) -> No
     config.write_text((data / "config.toml").read_text()
                       + "\n[regions]\nmargin = 100.0\ngrid = {origin = [-5000, -5000], cell = [5000, 5000], nx = 2, ny = 2}\n")
     assert replay_mtt("mtt-decentralized", data / "measurements.jsonl", config, out, regions="config") == 60
+
+
+def test_a_scan_without_rows_leaves_what_the_full_path_leaves(data: Path) -> None:
+    """A report without detected rows (a region's sub-report of a scan that saw nothing there)
+    takes :meth:`TrackToTrackCentre.ingest`'s short path: the centre it leaves, its resets and its
+    pictures are those of the full path (``_fuse_rows``), to the bit."""
+    from fedtrack.fusion_center.mtt.engines import TrackToTrackEngine, centre_picture
+    from fedtrack.fusion_center.mtt.replay import read_scans
+    from fedtrack.local_filters.mtt.routing import sub_report
+
+    cfg = MttConfig(maneuver="vdie")
+    engine = TrackToTrackEngine(cfg, 4, feedback=True)
+    reports: list[Any] = []
+    fuse = engine.fuse
+    engine.fuse = lambda report: reports.append(report) or fuse(report)  # type: ignore[method-assign]
+    for scan in read_scans(data / "measurements.jsonl", cfg)[:90]:
+        engine.ingest(scan)
+    short, full = TrackToTrackCentre(cfg, 4, True), TrackToTrackCentre(cfg, 4, True)
+    emptied = retired = 0
+    for k, report in enumerate(reports):
+        # every third scan's rows are in another region (retired ids kept); every fifth saw none of them
+        if k % 3 == 1:
+            report = sub_report(report, np.zeros(report.ids.size, dtype=bool))
+        elif k % 5 == 2:
+            report = report._replace(detected=np.zeros(report.ids.size, dtype=bool), obs_H=report.obs_H[:0],
+                                     obs_R=report.obs_R[:0], obs_z=report.obs_z[:0], started=report.started[:0])
+        empty = not report.detected.any()
+        emptied += empty
+        retired += empty and report.retired.size > 0
+        a, qa = short.answer(report)
+        if empty:
+            b = full._fuse_rows(report, report.detected.nonzero()[0], full._note_scan(report))
+            qb = float(max(len(full.live_sensors(report.t)), 1))
+            full.prune(report.t)  # the rest of answer()
+        else:
+            b, qb = full.answer(report)
+        assert qa == qb and np.array_equal(a.ids, b.ids) and np.array_equal(a.x, b.x) and np.array_equal(a.P, b.P)
+        assert pickle.dumps(short) == pickle.dumps(full)  # every array, table and counter
+    assert emptied >= 40 and retired >= 5 and len(short.tracks) >= 30
+    pa, pb = centre_picture(short, reports[-1].t + 0.5), centre_picture(full, reports[-1].t + 0.5)
+    assert pa is not None and pb is not None and pa.ids == pb.ids and np.array_equal(pa.P, pb.P)

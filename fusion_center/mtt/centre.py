@@ -45,7 +45,6 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from fedtrack.fusion_center.mtt.central_track import CentralTracks, padded
 from fedtrack.local_filters.linear.gating import track_difference_d2
@@ -102,6 +101,8 @@ def candidate_pairs(pos_q: np.ndarray, spread_q: np.ndarray, pos: np.ndarray, sp
         dx, dy = pos_q[:, 0, None] - pos[:, 0], pos_q[:, 1, None] - pos[:, 1]
         reach = factor * (spread_q[:, None] + spread)
         return np.nonzero(dx * dx + dy * dy <= reach * reach)
+    from scipy.spatial import cKDTree  # only here: a region centre's pairs are tested directly
+
     kth = int(0.9 * (spread.size - 1))
     big_spread = float(np.partition(spread, kth)[kth])
     big = (spread > big_spread).nonzero()[0]
@@ -255,17 +256,38 @@ class TrackToTrackCentre:
         return cid
 
     def ingest(self, report: LocalReport) -> Resets:
-        """Fuse one local tracker's scan; returns the federated resets (empty when decentralized)."""
-        cfg, t, s = self.cfg, report.t, report.sensor
+        """Fuse one local tracker's scan; returns the federated resets (empty when decentralized).
+
+        A scan that detected none of the report's tracks (a region's sub-report without rows of
+        its region: every region centre gets every scan) only counts in the life rules: what
+        :meth:`_fuse_rows` leaves after such a scan, without its predictions of the tracks."""
+        col = self._note_scan(report)
+        det_rows = report.detected.nonzero()[0]
+        if det_rows.size:
+            return self._fuse_rows(report, det_rows, col)
+        self.moved = det_rows, det_rows.copy()  # nothing fused into: no track moved
+        self._count_scan(col, det_rows)
+        return no_resets(report.sensor, report.t, report.x.shape[1])
+
+    def _note_scan(self, report: LocalReport) -> int:
+        """The sensor's latest scan time and its retired local tracks unmapped; returns its column."""
+        t, s = report.t, report.sensor
         self.sensor_seen[s] = max(self.sensor_seen.get(s, t), t)
         col = self._col(s)
-        for key in self.mapping.keys() & {(s, lid) for lid in report.retired.tolist()}:  # retired and mapped
-            self._unmap(key)
-            self.counters.unmapped += 1
-        for lid in report.retired.tolist() if self.strikes else ():
-            self.strikes.pop((s, lid), None)
+        if report.retired.size:
+            retired = report.retired.tolist()
+            for key in self.mapping.keys() & {(s, lid) for lid in retired}:  # retired and mapped
+                self._unmap(key)
+                self.counters.unmapped += 1
+            for lid in retired if self.strikes else ():
+                self.strikes.pop((s, lid), None)
+        return col
+
+    def _fuse_rows(self, report: LocalReport, det_rows: np.ndarray, col: int) -> Resets:
+        """The detected rows ``det_rows`` of a report of sensor column ``col``: the hysteresis check,
+        association, fusion, resets, the life rules' count of the scan and the duplicate merge."""
+        cfg, t, s = self.cfg, report.t, report.sensor
         d = report.x.shape[1]
-        det_rows = report.detected.nonzero()[0]
         keys = [(s, i) for i in report.ids[det_rows].tolist()]
         cid, slots = self._central_ids(keys)  # a mapped local track's central track is live; -1: unmapped
         # the estimates at t of the central tracks of the rows to check and of those without a track

@@ -25,8 +25,10 @@ its own recorded order.
 
 from __future__ import annotations
 
+import itertools
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -59,6 +61,11 @@ def interior(regions: Regions, r: int) -> np.ndarray:
     return np.array([a[0], b[0], a[1], b[1]])
 
 
+def keyed(table: dict[LocalKey, Any], sensor: str, ids: list[int]) -> np.ndarray:
+    """Per local track ``ids`` of ``sensor``, whether ``table`` has it (bool array; the look-ups in C)."""
+    return np.fromiter(map(table.__contains__, zip(itertools.repeat(sensor), ids)), dtype=bool, count=len(ids))
+
+
 @dataclass
 class RegionCentre:
     """The centre of region ``index`` of ``regions``: a :class:`TrackToTrackCentre` numbering its
@@ -88,9 +95,8 @@ class RegionCentre:
     def taken(self, report: LocalReport, elsewhere: np.ndarray) -> np.ndarray:
         """The rows of a sub-report this centre fuses (bool per row)."""
         s, ids = report.sensor, report.ids.tolist()
-        mapping, forwarded = self.centre.mapping, self.forwarded
-        mine = np.fromiter(((s, i) in mapping for i in ids), dtype=bool, count=len(ids))
-        gone = np.fromiter(((s, i) in forwarded for i in ids), dtype=bool, count=len(ids)) & ~mine
+        mine = keyed(self.centre.mapping, s, ids)
+        gone = keyed(self.forwarded, s, ids) & ~mine if self.forwarded else np.zeros(len(ids), dtype=bool)
         self.in_flight += int(gone.sum())
         free = ~mine & ~gone & ~elsewhere
         if free.any():
@@ -123,8 +129,7 @@ class RegionCentre:
                     self.serial += 1
         self.handed_over += len(moving)
         s = report.sensor
-        held = report.ids[np.fromiter(((s, i) in c.mapping for i in report.ids.tolist()), dtype=bool,
-                                      count=report.ids.size)]
+        held = report.ids[keyed(c.mapping, s, report.ids.tolist())]
         told = [(key[1], r) for key, r in self.forwarded.items() if key[0] == s]
         for lid, _ in told:
             del self.forwarded[(s, lid)]
