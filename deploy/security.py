@@ -37,12 +37,11 @@ import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from cryptography import x509
-from cryptography.hazmat.primitives import hashes, serialization
-from cryptography.hazmat.primitives.asymmetric import ec
-from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+if TYPE_CHECKING:  # imported where certificates are made: every service reads this module's settings
+    from cryptography import x509
+    from cryptography.hazmat.primitives.asymmetric import ec
 
 from fedtrack.config import ConfigError
 from fedtrack.deployment import DeploymentConfig, listen_address
@@ -179,6 +178,10 @@ def _write_private(path: Path, data: bytes) -> None:
 
 def _certificate(subject: str, key: ec.EllipticCurvePrivateKey, issuer: x509.Name, signer: ec.EllipticCurvePrivateKey,
                  ca: bool, sans: list[x509.GeneralName], days: int) -> x509.Certificate:
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes
+    from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+
     now = datetime.datetime.now(datetime.UTC)
     builder = (x509.CertificateBuilder()
                .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, subject)]))
@@ -199,6 +202,8 @@ def _certificate(subject: str, key: ec.EllipticCurvePrivateKey, issuer: x509.Nam
 
 def subject_alt_names(extra: str = "") -> list[x509.GeneralName]:
     """127.0.0.1 and localhost, plus ``extra`` (``FEDTRACK_CERT_SAN``: ``IP:10.47.0.1,DNS:host-a``)."""
+    from cryptography import x509
+
     names: list[x509.GeneralName] = [x509.IPAddress(ipaddress.ip_address("127.0.0.1")), x509.DNSName("localhost")]
     for item in filter(None, (part.strip() for part in extra.split(","))):
         kind, _, value = item.partition(":")
@@ -219,6 +224,11 @@ def make_certificates(tls_dir: Path, identities: list[str], extra_san: str = "",
     key and a certificate signed by it (``IDENTITY.pem``, ``IDENTITY.key``; CN = the identity,
     which the router's access control matches; SAN = 127.0.0.1, localhost and ``extra_san``).
     ECDSA P-256 keys, written with mode 0600. Returns the certificates made."""
+    from cryptography import x509
+    from cryptography.hazmat.primitives import serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import NameOID
+
     for ident in identities:
         if not ident or any(not (c.isalnum() or c in "._-") for c in ident):
             raise ConfigError(f"bad identity {ident!r} (letters, digits, . _ -)")

@@ -18,7 +18,6 @@ from typing import Any, NamedTuple
 
 import numpy as np
 import orjson
-import pymap3d
 
 from fedtrack.config import ConfigError, load_tables
 from fedtrack.wire import with_geodetic
@@ -50,12 +49,16 @@ def ecef_to_enu_rotation(lat: float, lon: float) -> np.ndarray:
 
 def enu_from_geodetic(frame: Frame, lat: np.ndarray, lon: np.ndarray, h: np.ndarray) -> np.ndarray:
     """ENU positions (N, 3) [m] of WGS-84 points (N,) [deg, deg, m] in ``frame``."""
+    import pymap3d  # here: only a deployment with a [frame] converts
+
     e, n, u = pymap3d.geodetic2enu(np.asarray(lat, float), np.asarray(lon, float), np.asarray(h, float), *frame)
     return np.stack(np.broadcast_arrays(e, n, u), axis=-1)
 
 
 def geodetic_from_enu(frame: Frame, enu: np.ndarray) -> np.ndarray:
     """``[lat deg, lon deg, h m]`` (N, 3) of ENU positions (N, 3) of ``frame``."""
+    import pymap3d
+
     enu = np.asarray(enu, float)
     lat, lon, h = pymap3d.enu2geodetic(enu[..., 0], enu[..., 1], enu[..., 2], *frame)
     return np.stack(np.broadcast_arrays(lat, lon, h), axis=-1)
