@@ -338,6 +338,28 @@ def test_a_conflicting_report_marks_the_next_picture_contested(tmp_path: Path) -
     assert pictures(forged)[:flagged[0]] == pictures(clean)[:flagged[0]]
 
 
+
+def test_a_messages_digest_ignores_its_stamp_only(tmp_path: Path) -> None:
+    """``digest`` (a re-delivery or a conflict) of a decoded report: that of the message re-checked
+    with its stamp cleared; another stamp gives the same, another estimate another."""
+    from hashlib import blake2b
+
+    from fedtrack.services.base import digest
+    from fedtrack.wire import TrackReport, decode
+
+    scans = mtt_lines(tmp_path)
+    services = mtt_services(tmp_path / "run")
+    bus = Bus(list(services.values()))
+    for m in scans[:12]:
+        bus.put(KEYS.sensor_meas(m.sensor), encode(m))
+    reports = [decode(encode(r), TrackReport) for key, r in bus.published if isinstance(r, TrackReport)]
+    assert len(reports) >= 6 and any(r.ids for r in reports)
+    for r in reports:
+        assert digest(r) == blake2b(encode(replace(r, stamp_ns=0)), digest_size=16).digest()
+        assert digest(replace(r, stamp_ns=r.stamp_ns + 1)) == digest(r)
+        assert digest(replace(r, t=r.t + 1e-9)) != digest(r)
+
+
 # ---------------------------------------------------------------- handlers that fail half-way
 
 def fail_once(real: Callable[..., Any], at: int, exc: Exception, after: bool = True) -> Callable[..., Any]:

@@ -66,7 +66,7 @@ import threading
 import time
 import traceback
 from contextlib import contextmanager
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields
 from hashlib import blake2b
 from typing import Any, Callable, ClassVar, Iterator
 
@@ -107,9 +107,11 @@ def check_time_jump(last: float | None, t: float, bound: float) -> None:
 def digest(msg: Message) -> bytes:
     """A 16-byte digest of ``msg`` with its ``stamp_ns`` (if it has one) cleared: two messages for
     one (sensor, scan) are the same message when their digests are equal (a re-delivery), else a
-    conflict."""
-    plain = replace(msg, stamp_ns=0) if hasattr(msg, "stamp_ns") else msg  # type: ignore[type-var]
-    return blake2b(encode(plain), digest_size=16).digest()
+    conflict. ``msg`` was checked when decoded: its copy is not checked again (a report's
+    covariances and flags were half of a centre's decoding)."""
+    if hasattr(msg, "stamp_ns"):
+        msg = type(msg).unchecked(**{**{f.name: getattr(msg, f.name) for f in fields(msg)}, "stamp_ns": 0})
+    return blake2b(encode(msg), digest_size=16).digest()
 
 
 class ScanOrder:
