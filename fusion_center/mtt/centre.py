@@ -45,6 +45,7 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from fedtrack.fusion_center.mtt.central_track import CentralTracks, padded
 from fedtrack.local_filters.linear.gating import track_difference_d2
@@ -101,8 +102,6 @@ def candidate_pairs(pos_q: np.ndarray, spread_q: np.ndarray, pos: np.ndarray, sp
         dx, dy = pos_q[:, 0, None] - pos[:, 0], pos_q[:, 1, None] - pos[:, 1]
         reach = factor * (spread_q[:, None] + spread)
         return np.nonzero(dx * dx + dy * dy <= reach * reach)
-    from scipy.spatial import cKDTree  # only here: a region centre's pairs are tested directly
-
     kth = int(0.9 * (spread.size - 1))
     big_spread = float(np.partition(spread, kth)[kth])
     big = (spread > big_spread).nonzero()[0]

@@ -99,9 +99,17 @@ class RegionCentre:
         gone = keyed(self.forwarded, s, ids) & ~mine if self.forwarded else np.zeros(len(ids), dtype=bool)
         self.in_flight += int(gone.sum())
         free = ~mine & ~gone & ~elsewhere
-        if free.any():
-            free[free] = region_of(self.regions, report.x[free][:, [0, 2]]) == self.index
+        if free.any():  # a row inside the region's interior box is in it without a look at the regions
+            rows = free.nonzero()[0]
+            look = rows[~self.inside(report.x[rows, 0], report.x[rows, 2])]
+            if look.size:
+                free[look] = region_of(self.regions, report.x[look][:, [0, 2]]) == self.index
         return mine | free
+
+    def inside(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Whether each position is inside the region's interior box (:func:`interior`; none if NaN)."""
+        x0, x1, y0, y1 = self.interior
+        return (x > x0) & (x < x1) & (y > y0) & (y < y1)
 
     def answer(self, report: LocalReport, elsewhere: np.ndarray
                ) -> tuple[RegionAnswer, list[tuple[int, int, HandOver]]]:
@@ -117,8 +125,7 @@ class RegionCentre:
             sl = slots[live]
             p = c.tracks.newest(sl)
             x, y = c.tracks.x[sl, p, 0], c.tracks.x[sl, p, 2]  # the latest estimates' positions
-            x0, x1, y0, y1 = self.interior  # a track inside it stays without a look at the regions
-            out = ~((x > x0) & (x < x1) & (y > y0) & (y < y1))
+            out = ~self.inside(x, y)  # a track inside the interior box stays without a look at the regions
             cids, first = np.unique(ids[live][out], return_index=True)  # in increasing id
             owner = region_of(self.regions, np.stack([x[out][first], y[out][first]], axis=1)) if cids.size else cids
             for cid, o in zip(cids.tolist(), owner.tolist()):

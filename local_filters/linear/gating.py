@@ -12,6 +12,7 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 
 def gate_ball_pairs(z: np.ndarray, centres: np.ndarray, S: np.ndarray, gate: float
@@ -21,8 +22,6 @@ def gate_ball_pairs(z: np.ndarray, centres: np.ndarray, S: np.ndarray, gate: flo
     n = centres.shape[0]
     if n == 0 or z.shape[0] == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    from scipy.spatial import cKDTree  # here: scipy.spatial is ~4 MB of a process that never gates
-
     radius = np.sqrt(gate * np.trace(S, axis1=-2, axis2=-1))
     near = cKDTree(z).query_ball_point(centres, radius)
     counts = np.fromiter(map(len, near), dtype=np.int64, count=n)

@@ -17,6 +17,7 @@ import math
 from functools import cache
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
@@ -57,8 +58,6 @@ def assign(n_tracks: int, n_detections: int, rows: np.ndarray, cols: np.ndarray,
         chosen.append(_assign_small(usable[small], comp[small], local_r[small], local_c[small], cost[usable[small]],
                                     n_r, n_c))
     if full.size:
-        from scipy.optimize import linear_sum_assignment  # here: scipy.optimize is ~12 MB of every process
-
         change = comp[full[1:]] != comp[full[:-1]]
         starts, ends = full[np.r_[True, change]], full[np.r_[change, True]] + 1
         for s, e in zip(starts.tolist(), ends.tolist()):
@@ -213,8 +212,6 @@ def _force(cost: np.ndarray, row: int, col: int) -> None:
 
 def _solve(cost: np.ndarray) -> tuple[float, np.ndarray] | None:
     """The optimal assignment (total cost, each row's column), None if none is finite."""
-    from scipy.optimize import linear_sum_assignment
-
     try:
         rows, cols = linear_sum_assignment(cost)
     except ValueError:  # scipy: "cost matrix is infeasible"
