@@ -5,7 +5,8 @@ in one process with 1, 2, 4 and 8 regions (grids 1x1, 2x1, 2x2, 4x2 over the det
 :class:`ShardedCentre`, each region's centre run in turn). Per region: the CPU seconds spent in
 its centre object (process time around its reports and its hand-overs out and in), its state
 size (the bytes of its pickled centre: the tracks' arrays at their allocated capacity and the
-mapping: a proxy for its RSS share, not a process's RSS), its tracks at the end; per run: the
+mapping: a proxy for its RSS share, not a process's RSS), its tracks at the end, the rows of its
+sub-reports and those it fused (the rest: the margin's rows of other regions' tracks); per run: the
 hand-overs, mean GOSPA (c = 100 m, p = 2), the routing CPU seconds (the local trackers' part live).
 One region is the unsharded centre (identical pictures, tests/test_mtt_shards.py).
 
@@ -88,6 +89,7 @@ def bench_scale(quick: bool) -> dict[str, Any]:
                 "cpu_s": centre.cpu_s, "max_cpu_s": max(centre.cpu_s),
                 "state_bytes": [len(pickle.dumps(c.centre)) for c in centre.centres],
                 "tracks": [len(c.centre.tracks) for c in centre.centres],
+                "rows": [c.rows for c in centre.centres], "rows_taken": [c.rows_taken for c in centre.centres],
                 "margin_share": margin_share(regions, last.x[:, [0, 2]]) if last.ids else 0.0,
                 "gospa": evaluate(path, sim / "truth.jsonl")["mean"]["gospa"]}
             print(f"bench scale: {n} regions: {wall:.1f} s, {centre.handed_over} hand-overs", flush=True)
@@ -95,6 +97,9 @@ def bench_scale(quick: bool) -> dict[str, Any]:
         for row in out["runs"].values():
             row["max_cpu_vs_one"] = row["max_cpu_s"] / base["max_cpu_s"]
             row["max_state_vs_one"] = max(row["state_bytes"]) / base["state_bytes"][0]
+            busiest = int(np.argmax(row["cpu_s"]))  # its share of the rows received and fused
+            row["busiest_rows_vs_one"] = row["rows"][busiest] / base["rows"][0]
+            row["busiest_rows_taken_vs_one"] = row["rows_taken"][busiest] / base["rows"][0]
             row["gospa_vs_one"] = row["gospa"] / base["gospa"] - 1.0
         side = 2 * sc.region  # the simulated area's side [m]
         speed = float(np.mean(SPEED))

@@ -82,6 +82,8 @@ class RegionCentre:
     handed_over: int = 0
     taken_over: int = 0
     in_flight: int = 0  # rows not fused: their central track was handed over, the tracker not yet told
+    rows: int = 0  # rows of the sub-reports received
+    rows_taken: int = 0  # of them, those fused here (:meth:`taken`); the rest: the margin's, and in flight
 
     def __post_init__(self) -> None:
         self.centre = TrackToTrackCentre(self.cfg, self.dim, self.feedback, next_id=self.index,
@@ -116,6 +118,8 @@ class RegionCentre:
         """Fuse the rows it takes of a sub-report, hand over the central tracks that left the region;
         returns the answer and the hand-overs ``(new owner, this centre's hand-over number, record)``."""
         take = self.taken(report, elsewhere)
+        self.rows += take.size
+        self.rows_taken += int(take.sum())
         resets, q_scale = self.centre.answer(report if take.all() else sub_report(report, take))
         c = self.centre
         moving: list[tuple[int, int, HandOver]] = []
