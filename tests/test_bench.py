@@ -106,9 +106,9 @@ def test_bench_scale_quick_reports_every_region(tmp_path: Path) -> None:
     for n, row in runs.items():
         assert len(row["cpu_s"]) == len(row["state_bytes"]) == len(row["tracks"]) == len(row["rows"]) == int(n)
         assert all(0 <= t <= r for t, r in zip(row["rows_taken"], row["rows"]))  # its own and its margin's
-    assert runs["1"]["rows_taken"] == runs["1"]["rows"] and runs["4"]["busiest_rows_vs_one"] > 0.25
         assert all(c > 0 for c in row["cpu_s"]) and row["gospa"] > 0
         assert row["gospa_vs_one"] == pytest.approx(row["gospa"] / runs["1"]["gospa"] - 1.0)
+    assert runs["1"]["rows_taken"] == runs["1"]["rows"] and 0 < runs["4"]["busiest_rows_vs_one"] < 1
     assert runs["1"]["hand_overs"] == 0 and runs["8"]["hand_overs"] > 0
     # the model: no margin share when the margin is nil, all of it when it spans the cell
     assert load_model(4, 100, 2, 1.0, 1000.0, 0.0, 10.0)["margin_share"] == 0.0
