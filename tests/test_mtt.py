@@ -283,6 +283,38 @@ def test_local_picture_with_delay_comes_from_the_data_up_to_its_time(tmp_path: P
             np.testing.assert_allclose(ta["x"], tb["x"], atol=1e-9)
 
 
+def test_centre_picture_with_delay_shows_the_tracks_as_they_were_at_its_time(tmp_path: Path) -> None:
+    """A track-to-track centre's picture at ``T`` made ``picture_delay`` later holds the central
+    tracks that had begun by ``T``, with the status they had then: a target born at 10 s is in no
+    picture before 10 s, and tentative until its confirmation; the pictures equal those made at
+    once (sensors in order, no deletion), state to 1e-9."""
+    rng = np.random.default_rng(11)
+    times, birth = np.arange(0.0, 25.0), 10
+    target = crossing_truth(times, np.array([0.0, 12.0, 0.0, -6.0]))
+    rows = [{"t": float(t) + (0.5 if s == "b" else 0.0), "sensor": s, "R": R_POS,
+             "detections": [] if k < birth else
+             [{"z": (target[k, [0, 2]] + rng.multivariate_normal([0, 0], R_POS)).tolist()}]}
+            for k, t in enumerate(times) for s in ("a", "b")]
+    measurements = write_lines(tmp_path / "m.jsonl", rows)
+    for algorithm in ("mtt-federated", "mtt-decentralized"):
+        outs = []
+        for delay in (0.0, 3.0):
+            cfg = config(tmp_path / f"c{delay}.toml", q=1.0, pd=0.95, clutter_density=1e-7, max_lag=3.0,
+                         picture_delay=delay)
+            replay_mtt(algorithm, measurements, cfg, tmp_path / f"o{delay}.jsonl")
+            outs.append({p["t"]: p["tracks"] for p in read_pictures(tmp_path / f"o{delay}.jsonl")})
+        now, later = outs
+        assert all(not later[T] for T in later if T < birth), algorithm
+        assert any(tr["status"] == "tentative" for T in later for tr in later[T]), algorithm
+        common = sorted(set(now) & set(later))
+        assert len(common) > 15
+        for T in common:
+            assert [(tr["id"], tr["status"]) for tr in now[T]] == [(tr["id"], tr["status"]) for tr in later[T]], (
+                algorithm, T)
+            for a, b in zip(now[T], later[T]):
+                np.testing.assert_allclose(a["x"], b["x"], atol=1e-9)
+
+
 @pytest.mark.parametrize("radar", [False, True])
 def test_gated_pairs_are_those_of_the_full_scan(radar: bool) -> None:
     """The k-d tree candidates lose no pair of the dense N x M gate, with the same distances."""

@@ -77,6 +77,9 @@ class CentralTracks:
         self.free: list[int] = list(range(capacity - 1, -1, -1))
         self.ids = np.full(capacity, -1, dtype=np.int64)
         self.confirmed = np.zeros(capacity, dtype=bool)
+        # when the track began and was confirmed (a picture at an earlier time shows it as it was then)
+        self.since = np.zeros(capacity)
+        self.confirmed_t = np.zeros(capacity)
         self.head = np.zeros(capacity, dtype=np.int64)
         self.count = np.zeros(capacity, dtype=np.int64)
         self.t = np.zeros((capacity, depth))
@@ -101,7 +104,7 @@ class CentralTracks:
             self._ring += tuple("mode_" + n for n in Modes._fields)
 
     _RING = ("t", "x", "P", "m", "H", "R", "z")
-    _PER_SLOT = ("ids", "confirmed", "head", "count")
+    _PER_SLOT = ("ids", "confirmed", "since", "confirmed_t", "head", "count")
 
     @property
     def capacity(self) -> int:
@@ -156,6 +159,7 @@ class CentralTracks:
         s = self.free.pop()
         self.slot[cid] = s
         self.ids[s], self.confirmed[s], self.head[s], self.count[s] = cid, False, 0, 1
+        self.since[s], self.confirmed_t[s] = t, np.inf
         self.t[s, 0], self.x[s, 0], self.P[s, 0], self.m[s, 0] = t, x, P, 0
         if self.modes is not None:
             self._write_modes(np.array([s]), np.zeros(1, dtype=np.int64),  # head 0: position 0
@@ -182,9 +186,24 @@ class CentralTracks:
         s = self.free.pop()
         self.slot[cid] = s
         self.ids[s], self.confirmed[s], self.head[s], self.count[s] = cid, confirmed, 0, count
+        self.since[s], self.confirmed_t[s] = -np.inf, -np.inf if confirmed else np.inf  # as old as its owner's
         for name, a in zip(self._ring, entries):
             getattr(self, name)[s, :count] = a
         return s
+
+    def as_of(self, slots: np.ndarray, T: float) -> tuple[np.ndarray, np.ndarray]:
+        """Which of the tracks ``slots`` existed at ``T`` (began by then: started, or fused an
+        out-of-sequence observation, at or before ``T``) and which were confirmed by then: a picture
+        made ``picture_delay`` after ``T`` shows the tracks as they were at ``T``."""
+        began = np.minimum(self.since[slots], self.t[slots, self.head[slots]]) <= T
+        return began, self.confirmed[slots] & (self.confirmed_t[slots] <= T)
+
+    def merge_life(self, keep: int, drop: int) -> None:
+        """Slot ``keep`` takes over slot ``drop``'s track (a duplicate merged into it): the earlier start
+        and confirmation of the two."""
+        self.confirmed[keep] |= self.confirmed[drop]
+        self.since[keep] = min(self.since[keep], self.since[drop])
+        self.confirmed_t[keep] = min(self.confirmed_t[keep], self.confirmed_t[drop])
 
     def delete(self, cid: int) -> None:
         s = self.slot.pop(cid)

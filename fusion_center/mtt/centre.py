@@ -265,7 +265,7 @@ class TrackToTrackCentre:
         if det_rows.size:
             return self._fuse_rows(report, det_rows, col)
         self.moved = det_rows, det_rows.copy()  # nothing fused into: no track moved
-        self._count_scan(col, det_rows)
+        self._count_scan(col, det_rows, report.t)
         return no_resets(report.sensor, report.t, report.x.shape[1])
 
     def _note_scan(self, report: LocalReport) -> int:
@@ -339,16 +339,17 @@ class TrackToTrackCentre:
             resets = Resets(s, t, report.ids[det_rows[rows]], x_post[rows, :d], beta * P_post[rows, :d, :d])
         else:
             resets = no_resets(s, t, d)
-        self._count_scan(col, supported)
+        self._count_scan(col, supported, t)
         still_live = tracks.ids[slots] == cid
         self._merge_duplicates(slots[still_live], t)
         return resets
 
-    def _count_scan(self, col: int, detected: np.ndarray) -> None:
+    def _count_scan(self, col: int, detected: np.ndarray, t: float) -> None:
         """One scan of sensor column ``col`` in the centralized life rules: M-of-N confirmation of
         tentative tracks; a confirmed track that this sensor tracks (a local track maps to it) and
         did not detect misses, and is deleted after ``delete_misses`` consecutive misses
-        (``CENTRAL_MISSES`` of each tracking sensor when several track it)."""
+        (``CENTRAL_MISSES`` of each tracking sensor when several track it); a track confirmed now
+        is confirmed from the scan's time ``t`` on (:meth:`CentralTracks.as_of`)."""
         cfg, tracks = self.cfg, self.tracks
         hit = np.zeros(tracks.capacity, dtype=bool)
         hit[detected] = True
@@ -364,7 +365,8 @@ class TrackToTrackCentre:
         young = (live & ~tracks.confirmed).nonzero()[0]
         window = np.concatenate([self.window[young, 1:], hit[young, None]], axis=1)
         self.window[young] = window
-        tracks.confirmed[young[window.sum(axis=1) >= cfg.confirm_hits]] = True
+        now = young[window.sum(axis=1) >= cfg.confirm_hits]
+        tracks.confirmed[now], tracks.confirmed_t[now] = True, t
         for cid in tracks.ids[dead].tolist():
             self._delete(cid)
 
@@ -456,7 +458,7 @@ class TrackToTrackCentre:
                 for key in list(self.members.get(drop, ())):
                     self._map(key, keep)
                 ks, ds = tracks.slot[keep], tracks.slot[drop]
-                tracks.confirmed[ks] |= tracks.confirmed[ds]
+                tracks.merge_life(ks, ds)
                 self.last_support[ks] = max(self.last_support[ks], self.last_support[ds])
                 tracks.delete(drop)
                 self.counters.merged += 1

@@ -373,12 +373,16 @@ def centre_picture(c: TrackToTrackCentre, T: float, existence: CentralExistence 
     if not c.tracks:
         return None
     slots = c.tracks.live()
+    began, confirmed = c.tracks.as_of(slots, T)
+    slots, confirmed = slots[began], confirmed[began]
+    if not slots.size:
+        return None
     X, P = c.tracks.states_at(slots, T)
     maneuver = None
     if c.tracks.detector is not None:
         maneuver = c.tracks.maneuvers_at(slots, T).picture_rows(c.tracks.detector)
     ids = c.tracks.ids[slots].tolist()
-    return PictureTracks(ids, X, P, c.tracks.confirmed[slots].tolist(), c.sensor_lists(slots), ["cv"] * slots.size,
+    return PictureTracks(ids, X, P, confirmed.tolist(), c.sensor_lists(slots), ["cv"] * slots.size,
                          maneuver, None if existence is None else existence.of(c, ids))
 
 
