@@ -215,10 +215,19 @@ def mix(state: IMMState, Pi: np.ndarray) -> tuple[GaussianState, np.ndarray]:
     else:
         w = np.where(reachable[..., None, :], w / np.where(reachable, c, 1.0)[..., None, :],
                      state.mu[..., :, None])
-    x0 = np.einsum("...ji,...jn->...in", w, state.x)  # eq. (5)
-    d = state.x[..., :, None, :] - x0[..., None, :, :]  # (..., Ms, Md, n)
-    P0 = (np.einsum("...ji,...jab->...iab", w, state.P)
-          + np.einsum("...ji,...jia,...jib->...iab", w, d, d))  # eq. (6)
+    if w.shape[-2:] == (2, 2):  # two modes (the multi-target trackers'): the same sums without einsum
+        x0 = w[..., 0, :, None] * state.x[..., 0, None, :] + w[..., 1, :, None] * state.x[..., 1, None, :]  # eq. (5)
+        d = state.x[..., :, None, :] - x0[..., None, :, :]  # (..., Ms, Md, n)
+        wd = w[..., None] * d  # the products in einsum's order: (w d_a) d_b
+        P0 = ((w[..., 0, :, None, None] * state.P[..., 0, None, :, :]
+               + w[..., 1, :, None, None] * state.P[..., 1, None, :, :])
+              + (wd[..., 0, :, :, None] * d[..., 0, :, None, :]
+                 + wd[..., 1, :, :, None] * d[..., 1, :, None, :]))  # eq. (6)
+    else:
+        x0 = np.einsum("...ji,...jn->...in", w, state.x)  # eq. (5)
+        d = state.x[..., :, None, :] - x0[..., None, :, :]  # (..., Ms, Md, n)
+        P0 = (np.einsum("...ji,...jab->...iab", w, state.P)
+              + np.einsum("...ji,...jia,...jib->...iab", w, d, d))  # eq. (6)
     with np.errstate(divide="ignore"):
         log_pred = np.log(c)
     return GaussianState(x0, symmetrize(P0)), log_pred
@@ -254,9 +263,16 @@ def posterior(c: Cycle) -> IMMState:
 
 def combine(state: IMMState) -> GaussianState:
     """Overall estimate ``x = sum mu_i x_i``, ``P = sum mu_i (P_i + d_i d_i')``."""
-    x = np.einsum("...i,...in->...n", state.mu, state.x)
-    d = state.x - x[..., None, :]
-    P = np.einsum("...i,...iab->...ab", state.mu, state.P + d[..., :, None] * d[..., None, :])
+    mu = state.mu
+    if mu.shape[-1] == 2:  # two modes: the same sums without einsum
+        x = mu[..., 0, None] * state.x[..., 0, :] + mu[..., 1, None] * state.x[..., 1, :]
+        d = state.x - x[..., None, :]
+        S = state.P + d[..., :, None] * d[..., None, :]
+        P = mu[..., 0, None, None] * S[..., 0, :, :] + mu[..., 1, None, None] * S[..., 1, :, :]
+    else:
+        x = np.einsum("...i,...in->...n", mu, state.x)
+        d = state.x - x[..., None, :]
+        P = np.einsum("...i,...iab->...ab", mu, state.P + d[..., :, None] * d[..., None, :])
     return GaussianState(x, symmetrize(P))
 
 
