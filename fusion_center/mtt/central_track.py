@@ -253,10 +253,23 @@ class CentralTracks:
             return modes_predict(self._modes_at(slots, p), dt, self.q, self.noise_model, self.modes)[1]
         return predict_batch(self.x[slots, p], self.P[slots, p], dt, self.q, self.noise_model)
 
+    def _at(self, name: str, slots: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """Ring field ``name`` at position ``p`` of each slot (a copy): one ``take`` over the flattened
+        slot and ring axes, a third of indexing by ``[slots, p]`` at a thousand tracks."""
+        a = getattr(self, name)
+        return a.reshape((-1,) + a.shape[2:]).take(slots * self.depth + p, axis=0)
+
     def _modes_at(self, slots: np.ndarray, p: np.ndarray) -> Modes | None:
         if self.modes is None:
             return None
-        return Modes(*(getattr(self, "mode_" + n)[slots, p] for n in Modes._fields))
+        return Modes(*(self._at("mode_" + n, slots, p) for n in Modes._fields))
+
+    def _state_at(self, slots: np.ndarray, p: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """The posterior at ring position ``p`` of each slot, which :meth:`_step` predicts from: with
+        modes it predicts the modes, and their combination is not gathered (None, None)."""
+        if self.modes is not None:
+            return None, None
+        return self._at("x", slots, p), self._at("P", slots, p)
 
     def _write_modes(self, slots: np.ndarray, p: np.ndarray, modes: Modes) -> None:
         for name, a in zip(Modes._fields, modes):
@@ -275,14 +288,15 @@ class CentralTracks:
             return None
         return InputBank(*(getattr(self, "bank_" + n)[slots, p] for n in InputBank._fields))
 
-    def _step(self, t0: np.ndarray, x: np.ndarray, P: np.ndarray, t: float | np.ndarray, H: np.ndarray,
+    def _step(self, t0: np.ndarray, x: np.ndarray | None, P: np.ndarray | None, t: float | np.ndarray, H: np.ndarray,
               R: np.ndarray, z: np.ndarray, bank: InputBank | None, modes: Modes | None = None
               ) -> tuple[np.ndarray, np.ndarray, DetectorStep, Modes | None]:
         """Posteriors after predicting each ``(x, P)`` (or its ``modes``) from ``t0`` to ``t`` and
         fusing ``(H, R, z)``, the maneuver detector's step from ``bank`` (None without a
-        detector) and the modes after (None without)."""
+        detector) and the modes after (None without; with them ``x``, ``P`` are not read)."""
         dt = rounded_interval(t - t0)
         if modes is None:
+            assert x is not None and P is not None
             xp, Pp = predict_batch(x, P, dt, self.q, self.noise_model)
             post = update(GaussianState(xp, Pp), z, H, R)[0]
         else:
@@ -343,7 +357,7 @@ class CentralTracks:
             p = (self.head[slots] + count - 1) % self.depth
         ahead = ok & (t >= t_new)
         if slots.size and ahead.all():  # every observation after its track's newest (in order): one step
-            x_out, P_out, step, modes = self._step(t_new, self.x[slots, p], self.P[slots, p], t, H, R, z,
+            x_out, P_out, step, modes = self._step(t_new, *self._state_at(slots, p), t, H, R, z,
                                                    self._bank_at(slots, p), self._modes_at(slots, p))
             self._write(slots, (p + 1) % self.depth, t, x_out, P_out, H, R, z, step, modes)
             self.count[slots] = count + 1
@@ -354,7 +368,7 @@ class CentralTracks:
         i = ahead.nonzero()[0]
         if i.size:
             s, pi = slots[i], p[i]
-            x_out[i], P_out[i], step, modes = self._step(t_new[i], self.x[s, pi], self.P[s, pi], t, H[i], R[i], z[i],
+            x_out[i], P_out[i], step, modes = self._step(t_new[i], *self._state_at(s, pi), t, H[i], R[i], z[i],
                                                          self._bank_at(s, pi), self._modes_at(s, pi))
             self._write(s, (pi + 1) % self.depth, t, x_out[i], P_out[i], H[i], R[i], z[i], step, modes)
             self.count[s] += 1
@@ -379,8 +393,8 @@ class CentralTracks:
         old_t, old_m = self.t[rows, pos], self.m[rows, pos]
         old_H, old_R, old_z = self.H[rows, pos], self.R[rows, pos], self.z[rows, pos]
         p = self._pos(slots, keep - 1)
-        t_prev, x_prev, P_prev = self.t[slots, p], self.x[slots, p], self.P[slots, p]
-        x_at, P_at, step, modes = self._step(t_prev, x_prev, P_prev, t, H, R, z, self._bank_at(slots, p),
+        t_prev = self.t[slots, p]
+        x_at, P_at, step, modes = self._step(t_prev, *self._state_at(slots, p), t, H, R, z, self._bank_at(slots, p),
                                              self._modes_at(slots, p))
         self._write(slots, self._pos(slots, keep), t, x_at, P_at, H, R, z, step, modes)
         t_prev[:], x_prev, P_prev = t, x_at.copy(), P_at.copy()
