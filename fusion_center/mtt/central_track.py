@@ -161,9 +161,9 @@ class CentralTracks:
         self.ids[s], self.confirmed[s], self.head[s], self.count[s] = cid, False, 0, 1
         self.since[s], self.confirmed_t[s] = t, np.inf
         self.t[s, 0], self.x[s, 0], self.P[s, 0], self.m[s, 0] = t, x, P, 0
-        if self.modes is not None:
-            self._write_modes(np.array([s]), np.zeros(1, dtype=np.int64),  # head 0: position 0
-                              start_modes(x[None], P[None], self.modes))
+        if self.modes is not None:  # head 0: position 0
+            for name, a in zip(Modes._fields, start_modes(x[None], P[None], self.modes)):
+                getattr(self, "mode_" + name)[s, 0] = a[0]
         if self.detector is not None:
             self._write_detector(np.array([s]), np.zeros(1, dtype=np.int64),  # head 0: position 0
                                  (new_banks(1, self.detector.window, self.dim, t), no_detection(1)))

@@ -128,7 +128,9 @@ def mode_transition(dt: float | np.ndarray, rates: ModeRates) -> np.ndarray:
     total = rates.to_maneuver + rates.to_straight
     decay = 1.0 - np.exp(-total * np.asarray(dt, dtype=float))
     p01, p10 = rates.to_maneuver / total * decay, rates.to_straight / total * decay
-    return np.stack([np.stack([1.0 - p01, p01], -1), np.stack([p10, 1.0 - p10], -1)], -2)
+    Pi = np.empty(decay.shape + (2, 2))
+    Pi[..., 0, 0], Pi[..., 0, 1], Pi[..., 1, 0], Pi[..., 1, 1] = 1.0 - p01, p01, p10, 1.0 - p10
+    return Pi
 
 
 def start_modes(x: np.ndarray, P: np.ndarray, rates: ModeRates) -> Modes:
