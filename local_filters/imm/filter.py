@@ -215,22 +215,41 @@ def mix(state: IMMState, Pi: np.ndarray) -> tuple[GaussianState, np.ndarray]:
     else:
         w = np.where(reachable[..., None, :], w / np.where(reachable, c, 1.0)[..., None, :],
                      state.mu[..., :, None])
-    if w.shape[-2:] == (2, 2):  # two modes (the multi-target trackers'): the same sums without einsum
-        x0 = w[..., 0, :, None] * state.x[..., 0, None, :] + w[..., 1, :, None] * state.x[..., 1, None, :]  # eq. (5)
-        d = state.x[..., :, None, :] - x0[..., None, :, :]  # (..., Ms, Md, n)
-        wd = w[..., None] * d  # the products in einsum's order: (w d_a) d_b
-        P0 = ((w[..., 0, :, None, None] * state.P[..., 0, None, :, :]
-               + w[..., 1, :, None, None] * state.P[..., 1, None, :, :])
-              + (wd[..., 0, :, :, None] * d[..., 0, :, None, :]
-                 + wd[..., 1, :, :, None] * d[..., 1, :, None, :]))  # eq. (6)
+    if w.shape[-2:] == (2, 2):  # two modes (the multi-target trackers')
+        x0, P0 = _mix_two(w, state.x, state.P)
     else:
         x0 = np.einsum("...ji,...jn->...in", w, state.x)  # eq. (5)
         d = state.x[..., :, None, :] - x0[..., None, :, :]  # (..., Ms, Md, n)
-        P0 = (np.einsum("...ji,...jab->...iab", w, state.P)
-              + np.einsum("...ji,...jia,...jib->...iab", w, d, d))  # eq. (6)
+        P0 = symmetrize(np.einsum("...ji,...jab->...iab", w, state.P)
+                        + np.einsum("...ji,...jia,...jib->...iab", w, d, d))  # eq. (6)
     with np.errstate(divide="ignore"):
         log_pred = np.log(c)
-    return GaussianState(x0, symmetrize(P0)), log_pred
+    return GaussianState(x0, P0), log_pred
+
+
+def _batch_last(a: np.ndarray, lead: int) -> np.ndarray:
+    """``a``'s ``lead`` leading axes flattened into one and moved last, contiguous."""
+    flat = a.reshape((-1,) + a.shape[lead:])
+    return np.ascontiguousarray(flat.transpose(tuple(range(1, flat.ndim)) + (0,)))
+
+
+def _batch_first(a: np.ndarray, lead: tuple[int, ...]) -> np.ndarray:
+    """The inverse of :func:`_batch_last`: the last axis back in front as the ``lead`` axes."""
+    return np.ascontiguousarray(a.transpose((a.ndim - 1,) + tuple(range(a.ndim - 1)))).reshape(lead + a.shape[:-1])
+
+
+def _mix_two(w: np.ndarray, x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eqs. (5), (6) for two source and two target modes (``P0`` symmetrized): the sums of :func:`mix`'s
+    einsums, term by term in their order (bit-identical), computed with the batch as the last,
+    contiguous axis, a faster pass over a thousand tracks than over 2x4x4 blocks."""
+    lead = x.shape[:-2]
+    wT, xT, PT = _batch_last(w, len(lead)), _batch_last(x, len(lead)), _batch_last(P, len(lead))
+    x0 = wT[0, :, None] * xT[0, None] + wT[1, :, None] * xT[1, None]  # (i, a, k), eq. (5)
+    d = xT[:, None] - x0[None]  # (j, i, a, k)
+    wd = wT[:, :, None] * d  # the products in einsum's order: (w d_a) d_b
+    P0 = ((wT[0, :, None, None] * PT[0, None] + wT[1, :, None, None] * PT[1, None])
+          + (wd[0, :, :, None] * d[0, :, None] + wd[1, :, :, None] * d[1, :, None]))  # (i, a, b, k), eq. (6)
+    return _batch_first(x0, lead), _batch_first(0.5 * (P0 + P0.swapaxes(1, 2)), lead)  # symmetrize()
 
 
 def model_cycle(state: IMMState, Pi: np.ndarray, u: np.ndarray, model: LinearModel,
@@ -263,16 +282,17 @@ def posterior(c: Cycle) -> IMMState:
 
 def combine(state: IMMState) -> GaussianState:
     """Overall estimate ``x = sum mu_i x_i``, ``P = sum mu_i (P_i + d_i d_i')``."""
-    mu = state.mu
-    if mu.shape[-1] == 2:  # two modes: the same sums without einsum
-        x = mu[..., 0, None] * state.x[..., 0, :] + mu[..., 1, None] * state.x[..., 1, :]
-        d = state.x - x[..., None, :]
-        S = state.P + d[..., :, None] * d[..., None, :]
-        P = mu[..., 0, None, None] * S[..., 0, :, :] + mu[..., 1, None, None] * S[..., 1, :, :]
-    else:
-        x = np.einsum("...i,...in->...n", mu, state.x)
-        d = state.x - x[..., None, :]
-        P = np.einsum("...i,...iab->...ab", mu, state.P + d[..., :, None] * d[..., None, :])
+    if state.mu.shape[-1] == 2:  # two modes: the einsums' sums term by term, the batch last (as _mix_two)
+        lead = state.x.shape[:-2]
+        muT, xT, PT = (_batch_last(a, len(lead)) for a in (state.mu, state.x, state.P))
+        xc = muT[0] * xT[0] + muT[1] * xT[1]  # (a, k)
+        d = xT - xc[None]
+        S = PT + d[:, :, None] * d[:, None]  # (i, a, b, k)
+        P = muT[0] * S[0] + muT[1] * S[1]
+        return GaussianState(_batch_first(xc, lead), _batch_first(0.5 * (P + P.swapaxes(0, 1)), lead))  # symmetrize()
+    x = np.einsum("...i,...in->...n", state.mu, state.x)
+    d = state.x - x[..., None, :]
+    P = np.einsum("...i,...iab->...ab", state.mu, state.P + d[..., :, None] * d[..., None, :])
     return GaussianState(x, symmetrize(P))
 
 
