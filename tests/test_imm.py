@@ -29,13 +29,14 @@ from fedtrack.local_filters.imm.filter import (
     group_log_likelihood,
     initial_state,
     make_bank,
+    mix,
     mode_inputs,
     model_cycle,
     posterior,
     step,
     termination,
 )
-from fedtrack.local_filters.linear.kalman import GaussianState, predict, update
+from fedtrack.local_filters.linear.kalman import GaussianState, predict, symmetrize, update
 from fedtrack.local_filters.linear.models import cv_model
 from fedtrack.sensors.imm_scenarios import X0, acceleration_profile, simulate
 
@@ -297,3 +298,29 @@ def test_transitions_scale_with_the_interval() -> None:
         a, b = irregular.update(2.0 * k, zk, R), squared.update(2.0 * k, zk, R)
         np.testing.assert_allclose(a.x, b.x, rtol=1e-9)
         assert a.mode_probabilities == pytest.approx(b.mode_probabilities, rel=1e-9)
+
+
+@pytest.mark.parametrize("lead", [(1,), (500,), (3, 70)])
+def test_two_mode_mix_and_combine_equal_the_einsum_sums_bitwise(lead) -> None:
+    """The two-mode path (batch last, no einsum) gives the general path's sums bit for bit."""
+    rng = np.random.default_rng(7)
+    for n in (4, 6):
+        x = rng.standard_normal(lead + (2, n)) * 300.0
+        A = rng.standard_normal(lead + (2, n, n))
+        s = IMMState(x, A @ np.swapaxes(A, -1, -2) * 50.0, rng.dirichlet([1.0, 1.0], size=lead))
+        p = rng.uniform(0.0, 0.3, size=lead + (2,))
+        Pi = np.stack([np.stack([1.0 - p[..., 0], p[..., 0]], -1), np.stack([p[..., 1], 1.0 - p[..., 1]], -1)], -2)
+        w = Pi * s.mu[..., :, None]
+        c = w.sum(axis=-2)
+        w = w / c[..., None, :]
+        x0 = np.einsum("...ji,...jn->...in", w, s.x)
+        d = s.x[..., :, None, :] - x0[..., None, :, :]
+        P0 = np.einsum("...ji,...jab->...iab", w, s.P) + np.einsum("...ji,...jia,...jib->...iab", w, d, d)
+        mixed, log_pred = mix(s, Pi)
+        assert mixed.x.tobytes() == x0.tobytes() and mixed.P.tobytes() == symmetrize(P0).tobytes()
+        assert log_pred.tobytes() == np.log(c).tobytes()
+        xc = np.einsum("...i,...in->...n", s.mu, s.x)
+        e = s.x - xc[..., None, :]
+        Pc = np.einsum("...i,...iab->...ab", s.mu, s.P + e[..., :, None] * e[..., None, :])
+        est = combine(s)
+        assert est.x.tobytes() == xc.tobytes() and est.P.tobytes() == symmetrize(Pc).tobytes()
