@@ -83,9 +83,9 @@ def predict_batch(x: np.ndarray, P: np.ndarray, dt: float | np.ndarray, q: float
     dim = x.shape[1]
     pos, vel = slice(0, dim, 2), slice(1, dim, 2)
     # the batch as the last, contiguous axis: each row operation is one pass over long rows
-    xp = np.ascontiguousarray(x.T)
+    xp = np.array(x.T, order="C")  # copies (ascontiguousarray would not for one track)
     xp[pos] += dt * xp[vel]
-    FP = np.ascontiguousarray(P.transpose(1, 2, 0))
+    FP = np.array(P.transpose(1, 2, 0), order="C")
     FP[pos] += dt * FP[vel]
     FP[:, pos] += dt * FP[:, vel]
     for a in range(0, dim, 2):
