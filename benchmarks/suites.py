@@ -141,9 +141,9 @@ def bench_multitarget(quick: bool) -> dict[str, Any]:
         for name, (algorithm, line) in variants.items():
             configs[name] = with_mtt_lines(sim / "config.toml", sim / f"{name.replace(':', '-')}.toml", line)
             runs[name] = []
-        for round_ in range(1 if quick else SCALE_ROUNDS):
-            for name in runs:
-                runs[name].append(timed_with_log(fedtrack_cmd(
+        for _ in range(1 if quick else SCALE_ROUNDS):
+            for name, done in runs.items():
+                done.append(timed_with_log(fedtrack_cmd(
                     "replay", "--algorithm", name.split(":")[0], "--config", str(configs[name]),
                     "--measurements", str(sim / "measurements.jsonl"), "--out", str(sim / "scale.jsonl"))))
         for algorithm, done in runs.items():
