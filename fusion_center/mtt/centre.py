@@ -265,7 +265,7 @@ class TrackToTrackCentre:
         if det_rows.size:
             return self._fuse_rows(report, det_rows, col)
         self.moved = det_rows, det_rows.copy()  # nothing fused into: no track moved
-        self._count_scan(col, det_rows, report.t)
+        self._count_scan(col, det_rows, report.t, self._vouched(report))
         return no_resets(report.sensor, report.t, report.x.shape[1])
 
     def _note_scan(self, report: LocalReport) -> int:
@@ -339,14 +339,24 @@ class TrackToTrackCentre:
             resets = Resets(s, t, report.ids[det_rows[rows]], x_post[rows, :d], beta * P_post[rows, :d, :d])
         else:
             resets = no_resets(s, t, d)
-        self._count_scan(col, supported, t)
+        self._count_scan(col, supported, t, self._vouched(report))
         still_live = tracks.ids[slots] == cid
         self._merge_duplicates(slots[still_live], t)
         return resets
 
-    def _count_scan(self, col: int, detected: np.ndarray, t: float) -> None:
-        """One scan of sensor column ``col`` in the centralized life rules: M-of-N confirmation of
-        tentative tracks; a confirmed track that this sensor tracks (a local track maps to it) and
+    def _vouched(self, report: LocalReport) -> np.ndarray | None:
+        """Slots of the central tracks that a track this report's tracker confirms maps to, when the
+        local trackers confirm by a test of their own (``MttConfig.local_confirmation``); None: count."""
+        if not self.cfg.local_confirmation:
+            return None
+        s, mapping = report.sensor, self.mapping
+        cids = [mapping[key] for key in ((s, lid) for lid in report.ids[report.confirmed].tolist()) if key in mapping]
+        return self.tracks.slots_of(cids)
+
+    def _count_scan(self, col: int, detected: np.ndarray, t: float, vouched: np.ndarray | None) -> None:
+        """One scan of sensor column ``col`` in the life rules: confirmation of tentative tracks by
+        the centralized M-of-N rule, or, with ``vouched`` (the local trackers confirm by existence
+        or score), when a confirmed local track maps to them; a confirmed track that this sensor tracks (a local track maps to it) and
         did not detect misses, and is deleted after ``delete_misses`` consecutive misses
         (``CENTRAL_MISSES`` of each tracking sensor when several track it); a track confirmed now
         is confirmed from the scan's time ``t`` on (:meth:`CentralTracks.as_of`)."""
@@ -363,9 +373,12 @@ class TrackToTrackCentre:
         need = np.where(n_tracking > 1, CENTRAL_MISSES, cfg.delete_misses)[:, None]
         dead = missed[(n_tracking > 0) & (~tracking | (self.streak[missed] >= need)).all(axis=1)]
         young = (live & ~tracks.confirmed).nonzero()[0]
-        window = np.concatenate([self.window[young, 1:], hit[young, None]], axis=1)
-        self.window[young] = window
-        now = young[window.sum(axis=1) >= cfg.confirm_hits]
+        if vouched is None:
+            window = np.concatenate([self.window[young, 1:], hit[young, None]], axis=1)
+            self.window[young] = window
+            now = young[window.sum(axis=1) >= cfg.confirm_hits]
+        else:
+            now = np.intersect1d(young, vouched)
         tracks.confirmed[now], tracks.confirmed_t[now] = True, t
         for cid in tracks.ids[dead].tolist():
             self._delete(cid)
