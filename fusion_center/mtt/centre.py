@@ -30,7 +30,12 @@ scan, the linearized observation of every track the scan detected, the tracks it
   the scans of every sensor: ``confirm_hits`` detections among the last ``confirm_window``
   sensor scans the centre received since the track started (the starting scan included). A
   false local track of one sensor gets no detections from the others' scans and stays
-  tentative; with one live sensor the rule is that sensor's own. A confirmed track is deleted
+  tentative; with one live sensor the rule is that sensor's own. Where the local trackers confirm
+  by a test with a false-confirmation bound (jipda's existence, mht's score) and the count's
+  chance to confirm a track started on clutter exceeds that bound at the configured clutter
+  density (:func:`needs_local_confirmation`), a track also needs a local track that its tracker
+  confirmed: in heavy clutter the count alone confirmed tracks on several sensors' clutter
+  tracks. A confirmed track is deleted
   once every sensor that tracks it (a local track maps to it) missed it on its last
   ``CENTRAL_MISSES`` (2) scans since its last detection (``delete_misses`` when one sensor
   tracks it): a target that died goes within two scans of the slowest sensor instead of
@@ -41,6 +46,7 @@ scan, the linearized observation of every track the scan detected, the tracks it
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -51,6 +57,7 @@ from fedtrack.fusion_center.mtt.central_track import CentralTracks, padded
 from fedtrack.local_filters.linear.gating import track_difference_d2
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.associators.gnn import assign
+from fedtrack.local_filters.mtt.associators.jipda import FALSE_CONFIRM
 from fedtrack.local_filters.mtt.local import LocalReport, Resets, no_resets
 
 LocalKey = tuple[str, int]  # (sensor, local track id)
@@ -61,6 +68,29 @@ LocalKey = tuple[str, int]  # (sensor, local track id)
 # over every sensor's scans (CENTRAL_MISSES per listed sensor: engines.central_params).
 CENTRAL_MISSES = 2
 ASSOCIATION_SHIFT = 1e6  # larger than any gated pair's d2 + ln det
+
+
+def counts_false_confirm(cfg: MttConfig) -> float:
+    """The chance that the M-of-N count confirms a central track started on clutter: each of the
+    next ``confirm_window - 1`` scans puts a clutter detection into its gate with probability
+    ``p = 1 - exp(-lambda V)``, ``V = pi g (sigma_v T)^2`` the gate of a one-point track one second
+    later (``init_velocity_std`` over ``T`` = 1 s, ``g`` the 2-D gate's chi-square quantile),
+    ``lambda`` the largest clutter density configured; the count needs ``confirm_hits - 1`` of them
+    (the binomial tail)."""
+    lam = max([cfg.clutter_density] + [cfg.clutter_of(s) for s in cfg.sensor])
+    p = -math.expm1(-lam * math.pi * cfg.thresholds.gate[2] * cfg.init_velocity_std**2)
+    n = cfg.confirm_window - 1
+    return sum(math.comb(n, j) * p**j * (1.0 - p) ** (n - j) for j in range(cfg.confirm_hits - 1, n + 1))
+
+
+def needs_local_confirmation(cfg: MttConfig) -> bool:
+    """Whether a central track also needs a local track confirmed by its tracker: where the local
+    trackers confirm by a test with a false-confirmation bound (jipda's existence: ``FALSE_CONFIRM``;
+    mht's score: ``[mtt.mht] false_track``) and the count's chance (:func:`counts_false_confirm`)
+    exceeds that bound."""
+    bound = {"jipda": FALSE_CONFIRM, "mht": cfg.mht.false_track if cfg.mht.management == "score" else None}
+    alpha = bound.get(cfg.associator)
+    return alpha is not None and counts_false_confirm(cfg) > alpha
 
 
 @dataclass
@@ -161,6 +191,7 @@ class TrackToTrackCentre:
         self.support = np.zeros((0, 0), dtype=np.int64)  # local tracks of each sensor mapped to a slot
         self.streak = np.zeros((0, 0), dtype=np.int64)  # a confirmed slot's misses in a row per sensor
         self.window = np.zeros((0, cfg.confirm_window), dtype=bool)  # a tentative slot's last scans
+        self.local_confirmation = needs_local_confirmation(cfg)
         self.last_support = np.zeros(0)  # when a local observation was last fused into a slot
         # the ids and slots of the central tracks the last report's observations were fused into (or
         # started), one per fused row (an id may repeat; a track deleted since no longer has its id in
@@ -265,7 +296,7 @@ class TrackToTrackCentre:
         if det_rows.size:
             return self._fuse_rows(report, det_rows, col)
         self.moved = det_rows, det_rows.copy()  # nothing fused into: no track moved
-        self._count_scan(col, det_rows, report.t, self._vouched(report))
+        self._count_scan(col, det_rows, report)
         return no_resets(report.sensor, report.t, report.x.shape[1])
 
     def _note_scan(self, report: LocalReport) -> int:
@@ -339,27 +370,27 @@ class TrackToTrackCentre:
             resets = Resets(s, t, report.ids[det_rows[rows]], x_post[rows, :d], beta * P_post[rows, :d, :d])
         else:
             resets = no_resets(s, t, d)
-        self._count_scan(col, supported, t, self._vouched(report))
+        self._count_scan(col, supported, report)
         still_live = tracks.ids[slots] == cid
         self._merge_duplicates(slots[still_live], t)
         return resets
 
-    def _vouched(self, report: LocalReport) -> np.ndarray | None:
-        """Slots of the central tracks that a track this report's tracker confirms maps to, when the
-        local trackers confirm by a test of their own (``MttConfig.local_confirmation``); None: count."""
-        if not self.cfg.local_confirmation:
-            return None
+    def _vouched(self, report: LocalReport) -> np.ndarray:
+        """Slots of the central tracks that a track confirmed by the report's tracker maps to."""
         s, mapping = report.sensor, self.mapping
         cids = [mapping[key] for key in ((s, lid) for lid in report.ids[report.confirmed].tolist()) if key in mapping]
         return self.tracks.slots_of(cids)
 
-    def _count_scan(self, col: int, detected: np.ndarray, t: float, vouched: np.ndarray | None) -> None:
-        """One scan of sensor column ``col`` in the life rules: confirmation of tentative tracks by
-        the centralized M-of-N rule, or, with ``vouched`` (the local trackers confirm by existence
-        or score), when a confirmed local track maps to them; a confirmed track that this sensor tracks (a local track maps to it) and
-        did not detect misses, and is deleted after ``delete_misses`` consecutive misses
-        (``CENTRAL_MISSES`` of each tracking sensor when several track it); a track confirmed now
-        is confirmed from the scan's time ``t`` on (:meth:`CentralTracks.as_of`)."""
+    def _count_scan(self, col: int, detected: np.ndarray, report: LocalReport) -> None:
+        """One scan (``report``) of sensor column ``col`` in the life rules: M-of-N confirmation of
+        tentative tracks (the centralized rule over every sensor's scans; where the local trackers'
+        own test is safer than the count in the configured clutter, :func:`needs_local_confirmation`,
+        a track is confirmed when the rule holds and a local track that its tracker confirmed maps
+        to it); a confirmed track
+        that this sensor tracks (a local track maps to it) and did not detect misses, and is
+        deleted after ``delete_misses`` consecutive misses (``CENTRAL_MISSES`` of each tracking
+        sensor when several track it); a track confirmed now is confirmed from the scan's time
+        on (:meth:`CentralTracks.as_of`)."""
         cfg, tracks = self.cfg, self.tracks
         hit = np.zeros(tracks.capacity, dtype=bool)
         hit[detected] = True
@@ -373,13 +404,12 @@ class TrackToTrackCentre:
         need = np.where(n_tracking > 1, CENTRAL_MISSES, cfg.delete_misses)[:, None]
         dead = missed[(n_tracking > 0) & (~tracking | (self.streak[missed] >= need)).all(axis=1)]
         young = (live & ~tracks.confirmed).nonzero()[0]
-        if vouched is None:
-            window = np.concatenate([self.window[young, 1:], hit[young, None]], axis=1)
-            self.window[young] = window
-            now = young[window.sum(axis=1) >= cfg.confirm_hits]
-        else:
-            now = np.intersect1d(young, vouched)
-        tracks.confirmed[now], tracks.confirmed_t[now] = True, t
+        window = np.concatenate([self.window[young, 1:], hit[young, None]], axis=1)
+        self.window[young] = window
+        now = young[window.sum(axis=1) >= cfg.confirm_hits]
+        if self.local_confirmation and now.size:
+            now = np.intersect1d(now, self._vouched(report))
+        tracks.confirmed[now], tracks.confirmed_t[now] = True, report.t
         for cid in tracks.ids[dead].tolist():
             self._delete(cid)
 

@@ -112,12 +112,6 @@ class MttConfig:
         return AUTO_PROCESS_NOISE.get(self.associator, "fixed") if self.process_noise == "auto" else self.process_noise
 
     @property
-    def local_confirmation(self) -> bool:
-        """The local trackers confirm a track by a statistical test (jipda's existence, mht's
-        SPRT on its score), which a track-to-track centre takes instead of counting detections."""
-        return self.associator == "jipda" or (self.associator == "mht" and self.mht.management == "score")
-
-    @property
     def mode_rates(self) -> ModeRates | None:
         """The two modes' switching rates (``process_noise = "imm"``), None: CV with ``q``."""
         return ModeRates(1.0 / self.straight_s, 1.0 / self.maneuver_s) if self.motion == "imm" else None
