@@ -369,7 +369,7 @@ def test_centre_in_heavy_clutter_confirms_only_what_a_local_tracker_confirmed(as
     and mht's own tests allow (0.01, 1e-4): their centres wait until a local tracker confirms its
     track; gnn's (and mht's with gnn's rules, "counts") confirm by the count; at the default
     clutter density (count: 4.5e-5) jipda's centre confirms by the count too."""
-    from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre, counts_false_confirm
+    from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
     from fedtrack.local_filters.mtt.config import MhtConfig, MttConfig
 
     cases = [("score", 2e-6, False), ("score", 1e-7, True)]
@@ -378,7 +378,7 @@ def test_centre_in_heavy_clutter_confirms_only_what_a_local_tracker_confirmed(as
     for management, clutter, counts in cases:
         cfg = MttConfig(associator=associator, clutter_density=clutter, mht=MhtConfig(management=management))
         p = 1.0 - np.exp(-clutter * np.pi * -2.0 * np.log(1e-3) * 30.0**2)  # 2-D gate at P_G 0.999, 30 m/s
-        assert counts_false_confirm(cfg) == pytest.approx(3 * p**2 * (1 - p) + p**3, rel=1e-12)
+        assert cfg.counts_false_confirm == pytest.approx(3 * p**2 * (1 - p) + p**3, rel=1e-12)
         counts = counts or associator == "gnn"
         centre = TrackToTrackCentre(cfg, 4, False)
         for k in range(4):
@@ -388,3 +388,19 @@ def test_centre_in_heavy_clutter_confirms_only_what_a_local_tracker_confirmed(as
         assert bool(centre.tracks.confirmed[slots[0]]) == counts
         centre.ingest(_one_point_report("s1", 2.0, True, False))
         assert centre.tracks.live().size == 1 and bool(centre.tracks.confirmed[centre.tracks.live()[0]])
+
+
+def test_replay_notes_when_the_count_confirms_clutter_tracks(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """gnn at 2e-6 false detections per m^2: replay says the 3-of-4 count confirms clutter tracks
+    (chance 0.016 against jipda's bound 0.01) and what to do; at the default density, or with
+    jipda, it says nothing."""
+    lines = [{"t": 0.0, "sensor": "s1", "R": [[100.0, 0.0], [0.0, 100.0]], "detections": [{"z": [0.0, 0.0]}]}]
+    data = tmp_path / "m.jsonl"
+    data.write_text("".join(json.dumps(line) + "\n" for line in lines))
+    for associator, clutter, noted in (("gnn", 2e-6, True), ("gnn", 1e-7, False), ("jipda", 2e-6, False)):
+        config = tmp_path / "c.toml"
+        config.write_text(f'[mtt]\nassociator = "{associator}"\nclutter_density = {clutter}\n')
+        replay_mtt("mtt-centralized", data, config, tmp_path / "out.jsonl")
+        err = capsys.readouterr().err
+        assert ("confirms a track started on clutter with probability 0.016" in err
+                and 'associator = "jipda"' in err) == noted

@@ -46,7 +46,6 @@ scan, the linearized observation of every track the scan detected, the tracks it
 from __future__ import annotations
 
 import itertools
-import math
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -70,27 +69,14 @@ CENTRAL_MISSES = 2
 ASSOCIATION_SHIFT = 1e6  # larger than any gated pair's d2 + ln det
 
 
-def counts_false_confirm(cfg: MttConfig) -> float:
-    """The chance that the M-of-N count confirms a central track started on clutter: each of the
-    next ``confirm_window - 1`` scans puts a clutter detection into its gate with probability
-    ``p = 1 - exp(-lambda V)``, ``V = pi g (sigma_v T)^2`` the gate of a one-point track one second
-    later (``init_velocity_std`` over ``T`` = 1 s, ``g`` the 2-D gate's chi-square quantile),
-    ``lambda`` the largest clutter density configured; the count needs ``confirm_hits - 1`` of them
-    (the binomial tail)."""
-    lam = max([cfg.clutter_density] + [cfg.clutter_of(s) for s in cfg.sensor])
-    p = -math.expm1(-lam * math.pi * cfg.thresholds.gate[2] * cfg.init_velocity_std**2)
-    n = cfg.confirm_window - 1
-    return sum(math.comb(n, j) * p**j * (1.0 - p) ** (n - j) for j in range(cfg.confirm_hits - 1, n + 1))
-
-
 def needs_local_confirmation(cfg: MttConfig) -> bool:
     """Whether a central track also needs a local track confirmed by its tracker: where the local
     trackers confirm by a test with a false-confirmation bound (jipda's existence: ``FALSE_CONFIRM``;
-    mht's score: ``[mtt.mht] false_track``) and the count's chance (:func:`counts_false_confirm`)
-    exceeds that bound."""
+    mht's score: ``[mtt.mht] false_track``) and the count's chance to confirm a clutter track
+    exceeds that bound (:meth:`MttConfig.counts_false_confirm`)."""
     bound = {"jipda": FALSE_CONFIRM, "mht": cfg.mht.false_track if cfg.mht.management == "score" else None}
     alpha = bound.get(cfg.associator)
-    return alpha is not None and counts_false_confirm(cfg) > alpha
+    return alpha is not None and cfg.counts_false_confirm > alpha
 
 
 @dataclass

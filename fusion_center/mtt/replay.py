@@ -134,6 +134,8 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
     if (algorithm == "mtt-local") != (sensor is not None):
         raise ConfigError("--sensor ID is required by mtt-local and only by it")
     check_output(out)
+    if cfg.count_note:
+        print(f"{algorithm}: note: {cfg.count_note}", file=sys.stderr)
     start = time.perf_counter()
     recording = is_region_recording(measurements)
     if recording and (regions is None or algorithm == "mtt-local"):

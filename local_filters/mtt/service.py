@@ -81,6 +81,8 @@ class MttLocalService(Service):
         self.sensor = check_id(sensor, "--sensor")
         self.federated = federated
         self.cfg = cfg
+        if cfg.count_note:
+            self.log.warning("%s", cfg.count_note)
         self.reset_timeout_s = reset_timeout_s
         self.max_time_jump_s = max_time_jump_s
         self.tracker: SensorTracker | None = None
