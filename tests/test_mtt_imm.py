@@ -113,8 +113,8 @@ def test_process_noise_key() -> None:
     MttConfig(process_noise="imm", associator="jipda").validate()
     MttConfig(process_noise="imm", associator="mht").validate()
     assert MttConfig().mode_rates is None
-    # "auto", the default: the associator's own (two modes for jipda; gnn's and mht's tracks CV)
-    assert [MttConfig(associator=a).motion for a in ("gnn", "jipda", "mht")] == ["fixed", "imm", "fixed"]
+    # "auto", the default: the associator's own (two modes for jipda and mht; gnn's tracks CV)
+    assert [MttConfig(associator=a).motion for a in ("gnn", "jipda", "mht")] == ["fixed", "imm", "imm"]
     assert MttConfig(associator="jipda").mode_rates == ModeRates(1 / 60, 1 / 15)
     assert MttConfig(associator="jipda", process_noise="fixed").mode_rates is None
     assert MttConfig(process_noise="imm", maneuver_s=10.0, straight_s=40.0).mode_rates == ModeRates(1 / 40, 1 / 10)

@@ -17,11 +17,11 @@ from fedtrack.local_filters.vdie.estimation import VdieParams
 NOISE_MODELS = ("continuous", "discrete")
 MANEUVER_MODES = ("none", "vdie")  # per-track maneuver handling (local_filters/mtt/maneuver.py)
 # [mtt] process_noise: CV with q, or two modes per track, CV without noise and CV with q (models.Modes);
-# "auto" (the default) is each associator's own: two modes for jipda, CV for gnn (its pictures kept as
-# they were before the modes existed) and mht (its pictures likewise; "imm" gives every branch the
-# modes: docs/mht.md); docs/multitarget.md#parameters
+# "auto" (the default) is each associator's own: two modes for jipda and mht (every branch carries them;
+# better on every bench scenario's mtt-centralized: docs/mht.md#the-default-two-modes-for-mht), CV for gnn
+# (its pictures kept as they were before the modes existed); docs/multitarget.md#parameters
 PROCESS_NOISE = ("auto", "fixed", "imm")
-AUTO_PROCESS_NOISE = {"gnn": "fixed", "jipda": "imm", "mht": "fixed"}
+AUTO_PROCESS_NOISE = {"gnn": "fixed", "jipda": "imm", "mht": "imm"}
 # candidate onsets of a sensor's tracker (one per scan): 15 scans, where paper 004's 6 misses the
 # gentle turns of the simulator's targets (docs/multitarget.md#maneuvers)
 MTT_VDIE_WINDOW = 15

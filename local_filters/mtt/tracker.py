@@ -535,8 +535,9 @@ def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale
         cx[hit], cP[hit] = detection_update(x0, cP[hit], cmodes, np.flatnonzero(hit), nu[pidx], H, scan.R)
         obs = Observation(H, np.broadcast_to(scan.R, (pidx.size, m, m)).copy(), nu[pidx] + np.einsum("nij,nj->ni", H, x0))
     old = leaves.take(br.parent)
-    score = mem.score[br.parent] + np.where(hit, 0.0, miss)
-    score[hit] += inc[pidx]
+    step = np.where(hit, 0.0, miss)  # each branch's score increment
+    step[hit] = inc[pidx]
+    score = mem.score[br.parent] + step
     peak = np.maximum(mem.peak[br.parent], score)
     hits, age, misses = old.hits + hit, old.age + 1, np.where(hit, 0, old.misses + 1)
     confirmed, live = mht.manage(mp, old.confirmed, score, peak, hits, age, misses)
@@ -554,7 +555,9 @@ def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale
                          np.concatenate([peak, new_score]),
                          np.concatenate([lineage, np.repeat(serial[n_child:, None], settings.window, axis=1)]),
                          np.concatenate([br.holds, ~br.used[:, fresh]], axis=1), value,
-                         int(mem.next_branch + serial.size))
+                         int(mem.next_branch + serial.size),
+                         np.concatenate([mht.leaf_existence(mem.existence[br.parent], step, dt),
+                                         mht.birth_existence(new_score)]))
     branch_det = np.full(n_child, -1)  # each branch's detection (-1: a miss), then the new tracks'
     branch_det[hit] = g_cols[pidx]
     branch_det = np.concatenate([branch_det, fresh])
@@ -565,7 +568,9 @@ def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale
     best = best[np.argsort(mem.leaves.ids[best], kind="stable")]
     rows = branch_obs[kept[best]]
     all_obs = [np.concatenate([u, v]) for u, v in zip(obs, obs_new)]
-    return ScanResult(TrackerState(mem.leaves.take(best), scan.t, state.next_id + fresh.size, mem), rows >= 0,
+    tracks = mem.leaves.take(best)
+    tracks = tracks._replace(confirmed=mht.shown(mp, tracks.confirmed, mem.existence[best]))
+    return ScanResult(TrackerState(tracks, scan.t, state.next_id + fresh.size, mem), rows >= 0,
                       Observation(*(a[rows[rows >= 0]] for a in all_obs)),
                       np.setdiff1d(leaves.ids, mem.leaves.ids))
 

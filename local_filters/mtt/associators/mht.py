@@ -34,7 +34,9 @@ Per scan:
 5. Track management per branch (:func:`manage`): ``"score"``, Wald's SPRT on the track score
    (:func:`sprt_thresholds`), or ``"counts"``, gnn's M-of-N rules (with gnn's precedence of the
    confirmed tracks in step 3 and P_G = 1, gnn's cost: :func:`mht_params`). A deleted branch
-   leaves its track out of the hypotheses that held it.
+   leaves its track out of the hypotheses that held it. ``"score"`` also keeps each branch's
+   existence probability with jipda's survival (:func:`leaf_existence`): a confirmed track is in
+   the picture while it is at least 1/2 (:func:`shown`, jipda's rule).
 6. :func:`prune`: N-scan pruning (of every track of the best hypothesis only the leaves that
    share its branch ``window - 1`` scans back stay; ``window = 1``: its leaf alone), at most
    ``max_branches`` leaves per track (those of the best hypotheses first); a hypothesis that
@@ -55,11 +57,18 @@ from typing import Any, NamedTuple
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
+from scipy.special import expit
 
 from fedtrack.local_filters.mtt.associators.gnn import k_best_assignments
-from fedtrack.local_filters.mtt.associators.jipda import BIRTH_EXISTENCE, scan_constants
+from fedtrack.local_filters.mtt.associators.jipda import (
+    BIRTH_EXISTENCE,
+    SHOW,
+    SURVIVAL_PER_SECOND,
+    scan_constants,
+    survival,
+)
 from fedtrack.local_filters.mtt.config import MhtConfig
-from fedtrack.local_filters.pda.association import Constants, log_amplitude_ratio
+from fedtrack.local_filters.pda.association import Constants, existence_update, log_amplitude_ratio
 
 
 class MhtParams(NamedTuple):
@@ -125,12 +134,13 @@ class MhtState(NamedTuple):
     hyps: np.ndarray  # (K, L) bool: the leaves each global hypothesis holds
     value: np.ndarray  # (K,) each hypothesis's log-likelihood ratio (:func:`select_hypotheses`)
     next_branch: int  # the next branch serial
+    existence: np.ndarray  # (L,) the leaf's existence probability (:func:`leaf_existence`)
 
 
 def initial_state(leaves: Any, window: int) -> MhtState:
     """No leaves (``leaves``: an empty ``TrackSet``) and one empty hypothesis."""
     return MhtState(leaves, np.zeros(0), np.zeros(0), np.zeros((0, window), np.int64), np.ones((1, 0), bool),
-                    np.zeros(1), 0)
+                    np.zeros(1), 0, np.zeros(0))
 
 
 def score_increments(log_n: np.ndarray, params: MhtParams, amplitude: np.ndarray | None) -> tuple[np.ndarray, float]:
@@ -334,6 +344,32 @@ def manage(params: MhtParams, confirmed: np.ndarray, score: np.ndarray, peak: np
     return confirmed, np.where(confirmed, kept, score > params.delete_score)
 
 
+def leaf_existence(parent: np.ndarray, log_lr: np.ndarray, dt: float) -> np.ndarray:
+    """Each branch's existence probability: its parent's ``parent`` predicted over ``dt`` with
+    jipda's survival ``p11 = exp(-dt / MEAN_LIFETIME)`` (:func:`~.jipda.survival`; targets die) and
+    updated with the branch's score increment ``log_lr`` (its detection's likelihood ratio or the
+    miss's ``ln(1 - P_D P_G)``): paper 001's IPDA existence, eqs (8) and (15), along the branch's
+    one detection history (JIPDA's at one hypothesis); a new track's: :func:`birth_existence`. Unlike
+    the score, which sums the likelihood ratios since birth, it falls after a target's death as
+    fast as the misses say (its odds before a scan are at most ``p11 / (1 - p11)``)."""
+    return existence_update(parent, log_lr, survival(dt, 1.0, SURVIVAL_PER_SECOND), 0.0)
+
+
+def birth_existence(score: np.ndarray) -> np.ndarray:
+    """New tracks' existence from their birth scores (:func:`birth_scores`, log odds): jipda's
+    ``BIRTH_EXISTENCE`` = 0.1, moved by the detection's amplitude ratio."""
+    return expit(score)
+
+
+def shown(params: MhtParams, confirmed: np.ndarray, existence: np.ndarray) -> np.ndarray:
+    """The confirmed tracks the picture shows: ``"score"``, while their existence is at least
+    ``SHOW`` = 1/2 (jipda's rule: GOSPA with alpha = 2 charges a false and a missed target alike,
+    so a track is worth showing while it more likely than not exists); below, the track stays
+    confirmed and kept, out of the picture, until a detection brings it back. ``"counts"``: every
+    confirmed track (gnn's pictures)."""
+    return confirmed & (existence >= SHOW) if params.management == "score" else confirmed
+
+
 def prune(state: MhtState, alive: np.ndarray, params: MhtParams) -> tuple[MhtState, np.ndarray]:
     """Step 6: N-scan pruning and the cap on leaves per track, after the branches not ``alive``
     left their hypotheses (given best first) and a hypothesis equal to a better one was
@@ -366,7 +402,7 @@ def prune(state: MhtState, alive: np.ndarray, params: MhtParams) -> tuple[MhtSta
         keep &= hyps.any(axis=0)
     idx = np.flatnonzero(keep)
     return MhtState(state.leaves.take(idx), state.score[idx], state.peak[idx], state.lineage[idx], hyps[:, idx],
-                    value, state.next_branch), idx
+                    value, state.next_branch, state.existence[idx]), idx
 
 
 def k_best_sums(lists: list[np.ndarray], k: int) -> tuple[np.ndarray, np.ndarray]:
