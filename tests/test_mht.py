@@ -338,7 +338,7 @@ def test_an_established_track_keeps_its_detection_against_a_newborn() -> None:
     for name, scores in (("newborn", [15.0, newborn]), ("established", [15.0, 15.0])):
         leaves = SimpleNamespace(confirmed=np.array([True, False]))
         state = MhtState(leaves, np.array(scores), np.array(scores), np.zeros((2, 1), np.int64),
-                         np.ones((1, 2), bool), np.zeros(1), 2)
+                         np.ones((1, 2), bool), np.zeros(1), 2, np.ones(2))
         _, _, chosen = select_hypotheses(state, 1, rows, cols, inc, miss, mp)
         taker[name] = int(rows[chosen[0]][0])
     assert taker == {"newborn": 0, "established": 1}
@@ -385,3 +385,51 @@ def test_formation_has_no_duplicate_tracks() -> None:
             scans_seen += 1
     assert dup <= 0.05 * scans_seen, (dup, scans_seen)
     assert held >= 0.9 * 3 * scans_seen, (held, scans_seen)
+
+
+@pytest.mark.parametrize("management", ["score", "counts"])
+def test_an_ended_targets_track_leaves_the_picture_by_existence(management: str) -> None:
+    """``"score"``: a confirmed track is shown while its existence (IPDA along the branch with
+    jipda's survival, :func:`~.mht.leaf_existence`) is at least 1/2. One target seen by a 4 Hz
+    sensor for 8 s, then gone; with the centre's deletion after 6 misses the track leaves the
+    picture at the miss where the existence recursion, computed here from its value at the last
+    detection, first falls below 1/2 (its odds before a scan are at most ``p11 / (1 - p11)``),
+    while it is still kept, and is deleted later. ``"counts"`` shows it until it is deleted (gnn)."""
+    from fedtrack.local_filters.mtt.associators.jipda import SURVIVAL_PER_SECOND
+
+    cfg = MttConfig(associator="mht", clutter_density=1e-7, delete_misses=6, process_noise="fixed",
+                    mht=MhtConfig(management=management))
+    params = track_params(cfg, "s1", 4)
+    state, R, dt = initial_state(4), 100.0 * np.eye(2), 0.25
+    rng = np.random.default_rng(3)
+    seen, mu, shown_at, gone_at = 0, None, None, None
+    for k in range(80):
+        t = k * dt
+        z = np.array([[10.0 * t, 5.0 * t]]) + rng.normal(0.0, 10.0, (1, 2)) if t < 8 else np.zeros((0, 2))
+        state = tracker_step(state, SensorScan(t, "s1", R, z, None, None), params).state
+        tr, mem = state.tracks, state.memory
+        if t < 8:
+            seen += int(tr.confirmed.sum() == 1)
+            best = np.flatnonzero(mem.hyps[0])
+            mu = float(mem.existence[best[np.argmax(mem.leaves.confirmed[best])]])
+            continue
+        if tr.size == 0:
+            gone_at = gone_at if gone_at is not None else k
+            continue
+        # one miss of the branch: survival over dt, then the miss's likelihood ratio 1 - P_D P_G
+        mp = mht_params(cfg.mht, params.pd, params.clutter_density, params.gate[2], 2, (3, 4, 6))
+        miss = 1.0 - params.pd * mp.pg
+        mu_bar = SURVIVAL_PER_SECOND**dt * mu
+        mu = mu_bar * miss / (1.0 - mu_bar + mu_bar * miss)
+        if management == "score":
+            assert bool(tr.confirmed[0]) == (mu >= 0.5), (k, mu)
+        else:
+            assert tr.confirmed[0]
+        if not tr.confirmed[0] and shown_at is None:
+            shown_at = k
+    assert seen >= 25  # confirmed within a few scans of the first detection
+    assert gone_at is not None  # deleted after 6 misses in a row
+    if management == "score":
+        assert shown_at is not None and shown_at < gone_at, (shown_at, gone_at)
+    else:
+        assert shown_at is None
