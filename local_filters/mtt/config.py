@@ -18,7 +18,7 @@ NOISE_MODELS = ("continuous", "discrete")
 MANEUVER_MODES = ("none", "vdie")  # per-track maneuver handling (local_filters/mtt/maneuver.py)
 # [mtt] process_noise: CV with q, or two modes per track, CV without noise and CV with q (models.Modes);
 # "auto" (the default) is each associator's own: two modes for jipda and mht (every branch carries them;
-# better on every bench scenario's mtt-centralized: docs/mht.md#the-default-two-modes-for-mht), CV for gnn
+# better on every bench scenario's mtt-centralized: docs/mht.md, "Issue 25's dense bar, second round"), CV for gnn
 # (its pictures kept as they were before the modes existed); docs/multitarget.md#parameters
 PROCESS_NOISE = ("auto", "fixed", "imm")
 AUTO_PROCESS_NOISE = {"gnn": "fixed", "jipda": "imm", "mht": "imm"}
