@@ -23,9 +23,10 @@ come from the :class:`Associator`; the others are shared.
   each track by its one pair, the hard case). A soft associator gives its mixture update (the
   PDA combination with the spread-of-means term; ``local_filters/pda`` holds the single-target
   form): ``update(tracks, pred, gating, association, scan, dt, params, q_scale) ->
-  tracker.Updated`` (the tracks with their posterior ``x``, ``P`` and existence, which tracks
-  to report as detected, and their linearized observations ``(H, R, z)`` for a fusion centre,
-  in track order). ``gating`` is None when the scan or the track set is empty.
+  tracker.Updated`` (``tracks`` arrive with their modes predicted to the scan,
+  :func:`~.tracker.predict_tracks`; it returns the tracks with their posterior ``x``, ``P``
+  and existence, which tracks to report as detected, and their linearized observations
+  ``(H, R, z)`` for a fusion centre, in track order). ``gating`` is None when the scan or the track set is empty.
 * ``step`` (optional; None: the chain above): an associator that predicts, gates and updates
   its own branches rather than the tracks (``mht``: each track's alternative histories) takes
   the whole scan, ``step(state, scan, params, q_scale) -> ScanResult``; its memory holds the

@@ -329,6 +329,21 @@ def predicted_modes(tracks: TrackSet, dt: float, params: TrackParams, q_scale: f
     return modes_predict(tracks.modes, dt, params.q, params.noise_model, params.modes, q_scale)[0]
 
 
+def predict_tracks(tracks: TrackSet, dt: float, params: TrackParams, q_scale: float | np.ndarray = 1.0
+                   ) -> tuple[TrackSet, GaussianState]:
+    """Role 1 for the roles after it: the tracks with their modes (two per track) predicted ``dt``
+    ahead, mixed once for both results, and every track's prediction (:func:`predict`)."""
+    if params.modes is None or tracks.modes is None or not tracks.size:
+        return tracks, predict(tracks, dt, params, q_scale)
+    modes, pred = modes_predict(tracks.modes, dt, params.q, params.noise_model, params.modes, q_scale)
+    return tracks._replace(modes=modes), pred
+
+
+def _modes_at_scan(tracks: TrackSet, params: TrackParams) -> Modes | None:
+    """The modes of ``tracks`` as :func:`predict_tracks` left them (None with one mode)."""
+    return tracks.modes if params.modes is not None and tracks.size else None
+
+
 def detection_update(x0: np.ndarray, P0: np.ndarray, modes: Modes | None, idx: np.ndarray, nu: np.ndarray,
                      H: np.ndarray, R: np.ndarray) -> GaussianState:
     """The predictions ``x0``, ``P0`` (K) each updated with one detection (innovation ``nu``, ``H``
@@ -359,7 +374,7 @@ def hard_update(tracks: TrackSet, pred: GaussianState, gating: Gating | None, as
     x, P = pred
     man = tracks.man if params.maneuver is not None else None
     inputs = tracks.inputs if params.detector is not None else None
-    modes = predicted_modes(tracks, dt, params, q_scale)
+    modes = _modes_at_scan(tracks, params)
     assigned = np.zeros(tracks.size, bool)
     obs = Observation(np.zeros((0, m, d)), np.zeros((0, m, m)), np.zeros((0, m)))
     ti = dj = np.zeros(0, np.int64)
@@ -402,7 +417,7 @@ def jipda_update(tracks: TrackSet, pred: GaussianState, gating: Gating | None, a
     from the combined prediction (:func:`jipda.equivalent_observation`)."""
     d, m, n = params.dim, scan.dim, tracks.size
     existence = assoc.existence
-    modes = predicted_modes(tracks, dt, params, q_scale)
+    modes = _modes_at_scan(tracks, params)
     if gating is None or not assoc.pairs.size:
         empty = Observation(np.zeros((0, m, d)), np.zeros((0, m, m)), np.zeros((0, m)))
         return Updated(tracks._replace(x=pred.x, P=pred.P, existence=existence, modes=modes), np.zeros(n, bool),
@@ -474,14 +489,14 @@ def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
         tracks = tracks._replace(existence=np.zeros(tracks.size))
         state = state._replace(tracks=tracks)
     dt = 0.0 if state.t is None else scan.t - state.t
-    pred = predict(tracks, dt, params, q_scale)
+    at_scan, pred = predict_tracks(tracks, dt, params, q_scale)
     gating = gate_scan(pred, scan, params)
     assoc = associate(state, gating, scan, params, dt)
     role = params.associator
     if role.update is None:
-        upd = hard_update(tracks, pred, gating, assoc, scan, dt, params, q_scale)
+        upd = hard_update(at_scan, pred, gating, assoc, scan, dt, params, q_scale)
     else:
-        upd = role.update(tracks, pred, gating, assoc, scan, dt, params, q_scale)
+        upd = role.update(at_scan, pred, gating, assoc, scan, dt, params, q_scale)
     updated, live = (m_of_n if role.manage is None else role.manage)(upd.tracks, upd.detected, params)
     det = np.flatnonzero(~assoc.claimed)
     new, obs_new = start_tracks(scan, det, params, state.next_id)
