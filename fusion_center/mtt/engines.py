@@ -26,13 +26,20 @@ import numpy as np
 from fedtrack.fusion_center.mtt.centre import CENTRAL_MISSES, TrackToTrackCentre
 from fedtrack.fusion_center.mtt.shards import ShardedCentre
 from fedtrack.local_filters.mtt.associators import jipda
-from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.mtt.config import MhtConfig, MttConfig
 from fedtrack.local_filters.mtt.history import ScanHistory
 from fedtrack.local_filters.mtt.local import LocalReport, Resets, SensorTracker, is_duplicate
 from fedtrack.local_filters.mtt.maneuver import predicted_view
 from fedtrack.local_filters.mtt.models import modes_predict, predict_batch
 from fedtrack.local_filters.mtt.scan import SensorScan
-from fedtrack.local_filters.mtt.tracker import TrackerState, TrackParams, initial_state, track_params, tracker_step
+from fedtrack.local_filters.mtt.tracker import (
+    TrackerState,
+    TrackParams,
+    initial_state,
+    mht_decided,
+    track_params,
+    tracker_step,
+)
 from fedtrack.local_filters.pda.association import existence_predict
 from fedtrack.local_filters.regions import Regions
 from fedtrack.local_filters.vdie.estimation import VdieParams
@@ -228,8 +235,19 @@ class ScanTrackerEngine(Engine):
     def picture(self, T: float) -> PictureTracks:
         if self.history is None:
             return no_tracks(self.dim)
-        state = self.history.state_at(T)
-        return tracker_picture(state, T, self.cfg, self.senders(), self.params(None).detector)
+        params = self.params(None)
+        state = self.history.state_at(T) if params.mht is None else self.mht_state_at(T, params.mht)
+        return tracker_picture(state, T, self.cfg, self.senders(), params.detector)
+
+    def mht_state_at(self, T: float, settings: MhtConfig) -> TrackerState:
+        """``associator = "mht"``: the state after the last scan up to ``T`` with the tracks that
+        the best hypothesis ``window - 1`` scans later decided (:func:`mht_decided`: its N-scan
+        pruning made their assignments up to ``T`` final), or that of the newest scan if fewer
+        have arrived; with none after ``T`` (``picture_delay = 0``), the state itself."""
+        assert self.history is not None
+        then = self.history.state_at(T)
+        later, back = self.history.state_after(T, settings.window - 1)
+        return mht_decided(then, later, back, settings.management) if back else then
 
 
 @dataclass

@@ -49,6 +49,14 @@ class ScanHistory(Generic[S, E]):
         k = bisect.bisect_right(self.times, T)
         return self.after[k - 1] if k else self.base
 
+    def state_after(self, T: float, n: int) -> tuple[S, int]:
+        """The state ``n`` entries after the last entry up to ``T`` (the checkpoint counts as the
+        state before the oldest), or after the newest if fewer came after it; and how many
+        entries after that one it is (0: :meth:`state_at`)."""
+        k = bisect.bisect_right(self.times, T)
+        back = max(min(n, len(self.times) - k), 0)
+        return (self.after[k - 1 + back] if k + back else self.base), back
+
     def insert(self, t: float, entry: E, step: Callable[[S, E], S]) -> int:
         """Add ``entry`` (not late) at ``t`` after the entries up to ``t`` and run it and the later
         ones with ``step`` from the state before it; returns its position, from which the states

@@ -584,10 +584,37 @@ def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale
     rows = branch_obs[kept[best]]
     all_obs = [np.concatenate([u, v]) for u, v in zip(obs, obs_new)]
     tracks = mem.leaves.take(best)
-    tracks = tracks._replace(confirmed=mht.shown(mp, tracks.confirmed, mem.existence[best]))
+    tracks = tracks._replace(confirmed=mht.shown(mp.management, tracks.confirmed, mem.existence[best]))
     return ScanResult(TrackerState(tracks, scan.t, state.next_id + fresh.size, mem), rows >= 0,
                       Observation(*(a[rows[rows >= 0]] for a in all_obs)),
                       np.setdiff1d(leaves.ids, mem.leaves.ids))
+
+
+def mht_decided(then: TrackerState, later: TrackerState, back: int, management: str) -> TrackerState:
+    """The MHT's deferred decision (docs/mht.md#the-picture-the-n-scan-back-decision): ``then``, the
+    state after a scan, with its tracks replaced by those of the best hypothesis of ``later``, the
+    state ``back`` scans on (``1 <= back < window``), each as its ancestor at ``then``'s scan was
+    (the filtered ``x``, ``P`` and modes along the branch that hypothesis kept: the leaf of
+    ``then`` whose serial is ``lineage[:, -1 - back]``), sorted by id. A track born after
+    ``then``'s scan has no such ancestor and is left out. Status as decided: shown
+    (:func:`mht.shown`) when ``later``'s leaf is confirmed and the ancestor's existence was at
+    least 1/2 (confirmation is a decision the window defers too; the existence is the branch's
+    at ``then``'s scan)."""
+    past, now = then.memory, later.memory
+    if past is None or now is None or not past.leaves.size:
+        return then
+    best = np.flatnonzero(now.hyps[0])
+    ancestor = now.lineage[best, -1 - back]
+    own = past.lineage[:, -1]
+    order = np.argsort(own, kind="stable")
+    at = order[np.minimum(np.searchsorted(own, ancestor, sorter=order), own.size - 1)]
+    found = own[at] == ancestor
+    rows, leaves = at[found], best[found]
+    by_id = np.argsort(past.leaves.ids[rows], kind="stable")
+    rows, leaves = rows[by_id], leaves[by_id]
+    tracks = past.leaves.take(rows)
+    confirmed = mht.shown(management, now.leaves.confirmed[leaves], past.existence[rows])
+    return then._replace(tracks=tracks._replace(confirmed=confirmed))
 
 
 def _whole_scan(*_: object) -> None:

@@ -361,13 +361,13 @@ def birth_existence(score: np.ndarray) -> np.ndarray:
     return expit(score)
 
 
-def shown(params: MhtParams, confirmed: np.ndarray, existence: np.ndarray) -> np.ndarray:
+def shown(management: str, confirmed: np.ndarray, existence: np.ndarray) -> np.ndarray:
     """The confirmed tracks the picture shows: ``"score"``, while their existence is at least
     ``SHOW`` = 1/2 (jipda's rule: GOSPA with alpha = 2 charges a false and a missed target alike,
     so a track is worth showing while it more likely than not exists); below, the track stays
     confirmed and kept, out of the picture, until a detection brings it back. ``"counts"``: every
     confirmed track (gnn's pictures)."""
-    return confirmed & (existence >= SHOW) if params.management == "score" else confirmed
+    return confirmed & (existence >= SHOW) if management == "score" else confirmed
 
 
 def prune(state: MhtState, alive: np.ndarray, params: MhtParams) -> tuple[MhtState, np.ndarray]:
