@@ -433,3 +433,51 @@ def test_an_ended_targets_track_leaves_the_picture_by_existence(management: str)
         assert shown_at is not None and shown_at < gone_at, (shown_at, gone_at)
     else:
         assert shown_at is None
+
+
+def test_the_delayed_picture_is_the_n_scan_back_decision() -> None:
+    """With ``picture_delay`` past the window, mht's picture at ``T`` is the decision of the best
+    hypothesis ``window - 1`` scans later (:func:`~fedtrack.local_filters.mtt.tracker.mht_decided`):
+    each of its tracks as its ancestor at ``T`` was. The formation (three targets within two noise
+    sigmas, P_D 0.8, clutter; ``mtt-local``, 1 Hz, pictures at the scan times), six seeds:
+
+    * ``picture_delay = 0``: the replay's pictures are those of the tracker's state at ``T``, bit
+      for bit (nothing changes);
+    * deferred: every track is one of its own leaves at ``T`` (``x``, ``P`` to the bit: the
+      filtered estimate along the kept branch, no later data in it), a track born after ``T`` is
+      not there, a third of the pictures or more differ from the state at ``T``, and the mean
+      GOSPA of the confirmed tracks is lower than the state at ``T``'s by more than 3 standard
+      errors of the seeds' differences (the window's deletions and confirmations reach the
+      picture). About 2 s."""
+    from fedtrack.fusion_center.mtt.engines import LocalEngine, PictureTracks, tracker_picture
+    from fedtrack.fusion_center.mtt.evaluation import set_distance
+    from fedtrack.fusion_center.mtt.replay import pictures
+
+    def gospa(picture: PictureTracks, truth: np.ndarray) -> float:
+        shown = np.array(picture.confirmed, bool)
+        return set_distance(truth, picture.x[shown][:, [0, 2]] if shown.size else np.zeros((0, 2)), 100.0, 2.0).gospa
+
+    gain, differ = [], 0
+    for seed in range(6):
+        scans, density, truth = formation_scans(seed, steps=40)
+        cfg = MttConfig(clutter_density=density, associator="mht", pd=0.8, max_lag=100.0)
+        engine = LocalEngine(cfg, 4, sensor="s1")
+        at_t = []  # the pictures of the state at T (the rule without the deferral)
+        for T, now in pictures(engine, scans, 1.0, 0.0):
+            want = tracker_picture(engine.history.state_at(T), T, cfg, ["s1"])
+            assert now.ids == want.ids and now.confirmed == want.confirmed
+            assert np.array_equal(now.x, want.x) and np.array_equal(now.P, want.P)
+            at_t.append(want)
+        errors = []
+        for k, (p, old) in enumerate(zip(truth[:-2], at_t)):  # window 3: two scans after T
+            new, leaves = engine.picture(float(k)), engine.history.state_at(float(k)).memory.leaves
+            assert engine.history.state_after(float(k), 2)[1] == 2
+            for i, x, P in zip(new.ids, new.x, new.P):
+                mine = leaves.ids == i
+                assert any(np.array_equal(x, a) and np.array_equal(P, b) for a, b in zip(leaves.x[mine], leaves.P[mine]))
+            differ += not (new.ids == old.ids and new.confirmed == old.confirmed and np.array_equal(new.x, old.x))
+            errors.append(gospa(new, p) - gospa(old, p))
+        gain.append(np.mean(errors))
+    assert differ >= 6 * 38 / 3, differ
+    se = np.std(gain, ddof=1) / np.sqrt(len(gain))
+    assert np.mean(gain) < -3 * se, (gain, se)
