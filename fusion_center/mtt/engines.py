@@ -26,7 +26,7 @@ import numpy as np
 from fedtrack.fusion_center.mtt.centre import CENTRAL_MISSES, TrackToTrackCentre
 from fedtrack.fusion_center.mtt.shards import ShardedCentre
 from fedtrack.local_filters.mtt.associators import jipda
-from fedtrack.local_filters.mtt.config import MhtConfig, MttConfig
+from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.history import ScanHistory
 from fedtrack.local_filters.mtt.local import LocalReport, Resets, SensorTracker, is_duplicate
 from fedtrack.local_filters.mtt.maneuver import predicted_view
@@ -236,18 +236,21 @@ class ScanTrackerEngine(Engine):
         if self.history is None:
             return no_tracks(self.dim)
         params = self.params(None)
-        state = self.history.state_at(T) if params.mht is None else self.mht_state_at(T, params.mht)
+        state = self.history.state_at(T) if params.mht is None else self.mht_state_at(T, params)
         return tracker_picture(state, T, self.cfg, self.senders(), params.detector)
 
-    def mht_state_at(self, T: float, settings: MhtConfig) -> TrackerState:
+    def mht_state_at(self, T: float, params: TrackParams) -> TrackerState:
         """``associator = "mht"``: the state after the last scan up to ``T`` with the tracks that
         the best hypothesis ``window - 1`` scans later decided (:func:`mht_decided`: its N-scan
         pruning made their assignments up to ``T`` final), or that of the newest scan if fewer
-        have arrived; with none after ``T`` (``picture_delay = 0``), the state itself."""
-        assert self.history is not None
+        have arrived; with none after ``T`` (``picture_delay = 0``), the state itself. At most
+        ``delete_misses - 1`` scans later: a confirmed track that this hypothesis deleted had then
+        missed every scan since before ``T`` (deletion takes ``delete_misses`` misses in a row), so
+        its leaving the picture at ``T`` is the decision that it was gone by ``T``."""
+        assert self.history is not None and params.mht is not None
         then = self.history.state_at(T)
-        later, back = self.history.state_after(T, settings.window - 1)
-        return mht_decided(then, later, back, settings.management) if back else then
+        later, back = self.history.state_after(T, min(params.mht.window, params.delete_misses) - 1)
+        return mht_decided(then, later, back, params.mht.management) if back else then
 
 
 @dataclass
