@@ -193,6 +193,24 @@ def test_pruning_and_cap_invariants_and_confirmed_targets() -> None:
     assert np.mean(errors) > 0.9
 
 
+def test_window_auto_from_the_detection_probability() -> None:
+    """``window = "auto"`` (the default): ``N = 1 + max(1, ceil(ln 0.01 / ln(1 - P_D)))`` from the
+    smallest P_D configured (a sensor's own included); a number is kept; anything else refused."""
+    from fedtrack.config import ConfigError
+    from fedtrack.local_filters.mtt.config import SensorOverride, auto_window
+
+    assert [auto_window(p) for p in (0.5, 0.8, 0.9, 0.95, 0.99, 1.0)] == [8, 4, 3, 3, 2, 2]
+    for pd in (0.5, 0.8, 0.9, 0.95):  # the first N - 1 with (1 - P_D)^(N - 1) <= 0.01
+        assert (1 - pd) ** (auto_window(pd) - 1) <= 0.01 + 1e-12 < (1 - pd) ** (auto_window(pd) - 2)
+    assert MttConfig(associator="mht").mht_settings.window == 3
+    assert MttConfig(associator="mht", sensor={"s2": SensorOverride(pd=0.8)}).mht_settings.window == 4
+    assert track_params(MttConfig(associator="mht", pd=0.8), "s1", 4).mht.window == 4
+    assert MttConfig(associator="mht", pd=0.8, mht=MhtConfig(window=2)).mht_settings.window == 2
+    for bad in ("three", 0):
+        with pytest.raises(ConfigError, match="window"):
+            MhtConfig(window=bad).validate()
+
+
 def test_score_terms() -> None:
     """The detection increment is ``ln(P_D N(nu; 0, S) / lambda)`` plus paper 001's amplitude
     log-ratio; the miss ``ln(1 - P_D P_G)``; Wald's thresholds."""
@@ -253,7 +271,7 @@ def test_tracker_with_mht_window_one_k_one_counts_equals_gnn(tmp_path: Path, sce
 
 @pytest.mark.parametrize("algorithm", ["mtt-local", "mtt-centralized"])
 def test_tracker_with_mht_defaults_follows_gnns_confirmed_tracks(tmp_path: Path, algorithm: str) -> None:
-    """``associator = "mht"`` with its defaults (window 3, k 3, SPRT) runs in the tracker: in the
+    """``associator = "mht"`` with its defaults (window 3 at P_D 0.9, k 3, SPRT) runs in the tracker: in the
     second half of the position scenario (few false detections), every confirmed gnn track has a
     confirmed mht track within 30 m and the other way round."""
     gnn = replay_pictures(tmp_path, "pos", algorithm, "")

@@ -36,12 +36,24 @@ ASSOCIATORS = ("gnn", "jipda", "mht")
 MHT_MANAGEMENTS = ("score", "counts")  # local_filters/mtt/associators/mht.py
 
 
+# mht's window = "auto": the chance that a target is missed on every one of the window's later scans
+MHT_WINDOW_MISS = 0.01
+
+
+def auto_window(pd: float) -> int:
+    """mht's ``window = "auto"``: ``N = 1 + max(1, ceil(ln eps / ln(1 - P_D)))``, ``eps`` =
+    :data:`MHT_WINDOW_MISS`: the ``N - 1`` scans after an ambiguous one bring the target's next
+    detection but with probability ``eps`` (3 at P_D 0.9, 4 at 0.8; docs/mht.md)."""
+    later = math.ceil(math.log(MHT_WINDOW_MISS) / math.log1p(-pd) - 1e-9) if pd < 1 else 1
+    return 1 + max(1, later)
+
+
 @dataclass(frozen=True)
 class MhtConfig:
     """``[mtt.mht]``: the track-oriented MHT (``associator = "mht"``; the defaults and their
     derivation: docs/mht.md)."""
 
-    window: int = 3  # N: scans back to the branch N-scan pruning keeps
+    window: int | str = "auto"  # N: scans back to the branch N-scan pruning keeps; "auto": auto_window(P_D)
     k: int = 3  # global hypotheses kept
     max_branches: int = 3  # leaves kept per track
     management: str = "score"  # "score": the SPRT; "counts": gnn's M-of-N rules and likelihoods
@@ -49,7 +61,9 @@ class MhtConfig:
     miss: float = 1e-2  # beta: probability of deleting a track on a real target
 
     def validate(self) -> None:
-        for key in ("window", "k", "max_branches"):
+        if not (self.window == "auto" or isinstance(self.window, int) and self.window >= 1):
+            raise ConfigError('window: must be >= 1 or "auto"')
+        for key in ("k", "max_branches"):
             if not getattr(self, key) >= 1:
                 raise ConfigError(f"{key}: must be >= 1")
         if self.management not in MHT_MANAGEMENTS:
@@ -106,6 +120,15 @@ class MttConfig:
         if self.maneuver != "vdie":
             return None
         return dataclasses.replace(self.vdie, window=self.central_maneuver_window)
+
+    @cached_property
+    def mht_settings(self) -> MhtConfig:
+        """``[mtt.mht]`` with ``window = "auto"`` resolved from the smallest P_D configured (the
+        window must wait for the least-detecting sensor's target; :func:`auto_window`)."""
+        if self.mht.window != "auto":
+            return self.mht
+        pd = min([self.pd] + [self.pd_of(s) for s in self.sensor])
+        return dataclasses.replace(self.mht, window=auto_window(pd))
 
     @property
     def motion(self) -> str:
