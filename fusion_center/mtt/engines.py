@@ -10,7 +10,9 @@
 Every tracker of scans fuses out-of-sequence scans up to ``max_lag`` old exactly by rolling back
 to its state before the scan and re-running the later scans in time order (association
 included; :class:`ScanHistory`); older ones are late, repeated ones duplicates.
-``picture(T)`` is every track predicted to ``T`` from the data up to ``T``."""
+``picture(T)`` is every track predicted to ``T`` from the data up to ``T`` (``associator = "mht"``
+in a tracker of scans: as the window decided them with the scans after ``T`` that are in,
+:meth:`ScanTrackerEngine.mht_state_at`)."""
 
 from __future__ import annotations
 
@@ -198,7 +200,8 @@ class ScanTrackerEngine(Engine):
     """A tracker of scans with its :class:`ScanHistory`: out-of-sequence scans up to ``max_lag``
     old fused exactly (the later ones run again from the state before them), older ones late.
     It keeps the states of the last ``max_lag`` (>= ``picture_delay``) seconds, so a picture at
-    ``T`` comes from the state after the last scan up to ``T``."""
+    ``T`` comes from the state after the last scan up to ``T`` (mht's: with the tracks a few scans
+    later decided, :meth:`mht_state_at`)."""
 
     history: ScanHistory[TrackerState, SensorScan] | None = None
 

@@ -42,8 +42,10 @@ Per scan:
    ``max_branches`` leaves per track (those of the best hypotheses first); a hypothesis that
    held a removed leaf is dropped, a leaf that no hypothesis holds is removed.
 
-The picture is the best hypothesis's tracks. With ``window = 1``, ``k = 1`` and ``"counts"`` this
-is gnn (tests/test_mht.py, to 1e-9). The global hypotheses are extended scan by scan (Cox &
+The picture is the best hypothesis's tracks; with ``picture_delay``, the best hypothesis's a few
+scans later, each track as its ancestor at the picture's time was (the N-scan-back decision:
+:func:`~fedtrack.local_filters.mtt.tracker.mht_decided`). With ``window = 1``, ``k = 1`` and
+``"counts"`` this is gnn (tests/test_mht.py, to 1e-9). The global hypotheses are extended scan by scan (Cox &
 Hingorani 1996: Murty's k best per hypothesis), so an assignment that leaves the k best at one
 scan cannot come back later: that is what ``k`` bounds. Defaults and their derivation:
 docs/mht.md.
