@@ -466,7 +466,7 @@ def test_the_delayed_picture_is_the_n_scan_back_decision() -> None:
       not there, a third of the pictures or more differ from the state at ``T``, and the mean
       GOSPA of the confirmed tracks is lower than the state at ``T``'s by more than 3 standard
       errors of the seeds' differences (the window's deletions and confirmations reach the
-      picture). About 2 s."""
+      picture). About 1 s."""
     from fedtrack.fusion_center.mtt.engines import LocalEngine, PictureTracks, tracker_picture
     from fedtrack.fusion_center.mtt.evaluation import set_distance
     from fedtrack.fusion_center.mtt.replay import pictures
@@ -499,3 +499,48 @@ def test_the_delayed_picture_is_the_n_scan_back_decision() -> None:
     assert differ >= 6 * 38 / 3, differ
     se = np.std(gain, ddof=1) / np.sqrt(len(gain))
     assert np.mean(gain) < -3 * se, (gain, se)
+
+
+def test_live_centre_publishes_the_deferred_pictures_of_the_replay(tmp_path: Path) -> None:
+    """``serve mtt-centre`` with ``mtt-centralized`` and ``associator = "mht"``, driven in-process
+    through its own dispatch (the path of a Zenoh sample), on the formation with clutter, every
+    fifth scan arriving behind the next one: it publishes the pictures ``replay`` writes from the
+    scans in that order with the same ``picture_delay`` (ids, status, ``x`` to 1e-9: the same
+    engine, the deferred decision included); on the time-sorted scans the delayed pictures are not
+    those without the delay (the deferral is on). About 1 s."""
+    from test_mtt_out_of_sequence import replay
+
+    from fedtrack.fusion_center.mtt.service import MttCentreService
+    from fedtrack.keys import Keys
+    from fedtrack.local_filters.mtt.scan import scan_to_measurement
+    from fedtrack.wire import TrackPicture, encode
+    from fedtrack.zsession import SessionOptions
+
+    scans, density, _ = formation_scans(1, steps=30)
+    for k in range(4, len(scans) - 1, 5):  # out of sequence: scan k arrives after scan k + 1
+        scans[k], scans[k + 1] = scans[k + 1], scans[k]
+    rows = [{"t": s.t, "sensor": s.sensor, "R": s.R.tolist(), "detections": [{"z": z.tolist()} for z in s.z]}
+            for s in scans]
+    mtt = {"max_lag": 3.0, "picture_delay": 2.5, "pd": 0.8, "clutter_density": density, "associator": "mht"}
+    keys, published = Keys("mhtlive"), []
+    centre = MttCentreService("mtt-centralized", MttConfig(**mtt), 4, service_id="centre",
+                              options=SessionOptions(connect=("tcp/127.0.0.1:1",)), deployment="mhtlive")
+    centre._subscriptions = centre.subscriptions()
+    centre.publish = lambda key, msg: published.append(msg)  # type: ignore[method-assign]
+    for seq, scan in enumerate(scans):
+        centre._dispatch(("sample", 0, keys.sensor_meas(scan.sensor), encode(scan_to_measurement(scan, seq, 1))))
+    centre.on_stop()
+    live = [m for m in published if isinstance(m, TrackPicture) and not m.closing]
+    want = replay(tmp_path, "arrived", rows, "mtt-centralized", **mtt)
+    assert [p.t for p in live] == [p["t"] for p in want] and len(live) >= 25
+    for got, w in zip(live, want):
+        assert list(got.ids) == [tr["id"] for tr in w["tracks"]]
+        assert list(got.confirmed) == [tr["status"] == "confirmed" for tr in w["tracks"]]
+        want_x = np.array([tr["x"] for tr in w["tracks"]]).reshape(-1, 4)
+        np.testing.assert_allclose(np.asarray(got.x).reshape(-1, 4), want_x, rtol=1e-12, atol=1e-9)
+    assert sum(len(p["tracks"]) for p in want) > 25
+    # the deferral is on: on the time-sorted scans the delay alone would change nothing
+    in_time = sorted(rows, key=lambda r: r["t"])
+    delayed = replay(tmp_path, "sorted", in_time, "mtt-centralized", **mtt)
+    undelayed = replay(tmp_path, "now", in_time, "mtt-centralized", **{**mtt, "picture_delay": 0.0})
+    assert [[tr["id"] for tr in p["tracks"]] for p in delayed] != [[tr["id"] for tr in p["tracks"]] for p in undelayed]
