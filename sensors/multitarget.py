@@ -241,10 +241,15 @@ def radar_elevation(sc: Scenario) -> float:
     return 0.3
 
 
+def position_clutter_density(sc: Scenario) -> float:
+    """A position sensor's false detections per m^2 (``[mtt] clutter_density``)."""
+    return sc.clutter / (2 * sc.region) ** 2
+
+
 def clutter_density(spec: SensorSpec, sc: Scenario) -> float:
     """False detections per unit of the sensor's measurement space (m^2, or m rad^2 for a radar)."""
     if spec.kind == "pos":
-        return sc.clutter / (2 * sc.region) ** 2
+        return position_clutter_density(sc)
     lo, hi = radar_range(sc)
     return sc.clutter / ((hi - lo) * 2 * np.pi * radar_elevation(sc))
 
@@ -267,7 +272,7 @@ def simulate(sc: Scenario, specs: list[SensorSpec], seed: int, out: Path) -> dic
             step = int(round(second / DT))
             targets = [{"id": int(i), "x": x[step, i, dims].tolist()} for i in np.flatnonzero(alive[step])]
             fh.write(json.dumps({"t": float(second), "targets": targets}) + "\n")
-    mtt: dict[str, Any] = {"q": process_noise(specs), "pd": sc.pd, "clutter_density": clutter_density(specs[0], sc),
+    mtt: dict[str, Any] = {"q": process_noise(specs), "pd": sc.pd, "clutter_density": position_clutter_density(sc),
                            "max_lag": 3.0, "period": 1.0, "init_velocity_std": 30.0,
                            "sensors": [s.id for s in specs]}
     mtt["sensor"] = {s.id: {"clutter_density": clutter_density(s, sc)} for s in specs if s.kind == "radar"}

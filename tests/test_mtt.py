@@ -378,7 +378,7 @@ def test_centre_in_heavy_clutter_confirms_only_what_a_local_tracker_confirmed(as
     for management, clutter, counts in cases:
         cfg = MttConfig(associator=associator, clutter_density=clutter, mht=MhtConfig(management=management))
         p = 1.0 - np.exp(-clutter * np.pi * -2.0 * np.log(1e-3) * 30.0**2)  # 2-D gate at P_G 0.999, 30 m/s
-        assert cfg.counts_false_confirm == pytest.approx(3 * p**2 * (1 - p) + p**3, rel=1e-12)
+        assert cfg.counts_false_confirm("s1") == pytest.approx(3 * p**2 * (1 - p) + p**3, rel=1e-12)
         counts = counts or associator == "gnn"
         centre = TrackToTrackCentre(cfg, 4, False)
         for k in range(4):
@@ -394,13 +394,18 @@ def test_replay_notes_when_the_count_confirms_clutter_tracks(tmp_path: Path, cap
     """gnn at 2e-6 false detections per m^2: replay says the 3-of-4 count confirms clutter tracks
     (chance 0.016 against jipda's bound 0.01) and what to do; at the default density, or with
     jipda, it says nothing."""
-    lines = [{"t": 0.0, "sensor": "s1", "R": [[100.0, 0.0], [0.0, 100.0]], "detections": [{"z": [0.0, 0.0]}]}]
+    lines = [{"t": 0.0, "sensor": "s1", "R": [[100.0, 0.0], [0.0, 100.0]], "detections": [{"z": [0.0, 0.0]}]},
+             {"t": 0.5, "sensor": "r2", "R": [[100.0, 0, 0], [0, 1e-6, 0], [0, 0, 1e-6]], "sensor_position": [-5000.0, 0, 0],
+              "detections": [{"z": [5000.0, 0.1, 0.05]}]}]
     data = tmp_path / "m.jsonl"
     data.write_text("".join(json.dumps(line) + "\n" for line in lines))
+    # a radar's density is per m rad^2 (here 4e-4, as simulate writes for 200 false a scan): never judged per m^2
     for associator, clutter, noted in (("gnn", 2e-6, True), ("gnn", 1e-7, False), ("jipda", 2e-6, False)):
         config = tmp_path / "c.toml"
-        config.write_text(f'[mtt]\nassociator = "{associator}"\nclutter_density = {clutter}\n')
+        config.write_text(f'[mtt]\nassociator = "{associator}"\nclutter_density = {clutter}\n'
+                          '[mtt.sensor.r2]\nclutter_density = 4e-4\n')
         replay_mtt("mtt-centralized", data, config, tmp_path / "out.jsonl")
         err = capsys.readouterr().err
-        assert ("confirms a track started on clutter with probability 0.016" in err
+        assert ("sensor s1's clutter_density 2e-06 per m^2 the 3-of-4 count confirms a track started on "
+                "clutter with probability 0.016" in err
                 and 'associator = "jipda"' in err) == noted

@@ -117,3 +117,20 @@ def test_dense_scenario_flies_formations(tmp_path: Path) -> None:
     assert cli(["simulate", "multitarget", "--scenario", "dense", "--pd", "0.9", "--targets", "3", "--duration",
                 "5", "--out", str(tmp_path / "own")]) == 0
     assert load_tables(tmp_path / "own" / "config.toml", MttSettings).mtt.pd == 0.9
+
+
+def test_simulate_with_a_radar_first_gives_the_position_sensors_their_density_per_m2(tmp_path: Path) -> None:
+    """A radar's clutter density is per m rad^2 of its measurement space; with the radar listed
+    first, the position sensor (no table of its own) still gets the per-m^2 density of a position
+    sensor, the same as when a position sensor comes first."""
+    densities = {}
+    for spec in ("radar:1.0,pos:0.5", "pos:0.5,radar:1.0"):
+        out = tmp_path / spec.replace(":", "_").replace(",", "_")
+        assert cli(["simulate", "multitarget", "--targets", "2", "--duration", "5", "--sensors", spec,
+                    "--clutter", "100", "--out", str(out)]) == 0
+        cfg = load_tables(out / "config.toml", MttSettings).mtt
+        pos = next(s for s in cfg.sensors if s.startswith("s"))
+        radar = next(s for s in cfg.sensors if s.startswith("r"))
+        densities[spec] = (cfg.clutter_of(pos), cfg.clutter_of(radar))
+    (pos_a, radar_a), (pos_b, radar_b) = densities.values()
+    assert pos_a == pos_b and radar_a == radar_b and radar_a > 100 * pos_a

@@ -32,11 +32,10 @@ scan, the linearized observation of every track the scan detected, the tracks it
   false local track of one sensor gets no detections from the others' scans and stays
   tentative; with one live sensor the rule is that sensor's own. Where the local trackers confirm
   by a test with a false-confirmation bound (jipda's existence, mht's score) and the count's
-  chance to confirm a track started on clutter exceeds that bound at the configured clutter
-  density (:func:`needs_local_confirmation`), a track also needs a local track that its tracker
-  confirmed: in heavy clutter the count alone confirmed tracks on several sensors' clutter
-  tracks. A confirmed track is deleted
-  once every sensor that tracks it (a local track maps to it) missed it on its last
+  chance to confirm a track started on clutter exceeds that bound at some position sensor's
+  clutter density (:func:`needs_local_confirmation`), a track also needs a local track that its
+  tracker confirmed: in heavy clutter the count alone confirmed tracks on several sensors'
+  clutter tracks. A confirmed track is deleted once every sensor that tracks it (a local track maps to it) missed it on its last
   ``CENTRAL_MISSES`` (2) scans since its last detection (``delete_misses`` when one sensor
   tracks it): a target that died goes within two scans of the slowest sensor instead of
   lingering until every local tracker deleted its track. It is also deleted when no local
@@ -69,14 +68,15 @@ CENTRAL_MISSES = 2
 ASSOCIATION_SHIFT = 1e6  # larger than any gated pair's d2 + ln det
 
 
-def needs_local_confirmation(cfg: MttConfig) -> bool:
-    """Whether a central track also needs a local track confirmed by its tracker: where the local
-    trackers confirm by a test with a false-confirmation bound (jipda's existence: ``FALSE_CONFIRM``;
-    mht's score: ``[mtt.mht] false_track``) and the count's chance to confirm a clutter track
-    exceeds that bound (:meth:`MttConfig.counts_false_confirm`)."""
+def needs_local_confirmation(cfg: MttConfig, sensor: str) -> bool:
+    """Whether a central track also needs a local track confirmed by its tracker, judged on position
+    sensor ``sensor``: where the local trackers confirm by a test with a false-confirmation bound
+    (jipda's existence: ``FALSE_CONFIRM``; mht's score: ``[mtt.mht] false_track``) and the count's
+    chance to confirm a track started on that sensor's clutter exceeds that bound
+    (:meth:`MttConfig.counts_false_confirm`)."""
     bound = {"jipda": FALSE_CONFIRM, "mht": cfg.mht.false_track if cfg.mht.management == "score" else None}
     alpha = bound.get(cfg.associator)
-    return alpha is not None and cfg.counts_false_confirm > alpha
+    return alpha is not None and cfg.counts_false_confirm(sensor) > alpha
 
 
 @dataclass
@@ -177,7 +177,9 @@ class TrackToTrackCentre:
         self.support = np.zeros((0, 0), dtype=np.int64)  # local tracks of each sensor mapped to a slot
         self.streak = np.zeros((0, 0), dtype=np.int64)  # a confirmed slot's misses in a row per sensor
         self.window = np.zeros((0, cfg.confirm_window), dtype=bool)  # a tentative slot's last scans
-        self.local_confirmation = needs_local_confirmation(cfg)
+        # whether the count alone is unsafe on some position sensor's clutter (judged once per sensor)
+        self.local_confirmation = False
+        self.count_judged: set[str] = set()
         self.last_support = np.zeros(0)  # when a local observation was last fused into a slot
         # the ids and slots of the central tracks the last report's observations were fused into (or
         # started), one per fused row (an id may repeat; a track deleted since no longer has its id in
@@ -286,8 +288,14 @@ class TrackToTrackCentre:
         return no_resets(report.sensor, report.t, report.x.shape[1])
 
     def _note_scan(self, report: LocalReport) -> int:
-        """The sensor's latest scan time and its retired local tracks unmapped; returns its column."""
+        """The sensor's latest scan time and its retired local tracks unmapped (and, at its first
+        report, whether its clutter makes the count unsafe: a position sensor's observations are
+        2-D); returns its column."""
         t, s = report.t, report.sensor
+        if s not in self.count_judged:
+            self.count_judged.add(s)
+            if report.obs_R.shape[1] == 2 and needs_local_confirmation(self.cfg, s):
+                self.local_confirmation = True
         self.sensor_seen[s] = max(self.sensor_seen.get(s, t), t)
         col = self._col(s)
         if report.retired.size:
@@ -370,7 +378,8 @@ class TrackToTrackCentre:
     def _count_scan(self, col: int, detected: np.ndarray, report: LocalReport) -> None:
         """One scan (``report``) of sensor column ``col`` in the life rules: M-of-N confirmation of
         tentative tracks (the centralized rule over every sensor's scans; where the local trackers'
-        own test is safer than the count in the configured clutter, :func:`needs_local_confirmation`,
+        own test is safer than the count in some position sensor's clutter,
+        :func:`needs_local_confirmation`,
         a track is confirmed when the rule holds and a local track that its tracker confirmed maps
         to it); a confirmed track
         that this sensor tracks (a local track maps to it) and did not detect misses, and is

@@ -134,8 +134,6 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
     if (algorithm == "mtt-local") != (sensor is not None):
         raise ConfigError("--sensor ID is required by mtt-local and only by it")
     check_output(out)
-    if cfg.count_note:
-        print(f"{algorithm}: note: {cfg.count_note}", file=sys.stderr)
     start = time.perf_counter()
     recording = is_region_recording(measurements)
     if recording and (regions is None or algorithm == "mtt-local"):
@@ -161,6 +159,10 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
         engine = make_engine(algorithm, cfg, dim, sensor, shards)
         source = pictures(engine, scans, cfg.period, cfg.picture_delay)
         recorded = {}
+    note = cfg.count_note({s.sensor for s in scans if isinstance(s, SensorScan) and s.dim == 2
+                           and (sensor is None or s.sensor == sensor)})
+    if note:
+        print(f"{algorithm}: note: {note}", file=sys.stderr)
     read_s = time.perf_counter() - start
     frame = load_frame(config)  # [frame]: the tracks on the Earth too (lat, lon, alt)
     n = onsets = 0

@@ -100,8 +100,6 @@ class MttCentreService(Service):
             raise ConfigError(f"algorithm: expected one of {', '.join(ALGORITHMS)}, got {algorithm!r}")
         self.algorithm = algorithm
         self.cfg = cfg
-        if cfg.count_note:
-            self.log.warning("%s", cfg.count_note)
         self.dim = dim
         self.received = ReceivedScans(max_seq_jump)
         self.region, self.regions = region, regions

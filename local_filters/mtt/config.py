@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -135,32 +136,31 @@ class MttConfig:
         """``process_noise`` resolved: ``"fixed"`` or ``"imm"`` (``"auto"``: the associator's own)."""
         return AUTO_PROCESS_NOISE.get(self.associator, "fixed") if self.process_noise == "auto" else self.process_noise
 
-    @cached_property
-    def counts_false_confirm(self) -> float:
-        """The chance that the M-of-N count confirms a track started on clutter: each of the next
-        ``confirm_window - 1`` scans puts a clutter detection into its gate with probability
-        ``p = 1 - exp(-lambda V)``, ``V = pi g (sigma_v T)^2`` the gate of a one-point track one
-        second later (``init_velocity_std`` over ``T`` = 1 s, ``g`` the 2-D gate's chi-square
-        quantile), ``lambda`` the largest clutter density configured; the count needs
-        ``confirm_hits - 1`` of them (the binomial tail)."""
-        lam = max([self.clutter_density] + [self.clutter_of(s) for s in self.sensor])
-        p = -math.expm1(-lam * math.pi * self.thresholds.gate[2] * self.init_velocity_std**2)
+    def counts_false_confirm(self, sensor: str) -> float:
+        """The chance that the M-of-N count confirms a track started on a position sensor's clutter:
+        each of the next ``confirm_window - 1`` scans puts a clutter detection into its gate with
+        probability ``p = 1 - exp(-lambda V)``, ``V = pi g (sigma_v T)^2`` the gate of a one-point
+        track one second later (``init_velocity_std`` over ``T`` = 1 s, ``g`` the 2-D gate's
+        chi-square quantile), ``lambda`` the sensor's clutter density per m^2; the count needs
+        ``confirm_hits - 1`` of them (the binomial tail). A radar's density is per m rad^2 of its
+        own measurement space: not for this formula."""
+        p = -math.expm1(-self.clutter_of(sensor) * math.pi * self.thresholds.gate[2] * self.init_velocity_std**2)
         n = self.confirm_window - 1
         return sum(math.comb(n, j) * p**j * (1.0 - p) ** (n - j) for j in range(self.confirm_hits - 1, n + 1))
 
-    @property
-    def count_note(self) -> str | None:
-        """A warning when the count rules the tracks (``gnn``, mht's ``"counts"``) and the clutter
-        makes it confirm clutter tracks more often than jipda's bound allows; None otherwise."""
+    def count_note(self, position_sensors: Iterable[str]) -> str | None:
+        """A warning when the count rules the tracks (``gnn``, mht's ``"counts"``) and some position
+        sensor's clutter makes it confirm clutter tracks more often than jipda's bound allows."""
         from fedtrack.local_filters.mtt.associators.jipda import FALSE_CONFIRM
 
-        counts = self.associator == "gnn" or (self.associator == "mht" and self.mht.management == "counts")
-        chance = self.counts_false_confirm
-        if not counts or chance <= FALSE_CONFIRM:
+        if not (self.associator == "gnn" or (self.associator == "mht" and self.mht.management == "counts")):
             return None
-        return (f"at clutter_density {max([self.clutter_density] + [self.clutter_of(s) for s in self.sensor]):g} "
-                f"the {self.confirm_hits}-of-{self.confirm_window} count confirms a track started on clutter "
-                f"with probability {chance:.3f} (above {FALSE_CONFIRM:g}): expect false tracks; associator = "
+        chance, sensor = max(((self.counts_false_confirm(s), s) for s in position_sensors), default=(0.0, ""))
+        if chance <= FALSE_CONFIRM:
+            return None
+        return (f"at sensor {sensor}'s clutter_density {self.clutter_of(sensor):g} per m^2 the "
+                f"{self.confirm_hits}-of-{self.confirm_window} count confirms a track started on clutter with "
+                f"probability {chance:.3f} (above {FALSE_CONFIRM:g}): expect false tracks; associator = "
                 '"jipda" confirms by existence, or raise confirm_hits and confirm_window')
 
     @property

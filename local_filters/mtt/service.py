@@ -81,8 +81,6 @@ class MttLocalService(Service):
         self.sensor = check_id(sensor, "--sensor")
         self.federated = federated
         self.cfg = cfg
-        if cfg.count_note:
-            self.log.warning("%s", cfg.count_note)
         self.reset_timeout_s = reset_timeout_s
         self.max_time_jump_s = max_time_jump_s
         self.tracker: SensorTracker | None = None
@@ -93,6 +91,7 @@ class MttLocalService(Service):
         self.awaiting_scan: SensorScan | None = None  # the scan of that report
         self.awaiting_since = 0.0
         self.adopted: tuple[int, bytes] | None = None  # the report number and digest of the resets adopted last
+        self.noted = False  # whether the count's note (MttConfig.count_note) was judged
 
     def subscriptions(self) -> list[Subscription]:
         subs = [Subscription(self.keys.sensor_meas(self.sensor), Measurement, self.on_scan)]
@@ -117,6 +116,11 @@ class MttLocalService(Service):
             return
         self.last_t = msg.t if self.last_t is None else max(self.last_t, msg.t)
         self.received.take(msg)
+        if not self.noted:  # the count's chance on this sensor's clutter, once (a position sensor's is per m^2)
+            self.noted = True
+            note = self.cfg.count_note([self.sensor] if scan.dim == 2 else [])
+            if note:
+                self.log.warning("%s", note)
 
     def on_resets(self, msg: TrackResets) -> None:
         if self.adopted is not None and msg.seq == self.adopted[0]:
