@@ -345,7 +345,7 @@ def test_an_established_track_keeps_its_detection_against_a_newborn() -> None:
     established tracks the better fit takes it; ``"counts"`` keeps the plain increments."""
     from types import SimpleNamespace
 
-    from fedtrack.local_filters.mtt.associators.mht import MhtState, birth_scores, select_hypotheses, value_increments
+    from fedtrack.local_filters.mtt.associators.mht import MhtState, birth_scores, extend_clusters, value_increments
 
     mp = mht_params(MhtConfig(), 0.8, 5e-7, 9.21, 2, (3, 4, 3))
     newborn = float(birth_scores(mp, None, 50)[0])
@@ -356,9 +356,9 @@ def test_an_established_track_keeps_its_detection_against_a_newborn() -> None:
     for name, scores in (("newborn", [15.0, newborn]), ("established", [15.0, 15.0])):
         leaves = SimpleNamespace(confirmed=np.array([True, False]))
         state = MhtState(leaves, np.array(scores), np.array(scores), np.zeros((2, 1), np.int64),
-                         np.ones((1, 2), bool), np.zeros(1), 2, np.ones(2))
-        _, _, chosen = select_hypotheses(state, 1, rows, cols, inc, miss, mp)
-        taker[name] = int(rows[chosen[0]][0])
+                         np.ones((1, 2), bool), np.zeros((1, 1)), 2, np.ones(2), np.zeros(2, np.intp))
+        br = extend_clusters(state, 1, rows, cols, inc, miss, mp)
+        taker[name] = int(br.parent[br.holds[0] & (br.pair >= 0)][0])
     assert taker == {"newborn": 0, "established": 1}
     counts = mp._replace(management="counts")
     leaf_miss, gain = value_increments(np.array([15.0, newborn]), rows, inc, miss, counts)

@@ -538,8 +538,7 @@ def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale
         g_rows, g_cols, nu, _ = gating.pairs
         inc, miss = mht.score_increments(gating.log_likelihood, mp,
                                          None if scan.amplitude is None else scan.amplitude[g_cols])
-    value, parents, chosen = mht.select_hypotheses(mem, n_det, g_rows, g_cols, inc, miss, mp)
-    br = mht.branches(mem.hyps, parents, chosen, g_rows, g_cols, leaves.size, n_det)
+    br = mht.extend_clusters(mem._replace(leaves=leaves), n_det, g_rows, g_cols, inc, miss, mp)
     hit = br.pair >= 0
     pidx = br.pair[hit]
     cx, cP = x[br.parent], P[br.parent]
@@ -557,8 +556,7 @@ def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale
     hits, age, misses = old.hits + hit, old.age + 1, np.where(hit, 0, old.misses + 1)
     confirmed, live = mht.manage(mp, old.confirmed, score, peak, hits, age, misses)
     children = TrackSet(old.ids, cx, cP, hits, age, misses, confirmed, modes=cmodes)
-    # a detection that some kept hypothesis leaves unused starts a track there
-    fresh = np.flatnonzero(~br.used.all(axis=0))
+    fresh = br.births  # a detection that a kept hypothesis of its cluster leaves unused starts a track there
     new, obs_new = start_tracks(scan, fresh, params, state.next_id)
     new_score = mht.birth_scores(mp, None if scan.amplitude is None else scan.amplitude[fresh], fresh.size)
     if mp.management == "score":
@@ -569,10 +567,11 @@ def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale
     grown = mht.MhtState(_concat(children, new), np.concatenate([score, new_score]),
                          np.concatenate([peak, new_score]),
                          np.concatenate([lineage, np.repeat(serial[n_child:, None], settings.window, axis=1)]),
-                         np.concatenate([br.holds, ~br.used[:, fresh]], axis=1), value,
+                         np.concatenate([br.holds, br.birth_holds], axis=1), br.value,
                          int(mem.next_branch + serial.size),
                          np.concatenate([mht.leaf_existence(mem.existence[br.parent], step, dt),
-                                         mht.birth_existence(new_score)]))
+                                         mht.birth_existence(new_score)]),
+                         np.concatenate([br.cluster, br.birth_cluster]))
     branch_det = np.full(n_child, -1)  # each branch's detection (-1: a miss), then the new tracks'
     branch_det[hit] = g_cols[pidx]
     branch_det = np.concatenate([branch_det, fresh])

@@ -133,16 +133,17 @@ class MhtState(NamedTuple):
     score: np.ndarray  # (L,) track score: the log-likelihood ratio of the leaf's history
     peak: np.ndarray  # (L,) the highest score along the leaf's history
     lineage: np.ndarray  # (L, window) branch serials of its ancestors, oldest first, its own last
-    hyps: np.ndarray  # (K, L) bool: the leaves each global hypothesis holds
-    value: np.ndarray  # (K,) each hypothesis's log-likelihood ratio (:func:`select_hypotheses`)
+    hyps: np.ndarray  # (K, L) bool: row r holds the leaves of every cluster's r-th best hypothesis
+    value: np.ndarray  # (K, C) each cluster's hypotheses' log-likelihood ratios, best first (-inf: fewer)
     next_branch: int  # the next branch serial
     existence: np.ndarray  # (L,) the leaf's existence probability (:func:`leaf_existence`)
+    cluster: np.ndarray  # (L,) the cluster of the leaf's track (:func:`extend_clusters`)
 
 
 def initial_state(leaves: Any, window: int) -> MhtState:
     """No leaves (``leaves``: an empty ``TrackSet``) and one empty hypothesis."""
     return MhtState(leaves, np.zeros(0), np.zeros(0), np.zeros((0, window), np.int64), np.ones((1, 0), bool),
-                    np.zeros(1), 0, np.zeros(0))
+                    np.zeros((1, 0)), 0, np.zeros(0), np.zeros(0, np.intp))
 
 
 def score_increments(log_n: np.ndarray, params: MhtParams, amplitude: np.ndarray | None) -> tuple[np.ndarray, float]:
@@ -172,8 +173,8 @@ def birth_scores(params: MhtParams, amplitude: np.ndarray | None, n: int) -> np.
 
 
 def best_extensions(n_det: int, r: np.ndarray, c: np.ndarray, gain: np.ndarray, k: int,
-                    names: np.ndarray | None = None, cache: dict | None = None
-                    ) -> tuple[np.ndarray, list[np.ndarray]]:
+                    names: np.ndarray | None = None, cache: dict | None = None,
+                    established: np.ndarray | None = None) -> tuple[np.ndarray, list[np.ndarray]]:
     """The ``k`` best ways for rows to take one detection each of their candidate pairs
     (``r``, ``c``, ``gain`` over a miss) or miss (gain 0), each
     detection at most once: the total gains, best first, and per way the indices of the pairs
@@ -183,11 +184,11 @@ def best_extensions(n_det: int, r: np.ndarray, c: np.ndarray, gain: np.ndarray, 
     hypotheses of a scan share most of them."""
     if r.size == 0:
         return np.zeros(1), [np.zeros(0, np.intp)]
-    rows, r_local = np.unique(r, return_inverse=True)
-    n = rows.size + n_det
-    graph = coo_matrix((np.ones(r.size), (r_local, rows.size + c)), shape=(n, n))
-    _, label = connected_components(graph, directed=False)
-    comp = label[r_local]
+    if (r == r[0]).all():  # one row: its miss and each of its pairs, as a component of one row below
+        costs, picked = _component_best(r, c, gain, k)
+        return -costs, [p[p >= 0] for p in picked]
+    _, r_local = np.unique(r, return_inverse=True)
+    comp = _pair_components(r_local, np.unique(c, return_inverse=True)[1])
     order = np.argsort(comp, kind="stable")
     bounds = np.flatnonzero(np.r_[True, comp[order][1:] != comp[order][:-1], True])
     lists, ways = [], []
@@ -197,13 +198,28 @@ def best_extensions(n_det: int, r: np.ndarray, c: np.ndarray, gain: np.ndarray, 
         if key is not None and key in cache:
             costs, picked = cache[key]
         else:
-            costs, picked = _component_best(r_local[sel], c[sel], gain[sel], k)
+            k_c = k if established is None or established[r[sel]].any() else 1
+            costs, picked = _component_best(r_local[sel], c[sel], gain[sel], k_c)
             if key is not None:
                 cache[key] = costs, picked
         lists.append(costs)
         ways.append([sel[p[p >= 0]] for p in picked])
     sums, picks = k_best_sums(lists, k)
     return -sums, [np.concatenate([ways[j][i] for j, i in enumerate(row)]) for row in picks.tolist()]
+
+
+def _pair_components(r: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """The connected components of pairs (rows ``r``, columns ``c``, both from 0) that share a row
+    or a column: per pair the least index of its component (the least label spread a hop a round)."""
+    label = np.arange(r.size)
+    while True:
+        by_r, by_c = np.full(r.max() + 1, r.size), np.full(c.max() + 1, r.size)
+        np.minimum.at(by_r, r, label)
+        np.minimum.at(by_c, c, label)
+        new = np.minimum(by_r[r], by_c[c])
+        if np.array_equal(new, label):
+            return label
+        label = new
 
 
 def _component_best(r: np.ndarray, c: np.ndarray, gain: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -225,16 +241,19 @@ def _component_best(r: np.ndarray, c: np.ndarray, gain: np.ndarray, k: int) -> t
     return costs, pair[np.arange(nr), cols]
 
 
-def _extend(hyp_rows: np.ndarray, n_det: int, g_rows: np.ndarray, g_cols: np.ndarray, gain: np.ndarray,
-            confirmed: np.ndarray, params: MhtParams, cache: dict) -> tuple[np.ndarray, list[np.ndarray]]:
-    """The k best extensions of one hypothesis (its leaves ``hyp_rows``) over the gated pairs:
-    their gains and chosen pair indices. ``"counts"``: confirmed leaves choose first, tentative
-    ones among the detections left (gnn's precedence), each stage by its k best."""
-    mine = np.zeros(confirmed.size, bool)
-    mine[hyp_rows] = True
-    pairs = np.flatnonzero(mine[g_rows])
+def _extend(held: np.ndarray, cand: np.ndarray, n_det: int, g_rows: np.ndarray, g_cols: np.ndarray,
+            gain: np.ndarray, confirmed: np.ndarray, params: MhtParams, cache: dict
+            ) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The k best extensions of one hypothesis (``held``: a mask of its leaves) over the gated
+    pairs ``cand`` of its cluster: their gains and chosen pair indices. ``"counts"``: confirmed
+    leaves choose first, tentative ones among the detections left (gnn's precedence), each stage
+    by its k best."""
+    pairs = cand[held[g_rows[cand]]]
+    if pairs.size == 0:
+        return np.zeros(1), [pairs]
     if params.management != "counts":
-        gains, ways = best_extensions(n_det, g_rows[pairs], g_cols[pairs], gain[pairs], params.k, pairs, cache)
+        gains, ways = best_extensions(n_det, g_rows[pairs], g_cols[pairs], gain[pairs], params.k, pairs, cache,
+                                      confirmed if _DIVERSE else None)
         return gains, [pairs[w] for w in ways]
     first = pairs[confirmed[g_rows[pairs]]]
     second = pairs[~confirmed[g_rows[pairs]]]
@@ -251,29 +270,140 @@ def _extend(hyp_rows: np.ndarray, n_det: int, g_rows: np.ndarray, g_cols: np.nda
     return np.array(out_gain)[order], [out_ways[i] for i in order.tolist()]
 
 
-def select_hypotheses(state: MhtState, n_det: int, g_rows: np.ndarray, g_cols: np.ndarray, inc: np.ndarray,
-                      miss: float, params: MhtParams) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
-    """Step 3: the k best extensions of all the kept hypotheses over the gated pairs (``g_rows``
-    leaf, ``g_cols`` detection, score increment ``inc``; ``miss`` a miss's): each one's value,
-    parent hypothesis and the indices of the pairs it takes, best first.
+import os
+_DIVERSE = os.environ.get("MHTK_A", "") == "1"
 
-    A hypothesis's value is the log-likelihood ratio of its assignments so far against "every
-    detection clutter": the parent's plus this scan's increment of every track it holds (a
-    miss or its detection; :func:`value_increments`). A new track adds nothing (a detection
-    starts one exactly where no track takes it, gnn's rule), and a track deleted later keeps
-    what it added: the value is that of the detections' explanation, so two tracks sharing one
-    target's detections pay a miss at every scan and lose to one track that takes them all."""
-    cand_value, cand_parent, cand_pairs = [], [], []
-    cache: dict = {}
+
+class Branches(NamedTuple):
+    """Steps 3 and 4: the scan's clusters' kept hypotheses and the branches they use."""
+
+    parent: np.ndarray  # (C,) parent leaf of each child branch
+    pair: np.ndarray  # (C,) its gated pair (-1: a miss)
+    holds: np.ndarray  # (K, C) bool: the children each rank's hypothesis (of their cluster) holds
+    cluster: np.ndarray  # (C,) each child's cluster
+    value: np.ndarray  # (K, G) each cluster's hypotheses' values, best first (-inf: fewer than K)
+    births: np.ndarray  # (F,) the detections that start a track
+    birth_holds: np.ndarray  # (K, F) bool: the hypotheses (ranks of its cluster) that hold each new track
+    birth_cluster: np.ndarray  # (F,) each new track's cluster
+
+
+def extend_clusters(state: MhtState, n_det: int, g_rows: np.ndarray, g_cols: np.ndarray, inc: np.ndarray,
+                    miss: float, params: MhtParams) -> Branches:
+    """Steps 3 and 4 per cluster: the old clusters joined by the detections their leaves gate
+    (a detection gated by none alone) are the scan's clusters; each one's parents are the k best
+    combinations of its old clusters' hypotheses (:func:`k_best_sums`, values added: the old
+    clusters are independent), each parent extended by its k best assignments of the cluster's
+    gated pairs (``g_rows`` leaf, ``g_cols`` detection, score increment ``inc``; ``miss`` a
+    miss's), of which the cluster keeps its k best. A hypothesis's value is the log-likelihood
+    ratio of its cluster's assignments so far against "every detection clutter": its parents'
+    plus this scan's increment of every track it holds (a miss or its detection;
+    :func:`value_increments`); only values of one cluster are compared, so each cluster's may
+    be offset by a constant. A detection of the cluster that one of its kept hypotheses leaves
+    unused starts a track, held by those hypotheses (gnn's one-point start); a new track adds
+    nothing, and a track deleted later keeps what it added: two tracks sharing one target's
+    detections pay a miss at every scan and lose to one track that takes them all."""
     leaf_miss, gain = value_increments(state.score, g_rows, inc, miss, params)
-    for h, row in enumerate(state.hyps):
-        held = np.flatnonzero(row)
-        gains, ways = _extend(held, n_det, g_rows, g_cols, gain, state.leaves.confirmed, params, cache)
-        cand_value.extend((state.value[h] + leaf_miss[held].sum() + gains).tolist())
-        cand_parent.extend([h] * len(ways))
-        cand_pairs.extend(ways)
-    keep = np.argsort(-np.array(cand_value), kind="stable")[:params.k]
-    return np.array(cand_value)[keep], np.array(cand_parent, np.intp)[keep], [cand_pairs[i] for i in keep.tolist()]
+    n_old, k = state.value.shape[1], params.k
+    n = n_old + n_det
+    graph = coo_matrix((np.ones(g_rows.size), (state.cluster[g_rows], n_old + g_cols)), shape=(n, n))
+    n_groups, label = connected_components(graph, directed=False)
+    n_pairs, n_leaves = g_rows.size, state.score.size
+    n_valid = np.isfinite(state.value).sum(axis=0)
+    group_of = label[state.cluster]
+    # simple clusters (at most one old cluster, of one leaf and one hypothesis): ranked at once
+    single = (n_valid == 1) & (np.bincount(state.cluster, minlength=n_old) == 1)
+    n_members = np.bincount(label[:n_old], minlength=n_groups)
+    simple = n_members <= 1
+    simple[label[:n_old][~single]] = False
+    lone = np.flatnonzero(simple[group_of])
+    lone_pairs = np.flatnonzero(simple[group_of[g_rows]])
+    values = np.full((k, n_groups), -np.inf)
+    keys, key_rank, births, birth_rank = _simple_clusters(state, lone, lone_pairs, group_of, g_rows, g_cols, gain,
+                                                          leaf_miss, values)
+    alone = np.flatnonzero(n_members[label[n_old:]] == 0)  # a detection that no track gates
+    values[0, label[n_old + alone]] = 0.0
+    births.append(alone)
+    birth_rank.append(np.zeros(alone.size, np.intp))
+    # the others: the k best parents, each extended by its k best, the k best kept
+    n_complex = int((~simple).sum())
+    complex_ = np.full(n_groups, -1)
+    complex_[~simple] = np.arange(n_complex)
+    members = _members(complex_[label[:n_old]], n_complex)
+    dets = _members(complex_[label[n_old:]], n_complex)
+    pairs_of = _members(complex_[group_of[g_rows]], n_complex)
+    leaves_of = _members(state.cluster, n_old)
+    cache: dict = {}
+    mask, taken, pair_of = np.zeros(n_leaves, bool), np.zeros(n_det, bool), np.full(n_leaves, -1)
+    for g, own, cand, mine in zip(np.flatnonzero(~simple).tolist(), members, pairs_of, dets):
+        cand_value, cand_held, cand_pairs = [], [], []
+        sums, picks = k_best_sums([-state.value[:n_valid[c], c] for c in own], k)
+        for total, ranks in zip(sums.tolist(), picks):
+            held = np.concatenate([np.zeros(0, np.intp)] + [
+                leaves_of[c][state.hyps[r, leaves_of[c]]] for c, r in zip(own, ranks.tolist())])
+            mask[held] = True
+            gains, ways = _extend(mask, cand, n_det, g_rows, g_cols, gain, state.leaves.confirmed, params, cache)
+            mask[held] = False
+            cand_value.extend((leaf_miss[held].sum() - total + gains).tolist())
+            cand_held.extend([held] * len(ways))
+            cand_pairs.extend(ways)
+        best = np.argsort(-np.array(cand_value), kind="stable")[:k]
+        values[:best.size, g] = np.array(cand_value)[best]
+        for rank, i in enumerate(best.tolist()):
+            held, pairs = cand_held[i], cand_pairs[i]
+            pair_of[g_rows[pairs]] = pairs
+            keys.append(held * (n_pairs + 1) + pair_of[held] + 1)  # leaf * (n_pairs + 1) + pair + 1 (0: a miss)
+            pair_of[g_rows[pairs]] = -1
+            key_rank.append(np.full(held.size, rank))
+            taken[g_cols[pairs]] = True
+            births.append(mine[~taken[mine]])
+            taken[g_cols[pairs]] = False
+            birth_rank.append(np.full(births[-1].size, rank))
+    uniq, key_index = np.unique(np.concatenate(keys), return_inverse=True)
+    holds = np.zeros((k, uniq.size), bool)
+    holds[np.concatenate(key_rank), key_index] = True
+    parent_leaf, pair = np.divmod(uniq, n_pairs + 1)
+    born, born_index = np.unique(np.concatenate(births), return_inverse=True)
+    birth_holds = np.zeros((k, born.size), bool)
+    birth_holds[np.concatenate(birth_rank), born_index] = True
+    return Branches(parent_leaf, pair - 1, holds, group_of[parent_leaf], values, born, birth_holds, label[n_old + born])
+
+
+def _simple_clusters(state: MhtState, lone: np.ndarray, lone_pairs: np.ndarray, group_of: np.ndarray,
+                     g_rows: np.ndarray, g_cols: np.ndarray, gain: np.ndarray, leaf_miss: np.ndarray,
+                     values: np.ndarray) -> tuple[list, list, list, list]:
+    """The scan's clusters of one leaf (``lone``, its gated pairs ``lone_pairs``) with one parent,
+    all at once: each one's k best of its miss and each of its pairs (ties: the miss, then the
+    pairs in order, as :func:`best_extensions` ranks a component of one row), their values
+    written into ``values`` (rank, cluster); the children's keys and ranks, and the detections
+    each leaves to new tracks with the ranks that hold them."""
+    k, n_pairs = values.shape[0], g_rows.size
+    leaf = np.concatenate([lone, g_rows[lone_pairs]])
+    pair = np.concatenate([np.full(lone.size, -1), lone_pairs])
+    value = (state.value[0, state.cluster[leaf]] + leaf_miss[leaf]
+             + np.concatenate([np.zeros(lone.size), gain[lone_pairs]]))
+    group = group_of[leaf]
+    order = np.lexsort((pair, -value, group))
+    first = np.r_[True, group[order][1:] != group[order][:-1]]
+    rank = np.arange(order.size) - np.maximum.accumulate(np.where(first, np.arange(order.size), 0))
+    order, rank = order[rank < k], rank[rank < k]
+    leaf, pair, group = leaf[order], pair[order], group[order]
+    values[rank, group] = value[order]
+    # each kept option leaves its cluster's other detections to new tracks
+    by_group = lone_pairs[np.argsort(group_of[g_rows[lone_pairs]], kind="stable")]
+    sorted_group = group_of[g_rows[by_group]]
+    start = np.searchsorted(sorted_group, group)
+    count = np.searchsorted(sorted_group, group, side="right") - start
+    option = np.repeat(np.arange(group.size), count)
+    q = by_group[np.repeat(start, count) + np.arange(option.size) - np.repeat(np.cumsum(count) - count, count)]
+    left = q != pair[option]
+    return [leaf * (n_pairs + 1) + pair + 1], [rank], [g_cols[q[left]]], [rank[option[left]]]
+
+
+def _members(label: np.ndarray, n: int) -> list[np.ndarray]:
+    """The indices of each of ``n`` labels (ascending within a label; a label -1 is left out)."""
+    order = np.argsort(label, kind="stable")
+    order = order[label[order] >= 0]
+    return np.split(order, np.searchsorted(label[order], np.arange(1, n)))
 
 
 def value_increments(score: np.ndarray, g_rows: np.ndarray, inc: np.ndarray, miss: float, params: MhtParams
@@ -293,37 +423,6 @@ def value_increments(score: np.ndarray, g_rows: np.ndarray, inc: np.ndarray, mis
     base = np.logaddexp(0.0, score)
     leaf_miss = np.logaddexp(0.0, score + miss) - base
     return leaf_miss, np.logaddexp(0.0, score[g_rows] + inc) - base[g_rows] - leaf_miss[g_rows]
-
-
-class Branches(NamedTuple):
-    """Step 4: the branches the kept hypotheses use."""
-
-    parent: np.ndarray  # (C,) parent leaf of each child branch
-    pair: np.ndarray  # (C,) its gated pair (-1: a miss)
-    holds: np.ndarray  # (K, C) bool: the children each hypothesis holds
-    used: np.ndarray  # (K, M) bool: the detections each hypothesis gives to a track
-
-
-def branches(hyps: np.ndarray, parents: np.ndarray, chosen: list[np.ndarray], g_rows: np.ndarray,
-             g_cols: np.ndarray, n_leaves: int, n_det: int) -> Branches:
-    """The child branches of the hypotheses ``parents`` extended by the pairs ``chosen`` (one
-    child per distinct (leaf, pair or miss), shared by the hypotheses that hold it)."""
-    n_pairs = g_rows.size
-    keys_per_hyp = []  # leaf * (n_pairs + 1) + pair + 1 (0: a miss)
-    for parent, pairs in zip(parents.tolist(), chosen):
-        pair_of = np.full(n_leaves, -1)
-        pair_of[g_rows[pairs]] = pairs
-        held = np.flatnonzero(hyps[parent])
-        keys_per_hyp.append(held * (n_pairs + 1) + pair_of[held] + 1)
-    keys, key_index = np.unique(np.concatenate(keys_per_hyp + [np.zeros(0, np.int64)]), return_inverse=True)
-    parent_leaf, pair = np.divmod(keys, n_pairs + 1)
-    holds = np.zeros((len(chosen), keys.size), bool)
-    used = np.zeros((len(chosen), n_det), bool)
-    offsets = np.cumsum([0] + [kk.size for kk in keys_per_hyp])
-    for h, pairs in enumerate(chosen):
-        holds[h, key_index[offsets[h]:offsets[h + 1]]] = True
-        used[h, g_cols[pairs]] = True
-    return Branches(parent_leaf, pair - 1, holds, used)
 
 
 def manage(params: MhtParams, confirmed: np.ndarray, score: np.ndarray, peak: np.ndarray, hits: np.ndarray,
@@ -373,21 +472,24 @@ def shown(management: str, confirmed: np.ndarray, existence: np.ndarray) -> np.n
 
 
 def prune(state: MhtState, alive: np.ndarray, params: MhtParams) -> tuple[MhtState, np.ndarray]:
-    """Step 6: N-scan pruning and the cap on leaves per track, after the branches not ``alive``
-    left their hypotheses (given best first) and a hypothesis equal to a better one was
-    dropped; then the leaves no hypothesis holds removed. Returns the state and the indices of
-    the leaves kept."""
-    hyps, value = state.hyps & alive, state.value  # best first
-    ids = state.leaves.ids
-    if hyps.shape[1] == 0:
-        hyps, value = hyps[:1], value[:1]
-    else:  # a hypothesis equal to a better one (after deletions) is dropped
-        _, first = np.unique(np.packbits(hyps, axis=1), axis=0, return_index=True)
-        first = np.sort(first)
-        hyps, value = hyps[first], value[first]
+    """Step 6, per cluster: the branches not ``alive`` leave their hypotheses, a hypothesis equal
+    to a better one of its cluster is dropped; N-scan pruning around the best hypotheses (row 0)
+    and the cap on leaves per track; a hypothesis that held a removed leaf is dropped, a leaf
+    that no hypothesis holds is removed; then a track decided in its cluster (one leaf, held by
+    every hypothesis of it) leaves it as a cluster of its own (the rest's values change by a
+    constant). Returns the state and the indices of the leaves kept."""
+    ids, cl = state.leaves.ids, state.cluster
+    valid = np.isfinite(state.value)
+    hyps = state.hyps & alive & valid[:, cl]
+    for c in np.flatnonzero(valid.sum(axis=0) > 1).tolist():  # a hypothesis equal to a better one
+        mine = np.flatnonzero(cl == c)
+        ranks = np.flatnonzero(valid[:, c])
+        _, first = np.unique(np.packbits(hyps[np.ix_(ranks, mine)], axis=1), axis=0, return_index=True)
+        valid[ranks, c] = np.isin(np.arange(ranks.size), first)
+    hyps &= valid[:, cl]
     keep = alive.copy()
-    if hyps.shape[0] and ids.size:
-        best = np.flatnonzero(hyps[0])  # N-scan pruning around the best hypothesis's branches
+    if ids.size:
+        best = np.flatnonzero(hyps[0])  # N-scan pruning around the best hypotheses' branches
         root = np.full(int(ids.max()) + 1, -1)
         root[ids[best]] = state.lineage[best, 0]
         keep &= (root[ids] < 0) | (state.lineage[:, 0] == root[ids])
@@ -399,12 +501,30 @@ def prune(state: MhtState, alive: np.ndarray, params: MhtParams) -> tuple[MhtSta
         within = np.empty(order.size, np.int64)
         within[order] = np.arange(order.size) - start
         keep &= within < params.max_branches
-        whole = ~(hyps & ~keep).any(axis=1)
-        hyps, value = hyps[whole], value[whole]
+        r, leaf = np.nonzero(hyps & ~keep)
+        valid[r, cl[leaf]] = False
+        hyps &= valid[:, cl]
         keep &= hyps.any(axis=0)
+    new_rank = np.cumsum(valid, axis=0) - 1  # each cluster's kept hypotheses, best first
+    packed, value = np.zeros_like(hyps), np.full(state.value.shape, -np.inf)
+    r, leaf = np.nonzero(hyps)
+    packed[new_rank[r, cl[leaf]], leaf] = True
+    r, c = np.nonzero(valid)
+    value[new_rank[r, c], c] = state.value[r, c]
     idx = np.flatnonzero(keep)
-    return MhtState(state.leaves.take(idx), state.score[idx], state.peak[idx], state.lineage[idx], hyps[:, idx],
-                    value, state.next_branch, state.existence[idx]), idx
+    packed, cl = packed[:, idx], cl[idx]
+    # a track decided in its cluster leaves it
+    per_track = np.bincount(ids[idx], minlength=int(ids.max(initial=-1)) + 1)[ids[idx]]
+    decided = (per_track == 1) & (packed.sum(axis=0) == valid.sum(axis=0)[cl])
+    cl = np.where(decided, value.shape[1] + np.arange(idx.size), cl)
+    value = np.concatenate([value, np.full((value.shape[0], idx.size), -np.inf)], axis=1)
+    value[0, value.shape[1] - idx.size + np.arange(idx.size)] = 0.0
+    packed[1:, decided] = False
+    used, cl = np.unique(cl, return_inverse=True)
+    value = value[:, used]
+    rows = max(1, int(np.isfinite(value).sum(axis=0).max(initial=1)))
+    return MhtState(state.leaves.take(idx), state.score[idx], state.peak[idx], state.lineage[idx], packed[:rows],
+                    value[:rows], state.next_branch, state.existence[idx], cl), idx
 
 
 def k_best_sums(lists: list[np.ndarray], k: int) -> tuple[np.ndarray, np.ndarray]:
