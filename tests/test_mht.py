@@ -354,7 +354,7 @@ def test_an_established_track_keeps_its_detection_against_a_newborn() -> None:
     miss = float(np.log1p(-mp.pd * mp.pg))
     taker = {}
     for name, scores in (("newborn", [15.0, newborn]), ("established", [15.0, 15.0])):
-        leaves = SimpleNamespace(confirmed=np.array([True, False]))
+        leaves = SimpleNamespace(confirmed=np.array([True, False]), ids=np.array([0, 1]))
         state = MhtState(leaves, np.array(scores), np.array(scores), np.zeros((2, 1), np.int64),
                          np.ones((1, 2), bool), np.zeros((1, 1)), 2, np.ones(2), np.zeros(2, np.intp))
         br = extend_clusters(state, 1, rows, cols, inc, miss, mp)

@@ -54,6 +54,7 @@ docs/mht.md.
 from __future__ import annotations
 
 import math
+import os
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -69,7 +70,7 @@ from fedtrack.local_filters.mtt.associators.jipda import (
     scan_constants,
     survival,
 )
-from fedtrack.local_filters.mtt.config import MhtConfig
+from fedtrack.local_filters.mtt.config import MHT_WINDOW_MISS, MhtConfig
 from fedtrack.local_filters.pda.association import Constants, existence_update, log_amplitude_ratio
 
 
@@ -90,6 +91,10 @@ class MhtParams(NamedTuple):
     delete_score: float  # a tentative track deleted at score ln odds(B) + ln(beta / (1 - alpha))
     drop_score: float  # SPRT lower threshold ln(beta / (1 - alpha)): a confirmed track's fall from its peak
     amplitude: Constants | None = None  # amplitude model (threshold tau, SNR); None: amplitudes ignored
+
+
+# a hypothesis less probable than eps = MHT_WINDOW_MISS times its cluster's best is dropped
+LOG_UNLIKELY = math.log(MHT_WINDOW_MISS) if not os.environ.get("MHTK_NOEPS") else -math.inf
 
 
 def sprt_thresholds(false_track: float, miss: float) -> tuple[float, float]:
@@ -270,7 +275,6 @@ def _extend(held: np.ndarray, cand: np.ndarray, n_det: int, g_rows: np.ndarray, 
     return np.array(out_gain)[order], [out_ways[i] for i in order.tolist()]
 
 
-import os
 _DIVERSE = os.environ.get("MHTK_A", "") == "1"
 
 
@@ -310,15 +314,19 @@ def extend_clusters(state: MhtState, n_det: int, g_rows: np.ndarray, g_cols: np.
     n_pairs, n_leaves = g_rows.size, state.score.size
     n_valid = np.isfinite(state.value).sum(axis=0)
     group_of = label[state.cluster]
-    # simple clusters (at most one old cluster, of one leaf and one hypothesis): ranked at once
-    single = (n_valid == 1) & (np.bincount(state.cluster, minlength=n_old) == 1)
+    # simple clusters (at most one old cluster, of one track): ranked at once
+    first_leaf = np.unique(state.cluster.astype(np.int64) * (int(state.leaves.ids.max(initial=0)) + 1)
+                           + state.leaves.ids) // (int(state.leaves.ids.max(initial=0)) + 1)
+    single = np.bincount(first_leaf, minlength=n_old) == 1
+    if os.environ.get("MHTK_LOOP"):
+        single[:] = False
     n_members = np.bincount(label[:n_old], minlength=n_groups)
     simple = n_members <= 1
     simple[label[:n_old][~single]] = False
     lone = np.flatnonzero(simple[group_of])
     lone_pairs = np.flatnonzero(simple[group_of[g_rows]])
     values = np.full((k, n_groups), -np.inf)
-    keys, key_rank, births, birth_rank = _simple_clusters(state, lone, lone_pairs, group_of, g_rows, g_cols, gain,
+    keys, key_rank, births, birth_rank = _simple_clusters(state, lone, lone_pairs, label[:n_old], g_rows, g_cols, gain,
                                                           leaf_miss, values)
     alone = np.flatnonzero(n_members[label[n_old:]] == 0)  # a detection that no track gates
     values[0, label[n_old + alone]] = 0.0
@@ -346,8 +354,10 @@ def extend_clusters(state: MhtState, n_det: int, g_rows: np.ndarray, g_cols: np.
             cand_value.extend((leaf_miss[held].sum() - total + gains).tolist())
             cand_held.extend([held] * len(ways))
             cand_pairs.extend(ways)
-        best = np.argsort(-np.array(cand_value), kind="stable")[:k]
-        values[:best.size, g] = np.array(cand_value)[best]
+        cand_value = np.array(cand_value)
+        best = np.argsort(-cand_value, kind="stable")[:k]
+        best = best[cand_value[best] >= cand_value[best[0]] + LOG_UNLIKELY]
+        values[:best.size, g] = cand_value[best]
         for rank, i in enumerate(best.tolist()):
             held, pairs = cand_held[i], cand_pairs[i]
             pair_of[g_rows[pairs]] = pairs
@@ -368,35 +378,49 @@ def extend_clusters(state: MhtState, n_det: int, g_rows: np.ndarray, g_cols: np.
     return Branches(parent_leaf, pair - 1, holds, group_of[parent_leaf], values, born, birth_holds, label[n_old + born])
 
 
-def _simple_clusters(state: MhtState, lone: np.ndarray, lone_pairs: np.ndarray, group_of: np.ndarray,
+def _simple_clusters(state: MhtState, lone: np.ndarray, lone_pairs: np.ndarray, cluster_group: np.ndarray,
                      g_rows: np.ndarray, g_cols: np.ndarray, gain: np.ndarray, leaf_miss: np.ndarray,
                      values: np.ndarray) -> tuple[list, list, list, list]:
-    """The scan's clusters of one leaf (``lone``, its gated pairs ``lone_pairs``) with one parent,
-    all at once: each one's k best of its miss and each of its pairs (ties: the miss, then the
-    pairs in order, as :func:`best_extensions` ranks a component of one row), their values
-    written into ``values`` (rank, cluster); the children's keys and ranks, and the detections
-    each leaves to new tracks with the ranks that hold them."""
+    """The scan's clusters of one track (its leaves ``lone``, their gated pairs ``lone_pairs``),
+    all at once: each of its old cluster's hypotheses (that track's leaf, or none) extended by
+    the leaf's miss and each of its pairs, the cluster's k best kept (ties as the loop of
+    :func:`extend_clusters` breaks them: the better parent, then the miss, then the pairs in
+    order), their values written into ``values`` (rank, cluster); the children's keys and ranks,
+    and the detections each leaves to new tracks with the ranks that hold them."""
     k, n_pairs = values.shape[0], g_rows.size
-    leaf = np.concatenate([lone, g_rows[lone_pairs]])
-    pair = np.concatenate([np.full(lone.size, -1), lone_pairs])
-    value = (state.value[0, state.cluster[leaf]] + leaf_miss[leaf]
-             + np.concatenate([np.zeros(lone.size), gain[lone_pairs]]))
-    group = group_of[leaf]
-    order = np.lexsort((pair, -value, group))
+    held_by = np.argmax(state.hyps[:, lone], axis=0)  # a track's leaf is held by one hypothesis of its cluster
+    clusters = np.unique(state.cluster[lone])
+    with_leaf = np.zeros((state.value.shape[0], clusters.size), bool)
+    with_leaf[held_by, np.searchsorted(clusters, state.cluster[lone])] = True
+    empty_rank, empty_of = np.nonzero(np.isfinite(state.value[:, clusters]) & ~with_leaf)  # the track absent
+    leaf = np.concatenate([np.full(empty_rank.size, -1), lone, g_rows[lone_pairs]])
+    parent = np.concatenate([empty_rank, held_by, held_by[np.searchsorted(lone, g_rows[lone_pairs])]])
+    pair = np.concatenate([np.full(empty_rank.size + lone.size, -1), lone_pairs])
+    cluster = np.concatenate([clusters[empty_of], state.cluster[leaf[empty_rank.size:]]])
+    value = (np.concatenate([np.zeros(empty_rank.size), leaf_miss[lone], leaf_miss[g_rows[lone_pairs]]])
+             + state.value[parent, cluster]) + np.concatenate([np.zeros(empty_rank.size + lone.size), gain[lone_pairs]])
+    group = cluster_group[cluster]
+    order = np.lexsort((pair, parent, -value, group))
     first = np.r_[True, group[order][1:] != group[order][:-1]]
     rank = np.arange(order.size) - np.maximum.accumulate(np.where(first, np.arange(order.size), 0))
-    order, rank = order[rank < k], rank[rank < k]
+    top = value[order][np.maximum.accumulate(np.where(first, np.arange(order.size), 0))]
+    kept = (rank < k) & (value[order] >= top + LOG_UNLIKELY)
+    order, rank = order[kept], rank[kept]
     leaf, pair, group = leaf[order], pair[order], group[order]
     values[rank, group] = value[order]
     # each kept option leaves its cluster's other detections to new tracks
-    by_group = lone_pairs[np.argsort(group_of[g_rows[lone_pairs]], kind="stable")]
-    sorted_group = group_of[g_rows[by_group]]
-    start = np.searchsorted(sorted_group, group)
-    count = np.searchsorted(sorted_group, group, side="right") - start
+    dets = np.unique(cluster_group[state.cluster[g_rows[lone_pairs]]].astype(np.int64) * (int(g_cols.max(initial=0)) + 1)
+                     + g_cols[lone_pairs])
+    det_group, det = np.divmod(dets, int(g_cols.max(initial=0)) + 1)
+    start = np.searchsorted(det_group, group)
+    count = np.searchsorted(det_group, group, side="right") - start
     option = np.repeat(np.arange(group.size), count)
-    q = by_group[np.repeat(start, count) + np.arange(option.size) - np.repeat(np.cumsum(count) - count, count)]
-    left = q != pair[option]
-    return [leaf * (n_pairs + 1) + pair + 1], [rank], [g_cols[q[left]]], [rank[option[left]]]
+    d = det[np.repeat(start, count) + np.arange(option.size) - np.repeat(np.cumsum(count) - count, count)]
+    taken = np.full(pair.size, -1)
+    taken[pair >= 0] = g_cols[pair[pair >= 0]]
+    left = d != taken[option]
+    kept = leaf >= 0
+    return ([leaf[kept] * (n_pairs + 1) + pair[kept] + 1], [rank[kept]], [d[left]], [rank[option[left]]])
 
 
 def _members(label: np.ndarray, n: int) -> list[np.ndarray]:
