@@ -544,3 +544,37 @@ def test_live_centre_publishes_the_deferred_pictures_of_the_replay(tmp_path: Pat
     delayed = replay(tmp_path, "sorted", in_time, "mtt-centralized", **mtt)
     undelayed = replay(tmp_path, "now", in_time, "mtt-centralized", **{**mtt, "picture_delay": 0.0})
     assert [[tr["id"] for tr in p["tracks"]] for p in delayed] != [[tr["id"] for tr in p["tracks"]] for p in undelayed]
+
+
+def test_independent_scenes_keep_their_own_hypotheses() -> None:
+    """Hypotheses per cluster (:func:`~fedtrack.local_filters.mtt.associators.mht.extend_clusters`):
+    two formation scenes in clutter 100 km apart (no gate holds a detection of the other) tracked
+    together give each scene's tracks exactly as tracked alone (x and P of every track, tentative
+    ones too, at every scan, to 1e-9): each cluster of interacting tracks keeps its own k best
+    hypotheses, not the other scene's. Global hypotheses, k of the whole scene, fail this: the
+    other scene's alternatives crowd a scene's out (about 1 s)."""
+    (a, density, _), (b, _, _) = formation_scans(0), formation_scans(1)
+    far = np.array([1e5, 0.0])
+    both = [sa._replace(z=np.concatenate([sa.z, sb.z + far])) for sa, sb in zip(a, b)]
+    params = track_params(MttConfig(clutter_density=density, associator="mht", pd=0.8), "s1", 4)
+
+    def run(scans: list[SensorScan]) -> list[np.ndarray]:
+        state, out = initial_state(4), []
+        for scan in scans:
+            state = tracker_step(state, scan, params).state
+            tr = state.tracks
+            flat = np.concatenate([tr.x, tr.P.reshape(tr.size, -1)], axis=1)
+            out.append(flat[np.lexsort(flat[:, ::-1].T)])
+        return out
+
+    alone_a, alone_b, together = run(a), run(b), run(both)
+    worst, several = 0.0, 0
+    for xa, xb, xt in zip(alone_a, alone_b, together):
+        shifted = xb.copy()
+        shifted[:, 0] += far[0]
+        expect = np.concatenate([xa, shifted])
+        assert xt.shape == expect.shape
+        worst = max(worst, np.abs(xt - expect[np.lexsort(expect[:, ::-1].T)]).max(initial=0.0))
+        several += xa.shape[0] > 3
+    assert worst <= 1e-9 * 1e5  # positions near 1e5 m: 1e-9 relative
+    assert several > 10  # the scenes had tentative tracks besides the formation's

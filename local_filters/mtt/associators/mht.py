@@ -4,8 +4,12 @@ over batched branches (``[mtt] associator = "mht"``; the tracker runs them in
 
 Every target track is a tree of **branches** (its alternative detection histories); its live
 ones (leaves) are stored together, batched, as the tracker's ``TrackSet`` whose ``ids`` name each
-leaf's track. A **global hypothesis** picks at most one leaf per track with no detection used
-twice; the ``k`` best are kept, as a boolean (hypotheses, leaves) matrix, best first.
+leaf's track. The tracks are split into **clusters** of interacting tracks (tracks whose
+leaves shared a gated detection, and have not been decided since); a **hypothesis** of a
+cluster picks at most one leaf per track of it with no detection used twice; each cluster keeps
+its ``k`` best, as a boolean (rank, leaves) matrix whose row r holds every cluster's r-th best
+(row 0, the union of the clusters' best, is the best global hypothesis: the clusters are
+independent), with a (rank, cluster) matrix of values.
 
 Per scan:
 
@@ -19,16 +23,20 @@ Per scan:
    amplitudes; a miss ``ln(1 - P_D P_G)``. These are JIPDA's pair and miss factors
    (``local_filters/mtt/associators/jipda.py``) at existence 1, from the same constants (paper 001's
    ``constants``: ``P_G``, the amplitude threshold ``tau``, the SNR: :func:`~.jipda.scan_constants`).
-3. Each kept global hypothesis is extended by its ``k`` best assignments of the scan
-   (:func:`select_hypotheses`): each of its leaves takes one gated detection or misses, each
+3. Per cluster (:func:`extend_clusters`): the old clusters joined by the detections their
+   leaves gate are the scan's clusters; each one's parents are the k best combinations of its old
+   clusters' hypotheses (:func:`k_best_sums`), each parent extended by its ``k`` best assignments
+   of the cluster's gated pairs: each of its leaves takes one gated detection or misses, each
    detection at most once; a pair's gain is what it adds to the hypothesis value over the miss,
-   each track's existence kept open (:func:`value_increments`). The problem is split
-   into the connected components (clusters) of the leaves' gating graph; each cluster's k best
-   by Murty's algorithm over ``linear_sum_assignment`` (:func:`~.gnn.k_best_assignments`), the
-   hypothesis's k best as the k best sums over its clusters (:func:`k_best_sums`). Of all
-   the extensions of all the hypotheses the ``k`` best (hypothesis value plus gain) are kept. A
-   detection that a kept hypothesis leaves unused starts a new track there (one per detection).
-4. The branches the kept hypotheses use are the new leaves (:func:`branches`): a miss keeps the
+   each track's existence kept open (:func:`value_increments`). The parent's pairs are split
+   into their connected components; each component's k best by Murty's algorithm over
+   ``linear_sum_assignment`` (:func:`~.gnn.k_best_assignments`), the parent's k best as the k best
+   sums over its components. Of all the extensions of all the parents the cluster keeps its
+   ``k`` best, less those less probable than ``eps`` = ``MHT_WINDOW_MISS`` times its best (the
+   window's own ``eps``). A cluster of one track is ranked with every other such at once
+   (:func:`_simple_clusters`). A detection that a kept hypothesis of its cluster leaves unused
+   starts a new track there (one per detection), in that cluster.
+4. The branches the kept hypotheses use are the new leaves: a miss keeps the
    prediction, a detection is the (E)KF update (Joseph form) of its parent; with ``process_noise =
    "imm"`` every leaf carries its two motion modes, as a gnn track does (docs/mht.md).
 5. Track management per branch (:func:`manage`): ``"score"``, Wald's SPRT on the track score
@@ -40,21 +48,22 @@ Per scan:
 6. :func:`prune`: N-scan pruning (of every track of the best hypothesis only the leaves that
    share its branch ``window - 1`` scans back stay; ``window = 1``: its leaf alone), at most
    ``max_branches`` leaves per track (those of the best hypotheses first); a hypothesis that
-   held a removed leaf is dropped, a leaf that no hypothesis holds is removed.
+   held a removed leaf is dropped, a leaf that no hypothesis holds is removed; a track decided
+   in its cluster (one leaf, held by all its hypotheses) leaves it as a cluster of its own.
 
 The picture is the best hypothesis's tracks; with ``picture_delay``, the best hypothesis's a few
 scans later, each track as its ancestor at the picture's time was (the N-scan-back decision:
 :func:`~fedtrack.local_filters.mtt.tracker.mht_decided`). With ``window = 1``, ``k = 1`` and
-``"counts"`` this is gnn (tests/test_mht.py, to 1e-9). The global hypotheses are extended scan by scan (Cox &
-Hingorani 1996: Murty's k best per hypothesis), so an assignment that leaves the k best at one
-scan cannot come back later: that is what ``k`` bounds. Defaults and their derivation:
+``"counts"`` this is gnn (tests/test_mht.py, to 1e-9). The hypotheses are extended scan by scan
+(Cox & Hingorani 1996: Murty's k best per hypothesis), so an assignment that leaves its cluster's
+k best at one scan cannot come back later: that is what ``k`` bounds; k per cluster (the
+track-oriented MHT's structure) keeps the cost linear in the clusters. Defaults and their derivation:
 docs/mht.md.
 """
 
 from __future__ import annotations
 
 import math
-import os
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -94,7 +103,7 @@ class MhtParams(NamedTuple):
 
 
 # a hypothesis less probable than eps = MHT_WINDOW_MISS times its cluster's best is dropped
-LOG_UNLIKELY = math.log(MHT_WINDOW_MISS) if not os.environ.get("MHTK_NOEPS") else -math.inf
+LOG_UNLIKELY = math.log(MHT_WINDOW_MISS)
 
 
 def sprt_thresholds(false_track: float, miss: float) -> tuple[float, float]:
@@ -178,8 +187,8 @@ def birth_scores(params: MhtParams, amplitude: np.ndarray | None, n: int) -> np.
 
 
 def best_extensions(n_det: int, r: np.ndarray, c: np.ndarray, gain: np.ndarray, k: int,
-                    names: np.ndarray | None = None, cache: dict | None = None,
-                    established: np.ndarray | None = None) -> tuple[np.ndarray, list[np.ndarray]]:
+                    names: np.ndarray | None = None, cache: dict | None = None
+                    ) -> tuple[np.ndarray, list[np.ndarray]]:
     """The ``k`` best ways for rows to take one detection each of their candidate pairs
     (``r``, ``c``, ``gain`` over a miss) or miss (gain 0), each
     detection at most once: the total gains, best first, and per way the indices of the pairs
@@ -203,8 +212,7 @@ def best_extensions(n_det: int, r: np.ndarray, c: np.ndarray, gain: np.ndarray, 
         if key is not None and key in cache:
             costs, picked = cache[key]
         else:
-            k_c = k if established is None or established[r[sel]].any() else 1
-            costs, picked = _component_best(r_local[sel], c[sel], gain[sel], k_c)
+            costs, picked = _component_best(r_local[sel], c[sel], gain[sel], k)
             if key is not None:
                 cache[key] = costs, picked
         lists.append(costs)
@@ -257,8 +265,7 @@ def _extend(held: np.ndarray, cand: np.ndarray, n_det: int, g_rows: np.ndarray, 
     if pairs.size == 0:
         return np.zeros(1), [pairs]
     if params.management != "counts":
-        gains, ways = best_extensions(n_det, g_rows[pairs], g_cols[pairs], gain[pairs], params.k, pairs, cache,
-                                      confirmed if _DIVERSE else None)
+        gains, ways = best_extensions(n_det, g_rows[pairs], g_cols[pairs], gain[pairs], params.k, pairs, cache)
         return gains, [pairs[w] for w in ways]
     first = pairs[confirmed[g_rows[pairs]]]
     second = pairs[~confirmed[g_rows[pairs]]]
@@ -273,9 +280,6 @@ def _extend(held: np.ndarray, cand: np.ndarray, n_det: int, g_rows: np.ndarray, 
             out_ways.append(np.concatenate([taken, rest[w2]]))
     order = np.argsort(-np.array(out_gain), kind="stable")[:params.k]
     return np.array(out_gain)[order], [out_ways[i] for i in order.tolist()]
-
-
-_DIVERSE = os.environ.get("MHTK_A", "") == "1"
 
 
 class Branches(NamedTuple):
@@ -318,8 +322,6 @@ def extend_clusters(state: MhtState, n_det: int, g_rows: np.ndarray, g_cols: np.
     first_leaf = np.unique(state.cluster.astype(np.int64) * (int(state.leaves.ids.max(initial=0)) + 1)
                            + state.leaves.ids) // (int(state.leaves.ids.max(initial=0)) + 1)
     single = np.bincount(first_leaf, minlength=n_old) == 1
-    if os.environ.get("MHTK_LOOP"):
-        single[:] = False
     n_members = np.bincount(label[:n_old], minlength=n_groups)
     simple = n_members <= 1
     simple[label[:n_old][~single]] = False
@@ -409,9 +411,9 @@ def _simple_clusters(state: MhtState, lone: np.ndarray, lone_pairs: np.ndarray, 
     leaf, pair, group = leaf[order], pair[order], group[order]
     values[rank, group] = value[order]
     # each kept option leaves its cluster's other detections to new tracks
-    dets = np.unique(cluster_group[state.cluster[g_rows[lone_pairs]]].astype(np.int64) * (int(g_cols.max(initial=0)) + 1)
-                     + g_cols[lone_pairs])
-    det_group, det = np.divmod(dets, int(g_cols.max(initial=0)) + 1)
+    span = int(g_cols.max(initial=0)) + 1
+    det_group, det = np.divmod(np.unique(cluster_group[state.cluster[g_rows[lone_pairs]]].astype(np.int64) * span
+                                         + g_cols[lone_pairs]), span)
     start = np.searchsorted(det_group, group)
     count = np.searchsorted(det_group, group, side="right") - start
     option = np.repeat(np.arange(group.size), count)
