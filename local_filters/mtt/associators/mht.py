@@ -186,7 +186,7 @@ def birth_scores(params: MhtParams, amplitude: np.ndarray | None, n: int) -> np.
     return score
 
 
-def best_extensions(n_det: int, r: np.ndarray, c: np.ndarray, gain: np.ndarray, k: int,
+def best_extensions(r: np.ndarray, c: np.ndarray, gain: np.ndarray, k: int,
                     names: np.ndarray | None = None, cache: dict | None = None
                     ) -> tuple[np.ndarray, list[np.ndarray]]:
     """The ``k`` best ways for rows to take one detection each of their candidate pairs
@@ -194,8 +194,8 @@ def best_extensions(n_det: int, r: np.ndarray, c: np.ndarray, gain: np.ndarray, 
     detection at most once: the total gains, best first, and per way the indices of the pairs
     it takes. Per connected component of the pairs: a component of one row ranks its pairs and
     its miss, a larger one takes Murty's k best; combined by the k best sums. ``cache`` holds
-    the components solved already, by the ``names`` of their pairs (ascending): the global
-    hypotheses of a scan share most of them."""
+    the components solved already, by the ``names`` of their pairs (ascending): the parents of
+    a cluster share most of them."""
     if r.size == 0:
         return np.zeros(1), [np.zeros(0, np.intp)]
     if (r == r[0]).all():  # one row: its miss and each of its pairs, as a component of one row below
@@ -265,17 +265,17 @@ def _extend(held: np.ndarray, cand: np.ndarray, n_det: int, g_rows: np.ndarray, 
     if pairs.size == 0:
         return np.zeros(1), [pairs]
     if params.management != "counts":
-        gains, ways = best_extensions(n_det, g_rows[pairs], g_cols[pairs], gain[pairs], params.k, pairs, cache)
+        gains, ways = best_extensions(g_rows[pairs], g_cols[pairs], gain[pairs], params.k, pairs, cache)
         return gains, [pairs[w] for w in ways]
     first = pairs[confirmed[g_rows[pairs]]]
     second = pairs[~confirmed[g_rows[pairs]]]
     out_gain, out_ways = [], []
-    for g1, w1 in zip(*best_extensions(n_det, g_rows[first], g_cols[first], gain[first], params.k, first, cache)):
+    for g1, w1 in zip(*best_extensions(g_rows[first], g_cols[first], gain[first], params.k, first, cache)):
         taken = first[w1]
         free = np.ones(n_det, bool)
         free[g_cols[taken]] = False
         rest = second[free[g_cols[second]]]
-        for g2, w2 in zip(*best_extensions(n_det, g_rows[rest], g_cols[rest], gain[rest], params.k, rest, cache)):
+        for g2, w2 in zip(*best_extensions(g_rows[rest], g_cols[rest], gain[rest], params.k, rest, cache)):
             out_gain.append(g1 + g2)
             out_ways.append(np.concatenate([taken, rest[w2]]))
     order = np.argsort(-np.array(out_gain), kind="stable")[:params.k]
