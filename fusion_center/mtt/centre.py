@@ -35,10 +35,10 @@ scan, the linearized observation of every track the scan detected, the tracks it
   chance to confirm a track started on clutter exceeds that bound at some position sensor's
   clutter density (:func:`needs_local_confirmation`), a track also needs a local track that its
   tracker confirmed: in heavy clutter the count alone confirmed tracks on several sensors'
-  clutter tracks. A confirmed track is deleted once every sensor that tracks it (a local track maps to it) missed it on its last
-  ``CENTRAL_MISSES`` (2) scans since its last detection (``delete_misses`` when one sensor
-  tracks it): a target that died goes within two scans of the slowest sensor instead of
-  lingering until every local tracker deleted its track. It is also deleted when no local
+  clutter tracks. A confirmed track is deleted once every sensor that tracks it (a local track
+  maps to it) missed it on its last ``CENTRAL_MISSES`` (2) scans since its last detection
+  (``delete_misses`` when one sensor tracks it): a target that died goes within two scans of the
+  slowest sensor instead of lingering until every local tracker deleted its track. It is also deleted when no local
   track maps to it any more or none supported it for ``central_timeout`` seconds.
 """
 
@@ -55,7 +55,6 @@ from fedtrack.fusion_center.mtt.central_track import CentralTracks, padded
 from fedtrack.local_filters.linear.gating import track_difference_d2
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.associators.gnn import assign
-from fedtrack.local_filters.mtt.associators.jipda import FALSE_CONFIRM
 from fedtrack.local_filters.mtt.local import LocalReport, Resets, no_resets
 
 LocalKey = tuple[str, int]  # (sensor, local track id)
@@ -71,12 +70,10 @@ ASSOCIATION_SHIFT = 1e6  # larger than any gated pair's d2 + ln det
 def needs_local_confirmation(cfg: MttConfig, sensor: str) -> bool:
     """Whether a central track also needs a local track confirmed by its tracker, judged on position
     sensor ``sensor``: where the local trackers confirm by a test with a false-confirmation bound
-    (jipda's existence: ``FALSE_CONFIRM``; mht's score: ``[mtt.mht] false_track``) and the count's
-    chance to confirm a track started on that sensor's clutter exceeds that bound
-    (:meth:`MttConfig.counts_false_confirm`)."""
-    bound = {"jipda": FALSE_CONFIRM, "mht": cfg.mht.false_track if cfg.mht.management == "score" else None}
-    alpha = bound.get(cfg.associator)
-    return alpha is not None and cfg.counts_false_confirm(sensor) > alpha
+    (:attr:`MttConfig.confirm_bound`) and the count's chance to confirm a track started on that
+    sensor's clutter exceeds that bound (:meth:`MttConfig.counts_false_confirm`)."""
+    bound = cfg.confirm_bound
+    return bound is not None and cfg.counts_false_confirm(sensor) > bound
 
 
 @dataclass
@@ -379,13 +376,11 @@ class TrackToTrackCentre:
         """One scan (``report``) of sensor column ``col`` in the life rules: M-of-N confirmation of
         tentative tracks (the centralized rule over every sensor's scans; where the local trackers'
         own test is safer than the count in some position sensor's clutter,
-        :func:`needs_local_confirmation`,
-        a track is confirmed when the rule holds and a local track that its tracker confirmed maps
-        to it); a confirmed track
-        that this sensor tracks (a local track maps to it) and did not detect misses, and is
-        deleted after ``delete_misses`` consecutive misses (``CENTRAL_MISSES`` of each tracking
-        sensor when several track it); a track confirmed now is confirmed from the scan's time
-        on (:meth:`CentralTracks.as_of`)."""
+        :func:`needs_local_confirmation`, a track is confirmed when the rule holds and a local track
+        that its tracker confirmed maps to it); a confirmed track that this sensor tracks (a local
+        track maps to it) and did not detect misses, and is deleted after ``delete_misses``
+        consecutive misses (``CENTRAL_MISSES`` of each tracking sensor when several track it); a
+        track confirmed now is confirmed from the scan's time on (:meth:`CentralTracks.as_of`)."""
         cfg, tracks = self.cfg, self.tracks
         hit = np.zeros(tracks.capacity, dtype=bool)
         hit[detected] = True

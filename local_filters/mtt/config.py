@@ -148,12 +148,23 @@ class MttConfig:
         n = self.confirm_window - 1
         return sum(math.comb(n, j) * p**j * (1.0 - p) ** (n - j) for j in range(self.confirm_hits - 1, n + 1))
 
+    @property
+    def confirm_bound(self) -> float | None:
+        """The local trackers' bound on confirming a track started on clutter when they confirm by
+        a test (jipda's existence: ``FALSE_CONFIRM`` a scan; mht's score: ``[mtt.mht]
+        false_track``); None when they count detections (``gnn``, mht's ``"counts"``)."""
+        from fedtrack.local_filters.mtt.associators.jipda import FALSE_CONFIRM
+
+        if self.associator == "jipda":
+            return FALSE_CONFIRM
+        return self.mht.false_track if self.associator == "mht" and self.mht.management == "score" else None
+
     def count_note(self, position_sensors: Iterable[str]) -> str | None:
         """A warning when the count rules the tracks (``gnn``, mht's ``"counts"``) and some position
         sensor's clutter makes it confirm clutter tracks more often than jipda's bound allows."""
         from fedtrack.local_filters.mtt.associators.jipda import FALSE_CONFIRM
 
-        if not (self.associator == "gnn" or (self.associator == "mht" and self.mht.management == "counts")):
+        if self.confirm_bound is not None:
             return None
         chance, sensor = max(((self.counts_false_confirm(s), s) for s in position_sensors), default=(0.0, ""))
         if chance <= FALSE_CONFIRM:

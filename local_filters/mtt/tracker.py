@@ -321,14 +321,6 @@ def associate(state: TrackerState, gating: Gating | None, scan: SensorScan, para
         params.pd, params.clutter_density, scan.amplitude, state.memory, params.gate[scan.dim], dt))
 
 
-def predicted_modes(tracks: TrackSet, dt: float, params: TrackParams, q_scale: float | np.ndarray = 1.0
-                    ) -> Modes | None:
-    """With two modes per track, each mode's prediction (what :func:`predict` combines); else None."""
-    if params.modes is None or tracks.modes is None or not tracks.size:
-        return None
-    return modes_predict(tracks.modes, dt, params.q, params.noise_model, params.modes, q_scale)[0]
-
-
 def predict_tracks(tracks: TrackSet, dt: float, params: TrackParams, q_scale: float | np.ndarray = 1.0
                    ) -> tuple[TrackSet, GaussianState]:
     """Role 1 for the roles after it: the tracks with their modes (two per track) predicted ``dt``
@@ -529,8 +521,8 @@ def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale
         x[best], P[best] = state.tracks.x, state.tracks.P
         leaves = leaves._replace(x=x, P=P)
     dt = 0.0 if state.t is None else scan.t - state.t
-    x, P = predict(leaves, dt, params, q_scale)
-    modes = predicted_modes(leaves, dt, params, q_scale)  # each leaf's modes (process_noise = "imm")
+    at_scan, (x, P) = predict_tracks(leaves, dt, params, q_scale)
+    modes = _modes_at_scan(at_scan, params)  # each leaf's modes (process_noise = "imm")
     gating = gate_scan(GaussianState(x, P), scan, params)
     g_rows = g_cols = np.zeros(0, np.int64)
     nu, inc, miss = np.zeros((0, m)), np.zeros(0), mht.miss_increment(mp)

@@ -223,7 +223,10 @@ def best_extensions(r: np.ndarray, c: np.ndarray, gain: np.ndarray, k: int,
 
 def _pair_components(r: np.ndarray, c: np.ndarray) -> np.ndarray:
     """The connected components of pairs (rows ``r``, columns ``c``, both from 0) that share a row
-    or a column: per pair the least index of its component (the least label spread a hop a round)."""
+    or a column: per pair the least index of its component (the least label spread a hop a round).
+    Not scipy's ``connected_components`` over ``gnn._pair_graph`` (as gnn and jipda use once a
+    scan): this runs per cluster and hypothesis on a few pairs, where building the sparse graph
+    made mht 20 % slower at 1,000 targets (23.3-24.3 against 19.1-19.4 s CPU)."""
     label = np.arange(r.size)
     while True:
         by_r, by_c = np.full(r.max() + 1, r.size), np.full(c.max() + 1, r.size)
