@@ -185,6 +185,23 @@ def test_exact_enumeration_equals_brute_force() -> None:
     assert checked > 20
 
 
+def test_a_certain_tracks_existence_stays_a_probability() -> None:
+    """Tracks of predicted existence 1 (or within a rounding of it): the posterior existence stays
+    in [0, 1] (the marginals' sum exceeded 1 by 2e-16 and made the next scan's existence NaN), and
+    a second scan at the same time (a survival of 1) on it is finite, exact or by LM-IPDA."""
+    rng = np.random.default_rng(5)
+    c = constants(PDAParams(pd=0.9, clutter_density=1e-6, snr=5.0))
+    for trial in range(200):
+        n, n_det = int(rng.integers(1, 6)), int(rng.integers(1, 7))
+        gated, pairs, _, log_a = random_cluster(rng, n, n_det)
+        mu_bar = np.where(rng.random(n) < 0.5, 1.0, 1.0 - 10.0 ** rng.uniform(-17.0, -8.0, n))
+        max_events = 1 if trial % 2 else jipda.MAX_EVENTS  # LM-IPDA or exact
+        out = jipda.associate(n_det, pairs, log_a, mu_bar, c, max_events=max_events)
+        assert np.all((out.existence >= 0.0) & (out.existence <= 1.0)), out.existence
+        again = jipda.associate(n_det, pairs, log_a, out.existence, c, max_events=max_events)
+        assert np.all(np.isfinite(again.existence)) and np.all(np.isfinite(again.beta))
+
+
 def test_event_table_counts_every_partial_matching() -> None:
     for a, b in [(1, 4), (2, 3), (3, 3), (4, 2), (3, 6)]:
         table = jipda.joint_events(a, b)

@@ -310,7 +310,9 @@ def _posterior(w0: np.ndarray, w: np.ndarray, rows: np.ndarray, mu_bar: np.ndarr
     """Existence and conditional association probabilities from the joint marginals."""
     pdpg = c.pd * c.pg
     missed = w0 * mu_bar * (1.0 - pdpg) / (1.0 - pdpg * mu_bar)  # exists, no detection of it
-    mu = missed + np.bincount(rows, w, minlength=mu_bar.shape[0])
+    # the marginals' sum can exceed 1 by a rounding when a track is certain (mu_bar 1): clipped, or
+    # the next scan's log(1 - mu_bar) is NaN and the track's existence with it
+    mu = np.minimum(missed + np.bincount(rows, w, minlength=mu_bar.shape[0]), 1.0)
     alive = mu > 0.0
     inv = np.divide(1.0, mu, out=np.zeros_like(mu), where=alive)
     with np.errstate(divide="ignore", invalid="ignore"):
