@@ -523,7 +523,9 @@ class TrackToTrackCentre:
             ri, ci = candidate_pairs(U[:, [0, 2]], np.sqrt(C[:, 0, 0] + C[:, 2, 2]), xc[:, [0, 2]],
                                      np.sqrt(Pc[:, 0, 0] + Pc[:, 2, 2]), gate)
             d2, logdet = track_difference_d2(U[ri] - xc[ci], C[ri] + Pc[ci])
-            inside = d2 <= gate
+            # a confirmed track moves only to another sensor's central track: one that no local
+            # track maps to any more (its track retired or unmapped in this report) is pruned next
+            inside = (d2 <= gate) & ((ri < len(unmapped)) | self.support[cands[ci]].any(axis=1))
             ri, ci, cost = ri[inside], ci[inside], d2[inside] + logdet[inside]
             # most gated pairs first, then the least cost: a shift makes every gated pair's cost negative
             picked = assign(len(rows), cands.size, ri, ci, cost - ASSOCIATION_SHIFT)
