@@ -409,3 +409,70 @@ def test_replay_notes_when_the_count_confirms_clutter_tracks(tmp_path: Path, cap
         assert ("sensor s1's clutter_density 2e-06 per m^2 the 3-of-4 count confirms a track started on "
                 "clutter with probability 0.016" in err
                 and 'associator = "jipda"' in err) == noted
+
+
+def _report(sensor: str, t: float, tracks: dict[int, tuple[float, bool, bool]], retired: tuple[int, ...] = ()):
+    """A position sensor's report: ``tracks`` maps a local id to (x, confirmed, started), every
+    track detected at (x, 0) m, standing still."""
+    from fedtrack.local_filters.mtt.local import LocalReport
+
+    ids = np.array(sorted(tracks), dtype=np.int64)
+    x = np.array([[tracks[i][0], 0.0, 0.0, 0.0] for i in ids]).reshape(-1, 4)
+    H = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
+    n = ids.size
+    return LocalReport(sensor, t, ids, x, np.broadcast_to(np.diag([100.0, 100.0, 100.0, 100.0]), (n, 4, 4)).copy(),
+                       np.array([tracks[i][1] for i in ids], dtype=bool), np.ones(n, bool), np.broadcast_to(H, (n, 2, 4)).copy(),
+                       np.broadcast_to(100.0 * np.eye(2), (n, 2, 2)).copy(), x[:, [0, 2]].copy(),
+                       np.array([tracks[i][2] for i in ids], dtype=bool), np.array(retired, dtype=np.int64))
+
+
+def test_centre_keeps_a_confirmed_track_when_its_neighbour_retires() -> None:
+    """One sensor's two local tracks 20 m apart on their own central tracks; the second retires in
+    the scan where the first, confirmed, is alone on its central track: the first keeps its central
+    track (it used to move onto the retiring one's, which the prune then deletes: a live target's
+    track lost its id and its confirmation)."""
+    from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
+    from fedtrack.local_filters.mtt.config import MttConfig
+
+    centre = TrackToTrackCentre(MttConfig(), 4, False)
+    for k in range(4):
+        centre.answer(_report("s1", float(k), {1: (0.0, k > 1, k == 0), 2: (20.0, False, k == 0)}))
+    first = centre.mapping[("s1", 1)]
+    assert centre.mapping[("s1", 2)] != first
+    assert bool(centre.tracks.confirmed[centre.tracks.slot[first]])
+    centre.answer(_report("s1", 4.0, {1: (0.0, True, False)}, retired=(2,)))
+    assert centre.mapping[("s1", 1)] == first and list(centre.tracks) == [first]
+    assert bool(centre.tracks.confirmed[centre.tracks.slot[first]])
+
+
+def test_centre_pictures_show_a_deleted_track_up_to_its_last_support() -> None:
+    """A confirmed central track deleted when its local track retires (last fused at t = 4): the
+    pictures at T <= 4 made afterwards still show it, as a tracker of scans's pictures show the
+    tracks it had at T; later ones do not, nor after max_lag. A track whose local track moved to
+    another sensor's track (a duplicate) is not shown after its deletion."""
+    from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
+    from fedtrack.fusion_center.mtt.engines import centre_picture
+    from fedtrack.local_filters.mtt.config import MttConfig
+
+    centre = TrackToTrackCentre(MttConfig(), 4, False)
+    for k in range(5):
+        centre.answer(_report("s1", float(k), {1: (0.0, k > 1, k == 0)}))
+    cid = centre.mapping[("s1", 1)]
+    centre.answer(_report("s1", 5.0, {}, retired=(1,)))
+    assert cid not in centre.tracks
+    for T, shown in ((3.0, True), (4.0, True), (4.5, False)):
+        picture = centre_picture(centre, T)
+        assert (picture is not None and picture.ids == [cid] and picture.confirmed == [True]) == shown
+    centre.answer(_report("s1", 4.0 + centre.cfg.max_lag + 0.5, {}))
+    assert centre_picture(centre, 4.0) is None
+    # s1's confirmed track moved to s2's (as the association moves a track alone on its central
+    # track): its own, left without support, is pruned and not shown
+    centre = TrackToTrackCentre(MttConfig(), 4, False)
+    for k in range(4):
+        centre.answer(_report("s1", float(k), {1: (0.0, k > 1, k == 0)}))
+        centre.answer(_report("s2", k + 0.5, {5: (5000.0, k > 1, k == 0)}))
+    own, other = centre.mapping[("s1", 1)], centre.mapping[("s2", 5)]
+    centre._map(("s1", 1), other)
+    centre.prune(4.0)
+    assert own not in centre.tracks and other in centre.tracks
+    assert centre_picture(centre, 3.0).ids == [other]

@@ -424,3 +424,40 @@ class CentralTracks:
         self.count[slots] = keep + n_after + 1
         self._trim(slots, t_newest)
         return x_at, P_at
+
+
+class DepartedTracks:
+    """Confirmed central tracks deleted by the life rules, kept ``max_lag`` seconds for the pictures
+    made after them: a picture at ``T`` made ``picture_delay`` later shows a track deleted since
+    while ``T`` is at most its last supported time (the target was there; after its last detection
+    the deletion says it was gone), as a tracker of scans's picture shows the tracks it had at
+    ``T`` (docs/multitarget.md#pictures). Their buffers are kept as a hand-over carries them."""
+
+    def __init__(self, like: CentralTracks):
+        self.tracks = CentralTracks(like.dim, like.q, like.noise_model, like.max_lag, capacity=8,
+                                    depth=like.depth, detector=like.detector, modes=like.modes)
+        self.last: dict[int, float] = {}  # id -> its last supported time
+        self.sensors: dict[int, list[str]] = {}  # id -> the sensors that tracked it
+
+    def keep(self, cid: int, table: CentralTracks, last: float, sensors: list[str]) -> None:
+        """Track ``cid`` of ``table`` (before its deletion there), last supported at ``last``."""
+        s = table.slot[cid]
+        slot = self.tracks.place(cid, True, table.entries(cid))
+        self.tracks.since[slot], self.tracks.confirmed_t[slot] = table.since[s], table.confirmed_t[s]
+        self.last[cid], self.sensors[cid] = last, sensors
+
+    def expire(self, now: float) -> None:
+        """Forget the tracks last supported more than ``max_lag`` before ``now``."""
+        for cid in [c for c, last in self.last.items() if last < now - self.tracks.max_lag]:
+            self.tracks.delete(cid)
+            del self.last[cid], self.sensors[cid]
+
+    def shown_at(self, T: float) -> np.ndarray:
+        """The slots of the tracks a picture at ``T`` shows (begun and confirmed by ``T``, last
+        supported at or after it), in increasing id."""
+        slots = self.tracks.live()
+        if not slots.size:
+            return slots
+        last = np.array([self.last[c] for c in self.tracks.ids[slots].tolist()])
+        began, confirmed = self.tracks.as_of(slots, T)
+        return slots[began & confirmed & (last >= T)]

@@ -51,7 +51,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
-from fedtrack.fusion_center.mtt.central_track import CentralTracks, padded
+from fedtrack.fusion_center.mtt.central_track import CentralTracks, DepartedTracks, padded
 from fedtrack.local_filters.linear.gating import track_difference_d2
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.associators.gnn import assign
@@ -182,6 +182,8 @@ class TrackToTrackCentre:
         # started), one per fused row (an id may repeat; a track deleted since no longer has its id in
         # its slot): the only ones whose latest estimate moved (a region centre checks whether they left it)
         self.moved = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+        self.departed = DepartedTracks(self.tracks)  # confirmed tracks deleted, for later pictures
+        self.absorbed: set[int] = set()  # tracks whose local tracks moved to another (not departed)
         self._fit()
 
     def _fit(self) -> None:
@@ -207,6 +209,9 @@ class TrackToTrackCentre:
         return np.array(cids, dtype=np.int64), np.fromiter(slots, dtype=np.int64, count=len(cids))
 
     def _map(self, key: LocalKey, cid: int) -> None:
+        old = self.mapping.get(key)
+        if old is not None and old != cid:
+            self.absorbed.add(old)
         self._unmap(key)
         self.mapping[key] = cid
         self.members.setdefault(cid, set()).add(key)
@@ -404,6 +409,12 @@ class TrackToTrackCentre:
             self._delete(cid)
 
     def _delete(self, cid: int) -> None:
+        """Delete ``cid`` by the life rules; a confirmed one stays in later pictures up to its last
+        supported time (:class:`DepartedTracks`) unless its local tracks moved to another track."""
+        slot = self.tracks.slot[cid]
+        if self.tracks.confirmed[slot] and cid not in self.absorbed:
+            self.departed.keep(cid, self.tracks, float(self.last_support[slot]),
+                               self.sensor_lists(np.array([slot]))[0])
         for key in list(self.members.get(cid, ())):
             self._unmap(key)
         self.tracks.delete(cid)
@@ -556,6 +567,8 @@ class TrackToTrackCentre:
         gone = ~self.support.any(axis=1) | (now - self.last_support > self.cfg.central_timeout)
         for cid in ids[gone & (ids >= 0)].tolist():
             self._delete(cid)
+        self.absorbed.clear()
+        self.departed.expire(now)
 
     def hand_over(self, cid: int) -> HandOver:
         """Remove central track ``cid`` (to a neighbour region's centre) and return its record."""

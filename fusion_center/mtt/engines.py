@@ -393,21 +393,28 @@ class CentralExistence:
 
 
 def centre_picture(c: TrackToTrackCentre, T: float, existence: CentralExistence | None = None) -> PictureTracks | None:
-    """A centre's central tracks predicted to ``T`` (None without tracks)."""
-    if not c.tracks:
-        return None
+    """A centre's central tracks predicted to ``T`` (None without tracks), with the confirmed ones
+    deleted since that were last supported at or after ``T`` (:class:`DepartedTracks`)."""
     slots = c.tracks.live()
     began, confirmed = c.tracks.as_of(slots, T)
     slots, confirmed = slots[began], confirmed[began]
-    if not slots.size:
+    gone = c.departed.shown_at(T)
+    if not slots.size and not gone.size:
         return None
-    X, P = c.tracks.states_at(slots, T)
+    parts = [(c.tracks, slots), (c.departed.tracks, gone)]
+    states = [table.states_at(s, T) for table, s in parts]
+    X, P = np.concatenate([x for x, _ in states]), np.concatenate([p for _, p in states])
     maneuver = None
     if c.tracks.detector is not None:
-        maneuver = c.tracks.maneuvers_at(slots, T).picture_rows(c.tracks.detector)
-    ids = c.tracks.ids[slots].tolist()
-    return PictureTracks(ids, X, P, confirmed.tolist(), c.sensor_lists(slots), ["cv"] * slots.size,
-                         maneuver, None if existence is None else existence.of(c, ids))
+        maneuver = np.concatenate([table.maneuvers_at(s, T).picture_rows(table.detector) for table, s in parts])
+    ids = c.tracks.ids[slots].tolist() + c.departed.tracks.ids[gone].tolist()
+    sensors = c.sensor_lists(slots) + [c.departed.sensors[cid] for cid in ids[slots.size:]]
+    flags = confirmed.tolist() + [True] * gone.size
+    order = np.argsort(ids, kind="stable")
+    pick = order.tolist()
+    return PictureTracks([ids[k] for k in pick], X[order], P[order], [flags[k] for k in pick],
+                         [sensors[k] for k in pick], ["cv"] * len(ids), None if maneuver is None else maneuver[order],
+                         None if existence is None else existence.of(c, [ids[k] for k in pick]))
 
 
 def union_picture(parts: list[PictureTracks | None], dim: int) -> PictureTracks:
