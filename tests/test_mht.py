@@ -578,3 +578,25 @@ def test_independent_scenes_keep_their_own_hypotheses() -> None:
         several += xa.shape[0] > 3
     assert worst <= 1e-9 * 1e5  # positions near 1e5 m: 1e-9 relative
     assert several > 10  # the scenes had tentative tracks besides the formation's
+
+
+@pytest.mark.parametrize("associator", ["gnn", "mht"])
+def test_a_local_report_retires_every_track_it_no_longer_holds(associator: str) -> None:
+    """A local tracker's reports (to a track-to-track centre): a track of one report that the next
+    does not hold is in the next one's ``retired``. With mht that includes a track that only left
+    the best hypothesis (it may come back): the centre then unmaps it instead of keeping a local
+    track it no longer hears of on its central track, which a new local track of the same target
+    then duplicated (decentralized default scenario: 86.2 -> 55.1 m mean GOSPA)."""
+    from fedtrack.local_filters.mtt.local import local_step, new_local_tracker
+
+    scans, density, _ = formation_scans(2, steps=40)
+    cfg = MttConfig(associator=associator, clutter_density=density, pd=0.8)
+    tracker, before, left_alive = new_local_tracker(scans[0]), np.zeros(0, np.int64), 0
+    for scan in scans:
+        tracker, report = local_step(tracker, scan, cfg)
+        gone = np.setdiff1d(before, report.ids)
+        assert np.isin(gone, report.retired).all()
+        if associator == "mht":  # left the best hypothesis, still a track of the tracker's memory
+            left_alive += int(np.isin(gone, tracker.state.memory.leaves.ids).sum())
+        before = report.ids
+    assert left_alive > 0 or associator == "gnn"

@@ -40,7 +40,7 @@ class LocalReport(NamedTuple):
     obs_R: np.ndarray  # (K, m, m)
     obs_z: np.ndarray  # (K, m)
     started: np.ndarray  # (K,) bool: the detected track started at this scan
-    retired: np.ndarray  # ids deleted by this scan
+    retired: np.ndarray  # ids of the previous report this one no longer holds (deleted; mht: or left the best hypothesis)
     existence: np.ndarray | None = None  # (N,) each track's existence probability (jipda), else None
 
 
@@ -79,8 +79,11 @@ def local_step(tracker: LocalTracker, scan: SensorScan, cfg: MttConfig) -> tuple
                        q_scale=tracker.q_scale)
     tr = res.state.tracks
     started = tr.age[res.detected] == 1
+    # retired: every reported track this report no longer holds (with mht also one that only left
+    # the best hypothesis: the centre unmaps it, and maps it afresh if it comes back)
+    retired = np.union1d(res.retired, np.setdiff1d(tracker.state.tracks.ids, tr.ids))
     report = LocalReport(scan.sensor, scan.t, tr.ids, tr.x, tr.P, tr.confirmed, res.detected,
-                         *res.observations, started, res.retired, tr.existence)
+                         *res.observations, started, retired, tr.existence)
     return tracker._replace(state=res.state), report
 
 
