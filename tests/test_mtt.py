@@ -476,3 +476,20 @@ def test_centre_pictures_show_a_deleted_track_up_to_its_last_support() -> None:
     centre.prune(4.0)
     assert own not in centre.tracks and other in centre.tracks
     assert centre_picture(centre, 3.0).ids == [other]
+
+
+@pytest.mark.parametrize("associator", ["gnn", "jipda", "mht"])
+def test_centre_with_one_live_sensor_confirms_by_that_trackers_own_rule(associator: str) -> None:
+    """One live sensor: a central track is confirmed when its local track is (jipda's existence
+    test, mht's score), not by the 3-of-4 count, which is gnn's own rule; with two live sensors
+    the count over their scans rules."""
+    from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
+    from fedtrack.local_filters.mtt.config import MttConfig
+
+    for sensors in (("s1",), ("s1", "s2")):
+        centre = TrackToTrackCentre(MttConfig(associator=associator), 4, False)
+        for k, confirmed in enumerate((False, True)):
+            centre.ingest(_one_point_report(sensors[k % len(sensors)], 0.5 * k, confirmed, k < len(sensors)))
+        slots = centre.tracks.live()
+        assert slots.size == 1
+        assert bool(centre.tracks.confirmed[slots[0]]) == (associator != "gnn" and len(sensors) == 1)

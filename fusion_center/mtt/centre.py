@@ -30,7 +30,8 @@ scan, the linearized observation of every track the scan detected, the tracks it
   the scans of every sensor: ``confirm_hits`` detections among the last ``confirm_window``
   sensor scans the centre received since the track started (the starting scan included). A
   false local track of one sensor gets no detections from the others' scans and stays
-  tentative; with one live sensor the rule is that sensor's own. Where the local trackers confirm
+  tentative; with one live sensor the rule is that sensor's tracker's own (the count for gnn,
+  a local track confirmed by its tracker for jipda and mht's score). Where the local trackers confirm
   by a test with a false-confirmation bound (jipda's existence, mht's score) and the count's
   chance to confirm a track started on clutter exceeds that bound at some position sensor's
   clutter density (:func:`needs_local_confirmation`), a track also needs a local track that its
@@ -402,7 +403,9 @@ class TrackToTrackCentre:
         window = np.concatenate([self.window[young, 1:], hit[young, None]], axis=1)
         self.window[young] = window
         now = young[window.sum(axis=1) >= cfg.confirm_hits]
-        if self.local_confirmation and now.size:
+        if cfg.confirm_bound is not None and len(self.live_sensors(report.t)) == 1:
+            now = np.intersect1d(young, self._vouched(report))  # one sensor: its tracker's own test
+        elif self.local_confirmation and now.size:
             now = np.intersect1d(now, self._vouched(report))
         tracks.confirmed[now], tracks.confirmed_t[now] = True, report.t
         for cid in tracks.ids[dead].tolist():
