@@ -289,15 +289,20 @@ class CentralTracks:
         return InputBank(*(getattr(self, "bank_" + n)[slots, p] for n in InputBank._fields))
 
     def _step(self, t0: np.ndarray, x: np.ndarray | None, P: np.ndarray | None, t: float | np.ndarray, H: np.ndarray,
-              R: np.ndarray, z: np.ndarray, bank: InputBank | None, modes: Modes | None = None
+              R: np.ndarray, z: np.ndarray, bank: InputBank | None, modes: Modes | None = None,
+              prior: tuple[np.ndarray, np.ndarray] | None = None
               ) -> tuple[np.ndarray, np.ndarray, DetectorStep, Modes | None]:
         """Posteriors after predicting each ``(x, P)`` (or its ``modes``) from ``t0`` to ``t`` and
         fusing ``(H, R, z)``, the maneuver detector's step from ``bank`` (None without a
-        detector) and the modes after (None without; with them ``x``, ``P`` are not read)."""
+        detector) and the modes after (None without; with them ``x``, ``P`` are not read).
+        ``prior``: that prediction, when the caller made it (:meth:`states_at`; ``x``, ``P`` not read)."""
         dt = rounded_interval(t - t0)
         if modes is None:
-            assert x is not None and P is not None
-            xp, Pp = predict_batch(x, P, dt, self.q, self.noise_model)
+            if prior is not None:
+                xp, Pp = prior
+            else:
+                assert x is not None and P is not None
+                xp, Pp = predict_batch(x, P, dt, self.q, self.noise_model)
             post = update(GaussianState(xp, Pp), z, H, R)[0]
         else:
             pred, (xp, Pp) = modes_predict(modes, dt, self.q, self.noise_model, self.modes)
@@ -329,15 +334,16 @@ class CentralTracks:
         self.head[slots] = (self.head[slots] + first) % self.depth
         self.count[slots] -= first
 
-    def fuse(self, slots: np.ndarray, t: float, H: np.ndarray, R: np.ndarray, z: np.ndarray
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def fuse(self, slots: np.ndarray, t: float, H: np.ndarray, R: np.ndarray, z: np.ndarray,
+             prior: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Fuse observation ``(H[i], R[i], z[i])`` (one size ``m``), taken at ``t``, into distinct
         ``slots[i]``; returns which were fused (False: late) and each posterior at ``t``.
 
         The tracks whose newest observation is not after ``t`` take one batched step. For the
         others, the observations from ``t`` on are fused again in time order from the posterior
         before ``t``, step by step over all those tracks at once (one batched prediction and
-        update per step and observation size).
+        update per step and observation size). ``prior``: each slot's :meth:`states_at` ``t``, if
+        the caller has it (without motion modes): the prediction the first step makes, not made again.
         """
         if H.shape[1] > self.H.shape[2]:
             raise ValueError(f"observations of size {H.shape[1]} in a {self.dim}-D central state")
@@ -357,8 +363,8 @@ class CentralTracks:
             p = (self.head[slots] + count - 1) % self.depth
         ahead = ok & (t >= t_new)
         if slots.size and ahead.all():  # every observation after its track's newest (in order): one step
-            x_out, P_out, step, modes = self._step(t_new, *self._state_at(slots, p), t, H, R, z,
-                                                   self._bank_at(slots, p), self._modes_at(slots, p))
+            x_out, P_out, step, modes = self._step(t_new, *(self._state_at(slots, p) if prior is None else (None, None)),
+                                                   t, H, R, z, self._bank_at(slots, p), self._modes_at(slots, p), prior)
             self._write(slots, (p + 1) % self.depth, t, x_out, P_out, H, R, z, step, modes)
             self.count[slots] = count + 1
             self._trim(slots, t)
@@ -368,21 +374,24 @@ class CentralTracks:
         i = ahead.nonzero()[0]
         if i.size:
             s, pi = slots[i], p[i]
-            x_out[i], P_out[i], step, modes = self._step(t_new[i], *self._state_at(s, pi), t, H[i], R[i], z[i],
-                                                         self._bank_at(s, pi), self._modes_at(s, pi))
+            x_out[i], P_out[i], step, modes = self._step(
+                t_new[i], *(self._state_at(s, pi) if prior is None else (None, None)), t, H[i], R[i], z[i],
+                self._bank_at(s, pi), self._modes_at(s, pi), None if prior is None else (prior[0][i], prior[1][i]))
             self._write(s, (pi + 1) % self.depth, t, x_out[i], P_out[i], H[i], R[i], z[i], step, modes)
             self.count[s] += 1
             self._trim(s, t)
         behind = (ok & ~ahead).nonzero()[0]
         if behind.size:
             x_out[behind], P_out[behind] = self._reprocess(slots[behind], t, H[behind], R[behind], z[behind],
-                                                           t_new[behind])
+                                                           t_new[behind],
+                                                           None if prior is None else (prior[0][behind], prior[1][behind]))
         return ok, x_out, P_out
 
     def _reprocess(self, slots: np.ndarray, t: float, H: np.ndarray, R: np.ndarray, z: np.ndarray,
-                   t_newest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                   t_newest: np.ndarray, prior: tuple[np.ndarray, np.ndarray] | None = None
+                   ) -> tuple[np.ndarray, np.ndarray]:
         """Insert observations older than their tracks' newest (at ``t_newest``) and fuse the later
-        ones again (:meth:`fuse` made room for one more entry in each)."""
+        ones again (:meth:`fuse` made room for one more entry in each; ``prior`` as there)."""
         n_after = self._newer_than(slots, t)
         self.reprocessed += int(n_after.sum())
         keep = self.count[slots] - n_after  # entries up to t stay (>= 1: the checkpoint is not after t)
@@ -394,8 +403,8 @@ class CentralTracks:
         old_H, old_R, old_z = self.H[rows, pos], self.R[rows, pos], self.z[rows, pos]
         p = self._pos(slots, keep - 1)
         t_prev = self.t[slots, p]
-        x_at, P_at, step, modes = self._step(t_prev, *self._state_at(slots, p), t, H, R, z, self._bank_at(slots, p),
-                                             self._modes_at(slots, p))
+        x_at, P_at, step, modes = self._step(t_prev, *(self._state_at(slots, p) if prior is None else (None, None)),
+                                             t, H, R, z, self._bank_at(slots, p), self._modes_at(slots, p), prior)
         self._write(slots, self._pos(slots, keep), t, x_at, P_at, H, R, z, step, modes)
         t_prev[:], x_prev, P_prev = t, x_at.copy(), P_at.copy()
         bank = None if step is None else step[0]  # each slot's bank after its latest re-fused entry

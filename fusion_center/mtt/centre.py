@@ -317,14 +317,18 @@ class TrackToTrackCentre:
         d = report.x.shape[1]
         keys = [(s, i) for i in report.ids[det_rows].tolist()]
         cid, slots = self._central_ids(keys)  # a mapped local track's central track is live; -1: unmapped
-        # the estimates at t of the central tracks of the rows to check and of those without a track
-        # of this sensor, in one prediction; ``at``: each slot's row. The association's candidates are
-        # among them: a track loses this sensor's last local track before it only by the check below
+        # the estimates at t of the central tracks of the rows to check, of those without a track of
+        # this sensor and of those without a track of some other sensor, in one prediction shared by
+        # the check, the association, the fusion and the merge test (``at``: each slot's row, -1: none).
+        # The association's candidates are among them (a track loses this sensor's last local track
+        # before it only by the check below), and so are the merge test's tracks (_merge_duplicates)
         check = ((cid >= 0) & ~report.started).nonzero()[0]
         tracks = self.tracks
-        need = np.concatenate([slots[check], ((self.support[:, col] == 0) & (tracks.ids >= 0)).nonzero()[0]])
+        has = self.support > 0
+        others = (self.support[:, col] == 0) | (has != has.any(axis=0)).any(axis=1)
+        need = np.concatenate([slots[check], (others & (tracks.ids >= 0)).nonzero()[0]])
         X, P = tracks.states_at(need, t)
-        at = np.empty(tracks.capacity, dtype=np.int64)
+        at = np.full(tracks.capacity, -1, dtype=np.int64)
         at[need] = np.arange(need.size)
         # hysteresis: a mapped local track inconsistent with its central track unmap_after times in a row
         if check.size:
@@ -357,7 +361,8 @@ class TrackToTrackCentre:
             slots[k] = tracks.slot[cid[k]]
         is_fresh = np.zeros(len(keys), dtype=bool)
         is_fresh[[k for k in unmapped_rows if keys[k] in fresh]] = True
-        fused, x_post, P_post = self._fuse_scan(report, slots, is_fresh, t)
+        at = padded(at + 1, (tracks.capacity,)) - 1  # a track started since has none
+        fused, x_post, P_post = self._fuse_scan(report, slots, is_fresh, t, (X, P, at))
         rows = fused.nonzero()[0]
         supported = slots[rows]
         self.moved = cid[rows], supported
@@ -369,8 +374,32 @@ class TrackToTrackCentre:
             resets = no_resets(s, t, d)
         self._count_scan(col, supported, report)
         still_live = tracks.ids[slots] == cid
-        self._merge_duplicates(slots[still_live], t)
+        self._merge_duplicates(slots[still_live], t, (X, P, at), supported)
         return resets
+
+    def _states_now(self, slots: np.ndarray, t: float, states: tuple[np.ndarray, np.ndarray, np.ndarray],
+                    touched: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """What :meth:`CentralTracks.states_at` ``t`` gives for ``slots``, from what the report has: a
+        track it fused into or started (``touched`` slots) has its entry at ``t`` (a prediction over 0 s
+        leaves it as it is), another its estimate in ``states`` (X, P, at: the report's prediction), the
+        rest (none in :meth:`_fuse_rows`) are predicted. With motion modes, :meth:`states_at` itself."""
+        tracks = self.tracks
+        if tracks.modes is not None:  # their prediction over 0 s combines the modes again
+            return tracks.states_at(slots, t)
+        X0, P0, at = states
+        new = np.zeros(tracks.capacity, dtype=bool)
+        new[touched] = True
+        new = new[slots]
+        row = np.where(new, -1, at[slots])
+        X, P = X0[row], P0[row]  # row -1: filled below
+        if new.any():
+            s = slots[new]
+            p = tracks._entry_at(s, t)
+            X[new], P[new] = tracks.x[s, p], tracks.P[s, p]
+        rest = (row < 0) & ~new
+        if rest.any():
+            X[rest], P[rest] = tracks.states_at(slots[rest], t)
+        return X, P
 
     def _vouched(self, report: LocalReport) -> np.ndarray:
         """Slots of the central tracks that a track confirmed by the report's tracker maps to."""
@@ -423,14 +452,15 @@ class TrackToTrackCentre:
         self.tracks.delete(cid)
         self.counters.deleted += 1
 
-    def _fuse_scan(self, report: LocalReport, slots: np.ndarray, fresh: np.ndarray, t: float
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _fuse_scan(self, report: LocalReport, slots: np.ndarray, fresh: np.ndarray, t: float,
+                   states: tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Fuse the scan's observations into their central tracks' ``slots``; returns per detected
         row whether it was fused (or started its track: ``fresh``) and the posterior at ``t``.
 
         The observations of distinct central tracks are fused together (:meth:`CentralTracks.fuse`:
         in order, or out of sequence with the later ones fused again); a second observation of one
-        central track in the next round.
+        central track in the next round. The first round starts from the report's prediction
+        ``states`` (X, P, at) when it has every track's (without motion modes).
         """
         n = slots.size
         ok, X, P = fresh.copy(), np.zeros((n, self.dim)), np.zeros((n, self.dim, self.dim))
@@ -440,10 +470,16 @@ class TrackToTrackCentre:
         H_all = self._embed(report.obs_H)
         pending = (~fresh).nonzero()[0]
         reprocessed = self.tracks.reprocessed
+        X0, P0, at = states
+        first = self.tracks.modes is None
         while pending.size:
             distinct = np.bincount(slots[pending]).max() == 1  # one observation per central track: all at once
             now = pending if distinct else pending[np.sort(np.unique(slots[pending], return_index=True)[1])]
-            done, x_now, P_now = self.tracks.fuse(slots[now], t, H_all[now], report.obs_R[now], report.obs_z[now])
+            row = at[slots[now]]
+            prior = (X0[row], P0[row]) if first and (row >= 0).all() else None
+            first = False  # a later round's tracks were fused into in this one
+            done, x_now, P_now = self.tracks.fuse(slots[now], t, H_all[now], report.obs_R[now], report.obs_z[now],
+                                                  prior)
             ok[now], X[now], P[now] = done, x_now, P_now
             fused = int(np.count_nonzero(done))
             self.counters.fused += fused
@@ -455,12 +491,14 @@ class TrackToTrackCentre:
         self.counters.reprocessed += self.tracks.reprocessed - reprocessed
         return ok, X, P
 
-    def _merge_duplicates(self, updated: np.ndarray, t: float) -> None:
+    def _merge_duplicates(self, updated: np.ndarray, t: float, states: tuple[np.ndarray, np.ndarray, np.ndarray],
+                          touched: np.ndarray) -> None:
         """Merge a central track into an older one that passes the track-to-track test and shares
         no sensor with it (two sensors' tracks of one target that missed each other at the start).
 
         Both tracks of such a pair lack some sensor that has local tracks (a track supported by
-        every such sensor shares one with any other), so only those tracks are looked at."""
+        every such sensor shares one with any other), so only those tracks are looked at; their
+        estimates at ``t`` from the report's (:meth:`_states_now`: ``states``, the slots ``touched``)."""
         tracks = self.tracks
         if len(tracks) < 2 or not updated.size:
             return
@@ -474,7 +512,7 @@ class TrackToTrackCentre:
         mine = mark[partial].nonzero()[0]
         if not mine.size:
             return
-        X, P = tracks.states_at(partial, t)
+        X, P = self._states_now(partial, t, states, touched)
         gate = self.cfg.thresholds.association[self.dim]
         pos, spread = X[:, [0, 2]], np.sqrt(P[:, 0, 0] + P[:, 2, 2])
         K, J = candidate_pairs(pos[mine], spread[mine], pos, spread, gate)

@@ -88,7 +88,7 @@ class RegionCentre:
     def __post_init__(self) -> None:
         self.centre = TrackToTrackCentre(self.cfg, self.dim, self.feedback, next_id=self.index,
                                          id_step=len(self.regions.ids))
-        self.interior = interior(self.regions, self.index)
+        self.boxes = np.stack([interior(self.regions, r) for r in range(len(self.regions.ids))])  # (R, 4)
 
     @property
     def name(self) -> str:
@@ -101,17 +101,23 @@ class RegionCentre:
         gone = keyed(self.forwarded, s, ids) & ~mine if self.forwarded else np.zeros(len(ids), dtype=bool)
         self.in_flight += int(gone.sum())
         free = ~mine & ~gone & ~elsewhere
-        if free.any():  # a row inside the region's interior box is in it without a look at the regions
+        if free.any() and self.boxes.shape[0] > 1:  # one region owns every position
             rows = free.nonzero()[0]
-            look = rows[~self.inside(report.x[rows, 0], report.x[rows, 2])]
-            if look.size:
-                free[look] = region_of(self.regions, report.x[look][:, [0, 2]]) == self.index
+            free[rows] = self.owners(report.x[rows, 0], report.x[rows, 2]) == self.index
         return mine | free
 
-    def inside(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Whether each position is inside the region's interior box (:func:`interior`; none if NaN)."""
-        x0, x1, y0, y1 = self.interior
-        return (x > x0) & (x < x1) & (y > y0) & (y < y1)
+    def owners(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """The region of each position (:func:`region_of`): that of the interior box containing it
+        (:func:`interior`: the boxes are disjoint, and every point of region ``r``'s is ``r``'s),
+        else :func:`region_of`'s look at the regions."""
+        x0, x1, y0, y1 = self.boxes.T  # (R,) each; a NaN box contains nothing
+        xc, yc = x[:, None], y[:, None]
+        boxed = (xc > x0) & (xc < x1) & (yc > y0) & (yc < y1)  # (N, R)
+        owner = boxed.argmax(axis=1)
+        look = (~boxed[np.arange(owner.size), owner]).nonzero()[0]  # in no box
+        if look.size:
+            owner[look] = region_of(self.regions, np.stack([x[look], y[look]], axis=1))
+        return owner
 
     def answer(self, report: LocalReport, elsewhere: np.ndarray
                ) -> tuple[RegionAnswer, list[tuple[int, int, HandOver]]]:
@@ -128,16 +134,14 @@ class RegionCentre:
             live = c.tracks.ids[slots] == ids  # not merged away, deleted or pruned since
             sl = slots[live]
             p = c.tracks.newest(sl)
-            x, y = c.tracks.x[sl, p, 0], c.tracks.x[sl, p, 2]  # the latest estimates' positions
-            out = ~self.inside(x, y)  # a track inside the interior box stays without a look at the regions
+            owner = self.owners(c.tracks.x[sl, p, 0], c.tracks.x[sl, p, 2])  # of the latest estimates' positions
+            out = owner != self.index
             cids, first = np.unique(ids[live][out], return_index=True)  # in increasing id
-            owner = region_of(self.regions, np.stack([x[out][first], y[out][first]], axis=1)) if cids.size else cids
-            for cid, o in zip(cids.tolist(), owner.tolist()):
-                if o != self.index:
-                    record = c.hand_over(cid)
-                    self.forwarded.update((key, o) for key in record.members)
-                    moving.append((o, self.serial, record))
-                    self.serial += 1
+            for cid, o in zip(cids.tolist(), owner[out][first].tolist()):
+                record = c.hand_over(cid)
+                self.forwarded.update((key, o) for key in record.members)
+                moving.append((o, self.serial, record))
+                self.serial += 1
         self.handed_over += len(moving)
         s = report.sensor
         held = report.ids[keyed(c.mapping, s, report.ids.tolist())]
