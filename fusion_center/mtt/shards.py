@@ -107,16 +107,21 @@ class RegionCentre:
         return mine | free
 
     def owners(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """The region of each position (:func:`region_of`): that of the interior box containing it
-        (:func:`interior`: the boxes are disjoint, and every point of region ``r``'s is ``r``'s),
-        else :func:`region_of`'s look at the regions."""
-        x0, x1, y0, y1 = self.boxes.T  # (R,) each; a NaN box contains nothing
-        xc, yc = x[:, None], y[:, None]
-        boxed = (xc > x0) & (xc < x1) & (yc > y0) & (yc < y1)  # (N, R)
-        owner = boxed.argmax(axis=1)
-        look = (~boxed[np.arange(owner.size), owner]).nonzero()[0]  # in no box
-        if look.size:
-            owner[look] = region_of(self.regions, np.stack([x[look], y[look]], axis=1))
+        """The region of each position (:func:`region_of`): this region's inside its interior box,
+        else that of the other interior box containing it (:func:`interior`: the boxes are disjoint,
+        and every point of region ``r``'s is ``r``'s), else :func:`region_of`'s look at the regions."""
+        x0, x1, y0, y1 = self.boxes[self.index]
+        owner = np.full(x.size, self.index)
+        out = (~((x > x0) & (x < x1) & (y > y0) & (y < y1))).nonzero()[0]  # most positions are inside
+        if out.size:
+            x0, x1, y0, y1 = self.boxes.T  # (R,) each; a NaN box contains nothing
+            xc, yc = x[out, None], y[out, None]
+            boxed = (xc > x0) & (xc < x1) & (yc > y0) & (yc < y1)  # (N, R)
+            box = boxed.argmax(axis=1)
+            owner[out] = box
+            look = out[~boxed[np.arange(out.size), box]]  # in no box
+            if look.size:
+                owner[look] = region_of(self.regions, np.stack([x[look], y[look]], axis=1))
         return owner
 
     def answer(self, report: LocalReport, elsewhere: np.ndarray
@@ -136,15 +141,17 @@ class RegionCentre:
             p = c.tracks.newest(sl)
             owner = self.owners(c.tracks.x[sl, p, 0], c.tracks.x[sl, p, 2])  # of the latest estimates' positions
             out = owner != self.index
-            cids, first = np.unique(ids[live][out], return_index=True)  # in increasing id
-            for cid, o in zip(cids.tolist(), owner[out][first].tolist()):
-                record = c.hand_over(cid)
-                self.forwarded.update((key, o) for key in record.members)
-                moving.append((o, self.serial, record))
-                self.serial += 1
+            if out.any():
+                cids, first = np.unique(ids[live][out], return_index=True)  # in increasing id
+                for cid, o in zip(cids.tolist(), owner[out][first].tolist()):
+                    record = c.hand_over(cid)
+                    self.forwarded.update((key, o) for key in record.members)
+                    moving.append((o, self.serial, record))
+                    self.serial += 1
         self.handed_over += len(moving)
         s = report.sensor
-        held = report.ids[keyed(c.mapping, s, report.ids.tolist())]
+        kept = report.ids[take]  # a row not taken was not mapped here, nor is it now
+        held = kept[keyed(c.mapping, s, kept.tolist())]
         told = [(key[1], r) for key, r in self.forwarded.items() if key[0] == s]
         for lid, _ in told:
             del self.forwarded[(s, lid)]
