@@ -330,32 +330,19 @@ class TrackToTrackCentre:
         X, P = tracks.states_at(need, t)
         at = np.full(tracks.capacity, -1, dtype=np.int64)
         at[need] = np.arange(need.size)
-        # hysteresis: a mapped local track inconsistent with its central track unmap_after times in a row
-        if check.size:
-            rows = det_rows[check]
-            diff = report.x[rows] - X[:check.size, :d]
-            d2 = track_difference_d2(diff, report.P[rows] + P[:check.size, :d, :d])[0]
-            bad = d2 > cfg.thresholds.association[d]
-            struck = [key for key in self.strikes if key[0] == s]
-            if struck:  # a consistent local track's strikes are forgiven
-                good = set(report.ids[rows[~bad]].tolist())
-                for key in struck:
-                    if key[1] in good:
-                        del self.strikes[key]
-            for k in check[bad].tolist():
-                key = keys[k]
-                self.strikes[key] = self.strikes.get(key, 0) + 1
-                if self.strikes[key] >= cfg.unmap_after:
-                    self._unmap(key)
-                    self.strikes.pop(key)
-                    self.counters.unmapped += 1
-                    cid[k] = slots[k] = -1
-        mapped = (cid >= 0).nonzero()[0]
-        unmapped_rows = (cid < 0).nonzero()[0].tolist()
-        # confirmed local tracks alone on their central tracks (no other local track maps there)
-        lonely = report.confirmed[det_rows[mapped]] & (self.support[slots[mapped]].sum(axis=1) == 1)
-        alone = mapped[lonely].tolist()
-        fresh = self._associate(report, det_rows, col, unmapped_rows, alone, (X, P, at))
+        # the hysteresis check's pairs and the association's in one test; the association's again
+        # only if the check unmapped a local track (its rows and candidates then change)
+        unmapped_rows, alone = self._unassociated(report, det_rows, cid, slots)
+        cands, pairs = self._pairs(report, det_rows[unmapped_rows + alone], col, (X, P, at))
+        rows = det_rows[check]
+        d2, logdet = track_difference_d2(np.concatenate([report.x[rows] - X[:check.size, :d], pairs[2]]),
+                                         np.concatenate([report.P[rows] + P[:check.size, :d, :d], pairs[3]]))
+        tested = pairs[0], pairs[1], d2[check.size:], logdet[check.size:]
+        if check.size and self._hysteresis(report, keys, check, d2[:check.size], cid, slots):
+            unmapped_rows, alone = self._unassociated(report, det_rows, cid, slots)
+            cands, (ri, ci, diff, S) = self._pairs(report, det_rows[unmapped_rows + alone], col, (X, P, at))
+            tested = (ri, ci, *track_difference_d2(diff, S))
+        fresh = self._associate(report, det_rows, unmapped_rows, alone, cands, tested)
         for k in unmapped_rows + alone:
             cid[k] = self.mapping[keys[k]]
             slots[k] = tracks.slot[cid[k]]
@@ -400,6 +387,59 @@ class TrackToTrackCentre:
         if rest.any():
             X[rest], P[rest] = tracks.states_at(slots[rest], t)
         return X, P
+
+    def _hysteresis(self, report: LocalReport, keys: list[LocalKey], check: np.ndarray, d2: np.ndarray,
+                    cid: np.ndarray, slots: np.ndarray) -> bool:
+        """The check of the mapped rows ``check`` (``d2``: each one's test against its central track): a
+        local track inconsistent with its central track ``unmap_after`` times in a row is unmapped
+        (its ``cid`` and ``slots`` set to -1), a consistent one's strikes forgiven; returns whether
+        one was unmapped."""
+        cfg, s = self.cfg, report.sensor
+        bad = d2 > cfg.thresholds.association[report.x.shape[1]]
+        struck = [key for key in self.strikes if key[0] == s]
+        if struck:  # a consistent local track's strikes are forgiven
+            good = {keys[k][1] for k in check[~bad].tolist()}
+            for key in struck:
+                if key[1] in good:
+                    del self.strikes[key]
+        unmapped = False
+        for k in check[bad].tolist():
+            key = keys[k]
+            self.strikes[key] = self.strikes.get(key, 0) + 1
+            if self.strikes[key] >= cfg.unmap_after:
+                self._unmap(key)
+                self.strikes.pop(key)
+                self.counters.unmapped += 1
+                cid[k] = slots[k] = -1
+                unmapped = True
+        return unmapped
+
+    def _unassociated(self, report: LocalReport, det_rows: np.ndarray, cid: np.ndarray, slots: np.ndarray
+                      ) -> tuple[list[int], list[int]]:
+        """The rows the association takes: the unmapped ones, and the confirmed local tracks alone on
+        their central tracks (no other local track maps there)."""
+        mapped = (cid >= 0).nonzero()[0]
+        lonely = report.confirmed[det_rows[mapped]] & (self.support[slots[mapped]].sum(axis=1) == 1)
+        return (cid < 0).nonzero()[0].tolist(), mapped[lonely].tolist()
+
+    def _pairs(self, report: LocalReport, rows: np.ndarray, col: int, states: tuple[np.ndarray, np.ndarray, np.ndarray]
+               ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+        """The association's candidates (the central tracks without a track of sensor column ``col``,
+        in increasing id) and its candidate pairs ``(ri, ci)`` of the local tracks ``rows`` and those
+        within the chi-square test's reach, with their differences and covariance sums to test.
+        ``states``: the central tracks' estimates at the report's time and each slot's row there."""
+        ids, d = self.tracks.ids, report.x.shape[1]
+        cands = ((self.support[:, col] == 0) & (ids >= 0)).nonzero()[0]
+        cands = cands[ids[cands].argsort()]
+        if not (rows.size and cands.size):
+            none = np.zeros(0, dtype=np.int64)
+            return cands, (none, none, np.zeros((0, d)), np.zeros((0, d, d)))
+        X, P, at = states
+        xc, Pc = X[at[cands], :d], P[at[cands], :d, :d]
+        U, C = report.x[rows], report.P[rows]
+        ri, ci = candidate_pairs(U[:, [0, 2]], np.sqrt(C[:, 0, 0] + C[:, 2, 2]), xc[:, [0, 2]],
+                                 np.sqrt(Pc[:, 0, 0] + Pc[:, 2, 2]), self.cfg.thresholds.association[d])
+        return cands, (ri, ci, U[ri] - xc[ci], C[ri] + Pc[ci])
 
     def _vouched(self, report: LocalReport) -> np.ndarray:
         """Slots of the central tracks that a track confirmed by the report's tracker maps to."""
@@ -549,32 +589,24 @@ class TrackToTrackCentre:
                 self.counters.merged += 1
                 break
 
-    def _associate(self, report: LocalReport, det_rows: np.ndarray, col: int, unmapped: list[int],
-                   alone: list[int], states: tuple[np.ndarray, np.ndarray, np.ndarray]) -> set[LocalKey]:
+    def _associate(self, report: LocalReport, det_rows: np.ndarray, unmapped: list[int], alone: list[int],
+                   cands: np.ndarray, tested: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]) -> set[LocalKey]:
         """Map the scan's unmapped local tracks (those not associated start central tracks) and
         move its confirmed local tracks that are alone on their central tracks to central tracks of
         other sensors that pass the test (their own central tracks, left without a local track,
         go at the next :meth:`prune`); returns the local tracks that started central tracks.
-        ``states``: the central tracks' estimates at the report's time and each slot's row there."""
+        ``cands``, ``tested``: :meth:`_pairs`' candidates and pairs ``(ri, ci)`` with their test
+        (``d2``, ``ln det``)."""
         fresh: set[LocalKey] = set()
         if not unmapped and not alone:
             return fresh
         cfg, t, s = self.cfg, report.t, report.sensor
-        ids = self.tracks.ids
-        cands = ((self.support[:, col] == 0) & (ids >= 0)).nonzero()[0]  # without a track of this sensor
-        cands = cands[ids[cands].argsort()]  # in increasing id
         rows = det_rows[unmapped + alone]
         d = report.x.shape[1]
         assigned: dict[int, int] = {}
         if cands.size:
-            X, P, at = states
-            xc, Pc = X[at[cands], :d], P[at[cands], :d, :d]
-            U, C = report.x[rows], report.P[rows]
-            # candidate pairs within the chi-square test's reach, then the test on them
+            ri, ci, d2, logdet = tested
             gate = cfg.thresholds.association[d]
-            ri, ci = candidate_pairs(U[:, [0, 2]], np.sqrt(C[:, 0, 0] + C[:, 2, 2]), xc[:, [0, 2]],
-                                     np.sqrt(Pc[:, 0, 0] + Pc[:, 2, 2]), gate)
-            d2, logdet = track_difference_d2(U[ri] - xc[ci], C[ri] + Pc[ci])
             # a confirmed track moves only to another sensor's central track: one that no local
             # track maps to any more (its track retired or unmapped in this report) is pruned next
             inside = (d2 <= gate) & ((ri < len(unmapped)) | self.support[cands[ci]].any(axis=1))
