@@ -378,12 +378,14 @@ class TrackToTrackCentre:
         new[touched] = True
         new = new[slots]
         row = np.where(new, -1, at[slots])
-        X, P = X0[row], P0[row]  # row -1: filled below
+        X, P = np.empty((slots.size,) + X0.shape[1:]), np.empty((slots.size,) + P0.shape[1:])
+        kept = row >= 0
+        X[kept], P[kept] = X0[row[kept]], P0[row[kept]]
         if new.any():
             s = slots[new]
             p = tracks._entry_at(s, t)
             X[new], P[new] = tracks.x[s, p], tracks.P[s, p]
-        rest = (row < 0) & ~new
+        rest = ~kept & ~new
         if rest.any():
             X[rest], P[rest] = tracks.states_at(slots[rest], t)
         return X, P
