@@ -1,6 +1,7 @@
 """The track-to-track centre sharded by region (fusion_center/mtt/shards.py, issue 27 item 2):
 one region equals the unsharded centre; on a grid, every track is in exactly one region's centre,
-hand-overs keep ids and estimates, and GOSPA stays within 2 % of the unsharded run. About 15 s."""
+hand-overs keep ids and estimates, and GOSPA stays within 2 % of the unsharded run; a report's short
+paths leave what the full paths leave. About 20 s."""
 
 from __future__ import annotations
 
@@ -191,3 +192,103 @@ def test_a_scan_without_rows_leaves_what_the_full_path_leaves(data: Path) -> Non
     assert emptied >= 40 and retired >= 5 and len(short.tracks) >= 30
     pa, pb = centre_picture(short, reports[-1].t + 0.5), centre_picture(full, reports[-1].t + 0.5)
     assert pa is not None and pb is not None and pa.ids == pb.ids and np.array_equal(pa.P, pb.P)
+
+
+def test_shared_prediction_and_box_owners_leave_what_the_full_paths_leave(data: Path,
+                                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+    """The short paths of a report, each checked against its full path on every call of a 2 x 2
+    replay (three sensors of different periods, out-of-sequence reports, the maneuver detector; a
+    local track unmapped at its first inconsistent check, so that the association is tested again):
+    the fusion from the report's shared prediction (``CentralTracks.fuse``'s ``prior``) leaves the
+    track table and the posteriors that predicting again leaves; the merge test's estimates
+    (``_states_now``) are ``states_at``'s; the association's pairs tested in one call with the
+    hysteresis check's are tested as alone; a region centre's owners by interior boxes are
+    ``region_of``'s. All to the bit."""
+    import copy
+
+    from fedtrack.fusion_center.mtt.central_track import CentralTracks
+    from fedtrack.local_filters.linear import gating
+    from fedtrack.local_filters.regions import grid_regions, region_of
+
+    taken = {"prior": 0, "behind": 0, "kept": 0, "fused": 0, "boxed": 0, "looked": 0, "retest": 0}
+    fuse, states_now, owners = CentralTracks.fuse, TrackToTrackCentre._states_now, RegionCentre.owners
+    hysteresis, pairs, associate = TrackToTrackCentre._hysteresis, TrackToTrackCentre._pairs, TrackToTrackCentre._associate
+    last: dict[int, Any] = {}
+
+    def checked_fuse(tracks: CentralTracks, slots: np.ndarray, t: float, H: np.ndarray, R: np.ndarray,
+                     z: np.ndarray, prior: Any = None) -> Any:
+        if prior is None:
+            return fuse(tracks, slots, t, H, R, z)
+        full = copy.deepcopy(tracks)
+        taken["prior"] += 1
+        taken["behind"] += int((t < full.newest_t(slots)).any())
+        expected = fuse(full, slots, t, H, R, z)
+        out = fuse(tracks, slots, t, H, R, z, prior)
+        assert all(np.array_equal(a, b) for a, b in zip(out, expected))
+        assert pickle.dumps(tracks) == pickle.dumps(full)
+        return out
+
+    def checked_states_now(centre: TrackToTrackCentre, slots: np.ndarray, t: float, states: Any,
+                           touched: np.ndarray) -> Any:
+        X, P = states_now(centre, slots, t, states, touched)
+        X_full, P_full = centre.tracks.states_at(slots, t)
+        assert np.array_equal(X, X_full) and np.array_equal(P, P_full)
+        new = np.isin(slots, touched)
+        taken["fused"] += int(new.sum())
+        taken["kept"] += int((~new).sum())
+        return X, P
+
+    def checked_owners(rc: RegionCentre, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        out = owners(rc, x, y)
+        assert np.array_equal(out, region_of(rc.regions, np.stack([x, y], axis=1)))
+        x0, x1, y0, y1 = rc.boxes.T
+        boxed = ((x[:, None] > x0) & (x[:, None] < x1) & (y[:, None] > y0) & (y[:, None] < y1)).any(axis=1)
+        taken["boxed"] += int(boxed.sum())
+        taken["looked"] += int((~boxed).sum())
+        return out
+
+    def counted_hysteresis(centre: TrackToTrackCentre, *args: Any) -> bool:
+        unmapped = hysteresis(centre, *args)
+        taken["retest"] += unmapped
+        return unmapped
+
+    def recorded_pairs(centre: TrackToTrackCentre, *args: Any) -> Any:
+        out = last[id(centre)] = pairs(centre, *args)
+        return out
+
+    def checked_associate(centre: TrackToTrackCentre, report: Any, det_rows: np.ndarray, unmapped: list[int],
+                          alone: list[int], cands: np.ndarray, tested: Any) -> Any:
+        cands_full, (ri, ci, diff, S) = last[id(centre)]  # the latest pairs: the re-test's if there was one
+        assert np.array_equal(cands, cands_full) and np.array_equal(ri, tested[0]) and np.array_equal(ci, tested[1])
+        assert all(np.array_equal(a, b) for a, b in zip(gating.track_difference_d2(diff, S), tested[2:]))
+        return associate(centre, report, det_rows, unmapped, alone, cands, tested)
+
+    monkeypatch.setattr(CentralTracks, "fuse", checked_fuse)
+    monkeypatch.setattr(TrackToTrackCentre, "_states_now", checked_states_now)
+    monkeypatch.setattr(RegionCentre, "owners", checked_owners)
+    monkeypatch.setattr(TrackToTrackCentre, "_hysteresis", counted_hysteresis)
+    monkeypatch.setattr(TrackToTrackCentre, "_pairs", recorded_pairs)
+    monkeypatch.setattr(TrackToTrackCentre, "_associate", checked_associate)
+    config = data / "unmap-at-once.toml"
+    config.write_text((data / "config.toml").read_text() + "unmap_after = 1\n")
+    replay_mtt("mtt-federated", data / "measurements.jsonl", config, data / "fed-2x2-checked.jsonl", regions="2x2")
+    # 760 fusions from the shared prediction (148 with out-of-sequence observations); the merge test's
+    # 11,200 tracks (1,843 fused or started); 9,494 positions in a box, 8 beyond them; 27 re-tests
+    assert taken["prior"] >= 500 and taken["behind"] >= 20 and taken["kept"] >= 500 and taken["fused"] >= 500
+    assert taken["boxed"] >= 1000 and taken["looked"] >= 4 and taken["retest"] >= 2
+    rng = np.random.default_rng(5)  # stacked pairs: each pair's test as alone
+    A = rng.normal(size=(40, 4, 4))
+    S, d = A @ A.transpose(0, 2, 1) + np.eye(4), rng.normal(size=(40, 4))
+    both = gating.track_difference_d2(d, S)
+    for part in (slice(0, 13), slice(13, 40)):
+        alone = gating.track_difference_d2(d[part], S[part])
+        assert np.array_equal(alone[0], both[0][part]) and np.array_equal(alone[1], both[1][part])
+    # owners of positions on and about the borders, and beyond the grid: region_of's
+    regions = grid_regions((-5000.0, -3000.0), (2500.0, 3000.0), 4, 2, 100.0)
+    edges = np.array([-5000.0, -2500.0, 0.0, 2500.0, 5000.0, -3000.0, 3000.0])
+    near = np.concatenate([edges, edges + 1e-9, edges - 1e-9, edges * (1 + 1e-15), edges + 1e-6])
+    xy = np.concatenate([rng.uniform(-6000, 6000, size=(400, 2)), rng.choice(near, size=(400, 2)),
+                         np.stack([rng.choice(near, 200), rng.uniform(-4000, 4000, 200)], axis=1)])
+    for r in range(8):
+        rc = RegionCentre(MttConfig(), 4, True, regions, r)
+        assert np.array_equal(owners(rc, xy[:, 0], xy[:, 1]), region_of(regions, xy))

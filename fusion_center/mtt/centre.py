@@ -313,7 +313,7 @@ class TrackToTrackCentre:
     def _fuse_rows(self, report: LocalReport, det_rows: np.ndarray, col: int) -> Resets:
         """The detected rows ``det_rows`` of a report of sensor column ``col``: the hysteresis check,
         association, fusion, resets, the life rules' count of the scan and the duplicate merge."""
-        cfg, t, s = self.cfg, report.t, report.sensor
+        t, s = report.t, report.sensor
         d = report.x.shape[1]
         keys = [(s, i) for i in report.ids[det_rows].tolist()]
         cid, slots = self._central_ids(keys)  # a mapped local track's central track is live; -1: unmapped

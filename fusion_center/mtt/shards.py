@@ -98,9 +98,11 @@ class RegionCentre:
         """The rows of a sub-report this centre fuses (bool per row)."""
         s, ids = report.sensor, report.ids.tolist()
         mine = keyed(self.centre.mapping, s, ids)
-        gone = keyed(self.forwarded, s, ids) & ~mine if self.forwarded else np.zeros(len(ids), dtype=bool)
-        self.in_flight += int(gone.sum())
-        free = ~mine & ~gone & ~elsewhere
+        free = ~mine & ~elsewhere
+        if self.forwarded:
+            gone = keyed(self.forwarded, s, ids) & ~mine
+            self.in_flight += int(gone.sum())
+            free &= ~gone
         if free.any() and self.boxes.shape[0] > 1:  # one region owns every position
             rows = free.nonzero()[0]
             free[rows] = self.owners(report.x[rows, 0], report.x[rows, 2]) == self.index
