@@ -194,11 +194,13 @@ def test_a_scan_without_rows_leaves_what_the_full_path_leaves(data: Path) -> Non
     assert pa is not None and pb is not None and pa.ids == pb.ids and np.array_equal(pa.P, pb.P)
 
 
-def test_shared_prediction_and_box_owners_leave_what_the_full_paths_leave(data: Path,
+@pytest.mark.parametrize("modes", [False, True])
+def test_shared_prediction_and_box_owners_leave_what_the_full_paths_leave(data: Path, modes: bool,
                                                                        monkeypatch: pytest.MonkeyPatch) -> None:
     """The short paths of a report, each checked against its full path on every call of a 2 x 2
     replay (three sensors of different periods, out-of-sequence reports, the maneuver detector; a
-    local track unmapped at its first inconsistent check, so that the association is tested again):
+    local track unmapped at its first inconsistent check, so that the association is tested again;
+    and with two motion modes, whose fusion predicts the modes and takes no prior):
     the fusion from the report's shared prediction (``CentralTracks.fuse``'s ``prior``) leaves the
     track table and the posteriors that predicting again leaves; the merge test's estimates
     (``_states_now``) are ``states_at``'s; the association's pairs tested in one call with the
@@ -269,12 +271,14 @@ def test_shared_prediction_and_box_owners_leave_what_the_full_paths_leave(data: 
     monkeypatch.setattr(TrackToTrackCentre, "_hysteresis", counted_hysteresis)
     monkeypatch.setattr(TrackToTrackCentre, "_pairs", recorded_pairs)
     monkeypatch.setattr(TrackToTrackCentre, "_associate", checked_associate)
-    config = data / "unmap-at-once.toml"
-    config.write_text((data / "config.toml").read_text() + "unmap_after = 1\n")
+    config = data / f"unmap-at-once-{modes}.toml"
+    config.write_text((data / "config.toml").read_text() + "unmap_after = 1\n"
+                      + ('process_noise = "imm"\n' if modes else ""))
     replay_mtt("mtt-federated", data / "measurements.jsonl", config, data / "fed-2x2-checked.jsonl", regions="2x2")
-    # 760 fusions from the shared prediction (148 with out-of-sequence observations); the merge test's
-    # 11,200 tracks (1,843 fused or started); 9,494 positions in a box, 8 beyond them; 27 re-tests
-    assert taken["prior"] >= 500 and taken["behind"] >= 20 and taken["kept"] >= 500 and taken["fused"] >= 500
+    # without modes: 760 fusions from the shared prediction (148 with out-of-sequence observations);
+    # the merge test's 11,200 tracks (1,843 fused or started); 9,494 positions in a box, 8 beyond; 27 re-tests
+    assert taken["prior"] == 0 if modes else taken["prior"] >= 500 and taken["behind"] >= 20
+    assert taken["kept"] >= 500 and taken["fused"] >= 500
     assert taken["boxed"] >= 1000 and taken["looked"] >= 4 and taken["retest"] >= 2
     rng = np.random.default_rng(5)  # stacked pairs: each pair's test as alone
     A = rng.normal(size=(40, 4, 4))

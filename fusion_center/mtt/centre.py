@@ -367,12 +367,11 @@ class TrackToTrackCentre:
     def _states_now(self, slots: np.ndarray, t: float, states: tuple[np.ndarray, np.ndarray, np.ndarray],
                     touched: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """What :meth:`CentralTracks.states_at` ``t`` gives for ``slots``, from what the report has: a
-        track it fused into or started (``touched`` slots) has its entry at ``t`` (a prediction over 0 s
-        leaves it as it is), another its estimate in ``states`` (X, P, at: the report's prediction), the
-        rest (none in :meth:`_fuse_rows`) are predicted. With motion modes, :meth:`states_at` itself."""
+        track it did not fuse into nor start (``touched`` slots) has its estimate in ``states`` (X, P,
+        at: the report's prediction); one it did has its entry at ``t`` (a prediction over 0 s leaves it
+        as it is; with motion modes it combines the modes again: predicted); the rest (none in
+        :meth:`_fuse_rows`) are predicted."""
         tracks = self.tracks
-        if tracks.modes is not None:  # their prediction over 0 s combines the modes again
-            return tracks.states_at(slots, t)
         X0, P0, at = states
         new = np.zeros(tracks.capacity, dtype=bool)
         new[touched] = True
@@ -381,12 +380,13 @@ class TrackToTrackCentre:
         X, P = np.empty((slots.size,) + X0.shape[1:]), np.empty((slots.size,) + P0.shape[1:])
         kept = row >= 0
         X[kept], P[kept] = X0[row[kept]], P0[row[kept]]
-        if new.any():
+        if tracks.modes is None and new.any():
             s = slots[new]
             p = tracks._entry_at(s, t)
             X[new], P[new] = tracks.x[s, p], tracks.P[s, p]
-        rest = ~kept & ~new
-        if rest.any():
+            kept |= new
+        if not kept.all():
+            rest = ~kept
             X[rest], P[rest] = tracks.states_at(slots[rest], t)
         return X, P
 
