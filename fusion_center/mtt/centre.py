@@ -366,11 +366,11 @@ class TrackToTrackCentre:
 
     def _states_now(self, slots: np.ndarray, t: float, states: tuple[np.ndarray, np.ndarray, np.ndarray],
                     touched: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """What :meth:`CentralTracks.states_at` ``t`` gives for ``slots``, from what the report has: a
-        track it did not fuse into nor start (``touched`` slots) has its estimate in ``states`` (X, P,
-        at: the report's prediction); one it did has its entry at ``t`` (a prediction over 0 s leaves it
-        as it is; with motion modes it combines the modes again: predicted); the rest (none in
-        :meth:`_fuse_rows`) are predicted."""
+        """What :meth:`CentralTracks.states_at` ``t`` gives for ``slots``, from what the report has
+        (``touched``: the slots it fused into or started): an untouched track's estimate in ``states``
+        (X, P, at: the report's prediction); a touched one's entry at ``t`` (a prediction over 0 s
+        leaves it as it is; with motion modes it combines the modes again, so it is predicted); the
+        rest (none in :meth:`_fuse_rows`) predicted."""
         tracks = self.tracks
         X0, P0, at = states
         new = np.zeros(tracks.capacity, dtype=bool)
