@@ -276,16 +276,19 @@ class TrackToTrackCentre:
         self.counters.started += 1
         return cid
 
-    def ingest(self, report: LocalReport) -> Resets:
+    def ingest(self, report: LocalReport, rows: np.ndarray | None = None) -> Resets:
         """Fuse one local tracker's scan; returns the federated resets (empty when decentralized).
+        ``rows`` (bool per row; None: all): the rows taken, the others left as if the report did not
+        hold them (a region's, :meth:`RegionCentre.taken`: none of them is mapped here), without
+        building the sub-report (:func:`fedtrack.local_filters.mtt.routing.sub_report`).
 
         A scan that detected none of the report's tracks (a region's sub-report without rows of
         its region: every region centre gets every scan) only counts in the life rules: what
         :meth:`_fuse_rows` leaves after such a scan, without its predictions of the tracks."""
         col = self._note_scan(report)
-        det_rows = report.detected.nonzero()[0]
+        det_rows = (report.detected if rows is None else report.detected & rows).nonzero()[0]
         if det_rows.size:
-            return self._fuse_rows(report, det_rows, col)
+            return self._fuse_rows(report, det_rows, col, None if rows is None else rows[report.detected].nonzero()[0])
         self.moved = det_rows, det_rows.copy()  # nothing fused into: no track moved
         self._count_scan(col, det_rows, report)
         return no_resets(report.sensor, report.t, report.x.shape[1])
@@ -310,11 +313,15 @@ class TrackToTrackCentre:
                 self.strikes.pop((s, lid), None)
         return col
 
-    def _fuse_rows(self, report: LocalReport, det_rows: np.ndarray, col: int) -> Resets:
+    def _fuse_rows(self, report: LocalReport, det_rows: np.ndarray, col: int, obs: np.ndarray | None = None
+                   ) -> Resets:
         """The detected rows ``det_rows`` of a report of sensor column ``col``: the hysteresis check,
-        association, fusion, resets, the life rules' count of the scan and the duplicate merge."""
+        association, fusion, resets, the life rules' count of the scan and the duplicate merge.
+        ``obs``: their observations' rows (None: every observation's)."""
         t, s = report.t, report.sensor
         d = report.x.shape[1]
+        started, H, R, z = ((report.started, report.obs_H, report.obs_R, report.obs_z) if obs is None else
+                            (report.started[obs], report.obs_H[obs], report.obs_R[obs], report.obs_z[obs]))
         keys = [(s, i) for i in report.ids[det_rows].tolist()]
         cid, slots = self._central_ids(keys)  # a mapped local track's central track is live; -1: unmapped
         # the estimates at t of the central tracks of the rows to check, of those without a track of
@@ -322,7 +329,7 @@ class TrackToTrackCentre:
         # the check, the association, the fusion and the merge test (``at``: each slot's row, -1: none).
         # The association's candidates are among them (a track loses this sensor's last local track
         # before it only by the check below), and so are the merge test's tracks (_merge_duplicates)
-        check = ((cid >= 0) & ~report.started).nonzero()[0]
+        check = ((cid >= 0) & ~started).nonzero()[0]
         tracks = self.tracks
         has = self.support > 0
         others = (self.support[:, col] == 0) | (has != has.any(axis=0)).any(axis=1)
@@ -349,7 +356,7 @@ class TrackToTrackCentre:
         is_fresh = np.zeros(len(keys), dtype=bool)
         is_fresh[[k for k in unmapped_rows if keys[k] in fresh]] = True
         at = padded(at + 1, (tracks.capacity,)) - 1  # a track started since has none
-        fused, x_post, P_post = self._fuse_scan(report, slots, is_fresh, t, (X, P, at))
+        fused, x_post, P_post = self._fuse_scan((H, R, z), slots, is_fresh, t, (X, P, at))
         rows = fused.nonzero()[0]
         supported = slots[rows]
         self.moved = cid[rows], supported
@@ -494,9 +501,10 @@ class TrackToTrackCentre:
         self.tracks.delete(cid)
         self.counters.deleted += 1
 
-    def _fuse_scan(self, report: LocalReport, slots: np.ndarray, fresh: np.ndarray, t: float,
-                   states: tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Fuse the scan's observations into their central tracks' ``slots``; returns per detected
+    def _fuse_scan(self, observations: tuple[np.ndarray, np.ndarray, np.ndarray], slots: np.ndarray,
+                   fresh: np.ndarray, t: float, states: tuple[np.ndarray, np.ndarray, np.ndarray]
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Fuse the scan's ``observations`` (H, R, z) into their central tracks' ``slots``; returns per detected
         row whether it was fused (or started its track: ``fresh``) and the posterior at ``t``.
 
         The observations of distinct central tracks are fused together (:meth:`CentralTracks.fuse`:
@@ -509,7 +517,8 @@ class TrackToTrackCentre:
         started = fresh.nonzero()[0]
         if started.size:
             X[started], P[started] = self.tracks.latest(slots[started])[1:]  # started from this local estimate
-        H_all = self._embed(report.obs_H)
+        H_obs, R_obs, z_obs = observations
+        H_all = self._embed(H_obs)
         pending = (~fresh).nonzero()[0]
         reprocessed = self.tracks.reprocessed
         X0, P0, at = states
@@ -520,8 +529,7 @@ class TrackToTrackCentre:
             row = at[slots[now]]
             prior = (X0[row], P0[row]) if first and (row >= 0).all() else None
             first = False  # a later round's tracks were fused into in this one
-            done, x_now, P_now = self.tracks.fuse(slots[now], t, H_all[now], report.obs_R[now], report.obs_z[now],
-                                                  prior)
+            done, x_now, P_now = self.tracks.fuse(slots[now], t, H_all[now], R_obs[now], z_obs[now], prior)
             ok[now], X[now], P[now] = done, x_now, P_now
             fused = int(np.count_nonzero(done))
             self.counters.fused += fused
@@ -627,11 +635,11 @@ class TrackToTrackCentre:
                 fresh.add(key)
         return fresh
 
-    def answer(self, report: LocalReport) -> tuple[Resets, float]:
-        """Everything the centre does with one report: fuse it, then delete unsupported central
-        tracks; returns the resets for its sensor and the process-noise factor (the number of
-        live sensors, 1 when decentralized) for that sensor's next scan."""
-        resets = self.ingest(report)
+    def answer(self, report: LocalReport, rows: np.ndarray | None = None) -> tuple[Resets, float]:
+        """Everything the centre does with one report (its ``rows``: :meth:`ingest`): fuse it, then
+        delete unsupported central tracks; returns the resets for its sensor and the process-noise
+        factor (the number of live sensors, 1 when decentralized) for that sensor's next scan."""
+        resets = self.ingest(report, rows)
         q_scale = float(max(len(self.live_sensors(report.t)), 1)) if self.feedback else 1.0
         self.prune(report.t)
         return resets, q_scale

@@ -37,7 +37,7 @@ from fedtrack.fusion_center.mtt.central_track import MAX_ENTRIES
 from fedtrack.fusion_center.mtt.centre import Counters, HandOver, LocalKey, TrackToTrackCentre
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import LocalReport, Resets
-from fedtrack.local_filters.mtt.routing import RegionAnswer, RegionRouter, join_answers, sub_report
+from fedtrack.local_filters.mtt.routing import RegionAnswer, RegionRouter, join_answers
 from fedtrack.local_filters.regions import Regions, region_of
 
 
@@ -133,7 +133,7 @@ class RegionCentre:
         take = self.taken(report, elsewhere)
         self.rows += take.size
         self.rows_taken += int(take.sum())
-        resets, q_scale = self.centre.answer(report if take.all() else sub_report(report, take))
+        resets, q_scale = self.centre.answer(report, None if take.all() else take)
         c = self.centre
         moving: list[tuple[int, int, HandOver]] = []
         ids, slots = c.moved  # only the tracks this report fused into (or started) can have left
