@@ -493,3 +493,26 @@ def test_centre_with_one_live_sensor_confirms_by_that_trackers_own_rule(associat
         slots = centre.tracks.live()
         assert slots.size == 1
         assert bool(centre.tracks.confirmed[slots[0]]) == (associator != "gnn" and len(sensors) == 1)
+
+
+def test_centre_deletion_counts_follow_the_detection_probability() -> None:
+    """Misses in a row per tracking sensor before a confirmed central track goes: the fewest whose
+    chance for a live target is at most 1e-3 (``delete_misses``' rationale), never fewer than 2
+    (several sensors) or ``delete_misses`` (one): at P_D 0.9 the counts that were fixed (3; 2 and
+    2), at P_D 0.5 10; 5 and 4 (the fixed 2 deleted a live target seen by three sensors every 64
+    scans); ``mtt-centralized``'s count over every sensor's scans likewise (6 at 0.9, 10 at 0.5)."""
+    from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
+    from fedtrack.fusion_center.mtt.engines import central_params
+    from fedtrack.local_filters.mtt.config import MttConfig
+
+    tracking = np.array([[True, False, False], [True, True, False], [True, True, True]])
+    for pd, want, centralized in ((0.9, [3, 2, 2], 6), (0.5, [10, 5, 4], 10), (0.99, [3, 2, 2], 6)):
+        cfg = MttConfig(pd=pd, sensors=["s1", "s2", "s3"])
+        centre = TrackToTrackCentre(cfg, 4, True)
+        for s in ("s1", "s2", "s3"):
+            centre._col(s)
+        assert centre._misses_needed(tracking).tolist() == want
+        assert central_params(cfg, "s1", 4).delete_misses == centralized
+    centre = TrackToTrackCentre(MttConfig(pd=0.9, delete_misses=5), 4, True)
+    centre._col("s1")
+    assert centre._misses_needed(np.array([[True]])).tolist() == [5]

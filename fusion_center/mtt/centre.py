@@ -38,7 +38,7 @@ scan, the linearized observation of every track the scan detected, the tracks it
   tracker confirmed: in heavy clutter the count alone confirmed tracks on several sensors'
   clutter tracks. A confirmed track is deleted once every sensor that tracks it (a local track
   maps to it) missed it on its last ``CENTRAL_MISSES`` (2) scans since its last detection
-  (``delete_misses`` when one sensor tracks it): a target that died goes within two scans of the
+  (``delete_misses`` when one sensor tracks it; more at a lower P_D: :func:`miss_count`): a target that died goes within two scans of the
   slowest sensor instead of lingering until every local tracker deleted its track. It is also deleted when no local
   track maps to it any more or none supported it for ``central_timeout`` seconds.
 """
@@ -46,6 +46,7 @@ scan, the linearized observation of every track the scan detected, the tracks it
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -65,6 +66,18 @@ LocalKey = tuple[str, int]  # (sensor, local track id)
 # track-to-track centre's rule per tracking sensor, and mtt-centralized's as misses in a row
 # over every sensor's scans (CENTRAL_MISSES per listed sensor: engines.central_params).
 CENTRAL_MISSES = 2
+# At the sensors' detection probabilities the counts may need to be longer: the fewest misses in a
+# row whose chance for a live target is at most LOST, delete_misses' own rationale (3 misses at
+# P_D 0.9: a live target lost by misses once in a thousand scans): miss_count.
+LOST = 1e-3
+
+
+def miss_count(log_miss: np.ndarray | float) -> np.ndarray:
+    """The fewest misses ``m`` with ``exp(m log_miss) <= LOST``, ``log_miss`` the log-probability
+    of one miss (< 0; -inf gives 0; a rounding never adds a miss)."""
+    return np.ceil(math.log(LOST) / np.asarray(log_miss) - 1e-9)
+
+
 ASSOCIATION_SHIFT = 1e6  # larger than any gated pair's d2 + ln det
 
 
@@ -475,7 +488,7 @@ class TrackToTrackCentre:
         self.streak[missed, col] += 1
         tracking = self.support[missed] > 0
         n_tracking = tracking.sum(axis=1)
-        need = np.where(n_tracking > 1, CENTRAL_MISSES, cfg.delete_misses)[:, None]
+        need = self._misses_needed(tracking)[:, None]
         dead = missed[(n_tracking > 0) & (~tracking | (self.streak[missed] >= need)).all(axis=1)]
         young = (live & ~tracks.confirmed).nonzero()[0]
         window = np.concatenate([self.window[young, 1:], hit[young, None]], axis=1)
@@ -488,6 +501,17 @@ class TrackToTrackCentre:
         tracks.confirmed[now], tracks.confirmed_t[now] = True, report.t
         for cid in tracks.ids[dead].tolist():
             self._delete(cid)
+
+    def _misses_needed(self, tracking: np.ndarray) -> np.ndarray:
+        """Misses in a row per tracking sensor before a confirmed track is deleted, per row of
+        ``tracking`` (tracks x sensor columns): ``CENTRAL_MISSES`` with several tracking sensors,
+        ``delete_misses`` with one, or more where a miss by each of them is likely enough that
+        the chance of as many for a live target exceeds ``LOST`` (:func:`miss_count`)."""
+        log_miss = np.log1p(-np.array([min(self.cfg.pd_of(s), 1.0 - 1e-12) for s in self.sensor_names]))
+        several = tracking.sum(axis=1) > 1
+        floor = np.where(several, CENTRAL_MISSES, self.cfg.delete_misses)
+        total = tracking @ log_miss  # a miss by every tracking sensor (0: none tracks the row)
+        return np.maximum(miss_count(np.where(total < 0.0, total, -np.inf)), floor).astype(np.int64)
 
     def _delete(self, cid: int) -> None:
         """Delete ``cid`` by the life rules; a confirmed one stays in later pictures up to its last

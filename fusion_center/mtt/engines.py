@@ -25,7 +25,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from fedtrack.fusion_center.mtt.centre import CENTRAL_MISSES, TrackToTrackCentre
+from fedtrack.fusion_center.mtt.centre import CENTRAL_MISSES, TrackToTrackCentre, miss_count
 from fedtrack.fusion_center.mtt.shards import ShardedCentre
 from fedtrack.local_filters.mtt.associators import jipda
 from fedtrack.local_filters.mtt.config import MttConfig
@@ -124,11 +124,14 @@ def central_params(cfg: MttConfig, sensor: str | None, dim: int) -> TrackParams:
     centre's policy on a sensor's own tracker's. It counts misses over every sensor's scans, so a
     confirmed track goes after ``CENTRAL_MISSES`` per listed sensor in a row (the track-to-track
     centre's rule; 3 in a row dropped a live target of three sensors at P_D = 0.9 about once a
-    minute among 60), and its maneuver handling keeps ``window`` candidate onsets per listed
+    minute among 60; below P_D 0.9 more, :func:`~.centre.miss_count` of the listed sensors' mean
+    log miss), and its maneuver handling keeps ``window`` candidate onsets per listed
     sensor, so that the window spans about the time a sensor's own does."""
     p = track_params(cfg, sensor, dim, events=True)
     n = cfg.listed_sensors
-    return p._replace(delete_misses=max(cfg.delete_misses, CENTRAL_MISSES * n),
+    listed = [cfg.pd] if isinstance(cfg.sensors, str) else [cfg.pd_of(s) for s in cfg.sensors] or [cfg.pd]
+    log_miss = float(np.mean(np.log1p(-np.minimum(listed, 1.0 - 1e-12))))  # a scan's miss, over the listed sensors
+    return p._replace(delete_misses=max(cfg.delete_misses, CENTRAL_MISSES * n, int(miss_count(log_miss))),
                       maneuver=_every_sensor_window(p.maneuver, n), detector=_every_sensor_window(p.detector, n))
 
 
