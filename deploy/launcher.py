@@ -208,6 +208,21 @@ def service_plan(settings: Settings, config_path: Path, out_dir: Path, log_dir: 
     return plan
 
 
+def set_aside_recording(db: Path) -> Path | None:
+    """Move an earlier run's recording database ``db`` (with SQLite's ``-wal`` and ``-shm``
+    files) to ``db.previous``, replacing the one kept there; returns where, or None without one.
+    The recorder appends to its database (across its restarts within a run), so a run into an
+    output folder that held another run's recording exported both runs' data as one."""
+    if not db.exists():
+        return None
+    kept = db.with_name(db.name + ".previous")
+    for suffix in ("", "-wal", "-shm"):
+        Path(str(kept) + suffix).unlink(missing_ok=True)
+        if Path(str(db) + suffix).exists():
+            Path(str(db) + suffix).rename(str(kept) + suffix)
+    return kept
+
+
 def runs_here(settings: Settings, role: str, sid: str, args: list[str]) -> bool:
     """Whether this host runs a multi-target service: its role is in ``deployment.services``, a
     sensor's services only for ``local_sensors``, a region's centre only for ``local_regions``."""
@@ -514,6 +529,10 @@ class Launcher:
         for sp in self.plan:  # a snapshot left by an earlier run must not be resumed from
             if "--snapshot" in sp.argv:
                 Path(sp.argv[sp.argv.index("--snapshot") + 1]).unlink(missing_ok=True)
+            if "--db" in sp.argv:  # nor an earlier run's recording appended to
+                kept = set_aside_recording(Path(sp.argv[sp.argv.index("--db") + 1]))
+                if kept is not None and not self.quiet:
+                    print(f"fedtrack launch: an earlier run's recording moved to {kept}", file=sys.stderr)
         try:
             for sp in routers:
                 self._start(sp)

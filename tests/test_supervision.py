@@ -47,3 +47,30 @@ def test_restart_with_backoff_then_the_limit(tmp_path: Path, role: str, monkeypa
     err = capsys.readouterr().err
     assert f"{sp.name} exited with exit code 3; restart 1 of 3 in 0.01 s" in err
     assert describe_exit(-9) == "signal SIGKILL"
+
+
+def test_a_new_run_sets_an_earlier_runs_recording_aside(tmp_path: Path) -> None:
+    """The recorder appends to its database (across its restarts within a run): a run into a folder
+    that holds another run's recording starts a fresh one, the earlier one kept as
+    ``recording.db.previous`` (one generation), so the exports hold this run's data alone (a
+    ``fedtrack demo`` after ``fedtrack demo --scenario multitarget`` in the same folder exported the
+    earlier run's pictures and ended in a KeyError)."""
+    from fedtrack.deploy.launcher import set_aside_recording
+    import numpy as np
+
+    from fedtrack.recording import Recording
+    from fedtrack.wire import Measurement, encode
+
+    db = tmp_path / "recording.db"
+    assert set_aside_recording(db) is None
+    for run in range(2):
+        rec = Recording(db)
+        msg = Measurement(sensor="p1", seq=run, t=float(run), kind="position", z=np.array([float(run), 0.0]),
+                          R=np.eye(2), stamp_ns=1)
+        rec.add(msg, encode(msg))
+        rec.close()
+        kept = set_aside_recording(db)
+        assert kept == tmp_path / "recording.db.previous" and not db.exists()
+        again = Recording(kept)
+        assert [m.t for m in again.messages(Measurement, "t")] == [float(run)]  # that run's alone
+        again.close()
