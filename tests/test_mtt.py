@@ -511,8 +511,8 @@ def test_centre_deletion_counts_follow_the_detection_probability() -> None:
         centre = TrackToTrackCentre(cfg, 4, True)
         for s in ("s1", "s2", "s3"):
             centre._col(s)
-        assert centre._misses_needed(tracking).tolist() == want
+        assert centre._misses_needed(tracking, tracking.sum(axis=1)).tolist() == want
         assert central_params(cfg, "s1", 4).delete_misses == centralized
     centre = TrackToTrackCentre(MttConfig(pd=0.9, delete_misses=5), 4, True)
     centre._col("s1")
-    assert centre._misses_needed(np.array([[True]])).tolist() == [5]
+    assert centre._misses_needed(np.array([[True]]), np.array([1])).tolist() == [5]

@@ -488,7 +488,7 @@ class TrackToTrackCentre:
         self.streak[missed, col] += 1
         tracking = self.support[missed] > 0
         n_tracking = tracking.sum(axis=1)
-        need = self._misses_needed(tracking)[:, None]
+        need = self._misses_needed(tracking, n_tracking)[:, None]
         dead = missed[(n_tracking > 0) & (~tracking | (self.streak[missed] >= need)).all(axis=1)]
         young = (live & ~tracks.confirmed).nonzero()[0]
         window = np.concatenate([self.window[young, 1:], hit[young, None]], axis=1)
@@ -502,15 +502,14 @@ class TrackToTrackCentre:
         for cid in tracks.ids[dead].tolist():
             self._delete(cid)
 
-    def _misses_needed(self, tracking: np.ndarray) -> np.ndarray:
+    def _misses_needed(self, tracking: np.ndarray, n_tracking: np.ndarray) -> np.ndarray:
         """Misses in a row per tracking sensor before a confirmed track is deleted, per row of
-        ``tracking`` (tracks x sensor columns): ``CENTRAL_MISSES`` with several tracking sensors,
-        ``delete_misses`` with one, or more where a miss by each of them is likely enough that
-        the chance of as many for a live target exceeds ``LOST`` (:func:`miss_count`)."""
-        log_miss = np.log1p(-np.array([min(self.cfg.pd_of(s), 1.0 - 1e-12) for s in self.sensor_names]))
-        several = tracking.sum(axis=1) > 1
-        floor = np.where(several, CENTRAL_MISSES, self.cfg.delete_misses)
-        total = tracking @ log_miss  # a miss by every tracking sensor (0: none tracks the row)
+        ``tracking`` (tracks x sensor columns; ``n_tracking`` its row sums): ``CENTRAL_MISSES`` with
+        several tracking sensors, ``delete_misses`` with one, or more where a miss by each of them
+        is likely enough that the chance of as many for a live target exceeds ``LOST``
+        (:func:`miss_count`)."""
+        floor = np.where(n_tracking > 1, CENTRAL_MISSES, self.cfg.delete_misses)
+        total = tracking @ np.array([self.cfg.log_miss(s) for s in self.sensor_names])  # 0: none tracks the row
         return np.maximum(miss_count(np.where(total < 0.0, total, -np.inf)), floor).astype(np.int64)
 
     def _delete(self, cid: int) -> None:

@@ -129,8 +129,8 @@ def central_params(cfg: MttConfig, sensor: str | None, dim: int) -> TrackParams:
     sensor, so that the window spans about the time a sensor's own does."""
     p = track_params(cfg, sensor, dim, events=True)
     n = cfg.listed_sensors
-    listed = [cfg.pd] if isinstance(cfg.sensors, str) else [cfg.pd_of(s) for s in cfg.sensors] or [cfg.pd]
-    log_miss = float(np.mean(np.log1p(-np.minimum(listed, 1.0 - 1e-12))))  # a scan's miss, over the listed sensors
+    listed = [] if isinstance(cfg.sensors, str) else cfg.sensors
+    log_miss = float(np.mean([cfg.log_miss(s) for s in listed] or [cfg.log_miss()]))  # a scan's miss, on average
     return p._replace(delete_misses=max(cfg.delete_misses, CENTRAL_MISSES * n, int(miss_count(log_miss))),
                       maneuver=_every_sensor_window(p.maneuver, n), detector=_every_sensor_window(p.detector, n))
 

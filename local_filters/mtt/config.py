@@ -236,6 +236,11 @@ class MttConfig:
         over = self.sensor.get(sensor)
         return self.pd if over is None or over.pd is None else over.pd
 
+    def log_miss(self, sensor: str | None = None) -> float:
+        """``ln(1 - P_D)`` of ``sensor`` (None: ``[mtt] pd``): the log-probability that one of its
+        scans misses a live target (finite at P_D 1)."""
+        return math.log1p(-min(self.pd if sensor is None else self.pd_of(sensor), 1.0 - 1e-12))
+
     def clutter_of(self, sensor: str) -> float:
         over = self.sensor.get(sensor)
         return self.clutter_density if over is None or over.clutter_density is None else over.clutter_density
