@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import tracemalloc
 from pathlib import Path
 
 import numpy as np
@@ -54,6 +55,20 @@ def test_k_best_assignments_equal_brute_force() -> None:
         assert len({tuple(c) for c in cols.tolist()}) == costs.size  # no assignment twice
         checked += costs.size
     assert checked > 1000
+
+
+def test_k_best_assignments_queue_constraints_not_matrices() -> None:
+    """Murty's queue keeps each sub-problem as its constraints: the peak memory of a 120 x 240
+    problem stays a few copies of its matrix (each queued sub-problem was one: about 120 here)."""
+    cost = np.random.default_rng(3).normal(size=(120, 240))
+    tracemalloc.start()
+    try:
+        costs, _ = k_best_assignments(cost, 3)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert costs.size == 3
+    assert peak < 8 * cost.nbytes, f"peak {peak / cost.nbytes:.1f} matrices"
 
 
 def test_k_best_sums_equal_brute_force() -> None:

@@ -167,7 +167,13 @@ def associate(inp: AssociationInput) -> Association:
 # the i-th forcing ``(r_1, c_1) .. (r_{i-1}, c_{i-1})`` and forbidding ``(r_i, c_i)``: they
 # partition the remaining assignments, so the next best is the best of the sub-problems' optima
 # (a priority queue). Forbidden entries are ``+inf``; a sub-problem without a finite assignment
-# is dropped.
+# is dropped. A queued sub-problem is kept as its constraints (forced and forbidden entries, in
+# the order they were applied), not as a copy of its matrix: the matrix is rebuilt when it is
+# taken, so the queue holds O(n) numbers per sub-problem instead of O(n m) (a cluster of 300
+# tracks in heavy clutter queued gigabytes of matrices).
+
+Constraint = tuple[int, int, bool]  # (row, column, forbidden: else forced)
+
 
 def k_best_assignments(cost: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """The ``k`` (or fewer, if fewer exist) least-cost assignments of every row of ``cost``
@@ -183,23 +189,40 @@ def k_best_assignments(cost: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray
     first = _solve(cost)
     if first is None:
         return np.zeros(0), np.zeros((0, n), np.intp)
-    heap = [(first[0], 0, first[1], cost, 0)]  # (cost, tie-break, columns, sub-problem, rows forced)
+    # (cost, tie-break, columns, the sub-problem's constraints, rows forced)
+    heap: list[tuple[float, int, np.ndarray, tuple[Constraint, ...], int]] = [(first[0], 0, first[1], (), 0)]
     serial = 1
     while heap and len(costs) < k:
-        total, _, cols, sub, fixed = heapq.heappop(heap)
+        total, _, cols, constraints, fixed = heapq.heappop(heap)
         costs.append(total)
         sols.append(cols)
-        # rows are forced in the order 0..n-1: those < fixed are forced in sub already
-        work = sub.copy()
+        if len(costs) == k:
+            break  # its sub-problems could only rank assignments beyond the k-th
+        # rows are forced in the order 0..n-1: those < fixed are forced in the sub-problem already
+        work = _constrained(cost, constraints)
         for i in range(fixed, n):
-            child = work.copy()
-            child[i, cols[i]] = np.inf  # forbid (i, cols[i])
-            found = _solve(child)
+            c = int(cols[i])
+            kept = work[i, c]
+            work[i, c] = np.inf  # forbid (i, cols[i])
+            found = _solve(work)
+            work[i, c] = kept
             if found is not None:
-                heapq.heappush(heap, (found[0], serial, found[1], child, i))
+                heapq.heappush(heap, (found[0], serial, found[1], constraints + ((i, c, True),), i))
                 serial += 1
-            _force(work, i, cols[i])  # the next sub-problems keep (i, cols[i])
+            _force(work, i, c)  # the next sub-problems keep (i, cols[i])
+            constraints += ((i, c, False),)
     return np.array(costs), np.array(sols, dtype=np.intp).reshape(len(sols), n)
+
+
+def _constrained(cost: np.ndarray, constraints: tuple[Constraint, ...]) -> np.ndarray:
+    """A copy of ``cost`` with ``constraints`` applied in their order."""
+    work = cost.copy()
+    for row, col, forbidden in constraints:
+        if forbidden:
+            work[row, col] = np.inf
+        else:
+            _force(work, row, col)
+    return work
 
 
 def _force(cost: np.ndarray, row: int, col: int) -> None:
