@@ -185,6 +185,8 @@ class TrackToTrackCentre:
         self.tracks = CentralTracks(self.dim, cfg.q, cfg.noise_model, cfg.max_lag,
                                     detector=cfg.central_detector, modes=cfg.mode_rates)
         self._column: dict[str, int] = {}
+        self.column_log_miss = np.zeros(0)  # per sensor column, ln(1 - P_D) of its sensor (MttConfig.log_miss)
+        self.n_live = 0  # live sensors at the latest report's time (live_sensors), counted once a report
         self.support = np.zeros((0, 0), dtype=np.int64)  # local tracks of each sensor mapped to a slot
         self.streak = np.zeros((0, 0), dtype=np.int64)  # a confirmed slot's misses in a row per sensor
         self.window = np.zeros((0, cfg.confirm_window), dtype=bool)  # a tentative slot's last scans
@@ -213,6 +215,7 @@ class TrackToTrackCentre:
         if col is None:
             col = self._column[sensor] = len(self.sensor_names)
             self.sensor_names.append(sensor)
+            self.column_log_miss = np.append(self.column_log_miss, self.cfg.log_miss(sensor))
             self._fit()
         return col
 
@@ -316,6 +319,7 @@ class TrackToTrackCentre:
             if report.obs_R.shape[1] == 2 and needs_local_confirmation(self.cfg, s):
                 self.local_confirmation = True
         self.sensor_seen[s] = max(self.sensor_seen.get(s, t), t)
+        self.n_live = len(self.live_sensors(t))
         col = self._col(s)
         if report.retired.size:
             retired = report.retired.tolist()
@@ -375,7 +379,7 @@ class TrackToTrackCentre:
         self.moved = cid[rows], supported
         self.last_support[supported] = np.maximum(self.last_support[supported], t)
         if self.feedback and rows.size:
-            beta = float(max(len(self.live_sensors(t)), 1))
+            beta = float(max(self.n_live, 1))
             resets = Resets(s, t, report.ids[det_rows[rows]], x_post[rows, :d], beta * P_post[rows, :d, :d])
         else:
             resets = no_resets(s, t, d)
@@ -484,21 +488,26 @@ class TrackToTrackCentre:
         live = tracks.ids >= 0
         old = live & tracks.confirmed
         self.streak[old & hit] = 0
-        missed = (old & ~hit).nonzero()[0]
-        self.streak[missed, col] += 1
-        tracking = self.support[missed] > 0
-        n_tracking = tracking.sum(axis=1)
-        need = self._misses_needed(tracking, n_tracking)[:, None]
-        dead = missed[(n_tracking > 0) & (~tracking | (self.streak[missed] >= need)).all(axis=1)]
-        young = (live & ~tracks.confirmed).nonzero()[0]
+        missed = (old > hit).nonzero()[0]  # confirmed and not detected
+        dead = missed[:0]
+        if missed.size:
+            streak = self.streak[missed]
+            streak[:, col] += 1
+            self.streak[missed] = streak
+            tracking = self.support[missed] > 0
+            n_tracking = np.count_nonzero(tracking, axis=1)
+            need = self._misses_needed(tracking, n_tracking)[:, None]
+            dead = missed[(n_tracking > 0) & (~tracking | (streak >= need)).all(axis=1)]
+        young = (live ^ old).nonzero()[0]  # live and tentative
         window = np.concatenate([self.window[young, 1:], hit[young, None]], axis=1)
         self.window[young] = window
-        now = young[window.sum(axis=1) >= cfg.confirm_hits]
-        if cfg.confirm_bound is not None and len(self.live_sensors(report.t)) == 1:
+        now = young[np.count_nonzero(window, axis=1) >= cfg.confirm_hits]
+        if cfg.confirm_bound is not None and self.n_live == 1:
             now = np.intersect1d(young, self._vouched(report))  # one sensor: its tracker's own test
         elif self.local_confirmation and now.size:
             now = np.intersect1d(now, self._vouched(report))
-        tracks.confirmed[now], tracks.confirmed_t[now] = True, report.t
+        if now.size:
+            tracks.confirmed[now], tracks.confirmed_t[now] = True, report.t
         for cid in tracks.ids[dead].tolist():
             self._delete(cid)
 
@@ -509,7 +518,7 @@ class TrackToTrackCentre:
         is likely enough that the chance of as many for a live target exceeds ``LOST``
         (:func:`miss_count`)."""
         floor = np.where(n_tracking > 1, CENTRAL_MISSES, self.cfg.delete_misses)
-        total = tracking @ np.array([self.cfg.log_miss(s) for s in self.sensor_names])  # 0: none tracks the row
+        total = tracking @ self.column_log_miss  # 0: none tracks the row
         return np.maximum(miss_count(np.where(total < 0.0, total, -np.inf)), floor).astype(np.int64)
 
     def _delete(self, cid: int) -> None:
@@ -663,7 +672,7 @@ class TrackToTrackCentre:
         delete unsupported central tracks; returns the resets for its sensor and the process-noise
         factor (the number of live sensors, 1 when decentralized) for that sensor's next scan."""
         resets = self.ingest(report, rows)
-        q_scale = float(max(len(self.live_sensors(report.t)), 1)) if self.feedback else 1.0
+        q_scale = float(max(self.n_live, 1)) if self.feedback else 1.0
         self.prune(report.t)
         return resets, q_scale
 
