@@ -64,7 +64,10 @@ class CentralTracks:
     maneuver ``detector``, also the input estimator's bank after the entry (``bank_*``, the
     fields of :class:`InputBank`) and its detection (``det_*``). With two motion ``modes``
     (``process_noise = "imm"``), also each mode's posterior and probability (``mode_*``, the
-    fields of :class:`Modes`); ``x``, ``P`` are then their combination.
+    fields of :class:`Modes`); ``x``, ``P`` are then their combination. Every ring field is
+    C-contiguous (made by ``np.zeros``, :func:`padded` or ``take_along_axis``), so that reshaping it
+    to one axis of slots and entries is a view: :meth:`_at` reads and :meth:`_write` writes by one
+    index ``slot * depth + position``.
     """
 
     def __init__(self, dim: int, q: float, noise_model: str, max_lag: float, capacity: int = 64, depth: int = 8,
@@ -215,7 +218,7 @@ class CentralTracks:
 
     def newest(self, slots: np.ndarray) -> np.ndarray:
         """The ring position of each slot's newest entry."""
-        return self._pos(slots, self.count[slots] - 1)
+        return (self.head[slots] + self.count[slots] - 1) % self.depth
 
     def newest_t(self, slots: np.ndarray) -> np.ndarray:
         """The time of each slot's newest observation."""
@@ -234,24 +237,26 @@ class CentralTracks:
         times, t = self.t[slots], np.asarray(t).reshape(-1, 1)
         return np.count_nonzero(live & (times >= t if or_at else times > t), axis=1)
 
-    def _entry_at(self, slots: np.ndarray, t: float) -> np.ndarray:
+    def _entry_at(self, slots: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
         """The ring position of each slot's newest entry up to ``t`` (the checkpoint if none): its
-        newest entry, unless that is after ``t`` (an out-of-sequence time)."""
+        newest entry, unless that is after ``t`` (an out-of-sequence time); and that entry's time."""
         p = self.newest(slots)
-        after = (self.t[slots, p] > t).nonzero()[0]
+        t_p = self.t.reshape(-1)[slots * self.depth + p]
+        after = (t_p > t).nonzero()[0]
         if after.size:
             s = slots[after]
             p[after] = self._pos(s, np.maximum(self.count[s] - 1 - self._newer_than(s, t), 0))
-        return p
+            t_p[after] = self.t[s, p[after]]
+        return p, t_p
 
     def states_at(self, slots: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
         """The estimates (N, D), (N, D, D) of ``slots`` at ``t`` from their observations up to ``t``
         (a track whose checkpoint is newer than ``t`` gives its checkpoint), one batched prediction."""
-        p = self._entry_at(slots, t)
-        dt = np.maximum(t - self.t[slots, p], 0.0)
+        p, t_p = self._entry_at(slots, t)
+        dt = np.maximum(t - t_p, 0.0)
         if self.modes is not None:
             return modes_predict(self._modes_at(slots, p), dt, self.q, self.noise_model, self.modes)[1]
-        return predict_batch(self.x[slots, p], self.P[slots, p], dt, self.q, self.noise_model)
+        return predict_batch(self._at("x", slots, p), self._at("P", slots, p), dt, self.q, self.noise_model)
 
     def _at(self, name: str, slots: np.ndarray, p: np.ndarray) -> np.ndarray:
         """Ring field ``name`` at position ``p`` of each slot (a copy): one ``take`` over the flattened
@@ -280,7 +285,7 @@ class CentralTracks:
         entry :meth:`states_at` predicts from); no estimate without a detector."""
         if self.detector is None:
             return no_detection(slots.size)
-        p = self._entry_at(slots, t)
+        p = self._entry_at(slots, t)[0]
         return InputDetection(*(getattr(self, "det_" + n)[slots, p] for n in InputDetection._fields))
 
     def _bank_at(self, slots: np.ndarray, p: np.ndarray) -> InputBank | None:
@@ -313,9 +318,15 @@ class CentralTracks:
                H: np.ndarray, R: np.ndarray, z: np.ndarray, step: DetectorStep, modes: Modes | None = None) -> None:
         """Ring position ``p`` of each slot: the observation ``(H, R, z)`` at ``t`` and the posterior
         (and detector step, and modes) after it."""
-        m = H.shape[1]
-        self.t[slots, p], self.x[slots, p], self.P[slots, p], self.m[slots, p] = t, x, P, m
-        self.H[slots, p, :m], self.R[slots, p, :m, :m], self.z[slots, p, :m] = H, R, z
+        m, at = H.shape[1], slots * self.depth + p  # one index over the flattened slot and ring axes
+        self.t.reshape(-1)[at], self.m.reshape(-1)[at] = t, m
+        for name, a in (("x", x), ("P", P), ("H", H), ("R", R), ("z", z)):
+            ring = getattr(self, name)
+            flat = ring.reshape((-1,) + ring.shape[2:])
+            if a.shape[1:] == flat.shape[1:]:
+                flat[at] = a
+            else:  # a smaller observation in the first rows and columns
+                flat[(at,) + tuple(slice(0, k) for k in a.shape[1:])] = a
         if step is not None:
             self._write_detector(slots, p, step)
         if modes is not None:
@@ -328,11 +339,16 @@ class CentralTracks:
 
     def _trim(self, slots: np.ndarray, t_newest: float | np.ndarray) -> None:
         """Fold the entries older than ``max_lag`` before each slot's newest (at ``t_newest``) into
-        its checkpoint (the last entry before that horizon becomes the oldest)."""
-        before = self.count[slots] - self._newer_than(slots, np.asarray(t_newest) - self.max_lag, or_at=True)
-        first = np.maximum(before - 1, 0)  # the newest entry before the horizon is the checkpoint
-        self.head[slots] = (self.head[slots] + first) % self.depth
-        self.count[slots] -= first
+        its checkpoint (the last entry before that horizon becomes the oldest); ``slots`` distinct."""
+        head, count = self.head[slots], self.count[slots]
+        live = (np.arange(self.depth) - head[:, None]) % self.depth < count[:, None]
+        kept = np.count_nonzero(live & (self.t[slots] >= np.asarray(t_newest).reshape(-1, 1) - self.max_lag), axis=1)
+        first = count - kept - 1  # the newest entry before the horizon is the checkpoint
+        fold = (first > 0).nonzero()[0]
+        if fold.size:
+            s, f = slots[fold], first[fold]
+            self.head[s] = (head[fold] + f) % self.depth
+            self.count[s] = count[fold] - f
 
     def fuse(self, slots: np.ndarray, t: float, H: np.ndarray, R: np.ndarray, z: np.ndarray,
              prior: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -348,27 +364,31 @@ class CentralTracks:
         if H.shape[1] > self.H.shape[2]:
             raise ValueError(f"observations of size {H.shape[1]} in a {self.dim}-D central state")
         count = self.count[slots]
-        full = count >= MAX_ENTRIES
-        if full.any():  # fold the oldest kept observation into the checkpoint: memory stays bounded
-            f = slots[full]
+        if slots.size and count.max() >= MAX_ENTRIES:  # fold the oldest kept observation into the checkpoint
+            f = slots[count >= MAX_ENTRIES]  # (memory stays bounded)
             self.head[f] = (self.head[f] + 1) % self.depth
             self.count[f] -= 1
             count = self.count[slots]
         head = self.head[slots]
         p = (head + count - 1) % self.depth  # each slot's newest entry
         t_new = self.t[slots, p]
-        ok = (t >= self.t[slots, head]) & (t >= t_new - self.max_lag)
-        if ok.any() and int(count[ok].max()) + 1 > self.depth:  # room for one more entry in each
-            self._grow(self.capacity, max(2 * self.depth, int(count[ok].max()) + 1))
-            p = (self.head[slots] + count - 1) % self.depth
-        ahead = ok & (t >= t_new)
+        ahead = t >= t_new
         if slots.size and ahead.all():  # every observation after its track's newest (in order): one step
+            # (each is fused: the ring is in time order and max_lag >= 0)
+            if count.max() + 1 > self.depth:  # room for one more entry in each
+                self._grow(self.capacity, max(2 * self.depth, int(count.max()) + 1))
+                p = (self.head[slots] + count - 1) % self.depth
             x_out, P_out, step, modes = self._step(t_new, *(self._state_at(slots, p) if prior is None else (None, None)),
                                                    t, H, R, z, self._bank_at(slots, p), self._modes_at(slots, p), prior)
             self._write(slots, (p + 1) % self.depth, t, x_out, P_out, H, R, z, step, modes)
             self.count[slots] = count + 1
             self._trim(slots, t)
-            return ok, x_out, P_out
+            return ahead, x_out, P_out
+        ok = (t >= self.t[slots, head]) & (t >= t_new - self.max_lag)
+        if ok.any() and int(count[ok].max()) + 1 > self.depth:  # room for one more entry in each
+            self._grow(self.capacity, max(2 * self.depth, int(count[ok].max()) + 1))
+            p = (self.head[slots] + count - 1) % self.depth
+        ahead &= ok
         n = slots.shape[0]
         x_out, P_out = np.zeros((n, self.dim)), np.zeros((n, self.dim, self.dim))
         i = ahead.nonzero()[0]

@@ -406,7 +406,7 @@ class TrackToTrackCentre:
         X[kept], P[kept] = X0[row[kept]], P0[row[kept]]
         if tracks.modes is None and new.any():
             s = slots[new]
-            p = tracks._entry_at(s, t)
+            p = tracks._entry_at(s, t)[0]
             X[new], P[new] = tracks.x[s, p], tracks.P[s, p]
             kept |= new
         if not kept.all():
