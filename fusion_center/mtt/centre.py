@@ -79,6 +79,7 @@ def miss_count(log_miss: np.ndarray | float) -> np.ndarray:
 
 
 ASSOCIATION_SHIFT = 1e6  # larger than any gated pair's d2 + ln det
+XY = slice(0, 3, 2)  # the x and y positions of a state [x, vx, y, vy(, z, vz)], as a view
 
 
 def needs_local_confirmation(cfg: MttConfig, sensor: str) -> bool:
@@ -124,7 +125,7 @@ def candidate_pairs(pos_q: np.ndarray, spread_q: np.ndarray, pos: np.ndarray, sp
     with a large velocity uncertainty), so that one of them does not make every query cover the
     region; that gives some farther pairs too (the reach only splits the work: the test decides).
     """
-    factor = float(np.sqrt(gate))
+    factor = math.sqrt(gate)
     if pos_q.shape[0] * pos.shape[0] <= DIRECT_PAIRS:
         dx, dy = pos_q[:, 0, None] - pos[:, 0], pos_q[:, 1, None] - pos[:, 1]
         reach = factor * (spread_q[:, None] + spread)
@@ -346,10 +347,10 @@ class TrackToTrackCentre:
         # the check, the association, the fusion and the merge test (``at``: each slot's row, -1: none).
         # The association's candidates are among them (a track loses this sensor's last local track
         # before it only by the check below), and so are the merge test's tracks (_merge_duplicates)
-        check = ((cid >= 0) & ~started).nonzero()[0]
+        check = ((cid >= 0) > started).nonzero()[0]  # mapped and not started by the local tracker now
         tracks = self.tracks
         has = self.support > 0
-        others = (self.support[:, col] == 0) | (has != has.any(axis=0)).any(axis=1)
+        others = ~has[:, col] | (has != has.any(axis=0)).any(axis=1)
         need = np.concatenate([slots[check], (others & (tracks.ids >= 0)).nonzero()[0]])
         X, P = tracks.states_at(need, t)
         at = np.full(tracks.capacity, -1, dtype=np.int64)
@@ -372,13 +373,14 @@ class TrackToTrackCentre:
             slots[k] = tracks.slot[cid[k]]
         is_fresh = np.zeros(len(keys), dtype=bool)
         is_fresh[[k for k in unmapped_rows if keys[k] in fresh]] = True
-        at = padded(at + 1, (tracks.capacity,)) - 1  # a track started since has none
+        if at.size < tracks.capacity:  # a track started since has none
+            at = np.concatenate([at, np.full(tracks.capacity - at.size, -1, dtype=np.int64)])
         fused, x_post, P_post = self._fuse_scan((H, R, z), slots, is_fresh, t, (X, P, at))
-        rows = fused.nonzero()[0]
+        rows = slice(None) if fused.all() else fused.nonzero()[0]  # each row's observation fused (the usual)
         supported = slots[rows]
         self.moved = cid[rows], supported
         self.last_support[supported] = np.maximum(self.last_support[supported], t)
-        if self.feedback and rows.size:
+        if self.feedback and supported.size:
             beta = float(max(self.n_live, 1))
             resets = Resets(s, t, report.ids[det_rows[rows]], x_post[rows, :d], beta * P_post[rows, :d, :d])
         else:
@@ -463,7 +465,7 @@ class TrackToTrackCentre:
         X, P, at = states
         xc, Pc = X[at[cands], :d], P[at[cands], :d, :d]
         U, C = report.x[rows], report.P[rows]
-        ri, ci = candidate_pairs(U[:, [0, 2]], np.sqrt(C[:, 0, 0] + C[:, 2, 2]), xc[:, [0, 2]],
+        ri, ci = candidate_pairs(U[:, XY], np.sqrt(C[:, 0, 0] + C[:, 2, 2]), xc[:, XY],
                                  np.sqrt(Pc[:, 0, 0] + Pc[:, 2, 2]), self.cfg.thresholds.association[d])
         return cands, (ri, ci, U[ri] - xc[ci], C[ri] + Pc[ci])
 
@@ -596,7 +598,7 @@ class TrackToTrackCentre:
             return
         X, P = self._states_now(partial, t, states, touched)
         gate = self.cfg.thresholds.association[self.dim]
-        pos, spread = X[:, [0, 2]], np.sqrt(P[:, 0, 0] + P[:, 2, 2])
+        pos, spread = X[:, XY], np.sqrt(P[:, 0, 0] + P[:, 2, 2])
         K, J = candidate_pairs(pos[mine], spread[mine], pos, spread, gate)
         K = mine[K]
         # a track never merges with itself, nor with one that shares a sensor with it (a track keeps
