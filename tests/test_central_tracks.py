@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from fedtrack.fusion_center.mtt.central_track import CentralTracks
 from fedtrack.local_filters.linear.kalman import GaussianState, update
@@ -94,3 +95,44 @@ def test_a_track_keeps_at_most_max_entries() -> None:
     _, x, P = store.latest(slots)
     np.testing.assert_allclose(x[0], x_ref, rtol=0, atol=1e-9)
     np.testing.assert_allclose(P[0], P_ref, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("kind", ["plain", "prior", "detector", "modes"])
+def test_a_batch_of_in_order_and_out_of_sequence_observations_fuses_each_as_alone(kind: str) -> None:
+    """A batch of observations after their tracks' newest entries and before them (inserted, the later
+    entries fused again), as one out-of-sequence report brings: the track table, the posteriors and
+    the count of re-fused observations equal fusing each observation alone, to the bit (with the
+    report's prediction as ``prior``, the maneuver detector, two motion modes): the batched steps
+    (the in-order one step, the re-fusion's steps) treat each track as alone."""
+    import copy
+    import pickle
+
+    from fedtrack.local_filters.mtt.models import ModeRates
+    from fedtrack.local_filters.vdie.estimation import VdieParams
+
+    rng = np.random.default_rng(11)
+    n_tracks = 9
+    store = CentralTracks(4, Q, "continuous", max_lag=3.0, depth=2,
+                          detector=VdieParams(window=6) if kind == "detector" else None,
+                          modes=ModeRates(1.0 / 60.0, 1.0 / 15.0) if kind == "modes" else None)
+    for c in range(n_tracks):
+        store.start(c, 0.0, rng.normal(size=4) * 10.0, np.eye(4) * 30.0)
+    slots = store.slots_of(list(range(n_tracks)))
+    H, R = np.repeat(position_matrix(4)[None], n_tracks, 0), np.repeat(np.eye(2)[None] * 4.0, n_tracks, 0)
+    for t in np.round(np.cumsum(rng.uniform(0.2, 0.5, size=8)), 3).tolist():
+        some = rng.random(n_tracks) < 0.7  # each track its own history
+        assert store.fuse(slots[some], t, H[some], R[some], rng.normal(size=(int(some.sum()), 2)) * 5.0)[0].all()
+    newest = store.newest_t(slots)
+    t = float(newest.max()) - 0.05  # after some tracks' newest entries, before the others'
+    assert (newest <= t).any() and (newest > t).any()
+    z = rng.normal(size=(n_tracks, 2)) * 5.0
+    alone = copy.deepcopy(store)
+    prior = store.states_at(slots, t) if kind == "prior" else None
+    ok, x, P = store.fuse(slots, t, H, R, z, prior)
+    for i in range(n_tracks):
+        one = slice(i, i + 1)
+        ok_i, x_i, P_i = alone.fuse(slots[one], t, H[one], R[one], z[one],
+                                    None if prior is None else (prior[0][one], prior[1][one]))
+        assert ok_i[0] == ok[i] and np.array_equal(x_i[0], x[i]) and np.array_equal(P_i[0], P[i])
+    assert ok.all() and store.reprocessed == alone.reprocessed > 0
+    assert pickle.dumps(store) == pickle.dumps(alone)
