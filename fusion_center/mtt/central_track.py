@@ -227,7 +227,7 @@ class CentralTracks:
     def latest(self, slots: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Time, state and covariance after each slot's newest observation."""
         p = self.newest(slots)
-        return self.t[slots, p], self.x[slots, p], self.P[slots, p]
+        return self._at("t", slots, p), self._at("x", slots, p), self._at("P", slots, p)
 
     def _newer_than(self, slots: np.ndarray, t: float | np.ndarray, or_at: bool = False) -> np.ndarray:
         """Per slot, how many live entries are newer than ``t`` (or at it, with ``or_at``): a suffix
@@ -301,7 +301,8 @@ class CentralTracks:
         fusing ``(H, R, z)``, the maneuver detector's step from ``bank`` (None without a
         detector) and the modes after (None without; with them ``x``, ``P`` are not read).
         ``prior``: that prediction, when the caller made it (:meth:`states_at`; ``x``, ``P`` not read)."""
-        dt = rounded_interval(t - t0)
+        # the interval, unless the caller's prediction is all that it would serve
+        dt = rounded_interval(t - t0) if prior is None or modes is not None or bank is not None else None
         if modes is None:
             if prior is not None:
                 xp, Pp = prior
