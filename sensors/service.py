@@ -8,8 +8,10 @@ Pacing:
 * ``realtime``: scan k at wall-clock time ``start + k T / speed`` (``--start-at``; the
   launcher gives all sensors of a deployment the same start, so they stay in step).
 
-After its last scan the sensor waits for that scan's fused track (lockstep) or one
-fusion deadline (realtime) and exits 0.
+After its last scan a paper-pipeline sensor waits for that scan's fused track (at most
+``--lockstep-timeout``) and exits 0. A multi-target sensor (kind ``scan``) exits at once: no
+service answers its scans (no fused track ever comes), and the launcher's staged stop lets its
+tracker and the centres handle what it sent before they stop.
 
 Kinds: ``position`` (paper 004 scenario with the ``[[sensor]]`` R, the default),
 ``sonar`` (cluttered scans with amplitudes, paper 001, table ``[sonar]``) and ``radar``
@@ -137,7 +139,7 @@ class SensorService(Service):
         now = time.monotonic()
         if self.next_seq >= self.total:
             waited = now - self.last_publish
-            if self.fused_up_to >= self.total - 1 or waited >= self.lockstep_timeout_s:
+            if self.scans is not None or self.fused_up_to >= self.total - 1 or waited >= self.lockstep_timeout_s:
                 self.stop()
             return
         if self.pacing == "lockstep":
