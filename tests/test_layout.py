@@ -8,6 +8,7 @@ ground and ``local_filters``; no library package imports it.
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 import pytest
@@ -64,9 +65,15 @@ def group_of(module: str) -> str | None:
     return "fedtrack"
 
 
-def imports_of(path: Path) -> set[str]:
+def imports_of(path: Path) -> frozenset[str]:
     """Every module imported anywhere in the file (inside functions too), absolute names."""
-    tree = ast.parse(path.read_text(), str(path))
+    return _imports_of(path, path.read_text())
+
+
+@functools.cache
+def _imports_of(path: Path, text: str) -> frozenset[str]:
+    """:func:`imports_of`, parsed once per file content (three rules walk every source file)."""
+    tree = ast.parse(text, str(path))
     own = module_name(path)
     package = own if path.name == "__init__.py" else own.rpartition(".")[0]
     found: set[str] = set()
@@ -82,7 +89,7 @@ def imports_of(path: Path) -> set[str]:
                 mod = node.module or ""
             found.add(mod)
             found.update(f"{mod}.{a.name}" for a in node.names)
-    return found
+    return frozenset(found)
 
 
 def our_modules() -> set[str]:
