@@ -191,6 +191,35 @@ def paper_run(tmp_path: Path, before: Callable[[Bus, int], None] | None = None) 
     return bus, services
 
 
+class CleanRuns:
+    """The clean runs, each made once per module on first use (the tests compare their attacked or
+    failing runs with them and change nothing in them): the paper pipeline's, the multi-target one's."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
+        self._paper: tuple[Bus, dict[str, Service]] | None = None
+        self._mtt: tuple[Bus, dict[str, Service]] | None = None
+
+    def paper(self) -> tuple[Bus, dict[str, Service]]:
+        if self._paper is None:
+            self._paper = paper_run(self.folder / "paper")
+        return self._paper
+
+    def mtt(self) -> tuple[Bus, dict[str, Service]]:
+        if self._mtt is None:
+            services = mtt_services(self.folder / "mtt")
+            bus = Bus(list(services.values()))
+            for m in mtt_lines(self.folder):
+                bus.put(KEYS.sensor_meas(m.sensor), encode(m))
+            self._mtt = bus, services
+        return self._mtt
+
+
+@pytest.fixture(scope="module")
+def clean_runs(tmp_path_factory: pytest.TempPathFactory) -> CleanRuns:
+    return CleanRuns(tmp_path_factory.mktemp("clean"))
+
+
 def same_tracks(a: list[FusedTrack], b: list[FusedTrack]) -> None:
     assert [(t.seq, t.model, t.contested) for t in a] == [(t.seq, t.model, t.contested) for t in b]
     for x, y in zip(a, b):
@@ -270,12 +299,12 @@ def test_a_1000_deep_map_on_any_key_is_one_counted_rejection(tmp_path: Path, cap
 
 # ---------------------------------------------------------------- issue 24, message 2
 
-def test_an_estimate_far_ahead_of_its_scan_is_rejected_and_changes_nothing(tmp_path: Path) -> None:
+def test_an_estimate_far_ahead_of_its_scan_is_rejected_and_changes_nothing(tmp_path: Path, clean_runs: CleanRuns) -> None:
     """Issue 24: a LocalEstimate time-stamped far ahead of its scan, arriving before the scan's
     genuine estimates, crashed the centre (LinAlgError) and changed the fused track. It is now
     rejected (``time_jump``: more than ``max_time_jump_s`` after the last fused scan) and the
     fused tracks equal the clean run's."""
-    clean, _ = paper_run(tmp_path / "clean")
+    clean, _ = clean_runs.paper()
     forged_at = 12
 
     def forge(bus: Bus, k: int) -> None:
@@ -293,12 +322,12 @@ def test_an_estimate_far_ahead_of_its_scan_is_rejected_and_changes_nothing(tmp_p
 
 # ---------------------------------------------------------------- issue 24, message 3
 
-def test_a_replayed_estimate_arriving_first_marks_its_scan_contested(tmp_path: Path) -> None:
+def test_a_replayed_estimate_arriving_first_marks_its_scan_contested(tmp_path: Path, clean_runs: CleanRuns) -> None:
     """Issue 24: an older genuine estimate re-published with the current scan's ``seq`` and ``t``
     arrives before the genuine one and is fused (without authentication nothing tells them apart).
     When the genuine one arrives, the scan's fused track is marked ``contested`` (Health counter
     ``contested``); the other scans are the clean run's."""
-    clean, _ = paper_run(tmp_path / "clean")
+    clean, _ = clean_runs.paper()
     forged_at = 20
 
     def replay_old(bus: Bus, k: int) -> None:
@@ -423,7 +452,8 @@ FAILURES: dict[str, tuple[str, Any, str, int, Exception, bool, str]] = {
 
 
 @pytest.mark.parametrize("family", sorted(FAILURES))
-def test_a_handler_failing_half_way_leaves_no_trace(tmp_path: Path, family: str, monkeypatch: Any) -> None:
+def test_a_handler_failing_half_way_leaves_no_trace(tmp_path: Path, family: str, monkeypatch: Any,
+                                                    clean_runs: CleanRuns) -> None:
     """A handler that raises after changing its state (a numerical failure, or a bug) rejects the
     message, counted by reason; the service's state is exactly as before the message, and the
     same message sent again then gives exactly the clean run's outputs and counters."""
@@ -431,13 +461,12 @@ def test_a_handler_failing_half_way_leaves_no_trace(tmp_path: Path, family: str,
     multitarget = family.startswith("mtt")
     scans = mtt_lines(tmp_path) if multitarget else []
 
-    def run(path: Path, failing: bool) -> tuple[Bus, Service, list[bool]]:
+    def failing_run(path: Path) -> tuple[Bus, Service, list[bool]]:
         services = mtt_services(path) if multitarget else paper_services(path)
         bus = Bus(list(services.values()))
         restored: list[bool] = []
-        if failing:
-            resend_after_a_failure(services[name], restored)
-            monkeypatch.setattr(owner, attr, fail_once(getattr(owner, attr), at, exc, after))
+        resend_after_a_failure(services[name], restored)
+        monkeypatch.setattr(owner, attr, fail_once(getattr(owner, attr), at, exc, after))
         if multitarget:
             for m in scans:
                 bus.put(KEYS.sensor_meas(m.sensor), encode(m))
@@ -446,8 +475,9 @@ def test_a_handler_failing_half_way_leaves_no_trace(tmp_path: Path, family: str,
                 paper_scan(bus, k)
         return bus, services[name], restored
 
-    clean, clean_svc, _ = run(tmp_path / "clean", False)
-    bus, svc, restored = run(tmp_path / "failing", True)
+    clean, clean_services = clean_runs.mtt() if multitarget else clean_runs.paper()  # before the patch
+    clean_svc = clean_services[name]
+    bus, svc, restored = failing_run(tmp_path / "failing")
     assert getattr(owner, attr).calls[0] > at  # the failure happened mid-run
     assert restored == [True]
     assert svc.counters.get(f"rejected_{reason}") == 1 and svc.counters["rejected"] == 1
@@ -494,14 +524,14 @@ def named(track: FusedTrack) -> list[int]:
 
 
 def test_a_forged_measurement_first_at_a_local_filter_and_the_imm_is_named_by_the_next_outputs(
-        tmp_path: Path) -> None:
+        tmp_path: Path, clean_runs: CleanRuns) -> None:
     """A forged measurement of sensor 1, scan k, arrives before the genuine one: the local filter
     and the IMM tracker take it (their outputs of scan k are built on it, unflagged: nothing told
     them apart yet). The genuine one is then a second, different message for that scan: rejected
     (``conflict``), counted ``contested``, and named by the next outputs: the local estimate of
     scan k + 1 (``contested = (k,)``), the fused track of scan k + 1 and the IMM's track of scan
     k + 1 (``contested``, ``extra["contested_scans"] = [k]``). Before scan k all equals the clean run."""
-    clean, _ = paper_run(tmp_path / "clean")
+    clean, _ = clean_runs.paper()
     k = 20
 
     def forge(bus: Bus, scan: int) -> None:
@@ -527,12 +557,12 @@ def test_a_forged_measurement_first_at_a_local_filter_and_the_imm_is_named_by_th
     assert [t.seq for t in rows if t.contested] == [k + 1]  # recorded as published
 
 
-def test_a_forged_reset_first_at_a_local_filter_flags_the_tracks_built_on_it(tmp_path: Path) -> None:
+def test_a_forged_reset_first_at_a_local_filter_flags_the_tracks_built_on_it(tmp_path: Path, clean_runs: CleanRuns) -> None:
     """A forged reset of scan k (the genuine reset's state moved by 50 m) reaches sensor 1's local
     filter before the centre's: the filter adopts it, and when the genuine reset comes (a second,
     different reset of scan k: ``conflict``) the next estimate names scan k, so that the first
     fused track built on the forgery (scan k + 1) is ``contested`` and names it."""
-    clean, _ = paper_run(tmp_path / "clean")
+    clean, _ = clean_runs.paper()
     k = 20
     genuine = next(r for r in clean.of(Reset) if r.seq == k and r.sensor == SENSORS[0])
     forged = replace(genuine, x=genuine.x + np.r_[50.0, 0.0, 50.0, 0.0, np.zeros(genuine.x.shape[0] - 4)])
