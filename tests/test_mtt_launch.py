@@ -13,6 +13,8 @@ import numpy as np
 import pytest
 from support import assert_same_pictures, free_port
 
+from fedtrack.fusion_center.mtt.replay import replay_mtt
+
 CONFIG = """
 [deployment]
 name = "mttlaunch{port}"
@@ -59,9 +61,7 @@ def test_live_multitarget_deployment_equals_its_replay(tmp_path: Path) -> None:
     live = [json.loads(x) for x in (out / "tracks.jsonl").read_text().splitlines()]
     assert live and len(live[-1]["tracks"][0]["x"]) == 6  # a radar makes the central state 3-D
     replayed = tmp_path / "replay.jsonl"
-    subprocess.run([sys.executable, "-m", "fedtrack.cli", "replay", "--algorithm", "mtt-federated", "--config",
-                    str(config), "--measurements", str(out / "measurements.jsonl"), "--out", str(replayed)],
-                   check=True, capture_output=True, timeout=60)
+    replay_mtt("mtt-federated", out / "measurements.jsonl", config, replayed)  # `fedtrack replay`'s call
     assert_same_pictures(live, [json.loads(x) for x in replayed.read_text().splitlines()])
 
 
@@ -103,9 +103,7 @@ def test_a_sensor_joins_and_another_is_killed_during_a_launch(tmp_path: Path) ->
     assert any("s3" in tr["sensors"] for tr in live[-1]["tracks"])
     assert not any("s1" in tr["sensors"] for tr in live[-1]["tracks"])
     replayed = tmp_path / "replay.jsonl"
-    subprocess.run([sys.executable, "-m", "fedtrack.cli", "replay", "--algorithm", "mtt-federated", "--config",
-                    str(config), "--measurements", str(out / "measurements.jsonl"), "--out", str(replayed)],
-                   check=True, capture_output=True, timeout=60)
+    replay_mtt("mtt-federated", out / "measurements.jsonl", config, replayed)  # `fedtrack replay`'s call
     assert_same_pictures(live, [json.loads(x) for x in replayed.read_text().splitlines()])
 
 

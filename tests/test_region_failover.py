@@ -14,8 +14,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import subprocess
-import sys
 import threading
 import time
 from pathlib import Path
@@ -28,6 +26,7 @@ from support import assert_same_pictures, free_port, wait_until
 from fedtrack.deploy.launcher import prepare_launcher
 from fedtrack.deploy.report import LaunchReport
 from fedtrack.deploy.settings import load_settings
+from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.fusion_center.mtt.standby import SETTLE_S, START_GRACE_S, WITHHELD_S, Standby, next_after
 from fedtrack.local_filters.regions import load_regions, region_of
 from fedtrack.wire import TrackPicture, TrackResets
@@ -194,8 +193,6 @@ def test_the_standby_takes_over_a_killed_primary_centre(tmp_path: Path, scope: s
           f"({FASTEST_SCAN_S} s) after it; 0 lost; {len(live)} pictures, none missing; {standbys}")
     # the recording (the primary's processing order, then the standby's) replays to the live pictures
     replayed = tmp_path / "replay.jsonl"
-    subprocess.run([sys.executable, "-m", "fedtrack.cli", "replay", "--algorithm", "mtt-federated", "--config",
-                    str(config), "--measurements", str(out / "measurements.jsonl"), "--out", str(replayed),
-                    *(["--regions", "config"] if scope != "all" else [])],
-                   check=True, capture_output=True, timeout=60)
+    replay_mtt("mtt-federated", out / "measurements.jsonl", config, replayed,  # `fedtrack replay`'s call
+               regions="config" if scope != "all" else None)
     assert_same_pictures(live, lines(replayed))
