@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support import wait_until
 
 from fedtrack.cli import main as cli_main
 from fedtrack.deploy.demo import free_port, write_config
@@ -128,8 +129,7 @@ def test_sigterm_stops_every_process(tmp_path):
         assert len(deployment_pids(name)) >= 9  # router, 3 sensors, 3 filters, centre, recorder
         proc.send_signal(signal.SIGTERM)
         proc.wait(timeout=30)
-        time.sleep(0.5)
-        assert deployment_pids(name) == []
+        assert wait_until(lambda: deployment_pids(name) == [], 0.5), deployment_pids(name)  # was a fixed 0.5 s
         assert set(Path("/dev/shm").glob("*zenoh*")) <= shm_before
         assert len(rows(tracks)) < 101  # stopped mid-run
     finally:
