@@ -141,8 +141,8 @@ class Mutator:
                 obj["unexpected"] = self.hostile()
             else:
                 container[key] = self.hostile()
-        elif kind < 0.85 and self.arrays(obj):  # an array's values: scaled, one made extreme, noise
-            arr = r.choice(self.arrays(obj))
+        elif kind < 0.85 and (arrays := self.arrays(obj)):  # an array's values: scaled, one made extreme, noise
+            arr = r.choice(arrays)
             values = np.frombuffer(arr["data"], "<f8").copy()
             how = r.randrange(3)
             if how == 0:
