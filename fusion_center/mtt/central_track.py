@@ -351,6 +351,14 @@ class CentralTracks:
             self.head[s] = (head[fold] + f) % self.depth
             self.count[s] = count[fold] - f
 
+    def _room_for(self, entries: int) -> bool:
+        """Make the ring hold ``entries`` per slot (doubling its depth at least); whether it grew
+        (the ring positions then moved)."""
+        if entries <= self.depth:
+            return False
+        self._grow(self.capacity, max(2 * self.depth, entries))
+        return True
+
     def fuse(self, slots: np.ndarray, t: float, H: np.ndarray, R: np.ndarray, z: np.ndarray,
              prior: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Fuse observation ``(H[i], R[i], z[i])`` (one size ``m``), taken at ``t``, into distinct
@@ -376,8 +384,7 @@ class CentralTracks:
         ahead = t >= t_new
         if slots.size and ahead.all():  # every observation after its track's newest (in order): one step
             # (each is fused: the ring is in time order and max_lag >= 0)
-            if count.max() + 1 > self.depth:  # room for one more entry in each
-                self._grow(self.capacity, max(2 * self.depth, int(count.max()) + 1))
+            if self._room_for(int(count.max()) + 1):
                 p = (self.head[slots] + count - 1) % self.depth
             x_out, P_out, step, modes = self._step(t_new, *(self._state_at(slots, p) if prior is None else (None, None)),
                                                    t, H, R, z, self._bank_at(slots, p), self._modes_at(slots, p), prior)
@@ -386,8 +393,7 @@ class CentralTracks:
             self._trim(slots, t)
             return ahead, x_out, P_out
         ok = (t >= self.t[slots, head]) & (t >= t_new - self.max_lag)
-        if ok.any() and int(count[ok].max()) + 1 > self.depth:  # room for one more entry in each
-            self._grow(self.capacity, max(2 * self.depth, int(count[ok].max()) + 1))
+        if ok.any() and self._room_for(int(count[ok].max()) + 1):
             p = (self.head[slots] + count - 1) % self.depth
         ahead &= ok
         n = slots.shape[0]

@@ -219,16 +219,14 @@ def k_best_assignments(cost: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray
 def _solve_rest(work: np.ndarray, i: int, free: np.ndarray, cols: np.ndarray, rows: np.ndarray
                 ) -> tuple[float, np.ndarray] | None:
     """The optimal assignment with rows ``0..i-1`` kept at ``cols``: rows ``i..`` over the ``free``
-    columns; its total over every row (None if none is finite)."""
+    columns; its total over every row (None if none is finite: the kept rows' entries are)."""
     columns = np.flatnonzero(free)
-    try:
-        _, picked = linear_sum_assignment(work[i:][:, columns])
-    except ValueError:  # scipy: "cost matrix is infeasible"
+    rest = _solve(work[i:][:, columns])
+    if rest is None:
         return None
     full = cols.copy()
-    full[i:] = columns[picked]
-    total = float(work[rows, full].sum())
-    return (total, full) if np.isfinite(total) else None
+    full[i:] = columns[rest[1]]
+    return float(work[rows, full].sum()), full  # summed over every row, as the whole problem's would be
 
 
 def _solve(cost: np.ndarray) -> tuple[float, np.ndarray] | None:
