@@ -241,10 +241,13 @@ def approximation_error(rng: np.random.Generator, n: int, n_det: int, runs: int)
 
 def test_top_events_are_murtys_k_best(monkeypatch: pytest.MonkeyPatch) -> None:
     """The bounded search finds the same k most likely events, in the same order, as Murty's
-    partitioning, and the cluster marginals agree to round-off, with and without the fallback."""
+    partitioning, and the cluster marginals agree to round-off, with and without the fallback;
+    the clusters searched as one padded batch give each cluster's events and marginals alone, bit
+    for bit."""
     from fedtrack.local_filters.mtt.associators.gnn import k_best_assignments
 
     rng = np.random.default_rng(11)
+    clusters = []
     for _ in range(40):
         a, b = int(rng.integers(2, 11)), int(rng.integers(2, 13))
         log_pair = np.where(rng.random((a, b)) < 0.5, rng.normal(0.0, 3.0, (a, b)), -np.inf)
@@ -253,16 +256,40 @@ def test_top_events_are_murtys_k_best(monkeypatch: pytest.MonkeyPatch) -> None:
         cost[:, :b] = -log_pair
         cost[np.arange(a), b + np.arange(a)] = -log_miss
         totals, events = k_best_assignments(cost, 50)
-        found = jipda.top_events(log_pair, log_miss, 50)
-        assert found is not None
-        np.testing.assert_array_equal(found[1], np.minimum(events, b))
-        np.testing.assert_allclose(found[0], -totals, rtol=0, atol=1e-9)
-        searched = jipda.k_best_cluster(log_pair, log_miss, 50)
+        found = jipda.top_events(log_pair[None], log_miss[None], 50)
+        assert not found.overflow[0] and np.all(found.cluster == 0)
+        np.testing.assert_array_equal(found.event, np.minimum(events, b))
+        np.testing.assert_allclose(found.score, -totals, rtol=0, atol=1e-9)
+        searched = jipda.k_best_clusters(log_pair[None], log_miss[None], 50)[0]
         with monkeypatch.context() as m:
             m.setattr(jipda, "FRONTIER_MAX", 0)  # every cluster to Murty
-            murty = jipda.k_best_cluster(log_pair, log_miss, 50)
+            murty = jipda.k_best_clusters(log_pair[None], log_miss[None], 50)[0]
         np.testing.assert_allclose(searched, murty, rtol=0, atol=1e-12)
         assert np.allclose(searched.sum(axis=1), 1.0)
+        clusters.append((log_pair, log_miss, found, searched))
+    # beyond 64 detections the used detections are Python integers, not 64-bit masks
+    log_pair = np.where(rng.random((4, 70)) < 0.1, rng.normal(0.0, 3.0, (4, 70)), -np.inf)
+    log_miss = np.log(rng.uniform(0.05, 0.9, 4))
+    cost = np.full((4, 74), np.inf)
+    cost[:, :70] = -log_pair
+    cost[np.arange(4), 70 + np.arange(4)] = -log_miss
+    totals, events = k_best_assignments(cost, 50)
+    found = jipda.top_events(log_pair[None], log_miss[None], 50)
+    np.testing.assert_array_equal(found.event, np.minimum(events, 70))
+    np.testing.assert_allclose(found.score, -totals, rtol=0, atol=1e-9)
+    a = max(lp.shape[0] for lp, *_ in clusters)
+    b = max(lp.shape[1] for lp, *_ in clusters)
+    batch, miss = np.full((len(clusters), a, b), -np.inf), np.zeros((len(clusters), a))  # padded
+    for i, (lp, lm, *_) in enumerate(clusters):
+        batch[i, :lp.shape[0], :lp.shape[1]], miss[i, :lm.size] = lp, lm
+    found, W = jipda.top_events(batch, miss, 50), jipda.k_best_clusters(batch, miss, 50)
+    for i, (lp, _, alone, marginals) in enumerate(clusters):
+        mine = found.cluster == i
+        event = np.where(found.event[mine] == b, lp.shape[1], found.event[mine])
+        assert np.array_equal(found.score[mine], alone.score) and np.array_equal(event[:, :lp.shape[0]], alone.event)
+        assert np.all(event[:, lp.shape[0]:] == lp.shape[1])  # a padding track is always missed
+        assert np.array_equal(W[i, :lp.shape[0], :lp.shape[1]], marginals[:, :-1])
+        assert np.array_equal(W[i, :lp.shape[0], b], marginals[:, -1])
 
 
 def test_approximations_error_at_the_limit(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -155,26 +155,49 @@ def enumerate_clusters(log_pair: np.ndarray, log_miss: np.ndarray) -> np.ndarray
     return np.asarray((_marginal_map(a, b).T @ w.T).T).reshape(c, a, b + 1)
 
 
-def k_best_cluster(log_pair: np.ndarray, log_miss: np.ndarray, k: int) -> np.ndarray:
-    """Marginals ``W`` (a, b + 1) of one cluster from its ``k`` most likely joint events, normalized
-    over them: the event sum truncated to its largest terms. The events come from
-    :func:`top_events` (bounded search); when its frontier would exceed :data:`FRONTIER_MAX`, from
-    Murty's partitioning (:func:`~.gnn.k_best_assignments`, a private "missed" column per track).
-    Both give the same ``k`` events (ties aside) in the same order."""
-    a, b = log_pair.shape
+def k_best_clusters(log_pair: np.ndarray, log_miss: np.ndarray, k: int) -> np.ndarray:
+    """Marginals ``W`` (C, a, b + 1) of clusters padded to one shape (``log_pair`` (C, a, b),
+    ``log_miss`` (C, a); a padding track has no gated pair and ``log_miss`` 0, a padding detection
+    no gated pair: neither changes a cluster's events or their weights), each from its ``k`` most
+    likely joint events, normalized over them: the event sum truncated to its largest terms.
+    The events come from :func:`top_events` (bounded search, the clusters as one batch); for a
+    cluster whose frontier would exceed :data:`FRONTIER_MAX`, from Murty's partitioning
+    (:func:`~.gnn.k_best_assignments`, a private "missed" column per track) over its tracks and
+    detections that have a gated pair. Both give the same ``k`` events (ties aside) in the same
+    order."""
+    c, a, b = log_pair.shape
     found = top_events(log_pair, log_miss, k)
-    if found is None:
-        cost = np.full((a, b + a), np.inf)
-        cost[:, :b] = np.where(np.isfinite(log_pair), -log_pair, np.inf)  # an ungated pair: forbidden
-        cost[np.arange(a), b + np.arange(a)] = -log_miss
+    W = _event_marginals(found.cluster, found.score, found.event, c, b)
+    for i in np.flatnonzero(found.overflow):
+        gated = np.isfinite(log_pair[i])
+        tr, det = np.flatnonzero(gated.any(axis=1)), np.flatnonzero(gated.any(axis=0))
+        lp = log_pair[i][np.ix_(tr, det)]
+        cost = np.full((tr.size, det.size + tr.size), np.inf)
+        cost[:, :det.size] = np.where(np.isfinite(lp), -lp, np.inf)  # an ungated pair: forbidden
+        cost[np.arange(tr.size), det.size + np.arange(tr.size)] = -log_miss[i, tr]
         totals, events = k_best_assignments(cost, k)
-        found = -totals, np.minimum(events, b)
-    scores, events = found
-    weights = np.exp(scores - scores.max())
-    weights /= weights.sum()
-    W = np.zeros((a, b + 1))
-    np.add.at(W, (np.broadcast_to(np.arange(a), events.shape), events), weights[:, None])
+        one = _event_marginals(np.zeros(totals.size, np.intp), -totals, np.minimum(events, det.size), 1, det.size)[0]
+        W[i] = 0.0
+        W[i, :, b] = 1.0  # a track without a gated pair is missed in every event
+        W[i, tr[:, None], det] = one[:, :-1]
+        W[i, tr, b] = one[:, -1]
     return W
+
+
+def _event_marginals(cluster: np.ndarray, score: np.ndarray, event: np.ndarray, c: int, b: int) -> np.ndarray:
+    """``W`` (c, a, b + 1) from each cluster's events (``cluster`` ascending, the most likely of a
+    cluster first; ``event`` (R, a), ``b`` missed): their weights ``exp(score)`` normalized per
+    cluster, summed per track and outcome in event order."""
+    a = event.shape[1]
+    start = np.searchsorted(cluster, np.arange(c + 1))
+    top = np.full(c, -np.inf)
+    np.maximum.at(top, cluster, score)
+    weights = np.exp(score - top[cluster])
+    for i in range(c):  # each cluster's sum over its own slice, as one cluster alone sums it
+        weights[start[i]:start[i + 1]] /= weights[start[i]:start[i + 1]].sum()
+    slot = (cluster[:, None] * a + np.arange(a)) * (b + 1) + event
+    W = np.bincount(slot.ravel(), np.repeat(weights, a), minlength=c * a * (b + 1))
+    return np.asarray(W, dtype=float).reshape(c, a, b + 1)  # bincount of nothing is integer
 
 
 # Largest frontier of :func:`top_events` (a track's extensions of the partial events kept so far)
@@ -182,53 +205,106 @@ def k_best_cluster(log_pair: np.ndarray, log_miss: np.ndarray, k: int) -> np.nda
 FRONTIER_MAX = 20_000
 
 
-def top_events(log_pair: np.ndarray, log_miss: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray] | None:
-    """The ``k`` most likely joint events of one cluster (fewer if fewer exist), most likely first:
-    their log weights (k',) and each track's outcome (k', a) (``b``: missed); None if the frontier
-    outgrows :data:`FRONTIER_MAX`. Breadth-first over the tracks with exact pruning: a partial event
-    over tracks ``0..i`` is dropped when its bound ``score + sum_{t > i} max_o L[t, o]`` (no track
-    beyond ``i`` can do better than its best outcome) is below the ``k``-th largest among the
-    partial events' greedy completions (:func:`_greedy_completion`), each of which is a distinct
-    full event (so ``k`` full events beat every completion of the dropped one)."""
-    a, b = log_pair.shape
-    L = np.concatenate([log_pair, log_miss[:, None]], axis=1)  # (a, b + 1), ``b`` missed (finite)
+class TopEvents(NamedTuple):
+    """The most likely joint events of a batch of clusters, by cluster, the most likely first."""
+
+    cluster: np.ndarray  # (R,) each event's cluster, ascending
+    score: np.ndarray  # (R,) its log weight
+    event: np.ndarray  # (R, a) each track's outcome (``b``: missed)
+    overflow: np.ndarray  # (C,) the cluster's frontier outgrew FRONTIER_MAX: no events found
+
+
+def top_events(log_pair: np.ndarray, log_miss: np.ndarray, k: int) -> TopEvents:
+    """The ``k`` most likely joint events of each of ``C`` clusters of one shape (``log_pair``
+    (C, a, b), ``log_miss`` (C, a); fewer if fewer exist), most likely first, ties in event order;
+    none for a cluster whose frontier outgrows :data:`FRONTIER_MAX`. Breadth-first over each
+    cluster's tracks with exact pruning: a partial event over tracks ``0..i`` is dropped when its
+    bound ``score + sum_{t > i} max_o L[t, o]`` (no track beyond ``i`` can do better than its best
+    outcome) is below the ``k``-th largest among its cluster's partial events' greedy completions
+    (:func:`_greedy_completion`), each of which is a distinct full event (so ``k`` full events beat
+    every completion of the dropped one). The clusters' partial events are one batch, each
+    cluster's kept together in event order."""
+    c, a, b = log_pair.shape
+    L = np.concatenate([log_pair, log_miss[..., None]], axis=2)  # (C, a, b + 1), ``b`` missed (finite)
     # widest gap between a track's best outcome and its miss first: the bound tightens fastest
-    perm = np.argsort(log_miss - L.max(axis=1), kind="stable")
-    L = L[perm]
-    best_tail = np.append(np.cumsum(L.max(axis=1)[::-1])[::-1], 0.0)  # sum_{t >= i} max_o L[t, o]
-    table = np.zeros((1, 0), dtype=np.intp)
-    score = np.zeros(1)
+    perm = np.argsort(log_miss - L.max(axis=2), axis=1, kind="stable")
+    L = np.take_along_axis(L, perm[..., None], axis=1)
+    best_tail = np.zeros((c, a + 1))  # sum_{t >= i} max_o L[t, o]
+    best_tail[:, :a] = np.cumsum(L.max(axis=2)[:, ::-1], axis=1)[:, ::-1]
+    gated = np.isfinite(L)
+    bit = _outcome_bits(b)
+    # each track's outcomes, most likely first (ties: lower index), up to its miss (always free):
+    # their bits (C, n_t) and log weights (C n_t,), for the greedy completions
+    pref = np.argsort(-L, axis=2, kind="stable")
+    reach = np.argmax(pref == b, axis=2).max(axis=0) + 1  # (a,) the longest list up to the miss
+    prefs = [(bit[pref[:, t, :n]], np.take_along_axis(L[:, t], pref[:, t, :n], axis=1).ravel())
+             for t, n in enumerate(reach.tolist())]
+    cl = np.arange(c)  # each partial event's cluster
+    parents, outcomes = [], []  # per track, each partial event's parent (the previous track's) and outcome
+    score = np.zeros(c)
+    used = np.zeros(c, dtype=bit.dtype)  # the detections a partial event gave its tracks, as bits
+    overflow = np.zeros(c, dtype=bool)
     for i in range(a):
-        ok = np.isfinite(L[i])[None, :] & np.all(table[:, :, None] != np.arange(b + 1), axis=1)
-        ok[:, b] = True  # "missed" is never taken by another track
-        p, o = np.nonzero(ok)
-        if p.size > FRONTIER_MAX:
-            return None
-        table = np.concatenate([table[p], o[:, None]], axis=1)
-        score = score[p] + L[i, o]
-        if p.size > k:
-            floor = np.partition(_greedy_completion(L, table, score), p.size - k)[p.size - k]
-            keep = score + best_tail[i + 1] >= floor
-            table, score = table[keep], score[keep]
-    order = np.argsort(-score, kind="stable")[:k]
-    return score[order], table[order][:, np.argsort(perm)]
+        p, o = np.nonzero(gated[cl, i] & ((used[:, None] & bit) == 0))  # "missed" (bit 0) is never used
+        score = score[p] + L[cl[p], i, o]
+        cl, used = cl[p], used[p] | bit[o]
+        count = np.bincount(cl, minlength=c)
+        wide = count > k
+        if np.any(count > FRONTIER_MAX):
+            overflow |= count > FRONTIER_MAX
+            wide &= ~overflow
+            keep = ~overflow[cl]
+        elif not np.any(wide):
+            parents.append(p)
+            outcomes.append(o)
+            continue
+        else:
+            keep = np.ones(cl.size, dtype=bool)
+        sub = np.flatnonzero(wide[cl])
+        if sub.size:  # each wide cluster's floor: the k-th largest of its partial events' completions
+            csub = cl[sub]
+            total = _greedy_completion(prefs[i + 1:], csub, used[sub], score[sub])
+            floor = np.zeros(c)
+            start = np.searchsorted(csub, np.arange(c))
+            for j in np.flatnonzero(wide).tolist():
+                own = total[start[j]:start[j] + count[j]]
+                floor[j] = np.partition(own, count[j] - k)[count[j] - k]
+            keep[sub] = score[sub] + best_tail[csub, i + 1] >= floor[csub]
+        parents.append(p[keep])
+        outcomes.append(o[keep])
+        score, cl, used = score[keep], cl[keep], used[keep]
+    order = np.lexsort((-score, cl))
+    first = np.searchsorted(cl, np.arange(c))
+    order = order[np.arange(order.size) - first[cl[order]] < k]
+    table = np.empty((order.size, a), dtype=np.intp)
+    at = order
+    for i in range(a - 1, -1, -1):  # back along the parents
+        table[:, i] = outcomes[i][at]
+        at = parents[i][at]
+    event = np.take_along_axis(table, np.argsort(perm, axis=1)[cl[order]], axis=1)
+    return TopEvents(cl[order], score[order], event, overflow)
 
 
-def _greedy_completion(L: np.ndarray, table: np.ndarray, score: np.ndarray) -> np.ndarray:
-    """Log weight of each partial event (P, i) completed greedily: each later track takes its most
-    likely outcome that no earlier track took. Distinct partial events give distinct full events."""
-    a, b1 = L.shape
-    rows = np.arange(table.shape[0])
-    used = np.zeros((table.shape[0], b1), dtype=bool)
-    used[rows[:, None], table] = True
-    used[:, b1 - 1] = False  # "missed" is every track's own
+def _outcome_bits(b: int) -> np.ndarray:
+    """Each outcome's bit in a set of used detections (b + 1,): ``1 << j`` for detection ``j``, 0
+    for "missed"; ``uint64`` up to 64 detections, Python integers beyond."""
+    if b <= 64:
+        return np.append(np.left_shift(np.uint64(1), np.arange(b, dtype=np.uint64)), np.uint64(0))
+    return np.array([1 << j for j in range(b)] + [0], dtype=object)
+
+
+def _greedy_completion(prefs: list[tuple[np.ndarray, np.ndarray]], cl: np.ndarray, used: np.ndarray,
+                       score: np.ndarray) -> np.ndarray:
+    """Log weight of each partial event (its cluster ``cl``, its ``used`` detections as bits, its
+    ``score``) completed greedily: each later track takes its most likely outcome that no earlier
+    track took, the first free one of its outcomes ``prefs[t]`` (their bits (C, n), most likely
+    first, ties by index, up to the miss; their log weights (C n,)). Distinct partial events give
+    distinct full events."""
     total = score.copy()
-    for t in range(table.shape[1], a):
-        vals = np.where(used, -np.inf, L[t])
-        o = np.argmax(vals, axis=1)
-        total += vals[rows, o]
-        used[rows, o] = True
-        used[:, b1 - 1] = False
+    for bits, value in prefs:
+        at = cl * bits.shape[1] + np.argmax((used[:, None] & bits[cl]) == 0, axis=1)
+        total += value[at]
+        used = used | bits.ravel()[at]
     return total
 
 
@@ -285,24 +361,42 @@ def associate(n_det: int, pairs: Pairs, log_a: np.ndarray, mu_bar: np.ndarray, c
         with np.errstate(divide="ignore"):
             log_pair = np.log(mu_bar[rows]) + log_target - np.log(lam)
         log_miss = np.log1p(-c.pd * c.pg * mu_bar)
+        searched = []  # the pairs of the clusters whose k best events are searched, as one batch
         for (a, b), count in counts.items():
             sel = shared[(n_r[comp[shared]] == a) & (n_c[comp[shared]] == b)]
-            if count > max_events and a > K_BEST_MAX_TRACKS:
-                exact[rows[sel]] = False  # LM-IPDA's answer stands
+            if count > max_events:
+                if a > K_BEST_MAX_TRACKS:
+                    exact[rows[sel]] = False  # LM-IPDA's answer stands
+                else:
+                    searched.append(sel)
                 continue
-            comps, k = np.unique(comp[sel], return_inverse=True)
-            dense = np.full((comps.size, a, b), -np.inf)
-            dense[k, local_r[sel], local_c[sel]] = log_pair[sel]
-            track = np.zeros((comps.size, a), dtype=np.intp)
-            track[k, local_r[sel]] = rows[sel]
-            if count <= max_events:
-                W = enumerate_clusters(dense, log_miss[track])
-            else:
-                W = np.stack([k_best_cluster(d, log_miss[t], k_best) for d, t in zip(dense, track)])
-                exact[rows[sel]] = False
+            k, dense, track, miss = _dense_clusters(sel, comp, local_r, local_c, rows, log_pair, log_miss, a, b)
+            W = enumerate_clusters(dense, miss)
             w[sel] = W[k, local_r[sel], local_c[sel]]
             w0[track] = W[:, :, b]
+        if searched:
+            sel = np.concatenate(searched)
+            a, b = int(n_r[comp[sel]].max()), int(n_c[comp[sel]].max())
+            k, dense, track, miss = _dense_clusters(sel, comp, local_r, local_c, rows, log_pair, log_miss, a, b)
+            W = k_best_clusters(dense, miss, k_best)
+            w[sel] = W[k, local_r[sel], local_c[sel]]
+            w0[track[track >= 0]] = W[:, :, b][track >= 0]
+            exact[rows[sel]] = False
     return _posterior(w0, w, rows, mu_bar, c, exact)
+
+
+def _dense_clusters(sel: np.ndarray, comp: np.ndarray, local_r: np.ndarray, local_c: np.ndarray, rows: np.ndarray,
+                    log_pair: np.ndarray, log_miss: np.ndarray, a: int, b: int
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The clusters of the pairs ``sel`` as one batch of shape ``a x b`` (smaller ones padded: no
+    gated pair, ``log_miss`` 0): each pair's cluster, ``log_pair`` (C, a, b) (``-inf`` where not
+    gated), each cluster's tracks (C, a) (-1: padding) and their ``log_miss`` (C, a)."""
+    comps, k = np.unique(comp[sel], return_inverse=True)
+    dense = np.full((comps.size, a, b), -np.inf)
+    dense[k, local_r[sel], local_c[sel]] = log_pair[sel]
+    track = np.full((comps.size, a), -1, dtype=np.intp)
+    track[k, local_r[sel]] = rows[sel]
+    return k, dense, track, np.where(track >= 0, log_miss[track], 0.0)
 
 
 def _posterior(w0: np.ndarray, w: np.ndarray, rows: np.ndarray, mu_bar: np.ndarray, c: Constants,
