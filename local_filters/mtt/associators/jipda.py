@@ -43,7 +43,7 @@ from functools import cache, lru_cache
 from typing import NamedTuple
 
 import numpy as np
-from scipy.sparse import csr_matrix
+from scipy.sparse import csc_matrix, csr_matrix
 from scipy.sparse.csgraph import connected_components
 
 from fedtrack.local_filters.imm.filter import IMMState, combine
@@ -115,6 +115,7 @@ class Association(NamedTuple):
     exact: np.ndarray  # (N,) the track's cluster was enumerated (or is the track alone)
 
 
+@cache
 def event_count(a: int, b: int) -> int:
     """Joint events of ``a`` tracks and ``b`` detections: partial matchings, ``sum_k C(a,k) b!/(b-k)!``."""
     return sum(math.comb(a, k) * math.perm(b, k) for k in range(min(a, b) + 1))
@@ -135,24 +136,32 @@ def joint_events(a: int, b: int) -> np.ndarray:
 
 
 @cache
-def _marginal_map(a: int, b: int) -> csr_matrix:
-    """(E, a (b + 1)) indicator of "event e gives track i the outcome o" (o = b: none)."""
-    table = joint_events(a, b)
-    e = table.shape[0]
-    cols = (np.arange(a) * (b + 1) + table).ravel()
-    return csr_matrix((np.ones(e * a), (np.repeat(np.arange(e), a), cols)), shape=(e, a * (b + 1)))
+def _event_slots(a: int, b: int) -> np.ndarray:
+    """(E, a): where each event's outcome of track ``i`` sits in a cluster's flattened ``(a, b + 1)``
+    log weights, ``i (b + 1) + T[e, i]`` (:func:`joint_events`)."""
+    slots = np.arange(a) * (b + 1) + joint_events(a, b)
+    slots.setflags(write=False)
+    return slots
+
+
+@cache
+def _marginal_map(a: int, b: int) -> csc_matrix:
+    """(a (b + 1), E) indicator of "event e gives track i the outcome o" (o = b: none), held
+    transposed (the product of :func:`enumerate_clusters` is over its columns)."""
+    slots = _event_slots(a, b)
+    e = slots.shape[0]
+    return csr_matrix((np.ones(e * a), (np.repeat(np.arange(e), a), slots.ravel())), shape=(e, a * (b + 1))).T
 
 
 def enumerate_clusters(log_pair: np.ndarray, log_miss: np.ndarray) -> np.ndarray:
     """Exact marginals of clusters of one shape: ``log_pair`` (C, a, b) (``-inf`` where not gated),
     ``log_miss`` (C, a); returns ``W`` (C, a, b + 1), column ``b`` the "missed" marginal ``W_i0``."""
     c, a, b = log_pair.shape
-    table = joint_events(a, b)
-    L = np.concatenate([log_pair, log_miss[..., None]], axis=-1)
-    lw = L[:, np.arange(a), table].sum(axis=-1)  # (C, E) log P(e) unnormalized
+    L = np.concatenate([log_pair, log_miss[..., None]], axis=-1).reshape(c, a * (b + 1))
+    lw = L[:, _event_slots(a, b)].sum(axis=-1)  # (C, E) log P(e) unnormalized
     w = np.exp(lw - lw.max(axis=1, keepdims=True))  # "all missed" is always finite
     w /= w.sum(axis=1, keepdims=True)
-    return np.asarray((_marginal_map(a, b).T @ w.T).T).reshape(c, a, b + 1)
+    return np.asarray((_marginal_map(a, b) @ w.T).T).reshape(c, a, b + 1)
 
 
 def k_best_clusters(log_pair: np.ndarray, log_miss: np.ndarray, k: int) -> np.ndarray:
@@ -355,29 +364,38 @@ def associate(n_det: int, pairs: Pairs, log_a: np.ndarray, mu_bar: np.ndarray, c
         local_r, n_r = _rank_in_component(rows, comp, n + n_det)
         local_c, n_c = _rank_in_component(cols, comp, n + n_det)
         shared = np.flatnonzero(n_r[comp] > 1)
-        counts = {(a, b): event_count(a, b) for a, b in set(zip(n_r[comp[shared]].tolist(),
-                                                                 n_c[comp[shared]].tolist()))}
         lam = max(c.lam, MIN_CLUTTER_DENSITY)
         with np.errstate(divide="ignore"):
             log_pair = np.log(mu_bar[rows]) + log_target - np.log(lam)
         log_miss = np.log1p(-c.pd * c.pg * mu_bar)
+        # the shared pairs by their cluster's shape (a tracks x b detections), then cluster
+        sc = comp[shared]
+        order = np.lexsort((sc, n_c[sc], n_r[sc]))
+        shared, sc = shared[order], sc[order]
+        first = np.diff(sc, prepend=-1) != 0  # a cluster's first pair
+        shape = n_r[sc] * (n + n_det + 1) + n_c[sc]
+        bounds = np.append(np.flatnonzero(np.diff(shape, prepend=-1)), shared.size)
         searched = []  # the pairs of the clusters whose k best events are searched, as one batch
-        for (a, b), count in counts.items():
-            sel = shared[(n_r[comp[shared]] == a) & (n_c[comp[shared]] == b)]
-            if count > max_events:
+        for start, stop in zip(bounds[:-1].tolist(), bounds[1:].tolist()):
+            a, b = int(n_r[sc[start]]), int(n_c[sc[start]])
+            sel = shared[start:stop]
+            if event_count(a, b) > max_events:
                 if a > K_BEST_MAX_TRACKS:
                     exact[rows[sel]] = False  # LM-IPDA's answer stands
                 else:
-                    searched.append(sel)
+                    searched.append(np.arange(start, stop))
                 continue
-            k, dense, track, miss = _dense_clusters(sel, comp, local_r, local_c, rows, log_pair, log_miss, a, b)
+            k, dense, track, miss = _dense_clusters(sel, np.cumsum(first[start:stop]) - 1, local_r, local_c, rows,
+                                                    log_pair, log_miss, a, b)
             W = enumerate_clusters(dense, miss)
             w[sel] = W[k, local_r[sel], local_c[sel]]
             w0[track] = W[:, :, b]
         if searched:
-            sel = np.concatenate(searched)
-            a, b = int(n_r[comp[sel]].max()), int(n_c[comp[sel]].max())
-            k, dense, track, miss = _dense_clusters(sel, comp, local_r, local_c, rows, log_pair, log_miss, a, b)
+            at = np.concatenate(searched)
+            sel = shared[at]
+            a, b = int(n_r[sc[at]].max()), int(n_c[sc[at]].max())
+            k, dense, track, miss = _dense_clusters(sel, np.cumsum(first[at]) - 1, local_r, local_c, rows,
+                                                    log_pair, log_miss, a, b)
             W = k_best_clusters(dense, miss, k_best)
             w[sel] = W[k, local_r[sel], local_c[sel]]
             w0[track[track >= 0]] = W[:, :, b][track >= 0]
@@ -385,16 +403,16 @@ def associate(n_det: int, pairs: Pairs, log_a: np.ndarray, mu_bar: np.ndarray, c
     return _posterior(w0, w, rows, mu_bar, c, exact)
 
 
-def _dense_clusters(sel: np.ndarray, comp: np.ndarray, local_r: np.ndarray, local_c: np.ndarray, rows: np.ndarray,
+def _dense_clusters(sel: np.ndarray, k: np.ndarray, local_r: np.ndarray, local_c: np.ndarray, rows: np.ndarray,
                     log_pair: np.ndarray, log_miss: np.ndarray, a: int, b: int
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The clusters of the pairs ``sel`` as one batch of shape ``a x b`` (smaller ones padded: no
-    gated pair, ``log_miss`` 0): each pair's cluster, ``log_pair`` (C, a, b) (``-inf`` where not
-    gated), each cluster's tracks (C, a) (-1: padding) and their ``log_miss`` (C, a)."""
-    comps, k = np.unique(comp[sel], return_inverse=True)
-    dense = np.full((comps.size, a, b), -np.inf)
+    """The clusters ``k`` (0, 1, ... in order) of the pairs ``sel`` as one batch of shape ``a x b``
+    (smaller ones padded: no gated pair, ``log_miss`` 0): ``k``, ``log_pair`` (C, a, b) (``-inf``
+    where not gated), each cluster's tracks (C, a) (-1: padding) and their ``log_miss`` (C, a)."""
+    n = int(k[-1]) + 1
+    dense = np.full((n, a, b), -np.inf)
     dense[k, local_r[sel], local_c[sel]] = log_pair[sel]
-    track = np.full((comps.size, a), -1, dtype=np.intp)
+    track = np.full((n, a), -1, dtype=np.intp)
     track[k, local_r[sel]] = rows[sel]
     return k, dense, track, np.where(track >= 0, log_miss[track], 0.0)
 
