@@ -232,15 +232,23 @@ def top_events(log_pair: np.ndarray, log_miss: np.ndarray, k: int) -> TopEvents:
     outcome) is below the ``k``-th largest among its cluster's partial events' greedy completions
     (:func:`_greedy_completion`), each of which is a distinct full event (so ``k`` full events beat
     every completion of the dropped one). The clusters' partial events are one batch, each
-    cluster's kept together in event order."""
+    cluster's kept together in event order; a cluster leaves the search after its last track that
+    is not padding (no gated pair, ``log_miss`` 0: missed at log weight 0 in every event)."""
     c, a, b = log_pair.shape
     L = np.concatenate([log_pair, log_miss[..., None]], axis=2)  # (C, a, b + 1), ``b`` missed (finite)
     # widest gap between a track's best outcome and its miss first: the bound tightens fastest
     perm = np.argsort(log_miss - L.max(axis=2), axis=1, kind="stable")
     L = np.take_along_axis(L, perm[..., None], axis=1)
+    gated = np.isfinite(L)
+    # the clusters deepest first (depth: tracks up to the last one that is not padding), so that
+    # those still searched at track ``i``, the first ``live[i]``, hold a prefix of the partial events
+    padding = ~np.any(gated[:, :, :b], axis=2) & (L[:, :, b] == 0.0)
+    depth = a - np.cumprod(padding[:, ::-1], axis=1).sum(axis=1)
+    rank = np.argsort(-depth, kind="stable")
+    L, gated = L[rank], gated[rank]
+    live = np.searchsorted(-depth[rank], -np.arange(a + 1))  # clusters deeper than i
     best_tail = np.zeros((c, a + 1))  # sum_{t >= i} max_o L[t, o]
     best_tail[:, :a] = np.cumsum(L.max(axis=2)[:, ::-1], axis=1)[:, ::-1]
-    gated = np.isfinite(L)
     bit = _outcome_bits(b)
     # each track's outcomes, most likely first (ties: lower index), up to its miss (always free):
     # their bits (C, n_t) and log weights (C n_t,), for the greedy completions
@@ -248,12 +256,20 @@ def top_events(log_pair: np.ndarray, log_miss: np.ndarray, k: int) -> TopEvents:
     reach = np.argmax(pref == b, axis=2).max(axis=0) + 1  # (a,) the longest list up to the miss
     prefs = [(bit[pref[:, t, :n]], np.take_along_axis(L[:, t], pref[:, t, :n], axis=1).ravel())
              for t, n in enumerate(reach.tolist())]
-    cl = np.arange(c)  # each partial event's cluster
+    cl = np.arange(c)  # each partial event's cluster (in depth order)
     parents, outcomes = [], []  # per track, each partial event's parent (the previous track's) and outcome
     score = np.zeros(c)
     used = np.zeros(c, dtype=bit.dtype)  # the detections a partial event gave its tracks, as bits
     overflow = np.zeros(c, dtype=bool)
-    for i in range(a):
+    done = [(cl[:0], score[:0], np.zeros((0, a), dtype=np.intp))]  # the clusters that left the search:
+    # their partial events' clusters, scores and outcomes
+    for i in range(a + 1):
+        cut = int(np.searchsorted(cl, live[i]))
+        if cut < cl.size or i == a:
+            done.append((cl[cut:], score[cut:], _trace(parents, outcomes, np.arange(cut, cl.size), a, b)))
+            cl, score, used = cl[:cut], score[:cut], used[:cut]
+        if not cl.size:
+            break
         p, o = np.nonzero(gated[cl, i] & ((used[:, None] & bit) == 0))  # "missed" (bit 0) is never used
         score = score[p] + L[cl[p], i, o]
         cl, used = cl[p], used[p] | bit[o]
@@ -272,7 +288,7 @@ def top_events(log_pair: np.ndarray, log_miss: np.ndarray, k: int) -> TopEvents:
         sub = np.flatnonzero(wide[cl])
         if sub.size:  # each wide cluster's floor: the k-th largest of its partial events' completions
             csub = cl[sub]
-            total = _greedy_completion(prefs[i + 1:], csub, used[sub], score[sub])
+            total = _greedy_completion(prefs[i + 1:], live[i + 1:a], csub, used[sub], score[sub])
             floor = np.zeros(c)
             start = np.searchsorted(csub, np.arange(c))
             for j in np.flatnonzero(wide).tolist():
@@ -282,16 +298,25 @@ def top_events(log_pair: np.ndarray, log_miss: np.ndarray, k: int) -> TopEvents:
         parents.append(p[keep])
         outcomes.append(o[keep])
         score, cl, used = score[keep], cl[keep], used[keep]
+    cl, score, table = (np.concatenate(u) for u in zip(*done))
+    cl = rank[cl]
     order = np.lexsort((-score, cl))
-    first = np.searchsorted(cl, np.arange(c))
+    first = np.searchsorted(cl[order], np.arange(c))
     order = order[np.arange(order.size) - first[cl[order]] < k]
-    table = np.empty((order.size, a), dtype=np.intp)
-    at = order
-    for i in range(a - 1, -1, -1):  # back along the parents
+    event = np.take_along_axis(table[order], np.argsort(perm, axis=1)[cl[order]], axis=1)
+    found = np.zeros(c, dtype=bool)
+    found[rank] = overflow
+    return TopEvents(cl[order], score[order], event, found)
+
+
+def _trace(parents: list[np.ndarray], outcomes: list[np.ndarray], at: np.ndarray, a: int, b: int) -> np.ndarray:
+    """The outcomes (len(at), a) of the partial events ``at`` over the first ``len(parents)``
+    tracks, back along their parents; the tracks after them missed (``b``)."""
+    table = np.full((at.size, a), b, dtype=np.intp)
+    for i in range(len(parents) - 1, -1, -1):
         table[:, i] = outcomes[i][at]
         at = parents[i][at]
-    event = np.take_along_axis(table, np.argsort(perm, axis=1)[cl[order]], axis=1)
-    return TopEvents(cl[order], score[order], event, overflow)
+    return table
 
 
 def _outcome_bits(b: int) -> np.ndarray:
@@ -302,18 +327,22 @@ def _outcome_bits(b: int) -> np.ndarray:
     return np.array([1 << j for j in range(b)] + [0], dtype=object)
 
 
-def _greedy_completion(prefs: list[tuple[np.ndarray, np.ndarray]], cl: np.ndarray, used: np.ndarray,
-                       score: np.ndarray) -> np.ndarray:
-    """Log weight of each partial event (its cluster ``cl``, its ``used`` detections as bits, its
-    ``score``) completed greedily: each later track takes its most likely outcome that no earlier
-    track took, the first free one of its outcomes ``prefs[t]`` (their bits (C, n), most likely
-    first, ties by index, up to the miss; their log weights (C n,)). Distinct partial events give
-    distinct full events."""
+def _greedy_completion(prefs: list[tuple[np.ndarray, np.ndarray]], live: np.ndarray, cl: np.ndarray,
+                       used: np.ndarray, score: np.ndarray) -> np.ndarray:
+    """Log weight of each partial event (its cluster ``cl``, ascending; its ``used`` detections as
+    bits; its ``score``) completed greedily: each later track takes its most likely outcome that no
+    earlier track took, the first free one of its outcomes ``prefs[t]`` (their bits (C, n), most
+    likely first, ties by index, up to the miss; their log weights (C n,)); only clusters
+    ``< live[t]`` have a track ``t`` that is not padding (the others' is missed at log weight 0).
+    Distinct partial events give distinct full events."""
     total = score.copy()
-    for bits, value in prefs:
-        at = cl * bits.shape[1] + np.argmax((used[:, None] & bits[cl]) == 0, axis=1)
-        total += value[at]
-        used = used | bits.ravel()[at]
+    for (bits, value), n in zip(prefs, live.tolist()):
+        m = int(np.searchsorted(cl, n))
+        if not m:
+            break
+        at = cl[:m] * bits.shape[1] + np.argmax((used[:m, None] & bits[cl[:m]]) == 0, axis=1)
+        total[:m] += value[at]
+        used[:m] |= bits.ravel()[at]
     return total
 
 
