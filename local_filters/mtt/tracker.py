@@ -245,12 +245,14 @@ def gate(z: np.ndarray, lin: Linearized, S: np.ndarray, gate_d2: float) -> tuple
 
 
 class Gating(NamedTuple):
-    """Role 2's result: the measurement model at the predictions, the gated pairs and each
-    pair's log-likelihood ``ln N(nu; 0, S)``."""
+    """Role 2's result: the measurement model at the predictions, the gated pairs, each pair's
+    log-likelihood ``ln N(nu; 0, S)``, and each track's ``S`` and ``ln det S``."""
 
     lin: Linearized
     pairs: Gated
     log_likelihood: np.ndarray  # (K,)
+    S: np.ndarray  # (N, m, m)
+    logdet: np.ndarray  # (N,)
 
 
 def relinearize_altitude(pred: GaussianState, lin: Linearized, scan: SensorScan, gate_d2: float) -> Linearized:
@@ -302,8 +304,9 @@ def gate_scan(pred: GaussianState, scan: SensorScan, params: TrackParams) -> Gat
     lin = linearize(pred.x, scan.sensor_position)
     if scan.sensor_position is not None:
         lin = relinearize_altitude(pred, lin, scan, params.gate[2])
-    g, logdet = gate(scan.z, lin, innovation_covariance(pred.P, lin.H, scan.R), params.gate[m])
-    return Gating(lin, g, -0.5 * (g.d2 + logdet[g.rows] + m * LOG_2PI))
+    S = innovation_covariance(pred.P, lin.H, scan.R)
+    g, logdet = gate(scan.z, lin, S, params.gate[m])
+    return Gating(lin, g, -0.5 * (g.d2 + logdet[g.rows] + m * LOG_2PI), S, logdet)
 
 
 def associate(state: TrackerState, gating: Gating | None, scan: SensorScan, params: TrackParams,
@@ -419,7 +422,7 @@ def jipda_update(tracks: TrackSet, pred: GaussianState, gating: Gating | None, a
     pairs = jipda.Pairs(g.rows, g.cols, g.nu, g.d2, gating.log_likelihood)
     ja = jipda.from_weights(g.rows, assoc.weight, existence)
     if modes is None:
-        post = jipda.update(pred, gating.lin, scan.R, pairs, ja, c)
+        post = jipda.update(pred, gating.lin, scan.R, pairs, ja, c, (gating.S, gating.logdet))
     else:
         modes, post = jipda.imm_update(modes, pred.x, gating.lin, scan.R, pairs, ja, c)
     reported, obs = jipda.equivalent_observation(pred, gating.lin, scan.R, pairs, ja)

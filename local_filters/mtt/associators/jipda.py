@@ -475,12 +475,16 @@ def _padded(pairs: Pairs, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def update(pred: GaussianState, lin: Linearized, R: np.ndarray, pairs: Pairs, assoc: Association,
-           c: Constants) -> GaussianState:
+           c: Constants, innovation: tuple[np.ndarray, np.ndarray] | None = None) -> GaussianState:
     """Per track, PDA's mixture over its association hypotheses with the spread-of-means term and
-    Joseph-form detected components (:func:`pda_update` with the JIPDA weights)."""
+    Joseph-form detected components (:func:`pda_update` with the JIPDA weights); ``innovation``:
+    the tracks' ``S = H P H' + R`` and ``ln det S`` where the gate computed them."""
     n, m = pred.x.shape[0], R.shape[0]
-    S = innovation_covariance(pred.P, lin.H, R)
-    logdet = spd_inverse_logdet(S)[1] if n else np.zeros(0)
+    if innovation is None:
+        S = innovation_covariance(pred.P, lin.H, R)
+        logdet = spd_inverse_logdet(S)[1] if n else np.zeros(0)
+    else:
+        S, logdet = innovation
     K = transpose(solve_spd(S, lin.H @ pred.P)) if n else np.zeros(pred.x.shape + (m,))
     r, slot, valid = _padded(pairs, n)
     nu = np.zeros(valid.shape + (m,))
