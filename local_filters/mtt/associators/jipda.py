@@ -530,13 +530,14 @@ def imm_update(modes: Modes, x0: np.ndarray, lin: Linearized, R: np.ndarray, pai
     shift = np.einsum("nmd,njd->njm", lin.H, modes.x - x0[:, None])  # each mode's zhat_j - zhat
     rows = (pairs.rows[:, None] * k + np.arange(k)).ravel()  # mode j of track t: row t k + j
     nu = (pairs.nu[:, None] - shift[pairs.rows]).reshape(-1, m)
-    S_inv, logdet = spd_inverse_logdet(innovation_covariance(flat.P, H, R))
+    S = innovation_covariance(flat.P, H, R)
+    S_inv, logdet = spd_inverse_logdet(S)
     d2 = np.sum(nu * mat_vec(S_inv[rows], nu), axis=-1)
     log_n = -0.5 * (d2 + logdet[rows] + m * LOG_2PI)
     mu, beta = mode_posteriors(log_n.reshape(-1, k), pairs.rows, modes.mu, assoc.beta0, assoc.beta)
     per_mode = from_weights(rows, beta.ravel(), np.repeat(assoc.existence, k))
     post = update(flat, Linearized((lin.zhat[:, None] + shift).reshape(-1, m), H, lin.angular), R,
-                  Pairs(rows, np.repeat(pairs.cols, k), nu, d2, log_n), per_mode, c)
+                  Pairs(rows, np.repeat(pairs.cols, k), nu, d2, log_n), per_mode, c, (S, logdet))
     out = Modes(post.x.reshape(n, k, d), post.P.reshape(n, k, d, d), mu)
     return out, combine(IMMState(*out))
 
