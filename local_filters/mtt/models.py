@@ -25,7 +25,13 @@ from typing import NamedTuple
 import numpy as np
 
 from fedtrack.local_filters.imm.filter import Cycle, IMMState, combine, mix, posterior
-from fedtrack.local_filters.linear.kalman import GaussianState, log_likelihood, update_residual
+from fedtrack.local_filters.linear.kalman import (
+    GaussianState,
+    innovation_covariance,
+    log_likelihood,
+    symmetrize,
+    update_residual,
+)
 from fedtrack.local_filters.linear.tracking import rounded_interval
 from fedtrack.local_filters.radar.ekf import CV3, motion_model_3d, radar_h, radar_jacobian
 from fedtrack.local_filters.radar.measurement import cartesian_from_polar, cartesian_from_polar_jacobian
@@ -185,6 +191,20 @@ class Linearized(NamedTuple):
     zhat: np.ndarray  # (N, m)
     H: np.ndarray  # (N, m, D)
     angular: tuple[int, ...]  # measurement components that are angles (residuals wrapped)
+    picks: tuple[int, ...] | None = None  # the state coordinates ``H`` picks (a position sensor's), None: any ``H``
+
+    def times(self, P: np.ndarray) -> np.ndarray:
+        """``H P`` (N, m, D) for covariances ``P`` (N, D, D); where ``H`` picks coordinates, their
+        rows of ``P``: the same numbers (``H``'s entries are 0 and 1, every other term an exact zero)."""
+        return self.H @ P if self.picks is None else P[:, list(self.picks)]
+
+    def innovation_covariance(self, P: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """``S = H P H' + R`` (N, m, m), symmetric (:func:`~fedtrack.local_filters.linear.kalman.
+        innovation_covariance`); where ``H`` picks coordinates, by picking them (the same numbers)."""
+        if self.picks is None:
+            return innovation_covariance(P, self.H, R)
+        idx = np.array(self.picks)
+        return symmetrize(P[:, idx[:, None], idx] + R)
 
 
 def linearize(x: np.ndarray, sensor_position: np.ndarray | None) -> Linearized:
@@ -192,7 +212,7 @@ def linearize(x: np.ndarray, sensor_position: np.ndarray | None) -> Linearized:
     n, dim = x.shape
     if sensor_position is None:
         H = position_matrix(dim)
-        return Linearized(x[:, [0, 2]], np.broadcast_to(H, (n, 2, dim)), ())
+        return Linearized(x[:, [0, 2]], np.broadcast_to(H, (n, 2, dim)), (), POSITION_INDEX[dim][:2])
     if dim != 6:
         raise ValueError("a radar needs the 3-D state [x, vx, y, vy, z, vz]")
     return Linearized(radar_h(x, RADAR_LAYOUT, sensor_position), radar_jacobian(x, RADAR_LAYOUT, sensor_position),

@@ -39,7 +39,6 @@ from fedtrack.local_filters.linear.gating import gate_ball_pairs, track_differen
 from fedtrack.local_filters.linear.kalman import (
     LOG_2PI,
     GaussianState,
-    innovation_covariance,
     mat_vec,
     spd_inverse_logdet,
     update_residual,
@@ -304,7 +303,7 @@ def gate_scan(pred: GaussianState, scan: SensorScan, params: TrackParams) -> Gat
     lin = linearize(pred.x, scan.sensor_position)
     if scan.sensor_position is not None:
         lin = relinearize_altitude(pred, lin, scan, params.gate[2])
-    S = innovation_covariance(pred.P, lin.H, scan.R)
+    S = lin.innovation_covariance(pred.P, scan.R)
     g, logdet = gate(scan.z, lin, S, params.gate[m])
     return Gating(lin, g, -0.5 * (g.d2 + logdet[g.rows] + m * LOG_2PI), S, logdet)
 

@@ -50,7 +50,6 @@ from fedtrack.local_filters.imm.filter import IMMState, combine
 from fedtrack.local_filters.linear.kalman import (
     LOG_2PI,
     GaussianState,
-    innovation_covariance,
     logsumexp,
     mat_vec,
     solve_spd,
@@ -174,7 +173,7 @@ def k_best_clusters(log_pair: np.ndarray, log_miss: np.ndarray, k: int) -> np.nd
     (:func:`~.gnn.k_best_assignments`, a private "missed" column per track) over its tracks and
     detections that have a gated pair. Both give the same ``k`` events (ties aside) in the same
     order."""
-    c, a, b = log_pair.shape
+    c, _, b = log_pair.shape
     found = top_events(log_pair, log_miss, k)
     W = _event_marginals(found.cluster, found.score, found.event, c, b)
     for i in np.flatnonzero(found.overflow):
@@ -481,11 +480,11 @@ def update(pred: GaussianState, lin: Linearized, R: np.ndarray, pairs: Pairs, as
     the tracks' ``S = H P H' + R`` and ``ln det S`` where the gate computed them."""
     n, m = pred.x.shape[0], R.shape[0]
     if innovation is None:
-        S = innovation_covariance(pred.P, lin.H, R)
+        S = lin.innovation_covariance(pred.P, R)
         logdet = spd_inverse_logdet(S)[1] if n else np.zeros(0)
     else:
         S, logdet = innovation
-    K = transpose(solve_spd(S, lin.H @ pred.P)) if n else np.zeros(pred.x.shape + (m,))
+    K = transpose(solve_spd(S, lin.times(pred.P))) if n else np.zeros(pred.x.shape + (m,))
     r, slot, valid = _padded(pairs, n)
     nu = np.zeros(valid.shape + (m,))
     nu[r, slot] = pairs.nu
@@ -530,14 +529,14 @@ def imm_update(modes: Modes, x0: np.ndarray, lin: Linearized, R: np.ndarray, pai
     shift = np.einsum("nmd,njd->njm", lin.H, modes.x - x0[:, None])  # each mode's zhat_j - zhat
     rows = (pairs.rows[:, None] * k + np.arange(k)).ravel()  # mode j of track t: row t k + j
     nu = (pairs.nu[:, None] - shift[pairs.rows]).reshape(-1, m)
-    S = innovation_covariance(flat.P, H, R)
+    at = Linearized((lin.zhat[:, None] + shift).reshape(-1, m), H, lin.angular, lin.picks)  # each mode's model
+    S = at.innovation_covariance(flat.P, R)
     S_inv, logdet = spd_inverse_logdet(S)
     d2 = np.sum(nu * mat_vec(S_inv[rows], nu), axis=-1)
     log_n = -0.5 * (d2 + logdet[rows] + m * LOG_2PI)
     mu, beta = mode_posteriors(log_n.reshape(-1, k), pairs.rows, modes.mu, assoc.beta0, assoc.beta)
     per_mode = from_weights(rows, beta.ravel(), np.repeat(assoc.existence, k))
-    post = update(flat, Linearized((lin.zhat[:, None] + shift).reshape(-1, m), H, lin.angular), R,
-                  Pairs(rows, np.repeat(pairs.cols, k), nu, d2, log_n), per_mode, c, (S, logdet))
+    post = update(flat, at, R, Pairs(rows, np.repeat(pairs.cols, k), nu, d2, log_n), per_mode, c, (S, logdet))
     out = Modes(post.x.reshape(n, k, d), post.P.reshape(n, k, d, d), mu)
     return out, combine(IMMState(*out))
 
