@@ -16,17 +16,18 @@ eqs (8), (15): :func:`~fedtrack.local_filters.pda.association.existence_predict`
 * existence ``mu_i = W_i0 mu_bar_i (1 - P_D P_G) / m_i + sum_j W_ij``; association given existence
   ``beta_i0 = W_i0 mu_bar_i (1 - P_D P_G) / (m_i mu_i)``, ``beta_ij = W_ij / mu_i``.
 
-For a track that shares no detection these are eqs (4), (5) and (8) exactly (its events are "missed"
-and "took j"): the single-target IPDA-AI. Tracks are split into clusters (connected components of
-the gating graph); a cluster is enumerated exactly when its number of joint events (every partial
-matching of its ``a`` tracks into its ``b`` detections, :func:`event_count`) is at most
-``MAX_EVENTS``; a larger one of at most ``K_BEST_MAX_TRACKS`` tracks sums its ``K_BEST`` most
-likely events (Murty, :func:`k_best_cluster`); a larger one still is approximated by the
-linear-multitarget rule (LM-IPDA, Musicki & La Scala 2008): track ``i`` sees detection ``j`` with
-the clutter density ``lambda + sum_{s != i} p_sj P_sj / (1 - P_sj)``, ``p_sj = N_sj A_j / P_G``
-the measurement density of track ``s`` and ``P_sj = P_D P_G mu_bar_s N_sj A_j / sum_k N_sk A_k``
-the probability that ``j`` is ``s``'s judged by ``s`` alone, and is then updated as a
-single-target IPDA. docs/jipda.md gives the limit's cost and the approximations' measured errors.
+For a track that shares no detection these are eqs (4), (5) and (8) exactly (its events are
+"missed" and "took j"): the single-target IPDA-AI. Tracks are split into clusters (connected
+components of the gating graph); a cluster is enumerated exactly when its number of joint events
+(every partial matching of its ``a`` tracks into its ``b`` detections, :func:`event_count`) is at
+most ``MAX_EVENTS``; a larger one of at most ``K_BEST_MAX_TRACKS`` tracks sums its ``K_BEST`` most
+likely events (a bounded search or Murty, :func:`k_best_clusters`); a larger one still is
+approximated by the linear-multitarget rule (LM-IPDA, Musicki & La Scala 2008): track ``i`` sees
+detection ``j`` with the clutter density ``lambda + sum_{s != i} p_sj P_sj / (1 - P_sj)``,
+``p_sj = N_sj A_j / P_G`` the measurement density of track ``s`` and
+``P_sj = P_D P_G mu_bar_s N_sj A_j / sum_k N_sk A_k`` the probability that ``j`` is ``s``'s judged
+by ``s`` alone, and is then updated as a single-target IPDA. docs/jipda.md gives the limit's cost
+and the approximations' measured errors.
 
 State update per track: PDA's mixture over "missed" and each gated detection with the spread of
 the means, the detected components in Joseph form (:func:`~fedtrack.local_filters.pda.association.
@@ -303,9 +304,9 @@ def top_events(log_pair: np.ndarray, log_miss: np.ndarray, k: int) -> TopEvents:
     first = np.searchsorted(cl[order], np.arange(c))
     order = order[np.arange(order.size) - first[cl[order]] < k]
     event = np.take_along_axis(table[order], np.argsort(perm, axis=1)[cl[order]], axis=1)
-    found = np.zeros(c, dtype=bool)
-    found[rank] = overflow
-    return TopEvents(cl[order], score[order], event, found)
+    overflowed = np.zeros(c, dtype=bool)
+    overflowed[rank] = overflow
+    return TopEvents(cl[order], score[order], event, overflowed)
 
 
 def _trace(parents: list[np.ndarray], outcomes: list[np.ndarray], at: np.ndarray, a: int, b: int) -> np.ndarray:
@@ -413,8 +414,8 @@ def associate(n_det: int, pairs: Pairs, log_a: np.ndarray, mu_bar: np.ndarray, c
                 else:
                     searched.append(np.arange(start, stop))
                 continue
-            k, dense, track, miss = _dense_clusters(sel, np.cumsum(first[start:stop]) - 1, local_r, local_c, rows,
-                                                    log_pair, log_miss, a, b)
+            k = np.cumsum(first[start:stop]) - 1
+            dense, track, miss = _dense_clusters(sel, k, local_r, local_c, rows, log_pair, log_miss, a, b)
             W = enumerate_clusters(dense, miss)
             w[sel] = W[k, local_r[sel], local_c[sel]]
             w0[track] = W[:, :, b]
@@ -422,8 +423,8 @@ def associate(n_det: int, pairs: Pairs, log_a: np.ndarray, mu_bar: np.ndarray, c
             at = np.concatenate(searched)
             sel = shared[at]
             a, b = int(n_r[sc[at]].max()), int(n_c[sc[at]].max())
-            k, dense, track, miss = _dense_clusters(sel, np.cumsum(first[at]) - 1, local_r, local_c, rows,
-                                                    log_pair, log_miss, a, b)
+            k = np.cumsum(first[at]) - 1
+            dense, track, miss = _dense_clusters(sel, k, local_r, local_c, rows, log_pair, log_miss, a, b)
             W = k_best_clusters(dense, miss, k_best)
             w[sel] = W[k, local_r[sel], local_c[sel]]
             w0[track[track >= 0]] = W[:, :, b][track >= 0]
@@ -433,16 +434,16 @@ def associate(n_det: int, pairs: Pairs, log_a: np.ndarray, mu_bar: np.ndarray, c
 
 def _dense_clusters(sel: np.ndarray, k: np.ndarray, local_r: np.ndarray, local_c: np.ndarray, rows: np.ndarray,
                     log_pair: np.ndarray, log_miss: np.ndarray, a: int, b: int
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The clusters ``k`` (0, 1, ... in order) of the pairs ``sel`` as one batch of shape ``a x b``
-    (smaller ones padded: no gated pair, ``log_miss`` 0): ``k``, ``log_pair`` (C, a, b) (``-inf``
-    where not gated), each cluster's tracks (C, a) (-1: padding) and their ``log_miss`` (C, a)."""
+    (smaller ones padded: no gated pair, ``log_miss`` 0): ``log_pair`` (C, a, b) (``-inf`` where
+    not gated), each cluster's tracks (C, a) (-1: padding) and their ``log_miss`` (C, a)."""
     n = int(k[-1]) + 1
     dense = np.full((n, a, b), -np.inf)
     dense[k, local_r[sel], local_c[sel]] = log_pair[sel]
     track = np.full((n, a), -1, dtype=np.intp)
     track[k, local_r[sel]] = rows[sel]
-    return k, dense, track, np.where(track >= 0, log_miss[track], 0.0)
+    return dense, track, np.where(track >= 0, log_miss[track], 0.0)
 
 
 def _posterior(w0: np.ndarray, w: np.ndarray, rows: np.ndarray, mu_bar: np.ndarray, c: Constants,
