@@ -29,7 +29,9 @@ from fedtrack.local_filters.linear.kalman import (
     GaussianState,
     innovation_covariance,
     log_likelihood,
+    mat_vec,
     symmetrize,
+    transpose,
     update_residual,
 )
 from fedtrack.local_filters.linear.tracking import rounded_interval
@@ -198,13 +200,26 @@ class Linearized(NamedTuple):
         rows of ``P``: the same numbers (``H``'s entries are 0 and 1, every other term an exact zero)."""
         return self.H @ P if self.picks is None else P[:, list(self.picks)]
 
+    def covariance(self, P: np.ndarray, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """``H P H'`` (K, m, m) of the tracks ``rows`` (``P`` theirs, (K, D, D)); where ``H`` picks
+        coordinates, by picking them (the same numbers)."""
+        if self.picks is None:
+            H = self.H[rows]
+            return H @ P @ transpose(H)
+        idx = np.array(self.picks)
+        return P[:, idx[:, None], idx]
+
+    def mean(self, x: np.ndarray, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """``H x`` (K, m) of the tracks ``rows`` (``x`` theirs, (K, D)); where ``H`` picks
+        coordinates, by picking them (the same numbers)."""
+        return mat_vec(self.H[rows], x) if self.picks is None else x[:, list(self.picks)]
+
     def innovation_covariance(self, P: np.ndarray, R: np.ndarray) -> np.ndarray:
         """``S = H P H' + R`` (N, m, m), symmetric (:func:`~fedtrack.local_filters.linear.kalman.
         innovation_covariance`); where ``H`` picks coordinates, by picking them (the same numbers)."""
         if self.picks is None:
             return innovation_covariance(P, self.H, R)
-        idx = np.array(self.picks)
-        return symmetrize(P[:, idx[:, None], idx] + R)
+        return symmetrize(self.covariance(P) + R)
 
 
 def linearize(x: np.ndarray, sensor_position: np.ndarray | None) -> Linearized:

@@ -558,18 +558,16 @@ def equivalent_observation(pred: GaussianState, lin: Linearized, R: np.ndarray, 
     Its covariance update lacks the spread-of-means and missed-gate terms of PDA's (docs/jipda.md).
     Returns the mask of the tracks that report and their observations ``(H, R_eq, z)``."""
     n, m = pred.x.shape[0], R.shape[0]
-    nu_c = np.zeros((n, m))
-    np.add.at(nu_c, pairs.rows, assoc.beta[:, None] * pairs.nu)
+    weighted = assoc.beta[:, None] * pairs.nu
+    nu_c = np.stack([np.bincount(pairs.rows, weighted[:, j], minlength=n) for j in range(m)], axis=1)
     hit = 1.0 - assoc.beta0
     rep = np.flatnonzero(assoc.existence * hit >= REPORT_DETECTED)
-    H = np.asarray(lin.H)[rep]
-    HPH = H @ pred.P[rep] @ transpose(H)
     f = hit[rep, None, None]
-    R_eq = (R + assoc.beta0[rep, None, None] * HPH) / f
-    z = mat_vec(H, pred.x[rep]) + nu_c[rep] / hit[rep, None]
+    R_eq = (R + assoc.beta0[rep, None, None] * lin.covariance(pred.P[rep], rep)) / f
+    z = lin.mean(pred.x[rep], rep) + nu_c[rep] / hit[rep, None]
     mask = np.zeros(n, dtype=bool)
     mask[rep] = True
-    return mask, (H.copy(), 0.5 * (R_eq + transpose(R_eq)), z)
+    return mask, (lin.H[rep], 0.5 * (R_eq + transpose(R_eq)), z)
 
 
 # A target's mean stay in a tracker's picture (its birth to its death or exit), the documented
