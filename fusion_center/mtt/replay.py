@@ -12,10 +12,8 @@ after the latest scan (the last picture holds every scan).
 from __future__ import annotations
 
 import dataclasses
-import math
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
