@@ -24,7 +24,7 @@ from fedtrack.local_filters.linear.kalman import (
     update_residual,
 )
 from fedtrack.local_filters.mtt.association import AssociationInput
-from fedtrack.local_filters.mtt.associators import jipda
+from fedtrack.local_filters.mtt.associators import events, jipda
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.models import Linearized, linearize, motion
 from fedtrack.local_filters.mtt.tracker import gate as chi2_gate
@@ -204,8 +204,8 @@ def test_a_certain_tracks_existence_stays_a_probability() -> None:
 
 def test_event_table_counts_every_partial_matching() -> None:
     for a, b in [(1, 4), (2, 3), (3, 3), (4, 2), (3, 6)]:
-        table = jipda.joint_events(a, b)
-        assert table.shape == (jipda.event_count(a, b), a)
+        table = events.joint_events(a, b)
+        assert table.shape == (events.event_count(a, b), a)
         assert len({tuple(r) for r in table.tolist()}) == table.shape[0]
         for r in table:
             used = r[r < b]
@@ -219,7 +219,7 @@ def test_k_best_with_every_event_is_exact() -> None:
     for n, n_det in [(2, 3), (3, 3), (4, 3), (3, 5)]:
         _, pairs, mu_bar, log_a = random_cluster(rng, n, n_det, density=0.8)
         exact = jipda.associate(n_det, pairs, log_a, mu_bar, c, max_events=10**9)
-        kbest = jipda.associate(n_det, pairs, log_a, mu_bar, c, max_events=0, k_best=jipda.event_count(n, n_det))
+        kbest = jipda.associate(n_det, pairs, log_a, mu_bar, c, max_events=0, k_best=events.event_count(n, n_det))
         np.testing.assert_allclose(kbest.existence, exact.existence, rtol=1e-12)
         np.testing.assert_allclose(kbest.beta, exact.beta, rtol=1e-10, atol=1e-14)
 
@@ -255,15 +255,15 @@ def test_top_events_are_murtys_k_best(monkeypatch: pytest.MonkeyPatch) -> None:
         cost = np.full((a, b + a), np.inf)
         cost[:, :b] = -log_pair
         cost[np.arange(a), b + np.arange(a)] = -log_miss
-        totals, events = k_best_assignments(cost, 50)
-        found = jipda.top_events(log_pair[None], log_miss[None], 50)
+        totals, murty_events = k_best_assignments(cost, 50)
+        found = events.top_events(log_pair[None], log_miss[None], 50)
         assert not found.overflow[0] and np.all(found.cluster == 0)
-        np.testing.assert_array_equal(found.event, np.minimum(events, b))
+        np.testing.assert_array_equal(found.event, np.minimum(murty_events, b))
         np.testing.assert_allclose(found.score, -totals, rtol=0, atol=1e-9)
-        searched = jipda.k_best_clusters(log_pair[None], log_miss[None], 50)[0]
+        searched = events.k_best_clusters(log_pair[None], log_miss[None], 50)[0]
         with monkeypatch.context() as m:
-            m.setattr(jipda, "FRONTIER_MAX", 0)  # every cluster to Murty
-            murty = jipda.k_best_clusters(log_pair[None], log_miss[None], 50)[0]
+            m.setattr(events, "FRONTIER_MAX", 0)  # every cluster to Murty
+            murty = events.k_best_clusters(log_pair[None], log_miss[None], 50)[0]
         np.testing.assert_allclose(searched, murty, rtol=0, atol=1e-12)
         assert np.allclose(searched.sum(axis=1), 1.0)
         clusters.append((log_pair, log_miss, found, searched))
@@ -273,16 +273,16 @@ def test_top_events_are_murtys_k_best(monkeypatch: pytest.MonkeyPatch) -> None:
     cost = np.full((4, 74), np.inf)
     cost[:, :70] = -log_pair
     cost[np.arange(4), 70 + np.arange(4)] = -log_miss
-    totals, events = k_best_assignments(cost, 50)
-    found = jipda.top_events(log_pair[None], log_miss[None], 50)
-    np.testing.assert_array_equal(found.event, np.minimum(events, 70))
+    totals, murty_events = k_best_assignments(cost, 50)
+    found = events.top_events(log_pair[None], log_miss[None], 50)
+    np.testing.assert_array_equal(found.event, np.minimum(murty_events, 70))
     np.testing.assert_allclose(found.score, -totals, rtol=0, atol=1e-9)
     a = max(lp.shape[0] for lp, *_ in clusters)
     b = max(lp.shape[1] for lp, *_ in clusters)
     batch, miss = np.full((len(clusters), a, b), -np.inf), np.zeros((len(clusters), a))  # padded
     for i, (lp, lm, *_) in enumerate(clusters):
         batch[i, :lp.shape[0], :lp.shape[1]], miss[i, :lm.size] = lp, lm
-    found, W = jipda.top_events(batch, miss, 50), jipda.k_best_clusters(batch, miss, 50)
+    found, W = events.top_events(batch, miss, 50), events.k_best_clusters(batch, miss, 50)
     for i, (lp, _, alone, marginals) in enumerate(clusters):
         mine = found.cluster == i
         event = np.where(found.event[mine] == b, lp.shape[1], found.event[mine])
@@ -295,7 +295,7 @@ def test_top_events_are_murtys_k_best(monkeypatch: pytest.MonkeyPatch) -> None:
 def test_approximations_error_at_the_limit(monkeypatch: pytest.MonkeyPatch) -> None:
     """k-best (100 events) and LM-IPDA against exact enumeration on random clusters of the largest
     enumerated shape, 6 x 5 (docs/jipda.md)."""
-    assert jipda.event_count(6, 5) <= jipda.MAX_EVENTS < jipda.event_count(6, 6)
+    assert events.event_count(6, 5) <= jipda.MAX_EVENTS < events.event_count(6, 6)
     k_mu, k_beta = approximation_error(np.random.default_rng(4), 6, 5, 10)
     monkeypatch.setattr(jipda, "K_BEST_MAX_TRACKS", 0)
     lm_mu, lm_beta = approximation_error(np.random.default_rng(4), 6, 5, 10)
