@@ -1,7 +1,8 @@
 """fedtrack launch CONFIG.toml: start every service of a deployment as separate processes.
 
 Order: router -> local filters, fusion center, recorder -> (all announced by liveliness)
--> sensors. While it runs it shows scans fused, per-sensor scan rates and the latency
+-> sensors -> (all announced) -> with realtime pacing, their common start time, given
+``START_MARGIN_S`` ahead (:func:`release_sensors`). While it runs it shows scans fused, per-sensor scan rates and the latency
 from a sensor's publish to the fused track's arrival. It ends when the sensors have
 published their last scan (then stops the rest), or on Ctrl-C / SIGTERM (stops
 everything, no orphans: every child also gets SIGTERM if the launcher dies). Exit code
@@ -69,6 +70,8 @@ MAX_RESTARTS = 3
 SNAPSHOT = "fusion-center.snapshot"  # the fusion center's state, for its restarts within this run
 RESTART_BACKOFF_S = 0.5
 RESTART_BACKOFF_MAX_S = 4.0
+START_FILE = "start-at"  # beside the sensors' logs: their common start time (realtime), written once all are ready
+START_MARGIN_S = 0.25  # the start is this long after the last sensor was ready: 25 of the sensors' 10 ms polls of START_FILE
 JOIN_LEAD_S = 2.0  # a joining sensor's processes start this long before its join time
 ROUTER_DRAIN_S = 0.5  # a router joined to other hosts' routers is stopped this long after the rest (in-flight data)
 
@@ -262,13 +265,32 @@ def apply_zenoh_settings(settings: Settings, config_path: Path, out_dir: Path,
     return str(paths[LAUNCHER])
 
 
-def align_realtime_sensors(plan: list[ServiceProcess], lead_s: float = 3.0) -> float:
-    """Give every sensor of the plan one wall-clock start time (realtime pacing schedules
-    scan k at start + k T / speed, so the sensors stay in step and do not drift); returns it."""
-    start_at = time.time() + lead_s
-    for sp in plan:
-        if sp.role == "sensor":
-            sp.argv = [a for a in sp.argv] + ["--start-at", f"{start_at:.6f}"]
+def await_start(sensors: list[ServiceProcess]) -> Path | None:
+    """Have the realtime ``sensors`` wait, once ready, for their common start time in one file
+    (``START_FILE`` beside their logs, an earlier run's removed): ``--start-file``; returns the file."""
+    if not sensors:
+        return None
+    path = sensors[0].log_path.parent / START_FILE
+    path.unlink(missing_ok=True)
+    for sp in sensors:
+        sp.argv = [*sp.argv, "--start-file", str(path)]
+    return path
+
+
+def release_sensors(sensors: list[ServiceProcess], path: Path | None, start_at: float) -> float:
+    """Give the ``sensors`` one wall-clock start time (realtime pacing schedules scan k at
+    start + k T / speed, so they stay in step and do not drift): written to ``path`` for those
+    waiting on it, and ``--start-at`` instead of ``--start-file`` for their later starts (restarts,
+    sensors that join); returns it."""
+    if path is not None:
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(f"{start_at:.6f}\n")
+        tmp.replace(path)
+    for sp in sensors:
+        if "--start-file" in sp.argv:
+            i = sp.argv.index("--start-file")
+            sp.argv = [*sp.argv[:i], *sp.argv[i + 2:]]
+        sp.argv = [*sp.argv, "--start-at", f"{start_at:.6f}"]
     return start_at
 
 
@@ -544,11 +566,13 @@ class Launcher:
             for sp in standbys:
                 self._start(sp)
             self._wait_ready(standbys, dep.ready_timeout_s)
+            first = [sp for sp in sensors if sp.join_at_s is None]
+            start_file = await_start(first) if dep.pacing == "realtime" else None
+            for sp in first:
+                self._start(sp)
             if dep.pacing == "realtime":
-                self._epoch = align_realtime_sensors(sensors)
-            for sp in sensors:
-                if sp.join_at_s is None:
-                    self._start(sp)
+                self._wait_ready(first, dep.ready_timeout_s)
+                self._epoch = release_sensors(sensors, start_file, time.time() + START_MARGIN_S)
             self._watch(sensors, start)
         except KeyboardInterrupt:
             stopped = True

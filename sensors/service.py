@@ -5,8 +5,9 @@ Pacing:
 * ``lockstep``: scan k+1 is published once the fused track of scan k is out (or after
   ``--lockstep-timeout`` seconds without it, counted in ``lockstep_timeouts``), so a
   whole scenario runs as fast as the pipeline allows;
-* ``realtime``: scan k at wall-clock time ``start + k T / speed`` (``--start-at``; the
-  launcher gives all sensors of a deployment the same start, so they stay in step).
+* ``realtime``: scan k at wall-clock time ``start + k T / speed`` (``--start-at``, or
+  ``--start-file``: the launcher starts a host's sensors, waits until all of them are ready and
+  then writes their common start into that file, so they stay in step).
 
 After its last scan a paper-pipeline sensor waits for that scan's fused track (at most
 ``--lockstep-timeout``) and exits 0. A multi-target sensor (kind ``scan``) exits at once: no
@@ -27,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import bisect
+import math
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -97,7 +99,7 @@ class SensorService(Service):
 
     def __init__(self, lines: list[dict[str, Any]], period_s: float, pacing: str, speed: float,
                  lockstep_timeout_s: float, start_at: float | None = None, scans: list[SensorScan] | None = None,
-                 **kwargs: Any) -> None:
+                 start_file: Path | None = None, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.lines = lines
         self.scans = scans  # multi-target scans (kind scan), published at their own times
@@ -108,7 +110,8 @@ class SensorService(Service):
                       else [k * self.interval_s for k in range(len(lines))])
         self.total = len(self.due_s)
         self.lockstep_timeout_s = lockstep_timeout_s
-        self.start_at = start_at  # wall-clock time of scan 0 (realtime); None: when ready
+        self.start_at = start_at  # wall-clock time of scan 0 (realtime); None: from start_file, else when ready
+        self.start_file = start_file
         self.next_seq = 0
         self.last_publish = -float("inf")
         self.fused_up_to = -1
@@ -137,6 +140,10 @@ class SensorService(Service):
 
     def on_tick(self) -> None:
         now = time.monotonic()
+        if self.pacing == "realtime" and self.start_at is None:
+            self.start_at = read_start(self.start_file) if self.start_file is not None else time.time()
+            if self.start_at is None:
+                return  # the launcher has not given the start yet
         if self.next_seq >= self.total:
             waited = now - self.last_publish
             if self.scans is not None or self.fused_up_to >= self.total - 1 or waited >= self.lockstep_timeout_s:
@@ -148,8 +155,6 @@ class SensorService(Service):
                 self.count("lockstep_timeouts")
                 due = True
         else:
-            if self.start_at is None:
-                self.start_at = time.time()
             due = time.time() >= self.start_at + self.due_s[self.next_seq]
         if due:
             self.publish_scan(now)
@@ -188,6 +193,9 @@ def add_sensor_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--start-at", type=float, metavar="EPOCH_S",
                         help="realtime pacing: wall-clock time (Unix seconds) of scan 0, shared by the sensors "
                              "of a deployment (default: when this sensor is ready)")
+    parser.add_argument("--start-file", type=Path, metavar="PATH",
+                        help="realtime pacing without --start-at: wait until PATH holds the start time (Unix "
+                             "seconds; fedtrack launch writes it once every sensor of its host is ready)")
     parser.add_argument("--join-at", type=float, metavar="SECONDS",
                         help="kind scan: publish only the scans at t >= SECONDS (a sensor that joins a running "
                              "deployment; scan times count from --start-at)")
@@ -213,10 +221,28 @@ def main(argv: list[str]) -> int:
         if args.join_at is not None:
             scans = [s for s in scans if s.t >= args.join_at]
         return SensorService([], 1.0, "realtime", settings.deployment.speed, args.lockstep_timeout,
-                             args.start_at, scans=scans, **service_kwargs(parser, args)).run()
+                             args.start_at, scans=scans, start_file=args.start_file,
+                             **service_kwargs(parser, args)).run()
     lines, period = scan_source(args.kind, settings, args.id)
     return SensorService(lines, period, settings.deployment.pacing, settings.deployment.speed,
-                         args.lockstep_timeout, args.start_at, **service_kwargs(parser, args)).run()
+                         args.lockstep_timeout, args.start_at, start_file=args.start_file,
+                         **service_kwargs(parser, args)).run()
+
+
+def read_start(path: Path) -> float | None:
+    """The start time (Unix seconds) in ``path``, or None while the file does not exist (the
+    launcher writes it whole: a temporary file renamed)."""
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        return None
+    try:
+        start = float(text)
+    except ValueError:
+        start = math.nan
+    if not math.isfinite(start):
+        raise ValueError(f"{path}: not a start time in Unix seconds: {text[:40]!r}")
+    return start
 
 
 def own_scans(path: Path, sensor: str) -> list[SensorScan]:

@@ -5,6 +5,7 @@ each, the centre and the recorder; its pictures equal the replay of its recordin
 from __future__ import annotations
 
 import json
+import sqlite3
 import subprocess
 import sys
 from pathlib import Path
@@ -60,6 +61,12 @@ def test_live_multitarget_deployment_equals_its_replay(tmp_path: Path) -> None:
     assert set(summary["exit_codes"].values()) == {0} and len(summary["exit_codes"]) == 9
     live = [json.loads(x) for x in (out / "tracks.jsonl").read_text().splitlines()]
     assert live and len(live[-1]["tracks"][0]["x"]) == 6  # a radar makes the central state 3-D
+    # the sensors kept the one start the launcher gave once all were ready: scan at t sent at start + t / speed
+    start = float((out / "logs" / "start-at").read_text())
+    db = sqlite3.connect(out / "recording.db")
+    lag = np.array(db.execute("SELECT stamp_ns / 1e9 - ? - t / 4.0 FROM measurements", (start,)).fetchall())
+    db.close()
+    assert lag.size >= 40 and 0.0 <= lag.min() and lag.max() < 1.0, (lag.min(), lag.max())
     replayed = tmp_path / "replay.jsonl"
     replay_mtt("mtt-federated", out / "measurements.jsonl", config, replayed)  # `fedtrack replay`'s call
     assert_same_pictures(live, [json.loads(x) for x in replayed.read_text().splitlines()])

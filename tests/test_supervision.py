@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -74,3 +75,44 @@ def test_a_new_run_sets_an_earlier_runs_recording_aside(tmp_path: Path) -> None:
         again = Recording(kept)
         assert [m.t for m in again.messages(Measurement, "t")] == [float(run)]  # that run's alone
         again.close()
+
+
+def test_realtime_sensors_wait_for_the_start_the_launcher_gives_once_they_are_ready(tmp_path: Path) -> None:
+    """``await_start`` points every sensor at one start file (an earlier run's removed); a sensor
+    told it publishes nothing until the file holds the start, then scan k at start + k T / speed;
+    ``release_sensors`` writes the file whole and gives later starts (restarts, joins) ``--start-at``."""
+    from fedtrack.deploy.launcher import await_start, release_sensors
+    from fedtrack.sensors.service import SensorService
+    from fedtrack.zsession import SessionOptions
+
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    plan = [ServiceProcess("sensor", s, ["serve", "sensor", "--id", s], logs / f"sensor-{s}.log") for s in ("1", "2")]
+    (logs / "start-at").write_text("1.0\n")  # an earlier run's start
+    path = await_start(plan)
+    assert path == logs / "start-at" and not path.exists()
+    assert all(sp.argv[-2:] == ["--start-file", str(path)] for sp in plan)
+    period, speed = 1.0, 20.0
+    sensor = SensorService([{}] * 3, period, "realtime", speed, 5.0, start_file=path, service_id="1",
+                           options=SessionOptions())
+    sent: list[float] = []
+
+    def publish_scan(now: float) -> None:
+        sent.append(time.time())
+        sensor.next_seq += 1
+
+    sensor.publish_scan = publish_scan  # type: ignore[method-assign]
+    for _ in range(3):
+        sensor.on_tick()
+    assert sent == [] and sensor.start_at is None
+    start = time.time() + 0.05
+    assert release_sensors(plan, path, start) == start
+    assert float(path.read_text()) == pytest.approx(start, abs=1e-6)
+    assert all("--start-file" not in sp.argv and sp.argv[-2:] == ["--start-at", f"{start:.6f}"] for sp in plan)
+    assert wait_until(lambda: sensor.on_tick() or len(sent) == 3, 5.0)
+    assert sensor.start_at == pytest.approx(start, abs=1e-6)
+    assert all(sent[k] >= start + k * period / speed for k in range(3)), [s - start for s in sent]
+    path.write_text("soon\n")
+    late = SensorService([{}], period, "realtime", speed, 5.0, start_file=path, service_id="2", options=SessionOptions())
+    with pytest.raises(ValueError, match="start-at: not a start time in Unix seconds: 'soon"):
+        late.on_tick()
