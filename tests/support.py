@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
+import multiprocessing
 import signal
 import subprocess
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any, Callable
 
@@ -12,7 +16,7 @@ from fedtrack.deploy.demo import free_port
 
 WAIT_S = 10.0
 
-__all__ = ["WAIT_S", "Deployment", "free_port", "wait_until"]
+__all__ = ["WAIT_S", "Deployment", "free_port", "in_parallel", "replay_evaluated", "wait_until"]
 
 
 def wait_until(predicate: Callable[[], bool], timeout: float = WAIT_S) -> bool:
@@ -23,6 +27,27 @@ def wait_until(predicate: Callable[[], bool], timeout: float = WAIT_S) -> bool:
             return True
         time.sleep(0.02)
     return predicate()
+
+
+def in_parallel(calls: list[tuple[Callable[..., Any], tuple[Any, ...]]], workers: int = 2) -> list[Any]:
+    """``[f(*args) for f, args in calls]``, computed by ``workers`` processes: the suite runs its
+    tests one at a time, so a test made of independent CPU-bound calls (replays) can use the CI
+    machine's second core. Spawned, not forked (this process may hold Zenoh's threads); a worker
+    takes the next call when it is free, so give the longest first."""
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = [pool.submit(f, *args) for f, args in calls]
+        return [f.result() for f in futures]
+
+
+def replay_evaluated(algorithm: str, measurements: Path, config: Path, out: Path, truth: Path,
+                     sensor: str | None = None) -> dict[str, Any]:
+    """``evaluate`` of ``fedtrack replay --algorithm ALGORITHM`` (written to ``out``) against ``truth``."""
+    from fedtrack.fusion_center.mtt.evaluation import evaluate
+    from fedtrack.fusion_center.mtt.replay import replay_mtt
+
+    with contextlib.redirect_stderr(io.StringIO()):
+        replay_mtt(algorithm, measurements, config, out, sensor=sensor)
+    return evaluate(out, truth)
 
 
 class Deployment:

@@ -3,18 +3,14 @@ and the simulator's process noise derived from its truth (docs/multitarget.md#co
 
 from __future__ import annotations
 
-import contextlib
-import functools
-import io
 import math
 from pathlib import Path
 
 import numpy as np
 import pytest
+from support import in_parallel, replay_evaluated
 
 from fedtrack.config import load_tables
-from fedtrack.fusion_center.mtt.evaluation import evaluate
-from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.local_filters.mtt.config import MttSettings
 from fedtrack.sensors.multitarget import (
     DT,
@@ -47,22 +43,28 @@ def scenario(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
-@functools.cache
-def replayed(data: Path, algorithm: str, sensor: str | None, extra: str = "") -> dict:
-    """``evaluate`` of ``algorithm`` replayed with the scenario's config (plus ``extra`` [mtt] keys);
-    each once per module."""
-    config = data / f"config{len(extra)}.toml"
-    config.write_text((data / "config.toml").read_text().replace("[mtt]\n", "[mtt]\n" + extra, 1))
-    out = data / f"{algorithm}{len(extra)}.jsonl"
-    with contextlib.redirect_stderr(io.StringIO()):
-        replay_mtt(algorithm, data / "measurements.jsonl", config, out, sensor=sensor)
-    return evaluate(out, data / "truth.jsonl")
-
-
+IMM = 'process_noise = "imm"\n'
 ALGORITHMS = (("mtt-centralized", None), ("mtt-federated", None), ("mtt-local", "s1"))
 
 
-def test_nees_inside_the_95_percent_band_on_the_default_scenario(scenario: Path) -> None:
+@pytest.fixture(scope="module")
+def replayed(scenario: Path) -> dict[tuple[str, str], dict]:
+    """``evaluate`` of each algorithm replayed with the scenario's config, and of mtt-centralized and
+    mtt-local with ``IMM`` added to its ``[mtt]``, by (algorithm, the keys added); the five
+    replays at once, over two processes."""
+    runs = [(algorithm, sensor, extra) for extra in ("", IMM) for algorithm, sensor in ALGORITHMS
+            if not extra or algorithm != "mtt-federated"]
+    calls = []
+    for algorithm, sensor, extra in runs:
+        config = scenario / f"config{len(extra)}.toml"
+        config.write_text((scenario / "config.toml").read_text().replace("[mtt]\n", "[mtt]\n" + extra, 1))
+        calls.append((replay_evaluated, (algorithm, scenario / "measurements.jsonl", config,
+                                         scenario / f"{algorithm}{len(extra)}.jsonl", scenario / "truth.jsonl", sensor)))
+    return {(algorithm, extra): result for (algorithm, _, extra), result in zip(runs, in_parallel(calls))}
+
+
+def test_nees_inside_the_95_percent_band_on_the_default_scenario(scenario: Path,
+                                                                 replayed: dict[tuple[str, str], dict]) -> None:
     """Replayed with the ``config.toml`` the simulator writes, for mtt-centralized, mtt-federated
     and mtt-local: at least 95% of the assigned pairs' position NEES (2 dof) inside the two-sided
     95% chi-square band, at least 85% of the state's (4 dof) while the truth accelerates, and at
@@ -74,7 +76,7 @@ def test_nees_inside_the_95_percent_band_on_the_default_scenario(scenario: Path)
     assert load_tables(scenario / "config.toml", MttSettings).mtt.q == pytest.approx(math.pi**2 / 4 * 1.3, abs=1e-6)
     inside = {}
     for algorithm, sensor in ALGORITHMS:
-        parts = {row["part"]: row for row in replayed(scenario, algorithm, sensor)["nees"]}
+        parts = {row["part"]: row for row in replayed[algorithm, ""]["nees"]}
         assert (parts["state"]["dof"], parts["position"]["dof"]) == (4, 2)
         assert parts["state"]["pairs"] > 4000
         inside[algorithm] = (parts["position"]["inside_95"], parts["state"]["maneuvering"]["inside_95"],
@@ -83,13 +85,13 @@ def test_nees_inside_the_95_percent_band_on_the_default_scenario(scenario: Path)
         assert position >= 0.95 and accelerating >= 0.85 and state >= 0.86, inside
 
 
-def test_imm_lowers_gospa_on_the_default_scenario(scenario: Path) -> None:
+def test_imm_lowers_gospa_on_the_default_scenario(replayed: dict[tuple[str, str], dict]) -> None:
     """``process_noise = "imm"`` on the same data (mtt-centralized, mtt-local): mean GOSPA at least
     10% below the fixed q's (measured 32.3 against 42.0, 66.0 against 78.8), the position NEES
     still at least 93% inside (0.953 / 0.942), the state's below the fixed q's (0.824 / 0.812
     against 0.875 / 0.866: the combined covariance hedges for a maneuver on the straight legs)."""
-    for algorithm, sensor in ALGORITHMS[::2]:
-        fixed, imm = (replayed(scenario, algorithm, sensor, extra) for extra in ("", 'process_noise = "imm"\n'))
+    for algorithm, _ in ALGORITHMS[::2]:
+        fixed, imm = replayed[algorithm, ""], replayed[algorithm, IMM]
         assert imm["mean"]["gospa"] <= 0.9 * fixed["mean"]["gospa"], (algorithm, imm["mean"], fixed["mean"])
         parts = {row["part"]: row for row in imm["nees"]}
         assert parts["position"]["inside_95"] >= 0.93, (algorithm, parts)
