@@ -3,9 +3,12 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 from pathlib import Path
 
 import pytest
+from support import in_parallel
 
 from fedtrack import cli
 
@@ -21,13 +24,29 @@ def tiny_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
+def reproduce(name: str, json_path: Path, model: Path) -> tuple[int, str, str]:
+    """``fedtrack reproduce NAME --runs 2 --seed 3`` (``--model`` for ts-fuzzy) in this process: its
+    exit code, standard output and standard error."""
+    out, err = io.StringIO(), io.StringIO()
+    extra = ["--model", str(model)] if name == "ts-fuzzy" else []
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = cli.main(["reproduce", name, "--runs", "2", "--seed", "3", "--json", str(json_path), *extra])
+    return code, out.getvalue(), err.getvalue()
+
+
+@pytest.fixture(scope="module")
+def reproduced(tmp_path_factory: pytest.TempPathFactory, tiny_model: Path) -> dict[str, tuple[int, str, str]]:
+    """``reproduce`` of every reproducer, by name: independent runs, over two processes (hpda, as
+    long as the others together, first)."""
+    names = sorted(cli.REPRODUCERS, key=lambda name: name != "hpda")
+    out = tmp_path_factory.mktemp("reproduce")
+    return dict(zip(names, in_parallel([(reproduce, (name, out / f"{name}.json", tiny_model)) for name in names])))
+
+
 @pytest.mark.parametrize("name", sorted(cli.REPRODUCERS))
-def test_reproduce_announces_and_prints_its_table(name: str, tmp_path: Path, tiny_model: Path,
-                                                  capsys: pytest.CaptureFixture[str]) -> None:
-    model = ["--model", str(tiny_model)] if name == "ts-fuzzy" else []
-    capsys.readouterr()
-    assert cli.main(["reproduce", name, "--runs", "2", "--seed", "3", "--json", str(tmp_path / "r.json"), *model]) == 0
-    out, err = capsys.readouterr()
+def test_reproduce_announces_and_prints_its_table(name: str, reproduced: dict[str, tuple[int, str, str]]) -> None:
+    code, out, err = reproduced[name]
+    assert code == 0, err
     assert f"reproduce {name}: paper" in err
     assert TITLES[name] in out and "+-" in out, out
 
