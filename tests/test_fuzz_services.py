@@ -13,7 +13,9 @@ a field (at any depth) replaced by a hostile value (nesting 9 to 1,000 deep, 2,0
 extension types); an array's values scaled by up to 1e+-300 or one value made extreme; ``seq`` or
 ``t`` moved (by up to 1e12); or the bytes flipped, cut or extended. Health (which no service
 subscribes to; the launcher's monitor decodes it), the fusion centre's snapshot file and the
-liveliness callbacks are fuzzed on their own.
+liveliness callbacks are fuzzed on their own. The paper pipeline's part and the multi-target part
+(its scans, reports, resets, pictures, the hand-overs and Health) share no service: they run at
+once in two processes (seeded ``SEED`` and ``SEED + 1``), their tallies added.
 
 An escape is an exception out of a dispatch or a callback, or a handler failing on a message its
 decoder accepted (``rejected_handler_error``: a bug). Per type, the test prints the payloads
@@ -34,11 +36,12 @@ import msgpack
 import numpy as np
 import pytest
 import zenoh
+from support import in_parallel
 from test_fuzz_handlers import MEASUREMENTS, SCANS, SENSORS
 from test_hostile_messages import (
     KEYS,
-    OPTIONS,
     MTT_SENSORS,
+    OPTIONS,
     SONAR,
     Bus,
     mtt_lines,
@@ -175,6 +178,11 @@ class Tally:
         row[1] += decoder_rejected
         row[2] += counted
 
+    def merge(self, rows: dict[str, list[int]]) -> None:
+        """Add another tally's rows."""
+        for name, counts in rows.items():
+            self.rows[name] = [a + b for a, b in zip(self.rows.get(name, [0, 0, 0]), counts)]
+
     def report(self) -> str:
         return "\n".join(f"{name:16s} payloads {n:6d}  decoder rejected {d:6d}  rejections counted {h:6d}"
                          for name, (n, d, h) in sorted(self.rows.items()))
@@ -247,9 +255,18 @@ def published_stream(bus: Bus, run: Callable[[Bus], None]) -> list[tuple[str, by
     return [(key, encode(msg), type(msg)) for key, msg in bus.published]
 
 
-def test_every_handler_takes_10000_mutations_per_type_without_an_escape(tmp_path: Path,
-                                                                         monkeypatch: pytest.MonkeyPatch) -> None:
-    mutator, tally, decoded = Mutator(SEED), Tally(), Decoded(monkeypatch)
+def fuzz_paper(tmp_path: Path) -> dict[str, list[int]]:
+    """The paper pipeline's part (measurements (position, sonar), estimates, resets, tracks,
+    events, the fusion/state replies): the tally's rows. Seeded ``SEED``."""
+    mutator, tally = Mutator(SEED), Tally()
+    tmp_path.mkdir()
+    with pytest.MonkeyPatch.context() as monkeypatch:
+        decoded = Decoded(monkeypatch)
+        fuzz_paper_services(tmp_path, mutator, tally, decoded)
+    return tally.rows
+
+
+def fuzz_paper_services(tmp_path: Path, mutator: Mutator, tally: Tally, decoded: Decoded) -> None:
     # the paper pipeline: measurements (position, sonar), estimates, resets, tracks, events
     clean = Bus(list(paper_services(tmp_path / "clean").values()))
 
@@ -289,6 +306,19 @@ def test_every_handler_takes_10000_mutations_per_type_without_an_escape(tmp_path
         assert errors_after == errors, "rejoin failed on a reply the decoder accepted"
         tally.add("FusedTrack reply", decoded.outcome(bad, FusedTrack), after - before)
 
+
+def fuzz_multitarget(tmp_path: Path) -> dict[str, list[int]]:
+    """The multi-target part (scans, reports, resets, pictures), the region centres' hand-overs and
+    Health: the tally's rows. Seeded ``SEED + 1``."""
+    mutator, tally = Mutator(SEED + 1), Tally()
+    tmp_path.mkdir()
+    with pytest.MonkeyPatch.context() as monkeypatch:
+        decoded = Decoded(monkeypatch)
+        fuzz_multitarget_services(tmp_path, mutator, tally, decoded)
+    return tally.rows
+
+
+def fuzz_multitarget_services(tmp_path: Path, mutator: Mutator, tally: Tally, decoded: Decoded) -> None:
     # the multi-target deployment (federated: reports and resets; pictures to the recorder)
     scans = mtt_lines(tmp_path)
     mclean = Bus(list(mtt_services(tmp_path / "mclean").values()))
@@ -323,6 +353,14 @@ def test_every_handler_takes_10000_mutations_per_type_without_an_escape(tmp_path
     good = encode(health())
     for _ in range(PAYLOADS):
         tally.add("Health", rejected_by_decoder(mutator.mutate(good), Health))
+
+
+def test_every_handler_takes_10000_mutations_per_type_without_an_escape(tmp_path: Path) -> None:
+    """The paper pipeline's part and the multi-target part (independent services, buses and seeded
+    generators) at once, over two processes: an escape fails its part, and the test."""
+    tally = Tally()
+    for rows in in_parallel([(fuzz_multitarget, (tmp_path / "multitarget",)), (fuzz_paper, (tmp_path / "paper",))]):
+        tally.merge(rows)
     print("\n" + tally.report())
     names = {"Measurement", "LocalEstimate", "Reset", "FusedTrack", "FusedTrack reply", "ManeuverEvent",
              "TrackReport", "TrackResets", "TrackPicture", "Health", "HandOver"}
