@@ -9,6 +9,7 @@ import signal
 import subprocess
 import time
 from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any, Callable
 
@@ -29,14 +30,25 @@ def wait_until(predicate: Callable[[], bool], timeout: float = WAIT_S) -> bool:
     return predicate()
 
 
-def in_parallel(calls: list[tuple[Callable[..., Any], tuple[Any, ...]]], workers: int = 2) -> list[Any]:
-    """``[f(*args) for f, args in calls]``, computed by ``workers`` processes: the suite runs its
-    tests one at a time, so a test made of independent CPU-bound calls (replays) can use the CI
-    machine's second core. Spawned, not forked (this process may hold Zenoh's threads); a worker
-    takes the next call when it is free, so give the longest first."""
-    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        futures = [pool.submit(f, *args) for f, args in calls]
+WORKERS = 2  # the CI machine's cores
+_pool: ProcessPoolExecutor | None = None
+
+
+def in_parallel(calls: list[tuple[Callable[..., Any], tuple[Any, ...]]]) -> list[Any]:
+    """``[f(*args) for f, args in calls]``, computed by ``WORKERS`` processes: the suite runs its
+    tests one at a time, so a test made of independent CPU-bound calls (replays, seeded runs) can
+    use the CI machine's second core. The processes are spawned, not forked (this one may hold
+    Zenoh's threads), once per session: they import what the calls need once. A process takes
+    the next call when it is free, so give the longest first."""
+    global _pool
+    if _pool is None:
+        _pool = ProcessPoolExecutor(WORKERS, mp_context=multiprocessing.get_context("spawn"))
+    try:
+        futures = [_pool.submit(f, *args) for f, args in calls]
         return [f.result() for f in futures]
+    except BrokenProcessPool:
+        _pool = None  # a process died: the next call starts new ones
+        raise
 
 
 def replay_evaluated(algorithm: str, measurements: Path, config: Path, out: Path, truth: Path,
