@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support import in_parallel
 
 from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.fusion_center.replay import replay_fusion
@@ -145,6 +146,23 @@ def test_centralized_out_of_sequence_equals_time_sorted_kf(tmp_path: Path) -> No
     assert worst < 1e-9
 
 
+def squared_errors(seed: int, cfg: Path, folder: Path) -> dict[str, list[float]]:
+    """Per algorithm of ``MTT``, the squared position errors of the confirmed tracks of every picture
+    from the sixth on, replayed on ``asynchronous_scenario(seed)`` (files in ``folder``)."""
+    folder.mkdir()
+    rows, x0, _ = asynchronous_scenario(seed=seed)
+    meas = write_lines(folder / "m.jsonl", rows)
+    sq: dict[str, list[float]] = {}
+    for a in MTT:
+        replay_mtt(a, meas, cfg, folder / "o.jsonl")
+        sq[a] = []
+        for pic in read_pictures(folder / "o.jsonl")[5:]:
+            truth = crossing_truth(np.array([pic["t"]]), x0)[0]
+            sq[a] += [float(np.sum((np.array(tr["pos"]) - truth[[0, 2]]) ** 2)) for tr in pic["tracks"]
+                      if tr["status"] == "confirmed"]
+    return sq
+
+
 def test_track_to_track_fusion_close_to_centralized_on_asynchronous_data(tmp_path: Path) -> None:
     """(b) federated and decentralized: position RMS of the confirmed tracks within 3 % of
     centralized (seeded runs; the 100-run figure is in docs/multitarget.md)."""
@@ -152,15 +170,9 @@ def test_track_to_track_fusion_close_to_centralized_on_asynchronous_data(tmp_pat
     cfg = config(tmp_path / "c.toml", q=q, init_velocity_std=v0, pd=1.0, clutter_density=0.0, max_lag=3.0,
                  picture_delay=3.0, period=1.0)
     sq = {a: [] for a in MTT}
-    for seed in range(8):
-        rows, x0, _ = asynchronous_scenario(seed=100 + seed)
-        meas = write_lines(tmp_path / f"m{seed}.jsonl", rows)
+    for errors in in_parallel([(squared_errors, (100 + seed, cfg, tmp_path / f"s{seed}")) for seed in range(8)]):
         for a in MTT:
-            replay_mtt(a, meas, cfg, tmp_path / "o.jsonl")
-            for pic in read_pictures(tmp_path / "o.jsonl")[5:]:
-                truth = crossing_truth(np.array([pic["t"]]), x0)[0]
-                sq[a] += [float(np.sum((np.array(tr["pos"]) - truth[[0, 2]]) ** 2)) for tr in pic["tracks"]
-                          if tr["status"] == "confirmed"]
+            sq[a] += errors[a]
     rms = {a: np.sqrt(np.mean(v)) for a, v in sq.items()}
     assert len(sq["mtt-federated"]) == len(sq["mtt-centralized"])
     for a in ("mtt-federated", "mtt-decentralized"):
