@@ -31,6 +31,7 @@ def wait_until(predicate: Callable[[], bool], timeout: float = WAIT_S) -> bool:
 
 
 WORKERS = 2  # the CI machine's cores
+CALL_TIMEOUT_S = 300.0  # one call's bound (the longest, a fuzzing part, takes about 12 s)
 _pool: ProcessPoolExecutor | None = None
 
 
@@ -39,15 +40,19 @@ def in_parallel(calls: list[tuple[Callable[..., Any], tuple[Any, ...]]]) -> list
     tests one at a time, so a test made of independent CPU-bound calls (replays, seeded runs) can
     use the CI machine's second core. The processes are spawned, not forked (this one may hold
     Zenoh's threads), once per session: they import what the calls need once. A process takes
-    the next call when it is free, so give the longest first."""
+    the next call when it is free, so give the longest first. A call still running after
+    ``CALL_TIMEOUT_S`` fails the test, and the processes are killed (the next call starts new ones)."""
     global _pool
     if _pool is None:
         _pool = ProcessPoolExecutor(WORKERS, mp_context=multiprocessing.get_context("spawn"))
     try:
         futures = [_pool.submit(f, *args) for f, args in calls]
-        return [f.result() for f in futures]
-    except BrokenProcessPool:
-        _pool = None  # a process died: the next call starts new ones
+        return [f.result(timeout=CALL_TIMEOUT_S) for f in futures]
+    except (BrokenProcessPool, TimeoutError):
+        for proc in list(_pool._processes.values()):  # the pool's own processes, nothing else
+            proc.kill()
+        _pool.shutdown(wait=False, cancel_futures=True)
+        _pool = None
         raise
 
 
