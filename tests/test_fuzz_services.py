@@ -255,14 +255,15 @@ def published_stream(bus: Bus, run: Callable[[Bus], None]) -> list[tuple[str, by
     return [(key, encode(msg), type(msg)) for key, msg in bus.published]
 
 
-def fuzz_paper(tmp_path: Path) -> dict[str, list[int]]:
-    """The paper pipeline's part (measurements (position, sonar), estimates, resets, tracks,
-    events, the fusion/state replies): the tally's rows. Seeded ``SEED``."""
-    mutator, tally = Mutator(SEED), Tally()
+def fuzz_part(fuzz: Callable[[Path, Mutator, Tally, Decoded], None], seed: int, tmp_path: Path
+              ) -> dict[str, list[int]]:
+    """One part of the test (:func:`fuzz_paper_services`, seeded ``SEED``; :func:`fuzz_multitarget_services`,
+    ``SEED + 1``), run in a process of its own: the tally's rows."""
+    mutator, tally = Mutator(seed), Tally()
     tmp_path.mkdir()
     with pytest.MonkeyPatch.context() as monkeypatch:
         decoded = Decoded(monkeypatch)
-        fuzz_paper_services(tmp_path, mutator, tally, decoded)
+        fuzz(tmp_path, mutator, tally, decoded)
     return tally.rows
 
 
@@ -307,17 +308,6 @@ def fuzz_paper_services(tmp_path: Path, mutator: Mutator, tally: Tally, decoded:
         tally.add("FusedTrack reply", decoded.outcome(bad, FusedTrack), after - before)
 
 
-def fuzz_multitarget(tmp_path: Path) -> dict[str, list[int]]:
-    """The multi-target part (scans, reports, resets, pictures), the region centres' hand-overs and
-    Health: the tally's rows. Seeded ``SEED + 1``."""
-    mutator, tally = Mutator(SEED + 1), Tally()
-    tmp_path.mkdir()
-    with pytest.MonkeyPatch.context() as monkeypatch:
-        decoded = Decoded(monkeypatch)
-        fuzz_multitarget_services(tmp_path, mutator, tally, decoded)
-    return tally.rows
-
-
 def fuzz_multitarget_services(tmp_path: Path, mutator: Mutator, tally: Tally, decoded: Decoded) -> None:
     # the multi-target deployment (federated: reports and resets; pictures to the recorder)
     scans = mtt_lines(tmp_path)
@@ -359,7 +349,8 @@ def test_every_handler_takes_10000_mutations_per_type_without_an_escape(tmp_path
     """The paper pipeline's part and the multi-target part (independent services, buses and seeded
     generators) at once, over two processes: an escape fails its part, and the test."""
     tally = Tally()
-    for rows in in_parallel([(fuzz_multitarget, (tmp_path / "multitarget",)), (fuzz_paper, (tmp_path / "paper",))]):
+    for rows in in_parallel([(fuzz_part, (fuzz_multitarget_services, SEED + 1, tmp_path / "multitarget")),
+                             (fuzz_part, (fuzz_paper_services, SEED, tmp_path / "paper"))]):
         tally.merge(rows)
     print("\n" + tally.report())
     names = {"Measurement", "LocalEstimate", "Reset", "FusedTrack", "FusedTrack reply", "ManeuverEvent",
