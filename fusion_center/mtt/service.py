@@ -7,8 +7,9 @@ arrival order; federated, it answers each report with the sensor's ``TrackResets
 (``fusion/mtt-resets/<id>``). Measurement level (``mtt-centralized``): consumes the sensors'
 scans (``sensor/*/meas``) and runs the centralized tracker (roll-back for out-of-sequence
 scans). Every ``period`` seconds of data it publishes a ``TrackPicture`` (``fusion/picture``)
-by the replay's rule (:class:`fedtrack.fusion_center.mtt.engines.PictureClock`), carrying the
-scans it processed since the previous picture in its processing order; on a clean stop it
+by the replay's rule (:class:`fedtrack.fusion_center.mtt.engines.PictureClock`), before it fuses
+the scan that made it due, carrying the scans it processed since the previous picture in its
+processing order; on a clean stop it
 publishes the pictures still due. ``fedtrack replay`` of the recorded scans in that order
 gives the same pictures.
 
