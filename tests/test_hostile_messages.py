@@ -486,55 +486,6 @@ def test_a_handler_failing_half_way_leaves_no_trace(tmp_path: Path, family: str,
     assert clean_svc.counters["rejected"] == 0
 
 
-def test_a_picture_due_before_a_report_whose_fusion_fails_is_published_once(tmp_path: Path, monkeypatch: Any,
-                                                                          clean_runs: CleanRuns) -> None:
-    """The multi-target centre publishes the pictures a report makes due before it fuses the
-    report (and keeps them: ``Service.commit``). A fusion that fails after that rejects the report
-    alone: the pictures stay published, the centre's state is the one right after them (the report
-    in no list, not taken), and the same report sent again gives exactly the clean run's outputs
-    (no picture twice, none missing)."""
-    clean, clean_services = clean_runs.mtt()
-    services = mtt_services(tmp_path / "failing")
-    bus = Bus(list(services.values()))
-    centre: MttCentreService = services["centre"]  # type: ignore[assignment]
-    real, made, failed = TrackToTrackEngine.fuse, [0], []
-
-    def fuse(engine: TrackToTrackEngine, report: Any) -> Any:
-        """Fails (after running) once: at the 5th report that made a picture due."""
-        out = real(engine, report)
-        if centre.pictures > made[0]:
-            made[0] = centre.pictures
-            if len(failed) < 5:
-                failed.append(centre.pictures)
-                if len(failed) == 5:
-                    raise np.linalg.LinAlgError("Singular matrix")
-        return out
-    monkeypatch.setattr(TrackToTrackEngine, "fuse", fuse)
-    after: list[tuple[int, Any, Any]] = []
-    dispatch = centre._dispatch
-
-    def checked(item: tuple[Any, ...]) -> None:
-        rejected = centre.counters["rejected"]
-        dispatch(item)
-        if centre.counters["rejected"] > rejected:
-            after.append((centre.pictures, list(centre.order), fingerprint(centre)))
-            dispatch(item)
-    centre._dispatch = checked  # type: ignore[method-assign]
-    for m in mtt_lines(tmp_path):
-        bus.put(KEYS.sensor_meas(m.sensor), encode(m))
-    (pictures_then, order, state), = after
-    assert len(failed) == 5 and pictures_then == failed[-1]  # the picture made before the failure was kept
-    assert len(bus.of(TrackPicture)) > pictures_then  # mid-run
-    assert order == []  # the picture just published emptied the list; the failed report is not in it
-    assert centre.counters.get("rejected_numerical") == 1 and centre.counters["rejected"] == 1
-    assert outputs(bus) == outputs(clean)
-    assert state_counters(centre) == state_counters(clean_services["centre"])
-    def fused_state(fp: dict[str, Any]) -> dict[str, Any]:
-        return {k: v for k, v in fp.items() if k != "last_heard"}  # wall-clock times
-    assert fused_state(fingerprint(centre)) == fused_state(fingerprint(clean_services["centre"]))
-    assert fused_state(state) != fused_state(fingerprint(centre))
-
-
 def test_a_scan_the_centre_cannot_fuse_is_dropped_and_its_state_kept(tmp_path: Path, monkeypatch: Any) -> None:
     """A fusion that fails numerically (a singular matrix inside the centre's step, after it
     changed its state) drops that scan (``rejected_numerical``: no track, no resets), leaves the

@@ -317,8 +317,6 @@ class Service:
         self._router_outages = 0
         self._router_lost_at: float | None = None
         self._miss_lock = threading.Lock()
-        # the open guarded blocks, innermost last: their attributes and checkpoint (:meth:`commit`)
-        self._checkpoints: list[tuple[tuple[str, ...], list[tuple[bytes, dict[str, int], str]]]] = []
 
     # ------------------------------------------------------------ hooks
     def subscriptions(self) -> list[Subscription]:
@@ -551,34 +549,20 @@ class Service:
         (default ``state_attrs``), the counters and the status are put back as they were when
         it began, the failure is counted as a rejection (:func:`reason_of`) and logged (bounded),
         and the service goes on (the :class:`Attempt` yielded says ``failed``). A handler that
-        publishes does so last (compute, then commit), so that nothing it failed on was sent, or
-        calls :meth:`commit` once it published, so that nothing it sent is undone."""
+        publishes does so last (compute, then commit), so that nothing it failed on was sent."""
         names = self.state_attrs if attrs is None else attrs
-        checkpoint = [self._checkpoint(names)]
-        self._checkpoints.append((names, checkpoint))
+        saved = (pickle.dumps({name: getattr(self, name) for name in names}, protocol=pickle.HIGHEST_PROTOCOL),
+                 dict(self.counters), self.status)
         attempt = Attempt()
         try:
             yield attempt
         except Exception as exc:  # noqa: BLE001 - a handler must not end the service (module docstring)
-            state, counters, status = checkpoint[0]
+            state, counters, status = saved
             for name, value in pickle.loads(state).items():
                 setattr(self, name, value)
             self.counters, self.status = counters, status
             attempt.failed = True
             self._reject(key or what, size, exc)
-        finally:
-            self._checkpoints.pop()
-
-    def commit(self) -> None:
-        """Inside a :meth:`guarded` block: keep what the block did so far (e.g. after publishing
-        an output), so that a failure later in it restores the state as it is now, not as it was
-        when the block began."""
-        names, checkpoint = self._checkpoints[-1]
-        checkpoint[0] = self._checkpoint(names)
-
-    def _checkpoint(self, names: tuple[str, ...]) -> tuple[bytes, dict[str, int], str]:
-        return (pickle.dumps({name: getattr(self, name) for name in names}, protocol=pickle.HIGHEST_PROTOCOL),
-                dict(self.counters), self.status)
 
     def contest(self, key: str, exc: Conflict) -> None:
         """A second, different message on ``key`` for scan ``exc.seq`` (the first stays, maybe

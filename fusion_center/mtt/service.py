@@ -7,9 +7,8 @@ arrival order; federated, it answers each report with the sensor's ``TrackResets
 (``fusion/mtt-resets/<id>``). Measurement level (``mtt-centralized``): consumes the sensors'
 scans (``sensor/*/meas``) and runs the centralized tracker (roll-back for out-of-sequence
 scans). Every ``period`` seconds of data it publishes a ``TrackPicture`` (``fusion/picture``)
-by the replay's rule (:class:`fedtrack.fusion_center.mtt.engines.PictureClock`), before it fuses
-the scan that made it due, carrying the scans it processed since the previous picture in its
-processing order; on a clean stop it
+by the replay's rule (:class:`fedtrack.fusion_center.mtt.engines.PictureClock`), carrying the
+scans it processed since the previous picture in its processing order; on a clean stop it
 publishes the pictures still due. ``fedtrack replay`` of the recorded scans in that order
 gives the same pictures.
 
@@ -190,15 +189,12 @@ class MttCentreService(Service):
         return False
 
     def _process(self, msg: Measurement | TrackReport, work: Callable[[], None]) -> None:
-        """Publish the pictures due before data at ``msg.t`` at once and keep them (:meth:`commit`),
-        then do ``work`` and note the scan: a picture waits for no fusion, and a failed ``work``
-        undoes only itself (docs/multitarget.md, "Picture latency with 4 region centres")."""
+        """Make the pictures due before data at ``msg.t``, do ``work``, then publish them (compute,
+        then commit: a failed ``work`` undoes both) and note the scan."""
         pictures = [self._picture(T) for T in self.clock.due(msg.t)]
+        work()
         for picture in pictures:
             self.publish(self.picture_key, picture)
-        if pictures:
-            self.commit()
-        work()
         self.order.append((msg.sensor, msg.seq))
         self.last_heard[msg.sensor] = time.monotonic()
         self.received.take(msg)
