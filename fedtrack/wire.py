@@ -880,8 +880,7 @@ def _encode_record(rec: _Record) -> dict[str, Any]:
         elif f.name in rec._arrays:
             out[f.name] = _encode_array(value)
         elif f.name in rec._records:
-            out[f.name] = ([_encode_record(v) for v in value] if isinstance(value, tuple)
-                           else _encode_record(value))
+            out[f.name] = (_encode_records(value) if isinstance(value, tuple) else _encode_record(value))
         elif isinstance(value, tuple):
             out[f.name] = list(value)
         elif isinstance(value, dict):
@@ -889,6 +888,19 @@ def _encode_record(rec: _Record) -> dict[str, Any]:
         else:
             out[f.name] = value
     return out
+
+
+def _encode_records(records: tuple[_Record, ...]) -> list[dict[str, Any]]:
+    """The maps of a record list: a list of detections whose ``z`` are all of one 1-D shape at once
+    (one conversion to bytes, then sliced), the same maps as :func:`_encode_record` gives each."""
+    zs = [r.z for r in records if type(r) is Detection]  # type: ignore[attr-defined]
+    shapes = {z.shape if isinstance(z, np.ndarray) else None for z in zs}
+    if not zs or len(zs) < len(records) or len(shapes) != 1 or len(shape := shapes.pop() or ()) != 1:
+        return [_encode_record(r) for r in records]
+    data = np.stack(zs).astype("<f8", copy=False).tobytes()
+    size = 8 * shape[0]
+    return [{"z": {"dtype": "float64", "shape": [shape[0]], "data": data[i * size:(i + 1) * size]},
+             "amplitude": r.amplitude} for i, r in enumerate(records)]  # type: ignore[attr-defined]
 
 
 def encode(msg: Message) -> bytes:
@@ -926,6 +938,53 @@ def _decode_array(value: Any, path: str, limit: int = MAX_ARRAY_ELEMENTS) -> np.
     return np.frombuffer(data, dtype=dtype).reshape(shape)
 
 
+_DETECTION_KEYS = {"z", "amplitude"}
+_ARRAY_KEYS = {"dtype", "shape", "data"}
+
+
+def _regular_detections(items: list[Any]) -> list[Detection] | None:
+    """The detections of a regular, valid wire list decoded at once, or None to take the per-item
+    path (:func:`_decode_record` on each, which then raises the error of the first bad one).
+
+    Regular: at least one item; every item a map of exactly ``z`` and ``amplitude``; every ``z`` an
+    array map of exactly ``dtype``, ``shape``, ``data`` with the same wire dtype and the same 1-D
+    shape, and its data of the right length; every amplitude a finite real. The ``z`` data are
+    joined and checked with one magnitude reduction (as :func:`_array`); the records are built
+    without re-running their field checks, so that they equal the per-item path's: read-only
+    float64 ``z`` (a row of one array), float ``amplitude``."""
+    first = items[0].get("z") if items and type(items[0]) is dict else None
+    if type(first) is not dict:
+        return None
+    name, shape = first.get("dtype"), first.get("shape")
+    dtype = WIRE_DTYPES.get(name) if type(name) is str else None
+    if (dtype is None or type(shape) is not list or len(shape) != 1 or type(shape[0]) is not int
+            or not 0 <= shape[0] <= MAX_ARRAY_ELEMENTS):
+        return None
+    nbytes = shape[0] * dtype.itemsize
+    if not all(type(item) is dict and item.keys() == _DETECTION_KEYS
+               and type(z := item["z"]) is dict and z.keys() == _ARRAY_KEYS and z["dtype"] == name
+               and type(s := z["shape"]) is list and s == shape and type(s[0]) is int
+               and type(data := z["data"]) is bytes and len(data) == nbytes
+               and (type(a := item["amplitude"]) is float or type(a) is int) for item in items):
+        return None
+    amplitudes = [float(item["amplitude"]) for item in items]
+    if not all(map(math.isfinite, amplitudes)):
+        return None
+    block = np.frombuffer(b"".join([item["z"]["data"] for item in items]), dtype=dtype).reshape(len(items), shape[0])
+    block = block.astype(np.float64, copy=False)
+    if block.size and not np.abs(block).max() <= MAX_MAGNITUDE:
+        return None
+    block.setflags(write=False)
+    new, put = object.__new__, object.__setattr__
+    out = []
+    for z, amplitude in zip(block, amplitudes):  # rows of the read-only block: read-only views
+        det = new(Detection)
+        put(det, "z", z)
+        put(det, "amplitude", amplitude)
+        out.append(det)
+    return out
+
+
 def _decode_record(cls: type[M], obj: Any, path: str, envelope: tuple[str, ...] = ()) -> M:
     if not isinstance(obj, dict):
         raise WireError(path, f"expected a map, got {type(obj).__name__}")
@@ -947,8 +1006,10 @@ def _decode_record(cls: type[M], obj: Any, path: str, envelope: tuple[str, ...] 
         elif name in cls._records and value is not None:
             sub = cls._records[name]
             if isinstance(value, list):
-                value = [_decode_record(sub, v, f"{where}[{i}]")
-                         for i, v in enumerate(_sequence(value, where, MAX_DETECTIONS))]
+                items = _sequence(value, where, MAX_DETECTIONS)
+                regular = _regular_detections(items) if sub is Detection else None
+                value = regular if regular is not None else [_decode_record(sub, v, f"{where}[{i}]")
+                                                             for i, v in enumerate(items)]
             else:
                 value = _decode_record(sub, value, where)
         kwargs[name] = value
@@ -984,7 +1045,25 @@ def unpack(payload: bytes | bytearray | memoryview) -> Any:
 
 def _check_structure(obj: Any) -> None:
     """WireError if ``obj`` nests containers more than MAX_DEPTH deep or holds more than MAX_ITEMS
-    items in all (an explicit stack: no recursion on untrusted data)."""
+    items in all. A walk level by level (no recursion on untrusted data) finds a structure
+    within both limits; one beyond either is walked again by :func:`_structure_error`, whose
+    depth-first order decides which limit the error names."""
+    level = [obj] if isinstance(obj, (dict, list)) else []
+    items = 0
+    for _ in range(MAX_DEPTH):
+        items += sum(map(len, level))
+        if items > MAX_ITEMS:
+            break
+        level = [child for value in level for child in (value.values() if type(value) is dict else value)
+                 if type(child) is dict or type(child) is list]
+        if not level:
+            return
+    _structure_error(obj)
+
+
+def _structure_error(obj: Any) -> None:
+    """WireError if ``obj`` nests containers more than MAX_DEPTH deep or holds more than MAX_ITEMS
+    items in all, naming the limit met first depth-first (an explicit stack: no recursion)."""
     if not isinstance(obj, (dict, list)):
         return
     stack: list[tuple[Any, int]] = [(obj, 1)]
