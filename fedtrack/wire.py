@@ -21,6 +21,7 @@ The full contract is in ``docs/wire.md``.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 import time
@@ -229,7 +230,7 @@ def _extra_value(value: Any, path: str) -> float | str | tuple[float, ...] | dic
 
 def _extra(value: Any, path: str) -> dict[str, Any]:
     extra = {k: _extra_value(v, f"{path}.{k}") for k, v in _mapping(value, path).items()}
-    reserved = sorted(set(extra) & {f.name for f in dataclasses.fields(FusedTrack)})
+    reserved = sorted(set(extra) & {f.name for f in _record_fields(FusedTrack)})
     if reserved:
         raise WireError(f"{path}.{reserved[0]}", "key is reserved for a FusedTrack field")
     return extra
@@ -243,6 +244,12 @@ def _check_square(P: np.ndarray, n: int, path: str, against: str) -> None:
 # ---------------------------------------------------------------- records
 
 R = TypeVar("R", bound="_Record")
+
+
+@functools.cache
+def _record_fields(cls: type[_Record]) -> tuple[dataclasses.Field[Any], ...]:
+    """The dataclass fields of a record class, looked up once (a scan has a record per detection)."""
+    return dataclasses.fields(cls)  # type: ignore[arg-type]
 
 
 class _Record:
@@ -287,7 +294,7 @@ class _Record:
         defaults apply as in the constructor.
         """
         rec = object.__new__(cls)
-        for f in dataclasses.fields(cls):  # type: ignore[arg-type]
+        for f in _record_fields(cls):
             if f.name in values:
                 value = values.pop(f.name)
             elif f.default is not dataclasses.MISSING:
@@ -866,12 +873,15 @@ MESSAGE_TYPES: tuple[type[_Record], ...] = (Measurement, LocalEstimate, Reset, F
 # ---------------------------------------------------------------- encoding
 
 def _encode_array(arr: np.ndarray) -> dict[str, Any]:
-    return {"dtype": "float64", "shape": list(arr.shape), "data": arr.astype("<f8").tobytes()}
+    """The wire map of ``arr``: its values as little-endian float64, row-major (``tobytes`` copies
+    in C order, so an array already of that dtype needs no conversion first)."""
+    data = arr.tobytes() if arr.dtype == WIRE_DTYPES["float64"] else arr.astype("<f8").tobytes()
+    return {"dtype": "float64", "shape": list(arr.shape), "data": data}
 
 
 def _encode_record(rec: _Record) -> dict[str, Any]:
     out: dict[str, Any] = {}
-    for f in dataclasses.fields(rec):  # type: ignore[arg-type]
+    for f in _record_fields(type(rec)):
         value = getattr(rec, f.name)
         if f.name in rec._omitted and (value is None or value == () or value == f.default):
             continue
@@ -880,7 +890,8 @@ def _encode_record(rec: _Record) -> dict[str, Any]:
         elif f.name in rec._arrays:
             out[f.name] = _encode_array(value)
         elif f.name in rec._records:
-            out[f.name] = (_encode_records(value) if isinstance(value, tuple) else _encode_record(value))
+            out[f.name] = ([_encode_record(v) for v in value] if isinstance(value, tuple)
+                           else _encode_record(value))
         elif isinstance(value, tuple):
             out[f.name] = list(value)
         elif isinstance(value, dict):
@@ -888,19 +899,6 @@ def _encode_record(rec: _Record) -> dict[str, Any]:
         else:
             out[f.name] = value
     return out
-
-
-def _encode_records(records: tuple[_Record, ...]) -> list[dict[str, Any]]:
-    """The maps of a record list: a list of detections whose ``z`` are all of one 1-D shape at once
-    (one conversion to bytes, then sliced), the same maps as :func:`_encode_record` gives each."""
-    zs = [r.z for r in records if type(r) is Detection]  # type: ignore[attr-defined]
-    shapes = {z.shape if isinstance(z, np.ndarray) else None for z in zs}
-    if not zs or len(zs) < len(records) or len(shapes) != 1 or len(shape := shapes.pop() or ()) != 1:
-        return [_encode_record(r) for r in records]
-    data = np.stack(zs).astype("<f8", copy=False).tobytes()
-    size = 8 * shape[0]
-    return [{"z": {"dtype": "float64", "shape": [shape[0]], "data": data[i * size:(i + 1) * size]},
-             "amplitude": r.amplitude} for i, r in enumerate(records)]  # type: ignore[attr-defined]
 
 
 def encode(msg: Message) -> bytes:
@@ -988,7 +986,7 @@ def _regular_detections(items: list[Any]) -> list[Detection] | None:
 def _decode_record(cls: type[M], obj: Any, path: str, envelope: tuple[str, ...] = ()) -> M:
     if not isinstance(obj, dict):
         raise WireError(path, f"expected a map, got {type(obj).__name__}")
-    names = [f.name for f in dataclasses.fields(cls)]  # type: ignore[arg-type]
+    names = [f.name for f in _record_fields(cls)]
     unknown = sorted((str(k) for k in obj if k not in names and k not in envelope))
     if unknown:
         raise WireError(f"{path}.{unknown[0][:BRIEF_CHARS]}", "unknown field")

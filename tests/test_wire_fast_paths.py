@@ -1,9 +1,9 @@
 """The wire's fast paths give exactly the per-item paths' outcomes (hypothesis, about 3 s).
 
 A scan's detections decoded at once (``wire._regular_detections``) against the per-item decode
-(the fast path switched off): equal records or the same WireError (field, reason). The structure
-limits walked level by level against the depth-first walk that names the error. A detection list
-encoded at once against each record encoded alone: the same bytes.
+(the fast path switched off): equal records or the same WireError (field, reason), and the same
+bytes when encoded again. The structure limits walked level by level against the depth-first walk
+that names the error. An array encoded without a conversion when it needs none: the same bytes.
 """
 
 from __future__ import annotations
@@ -163,15 +163,18 @@ def test_level_walk_of_the_structure_limits_equals_the_depth_first_walk(monkeypa
 
 
 @settings(SETTINGS, max_examples=100)
-@given(d=st.integers(1, 4), n=st.integers(0, 30), seed=st.integers(0, 2**32 - 1))
-def test_encoding_detections_at_once_gives_the_per_record_bytes(d: int, n: int, seed: int) -> None:
-    rng = np.random.default_rng(seed)
-    msg = Measurement(sensor="s", seq=1, t=0.5, kind="scan", z=[], R=np.eye(d), stamp_ns=7,
-                      detections=[(z, a) for z, a in zip(rng.normal(size=(n, d)) * 1e3, rng.normal(size=n))])
-    one_by_one = [wire._encode_record(det) for det in msg.detections]
-    assert wire._encode_records(msg.detections) == one_by_one
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(wire, "_encode_records", lambda records: [wire._encode_record(r) for r in records])
-        per_record = encode(msg)
-    assert encode(msg) == per_record
-    assert_same(decode(per_record, Measurement), msg)
+@given(shape=st.lists(st.integers(0, 5), min_size=1, max_size=2), layout=st.sampled_from(["<f8", ">f8", "<f4", "<i8",
+                                                                                          "fortran", "strided"]),
+       seed=st.integers(0, 2**32 - 1))
+def test_an_array_encodes_to_its_values_as_little_endian_float64(shape: list[int], layout: str, seed: int) -> None:
+    """``_encode_array`` converts only what is not little-endian float64 already: the bytes are
+    ``astype("<f8").tobytes()``'s (the conversion it always made before) for any dtype and layout."""
+    values = np.random.default_rng(seed).normal(scale=1e3, size=shape)
+    if layout == "fortran":
+        arr = np.asfortranarray(values)
+    elif layout == "strided":
+        arr = np.repeat(values, 2, axis=-1)[..., ::2]
+    else:
+        arr = values.astype(layout)
+    assert wire._encode_array(arr) == {"dtype": "float64", "shape": list(arr.shape),
+                                       "data": arr.astype("<f8").tobytes()}
