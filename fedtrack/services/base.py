@@ -37,7 +37,9 @@ Every publisher is a ``zenoh.ext`` advanced publisher that keeps its last
 ``CACHE_SAMPLES`` messages per key and sends a heartbeat every ``HEARTBEAT_S``: a
 subscriber declared with ``Subscription(..., history=True)`` (the recorder) gets, when
 it (re)starts, what was published while it was away, and recovers samples lost in
-transit; samples it could not recover are counted in ``counters["missed"]``.
+transit; samples it could not recover are counted in ``counters["missed"]``. The keys a
+service names in :meth:`Service.plain_outputs` (read by plain subscribers only) have a
+plain publisher instead: no cache, whose messages would only fill the process's memory.
 ``HISTORY_RECHECK_S`` after start, such a service queries the publishers' caches once
 more (``<key>/@adv/**``, the advanced publishers' own queryable): in zenoh-ext 1.x a
 live sample that overtakes the per-publisher history reply makes the advanced
@@ -326,6 +328,14 @@ class Service:
     def queryables(self) -> list[QueryHandler]:
         """Queries this service answers (called once, before ``on_start``)."""
         return []
+
+    def plain_outputs(self) -> tuple[str, ...]:
+        """Key expressions of this service's outputs that only plain subscribers take (no
+        ``Subscription(history=True)`` or ``recover`` anywhere reads them): published without the
+        advanced publisher's cache of ``CACHE_SAMPLES`` messages, which nothing would read and
+        which holds every message until it is full (a 1,000-track centre's answers: about 40 MB a
+        minute; docs/multitarget.md, "Memory of a centre")."""
+        return ()
 
     def on_start(self) -> None:
         """Called once the session and subscribers exist, before the liveliness token."""
@@ -635,11 +645,15 @@ class Service:
             raise RuntimeError("publish() called before run() opened the session")
         pub = self._publishers.get(key)
         if pub is None:
-            pub = zenoh.ext.declare_advanced_publisher(
-                self.session, key, encoding=_ENCODING, congestion_control=zenoh.CongestionControl.BLOCK,
-                cache=zenoh.ext.CacheConfig(max_samples=CACHE_SAMPLES),
-                sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=HEARTBEAT_S),
-                publisher_detection=True)
+            if any(zenoh.KeyExpr(plain).includes(zenoh.KeyExpr(key)) for plain in self.plain_outputs()):
+                pub = self.session.declare_publisher(key, encoding=_ENCODING,
+                                                     congestion_control=zenoh.CongestionControl.BLOCK)
+            else:
+                pub = zenoh.ext.declare_advanced_publisher(
+                    self.session, key, encoding=_ENCODING, congestion_control=zenoh.CongestionControl.BLOCK,
+                    cache=zenoh.ext.CacheConfig(max_samples=CACHE_SAMPLES),
+                    sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=HEARTBEAT_S),
+                    publisher_detection=True)
             self._publishers[key] = pub
         pub.put(encode(msg))
 

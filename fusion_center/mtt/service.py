@@ -160,6 +160,13 @@ class MttCentreService(Service):
     def subscriptions(self) -> list[Subscription]:
         return self._inputs_of_centre() + self._primary_outputs()
 
+    def plain_outputs(self) -> tuple[str, ...]:
+        """The answers, hand-overs and region pictures: their readers (the trackers, the region
+        centres and standbys, ``serve picture``, the launcher) are plain subscribers. The one
+        centre's ``fusion/picture`` keeps its cache: the recorder reads it with history."""
+        k = self.keys
+        return k.mtt_resets(), k.region_resets(), k.region_handover(), k.region_picture()
+
     def _inputs_of_centre(self) -> list[Subscription]:
         if self.algorithm == "mtt-centralized":
             return [Subscription(self.keys.sensor_meas(), Measurement, self.on_scan)]

@@ -101,6 +101,10 @@ class MttLocalService(Service):
             subs.append(Subscription(self.keys.mtt_resets(self.sensor), TrackResets, self.on_resets))
         return subs
 
+    def plain_outputs(self) -> tuple[str, ...]:
+        """The reports and sub-reports: the centres (and standbys) take them as plain subscribers."""
+        return self.keys.mtt_report(), self.keys.region_report()
+
     def on_scan(self, msg: Measurement) -> None:
         try:
             scan = scan_from_measurement(msg)
