@@ -254,6 +254,51 @@ def test_service_handlers_queryable_ticks_and_a_failing_handler() -> None:
         close_session(router)
 
 
+class PlainEcho(Echo):
+    """Echo that also publishes a FusedTrack per measurement, its events on a plain publisher."""
+
+    role = "plainecho"
+
+    def plain_outputs(self) -> tuple[str, ...]:
+        return (self.keys.fusion_event(),)
+
+    def on_measurement(self, msg: Measurement) -> None:
+        super().on_measurement(msg)
+        track = self.state()
+        assert track is not None
+        self.publish(self.keys.fusion_track(), track)
+
+
+def test_plain_outputs_are_published_without_a_cache() -> None:
+    """A key in ``plain_outputs`` reaches a live subscriber but is not kept for a late one with
+    history; the service's other keys are (the advanced publisher's cache)."""
+    port = free_port()
+    keys = Keys("t5")
+    router = open_session(SessionOptions(mode="router", connect=(), listen=(f"tcp/127.0.0.1:{port}",)))
+    session = client(port)
+    service = PlainEcho(service_id="p1", options=SessionOptions(connect=(f"tcp/127.0.0.1:{port}",)), deployment="t5")
+    live, _sub = collect(session, keys.fusion_event(), ManeuverEvent)
+    thread, _code = run_in_thread(service)
+    late: list[str] = []
+    try:
+        assert wait_alive(session, [keys.alive("plainecho", "p1")], WAIT_S) == set()
+        for seq in (1, 2):
+            session.put(keys.sensor_meas("s1"), encode(measurement("s1", seq)))
+        assert wait_until(lambda: len(live) == 2 and service.counters["published"] == 4)
+        hist = zenoh.ext.declare_advanced_subscriber(
+            session, keys.fusion_track().rsplit("/", 1)[0] + "/*", lambda s: late.append(str(s.key_expr)),
+            history=zenoh.ext.HistoryConfig(detect_late_publishers=True))
+        assert wait_until(lambda: late.count(keys.fusion_track()) == 2)
+        time.sleep(0.5)  # the history replies came together: an event would be here by now
+        assert keys.fusion_event() not in late
+        hist.undeclare()
+    finally:
+        service.stop()
+        thread.join(WAIT_S)
+        close_session(session)
+        close_session(router)
+
+
 def test_service_stop_is_clean_and_publishes_final_health() -> None:
     port = free_port()
     keys = Keys("t3")
