@@ -299,6 +299,31 @@ def test_plain_outputs_are_published_without_a_cache() -> None:
         close_session(router)
 
 
+def test_no_plain_output_is_read_from_a_cache() -> None:
+    """The outputs the multi-target centre and trackers publish without a cache are none of the
+    keys that services read with history or recovery (the recorder's, the single-target filters'
+    and fusion center's), and they cover the centre's answers, hand-overs and region pictures."""
+    from types import SimpleNamespace
+
+    from fedtrack.fusion_center.mtt.service import MttCentreService
+    from fedtrack.fusion_center.service import FusionCenterService
+    from fedtrack.local_filters.mtt.service import MttLocalService
+    from fedtrack.local_filters.service import LocalFilterService
+    from fedtrack.services.recorder import Recorder
+
+    keys = Keys("d")
+    me = SimpleNamespace(keys=keys, sensor="s1", mode="federated", on_message=None, on_estimate=None,
+                         on_measurement=None, on_reset=None)  # the services' attributes their methods read
+    plain = [zenoh.KeyExpr(k) for k in MttCentreService.plain_outputs(me) + MttLocalService.plain_outputs(me)]
+    read = [sub.key for subs in (Recorder.subscriptions(me), FusionCenterService.subscriptions(me),
+                                 LocalFilterService.subscriptions(me)) for sub in subs if sub.history or sub.recover]
+    assert keys.mtt_picture() in read and keys.sensor_meas("s1") in read
+    assert not [(str(p), k) for p in plain for k in read if p.intersects(zenoh.KeyExpr(k))]
+    for output in (keys.mtt_resets("s1"), keys.region_resets("x0y0", "s1"), keys.region_handover("x1y0"),
+                   keys.region_picture("x0y0"), keys.mtt_report("s1"), keys.region_report("x0y0", "s1")):
+        assert any(p.includes(zenoh.KeyExpr(output)) for p in plain), output
+
+
 def test_service_stop_is_clean_and_publishes_final_health() -> None:
     port = free_port()
     keys = Keys("t3")
