@@ -367,7 +367,15 @@ class TrackToTrackCentre:
             unmapped_rows, alone = self._unassociated(report, det_rows, cid, slots)
             cands, (ri, ci, diff, S) = self._pairs(report, det_rows[unmapped_rows + alone], col, (X, P, at))
             tested = (ri, ci, *track_difference_d2(diff, S))
-        fresh = self._associate(report, det_rows, unmapped_rows, alone, cands, tested)
+        stay = None
+        movers = self._movers(report, det_rows, cid, slots, alone) if not self.feedback else []
+        if movers:  # decentralized: a mapped confirmed track moves where it fits better than on its own
+            own = np.searchsorted(check, movers)  # each one's test against its own central track
+            stay = slots[movers], d2[own], logdet[own]
+            alone = alone + movers
+            cands, (ri, ci, diff, S) = self._pairs(report, det_rows[unmapped_rows + alone], col, (X, P, at))
+            tested = (ri, ci, *track_difference_d2(diff, S))
+        fresh = self._associate(report, det_rows, unmapped_rows, alone, cands, tested, stay)
         for k in unmapped_rows + alone:
             cid[k] = self.mapping[keys[k]]
             slots[k] = tracks.slot[cid[k]]
@@ -449,6 +457,15 @@ class TrackToTrackCentre:
         mapped = (cid >= 0).nonzero()[0]
         lonely = report.confirmed[det_rows[mapped]] & (self.support[slots[mapped]].sum(axis=1) == 1)
         return (cid < 0).nonzero()[0].tolist(), mapped[lonely].tolist()
+
+    def _movers(self, report: LocalReport, det_rows: np.ndarray, cid: np.ndarray, slots: np.ndarray,
+                alone: list[int]) -> list[int]:
+        """Decentralized: the rows of the mapped confirmed local tracks that share their central
+        track with other local tracks (the ``alone`` ones aside): each takes part in the association
+        with its own central track as one more candidate (:meth:`_associate`)."""
+        mapped = (cid >= 0).nonzero()[0]
+        shared = report.confirmed[det_rows[mapped]] & (self.support[slots[mapped]].sum(axis=1) > 1)
+        return sorted(set(mapped[shared].tolist()) - set(alone))
 
     def _pairs(self, report: LocalReport, rows: np.ndarray, col: int, states: tuple[np.ndarray, np.ndarray, np.ndarray]
                ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
@@ -634,7 +651,8 @@ class TrackToTrackCentre:
                 break
 
     def _associate(self, report: LocalReport, det_rows: np.ndarray, unmapped: list[int], alone: list[int],
-                   cands: np.ndarray, tested: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]) -> set[LocalKey]:
+                   cands: np.ndarray, tested: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+                   stay: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> set[LocalKey]:
         """Map the scan's unmapped local tracks (those not associated start central tracks) and
         move its confirmed local tracks that are alone on their central tracks to central tracks of
         other sensors that pass the test (their own central tracks, left without a local track,
@@ -655,6 +673,12 @@ class TrackToTrackCentre:
             # track maps to any more (its track retired or unmapped in this report) is pruned next
             inside = (d2 <= gate) & ((ri < len(unmapped)) | self.support[cands[ci]].any(axis=1))
             ri, ci, cost = ri[inside], ci[inside], d2[inside] + logdet[inside]
+            if stay is not None:  # the last rows (movers) may stay on their own central tracks, at their own cost
+                own, own_d2, own_logdet = stay
+                ri = np.concatenate([ri, np.arange(len(rows) - own.size, len(rows))])
+                ci = np.concatenate([ci, cands.size + np.arange(own.size)])
+                cost = np.concatenate([cost, own_d2 + own_logdet])
+                cands = np.concatenate([cands, own])
             # most gated pairs first, then the least cost: a shift makes every gated pair's cost negative
             picked = assign(len(rows), cands.size, ri, ci, cost - ASSOCIATION_SHIFT)
             cand_ids = self.tracks.ids[cands]
@@ -663,7 +687,8 @@ class TrackToTrackCentre:
             row = int(rows[u])
             key = (s, int(report.ids[row]))
             if u in assigned:
-                self._map(key, assigned[u])
+                if self.mapping.get(key) != assigned[u]:  # a mover may stay
+                    self._map(key, assigned[u])
             elif u < len(unmapped):
                 self._map(key, self._start(t, report.x[row], report.P[row]))
                 fresh.add(key)
