@@ -438,6 +438,32 @@ def _report(sensor: str, t: float, tracks: dict[int, tuple[float, bool, bool]], 
                        np.array([tracks[i][2] for i in ids], dtype=bool), np.array(retired, dtype=np.int64))
 
 
+@pytest.mark.parametrize("feedback", [False, True])
+def test_decentralized_centre_moves_a_local_track_to_the_central_track_it_fits(feedback: bool) -> None:
+    """Targets a (x = 0) and b (x = 40 m), two sensors' tracks of each on central tracks A and B;
+    a third sensor's track starts at 25 m and joins B, then follows a. Its test against B still
+    passes (about 5 against 23.5), so the kept mapping held it there for good (B's estimate pulled
+    towards a: the formation duplicates of the dense scenario). Decentralized, it takes part in its
+    sensor's association with B as one more candidate and moves to A, which it fits better; with
+    federated resets (the local track is the central estimate) the mapping is kept, as before."""
+    from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
+    from fedtrack.local_filters.mtt.config import MttConfig
+
+    centre = TrackToTrackCentre(MttConfig(), 4, feedback)
+    for k in range(6):
+        t = float(k)
+        for sensor in ("s1", "s2"):
+            centre.answer(_report(sensor, t, {1: (0.0, k > 1, k == 0), 2: (40.0, k > 1, k == 0)}))
+            t += 0.1
+        centre.answer(_report("s3", t, {1: (25.0 if k == 0 else 0.0, k > 1, k == 0)}))
+        if k == 0:
+            assert centre.mapping[("s3", 1)] == centre.mapping[("s1", 2)]  # joined B
+    a, b = centre.mapping[("s1", 1)], centre.mapping[("s1", 2)]
+    assert a != b and centre.mapping[("s2", 1)] == a and centre.mapping[("s2", 2)] == b
+    assert centre.mapping[("s3", 1)] == (b if feedback else a)
+    assert centre.counters.unmapped == 0  # never failed its test against B
+
+
 def test_centre_keeps_a_confirmed_track_when_its_neighbour_retires() -> None:
     """One sensor's two local tracks 20 m apart on their own central tracks; the second retires in
     the scan where the first, confirmed, is alone on its central track: the first keeps its central
