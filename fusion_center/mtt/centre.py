@@ -13,7 +13,10 @@ scan, the linearized observation of every track the scan detected, the tracks it
   confirmed local track alone on its central track (it started it and no other sensor's track
   joined) takes part in every association of its sensor's scans, so that a track that narrowly
   failed the test at its start (one detection, no velocity) joins the others' central track once
-  it passes; its own central track, left without a local track, is deleted.
+  it passes; its own central track, left without a local track, is deleted. Decentralized (no
+  resets), a confirmed local track that shares its central track with others also takes part, its
+  own central track one more candidate at its own cost: in a formation, where the test passes
+  the neighbours too, a track kept on a neighbour's central track moves to the one it fits better.
 * **Fusion.** The centre fuses each local observation (``H, R, z``) into its central track at
   the observation's time, predicting the central track there; out-of-sequence observations up
   to ``max_lag`` old are fused exactly (:mod:`.central_track`; each observation fused again is
