@@ -371,7 +371,7 @@ class TrackToTrackCentre:
             cands, (ri, ci, diff, S) = self._pairs(report, det_rows[unmapped_rows + alone], col, (X, P, at))
             tested = (ri, ci, *track_difference_d2(diff, S))
         stay = None
-        movers = self._movers(report, det_rows, cid, slots, alone) if not self.feedback else []
+        movers = self._movers(report, det_rows, cid, slots, alone, col, (X, P, at)) if not self.feedback else []
         if movers:  # decentralized: a mapped confirmed track moves where it fits better than on its own
             own = np.searchsorted(check, movers)  # each one's test against its own central track
             stay = slots[movers], d2[own], logdet[own]
@@ -462,13 +462,23 @@ class TrackToTrackCentre:
         return (cid < 0).nonzero()[0].tolist(), mapped[lonely].tolist()
 
     def _movers(self, report: LocalReport, det_rows: np.ndarray, cid: np.ndarray, slots: np.ndarray,
-                alone: list[int]) -> list[int]:
+                alone: list[int], col: int, states: tuple[np.ndarray, np.ndarray, np.ndarray]) -> list[int]:
         """Decentralized: the rows of the mapped confirmed local tracks that share their central
-        track with other local tracks (the ``alone`` ones aside): each takes part in the association
-        with its own central track as one more candidate (:meth:`_associate`)."""
+        track with other local tracks (the ``alone`` ones aside) and pass the test with a central track
+        of another sensor that has none of sensor column ``col``: each takes part in the association
+        with its own central track as one more candidate (:meth:`_associate`). ``states``: as
+        :meth:`_pairs`'."""
         mapped = (cid >= 0).nonzero()[0]
         shared = report.confirmed[det_rows[mapped]] & (self.support[slots[mapped]].sum(axis=1) > 1)
-        return sorted(set(mapped[shared].tolist()) - set(alone))
+        rows = np.setdiff1d(mapped[shared], alone)
+        if not rows.size:
+            return []
+        cands, (ri, ci, diff, S) = self._pairs(report, det_rows[rows], col, states)
+        other = self.support[cands[ci]].any(axis=1)
+        if not other.any():
+            return []
+        passes = track_difference_d2(diff[other], S[other])[0] <= self.cfg.thresholds.association[report.x.shape[1]]
+        return np.unique(rows[ri[other][passes]]).tolist()
 
     def _pairs(self, report: LocalReport, rows: np.ndarray, col: int, states: tuple[np.ndarray, np.ndarray, np.ndarray]
                ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
