@@ -14,9 +14,10 @@ scan, the linearized observation of every track the scan detected, the tracks it
   joined) takes part in every association of its sensor's scans, so that a track that narrowly
   failed the test at its start (one detection, no velocity) joins the others' central track once
   it passes; its own central track, left without a local track, is deleted. Decentralized (no
-  resets), a confirmed local track that shares its central track with others also takes part, its
-  own central track one more candidate at its own cost: in a formation, where the test passes
-  the neighbours too, a track kept on a neighbour's central track moves to the one it fits better.
+  resets), a confirmed local track that shares its central track with others also takes part
+  when it passes the test with a confirmed central track lacking its sensor, its own central track
+  one more candidate at its own cost: in a formation, where the test passes the neighbours too, a
+  track kept on a neighbour's central track moves to the one it fits better.
 * **Fusion.** The centre fuses each local observation (``H, R, z``) into its central track at
   the observation's time, predicting the central track there; out-of-sequence observations up
   to ``max_lag`` old are fused exactly (:mod:`.central_track`; each observation fused again is
@@ -464,40 +465,49 @@ class TrackToTrackCentre:
     def _movers(self, report: LocalReport, det_rows: np.ndarray, cid: np.ndarray, slots: np.ndarray,
                 alone: list[int], col: int, states: tuple[np.ndarray, np.ndarray, np.ndarray]) -> list[int]:
         """Decentralized: the rows of the mapped confirmed local tracks that share their central
-        track with other local tracks (the ``alone`` ones aside) and pass the test with a central track
-        of another sensor that has none of sensor column ``col``: each takes part in the association
-        with its own central track as one more candidate (:meth:`_associate`). ``states``: as
-        :meth:`_pairs`'."""
-        mapped = (cid >= 0).nonzero()[0]
-        shared = report.confirmed[det_rows[mapped]] & (self.support[slots[mapped]].sum(axis=1) > 1)
-        rows = np.setdiff1d(mapped[shared], alone)
+        track with other local tracks (the ``alone`` ones aside) and pass the test with a confirmed
+        central track of other sensors that has none of sensor column ``col``: each takes part in the
+        association, its own central track one more candidate and only confirmed ones besides
+        (:meth:`_associate`). ``states``: as :meth:`_pairs`'."""
+        sharing = (cid >= 0) & report.confirmed[det_rows]
+        sharing[sharing] = self.support[slots[sharing]].sum(axis=1) > 1
+        sharing[alone] = False
+        rows = sharing.nonzero()[0]
         if not rows.size:
             return []
-        cands, (ri, ci, diff, S) = self._pairs(report, det_rows[rows], col, states)
-        other = self.support[cands[ci]].any(axis=1)
-        if not other.any():
+        ri, _, diff, S = self._pairs(report, det_rows[rows], col, states, movers=True)[1]
+        if not ri.size:
             return []
-        passes = track_difference_d2(diff[other], S[other])[0] <= self.cfg.thresholds.association[report.x.shape[1]]
-        return np.unique(rows[ri[other][passes]]).tolist()
+        passes = track_difference_d2(diff, S)[0] <= self.cfg.thresholds.association[report.x.shape[1]]
+        return np.unique(rows[ri[passes]]).tolist()
 
-    def _pairs(self, report: LocalReport, rows: np.ndarray, col: int, states: tuple[np.ndarray, np.ndarray, np.ndarray]
-               ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    def _pairs(self, report: LocalReport, rows: np.ndarray, col: int, states: tuple[np.ndarray, np.ndarray, np.ndarray],
+               movers: bool = False) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
         """The association's candidates (the central tracks without a track of sensor column ``col``,
         in increasing id) and its candidate pairs ``(ri, ci)`` of the local tracks ``rows`` and those
         within the chi-square test's reach, with their differences and covariance sums to test.
-        ``states``: the central tracks' estimates at the report's time and each slot's row there."""
+        ``states``: the central tracks' estimates at the report's time and each slot's row there.
+        ``movers``: :meth:`_movers`' candidates and pairs: only the confirmed candidates that local
+        tracks map to, the pairs looked up from their side (they are far fewer than ``rows``)."""
         ids, d = self.tracks.ids, report.x.shape[1]
         cands = ((self.support[:, col] == 0) & (ids >= 0)).nonzero()[0]
+        if movers:
+            cands = cands[self.tracks.confirmed[cands] & self.support[cands].any(axis=1)]
         cands = cands[ids[cands].argsort()]
         if not (rows.size and cands.size):
             none = np.zeros(0, dtype=np.int64)
             return cands, (none, none, np.zeros((0, d)), np.zeros((0, d, d)))
         X, P, at = states
         xc, Pc = X[at[cands], :d], P[at[cands], :d, :d]
-        U, C = report.x[rows], report.P[rows]
-        ri, ci = candidate_pairs(U[:, XY], np.sqrt(C[:, 0, 0] + C[:, 2, 2]), xc[:, XY],
-                                 np.sqrt(Pc[:, 0, 0] + Pc[:, 2, 2]), self.cfg.thresholds.association[d])
-        return cands, (ri, ci, U[ri] - xc[ci], C[ri] + Pc[ci])
+        U = report.x[rows]  # their covariances gathered for the pairs only
+        local = U[:, XY], np.sqrt(report.P[rows, 0, 0] + report.P[rows, 2, 2])
+        central = xc[:, XY], np.sqrt(Pc[:, 0, 0] + Pc[:, 2, 2])
+        gate = self.cfg.thresholds.association[d]
+        if movers:
+            ci, ri = candidate_pairs(*central, *local, gate)
+        else:
+            ri, ci = candidate_pairs(*local, *central, gate)
+        return cands, (ri, ci, U[ri] - xc[ci], report.P[rows[ri]] + Pc[ci])
 
     def _vouched(self, report: LocalReport) -> np.ndarray:
         """Slots of the central tracks that a track confirmed by the report's tracker maps to."""
@@ -688,6 +698,8 @@ class TrackToTrackCentre:
             ri, ci, cost = ri[inside], ci[inside], d2[inside] + logdet[inside]
             if stay is not None:  # the last rows (movers) may stay on their own central tracks, at their own cost
                 own, own_d2, own_logdet = stay
+                keep = (ri < len(rows) - own.size) | self.tracks.confirmed[cands[ci]]  # movers: to confirmed ones
+                ri, ci, cost = ri[keep], ci[keep], cost[keep]
                 ri = np.concatenate([ri, np.arange(len(rows) - own.size, len(rows))])
                 ci = np.concatenate([ci, cands.size + np.arange(own.size)])
                 cost = np.concatenate([cost, own_d2 + own_logdet])
