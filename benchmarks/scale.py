@@ -10,6 +10,11 @@ sub-reports and those it fused (the rest: the margin's rows of other regions' tr
 hand-overs, mean GOSPA (c = 100 m, p = 2), the routing CPU seconds (the local trackers' part live).
 One region is the unsharded centre (identical pictures, tests/test_mtt_shards.py).
 
+``--targets N`` keeps the 1,000-target scenario's densities: the square's half side
+``Scenario.region`` and the clutter count per scan are scaled by ``sqrt(N / 1000)`` and ``N /
+1000`` (targets and false detections per m^2 as at 1,000; the margin unchanged), so that each of
+the ``n`` regions holds ``N / n`` targets in a cell ``sqrt(N / 1000)`` times as wide.
+
 The load model at 100 regions (:func:`load_model`): with tracks spread evenly over square cells
 of side ``L`` and margin ``m``, the share of tracks within ``m`` of a border is
 ``1 - ((L - 2m) / L)^2``; a centre receives one report per scan of each sensor that sees its
@@ -27,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
 from fedtrack.config import load_tables
 from fedtrack.fusion_center.mtt.engines import TrackToTrackEngine
@@ -39,6 +45,7 @@ from fedtrack.local_filters.regions import Regions, distances, region_of
 from fedtrack.sensors.multitarget import SPEED, Scenario, parse_spec, simulate
 
 GRIDS = {1: "1x1", 2: "2x1", 4: "2x2", 8: "4x2"}
+BASE_TARGETS = 1000  # the scenario whose densities every --targets keeps
 MARGIN_M = 500.0  # docs/multitarget.md#regions: 30 m/s targets, 1 s scans, 10 m noise need ~ 75 m
 
 
@@ -60,14 +67,29 @@ def load_model(regions: int, tracks: int, sensors: int, rate_hz: float, cell_m: 
             "hand_overs_per_s": 4 * per * speed / (math.pi * cell_m)}
 
 
-def bench_scale(quick: bool) -> dict[str, Any]:
-    targets, duration = (50, 20.0) if quick else (1000, 60.0)
+def scaled_scenario(targets: int, duration: float) -> Scenario:
+    """The 1,000-target scenario's target and clutter densities at ``targets`` (module docstring)."""
+    share = targets / BASE_TARGETS
+    return Scenario(targets=targets, duration=duration, region=Scenario.region * math.sqrt(share),
+                    clutter=Scenario.clutter * share)
+
+
+def bench_scale(quick: bool, targets: int | None = None, duration: float | None = None) -> dict[str, Any]:
+    """``targets`` (default 1,000; ``quick``: 50 over the default area) at the 1,000-target densities."""
+    if targets is None and quick:
+        sc = Scenario(targets=50, duration=duration or 20.0)
+    else:
+        sc = scaled_scenario(targets or BASE_TARGETS, duration or (20.0 if quick else 60.0))
+    targets, duration = sc.targets, sc.duration
     out: dict[str, Any] = {"targets": targets, "sensors": 4, "period_s": 1.0, "duration_s": duration,
+                           "half_width_m": sc.region, "clutter_per_scan": sc.clutter,
                            "margin_m": MARGIN_M, "state_size": "bytes of each region's pickled centre", "runs": {}}
     with tempfile.TemporaryDirectory() as tmp:
         sim = Path(tmp)
-        sc = Scenario(targets=targets, duration=duration)
+        start = time.perf_counter()
         simulate(sc, parse_spec("pos:1.0,pos:1.0,pos:1.0,pos:1.0"), 2, sim)
+        print(f"bench scale: {targets} targets, {duration:g} s over a {2 * sc.region / 1e3:.1f} km square "
+              f"simulated in {time.perf_counter() - start:.1f} s", flush=True)
         (sim / "regions.toml").write_text((sim / "config.toml").read_text()
                                           + f"\n[regions]\nmargin = {MARGIN_M}\n"
                                           + "grid = {origin = [0, 0], cell = [1, 1], nx = 1, ny = 1}\n")
@@ -79,7 +101,8 @@ def bench_scale(quick: bool) -> dict[str, Any]:
             path = sim / f"{n}.jsonl"
             start = time.perf_counter()
             with output_file(path) as fh:
-                for T, tracks in pictures(engine, scans, cfg.period, cfg.picture_delay):
+                for T, tracks in tqdm(pictures(engine, scans, cfg.period, cfg.picture_delay), f"{n} regions",
+                                      total=int(duration / cfg.period), unit="picture", mininterval=5.0, leave=False):
                     fh.write(tracks.line(T, {"algorithm": "mtt-federated"}) + "\n")
             wall = time.perf_counter() - start
             centre: ShardedCentre = engine.centre

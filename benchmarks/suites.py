@@ -18,8 +18,8 @@
   ``gnn``, ``jipda`` and ``mht`` in ``mtt-centralized``, ``mtt-federated`` and ``mtt-local`` (s1)
   and for Stone Soup's GNN and JPDA trackers on all detections, with ``jipda``'s and ``mht``'s
   1,000-target speed.
-* ``scale``: the centre sharded by region, 1 / 2 / 4 / 8 regions at 1,000 targets
-  (:mod:`fedtrack.benchmarks.scale`; not part of ``all``).
+* ``scale``: the centre sharded by region, 1 / 2 / 4 / 8 regions at 1,000 targets, or ``--targets N``
+  at the same densities (``--duration S``; :mod:`fedtrack.benchmarks.scale`; not part of ``all``).
 * ``pipeline``: the deployment latency bench (:mod:`fedtrack.benchmarks.run`, its options).
 * ``soak``: a long deployment at the lockstep rate (:mod:`fedtrack.benchmarks.soak`; 10 minutes
   by default, not part of ``all``).
@@ -45,7 +45,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from tqdm import tqdm
 
-from fedtrack.jsonl import check_output, output_file
+from fedtrack.jsonl import InputError, check_output, output_file
 
 SUITES = ("kernels", "montecarlo", "multitarget", "scale", "pipeline", "soak", "hpda-soak", "all")
 RATIO_KEYS = ("kf_vs_filterpy", "kf_vs_stonesoup", "ekf_vs_filterpy", "ekf_vs_stonesoup", "imm13_vs_filterpy",
@@ -452,6 +452,12 @@ def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog=f"fedtrack bench {suite}", description=__doc__.splitlines()[0])
     parser.add_argument("--json", type=Path, default=Path("bench.json"), help="output JSON (default bench.json)")
     parser.add_argument("--quick", action="store_true", help="small sizes (a smoke test; the numbers mean little)")
+    if suite == "scale":
+        parser.add_argument("--targets", type=int, metavar="N",
+                            help="targets (default 1000; --quick: 50 over the default area); the area and the "
+                                 "clutter count grow with N so that both densities stay the 1,000-target scenario's: "
+                                 "a square of side 10 km x sqrt(N / 1000)")
+        parser.add_argument("--duration", type=float, metavar="S", help="seconds of scenario (default 60; --quick: 20)")
     args = parser.parse_args(argv[1:])
     args.suite = suite
     rest: list[str] = []
@@ -477,7 +483,10 @@ def main(argv: list[str]) -> int:
         result["multitarget"]["live"] = bench_live(args.quick)
     if args.suite == "scale":  # minutes: not part of "all"
         from fedtrack.benchmarks.scale import bench_scale
-        result["scale"] = bench_scale(args.quick)
+        for name, value in (("targets", args.targets), ("duration", args.duration)):
+            if value is not None and not 0 < value < float("inf"):
+                raise InputError(f"--{name}: must be finite and > 0, got {value:g}")
+        result["scale"] = bench_scale(args.quick, args.targets, args.duration)
     if args.suite == "all":
         result["import_s"] = bench_startup()
         with tempfile.TemporaryDirectory() as tmp:

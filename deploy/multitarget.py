@@ -89,7 +89,8 @@ def prepare(settings: Settings, out: Path) -> Path:
         simulate_traffic(read_recording(Path(mt.source)), Frame(*mt.origin), mt.sensors, settings.deployment.seed,
                          folder, mt.start, mt.duration, mt.box * 1e3, pd=mt.pd, clutter=mt.clutter, late=0.0)
         return folder / "measurements.jsonl"
-    scenario = Scenario(targets=mt.targets, duration=mt.duration, pd=mt.pd, clutter=mt.clutter, late=0.0)
+    scenario = Scenario(targets=mt.targets, duration=mt.duration, region=mt.half_width, pd=mt.pd, clutter=mt.clutter,
+                        late=0.0)
     simulate(scenario, parse_spec(mt.sensors), settings.deployment.seed, folder)
     return folder / "measurements.jsonl"
 

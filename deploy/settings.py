@@ -7,6 +7,7 @@ it does not use itself), so that a typo fails before any process starts.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -19,6 +20,7 @@ from fedtrack.local_filters.imm.config import IMMConfig
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.pda.config import PDAReplayConfig
 from fedtrack.local_filters.vdie.config import FusionConfig
+from fedtrack.sensors.multitarget import Scenario
 from fedtrack.sensors.radar import RadarConfig
 from fedtrack.sensors.sonar import SonarConfig
 
@@ -36,6 +38,7 @@ class MultitargetSettings:
     duration: float = 60.0
     pd: float = 0.9
     clutter: float = 10.0
+    half_width: float = Scenario.region  # m: the simulated square's half side (``simulate multitarget --half-width``)
     join_at: dict[str, float] = field(default_factory=dict)  # sensor -> scenario seconds it starts at
     kill_at: dict[str, float] = field(default_factory=dict)  # sensor -> scenario seconds it is killed at
     standby: bool = False  # a hot standby per centre (region), promoted when its primary dies (docs/deploy.md)
@@ -48,8 +51,9 @@ class MultitargetSettings:
     def validate(self) -> None:
         if self.algorithm not in MTT_ALGORITHMS:
             raise ConfigError(f"algorithm: must be one of {', '.join(MTT_ALGORITHMS)}, got {self.algorithm!r}")
-        if self.targets < 1 or not self.duration > 0 or not 0 < self.pd <= 1 or self.clutter < 0:
-            raise ConfigError("need targets >= 1, duration > 0, 0 < pd <= 1, clutter >= 0")
+        if (self.targets < 1 or not self.duration > 0 or not 0 < self.pd <= 1 or self.clutter < 0
+                or not 0 < self.half_width < math.inf):
+            raise ConfigError("need targets >= 1, duration > 0, 0 < pd <= 1, clutter >= 0, 0 < half_width < inf")
         if self.source and (self.origin is None or not self.box > 0 or self.start < 0):
             raise ConfigError("source: needs origin = [lat, lon, h], box > 0 and start >= 0")
         for key in ("join_at", "kill_at"):

@@ -315,6 +315,11 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--clutter", type=float,
                         help=f"mean number of false detections per scan (Poisson; default: {Scenario.clutter:g}; "
                              "dense: 50)")
+    parser.add_argument("--half-width", type=float, default=Scenario.region, metavar="M",
+                        help="half the side of the square area [m]: targets start within 0.7 of it, position "
+                             "sensors' clutter is uniform over all of it, radars stand 1.1 of it from the centre "
+                             "(default: %(default)g, a 10 km square; --clutter stays a count per scan, so its "
+                             "density falls as the area grows)")
     parser.add_argument("--formation", type=int,
                         help="targets per group flying side by side, 20-40 m apart (default: 1; dense: 3)")
     parser.add_argument("--late", type=float, default=Scenario.late,
@@ -332,13 +337,14 @@ def main(argv: list[str]) -> int:
             setattr(args, key, PRESETS[args.scenario].get(key, getattr(Scenario, key)))
     for name, ok, rule in (("targets", args.targets >= 1, ">= 1"), ("duration", args.duration > 0, "> 0"),
                            ("pd", 0 < args.pd <= 1, "in (0, 1]"), ("clutter", args.clutter >= 0, ">= 0"),
-                           ("late", 0 <= args.late < 1, "in [0, 1)"), ("formation", args.formation >= 1, ">= 1")):
+                           ("late", 0 <= args.late < 1, "in [0, 1)"), ("formation", args.formation >= 1, ">= 1"),
+                           ("half-width", 0 < args.half_width < math.inf, "finite and > 0")):
         if not ok:
-            raise InputError(f"--{name}: must be {rule}, got {getattr(args, name):g}")
+            raise InputError(f"--{name}: must be {rule}, got {getattr(args, name.replace('-', '_')):g}")
     specs = parse_spec(args.sensors)
     output_folder(args.out)
-    sc = Scenario(targets=args.targets, duration=args.duration, pd=args.pd, clutter=args.clutter, late=args.late,
-                  formation=int(args.formation), fifo=not args.non_fifo)
+    sc = Scenario(targets=args.targets, duration=args.duration, region=args.half_width, pd=args.pd,
+                  clutter=args.clutter, late=args.late, formation=int(args.formation), fifo=not args.non_fifo)
     info = simulate(sc, specs, args.seed, args.out)
     print(f"wrote {args.out}/measurements.jsonl ({info['scans']} scans, {info['out_of_sequence']} out of "
           f"sequence), truth.jsonl ({args.targets} targets), config.toml; sensors: {', '.join(info['sensors'])}")
