@@ -454,10 +454,10 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--quick", action="store_true", help="small sizes (a smoke test; the numbers mean little)")
     if suite == "scale":
         parser.add_argument("--targets", type=int, metavar="N",
-                            help="targets (default 1000; --quick: 50 over the default area); the area and the "
+                            help="targets (default: 1000; --quick: 50 over the default area); the area and the "
                                  "clutter count grow with N so that both densities stay the 1,000-target scenario's: "
                                  "a square of side 10 km x sqrt(N / 1000)")
-        parser.add_argument("--duration", type=float, metavar="S", help="seconds of scenario (default 60; --quick: 20)")
+        parser.add_argument("--duration", type=float, metavar="S", help="seconds of scenario (default: 60; --quick: 20)")
     args = parser.parse_args(argv[1:])
     args.suite = suite
     rest: list[str] = []

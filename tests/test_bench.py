@@ -93,15 +93,21 @@ def test_bench_kernels_quick_reports_ratios_side_by_side(tmp_path: Path) -> None
 
 
 def test_bench_scale_quick_reports_every_region(tmp_path: Path) -> None:
-    """``bench scale --quick`` (about 5 s): per region count, a CPU time and state size per region,
-    hand-overs, GOSPA; one region's GOSPA is the reference of the others."""
+    """``bench scale --quick --targets 100`` (about 5 s): per region count, a CPU time and state size
+    per region, hand-overs, GOSPA; one region's GOSPA is the reference of the others; the area and
+    the clutter count scaled to keep the 1,000-target scenario's densities."""
     from fedtrack.benchmarks.scale import load_model
+    from fedtrack.sensors.multitarget import Scenario
 
     out = tmp_path / "scale.json"
-    proc = subprocess.run([sys.executable, "-m", "fedtrack.cli", "bench", "scale", "--quick", "--json", str(out)],
-                          cwd=REPO, capture_output=True, text=True, timeout=120)
+    proc = subprocess.run([sys.executable, "-m", "fedtrack.cli", "bench", "scale", "--quick", "--targets", "100",
+                           "--json", str(out)], cwd=REPO, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr[-3000:]
-    runs = json.loads(out.read_text())["scale"]["runs"]
+    scale = json.loads(out.read_text())["scale"]
+    assert scale["targets"] == 100 and scale["duration_s"] == 20.0
+    assert scale["half_width_m"] == pytest.approx(Scenario.region * 0.1**0.5, rel=1e-12)  # 100 / (2 hw)^2 as at 1,000
+    assert scale["clutter_per_scan"] == pytest.approx(Scenario.clutter / 10, rel=1e-12)
+    runs = scale["runs"]
     assert sorted(runs, key=int) == ["1", "2", "4", "8"]
     for n, row in runs.items():
         assert len(row["cpu_s"]) == len(row["state_bytes"]) == len(row["tracks"]) == len(row["rows"]) == int(n)

@@ -162,7 +162,7 @@ def _parsers(argv: list[str]) -> list[argparse.ArgumentParser]:
     return seen
 
 
-BENCH_SUITES = ("pipeline", "kernels", "montecarlo", "multitarget", "soak", "hpda-soak", "all")
+BENCH_SUITES = ("pipeline", "kernels", "montecarlo", "multitarget", "scale", "soak", "hpda-soak", "all")
 COMMANDS = [["reproduce"], ["replay"], ["simulate", "multitarget"], ["evaluate"], ["export"], ["demo"],
             ["launch"], ["train", "ts-fuzzy"], *(["bench", s] for s in BENCH_SUITES)]
 HELP_CASES = COMMANDS + [["serve", role] for role in cli.SERVICES]

@@ -119,6 +119,7 @@ def test_a_sensor_joins_and_another_is_killed_during_a_launch(tmp_path: Path) ->
     ("kill_at = { s1 = 5.0 }\njoin_at = { s1 = 8.0 }", "multitarget.kill_at.s1"),
     ("join_at = { s9 = 5.0 }", "multitarget.join_at.s9"),
     ("join_at = { s1 = 5.0, r2 = 5.0, s3 = 5.0 }", "multitarget.join_at"),
+    ("half_width = 0.0", "multitarget.half_width"),
 ])
 def test_a_wrong_join_or_kill_schedule_fails_at_start(tmp_path: Path, extra: str, field: str) -> None:
     config = tmp_path / "mtt.toml"

@@ -134,3 +134,19 @@ def test_simulate_with_a_radar_first_gives_the_position_sensors_their_density_pe
         densities[spec] = (cfg.clutter_of(pos), cfg.clutter_of(radar))
     (pos_a, radar_a), (pos_b, radar_b) = densities.values()
     assert pos_a == pos_b and radar_a == radar_b and radar_a > 100 * pos_a
+
+
+def test_simulate_half_width_bounds_the_clutter_and_sets_its_density(tmp_path: Path) -> None:
+    """``--half-width 2000``: every false detection within the 4 km square, the written density
+    ``clutter / (2 half-width)^2``; at the default (5 km) some fall outside 2 km."""
+    extents = {}
+    for name, extra in (("small", ["--half-width", "2000"]), ("default", [])):
+        out = tmp_path / name
+        assert cli(["simulate", "multitarget", "--targets", "1", "--duration", "20", "--sensors", "pos:1.0",
+                    "--clutter", "50", "--pd", "0.1", "--out", str(out), *extra]) == 0
+        rows = [json.loads(line) for line in (out / "measurements.jsonl").read_text().splitlines()]
+        extents[name] = max(abs(c) for row in rows for d in row["detections"] for c in d["z"])
+        half = 2000.0 if extra else 5000.0
+        assert load_tables(out / "config.toml", MttSettings).mtt.clutter_density == pytest.approx(
+            50 / (2 * half) ** 2, rel=1e-12)
+    assert extents["small"] <= 2000.0 + 100.0 < extents["default"]  # the one target's noise: under 100 m
