@@ -458,6 +458,9 @@ def main(argv: list[str]) -> int:
                                  "clutter count grow with N so that both densities stay the 1,000-target scenario's: "
                                  "a square of side 10 km x sqrt(N / 1000)")
         parser.add_argument("--duration", type=float, metavar="S", help="seconds of scenario (default: 60; --quick: 20)")
+        parser.add_argument("--gospa-every", type=int, default=1, metavar="K",
+                            help="mean GOSPA over the pictures of every K-th second only (default: %(default)s, all; "
+                                 "evaluate's assignment is dense, about 10 s a picture at 10,000 targets)")
     args = parser.parse_args(argv[1:])
     args.suite = suite
     rest: list[str] = []
@@ -483,10 +486,10 @@ def main(argv: list[str]) -> int:
         result["multitarget"]["live"] = bench_live(args.quick)
     if args.suite == "scale":  # minutes: not part of "all"
         from fedtrack.benchmarks.scale import bench_scale
-        for name, value in (("targets", args.targets), ("duration", args.duration)):
+        for name, value in (("targets", args.targets), ("duration", args.duration), ("gospa-every", args.gospa_every)):
             if value is not None and not 0 < value < float("inf"):
                 raise InputError(f"--{name}: must be finite and > 0, got {value:g}")
-        result["scale"] = bench_scale(args.quick, args.targets, args.duration)
+        result["scale"] = bench_scale(args.quick, args.targets, args.duration, args.gospa_every)
     if args.suite == "all":
         result["import_s"] = bench_startup()
         with tempfile.TemporaryDirectory() as tmp:
