@@ -104,7 +104,10 @@ def listen_address(endpoint: str, field: str) -> tuple[str, int]:
 
 
 def port_in_use(endpoint: str) -> bool:
-    """True when a TCP endpoint's port on this host cannot be bound (another process holds it)."""
+    """True when a TCP endpoint's port on this host cannot be bound (another process holds it).
+
+    The probe binds as the Zenoh router does, with ``SO_REUSEADDR``: the connections of a run that
+    just ended, left in TIME_WAIT for a minute, do not hold the port (a socket listening on it does)."""
     import socket
 
     if not endpoint.startswith(("tcp/", "tls/")):
@@ -112,6 +115,7 @@ def port_in_use(endpoint: str) -> bool:
     host, port = listen_address(endpoint, "router_listen")
     family = socket.AF_INET6 if ":" in host else socket.AF_INET
     with socket.socket(family, socket.SOCK_STREAM) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             probe.bind((host, port))
         except OSError:

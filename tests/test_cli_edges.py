@@ -119,3 +119,24 @@ def test_busy_router_port_fails_at_once_naming_port_and_role(tmp_path: Path) -> 
     assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr[-2000:]
     assert f"port {port} for the router is already in use" in proc.stderr.splitlines()[-1]
     assert elapsed < 10.0  # the issue's bound is 2 s; a loaded CI machine needs ~1 s to import
+
+
+def test_a_port_left_in_time_wait_by_the_last_run_is_free_a_listening_one_is_not() -> None:
+    """Launching again right after a run: its connections to the router's port wait in TIME_WAIT
+    for a minute; the router binds regardless (SO_REUSEADDR), so the launcher's check must too."""
+    import socket
+
+    from fedtrack.deployment import port_in_use
+
+    with socket.socket() as server:
+        server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        server.bind(("127.0.0.1", 0))
+        server.listen()
+        port = server.getsockname()[1]
+        assert port_in_use(f"tcp/127.0.0.1:{port}")
+        client = socket.create_connection(("127.0.0.1", port), timeout=5)
+        accepted, _ = server.accept()
+        accepted.close()  # the side that closes first keeps the port's end in TIME_WAIT
+        client.recv(1)
+        client.close()
+    assert not port_in_use(f"tcp/127.0.0.1:{port}")
