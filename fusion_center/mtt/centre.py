@@ -372,7 +372,7 @@ class TrackToTrackCentre:
             cands, (ri, ci, diff, S) = self._pairs(report, det_rows[unmapped_rows + alone], col, (X, P, at))
             tested = (ri, ci, *track_difference_d2(diff, S))
         stay = None
-        movers = self._movers(report, det_rows, cid, slots, alone, col, (X, P, at)) if not self.feedback else []
+        movers = [] if self.feedback else self._movers(report, det_rows, cid, slots, check, alone, col, (X, P, at))
         if movers:  # decentralized: a mapped confirmed track moves where it fits better than on its own
             own = np.searchsorted(check, movers)  # each one's test against its own central track
             stay = slots[movers], d2[own], logdet[own]
@@ -463,13 +463,17 @@ class TrackToTrackCentre:
         return (cid < 0).nonzero()[0].tolist(), mapped[lonely].tolist()
 
     def _movers(self, report: LocalReport, det_rows: np.ndarray, cid: np.ndarray, slots: np.ndarray,
-                alone: list[int], col: int, states: tuple[np.ndarray, np.ndarray, np.ndarray]) -> list[int]:
+                check: np.ndarray, alone: list[int], col: int, states: tuple[np.ndarray, np.ndarray, np.ndarray]
+                ) -> list[int]:
         """Decentralized: the rows of the mapped confirmed local tracks that share their central
         track with other local tracks (the ``alone`` ones aside) and pass the test with a confirmed
         central track of other sensors that has none of sensor column ``col``: each takes part in the
         association, its own central track one more candidate and only confirmed ones besides
-        (:meth:`_associate`). ``states``: as :meth:`_pairs`'."""
-        sharing = (cid >= 0) & report.confirmed[det_rows]
+        (:meth:`_associate`). Only the rows the hysteresis check tested (``check``) can move: their
+        test against their own central track is the cost of staying. ``states``: as :meth:`_pairs`'."""
+        sharing = np.zeros(cid.size, dtype=bool)
+        sharing[check] = True
+        sharing &= (cid >= 0) & report.confirmed[det_rows]
         sharing[sharing] = self.support[slots[sharing]].sum(axis=1) > 1
         sharing[alone] = False
         rows = sharing.nonzero()[0]
