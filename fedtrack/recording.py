@@ -41,12 +41,15 @@ tagged ``"region"`` (scans with their ``"seq"``; hand-overs as ``{"t", "region",
 from __future__ import annotations
 
 import argparse
-import json
+import contextlib
+import functools
 import sqlite3
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import IO, Any, Callable, Iterator
+
+import orjson
 
 from fedtrack.jsonl import InputError, check_output, output_file
 from fedtrack.wire import (
@@ -65,6 +68,7 @@ from fedtrack.wire import (
 
 SCHEMA_VERSION = 1
 RECORDED, DUPLICATE, CONFLICT = "recorded", "duplicate", "conflict"
+SCANS_KEPT = 256  # decoded scans an export keeps: a region run lists a scan in every region it reached, pictures apart
 
 
 @dataclass(frozen=True)
@@ -169,46 +173,82 @@ class Recording:
         """The stored messages of ``msg_type`` in ``order`` (an ORDER BY clause of the table's columns)."""
         table = TABLE_OF[msg_type]
         for rowid, payload in self.db.execute(f"SELECT id, payload FROM {table.name} ORDER BY {order}"):
-            try:
-                yield decode(bytes(payload), msg_type)
-            except WireError as exc:
-                raise InputError(f"{self.path}: {table.name} row {rowid}: {exc}") from None
+            yield _decoded(self.path, table, rowid, payload)
 
     def export(self, measurements: Path | None = None, tracks: Path | None = None) -> tuple[int, int]:
         """Write the replay-format measurements and tracks (see the module docstring); returns the line counts."""
         if self.count(TrackPicture):
-            processed, unprocessed = self._scans_in_centre_order()
-            if measurements is not None:
-                _write_lines(measurements.with_name("unprocessed.jsonl"), iter(unprocessed))
-            rows: tuple[Iterator[dict[str, Any]], Iterator[dict[str, Any]]] = (
-                iter(processed), (picture_to_replay(p) for p in self.messages(TrackPicture, "seq") if not p.closing))
-        else:
-            rows = ((measurement_to_replay(m) for m in self.messages(Measurement, "t, id")),
-                    (_track_row(f) for f in self.messages(FusedTrack, "seq")))
-        return _write_lines(measurements, rows[0]), _write_lines(tracks, rows[1])
+            return self._export_pictures(measurements, tracks)
+        return (_write_lines(measurements, (measurement_to_replay(m) for m in self.messages(Measurement, "t, id"))),
+                _write_lines(tracks, (_track_row(f) for f in self.messages(FusedTrack, "seq"))))
 
-    def _scans_in_centre_order(self) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
-        """Replay lines of the scans and departures the pictures list, in that order; and the
-        recorded scans they do not list, in arrival order."""
-        scans = {(m.sensor, m.seq): m for m in self.messages(Measurement, "id")}
-        processed: list[dict[str, Any]] = []
-        used: set[tuple[str, int]] = set()
-        for pic in self.messages(TrackPicture, "seq"):
-            for i, key in enumerate(zip(pic.fused_sensors, pic.fused_seqs)):
-                # a region run's merged picture: every entry of every region, tagged with it
-                # (a hand-over's entry names its sending region and its number: docs/multitarget.md#regions)
-                tag = {"region": pic.regions[i]} if pic.regions else {}
-                if i in pic.left:
-                    processed.append({"t": pic.t, "sensor": key[0], "left": True, **tag})
-                elif i in pic.handovers and tag:
-                    processed.append({"t": pic.t, "handover": key[1], "from": key[0], **tag})
-                elif key in scans and (tag or key not in used):
-                    processed.append({**measurement_to_replay(scans[key]), **({"seq": key[1], **tag} if tag else {})})
-                    used.add(key)
-        return processed, [measurement_to_replay(m) for key, m in scans.items() if key not in used]
+    def _export_pictures(self, measurements: Path | None, tracks: Path | None) -> tuple[int, int]:
+        """A multi-target recording in one pass over the pictures (each decoded once): a picture's
+        scans and departures to ``measurements`` in the centre's order, the picture to ``tracks``;
+        then the recorded scans no picture lists to ``unprocessed.jsonl``, in arrival order. A
+        scan is decoded when a picture lists it (a few recent ones kept), not held all at once."""
+        rowid = {(sensor, seq): i for i, sensor, seq in self.db.execute("SELECT id, sensor, seq FROM measurements")}
+        used: set[int] = set()
+
+        @functools.lru_cache(maxsize=SCANS_KEPT)
+        def scan_line(i: int) -> dict[str, Any]:
+            return measurement_to_replay(self._message(Measurement, i))
+
+        counts = [0, 0]
+
+        def write(k: int, fh: IO[str] | None, row: dict[str, Any]) -> None:
+            if fh is not None:
+                fh.write(_line(row))
+                counts[k] += 1
+
+        try:
+            with contextlib.ExitStack() as files:
+                m_out, t_out = (None if path is None else files.enter_context(output_file(path))
+                                for path in (measurements, tracks))
+                for pic in self.messages(TrackPicture, "seq"):
+                    for i, key in enumerate(zip(pic.fused_sensors, pic.fused_seqs)):
+                        # a region run's merged picture: every entry of every region, tagged with it
+                        # (a hand-over's entry names its sending region and its number: docs/multitarget.md#regions)
+                        tag = {"region": pic.regions[i]} if pic.regions else {}
+                        if i in pic.left:
+                            write(0, m_out, {"t": pic.t, "sensor": key[0], "left": True, **tag})
+                        elif i in pic.handovers and tag:
+                            write(0, m_out, {"t": pic.t, "handover": key[1], "from": key[0], **tag})
+                        elif key in rowid and (tag or rowid[key] not in used):
+                            write(0, m_out, {**scan_line(rowid[key]), **({"seq": key[1], **tag} if tag else {})})
+                            used.add(rowid[key])
+                    if not pic.closing:
+                        write(1, t_out, picture_to_replay(pic))
+        except OSError as exc:
+            raise InputError(f"{exc.filename}: cannot write: {exc.strerror or exc}") from None
+        if measurements is not None:
+            _write_lines(measurements.with_name("unprocessed.jsonl"),
+                         (measurement_to_replay(self._message(Measurement, i)) for i in sorted(rowid.values())
+                          if i not in used))
+        return counts[0], counts[1]
+
+    def _message(self, msg_type: type, rowid: int) -> Any:
+        """The stored message of ``msg_type`` in row ``rowid``."""
+        table = TABLE_OF[msg_type]
+        payload = self.db.execute(f"SELECT payload FROM {table.name} WHERE id = ?", (rowid,)).fetchone()[0]
+        return _decoded(self.path, table, rowid, payload)
 
     def close(self) -> None:
         self.db.close()
+
+
+def _line(row: dict[str, Any]) -> str:
+    """``row`` as one JSON line, by orjson (the values of decoded messages are finite: the wire
+    rejects NaN and infinity, which orjson would write as null); 8x json's speed."""
+    return orjson.dumps(row, option=orjson.OPT_APPEND_NEWLINE).decode()
+
+
+def _decoded(path: Path, table: Table, rowid: int, payload: bytes) -> Any:
+    """Row ``rowid``'s payload decoded; a row that does not decode is an input error naming it."""
+    try:
+        return decode(bytes(payload), table.msg_type)
+    except WireError as exc:
+        raise InputError(f"{path}: {table.name} row {rowid}: {exc}") from None
 
 
 def _write_lines(path: Path | None, rows: Iterator[dict[str, Any]]) -> int:
@@ -219,7 +259,7 @@ def _write_lines(path: Path | None, rows: Iterator[dict[str, Any]]) -> int:
     try:
         with output_file(path) as fh:
             for row in rows:
-                fh.write(json.dumps(row) + "\n")
+                fh.write(_line(row))
                 n += 1
     except OSError as exc:
         raise InputError(f"{path}: cannot write: {exc.strerror or exc}") from None

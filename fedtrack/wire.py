@@ -707,7 +707,19 @@ def _identifier_list(value: Any, path: str, limit: int) -> tuple[str, ...]:
 
 
 def _id_lists(value: Any, path: str) -> tuple[tuple[str, ...], ...]:
-    return tuple(_identifiers(v, f"{path}[{i}]") for i, v in enumerate(_sequence(value, path, MAX_TRACKS)))
+    """A list of id lists (a picture's per-track sensors), each distinct id checked once: the lists
+    repeat a few sensor ids (1,000 tracks: 4,000 checks of 4 ids). Same results and errors as
+    ``_identifiers`` on each list."""
+    valid: set[str] = set()
+
+    def ids(items: list[Any], where: str) -> tuple[str, ...]:
+        for j, x in enumerate(items):
+            if not (type(x) is str and x in valid):
+                valid.add(_identifier(x, f"{where}[{j}]"))
+        return tuple(items)
+
+    return tuple(ids(_sequence(v, f"{path}[{i}]", MAX_LIST_ITEMS), f"{path}[{i}]")
+                 for i, v in enumerate(_sequence(value, path, MAX_TRACKS)))
 
 
 @dataclass(frozen=True, eq=False)

@@ -17,7 +17,7 @@ from support import Deployment, wait_until
 
 from fedtrack.fusion_center.replay import replay_fusion
 from fedtrack.recording import CONFLICT, DUPLICATE, RECORDED, Recording
-from fedtrack.wire import FusedTrack, Measurement, encode
+from fedtrack.wire import FusedTrack, Measurement, TrackPicture, encode
 
 
 def meas(sensor: str, seq: int, t: float, z0: float = 1.0) -> Measurement:
@@ -153,3 +153,46 @@ def test_a_committed_row_survives_sigkill(tmp_path: Path) -> None:
     stored = con.execute("SELECT MAX(seq), COUNT(*) FROM measurements").fetchone()
     con.close()
     assert stored[0] >= committed and stored[1] == stored[0] + 1
+
+
+def picture(seq: int, t: float, fused: tuple[tuple[str, int], ...], closing: bool = False, **extra: object) -> TrackPicture:
+    n = 0 if closing else 1
+    return TrackPicture(seq=seq, t=t, ids=tuple(range(n)), x=np.ones((n, 4)), P=np.tile(np.eye(4), (n, 1)),
+                        confirmed=(True,) * n, sensors=(("a", "b"),) * n, fused_sensors=tuple(s for s, _ in fused),
+                        fused_seqs=tuple(q for _, q in fused), stamp_ns=7, closing=closing, **extra)
+
+
+def test_the_launcher_exports_a_picture_recording_in_the_centres_order_after_everything_stopped(tmp_path: Path) -> None:
+    """``fedtrack launch`` plans its recorder without ``--out`` and writes the JSON Lines itself once
+    every service has stopped, from the database alone (here no recorder process ran at all, as
+    after one was killed): the scans in the order the pictures list them (a region run's scan once
+    per region, tagged), a departure, the scans no picture lists in unprocessed.jsonl, no closing
+    record among the pictures."""
+    from fedtrack.deploy.launcher import Launcher, service_plan
+    from fedtrack.deploy.settings import load_settings
+
+    db = tmp_path / "recording.db"
+    rec = Recording(db)
+    scans = [meas("a", 0, 0.0), meas("b", 0, 0.2), meas("a", 1, 1.0), meas("b", 1, 1.2), meas("a", 2, 2.0)]
+    pictures = [picture(0, 1.0, (("b", 0), ("a", 0), ("a", 0)), regions=("r1", "r1", "r2")),
+                picture(1, 2.0, (("a", 1), ("b", 0)), left=(1,), regions=("r2", "r2")),
+                picture(2, 2.0, (("b", 1),), closing=True, regions=("r1",))]
+    for msg in [*scans, *pictures]:
+        assert rec.add(msg, encode(msg)) == RECORDED
+    rec.close()
+    config = Path(__file__).resolve().parents[1] / "deploy" / "local.toml"
+    settings = load_settings(config)
+    plan = service_plan(settings, config, tmp_path, tmp_path / "logs", recorder_exports=False)
+    recorder = next(sp for sp in plan if sp.role == "recorder")
+    assert "--out" not in recorder.argv and recorder.argv[recorder.argv.index("--db") + 1] == str(db)
+    Launcher(settings, [recorder], quiet=True)._export_recording()
+
+    lines = [json.loads(x) for x in (tmp_path / "measurements.jsonl").read_text().splitlines()]
+    assert [(x.get("sensor"), x["t"], x.get("region"), x.get("left", False)) for x in lines] == [
+        ("b", 0.2, "r1", False), ("a", 0.0, "r1", False), ("a", 0.0, "r2", False), ("a", 1.0, "r2", False),
+        ("b", 2.0, "r2", True), ("b", 1.2, "r1", False)]
+    assert lines[0]["z"] == [1.0, 2.0] and lines[0]["seq"] == 0
+    unprocessed = [json.loads(x) for x in (tmp_path / "unprocessed.jsonl").read_text().splitlines()]
+    assert [(x["sensor"], x["t"]) for x in unprocessed] == [("a", 2.0)]
+    tracks = [json.loads(x) for x in (tmp_path / "tracks.jsonl").read_text().splitlines()]
+    assert [x["t"] for x in tracks] == [1.0, 2.0] and tracks[0]["tracks"][0]["sensors"] == ["a", "b"]
