@@ -44,15 +44,24 @@ def check_output(path: str | Path) -> Path:
     return p
 
 
-def output_folder(path: str | Path) -> Path:
-    """``path`` as a folder a command writes several files into (``simulate --out DIR``): created
-    if missing, but its own folder must exist (the rule of :func:`check_output`: fedtrack creates
-    what it is told to write, never the folders above it); an InputError naming it otherwise."""
+def check_output_folder(path: str | Path) -> Path:
+    """``path`` as a folder a command will write several files into, or an InputError naming it:
+    a folder, or missing in a folder that exists (the rule of :func:`check_output`). A command
+    checks it before it starts work and creates it (:func:`output_folder`) when it writes."""
     p = Path(path)
     if p.exists() and not p.is_dir():
         raise InputError(f"{p}: exists and is not a folder")
     if not p.is_dir():
         check_output(p)
+    return p
+
+
+def output_folder(path: str | Path) -> Path:
+    """``path`` as a folder a command writes several files into (``simulate --out DIR``): created
+    if missing, but its own folder must exist (the rule of :func:`check_output`: fedtrack creates
+    what it is told to write, never the folders above it); an InputError naming it otherwise."""
+    p = check_output_folder(path)
+    if not p.is_dir():
         try:
             p.mkdir()
         except OSError as exc:

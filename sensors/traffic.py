@@ -37,7 +37,7 @@ from fedtrack.geodetic import (
     site_from_enu,
     site_from_geodetic,
 )
-from fedtrack.jsonl import InputError, check_readable, read_jsonl
+from fedtrack.jsonl import InputError, check_output_folder, check_readable, output_file, read_jsonl
 from fedtrack.sensors.multitarget import (
     DT,
     RADAR_SD,
@@ -395,7 +395,8 @@ def derived_tracker(truth: Truth, specs: list[SensorSpec]) -> dict[str, float | 
 def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, start: float = 0.0,
              duration: float | None = None, box: float = 100e3, max_gap: float = 30.0, pd: float = 0.9,
              clutter: float = 10.0, late: float = 0.2, nacp: int = 9) -> dict[str, Any]:
-    """Write ``measurements.jsonl``, ``truth.jsonl`` and ``config.toml`` to ``out``."""
+    """Write ``measurements.jsonl``, ``truth.jsonl`` and ``config.toml`` to ``out``, each whole or not
+    at all (a library caller's folder is created; the command checks it first: :func:`main`)."""
     rng = np.random.default_rng(seed)
     truth = build_truth(rec, frame, start, duration, box, max_gap)
     if not truth.icao24:
@@ -417,12 +418,12 @@ def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, star
             lines += sensor_lines(s, sc, truth.x, truth.alive, True, rng, site=site, noise=noise)
     lines.sort(key=lambda item: item[0])
     out.mkdir(parents=True, exist_ok=True)
-    with (out / "measurements.jsonl").open("w") as fh:
+    with output_file(out / "measurements.jsonl") as fh:
         for _, line in lines:
             fh.write(json.dumps(line) + "\n")
     three_d = any(s.kind == "radar" for s in specs)
     dims = [0, 1, 2, 3, 4, 5] if three_d else [0, 1, 2, 3]
-    with (out / "truth.jsonl").open("w") as fh:
+    with output_file(out / "truth.jsonl") as fh:
         for second in range(int(sc.duration) + 1):
             step = int(round(second / DT))
             live = np.flatnonzero(truth.alive[step])
@@ -438,7 +439,8 @@ def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, star
     # false reports are none, written as one per (1000 km)^2 (the tracker's log takes no zero)
     mtt["sensor"] = {s.id: {"clutter_density": 1e-12 if s.kind == "adsb" else clutter_density(s, sc)} for s in specs}
     frame_table = {"origin": list(frame), "sites": {s.id: site.geodetic.tolist() for s, site, _ in sensors if site}}
-    (out / "config.toml").write_text(to_toml({"mtt": mtt, "frame": frame_table}))
+    with output_file(out / "config.toml") as fh:
+        fh.write(to_toml({"mtt": mtt, "frame": frame_table}))
     return {"scans": len(lines), "targets": len(truth.icao24), "start": truth.t0, "duration": sc.duration,
             "most_alive": int(truth.alive.sum(axis=1).max()), "derived": derived,
             "sensors": [f"{s.id} ({s.kind}, {s.period:g} s)" for s in specs]}
@@ -464,8 +466,10 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--origin", required=True, help="LAT,LON[,H]: the common frame's origin (deg, deg, m)")
     parser.add_argument("--sensors", default="radar:4,radar:5,pos:2",
                         help="comma-separated KIND:PERIOD[@LAT/LON/H] (below; default radar:4,radar:5,pos:2)")
-    parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--out", required=True, type=Path)
+    parser.add_argument("--seed", type=int, default=1, help="seed of the sensors' noise, detections, clutter, "
+                        "delays and ADS-B report times (default: %(default)s)")
+    parser.add_argument("--out", required=True, type=Path, metavar="DIR",
+                        help="folder to write into (created if missing; its own folder must exist)")
     parser.add_argument("--start", type=float, default=0.0, help="seconds after the first sample (default 0)")
     parser.add_argument("--duration", type=float, help="seconds (default: to the last sample)")
     parser.add_argument("--box", type=float, default=100.0,
@@ -473,9 +477,13 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--max-gap", type=float, default=30.0,
                         help="seconds: a longer gap between an aircraft's samples ends its track (default 30)")
     parser.add_argument("--units", choices=sorted(UNITS), default="si", help="input units (below; default si)")
-    parser.add_argument("--pd", type=float, default=0.9)
-    parser.add_argument("--clutter", type=float, default=10.0, help="false detections per scan (not ADS-B)")
-    parser.add_argument("--late", type=float, default=0.2, help="fraction of scans delivered late")
+    parser.add_argument("--pd", type=float, default=0.9,
+                        help="probability that a sensor detects an aircraft in a scan (default: %(default)s)")
+    parser.add_argument("--clutter", type=float, default=10.0,
+                        help="mean number of false detections per scan, not ADS-B (Poisson; default: %(default)s)")
+    parser.add_argument("--late", type=float, default=0.2,
+                        help="fraction of scans delivered late, up to two of their sensor's periods "
+                             "(default: %(default)s)")
     parser.add_argument("--nacp", type=int, choices=sorted(NACP_EPU), default=9,
                         help="ADS-B navigation accuracy category: sigma per axis = EPU / 2.448 (9: 30 m EPU, "
                              "12.3 m; default 9)")
@@ -484,8 +492,7 @@ def main(argv: list[str]) -> int:
             and 0 <= args.late < 1 and (args.duration is None or args.duration > 0)):
         parser.error("need --box > 0, --max-gap > 0, --start >= 0, --duration > 0, 0 < --pd <= 1, --clutter >= 0, "
                      "0 <= --late < 1")
-    if args.out.exists() and not args.out.is_dir():
-        raise InputError(f"{args.out}: exists and is not a folder")
+    check_output_folder(args.out)  # created once the data is read and the sensors parsed
     frame = _origin(args.origin)
     rec = read_recording(args.source, args.units)
     info = simulate(rec, frame, args.sensors, args.seed, args.out, args.start, args.duration, args.box * 1e3,

@@ -21,6 +21,7 @@ from fedtrack import cli
 from fedtrack.cli import main
 
 README = Path(__file__).resolve().parent.parent / "README.md"
+TRAFFIC = README.parent / "tests" / "data" / "traffic_paris.csv.gz"
 R2 = [[100.0, 0.0], [0.0, 100.0]]
 R3 = [[100.0, 0.0, 0.0], [0.0, 1e-6, 0.0], [0.0, 0.0, 1e-6]]
 
@@ -119,6 +120,8 @@ def test_no_command_creates_a_missing_folder_and_all_say_so_alike(tmp_path: Path
     missing = tmp_path / "missing"
     commands = {
         "simulate": ["simulate", "multitarget", "--targets", "2", "--duration", "5", "--out", str(missing / "o")],
+        "simulate traffic": ["simulate", "traffic", "--source", str(TRAFFIC), "--origin", "48.85,2.35",
+                             "--out", str(missing / "o")],
         "replay": ["replay", "--algorithm", "mtt-local", "--sensor", "s1", "--measurements", str(measurements),
                    "--out", str(missing / "o")],
         "evaluate": ["evaluate", "--tracks", str(truth), "--truth", str(truth), "--json", str(missing / "o")],
@@ -163,8 +166,8 @@ def _parsers(argv: list[str]) -> list[argparse.ArgumentParser]:
 
 
 BENCH_SUITES = ("pipeline", "kernels", "montecarlo", "multitarget", "scale", "soak", "hpda-soak", "all")
-COMMANDS = [["reproduce"], ["replay"], ["simulate", "multitarget"], ["evaluate"], ["export"], ["demo"],
-            ["launch"], ["train", "ts-fuzzy"], *(["bench", s] for s in BENCH_SUITES)]
+COMMANDS = [["reproduce"], ["replay"], *(["simulate", s] for s in cli.SIMULATORS), ["evaluate"], ["export"], ["demo"],
+            ["launch"], *(["train", t] for t in cli.TRAINERS), *(["bench", s] for s in BENCH_SUITES)]
 HELP_CASES = COMMANDS + [["serve", role] for role in cli.SERVICES]
 
 
