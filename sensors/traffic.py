@@ -279,7 +279,9 @@ def build_truth(rec: Recording, frame: Frame, start: float, duration: float | No
     t0 = float(rec.t.min()) + start
     end = float(rec.t.max()) if duration is None else t0 + duration
     if not end > t0:
-        raise InputError(f"--start {start:g}: after the recording's last sample")
+        span = float(rec.t.max() - rec.t.min())
+        raise InputError(f"--start {start:g}: no data after it (the recording spans {span:g} s from its first "
+                         f"sample; --start must be less)")
     steps = int(round((end - t0) / DT)) + 1
     grid = t0 + np.arange(steps) * DT
     pieces = [p for p in segments(rec, max_gap) if rec.t[p[-1]] >= t0 and rec.t[p[0]] <= end]
