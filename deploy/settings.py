@@ -51,8 +51,10 @@ class MultitargetSettings:
     def validate(self) -> None:
         if self.algorithm not in MTT_ALGORITHMS:
             raise ConfigError(f"algorithm: must be one of {', '.join(MTT_ALGORITHMS)}, got {self.algorithm!r}")
-        if self.targets < 1 or not self.duration > 0 or not 0 < self.pd <= 1 or self.clutter < 0:
-            raise ConfigError("need targets >= 1, duration > 0, 0 < pd <= 1, clutter >= 0")
+        for name, ok, rule in (("targets", self.targets >= 1, ">= 1"), ("duration", self.duration > 0, "> 0"),
+                               ("pd", 0 < self.pd <= 1, "in (0, 1]"), ("clutter", self.clutter >= 0, ">= 0")):
+            if not ok:
+                raise ConfigError(f"{name}: must be {rule}, got {getattr(self, name):g}")
         if not 0 < self.half_width < math.inf:
             raise ConfigError(f"half_width: must be finite and > 0, got {self.half_width:g}")
         if self.source and (self.origin is None or not self.box > 0 or self.start < 0):

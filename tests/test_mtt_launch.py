@@ -120,6 +120,8 @@ def test_a_sensor_joins_and_another_is_killed_during_a_launch(tmp_path: Path) ->
     ("join_at = { s9 = 5.0 }", "multitarget.join_at.s9"),
     ("join_at = { s1 = 5.0, r2 = 5.0, s3 = 5.0 }", "multitarget.join_at"),
     ("half_width = 0.0", "multitarget.half_width"),
+    ("pd = 1.5", "multitarget.pd: must be in (0, 1], got 1.5"),
+    ("pd = nan", "multitarget.pd: must be in (0, 1], got nan"),
 ])
 def test_a_wrong_join_or_kill_schedule_fails_at_start(tmp_path: Path, extra: str, field: str) -> None:
     config = tmp_path / "mtt.toml"
