@@ -141,7 +141,7 @@ def test_level_walk_of_the_structure_limits_equals_the_depth_first_walk(monkeypa
                               max_leaves=30)
     seen = {"passed": 0, "deep": 0, "many": 0}
 
-    @SETTINGS
+    @settings(SETTINGS, derandomize=True)  # the same 300 examples every run: each kind of outcome 10 times or more
     @given(obj=structures, wrap=st.integers(0, 2))
     def run(obj: Any, wrap: int) -> None:
         for _ in range(wrap):  # deeper
