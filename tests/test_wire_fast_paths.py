@@ -69,7 +69,7 @@ def scans(draw: st.DrawFn) -> tuple[dict[str, Any], bool]:
         if what == "item" or not isinstance(det, dict):
             dets[j] = odd
         elif what == "drop":
-            det.pop(draw(st.sampled_from(["z", "amplitude"])))
+            det.pop(draw(st.sampled_from(["z", "amplitude"])), None)  # a second mutation may drop what one dropped
         elif what == "add":
             det["extra"] = 1.0
         elif what == "amplitude":
