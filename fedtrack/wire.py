@@ -26,7 +26,7 @@ import json
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, ClassVar, TypeVar
+from typing import Any, Callable, ClassVar, NamedTuple, Sequence, TypeVar
 
 import msgpack
 import numpy as np
@@ -49,6 +49,11 @@ PD_RTOL = 1e-12
 MEASUREMENT_KINDS = ("position", "radar", "sonar", "scan")
 MAX_TRACKS = 2048  # tracks in one multi-target report or picture
 MAX_BATCH_ELEMENTS = MAX_TRACKS * 36  # a batched array: MAX_TRACKS 6x6 covariances
+# a message whose batch exceeds a bound goes in at most MAX_PARTS parts, each within every bound
+# (:func:`parts`, :func:`join`; docs/wire.md, "Messages in parts"): 64 x 2048 = 131,072 tracks in one
+# picture, above issue 27's national picture of 10^5; the receivers' reassembly holds at most
+# MAX_PARTS x MAX_PAYLOAD_BYTES = 128 MiB of one message
+MAX_PARTS = 64
 # bounds of the msgpack structure itself, checked before any field is looked at (docs/wire.md, "Limits"):
 # the deepest message is 5 containers deep (Measurement -> detections -> detection -> z -> shape)
 MAX_DEPTH = 8
@@ -186,6 +191,12 @@ def _covariance(value: Any, path: str) -> np.ndarray:
     return sym
 
 
+def _whole(limit: int) -> int:
+    """The bound of a batch in a whole message (built in Python, sent in parts): MAX_PARTS times
+    ``limit``, the bound in one message on the wire (:func:`encode` and :func:`decode` check that)."""
+    return MAX_PARTS * limit
+
+
 def _optional(check: Callable[[Any, str], Any]) -> Callable[[Any, str], Any]:
     def optional(value: Any, path: str) -> Any:
         return None if value is None else check(value, path)
@@ -236,6 +247,14 @@ def _extra(value: Any, path: str) -> dict[str, Any]:
     return extra
 
 
+def _check_part(part: int, parts: int) -> None:
+    """A part's index and count: 0 <= part < parts <= MAX_PARTS."""
+    if not 1 <= parts <= MAX_PARTS:
+        raise WireError("parts", f"must be in [1, {MAX_PARTS}], got {parts}")
+    if part >= parts:
+        raise WireError("part", f"must be below parts ({parts}), got {part}")
+
+
 def _check_square(P: np.ndarray, n: int, path: str, against: str) -> None:
     if P.shape != (n, n):
         raise WireError(path, f"expected shape ({n}, {n}) to match {against}, got {P.shape}")
@@ -244,6 +263,22 @@ def _check_square(P: np.ndarray, n: int, path: str, against: str) -> None:
 # ---------------------------------------------------------------- records
 
 R = TypeVar("R", bound="_Record")
+
+
+class _Items(NamedTuple):
+    """Per-item fields of a message type, split together by :func:`parts` (docs/wire.md, "Messages
+    in parts"). The first field, a tuple, counts the items; an array holds the same number of rows
+    for each item (a stacked covariance (n d, d): d); a tuple left empty while there are items
+    (``elsewhere``, ``ca``, ``regions``) stays empty in every part; None stays None. ``limit`` names
+    the wire bound on their number in one message. ``cut``: None, the items in even runs; "of":
+    the items of the first batch's items flagged by its field ``ref``, in order (a report's
+    observations, one per detected track); "at": the first field lists positions among the items
+    of the batch whose first field is ``ref`` (ascending), each entry going with its position."""
+
+    fields: tuple[str, ...]
+    limit: str
+    cut: str | None = None
+    ref: str | None = None
 
 
 @functools.cache
@@ -268,11 +303,15 @@ class _Record:
     # default and taken as the default when absent, so that a deployment without regions sends the
     # same bytes as before they existed
     _omitted: ClassVar[tuple[str, ...]] = ()
+    # a batched message's per-item fields (:class:`_Items`): it has the fields ``part`` and ``parts``
+    _items: ClassVar[tuple[_Items, ...]] = ()
 
     def __post_init__(self) -> None:
         try:
             for name, check in self._fields.items():
                 object.__setattr__(self, name, check(getattr(self, name), name))
+            if self._items:
+                _check_part(self.part, self.parts)  # type: ignore[attr-defined]
             self._check()
         except WireError as exc:
             if not self._top_level:
@@ -324,7 +363,7 @@ class Detection(_Record):
 
 
 def _detections(value: Any, path: str) -> tuple[Detection, ...]:
-    items = _sequence(value, path, MAX_DETECTIONS)
+    items = _sequence(value, path, _whole(MAX_DETECTIONS))
     out = []
     for i, item in enumerate(items):
         if isinstance(item, Detection):
@@ -395,12 +434,17 @@ class Measurement(_Record):
     detections: tuple[Detection, ...] = ()
     sensor_position: np.ndarray | None = None
     stamp_ns: int = field(default_factory=time.time_ns)
+    part: int = 0  # this part's index, parts: how many (docs/wire.md, "Messages in parts"); on the wire only when > 1
+    parts: int = 1
 
     _fields = {"sensor": _identifier, "seq": _count, "t": _real, "kind": _choice(*MEASUREMENT_KINDS),
                "z": _vector, "R": _covariance, "detections": _detections,
-               "sensor_position": _optional(_vector), "stamp_ns": _count}
+               "sensor_position": _optional(_vector), "stamp_ns": _count, "part": _count,
+               "parts": _count}
     _arrays = ("z", "R", "sensor_position")
     _records = {"detections": Detection}
+    _omitted = ("part", "parts")
+    _items = (_Items(("detections",), "MAX_DETECTIONS"),)
 
     def _check(self) -> None:
         if self.kind in ("sonar", "scan"):
@@ -548,11 +592,11 @@ class ManeuverEvent(_Record):
 
 
 def _counts(value: Any, path: str) -> tuple[int, ...]:
-    return tuple(_count(v, f"{path}[{i}]") for i, v in enumerate(_sequence(value, path, MAX_TRACKS)))
+    return tuple(_count(v, f"{path}[{i}]") for i, v in enumerate(_sequence(value, path, _whole(MAX_TRACKS))))
 
 
 def _flags(value: Any, path: str) -> tuple[bool, ...]:
-    return tuple(_flag(v, f"{path}[{i}]") for i, v in enumerate(_sequence(value, path, MAX_TRACKS)))
+    return tuple(_flag(v, f"{path}[{i}]") for i, v in enumerate(_sequence(value, path, _whole(MAX_TRACKS))))
 
 
 def _check_probabilities(p: np.ndarray | None, n: int, path: str = "existence") -> None:
@@ -562,8 +606,27 @@ def _check_probabilities(p: np.ndarray | None, n: int, path: str = "existence") 
 
 
 def _batch(value: Any, path: str) -> np.ndarray:
-    """A 2-D array of a batch of tracks (up to MAX_BATCH_ELEMENTS elements)."""
-    return _array(value, path, 2, MAX_BATCH_ELEMENTS)
+    """A 2-D array of a batch of tracks (up to MAX_BATCH_ELEMENTS elements a message)."""
+    return _array(value, path, 2, _whole(MAX_BATCH_ELEMENTS))
+
+
+def _batch_vector(value: Any, path: str) -> np.ndarray:
+    """A 1-D array of one value per track of a batch (existence)."""
+    return _array(value, path, 1, _whole(MAX_BATCH_ELEMENTS))
+
+
+def _tracks_list(check: Callable[[Any, str], Any]) -> Callable[[Any, str], tuple[Any, ...]]:
+    """A list of up to MAX_TRACKS values a message, each checked by ``check``."""
+    def values(value: Any, path: str) -> tuple[Any, ...]:
+        return tuple(check(v, f"{path}[{i}]") for i, v in enumerate(_sequence(value, path, _whole(MAX_TRACKS))))
+    return values
+
+
+_optional_batch = _optional(_batch)
+_optional_batch_vector = _optional(_batch_vector)
+_BATCH_CHECKS = (_batch, _optional_batch, _optional_batch_vector)  # decoded within MAX_BATCH_ELEMENTS
+_identifier_list = _tracks_list(_identifier)
+_reals = _tracks_list(_real)
 
 
 def _covariance_stack(P: np.ndarray, n: int, d: int, path: str) -> np.ndarray:
@@ -635,13 +698,18 @@ class TrackReport(_Record):
     # a region's sub-report (docs/multitarget.md#regions): per track, whether its tracker believes
     # another region's centre holds it (empty: none does; omitted then)
     elsewhere: tuple[bool, ...] = ()
+    part: int = 0  # this part's index, parts: how many (docs/wire.md, "Messages in parts"); on the wire only when > 1
+    parts: int = 1
 
     _fields = {"sensor": _identifier, "seq": _count, "t": _real, "ids": _counts, "x": _batch, "P": _batch,
                "confirmed": _flags, "detected": _flags, "obs_H": _batch, "obs_R": _batch, "obs_z": _batch,
                "started": _flags, "retired": _counts, "stamp_ns": _count, "contested": _scans,
-               "existence": _optional(_vector), "elsewhere": _flags}
+               "existence": _optional_batch_vector, "elsewhere": _flags, "part": _count, "parts": _count}
     _arrays = ("x", "P", "obs_H", "obs_R", "obs_z", "existence")
-    _omitted = ("elsewhere",)
+    _omitted = ("elsewhere", "part", "parts")
+    _items = (_Items(("ids", "x", "P", "confirmed", "detected", "existence", "elsewhere"), "MAX_TRACKS"),
+              _Items(("started", "obs_H", "obs_R", "obs_z"), "MAX_TRACKS", "of", "detected"),
+              _Items(("retired",), "MAX_TRACKS"))
 
     def _check(self) -> None:
         n = len(self.ids)
@@ -685,12 +753,16 @@ class TrackResets(_Record):
     held: tuple[int, ...] = ()
     moved: tuple[int, ...] = ()
     moved_to: tuple[str, ...] = ()
+    part: int = 0  # this part's index, parts: how many (docs/wire.md, "Messages in parts"); on the wire only when > 1
+    parts: int = 1
 
     _fields = {"sensor": _identifier, "seq": _count, "t": _real, "q_scale": _real, "ids": _counts,
                "x": _batch, "P": _batch, "region": _optional(_identifier), "held": _counts, "moved": _counts,
-               "moved_to": lambda v, p: _identifier_list(v, p, MAX_TRACKS)}
+               "moved_to": _identifier_list, "part": _count, "parts": _count}
     _arrays = ("x", "P")
-    _omitted = ("region", "held", "moved", "moved_to")
+    _omitted = ("region", "held", "moved", "moved_to", "part", "parts")
+    _items = (_Items(("ids", "x", "P"), "MAX_TRACKS"), _Items(("held",), "MAX_TRACKS"),
+              _Items(("moved", "moved_to"), "MAX_TRACKS"))
 
     def _check(self) -> None:
         if not 1.0 <= self.q_scale <= MAX_TRACKS:
@@ -700,10 +772,6 @@ class TrackResets(_Record):
             raise WireError("moved_to", "expected one region per moved track")
         if self.region is None and (self.held or self.moved):
             raise WireError("region", "held and moved come with the answering region")
-
-
-def _identifier_list(value: Any, path: str, limit: int) -> tuple[str, ...]:
-    return tuple(_identifier(x, f"{path}[{i}]") for i, x in enumerate(_sequence(value, path, limit)))
 
 
 def _id_lists(value: Any, path: str) -> tuple[tuple[str, ...], ...]:
@@ -719,7 +787,7 @@ def _id_lists(value: Any, path: str) -> tuple[tuple[str, ...], ...]:
         return tuple(items)
 
     return tuple(ids(_sequence(v, f"{path}[{i}]", MAX_LIST_ITEMS), f"{path}[{i}]")
-                 for i, v in enumerate(_sequence(value, path, MAX_TRACKS)))
+                 for i, v in enumerate(_sequence(value, path, _whole(MAX_TRACKS))))
 
 
 @dataclass(frozen=True, eq=False)
@@ -766,17 +834,24 @@ class TrackPicture(_Record):
     # until their new owner shows them) and the data time of each hand-over
     in_flight: tuple[int, ...] = ()
     in_flight_t: tuple[float, ...] = ()
+    part: int = 0  # this part's index, parts: how many (docs/wire.md, "Messages in parts"); on the wire only when > 1
+    parts: int = 1
 
     _fields = {"seq": _count, "t": _real, "ids": _counts, "x": _batch, "P": _batch, "confirmed": _flags,
-               "sensors": _id_lists, "ca": _flags, "maneuvering": _counts, "maneuver": _optional(_batch),
-               "fused_sensors": lambda v, p: _identifier_list(v, p, MAX_TRACKS),
+               "sensors": _id_lists, "ca": _flags, "maneuvering": _counts, "maneuver": _optional_batch,
+               "fused_sensors": _identifier_list,
                "fused_seqs": _counts, "stamp_ns": _count, "closing": _flag, "left": _counts, "contested": _flag,
-               "existence": _optional(_vector), "lla": _optional(_batch),
-               "handovers": _counts, "regions": lambda v, p: _identifier_list(v, p, MAX_TRACKS),
-               "in_flight": _counts, "in_flight_t": lambda v, p: tuple(
-                   _real(x, f"{p}[{i}]") for i, x in enumerate(_sequence(v, p, MAX_TRACKS)))}
+               "existence": _optional_batch_vector, "lla": _optional_batch,
+               "handovers": _counts, "regions": _identifier_list,
+               "in_flight": _counts, "in_flight_t": _reals, "part": _count, "parts": _count}
     _arrays = ("x", "P", "maneuver", "existence", "lla")
-    _omitted = ("handovers", "regions", "in_flight", "in_flight_t")
+    _omitted = ("handovers", "regions", "in_flight", "in_flight_t", "part", "parts")
+    _items = (_Items(("ids", "x", "P", "confirmed", "sensors", "ca", "existence", "lla"), "MAX_TRACKS"),
+              _Items(("fused_seqs", "fused_sensors", "regions"), "MAX_TRACKS"),
+              _Items(("maneuvering", "maneuver"), "MAX_TRACKS", "at", "ids"),
+              _Items(("in_flight", "in_flight_t"), "MAX_TRACKS", "at", "ids"),
+              _Items(("left",), "MAX_TRACKS", "at", "fused_seqs"),
+              _Items(("handovers",), "MAX_TRACKS", "at", "fused_seqs"))
 
     def _check(self) -> None:
         n = len(self.ids)
@@ -840,10 +915,10 @@ class HandOver(_Record):
     strikes: tuple[int, ...]
 
     _fields = {"source": _identifier, "serial": _count, "id": _count, "confirmed": _flag, "ring": _batch,
-               "neg_inf": _counts, "sensors": lambda v, p: _identifier_list(v, p, MAX_TRACKS), "support": _counts,
+               "neg_inf": _counts, "sensors": _identifier_list, "support": _counts,
                "streak": _counts,
                "window": _flags, "last_support": _real,
-               "member_sensors": lambda v, p: _identifier_list(v, p, MAX_TRACKS), "member_ids": _counts,
+               "member_sensors": _identifier_list, "member_ids": _counts,
                "strikes": _counts}
     _arrays = ("ring",)
 
@@ -895,7 +970,8 @@ def _encode_record(rec: _Record) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for f in _record_fields(type(rec)):
         value = getattr(rec, f.name)
-        if f.name in rec._omitted and (value is None or value == () or value == f.default):
+        if f.name in rec._omitted and (value is None or value == () or value == f.default) and not (
+                f.name == "part" and rec.parts > 1):  # type: ignore[attr-defined]
             continue
         if value is None:
             out[f.name] = None
@@ -914,10 +990,12 @@ def _encode_record(rec: _Record) -> dict[str, Any]:
 
 
 def encode(msg: Message) -> bytes:
-    """msgpack bytes of ``msg``; WireError if it exceeds MAX_PAYLOAD_BYTES."""
+    """msgpack bytes of ``msg``; WireError if a batch of it exceeds its bound in one message
+    (:func:`payloads` sends such a message in parts) or the bytes exceed MAX_PAYLOAD_BYTES."""
     if not isinstance(msg, MESSAGE_TYPES):
         raise WireError("message", f"not a wire message type: {type(msg).__name__}")
     name = type(msg).__name__
+    _check_counts(msg, " (send it in parts: fedtrack.wire.parts)")
     payload = msgpack.packb({"schema": SCHEMA_VERSION, "type": name, **_encode_record(msg)}, use_bin_type=True)
     if len(payload) > MAX_PAYLOAD_BYTES:
         raise WireError(name, f"encoded size {len(payload)} bytes exceeds the limit of {MAX_PAYLOAD_BYTES}")
@@ -1012,7 +1090,7 @@ def _decode_record(cls: type[M], obj: Any, path: str, envelope: tuple[str, ...] 
         value = obj[name]
         where = f"{path}.{name}"
         if name in cls._arrays:
-            value = _decode_array(value, where, MAX_BATCH_ELEMENTS if cls._fields[name] is _batch else MAX_ARRAY_ELEMENTS)
+            value = _decode_array(value, where, MAX_BATCH_ELEMENTS if cls._fields[name] in _BATCH_CHECKS else MAX_ARRAY_ELEMENTS)
         elif name in cls._records and value is not None:
             sub = cls._records[name]
             if isinstance(value, list):
@@ -1110,7 +1188,183 @@ def decode(payload: bytes | bytearray | memoryview, expected_type: type[M]) -> M
         raise WireError(f"{name}.schema", f"unsupported schema version {brief(schema)} (expected {SCHEMA_VERSION})")
     if obj.get("type") != name:
         raise WireError(f"{name}.type", f"expected {name!r}, got {brief(obj.get('type'))}")
-    return _decode_record(expected_type, obj, name, _ENVELOPE)
+    msg = _decode_record(expected_type, obj, name, _ENVELOPE)
+    _check_counts(msg)
+    return msg
+
+
+# ---------------------------------------------------------------- messages in parts
+
+def _count_over(msg: _Record) -> tuple[str, int, int] | None:
+    """The first batch of ``msg`` beyond its bound in one message: (field, items, bound); else None."""
+    for items in msg._items:
+        n, limit = len(getattr(msg, items.fields[0])), globals()[items.limit]
+        if n > limit:
+            return items.fields[0], n, limit
+    return None
+
+
+def _check_counts(msg: _Record, hint: str = "") -> None:
+    """WireError naming the field when a batch of ``msg`` exceeds its bound in one message."""
+    over = _count_over(msg)
+    if over is not None:
+        name, n, limit = over
+        raise WireError(f"{type(msg).__name__}.{name}", f"{n} items exceed the limit of {limit} per message{hint}")
+
+
+def _rows(value: Any, a: int, b: int, n: int) -> Any:
+    """Items [a, b) of a per-item field of ``n`` items (see :class:`_Items`)."""
+    if value is None:
+        return None
+    if isinstance(value, np.ndarray):
+        r = value.shape[0] // n if n else 0
+        return value[a * r:b * r]
+    return value[a:b] if len(value) else value
+
+
+def _cut(msg: M, k: int) -> list[M]:
+    """``msg`` cut into ``k`` parts: each batch's items in ``k`` runs (:class:`_Items`), the other
+    fields copied; built unchecked (the receiver decodes each part)."""
+    cls, name = type(msg), type(msg).__name__
+    batched = {f for items in cls._items for f in items.fields}
+    head = {f.name: getattr(msg, f.name) for f in _record_fields(cls) if f.name not in batched}
+    values: list[dict[str, Any]] = [{**head, "part": j, "parts": k} for j in range(k)]
+    bounds: dict[str, list[int]] = {}  # a batch's first field -> its k + 1 run boundaries
+    for items in cls._items:
+        first = items.fields[0]
+        n = len(getattr(msg, first))
+        offsets = [0] * k
+        if items.cut is None:
+            cuts = [j * n // k for j in range(k + 1)]
+        elif items.cut == "of":
+            flagged = np.concatenate([[0], np.cumsum(np.asarray(getattr(msg, items.ref), dtype=np.int64))])
+            cuts = [int(flagged[b]) for b in bounds[cls._items[0].fields[0]]]
+        else:
+            outer = bounds[items.ref]  # type: ignore[index]
+            owner = np.searchsorted(outer, np.asarray(getattr(msg, first), dtype=np.int64), side="right") - 1
+            if np.any(np.diff(owner) < 0):
+                raise WireError(f"{name}.{first}", "positions must ascend for the message to be sent in parts")
+            cuts = np.searchsorted(owner, np.arange(k + 1)).tolist()
+            offsets = outer[:k]
+        bounds[first] = cuts
+        for j in range(k):
+            for f in items.fields:
+                values[j][f] = _rows(getattr(msg, f), cuts[j], cuts[j + 1], n)
+            if offsets[j]:
+                values[j][first] = tuple(p - offsets[j] for p in values[j][first])
+    return [cls.unchecked(**v) for v in values]
+
+
+def _split(msg: M) -> list[tuple[M, bytes]]:
+    """The parts of ``msg`` with their payloads (see :func:`parts`)."""
+    if not isinstance(msg, MESSAGE_TYPES):
+        raise WireError("message", f"not a wire message type: {type(msg).__name__}")
+    name = type(msg).__name__
+    if _count_over(msg) is None:
+        payload = msgpack.packb({"schema": SCHEMA_VERSION, "type": name, **_encode_record(msg)}, use_bin_type=True)
+        if len(payload) <= MAX_PAYLOAD_BYTES:
+            return [(msg, payload)]
+        if not msg._items:
+            raise WireError(name, f"encoded size {len(payload)} bytes exceeds the limit of {MAX_PAYLOAD_BYTES}")
+        k = 2
+    else:  # the fewest parts that bring every batch within its bound
+        k = max(-(-len(getattr(msg, items.fields[0])) // globals()[items.limit]) for items in msg._items)
+    while k <= MAX_PARTS:
+        cut = _cut(msg, k)
+        packed = [msgpack.packb({"schema": SCHEMA_VERSION, "type": name, **_encode_record(p)}, use_bin_type=True)
+                  for p in cut]
+        largest = max(map(len, packed))
+        if largest <= MAX_PAYLOAD_BYTES:
+            return list(zip(cut, packed))
+        k = max(k + 1, -(-k * largest // MAX_PAYLOAD_BYTES))
+    raise WireError(name, f"does not fit in MAX_PARTS = {MAX_PARTS} messages of at most {MAX_PAYLOAD_BYTES} bytes")
+
+
+def parts(msg: M) -> tuple[M, ...]:
+    """``msg`` as messages within every bound of one message (docs/wire.md, "Messages in parts"):
+    ``(msg,)`` itself when it is within them (encoded as ever: ``part`` and ``parts`` are left out);
+    else the fewest parts, at most MAX_PARTS, in which each batch's count is within its bound and
+    each payload within MAX_PAYLOAD_BYTES. Each part holds a run of every batch's items (the
+    per-item fields of :class:`_Items`) and a copy of every other field, ``part`` its index (from
+    0), ``parts`` their number; :func:`join` is the inverse. WireError if no MAX_PARTS parts fit
+    (or ``msg`` is of a type that is not batched and too large)."""
+    return tuple(p for p, _ in _split(msg))
+
+
+def payloads(msg: Message) -> tuple[bytes, ...]:
+    """The encoded :func:`parts` of ``msg``, one payload (one put) each."""
+    return tuple(payload for _, payload in _split(msg))
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Whether two values of a field are the same (arrays: shape and every value)."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return isinstance(a, np.ndarray) and isinstance(b, np.ndarray) and a.shape == b.shape and np.array_equal(a, b)
+    return type(a) is type(b) and a == b
+
+
+def join(received: Sequence[M]) -> M:
+    """The message whose :func:`parts` are ``received`` (in any order), checked as a whole.
+
+    WireError naming the field when the parts are not one message's: of different types, a
+    ``parts`` that differs (or exceeds MAX_PARTS), an index repeated or missing, any other field
+    than the per-item ones differing between parts, per-item fields that do not fit together (a
+    None beside an array, rows of different widths), or a whole that is not a valid message (e.g.
+    a track id in two parts)."""
+    if not received:
+        raise WireError("parts", "no parts to join")
+    cls = type(received[0])
+    name = cls.__name__
+    if not cls._items:
+        raise WireError(name, "is not a batched message type")
+    for p in received:
+        if type(p) is not cls:
+            raise WireError(f"{name}.type", f"a part of type {type(p).__name__} among {name} parts")
+    k = received[0].parts  # type: ignore[attr-defined]
+    for p in received:
+        if p.parts != k:  # type: ignore[attr-defined]
+            raise WireError(f"{name}.parts", f"parts differ: {k} and {p.parts}")  # type: ignore[attr-defined]
+    if k > MAX_PARTS:
+        raise WireError(f"{name}.parts", f"must be at most {MAX_PARTS}, got {k}")
+    ordered = sorted(received, key=lambda p: p.part)  # type: ignore[attr-defined]
+    for j, p in enumerate(ordered):
+        if p.part != j:  # type: ignore[attr-defined]
+            repeated = j > 0 and ordered[j - 1].part == p.part  # type: ignore[attr-defined]
+            raise WireError(f"{name}.part", f"part {p.part if repeated else j} of {k} "  # type: ignore[attr-defined]
+                                            f"{'repeated' if repeated else 'missing'}")
+    if len(ordered) != k:
+        raise WireError(f"{name}.part", f"part {len(ordered)} of {k} missing")
+    batched = {f for items in cls._items for f in items.fields}
+    kwargs: dict[str, Any] = {}
+    for f in _record_fields(cls):
+        if f.name in batched or f.name in ("part", "parts"):
+            continue
+        value = getattr(ordered[0], f.name)
+        for j, p in enumerate(ordered[1:], 1):
+            if not _same(getattr(p, f.name), value):
+                raise WireError(f"{name}.{f.name}", f"differs between parts 0 and {j}")
+        kwargs[f.name] = value
+    counts: dict[str, list[int]] = {}  # a batch's first field -> its items in each part
+    for items in cls._items:
+        first = items.fields[0]
+        counts[first] = [len(getattr(p, first)) for p in ordered]
+        for f in items.fields:
+            vals = [getattr(p, f) for p in ordered]
+            if f == first and items.cut == "at":  # positions in the part's run of the outer batch
+                starts = np.cumsum([0, *counts[items.ref][:-1]]).tolist()  # type: ignore[index]
+                vals = [tuple(x + s for x in v) for v, s in zip(vals, starts)]
+            if all(v is None for v in vals):
+                kwargs[f] = None
+            elif any(v is None for v in vals):
+                raise WireError(f"{name}.{f}", "absent in some parts, present in others")
+            elif isinstance(vals[0], np.ndarray):
+                try:
+                    kwargs[f] = np.concatenate(vals)
+                except ValueError:
+                    raise WireError(f"{name}.{f}", "rows of different shapes in different parts") from None
+            else:
+                kwargs[f] = tuple(x for v in vals for x in v)
+    return cls(**kwargs)
 
 
 # ---------------------------------------------------------------- replay JSON lines

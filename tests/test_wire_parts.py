@@ -1,0 +1,173 @@
+"""Messages beyond the per-message bounds go in parts and come back whole: ``wire.parts`` / ``wire.join``
+(docs/wire.md, "Messages in parts"), with the bounds made small (MAX_TRACKS = 4, MAX_DETECTIONS = 3)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from fedtrack import wire
+from fedtrack.wire import Measurement, TrackPicture, TrackReport, TrackResets, WireError, decode, encode, join, parts
+from tests.test_wire import assert_same
+
+SMALL_TRACKS, SMALL_DETECTIONS = 4, 3
+SIZES = st.sampled_from([0, 1, 3, 4, 5, 8, 9, 13])  # 0, 1, the limits, limit + 1, several parts
+
+
+@pytest.fixture(autouse=True)
+def small_limits(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(wire, "MAX_TRACKS", SMALL_TRACKS)
+    monkeypatch.setattr(wire, "MAX_DETECTIONS", SMALL_DETECTIONS)
+
+
+def spd_stack(rng: np.random.Generator, n: int, d: int) -> np.ndarray:
+    a = rng.normal(size=(n, d, d))
+    return (a @ np.swapaxes(a, 1, 2) + d * np.eye(d)).reshape(n * d, d)
+
+
+def subset(rng: np.random.Generator, n: int) -> tuple[int, ...]:
+    return tuple(np.flatnonzero(rng.random(n) < 0.4).tolist())
+
+
+def make_scan(n: int, seed: int) -> Measurement:
+    rng = np.random.default_rng(seed)
+    return Measurement(sensor="s3", seq=7, t=0.5, kind="scan", z=np.zeros(0), R=spd_stack(rng, 1, 2),
+                       detections=tuple((rng.normal(size=2), float(rng.random())) for _ in range(n)), stamp_ns=11)
+
+
+def make_report(n: int, seed: int) -> TrackReport:
+    rng = np.random.default_rng(seed)
+    detected = tuple(bool(b) for b in rng.random(n) < 0.6)
+    k, m, d = sum(detected), 2, 4
+    return TrackReport(sensor="s2", seq=11, t=1.1, ids=tuple(range(100, 100 + n)), x=rng.normal(size=(n, d)),
+                       P=spd_stack(rng, n, d), confirmed=tuple(bool(b) for b in rng.random(n) < 0.5),
+                       detected=detected, obs_H=rng.normal(size=(k * m, d)), obs_R=spd_stack(rng, k, m),
+                       obs_z=rng.normal(size=(k, m)), started=tuple(bool(b) for b in rng.random(k) < 0.3),
+                       retired=tuple(range(1, 1 + int(rng.integers(0, 9)))), stamp_ns=23, contested=(3,),
+                       existence=rng.random(n) if seed % 2 else None,
+                       elsewhere=tuple(bool(b) for b in rng.random(n) < 0.5) if seed % 3 == 0 else ())
+
+
+def make_resets(n: int, seed: int) -> TrackResets:
+    rng = np.random.default_rng(seed)
+    moved = tuple(range(50, 50 + int(rng.integers(0, 7))))
+    return TrackResets(sensor="s2", seq=11, t=1.1, q_scale=3.0, ids=tuple(range(n)), x=rng.normal(size=(n, 4)),
+                       P=spd_stack(rng, n, 4), region="r1", held=tuple(range(200, 200 + int(rng.integers(0, 9)))),
+                       moved=moved, moved_to=tuple(f"r{i % 3}" for i in range(len(moved))))
+
+
+def make_picture(n: int, seed: int) -> TrackPicture:
+    rng = np.random.default_rng(seed)
+    f = int(rng.integers(0, 10))
+    maneuvering = subset(rng, n) if seed % 3 else ()
+    in_flight = subset(rng, n)
+    left = subset(rng, f)
+    handovers = tuple(i for i in subset(rng, f) if i not in left)
+    return TrackPicture(seq=3, t=3.0, ids=tuple(range(5, 5 + n)), x=rng.normal(size=(n, 4)), P=spd_stack(rng, n, 4),
+                        confirmed=tuple(bool(b) for b in rng.random(n) < 0.5),
+                        sensors=tuple(tuple(f"s{j}" for j in range(i % 3)) for i in range(n)),
+                        fused_sensors=tuple(f"s{i % 2}" for i in range(f)), fused_seqs=tuple(range(f)), stamp_ns=25,
+                        ca=tuple(bool(b) for b in rng.random(n) < 0.5) if seed % 2 else (),
+                        maneuvering=maneuvering,
+                        maneuver=rng.normal(size=(len(maneuvering), 4)) if seed % 3 else None,
+                        existence=rng.random(n) if seed % 2 else None,
+                        lla=np.column_stack([rng.uniform(-90, 90, n), rng.uniform(-180, 180, n), rng.normal(size=n)])
+                        if seed % 5 == 0 else None,
+                        contested=bool(seed % 2), left=left, handovers=handovers,
+                        regions=tuple(f"r{i % 2}" for i in range(f)) if seed % 3 == 0 else (),
+                        in_flight=in_flight, in_flight_t=tuple(float(i) for i in range(len(in_flight))))
+
+
+MAKERS = {"scan": (make_scan, SMALL_DETECTIONS), "report": (make_report, SMALL_TRACKS),
+          "resets": (make_resets, SMALL_TRACKS), "picture": (make_picture, SMALL_TRACKS)}
+
+
+@pytest.mark.fuzz
+@pytest.mark.parametrize("kind", MAKERS)
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(n=SIZES, seed=st.integers(0, 2**16))
+def test_join_of_parts_is_the_message_and_every_part_is_a_valid_message(kind: str, n: int, seed: int) -> None:
+    make, limit = MAKERS[kind]
+    msg = make(n, seed)
+    split = parts(msg)
+    biggest = max(n, *(len(getattr(msg, items.fields[0])) for items in type(msg)._items))
+    assert len(split) == max(1, -(-biggest // limit))
+    if len(split) == 1:
+        assert split[0] is msg and b"parts" not in encode(msg)  # today's message, today's bytes
+    for j, part in enumerate(split):
+        back = decode(encode(part), type(msg))  # within every per-message bound
+        assert_same(back, part)
+        assert (back.part, back.parts) == ((j, len(split)) if len(split) > 1 else (0, 1))
+    whole = join([decode(encode(p), type(msg)) for p in reversed(split)])
+    assert_same(whole, msg)
+
+
+def test_a_message_beyond_a_bound_is_refused_whole_and_sent_in_parts() -> None:
+    msg = make_picture(9, 1)
+    with pytest.raises(WireError, match=r"^TrackPicture.ids: 9 items exceed the limit of 4 per message"):
+        encode(msg)
+    assert [p.parts for p in parts(msg)] == [3, 3, 3]
+    assert [len(p.ids) for p in parts(msg)] == [3, 3, 3]
+
+
+def test_a_message_over_the_payload_bytes_is_split_by_size(monkeypatch: pytest.MonkeyPatch) -> None:
+    msg = next(m for m in map(lambda s: make_picture(4, s), range(2, 99)) if len(m.fused_seqs) <= 4)  # within the counts
+    monkeypatch.setattr(wire, "MAX_PAYLOAD_BYTES", len(encode(msg)) * 2 // 3)
+    split = parts(msg)
+    assert len(split) >= 2 and all(len(encode(p)) <= wire.MAX_PAYLOAD_BYTES for p in split)
+    assert_same(join(list(split)), msg)
+
+
+def test_a_message_needing_more_than_max_parts_is_refused(monkeypatch: pytest.MonkeyPatch) -> None:
+    msg = make_report(9, 1)
+    monkeypatch.setattr(wire, "MAX_PARTS", 2)
+    with pytest.raises(WireError, match=r"^TrackReport: does not fit in MAX_PARTS = 2 messages"):
+        parts(msg)
+
+
+def replaced(msg: Any, **changes: Any) -> Any:
+    return type(msg).unchecked(**{**vars(msg), **changes})
+
+
+@pytest.mark.security
+def test_join_rejects_parts_that_are_not_one_message() -> None:
+    split = list(parts(make_report(9, 3)))  # 3 parts
+    cases = [
+        ([split[0], split[2]], "TrackReport.part", "part 1 of 3 missing"),
+        ([split[0], split[1], split[1], split[2]], "TrackReport.part", "part 1 of 3 repeated"),
+        ([split[0], split[1]], "TrackReport.part", "part 2 of 3 missing"),
+        ([split[0], replaced(split[1], t=9.9), split[2]], "TrackReport.t", "differs between parts 0 and 1"),
+        ([split[0], replaced(split[1], sensor="s9"), split[2]], "TrackReport.sensor", "differs"),
+        ([split[0], replaced(split[1], parts=4), split[2]], "TrackReport.parts", "parts differ: 3 and 4"),
+        ([replaced(p, parts=65) for p in split], "TrackReport.parts", "must be at most 64"),
+        ([split[0], replaced(split[1], existence=None), split[2]], "TrackReport.existence",
+         "absent in some parts"),
+        ([split[0], replaced(split[1], ids=split[0].ids), split[2]], "TrackReport.ids", "not unique"),
+        ([split[0], make_picture(1, 1), split[2]], "TrackReport.type", "a part of type TrackPicture"),
+    ]
+    for given_parts, field, reason in cases:
+        with pytest.raises(WireError, match=reason) as err:
+            join(given_parts)
+        assert err.value.field == field
+    with pytest.raises(WireError, match=r"parts: must be in \[1, 64\], got 65"):
+        decode(encode(replaced(split[0], parts=65)), TrackReport)
+    with pytest.raises(WireError, match=r"part: must be below parts \(3\), got 3"):
+        decode(encode(replaced(split[0], part=3)), TrackReport)
+
+
+@pytest.mark.security
+def test_decode_holds_a_payload_to_the_per_message_bounds(monkeypatch: pytest.MonkeyPatch) -> None:
+    whole_scan, whole_report = make_scan(5, 1), make_report(7, 1)
+    scan = encode(Measurement.unchecked(**{**vars(whole_scan), "detections": whole_scan.detections[:3]}))
+    report = encode(parts(whole_report)[1])  # 4 tracks (3 in the first part)
+    assert len(decode(scan, Measurement).detections) == 3 and len(decode(report, TrackReport).ids) == 4
+    monkeypatch.setattr(wire, "MAX_DETECTIONS", 2)
+    monkeypatch.setattr(wire, "MAX_TRACKS", 3)
+    with pytest.raises(WireError, match=r"^Measurement.detections: 3 items exceed the limit of 2$"):
+        decode(scan, Measurement)
+    with pytest.raises(WireError, match=r"^TrackReport.ids: 4 items exceed the limit of 3 per message$"):
+        decode(report, TrackReport)
