@@ -3,15 +3,35 @@
 
 from __future__ import annotations
 
-from typing import Any
+import threading
+import time
+from contextlib import contextmanager
+from typing import Any, Iterator
 
 import numpy as np
 import pytest
+import zenoh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from support import WAIT_S, free_port, wait_until
 
 from fedtrack import wire
-from fedtrack.wire import Measurement, TrackPicture, TrackReport, TrackResets, WireError, decode, encode, join, parts
+from fedtrack.keys import Keys
+from fedtrack.services.base import Service, Subscription
+from fedtrack.wire import (
+    FusedTrack,
+    Measurement,
+    TrackPicture,
+    TrackReport,
+    TrackResets,
+    WireError,
+    decode,
+    encode,
+    join,
+    parts,
+    payloads,
+)
+from fedtrack.zsession import SessionOptions, close_session, open_session, wait_alive
 from tests.test_wire import assert_same
 
 SMALL_TRACKS, SMALL_DETECTIONS = 4, 3
@@ -171,3 +191,127 @@ def test_decode_holds_a_payload_to_the_per_message_bounds(monkeypatch: pytest.Mo
         decode(scan, Measurement)
     with pytest.raises(WireError, match=r"^TrackReport.ids: 4 items exceed the limit of 3 per message$"):
         decode(report, TrackReport)
+
+
+# ---------------------------------------------------------------- over Zenoh: Service publishes parts, receives whole
+
+class Collector(Service):
+    """Keeps every picture and scan its handlers get."""
+
+    role = "collector"
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self.pictures: list[TrackPicture] = []
+        self.scans: list[Measurement] = []
+
+    def subscriptions(self) -> list[Subscription]:
+        return [Subscription(self.keys.mtt_picture(), TrackPicture, self.pictures.append),
+                Subscription(self.keys.sensor_meas(), Measurement, self.scans.append)]
+
+
+class Splitter(Service):
+    """Publishes ``picture`` whenever a FusedTrack comes."""
+
+    role = "splitter"
+
+    def __init__(self, picture: TrackPicture, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self.picture = picture
+
+    def subscriptions(self) -> list[Subscription]:
+        return [Subscription(self.keys.fusion_track(), FusedTrack, lambda _: self.publish(self.keys.mtt_picture(),
+                                                                                         self.picture))]
+
+
+@contextmanager
+def deployment(*services: Service) -> Iterator[zenoh.Session]:
+    """A router on a free loopback port, ``services`` (made for it by name) running in threads, and a client session."""
+    port = free_port()
+    router = open_session(SessionOptions(mode="router", connect=(), listen=(f"tcp/127.0.0.1:{port}",)))
+    options = SessionOptions(connect=(f"tcp/127.0.0.1:{port}",))
+    threads = []
+    session = None
+    try:
+        for service in services:
+            service.options = options
+            threads.append(threading.Thread(target=service.run, daemon=True))
+            threads[-1].start()
+        session = open_session(options)
+        keys = Keys("parts")
+        assert wait_alive(session, [keys.alive(s.role, s.id) for s in services], WAIT_S) == set()
+        yield session
+    finally:
+        for service in services:
+            service.stop()
+        for thread in threads:
+            thread.join(WAIT_S)
+        if session is not None:
+            close_session(session)
+        close_session(router)
+
+
+def service(cls: type[Service], **kwargs: Any) -> Any:
+    return cls(service_id="one", options=SessionOptions(connect=("tcp/127.0.0.1:1",)), deployment="parts",
+               health_period_s=0.1, **kwargs)
+
+
+def test_a_service_publishes_parts_and_a_subscriber_gets_the_message_once_whole() -> None:
+    picture = make_picture(13, 5)  # 4 parts
+    collector, splitter = service(Collector), service(Splitter, picture=picture)
+    scan = make_scan(7, 2)
+    with deployment(collector, splitter) as session:
+        keys = Keys("parts")
+        session.put(keys.fusion_track(), encode(FusedTrack(seq=1, t=1.0, model="cv", x=np.zeros(4), P=np.eye(4),
+                                                           maneuver=False, degraded=False, sensors=(), stamp_ns=1)))
+        for payload in reversed(payloads(scan)):  # any order
+            session.put(keys.sensor_meas("s3"), payload)
+        assert wait_until(lambda: len(collector.pictures) == 1 and len(collector.scans) == 1)
+        time.sleep(0.3)  # nothing more comes
+        assert len(collector.pictures) == 1 and len(collector.scans) == 1
+        assert_same(collector.pictures[0], picture)
+        assert_same(collector.scans[0], scan)
+        assert splitter.counters["published"] == 1 and collector.counters["received"] == 2
+        assert collector.counters["rejected"] == 0 and not collector._reassembly.pending
+
+
+@pytest.mark.security
+def test_hostile_parts_are_dropped_and_counted_within_the_bounds() -> None:
+    collector = service(Collector)
+    with deployment(collector) as session:
+        keys, put = Keys("parts"), session.put
+        reassembly = collector._reassembly
+        counters = collector.counters
+        # a flood of first parts, each of another message: at most MAX_PENDING_PER_STREAM held a stream
+        first = [payloads(replaced(make_picture(9, 1), seq=seq))[0] for seq in range(40)]
+        reassembly.max_bytes = 5 * len(first[0])
+        for payload in first:
+            put(keys.mtt_picture(), payload)
+        assert wait_until(lambda: counters.get("parts_incomplete", 0) == 38)
+        assert len(reassembly.pending) == 2 and reassembly.held_bytes == 2 * len(first[0])
+        # ... of many senders: each held or evicted, within the held bytes
+        for i in range(30):
+            put(keys.sensor_meas(f"x{i}"), payloads(replaced(make_scan(7, i), sensor=f"x{i}"))[0])
+        assert wait_until(lambda: counters.get("parts_incomplete", 0) + len(reassembly.pending) == 70)
+        assert reassembly.held_bytes <= reassembly.max_bytes and counters["parts_incomplete"] > 38
+        # a message that never completes goes after the timeout
+        reassembly.timeout_s = 0.3
+        assert wait_until(lambda: not reassembly.pending and reassembly.held_bytes == 0)
+        assert counters["parts_incomplete"] == 70 and collector.pictures == collector.scans == []
+        reassembly.timeout_s, reassembly.max_bytes = 60.0, 10**9
+        # a repeated part is a duplicate; a different one with its index, or parts that do not join, rejected
+        good = payloads(make_scan(7, 3))
+        bad = payloads(replaced(make_scan(7, 3), t=9.0))
+        for payload in (good[0], good[0], bad[0], bad[1]):
+            put(keys.sensor_meas("s3"), payload)
+        assert wait_until(lambda: counters.get("duplicate") == 1 and counters.get("rejected_parts") == 1)
+        put(keys.sensor_meas("s3"), bad[2])  # parts 0 (good), 1, 2 (bad): Measurement.t differs
+        assert wait_until(lambda: counters.get("rejected_parts") == 2 and not reassembly.pending)
+        assert collector.scans == [] and counters["rejected"] == 2
+        # an older message still incomplete when a newer one of its stream completes is dropped
+        older = payloads(replaced(make_scan(7, 1), seq=5))
+        put(keys.sensor_meas("s3"), older[0])
+        for payload in payloads(replaced(make_scan(7, 1), seq=6)):
+            put(keys.sensor_meas("s3"), payload)
+        assert wait_until(lambda: len(collector.scans) == 1 and counters["parts_incomplete"] == 71)
+        assert collector.scans[0].seq == 6 and not reassembly.pending

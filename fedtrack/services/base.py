@@ -80,7 +80,8 @@ from fedtrack.config import ConfigError
 from fedtrack.deployment import deployment_of, endpoints_of
 from fedtrack.jsonl import InputError
 from fedtrack.keys import DEFAULT_DEPLOYMENT, InvalidName, Keys, check_id
-from fedtrack.wire import Health, M, Measurement, Message, WireError, decode, encode
+from fedtrack.services.reassembly import Reassembly
+from fedtrack.wire import Health, M, Measurement, Message, WireError, decode, encode, payloads
 from fedtrack.zsession import (
     SessionError,
     SessionOptions,
@@ -110,10 +111,11 @@ def digest(msg: Message) -> bytes:
     """A 16-byte digest of ``msg`` with its ``stamp_ns`` (if it has one) cleared: two messages for
     one (sensor, scan) are the same message when their digests are equal (a re-delivery), else a
     conflict. ``msg`` was checked when decoded: its copy is not checked again (a report's
-    covariances and flags were half of a centre's decoding)."""
+    covariances and flags were half of a centre's decoding). A message beyond a per-message bound
+    (joined from parts) is digested as the payloads of its parts."""
     if hasattr(msg, "stamp_ns"):
         msg = type(msg).unchecked(**{**{f.name: getattr(msg, f.name) for f in fields(msg)}, "stamp_ns": 0})
-    return blake2b(encode(msg), digest_size=16).digest()
+    return blake2b(b"".join(payloads(msg)), digest_size=16).digest()
 
 
 class ScanOrder:
@@ -319,6 +321,7 @@ class Service:
         self._router_outages = 0
         self._router_lost_at: float | None = None
         self._miss_lock = threading.Lock()
+        self._reassembly = Reassembly(self._count_part)
 
     # ------------------------------------------------------------ hooks
     def subscriptions(self) -> list[Subscription]:
@@ -348,7 +351,8 @@ class Service:
 
     # ------------------------------------------------------------ API for subclasses
     def publish(self, key: str, msg: Message) -> None:
-        """Encode ``msg`` and put it on ``key`` (reliable, blocking congestion control).
+        """Encode ``msg`` and put it on ``key`` (reliable, blocking congestion control); a message
+        beyond a per-message bound of the wire goes as its parts, one put each (:func:`fedtrack.wire.parts`).
 
         Call it from the hooks and handlers (the worker thread), not from other threads.
         """
@@ -497,6 +501,7 @@ class Service:
                     self.on_tick()
                 next_tick = max(next_tick + self.tick_period_s, now)  # type: ignore[operator]
             if now >= next_health:
+                self._reassembly.expire(now)
                 self._put(self.keys.health(self.role, self.id), self._health())
                 next_health = now + self.health_period_s
             if now >= recheck:
@@ -538,18 +543,27 @@ class Service:
                     query.reply(query.key_expr, encode(reply), encoding=_ENCODING)
             return
         sub = self._subscriptions[index]
+        size = len(payload)
         try:
             msg = decode(payload, sub.msg_type)
             check_sender(self.keys, key, msg)
+            if getattr(msg, "parts", 1) > 1 and not sub.raw:  # a raw handler (the recorder) takes each part
+                try:
+                    whole = self._reassembly.add(key, msg, payload, time.monotonic())
+                except WireError as exc:  # parts that are not one message's
+                    raise Rejected("parts", str(exc)) from None
+                if whole is None:
+                    return
+                msg, size = whole
         except WireError as exc:
             self.counters["rejected"] += 1
-            self._log_rejected(key, len(payload), str(exc))
+            self._log_rejected(key, size, str(exc))
             return
         except Rejected as exc:
-            self._reject(key, len(payload), exc)
+            self._reject(key, size, exc)
             return
         self.counters["received"] += 1
-        with self.guarded(f"a message on {key}", key=key, size=len(payload)):
+        with self.guarded(f"a message on {key}", key=key, size=size):
             sub.handler(*((msg, payload) if sub.raw else (msg,)))
 
     @contextmanager
@@ -655,7 +669,14 @@ class Service:
                     sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=HEARTBEAT_S),
                     publisher_detection=True)
             self._publishers[key] = pub
-        pub.put(encode(msg))
+        for payload in payloads(msg):
+            pub.put(payload)
+
+    def _count_part(self, name: str) -> None:
+        """A counter of the reassembly of split messages (``rejected_parts`` is also a rejection)."""
+        self.count(name)
+        if name == "rejected_parts":
+            self.counters["rejected"] += 1
 
     def _close_inputs(self) -> None:
         self._closing = True
