@@ -1,19 +1,26 @@
 """The recorder's SQLite database (WAL mode) and ``fedtrack export``.
 
-Schema (version 1; ``id`` is the arrival order, ``received_ns`` the recorder's wall
+Schema (version 2; ``id`` is the arrival order, ``received_ns`` the recorder's wall
 clock at arrival, ``payload`` the message's msgpack bytes exactly as received, so
 every row decodes back to the message with :func:`fedtrack.wire.decode`):
 
 ================  ==============================================  =========================
 table             columns besides id, received_ns, payload        unique (one row per ...)
 ================  ==============================================  =========================
-``measurements``  sensor, seq, t, kind, stamp_ns                  (sensor, seq)
+``measurements``  sensor, seq, t, kind, stamp_ns, part, parts     (sensor, seq, part)
 ``estimates``     sensor, seq, t, model, stamp_ns                 (sensor, seq)
 ``tracks``        seq, t, model, degraded, sensors, stamp_ns      (seq)
 ``events``        seq, t, kind                                    (seq, kind)
-``pictures``      seq, t, stamp_ns (multi-target ``TrackPicture``)  (seq)
+``pictures``      seq, t, stamp_ns, part, parts (``TrackPicture``)  (seq, part)
 ``meta``          key, value (``schema_version``)                 (key)
 ================  ==============================================  =========================
+
+A message sent in parts (beyond a per-message bound of the wire: docs/wire.md, "Messages in
+parts") is stored as its parts, a row each as received (``part`` its index, ``parts`` their
+number; 0 and 1 for a whole message); :meth:`Recording.messages`, and so ``export``, give it
+joined, in the place of its last part in the order asked for, and leave out a message whose parts
+are not all recorded or do not join (counted in ``Recording.incomplete``). Version 1 (before
+2026-11-27) had no ``part`` column: such a database is refused with its version named.
 
 Every table with a ``t`` has an index on ``t``; the unique keys double as the index
 on ``sensor``. A message whose unique key is already stored is not stored again: a
@@ -61,12 +68,13 @@ from fedtrack.wire import (
     TrackPicture,
     WireError,
     decode,
+    join,
     measurement_to_replay,
     picture_to_replay,
     track_to_replay,
 )
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 RECORDED, DUPLICATE, CONFLICT = "recorded", "duplicate", "conflict"
 SCANS_KEPT = 256  # decoded scans an export keeps: a region run lists a scan in every region it reached, pictures apart
 
@@ -92,8 +100,9 @@ class Table:
 
 TABLES: tuple[Table, ...] = (
     Table("measurements", Measurement,
-          {"sensor": "TEXT", "seq": "INTEGER", "t": "REAL", "kind": "TEXT", "stamp_ns": "INTEGER"},
-          ("sensor", "seq"), lambda m: (m.sensor, m.seq, m.t, m.kind, m.stamp_ns)),
+          {"sensor": "TEXT", "seq": "INTEGER", "t": "REAL", "kind": "TEXT", "stamp_ns": "INTEGER", "part": "INTEGER",
+           "parts": "INTEGER"},
+          ("sensor", "seq", "part"), lambda m: (m.sensor, m.seq, m.t, m.kind, m.stamp_ns, m.part, m.parts)),
     Table("estimates", LocalEstimate,
           {"sensor": "TEXT", "seq": "INTEGER", "t": "REAL", "model": "TEXT", "stamp_ns": "INTEGER"},
           ("sensor", "seq"), lambda e: (e.sensor, e.seq, e.t, e.model, e.stamp_ns)),
@@ -103,8 +112,9 @@ TABLES: tuple[Table, ...] = (
           ("seq",), lambda f: (f.seq, f.t, f.model, int(f.degraded), ",".join(f.sensors), f.stamp_ns)),
     Table("events", ManeuverEvent, {"seq": "INTEGER", "t": "REAL", "kind": "TEXT"},
           ("seq", "kind"), lambda e: (e.seq, e.t, e.kind)),
-    Table("pictures", TrackPicture, {"seq": "INTEGER", "t": "REAL", "stamp_ns": "INTEGER"},
-          ("seq",), lambda p: (p.seq, p.t, p.stamp_ns)),
+    Table("pictures", TrackPicture,
+          {"seq": "INTEGER", "t": "REAL", "stamp_ns": "INTEGER", "part": "INTEGER", "parts": "INTEGER"},
+          ("seq", "part"), lambda p: (p.seq, p.t, p.stamp_ns, p.part, p.parts)),
 )
 TABLE_OF: dict[type, Table] = {table.msg_type: table for table in TABLES}
 
@@ -121,6 +131,7 @@ class Recording:
         else:
             path.parent.mkdir(parents=True, exist_ok=True)
             self.db = sqlite3.connect(path, isolation_level=None)  # autocommit: one transaction per row
+        self.incomplete = 0  # messages in parts left out by :meth:`messages` (not all recorded, or not joining)
         try:
             self.db.execute("PRAGMA busy_timeout = 5000")
             if not readonly:
@@ -144,7 +155,8 @@ class Recording:
     def _check_version(self) -> None:
         row = self.db.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()
         if row is None or row[0] != str(SCHEMA_VERSION):
-            raise InputError(f"{self.path}: recording schema version {row and row[0]}, expected {SCHEMA_VERSION}")
+            older = " (written before messages in parts, 2026-11-27: read it with that fedtrack)" if row and row[0] == "1" else ""
+            raise InputError(f"{self.path}: recording schema version {row and row[0]}, expected {SCHEMA_VERSION}{older}")
 
     def add(self, msg: Message, payload: bytes) -> str:
         """Store ``msg`` (received as ``payload``) and commit; returns RECORDED, DUPLICATE or CONFLICT."""
@@ -170,10 +182,30 @@ class Recording:
             return 0
 
     def messages(self, msg_type: type, order: str) -> Iterator[Any]:
-        """The stored messages of ``msg_type`` in ``order`` (an ORDER BY clause of the table's columns)."""
+        """The stored messages of ``msg_type`` in ``order`` (an ORDER BY clause of the table's
+        columns); a message stored in parts joined, in the place of its last part (module docstring)."""
         table = TABLE_OF[msg_type]
+        held: dict[tuple[Any, ...], list[Any]] = {}  # a message's parts so far, by its unique key but the part
         for rowid, payload in self.db.execute(f"SELECT id, payload FROM {table.name} ORDER BY {order}"):
-            yield _decoded(self.path, table, rowid, payload)
+            msg = _decoded(self.path, table, rowid, payload)
+            if getattr(msg, "parts", 1) == 1:
+                yield msg
+                continue
+            key = tuple(getattr(msg, c) for c in table.unique if c != "part")
+            held.setdefault(key, []).append(msg)
+            if len(held[key]) == msg.parts:
+                whole = self._joined(held.pop(key))
+                if whole is not None:
+                    yield whole
+        self.incomplete += len(held)
+
+    def _joined(self, parts: list[Any]) -> Any:
+        """The message of ``parts`` (all of one message's rows), or None (counted) when they do not join."""
+        try:
+            return join(parts)
+        except WireError:
+            self.incomplete += 1
+            return None
 
     def export(self, measurements: Path | None = None, tracks: Path | None = None) -> tuple[int, int]:
         """Write the replay-format measurements and tracks (see the module docstring); returns the line counts."""
@@ -187,12 +219,19 @@ class Recording:
         scans and departures to ``measurements`` in the centre's order, the picture to ``tracks``;
         then the recorded scans no picture lists to ``unprocessed.jsonl``, in arrival order. A
         scan is decoded when a picture lists it (a few recent ones kept), not held all at once."""
-        rowid = {(sensor, seq): i for i, sensor, seq in self.db.execute("SELECT id, sensor, seq FROM measurements")}
+        rowid: dict[tuple[str, int], int] = {}  # a scan's row; of a scan in parts the last part's (all in)
+        for i, sensor, seq, parts, n in self.db.execute(
+                "SELECT MAX(id), sensor, seq, MAX(parts), COUNT(*) FROM measurements GROUP BY sensor, seq ORDER BY MAX(id)"):
+            if parts == n:
+                rowid[(sensor, seq)] = i
+            else:
+                self.incomplete += 1
         used: set[int] = set()
 
         @functools.lru_cache(maxsize=SCANS_KEPT)
-        def scan_line(i: int) -> dict[str, Any]:
-            return measurement_to_replay(self._message(Measurement, i))
+        def scan_line(i: int) -> dict[str, Any] | None:
+            msg = self._message(Measurement, i)
+            return None if msg is None else measurement_to_replay(msg)
 
         counts = [0, 0]
 
@@ -214,8 +253,8 @@ class Recording:
                             write(0, m_out, {"t": pic.t, "sensor": key[0], "left": True, **tag})
                         elif i in pic.handovers and tag:
                             write(0, m_out, {"t": pic.t, "handover": key[1], "from": key[0], **tag})
-                        elif key in rowid and (tag or rowid[key] not in used):
-                            write(0, m_out, {**scan_line(rowid[key]), **({"seq": key[1], **tag} if tag else {})})
+                        elif key in rowid and (tag or rowid[key] not in used) and scan_line(rowid[key]) is not None:
+                            write(0, m_out, {**scan_line(rowid[key]), **({"seq": key[1], **tag} if tag else {})})  # type: ignore[dict-item]
                             used.add(rowid[key])
                     if not pic.closing:
                         write(1, t_out, picture_to_replay(pic))
@@ -223,15 +262,21 @@ class Recording:
             raise InputError(f"{exc.filename}: cannot write: {exc.strerror or exc}") from None
         if measurements is not None:
             _write_lines(measurements.with_name("unprocessed.jsonl"),
-                         (measurement_to_replay(self._message(Measurement, i)) for i in sorted(rowid.values())
-                          if i not in used))
+                         (line for i in sorted(rowid.values()) if i not in used and (line := scan_line(i)) is not None))
         return counts[0], counts[1]
 
     def _message(self, msg_type: type, rowid: int) -> Any:
-        """The stored message of ``msg_type`` in row ``rowid``."""
+        """The stored message of ``msg_type`` in row ``rowid``; a part there: its message joined
+        from every row of its unique key (None when they do not join)."""
         table = TABLE_OF[msg_type]
         payload = self.db.execute(f"SELECT payload FROM {table.name} WHERE id = ?", (rowid,)).fetchone()[0]
-        return _decoded(self.path, table, rowid, payload)
+        msg = _decoded(self.path, table, rowid, payload)
+        if getattr(msg, "parts", 1) == 1:
+            return msg
+        key = [c for c in table.unique if c != "part"]
+        rows = self.db.execute(f"SELECT id, payload FROM {table.name} WHERE {' AND '.join(f'{c} = ?' for c in key)}",
+                               tuple(getattr(msg, c) for c in key))
+        return self._joined([_decoded(self.path, table, i, p) for i, p in rows])
 
     def close(self) -> None:
         self.db.close()

@@ -3,9 +3,12 @@
 
 from __future__ import annotations
 
+import json
+import sqlite3
 import threading
 import time
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any, Iterator
 
 import numpy as np
@@ -16,8 +19,11 @@ from hypothesis import strategies as st
 from support import WAIT_S, free_port, wait_until
 
 from fedtrack import wire
+from fedtrack.jsonl import InputError
 from fedtrack.keys import Keys
+from fedtrack.recording import Recording
 from fedtrack.services.base import Service, Subscription
+from fedtrack.services.recorder import Recorder
 from fedtrack.wire import (
     FusedTrack,
     Measurement,
@@ -315,3 +321,47 @@ def test_hostile_parts_are_dropped_and_counted_within_the_bounds() -> None:
             put(keys.sensor_meas("s3"), payload)
         assert wait_until(lambda: len(collector.scans) == 1 and counters["parts_incomplete"] == 71)
         assert collector.scans[0].seq == 6 and not reassembly.pending
+
+
+def test_the_recorder_stores_each_part_and_gives_the_picture_whole(tmp_path: Path) -> None:
+    """Over Zenoh: a split picture and scan reach the recorder as parts, a row each; ``messages``
+    and ``export`` give them joined; a message missing a part is left out and counted."""
+    picture = make_picture(13, 5)
+    db = tmp_path / "rec.db"
+    recorder = service(Recorder, db=db)
+    splitter = service(Splitter, picture=picture)
+    scan = make_scan(7, 2)
+    with deployment(recorder, splitter) as session:
+        keys = Keys("parts")
+        session.put(keys.fusion_track(), encode(FusedTrack(seq=1, t=1.0, model="cv", x=np.zeros(4), P=np.eye(4),
+                                                           maneuver=False, degraded=False, sensors=(), stamp_ns=1)))
+        for payload in payloads(scan):
+            session.put(keys.sensor_meas("s3"), payload)
+        lone = payloads(replaced(make_scan(7, 3), seq=8))[0]  # a scan whose other parts never come
+        session.put(keys.sensor_meas("s3"), lone)
+        session.put(keys.sensor_meas("s3"), lone)
+        assert wait_until(lambda: recorder.counters.get("pictures_recorded") == 4
+                          and recorder.counters.get("measurements_recorded") == 4)
+        assert wait_until(lambda: recorder.counters.get("duplicate") == 1)
+    rec = Recording(db, readonly=True)
+    try:
+        assert rec.db.execute("SELECT part, parts FROM pictures ORDER BY part").fetchall() == [(j, 4) for j in range(4)]
+        [whole] = rec.messages(TrackPicture, "seq")
+        assert_same(whole, picture)
+        [joined] = rec.messages(Measurement, "t, id")
+        assert_same(joined, scan)
+        assert rec.incomplete == 1  # the lone part
+        out, tracks = tmp_path / "m.jsonl", tmp_path / "t.jsonl"
+        assert rec.export(out, tracks)[1] == 1
+        assert len(json.loads(tracks.read_text())["tracks"]) == 13
+        [unlisted] = (tmp_path / "unprocessed.jsonl").read_text().splitlines()  # the picture lists no scan of s3
+        assert len(json.loads(unlisted)["detections"]) == 7
+    finally:
+        rec.close()
+    con = sqlite3.connect(db)
+    con.execute("UPDATE meta SET value = '1' WHERE key = 'schema_version'")
+    con.commit()
+    con.close()
+    with pytest.raises(InputError, match=r"rec.db: recording schema version 1, expected 2 \(written before messages "
+                                         r"in parts"):
+        Recording(db, readonly=True)
