@@ -478,7 +478,7 @@ class Launcher:
             pic = decode(sample.payload.to_bytes(), TrackPicture)
         except WireError:
             return
-        if pic.closing:
+        if pic.closing or pic.part != pic.parts - 1:  # a picture in parts arrived with its last (docs/wire.md)
             return
         with self._lock:
             self.report.pictures += 1
@@ -515,6 +515,8 @@ class Launcher:
         try:
             m = decode(sample.payload.to_bytes(), Measurement)
         except WireError:
+            return
+        if m.part != m.parts - 1:  # a scan in parts counts once, with its last part
             return
         with self._lock:
             self.report.measurements[m.sensor] = self.report.measurements.get(m.sensor, 0) + 1
