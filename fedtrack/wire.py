@@ -989,6 +989,12 @@ def _encode_record(rec: _Record) -> dict[str, Any]:
     return out
 
 
+def _pack(msg: Message) -> bytes:
+    """The msgpack bytes of ``msg``, its envelope first (no bound checked)."""
+    return msgpack.packb({"schema": SCHEMA_VERSION, "type": type(msg).__name__, **_encode_record(msg)},
+                         use_bin_type=True)
+
+
 def encode(msg: Message) -> bytes:
     """msgpack bytes of ``msg``; WireError if a batch of it exceeds its bound in one message
     (:func:`payloads` sends such a message in parts) or the bytes exceed MAX_PAYLOAD_BYTES."""
@@ -996,7 +1002,7 @@ def encode(msg: Message) -> bytes:
         raise WireError("message", f"not a wire message type: {type(msg).__name__}")
     name = type(msg).__name__
     _check_counts(msg, " (send it in parts: fedtrack.wire.parts)")
-    payload = msgpack.packb({"schema": SCHEMA_VERSION, "type": name, **_encode_record(msg)}, use_bin_type=True)
+    payload = _pack(msg)
     if len(payload) > MAX_PAYLOAD_BYTES:
         raise WireError(name, f"encoded size {len(payload)} bytes exceeds the limit of {MAX_PAYLOAD_BYTES}")
     return payload
@@ -1261,7 +1267,7 @@ def _split(msg: M) -> list[tuple[M, bytes]]:
         raise WireError("message", f"not a wire message type: {type(msg).__name__}")
     name = type(msg).__name__
     if _count_over(msg) is None:
-        payload = msgpack.packb({"schema": SCHEMA_VERSION, "type": name, **_encode_record(msg)}, use_bin_type=True)
+        payload = _pack(msg)
         if len(payload) <= MAX_PAYLOAD_BYTES:
             return [(msg, payload)]
         if not msg._items:
@@ -1271,8 +1277,7 @@ def _split(msg: M) -> list[tuple[M, bytes]]:
         k = max(-(-len(getattr(msg, items.fields[0])) // globals()[items.limit]) for items in msg._items)
     while k <= MAX_PARTS:
         cut = _cut(msg, k)
-        packed = [msgpack.packb({"schema": SCHEMA_VERSION, "type": name, **_encode_record(p)}, use_bin_type=True)
-                  for p in cut]
+        packed = [_pack(p) for p in cut]
         largest = max(map(len, packed))
         if largest <= MAX_PAYLOAD_BYTES:
             return list(zip(cut, packed))

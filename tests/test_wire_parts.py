@@ -141,7 +141,7 @@ def test_a_message_beyond_a_bound_is_refused_whole_and_sent_in_parts() -> None:
 
 
 def test_a_message_over_the_payload_bytes_is_split_by_size(monkeypatch: pytest.MonkeyPatch) -> None:
-    msg = next(m for m in map(lambda s: make_picture(4, s), range(2, 99)) if len(m.fused_seqs) <= 4)  # within the counts
+    msg = next(m for m in (make_picture(4, s) for s in range(2, 99)) if len(m.fused_seqs) <= 4)  # within the counts
     monkeypatch.setattr(wire, "MAX_PAYLOAD_BYTES", len(encode(msg)) * 2 // 3)
     split = parts(msg)
     assert len(split) >= 2 and all(len(encode(p)) <= wire.MAX_PAYLOAD_BYTES for p in split)
