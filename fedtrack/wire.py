@@ -15,7 +15,9 @@ On the wire a message is a msgpack map ``{"schema": SCHEMA_VERSION, "type":
 <class name>, <field>: <value>, ...}``. Every field is present (optional ones
 may be nil); unknown fields are rejected. A numpy array is a map ``{"dtype":
 "float64" | "int64", "shape": [d0, ...], "data": <little-endian bytes>}``.
-The full contract is in ``docs/wire.md``.
+A message whose batch (detections, tracks) exceeds a bound of one message is sent as
+:func:`parts` (at most MAX_PARTS messages, each within every bound; :func:`payloads` encodes
+them) and rebuilt by the receiver with :func:`join`. The full contract is in ``docs/wire.md``.
 """
 
 from __future__ import annotations
