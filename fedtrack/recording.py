@@ -20,7 +20,8 @@ parts") is stored as its parts, a row each as received (``part`` its index, ``pa
 number; 0 and 1 for a whole message); :meth:`Recording.messages`, and so ``export``, give it
 joined, in the place of its last part in the order asked for, and leave out a message whose parts
 are not all recorded or do not join (counted in ``Recording.incomplete``). Version 1 (before
-2026-11-27) had no ``part`` column: such a database is refused with its version named.
+2026-11-27) had no ``part`` column and only whole messages: it is read (``export``, ``verify_run``)
+as before, and a recorder refuses to write into it, naming its version.
 
 Every table with a ``t`` has an index on ``t``; the unique keys double as the index
 on ``sensor``. A message whose unique key is already stored is not stored again: a
@@ -138,25 +139,36 @@ class Recording:
                 self.db.execute("PRAGMA journal_mode = WAL")
                 self.db.execute("PRAGMA synchronous = FULL")
                 self._create()
-            self._check_version()
+            self.version = self._check_version(readonly)
         except sqlite3.DatabaseError as exc:
             self.db.close()
             raise InputError(f"{path}: not a fedtrack recording ({exc})") from None
 
     def _create(self) -> None:
+        """The schema, in one transaction; nothing is changed in a database of another version."""
         self.db.execute("BEGIN")
-        self.db.execute("CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL)")
-        self.db.execute("INSERT OR IGNORE INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
-        for table in TABLES:
-            for stmt in table.ddl():
-                self.db.execute(stmt)
+        try:
+            self.db.execute("CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL)")
+            self.db.execute("INSERT OR IGNORE INTO meta VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),))
+            self._check_version(readonly=False)
+            for table in TABLES:
+                for stmt in table.ddl():
+                    self.db.execute(stmt)
+        except BaseException:
+            self.db.execute("ROLLBACK")
+            raise
         self.db.execute("COMMIT")
 
-    def _check_version(self) -> None:
+    def _check_version(self, readonly: bool) -> int:
+        """The database's schema version: this one, or version 1 when only read (its rows are whole
+        messages); InputError naming the version otherwise."""
         row = self.db.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()
-        if row is None or row[0] != str(SCHEMA_VERSION):
-            older = " (written before messages in parts, 2026-11-27: read it with that fedtrack)" if row and row[0] == "1" else ""
-            raise InputError(f"{self.path}: recording schema version {row and row[0]}, expected {SCHEMA_VERSION}{older}")
+        version = None if row is None else row[0]
+        if version == str(SCHEMA_VERSION) or readonly and version == "1":
+            return int(version)
+        older = " (written before messages in parts: export or verify it, but record into a new one)" \
+            if version == "1" else ""
+        raise InputError(f"{self.path}: recording schema version {version}, expected {SCHEMA_VERSION}{older}")
 
     def add(self, msg: Message, payload: bytes) -> str:
         """Store ``msg`` (received as ``payload``) and commit; returns RECORDED, DUPLICATE or CONFLICT."""
@@ -221,7 +233,8 @@ class Recording:
         scan is decoded when a picture lists it (a few recent ones kept), not held all at once."""
         rowid: dict[tuple[str, int], int] = {}  # a scan's row; of a scan in parts the last part's (all in)
         for i, sensor, seq, parts, n in self.db.execute(
-                "SELECT MAX(id), sensor, seq, MAX(parts), COUNT(*) FROM measurements GROUP BY sensor, seq ORDER BY MAX(id)"):
+                f"SELECT MAX(id), sensor, seq, {'MAX(parts)' if self.version > 1 else 1}, COUNT(*) FROM measurements "
+                "GROUP BY sensor, seq ORDER BY MAX(id)"):
             if parts == n:
                 rowid[(sensor, seq)] = i
             else:

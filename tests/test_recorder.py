@@ -16,6 +16,7 @@ import pytest
 from support import Deployment, wait_until
 
 from fedtrack.fusion_center.replay import replay_fusion
+from fedtrack.jsonl import InputError
 from fedtrack.recording import CONFLICT, DUPLICATE, RECORDED, Recording
 from fedtrack.wire import FusedTrack, Measurement, TrackPicture, encode
 
@@ -196,3 +197,37 @@ def test_the_launcher_exports_a_picture_recording_in_the_centres_order_after_eve
     assert [(x["sensor"], x["t"]) for x in unprocessed] == [("a", 2.0)]
     tracks = [json.loads(x) for x in (tmp_path / "tracks.jsonl").read_text().splitlines()]
     assert [x["t"] for x in tracks] == [1.0, 2.0] and tracks[0]["tracks"][0]["sensors"] == ["a", "b"]
+
+
+def test_a_version_1_recording_is_exported_as_before_and_never_written(tmp_path: Path) -> None:
+    """A recording made before messages in parts (schema 1: no ``part`` column, whole messages)
+    still exports (``fedtrack export``, ``verify_run``); a recorder refuses to append to it."""
+    db = tmp_path / "v1.db"
+    con = sqlite3.connect(db)
+    con.execute("CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL)")
+    con.execute("INSERT INTO meta VALUES ('schema_version', '1')")
+    con.execute("CREATE TABLE measurements (id INTEGER PRIMARY KEY, sensor TEXT NOT NULL, seq INTEGER NOT NULL, "
+                "t REAL NOT NULL, kind TEXT NOT NULL, stamp_ns INTEGER NOT NULL, received_ns INTEGER NOT NULL, "
+                "payload BLOB NOT NULL, UNIQUE (sensor, seq))")
+    con.execute("CREATE TABLE pictures (id INTEGER PRIMARY KEY, seq INTEGER NOT NULL, t REAL NOT NULL, "
+                "stamp_ns INTEGER NOT NULL, received_ns INTEGER NOT NULL, payload BLOB NOT NULL, UNIQUE (seq))")
+    for m in (meas("a", 0, 0.0), meas("b", 0, 0.5)):
+        con.execute("INSERT INTO measurements VALUES (NULL, ?, ?, ?, ?, ?, 0, ?)", (m.sensor, m.seq, m.t, m.kind, 7,
+                                                                                   encode(m)))
+    pic = picture(0, 1.0, (("a", 0),))
+    con.execute("INSERT INTO pictures VALUES (NULL, 0, 1.0, 7, 0, ?)", (encode(pic),))
+    con.commit()
+    con.close()
+    rec = Recording(db, readonly=True)
+    try:
+        assert rec.export(tmp_path / "m.jsonl", tmp_path / "t.jsonl") == (1, 1)
+    finally:
+        rec.close()
+    assert [json.loads(x)["sensor"] for x in (tmp_path / "unprocessed.jsonl").read_text().splitlines()] == ["b"]
+    with pytest.raises(InputError, match=r"v1.db: recording schema version 1, expected 2 \(written before messages "
+                                         r"in parts: export or verify it, but record into a new one\)"):
+        Recording(db)
+    con = sqlite3.connect(db)
+    assert [r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type = 'table' ORDER BY name")] == [
+        "measurements", "meta", "pictures"]  # the refusal changed nothing
+    con.close()

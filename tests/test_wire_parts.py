@@ -364,4 +364,4 @@ def test_the_recorder_stores_each_part_and_gives_the_picture_whole(tmp_path: Pat
     con.close()
     with pytest.raises(InputError, match=r"rec.db: recording schema version 1, expected 2 \(written before messages "
                                          r"in parts"):
-        Recording(db, readonly=True)
+        Recording(db)  # read, but never written (tests/test_recorder.py)
