@@ -32,7 +32,7 @@ from fedtrack.deploy.report import LaunchReport
 from fedtrack.deploy.settings import MultitargetSettings, Settings
 from fedtrack.fusion_center.mtt.earthmap import plot_map
 from fedtrack.fusion_center.mtt.evaluation import evaluate, plot
-from fedtrack.fusion_center.mtt.membership import membership
+from fedtrack.deploy.membership import membership
 from fedtrack.fusion_center.mtt.replay import read_scans, state_dim
 from fedtrack.geodetic import Frame
 from fedtrack.geojson import feature_collection
@@ -137,7 +137,7 @@ def membership_summary(out: Path, report: LaunchReport, settings: Settings) -> d
     """``[multitarget] join_at`` / ``kill_at`` as they happened: per joining sensor, how many of
     its own scans its local tracks took to share a central track with another sensor; per killed
     sensor, how long the centre took to drop it and the central tracks another sensor supported
-    that were lost (:mod:`fedtrack.fusion_center.mtt.membership`, on the recording)."""
+    that were lost (:mod:`fedtrack.deploy.membership`, on the recording)."""
     mt = settings.multitarget
     assert mt is not None
     killed: dict[str, float] = {}  # sensor -> wall-clock time its first process was killed

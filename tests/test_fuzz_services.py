@@ -412,7 +412,7 @@ def test_liveliness_callbacks_take_any_token(tmp_path: Path) -> None:
         mcentre.on_tick()
     assert n == 4 * PAYLOADS
     assert centre.gone <= set(centre.sensors) and len(mcentre.gone) == 0
-    assert set(mcentre.last_heard) <= set(MTT_SENSORS)
+    assert set(mcentre.silence.last) <= set(MTT_SENSORS)
     print(f"\nliveliness: {n} samples over {len(callbacks)} callbacks")
 
 

@@ -15,7 +15,8 @@ gives the same pictures.
 Sensors join by publishing (any sensor ``[mtt] sensors`` allows, at any time). A sensor
 leaves when its tracker's liveliness token (``alive/mtt-local/<id>``; for ``mtt-centralized``
 the sensor's own, ``alive/sensor/<id>``) disappears, or when nothing of it arrived for
-``[mtt] leave_after_s`` seconds of wall-clock time: within one tick (50 ms) the centre drops it
+``[mtt] leave_after_s`` seconds of wall-clock time and four of its usual intervals between
+messages (:mod:`fedtrack.fusion_center.mtt.silence`): within one tick (50 ms) the centre drops it
 (:meth:`TrackToTrackCentre.drop_sensor`: no longer live, so the others' sharing factors are
 renormalized; its local tracks leave their central tracks) and lists the departure in the next
 picture, so that the replay drops it at the same point.
@@ -57,6 +58,7 @@ from fedtrack.fusion_center.mtt.engines import (
 )
 from fedtrack.fusion_center.mtt.regional import RegionEngine
 from fedtrack.fusion_center.mtt.shards import handover_from_wire, handover_to_wire
+from fedtrack.fusion_center.mtt.silence import Silence
 from fedtrack.fusion_center.mtt.standby import PRIMARY_ROLE, Standby, next_after
 from fedtrack.geodetic import Frame, geodetic_of_states
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
@@ -86,7 +88,7 @@ class MttCentreService(Service):
     tick_period_s = 0.05
     # restored after a failed handler (the engine changes in place: pickled before each message;
     # ``received`` is only changed once a message was handled); on_tick guards its departures itself
-    state_attrs = ("engine", "clock", "order", "left_at", "pictures", "last_heard", "contested", "handovers_at",
+    state_attrs = ("engine", "clock", "order", "left_at", "pictures", "silence", "contested", "handovers_at",
                    "taken")
     tick_state_attrs = ()
 
@@ -120,7 +122,7 @@ class MttCentreService(Service):
         self.order: list[tuple[str, int]] = []  # scans processed since the last picture
         self.left_at: list[int] = []  # positions in ``order`` that are departures
         self.pictures = 0
-        self.last_heard: dict[str, float] = {}  # sensor -> monotonic time of its last message
+        self.silence = Silence(cfg.leave_after_s)  # the sensors heard from, and when one counts as gone
         self.gone: deque[str] = deque()  # liveliness lost (filled by a Zenoh thread)
         self.contested = False  # a conflicting message since the last picture (docs/wire.md)
         # failover (:mod:`.standby`): None for the primary, else the hot standby's withheld outputs
@@ -141,15 +143,14 @@ class MttCentreService(Service):
 
     def on_tick(self) -> None:
         self._failover_tick()
-        now = time.monotonic()
-        silent = [s for s, heard in self.last_heard.items() if now - heard > self.cfg.leave_after_s]
+        silent = self.silence.silent(time.monotonic())
         while self.gone:
             silent.append(self.gone.popleft())
         for sensor in dict.fromkeys(silent):
-            if sensor not in self.last_heard:
+            if sensor not in self.silence.last:
                 continue
             with self.guarded(f"the departure of {sensor}"):
-                del self.last_heard[sensor]
+                self.silence.left(sensor)
                 self.engine.leave(sensor)
                 self.clock.left()
                 self.left_at.append(len(self.order))
@@ -203,7 +204,7 @@ class MttCentreService(Service):
         for picture in pictures:
             self.publish(self.picture_key, picture)
         self.order.append((msg.sensor, msg.seq))
-        self.last_heard[msg.sensor] = time.monotonic()
+        self.silence.heard(msg.sensor, time.monotonic())
         self.received.take(msg)
 
     def on_scan(self, msg: Measurement) -> None:

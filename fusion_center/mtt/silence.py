@@ -1,0 +1,54 @@
+"""When a live centre counts a sensor as gone for want of its messages (docs/multitarget.md, "Joining
+and leaving").
+
+A sensor's tracker reports every scan, empty ones too, over a reliable link, so a live sensor is
+never silent for long; but how long is long is the sensor's own business: a position sensor at 1
+Hz, a surveillance radar turning in 12 s, any of them slowed down by a launch's ``speed``. A
+fixed bound drops a slow sensor between every two of its scans (it rejoins at the next: each time
+its local tracks leave their central tracks and the others' sharing factors change). So the bound
+follows the sensor: its silence must exceed both ``[mtt] leave_after_s`` and ``LEAVE_INTERVALS``
+times its usual interval between arrivals, the median of its last ``INTERVALS_KEPT`` (a late scan
+arrives up to two of its periods after its time, so two arrivals of a live sensor are at most
+three intervals apart: three periods of silence can be a late scan, four cannot). A sensor with
+no interval yet (one message so far) takes the longest usual interval among the others, which
+carries a slowed deployment's pace; with none known, ``leave_after_s`` alone.
+"""
+
+from __future__ import annotations
+
+import statistics
+from collections import deque
+from dataclasses import dataclass, field
+
+LEAVE_INTERVALS = 4
+INTERVALS_KEPT = 8
+
+
+@dataclass
+class Silence:
+    """The sensors heard from (wall-clock, monotonic seconds) and their intervals between arrivals."""
+
+    floor_s: float  # ``[mtt] leave_after_s``
+    last: dict[str, float] = field(default_factory=dict)  # live sensor -> time of its last message
+    previous: dict[str, float] = field(default_factory=dict)  # sensor -> its last message, kept after it left
+    gaps: dict[str, deque[float]] = field(default_factory=dict)  # sensor -> its last intervals between messages
+
+    def heard(self, sensor: str, now: float) -> None:
+        """A message of ``sensor`` arrived at ``now``."""
+        if sensor in self.previous:
+            self.gaps.setdefault(sensor, deque(maxlen=INTERVALS_KEPT)).append(now - self.previous[sensor])
+        self.previous[sensor] = self.last[sensor] = now
+
+    def bound_s(self, sensor: str) -> float:
+        """How long ``sensor`` may be silent and still count as live (module docstring)."""
+        usual = {s: statistics.median(g) for s, g in self.gaps.items() if g}
+        interval = usual.get(sensor, max(usual.values(), default=0.0))
+        return max(self.floor_s, LEAVE_INTERVALS * interval)
+
+    def silent(self, now: float) -> list[str]:
+        """The live sensors silent beyond their bound at ``now``."""
+        return [s for s, heard in self.last.items() if now - heard > self.bound_s(s)]
+
+    def left(self, sensor: str) -> None:
+        """``sensor`` is no longer live (silent, or its liveliness token went); its intervals stay."""
+        del self.last[sensor]
