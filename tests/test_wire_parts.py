@@ -24,6 +24,7 @@ from fedtrack.keys import Keys
 from fedtrack.recording import Recording
 from fedtrack.services.base import Service, Subscription
 from fedtrack.services.recorder import Recorder
+from fedtrack.services.reassembly import Reassembly
 from fedtrack.wire import (
     FusedTrack,
     Measurement,
@@ -321,6 +322,27 @@ def test_hostile_parts_are_dropped_and_counted_within_the_bounds() -> None:
             put(keys.sensor_meas("s3"), payload)
         assert wait_until(lambda: len(collector.scans) == 1 and counters["parts_incomplete"] == 71)
         assert collector.scans[0].seq == 6 and not reassembly.pending
+
+
+@pytest.mark.security
+def test_a_sender_flooding_parts_evicts_its_own_messages_not_another_streams() -> None:
+    """Beyond the bytes held, the stream holding the most loses its oldest message: a genuine
+    picture in assembly survives a flood of another sender's parts and completes."""
+    counts: dict[str, int] = {}
+    reassembly = Reassembly(lambda name: counts.__setitem__(name, counts.get(name, 0) + 1))
+    genuine = payloads(make_picture(9, 1))  # 3 parts
+    flood = [payloads(replaced(make_scan(13, 2), seq=seq)) for seq in range(10)]  # 5 parts each
+    reassembly.max_bytes = len(genuine[0]) + 4 * len(flood[0][0])
+    reassembly.add("picture", decode(genuine[0], TrackPicture), genuine[0], 0.0)
+    for parts_of in flood:
+        for payload in parts_of[:4]:  # never the last part
+            assert reassembly.add("s3", decode(payload, Measurement), payload, 0.0) is None
+    assert reassembly.held_bytes <= reassembly.max_bytes and counts["parts_incomplete"] >= 9
+    assert all(k[0] == "s3" for k in list(reassembly.pending)[1:])
+    for payload in genuine[1:]:
+        whole = reassembly.add("picture", decode(payload, TrackPicture), payload, 0.0)
+    assert whole is not None
+    assert_same(whole[0], make_picture(9, 1))
 
 
 def test_the_recorder_stores_each_part_and_gives_the_picture_whole(tmp_path: Path) -> None:

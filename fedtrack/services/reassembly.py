@@ -11,7 +11,8 @@ handler once, as if it had come whole. The parts are untrusted, so what is held 
 - in all at most ``MAX_PENDING`` = 2 x MAX_LIST_ITEMS = 128 messages (a service takes batched
   streams from at most MAX_LIST_ITEMS = 64 senders, the sensors a track may list) and
   ``MAX_HELD_BYTES`` = MAX_PARTS x MAX_PAYLOAD_BYTES = 128 MiB of payload (one largest message
-  whole); beyond either the oldest message in assembly is evicted;
+  whole); beyond either the oldest message in assembly of the stream holding the most bytes is
+  evicted (a sender flooding parts loses its own messages, not another stream's);
 - a message still incomplete ``PARTS_TIMEOUT_S`` after its first part came is dropped: the
   largest message, 128 MiB, takes 10.7 s at 100 Mbit/s; 16 s leaves half as much again;
 - when a message of a stream completes, the older ones of that stream still in assembly are
@@ -98,9 +99,15 @@ class Reassembly:
             self._drop(ident, "parts_incomplete")
 
     def _bound(self) -> None:
-        """Evict the oldest messages in assembly until within ``max_pending`` and ``max_bytes``."""
+        """Evict messages in assembly until within ``max_pending`` and ``max_bytes``: each time the
+        oldest of the stream that holds the most bytes, so that a sender flooding parts loses its
+        own messages, not another stream's."""
         while len(self.pending) > self.max_pending or self.held_bytes > self.max_bytes:
-            self._drop(next(iter(self.pending)), "parts_incomplete")
+            held: dict[tuple[Any, ...], int] = {}
+            for ident, partial in self.pending.items():
+                held[ident[:3]] = held.get(ident[:3], 0) + partial.size
+            heaviest = max(held, key=held.__getitem__)  # the first of equals: the oldest stream
+            self._drop(next(k for k in self.pending if k[:3] == heaviest), "parts_incomplete")
 
     def _drop(self, ident: tuple[Any, ...], counter: str | None = None) -> None:
         partial = self.pending.pop(ident)
