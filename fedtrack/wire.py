@@ -594,10 +594,26 @@ class ManeuverEvent(_Record):
 
 
 def _counts(value: Any, path: str) -> tuple[int, ...]:
+    """Per-track integers (ids, positions): a list of plain ints in range at once (a 10,000-track
+    report holds some 50,000), anything else item by item, which names the first bad one."""
+    if (type(value) in (list, tuple) and len(value) <= _whole(MAX_TRACKS) and all(type(v) is int for v in value)
+            and (not value or 0 <= min(value) and max(value) <= _INT64_MAX)):
+        return tuple(value)
+    return _counts_each(value, path)
+
+
+def _counts_each(value: Any, path: str) -> tuple[int, ...]:
     return tuple(_count(v, f"{path}[{i}]") for i, v in enumerate(_sequence(value, path, _whole(MAX_TRACKS))))
 
 
 def _flags(value: Any, path: str) -> tuple[bool, ...]:
+    """Per-track flags: a list of plain booleans at once, anything else item by item (see _counts)."""
+    if type(value) in (list, tuple) and len(value) <= _whole(MAX_TRACKS) and all(type(v) is bool for v in value):
+        return tuple(value)
+    return _flags_each(value, path)
+
+
+def _flags_each(value: Any, path: str) -> tuple[bool, ...]:
     return tuple(_flag(v, f"{path}[{i}]") for i, v in enumerate(_sequence(value, path, _whole(MAX_TRACKS))))
 
 

@@ -178,3 +178,28 @@ def test_an_array_encodes_to_its_values_as_little_endian_float64(shape: list[int
         arr = values.astype(layout)
     assert wire._encode_array(arr) == {"dtype": "float64", "shape": list(arr.shape),
                                        "data": arr.astype("<f8").tobytes()}
+
+
+def _outcome(check: Any, value: Any) -> Any:
+    try:
+        out = check(value, "f")
+    except WireError as exc:
+        return ("error", exc.field, exc.reason)
+    assert type(out) is tuple
+    return ("value", tuple((type(v), v) for v in out))
+
+
+ODD_ITEMS = st.sampled_from([True, False, 0, 1, 7, -1, 2**63 - 1, 2**63, 1.0, None, "1", np.bool_(True),
+                             np.int64(3)])
+
+
+@settings(SETTINGS, max_examples=300)
+@given(items=st.lists(ODD_ITEMS, max_size=12), as_tuple=st.booleans())
+def test_per_track_flags_and_counts_at_once_equal_the_per_item_check(items: list[Any], as_tuple: bool) -> None:
+    """``_flags`` and ``_counts`` take a list of plain booleans or in-range ints at once: the same
+    tuple (types included) as the per-item check, or, for anything else, the same error."""
+    value = tuple(items) if as_tuple else items
+    assert _outcome(wire._flags, value) == _outcome(wire._flags_each, value)
+    assert _outcome(wire._counts, value) == _outcome(wire._counts_each, value)
+    regular = [bool(i % 2) for i in range(len(items))]
+    assert _outcome(wire._flags, regular) == _outcome(wire._flags_each, regular)
