@@ -33,11 +33,13 @@ def test_a_fast_sensor_keeps_the_floor_and_a_late_scan_does_not_move_its_interva
 
 def test_a_sensor_heard_once_takes_the_others_pace_and_rejoins_with_its_intervals() -> None:
     silence = Silence(floor_s=5.0)
-    assert silence.bound_s("new") == 5.0  # nothing known: the floor
+    silence.heard("radar", 0.0)
+    assert silence.bound_s("radar") == 20.0  # nothing known: four floors, so a 12 s radar's second scan comes in time
+    assert silence.silent(12.0) == [] and silence.silent(20.5) == ["radar"]
     heard_every(silence, "s1", 10.0, 4)  # a launch at 0.1x: 10 s of wall clock between scans
     silence.heard("s2", 30.0)
-    assert silence.bound_s("s2") == 40.0 and silence.silent(60.0) == []
+    assert silence.bound_s("s2") == 40.0 and silence.silent(60.0) == ["radar"]
     silence.left("s1")
     assert "s1" not in silence.last and silence.bound_s("s1") == 40.0  # a rejoiner keeps its pace
     silence.heard("s1", 200.0)
-    assert silence.silent(230.0) == ["s2"]  # s1 (median interval still 10 s) is live; s2 went quiet at 30 s
+    assert silence.silent(230.0) == ["radar", "s2"]  # s1 (median interval still 10 s) is live; the others went quiet

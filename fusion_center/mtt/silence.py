@@ -10,8 +10,9 @@ follows the sensor: its silence must exceed both ``[mtt] leave_after_s`` and ``L
 times its usual interval between arrivals, the median of its last ``INTERVALS_KEPT`` (a late scan
 arrives up to two of its periods after its time, so two arrivals of a live sensor are at most
 three intervals apart: three periods of silence can be a late scan, four cannot). A sensor with
-no interval yet (one message so far) takes the longest usual interval among the others, which
-carries a slowed deployment's pace; with none known, ``leave_after_s`` alone.
+no interval yet (one message so far) may be silent for ``LEAVE_INTERVALS`` times the longer of
+``leave_after_s`` and the others' longest usual interval (which carries a slowed deployment's
+pace): a sensor whose period is up to four times that is not dropped before its second message.
 """
 
 from __future__ import annotations
@@ -42,8 +43,9 @@ class Silence:
     def bound_s(self, sensor: str) -> float:
         """How long ``sensor`` may be silent and still count as live (module docstring)."""
         usual = {s: statistics.median(g) for s, g in self.gaps.items() if g}
-        interval = usual.get(sensor, max(usual.values(), default=0.0))
-        return max(self.floor_s, LEAVE_INTERVALS * interval)
+        if sensor in usual:
+            return max(self.floor_s, LEAVE_INTERVALS * usual[sensor])
+        return LEAVE_INTERVALS * max([self.floor_s, *usual.values()])
 
     def silent(self, now: float) -> list[str]:
         """The live sensors silent beyond their bound at ``now``."""
