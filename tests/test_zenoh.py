@@ -22,6 +22,7 @@ import zenoh
 from support import WAIT_S, free_port, wait_until
 
 from fedtrack.keys import Keys
+from fedtrack.services import base
 from fedtrack.services.base import QueryHandler, Service, Subscription
 from fedtrack.wire import (
     Detection,
@@ -291,6 +292,58 @@ def test_plain_outputs_are_published_without_a_cache() -> None:
         assert wait_until(lambda: late.count(keys.fusion_track()) == 2)
         time.sleep(0.5)  # the history replies came together: an event would be here by now
         assert keys.fusion_event() not in late
+        hist.undeclare()
+    finally:
+        service.stop()
+        thread.join(WAIT_S)
+        close_session(session)
+        close_session(router)
+
+
+class Grower(Echo):
+    """Echo that also publishes, per measurement ``seq``, a scan of ``100 seq`` detections."""
+
+    role = "grower"
+
+    def subscriptions(self) -> list[Subscription]:
+        return [Subscription(self.keys.sensor_meas("s1"), Measurement, self.on_measurement)]
+
+    def on_measurement(self, msg: Measurement) -> None:
+        self.last = msg
+        self.publish(self.keys.sensor_meas("g"), Measurement(
+            sensor="g", seq=msg.seq, t=msg.t, kind="scan", z=np.zeros(0), R=np.eye(2),
+            detections=tuple((np.full(2, float(i)), 0.0) for i in range(100 * msg.seq)), stamp_ns=1))
+
+
+def test_a_cache_outgrown_by_its_messages_keeps_about_cache_bytes_of_the_latest(monkeypatch: pytest.MonkeyPatch) -> None:
+    """An advanced publisher keeps ``cache_depth`` messages: once they grow (a picture from a few
+    tracks to thousands) it is declared again with a smaller cache, and a late subscriber with
+    history gets the latest messages, as many as fit in about CACHE_BYTES."""
+    monkeypatch.setattr(base, "CACHE_BYTES", 40_000)
+    monkeypatch.setattr(base, "MIN_CACHE_SAMPLES", 3)
+    port = free_port()
+    keys = Keys("t6")
+    router = open_session(SessionOptions(mode="router", connect=(), listen=(f"tcp/127.0.0.1:{port}",)))
+    session = client(port)
+    service = Grower(service_id="g1", options=SessionOptions(connect=(f"tcp/127.0.0.1:{port}",)), deployment="t6")
+    thread, _code = run_in_thread(service)
+    late: list[int] = []
+    try:
+        assert wait_alive(session, [keys.alive("grower", "g1")], WAIT_S) == set()
+        session.put(keys.sensor_meas("s1"), encode(measurement("s1", 0)))  # an empty scan: a deep cache
+        assert wait_until(lambda: keys.sensor_meas("g") in service._publishers)
+        small = service._publishers[keys.sensor_meas("g")][1]
+        for seq in range(5, 11):  # 500-1,000 detections: about 20-40 kB each
+            session.put(keys.sensor_meas("s1"), encode(measurement("s1", seq)))
+        assert wait_until(lambda: service.last is not None and service.last.seq == 10)
+        depth = service._publishers[keys.sensor_meas("g")][1]
+        assert small > 2 * depth and depth == 3  # 40 kB of 20-40 kB scans: the floor
+        hist = zenoh.ext.declare_advanced_subscriber(
+            session, keys.sensor_meas("g"), lambda s: late.append(decode(s.payload.to_bytes(), Measurement).seq),
+            history=zenoh.ext.HistoryConfig(detect_late_publishers=True))
+        assert wait_until(lambda: len(late) >= depth)
+        time.sleep(0.5)  # the history replies came together: more would be here by now
+        assert late == list(range(11 - depth, 11))
         hist.undeclare()
     finally:
         service.stop()

@@ -34,7 +34,8 @@ floating-point failure or :class:`Numerical`, ``rejected_handler_error`` for any
 bug: logged with its exception and place) and the service goes on as if it had never come.
 
 Every publisher is a ``zenoh.ext`` advanced publisher that keeps its last
-``CACHE_SAMPLES`` messages per key and sends a heartbeat every ``HEARTBEAT_S``: a
+messages per key (``cache_depth``: about ``CACHE_BYTES`` of them, between ``MIN_CACHE_SAMPLES`` and
+``CACHE_SAMPLES``) and sends a heartbeat every ``HEARTBEAT_S``: a
 subscriber declared with ``Subscription(..., history=True)`` (the recorder) gets, when
 it (re)starts, what was published while it was away, and recovers samples lost in
 transit; samples it could not recover are counted in ``counters["missed"]``. The keys a
@@ -118,6 +119,15 @@ def digest(msg: Message) -> bytes:
     return blake2b(b"".join(payloads(msg)), digest_size=16).digest()
 
 
+def cache_depth(size: int) -> int:
+    """The messages an advanced publisher keeps when its samples are ``size`` bytes: CACHE_BYTES
+    worth, between MIN_CACHE_SAMPLES and CACHE_SAMPLES. The cache is what a restarted recorder
+    receives of what it missed, seconds after it died (the launcher's backoff is at most 4 s), so
+    minutes of it are plenty; 4,096 samples of a 1,000-track picture (150 kB) were 600 MB of a
+    centre's memory after 68 minutes, of a 10,000-track one (5 parts of 0.5 MB) 2.2 GB after 14."""
+    return max(MIN_CACHE_SAMPLES, min(CACHE_SAMPLES, CACHE_BYTES // max(size, 1)))
+
+
 class ScanOrder:
     """The last scan a single-sensor tracker took: a repeat of it is counted ``duplicate`` (if
     identical) or rejected as a :class:`Conflict` (a different message for the same scan, which
@@ -183,7 +193,9 @@ REJECT_LOG_INTERVAL_S = 5.0
 CLOSE_DEADLINE_S = 2.0
 DRAIN_DEADLINE_S = 2.0
 _POLL_S = 0.05
-CACHE_SAMPLES = 4096
+CACHE_SAMPLES = 4096  # messages an advanced publisher keeps per key, at most ...
+CACHE_BYTES = 64 * 1024 * 1024  # ... and about this many bytes of them: see cache_depth
+MIN_CACHE_SAMPLES = 64
 HEARTBEAT_S = 0.5
 HISTORY_RECHECK_S = 1.0
 _ENCODING = zenoh.Encoding("application/msgpack")
@@ -310,7 +322,8 @@ class Service:
         self._queue: queue.Queue[tuple[Any, ...]] = queue.Queue(maxsize=QUEUE_SIZE)
         self._stop_requested = False
         self._closing = False
-        self._publishers: dict[str, zenoh.ext.AdvancedPublisher] = {}
+        # key -> its publisher and cache depth (0: a plain publisher)
+        self._publishers: dict[str, tuple[zenoh.Publisher | zenoh.ext.AdvancedPublisher, int]] = {}
         self._inputs: list[Any] = []
         self._subscriptions: list[Subscription] = []
         self._queryables: list[QueryHandler] = []
@@ -657,19 +670,25 @@ class Service:
     def _put(self, key: str, msg: Message) -> None:
         if self.session is None:
             raise RuntimeError("publish() called before run() opened the session")
-        pub = self._publishers.get(key)
-        if pub is None:
-            if any(zenoh.KeyExpr(plain).includes(zenoh.KeyExpr(key)) for plain in self.plain_outputs()):
-                pub = self.session.declare_publisher(key, encoding=_ENCODING,
-                                                     congestion_control=zenoh.CongestionControl.BLOCK)
-            else:
-                pub = zenoh.ext.declare_advanced_publisher(
-                    self.session, key, encoding=_ENCODING, congestion_control=zenoh.CongestionControl.BLOCK,
-                    cache=zenoh.ext.CacheConfig(max_samples=CACHE_SAMPLES),
-                    sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=HEARTBEAT_S),
-                    publisher_detection=True)
-            self._publishers[key] = pub
-        for payload in payloads(msg):
+        encoded = payloads(msg)
+        pub, depth = self._publishers.get(key, (None, 0))
+        if pub is None and any(zenoh.KeyExpr(plain).includes(zenoh.KeyExpr(key)) for plain in self.plain_outputs()):
+            pub = self.session.declare_publisher(key, encoding=_ENCODING,
+                                                 congestion_control=zenoh.CongestionControl.BLOCK)
+            self._publishers[key] = (pub, 0)
+        elif pub is None or depth > 2 * cache_depth(max(map(len, encoded))):
+            # new, or its messages outgrew its cache (one grows from a few tracks to thousands): a
+            # publisher with a cache of about CACHE_BYTES (the old one's samples are dropped)
+            if pub is not None:
+                pub.undeclare()
+            depth = cache_depth(max(map(len, encoded)))
+            pub = zenoh.ext.declare_advanced_publisher(
+                self.session, key, encoding=_ENCODING, congestion_control=zenoh.CongestionControl.BLOCK,
+                cache=zenoh.ext.CacheConfig(max_samples=depth),
+                sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=HEARTBEAT_S),
+                publisher_detection=True)
+            self._publishers[key] = (pub, depth)
+        for payload in encoded:
             pub.put(payload)
 
     def _count_part(self, name: str) -> None:
@@ -696,7 +715,7 @@ class Service:
         try:
             self.status = "stopped" if code == 0 else "failed"
             self._put(self.keys.health(self.role, self.id), self._health())
-            for pub in self._publishers.values():
+            for pub, _ in self._publishers.values():
                 pub.undeclare()
         except (zenoh.ZError, WireError) as exc:
             self.log.warning("final health not sent: %s", exc)
