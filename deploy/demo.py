@@ -188,7 +188,7 @@ def main(argv: list[str]) -> int:
     print(f"fedtrack demo: {what}, {args.mode}; output in {out}", file=sys.stderr)
     failure = None
     try:
-        report = run_deployment(settings, out / "config.toml", out)
+        report = run_deployment(settings, out / "config.toml", out, title="fedtrack demo")
     except KeyboardInterrupt:
         print("fedtrack demo: stopped; every service was shut down", file=sys.stderr)
         return 130

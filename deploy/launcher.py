@@ -305,8 +305,9 @@ class Launcher:
     """Runs a plan of service processes and watches the deployment over Zenoh."""
 
     def __init__(self, settings: Settings, plan: list[ServiceProcess], quiet: bool = False,
-                 max_scans: int | None = None, zenoh_config: str | None = None) -> None:
+                 max_scans: int | None = None, zenoh_config: str | None = None, title: str = "fedtrack launch") -> None:
         self.settings = settings
+        self.title = title  # the command the launcher's own lines name (``fedtrack demo`` runs one too)
         self.zenoh_config = zenoh_config
         self.plan = plan
         self.quiet = quiet
@@ -408,7 +409,7 @@ class Launcher:
                     self._say(f"{sp.name} killed (SIGKILL at t = {sp.kill_at_s:g} s)")
 
     def _say(self, text: str) -> None:
-        sys.stderr.write(f"\nfedtrack launch: {text}\n")
+        sys.stderr.write(f"\n{self.title}: {text}\n")
         sys.stderr.flush()
 
     def stop_all(self) -> None:
@@ -563,7 +564,7 @@ class Launcher:
             if "--db" in sp.argv:  # nor an earlier run's recording appended to
                 kept = set_aside_recording(Path(sp.argv[sp.argv.index("--db") + 1]))
                 if kept is not None and not self.quiet:
-                    print(f"fedtrack launch: an earlier run's recording moved to {kept}", file=sys.stderr)
+                    print(f"{self.title}: an earlier run's recording moved to {kept}", file=sys.stderr)
         try:
             for sp in routers:
                 self._start(sp)
@@ -696,14 +697,16 @@ def install_stop_handlers(launcher: Launcher) -> None:
         signal.signal(sig, lambda *_: launcher.request_stop())
 
 
-def run_deployment(settings: Settings, config_path: Path, out_dir: Path, quiet: bool = False) -> LaunchReport:
+def run_deployment(settings: Settings, config_path: Path, out_dir: Path, quiet: bool = False,
+                   title: str = "fedtrack launch") -> LaunchReport:
     """Launch the services of ``settings`` on this host and wait for the scenario to end."""
-    launcher = prepare_launcher(settings, config_path, out_dir, quiet)
+    launcher = prepare_launcher(settings, config_path, out_dir, quiet, title)
     install_stop_handlers(launcher)
     return launcher.run()
 
 
-def prepare_launcher(settings: Settings, config_path: Path, out_dir: Path, quiet: bool = False) -> Launcher:
+def prepare_launcher(settings: Settings, config_path: Path, out_dir: Path, quiet: bool = False,
+                     title: str = "fedtrack launch") -> Launcher:
     """What :func:`run_deployment` does before it runs: the checks (port, multi-target scenario), the
     plan and the Zenoh configurations; the launcher is ready to ``run()`` (from any thread)."""
     dep = settings.deployment
@@ -717,7 +720,7 @@ def prepare_launcher(settings: Settings, config_path: Path, out_dir: Path, quiet
             shutil.copyfile(config_path, out_dir / "config.toml")  # what ``replay --config OUT/config.toml`` reads
     plan = service_plan(settings, config_path, out_dir, out_dir / "logs", recorder_exports=False)
     monitor_config = apply_zenoh_settings(settings, config_path, out_dir, plan)
-    return Launcher(settings, plan, quiet=quiet, zenoh_config=monitor_config)
+    return Launcher(settings, plan, quiet=quiet, zenoh_config=monitor_config, title=title)
 
 
 def main(argv: list[str]) -> int:

@@ -163,7 +163,8 @@ def picture(seq: int, t: float, fused: tuple[tuple[str, int], ...], closing: boo
                         fused_seqs=tuple(q for _, q in fused), stamp_ns=7, closing=closing, **extra)
 
 
-def test_the_launcher_exports_a_picture_recording_in_the_centres_order_after_everything_stopped(tmp_path: Path) -> None:
+def test_the_launcher_exports_a_picture_recording_in_the_centres_order_after_everything_stopped(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """``fedtrack launch`` plans its recorder without ``--out`` and writes the JSON Lines itself once
     every service has stopped, from the database alone (here no recorder process ran at all, as
     after one was killed): the scans in the order the pictures list them (a region run's scan once
@@ -186,7 +187,8 @@ def test_the_launcher_exports_a_picture_recording_in_the_centres_order_after_eve
     plan = service_plan(settings, config, tmp_path, tmp_path / "logs", recorder_exports=False)
     recorder = next(sp for sp in plan if sp.role == "recorder")
     assert "--out" not in recorder.argv and recorder.argv[recorder.argv.index("--db") + 1] == str(db)
-    Launcher(settings, [recorder], quiet=True)._export_recording()
+    Launcher(settings, [recorder], title="fedtrack demo")._export_recording()
+    assert f"fedtrack demo: exported 6 measurement lines and 2 track lines from {db} in" in capsys.readouterr().err
 
     lines = [json.loads(x) for x in (tmp_path / "measurements.jsonl").read_text().splitlines()]
     assert [(x.get("sensor"), x["t"], x.get("region"), x.get("left", False)) for x in lines] == [
