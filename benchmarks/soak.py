@@ -8,7 +8,7 @@ written). Every 5 s it samples the resident set size (``VmRSS``) of every proces
 deployment from ``/proc``. Reported: scans fused and their rate, scans lost (fused degraded,
 i.e. without some sensor's estimate, or skipped), every process's RSS in the first and the last
 minute (medians) and its growth, also from the minute after the publishers' history caches
-(``CACHE_SAMPLES`` messages per key, bounded) have filled, the RSS series, and the launcher's
+(``CACHE_SAMPLES`` messages per key for these messages of a few kB: ``cache_depth``) have filled, the RSS series, and the launcher's
 exit code.
 """
 
@@ -91,7 +91,7 @@ def run_soak(minutes: float, sensors: int, out: Path) -> dict[str, Any]:
     summary = json.loads((out / "summary.json").read_text())
     fusion = next((h for k, h in summary["health"].items() if k.startswith("fusion-center")), {})
     lost = summary["degraded_scans"] + fusion.get("skipped_scans", 0)
-    # every publisher keeps its last CACHE_SAMPLES messages per key (zenoh.ext history): that
+    # every publisher keeps its last CACHE_SAMPLES messages per key here (zenoh.ext history; cache_depth): that
     # bounded cache fills in CACHE_SAMPLES / rate seconds, so growth is also measured from then
     full_s = CACHE_SAMPLES / max(summary["scans"] / summary["wall_time_s"], 1e-9)
     processes = {}
