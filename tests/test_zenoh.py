@@ -14,6 +14,8 @@ import sys
 import threading
 import time
 from pathlib import Path
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
@@ -270,29 +272,18 @@ class PlainEcho(Echo):
         self.publish(self.keys.fusion_track(), track)
 
 
-def test_plain_outputs_are_published_without_a_cache() -> None:
-    """A key in ``plain_outputs`` reaches a live subscriber but is not kept for a late one with
-    history; the service's other keys are (the advanced publisher's cache)."""
+@contextmanager
+def served(make: Callable[[SessionOptions], Service]) -> Iterator[tuple[zenoh.Session, Service]]:
+    """A router on a free port, a client session, and the service ``make(options)`` running in a
+    thread and announced; all stopped and closed afterwards."""
     port = free_port()
-    keys = Keys("t5")
     router = open_session(SessionOptions(mode="router", connect=(), listen=(f"tcp/127.0.0.1:{port}",)))
     session = client(port)
-    service = PlainEcho(service_id="p1", options=SessionOptions(connect=(f"tcp/127.0.0.1:{port}",)), deployment="t5")
-    live, _sub = collect(session, keys.fusion_event(), ManeuverEvent)
+    service = make(SessionOptions(connect=(f"tcp/127.0.0.1:{port}",)))
     thread, _code = run_in_thread(service)
-    late: list[str] = []
     try:
-        assert wait_alive(session, [keys.alive("plainecho", "p1")], WAIT_S) == set()
-        for seq in (1, 2):
-            session.put(keys.sensor_meas("s1"), encode(measurement("s1", seq)))
-        assert wait_until(lambda: len(live) == 2 and service.counters["published"] == 4)
-        hist = zenoh.ext.declare_advanced_subscriber(
-            session, keys.fusion_track().rsplit("/", 1)[0] + "/*", lambda s: late.append(str(s.key_expr)),
-            history=zenoh.ext.HistoryConfig(detect_late_publishers=True))
-        assert wait_until(lambda: late.count(keys.fusion_track()) == 2)
-        time.sleep(0.5)  # the history replies came together: an event would be here by now
-        assert keys.fusion_event() not in late
-        hist.undeclare()
+        assert wait_alive(session, [service.keys.alive(service.role, service.id)], WAIT_S) == set()
+        yield session, service
     finally:
         service.stop()
         thread.join(WAIT_S)
@@ -300,8 +291,35 @@ def test_plain_outputs_are_published_without_a_cache() -> None:
         close_session(router)
 
 
+def late_history(session: zenoh.Session, key: str, convert: Callable[[zenoh.Sample], Any]) -> list[Any]:
+    """What a subscriber declared now with history gets of ``key``: the publishers' caches (their
+    replies come together: what is not in 0.5 s after the first is not coming)."""
+    late: list[Any] = []
+    hist = zenoh.ext.declare_advanced_subscriber(session, key, lambda s: late.append(convert(s)),
+                                                 history=zenoh.ext.HistoryConfig(detect_late_publishers=True))
+    try:
+        assert wait_until(lambda: bool(late))
+        time.sleep(0.5)
+        return list(late)
+    finally:
+        hist.undeclare()
+
+
+def test_plain_outputs_are_published_without_a_cache() -> None:
+    """A key in ``plain_outputs`` reaches a live subscriber but is not kept for a late one with
+    history; the service's other keys are (the advanced publisher's cache)."""
+    keys = Keys("t5")
+    with served(lambda options: PlainEcho(service_id="p1", options=options, deployment="t5")) as (session, service):
+        live, _sub = collect(session, keys.fusion_event(), ManeuverEvent)
+        for seq in (1, 2):
+            session.put(keys.sensor_meas("s1"), encode(measurement("s1", seq)))
+        assert wait_until(lambda: len(live) == 2 and service.counters["published"] == 4)
+        late = late_history(session, keys.fusion_track().rsplit("/", 1)[0] + "/*", lambda s: str(s.key_expr))
+        assert late.count(keys.fusion_track()) == 2 and keys.fusion_event() not in late
+
+
 class Grower(Echo):
-    """Echo that also publishes, per measurement ``seq``, a scan of ``100 seq`` detections."""
+    """Echo that also publishes, per measurement ``seq`` of s1, a scan of ``100 seq`` detections."""
 
     role = "grower"
 
@@ -309,10 +327,10 @@ class Grower(Echo):
         return [Subscription(self.keys.sensor_meas("s1"), Measurement, self.on_measurement)]
 
     def on_measurement(self, msg: Measurement) -> None:
-        self.last = msg
         self.publish(self.keys.sensor_meas("g"), Measurement(
             sensor="g", seq=msg.seq, t=msg.t, kind="scan", z=np.zeros(0), R=np.eye(2),
             detections=tuple((np.full(2, float(i)), 0.0) for i in range(100 * msg.seq)), stamp_ns=1))
+        self.last = msg  # once published: a test waiting for it finds the scan in the cache
 
 
 def test_a_cache_outgrown_by_its_messages_keeps_about_cache_bytes_of_the_latest(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -321,35 +339,18 @@ def test_a_cache_outgrown_by_its_messages_keeps_about_cache_bytes_of_the_latest(
     history gets the latest messages, as many as fit in about CACHE_BYTES."""
     monkeypatch.setattr(base, "CACHE_BYTES", 40_000)
     monkeypatch.setattr(base, "MIN_CACHE_SAMPLES", 3)
-    port = free_port()
     keys = Keys("t6")
-    router = open_session(SessionOptions(mode="router", connect=(), listen=(f"tcp/127.0.0.1:{port}",)))
-    session = client(port)
-    service = Grower(service_id="g1", options=SessionOptions(connect=(f"tcp/127.0.0.1:{port}",)), deployment="t6")
-    thread, _code = run_in_thread(service)
-    late: list[int] = []
-    try:
-        assert wait_alive(session, [keys.alive("grower", "g1")], WAIT_S) == set()
+    with served(lambda options: Grower(service_id="g1", options=options, deployment="t6")) as (session, service):
         session.put(keys.sensor_meas("s1"), encode(measurement("s1", 0)))  # an empty scan: a deep cache
         assert wait_until(lambda: keys.sensor_meas("g") in service._publishers)
         small = service._publishers[keys.sensor_meas("g")][1]
         for seq in range(5, 11):  # 500-1,000 detections: about 20-40 kB each
             session.put(keys.sensor_meas("s1"), encode(measurement("s1", seq)))
-        assert wait_until(lambda: service.last is not None and service.last.seq == 10)
+        assert wait_until(lambda: service.last is not None and service.last.seq == 10)  # type: ignore[attr-defined]
         depth = service._publishers[keys.sensor_meas("g")][1]
         assert small > 2 * depth and depth == 3  # 40 kB of 20-40 kB scans: the floor
-        hist = zenoh.ext.declare_advanced_subscriber(
-            session, keys.sensor_meas("g"), lambda s: late.append(decode(s.payload.to_bytes(), Measurement).seq),
-            history=zenoh.ext.HistoryConfig(detect_late_publishers=True))
-        assert wait_until(lambda: len(late) >= depth)
-        time.sleep(0.5)  # the history replies came together: more would be here by now
+        late = late_history(session, keys.sensor_meas("g"), lambda s: decode(s.payload.to_bytes(), Measurement).seq)
         assert late == list(range(11 - depth, 11))
-        hist.undeclare()
-    finally:
-        service.stop()
-        thread.join(WAIT_S)
-        close_session(session)
-        close_session(router)
 
 
 def test_no_plain_output_is_read_from_a_cache() -> None:
