@@ -266,8 +266,9 @@ class Recording:
                             write(0, m_out, {"t": pic.t, "sensor": key[0], "left": True, **tag})
                         elif i in pic.handovers and tag:
                             write(0, m_out, {"t": pic.t, "handover": key[1], "from": key[0], **tag})
-                        elif key in rowid and (tag or rowid[key] not in used) and scan_line(rowid[key]) is not None:
-                            write(0, m_out, {**scan_line(rowid[key]), **({"seq": key[1], **tag} if tag else {})})  # type: ignore[dict-item]
+                        elif (key in rowid and (tag or rowid[key] not in used)
+                              and (line := scan_line(rowid[key])) is not None):
+                            write(0, m_out, {**line, **({"seq": key[1], **tag} if tag else {})})
                             used.add(rowid[key])
                     if not pic.closing:
                         write(1, t_out, picture_to_replay(pic))

@@ -602,10 +602,6 @@ def _counts(value: Any, path: str) -> tuple[int, ...]:
     return _counts_each(value, path)
 
 
-def _counts_each(value: Any, path: str) -> tuple[int, ...]:
-    return tuple(_count(v, f"{path}[{i}]") for i, v in enumerate(_sequence(value, path, _whole(MAX_TRACKS))))
-
-
 def _flags(value: Any, path: str) -> tuple[bool, ...]:
     """Per-track flags: a list of plain booleans at once, anything else item by item (see _counts)."""
     if type(value) in (list, tuple) and len(value) <= _whole(MAX_TRACKS) and all(type(v) is bool for v in value):
@@ -613,8 +609,6 @@ def _flags(value: Any, path: str) -> tuple[bool, ...]:
     return _flags_each(value, path)
 
 
-def _flags_each(value: Any, path: str) -> tuple[bool, ...]:
-    return tuple(_flag(v, f"{path}[{i}]") for i, v in enumerate(_sequence(value, path, _whole(MAX_TRACKS))))
 
 
 def _check_probabilities(p: np.ndarray | None, n: int, path: str = "existence") -> None:
@@ -645,6 +639,8 @@ _optional_batch_vector = _optional(_batch_vector)
 _BATCH_CHECKS = (_batch, _optional_batch, _optional_batch_vector)  # decoded within MAX_BATCH_ELEMENTS
 _identifier_list = _tracks_list(_identifier)
 _reals = _tracks_list(_real)
+_counts_each = _tracks_list(_count)  # the item-by-item paths of _counts and _flags
+_flags_each = _tracks_list(_flag)
 
 
 def _covariance_stack(P: np.ndarray, n: int, d: int, path: str) -> np.ndarray:

@@ -194,8 +194,12 @@ CLOSE_DEADLINE_S = 2.0
 DRAIN_DEADLINE_S = 2.0
 _POLL_S = 0.05
 CACHE_SAMPLES = 4096  # messages an advanced publisher keeps per key, at most ...
-CACHE_BYTES = 64 * 1024 * 1024  # ... and about this many bytes of them: see cache_depth
-MIN_CACHE_SAMPLES = 64
+# ... and about this many bytes of them (cache_depth): a restarted recorder needs what it missed,
+# at most about 10 s under the launcher (three restarts: backoffs 0.5 + 1 + 2 s and a start of
+# about 2 s each); 64 MiB is 25 s of 10,000-track pictures at 1 Hz (5 parts of 0.5 MB), 7.5
+# minutes of 1,000-track ones; beyond about 30,000 tracks a picture at 1 Hz it holds less than 10 s
+CACHE_BYTES = 64 * 1024 * 1024
+MIN_CACHE_SAMPLES = 64  # the floor for the largest samples (2 MiB parts): 128 MiB a key
 HEARTBEAT_S = 0.5
 HISTORY_RECHECK_S = 1.0
 _ENCODING = zenoh.Encoding("application/msgpack")
@@ -671,17 +675,18 @@ class Service:
         if self.session is None:
             raise RuntimeError("publish() called before run() opened the session")
         encoded = payloads(msg)
+        needed = cache_depth(max(map(len, encoded)))
         pub, depth = self._publishers.get(key, (None, 0))
         if pub is None and any(zenoh.KeyExpr(plain).includes(zenoh.KeyExpr(key)) for plain in self.plain_outputs()):
             pub = self.session.declare_publisher(key, encoding=_ENCODING,
                                                  congestion_control=zenoh.CongestionControl.BLOCK)
             self._publishers[key] = (pub, 0)
-        elif pub is None or depth > 2 * cache_depth(max(map(len, encoded))):
+        elif pub is None or depth > 2 * needed:
             # new, or its messages outgrew its cache (one grows from a few tracks to thousands): a
             # publisher with a cache of about CACHE_BYTES (the old one's samples are dropped)
             if pub is not None:
                 pub.undeclare()
-            depth = cache_depth(max(map(len, encoded)))
+            depth = needed
             pub = zenoh.ext.declare_advanced_publisher(
                 self.session, key, encoding=_ENCODING, congestion_control=zenoh.CongestionControl.BLOCK,
                 cache=zenoh.ext.CacheConfig(max_samples=depth),

@@ -22,6 +22,8 @@ from collections import deque
 from dataclasses import dataclass, field
 
 LEAVE_INTERVALS = 4
+# the median of 8 intervals holds while at most 3 are off: a late scan puts one long and one short
+# interval among them, so up to one late scan in 8 (the simulator's --late is 0.2: 1.6 in 8)
 INTERVALS_KEPT = 8
 
 
@@ -42,14 +44,22 @@ class Silence:
 
     def bound_s(self, sensor: str) -> float:
         """How long ``sensor`` may be silent and still count as live (module docstring)."""
-        usual = {s: statistics.median(g) for s, g in self.gaps.items() if g}
+        return self._bound(sensor, self._usual())
+
+    def silent(self, now: float) -> list[str]:
+        """The live sensors silent beyond their bound at ``now`` (every tick: the usual intervals
+        are taken once)."""
+        usual = self._usual()
+        return [s for s, heard in self.last.items() if now - heard > self._bound(s, usual)]
+
+    def _usual(self) -> dict[str, float]:
+        """Each sensor's usual interval between messages: the median of its last ones."""
+        return {s: statistics.median(g) for s, g in self.gaps.items() if g}
+
+    def _bound(self, sensor: str, usual: dict[str, float]) -> float:
         if sensor in usual:
             return max(self.floor_s, LEAVE_INTERVALS * usual[sensor])
         return LEAVE_INTERVALS * max([self.floor_s, *usual.values()])
-
-    def silent(self, now: float) -> list[str]:
-        """The live sensors silent beyond their bound at ``now``."""
-        return [s for s, heard in self.last.items() if now - heard > self.bound_s(s)]
 
     def left(self, sensor: str) -> None:
         """``sensor`` is no longer live (silent, or its liveliness token went); its intervals stay."""
