@@ -638,6 +638,13 @@ class Service:
         keeps what it changed (e.g. a scan marked contested)."""
         self._reject(key, 0, exc)
 
+    def note_leads(self, key: str, n: int) -> None:
+        """Count ``n`` scans (or reports) on ``key`` that were stamped too far ahead of the data and
+        that no witness confirmed (:mod:`fedtrack.local_filters.mtt.lead`): ``rejected_time_lead``."""
+        for _ in range(n):
+            self.note_rejected(key, Rejected("time_lead", "stamped too far ahead of the data and never witnessed by "
+                                                          "another scan (a forged or broken clock): not fused"))
+
     def _reject(self, key: str, size: int, exc: Exception) -> None:
         reason = reason_of(exc)
         self.counters["rejected"] += 1

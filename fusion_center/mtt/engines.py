@@ -30,6 +30,7 @@ from fedtrack.fusion_center.mtt.shards import ShardedCentre
 from fedtrack.local_filters.mtt.associators import jipda
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.history import ScanHistory
+from fedtrack.local_filters.mtt.lead import LeadGuard
 from fedtrack.local_filters.mtt.local import LocalReport, Resets, SensorTracker, is_duplicate
 from fedtrack.local_filters.mtt.maneuver import predicted_view
 from fedtrack.local_filters.mtt.models import modes_predict, predict_batch
@@ -177,6 +178,7 @@ class Engine:
     duplicates: int = 0  # a scan equal to one fused before: not fused again
     rerun: int = 0  # scans run again after an out-of-sequence scan before them
     stage_s: dict[str, float] = field(default_factory=dict)  # wall seconds per stage (replay's report)
+    lead: LeadGuard | None = None  # the replay's guard against scans stamped far ahead (its `dropped`)
 
     def ingest(self, scan: SensorScan) -> None:
         raise NotImplementedError
@@ -195,7 +197,8 @@ class Engine:
         """A departure (:class:`SensorLeft`): only the track-to-track centre keeps per-sensor state."""
 
     def counters(self) -> dict[str, int]:
-        return {"scans": self.scans, "late": self.late, "duplicates": self.duplicates, "rerun": self.rerun}
+        return {"scans": self.scans, "late": self.late, "duplicates": self.duplicates, "rerun": self.rerun,
+                "lead": self.lead.dropped if self.lead is not None else 0}
 
 
 @dataclass

@@ -25,6 +25,7 @@ from fedtrack.fusion_center.mtt.regional import is_region_recording, read_region
 from fedtrack.geodetic import geodetic_line, load_frame
 from fedtrack.jsonl import InputError, check_output, output_file, read_jsonl
 from fedtrack.local_filters.mtt.config import MttConfig, MttSettings
+from fedtrack.local_filters.mtt.lead import LeadGuard
 from fedtrack.local_filters.mtt.models import position_from_detection
 from fedtrack.local_filters.mtt.scan import SensorLeft, SensorScan, parse_line
 from fedtrack.local_filters.regions import Regions, grid_over, load_regions, parse_grid_spec
@@ -63,16 +64,22 @@ def state_dim(scans: list[SensorScan | SensorLeft], sensor: str | None = None) -
 
 def pictures(engine: Engine, scans: list[SensorScan | SensorLeft], period: float,
              delay: float) -> Iterator[tuple[float, PictureTracks]]:
-    """Feed ``scans`` in arrival order and yield each picture once the data has passed its time."""
+    """Feed ``scans`` in arrival order and yield each picture once the data has passed its time; a
+    scan stamped far ahead of the data waits for a witness (:class:`LeadGuard`, ``engine.lead``)."""
     clock = PictureClock(period, delay)
-    for scan in scans:
-        if isinstance(scan, SensorLeft):
-            engine.leave(scan.sensor)
+    engine.lead = guard = engine.lead or LeadGuard(engine.cfg.max_lag)
+    for item in scans:
+        if isinstance(item, SensorLeft):
+            guard.leave(item.sensor)
+            engine.leave(item.sensor)
             clock.left()
             continue
-        for T in clock.due(scan.t):
-            yield _picture(engine, T)
-        engine.ingest(scan)
+        for scan in guard.admit(item.sensor, item.t, item):
+            for T in clock.due(scan.t):
+                yield _picture(engine, T)
+            engine.ingest(scan)
+            guard.took(scan.sensor, scan.t)
+    guard.end()
     for T in clock.final():
         yield _picture(engine, T)
 
@@ -89,7 +96,9 @@ def counter_lines(counts: dict[str, int]) -> list[str]:
     lines: list[str] = [f"{counts['scans']} scans fused",
              f"{counts['late']} scans late (older than max_lag before their tracker's newest), not fused",
              f"{counts['duplicates']} duplicate scans (equal to one fused before), not fused",
-             f"{counts['rerun']} scans run again after an out-of-sequence scan before them"]
+             f"{counts['rerun']} scans run again after an out-of-sequence scan before them",
+             (f"{counts.get('lead', 0)} scans stamped too far ahead of the data and never witnessed, not fused "
+              "(docs/multitarget.md#scans-stamped-far-ahead)")]
     if "centre_fused" in counts:
         lines += [f"{counts['centre_fused']} centre observations fused",
                   f"{counts['centre_reprocessed']} centre observations re-processed (fused again after an older one)",

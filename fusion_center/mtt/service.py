@@ -42,7 +42,7 @@ from __future__ import annotations
 import time
 from collections import deque
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import zenoh
@@ -62,6 +62,7 @@ from fedtrack.fusion_center.mtt.silence import Silence
 from fedtrack.fusion_center.mtt.standby import PRIMARY_ROLE, Standby, next_after
 from fedtrack.geodetic import Frame, geodetic_of_states
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
+from fedtrack.local_filters.mtt.lead import LeadGuard
 from fedtrack.local_filters.mtt.local import report_from_wire, resets_to_wire
 from fedtrack.local_filters.mtt.routing import answer_to_wire
 from fedtrack.local_filters.mtt.scan import scan_from_measurement
@@ -89,7 +90,7 @@ class MttCentreService(Service):
     # restored after a failed handler (the engine changes in place: pickled before each message;
     # ``received`` is only changed once a message was handled); on_tick guards its departures itself
     state_attrs = ("engine", "clock", "order", "left_at", "pictures", "silence", "contested", "handovers_at",
-                   "taken")
+                   "taken", "lead")
     tick_state_attrs = ()
 
     def __init__(self, algorithm: str, cfg: MttConfig, dim: int = 4, max_seq_jump: int = 1000,
@@ -119,6 +120,8 @@ class MttCentreService(Service):
         self.handovers_at: list[int] = []  # positions in ``order`` that are hand-overs taken over
         self.taken: set[tuple[str, int]] = set()  # (sending region, its hand-over number) taken over
         self.clock = PictureClock(cfg.period, cfg.picture_delay)
+        # a scan or report stamped far ahead of the data waits for a witness (local_filters/mtt/lead.py)
+        self.lead: LeadGuard[Measurement | TrackReport] = LeadGuard(cfg.max_lag)
         self.order: list[tuple[str, int]] = []  # scans processed since the last picture
         self.left_at: list[int] = []  # positions in ``order`` that are departures
         self.pictures = 0
@@ -152,6 +155,7 @@ class MttCentreService(Service):
             with self.guarded(f"the departure of {sensor}"):
                 self.silence.left(sensor)
                 self.engine.leave(sensor)
+                self.lead.leave(sensor)
                 self.clock.left()
                 self.left_at.append(len(self.order))
                 self.order.append((sensor, 0))
@@ -196,15 +200,32 @@ class MttCentreService(Service):
                            else self.keys.sensor_meas(msg.sensor), conflict)
         return False
 
-    def _process(self, msg: Measurement | TrackReport, work: Callable[[], None]) -> None:
-        """Make the pictures due before data at ``msg.t``, do ``work``, then publish them (compute,
-        then commit: a failed ``work`` undoes both) and note the scan."""
+    def _take(self, msg: Measurement | TrackReport) -> None:
+        """Process ``msg`` (checked; :meth:`_process`) unless it is stamped far ahead of the data: then
+        it waits for a witness (:class:`LeadGuard`; taken as received meanwhile), and the messages
+        it witnesses are processed before it."""
+        dropped = self.lead.dropped
+        released = self.lead.admit(msg.sensor, msg.t, msg)
+        key = self.keys.mtt_report(msg.sensor) if isinstance(msg, TrackReport) else self.keys.sensor_meas(msg.sensor)
+        self.note_leads(key, self.lead.dropped - dropped)
+        if not released:
+            self.received.take(msg)
+        for held in released:
+            self._process(held)
+
+    def _process(self, msg: Measurement | TrackReport) -> None:
+        """Make the pictures due before data at ``msg.t``, process ``msg``, then publish them (compute,
+        then commit: a failure undoes both) and note the scan."""
         pictures = [self._picture(T) for T in self.clock.due(msg.t)]
-        work()
+        if isinstance(msg, Measurement):
+            self.engine.ingest(scan_from_measurement(msg))
+        else:
+            self._fuse(msg)
         for picture in pictures:
             self.publish(self.picture_key, picture)
         self.order.append((msg.sensor, msg.seq))
         self.silence.heard(msg.sensor, time.monotonic())
+        self.lead.took(msg.sensor, msg.t)
         self.received.take(msg)
 
     def on_scan(self, msg: Measurement) -> None:
@@ -214,9 +235,8 @@ class MttCentreService(Service):
             raise Rejected("wrong_model", str(exc)) from None
         if scan.sensor_position is not None and self.dim != 6:
             raise Rejected("wrong_model", "a radar scan at a 2-D centre (--dim 4)")
-        if not self._admit(msg):
-            return
-        self._process(msg, lambda: self.engine.ingest(scan))
+        if self._admit(msg):
+            self._take(msg)
 
     def on_report(self, msg: TrackReport) -> None:
         d = msg.x.shape[1] if msg.ids else None
@@ -229,21 +249,20 @@ class MttCentreService(Service):
             return
         if msg.contested:  # its local tracker took a conflicting scan or resets (docs/wire.md)
             self.log.warning("report %d of %s names contested scans %s", msg.seq, msg.sensor, list(msg.contested))
-        report = report_from_wire(msg)
-        engine = self.engine
-        if isinstance(engine, RegionEngine):
-            self._process(msg, lambda: self._answer(engine, msg, report))
-            self.contested = self.contested or bool(msg.contested)
-            return
-        assert isinstance(engine, TrackToTrackEngine)
+        self._take(msg)
 
-        def fuse() -> None:
+    def _fuse(self, msg: TrackReport) -> None:
+        """The centre's part of a report (its region's part at a region centre); the next picture is
+        contested if the report names contested scans."""
+        report, engine = report_from_wire(msg), self.engine
+        if isinstance(engine, RegionEngine):
+            self._answer(engine, msg, report)
+        else:
+            assert isinstance(engine, TrackToTrackEngine)
             resets, q_scale = engine.fuse(report)
             if engine.feedback:
-                self.publish(self.keys.mtt_resets(msg.sensor),
-                             resets_to_wire(msg.seq, resets, q_scale))
-        self._process(msg, fuse)
-        self.contested = self.contested or bool(msg.contested)  # the next picture includes this report
+                self.publish(self.keys.mtt_resets(msg.sensor), resets_to_wire(msg.seq, resets, q_scale))
+        self.contested = self.contested or bool(msg.contested)
 
     def _answer(self, engine: RegionEngine, msg: TrackReport, report: Any) -> None:
         """A region centre's part of a sub-report: fuse, hand over, answer (sends last)."""
@@ -389,7 +408,9 @@ class MttCentreService(Service):
 
     def on_stop(self) -> None:
         """The pictures still due at the end of the data (as the replay writes them), then the
-        closing record of the scans processed after the last picture."""
+        closing record of the scans processed after the last picture; messages still held for a
+        witness (stamped far ahead) are counted ``rejected_time_lead``."""
+        self.note_leads(self.keys.mtt_report(), self.lead.end())
         for T in self.clock.final():
             self._publish_picture(T)
         if self.order:

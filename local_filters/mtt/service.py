@@ -39,6 +39,7 @@ from fedtrack.config import load_tables
 from fedtrack.deployment import MODES
 from fedtrack.keys import check_id
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
+from fedtrack.local_filters.mtt.lead import LeadGuard
 from fedtrack.local_filters.mtt.local import LocalReport, SensorTracker, report_to_wire, resets_from_wire
 from fedtrack.local_filters.mtt.routing import RegionAnswer, RegionRouter, answer_from_wire, join_answers
 from fedtrack.local_filters.mtt.scan import SensorScan, scan_from_measurement
@@ -67,8 +68,8 @@ class MttLocalService(Service):
     # the tracker (a SensorTracker: its scans of the last max_lag seconds) changes in place and is
     # put back by the transaction if a scan fails; ``received`` is only changed once a scan was
     # handled (compute, then commit)
-    state_attrs = ("tracker", "queue", "last_t", "awaiting", "awaiting_since", "awaiting_scan", "adopted",
-                   "contested_scans", "router", "sent", "answers")
+    state_attrs = ("tracker", "queue", "awaiting", "awaiting_since", "awaiting_scan", "adopted",
+                   "contested_scans", "router", "sent", "answers", "lead")
 
     def __init__(self, sensor: str, federated: bool, cfg: MttConfig, reset_timeout_s: float = 2.0,
                  max_seq_jump: int = 1000, max_time_jump_s: float = 3600.0, regions: Regions | None = None,
@@ -85,8 +86,9 @@ class MttLocalService(Service):
         self.max_time_jump_s = max_time_jump_s
         self.tracker: SensorTracker | None = None
         self.queue: deque[tuple[int, SensorScan, int]] = deque()  # (seq, scan, stamp) waiting
+        # a scan stamped far ahead waits for the sensor's next one (lead.py)
+        self.lead: LeadGuard[tuple[int, SensorScan, int]] = LeadGuard(cfg.max_lag)
         self.received = ReceivedScans(max_seq_jump)
-        self.last_t: float | None = None
         self.awaiting: int | None = None  # report whose resets are due (federated)
         self.awaiting_scan: SensorScan | None = None  # the scan of that report
         self.awaiting_since = 0.0
@@ -112,13 +114,18 @@ class MttLocalService(Service):
             raise Rejected("wrong_model", str(exc)) from None
         if not self.cfg.allows(msg.sensor):
             raise Rejected("unknown_sensor", f"sensor {msg.sensor!r} is not in mtt.sensors")
-        check_time_jump(self.last_t, msg.t, self.max_time_jump_s)
+        check_time_jump(self.lead.newest, msg.t, self.max_time_jump_s)
         if not self.admitted(self.received, msg):
             return
-        self.queue.append((msg.seq, scan, msg.stamp_ns))
+        dropped, times = self.lead.dropped, self.lead.times()
+        released = self.lead.admit(msg.sensor, msg.t, (msg.seq, scan, msg.stamp_ns))
+        self.note_leads(self.keys.sensor_meas(self.sensor), self.lead.dropped - dropped)
+        for _, taken, _ in released:  # in the queue, so taken: the next scan's lead is from them
+            self.lead.took(taken.sensor, taken.t)
+        self.queue.extend(released)
         if msg.seq in self._advance():  # dropped: as if it never came
+            self.lead.restore(times)
             return
-        self.last_t = msg.t if self.last_t is None else max(self.last_t, msg.t)
         self.received.take(msg)
         if not self.noted:  # the count's chance on this sensor's clutter, once (a position sensor's is per m^2)
             self.noted = True
@@ -189,6 +196,10 @@ class MttLocalService(Service):
                 return
             self.awaiting = self.awaiting_scan = None
             self._advance()
+
+    def on_stop(self) -> None:
+        """A scan still held for a witness (stamped far ahead, lead.py) is counted ``rejected_time_lead``."""
+        self.note_leads(self.keys.sensor_meas(self.sensor), self.lead.end())
 
     def _advance(self) -> list[int]:
         """Track the waiting scans, in arrival order, while no resets are due; returns the scan

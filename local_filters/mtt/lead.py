@@ -1,0 +1,118 @@
+"""Scans stamped far ahead of the data wait for a witness before they move a tracker's clock.
+
+A tracker's clock is its newest scan time: a scan up to ``max_lag`` before it is fused out of
+sequence, an older one is late. So a single scan stamped far ahead (a forged message, a sensor
+whose clock jumped) would make every other sensor's scans late until the data caught up with it,
+and the picture clock would make a picture for every period in between: one message would stop
+the tracking for as long as its lead.
+
+**The rule** (:class:`LeadGuard`, in front of every tracker of scans and every track-to-track
+centre, in the replay and the live services alike). A scan of sensor ``s`` *leads* when its time
+is more than ``bound(s) = max(max_lag, LEAD_INTERVALS x usual(s))`` after the newest time taken,
+``usual(s)`` being the median of ``s``'s last ``INTERVALS_KEPT`` intervals between the times of
+its scans taken (a sensor without one yet: the longest of the others'; no sensor with one: no
+bound, so the data's first interval is taken as it comes). A scan that does not lead is taken at
+once (the guard is transparent to data without leads). A leading scan is held until
+
+* a *witness* arrives: a scan that leads too, within ``bound`` of it, from another sensor, or a
+  later one from the same sensor when it is the only live sensor the guard knows (a one-sensor
+  tracker, or the others left). The held scans near the witness are then taken in their arrival order, and
+  the witness after them: the data resumed after a gap (every sensor's clock moved on together);
+* or a scan that does not lead arrives (the rest of the data is still at the old time): the held
+  scans are dropped, each counted in ``dropped`` (a forged or broken time).
+
+``LEAD_INTERVALS = 4``: a sensor's scan arrives up to two of its periods late (the simulator's
+``--late``, docs/multitarget-formats.md), so its newest scan taken is at most three intervals
+after its previous one, however its scans overtake each other; four cannot be lateness. At most
+``HELD_MAX`` scans are held (the oldest beyond it dropped, counted): a deployment's sensors
+resume within a few scans of each other, and a flood of leading scans must not grow a tracker.
+"""
+
+from __future__ import annotations
+
+import statistics
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Generic, TypeVar
+
+LEAD_INTERVALS = 4
+# the median of 8 intervals holds while at most 3 are off (one late scan puts a long and a short one
+# among them): the silence rule's choice (fedtrack.fusion_center.mtt.silence)
+INTERVALS_KEPT = 8
+HELD_MAX = 64  # 64 x 1 s of a 1 Hz sensor; a held scan of 2,048 detections is 32 kB
+
+T = TypeVar("T")  # what is held: a scan, or a message with its work
+
+
+@dataclass
+class LeadGuard(Generic[T]):
+    """The newest time taken, each sensor's usual interval between its scans' times, and the
+    leading scans held (module docstring)."""
+
+    max_lag: float
+    newest: float | None = None
+    last: dict[str, float] = field(default_factory=dict)  # sensor -> time of its newest scan taken
+    gaps: dict[str, deque[float]] = field(default_factory=dict)  # sensor -> its last intervals
+    live: set[str] = field(default_factory=set)  # sensors taken and not left
+    held: list[tuple[str, float, T]] = field(default_factory=list)  # (sensor, t, item), arrival order
+    dropped: int = 0  # held scans never witnessed (or beyond HELD_MAX): not taken
+
+    def bound(self, sensor: str) -> float:
+        """How far after the newest time a scan of ``sensor`` may be and still be taken at once."""
+        usual = {s: statistics.median(g) for s, g in self.gaps.items() if g}
+        if sensor in usual:
+            return max(self.max_lag, LEAD_INTERVALS * usual[sensor])
+        return max(self.max_lag, LEAD_INTERVALS * max(usual.values())) if usual else float("inf")
+
+    def admit(self, sensor: str, t: float, item: T) -> list[T]:
+        """The items to take now, in order, on the arrival of ``item`` (``sensor``'s, at ``t``):
+        ``[item]`` when it does not lead; ``[]`` while it is held; the witnessed held items and
+        ``item`` when it is a witness. The caller reports each item it took with :meth:`took`."""
+        if self.newest is None or t - self.newest <= self.bound(sensor):
+            self.dropped += len(self.held)
+            self.held.clear()
+            return [item]
+        if not any(abs(t - h[1]) <= self.bound(h[0]) and self._witnesses(sensor, t, h) for h in self.held):
+            self.held.append((sensor, t, item))
+            if len(self.held) > HELD_MAX:
+                self.held.pop(0)
+                self.dropped += 1
+            return []
+        taken = [h[2] for h in self.held if abs(t - h[1]) <= self.bound(h[0])]
+        self.dropped += len(self.held) - len(taken)
+        self.held.clear()
+        return [*taken, item]
+
+    def _witnesses(self, sensor: str, t: float, held: tuple[str, float, T]) -> bool:
+        """Whether a leading scan of ``sensor`` at ``t`` witnesses ``held``: another sensor's, or
+        a later scan of the same sensor when no other sensor is live (a repeat is no witness)."""
+        return sensor != held[0] or (t > held[1] and not (self.live - {sensor}))
+
+    def took(self, sensor: str, t: float) -> None:
+        """A scan of ``sensor`` at ``t`` that :meth:`admit` gave was taken (its tracker handled it)."""
+        if sensor in self.last and t > self.last[sensor]:
+            self.gaps.setdefault(sensor, deque(maxlen=INTERVALS_KEPT)).append(t - self.last[sensor])
+        self.last[sensor] = max(t, self.last.get(sensor, t))
+        self.newest = t if self.newest is None else max(self.newest, t)
+        self.live.add(sensor)
+
+    def end(self) -> int:
+        """The data ended (a replay's input, a service stopping): the scans still held are dropped;
+        returns how many."""
+        n = len(self.held)
+        self.dropped += n
+        self.held.clear()
+        return n
+
+    def times(self) -> tuple[float | None, dict[str, float], dict[str, deque[float]], set[str]]:
+        """A copy of what :meth:`took` changes, for :meth:`restore`."""
+        return self.newest, dict(self.last), {s: deque(g, maxlen=INTERVALS_KEPT) for s, g in self.gaps.items()}, \
+            set(self.live)
+
+    def restore(self, times: tuple[float | None, dict[str, float], dict[str, deque[float]], set[str]]) -> None:
+        """Forget the scans taken since :meth:`times` gave ``times`` (their handling failed)."""
+        self.newest, self.last, self.gaps, self.live = times
+
+    def leave(self, sensor: str) -> None:
+        """``sensor`` left: it no longer keeps another sensor's lone scans from witnessing themselves."""
+        self.live.discard(sensor)

@@ -1,0 +1,163 @@
+"""Scans stamped far ahead of the data (local_filters/mtt/lead.py): one forged or broken time must
+not stop the tracking; data resuming after a gap must still be taken."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_hostile_messages import KEYS, Bus, mtt_lines, mtt_services, pictures
+
+from fedtrack.fusion_center.mtt.engines import Engine, PictureClock, make_engine
+from fedtrack.fusion_center.mtt.replay import pictures as replay_pictures
+from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.mtt.lead import HELD_MAX, LEAD_INTERVALS, LeadGuard
+from fedtrack.local_filters.mtt.scan import SensorScan, parse_line
+from fedtrack.sensors.multitarget import Scenario, parse_spec, simulate
+from fedtrack.wire import encode
+
+CFG = MttConfig(sensors=("s1", "s2", "s3"), max_lag=3.0, clutter_density=3.0 / 5000.0**2)
+ALGORITHMS = [("mtt-centralized", None), ("mtt-federated", None), ("mtt-decentralized", None), ("mtt-local", "s1")]
+
+
+@pytest.fixture(scope="module")
+def scans(tmp_path_factory: pytest.TempPathFactory) -> list[SensorScan]:
+    out = tmp_path_factory.mktemp("lead")
+    simulate(Scenario(targets=6, duration=25.0, clutter=3.0), parse_spec("pos:1.0,pos:0.7,pos:1.3"), 5, out)
+    return [parse_line(json.loads(x), "test") for x in (out / "measurements.jsonl").read_text().splitlines()]
+
+
+def run(algorithm: str, sensor: str | None, scans: list[SensorScan]) -> tuple[list[tuple], Engine]:
+    """The replay's pictures (its lead guard in front of the engine) and the engine."""
+    engine = make_engine(algorithm, CFG, 4, sensor)
+    return [(T, p.ids, p.x, p.P) for T, p in replay_pictures(engine, scans, CFG.period, CFG.picture_delay)], engine
+
+
+def unguarded(algorithm: str, sensor: str | None, scans: list[SensorScan]) -> tuple[list[tuple], Engine]:
+    """The same without the guard: every scan straight to the clock and the engine."""
+    engine, clock, out = make_engine(algorithm, CFG, 4, sensor), PictureClock(CFG.period, CFG.picture_delay), []
+    for scan in scans:
+        out += [(T, *_pic(engine, T)) for T in clock.due(scan.t)]
+        engine.ingest(scan)
+    return out + [(T, *_pic(engine, T)) for T in clock.final()], engine
+
+
+def _pic(engine: Engine, T: float) -> tuple:
+    p = engine.picture(T)
+    return p.ids, p.x, p.P
+
+
+def assert_same(a: list[tuple], b: list[tuple]) -> None:
+    assert [p[0] for p in a] == [p[0] for p in b]
+    for (_, ids_a, x_a, P_a), (_, ids_b, x_b, P_b) in zip(a, b):
+        assert ids_a == ids_b
+        np.testing.assert_allclose(x_a, x_b, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(P_a, P_b, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize(("algorithm", "sensor"), ALGORITHMS)
+def test_scans_stamped_far_ahead_change_no_picture(scans: list[SensorScan], algorithm: str, sensor: str | None) -> None:
+    """A copy of a genuine scan of s1 re-stamped 1,000 s ahead, and one of s2 50 s ahead, mid-run:
+    every picture equals the clean run's, both counted; without the guard the forged scan makes
+    the rest of the data late (what the guard prevents)."""
+    k = len(scans) // 3
+    s1 = next(s for s in scans[:k][::-1] if s.sensor == "s1")
+    s2 = next(s for s in scans[:2 * k][::-1] if s.sensor == "s2")
+    forged = scans[:k] + [s1._replace(t=s1.t + 1000.0)] + scans[k:2 * k] + [s2._replace(t=s2.t + 50.0)] + scans[2 * k:]
+    clean, clean_engine = run(algorithm, sensor, scans)
+    got, engine = run(algorithm, sensor, forged)
+    assert_same(got, clean)
+    assert clean_engine.counters()["lead"] == 0 and engine.counters()["lead"] == 2
+    assert engine.counters()["late"] == clean_engine.counters()["late"]
+    steered, steered_engine = unguarded(algorithm, sensor, forged)
+    assert steered_engine.counters()["late"] > clean_engine.counters()["late"] + 10 and len(steered) > len(clean) + 900
+
+
+@pytest.mark.parametrize(("algorithm", "sensor"), ALGORITHMS)
+def test_data_resuming_after_a_gap_is_taken(scans: list[SensorScan], algorithm: str, sensor: str | None) -> None:
+    """Every sensor silent for 600 s (the data after t = 12 s moved on by 600 s): the guard holds the
+    first scan after the gap until a witness and is otherwise transparent, so the pictures equal
+    those of the engine fed without it, to 1e-9, and nothing is dropped."""
+    gap = [s._replace(t=s.t + 600.0) if s.t > 12.0 else s for s in scans]
+    got, engine = run(algorithm, sensor, gap)
+    assert engine.counters()["lead"] == 0
+    assert_same(got, unguarded(algorithm, sensor, gap)[0])
+    assert max(p[0] for p in got) > 600.0 and any(p[1] for p in got if p[0] > 620.0)  # tracked after the gap
+
+
+@pytest.mark.parametrize(("algorithm", "sensor"), ALGORITHMS[:3])
+def test_a_sensor_whose_clock_jumped_is_left_out(scans: list[SensorScan], algorithm: str, sensor: str | None) -> None:
+    """s1's clock jumps 1,000 s ahead at t = 10 s and stays there: its scans from then on are held
+    and dropped (no other sensor witnesses them), the others tracked as if s1 had stopped there."""
+    broken = [s._replace(t=s.t + 1000.0) if s.sensor == "s1" and s.t > 10.0 else s for s in scans]
+    stopped = [s for s in scans if not (s.sensor == "s1" and s.t > 10.0)]
+    got, engine = run(algorithm, sensor, broken)
+    assert_same(got, run(algorithm, sensor, stopped)[0])
+    assert engine.counters()["lead"] == len(scans) - len(stopped) > 5
+
+
+def test_a_lone_sensor_witnesses_itself_only_with_a_later_scan() -> None:
+    """One sensor: its scan after a gap waits for its next (a repeat of it is no witness); with a
+    second live sensor, only that sensor's scan witnesses it, and once that sensor left, the
+    first sensor's own next scan does."""
+    guard: LeadGuard[str] = LeadGuard(max_lag=3.0)
+    for k in range(5):
+        assert guard.admit("s1", float(k), f"a{k}") == [f"a{k}"]
+        guard.took("s1", float(k))
+    assert guard.bound("s1") == max(3.0, LEAD_INTERVALS * 1.0)
+    assert guard.admit("s1", 100.0, "b") == [] and guard.admit("s1", 100.0, "b again") == []
+    assert guard.admit("s1", 101.0, "c") == ["b", "b again", "c"]
+    for t, item in ((100.0, "b"), (100.0, "b again"), (101.0, "c")):
+        guard.took("s1", t)
+    guard.took("s2", 101.5)
+    assert guard.admit("s1", 300.0, "d") == [] and guard.admit("s1", 301.0, "e") == []
+    assert guard.admit("s2", 300.5, "f") == ["d", "e", "f"]
+    for t, s in ((300.0, "s1"), (301.0, "s1"), (300.5, "s2")):
+        guard.took(s, t)
+    assert guard.admit("s1", 500.0, "g") == [] and guard.admit("s2", 302.0, "h") == ["h"]  # contradicted
+    assert guard.dropped == 1
+    guard.took("s2", 302.0)
+    guard.leave("s2")
+    assert guard.admit("s1", 700.0, "i") == [] and guard.admit("s1", 701.0, "j") == ["i", "j"]
+
+
+def test_held_scans_are_bounded() -> None:
+    """A flood of leading scans from one of two live sensors: at most HELD_MAX held, every one of
+    them counted once dropped."""
+    guard: LeadGuard[int] = LeadGuard(max_lag=3.0)
+    for k in range(10):
+        for s in ("s1", "s2"):
+            assert guard.admit(s, float(k), k) == [k]
+            guard.took(s, float(k))
+    for k in range(1000):
+        assert guard.admit("s1", 1e4 + k, k) == []
+        assert len(guard.held) <= HELD_MAX
+    assert guard.admit("s2", 10.0, -1) == [-1] and guard.dropped == 1000 and not guard.held
+
+
+def test_live_services_drop_a_forged_scan_and_report_far_ahead(tmp_path: Path) -> None:
+    """The live services (in-process bus): a scan of s1 and a report of s2 re-stamped 1,000 s ahead
+    (numbers of their own, so no conflict) are each counted ``rejected_time_lead`` by the service
+    they reached, and every picture equals the clean run's."""
+    msgs = mtt_lines(tmp_path)
+    at = len(msgs) // 2
+    runs = []
+    for name, forge in (("clean", False), ("forged", True)):
+        services = mtt_services(tmp_path / name)
+        bus = Bus(list(services.values()))
+        for i, m in enumerate(msgs):
+            if forge and i == at:
+                s1 = next(x for x in msgs[:at][::-1] if x.sensor == "s1")
+                bus.put(KEYS.sensor_meas("s1"), encode(replace(s1, seq=s1.seq + 500, t=s1.t + 1000.0)))
+                report = [r for key, r in bus.published if key == KEYS.mtt_report("s2")][-1]
+                bus.put(KEYS.mtt_report("s2"), encode(replace(report, seq=report.seq + 500, t=report.t + 1000.0)))
+            bus.put(KEYS.sensor_meas(m.sensor), encode(m))
+        runs.append((bus, services))
+    (clean, clean_services), (forged, services) = runs
+    assert services["s1"].counters.get("rejected_time_lead") == 1
+    assert services["centre"].counters.get("rejected_time_lead") == 1
+    assert all(svc.counters.get("rejected", 0) == 0 for svc in clean_services.values())
+    assert pictures(forged) == pictures(clean) and len(pictures(clean)) > 5
