@@ -54,6 +54,7 @@ from fedtrack.services.base import (
     service_kwargs,
     service_parser,
 )
+from fedtrack.services.lead import LeadGuard
 from fedtrack.wire import PD_RTOL, FusedTrack, LocalEstimate, ManeuverEvent, Reset, decode, encode
 
 FUSED_KEPT = 64  # fused scans whose estimate digests are kept to tell a late conflict from a re-delivery
@@ -78,7 +79,7 @@ class FusionCenterService(Service):
     role = "fusion-center"
     tick_period_s = 0.01
     # the centre's records are rebound, never changed in place: a pickle of these is the whole state
-    state_attrs = ("centre", "scans", "next_seq", "last_track", "restored", "fused", "contested_scans")
+    state_attrs = ("centre", "scans", "next_seq", "last_track", "restored", "fused", "contested_scans", "lead")
     tick_state_attrs = ()  # on_tick checkpoints only when a scan is waiting (100 ticks a second)
 
     def __init__(self, sensors: list[str], centre: FederatedCentre | DecentralizedCentre,
@@ -93,6 +94,8 @@ class FusionCenterService(Service):
         self.centre = centre
         self.deadline_s = deadline_s
         self.scans: dict[int, ScanBuffer] = {}
+        # an estimate stamped far ahead of the data waits for another sensor's (fedtrack/services/lead.py)
+        self.lead: LeadGuard[LocalEstimate] = LeadGuard(max_lag=0.0)
         self.next_seq: int | None = None
         self.last_track: FusedTrack | None = None
         self.fused: dict[int, dict[str, bytes]] = {}  # the last FUSED_KEPT scans' estimate digests per sensor
@@ -182,6 +185,15 @@ class FusionCenterService(Service):
         if last_t is not None and msg.t <= last_t:
             raise Rejected("time_jump", f"scan {msg.seq} at t={msg.t}, not after the last fused scan (t={last_t})")
         check_time_jump(last_t, msg.t, self.max_time_jump_s)
+        for sensor in self.gone:  # a dead sensor keeps no other's lone estimates from witnessing themselves
+            self.lead.leave(sensor)
+        for estimate in self.in_time(self.lead, self.keys.local_estimate(msg.sensor), msg):
+            self._collect(estimate)
+        self.fuse_ready()
+
+    def _collect(self, msg: LocalEstimate) -> None:
+        """Add ``msg`` (checked) to its scan's buffer, unless that scan's other estimates are at
+        another time or it repeats one (both contest the scan; an identical one is a duplicate)."""
         buf = self.scans.get(msg.seq)
         if buf is not None and msg.t != buf.t:
             self.contest_scan(buf, msg, Rejected("time_jump", f"scan {msg.seq} at t={msg.t}, its other estimates at t={buf.t}"))
@@ -203,7 +215,7 @@ class FusionCenterService(Service):
         buf.stamps.append(msg.stamp_ns)
         buf.digests[msg.sensor] = digest(msg)
         buf.named.update(msg.contested)
-        self.fuse_ready()
+        self.lead.took(msg.sensor, msg.t)
 
     def contest_scan(self, buf: ScanBuffer, msg: LocalEstimate, exc: Rejected) -> None:
         """A second, different estimate for a scan still being collected: rejected (the first

@@ -51,6 +51,7 @@ from fedtrack.services.base import (
     service_kwargs,
     service_parser,
 )
+from fedtrack.services.lead import LeadGuard
 from fedtrack.wire import (
     FusedTrack,
     LocalEstimate,
@@ -72,7 +73,7 @@ class LocalFilterService(Service):
     tick_period_s = 0.02
     # the filter rebinds its records (never changes them in place): a pickle of these is the whole state
     state_attrs = ("filter", "pending", "processed_up_to", "processed_t", "applied", "reset_up_to",
-                   "waiting_since", "alone", "taken", "contested_scans")
+                   "waiting_since", "alone", "taken", "contested_scans", "lead")
     tick_state_attrs = ()  # on_tick checkpoints only when a scan is waiting (50 ticks a second)
 
     def __init__(self, sensor: str, mode: str, filt: FederatedLocalFilter | VdieLocalFilter,
@@ -88,6 +89,7 @@ class LocalFilterService(Service):
         self.filter = filt
         self.reset_timeout_s = reset_timeout_s
         self.pending: dict[int, Measurement] = {}
+        self.lead: LeadGuard[Measurement] = LeadGuard(max_lag=0.0)  # a scan stamped far ahead waits for the next
         self.taken: dict[int, bytes] = {}  # digests of the last TAKEN_KEPT scans processed, by seq
         self.processed_up_to = -1
         self.reset_up_to = -1
@@ -160,6 +162,17 @@ class LocalFilterService(Service):
         if self.processed_up_to >= 0 and msg.seq - expected > self.max_seq_jump:
             raise Rejected("seq_jump", f"scan {msg.seq} is more than {self.max_seq_jump} ahead of {expected}")
         check_time_jump(self.processed_t, msg.t, self.max_time_jump_s)
+        times = self.lead.times()
+        for scan in self.in_time(self.lead, self.keys.sensor_meas(self.sensor), msg):
+            if scan is msg or not (scan.seq <= self.processed_up_to or scan.seq in self.pending):
+                self._take(scan)  # (a held scan repeated meanwhile is taken once)
+        self.process_ready()
+        if self.taken.get(msg.seq) is None and msg.seq not in self.pending and self.lead.last.get(msg.sensor) == msg.t:
+            self.lead.restore(times)  # the filter failed on it: as if it never came
+
+    def _take(self, msg: Measurement) -> None:
+        """Queue scan ``msg`` (checked) for the filter, after the rejoin a gap before it calls for."""
+        expected = max([self.processed_up_to, *self.pending]) + 1
         if self.processed_up_to >= 0 and msg.seq > expected:
             self.count("gaps", msg.seq - expected)
             self.log.warning("measurements %d..%d of sensor %s never arrived", expected, msg.seq - 1, self.sensor)
@@ -168,8 +181,8 @@ class LocalFilterService(Service):
                 if msg.seq <= self.processed_up_to:
                     self.count("late")
                     return
+        self.lead.took(msg.sensor, msg.t)
         self.pending[msg.seq] = msg
-        self.process_ready()
 
     def on_reset(self, msg: Reset) -> None:
         if self.applied is not None and msg.seq == self.applied.seq:
@@ -248,13 +261,14 @@ class RadarLocalFilterService(Service):
     """
 
     role = "local-filter"
-    state_attrs = ("filter", "processed_up_to")
+    state_attrs = ("filter", "processed_up_to", "lead")
 
     def __init__(self, sensor: str, filt: RadarFilter, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.sensor = sensor
         self.filter = filt
         self.processed_up_to = -1
+        self.lead: LeadGuard[Measurement] = LeadGuard(max_lag=0.0)  # a scan stamped far ahead waits for the next
 
     def subscriptions(self) -> list[Subscription]:
         return [Subscription(self.keys.sensor_meas(self.sensor), Measurement, self.on_measurement)]
@@ -266,6 +280,13 @@ class RadarLocalFilterService(Service):
         if msg.seq <= self.processed_up_to:
             self.count("late")
             return
+        for scan in self.in_time(self.lead, self.keys.sensor_meas(self.sensor), msg):
+            if scan.seq > self.processed_up_to:
+                self._step(scan)
+
+    def _step(self, msg: Measurement) -> None:
+        """Filter radar scan ``msg`` (checked) and publish the estimate."""
+        self.lead.took(msg.sensor, msg.t)
         try:
             est = self.filter.step(measurement_to_replay(msg), where=f"scan {msg.seq}")
         except InputError as exc:

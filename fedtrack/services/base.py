@@ -81,6 +81,7 @@ from fedtrack.config import ConfigError
 from fedtrack.deployment import deployment_of, endpoints_of
 from fedtrack.jsonl import InputError
 from fedtrack.keys import DEFAULT_DEPLOYMENT, InvalidName, Keys, check_id
+from fedtrack.services.lead import LeadGuard
 from fedtrack.services.reassembly import Reassembly
 from fedtrack.wire import Health, M, Measurement, Message, WireError, decode, encode, payloads
 from fedtrack.zsession import (
@@ -638,9 +639,19 @@ class Service:
         keeps what it changed (e.g. a scan marked contested)."""
         self._reject(key, 0, exc)
 
+    def in_time(self, guard: LeadGuard[Any], key: str, msg: Any) -> list[Any]:
+        """``msg`` (a scan or an estimate of ``msg.sensor`` at ``msg.t``, published on ``key``) and
+        those it witnesses, in order; none while it is held for being stamped far ahead of the data
+        (:class:`LeadGuard`); the held messages it contradicts are counted ``rejected_time_lead``.
+        The handler calls ``guard.took`` for each message it takes."""
+        dropped = guard.dropped
+        released = guard.admit(msg.sensor, msg.t, msg)
+        self.note_leads(key, guard.dropped - dropped)
+        return released
+
     def note_leads(self, key: str, n: int) -> None:
         """Count ``n`` scans (or reports) on ``key`` that were stamped too far ahead of the data and
-        that no witness confirmed (:mod:`fedtrack.local_filters.mtt.lead`): ``rejected_time_lead``."""
+        that no witness confirmed (:mod:`fedtrack.services.lead`): ``rejected_time_lead``."""
         for _ in range(n):
             self.note_rejected(key, Rejected("time_lead", "stamped too far ahead of the data and never witnessed by "
                                                           "another scan (a forged or broken clock): not fused"))

@@ -62,7 +62,7 @@ from fedtrack.fusion_center.mtt.silence import Silence
 from fedtrack.fusion_center.mtt.standby import PRIMARY_ROLE, Standby, next_after
 from fedtrack.geodetic import Frame, geodetic_of_states
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
-from fedtrack.local_filters.mtt.lead import LeadGuard
+from fedtrack.services.lead import LeadGuard
 from fedtrack.local_filters.mtt.local import report_from_wire, resets_to_wire
 from fedtrack.local_filters.mtt.routing import answer_to_wire
 from fedtrack.local_filters.mtt.scan import scan_from_measurement
@@ -120,7 +120,7 @@ class MttCentreService(Service):
         self.handovers_at: list[int] = []  # positions in ``order`` that are hand-overs taken over
         self.taken: set[tuple[str, int]] = set()  # (sending region, its hand-over number) taken over
         self.clock = PictureClock(cfg.period, cfg.picture_delay)
-        # a scan or report stamped far ahead of the data waits for a witness (local_filters/mtt/lead.py)
+        # a scan or report stamped far ahead of the data waits for a witness (fedtrack/services/lead.py)
         self.lead: LeadGuard[Measurement | TrackReport] = LeadGuard(cfg.max_lag)
         self.order: list[tuple[str, int]] = []  # scans processed since the last picture
         self.left_at: list[int] = []  # positions in ``order`` that are departures

@@ -34,6 +34,7 @@ from fedtrack.services.base import (
     service_kwargs,
     service_parser,
 )
+from fedtrack.services.lead import LeadGuard
 from fedtrack.wire import MAX_MAP_ITEMS, FusedTrack, Measurement
 from fedtrack.zsession import id_arg
 
@@ -42,13 +43,14 @@ class IMMService(Service):
     """Runs one :class:`IMMTracker` on one sensor's position measurements."""
 
     role = "imm"
-    state_attrs = ("tracker", "order", "contested_scans")  # the tracker rebinds its records: a pickle of it is its state
+    state_attrs = ("tracker", "order", "contested_scans", "lead")  # the tracker rebinds its records: a pickle of it is its state
 
     def __init__(self, sensor: str, algorithm: str, cfg: IMMConfig, max_time_jump_s: float = 3600.0,
                  **kwargs: object) -> None:
         super().__init__(**kwargs)  # type: ignore[arg-type]
         self.max_time_jump_s = max_time_jump_s
         self.order = ScanOrder()
+        self.lead: LeadGuard[Measurement] = LeadGuard(max_lag=0.0)  # a scan stamped far ahead waits for the next
         if len(cfg.models) > MAX_MAP_ITEMS:
             raise ConfigError(f"models: at most {MAX_MAP_ITEMS} models fit FusedTrack.extra, got {len(cfg.models)}")
         self.sensor = check_id(sensor, "--sensor")
@@ -68,6 +70,13 @@ class IMMService(Service):
         check_time_jump(self.tracker.t, msg.t, self.max_time_jump_s)
         if not self.admitted(self.order, msg):
             return
+        for scan in self.in_time(self.lead, self.keys.sensor_meas(self.sensor), msg):
+            if self.admitted(self.order, scan):  # a held scan may have been repeated meanwhile
+                self._track(scan)
+
+    def _track(self, msg: Measurement) -> None:
+        """Update the IMM with ``msg`` (checked) and publish its estimate."""
+        self.lead.took(msg.sensor, msg.t)
         p = self.tracker.update(msg.t, msg.z, msg.R)
         require_finite(f"scan {msg.seq}: the IMM estimate", p.x, p.P, list(p.mode_probabilities.values()))
         self.order.took(msg)

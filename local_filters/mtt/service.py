@@ -39,7 +39,7 @@ from fedtrack.config import load_tables
 from fedtrack.deployment import MODES
 from fedtrack.keys import check_id
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
-from fedtrack.local_filters.mtt.lead import LeadGuard
+from fedtrack.services.lead import LeadGuard
 from fedtrack.local_filters.mtt.local import LocalReport, SensorTracker, report_to_wire, resets_from_wire
 from fedtrack.local_filters.mtt.routing import RegionAnswer, RegionRouter, answer_from_wire, join_answers
 from fedtrack.local_filters.mtt.scan import SensorScan, scan_from_measurement

@@ -43,6 +43,7 @@ from fedtrack.services.base import (
     service_kwargs,
     service_parser,
 )
+from fedtrack.services.lead import LeadGuard
 from fedtrack.wire import FusedTrack, Measurement
 from fedtrack.zsession import id_arg
 
@@ -51,13 +52,14 @@ class PDAService(Service):
     """Runs the PDA-AI / HPDA track manager on one sonar's scans."""
 
     role = "hpda"
-    state_attrs = ("manager", "order", "contested_scans")  # manager_step returns a new record: a pickle of it is the state
+    state_attrs = ("manager", "order", "contested_scans", "lead")  # manager_step returns a new record: a pickle of it is the state
 
     def __init__(self, sensor: str, algorithm: str, cfg: PDAReplayConfig, max_time_jump_s: float = 3600.0,
                  **kwargs: object) -> None:
         super().__init__(**kwargs)  # type: ignore[arg-type]
         self.max_time_jump_s = max_time_jump_s
         self.order = ScanOrder()
+        self.lead: LeadGuard[Measurement] = LeadGuard(max_lag=0.0)  # a scan stamped far ahead waits for the next
         self.sensor = check_id(sensor, "--sensor")
         self.spec: TrackerSpec = tracker_spec(algorithm, cfg.tracker, cfg.existence)
         self.manager: ManagerState = initial_manager()
@@ -75,6 +77,13 @@ class PDAService(Service):
         check_time_jump(self.manager.t, msg.t, self.max_time_jump_s)
         if not self.admitted(self.order, msg):
             return
+        for scan in self.in_time(self.lead, self.keys.sensor_meas(self.sensor), msg):
+            if self.admitted(self.order, scan):  # a held scan may have been repeated meanwhile
+                self._track(scan)
+
+    def _track(self, msg: Measurement) -> None:
+        """Run the track manager on ``msg`` (checked) and publish the confirmed tracks."""
+        self.lead.took(msg.sensor, msg.t)
         z = np.array([d.z for d in msg.detections]).reshape(-1, 2)
         amp = np.array([d.amplitude for d in msg.detections])
         keep = amp >= self.spec.c.tau

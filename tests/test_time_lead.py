@@ -1,5 +1,6 @@
-"""Scans stamped far ahead of the data (local_filters/mtt/lead.py): one forged or broken time must
-not stop the tracking; data resuming after a gap must still be taken."""
+"""Scans stamped far ahead of the data (fedtrack/services/lead.py): one forged or broken time must
+not stop the tracking, in the multi-target replay and services and in the single-target services;
+data resuming after a gap must still be taken."""
 
 from __future__ import annotations
 
@@ -9,15 +10,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_hostile_messages import KEYS, Bus, mtt_lines, mtt_services, pictures
+from test_fuzz_handlers import MEASUREMENTS, SENSORS
+from test_fuzz_trackers import sonar_stream
+from test_hostile_messages import KEYS, Bus, fused, mtt_lines, mtt_services, paper_run, pictures, same_tracks
 
 from fedtrack.fusion_center.mtt.engines import Engine, PictureClock, make_engine
 from fedtrack.fusion_center.mtt.replay import pictures as replay_pictures
 from fedtrack.local_filters.mtt.config import MttConfig
-from fedtrack.local_filters.mtt.lead import HELD_MAX, LEAD_INTERVALS, LeadGuard
+from fedtrack.services.lead import HELD_MAX, LEAD_INTERVALS, LeadGuard
 from fedtrack.local_filters.mtt.scan import SensorScan, parse_line
 from fedtrack.sensors.multitarget import Scenario, parse_spec, simulate
-from fedtrack.wire import encode
+from fedtrack.wire import FusedTrack, LocalEstimate, encode
 
 CFG = MttConfig(sensors=("s1", "s2", "s3"), max_lag=3.0, clutter_density=3.0 / 5000.0**2)
 ALGORITHMS = [("mtt-centralized", None), ("mtt-federated", None), ("mtt-decentralized", None), ("mtt-local", "s1")]
@@ -161,3 +164,35 @@ def test_live_services_drop_a_forged_scan_and_report_far_ahead(tmp_path: Path) -
     assert services["centre"].counters.get("rejected_time_lead") == 1
     assert all(svc.counters.get("rejected", 0) == 0 for svc in clean_services.values())
     assert pictures(forged) == pictures(clean) and len(pictures(clean)) > 5
+
+
+def test_single_target_services_drop_a_scan_and_an_estimate_far_ahead(tmp_path: Path) -> None:
+    """The paper pipeline and the single-sensor trackers (in-process bus): a measurement of sensor 1,
+    a sonar scan and a local estimate of sensor 2, each a genuine one re-stamped 1,000 s ahead with a
+    later scan number, mid-run: each is counted ``rejected_time_lead`` by the service it reached,
+    and every fused track, IMM and HPDA track equals the clean run's (before the guard the first
+    stopped the local filter and the fusion: 20 of 34 scans fused)."""
+    sonar = sonar_stream()
+    clean, clean_services = paper_run(tmp_path / "clean")
+
+    def forge(bus: Bus, k: int) -> None:
+        if k == 12:
+            m = MEASUREMENTS[SENSORS[0]][k]
+            bus.put(KEYS.sensor_meas(m.sensor), encode(replace(m, seq=m.seq + 3, t=m.t + 1000.0)))
+            est = [e for e in bus.of(LocalEstimate) if e.sensor == SENSORS[1]][-1]
+            bus.put(KEYS.local_estimate(est.sensor), encode(replace(est, seq=est.seq + 3, t=est.t + 1000.0)))
+        if k == 4:
+            s = sonar[k]
+            bus.put(KEYS.sensor_meas(s.sensor), encode(replace(s, seq=s.seq + 2, t=s.t + 1000.0)))
+
+    attacked, services = paper_run(tmp_path / "attacked", forge)
+    for name in (f"local-{SENSORS[0]}", "centre", "hpda"):
+        assert services[name].counters.get("rejected_time_lead") == 1, name
+    assert services["imm"].counters.get("rejected_time_lead") == 1  # the IMM tracks sensor 1 too
+    same_tracks(fused(attacked), fused(clean))
+    for role in ("imm", "hpda"):
+        got = [m for key, m in attacked.published if isinstance(m, FusedTrack) and f"/{role}/" in key]
+        want = [m for key, m in clean.published if isinstance(m, FusedTrack) and f"/{role}/" in key]
+        assert len(got) == len(want) > 0
+        same_tracks(got, want)
+    assert all(svc.counters.get("rejected", 0) == 0 for svc in clean_services.values())
