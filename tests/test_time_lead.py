@@ -17,9 +17,9 @@ from test_hostile_messages import KEYS, Bus, fused, mtt_lines, mtt_services, pap
 from fedtrack.fusion_center.mtt.engines import Engine, PictureClock, make_engine
 from fedtrack.fusion_center.mtt.replay import pictures as replay_pictures
 from fedtrack.local_filters.mtt.config import MttConfig
-from fedtrack.services.lead import HELD_MAX, LEAD_INTERVALS, LeadGuard
 from fedtrack.local_filters.mtt.scan import SensorScan, parse_line
 from fedtrack.sensors.multitarget import Scenario, parse_spec, simulate
+from fedtrack.services.lead import HELD_MAX, LEAD_INTERVALS, LeadGuard
 from fedtrack.wire import FusedTrack, LocalEstimate, encode
 
 CFG = MttConfig(sensors=("s1", "s2", "s3"), max_lag=3.0, clutter_density=3.0 / 5000.0**2)
