@@ -19,7 +19,7 @@ from fedtrack.fusion_center.mtt.replay import pictures as replay_pictures
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.scan import SensorScan, parse_line
 from fedtrack.sensors.multitarget import Scenario, parse_spec, simulate
-from fedtrack.services.lead import HELD_MAX, LEAD_INTERVALS, LeadGuard
+from fedtrack.services.lead import HELD_BYTES, HELD_MAX, LEAD_INTERVALS, LeadGuard
 from fedtrack.wire import FusedTrack, LocalEstimate, encode
 
 CFG = MttConfig(sensors=("s1", "s2", "s3"), max_lag=3.0, clutter_density=3.0 / 5000.0**2)
@@ -139,6 +139,10 @@ def test_held_scans_are_bounded() -> None:
         assert guard.admit("s1", 1e4 + k, k) == []
         assert len(guard.held) <= HELD_MAX
     assert guard.admit("s2", 10.0, -1) == [-1] and guard.dropped == 1000 and not guard.held
+    for k in range(10):  # and at most HELD_BYTES: 10 leading reports of a third of it each
+        guard.admit("s1", 2e4 + k, k, HELD_BYTES // 3)
+        assert len(guard.held) <= 3
+    assert guard.dropped == 1007
 
 
 def test_live_services_drop_a_forged_scan_and_report_far_ahead(tmp_path: Path) -> None:

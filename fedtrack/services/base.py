@@ -645,7 +645,8 @@ class Service:
         (:class:`LeadGuard`); the held messages it contradicts are counted ``rejected_time_lead``.
         The handler calls ``guard.took`` for each message it takes."""
         dropped = guard.dropped
-        released = guard.admit(msg.sensor, msg.t, msg)
+        size = sum(getattr(msg, f.name).nbytes for f in fields(msg) if isinstance(getattr(msg, f.name), np.ndarray))
+        released = guard.admit(msg.sensor, msg.t, msg, size)
         self.note_leads(key, guard.dropped - dropped)
         return released
 

@@ -24,8 +24,9 @@ once (the guard is transparent to data without leads). A leading scan is held un
 ``LEAD_INTERVALS = 4``: a sensor's scan arrives up to two of its periods late (the simulator's
 ``--late``, docs/multitarget-formats.md), so its newest scan taken is at most three intervals
 after its previous one, however its scans overtake each other; four cannot be lateness. At most
-``HELD_MAX`` scans are held (the oldest beyond it dropped, counted): a deployment's sensors
-resume within a few scans of each other, and a flood of leading scans must not grow a tracker.
+``HELD_MAX`` scans and ``HELD_BYTES`` are held (the oldest beyond them dropped, counted): a
+deployment's sensors resume within a few scans of each other, and a flood of leading scans must
+not grow a tracker.
 """
 
 from __future__ import annotations
@@ -35,11 +36,16 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Generic, TypeVar
 
+from fedtrack import wire
+
 LEAD_INTERVALS = 4
 # the median of 8 intervals holds while at most 3 are off (one late scan puts a long and a short one
 # among them): the silence rule's choice (fedtrack.fusion_center.mtt.silence)
 INTERVALS_KEPT = 8
 HELD_MAX = 64  # 64 x 1 s of a 1 Hz sensor; a held scan of 2,048 detections is 32 kB
+# and at most one largest message's worth of bytes (a report joined from MAX_PARTS parts: the
+# reassembly's own bound, services/reassembly.py): a flood of large leading reports cannot grow a service
+HELD_BYTES = wire.MAX_PARTS * wire.MAX_PAYLOAD_BYTES
 
 T = TypeVar("T")  # what is held: a scan, or a message with its work
 
@@ -54,7 +60,7 @@ class LeadGuard(Generic[T]):
     last: dict[str, float] = field(default_factory=dict)  # sensor -> time of its newest scan taken
     gaps: dict[str, deque[float]] = field(default_factory=dict)  # sensor -> its last intervals
     live: set[str] = field(default_factory=set)  # sensors taken and not left
-    held: list[tuple[str, float, T]] = field(default_factory=list)  # (sensor, t, item), arrival order
+    held: list[tuple[str, float, T, int]] = field(default_factory=list)  # (sensor, t, item, bytes), arrival order
     dropped: int = 0  # held scans never witnessed (or beyond HELD_MAX): not taken
 
     def bound(self, sensor: str) -> float:
@@ -64,17 +70,18 @@ class LeadGuard(Generic[T]):
             return max(self.max_lag, LEAD_INTERVALS * usual[sensor])
         return max(self.max_lag, LEAD_INTERVALS * max(usual.values())) if usual else float("inf")
 
-    def admit(self, sensor: str, t: float, item: T) -> list[T]:
-        """The items to take now, in order, on the arrival of ``item`` (``sensor``'s, at ``t``):
-        ``[item]`` when it does not lead; ``[]`` while it is held; the witnessed held items and
-        ``item`` when it is a witness. The caller reports each item it took with :meth:`took`."""
+    def admit(self, sensor: str, t: float, item: T, size: int = 0) -> list[T]:
+        """The items to take now, in order, on the arrival of ``item`` (``sensor``'s, at ``t``, of
+        about ``size`` bytes): ``[item]`` when it does not lead; ``[]`` while it is held; the
+        witnessed held items and ``item`` when it is a witness. The caller reports each item it
+        took with :meth:`took`."""
         if self.newest is None or t - self.newest <= self.bound(sensor):
             self.dropped += len(self.held)
             self.held.clear()
             return [item]
         if not any(abs(t - h[1]) <= self.bound(h[0]) and self._witnesses(sensor, t, h) for h in self.held):
-            self.held.append((sensor, t, item))
-            if len(self.held) > HELD_MAX:
+            self.held.append((sensor, t, item, size))
+            while len(self.held) > HELD_MAX or sum(h[3] for h in self.held) > HELD_BYTES:
                 self.held.pop(0)
                 self.dropped += 1
             return []
@@ -83,7 +90,7 @@ class LeadGuard(Generic[T]):
         self.held.clear()
         return [*taken, item]
 
-    def _witnesses(self, sensor: str, t: float, held: tuple[str, float, T]) -> bool:
+    def _witnesses(self, sensor: str, t: float, held: tuple[str, float, T, int]) -> bool:
         """Whether a leading scan of ``sensor`` at ``t`` witnesses ``held``: another sensor's, or
         a later scan of the same sensor when no other sensor is live (a repeat is no witness)."""
         return sensor != held[0] or (t > held[1] and not (self.live - {sensor}))

@@ -204,10 +204,8 @@ class MttCentreService(Service):
         """Process ``msg`` (checked; :meth:`_process`) unless it is stamped far ahead of the data: then
         it waits for a witness (:class:`LeadGuard`; taken as received meanwhile), and the messages
         it witnesses are processed before it."""
-        dropped = self.lead.dropped
-        released = self.lead.admit(msg.sensor, msg.t, msg)
         key = self.keys.mtt_report(msg.sensor) if isinstance(msg, TrackReport) else self.keys.sensor_meas(msg.sensor)
-        self.note_leads(key, self.lead.dropped - dropped)
+        released = self.in_time(self.lead, key, msg)
         if not released:
             self.received.take(msg)
         for held in released:

@@ -118,7 +118,7 @@ class MttLocalService(Service):
         if not self.admitted(self.received, msg):
             return
         dropped, times = self.lead.dropped, self.lead.times()
-        released = self.lead.admit(msg.sensor, msg.t, (msg.seq, scan, msg.stamp_ns))
+        released = self.lead.admit(msg.sensor, msg.t, (msg.seq, scan, msg.stamp_ns), scan.z.nbytes)
         self.note_leads(self.keys.sensor_meas(self.sensor), self.lead.dropped - dropped)
         for _, taken, _ in released:  # in the queue, so taken: the next scan's lead is from them
             self.lead.took(taken.sensor, taken.t)
