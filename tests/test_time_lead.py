@@ -12,10 +12,13 @@ import numpy as np
 import pytest
 from test_fuzz_handlers import MEASUREMENTS, SENSORS
 from test_fuzz_trackers import sonar_stream
-from test_hostile_messages import KEYS, Bus, fused, mtt_lines, mtt_services, paper_run, pictures, same_tracks
+from test_hostile_messages import KEYS, OPTIONS, Bus, fused, mtt_lines, mtt_services, paper_run, pictures, same_tracks
+from test_mtt_regions_live import scenario as region_scenario
+from test_mtt_regions_live import services as region_services
 
 from fedtrack.fusion_center.mtt.engines import Engine, PictureClock, make_engine
 from fedtrack.fusion_center.mtt.replay import pictures as replay_pictures
+from fedtrack.keys import Keys
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.scan import SensorScan, parse_line
 from fedtrack.sensors.multitarget import Scenario, parse_spec, simulate
@@ -200,3 +203,32 @@ def test_single_target_services_drop_a_scan_and_an_estimate_far_ahead(tmp_path: 
         assert len(got) == len(want) > 0
         same_tracks(got, want)
     assert all(svc.counters.get("rejected", 0) == 0 for svc in clean_services.values())
+
+
+def test_the_picture_merger_drops_a_region_picture_far_ahead(tmp_path: Path) -> None:
+    """Two region centres and ``serve picture`` on the in-process bus: a copy of region x0y0's
+    last picture re-stamped 1,000 s ahead, mid-run, is counted ``rejected_time_lead`` by the merger
+    and every merged picture equals the clean run's (before: the region's later pictures queued
+    behind it and its tracks left the merged picture)."""
+    msgs, cfg, config = region_scenario(tmp_path)
+    runs = []
+    for name, forge in (("clean", False), ("forged", True)):
+        centres, local, merger, recorder = region_services(tmp_path / name, "mtt-federated", config, cfg,
+                                                           {"options": OPTIONS, "deployment": "hostile"})
+        recorder.on_start()
+        bus = Bus([*centres, *local, merger, recorder])
+        keys = Keys("hostile")
+        for i, m in enumerate(msgs):
+            if forge and i == len(msgs) // 2:
+                region = centres[0].region
+                last = [p for key, p in bus.published if key == keys.region_picture(region)][-1]
+                bus.put(keys.region_picture(region), encode(replace(last, seq=last.seq + 1000, t=last.t + 1000.0)))
+            bus.put(keys.sensor_meas(m.sensor), encode(m))
+        for svc in [*local, *centres, merger]:
+            svc.on_stop()
+            bus.drain()
+        merged = [(p.t, p.ids, p.x.tobytes(), p.P.tobytes()) for key, p in bus.published if key == keys.mtt_picture()]
+        runs.append((merged, merger))
+    (clean, clean_merger), (forged, merger) = runs
+    assert forged == clean and len(clean) > 20
+    assert merger.counters.get("rejected_time_lead") == 1 and clean_merger.counters.get("rejected", 0) == 0

@@ -639,14 +639,15 @@ class Service:
         keeps what it changed (e.g. a scan marked contested)."""
         self._reject(key, 0, exc)
 
-    def in_time(self, guard: LeadGuard[Any], key: str, msg: Any) -> list[Any]:
-        """``msg`` (a scan or an estimate of ``msg.sensor`` at ``msg.t``, published on ``key``) and
-        those it witnesses, in order; none while it is held for being stamped far ahead of the data
-        (:class:`LeadGuard`); the held messages it contradicts are counted ``rejected_time_lead``.
-        The handler calls ``guard.took`` for each message it takes."""
+    def in_time(self, guard: LeadGuard[Any], key: str, msg: Any, source: str | None = None,
+                item: Any = None) -> list[Any]:
+        """``msg`` (a scan or an estimate of ``msg.sensor``, or of ``source``, at ``msg.t``, published on
+        ``key``; held as ``item`` if given) and those it witnesses, in order; none while it is held for
+        being stamped far ahead of the data (:class:`LeadGuard`); the held messages it contradicts
+        are counted ``rejected_time_lead``. The handler calls ``guard.took`` for each one it takes."""
         dropped = guard.dropped
         size = sum(getattr(msg, f.name).nbytes for f in fields(msg) if isinstance(getattr(msg, f.name), np.ndarray))
-        released = guard.admit(msg.sensor, msg.t, msg, size)
+        released = guard.admit(msg.sensor if source is None else source, msg.t, msg if item is None else item, size)
         self.note_leads(key, guard.dropped - dropped)
         return released
 

@@ -34,6 +34,7 @@ from fedtrack.fusion_center.mtt.regional import RegionPicture, merge_pictures, r
 from fedtrack.fusion_center.mtt.service import picture_message, picture_tracks
 from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
+from fedtrack.services.lead import LeadGuard
 from fedtrack.wire import TrackPicture
 
 Entries = list[tuple[str, int, str, str]]  # (sensor or sending region, seq, kind: scan/left/handover, region)
@@ -63,7 +64,7 @@ class PictureMergeService(Service):
 
     role = "picture"
     tick_period_s = 0.05
-    state_attrs = ("pending", "started", "closing", "late", "merged_t", "seq")
+    state_attrs = ("pending", "started", "closing", "late", "merged_t", "seq", "lead")
 
     def __init__(self, regions: Regions, dim: int = 4, wait_s: float = 2.0, **kwargs: Any) -> None:
         super().__init__(**kwargs)
@@ -76,6 +77,8 @@ class PictureMergeService(Service):
         self.first_seen: dict[float, float] = {}  # picture time -> monotonic time of its first region picture
         self.merged_t: float | None = None
         self.seq = 0
+        # a region picture stamped far ahead of the others waits for a witness (fedtrack/services/lead.py)
+        self.lead: LeadGuard[TrackPicture] = LeadGuard(max_lag=0.0)
 
     def subscriptions(self) -> list[Subscription]:
         return [Subscription(self.keys.region_picture(rid), TrackPicture, partial(self.on_picture, r))
@@ -85,14 +88,23 @@ class PictureMergeService(Service):
         self.started[r] = True
         if msg.closing:
             self.closing[r] = msg
-        elif self.merged_t is not None and msg.t <= self.merged_t:
+            self._merge()
+            return
+        rid = self.regions.ids[r]
+        for region, picture in self.in_time(self.lead, self.keys.region_picture(rid), msg, rid, (r, msg)):
+            self._take(region, picture)
+        self._merge()
+
+    def _take(self, r: int, msg: TrackPicture) -> None:
+        """Queue region ``r``'s picture for its time, or count it late when that time was merged."""
+        self.lead.took(self.regions.ids[r], msg.t)
+        if self.merged_t is not None and msg.t <= self.merged_t:
             self.count("late_picture")
             self.log.warning("region %s's picture at t=%g came after that time was merged", self.regions.ids[r], msg.t)
             self.late[r] += entries_of(msg, self.regions.ids[r])
         else:
             self.pending[r].append(msg)
             self.first_seen.setdefault(msg.t, time.monotonic())
-        self._merge()
 
     def on_tick(self) -> None:
         self._merge()
@@ -135,7 +147,9 @@ class PictureMergeService(Service):
         self.counters["pictures"] = self.seq
 
     def on_stop(self) -> None:
-        """The pictures still held, then one closing record of the regions' closing lists."""
+        """The pictures still held, then one closing record of the regions' closing lists (a picture
+        still held for a witness, stamped far ahead, is counted ``rejected_time_lead``)."""
+        self.note_leads(self.keys.region_picture(), self.lead.end())
         self._merge(force=True)
         if any(self.closing) or any(self.late):
             self._publish(max((c.t for c in self.closing if c is not None), default=self.merged_t or 0.0),
