@@ -28,7 +28,8 @@ trackers' own out-of-sequence handling is exercised. ``measurements.jsonl`` is w
 arrival order.
 
 ``config.toml`` sets ``[mtt] q`` from the truth's maximum acceleration and the sensors' periods
-(:func:`process_noise`, docs/multitarget.md#covariance-consistency-nees).
+(:func:`process_noise`, docs/multitarget.md#covariance-consistency-nees) and ``max_lag`` from the
+delays (:func:`max_lag`: every late scan is fused).
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ import numpy as np
 from fedtrack.config import to_toml
 from fedtrack.geodetic import RadarSite, aer_from_enu, enu_from_aer
 from fedtrack.jsonl import InputError, output_file, output_folder
+from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.radar.measurement import polar_from_cartesian, wrap_angle
 
 DT = 0.05
@@ -53,6 +55,8 @@ TURN_RATE = (2.0, 6.0)  # deg/s, uniform, either sign
 # m/s^2: the fastest turn of the fastest target (a crossing only slows a target down: its
 # meeting point, when clipped to the region, comes nearer)
 MAX_ACCELERATION = float(np.deg2rad(TURN_RATE[1]) * SPEED[1])
+JITTER_S = 0.02  # s: the mean of a scan's exponential delay jitter
+LATE_TAIL = 1e-6  # the chance per scan that its jitter exceeds the bound max_lag allows for
 POS_SD_MIN, POS_SD_MAX = 10.0, 20.0  # a position sensor's noise std per axis (m)
 RADAR_SD = (10.0, 0.002, 0.002)  # a radar's noise std: range (m), azimuth, elevation (rad)
 
@@ -216,7 +220,7 @@ def sensor_lines(spec: SensorSpec, sc: Scenario, x: np.ndarray, alive: np.ndarra
                                 "detections": [{"z": d.tolist()} for d in dets]}
         if where is not None:
             line["sensor_position"] = where.tolist()
-        delay = sc.base_delay + rng.exponential(0.02)
+        delay = sc.base_delay + rng.exponential(JITTER_S)
         if k and rng.uniform() < sc.late:
             delay += rng.uniform(0, 2 * spec.period)
         last_arrival = max(last_arrival, t + delay) if sc.fifo else t + delay
@@ -231,6 +235,16 @@ def process_noise(specs: list[SensorSpec]) -> float:
     acceleration, should be ``0.5 a_M`` to ``a_M`` times ``T``; the lower end, since the targets
     turn a fraction of the time and mostly below ``a_M``."""
     return round((MAX_ACCELERATION / 2.0) ** 2 * max(s.period for s in specs), 6)
+
+
+def max_lag(sc: Scenario, specs: list[SensorSpec]) -> float:
+    """``[mtt] max_lag`` [s] that keeps every scan this simulator delivers late: a scan arrives at most
+    ``base_delay`` + its jitter + two of its sensor's periods after its time (:func:`sensor_lines`),
+    and so comes at most that far behind the newest scan any tracker has (one sensor's or all
+    of them); the jitter's bound ``JITTER_S ln(1 / LATE_TAIL)`` (0.28 s) is exceeded once in 10^6
+    scans. Never below ``[mtt]``'s default 3 s (the default sensors need 2.93 s)."""
+    bound = 2 * max(s.period for s in specs) + sc.base_delay + JITTER_S * math.log(1 / LATE_TAIL)
+    return max(MttConfig().max_lag, math.ceil(bound * 100) / 100)
 
 
 def radar_range(sc: Scenario) -> tuple[float, float]:
@@ -273,7 +287,7 @@ def simulate(sc: Scenario, specs: list[SensorSpec], seed: int, out: Path) -> dic
             targets = [{"id": int(i), "x": x[step, i, dims].tolist()} for i in np.flatnonzero(alive[step])]
             fh.write(json.dumps({"t": float(second), "targets": targets}) + "\n")
     mtt: dict[str, Any] = {"q": process_noise(specs), "pd": sc.pd, "clutter_density": position_clutter_density(sc),
-                           "max_lag": 3.0, "period": 1.0, "init_velocity_std": 30.0,
+                           "max_lag": max_lag(sc, specs), "period": 1.0, "init_velocity_std": 30.0,
                            "sensors": [s.id for s in specs]}
     mtt["sensor"] = {s.id: {"clutter_density": clutter_density(s, sc)} for s in specs if s.kind == "radar"}
     if not mtt["sensor"]:
