@@ -5,10 +5,12 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from fedtrack.cli import main as cli
 from fedtrack.config import load_tables
+from fedtrack.fusion_center.mtt.evaluation import evaluate
 from fedtrack.local_filters.mtt.config import MttSettings
 
 
@@ -38,3 +40,21 @@ def test_simulate_max_lag_covers_the_scans_it_delivers_late(tmp_path: Path, caps
         assert f"{algorithm[0]}: 0 scans late" in capsys.readouterr().err
     assert cli(["simulate", "multitarget", "--targets", "2", "--duration", "5", "--out", str(tmp_path / "d")]) == 0
     assert load_tables(tmp_path / "d" / "config.toml", MttSettings).mtt.max_lag == 3.0
+
+
+def test_evaluate_nees_of_a_2d_tracker_against_3d_truth(tmp_path: Path) -> None:
+    """A position sensor's tracker (``[x, vx, y, vy]``) against a 3-D truth (a radar in the scenario,
+    or recorded air traffic): its NEES is that of the truth's horizontal state, the prefix of
+    ``[x, vx, y, vy, z, vz]``, by hand under P = diag(4, 1, 4, 1): errors (2, 1, 0, 0) and
+    (0, 0, 4, 0) give 2 and 4 (state), 1 and 4 (position); the truth's altitude plays no part."""
+    P = np.diag([4.0, 1.0, 4.0, 1.0]).tolist()
+    x = np.array([100.0, 1.0, 50.0, 0.0])
+    truth = [{"t": float(k), "targets": [{"id": 0, "x": [*x, 3000.0 + k, 0.5]}]} for k in range(2)]
+    tracks = [{"t": float(k), "tracks": [{"id": 1, "x": (x - e).tolist(), "P": P}]}
+              for k, e in enumerate(np.array([[2.0, 1.0, 0.0, 0.0], [0.0, 0.0, 4.0, 0.0]]))]
+    (tmp_path / "u.jsonl").write_text("".join(json.dumps(r) + "\n" for r in truth))
+    (tmp_path / "t.jsonl").write_text("".join(json.dumps(r) + "\n" for r in tracks))
+    for horizontal in (False, True):
+        state, position = evaluate(tmp_path / "t.jsonl", tmp_path / "u.jsonl", horizontal=horizontal)["nees"]
+        assert (state["dof"], state["pairs"], position["dof"]) == (4, 2, 2)
+        assert state["mean"] == pytest.approx(3.0, abs=1e-9) and position["mean"] == pytest.approx(2.5, abs=1e-9)
