@@ -17,7 +17,8 @@
   altitude is far worse than its horizontal position); the **altitude error** (RMSE and mean of
   track minus truth z over the assigned pairs, when both are 3-D) is reported on its own.
 * Position RMSE over assigned pairs. **NEES** ``e' P^-1 e`` over the assigned pairs whose state
-  sizes agree, in two parts with their degrees of freedom: the full ``state`` (4 or 6) and the
+  sizes agree (a 2-D track against a 3-D truth: the truth's ``[x, vx, y, vy]``, the prefix of its
+  ``[x, vx, y, vy, z, vz]``), in two parts with their degrees of freedom: the full ``state`` (4 or 6) and the
   ``position`` alone (its block of ``P``: 2 or 3); per part the mean, the fraction inside the
   two-sided 95% chi-square band of its dof (a consistent filter puts 95% of its pairs there),
   and both while the truth accelerates and while it moves straight (below), where a CV filter
@@ -251,6 +252,8 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
                 flags[kind][0] += 1
                 flags[kind][1] += flagged(shown[j])
             xt, xe = np.asarray(g["x"], float), np.asarray(shown[j]["x"], float)
+            if xe.size == 4 and xt.size == 6:  # a 2-D tracker against a 3-D truth: its horizontal state
+                xt = xt[:4]
             if "P" in shown[j] and xt.shape == xe.shape:
                 P = np.asarray(shown[j]["P"], float)
                 try:
