@@ -17,8 +17,9 @@ Our configuration of it, as close to fedtrack's ``mtt`` trackers as Stone Soup a
   radar: one gate serves every sensor); ``GNNWith2DAssignment``;
 * ``MultiMeasurementInitiator`` with ``min_points = confirm_hits`` from a prior with zero
   velocity and ``init_velocity_std`` (and z = 0 with ``init_z_std``); a tentative track is dropped after
-  ``confirm_window - confirm_hits + 1`` scans without an update, a confirmed one after
-  ``delete_misses`` (``UpdateTimeStepsDeleter``: fedtrack's rules, counted in scans), or on the
+  ``confirm_window - confirm_hits + 1`` scans without an update, a confirmed one after the
+  sensor's ``MttConfig.misses_to_delete`` (``delete_misses``, more below P_D 0.9;
+  ``UpdateTimeStepsDeleter``: fedtrack's rules, counted in scans), or on the
   scans of several sensors after ``max(delete_misses, CENTRAL_MISSES x sensors)`` in a row,
   ``mtt-centralized``'s rule (``fusion_center/mtt/engines.py::central_params``; before
   2026-11-26 Stone Soup kept 3 there, which dropped live targets more often and dead targets'
@@ -113,9 +114,9 @@ def stonesoup_tracker(scans: list[dict[str, Any]], mtt: Any, out: Path, associat
     initiator = MultiMeasurementInitiator(
         prior, UpdateTimeStepsDeleter(mtt.confirm_window - mtt.confirm_hits + 1), gnn, updater,
         min_points=mtt.confirm_hits)
-    sensors = len({row["sensor"] for row in scans})
-    deleter = UpdateTimeStepsDeleter(max(mtt.delete_misses, CENTRAL_MISSES * sensors) if sensors > 1
-                                     else mtt.delete_misses)
+    ids = sorted({row["sensor"] for row in scans})
+    deleter = UpdateTimeStepsDeleter(max(mtt.delete_misses, CENTRAL_MISSES * len(ids)) if len(ids) > 1
+                                     else mtt.misses_to_delete(ids[0]) if ids else mtt.delete_misses)
     if association == "gnn":
         tracker = MultiTargetTracker(initiator, deleter, None, gnn, updater)
     elif association == "jpda":

@@ -88,3 +88,23 @@ def test_a_local_tracker_keeps_a_live_target_through_the_misses_its_pd_makes_lik
                 "--measurements", str(tmp_path / "m.jsonl"), "--out", str(tmp_path / "t.jsonl")]) == 0
     pictures = {p["t"]: p for p in map(json.loads, (tmp_path / "t.jsonl").read_text().splitlines())}
     assert not pictures[13.0]["tracks"]
+
+
+@pytest.mark.accuracy
+def test_a_lone_target_at_pd_06_keeps_its_track(tmp_path: Path) -> None:
+    """Seeded Monte Carlo of the rationale: one target, one sensor at P_D 0.6 every second, no
+    clutter, 300 s, 6 seeds; ``mtt-local`` gnn's id switches and fragmentations of the target: by
+    misses at most once in 1,000 scans at the derived count (0.3 a run), with a turn's gate losses
+    measured 0.67 ± 0.42 a run (two runs lost it once in a turn), where 3 misses lost it every 20
+    scans (15.0 ± 1.9 a run, main 2408fcf). About 3 s."""
+    lost = []
+    for seed in range(1, 7):
+        out = tmp_path / str(seed)
+        assert cli(["simulate", "multitarget", "--targets", "1", "--clutter", "0", "--pd", "0.6", "--sensors",
+                    "pos:1.0", "--duration", "300", "--late", "0", "--seed", str(seed), "--out", str(out)]) == 0
+        assert cli(["replay", "--algorithm", "mtt-local", "--sensor", "s1", "--config", str(out / "config.toml"),
+                    "--measurements", str(out / "measurements.jsonl"), "--out", str(out / "t.jsonl")]) == 0
+        res = evaluate(out / "t.jsonl", out / "truth.jsonl")
+        lost.append(res["id_switches"] + res["fragmentations"])
+    mean, se = np.mean(lost), np.std(lost, ddof=1) / np.sqrt(len(lost))
+    assert mean + 2 * se < 3.0, (lost, mean, se)

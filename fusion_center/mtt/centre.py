@@ -42,7 +42,7 @@ scan, the linearized observation of every track the scan detected, the tracks it
   tracker confirmed: in heavy clutter the count alone confirmed tracks on several sensors'
   clutter tracks. A confirmed track is deleted once every sensor that tracks it (a local track
   maps to it) missed it on its last ``CENTRAL_MISSES`` (2) scans since its last detection
-  (``delete_misses`` when one sensor tracks it; more at a lower P_D: :func:`miss_count`): a target that died goes within two scans of the
+  (``delete_misses`` when one sensor tracks it; more at a lower P_D: :func:`~fedtrack.local_filters.mtt.config.miss_count`): a target that died goes within two scans of the
   slowest sensor instead of lingering until every local tracker deleted its track. It is also deleted when no local
   track maps to it any more or none supported it for ``central_timeout`` seconds.
 """
@@ -59,7 +59,7 @@ from scipy.spatial import cKDTree
 
 from fedtrack.fusion_center.mtt.central_track import CentralTracks, DepartedTracks, padded
 from fedtrack.local_filters.linear.gating import track_difference_d2
-from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.mtt.config import MttConfig, miss_count
 from fedtrack.local_filters.mtt.associators.gnn import assign
 from fedtrack.local_filters.mtt.local import LocalReport, Resets, no_resets
 
@@ -70,16 +70,7 @@ LocalKey = tuple[str, int]  # (sensor, local track id)
 # track-to-track centre's rule per tracking sensor, and mtt-centralized's as misses in a row
 # over every sensor's scans (CENTRAL_MISSES per listed sensor: engines.central_params).
 CENTRAL_MISSES = 2
-# At the sensors' detection probabilities the counts may need to be longer: the fewest misses in a
-# row whose chance for a live target is at most LOST, delete_misses' own rationale (3 misses at
-# P_D 0.9: a live target lost by misses once in a thousand scans): miss_count.
-LOST = 1e-3
-
-
-def miss_count(log_miss: np.ndarray | float) -> np.ndarray:
-    """The fewest misses ``m`` with ``exp(m log_miss) <= LOST``, ``log_miss`` the log-probability
-    of one miss (< 0; -inf gives 0; a rounding never adds a miss)."""
-    return np.ceil(math.log(LOST) / np.asarray(log_miss) - 1e-9)
+# At the sensors' detection probabilities the counts may need to be longer: config.miss_count.
 
 
 ASSOCIATION_SHIFT = 1e6  # larger than any gated pair's d2 + ln det

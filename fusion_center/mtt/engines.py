@@ -25,10 +25,10 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from fedtrack.fusion_center.mtt.centre import CENTRAL_MISSES, TrackToTrackCentre, miss_count
+from fedtrack.fusion_center.mtt.centre import CENTRAL_MISSES, TrackToTrackCentre
 from fedtrack.fusion_center.mtt.shards import ShardedCentre
 from fedtrack.local_filters.mtt.associators import jipda
-from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.mtt.config import MttConfig, miss_count
 from fedtrack.local_filters.mtt.history import ScanHistory
 from fedtrack.services.lead import LeadGuard
 from fedtrack.local_filters.mtt.local import LocalReport, Resets, SensorTracker, is_duplicate
@@ -125,7 +125,7 @@ def central_params(cfg: MttConfig, sensor: str | None, dim: int) -> TrackParams:
     centre's policy on a sensor's own tracker's. It counts misses over every sensor's scans, so a
     confirmed track goes after ``CENTRAL_MISSES`` per listed sensor in a row (the track-to-track
     centre's rule; 3 in a row dropped a live target of three sensors at P_D = 0.9 about once a
-    minute among 60; below P_D 0.9 more, :func:`~.centre.miss_count` of the listed sensors' mean
+    minute among 60; below P_D 0.9 more, :func:`~fedtrack.local_filters.mtt.config.miss_count` of the listed sensors' mean
     log miss), and its maneuver handling keeps ``window`` candidate onsets per listed
     sensor, so that the window spans about the time a sensor's own does."""
     p = track_params(cfg, sensor, dim, events=True)

@@ -8,6 +8,8 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from functools import cached_property
 
+import numpy as np
+
 from fedtrack.config import ConfigError
 from fedtrack.deployment import DeploymentConfig
 from fedtrack.geodetic import FrameConfig
@@ -79,6 +81,18 @@ class SensorOverride:
 
     pd: float | None = None
     clutter_density: float | None = None
+
+
+# delete_misses' rationale (3 misses at P_D 0.9: a live target lost by misses once in a thousand
+# scans), kept at every P_D: a tracker's count is at least the fewest misses in a row whose chance
+# for a live target is at most LOST (miss_count), and so is the centre's per tracking sensor.
+LOST = 1e-3
+
+
+def miss_count(log_miss: np.ndarray | float) -> np.ndarray:
+    """The fewest misses ``m`` with ``exp(m log_miss) <= LOST``, ``log_miss`` the log-probability
+    of one miss (< 0; -inf gives 0; a rounding never adds a miss)."""
+    return np.ceil(math.log(LOST) / np.asarray(log_miss) - 1e-9)
 
 
 @dataclass(frozen=True)
@@ -240,6 +254,12 @@ class MttConfig:
         """``ln(1 - P_D)`` of ``sensor`` (None: ``[mtt] pd``): the log-probability that one of its
         scans misses a live target (finite at P_D 1)."""
         return math.log1p(-min(self.pd if sensor is None else self.pd_of(sensor), 1.0 - 1e-12))
+
+    def misses_to_delete(self, sensor: str | None = None) -> int:
+        """Misses in a row that delete a confirmed track of a tracker of ``sensor``'s scans:
+        ``delete_misses``, or more where ``sensor``'s P_D makes that many likely for a live target
+        (:func:`miss_count`: 3 at P_D 0.9, 5 at 0.8, 8 at 0.6)."""
+        return max(self.delete_misses, int(miss_count(self.log_miss(sensor))))
 
     def clutter_of(self, sensor: str) -> float:
         over = self.sensor.get(sensor)

@@ -109,7 +109,7 @@ def track_params(cfg: MttConfig, sensor: str | None, dim: int, feedback: bool = 
     return TrackParams(dim, cfg.q, cfg.noise_model, cfg.init_velocity_std, cfg.init_z_std,
                        cfg.pd if sensor is None else cfg.pd_of(sensor),
                        cfg.clutter_density if sensor is None else cfg.clutter_of(sensor),
-                       cfg.thresholds.gate, cfg.confirm_hits, cfg.confirm_window, cfg.delete_misses, vdie, detect,
+                       cfg.thresholds.gate, cfg.confirm_hits, cfg.confirm_window, cfg.misses_to_delete(sensor), vdie, detect,
                        ASSOCIATORS[cfg.associator], jipda.BIRTH_EXISTENCE if cfg.associator == "jipda" else None,
                        mht=cfg.mht_settings if cfg.associator == "mht" else None,
                        modes=cfg.mode_rates if vdie is None and not feedback else None)
