@@ -108,3 +108,17 @@ def test_a_lone_target_at_pd_06_keeps_its_track(tmp_path: Path) -> None:
         lost.append(res["id_switches"] + res["fragmentations"])
     mean, se = np.mean(lost), np.std(lost, ddof=1) / np.sqrt(len(lost))
     assert mean + 2 * se < 3.0, (lost, mean, se)
+
+
+def test_simulate_traffic_gives_mtt_a_position_sensors_density(tmp_path: Path) -> None:
+    """``simulate traffic`` with a radar listed first: ``[mtt] clutter_density``, read by any sensor
+    without its own table as per m^2, is a position sensor's (clutter / box^2), not the radar's per
+    m rad^2 (2.9e-5 for ``--box 150``, 66,000 times the position sensors' 4.4e-10); every listed
+    sensor keeps its own. About 1 s."""
+    out = tmp_path / "t"
+    assert cli(["simulate", "traffic", "--source", str(Path(__file__).parent / "data" / "traffic_paris.csv.gz"),
+                "--origin", "48.86,2.40", "--sensors", "radar:4@49.2/2.0/100,pos:2", "--start", "60", "--duration",
+                "20", "--box", "150", "--out", str(out)]) == 0
+    cfg = load_tables(out / "config.toml", MttSettings).mtt
+    assert cfg.clutter_density == pytest.approx(10.0 / 150e3**2, rel=1e-12)
+    assert cfg.clutter_of("s2") == cfg.clutter_density and cfg.clutter_of("r1") > 1e4 * cfg.clutter_density
