@@ -45,6 +45,7 @@ from fedtrack.sensors.multitarget import (
     SensorSpec,
     clutter_density,
     parse_spec,
+    position_clutter_density,
     sensor_lines,
 )
 
@@ -435,7 +436,7 @@ def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, star
                        for i, g in zip(live, lla)]
             fh.write(json.dumps({"t": float(second), "targets": targets}) + "\n")
     derived = derived_tracker(truth, specs)
-    mtt: dict[str, Any] = {**derived, "pd": pd, "clutter_density": clutter_density(specs[0], sc), "period": 1.0,
+    mtt: dict[str, Any] = {**derived, "pd": pd, "clutter_density": position_clutter_density(sc), "period": 1.0,
                            "sensors": [s.id for s in specs]}
     # every sensor its own density: a radar's per m rad^2, a position sensor's per m^2; an ADS-B receiver's
     # false reports are none, written as one per (1000 km)^2 (the tracker's log takes no zero)
