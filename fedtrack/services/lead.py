@@ -34,7 +34,7 @@ from __future__ import annotations
 import statistics
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Generic, TypeVar
+from typing import Generic, NamedTuple, TypeVar
 
 from fedtrack import wire
 
@@ -47,7 +47,17 @@ HELD_MAX = 64  # 64 x 1 s of a 1 Hz sensor; a held scan of 2,048 detections is 3
 # reassembly's own bound, services/reassembly.py): a flood of large leading reports cannot grow a service
 HELD_BYTES = wire.MAX_PARTS * wire.MAX_PAYLOAD_BYTES
 
-T = TypeVar("T")  # what is held: a scan, or a message with its work
+class Times(NamedTuple):
+    """What :meth:`LeadGuard.took` changes (:meth:`LeadGuard.times`, :meth:`LeadGuard.restore`)."""
+
+    newest: float | None
+    last: dict[str, float]
+    gaps: dict[str, deque[float]]
+    usual: dict[str, float]
+    live: set[str]
+
+
+T = TypeVar("T")  # what is held: a scan or a message (or what a service keeps of it)
 
 
 @dataclass
@@ -59,16 +69,16 @@ class LeadGuard(Generic[T]):
     newest: float | None = None
     last: dict[str, float] = field(default_factory=dict)  # sensor -> time of its newest scan taken
     gaps: dict[str, deque[float]] = field(default_factory=dict)  # sensor -> its last intervals
+    usual: dict[str, float] = field(default_factory=dict)  # sensor -> the median of its gaps
     live: set[str] = field(default_factory=set)  # sensors taken and not left
     held: list[tuple[str, float, T, int]] = field(default_factory=list)  # (sensor, t, item, bytes), arrival order
     dropped: int = 0  # held scans never witnessed (or beyond HELD_MAX): not taken
 
     def bound(self, sensor: str) -> float:
         """How far after the newest time a scan of ``sensor`` may be and still be taken at once."""
-        usual = {s: statistics.median(g) for s, g in self.gaps.items() if g}
-        if sensor in usual:
-            return max(self.max_lag, LEAD_INTERVALS * usual[sensor])
-        return max(self.max_lag, LEAD_INTERVALS * max(usual.values())) if usual else float("inf")
+        if sensor in self.usual:
+            return max(self.max_lag, LEAD_INTERVALS * self.usual[sensor])
+        return max(self.max_lag, LEAD_INTERVALS * max(self.usual.values())) if self.usual else float("inf")
 
     def admit(self, sensor: str, t: float, item: T, size: int = 0) -> list[T]:
         """The items to take now, in order, on the arrival of ``item`` (``sensor``'s, at ``t``, of
@@ -98,7 +108,9 @@ class LeadGuard(Generic[T]):
     def took(self, sensor: str, t: float) -> None:
         """A scan of ``sensor`` at ``t`` that :meth:`admit` gave was taken (its tracker handled it)."""
         if sensor in self.last and t > self.last[sensor]:
-            self.gaps.setdefault(sensor, deque(maxlen=INTERVALS_KEPT)).append(t - self.last[sensor])
+            gaps = self.gaps.setdefault(sensor, deque(maxlen=INTERVALS_KEPT))
+            gaps.append(t - self.last[sensor])
+            self.usual[sensor] = statistics.median(gaps)
         self.last[sensor] = max(t, self.last.get(sensor, t))
         self.newest = t if self.newest is None else max(self.newest, t)
         self.live.add(sensor)
@@ -111,14 +123,14 @@ class LeadGuard(Generic[T]):
         self.held.clear()
         return n
 
-    def times(self) -> tuple[float | None, dict[str, float], dict[str, deque[float]], set[str]]:
+    def times(self) -> Times:
         """A copy of what :meth:`took` changes, for :meth:`restore`."""
-        return self.newest, dict(self.last), {s: deque(g, maxlen=INTERVALS_KEPT) for s, g in self.gaps.items()}, \
-            set(self.live)
+        return Times(self.newest, dict(self.last), {s: deque(g, maxlen=INTERVALS_KEPT) for s, g in self.gaps.items()},
+                     dict(self.usual), set(self.live))
 
-    def restore(self, times: tuple[float | None, dict[str, float], dict[str, deque[float]], set[str]]) -> None:
+    def restore(self, times: Times) -> None:
         """Forget the scans taken since :meth:`times` gave ``times`` (their handling failed)."""
-        self.newest, self.last, self.gaps, self.live = times
+        self.newest, self.last, self.gaps, self.usual, self.live = times
 
     def leave(self, sensor: str) -> None:
         """``sensor`` left: it no longer keeps another sensor's lone scans from witnessing themselves."""
