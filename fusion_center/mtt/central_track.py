@@ -25,6 +25,7 @@ import numpy as np
 
 from fedtrack.local_filters.linear.kalman import GaussianState, update
 from fedtrack.local_filters.linear.tracking import rounded_interval
+from fedtrack.local_filters.mtt.history import MAX_ENTRIES  # kept observations per central track (the ring's largest depth)
 from fedtrack.local_filters.mtt.models import ModeRates, Modes, modes_predict, modes_update, predict_batch, start_modes
 from fedtrack.local_filters.vdie.estimation import VdieParams
 from fedtrack.local_filters.vdie.input_bank import (
@@ -37,13 +38,6 @@ from fedtrack.local_filters.vdie.input_bank import (
 
 # one step's result beside the posterior: the maneuver detector's banks and detection, if any
 DetectorStep = tuple[InputBank, InputDetection] | None
-
-
-# At most this many kept entries per central track (the ring's largest depth): far more than
-# max_lag seconds of any real sensor set hold (8 sensors at 10 Hz over 3 s: 240), so that a
-# sensor repeating one time stamp cannot grow every track's buffer without bound; beyond it the
-# oldest observation is folded into the checkpoint (an older one is then late).
-MAX_ENTRIES = 256
 
 
 def padded(a: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:

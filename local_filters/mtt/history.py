@@ -21,6 +21,13 @@ import bisect
 from collections.abc import Callable
 from typing import Generic, TypeVar
 
+# At most this many kept entries (scans of a tracker, observations of a central track): far more than
+# max_lag seconds of any real sensor set hold (8 sensors at 10 Hz over 3 s: 240), so that a sensor
+# repeating one time stamp, or sending scans microseconds apart, cannot grow a buffer (and the scans one
+# late scan re-runs) without bound; beyond it the oldest is folded into the checkpoint (an older one is
+# then late).
+MAX_ENTRIES = 256
+
 S = TypeVar("S")  # the state after a scan
 E = TypeVar("E")  # what the history keeps of a scan (the scan, and what else a step needs)
 
@@ -76,8 +83,10 @@ class ScanHistory(Generic[S, E]):
             self.after.append(state)
 
     def fold(self) -> None:
-        """Fold the entries before the newest ``max_lag`` seconds into the checkpoint."""
+        """Fold the entries before the newest ``max_lag`` seconds, and those beyond the newest
+        :data:`MAX_ENTRIES`, into the checkpoint."""
         drop = bisect.bisect_left(self.times, self.times[-1] - self.max_lag) if self.times else 0
+        drop = max(drop, len(self.times) - MAX_ENTRIES)
         if drop:
             self.base, self.base_t = self.after[drop - 1], self.times[drop - 1]
             del self.times[:drop], self.entries[:drop], self.after[:drop]
