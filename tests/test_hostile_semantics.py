@@ -20,6 +20,7 @@ from test_hostile_messages import KEYS, OPTIONS, Bus, mtt_lines
 from fedtrack.local_filters.mtt import history as history_module
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.history import MAX_ENTRIES
+from fedtrack.local_filters.mtt import service as service_module
 from fedtrack.local_filters.mtt.service import MttLocalService
 from fedtrack.wire import Measurement, encode
 
@@ -57,3 +58,21 @@ def test_scans_microseconds_apart_keep_a_bounded_history(monkeypatch: Any) -> No
     assert len(history.times) == 16 and history.base_t == pytest.approx(1e-4 * (n - 16 - 1))
     bus.put(KEYS.sensor_meas("s1"), encode(scan("s1", n, 1e-4 * 10.5, rng.uniform(-5e3, 5e3, (3, 2)))))
     assert svc.counters["late"] == 1 and len(history.times) == 16
+
+
+def test_scans_waiting_for_resets_are_bounded(monkeypatch: Any) -> None:
+    """A federated tracker holds the scans that arrive while it waits for the centre's resets: with
+    the centre slow or gone (one scan a ``--reset-timeout``) or a sensor flooding scans, that queue
+    grew with every scan. It holds at most MAX_ENTRIES (16 here); beyond, the oldest waiting scan
+    is dropped and counted ``queue_dropped``, and the tracker goes on with the newest."""
+    monkeypatch.setattr(service_module, "MAX_ENTRIES", 16)
+    bus, svc = mtt_local(federated=True)
+    rng = np.random.default_rng(4)
+    n = 40
+    for k in range(n):
+        bus.put(KEYS.sensor_meas("s1"), encode(scan("s1", k, float(k), rng.uniform(-5e3, 5e3, (3, 2)))))
+    assert svc.awaiting == 0 and len(svc.queue) == 16 and svc.counters["queue_dropped"] == n - 1 - 16
+    assert [seq for seq, _, _ in svc.queue] == list(range(n - 16, n))
+    svc.awaiting_since -= 10.0  # the reset timeout passed: the tracker goes on with the oldest kept
+    svc.on_tick()
+    assert svc.counters["reports"] == 2 and svc.awaiting == n - 16 and len(svc.queue) == 15

@@ -11,7 +11,8 @@ may differ from the replay). A scan older than the tracker's newest (the sensor'
 it) is fused in time order, the later scans run again (counted ``rerun``;
 :class:`fedtrack.local_filters.mtt.local.SensorTracker`), and reported; one more than ``max_lag``
 older is dropped and counted ``late``, and one equal to a scan tracked before (another number)
-``duplicate``, as in the replay.
+``duplicate``, as in the replay. At most ``MAX_ENTRIES`` scans wait (for resets, or behind a slow
+tracker): beyond, the oldest waiting one is dropped and counted ``queue_dropped``.
 
 Rejected (docs/wire.md#rejections): a measurement of another kind or shape (``wrong_model``),
 a sensor the config does not allow (``unknown_sensor``), a scan number more than
@@ -39,6 +40,7 @@ from fedtrack.config import load_tables
 from fedtrack.deployment import MODES
 from fedtrack.keys import check_id
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
+from fedtrack.local_filters.mtt.history import MAX_ENTRIES
 from fedtrack.services.lead import LeadGuard
 from fedtrack.local_filters.mtt.local import LocalReport, SensorTracker, report_to_wire, resets_from_wire
 from fedtrack.local_filters.mtt.routing import RegionAnswer, RegionRouter, answer_from_wire, join_answers
@@ -123,6 +125,10 @@ class MttLocalService(Service):
         for _, taken, _ in released:  # in the queue, so taken: the next scan's lead is from them
             self.lead.took(taken.sensor, taken.t)
         self.queue.extend(released)
+        if len(self.queue) > MAX_ENTRIES:  # as many as a history keeps: the oldest waiting scans go
+            self.count("queue_dropped", len(self.queue) - MAX_ENTRIES)
+            while len(self.queue) > MAX_ENTRIES:
+                self.queue.popleft()
         if msg.seq in self._advance():  # dropped: as if it never came
             self.lead.restore(times)
             return
