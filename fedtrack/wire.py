@@ -48,6 +48,7 @@ MAX_LIST_ITEMS = 64
 MAX_MAP_ITEMS = 32
 SYMMETRY_RTOL = 1e-9
 PD_RTOL = 1e-12
+FLOAT_EPS = float(np.finfo(np.float64).eps)  # a measurement's noise is at least its own rounding (_check_resolvable)
 MEASUREMENT_KINDS = ("position", "radar", "sonar", "scan")
 MAX_TRACKS = 2048  # tracks in one multi-target report or picture
 MAX_BATCH_ELEMENTS = MAX_TRACKS * 36  # a batched array: MAX_TRACKS 6x6 covariances
@@ -191,6 +192,25 @@ def _covariance(value: Any, path: str) -> np.ndarray:
         raise WireError(path, f"not positive definite (eigenvalues {eig[0]:.3g} .. {eig[-1]:.3g})")
     sym.setflags(write=False)
     return sym
+
+
+def acceptable_covariances(P: np.ndarray) -> bool:
+    """Whether every covariance in ``P`` (one (d, d), a stack (n, d, d) or n stacked (n d, d)) is one
+    a receiver accepts (:func:`_covariance`): within +-MAX_MAGNITUDE, symmetric within SYMMETRY_RTOL,
+    positive definite with an eigenvalue ratio above PD_RTOL. A service checks what it is about to
+    keep and publish with it: an estimate every receiver would refuse fails where it arises."""
+    P = np.asarray(P, dtype=np.float64)
+    if P.size == 0:
+        return True
+    stack = P.reshape(-1, P.shape[-1], P.shape[-1])
+    scale = np.max(np.abs(stack), axis=(1, 2))
+    if not np.all(scale <= MAX_MAGNITUDE):  # NaN too
+        return False
+    T = np.swapaxes(stack, 1, 2)
+    if np.any(np.max(np.abs(stack - T), axis=(1, 2)) > SYMMETRY_RTOL * scale):
+        return False
+    eig = np.linalg.eigvalsh(0.5 * (stack + T))
+    return bool(np.all((eig[:, -1] > 0.0) & (eig[:, 0] > PD_RTOL * eig[:, -1])))
 
 
 def _whole(limit: int) -> int:
@@ -414,6 +434,21 @@ def _maneuver_info(value: Any, path: str) -> ManeuverInfo | None:
         raise WireError(f"{path}.{exc.field}", exc.reason) from None
 
 
+def _check_resolvable(z: np.ndarray, R: np.ndarray) -> None:
+    """The noise of ``z`` is at least the spacing of float64 numbers at ``z``'s magnitude: its
+    smallest standard deviation sqrt(min eig R) >= FLOAT_EPS max|z|. A smaller one cannot be
+    represented in ``z`` itself (a position of 1e100 m carries no digit below about 1e84 m, a
+    variance of 1e-300 none at 1 m), and no filter can weigh such a measurement: it would be taken
+    as exact where its own rounding is larger than its claimed noise."""
+    floor = (FLOAT_EPS * float(np.abs(z).max())) ** 2
+    if floor <= PD_RTOL * float(np.abs(R).max()):  # then below min eig R (> PD_RTOL max eig R): no eigenvalues needed
+        return
+    smallest = float(np.linalg.eigvalsh(R)[0])
+    if not smallest >= floor:
+        raise WireError("R", f"noise std {math.sqrt(max(smallest, 0.0)):.3g} below the float64 resolution "
+                        f"{math.sqrt(floor):.3g} of z (|z| up to {float(np.abs(z).max()):.3g})")
+
+
 @dataclass(frozen=True, eq=False)
 class Measurement(_Record):
     """One scan of one sensor.
@@ -462,6 +497,7 @@ class Measurement(_Record):
             if self.detections:
                 raise WireError("detections", "only sonar and scan measurements carry detections")
             _check_square(self.R, self.z.shape[0], "R", "z")
+            _check_resolvable(self.z, self.R)
         if self.R.size == 0:
             raise WireError("R", "must not be empty")
         if self.kind == "radar" and self.sensor_position is None:

@@ -55,7 +55,7 @@ from fedtrack.services.base import (
     service_parser,
 )
 from fedtrack.services.lead import LeadGuard
-from fedtrack.wire import PD_RTOL, FusedTrack, LocalEstimate, ManeuverEvent, Reset, decode, encode
+from fedtrack.wire import FusedTrack, LocalEstimate, ManeuverEvent, Reset, acceptable_covariances, decode, encode
 
 FUSED_KEPT = 64  # fused scans whose estimate digests are kept to tell a late conflict from a re-delivery
 SNAPSHOT_MAX_GAP = 3  # scans missed beyond which a restored snapshot is dropped for a rebuild
@@ -316,17 +316,9 @@ def checked_snapshot(raw: bytes) -> bytes:
 
 
 def usable(result: CentreResult) -> bool:
-    """A finite fused state whose covariance and resets are positive definite."""
+    """A finite fused state whose covariance and resets are positive definite as the wire requires."""
     return bool(np.all(np.isfinite(result.estimate.x))) and all(
-        positive_definite(P) for P in [result.estimate.P, *(c.P for c in result.resets.values())])
-
-
-def positive_definite(P: np.ndarray) -> bool:
-    """Positive definite as the wire requires it (eigenvalue ratio above ``PD_RTOL``)."""
-    if not np.all(np.isfinite(P)):
-        return False
-    eig = np.linalg.eigvalsh(0.5 * (P + P.T))
-    return bool(eig[-1] > 0.0 and eig[0] > PD_RTOL * eig[-1])
+        acceptable_covariances(P) for P in [result.estimate.P, *(c.P for c in result.resets.values())])
 
 
 def make_track(seq: int, buf: ScanBuffer, result: CentreResult, degraded: bool, sensors: list[str],

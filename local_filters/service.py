@@ -47,6 +47,7 @@ from fedtrack.services.base import (
     Subscription,
     check_time_jump,
     digest,
+    require_covariances,
     require_finite,
     service_kwargs,
     service_parser,
@@ -244,6 +245,7 @@ class LocalFilterService(Service):
         with self.guarded(f"scan {msg.seq}", key=self.keys.sensor_meas(self.sensor)):
             out = self.filter.process(msg.t, np.asarray(msg.z), np.asarray(msg.R))
             require_finite(f"scan {msg.seq}: the local estimate", out.x, out.P, out.x_prior, out.P_prior)
+            require_covariances(f"scan {msg.seq}: the local estimate", out.P, out.P_prior)
             self.processed_up_to = msg.seq
             self.processed_t = msg.t
             self.taken = {seq: d for seq, d in self.taken.items() if seq > msg.seq - TAKEN_KEPT} | {msg.seq: digest(msg)}
@@ -298,6 +300,7 @@ class RadarLocalFilterService(Service):
             return
         x, P = np.asarray(est["x"]), np.asarray(est["P"])
         require_finite(f"scan {msg.seq}: the radar estimate", x, P)
+        require_covariances(f"scan {msg.seq}: the radar estimate", P)
         self.publish(self.keys.local_estimate(self.sensor), LocalEstimate.unchecked(
             sensor=self.sensor, seq=msg.seq, t=msg.t, model=est["model"], x=x, P=P, x_prior=x, P_prior=P,
             stamp_ns=msg.stamp_ns, degraded=("no-prior",)))

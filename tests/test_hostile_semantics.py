@@ -15,14 +15,20 @@ from typing import Any
 
 import numpy as np
 import pytest
-from test_hostile_messages import KEYS, OPTIONS, Bus, mtt_lines
+from test_fuzz_trackers import position_stream
+from test_hostile_messages import KEYS, OPTIONS, Bus, mtt_lines, mtt_services
 
+from fedtrack.local_filters.imm.config import load_imm_config
+from fedtrack.local_filters.imm.service import IMMService
 from fedtrack.local_filters.mtt import history as history_module
+from fedtrack.local_filters.mtt import service as service_module
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.history import MAX_ENTRIES
-from fedtrack.local_filters.mtt import service as service_module
 from fedtrack.local_filters.mtt.service import MttLocalService
-from fedtrack.wire import Measurement, encode
+from fedtrack.local_filters.service import LocalFilterService
+from fedtrack.local_filters.vdie.config import FusionConfig
+from fedtrack.local_filters.vdie.local import VdieLocalFilter
+from fedtrack.wire import FusedTrack, LocalEstimate, Measurement, WireError, decode, encode
 
 pytestmark = pytest.mark.security
 
@@ -76,3 +82,68 @@ def test_scans_waiting_for_resets_are_bounded(monkeypatch: Any) -> None:
     svc.awaiting_since -= 10.0  # the reset timeout passed: the tracker goes on with the oldest kept
     svc.on_tick()
     assert svc.counters["reports"] == 2 and svc.awaiting == n - 16 and len(svc.queue) == 15
+
+
+# ---------------------------------------------------------------- numbers no sensor can mean
+
+def position_trackers() -> tuple[Bus, IMMService, LocalFilterService]:
+    """The IMM tracker and a decentralized (DVDIE) local filter of the position sensor ``p1``."""
+    common: dict[str, Any] = {"options": OPTIONS, "deployment": KEYS.deployment}
+    imm = IMMService("p1", "ao-vsimm", load_imm_config(None), service_id="imm", **common)
+    local = LocalFilterService("p1", "decentralized", VdieLocalFilter(1, FusionConfig()), 0.5, service_id="p1",
+                               **common)
+    return Bus([imm, local]), imm, local
+
+
+def outputs_of(bus: Bus) -> dict[str, dict[int, np.ndarray]]:
+    """Each tracker's position estimates by scan."""
+    out: dict[str, dict[int, np.ndarray]] = {"imm": {}, "local": {}}
+    for key, msg in bus.published:
+        if isinstance(msg, (FusedTrack, LocalEstimate)):
+            out["imm" if isinstance(msg, FusedTrack) else "local"][msg.seq] = np.asarray(msg.x)[[0, 2]]
+    return out
+
+
+def test_a_position_beyond_the_resolution_of_its_noise_is_refused() -> None:
+    """One measurement at 1e100 m with a 1 m² noise (valid numbers each) wrecked the IMM tracker and
+    the local filter for good: 23 scans later their estimates were still 1e95-1e98 m off and the IMM
+    dropped every other scan as numerical. Its noise is below the float64 spacing of its own value
+    (about 1e84 m there): such a measurement is refused at decoding, and the trackers go on as if it
+    had been lost (within metres of the clean run's estimates 5 scans later)."""
+    stream = position_stream()
+    clean_bus, _, _ = position_trackers()
+    for m in stream:
+        clean_bus.put(KEYS.sensor_meas("p1"), encode(m))
+    bus, imm, local = position_trackers()
+    genuine = stream[10]
+    payload = encode(Measurement.unchecked(sensor="p1", seq=10, t=genuine.t, kind="position",
+                                           z=np.array([1e100, -1e100]), R=np.eye(2), stamp_ns=11))
+    with pytest.raises(WireError, match=r"Measurement\.R: noise std 1 below the float64 resolution"):
+        decode(payload, Measurement)
+    for k, m in enumerate(stream):
+        bus.put(KEYS.sensor_meas("p1"), payload if k == 10 else encode(m))
+    assert imm.counters["rejected"] == local.counters["rejected"] == 1
+    assert "rejected_numerical" not in imm.counters and "rejected_numerical" not in local.counters
+    clean, got = outputs_of(clean_bus), outputs_of(bus)
+    for name in ("imm", "local"):
+        assert sorted(got[name]) == [k for k in sorted(clean[name]) if k != 10]
+        assert max(np.linalg.norm(got[name][k] - clean[name][k]) for k in range(15, len(stream))) < 20.0
+
+
+def test_a_scan_whose_tracks_no_receiver_takes_is_dropped_where_it_is_tracked(tmp_path: Path) -> None:
+    """A scan with a noise of 1e-20 m² (resolvable at its 5 km positions) made the local tracker's
+    updated tracks so ill-conditioned (position variance 1e-20 m² beside velocity variances of
+    hundreds) that the centre refused the report as not positive definite: the federated tracker
+    then waited for resets that never came, and held every later scan. Now the tracker checks its
+    report as a receiver would before it publishes it: the scan is dropped there (``numerical``),
+    its state as before it, and the reports go on."""
+    services = mtt_services(tmp_path)
+    bus = Bus(list(services.values()))
+    lines = mtt_lines(tmp_path)
+    target = next(i for i, m in enumerate(lines) if i >= 8 and m.sensor == "s1")
+    for i, m in enumerate(lines):
+        bus.put(KEYS.sensor_meas(m.sensor), encode(replace(m, R=np.eye(2) * 1e-20) if i == target else m))
+    s1, centre = services["s1"], services["centre"]
+    assert centre.counters["rejected"] == 0 and s1.counters["rejected_numerical"] == 1
+    assert s1.awaiting is None and not s1.queue
+    assert s1.counters["reports"] == sum(m.sensor == "s1" for m in lines) - 1

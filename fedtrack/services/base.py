@@ -83,7 +83,18 @@ from fedtrack.jsonl import InputError
 from fedtrack.keys import DEFAULT_DEPLOYMENT, InvalidName, Keys, check_id
 from fedtrack.services.lead import LeadGuard
 from fedtrack.services.reassembly import Reassembly
-from fedtrack.wire import Health, M, Measurement, Message, WireError, decode, encode, payloads
+from fedtrack.wire import (
+    MAX_MAGNITUDE,
+    Health,
+    M,
+    Measurement,
+    Message,
+    WireError,
+    acceptable_covariances,
+    decode,
+    encode,
+    payloads,
+)
 from fedtrack.zsession import (
     SessionError,
     SessionOptions,
@@ -284,10 +295,20 @@ def reason_of(exc: Exception) -> str:
 
 
 def require_finite(what: str, *arrays: Any) -> None:
-    """:class:`Numerical` unless every value of ``arrays`` is finite (a result about to be kept)."""
+    """:class:`Numerical` unless every value of ``arrays`` is finite and within +-MAX_MAGNITUDE (a
+    result about to be kept and published: receivers refuse anything beyond)."""
     for a in arrays:
-        if not np.all(np.isfinite(a)):
-            raise Numerical(f"{what} is not finite")
+        if not np.all(np.abs(np.asarray(a, dtype=np.float64)) <= MAX_MAGNITUDE):  # NaN fails it too
+            raise Numerical(f"{what} is not finite or beyond +-{MAX_MAGNITUDE:g}")
+
+
+def require_covariances(what: str, *covariances: np.ndarray) -> None:
+    """:class:`Numerical` unless every covariance (each argument one matrix or a stack of them) is
+    one a receiver accepts (:func:`fedtrack.wire.acceptable_covariances`): an estimate that every
+    receiver would refuse is a failure of the scan that made it, undone there, not a message sent."""
+    for P in covariances:
+        if not acceptable_covariances(P):
+            raise Numerical(f"{what}: a covariance is not positive definite within the wire's bounds")
 
 
 @dataclass

@@ -73,6 +73,7 @@ from fedtrack.services.base import (
     Rejected,
     Service,
     Subscription,
+    require_covariances,
     require_finite,
     service_kwargs,
     service_parser,
@@ -259,6 +260,7 @@ class MttCentreService(Service):
             assert isinstance(engine, TrackToTrackEngine)
             resets, q_scale = engine.fuse(report)
             if engine.feedback:
+                require_covariances(f"the resets of report {msg.seq} of {msg.sensor}", resets.P)
                 self.publish(self.keys.mtt_resets(msg.sensor), resets_to_wire(msg.seq, resets, q_scale))
         self.contested = self.contested or bool(msg.contested)
 
@@ -307,6 +309,7 @@ class MttCentreService(Service):
         else:
             tracks = self.engine.picture(T)
         require_finite(f"the picture at t={T}", tracks.x, tracks.P)
+        require_covariances(f"the picture at t={T}", tracks.P)
         picture = picture_message(self.pictures, T, tracks, self.order, self.left_at, self.contested, closing,
                                   self.handovers_at, flying=flying,
                                   lla=None if self.frame is None else geodetic_of_states(self.frame, tracks.x))

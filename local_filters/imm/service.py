@@ -30,6 +30,7 @@ from fedtrack.services.base import (
     Subscription,
     check_time_jump,
     contested_extra,
+    require_covariances,
     require_finite,
     service_kwargs,
     service_parser,
@@ -79,6 +80,7 @@ class IMMService(Service):
         self.lead.took(msg.sensor, msg.t)
         p = self.tracker.update(msg.t, msg.z, msg.R)
         require_finite(f"scan {msg.seq}: the IMM estimate", p.x, p.P, list(p.mode_probabilities.values()))
+        require_covariances(f"scan {msg.seq}: the IMM estimate", p.P)
         self.order.took(msg)
         best = max(p.mode_probabilities, key=p.mode_probabilities.__getitem__)
         contested = self.take_contested()

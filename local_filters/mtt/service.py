@@ -54,6 +54,7 @@ from fedtrack.services.base import (
     Subscription,
     check_time_jump,
     digest,
+    require_covariances,
     require_finite,
     service_kwargs,
     service_parser,
@@ -224,6 +225,7 @@ class MttLocalService(Service):
                     continue
                 report, rerun = self.tracker.track(scan)
                 require_finite(f"scan {seq}: the local tracks", report.x, report.P)
+                require_covariances(f"scan {seq}: the local tracks", report.P)
                 contested = self.take_contested()
                 if self.router is not None and self.regions is not None:
                     parts = self.router.split(report)

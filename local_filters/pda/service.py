@@ -39,6 +39,7 @@ from fedtrack.services.base import (
     Subscription,
     check_time_jump,
     contested_extra,
+    require_covariances,
     require_finite,
     service_kwargs,
     service_parser,
@@ -90,6 +91,7 @@ class PDAService(Service):
         self.manager, rep = manager_step(self.spec, self.manager, msg.t, z[keep], amp[keep], msg.R)
         tracks = rep.tracks
         require_finite(f"scan {msg.seq}: the tracks", tracks.state.x, tracks.state.P, tracks.existence)
+        require_covariances(f"scan {msg.seq}: the tracks", tracks.state.P)
         self.order.took(msg)
         self.counters["live_tracks"] = len(tracks)
         confirmed = np.flatnonzero(tracks.confirmed)
