@@ -18,6 +18,7 @@ import pytest
 from test_fuzz_trackers import position_stream
 from test_hostile_messages import KEYS, OPTIONS, Bus, mtt_lines, mtt_services
 
+from fedtrack.fusion_center.mtt.service import MttCentreService
 from fedtrack.local_filters.imm.config import load_imm_config
 from fedtrack.local_filters.imm.service import IMMService
 from fedtrack.local_filters.mtt import history as history_module
@@ -28,7 +29,19 @@ from fedtrack.local_filters.mtt.service import MttLocalService
 from fedtrack.local_filters.service import LocalFilterService
 from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.local_filters.vdie.local import VdieLocalFilter
-from fedtrack.wire import FusedTrack, LocalEstimate, Measurement, WireError, decode, encode
+from fedtrack.wire import (
+    MAX_LIST_ITEMS,
+    FusedTrack,
+    LocalEstimate,
+    Measurement,
+    TrackPicture,
+    TrackReport,
+    TrackResets,
+    WireError,
+    decode,
+    encode,
+    payloads,
+)
 
 pytestmark = pytest.mark.security
 
@@ -147,3 +160,35 @@ def test_a_scan_whose_tracks_no_receiver_takes_is_dropped_where_it_is_tracked(tm
     assert centre.counters["rejected"] == 0 and s1.counters["rejected_numerical"] == 1
     assert s1.awaiting is None and not s1.queue
     assert s1.counters["reports"] == sum(m.sensor == "s1" for m in lines) - 1
+
+
+# ---------------------------------------------------------------- many sensor ids
+
+def one_track_report(sensor: str, seq: int) -> TrackReport:
+    """A report of one confirmed local track at the same place for every sensor."""
+    x = np.array([[100.0 + 10.0 * seq, 10.0, 200.0, 0.0]])
+    return TrackReport(sensor=sensor, seq=seq, t=float(seq), ids=(1,), x=x, P=np.diag([100.0, 25.0, 100.0, 25.0]),
+                       confirmed=(True,), detected=(True,), obs_H=np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]]),
+                       obs_R=np.eye(2) * 100.0, obs_z=x[:, [0, 2]], started=(seq == 0,), retired=(), stamp_ns=1)
+
+
+def test_more_live_sensors_than_a_picture_can_list_are_refused() -> None:
+    """With ``[mtt] sensors = "any"``, 70 sensor ids reporting one target made its central track list
+    70 sensors, beyond the 64 (MAX_LIST_ITEMS) a picture's track may list: every receiver (the
+    recorder, ``serve picture``, the launcher) refused every picture; and each id raised every
+    tracker's sharing factor. A centre takes at most MAX_LIST_ITEMS live sensors: a report of
+    another is rejected (``too_many_sensors``) until one of them leaves."""
+    svc = MttCentreService("mtt-federated", MttConfig(sensors="any", max_lag=3.0), 4, service_id="centre",
+                           options=OPTIONS, deployment=KEYS.deployment)
+    bus = Bus([svc])
+    n = MAX_LIST_ITEMS + 6
+    for k in range(3):
+        for i in range(n):
+            bus.put(KEYS.mtt_report(f"f{i}"), encode(one_track_report(f"f{i}", k)))
+    pictures = bus.of(TrackPicture)
+    assert len(pictures) == 2 and all(len(p.ids) == 1 and len(p.sensors[0]) == MAX_LIST_ITEMS for p in pictures)
+    for p in pictures:
+        for payload in payloads(p):
+            decode(payload, TrackPicture)  # every receiver takes it
+    assert svc.counters["rejected_too_many_sensors"] == 3 * 6
+    assert {r.q_scale for _, r in bus.published if isinstance(r, TrackResets)} <= {float(s) for s in range(1, 65)}

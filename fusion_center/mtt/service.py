@@ -34,7 +34,9 @@ recorded scans). Rejected (docs/wire.md#rejections): a sensor the config does no
 (``unknown_sensor``), a report of another state size or a scan of another kind
 (``wrong_model``), a second, different message for a (sensor, scan) already taken
 (``conflict``; an identical one is a ``duplicate``) and a scan number more than
-``[deployment] max_seq_jump`` ahead of the sensor's last (``seq_jump``).
+``[deployment] max_seq_jump`` ahead of the sensor's last (``seq_jump``), and a sensor that would
+be live beside ``MAX_LIST_ITEMS`` (64) others (``too_many_sensors``: a picture's track lists at
+most that many sensors, and each live sensor raises every tracker's sharing factor).
 """
 
 from __future__ import annotations
@@ -78,7 +80,7 @@ from fedtrack.services.base import (
     service_kwargs,
     service_parser,
 )
-from fedtrack.wire import HandOver, Measurement, Message, TrackPicture, TrackReport, TrackResets
+from fedtrack.wire import MAX_LIST_ITEMS, HandOver, Measurement, Message, TrackPicture, TrackReport, TrackResets
 
 ALGORITHMS = ("mtt-federated", "mtt-decentralized", "mtt-centralized")
 
@@ -187,6 +189,9 @@ class MttCentreService(Service):
         first was fused)."""
         if not self.cfg.allows(msg.sensor):
             raise Rejected("unknown_sensor", f"sensor {msg.sensor!r} is not in mtt.sensors")
+        if msg.sensor not in self.silence.last and len(self.silence.last) >= MAX_LIST_ITEMS:
+            raise Rejected("too_many_sensors", f"sensor {msg.sensor!r} would be live beside {MAX_LIST_ITEMS} others: "
+                           f"a picture's track lists at most {MAX_LIST_ITEMS} sensors")
         try:
             if self.received.check(msg):
                 return True
