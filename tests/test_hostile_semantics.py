@@ -17,7 +17,9 @@ import numpy as np
 import pytest
 from test_fuzz_trackers import position_stream
 from test_hostile_messages import KEYS, OPTIONS, Bus, mtt_lines, mtt_services
+from test_mtt_regions_live import CONFIG as REGIONS_CONFIG
 
+from fedtrack.fusion_center.mtt.picture_merge import PictureMergeService
 from fedtrack.fusion_center.mtt.service import MttCentreService
 from fedtrack.local_filters.imm.config import load_imm_config
 from fedtrack.local_filters.imm.service import IMMService
@@ -26,11 +28,14 @@ from fedtrack.local_filters.mtt import service as service_module
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.history import MAX_ENTRIES
 from fedtrack.local_filters.mtt.service import MttLocalService
+from fedtrack.local_filters.regions import load_regions
 from fedtrack.local_filters.service import LocalFilterService
 from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.local_filters.vdie.local import VdieLocalFilter
 from fedtrack.wire import (
     MAX_LIST_ITEMS,
+    MAX_PARTS,
+    MAX_TRACKS,
     FusedTrack,
     LocalEstimate,
     Measurement,
@@ -192,3 +197,50 @@ def test_more_live_sensors_than_a_picture_can_list_are_refused() -> None:
             decode(payload, TrackPicture)  # every receiver takes it
     assert svc.counters["rejected_too_many_sensors"] == 3 * 6
     assert {r.q_scale for _, r in bus.published if isinstance(r, TrackResets)} <= {float(s) for s in range(1, 65)}
+
+
+# ---------------------------------------------------------------- serve picture
+
+def region_picture(t: float, fused: int, tracks: int = 0) -> TrackPicture:
+    """A region's picture at ``t`` listing ``fused`` scans of ``s1`` and ``tracks`` tracks."""
+    x = np.zeros((tracks, 4))
+    return TrackPicture(seq=0, t=t, ids=tuple(range(tracks)), x=x, P=np.tile(np.eye(4), (tracks, 1)),
+                        confirmed=(True,) * tracks, sensors=(("s1",),) * tracks, fused_sensors=("s1",) * fused,
+                        fused_seqs=tuple(range(fused)), left=(), stamp_ns=1, closing=False)
+
+
+def test_the_merger_outlives_region_pictures_it_cannot_merge(tmp_path: Path) -> None:
+    """Three late region pictures, each valid (49,152 fused entries in 24 parts), made every later
+    merged picture carry more entries than one message in MAX_PARTS parts can: publishing failed,
+    the merger's state was put back, and ``serve picture`` never published again. The entries of
+    late pictures are now dropped (counted ``late_dropped``) when the merged picture would not fit,
+    and a region picture holding more tracks or entries than its share of one merged picture
+    (MAX_PARTS x MAX_TRACKS / regions) is rejected (``too_large``)."""
+    config = tmp_path / "regions.toml"
+    config.write_text(REGIONS_CONFIG)
+    regions = load_regions(config)
+    assert regions is not None and len(regions.ids) == 2
+    svc = PictureMergeService(regions, 4, 2.0, service_id="picture", options=OPTIONS, deployment=KEYS.deployment)
+    svc._subscriptions = svc.subscriptions()
+    merged: list[TrackPicture] = []
+    svc.publish = lambda key, msg: (payloads(msg), merged.append(msg))  # type: ignore[method-assign]
+
+    def send(r: int, msg: TrackPicture) -> None:
+        for payload in payloads(msg):
+            svc._dispatch(("sample", r, KEYS.region_picture(regions.ids[r]), payload))
+
+    share = MAX_PARTS * MAX_TRACKS // 2
+    for k in range(2):
+        send(0, region_picture(float(k), 1))
+        send(1, region_picture(float(k), 1))
+    late = share * 3 // 4
+    for _ in range(3):  # late: after t = 1 was merged
+        send(0, region_picture(0.5, late))
+    for k in range(2, 5):
+        send(0, region_picture(float(k), 1))
+        send(1, region_picture(float(k), 1))
+    assert [p.t for p in merged] == [0.0, 1.0, 2.0, 3.0, 4.0]
+    assert svc.counters["late_picture"] == 3 and svc.counters["late_dropped"] == 3 * late
+    assert len(merged[2].fused_sensors) == 2 and "rejected_handler_error" not in svc.counters
+    send(1, region_picture(5.0, share + 1))
+    assert svc.counters["rejected_too_large"] == 1

@@ -15,8 +15,11 @@ A picture time is merged once every region has published its picture of that tim
 counted ``missing_region``, logged, and the picture marked ``contested`` when the region had
 published before (a region's picture that comes after its time was merged is counted
 ``late_picture``; its fused lists go into the next merged picture, its tracks nowhere: live and
-replay then differ at that picture). On a clean stop it merges what it holds and publishes a
-closing record with the regions' closing lists.
+replay then differ at that picture; when they do not fit beside the regions' own entries in one
+merged picture, they are dropped, counted ``late_dropped``). A region picture holding more tracks
+or entries than its share of one merged picture (``MERGED_ITEMS`` / regions) is rejected
+(``too_large``). On a clean stop it merges what it holds and publishes a closing record with the
+regions' closing lists.
 """
 
 from __future__ import annotations
@@ -33,9 +36,16 @@ from fedtrack.config import ConfigError
 from fedtrack.fusion_center.mtt.regional import RegionPicture, merge_pictures, rows_of
 from fedtrack.fusion_center.mtt.service import picture_message, picture_tracks
 from fedtrack.local_filters.regions import Regions, load_regions
-from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
+from fedtrack.services.base import Rejected, Service, Subscription, service_kwargs, service_parser
 from fedtrack.services.lead import LeadGuard
-from fedtrack.wire import TrackPicture
+from fedtrack.wire import MAX_PARTS, MAX_TRACKS, TrackPicture
+
+# tracks, and fused entries, one merged picture can carry: MAX_PARTS messages of MAX_TRACKS each. Each
+# of R regions' pictures may hold 1/R of it (rejected ``too_large`` beyond: 65,536 for 2 regions, 1,310
+# for 100, above a region's period of scans, 64 live sensors at 10 Hz, and issue 27's 10^5 tracks over
+# the regions); the entries of late pictures go into the next merged picture, or are dropped when they
+# do not fit beside its regions' own (``late_dropped``), so that every merged picture can be sent
+MERGED_ITEMS = MAX_PARTS * MAX_TRACKS
 
 Entries = list[tuple[str, int, str, str]]  # (sensor or sending region, seq, kind: scan/left/handover, region)
 
@@ -85,6 +95,10 @@ class PictureMergeService(Service):
                 for r, rid in enumerate(self.regions.ids)]
 
     def on_picture(self, r: int, msg: TrackPicture) -> None:
+        share = MERGED_ITEMS // len(self.regions.ids)
+        if max(len(msg.ids), len(msg.fused_sensors)) > share:
+            raise Rejected("too_large", f"region {self.regions.ids[r]}'s picture at t={msg.t}: {len(msg.ids)} tracks, "
+                           f"{len(msg.fused_sensors)} entries; its share of a merged picture is {share}")
         self.started[r] = True
         if msg.closing:
             self.closing[r] = msg
@@ -133,9 +147,15 @@ class PictureMergeService(Service):
         if twice:
             self.count("seen_twice", len(twice))
             self.log.warning("picture at t=%g: ids %s in two regions' pictures (the first region's taken)", T, twice)
+        current = [[] if p is None else entries_of(p, self.regions.ids[r]) for r, p in enumerate(parts)]
+        held = sum(map(len, self.late))
+        if held + sum(map(len, current)) > MERGED_ITEMS:  # the late ones do not fit beside them: dropped
+            self.count("late_dropped", held)
+            self.log.warning("picture at t=%g: %d entries of late region pictures dropped (no room)", T, held)
+            self.late = [[] for _ in self.late]
         entries: Entries = []
-        for r, p in enumerate(parts):
-            entries += self.late[r] + ([] if p is None else entries_of(p, self.regions.ids[r]))
+        for r, now in enumerate(current):
+            entries += self.late[r] + now
             self.late[r] = []
         order = [(s, q) for s, q, _, _ in entries]
         left = [i for i, e in enumerate(entries) if e[2] == "left"]
