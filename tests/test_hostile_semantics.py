@@ -37,6 +37,7 @@ from fedtrack.wire import (
     MAX_PARTS,
     MAX_TRACKS,
     FusedTrack,
+    HandOver,
     LocalEstimate,
     Measurement,
     TrackPicture,
@@ -244,3 +245,36 @@ def test_the_merger_outlives_region_pictures_it_cannot_merge(tmp_path: Path) -> 
     assert len(merged[2].fused_sensors) == 2 and "rejected_handler_error" not in svc.counters
     send(1, region_picture(5.0, share + 1))
     assert svc.counters["rejected_too_large"] == 1
+
+
+# ---------------------------------------------------------------- hand-overs
+
+def test_a_hand_over_with_an_indefinite_covariance_is_refused(tmp_path: Path) -> None:
+    """A region centre took over a track whose ring held a negative variance (the wire checks a
+    ring only as numbers): its next picture was refused by every receiver (not positive definite).
+    Each covariance of a ring is now checked as the wire checks any covariance: the hand-over is
+    rejected (``wrong_model``) and the pictures go on."""
+    config = tmp_path / "regions.toml"
+    config.write_text(REGIONS_CONFIG)
+    regions = load_regions(config)
+    cfg = MttConfig(sensors=("s1", "s2", "s3"), max_lag=3.0)
+    svc = MttCentreService("mtt-decentralized", cfg, 4, region="x0y0", regions=regions, service_id="x0y0",
+                           options=OPTIONS, deployment=KEYS.deployment)
+    bus = Bus([svc])
+    tracks = svc.engine.region.centre.tracks  # type: ignore[union-attr]
+    values = {"x": [-2000.0, 10.0, 0.0, 0.0], "P": np.diag([-1.0, 1.0, 1.0, 1.0]).ravel().tolist()}
+    ring = [v for name in tracks._ring
+            for v in values.get(name, [0.0] * int(np.prod(getattr(tracks, name).shape[2:], dtype=np.int64)))]
+    bus.put(KEYS.region_handover("x0y0"), encode(HandOver(
+        source="x1y0", serial=0, id=1, confirmed=True, ring=np.array([ring]), neg_inf=(), sensors=(), support=(),
+        streak=(), window=(True,) * cfg.confirm_window, last_support=0.0, member_sensors=(), member_ids=(),
+        strikes=())))
+    assert svc.counters["rejected_wrong_model"] == 1 and "taken_over" not in svc.counters
+    for k in range(1, 5):
+        bus.put(KEYS.region_report("x0y0", "s1"), encode(replace(one_track_report("s1", k), x=np.array(
+            [[-2000.0 + 10.0 * k, 10.0, 0.0, 0.0]]), obs_z=np.array([[-2000.0 + 10.0 * k, 0.0]]))))
+    pictures = bus.of(TrackPicture)
+    assert len(pictures) == 3 and "rejected_numerical" not in svc.counters
+    for p in pictures:
+        for payload in payloads(p):
+            decode(payload, TrackPicture)

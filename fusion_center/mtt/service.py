@@ -314,7 +314,6 @@ class MttCentreService(Service):
         else:
             tracks = self.engine.picture(T)
         require_finite(f"the picture at t={T}", tracks.x, tracks.P)
-        require_covariances(f"the picture at t={T}", tracks.P)
         picture = picture_message(self.pictures, T, tracks, self.order, self.left_at, self.contested, closing,
                                   self.handovers_at, flying=flying,
                                   lla=None if self.frame is None else geodetic_of_states(self.frame, tracks.x))

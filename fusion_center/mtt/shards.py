@@ -219,6 +219,9 @@ def handover_from_wire(msg: wire.HandOver, centre: TrackToTrackCentre) -> HandOv
         at += width
     if not (np.all(entries[3] >= 0) and np.all(entries[3] <= tracks.H.shape[2]) and np.all(np.diff(entries[0]) >= 0)):
         raise ValueError("ring: observation sizes out of range or entries out of time order")
+    for name, part in zip(tracks._ring, entries):  # the posteriors (and each motion mode's), as the wire checks any
+        if name in ("P", "mode_P") and not wire.acceptable_covariances(part):
+            raise ValueError(f"ring: a covariance {name} is not positive definite within the wire's bounds")
     return HandOver(msg.id, msg.confirmed, tuple(entries), msg.sensors, np.array(msg.support, dtype=np.int64),
                     np.array(msg.streak, dtype=np.int64), np.array(msg.window, dtype=bool), msg.last_support,
                     tuple(zip(msg.member_sensors, msg.member_ids)), msg.strikes)
