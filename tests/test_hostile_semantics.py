@@ -249,26 +249,35 @@ def test_the_merger_outlives_region_pictures_it_cannot_merge(tmp_path: Path) -> 
 
 # ---------------------------------------------------------------- hand-overs
 
+def region_centre(tmp_path: Path) -> tuple[Bus, MttCentreService, MttConfig]:
+    """The (decentralized) centre of region ``x0y0`` of two."""
+    config = tmp_path / "regions.toml"
+    config.write_text(REGIONS_CONFIG)
+    cfg = MttConfig(sensors=("s1", "s2", "s3"), max_lag=3.0)
+    svc = MttCentreService("mtt-decentralized", cfg, 4, region="x0y0", regions=load_regions(config),
+                           service_id="x0y0", options=OPTIONS, deployment=KEYS.deployment)
+    return Bus([svc]), svc, cfg
+
+
+def hand_over(svc: MttCentreService, cfg: MttConfig, serial: int, x: list[float], P: np.ndarray) -> HandOver:
+    """Region ``x1y0``'s hand-over ``serial`` of central track 1: one ring entry at t = 0."""
+    tracks = svc.engine.region.centre.tracks  # type: ignore[union-attr]
+    values = {"x": x, "P": P.ravel().tolist()}
+    ring = [v for name in tracks._ring
+            for v in values.get(name, [0.0] * int(np.prod(getattr(tracks, name).shape[2:], dtype=np.int64)))]
+    return HandOver(source="x1y0", serial=serial, id=1, confirmed=True, ring=np.array([ring]), neg_inf=(), sensors=(),
+                    support=(), streak=(), window=(True,) * cfg.confirm_window, last_support=0.0, member_sensors=(),
+                    member_ids=(), strikes=())
+
+
 def test_a_hand_over_with_an_indefinite_covariance_is_refused(tmp_path: Path) -> None:
     """A region centre took over a track whose ring held a negative variance (the wire checks a
     ring only as numbers): its next picture was refused by every receiver (not positive definite).
     Each covariance of a ring is now checked as the wire checks any covariance: the hand-over is
     rejected (``wrong_model``) and the pictures go on."""
-    config = tmp_path / "regions.toml"
-    config.write_text(REGIONS_CONFIG)
-    regions = load_regions(config)
-    cfg = MttConfig(sensors=("s1", "s2", "s3"), max_lag=3.0)
-    svc = MttCentreService("mtt-decentralized", cfg, 4, region="x0y0", regions=regions, service_id="x0y0",
-                           options=OPTIONS, deployment=KEYS.deployment)
-    bus = Bus([svc])
-    tracks = svc.engine.region.centre.tracks  # type: ignore[union-attr]
-    values = {"x": [-2000.0, 10.0, 0.0, 0.0], "P": np.diag([-1.0, 1.0, 1.0, 1.0]).ravel().tolist()}
-    ring = [v for name in tracks._ring
-            for v in values.get(name, [0.0] * int(np.prod(getattr(tracks, name).shape[2:], dtype=np.int64)))]
-    bus.put(KEYS.region_handover("x0y0"), encode(HandOver(
-        source="x1y0", serial=0, id=1, confirmed=True, ring=np.array([ring]), neg_inf=(), sensors=(), support=(),
-        streak=(), window=(True,) * cfg.confirm_window, last_support=0.0, member_sensors=(), member_ids=(),
-        strikes=())))
+    bus, svc, cfg = region_centre(tmp_path)
+    bus.put(KEYS.region_handover("x0y0"), encode(hand_over(svc, cfg, 0, [-2000.0, 10.0, 0.0, 0.0],
+                                                          np.diag([-1.0, 1.0, 1.0, 1.0]))))
     assert svc.counters["rejected_wrong_model"] == 1 and "taken_over" not in svc.counters
     for k in range(1, 5):
         bus.put(KEYS.region_report("x0y0", "s1"), encode(replace(one_track_report("s1", k), x=np.array(
@@ -278,3 +287,19 @@ def test_a_hand_over_with_an_indefinite_covariance_is_refused(tmp_path: Path) ->
     for p in pictures:
         for payload in payloads(p):
             decode(payload, TrackPicture)
+
+
+def test_a_second_different_hand_over_with_a_number_taken_is_contested(tmp_path: Path) -> None:
+    """A hand-over is known by its sender and number: a second one with the same pair was counted a
+    ``duplicate`` and dropped however it differed, so a forgery sent first made the genuine hand-over
+    vanish without a trace. A different one is now a conflict: rejected, the next picture contested."""
+    bus, svc, cfg = region_centre(tmp_path)
+    P = np.diag([100.0, 25.0, 100.0, 25.0])
+    first = hand_over(svc, cfg, 7, [-2000.0, 10.0, 0.0, 0.0], P)
+    for msg in (first, first, hand_over(svc, cfg, 7, [-1500.0, 10.0, 0.0, 0.0], P)):
+        bus.put(KEYS.region_handover("x0y0"), encode(msg))
+    assert svc.counters["taken_over"] == 1 and svc.counters["duplicate"] == 1
+    assert svc.counters["rejected_conflict"] == 1 and svc.counters["contested"] == 1
+    for k in (2, 3, 4):
+        bus.put(KEYS.region_report("x0y0", "s1"), encode(one_track_report("s1", k)))
+    assert [p.contested for p in bus.of(TrackPicture)] == [True, False]

@@ -75,6 +75,7 @@ from fedtrack.services.base import (
     Rejected,
     Service,
     Subscription,
+    digest,
     require_covariances,
     require_finite,
     service_kwargs,
@@ -121,7 +122,7 @@ class MttCentreService(Service):
                            else TrackToTrackEngine(cfg, dim, feedback=feedback))
         self.picture_key = self.keys.mtt_picture() if region is None else self.keys.region_picture(region)
         self.handovers_at: list[int] = []  # positions in ``order`` that are hand-overs taken over
-        self.taken: set[tuple[str, int]] = set()  # (sending region, its hand-over number) taken over
+        self.taken: dict[tuple[str, int], bytes] = {}  # (sending region, its hand-over number) taken over: digest
         self.clock = PictureClock(cfg.period, cfg.picture_delay)
         # a scan or report stamped far ahead of the data waits for a witness (fedtrack/services/lead.py)
         self.lead: LeadGuard[Measurement | TrackReport] = LeadGuard(cfg.max_lag)
@@ -285,8 +286,16 @@ class MttCentreService(Service):
         """A neighbour's central track taken over (listed in the next picture's fused lists)."""
         engine = self.engine
         assert isinstance(engine, RegionEngine)
-        if (msg.source, msg.serial) in self.taken:
-            self.count("duplicate")
+        first = self.taken.get((msg.source, msg.serial))
+        if first is not None:
+            if first == digest(msg):
+                self.count("duplicate")
+                return
+            if not self.contested:  # either may be the forgery: the next picture says so
+                self.count("contested")
+            self.contested = True
+            self.note_rejected(self.keys.region_handover(self.region), Conflict(
+                msg.serial, f"a second, different hand-over {msg.serial} of {msg.source} (the first was taken)"))
             return
         try:
             record = handover_from_wire(msg, engine.region.centre)
@@ -297,7 +306,7 @@ class MttCentreService(Service):
             raise Rejected("conflict", f"central track {msg.id} is already here, or is an id this region has "
                                        "not issued")
         engine.take_over(record)
-        self.taken.add((msg.source, msg.serial))
+        self.taken[(msg.source, msg.serial)] = digest(msg)
         self.handovers_at.append(len(self.order))
         self.order.append((msg.source, msg.serial))
         self.count("taken_over")
