@@ -28,8 +28,9 @@ from fedtrack.local_filters.mtt import service as service_module
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.history import MAX_ENTRIES
 from fedtrack.local_filters.mtt.service import MttLocalService
+from fedtrack.local_filters.radar.filters import make_radar_filter
 from fedtrack.local_filters.regions import load_regions
-from fedtrack.local_filters.service import LocalFilterService
+from fedtrack.local_filters.service import LocalFilterService, RadarLocalFilterService
 from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.local_filters.vdie.local import VdieLocalFilter
 from fedtrack.wire import (
@@ -303,3 +304,28 @@ def test_a_second_different_hand_over_with_a_number_taken_is_contested(tmp_path:
     for k in (2, 3, 4):
         bus.put(KEYS.region_report("x0y0", "s1"), encode(one_track_report("s1", k)))
     assert [p.contested for p in bus.of(TrackPicture)] == [True, False]
+
+
+# ---------------------------------------------------------------- the 3-D radar local filter
+
+@pytest.mark.parametrize("algorithm", ["ekf", "ekf-ie"])
+def test_the_radar_local_filter_survives_its_measurements(algorithm: str) -> None:
+    """``serve local-filter --filter ekf|ekf-ie|ekf-tsfuzzy`` died (exit 1) on its first measurement,
+    any measurement: its filter held lambdas, so the checkpoint every handler takes before it runs
+    (a pickle of the state) raised outside the handler. Its functions are now named ones; a
+    measurement it cannot use (zero or negative range) is rejected and the filter goes on."""
+    svc = RadarLocalFilterService("r1", make_radar_filter(algorithm), service_id="r1", options=OPTIONS,
+                                  deployment=KEYS.deployment)
+    bus = Bus([svc])
+    for k in range(8):
+        z = np.array([5000.0 + 50.0 * k, 0.3 + 0.001 * k, 0.05])
+        meas = Measurement(sensor="r1", seq=k, t=float(k), kind="radar", z=z, R=np.diag([100.0, 1e-6, 1e-6]),
+                           sensor_position=np.zeros(3), stamp_ns=1)
+        bus.put(KEYS.sensor_meas("r1"), encode(meas))
+        if k == 4:  # a second message for scan 4 (late) and one at zero range for scan 5 (rejected)
+            bus.put(KEYS.sensor_meas("r1"), encode(replace(meas, z=z * np.array([-1.0, 1.0, 1.0]))))
+            bus.put(KEYS.sensor_meas("r1"), encode(replace(meas, seq=5, t=4.5, z=np.array([0.0, 0.3, 0.05]))))
+    estimates = bus.of(LocalEstimate)
+    assert [e.seq for e in estimates] == [1, 2, 3, 4, 5, 6, 7]
+    assert svc.counters["late"] == 1 and svc.counters["rejected_input"] == 1
+    assert np.linalg.norm(estimates[-1].x[[0, 2]] - 5350.0 * np.array([np.cos(0.307), np.sin(0.307)])) < 50.0

@@ -122,25 +122,42 @@ def load_compatible_model(path: Path) -> TSModel:
     return ts
 
 
+def _ekf_state(state: Any, *args: Any) -> Any:
+    return ekf_step(state, *args).state
+
+
+def _ekf_estimate(state: Any, model: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return state.x, state.P, _no_maneuver(state.x)
+
+
+def _ie_estimate(state: Any, model: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return state.filt.x, state.filt.P, state.maneuver
+
+
+def _ts_estimate(ts: TSModel, state: Any, model: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return compensated(state, ts, model), state.filt.P, _no_maneuver(state.ema)
+
+
+def _label(plain: str, maneuvering: str, maneuver: bool) -> str:
+    return maneuvering if maneuver else plain
+
+
 def filter_kind(algorithm: str, config: EkfConfig, ts_model: TSModel | None = None) -> FilterKind:
-    """The batched functions of ``algorithm`` (``ts_model`` overrides the configured file)."""
+    """The batched functions of ``algorithm`` (``ts_model`` overrides the configured file). Named
+    functions and partials, no lambdas: a service checkpoints its filter by pickling it."""
     if algorithm == "ekf":
-        return FilterKind(two_point_init, lambda s, *a: ekf_step(s, *a).state,
-                          lambda s, m: (s.x, s.P, _no_maneuver(s.x)), lambda _: CV3)
+        return FilterKind(two_point_init, _ekf_state, _ekf_estimate, partial(_label, CV3, CV3))
     if algorithm in CONFIG_CLASSES and not isinstance(config, CONFIG_CLASSES[algorithm]):
         raise ConfigError(f"config for {algorithm} must be a {CONFIG_CLASSES[algorithm].__name__}")
     if algorithm == "ekf-ie":
         assert isinstance(config, EkfIEConfig)  # narrowed by the check above
         p = config.params
-        return FilterKind(partial(ie_init, params=p), partial(ie_step, params=p),
-                          lambda s, m: (s.filt.x, s.filt.P, s.maneuver),
-                          lambda man: "cv+input" if man else CV3)
+        return FilterKind(partial(ie_init, params=p), partial(ie_step, params=p), _ie_estimate,
+                          partial(_label, CV3, "cv+input"))
     if algorithm == "ekf-tsfuzzy":
         assert isinstance(config, EkfTsFuzzyConfig)  # narrowed by the check above
         ts = ts_model if ts_model is not None else load_compatible_model(config.model_path)
-        return FilterKind(ts_init, ts_step,
-                          lambda s, m: (compensated(s, ts, m), s.filt.P, _no_maneuver(s.ema)),
-                          lambda _: "cv+ts-fuzzy")
+        return FilterKind(ts_init, ts_step, partial(_ts_estimate, ts), partial(_label, "cv+ts-fuzzy", "cv+ts-fuzzy"))
     raise ConfigError(f"algorithm: unknown radar filter {algorithm!r} (expected one of {ALGORITHMS})")
 
 
