@@ -329,3 +329,18 @@ def test_the_radar_local_filter_survives_its_measurements(algorithm: str) -> Non
     assert [e.seq for e in estimates] == [1, 2, 3, 4, 5, 6, 7]
     assert svc.counters["late"] == 1 and svc.counters["rejected_input"] == 1
     assert np.linalg.norm(estimates[-1].x[[0, 2]] - 5350.0 * np.array([np.cos(0.307), np.sin(0.307)])) < 50.0
+
+
+def test_a_state_that_cannot_be_checkpointed_is_a_rejection_not_the_end() -> None:
+    """The checkpoint a handler takes before it runs is outside the handler: what it raised went up
+    through the worker loop and ended the service. Whatever escapes a handler's transaction is now
+    a rejection (``handler_error``, logged with its place); the worker loop guards ``on_tick`` the
+    same way (not exercised here: it needs a session)."""
+    svc = IMMService("p1", "ao-vsimm", load_imm_config(None), service_id="imm", options=OPTIONS,
+                     deployment=KEYS.deployment)
+    bus = Bus([svc])
+    svc.spoilt = lambda: None  # type: ignore[attr-defined]  # a lambda: pickle refuses it
+    svc.state_attrs = (*svc.state_attrs, "spoilt")  # type: ignore[misc]
+    for m in position_stream()[:3]:
+        bus.put(KEYS.sensor_meas("p1"), encode(m))
+    assert svc.counters["rejected_handler_error"] == 3 and not bus.published

@@ -534,8 +534,11 @@ class Service:
                 pass
             now = time.monotonic()
             if now >= next_tick:
-                with self.guarded("on_tick", self.tick_state_attrs):
-                    self.on_tick()
+                try:
+                    with self.guarded("on_tick", self.tick_state_attrs):
+                        self.on_tick()
+                except Exception as exc:  # noqa: BLE001 - outside its transaction (see _dispatch)
+                    self._reject("on_tick", 0, exc)
                 next_tick = max(next_tick + self.tick_period_s, now)  # type: ignore[operator]
             if now >= next_health:
                 self._reassembly.expire(now)
@@ -572,6 +575,14 @@ class Service:
         self.log.warning("stopped with %d queued message(s) unhandled after %.1f s", left, DRAIN_DEADLINE_S)
 
     def _dispatch(self, item: tuple[Any, ...]) -> None:
+        """Handle one queued sample or query; whatever escapes the handler's own transaction (its
+        checkpoint: a state that cannot be pickled) is a rejection too, never the service's end."""
+        try:
+            self._handle(item)
+        except Exception as exc:  # noqa: BLE001 - no message may kill a service
+            self._reject(str(item[2]), 0, exc)
+
+    def _handle(self, item: tuple[Any, ...]) -> None:
         kind, index, key, payload = item
         if kind == "query":
             with payload as query, self.guarded(f"query on {key}"):
