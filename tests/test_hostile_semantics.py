@@ -20,7 +20,7 @@ from test_hostile_messages import KEYS, OPTIONS, Bus, mtt_lines, mtt_services
 from test_mtt_regions_live import CONFIG as REGIONS_CONFIG
 
 from fedtrack.fusion_center.mtt.picture_merge import PictureMergeService
-from fedtrack.fusion_center.mtt.service import MttCentreService
+from fedtrack.fusion_center.mtt.service import HANDOVERS_KEPT, MttCentreService
 from fedtrack.local_filters.imm.config import load_imm_config
 from fedtrack.local_filters.imm.service import IMMService
 from fedtrack.local_filters.mtt import history as history_module
@@ -344,3 +344,22 @@ def test_a_state_that_cannot_be_checkpointed_is_a_rejection_not_the_end() -> Non
     for m in position_stream()[:3]:
         bus.put(KEYS.sensor_meas("p1"), encode(m))
     assert svc.counters["rejected_handler_error"] == 3 and not bus.published
+
+
+def test_the_hand_overs_a_centre_remembers_are_bounded(tmp_path: Path) -> None:
+    """A region centre kept every hand-over's (source, number) it ever took, and pickled them with
+    every message it handled (100,000 of them: 56 ms a message); any source name was taken. It keeps
+    the last HANDOVERS_KEPT of each region of ``[regions]``: an older one is late; a source that is
+    not another region is rejected (``unknown_region``)."""
+    bus, svc, cfg = region_centre(tmp_path)
+    P = np.diag([100.0, 25.0, 100.0, 25.0])
+    n = HANDOVERS_KEPT + 6
+    for serial in range(n):
+        msg = replace(hand_over(svc, cfg, serial, [-4000.0 + 40.0 * serial, 10.0, 0.0, 0.0], P), id=2 * serial + 1)
+        bus.put(KEYS.region_handover("x0y0"), encode(msg))
+    assert svc.counters["taken_over"] == n and sorted(svc.taken["x1y0"]) == list(range(6, n))
+    bus.put(KEYS.region_handover("x0y0"), encode(replace(hand_over(svc, cfg, 2, [0.0] * 4, P), id=999)))
+    assert svc.counters["late"] == 1 and svc.counters["taken_over"] == n
+    for source in ("x0y0", "elsewhere"):
+        bus.put(KEYS.region_handover("x0y0"), encode(replace(hand_over(svc, cfg, n, [0.0] * 4, P), source=source)))
+    assert svc.counters["rejected_unknown_region"] == 2

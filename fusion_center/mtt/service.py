@@ -84,6 +84,11 @@ from fedtrack.services.base import (
 from fedtrack.wire import MAX_LIST_ITEMS, HandOver, Measurement, Message, TrackPicture, TrackReport, TrackResets
 
 ALGORITHMS = ("mtt-federated", "mtt-decentralized", "mtt-centralized")
+# hand-overs per sending region whose digests are kept to tell a re-delivery (a duplicate) or a second,
+# different one (a conflict) from a new one, as the fusion centre's FUSED_KEPT scans: a sender numbers its
+# hand-overs in order and a re-sent one (after a failover) is among its latest; an older one is late. Kept
+# all, they grew with every hand-over and were pickled with every message (100,000: 56 ms a message)
+HANDOVERS_KEPT = 64
 
 
 class MttCentreService(Service):
@@ -122,7 +127,7 @@ class MttCentreService(Service):
                            else TrackToTrackEngine(cfg, dim, feedback=feedback))
         self.picture_key = self.keys.mtt_picture() if region is None else self.keys.region_picture(region)
         self.handovers_at: list[int] = []  # positions in ``order`` that are hand-overs taken over
-        self.taken: dict[tuple[str, int], bytes] = {}  # (sending region, its hand-over number) taken over: digest
+        self.taken: dict[str, dict[int, bytes]] = {}  # sending region -> its last HANDOVERS_KEPT numbers taken: digest
         self.clock = PictureClock(cfg.period, cfg.picture_delay)
         # a scan or report stamped far ahead of the data waits for a witness (fedtrack/services/lead.py)
         self.lead: LeadGuard[Measurement | TrackReport] = LeadGuard(cfg.max_lag)
@@ -286,7 +291,11 @@ class MttCentreService(Service):
         """A neighbour's central track taken over (listed in the next picture's fused lists)."""
         engine = self.engine
         assert isinstance(engine, RegionEngine)
-        first = self.taken.get((msg.source, msg.serial))
+        assert self.regions is not None
+        if msg.source not in self.regions.ids or msg.source == self.region:
+            raise Rejected("unknown_region", f"a hand-over from {msg.source!r}: not another region of [regions]")
+        seen = self.taken.get(msg.source, {})
+        first = seen.get(msg.serial)
         if first is not None:
             if first == digest(msg):
                 self.count("duplicate")
@@ -297,6 +306,9 @@ class MttCentreService(Service):
             self.note_rejected(self.keys.region_handover(self.region), Conflict(
                 msg.serial, f"a second, different hand-over {msg.serial} of {msg.source} (the first was taken)"))
             return
+        if len(seen) >= HANDOVERS_KEPT and msg.serial < min(seen):  # older than every one kept: a re-delivery
+            self.count("late")
+            return
         try:
             record = handover_from_wire(msg, engine.region.centre)
         except ValueError as exc:
@@ -306,7 +318,8 @@ class MttCentreService(Service):
             raise Rejected("conflict", f"central track {msg.id} is already here, or is an id this region has "
                                        "not issued")
         engine.take_over(record)
-        self.taken[(msg.source, msg.serial)] = digest(msg)
+        seen = {**seen, msg.serial: digest(msg)}
+        self.taken[msg.source] = dict(sorted(seen.items())[-HANDOVERS_KEPT:])
         self.handovers_at.append(len(self.order))
         self.order.append((msg.source, msg.serial))
         self.count("taken_over")
