@@ -363,3 +363,21 @@ def test_the_hand_overs_a_centre_remembers_are_bounded(tmp_path: Path) -> None:
     for source in ("x0y0", "elsewhere"):
         bus.put(KEYS.region_handover("x0y0"), encode(replace(hand_over(svc, cfg, n, [0.0] * 4, P), source=source)))
     assert svc.counters["rejected_unknown_region"] == 2
+
+
+def test_a_hand_over_naming_more_sensors_than_a_picture_lists_is_refused(tmp_path: Path) -> None:
+    """A hand-over may name up to 2048 sensors: one naming 70 made the track list 71 sensors in
+    every later picture of the region, which every receiver refused (at most 64, MAX_LIST_ITEMS).
+    A hand-over naming more than 64 sensors, or one ``[mtt] sensors`` does not allow, is rejected
+    (``wrong_model``)."""
+    bus, svc, cfg = region_centre(tmp_path)
+    P = np.diag([100.0, 25.0, 100.0, 25.0])
+    named = tuple(f"z{i}" for i in range(MAX_LIST_ITEMS + 6))
+    many = replace(hand_over(svc, cfg, 0, [-2000.0, 10.0, 0.0, 0.0], P), sensors=named, support=(1,) * len(named),
+                   streak=(0,) * len(named), member_sensors=named, member_ids=tuple(range(len(named))),
+                   strikes=(0,) * len(named))
+    stranger = replace(hand_over(svc, cfg, 1, [-2000.0, 10.0, 0.0, 0.0], P), sensors=("z1",), support=(1,),
+                       streak=(0,))
+    for msg in (many, stranger):
+        bus.put(KEYS.region_handover("x0y0"), encode(msg))
+    assert svc.counters["rejected_wrong_model"] == 2 and "taken_over" not in svc.counters

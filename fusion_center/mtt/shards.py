@@ -195,13 +195,19 @@ def handover_to_wire(record: HandOver, source: str, serial: int) -> wire.HandOve
 
 def handover_from_wire(msg: wire.HandOver, centre: TrackToTrackCentre) -> HandOver:
     """The record of a wire hand-over for ``centre`` (its ring fields' shapes); ValueError when the
-    message does not fit them (another state size, detector or M-of-N window)."""
+    message does not fit them (another state size, detector or M-of-N window), names more sensors
+    than a picture's track may list or sensors ``[mtt] sensors`` does not allow, or holds a
+    covariance that is not positive definite."""
     tracks = centre.tracks
     shapes = [getattr(tracks, name).shape[2:] for name in tracks._ring]
     widths = [int(np.prod(s, dtype=np.int64)) for s in shapes]
     if msg.ring.shape[1] != sum(widths) or len(msg.window) != centre.cfg.confirm_window:
         raise ValueError(f"ring: {msg.ring.shape[1]} values per entry and a window of {len(msg.window)} do not fit "
                          f"this centre's {sum(widths)} and {centre.cfg.confirm_window}")
+    named = set(msg.sensors) | set(msg.member_sensors)
+    if len(named) > wire.MAX_LIST_ITEMS or not all(map(centre.cfg.allows, named)):
+        raise ValueError(f"sensors: {len(named)} sensors, at most {wire.MAX_LIST_ITEMS} of those [mtt] sensors "
+                         "allows (a picture's track lists them)")
     n = msg.ring.shape[0]
     if n > MAX_ENTRIES:
         raise ValueError(f"ring: {n} entries, at most {MAX_ENTRIES}")
