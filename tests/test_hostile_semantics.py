@@ -19,6 +19,7 @@ from test_fuzz_trackers import position_stream
 from test_hostile_messages import KEYS, OPTIONS, Bus, mtt_lines, mtt_services
 from test_mtt_regions_live import CONFIG as REGIONS_CONFIG
 
+from fedtrack.fusion_center.mtt import service as centre_service_module
 from fedtrack.fusion_center.mtt.picture_merge import PictureMergeService
 from fedtrack.fusion_center.mtt.service import HANDOVERS_KEPT, MttCentreService
 from fedtrack.local_filters.imm.config import load_imm_config
@@ -381,3 +382,27 @@ def test_a_hand_over_naming_more_sensors_than_a_picture_lists_is_refused(tmp_pat
     for msg in (many, stranger):
         bus.put(KEYS.region_handover("x0y0"), encode(msg))
     assert svc.counters["rejected_wrong_model"] == 2 and "taken_over" not in svc.counters
+
+
+def empty_report(sensor: str, seq: int, t: float) -> TrackReport:
+    return TrackReport(sensor=sensor, seq=seq, t=t, ids=(), x=np.zeros((0, 4)), P=np.zeros((0, 4)), confirmed=(),
+                       detected=(), obs_H=np.zeros((0, 4)), obs_R=np.zeros((0, 2)), obs_z=np.zeros((0, 2)),
+                       started=(), retired=(), stamp_ns=1)
+
+
+def test_reports_microseconds_apart_cannot_overfill_a_picture(monkeypatch: Any) -> None:
+    """A picture lists every report taken since the previous one: 131,073 reports within one picture
+    period (a tracker numbering them microseconds apart) made it unpublishable (more than MAX_PARTS
+    messages), and every report after them was rejected with it, for good. A centre takes at most
+    PICTURE_ITEMS - MAX_LIST_ITEMS entries between two pictures (164 - 64 here, for speed): more are
+    rejected (``too_large``) and the pictures go on."""
+    monkeypatch.setattr(centre_service_module, "PICTURE_ITEMS", 164)
+    svc = MttCentreService("mtt-decentralized", MttConfig(sensors=("s1",), max_lag=3.0), 4, service_id="centre",
+                           options=OPTIONS, deployment=KEYS.deployment)
+    bus = Bus([svc])
+    for k in range(130):
+        bus.put(KEYS.mtt_report("s1"), encode(empty_report("s1", k, 0.5 + 1e-6 * k)))
+    assert svc.counters["rejected_too_large"] == 30
+    for k in range(130, 133):
+        bus.put(KEYS.mtt_report("s1"), encode(empty_report("s1", k, float(k - 129))))
+    assert [len(p.fused_seqs) for p in bus.of(TrackPicture)] == [100, 1]  # at t = 1 and 2

@@ -17,7 +17,7 @@ published before (a region's picture that comes after its time was merged is cou
 ``late_picture``; its fused lists go into the next merged picture, its tracks nowhere: live and
 replay then differ at that picture; when they do not fit beside the regions' own entries in one
 merged picture, they are dropped, counted ``late_dropped``). A region picture holding more tracks
-or entries than its share of one merged picture (``MERGED_ITEMS`` / regions) is rejected
+or entries than its share of one merged picture (``PICTURE_ITEMS`` / regions) is rejected
 (``too_large``). On a clean stop it merges what it holds and publishes a closing record with the
 regions' closing lists.
 """
@@ -34,19 +34,17 @@ import numpy as np
 
 from fedtrack.config import ConfigError
 from fedtrack.fusion_center.mtt.regional import RegionPicture, merge_pictures, rows_of
-from fedtrack.fusion_center.mtt.service import picture_message, picture_tracks
+from fedtrack.fusion_center.mtt.service import PICTURE_ITEMS, picture_message, picture_tracks
 from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.services.base import Rejected, Service, Subscription, service_kwargs, service_parser
 from fedtrack.services.lead import LeadGuard
-from fedtrack.wire import MAX_PARTS, MAX_TRACKS, TrackPicture
+from fedtrack.wire import TrackPicture
 
-# tracks, and fused entries, one merged picture can carry: MAX_PARTS messages of MAX_TRACKS each. Each
-# of R regions' pictures may hold 1/R of it (rejected ``too_large`` beyond: 65,536 for 2 regions, 1,310
-# for 100, above a region's period of scans, 64 live sensors at 10 Hz, and issue 27's 10^5 tracks over
-# the regions); the entries of late pictures go into the next merged picture, or are dropped when they
-# do not fit beside its regions' own (``late_dropped``), so that every merged picture can be sent
-MERGED_ITEMS = MAX_PARTS * MAX_TRACKS
-
+# A merged picture carries at most PICTURE_ITEMS tracks and fused entries, as any picture. Each of R
+# regions' pictures may hold 1/R of it (rejected ``too_large`` beyond: 65,536 for 2 regions, 1,310 for
+# 100, above a region's period of scans, 64 live sensors at 10 Hz, and issue 27's 10^5 tracks over the
+# regions); the entries of late pictures go into the next merged picture, or are dropped when they do
+# not fit beside its regions' own (``late_dropped``), so that every merged picture can be sent
 Entries = list[tuple[str, int, str, str]]  # (sensor or sending region, seq, kind: scan/left/handover, region)
 
 
@@ -95,7 +93,7 @@ class PictureMergeService(Service):
                 for r, rid in enumerate(self.regions.ids)]
 
     def on_picture(self, r: int, msg: TrackPicture) -> None:
-        share = MERGED_ITEMS // len(self.regions.ids)
+        share = PICTURE_ITEMS // len(self.regions.ids)
         if max(len(msg.ids), len(msg.fused_sensors)) > share:
             raise Rejected("too_large", f"region {self.regions.ids[r]}'s picture at t={msg.t}: {len(msg.ids)} tracks, "
                            f"{len(msg.fused_sensors)} entries; its share of a merged picture is {share}")
@@ -149,7 +147,7 @@ class PictureMergeService(Service):
             self.log.warning("picture at t=%g: ids %s in two regions' pictures (the first region's taken)", T, twice)
         current = [[] if p is None else entries_of(p, self.regions.ids[r]) for r, p in enumerate(parts)]
         held = sum(map(len, self.late))
-        if held + sum(map(len, current)) > MERGED_ITEMS:  # the late ones do not fit beside them: dropped
+        if held + sum(map(len, current)) > PICTURE_ITEMS:  # the late ones do not fit beside them: dropped
             self.count("late_dropped", held)
             self.log.warning("picture at t=%g: %d entries of late region pictures dropped (no room)", T, held)
             self.late = [[] for _ in self.late]

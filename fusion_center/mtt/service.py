@@ -81,7 +81,17 @@ from fedtrack.services.base import (
     service_kwargs,
     service_parser,
 )
-from fedtrack.wire import MAX_LIST_ITEMS, HandOver, Measurement, Message, TrackPicture, TrackReport, TrackResets
+from fedtrack.wire import (
+    MAX_LIST_ITEMS,
+    MAX_PARTS,
+    MAX_TRACKS,
+    HandOver,
+    Measurement,
+    Message,
+    TrackPicture,
+    TrackReport,
+    TrackResets,
+)
 
 ALGORITHMS = ("mtt-federated", "mtt-decentralized", "mtt-centralized")
 # hand-overs per sending region whose digests are kept to tell a re-delivery (a duplicate) or a second,
@@ -89,6 +99,13 @@ ALGORITHMS = ("mtt-federated", "mtt-decentralized", "mtt-centralized")
 # hand-overs in order and a re-sent one (after a failover) is among its latest; an older one is late. Kept
 # all, they grew with every hand-over and were pickled with every message (100,000: 56 ms a message)
 HANDOVERS_KEPT = 64
+# tracks, and entries of the fused lists, one picture can carry: MAX_PARTS messages of MAX_TRACKS each. A
+# centre takes at most PICTURE_ITEMS - MAX_LIST_ITEMS reports, scans and hand-overs between two pictures
+# (room left for the departures of its 64 live sensors; more are rejected too_large: a real period holds
+# hundreds, 64 sensors at 10 Hz are 640), so that every picture can be sent: before, 131,073 reports
+# within one picture period (a sensor counting its reports microseconds apart) made the picture
+# unpublishable, and every report after them was rejected with it
+PICTURE_ITEMS = MAX_PARTS * MAX_TRACKS
 
 
 class MttCentreService(Service):
@@ -227,6 +244,7 @@ class MttCentreService(Service):
         """Make the pictures due before data at ``msg.t``, process ``msg``, then publish them (compute,
         then commit: a failure undoes both) and note the scan."""
         pictures = [self._picture(T) for T in self.clock.due(msg.t)]
+        self._room(f"scan {msg.seq} of {msg.sensor}")
         if isinstance(msg, Measurement):
             self.engine.ingest(scan_from_measurement(msg))
         else:
@@ -237,6 +255,12 @@ class MttCentreService(Service):
         self.silence.heard(msg.sensor, time.monotonic())
         self.lead.took(msg.sensor, msg.t)
         self.received.take(msg)
+
+    def _room(self, what: str) -> None:
+        """Rejected("too_large") when the next picture already lists as many entries as it may."""
+        if len(self.order) >= PICTURE_ITEMS - MAX_LIST_ITEMS:
+            raise Rejected("too_large", f"{what}: the next picture already lists {len(self.order)} scans and "
+                           f"hand-overs, at most {PICTURE_ITEMS - MAX_LIST_ITEMS} (PICTURE_ITEMS)")
 
     def on_scan(self, msg: Measurement) -> None:
         try:
@@ -317,6 +341,7 @@ class MttCentreService(Service):
         if msg.id in centre.tracks or (msg.id % R == here and msg.id >= centre.next_id):
             raise Rejected("conflict", f"central track {msg.id} is already here, or is an id this region has "
                                        "not issued")
+        self._room(f"hand-over {msg.serial} of {msg.source}")
         engine.take_over(record)
         seen = {**seen, msg.serial: digest(msg)}
         self.taken[msg.source] = dict(sorted(seen.items())[-HANDOVERS_KEPT:])
