@@ -54,7 +54,7 @@ from fedtrack.services.base import (
     service_kwargs,
     service_parser,
 )
-from fedtrack.services.lead import LeadGuard
+from fedtrack.services.lead import NumberedLeadGuard
 from fedtrack.wire import FusedTrack, LocalEstimate, ManeuverEvent, Reset, acceptable_covariances, decode, encode
 
 FUSED_KEPT = 64  # fused scans whose estimate digests are kept to tell a late conflict from a re-delivery
@@ -95,7 +95,7 @@ class FusionCenterService(Service):
         self.deadline_s = deadline_s
         self.scans: dict[int, ScanBuffer] = {}
         # an estimate stamped far ahead of the data waits for another sensor's (fedtrack/services/lead.py)
-        self.lead: LeadGuard[LocalEstimate] = LeadGuard(max_lag=0.0)
+        self.lead: NumberedLeadGuard[LocalEstimate] = NumberedLeadGuard()
         self.next_seq: int | None = None
         self.last_track: FusedTrack | None = None
         self.fused: dict[int, dict[str, bytes]] = {}  # the last FUSED_KEPT scans' estimate digests per sensor
@@ -215,7 +215,7 @@ class FusionCenterService(Service):
         buf.stamps.append(msg.stamp_ns)
         buf.digests[msg.sensor] = digest(msg)
         buf.named.update(msg.contested)
-        self.lead.took(msg.sensor, msg.t)
+        self.lead.took(msg.sensor, msg.t, msg.seq)
 
     def contest_scan(self, buf: ScanBuffer, msg: LocalEstimate, exc: Rejected) -> None:
         """A second, different estimate for a scan still being collected: rejected (the first

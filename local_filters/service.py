@@ -52,7 +52,7 @@ from fedtrack.services.base import (
     service_kwargs,
     service_parser,
 )
-from fedtrack.services.lead import LeadGuard
+from fedtrack.services.lead import NumberedLeadGuard
 from fedtrack.wire import (
     FusedTrack,
     LocalEstimate,
@@ -90,7 +90,7 @@ class LocalFilterService(Service):
         self.filter = filt
         self.reset_timeout_s = reset_timeout_s
         self.pending: dict[int, Measurement] = {}
-        self.lead: LeadGuard[Measurement] = LeadGuard(max_lag=0.0)  # a scan stamped far ahead waits for the next
+        self.lead: NumberedLeadGuard[Measurement] = NumberedLeadGuard()  # far ahead: waits for the next
         self.taken: dict[int, bytes] = {}  # digests of the last TAKEN_KEPT scans processed, by seq
         self.processed_up_to = -1
         self.reset_up_to = -1
@@ -168,7 +168,8 @@ class LocalFilterService(Service):
             if scan is msg or not (scan.seq <= self.processed_up_to or scan.seq in self.pending):
                 self._take(scan)  # (a held scan repeated meanwhile is taken once)
         self.process_ready()
-        if self.taken.get(msg.seq) is None and msg.seq not in self.pending and self.lead.last.get(msg.sensor) == msg.t:
+        failed = self.taken.get(msg.seq) is None and msg.seq not in self.pending
+        if failed and self.lead.time.last.get(msg.sensor) == msg.t:
             self.lead.restore(times)  # the filter failed on it: as if it never came
 
     def _take(self, msg: Measurement) -> None:
@@ -182,7 +183,7 @@ class LocalFilterService(Service):
                 if msg.seq <= self.processed_up_to:
                     self.count("late")
                     return
-        self.lead.took(msg.sensor, msg.t)
+        self.lead.took(msg.sensor, msg.t, msg.seq)
         self.pending[msg.seq] = msg
 
     def on_reset(self, msg: Reset) -> None:
@@ -270,7 +271,7 @@ class RadarLocalFilterService(Service):
         self.sensor = sensor
         self.filter = filt
         self.processed_up_to = -1
-        self.lead: LeadGuard[Measurement] = LeadGuard(max_lag=0.0)  # a scan stamped far ahead waits for the next
+        self.lead: NumberedLeadGuard[Measurement] = NumberedLeadGuard()  # far ahead: waits for the next
 
     def subscriptions(self) -> list[Subscription]:
         return [Subscription(self.keys.sensor_meas(self.sensor), Measurement, self.on_measurement)]
@@ -288,7 +289,7 @@ class RadarLocalFilterService(Service):
 
     def _step(self, msg: Measurement) -> None:
         """Filter radar scan ``msg`` (checked) and publish the estimate."""
-        self.lead.took(msg.sensor, msg.t)
+        self.lead.took(msg.sensor, msg.t, msg.seq)
         try:
             est = self.filter.step(measurement_to_replay(msg), where=f"scan {msg.seq}")
         except InputError as exc:

@@ -232,3 +232,32 @@ def test_the_picture_merger_drops_a_region_picture_far_ahead(tmp_path: Path) -> 
     (clean, clean_merger), (forged, merger) = runs
     assert forged == clean and len(clean) > 20
     assert merger.counters.get("rejected_time_lead") == 1 and clean_merger.counters.get("rejected", 0) == 0
+
+
+def test_single_target_services_drop_a_scan_and_an_estimate_numbered_far_ahead(tmp_path: Path) -> None:
+    """The same with a plausible time (half a period on) but a scan number 1,000 ahead: each held
+    for a witness and dropped (``rejected_time_lead``), every track as the clean run's (before: the
+    local filter counted 999 scans missing, took the forged one and every genuine scan after it was
+    late; the centre fused 12 of 34 scans)."""
+    sonar = sonar_stream()
+    clean, _ = paper_run(tmp_path / "clean")
+
+    def forge(bus: Bus, k: int) -> None:
+        if k == 12:
+            m = MEASUREMENTS[SENSORS[0]][k - 1]
+            bus.put(KEYS.sensor_meas(m.sensor), encode(replace(m, seq=m.seq + 1000, t=m.t + 0.5)))
+            est = [e for e in bus.of(LocalEstimate) if e.sensor == SENSORS[1]][-1]
+            bus.put(KEYS.local_estimate(est.sensor), encode(replace(est, seq=est.seq + 1000, t=est.t + 0.5)))
+        if k == 4:
+            s = sonar[k - 1]
+            bus.put(KEYS.sensor_meas(s.sensor), encode(replace(s, seq=s.seq + 1000, t=s.t + 0.5)))
+
+    attacked, services = paper_run(tmp_path / "attacked", forge)
+    for name in (f"local-{SENSORS[0]}", "centre", "hpda", "imm"):
+        assert services[name].counters.get("rejected_time_lead") == 1, name
+    same_tracks(fused(attacked), fused(clean))
+    for role in ("imm", "hpda"):
+        got = [m for key, m in attacked.published if isinstance(m, FusedTrack) and f"/{role}/" in key]
+        want = [m for key, m in clean.published if isinstance(m, FusedTrack) and f"/{role}/" in key]
+        assert len(got) == len(want) > 0
+        same_tracks(got, want)

@@ -81,7 +81,7 @@ from fedtrack.config import ConfigError
 from fedtrack.deployment import deployment_of, endpoints_of
 from fedtrack.jsonl import InputError
 from fedtrack.keys import DEFAULT_DEPLOYMENT, InvalidName, Keys, check_id
-from fedtrack.services.lead import LeadGuard
+from fedtrack.services.lead import LeadGuard, NumberedLeadGuard
 from fedtrack.services.reassembly import Reassembly
 from fedtrack.wire import (
     Health,
@@ -669,12 +669,12 @@ class Service:
         keeps what it changed (e.g. a scan marked contested)."""
         self._reject(key, 0, exc)
 
-    def in_time(self, guard: LeadGuard[Any], key: str, msg: Any, source: str | None = None,
+    def in_time(self, guard: LeadGuard[Any] | NumberedLeadGuard[Any], key: str, msg: Any, source: str | None = None,
                 item: Any = None) -> list[Any]:
         """``msg`` (a scan or an estimate of ``msg.sensor``, or of ``source``, at ``msg.t``, published on
         ``key``; held as ``item`` if given) and those it witnesses, in order; none while it is held for
-        being stamped far ahead of the data (:class:`LeadGuard`); the held messages it contradicts
-        are counted ``rejected_time_lead``. The handler calls ``guard.took`` for each one it takes."""
+        being stamped (or numbered: :class:`NumberedLeadGuard`) far ahead of the data
+        (:class:`LeadGuard`); the held messages it contradicts are counted ``rejected_time_lead``. The handler calls ``guard.took`` for each one it takes."""
         dropped = guard.dropped
         size = sum(getattr(msg, f.name).nbytes for f in fields(msg) if isinstance(getattr(msg, f.name), np.ndarray))
         released = guard.admit(msg.sensor if source is None else source, msg.t, msg if item is None else item, size)

@@ -34,7 +34,7 @@ from __future__ import annotations
 import statistics
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Generic, NamedTuple, TypeVar
+from typing import Generic, NamedTuple, Protocol, TypeVar
 
 from fedtrack import wire
 
@@ -135,3 +135,56 @@ class LeadGuard(Generic[T]):
     def leave(self, sensor: str) -> None:
         """``sensor`` left: it no longer keeps another sensor's lone scans from witnessing themselves."""
         self.live.discard(sensor)
+
+
+class Numbered(Protocol):
+    """A message of a numbered stream (its scan number ``seq``)."""
+
+    seq: int
+
+
+N = TypeVar("N", bound=Numbered)
+
+
+@dataclass
+class NumberedLeadGuard(Generic[N]):
+    """A :class:`LeadGuard` on the times of a numbered stream (a single-target service's scans, the
+    fusion centre's estimates: scan numbers in step with time) and one on its scan numbers, each
+    number taken as a time: a scan numbered more than LEAD_INTERVALS of its usual steps (one) past
+    the newest taken waits for a witness too, so that one message numbered far ahead (with a
+    plausible time) cannot make every later scan late in a service that takes scans in number
+    order. A scan passes the time guard, then the number guard."""
+
+    time: LeadGuard[N] = field(default_factory=lambda: LeadGuard(max_lag=0.0))
+    number: LeadGuard[N] = field(default_factory=lambda: LeadGuard(max_lag=0.0))
+
+    @property
+    def dropped(self) -> int:
+        return self.time.dropped + self.number.dropped
+
+    @property
+    def newest(self) -> float | None:
+        return self.time.newest
+
+    def admit(self, sensor: str, t: float, item: N, size: int = 0) -> list[N]:
+        """As :meth:`LeadGuard.admit`; what the time guard gives goes through the number guard."""
+        return [out for released in self.time.admit(sensor, t, item, size)
+                for out in self.number.admit(sensor, float(released.seq), released, size)]
+
+    def took(self, sensor: str, t: float, seq: int) -> None:
+        self.time.took(sensor, t)
+        self.number.took(sensor, float(seq))
+
+    def end(self) -> int:
+        return self.time.end() + self.number.end()
+
+    def times(self) -> tuple[Times, Times]:
+        return self.time.times(), self.number.times()
+
+    def restore(self, times: tuple[Times, Times]) -> None:
+        self.time.restore(times[0])
+        self.number.restore(times[1])
+
+    def leave(self, sensor: str) -> None:
+        self.time.leave(sensor)
+        self.number.leave(sensor)

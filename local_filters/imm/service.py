@@ -35,7 +35,7 @@ from fedtrack.services.base import (
     service_kwargs,
     service_parser,
 )
-from fedtrack.services.lead import LeadGuard
+from fedtrack.services.lead import NumberedLeadGuard
 from fedtrack.wire import MAX_MAP_ITEMS, FusedTrack, Measurement
 from fedtrack.zsession import id_arg
 
@@ -51,7 +51,7 @@ class IMMService(Service):
         super().__init__(**kwargs)  # type: ignore[arg-type]
         self.max_time_jump_s = max_time_jump_s
         self.order = ScanOrder()
-        self.lead: LeadGuard[Measurement] = LeadGuard(max_lag=0.0)  # a scan stamped far ahead waits for the next
+        self.lead: NumberedLeadGuard[Measurement] = NumberedLeadGuard()  # far ahead: waits for the next
         if len(cfg.models) > MAX_MAP_ITEMS:
             raise ConfigError(f"models: at most {MAX_MAP_ITEMS} models fit FusedTrack.extra, got {len(cfg.models)}")
         self.sensor = check_id(sensor, "--sensor")
@@ -77,7 +77,7 @@ class IMMService(Service):
 
     def _track(self, msg: Measurement) -> None:
         """Update the IMM with ``msg`` (checked) and publish its estimate."""
-        self.lead.took(msg.sensor, msg.t)
+        self.lead.took(msg.sensor, msg.t, msg.seq)
         p = self.tracker.update(msg.t, msg.z, msg.R)
         require_finite(f"scan {msg.seq}: the IMM estimate", p.x, p.P, list(p.mode_probabilities.values()))
         require_covariances(f"scan {msg.seq}: the IMM estimate", p.P)

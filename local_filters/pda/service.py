@@ -44,7 +44,7 @@ from fedtrack.services.base import (
     service_kwargs,
     service_parser,
 )
-from fedtrack.services.lead import LeadGuard
+from fedtrack.services.lead import NumberedLeadGuard
 from fedtrack.wire import FusedTrack, Measurement
 from fedtrack.zsession import id_arg
 
@@ -60,7 +60,7 @@ class PDAService(Service):
         super().__init__(**kwargs)  # type: ignore[arg-type]
         self.max_time_jump_s = max_time_jump_s
         self.order = ScanOrder()
-        self.lead: LeadGuard[Measurement] = LeadGuard(max_lag=0.0)  # a scan stamped far ahead waits for the next
+        self.lead: NumberedLeadGuard[Measurement] = NumberedLeadGuard()  # far ahead: waits for the next
         self.sensor = check_id(sensor, "--sensor")
         self.spec: TrackerSpec = tracker_spec(algorithm, cfg.tracker, cfg.existence)
         self.manager: ManagerState = initial_manager()
@@ -84,7 +84,7 @@ class PDAService(Service):
 
     def _track(self, msg: Measurement) -> None:
         """Run the track manager on ``msg`` (checked) and publish the confirmed tracks."""
-        self.lead.took(msg.sensor, msg.t)
+        self.lead.took(msg.sensor, msg.t, msg.seq)
         z = np.array([d.z for d in msg.detections]).reshape(-1, 2)
         amp = np.array([d.amplitude for d in msg.detections])
         keep = amp >= self.spec.c.tau
