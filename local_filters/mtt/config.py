@@ -16,7 +16,6 @@ from fedtrack.geodetic import FrameConfig
 from fedtrack.keys import InvalidName, check_id
 from fedtrack.local_filters.mtt.models import ModeRates
 from fedtrack.local_filters.vdie.estimation import VdieParams
-from fedtrack.wire import MAX_LIST_ITEMS
 
 NOISE_MODELS = ("continuous", "discrete")
 MANEUVER_MODES = ("none", "vdie")  # per-track maneuver handling (local_filters/mtt/maneuver.py)
@@ -228,9 +227,6 @@ class MttConfig:
             raise ConfigError("sharing: only 'equal' (beta_i = number of live sensors) is supported")
         if isinstance(self.sensors, str) and self.sensors != "any":
             raise ConfigError('sensors: a list of sensor ids or "any"')
-        if not isinstance(self.sensors, str) and len(self.sensors) > MAX_LIST_ITEMS:
-            raise ConfigError(f"sensors: {len(self.sensors)} ids, at most {MAX_LIST_ITEMS} (the sensors a picture's "
-                              "track may list)")
         for sid in (() if isinstance(self.sensors, str) else self.sensors) + tuple(self.sensor):
             try:
                 check_id(sid)
