@@ -25,7 +25,9 @@ import numpy as np
 
 from fedtrack.local_filters.linear.kalman import GaussianState, update
 from fedtrack.local_filters.linear.tracking import rounded_interval
-from fedtrack.local_filters.mtt.history import MAX_ENTRIES  # kept observations per central track (the ring's largest depth)
+from fedtrack.local_filters.mtt.history import (
+    MAX_ENTRIES,  # kept observations per central track (the ring's largest depth)
+)
 from fedtrack.local_filters.mtt.models import ModeRates, Modes, modes_predict, modes_update, predict_batch, start_modes
 from fedtrack.local_filters.vdie.estimation import VdieParams
 from fedtrack.local_filters.vdie.input_bank import (

@@ -59,8 +59,8 @@ from scipy.spatial import cKDTree
 
 from fedtrack.fusion_center.mtt.central_track import CentralTracks, DepartedTracks, padded
 from fedtrack.local_filters.linear.gating import track_difference_d2
-from fedtrack.local_filters.mtt.config import MttConfig, miss_count
 from fedtrack.local_filters.mtt.associators.gnn import assign
+from fedtrack.local_filters.mtt.config import MttConfig, miss_count
 from fedtrack.local_filters.mtt.local import LocalReport, Resets, no_resets
 
 LocalKey = tuple[str, int]  # (sensor, local track id)

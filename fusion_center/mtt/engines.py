@@ -30,7 +30,6 @@ from fedtrack.fusion_center.mtt.shards import ShardedCentre
 from fedtrack.local_filters.mtt.associators import jipda
 from fedtrack.local_filters.mtt.config import MttConfig, miss_count
 from fedtrack.local_filters.mtt.history import ScanHistory
-from fedtrack.services.lead import LeadGuard
 from fedtrack.local_filters.mtt.local import LocalReport, Resets, SensorTracker, is_duplicate
 from fedtrack.local_filters.mtt.maneuver import predicted_view
 from fedtrack.local_filters.mtt.models import modes_predict, predict_batch
@@ -46,6 +45,7 @@ from fedtrack.local_filters.mtt.tracker import (
 from fedtrack.local_filters.pda.association import existence_predict
 from fedtrack.local_filters.regions import Regions
 from fedtrack.local_filters.vdie.estimation import VdieParams
+from fedtrack.services.lead import LeadGuard
 from fedtrack.wire import picture_line
 
 ALGORITHMS = ("mtt-local", "mtt-centralized", "mtt-federated", "mtt-decentralized")

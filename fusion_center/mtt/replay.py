@@ -25,10 +25,10 @@ from fedtrack.fusion_center.mtt.regional import is_region_recording, read_region
 from fedtrack.geodetic import geodetic_line, load_frame
 from fedtrack.jsonl import InputError, check_output, output_file, read_jsonl
 from fedtrack.local_filters.mtt.config import MttConfig, MttSettings
-from fedtrack.services.lead import LeadGuard
 from fedtrack.local_filters.mtt.models import position_from_detection
 from fedtrack.local_filters.mtt.scan import SensorLeft, SensorScan, parse_line
 from fedtrack.local_filters.regions import Regions, grid_over, load_regions, parse_grid_spec
+from fedtrack.services.lead import LeadGuard
 
 
 def read_scans(path: Path, cfg: MttConfig) -> list[SensorScan | SensorLeft]:

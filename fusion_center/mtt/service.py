@@ -64,7 +64,6 @@ from fedtrack.fusion_center.mtt.silence import Silence
 from fedtrack.fusion_center.mtt.standby import PRIMARY_ROLE, Standby, next_after
 from fedtrack.geodetic import Frame, geodetic_of_states
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
-from fedtrack.services.lead import LeadGuard
 from fedtrack.local_filters.mtt.local import report_from_wire, resets_to_wire
 from fedtrack.local_filters.mtt.routing import answer_to_wire
 from fedtrack.local_filters.mtt.scan import scan_from_measurement
@@ -81,6 +80,7 @@ from fedtrack.services.base import (
     service_kwargs,
     service_parser,
 )
+from fedtrack.services.lead import LeadGuard
 from fedtrack.wire import (
     MAX_LIST_ITEMS,
     MAX_PARTS,

@@ -41,7 +41,6 @@ from fedtrack.deployment import MODES
 from fedtrack.keys import check_id
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
 from fedtrack.local_filters.mtt.history import MAX_ENTRIES
-from fedtrack.services.lead import LeadGuard
 from fedtrack.local_filters.mtt.local import LocalReport, SensorTracker, report_to_wire, resets_from_wire
 from fedtrack.local_filters.mtt.routing import RegionAnswer, RegionRouter, answer_from_wire, join_answers
 from fedtrack.local_filters.mtt.scan import SensorScan, scan_from_measurement
@@ -59,6 +58,7 @@ from fedtrack.services.base import (
     service_kwargs,
     service_parser,
 )
+from fedtrack.services.lead import LeadGuard
 from fedtrack.wire import Measurement, TrackResets
 from fedtrack.zsession import id_arg
 
