@@ -173,6 +173,15 @@ def test_live_services_drop_a_forged_scan_and_report_far_ahead(tmp_path: Path) -
     assert pictures(forged) == pictures(clean) and len(pictures(clean)) > 5
 
 
+def same_tracker_tracks(attacked: Bus, clean: Bus) -> None:
+    """The IMM's and the HPDA tracker's tracks of the two runs are the same, and there are some."""
+    for role in ("imm", "hpda"):
+        got = [m for key, m in attacked.published if isinstance(m, FusedTrack) and f"/{role}/" in key]
+        want = [m for key, m in clean.published if isinstance(m, FusedTrack) and f"/{role}/" in key]
+        assert len(got) == len(want) > 0
+        same_tracks(got, want)
+
+
 def test_single_target_services_drop_a_scan_and_an_estimate_far_ahead(tmp_path: Path) -> None:
     """The paper pipeline and the single-sensor trackers (in-process bus): a measurement of sensor 1,
     a sonar scan and a local estimate of sensor 2, each a genuine one re-stamped 1,000 s ahead with a
@@ -197,11 +206,7 @@ def test_single_target_services_drop_a_scan_and_an_estimate_far_ahead(tmp_path: 
         assert services[name].counters.get("rejected_time_lead") == 1, name
     assert services["imm"].counters.get("rejected_time_lead") == 1  # the IMM tracks sensor 1 too
     same_tracks(fused(attacked), fused(clean))
-    for role in ("imm", "hpda"):
-        got = [m for key, m in attacked.published if isinstance(m, FusedTrack) and f"/{role}/" in key]
-        want = [m for key, m in clean.published if isinstance(m, FusedTrack) and f"/{role}/" in key]
-        assert len(got) == len(want) > 0
-        same_tracks(got, want)
+    same_tracker_tracks(attacked, clean)
     assert all(svc.counters.get("rejected", 0) == 0 for svc in clean_services.values())
 
 
@@ -256,8 +261,4 @@ def test_single_target_services_drop_a_scan_and_an_estimate_numbered_far_ahead(t
     for name in (f"local-{SENSORS[0]}", "centre", "hpda", "imm"):
         assert services[name].counters.get("rejected_time_lead") == 1, name
     same_tracks(fused(attacked), fused(clean))
-    for role in ("imm", "hpda"):
-        got = [m for key, m in attacked.published if isinstance(m, FusedTrack) and f"/{role}/" in key]
-        want = [m for key, m in clean.published if isinstance(m, FusedTrack) and f"/{role}/" in key]
-        assert len(got) == len(want) > 0
-        same_tracks(got, want)
+    same_tracker_tracks(attacked, clean)
