@@ -164,16 +164,16 @@ class LocalFilterService(Service):
             raise Rejected("seq_jump", f"scan {msg.seq} is more than {self.max_seq_jump} ahead of {expected}")
         check_time_jump(self.processed_t, msg.t, self.max_time_jump_s)
         times = self.lead.times()
-        for scan in self.in_time(self.lead, self.keys.sensor_meas(self.sensor), msg):
-            if scan is msg or not (scan.seq <= self.processed_up_to or scan.seq in self.pending):
-                self._take(scan)  # (a held scan repeated meanwhile is taken once)
+        queued = [scan.seq for scan in self.in_time(self.lead, self.keys.sensor_meas(self.sensor), msg)
+                  if (scan is msg or not (scan.seq <= self.processed_up_to or scan.seq in self.pending))
+                  and self._take(scan)]  # (a held scan repeated meanwhile is taken once)
         self.process_ready()
-        failed = self.taken.get(msg.seq) is None and msg.seq not in self.pending
-        if failed and self.lead.time.last.get(msg.sensor) == msg.t:
+        if msg.seq in queued and msg.seq not in self.pending and self.taken.get(msg.seq) is None:
             self.lead.restore(times)  # the filter failed on it: as if it never came
 
-    def _take(self, msg: Measurement) -> None:
-        """Queue scan ``msg`` (checked) for the filter, after the rejoin a gap before it calls for."""
+    def _take(self, msg: Measurement) -> bool:
+        """Queue scan ``msg`` (checked) for the filter, after the rejoin a gap before it calls for;
+        False when that rejoin made it late."""
         expected = max([self.processed_up_to, *self.pending]) + 1
         if self.processed_up_to >= 0 and msg.seq > expected:
             self.count("gaps", msg.seq - expected)
@@ -182,9 +182,10 @@ class LocalFilterService(Service):
                 self.rejoin(f"after the gap {expected}..{msg.seq - 1}")
                 if msg.seq <= self.processed_up_to:
                     self.count("late")
-                    return
+                    return False
         self.lead.took(msg.sensor, msg.t, msg.seq)
         self.pending[msg.seq] = msg
+        return True
 
     def on_reset(self, msg: Reset) -> None:
         if self.applied is not None and msg.seq == self.applied.seq:

@@ -42,7 +42,10 @@ LEAD_INTERVALS = 4
 # the median of 8 intervals holds while at most 3 are off (one late scan puts a long and a short one
 # among them): the silence rule's choice (fedtrack.fusion_center.mtt.silence)
 INTERVALS_KEPT = 8
-HELD_MAX = 64  # 64 x 1 s of a 1 Hz sensor; a held scan of 2,048 detections is 32 kB
+# When the data resumes after a gap, every live sensor's first scan witnesses the others', so at most
+# one scan per live sensor waits (a centre takes at most MAX_LIST_ITEMS live sensors; a lone sensor's
+# waits for its next): more held scans are a flood. A held scan of 2,048 detections is 32 kB.
+HELD_MAX = wire.MAX_LIST_ITEMS
 # and at most one largest message's worth of bytes (a report joined from MAX_PARTS parts: the
 # reassembly's own bound, services/reassembly.py): a flood of large leading reports cannot grow a service
 HELD_BYTES = wire.MAX_PARTS * wire.MAX_PAYLOAD_BYTES

@@ -120,9 +120,9 @@ class MttLocalService(Service):
         check_time_jump(self.lead.newest, msg.t, self.max_time_jump_s)
         if not self.admitted(self.received, msg):
             return
-        dropped, times = self.lead.dropped, self.lead.times()
-        released = self.lead.admit(msg.sensor, msg.t, (msg.seq, scan, msg.stamp_ns), scan.z.nbytes)
-        self.note_leads(self.keys.sensor_meas(self.sensor), self.lead.dropped - dropped)
+        times = self.lead.times()
+        released = self.in_time(self.lead, self.keys.sensor_meas(self.sensor), msg,
+                                item=(msg.seq, scan, msg.stamp_ns))
         for _, taken, _ in released:  # in the queue, so taken: the next scan's lead is from them
             self.lead.took(taken.sensor, taken.t)
         self.queue.extend(released)
