@@ -45,6 +45,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from tqdm import tqdm
 
+from fedtrack.config import ConfigError
 from fedtrack.jsonl import InputError, check_output, output_file
 
 SUITES = ("kernels", "montecarlo", "multitarget", "scale", "pipeline", "soak", "hpda-soak", "all")
@@ -439,6 +440,8 @@ def bench_startup() -> dict[str, float]:
 
 
 def main(argv: list[str]) -> int:
+    if argv and not argv[0].startswith("-") and argv[0] not in SUITES:
+        raise ConfigError(f"bench: unknown suite {argv[0]!r} (choose from {', '.join(SUITES)})")
     suite = argv[0] if argv and argv[0] in SUITES else "pipeline"
     if suite == "soak":  # 10 minutes by default: not part of "all"
         from fedtrack.benchmarks.soak import main as soak_main

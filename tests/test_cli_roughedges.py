@@ -100,6 +100,29 @@ def test_a_mistyped_config_key_suggests_the_near_miss(tmp_path: Path, capsys: py
                                             "did you mean mtt.clutter_density?")
 
 
+def test_values_a_run_cannot_use_fail_at_start_with_one_line(tmp_path: Path,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """A picture period of a nanosecond (2e10 pictures over 20 s of data: it ran until killed), a
+    figure suffix matplotlib cannot write (a traceback after the work), an unknown bench suite (it
+    read as an unknown option of the pipeline bench): each one line, exit 2, nothing written."""
+    path = write_lines(tmp_path / "m.jsonl", [scan(0.0), scan(20.0)])
+    config = tmp_path / "c.toml"
+    config.write_text("[mtt]\nperiod = 1e-4\n")
+    replay = ["replay", "--algorithm", "mtt-centralized", "--measurements", str(path), "--out", str(tmp_path / "o")]
+    assert one_line_error(capsys, main([*replay, "--period", "1e-9"])).endswith(
+        "--period: must be >= 0.001 s (pictures at 1 kHz at most), got 1e-09")
+    assert one_line_error(capsys, main([*replay, "--config", str(config)])).endswith(
+        f"{config}: mtt.period: must be >= 0.001 s (pictures at 1 kHz at most), got 0.0001")
+    truth = write_lines(tmp_path / "u.jsonl", [{"t": 0.0, "targets": []}])
+    line = one_line_error(capsys, main(["evaluate", "--tracks", str(truth), "--truth", str(truth),
+                                        "--plot", str(tmp_path / "plot.txt")]))
+    assert "plot.txt: --plot writes a figure; its suffix '.txt' is not a format" in line and ".svg" in line
+    assert one_line_error(capsys, main(["bench", "nosuch"])).endswith(
+        "bench: unknown suite 'nosuch' (choose from kernels, montecarlo, multitarget, scale, pipeline, soak, "
+        "hpda-soak, all)")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.toml", "m.jsonl", "u.jsonl"]
+
+
 def test_a_failed_replay_leaves_the_previous_output_untouched(tmp_path: Path,
                                                               capsys: pytest.CaptureFixture[str]) -> None:
     """The radar switch fails after pictures were made: nothing of them reaches ``--out``."""

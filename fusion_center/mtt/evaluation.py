@@ -292,6 +292,16 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
     }
 
 
+def check_figure_format(out: Path) -> None:
+    """An InputError naming ``out`` unless matplotlib writes its suffix's format (none: PNG)."""
+    from matplotlib.figure import Figure
+
+    formats = Figure().canvas.get_supported_filetypes()
+    if out.suffix and out.suffix[1:].lower() not in formats:
+        raise InputError(f"{out}: --plot writes a figure; its suffix {out.suffix!r} is not a format matplotlib "
+                         f"writes (use one of {', '.join('.' + f for f in sorted(formats))})")
+
+
 def plot(result: dict[str, Any], tracks_path: Path, truth_path: Path, out: Path,
          events: dict[str, float] | None = None, label: str | None = None) -> None:
     """Tracks over truth (x-y), where their maneuvers were flagged, and GOSPA with its parts over
@@ -348,7 +358,7 @@ def plot(result: dict[str, Any], tracks_path: Path, truth_path: Path, out: Path,
     ax2.grid(alpha=0.3)
     fig.tight_layout()
     with output_file(out, "wb") as fh:
-        fig.savefig(fh, dpi=110, format=out.suffix[1:] or "png")
+        fig.savefig(fh, dpi=110, format=out.suffix[1:].lower() or "png")
     plt.close(fig)
 
 
@@ -397,6 +407,8 @@ def main(argv: list[str]) -> int:
     for path in (args.json, args.plot):
         if path is not None:
             check_output(path)
+    if args.plot is not None:
+        check_figure_format(args.plot)
     result = evaluate(args.tracks, args.truth, args.c, args.p, args.all_tracks, args.horizontal)
     frame = load_frame(args.config) if args.plot else None
     map_png = args.plot.with_name(args.plot.stem + "-map.png") if frame is not None else None

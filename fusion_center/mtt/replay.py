@@ -12,6 +12,7 @@ after the latest scan (the last picture holds every scan).
 from __future__ import annotations
 
 import dataclasses
+import math
 import sys
 import time
 from pathlib import Path
@@ -28,6 +29,7 @@ from fedtrack.local_filters.mtt.config import MttConfig, MttSettings
 from fedtrack.local_filters.mtt.models import position_from_detection
 from fedtrack.local_filters.mtt.scan import SensorLeft, SensorScan, parse_line
 from fedtrack.local_filters.regions import Regions, grid_over, load_regions, parse_grid_spec
+from fedtrack.progress import progress_bar
 from fedtrack.services.lead import LeadGuard
 
 
@@ -133,9 +135,11 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
         raise ConfigError(f"algorithm: unknown multi-target algorithm {algorithm!r}")
     cfg = load_tables(config, MttSettings).mtt
     if period is not None:
-        if not period > 0:
-            raise ConfigError("--period: must be > 0")
-        cfg = dataclasses.replace(cfg, period=period)
+        try:
+            cfg = dataclasses.replace(cfg, period=period)
+            cfg.validate()
+        except ConfigError as err:
+            raise ConfigError(f"--{err}") from None
     if cfg.picture_delay > cfg.max_lag:
         raise ConfigError(f"{config}: mtt.picture_delay must be <= mtt.max_lag")
     if (algorithm == "mtt-local") != (sensor is not None):
@@ -176,8 +180,11 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
     detector = False  # whether the pictures carry maneuver events (a detector runs)
     maneuvering: set[int] = set()
     head = {"algorithm": algorithm, "detector": cfg.maneuver}
-    with output_file(out) as fh:
+    times = [s.t for s in scans if isinstance(s, SensorScan)]
+    expected = math.ceil(max(times) / cfg.period) - math.ceil(min(times) / cfg.period) + 1 if times else 0
+    with output_file(out) as fh, progress_bar(expected, f"{algorithm} pictures") as bar:
         for T, tracks in source:
+            bar.update()
             start = time.perf_counter()
             line = tracks.line(T, head)
             fh.write((line if frame is None else geodetic_line(line, frame.frame)) + "\n")

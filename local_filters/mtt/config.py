@@ -33,6 +33,8 @@ MTT_VDIE_WINDOW = 15
 # (5-7 s after it for a 3 m/s^2 maneuver under 10 m noise; docs/multitarget.md#maneuvers)
 CENTRAL_MANEUVER_WINDOW = 30
 MAX_CENTRAL_MANEUVER_WINDOW = 200  # its banks are kept per ring entry: memory grows with it
+MIN_PERIOD = 1e-3  # [s] pictures at 1 kHz at most: beyond any display or consumer, and a shorter period
+# makes the picture clock (replay, a live centre after a gap) spend its time making predictions
 
 # [mtt] associator: the association methods of the multi-target tracker (local_filters/mtt/association.py)
 ASSOCIATORS = ("gnn", "jipda", "mht")
@@ -200,6 +202,8 @@ class MttConfig:
         for key, value in positive.items():
             if not value > 0:
                 raise ConfigError(f"{key}: must be > 0")
+        if not self.period >= MIN_PERIOD:
+            raise ConfigError(f"period: must be >= {MIN_PERIOD:g} s (pictures at 1 kHz at most), got {self.period:g}")
         if self.noise_model not in NOISE_MODELS:
             raise ConfigError(f"noise_model: must be one of {', '.join(NOISE_MODELS)}")
         if self.associator not in ASSOCIATORS:
