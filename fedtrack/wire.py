@@ -194,6 +194,19 @@ def _covariance(value: Any, path: str) -> np.ndarray:
     return sym
 
 
+def predictable(values: np.ndarray, P: np.ndarray, horizon: float) -> bool:
+    """Whether states ``values`` and covariances ``P`` (any shapes) stay within the receivers'
+    +-MAX_MAGNITUDE once a tracker predicts them over ``horizon`` seconds (docs/wire.md, "Values a
+    centre predicts"). One step of a constant-acceleration block ``[p, v, a]`` multiplies a value
+    by at most its transition's row sum ``g = 1 + h + h^2 / 2`` (constant velocity: ``1 + h``) and a
+    covariance by ``g^2``; half of the bound is kept for the process noise and for fusion's
+    rounding. So ``max |x| <= MAX_MAGNITUDE / (2 g)`` and ``max |P| <= MAX_MAGNITUDE / (2 g^2)``."""
+    g = 1.0 + horizon + 0.5 * horizon * horizon
+    x, C = np.asarray(values, dtype=np.float64), np.asarray(P, dtype=np.float64)
+    return bool((x.size == 0 or np.max(np.abs(x)) * g <= 0.5 * MAX_MAGNITUDE)
+                and (C.size == 0 or np.max(np.abs(C)) * g * g <= 0.5 * MAX_MAGNITUDE))
+
+
 def acceptable_covariances(P: np.ndarray) -> bool:
     """Whether every covariance in ``P`` (one (d, d), a stack (n, d, d) or n stacked (n d, d)) is one
     a receiver accepts (:func:`_covariance`): within +-MAX_MAGNITUDE, symmetric within SYMMETRY_RTOL,

@@ -406,3 +406,63 @@ def test_reports_microseconds_apart_cannot_overfill_a_picture(monkeypatch: Any) 
     for k in range(130, 133):
         bus.put(KEYS.mtt_report("s1"), encode(empty_report("s1", k, float(k - 129))))
     assert [len(p.fused_seqs) for p in bus.of(TrackPicture)] == [100, 1]  # at t = 1 and 2
+
+
+# ---------------------------------------------------------------- round 3: values at the wire's edge
+
+def huge_track_report(sensor: str, seq: int, scale: float) -> TrackReport:
+    """A report of one confirmed track whose state and covariance are at ``scale``: each value
+    within the wire's +-1e100, resolvable (a position of ``scale`` with a std of sqrt(1e100))."""
+    x = np.array([[scale, scale, scale, scale]])
+    return replace(one_track_report(sensor, seq), t=seq + 0.5, ids=(2,), x=x, P=np.eye(4) * 1e100,
+                   obs_z=x[:, [0, 2]], obs_R=np.eye(2) * 1e100, started=(seq == 0,))
+
+
+def test_a_report_at_the_wires_edge_cannot_make_pictures_nobody_takes() -> None:
+    """A sensor's report of a track at 1e50 m with a covariance of 1e100 (each value valid on the
+    wire) made the centre's pictures, predicted from it, carry variances beyond 1e100: every
+    receiver (the recorder, ``serve picture``, the launcher) refused every picture while the track
+    lived (a sensor sending it with every scan silenced the picture stream; the federated centre
+    failed on its resets instead, ``numerical``). A report whose states or covariances could leave
+    the wire's range when predicted over the centre's horizon is now rejected (``scale``) and the
+    pictures go on."""
+    svc = MttCentreService("mtt-decentralized", MttConfig(sensors=("s1", "s2"), max_lag=3.0), 4, service_id="centre",
+                           options=OPTIONS, deployment=KEYS.deployment)
+    bus = Bus([svc])
+    for k in range(6):
+        bus.put(KEYS.mtt_report("s1"), encode(one_track_report("s1", k)))
+        bus.put(KEYS.mtt_report("s2"), encode(huge_track_report("s2", k, 1e50) if k >= 2 else one_track_report("s2", k)))
+    pictures = bus.of(TrackPicture)
+    assert [p.t for p in pictures] == [0.0, 1.0, 2.0, 3.0, 4.0]
+    for p in pictures:
+        for payload in payloads(p):
+            decode(payload, TrackPicture)  # every receiver takes it
+    assert svc.counters["rejected_scale"] == 4
+
+
+def test_the_merger_refuses_a_region_picture_of_another_state_size(tmp_path: Path) -> None:
+    """A region picture of 6-D tracks at a 2-D merger (or with an existence column the other regions'
+    pictures lack) waited for the other region's picture of its time, whose merge then failed: the
+    genuine picture was rejected as a ``handler_error`` (a region sending such pictures every period
+    had every other region's pictures dropped). The state size is now checked on arrival
+    (``wrong_model``) and a region picture without existence merges beside one with it."""
+    config = tmp_path / "regions.toml"
+    config.write_text(REGIONS_CONFIG)
+    regions = load_regions(config)
+    assert regions is not None
+    svc = PictureMergeService(regions, 4, 2.0, service_id="picture", options=OPTIONS, deployment=KEYS.deployment)
+    bus = Bus([svc])
+
+    def picture(t: float, ids: tuple[int, ...], d: int = 4, existence: bool = False) -> TrackPicture:
+        n = len(ids)
+        return TrackPicture(seq=0, t=t, ids=ids, x=np.zeros((n, d)), P=np.tile(np.eye(d), (n, 1)),
+                            confirmed=(True,) * n, sensors=(("s1",),) * n, fused_sensors=("s1",), fused_seqs=(0,),
+                            left=(), stamp_ns=1, closing=False, existence=np.full(n, 0.5) if existence else None)
+
+    bus.put(KEYS.region_picture("x0y0"), encode(picture(0.0, (0, 2), d=6)))
+    bus.put(KEYS.region_picture("x0y0"), encode(picture(0.0, (0, 2), existence=True)))
+    bus.put(KEYS.region_picture("x1y0"), encode(picture(0.0, (1, 3))))
+    merged = bus.of(TrackPicture)
+    assert svc.counters["rejected_wrong_model"] == 1 and "rejected_handler_error" not in svc.counters
+    assert len(merged) == 1 and merged[0].ids == (0, 1, 2, 3)
+    assert merged[0].existence is not None and merged[0].existence.tolist() == [0.5, 1.0, 0.5, 1.0]

@@ -424,7 +424,10 @@ def centre_picture(c: TrackToTrackCentre, T: float, existence: CentralExistence 
 
 
 def union_picture(parts: list[PictureTracks | None], dim: int) -> PictureTracks:
-    """The regions' pictures as one, in increasing id (a track is in one region only)."""
+    """The regions' pictures as one, in increasing id (a track is in one region only). A part
+    without a detector's rows or existence beside one with them (a region centre that has had no
+    report with existence yet) gives its tracks no detected maneuver and an existence of 1, as a
+    tracker keeping none treats its tracks."""
     parts = [p for p in parts if p is not None]
     if not parts:
         return no_tracks(dim)
@@ -435,10 +438,16 @@ def union_picture(parts: list[PictureTracks | None], dim: int) -> PictureTracks:
         rows = [row for p in parts for row in getattr(p, name)]
         return [rows[k] for k in pick]
 
-    maneuver = None if parts[0].maneuver is None else np.concatenate([p.maneuver for p in parts])[pick]
+    maneuver = existence = None
+    if any(p.maneuver is not None for p in parts):
+        maneuver = np.concatenate([np.full((len(p.ids), 4), np.nan) if p.maneuver is None else p.maneuver
+                                   for p in parts])[pick]
+    if any(p.existence is not None for p in parts):
+        rows = [e for p in parts for e in ([1.0] * len(p.ids) if p.existence is None else p.existence)]
+        existence = [rows[k] for k in pick]
     return PictureTracks(joined("ids"), np.concatenate([p.x for p in parts])[pick],
                          np.concatenate([p.P for p in parts])[pick], joined("confirmed"), joined("sensors"),
-                         joined("models"), maneuver, None if parts[0].existence is None else joined("existence"))
+                         joined("models"), maneuver, existence)
 
 
 def make_engine(algorithm: str, cfg: MttConfig, dim: int, sensor: str | None = None,

@@ -93,6 +93,9 @@ class PictureMergeService(Service):
                 for r, rid in enumerate(self.regions.ids)]
 
     def on_picture(self, r: int, msg: TrackPicture) -> None:
+        if msg.ids and msg.x.shape[1] != self.dim:  # its merge with the others' would fail
+            raise Rejected("wrong_model", f"region {self.regions.ids[r]}'s picture at t={msg.t} has {msg.x.shape[1]}-D "
+                           f"tracks; this merger's are {self.dim}-D (--dim)")
         share = PICTURE_ITEMS // len(self.regions.ids)
         if max(len(msg.ids), len(msg.fused_sensors)) > share:
             raise Rejected("too_large", f"region {self.regions.ids[r]}'s picture at t={msg.t}: {len(msg.ids)} tracks, "

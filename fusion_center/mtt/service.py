@@ -83,6 +83,7 @@ from fedtrack.services.base import (
 from fedtrack.services.lead import LeadGuard
 from fedtrack.wire import (
     MAX_LIST_ITEMS,
+    MAX_MAGNITUDE,
     MAX_PARTS,
     MAX_TRACKS,
     HandOver,
@@ -91,6 +92,7 @@ from fedtrack.wire import (
     TrackPicture,
     TrackReport,
     TrackResets,
+    predictable,
 )
 
 ALGORITHMS = ("mtt-federated", "mtt-decentralized", "mtt-centralized")
@@ -269,6 +271,7 @@ class MttCentreService(Service):
             raise Rejected("wrong_model", str(exc)) from None
         if scan.sensor_position is not None and self.dim != 6:
             raise Rejected("wrong_model", "a radar scan at a 2-D centre (--dim 4)")
+        self._in_scale(f"scan {msg.seq} of {msg.sensor}", scan.z, scan.R)
         if self._admit(msg):
             self._take(msg)
 
@@ -279,11 +282,23 @@ class MttCentreService(Service):
         m = msg.obs_z.shape[1]
         if msg.obs_z.shape[0] and not (m in (2, 3) and m <= d // 2):  # a position, or a radar's 3
             raise Rejected("wrong_model", f"observations of size {m} from a local state of size {d}")
+        self._in_scale(f"report {msg.seq} of {msg.sensor}", msg.x, msg.P)
         if not self._admit(msg):
             return
         if msg.contested:  # its local tracker took a conflicting scan or resets (docs/wire.md)
             self.log.warning("report %d of %s names contested scans %s", msg.seq, msg.sensor, list(msg.contested))
         self._take(msg)
+
+    def _in_scale(self, what: str, values: np.ndarray, P: np.ndarray) -> None:
+        """Refuse (``scale``) states or covariances that a picture predicted from them could carry
+        beyond the wire's bound, which every receiver would refuse: the horizon is the longest a
+        picture predicts a track from the data that made it, ``central_timeout`` (unsupported tracks
+        are deleted) + ``max_lag`` (the data's own lag) + ``period`` (:func:`fedtrack.wire.predictable`)."""
+        horizon = self.cfg.central_timeout + self.cfg.max_lag + self.cfg.period
+        if not predictable(values, P, horizon):
+            raise Rejected("scale", f"{what}: values up to {np.max(np.abs(values), initial=0.0):.3g}, covariances up "
+                           f"to {np.max(np.abs(P), initial=0.0):.3g}: predicted over {horizon:g} s they could leave "
+                           f"the wire's +-{MAX_MAGNITUDE:g}")
 
     def _fuse(self, msg: TrackReport) -> None:
         """The centre's part of a report (its region's part at a region centre); the next picture is
@@ -337,6 +352,8 @@ class MttCentreService(Service):
             record = handover_from_wire(msg, engine.region.centre)
         except ValueError as exc:
             raise Rejected("wrong_model", str(exc)) from None
+        ring = dict(zip(engine.region.centre.tracks._ring, record.entries))
+        self._in_scale(f"hand-over {msg.serial} of {msg.source}", ring["x"], ring["P"])
         centre, R, here = engine.region.centre, len(engine.regions.ids), engine.index
         if msg.id in centre.tracks or (msg.id % R == here and msg.id >= centre.next_id):
             raise Rejected("conflict", f"central track {msg.id} is already here, or is an id this region has "
