@@ -261,6 +261,9 @@ def apply_zenoh_settings(settings: Settings, config_path: Path, out_dir: Path,
     def ident(sp: ServiceProcess) -> str:
         return identity(sp.role, sp.id)
 
+    if settings.zenoh.insecure:  # the file's explicit opt-out, which every ``serve`` then needs off loopback
+        for sp in plan:
+            sp.argv = [*sp.argv, "--insecure"]
     identities = sorted({ident(sp) for sp in plan} | {identity("sensor", s.id) for s in settings.sensor}
                         | {"router", "fusion", "recorder"})
     with in_file(config_path):

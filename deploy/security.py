@@ -44,13 +44,12 @@ if TYPE_CHECKING:  # imported where certificates are made: every service reads t
     from cryptography.hazmat.primitives.asymmetric import ec
 
 from fedtrack.config import ConfigError
-from fedtrack.deployment import DeploymentConfig, listen_address
+from fedtrack.deployment import DeploymentConfig, on_loopback
 from fedtrack.fusion_center.mtt.standby import PRIMARY_ROLE
 from fedtrack.keys import Keys
 
 CA_NAME = "fedtrack-ca"
 CERT_DAYS = 365  # validity of new certificates (``FEDTRACK_CERT_DAYS``)
-LOOPBACK_NAMES = ("localhost",)
 OWN_MESSAGES = ["put", "delete", "reply", "declare_queryable", "liveliness_token"]
 READ_MESSAGES = ["declare_subscriber", "query", "liveliness_query", "declare_liveliness_subscriber"]
 ALL_MESSAGES = OWN_MESSAGES + READ_MESSAGES
@@ -73,17 +72,6 @@ class ZenohSettings:
             raise ConfigError("tls_dir: give either config or tls_dir, not both")
         if self.insecure and self.tls_dir is not None:
             raise ConfigError("insecure: true contradicts tls_dir (mutual TLS); give one of them")
-
-
-def on_loopback(endpoint: str) -> bool:
-    """True when a ``PROTO/HOST:PORT`` endpoint's host is this machine's loopback (127.0.0.0/8, ::1, localhost)."""
-    host, _ = listen_address(endpoint, "endpoint")
-    if host in LOOPBACK_NAMES:
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:  # a host name: it may resolve anywhere
-        return False
 
 
 def check_transport(zenoh: ZenohSettings, dep: DeploymentConfig) -> None:

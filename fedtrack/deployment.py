@@ -103,6 +103,23 @@ def listen_address(endpoint: str, field: str) -> tuple[str, int]:
     return host.strip("[]"), int(port)
 
 
+def on_loopback(endpoint: str) -> bool:
+    """True when a ``PROTO/HOST:PORT`` endpoint's host is this machine's loopback (127.0.0.0/8, ::1, localhost)."""
+    return loopback_host(listen_address(endpoint, "endpoint")[0])
+
+
+def loopback_host(host: str) -> bool:
+    """True for ``localhost`` and the loopback addresses (127.0.0.0/8, ::1); a host name may resolve anywhere."""
+    import ipaddress
+
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
 def port_in_use(endpoint: str) -> bool:
     """True when a TCP endpoint's port on this host cannot be bound (another process holds it).
 

@@ -23,6 +23,7 @@ from typing import Any, Callable
 
 import zenoh
 
+from fedtrack.deployment import loopback_host
 from fedtrack.keys import DEFAULT_DEPLOYMENT, InvalidName, check_id
 
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
@@ -160,6 +161,17 @@ def id_arg(what: str) -> Callable[[str], str]:
 _deployment_arg = id_arg("deployment")
 
 
+def check_authenticated(endpoint: str, flag: str, config_file: str | None) -> None:
+    """Authenticated by default, as ``launch`` is (``fedtrack.deploy.security.check_transport``): an
+    endpoint off loopback must be ``tls/`` with a Zenoh configuration (``--zenoh-config``: the
+    certificates); a ValueError naming ``flag`` otherwise (``--insecure`` opts out)."""
+    host = endpoint.partition("/")[2].partition("#")[0].rpartition(":")[0].strip("[]")
+    if loopback_host(host) or (endpoint.startswith("tls/") and config_file is not None):
+        return
+    raise ValueError(f"{flag}: {endpoint} is off loopback and not tls/ with --zenoh-config (mutual TLS); a plain link "
+                     "there is unauthenticated: give --insecure to allow it (an explicit opt-out)")
+
+
 def add_endpoint_args(parser: argparse.ArgumentParser, listen_default: tuple[str, ...] = ()) -> None:
     """Add ``--connect``, ``--listen``, ``--deployment``, ``--connect-timeout``, ``--lease-ms``, ``--zenoh-config``."""
     group = parser.add_argument_group("zenoh")
@@ -178,6 +190,9 @@ def add_endpoint_args(parser: argparse.ArgumentParser, listen_default: tuple[str
     group.add_argument("--zenoh-config", metavar="FILE",
                        help="Zenoh JSON5 configuration loaded first (TLS, access control); fedtrack's settings "
                             "and the endpoints are applied on top")
+    group.add_argument("--insecure", action="store_true",
+                       help="allow plain (unauthenticated) endpoints off loopback: an explicit opt-out; without it an "
+                            "endpoint off loopback must be tls/ with --zenoh-config (docs/deploy.md)")
     parser.set_defaults(_listen_default=tuple(listen_default))
 
 
@@ -185,6 +200,10 @@ def options_from_args(args: argparse.Namespace, mode: str = "client") -> Session
     """SessionOptions from the arguments added by :func:`add_endpoint_args`."""
     connect = tuple(args.connect) if args.connect else ((DEFAULT_ROUTER,) if mode == "client" else ())
     listen = tuple(args.listen) if args.listen else args._listen_default
+    if not args.insecure:
+        for flag, endpoints in (("--connect", connect), ("--listen", listen)):
+            for ep in endpoints:
+                check_authenticated(ep, flag, args.zenoh_config)
     return SessionOptions(mode=mode, connect=connect, listen=listen,
                           connect_timeout_s=args.connect_timeout, lease_ms=args.lease_ms,
                           config_file=args.zenoh_config)
