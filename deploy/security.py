@@ -248,13 +248,63 @@ def make_certificates(tls_dir: Path, identities: list[str], extra_san: str = "",
 
 
 def ensure_certificates(tls_dir: Path, identities: list[str]) -> None:
-    """Make the CA and the certificates of ``identities`` that ``tls_dir`` lacks (a ConfigError naming
-    ``zenoh.tls_dir`` when it cannot); ``FEDTRACK_CERT_SAN`` / ``FEDTRACK_CERT_DAYS`` as for the CLI."""
+    """Make the CA and the certificates of ``identities`` that ``tls_dir`` lacks, then check them all
+    (:func:`check_certificates`; a ConfigError naming ``zenoh.tls_dir`` and the file when it cannot
+    or one is unusable); ``FEDTRACK_CERT_SAN`` / ``FEDTRACK_CERT_DAYS`` as for the CLI."""
     try:
         make_certificates(tls_dir, identities, os.environ.get("FEDTRACK_CERT_SAN", ""),
                           int(os.environ.get("FEDTRACK_CERT_DAYS", CERT_DAYS)))
     except (OSError, ValueError) as exc:
         raise ConfigError(f"zenoh.tls_dir: making certificates in {tls_dir} failed: {exc}") from None
+    check_certificates(tls_dir, identities)
+
+
+def check_certificates(tls_dir: Path, identities: list[str]) -> None:
+    """What every TLS handshake will need, checked before anything starts: the CA's certificate and,
+    per identity, a PEM certificate signed by it, valid now, and its private key, which must match
+    it. A ConfigError naming ``zenoh.tls_dir`` and the file otherwise (before, the services started
+    and each failed its handshake: the launcher gave up after the ready timeout with Zenoh's
+    ``Timeout!``, naming no certificate)."""
+    from cryptography import x509
+    from cryptography.exceptions import InvalidSignature
+    from cryptography.hazmat.primitives import serialization
+
+    def load(path: Path) -> x509.Certificate:
+        try:
+            return x509.load_pem_x509_certificate(path.read_bytes())
+        except OSError as exc:
+            raise ConfigError(f"zenoh.tls_dir: {path}: cannot be read ({exc.strerror})") from None
+        except ValueError:
+            raise ConfigError(f"zenoh.tls_dir: {path}: not a PEM certificate (make it again: delete it and its "
+                              "key, and launch makes the missing ones)") from None
+
+    now = datetime.datetime.now(datetime.UTC)
+    ca_path = tls_dir / "ca.pem"
+    ca = load(ca_path)
+    for ident in identities:
+        path, key_path = tls_dir / f"{ident}.pem", tls_dir / f"{ident}.key"
+        cert = load(path)
+        for c, p in ((ca, ca_path), (cert, path)):
+            if c.not_valid_after_utc <= now:
+                raise ConfigError(f"zenoh.tls_dir: {p}: expired on {c.not_valid_after_utc:%Y-%m-%d %H:%M} UTC "
+                                  "(make it again: delete it and its key, and launch makes the missing ones)")
+            if c.not_valid_before_utc > now:
+                raise ConfigError(f"zenoh.tls_dir: {p}: not valid before {c.not_valid_before_utc:%Y-%m-%d %H:%M} "
+                                  "UTC (is this machine's clock right?)")
+        try:
+            cert.verify_directly_issued_by(ca)
+        except (ValueError, TypeError, InvalidSignature):
+            raise ConfigError(f"zenoh.tls_dir: {path}: not signed by the CA of {ca_path} (a certificate of another "
+                              "CA: delete it and its key, and launch makes the missing ones)") from None
+        if not key_path.is_file():
+            raise ConfigError(f"zenoh.tls_dir: {key_path}: missing (the private key of {path.name})")
+        try:
+            key = serialization.load_pem_private_key(key_path.read_bytes(), password=None)
+        except (OSError, ValueError, TypeError):
+            raise ConfigError(f"zenoh.tls_dir: {key_path}: not a PEM private key without a password") from None
+        raw = (serialization.Encoding.DER, serialization.PublicFormat.SubjectPublicKeyInfo)
+        if key.public_key().public_bytes(*raw) != cert.public_key().public_bytes(*raw):
+            raise ConfigError(f"zenoh.tls_dir: {key_path}: does not match the certificate {path.name}")
 
 
 def write_configs(settings: ZenohSettings, base_dir: Path, keys: Keys, identities: list[str],

@@ -4,6 +4,7 @@ refused before anything opens, never opened."""
 
 from __future__ import annotations
 
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -41,3 +42,59 @@ def test_serve_router_off_loopback_is_one_line_and_exit_2(tmp_path: Path) -> Non
     assert run.returncode == 2 and len(errors) == 1, run.stderr
     assert f"--listen: {OFF_LOOPBACK} is off loopback" in errors[0] and "--insecure" in errors[0]
     assert "Traceback" not in run.stderr
+
+
+def broken_certificates(tls_dir: Path, how: str) -> Path:
+    """A certificate directory for identities ``router`` and ``sensor-1`` with sensor-1's made ``how``
+    wrong; returns the file at fault."""
+    from fedtrack.deploy.security import make_certificates
+
+    make_certificates(tls_dir, ["router", "sensor-1", "launcher"])
+    cert = tls_dir / "sensor-1.pem"
+    if how == "expired":  # valid until 3 minutes ago
+        cert.unlink()
+        make_certificates(tls_dir, ["sensor-1"], days=-0.002)
+    elif how == "other_ca":  # the CA was made again: sensor-1's is signed by the old one
+        for name in ("ca.pem", "ca.key", "router.pem", "router.key", "launcher.pem", "launcher.key"):
+            (tls_dir / name).unlink()
+        make_certificates(tls_dir, ["router", "launcher"])
+    elif how == "no_key":
+        (tls_dir / "sensor-1.key").unlink()
+    elif how == "other_key":  # the key of another identity
+        (tls_dir / "sensor-1.key").write_bytes((tls_dir / "router.key").read_bytes())
+    elif how == "garbage":
+        cert.write_text("not a certificate\n")
+    return tls_dir / "sensor-1.key" if how in ("no_key", "other_key") else cert
+
+
+@pytest.mark.parametrize("how, says", [("expired", "expired on"), ("other_ca", "not signed by"),
+                                       ("no_key", "missing"), ("other_key", "does not match"),
+                                       ("garbage", "not a PEM certificate")])
+def test_a_broken_certificate_is_named_before_anything_starts(tmp_path: Path, how: str, says: str) -> None:
+    """An expired certificate, one of another CA, a missing or foreign key: ``launch`` started the
+    router and the services, each failed its TLS handshake, and ten seconds later the launcher
+    stopped everything with exit 1 and Zenoh's ``Timeout!`` (no word of the certificate). The
+    certificates are now checked before anything starts: one line naming the file (exit 2)."""
+    from fedtrack.config import ConfigError
+    from fedtrack.deploy.security import ZenohSettings, write_configs
+    from fedtrack.keys import Keys
+
+    at_fault = broken_certificates(tmp_path / "certs", how)
+    with pytest.raises(ConfigError, match=says) as error:
+        write_configs(ZenohSettings(tls_dir="certs"), tmp_path, Keys("x"), ["router", "sensor-1"], tmp_path / "out")
+    assert str(at_fault) in str(error.value) and "zenoh.tls_dir" in str(error.value)
+
+
+def test_launch_with_an_expired_certificate_is_one_line_and_starts_nothing(tmp_path: Path) -> None:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    broken_certificates(tmp_path / "certs", "expired")
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(f'[zenoh]\ntls_dir = "certs"\n[deployment]\nrouter_listen = "tls/127.0.0.1:{port}"\n'
+                   'duration_s = 3.0\n[[sensor]]\nid = "1"\n')
+    done = subprocess.run([sys.executable, "-m", "fedtrack.cli", "launch", str(cfg), "--out", str(tmp_path / "o")],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
+    assert f"{cfg}: zenoh.tls_dir: {tmp_path / 'certs' / 'sensor-1.pem'}: expired on" in done.stderr
+    assert not list((tmp_path / "o").glob("logs/*"))  # no service was started
