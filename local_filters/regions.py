@@ -37,6 +37,7 @@ import numpy as np
 from fedtrack.config import ConfigError, load_tables
 from fedtrack.geodetic import FrameConfig, enu_from_geodetic
 from fedtrack.keys import InvalidName, check_id
+from fedtrack.wire import MAX_MAGNITUDE
 
 MAX_REGIONS = 10_000
 
@@ -135,9 +136,17 @@ def grid_over(positions: np.ndarray, nx: int, ny: int, margin: float) -> Regions
 
 
 def regions_of_config(cfg: RegionsConfig, frame: FrameConfig | None) -> Regions:
-    """The regions of a validated ``[regions]`` table (``frame`` converts ``lat_lon`` vertices)."""
+    """The regions of a validated ``[regions]`` table (``frame`` converts ``lat_lon`` vertices); a
+    ConfigError naming the key for polygons that are not simple, enclose no area or overlap, and for
+    coordinates beyond the wire's +-MAX_MAGNITUDE (:func:`check_polygons`)."""
+    if cfg.margin > MAX_MAGNITUDE:
+        raise ConfigError(f"regions.margin: beyond {MAX_MAGNITUDE:g} m")
     if cfg.grid is not None:
         g = cfg.grid
+        far = [o + c * n for o, c, n in zip(g.origin, g.cell, (g.nx, g.ny))]  # Python floats: inf, no warning
+        if not all(abs(v) <= MAX_MAGNITUDE for v in (*g.origin, *far)):
+            raise ConfigError(f"regions.grid: the grid reaches beyond +-{MAX_MAGNITUDE:g} m (the wire's bound on "
+                              "any position; distances there overflow)")
         return grid_regions(g.origin, g.cell, g.nx, g.ny, cfg.margin)
     polygons = []
     for p in cfg.polygon:
@@ -148,9 +157,66 @@ def regions_of_config(cfg: RegionsConfig, frame: FrameConfig | None) -> Regions:
             polygons.append(enu_from_geodetic(frame.frame, lat, lon, np.zeros_like(lat))[:, :2])
         else:
             polygons.append(np.asarray(p.points, dtype=float))
+    check_polygons([f"regions.polygon.{p.id}.{'lat_lon' if p.lat_lon else 'points'}" for p in cfg.polygon],
+                   [p.id for p in cfg.polygon], polygons)
     size = max(len(v) for v in polygons)
     padded = np.stack([np.concatenate([v, np.repeat(v[-1:], size - len(v), axis=0)]) for v in polygons])
     return Regions(tuple(p.id for p in cfg.polygon), padded, cfg.margin)
+
+
+def _crossings(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(Ea, Eb) bool: edge i of closed polygon ``a`` (Ea, 2) and edge j of ``b`` cross at one point
+    inside both (touching or collinear overlap is not a crossing)."""
+    a0, a1, b0, b1 = a[:, None], np.roll(a, -1, axis=0)[:, None], b[None], np.roll(b, -1, axis=0)[None]
+
+    def side(o: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:  # sign of (p - o) x (q - o)
+        return np.sign((p[..., 0] - o[..., 0]) * (q[..., 1] - o[..., 1]) - (p[..., 1] - o[..., 1]) * (q[..., 0] - o[..., 0]))
+
+    return (side(b0, b1, a0) * side(b0, b1, a1) < 0) & (side(a0, a1, b0) * side(a0, a1, b1) < 0)
+
+
+def _strictly_inside(poly: np.ndarray, pos: np.ndarray, tol: float) -> np.ndarray:
+    """(N,) bool: positions inside polygon ``poly`` farther than ``tol`` from its edges."""
+    inside, edge = _inside_and_edge(Regions(("p",), poly[None], 0.0), pos)
+    return inside[:, 0] & (edge[:, 0] > tol)
+
+
+def check_polygons(keys: list[str], ids: list[str], polygons: list[np.ndarray]) -> None:
+    """Each region a simple polygon (no two edges cross) enclosing an area, none overlapping another
+    (the first containing region owns a position: a region inside another would own nothing), every
+    coordinate within +-MAX_MAGNITUDE (squared distances stay finite); shared borders are fine. A
+    ConfigError naming ``keys[i]`` otherwise."""
+    for key, poly in zip(keys, polygons):
+        if not np.all(np.abs(poly) <= MAX_MAGNITUDE):
+            raise ConfigError(f"{key}: coordinates beyond +-{MAX_MAGNITUDE:g} m (the wire's bound on any position)")
+        E = len(poly)
+        k = np.arange(E)
+        gap = np.abs(k[:, None] - k[None])
+        crossed = np.argwhere(np.triu(_crossings(poly, poly) & (gap > 1) & (gap < E - 1)))
+        if crossed.size:
+            i, j = crossed[0] + 1
+            raise ConfigError(f"{key}: edges {i} and {j} cross (a region must be a simple polygon; edge k runs from "
+                              "vertex k to the next)")
+        x, y = poly[:, 0], poly[:, 1]
+        area = 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+        extent = float(np.ptp(poly, axis=0).max())
+        if not area > 1e-12 * extent * extent:
+            raise ConfigError(f"{key}: encloses no area (its vertices are on one line or one point)")
+    boxes = np.array([[*p.min(axis=0), *p.max(axis=0)] for p in polygons])
+    for j in range(1, len(polygons)):
+        b = polygons[j]
+        near = np.flatnonzero((boxes[:j, 0] < boxes[j, 2]) & (boxes[j, 0] < boxes[:j, 2])
+                              & (boxes[:j, 1] < boxes[j, 3]) & (boxes[j, 1] < boxes[:j, 3]))
+        for i in near.tolist():
+            a = polygons[i]
+            tol = 1e-9 * max(1.0, float(np.abs(np.concatenate([a, b])).max()))
+            probes_b = np.concatenate([b, 0.5 * (b + np.roll(b, -1, axis=0))])
+            probes_a = np.concatenate([a, 0.5 * (a + np.roll(a, -1, axis=0))])
+            same = {tuple(v) for v in a.tolist()} == {tuple(v) for v in b.tolist()}
+            if (same or _crossings(a, b).any() or _strictly_inside(a, probes_b, tol).any()
+                    or _strictly_inside(b, probes_a, tol).any()):
+                raise ConfigError(f"{keys[j]}: overlaps region {ids[i]} (regions may share borders, not area: "
+                                  "a position belongs to one region)")
 
 
 def load_regions(path: str | Path | None) -> Regions | None:
@@ -177,6 +243,13 @@ def parse_grid_spec(spec: str) -> tuple[int, int]:
 def distances(regions: Regions, pos: np.ndarray) -> np.ndarray:
     """The distance (N, R) [m] of each position (N, 2) to each region: 0 inside (even-odd rule),
     else to the nearest edge."""
+    inside, edge = _inside_and_edge(regions, pos)
+    return np.where(inside, 0.0, edge)
+
+
+def _inside_and_edge(regions: Regions, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, R) each: whether each position is inside each region (even-odd rule), and its distance
+    to the region's nearest edge."""
     ax, ay = regions.vertices[..., 0], regions.vertices[..., 1]  # (R, E) edge starts
     b = np.roll(regions.vertices, -1, axis=1)  # edge ends (closing edge included)
     abx, aby = b[..., 0] - ax, b[..., 1] - ay
@@ -190,7 +263,7 @@ def distances(regions: Regions, pos: np.ndarray) -> np.ndarray:
     straddles = (ay > py) != (b[..., 1] > py)  # a padded (zero-length) edge never straddles
     x_cross = ax + (py - ay) * abx / np.where(straddles, b[..., 1] - ay, 1.0)
     inside = np.count_nonzero(straddles & (px < x_cross), axis=-1) % 2 == 1
-    return np.where(inside, 0.0, edge)
+    return inside, edge
 
 
 def region_of(regions: Regions, pos: np.ndarray) -> np.ndarray:

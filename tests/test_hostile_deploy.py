@@ -98,3 +98,52 @@ def test_launch_with_an_expired_certificate_is_one_line_and_starts_nothing(tmp_p
     assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
     assert f"{cfg}: zenoh.tls_dir: {tmp_path / 'certs' / 'sensor-1.pem'}: expired on" in done.stderr
     assert not list((tmp_path / "o").glob("logs/*"))  # no service was started
+
+
+SQUARE = "[[0, 0], [100, 0], [100, 100], [0, 100]]"
+
+
+@pytest.mark.parametrize("polygons, says", [
+    ([("bow", "[[0, 0], [100, 100], [100, 0], [0, 100]]")], "regions.polygon.bow.points: edges 1 and 3 cross"),
+    ([("flat", "[[0, 0], [50, 50], [100, 100]]")], "regions.polygon.flat.points: encloses no area"),
+    ([("dot", "[[5, 5], [5, 5], [5, 5], [5, 5]]")], "regions.polygon.dot.points: encloses no area"),
+    ([("a", SQUARE), ("b", "[[10, 10], [50, 10], [50, 50]]")], "regions.polygon.b.points: overlaps region a"),
+    ([("a", SQUARE), ("b", "[[50, 50], [150, 50], [150, 150], [50, 150]]")], "regions.polygon.b.points: overlaps region a"),
+    ([("a", SQUARE), ("b", SQUARE)], "regions.polygon.b.points: overlaps region a"),
+    ([("far", "[[0, 0], [1e300, 0], [0, 1e300]]")], "regions.polygon.far.points: coordinates beyond"),
+])
+def test_regions_an_operator_got_wrong_are_named(tmp_path: Path, polygons: list[tuple[str, str]], says: str) -> None:
+    """A self-intersecting polygon, one enclosing no area, two that overlap (a region inside another
+    never owned a track: the first containing region takes it) or coordinates whose squares
+    overflow: ``[regions]`` took them all, and the centres ran with regions that own nothing or
+    distances of inf. Each is now one error naming the polygon's key (exit 2 at every command)."""
+    from fedtrack.config import ConfigError
+    from fedtrack.local_filters.regions import load_regions
+
+    path = tmp_path / "regions.toml"
+    path.write_text("[regions]\nmargin = 10.0\n" + "".join(
+        f'[[regions.polygon]]\nid = "{rid}"\npoints = {points}\n' for rid, points in polygons))
+    with pytest.raises(ConfigError) as error:
+        load_regions(path)
+    assert str(error.value).startswith(f"{path}: {says}")
+
+
+def test_regions_sharing_borders_are_fine_and_a_grid_beyond_the_wire_is_refused(tmp_path: Path) -> None:
+    from fedtrack.config import ConfigError
+    from fedtrack.local_filters.regions import load_regions
+
+    path = tmp_path / "regions.toml"
+    path.write_text('[regions]\nmargin = 10.0\n[[regions.polygon]]\nid = "ell"\n'
+                    'points = [[0, 0], [10, 0], [10, 2], [2, 2], [2, 10], [0, 10]]\n'
+                    '[[regions.polygon]]\nid = "rest"\npoints = [[2, 2], [10, 2], [10, 10], [2, 10]]\n'
+                    '[[regions.polygon]]\nid = "east"\npoints = [[10, 0], [20, 0], [20, 10], [10, 10]]\n')
+    regions = load_regions(path)
+    assert regions is not None and regions.ids == ("ell", "rest", "east")
+    path.write_text("[regions]\nmargin = 10.0\ngrid = {origin = [-1e308, 0], cell = [1e308, 1], nx = 2, ny = 1}\n")
+    with pytest.raises(ConfigError, match="regions.grid: the grid reaches beyond"):
+        load_regions(path)
+    run = subprocess.run([sys.executable, "-m", "fedtrack.cli", "replay", "--algorithm", "mtt-decentralized",
+                          "--regions", "config", "--config", str(path), "--measurements", "/dev/null", "--out",
+                          str(tmp_path / "p.jsonl")], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and len(run.stderr.strip().splitlines()) == 1, run.stderr
+    assert not (tmp_path / "p.jsonl").exists()
