@@ -466,3 +466,36 @@ def test_the_merger_refuses_a_region_picture_of_another_state_size(tmp_path: Pat
     assert svc.counters["rejected_wrong_model"] == 1 and "rejected_handler_error" not in svc.counters
     assert len(merged) == 1 and merged[0].ids == (0, 1, 2, 3)
     assert merged[0].existence is not None and merged[0].existence.tolist() == [0.5, 1.0, 0.5, 1.0]
+
+
+# ---------------------------------------------------------------- round 3: one identity flooding
+
+def test_a_flooding_stream_neither_starves_the_others_nor_fills_memory() -> None:
+    """Every service took its input in one FIFO of 10,000 messages, whatever their size: one sensor
+    identity sending valid 2,048-track reports (about 50 ms of work each at the centre) as fast as
+    the wire takes them queued 10,000 of them (8 minutes of work, 5 GiB of payloads; 20 GiB of
+    2 MiB ones) ahead of every other sensor's, whose reports then came minutes late. The inbox now
+    serves its streams (key expressions) in turn and holds at most MAX_QUEUED_BYTES of payloads
+    (the callback waits beyond, as it did beyond 10,000 messages): another stream's message is
+    taken within one turn of the flood."""
+    from fedtrack.services.inbox import MAX_QUEUED_BYTES, Inbox
+
+    inbox = Inbox(10_000, MAX_QUEUED_BYTES)
+    big = b"x" * (2 * 1024 * 1024)
+    held = 0
+    while inbox.put(("sample", 0, "fedtrack/d/local/s1/tracks", big), timeout=0.0):
+        held += 1
+    assert held == MAX_QUEUED_BYTES // len(big)  # then the Zenoh callback waits: 128 MiB, not 20 GiB
+    assert inbox.put(("sample", 0, "fedtrack/d/local/s2/tracks", b"genuine"), timeout=0.0) is False
+    inbox.get(timeout=0.0)  # the worker takes one flood message: room for one more
+    assert inbox.put(("sample", 0, "fedtrack/d/local/s2/tracks", b"genuine"), timeout=0.0)
+    taken = [inbox.get(timeout=0.0)[2] for _ in range(2)]
+    assert "fedtrack/d/local/s2/tracks" in taken  # served within one turn, not after the 63 queued floods
+    order = []
+    small = Inbox(100, MAX_QUEUED_BYTES)
+    for k in range(3):
+        small.put(("sample", 0, "a", bytes([k])), timeout=0.0)
+    small.put(("sample", 0, "b", b"b"), timeout=0.0)
+    while small.qsize():
+        order.append(small.get(timeout=0.0)[3])
+    assert order == [b"\x00", b"b", b"\x01", b"\x02"]  # each stream in its own order, the streams in turn

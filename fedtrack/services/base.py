@@ -16,8 +16,9 @@ A subclass sets ``role``, overrides the hooks it needs and calls ``publish``::
         args = parser.parse_args(argv)
         return Echo(**service_kwargs(parser, args)).run()
 
-Threading model: Zenoh callbacks only copy the payload into one bounded FIFO
-queue (blocking when full, so nothing is dropped while running); a single worker
+Threading model: Zenoh callbacks only copy the payload into one bounded inbox
+(:mod:`fedtrack.services.inbox`: at most QUEUE_SIZE messages and 128 MiB, blocking when full, so
+nothing is dropped while running; each key's messages in order, the keys served in turn); a single worker
 thread (the one calling ``run``) decodes, validates and calls the handlers, the
 queryable handlers, ``on_tick`` and the health publisher, so subclasses need no
 locks. Every payload is decoded with :func:`fedtrack.wire.decode` (bounded: depth, sizes); a bad
@@ -81,6 +82,7 @@ from fedtrack.config import ConfigError
 from fedtrack.deployment import deployment_of, endpoints_of
 from fedtrack.jsonl import InputError
 from fedtrack.keys import DEFAULT_DEPLOYMENT, InvalidName, Keys, check_id
+from fedtrack.services.inbox import Inbox
 from fedtrack.services.lead import LeadGuard, NumberedLeadGuard
 from fedtrack.services.reassembly import Reassembly
 from fedtrack.wire import (
@@ -343,7 +345,7 @@ class Service:
         self.status = "ok"
         self.log = logging.getLogger(f"fedtrack.{self.role}.{self.id}")
         self.session: zenoh.Session | None = None
-        self._queue: queue.Queue[tuple[Any, ...]] = queue.Queue(maxsize=QUEUE_SIZE)
+        self._queue = Inbox(QUEUE_SIZE)  # bounded in messages and bytes, its streams served in turn
         self._stop_requested = False
         self._closing = False
         # key -> its publisher and cache depth (0: a plain publisher)
@@ -511,15 +513,11 @@ class Service:
         self.log.warning("missed %d sample(s) from %s (no longer in its cache)", miss.nb, miss.source)
 
     def _enqueue(self, item: tuple[Any, ...]) -> None:
-        """Zenoh callback side: block while the queue is full, give up only when closing."""
-        while True:
-            try:
-                self._queue.put(item, timeout=0.1)
+        """Zenoh callback side: block while the inbox is full, give up only when closing."""
+        while not self._queue.put(item, timeout=0.1):
+            if self._closing:
+                self.counters["dropped"] += 1
                 return
-            except queue.Full:
-                if self._closing:
-                    self.counters["dropped"] += 1
-                    return
 
     def _loop(self) -> None:
         now = time.monotonic()
