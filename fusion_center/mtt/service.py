@@ -271,7 +271,8 @@ class MttCentreService(Service):
             raise Rejected("wrong_model", str(exc)) from None
         if scan.sensor_position is not None and self.dim != 6:
             raise Rejected("wrong_model", "a radar scan at a 2-D centre (--dim 4)")
-        self._in_scale(f"scan {msg.seq} of {msg.sensor}", scan.z, scan.R)
+        where = scan.z if scan.sensor_position is None else np.concatenate([scan.z.ravel(), scan.sensor_position])
+        self._in_scale(f"scan {msg.seq} of {msg.sensor}", where, scan.R)
         if self._admit(msg):
             self._take(msg)
 
