@@ -55,13 +55,20 @@ def enu_from_geodetic(frame: Frame, lat: np.ndarray, lon: np.ndarray, h: np.ndar
     return np.stack(np.broadcast_arrays(e, n, u), axis=-1)
 
 
+def wrap_lon(lon: np.ndarray | float) -> np.ndarray:
+    """Longitudes [deg] in [-180, 180) (RFC 7946's range; pymap3d gives (-180, 180], a config may say
+    up to 360); a longitude already in range is returned unchanged, to the bit."""
+    lon = np.asarray(lon, float)
+    return np.where((lon >= -180.0) & (lon < 180.0), lon, np.mod(lon + 180.0, 360.0) - 180.0)
+
+
 def geodetic_from_enu(frame: Frame, enu: np.ndarray) -> np.ndarray:
-    """``[lat deg, lon deg, h m]`` (N, 3) of ENU positions (N, 3) of ``frame``."""
+    """``[lat deg, lon deg in [-180, 180), h m]`` (N, 3) of ENU positions (N, 3) of ``frame``."""
     import pymap3d
 
     enu = np.asarray(enu, float)
     lat, lon, h = pymap3d.enu2geodetic(enu[..., 0], enu[..., 1], enu[..., 2], *frame)
-    return np.stack(np.broadcast_arrays(lat, lon, h), axis=-1)
+    return np.stack(np.broadcast_arrays(lat, wrap_lon(lon), h), axis=-1)
 
 
 def common_from_local_vectors(frame: Frame, lat: np.ndarray, lon: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -6,6 +6,8 @@ the ellipsoid, as RFC 7946 orders them), with the times in ``properties.times``;
 sensor site of ``[frame.sites]`` and one for the frame's origin. A track that appears in one
 picture only is a ``Point``. Positions come from the rows' ``lat``, ``lon``, ``alt`` when they carry
 them (replay with a ``[frame]``, ``simulate traffic``'s truth), else from ``x`` in the config's frame.
+Longitudes are in [-180, 180); a line that crosses the antimeridian is cut there into a
+``MultiLineString`` (RFC 7946 section 3.1.9), its parts ending and starting at 180 and -180.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from fedtrack.config import ConfigError
-from fedtrack.geodetic import Frame, FrameConfig, add_geodetic, load_frame
+from fedtrack.geodetic import Frame, FrameConfig, add_geodetic, load_frame, wrap_lon
 from fedtrack.jsonl import InputError, check_output, output_file, read_jsonl
 
 
@@ -36,13 +38,39 @@ def _paths(path: Path, key: str, frame: Frame, confirmed_only: bool) -> dict[Any
             raise InputError(f"{where}: {key}: each needs \"id\" and \"x\" ([x, vx, y, vy(, z, vz)])") from exc
         for r in rows:
             item = out.setdefault(r["id"], {"coords": [], "times": [], "props": {}})
-            point = [r["lon"], r["lat"]] + ([r["alt"]] if "alt" in r else [])
+            point = [float(wrap_lon(r["lon"])), r["lat"]] + ([r["alt"]] if "alt" in r else [])
             item["coords"].append(point)
             item["times"].append(float(obj["t"]))
             for extra in ("icao24", "sensors"):
                 if extra in r:
                     item["props"][extra] = r[extra]
     return out
+
+
+def antimeridian_parts(coords: list[list[float]]) -> list[list[list[float]]]:
+    """A line's positions (``[lon, lat(, alt)]``, lon in [-180, 180)) cut where a step between two of
+    them crosses the antimeridian (a longitude step over 180 deg: the short way round), each cut at
+    the crossing, interpolated linearly in longitude (RFC 7946 section 3.1.9)."""
+    parts = [[coords[0]]]
+    for a, b in zip(coords, coords[1:]):
+        step = b[0] - a[0]
+        if abs(step) > 180.0:
+            edge = 180.0 if step < 0 else -180.0  # the side a leaves by
+            f = (edge - a[0]) / (step + 2 * edge)
+            cut = [a[i] + f * (b[i] - a[i]) for i in range(1, len(a))]
+            parts[-1].append([edge, *cut])
+            parts.append([[-edge, *cut]])
+        parts[-1].append(b)
+    return parts
+
+
+def _geometry(coords: list[list[float]]) -> dict[str, Any]:
+    """A ``Point`` for one position, a ``LineString``, or a ``MultiLineString`` cut at the antimeridian."""
+    if len(coords) == 1:
+        return {"type": "Point", "coordinates": coords[0]}
+    parts = antimeridian_parts(coords)
+    return ({"type": "LineString", "coordinates": parts[0]} if len(parts) == 1
+            else {"type": "MultiLineString", "coordinates": parts})
 
 
 def feature_collection(frame_cfg: FrameConfig, tracks: Path | None, truth: Path | None) -> dict[str, Any]:
@@ -53,16 +81,12 @@ def feature_collection(frame_cfg: FrameConfig, tracks: Path | None, truth: Path 
         if path is None:
             continue
         for tid, item in _paths(path, key, frame, kind == "track").items():
-            coords = item["coords"]
-            geometry = ({"type": "LineString", "coordinates": coords} if len(coords) > 1
-                        else {"type": "Point", "coordinates": coords[0]})
-            features.append({"type": "Feature", "geometry": geometry,
+            features.append({"type": "Feature", "geometry": _geometry(item["coords"]),
                              "properties": {"kind": kind, "id": tid, "times": item["times"], **item["props"]}})
-    for sid, (lat, lon, h) in frame_cfg.sites.items():
-        features.append({"type": "Feature", "geometry": {"type": "Point", "coordinates": [lon, lat, h]},
-                         "properties": {"kind": "sensor", "id": sid}})
-    features.append({"type": "Feature", "geometry": {"type": "Point", "coordinates": [frame.lon, frame.lat, frame.h]},
-                     "properties": {"kind": "origin"}})
+    points = [({"kind": "sensor", "id": sid}, where) for sid, where in frame_cfg.sites.items()]
+    for props, (lat, lon, h) in points + [({"kind": "origin"}, frame)]:
+        features.append({"type": "Feature", "geometry": {"type": "Point", "coordinates": [float(wrap_lon(lon)), lat, h]},
+                         "properties": props})
     return {"type": "FeatureCollection", "features": features}
 
 

@@ -1499,10 +1499,12 @@ def picture_rows(ids: list[int], X: np.ndarray, P: np.ndarray, confirmed: list[b
 
 def with_geodetic(rows: list[dict[str, Any]], lla: np.ndarray) -> list[dict[str, Any]]:
     """Picture or truth rows with ``lat``, ``lon`` [deg] (9 decimals) and, for a 3-D state (``x`` of
-    6), ``alt`` [m above the ellipsoid] (4 decimals) from ``lla`` (n, 3), placed beside ``x``."""
+    6), ``alt`` [m above the ellipsoid] (4 decimals) from ``lla`` (n, 3), placed beside ``x``; a
+    longitude in [-180, 180) stays there once rounded (179.9999999997 is -180.0, not 180.0)."""
     out = []
     for row, (lat, lon, h) in zip(rows, lla.tolist()):
-        extra = {"lat": round(lat, 9), "lon": round(lon, 9)}
+        lon = round(lon, 9)
+        extra = {"lat": round(lat, 9), "lon": lon - 360.0 if lon >= 180.0 else lon}
         if len(row["x"]) >= 6:
             extra["alt"] = round(h, 4)
         out.append({**row, **extra})

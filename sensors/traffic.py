@@ -113,22 +113,35 @@ sensors (--sensors, comma-separated KIND:PERIOD[/SIGMA...][@LAT/LON/H]):
 
 class Recording(NamedTuple):
     """Airborne samples, sorted by aircraft then time: ``t`` [s since 1970], ``icao24``, ``lla`` (N, 3)
-    [deg, deg, m], ``velocity`` (N, 3) east, north, up [m/s] in the local axes (NaN: not recorded)."""
+    [deg, deg, m], ``velocity`` (N, 3) east, north, up [m/s] in the local axes (NaN: not recorded);
+    ``dropped``: the rows read but left out, by reason."""
 
     t: np.ndarray
     icao24: np.ndarray
     lla: np.ndarray
     velocity: np.ndarray
+    dropped: dict[str, int] = {}
 
 
 class Truth(NamedTuple):
     """States ``x`` (steps, N, 6) ``[x, vx, y, vy, z, vz]`` on the ``DT`` grid from ``t0`` [s since
-    1970], ``alive`` (steps, N), each target's ``icao24`` (N,)."""
+    1970], ``alive`` (steps, N), each target's ``icao24`` (N,); ``dropped``: the recording's samples
+    and aircraft left out, by reason (:func:`build_truth`)."""
 
     t0: float
     x: np.ndarray
     alive: np.ndarray
     icao24: list[str]
+    dropped: dict[str, int] = {}
+
+
+class Segments(NamedTuple):
+    """Row indices of each track (:func:`segments`), and how many rows were left out: ``repeated``
+    (a time or position repeated), ``single`` (a track of one sample)."""
+
+    pieces: list[np.ndarray]
+    repeated: int
+    single: int
 
 
 def _rows(path: Path) -> tuple[list[str], list[tuple[int, list[Any]]]]:
@@ -165,23 +178,33 @@ def _rows(path: Path) -> tuple[list[str], list[tuple[int, list[Any]]]]:
 
 
 def _seconds(value: Any, where: str) -> float:
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
-        return float(value)
     if isinstance(value, datetime):
         stamp = value
     else:
-        text = str(value).strip()
         try:
-            return float(text)
+            seconds = None if isinstance(value, bool) else float(str(value).strip())
         except ValueError:
-            pass
+            seconds = None
+        if seconds is not None:
+            if not math.isfinite(seconds):
+                raise InputError(f"{where}: time: {value!r} is not a finite number of seconds")
+            return seconds
         try:
-            stamp = datetime.fromisoformat(text.replace("Z", "+00:00"))
+            stamp = datetime.fromisoformat(str(value).strip().replace("Z", "+00:00"))
         except ValueError as exc:
             raise InputError(f"{where}: time: {value!r} is neither seconds nor an ISO-8601 date") from exc
     if stamp.tzinfo is None:
         stamp = stamp.replace(tzinfo=timezone.utc)
     return stamp.timestamp()
+
+
+def _address(value: Any, where: str) -> str:
+    """An aircraft's icao24, trimmed and lower-cased; an empty one is an error (its rows would be one
+    aircraft's track, whatever aircraft they are)."""
+    text = "" if value is None else str(value).strip().lower()
+    if text in ("", "nan", "none", "null"):
+        raise InputError(f"{where}: icao24: {value!r} is empty (each row needs the aircraft's address)")
+    return text
 
 
 def _number(value: Any, where: str, field: str) -> float:
@@ -212,19 +235,22 @@ def read_recording(path: Path, units: str = "si") -> Recording:
     has_velocity = all(c in index for c in VELOCITY)
     k_alt, k_gs, k_vr = UNITS[units]
     t, ids, lla, vel = [], [], [], []
+    ground = missing = 0
     for lineno, row in rows:
         where = f"{path}:{lineno}"
         if len(row) < len(names):
             raise InputError(f"{where}: {len(row)} fields, the header has {len(names)}")
         if "onground" in index and _flag(row[index["onground"]]):
+            ground += 1
             continue
         point = [_number(row[index[c]], where, c) for c in ("latitude", "longitude", "altitude")]
         if not all(map(math.isfinite, point)):
+            missing += 1
             continue
         if not (-90 <= point[0] <= 90 and -180 <= point[1] <= 360):
             raise InputError(f"{where}: latitude, longitude: {point[0]}, {point[1]} is not on the Earth")
         t.append(_seconds(row[index["time"]], where))
-        ids.append(str(row[index["icao24"]]).strip().lower())
+        ids.append(_address(row[index["icao24"]], where))
         lla.append([point[0], point[1], point[2] * k_alt])
         if has_velocity:
             gs, trk, vr = (_number(row[index[c]], where, c) for c in VELOCITY)
@@ -236,23 +262,27 @@ def read_recording(path: Path, units: str = "si") -> Recording:
         raise InputError(f"{path}: no airborne sample with a position")
     order = np.lexsort((np.array(t), np.array(ids)))
     return Recording(np.array(t)[order], np.array(ids)[order], np.array(lla, float)[order],
-                     np.array(vel, float)[order])
+                     np.array(vel, float)[order], {"on the ground": ground, "without a position or altitude": missing})
 
 
-def segments(rec: Recording, max_gap: float) -> list[np.ndarray]:
+def segments(rec: Recording, max_gap: float) -> Segments:
     """Row indices of each track: one aircraft's samples, a repeated (stale) position or time dropped,
     split where the gap between samples exceeds ``max_gap`` [s]; tracks of one sample dropped."""
     out = []
+    repeated = single = 0
     bounds = np.flatnonzero(np.r_[True, rec.icao24[1:] != rec.icao24[:-1], True])
     for a, b in zip(bounds[:-1], bounds[1:]):
         rows = np.arange(a, b)
         same = np.r_[False, (np.diff(rec.t[rows]) <= 0)
                      | np.all(np.diff(rec.lla[rows, :2], axis=0) == 0, axis=1)]
+        repeated += int(same.sum())
         rows = rows[~same]
         for piece in np.split(rows, np.flatnonzero(np.diff(rec.t[rows]) > max_gap) + 1):
             if len(piece) >= 2:
                 out.append(piece)
-    return out
+            else:
+                single += len(piece)
+    return Segments(out, repeated, single)
 
 
 def reconcile(t: np.ndarray, pos: np.ndarray, vel: np.ndarray, sigma_p: float = SIGMA_POSITION,
@@ -284,23 +314,31 @@ def build_truth(rec: Recording, frame: Frame, start: float, duration: float | No
         raise InputError(f"--start {start:g}: no data after it (the recording spans {span:g} s from its first "
                          f"sample; --start must be less)")
     steps = int(round((end - t0) / DT)) + 1
-    grid = t0 + np.arange(steps) * DT
-    pieces = [p for p in segments(rec, max_gap) if rec.t[p[-1]] >= t0 and rec.t[p[0]] <= end]
+    # times from t0: at 1.7e9 s a float's step is 2.4e-7 s, 5e-5 m at 200 m/s, and t0 + k DT would be
+    # rounded to it; the recorded times less t0 are exact (Sterbenz) and the grid k DT is the same for
+    # any shift of the whole recording
+    rel = rec.t - t0
+    grid = np.arange(steps) * DT
+    found = segments(rec, max_gap)
+    pieces = [p for p in found.pieces if rel[p[-1]] >= 0 and rec.t[p[0]] <= end]
     x = np.zeros((steps, len(pieces), 6))
     alive = np.zeros((steps, len(pieces)), bool)
     for j, rows in enumerate(pieces):
         pos = enu_from_geodetic(frame, *rec.lla[rows].T)
         vel = common_from_local_vectors(frame, rec.lla[rows, 0], rec.lla[rows, 1], rec.velocity[rows])
         if np.any(np.isfinite(vel)):
-            pos = reconcile(rec.t[rows], pos, np.where(np.isfinite(vel), vel, np.gradient(pos, rec.t[rows], axis=0)))
-        vel = np.where(np.isfinite(vel), vel, np.gradient(pos, rec.t[rows], axis=0))
-        spline = CubicHermiteSpline(rec.t[rows], pos, vel)
-        live = (grid >= rec.t[rows[0]]) & (grid <= rec.t[rows[-1]])
+            pos = reconcile(rel[rows], pos, np.where(np.isfinite(vel), vel, np.gradient(pos, rel[rows], axis=0)))
+        vel = np.where(np.isfinite(vel), vel, np.gradient(pos, rel[rows], axis=0))
+        spline = CubicHermiteSpline(rel[rows], pos, vel)
+        live = (grid >= rel[rows[0]]) & (grid <= rel[rows[-1]])
         p, v = spline(grid[live]), spline(grid[live], 1)
         x[live, j] = np.stack([p[:, 0], v[:, 0], p[:, 1], v[:, 1], p[:, 2], v[:, 2]], axis=-1)
         alive[live, j] = np.all(np.abs(p[:, :2]) <= box / 2, axis=1)
     keep = alive.any(axis=0)
-    return Truth(t0, x[:, keep], alive[:, keep], [str(rec.icao24[p[0]]) for p, k in zip(pieces, keep) if k])
+    icao24 = [str(rec.icao24[p[0]]) for p, k in zip(pieces, keep) if k]
+    dropped = {**rec.dropped, "repeating a time or position": found.repeated, "in a track of one sample": found.single,
+               "aircraft with no track inside the box and window": len(set(rec.icao24.tolist())) - len(set(icao24))}
+    return Truth(t0, x[:, keep], alive[:, keep], icao24, dropped)
 
 
 def parse_kinds(spec: str) -> list[SensorSpec]:
@@ -444,7 +482,9 @@ def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, star
     frame_table = {"origin": list(frame), "sites": {s.id: site.geodetic.tolist() for s, site, _ in sensors if site}}
     with output_file(out / "config.toml") as fh:
         fh.write(to_toml({"mtt": mtt, "frame": frame_table}))
-    return {"scans": len(lines), "targets": len(truth.icao24), "start": truth.t0, "duration": sc.duration,
+    return {"scans": len(lines), "targets": len(truth.icao24), "aircraft": len(set(truth.icao24)),
+            "rows": len(rec.t) + sum(rec.dropped.values()), "dropped": truth.dropped,
+            "start": truth.t0, "duration": sc.duration,
             "most_alive": int(truth.alive.sum(axis=1).max()), "derived": derived,
             "sensors": [f"{s.id} ({s.kind}, {s.period:g} s)" for s in specs]}
 
@@ -500,8 +540,10 @@ def main(argv: list[str]) -> int:
     rec = read_recording(args.source, args.units)
     info = simulate(rec, frame, args.sensors, args.seed, args.out, args.start, args.duration, args.box * 1e3,
                     args.max_gap, args.pd, args.clutter, args.late, args.nacp)
+    left_out = ", ".join(f"{n} {why}" for why, n in info["dropped"].items() if n) or "none"
+    print(f"read {args.source}: {info['rows']} rows; left out: {left_out}")
     print(f"wrote {args.out}/measurements.jsonl ({info['scans']} scans), truth.jsonl ({info['targets']} tracks of "
-          f"aircraft, at most {info['most_alive']} at once, {info['duration']:g} s from "
+          f"{info['aircraft']} aircraft, at most {info['most_alive']} at once, {info['duration']:g} s from "
           f"{datetime.fromtimestamp(info['start'], timezone.utc):%Y-%m-%d %H:%M:%S} UTC), config.toml; "
           f"sensors: {', '.join(info['sensors'])}")
     return 0

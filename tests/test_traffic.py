@@ -72,7 +72,7 @@ def test_segments_drop_stale_positions_and_split_at_gaps(tmp_path: Path) -> None
     rows.insert(2, "1.5,a,48.0,2.001,1000")  # the position of t = 1 again: stale
     rows += ["0,b,47.0,2.0,1000", "100,b,47.0,2.1,1000"]  # a gap of 100 s: two tracks of one sample each
     rec = read_recording(_write_csv(tmp_path / "a.csv", "time,icao24,lat,lon,alt", rows))
-    pieces = segments(rec, max_gap=30.0)
+    pieces = segments(rec, max_gap=30.0).pieces
     assert [rec.t[p].tolist() for p in pieces] == [[0, 1, 2, 3], [40, 41, 42]]
 
 

@@ -3,7 +3,9 @@
 Drawn from :func:`fedtrack.geojson.feature_collection` (the same lines ``export --geojson``
 writes): truth grey and wide, each confirmed track a thin coloured line, radar and sensor sites
 as triangles, the frame's origin as a cross. Longitude is stretched by 1 / cos(latitude of the
-origin), so that a degree is about as long on both axes near it.
+origin), so that a degree is about as long on both axes near it, and drawn continuous about the
+origin's (its ticks labelled in [-180, 180)), so that a scene across the antimeridian is one
+picture, not two strips 360 degrees apart.
 """
 
 from __future__ import annotations
@@ -11,7 +13,9 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from fedtrack.geodetic import FrameConfig
+import numpy as np
+
+from fedtrack.geodetic import FrameConfig, wrap_lon
 from fedtrack.geojson import feature_collection
 
 TRUTH_GREY = "0.6"
@@ -34,13 +38,19 @@ def plot_map(tracks: Path, truth: Path | None, frame: FrameConfig, out: Path, la
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from matplotlib.ticker import FuncFormatter
+
     fig, ax = plt.subplots(figsize=(9, 8))
     colours = track_colours()
     n_tracks = 0
+    lon0 = frame.origin[1]
     for feature in feature_collection(frame, tracks, truth)["features"]:
         kind, geometry = feature["properties"]["kind"], feature["geometry"]
-        coords = geometry["coordinates"] if geometry["type"] == "LineString" else [geometry["coordinates"]]
-        lon, lat = [c[0] for c in coords], [c[1] for c in coords]
+        parts = {"Point": [[geometry["coordinates"]]], "LineString": [geometry["coordinates"]]}.get(
+            geometry["type"], geometry["coordinates"])
+        coords = [c for part in parts for c in part]
+        lon = (lon0 + wrap_lon(np.array([c[0] for c in coords]) - lon0)).tolist()
+        lat = [c[1] for c in coords]
         if kind == "truth":
             ax.plot(lon, lat, color=TRUTH_GREY, lw=3.0, zorder=1)
         elif kind == "track":
@@ -53,6 +63,7 @@ def plot_map(tracks: Path, truth: Path | None, frame: FrameConfig, out: Path, la
         else:
             ax.scatter(lon, lat, marker="+", s=120, c="red", zorder=4, label="frame origin")
     ax.set_aspect(1.0 / math.cos(math.radians(frame.origin[0])))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{float(wrap_lon(v)):g}"))
     ax.set_xlabel("longitude [deg]")
     ax.set_ylabel("latitude [deg]")
     fig.suptitle(f"{label or 'algorithm not recorded (--label)'}: {tracks.name}")
