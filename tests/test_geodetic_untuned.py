@@ -1,0 +1,199 @@
+"""The Earth chain (``simulate traffic`` -> ``replay`` -> ``evaluate --config`` -> ``export --geojson``) on
+small synthetic recordings at places and with quirks nobody tuned for: the antimeridian, the poles, the
+equator and prime meridian, the southern hemisphere, epoch times, malformed rows, far radars."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from matplotlib.figure import Figure
+
+from fedtrack.cli import main
+from fedtrack.geodetic import Frame, enu_from_geodetic, geodetic_from_enu, wrap_lon
+from fedtrack.geojson import antimeridian_parts
+from fedtrack.local_filters.regions import load_regions, region_of
+from fedtrack.wire import with_geodetic
+
+HEADER = "time,icao24,lat,lon,alt"
+
+
+def _flights(lat0: float, lon0: float, t0: float = 1.7e9, n: int = 3, seconds: int = 60, seed: int = 1,
+             alt: tuple[float, float] = (3000.0, 11000.0)) -> list[list]:
+    """Rows ``[time, icao24, lat, lon, alt]`` of ``n`` aircraft flying straight at 200 m/s through the
+    point ``lat0, lon0``, one sample a second (exact at any integer ``t0``)."""
+    rng = np.random.default_rng(seed)
+    frame = Frame(lat0, lon0)
+    rows = []
+    for k in range(n):
+        heading = (np.pi / 2 if k % 2 == 0 else 0.0) + rng.uniform(-0.3, 0.3)
+        v = 200.0 * np.array([np.sin(heading), np.cos(heading)])
+        ts = np.arange(seconds + 1.0)
+        start = rng.uniform(-3e3, 3e3, 2) - v * seconds / 2
+        enu = np.column_stack([start[0] + v[0] * ts, start[1] + v[1] * ts, np.full_like(ts, rng.uniform(*alt))])
+        for t, (lat, lon, h) in zip(ts, geodetic_from_enu(frame, enu)):
+            rows.append([t0 + t, f"a{k:05x}", round(lat, 7), round(float(wrap_lon(lon)), 7), round(h, 2)])
+    return rows
+
+
+def _csv(path: Path, rows: list[list], header: str = HEADER) -> Path:
+    path.write_text(header + "\n" + "".join(",".join(map(str, r)) + "\n" for r in rows))
+    return path
+
+
+def _simulate(source: Path, origin: str, out: Path, sensors: str = "radar:4,pos:2,adsb:1", *extra: str) -> int:
+    return main(["simulate", "traffic", "--source", str(source), f"--origin={origin}", "--sensors", sensors,
+                 "--seed", "2", "--clutter", "2", "--box", "150", "--out", str(out), *extra])
+
+
+def _replay(out: Path, algorithm: str, *extra: str) -> Path:
+    tracks = out / f"{algorithm}.jsonl"
+    assert main(["replay", "--algorithm", algorithm, "--config", str(out / "config.toml"), "--measurements",
+                 str(out / "measurements.jsonl"), "--out", str(tracks), *extra]) == 0
+    return tracks
+
+
+def _numbers(path: Path) -> np.ndarray:
+    def walk(o: object) -> list[float]:
+        if isinstance(o, dict):
+            return [v for k in sorted(o) for v in walk(o[k])]
+        if isinstance(o, list):
+            return [v for item in o for v in walk(item)]
+        return [float(o)] if isinstance(o, (int, float)) and not isinstance(o, bool) else []
+
+    return np.array(walk([json.loads(line) for line in path.read_text().splitlines()]))
+
+
+def test_epoch_times_give_the_pictures_of_the_same_scenario_from_zero(tmp_path: Path) -> None:
+    """A recording shifted by 1.7e9 s (exactly: integer times) gives the same measurements, truth and
+    pictures as from t = 0 to 1e-6 m: the truth grid is built from the window's start, not at 1.7e9 s
+    where a float's step is 2.4e-7 s (5e-5 m at 200 m/s)."""
+    runs = []
+    for t0 in (0.0, 1.7e9):
+        out = tmp_path / f"t{t0:g}"
+        assert _simulate(_csv(tmp_path / f"t{t0:g}.csv", _flights(48.86, 2.35, t0=t0)), "48.86,2.35", out) == 0
+        runs.append([out / "measurements.jsonl", out / "truth.jsonl", _replay(out, "mtt-centralized"),
+                     _replay(out, "mtt-federated")])
+    for a, b in zip(*runs):
+        x, y = _numbers(a), _numbers(b)
+        assert x.shape == y.shape and np.max(np.abs(x - y)) < 1e-6, a.name
+
+
+PLACES = {  # origin, site of r1: the antimeridian at 65 N, 88.5 N, the equator and prime meridian, 85 S
+    "antimeridian": ("65,179.95", "65.1/-179.9/50"),
+    "north-pole": ("88.5,30", "88.45/32/100"),
+    "equator-greenwich": ("0,0", "0/0/10"),
+    "south": ("-85,-120,2800", "-85/-119/2900"),
+}
+
+
+@pytest.mark.parametrize("place", sorted(PLACES))
+def test_the_chain_on_the_earth_round_trips_lat_lon(tmp_path: Path, place: str,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """simulate -> replay -> evaluate --config -> export --geojson: no error; each track's lat, lon, alt
+    is its x on the Earth and within its own 4 sigma of the nearest aircraft; the GeoJSON's longitudes
+    are in [-180, 180] and its lines never step over 180 deg (cut at the antimeridian); the map is one
+    picture about the origin, not two strips 360 deg apart."""
+    origin, site = PLACES[place]
+    lat0, lon0 = (float(v) for v in origin.split(",")[:2])
+    out = tmp_path / "run"
+    assert _simulate(_csv(tmp_path / "r.csv", _flights(lat0, lon0)), origin, out, f"radar:4@{site},pos:2") == 0
+    frame = Frame(*(float(v) for v in origin.split(",")))
+    truth = {json.loads(line)["t"]: json.loads(line)["targets"] for line in (out / "truth.jsonl").read_text().splitlines()}
+    for algorithm in ("mtt-centralized", "mtt-federated"):
+        tracks = _replay(out, algorithm)
+        near = []
+        for picture in map(json.loads, tracks.read_text().splitlines()):
+            for r in (r for r in picture["tracks"] if r["status"] == "confirmed" and picture["t"] in truth):
+                back = enu_from_geodetic(frame, r["lat"], r["lon"], r["alt"])
+                assert np.allclose(back, np.asarray(r["x"])[[0, 2, 4]], atol=1e-3)  # 1e-9 deg, 1e-4 m written
+                assert -180.0 <= r["lon"] < 180.0
+                gap = min(np.hypot(*(back[:2] - enu_from_geodetic(frame, g["lat"], g["lon"], g["alt"])[:2]))
+                          for g in truth[picture["t"]])
+                near.append(gap / np.sqrt(np.trace(np.asarray(r["P"])[np.ix_([0, 2], [0, 2])])))
+        assert len(near) > 100 and np.mean(np.asarray(near) < 4.0) > 0.97, (algorithm, np.max(near))
+    figures: list[Figure] = []
+    original = Figure.savefig
+    monkeypatch.setattr(Figure, "savefig", lambda self, *a, **k: (figures.append(self), original(self, *a, **k)))
+    assert main(["evaluate", "--tracks", str(tracks), "--truth", str(out / "truth.jsonl"), "--horizontal",
+                 "--plot", str(tmp_path / "e.png"), "--config", str(out / "config.toml")]) == 0
+    left, right = figures[-1].axes[0].get_xlim()
+    assert right - left < 30.0 and left - 1 < lon0 < right + 1  # 10 km at 88.5 N is 2.6 deg of longitude
+    geo = tmp_path / "t.geojson"
+    assert main(["export", "--geojson", str(geo), "--config", str(out / "config.toml"), "--tracks", str(tracks),
+                 "--truth", str(out / "truth.jsonl")]) == 0
+    cut = 0
+    for f in json.loads(geo.read_text())["features"]:
+        g = f["geometry"]
+        parts = {"Point": [[g["coordinates"]]], "LineString": [g["coordinates"]]}.get(g["type"], g["coordinates"])
+        cut += len(parts) - 1
+        for part in parts:
+            lon = np.array([p[0] for p in part])
+            assert np.all((-180 <= lon) & (lon <= 180)) and np.all(np.abs(np.diff(lon)) < 180)
+    assert (cut > 0) == (place == "antimeridian")
+
+
+def test_antimeridian_cut_and_longitude_range() -> None:
+    """The cut of RFC 7946 3.1.9 (its example: a line from 170 E to 170 W), both ways; 180 deg and its
+    rounding written as -180; a longitude in range unchanged to the bit."""
+    east_west = antimeridian_parts([[170.0, 45.0], [-170.0, 55.0]])
+    assert east_west == [[[170.0, 45.0], [180.0, 50.0]], [[-180.0, 50.0], [-170.0, 55.0]]]
+    west_east = antimeridian_parts([[-179.0, 10.0, 100.0], [179.0, 12.0, 300.0], [178.0, 13.0, 400.0]])
+    assert west_east == [[[-179.0, 10.0, 100.0], [-180.0, 11.0, 200.0]],
+                         [[180.0, 11.0, 200.0], [179.0, 12.0, 300.0], [178.0, 13.0, 400.0]]]
+    assert antimeridian_parts([[1.0, 2.0], [3.0, 4.0]]) == [[[1.0, 2.0], [3.0, 4.0]]]
+    np.testing.assert_array_equal(wrap_lon([180.0, 359.5, -180.0, 2.35, -200.0]), [-180.0, -0.5, -180.0, 2.35, 160.0])
+    far = geodetic_from_enu(Frame(0.0, 179.0), np.array([[111319.49079327357, 0.0, 0.0]]))[0, 1]
+    assert -180.0 <= far < 180.0
+    rows = with_geodetic([{"x": [0.0, 0.0, 0.0, 0.0]}], np.array([[10.0, 179.9999999997, 0.0]]))
+    assert rows[0]["lon"] == -180.0
+
+
+def test_regions_in_wgs84_across_the_antimeridian(tmp_path: Path) -> None:
+    """Two [[regions.polygon]] lat_lon quadrangles meeting at 179.95 E, one reaching into the western
+    longitudes: each position is owned by the one it is in (the common frame is continuous there)."""
+    config = tmp_path / "c.toml"
+    config.write_text("""[frame]
+origin = [65.0, 179.95, 0.0]
+[regions]
+margin = 2000.0
+[[regions.polygon]]
+id = "west"
+lat_lon = [[64.0, 179.0], [66.0, 179.0], [66.0, 179.95], [64.0, 179.95]]
+[[regions.polygon]]
+id = "east"
+lat_lon = [[64.0, 179.95], [66.0, 179.95], [66.0, -179.0], [64.0, -179.0]]
+""")
+    regions = load_regions(config)
+    lon = np.array([179.5, 179.9, -179.99, -179.5, 179.96])
+    xy = enu_from_geodetic(Frame(65.0, 179.95), np.full(5, 65.2), lon, np.zeros(5))[:, :2]
+    assert [regions.ids[i] for i in region_of(regions, xy)] == ["west", "west", "east", "east", "east"]
+
+
+def test_bad_rows_are_one_line_errors_and_left_out_rows_are_counted(tmp_path: Path,
+                                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    """A non-finite time or an empty icao24 is an error naming file, line and field, nothing written;
+    rows on the ground, without a position, repeated or alone, and aircraft with no track, are counted
+    and said; unsorted and duplicated rows give the sorted file's truth."""
+    rows = _flights(48.86, 2.35, seconds=30)
+    for bad, field in (([rows[0][0], "", *rows[0][2:]], "icao24: '' is empty"),
+                       (["nan", *rows[0][1:]], "time: 'nan' is not a finite number"),
+                       (["inf", *rows[0][1:]], "time: 'inf' is not a finite number")):
+        assert _simulate(_csv(tmp_path / "bad.csv", rows[:5] + [bad] + rows[5:]), "48.86,2.35", tmp_path / "o") == 2
+        err = capsys.readouterr().err.strip()
+        assert err.count("\n") == 0 and f"bad.csv:7: {field}" in err and "Traceback" not in err, err
+        assert not (tmp_path / "o").exists()
+    quirks = [r + ["false"] for r in rows] + [[rows[3][0] + 0.5, *rows[3][1:], "false"]]  # a repeated position
+    quirks += [[rows[0][0], "lone", 48.9, 2.4, 3000.0, "false"], [rows[1][0], "a00001", 48.9, 2.4, 0.0, "true"],
+               [rows[2][0], "a00002", "NaN", 2.4, 3000.0, "false"], [rows[2][0], "a00002", 48.9, 2.4, "", "false"]]
+    src = _csv(tmp_path / "q.csv", quirks[::-1] + quirks[:7], HEADER + ",onground")  # unsorted, 7 rows twice
+    assert _simulate(src, "48.86,2.35", tmp_path / "q") == 0
+    said = capsys.readouterr().out
+    assert (f"read {src}: {len(quirks) + 7} rows; left out: 1 on the ground, 2 without a position or altitude, "
+            "8 repeating a time or position, 1 in a track of one sample, 1 aircraft with no track inside the box "
+            "and window") in said
+    assert "(3 tracks of 3 aircraft" in said
+    assert _simulate(_csv(tmp_path / "s.csv", rows), "48.86,2.35", tmp_path / "s") == 0
+    assert (tmp_path / "q" / "truth.jsonl").read_text() == (tmp_path / "s" / "truth.jsonl").read_text()
