@@ -12,6 +12,7 @@ is exact to round-off. Everything is batched over a leading axis (``(N, 3)`` arr
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -130,6 +131,30 @@ def aer_from_enu(site: RadarSite, enu: np.ndarray) -> np.ndarray:
 def enu_from_aer(site: RadarSite, aer: np.ndarray) -> np.ndarray:
     """Common-frame positions (N, 3) of the radar's ``[az, el, range]`` (N, 3)."""
     return enu_from_own(site, own_from_aer(np.asarray(aer, float)))
+
+
+#: WGS-84's semi-major axis [m] and first eccentricity squared
+WGS84_A = 6378137.0
+WGS84_E2 = 6.69437999014e-3
+#: the effective Earth radius factor of standard atmospheric refraction (the "4/3 Earth" of radar
+#: texts, e.g. Skolnik's: radar waves bend down, so a radar sees as if the Earth's radius were 4/3 of its own)
+REFRACTION_K = 4.0 / 3.0
+
+
+def above_radio_horizon(site: RadarSite, enu: np.ndarray, k: float = REFRACTION_K) -> np.ndarray:
+    """Whether the radar at ``site`` sees each common-frame position (N, 3) (N,): on a sphere of the
+    Earth's Gaussian radius of curvature at the site, ``R = a sqrt(1 - e^2) / (1 - e^2 sin^2 lat)``, a
+    target at height ``h_t`` and ground distance ``d`` from a radar at height ``h_r`` is in sight when
+    ``d <= sqrt(2 k R h_r) + sqrt(2 k R h_t)`` (heights below the sphere taken as 0): the distances to
+    the radio horizon of the radar and of the target, on the Earth of radius ``k R``."""
+    lat, _, h_r = site.geodetic
+    radius = WGS84_A * math.sqrt(1.0 - WGS84_E2) / (1.0 - WGS84_E2 * math.sin(math.radians(lat)) ** 2)
+    own = own_from_enu(site, enu)
+    up = own[..., 2] + radius + h_r  # from the sphere's centre, along the site's up
+    h_t = np.hypot(np.hypot(own[..., 0], own[..., 1]), up) - radius
+    d = radius * np.arctan2(np.hypot(own[..., 0], own[..., 1]), up)
+    reach = np.sqrt(2 * k * radius * max(h_r, 0.0)) + np.sqrt(2 * k * radius * np.maximum(h_t, 0.0))
+    return d <= reach
 
 
 def _check_geodetic(value: tuple[float, float, float], key: str) -> None:

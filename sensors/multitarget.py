@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 
 from fedtrack.config import to_toml
-from fedtrack.geodetic import RadarSite, aer_from_enu, enu_from_aer
+from fedtrack.geodetic import RadarSite, above_radio_horizon, aer_from_enu, enu_from_aer
 from fedtrack.jsonl import InputError, output_file, output_folder
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.radar.measurement import polar_from_cartesian, wrap_angle
@@ -175,7 +175,8 @@ def sensor_lines(spec: SensorSpec, sc: Scenario, x: np.ndarray, alive: np.ndarra
     A radar with a ``site`` on the Earth (:mod:`fedtrack.geodetic`) measures and errs in its own
     frame (range, azimuth from north, elevation about its site's ENU axes); its detections are then
     given, exactly, as range, azimuth and elevation about ``sensor_position`` in the common frame's
-    axes, the trackers' measurement model. Without a site it stands at a random point of the
+    axes, the trackers' measurement model; it detects only the targets above its radio horizon
+    (:func:`fedtrack.geodetic.above_radio_horizon`). Without a site it stands at a random point of the
     region's edge and measures in the common frame's axes. ``noise``: the sensor's ``R`` (default:
     a position sensor's 10-20 m per axis, drawn; a radar's ``RADAR_SD``)."""
     phase = round(rng.uniform(0, spec.period) / DT) * DT
@@ -196,7 +197,8 @@ def sensor_lines(spec: SensorSpec, sc: Scenario, x: np.ndarray, alive: np.ndarra
     L = np.linalg.cholesky(R)
     for k, t in enumerate(times):
         step = int(round(t / DT))
-        live = np.flatnonzero(alive[step] & (rng.uniform(size=alive.shape[1]) < sc.pd))
+        seen = alive[step] if site is None else alive[step] & above_radio_horizon(site, x[step][:, [0, 2, 4]])
+        live = np.flatnonzero(seen & (rng.uniform(size=alive.shape[1]) < sc.pd))
         truth = x[step, live]
         if where is None:
             z = truth[:, [0, 2]]

@@ -12,7 +12,18 @@ import pytest
 from matplotlib.figure import Figure
 
 from fedtrack.cli import main
-from fedtrack.geodetic import Frame, enu_from_geodetic, geodetic_from_enu, wrap_lon
+from fedtrack.geodetic import (
+    REFRACTION_K,
+    WGS84_A,
+    WGS84_E2,
+    Frame,
+    above_radio_horizon,
+    enu_from_geodetic,
+    enu_from_own,
+    geodetic_from_enu,
+    site_from_geodetic,
+    wrap_lon,
+)
 from fedtrack.geojson import antimeridian_parts
 from fedtrack.local_filters.regions import load_regions, region_of
 from fedtrack.wire import with_geodetic
@@ -197,3 +208,28 @@ def test_bad_rows_are_one_line_errors_and_left_out_rows_are_counted(tmp_path: Pa
     assert "(3 tracks of 3 aircraft" in said
     assert _simulate(_csv(tmp_path / "s.csv", rows), "48.86,2.35", tmp_path / "s") == 0
     assert (tmp_path / "q" / "truth.jsonl").read_text() == (tmp_path / "s" / "truth.jsonl").read_text()
+
+
+def test_a_radar_sees_only_above_its_radio_horizon(tmp_path: Path) -> None:
+    """``above_radio_horizon`` at 2 % inside and outside ``sqrt(2 k R h_r) + sqrt(2 k R h_t)`` (4/3 Earth),
+    and ``simulate traffic``: a radar 300 km from aircraft at 2-2.5 km (horizon 29 + 206 km) detects none
+    of them, one at their centre all."""
+    lat, h_r = 60.0, 50.0
+    frame = Frame(lat, 10.0)
+    site = site_from_geodetic(frame, lat, 10.0, h_r)
+    radius = WGS84_A * np.sqrt(1 - WGS84_E2) / (1 - WGS84_E2 * np.sin(np.radians(lat)) ** 2)
+    for h_t in (0.0, 300.0, 3000.0, 12000.0):
+        reach = np.sqrt(2 * REFRACTION_K * radius * h_r) + np.sqrt(2 * REFRACTION_K * radius * h_t)
+        for east in (0.0, 1.0):  # along the prime vertical too (the Gaussian radius is the mean of both)
+            angle = np.array([0.98, 1.02]) * reach / radius
+            ecef_dir = np.column_stack([np.sin(angle) * east, np.sin(angle) * (1 - east), np.cos(angle)])
+            own = ecef_dir * (radius + h_t) - [0.0, 0.0, radius + h_r]
+            assert above_radio_horizon(site, enu_from_own(site, own)).tolist() == [True, False], (h_t, east)
+    rows = _flights(48.86, 2.35, alt=(2000.0, 2500.0), seconds=40)
+    out = tmp_path / "far"
+    assert _simulate(_csv(tmp_path / "low.csv", rows), "48.86,2.35", out, "radar:4@48.86/2.35/50,radar:4@51.55/2.35/50",
+                     "--clutter", "0", "--late", "0") == 0
+    ranges: dict[str, list[float]] = {"r1": [], "r2": []}
+    for scan in map(json.loads, (out / "measurements.jsonl").read_text().splitlines()):
+        ranges[scan["sensor"]] += [d["z"][0] for d in scan["detections"]]
+    assert len(ranges["r1"]) >= 20 and ranges["r2"] == []
