@@ -145,15 +145,18 @@ def above_radio_horizon(site: RadarSite, enu: np.ndarray, k: float = REFRACTION_
     """Whether the radar at ``site`` sees each common-frame position (N, 3) (N,): on a sphere of the
     Earth's Gaussian radius of curvature at the site, ``R = a sqrt(1 - e^2) / (1 - e^2 sin^2 lat)``, a
     target at height ``h_t`` and ground distance ``d`` from a radar at height ``h_r`` is in sight when
-    ``d <= sqrt(2 k R h_r) + sqrt(2 k R h_t)`` (heights below the sphere taken as 0): the distances to
-    the radio horizon of the radar and of the target, on the Earth of radius ``k R``."""
-    lat, _, h_r = site.geodetic
+    ``d <= sqrt(2 k R h_r) + sqrt(2 k R h_t)``: the distances to the radio horizon of the radar and of
+    the target, on the Earth of radius ``k R``. Heights are above the surface, taken at the ellipsoid or,
+    for a radar below it (the Dead Sea's shore, -430 m), at the radar's own height (a target below the
+    surface: 0); terrain is not modelled."""
+    lat, _, h_site = site.geodetic
+    surface = min(h_site, 0.0)
     radius = WGS84_A * math.sqrt(1.0 - WGS84_E2) / (1.0 - WGS84_E2 * math.sin(math.radians(lat)) ** 2)
     own = own_from_enu(site, enu)
-    up = own[..., 2] + radius + h_r  # from the sphere's centre, along the site's up
+    up = own[..., 2] + radius + h_site  # from the ellipsoid sphere's centre, along the site's up
     h_t = np.hypot(np.hypot(own[..., 0], own[..., 1]), up) - radius
     d = radius * np.arctan2(np.hypot(own[..., 0], own[..., 1]), up)
-    reach = np.sqrt(2 * k * radius * max(h_r, 0.0)) + np.sqrt(2 * k * radius * np.maximum(h_t, 0.0))
+    reach = np.sqrt(2 * k * radius * (h_site - surface)) + np.sqrt(2 * k * radius * np.maximum(h_t - surface, 0.0))
     return d <= reach
 
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
@@ -52,7 +53,7 @@ def antimeridian_parts(coords: list[list[float]]) -> list[list[list[float]]]:
     them crosses the antimeridian (a longitude step over 180 deg: the short way round), each cut at
     the crossing, interpolated linearly in longitude (RFC 7946 section 3.1.9)."""
     parts = [[coords[0]]]
-    for a, b in zip(coords, coords[1:]):
+    for a, b in pairwise(coords):
         step = b[0] - a[0]
         if abs(step) > 180.0:
             edge = 180.0 if step < 0 else -180.0  # the side a leaves by

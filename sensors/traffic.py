@@ -120,7 +120,7 @@ class Recording(NamedTuple):
     icao24: np.ndarray
     lla: np.ndarray
     velocity: np.ndarray
-    dropped: dict[str, int] = {}
+    dropped: dict[str, int]
 
 
 class Truth(NamedTuple):
@@ -132,7 +132,7 @@ class Truth(NamedTuple):
     x: np.ndarray
     alive: np.ndarray
     icao24: list[str]
-    dropped: dict[str, int] = {}
+    dropped: dict[str, int]
 
 
 class Segments(NamedTuple):

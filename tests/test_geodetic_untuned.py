@@ -225,6 +225,11 @@ def test_a_radar_sees_only_above_its_radio_horizon(tmp_path: Path) -> None:
             ecef_dir = np.column_stack([np.sin(angle) * east, np.sin(angle) * (1 - east), np.cos(angle)])
             own = ecef_dir * (radius + h_t) - [0.0, 0.0, radius + h_r]
             assert above_radio_horizon(site, enu_from_own(site, own)).tolist() == [True, False], (h_t, east)
+    # a radar on the Dead Sea's shore, 400 m below the ellipsoid, and aircraft 50 m above it: a horizon of
+    # sqrt(2 k R 50 m) = 29 km from the radar's own level, not none (0.3 deg of longitude is 28.5 km there)
+    dead_sea = site_from_geodetic(Frame(31.5, 35.45), 31.5, 35.45, -400.0)
+    low = enu_from_geodetic(Frame(31.5, 35.45), np.full(3, 31.5), 35.45 + np.array([0.15, 0.29, 0.33]), np.full(3, -350.0))
+    assert above_radio_horizon(dead_sea, low).tolist() == [True, True, False]
     rows = _flights(48.86, 2.35, alt=(2000.0, 2500.0), seconds=40)
     out = tmp_path / "far"
     assert _simulate(_csv(tmp_path / "low.csv", rows), "48.86,2.35", out, "radar:4@48.86/2.35/50,radar:4@51.55/2.35/50",

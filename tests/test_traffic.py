@@ -120,7 +120,7 @@ def _cv_truth(n: int, seconds: float, rng: np.random.Generator) -> Truth:
     pos = p0[None] + t[:, None, None] * v[None]
     x = np.stack([pos[..., 0], np.broadcast_to(v[:, 0], pos.shape[:2]), pos[..., 1],
                   np.broadcast_to(v[:, 1], pos.shape[:2]), pos[..., 2], np.zeros(pos.shape[:2])], axis=-1)
-    return Truth(0.0, x, np.ones((steps, n), bool), [f"{i:06x}" for i in range(n)])
+    return Truth(0.0, x, np.ones((steps, n), bool), [f"{i:06x}" for i in range(n)], {})
 
 
 def test_radar_errs_in_its_own_frame_and_reports_in_the_trackers_model() -> None:

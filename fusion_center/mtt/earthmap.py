@@ -37,7 +37,6 @@ def plot_map(tracks: Path, truth: Path | None, frame: FrameConfig, out: Path, la
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
     from matplotlib.ticker import FuncFormatter
 
     fig, ax = plt.subplots(figsize=(9, 8))
