@@ -82,6 +82,15 @@ def common_from_local_vectors(frame: Frame, lat: np.ndarray, lon: np.ndarray, v:
     return ecef @ ecef_to_enu_rotation(frame.lat, frame.lon).T
 
 
+def local_from_common_vectors(frame: Frame, lat: np.ndarray, lon: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The inverse of :func:`common_from_local_vectors`: vectors (N, 3) in the common frame's axes, in the
+    ENU axes at each point ``lat``, ``lon`` (N,) [deg]: ``R_point R_origin' v``."""
+    phi, lam = np.radians(np.asarray(lat, float)), np.radians(np.asarray(lon, float))
+    sp, cp, sl, cl = np.sin(phi), np.cos(phi), np.sin(lam), np.cos(lam)
+    x, y, z = np.moveaxis(np.asarray(v, float) @ ecef_to_enu_rotation(frame.lat, frame.lon), -1, 0)
+    return np.stack([-sl * x + cl * y, -sp * cl * x - sp * sl * y + cp * z, cp * cl * x + cp * sl * y + sp * z], axis=-1)
+
+
 def site_from_geodetic(frame: Frame, lat: float, lon: float, h: float) -> RadarSite:
     """A radar standing at a WGS-84 point."""
     position = enu_from_geodetic(frame, np.array([lat]), np.array([lon]), np.array([h]))[0]

@@ -34,6 +34,7 @@ from fedtrack.geodetic import (
     common_from_local_vectors,
     enu_from_geodetic,
     geodetic_from_enu,
+    local_from_common_vectors,
     site_from_enu,
     site_from_geodetic,
 )
@@ -94,7 +95,8 @@ OpenSky's and the traffic library's):
   onground       optional, true/false: onground, on_ground (rows on the ground are dropped)
 units (--units): si (default, OpenSky's state vectors): altitude m, speeds m/s; aviation (the
 traffic library's export): altitude ft, ground speed kt, vertical rate ft/min.
-Without the three velocity columns the velocity is the derivative of the positions (numpy's gradient).
+A velocity not recorded (no ground speed and track, or no vertical rate: columns or cells) is the
+derivative of the positions (numpy's gradient).
 
 sensors (--sensors, comma-separated KIND:PERIOD[/SIGMA...][@LAT/LON/H]):
   pos:P[/S]      2-D position plots every P s; noise S m per axis (default: drawn in 10-20 m
@@ -159,7 +161,7 @@ def _rows(path: Path) -> tuple[list[str], list[tuple[int, list[Any]]]]:
             cols = list(table)
             return cols, [(i + 1, list(row)) for i, row in enumerate(zip(*table.values()))]
         if base.endswith(".csv"):
-            with opener(path, "rt", newline="") as fh:
+            with opener(path, "rt", newline="", encoding="utf-8-sig") as fh:  # a spreadsheet's byte-order mark
                 reader = csv.reader(fh)
                 cols = next(reader, [])
                 return cols, [(i, row) for i, row in enumerate(reader, start=2) if row]
@@ -232,7 +234,6 @@ def read_recording(path: Path, units: str = "si") -> Recording:
             index[col] = found[0]
         elif col in REQUIRED:
             raise InputError(f"{path}: no {col} column (accepted names: {', '.join(aliases)})")
-    has_velocity = all(c in index for c in VELOCITY)
     k_alt, k_gs, k_vr = UNITS[units]
     t, ids, lla, vel = [], [], [], []
     ground = missing = 0
@@ -252,12 +253,9 @@ def read_recording(path: Path, units: str = "si") -> Recording:
         t.append(_seconds(row[index["time"]], where))
         ids.append(_address(row[index["icao24"]], where))
         lla.append([point[0], point[1], point[2] * k_alt])
-        if has_velocity:
-            gs, trk, vr = (_number(row[index[c]], where, c) for c in VELOCITY)
-            a = math.radians(trk)
-            vel.append([gs * k_gs * math.sin(a), gs * k_gs * math.cos(a), vr * k_vr])
-        else:
-            vel.append([math.nan] * 3)
+        gs, trk, vr = (_number(row[index[c]], where, c) if c in index else math.nan for c in VELOCITY)
+        a = math.radians(trk)
+        vel.append([gs * k_gs * math.sin(a), gs * k_gs * math.cos(a), vr * k_vr])  # NaN: not recorded
     if not t:
         raise InputError(f"{path}: no airborne sample with a position")
     order = np.lexsort((np.array(t), np.array(ids)))
@@ -325,10 +323,18 @@ def build_truth(rec: Recording, frame: Frame, start: float, duration: float | No
     alive = np.zeros((steps, len(pieces)), bool)
     for j, rows in enumerate(pieces):
         pos = enu_from_geodetic(frame, *rec.lla[rows].T)
-        vel = common_from_local_vectors(frame, rec.lla[rows, 0], rec.lla[rows, 1], rec.velocity[rows])
-        if np.any(np.isfinite(vel)):
-            pos = reconcile(rel[rows], pos, np.where(np.isfinite(vel), vel, np.gradient(pos, rel[rows], axis=0)))
-        vel = np.where(np.isfinite(vel), vel, np.gradient(pos, rel[rows], axis=0))
+        lat, lon, local = rec.lla[rows, 0], rec.lla[rows, 1], rec.velocity[rows]
+        recorded = np.isfinite(local)
+
+        def velocity(pos: np.ndarray) -> np.ndarray:
+            """The recorded velocity in the common axes, a component not recorded (a vertical rate, a cell)
+            the positions' derivative's, filled in the local axes (the turn mixes the three)."""
+            slope = local_from_common_vectors(frame, lat, lon, np.gradient(pos, rel[rows], axis=0))
+            return common_from_local_vectors(frame, lat, lon, np.where(recorded, local, slope))
+
+        if recorded.any():
+            pos = reconcile(rel[rows], pos, velocity(pos))
+        vel = velocity(pos)
         spline = CubicHermiteSpline(rel[rows], pos, vel)
         live = (grid >= rel[rows[0]]) & (grid <= rel[rows[-1]])
         p, v = spline(grid[live]), spline(grid[live], 1)

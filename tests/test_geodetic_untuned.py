@@ -18,14 +18,17 @@ from fedtrack.geodetic import (
     WGS84_E2,
     Frame,
     above_radio_horizon,
+    common_from_local_vectors,
     enu_from_geodetic,
     enu_from_own,
     geodetic_from_enu,
+    local_from_common_vectors,
     site_from_geodetic,
     wrap_lon,
 )
 from fedtrack.geojson import antimeridian_parts
 from fedtrack.local_filters.regions import load_regions, region_of
+from fedtrack.sensors.traffic import build_truth, read_recording
 from fedtrack.wire import with_geodetic
 
 HEADER = "time,icao24,lat,lon,alt"
@@ -238,3 +241,25 @@ def test_a_radar_sees_only_above_its_radio_horizon(tmp_path: Path) -> None:
     for scan in map(json.loads, (out / "measurements.jsonl").read_text().splitlines()):
         ranges[scan["sensor"]] += [d["z"][0] for d in scan["detections"]]
     assert len(ranges["r1"]) >= 20 and ranges["r2"] == []
+
+
+def test_a_byte_order_mark_and_velocity_columns_in_part(tmp_path: Path) -> None:
+    """A CSV saved with a byte-order mark reads as without; ground speed and track without a vertical
+    rate still give the horizontal velocity (positions jittered by 30 m about a straight 200 m/s leg:
+    their derivative would swing by tens of m/s)."""
+    rng = np.random.default_rng(3)
+    t = np.arange(0.0, 61.0)
+    lon = 2.35 + (200.0 * t + rng.normal(0, 30, t.size)) / (111319.49 * np.cos(np.radians(48.86)))
+    rows = [[1.7e9 + s, "abc", 48.86, round(x, 7), 3000.0, 200.0, 90.0] for s, x in zip(t, lon)]
+    path = tmp_path / "v.csv"
+    path.write_text("\ufeff" + HEADER + ",groundspeed,track\n" + "".join(",".join(map(str, r)) + "\n" for r in rows),
+                    encoding="utf-8")
+    frame, lat, lon = Frame(70.0, 179.0), rng.uniform(60, 80, 50), rng.uniform(-180, 180, 50)
+    v = rng.normal(0, 200, (50, 3))
+    np.testing.assert_allclose(local_from_common_vectors(frame, lat, lon, common_from_local_vectors(frame, lat, lon, v)),
+                               v, atol=1e-9)
+    rec = read_recording(path)
+    assert len(rec.t) == t.size and np.allclose(rec.velocity[:, :2], [200.0, 0.0]) and np.isnan(rec.velocity[:, 2]).all()
+    truth = build_truth(rec, Frame(48.86, 2.35), 0.0, None, 100e3, 30.0)
+    vx = truth.x[truth.alive[:, 0], 0, 1]
+    assert np.abs(vx - 200.0).max() < 3.0, np.abs(vx - 200.0).max()
