@@ -197,8 +197,7 @@ def sensor_lines(spec: SensorSpec, sc: Scenario, x: np.ndarray, alive: np.ndarra
     L = np.linalg.cholesky(R)
     for k, t in enumerate(times):
         step = int(round(t / DT))
-        seen = alive[step] if site is None else alive[step] & above_radio_horizon(site, x[step][:, [0, 2, 4]])
-        live = np.flatnonzero(seen & (rng.uniform(size=alive.shape[1]) < sc.pd))
+        live = np.flatnonzero(alive[step] & (rng.uniform(size=alive.shape[1]) < sc.pd))
         truth = x[step, live]
         if where is None:
             z = truth[:, [0, 2]]
@@ -213,7 +212,9 @@ def sensor_lines(spec: SensorSpec, sc: Scenario, x: np.ndarray, alive: np.ndarra
         else:
             clutter = np.column_stack([rng.uniform(*radar_range(sc), n_false), rng.uniform(-np.pi, np.pi, n_false),
                                        rng.uniform(0.0, radar_elevation(sc), n_false)])
-        dets = np.concatenate([z, clutter])[rng.permutation(len(z) + n_false)]
+        order = rng.permutation(len(z) + n_false)
+        seen = np.ones(len(z), bool) if site is None else above_radio_horizon(site, truth[:, [0, 2, 4]])
+        dets = np.concatenate([z, clutter])[order][np.r_[seen, np.ones(n_false, bool)][order]]  # the same draws
         if site is not None:
             dets = polar_from_cartesian(enu_from_aer(site, dets[:, [1, 2, 0]]) - where)
         if where is not None:
