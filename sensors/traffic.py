@@ -71,6 +71,9 @@ NACP_EPU = {7: 185.2, 8: 92.6, 9: 30.0, 10: 10.0, 11: 3.0}
 #: the reconciliation of recorded positions with recorded velocities (docs/geodetic.md)
 SIGMA_POSITION = 50.0  # m: a state vector's position is up to a second older or newer than its time
 SIGMA_VELOCITY = 0.5  # m/s: ground speed is reported to the knot, vertical rate to 64 ft/min
+#: a time this large is milliseconds since 1970 (pandas' JSON, the traffic library's): as seconds it would
+#: be after the year 5000
+MILLISECONDS_FROM = 1e11
 SQUITTER_S = (0.4, 0.6)  # s: airborne position squitters at random intervals of 0.4-0.6 s (DO-260B)
 #: the trackers' two motion modes (``[mtt] process_noise = "imm"``) from civil air-traffic kinematics, not
 #: from a recording (docs/geodetic.md, "The motion model"): turns at 25 deg of bank or 3 deg/s, whichever
@@ -82,7 +85,8 @@ CHI2_2_95 = math.sqrt(-2.0 * math.log(0.05))  # the 95 % radius of a 2-D standar
 
 HELP_COLUMNS = """input columns (names are matched case-insensitively; the first name is ours, the others
 OpenSky's and the traffic library's):
-  time           seconds since 1970 (UTC), or an ISO-8601 date and time (UTC when no zone):
+  time           seconds since 1970 (UTC; a number over 1e11 is taken as milliseconds, as
+                 pandas writes JSON), or an ISO-8601 date and time (UTC when no zone):
                  time, timestamp, ts
   icao24         the aircraft's address: icao24, icao, hex
   latitude       degrees (WGS-84): latitude, lat
@@ -190,7 +194,7 @@ def _seconds(value: Any, where: str) -> float:
         if seconds is not None:
             if not math.isfinite(seconds):
                 raise InputError(f"{where}: time: {value!r} is not a finite number of seconds")
-            return seconds
+            return seconds / 1000.0 if abs(seconds) >= MILLISECONDS_FROM else seconds
         try:
             stamp = datetime.fromisoformat(str(value).strip().replace("Z", "+00:00"))
         except ValueError as exc:

@@ -263,3 +263,16 @@ def test_a_byte_order_mark_and_velocity_columns_in_part(tmp_path: Path) -> None:
     truth = build_truth(rec, Frame(48.86, 2.35), 0.0, None, 100e3, 30.0)
     vx = truth.x[truth.alive[:, 0], 0, 1]
     assert np.abs(vx - 200.0).max() < 3.0, np.abs(vx - 200.0).max()
+
+
+def test_milliseconds_and_iso_times_read_as_seconds(tmp_path: Path) -> None:
+    """pandas' JSON (the traffic library's ``to_json``) writes times as milliseconds since 1970: the same
+    samples as seconds; ISO-8601 with a zone offset too."""
+    rows = _flights(48.86, 2.35, seconds=5, n=1)
+    ms, iso = tmp_path / "ms.jsonl", tmp_path / "iso.csv"
+    ms.write_text("".join(json.dumps({"timestamp": int(r[0] * 1000) + 123, "icao24": r[1], "latitude": r[2],
+                                      "longitude": r[3], "altitude": r[4]}) + "\n" for r in rows))
+    seconds = read_recording(_csv(tmp_path / "s.csv", [[r[0] + 0.123, *r[1:]] for r in rows]))
+    np.testing.assert_array_equal(read_recording(ms).t, seconds.t)
+    _csv(iso, [["2023-11-15T00:13:20.123+02:00", *r[1:]] for r in rows[:1]])
+    assert read_recording(iso).t.tolist() == pytest.approx([1.7e9 + 0.123], abs=1e-6)  # 22:13:20.123 UTC
