@@ -304,6 +304,14 @@ def reconcile(t: np.ndarray, pos: np.ndarray, vel: np.ndarray, sigma_p: float = 
     return solveh_banded(np.vstack([np.r_[0.0, -w], diag]), rhs)
 
 
+def common_velocity(frame: Frame, t: np.ndarray, lla: np.ndarray, local: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    """A track's recorded velocities ``local`` (n, 3) [m/s, the axes at each sample ``lla``] in the common
+    axes, a component not recorded (NaN: a vertical rate, a cell) the derivative's of the common-frame
+    positions ``pos`` (n, 3) at times ``t``, filled in the local axes (the turn mixes the three)."""
+    slope = local_from_common_vectors(frame, lla[:, 0], lla[:, 1], np.gradient(pos, t, axis=0))
+    return common_from_local_vectors(frame, lla[:, 0], lla[:, 1], np.where(np.isfinite(local), local, slope))
+
+
 def build_truth(rec: Recording, frame: Frame, start: float, duration: float | None, box: float,
                 max_gap: float) -> Truth:
     """Truth on the ``DT`` grid from the first sample + ``start`` for ``duration`` s (None: to the last
@@ -327,18 +335,9 @@ def build_truth(rec: Recording, frame: Frame, start: float, duration: float | No
     alive = np.zeros((steps, len(pieces)), bool)
     for j, rows in enumerate(pieces):
         pos = enu_from_geodetic(frame, *rec.lla[rows].T)
-        lat, lon, local = rec.lla[rows, 0], rec.lla[rows, 1], rec.velocity[rows]
-        recorded = np.isfinite(local)
-
-        def velocity(pos: np.ndarray) -> np.ndarray:
-            """The recorded velocity in the common axes, a component not recorded (a vertical rate, a cell)
-            the positions' derivative's, filled in the local axes (the turn mixes the three)."""
-            slope = local_from_common_vectors(frame, lat, lon, np.gradient(pos, rel[rows], axis=0))
-            return common_from_local_vectors(frame, lat, lon, np.where(recorded, local, slope))
-
-        if recorded.any():
-            pos = reconcile(rel[rows], pos, velocity(pos))
-        vel = velocity(pos)
+        if np.isfinite(rec.velocity[rows]).any():
+            pos = reconcile(rel[rows], pos, common_velocity(frame, rel[rows], rec.lla[rows], rec.velocity[rows], pos))
+        vel = common_velocity(frame, rel[rows], rec.lla[rows], rec.velocity[rows], pos)
         spline = CubicHermiteSpline(rel[rows], pos, vel)
         live = (grid >= rel[rows[0]]) & (grid <= rel[rows[-1]])
         p, v = spline(grid[live]), spline(grid[live], 1)
