@@ -44,7 +44,7 @@ from fedtrack.deploy.report import finish
 from fedtrack.deploy.security import ZenohSettings
 from fedtrack.deploy.settings import MultitargetSettings, Settings
 from fedtrack.deployment import MODES, DeploymentConfig, SensorConfig
-from fedtrack.geodetic import FrameConfig
+from fedtrack.geodetic import FrameConfig, median_lon
 from fedtrack.jsonl import InputError, output_folder
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.vdie.config import FusionConfig
@@ -119,7 +119,7 @@ def traffic_settings(source: Path | None, mode: str, seed: int, port: int, out: 
                              "tests/data/); give --source FILE")
     else:
         rec = read_recording(source)
-        origin = (float(np.median(rec.lla[:, 0])), float(np.median(rec.lla[:, 1])), 0.0)
+        origin = (float(np.median(rec.lla[:, 0])), median_lon(rec.lla[:, 1]), 0.0)
         sensors = "radar:4,radar:5,pos:2"
     mt = MultitargetSettings(algorithm=f"mtt-{mode}", sensors=sensors, duration=TRAFFIC_DURATION, source=str(source),
                              origin=origin, box=TRAFFIC_BOX, start=TRAFFIC_START)

@@ -63,6 +63,14 @@ def wrap_lon(lon: np.ndarray | float) -> np.ndarray:
     return np.where((lon >= -180.0) & (lon < 180.0), lon, np.mod(lon + 180.0, 360.0) - 180.0)
 
 
+def median_lon(lon: np.ndarray) -> float:
+    """The median of longitudes [deg] measured about their circular mean, in [-180, 180): the middle
+    of a scene across the antimeridian (179.9 E and 179.9 W: 180, not 0)."""
+    lon = np.radians(np.asarray(lon, float))
+    ref = np.degrees(np.arctan2(np.sin(lon).mean(), np.cos(lon).mean()))
+    return float(wrap_lon(ref + np.median(wrap_lon(np.degrees(lon) - ref))))
+
+
 def geodetic_from_enu(frame: Frame, enu: np.ndarray) -> np.ndarray:
     """``[lat deg, lon deg in [-180, 180), h m]`` (N, 3) of ENU positions (N, 3) of ``frame``."""
     import pymap3d

@@ -23,6 +23,7 @@ from fedtrack.geodetic import (
     enu_from_own,
     geodetic_from_enu,
     local_from_common_vectors,
+    median_lon,
     site_from_geodetic,
     wrap_lon,
 )
@@ -151,7 +152,8 @@ def test_the_chain_on_the_earth_round_trips_lat_lon(tmp_path: Path, place: str,
 
 def test_antimeridian_cut_and_longitude_range() -> None:
     """The cut of RFC 7946 3.1.9 (its example: a line from 170 E to 170 W), both ways; 180 deg and its
-    rounding written as -180; a longitude in range unchanged to the bit."""
+    rounding written as -180; a longitude in range unchanged to the bit; the median longitude of a scene
+    across the antimeridian (``demo --scenario traffic --source``'s origin) on it."""
     east_west = antimeridian_parts([[170.0, 45.0], [-170.0, 55.0]])
     assert east_west == [[[170.0, 45.0], [180.0, 50.0]], [[-180.0, 50.0], [-170.0, 55.0]]]
     west_east = antimeridian_parts([[-179.0, 10.0, 100.0], [179.0, 12.0, 300.0], [178.0, 13.0, 400.0]])
@@ -159,6 +161,9 @@ def test_antimeridian_cut_and_longitude_range() -> None:
                          [[180.0, 11.0, 200.0], [179.0, 12.0, 300.0], [178.0, 13.0, 400.0]]]
     assert antimeridian_parts([[1.0, 2.0], [3.0, 4.0]]) == [[[1.0, 2.0], [3.0, 4.0]]]
     np.testing.assert_array_equal(wrap_lon([180.0, 359.5, -180.0, 2.35, -200.0]), [-180.0, -0.5, -180.0, 2.35, 160.0])
+    assert median_lon([179.9, 179.95, -179.9, -179.8, -179.85]) == pytest.approx(-179.9, abs=1e-9)
+    assert abs(abs(median_lon([179.9, -179.9])) - 180.0) < 1e-9  # numpy's median: 0, the other side of the Earth
+    assert median_lon([2.3, 2.4, 2.5]) == pytest.approx(2.4, abs=1e-12)
     far = geodetic_from_enu(Frame(0.0, 179.0), np.array([[111319.49079327357, 0.0, 0.0]]))[0, 1]
     assert -180.0 <= far < 180.0
     rows = with_geodetic([{"x": [0.0, 0.0, 0.0, 0.0]}], np.array([[10.0, 179.9999999997, 0.0]]))
