@@ -84,7 +84,8 @@ def _numbers(path: Path) -> np.ndarray:
 def test_epoch_times_give_the_pictures_of_the_same_scenario_from_zero(tmp_path: Path) -> None:
     """A recording shifted by 1.7e9 s (exactly: integer times) gives the same measurements, truth and
     pictures as from t = 0 to 1e-6 m: the truth grid is built from the window's start, not at 1.7e9 s
-    where a float's step is 2.4e-7 s (5e-5 m at 200 m/s)."""
+    where a float's step is 2.4e-7 s (5e-5 m at 200 m/s); and replay of measurements stamped at 1.7e9 s
+    gives the pictures of the same stamped from 0."""
     runs = []
     for t0 in (0.0, 1.7e9):
         out = tmp_path / f"t{t0:g}"
@@ -94,6 +95,22 @@ def test_epoch_times_give_the_pictures_of_the_same_scenario_from_zero(tmp_path: 
     for a, b in zip(*runs):
         x, y = _numbers(a), _numbers(b)
         assert x.shape == y.shape and np.max(np.abs(x - y)) < 1e-6, a.name
+    # replay of measurements stamped at 1.7e9 s (times on a 1/64 s grid, so that the shift is exact): the
+    # same pictures, 1.7e9 s later
+    scans = [json.loads(line) for line in runs[0][0].read_text().splitlines()]
+    pictures = []
+    for shift in (0.0, 1.7e9):
+        out = tmp_path / f"shift{shift:g}"
+        out.mkdir()
+        (out / "config.toml").write_text((runs[0][0].parent / "config.toml").read_text())
+        (out / "measurements.jsonl").write_text("".join(json.dumps({**s, "t": round(s["t"] * 64) / 64 + shift}) + "\n"
+                                                        for s in scans))
+        pictures.append([json.loads(line) for line in _replay(out, "mtt-federated").read_text().splitlines()])
+    assert len(pictures[0]) == len(pictures[1]) > 50
+    for a, b in zip(*pictures):
+        assert b["t"] - a["t"] == 1.7e9 and [r["id"] for r in a["tracks"]] == [r["id"] for r in b["tracks"]]
+        for r, q in zip(a["tracks"], b["tracks"]):
+            assert np.max(np.abs(np.subtract(r["x"], q["x"]))) < 1e-6 and (r["lat"], r["lon"]) == (q["lat"], q["lon"])
 
 
 PLACES = {  # origin, site of r1: the antimeridian at 65 N, 89.5 N, the equator and prime meridian, 85 S
