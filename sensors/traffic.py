@@ -35,7 +35,6 @@ from fedtrack.geodetic import (
     enu_from_geodetic,
     geodetic_from_enu,
     local_from_common_vectors,
-    site_from_enu,
     site_from_geodetic,
 )
 from fedtrack.jsonl import InputError, check_output_folder, check_readable, output_file, read_jsonl
@@ -107,7 +106,7 @@ sensors (--sensors, comma-separated KIND:PERIOD[/SIGMA...][@LAT/LON/H]):
                  per axis, correlation 0.3)
   radar:P[/SR/SA[/SE]][@SITE]
                  a radar scanning every P s at the WGS-84 site LAT/LON/H (deg, deg, m); without a
-                 site it stands on the box's edge; noise in its own frame: range SR m, azimuth SA
+                 site it stands on the box's edge at the origin's height; noise in its own frame: range SR m, azimuth SA
                  and elevation SE degrees (default 10 m, 2 mrad = 0.1146 deg, 2 mrad)
   e.g. the set of published requirements in docs/geodetic.md:
                  radar:4/70/0.08@49.2/2.0/100,radar:5/70/0.08@48.6/2.9/100,pos:2/106
@@ -391,10 +390,11 @@ def parse_sensors(spec: str, frame: Frame, box: float,
                 raise InputError(f"--sensors: {base}@{where}: only a radar takes a site")
             out.append((s, None, noise))
             continue
-        if not at:
+        if not at:  # on the box's edge, at the origin's height (the common frame's plane rises d^2 / 2R above the
+            # ground: 34 km at 660 km, the edge of a 1,200 km box)
             angle = rng.uniform(-np.pi, np.pi)
-            edge = 0.55 * box * np.array([np.cos(angle), np.sin(angle), 0.0])
-            out.append((s, site_from_enu(frame, edge), noise))
+            lat, lon, _ = geodetic_from_enu(frame, 0.55 * box * np.array([np.cos(angle), np.sin(angle), 0.0])).tolist()
+            out.append((s, site_from_geodetic(frame, lat, lon, frame.h), noise))
             continue
         try:
             lat, lon, h = (float(v) for v in where.split("/"))

@@ -5,6 +5,7 @@ equator and prime meridian, the southern hemisphere, epoch times, malformed rows
 from __future__ import annotations
 
 import json
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -242,7 +243,7 @@ def test_bad_rows_are_one_line_errors_and_left_out_rows_are_counted(tmp_path: Pa
 def test_a_radar_sees_only_above_its_radio_horizon(tmp_path: Path) -> None:
     """``above_radio_horizon`` at 2 % inside and outside ``sqrt(2 k R h_r) + sqrt(2 k R h_t)`` (4/3 Earth),
     and ``simulate traffic``: a radar 300 km from aircraft at 2-2.5 km (horizon 29 + 206 km) detects none
-    of them, one at their centre all."""
+    of them, one at their centre all; a radar without a site stands at the origin's height."""
     lat, h_r = 60.0, 50.0
     frame = Frame(lat, 10.0)
     site = site_from_geodetic(frame, lat, 10.0, h_r)
@@ -267,6 +268,14 @@ def test_a_radar_sees_only_above_its_radio_horizon(tmp_path: Path) -> None:
     for scan in map(json.loads, (out / "measurements.jsonl").read_text().splitlines()):
         ranges[scan["sensor"]] += [d["z"][0] for d in scan["detections"]]
     assert len(ranges["r1"]) >= 20 and ranges["r2"] == []
+    # a radar without a site stands on the box's edge at the origin's height, not on the common frame's plane
+    # (d^2 / 2R above the ground: 34 km at the edge of a 1,200 km box)
+    assert _simulate(_csv(tmp_path / "low.csv", rows), "48.86,2.35,35", tmp_path / "edge", "radar:4,pos:2",
+                     "--box", "1200") == 0
+    site = np.asarray(tomllib.loads((tmp_path / "edge" / "config.toml").read_text())["frame"]["sites"]["r1"])
+    assert site[2] == 35.0
+    edge = enu_from_geodetic(Frame(48.86, 2.35, 35.0), *site)
+    assert np.hypot(edge[0], edge[1]) == pytest.approx(660e3, rel=1e-2)
 
 
 def test_a_byte_order_mark_and_velocity_columns_in_part(tmp_path: Path) -> None:
