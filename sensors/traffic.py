@@ -106,8 +106,9 @@ sensors (--sensors, comma-separated KIND:PERIOD[/SIGMA...][@LAT/LON/H]):
                  per axis, correlation 0.3)
   radar:P[/SR/SA[/SE]][@SITE]
                  a radar scanning every P s at the WGS-84 site LAT/LON/H (deg, deg, m); without a
-                 site it stands on the box's edge at the origin's height; noise in its own frame: range SR m, azimuth SA
-                 and elevation SE degrees (default 10 m, 2 mrad = 0.1146 deg, 2 mrad)
+                 site it stands on the box's edge at the origin's height; noise in its own
+                 frame: range SR m, azimuth SA and elevation SE degrees (default 10 m, 2 mrad =
+                 0.1146 deg, 2 mrad); it detects only above its radio horizon (4/3 Earth)
   e.g. the set of published requirements in docs/geodetic.md:
                  radar:4/70/0.08@49.2/2.0/100,radar:5/70/0.08@48.6/2.9/100,pos:2/106
   adsb:P         an ADS-B receiver publishing every P s the reports received since its last scan;
