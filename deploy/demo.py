@@ -124,7 +124,7 @@ def traffic_settings(source: Path | None, mode: str, seed: int, port: int, out: 
     mt = MultitargetSettings(algorithm=f"mtt-{mode}", sensors=sensors, duration=TRAFFIC_DURATION, source=str(source),
                              origin=origin, box=TRAFFIC_BOX, start=TRAFFIC_START)
     draft = Settings(deployment=DeploymentConfig(seed=seed), multitarget=mt)
-    prepare(draft, out)
+    prepare(draft, out, say=False)  # the launch simulates it again and says what it left out
     table = load_toml(out / SCENARIO_DIR / "config.toml")
     endpoint, zenoh = transport(port, tls_dir)
     return Settings(

@@ -28,18 +28,18 @@ from typing import Any
 import numpy as np
 
 from fedtrack.config import ConfigError, in_file
+from fedtrack.deploy.membership import membership
 from fedtrack.deploy.report import LaunchReport
 from fedtrack.deploy.settings import MultitargetSettings, Settings
 from fedtrack.fusion_center.mtt.earthmap import plot_map
 from fedtrack.fusion_center.mtt.evaluation import evaluate, plot
-from fedtrack.deploy.membership import membership
 from fedtrack.fusion_center.mtt.replay import read_scans, state_dim
 from fedtrack.geodetic import Frame
 from fedtrack.geojson import feature_collection
 from fedtrack.jsonl import InputError
 from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.sensors.multitarget import Scenario, SensorSpec, parse_spec, simulate
-from fedtrack.sensors.traffic import parse_kinds, read_recording
+from fedtrack.sensors.traffic import parse_kinds, read_line, read_recording
 from fedtrack.sensors.traffic import simulate as simulate_traffic
 
 SCENARIO_DIR = "scenario"
@@ -79,15 +79,19 @@ def check_multitarget(settings: Settings, path: Path) -> None:
             raise ConfigError("regions: region centres run mtt-federated or mtt-decentralized, not mtt-centralized")
 
 
-def prepare(settings: Settings, out: Path) -> Path:
-    """Simulate the scenario into ``out/scenario``; returns its measurements file."""
+def prepare(settings: Settings, out: Path, say: bool = True) -> Path:
+    """Simulate the scenario into ``out/scenario``; returns its measurements file. ``say``: print what a
+    recording's simulation read and left out (stderr)."""
     mt = settings.multitarget
     assert mt is not None
     folder = out / SCENARIO_DIR
     if mt.source:
         assert mt.origin is not None
-        simulate_traffic(read_recording(Path(mt.source)), Frame(*mt.origin), mt.sensors, settings.deployment.seed,
-                         folder, mt.start, mt.duration, mt.box * 1e3, pd=mt.pd, clutter=mt.clutter, late=0.0)
+        info = simulate_traffic(read_recording(Path(mt.source)), Frame(*mt.origin), mt.sensors,
+                                settings.deployment.seed, folder, mt.start, mt.duration, mt.box * 1e3, pd=mt.pd,
+                                clutter=mt.clutter, late=0.0)
+        if say:
+            print(f"scenario: {read_line(Path(mt.source), info)}", file=sys.stderr)
         return folder / "measurements.jsonl"
     scenario = Scenario(targets=mt.targets, duration=mt.duration, region=mt.half_width, pd=mt.pd, clutter=mt.clutter,
                         late=0.0)

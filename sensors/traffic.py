@@ -499,6 +499,12 @@ def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, star
             "sensors": [f"{s.id} ({s.kind}, {s.period:g} s)" for s in specs]}
 
 
+def read_line(source: Path, info: dict[str, Any]) -> str:
+    """What :func:`simulate` read of ``source`` and left out, by reason (nothing is left out silently)."""
+    left_out = ", ".join(f"{n} {why}" for why, n in info["dropped"].items() if n) or "none"
+    return f"read {source}: {info['rows']} rows; left out: {left_out}"
+
+
 def _origin(text: str) -> Frame:
     try:
         values = [float(v) for v in text.split(",")]
@@ -550,8 +556,7 @@ def main(argv: list[str]) -> int:
     rec = read_recording(args.source, args.units)
     info = simulate(rec, frame, args.sensors, args.seed, args.out, args.start, args.duration, args.box * 1e3,
                     args.max_gap, args.pd, args.clutter, args.late, args.nacp)
-    left_out = ", ".join(f"{n} {why}" for why, n in info["dropped"].items() if n) or "none"
-    print(f"read {args.source}: {info['rows']} rows; left out: {left_out}")
+    print(read_line(args.source, info))
     print(f"wrote {args.out}/measurements.jsonl ({info['scans']} scans), truth.jsonl ({info['targets']} tracks of "
           f"{info['aircraft']} aircraft, at most {info['most_alive']} at once, {info['duration']:g} s from "
           f"{datetime.fromtimestamp(info['start'], timezone.utc):%Y-%m-%d %H:%M:%S} UTC), config.toml; "
