@@ -311,3 +311,18 @@ def test_milliseconds_and_iso_times_read_as_seconds(tmp_path: Path) -> None:
     np.testing.assert_array_equal(read_recording(ms).t, seconds.t)
     _csv(iso, [["2023-11-15T00:13:20.123+02:00", *r[1:]] for r in rows[:1]])
     assert read_recording(iso).t.tolist() == pytest.approx([1.7e9 + 0.123], abs=1e-6)  # 22:13:20.123 UTC
+
+
+def test_a_live_scenario_from_a_recording_says_what_it_left_out(tmp_path: Path,
+                                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    """``launch`` / ``demo`` with ``[multitarget] source`` (``prepare``) say on stderr what ``simulate traffic``
+    says on stdout."""
+    from fedtrack.deploy.multitarget import prepare
+    from fedtrack.deploy.settings import DeploymentConfig, MultitargetSettings, Settings
+
+    rows = _flights(48.86, 2.35, seconds=20, n=2) + [[1.7e9, "lone", 48.9, 2.4, 3000.0]]
+    mt = MultitargetSettings(sensors="radar:4,pos:2", duration=15.0, source=str(_csv(tmp_path / "r.csv", rows)),
+                             origin=(48.86, 2.35, 0.0), box=150.0)
+    prepare(Settings(deployment=DeploymentConfig(seed=1), multitarget=mt), tmp_path)
+    assert (f"scenario: read {tmp_path / 'r.csv'}: 43 rows; left out: 1 in a track of one sample, 1 aircraft with "
+            "no track inside the box and window") in capsys.readouterr().err
