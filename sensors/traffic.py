@@ -36,6 +36,7 @@ from fedtrack.geodetic import (
     geodetic_from_enu,
     local_from_common_vectors,
     site_from_geodetic,
+    wrap_lon,
 )
 from fedtrack.jsonl import InputError, check_output_folder, check_readable, output_file, read_jsonl
 from fedtrack.sensors.multitarget import (
@@ -480,7 +481,8 @@ def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, star
             live = np.flatnonzero(truth.alive[step])
             lla = geodetic_from_enu(frame, truth.x[step][live][:, [0, 2, 4]]).reshape(-1, 3)
             targets = [{"id": int(i), "x": truth.x[step, i, dims].tolist(), "icao24": truth.icao24[i],
-                        "lat": round(float(g[0]), 8), "lon": round(float(g[1]), 8), "alt": round(float(g[2]), 3)}
+                        "lat": round(float(g[0]), 8), "lon": float(wrap_lon(round(float(g[1]), 8))),  # 180 -> -180
+                        "alt": round(float(g[2]), 3)}
                        for i, g in zip(live, lla)]
             fh.write(json.dumps({"t": float(second), "targets": targets}) + "\n")
     derived = derived_tracker(truth, specs)
