@@ -122,3 +122,37 @@ def test_simulate_traffic_gives_mtt_a_position_sensors_density(tmp_path: Path) -
     cfg = load_tables(out / "config.toml", MttSettings).mtt
     assert cfg.clutter_density == pytest.approx(10.0 / 150e3**2, rel=1e-12)
     assert cfg.clutter_of("s2") == cfg.clutter_density and cfg.clutter_of("r1") > 1e4 * cfg.clutter_density
+
+
+def two_sensor_scans(path: Path) -> None:
+    """One target at 10 m/s along x for 30 s, noiseless, no clutter: ``s1`` (P_D 0.9) every second,
+    missing it at 10 and 11 s; ``s3`` (P_D 0.3) half a second later, seeing it on every third scan
+    (so 10.5 and 11.5 s miss it: 4 misses in a row over both sensors' scans)."""
+    rows = []
+    for k in range(30):
+        rows.append({"t": float(k), "sensor": "s1", "R": [[25.0, 0.0], [0.0, 25.0]],
+                     "detections": [] if k in (10, 11) else [{"z": [10.0 * k, 0.0]}]})
+        rows.append({"t": k + 0.5, "sensor": "s3", "R": [[25.0, 0.0], [0.0, 25.0]],
+                     "detections": [{"z": [10.0 * k + 5.0, 0.0]}] if k % 3 == 0 else []})
+    path.write_text("".join(json.dumps(r) + "\n" for r in rows))
+
+
+@pytest.mark.parametrize("associator", ["gnn", "mht"])
+def test_centralized_with_any_sensors_counts_the_sensors_present(tmp_path: Path, associator: str) -> None:
+    """``mtt-centralized`` with ``[mtt] sensors = "any"`` (the default) deletes a confirmed track
+    after the misses of the sensors that are scanning, with their own P_D, as with the sensors
+    listed: the same pictures, and the target keeps one id through 4 misses in a row (s1 at 0.9,
+    s3 at 0.3: 6 misses needed, ``miss_count`` of their mean log miss); with ``"any"`` it counted
+    one sensor at ``[mtt] pd`` (3 misses) and started a new id. About 1 s."""
+    two_sensor_scans(tmp_path / "m.jsonl")
+    pictures = {}
+    for sensors in ('"any"', '["s1", "s3"]'):
+        (tmp_path / "c.toml").write_text(f'[mtt]\nsensors = {sensors}\nclutter_density = 1e-9\n'
+                                         f'associator = "{associator}"\n[mtt.sensor.s3]\npd = 0.3\n')
+        assert cli(["replay", "--algorithm", "mtt-centralized", "--config", str(tmp_path / "c.toml"),
+                    "--measurements", str(tmp_path / "m.jsonl"), "--out", str(tmp_path / "t.jsonl")]) == 0
+        pictures[sensors] = (tmp_path / "t.jsonl").read_text()
+    assert pictures['"any"'] == pictures['["s1", "s3"]']
+    lines = [json.loads(x) for x in pictures['"any"'].splitlines()]
+    ids = {tr["id"] for p in lines for tr in p["tracks"] if tr["status"] == "confirmed"}
+    assert len(ids) == 1 and all(p["tracks"] for p in lines[4:]), ids

@@ -68,7 +68,7 @@ LocalKey = tuple[str, int]  # (sensor, local track id)
 # A confirmed track that several sensors see is deleted once each of them missed it on its
 # last CENTRAL_MISSES scans ((1 - P_D)^4 = 1e-4 or less for a live target with P_D = 0.9): the
 # track-to-track centre's rule per tracking sensor, and mtt-centralized's as misses in a row
-# over every sensor's scans (CENTRAL_MISSES per listed sensor: engines.central_params).
+# over every sensor's scans (CENTRAL_MISSES per sensor: engines.central_params).
 CENTRAL_MISSES = 2
 # At the sensors' detection probabilities the counts may need to be longer: config.miss_count.
 

@@ -120,18 +120,22 @@ class PictureClock:
         return out
 
 
-def central_params(cfg: MttConfig, sensor: str | None, dim: int) -> TrackParams:
+def central_params(cfg: MttConfig, sensor: str | None, dim: int, present: tuple[str, ...] = ()) -> TrackParams:
     """The parameters of ``mtt-centralized``'s tracker for a scan of ``sensor``: the fusion
     centre's policy on a sensor's own tracker's. It counts misses over every sensor's scans, so a
-    confirmed track goes after ``CENTRAL_MISSES`` per listed sensor in a row (the track-to-track
+    confirmed track goes after ``CENTRAL_MISSES`` per sensor in a row (the track-to-track
     centre's rule; 3 in a row dropped a live target of three sensors at P_D = 0.9 about once a
-    minute among 60; below P_D 0.9 more, :func:`~fedtrack.local_filters.mtt.config.miss_count` of the listed sensors' mean
-    log miss), and its maneuver handling keeps ``window`` candidate onsets per listed
-    sensor, so that the window spans about the time a sensor's own does."""
+    minute among 60; below P_D 0.9 more, :func:`~fedtrack.local_filters.mtt.config.miss_count` of the sensors' mean
+    log miss), and its maneuver handling keeps ``window`` candidate onsets per sensor, so that
+    the window spans about the time a sensor's own does. The sensors are those ``[mtt] sensors``
+    lists, or with ``"any"`` the sensors ``present`` (:meth:`CentralizedEngine.present`: those
+    that scanned within ``central_timeout`` of the newest scan; with ``"any"`` the count was 1
+    and the miss ``[mtt] pd``'s, so a P_D 0.3 sensor beside a 0.9 one deleted a live track every
+    few seconds: 10 id switches among 6 targets in 100 s)."""
     p = track_params(cfg, sensor, dim, events=True)
-    n = cfg.listed_sensors
-    listed = [] if isinstance(cfg.sensors, str) else cfg.sensors
-    log_miss = float(np.mean([cfg.log_miss(s) for s in listed] or [cfg.log_miss()]))  # a scan's miss, on average
+    sensors = list(present) if isinstance(cfg.sensors, str) else cfg.sensors
+    n = max(len(sensors), 1)
+    log_miss = float(np.mean([cfg.log_miss(s) for s in sensors] or [cfg.log_miss()]))  # a scan's miss, on average
     return p._replace(delete_misses=max(cfg.delete_misses, CENTRAL_MISSES * n, int(miss_count(log_miss))),
                       maneuver=_every_sensor_window(p.maneuver, n), detector=_every_sensor_window(p.detector, n))
 
@@ -283,8 +287,23 @@ class CentralizedEngine(ScanTrackerEngine):
     """``mtt-centralized``: one tracker of every sensor's scans, with the centre's policy
     (:func:`central_params`)."""
 
+    seen: dict[str, float] = field(default_factory=dict)  # sensor -> the time of its newest scan
+
+    def ingest(self, scan: SensorScan) -> None:
+        self.seen[scan.sensor] = max(scan.t, self.seen.get(scan.sensor, scan.t))
+        super().ingest(scan)
+
+    def leave(self, sensor: str) -> None:
+        self.seen.pop(sensor, None)
+
+    def present(self) -> tuple[str, ...]:
+        """The sensors that scanned within ``central_timeout`` of the newest scan (a sensor silent
+        that long is not live: the track-to-track centre's rule)."""
+        newest = max(self.seen.values(), default=0.0)
+        return tuple(sorted(s for s, t in self.seen.items() if newest - t <= self.cfg.central_timeout))
+
     def params(self, sensor: str | None) -> TrackParams:
-        return central_params(self.cfg, sensor, self.dim)
+        return central_params(self.cfg, sensor, self.dim, self.present())
 
     def senders(self) -> list[str]:
         return sorted({s.sensor for s in self.history.entries}) if self.history is not None else []
