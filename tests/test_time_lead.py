@@ -18,6 +18,7 @@ from test_mtt_regions_live import services as region_services
 
 from fedtrack.fusion_center.mtt.engines import Engine, PictureClock, make_engine
 from fedtrack.fusion_center.mtt.replay import pictures as replay_pictures
+from fedtrack.fusion_center.mtt.replay import silent
 from fedtrack.keys import Keys
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.scan import SensorScan, parse_line
@@ -43,11 +44,21 @@ def run(algorithm: str, sensor: str | None, scans: list[SensorScan]) -> tuple[li
 
 
 def unguarded(algorithm: str, sensor: str | None, scans: list[SensorScan]) -> tuple[list[tuple], Engine]:
-    """The same without the guard: every scan straight to the clock and the engine."""
+    """The same without the guard: every scan straight to the clock and the engine (a sensor
+    silent beyond its bound at a picture's time left, as in the replay: ``replay.silent`` on the
+    times of the scans taken)."""
     engine, clock, out = make_engine(algorithm, CFG, 4, sensor), PictureClock(CFG.period, CFG.picture_delay), []
+    times: LeadGuard[None] = LeadGuard(CFG.max_lag)  # only its times: nothing is held
+    heard: dict[str, float] = {}
     for scan in scans:
-        out += [(T, *_pic(engine, T)) for T in clock.due(scan.t)]
+        for T in clock.due(scan.t):
+            for gone in silent(times, heard, T, CFG.central_timeout):
+                times.leave(gone)
+                engine.leave(gone, at_once=True)
+            out.append((T, *_pic(engine, T)))
         engine.ingest(scan)
+        times.took(scan.sensor, scan.t)
+        heard[scan.sensor] = times.newest
     return out + [(T, *_pic(engine, T)) for T in clock.final()], engine
 
 

@@ -725,12 +725,20 @@ class TrackToTrackCentre:
 
     def prune(self, now: float) -> None:
         """Delete central tracks no local track maps to, or unsupported for ``central_timeout``."""
+        self._delete_where(now - self.last_support > self.cfg.central_timeout)
+        self.departed.expire(now)
+
+    def drop_unsupported(self) -> None:
+        """Delete the central tracks no local track maps to (after :meth:`drop_sensor`), as the
+        next :meth:`prune` would: a picture before the next report does not show them."""
+        self._delete_where(np.zeros(self.tracks.ids.shape, bool))
+
+    def _delete_where(self, stale: np.ndarray) -> None:
         ids = self.tracks.ids  # over every slot at once; only live ones are deleted
-        gone = ~self.support.any(axis=1) | (now - self.last_support > self.cfg.central_timeout)
+        gone = ~self.support.any(axis=1) | stale
         for cid in ids[gone & (ids >= 0)].tolist():
             self._delete(cid)
         self.absorbed.clear()
-        self.departed.expire(now)
 
     def hand_over(self, cid: int) -> HandOver:
         """Remove central track ``cid`` (to a neighbour region's centre) and return its record."""

@@ -197,8 +197,8 @@ class Engine:
         """Every track predicted to ``T`` from the data up to ``T``."""
         raise NotImplementedError
 
-    def leave(self, sensor: str) -> None:
-        """A departure (:class:`SensorLeft`): only the track-to-track centre keeps per-sensor state."""
+    def leave(self, sensor: str, at_once: bool = False) -> None:
+        """A departure (:class:`SensorLeft`), or a sensor silent in a replay (``at_once``)."""
 
     def counters(self) -> dict[str, int]:
         return {"scans": self.scans, "late": self.late, "duplicates": self.duplicates, "rerun": self.rerun,
@@ -272,8 +272,22 @@ class LocalEngine(ScanTrackerEngine):
 
     sensor: str = ""
 
+    away: bool = False  # the sensor left (a departure, or silent: replay.pictures) and has not scanned since
+
     def takes(self, scan: SensorScan) -> bool:
         return scan.sensor == self.sensor
+
+    def ingest(self, scan: SensorScan) -> None:
+        self.away = self.away and not self.takes(scan)
+        super().ingest(scan)
+
+    def leave(self, sensor: str, at_once: bool = False) -> None:
+        self.away = self.away or sensor == self.sensor
+
+    def picture(self, T: float) -> PictureTracks:
+        """The tracks at ``T``; none while the sensor is away (as the centre drops a sensor that
+        left: its tracker keeps them, and they come back with its next scan)."""
+        return no_tracks(self.dim) if self.away else super().picture(T)
 
     def params(self, sensor: str | None) -> TrackParams:
         return track_params(self.cfg, self.sensor, self.dim, events=True)
@@ -293,8 +307,12 @@ class CentralizedEngine(ScanTrackerEngine):
         self.seen[scan.sensor] = max(scan.t, self.seen.get(scan.sensor, scan.t))
         super().ingest(scan)
 
-    def leave(self, sensor: str) -> None:
+    def leave(self, sensor: str, at_once: bool = False) -> None:
         self.seen.pop(sensor, None)
+
+    def picture(self, T: float) -> PictureTracks:
+        """The tracks at ``T``; none while every sensor is away (left, or silent: replay.pictures)."""
+        return super().picture(T) if self.seen else no_tracks(self.dim)
 
     def present(self) -> tuple[str, ...]:
         """The sensors that scanned within ``central_timeout`` of the newest scan (a sensor silent
@@ -343,9 +361,17 @@ class TrackToTrackEngine(Engine):
         tracker.adopt(scan, resets, q_scale)
         self.took("local trackers", start)
 
-    def leave(self, sensor: str) -> None:
+    def leave(self, sensor: str, at_once: bool = False) -> None:
+        """``sensor`` left: its local tracks leave their central tracks (``at_once``: and the central
+        tracks it alone supported go now, not at the next report, as ``replay`` does for a silent
+        sensor, whose pictures until then would show them; a live departure keeps the rule by which
+        its recording replays to its pictures)."""
         if self.centre is not None:
             self.centre.drop_sensor(sensor)
+        centres = [] if self.centre is None or not at_once else (
+            [c.centre for c in self.centre.centres] if isinstance(self.centre, ShardedCentre) else [self.centre])
+        for c in centres:
+            c.drop_unsupported()
         if self.existence is not None:
             self.existence.leave(sensor)
 

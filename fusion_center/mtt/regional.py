@@ -98,7 +98,7 @@ class RegionEngine(Engine):
     def take_over(self, record: HandOver) -> None:
         self.region.take_over(record)
 
-    def leave(self, sensor: str) -> None:
+    def leave(self, sensor: str, at_once: bool = False) -> None:
         self.region.drop_sensor(sensor)
 
     def picture(self, T: float) -> PictureTracks:

@@ -22,6 +22,7 @@ import numpy as np
 
 from fedtrack.config import ConfigError, did_you_mean, load_tables
 from fedtrack.fusion_center.mtt.engines import ALGORITHMS, Engine, PictureClock, PictureTracks, make_engine
+from fedtrack.fusion_center.mtt.silence import silence_bound
 from fedtrack.fusion_center.mtt.regional import is_region_recording, read_region_entries, recorded_pictures
 from fedtrack.geodetic import geodetic_line, load_frame
 from fedtrack.jsonl import InputError, check_output, output_file, read_jsonl
@@ -70,6 +71,8 @@ def pictures(engine: Engine, scans: list[SensorScan | SensorLeft], period: float
     scan stamped far ahead of the data waits for a witness (:class:`LeadGuard`, ``engine.lead``)."""
     clock = PictureClock(period, delay)
     engine.lead = guard = engine.lead or LeadGuard(engine.cfg.max_lag)
+    recorded = any(isinstance(item, SensorLeft) for item in scans)  # a live centre's departures
+    heard: dict[str, float] = {}  # sensor -> the data's time (the newest scan taken) at its last scan
     for item in scans:
         if isinstance(item, SensorLeft):
             guard.leave(item.sensor)
@@ -78,12 +81,27 @@ def pictures(engine: Engine, scans: list[SensorScan | SensorLeft], period: float
             continue
         for scan in guard.admit(item.sensor, item.t, item):
             for T in clock.due(scan.t):
+                for sensor in [] if recorded else silent(guard, heard, T, engine.cfg.central_timeout):
+                    guard.leave(sensor)
+                    engine.leave(sensor, at_once=True)
                 yield _picture(engine, T)
             engine.ingest(scan)
             guard.took(scan.sensor, scan.t)
+            heard[scan.sensor] = guard.newest
     guard.end()
     for T in clock.final():
         yield _picture(engine, T)
+
+
+def silent(guard: LeadGuard, heard: dict[str, float], T: float, floor_s: float) -> list[str]:
+    """The live sensors (``guard.live``) silent at ``T`` beyond their bound (the live centre's
+    rule, :func:`~fedtrack.fusion_center.mtt.silence.silence_bound`, with ``central_timeout`` for
+    ``leave_after_s``): whose last scan came when the data's time (the newest scan taken) was
+    ``heard[s]``, more than the bound before ``T``; the data's time stands for the wall clock, so a
+    sensor whose scans come steadily but stamped behind the others' (a slow link) is not silent.
+    The replay of data without departure lines drops them as the live centre would have
+    (docs/multitarget.md, "Silence in a replay")."""
+    return sorted(s for s in guard.live if T - heard[s] > silence_bound(s, guard.usual, floor_s))
 
 
 def _picture(engine: Engine, T: float) -> tuple[float, PictureTracks]:

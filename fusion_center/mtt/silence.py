@@ -57,10 +57,16 @@ class Silence:
         return {s: statistics.median(g) for s, g in self.gaps.items() if g}
 
     def _bound(self, sensor: str, usual: dict[str, float]) -> float:
-        if sensor in usual:
-            return max(self.floor_s, LEAVE_INTERVALS * usual[sensor])
-        return LEAVE_INTERVALS * max([self.floor_s, *usual.values()])
+        return silence_bound(sensor, usual, self.floor_s)
 
     def left(self, sensor: str) -> None:
         """``sensor`` is no longer live (silent, or its liveliness token went); its intervals stay."""
         del self.last[sensor]
+
+
+def silence_bound(sensor: str, usual: dict[str, float], floor_s: float) -> float:
+    """How long ``sensor`` may be silent and still count as live, ``usual`` every sensor's usual
+    interval and ``floor_s`` the least bound (module docstring)."""
+    if sensor in usual:
+        return max(floor_s, LEAVE_INTERVALS * usual[sensor])
+    return LEAVE_INTERVALS * max([floor_s, *usual.values()])
