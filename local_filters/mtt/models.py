@@ -26,10 +26,12 @@ import numpy as np
 
 from fedtrack.local_filters.imm.filter import Cycle, IMMState, combine, mix, posterior
 from fedtrack.local_filters.linear.kalman import (
+    LOG_2PI,
     GaussianState,
     innovation_covariance,
     log_likelihood,
     mat_vec,
+    spd_inverse_logdet,
     symmetrize,
     transpose,
     update_residual,
@@ -220,6 +222,41 @@ class Linearized(NamedTuple):
         if self.picks is None:
             return innovation_covariance(P, self.H, R)
         return symmetrize(self.covariance(P) + R)
+
+
+class ModeInnovations(NamedTuple):
+    """Each mode's measurement model about the combination (:func:`mode_innovations`), the ``N k``
+    modes as rows ``t k + j`` (mode ``j`` of track ``t``)."""
+
+    at: Linearized  # each mode's model: zhat_j = zhat + H (x_j - x0), the combination's H
+    S: np.ndarray  # (N k, m, m) S_j = H P_j H' + R
+    S_inv: np.ndarray  # (N k, m, m)
+    logdet: np.ndarray  # (N k,)
+    shift: np.ndarray  # (N, k, m) zhat_j - zhat
+
+
+def mode_innovations(modes: Modes, x0: np.ndarray, lin: Linearized, R: np.ndarray) -> ModeInnovations:
+    """The measurement model of every mode of ``modes`` (each track's prediction per mode, of which
+    ``x0`` (N, D) is the combination, where ``lin`` was computed)."""
+    n, k, d = modes.x.shape
+    m = R.shape[0]
+    shift = np.einsum("nmd,njd->njm", lin.H, modes.x - x0[:, None])
+    at = Linearized((lin.zhat[:, None] + shift).reshape(-1, m), np.repeat(np.asarray(lin.H), k, axis=0),
+                    lin.angular, lin.picks)
+    S = at.innovation_covariance(modes.P.reshape(n * k, d, d), R)
+    S_inv, logdet = spd_inverse_logdet(S)
+    return ModeInnovations(at, S, S_inv, logdet, shift)
+
+
+def mode_densities(mi: ModeInnovations, rows: np.ndarray, nu: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Pairs (track ``rows``, innovation ``nu`` from the combination's ``zhat``) seen by each mode:
+    the mode rows (K k), innovations ``nu + zhat - zhat_j``, ``d2_j`` and ``ln N(nu_j; 0, S_j)``."""
+    k, m = mi.shift.shape[1], nu.shape[-1]
+    mode_rows = (rows[:, None] * k + np.arange(k)).ravel()
+    nu_j = (nu[:, None] - mi.shift[rows]).reshape(-1, m)
+    d2 = np.sum(nu_j * mat_vec(mi.S_inv[mode_rows], nu_j), axis=-1)
+    return mode_rows, nu_j, d2, -0.5 * (d2 + mi.logdet[mode_rows] + m * LOG_2PI)
 
 
 def linearize(x: np.ndarray, sensor_position: np.ndarray | None) -> Linearized:

@@ -39,6 +39,7 @@ from fedtrack.local_filters.linear.gating import gate_ball_pairs, track_differen
 from fedtrack.local_filters.linear.kalman import (
     LOG_2PI,
     GaussianState,
+    logsumexp,
     mat_vec,
     spd_inverse_logdet,
     update_residual,
@@ -53,6 +54,8 @@ from fedtrack.local_filters.mtt.models import (
     ModeRates,
     Modes,
     linearize,
+    mode_densities,
+    mode_innovations,
     modes_predict,
     modes_update,
     position_from_detection,
@@ -294,9 +297,11 @@ def relinearize_altitude(pred: GaussianState, lin: Linearized, scan: SensorScan,
     return Linearized(zhat, H, lin.angular)
 
 
-def gate_scan(pred: GaussianState, scan: SensorScan, params: TrackParams) -> Gating | None:
+def gate_scan(pred: GaussianState, scan: SensorScan, params: TrackParams, modes: Modes | None = None
+              ) -> Gating | None:
     """Role 2: the gated pairs of the predicted tracks and the scan's detections (None when
-    either is empty)."""
+    either is empty); with ``modes`` (each track's motion modes, of which ``pred`` is the
+    combination), by :func:`gate_modes`."""
     if not (pred.x.shape[0] and scan.z.shape[0]):
         return None
     m = scan.dim
@@ -304,8 +309,45 @@ def gate_scan(pred: GaussianState, scan: SensorScan, params: TrackParams) -> Gat
     if scan.sensor_position is not None:
         lin = relinearize_altitude(pred, lin, scan, params.gate[2])
     S = lin.innovation_covariance(pred.P, scan.R)
+    if modes is not None:
+        g, logdet, log_l = gate_modes(scan.z, lin, S, modes, pred.x, scan.R, params.gate[m])
+        return Gating(lin, g, log_l, S, logdet)
     g, logdet = gate(scan.z, lin, S, params.gate[m])
     return Gating(lin, g, -0.5 * (g.d2 + logdet[g.rows] + m * LOG_2PI), S, logdet)
+
+
+def gate_modes(z: np.ndarray, lin: Linearized, S: np.ndarray, modes: Modes, x0: np.ndarray, R: np.ndarray,
+               gate_d2: float) -> tuple[Gated, np.ndarray, np.ndarray]:
+    """:func:`gate` for tracks with motion modes: a pair is gated when it is inside the gate of
+    the combination (``x0``, ``S``) or of a mode of positive probability, and its log-likelihood is
+    the modes' mixture ``ln sum_j mu_j N(z; zhat_j, S_j)`` (paper 000's eq. (4) summed over the
+    modes: the IMM's predicted density of a detection) rather than that of the combination's
+    moment-matched Gaussian. After a straight leg the combination's covariance is the straight
+    mode's (with a sensor of 1 cm noise, centimetres) however likely the maneuver mode is, so a
+    target that began to brake left that gate at once and its track was lost. Returns the pairs
+    (``nu``, ``d2`` the combination's), ``ln det S`` per track and the pairs' log-likelihoods."""
+    n, m_det = x0.shape[0], z.shape[0]
+    mi = mode_innovations(modes, x0, lin, R)
+    k, m = mi.shift.shape[1], z.shape[1]
+    if lin.angular:
+        rows, cols = np.repeat(np.arange(n), m_det), np.tile(np.arange(m_det), n)
+    else:  # the union of the combination's and every mode's balls
+        zhat_j, S_j = mi.at.zhat.reshape(n, k, m), mi.S.reshape(n, k, m, m)
+        balls = [gate_ball_pairs(z, lin.zhat, S, gate_d2)] + [
+            gate_ball_pairs(z, zhat_j[:, j], S_j[:, j], gate_d2) for j in range(k)]
+        keys = np.unique(np.concatenate([r * m_det + c for r, c in balls]))
+        rows, cols = keys // m_det, keys % m_det
+    S_inv, logdet = spd_inverse_logdet(S)
+    nu = z[cols] - lin.zhat[rows]
+    for a in lin.angular:
+        nu[:, a] = wrap_angle(nu[:, a])
+    d2 = np.sum(nu * mat_vec(S_inv[rows], nu), axis=-1)
+    _, _, d2_j, log_n = mode_densities(mi, rows, nu)
+    mu = modes.mu[rows]
+    inside = (d2 <= gate_d2) | np.any((d2_j.reshape(-1, k) <= gate_d2) & (mu > 0.0), axis=1)
+    with np.errstate(divide="ignore"):
+        log_l = logsumexp(np.log(mu) + log_n.reshape(-1, k), axis=1)
+    return Gated(rows[inside], cols[inside], nu[inside], d2[inside]), logdet, log_l[inside]
 
 
 def associate(state: TrackerState, gating: Gating | None, scan: SensorScan, params: TrackParams,
@@ -484,7 +526,7 @@ def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
         state = state._replace(tracks=tracks)
     dt = 0.0 if state.t is None else scan.t - state.t
     at_scan, pred = predict_tracks(tracks, dt, params, q_scale)
-    gating = gate_scan(pred, scan, params)
+    gating = gate_scan(pred, scan, params, _modes_at_scan(at_scan, params))
     assoc = associate(state, gating, scan, params, dt)
     role = params.associator
     if role.update is None:
@@ -525,7 +567,7 @@ def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale
     dt = 0.0 if state.t is None else scan.t - state.t
     at_scan, (x, P) = predict_tracks(leaves, dt, params, q_scale)
     modes = _modes_at_scan(at_scan, params)  # each leaf's modes (process_noise = "imm")
-    gating = gate_scan(GaussianState(x, P), scan, params)
+    gating = gate_scan(GaussianState(x, P), scan, params, modes)
     g_rows = g_cols = np.zeros(0, np.int64)
     nu, inc, miss = np.zeros((0, m)), np.zeros(0), mht.miss_increment(mp)
     if gating is not None:

@@ -48,10 +48,8 @@ from scipy.sparse.csgraph import connected_components
 
 from fedtrack.local_filters.imm.filter import IMMState, combine
 from fedtrack.local_filters.linear.kalman import (
-    LOG_2PI,
     GaussianState,
     logsumexp,
-    mat_vec,
     solve_spd,
     spd_inverse_logdet,
     transpose,
@@ -59,7 +57,7 @@ from fedtrack.local_filters.linear.kalman import (
 from fedtrack.local_filters.mtt import association
 from fedtrack.local_filters.mtt.associators.events import enumerate_clusters, event_count, k_best_clusters
 from fedtrack.local_filters.mtt.associators.gnn import _pair_graph, _rank_in_component
-from fedtrack.local_filters.mtt.models import Linearized, Modes
+from fedtrack.local_filters.mtt.models import Linearized, Modes, mode_densities, mode_innovations
 from fedtrack.local_filters.pda.association import (
     Constants,
     Gated,
@@ -293,20 +291,13 @@ def imm_update(modes: Modes, x0: np.ndarray, lin: Linearized, R: np.ndarray, pai
     (the PDA mixture) with its own weights, the ``N k`` modes as one batch. Returns the updated
     modes and their combination (the tracks' ``x``, ``P``)."""
     n, k, d = modes.x.shape
-    m = R.shape[0]
     flat = GaussianState(modes.x.reshape(n * k, d), modes.P.reshape(n * k, d, d))
-    H = np.repeat(np.asarray(lin.H), k, axis=0)
-    shift = np.einsum("nmd,njd->njm", lin.H, modes.x - x0[:, None])  # each mode's zhat_j - zhat
-    rows = (pairs.rows[:, None] * k + np.arange(k)).ravel()  # mode j of track t: row t k + j
-    nu = (pairs.nu[:, None] - shift[pairs.rows]).reshape(-1, m)
-    at = Linearized((lin.zhat[:, None] + shift).reshape(-1, m), H, lin.angular, lin.picks)  # each mode's model
-    S = at.innovation_covariance(flat.P, R)
-    S_inv, logdet = spd_inverse_logdet(S)
-    d2 = np.sum(nu * mat_vec(S_inv[rows], nu), axis=-1)
-    log_n = -0.5 * (d2 + logdet[rows] + m * LOG_2PI)
+    mi = mode_innovations(modes, x0, lin, R)
+    rows, nu, d2, log_n = mode_densities(mi, pairs.rows, pairs.nu)  # mode j of track t: row t k + j
     mu, beta = mode_posteriors(log_n.reshape(-1, k), pairs.rows, modes.mu, assoc.beta0, assoc.beta)
     per_mode = from_weights(rows, beta.ravel(), np.repeat(assoc.existence, k))
-    post = update(flat, at, R, Pairs(rows, np.repeat(pairs.cols, k), nu, d2, log_n), per_mode, c, (S, logdet))
+    post = update(flat, mi.at, R, Pairs(rows, np.repeat(pairs.cols, k), nu, d2, log_n), per_mode, c,
+                  (mi.S, mi.logdet))
     out = Modes(post.x.reshape(n, k, d), post.P.reshape(n, k, d, d), mu)
     return out, combine(IMMState(*out))
 
