@@ -22,8 +22,8 @@ import numpy as np
 
 from fedtrack.config import ConfigError, did_you_mean, load_tables
 from fedtrack.fusion_center.mtt.engines import ALGORITHMS, Engine, PictureClock, PictureTracks, make_engine
-from fedtrack.fusion_center.mtt.silence import silence_bound
 from fedtrack.fusion_center.mtt.regional import is_region_recording, read_region_entries, recorded_pictures
+from fedtrack.fusion_center.mtt.silence import silence_bound
 from fedtrack.geodetic import geodetic_line, load_frame
 from fedtrack.jsonl import InputError, check_output, output_file, read_jsonl
 from fedtrack.local_filters.mtt.config import MttConfig, MttSettings
