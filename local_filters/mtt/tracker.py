@@ -509,8 +509,9 @@ def start_tracks(scan: SensorScan, det: np.ndarray, params: TrackParams, first_i
     inputs = None if params.detector is None else detector.start(n, d, scan.t, params.detector)
     existence = None if params.initial_existence is None else np.full(n, params.initial_existence)
     modes = None if params.modes is None else start_modes(x, P, params.modes)
-    return TrackSet(ids, x, P, one, one.copy(), np.zeros(n, np.int64), one >= params.confirm_hits, man,
-                    inputs, existence, modes), obs
+    # confirmed at birth by the count (1 of 1) only where the count confirms: jipda's existence does
+    born = (one >= params.confirm_hits) & (existence is None)
+    return TrackSet(ids, x, P, one, one.copy(), np.zeros(n, np.int64), born, man, inputs, existence, modes), obs
 
 
 def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
