@@ -234,3 +234,49 @@ def test_jipda_confirms_by_existence_whatever_the_counts(tmp_path: Path) -> None
         pictures.append((tmp_path / "t.jsonl").read_text())
     assert pictures[0] == pictures[1]
     assert any(tr["status"] == "confirmed" for line in pictures[0].splitlines() for tr in json.loads(line)["tracks"])
+
+
+def shifted(src: Path, dst: Path, dt: float, dx: float) -> None:
+    """``src``'s scans with every time ``dt`` later and every position (a detection's, a radar's site)
+    ``dx`` further along x and y."""
+    rows = []
+    for line in src.read_text().splitlines():
+        row = json.loads(line)
+        row["t"] += dt
+        if "sensor_position" in row:
+            row["sensor_position"][:2] = [v + dx for v in row["sensor_position"][:2]]
+        else:
+            for det in row["detections"]:
+                det["z"] = [v + dx for v in det["z"]]
+        rows.append(json.dumps(row))
+    dst.write_text("\n".join(rows) + "\n")
+
+
+@pytest.mark.parametrize("associator", ["gnn", "jipda", "mht"])
+def test_pictures_do_not_move_with_epoch_time_and_far_coordinates(tmp_path: Path, associator: str) -> None:
+    """A pure offset of the data (every ``t`` 1.7e9 s later, epoch time; every position 1e6 m
+    further in x and y) shifts every algorithm's pictures and nothing else: the same times, ids and
+    statuses, states to 1e-9 of the offset (1 mm; the times' own rounding at 1.7e9 s is 2.4e-7 s,
+    30 m/s x 2.4e-7 s = 7e-6 m), covariances to 1e-4 relative. A radar and a position sensor,
+    out-of-sequence scans. About 2 s."""
+    out, dt, dx = tmp_path / "sim", 1.7e9, 1e6
+    assert cli(["simulate", "multitarget", "--targets", "4", "--duration", "20", "--clutter", "3", "--sensors",
+                "radar:1.0,pos:0.7", "--seed", "4", "--out", str(out)]) == 0
+    shifted(out / "measurements.jsonl", tmp_path / "far.jsonl", dt, dx)
+    (tmp_path / "c.toml").write_text((out / "config.toml").read_text().replace(
+        "[mtt]\n", f'[mtt]\nassociator = "{associator}"\n', 1))
+    for algorithm in (["mtt-centralized"], ["mtt-federated"], ["mtt-decentralized"], ["mtt-local", "--sensor", "r1"]):
+        runs = []
+        for data in (out / "measurements.jsonl", tmp_path / "far.jsonl"):
+            assert cli(["replay", "--algorithm", *algorithm, "--config", str(tmp_path / "c.toml"), "--measurements",
+                        str(data), "--out", str(tmp_path / "t.jsonl")]) == 0
+            runs.append([json.loads(x) for x in (tmp_path / "t.jsonl").read_text().splitlines()])
+        near, far = runs
+        assert len(near) == len(far) > 15 and sum(len(p["tracks"]) for p in near) > 20
+        for p, q in zip(near, far):
+            assert q["t"] - dt == pytest.approx(p["t"], abs=1e-6)
+            assert [(a["id"], a["status"]) for a in p["tracks"]] == [(b["id"], b["status"]) for b in q["tracks"]]
+            for a, b in zip(p["tracks"], q["tracks"]):
+                y = np.array(b["x"]) - np.array([dx, 0.0, dx, 0.0, 0.0, 0.0])
+                assert np.max(np.abs(y - a["x"])) < 1e-9 * dx, (algorithm, p["t"])
+                assert np.allclose(b["P"], a["P"], rtol=1e-4, atol=1e-9), (algorithm, p["t"])
