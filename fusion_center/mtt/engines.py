@@ -272,7 +272,7 @@ class LocalEngine(ScanTrackerEngine):
 
     sensor: str = ""
 
-    away: bool = False  # the sensor left (a departure, or silent: replay.pictures) and has not scanned since
+    away: bool = False  # the sensor fell silent (replay.pictures) and has not scanned since
 
     def takes(self, scan: SensorScan) -> bool:
         return scan.sensor == self.sensor
@@ -282,11 +282,11 @@ class LocalEngine(ScanTrackerEngine):
         super().ingest(scan)
 
     def leave(self, sensor: str, at_once: bool = False) -> None:
-        self.away = self.away or sensor == self.sensor
+        self.away = self.away or (at_once and sensor == self.sensor)
 
     def picture(self, T: float) -> PictureTracks:
-        """The tracks at ``T``; none while the sensor is away (as the centre drops a sensor that
-        left: its tracker keeps them, and they come back with its next scan)."""
+        """The tracks at ``T``; none while the sensor is silent (as the centre drops a silent
+        sensor's tracks: its tracker keeps them, and they come back with its next scan)."""
         return no_tracks(self.dim) if self.away else super().picture(T)
 
     def params(self, sensor: str | None) -> TrackParams:
@@ -302,17 +302,20 @@ class CentralizedEngine(ScanTrackerEngine):
     (:func:`central_params`)."""
 
     seen: dict[str, float] = field(default_factory=dict)  # sensor -> the time of its newest scan
+    quiet: bool = False  # every sensor fell silent (replay.pictures) and none has scanned since
 
     def ingest(self, scan: SensorScan) -> None:
         self.seen[scan.sensor] = max(scan.t, self.seen.get(scan.sensor, scan.t))
+        self.quiet = False
         super().ingest(scan)
 
     def leave(self, sensor: str, at_once: bool = False) -> None:
         self.seen.pop(sensor, None)
+        self.quiet = self.quiet or (at_once and not self.seen)
 
     def picture(self, T: float) -> PictureTracks:
-        """The tracks at ``T``; none while every sensor is away (left, or silent: replay.pictures)."""
-        return super().picture(T) if self.seen else no_tracks(self.dim)
+        """The tracks at ``T``; none while every sensor is silent (replay.pictures)."""
+        return no_tracks(self.dim) if self.quiet else super().picture(T)
 
     def present(self) -> tuple[str, ...]:
         """The sensors that scanned within ``central_timeout`` of the newest scan (a sensor silent
