@@ -205,7 +205,7 @@ def test_two_motion_modes_keep_a_braking_target_of_a_precise_sensor(tmp_path: Pa
     the association took the modes' moment-matched Gaussian, whose covariance, after a straight leg,
     is the straight mode's (centimetres) however likely the maneuver mode: the first 0.25 m of
     braking fell outside it and the track was lost and restarted at every scan of the braking
-    (13 ids in a 100 s scene). About 1 s."""
+    (13 id switches, 17 ids for 4 targets in a 100 s scene). About 1 s."""
     braking_scans(tmp_path / "m.jsonl")
     (tmp_path / "c.toml").write_text(f'[mtt]\nclutter_density = 1e-9\nprocess_noise = "imm"\n'
                                      f'associator = "{associator}"\n')
