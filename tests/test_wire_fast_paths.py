@@ -128,8 +128,9 @@ def test_decoding_detections_at_once_equals_the_per_item_decode() -> None:
         assert encode(fast) == encode(slow)
 
     run()
-    # both outcomes and both paths were exercised, not just one
-    assert min(seen.values()) >= 50, seen
+    # both outcomes and both paths were exercised, not just one (each typically 80-190 of the 300; a
+    # CI run once drew only 38 valid scans, so the floor is 20, not 50)
+    assert min(seen.values()) >= 20, seen
 
 
 def test_level_walk_of_the_structure_limits_equals_the_depth_first_walk(monkeypatch: pytest.MonkeyPatch) -> None:
