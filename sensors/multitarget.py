@@ -271,12 +271,14 @@ def clutter_density(spec: SensorSpec, sc: Scenario) -> float:
     return sc.clutter / ((hi - lo) * 2 * np.pi * radar_elevation(sc))
 
 
-def simulate(sc: Scenario, specs: list[SensorSpec], seed: int, out: Path) -> dict[str, Any]:
+def simulate(sc: Scenario, specs: list[SensorSpec], seed: int, out: Path,
+             truth: tuple[np.ndarray, np.ndarray] | None = None) -> dict[str, Any]:
     """Write ``measurements.jsonl``, ``truth.jsonl`` and ``config.toml`` to ``out`` (a library
-    caller's folder is created; the command checks it first: :func:`main`)."""
+    caller's folder is created; the command checks it first: :func:`main`); ``truth``: given states
+    and alive mask (as :func:`simulate_truth` returns) instead of the scenario's random ones."""
     rng = np.random.default_rng(seed)
     three_d = any(s.kind == "radar" for s in specs)
-    x, alive = simulate_truth(sc, three_d, rng)
+    x, alive = simulate_truth(sc, three_d, rng) if truth is None else truth
     lines = [item for spec in specs for item in sensor_lines(spec, sc, x, alive, three_d, rng)]
     lines.sort(key=lambda item: item[0])
     out.mkdir(parents=True, exist_ok=True)
