@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy.special import ndtri
 
 from fedtrack import wire
 from fedtrack.fusion_center.mtt.central_track import MAX_ENTRIES
@@ -38,7 +39,15 @@ from fedtrack.fusion_center.mtt.centre import Counters, HandOver, LocalKey, Trac
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import LocalReport, Resets
 from fedtrack.local_filters.mtt.routing import RegionAnswer, RegionRouter, join_answers
-from fedtrack.local_filters.regions import Regions, region_of
+from fedtrack.local_filters.regions import Regions, distances, region_of
+
+# The hand-over hysteresis (docs/multitarget.md#hand-over-hysteresis): a central track is handed
+# over only when its estimate lies more than HAND_OVER_SIGMAS position sigmas outside its region
+# (the largest sigma of its position covariance: not less than the one along the border's normal),
+# at most ``margin``. A target on the border, its estimate's error along the normal N(0, sigma^2),
+# is handed over falsely with probability at most FALSE_HAND_OVER per answer.
+FALSE_HAND_OVER = 1e-3
+HAND_OVER_SIGMAS = float(ndtri(1.0 - FALSE_HAND_OVER))  # 3.09
 
 
 def interior(regions: Regions, r: int) -> np.ndarray:
@@ -126,6 +135,16 @@ class RegionCentre:
                 owner[look] = region_of(self.regions, np.stack([x[look], y[look]], axis=1))
         return owner
 
+    def beyond_band(self, x: np.ndarray, P: np.ndarray) -> np.ndarray:
+        """Per estimate (states ``x``, covariances ``P``) outside the region: whether it lies farther
+        outside than ``HAND_OVER_SIGMAS`` times its largest position sigma, capped at ``margin``
+        (the hysteresis of the module constants; the tracker sends the rows to the holder anyway)."""
+        a, b, d = P[:, 0, 0], P[:, 0, 2], P[:, 2, 2]
+        sigma = np.sqrt(0.5 * (a + d) + np.hypot(0.5 * (a - d), b))  # the 2 x 2 block's largest eigenvalue
+        own = self.regions._replace(ids=(self.name,), vertices=self.regions.vertices[self.index:self.index + 1])
+        outside = distances(own, x[:, [0, 2]])[:, 0]
+        return outside > np.minimum(HAND_OVER_SIGMAS * sigma, self.regions.margin)
+
     def answer(self, report: LocalReport, elsewhere: np.ndarray
                ) -> tuple[RegionAnswer, list[tuple[int, int, HandOver]]]:
         """Fuse the rows it takes of a sub-report, hand over the central tracks that left the region;
@@ -143,6 +162,10 @@ class RegionCentre:
             p = c.tracks.newest(sl)
             owner = self.owners(c.tracks.x[sl, p, 0], c.tracks.x[sl, p, 2])  # of the latest estimates' positions
             out = owner != self.index
+            if out.any():  # a track short of a live sensor's local track goes at once (its twin may be next door)
+                whole = np.fromiter((len(c.members.get(cid, ())) >= c.n_live for cid in ids[live][out].tolist()),
+                                    dtype=bool, count=int(out.sum()))
+                out[out] = ~whole | self.beyond_band(c.tracks.x[sl[out], p[out]], c.tracks.P[sl[out], p[out]])
             if out.any():
                 cids, first = np.unique(ids[live][out], return_index=True)  # in increasing id
                 for cid, o in zip(cids.tolist(), owner[out][first].tolist()):
