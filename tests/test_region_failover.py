@@ -75,6 +75,18 @@ def test_a_standby_that_never_sees_a_primary_takes_over_after_the_start_grace_an
     assert [msg.seq for _, msg in sb.take_over()] == [1]
 
 
+def test_two_taking_over_at_once_leave_exactly_one_primary() -> None:
+    """Split brain: two standbys of one region started together see no primary, both take over at
+    the start grace and both hold the region; once each has seen the other's token, one is left."""
+    a, b = Standby("x0y0", started=0.0), Standby("x0y0", started=0.0)
+    for sb in (a, b):
+        assert sb.due(START_GRACE_S)
+        sb.take_over()
+    for sb in (a, b):
+        sb.token(True, START_GRACE_S + 0.01)  # the other's token
+    assert [sb.primary for sb in (a, b)].count(True) == 1
+
+
 def test_a_cold_standby_numbers_its_tracks_after_every_id_of_its_sequence_it_saw() -> None:
     assert next_after(1, 4, [0, 5, 13, 2, 7]) == 17  # region 1 of 4: 1, 5, 9, 13 -> 17
     assert next_after(21, 4, [5, 13]) == 21  # already ahead
