@@ -57,7 +57,6 @@ from fedtrack.deploy.report import LaunchReport, finish
 from fedtrack.deploy.security import LAUNCHER, identity, write_configs
 from fedtrack.deploy.settings import Settings, check_launchable, load_settings
 from fedtrack.deployment import ROLES, listen_address, port_in_use
-from fedtrack.fusion_center.mtt.standby import PRIMARY_ROLE
 from fedtrack.jsonl import InputError, output_folder
 from fedtrack.keys import Keys
 from fedtrack.local_filters.regions import load_regions
@@ -324,6 +323,7 @@ class Launcher:
         self._subs: list[Any] = []
         self._restart_at: dict[str, float] = {}  # service -> monotonic time of its pending restart
         self._failovers: list[Failover] = []
+        self._primaries: dict[str, set[str]] = {}  # scope -> the instances holding its primary token
         self._stopping = False  # stop_all began: primary tokens going now are no failovers
         self._epoch: float | None = None  # wall-clock time of the sensors' scenario time 0
 
@@ -459,7 +459,7 @@ class Launcher:
             self._session.declare_subscriber(self.keys.sensor_meas(), self._on_meas),
             self._session.declare_subscriber(self.keys.health(), self._on_health),
             self._session.declare_subscriber(self.keys.mtt_picture(), self._on_picture),
-            self._session.liveliness().declare_subscriber(self.keys.alive(PRIMARY_ROLE), self._on_primary_token),
+            self._session.liveliness().declare_subscriber(self.keys.primary(), self._on_primary_token),
             self._session.declare_subscriber(self.keys.region_picture(), self._on_region_picture),
         ]
 
@@ -495,15 +495,21 @@ class Launcher:
             self._covered(str(sample.key_expr).split("/")[-2], time.time_ns())
 
     def _on_primary_token(self, sample: zenoh.Sample) -> None:
-        """A centre's primary token went (its primary died) or was claimed (its standby took over)."""
-        now, scope = time.time_ns(), str(sample.key_expr).rsplit("/", 1)[-1]
+        """A centre's primary token went (its primary died: the last of its scope's) or was claimed
+        (its standby took over; a second primary's token, withdrawn when it steps down, is no failover)."""
+        now, (scope, instance) = time.time_ns(), str(sample.key_expr).rsplit("/", 2)[-2:]
         with self._lock:
             if self._stopping:
                 return
+            holders = self._primaries.setdefault(scope, set())
             if sample.kind == zenoh.SampleKind.DELETE:
+                holders.discard(instance)
+                if holders:
+                    return
                 self._failovers.append(Failover(scope, now))
                 self._say(f"the primary centre of {scope} is gone")
                 return
+            holders.add(instance)
             for f in self._failovers:
                 if f.scope == scope and f.took_over_ns is None:
                     f.took_over_ns = now

@@ -45,7 +45,6 @@ if TYPE_CHECKING:  # imported where certificates are made: every service reads t
 
 from fedtrack.config import ConfigError
 from fedtrack.deployment import DeploymentConfig, on_loopback
-from fedtrack.fusion_center.mtt.standby import PRIMARY_ROLE
 from fedtrack.keys import Keys
 
 CA_NAME = "fedtrack-ca"
@@ -115,7 +114,8 @@ def own_keys(keys: Keys, ident: str) -> list[str]:
     elif ident == "fusion":
         data = [keys.fusion_track().rsplit("/", 1)[0] + "/**", keys.region_resets(), keys.region_handover(),
                 keys.region_picture()]
-        roles = [(role, None) for role in (*CENTRE_ROLES, PRIMARY_ROLE)]  # a centre's primary token too
+        data.append(keys.primary())  # a centre's primary token
+        roles = [(role, None) for role in CENTRE_ROLES]
     elif ident == LAUNCHER:
         return []
     else:

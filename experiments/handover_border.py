@@ -31,8 +31,8 @@ MARGIN_M = 500.0  # as bench scale
 
 def border_truth(sc: Scenario, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """``sc.targets`` targets on the borders x = 0 and y = 0 of a 2 x 2 grid centred on the origin:
-    a quarter standing on them, the rest flying along them (8-30 m/s) from one end to the other."""
-    steps, n = int(round(sc.duration / DT)) + 1, sc.targets
+    a quarter standing on them, the rest flying along them at 8-30 m/s, either way."""
+    steps, n = round(sc.duration / DT) + 1, sc.targets
     along_x = np.arange(n) % 2 == 0  # flying (or standing) on y = 0, else on x = 0
     speed = np.where(np.arange(n) < n // 4, 0.0, rng.uniform(8.0, 30.0, n) * rng.choice([-1, 1], n))
     start = rng.uniform(-0.6, 0.6, n) * sc.region

@@ -149,6 +149,11 @@ class Keys:
         """``health/<role>/<id>``: periodic :class:`fedtrack.wire.Health` of a service."""
         return self._key("health", self._chunk(role, "role"), self._chunk(service_id, "service id"))
 
+    def primary(self, scope: str | None = None, instance: str | None = None) -> str:
+        """``alive/mtt-primary/<scope>/<instance>``: liveliness token held by the primary centre of
+        ``<scope>`` (a region, or ``all``); ``<instance>``: its Zenoh session id (the lowest keeps it)."""
+        return self._key("alive", "mtt-primary", self._chunk(scope, "scope"), self._chunk(instance, "instance"))
+
     def alive(self, role: str | None = None, service_id: str | None = None) -> str:
         """``alive/<role>/<id>``: liveliness token held while a service is ready."""
         return self._key("alive", self._chunk(role, "role"), self._chunk(service_id, "service id"))

@@ -75,16 +75,30 @@ def test_a_standby_that_never_sees_a_primary_takes_over_after_the_start_grace_an
     assert [msg.seq for _, msg in sb.take_over()] == [1]
 
 
-def test_two_taking_over_at_once_leave_exactly_one_primary() -> None:
-    """Split brain: two standbys of one region started together see no primary, both take over at
-    the start grace and both hold the region; once each has seen the other's token, one is left."""
-    a, b = Standby("x0y0", started=0.0), Standby("x0y0", started=0.0)
+@pytest.mark.parametrize("standbys", [True, False])
+def test_two_primaries_at_once_leave_exactly_one_the_lower_instance(standbys: bool) -> None:
+    """Split brain: two standbys of one region started together see no primary and both take over
+    at the start grace (or two primaries started together); once each has seen the other's token,
+    the higher instance steps down, whichever saw the other first, and takes over again when the
+    lower one's token goes."""
+    a, b = Standby("x0y0", 0.0, instance="a2", primary=not standbys), Standby("x0y0", 0.0, instance="b1",
+                                                                              primary=not standbys)
     for sb in (a, b):
-        assert sb.due(START_GRACE_S)
-        sb.take_over()
-    for sb in (a, b):
-        sb.token(True, START_GRACE_S + 0.01)  # the other's token
-    assert [sb.primary for sb in (a, b)].count(True) == 1
+        if standbys:
+            assert sb.due(START_GRACE_S)
+            sb.take_over()
+        assert sb.primary and not sb.yields()
+    for first, second in ((a, b), (b, a)):  # each sees both tokens, its own ignored, in either order
+        first.token(True, START_GRACE_S + 0.01, first.instance)
+        first.token(True, START_GRACE_S + 0.01, second.instance)
+    assert (a.yields(), b.yields()) == (False, True)
+    b.step_down()
+    assert [sb.primary for sb in (a, b)] == [True, False]
+    assert not b.due(100.0)  # a's token is there
+    b.hold("pic", picture(9, (1,)), 5.0)  # withheld again
+    b.token(False, 5.0, "a2")  # the winner died
+    assert b.due(5.0 + SETTLE_S) and [msg.seq for _, msg in b.take_over()] == [9]
+    assert b.primary and not b.yields()
 
 
 def test_a_cold_standby_numbers_its_tracks_after_every_id_of_its_sequence_it_saw() -> None:

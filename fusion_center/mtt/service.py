@@ -61,7 +61,7 @@ from fedtrack.fusion_center.mtt.engines import (
 from fedtrack.fusion_center.mtt.regional import RegionEngine
 from fedtrack.fusion_center.mtt.shards import handover_from_wire, handover_to_wire
 from fedtrack.fusion_center.mtt.silence import Silence
-from fedtrack.fusion_center.mtt.standby import PRIMARY_ROLE, Standby, next_after
+from fedtrack.fusion_center.mtt.standby import Standby, next_after
 from fedtrack.geodetic import Frame, geodetic_of_states
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
 from fedtrack.local_filters.mtt.local import report_from_wire, resets_to_wire
@@ -156,10 +156,11 @@ class MttCentreService(Service):
         self.silence = Silence(cfg.leave_after_s)  # the sensors heard from, and when one counts as gone
         self.gone: deque[str] = deque()  # liveliness lost (filled by a Zenoh thread)
         self.contested = False  # a conflicting message since the last picture (docs/wire.md)
-        # failover (:mod:`.standby`): None for the primary, else the hot standby's withheld outputs
-        self.standby = Standby(self._scope(), time.monotonic()) if standby else None
-        self.primary_token: Any = None  # the liveliness token ``alive/mtt-primary/<scope>``, while primary
-        self.primary_seen: deque[tuple[bool, float]] = deque()  # the primary token's changes (a Zenoh thread)
+        # failover (:mod:`.standby`): a primary's (``primary``), or a hot standby's withheld outputs
+        self.started_standby = standby
+        self.standby = Standby(self._scope(), time.monotonic(), primary=not standby)
+        self.primary_token: Any = None  # the liveliness token ``alive/mtt-primary/<scope>/<instance>``, while primary
+        self.primary_seen: deque[tuple[bool, float, str]] = deque()  # primary tokens' changes (a Zenoh thread)
 
     def on_start(self) -> None:
         assert self.session is not None
@@ -399,25 +400,27 @@ class MttCentreService(Service):
         return self.region or "all"
 
     def _start_failover(self) -> None:
-        """Watch the primary token; a primary claims it (refusing to start if another holds it)."""
+        """Watch the primary tokens; a primary claims one (refusing to start if another holds one;
+        two started together both claim, and the higher instance steps down: :meth:`_failover_tick`)."""
         assert self.session is not None
-        key = self.keys.alive(PRIMARY_ROLE, self._scope())
-        if self.standby is None:
+        self.standby.instance = str(self.session.zid())
+        key = self.keys.primary(self._scope())
+        if self.standby.primary:
             if any(reply.ok is not None for reply in self.session.liveliness().get(key, timeout=1.0)):
                 raise ConfigError(f"{key}: this centre already has a primary; start another with --standby")
-            self.primary_token = self.session.liveliness().declare_token(key)
-            return
+            self.primary_token = self.session.liveliness().declare_token(self.keys.primary(self._scope(),
+                                                                                           self.standby.instance))
         self._inputs.append(self.session.liveliness().declare_subscriber(key, self._on_primary, history=True))
 
     def _on_primary(self, sample: zenoh.Sample) -> None:
-        """Zenoh thread: the primary token appeared or went; the worker acts on it (on_tick)."""
-        self.primary_seen.append((sample.kind == zenoh.SampleKind.PUT, time.monotonic()))
+        """Zenoh thread: a primary token appeared or went; the worker acts on it (on_tick)."""
+        self.primary_seen.append((sample.kind == zenoh.SampleKind.PUT, time.monotonic(),
+                                  str(sample.key_expr).rsplit("/", 1)[-1]))
 
     def _primary_outputs(self) -> list[Subscription]:
         """A standby watches what its primary publishes (:meth:`Standby.sent`): the pictures, the
-        answers and (a region's) the hand-overs it sends to the other regions."""
-        if self.standby is None:
-            return []
+        answers and (a region's) the hand-overs it sends to the other regions; a primary too (it
+        ignores them), for it may step down (:meth:`_failover_tick`)."""
         if self.region is None:
             return [Subscription(self.keys.mtt_picture(), TrackPicture, self._primary_sent),
                     Subscription(self.keys.mtt_resets(), TrackResets, self._primary_sent)]
@@ -426,7 +429,7 @@ class MttCentreService(Service):
                 Subscription(self.keys.region_handover(), HandOver, self._primary_sent)]
 
     def _primary_sent(self, msg: TrackPicture | TrackResets | HandOver) -> None:
-        if self.standby is None or self.standby.primary or (isinstance(msg, HandOver) and msg.source != self.region):
+        if self.standby.primary or (isinstance(msg, HandOver) and msg.source != self.region):
             return
         self.standby.sent(msg, time.monotonic())
         if self.standby.cold:
@@ -446,7 +449,7 @@ class MttCentreService(Service):
 
     def publish(self, key: str, msg: Message) -> None:
         """Publish, or, as a standby that has not taken over, withhold (:meth:`Standby.hold`)."""
-        if self.standby is None or self.standby.primary:
+        if self.standby.primary:
             super().publish(key, msg)
             return
         self.standby.hold(key, msg, time.monotonic())
@@ -454,16 +457,25 @@ class MttCentreService(Service):
 
     def _failover_tick(self) -> None:
         """A standby takes over once no primary token exists (:meth:`Standby.due`): it claims the
-        token and publishes what the dead primary never sent."""
+        token and publishes what the dead primary never sent. A primary that sees another primary's
+        token of a lower instance steps down (:meth:`Standby.yields`): it withdraws its token."""
         standby = self.standby
-        if standby is None or standby.primary:
-            return
         while self.primary_seen:
-            standby.token(*self.primary_seen.popleft())
+            alive, now, instance = self.primary_seen.popleft()
+            standby.token(alive, now, instance)
+        if standby.yields():
+            standby.step_down()
+            if self.primary_token is not None:
+                self.primary_token.undeclare()
+                self.primary_token = None
+            self.count("stepped_down")
+            self.log.warning("stepped down as the primary of %s: another primary (instance %s) holds it; this one "
+                             "(%s) is its hot standby", self._scope(), min(standby.holders), standby.instance)
+            return
         if not standby.due(time.monotonic()):
             return
         assert self.session is not None
-        self.primary_token = self.session.liveliness().declare_token(self.keys.alive(PRIMARY_ROLE, self._scope()))
+        self.primary_token = self.session.liveliness().declare_token(self.keys.primary(self._scope(), standby.instance))
         flushed = standby.take_over()
         for key, msg in flushed:
             self.publish(key, msg)
@@ -473,7 +485,7 @@ class MttCentreService(Service):
                          "%.3g)", self._scope(), len(flushed), standby.same, standby.differ, standby.max_difference)
 
     def _failover_counters(self) -> None:
-        if self.standby is not None:
+        if self.started_standby:
             self.counters["standby_same"], self.counters["standby_differ"] = self.standby.same, self.standby.differ
 
     def on_stop(self) -> None:

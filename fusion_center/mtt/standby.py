@@ -10,7 +10,8 @@ withheld ones, or, if the standby has not computed it yet, remembered so that it
 it is), and a picture of the same time is compared with the standby's own (``same`` /
 ``differ``, the largest state difference): what the standby would have said differently.
 
-The primary holds the liveliness token ``alive/mtt-primary/<RID>``. When it disappears (the
+The primary holds the liveliness token ``alive/mtt-primary/<RID>/<instance>`` (``<instance>``:
+its Zenoh session id). When it disappears (the
 primary's process or host died: about 3 ms for a killed process, the lease for a frozen one),
 the standby waits ``SETTLE_S`` (outputs the primary sent before dying, in flight on the same
 links, arrive first), declares the token itself and publishes what it withheld and the primary
@@ -18,6 +19,14 @@ never sent (the answers, hand-overs and pictures that died with it, in the order
 then every output from its next message on: its tracks and their ids continue. It never
 publishes while a primary token exists; a standby that sees no primary token for
 ``START_GRACE_S`` after it started takes over too (the primary died before it came up).
+
+Two primaries at once (split brain: two standbys taking over at the same instant, or two
+primaries started together, each before it saw the other's token): each sees the other's token,
+and the one whose instance is not the lowest among the region's tokens steps down
+(:meth:`Standby.yields`, :meth:`Standby.step_down`): it withdraws its token and becomes a hot
+standby again, so exactly one keeps the region, the same one whichever saw the other first. Both
+ran the same centre on the same inputs, so what both published in between is the same outputs
+twice (within a token's propagation, milliseconds on one network).
 
 Withheld outputs older than ``WITHHELD_S`` are forgotten (the primary was alive long after
 them, so it sent them, or they were lost between it and the standby).
@@ -40,7 +49,6 @@ import numpy as np
 
 from fedtrack.wire import HandOver, Message, TrackPicture, TrackResets
 
-PRIMARY_ROLE = "mtt-primary"  # liveliness ``alive/mtt-primary/<region>``: held by the region's primary
 SETTLE_S = 0.2  # after the primary's token went, before the standby takes over
 START_GRACE_S = 2.0  # a standby that saw no primary for this long after it started takes over
 WITHHELD_S = 10.0  # a withheld output (or a settled one not yet made) is forgotten after this long
@@ -79,8 +87,9 @@ class Standby:
 
     region: str
     started: float
+    instance: str = ""  # this centre's instance id (its Zenoh session id): the last chunk of its token
     primary: bool = False
-    present: bool = False  # a primary token exists (liveliness)
+    holders: set[str] = field(default_factory=set)  # the instances whose primary token exists, this one's aside
     absent_since: float | None = None  # when the token was last seen going (or the start)
     held: OrderedDict[Hashable, tuple[float, str, Message]] = field(default_factory=OrderedDict)  # (made, key, msg)
     settled: OrderedDict[Hashable, tuple[float, str, Message]] = field(default_factory=OrderedDict)  # (seen, "", msg)
@@ -92,10 +101,21 @@ class Standby:
     def __post_init__(self) -> None:
         self.absent_since = self.started
 
-    def token(self, alive: bool, now: float) -> None:
-        """The primary token appeared (``alive``) or went."""
-        self.present = alive
-        self.absent_since = None if alive else now
+    @property
+    def present(self) -> bool:
+        """Another instance's primary token exists (liveliness)."""
+        return bool(self.holders)
+
+    def token(self, alive: bool, now: float, instance: str = "") -> None:
+        """Instance ``instance``'s primary token appeared (``alive``) or went (this one's own is ignored;
+        unnamed: another's)."""
+        if instance and instance == self.instance:
+            return
+        if alive:
+            self.holders.add(instance)
+        else:
+            self.holders.discard(instance)
+        self.absent_since = None if self.holders else now
 
     def due(self, now: float) -> bool:
         """Whether to take over now: no primary token for ``SETTLE_S`` (``START_GRACE_S`` when
@@ -104,6 +124,14 @@ class Standby:
             return False
         wait = START_GRACE_S if self.absent_since == self.started else SETTLE_S
         return now - self.absent_since >= wait
+
+    def yields(self) -> bool:
+        """Whether this primary must step down: another primary's instance id is lower (split brain)."""
+        return self.primary and any(other < self.instance for other in self.holders)
+
+    def step_down(self) -> None:
+        """Become a hot standby again (after :meth:`yields`): withhold from now on."""
+        self.primary = False
 
     def hold(self, key: str, msg: Message, now: float) -> None:
         """An output the standby made for ``key``: withheld, unless the primary sent it already."""
