@@ -6,7 +6,8 @@ explicit free port, multicast scouting off) with ``[multitarget] standby = true`
 centre (one of two regions', or the unsharded centre) is SIGKILLed mid-run: its standby takes
 over, the merged pictures continue without a gap, the scope's tracks are in a picture again
 within 3 scans, no confirmed track is lost and the recording still replays to the live
-pictures. About 30 s.
+pictures. About 30 s. Split brain: two primaries of one region, in-process and live (two loopback
+routers joined by a third: about 2 s), leave exactly one.
 """
 
 from __future__ import annotations
@@ -27,9 +28,12 @@ from fedtrack.deploy.launcher import prepare_launcher
 from fedtrack.deploy.report import LaunchReport
 from fedtrack.deploy.settings import load_settings
 from fedtrack.fusion_center.mtt.replay import replay_mtt
+from fedtrack.fusion_center.mtt.service import MttCentreService
 from fedtrack.fusion_center.mtt.standby import SETTLE_S, START_GRACE_S, WITHHELD_S, Standby, next_after
+from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.regions import load_regions, region_of
 from fedtrack.wire import TrackPicture, TrackResets
+from fedtrack.zsession import SessionOptions, close_session, open_session
 
 
 def picture(seq: int, ids: tuple[int, ...], shift: float = 0.0) -> TrackPicture:
@@ -113,6 +117,51 @@ def test_a_cold_standby_numbers_its_tracks_after_every_id_of_its_sequence_it_saw
     hot = Standby("x0y0", started=0.0)
     hot.sent(picture(0, (1,)), 1.0)
     assert hot.cold is False
+
+
+@pytest.mark.faults
+def test_two_primaries_of_one_region_over_zenoh_leave_one_when_they_meet(tmp_path: Path) -> None:
+    """Split brain live: two standbys of one region, each in its own thread behind its own loopback
+    router (a partition), see no primary and both take over; once a third router joins the two,
+    each sees the other's token and the higher instance steps down: one primary token and one
+    publishing centre remain. About 5 s."""
+    config = tmp_path / "config.toml"
+    config.write_text("[regions]\nmargin = 500.0\ngrid = {origin = [0.0, 0.0], cell = [1.0, 1.0], nx = 2, ny = 1}\n")
+    regions = load_regions(config)
+    ports = [free_port(), free_port()]
+    routers = [open_session(SessionOptions(mode="router", connect=(), listen=(f"tcp/127.0.0.1:{p}",))) for p in ports]
+    opts = [SessionOptions(connect=(f"tcp/127.0.0.1:{p}",), connect_timeout_s=5.0) for p in ports]
+    centres = [MttCentreService("mtt-federated", MttConfig(sensors=("s1",)), 4, region="x0y0", regions=regions,
+                                standby=True, service_id=f"c{k}", options=opts[k], deployment="splitbrain")
+               for k in range(2)]
+    for c in centres:  # no need to wait for the start grace
+        c.standby.started = c.standby.absent_since = c.standby.started - START_GRACE_S
+    threads = [threading.Thread(target=c.run, daemon=True) for c in centres]
+    for th in threads:
+        th.start()
+    session = bridge = None
+    try:
+        assert wait_until(lambda: all(c.counters.get("took_over") for c in centres), timeout=10.0)
+        assert [c.standby.primary for c in centres] == [True, True]  # both hold the region
+        bridge = open_session(SessionOptions(mode="router", connect=tuple(f"tcp/127.0.0.1:{p}" for p in ports),
+                                             listen=(), connect_timeout_s=5.0))
+        assert wait_until(lambda: sum(c.standby.primary for c in centres) == 1, timeout=5.0)
+        time.sleep(0.5)  # long enough for a second step-down to show
+        session = open_session(opts[0])
+        tokens = [str(r.ok.key_expr) for r in session.liveliness().get("fedtrack/splitbrain/alive/mtt-primary/**",
+                                                                       timeout=1.0) if r.ok is not None]
+        winner = min(centres, key=lambda c: c.standby.instance)
+        assert [c.standby.primary for c in centres] == [c is winner for c in centres]
+        assert tokens == [f"fedtrack/splitbrain/alive/mtt-primary/x0y0/{winner.standby.instance}"]
+        assert [c.counters.get("stepped_down", 0) for c in centres] == [int(c is not winner) for c in centres]
+    finally:
+        for c in centres:
+            c.stop()
+        for th in threads:
+            th.join(10.0)
+        for z in (session, bridge, *routers):
+            if z is not None:
+                close_session(z)
 
 
 CONFIG = """
