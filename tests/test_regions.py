@@ -10,6 +10,8 @@ import pytest
 from fedtrack.config import ConfigError
 from fedtrack.geodetic import Frame, enu_from_geodetic
 from fedtrack.keys import check_id
+from fedtrack.local_filters.mtt.local import LocalReport
+from fedtrack.local_filters.mtt.routing import RegionRouter
 from fedtrack.local_filters.regions import (distances, grid_over, grid_regions, load_regions, near_regions,
                                              parse_grid_spec, region_of)
 
@@ -116,3 +118,19 @@ def test_grid_spec_and_grid_over_the_data() -> None:
     regions = grid_over(pos, 2, 2, 0.5)
     assert np.allclose(regions.vertices[3, 2], [10.0, 4.0])
     assert region_of(regions, pos).tolist() == [0, 3, 0]
+
+
+def test_a_row_goes_to_its_believed_holder_however_far_beyond_the_margin() -> None:
+    """The hand-over hysteresis keeps a track with its holder up to ``margin`` outside the holder's
+    region: the holder must keep getting the row there, and beyond (the router's belief, not the
+    margin, sends it), flagged not ``elsewhere`` for the holder and ``elsewhere`` for the rest."""
+    regions = grid_regions((0.0, 0.0), (1000.0, 1000.0), 3, 1, 100.0)
+    x = np.array([[150.0, 0.0, 500.0, 0.0], [1050.0, 0.0, 500.0, 0.0], [2950.0, 0.0, 500.0, 0.0]])
+    report = LocalReport("s1", 1.0, np.array([4, 5, 6]), x, np.tile(np.eye(4), (3, 1, 1)), np.ones(3, bool),
+                         np.zeros(3, bool), np.zeros((0, 2, 4)), np.zeros((0, 2, 2)), np.zeros((0, 2)),
+                         np.zeros(0, bool), np.zeros(0, np.int64))
+    router = RegionRouter(regions, holder={4: 0, 5: 0, 6: 0})  # 6: 1,950 m beyond region 0, margin 100 m
+    (r0, e0), (r1, e1), (r2, e2) = router.split(report)
+    assert r0.ids.tolist() == [4, 5, 6] and e0.tolist() == [False, False, False]
+    assert r1.ids.tolist() == [5] and e1.tolist() == [True]  # 5 is 50 m inside region 1: by position too
+    assert r2.ids.tolist() == [6] and e2.tolist() == [True]
