@@ -12,8 +12,15 @@ from fedtrack.geodetic import Frame, enu_from_geodetic
 from fedtrack.keys import check_id
 from fedtrack.local_filters.mtt.local import LocalReport
 from fedtrack.local_filters.mtt.routing import RegionRouter
-from fedtrack.local_filters.regions import (distances, grid_over, grid_regions, load_regions, near_regions,
-                                             parse_grid_spec, region_of)
+from fedtrack.local_filters.regions import (
+    distances,
+    grid_over,
+    grid_regions,
+    load_regions,
+    near_regions,
+    parse_grid_spec,
+    region_of,
+)
 
 
 def test_grid_owner_is_the_cell_by_floor_and_margin_reaches_neighbours() -> None:
