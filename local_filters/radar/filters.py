@@ -257,7 +257,7 @@ class RadarFilter:
         else:
             state = self._state
             restart = (model is not self._model) or not np.array_equal(m.sensor_position, last.sensor_position)
-            if restart and hasattr(state, "count"):
+            if restart and "count" in state._fields:  # the input-estimation window (not tuple.count)
                 state = state._replace(count=np.zeros_like(state.count))
             self._state = self.kind.step(state, m.z[None], m.R, model, m.sensor_position)
         self._model = model
