@@ -40,12 +40,13 @@ def test_clean_target_is_confirmed_after_three_updates_then_deleted(algorithm: s
 
 
 def test_no_track_from_detections_too_far_apart():
+    """Reach over 25 s: 10 m/s x 25 s plus sqrt(9.21 x 2 x 225) = 64.38 m of noise, 314.38 m."""
     spec = tracker_spec("hpda", PDAParams(), ExistenceConfig(max_speed=10.0))
     ms = initial_manager()
     ms, _ = manager_step(spec, ms, 0.0, np.array([[0.0, 0.0]]), np.array([30.0]), R)
-    ms, rep = manager_step(spec, ms, 25.0, np.array([[251.0, 0.0]]), np.array([30.0]), R)
+    ms, rep = manager_step(spec, ms, 25.0, np.array([[314.5, 0.0]]), np.array([30.0]), R)
     assert len(rep.tracks) == 0
-    ms, rep = manager_step(spec, ms, 50.0, np.array([[490.0, 0.0]]), np.array([30.0]), R)
+    ms, rep = manager_step(spec, ms, 50.0, np.array([[628.7, 0.0]]), np.array([30.0]), R)
     assert len(rep.tracks) == 1
 
 
