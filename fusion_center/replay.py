@@ -9,8 +9,9 @@ line per scan, ``{"t", "x", "P", "model", "maneuver", "sensors", "degraded", "ev
 from __future__ import annotations
 
 import json
+from collections.abc import Iterable, Iterator
 from pathlib import Path
-from typing import Any, Iterator, NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -29,30 +30,37 @@ class Scan(NamedTuple):
     R: dict[str, np.ndarray]
 
 
-def read_scans(path: Path) -> list[Scan]:
-    """Parse and validate a measurements file into scans (errors name ``file:line``)."""
-    scans: list[Scan] = []
+def read_scans(path: Path) -> Iterator[Scan]:
+    """Parse and validate a measurements file into scans as it is read (errors name ``file:line``)."""
+    scan: Scan | None = None
     for lineno, obj in read_jsonl(path):
         where = f"{path}:{lineno}"
         t, sensor, z, R = position_line(obj, where)
-        if scans and t < scans[-1].t:
-            raise InputError(f"{where}: timestamp {t} goes backwards (previous scan at {scans[-1].t})")
-        if not scans or t > scans[-1].t:
-            scans.append(Scan(t, {}, {}))
-        if sensor in scans[-1].z:
+        if scan is not None and t < scan.t:
+            raise InputError(f"{where}: timestamp {t} goes backwards (previous scan at {scan.t})")
+        if scan is None or t > scan.t:
+            if scan is not None:
+                yield scan
+            scan = Scan(t, {}, {})
+        if sensor in scan.z:
             raise InputError(f"{where}: sensor {sensor!r} appears twice in the scan at t={t}")
-        scans[-1].z[sensor] = z
-        scans[-1].R[sensor] = R
-    if not scans:
+        scan.z[sensor] = z
+        scan.R[sensor] = R
+    if scan is None:
         raise InputError(f"{path}: no measurements")
-    return scans
+    yield scan
 
 
-def sensor_order(scans: list[Scan], configured: tuple[str, ...] | None) -> list[str]:
-    """The configured sensor order, or the order of first appearance."""
+def sensors_seen(scans: Iterable[Scan]) -> list[str]:
+    """The sensors of ``scans`` in the order of their first appearance."""
     seen: list[str] = []
     for scan in scans:
         seen.extend(s for s in scan.z if s not in seen)
+    return seen
+
+
+def sensor_order(seen: list[str], configured: tuple[str, ...] | None) -> list[str]:
+    """The configured sensor order (which must list every sensor ``seen``), or ``seen``."""
     if configured is None:
         return seen
     unknown = [s for s in seen if s not in configured]
@@ -79,7 +87,7 @@ def estimate_record(t: float, est: ModelEstimate, sensors: list[str], n_sensors:
     return rec
 
 
-def replay_scans(algorithm: str, scans: list[Scan], sensors: list[str], config: Any) -> Iterator[dict[str, Any]]:
+def replay_scans(algorithm: str, scans: Iterable[Scan], sensors: list[str], config: Any) -> Iterator[dict[str, Any]]:
     """Run ``algorithm`` scan by scan; yields output records."""
     tracker = make_tracker(algorithm, len(sensors), config)
     Rs_last = {s: np.eye(2) for s in sensors}
@@ -95,13 +103,15 @@ def replay_scans(algorithm: str, scans: list[Scan], sensors: list[str], config: 
 def replay_fusion(algorithm: str, measurements: Path, config: Path | None, out: Path) -> int:
     """Entry point of ``fedtrack replay --algorithm kf|federated-kf|decentralized-kf|fvdie|dvdie``."""
     settings = load_tables(config, PipelineSettings)
-    scans = read_scans(measurements)
+    # two passes, so that memory does not grow with the file: the first validates every line
+    # and finds the sensors (their number sets the sharing factors from the first scan on)
+    seen = sensors_seen(read_scans(measurements))
     with in_file(config):
-        sensors = sensor_order(scans, settings.fusion.sensors)
+        sensors = sensor_order(seen, settings.fusion.sensors)
         settings.fusion.betas(len(sensors))  # fails early if the sharing factors do not fit
     n = 0
     with output_file(out) as fh:
-        for rec in replay_scans(algorithm, scans, sensors, settings.fusion):
+        for rec in replay_scans(algorithm, read_scans(measurements), sensors, settings.fusion):
             fh.write(json.dumps(rec) + "\n")
             n += 1
     return n

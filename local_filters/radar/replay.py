@@ -10,12 +10,13 @@ class in :mod:`fedtrack.local_filters.radar.filters` (unknown keys are rejected)
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from fedtrack.config import ConfigError, in_file, load_tables
-from fedtrack.jsonl import InputError, read_jsonl, write_jsonl
+from fedtrack.jsonl import InputError, output_file, read_jsonl
 from fedtrack.local_filters.radar.filters import ALGORITHMS, make_radar_filter
 
 
@@ -32,12 +33,13 @@ def replay_radar(algorithm: str, measurements: Path, config: Path | None, out: P
         raise ConfigError(f"algorithm: {algorithm!r} is not a radar filter ({', '.join(ALGORITHMS)})")
     with in_file(config):
         filt = make_radar_filter(algorithm, load_tables(config, RadarFilterSettings).radar_filter)
-    rows = []
-    for lineno, obj in read_jsonl(measurements):
-        est = filt.step(obj, where=f"{measurements}:{lineno}")
-        if est is not None:
-            rows.append(est)
-    if not rows:
-        raise InputError(f"{measurements}: need at least two measurements to initialize the filter")
-    write_jsonl(out, rows)
-    return len(rows)
+    n = 0
+    with output_file(out) as fh:  # streamed; whole or not at all
+        for lineno, obj in read_jsonl(measurements):
+            est = filt.step(obj, where=f"{measurements}:{lineno}")
+            if est is not None:
+                fh.write(json.dumps(est) + "\n")
+                n += 1
+        if not n:
+            raise InputError(f"{measurements}: need at least two measurements to initialize the filter")
+    return n
