@@ -94,6 +94,20 @@ class DeploymentConfig:
             raise ConfigError("router_connect: needs a router on this host (\"router\" in services)")
 
 
+@dataclass(frozen=True)
+class DeploymentTable:
+    """The ``[deployment]`` table alone (what a replay reads of it)."""
+
+    deployment: DeploymentConfig = field(default_factory=DeploymentConfig)
+
+
+def max_time_jump(config: Path | None) -> float:
+    """``[deployment] max_time_jump_s`` of ``config`` (its default without a file): a replay
+    starts its estimator again after a gap longer than this, where a live service rejects the
+    measurement (predicting over it would leave the covariance meaningless)."""
+    return load_tables(config, DeploymentTable).deployment.max_time_jump_s
+
+
 def listen_address(endpoint: str, field: str) -> tuple[str, int]:
     """``(host, port)`` of a Zenoh endpoint ``PROTO/HOST:PORT``; a ConfigError naming ``field`` if malformed."""
     proto, _, address = endpoint.partition("/")

@@ -87,11 +87,17 @@ def estimate_record(t: float, est: ModelEstimate, sensors: list[str], n_sensors:
     return rec
 
 
-def replay_scans(algorithm: str, scans: Iterable[Scan], sensors: list[str], config: Any) -> Iterator[dict[str, Any]]:
-    """Run ``algorithm`` scan by scan; yields output records."""
+def replay_scans(algorithm: str, scans: Iterable[Scan], sensors: list[str], config: Any,
+                 max_gap: float = np.inf) -> Iterator[dict[str, Any]]:
+    """Run ``algorithm`` scan by scan; yields output records. After a gap longer than ``max_gap``
+    seconds the tracker starts again (:func:`fedtrack.deployment.max_time_jump`)."""
     tracker = make_tracker(algorithm, len(sensors), config)
     Rs_last = {s: np.eye(2) for s in sensors}
+    last_t = np.inf
     for scan in scans:
+        if scan.t - last_t > max_gap:
+            tracker = make_tracker(algorithm, len(sensors), config)
+        last_t = scan.t
         present = np.array([s in scan.z for s in sensors])
         zs = np.array([scan.z.get(s, np.zeros(2)) for s in sensors])
         Rs_last.update(scan.R)
@@ -111,7 +117,8 @@ def replay_fusion(algorithm: str, measurements: Path, config: Path | None, out: 
         settings.fusion.betas(len(sensors))  # fails early if the sharing factors do not fit
     n = 0
     with output_file(out) as fh:
-        for rec in replay_scans(algorithm, read_scans(measurements), sensors, settings.fusion):
+        for rec in replay_scans(algorithm, read_scans(measurements), sensors, settings.fusion,
+                                settings.deployment.max_time_jump_s):
             fh.write(json.dumps(rec) + "\n")
             n += 1
     return n

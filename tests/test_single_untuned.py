@@ -203,3 +203,40 @@ def test_replay_memory_does_not_grow_with_the_file(tmp_path: Path, algorithm: st
             peaks.append(tracemalloc.get_traced_memory()[1])
             tracemalloc.stop()
     assert peaks[1] - peaks[0] < 2e5, peaks
+
+
+@pytest.mark.parametrize("algorithm", ["federated-kf", "fvdie", "dvdie", "vsimm", "hpda", "ekf"])
+def test_replay_across_a_day_long_gap_starts_again(tmp_path: Path, algorithm: str) -> None:
+    """A recording with a pause (two sessions a day apart, 1e5 s): the covariance predicted over
+    the gap (10^13 m^2 and more) made fvdie / dvdie raise ``LinAlgError`` (from 3e4 s on),
+    federated-kf from 1e12 s, pda-ai / hpda a ``ValueError`` (tracebacks, exit 1) and the IMM
+    write NaN. A gap beyond ``[deployment] max_time_jump_s`` (3,600 s), the live services'
+    bound, now starts the estimator again: after it the output equals a replay of the second
+    session alone (pda: the tracks before the gap are reported deleted)."""
+    rng = np.random.default_rng(3)
+
+    def session(t0: float) -> list[dict]:
+        times = t0 + np.arange(12.0)
+        if algorithm == "ekf":
+            return [dict(line, t=line["t"] + t0) for line in radar_lines(times - t0)]
+        if algorithm == "hpda":
+            return [{"t": float(t), "sensor": "s", "R": [[225.0, 0.0], [0.0, 225.0]],
+                     "detections": [{"z": (rng.normal(0.0, 15.0, 2) + [4.0 * (t - t0), 0.0]).tolist(), "amplitude": 60.0}]}
+                    for t in times]
+        sensors = ("s1",) if algorithm == "vsimm" else ("s1", "s2")
+        return [{"t": float(t), "sensor": s, "z": (rng.normal(0.0, 10.0, 2) + [10.0 * (t - t0), 0.0]).tolist(),
+                 "R": [[100.0, 5.0], [5.0, 100.0]]} for t in times for s in sensors]
+
+    first, second = session(0.0), session(1e5)
+    both = write_lines(tmp_path / "both.jsonl", first + second)
+    alone = write_lines(tmp_path / "alone.jsonl", second)
+    outs = []
+    for m in (both, alone):
+        assert cli(["replay", "--algorithm", algorithm, "--measurements", str(m), "--out", str(tmp_path / "o.jsonl")]) == 0
+        outs.append([json.loads(x) for x in (tmp_path / "o.jsonl").read_text().splitlines()])
+    def live(rows: list[dict]) -> list[dict]:  # track numbers go on counting after the gap
+        return [{k: v for k, v in r.items() if k != "track"} for r in rows if r.get("status") != "deleted"]
+
+    assert live([r for r in outs[0] if r["t"] >= 1e5]) == live(outs[1])
+    if algorithm == "hpda":
+        assert any(r["status"] == "deleted" and r["t"] == 1e5 for r in outs[0])

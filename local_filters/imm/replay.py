@@ -21,6 +21,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from fedtrack.deployment import max_time_jump
 from fedtrack.jsonl import InputError, output_file, position_line, read_jsonl
 from fedtrack.local_filters.imm.config import load_imm_config
 from fedtrack.local_filters.imm.filter import ALGORITHMS
@@ -59,10 +60,14 @@ def replay_imm(algorithm: str, measurements: Path, config: Path | None, out: Pat
     """Run ``algorithm`` over ``measurements`` and write one estimate per line to ``out``."""
     if algorithm not in ALGORITHMS:
         raise InputError(f"unknown IMM algorithm {algorithm!r} (expected one of {', '.join(ALGORITHMS)})")
-    tracker = IMMTracker(load_imm_config(config), algorithm)
+    cfg, max_gap = load_imm_config(config), max_time_jump(config)
+    tracker, last_t = IMMTracker(cfg, algorithm), np.inf
     n = 0
     with output_file(out) as fh:  # streamed; whole or not at all
         for m in read_measurements(measurements):
+            if m.t - last_t > max_gap:  # a pause longer than the live services accept: start again
+                tracker = IMMTracker(cfg, algorithm)
+            last_t = m.t
             fh.write(json.dumps({"sensor": m.sensor, **tracker.update(m.t, m.z, m.R).as_dict()}) + "\n")
             n += 1
     return n

@@ -23,6 +23,7 @@ from typing import Any, Iterator, NamedTuple
 import numpy as np
 
 from fedtrack.config import ConfigError
+from fedtrack.deployment import max_time_jump
 from fedtrack.jsonl import (
     SONAR_FIELDS,
     InputError,
@@ -107,10 +108,14 @@ def report_rows(t: float, sensor: str, rep: ScanReport) -> list[dict[str, Any]]:
 STATUSES = ("all", "confirmed")
 
 
-def run(spec: TrackerSpec, scans: Iterator[Scan]) -> Iterator[dict[str, Any]]:
-    """Track-manager output lines for a stream of scans."""
+def run(spec: TrackerSpec, scans: Iterator[Scan], max_gap: float = np.inf) -> Iterator[dict[str, Any]]:
+    """Track-manager output lines for a stream of scans. After a gap longer than ``max_gap``
+    seconds the manager starts again: its tracks are reported deleted at the next scan."""
     ms = initial_manager()
     for s in scans:
+        if ms.t is not None and s.t - ms.t > max_gap:
+            yield from _rows(s.t, s.sensor, ms.tracks, np.full(len(ms.tracks), "deleted"))
+            ms = initial_manager()._replace(next_id=ms.next_id)
         keep = s.amplitude >= spec.c.tau
         ms, rep = manager_step(spec, ms, s.t, s.z[keep], s.amplitude[keep], s.R)
         yield from report_rows(s.t, s.sensor, rep)
@@ -127,7 +132,7 @@ def replay_pda(algorithm: str, measurements: Path, config: Path | None, out: Pat
     spec = tracker_spec(algorithm, cfg.tracker, cfg.existence)
     n = 0
     with output_file(out) as fh:
-        for row in run(spec, read_scans(measurements)):
+        for row in run(spec, read_scans(measurements), max_time_jump(config)):
             if status == "all" or row["status"] == status:
                 fh.write(json.dumps(row) + "\n")
                 n += 1

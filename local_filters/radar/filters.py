@@ -247,6 +247,11 @@ class RadarFilter:
         self._last: Measurement | None = None
         self._model: MotionModel3D | None = None
 
+    @property
+    def last_t(self) -> float | None:
+        """The time of the last measurement taken (None before the first)."""
+        return None if self._last is None else self._last.t
+
     def step(self, meas: dict[str, Any], where: str = "measurement") -> dict[str, Any] | None:
         m = parse_measurement(meas, where)
         last = self._last

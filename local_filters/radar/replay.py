@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from fedtrack.config import ConfigError, in_file, load_tables
+from fedtrack.deployment import max_time_jump
 from fedtrack.jsonl import InputError, output_file, read_jsonl
 from fedtrack.local_filters.radar.filters import ALGORITHMS, make_radar_filter
 
@@ -32,10 +33,15 @@ def replay_radar(algorithm: str, measurements: Path, config: Path | None, out: P
     if algorithm not in ALGORITHMS:
         raise ConfigError(f"algorithm: {algorithm!r} is not a radar filter ({', '.join(ALGORITHMS)})")
     with in_file(config):
-        filt = make_radar_filter(algorithm, load_tables(config, RadarFilterSettings).radar_filter)
+        table = load_tables(config, RadarFilterSettings).radar_filter
+        filt = make_radar_filter(algorithm, table)
+    max_gap = max_time_jump(config)
     n = 0
     with output_file(out) as fh:  # streamed; whole or not at all
         for lineno, obj in read_jsonl(measurements):
+            t = obj.get("t")
+            if filt.last_t is not None and isinstance(t, (int, float)) and t - filt.last_t > max_gap:
+                filt = make_radar_filter(algorithm, table)  # a pause longer than the live bound: start again
             est = filt.step(obj, where=f"{measurements}:{lineno}")
             if est is not None:
                 fh.write(json.dumps(est) + "\n")
