@@ -111,9 +111,22 @@ def radar_residual(x: np.ndarray, z: np.ndarray, model: MotionModel3D,
 
 
 def residual_at_offset(d: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """:func:`radar_residual` from the offsets ``d`` (..., 3) of the positions from the sensor."""
-    nu = z - polar_from_cartesian(d)
+    """:func:`radar_residual` from the offsets ``d`` (..., 3) of the positions from the sensor.
+
+    A direction has two readings, ``(az, el)`` and ``(az + pi, +-pi - el)`` (through the zenith
+    or the nadir); the residual is taken from the one nearer the prediction on the sphere
+    (azimuth residuals weighted by ``cos(el)``). Near the zenith a target's noisy direction is
+    often reported on the far side (azimuth off by pi): read as it comes, that residual is a
+    jump of pi in azimuth, which the EKF took as a horizontal displacement and diverged (a target
+    climbing straight above the radar: errors of kilometres with a covariance of metres)."""
+    h = polar_from_cartesian(d)
+    nu = z - h
     nu[..., 1:] = wrap_angle(nu[..., 1:])
+    other = np.stack([wrap_angle(z[..., 1] + np.pi - h[..., 1]),
+                      np.copysign(np.pi, h[..., 2]) - z[..., 2] - h[..., 2]], axis=-1)
+    c = np.cos(h[..., 2])
+    far = (c * other[..., 0]) ** 2 + other[..., 1] ** 2 < (c * nu[..., 1]) ** 2 + nu[..., 2] ** 2
+    nu[..., 1:] = np.where(far[..., None], other, nu[..., 1:])
     return nu
 
 
