@@ -119,6 +119,26 @@ def test_a_cold_standby_numbers_its_tracks_after_every_id_of_its_sequence_it_saw
     assert hot.cold is False
 
 
+def test_a_primary_takes_no_sample_of_its_own_outputs_until_it_steps_down(tmp_path: Path) -> None:
+    """A primary declares the watch of its outputs (it may step down to a standby) but takes none of
+    their samples while it is the primary: decoding its own pictures and answers made a live
+    1,000-track centre use 5.0 CPU s in 60 s instead of 3.7. A standby takes them from the start."""
+    config = tmp_path / "config.toml"
+    config.write_text("[regions]\nmargin = 500.0\ngrid = {origin = [0.0, 0.0], cell = [1.0, 1.0], nx = 2, ny = 1}\n")
+    regions = load_regions(config)
+    for region in (None, "x0y0"):
+        kwargs = {} if region is None else {"region": region, "regions": regions}
+        primary, standby = (MttCentreService("mtt-federated", MttConfig(sensors=("s1",)), 4, standby=hot,
+                                             service_id=f"c{int(hot)}", options=SessionOptions(), **kwargs)
+                            for hot in (False, True))
+        watch = primary._primary_outputs()
+        assert len(watch) == (2 if region is None else 3)
+        assert not any(sub.wanted() for sub in watch)
+        assert all(sub.wanted() for sub in standby._primary_outputs())
+        primary.standby.step_down()
+        assert all(sub.wanted() for sub in watch)
+
+
 @pytest.mark.faults
 def test_two_primaries_of_one_region_over_zenoh_leave_one_when_they_meet(tmp_path: Path) -> None:
     """Split brain live: two standbys of one region, each in its own thread behind its own loopback

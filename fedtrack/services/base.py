@@ -228,6 +228,8 @@ class Subscription:
     ``recover`` (implied by ``history``): only the recovery of samples lost in transit (e.g.
     while the router restarts), delivered late but in order.
     ``raw``: the handler also gets the payload bytes (``handler(msg, payload)``).
+    ``wanted``: samples are taken only while it returns True (asked on the Zenoh thread, before the
+    payload is copied or decoded); None: always.
     """
 
     key: str
@@ -236,6 +238,7 @@ class Subscription:
     history: bool = False
     recover: bool = False
     raw: bool = False
+    wanted: Callable[[], bool] | None = None
 
 
 @dataclass(frozen=True)
@@ -477,8 +480,9 @@ class Service:
         self._subscriptions = self.subscriptions()
         self._queryables = self.queryables()
         for index, sub in enumerate(self._subscriptions):
-            def on_sample(sample: zenoh.Sample, index: int = index) -> None:
-                if sample.kind == zenoh.SampleKind.PUT:
+            def on_sample(sample: zenoh.Sample, index: int = index, wanted: Callable[[], bool] | None = sub.wanted
+                          ) -> None:
+                if sample.kind == zenoh.SampleKind.PUT and (wanted is None or wanted()):
                     self._enqueue(("sample", index, str(sample.key_expr), sample.payload.to_bytes()))
             if sub.history or sub.recover:
                 history = zenoh.ext.HistoryConfig(detect_late_publishers=True) if sub.history else None
