@@ -118,14 +118,11 @@ def listen_address(endpoint: str, field: str) -> tuple[str, int]:
 
 
 def on_loopback(endpoint: str) -> bool:
-    """True when a ``PROTO/HOST:PORT`` endpoint's host is this machine's loopback (127.0.0.0/8, ::1, localhost)."""
-    return loopback_host(listen_address(endpoint, "endpoint")[0])
-
-
-def loopback_host(host: str) -> bool:
-    """True for ``localhost`` and the loopback addresses (127.0.0.0/8, ::1); a host name may resolve anywhere."""
+    """True when a ``PROTO/HOST:PORT`` endpoint's host is this machine's loopback (127.0.0.0/8, ::1,
+    localhost; a host name may resolve anywhere); a ConfigError if it is malformed."""
     import ipaddress
 
+    host = listen_address(endpoint, "endpoint")[0]
     if host == "localhost":
         return True
     try:

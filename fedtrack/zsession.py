@@ -23,7 +23,8 @@ from typing import Any, Callable
 
 import zenoh
 
-from fedtrack.deployment import loopback_host
+from fedtrack.config import ConfigError
+from fedtrack.deployment import on_loopback
 from fedtrack.keys import DEFAULT_DEPLOYMENT, InvalidName, check_id
 
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
@@ -165,8 +166,11 @@ def check_authenticated(endpoint: str, flag: str, config_file: str | None) -> No
     """Authenticated by default, as ``launch`` is (``fedtrack.deploy.security.check_transport``): an
     endpoint off loopback must be ``tls/`` with a Zenoh configuration (``--zenoh-config``: the
     certificates); a ValueError naming ``flag`` otherwise (``--insecure`` opts out)."""
-    host = endpoint.partition("/")[2].partition("#")[0].rpartition(":")[0].strip("[]")
-    if loopback_host(host) or (endpoint.startswith("tls/") and config_file is not None):
+    try:
+        loopback = on_loopback(endpoint)
+    except ConfigError:  # not PROTO/HOST:PORT: not known to be loopback (Zenoh names what is wrong with it)
+        loopback = False
+    if loopback or (endpoint.startswith("tls/") and config_file is not None):
         return
     raise ValueError(f"{flag}: {endpoint} is off loopback and not tls/ with --zenoh-config (mutual TLS); a plain link "
                      "there is unauthenticated: give --insecure to allow it (an explicit opt-out)")

@@ -98,6 +98,7 @@ class RegionCentre:
         self.centre = TrackToTrackCentre(self.cfg, self.dim, self.feedback, next_id=self.index,
                                          id_step=len(self.regions.ids))
         self.boxes = np.stack([interior(self.regions, r) for r in range(len(self.regions.ids))])  # (R, 4)
+        self.own = self.regions._replace(ids=(self.name,), vertices=self.regions.vertices[self.index:self.index + 1])
 
     @property
     def name(self) -> str:
@@ -141,8 +142,7 @@ class RegionCentre:
         (the hysteresis of the module constants; the tracker sends the rows to the holder anyway)."""
         a, b, d = P[:, 0, 0], P[:, 0, 2], P[:, 2, 2]
         sigma = np.sqrt(0.5 * (a + d) + np.hypot(0.5 * (a - d), b))  # the 2 x 2 block's largest eigenvalue
-        own = self.regions._replace(ids=(self.name,), vertices=self.regions.vertices[self.index:self.index + 1])
-        outside = distances(own, x[:, [0, 2]])[:, 0]
+        outside = distances(self.own, x[:, [0, 2]])[:, 0]
         return outside > np.minimum(HAND_OVER_SIGMAS * sigma, self.regions.margin)
 
     def answer(self, report: LocalReport, elsewhere: np.ndarray
