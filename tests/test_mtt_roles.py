@@ -11,6 +11,11 @@ the position sensor's plots at z = 0, then updated by the radar) relinearizes th
 plot's altitude (:func:`~fedtrack.local_filters.mtt.tracker.relinearize_altitude`): those two cases
 equal 886cab1 with the relinearization taken out, and ``gnn-relinearized.json.gz`` (frozen when it
 came) with it.
+
+Since the sensor-coverage session a centralized tracker counts a sensor's scan for a track only
+once the sensor detected it or put a detection in its gate (``tracker.scan_counts``):
+``gnn-sensor-counts.json.gz`` (frozen when it came) holds the centralized cases with that rule, and
+with every scan counted for every track (``CentralizedEngine.bit`` 0) they equal the references above.
 """
 
 from __future__ import annotations
@@ -28,6 +33,7 @@ from fedtrack.fusion_center.mtt.replay import replay_mtt
 DATA = Path(__file__).parent / "data" / "mtt_reference"
 REFERENCE = DATA / "gnn-886cab1.json.gz"
 RELINEARIZED = DATA / "gnn-relinearized.json.gz"  # the cases the altitude's relinearization changes
+SENSOR_COUNTS = DATA / "gnn-sensor-counts.json.gz"  # the centralized cases: the scans counted per track
 CASES = [(scenario, maneuver, algorithm) for scenario in ("pos", "radar") for maneuver in ("none", "vdie")
          for algorithm in ("mtt-local", "mtt-centralized", "mtt-federated", "mtt-decentralized")]
 LOCAL_SENSOR = {"pos": "s2", "radar": "r1"}
@@ -76,9 +82,14 @@ def assert_fingerprints_equal(got: list, expected: list) -> None:
 @pytest.mark.parametrize("scenario, maneuver, algorithm", CASES)
 def test_gnn_pictures_equal_main_886cab1(tmp_path: Path, scenario: str, maneuver: str, algorithm: str,
                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    from fedtrack.fusion_center.mtt.engines import CentralizedEngine
     from fedtrack.local_filters.mtt import tracker
 
     key = f"{scenario}-{maneuver}-{algorithm}"
+    counted = json.loads(gzip.decompress(SENSOR_COUNTS.read_bytes()))
+    if key in counted:
+        assert_fingerprints_equal(fingerprint(replay_case(tmp_path, scenario, maneuver, algorithm)), counted[key])
+        monkeypatch.setattr(CentralizedEngine, "bit", lambda self, sensor: 0)  # every scan counts
     relinearized = json.loads(gzip.decompress(RELINEARIZED.read_bytes()))
     if key in relinearized:
         assert_fingerprints_equal(fingerprint(replay_case(tmp_path, scenario, maneuver, algorithm)), relinearized[key])
@@ -138,7 +149,7 @@ def test_a_soft_associator_with_memory_and_existence_plugs_in() -> None:
         return Updated(tracks._replace(x=x, P=P, existence=assoc.existence), np.ones(n, bool),
                        Observation(np.zeros((n, m, d)), np.zeros((n, m, m)), np.zeros((n, m))))
 
-    def manage(tracks, detected, params):
+    def manage(tracks, detected, params, gated):
         return tracks._replace(confirmed=tracks.existence > 0.75), np.ones(tracks.size, bool)
 
     soft = Associator("soft", associate, update, manage)

@@ -120,7 +120,8 @@ class PictureClock:
         return out
 
 
-def central_params(cfg: MttConfig, sensor: str | None, dim: int, present: tuple[str, ...] = ()) -> TrackParams:
+def central_params(cfg: MttConfig, sensor: str | None, dim: int, present: tuple[str, ...] = (), bit: int = 0
+                   ) -> TrackParams:
     """The parameters of ``mtt-centralized``'s tracker for a scan of ``sensor``: the fusion
     centre's policy on a sensor's own tracker's. It counts misses over every sensor's scans, so a
     confirmed track goes after ``CENTRAL_MISSES`` per sensor in a row (the track-to-track
@@ -131,13 +132,19 @@ def central_params(cfg: MttConfig, sensor: str | None, dim: int, present: tuple[
     lists, or with ``"any"`` the sensors ``present`` (:meth:`CentralizedEngine.present`: those
     that scanned within ``central_timeout`` of the newest scan; with ``"any"`` the count was 1
     and the miss ``[mtt] pd``'s, so a P_D 0.3 sensor beside a 0.9 one deleted a live track every
-    few seconds: 10 id switches among 6 targets in 100 s)."""
+    few seconds: 10 id switches among 6 targets in 100 s). ``bit``: the sensor's bit in the tracks'
+    ``detected_by`` (:meth:`CentralizedEngine.bit`): a sensor's scans count for a track once it has
+    detected it, and a confirmed track goes after ``CENTRAL_MISSES`` misses in a row per sensor that
+    detected it (:func:`~fedtrack.local_filters.mtt.tracker.scan_counts`), so that a target only
+    some sensors can see is tracked as well as by those sensors' own trackers."""
     p = track_params(cfg, sensor, dim, events=True)
     sensors = list(present) if isinstance(cfg.sensors, str) else cfg.sensors
     n = max(len(sensors), 1)
     log_miss = float(np.mean([cfg.log_miss(s) for s in sensors] or [cfg.log_miss()]))  # a scan's miss, on average
-    return p._replace(delete_misses=max(cfg.delete_misses, CENTRAL_MISSES * n, int(miss_count(log_miss))),
-                      maneuver=_every_sensor_window(p.maneuver, n), detector=_every_sensor_window(p.detector, n))
+    lone = max(cfg.delete_misses, int(miss_count(log_miss)))
+    return p._replace(delete_misses=max(lone, CENTRAL_MISSES * n), sensor_bit=bit, sensor_misses=CENTRAL_MISSES,
+                      lone_misses=lone, maneuver=_every_sensor_window(p.maneuver, n),
+                      detector=_every_sensor_window(p.detector, n))
 
 
 @lru_cache(maxsize=16)
@@ -303,6 +310,12 @@ class CentralizedEngine(ScanTrackerEngine):
 
     seen: dict[str, float] = field(default_factory=dict)  # sensor -> the time of its newest scan
     quiet: bool = False  # every sensor fell silent (replay.pictures) and none has scanned since
+    bits: dict[str, int] = field(default_factory=dict)  # sensor -> its bit in the tracks' detected_by
+
+    def bit(self, sensor: str) -> int:
+        """The sensor's bit in the tracks' ``detected_by``, in order of first scan (beyond 63
+        sensors two share a bit: a track detected by one counts the other's scans as well)."""
+        return 1 << self.bits.setdefault(sensor, len(self.bits) % 63)
 
     def ingest(self, scan: SensorScan) -> None:
         self.seen[scan.sensor] = max(scan.t, self.seen.get(scan.sensor, scan.t))
@@ -324,7 +337,7 @@ class CentralizedEngine(ScanTrackerEngine):
         return tuple(sorted(s for s, t in self.seen.items() if newest - t <= self.cfg.central_timeout))
 
     def params(self, sensor: str | None) -> TrackParams:
-        return central_params(self.cfg, sensor, self.dim, self.present())
+        return central_params(self.cfg, sensor, self.dim, self.present(), 0 if sensor is None else self.bit(sensor))
 
     def senders(self) -> list[str]:
         return sorted({s.sensor for s in self.history.entries}) if self.history is not None else []

@@ -92,6 +92,13 @@ class TrackParams(NamedTuple):
     initial_existence: float | None = None  # a new track's existence (associators that keep it)
     mht: MhtConfig | None = None  # [mtt.mht] (associator = "mht")
     modes: ModeRates | None = None  # two motion modes per track (process_noise = "imm"), None: CV with q
+    # a tracker of several sensors' scans (mtt-centralized): the scan's sensor as a bit of
+    # TrackSet.detected_by (0: one sensor's tracker, every scan counts), and the misses in a row
+    # that delete a confirmed track: ``sensor_misses`` per sensor that detected it, at least
+    # ``lone_misses``, at most ``delete_misses`` (:func:`scan_counts`)
+    sensor_bit: int = 0
+    sensor_misses: int = 0
+    lone_misses: int = 0
 
 
 def track_params(cfg: MttConfig, sensor: str | None, dim: int, feedback: bool = False,
@@ -127,7 +134,8 @@ class TrackSet(NamedTuple):
     3-D tracker, ``inputs``, every track's maneuver detector: :mod:`.detector`; with an
     associator that keeps it, ``existence``, every track's existence probability; with
     ``process_noise = "imm"``, ``modes``, every track's two motion modes, of which ``x``, ``P``
-    are the combination: :class:`~.models.Modes`)."""
+    are the combination: :class:`~.models.Modes`; in a tracker of several sensors' scans,
+    ``detected_by``, each track's sensors that detected it, as bits: :func:`scan_counts`)."""
 
     ids: np.ndarray
     x: np.ndarray
@@ -140,13 +148,15 @@ class TrackSet(NamedTuple):
     inputs: detector.TrackInputs | None = None
     existence: np.ndarray | None = None
     modes: Modes | None = None
+    detected_by: np.ndarray | None = None  # (N,) int64
 
     def take(self, idx: np.ndarray) -> "TrackSet":
         return TrackSet(*(a[idx] for a in self[:N_ARRAYS]),
                         None if self.man is None else maneuver.take(self.man, idx),
                         None if self.inputs is None else detector.take(self.inputs, idx),
                         None if self.existence is None else self.existence[idx],
-                        None if self.modes is None else self.modes.take(idx))
+                        None if self.modes is None else self.modes.take(idx),
+                        None if self.detected_by is None else self.detected_by[idx])
 
     @property
     def models(self) -> list[str]:
@@ -198,7 +208,8 @@ def _concat(a: TrackSet, b: TrackSet) -> TrackSet:
     extras = []  # the per-track states beside x, P (None on an empty side: its tracker had no tracks)
     for u, v, join in ((a.man, b.man, maneuver.concat), (a.inputs, b.inputs, detector.concat),
                        (a.existence, b.existence, lambda u, v: np.concatenate([u, v])),
-                       (a.modes, b.modes, lambda u, v: Modes(*(np.concatenate([p, r]) for p, r in zip(u, v))))):
+                       (a.modes, b.modes, lambda u, v: Modes(*(np.concatenate([p, r]) for p, r in zip(u, v)))),
+                       (a.detected_by, b.detected_by, lambda u, v: np.concatenate([u, v]))):
         if u is None or v is None:
             extras.append(v if a.size == 0 else u if b.size == 0 else None)
         else:
@@ -360,9 +371,11 @@ def associate(state: TrackerState, gating: Gating | None, scan: SensorScan, para
                            state.memory)
     none = np.zeros(0, np.int64)
     rows, cols, log_l = (none, none, np.zeros(0)) if gating is None else (*gating.pairs[:2], gating.log_likelihood)
+    by = state.tracks.detected_by
     return params.associator.associate(AssociationInput(
         n, n_det, rows, cols, log_l, scan.dim, state.tracks.confirmed, state.tracks.existence,
-        params.pd, params.clutter_density, scan.amplitude, state.memory, params.gate[scan.dim], dt))
+        params.pd, params.clutter_density, scan.amplitude, state.memory, params.gate[scan.dim], dt,
+        None if by is None or not params.sensor_bit else (by & params.sensor_bit) == 0))
 
 
 def predict_tracks(tracks: TrackSet, dt: float, params: TrackParams, q_scale: float | np.ndarray = 1.0
@@ -433,15 +446,42 @@ def hard_update(tracks: TrackSet, pred: GaussianState, gating: Gating | None, as
                    obs)
 
 
-def m_of_n(tracks: TrackSet, detected: np.ndarray, params: TrackParams) -> tuple[TrackSet, np.ndarray]:
+def popcount(bits: np.ndarray) -> np.ndarray:
+    """The set bits of each int64 of ``bits`` (N,)."""
+    return np.unpackbits(np.ascontiguousarray(bits, dtype=np.int64).view(np.uint8).reshape(-1, 8), axis=1).sum(axis=1)
+
+
+def scan_counts(tracks: TrackSet, detected: np.ndarray, params: TrackParams, gated: np.ndarray | None = None
+                ) -> tuple[TrackSet, np.ndarray | bool, np.ndarray | int]:
+    """Which tracks the scan counts for in the life rules, and the misses in a row that delete each.
+
+    One sensor's tracker: every track, ``delete_misses``. A tracker of several sensors' scans
+    (``params.sensor_bit``): a sensor's scan counts for a track once that sensor has detected it
+    (now or before: ``detected_by``) or when the scan put a detection in the track's gate
+    (``gated``: the sensor sees there, as a twin track beside a target's own); a sensor that has
+    neither may not see the target at all (out of its range or field of view, behind the horizon),
+    and its misses are then no evidence against it (docs/multitarget.md#sensors-that-cannot-see-a-
+    target). A confirmed track is deleted after ``sensor_misses`` misses in a row per sensor that
+    detected it, at least ``lone_misses``, at most ``delete_misses``."""
+    if not params.sensor_bit or tracks.detected_by is None:
+        return tracks, True, params.delete_misses
+    by = tracks.detected_by | np.where(detected, params.sensor_bit, 0)
+    counted = (by & params.sensor_bit) != 0
+    need = np.clip(params.sensor_misses * popcount(by), params.lone_misses, params.delete_misses)
+    return tracks._replace(detected_by=by), counted if gated is None else counted | gated, need
+
+
+def m_of_n(tracks: TrackSet, detected: np.ndarray, params: TrackParams, gated: np.ndarray | None = None
+           ) -> tuple[TrackSet, np.ndarray]:
     """Role 6: the track counts after the scan, and which tracks stay (M-of-N confirmation,
-    deletion after ``delete_misses`` consecutive misses)."""
+    deletion after ``delete_misses`` consecutive misses; the scans counted: :func:`scan_counts`,
+    ``gated`` the tracks with a detection of the scan in their gate)."""
+    tracks, counted, need = scan_counts(tracks, detected, params, gated)
     hits = tracks.hits + detected
-    age = tracks.age + 1
-    misses = np.where(detected, 0, tracks.misses + 1)
+    age = tracks.age + counted
+    misses = np.where(detected, 0, tracks.misses + counted)
     confirmed = tracks.confirmed | (hits >= params.confirm_hits)
-    live = np.where(confirmed, misses < params.delete_misses,
-                    params.confirm_window - age >= params.confirm_hits - hits)
+    live = np.where(confirmed, misses < need, params.confirm_window - age >= params.confirm_hits - hits)
     return tracks._replace(hits=hits, age=age, misses=misses, confirmed=confirmed), live
 
 
@@ -471,10 +511,11 @@ def jipda_update(tracks: TrackSet, pred: GaussianState, gating: Gating | None, a
                    Observation(*obs))
 
 
-def existence_manage(tracks: TrackSet, detected: np.ndarray, params: TrackParams) -> tuple[TrackSet, np.ndarray]:
+def existence_manage(tracks: TrackSet, detected: np.ndarray, params: TrackParams, gated: np.ndarray | None = None
+                     ) -> tuple[TrackSet, np.ndarray]:
     """Role 6 for ``jipda``: confirmation and deletion by existence (:func:`jipda.derived_rules`);
     the counts kept as :func:`m_of_n` keeps them."""
-    counted, _ = m_of_n(tracks, detected, params)
+    counted, _ = m_of_n(tracks, detected, params, gated)
     if tracks.existence is None:  # no tracks yet
         return counted, np.zeros(tracks.size, bool)
     pg = jipda.scan_constants(params.pd, params.clutter_density, params.gate[2], 2).pg
@@ -511,7 +552,8 @@ def start_tracks(scan: SensorScan, det: np.ndarray, params: TrackParams, first_i
     modes = None if params.modes is None else start_modes(x, P, params.modes)
     # confirmed at birth by the count (1 of 1) only where the count confirms: jipda's existence does
     born = (one >= params.confirm_hits) & (existence is None)
-    return TrackSet(ids, x, P, one, one.copy(), np.zeros(n, np.int64), born, man, inputs, existence, modes), obs
+    by = np.full(n, params.sensor_bit, np.int64) if params.sensor_bit else None
+    return TrackSet(ids, x, P, one, one.copy(), np.zeros(n, np.int64), born, man, inputs, existence, modes, by), obs
 
 
 def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
@@ -534,7 +576,8 @@ def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
         upd = hard_update(at_scan, pred, gating, assoc, scan, dt, params, q_scale)
     else:
         upd = role.update(at_scan, pred, gating, assoc, scan, dt, params, q_scale)
-    updated, live = (m_of_n if role.manage is None else role.manage)(upd.tracks, upd.detected, params)
+    gated = None if gating is None else np.bincount(gating.pairs.rows, minlength=tracks.size) > 0
+    updated, live = (m_of_n if role.manage is None else role.manage)(upd.tracks, upd.detected, params, gated)
     det = np.flatnonzero(~assoc.claimed)
     new, obs_new = start_tracks(scan, det, params, state.next_id)
     if assoc.birth is not None:
@@ -585,14 +628,15 @@ def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale
         H, x0 = gating.lin.H[g_rows[pidx]], cx[hit]
         cx[hit], cP[hit] = detection_update(x0, cP[hit], cmodes, np.flatnonzero(hit), nu[pidx], H, scan.R)
         obs = Observation(H, np.broadcast_to(scan.R, (pidx.size, m, m)).copy(), nu[pidx] + np.einsum("nij,nj->ni", H, x0))
-    old = leaves.take(br.parent)
-    step = np.where(hit, 0.0, miss)  # each branch's score increment
+    gated = np.bincount(g_rows, minlength=leaves.size)[br.parent] > 0
+    old, counted, need = scan_counts(leaves.take(br.parent), hit, params, gated)
+    step = np.where(hit, 0.0, miss * counted)  # each branch's score increment (a miss the scan counts)
     step[hit] = inc[pidx]
     score = mem.score[br.parent] + step
     peak = np.maximum(mem.peak[br.parent], score)
-    hits, age, misses = old.hits + hit, old.age + 1, np.where(hit, 0, old.misses + 1)
-    confirmed, live = mht.manage(mp, old.confirmed, score, peak, hits, age, misses)
-    children = TrackSet(old.ids, cx, cP, hits, age, misses, confirmed, modes=cmodes)
+    hits, age, misses = old.hits + hit, old.age + counted, np.where(hit, 0, old.misses + counted)
+    confirmed, live = mht.manage(mp._replace(delete_misses=need), old.confirmed, score, peak, hits, age, misses)
+    children = TrackSet(old.ids, cx, cP, hits, age, misses, confirmed, modes=cmodes, detected_by=old.detected_by)
     fresh = br.births  # a detection that a kept hypothesis of its cluster leaves unused starts a track there
     new, obs_new = start_tracks(scan, fresh, params, state.next_id)
     new_score = mht.birth_scores(mp, None if scan.amplitude is None else scan.amplitude[fresh], fresh.size)

@@ -1,0 +1,97 @@
+"""Sensors that cannot see every target (coverage session): a tracker of several sensors' scans
+(``mtt-centralized``) counts a sensor's scan for a track only once the sensor detected the track
+or put a detection in its gate (``tracker.scan_counts``). Before, every scan counted for every
+track, so a target that one of three sensors saw was never confirmed (the other two sensors'
+scans were misses in its M-of-N window) or lost its existence to their misses (jipda, mht)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fedtrack.cli import main as cli
+from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.mtt.tracker import empty_tracks, scan_counts, track_params
+
+WARM_UP_S = 20.0  # the trackers' start, left out of the count
+
+
+def half_covered(tmp_path: Path) -> Path:
+    """``simulate multitarget`` (20 targets, 120 s, three position sensors) with sensors s2 and s3
+    seeing only x < 0: their detections (clutter too) elsewhere removed, as a sensor with a
+    limited field of view gives; s1 sees everything."""
+    sim = tmp_path / "sim"
+    assert cli(["simulate", "multitarget", "--targets", "20", "--duration", "120", "--seed", "4",
+                "--out", str(sim)]) == 0
+    lines = []
+    for line in (sim / "measurements.jsonl").read_text().splitlines():
+        scan = json.loads(line)
+        if scan.get("sensor") in ("s2", "s3") and "detections" in scan:
+            scan["detections"] = [d for d in scan["detections"] if d["z"][0] < 0.0]
+        lines.append(json.dumps(scan) + "\n")
+    (sim / "measurements.jsonl").write_text("".join(lines))
+    return sim
+
+
+def missed_where_one_sensor_sees(tracks: Path, truth: Path) -> tuple[float, int]:
+    """The share of (picture, target at x >= 0) pairs after ``WARM_UP_S`` with no confirmed track
+    within 100 m, and the number of pairs."""
+    truths = {round(o["t"], 6): o["targets"] for o in map(json.loads, truth.read_text().splitlines())}
+    missed = pairs = 0
+    for picture in map(json.loads, tracks.read_text().splitlines()):
+        targets = truths.get(round(picture["t"], 6))
+        if targets is None or picture["t"] < WARM_UP_S:
+            continue
+        shown = np.array([[tr["x"][0], tr["x"][2]] for tr in picture["tracks"]
+                          if tr.get("status", "confirmed") == "confirmed"]).reshape(-1, 2)
+        for g in targets:
+            if g["x"][0] >= 0.0:
+                pairs += 1
+                near = np.hypot(shown[:, 0] - g["x"][0], shown[:, 1] - g["x"][2]) if len(shown) else np.zeros(0)
+                missed += not np.any(near <= 100.0)
+    return missed / pairs, pairs
+
+
+@pytest.mark.parametrize("associator", ["gnn", "jipda", "mht"])
+def test_centralized_tracks_the_targets_one_sensor_sees(tmp_path: Path, associator: str,
+                                                        capsys: pytest.CaptureFixture) -> None:
+    """Where only s1 sees, ``mtt-centralized`` misses at most 5 % of the targets and at most 2
+    points more than s1's own tracker (measured: gnn 0.8 %, jipda 1.5 %, mht 1.6 % on the default
+    60-target scenario so cut; before, 97.2 %, 45.5 % and 47.0 %)."""
+    sim = half_covered(tmp_path)
+    config = tmp_path / "c.toml"
+    config.write_text((sim / "config.toml").read_text().replace("[mtt]\n", f'[mtt]\nassociator = "{associator}"\n', 1))
+    share = {}
+    for name, algorithm in (("centralized", ["mtt-centralized"]), ("local", ["mtt-local", "--sensor", "s1"])):
+        out = tmp_path / f"{name}.jsonl"
+        assert cli(["replay", "--algorithm", *algorithm, "--config", str(config), "--measurements",
+                    str(sim / "measurements.jsonl"), "--out", str(out)]) == 0
+        share[name], pairs = missed_where_one_sensor_sees(out, sim / "truth.jsonl")
+        assert pairs > 500
+    capsys.readouterr()
+    assert share["centralized"] <= 0.05, share
+    assert share["centralized"] <= share["local"] + 0.02, share
+
+
+def test_scan_counts_for_the_sensors_that_detected_or_gate_a_track() -> None:
+    """Two tracks, the first detected by sensor 1 only, the second by sensors 1 and 2; a scan of
+    sensor 2 counts for the second, and for the first only with a detection in its gate; the
+    misses that delete: 2 per detecting sensor, at least 3, at most 6 (every sensor: unchanged)."""
+    one, two = 1 << 0, 1 << 1
+    tracks = empty_tracks(4)._replace(detected_by=np.array([one, one | two], dtype=np.int64))
+    params = track_params(MttConfig(), None, 4)._replace(sensor_bit=two, sensor_misses=2, lone_misses=3,
+                                                          delete_misses=6)
+    none = np.zeros(2, dtype=bool)
+    after, counted, need = scan_counts(tracks, none, params)
+    assert counted.tolist() == [False, True] and need.tolist() == [3, 4]
+    assert after.detected_by.tolist() == [one, one | two]
+    _, counted, _ = scan_counts(tracks, none, params, np.array([True, False]))
+    assert counted.tolist() == [True, True]
+    after, counted, need = scan_counts(tracks, np.array([True, False]), params)  # sensor 2 detects the first
+    assert after.detected_by.tolist() == [one | two, one | two] and counted.tolist() == [True, True]
+    assert need.tolist() == [4, 4]
+    _, counted, need = scan_counts(tracks, none, params._replace(sensor_bit=0))  # one sensor's tracker
+    assert counted is True and need == 6
