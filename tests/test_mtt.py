@@ -538,10 +538,11 @@ def test_centre_deletion_counts_follow_the_detection_probability() -> None:
     chance for a live target is at most 1e-3 (``delete_misses``' rationale), never fewer than 2
     (several sensors) or ``delete_misses`` (one): at P_D 0.9 the counts that were fixed (3; 2 and
     2), at P_D 0.5 10; 5 and 4 (the fixed 2 deleted a live target seen by three sensors every 64
-    scans); ``mtt-centralized``'s count over every sensor's scans likewise (6 at 0.9, 10 at 0.5)."""
+    scans); ``mtt-centralized``'s count over every sensor's scans likewise (6 at 0.9, 10 at 0.5).
+    At a scan 0.1 s after its sensor's previous, 1e-3 a second (``scan_lost``): one sensor 4 at 0.9."""
     from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
     from fedtrack.fusion_center.mtt.engines import central_params
-    from fedtrack.local_filters.mtt.config import MttConfig
+    from fedtrack.local_filters.mtt.config import LOST, MttConfig, scan_lost
 
     tracking = np.array([[True, False, False], [True, True, False], [True, True, True]])
     for pd, want, centralized in ((0.9, [3, 2, 2], 6), (0.5, [10, 5, 4], 10), (0.99, [3, 2, 2], 6)):
@@ -549,8 +550,13 @@ def test_centre_deletion_counts_follow_the_detection_probability() -> None:
         centre = TrackToTrackCentre(cfg, 4, True)
         for s in ("s1", "s2", "s3"):
             centre._col(s)
-        assert centre._misses_needed(tracking, tracking.sum(axis=1)).tolist() == want
+        assert centre._misses_needed(tracking, tracking.sum(axis=1), LOST).tolist() == want
         assert central_params(cfg, "s1", 4).delete_misses == centralized
+    centre = TrackToTrackCentre(MttConfig(pd=0.9, sensors=["s1", "s2", "s3"]), 4, True)
+    for s in ("s1", "s2", "s3"):
+        centre._col(s)
+    assert centre._misses_needed(tracking, tracking.sum(axis=1), scan_lost(0.1)).tolist() == [4, 2, 2]
+    assert scan_lost(0.0) == scan_lost(1.0) == scan_lost(12.0) == LOST and scan_lost(0.1) == pytest.approx(1e-4)
     centre = TrackToTrackCentre(MttConfig(pd=0.9, delete_misses=5), 4, True)
     centre._col("s1")
-    assert centre._misses_needed(np.array([[True]]), np.array([1])).tolist() == [5]
+    assert centre._misses_needed(np.array([[True]]), np.array([1]), LOST).tolist() == [5]

@@ -60,7 +60,7 @@ from scipy.spatial import cKDTree
 from fedtrack.fusion_center.mtt.central_track import CentralTracks, DepartedTracks, padded
 from fedtrack.local_filters.linear.gating import track_difference_d2
 from fedtrack.local_filters.mtt.associators.gnn import assign
-from fedtrack.local_filters.mtt.config import MttConfig, miss_count
+from fedtrack.local_filters.mtt.config import MttConfig, miss_count, scan_lost
 from fedtrack.local_filters.mtt.local import LocalReport, Resets, no_resets
 
 LocalKey = tuple[str, int]  # (sensor, local track id)
@@ -182,6 +182,7 @@ class TrackToTrackCentre:
                                     detector=cfg.central_detector, modes=cfg.mode_rates)
         self._column: dict[str, int] = {}
         self.column_log_miss = np.zeros(0)  # per sensor column, ln(1 - P_D) of its sensor (MttConfig.log_miss)
+        self.column_interval = np.zeros(0)  # per sensor column, its latest scan's time since its previous one
         self.n_live = 0  # live sensors at the latest report's time (live_sensors), counted once a report
         self.support = np.zeros((0, 0), dtype=np.int64)  # local tracks of each sensor mapped to a slot
         self.streak = np.zeros((0, 0), dtype=np.int64)  # a confirmed slot's misses in a row per sensor
@@ -212,6 +213,7 @@ class TrackToTrackCentre:
             col = self._column[sensor] = len(self.sensor_names)
             self.sensor_names.append(sensor)
             self.column_log_miss = np.append(self.column_log_miss, self.cfg.log_miss(sensor))
+            self.column_interval = np.append(self.column_interval, 0.0)
             self._fit()
         return col
 
@@ -314,9 +316,11 @@ class TrackToTrackCentre:
             self.count_judged.add(s)
             if report.obs_R.shape[1] == 2 and needs_local_confirmation(self.cfg, s):
                 self.local_confirmation = True
-        self.sensor_seen[s] = max(self.sensor_seen.get(s, t), t)
+        previous = self.sensor_seen.get(s, t)
+        self.sensor_seen[s] = max(previous, t)
         self.n_live = len(self.live_sensors(t))
         col = self._col(s)
+        self.column_interval[col] = t - previous
         if report.retired.size:
             retired = report.retired.tolist()
             for key in self.mapping.keys() & {(s, lid) for lid in retired}:  # retired and mapped
@@ -533,7 +537,7 @@ class TrackToTrackCentre:
             self.streak[missed] = streak
             tracking = self.support[missed] > 0
             n_tracking = np.count_nonzero(tracking, axis=1)
-            need = self._misses_needed(tracking, n_tracking)[:, None]
+            need = self._misses_needed(tracking, n_tracking, scan_lost(float(self.column_interval[col])))[:, None]
             dead = missed[(n_tracking > 0) & (~tracking | (streak >= need)).all(axis=1)]
         young = (live ^ old).nonzero()[0]  # live and tentative
         window = np.concatenate([self.window[young, 1:], hit[young, None]], axis=1)
@@ -548,15 +552,16 @@ class TrackToTrackCentre:
         for cid in tracks.ids[dead].tolist():
             self._delete(cid)
 
-    def _misses_needed(self, tracking: np.ndarray, n_tracking: np.ndarray) -> np.ndarray:
+    def _misses_needed(self, tracking: np.ndarray, n_tracking: np.ndarray, lost: float) -> np.ndarray:
         """Misses in a row per tracking sensor before a confirmed track is deleted, per row of
         ``tracking`` (tracks x sensor columns; ``n_tracking`` its row sums): ``CENTRAL_MISSES`` with
         several tracking sensors, ``delete_misses`` with one, or more where a miss by each of them
-        is likely enough that the chance of as many for a live target exceeds ``LOST``
-        (:func:`miss_count`)."""
+        is likely enough that the chance of as many for a live target exceeds ``lost``
+        (:func:`miss_count`; ``LOST``, or ``LOST`` a second at a scan less than a second after its
+        sensor's previous one: :func:`~fedtrack.local_filters.mtt.config.scan_lost`)."""
         floor = np.where(n_tracking > 1, CENTRAL_MISSES, self.cfg.delete_misses)
         total = tracking @ self.column_log_miss  # 0: none tracks the row
-        return np.maximum(miss_count(np.where(total < 0.0, total, -np.inf)), floor).astype(np.int64)
+        return np.maximum(miss_count(np.where(total < 0.0, total, -np.inf), lost), floor).astype(np.int64)
 
     def _delete(self, cid: int) -> None:
         """Delete ``cid`` by the life rules; a confirmed one stays in later pictures up to its last

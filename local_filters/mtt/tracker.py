@@ -21,7 +21,7 @@
 6. **confirm / delete** (:func:`m_of_n`, or the associator's): a track is confirmed once it has
    ``confirm_hits`` detections within its first ``confirm_window`` scans; a tentative track that
    can no longer reach that is deleted; a confirmed track is deleted after ``delete_misses``
-   consecutive misses.
+   consecutive misses, or more on a fast sensor (:func:`deletion_at`).
 
 Each updated or started track carries its detection as a linearized observation
 ``(H, R, z - h(x0) + H x0)`` at the linearization point ``x0`` (the track's prediction;
@@ -31,6 +31,7 @@ needs to fuse the local tracks exactly (docs/multitarget.md).
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -48,7 +49,7 @@ from fedtrack.local_filters.mtt import detector, maneuver
 from fedtrack.local_filters.mtt.association import Association, AssociationInput, Associator
 from fedtrack.local_filters.mtt.associators import jipda, mht
 from fedtrack.local_filters.mtt.associators.gnn import GNN
-from fedtrack.local_filters.mtt.config import MhtConfig, MttConfig
+from fedtrack.local_filters.mtt.config import LOST, MhtConfig, MttConfig, miss_count, scan_lost
 from fedtrack.local_filters.mtt.models import (
     Linearized,
     ModeRates,
@@ -556,18 +557,36 @@ def start_tracks(scan: SensorScan, det: np.ndarray, params: TrackParams, first_i
     return TrackSet(ids, x, P, one, one.copy(), np.zeros(n, np.int64), born, man, inputs, existence, modes, by), obs
 
 
+def deletion_at(params: TrackParams, dt: float) -> TrackParams:
+    """``params`` for a scan ``dt`` [s] after the tracker's last: ``delete_misses`` at least the
+    misses in a row whose chance for a live target at ``pd`` is at most
+    :func:`~.config.scan_lost` (``LOST`` a second as well as a scan: at P_D 0.9, 4 from 0.1 s to
+    1 s apart, 5 at 20 Hz). A tracker of several sensors' scans (``sensor_bit``) raises its
+    ``lone_misses`` too, at the scanning sensor's P_D and the merged scans' interval (at most the
+    sensor's own, so at least the count of that sensor's own tracker)."""
+    lost = scan_lost(dt)
+    if lost == LOST:
+        return params
+    m = int(miss_count(math.log1p(-min(params.pd, 1.0 - 1e-12)), lost))
+    if m <= params.delete_misses and m <= params.lone_misses:
+        return params
+    return params._replace(delete_misses=max(m, params.delete_misses),
+                           lone_misses=max(m, params.lone_misses) if params.sensor_bit else params.lone_misses)
+
+
 def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
                  q_scale: float | np.ndarray = 1.0) -> ScanResult:
     """Process one scan (times must not decrease); ``q_scale`` scales ``Q`` (federated ``beta_i``)."""
     tracks = state.tracks
     if state.t is not None and scan.t < state.t:
         raise ValueError(f"scan at t = {scan.t} is before the tracker's time {state.t}")
+    dt = 0.0 if state.t is None else scan.t - state.t
+    params = deletion_at(params, dt)
     if params.associator.step is not None:
         return params.associator.step(state, scan, params, q_scale)
     if params.initial_existence is not None and tracks.existence is None:  # an empty set keeping existence
         tracks = tracks._replace(existence=np.zeros(tracks.size))
         state = state._replace(tracks=tracks)
-    dt = 0.0 if state.t is None else scan.t - state.t
     at_scan, pred = predict_tracks(tracks, dt, params, q_scale)
     gating = gate_scan(pred, scan, params, _modes_at_scan(at_scan, params))
     assoc = associate(state, gating, scan, params, dt)
