@@ -18,7 +18,8 @@ Our configuration of it, as close to fedtrack's ``mtt`` trackers as Stone Soup a
 * ``MultiMeasurementInitiator`` with ``min_points = confirm_hits`` from a prior with zero
   velocity and ``init_velocity_std`` (and z = 0 with ``init_z_std``); a tentative track is dropped after
   ``confirm_window - confirm_hits + 1`` scans without an update, a confirmed one after the
-  sensor's ``MttConfig.misses_to_delete`` (``delete_misses``, more below P_D 0.9;
+  sensor's ``MttConfig.misses_to_delete`` (``delete_misses``, more below P_D 0.9, and at its
+  median scan interval below 1 s, where ours take the interval of each scan;
   ``UpdateTimeStepsDeleter``: fedtrack's rules, counted in scans), or on the
   scans of several sensors after ``max(delete_misses, CENTRAL_MISSES x sensors)`` in a row,
   ``mtt-centralized``'s rule (``fusion_center/mtt/engines.py::central_params``; before
@@ -76,6 +77,12 @@ def read_scans(measurements: Path, sensors: set[str] | None) -> list[dict[str, A
     return scans
 
 
+def scan_interval(scans: list[dict[str, Any]]) -> float:
+    """The median time between successive scans (sorted by time; 0 with fewer than two)."""
+    t = np.array([row["t"] for row in scans])
+    return float(np.median(np.diff(t))) if t.size > 1 else 0.0
+
+
 def stonesoup_tracker(scans: list[dict[str, Any]], mtt: Any, out: Path, association: str = "gnn") -> dict[str, Any]:
     """Run Stone Soup's ``association`` (``"gnn"`` or ``"jpda"``) tracker over ``scans``; write the
     pictures to ``out``; return counts."""
@@ -116,7 +123,8 @@ def stonesoup_tracker(scans: list[dict[str, Any]], mtt: Any, out: Path, associat
         min_points=mtt.confirm_hits)
     ids = sorted({row["sensor"] for row in scans})
     deleter = UpdateTimeStepsDeleter(max(mtt.delete_misses, CENTRAL_MISSES * len(ids)) if len(ids) > 1
-                                     else mtt.misses_to_delete(ids[0]) if ids else mtt.delete_misses)
+                                     else mtt.misses_to_delete(ids[0], scan_interval(scans)) if ids
+                                     else mtt.delete_misses)
     if association == "gnn":
         tracker = MultiTargetTracker(initiator, deleter, None, gnn, updater)
     elif association == "jpda":
