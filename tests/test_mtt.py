@@ -557,6 +557,9 @@ def test_centre_deletion_counts_follow_the_detection_probability() -> None:
         centre._col(s)
     assert centre._misses_needed(tracking, tracking.sum(axis=1), scan_lost(0.1)).tolist() == [4, 2, 2]
     assert scan_lost(0.0) == scan_lost(1.0) == scan_lost(12.0) == LOST and scan_lost(0.1) == pytest.approx(1e-4)
+    # mtt-centralized: a track only the scanning sensor detected, at that sensor's own interval
+    assert [central_params(MttConfig(pd=0.9), "s1", 4, ("s1", "s2"), 1, dt).lone_misses
+            for dt in (0.0, 0.1, 1.0, 12.0)] == [3, 4, 3, 3]
     centre = TrackToTrackCentre(MttConfig(pd=0.9, delete_misses=5), 4, True)
     centre._col("s1")
     assert centre._misses_needed(np.array([[True]]), np.array([1]), LOST).tolist() == [5]

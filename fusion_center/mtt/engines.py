@@ -28,7 +28,7 @@ import numpy as np
 from fedtrack.fusion_center.mtt.centre import CENTRAL_MISSES, TrackToTrackCentre
 from fedtrack.fusion_center.mtt.shards import ShardedCentre
 from fedtrack.local_filters.mtt.associators import jipda
-from fedtrack.local_filters.mtt.config import MttConfig, miss_count
+from fedtrack.local_filters.mtt.config import LOST, MttConfig, miss_count, scan_lost
 from fedtrack.local_filters.mtt.history import ScanHistory
 from fedtrack.local_filters.mtt.local import LocalReport, Resets, SensorTracker, is_duplicate
 from fedtrack.local_filters.mtt.maneuver import predicted_view
@@ -120,8 +120,8 @@ class PictureClock:
         return out
 
 
-def central_params(cfg: MttConfig, sensor: str | None, dim: int, present: tuple[str, ...] = (), bit: int = 0
-                   ) -> TrackParams:
+def central_params(cfg: MttConfig, sensor: str | None, dim: int, present: tuple[str, ...] = (), bit: int = 0,
+                   interval: float = 0.0) -> TrackParams:
     """The parameters of ``mtt-centralized``'s tracker for a scan of ``sensor``: the fusion
     centre's policy on a sensor's own tracker's. It counts misses over every sensor's scans, so a
     confirmed track goes after ``CENTRAL_MISSES`` per sensor in a row (the track-to-track
@@ -136,12 +136,17 @@ def central_params(cfg: MttConfig, sensor: str | None, dim: int, present: tuple[
     ``detected_by`` (:meth:`CentralizedEngine.bit`): a sensor's scans count for a track once it has
     detected it, and a confirmed track goes after ``CENTRAL_MISSES`` misses in a row per sensor that
     detected it (:func:`~fedtrack.local_filters.mtt.tracker.scan_counts`), so that a target only
-    some sensors can see is tracked as well as by those sensors' own trackers."""
+    some sensors can see is tracked as well as by those sensors' own trackers. ``interval``: the
+    sensor's latest time between its scans (:meth:`CentralizedEngine.interval`); below 1 s a track
+    it alone detected goes after at least the misses its own tracker takes there
+    (:func:`~fedtrack.local_filters.mtt.config.scan_lost`: ``LOST`` a second as well as a scan)."""
     p = track_params(cfg, sensor, dim, events=True)
     sensors = list(present) if isinstance(cfg.sensors, str) else cfg.sensors
     n = max(len(sensors), 1)
     log_miss = float(np.mean([cfg.log_miss(s) for s in sensors] or [cfg.log_miss()]))  # a scan's miss, on average
     lone = max(cfg.delete_misses, int(miss_count(log_miss)))
+    if sensor is not None and scan_lost(interval) < LOST:
+        lone = max(lone, cfg.misses_to_delete(sensor, interval))
     return p._replace(delete_misses=max(lone, CENTRAL_MISSES * n), sensor_bit=bit, sensor_misses=CENTRAL_MISSES,
                       lone_misses=lone, maneuver=_every_sensor_window(p.maneuver, n),
                       detector=_every_sensor_window(p.detector, n))
@@ -311,6 +316,7 @@ class CentralizedEngine(ScanTrackerEngine):
     seen: dict[str, float] = field(default_factory=dict)  # sensor -> the time of its newest scan
     quiet: bool = False  # every sensor fell silent (replay.pictures) and none has scanned since
     bits: dict[str, int] = field(default_factory=dict)  # sensor -> its bit in the tracks' detected_by
+    intervals: dict[str, float] = field(default_factory=dict)  # sensor -> its latest time between scans
 
     def bit(self, sensor: str) -> int:
         """The sensor's bit in the tracks' ``detected_by``, in order of first scan (beyond 63
@@ -318,12 +324,16 @@ class CentralizedEngine(ScanTrackerEngine):
         return 1 << self.bits.setdefault(sensor, len(self.bits) % 63)
 
     def ingest(self, scan: SensorScan) -> None:
-        self.seen[scan.sensor] = max(scan.t, self.seen.get(scan.sensor, scan.t))
+        newest = self.seen.get(scan.sensor, scan.t)
+        if scan.t > newest:
+            self.intervals[scan.sensor] = scan.t - newest
+        self.seen[scan.sensor] = max(scan.t, newest)
         self.quiet = False
         super().ingest(scan)
 
     def leave(self, sensor: str, at_once: bool = False) -> None:
         self.seen.pop(sensor, None)
+        self.intervals.pop(sensor, None)
         self.quiet = self.quiet or (at_once and not self.seen)
 
     def picture(self, T: float) -> PictureTracks:
@@ -337,7 +347,9 @@ class CentralizedEngine(ScanTrackerEngine):
         return tuple(sorted(s for s, t in self.seen.items() if newest - t <= self.cfg.central_timeout))
 
     def params(self, sensor: str | None) -> TrackParams:
-        return central_params(self.cfg, sensor, self.dim, self.present(), 0 if sensor is None else self.bit(sensor))
+        if sensor is None:
+            return central_params(self.cfg, sensor, self.dim, self.present())
+        return central_params(self.cfg, sensor, self.dim, self.present(), self.bit(sensor), self.intervals.get(sensor, 0.0))
 
     def senders(self) -> list[str]:
         return sorted({s.sensor for s in self.history.entries}) if self.history is not None else []

@@ -561,17 +561,14 @@ def deletion_at(params: TrackParams, dt: float) -> TrackParams:
     """``params`` for a scan ``dt`` [s] after the tracker's last: ``delete_misses`` at least the
     misses in a row whose chance for a live target at ``pd`` is at most
     :func:`~.config.scan_lost` (``LOST`` a second as well as a scan: at P_D 0.9, 4 from 0.1 s to
-    1 s apart, 5 at 20 Hz). A tracker of several sensors' scans (``sensor_bit``) raises its
-    ``lone_misses`` too, at the scanning sensor's P_D and the merged scans' interval (at most the
-    sensor's own, so at least the count of that sensor's own tracker)."""
+    1 s apart, 5 at 20 Hz). In a tracker of several sensors' scans (``sensor_bit``) that is the
+    cap of :func:`scan_counts`; a track one sensor detected takes that sensor's own interval
+    (``lone_misses``, set in ``mtt-centralized``'s parameters)."""
     lost = scan_lost(dt)
     if lost == LOST:
         return params
     m = int(miss_count(math.log1p(-min(params.pd, 1.0 - 1e-12)), lost))
-    if m <= params.delete_misses and m <= params.lone_misses:
-        return params
-    return params._replace(delete_misses=max(m, params.delete_misses),
-                           lone_misses=max(m, params.lone_misses) if params.sensor_bit else params.lone_misses)
+    return params._replace(delete_misses=m) if m > params.delete_misses else params
 
 
 def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
