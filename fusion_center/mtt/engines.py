@@ -137,7 +137,7 @@ def central_params(cfg: MttConfig, sensor: str | None, dim: int, present: tuple[
     detected it, and a confirmed track goes after ``CENTRAL_MISSES`` misses in a row per sensor that
     detected it (:func:`~fedtrack.local_filters.mtt.tracker.scan_counts`), so that a target only
     some sensors can see is tracked as well as by those sensors' own trackers. ``interval``: the
-    sensor's latest time between its scans (:meth:`CentralizedEngine.interval`); below 1 s a track
+    sensor's latest time between its scans (``CentralizedEngine.intervals``); below 1 s a track
     it alone detected goes after at least the misses its own tracker takes there
     (:func:`~fedtrack.local_filters.mtt.config.scan_lost`: ``LOST`` a second as well as a scan)."""
     p = track_params(cfg, sensor, dim, events=True)
