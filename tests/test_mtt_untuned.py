@@ -338,3 +338,17 @@ def test_a_lone_target_of_a_10_hz_sensor_keeps_its_track(tmp_path: Path) -> None
     assert lost == runs, (lost, runs)
     mean, se = np.mean(lost), np.std(lost, ddof=1) / np.sqrt(len(lost))
     assert mean + 2 * se < 1.0, (lost, mean, se)
+
+
+def test_scans_a_denormal_apart_replay(tmp_path: Path) -> None:
+    """Scans 5e-324 s apart (finite stamps a hostile or broken source may send): the deletion count
+    at that interval is finite (its chance ``1e-3 dt`` underflowed to 0, whose logarithm raised
+    ``ValueError: math domain error`` in every tracker of scans and the centre)."""
+    rows = [{"t": 5e-324 * max(k - 5, 0), "sensor": "s1", "R": [[25.0, 0.0], [0.0, 25.0]],
+             "detections": [{"z": [0.0, 0.0]}] if k < 5 else []} for k in range(12)]
+    (tmp_path / "m.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    for associator in ("gnn", "mht"):
+        (tmp_path / "c.toml").write_text(f'[mtt]\nassociator = "{associator}"\n')
+        for algorithm in (["mtt-local", "--sensor", "s1"], ["mtt-federated"], ["mtt-centralized"]):
+            assert cli(["replay", "--algorithm", *algorithm, "--config", str(tmp_path / "c.toml"), "--measurements",
+                        str(tmp_path / "m.jsonl"), "--out", str(tmp_path / "t.jsonl")]) == 0, (associator, algorithm)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -104,8 +105,9 @@ def scan_lost(dt: float) -> float:
     """The chance a scan ``dt`` [s] after the last may give of losing a live target by misses:
     ``LOST``, and ``LOST`` a second for scans less than ``LOST_SCAN_S`` apart (at 10 Hz, 3 misses
     in a row at P_D 0.9 come once in 1,000 scans: a live target lost every 100 s); ``dt <= 0`` (a
-    tracker's first scan, a scan at the last one's time) ``LOST``."""
-    return LOST * dt / LOST_SCAN_S if 0.0 < dt < LOST_SCAN_S else LOST
+    tracker's first scan, a scan at the last one's time) ``LOST``; never below the smallest
+    normal float (scans 5e-324 s apart: a chance of 0 has no logarithm)."""
+    return max(LOST * dt / LOST_SCAN_S, sys.float_info.min) if 0.0 < dt < LOST_SCAN_S else LOST
 
 
 @dataclass(frozen=True)
