@@ -156,7 +156,7 @@ def test_a_soft_associator_with_memory_and_existence_plugs_in() -> None:
         return Updated(tracks._replace(x=x, P=P, existence=assoc.existence), np.ones(n, bool),
                        Observation(np.zeros((n, m, d)), np.zeros((n, m, m)), np.zeros((n, m))))
 
-    def manage(tracks, detected, params, gated):
+    def manage(tracks, detected, params, sees):
         return tracks._replace(confirmed=tracks.existence > 0.75), np.ones(tracks.size, bool)
 
     soft = Associator("soft", associate, update, manage)

@@ -32,11 +32,11 @@ come from the :class:`Associator`; the others are shared.
   the whole scan, ``step(state, scan, params, q_scale) -> ScanResult``; its memory holds the
   branches and the tracker's tracks are its best global hypothesis's.
 * ``manage`` (optional; None: :func:`~.tracker.m_of_n`, M-of-N confirmation and deletion after
-  ``delete_misses`` misses): ``manage(tracks, detected, params, gated) -> (tracks, live)``, the
-  tracks with their counts after the scan and which stay (``gated``: the tracks with a detection
-  of the scan in their gate, None without gated pairs; a tracker of several sensors' scans counts
-  a scan for a track only where its sensor detected the track or put a detection in its gate:
-  :func:`~.tracker.scan_counts`); ``jipda`` confirms and deletes by existence thresholds
+  ``delete_misses`` misses): ``manage(tracks, detected, params, sees) -> (tracks, live)``, the
+  tracks with their counts after the scan and which stay (``sees``: in a tracker of several
+  sensors' scans, the tracks whose place the scan shows its sensor sees, :func:`~.tracker.scan_sees`,
+  else None; such a tracker counts a scan for a track only where its sensor detected the track or
+  sees there: :func:`~.tracker.scan_counts`); ``jipda`` confirms and deletes by existence thresholds
   (``tracks.existence``). A new track's existence is ``params.initial_existence``.
 
 Everything is batched over the tracks (N), the detections (M) and the gated pairs (K); an
@@ -68,8 +68,9 @@ class AssociationInput(NamedTuple):
     memory: Any = None  # the associator's memory after the previous scan
     gate_d2: float = float("inf")  # the chi-square gate of the scan's measurement size
     dt: float = 0.0  # time since the tracker's previous scan (existence prediction)
-    # (N,) bool: the tracks the scan's sensor never detected (a tracker of several sensors' scans;
-    # None: one sensor's): a miss by that sensor is no evidence against them (tracker.scan_counts)
+    # (N,) bool: the tracks the scan's sensor never detected and does not show it sees (a tracker
+    # of several sensors' scans; None: one sensor's): its miss is no evidence against them
+    # (tracker.scan_counts, tracker.scan_sees)
     blind: np.ndarray | None = None
 
 

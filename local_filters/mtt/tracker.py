@@ -65,7 +65,7 @@ from fedtrack.local_filters.mtt.models import (
     start_modes,
 )
 from fedtrack.local_filters.mtt.scan import SensorScan
-from fedtrack.local_filters.radar.measurement import wrap_angle
+from fedtrack.local_filters.radar.measurement import cartesian_from_polar, wrap_angle
 from fedtrack.local_filters.vdie.estimation import VdieParams, VdieState
 
 # the associators ``[mtt] associator`` selects (config.ASSOCIATORS lists the names, with those
@@ -363,9 +363,10 @@ def gate_modes(z: np.ndarray, lin: Linearized, S: np.ndarray, modes: Modes, x0: 
 
 
 def associate(state: TrackerState, gating: Gating | None, scan: SensorScan, params: TrackParams,
-              dt: float = 0.0) -> Association:
+              dt: float = 0.0, sees: np.ndarray | None = None) -> Association:
     """Role 3: the associator's answer (nothing to associate without gated pairs, unless the
-    associator keeps the existence of tracks, which a scan without pairs still lowers)."""
+    associator keeps the existence of tracks, which a scan without pairs still lowers); ``sees``:
+    :func:`scan_sees`."""
     n, n_det = state.tracks.size, scan.z.shape[0]
     if gating is None and (params.initial_existence is None or n == 0):
         return Association(np.zeros(0, np.int64), np.zeros(0), np.zeros(n_det, bool), state.tracks.existence,
@@ -376,7 +377,7 @@ def associate(state: TrackerState, gating: Gating | None, scan: SensorScan, para
     return params.associator.associate(AssociationInput(
         n, n_det, rows, cols, log_l, scan.dim, state.tracks.confirmed, state.tracks.existence,
         params.pd, params.clutter_density, scan.amplitude, state.memory, params.gate[scan.dim], dt,
-        None if by is None or not params.sensor_bit else (by & params.sensor_bit) == 0))
+        None if by is None or sees is None else ((by & params.sensor_bit) == 0) & ~sees))
 
 
 def predict_tracks(tracks: TrackSet, dt: float, params: TrackParams, q_scale: float | np.ndarray = 1.0
@@ -452,32 +453,51 @@ def popcount(bits: np.ndarray) -> np.ndarray:
     return np.unpackbits(np.ascontiguousarray(bits, dtype=np.int64).view(np.uint8).reshape(-1, 8), axis=1).sum(axis=1)
 
 
-def scan_counts(tracks: TrackSet, detected: np.ndarray, params: TrackParams, gated: np.ndarray | None = None
+def scan_sees(x: np.ndarray, gating: Gating | None, scan: SensorScan, params: TrackParams) -> np.ndarray | None:
+    """In a tracker of several sensors' scans (``params.sensor_bit``; else None), per track (its
+    predicted state in ``x``) whether the scan shows that its sensor sees the track's place: a
+    detection of the scan in the track's gate, or the track's position strictly inside the x-y
+    extent of the scan's detections (targets' and clutter: a sensor's detections lie in what it
+    sees; a sensor that covers the area puts its clutter all round a track)."""
+    if not params.sensor_bit:
+        return None
+    n = x.shape[0]
+    sees = np.zeros(n, dtype=bool) if gating is None else np.bincount(gating.pairs.rows, minlength=n) > 0
+    if n and scan.z.shape[0] > 1:
+        pos = scan.z if scan.sensor_position is None else scan.sensor_position + cartesian_from_polar(scan.z)
+        xy = pos[:, :2]
+        lo, hi, at = xy.min(axis=0), xy.max(axis=0), x[:, [0, 2]]
+        sees |= ((at > lo) & (at < hi)).all(axis=1)
+    return sees
+
+
+def scan_counts(tracks: TrackSet, detected: np.ndarray, params: TrackParams, sees: np.ndarray | None = None
                 ) -> tuple[TrackSet, np.ndarray | bool, np.ndarray | int]:
     """Which tracks the scan counts for in the life rules, and the misses in a row that delete each.
 
     One sensor's tracker: every track, ``delete_misses``. A tracker of several sensors' scans
     (``params.sensor_bit``): a sensor's scan counts for a track once that sensor has detected it
-    (now or before: ``detected_by``) or when the scan put a detection in the track's gate
-    (``gated``: the sensor sees there, as a twin track beside a target's own); a sensor that has
-    neither may not see the target at all (out of its range or field of view, behind the horizon),
-    and its misses are then no evidence against it (docs/multitarget.md#sensors-that-cannot-see-a-
-    target). A confirmed track is deleted after ``sensor_misses`` misses in a row per sensor that
-    detected it, at least ``lone_misses``, at most ``delete_misses``."""
+    (now or before: ``detected_by``) or when the scan shows that the sensor sees the track's place
+    (``sees``, :func:`scan_sees`: a detection in its gate, as beside a target's own track for its
+    twin, or the track inside the extent of the scan's detections); a sensor that has none of these
+    may not see the target at all (out of its range or field of view, behind the horizon), and its
+    misses are then no evidence against it (docs/multitarget.md#sensors-that-cannot-see-a-target).
+    A confirmed track is deleted after ``sensor_misses`` misses in a row per sensor that detected
+    it, at least ``lone_misses``, at most ``delete_misses``."""
     if not params.sensor_bit or tracks.detected_by is None:
         return tracks, True, params.delete_misses
     by = tracks.detected_by | np.where(detected, params.sensor_bit, 0)
     counted = (by & params.sensor_bit) != 0
     need = np.clip(params.sensor_misses * popcount(by), params.lone_misses, params.delete_misses)
-    return tracks._replace(detected_by=by), counted if gated is None else counted | gated, need
+    return tracks._replace(detected_by=by), counted if sees is None else counted | sees, need
 
 
-def m_of_n(tracks: TrackSet, detected: np.ndarray, params: TrackParams, gated: np.ndarray | None = None
+def m_of_n(tracks: TrackSet, detected: np.ndarray, params: TrackParams, sees: np.ndarray | None = None
            ) -> tuple[TrackSet, np.ndarray]:
     """Role 6: the track counts after the scan, and which tracks stay (M-of-N confirmation,
     deletion after ``delete_misses`` consecutive misses; the scans counted: :func:`scan_counts`,
-    ``gated`` the tracks with a detection of the scan in their gate)."""
-    tracks, counted, need = scan_counts(tracks, detected, params, gated)
+    ``sees``: :func:`scan_sees`)."""
+    tracks, counted, need = scan_counts(tracks, detected, params, sees)
     hits = tracks.hits + detected
     age = tracks.age + counted
     misses = np.where(detected, 0, tracks.misses + counted)
@@ -512,11 +532,11 @@ def jipda_update(tracks: TrackSet, pred: GaussianState, gating: Gating | None, a
                    Observation(*obs))
 
 
-def existence_manage(tracks: TrackSet, detected: np.ndarray, params: TrackParams, gated: np.ndarray | None = None
+def existence_manage(tracks: TrackSet, detected: np.ndarray, params: TrackParams, sees: np.ndarray | None = None
                      ) -> tuple[TrackSet, np.ndarray]:
     """Role 6 for ``jipda``: confirmation and deletion by existence (:func:`jipda.derived_rules`);
     the counts kept as :func:`m_of_n` keeps them."""
-    counted, _ = m_of_n(tracks, detected, params, gated)
+    counted, _ = m_of_n(tracks, detected, params, sees)
     if tracks.existence is None:  # no tracks yet
         return counted, np.zeros(tracks.size, bool)
     pg = jipda.scan_constants(params.pd, params.clutter_density, params.gate[2], 2).pg
@@ -586,14 +606,14 @@ def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
         state = state._replace(tracks=tracks)
     at_scan, pred = predict_tracks(tracks, dt, params, q_scale)
     gating = gate_scan(pred, scan, params, _modes_at_scan(at_scan, params))
-    assoc = associate(state, gating, scan, params, dt)
+    sees = scan_sees(pred.x, gating, scan, params)
+    assoc = associate(state, gating, scan, params, dt, sees)
     role = params.associator
     if role.update is None:
         upd = hard_update(at_scan, pred, gating, assoc, scan, dt, params, q_scale)
     else:
         upd = role.update(at_scan, pred, gating, assoc, scan, dt, params, q_scale)
-    gated = None if gating is None else np.bincount(gating.pairs.rows, minlength=tracks.size) > 0
-    updated, live = (m_of_n if role.manage is None else role.manage)(upd.tracks, upd.detected, params, gated)
+    updated, live = (m_of_n if role.manage is None else role.manage)(upd.tracks, upd.detected, params, sees)
     det = np.flatnonzero(~assoc.claimed)
     new, obs_new = start_tracks(scan, det, params, state.next_id)
     if assoc.birth is not None:
@@ -644,8 +664,8 @@ def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale
         H, x0 = gating.lin.H[g_rows[pidx]], cx[hit]
         cx[hit], cP[hit] = detection_update(x0, cP[hit], cmodes, np.flatnonzero(hit), nu[pidx], H, scan.R)
         obs = Observation(H, np.broadcast_to(scan.R, (pidx.size, m, m)).copy(), nu[pidx] + np.einsum("nij,nj->ni", H, x0))
-    gated = np.bincount(g_rows, minlength=leaves.size)[br.parent] > 0
-    old, counted, need = scan_counts(leaves.take(br.parent), hit, params, gated)
+    sees = scan_sees(x, gating, scan, params)
+    old, counted, need = scan_counts(leaves.take(br.parent), hit, params, None if sees is None else sees[br.parent])
     step = np.where(hit, 0.0, miss * counted)  # each branch's score increment (a miss the scan counts)
     step[hit] = inc[pidx]
     score = mem.score[br.parent] + step

@@ -360,9 +360,8 @@ def associate_scan(inp: association.AssociationInput) -> association.Association
     free = unclaimed(inp.n_detections, inp.cols, assoc)
     claimed = free <= 0.5
     existence = assoc.existence
-    if inp.blind is not None:  # a sensor's miss of a track it never detected: only the survival
-        keep = inp.blind & (np.bincount(inp.rows, minlength=inp.n_tracks) == 0)
-        existence = np.where(keep, mu_bar, existence)
+    if inp.blind is not None:  # a sensor's miss of a track it may not see: only the survival
+        existence = np.where(inp.blind, mu_bar, existence)
     return association.Association(np.arange(inp.rows.size), assoc.beta, claimed, existence, None,
                                    birth_existence(free, int(np.sum(~claimed))))
 
