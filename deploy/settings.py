@@ -20,7 +20,7 @@ from fedtrack.local_filters.imm.config import IMMConfig
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.pda.config import PDAReplayConfig
 from fedtrack.local_filters.vdie.config import FusionConfig
-from fedtrack.sensors.multitarget import Scenario
+from fedtrack.sensors.multitarget import MAX_CLUTTER, Scenario
 from fedtrack.sensors.radar import RadarConfig
 from fedtrack.sensors.sonar import SonarConfig
 
@@ -51,14 +51,16 @@ class MultitargetSettings:
     def validate(self) -> None:
         if self.algorithm not in MTT_ALGORITHMS:
             raise ConfigError(f"algorithm: must be one of {', '.join(MTT_ALGORITHMS)}, got {self.algorithm!r}")
-        for name, ok, rule in (("targets", self.targets >= 1, ">= 1"), ("duration", self.duration > 0, "> 0"),
-                               ("pd", 0 < self.pd <= 1, "in (0, 1]"), ("clutter", self.clutter >= 0, ">= 0")):
+        for name, ok, rule in (("targets", self.targets >= 1, ">= 1"),
+                               ("duration", 0 < self.duration < math.inf, "finite and > 0"),
+                               ("pd", 0 < self.pd <= 1, "in (0, 1]"),
+                               ("clutter", 0 <= self.clutter <= MAX_CLUTTER, f"in [0, {MAX_CLUTTER:.0f}]")):
             if not ok:
                 raise ConfigError(f"{name}: must be {rule}, got {getattr(self, name):g}")
         if not 0 < self.half_width < math.inf:
             raise ConfigError(f"half_width: must be finite and > 0, got {self.half_width:g}")
-        if self.source and (self.origin is None or not self.box > 0 or self.start < 0):
-            raise ConfigError("source: needs origin = [lat, lon, h], box > 0 and start >= 0")
+        if self.source and (self.origin is None or not 0 < self.box < math.inf or not 0 <= self.start < math.inf):
+            raise ConfigError("source: needs origin = [lat, lon, h], a finite box > 0 and a finite start >= 0")
         for key in ("join_at", "kill_at"):
             for sensor, t in getattr(self, key).items():
                 if not 0 < t < self.duration:

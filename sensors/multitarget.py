@@ -47,9 +47,14 @@ from fedtrack.config import to_toml
 from fedtrack.geodetic import RadarSite, above_radio_horizon, aer_from_enu, enu_from_aer
 from fedtrack.jsonl import InputError, output_file, output_folder
 from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.mtt.scan import MAX_DETECTIONS
 from fedtrack.local_filters.radar.measurement import polar_from_cartesian, wrap_angle
 
 DT = 0.05
+#: the largest mean clutter count per scan: its Poisson count stays 10 standard deviations below half the
+#: detections a replay reads in one scan (``MAX_DETECTIONS``; the other half left for targets),
+#: lambda + 10 sqrt(lambda) = MAX_DETECTIONS / 2: 47,813
+MAX_CLUTTER = ((math.sqrt(100.0 + 2.0 * MAX_DETECTIONS) - 10.0) / 2.0) ** 2
 SPEED = (8.0, 30.0)  # m/s, uniform
 TURN_RATE = (2.0, 6.0)  # deg/s, uniform, either sign
 # m/s^2: the fastest turn of the fastest target (a crossing only slows a target down: its
@@ -100,8 +105,9 @@ def parse_spec(spec: str, kinds: tuple[str, ...] = ("pos", "radar")) -> list[Sen
             value = float(period)
         except ValueError:
             value = float("nan")
-        if kind not in kinds or not value > 0:
-            raise InputError(f"--sensors: {item!r} is not KIND:PERIOD with KIND {' or '.join(kinds)} and PERIOD > 0")
+        if kind not in kinds or not DT <= value < math.inf:
+            raise InputError(f"--sensors: {item!r} is not KIND:PERIOD with KIND {' or '.join(kinds)} and PERIOD a "
+                             f"finite number of seconds >= {DT:g} (the truth's time step)")
         out.append(SensorSpec(f"{ID_PREFIX[kind]}{k}", kind, value))
     return out
 
@@ -304,6 +310,18 @@ def simulate(sc: Scenario, specs: list[SensorSpec], seed: int, out: Path,
             "sensors": [f"{s.id} ({s.kind}, {s.period:g} s)" for s in specs]}
 
 
+def check_options(args: argparse.Namespace, extra: tuple[tuple[str, bool, str], ...] = ()) -> None:
+    """An InputError naming the first of the simulators' common options (``--duration``, ``--pd``, ``--clutter``,
+    ``--late``) or of ``extra`` (``(option, valid, rule)``) that is out of its range."""
+    common = (("duration", args.duration is None or 0 < args.duration < math.inf, "finite and > 0"),
+              ("pd", 0 < args.pd <= 1, "in (0, 1]"),
+              ("clutter", 0 <= args.clutter <= MAX_CLUTTER, f"in [0, {MAX_CLUTTER:.0f}]"),
+              ("late", 0 <= args.late < 1, "in [0, 1)"))
+    for name, ok, rule in (*common, *extra):
+        if not ok:
+            raise InputError(f"--{name}: must be {rule}, got {getattr(args, name.replace('-', '_')):g}")
+
+
 SENSOR_IDS = ("Sensor ids: the k-th sensor of --sensors (counted from 1) is s<k> for a position sensor and "
               "r<k> for a radar: pos:1.0,radar:0.7 gives s1 and r2, the ids [mtt] sensors, [mtt.sensor.<id>] and "
               "replay --sensor take.")
@@ -354,12 +372,8 @@ def main(argv: list[str]) -> int:
     for key in ("duration", "pd", "clutter", "formation"):
         if getattr(args, key) is None:
             setattr(args, key, PRESETS[args.scenario].get(key, getattr(Scenario, key)))
-    for name, ok, rule in (("targets", args.targets >= 1, ">= 1"), ("duration", args.duration > 0, "> 0"),
-                           ("pd", 0 < args.pd <= 1, "in (0, 1]"), ("clutter", args.clutter >= 0, ">= 0"),
-                           ("late", 0 <= args.late < 1, "in [0, 1)"), ("formation", args.formation >= 1, ">= 1"),
-                           ("half-width", 0 < args.half_width < math.inf, "finite and > 0")):
-        if not ok:
-            raise InputError(f"--{name}: must be {rule}, got {getattr(args, name.replace('-', '_')):g}")
+    check_options(args, (("targets", args.targets >= 1, ">= 1"), ("formation", args.formation >= 1, ">= 1"),
+                         ("half-width", 0 < args.half_width < math.inf, "finite and > 0")))
     specs = parse_spec(args.sensors)
     output_folder(args.out)
     sc = Scenario(targets=args.targets, duration=args.duration, region=args.half_width, pd=args.pd,

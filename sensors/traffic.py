@@ -44,6 +44,7 @@ from fedtrack.sensors.multitarget import (
     RADAR_SD,
     Scenario,
     SensorSpec,
+    check_options,
     clutter_density,
     parse_spec,
     position_clutter_density,
@@ -170,6 +171,9 @@ def _rows(path: Path) -> tuple[list[str], list[tuple[int, list[Any]]]]:
                 reader = csv.reader(fh)
                 cols = next(reader, [])
                 return cols, [(i, row) for i, row in enumerate(reader, start=2) if row]
+        if base.endswith(".json"):
+            with opener(path, "rb") as fh:
+                return _json_table(json.load(fh), path)
         if base.endswith((".jsonl", ".ndjson")):
             if name.endswith(".gz"):
                 with gzip.open(path, "rb") as fh:
@@ -179,9 +183,25 @@ def _rows(path: Path) -> tuple[list[str], list[tuple[int, list[Any]]]]:
                 tmp = list(read_jsonl(path))
             cols = sorted({k for _, obj in tmp for k in obj})
             return cols, [(i, [obj.get(c) for c in cols]) for i, obj in tmp]
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, csv.Error) as exc:
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, csv.Error, RecursionError) as exc:
         raise InputError(f"{path}: cannot read: {exc}") from exc
-    raise InputError(f"{path}: unknown format (expected .csv, .jsonl or .parquet, optionally .gz)")
+    raise InputError(f"{path}: unknown format (expected .csv, .json, .jsonl or .parquet; .csv, .json and .jsonl "
+                     "may be gzipped)")
+
+
+def _json_table(obj: Any, path: Path) -> tuple[list[str], list[tuple[int, list[Any]]]]:
+    """``(column names, [(row number from 1, values)])`` of a JSON table as pandas' ``to_json`` writes one
+    (the ``traffic`` package's samples): an array of row objects (``orient="records"``) or an object of
+    columns, each an object from row label to value (``orient="columns"``, pandas' default)."""
+    if isinstance(obj, list) and all(isinstance(row, dict) for row in obj):
+        cols = sorted({k for row in obj for k in row})
+        return cols, [(i, [row.get(c) for c in cols]) for i, row in enumerate(obj, start=1)]
+    if isinstance(obj, dict) and obj and all(isinstance(col, dict) for col in obj.values()):
+        cols = list(obj)
+        labels = list(dict.fromkeys(label for col in obj.values() for label in col))
+        return cols, [(i, [obj[c].get(label) for c in cols]) for i, label in enumerate(labels, start=1)]
+    raise InputError(f"{path}: not a table of state vectors: a .json file must hold an array of row objects "
+                     "or an object of columns (pandas' to_json, orient records or columns)")
 
 
 def _seconds(value: Any, where: str) -> float:
@@ -517,14 +537,29 @@ def _origin(text: str) -> Frame:
     return Frame(*values)
 
 
+def _negative_values_joined(argv: list[str]) -> list[str]:
+    """``--origin -33.9,151.2`` as ``--origin=-33.9,151.2``: argparse reads a value that starts with ``-`` and is
+    not a plain number as the next option ("expected one argument"), so a southern or western origin needed the
+    ``=`` form."""
+    out: list[str] = []
+    for arg in argv:
+        if out and out[-1] == "--origin" and arg[:1] == "-" and (arg[1:2].isdigit() or arg[1:2] == "."):
+            out[-1] = f"--origin={arg}"
+        else:
+            out.append(arg)
+    return out
+
+
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="fedtrack simulate traffic", epilog=HELP_COLUMNS,
                                      formatter_class=argparse.RawDescriptionHelpFormatter,
                                      description="recorded air traffic as truth; position sensors, radars and "
                                                  "ADS-B on the Earth simulated on it, for replay and evaluate")
-    parser.add_argument("--source", required=True, type=Path, help="recorded state vectors (.csv, .jsonl, "
-                        ".parquet; .csv and .jsonl may be gzipped)")
-    parser.add_argument("--origin", required=True, help="LAT,LON[,H]: the common frame's origin (deg, deg, m)")
+    parser.add_argument("--source", required=True, type=Path, help="recorded state vectors (.csv, .json, .jsonl, "
+                        ".parquet; .csv, .json and .jsonl may be gzipped; .json: pandas' to_json, as the traffic "
+                        "package's samples)")
+    parser.add_argument("--origin", required=True, help="LAT,LON[,H]: the common frame's origin (deg, deg, m; south and west negative, "
+                        "e.g. -33.9,151.2)")
     parser.add_argument("--sensors", default="radar:4,radar:5,pos:2",
                         help="comma-separated KIND:PERIOD[@LAT/LON/H] (below; default radar:4,radar:5,pos:2)")
     parser.add_argument("--seed", type=int, default=1, help="seed of the sensors' noise, detections, clutter, "
@@ -548,11 +583,9 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--nacp", type=int, choices=sorted(NACP_EPU), default=9,
                         help="ADS-B navigation accuracy category: sigma per axis = EPU / 2.448 (9: 30 m EPU, "
                              "12.3 m; default 9)")
-    args = parser.parse_args(argv)
-    if not (args.box > 0 and args.max_gap > 0 and args.start >= 0 and 0 < args.pd <= 1 and args.clutter >= 0
-            and 0 <= args.late < 1 and (args.duration is None or args.duration > 0)):
-        parser.error("need --box > 0, --max-gap > 0, --start >= 0, --duration > 0, 0 < --pd <= 1, --clutter >= 0, "
-                     "0 <= --late < 1")
+    args = parser.parse_args(_negative_values_joined(argv))
+    check_options(args, (("box", 0 < args.box < math.inf, "finite and > 0"), ("max-gap", args.max_gap > 0, "> 0"),
+                         ("start", 0 <= args.start < math.inf, "finite and >= 0")))
     check_output_folder(args.out)  # created once the data is read and the sensors parsed
     frame = _origin(args.origin)
     rec = read_recording(args.source, args.units)

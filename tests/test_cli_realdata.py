@@ -1,0 +1,136 @@
+"""A new user's first hour with recorded traffic and the simulators: the ``traffic`` package's own sample
+files (pandas JSON) as ``simulate traffic --source``, a southern or western ``--origin``, and option values
+no run can use (infinite, or a scan too large for replay to read) as one-line errors."""
+
+from __future__ import annotations
+
+import gzip
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fedtrack.cli import main
+from fedtrack.sensors.multitarget import MAX_CLUTTER
+from fedtrack.sensors.traffic import read_recording
+
+# three aircraft, 40 s of 1 s state vectors in the traffic package's columns and units (ft, kt, ft/min, ms)
+T0_MS = 1_600_000_000_000
+
+
+def _records() -> list[dict]:
+    rows = []
+    for k, icao in enumerate(("3c6444", "4b1805", "39b415")):
+        for i in range(40):
+            rows.append({"timestamp": T0_MS + 1000 * i, "icao24": icao, "latitude": -33.9 + 0.01 * k + 0.0005 * i,
+                         "longitude": 151.2 - 0.01 * k, "altitude": 10000.0 + 100 * k, "groundspeed": 108.0,
+                         "track": 0.0, "vertical_rate": 0.0, "onground": False, "callsign": f"TEST{k}"})
+    return rows
+
+
+def _csv(path: Path, rows: list[dict]) -> Path:
+    cols = list(rows[0])
+    path.write_text(",".join(cols) + "\n" + "".join(",".join(str(r[c]) for c in cols) + "\n" for r in rows))
+    return path
+
+
+@pytest.mark.parametrize("orient", ["records", "columns"])
+def test_the_traffic_packages_sample_json_reads_as_its_csv(tmp_path: Path, orient: str) -> None:
+    """Every sample the ``traffic`` package ships is pandas' ``to_json`` (an array of rows, or an object of
+    columns by row label), gzipped: it was refused as an unknown format."""
+    rows = _records()
+    table = rows if orient == "records" else {c: {str(i): r[c] for i, r in enumerate(rows)} for c in rows[0]}
+    sample = tmp_path / "sample.json.gz"
+    with gzip.open(sample, "wt") as fh:
+        json.dump(table, fh)
+    plain = tmp_path / "sample.json"
+    plain.write_text(json.dumps(table))
+    want = read_recording(_csv(tmp_path / "sample.csv", rows), "aviation")
+    for path in (sample, plain):
+        got = read_recording(path, "aviation")
+        assert list(got.icao24) == list(want.icao24)
+        np.testing.assert_array_equal(got.t, want.t)
+        np.testing.assert_array_equal(got.lla, want.lla)
+        np.testing.assert_array_equal(got.velocity, want.velocity)
+
+
+def test_a_sample_runs_through_simulate_replay_evaluate_and_export(tmp_path: Path,
+                                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    sample = tmp_path / "sample.json.gz"
+    with gzip.open(sample, "wt") as fh:
+        json.dump(_records(), fh)
+    out = tmp_path / "S"
+    # a southern and eastern origin written as a user would, with a space: argparse took "-33.9,..." for an option
+    assert main(["simulate", "traffic", "--source", str(sample), "--origin", "-33.89,151.19", "--units", "aviation",
+                 "--sensors", "pos:2/20", "--clutter", "0", "--late", "0", "--seed", "1", "--out", str(out)]) == 0
+    assert "read " in capsys.readouterr().out
+    tracks = tmp_path / "c.jsonl"
+    assert main(["replay", "--algorithm", "mtt-centralized", "--config", str(out / "config.toml"),
+                 "--measurements", str(out / "measurements.jsonl"), "--out", str(tracks)]) == 0
+    assert main(["evaluate", "--tracks", str(tracks), "--truth", str(out / "truth.jsonl"), "--horizontal",
+                 "--json", str(tmp_path / "e.json")]) == 0
+    assert json.loads((tmp_path / "e.json").read_text())["mean"]["gospa"] < 40.0
+    assert main(["export", "--geojson", str(tmp_path / "g.geojson"), "--config", str(out / "config.toml"),
+                 "--tracks", str(tracks), "--truth", str(out / "truth.jsonl")]) == 0
+    lats = [c[1] for f in json.loads((tmp_path / "g.geojson").read_text())["features"]
+            if f["properties"]["kind"] == "truth" for c in f["geometry"]["coordinates"]]
+    assert lats and all(-33.95 < lat < -33.85 for lat in lats)
+
+
+def test_a_southern_western_origin_given_with_a_space(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--origin -33.89,-151.19`` failed with 'argument --origin: expected one argument'."""
+    rows = [{**r, "longitude": -r["longitude"]} for r in _records()]
+    assert main(["simulate", "traffic", "--source", str(_csv(tmp_path / "s.csv", rows)), "--origin", "-33.89,-151.19",
+                 "--units", "aviation", "--sensors", "pos:2", "--out", str(tmp_path / "o")]) == 0
+    assert "3 aircraft" in capsys.readouterr().out
+
+
+def test_json_that_is_not_a_table_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "airspace.json"
+    bad.write_text(json.dumps({"name": "SIV TOULOUSE", "shapes": [{"upper": 65.0}]}))
+    code = main(["simulate", "traffic", "--source", str(bad), "--origin", "43.6,1.4", "--out", str(tmp_path / "o")])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 2 and len(err) == 1 and f"{bad}: not a table of state vectors" in err[0], err
+    assert not (tmp_path / "o").exists()
+
+
+BAD_VALUES = [
+    (["simulate", "traffic", "--box", "inf"], "--box: must be finite and > 0, got inf"),
+    (["simulate", "traffic", "--clutter", "inf"], f"--clutter: must be in [0, {MAX_CLUTTER:.0f}], got inf"),
+    (["simulate", "traffic", "--clutter", "1e9"], f"--clutter: must be in [0, {MAX_CLUTTER:.0f}], got 1e+09"),
+    (["simulate", "traffic", "--duration", "inf"], "--duration: must be finite and > 0, got inf"),
+    (["simulate", "traffic", "--sensors", "pos:inf"], "'pos:inf' is not KIND:PERIOD"),
+    (["simulate", "multitarget", "--clutter", "inf"], f"--clutter: must be in [0, {MAX_CLUTTER:.0f}], got inf"),
+    (["simulate", "multitarget", "--clutter", "1e9"], f"--clutter: must be in [0, {MAX_CLUTTER:.0f}], got 1e+09"),
+    (["simulate", "multitarget", "--duration", "inf"], "--duration: must be finite and > 0, got inf"),
+    (["simulate", "multitarget", "--sensors", "pos:inf"], "'pos:inf' is not KIND:PERIOD"),
+    (["simulate", "multitarget", "--sensors", "pos:1e-9"], "PERIOD a finite number of seconds >= 0.05"),
+]
+
+
+@pytest.mark.parametrize(("argv", "says"), BAD_VALUES, ids=lambda v: " ".join(v) if isinstance(v, list) else "")
+def test_values_no_run_can_use_are_one_line_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                   argv: list[str], says: str) -> None:
+    """Before: tracebacks (OverflowError, ValueError 'lam value too large'), or at --clutter 1e9 or a period of
+    1e-9 s the memory of the machine (killed)."""
+    extra = (["--source", str(_csv(tmp_path / "s.csv", _records())), "--origin", "-33.89,151.19", "--units",
+              "aviation"] if argv[1] == "traffic" else [])
+    code = main([*argv, *extra, "--out", str(tmp_path / "o")])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 2 and len(err) == 1 and says in err[0], err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize(("table", "says"), [("clutter = inf", "multitarget.clutter: must be in [0, "),
+                                             ("duration = inf", "multitarget.duration: must be finite and > 0"),
+                                             ('source = "x.csv"\norigin = [1.0, 2.0, 0.0]\nbox = inf',
+                                              "a finite box > 0")])
+def test_launch_refuses_an_infinite_multitarget_value(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                      table: str, says: str) -> None:
+    config = tmp_path / "mt.toml"
+    config.write_text(f'[deployment]\npacing = "realtime"\n\n[multitarget]\n{table}\n')
+    code = main(["launch", str(config), "--out", str(tmp_path / "o")])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 2 and len(err) == 1 and says in err[0], err
+    assert not (tmp_path / "o").exists()
