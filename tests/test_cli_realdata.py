@@ -134,3 +134,26 @@ def test_launch_refuses_an_infinite_multitarget_value(tmp_path: Path, capsys: py
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert code == 2 and len(err) == 1 and says in err[0], err
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize(("option", "says"), [(["--c", "inf"], "--c must be finite and > 0"),
+                                              (["--p", "inf"], "--p finite and >= 1"),
+                                              (["--p", "200"], "c^p overflows"),
+                                              (["--c", "1e300"], "c^p overflows")])
+def test_evaluate_refuses_a_cut_off_or_order_whose_power_is_not_finite(tmp_path: Path,
+                                                                      capsys: pytest.CaptureFixture[str],
+                                                                      option: list[str], says: str) -> None:
+    """Before: --c inf printed 'mean GOSPA nan m' with exit 0; --p inf, --p 200 and --c 1e300 were tracebacks
+    (scipy: 'cost matrix is infeasible')."""
+    out = tmp_path / "S"
+    assert main(["simulate", "multitarget", "--targets", "3", "--duration", "5", "--out", str(out)]) == 0
+    tracks = tmp_path / "c.jsonl"
+    assert main(["replay", "--algorithm", "mtt-centralized", "--config", str(out / "config.toml"),
+                 "--measurements", str(out / "measurements.jsonl"), "--out", str(tracks)]) == 0
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exit_:
+        main(["evaluate", "--tracks", str(tracks), "--truth", str(out / "truth.jsonl"), *option,
+              "--json", str(tmp_path / "e.json")])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and says in err and "Traceback" not in err, err
+    assert not (tmp_path / "e.json").exists()

@@ -55,6 +55,9 @@ from fedtrack.local_filters.linear.kalman import nees
 MANEUVER_ACCEL = 1.0  # m/s^2: a truth target accelerating at least this much is maneuvering
 STRAIGHT_ACCEL = 0.01  # m/s^2: below this it moves straight at constant speed ...
 STRAIGHT_FOR_S = 10.0  # s: ... when it did over this long (the detectors' windows)
+#: --c, --p: c^p below 10^300 keeps the p-th power parts, sums of up to c^p per target and track, finite in
+#: float64 (max 1.8e308) for up to 1e8 of them
+MAX_POWER_EXPONENT = 300
 
 
 class SetDistance(NamedTuple):
@@ -402,8 +405,11 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
     if args.alpha != 2:
         parser.error("--alpha: only alpha = 2 (the decomposable GOSPA) is supported")
-    if not (args.c > 0 and args.p >= 1):
-        parser.error("--c must be > 0 and --p >= 1")
+    if not (0 < args.c < math.inf and 1 <= args.p < math.inf):
+        parser.error("--c must be finite and > 0, --p finite and >= 1")
+    if args.p * math.log10(args.c) >= MAX_POWER_EXPONENT:
+        parser.error(f"--c {args.c:g} --p {args.p:g}: c^p overflows (the p-th power parts are sums of up to c^p a "
+                     f"target or track): need p log10(c) < {MAX_POWER_EXPONENT}")
     for path in (args.json, args.plot):
         if path is not None:
             check_output(path)
