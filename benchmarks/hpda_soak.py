@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from fedtrack.benchmarks.soak import median, rss_mb
+from fedtrack.config import seed_number
 from fedtrack.jsonl import check_output, output_file
 from fedtrack.keys import Keys
 from fedtrack.sensors.sonar import ScenarioConfig, SonarConfig, sonar_scans
@@ -146,7 +147,7 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--clutter", type=float, default=1.5e-4, help="clutter density per m^2 (default: %(default)s)")
     parser.add_argument("--rate", type=float, default=4.0, help="scans per second (default: %(default)s)")
     parser.add_argument("--algorithm", default="hpda", choices=("hpda", "pda-ai"), help="the tracker (default: %(default)s)")
-    parser.add_argument("--seed", type=int, default=1, help="seed of the scenario (default: %(default)s)")
+    parser.add_argument("--seed", type=seed_number, default=1, help="seed of the scenario (default: %(default)s)")
     parser.add_argument("--json", type=Path, help="write the result here")
     args = parser.parse_args(argv)
     if args.minutes < 1.0 or args.rate <= 0.0 or args.clutter <= 0.0:

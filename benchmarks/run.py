@@ -44,6 +44,7 @@ import numpy as np
 
 from fedtrack.benchmarks.floor import measure_floor
 from fedtrack.benchmarks.kf_micro import bench_kf
+from fedtrack.config import seed_number
 from fedtrack.deploy.demo import demo_settings, free_port, write_config
 from fedtrack.deploy.launcher import Launcher, apply_zenoh_settings, service_plan
 from fedtrack.jsonl import check_output, output_file
@@ -241,7 +242,7 @@ def main(argv: list[str]) -> int:
                         help=f"smoke test: {QUICK_SCANS} scans per deployment (the first {QUICK_SCANS // 4} "
                              f"counted as start-up), {QUICK_KF_RUNS} KF runs")
     parser.add_argument("--repeats", type=int, default=1, help="deployments per count and pacing (default 1)")
-    parser.add_argument("--seed", type=int, default=1, help="seed of the simulated sensors (default: %(default)s)")
+    parser.add_argument("--seed", type=seed_number, default=1, help="seed of the simulated sensors (default: %(default)s)")
     parser.add_argument("--json", type=Path, default=Path("bench.json"), help="output JSON (default bench.json)")
     args = parser.parse_args(argv)
     if args.repeats < 1:

@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from fedtrack.config import load_toml, parse_dataclass, to_toml
+from fedtrack.config import load_toml, parse_dataclass, seed_number, to_toml
 from fedtrack.deploy.launcher import (
     LaunchError,
     ServiceFailed,
@@ -161,7 +161,7 @@ def main(argv: list[str]) -> int:
                         "committed Paris extract)")
     parser.add_argument("--mode", choices=MODES, default="federated",
                         help="federated (FVDIE, reset feedback) or decentralized (DVDIE; default: %(default)s)")
-    parser.add_argument("--seed", type=int, default=1, help="seed of truth and noise (default: %(default)s)")
+    parser.add_argument("--seed", type=seed_number, default=1, help="seed of truth and noise (default: %(default)s)")
     parser.add_argument("--port", type=int, help="router port on 127.0.0.1 (default: a free one)")
     parser.add_argument("--insecure", action="store_true",
                         help="plain TCP without authentication (default: mutual TLS and access control, "

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fedtrack.config import ConfigError
+from fedtrack.config import ConfigError, seed_number
 from fedtrack.experiments.input_estimation import (
     EVAL_TAG,
     STATE_LABELS,
@@ -32,6 +32,7 @@ from fedtrack.experiments.input_estimation import (
     write,
 )
 from fedtrack.experiments.tables import announce
+from fedtrack.jsonl import check_output
 from fedtrack.local_filters.radar.ekf import CV3, motion_model_3d
 from fedtrack.local_filters.radar.filters import (
     MODEL_ENV,
@@ -42,7 +43,6 @@ from fedtrack.local_filters.radar.filters import (
 )
 from fedtrack.local_filters.radar.ts_fuzzy import GAParams, TSModel, identify, load_model, save_model
 from fedtrack.local_filters.radar.ts_fuzzy_ekf import TAU_S, error_components, ts_init, ts_step
-from fedtrack.jsonl import check_output
 from fedtrack.progress import progress_bar
 from fedtrack.sensors.radar import RadarConfig, simulate
 
@@ -90,7 +90,7 @@ def main(argv: list[str]) -> int:
     """``fedtrack train ts-fuzzy --runs N --seed S --out MODEL.npz [GA options]``."""
     ap = argparse.ArgumentParser(prog="fedtrack train ts-fuzzy", description="train the TS-fuzzy error model of paper 003: simulate radar runs, identify by GA + RLS")
     ap.add_argument("--runs", type=int, default=20, help="simulated training runs (default 20)")
-    ap.add_argument("--seed", type=int, default=1, help="seed of the training runs and the GA (default: %(default)s)")
+    ap.add_argument("--seed", type=seed_number, default=1, help="seed of the training runs and the GA (default: %(default)s)")
     ap.add_argument("--out", required=True, help="output model file (.npz)")
     ap.add_argument("--population", type=int, default=GAParams.population,
                     help="GA population size (default: %(default)s)")

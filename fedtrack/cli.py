@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 from typing import Any, Callable
 
-from fedtrack.config import ConfigError
+from fedtrack.config import ConfigError, seed_number
 from fedtrack.jsonl import InputError, check_output, output_folder
 
 # name -> "module:function(runs, seed, json_path, plots_dir) -> dict"
@@ -105,6 +105,8 @@ def resolve(target: str) -> Callable[..., Any]:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
+    if args.runs < 2:
+        raise InputError(f"--runs: must be at least 2 (standard errors need two runs), got {args.runs}")
     check_output(args.json)  # before minutes of Monte Carlo
     if args.plots:
         output_folder(args.plots)
@@ -208,8 +210,8 @@ def build_parser() -> argparse.ArgumentParser:
     rep = sub.add_parser("reproduce", help="seeded Monte Carlo reproduction of a paper")
     rep.add_argument("name", choices=sorted(REPRODUCERS), metavar="NAME",
                      help=f"the paper's experiment: {', '.join(sorted(REPRODUCERS))}")
-    rep.add_argument("--runs", type=int, default=500, help="Monte Carlo runs (default: %(default)s)")
-    rep.add_argument("--seed", type=int, default=1, help="random seed (default: %(default)s)")
+    rep.add_argument("--runs", type=int, default=500, help="Monte Carlo runs, at least 2 (default: %(default)s)")
+    rep.add_argument("--seed", type=seed_number, default=1, help="random seed (default: %(default)s)")
     rep.add_argument("--json", required=True, metavar="PATH", help="output JSON file (its folder must exist)")
     rep.add_argument("--plots", metavar="DIR", help="folder for PNG figures (created if missing; its own folder "
                      "must exist; default: no figures)")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import dataclasses
 import difflib
@@ -23,6 +24,17 @@ def did_you_mean(name: str, choices: typing.Iterable[str], prefix: str = "") -> 
     (difflib, similarity at least 0.6), else ``""``: the near-miss hint of every unknown key or field."""
     close = difflib.get_close_matches(name, list(choices), n=1)
     return f": did you mean {prefix}{close[0]}?" if close else ""
+
+
+def seed_number(text: str) -> int:
+    """``--seed``: a whole number >= 0 (numpy's generators refuse a negative seed: it was a traceback)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be a whole number >= 0, got {text!r}")
+    return value
 
 
 def load_toml(path: str | Path) -> dict[str, Any]:

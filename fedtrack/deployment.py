@@ -72,12 +72,14 @@ class DeploymentConfig:
             raise ConfigError(f"pacing: must be one of {', '.join(PACINGS)}, got {self.pacing!r}")
         if self.scenario not in (1, 2):
             raise ConfigError(f"scenario: paper 004 has scenarios 1 and 2, got {self.scenario}")
-        if not self.speed > 0:
-            raise ConfigError("speed: must be > 0")
+        if not 0 < self.speed < math.inf:
+            raise ConfigError("speed: must be finite and > 0")
         if not self.deadline_s > 0:
             raise ConfigError("deadline_s: must be > 0")
-        if not self.duration_s > 0:
-            raise ConfigError("duration_s: must be > 0")
+        if not 0 < self.duration_s < math.inf:
+            raise ConfigError("duration_s: must be finite and > 0")
+        if self.seed < 0:
+            raise ConfigError(f"seed: must be a whole number >= 0, got {self.seed}")
         if not self.max_time_jump_s > 0:
             raise ConfigError("max_time_jump_s: must be > 0")
         if not self.max_seq_jump >= 1:

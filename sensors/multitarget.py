@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from fedtrack.config import to_toml
+from fedtrack.config import seed_number, to_toml
 from fedtrack.geodetic import RadarSite, above_radio_horizon, aer_from_enu, enu_from_aer
 from fedtrack.jsonl import InputError, output_file, output_folder
 from fedtrack.local_filters.mtt.config import MttConfig
@@ -342,7 +342,7 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--sensors", default="pos:1.0,pos:0.7,pos:1.3", metavar="SPEC",
                         help="comma-separated KIND:PERIOD, KIND pos (2-D position) or radar, PERIOD in seconds "
                              "(default: %(default)s)")
-    parser.add_argument("--seed", type=int, default=1, help="seed of truth, noise, clutter and delays "
+    parser.add_argument("--seed", type=seed_number, default=1, help="seed of truth, noise, clutter and delays "
                         "(default: %(default)s)")
     parser.add_argument("--duration", type=float,
                         help=f"seconds of scenario (default: {Scenario.duration:g}; dense: 120)")

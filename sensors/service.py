@@ -36,7 +36,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from fedtrack.config import load_tables
+from fedtrack.config import load_tables, seed_number
 from fedtrack.deployment import PACINGS, DeploymentConfig, SensorConfig
 from fedtrack.jsonl import InputError, read_jsonl
 from fedtrack.local_filters.mtt.scan import SensorScan, parse_scan, scan_to_measurement
@@ -184,7 +184,7 @@ def add_sensor_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--measurements", type=Path,
                         help="kind scan: the multi-target measurements file whose lines of this sensor to publish")
     parser.add_argument("--scenario", type=int, choices=(1, 2), help="paper 004 scenario (overrides config)")
-    parser.add_argument("--seed", type=int, help="deployment seed (overrides config)")
+    parser.add_argument("--seed", type=seed_number, help="deployment seed (overrides config)")
     parser.add_argument("--pacing", choices=PACINGS, help="overrides config (default lockstep)")
     parser.add_argument("--speed", type=float, help="real-time speed-up factor (overrides config)")
     parser.add_argument("--lockstep-timeout", type=float, default=5.0, metavar="SECONDS",

@@ -27,7 +27,7 @@ import numpy as np
 from scipy.interpolate import CubicHermiteSpline
 from scipy.linalg import solveh_banded
 
-from fedtrack.config import to_toml
+from fedtrack.config import seed_number, to_toml
 from fedtrack.geodetic import (
     Frame,
     RadarSite,
@@ -562,7 +562,7 @@ def main(argv: list[str]) -> int:
                         "e.g. -33.9,151.2)")
     parser.add_argument("--sensors", default="radar:4,radar:5,pos:2",
                         help="comma-separated KIND:PERIOD[@LAT/LON/H] (below; default radar:4,radar:5,pos:2)")
-    parser.add_argument("--seed", type=int, default=1, help="seed of the sensors' noise, detections, clutter, "
+    parser.add_argument("--seed", type=seed_number, default=1, help="seed of the sensors' noise, detections, clutter, "
                         "delays and ADS-B report times (default: %(default)s)")
     parser.add_argument("--out", required=True, type=Path, metavar="DIR",
                         help="folder to write into (created if missing; its own folder must exist)")

@@ -157,3 +157,46 @@ def test_evaluate_refuses_a_cut_off_or_order_whose_power_is_not_finite(tmp_path:
     err = capsys.readouterr().err
     assert exit_.value.code == 2 and says in err and "Traceback" not in err, err
     assert not (tmp_path / "e.json").exists()
+
+
+SEEDED = [["simulate", "multitarget"], ["simulate", "traffic", "--origin", "48.86,2.4"], ["train", "ts-fuzzy"],
+          ["reproduce", "fvdie", "--json", "a.json"], ["demo"], ["bench", "pipeline"], ["bench", "hpda-soak"],
+          ["serve", "sensor"]]
+
+
+@pytest.mark.parametrize("argv", SEEDED, ids=" ".join)
+def test_a_negative_seed_is_refused_before_anything_is_written(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                               monkeypatch: pytest.MonkeyPatch,
+                                                               argv: list[str]) -> None:
+    """Before: numpy's 'ValueError: expected non-negative integer' as a traceback, after simulate multitarget had
+    made its --out folder."""
+    monkeypatch.chdir(tmp_path)
+    extra = {"simulate": ["--out", "o"], "train": ["--out", "m.npz"], "demo": ["--out", "o"]}.get(argv[0], [])
+    source = ["--source", str(_csv(tmp_path / "s.csv", _records()))] if argv[1:2] == ["traffic"] else []
+    with pytest.raises(SystemExit) as exit_:
+        main([*argv, *source, *extra, "--seed", "-1"])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "argument --seed: must be a whole number >= 0, got '-1'" in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == (["s.csv"] if source else [])
+
+
+@pytest.mark.parametrize(("table", "says"), [("seed = -1", "deployment.seed: must be a whole number >= 0"),
+                                             ("duration_s = inf", "deployment.duration_s: must be finite and > 0"),
+                                             ("speed = inf", "deployment.speed: must be finite and > 0")])
+def test_launch_refuses_a_negative_seed_or_an_endless_run(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                          table: str, says: str) -> None:
+    """Before: the services started, then a traceback (numpy's seed; OverflowError of an infinite duration)."""
+    config = tmp_path / "d.toml"
+    config.write_text(f'[deployment]\n{table}\n\n[[sensor]]\nid = "1"\n')
+    code = main(["launch", str(config), "--out", str(tmp_path / "o")])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 2 and len(err) == 1 and says in err[0], err
+    assert not (tmp_path / "o").exists()
+
+
+def test_reproduce_with_one_run_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Before: 'ValueError: --runs must be at least 2' as a traceback, exit 1."""
+    code = main(["reproduce", "fvdie", "--runs", "1", "--json", str(tmp_path / "a.json")])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 2 and err == ["fedtrack: error: --runs: must be at least 2 (standard errors need two runs), got 1"]
+    assert not (tmp_path / "a.json").exists()
