@@ -25,6 +25,7 @@ scenario at 5x real time); ``fedtrack replay --algorithm mtt-federated --config 
 from __future__ import annotations
 
 import argparse
+import shutil
 import socket
 import sys
 from dataclasses import asdict
@@ -33,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from fedtrack.config import load_toml, parse_dataclass, seed_number, to_toml
+from fedtrack.config import ConfigError, load_toml, parse_dataclass, seed_number, to_toml
 from fedtrack.deploy.launcher import (
     LaunchError,
     ServiceFailed,
@@ -45,12 +46,12 @@ from fedtrack.deploy.security import ZenohSettings
 from fedtrack.deploy.settings import MultitargetSettings, Settings
 from fedtrack.deployment import MODES, DeploymentConfig, SensorConfig
 from fedtrack.geodetic import FrameConfig, median_lon
-from fedtrack.jsonl import InputError, output_folder
+from fedtrack.jsonl import InputError, check_output_folder, output_folder
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.sensors.multitarget import Scenario, clutter_density, parse_spec
 from fedtrack.sensors.scenarios import DEFAULT_R
-from fedtrack.sensors.traffic import read_recording
+from fedtrack.sensors.traffic import UNITS, read_recording
 
 MULTITARGET_SPEED = 5.0  # the live multi-target demo runs at 5x real time
 # the live recorded-traffic demo: 600 s of the committed Paris extract at 10x real time (docs/geodetic.md)
@@ -106,7 +107,7 @@ def multitarget_settings(mode: str, seed: int, port: int, out: Path, tls_dir: Pa
 
 
 def traffic_settings(source: Path | None, mode: str, seed: int, port: int, out: Path,
-                     tls_dir: Path | None = None) -> Settings:
+                     tls_dir: Path | None = None, units: str = "si") -> Settings:
     """A live deployment on recorded air traffic: without ``source``, the committed Paris extract with
     two radars and a position sensor (docs/geodetic.md); with it, the recording's median position as
     the origin and radars on the box's edge. The tracker keys are the ones ``simulate traffic`` derives,
@@ -118,11 +119,11 @@ def traffic_settings(source: Path | None, mode: str, seed: int, port: int, out: 
             raise InputError(f"{source}: the committed extract is not here (a source checkout has it under "
                              "tests/data/); give --source FILE")
     else:
-        rec = read_recording(source)
+        rec = read_recording(source, units)
         origin = (float(np.median(rec.lla[:, 0])), median_lon(rec.lla[:, 1]), 0.0)
         sensors = "radar:4,radar:5,pos:2"
     mt = MultitargetSettings(algorithm=f"mtt-{mode}", sensors=sensors, duration=TRAFFIC_DURATION, source=str(source),
-                             origin=origin, box=TRAFFIC_BOX, start=TRAFFIC_START)
+                             origin=origin, box=TRAFFIC_BOX, start=TRAFFIC_START, units=units)
     draft = Settings(deployment=DeploymentConfig(seed=seed), multitarget=mt)
     prepare(draft, out, say=False)  # the launch simulates it again and says what it left out
     table = load_toml(out / SCENARIO_DIR / "config.toml")
@@ -159,6 +160,9 @@ def main(argv: list[str]) -> int:
                              "on recorded air traffic (default: %(default)s)")
     parser.add_argument("--source", type=Path, help="traffic: a recording (simulate traffic's input; default: the "
                         "committed Paris extract)")
+    parser.add_argument("--units", choices=sorted(UNITS), default="si",
+                        help="traffic: the units of --source, as simulate traffic --units (si: m, m/s; aviation: "
+                             "ft, kt, ft/min, the traffic library's; default: %(default)s)")
     parser.add_argument("--mode", choices=MODES, default="federated",
                         help="federated (FVDIE, reset feedback) or decentralized (DVDIE; default: %(default)s)")
     parser.add_argument("--seed", type=seed_number, default=1, help="seed of truth and noise (default: %(default)s)")
@@ -169,13 +173,19 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
     if not 1 <= args.sensors <= 32:
         parser.error("--sensors must be between 1 and 32")
+    if (args.source is not None or args.units != "si") and args.scenario != "traffic":
+        parser.error("--source and --units apply to --scenario traffic only")
+    made = not check_output_folder(args.out).is_dir()
     out = output_folder(args.out).resolve()
     port = args.port or free_port()
     tls_dir = None if args.insecure else Path(CERTS)  # relative to OUT/config.toml
-    if args.source is not None and args.scenario != "traffic":
-        parser.error("--source applies to --scenario traffic only")
     if args.scenario == "traffic":
-        settings = traffic_settings(args.source, args.mode, args.seed, port, out, tls_dir)
+        try:
+            settings = traffic_settings(args.source, args.mode, args.seed, port, out, tls_dir, args.units)
+        except (InputError, ConfigError):
+            if made:  # a recording that cannot be read leaves nothing behind
+                shutil.rmtree(out)
+            raise
         what = f"recorded traffic from {settings.multitarget.source}, sensors {settings.multitarget.sensors}"  # type: ignore[union-attr]
     elif args.scenario == "multitarget":
         settings = multitarget_settings(args.mode, args.seed, port, out, tls_dir)

@@ -87,7 +87,7 @@ def prepare(settings: Settings, out: Path, say: bool = True) -> Path:
     folder = out / SCENARIO_DIR
     if mt.source:
         assert mt.origin is not None
-        info = simulate_traffic(read_recording(Path(mt.source)), Frame(*mt.origin), mt.sensors,
+        info = simulate_traffic(read_recording(Path(mt.source), mt.units), Frame(*mt.origin), mt.sensors,
                                 settings.deployment.seed, folder, mt.start, mt.duration, mt.box * 1e3, pd=mt.pd,
                                 clutter=mt.clutter, late=0.0)
         if say:

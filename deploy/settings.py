@@ -23,6 +23,7 @@ from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.sensors.multitarget import MAX_CLUTTER, Scenario
 from fedtrack.sensors.radar import RadarConfig
 from fedtrack.sensors.sonar import SonarConfig
+from fedtrack.sensors.traffic import UNITS
 
 MTT_ALGORITHMS = ("mtt-federated", "mtt-decentralized", "mtt-centralized")
 
@@ -47,6 +48,7 @@ class MultitargetSettings:
     origin: tuple[float, float, float] | None = None  # the common frame's WGS-84 origin (required with source)
     box: float = 100.0  # km
     start: float = 0.0  # s after the recording's first sample
+    units: str = "si"  # the recording's units (``simulate traffic --units``: si or aviation, the traffic library's)
 
     def validate(self) -> None:
         if self.algorithm not in MTT_ALGORITHMS:
@@ -59,6 +61,8 @@ class MultitargetSettings:
                 raise ConfigError(f"{name}: must be {rule}, got {getattr(self, name):g}")
         if not 0 < self.half_width < math.inf:
             raise ConfigError(f"half_width: must be finite and > 0, got {self.half_width:g}")
+        if self.units not in UNITS:
+            raise ConfigError(f"units: must be one of {', '.join(sorted(UNITS))}, got {self.units!r}")
         if self.source and (self.origin is None or not 0 < self.box < math.inf or not 0 <= self.start < math.inf):
             raise ConfigError("source: needs origin = [lat, lon, h], a finite box > 0 and a finite start >= 0")
         for key in ("join_at", "kill_at"):

@@ -4,6 +4,7 @@ no run can use (infinite, or a scan too large for replay to read) as one-line er
 
 from __future__ import annotations
 
+import contextlib
 import gzip
 import json
 from pathlib import Path
@@ -19,10 +20,10 @@ from fedtrack.sensors.traffic import read_recording
 T0_MS = 1_600_000_000_000
 
 
-def _records() -> list[dict]:
+def _records(seconds: int = 40) -> list[dict]:
     rows = []
     for k, icao in enumerate(("3c6444", "4b1805", "39b415")):
-        for i in range(40):
+        for i in range(seconds):
             rows.append({"timestamp": T0_MS + 1000 * i, "icao24": icao, "latitude": -33.9 + 0.01 * k + 0.0005 * i,
                          "longitude": 151.2 - 0.01 * k, "altitude": 10000.0 + 100 * k, "groundspeed": 108.0,
                          "track": 0.0, "vertical_rate": 0.0, "onground": False, "callsign": f"TEST{k}"})
@@ -200,3 +201,32 @@ def test_reproduce_with_one_run_is_one_line(tmp_path: Path, capsys: pytest.Captu
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert code == 2 and err == ["fedtrack: error: --runs: must be at least 2 (standard errors need two runs), got 1"]
     assert not (tmp_path / "a.json").exists()
+
+
+@pytest.mark.parametrize("argv", [["--source", "x.csv"], ["--scenario", "traffic", "--source", "missing.csv"],
+                                  ["--units", "aviation"]], ids=" ".join)
+def test_demo_input_errors_leave_no_output_folder(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                  argv: list[str]) -> None:
+    """Before: the demo made --out, then failed (an empty folder left behind)."""
+    with contextlib.suppress(SystemExit):
+        main(["demo", *argv, "--out", str(tmp_path / "o")])
+    assert "error" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+def test_demo_and_launch_read_a_recording_in_aviation_units(tmp_path: Path) -> None:
+    """The traffic library's samples are in ft, kt and ft/min: ``demo --scenario traffic --source`` read them as
+    m and m/s (aircraft 3.28 times higher than recorded), with no way to say otherwise."""
+    from fedtrack.deploy.demo import traffic_settings
+
+    sample = tmp_path / "sample.json.gz"
+    with gzip.open(sample, "wt") as fh:
+        json.dump(_records(120), fh)  # the demo starts 60 s into a recording
+    settings = traffic_settings(sample, "federated", 1, 7447, tmp_path, None, "aviation")
+    assert settings.multitarget is not None and settings.multitarget.units == "aviation"
+    alts = [t["alt"] for line in (tmp_path / "scenario" / "truth.jsonl").read_text().splitlines()
+            for t in json.loads(line)["targets"]]
+    assert alts and min(alts) == pytest.approx(3048.0, abs=1.0) and max(alts) == pytest.approx(3108.96, abs=1.0)
+    config = tmp_path / "mt.toml"
+    config.write_text('[deployment]\npacing = "realtime"\n\n[multitarget]\nunits = "feet"\n')
+    assert main(["launch", str(config), "--out", str(tmp_path / "o")]) == 2
