@@ -105,9 +105,9 @@ def resolve(target: str) -> Callable[..., Any]:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
+    check_output(args.json)  # before minutes of Monte Carlo
     if args.runs < 2:
         raise InputError(f"--runs: must be at least 2 (standard errors need two runs), got {args.runs}")
-    check_output(args.json)  # before minutes of Monte Carlo
     if args.plots:
         output_folder(args.plots)
     fn = resolve(REPRODUCERS[args.name])

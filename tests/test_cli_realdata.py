@@ -230,3 +230,19 @@ def test_demo_and_launch_read_a_recording_in_aviation_units(tmp_path: Path) -> N
     config = tmp_path / "mt.toml"
     config.write_text('[deployment]\npacing = "realtime"\n\n[multitarget]\nunits = "feet"\n')
     assert main(["launch", str(config), "--out", str(tmp_path / "o")]) == 2
+
+
+@pytest.mark.parametrize("period", ["inf", "1e300"])
+def test_a_picture_period_beyond_an_hour_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                    period: str) -> None:
+    """Before: exit 0 with a picture at "t": null (inf) or at 1e300 s with infinite coordinates, which evaluate then
+    refused."""
+    out = tmp_path / "S"
+    assert main(["simulate", "multitarget", "--targets", "3", "--duration", "5", "--out", str(out)]) == 0
+    capsys.readouterr()
+    code = main(["replay", "--algorithm", "mtt-federated", "--config", str(out / "config.toml"), "--measurements",
+                 str(out / "measurements.jsonl"), "--out", str(tmp_path / "p.jsonl"), "--period", period])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 2 and err == [f"fedtrack: error: --period: must be <= 3600 s (a picture predicts the tracks up to "
+                                 f"a period past their last scan), got {float(period):g}"], err
+    assert not (tmp_path / "p.jsonl").exists()

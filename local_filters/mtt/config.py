@@ -36,6 +36,10 @@ CENTRAL_MANEUVER_WINDOW = 30
 MAX_CENTRAL_MANEUVER_WINDOW = 200  # its banks are kept per ring entry: memory grows with it
 MIN_PERIOD = 1e-3  # [s] pictures at 1 kHz at most: beyond any display or consumer, and a shorter period
 # makes the picture clock (replay, a live centre after a gap) spend its time making predictions
+# [s] a picture predicts the tracks up to a period past their last scan: no further than the services predict
+# (``[deployment] max_time_jump_s``' default); an infinite period wrote a picture at "t": null, 1e300 s tracks of
+# infinite coordinates
+MAX_PERIOD = 3600.0
 
 # [mtt] associator: the association methods of the multi-target tracker (local_filters/mtt/association.py)
 ASSOCIATORS = ("gnn", "jipda", "mht")
@@ -217,6 +221,9 @@ class MttConfig:
                 raise ConfigError(f"{key}: must be > 0")
         if not self.period >= MIN_PERIOD:
             raise ConfigError(f"period: must be >= {MIN_PERIOD:g} s (pictures at 1 kHz at most), got {self.period:g}")
+        if not self.period <= MAX_PERIOD:
+            raise ConfigError(f"period: must be <= {MAX_PERIOD:g} s (a picture predicts the tracks up to a period past "
+                              f"their last scan), got {self.period:g}")
         if self.noise_model not in NOISE_MODELS:
             raise ConfigError(f"noise_model: must be one of {', '.join(NOISE_MODELS)}")
         if self.associator not in ASSOCIATORS:
