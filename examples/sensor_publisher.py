@@ -56,14 +56,19 @@ def first_seq(s: zenoh.Session, prefix: str) -> int:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--connect", default="tcp/127.0.0.1:7447", help="the deployment's router")
-    ap.add_argument("--deployment", default="default", help="key prefix fedtrack/<deployment>/")
-    ap.add_argument("--sensor", default="ext", help="this sensor's id (listed in the deployment's [fusion] sensors)")
-    ap.add_argument("--scans", type=int, default=20)
-    ap.add_argument("--period", type=float, default=1.0, help="scan period T, s (t = seq * T)")
-    ap.add_argument("--sigma", type=float, default=10.0, help="measurement noise std, m")
-    ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--lockstep-timeout", type=float, default=5.0, metavar="SECONDS")
+    ap.add_argument("--connect", default="tcp/127.0.0.1:7447",
+                    help="the deployment's router (default: %(default)s)")
+    ap.add_argument("--deployment", default="demo",
+                    help="key prefix fedtrack/<deployment>/: the [deployment] name (default: %(default)s, "
+                         "as fedtrack's)")
+    ap.add_argument("--sensor", default="ext",
+                    help="this sensor's id (listed in the deployment's [fusion] sensors; default: %(default)s)")
+    ap.add_argument("--scans", type=int, default=20, help="scans to publish (default: %(default)s)")
+    ap.add_argument("--period", type=float, default=1.0, help="scan period T, s (t = seq * T; default: %(default)s)")
+    ap.add_argument("--sigma", type=float, default=10.0, help="measurement noise std, m (default: %(default)s)")
+    ap.add_argument("--seed", type=int, default=1, help="seed of the measurement noise (default: %(default)s)")
+    ap.add_argument("--lockstep-timeout", type=float, default=5.0, metavar="SECONDS",
+                    help="longest wait for the fused track of the previous scan before the next (default: %(default)s)")
     args = ap.parse_args()
     prefix = f"fedtrack/{args.deployment}"
     rng = random.Random(args.seed)

@@ -21,10 +21,14 @@ from wire_contract import decode, from_array, session
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--connect", default="tcp/127.0.0.1:7447", help="the deployment's router")
-    ap.add_argument("--deployment", default="default", help="key prefix fedtrack/<deployment>/")
-    ap.add_argument("--count", type=int, default=0, help="stop after this many tracks (0: never)")
-    ap.add_argument("--timeout", type=float, default=0.0, help="stop after this many seconds (0: never)")
+    ap.add_argument("--connect", default="tcp/127.0.0.1:7447",
+                    help="the deployment's router (default: %(default)s)")
+    ap.add_argument("--deployment", default="demo",
+                    help="key prefix fedtrack/<deployment>/: the [deployment] name (default: %(default)s, "
+                         "as fedtrack's)")
+    ap.add_argument("--count", type=int, default=0, help="stop after this many tracks (0: never; default: %(default)s)")
+    ap.add_argument("--timeout", type=float, default=0.0,
+                    help="stop after this many seconds (0: never; default: %(default)s)")
     args = ap.parse_args()
     key = f"fedtrack/{args.deployment}/fusion/track"
     tracks: queue.Queue[bytes] = queue.Queue()

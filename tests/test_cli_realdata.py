@@ -7,6 +7,9 @@ from __future__ import annotations
 import contextlib
 import gzip
 import json
+import re
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -246,3 +249,18 @@ def test_a_picture_period_beyond_an_hour_is_refused(tmp_path: Path, capsys: pyte
     assert code == 2 and err == [f"fedtrack: error: --period: must be <= 3600 s (a picture predicts the tracks up to "
                                  f"a period past their last scan), got {float(period):g}"], err
     assert not (tmp_path / "p.jsonl").exists()
+
+
+@pytest.mark.parametrize("script", ["sensor_publisher.py", "track_subscriber.py"])
+def test_the_examples_help_gives_every_options_meaning_and_default(script: str) -> None:
+    """Before: --scans, --seed and --lockstep-timeout had no help, no option showed its default, and --deployment
+    defaulted to "default" while a deployment's name defaults to "demo"."""
+    path = Path(__file__).resolve().parent.parent / "examples" / script
+    text = subprocess.run([sys.executable, str(path), "--help"], capture_output=True, text=True, timeout=60,
+                          check=True).stdout
+    options = re.findall(r"^  (--[a-z-]+)", text, re.M)
+    assert len(options) >= 4
+    for option in options:
+        entry = re.search(rf"^  {option}\b(.*?)(?=^  -|\Z)", text, re.M | re.S)
+        assert entry and "default:" in entry.group(1), (option, text)
+    assert "default: demo" in text
