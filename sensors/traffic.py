@@ -192,11 +192,14 @@ def _rows(path: Path) -> tuple[list[str], list[tuple[int, list[Any]]]]:
 def _json_table(obj: Any, path: Path) -> tuple[list[str], list[tuple[int, list[Any]]]]:
     """``(column names, [(row number from 1, values)])`` of a JSON table as pandas' ``to_json`` writes one
     (the ``traffic`` package's samples): an array of row objects (``orient="records"``) or an object of
-    columns, each an object from row label to value (``orient="columns"``, pandas' default)."""
+    columns, each an object from row label to a value that is no object or array (``orient="columns"``, pandas'
+    default)."""
     if isinstance(obj, list) and all(isinstance(row, dict) for row in obj):
         cols = sorted({k for row in obj for k in row})
         return cols, [(i, [row.get(c) for c in cols]) for i, row in enumerate(obj, start=1)]
-    if isinstance(obj, dict) and obj and all(isinstance(col, dict) for col in obj.values()):
+    if isinstance(obj, dict) and obj and all(isinstance(col, dict) and not any(isinstance(v, (dict, list))
+                                                                               for v in col.values())
+                                             for col in obj.values()):
         cols = list(obj)
         labels = list(dict.fromkeys(label for col in obj.values() for label in col))
         return cols, [(i, [obj[c].get(label) for c in cols]) for i, label in enumerate(labels, start=1)]

@@ -90,9 +90,13 @@ def test_a_southern_western_origin_given_with_a_space(tmp_path: Path, capsys: py
     assert "3 aircraft" in capsys.readouterr().out
 
 
-def test_json_that_is_not_a_table_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+@pytest.mark.parametrize("content", [{"name": "SIV TOULOUSE", "shapes": [{"upper": 65.0}]},  # an airspace
+                                     {"result": {"request": {}, "response": {"timestamp": 1704724122}}}],  # fr24
+                         ids=["airspace", "flightradar24"])
+def test_json_that_is_not_a_table_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                              content: dict) -> None:
     bad = tmp_path / "airspace.json"
-    bad.write_text(json.dumps({"name": "SIV TOULOUSE", "shapes": [{"upper": 65.0}]}))
+    bad.write_text(json.dumps(content))
     code = main(["simulate", "traffic", "--source", str(bad), "--origin", "43.6,1.4", "--out", str(tmp_path / "o")])
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert code == 2 and len(err) == 1 and f"{bad}: not a table of state vectors" in err[0], err
