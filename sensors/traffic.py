@@ -475,7 +475,13 @@ def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, star
     rng = np.random.default_rng(seed)
     truth = build_truth(rec, frame, start, duration, box, max_gap)
     if not truth.icao24:
-        raise InputError("no airborne aircraft inside the box during the window")
+        t0 = float(rec.t.min())
+        window = f"{start:g} s to {'the end' if duration is None else f'{start + duration:g} s'} after the first sample"
+        raise InputError(f"no airborne aircraft inside the box during the window (box {box / 1e3:g} km about "
+                         f"{frame.lat:g}, {frame.lon:g}; window {window}); the recording's airborne samples span "
+                         f"{float(rec.t.max()) - t0:g} s, latitudes {rec.lla[:, 0].min():g} to "
+                         f"{rec.lla[:, 0].max():g}, longitudes {rec.lla[:, 1].min():g} to {rec.lla[:, 1].max():g}: "
+                         "move --origin, widen --box or change --start / --duration")
     sensors = parse_sensors(spec, frame, box, rng)
     specs = [s for s, _, _ in sensors]
     steps = truth.alive.shape[0]

@@ -268,3 +268,16 @@ def test_the_examples_help_gives_every_options_meaning_and_default(script: str) 
         entry = re.search(rf"^  {option}\b(.*?)(?=^  -|\Z)", text, re.M | re.S)
         assert entry and "default:" in entry.group(1), (option, text)
     assert "default: demo" in text
+
+
+def test_no_aircraft_in_the_box_says_where_the_recording_is(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Before: 'no airborne aircraft inside the box during the window' and nothing more (18 of the traffic
+    package's samples with an origin at their median position and the first 20 minutes)."""
+    source = _csv(tmp_path / "s.csv", _records())
+    code = main(["simulate", "traffic", "--source", str(source), "--origin", "30,2", "--units", "aviation",
+                 "--out", str(tmp_path / "o")])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 2 and len(err) == 1, err
+    assert "(box 100 km about 30, 2; window 0 s to the end after the first sample)" in err[0]
+    assert "latitudes -33.9 to -33.8605, longitudes 151.18 to 151.2" in err[0]
+    assert not (tmp_path / "o").exists()
