@@ -567,8 +567,8 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--source", required=True, type=Path, help="recorded state vectors (.csv, .json, .jsonl, "
                         ".parquet; .csv, .json and .jsonl may be gzipped; .json: pandas' to_json, as the traffic "
                         "package's samples)")
-    parser.add_argument("--origin", required=True, help="LAT,LON[,H]: the common frame's origin (deg, deg, m; south and west negative, "
-                        "e.g. -33.9,151.2)")
+    parser.add_argument("--origin", required=True, help="LAT,LON[,H]: the common frame's origin (deg, deg, m; "
+                        "south and west negative, e.g. -33.9,151.2)")
     parser.add_argument("--sensors", default="radar:4,radar:5,pos:2",
                         help="comma-separated KIND:PERIOD[@LAT/LON/H] (below; default radar:4,radar:5,pos:2)")
     parser.add_argument("--seed", type=seed_number, default=1, help="seed of the sensors' noise, detections, clutter, "
