@@ -183,6 +183,7 @@ class _VersionAction(argparse.Action):
     def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
                  option_string: str | None = None) -> None:
         print(version())
+        sys.stdout.flush()  # a closed pipe is noticed in main, not at exit
         parser.exit()
 
 
@@ -283,8 +284,8 @@ def _dispatch(parser: argparse.ArgumentParser, args: argparse.Namespace, rest: l
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
-    args, rest = parser.parse_known_args(argv)
     try:
+        args, rest = parser.parse_known_args(argv)  # --version prints here
         code = _dispatch(parser, args, rest)
         sys.stdout.flush()  # here, so that a closed pipe is noticed below rather than at exit
         return code

@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import gzip
 import json
+import os
 import re
 import subprocess
 import sys
@@ -281,3 +282,16 @@ def test_no_aircraft_in_the_box_says_where_the_recording_is(tmp_path: Path, caps
     assert "(box 100 km about 30, 2; window 0 s to the end after the first sample)" in err[0]
     assert "latitudes -33.9 to -33.8605, longitudes 151.18 to 151.2" in err[0]
     assert not (tmp_path / "o").exists()
+
+
+def test_version_into_a_closed_pipe_ends_quietly() -> None:
+    """``fedtrack --version | true``: was a BrokenPipeError traceback, exit 1 (--version prints while the command
+    line is parsed, outside the closed-pipe handling)."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        proc = subprocess.run([sys.executable, "-m", "fedtrack.cli", "--version"], stdout=write_end,
+                              stderr=subprocess.PIPE, text=True, timeout=60)
+    finally:
+        os.close(write_end)
+    assert proc.returncode == 141 and proc.stderr == "", proc.stderr
