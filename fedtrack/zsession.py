@@ -24,7 +24,7 @@ from typing import Any, Callable
 import zenoh
 
 from fedtrack.config import ConfigError
-from fedtrack.deployment import on_loopback
+from fedtrack.deployment import listen_address, on_loopback
 from fedtrack.keys import DEFAULT_DEPLOYMENT, InvalidName, check_id
 
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
@@ -143,10 +143,18 @@ def wait_alive(session: zenoh.Session, keys: list[str], timeout_s: float) -> set
 
 
 def _endpoint_arg(value: str) -> str:
+    """``--connect`` / ``--listen``: an endpoint, an IP protocol's ``HOST:PORT`` with a port in 1-65535
+    (``tcp/127.0.0.1:99999`` was called off loopback)."""
     try:
-        return check_endpoint(value)
+        check_endpoint(value)
+        if not value.startswith("unixsock-stream/"):
+            listen_address(value, "endpoint")
+    except ConfigError:
+        raise argparse.ArgumentTypeError(f"invalid endpoint {value!r}: not PROTO/HOST:PORT with a port in "
+                                         "1-65535") from None
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+    return value
 
 
 def id_arg(what: str) -> Callable[[str], str]:

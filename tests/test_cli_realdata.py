@@ -295,3 +295,29 @@ def test_version_into_a_closed_pipe_ends_quietly() -> None:
     finally:
         os.close(write_end)
     assert proc.returncode == 141 and proc.stderr == "", proc.stderr
+
+
+@pytest.mark.parametrize("argv", [["serve", "router", "--listen", "tcp/127.0.0.1:99999"],
+                                  ["serve", "recorder", "--connect", "tcp/127.0.0.1:70000", "--db", "r.db"],
+                                  ["serve", "sensor", "--connect", "tcp/127.0.0.1:0"]], ids=lambda a: a[1])
+def test_an_endpoint_port_out_of_range_is_named_as_such(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                        monkeypatch: pytest.MonkeyPatch, argv: list[str]) -> None:
+    """Before: 'tcp/127.0.0.1:99999 is off loopback and not tls/ ...: give --insecure', and with --insecure the
+    router started and logged Zenoh's 'invalid port value'."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "not PROTO/HOST:PORT with a port in 1-65535" in err and "loopback" not in err, err
+
+
+@pytest.mark.parametrize("option", [["--out", "missing/o"], ["--db", "missing/r.db"]], ids=lambda a: a[0])
+def test_serve_recorder_checks_its_outputs_before_it_connects(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                              monkeypatch: pytest.MonkeyPatch,
+                                                              option: list[str]) -> None:
+    """Before: it connected first (a timeout without a router) and then made the missing folders above --out."""
+    monkeypatch.chdir(tmp_path)
+    code = main(["serve", "recorder", "--connect", "tcp/127.0.0.1:9", "--connect-timeout", "0.5", *option])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 2 and len(err) == 1 and "the folder missing does not exist" in err[0], err
+    assert list(tmp_path.iterdir()) == []

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from fedtrack.deployment import deployment_of
+from fedtrack.jsonl import check_output, check_output_folder
 from fedtrack.recording import RECORDED, TABLE_OF, TABLES, Recording
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
 from fedtrack.wire import Message
@@ -78,6 +79,10 @@ def main(argv: list[str]) -> int:
                         "(default: deployment.out of --config)")
     parser.add_argument("--config", type=Path, help="configuration file; reads [deployment] (name, connect, out)")
     args = parser.parse_args(argv)
+    if args.out is not None:  # given here, not [deployment] out (which is created whole): checked before connecting
+        check_output_folder(args.out)
+    if args.db is not None:
+        check_output(args.db)
     kwargs = service_kwargs(parser, args)
     dep = deployment_of(args.config)
     out = args.out or (Path(dep.out) if dep is not None else None)
