@@ -20,7 +20,7 @@ from typing import Any
 
 from fedtrack.config import ConfigError
 from fedtrack.geodetic import Frame, FrameConfig, add_geodetic, load_frame, wrap_lon
-from fedtrack.jsonl import InputError, check_output, output_file, read_jsonl
+from fedtrack.jsonl import InputError, check_output, output_file, picture_rows, read_jsonl
 
 
 def _paths(path: Path, key: str, frame: Frame, confirmed_only: bool) -> dict[Any, dict[str, Any]]:
@@ -28,9 +28,7 @@ def _paths(path: Path, key: str, frame: Frame, confirmed_only: bool) -> dict[Any
     out: dict[Any, dict[str, Any]] = {}
     for lineno, obj in read_jsonl(path):
         where = f"{path}:{lineno}"
-        rows = obj.get(key)
-        if not isinstance(obj.get("t"), (int, float)) or not isinstance(rows, list):
-            raise InputError(f"{where}: expected {{\"t\": number, \"{key}\": [...]}}")
+        rows = picture_rows(obj, key, where)
         if confirmed_only:
             rows = [r for r in rows if r.get("status", "confirmed") == "confirmed"]
         try:

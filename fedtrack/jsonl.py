@@ -170,6 +170,23 @@ SONAR_FIELDS = COMMON_FIELDS | {"z", "detections"}
 RADAR_FIELDS = COMMON_FIELDS | {"z", "sensor_position"}
 
 
+#: a picture line's rows: a tracks file's "tracks", a truth file's "targets" (one given for the other is named)
+PICTURE_ROWS = {"tracks": ("targets", "--truth"), "targets": ("tracks", "--tracks")}
+
+
+def picture_rows(obj: dict[str, Any], key: str, where: str) -> list[Any]:
+    """The ``key`` rows (``tracks`` or ``targets``) of a line ``{"t": number, key: [...]}``; an InputError naming
+    ``where`` otherwise, and saying which option a truth file given as tracks (or the reverse) belongs to."""
+    other, option = PICTURE_ROWS[key]
+    if key not in obj and other in obj:
+        raise InputError(f"{where}: has \"{other}\" where \"{key}\" is expected: give the "
+                         f"{option.lstrip('-')} file to {option}")
+    rows = obj.get(key)
+    if not is_number(obj.get("t")) or not isinstance(rows, list):
+        raise InputError(f"{where}: expected {{\"t\": number, \"{key}\": [...]}}")
+    return rows
+
+
 def check_fields(obj: dict[str, Any], allowed: frozenset[str], kind: str, where: str) -> None:
     """The one rule for input lines: a field outside ``allowed``, or a ``kind`` other than
     ``kind``, is an :class:`InputError` naming ``file:line`` and the field."""

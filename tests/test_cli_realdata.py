@@ -321,3 +321,18 @@ def test_serve_recorder_checks_its_outputs_before_it_connects(tmp_path: Path, ca
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert code == 2 and len(err) == 1 and "the folder missing does not exist" in err[0], err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_export_geojson_names_a_truth_file_given_as_tracks(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Before: 'expected {"t": number, "tracks": [...]}' (evaluate said which option the file belongs to; export
+    had its own copy of the check without it)."""
+    out = tmp_path / "S"
+    assert main(["simulate", "traffic", "--source", str(_csv(tmp_path / "s.csv", _records())),
+                 "--origin=-33.89,151.19", "--units", "aviation", "--sensors", "pos:2", "--out", str(out)]) == 0
+    capsys.readouterr()
+    code = main(["export", "--geojson", str(tmp_path / "g.geojson"), "--config", str(out / "config.toml"),
+                 "--tracks", str(out / "truth.jsonl")])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 2 and err == [f"fedtrack: error: {out / 'truth.jsonl'}:1: has \"targets\" where \"tracks\" is "
+                                 "expected: give the truth file to --truth"], err
+    assert not (tmp_path / "g.geojson").exists()

@@ -49,7 +49,7 @@ from scipy.special import chdtri
 
 from fedtrack.fusion_center.mtt.earthmap import TRUTH_GREY, plot_map, track_colours
 from fedtrack.geodetic import load_frame
-from fedtrack.jsonl import InputError, check_output, is_number, output_file, read_jsonl
+from fedtrack.jsonl import InputError, check_output, is_number, output_file, picture_rows, read_jsonl
 from fedtrack.local_filters.linear.kalman import nees
 
 MANEUVER_ACCEL = 1.0  # m/s^2: a truth target accelerating at least this much is maneuvering
@@ -106,20 +106,11 @@ def id_changes(sequence: list[int | None]) -> tuple[int, int]:
     return switches, fragments
 
 
-OTHER = {"tracks": "targets", "targets": "tracks"}  # a truth file given as tracks, or the reverse
-
-
 def _load(path: Path, key: str) -> list[tuple[float, list[dict[str, Any]]]]:
     out = []
     for lineno, obj in read_jsonl(path):
         where = f"{path}:{lineno}"
-        if key not in obj and OTHER[key] in obj:
-            raise InputError(f"{where}: has \"{OTHER[key]}\" where \"{key}\" is expected: give the "
-                             f"{'truth' if key == 'tracks' else 'tracks'} file to "
-                             f"--{'truth' if key == 'tracks' else 'tracks'}")
-        if not is_number(obj.get("t")) or not isinstance(obj.get(key), list):
-            raise InputError(f"{where}: expected {{\"t\": number, \"{key}\": [...]}}")
-        for j, item in enumerate(obj[key]):
+        for j, item in enumerate(picture_rows(obj, key, where)):
             if not isinstance(item, dict) or "id" not in item:
                 raise InputError(f"{where}: {key}[{j}] needs \"id\" and \"x\"")
             x = item.get("x")
