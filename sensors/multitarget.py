@@ -340,8 +340,8 @@ def main(argv: list[str]) -> int:
                         help="number of targets (crossing pairs, turns, some born late or dying early; "
                              "default: %(default)s)")
     parser.add_argument("--sensors", default="pos:1.0,pos:0.7,pos:1.3", metavar="SPEC",
-                        help="comma-separated KIND:PERIOD, KIND pos (2-D position) or radar, PERIOD in seconds "
-                             "(default: %(default)s)")
+                        help=f"comma-separated KIND:PERIOD, KIND pos (2-D position) or radar, PERIOD in seconds, "
+                             f"at least {DT:g} (the truth's time step; default: %(default)s)")
     parser.add_argument("--seed", type=seed_number, default=1, help="seed of truth, noise, clutter and delays "
                         "(default: %(default)s)")
     parser.add_argument("--duration", type=float,
@@ -350,8 +350,8 @@ def main(argv: list[str]) -> int:
                         help=f"probability that a sensor detects a target in a scan (default: {Scenario.pd:g}; "
                              "dense: 0.8)")
     parser.add_argument("--clutter", type=float,
-                        help=f"mean number of false detections per scan (Poisson; default: {Scenario.clutter:g}; "
-                             "dense: 50)")
+                        help=f"mean number of false detections per scan (Poisson; at most {MAX_CLUTTER:.0f}, "
+                             f"a scan replay can read; default: {Scenario.clutter:g}; dense: 50)")
     parser.add_argument("--half-width", type=float, default=Scenario.region, metavar="M",
                         help="half the side of the square area [m]: targets start within 0.7 of it, position "
                              "sensors' clutter is uniform over all of it, radars stand 1.1 of it from the centre "

@@ -41,6 +41,7 @@ from fedtrack.geodetic import (
 from fedtrack.jsonl import InputError, check_output_folder, check_readable, output_file, read_jsonl
 from fedtrack.sensors.multitarget import (
     DT,
+    MAX_CLUTTER,
     RADAR_SD,
     Scenario,
     SensorSpec,
@@ -585,7 +586,8 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--pd", type=float, default=0.9,
                         help="probability that a sensor detects an aircraft in a scan (default: %(default)s)")
     parser.add_argument("--clutter", type=float, default=10.0,
-                        help="mean number of false detections per scan, not ADS-B (Poisson; default: %(default)s)")
+                        help=f"mean number of false detections per scan, not ADS-B (Poisson; at most "
+                             f"{MAX_CLUTTER:.0f}; default: %(default)s)")
     parser.add_argument("--late", type=float, default=0.2,
                         help="fraction of scans delivered late, up to two of their sensor's periods "
                              "(default: %(default)s)")
