@@ -336,3 +336,19 @@ def test_export_geojson_names_a_truth_file_given_as_tracks(tmp_path: Path, capsy
     assert code == 2 and err == [f"fedtrack: error: {out / 'truth.jsonl'}:1: has \"targets\" where \"tracks\" is "
                                  "expected: give the truth file to --truth"], err
     assert not (tmp_path / "g.geojson").exists()
+
+
+def test_evaluate_config_without_plot_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Before: --config without --plot was never read (a missing file, or one with errors, passed unnoticed)."""
+    out = tmp_path / "S"
+    assert main(["simulate", "multitarget", "--targets", "3", "--duration", "5", "--out", str(out)]) == 0
+    tracks = tmp_path / "c.jsonl"
+    assert main(["replay", "--algorithm", "mtt-centralized", "--config", str(out / "config.toml"),
+                 "--measurements", str(out / "measurements.jsonl"), "--out", str(tracks)]) == 0
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exit_:
+        main(["evaluate", "--tracks", str(tracks), "--truth", str(out / "truth.jsonl"), "--config",
+              str(tmp_path / "missing.toml"), "--json", str(tmp_path / "e.json")])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "--config applies with --plot" in err, err
+    assert not (tmp_path / "e.json").exists()

@@ -406,8 +406,10 @@ def main(argv: list[str]) -> int:
             check_output(path)
     if args.plot is not None:
         check_figure_format(args.plot)
+    if args.config is not None and args.plot is None:
+        parser.error("--config applies with --plot (its [frame] draws the map beside the figure)")
+    frame = load_frame(args.config)  # before the evaluation: a bad config fails at start
     result = evaluate(args.tracks, args.truth, args.c, args.p, args.all_tracks, args.horizontal)
-    frame = load_frame(args.config) if args.plot else None
     map_png = args.plot.with_name(args.plot.stem + "-map.png") if frame is not None else None
     if args.json:  # the files first: a reader that stops early (| head) does not cost them
         with output_file(args.json) as fh:
