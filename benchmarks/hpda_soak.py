@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import signal
 import subprocess
 import sys
@@ -150,8 +151,8 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--seed", type=seed_number, default=1, help="seed of the scenario (default: %(default)s)")
     parser.add_argument("--json", type=Path, help="write the result here")
     args = parser.parse_args(argv)
-    if args.minutes < 1.0 or args.rate <= 0.0 or args.clutter <= 0.0:
-        parser.error("--minutes must be >= 1, --rate and --clutter > 0")
+    if not (1.0 <= args.minutes < math.inf and 0.0 < args.rate < math.inf and 0.0 < args.clutter < math.inf):
+        parser.error("--minutes must be finite and >= 1, --rate and --clutter finite and > 0")
     if args.json:
         check_output(args.json)
     result = run(args.minutes, args.clutter, args.rate, args.algorithm, args.seed)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import signal
 import subprocess
@@ -123,8 +124,8 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--json", type=Path, default=Path("soak.json"), help="output JSON (default soak.json)")
     parser.add_argument("--out", type=Path, help="keep the deployment's files here (default: a temporary folder)")
     args = parser.parse_args(argv)
-    if not args.minutes > 0 or not 1 <= args.sensors <= 32:
-        parser.error("--minutes must be > 0 and --sensors between 1 and 32")
+    if not 0 < args.minutes < math.inf or not 1 <= args.sensors <= 32:
+        parser.error("--minutes must be finite and > 0 and --sensors between 1 and 32")
     check_output(args.json)
     if args.out is not None:
         output_folder(args.out)

@@ -352,3 +352,14 @@ def test_evaluate_config_without_plot_is_refused(tmp_path: Path, capsys: pytest.
     err = capsys.readouterr().err
     assert exit_.value.code == 2 and "--config applies with --plot" in err, err
     assert not (tmp_path / "e.json").exists()
+
+
+@pytest.mark.parametrize("argv", [["bench", "soak", "--minutes", "inf"], ["bench", "hpda-soak", "--minutes", "inf"],
+                                  ["bench", "hpda-soak", "--rate", "inf"]], ids=" ".join)
+def test_an_endless_soak_is_refused_at_start(capsys: pytest.CaptureFixture[str], argv: list[str]) -> None:
+    """Before: soak ran a deployment that failed and said '/tmp/...: summary.json: No such file or directory';
+    hpda-soak raised OverflowError in a thread and hung."""
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "must be finite" in err and "Traceback" not in err, err
