@@ -154,7 +154,8 @@ def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="fedtrack demo", description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("fedtrack-out"),
                         help="output folder (created if missing; its own folder must exist; default: %(default)s)")
-    parser.add_argument("--sensors", type=int, default=2, help="number of sensors (default 2)")
+    parser.add_argument("--sensors", type=int, help="scenario 1 or 2: number of sensors, 1-32 (default 2; the "
+                        "multitarget and traffic scenarios have their own sensor sets)")
     parser.add_argument("--scenario", choices=("1", "2", "multitarget", "traffic"), default="1",
                         help="paper 004 scenario 1 or 2, the live multi-target deployment, or the live deployment "
                              "on recorded air traffic (default: %(default)s)")
@@ -171,6 +172,9 @@ def main(argv: list[str]) -> int:
                         help="plain TCP without authentication (default: mutual TLS and access control, "
                              f"certificates made on first use in OUT/{CERTS})")
     args = parser.parse_args(argv)
+    if args.sensors is not None and args.scenario in ("multitarget", "traffic"):
+        parser.error(f"--sensors applies to --scenario 1 or 2 only ({args.scenario} has its own sensor set)")
+    args.sensors = 2 if args.sensors is None else args.sensors
     if not 1 <= args.sensors <= 32:
         parser.error("--sensors must be between 1 and 32")
     if (args.source is not None or args.units != "si") and args.scenario != "traffic":

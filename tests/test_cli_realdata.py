@@ -212,10 +212,12 @@ def test_reproduce_with_one_run_is_one_line(tmp_path: Path, capsys: pytest.Captu
 
 
 @pytest.mark.parametrize("argv", [["--source", "x.csv"], ["--scenario", "traffic", "--source", "missing.csv"],
-                                  ["--units", "aviation"]], ids=" ".join)
+                                  ["--units", "aviation"], ["--scenario", "multitarget", "--sensors", "5"]],
+                         ids=" ".join)
 def test_demo_input_errors_leave_no_output_folder(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                                   argv: list[str]) -> None:
-    """Before: the demo made --out, then failed (an empty folder left behind)."""
+    """Before: the demo made --out, then failed (an empty folder left behind); --sensors was ignored by the
+    multitarget and traffic scenarios (a live run with their own three sensors)."""
     with contextlib.suppress(SystemExit):
         main(["demo", *argv, "--out", str(tmp_path / "o")])
     assert "error" in capsys.readouterr().err
