@@ -18,7 +18,9 @@ published before (a region's picture that comes after its time was merged is cou
 replay then differ at that picture; when they do not fit beside the regions' own entries in one
 merged picture, they are dropped, counted ``late_dropped``). A region picture holding more tracks
 or entries than its share of one merged picture (``PICTURE_ITEMS`` / regions) is rejected
-(``too_large``). On a clean stop it merges what it holds and publishes a closing record with the
+(``too_large``). A region picture not after the latest queued from its region is a ``duplicate``
+when equal to the one queued for its time, else refused (``conflict``) and the next merged
+picture marked ``contested``. On a clean stop it merges what it holds and publishes a closing record with the
 regions' closing lists.
 """
 
@@ -36,7 +38,7 @@ from fedtrack.config import ConfigError
 from fedtrack.fusion_center.mtt.regional import RegionPicture, merge_pictures, rows_of
 from fedtrack.fusion_center.mtt.service import PICTURE_ITEMS, picture_message, picture_tracks
 from fedtrack.local_filters.regions import Regions, load_regions
-from fedtrack.services.base import Rejected, Service, Subscription, service_kwargs, service_parser
+from fedtrack.services.base import Conflict, Rejected, Service, Subscription, digest, service_kwargs, service_parser
 from fedtrack.services.lead import LeadGuard
 from fedtrack.wire import TrackPicture
 
@@ -72,7 +74,7 @@ class PictureMergeService(Service):
 
     role = "picture"
     tick_period_s = 0.05
-    state_attrs = ("pending", "started", "closing", "late", "merged_t", "seq", "lead")
+    state_attrs = ("pending", "started", "closing", "late", "merged_t", "seq", "lead", "contested")
 
     def __init__(self, regions: Regions, dim: int = 4, wait_s: float = 2.0, **kwargs: Any) -> None:
         super().__init__(**kwargs)
@@ -85,6 +87,7 @@ class PictureMergeService(Service):
         self.first_seen: dict[float, float] = {}  # picture time -> monotonic time of its first region picture
         self.merged_t: float | None = None
         self.seq = 0
+        self.contested = False  # a region sent a second, different picture of a time it had sent: the next merge says so
         # a region picture stamped far ahead of the others waits for a witness (fedtrack/services/lead.py)
         self.lead: LeadGuard[TrackPicture] = LeadGuard(max_lag=0.0)
 
@@ -111,7 +114,22 @@ class PictureMergeService(Service):
         self._merge()
 
     def _take(self, r: int, msg: TrackPicture) -> None:
-        """Queue region ``r``'s picture for its time, or count it late when that time was merged."""
+        """Queue region ``r``'s picture for its time, or count it late when that time was merged. A
+        region's pictures come in time order: one not after the latest queued (a re-sent picture, or
+        two primaries' during a split brain) is a ``duplicate`` when equal to the one queued for its
+        time, else rejected (``conflict``; the first stays) and the next merged picture ``contested``."""
+        queued = self.pending[r]
+        if queued and msg.t <= queued[-1].t:
+            first = next((p for p in queued if p.t == msg.t), None)
+            if first is not None and digest(first) == digest(msg):
+                self.count("duplicate")
+                return
+            if not self.contested:
+                self.count("contested")
+            self.contested = True
+            self.note_rejected(self.keys.region_picture(self.regions.ids[r]), Conflict(msg.seq, (
+                f"region {self.regions.ids[r]}'s picture at t={msg.t}: it has queued one at t={queued[-1].t}")))
+            return
         self.lead.took(self.regions.ids[r], msg.t)
         if self.merged_t is not None and msg.t <= self.merged_t:
             self.count("late_picture")
@@ -161,7 +179,8 @@ class PictureMergeService(Service):
         order = [(s, q) for s, q, _, _ in entries]
         left = [i for i, e in enumerate(entries) if e[2] == "left"]
         handovers = [i for i, e in enumerate(entries) if e[2] == "handover"]
-        contested = contested or any(p is not None and p.contested for p in parts)
+        contested = contested or self.contested or any(p is not None and p.contested for p in parts)
+        self.contested = False
         self.publish(self.keys.mtt_picture(), picture_message(
             self.seq, T, tracks, order, left, contested, closing, handovers, tuple(e[3] for e in entries)))
         self.seq += 1
