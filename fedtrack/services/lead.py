@@ -27,6 +27,21 @@ after its previous one, however its scans overtake each other; four cannot be la
 ``HELD_MAX`` scans and ``HELD_BYTES`` are held (the oldest beyond them dropped, counted): a
 deployment's sensors resume within a few scans of each other, and a flood of leading scans must
 not grow a tracker.
+
+**Corroboration** (``corroborate``: the multi-target centres, live and in the replay). The rule
+above bounds one scan's lead over the newest time, not how fast one sensor moves that time on:
+a sensor sending its scans one usual interval apart but faster than the data comes (a compromised
+tracker counting ahead) made the centre's clock run away, every other sensor's scans late and
+the pictures empty. So when at least ``CORROBORATORS`` other sensors are live, a scan that the
+rule above gives is taken only if another sensor ``o`` has reached near its time: a scan of
+``o`` taken, given or waiting at most ``reach(o) = max_lag + usual(o)`` before it. Else it
+waits (bounded as the held scans, the oldest dropped, counted), and is taken, in time order with
+what comes, once another sensor's data gets there or fewer other sensors are live. ``reach``:
+``max_lag`` bounds how far a scan arrives behind the newest one (docs/multitarget.md, "Simulated
+delays and max_lag"), so when a scan at ``t`` arrives every other sensor has one taken at least
+``t - max_lag - usual(o)`` (its scans one interval apart, each within ``max_lag``): honest data
+never waits. One liar among three or more sensors is outvoted; of two, nothing tells the racing
+clock from the lagging one, and the rule is off.
 """
 
 from __future__ import annotations
@@ -49,6 +64,9 @@ HELD_MAX = wire.MAX_LIST_ITEMS
 # and at most one largest message's worth of bytes (a report joined from MAX_PARTS parts: the
 # reassembly's own bound, services/reassembly.py): a flood of large leading reports cannot grow a service
 HELD_BYTES = wire.MAX_PARTS * wire.MAX_PAYLOAD_BYTES
+# other live sensors needed before a scan must be corroborated: with one other, a racing clock and a
+# lagging one cannot be told apart
+CORROBORATORS = 2
 
 class Times(NamedTuple):
     """What :meth:`LeadGuard.took` changes (:meth:`LeadGuard.times`, :meth:`LeadGuard.restore`)."""
@@ -76,6 +94,8 @@ class LeadGuard(Generic[T]):
     live: set[str] = field(default_factory=set)  # sensors taken and not left
     held: list[tuple[str, float, T, int]] = field(default_factory=list)  # (sensor, t, item, bytes), arrival order
     dropped: int = 0  # held scans never witnessed (or beyond HELD_MAX): not taken
+    corroborate: bool = False  # scans wait for another sensor's data near their time (module docstring)
+    waiting: list[tuple[str, float, T, int]] = field(default_factory=list)  # not corroborated yet, arrival order
 
     def bound(self, sensor: str) -> float:
         """How far after the newest time a scan of ``sensor`` may be and still be taken at once."""
@@ -86,22 +106,50 @@ class LeadGuard(Generic[T]):
     def admit(self, sensor: str, t: float, item: T, size: int = 0) -> list[T]:
         """The items to take now, in order, on the arrival of ``item`` (``sensor``'s, at ``t``, of
         about ``size`` bytes): ``[item]`` when it does not lead; ``[]`` while it is held; the
-        witnessed held items and ``item`` when it is a witness. The caller reports each item it
-        took with :meth:`took`."""
+        witnessed held items and ``item`` when it is a witness; with ``corroborate``, of those and
+        the waiting ones, the corroborated, in time order. The caller reports each item it took
+        with :meth:`took`."""
+        given = self._witnessed(sensor, t, item, size)
+        if not self.corroborate:
+            return [g[2] for g in given]
+        pool = self.waiting + given
+        reached = {o: self.last[o] for o in self.live}
+        for s, at, _, _ in pool:
+            reached[s] = max(at, reached.get(s, at))
+        taken = [p for p in pool if self._corroborated(p[0], p[1], reached)]
+        self.waiting = [p for p in pool if not any(p is q for q in taken)]
+        self.dropped += _bounded(self.waiting)
+        return [p[2] for p in sorted(taken, key=lambda p: p[1])]
+
+    def _witnessed(self, sensor: str, t: float, item: T, size: int) -> list[tuple[str, float, T, int]]:
+        """The lead rule (module docstring): what to take now, as (sensor, t, item, bytes)."""
+        arrived = (sensor, t, item, size)
         if self.newest is None or t - self.newest <= self.bound(sensor):
             self.dropped += len(self.held)
             self.held.clear()
-            return [item]
+            return [arrived]
         if not any(abs(t - h[1]) <= self.bound(h[0]) and self._witnesses(sensor, t, h) for h in self.held):
-            self.held.append((sensor, t, item, size))
-            while len(self.held) > HELD_MAX or sum(h[3] for h in self.held) > HELD_BYTES:
-                self.held.pop(0)
-                self.dropped += 1
+            self.held.append(arrived)
+            self.dropped += _bounded(self.held)
             return []
-        taken = [h[2] for h in self.held if abs(t - h[1]) <= self.bound(h[0])]
+        taken = [h for h in self.held if abs(t - h[1]) <= self.bound(h[0])]
         self.dropped += len(self.held) - len(taken)
         self.held.clear()
-        return [*taken, item]
+        return [*taken, arrived]
+
+    def _corroborated(self, sensor: str, t: float, reached: dict[str, float]) -> bool:
+        """Whether a scan of ``sensor`` at ``t`` may be taken: fewer than CORROBORATORS other
+        sensors are live, or another sensor's data (``reached``: each sensor's newest time taken,
+        given or waiting) is within its reach of ``t``."""
+        if len(self.live - {sensor}) < CORROBORATORS:
+            return True
+        return any(at >= t - self.max_lag - self._usual(o) for o, at in reached.items() if o != sensor)
+
+    def _usual(self, sensor: str) -> float:
+        """``sensor``'s usual interval; without one, the longest of the others' (none: infinite)."""
+        if sensor in self.usual:
+            return self.usual[sensor]
+        return max(self.usual.values()) if self.usual else float("inf")
 
     def _witnesses(self, sensor: str, t: float, held: tuple[str, float, T, int]) -> bool:
         """Whether a leading scan of ``sensor`` at ``t`` witnesses ``held``: another sensor's, or
@@ -119,11 +167,12 @@ class LeadGuard(Generic[T]):
         self.live.add(sensor)
 
     def end(self) -> int:
-        """The data ended (a replay's input, a service stopping): the scans still held are dropped;
-        returns how many."""
-        n = len(self.held)
+        """The data ended (a replay's input, a service stopping): the scans still held or waiting are
+        dropped; returns how many."""
+        n = len(self.held) + len(self.waiting)
         self.dropped += n
         self.held.clear()
+        self.waiting.clear()
         return n
 
     def times(self) -> Times:
@@ -138,6 +187,15 @@ class LeadGuard(Generic[T]):
     def leave(self, sensor: str) -> None:
         """``sensor`` left: it no longer keeps another sensor's lone scans from witnessing themselves."""
         self.live.discard(sensor)
+
+
+def _bounded(items: list[tuple[str, float, T, int]]) -> int:
+    """Drop the oldest of ``items`` beyond HELD_MAX items or HELD_BYTES; returns how many."""
+    n = 0
+    while len(items) > HELD_MAX or sum(i[3] for i in items) > HELD_BYTES:
+        items.pop(0)
+        n += 1
+    return n
 
 
 class Numbered(Protocol):

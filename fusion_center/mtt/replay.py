@@ -70,7 +70,7 @@ def pictures(engine: Engine, scans: list[SensorScan | SensorLeft], period: float
     """Feed ``scans`` in arrival order and yield each picture once the data has passed its time; a
     scan stamped far ahead of the data waits for a witness (:class:`LeadGuard`, ``engine.lead``)."""
     clock = PictureClock(period, delay)
-    engine.lead = guard = engine.lead or LeadGuard(engine.cfg.max_lag)
+    engine.lead = guard = engine.lead or LeadGuard(engine.cfg.max_lag, corroborate=True)
     recorded = any(isinstance(item, SensorLeft) for item in scans)  # a live centre's departures
     heard: dict[str, float] = {}  # sensor -> the data's time (the newest scan taken) at its last scan
     for item in scans:

@@ -149,7 +149,8 @@ class MttCentreService(Service):
         self.taken: dict[str, dict[int, bytes]] = {}  # sending region -> its last HANDOVERS_KEPT numbers taken: digest
         self.clock = PictureClock(cfg.period, cfg.picture_delay)
         # a scan or report stamped far ahead of the data waits for a witness (fedtrack/services/lead.py)
-        self.lead: LeadGuard[Measurement | TrackReport] = LeadGuard(cfg.max_lag)
+        # ... and, beside two or more other live sensors, for another sensor's data near its time
+        self.lead: LeadGuard[Measurement | TrackReport] = LeadGuard(cfg.max_lag, corroborate=True)
         self.order: list[tuple[str, int]] = []  # scans processed since the last picture
         self.left_at: list[int] = []  # positions in ``order`` that are departures
         self.pictures = 0
@@ -233,12 +234,13 @@ class MttCentreService(Service):
         return False
 
     def _take(self, msg: Measurement | TrackReport) -> None:
-        """Process ``msg`` (checked; :meth:`_process`) unless it is stamped far ahead of the data: then
-        it waits for a witness (:class:`LeadGuard`; taken as received meanwhile), and the messages
-        it witnesses are processed before it."""
+        """Process ``msg`` (checked; :meth:`_process`) unless it is stamped far ahead of the data, or
+        ahead of every other sensor's: then it waits for a witness or another sensor's data
+        (:class:`LeadGuard`; taken as received meanwhile), and the messages released with it are
+        processed in time order."""
         key = self.keys.mtt_report(msg.sensor) if isinstance(msg, TrackReport) else self.keys.sensor_meas(msg.sensor)
         released = self.in_time(self.lead, key, msg)
-        if not released:
+        if not any(item is msg for item in released):
             self.received.take(msg)
         for held in released:
             self._process(held)
