@@ -37,8 +37,10 @@ def test_a_region_picture_sent_twice_for_one_time_neither_stalls_nor_repeats_the
     region's queue: the merge of that time then looked up its first sighting, already forgotten
     (``KeyError``), the merger's state was put back after it had published, and every tick (20 Hz)
     published the same merged picture again (same ``seq``) and failed: ``serve picture`` never
-    merged another time. Now the second picture is refused (``conflict``; an identical one is a
-    ``duplicate``), the next merged picture is ``contested``, and every time is merged once."""
+    merged another time. After the merge of its time, such a picture was a ``late_picture``, its
+    entries listed a second time in the next merged picture. Now the second picture is refused
+    (``conflict``; an identical one is a ``duplicate``), the next merged picture is ``contested``,
+    and every time is merged once, each region's entries once."""
     config = tmp_path / "regions.toml"
     config.write_text(REGIONS_CONFIG)
     regions = load_regions(config)
@@ -53,16 +55,19 @@ def test_a_region_picture_sent_twice_for_one_time_neither_stalls_nor_repeats_the
     for _ in range(3):  # the service's ticks, as its loop runs them
         with svc.guarded("on_tick", svc.tick_state_attrs):
             svc.on_tick()
+    bus.put(a, encode(region_picture(0.0, (0, 2))))  # after t = 0 was merged: the same picture ...
+    bus.put(b, encode(region_picture(0.0, (1, 3), x=5.0)))  # ... and a different one
     for k in range(1, 4):
         bus.put(a, encode(region_picture(float(k), (0, 2))))
         bus.put(b, encode(region_picture(float(k), (1, 3))))
     merged = bus.of(TrackPicture)
     assert "rejected_handler_error" not in svc.counters
     assert [(p.seq, p.t) for p in merged] == [(0, 0.0), (1, 1.0), (2, 2.0), (3, 3.0)]
-    assert svc.counters["duplicate"] == 1 and svc.counters["rejected_conflict"] == 1 and svc.counters["contested"] == 1
-    assert [p.contested for p in merged] == [True, False, False, False]
-    assert merged[0].ids == (0, 1, 2, 3) and not merged[0].x.any()  # the first picture of region a stays
-    assert merged[0].fused_seqs == (0, 0)  # each region's entries once
+    assert svc.counters["duplicate"] == 2 and svc.counters["rejected_conflict"] == 2 and svc.counters["contested"] == 2
+    assert "late_picture" not in svc.counters  # a re-sent picture is no late one: its entries are not listed again
+    assert [p.contested for p in merged] == [True, True, False, False]
+    assert merged[0].ids == (0, 1, 2, 3) and not merged[0].x.any()  # the first picture of each region stays
+    assert [p.fused_seqs for p in merged] == [(k, k) for k in range(4)]  # each region's entries once
 
 
 def empty_report(last: TrackReport, t: float) -> TrackReport:

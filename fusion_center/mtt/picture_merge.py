@@ -18,8 +18,8 @@ published before (a region's picture that comes after its time was merged is cou
 replay then differ at that picture; when they do not fit beside the regions' own entries in one
 merged picture, they are dropped, counted ``late_dropped``). A region picture holding more tracks
 or entries than its share of one merged picture (``PICTURE_ITEMS`` / regions) is rejected
-(``too_large``). A region picture not after the latest queued from its region is a ``duplicate``
-when equal to the one queued for its time, else refused (``conflict``) and the next merged
+(``too_large``). A region picture not after the latest taken from its region is a ``duplicate``
+when equal to the one taken for its time, else refused (``conflict``) and the next merged
 picture marked ``contested``. On a clean stop it merges what it holds and publishes a closing record with the
 regions' closing lists.
 """
@@ -74,7 +74,7 @@ class PictureMergeService(Service):
 
     role = "picture"
     tick_period_s = 0.05
-    state_attrs = ("pending", "started", "closing", "late", "merged_t", "seq", "lead", "contested")
+    state_attrs = ("pending", "started", "closing", "late", "merged_t", "seq", "lead", "latest", "contested")
 
     def __init__(self, regions: Regions, dim: int = 4, wait_s: float = 2.0, **kwargs: Any) -> None:
         super().__init__(**kwargs)
@@ -87,6 +87,7 @@ class PictureMergeService(Service):
         self.first_seen: dict[float, float] = {}  # picture time -> monotonic time of its first region picture
         self.merged_t: float | None = None
         self.seq = 0
+        self.latest: list[TrackPicture | None] = [None] * R  # each region's latest picture taken (queued or merged)
         self.contested = False  # a region sent a second, different picture of a time it had sent: the next merge says so
         # a region picture stamped far ahead of the others waits for a witness (fedtrack/services/lead.py)
         self.lead: LeadGuard[TrackPicture] = LeadGuard(max_lag=0.0)
@@ -115,12 +116,13 @@ class PictureMergeService(Service):
 
     def _take(self, r: int, msg: TrackPicture) -> None:
         """Queue region ``r``'s picture for its time, or count it late when that time was merged. A
-        region's pictures come in time order: one not after the latest queued (a re-sent picture, or
-        two primaries' during a split brain) is a ``duplicate`` when equal to the one queued for its
-        time, else rejected (``conflict``; the first stays) and the next merged picture ``contested``."""
-        queued = self.pending[r]
-        if queued and msg.t <= queued[-1].t:
-            first = next((p for p in queued if p.t == msg.t), None)
+        region's pictures come in time order: one not after the latest taken from it (a re-sent
+        picture, or two primaries' during a split brain, before or after the merge of its time) is a
+        ``duplicate`` when equal to the one taken for its time, else rejected (``conflict``; the
+        first stays) and the next merged picture ``contested``."""
+        latest = self.latest[r]
+        if latest is not None and msg.t <= latest.t:
+            first = next((p for p in (*self.pending[r], latest) if p.t == msg.t), None)
             if first is not None and digest(first) == digest(msg):
                 self.count("duplicate")
                 return
@@ -128,8 +130,9 @@ class PictureMergeService(Service):
                 self.count("contested")
             self.contested = True
             self.note_rejected(self.keys.region_picture(self.regions.ids[r]), Conflict(msg.seq, (
-                f"region {self.regions.ids[r]}'s picture at t={msg.t}: it has queued one at t={queued[-1].t}")))
+                f"region {self.regions.ids[r]}'s picture at t={msg.t}: it has sent one at t={latest.t}")))
             return
+        self.latest[r] = msg
         self.lead.took(self.regions.ids[r], msg.t)
         if self.merged_t is not None and msg.t <= self.merged_t:
             self.count("late_picture")
