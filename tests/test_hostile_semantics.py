@@ -233,12 +233,14 @@ def test_the_merger_outlives_region_pictures_it_cannot_merge(tmp_path: Path) -> 
             svc._dispatch(("sample", r, KEYS.region_picture(regions.ids[r]), payload))
 
     share = MAX_PARTS * MAX_TRACKS // 2
-    for k in range(2):
-        send(0, region_picture(float(k), 1))
-        send(1, region_picture(float(k), 1))
+    send(0, region_picture(0.0, 1))
+    send(1, region_picture(0.0, 1))
+    svc.wait_s = 0.0  # t = 1 merged without region 1, which is behind
+    send(0, region_picture(1.0, 1))
+    svc.wait_s = 2.0
     late = share * 3 // 4
-    for _ in range(3):  # late: after t = 1 was merged
-        send(0, region_picture(0.5, late))
+    for t in (0.25, 0.5, 1.0):  # region 1's next pictures, late: after t = 1 was merged
+        send(1, region_picture(t, late))
     for k in range(2, 5):
         send(0, region_picture(float(k), 1))
         send(1, region_picture(float(k), 1))

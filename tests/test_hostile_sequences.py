@@ -17,6 +17,7 @@ from test_mtt_regions_live import CONFIG as REGIONS_CONFIG
 
 from fedtrack.fusion_center.mtt.picture_merge import PictureMergeService
 from fedtrack.fusion_center.mtt.service import MttCentreService
+from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.regions import load_regions
 from fedtrack.services.lead import HELD_MAX, LeadGuard
 from fedtrack.wire import TrackPicture, TrackReport, encode
@@ -157,3 +158,41 @@ def test_a_scan_ahead_of_every_other_sensor_waits_and_is_taken_in_time_order() -
         assert crowd.admit("a", 5.5 + k * 1e-3, k) == []
     assert len(crowd.waiting) == HELD_MAX and crowd.dropped == 5 and crowd.waiting[0][2] == 5
     assert crowd.end() == HELD_MAX and crowd.dropped == HELD_MAX + 5
+
+
+def one_track_report(sensor: str, seq: int, t: float) -> TrackReport:
+    """A report of one confirmed local track (id 1) of a target at (10 t, 0) moving at 10 m/s."""
+    x = np.array([[10.0 * t, 10.0, 0.0, 0.0]])
+    return TrackReport(sensor=sensor, seq=seq, t=t, ids=(1,), x=x, P=np.diag([25.0, 4.0, 25.0, 4.0]),
+                       confirmed=(True,), detected=(True,), obs_H=np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]]),
+                       obs_R=np.eye(2) * 25.0, obs_z=x[:, [0, 2]], started=(False,), retired=(), stamp_ns=1)
+
+
+def test_sensors_that_left_leave_no_column_behind() -> None:
+    """Under ``[mtt] sensors = "any"`` a sensor id may join and leave (a tracker restarted under
+    another id, a mobile sensor's sessions, or a client cycling ids on an open bus). The centre kept a
+    column of its per-track sensor arrays for every id ever seen: its state, pickled before every
+    message, grew with them (178 kB, then 543 kB after 300 ids, 1.4 MB after 1,000, with 64 track
+    slots; a column is a slot's worth of counts), and beyond 64 columns the sensor sets, coded as the
+    bits of an int64, came out empty: after 66 ids had come and gone, the picture's track that two
+    live sensors held listed none. A departed sensor's column is now freed."""
+    cfg = MttConfig(sensors="any", max_lag=3.0)
+    svc = MttCentreService("mtt-decentralized", cfg, 4, service_id="centre", options=OPTIONS,
+                           deployment=KEYS.deployment)
+    bus = Bus([svc])
+    t = 0.0
+    for i in range(66):  # sensors joining and leaving in turn, each seeing the target twice
+        for k in range(2):
+            t += 0.1
+            bus.put(KEYS.mtt_report(f"r{i}"), encode(one_track_report(f"r{i}", k, t)))
+        svc.gone.append(f"r{i}")  # its liveliness token went
+        svc.on_tick()
+    for k in range(30):  # two sensors stay
+        t += 0.5
+        for s in ("h1", "h2"):
+            bus.put(KEYS.mtt_report(s), encode(one_track_report(s, k, t)))
+    assert svc.counters["sensors_left"] == 66 and "rejected_handler_error" not in svc.counters
+    last = bus.of(TrackPicture)[-1]
+    assert len(last.ids) == 1 and last.sensors == (("h1", "h2"),)
+    centre = svc.engine.centre
+    assert centre.sensor_names == ["h1", "h2"] and centre.support.shape[1] == centre.streak.shape[1] == 2

@@ -255,9 +255,22 @@ class TrackToTrackCentre:
         for key in [k for k in self.mapping if k[0] == sensor]:
             self._unmap(key)
             self.strikes.pop(key, None)
-        if sensor in self._column:
-            self.streak[:, self._column[sensor]] = 0
+        self._drop_column(sensor)
         self.counters.left += 1
+
+    def _drop_column(self, sensor: str) -> None:
+        """Free a departed sensor's column of the per-sensor arrays (a column a slot and a
+        sensor each: kept, they grew with every sensor ever seen, and a picture's sensor lists
+        came out empty beyond 64 of them); it gets a new one if it comes back."""
+        col = self._column.pop(sensor, None)
+        if col is None:
+            return
+        del self.sensor_names[col]
+        self.support = np.delete(self.support, col, axis=1)
+        self.streak = np.delete(self.streak, col, axis=1)
+        self.column_log_miss = np.delete(self.column_log_miss, col)
+        self._column = {name: k for k, name in enumerate(self.sensor_names)}
+        self.count_judged.discard(sensor)
 
     def live_sensors(self, now: float) -> list[str]:
         return sorted(s for s, t in self.sensor_seen.items() if now - t <= self.cfg.central_timeout)
@@ -779,7 +792,6 @@ class TrackToTrackCentre:
     def sensor_lists(self, slots: np.ndarray) -> list[list[str]]:
         """The sensors whose local tracks map to each central track slot."""
         names = self.sensor_names
-        codes = (self.support[slots] > 0) @ (1 << np.arange(len(names), dtype=np.int64))  # sensor sets as bits
-        unique, inverse = np.unique(codes, return_inverse=True)
-        sets = [sorted(names[c] for c in range(len(names)) if code >> c & 1) for code in unique.tolist()]
-        return [list(sets[k]) for k in inverse.tolist()]
+        unique, inverse = np.unique(self.support[slots] > 0, axis=0, return_inverse=True)  # each sensor set once
+        sets = [sorted(names[c] for c in np.flatnonzero(row).tolist()) for row in unique]
+        return [list(sets[k]) for k in inverse.ravel().tolist()]
