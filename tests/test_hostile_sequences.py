@@ -20,7 +20,7 @@ from fedtrack.fusion_center.mtt.service import MttCentreService
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.regions import load_regions
 from fedtrack.services.lead import HELD_MAX, LeadGuard
-from fedtrack.wire import TrackPicture, TrackReport, encode
+from fedtrack.wire import TrackPicture, TrackReport, decode, encode, payloads
 
 pytestmark = pytest.mark.security
 
@@ -196,3 +196,34 @@ def test_sensors_that_left_leave_no_column_behind() -> None:
     assert len(last.ids) == 1 and last.sensors == (("h1", "h2"),)
     centre = svc.engine.centre
     assert centre.sensor_names == ["h1", "h2"] and centre.support.shape[1] == centre.streak.shape[1] == 2
+
+
+def test_a_report_whose_observation_is_at_the_wires_edge_is_refused() -> None:
+    """The centre checks that a report's states and covariances stay within the wire's bound once a
+    picture predicts them (``scale``), but it fuses the report's observations too, unchecked: a
+    confirmed local track whose observation sat at 9e99 m (noise 1e-3 m², each value valid) made the
+    central track's picture carry 2.2e100, refused by every receiver. The observations (and a
+    hand-over ring's) are now checked as the states: such a report is rejected (``scale``) and the
+    pictures are those of the run without it."""
+    def run(bad: bool) -> tuple[list[TrackPicture], MttCentreService]:
+        svc = MttCentreService("mtt-federated", MttConfig(sensors=("h1", "h2", "h3"), max_lag=3.0), 4,
+                               service_id="centre", options=OPTIONS, deployment=KEYS.deployment)
+        bus = Bus([svc])
+        for k in range(40):
+            for s in ("h1", "h2", "h3"):
+                report = one_track_report(s, k, 0.5 * k)
+                if s == "h3" and k >= 10:
+                    if not bad:
+                        continue
+                    report = replace(report, obs_z=report.obs_z + 9e99, obs_R=np.eye(2) * 1e-3)
+                bus.put(KEYS.mtt_report(s), encode(report))
+        return bus.of(TrackPicture), svc
+
+    attacked, svc = run(bad=True)
+    clean, _ = run(bad=False)
+    assert svc.counters["rejected_scale"] == 30 and "rejected_handler_error" not in svc.counters
+    for p in attacked:
+        for payload in payloads(p):
+            decode(payload, TrackPicture)  # every receiver takes it
+    assert [(p.t, p.ids, p.x.tobytes(), p.P.tobytes()) for p in attacked] == \
+           [(p.t, p.ids, p.x.tobytes(), p.P.tobytes()) for p in clean]

@@ -286,7 +286,8 @@ class MttCentreService(Service):
         m = msg.obs_z.shape[1]
         if msg.obs_z.shape[0] and not (m in (2, 3) and m <= d // 2):  # a position, or a radar's 3
             raise Rejected("wrong_model", f"observations of size {m} from a local state of size {d}")
-        self._in_scale(f"report {msg.seq} of {msg.sensor}", msg.x, msg.P)
+        self._in_scale(f"report {msg.seq} of {msg.sensor}", np.concatenate([msg.x.ravel(), msg.obs_z.ravel()]),
+                       np.concatenate([msg.P.ravel(), msg.obs_R.ravel()]))  # the observations are fused too
         if not self._admit(msg):
             return
         if msg.contested:  # its local tracker took a conflicting scan or resets (docs/wire.md)
@@ -357,7 +358,8 @@ class MttCentreService(Service):
         except ValueError as exc:
             raise Rejected("wrong_model", str(exc)) from None
         ring = dict(zip(engine.region.centre.tracks._ring, record.entries))
-        self._in_scale(f"hand-over {msg.serial} of {msg.source}", ring["x"], ring["P"])
+        self._in_scale(f"hand-over {msg.serial} of {msg.source}", np.concatenate([ring["x"].ravel(), ring["z"].ravel()]),
+                       np.concatenate([ring["P"].ravel(), ring["R"].ravel()]))  # its observations are fused again
         centre, R, here = engine.region.centre, len(engine.regions.ids), engine.index
         if msg.id in centre.tracks or (msg.id % R == here and msg.id >= centre.next_id):
             raise Rejected("conflict", f"central track {msg.id} is already here, or is an id this region has "
