@@ -9,12 +9,14 @@ from __future__ import annotations
 
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 from test_hostile_messages import KEYS, OPTIONS, Bus, mtt_lines, mtt_services
 from test_mtt_regions_live import CONFIG as REGIONS_CONFIG
 
+from fedtrack.fusion_center.mtt import centre as centre_module
 from fedtrack.fusion_center.mtt.picture_merge import PictureMergeService
 from fedtrack.fusion_center.mtt.service import MttCentreService
 from fedtrack.local_filters.mtt.config import MttConfig
@@ -227,3 +229,46 @@ def test_a_report_whose_observation_is_at_the_wires_edge_is_refused() -> None:
             decode(payload, TrackPicture)  # every receiver takes it
     assert [(p.t, p.ids, p.x.tobytes(), p.P.tobytes()) for p in attacked] == \
            [(p.t, p.ids, p.x.tobytes(), p.P.tobytes()) for p in clean]
+
+
+def clustered_report(sensor: str, seq: int, t: float, n: int, spread: float, seed: int) -> TrackReport:
+    """A report of ``n`` confirmed local tracks moving at 10 m/s, positions within ``spread`` m."""
+    rng = np.random.default_rng(seed)
+    x = np.zeros((n, 4))
+    x[:, 0], x[:, 1], x[:, 2] = rng.normal(10.0 * t, spread, n), 10.0, rng.normal(0.0, spread, n)
+    return TrackReport(sensor=sensor, seq=seq, t=t, ids=tuple(range(n)), x=x,
+                       P=np.tile(np.diag([25.0, 4.0, 25.0, 4.0]), (n, 1)), confirmed=(True,) * n,
+                       detected=(True,) * n, obs_H=np.tile(np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]]), (n, 1)),
+                       obs_R=np.tile(np.eye(2) * 25.0, (n, 1)), obs_z=x[:, [0, 2]], started=(False,) * n, retired=(),
+                       stamp_ns=1)
+
+
+def test_a_report_of_many_tracks_in_one_spot_costs_the_centre_no_more_than_spread_ones(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The centre's duplicate merge tested every pair of a report's central tracks within each other's
+    reach before refusing those that share a sensor, which all of one report's do: a report of local
+    tracks within a few metres of each other (valid, on the sensor's own key, in parts) made n² pairs,
+    8,192 tracks 67 million (14 s and 3.7 GB of the centre's), 65,536 more than the machine holds.
+    The tracks sharing a sensor with every track of the scan are now left out before the pairs are
+    made: 8,192 such tracks take 0.3 s and 244 MB, 65,536 2.6 s (measured), and the pictures are
+    those of the old rule (the test refused exactly the pairs now not made)."""
+    made: list[int] = []
+    real = centre_module.candidate_pairs
+
+    def counted(*args: Any) -> tuple[np.ndarray, np.ndarray]:
+        pairs = real(*args)
+        made.append(pairs[0].size)
+        return pairs
+    monkeypatch.setattr(centre_module, "candidate_pairs", counted)
+    svc = MttCentreService("mtt-decentralized", MttConfig(sensors=("h1", "h2", "h3"), max_lag=3.0), 4,
+                           service_id="centre", options=OPTIONS, deployment=KEYS.deployment)
+    bus = Bus([svc])
+    n = 2000  # a picture of them and the others' stays one message (the bus encodes it whole)
+    for k in range(4):
+        t = 0.5 * k
+        for s in ("h1", "h2"):
+            bus.put(KEYS.mtt_report(s), encode(clustered_report(s, k, t, 5, 300.0, seed=k)))
+        made.clear()
+        bus.put(KEYS.mtt_report("h3"), encode(clustered_report("h3", k, t, n, 1.0, seed=k)))
+        assert sum(made) <= n * 10, made  # against the other sensors' few tracks only (before: n * n)
+    assert svc.counters["rejected"] == 0

@@ -652,8 +652,13 @@ class TrackToTrackCentre:
         X, P = self._states_now(partial, t, states, touched)
         gate = self.cfg.thresholds.association[self.dim]
         pos, spread = X[:, XY], np.sqrt(P[:, 0, 0] + P[:, 2, 2])
-        K, J = candidate_pairs(pos[mine], spread[mine], pos, spread, gate)
-        K = mine[K]
+        # a track with a sensor every track of this scan has (the reporting one) merges with none of
+        # them: left out before the pairs are made (one report of 8,192 local tracks within a few
+        # metres made all 67 million pairs, 14 s and 3.7 GB for a test that refused each of them)
+        common = has[partial[mine]].all(axis=0)
+        others = (~has[partial][:, common].any(axis=1)).nonzero()[0]
+        K, J = candidate_pairs(pos[mine], spread[mine], pos[others], spread[others], gate)
+        K, J = mine[K], others[J]
         # a track never merges with itself, nor with one that shares a sensor with it (a track keeps
         # its sensors, and a kept track gains the merged one's): only the other pairs are tested
         tested = (K != J) & ~(has[partial[K]] & has[partial[J]]).any(axis=1)
