@@ -269,6 +269,7 @@ class TrackToTrackCentre:
         self.support = np.delete(self.support, col, axis=1)
         self.streak = np.delete(self.streak, col, axis=1)
         self.column_log_miss = np.delete(self.column_log_miss, col)
+        self.column_interval = np.delete(self.column_interval, col)
         self._column = {name: k for k, name in enumerate(self.sensor_names)}
         self.count_judged.discard(sensor)
 
