@@ -272,3 +272,58 @@ def test_a_report_of_many_tracks_in_one_spot_costs_the_centre_no_more_than_sprea
         bus.put(KEYS.mtt_report("h3"), encode(clustered_report("h3", k, t, n, 1.0, seed=k)))
         assert sum(made) <= n * 10, made  # against the other sensors' few tracks only (before: n * n)
     assert svc.counters["rejected"] == 0
+
+
+def test_a_crowd_against_another_sensors_crowd_is_refused_before_its_pairs_are_made(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Two trackers (each valid on its own key) report crowds of fresh local tracks within a metre
+    of each other: every one of the second's unmapped tracks is within the association test's
+    reach of every central track of the first's, so the association made n² candidate pairs, each
+    with its difference, covariance sum and Cholesky factor (2,048 each: 14 s and 2.3 GB for one
+    report; 4,096: 45 s and 9 GB). Beyond ``MAX_CANDIDATE_PAIRS`` (counted by the k-d tree before
+    any pair is made) the report is refused ``crowded`` and the centre is put back: its pictures
+    are those of the run without the second crowd. The bound is lowered here to keep the test small."""
+    monkeypatch.setattr(centre_module, "MAX_CANDIDATE_PAIRS", 100_000)
+
+    def run(attack: bool) -> tuple[list[TrackPicture], MttCentreService]:
+        svc = MttCentreService("mtt-decentralized", MttConfig(sensors=("h1", "h2", "h3"), max_lag=3.0), 4,
+                               service_id="centre", options=OPTIONS, deployment=KEYS.deployment)
+        bus = Bus([svc])
+        for k in range(3):
+            t = 0.5 * k
+            bus.put(KEYS.mtt_report("h1"), encode(one_track_report("h1", k, t)))
+            bus.put(KEYS.mtt_report("h2"), encode(clustered_report("h2", k, t, 400, 1.0, seed=k)))
+            if attack:
+                bus.put(KEYS.mtt_report("h3"), encode(clustered_report("h3", k, t, 400, 1.0, seed=10 + k)))
+        return bus.of(TrackPicture), svc
+
+    attacked, svc = run(attack=True)
+    clean, _ = run(attack=False)
+    assert svc.counters["rejected_crowded"] == 3 and "rejected_handler_error" not in svc.counters
+    assert [(p.t, p.ids, p.x.tobytes(), p.P.tobytes()) for p in attacked] == \
+           [(p.t, p.ids, p.x.tobytes(), p.P.tobytes()) for p in clean]
+
+
+def test_a_replay_of_crowds_is_one_line_of_error(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                 capsys: pytest.CaptureFixture) -> None:
+    """The same bound in ``replay``: two sensors' crowds of detections within a metre end in one
+    line naming the file and the scan, exit 2, and no output file (the bound lowered to keep the
+    test small; with 2^20, two crowds of 1,200 detections: 1,440,000 pairs; up to ``DIRECT_PAIRS``,
+    32,768, the pairs are tested directly and not counted first)."""
+    import json
+
+    from fedtrack.cli import main as cli
+
+    monkeypatch.setattr(centre_module, "MAX_CANDIDATE_PAIRS", 1_000)
+    monkeypatch.setattr(centre_module, "DIRECT_PAIRS", 100)  # the k-d tree's path, where the count is
+    rng = np.random.default_rng(1)
+    lines = [{"t": k + (0.1 if s == "s2" else 0.0), "sensor": s, "R": [[100.0, 0.0], [0.0, 100.0]],
+              "detections": [{"z": z.tolist()} for z in rng.normal(0.0, 1.0, (40, 2))]}
+             for k in range(3) for s in ("s1", "s2")]
+    (tmp_path / "m.jsonl").write_text("".join(json.dumps(line) + "\n" for line in lines))
+    out = tmp_path / "o.jsonl"
+    assert cli(["replay", "--algorithm", "mtt-federated", "--measurements", str(tmp_path / "m.jsonl"),
+                "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "m.jsonl: the scan of s2 at t = 0.1: 1600 pairs" in err[0] and "crowded" in err[0], err
+    assert not out.exists()

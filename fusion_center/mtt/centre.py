@@ -104,6 +104,19 @@ class Counters:
 # 1,000 pairs (measured: equal near 30,000 pairs); a centre's few unmapped local tracks or
 # merge candidates against its tracks are a few thousand pairs.
 DIRECT_PAIRS = 1 << 15
+# At most this many candidate pairs of one query (a report's unmapped local tracks, or the merge
+# test's tracks) and the centre's tracks: each pair's difference, covariance sum and Cholesky
+# factor take about 0.5 kB (4-D states; 0.7 kB 6-D), so a report costs at most about 0.5-0.7 GB
+# there. Honest reports stay far below: a local track reaches the few central tracks of its
+# target's neighbours (10,000 rows with 10 each are 10^5 pairs; a crowd of 1,000 tracks 20 m
+# apart within one another's reach, about 140 each at 10 m noise, 1.4 x 10^5), while a report of
+# 2,048 fresh local tracks within a metre of 2,048 central ones made 4.2 x 10^6 (14 s, 2.3 GB;
+# 4,096: 45 s, 9 GB): refused as CrowdedReport instead (the service counts it rejected_crowded).
+MAX_CANDIDATE_PAIRS = 1 << 20
+
+
+class CrowdedReport(ValueError):
+    """A report whose tracks would make more than ``MAX_CANDIDATE_PAIRS`` candidate pairs."""
 
 
 def candidate_pairs(pos_q: np.ndarray, spread_q: np.ndarray, pos: np.ndarray, spread: np.ndarray, gate: float
@@ -119,6 +132,8 @@ def candidate_pairs(pos_q: np.ndarray, spread_q: np.ndarray, pos: np.ndarray, sp
     interpolation), plus a direct check against the few with a larger spread (tentative tracks
     with a large velocity uncertainty), so that one of them does not make every query cover the
     region; that gives some farther pairs too (the reach only splits the work: the test decides).
+    More than ``MAX_CANDIDATE_PAIRS`` pairs from the tree: :class:`CrowdedReport` (counted before
+    any is made).
     """
     factor = math.sqrt(gate)
     if pos_q.shape[0] * pos.shape[0] <= DIRECT_PAIRS:
@@ -128,7 +143,13 @@ def candidate_pairs(pos_q: np.ndarray, spread_q: np.ndarray, pos: np.ndarray, sp
     kth = int(0.9 * (spread.size - 1))
     big_spread = float(np.partition(spread, kth)[kth])
     big = (spread > big_spread).nonzero()[0]
-    near = cKDTree(pos).query_ball_point(pos_q, factor * (spread_q + big_spread))
+    tree, radius = cKDTree(pos), factor * (spread_q + big_spread)
+    if pos_q.shape[0] * pos.shape[0] > MAX_CANDIDATE_PAIRS:
+        n = int(np.sum(tree.query_ball_point(pos_q, radius, return_length=True)))
+        if n > MAX_CANDIDATE_PAIRS:
+            raise CrowdedReport(f"{n} pairs of tracks within the association test's reach, at most "
+                                f"{MAX_CANDIDATE_PAIRS}")
+    near = tree.query_ball_point(pos_q, radius)
     if big.size:
         reach = factor * (spread_q[:, None] + spread[big][None, :])
         close = np.linalg.norm(pos_q[:, None, :] - pos[big][None, :, :], axis=-1) <= reach

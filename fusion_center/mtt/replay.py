@@ -15,12 +15,14 @@ import dataclasses
 import math
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
 import numpy as np
 
 from fedtrack.config import ConfigError, did_you_mean, load_tables
+from fedtrack.fusion_center.mtt.centre import CrowdedReport
 from fedtrack.fusion_center.mtt.engines import ALGORITHMS, Engine, PictureClock, PictureTracks, make_engine
 from fedtrack.fusion_center.mtt.regional import is_region_recording, read_region_entries, recorded_pictures
 from fedtrack.fusion_center.mtt.silence import silence_bound
@@ -85,12 +87,25 @@ def pictures(engine: Engine, scans: list[SensorScan | SensorLeft], period: float
                     guard.leave(sensor)
                     engine.leave(sensor, at_once=True)
                 yield _picture(engine, T)
-            engine.ingest(scan)
+            try:
+                engine.ingest(scan)
+            except CrowdedReport as exc:
+                raise CrowdedReport(f"the scan of {scan.sensor} at t = {scan.t:g}: {exc}") from None
             guard.took(scan.sensor, scan.t)
             heard[scan.sensor] = guard.newest
     guard.end()
     for T in clock.final():
         yield _picture(engine, T)
+
+
+@contextmanager
+def crowded_as_input(measurements: Path) -> Iterator[None]:
+    """A :class:`CrowdedReport` of the centre as the input error it is (docs/wire.md, ``crowded``)."""
+    try:
+        yield
+    except CrowdedReport as exc:
+        raise InputError(f"{measurements}: {exc}: more tracks within one another's reach than a centre "
+                         "takes (docs/wire.md#rejections, crowded)") from None
 
 
 def silent(guard: LeadGuard, heard: dict[str, float], T: float, floor_s: float) -> list[str]:
@@ -200,7 +215,7 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
     head = {"algorithm": algorithm, "detector": cfg.maneuver}
     times = [s.t for s in scans if isinstance(s, SensorScan)]
     expected = math.ceil(max(times) / cfg.period) - math.ceil(min(times) / cfg.period) + 1 if times else 0
-    with output_file(out) as fh, progress_bar(expected, f"{algorithm} pictures") as bar:
+    with output_file(out) as fh, progress_bar(expected, f"{algorithm} pictures") as bar, crowded_as_input(measurements):
         for T, tracks in source:
             bar.update()
             start = time.perf_counter()

@@ -50,6 +50,7 @@ import numpy as np
 import zenoh
 
 from fedtrack.config import ConfigError, load_tables
+from fedtrack.fusion_center.mtt.centre import CrowdedReport
 from fedtrack.fusion_center.mtt.engines import (
     CentralizedEngine,
     PictureClock,
@@ -307,16 +308,20 @@ class MttCentreService(Service):
 
     def _fuse(self, msg: TrackReport) -> None:
         """The centre's part of a report (its region's part at a region centre); the next picture is
-        contested if the report names contested scans."""
+        contested if the report names contested scans. A report whose tracks would make more
+        candidate pairs than the centre takes (:class:`CrowdedReport`) is rejected ``crowded``."""
         report, engine = report_from_wire(msg), self.engine
-        if isinstance(engine, RegionEngine):
-            self._answer(engine, msg, report)
-        else:
-            assert isinstance(engine, TrackToTrackEngine)
-            resets, q_scale = engine.fuse(report)
-            if engine.feedback:
-                require_covariances(f"the resets of report {msg.seq} of {msg.sensor}", resets.P)
-                self.publish(self.keys.mtt_resets(msg.sensor), resets_to_wire(msg.seq, resets, q_scale))
+        try:
+            if isinstance(engine, RegionEngine):
+                self._answer(engine, msg, report)
+            else:
+                assert isinstance(engine, TrackToTrackEngine)
+                resets, q_scale = engine.fuse(report)
+                if engine.feedback:
+                    require_covariances(f"the resets of report {msg.seq} of {msg.sensor}", resets.P)
+                    self.publish(self.keys.mtt_resets(msg.sensor), resets_to_wire(msg.seq, resets, q_scale))
+        except CrowdedReport as exc:  # the transaction puts the centre back (fedtrack.services.base)
+            raise Rejected("crowded", f"report {msg.seq} of {msg.sensor}: {exc}") from None
         self.contested = self.contested or bool(msg.contested)
 
     def _answer(self, engine: RegionEngine, msg: TrackReport, report: Any) -> None:
