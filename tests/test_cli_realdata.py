@@ -131,18 +131,23 @@ def test_values_no_run_can_use_are_one_line_errors(tmp_path: Path, capsys: pytes
     assert not (tmp_path / "o").exists()
 
 
+def assert_launch_refuses(tmp_path: Path, capsys: pytest.CaptureFixture[str], text: str, says: str) -> None:
+    """``launch`` of a config ``text``: one line saying ``says``, exit 2, no output folder."""
+    config = tmp_path / "c.toml"
+    config.write_text(text)
+    code = main(["launch", str(config), "--out", str(tmp_path / "o")])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 2 and len(err) == 1 and says in err[0], err
+    assert not (tmp_path / "o").exists()
+
+
 @pytest.mark.parametrize(("table", "says"), [("clutter = inf", "multitarget.clutter: must be in [0, "),
                                              ("duration = inf", "multitarget.duration: must be finite and > 0"),
                                              ('source = "x.csv"\norigin = [1.0, 2.0, 0.0]\nbox = inf',
                                               "a finite box > 0")])
 def test_launch_refuses_an_infinite_multitarget_value(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                                       table: str, says: str) -> None:
-    config = tmp_path / "mt.toml"
-    config.write_text(f'[deployment]\npacing = "realtime"\n\n[multitarget]\n{table}\n')
-    code = main(["launch", str(config), "--out", str(tmp_path / "o")])
-    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
-    assert code == 2 and len(err) == 1 and says in err[0], err
-    assert not (tmp_path / "o").exists()
+    assert_launch_refuses(tmp_path, capsys, f'[deployment]\npacing = "realtime"\n\n[multitarget]\n{table}\n', says)
 
 
 @pytest.mark.parametrize(("option", "says"), [(["--c", "inf"], "--c must be finite and > 0"),
@@ -195,12 +200,7 @@ def test_a_negative_seed_is_refused_before_anything_is_written(tmp_path: Path, c
 def test_launch_refuses_a_negative_seed_or_an_endless_run(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                                           table: str, says: str) -> None:
     """Before: the services started, then a traceback (numpy's seed; OverflowError of an infinite duration)."""
-    config = tmp_path / "d.toml"
-    config.write_text(f'[deployment]\n{table}\n\n[[sensor]]\nid = "1"\n')
-    code = main(["launch", str(config), "--out", str(tmp_path / "o")])
-    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
-    assert code == 2 and len(err) == 1 and says in err[0], err
-    assert not (tmp_path / "o").exists()
+    assert_launch_refuses(tmp_path, capsys, f'[deployment]\n{table}\n\n[[sensor]]\nid = "1"\n', says)
 
 
 def test_reproduce_with_one_run_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

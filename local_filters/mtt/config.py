@@ -99,6 +99,11 @@ LOST = 1e-3
 LOST_SCAN_S = 1.0
 
 
+def log_miss_of(pd: float) -> float:
+    """``ln(1 - P_D)``: the log-probability that one scan misses a live target (finite at P_D 1)."""
+    return math.log1p(-min(pd, 1.0 - 1e-12))
+
+
 def miss_count(log_miss: np.ndarray | float, lost: float = LOST) -> np.ndarray:
     """The fewest misses ``m`` with ``exp(m log_miss) <= lost``, ``log_miss`` the log-probability
     of one miss (< 0; -inf gives 0; a rounding never adds a miss)."""
@@ -277,7 +282,7 @@ class MttConfig:
     def log_miss(self, sensor: str | None = None) -> float:
         """``ln(1 - P_D)`` of ``sensor`` (None: ``[mtt] pd``): the log-probability that one of its
         scans misses a live target (finite at P_D 1)."""
-        return math.log1p(-min(self.pd if sensor is None else self.pd_of(sensor), 1.0 - 1e-12))
+        return log_miss_of(self.pd if sensor is None else self.pd_of(sensor))
 
     def misses_to_delete(self, sensor: str | None = None, dt: float = 0.0) -> int:
         """Misses in a row that delete a confirmed track of a tracker of ``sensor``'s scans:

@@ -31,7 +31,6 @@ needs to fuse the local tracks exactly (docs/multitarget.md).
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import numpy as np
@@ -49,7 +48,7 @@ from fedtrack.local_filters.mtt import detector, maneuver
 from fedtrack.local_filters.mtt.association import Association, AssociationInput, Associator
 from fedtrack.local_filters.mtt.associators import jipda, mht
 from fedtrack.local_filters.mtt.associators.gnn import GNN
-from fedtrack.local_filters.mtt.config import LOST, MhtConfig, MttConfig, miss_count, scan_lost
+from fedtrack.local_filters.mtt.config import LOST, MhtConfig, MttConfig, log_miss_of, miss_count, scan_lost
 from fedtrack.local_filters.mtt.models import (
     Linearized,
     ModeRates,
@@ -587,7 +586,7 @@ def deletion_at(params: TrackParams, dt: float) -> TrackParams:
     lost = scan_lost(dt)
     if lost == LOST:
         return params
-    m = int(miss_count(math.log1p(-min(params.pd, 1.0 - 1e-12)), lost))
+    m = int(miss_count(log_miss_of(params.pd), lost))
     return params._replace(delete_misses=m) if m > params.delete_misses else params
 
 
