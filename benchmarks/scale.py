@@ -7,7 +7,11 @@ its centre object (process time around its reports and its hand-overs out and in
 size (the bytes of its pickled centre: the tracks' arrays at their allocated capacity and the
 mapping: a proxy for its RSS share, not a process's RSS), its tracks at the end, the rows of its
 sub-reports and those it fused (the rest: the margin's rows of other regions' tracks); per run: the
-hand-overs, mean GOSPA (c = 100 m, p = 2), the routing CPU seconds (the local trackers' part live).
+hand-overs, mean GOSPA (c = 100 m, p = 2) with its missed and false parts, id switches and
+fragmentations (each beside the one region's: a hand-over that lost a track, kept it twice or gave
+it a new id shows there), ids twice in a picture and central tracks held by two centres at a
+picture (both 0 when every hand-over moved its track), the routing CPU seconds (the local
+trackers' part live).
 One region is the unsharded centre (identical pictures, tests/test_mtt_shards.py).
 
 ``--targets N`` keeps the 1,000-target scenario's densities: the square's half side
@@ -54,6 +58,13 @@ def margin_share(regions: Regions, pos: np.ndarray) -> float:
     d = distances(regions, pos)
     d[np.arange(len(pos)), region_of(regions, pos)] = np.inf
     return float(np.mean(d.min(axis=1) <= regions.margin)) if d.shape[1] > 1 else 0.0
+
+
+def ids_held_by_two(centre: ShardedCentre) -> int:
+    """Central tracks held by more than one region centre (a hand-over that copied a track
+    instead of moving it), counted once per extra holder."""
+    held = [c.centre.tracks.ids[c.centre.tracks.live()] for c in centre.centres]
+    return sum(h.size for h in held) - np.unique(np.concatenate(held)).size
 
 
 def load_model(regions: int, tracks: int, sensors: int, rate_hz: float, cell_m: float, margin_m: float,
@@ -113,12 +124,16 @@ def bench_scale(quick: bool, targets: int | None = None, duration: float | None 
             engine = TrackToTrackEngine(cfg, state_dim(scans), feedback=True, regions=regions)
             path = sim / f"{n}.jsonl"
             start = time.perf_counter()
+            twice = held_twice = 0
             with output_file(path) as fh:
                 for T, tracks in tqdm(pictures(engine, scans, cfg.period, cfg.picture_delay), f"{n} regions",
                                       total=int(duration / cfg.period), unit="picture", mininterval=5.0, leave=False):
                     fh.write(tracks.line(T, {"algorithm": "mtt-federated"}) + "\n")
+                    twice += len(tracks.ids) - len(set(tracks.ids))
+                    held_twice += ids_held_by_two(engine.centre)
             wall = time.perf_counter() - start
             centre: ShardedCentre = engine.centre
+            score = evaluate(path, truth)
             last = engine.picture(scans[-1].t)
             out["runs"][n] = {
                 "grid": spec, "wall_s": wall, "routing_cpu_s": centre.routing_s, "hand_overs": centre.handed_over,
@@ -127,7 +142,10 @@ def bench_scale(quick: bool, targets: int | None = None, duration: float | None 
                 "tracks": [len(c.centre.tracks) for c in centre.centres],
                 "rows": [c.rows for c in centre.centres], "rows_taken": [c.rows_taken for c in centre.centres],
                 "margin_share": margin_share(regions, last.x[:, [0, 2]]) if last.ids else 0.0,
-                "gospa": evaluate(path, truth)["mean"]["gospa"]}
+                "gospa": score["mean"]["gospa"], "missed": score["mean"]["missed"],
+                "false": score["mean"]["false"], "id_switches": score["id_switches"],
+                "fragmentations": score["fragmentations"], "ids_twice_in_a_picture": twice,
+                "ids_held_by_two_centres": held_twice}
             print(f"bench scale: {n} regions: {wall:.1f} s, {centre.handed_over} hand-overs", flush=True)
         base = out["runs"][1]
         for row in out["runs"].values():
@@ -137,6 +155,8 @@ def bench_scale(quick: bool, targets: int | None = None, duration: float | None 
             row["busiest_rows_vs_one"] = row["rows"][busiest] / base["rows"][0]
             row["busiest_rows_taken_vs_one"] = row["rows_taken"][busiest] / base["rows"][0]
             row["gospa_vs_one"] = row["gospa"] / base["gospa"] - 1.0
+            for key in ("missed", "false", "id_switches", "fragmentations"):
+                row[f"{key}_vs_one"] = row[key] - base[key]
         side = 2 * sc.region  # the simulated area's side [m]
         speed = float(np.mean(SPEED))
         out["model_100_regions"] = {

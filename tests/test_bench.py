@@ -116,6 +116,25 @@ def test_bench_scale_quick_reports_every_region(tmp_path: Path) -> None:
         assert row["gospa_vs_one"] == pytest.approx(row["gospa"] / runs["1"]["gospa"] - 1.0)
     assert runs["1"]["rows_taken"] == runs["1"]["rows"] and 0 < runs["4"]["busiest_rows_vs_one"] < 1
     assert runs["1"]["hand_overs"] == 0 and runs["8"]["hand_overs"] > 0
+    for row in runs.values():  # every hand-over moved its track: never in two centres or twice in a picture
+        assert row["ids_twice_in_a_picture"] == 0 and row["ids_held_by_two_centres"] == 0
+        assert row["id_switches"] >= 0 and row["id_switches_vs_one"] == row["id_switches"] - runs["1"]["id_switches"]
     # the model: no margin share when the margin is nil, all of it when it spans the cell
     assert load_model(4, 100, 2, 1.0, 1000.0, 0.0, 10.0)["margin_share"] == 0.0
     assert load_model(4, 100, 2, 1.0, 1000.0, 500.0, 10.0)["margin_share"] == 1.0
+
+
+def test_ids_held_by_two_counts_each_extra_holder() -> None:
+    """A track id live in two region centres counts once, in three twice; dead slots never."""
+    from types import SimpleNamespace
+
+    from fedtrack.benchmarks.scale import ids_held_by_two
+
+    def region(ids: list[int], live: list[int]) -> SimpleNamespace:
+        tracks = SimpleNamespace(ids=np.array(ids), live=lambda: np.array(live, dtype=np.int64))
+        return SimpleNamespace(centre=SimpleNamespace(tracks=tracks))
+
+    apart = SimpleNamespace(centres=[region([1, 2, 7], [0, 1]), region([7, 3], [1])])  # 7 dead in the first
+    assert ids_held_by_two(apart) == 0
+    copied = SimpleNamespace(centres=[region([1, 2], [0, 1]), region([2, 3], [0, 1]), region([2], [0])])
+    assert ids_held_by_two(copied) == 2
