@@ -103,6 +103,12 @@ class LeadGuard(Generic[T]):
             return max(self.max_lag, LEAD_INTERVALS * self.usual[sensor])
         return max(self.max_lag, LEAD_INTERVALS * max(self.usual.values())) if self.usual else float("inf")
 
+    def horizon(self) -> float:
+        """The latest time any sensor's scan would be taken at once: the newest time taken plus the
+        widest ``bound`` (a sensor without an interval of its own gets the longest; infinite before
+        the first scan or interval)."""
+        return float("inf") if self.newest is None else self.newest + self.bound("")
+
     def admit(self, sensor: str, t: float, item: T, size: int = 0) -> list[T]:
         """The items to take now, in order, on the arrival of ``item`` (``sensor``'s, at ``t``, of
         about ``size`` bytes): ``[item]`` when it does not lead; ``[]`` while it is held; the

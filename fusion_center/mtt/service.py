@@ -62,7 +62,7 @@ from fedtrack.fusion_center.mtt.engines import (
 from fedtrack.fusion_center.mtt.regional import RegionEngine
 from fedtrack.fusion_center.mtt.shards import handover_from_wire, handover_to_wire
 from fedtrack.fusion_center.mtt.silence import Silence
-from fedtrack.fusion_center.mtt.standby import Standby, next_after
+from fedtrack.fusion_center.mtt.standby import NUMBER_ROOM, Standby, next_after, numbers_of
 from fedtrack.geodetic import Frame, geodetic_of_states
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
 from fedtrack.local_filters.mtt.local import report_from_wire, resets_to_wire
@@ -363,6 +363,10 @@ class MttCentreService(Service):
         except ValueError as exc:
             raise Rejected("wrong_model", str(exc)) from None
         ring = dict(zip(engine.region.centre.tracks._ring, record.entries))
+        if ring["t"][-1] > self.lead.horizon():  # the sender fused it from a report this centre gets too
+            raise Rejected("time_lead", f"hand-over {msg.serial} of {msg.source}: its newest entry at "
+                           f"t={ring['t'][-1]:g} is beyond t={self.lead.horizon():g}, the latest a report "
+                           "would be taken here at once")
         self._in_scale(f"hand-over {msg.serial} of {msg.source}", np.concatenate([ring["x"].ravel(), ring["z"].ravel()]),
                        np.concatenate([ring["P"].ravel(), ring["R"].ravel()]))  # its observations are fused again
         centre, R, here = engine.region.centre, len(engine.regions.ids), engine.index
@@ -445,6 +449,10 @@ class MttCentreService(Service):
     def _primary_sent(self, msg: TrackPicture | TrackResets | HandOver) -> None:
         if self.standby.primary or (isinstance(msg, HandOver) and msg.source != self.region):
             return
+        beyond = [n for n in numbers_of(msg) if n >= NUMBER_ROOM]
+        if beyond:  # no primary issues one; numbering after it would leave the wire's integers
+            raise Rejected("seq_jump", f"an output of the primary with id or number {beyond[0]}: at most "
+                           f"{NUMBER_ROOM - 1} (NUMBER_ROOM) leaves room to number after it")
         self.standby.sent(msg, time.monotonic())
         if self.standby.cold:
             self._catch_up(msg)

@@ -219,14 +219,25 @@ def handover_to_wire(record: HandOver, source: str, serial: int) -> wire.HandOve
 def handover_from_wire(msg: wire.HandOver, centre: TrackToTrackCentre) -> HandOver:
     """The record of a wire hand-over for ``centre`` (its ring fields' shapes); ValueError when the
     message does not fit them (another state size, detector or M-of-N window), names more sensors
-    than a picture's track may list or sensors ``[mtt] sensors`` does not allow, or holds a
-    covariance that is not positive definite."""
+    than a picture's track may list or sensors ``[mtt] sensors`` does not allow, holds a
+    covariance that is not positive definite, or is not a track's record as :meth:`hand_over` makes
+    one: a ``support`` other than its local tracks' count per sensor (the centre keeps the two
+    equal; a track with support and no local track is never deleted as unsupported), or a
+    ``last_support`` after its newest ring entry (the time of an observation fused into it; one
+    later would keep the track from ever being deleted as stale)."""
     tracks = centre.tracks
     shapes = [getattr(tracks, name).shape[2:] for name in tracks._ring]
     widths = [int(np.prod(s, dtype=np.int64)) for s in shapes]
     if msg.ring.shape[1] != sum(widths) or len(msg.window) != centre.cfg.confirm_window:
         raise ValueError(f"ring: {msg.ring.shape[1]} values per entry and a window of {len(msg.window)} do not fit "
                          f"this centre's {sum(widths)} and {centre.cfg.confirm_window}")
+    counts = dict.fromkeys(msg.member_sensors, 0)
+    for sensor in msg.member_sensors:
+        counts[sensor] += 1
+    if {s: n for s, n in zip(msg.sensors, msg.support) if n} != counts:
+        raise ValueError("support: not the number of its local tracks (member_sensors) of each sensor")
+    if not msg.last_support <= msg.ring[-1, 0]:
+        raise ValueError(f"last_support: {msg.last_support:g} is after its newest ring entry's time {msg.ring[-1, 0]:g}")
     named = set(msg.sensors) | set(msg.member_sensors)
     if len(named) > wire.MAX_LIST_ITEMS or not all(map(centre.cfg.allows, named)):
         raise ValueError(f"sensors: {len(named)} sensors, at most {wire.MAX_LIST_ITEMS} of those [mtt] sensors "

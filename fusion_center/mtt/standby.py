@@ -36,7 +36,9 @@ A standby started after its primary had published (the launcher's restart of a d
 central tracks from the reports it gets, under ids of its own, so it keeps its numbering ahead of
 the primary's (:func:`next_after`: its next track id above every id of its scope the primary
 showed or handed over, its next hand-over number above the primary's), and after a take-over no
-id and no hand-over number is issued twice.
+id and no hand-over number is issued twice. An id or number from ``NUMBER_ROOM`` (2^62) on is refused
+(the service's ``rejected_seq_jump``): no region issues one, and numbering after it would leave the
+wire's integers.
 """
 
 from __future__ import annotations
@@ -52,7 +54,10 @@ from fedtrack.wire import HandOver, Message, TrackPicture, TrackResets
 SETTLE_S = 0.2  # after the primary's token went, before the standby takes over
 START_GRACE_S = 2.0  # a standby that saw no primary for this long after it started takes over
 WITHHELD_S = 10.0  # a withheld output (or a settled one not yet made) is forgotten after this long
-
+# A cold standby numbers its tracks and hand-overs after those its primary's outputs show (next_after);
+# an id or number from this on is refused: past it, the next one could leave the wire's integers (2^63),
+# and a region issuing one id per track (of R regions) or one number per hand-over never gets there
+NUMBER_ROOM = 2**62
 
 
 def output_of(msg: Message) -> Hashable:
@@ -64,6 +69,15 @@ def output_of(msg: Message) -> Hashable:
     if isinstance(msg, TrackPicture):  # by time: the clocks' grid is k period, also for a standby started late
         return ("picture", msg.t, msg.closing)
     raise TypeError(f"a centre does not publish {type(msg).__name__}")
+
+
+def numbers_of(msg: Message) -> list[int]:
+    """The track ids and hand-over numbers an output shows (what a cold standby numbers after)."""
+    if isinstance(msg, TrackPicture):
+        return list(msg.ids)
+    if isinstance(msg, HandOver):
+        return [msg.id, msg.serial]
+    return []
 
 
 def next_after(current: int, step: int, seen: Iterable[int]) -> int:

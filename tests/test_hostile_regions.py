@@ -1,0 +1,143 @@
+"""What a peer the access control lets publish on the region centres' keys (a compromised or buggy
+region centre or standby: every region centre runs as the ``fusion`` identity) can send (marker
+``security``): hand-overs that are no track's record, and outputs of a primary that a cold standby
+would number after. Each test shows the harm on the code before its fix (a ghost track in every
+picture, a region that can no longer start a track) and that the service now refuses the message,
+counted, with the pictures those of the run without it. The services run in-process through their
+own dispatch (:class:`test_hostile_messages.Bus`).
+"""
+
+from __future__ import annotations
+
+import copy
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_hostile_messages import KEYS, OPTIONS, Bus
+from test_hostile_semantics import one_track_report
+from test_mtt_regions_live import CONFIG as REGIONS_CONFIG
+
+from fedtrack.fusion_center.mtt.service import MttCentreService
+from fedtrack.fusion_center.mtt.shards import handover_to_wire
+from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.regions import load_regions
+from fedtrack.wire import HandOver, TrackPicture, TrackReport, TrackResets, decode, encode
+
+pytestmark = pytest.mark.security
+
+SENSORS = ("s1", "s2", "s3")
+
+
+def centre_of_x0y0(tmp_path: Path, standby: bool = False) -> tuple[Bus, MttCentreService]:
+    """The (decentralized) centre of region ``x0y0`` (x < 0) of two, or its standby."""
+    config = tmp_path / "regions.toml"
+    config.write_text(REGIONS_CONFIG)
+    svc = MttCentreService("mtt-decentralized", MttConfig(sensors=SENSORS, max_lag=3.0), 4, region="x0y0",
+                           regions=load_regions(config), standby=standby, service_id="x0y0", options=OPTIONS,
+                           deployment=KEYS.deployment)
+    return Bus([svc]), svc
+
+
+def report(sensor: str, k: int, x0: float = -2000.0, v: float = 10.0) -> TrackReport:
+    """Scan ``k`` of ``sensor`` (at ``k`` s plus a third of a second per sensor): its local track 1
+    of a target flying along x from ``x0`` at ``v`` (from region x0y0, x < 0)."""
+    t = k + SENSORS.index(sensor) / 3.0
+    x = np.array([[x0 + v * t, v, 0.0, 0.0]])
+    return replace(one_track_report(sensor, k), t=t, x=x, obs_z=x[:, [0, 2]])
+
+
+def scans(bus: Bus, ks: range, x0: float = -2000.0, v: float = 10.0) -> None:
+    for k in ks:
+        for s in SENSORS:
+            bus.put(KEYS.region_report("x0y0", s), encode(report(s, k, x0, v)))
+
+
+def shown(bus: Bus) -> list[tuple[float, tuple[int, ...]]]:
+    return [(p.t, p.ids) for p in bus.of(TrackPicture)]
+
+
+@pytest.mark.parametrize("forgery", ["ahead", "unsupported"])
+def test_a_hand_over_that_is_no_tracks_record_is_refused(tmp_path: Path, forgery: str) -> None:
+    """A hand-over's times and life counts were taken as sent. ``ahead``: the region's own track,
+    as a neighbour's hand-over of a new id stamped 100 s ahead of the data, took its local tracks
+    (a hand-over moves them) and the track was gone, while the new one, whose newest entry no report
+    could follow and whose last support was in the future, stood frozen in every later picture
+    (measured on the bus deployment of tests/test_mtt_regions_live.py, 10 targets: a ghost 400 m
+    from its target for the 13 s to the end, the target under a new id). ``unsupported``: support
+    for a sensor without any local track, never lost, and a last support after its newest entry:
+    never deleted, its covariance growing in every picture. Now a hand-over whose newest entry is
+    beyond what a report would be taken at (``time_lead``), whose support is not its local tracks'
+    count or whose last support is after its newest entry (``wrong_model``) is refused, and the
+    pictures are those of the run without it."""
+    clean_bus, _ = centre_of_x0y0(tmp_path)
+    scans(clean_bus, range(12))
+    bus, svc = centre_of_x0y0(tmp_path)
+    scans(bus, range(5))
+    centre = svc.engine.region.centre  # type: ignore[union-attr]
+    (victim,) = list(centre.tracks)
+    record = copy.deepcopy(centre).hand_over(victim)  # the track as its record: a forged copy of it
+    msg = handover_to_wire(record, "x1y0", 0)
+    if forgery == "ahead":
+        ring = np.array(msg.ring)
+        ring[:, 0] += 100.0
+        msg = replace(msg, id=1001, ring=ring, last_support=msg.last_support + 100.0)
+    else:
+        msg = replace(msg, id=1001, member_sensors=(), member_ids=(), strikes=(), last_support=1e9)
+    bus.put(KEYS.region_handover("x0y0"), encode(msg))
+    scans(bus, range(5, 12))
+    assert shown(bus) == shown(clean_bus) and len(shown(bus)) == 12
+    for a, b in zip(bus.of(TrackPicture), clean_bus.of(TrackPicture)):
+        np.testing.assert_array_equal(a.x, b.x)
+    reason = "time_lead" if forgery == "ahead" else "wrong_model"
+    assert svc.counters[f"rejected_{reason}"] == 1 and svc.counters.get("taken_over", 0) == 0
+
+
+def test_an_honest_hand_over_still_passes(tmp_path: Path) -> None:
+    """The checks above take a track's own record, at the data's time, as before."""
+    bus, svc = centre_of_x0y0(tmp_path)
+    scans(bus, range(5))
+    centre = svc.engine.region.centre  # type: ignore[union-attr]
+    record = copy.deepcopy(centre).hand_over(next(iter(centre.tracks)))
+    bus.put(KEYS.region_handover("x0y0"), encode(replace(handover_to_wire(record, "x1y0", 0), id=1001)))
+    assert svc.counters["taken_over"] == 1 and "rejected" not in {k for k, v in svc.counters.items() if v}
+    assert 1001 in centre.tracks
+
+
+@pytest.mark.parametrize("output", ["picture", "handover"])
+def test_a_cold_standby_keeps_room_to_number_its_tracks(tmp_path: Path, output: str) -> None:
+    """A cold standby numbers its tracks and hand-overs after every id and number of its region that
+    its primary's outputs showed (so that none is issued twice after a take-over), and it took any
+    message on those keys as its primary's. A picture of the region listing id 2^63 - 2 (a forgery
+    by any ``fusion`` identity, or a primary's bug) moved its next id past the wire's integers: once
+    it had taken over, every report that would start a track failed (``numerical``: 10 of the 24
+    here, 4 pictures of 8, no track ever); after a hand-over numbered 2^63 - 1 its next hand-over was
+    numbered 2^63, which every receiver refuses: the track handed over was in neither region. An id
+    or number that leaves no room (2^62 and beyond) is now refused (``seq_jump``), and the standby
+    numbers on as before."""
+    bus, svc = centre_of_x0y0(tmp_path, standby=True)
+    if output == "picture":
+        forged = TrackPicture(seq=3, t=0.0, ids=(2**63 - 2,), x=np.zeros((1, 4)), P=np.eye(4), confirmed=(True,),
+                              sensors=(("s1",),), fused_sensors=(), fused_seqs=(), left=(), stamp_ns=1, closing=False)
+        bus.put(KEYS.region_picture("x0y0"), encode(forged))
+        bus.put(KEYS.region_picture("x0y0"), encode(replace(forged, ids=(40,))))  # an honest cold start
+    else:
+        bus.put(KEYS.region_picture("x0y0"), encode(TrackPicture(
+            seq=3, t=0.0, ids=(), x=np.zeros((0, 4)), P=np.zeros((0, 4)), confirmed=(), sensors=(), fused_sensors=(),
+            fused_seqs=(), left=(), stamp_ns=1, closing=False)))
+        forged_h = HandOver(source="x0y0", serial=2**63 - 1, id=40, confirmed=True, ring=np.zeros((1, 1)), neg_inf=(),
+                            sensors=(), support=(), streak=(), window=(), last_support=0.0, member_sensors=(),
+                            member_ids=(), strikes=())
+        bus.put(KEYS.region_handover("x1y0"), encode(forged_h))
+    region = svc.engine.region  # type: ignore[union-attr]
+    next_id, serial = region.centre.next_id, region.serial
+    svc.standby.take_over()  # its primary gone
+    scans(bus, range(8), x0=-60.0, v=20.0)  # the target crosses into x1y0: handed over
+    (handed,) = bus.of(HandOver)
+    assert decode(encode(handed), HandOver).serial == 0  # its new owner takes it
+    assert len(bus.of(TrackResets)) == 24 and len(bus.of(TrackPicture)) == 8
+    assert svc.counters["rejected"] == 1  # the forgery only
+    assert svc.standby.cold and svc.counters["rejected_seq_jump"] == 1
+    assert next_id == (42 if output == "picture" else 0) and serial == 0
+
