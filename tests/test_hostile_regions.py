@@ -19,11 +19,12 @@ from test_hostile_messages import KEYS, OPTIONS, Bus
 from test_hostile_semantics import one_track_report
 from test_mtt_regions_live import CONFIG as REGIONS_CONFIG
 
+from fedtrack.fusion_center.mtt import standby as standby_module
 from fedtrack.fusion_center.mtt.service import MttCentreService
 from fedtrack.fusion_center.mtt.shards import handover_to_wire
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.regions import load_regions
-from fedtrack.wire import HandOver, TrackPicture, TrackReport, TrackResets, decode, encode
+from fedtrack.wire import MAX_TRACKS, HandOver, TrackPicture, TrackReport, TrackResets, decode, encode
 
 pytestmark = pytest.mark.security
 
@@ -141,3 +142,29 @@ def test_a_cold_standby_keeps_room_to_number_its_tracks(tmp_path: Path, output: 
     assert svc.standby.cold and svc.counters["rejected_seq_jump"] == 1
     assert next_id == (42 if output == "picture" else 0) and serial == 0
 
+
+def test_a_flood_on_the_primarys_keys_is_not_held_by_its_standby(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+                                                                   ) -> None:
+    """A standby remembers the outputs its primary sent before it made them itself (so as not to send
+    them again after a take-over), for WITHHELD_S (10 s), and it kept each whole: any ``fusion``
+    identity sending answers on the primary's keys had them held, 200 forged answers of 2,048 tracks
+    81 MB (tracemalloc; a joined answer may have 131,072 tracks). Now it keeps an answer's or a
+    hand-over's identity only, a picture whole only among the latest PICTURES_SETTLED (4: what it is
+    compared with), and at most SETTLED_MAX outputs (QUEUE_SIZE: its lag behind the primary is at
+    most its inbox; 16 here, for speed), the oldest forgotten."""
+    monkeypatch.setattr(standby_module, "SETTLED_MAX", 16, raising=False)  # (absent before)
+    bus, svc = centre_of_x0y0(tmp_path, standby=True)
+    n = MAX_TRACKS
+    answer = TrackResets(sensor="s1", seq=0, t=0.0, q_scale=1.0, ids=tuple(range(n)), x=np.zeros((n, 4)),
+                         P=np.tile(np.eye(4), (n, 1)), region="x0y0")
+    for k in range(40):
+        bus.put(KEYS.region_resets("x0y0", "s1"), encode(replace(answer, seq=k)))
+    for k in range(8):
+        bus.put(KEYS.region_picture("x0y0"), encode(TrackPicture(
+            seq=k, t=float(k), ids=(0,), x=np.zeros((1, 4)), P=np.eye(4), confirmed=(True,), sensors=(("s1",),),
+            fused_sensors=(), fused_seqs=(), left=(), stamp_ns=1, closing=False)))
+    settled = svc.standby.settled
+    kept = [m for _, _, m in settled.values() if m is not None]
+    assert all(isinstance(m, TrackPicture) for m in kept) and [m.t for m in kept] == [4.0, 5.0, 6.0, 7.0]
+    assert len(settled) == 16 and "rejected" not in {k for k, v in svc.counters.items() if v}
+    assert list(settled)[:8] == [("resets", "s1", k) for k in range(32, 40)]

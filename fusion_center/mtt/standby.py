@@ -49,6 +49,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from fedtrack.services.base import QUEUE_SIZE
 from fedtrack.wire import HandOver, Message, TrackPicture, TrackResets
 
 SETTLE_S = 0.2  # after the primary's token went, before the standby takes over
@@ -58,6 +59,13 @@ WITHHELD_S = 10.0  # a withheld output (or a settled one not yet made) is forgot
 # an id or number from this on is refused: past it, the next one could leave the wire's integers (2^63),
 # and a region issuing one id per track (of R regions) or one number per hand-over never gets there
 NUMBER_ROOM = 2**62
+# The primary's outputs the standby has not made yet (settled) are its lag behind the primary: at most one
+# output per message its inbox holds (QUEUE_SIZE); more are a flood on the primary's keys, the oldest
+# forgotten. Only a picture is kept whole, for the comparison, and only the latest PICTURES_SETTLED (a
+# standby catching up is a picture or two behind): every output was kept whole for WITHHELD_S, and 200
+# forged answers of 2,048 tracks on its primary's keys were 81 MB held
+SETTLED_MAX = QUEUE_SIZE
+PICTURES_SETTLED = 4
 
 
 def output_of(msg: Message) -> Hashable:
@@ -106,7 +114,8 @@ class Standby:
     holders: set[str] = field(default_factory=set)  # the instances whose primary token exists, this one's aside
     absent_since: float | None = None  # when the token was last seen going (or the start)
     held: OrderedDict[Hashable, tuple[float, str, Message]] = field(default_factory=OrderedDict)  # (made, key, msg)
-    settled: OrderedDict[Hashable, tuple[float, str, Message]] = field(default_factory=OrderedDict)  # (seen, "", msg)
+    # (seen, "", a picture or None): the primary's outputs not made here yet (SETTLED_MAX, PICTURES_SETTLED)
+    settled: OrderedDict[Hashable, tuple[float, str, Message | None]] = field(default_factory=OrderedDict)
     cold: bool | None = None  # started after the primary had published (None: no picture of it seen yet)
     same: int = 0  # pictures equal to the primary's (ids and states)
     differ: int = 0  # pictures with other ids or states
@@ -153,7 +162,8 @@ class Standby:
         output = output_of(msg)
         sent = self.settled.pop(output, None)
         if sent is not None:
-            self._compare(msg, sent[2])
+            if sent[2] is not None:
+                self._compare(msg, sent[2])
             return
         self.held[output] = (now, key, msg)
 
@@ -167,7 +177,13 @@ class Standby:
         if mine is not None:
             self._compare(mine[2], msg)
             return
-        self.settled[output] = (now, "", msg)
+        self.settled[output] = (now, "", msg if isinstance(msg, TrackPicture) else None)
+        while len(self.settled) > SETTLED_MAX:
+            self.settled.popitem(last=False)
+        if isinstance(msg, TrackPicture):  # the older pictures beyond the latest PICTURES_SETTLED: not compared
+            kept = [k for k, (_, _, m) in self.settled.items() if m is not None]
+            for k in kept[:-PICTURES_SETTLED]:
+                self.settled[k] = (*self.settled[k][:2], None)
 
     def take_over(self) -> list[tuple[str, Message]]:
         """Become the primary; returns the withheld outputs the primary never sent (key, message), in order."""
