@@ -16,13 +16,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 from test_hostile_messages import KEYS, OPTIONS, Bus
-from test_hostile_semantics import one_track_report
+from test_hostile_semantics import one_track_report, scan
 from test_mtt_regions_live import CONFIG as REGIONS_CONFIG
 
 from fedtrack.fusion_center.mtt import standby as standby_module
 from fedtrack.fusion_center.mtt.service import MttCentreService
 from fedtrack.fusion_center.mtt.shards import handover_to_wire
 from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.mtt.service import MttLocalService
 from fedtrack.local_filters.regions import load_regions
 from fedtrack.wire import MAX_TRACKS, HandOver, TrackPicture, TrackReport, TrackResets, decode, encode
 
@@ -168,3 +169,34 @@ def test_a_flood_on_the_primarys_keys_is_not_held_by_its_standby(tmp_path: Path,
     assert all(isinstance(m, TrackPicture) for m in kept) and [m.t for m in kept] == [4.0, 5.0, 6.0, 7.0]
     assert len(settled) == 16 and "rejected" not in {k for k, v in svc.counters.items() if v}
     assert list(settled)[:8] == [("resets", "s1", k) for k in range(32, 40)]
+
+
+def test_an_answer_holding_tracks_its_sub_report_did_not_carry_is_refused(tmp_path: Path) -> None:
+    """A local tracker notes, for every local track a region's answer says it holds, that region as its
+    holder, and forgets it only when the track is retired or the region stops holding it in a later
+    answer: a region centre (any ``fusion`` identity) answering with 2,048 ids the tracker never had
+    grew its routing table by as many with every report, for good, and the table is pickled with every
+    message the tracker handles (10 answers of 131,072 ids in 64 parts: 1.3 million entries, a 9.2 MB
+    pickle, 0.32 s a scan instead of 0.007 and growing). An answer holding or resetting a local track
+    its sub-report did not carry is now refused (``unexpected``); the tracker goes on without it after
+    its reset timeout, as without any answer of that region."""
+    config = tmp_path / "regions.toml"
+    config.write_text(REGIONS_CONFIG)
+    regions = load_regions(config)
+    assert regions is not None
+    svc = MttLocalService("s1", False, MttConfig(sensors=("s1",), max_lag=3.0, clutter_density=1e-7), 0.0,
+                          regions=regions, service_id="s1", options=OPTIONS, deployment=KEYS.deployment)
+    bus = Bus([svc])
+    for k in range(20):
+        z = np.array([[-1000.0 + 10.0 * k, 0.0], [1000.0 - 10.0 * k, 50.0]])  # a target in each region
+        bus.put(KEYS.sensor_meas("s1"), encode(scan("s1", k, float(k), z)))
+        for key, sub in bus.published[-2:]:
+            rid = key.split("/")[3]
+            held = sub.ids if rid == "x0y0" else tuple(range(10**6 + MAX_TRACKS * k, 10**6 + MAX_TRACKS * (k + 1)))
+            bus.put(KEYS.region_resets(rid, "s1"), encode(TrackResets(
+                sensor="s1", seq=k, t=sub.t, q_scale=1.0, ids=(), x=np.zeros((0, 4)), P=np.zeros((0, 4)), region=rid,
+                held=held)))
+        with svc.guarded("on_tick", svc.tick_state_attrs):  # its reset timeout (0 here) is over
+            svc.on_tick()
+    assert svc.router is not None and len(svc.router.holder) <= 2
+    assert svc.counters["reports"] == 20 and svc.counters["rejected_unexpected"] == 20

@@ -91,6 +91,12 @@ class RegionRouter:
                 self.holder[lid] = r
 
 
+def answers_only(sub: LocalReport, answer: RegionAnswer) -> bool:
+    """Whether ``answer`` holds and resets only local tracks of the sub-report ``sub`` it answers (as a
+    centre's answer does: :meth:`RegionRouter.learn` notes every local track an answer holds)."""
+    return bool(np.isin(answer.held, sub.ids).all() and np.isin(answer.resets.ids, sub.ids).all())
+
+
 def join_answers(answers: list[RegionAnswer]) -> tuple[Resets, float]:
     """The resets of every region's centre for one report, as one (each local track is fused by
     one centre at most), and the largest process-noise factor among them."""

@@ -42,7 +42,13 @@ from fedtrack.keys import check_id
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
 from fedtrack.local_filters.mtt.history import MAX_ENTRIES
 from fedtrack.local_filters.mtt.local import LocalReport, SensorTracker, report_to_wire, resets_from_wire
-from fedtrack.local_filters.mtt.routing import RegionAnswer, RegionRouter, answer_from_wire, join_answers
+from fedtrack.local_filters.mtt.routing import (
+    RegionAnswer,
+    RegionRouter,
+    answer_from_wire,
+    answers_only,
+    join_answers,
+)
 from fedtrack.local_filters.mtt.scan import SensorScan, scan_from_measurement
 from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.services.base import (
@@ -175,6 +181,9 @@ class MttLocalService(Service):
         d = self.tracker.tracker.state.tracks.x.shape[1]
         if msg.ids and msg.x.shape[1] != d:
             raise Rejected("wrong_model", f"resets of size {msg.x.shape[1]} for a {d}-D tracker")
+        if not answers_only(self.sent[region], answer):  # the tracker would keep every id it holds
+            raise Rejected("unexpected", f"answer of {msg.region} for report {msg.seq}: it holds or resets local "
+                           "tracks its sub-report did not carry")
         self.answers[region] = (answer, digest(msg))
         if len(self.answers) == len(self.regions.ids):
             self._learn()
