@@ -96,7 +96,7 @@ def test_two_primaries_at_once_leave_exactly_one_the_lower_instance(standbys: bo
         first.token(True, START_GRACE_S + 0.01, first.instance)
         first.token(True, START_GRACE_S + 0.01, second.instance)
     assert (a.yields(), b.yields()) == (False, True)
-    b.step_down()
+    b.step_down(5.0)
     assert [sb.primary for sb in (a, b)] == [True, False]
     assert not b.due(100.0)  # a's token is there
     b.hold("pic", picture(9, (1,)), 5.0)  # withheld again
@@ -135,7 +135,7 @@ def test_a_primary_takes_no_sample_of_its_own_outputs_until_it_steps_down(tmp_pa
         assert len(watch) == (2 if region is None else 3)
         assert not any(sub.wanted() for sub in watch)
         assert all(sub.wanted() for sub in standby._primary_outputs())
-        primary.standby.step_down()
+        primary.standby.step_down(0.0)
         assert all(sub.wanted() for sub in watch)
 
 

@@ -230,6 +230,7 @@ class Subscription:
     ``raw``: the handler also gets the payload bytes (``handler(msg, payload)``).
     ``wanted``: samples are taken only while it returns True (asked on the Zenoh thread, before the
     payload is copied or decoded); None: always.
+    ``remote``: only other sessions' publications (not this service's own).
     """
 
     key: str
@@ -239,6 +240,7 @@ class Subscription:
     recover: bool = False
     raw: bool = False
     wanted: Callable[[], bool] | None = None
+    remote: bool = False
 
 
 @dataclass(frozen=True)
@@ -492,7 +494,8 @@ class Service:
                 self._inputs.append(adv)
                 self._inputs.append(adv.sample_miss_listener(self._on_miss))
             else:
-                self._inputs.append(self.session.declare_subscriber(sub.key, on_sample))
+                origin = zenoh.Locality.REMOTE if sub.remote else zenoh.Locality.ANY
+                self._inputs.append(self.session.declare_subscriber(sub.key, on_sample, allowed_origin=origin))
         for index, qh in enumerate(self._queryables):
             def on_query(query: zenoh.Query, index: int = index) -> None:
                 self._enqueue(("query", index, str(query.key_expr), query))

@@ -62,7 +62,7 @@ from fedtrack.fusion_center.mtt.engines import (
 from fedtrack.fusion_center.mtt.regional import RegionEngine
 from fedtrack.fusion_center.mtt.shards import handover_from_wire, handover_to_wire
 from fedtrack.fusion_center.mtt.silence import Silence
-from fedtrack.fusion_center.mtt.standby import NUMBER_ROOM, Standby, next_after, numbers_of
+from fedtrack.fusion_center.mtt.standby import NUMBER_ROOM, SILENT_S, Standby, next_after, numbers_of
 from fedtrack.geodetic import Frame, geodetic_of_states
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
 from fedtrack.local_filters.mtt.local import report_from_wire, resets_to_wire
@@ -437,17 +437,18 @@ class MttCentreService(Service):
         primary (``wanted``): decoding its own pictures and answers cost a 1,000-track centre about a
         fifth of its CPU."""
         def watching() -> bool:
-            return not self.standby.primary
+            return not self.standby.primary or bool(self.standby.silent)
 
-        if self.region is None:
-            return [Subscription(self.keys.mtt_picture(), TrackPicture, self._primary_sent, wanted=watching),
-                    Subscription(self.keys.mtt_resets(), TrackResets, self._primary_sent, wanted=watching)]
-        return [Subscription(self.keys.region_picture(self.region), TrackPicture, self._primary_sent, wanted=watching),
-                Subscription(self.keys.region_resets(self.region), TrackResets, self._primary_sent, wanted=watching),
-                Subscription(self.keys.region_handover(), HandOver, self._primary_sent, wanted=watching)]
+        keys = ([self.keys.mtt_picture(), self.keys.mtt_resets()] if self.region is None else
+                [self.keys.region_picture(self.region), self.keys.region_resets(self.region), self.keys.region_handover()])
+        return [Subscription(key, kind, self._primary_sent, wanted=watching, remote=True)
+                for key, kind in zip(keys, (TrackPicture, TrackResets, HandOver))]
 
     def _primary_sent(self, msg: TrackPicture | TrackResets | HandOver) -> None:
-        if self.standby.primary or (isinstance(msg, HandOver) and msg.source != self.region):
+        if isinstance(msg, HandOver) and msg.source != self.region:
+            return
+        if self.standby.primary:  # another session publishes this region's outputs: a silent token's holder?
+            self.standby.heard_remote(time.monotonic())
             return
         beyond = [n for n in numbers_of(msg) if n >= NUMBER_ROOM]
         if beyond:  # no primary issues one; numbering after it would leave the wire's integers
@@ -478,27 +479,34 @@ class MttCentreService(Service):
         self.count("withheld")
 
     def _failover_tick(self) -> None:
-        """A standby takes over once no primary token exists (:meth:`Standby.due`): it claims the
-        token and publishes what the dead primary never sent. A primary that sees another primary's
-        token of a lower instance steps down (:meth:`Standby.yields`): it withdraws its token."""
+        """A standby takes over once no primary token exists, or only tokens that serve nobody
+        (:meth:`Standby.due`): it claims the token and publishes what the dead primary never sent. A
+        primary that sees another primary's token of a lower instance, one not known to serve nobody,
+        steps down (:meth:`Standby.yields`): it withdraws its token."""
         standby = self.standby
         while self.primary_seen:
             alive, now, instance = self.primary_seen.popleft()
             standby.token(alive, now, instance)
         if standby.yields():
-            standby.step_down()
+            standby.step_down(time.monotonic())
             if self.primary_token is not None:
                 self.primary_token.undeclare()
                 self.primary_token = None
             self.count("stepped_down")
             self.log.warning("stepped down as the primary of %s: another primary (instance %s) holds it; this one "
-                             "(%s) is its hot standby", self._scope(), min(standby.holders), standby.instance)
+                             "(%s) is its hot standby", self._scope(), min(standby.holders - standby.silent), standby.instance)
             return
         if not standby.due(time.monotonic()):
             return
         assert self.session is not None
         self.primary_token = self.session.liveliness().declare_token(self.keys.primary(self._scope(), standby.instance))
+        standing = sorted(standby.holders - standby.silent)
         flushed = standby.take_over()
+        if standing:
+            self.count("silent_tokens", len(standing))
+            self.log.warning("the primary token(s) of %s (instance %s) stood, but nothing of the region was published "
+                             "for %g s while reports came: taking over beside them", self._scope(),
+                             ", ".join(standing), SILENT_S)
         for key, msg in flushed:
             self.publish(key, msg)
         self.counters["took_over"] = 1

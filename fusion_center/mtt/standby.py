@@ -66,6 +66,11 @@ NUMBER_ROOM = 2**62
 # forged answers of 2,048 tracks on its primary's keys were 81 MB held
 SETTLED_MAX = QUEUE_SIZE
 PICTURES_SETTLED = 4
+# A token whose holder published nothing of the region for this long, while the standby made an answer to a
+# report this long ago (reports were coming), serves nobody: a forged token (any ``fusion`` identity may
+# declare one), or a primary whose worker is stuck while its session lives. More than twice the trackers'
+# reset timeout (2 s: they go on without the region after it), and under WITHHELD_S (the answer still held)
+SILENT_S = 5.0
 
 
 def output_of(msg: Message) -> Hashable:
@@ -112,7 +117,10 @@ class Standby:
     instance: str = ""  # this centre's instance id (its Zenoh session id): the last chunk of its token
     primary: bool = False
     holders: set[str] = field(default_factory=set)  # the instances whose primary token exists, this one's aside
+    since: dict[str, float] = field(default_factory=dict)  # when each holder's token appeared
+    silent: set[str] = field(default_factory=set)  # of them, those that stood while nothing was published (SILENT_S)
     absent_since: float | None = None  # when the token was last seen going (or the start)
+    heard: float = 0.0  # when an output of the primary last arrived (or the start, or this one stepped down)
     held: OrderedDict[Hashable, tuple[float, str, Message]] = field(default_factory=OrderedDict)  # (made, key, msg)
     # (seen, "", a picture or None): the primary's outputs not made here yet (SETTLED_MAX, PICTURES_SETTLED)
     settled: OrderedDict[Hashable, tuple[float, str, Message | None]] = field(default_factory=OrderedDict)
@@ -122,12 +130,12 @@ class Standby:
     max_difference: float = 0.0  # largest state difference among the pictures with the same ids
 
     def __post_init__(self) -> None:
-        self.absent_since = self.started
+        self.absent_since = self.heard = self.started
 
     @property
     def present(self) -> bool:
-        """Another instance's primary token exists (liveliness)."""
-        return bool(self.holders)
+        """Another instance's primary token exists (liveliness), not one known to serve nobody (``silent``)."""
+        return bool(self.holders - self.silent)
 
     def token(self, alive: bool, now: float, instance: str = "") -> None:
         """Instance ``instance``'s primary token appeared (``alive``) or went (this one's own is ignored;
@@ -136,25 +144,45 @@ class Standby:
             return
         if alive:
             self.holders.add(instance)
+            self.since.setdefault(instance, now)
         else:
             self.holders.discard(instance)
-        self.absent_since = None if self.holders else now
+            self.since.pop(instance, None)
+            self.silent.discard(instance)  # a token declared again is judged afresh
+        self.absent_since = None if self.present else now
 
     def due(self, now: float) -> bool:
         """Whether to take over now: no primary token for ``SETTLE_S`` (``START_GRACE_S`` when
-        none was ever seen since the start)."""
-        if self.primary or self.present or self.absent_since is None:
+        none was ever seen since the start); or tokens stand, each for ``SILENT_S`` at least, but
+        nothing of the primary arrived for as long while this standby made an answer that long ago
+        (:meth:`take_over` then marks their holders ``silent``)."""
+        if self.primary:
+            return False
+        if self.present:
+            ago = now - SILENT_S
+            return (self.heard <= ago and all(self.since[i] <= ago for i in self.holders - self.silent)
+                    and any(made <= ago and output[0] == "resets" for output, (made, _, _) in self.held.items()))
+        if self.absent_since is None:
             return False
         wait = START_GRACE_S if self.absent_since == self.started else SETTLE_S
         return now - self.absent_since >= wait
 
     def yields(self) -> bool:
-        """Whether this primary must step down: another primary's instance id is lower (split brain)."""
-        return self.primary and any(other < self.instance for other in self.holders)
+        """Whether this primary must step down: another primary's instance id is lower (split brain),
+        one not known to serve nobody (``silent``)."""
+        return self.primary and any(other < self.instance for other in self.holders - self.silent)
 
-    def step_down(self) -> None:
+    def step_down(self, now: float) -> None:
         """Become a hot standby again (after :meth:`yields`): withhold from now on."""
         self.primary = False
+        self.heard = now
+
+    def heard_remote(self, now: float) -> None:
+        """As the primary: an output of another session arrived on this region's keys. While every
+        other token is ``silent`` it is theirs: they serve after all (a primary frozen past
+        ``SILENT_S`` and woken), and the instance order decides again (:meth:`yields`)."""
+        if self.holders and self.holders <= self.silent:
+            self.silent.clear()
 
     def hold(self, key: str, msg: Message, now: float) -> None:
         """An output the standby made for ``key``: withheld, unless the primary sent it already."""
@@ -169,6 +197,7 @@ class Standby:
 
     def sent(self, msg: Message, now: float) -> None:
         """An output the primary sent: settled."""
+        self.heard = now
         if self.cold is None and isinstance(msg, TrackPicture):
             self.cold = msg.seq > 0
         self._forget(now)
@@ -186,8 +215,10 @@ class Standby:
                 self.settled[k] = (*self.settled[k][:2], None)
 
     def take_over(self) -> list[tuple[str, Message]]:
-        """Become the primary; returns the withheld outputs the primary never sent (key, message), in order."""
+        """Become the primary; returns the withheld outputs the primary never sent (key, message), in order.
+        The tokens still standing (:meth:`due`'s second case) serve nobody: ``silent`` from now on."""
         self.primary = True
+        self.silent |= self.holders
         out = [(key, msg) for _, key, msg in self.held.values()]
         self.held.clear()
         self.settled.clear()
