@@ -26,7 +26,18 @@ from fedtrack.fusion_center.mtt.standby import SILENT_S, Standby
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.service import MttLocalService
 from fedtrack.local_filters.regions import load_regions
-from fedtrack.wire import MAX_TRACKS, HandOver, TrackPicture, TrackReport, TrackResets, decode, encode
+from fedtrack.services.base import BASE_COUNTERS, health_counters
+from fedtrack.wire import (
+    MAX_MAP_ITEMS,
+    MAX_TRACKS,
+    HandOver,
+    Health,
+    TrackPicture,
+    TrackReport,
+    TrackResets,
+    decode,
+    encode,
+)
 
 pytestmark = pytest.mark.security
 
@@ -268,3 +279,38 @@ def test_a_live_primary_keeps_its_standby_waiting_and_a_woken_one_its_region() -
     assert standby.silent == {"b1"} and not standby.yields()
     standby.heard_remote(30.0)  # the frozen primary woke and publishes: the lower instance keeps the region
     assert standby.silent == set() and standby.yields()
+
+
+# ---------------------------------------------------------------- Health
+
+def test_a_standby_counting_many_kinds_of_rejection_still_reports_its_health(tmp_path: Path) -> None:
+    """A Health carries at most 32 counters (MAX_MAP_ITEMS) and a region standby counts 25 from its
+    first picture: what sensor s1's own identity can send it (another sensor's name, a 6-D state, a
+    value at the wire's edge, a number far ahead, a repeat, a different repeat, a time far ahead, a
+    part that differs: 7 rejection reasons, ``duplicate`` and ``contested``) made 33, and its Health
+    could not be made: the worker loop raised (measured with a service over a router: ``fatal:
+    Health.counters: 34 entries exceed the limit of 32``, exit 1). A Health now carries the base
+    counters and every rejection first, then the other counters that are not zero, as many as fit."""
+    bus, svc = centre_of_x0y0(tmp_path, standby=True)
+    scans(bus, range(6))
+    good = report("s1", 6)
+    for msg in (replace(good, sensor="s2"),
+                replace(good, x=np.zeros((1, 6)), P=np.eye(6), obs_H=np.zeros((2, 6))),
+                replace(good, seq=20, t=good.t + 0.1, x=np.array([[1e50, 0.0, 0.0, 0.0]]), P=np.eye(4) * 1e100,
+                        obs_z=np.array([[1e50, 0.0]])),
+                replace(good, seq=10**6), good, good, replace(good, x=good.x + 1.0),
+                replace(good, seq=7, t=1000.0), replace(report("s1", 7), seq=8),
+                replace(good, seq=9, part=0, parts=2), replace(good, seq=9, ids=(2,), part=0, parts=2)):
+        bus.put(KEYS.region_report("x0y0", "s1"), encode(msg))
+    assert len(svc.counters) > MAX_MAP_ITEMS
+    health = decode(encode(svc._health()), Health)
+    rejections = {k: v for k, v in svc.counters.items() if k.startswith("rejected")}
+    assert len(rejections) == 8 and {k: health.counters[k] for k in rejections} == rejections  # 7 reasons, total
+
+
+def test_a_health_of_more_counters_than_fit_says_how_many_it_left_out() -> None:
+    counters = {**dict.fromkeys(BASE_COUNTERS, 1), **{f"c{i}": i for i in range(40)}, "rejected_scale": 2}
+    carried = health_counters(counters)
+    assert len(carried) == MAX_MAP_ITEMS and carried["counters_omitted"] == 44 - (MAX_MAP_ITEMS - 1)
+    assert carried["rejected_scale"] == 2 and "c0" not in carried and carried["c1"] == 1  # zero ones go first
+    assert health_counters({"received": 3}) == {"received": 3}

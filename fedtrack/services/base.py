@@ -86,6 +86,7 @@ from fedtrack.services.inbox import Inbox
 from fedtrack.services.lead import LeadGuard, NumberedLeadGuard
 from fedtrack.services.reassembly import Reassembly
 from fedtrack.wire import (
+    MAX_MAP_ITEMS,
     Health,
     M,
     Measurement,
@@ -293,6 +294,26 @@ def text_of(exc: Exception) -> str:
         return f"<{type(exc).__name__} that cannot be shown>"
 
 
+BASE_COUNTERS = ("received", "rejected", "published", "dropped")  # every service's, in every Health
+
+
+def health_counters(counters: dict[str, int]) -> dict[str, int]:
+    """What a ``Health`` carries of a service's counters: all of them when they fit its
+    ``MAX_MAP_ITEMS`` (32) entries; else the base counters and every ``rejected_<reason>`` first
+    (about 20 reasons exist), then the others that are not zero in the order they were first
+    counted, as many as fit beside ``counters_omitted`` (how many are left out). A region standby
+    counts 25 from its first picture, and a Health of 33 could not be made: the worker loop
+    raised, and a sensor's identity sending 8 kinds of message each rejected otherwise ended it."""
+    if len(counters) <= MAX_MAP_ITEMS:
+        return dict(counters)
+    first = [k for k in BASE_COUNTERS if k in counters] + sorted(k for k in counters if k.startswith("rejected_"))
+    names = first + [k for k, v in counters.items() if v and k not in first]
+    if len(names) <= MAX_MAP_ITEMS:
+        return {k: counters[k] for k in names}
+    kept = names[:MAX_MAP_ITEMS - 1]
+    return {**{k: counters[k] for k in kept}, "counters_omitted": len(names) - len(kept)}
+
+
 def reason_of(exc: Exception) -> str:
     """The rejection reason of an exception a handler raised (docs/wire.md, "Rejections")."""
     if isinstance(exc, Rejected):
@@ -345,7 +366,7 @@ class Service:
         self.options = options
         self.keys = Keys(deployment)
         self.health_period_s = health_period_s
-        self.counters: dict[str, int] = {"received": 0, "rejected": 0, "published": 0, "dropped": 0}
+        self.counters: dict[str, int] = dict.fromkeys(BASE_COUNTERS, 0)
         self.contested_scans: list[int] = []  # scans contested since the last output (:meth:`contest`)
         self.status = "ok"
         self.log = logging.getLogger(f"fedtrack.{self.role}.{self.id}")
@@ -723,7 +744,7 @@ class Service:
                 self.counters["missed"] = self._missed
             if self._router_outages:
                 self.counters["router_outages"] = self._router_outages
-        return Health(role=self.role, id=self.id, seq=self._health_seq, counters=dict(self.counters),
+        return Health(role=self.role, id=self.id, seq=self._health_seq, counters=health_counters(self.counters),
                       status=self.status)
 
     def _put(self, key: str, msg: Message) -> None:
