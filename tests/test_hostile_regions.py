@@ -17,9 +17,11 @@ import numpy as np
 import pytest
 from test_hostile_messages import KEYS, OPTIONS, Bus
 from test_hostile_semantics import one_track_report, scan
+from test_hostile_sequences import region_picture
 from test_mtt_regions_live import CONFIG as REGIONS_CONFIG
 
 from fedtrack.fusion_center.mtt import standby as standby_module
+from fedtrack.fusion_center.mtt.picture_merge import PictureMergeService
 from fedtrack.fusion_center.mtt.service import MttCentreService
 from fedtrack.fusion_center.mtt.shards import handover_to_wire
 from fedtrack.fusion_center.mtt.standby import SILENT_S, Standby
@@ -314,3 +316,26 @@ def test_a_health_of_more_counters_than_fit_says_how_many_it_left_out() -> None:
     assert len(carried) == MAX_MAP_ITEMS and carried["counters_omitted"] == 44 - (MAX_MAP_ITEMS - 1)
     assert carried["rejected_scale"] == 2 and "c0" not in carried and carried["c1"] == 1  # zero ones go first
     assert health_counters({"received": 3}) == {"received": 3}
+
+
+# ---------------------------------------------------------------- serve picture
+
+def test_a_region_picture_off_the_picture_grid_is_refused(tmp_path: Path) -> None:
+    """Every region centre makes its pictures at multiples of ``[mtt] period`` (PictureClock). A region
+    (its ``fusion`` identity, or a centre configured with another period) publishing pictures between
+    them made a merged picture of each such time from that region alone: every other merged picture
+    held none of the other regions' tracks (here 5 empty pictures among 11), uncounted and not
+    contested. ``serve picture`` now refuses a picture off the grid (``time_jump``)."""
+    config = tmp_path / "regions.toml"
+    config.write_text(REGIONS_CONFIG)
+    regions = load_regions(config)
+    assert regions is not None
+    svc = PictureMergeService(regions, 4, 2.0, 1.0, service_id="picture", options=OPTIONS, deployment=KEYS.deployment)
+    bus = Bus([svc])
+    a, b = (KEYS.region_picture(rid) for rid in regions.ids)
+    for k in range(6):
+        bus.put(a, encode(region_picture(float(k), (0, 2))))
+        bus.put(b, encode(region_picture(float(k), (1, 3))))
+        bus.put(b, encode(region_picture(k + 0.5, ())))
+    assert [(p.t, p.ids) for p in bus.of(TrackPicture)] == [(float(k), (0, 1, 2, 3)) for k in range(6)]
+    assert svc.counters["rejected_time_jump"] == 6

@@ -223,7 +223,8 @@ def test_the_merger_outlives_region_pictures_it_cannot_merge(tmp_path: Path) -> 
     config.write_text(REGIONS_CONFIG)
     regions = load_regions(config)
     assert regions is not None and len(regions.ids) == 2
-    svc = PictureMergeService(regions, 4, 2.0, service_id="picture", options=OPTIONS, deployment=KEYS.deployment)
+    svc = PictureMergeService(regions, 4, 2.0, 0.25, service_id="picture", options=OPTIONS,  # the late times on its grid
+                              deployment=KEYS.deployment)
     svc._subscriptions = svc.subscriptions()
     merged: list[TrackPicture] = []
     svc.publish = lambda key, msg: (payloads(msg), merged.append(msg))  # type: ignore[method-assign]
@@ -452,7 +453,8 @@ def test_the_merger_refuses_a_region_picture_of_another_state_size(tmp_path: Pat
     config.write_text(REGIONS_CONFIG)
     regions = load_regions(config)
     assert regions is not None
-    svc = PictureMergeService(regions, 4, 2.0, service_id="picture", options=OPTIONS, deployment=KEYS.deployment)
+    svc = PictureMergeService(regions, 4, 2.0, 1.0, service_id="picture", options=OPTIONS,
+                              deployment=KEYS.deployment)
     bus = Bus([svc])
 
     def picture(t: float, ids: tuple[int, ...], d: int = 4, existence: bool = False) -> TrackPicture:

@@ -48,7 +48,8 @@ def test_a_region_picture_sent_twice_for_one_time_neither_stalls_nor_repeats_the
     config.write_text(REGIONS_CONFIG)
     regions = load_regions(config)
     assert regions is not None and len(regions.ids) == 2
-    svc = PictureMergeService(regions, 4, 2.0, service_id="picture", options=OPTIONS, deployment=KEYS.deployment)
+    svc = PictureMergeService(regions, 4, 2.0, 1.0, service_id="picture", options=OPTIONS,
+                              deployment=KEYS.deployment)
     bus = Bus([svc])
     a, b = (KEYS.region_picture(rid) for rid in regions.ids)
     bus.put(a, encode(region_picture(0.0, (0, 2))))

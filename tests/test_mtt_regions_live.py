@@ -63,7 +63,7 @@ def services(tmp_path: Path, algorithm: str, config: Path, cfg: MttConfig, commo
                for rid in regions.ids]
     local = [MttLocalService(s, algorithm == "mtt-federated", cfg, 5.0, regions=regions, service_id=s, **common)
              for s in ("s1", "s2", "s3")]
-    merger = PictureMergeService(regions, 4, 5.0, service_id="picture", **common)
+    merger = PictureMergeService(regions, 4, 5.0, cfg.period, service_id="picture", **common)
     recorder = Recorder(tmp_path / "rec.db", tmp_path / "out", service_id="rec", **common)
     return centres, local, merger, recorder
 

@@ -18,10 +18,12 @@ published before (a region's picture that comes after its time was merged is cou
 replay then differ at that picture; when they do not fit beside the regions' own entries in one
 merged picture, they are dropped, counted ``late_dropped``). A region picture holding more tracks
 or entries than its share of one merged picture (``PICTURE_ITEMS`` / regions) is rejected
-(``too_large``). A region picture not after the latest taken from its region is a ``duplicate``
-when equal to the one taken for its time, else refused (``conflict``) and the next merged
-picture marked ``contested``. On a clean stop it merges what it holds and publishes a closing record with the
-regions' closing lists.
+(``too_large``), and one (not a closing record) whose time is not a multiple of ``[mtt] period``, where
+every region centre's clock makes them, is rejected (``time_jump``): a region's pictures between the
+others' made merged pictures of that region alone. A region picture not after the latest taken from its
+region is a ``duplicate`` when equal to the one taken for its time, else refused (``conflict``) and
+the next merged picture marked ``contested``. On a clean stop it merges what it holds and publishes a
+closing record with the regions' closing lists.
 """
 
 from __future__ import annotations
@@ -34,9 +36,10 @@ from typing import Any
 
 import numpy as np
 
-from fedtrack.config import ConfigError
+from fedtrack.config import ConfigError, load_tables
 from fedtrack.fusion_center.mtt.regional import RegionPicture, merge_pictures, rows_of
 from fedtrack.fusion_center.mtt.service import PICTURE_ITEMS, picture_message, picture_tracks
+from fedtrack.local_filters.mtt.config import MttServiceSettings
 from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.services.base import Conflict, Rejected, Service, Subscription, digest, service_kwargs, service_parser
 from fedtrack.services.lead import LeadGuard
@@ -76,9 +79,9 @@ class PictureMergeService(Service):
     tick_period_s = 0.05
     state_attrs = ("pending", "started", "closing", "late", "merged_t", "seq", "lead", "latest", "contested")
 
-    def __init__(self, regions: Regions, dim: int = 4, wait_s: float = 2.0, **kwargs: Any) -> None:
+    def __init__(self, regions: Regions, dim: int, wait_s: float, period: float, **kwargs: Any) -> None:
         super().__init__(**kwargs)
-        self.regions, self.dim, self.wait_s = regions, dim, wait_s
+        self.regions, self.dim, self.wait_s, self.period = regions, dim, wait_s, period
         R = len(regions.ids)
         self.pending: list[deque[TrackPicture]] = [deque() for _ in range(R)]
         self.started = [False] * R  # the region published a picture
@@ -100,6 +103,9 @@ class PictureMergeService(Service):
         if msg.ids and msg.x.shape[1] != self.dim:  # its merge with the others' would fail
             raise Rejected("wrong_model", f"region {self.regions.ids[r]}'s picture at t={msg.t} has {msg.x.shape[1]}-D "
                            f"tracks; this merger's are {self.dim}-D (--dim)")
+        if not msg.closing and round(msg.t / self.period) * self.period != msg.t:  # PictureClock's k period
+            raise Rejected("time_jump", f"region {self.regions.ids[r]}'s picture at t={msg.t!r} is not at a multiple "
+                           f"of the picture period {self.period:g} s ([mtt] period), where every region's are")
         share = PICTURE_ITEMS // len(self.regions.ids)
         if max(len(msg.ids), len(msg.fused_sensors)) > share:
             raise Rejected("too_large", f"region {self.regions.ids[r]}'s picture at t={msg.t}: {len(msg.ids)} tracks, "
@@ -201,7 +207,8 @@ class PictureMergeService(Service):
 
 def main(argv: list[str]) -> int:
     parser = service_parser("picture", "merge the region centres' pictures into one")
-    parser.add_argument("--config", required=True, help="configuration file; reads [regions] and [deployment]")
+    parser.add_argument("--config", required=True, help="configuration file; reads [regions], [mtt] (its period) "
+                        "and [deployment]")
     parser.add_argument("--dim", type=int, choices=(4, 6), default=4,
                         help="central state size: 6 when any sensor is a radar (default: %(default)s)")
     parser.add_argument("--wait", type=float, default=2.0, metavar="SECONDS",
@@ -213,4 +220,5 @@ def main(argv: list[str]) -> int:
     regions = load_regions(Path(args.config))
     if regions is None:
         raise ConfigError(f"{args.config}: serve picture needs a [regions] table")
-    return PictureMergeService(regions, args.dim, args.wait, **kwargs).run()
+    period = load_tables(Path(args.config), MttServiceSettings).mtt.period  # the region centres' picture period
+    return PictureMergeService(regions, args.dim, args.wait, period, **kwargs).run()

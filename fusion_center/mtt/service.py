@@ -440,7 +440,8 @@ class MttCentreService(Service):
             return not self.standby.primary or bool(self.standby.silent)
 
         keys = ([self.keys.mtt_picture(), self.keys.mtt_resets()] if self.region is None else
-                [self.keys.region_picture(self.region), self.keys.region_resets(self.region), self.keys.region_handover()])
+                [self.keys.region_picture(self.region), self.keys.region_resets(self.region),
+                 self.keys.region_handover()])
         return [Subscription(key, kind, self._primary_sent, wanted=watching, remote=True)
                 for key, kind in zip(keys, (TrackPicture, TrackResets, HandOver))]
 
@@ -494,7 +495,8 @@ class MttCentreService(Service):
                 self.primary_token = None
             self.count("stepped_down")
             self.log.warning("stepped down as the primary of %s: another primary (instance %s) holds it; this one "
-                             "(%s) is its hot standby", self._scope(), min(standby.holders - standby.silent), standby.instance)
+                             "(%s) is its hot standby", self._scope(), min(standby.holders - standby.silent),
+                             standby.instance)
             return
         if not standby.due(time.monotonic()):
             return

@@ -237,7 +237,8 @@ def handover_from_wire(msg: wire.HandOver, centre: TrackToTrackCentre) -> HandOv
     if {s: n for s, n in zip(msg.sensors, msg.support) if n} != counts:
         raise ValueError("support: not the number of its local tracks (member_sensors) of each sensor")
     if not msg.last_support <= msg.ring[-1, 0]:
-        raise ValueError(f"last_support: {msg.last_support:g} is after its newest ring entry's time {msg.ring[-1, 0]:g}")
+        raise ValueError(f"last_support: {msg.last_support:g} is after its newest ring entry's time "
+                         f"{msg.ring[-1, 0]:g}")
     named = set(msg.sensors) | set(msg.member_sensors)
     if len(named) > wire.MAX_LIST_ITEMS or not all(map(centre.cfg.allows, named)):
         raise ValueError(f"sensors: {len(named)} sensors, at most {wire.MAX_LIST_ITEMS} of those [mtt] sensors "
