@@ -218,6 +218,11 @@ def test_an_answer_holding_tracks_its_sub_report_did_not_carry_is_refused(tmp_pa
 
 # ---------------------------------------------------------------- primary tokens that serve nobody
 
+def picture_at(t: float) -> TrackPicture:
+    return TrackPicture(seq=int(t), t=t, ids=(), x=np.zeros((0, 4)), P=np.zeros((0, 4)), confirmed=(), sensors=(),
+                        fused_sensors=(), fused_seqs=(), left=(), stamp_ns=1, closing=False)
+
+
 def answer(seq: int) -> TrackResets:
     return TrackResets(sensor="s1", seq=seq, t=float(seq), q_scale=1.0, ids=(), x=np.zeros((0, 4)), P=np.zeros((0, 4)))
 
@@ -339,3 +344,13 @@ def test_a_region_picture_off_the_picture_grid_is_refused(tmp_path: Path) -> Non
         bus.put(b, encode(region_picture(k + 0.5, ())))
     assert [(p.t, p.ids) for p in bus.of(TrackPicture)] == [(float(k), (0, 1, 2, 3)) for k in range(6)]
     assert svc.counters["rejected_time_jump"] == 6
+
+
+def test_a_forged_token_cannot_silence_a_centre_that_answers_nothing() -> None:
+    """The unsharded decentralized centre publishes pictures only (no answers): its standby judges the
+    token by them."""
+    standby = Standby("all", 0.0, instance="c2")
+    standby.token(True, 0.0, "0")  # forged; the primary is dead
+    for k in range(1, 8):
+        standby.hold("pic", picture_at(float(k)), float(k))
+    assert not standby.due(SILENT_S) and standby.due(1.0 + SILENT_S)

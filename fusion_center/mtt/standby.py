@@ -66,8 +66,8 @@ NUMBER_ROOM = 2**62
 # forged answers of 2,048 tracks on its primary's keys were 81 MB held
 SETTLED_MAX = QUEUE_SIZE
 PICTURES_SETTLED = 4
-# A token whose holder published nothing of the region for this long, while the standby made an answer to a
-# report this long ago (reports were coming), serves nobody: a forged token (any ``fusion`` identity may
+# A token whose holder published nothing of the region for this long, while the standby made an answer or a
+# picture this long ago (data was coming), serves nobody: a forged token (any ``fusion`` identity may
 # declare one), or a primary whose worker is stuck while its session lives. More than twice the trackers'
 # reset timeout (2 s: they go on without the region after it), and under WITHHELD_S (the answer still held)
 SILENT_S = 5.0
@@ -154,14 +154,15 @@ class Standby:
     def due(self, now: float) -> bool:
         """Whether to take over now: no primary token for ``SETTLE_S`` (``START_GRACE_S`` when
         none was ever seen since the start); or tokens stand, each for ``SILENT_S`` at least, but
-        nothing of the primary arrived for as long while this standby made an answer that long ago
-        (:meth:`take_over` then marks their holders ``silent``)."""
+        nothing of the primary arrived for as long while this standby made an answer or a picture that
+        long ago (not a hand-over: a cold standby numbers its own) (:meth:`take_over` then marks their
+        holders ``silent``)."""
         if self.primary:
             return False
         if self.present:
             ago = now - SILENT_S
             return (self.heard <= ago and all(self.since[i] <= ago for i in self.holders - self.silent)
-                    and any(made <= ago and output[0] == "resets" for output, (made, _, _) in self.held.items()))
+                    and any(made <= ago and output[0] != "handover" for output, (made, _, _) in self.held.items()))
         if self.absent_since is None:
             return False
         wait = START_GRACE_S if self.absent_since == self.started else SETTLE_S
