@@ -307,7 +307,8 @@ class Launcher:
     """Runs a plan of service processes and watches the deployment over Zenoh."""
 
     def __init__(self, settings: Settings, plan: list[ServiceProcess], quiet: bool = False,
-                 max_scans: int | None = None, zenoh_config: str | None = None, title: str = "fedtrack launch") -> None:
+                 max_scans: int | None = None, zenoh_config: str | None = None, title: str = "fedtrack launch",
+                 scopes: frozenset[str] = frozenset()) -> None:
         self.settings = settings
         self.title = title  # the command the launcher's own lines name (``fedtrack demo`` runs one too)
         self.zenoh_config = zenoh_config
@@ -324,6 +325,7 @@ class Launcher:
         self._restart_at: dict[str, float] = {}  # service -> monotonic time of its pending restart
         self._failovers: list[Failover] = []
         self._primaries: dict[str, set[str]] = {}  # scope -> the instances holding its primary token
+        self._scopes = scopes  # the deployment's centres' scopes (failover_scopes): other tokens are no failovers
         self._stopping = False  # stop_all began: primary tokens going now are no failovers
         self._epoch: float | None = None  # wall-clock time of the sensors' scenario time 0
 
@@ -496,10 +498,12 @@ class Launcher:
 
     def _on_primary_token(self, sample: zenoh.Sample) -> None:
         """A centre's primary token went (its primary died: the last of its scope's) or was claimed
-        (its standby took over; a second primary's token, withdrawn when it steps down, is no failover)."""
+        (its standby took over; a second primary's token, withdrawn when it steps down, is no failover).
+        A token of a scope the deployment has no centre of is ignored: any ``fusion`` identity may declare
+        one, and each declared and withdrawn was a failover in the report, for good."""
         now, (scope, instance) = time.time_ns(), str(sample.key_expr).rsplit("/", 2)[-2:]
         with self._lock:
-            if self._stopping:
+            if self._stopping or scope not in self._scopes:  # a token of no centre of its: forged, kept nowhere
                 return
             holders = self._primaries.setdefault(scope, set())
             if sample.kind == zenoh.SampleKind.DELETE:
@@ -729,7 +733,17 @@ def prepare_launcher(settings: Settings, config_path: Path, out_dir: Path, quiet
             shutil.copyfile(config_path, out_dir / "config.toml")  # what ``replay --config OUT/config.toml`` reads
     plan = service_plan(settings, config_path, out_dir, out_dir / "logs", recorder_exports=False)
     monitor_config = apply_zenoh_settings(settings, config_path, out_dir, plan)
-    return Launcher(settings, plan, quiet=quiet, zenoh_config=monitor_config, title=title)
+    return Launcher(settings, plan, quiet=quiet, zenoh_config=monitor_config, title=title,
+                    scopes=failover_scopes(settings, config_path))
+
+
+def failover_scopes(settings: Settings, config_path: Path) -> frozenset[str]:
+    """The scopes of a deployment's multi-target centres (their primary tokens' second-last chunk):
+    each region of ``[regions]``, or ``all`` for the one centre; none without ``[multitarget]``."""
+    if settings.multitarget is None:
+        return frozenset()
+    regions = load_regions(config_path)
+    return frozenset(regions.ids) if regions is not None else frozenset({"all"})
 
 
 def main(argv: list[str]) -> int:

@@ -12,14 +12,18 @@ from __future__ import annotations
 import copy
 from dataclasses import replace
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pytest
+import zenoh
 from test_hostile_messages import KEYS, OPTIONS, Bus
 from test_hostile_semantics import one_track_report, scan
 from test_hostile_sequences import region_picture
 from test_mtt_regions_live import CONFIG as REGIONS_CONFIG
 
+from fedtrack.deploy.launcher import Launcher, failover_scopes
+from fedtrack.deploy.settings import load_settings
 from fedtrack.fusion_center.mtt import standby as standby_module
 from fedtrack.fusion_center.mtt.picture_merge import PictureMergeService
 from fedtrack.fusion_center.mtt.service import MttCentreService
@@ -354,3 +358,30 @@ def test_a_forged_token_cannot_silence_a_centre_that_answers_nothing() -> None:
     for k in range(1, 8):
         standby.hold("pic", picture_at(float(k)), float(k))
     assert not standby.due(SILENT_S) and standby.due(1.0 + SILENT_S)
+
+
+# ---------------------------------------------------------------- the launcher's report
+
+class TokenSample(NamedTuple):
+    key_expr: str
+    kind: zenoh.SampleKind
+
+
+def test_the_launcher_reports_failovers_of_its_own_centres_only(tmp_path: Path) -> None:
+    """The launcher listed a failover for every scope whose last primary token went: any ``fusion``
+    identity declaring and withdrawing tokens of made-up scopes grew its report (and ``summary.json``)
+    by one failover each, for good, and made every picture walk that list (1,000 tokens: 1,000
+    failovers of scopes no centre has). It now counts the scopes of its deployment's centres only
+    (each region of ``[regions]``, or ``all``)."""
+    config = tmp_path / "regions.toml"
+    config.write_text("[multitarget]\n" + REGIONS_CONFIG)
+    settings = load_settings(config)
+    assert failover_scopes(settings, config) == {"x0y0", "x1y0"}
+    launcher = Launcher(settings, [], quiet=True, scopes=failover_scopes(settings, config))
+    put, gone = zenoh.SampleKind.PUT, zenoh.SampleKind.DELETE
+    for k in range(1000):
+        for kind in (put, gone):
+            launcher._on_primary_token(TokenSample(launcher.keys.primary(f"zz{k}", "0"), kind))
+    for instance, kind in (("a", put), ("a", gone), ("b", put)):  # a primary of x0y0 dies, its standby takes over
+        launcher._on_primary_token(TokenSample(launcher.keys.primary("x0y0", instance), kind))
+    assert [(f.scope, f.took_over_ns is not None) for f in launcher._failovers] == [("x0y0", True)]
