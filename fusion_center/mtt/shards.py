@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import itertools
 import time
+from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -231,10 +232,7 @@ def handover_from_wire(msg: wire.HandOver, centre: TrackToTrackCentre) -> HandOv
     if msg.ring.shape[1] != sum(widths) or len(msg.window) != centre.cfg.confirm_window:
         raise ValueError(f"ring: {msg.ring.shape[1]} values per entry and a window of {len(msg.window)} do not fit "
                          f"this centre's {sum(widths)} and {centre.cfg.confirm_window}")
-    counts = dict.fromkeys(msg.member_sensors, 0)
-    for sensor in msg.member_sensors:
-        counts[sensor] += 1
-    if {s: n for s, n in zip(msg.sensors, msg.support) if n} != counts:
+    if {s: n for s, n in zip(msg.sensors, msg.support) if n} != Counter(msg.member_sensors):
         raise ValueError("support: not the number of its local tracks (member_sensors) of each sensor")
     if not msg.last_support <= msg.ring[-1, 0]:
         raise ValueError(f"last_support: {msg.last_support:g} is after its newest ring entry's time "
