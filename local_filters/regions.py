@@ -35,7 +35,7 @@ from typing import NamedTuple
 import numpy as np
 
 from fedtrack.config import ConfigError, load_tables
-from fedtrack.geodetic import FrameConfig, enu_from_geodetic
+from fedtrack.geodetic import Frame, FrameConfig, enu_from_geodetic
 from fedtrack.keys import InvalidName, check_id
 from fedtrack.wire import MAX_MAGNITUDE
 
@@ -154,6 +154,12 @@ def regions_of_config(cfg: RegionsConfig, frame: FrameConfig | None) -> Regions:
             if frame is None:
                 raise ConfigError(f"regions.polygon.{p.id}.lat_lon: needs [frame] origin")
             lat, lon = np.asarray(p.lat_lon).T
+            far = np.flatnonzero(~facing(frame.frame, lat, lon))
+            if far.size:
+                k = int(far[0])
+                raise ConfigError(f"regions.polygon.{p.id}.lat_lon: vertex {k + 1} {list(p.lat_lon[k])} is 90 deg or "
+                                  "more from [frame] origin, on the far side of the Earth, where the local frame's "
+                                  "x, y fold back onto the near side (lat and lon swapped?)")
             polygons.append(enu_from_geodetic(frame.frame, lat, lon, np.zeros_like(lat))[:, :2])
         else:
             polygons.append(np.asarray(p.points, dtype=float))
@@ -164,13 +170,25 @@ def regions_of_config(cfg: RegionsConfig, frame: FrameConfig | None) -> Regions:
     return Regions(tuple(p.id for p in cfg.polygon), padded, cfg.margin)
 
 
-def _crossings(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def facing(frame: Frame, lat: np.ndarray, lon: np.ndarray) -> np.ndarray:
+    """(N,) bool: WGS-84 points [deg] on the near side of the Earth from ``frame``'s origin, where the
+    ellipsoid's normal and the origin's make an angle under 90 deg: there the local frame's x, y
+    (the point's projection along the origin's up) are one-to-one; beyond, they fold back."""
+    phi, dlam = np.radians(lat), np.radians(np.asarray(lon) - frame.lon)
+    phi0 = np.radians(frame.lat)
+    return np.sin(phi) * np.sin(phi0) + np.cos(phi) * np.cos(phi0) * np.cos(dlam) > 0
+
+
+def _crossings(a: np.ndarray, b: np.ndarray, tol: float) -> np.ndarray:
     """(Ea, Eb) bool: edge i of closed polygon ``a`` (Ea, 2) and edge j of ``b`` cross at one point
-    inside both (touching or collinear overlap is not a crossing)."""
+    inside both (touching or collinear overlap is not a crossing; a vertex within ``tol`` [m] of the
+    other edge's line touches it: one place given in two ways, such as a pole at two longitudes,
+    converts to points some 1e-10 m apart)."""
     a0, a1, b0, b1 = a[:, None], np.roll(a, -1, axis=0)[:, None], b[None], np.roll(b, -1, axis=0)[None]
 
-    def side(o: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:  # sign of (p - o) x (q - o)
-        return np.sign((p[..., 0] - o[..., 0]) * (q[..., 1] - o[..., 1]) - (p[..., 1] - o[..., 1]) * (q[..., 0] - o[..., 0]))
+    def side(o: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:  # sign of (p - o) x (q - o), 0 within tol
+        cross = (p[..., 0] - o[..., 0]) * (q[..., 1] - o[..., 1]) - (p[..., 1] - o[..., 1]) * (q[..., 0] - o[..., 0])
+        return np.where(np.abs(cross) > tol * np.hypot(p[..., 0] - o[..., 0], p[..., 1] - o[..., 1]), np.sign(cross), 0.0)
 
     return (side(b0, b1, a0) * side(b0, b1, a1) < 0) & (side(a0, a1, b0) * side(a0, a1, b1) < 0)
 
@@ -179,6 +197,12 @@ def _strictly_inside(poly: np.ndarray, pos: np.ndarray, tol: float) -> np.ndarra
     """(N,) bool: positions inside polygon ``poly`` farther than ``tol`` from its edges."""
     inside, edge = _inside_and_edge(Regions(("p",), poly[None], 0.0), pos)
     return inside[:, 0] & (edge[:, 0] > tol)
+
+
+def _tolerance(points: np.ndarray) -> float:
+    """The distance [m] below which two of ``points``' places are one: 1e-9 of their largest
+    coordinate (at least 1e-9 m), far above the round-off of a conversion to the local frame."""
+    return 1e-9 * max(1.0, float(np.abs(points).max()))
 
 
 def check_polygons(keys: list[str], ids: list[str], polygons: list[np.ndarray]) -> None:
@@ -192,7 +216,7 @@ def check_polygons(keys: list[str], ids: list[str], polygons: list[np.ndarray]) 
         E = len(poly)
         k = np.arange(E)
         gap = np.abs(k[:, None] - k[None])
-        crossed = np.argwhere(np.triu(_crossings(poly, poly) & (gap > 1) & (gap < E - 1)))
+        crossed = np.argwhere(np.triu(_crossings(poly, poly, _tolerance(poly)) & (gap > 1) & (gap < E - 1)))
         if crossed.size:
             i, j = crossed[0] + 1
             raise ConfigError(f"{key}: edges {i} and {j} cross (a region must be a simple polygon; edge k runs from "
@@ -209,11 +233,11 @@ def check_polygons(keys: list[str], ids: list[str], polygons: list[np.ndarray]) 
                               & (boxes[:j, 1] < boxes[j, 3]) & (boxes[j, 1] < boxes[:j, 3]))
         for i in near.tolist():
             a = polygons[i]
-            tol = 1e-9 * max(1.0, float(np.abs(np.concatenate([a, b])).max()))
+            tol = _tolerance(np.concatenate([a, b]))
             probes_b = np.concatenate([b, 0.5 * (b + np.roll(b, -1, axis=0))])
             probes_a = np.concatenate([a, 0.5 * (a + np.roll(a, -1, axis=0))])
             same = {tuple(v) for v in a.tolist()} == {tuple(v) for v in b.tolist()}
-            if (same or _crossings(a, b).any() or _strictly_inside(a, probes_b, tol).any()
+            if (same or _crossings(a, b, tol).any() or _strictly_inside(a, probes_b, tol).any()
                     or _strictly_inside(b, probes_a, tol).any()):
                 raise ConfigError(f"{keys[j]}: overlaps region {ids[i]} (regions may share borders, not area: "
                                   "a position belongs to one region)")

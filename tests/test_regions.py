@@ -95,6 +95,46 @@ lat_lon = [[51.99, 3.99], [51.99, 4.01], [52.01, 4.01], [52.01, 3.99]]
     assert region_of(regions, np.zeros((1, 2))).tolist() == [0]
 
 
+def test_sectors_meeting_at_a_pole_given_at_their_own_longitudes_share_it(tmp_path: Path) -> None:
+    """The pole is one place whatever longitude names it; converted, [90, 0] and [90, 45] lie some
+    1e-10 m apart, and two sectors sharing the edge to it were refused as overlapping (192 of 200
+    random such caps before 2026-11-27)."""
+    path = write(tmp_path, """
+[frame]
+origin = [89.5, 0.0, 0.0]
+[regions]
+margin = 2000.0
+""" + "".join(f"""[[regions.polygon]]
+id = "s{k}"
+lat_lon = [[88.0, {lo}], [88.0, {hi}], [90.0, {pole}]]
+""" for k, (lo, hi, pole) in enumerate([(0, 90, 0), (90, 180, 90), (180, 270, 180), (270, 360, 45)])))
+    regions = load_regions(path)
+    lon = np.array([45.0, 135.0, 225.0, 315.0])
+    xy = enu_from_geodetic(Frame(89.5, 0.0), np.full(4, 88.5), lon, np.zeros(4))[:, :2]
+    assert region_of(regions, xy).tolist() == [0, 1, 2, 3]
+
+
+def test_a_lat_lon_vertex_on_the_far_side_of_the_earth_is_an_error(tmp_path: Path) -> None:
+    """Beyond 90 deg from the origin the local frame's x, y fold back: this box in the South Pacific
+    (the mirror image of the area 1-2 deg east of Paris) took aircraft over Reims."""
+    path = write(tmp_path, """
+[frame]
+origin = [48.8, 2.3, 0.0]
+[regions]
+margin = 1000.0
+[[regions.polygon]]
+id = "home"
+lat_lon = [[48.3, 1.8], [48.3, 2.8], [49.3, 2.8], [49.3, 1.8]]
+[[regions.polygon]]
+id = "far"
+lat_lon = [[-49.29, -178.92], [-49.26, -179.94], [-48.26, -179.85], [-48.29, -178.88]]
+""")
+    with pytest.raises(ConfigError) as exc:
+        load_regions(path)
+    assert str(exc.value).startswith(f"{path}: regions.polygon.far.lat_lon: vertex 1 [-49.29, -178.92] is 90 deg")
+    assert "\n" not in str(exc.value)
+
+
 @pytest.mark.parametrize("body, message", [
     ("[regions]\ngrid = {origin = [0, 0], cell = [1, 1], nx = 2, ny = 2}\n", "missing config key regions.margin"),
     ("[regions]\nmargin = 1.0\n", "give exactly one of grid, polygon"),
