@@ -323,3 +323,37 @@ def test_without_regions_the_messages_carry_no_region_field() -> None:
         assert not any(name in payload for name in (b"elsewhere", b"held", b"moved", b"region", b"handovers",
                                                      b"in_flight"))
         assert encode(decode(payload, type(msg))) == payload
+
+
+def test_the_merged_picture_carries_the_tracks_on_the_earth(tmp_path: Path) -> None:
+    """With ``[frame]``, ``serve picture``'s merged tracks carry ``lla`` as a centre's pictures do, so
+    the recorder's ``tracks.jsonl`` has the ``lat``, ``lon``, ``alt`` that ``replay --regions config``
+    writes (before 2026-11-27 a live region run recorded none: its 7,369 track rows on 120 s of the
+    traffic package's quickstart sample had no ``lat``)."""
+    import numpy as np
+
+    from fedtrack.fusion_center.mtt.picture_merge import service_from_args
+    from fedtrack.geodetic import Frame, geodetic_of_states
+    from fedtrack.wire import TrackPicture
+
+    config = tmp_path / "c.toml"
+    config.write_text(CONFIG + "\n[frame]\norigin = [48.878, 2.423, 35.0]\n")
+    merger = service_from_args(["--config", str(config), "--dim", "6", "--id", "picture", "--deployment", "hostile"])
+    recorder = Recorder(tmp_path / "rec.db", tmp_path / "out", service_id="rec", options=OPTIONS, deployment="hostile")
+    recorder.on_start()
+    bus = Bus([merger, recorder])
+    x = np.array([[-2500.0, 100.0, 300.0, 0.0, 3000.0, 0.0], [2500.0, -100.0, -300.0, 0.0, 9000.0, 0.0]])
+    for k, rid in enumerate(("x0y0", "x1y0")):
+        bus.put(Keys("hostile").region_picture(rid), encode(TrackPicture(
+            seq=0, t=1.0, ids=(k,), x=x[k:k + 1], P=np.eye(6), confirmed=(True,), sensors=(("r1",),),
+            fused_sensors=("r1",), fused_seqs=(0,), stamp_ns=1)))
+    merger.on_stop()
+    bus.drain()
+    recorder.on_stop()
+    merged = [p for key, p in bus.published if key == Keys("hostile").mtt_picture() and not p.closing]
+    assert len(merged) == 1 and merged[0].lla is not None
+    assert np.array_equal(merged[0].lla, geodetic_of_states(Frame(48.878, 2.423, 35.0), x))
+    rows = json.loads((tmp_path / "out" / "tracks.jsonl").read_text().splitlines()[0])["tracks"]
+    written = np.array([(r["lat"], r["lon"], r["alt"]) for r in rows])  # 1e-9 deg, 0.1 mm (docs/geodetic.md)
+    assert np.allclose(written[:, :2], merged[0].lla[:, :2], rtol=0, atol=1e-9)
+    assert np.allclose(written[:, 2], merged[0].lla[:, 2], rtol=0, atol=1e-4)

@@ -22,8 +22,10 @@ or entries than its share of one merged picture (``PICTURE_ITEMS`` / regions) is
 every region centre's clock makes them, is rejected (``time_jump``): a region's pictures between the
 others' made merged pictures of that region alone. A region picture not after the latest taken from its
 region is a ``duplicate`` when equal to the one taken for its time, else refused (``conflict``) and
-the next merged picture marked ``contested``. On a clean stop it merges what it holds and publishes a
-closing record with the regions' closing lists.
+the next merged picture marked ``contested``. With ``[frame]`` in the config each merged track carries its WGS-84
+position (``lla``, as a centre's picture does: the recorder's ``tracks.jsonl`` then has the ``lat``,
+``lon``, ``alt`` that ``replay --regions config`` writes). On a clean stop it merges what it holds and
+publishes a closing record with the regions' closing lists.
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ import numpy as np
 from fedtrack.config import ConfigError, load_tables
 from fedtrack.fusion_center.mtt.regional import RegionPicture, merge_pictures, rows_of
 from fedtrack.fusion_center.mtt.service import PICTURE_ITEMS, picture_message, picture_tracks
+from fedtrack.geodetic import Frame, geodetic_of_states, load_frame
 from fedtrack.local_filters.mtt.config import MttServiceSettings
 from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.services.base import Conflict, Rejected, Service, Subscription, digest, service_kwargs, service_parser
@@ -79,9 +82,11 @@ class PictureMergeService(Service):
     tick_period_s = 0.05
     state_attrs = ("pending", "started", "closing", "late", "merged_t", "seq", "lead", "latest", "contested")
 
-    def __init__(self, regions: Regions, dim: int, wait_s: float, period: float, **kwargs: Any) -> None:
+    def __init__(self, regions: Regions, dim: int, wait_s: float, period: float, frame: Frame | None = None,
+                 **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.regions, self.dim, self.wait_s, self.period = regions, dim, wait_s, period
+        self.frame = frame  # [frame]: each merged track's WGS-84 position too
         R = len(regions.ids)
         self.pending: list[deque[TrackPicture]] = [deque() for _ in range(R)]
         self.started = [False] * R  # the region published a picture
@@ -191,7 +196,8 @@ class PictureMergeService(Service):
         contested = contested or self.contested or any(p is not None and p.contested for p in parts)
         self.contested = False
         self.publish(self.keys.mtt_picture(), picture_message(
-            self.seq, T, tracks, order, left, contested, closing, handovers, tuple(e[3] for e in entries)))
+            self.seq, T, tracks, order, left, contested, closing, handovers, tuple(e[3] for e in entries),
+            lla=None if self.frame is None else geodetic_of_states(self.frame, tracks.x)))
         self.seq += 1
         self.counters["pictures"] = self.seq
 
@@ -205,10 +211,11 @@ class PictureMergeService(Service):
                           self.closing, closing=True)
 
 
-def main(argv: list[str]) -> int:
+def service_from_args(argv: list[str]) -> PictureMergeService:
+    """The merger that ``serve picture ARGV`` runs (a ConfigError is the CLI's one-line error)."""
     parser = service_parser("picture", "merge the region centres' pictures into one")
-    parser.add_argument("--config", required=True, help="configuration file; reads [regions], [mtt] (its period) "
-                        "and [deployment]")
+    parser.add_argument("--config", required=True, help="configuration file; reads [regions], [mtt] (its period), "
+                        "[deployment] and [frame] (the merged tracks' lat, lon, alt)")
     parser.add_argument("--dim", type=int, choices=(4, 6), default=4,
                         help="central state size: 6 when any sensor is a radar (default: %(default)s)")
     parser.add_argument("--wait", type=float, default=2.0, metavar="SECONDS",
@@ -221,4 +228,9 @@ def main(argv: list[str]) -> int:
     if regions is None:
         raise ConfigError(f"{args.config}: serve picture needs a [regions] table")
     period = load_tables(Path(args.config), MttServiceSettings).mtt.period  # the region centres' picture period
-    return PictureMergeService(regions, args.dim, args.wait, period, **kwargs).run()
+    frame = load_frame(Path(args.config))
+    return PictureMergeService(regions, args.dim, args.wait, period, None if frame is None else frame.frame, **kwargs)
+
+
+def main(argv: list[str]) -> int:
+    return service_from_args(argv).run()
