@@ -86,8 +86,10 @@ class PolygonConfig:
         corners = self.points or self.lat_lon
         if len(corners) < 3 or not np.all(np.isfinite(corners)):
             raise ConfigError(f"{self.id}: at least 3 finite vertices")
-        if self.lat_lon and not all(-90 <= lat <= 90 for lat, _ in self.lat_lon):
-            raise ConfigError(f"{self.id}: lat_lon latitudes must be in [-90, 90]")
+        bad = [k for k, (lat, lon) in enumerate(self.lat_lon) if not (-90 <= lat <= 90 and -180 <= lon <= 360)]
+        if bad:
+            raise ConfigError(f"{self.id}: lat_lon vertex {bad[0] + 1} {list(self.lat_lon[bad[0]])}: expected [lat deg in "
+                              "[-90, 90], lon deg in [-180, 360]] (as [frame] origin)")
 
 
 @dataclass(frozen=True)

@@ -146,6 +146,8 @@ lat_lon = [[-49.29, -178.92], [-49.26, -179.94], [-48.26, -179.85], [-48.29, -17
     ("[regions]\nmargin = 1.0\n[[regions.polygon]]\nid = \"a\"\npoints = [[0, 0], [1, 0]]\n", "at least 3"),
     ("[regions]\nmargin = 1.0\n[[regions.polygon]]\nid = \"a\"\nlat_lon = [[0, 0], [1, 0], [0, 1]]\n",
      "needs [frame] origin"),
+    ("[frame]\norigin = [48.0, 2.0, 0.0]\n[regions]\nmargin = 1.0\n[[regions.polygon]]\nid = \"a\"\n"
+     "lat_lon = [[48, 2], [48, 1e300], [49, 2]]\n", "a: lat_lon vertex 2 [48.0, 1e"),
     ("[regions]\nmargin = 1.0\nsize = 3\ngrid = {origin = [0, 0], cell = [1, 1], nx = 2, ny = 2}\n",
      "unknown config key regions.size"),
 ])
