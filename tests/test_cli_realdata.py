@@ -224,6 +224,15 @@ def test_demo_input_errors_leave_no_output_folder(tmp_path: Path, capsys: pytest
     assert not (tmp_path / "o").exists()
 
 
+def test_launch_refuses_a_frame_other_than_the_recordings(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A recording's scenario is simulated in ``[multitarget] origin``'s frame and the services place tracks
+    (lat, lon) and ``lat_lon`` regions in ``[frame] origin``'s: 98 km apart here, taken without a word before
+    2026-11-27."""
+    assert_launch_refuses(tmp_path, capsys, '[deployment]\npacing = "realtime"\n\n[multitarget]\nsource = "x.csv"\n'
+                          'origin = [48.878, 2.423, 0.0]\n\n[frame]\norigin = [48.0, 2.423, 0.0]\n',
+                          "frame.origin: [48.0, 2.423, 0.0] is not multitarget.origin [48.878, 2.423, 0.0]")
+
+
 def test_demo_and_launch_read_a_recording_in_aviation_units(tmp_path: Path) -> None:
     """The traffic library's samples are in ft, kt and ft/min: ``demo --scenario traffic --source`` read them as
     m and m/s (aircraft 3.28 times higher than recorded), with no way to say otherwise."""
