@@ -140,7 +140,8 @@ def grid_over(positions: np.ndarray, nx: int, ny: int, margin: float) -> Regions
 def regions_of_config(cfg: RegionsConfig, frame: FrameConfig | None) -> Regions:
     """The regions of a validated ``[regions]`` table (``frame`` converts ``lat_lon`` vertices); a
     ConfigError naming the key for polygons that are not simple, enclose no area or overlap, and for
-    coordinates beyond the wire's +-MAX_MAGNITUDE (:func:`check_polygons`)."""
+    coordinates beyond the wire's +-MAX_MAGNITUDE (:func:`check_polygons`, :func:`check_overlaps`); ``lat_lon``
+    edges are split at the vertices on them (:func:`split_at_junctions`)."""
     if cfg.margin > MAX_MAGNITUDE:
         raise ConfigError(f"regions.margin: beyond {MAX_MAGNITUDE:g} m")
     if cfg.grid is not None:
@@ -150,23 +151,24 @@ def regions_of_config(cfg: RegionsConfig, frame: FrameConfig | None) -> Regions:
             raise ConfigError(f"regions.grid: the grid reaches beyond +-{MAX_MAGNITUDE:g} m (the wire's bound on "
                               "any position; distances there overflow)")
         return grid_regions(g.origin, g.cell, g.nx, g.ny, cfg.margin)
-    polygons = []
-    for p in cfg.polygon:
-        if p.lat_lon:
-            if frame is None:
-                raise ConfigError(f"regions.polygon.{p.id}.lat_lon: needs [frame] origin")
-            lat, lon = np.asarray(p.lat_lon).T
-            far = np.flatnonzero(~facing(frame.frame, lat, lon))
-            if far.size:
-                k = int(far[0])
-                raise ConfigError(f"regions.polygon.{p.id}.lat_lon: vertex {k + 1} {list(p.lat_lon[k])} is 90 deg or "
-                                  "more from [frame] origin, on the far side of the Earth, where the local frame's "
-                                  "x, y fold back onto the near side (lat and lon swapped?)")
-            polygons.append(enu_from_geodetic(frame.frame, lat, lon, np.zeros_like(lat))[:, :2])
-        else:
-            polygons.append(np.asarray(p.points, dtype=float))
-    check_polygons([f"regions.polygon.{p.id}.{'lat_lon' if p.lat_lon else 'points'}" for p in cfg.polygon],
-                   [p.id for p in cfg.polygon], polygons)
+    keys = [f"regions.polygon.{p.id}.{'lat_lon' if p.lat_lon else 'points'}" for p in cfg.polygon]
+    for key, p in zip(keys, cfg.polygon):
+        if p.lat_lon and frame is None:
+            raise ConfigError(f"{key}: needs [frame] origin")
+        far = np.flatnonzero(~facing(frame.frame, *np.asarray(p.lat_lon, dtype=float).T)) if p.lat_lon and frame else []
+        if len(far):
+            raise ConfigError(f"{key}: vertex {far[0] + 1} {list(p.lat_lon[far[0]])} is 90 deg or more from [frame] "
+                              "origin, on the far side of the Earth, where the local frame's x, y fold back onto the "
+                              "near side (lat and lon swapped?)")
+    wgs84 = [k for k, p in enumerate(cfg.polygon) if p.lat_lon]
+    lat_lon = [np.asarray(cfg.polygon[k].lat_lon, dtype=float) for k in wgs84]
+    polygons = [np.asarray(p.points, dtype=float) for p in cfg.polygon]
+    for k, corners in zip(wgs84, lat_lon):
+        polygons[k] = to_local(frame.frame, corners)
+    check_polygons(keys, polygons)  # each as given (its edges numbered as written)
+    for k, corners in zip(wgs84, split_at_junctions(lat_lon) if lat_lon else []):
+        polygons[k] = to_local(frame.frame, corners)
+    check_overlaps(keys, [p.id for p in cfg.polygon], polygons)
     size = max(len(v) for v in polygons)
     padded = np.stack([np.concatenate([v, np.repeat(v[-1:], size - len(v), axis=0)]) for v in polygons])
     return Regions(tuple(p.id for p in cfg.polygon), padded, cfg.margin)
@@ -179,6 +181,43 @@ def facing(frame: Frame, lat: np.ndarray, lon: np.ndarray) -> np.ndarray:
     phi, dlam = np.radians(lat), np.radians(np.asarray(lon) - frame.lon)
     phi0 = np.radians(frame.lat)
     return np.sin(phi) * np.sin(phi0) + np.cos(phi) * np.cos(phi0) * np.cos(dlam) > 0
+
+
+def to_local(frame: Frame, lat_lon: np.ndarray) -> np.ndarray:
+    """x, y (n, 2) [m] in the local frame of WGS-84 vertices (n, 2) [lat, lon deg] at height 0."""
+    return enu_from_geodetic(frame, lat_lon[:, 0], lat_lon[:, 1], np.zeros(len(lat_lon)))[:, :2]
+
+
+JUNCTION_DEG = 1e-9  # a vertex this near another polygon's edge, in degrees (0.1 mm), lies on it
+
+
+def split_at_junctions(polygons: list[np.ndarray]) -> list[np.ndarray]:
+    """WGS-84 polygons (n, 2) [lat, lon deg], each edge split at every vertex of theirs that lies on it
+    in latitude and longitude (longitude the short way round): a T-junction, such as the corner of two
+    regions on a third's side along a parallel. Converted, an edge is the straight line between its
+    ends in the local frame, so without the split the third's side and the two's sides were different
+    lines (121 m apart in the middle of a 1 deg edge at 48.8 deg N) that overlapped or left a gap."""
+    every = np.unique(np.concatenate(polygons), axis=0)
+    by_lat = np.argsort(every[:, 0])
+    lats = every[by_lat, 0]
+    out = []
+    for poly in polygons:
+        pieces = []
+        for a, b in zip(poly, np.roll(poly, -1, axis=0)):
+            pieces.append(a[None])
+            lo, hi = np.searchsorted(lats, [min(a[0], b[0]) - JUNCTION_DEG, max(a[0], b[0]) + JUNCTION_DEG], side="right")
+            cand = every[by_lat[lo:hi]]
+            d = np.array([b[0] - a[0], (b[1] - a[1] + 180.0) % 360.0 - 180.0])
+            v = np.stack([cand[:, 0] - a[0], (cand[:, 1] - a[1] + 180.0) % 360.0 - 180.0], axis=-1)
+            length = float(np.hypot(*d))
+            if not cand.size or length == 0.0:
+                continue
+            t = v @ d / length  # along the edge [deg]
+            off = np.abs(v[:, 0] * d[1] - v[:, 1] * d[0]) / length
+            on = (off <= JUNCTION_DEG) & (t > JUNCTION_DEG) & (t < length - JUNCTION_DEG)
+            pieces.append(cand[on][np.argsort(t[on])])
+        out.append(np.concatenate(pieces))
+    return out
 
 
 def _crossings(a: np.ndarray, b: np.ndarray, tol: float) -> np.ndarray:
@@ -207,11 +246,9 @@ def _tolerance(points: np.ndarray) -> float:
     return 1e-9 * max(1.0, float(np.abs(points).max()))
 
 
-def check_polygons(keys: list[str], ids: list[str], polygons: list[np.ndarray]) -> None:
-    """Each region a simple polygon (no two edges cross) enclosing an area, none overlapping another
-    (the first containing region owns a position: a region inside another would own nothing), every
-    coordinate within +-MAX_MAGNITUDE (squared distances stay finite); shared borders are fine. A
-    ConfigError naming ``keys[i]`` otherwise."""
+def check_polygons(keys: list[str], polygons: list[np.ndarray]) -> None:
+    """Each region a simple polygon (no two edges cross) enclosing an area, every coordinate within
+    +-MAX_MAGNITUDE (squared distances stay finite). A ConfigError naming ``keys[i]`` otherwise."""
     for key, poly in zip(keys, polygons):
         if not np.all(np.abs(poly) <= MAX_MAGNITUDE):
             raise ConfigError(f"{key}: coordinates beyond +-{MAX_MAGNITUDE:g} m (the wire's bound on any position)")
@@ -228,6 +265,11 @@ def check_polygons(keys: list[str], ids: list[str], polygons: list[np.ndarray]) 
         extent = float(np.ptp(poly, axis=0).max())
         if not area > 1e-12 * extent * extent:
             raise ConfigError(f"{key}: encloses no area (its vertices are on one line or one point)")
+
+
+def check_overlaps(keys: list[str], ids: list[str], polygons: list[np.ndarray]) -> None:
+    """No region overlapping another (the first containing region owns a position: a region inside
+    another would own nothing); shared borders are fine. A ConfigError naming ``keys[j]`` otherwise."""
     boxes = np.array([[*p.min(axis=0), *p.max(axis=0)] for p in polygons])
     for j in range(1, len(polygons)):
         b = polygons[j]

@@ -114,6 +114,36 @@ lat_lon = [[88.0, {lo}], [88.0, {hi}], [90.0, {pole}]]
     assert region_of(regions, xy).tolist() == [0, 1, 2, 3]
 
 
+def test_two_regions_meeting_on_a_third_ones_side_along_a_parallel_share_its_border(tmp_path: Path) -> None:
+    """A south region and two north ones split at a meridian: the north ones' corner on the south one's
+    side (a T-junction) split that side, so the three share one border. Before 2026-11-27 each edge was the
+    chord between its ends: the south side's chord (2.7 deg) ran north of the north ones' (1.3 deg each)
+    and the config was refused as overlapping."""
+    path = write(tmp_path, """
+[frame]
+origin = [46.954, 7.738, 0.0]
+[regions]
+margin = 2000.0
+[[regions.polygon]]
+id = "south"
+lat_lon = [[46.0, 6.4], [46.0, 9.1], [46.954, 9.1], [46.954, 6.4]]
+[[regions.polygon]]
+id = "nw"
+lat_lon = [[46.954, 6.4], [46.954, 7.738], [47.9, 7.738], [47.9, 6.4]]
+[[regions.polygon]]
+id = "ne"
+lat_lon = [[46.954, 7.738], [46.954, 9.1], [47.9, 9.1], [47.9, 7.738]]
+""")
+    regions = load_regions(path)
+    frame = Frame(46.954, 7.738, 0.0)
+    corner = enu_from_geodetic(frame, np.array([46.954]), np.array([7.738]), np.zeros(1))[0, :2]
+    assert any(np.array_equal(v, corner) for v in regions.vertices[0])  # the south side split at the corner
+    lat, lon = np.array([46.5, 47.5, 47.5, 46.96, 46.96]), np.array([7.0, 7.0, 8.5, 6.5, 9.0])
+    xy = enu_from_geodetic(frame, lat, lon, np.zeros(5))[:, :2]
+    assert [regions.ids[i] for i in region_of(regions, xy)] == ["south", "nw", "ne", "nw", "ne"]
+    assert (distances(regions, xy) == 0).sum(axis=1).tolist() == [1] * 5  # inside exactly one
+
+
 def test_a_lat_lon_vertex_on_the_far_side_of_the_earth_is_an_error(tmp_path: Path) -> None:
     """Beyond 90 deg from the origin the local frame's x, y fold back: this box in the South Pacific
     (the mirror image of the area 1-2 deg east of Paris) took aircraft over Reims."""
@@ -146,8 +176,8 @@ lat_lon = [[-49.29, -178.92], [-49.26, -179.94], [-48.26, -179.85], [-48.29, -17
     ("[regions]\nmargin = 1.0\n[[regions.polygon]]\nid = \"a\"\npoints = [[0, 0], [1, 0]]\n", "at least 3"),
     ("[regions]\nmargin = 1.0\n[[regions.polygon]]\nid = \"a\"\nlat_lon = [[0, 0], [1, 0], [0, 1]]\n",
      "needs [frame] origin"),
-    ("[frame]\norigin = [48.0, 2.0, 0.0]\n[regions]\nmargin = 1.0\n[[regions.polygon]]\nid = \"a\"\n"
-     "lat_lon = [[48, 2], [48, 1e300], [49, 2]]\n", "a: lat_lon vertex 2 [48.0, 1e"),
+    (("[frame]\norigin = [48.0, 2.0, 0.0]\n[regions]\nmargin = 1.0\n[[regions.polygon]]\nid = \"a\"\n"
+      "lat_lon = [[48, 2], [48, 1e300], [49, 2]]\n"), "a: lat_lon vertex 2 [48.0, 1e"),
     ("[regions]\nmargin = 1.0\nsize = 3\ngrid = {origin = [0, 0], cell = [1, 1], nx = 2, ny = 2}\n",
      "unknown config key regions.size"),
 ])
