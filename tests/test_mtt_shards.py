@@ -153,6 +153,22 @@ def test_regions_option_errors_name_the_option(data: Path, tmp_path: Path) -> No
     assert replay_mtt("mtt-decentralized", data / "measurements.jsonl", config, out, regions="config") == 60
 
 
+@pytest.mark.parametrize(("lat_lon", "noted"), [("[[48.0, 2.0], [48.0, 3.0], [49.0, 3.0], [49.0, 2.0]]", False),
+                                               ("[[2.0, 48.0], [3.0, 48.0], [3.0, 49.0], [2.0, 49.0]]", True)])
+def test_regions_holding_none_of_the_data_are_noted(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                    lat_lon: str, noted: bool) -> None:
+    """lat_lon written as lon, lat on the near side (about 5,500 km away here) is a valid config whose regions own
+    every track as the nearest ones: the replay runs, and says that no detection is within their extent (before
+    2026-11-27 it said nothing: on the quickstart sample every track went to one region, 0 hand-overs)."""
+    simulate(Scenario(targets=2, duration=4.0, clutter=0.0), parse_spec("pos:1.0"), 1, tmp_path)
+    config = tmp_path / "c.toml"
+    config.write_text(f"[frame]\norigin = [48.5, 2.5, 0.0]\n[regions]\nmargin = 100.0\n[[regions.polygon]]\n"
+                      f"id = \"a\"\nlat_lon = {lat_lon}\n")
+    assert replay_mtt("mtt-federated", tmp_path / "measurements.jsonl", config, tmp_path / "p.jsonl", regions="config") == 4
+    notes = [line for line in capsys.readouterr().err.splitlines() if line.startswith("--regions config: note")]
+    assert len(notes) == noted and all("none of the measurements' detections is within the extent" in n for n in notes)
+
+
 def test_a_scan_without_rows_leaves_what_the_full_path_leaves(data: Path) -> None:
     """A report without detected rows (a region's sub-report of a scan that saw nothing there)
     takes :meth:`TrackToTrackCentre.ingest`'s short path: the centre it leaves, its resets and its
