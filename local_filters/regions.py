@@ -303,7 +303,7 @@ def load_regions(path: str | Path | None) -> Regions | None:
 def parse_grid_spec(spec: str) -> tuple[int, int]:
     """``"NXxNY"`` (e.g. ``"2x2"``) as ``(nx, ny)``."""
     parts = spec.lower().split("x")
-    if len(parts) != 2 or not all(p.isdigit() and int(p) >= 1 for p in parts) or int(parts[0]) * int(parts[1]) > MAX_REGIONS:
+    if len(parts) != 2 or not all(p.isascii() and p.isdigit() and int(p) >= 1 for p in parts) or int(parts[0]) * int(parts[1]) > MAX_REGIONS:
         raise ConfigError(f"--regions: expected NXxNY (e.g. 2x2, at most {MAX_REGIONS} cells) or 'config', got {spec!r}")
     return int(parts[0]), int(parts[1])
 

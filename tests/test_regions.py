@@ -190,7 +190,7 @@ def test_bad_regions_config_names_the_key(tmp_path: Path, body: str, message: st
 
 def test_grid_spec_and_grid_over_the_data() -> None:
     assert parse_grid_spec("2x4") == (2, 4)
-    for bad in ("2", "0x2", "ax2", "2x2x2", "200x200"):
+    for bad in ("2", "0x2", "ax2", "2x2x2", "200x200", "\u00b2x2"):  # a superscript 2 is a digit to isdigit, not to int
         with pytest.raises(ConfigError, match="--regions"):
             parse_grid_spec(bad)
     pos = np.array([[0.0, 0.0], [10.0, 4.0], [3.0, 1.0]])
