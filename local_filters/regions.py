@@ -153,10 +153,12 @@ def regions_of_config(cfg: RegionsConfig, frame: FrameConfig | None) -> Regions:
         return grid_regions(g.origin, g.cell, g.nx, g.ny, cfg.margin)
     keys = [f"regions.polygon.{p.id}.{'lat_lon' if p.lat_lon else 'points'}" for p in cfg.polygon]
     for key, p in zip(keys, cfg.polygon):
-        if p.lat_lon and frame is None:
+        if not p.lat_lon:
+            continue
+        if frame is None:
             raise ConfigError(f"{key}: needs [frame] origin")
-        far = np.flatnonzero(~facing(frame.frame, *np.asarray(p.lat_lon, dtype=float).T)) if p.lat_lon and frame else []
-        if len(far):
+        far = np.flatnonzero(~facing(frame.frame, *np.asarray(p.lat_lon, dtype=float).T))
+        if far.size:
             raise ConfigError(f"{key}: vertex {far[0] + 1} {list(p.lat_lon[far[0]])} is 90 deg or more from [frame] "
                               "origin, on the far side of the Earth, where the local frame's x, y fold back onto the "
                               "near side (lat and lon swapped?)")
@@ -210,7 +212,7 @@ def split_at_junctions(polygons: list[np.ndarray]) -> list[np.ndarray]:
             d = np.array([b[0] - a[0], (b[1] - a[1] + 180.0) % 360.0 - 180.0])
             v = np.stack([cand[:, 0] - a[0], (cand[:, 1] - a[1] + 180.0) % 360.0 - 180.0], axis=-1)
             length = float(np.hypot(*d))
-            if not cand.size or length == 0.0:
+            if length == 0.0:
                 continue
             t = v @ d / length  # along the edge [deg]
             off = np.abs(v[:, 0] * d[1] - v[:, 1] * d[0]) / length
