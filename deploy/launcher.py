@@ -263,10 +263,11 @@ def apply_zenoh_settings(settings: Settings, config_path: Path, out_dir: Path,
     if settings.zenoh.insecure:  # the file's explicit opt-out, which every ``serve`` then needs off loopback
         for sp in plan:
             sp.argv = [*sp.argv, "--insecure"]
-    identities = sorted({ident(sp) for sp in plan} | {identity("sensor", s.id) for s in settings.sensor}
-                        | {"router", "fusion", "recorder"})
+    here = sorted({ident(sp) for sp in plan})  # the certificates this host needs (other hosts hold theirs)
+    sensors = sensor_ids(settings.multitarget) if settings.multitarget is not None else [s.id for s in settings.sensor]
+    everyone = sorted({*here, *(identity("sensor", sid) for sid in sensors), "router", "fusion", "recorder"})
     with in_file(config_path):
-        paths = write_configs(settings.zenoh, config_path.parent, Keys(dep.name), identities, out_dir)
+        paths = write_configs(settings.zenoh, config_path.parent, Keys(dep.name), here, out_dir, everyone)
     if not paths:
         return None
     for sp in plan:

@@ -45,6 +45,7 @@ if TYPE_CHECKING:  # imported where certificates are made: every service reads t
 
 from fedtrack.config import ConfigError
 from fedtrack.deployment import DeploymentConfig, on_loopback
+from fedtrack.jsonl import InputError, output_folder
 from fedtrack.keys import Keys
 
 CA_NAME = "fedtrack-ca"
@@ -53,6 +54,7 @@ OWN_MESSAGES = ["put", "delete", "reply", "declare_queryable", "liveliness_token
 READ_MESSAGES = ["declare_subscriber", "query", "liveliness_query", "declare_liveliness_subscriber"]
 ALL_MESSAGES = OWN_MESSAGES + READ_MESSAGES
 LAUNCHER = "launcher"
+ROUTER = "router"
 
 
 @dataclass(frozen=True)
@@ -75,10 +77,13 @@ class ZenohSettings:
 
 def check_transport(zenoh: ZenohSettings, dep: DeploymentConfig) -> None:
     """Authenticated by default: an endpoint off loopback needs ``tls_dir`` or ``insecure = true``
-    (a ConfigError naming the field); with ``tls_dir`` every endpoint must be ``tls/``."""
-    fields = [*([("deployment.router_listen", dep.router_listen)] if dep.router_listen else []),
-              *(("deployment.connect", ep) for ep in dep.connect or ()),
+    (a ConfigError naming the field); with ``tls_dir`` every endpoint must be ``tls/``. The endpoints
+    are those this host uses: ``router_listen`` only where a router runs (or the clients connect to it)."""
+    clients = ("deployment.connect", dep.connect) if dep.connect else ("deployment.router_listen", (dep.router_listen,))
+    fields = [*([("deployment.router_listen", dep.router_listen)] if "router" in dep.services else []),
+              *((clients[0], ep) for ep in clients[1]),
               *(("deployment.router_connect", ep) for ep in dep.router_connect)]
+    fields = [(name, ep) for name, ep in dict.fromkeys(fields) if ep]
     if zenoh.tls_dir is not None:
         for name, ep in fields:
             if not ep.startswith("tls/"):
@@ -118,6 +123,9 @@ def own_keys(keys: Keys, ident: str) -> list[str]:
         roles = [(role, None) for role in CENTRE_ROLES]
     elif ident == LAUNCHER:
         return []
+    elif ident == ROUTER:  # another host's router (router_connect) forwards its own clients' messages, each
+        # admitted there by its own identity; this router sees only the link's, ``router``
+        data, roles = [f"fedtrack/{keys.deployment}/**"], []
     else:
         data, roles = [], [(ident, None)]
     own = data + [keys.health(r, i) for r, i in roles] + [keys.alive(r, i) for r, i in roles]
@@ -149,10 +157,14 @@ def access_control(keys: Keys, identities: list[str]) -> dict[str, Any]:
 
 
 def tls_config(tls_dir: Path, ident: str, router: bool) -> dict[str, Any]:
-    """``transport/link/tls`` for ``ident``: mutual TLS with the deployment's CA."""
+    """``transport/link/tls`` for ``ident``: mutual TLS with the deployment's CA. A router presents its
+    certificate on both sides: to its clients and to the routers it joins (``router_connect``)."""
     cert, key = str(tls_dir / f"{ident}.pem"), str(tls_dir / f"{ident}.key")
-    side = ("listen_certificate", "listen_private_key") if router else ("connect_certificate", "connect_private_key")
-    return {"root_ca_certificate": str(tls_dir / "ca.pem"), "enable_mtls": True, side[0]: cert, side[1]: key}
+    tls = {"root_ca_certificate": str(tls_dir / "ca.pem"), "enable_mtls": True,
+           "connect_certificate": cert, "connect_private_key": key}
+    if router:
+        tls.update(listen_certificate=cert, listen_private_key=key)
+    return tls
 
 
 def _write_private(path: Path, data: bytes) -> None:
@@ -188,8 +200,9 @@ def _certificate(subject: str, key: ec.EllipticCurvePrivateKey, issuer: x509.Nam
     return builder.sign(signer, hashes.SHA256())
 
 
-def subject_alt_names(extra: str = "") -> list[x509.GeneralName]:
-    """127.0.0.1 and localhost, plus ``extra`` (``FEDTRACK_CERT_SAN``: ``IP:10.47.0.1,DNS:host-a``)."""
+def subject_alt_names(extra: str = "", source: str = "FEDTRACK_CERT_SAN") -> list[x509.GeneralName]:
+    """127.0.0.1 and localhost, plus ``extra`` (``IP:10.47.0.1,DNS:host-a``; a ConfigError naming
+    ``source``, the option or variable it came from, when an item is neither)."""
     from cryptography import x509
 
     names: list[x509.GeneralName] = [x509.IPAddress(ipaddress.ip_address("127.0.0.1")), x509.DNSName("localhost")]
@@ -199,19 +212,42 @@ def subject_alt_names(extra: str = "") -> list[x509.GeneralName]:
             try:
                 names.append(x509.IPAddress(ipaddress.ip_address(value)))
             except ValueError:
-                raise ConfigError(f"FEDTRACK_CERT_SAN: {item!r} is not IP:ADDRESS") from None
+                raise ConfigError(f"{source}: {item!r} is not IP:ADDRESS") from None
         elif kind == "DNS" and value:
             names.append(x509.DNSName(value))
         else:
-            raise ConfigError(f"FEDTRACK_CERT_SAN: {item!r} is neither IP:ADDRESS nor DNS:NAME")
+            raise ConfigError(f"{source}: {item!r} is neither IP:ADDRESS nor DNS:NAME")
     return names
+
+
+def cert_days(text: str, source: str = "FEDTRACK_CERT_DAYS") -> int:
+    """A validity in whole days, at least 1 (a ConfigError naming ``source`` otherwise: 0 made a
+    certificate that had expired when it was made, a negative number a traceback)."""
+    try:
+        days = int(text)
+    except ValueError:
+        raise ConfigError(f"{source}: expected a whole number of days, got {text!r}") from None
+    if days < 1:
+        raise ConfigError(f"{source}: must be at least 1 day, got {days}")
+    return days
+
+
+def known_identity(ident: str) -> str:
+    """``ident`` if it is one of the identities a deployment uses (``router``, ``fusion``, ``recorder``,
+    ``launcher``, ``sensor-<id>``); a ConfigError otherwise (``sensor1`` made a certificate nobody used)."""
+    sid = ident.removeprefix("sensor-")
+    if ident in (ROUTER, "fusion", "recorder", LAUNCHER) or (sid != ident and sid):
+        return ident
+    raise ConfigError(f"unknown identity {ident!r} (router, fusion, recorder, launcher or sensor-<id>)")
 
 
 def make_certificates(tls_dir: Path, identities: list[str], extra_san: str = "", days: int = CERT_DAYS) -> list[Path]:
     """A CA (``ca.pem``, ``ca.key``) if ``tls_dir`` has none, and for each identity without one a
     key and a certificate signed by it (``IDENTITY.pem``, ``IDENTITY.key``; CN = the identity,
     which the router's access control matches; SAN = 127.0.0.1, localhost and ``extra_san``).
-    ECDSA P-256 keys, written with mode 0600. Returns the certificates made."""
+    ECDSA P-256 keys, written with mode 0600. Returns the certificates made. ``tls_dir`` is created
+    when its own folder exists; the CA's key is read only when a certificate is to be made (a host
+    given ``ca.pem`` and its own certificates needs no other)."""
     from cryptography import x509
     from cryptography.hazmat.primitives import serialization
     from cryptography.hazmat.primitives.asymmetric import ec
@@ -220,11 +256,19 @@ def make_certificates(tls_dir: Path, identities: list[str], extra_san: str = "",
     for ident in identities:
         if not ident or any(not (c.isalnum() or c in "._-") for c in ident):
             raise ConfigError(f"bad identity {ident!r} (letters, digits, . _ -)")
-    tls_dir.mkdir(parents=True, exist_ok=True)
+    sans = subject_alt_names(extra_san)
+    missing = [ident for ident in identities if not (tls_dir / f"{ident}.pem").is_file()]
+    ca_pem, ca_key_path = tls_dir / "ca.pem", tls_dir / "ca.key"
+    if not missing and ca_pem.is_file():
+        return []
+    if ca_pem.is_file() and not ca_key_path.is_file():
+        raise ConfigError(f"{tls_dir / missing[0]}.pem: missing, and {ca_key_path} is not there to sign it: make it "
+                          f"where the CA's key is (python -m fedtrack.deploy.security DIR {' '.join(missing)}) "
+                          "and copy each .pem and .key here")
+    output_folder(tls_dir)
     pem = serialization.Encoding.PEM
     pkcs8 = serialization.PrivateFormat.PKCS8
     made = []
-    ca_pem, ca_key_path = tls_dir / "ca.pem", tls_dir / "ca.key"
     if not ca_pem.is_file():
         ca_key = ec.generate_private_key(ec.SECP256R1())
         ca_name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, CA_NAME)])
@@ -235,15 +279,12 @@ def make_certificates(tls_dir: Path, identities: list[str], extra_san: str = "",
     signer = serialization.load_pem_private_key(ca_key_path.read_bytes(), password=None)
     if not isinstance(signer, ec.EllipticCurvePrivateKey):
         raise ConfigError(f"{ca_key_path}: not an ECDSA key (make the directory again)")
-    sans = subject_alt_names(extra_san)
-    for ident in identities:
-        cert_path = tls_dir / f"{ident}.pem"
-        if cert_path.is_file():
-            continue
+    for ident in missing:
         key = ec.generate_private_key(ec.SECP256R1())
         _write_private(tls_dir / f"{ident}.key", key.private_bytes(pem, pkcs8, serialization.NoEncryption()))
-        _write_private(cert_path, _certificate(ident, key, ca_cert.subject, signer, False, sans, days).public_bytes(pem))
-        made.append(cert_path)
+        cert = _certificate(ident, key, ca_cert.subject, signer, False, sans, days)
+        _write_private(tls_dir / f"{ident}.pem", cert.public_bytes(pem))
+        made.append(tls_dir / f"{ident}.pem")
     return made
 
 
@@ -253,7 +294,9 @@ def ensure_certificates(tls_dir: Path, identities: list[str]) -> None:
     or one is unusable); ``FEDTRACK_CERT_SAN`` / ``FEDTRACK_CERT_DAYS`` as for the CLI."""
     try:
         make_certificates(tls_dir, identities, os.environ.get("FEDTRACK_CERT_SAN", ""),
-                          int(os.environ.get("FEDTRACK_CERT_DAYS", CERT_DAYS)))
+                          cert_days(os.environ.get("FEDTRACK_CERT_DAYS", str(CERT_DAYS))))
+    except ConfigError as exc:
+        raise ConfigError(f"zenoh.tls_dir: {exc}") from None
     except (OSError, ValueError) as exc:
         raise ConfigError(f"zenoh.tls_dir: making certificates in {tls_dir} failed: {exc}") from None
     check_certificates(tls_dir, identities)
@@ -308,11 +351,12 @@ def check_certificates(tls_dir: Path, identities: list[str]) -> None:
 
 
 def write_configs(settings: ZenohSettings, base_dir: Path, keys: Keys, identities: list[str],
-                  out_dir: Path) -> dict[str, Path]:
-    """Write one Zenoh config file per identity (``ident -> path``); empty without ``[zenoh]`` settings.
-
-    With ``config`` every identity gets that file; with ``tls_dir`` each gets its own.
-    """
+                  out_dir: Path, everyone: list[str] | None = None) -> dict[str, Path]:
+    """Write one Zenoh config file per identity of this host (``identities``, and the launcher's;
+    ``ident -> path``); empty without ``[zenoh]`` settings. With ``config`` every identity gets that
+    file; with ``tls_dir`` each gets its own, and only these identities' certificates must be in
+    ``tls_dir`` (made there if missing and the CA's key is there). The router's access control names
+    ``everyone`` (every identity of the deployment, other hosts' too; default ``identities``)."""
     if settings.config is not None:
         path = (base_dir / settings.config).resolve()
         if not path.is_file():
@@ -326,9 +370,9 @@ def write_configs(settings: ZenohSettings, base_dir: Path, keys: Keys, identitie
     out.mkdir(parents=True, exist_ok=True)
     paths = {}
     for ident in [*identities, LAUNCHER]:
-        config: dict[str, Any] = {"transport": {"link": {"tls": tls_config(tls_dir, ident, ident == "router")}}}
-        if ident == "router":
-            config["access_control"] = access_control(keys, identities)
+        config: dict[str, Any] = {"transport": {"link": {"tls": tls_config(tls_dir, ident, ident == ROUTER)}}}
+        if ident == ROUTER:
+            config["access_control"] = access_control(keys, everyone if everyone is not None else identities)
         paths[ident] = out / f"{ident}.json5"
         paths[ident].write_text(json.dumps(config, indent=2))
     return paths
@@ -338,18 +382,26 @@ def main(argv: list[str] | None = None) -> int:
     """``python -m fedtrack.deploy.security DIR IDENTITY...``: make the certificates by hand."""
     parser = argparse.ArgumentParser(prog="python -m fedtrack.deploy.security",
                                      description="Make a CA (if DIR has none) and a certificate per identity "
-                                                 "without one (router, fusion, recorder, launcher, sensor-<id>).")
-    parser.add_argument("dir", type=Path)
-    parser.add_argument("identities", nargs="+", metavar="IDENTITY")
-    parser.add_argument("--san", default=os.environ.get("FEDTRACK_CERT_SAN", ""),
-                        help="extra subject alternative names, e.g. IP:10.47.0.1,DNS:host-a (default: $FEDTRACK_CERT_SAN)")
-    parser.add_argument("--days", type=int, default=int(os.environ.get("FEDTRACK_CERT_DAYS", CERT_DAYS)),
-                        help="validity of new certificates (default: $FEDTRACK_CERT_DAYS, else %(default)s)")
+                                                 "without one; certificates already in DIR are kept.")
+    parser.add_argument("dir", type=Path, metavar="DIR",
+                        help="the certificate folder ([zenoh] tls_dir), created if missing (its own folder must exist)")
+    parser.add_argument("identities", nargs="+", metavar="IDENTITY",
+                        help="router, fusion, recorder, launcher or sensor-<id> (docs/deploy.md)")
+    parser.add_argument("--san", help="extra subject alternative names, e.g. IP:10.47.0.1,DNS:host-a "
+                                      "(default: $FEDTRACK_CERT_SAN, else none)")
+    parser.add_argument("--days", help=f"validity of new certificates in days, at least 1 (default: "
+                                       f"$FEDTRACK_CERT_DAYS, else {CERT_DAYS})")
     args = parser.parse_args(argv)
     try:
-        for path in make_certificates(args.dir, args.identities, args.san, args.days):
+        for ident in args.identities:
+            known_identity(ident)
+        san = args.san if args.san is not None else os.environ.get("FEDTRACK_CERT_SAN", "")
+        subject_alt_names(san, "--san" if args.san is not None else "FEDTRACK_CERT_SAN")
+        days = (cert_days(args.days, "--days") if args.days is not None
+                else cert_days(os.environ.get("FEDTRACK_CERT_DAYS", str(CERT_DAYS))))
+        for path in make_certificates(args.dir, args.identities, san, days):
             print(f"made {path}")
-    except (ConfigError, OSError) as exc:
+    except (ConfigError, InputError, OSError) as exc:
         print(f"fedtrack.deploy.security: {exc}", file=sys.stderr)
         return 2
     return 0

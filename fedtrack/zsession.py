@@ -109,7 +109,7 @@ def open_session(opts: SessionOptions) -> zenoh.Session:
         return zenoh.open(make_config(opts))
     except zenoh.ZError as exc:
         where = f"connect {', '.join(opts.connect)}" if opts.connect else f"listen {', '.join(opts.listen)}"
-        raise SessionError(f"cannot open a zenoh {opts.mode} session ({where}): {exc}") from None
+        raise SessionError(f"cannot open a zenoh {opts.mode} session ({where}): {_RUST_LOCATION.sub('', str(exc))}") from None
 
 
 def close_session(session: zenoh.Session, deadline_s: float = 2.0) -> bool:
