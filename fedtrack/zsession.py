@@ -170,16 +170,34 @@ def id_arg(what: str) -> Callable[[str], str]:
 _deployment_arg = id_arg("deployment")
 
 
+def requires_client_certificates(config_file: str) -> bool:
+    """True when the Zenoh configuration ``config_file`` makes its TLS links mutual: ``enable_mtls`` with
+    a ``root_ca_certificate`` to check the peer's certificate against (TLS without it authenticates
+    the listening side only: any client may connect)."""
+    tls = load_config_file(config_file)
+
+    def value(key: str) -> Any:
+        return json.loads(tls.get_json(f"transport/link/tls/{key}"))
+
+    return value("enable_mtls") is True and bool(value("root_ca_certificate"))
+
+
 def check_authenticated(endpoint: str, flag: str, config_file: str | None) -> None:
     """Authenticated by default, as ``launch`` is (``fedtrack.deploy.security.check_transport``): an
-    endpoint off loopback must be ``tls/`` with a Zenoh configuration (``--zenoh-config``: the
-    certificates); a ValueError naming ``flag`` otherwise (``--insecure`` opts out)."""
+    endpoint off loopback must be ``tls/`` with a Zenoh configuration (``--zenoh-config``) that makes
+    it mutual TLS; a ValueError naming ``flag`` otherwise (``--insecure`` opts out)."""
     try:
         loopback = on_loopback(endpoint)
     except ConfigError:  # not PROTO/HOST:PORT: not known to be loopback (Zenoh names what is wrong with it)
         loopback = False
-    if loopback or (endpoint.startswith("tls/") and config_file is not None):
+    if loopback:
         return
+    if endpoint.startswith("tls/") and config_file is not None:
+        if requires_client_certificates(config_file):
+            return
+        raise ValueError(f"{flag}: {endpoint} is off loopback and --zenoh-config {config_file} does not make its TLS "
+                         "mutual (transport.link.tls: enable_mtls = true and root_ca_certificate), so a peer without "
+                         "a certificate could connect: give --insecure to allow it (an explicit opt-out)")
     raise ValueError(f"{flag}: {endpoint} is off loopback and not tls/ with --zenoh-config (mutual TLS); a plain link "
                      "there is unauthenticated: give --insecure to allow it (an explicit opt-out)")
 
@@ -204,7 +222,7 @@ def add_endpoint_args(parser: argparse.ArgumentParser, listen_default: tuple[str
                             "and the endpoints are applied on top")
     group.add_argument("--insecure", action="store_true",
                        help="allow plain (unauthenticated) endpoints off loopback: an explicit opt-out; without it an "
-                            "endpoint off loopback must be tls/ with --zenoh-config (docs/deploy.md)")
+                            "endpoint off loopback must be tls/ with a --zenoh-config that makes TLS mutual (docs/deploy.md)")
     parser.set_defaults(_listen_default=tuple(listen_default))
 
 

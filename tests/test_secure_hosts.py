@@ -4,6 +4,7 @@ host, each host given ``ca.pem`` and its own identities' certificates, a router 
 
 from __future__ import annotations
 
+import json
 import shutil
 import threading
 from pathlib import Path
@@ -142,3 +143,28 @@ def test_wait_ready_reaches_a_mutual_tls_router(tmp_path: Path, capsys: pytest.C
         close_session(router)
     err = capsys.readouterr().err
     assert "wait_ready: up: fusion-center/fusion" in err and ".rs:" not in err
+
+
+def test_serve_off_loopback_needs_a_zenoh_config_that_makes_tls_mutual(tmp_path: Path) -> None:
+    """``serve router --listen tls/... --zenoh-config F`` was taken as authenticated whatever F said: with
+    F a server-only TLS file (certificate, no ``enable_mtls``) a client holding no certificate connected
+    through the same router on loopback and published a fused track its subscribers received. Now
+    refused off loopback unless F makes the links mutual (exit 2 naming the option and the file)."""
+    from fedtrack.services.base import service_kwargs, service_parser
+
+    make_certificates(tmp_path / "c", ["router"])
+    paths = write_configs(ZenohSettings(tls_dir="c"), tmp_path, Keys("x"), ["router"], tmp_path / "o")
+    server_only = tmp_path / "server-only.json5"
+    server_only.write_text(json.dumps({"transport": {"link": {"tls": {
+        "root_ca_certificate": str(tmp_path / "c" / "ca.pem"), "listen_certificate": str(tmp_path / "c" / "router.pem"),
+        "listen_private_key": str(tmp_path / "c" / "router.key")}}}}))
+    parser = service_parser("router", "test")
+    off = "tls/192.0.2.1:7447"  # TEST-NET-1: refused or accepted before any session, never opened
+    with pytest.raises(SystemExit) as stop:
+        service_kwargs(parser, parser.parse_args(["--listen", off, "--zenoh-config", str(server_only)]), "router")
+    assert stop.value.code == 2
+    kwargs = service_kwargs(parser, parser.parse_args(["--listen", off, "--zenoh-config", str(paths["router"])]),
+                            "router")
+    assert kwargs["options"].listen == (off,)
+    service_kwargs(parser, parser.parse_args(["--listen", off, "--zenoh-config", str(server_only), "--insecure"]),
+                   "router")
