@@ -62,7 +62,7 @@ from fedtrack.keys import Keys
 from fedtrack.local_filters.regions import load_regions
 from fedtrack.recording import Recording
 from fedtrack.wire import FusedTrack, Health, Measurement, TrackPicture, WireError, decode
-from fedtrack.zsession import SessionOptions, close_session, open_session, wait_alive
+from fedtrack.zsession import SessionError, SessionOptions, close_session, open_session, wait_alive
 
 STOP_GRACE_S = 5.0
 RECORDER_GRACE_S = 20.0  # the recorder commits what it still holds (a row an fsync) before it stops
@@ -456,7 +456,10 @@ class Launcher:
         opts = SessionOptions(mode="client", connect=self.settings.deployment.connect_endpoints,
                               connect_timeout_s=self.settings.deployment.ready_timeout_s,
                               config_file=self.zenoh_config)
-        self._session = open_session(opts)
+        try:
+            self._session = open_session(opts)
+        except SessionError as exc:  # a host without a router, whose router is not up (was a traceback)
+            raise LaunchError(f"no router reached within ready_timeout_s = {opts.connect_timeout_s:g} s: {exc}") from None
         self._subs = [
             self._session.declare_subscriber(self.keys.fusion_track(), self._on_track),
             self._session.declare_subscriber(self.keys.sensor_meas(), self._on_meas),
