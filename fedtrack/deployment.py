@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from fedtrack.config import ConfigError, in_file, load_tables, load_toml
+from fedtrack.keys import DEFAULT_DEPLOYMENT
 
 MODES = ("federated", "decentralized")
 PACINGS = ("lockstep", "realtime")
@@ -32,7 +33,7 @@ class SensorConfig:
 class DeploymentConfig:
     """The ``[deployment]`` table."""
 
-    name: str = "demo"
+    name: str = DEFAULT_DEPLOYMENT
     mode: str = "federated"
     scenario: int = 1
     seed: int = 1

@@ -26,7 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 ROOT = "fedtrack"
-DEFAULT_DEPLOYMENT = "default"
+DEFAULT_DEPLOYMENT = "demo"  # also ``[deployment] name``'s: ``serve`` without --config, a config and the examples
 MAX_ID_LENGTH = 64
 _FORBIDDEN = frozenset("/*$?#")
 

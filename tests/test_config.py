@@ -11,6 +11,7 @@ import pytest
 from fedtrack.cli import main
 from fedtrack.config import ConfigError, load_tables
 from fedtrack.deploy.settings import load_settings
+from fedtrack.deployment import DeploymentConfig
 from fedtrack.local_filters.imm.config import load_imm_config
 from fedtrack.local_filters.pda.config import load_config as load_pda_config
 from fedtrack.local_filters.radar.filters import make_radar_filter
@@ -45,7 +46,8 @@ def test_serve_config_sets_deployment_and_connect() -> None:
     explicit = parser.parse_args(["--config", str(EVERY), "--deployment", "other", "--connect", "tcp/127.0.0.1:1"])
     kwargs = service_kwargs(parser, explicit)
     assert kwargs["deployment"] == "other" and kwargs["options"].connect == ("tcp/127.0.0.1:1",)
-    assert service_kwargs(parser, parser.parse_args([]))["deployment"] == "default"
+    # without --config, the name a [deployment] table defaults to and the examples use (was "default")
+    assert service_kwargs(parser, parser.parse_args([]))["deployment"] == DeploymentConfig().name == "demo"
 
 
 def _pipeline(path: Path) -> PipelineSettings:

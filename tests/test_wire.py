@@ -348,7 +348,7 @@ def test_keys() -> None:
     assert k.health("recorder", "r1") == "fedtrack/lab/health/recorder/r1"
     assert k.health() == "fedtrack/lab/health/*/*"
     assert k.alive("router", "main") == "fedtrack/lab/alive/router/main"
-    assert Keys().fusion_track() == "fedtrack/default/fusion/track"
+    assert Keys().fusion_track() == "fedtrack/demo/fusion/track"
 
 
 @pytest.mark.parametrize("bad", ["", "a/b", "a*", "$x", "q?", "#1", "has space", "x" * 65])
