@@ -219,7 +219,7 @@ def add_endpoint_args(parser: argparse.ArgumentParser, listen_default: tuple[str
                        help="link lease: a frozen peer is declared dead after this (default: zenoh's 10000)")
     group.add_argument("--zenoh-config", metavar="FILE",
                        help="Zenoh JSON5 configuration loaded first (TLS, access control); fedtrack's settings "
-                            "and the endpoints are applied on top")
+                            "and the endpoints are applied on top (default: none)")
     group.add_argument("--insecure", action="store_true",
                        help="allow plain (unauthenticated) endpoints off loopback: an explicit opt-out; without it an "
                             "endpoint off loopback must be tls/ with a --zenoh-config that makes TLS mutual (docs/deploy.md)")

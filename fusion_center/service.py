@@ -30,7 +30,7 @@ import numpy as np
 import zenoh
 
 from fedtrack.config import ConfigError, in_file, load_tables
-from fedtrack.deployment import MODES
+from fedtrack.deployment import MODES, DeploymentConfig
 from fedtrack.fusion_center.centre import (
     CentreResult,
     DecentralizedCentre,
@@ -338,11 +338,14 @@ def make_track(seq: int, buf: ScanBuffer, result: CentreResult, degraded: bool, 
 def main(argv: list[str]) -> int:
     parser = service_parser("fusion-center", "fuse the local estimates of a deployment")
     parser.add_argument("--sensors", help="comma-separated sensor ids (default: fusion.sensors of the config)")
-    parser.add_argument("--mode", choices=MODES, help="overrides deployment.mode")
-    parser.add_argument("--config", type=Path, help="deployment TOML ([deployment], [fusion], [[sensor]])")
-    parser.add_argument("--deadline", type=float, help="seconds to wait for a scan's estimates (overrides config)")
+    parser.add_argument("--mode", choices=MODES, help="federated or decentralized (default: deployment.mode of "
+                                                        f"--config, else {DeploymentConfig().mode})")
+    parser.add_argument("--config", type=Path, help="deployment TOML ([deployment], [fusion], [[sensor]]; "
+                                                    "default: none, every key at its default)")
+    parser.add_argument("--deadline", type=float, help="seconds to wait for a scan's estimates (default: "
+                                                        f"deployment.deadline_s of --config, else {DeploymentConfig().deadline_s:g})")
     parser.add_argument("--snapshot", type=Path, help="write the state here after every scan; resume from it at start "
-                        "(a restart mid-run)")
+                        "(a restart mid-run; default: none, no snapshot)")
     args = parser.parse_args(argv)
     settings = load_tables(args.config, PipelineSettings)
     sensors = (args.sensors.split(",") if args.sensors else

@@ -31,7 +31,7 @@ import numpy as np
 import zenoh
 
 from fedtrack.config import ConfigError, in_file, load_tables
-from fedtrack.deployment import MODES
+from fedtrack.deployment import MODES, DeploymentConfig
 from fedtrack.jsonl import InputError
 from fedtrack.local_filters.radar.filters import RadarFilter, make_radar_filter
 from fedtrack.local_filters.vdie.config import PipelineSettings
@@ -323,8 +323,10 @@ def to_message(sensor: str, meas: Measurement, out: LocalOutput, flags: tuple[st
 def main(argv: list[str]) -> int:
     parser = service_parser("local-filter", "run one sensor's local filter")
     parser.add_argument("--sensor", required=True, type=id_arg("--sensor"), help="the sensor id this filter serves")
-    parser.add_argument("--mode", choices=MODES, help="overrides deployment.mode")
-    parser.add_argument("--config", type=Path, help="deployment TOML ([deployment], [fusion], [[sensor]])")
+    parser.add_argument("--mode", choices=MODES, help="federated or decentralized (default: deployment.mode of "
+                                                        f"--config, else {DeploymentConfig().mode})")
+    parser.add_argument("--config", type=Path, help="deployment TOML ([deployment], [fusion], [[sensor]]; "
+                                                    "default: none, every key at its default)")
     parser.add_argument("--filter", choices=FILTERS, default="vdie",
                         help="vdie: the 2-D federated/DVDIE local filter (default); ekf, ekf-ie, ekf-tsfuzzy: "
                              "3-D radar filters configured by [radar_filter]")

@@ -178,15 +178,22 @@ class SensorService(Service):
 
 
 def add_sensor_args(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--config", type=Path, help="deployment TOML ([deployment], [[sensor]])")
+    dep = DeploymentConfig()  # the defaults of a [deployment] table, which these options override
+    parser.add_argument("--config", type=Path, help="deployment TOML ([deployment], [[sensor]]; default: none, every "
+                                                    "key at its default)")
     parser.add_argument("--kind", choices=KINDS, default="position",
                         help="what the sensor simulates or replays (default: %(default)s)")
     parser.add_argument("--measurements", type=Path,
-                        help="kind scan: the multi-target measurements file whose lines of this sensor to publish")
-    parser.add_argument("--scenario", type=int, choices=(1, 2), help="paper 004 scenario (overrides config)")
-    parser.add_argument("--seed", type=seed_number, help="deployment seed (overrides config)")
-    parser.add_argument("--pacing", choices=PACINGS, help="overrides config (default lockstep)")
-    parser.add_argument("--speed", type=float, help="real-time speed-up factor (overrides config)")
+                        help="kind scan (required there): the multi-target measurements file whose lines of this "
+                             "sensor to publish (default: none)")
+    parser.add_argument("--scenario", type=int, choices=(1, 2),
+                        help=f"paper 004 scenario (default: deployment.scenario of --config, else {dep.scenario})")
+    parser.add_argument("--seed", type=seed_number,
+                        help=f"deployment seed (default: deployment.seed of --config, else {dep.seed})")
+    parser.add_argument("--pacing", choices=PACINGS,
+                        help=f"lockstep or realtime (default: deployment.pacing of --config, else {dep.pacing})")
+    parser.add_argument("--speed", type=float, help="realtime pacing: speed-up factor over real time (default: "
+                                                    f"deployment.speed of --config, else {dep.speed:g})")
     parser.add_argument("--lockstep-timeout", type=float, default=5.0, metavar="SECONDS",
                         help="publish the next scan anyway after this long without a fused track "
                              "(default: %(default)s)")
@@ -195,10 +202,11 @@ def add_sensor_args(parser: argparse.ArgumentParser) -> None:
                              "of a deployment (default: when this sensor is ready)")
     parser.add_argument("--start-file", type=Path, metavar="PATH",
                         help="realtime pacing without --start-at: wait until PATH holds the start time (Unix "
-                             "seconds; fedtrack launch writes it once every sensor of its host is ready)")
+                             "seconds; fedtrack launch writes it once every sensor of its host is ready; default: "
+                             "none)")
     parser.add_argument("--join-at", type=float, metavar="SECONDS",
                         help="kind scan: publish only the scans at t >= SECONDS (a sensor that joins a running "
-                             "deployment; scan times count from --start-at)")
+                             "deployment; scan times count from --start-at; default: every scan)")
 
 
 def main(argv: list[str]) -> int:

@@ -6,7 +6,9 @@ from pathlib import Path
 
 import pytest
 from support import free_port
+from test_cli_roughedges import _options, _parsers
 
+from fedtrack import cli
 from fedtrack.deploy.launcher import LaunchError, prepare_launcher
 from fedtrack.deploy.settings import load_settings
 
@@ -27,3 +29,16 @@ def test_launch_of_a_host_whose_router_is_not_up_is_one_line(tmp_path: Path) -> 
     assert message.startswith("no router reached within ready_timeout_s = 0.5 s: ") and "\n" not in message
     assert endpoint in message and ".rs:" not in message
     assert all(sp.proc is None for sp in launcher.plan)  # nothing was started
+
+
+@pytest.mark.parametrize("role", cli.SERVICES)
+def test_every_serve_option_says_its_default(role: str) -> None:
+    """``serve sensor --scenario`` said '(overrides config)', ``--seed``, ``--speed``, ``serve local-filter
+    --mode``, ``serve fusion-center --deadline`` and every role's ``--config`` / ``--zenoh-config`` gave no
+    default (test_cli_roughedges checks only options whose argparse default is set; these take theirs
+    from the config): each now names it, e.g. 'default: deployment.scenario of --config, else 1'."""
+    for parser in _parsers(["serve", role]):
+        formatter = parser._get_formatter()
+        for action in _options(parser):
+            if action.option_strings and not action.required and action.nargs != 0:
+                assert "default" in formatter._expand_help(action), f"{parser.prog} {action.option_strings}"

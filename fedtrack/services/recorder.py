@@ -77,7 +77,8 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--db", type=Path, help=f"recording database (default: OUT/{DB_NAME})")
     parser.add_argument("--out", type=Path, help="on a clean stop, write measurements.jsonl and tracks.jsonl here "
                         "(default: deployment.out of --config)")
-    parser.add_argument("--config", type=Path, help="configuration file; reads [deployment] (name, connect, out)")
+    parser.add_argument("--config", type=Path, help="configuration file; reads [deployment] (name, connect, out; "
+                        "default: none)")
     args = parser.parse_args(argv)
     if args.out is not None:  # given here, not [deployment] out (which is created whole): checked before connecting
         check_output_folder(args.out)

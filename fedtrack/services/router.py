@@ -21,6 +21,7 @@ class Router(Service):
 
 def main(argv: list[str]) -> int:
     parser = service_parser("router", "run the Zenoh router of a deployment", listen_default=(DEFAULT_ROUTER,))
-    parser.add_argument("--config", type=Path, help="configuration file; reads [deployment] (name, router_listen)")
+    parser.add_argument("--config", type=Path, help="configuration file; reads [deployment] (name, router_listen; "
+                        "default: none)")
     args = parser.parse_args(argv)
     return Router(**service_kwargs(parser, args, mode="router")).run()

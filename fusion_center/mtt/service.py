@@ -574,9 +574,9 @@ def service_from_args(argv: list[str]) -> MttCentreService:
     parser.add_argument("--dim", type=int, choices=(4, 6), default=4,
                         help="central state size: 6 when any sensor is a radar (default: %(default)s)")
     parser.add_argument("--config", help="configuration file; reads [mtt], [deployment], [frame] and, with "
-                        "--region, [regions] (docs/multitarget.md)")
+                        "--region, [regions] (docs/multitarget.md; default: none, every key at its default)")
     parser.add_argument("--region", metavar="RID", help="the centre of this region of the config's [regions] only "
-                        "(docs/multitarget.md#regions)")
+                        "(docs/multitarget.md#regions; default: none, the one centre of the whole area)")
     parser.add_argument("--standby", action="store_true",
                         help="hot standby: run the centre, publish nothing until the primary is gone (docs/deploy.md)")
     args = parser.parse_args(argv)

@@ -259,7 +259,8 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--sensor", required=True, type=id_arg("--sensor"), help="sensor id whose scans to track")
     parser.add_argument("--mode", choices=MODES, default="federated",
                         help="federated: take the centre's resets; decentralized: none (default: %(default)s)")
-    parser.add_argument("--config", help="configuration file; reads [mtt] and [deployment] (docs/multitarget.md)")
+    parser.add_argument("--config", help="configuration file; reads [mtt] and [deployment] (docs/multitarget.md; "
+                        "default: none, every key at its default)")
     parser.add_argument("--reset-timeout", type=float, default=2.0, metavar="SECONDS",
                         help="federated: go on without the centre's resets after this long (default: %(default)s)")
     args = parser.parse_args(argv)

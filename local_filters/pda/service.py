@@ -109,7 +109,8 @@ def main(argv: list[str]) -> int:
     parser = service_parser("hpda", "cluttered-sensor tracker with track initiation (HPDA or IPDA-AI)")
     parser.add_argument("--sensor", required=True, type=id_arg("--sensor"), help="sonar sensor id whose scans to track")
     parser.add_argument("--algorithm", default="hpda", choices=ALGORITHMS, help="the track manager: PDA-AI or HPDA, paper 001 (default: %(default)s)")
-    parser.add_argument("--config", help="configuration file; reads [pda.tracker] and [pda.existence] (see docs/hpda.md)")
+    parser.add_argument("--config", help="configuration file; reads [pda.tracker] and [pda.existence] (see "
+                        "docs/hpda.md; default: none, every key at its default)")
     args = parser.parse_args(argv)
     kwargs = service_kwargs(parser, args)
     path = Path(args.config) if args.config else None
