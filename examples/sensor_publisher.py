@@ -69,6 +69,9 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=1, help="seed of the measurement noise (default: %(default)s)")
     ap.add_argument("--lockstep-timeout", type=float, default=5.0, metavar="SECONDS",
                     help="longest wait for the fused track of the previous scan before the next (default: %(default)s)")
+    ap.add_argument("--zenoh-config", metavar="FILE",
+                    help="Zenoh JSON5 file loaded first: an authenticated deployment's mutual TLS, e.g. the "
+                         "OUT/zenoh/sensor-<id>.json5 fedtrack launch writes, with a tls/ --connect (default: none, plain)")
     args = ap.parse_args()
     prefix = f"fedtrack/{args.deployment}"
     rng = random.Random(args.seed)
@@ -85,7 +88,7 @@ def main() -> int:
             fused_up_to[0] = max(fused_up_to[0], seq)
             fused.notify_all()
 
-    s = session(args.connect)
+    s = session(args.connect, config_file=args.zenoh_config)
     try:
         missing = wait_alive(s, [f"{prefix}/alive/local-filter/{args.sensor}", f"{prefix}/alive/fusion-center/*"], 30.0)
         if missing:

@@ -29,10 +29,13 @@ def main() -> int:
     ap.add_argument("--count", type=int, default=0, help="stop after this many tracks (0: never; default: %(default)s)")
     ap.add_argument("--timeout", type=float, default=0.0,
                     help="stop after this many seconds (0: never; default: %(default)s)")
+    ap.add_argument("--zenoh-config", metavar="FILE",
+                    help="Zenoh JSON5 file loaded first: an authenticated deployment's mutual TLS, e.g. the "
+                         "OUT/zenoh/launcher.json5 fedtrack launch writes, with a tls/ --connect (default: none, plain)")
     args = ap.parse_args()
     key = f"fedtrack/{args.deployment}/fusion/track"
     tracks: queue.Queue[bytes] = queue.Queue()
-    s = session(args.connect)
+    s = session(args.connect, config_file=args.zenoh_config)
     try:
         sub = s.declare_subscriber(key, lambda sample: tracks.put(sample.payload.to_bytes()))
         print(json.dumps({"subscribed": key}), flush=True)

@@ -17,11 +17,13 @@ SCHEMA = 2  # fedtrack.wire.SCHEMA_VERSION
 ENCODING = "application/msgpack"
 
 
-def session(endpoint: str, wait_s: float = 30.0) -> zenoh.Session:
-    """A Zenoh client of the deployment's router: explicit endpoint, no multicast, no shm."""
-    conf = zenoh.Config()
+def session(endpoint: str, wait_s: float = 30.0, config_file: str | None = None) -> zenoh.Session:
+    """A Zenoh client of the deployment's router: explicit endpoint, no multicast, no shm; ``config_file``:
+    a Zenoh JSON5 file loaded first, e.g. the mutual TLS of an authenticated deployment (its certificates)."""
+    conf = zenoh.Config.from_file(config_file) if config_file else zenoh.Config()
     for key, value in {"mode": "client", "connect/endpoints": [endpoint], "listen/endpoints": [],
                        "connect/timeout_ms": int(wait_s * 1000),
+                       "connect/retry": {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2},
                        "scouting/multicast/enabled": False,
                        "transport/shared_memory/enabled": False}.items():
         conf.insert_json5(key, json.dumps(value))

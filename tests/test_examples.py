@@ -11,7 +11,7 @@ from pathlib import Path
 
 import msgpack
 import zenoh
-from support import free_port
+from support import free_port, wait_until
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
@@ -42,17 +42,25 @@ def test_fedtrack_is_not_importable_there(tmp_path: Path) -> None:
 
 
 def test_third_party_sensor_and_subscriber_against_a_launched_deployment(tmp_path: Path) -> None:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    """Authenticated, as ``fedtrack demo`` is by default: each example presents the certificate of the
+    file ``launch`` wrote for it (``--zenoh-config``; before 2026-11-27 they had no way to, and the
+    demo's deployment was out of their reach)."""
+    endpoint = f"tls/127.0.0.1:{free_port()}"
     cfg = tmp_path / "ext.toml"
-    cfg.write_text(f'[fusion]\nsensors = ["ext"]\n\n[deployment]\nname = "ext"\nrouter_listen = "{endpoint}"\n'
-                   'services = ["router", "local-filter", "fusion-center", "recorder"]\n\n'
+    cfg.write_text(f'[zenoh]\ntls_dir = "certs"\n[fusion]\nsensors = ["ext"]\n\n[deployment]\nname = "ext"\n'
+                   f'router_listen = "{endpoint}"\nservices = ["router", "local-filter", "fusion-center", "recorder"]\n\n'
                    '[[sensor]]\nid = "ext"\nR = [[100.0, 0.0], [0.0, 100.0]]\n')
     zenoh_args = ["--connect", endpoint, "--deployment", "ext"]
     launch = subprocess.Popen([sys.executable, "-m", "fedtrack.cli", "launch", str(cfg), "--out", str(tmp_path / "out")],
                               cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    subscriber = subprocess.Popen(example(tmp_path, "track_subscriber.py", *zenoh_args, "--count", str(SCANS + 3),
-                                          "--timeout", "90"), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    files = tmp_path / "out" / "zenoh"
+    subscriber = None
     try:
+        assert wait_until(lambda: (files / "sensor-ext.json5").exists(), 60.0)
+        subscriber = subprocess.Popen(example(tmp_path, "track_subscriber.py", *zenoh_args, "--count", str(SCANS + 3),
+                                              "--timeout", "90", "--zenoh-config", str(files / "launcher.json5")),
+                                      stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        zenoh_args += ["--zenoh-config", str(files / "sensor-ext.json5")]
         assert json.loads(subscriber.stdout.readline()) == {"subscribed": "fedtrack/ext/fusion/track"}
         first = subprocess.run(example(tmp_path, "sensor_publisher.py", *zenoh_args, "--sensor", "ext",
                                        "--scans", str(SCANS)), capture_output=True, text=True, timeout=90)
@@ -69,7 +77,8 @@ def test_third_party_sensor_and_subscriber_against_a_launched_deployment(tmp_pat
         x, y = last["x"][0], last["x"][3 if last["model"] == "ca" else 2]
         assert abs(x - (1000.0 + 20.0 * last["t"])) < 60 and abs(y - (2000.0 + 10.0 * last["t"])) < 60, last
     finally:
-        subscriber.kill()
+        if subscriber is not None:
+            subscriber.kill()
         launch.send_signal(signal.SIGTERM)
         try:
             launch.communicate(timeout=30)
