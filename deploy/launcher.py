@@ -743,8 +743,11 @@ def prepare_launcher(settings: Settings, config_path: Path, out_dir: Path, quiet
 
 def failover_scopes(settings: Settings, config_path: Path) -> frozenset[str]:
     """The scopes of a deployment's multi-target centres (their primary tokens' second-last chunk):
-    each region of ``[regions]``, or ``all`` for the one centre; none without ``[multitarget]``."""
-    if settings.multitarget is None:
+    each region of ``[regions]``, or ``all`` for the one centre; none without ``[multitarget]``, and none
+    without its ``standby = true``: a centre's token going is then its end, no failover (host A of
+    deploy/multihost-regions/, run in its documented order, reported host C's centre stopping as
+    'failover of x1y0 ... took over after - s')."""
+    if settings.multitarget is None or not settings.multitarget.standby:
         return frozenset()
     regions = load_regions(config_path)
     return frozenset(regions.ids) if regions is not None else frozenset({"all"})

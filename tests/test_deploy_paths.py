@@ -42,3 +42,24 @@ def test_every_serve_option_says_its_default(role: str) -> None:
         for action in _options(parser):
             if action.option_strings and not action.required and action.nargs != 0:
                 assert "default" in formatter._expand_help(action), f"{parser.prog} {action.option_strings}"
+
+
+@pytest.mark.parametrize("standby", [False, True])
+def test_a_centre_of_another_host_ending_is_no_failover_without_standbys(tmp_path: Path, standby: bool) -> None:
+    """deploy/multihost-regions/ run as its README says (C's centre stopped before A, on loopback with
+    mutual TLS): host A's summary listed 'failover of x1y0: primary lost at t = 75.01 s, standby took
+    over after - s' though no standby was configured. A primary token's end is a failover only with
+    ``[multitarget] standby = true``."""
+    from types import SimpleNamespace
+
+    import zenoh
+
+    from fedtrack.deploy.launcher import Launcher, failover_scopes
+
+    cfg = tmp_path / "a.toml"
+    cfg.write_text(f'[deployment]\npacing = "realtime"\n[multitarget]\nstandby = {str(standby).lower()}\n')
+    settings = load_settings(cfg)
+    launcher = Launcher(settings, [], quiet=True, scopes=failover_scopes(settings, cfg))
+    for kind in (zenoh.SampleKind.PUT, zenoh.SampleKind.DELETE):
+        launcher._on_primary_token(SimpleNamespace(key_expr=launcher.keys.primary("all", "abc"), kind=kind))
+    assert [f.scope for f in launcher._failovers] == (["all"] if standby else [])

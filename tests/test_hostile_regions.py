@@ -374,7 +374,7 @@ def test_the_launcher_reports_failovers_of_its_own_centres_only(tmp_path: Path) 
     failovers of scopes no centre has). It now counts the scopes of its deployment's centres only
     (each region of ``[regions]``, or ``all``)."""
     config = tmp_path / "regions.toml"
-    config.write_text("[multitarget]\n" + REGIONS_CONFIG)
+    config.write_text("[multitarget]\nstandby = true\n" + REGIONS_CONFIG)
     settings = load_settings(config)
     assert failover_scopes(settings, config) == {"x0y0", "x1y0"}
     launcher = Launcher(settings, [], quiet=True, scopes=failover_scopes(settings, config))
