@@ -47,6 +47,7 @@ from fedtrack.config import ConfigError
 from fedtrack.deployment import DeploymentConfig, on_loopback
 from fedtrack.jsonl import InputError, output_folder
 from fedtrack.keys import Keys
+from fedtrack.zsession import load_config_file
 
 CA_NAME = "fedtrack-ca"
 CERT_DAYS = 365  # validity of new certificates (``FEDTRACK_CERT_DAYS``)
@@ -361,6 +362,10 @@ def write_configs(settings: ZenohSettings, base_dir: Path, keys: Keys, identitie
         path = (base_dir / settings.config).resolve()
         if not path.is_file():
             raise ConfigError(f"zenoh.config: {path} does not exist")
+        try:
+            load_config_file(str(path))  # read before anything starts (was: the router exited with it, exit 1)
+        except ValueError as exc:
+            raise ConfigError(f"zenoh.config: {exc}") from None
         return {ident: path for ident in [*identities, LAUNCHER]}
     if settings.tls_dir is None:
         return {}

@@ -168,3 +168,13 @@ def test_serve_off_loopback_needs_a_zenoh_config_that_makes_tls_mutual(tmp_path:
     assert kwargs["options"].listen == (off,)
     service_kwargs(parser, parser.parse_args(["--listen", off, "--zenoh-config", str(server_only), "--insecure"]),
                    "router")
+
+
+def test_a_broken_zenoh_config_file_is_named_before_anything_starts(tmp_path: Path) -> None:
+    """``[zenoh] config`` naming a file that is not JSON5: the launch started the router, which exited
+    with it, and ended in exit 1 ('router exited with code 2 before listening'); now a ConfigError
+    naming ``zenoh.config`` and the file (exit 2) before any process."""
+    (tmp_path / "bad.json5").write_text("{ this is : not json")
+    with pytest.raises(ConfigError) as error:
+        write_configs(ZenohSettings(config="bad.json5"), tmp_path, Keys("x"), ["router"], tmp_path / "out")
+    assert str(error.value).startswith(f"zenoh.config: zenoh config {tmp_path / 'bad.json5'}: ")
