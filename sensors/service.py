@@ -231,6 +231,9 @@ def main(argv: list[str]) -> int:
         return SensorService([], 1.0, "realtime", settings.deployment.speed, args.lockstep_timeout,
                              args.start_at, scans=scans, start_file=args.start_file,
                              **service_kwargs(parser, args)).run()
+    known = [sensor.id for sensor in settings.sensor]
+    if args.kind == "position" and known and args.id not in known:  # was published with the default R, unheard
+        parser.error(f"--id {args.id}: not a [[sensor]] id of {args.config} ({', '.join(known)})")
     lines, period = scan_source(args.kind, settings, args.id)
     return SensorService(lines, period, settings.deployment.pacing, settings.deployment.speed,
                          args.lockstep_timeout, args.start_at, start_file=args.start_file,

@@ -63,3 +63,38 @@ def test_a_centre_of_another_host_ending_is_no_failover_without_standbys(tmp_pat
     for kind in (zenoh.SampleKind.PUT, zenoh.SampleKind.DELETE):
         launcher._on_primary_token(SimpleNamespace(key_expr=launcher.keys.primary("all", "abc"), kind=kind))
     assert [f.scope for f in launcher._failovers] == (["all"] if standby else [])
+
+
+def test_serve_router_on_a_port_in_use_is_one_line_and_exit_2(capsys: pytest.CaptureFixture[str]) -> None:
+    """``launch`` names a router port already taken (exit 2), ``serve router`` logged Zenoh's 'Address
+    already in use' and exited 1."""
+    import socket
+
+    from fedtrack.services.router import main as router
+
+    with socket.socket() as held:
+        held.bind(("127.0.0.1", 0))
+        held.listen()
+        endpoint = f"tcp/127.0.0.1:{held.getsockname()[1]}"
+        with pytest.raises(SystemExit) as stop:
+            router(["--listen", endpoint])
+    assert stop.value.code == 2
+    assert capsys.readouterr().err.splitlines()[-1] == (f"fedtrack serve router: error: --listen: port "
+                                                        f"{endpoint.rsplit(':', 1)[1]} is already in use ({endpoint})")
+
+
+def test_serve_sensor_with_an_id_its_config_does_not_list_is_refused(tmp_path: Path,
+                                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    """``fedtrack serve sensor --config deploy/local.toml`` without ``--id`` (id ``sensor``) or with a
+    mistyped one published a sensor with the default R under a key no local filter listens to."""
+    from fedtrack.sensors.service import main as sensor
+
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('[[sensor]]\nid = "1"\n[[sensor]]\nid = "2"\n')
+    for argv in (["--config", str(cfg)], ["--config", str(cfg), "--id", "3"]):
+        with pytest.raises(SystemExit) as stop:
+            sensor(argv)
+        assert stop.value.code == 2
+        name = argv[-1] if "--id" in argv else "sensor"
+        assert capsys.readouterr().err.splitlines()[-1] == (f"fedtrack serve sensor: error: --id {name}: not a "
+                                                            f"[[sensor]] id of {cfg} (1, 2)")

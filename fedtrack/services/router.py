@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from fedtrack.deployment import listen_address, port_in_use
 from fedtrack.services.base import Service, service_kwargs, service_parser
 from fedtrack.zsession import DEFAULT_ROUTER
 
@@ -24,4 +25,8 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--config", type=Path, help="configuration file; reads [deployment] (name, router_listen; "
                         "default: none)")
     args = parser.parse_args(argv)
-    return Router(**service_kwargs(parser, args, mode="router")).run()
+    kwargs = service_kwargs(parser, args, mode="router")
+    for endpoint in kwargs["options"].listen:  # as launch checks router_listen (was: exit 1 and a log line)
+        if port_in_use(endpoint):
+            parser.error(f"--listen: port {listen_address(endpoint, '--listen')[1]} is already in use ({endpoint})")
+    return Router(**kwargs).run()
