@@ -98,3 +98,17 @@ def test_serve_sensor_with_an_id_its_config_does_not_list_is_refused(tmp_path: P
         name = argv[-1] if "--id" in argv else "sensor"
         assert capsys.readouterr().err.splitlines()[-1] == (f"fedtrack serve sensor: error: --id {name}: not a "
                                                             f"[[sensor]] id of {cfg} (1, 2)")
+
+
+def test_the_readme_deployment_table_lists_every_key() -> None:
+    """The README's ``[deployment]`` table lacked ``router_connect`` and ``local_regions`` (docs/deploy.md
+    had them, and lacked others): a reader of either missed keys the multi-host examples use."""
+    import dataclasses
+    import re
+
+    from fedtrack.deployment import DeploymentConfig
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    table = readme.split("### `[deployment]`: a networked deployment", 1)[1].split("\n\n### ", 1)[0]
+    listed = {k for row in re.findall(r"^\| (`[^|]+`) \|", table, re.M) for k in re.findall(r"`(\w+)`", row)}
+    assert {f.name for f in dataclasses.fields(DeploymentConfig)} <= listed
