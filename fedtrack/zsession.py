@@ -230,9 +230,13 @@ def options_from_args(args: argparse.Namespace, mode: str = "client") -> Session
     """SessionOptions from the arguments added by :func:`add_endpoint_args`."""
     connect = tuple(args.connect) if args.connect else ((DEFAULT_ROUTER,) if mode == "client" else ())
     listen = tuple(args.listen) if args.listen else args._listen_default
-    if not args.insecure:
-        for flag, endpoints in (("--connect", connect), ("--listen", listen)):
-            for ep in endpoints:
+    for flag, endpoints in (("--connect", connect), ("--listen", listen)):
+        for ep in endpoints:
+            # TLS with no certificate to present (or CA to check the router's) waited out the connect timeout
+            if ep.startswith("tls/") and args.zenoh_config is None and "#" not in ep:
+                raise ValueError(f"{flag}: {ep} is TLS but no --zenoh-config gives the certificates (the file "
+                                 "fedtrack launch writes to OUT/zenoh/<identity>.json5)")
+            if not args.insecure:
                 check_authenticated(ep, flag, args.zenoh_config)
     return SessionOptions(mode=mode, connect=connect, listen=listen,
                           connect_timeout_s=args.connect_timeout, lease_ms=args.lease_ms,

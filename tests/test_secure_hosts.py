@@ -178,3 +178,15 @@ def test_a_broken_zenoh_config_file_is_named_before_anything_starts(tmp_path: Pa
     with pytest.raises(ConfigError) as error:
         write_configs(ZenohSettings(config="bad.json5"), tmp_path, Keys("x"), ["router"], tmp_path / "out")
     assert str(error.value).startswith(f"zenoh.config: zenoh config {tmp_path / 'bad.json5'}: ")
+
+
+def test_a_tls_endpoint_without_certificates_is_named_at_start() -> None:
+    """``serve recorder --connect tls/127.0.0.1:P`` without ``--zenoh-config`` (loopback, so not refused as
+    unauthenticated) waited out its connect timeout and logged Zenoh's 'Timeout!'; it has no certificate
+    to present, so it is now a usage error naming the option."""
+    from fedtrack.services.base import service_kwargs, service_parser
+
+    parser = service_parser("recorder", "test")
+    with pytest.raises(SystemExit) as stop:
+        service_kwargs(parser, parser.parse_args(["--connect", "tls/127.0.0.1:7448"]))
+    assert stop.value.code == 2
