@@ -27,6 +27,7 @@ next picture arrived, in seconds and in scans of the slowest sensor).
 from __future__ import annotations
 
 import argparse
+import collections
 import ctypes
 import os
 import shutil
@@ -88,6 +89,8 @@ def describe_exit(code: int) -> str:
     return f"exit code {code}"
 
 
+RATE_WINDOW_S = 5.0  # the progress line's per-sensor rates: scans a second over the last 5 s (over the whole
+# run before 2026-11-27, so a sensor killed at 60 s still showed 1/s at 90 s and one joining at 30 s 0/s)
 USAGE_SAMPLE_S = 0.5  # how often the launcher samples its services' peak RSS and CPU time
 STOP_STAGE = {"fusion-center": 1, "mtt-centre": 1, "picture": 2, "recorder": 3, "router": 4}  # others 0
 
@@ -329,6 +332,7 @@ class Launcher:
         self._scopes = scopes  # the deployment's centres' scopes (failover_scopes): other tokens are no failovers
         self._stopping = False  # stop_all began: primary tokens going now are no failovers
         self._epoch: float | None = None  # wall-clock time of the sensors' scenario time 0
+        self._arrivals: dict[str, collections.deque[float]] = {}  # sensor -> its scans of the last RATE_WINDOW_S
 
     # ------------------------------------------------------------ processes
     def _start(self, sp: ServiceProcess) -> None:
@@ -538,6 +542,7 @@ class Launcher:
             return
         with self._lock:
             self.report.measurements[m.sensor] = self.report.measurements.get(m.sensor, 0) + 1
+            self._arrivals.setdefault(m.sensor, collections.deque()).append(time.monotonic())
             if m.kind == "scan":
                 self.report.scan_stamps.append((m.t, m.stamp_ns))
             else:
@@ -553,8 +558,12 @@ class Launcher:
 
     def _status_line(self, start: float) -> str:
         with self._lock:
-            elapsed = max(time.monotonic() - start, 1e-9)
-            rates = " ".join(f"{s}:{n / elapsed:.0f}/s" for s, n in sorted(self.report.measurements.items()))
+            now = time.monotonic()
+            window = min(max(now - start, 1e-9), RATE_WINDOW_S)
+            for times in self._arrivals.values():
+                while times and times[0] < now - window:
+                    times.popleft()
+            rates = " ".join(f"{s}:{len(self._arrivals[s]) / window:.1f}/s" for s in sorted(self._arrivals))
             lat = self.report.latencies_ms[-50:]
             last = f"{np.median(lat):.1f} ms" if lat else "-"
             if self.settings.multitarget is not None:

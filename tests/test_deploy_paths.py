@@ -112,3 +112,28 @@ def test_the_readme_deployment_table_lists_every_key() -> None:
     table = readme.split("### `[deployment]`: a networked deployment", 1)[1].split("\n\n### ", 1)[0]
     listed = {k for row in re.findall(r"^\| (`[^|]+`) \|", table, re.M) for k in re.findall(r"`(\w+)`", row)}
     assert {f.name for f in dataclasses.fields(DeploymentConfig)} <= listed
+
+
+def test_the_progress_line_rates_are_recent(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``launch deploy/join-leave.toml``'s progress line averaged each sensor's scans over the whole run: 's1:1/s'
+    from the kill of s1 at 60 s to the end at 89 s, and 's3:0/s' all the while s3 (joined at 30 s, 1.3 s
+    period) published. The rate is now over the last RATE_WINDOW_S."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from fedtrack.deploy.launcher import RATE_WINDOW_S, Launcher
+    from fedtrack.wire import Measurement, encode
+
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('[deployment]\npacing = "realtime"\n[multitarget]\n')
+    launcher = Launcher(load_settings(cfg), [], quiet=True)
+    clock = [1000.0]
+    monkeypatch.setattr("fedtrack.deploy.launcher.time.monotonic", lambda: clock[0])
+    for k in range(90):  # s1 once a second until it dies at 60 s; s3 every other second from 30 s on
+        clock[0] = 1000.0 + k
+        for sid in ("s1",) * (k < 60) + ("s3",) * (k >= 30 and k % 2 == 0):
+            payload = encode(Measurement(sensor=sid, seq=k, t=float(k), kind="position", z=np.zeros(2), R=np.eye(2)))
+            launcher._on_meas(SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda p=payload: p)))
+    clock[0] = 1000.0 + 89.5
+    assert RATE_WINDOW_S == 5.0 and launcher._status_line(1000.0) == "pictures 0  sensors s1:0.0/s s3:0.4/s"
