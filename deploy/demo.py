@@ -199,7 +199,8 @@ def main(argv: list[str]) -> int:
         what = f"{args.sensors} sensors, scenario {args.scenario}"
     what += ", plain TCP (--insecure)" if args.insecure else ", mutual TLS and access control"
     write_config(settings, out / "config.toml")
-    print(f"fedtrack demo: {what}, {args.mode}; output in {out}", file=sys.stderr)
+    print(f"fedtrack demo: {what}, {args.mode}, router {settings.deployment.router_listen} (deployment "
+          f"{settings.deployment.name}); output in {out}", file=sys.stderr)
     failure = None
     try:
         report = run_deployment(settings, out / "config.toml", out, title="fedtrack demo")

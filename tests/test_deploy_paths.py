@@ -137,3 +137,18 @@ def test_the_progress_line_rates_are_recent(tmp_path: Path, monkeypatch: pytest.
             launcher._on_meas(SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda p=payload: p)))
     clock[0] = 1000.0 + 89.5
     assert RATE_WINDOW_S == 5.0 and launcher._status_line(1000.0) == "pictures 0  sensors s1:0.0/s s3:0.4/s"
+
+
+def test_demo_names_its_router_so_a_subscriber_can_join(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """``fedtrack demo`` runs on a free port: the examples (docs/wire.md) need its endpoint, which nothing
+    it printed gave. Its first line now names the router and the deployment."""
+    from fedtrack.deploy import demo
+
+    def no_run(*args: object, **kwargs: object) -> None:
+        raise LaunchError("not run here")
+
+    monkeypatch.setattr(demo, "run_deployment", no_run)
+    assert demo.main(["--out", str(tmp_path / "d"), "--port", "17999"]) == 1
+    first = capsys.readouterr().err.splitlines()[0]
+    assert ", router tls/127.0.0.1:17999 (deployment demo); output in " in first, first
