@@ -55,7 +55,7 @@ from fedtrack.deploy.multitarget import (
 )
 from fedtrack.deploy.procstat import process_usage
 from fedtrack.deploy.report import LaunchReport, finish
-from fedtrack.deploy.security import LAUNCHER, identity, write_configs
+from fedtrack.deploy.security import LAUNCHER, check_router_names, host_endpoints, identity, write_configs
 from fedtrack.deploy.settings import Settings, check_launchable, load_settings
 from fedtrack.deployment import ROLES, listen_address, port_in_use
 from fedtrack.jsonl import InputError, output_folder
@@ -271,6 +271,8 @@ def apply_zenoh_settings(settings: Settings, config_path: Path, out_dir: Path,
     everyone = sorted({*here, *(identity("sensor", sid) for sid in sensors), "router", "fusion", "recorder"})
     with in_file(config_path):
         paths = write_configs(settings.zenoh, config_path.parent, Keys(dep.name), here, out_dir, everyone)
+        if settings.zenoh.tls_dir is not None:
+            check_router_names((config_path.parent / settings.zenoh.tls_dir).resolve(), host_endpoints(dep))
     if not paths:
         return None
     for sp in plan:

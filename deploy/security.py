@@ -44,7 +44,7 @@ if TYPE_CHECKING:  # imported where certificates are made: every service reads t
     from cryptography.hazmat.primitives.asymmetric import ec
 
 from fedtrack.config import ConfigError
-from fedtrack.deployment import DeploymentConfig, on_loopback
+from fedtrack.deployment import DeploymentConfig, listen_address, on_loopback
 from fedtrack.jsonl import InputError, output_folder
 from fedtrack.keys import Keys
 from fedtrack.zsession import load_config_file
@@ -76,15 +76,21 @@ class ZenohSettings:
             raise ConfigError("insecure: true contradicts tls_dir (mutual TLS); give one of them")
 
 
-def check_transport(zenoh: ZenohSettings, dep: DeploymentConfig) -> None:
-    """Authenticated by default: an endpoint off loopback needs ``tls_dir`` or ``insecure = true``
-    (a ConfigError naming the field); with ``tls_dir`` every endpoint must be ``tls/``. The endpoints
-    are those this host uses: ``router_listen`` only where a router runs (or the clients connect to it)."""
+def host_endpoints(dep: DeploymentConfig) -> list[tuple[str, str]]:
+    """``(field, endpoint)`` of every router endpoint this host uses: ``router_listen`` only where a router
+    runs (or the clients connect to it), ``connect``, ``router_connect``."""
     clients = ("deployment.connect", dep.connect) if dep.connect else ("deployment.router_listen", (dep.router_listen,))
     fields = [*([("deployment.router_listen", dep.router_listen)] if "router" in dep.services else []),
               *((clients[0], ep) for ep in clients[1]),
               *(("deployment.router_connect", ep) for ep in dep.router_connect)]
-    fields = [(name, ep) for name, ep in dict.fromkeys(fields) if ep]
+    return [(name, ep) for name, ep in dict.fromkeys(fields) if ep]
+
+
+def check_transport(zenoh: ZenohSettings, dep: DeploymentConfig) -> None:
+    """Authenticated by default: an endpoint off loopback needs ``tls_dir`` or ``insecure = true``
+    (a ConfigError naming the field); with ``tls_dir`` every endpoint must be ``tls/``. The endpoints
+    are those this host uses (:func:`host_endpoints`)."""
+    fields = host_endpoints(dep)
     if zenoh.tls_dir is not None:
         for name, ep in fields:
             if not ep.startswith("tls/"):
@@ -349,6 +355,35 @@ def check_certificates(tls_dir: Path, identities: list[str]) -> None:
         raw = (serialization.Encoding.DER, serialization.PublicFormat.SubjectPublicKeyInfo)
         if key.public_key().public_bytes(*raw) != cert.public_key().public_bytes(*raw):
             raise ConfigError(f"zenoh.tls_dir: {key_path}: does not match the certificate {path.name}")
+
+
+def check_router_names(tls_dir: Path, endpoints: list[tuple[str, str]]) -> None:
+    """Every address this host reaches a router at (``(field, endpoint)``, :func:`host_endpoints`) must be
+    one of the names of the deployment's router certificate, when this host has it: a client checks
+    the router's certificate against the address it dials and refuses it otherwise (the launch then
+    waited out ``ready_timeout_s``: 'no router reached', the router being up). A ConfigError naming
+    ``zenoh.tls_dir``, the certificate, the field and the host."""
+    from cryptography import x509
+
+    path = tls_dir / "router.pem"
+    if not path.is_file():
+        return
+    sans = x509.load_pem_x509_certificate(path.read_bytes()).extensions.get_extension_for_class(
+        x509.SubjectAlternativeName).value
+    names = {str(ip) for ip in sans.get_values_for_type(x509.IPAddress)} | set(sans.get_values_for_type(x509.DNSName))
+    for field, endpoint in endpoints:
+        host = listen_address(endpoint, field)[0]
+        try:
+            host = str(ipaddress.ip_address(host))
+            if ipaddress.ip_address(host).is_unspecified:  # a router listening on every address: dialled by another
+                continue
+            kind = "IP"
+        except ValueError:
+            kind = "DNS"
+        if host not in names:
+            raise ConfigError(f"zenoh.tls_dir: {path}: its names ({', '.join(sorted(names))}) do not include {host} "
+                              f"of {field} ({endpoint}), so clients would refuse the router there (make it again with "
+                              f"--san {kind}:{host}: delete router.pem and router.key)")
 
 
 def write_configs(settings: ZenohSettings, base_dir: Path, keys: Keys, identities: list[str],

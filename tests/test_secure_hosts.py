@@ -190,3 +190,26 @@ def test_a_tls_endpoint_without_certificates_is_named_at_start() -> None:
     with pytest.raises(SystemExit) as stop:
         service_kwargs(parser, parser.parse_args(["--connect", "tls/127.0.0.1:7448"]))
     assert stop.value.code == 2
+
+
+def test_a_router_address_its_certificate_does_not_name_is_refused_at_start(tmp_path: Path) -> None:
+    """``router_listen = "tls/127.0.0.2:P"`` (a host's address: ``10.47.0.1`` in deploy/multihost/) with
+    certificates made without ``--san IP:127.0.0.2``: every client refused the router's certificate and the
+    launch waited out ready_timeout_s ('no router reached', 10.9 s at 8 s; the router was up). Now one
+    line naming the certificate, the field and the ``--san`` to make it with; with it, the launch ran
+    101 of 101 scans."""
+    from fedtrack.deploy.launcher import prepare_launcher
+
+    make_certificates(tmp_path / "certs", ["router"])
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(f'[zenoh]\ntls_dir = "certs"\n[deployment]\nrouter_listen = "tls/127.0.0.2:{free_port()}"\n'
+                   '[[sensor]]\nid = "1"\n')
+    (tmp_path / "o").mkdir()
+    with pytest.raises(ConfigError) as error:
+        prepare_launcher(load_settings(cfg), cfg, tmp_path / "o", quiet=True)
+    assert f"zenoh.tls_dir: {tmp_path / 'certs' / 'router.pem'}: its names (127.0.0.1, localhost) do not include " \
+           "127.0.0.2 of deployment.router_listen" in str(error.value) and "--san IP:127.0.0.2" in str(error.value)
+    for name in ("router.pem", "router.key"):
+        (tmp_path / "certs" / name).unlink()
+    make_certificates(tmp_path / "certs", ["router"], extra_san="IP:127.0.0.2")
+    prepare_launcher(load_settings(cfg), cfg, tmp_path / "o", quiet=True)
