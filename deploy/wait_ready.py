@@ -50,6 +50,8 @@ def main(argv: list[str] | None = None) -> int:
             wanted = [keys.alive(*s.split("/", 1)) for s in args.services if "/" in s]
             if len(wanted) != len(args.services):
                 parser.error("services must be given as ROLE/ID")
+            if args.tls_dir is None and any(ep.startswith("tls/") for ep in args.connect):
+                parser.error("--connect: a tls/ endpoint needs --tls-dir (the certificates; it waited out --timeout)")
             config = None
             if args.tls_dir is not None:
                 check_certificates(args.tls_dir.resolve(), [LAUNCHER])

@@ -135,7 +135,9 @@ def test_wait_ready_reaches_a_mutual_tls_router(tmp_path: Path, capsys: pytest.C
         token = centre.liveliness().declare_token(Keys("x").alive("fusion-center", "fusion"))
         base = ["--connect", endpoint, "--deployment", "x", "fusion-center/fusion"]
         assert wait_ready([*base, "--tls-dir", str(tmp_path / "b"), "--timeout", "10"]) == 0
-        assert wait_ready([*base, "--timeout", "1"]) == 1  # no certificate: no session
+        with pytest.raises(SystemExit) as stop:  # no certificate: no session (it waited out --timeout)
+            wait_ready([*base, "--timeout", "1"])
+        assert stop.value.code == 2
         token.undeclare()
     finally:
         if centre is not None:
