@@ -44,7 +44,7 @@ from fedtrack.deploy.multitarget import SCENARIO_DIR, finish_multitarget, prepar
 from fedtrack.deploy.report import finish
 from fedtrack.deploy.security import ZenohSettings
 from fedtrack.deploy.settings import MultitargetSettings, Settings
-from fedtrack.deployment import MODES, DeploymentConfig, SensorConfig
+from fedtrack.deployment import MODES, DeploymentConfig, SensorConfig, port_in_use
 from fedtrack.geodetic import FrameConfig, median_lon
 from fedtrack.jsonl import InputError, check_output_folder, output_folder
 from fedtrack.local_filters.mtt.config import MttConfig
@@ -179,6 +179,10 @@ def main(argv: list[str]) -> int:
         parser.error("--sensors must be between 1 and 32")
     if (args.source is not None or args.units != "si") and args.scenario != "traffic":
         parser.error("--source and --units apply to --scenario traffic only")
+    if args.port is not None and not 1 <= args.port <= 65535:
+        parser.error(f"--port must be in 1-65535, got {args.port}")
+    if args.port is not None and port_in_use(f"tcp/127.0.0.1:{args.port}"):  # was named as OUT/config.toml's
+        parser.error(f"--port: {args.port} is already in use")  # router_listen, with that file left behind
     made = not check_output_folder(args.out).is_dir()
     out = output_folder(args.out).resolve()
     port = args.port or free_port()
