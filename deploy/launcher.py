@@ -465,7 +465,8 @@ class Launcher:
         try:
             self._session = open_session(opts)
         except SessionError as exc:  # a host without a router, whose router is not up (was a traceback)
-            raise LaunchError(f"no router reached within ready_timeout_s = {opts.connect_timeout_s:g} s: {exc}") from None
+            raise LaunchError(f"no router reached within ready_timeout_s = {opts.connect_timeout_s:g} s: "
+                              f"{exc}") from None
         self._subs = [
             self._session.declare_subscriber(self.keys.fusion_track(), self._on_track),
             self._session.declare_subscriber(self.keys.sensor_meas(), self._on_meas),

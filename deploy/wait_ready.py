@@ -20,7 +20,6 @@ from pathlib import Path
 
 from fedtrack.config import ConfigError
 from fedtrack.deploy.security import LAUNCHER, check_certificates, tls_config
-
 from fedtrack.keys import InvalidName, Keys
 from fedtrack.zsession import (
     SessionError,

@@ -71,7 +71,8 @@ def main() -> int:
                     help="longest wait for the fused track of the previous scan before the next (default: %(default)s)")
     ap.add_argument("--zenoh-config", metavar="FILE",
                     help="Zenoh JSON5 file loaded first: an authenticated deployment's mutual TLS, e.g. the "
-                         "OUT/zenoh/sensor-<id>.json5 fedtrack launch writes, with a tls/ --connect (default: none, plain)")
+                         "OUT/zenoh/sensor-<id>.json5 fedtrack launch writes, with a tls/ --connect "
+                         "(default: none, plain)")
     args = ap.parse_args()
     prefix = f"fedtrack/{args.deployment}"
     rng = random.Random(args.seed)

@@ -31,7 +31,8 @@ def main() -> int:
                     help="stop after this many seconds (0: never; default: %(default)s)")
     ap.add_argument("--zenoh-config", metavar="FILE",
                     help="Zenoh JSON5 file loaded first: an authenticated deployment's mutual TLS, e.g. the "
-                         "OUT/zenoh/launcher.json5 fedtrack launch writes, with a tls/ --connect (default: none, plain)")
+                         "OUT/zenoh/launcher.json5 fedtrack launch writes, with a tls/ --connect "
+                         "(default: none, plain)")
     args = ap.parse_args()
     key = f"fedtrack/{args.deployment}/fusion/track"
     tracks: queue.Queue[bytes] = queue.Queue()

@@ -109,7 +109,8 @@ def open_session(opts: SessionOptions) -> zenoh.Session:
         return zenoh.open(make_config(opts))
     except zenoh.ZError as exc:
         where = f"connect {', '.join(opts.connect)}" if opts.connect else f"listen {', '.join(opts.listen)}"
-        raise SessionError(f"cannot open a zenoh {opts.mode} session ({where}): {_RUST_LOCATION.sub('', str(exc))}") from None
+        reason = _RUST_LOCATION.sub("", str(exc))
+        raise SessionError(f"cannot open a zenoh {opts.mode} session ({where}): {reason}") from None
 
 
 def close_session(session: zenoh.Session, deadline_s: float = 2.0) -> bool:
@@ -222,7 +223,8 @@ def add_endpoint_args(parser: argparse.ArgumentParser, listen_default: tuple[str
                             "and the endpoints are applied on top (default: none)")
     group.add_argument("--insecure", action="store_true",
                        help="allow plain (unauthenticated) endpoints off loopback: an explicit opt-out; without it an "
-                            "endpoint off loopback must be tls/ with a --zenoh-config that makes TLS mutual (docs/deploy.md)")
+                            "endpoint off loopback must be tls/ with a --zenoh-config that makes TLS mutual "
+                            "(docs/deploy.md)")
     parser.set_defaults(_listen_default=tuple(listen_default))
 
 

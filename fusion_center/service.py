@@ -337,13 +337,15 @@ def make_track(seq: int, buf: ScanBuffer, result: CentreResult, degraded: bool, 
 
 def main(argv: list[str]) -> int:
     parser = service_parser("fusion-center", "fuse the local estimates of a deployment")
+    defaults = DeploymentConfig()  # a [deployment] table's, which --mode and --deadline override
     parser.add_argument("--sensors", help="comma-separated sensor ids (default: fusion.sensors of the config)")
     parser.add_argument("--mode", choices=MODES, help="federated or decentralized (default: deployment.mode of "
-                                                        f"--config, else {DeploymentConfig().mode})")
+                                                        f"--config, else {defaults.mode})")
     parser.add_argument("--config", type=Path, help="deployment TOML ([deployment], [fusion], [[sensor]]; "
                                                     "default: none, every key at its default)")
-    parser.add_argument("--deadline", type=float, help="seconds to wait for a scan's estimates (default: "
-                                                        f"deployment.deadline_s of --config, else {DeploymentConfig().deadline_s:g})")
+    parser.add_argument("--deadline", type=float,
+                        help="seconds to wait for a scan's estimates (default: deployment.deadline_s of --config, "
+                             f"else {defaults.deadline_s:g})")
     parser.add_argument("--snapshot", type=Path, help="write the state here after every scan; resume from it at start "
                         "(a restart mid-run; default: none, no snapshot)")
     args = parser.parse_args(argv)

@@ -48,7 +48,8 @@ def test_third_party_sensor_and_subscriber_against_a_launched_deployment(tmp_pat
     endpoint = f"tls/127.0.0.1:{free_port()}"
     cfg = tmp_path / "ext.toml"
     cfg.write_text(f'[zenoh]\ntls_dir = "certs"\n[fusion]\nsensors = ["ext"]\n\n[deployment]\nname = "ext"\n'
-                   f'router_listen = "{endpoint}"\nservices = ["router", "local-filter", "fusion-center", "recorder"]\n\n'
+                   f'router_listen = "{endpoint}"\n'
+                   'services = ["router", "local-filter", "fusion-center", "recorder"]\n\n'
                    '[[sensor]]\nid = "ext"\nR = [[100.0, 0.0], [0.0, 100.0]]\n')
     zenoh_args = ["--connect", endpoint, "--deployment", "ext"]
     launch = subprocess.Popen([sys.executable, "-m", "fedtrack.cli", "launch", str(cfg), "--out", str(tmp_path / "out")],
