@@ -152,22 +152,3 @@ def test_demo_names_its_router_so_a_subscriber_can_join(tmp_path: Path, monkeypa
     assert demo.main(["--out", str(tmp_path / "d"), "--port", "17999"]) == 1
     first = capsys.readouterr().err.splitlines()[0]
     assert ", router tls/127.0.0.1:17999 (deployment demo); output in " in first, first
-
-
-def test_demo_on_a_port_in_use_names_port_and_writes_nothing(tmp_path: Path,
-                                                             capsys: pytest.CaptureFixture[str]) -> None:
-    """``fedtrack demo --port P`` with P taken: 'OUT/config.toml: deployment.router_listen: port P ... in
-    use' (a file the user never wrote), and OUT/config.toml left behind."""
-    import socket
-
-    from fedtrack.deploy import demo
-
-    with socket.socket() as held:
-        held.bind(("127.0.0.1", 0))
-        held.listen()
-        port = held.getsockname()[1]
-        with pytest.raises(SystemExit) as stop:
-            demo.main(["--out", str(tmp_path / "d"), "--port", str(port)])
-    assert stop.value.code == 2 and capsys.readouterr().err.splitlines()[-1] == (
-        f"fedtrack demo: error: --port: {port} is already in use")
-    assert not (tmp_path / "d").exists()
