@@ -15,12 +15,14 @@ monitor) a Zenoh configuration file (``--zenoh-config``) written to ``OUT/zenoh/
   declare queryables and liveliness tokens only on its own keys: ``sensor-<id>`` on
   ``sensor/<id>/meas``, ``local/<id>/estimate``, ``local/<id>/tracks`` and its health/alive
   keys; ``fusion`` on ``fusion/**`` (resets, tracks, events, pictures, the state queryable);
-  the others on their health/alive keys. A denied put is dropped at the router: nobody receives it.
+  ``router`` (another host's router joined by ``router_connect``, forwarding its own clients'
+  messages) on anything of the deployment; the others on their health/alive keys. A denied put is
+  dropped at the router: nobody receives it.
 
 Missing certificates are made on first use by :func:`make_certificates` (the ``cryptography``
 package, a dependency: nothing else is needed on a fresh machine); ``python -m
 fedtrack.deploy.security DIR IDENTITY...`` makes them by hand (for other hosts of a multi-host
-deployment).
+deployment: each host needs ``ca.pem`` and its own identities' files, not the CA's key).
 
 Without ``tls_dir``, ``launch`` refuses an endpoint off loopback unless ``[zenoh] insecure = true``
 says so explicitly (:func:`check_transport`): a bus that other machines can reach is
