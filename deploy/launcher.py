@@ -743,7 +743,7 @@ def prepare_launcher(settings: Settings, config_path: Path, out_dir: Path, quiet
         raise ConfigError(f"{config_path}: deployment.router_listen: port {listen_address(dep.router_listen, '')[1]} "
                           f"for the router is already in use ({dep.router_listen})")
     if settings.multitarget is not None:
-        check_multitarget(settings, config_path)
+        settings = check_multitarget(settings, config_path)
         prepare(settings, out_dir)
         if config_path.resolve() != (out_dir / "config.toml").resolve():  # ``demo`` writes it there itself
             shutil.copyfile(config_path, out_dir / "config.toml")  # what ``replay --config OUT/config.toml`` reads

@@ -22,12 +22,13 @@ import json
 import re
 import shutil
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from fedtrack.config import ConfigError, in_file
+from fedtrack.config import ConfigError, in_file, load_toml
 from fedtrack.deploy.membership import membership
 from fedtrack.deploy.report import LaunchReport
 from fedtrack.deploy.settings import MultitargetSettings, Settings
@@ -54,14 +55,18 @@ def sensor_ids(mt: MultitargetSettings) -> list[str]:
     return [s.id for s in sensor_specs(mt)]
 
 
-def check_multitarget(settings: Settings, path: Path) -> None:
-    """What a multi-target launch needs, checked before any process starts."""
+def check_multitarget(settings: Settings, path: Path) -> Settings:
+    """What a multi-target launch needs, checked before any process starts; returns ``settings``
+    with realtime pacing when the file does not set ``deployment.pacing`` (the only pacing of a
+    multi-target deployment: every sensor keeps its own period and phase)."""
     mt = settings.multitarget
     assert mt is not None
     with in_file(path):
         if settings.deployment.pacing != "realtime":
-            raise ConfigError("deployment.pacing: a multi-target deployment paces its sensors in real time "
-                              "(set pacing = \"realtime\")")
+            if "pacing" in load_toml(path).get("deployment", {}):
+                raise ConfigError("deployment.pacing: a multi-target deployment paces its sensors in real time "
+                                  "(set pacing = \"realtime\", or leave it out)")
+            settings = replace(settings, deployment=replace(settings.deployment, pacing="realtime"))
         try:
             ids = sensor_ids(mt)
         except InputError as exc:
@@ -77,6 +82,7 @@ def check_multitarget(settings: Settings, path: Path) -> None:
             raise ConfigError("multitarget.join_at: at least one sensor must run from the start")
         if load_regions(path) is not None and mt.algorithm == "mtt-centralized":
             raise ConfigError("regions: region centres run mtt-federated or mtt-decentralized, not mtt-centralized")
+    return settings
 
 
 def prepare(settings: Settings, out: Path, say: bool = True) -> Path:
@@ -117,7 +123,7 @@ def service_args(settings: Settings, measurements: Path, regions: Regions | None
     if mt.algorithm != "mtt-centralized":
         mode = "federated" if mt.algorithm == "mtt-federated" else "decentralized"
         plan += [("mtt-local", s, ["--sensor", s, "--mode", mode]) for s in ids]
-    plan += [("sensor", s, ["--kind", "scan", "--measurements", str(measurements),
+    plan += [("sensor", s, ["--kind", "scan", "--pacing", "realtime", "--measurements", str(measurements),
                             *(["--join-at", repr(mt.join_at[s])] if s in mt.join_at else [])]) for s in ids]
     return plan
 

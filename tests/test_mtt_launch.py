@@ -20,7 +20,6 @@ CONFIG = """
 [deployment]
 name = "mttlaunch{port}"
 seed = 3
-pacing = "realtime"
 speed = 4.0
 router_listen = "tcp/127.0.0.1:{port}"
 ready_timeout_s = 60.0
@@ -73,8 +72,11 @@ def test_live_multitarget_deployment_equals_its_replay(tmp_path: Path) -> None:
 
 
 def test_a_multitarget_launch_needs_realtime_pacing(tmp_path: Path) -> None:
+    """Paced in real time without ``pacing`` in the file (CONFIG has none: the launches above); an
+    explicit other pacing is refused."""
     config = tmp_path / "mtt.toml"
-    config.write_text(CONFIG.format(port=free_port(), algorithm="mtt-federated").replace('"realtime"', '"lockstep"'))
+    config.write_text(CONFIG.format(port=free_port(), algorithm="mtt-federated").replace("seed = 3\n",
+                                                                                        'seed = 3\npacing = "lockstep"\n'))
     proc = subprocess.run([sys.executable, "-m", "fedtrack.cli", "launch", str(config), "--out", str(tmp_path / "o")],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and "deployment.pacing" in proc.stderr and "Traceback" not in proc.stderr
