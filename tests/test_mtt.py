@@ -363,38 +363,43 @@ def test_gated_pairs_are_those_of_the_full_scan(radar: bool) -> None:
     np.testing.assert_allclose(logdet, np.linalg.slogdet(S)[1], rtol=1e-12)
 
 
-def _one_point_report(sensor: str, t: float, confirmed: bool, started: bool):
-    """A position sensor's report of one local track (id 7) detected at (100, 200) m."""
+def _one_point_report(sensor: str, t: float, confirmed: bool, started: bool, noise: float = 100.0):
+    """A position sensor's report of one local track (id 7) detected at (100, 200) m with noise
+    covariance ``noise`` I [m^2]."""
     from fedtrack.local_filters.mtt.local import LocalReport
 
     H = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
     return LocalReport(sensor, t, np.array([7]), np.array([[100.0, 0.0, 200.0, 0.0]]),
-                       np.diag([100.0, 900.0, 100.0, 900.0])[None], np.array([confirmed]), np.array([True]),
-                       H[None], 100.0 * np.eye(2)[None], np.array([[100.0, 200.0]]), np.array([started]),
+                       np.diag([noise, 900.0, noise, 900.0])[None], np.array([confirmed]), np.array([True]),
+                       H[None], noise * np.eye(2)[None], np.array([[100.0, 200.0]]), np.array([started]),
                        np.zeros(0, np.int64))
 
 
 @pytest.mark.parametrize("associator", ["gnn", "jipda", "mht"])
 def test_centre_in_heavy_clutter_confirms_only_what_a_local_tracker_confirmed(associator: str) -> None:
     """Two sensors' tentative local tracks of one point, four scans. At 2e-6 false detections per
-    m^2 the count (3 of 4) would confirm a clutter track with probability 0.016, more than jipda's
-    and mht's own tests allow (0.01, 1e-4): their centres wait until a local tracker confirms its
-    track; gnn's (and mht's with gnn's rules, "counts") confirm by the count; at the default
-    clutter density (count: 4.5e-5) jipda's centre confirms by the count too."""
+    m^2 and 10 m noise the count (3 of 4) would confirm a clutter track with probability 0.023,
+    more than jipda's and mht's own tests allow (0.01, 1e-4): their centres wait until a local
+    tracker confirms its track; gnn's (and mht's with gnn's rules, "counts") confirm by the count;
+    at the default clutter density (count: 6.8e-5) jipda's and mht's centres confirm by the count
+    too, but not beside a sensor of 500 m noise, whose gate holds clutter at the default density:
+    count 0.964 (without the noise in the gate, as before the untuned4 session: 4.5e-5)."""
     from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
     from fedtrack.local_filters.mtt.config import MhtConfig, MttConfig
 
-    cases = [("score", 2e-6, False), ("score", 1e-7, True)]
+    cases = [("score", 2e-6, 100.0, False), ("score", 1e-7, 100.0, True), ("score", 1e-7, 500.0**2, False)]
     if associator == "mht":
-        cases.append(("counts", 2e-6, True))
-    for management, clutter, counts in cases:
+        cases.append(("counts", 2e-6, 100.0, True))
+    for management, clutter, noise, counts in cases:
         cfg = MttConfig(associator=associator, clutter_density=clutter, mht=MhtConfig(management=management))
-        p = 1.0 - np.exp(-clutter * np.pi * -2.0 * np.log(1e-3) * 30.0**2)  # 2-D gate at P_G 0.999, 30 m/s
-        assert cfg.counts_false_confirm("s1") == pytest.approx(3 * p**2 * (1 - p) + p**3, rel=1e-12)
+        # the 2-D gate at P_G 0.999 of a one-point track a second later: S = 2 R + (30 m/s x 1 s)^2 I
+        p = 1.0 - np.exp(-clutter * np.pi * -2.0 * np.log(1e-3) * (2.0 * noise + 30.0**2))
+        assert cfg.counts_false_confirm(cfg.clutter_gate_hit("s1", noise * np.eye(2))) == pytest.approx(
+            3 * p**2 * (1 - p) + p**3, rel=1e-12)
         counts = counts or associator == "gnn"
         centre = TrackToTrackCentre(cfg, 4, False)
         for k in range(4):
-            centre.ingest(_one_point_report(("s1", "s2")[k % 2], 0.5 * k, False, k < 2))
+            centre.ingest(_one_point_report(("s1", "s2")[k % 2], 0.5 * k, False, k < 2, noise))
         slots = centre.tracks.live()
         assert slots.size == 1
         assert bool(centre.tracks.confirmed[slots[0]]) == counts
@@ -403,24 +408,27 @@ def test_centre_in_heavy_clutter_confirms_only_what_a_local_tracker_confirmed(as
 
 
 def test_replay_notes_when_the_count_confirms_clutter_tracks(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """gnn at 2e-6 false detections per m^2: replay says the 3-of-4 count confirms clutter tracks
-    (chance 0.016 against jipda's bound 0.01) and what to do; at the default density, or with
-    jipda, it says nothing."""
-    lines = [{"t": 0.0, "sensor": "s1", "R": [[100.0, 0.0], [0.0, 100.0]], "detections": [{"z": [0.0, 0.0]}]},
-             {"t": 0.5, "sensor": "r2", "R": [[100.0, 0, 0], [0, 1e-6, 0], [0, 0, 1e-6]], "sensor_position": [-5000.0, 0, 0],
-              "detections": [{"z": [5000.0, 0.1, 0.05]}]}]
+    """gnn at 2e-6 false detections per m^2 and 10 m noise: replay says the 3-of-4 count confirms
+    clutter tracks (chance 0.023 against jipda's bound 0.01) and what to do; at the default density
+    it says nothing, unless the sensor's noise is 500 m (0.964; the note ignored the noise before
+    the untuned4 session); with jipda, nothing."""
     data = tmp_path / "m.jsonl"
-    data.write_text("".join(json.dumps(line) + "\n" for line in lines))
     # a radar's density is per m rad^2 (here 4e-4, as simulate writes for 200 false a scan): never judged per m^2
-    for associator, clutter, noted in (("gnn", 2e-6, True), ("gnn", 1e-7, False), ("jipda", 2e-6, False)):
+    for associator, clutter, sd, noted in (("gnn", 2e-6, 10.0, "2e-06 per m^2 (noise 10 m) the 3-of-4 count confirms a "
+                                            "track started on clutter with probability 0.023"),
+                                           ("gnn", 1e-7, 10.0, ""), ("jipda", 2e-6, 10.0, ""),
+                                           ("gnn", 1e-7, 500.0, "1e-07 per m^2 (noise 500 m) the 3-of-4 count confirms a "
+                                            "track started on clutter with probability 0.964")):
+        lines = [{"t": 0.0, "sensor": "s1", "R": [[sd**2, 0.0], [0.0, sd**2]], "detections": [{"z": [0.0, 0.0]}]},
+                 {"t": 0.5, "sensor": "r2", "R": [[100.0, 0, 0], [0, 1e-6, 0], [0, 0, 1e-6]],
+                  "sensor_position": [-5000.0, 0, 0], "detections": [{"z": [5000.0, 0.1, 0.05]}]}]
+        data.write_text("".join(json.dumps(line) + "\n" for line in lines))
         config = tmp_path / "c.toml"
         config.write_text(f'[mtt]\nassociator = "{associator}"\nclutter_density = {clutter}\n'
                           '[mtt.sensor.r2]\nclutter_density = 4e-4\n')
         replay_mtt("mtt-centralized", data, config, tmp_path / "out.jsonl")
         err = capsys.readouterr().err
-        assert ("sensor s1's clutter_density 2e-06 per m^2 the 3-of-4 count confirms a track started on "
-                "clutter with probability 0.016" in err
-                and 'associator = "jipda"' in err) == noted
+        assert (f"sensor s1's clutter_density {noted}" in err and 'associator = "jipda"' in err) == bool(noted)
 
 
 def _report(sensor: str, t: float, tracks: dict[int, tuple[float, bool, bool]], retired: tuple[int, ...] = ()):

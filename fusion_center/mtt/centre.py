@@ -38,7 +38,7 @@ scan, the linearized observation of every track the scan detected, the tracks it
   a local track confirmed by its tracker for jipda and mht's score). Where the local trackers confirm
   by a test with a false-confirmation bound (jipda's existence, mht's score) and the count's
   chance to confirm a track started on clutter exceeds that bound at some position sensor's
-  clutter density (:func:`needs_local_confirmation`), a track also needs a local track that its
+  clutter density and noise (:func:`needs_local_confirmation`), a track also needs a local track that its
   tracker confirmed: in heavy clutter the count alone confirmed tracks on several sensors'
   clutter tracks. A confirmed track is deleted once every sensor that tracks it (a local track
   maps to it) missed it on its last ``CENTRAL_MISSES`` (2) scans since its last detection
@@ -77,13 +77,14 @@ ASSOCIATION_SHIFT = 1e6  # larger than any gated pair's d2 + ln det
 XY = slice(0, 3, 2)  # the x and y positions of a state [x, vx, y, vy(, z, vz)], as a view
 
 
-def needs_local_confirmation(cfg: MttConfig, sensor: str) -> bool:
+def needs_local_confirmation(cfg: MttConfig, sensor: str, R: np.ndarray) -> bool:
     """Whether a central track also needs a local track confirmed by its tracker, judged on position
-    sensor ``sensor``: where the local trackers confirm by a test with a false-confirmation bound
-    (:attr:`MttConfig.confirm_bound`) and the count's chance to confirm a track started on that
-    sensor's clutter exceeds that bound (:meth:`MttConfig.counts_false_confirm`)."""
+    sensor ``sensor`` of noise covariance ``R``: where the local trackers confirm by a test with a
+    false-confirmation bound (:attr:`MttConfig.confirm_bound`) and the count's chance to confirm a
+    track started on that sensor's clutter exceeds that bound (:meth:`MttConfig.counts_false_confirm`
+    of :meth:`MttConfig.clutter_gate_hit`)."""
     bound = cfg.confirm_bound
-    return bound is not None and cfg.counts_false_confirm(sensor) > bound
+    return bound is not None and cfg.counts_false_confirm(cfg.clutter_gate_hit(sensor, R)) > bound
 
 
 @dataclass
@@ -344,12 +345,12 @@ class TrackToTrackCentre:
 
     def _note_scan(self, report: LocalReport) -> int:
         """The sensor's latest scan time and its retired local tracks unmapped (and, at its first
-        report, whether its clutter makes the count unsafe: a position sensor's observations are
-        2-D); returns its column."""
+        report with an observation, whether its clutter and noise make the count unsafe: a position
+        sensor's observations are 2-D); returns its column."""
         t, s = report.t, report.sensor
-        if s not in self.count_judged:
+        if s not in self.count_judged and len(report.obs_R):
             self.count_judged.add(s)
-            if report.obs_R.shape[1] == 2 and needs_local_confirmation(self.cfg, s):
+            if report.obs_R.shape[1] == 2 and needs_local_confirmation(self.cfg, s, report.obs_R[0]):
                 self.local_confirmation = True
         previous = self.sensor_seen.get(s, t)
         self.sensor_seen[s] = max(previous, t)

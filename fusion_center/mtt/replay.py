@@ -208,8 +208,8 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
         engine = make_engine(algorithm, cfg, dim, sensor, shards)
         source = pictures(engine, scans, cfg.period, cfg.picture_delay)
         recorded = {}
-    note = cfg.count_note({s.sensor for s in scans if isinstance(s, SensorScan) and s.dim == 2
-                           and (sensor is None or s.sensor == sensor)})
+    note = cfg.count_note({s.sensor: s.R for s in reversed(scans) if isinstance(s, SensorScan) and s.dim == 2
+                           and (sensor is None or s.sensor == sensor)})  # each sensor's first R
     if note:
         print(f"{algorithm}: note: {note}", file=sys.stderr)
     read_s = time.perf_counter() - start

@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import sys
-from collections.abc import Iterable
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -174,17 +174,24 @@ class MttConfig:
         """``process_noise`` resolved: ``"fixed"`` or ``"imm"`` (``"auto"``: the associator's own)."""
         return AUTO_PROCESS_NOISE.get(self.associator, "fixed") if self.process_noise == "auto" else self.process_noise
 
-    def counts_false_confirm(self, sensor: str) -> float:
-        """The chance that the M-of-N count confirms a track started on a position sensor's clutter:
-        each of the next ``confirm_window - 1`` scans puts a clutter detection into its gate with
-        probability ``p = 1 - exp(-lambda V)``, ``V = pi g (sigma_v T)^2`` the gate of a one-point
-        track one second later (``init_velocity_std`` over ``T`` = 1 s, ``g`` the 2-D gate's
-        chi-square quantile), ``lambda`` the sensor's clutter density per m^2; the count needs
-        ``confirm_hits - 1`` of them (the binomial tail). A radar's density is per m rad^2 of its
-        own measurement space: not for this formula."""
-        p = -math.expm1(-self.clutter_of(sensor) * math.pi * self.thresholds.gate[2] * self.init_velocity_std**2)
+    def clutter_gate_hit(self, sensor: str, R: np.ndarray) -> float:
+        """The chance that a scan of position sensor ``sensor`` (noise covariance ``R``, 2 x 2) puts
+        a clutter detection into the gate of a track started on one of its clutter detections, one
+        second later: ``1 - exp(-lambda V)``, ``V = pi g sqrt(det S)`` the gate's area, ``S = 2 R +
+        (sigma_v T)^2 I`` (the start's position noise, ``init_velocity_std`` over ``T`` = 1 s, the
+        new detection's noise), ``g`` the 2-D gate's chi-square quantile, ``lambda`` the sensor's
+        clutter density per m^2. A radar's density is per m rad^2 of its own measurement space:
+        not for this formula."""
+        S = 2.0 * np.asarray(R, float) + self.init_velocity_std**2 * np.eye(2)
+        area = math.pi * self.thresholds.gate[2] * math.sqrt(max(float(np.linalg.det(S)), 0.0))
+        return -math.expm1(-self.clutter_of(sensor) * area)
+
+    def counts_false_confirm(self, hit: float) -> float:
+        """The chance that the M-of-N count confirms a track started on clutter when each of the
+        next ``confirm_window - 1`` scans hits it with probability ``hit`` (one sensor's tracker:
+        :meth:`clutter_gate_hit`); the count needs ``confirm_hits - 1`` of them (the binomial tail)."""
         n = self.confirm_window - 1
-        return sum(math.comb(n, j) * p**j * (1.0 - p) ** (n - j) for j in range(self.confirm_hits - 1, n + 1))
+        return sum(math.comb(n, j) * hit**j * (1.0 - hit) ** (n - j) for j in range(self.confirm_hits - 1, n + 1))
 
     @property
     def confirm_bound(self) -> float | None:
@@ -197,17 +204,20 @@ class MttConfig:
             return FALSE_CONFIRM
         return self.mht.false_track if self.associator == "mht" and self.mht.management == "score" else None
 
-    def count_note(self, position_sensors: Iterable[str]) -> str | None:
+    def count_note(self, position_sensors: Mapping[str, np.ndarray]) -> str | None:
         """A warning when the count rules the tracks (``gnn``, mht's ``"counts"``) and some position
-        sensor's clutter makes it confirm clutter tracks more often than jipda's bound allows."""
+        sensor's clutter (``position_sensors``: each one's noise covariance ``R``) makes its tracker
+        confirm clutter tracks more often than jipda's bound allows."""
         from fedtrack.local_filters.mtt.associators.jipda import FALSE_CONFIRM
 
         if self.confirm_bound is not None:
             return None
-        chance, sensor = max(((self.counts_false_confirm(s), s) for s in position_sensors), default=(0.0, ""))
+        chance, sensor, sd = max(((self.counts_false_confirm(self.clutter_gate_hit(s, R)), s,
+                                   math.sqrt(float(np.max(np.diag(R))))) for s, R in position_sensors.items()),
+                                 default=(0.0, "", 0.0))
         if chance <= FALSE_CONFIRM:
             return None
-        return (f"at sensor {sensor}'s clutter_density {self.clutter_of(sensor):g} per m^2 the "
+        return (f"at sensor {sensor}'s clutter_density {self.clutter_of(sensor):g} per m^2 (noise {sd:.3g} m) the "
                 f"{self.confirm_hits}-of-{self.confirm_window} count confirms a track started on clutter with "
                 f"probability {chance:.3f} (above {FALSE_CONFIRM:g}): expect false tracks; associator = "
                 '"jipda" confirms by existence, or raise confirm_hits and confirm_window')

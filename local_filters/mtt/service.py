@@ -142,7 +142,7 @@ class MttLocalService(Service):
         self.received.take(msg)
         if not self.noted:  # the count's chance on this sensor's clutter, once (a position sensor's is per m^2)
             self.noted = True
-            note = self.cfg.count_note([self.sensor] if scan.dim == 2 else [])
+            note = self.cfg.count_note({self.sensor: scan.R} if scan.dim == 2 else {})
             if note:
                 self.log.warning("%s", note)
 
