@@ -472,6 +472,34 @@ def test_decentralized_centre_moves_a_local_track_to_the_central_track_it_fits(f
     assert centre.counters.unmapped == 0  # never failed its test against B
 
 
+@pytest.mark.parametrize("feedback", [False, True])
+def test_decentralized_centre_swaps_a_sensors_two_tracks_mapped_to_each_others_targets(feedback: bool) -> None:
+    """Targets a (x = 0) and b (x = 40 m), two sensors' tracks of each on central tracks A and B; a
+    third sensor's two tracks start swapped (its track 1 at 40 m joins B, its track 2 at 0 joins A),
+    then follow a and b. Each still passes its test (about 12 against 23.5) and neither A nor B lacks
+    a track of that sensor, so no move was possible and the swap held for good (parallel targets 3-5
+    sigma apart: mtt-decentralized's id switches). Decentralized, the two take part in their sensor's
+    association with each other's central tracks as candidates and trade places; federated, kept."""
+    from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
+    from fedtrack.local_filters.mtt.config import MttConfig
+
+    centre = TrackToTrackCentre(MttConfig(), 4, feedback)
+    for k in range(6):
+        t = float(k)
+        for sensor in ("s1", "s2"):
+            centre.answer(_report(sensor, t, {1: (0.0, k > 1, k == 0), 2: (40.0, k > 1, k == 0)}))
+            t += 0.1
+        centre.answer(_report("s3", t, {1: (40.0 if k == 0 else 0.0, k > 1, k == 0),
+                                         2: (0.0 if k == 0 else 40.0, k > 1, k == 0)}))
+        if k == 0:
+            assert centre.mapping[("s3", 1)] == centre.mapping[("s1", 2)]  # joined B
+            assert centre.mapping[("s3", 2)] == centre.mapping[("s1", 1)]  # joined A
+    a, b = centre.mapping[("s1", 1)], centre.mapping[("s1", 2)]
+    assert a != b and centre.mapping[("s2", 1)] == a and centre.mapping[("s2", 2)] == b
+    assert (centre.mapping[("s3", 1)], centre.mapping[("s3", 2)]) == ((b, a) if feedback else (a, b))
+    assert centre.counters.unmapped == 0 and sorted(centre.tracks) == sorted([a, b])
+
+
 def test_centre_keeps_a_confirmed_track_when_its_neighbour_retires() -> None:
     """One sensor's two local tracks 20 m apart on their own central tracks; the second retires in
     the scan where the first, confirmed, is alone on its central track: the first keeps its central

@@ -403,10 +403,14 @@ class TrackToTrackCentre:
             cands, (ri, ci, diff, S) = self._pairs(report, det_rows[unmapped_rows + alone], col, (X, P, at))
             tested = (ri, ci, *track_difference_d2(diff, S))
         stay = None
-        movers = [] if self.feedback else self._movers(report, det_rows, cid, slots, check, alone, col, (X, P, at))
+        staying = d2[:check.size] + logdet[:check.size]  # each checked row's cost on its own central track
+        movers, swaps = ([], None) if self.feedback else self._movers(report, det_rows, cid, slots, (check, staying),
+                                                                       alone, col, (X, P, at))
         if movers:  # decentralized: a mapped confirmed track moves where it fits better than on its own
-            own = np.searchsorted(check, movers)  # each one's test against its own central track
-            stay = slots[movers], d2[own], logdet[own]
+            own = np.searchsorted(check, movers)
+            m = np.arange(len(movers))
+            stay = (slots[movers], np.concatenate([m, swaps[0]]), np.concatenate([m, swaps[1]]),
+                    np.concatenate([staying[own], swaps[2]]))
             alone = alone + movers
             cands, (ri, ci, diff, S) = self._pairs(report, det_rows[unmapped_rows + alone], col, (X, P, at))
             tested = (ri, ci, *track_difference_d2(diff, S))
@@ -494,14 +498,20 @@ class TrackToTrackCentre:
         return (cid < 0).nonzero()[0].tolist(), mapped[lonely].tolist()
 
     def _movers(self, report: LocalReport, det_rows: np.ndarray, cid: np.ndarray, slots: np.ndarray,
-                check: np.ndarray, alone: list[int], col: int, states: tuple[np.ndarray, np.ndarray, np.ndarray]
-                ) -> list[int]:
+                checked: tuple[np.ndarray, np.ndarray], alone: list[int], col: int,
+                states: tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[list[int], tuple[np.ndarray, np.ndarray, np.ndarray]]:
         """Decentralized: the rows of the mapped confirmed local tracks that share their central
         track with other local tracks (the ``alone`` ones aside) and pass the test with a confirmed
-        central track of other sensors that has none of sensor column ``col``: each takes part in the
-        association, its own central track one more candidate and only confirmed ones besides
-        (:meth:`_associate`). Only the rows the hysteresis check tested (``check``) can move: their
-        test against their own central track is the cost of staying. ``states``: as :meth:`_pairs`'."""
+        central track of other sensors that has none of sensor column ``col``, or with another such
+        row's confirmed central track (the two may swap): each takes part in the association, the
+        movers' own central tracks more candidates and only confirmed ones besides
+        (:meth:`_associate`). Returns the rows and the swap pairs ``(i, j, d2 + ln det)``: mover ``i``
+        passes the test with mover ``j``'s own central track, and ``j`` with ``i``'s, and one of them
+        fits the other's better than its own (else the swap costs more). Only the rows the
+        hysteresis check tested (``checked``: the rows and each one's ``d2 + ln det`` against its
+        own central track, the cost of staying) can move. ``states``: as :meth:`_pairs`'."""
+        check, staying = checked
+        none = np.zeros(0, dtype=np.int64)
         sharing = np.zeros(cid.size, dtype=bool)
         sharing[check] = True
         sharing &= (cid >= 0) & report.confirmed[det_rows]
@@ -509,12 +519,52 @@ class TrackToTrackCentre:
         sharing[alone] = False
         rows = sharing.nonzero()[0]
         if not rows.size:
-            return []
+            return [], (none, none, np.zeros(0))
+        gate = self.cfg.thresholds.association[report.x.shape[1]]
         ri, _, diff, S = self._pairs(report, det_rows[rows], col, states, movers=True)[1]
-        if not ri.size:
-            return []
-        passes = track_difference_d2(diff, S)[0] <= self.cfg.thresholds.association[report.x.shape[1]]
-        return np.unique(rows[ri[passes]]).tolist()
+        moving = set(rows[ri[track_difference_d2(diff, S)[0] <= gate]].tolist()) if ri.size else set()
+        si, sj, cost = self._swap_pairs(report, det_rows[rows], slots[rows], states)
+        if si.size:  # both ways pass, and one of the two fits the other's better than its own
+            own = staying[np.searchsorted(check, rows)]
+            better = cost < own[si]
+            pair = si * rows.size + sj
+            back = np.isin(pair, sj * rows.size + si)
+            either = np.isin(pair, (sj * rows.size + si)[better]) | better
+            si, sj, cost = si[back & either], sj[back & either], cost[back & either]
+        moving.update(rows[si].tolist(), rows[sj].tolist())
+        movers = sorted(moving)
+        index = np.searchsorted(movers, rows)
+        return movers, (index[si], index[sj], cost)
+
+    def _swap_pairs(self, report: LocalReport, rows: np.ndarray, own: np.ndarray,
+                    states: tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The pairs ``(i, j)`` of the local tracks ``rows`` (one sensor's, each on its own central
+        track, slots ``own``) where track ``i`` passes the test with track ``j``'s central track, a
+        confirmed one, with their ``d2 + ln det``: two tracks of a sensor mapped to each other's
+        targets (a swap in a formation, made at their start) can only trade places."""
+        X, P, at = states
+        d = report.x.shape[1]
+        none = np.zeros(0, dtype=np.int64)
+        conf = self.tracks.confirmed[own].nonzero()[0]
+        if not conf.size:
+            return none, none, np.zeros(0)
+        xc, Pc = X[at[own[conf]], :d], P[at[own[conf]], :d, :d]  # the confirmed ones: a tight spread
+        U, PU = report.x[rows], report.P[rows]
+        gate = self.cfg.thresholds.association[d]
+        # candidate_pairs' bound with the largest spreads (confirmed tracks': tight), pairs as arrays
+        radius = math.sqrt(gate) * (np.sqrt(PU[:, 0, 0] + PU[:, 2, 2]).max() + np.sqrt(Pc[:, 0, 0] + Pc[:, 2, 2]).max())
+        near, tree = cKDTree(U[:, XY]), cKDTree(xc[:, XY])
+        if rows.size * conf.size > MAX_CANDIDATE_PAIRS and near.count_neighbors(tree, radius) > MAX_CANDIDATE_PAIRS:
+            raise CrowdedReport(f"more than {MAX_CANDIDATE_PAIRS} pairs of a sensor's confirmed tracks and their central "
+                                "tracks within the association test's reach")
+        pairs = near.sparse_distance_matrix(tree, radius, output_type="ndarray")
+        i, k = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64)
+        j = conf[k]
+        keep = i != j
+        i, j, k = i[keep], j[keep], k[keep]
+        d2, logdet = track_difference_d2(U[i] - xc[k], PU[i] + Pc[k])
+        passes = d2 <= gate
+        return i[passes], j[passes], (d2 + logdet)[passes]
 
     def _pairs(self, report: LocalReport, rows: np.ndarray, col: int, states: tuple[np.ndarray, np.ndarray, np.ndarray],
                movers: bool = False) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
@@ -716,13 +766,14 @@ class TrackToTrackCentre:
 
     def _associate(self, report: LocalReport, det_rows: np.ndarray, unmapped: list[int], alone: list[int],
                    cands: np.ndarray, tested: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
-                   stay: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> set[LocalKey]:
+                   stay: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None) -> set[LocalKey]:
         """Map the scan's unmapped local tracks (those not associated start central tracks) and
         move its confirmed local tracks that are alone on their central tracks to central tracks of
         other sensors that pass the test (their own central tracks, left without a local track,
         go at the next :meth:`prune`); returns the local tracks that started central tracks.
         ``cands``, ``tested``: :meth:`_pairs`' candidates and pairs ``(ri, ci)`` with their test
-        (``d2``, ``ln det``)."""
+        (``d2``, ``ln det``); ``stay``: the movers' own central tracks (slots, one a mover, the last
+        rows) and their pairs with them (mover, own central track of mover, cost): staying, or a swap."""
         fresh: set[LocalKey] = set()
         if not unmapped and not alone:
             return fresh
@@ -730,20 +781,19 @@ class TrackToTrackCentre:
         rows = det_rows[unmapped + alone]
         d = report.x.shape[1]
         assigned: dict[int, int] = {}
-        if cands.size:
+        if cands.size or stay is not None:
             ri, ci, d2, logdet = tested
             gate = cfg.thresholds.association[d]
             # a confirmed track moves only to another sensor's central track: one that no local
             # track maps to any more (its track retired or unmapped in this report) is pruned next
             inside = (d2 <= gate) & ((ri < len(unmapped)) | self.support[cands[ci]].any(axis=1))
             ri, ci, cost = ri[inside], ci[inside], d2[inside] + logdet[inside]
-            if stay is not None:  # the last rows (movers) may stay on their own central tracks, at their own cost
-                own, own_d2, own_logdet = stay
+            if stay is not None:  # the last rows (movers) may stay on their own central tracks, or swap them
+                own, mover, to, own_cost = stay
                 keep = (ri < len(rows) - own.size) | self.tracks.confirmed[cands[ci]]  # movers: to confirmed ones
-                ri, ci, cost = ri[keep], ci[keep], cost[keep]
-                ri = np.concatenate([ri, np.arange(len(rows) - own.size, len(rows))])
-                ci = np.concatenate([ci, cands.size + np.arange(own.size)])
-                cost = np.concatenate([cost, own_d2 + own_logdet])
+                ri = np.concatenate([ri[keep], len(rows) - own.size + mover])
+                ci = np.concatenate([ci[keep], cands.size + to])
+                cost = np.concatenate([cost[keep], own_cost])
                 cands = np.concatenate([cands, own])
             # most gated pairs first, then the least cost: a shift makes every gated pair's cost negative
             picked = assign(len(rows), cands.size, ri, ci, cost - ASSOCIATION_SHIFT)
