@@ -8,8 +8,9 @@ convention of the IMM service): ``model`` is the algorithm, ``x`` the Singer sta
 ``[x, vx, ax, y, vy, ay]``, ``sensors = [ID]``, ``maneuver`` false, and ``extra`` carries
 ``existence``, ``status`` (``confirmed``) and ``track`` (the track id). Measurements of
 another kind or dimension, or older than the last one, are skipped and counted
-(``unsupported``, ``out_of_order`` in Health); Health also counts ``confirmed_tracks``
-published and ``live_tracks`` of the last scan. A second, different measurement for the scan
+(``unsupported``, ``out_of_order`` in Health); a scan at the time of the last one taken, or of
+more than ``MAX_DETECTIONS`` detections, is rejected (``time_jump``, ``too_large``: docs/wire.md);
+Health also counts ``confirmed_tracks`` published and ``live_tracks`` of the last scan. A second, different measurement for the scan
 taken last is rejected (``conflict``), counted ``contested``, and the confirmed tracks of the
 next scan that has any are flagged ``contested`` with the scan in ``extra["contested_scans"]``
 (docs/wire.md).
@@ -34,6 +35,7 @@ from fedtrack.local_filters.pda.tracks import (
     tracker_spec,
 )
 from fedtrack.services.base import (
+    Rejected,
     ScanOrder,
     Service,
     Subscription,
@@ -45,7 +47,7 @@ from fedtrack.services.base import (
     service_parser,
 )
 from fedtrack.services.lead import NumberedLeadGuard
-from fedtrack.wire import FusedTrack, Measurement
+from fedtrack.wire import MAX_DETECTIONS, FusedTrack, Measurement
 from fedtrack.zsession import id_arg
 
 
@@ -76,11 +78,26 @@ class PDAService(Service):
             self.count("out_of_order")
             return
         check_time_jump(self.manager.t, msg.t, self.max_time_jump_s)
+        if len(msg.detections) > MAX_DETECTIONS:
+            # births pair every free detection with every one of the previous scan: M x U memory and time
+            raise Rejected("too_large", f"scan {msg.seq}: {len(msg.detections)} detections, more than the "
+                           f"{MAX_DETECTIONS} a scan of this tracker may hold")
         if not self.admitted(self.order, msg):
             return
         for scan in self.in_time(self.lead, self.keys.sensor_meas(self.sensor), msg):
-            if self.admitted(self.order, scan):  # a held scan may have been repeated meanwhile
+            if self.admitted(self.order, scan) and self._after_last(scan):  # a held scan may have been repeated meanwhile
                 self._track(scan)
+
+    def _after_last(self, scan: Measurement) -> bool:
+        """Whether ``scan`` is after the last scan taken; one at its time is rejected (``time_jump``):
+        the track manager pools the detections of scans at one time for its births, so a sensor
+        repeating its time with new scan numbers grew that pool, pickled with every message, without
+        bound."""
+        if self.manager.t is None or scan.t != self.manager.t:
+            return True
+        self.note_rejected(self.keys.sensor_meas(self.sensor), Rejected(
+            "time_jump", f"scan {scan.seq} at t={scan.t}, the time of the last scan taken"))
+        return False
 
     def _track(self, msg: Measurement) -> None:
         """Run the track manager on ``msg`` (checked) and publish the confirmed tracks."""

@@ -1,0 +1,64 @@
+"""Hostile but well-formed messages at the single-target services (the fusion centre, the local
+filters, the ``imm`` and ``hpda`` trackers), from a peer allowed to publish on the key: each is
+rejected and counted, and the honest output is the clean run's (docs/wire.md, "Rejections")."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+from test_fuzz_trackers import sonar_stream
+from test_hostile_messages import KEYS, OPTIONS, Bus, canonical
+
+from fedtrack.local_filters.pda.config import load_config
+from fedtrack.local_filters.pda.service import PDAService
+from fedtrack.wire import MAX_DETECTIONS, Detection, FusedTrack, Measurement, encode, parts
+
+SONAR = [replace(m, seq=10 * m.seq) for m in sonar_stream()]  # room for scan numbers between
+
+
+def hpda_run(forge: dict[int, list[Measurement]]) -> tuple[PDAService, list[Any]]:
+    """The ``hpda`` service on :data:`SONAR`, ``forge[k]`` published (in parts) after scan ``k``."""
+    svc = PDAService("sonar1", "hpda", load_config(None), service_id="hpda", options=OPTIONS,
+                     deployment=KEYS.deployment)
+    bus = Bus([svc])
+    for k, scan in enumerate(SONAR):
+        for msg in [scan, *forge.get(k, [])]:
+            for part in parts(msg):
+                bus.put(KEYS.sensor_meas("sonar1"), encode(part))
+    return svc, [canonical(m) for m in bus.of(FusedTrack)]
+
+
+def clutter(scan: Measurement, seq: int, n: int) -> Measurement:
+    """Scan ``seq`` at ``scan``'s time: ``n`` strong detections spread over its region."""
+    rng = np.random.default_rng(seq)
+    z = np.array([d.z for d in scan.detections])
+    lo, hi = z.min(axis=0), z.max(axis=0)
+    return replace(scan, seq=seq, detections=tuple(Detection(z=rng.uniform(lo, hi), amplitude=10.0) for _ in range(n)))
+
+
+def test_hpda_scans_repeating_the_last_ones_time_are_refused() -> None:
+    """Scans with new numbers at the time of the last scan taken: the track manager pooled their
+    detections for its births, without bound (60 scans of 2,048 detections: 122,880 held, pickled
+    with every message, and the next scan asked 3.75 GiB for its pairing and failed, as did every
+    scan after it while the pool lasted). Now rejected (``time_jump``), the tracks the clean run's."""
+    svc_clean, clean = hpda_run({})
+    forged = {k: [clutter(SONAR[k], SONAR[k].seq + j, 50) for j in range(1, 6)] for k in (2, 3)}
+    svc, tracks = hpda_run(forged)
+    assert svc.counters.get("rejected_time_jump") == 10 and svc.counters["rejected"] == 10
+    assert tracks == clean and len(clean) > 0
+    assert canonical(svc.manager) == canonical(svc_clean.manager)
+
+
+def test_a_hpda_scan_of_more_detections_than_one_message_is_refused() -> None:
+    """A sonar scan sent in parts with more than ``MAX_DETECTIONS`` (2,048) detections: the
+    track manager's births pair every free detection with every one of the previous scan (8,192
+    on 8,192: 11 s and 3.2 GB a scan; the wire's 131,072 would need 137 GB). Rejected
+    (``too_large``); the tracks are the clean run's."""
+    _, clean = hpda_run({})
+    big = clutter(SONAR[3], SONAR[3].seq + 1, MAX_DETECTIONS + 1)
+    assert len(parts(big)) == 2
+    svc, tracks = hpda_run({3: [replace(big, t=SONAR[3].t + 1.0)]})
+    assert svc.counters.get("rejected_too_large") == 1 and svc.counters["rejected"] == 1
+    assert tracks == clean and len(clean) > 0
