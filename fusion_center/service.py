@@ -260,6 +260,23 @@ class FusionCenterService(Service):
             seq, self.next_seq = self.next_seq, self.next_seq + 1
             with self.guarded(f"fusing scan {seq}"):  # a scan that fails is dropped, its state undone
                 self.fuse_scan(seq, buf, degraded=not complete)
+                self.drop_earlier()
+
+    def drop_earlier(self) -> None:
+        """Reject (``time_jump``) the estimates of later scans that are not after the track just
+        fused, as they would be had they come now, so that the scan's genuine estimates, at its own
+        time, are taken: one estimate of scan k + 1 stamped before scan k, arriving first, had the
+        others refused and was fused alone, its track going back in time. A scan already contested
+        is named by the next track."""
+        assert self.last_track is not None
+        last = self.last_track
+        for seq in [q for q, buf in self.scans.items() if buf.t <= last.t]:
+            buf = self.scans.pop(seq)
+            for sensor in buf.outputs:
+                self.note_rejected(self.keys.local_estimate(sensor), Rejected(
+                    "time_jump", f"scan {seq} at t={buf.t}, not after scan {last.seq} (t={last.t})"))
+            if buf.contested or buf.named:
+                self.contested_scans = sorted(set(self.contested_scans) | buf.named | {seq})[:MAX_CONTESTED]
 
     def fuse_scan(self, seq: int, buf: ScanBuffer, degraded: bool) -> None:
         if seq > 0 and (self.last_track is None or all(o.init for o in buf.outputs.values())):

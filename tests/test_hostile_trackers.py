@@ -5,15 +5,19 @@ rejected and counted, and the honest output is the clean run's (docs/wire.md, "R
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
+from test_fuzz_handlers import MEASUREMENTS, SCANS, SENSORS
 from test_fuzz_trackers import sonar_stream
-from test_hostile_messages import KEYS, OPTIONS, Bus, canonical
+from test_hostile_messages import KEYS, OPTIONS, Bus, CleanRuns, canonical, clean_runs, fused, paper_run, same_tracks
 
 from fedtrack.local_filters.pda.config import load_config
 from fedtrack.local_filters.pda.service import PDAService
-from fedtrack.wire import MAX_DETECTIONS, Detection, FusedTrack, Measurement, encode, parts
+from fedtrack.wire import MAX_DETECTIONS, Detection, FusedTrack, LocalEstimate, Measurement, encode, parts
+
+__all__ = ["clean_runs"]  # the fixture, shared with test_hostile_messages
 
 SONAR = [replace(m, seq=10 * m.seq) for m in sonar_stream()]  # room for scan numbers between
 
@@ -62,3 +66,27 @@ def test_a_hpda_scan_of_more_detections_than_one_message_is_refused() -> None:
     svc, tracks = hpda_run({3: [replace(big, t=SONAR[3].t + 1.0)]})
     assert svc.counters.get("rejected_too_large") == 1 and svc.counters["rejected"] == 1
     assert tracks == clean and len(clean) > 0
+
+
+def test_an_estimate_of_the_next_scan_stamped_before_this_one_changes_no_track(tmp_path: Path,
+                                                                                clean_runs: CleanRuns) -> None:
+    """One local filter's estimate of scan k + 1 stamped between scans k - 1 and k, arriving before
+    scan k's: it set scan k + 1's time, the genuine estimates of k + 1 were refused (``time_jump``,
+    contested) and it was fused alone after scan k, its track 315 m off and half a second before
+    scan k's (with no deadline passing, the centre waited for the refused sensors, and every later
+    scan with it). Now rejected once scan k is fused, as it would have been had it come then; every
+    track is the clean run's."""
+    clean, _ = clean_runs.paper()
+    k = 12
+
+    def forge(bus: Bus, scan: int) -> None:
+        if scan == k:
+            genuine = next(e for e in clean.of(LocalEstimate) if e.seq == k + 1 and e.sensor == SENSORS[0])
+            bus.put(KEYS.local_estimate(SENSORS[0]), encode(replace(genuine, t=MEASUREMENTS[SENSORS[0]][k].t - 0.5)))
+
+    attacked, services = paper_run(tmp_path, forge)
+    centre = services["centre"]
+    assert centre.counters.get("rejected_time_jump") == 1 and centre.counters["rejected"] == 1
+    assert centre.counters.get("contested", 0) == 0
+    same_tracks(fused(attacked), fused(clean))
+    assert len(fused(attacked)) == SCANS
