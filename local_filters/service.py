@@ -13,7 +13,8 @@ Subscribes to ``sensor/<ID>/meas`` and publishes ``local/<ID>/estimate``.
 * ``--filter ekf|ekf-ie|ekf-tsfuzzy``: a 3-D radar filter (papers 002/003) on a radar
   sensor's measurements (see :class:`RadarLocalFilterService`).
 
-Measurements are processed in ``seq`` order; one that arrives again for a scan already
+Measurements are processed in ``seq`` order; one whose time is not after the filter's is
+rejected (``time_jump``) and dropped when its turn comes, as if it never came; one that arrives again for a scan already
 processed or waiting is counted in ``late`` and dropped (never silently) if it is the same
 message; a second, *different* measurement for such a scan, or a second, different reset of
 the scan whose reset was applied, is rejected (``conflict``), counted ``contested`` and named
@@ -245,6 +246,8 @@ class LocalFilterService(Service):
         """Filter scan ``msg`` (taken off ``pending``) and publish the estimate; a scan the filter
         fails on is dropped, with the filter as it was before it (a rejection)."""
         with self.guarded(f"scan {msg.seq}", key=self.keys.sensor_meas(self.sensor)):
+            if self.filter.t is not None and msg.t <= self.filter.t:  # a broken clock: the filter would predict back
+                raise Rejected("time_jump", f"scan {msg.seq} at t={msg.t}, not after the filter's time {self.filter.t}")
             out = self.filter.process(msg.t, np.asarray(msg.z), np.asarray(msg.R))
             require_finite(f"scan {msg.seq}: the local estimate", out.x, out.P, out.x_prior, out.P_prior)
             require_covariances(f"scan {msg.seq}: the local estimate", out.P, out.P_prior)

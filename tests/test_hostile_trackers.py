@@ -90,3 +90,26 @@ def test_an_estimate_of_the_next_scan_stamped_before_this_one_changes_no_track(t
     assert centre.counters.get("contested", 0) == 0
     same_tracks(fused(attacked), fused(clean))
     assert len(fused(attacked)) == SCANS
+
+
+def test_a_measurement_stamped_before_the_last_one_changes_no_track(tmp_path: Path, clean_runs: CleanRuns) -> None:
+    """A sensor's scan k + 1 stamped half a second before scan k (a broken clock), arriving first:
+    the local filter predicted back in time and published an estimate the centre refuses, the
+    genuine scan k + 1 was then a conflict, and the centre fused scans without the sensor until
+    the filter caught up (2-3 m off; in-process, with no deadline passing, it waited for good).
+    Now the local filter rejects it (``time_jump``) as if it never came: every track is the clean
+    run's."""
+    clean, _ = clean_runs.paper()
+    k = 13
+
+    def forge(bus: Bus, scan: int) -> None:
+        if scan == k:
+            genuine = MEASUREMENTS[SENSORS[0]][k]
+            bus.put(KEYS.sensor_meas(SENSORS[0]), encode(replace(genuine, t=MEASUREMENTS[SENSORS[0]][k - 1].t - 0.5)))
+
+    attacked, services = paper_run(tmp_path, forge)
+    local = services[f"local-{SENSORS[0]}"]
+    assert local.counters.get("rejected_time_jump") == 1 and local.counters["rejected"] == 1
+    assert local.counters.get("contested", 0) == 0 and services["centre"].counters.get("rejected", 0) == 0
+    same_tracks(fused(attacked), fused(clean))
+    assert len(fused(attacked)) == SCANS
