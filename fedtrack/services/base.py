@@ -119,7 +119,37 @@ def check_time_jump(last: float | None, t: float, bound: float) -> None:
     """Rejected("time_jump") when ``t`` is more than ``bound`` seconds after ``last``: predicting
     over such a gap would leave a tracker's covariance meaningless (a forged or broken clock)."""
     if last is not None and t - last > bound:
-        raise Rejected("time_jump", f"t = {t} is {t - last:.6g} s after the last scan (max_time_jump_s = {bound:g})")
+        raise time_jump(last, t, bound)
+
+
+def time_jump(last: float, t: float, bound: float) -> Rejected:
+    """The rejection of a scan at ``t``, more than ``bound`` s after the last one (``last``)."""
+    return Rejected("time_jump", f"t = {t} is {t - last:.6g} s after the last scan (max_time_jump_s = {bound:g})")
+
+
+class ClockJump:
+    """A single-sensor tracker's :func:`check_time_jump` that lets its sensor resume after a pause:
+    a scan more than ``bound`` s after the tracker's time is rejected (``time_jump``), unless the
+    scan rejected so just before it has a lower number and an earlier time within ``bound`` of it
+    (the data goes on there: a sensor that paused, or whose clock was set forward); then the
+    tracker starts again from it, as ``replay`` does. Before, every scan after such a pause was
+    rejected, for good. Not part of a service's checkpointed state: a rejection must remember it."""
+
+    def __init__(self, bound: float) -> None:
+        self.bound = bound
+        self.first: tuple[int, float] | None = None  # (seq, t) of the scan rejected last for it
+
+    def restart(self, last: float | None, seq: int, t: float) -> bool:
+        """True when the tracker (at ``last``) is to start again at scan ``seq`` at ``t``; False
+        when ``t`` is within the bound; Rejected("time_jump") otherwise."""
+        if last is None or t - last <= self.bound:
+            self.first = None
+            return False
+        first, self.first = self.first, (seq, t)
+        if first is not None and first[0] < seq and first[1] < t <= first[1] + self.bound:
+            self.first = None
+            return True
+        raise time_jump(last, t, self.bound)
 
 
 def digest(msg: Message) -> bytes:
@@ -683,6 +713,12 @@ class Service:
         except Conflict as exc:  # the first may be the forgery: the next output names the scan
             self.contest(self.keys.sensor_meas(msg.sensor), exc)
         return False
+
+    def restarted(self, msg: Measurement) -> None:
+        """Count and log that a tracker starts again at scan ``msg`` (:class:`ClockJump`)."""
+        self.count("restarted")
+        self.log.warning("scan %d of %s at t=%g, beyond max_time_jump_s after the last taken and following one "
+                         "so: the tracker starts again", msg.seq, msg.sensor, msg.t)
 
     def take_contested(self) -> tuple[int, ...]:
         """The scans contested since the last output (sorted), which the output about to be

@@ -7,7 +7,8 @@ algorithm, ``x = [x, vx, y, vy]``, ``sensors = [ID]``, ``maneuver`` is true when
 probable mode has a non-zero acceleration, and ``extra`` carries ``mode_probabilities``
 (model name -> probability), ``active_group`` and ``acceleration`` (``sum mu_i a_i``).
 Measurements of another kind or dimension, or older than the last one, are skipped and
-counted (``unsupported``, ``out_of_order`` in Health). A second, different measurement for the
+counted (``unsupported``, ``out_of_order`` in Health); after a pause beyond ``max_time_jump_s``
+the tracker starts again (``restarted``: :class:`fedtrack.services.base.ClockJump`). A second, different measurement for the
 scan taken last is rejected (``conflict``), counted ``contested``, and the next track is
 flagged ``contested`` with the scan in ``extra["contested_scans"]`` (docs/wire.md).
 """
@@ -25,10 +26,10 @@ from fedtrack.local_filters.imm.config import IMMConfig, load_imm_config
 from fedtrack.local_filters.imm.filter import ALGORITHMS, AO_VSIMM
 from fedtrack.local_filters.imm.tracker import IMMTracker
 from fedtrack.services.base import (
+    ClockJump,
     ScanOrder,
     Service,
     Subscription,
-    check_time_jump,
     contested_extra,
     require_covariances,
     require_finite,
@@ -49,12 +50,13 @@ class IMMService(Service):
     def __init__(self, sensor: str, algorithm: str, cfg: IMMConfig, max_time_jump_s: float = 3600.0,
                  **kwargs: object) -> None:
         super().__init__(**kwargs)  # type: ignore[arg-type]
-        self.max_time_jump_s = max_time_jump_s
+        self.jump = ClockJump(max_time_jump_s)
         self.order = ScanOrder()
         self.lead: NumberedLeadGuard[Measurement] = NumberedLeadGuard()  # far ahead: waits for the next
         if len(cfg.models) > MAX_MAP_ITEMS:
             raise ConfigError(f"models: at most {MAX_MAP_ITEMS} models fit FusedTrack.extra, got {len(cfg.models)}")
         self.sensor = check_id(sensor, "--sensor")
+        self.cfg = cfg
         self.tracker = IMMTracker(cfg, algorithm)
         self.moving = np.any(self.tracker.bank.acc != 0.0, axis=1)
 
@@ -68,9 +70,12 @@ class IMMService(Service):
         if self.tracker.t is not None and msg.t < self.tracker.t:
             self.count("out_of_order")
             return
-        check_time_jump(self.tracker.t, msg.t, self.max_time_jump_s)
+        restart = self.jump.restart(self.tracker.t, msg.seq, msg.t)
         if not self.admitted(self.order, msg):
             return
+        if restart:
+            self.restarted(msg)
+            self.tracker, self.lead = IMMTracker(self.cfg, self.tracker.algorithm), NumberedLeadGuard()
         for scan in self.in_time(self.lead, self.keys.sensor_meas(self.sensor), msg):
             if self.admitted(self.order, scan):  # a held scan may have been repeated meanwhile
                 self._track(scan)

@@ -9,7 +9,8 @@ convention of the IMM service): ``model`` is the algorithm, ``x`` the Singer sta
 ``existence``, ``status`` (``confirmed``) and ``track`` (the track id). Measurements of
 another kind or dimension, or older than the last one, are skipped and counted
 (``unsupported``, ``out_of_order`` in Health); a scan at the time of the last one taken, or of
-more than ``MAX_DETECTIONS`` detections, is rejected (``time_jump``, ``too_large``: docs/wire.md);
+more than ``MAX_DETECTIONS`` detections, is rejected (``time_jump``, ``too_large``: docs/wire.md); after a pause beyond ``max_time_jump_s`` the
+track manager starts again (``restarted``: :class:`fedtrack.services.base.ClockJump`);
 Health also counts ``confirmed_tracks`` published and ``live_tracks`` of the last scan. A second, different measurement for the scan
 taken last is rejected (``conflict``), counted ``contested``, and the confirmed tracks of the
 next scan that has any are flagged ``contested`` with the scan in ``extra["contested_scans"]``
@@ -35,11 +36,11 @@ from fedtrack.local_filters.pda.tracks import (
     tracker_spec,
 )
 from fedtrack.services.base import (
+    ClockJump,
     Rejected,
     ScanOrder,
     Service,
     Subscription,
-    check_time_jump,
     contested_extra,
     require_covariances,
     require_finite,
@@ -60,7 +61,7 @@ class PDAService(Service):
     def __init__(self, sensor: str, algorithm: str, cfg: PDAReplayConfig, max_time_jump_s: float = 3600.0,
                  **kwargs: object) -> None:
         super().__init__(**kwargs)  # type: ignore[arg-type]
-        self.max_time_jump_s = max_time_jump_s
+        self.jump = ClockJump(max_time_jump_s)
         self.order = ScanOrder()
         self.lead: NumberedLeadGuard[Measurement] = NumberedLeadGuard()  # far ahead: waits for the next
         self.sensor = check_id(sensor, "--sensor")
@@ -77,13 +78,16 @@ class PDAService(Service):
         if self.manager.t is not None and msg.t < self.manager.t:
             self.count("out_of_order")
             return
-        check_time_jump(self.manager.t, msg.t, self.max_time_jump_s)
+        restart = self.jump.restart(self.manager.t, msg.seq, msg.t)
         if len(msg.detections) > MAX_DETECTIONS:
             # births pair every free detection with every one of the previous scan: M x U memory and time
             raise Rejected("too_large", f"scan {msg.seq}: {len(msg.detections)} detections, more than the "
                            f"{MAX_DETECTIONS} a scan of this tracker may hold")
         if not self.admitted(self.order, msg):
             return
+        if restart:
+            self.restarted(msg)
+            self.manager, self.lead = initial_manager(), NumberedLeadGuard()
         for scan in self.in_time(self.lead, self.keys.sensor_meas(self.sensor), msg):
             if self.admitted(self.order, scan) and self._after_last(scan):  # a held scan may have been repeated meanwhile
                 self._track(scan)
