@@ -42,13 +42,13 @@ from fedtrack.local_filters.vdie.estimation import EVENT_NAMES, EVENT_NONE
 from fedtrack.local_filters.vdie.local import LocalOutput
 from fedtrack.services.base import (
     MAX_CONTESTED,
+    ClockJump,
     Conflict,
     Numerical,
     QueryHandler,
     Rejected,
     Service,
     Subscription,
-    check_time_jump,
     contested_extra,
     digest,
     service_kwargs,
@@ -87,7 +87,7 @@ class FusionCenterService(Service):
                  max_time_jump_s: float = 3600.0, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.max_seq_jump = max_seq_jump
-        self.max_time_jump_s = max_time_jump_s
+        self.jump = ClockJump(max_time_jump_s)
         self.snapshot = snapshot
         self.restored = False  # resumed from the snapshot, no scan fused since
         self.sensors = sensors
@@ -184,12 +184,22 @@ class FusionCenterService(Service):
         last_t = self.last_track.t if self.last_track is not None else None
         if last_t is not None and msg.t <= last_t:
             raise Rejected("time_jump", f"scan {msg.seq} at t={msg.t}, not after the last fused scan (t={last_t})")
-        check_time_jump(last_t, msg.t, self.max_time_jump_s)
+        if self.jump.restart(last_t, msg.seq, msg.t):
+            self.start_again(msg)
         for sensor in self.gone:  # a dead sensor keeps no other's lone estimates from witnessing themselves
             self.lead.leave(sensor)
         for estimate in self.in_time(self.lead, self.keys.local_estimate(msg.sensor), msg):
             self._collect(estimate)
         self.fuse_ready()
+
+    def start_again(self, msg: LocalEstimate) -> None:
+        """Estimate ``msg`` follows one rejected beyond ``max_time_jump_s`` (:class:`ClockJump`): the
+        centre starts again from its scan (the local filters did: their estimates are flagged
+        ``init``), dropping the scans still waiting."""
+        self.restarted(msg)
+        self.count("dropped_scans", len(self.scans))
+        self.centre = type(self.centre)(self.sensors, self.centre.config)
+        self.scans, self.lead, self.last_track, self.next_seq = {}, NumberedLeadGuard(), None, msg.seq
 
     def _collect(self, msg: LocalEstimate) -> None:
         """Add ``msg`` (checked) to its scan's buffer, unless that scan's other estimates are at

@@ -13,7 +13,8 @@ Subscribes to ``sensor/<ID>/meas`` and publishes ``local/<ID>/estimate``.
 * ``--filter ekf|ekf-ie|ekf-tsfuzzy``: a 3-D radar filter (papers 002/003) on a radar
   sensor's measurements (see :class:`RadarLocalFilterService`).
 
-Measurements are processed in ``seq`` order; one whose time is not after the filter's is
+After a pause beyond ``max_time_jump_s`` the filter starts again (``restarted``:
+:class:`fedtrack.services.base.ClockJump`). Measurements are processed in ``seq`` order; one whose time is not after the filter's is
 rejected (``time_jump``) and dropped when its turn comes, as if it never came; one that arrives again for a scan already
 processed or waiting is counted in ``late`` and dropped (never silently) if it is the same
 message; a second, *different* measurement for such a scan, or a second, different reset of
@@ -24,6 +25,7 @@ the forgery: docs/wire.md, "Contested scans").
 
 from __future__ import annotations
 
+import pickle
 import time
 from pathlib import Path
 from typing import Any
@@ -42,11 +44,11 @@ from fedtrack.local_filters.vdie.local import (
     VdieLocalFilter,
 )
 from fedtrack.services.base import (
+    ClockJump,
     Conflict,
     Rejected,
     Service,
     Subscription,
-    check_time_jump,
     digest,
     require_covariances,
     require_finite,
@@ -84,11 +86,12 @@ class LocalFilterService(Service):
         super().__init__(**kwargs)
         self.sensor = sensor
         self.max_seq_jump = max_seq_jump
-        self.max_time_jump_s = max_time_jump_s
+        self.jump = ClockJump(max_time_jump_s)
         self.processed_t: float | None = None  # time of the scan processed last
         self.applied: Reset | None = None  # the reset applied last
         self.mode = mode
         self.filter = filt
+        self.fresh = pickle.dumps(filt)  # the filter as it starts (again, after a pause: start_again)
         self.reset_timeout_s = reset_timeout_s
         self.pending: dict[int, Measurement] = {}
         self.lead: NumberedLeadGuard[Measurement] = NumberedLeadGuard()  # far ahead: waits for the next
@@ -163,7 +166,8 @@ class LocalFilterService(Service):
         expected = max([self.processed_up_to, *self.pending]) + 1
         if self.processed_up_to >= 0 and msg.seq - expected > self.max_seq_jump:
             raise Rejected("seq_jump", f"scan {msg.seq} is more than {self.max_seq_jump} ahead of {expected}")
-        check_time_jump(self.processed_t, msg.t, self.max_time_jump_s)
+        if self.jump.restart(self.processed_t, msg.seq, msg.t):
+            self.start_again(msg)
         times = self.lead.times()
         queued = [scan.seq for scan in self.in_time(self.lead, self.keys.sensor_meas(self.sensor), msg)
                   if (scan is msg or not (scan.seq <= self.processed_up_to or scan.seq in self.pending))
@@ -171,6 +175,15 @@ class LocalFilterService(Service):
         self.process_ready()
         if msg.seq in queued and msg.seq not in self.pending and self.taken.get(msg.seq) is None:
             self.lead.restore(times)  # the filter failed on it: as if it never came
+
+    def start_again(self, msg: Measurement) -> None:
+        """Scan ``msg`` follows one rejected beyond ``max_time_jump_s`` (:class:`ClockJump`): the
+        filter starts again from it, dropping the scans still waiting, and waits for no reset of the
+        scans before it (its estimate is flagged ``init``: the centre starts again too)."""
+        self.restarted(msg)
+        self.count("dropped_scans", len(self.pending))
+        self.filter, self.pending, self.lead = pickle.loads(self.fresh), {}, NumberedLeadGuard()
+        self.processed_t, self.reset_up_to, self.waiting_since = None, self.processed_up_to, None
 
     def _take(self, msg: Measurement) -> bool:
         """Queue scan ``msg`` (checked) for the filter, after the rejoin a gap before it calls for;

@@ -12,8 +12,21 @@ import numpy as np
 import pytest
 from test_fuzz_handlers import MEASUREMENTS, SCANS, SENSORS
 from test_fuzz_trackers import SERVICES, sonar_stream
-from test_hostile_messages import KEYS, OPTIONS, Bus, CleanRuns, canonical, clean_runs, fused, paper_run, same_tracks
+from test_hostile_messages import (
+    KEYS,
+    OPTIONS,
+    Bus,
+    CleanRuns,
+    canonical,
+    clean_runs,
+    fused,
+    paper_run,
+    paper_services,
+    same_tracks,
+)
 
+from fedtrack.fusion_center import service as centre_service
+from fedtrack.local_filters import service as local_service
 from fedtrack.local_filters.pda.config import load_config
 from fedtrack.local_filters.pda.service import PDAService
 from fedtrack.wire import MAX_DETECTIONS, Detection, FusedTrack, LocalEstimate, Measurement, encode, parts
@@ -144,3 +157,45 @@ def test_a_tracker_starts_again_after_a_pause_beyond_max_time_jump(name: str) ->
         assert before and expected and paused.tracker.t == fresh.tracker.t
     else:  # no confirmed track within the scans: its whole state
         assert len(paused.manager.tracks) and canonical(paused.manager) == canonical(fresh.manager)
+
+
+def test_the_federated_pipeline_starts_again_after_a_pause_beyond_max_time_jump(
+        tmp_path: Path, clean_runs: CleanRuns, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Both sensors pause for 4,000 s (beyond ``max_time_jump_s``) after scan 15: the local filters
+    rejected every later measurement (``time_jump``, 18 of 18 each) and the centre fused nothing
+    more, for good. Now each local filter rejects the first scan after the pause and starts again
+    from the next (``restarted``); the centre rejects the first estimates after the pause, starts
+    again from the next scan's (scan 18), and from then fuses every scan; its track converges to
+    the clean run's (within a tenth of its own position standard deviation by the last scan)."""
+    pause, gap = 16, 4000.0
+
+    class Clock:  # the deadlines pass between scans: each scan comes a second after the last
+        now = 0.0
+
+        @staticmethod
+        def monotonic() -> float:
+            return Clock.now
+
+    monkeypatch.setattr(centre_service, "time", Clock)
+    monkeypatch.setattr(local_service, "time", Clock)
+    services = paper_services(tmp_path)
+    bus = Bus(list(services.values()))
+    for k in range(SCANS):
+        Clock.now += 1.0
+        for svc in (services["centre"], *(services[f"local-{s}"] for s in SENSORS)):
+            svc.on_tick()
+        bus.drain()
+        for s in SENSORS:
+            m = MEASUREMENTS[s][k]
+            bus.put(KEYS.sensor_meas(s), encode(replace(m, t=m.t + gap) if k >= pause else m))
+    tracks = fused(bus)
+    assert [t.seq for t in tracks] == [*range(pause), *range(pause + 2, SCANS)]
+    for s in SENSORS:
+        assert services[f"local-{s}"].counters.get("restarted") == 1
+        assert services[f"local-{s}"].counters.get("rejected_time_jump") == 1
+    assert services["centre"].counters.get("restarted") == 1 and services["centre"].counters["rejected_time_jump"] == 2
+    clean = fused(clean_runs.paper()[0])
+    same_tracks(tracks[:pause], clean[:pause])
+    last, reference = tracks[-1], clean[-1]
+    std = np.sqrt(last.P[0, 0] + last.P[last.x.shape[0] // 2, last.x.shape[0] // 2])
+    assert last.model == reference.model and np.linalg.norm(last.x - reference.x) < 0.1 * std

@@ -714,11 +714,12 @@ class Service:
             self.contest(self.keys.sensor_meas(msg.sensor), exc)
         return False
 
-    def restarted(self, msg: Measurement) -> None:
-        """Count and log that a tracker starts again at scan ``msg`` (:class:`ClockJump`)."""
+    def restarted(self, msg: Message) -> None:
+        """Count and log that a tracker starts again at scan ``msg`` (a measurement or an estimate:
+        :class:`ClockJump`)."""
         self.count("restarted")
         self.log.warning("scan %d of %s at t=%g, beyond max_time_jump_s after the last taken and following one "
-                         "so: the tracker starts again", msg.seq, msg.sensor, msg.t)
+                         "so: the tracker starts again", msg.seq, msg.sensor, msg.t)  # type: ignore[union-attr]
 
     def take_contested(self) -> tuple[int, ...]:
         """The scans contested since the last output (sorted), which the output about to be
