@@ -44,8 +44,10 @@ from fedtrack.local_filters.vdie.local import (
     VdieLocalFilter,
 )
 from fedtrack.services.base import (
+    NUMERICAL_ERRORS,
     ClockJump,
     Conflict,
+    Numerical,
     Rejected,
     Service,
     Subscription,
@@ -277,16 +279,22 @@ class RadarLocalFilterService(Service):
     The state is 3-D (``[x, vx, y, vy, z, vz]``, model ``cv3``/``ca3`` as the filter labels
     it); the 2-D federated fusion center does not fuse such estimates (it counts them as
     ``wrong_model``). The filter keeps no prior for the wire, so ``x_prior``/``P_prior``
-    repeat the posterior and the estimate is flagged ``no-prior``.
+    repeat the posterior and the estimate is flagged ``no-prior``. It starts again (``restarted``)
+    after a pause beyond ``max_time_jump_s`` (:class:`ClockJump`) and on the second scan in a row
+    it cannot process (``numerical``): predicted over a pause of 3,000 s it failed on every later
+    scan, for good.
     """
 
     role = "local-filter"
     state_attrs = ("filter", "processed_up_to", "lead")
 
-    def __init__(self, sensor: str, filt: RadarFilter, **kwargs: Any) -> None:
+    def __init__(self, sensor: str, filt: RadarFilter, max_time_jump_s: float = 3600.0, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.sensor = sensor
         self.filter = filt
+        self.fresh = pickle.dumps(filt)  # the filter as it starts (again: start_again)
+        self.jump = ClockJump(max_time_jump_s)
+        self.failed = False  # the last scan failed (numerical); not checkpointed: its rejection must remember it
         self.processed_up_to = -1
         self.lead: NumberedLeadGuard[Measurement] = NumberedLeadGuard()  # far ahead: waits for the next
 
@@ -300,28 +308,53 @@ class RadarLocalFilterService(Service):
         if msg.seq <= self.processed_up_to:
             self.count("late")
             return
+        if self.jump.restart(self.filter.last_t, msg.seq, msg.t):
+            self.start_again(msg)
         for scan in self.in_time(self.lead, self.keys.sensor_meas(self.sensor), msg):
             if scan.seq > self.processed_up_to:
-                self._step(scan)
+                with self.guarded(f"scan {scan.seq}", key=self.keys.sensor_meas(self.sensor)):  # each on its own
+                    self._step(scan)
+
+    def start_again(self, msg: Measurement, why: str = "after a pause beyond max_time_jump_s") -> None:
+        """The filter starts again from scan ``msg`` (two-point initialization)."""
+        self.restarted(msg, why)
+        self.filter, self.lead = pickle.loads(self.fresh), NumberedLeadGuard()
 
     def _step(self, msg: Measurement) -> None:
-        """Filter radar scan ``msg`` (checked) and publish the estimate."""
+        """Filter radar scan ``msg`` (checked) and publish the estimate; on the second scan in a row
+        that fails (``numerical``), start again from it."""
         self.lead.took(msg.sensor, msg.t, msg.seq)
         try:
-            est = self.filter.step(measurement_to_replay(msg), where=f"scan {msg.seq}")
+            est = self._estimate(msg)
+        except (Numerical, *NUMERICAL_ERRORS):
+            if not self.failed:
+                self.failed = True
+                raise
+            self.start_again(msg, "on the second scan in a row it cannot process")
+            est = self._estimate(msg)
         except InputError as exc:
             self.count("rejected_input")
             self.log.warning("%s", exc)
             return
+        self.failed = False
         self.processed_up_to = msg.seq
         if est is None:  # the first measurement only starts the two-point initialization
             return
+        x, P, model = est
+        self.publish(self.keys.local_estimate(self.sensor), LocalEstimate.unchecked(
+            sensor=self.sensor, seq=msg.seq, t=msg.t, model=model, x=x, P=P, x_prior=x, P_prior=P,
+            stamp_ns=msg.stamp_ns, degraded=("no-prior",)))
+
+    def _estimate(self, msg: Measurement) -> tuple[np.ndarray, np.ndarray, str] | None:
+        """The filter's estimate after scan ``msg`` (``x``, ``P``, model), checked as its receivers
+        check it; None while the filter initializes."""
+        est = self.filter.step(measurement_to_replay(msg), where=f"scan {msg.seq}")
+        if est is None:
+            return None
         x, P = np.asarray(est["x"]), np.asarray(est["P"])
         require_finite(f"scan {msg.seq}: the radar estimate", x, P)
         require_covariances(f"scan {msg.seq}: the radar estimate", P)
-        self.publish(self.keys.local_estimate(self.sensor), LocalEstimate.unchecked(
-            sensor=self.sensor, seq=msg.seq, t=msg.t, model=est["model"], x=x, P=P, x_prior=x, P_prior=P,
-            stamp_ns=msg.stamp_ns, degraded=("no-prior",)))
+        return x, P, est["model"]
 
 
 def to_message(sensor: str, meas: Measurement, out: LocalOutput, flags: tuple[str, ...],
@@ -353,7 +386,8 @@ def main(argv: list[str]) -> int:
     if args.filter != "vdie":
         with in_file(args.config):
             radar = make_radar_filter(args.filter, settings.radar_filter)
-        return RadarLocalFilterService(args.sensor, radar, **service_kwargs(parser, args)).run()
+        return RadarLocalFilterService(args.sensor, radar, settings.deployment.max_time_jump_s,
+                                       **service_kwargs(parser, args)).run()
     mode = args.mode or settings.deployment.mode
     sensors = settings.fusion.sensors or tuple(s.id for s in settings.sensor)
     with in_file(args.config):

@@ -29,6 +29,9 @@ from fedtrack.fusion_center import service as centre_service
 from fedtrack.local_filters import service as local_service
 from fedtrack.local_filters.pda.config import load_config
 from fedtrack.local_filters.pda.service import PDAService
+from fedtrack.local_filters.radar.filters import make_radar_filter
+from fedtrack.local_filters.service import RadarLocalFilterService
+from fedtrack.sensors.radar import RadarConfig, radar_scans
 from fedtrack.wire import MAX_DETECTIONS, Detection, FusedTrack, LocalEstimate, Measurement, encode, parts
 
 __all__ = ["clean_runs"]  # the fixture, shared with test_hostile_messages
@@ -199,3 +202,32 @@ def test_the_federated_pipeline_starts_again_after_a_pause_beyond_max_time_jump(
     last, reference = tracks[-1], clean[-1]
     std = np.sqrt(last.P[0, 0] + last.P[last.x.shape[0] // 2, last.x.shape[0] // 2])
     assert last.model == reference.model and np.linalg.norm(last.x - reference.x) < 0.1 * std
+
+
+@pytest.mark.parametrize("gap", [3000.0, 4000.0])
+def test_the_radar_local_filter_starts_again_after_a_pause(gap: float) -> None:
+    """A radar paused for 3,000 s (within ``max_time_jump_s``) or 4,000 s (beyond): the EKF local
+    filter predicted over the pause and failed on every later scan (``numerical``: 31 of 40),
+    for good. Now it starts again (``restarted``) on the second scan in a row it cannot process,
+    or after a pause beyond ``max_time_jump_s`` (the first scan after it rejected ``time_jump``);
+    its estimates are then those of a fresh filter fed the scans from that one on, exactly."""
+    lines, pause = list(radar_scans(RadarConfig(), seed=3))[:80], 40
+    base = Measurement(sensor="r1", seq=0, t=0.0, kind="radar", z=np.ones(3), R=np.eye(3),
+                       sensor_position=np.zeros(3), stamp_ns=1)
+    scans = [replace(base, seq=k, t=line["t"] + (gap if k >= pause else 0.0), z=np.array(line["z"]),
+                     R=np.array(line["R"])) for k, line in enumerate(lines)]
+
+    def estimates(scans: list[Measurement]) -> tuple[RadarLocalFilterService, list[Any]]:
+        svc = RadarLocalFilterService("r1", make_radar_filter("ekf"), service_id="r1", options=OPTIONS,
+                                      deployment=KEYS.deployment)
+        bus = Bus([svc])
+        for m in scans:
+            bus.put(KEYS.sensor_meas("r1"), encode(m))
+        return svc, [canonical(e) for e in bus.of(LocalEstimate)]
+
+    paused, after = estimates(scans)
+    _, fresh = estimates(scans[pause + 1:])
+    reason = "time_jump" if gap > 3600.0 else "numerical"
+    assert paused.counters.get(f"rejected_{reason}") == 1 and paused.counters["rejected"] == 1
+    assert paused.counters.get("restarted") == 1
+    assert len(after) == pause - 1 + len(fresh) and after[pause - 1:] == fresh

@@ -88,6 +88,7 @@ from fedtrack.services.reassembly import Reassembly
 from fedtrack.wire import (
     MAX_MAP_ITEMS,
     Health,
+    LocalEstimate,
     M,
     Measurement,
     Message,
@@ -714,12 +715,10 @@ class Service:
             self.contest(self.keys.sensor_meas(msg.sensor), exc)
         return False
 
-    def restarted(self, msg: Message) -> None:
-        """Count and log that a tracker starts again at scan ``msg`` (a measurement or an estimate:
-        :class:`ClockJump`)."""
+    def restarted(self, msg: Measurement | LocalEstimate, why: str = "after a pause beyond max_time_jump_s") -> None:
+        """Count and log that a tracker starts again at scan ``msg``, ``why`` (:class:`ClockJump`)."""
         self.count("restarted")
-        self.log.warning("scan %d of %s at t=%g, beyond max_time_jump_s after the last taken and following one "
-                         "so: the tracker starts again", msg.seq, msg.sensor, msg.t)  # type: ignore[union-attr]
+        self.log.warning("scan %d of %s at t=%g: the tracker starts again %s", msg.seq, msg.sensor, msg.t, why)
 
     def take_contested(self) -> tuple[int, ...]:
         """The scans contested since the last output (sorted), which the output about to be
