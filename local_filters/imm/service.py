@@ -8,8 +8,8 @@ probable mode has a non-zero acceleration, and ``extra`` carries ``mode_probabil
 (model name -> probability), ``active_group`` and ``acceleration`` (``sum mu_i a_i``).
 Measurements of another kind or dimension, or older than the last one, are skipped and
 counted (``unsupported``, ``out_of_order`` in Health); after a pause beyond ``max_time_jump_s``
-the tracker starts again (``restarted``: :class:`fedtrack.services.base.ClockJump`). A second, different measurement for the
-scan taken last is rejected (``conflict``), counted ``contested``, and the next track is
+the tracker starts again (``restarted``: :class:`fedtrack.services.base.ClockJump`). A second,
+different measurement for the scan taken last is rejected (``conflict``), counted ``contested``, and the next track is
 flagged ``contested`` with the scan in ``extra["contested_scans"]`` (docs/wire.md).
 """
 

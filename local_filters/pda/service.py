@@ -9,10 +9,11 @@ convention of the IMM service): ``model`` is the algorithm, ``x`` the Singer sta
 ``existence``, ``status`` (``confirmed``) and ``track`` (the track id). Measurements of
 another kind or dimension, or older than the last one, are skipped and counted
 (``unsupported``, ``out_of_order`` in Health); a scan at the time of the last one taken, or of
-more than ``MAX_DETECTIONS`` detections, is rejected (``time_jump``, ``too_large``: docs/wire.md); after a pause beyond ``max_time_jump_s`` the
-track manager starts again (``restarted``: :class:`fedtrack.services.base.ClockJump`);
-Health also counts ``confirmed_tracks`` published and ``live_tracks`` of the last scan. A second, different measurement for the scan
-taken last is rejected (``conflict``), counted ``contested``, and the confirmed tracks of the
+more than ``MAX_DETECTIONS`` detections, is rejected (``time_jump``, ``too_large``:
+docs/wire.md); after a pause beyond ``max_time_jump_s`` the track manager starts again
+(``restarted``: :class:`fedtrack.services.base.ClockJump`). Health also counts
+``confirmed_tracks`` published and ``live_tracks`` of the last scan. A second, different
+measurement for the scan taken last is rejected (``conflict``), counted ``contested``, and the confirmed tracks of the
 next scan that has any are flagged ``contested`` with the scan in ``extra["contested_scans"]``
 (docs/wire.md).
 """
@@ -89,7 +90,8 @@ class PDAService(Service):
             self.restarted(msg)
             self.manager, self.lead = initial_manager(), NumberedLeadGuard()
         for scan in self.in_time(self.lead, self.keys.sensor_meas(self.sensor), msg):
-            if self.admitted(self.order, scan) and self._after_last(scan):  # a held scan may have been repeated meanwhile
+            # (a held scan may have been repeated meanwhile)
+            if self.admitted(self.order, scan) and self._after_last(scan):
                 self._track(scan)
 
     def _after_last(self, scan: Measurement) -> bool:
