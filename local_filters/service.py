@@ -17,8 +17,9 @@ After a pause beyond ``max_time_jump_s`` the filter starts again (``restarted``:
 :class:`fedtrack.services.base.ClockJump`). Measurements are processed in ``seq`` order; one
 whose time is not after the filter's is rejected (``time_jump``) and dropped when its turn
 comes, as if it never came; one that arrives again for a scan already processed or waiting is
-counted in ``late`` and dropped (never silently) if it is the same message; a second, *different* measurement for such a scan, or a second, different reset of
-the scan whose reset was applied, is rejected (``conflict``), counted ``contested`` and named
+counted in ``late`` and dropped (never silently) if it is the same message; a second,
+*different* measurement for such a scan, or a second, different reset of the scan whose reset
+was applied, is rejected (``conflict``), counted ``contested`` and named
 in the ``contested`` list of the next estimate published (the first message stays and may be
 the forgery: docs/wire.md, "Contested scans").
 """
