@@ -197,16 +197,23 @@ class Recording:
         """The stored messages of ``msg_type`` in ``order`` (an ORDER BY clause of the table's
         columns); a message stored in parts joined, in the place of its last part (module docstring)."""
         table = TABLE_OF[msg_type]
-        held: dict[tuple[Any, ...], list[Any]] = {}  # a message's parts so far, by its unique key but the part
-        for rowid, payload in self.db.execute(f"SELECT id, payload FROM {table.name} ORDER BY {order}"):
-            msg = _decoded(self.path, table, rowid, payload)
-            if getattr(msg, "parts", 1) == 1:
-                yield msg
+        if "parts" not in table.columns or self.version == 1:  # whole messages only
+            for rowid, payload in self.db.execute(f"SELECT id, payload FROM {table.name} ORDER BY {order}"):
+                yield _decoded(self.path, table, rowid, payload)
+            return
+        # a part is read when its message is complete: parts that never complete (a sender's flood of
+        # first parts) held 0.5 MB each and took seconds each to decode before 2026-11-27
+        key = ", ".join(c for c in table.unique if c != "part")
+        held: dict[tuple[Any, ...], list[int]] = {}  # the rows of a message's parts so far, by its unique key but the part
+        for rowid, payload, parts, *unique in self.db.execute(
+                f"SELECT id, CASE WHEN parts = 1 THEN payload END, parts, {key} FROM {table.name} ORDER BY {order}"):
+            if parts == 1:
+                yield _decoded(self.path, table, rowid, payload)
                 continue
-            key = tuple(getattr(msg, c) for c in table.unique if c != "part")
-            held.setdefault(key, []).append(msg)
-            if len(held[key]) == msg.parts:
-                whole = self._joined(held.pop(key))
+            rows = held.setdefault(tuple(unique), [])
+            rows.append(rowid)
+            if len(rows) == parts:
+                whole = self._joined([self._row(table, i) for i in held.pop(tuple(unique))])
                 if whole is not None:
                     yield whole
         self.incomplete += len(held)
@@ -283,14 +290,18 @@ class Recording:
         """The stored message of ``msg_type`` in row ``rowid``; a part there: its message joined
         from every row of its unique key (None when they do not join)."""
         table = TABLE_OF[msg_type]
-        payload = self.db.execute(f"SELECT payload FROM {table.name} WHERE id = ?", (rowid,)).fetchone()[0]
-        msg = _decoded(self.path, table, rowid, payload)
+        msg = self._row(table, rowid)
         if getattr(msg, "parts", 1) == 1:
             return msg
         key = [c for c in table.unique if c != "part"]
         rows = self.db.execute(f"SELECT id, payload FROM {table.name} WHERE {' AND '.join(f'{c} = ?' for c in key)}",
                                tuple(getattr(msg, c) for c in key))
         return self._joined([_decoded(self.path, table, i, p) for i, p in rows])
+
+    def _row(self, table: Table, rowid: int) -> Any:
+        """The message (or part) stored in row ``rowid`` of ``table``."""
+        payload = self.db.execute(f"SELECT payload FROM {table.name} WHERE id = ?", (rowid,)).fetchone()[0]
+        return _decoded(self.path, table, rowid, payload)
 
     def close(self) -> None:
         self.db.close()

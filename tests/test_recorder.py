@@ -9,6 +9,7 @@ import sqlite3
 import subprocess
 import sys
 import time
+import tracemalloc
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +19,7 @@ from support import Deployment, wait_until
 from fedtrack.fusion_center.replay import replay_fusion
 from fedtrack.jsonl import InputError
 from fedtrack.recording import CONFLICT, DUPLICATE, RECORDED, Recording
-from fedtrack.wire import FusedTrack, Measurement, TrackPicture, encode
+from fedtrack.wire import Detection, FusedTrack, Measurement, TrackPicture, encode, parts
 
 
 def meas(sensor: str, seq: int, t: float, z0: float = 1.0) -> Measurement:
@@ -233,3 +234,32 @@ def test_a_version_1_recording_is_exported_as_before_and_never_written(tmp_path:
     assert [r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type = 'table' ORDER BY name")] == [
         "measurements", "meta", "pictures"]  # the refusal changed nothing
     con.close()
+
+
+def test_parts_that_never_complete_cost_an_export_nothing_to_hold(tmp_path: Path) -> None:
+    """A sender's flood of first parts whose other parts never come (here 20 of a 4,096-detection
+    scan, 140 kB each): reading the recording decoded and held each of them until the end, 0.5 MB
+    of memory and up to seconds of decoding each (200 of them: 103 MB and 31 s; measured with
+    tracemalloc), so that a large enough flood ended the export after the run. A part is now read
+    when its message is complete: the whole messages come out as before, the others are counted."""
+    rec = Recording(tmp_path / "rec.db")
+    rec.db.execute("PRAGMA synchronous = OFF")  # test speed only
+    rng = np.random.default_rng(0)
+    detections = tuple(Detection(z=rng.uniform(-1e4, 1e4, 2), amplitude=0.0) for _ in range(4096))
+    honest = []
+    for k in range(20):
+        first = parts(Measurement(sensor="s1", seq=k, t=float(k), kind="scan", z=np.zeros(0), R=np.eye(2),
+                                  detections=detections))[0]
+        assert first.parts == 2 and rec.add(first, encode(first)) == RECORDED
+        honest.append(Measurement(sensor="s2", seq=k, t=k + 0.5, kind="position", z=np.ones(2), R=np.eye(2),
+                                  stamp_ns=k))
+        rec.add(honest[-1], encode(honest[-1]))
+    tracemalloc.start()
+    try:
+        got = list(rec.messages(Measurement, "t, id"))
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+        rec.close()
+    assert [encode(m) for m in got] == [encode(m) for m in honest] and rec.incomplete == 20
+    assert peak < 1e6, peak  # before: 10.7 MB
