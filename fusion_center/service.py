@@ -184,7 +184,8 @@ class FusionCenterService(Service):
         last_t = self.last_track.t if self.last_track is not None else None
         if last_t is not None and msg.t <= last_t:
             raise Rejected("time_jump", f"scan {msg.seq} at t={msg.t}, not after the last fused scan (t={last_t})")
-        if self.jump.restart(last_t, msg.seq, msg.t):
+        others = [s for s in self.sensors if s != msg.sensor and s not in self.gone]
+        if self.jump.restart(last_t, msg.sensor, msg.seq, msg.t, witnesses=others):
             self.start_again(msg)
         for sensor in self.gone:  # a dead sensor keeps no other's lone estimates from witnessing themselves
             self.lead.leave(sensor)

@@ -169,7 +169,7 @@ class LocalFilterService(Service):
         expected = max([self.processed_up_to, *self.pending]) + 1
         if self.processed_up_to >= 0 and msg.seq - expected > self.max_seq_jump:
             raise Rejected("seq_jump", f"scan {msg.seq} is more than {self.max_seq_jump} ahead of {expected}")
-        if self.jump.restart(self.processed_t, msg.seq, msg.t):
+        if self.jump.restart(self.processed_t, msg.sensor, msg.seq, msg.t):
             self.start_again(msg)
         times = self.lead.times()
         queued = [scan.seq for scan in self.in_time(self.lead, self.keys.sensor_meas(self.sensor), msg)
@@ -309,7 +309,7 @@ class RadarLocalFilterService(Service):
         if msg.seq <= self.processed_up_to:
             self.count("late")
             return
-        if self.jump.restart(self.filter.last_t, msg.seq, msg.t):
+        if self.jump.restart(self.filter.last_t, msg.sensor, msg.seq, msg.t):
             self.start_again(msg)
         for scan in self.in_time(self.lead, self.keys.sensor_meas(self.sensor), msg):
             if scan.seq > self.processed_up_to:

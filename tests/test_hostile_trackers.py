@@ -231,3 +231,24 @@ def test_the_radar_local_filter_starts_again_after_a_pause(gap: float) -> None:
     assert paused.counters.get(f"rejected_{reason}") == 1 and paused.counters["rejected"] == 1
     assert paused.counters.get("restarted") == 1
     assert len(after) == pause - 1 + len(fresh) and after[pause - 1:] == fresh
+
+
+def test_one_local_filters_estimates_beyond_max_time_jump_do_not_restart_the_centre(
+        tmp_path: Path, clean_runs: CleanRuns) -> None:
+    """The centre starts again after a pause only when every live sensor's estimates follow it: one
+    local filter sending estimates of scans 13 and 14 4,000 s ahead, before the genuine ones, has
+    both rejected (``time_jump``) and changes no track."""
+    clean, _ = clean_runs.paper()
+    k = 13
+
+    def forge(bus: Bus, scan: int) -> None:
+        if scan == k:
+            for seq in (k, k + 1):
+                genuine = next(e for e in clean.of(LocalEstimate) if e.seq == seq and e.sensor == SENSORS[0])
+                bus.put(KEYS.local_estimate(SENSORS[0]), encode(replace(genuine, t=genuine.t + 4000.0)))
+
+    attacked, services = paper_run(tmp_path, forge)
+    centre = services["centre"]
+    assert centre.counters.get("rejected_time_jump") == 2 and centre.counters["rejected"] == 2
+    assert centre.counters.get("restarted", 0) == 0
+    same_tracks(fused(attacked), fused(clean))

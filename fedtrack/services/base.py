@@ -72,7 +72,7 @@ import traceback
 from contextlib import contextmanager
 from dataclasses import dataclass, fields
 from hashlib import blake2b
-from typing import Any, Callable, ClassVar, Iterator
+from typing import Any, Callable, ClassVar, Iterable, Iterator
 
 import numpy as np
 import zenoh
@@ -129,26 +129,29 @@ def time_jump(last: float, t: float, bound: float) -> Rejected:
 
 
 class ClockJump:
-    """A single-sensor tracker's :func:`check_time_jump` that lets its sensor resume after a pause:
-    a scan more than ``bound`` s after the tracker's time is rejected (``time_jump``), unless the
-    scan rejected so just before it has a lower number and an earlier time within ``bound`` of it
-    (the data goes on there: a sensor that paused, or whose clock was set forward); then the
-    tracker starts again from it, as ``replay`` does. Before, every scan after such a pause was
-    rejected, for good. Not part of a service's checkpointed state: a rejection must remember it."""
+    """:func:`check_time_jump` that lets the data resume after a pause: a scan (or estimate) more
+    than ``bound`` s after the tracker's time is rejected (``time_jump``), unless the one of its
+    sensor rejected so just before it, and one of every other sensor ``witnesses`` names (the
+    fusion centre's live sensors: one sensor alone cannot move the centre's clock), have lower
+    numbers and earlier times within ``bound`` of it (the data goes on there: sensors that paused,
+    or whose clocks were set forward); then the tracker starts again from it, as ``replay`` does.
+    Before, every scan after such a pause was rejected, for good. Not part of a service's
+    checkpointed state: a rejection must remember it."""
 
     def __init__(self, bound: float) -> None:
         self.bound = bound
-        self.first: tuple[int, float] | None = None  # (seq, t) of the scan rejected last for it
+        self.first: dict[str, tuple[int, float]] = {}  # per sensor, (seq, t) of its scan rejected last so
 
-    def restart(self, last: float | None, seq: int, t: float) -> bool:
-        """True when the tracker (at ``last``) is to start again at scan ``seq`` at ``t``; False
-        when ``t`` is within the bound; Rejected("time_jump") otherwise."""
+    def restart(self, last: float | None, sensor: str, seq: int, t: float, witnesses: Iterable[str] = ()) -> bool:
+        """True when the tracker (at ``last``) is to start again at ``sensor``'s scan ``seq`` at ``t``;
+        False when ``t`` is within the bound; Rejected("time_jump") otherwise."""
         if last is None or t - last <= self.bound:
-            self.first = None
+            self.first.pop(sensor, None)
             return False
-        first, self.first = self.first, (seq, t)
-        if first is not None and first[0] < seq and first[1] < t <= first[1] + self.bound:
-            self.first = None
+        before = {s: self.first.get(s) for s in {sensor, *witnesses}}
+        self.first[sensor] = (seq, t)
+        if all(f is not None and f[0] < seq and f[1] < t <= f[1] + self.bound for f in before.values()):
+            self.first = {}
             return True
         raise time_jump(last, t, self.bound)
 

@@ -70,7 +70,7 @@ class IMMService(Service):
         if self.tracker.t is not None and msg.t < self.tracker.t:
             self.count("out_of_order")
             return
-        restart = self.jump.restart(self.tracker.t, msg.seq, msg.t)
+        restart = self.jump.restart(self.tracker.t, msg.sensor, msg.seq, msg.t)
         if not self.admitted(self.order, msg):
             return
         if restart:

@@ -79,7 +79,7 @@ class PDAService(Service):
         if self.manager.t is not None and msg.t < self.manager.t:
             self.count("out_of_order")
             return
-        restart = self.jump.restart(self.manager.t, msg.seq, msg.t)
+        restart = self.jump.restart(self.manager.t, msg.sensor, msg.seq, msg.t)
         if len(msg.detections) > MAX_DETECTIONS:
             # births pair every free detection with every one of the previous scan: M x U memory and time
             raise Rejected("too_large", f"scan {msg.seq}: {len(msg.detections)} detections, more than the "
