@@ -252,3 +252,19 @@ def test_one_local_filters_estimates_beyond_max_time_jump_do_not_restart_the_cen
     assert centre.counters.get("rejected_time_jump") == 2 and centre.counters["rejected"] == 2
     assert centre.counters.get("restarted", 0) == 0
     same_tracks(fused(attacked), fused(clean))
+
+
+def test_a_burst_of_scans_milliseconds_apart_does_not_stall_a_lone_sensors_tracker() -> None:
+    """A lone sensor sends scans 11-18 10 ms apart right after scan 10 (a buggy sensor flushing
+    its queue), then goes on at its one-second cadence: its usual interval (the median of its
+    last 8) became 10 ms, so scan 19 led (held), and so did each later scan, never within 40 ms
+    of a held one: the ``imm`` tracker took nothing more, for good, with nothing counted. A lone
+    sensor's later scan now witnesses its held scans however far apart: every scan is tracked."""
+    make, stream = SERVICES["imm"]
+    burst = [replace(stream[10], seq=10 + j, t=stream[10].t + 0.01 * j) for j in range(1, 9)]
+    svc = make()
+    bus = Bus([svc])
+    for m in [*stream[:11], *burst, *stream[19:]]:
+        bus.put(svc.keys.sensor_meas(m.sensor), encode(m))
+    assert [t.seq for t in bus.of(FusedTrack)] == list(range(len(stream)))
+    assert svc.lead.time.held == [] and svc.counters["rejected"] == 0

@@ -16,7 +16,9 @@ once (the guard is transparent to data without leads). A leading scan is held un
 
 * a *witness* arrives: a scan that leads too, within ``bound`` of it, from another sensor, or a
   later one from the same sensor when it is the only live sensor the guard knows (a one-sensor
-  tracker, or the others left). The held scans near the witness are then taken in their arrival order, and
+  tracker, or the others left), however far after it: a lone sensor whose usual interval was
+  made tiny (a burst of scans milliseconds apart) had each later scan, one real interval after the
+  last, held and never witnessed, for good (before 2026-11-27; ``tests/test_hostile_trackers.py``). The held scans near the witness are then taken in their arrival order, and
   the witness after them: the data resumed after a gap (every sensor's clock moved on together);
 * or a scan that does not lead arrives (the rest of the data is still at the old time): the held
   scans are dropped, each counted in ``dropped`` (a forged or broken time).
@@ -134,11 +136,16 @@ class LeadGuard(Generic[T]):
             self.dropped += len(self.held)
             self.held.clear()
             return [arrived]
-        if not any(abs(t - h[1]) <= self.bound(h[0]) and self._witnesses(sensor, t, h) for h in self.held):
+        lone = not (self.live - {sensor})
+
+        def near(h: tuple[str, float, T, int]) -> bool:  # a lone sensor's later scan, however far: it moved on
+            return abs(t - h[1]) <= self.bound(h[0]) or (lone and h[0] == sensor and t > h[1])
+
+        if not any(near(h) and self._witnesses(sensor, t, h) for h in self.held):
             self.held.append(arrived)
             self.dropped += _bounded(self.held)
             return []
-        taken = [h for h in self.held if abs(t - h[1]) <= self.bound(h[0])]
+        taken = [h for h in self.held if near(h)]
         self.dropped += len(self.held) - len(taken)
         self.held.clear()
         return [*taken, arrived]
