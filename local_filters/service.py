@@ -333,10 +333,8 @@ class RadarLocalFilterService(Service):
                 raise
             self.start_again(msg, "on the second scan in a row it cannot process")
             est = self._estimate(msg)
-        except InputError as exc:
-            self.count("rejected_input")
-            self.log.warning("%s", exc)
-            return
+        except InputError as exc:  # a rejection like any other: rejected and rejected_input, nothing kept
+            raise Rejected("input", str(exc)) from None
         self.failed = False
         self.processed_up_to = msg.seq
         if est is None:  # the first measurement only starts the two-point initialization

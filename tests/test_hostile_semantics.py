@@ -332,6 +332,7 @@ def test_the_radar_local_filter_survives_its_measurements(algorithm: str) -> Non
     estimates = bus.of(LocalEstimate)
     assert [e.seq for e in estimates] == [1, 2, 3, 4, 5, 6, 7]
     assert svc.counters["late"] == 1 and svc.counters["rejected_input"] == 1
+    assert svc.counters["rejected"] == 1  # counted as every rejection is (it was rejected_input alone)
     assert np.linalg.norm(estimates[-1].x[[0, 2]] - 5350.0 * np.array([np.cos(0.307), np.sin(0.307)])) < 50.0
 
 
