@@ -773,10 +773,15 @@ def main(argv: list[str]) -> int:
     settings = load_settings(args.config)
     check_launchable(settings, args.config)
     # --out follows every command's output rule; [deployment] out (fedtrack-out/<name>) is made as it is
+    made = not (args.out or Path(settings.deployment.out)).exists()  # by this run, if refused below
     out = output_folder(args.out) if args.out else Path(settings.deployment.out)
     code = None
     try:
         report = run_deployment(settings, args.config.resolve(), out)
+    except ConfigError:  # refused before any service started: nothing of this run is left behind
+        if made:
+            shutil.rmtree(out, ignore_errors=True)
+        raise
     except Stopped as exc:
         report, code = exc.report, 130
         print("fedtrack launch: stopped; every service was shut down", file=sys.stderr)

@@ -152,3 +152,24 @@ def test_demo_names_its_router_so_a_subscriber_can_join(tmp_path: Path, monkeypa
     assert demo.main(["--out", str(tmp_path / "d"), "--port", "17999"]) == 1
     first = capsys.readouterr().err.splitlines()[0]
     assert ", router tls/127.0.0.1:17999 (deployment demo); output in " in first, first
+
+
+@pytest.mark.parametrize("existed", [False, True])
+def test_a_launch_refused_at_start_leaves_no_output_behind(tmp_path: Path, existed: bool) -> None:
+    """A multi-target launch whose certificates cannot be made (``tls_dir`` under a folder that does
+    not exist) is refused in one line, exit 2; before 2026-11-27 its output folder was left with the
+    simulated scenario and config.toml in it. An output folder that was there before stays."""
+    from fedtrack.config import ConfigError
+    from fedtrack.deploy.launcher import main
+
+    out = tmp_path / "out"
+    if existed:
+        out.mkdir()
+    cfg = tmp_path / "mt.toml"
+    cfg.write_text(f'[zenoh]\ntls_dir = "{tmp_path}/missing/certs"\n[deployment]\n'
+                   f'router_listen = "tls/127.0.0.1:{free_port()}"\nout = "{out}"\n'
+                   "[multitarget]\ntargets = 2\nduration = 3.0\n")
+    with pytest.raises(ConfigError, match="zenoh.tls_dir"):
+        main([str(cfg)])
+    assert out.is_dir() == existed  # made by the run: removed; there before: kept
+    assert not (tmp_path / "missing").exists()
