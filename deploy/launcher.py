@@ -775,13 +775,16 @@ def main(argv: list[str]) -> int:
     # --out follows every command's output rule; [deployment] out (fedtrack-out/<name>) is made as it is
     made = not (args.out or Path(settings.deployment.out)).exists()  # by this run, if refused below
     out = output_folder(args.out) if args.out else Path(settings.deployment.out)
-    code = None
     try:
-        report = run_deployment(settings, args.config.resolve(), out)
+        launcher = prepare_launcher(settings, args.config.resolve(), out)
     except ConfigError:  # refused before any service started: nothing of this run is left behind
         if made:
             shutil.rmtree(out, ignore_errors=True)
         raise
+    install_stop_handlers(launcher)
+    code = None
+    try:
+        report = launcher.run()
     except Stopped as exc:
         report, code = exc.report, 130
         print("fedtrack launch: stopped; every service was shut down", file=sys.stderr)
