@@ -16,11 +16,11 @@ import numpy as np
 from scipy.stats import chi2
 from tqdm import tqdm
 
+from fedtrack.experiments.tables import announce
 from fedtrack.fusion_center.trackers import make_tracker
 from fedtrack.local_filters.linear.kalman import nees
 from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.local_filters.vdie.estimation import EVENT_NEW_CA, EVENT_ONSET
-from fedtrack.experiments.tables import announce
 from fedtrack.progress import progress_bar
 from fedtrack.sensors.scenarios import DEFAULT_R, Scenario, paper004_scenario, simulate_positions, simulate_truth
 

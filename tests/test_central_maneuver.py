@@ -9,7 +9,7 @@ from fedtrack.fusion_center.mtt.central_track import CentralTracks
 from fedtrack.local_filters.linear.kalman import GaussianState, update
 from fedtrack.local_filters.mtt.maneuver import maneuver_models
 from fedtrack.local_filters.mtt.models import position_matrix, predict_batch
-from fedtrack.local_filters.vdie.estimation import VdieParams, bank_accumulate, bank_best, bank_push, bank_empty
+from fedtrack.local_filters.vdie.estimation import VdieParams, bank_accumulate, bank_best, bank_empty, bank_push
 from fedtrack.local_filters.vdie.input_bank import input_step, new_banks
 
 Q = 0.5

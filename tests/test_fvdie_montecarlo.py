@@ -5,10 +5,10 @@ import pytest
 from scipy.stats import chi2
 
 from fedtrack.experiments.fvdie import (
+    CV_SEGMENT,
     PAPER_FALSE_DETECTIONS,
     PAPER_TABLE1,
     TABLE1_TIMES,
-    CV_SEGMENT,
     cv_segment_nees,
     run_tracker,
     segment_ratio,

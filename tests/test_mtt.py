@@ -330,8 +330,8 @@ def test_centre_picture_with_delay_shows_the_tracks_as_they_were_at_its_time(tmp
 @pytest.mark.parametrize("radar", [False, True])
 def test_gated_pairs_are_those_of_the_full_scan(radar: bool) -> None:
     """The k-d tree candidates lose no pair of the dense N x M gate, with the same distances."""
-    from fedtrack.local_filters.mtt.models import linearize
     from fedtrack.local_filters.linear.kalman import innovation_covariance
+    from fedtrack.local_filters.mtt.models import linearize
     from fedtrack.local_filters.mtt.tracker import gate
     from fedtrack.local_filters.radar.measurement import polar_from_cartesian, wrap_angle
 

@@ -16,8 +16,8 @@ import pytest
 from support import WAIT_S, assert_same_pictures, free_port, wait_until
 
 from fedtrack.fusion_center.mtt.replay import replay_mtt
-from fedtrack.geodetic import Frame
 from fedtrack.fusion_center.mtt.service import MttCentreService
+from fedtrack.geodetic import Frame
 from fedtrack.keys import Keys
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.scan import parse_scan, scan_to_measurement
@@ -218,8 +218,14 @@ def test_sensors_join_and_leave_at_run_time(tmp_path: Path) -> None:
 @pytest.mark.parametrize("d", [4, 6])
 def test_empty_reports_and_resets_cross_the_wire(d: int) -> None:
     """A tracker with no track yet and a centre answering with no reset (the first scans)."""
-    from fedtrack.local_filters.mtt.local import (LocalReport, no_resets, report_from_wire, report_to_wire,
-                                                  resets_from_wire, resets_to_wire)
+    from fedtrack.local_filters.mtt.local import (
+        LocalReport,
+        no_resets,
+        report_from_wire,
+        report_to_wire,
+        resets_from_wire,
+        resets_to_wire,
+    )
 
     m = 3 if d == 6 else 2
     empty = LocalReport("s1", 0.5, np.zeros(0, np.int64), np.zeros((0, d)), np.zeros((0, d, d)), np.zeros(0, bool),

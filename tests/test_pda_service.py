@@ -9,9 +9,9 @@ from typing import Any
 import numpy as np
 from support import WAIT_S, free_port, wait_until
 
+from fedtrack.cli import main
 from fedtrack.keys import Keys
 from fedtrack.local_filters.pda.config import PDAReplayConfig
-from fedtrack.cli import main
 from fedtrack.local_filters.pda.service import PDAService
 from fedtrack.sensors.sonar import SonarConfig, sonar_scans
 from fedtrack.wire import FusedTrack, Measurement, decode, encode, measurement_from_replay

@@ -56,9 +56,9 @@ def test_a_new_run_sets_an_earlier_runs_recording_aside(tmp_path: Path) -> None:
     ``recording.db.previous`` (one generation), so the exports hold this run's data alone (a
     ``fedtrack demo`` after ``fedtrack demo --scenario multitarget`` in the same folder exported the
     earlier run's pictures and ended in a KeyError)."""
-    from fedtrack.deploy.launcher import set_aside_recording
     import numpy as np
 
+    from fedtrack.deploy.launcher import set_aside_recording
     from fedtrack.recording import Recording
     from fedtrack.wire import Measurement, encode
 

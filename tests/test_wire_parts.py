@@ -23,8 +23,8 @@ from fedtrack.jsonl import InputError
 from fedtrack.keys import Keys
 from fedtrack.recording import Recording
 from fedtrack.services.base import Service, Subscription
-from fedtrack.services.recorder import Recorder
 from fedtrack.services.reassembly import Reassembly
+from fedtrack.services.recorder import Recorder
 from fedtrack.wire import (
     FusedTrack,
     Measurement,

@@ -29,6 +29,7 @@ import numpy as np
 from scipy.linalg import expm
 from scipy.special import betaln, expit, gammainc, gammaln
 
+from fedtrack.local_filters.linear.gating import gate_ball_pairs
 from fedtrack.local_filters.linear.kalman import (
     LOG_2PI,
     GaussianState,
@@ -37,7 +38,6 @@ from fedtrack.local_filters.linear.kalman import (
     symmetrize,
     transpose,
 )
-from fedtrack.local_filters.linear.gating import gate_ball_pairs
 from fedtrack.local_filters.linear.models import LinearModel
 from fedtrack.local_filters.pda.config import PDAParams
 

@@ -45,7 +45,6 @@ from scipy.optimize import linear_sum_assignment
 from fedtrack.config import ConfigError
 from fedtrack.local_filters.linear.kalman import GaussianState, predict
 from fedtrack.local_filters.linear.models import LinearModel
-from fedtrack.local_filters.pda.config import ExistenceConfig
 from fedtrack.local_filters.pda.association import (
     ALGORITHMS,
     Constants,
@@ -61,6 +60,7 @@ from fedtrack.local_filters.pda.association import (
     singer_model,
     two_point_init,
 )
+from fedtrack.local_filters.pda.config import ExistenceConfig
 
 
 class TrackerSpec(NamedTuple):
