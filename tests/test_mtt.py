@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pytest
@@ -13,6 +14,10 @@ from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.fusion_center.replay import replay_fusion
 from fedtrack.jsonl import InputError
 from fedtrack.local_filters.mtt.models import motion
+
+if TYPE_CHECKING:
+    from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
+    from fedtrack.local_filters.mtt.local import LocalReport
 
 R_POS = [[100.0, 5.0], [5.0, 100.0]]
 MTT = ("mtt-centralized", "mtt-federated", "mtt-decentralized")
@@ -363,7 +368,7 @@ def test_gated_pairs_are_those_of_the_full_scan(radar: bool) -> None:
     np.testing.assert_allclose(logdet, np.linalg.slogdet(S)[1], rtol=1e-12)
 
 
-def _one_point_report(sensor: str, t: float, confirmed: bool, started: bool, noise: float = 100.0):
+def _one_point_report(sensor: str, t: float, confirmed: bool, started: bool, noise: float = 100.0) -> LocalReport:
     """A position sensor's report of one local track (id 7) detected at (100, 200) m with noise
     covariance ``noise`` I [m^2]."""
     from fedtrack.local_filters.mtt.local import LocalReport
@@ -431,7 +436,8 @@ def test_replay_notes_when_the_count_confirms_clutter_tracks(tmp_path: Path, cap
         assert (f"sensor s1's clutter_density {noted}" in err and 'associator = "jipda"' in err) == bool(noted)
 
 
-def _report(sensor: str, t: float, tracks: dict[int, tuple[float, bool, bool]], retired: tuple[int, ...] = ()):
+def _report(sensor: str, t: float, tracks: dict[int, tuple[float, bool, bool]], retired: tuple[int, ...] = ()
+            ) -> LocalReport:
     """A position sensor's report: ``tracks`` maps a local id to (x, confirmed, started), every
     track detected at (x, 0) m, standing still."""
     from fedtrack.local_filters.mtt.local import LocalReport
@@ -444,6 +450,16 @@ def _report(sensor: str, t: float, tracks: dict[int, tuple[float, bool, bool]], 
                        np.array([tracks[i][1] for i in ids], dtype=bool), np.ones(n, bool), np.broadcast_to(H, (n, 2, 4)).copy(),
                        np.broadcast_to(100.0 * np.eye(2), (n, 2, 2)).copy(), x[:, [0, 2]].copy(),
                        np.array([tracks[i][2] for i in ids], dtype=bool), np.array(retired, dtype=np.int64))
+
+
+def _formation_scan(centre: TrackToTrackCentre, k: int, third: dict[int, tuple[float, bool, bool]]) -> None:
+    """Scan ``k`` (at t = k s) of targets a (x = 0) and b (x = 40 m): sensors s1 and s2 report a
+    track of each (ids 1 and 2), then s3 reports ``third`` (as :func:`_report`'s ``tracks``)."""
+    t = float(k)
+    for sensor in ("s1", "s2"):
+        centre.answer(_report(sensor, t, {1: (0.0, k > 1, k == 0), 2: (40.0, k > 1, k == 0)}))
+        t += 0.1
+    centre.answer(_report("s3", t, third))
 
 
 @pytest.mark.parametrize("feedback", [False, True])
@@ -459,11 +475,7 @@ def test_decentralized_centre_moves_a_local_track_to_the_central_track_it_fits(f
 
     centre = TrackToTrackCentre(MttConfig(), 4, feedback)
     for k in range(6):
-        t = float(k)
-        for sensor in ("s1", "s2"):
-            centre.answer(_report(sensor, t, {1: (0.0, k > 1, k == 0), 2: (40.0, k > 1, k == 0)}))
-            t += 0.1
-        centre.answer(_report("s3", t, {1: (25.0 if k == 0 else 0.0, k > 1, k == 0)}))
+        _formation_scan(centre, k, {1: (25.0 if k == 0 else 0.0, k > 1, k == 0)})
         if k == 0:
             assert centre.mapping[("s3", 1)] == centre.mapping[("s1", 2)]  # joined B
     a, b = centre.mapping[("s1", 1)], centre.mapping[("s1", 2)]
@@ -485,12 +497,8 @@ def test_decentralized_centre_swaps_a_sensors_two_tracks_mapped_to_each_others_t
 
     centre = TrackToTrackCentre(MttConfig(), 4, feedback)
     for k in range(6):
-        t = float(k)
-        for sensor in ("s1", "s2"):
-            centre.answer(_report(sensor, t, {1: (0.0, k > 1, k == 0), 2: (40.0, k > 1, k == 0)}))
-            t += 0.1
-        centre.answer(_report("s3", t, {1: (40.0 if k == 0 else 0.0, k > 1, k == 0),
-                                         2: (0.0 if k == 0 else 40.0, k > 1, k == 0)}))
+        _formation_scan(centre, k, {1: (40.0 if k == 0 else 0.0, k > 1, k == 0),
+                                    2: (0.0 if k == 0 else 40.0, k > 1, k == 0)})
         if k == 0:
             assert centre.mapping[("s3", 1)] == centre.mapping[("s1", 2)]  # joined B
             assert centre.mapping[("s3", 2)] == centre.mapping[("s1", 1)]  # joined A
