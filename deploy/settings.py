@@ -111,7 +111,8 @@ def check_launchable(settings: Settings, path: Path) -> None:
                               "need at least one sensor")
         mt = settings.multitarget
         if mt is not None and mt.source and settings.frame is not None and settings.frame.origin != mt.origin:
-            raise ConfigError(f"frame.origin: {list(settings.frame.origin)} is not multitarget.origin {list(mt.origin or ())}, "
+            raise ConfigError(f"frame.origin: {list(settings.frame.origin)} is not multitarget.origin "
+                              f"{list(mt.origin or ())}, "
                               "the frame the recording's scenario is simulated in (the tracks' lat, lon and lat_lon "
                               "regions would be placed in another)")
         check_transport(settings.zenoh, settings.deployment)

@@ -204,7 +204,8 @@ class Recording:
         # a part is read when its message is complete: parts that never complete (a sender's flood of
         # first parts) held 0.5 MB each and took seconds each to decode before 2026-11-27
         key = ", ".join(c for c in table.unique if c != "part")
-        held: dict[tuple[Any, ...], list[int]] = {}  # the rows of a message's parts so far, by its unique key but the part
+        # the rows of a message's parts so far, by its unique key but the part
+        held: dict[tuple[Any, ...], list[int]] = {}
         for rowid, payload, parts, *unique in self.db.execute(
                 f"SELECT id, CASE WHEN parts = 1 THEN payload END, parts, {key} FROM {table.name} ORDER BY {order}"):
             if parts == 1:

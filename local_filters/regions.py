@@ -88,8 +88,8 @@ class PolygonConfig:
             raise ConfigError(f"{self.id}: at least 3 finite vertices")
         bad = [k for k, (lat, lon) in enumerate(self.lat_lon) if not (-90 <= lat <= 90 and -180 <= lon <= 360)]
         if bad:
-            raise ConfigError(f"{self.id}: lat_lon vertex {bad[0] + 1} {list(self.lat_lon[bad[0]])}: expected [lat deg in "
-                              "[-90, 90], lon deg in [-180, 360]] (as [frame] origin)")
+            raise ConfigError(f"{self.id}: lat_lon vertex {bad[0] + 1} {list(self.lat_lon[bad[0]])}: expected "
+                              "[lat deg in [-90, 90], lon deg in [-180, 360]] (as [frame] origin)")
 
 
 @dataclass(frozen=True)
@@ -207,7 +207,8 @@ def split_at_junctions(polygons: list[np.ndarray]) -> list[np.ndarray]:
         pieces = []
         for a, b in zip(poly, np.roll(poly, -1, axis=0)):
             pieces.append(a[None])
-            lo, hi = np.searchsorted(lats, [min(a[0], b[0]) - JUNCTION_DEG, max(a[0], b[0]) + JUNCTION_DEG], side="right")
+            lo, hi = np.searchsorted(lats, [min(a[0], b[0]) - JUNCTION_DEG, max(a[0], b[0]) + JUNCTION_DEG],
+                                     side="right")
             cand = every[by_lat[lo:hi]]
             d = np.array([b[0] - a[0], (b[1] - a[1] + 180.0) % 360.0 - 180.0])
             v = np.stack([cand[:, 0] - a[0], (cand[:, 1] - a[1] + 180.0) % 360.0 - 180.0], axis=-1)
@@ -231,7 +232,8 @@ def _crossings(a: np.ndarray, b: np.ndarray, tol: float) -> np.ndarray:
 
     def side(o: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:  # sign of (p - o) x (q - o), 0 within tol
         cross = (p[..., 0] - o[..., 0]) * (q[..., 1] - o[..., 1]) - (p[..., 1] - o[..., 1]) * (q[..., 0] - o[..., 0])
-        return np.where(np.abs(cross) > tol * np.hypot(p[..., 0] - o[..., 0], p[..., 1] - o[..., 1]), np.sign(cross), 0.0)
+        reach = tol * np.hypot(p[..., 0] - o[..., 0], p[..., 1] - o[..., 1])
+        return np.where(np.abs(cross) > reach, np.sign(cross), 0.0)
 
     return (side(b0, b1, a0) * side(b0, b1, a1) < 0) & (side(a0, a1, b0) * side(a0, a1, b1) < 0)
 
@@ -305,7 +307,8 @@ def load_regions(path: str | Path | None) -> Regions | None:
 def parse_grid_spec(spec: str) -> tuple[int, int]:
     """``"NXxNY"`` (e.g. ``"2x2"``) as ``(nx, ny)``."""
     parts = spec.lower().split("x")
-    if len(parts) != 2 or not all(p.isascii() and p.isdigit() and int(p) >= 1 for p in parts) or int(parts[0]) * int(parts[1]) > MAX_REGIONS:
+    if (len(parts) != 2 or not all(p.isascii() and p.isdigit() and int(p) >= 1 for p in parts)
+            or int(parts[0]) * int(parts[1]) > MAX_REGIONS):
         raise ConfigError(f"--regions: expected NXxNY (e.g. 2x2, at most {MAX_REGIONS} cells) or 'config', got {spec!r}")
     return int(parts[0]), int(parts[1])
 

@@ -18,8 +18,9 @@ once (the guard is transparent to data without leads). A leading scan is held un
   later one from the same sensor when it is the only live sensor the guard knows (a one-sensor
   tracker, or the others left), however far after it: a lone sensor whose usual interval was
   made tiny (a burst of scans milliseconds apart) had each later scan, one real interval after the
-  last, held and never witnessed, for good (before 2026-11-27; ``tests/test_hostile_trackers.py``). The held scans near the witness are then taken in their arrival order, and
-  the witness after them: the data resumed after a gap (every sensor's clock moved on together);
+  last, held and never witnessed, for good (before 2026-11-27; ``tests/test_hostile_trackers.py``).
+  The held scans near the witness are then taken in their arrival order, and the witness after
+  them: the data resumed after a gap (every sensor's clock moved on together);
 * or a scan that does not lead arrives (the rest of the data is still at the old time): the held
   scans are dropped, each counted in ``dropped`` (a forged or broken time).
 

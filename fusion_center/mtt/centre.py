@@ -499,7 +499,8 @@ class TrackToTrackCentre:
 
     def _movers(self, report: LocalReport, det_rows: np.ndarray, cid: np.ndarray, slots: np.ndarray,
                 checked: tuple[np.ndarray, np.ndarray], alone: list[int], col: int,
-                states: tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[list[int], tuple[np.ndarray, np.ndarray, np.ndarray]]:
+                states: tuple[np.ndarray, np.ndarray, np.ndarray]
+                ) -> tuple[list[int], tuple[np.ndarray, np.ndarray, np.ndarray]]:
         """Decentralized: the rows of the mapped confirmed local tracks that share their central
         track with other local tracks (the ``alone`` ones aside) and pass the test with a confirmed
         central track of other sensors that has none of sensor column ``col``, or with another such
@@ -555,8 +556,8 @@ class TrackToTrackCentre:
         radius = math.sqrt(gate) * (np.sqrt(PU[:, 0, 0] + PU[:, 2, 2]).max() + np.sqrt(Pc[:, 0, 0] + Pc[:, 2, 2]).max())
         near, tree = cKDTree(U[:, XY]), cKDTree(xc[:, XY])
         if rows.size * conf.size > MAX_CANDIDATE_PAIRS and near.count_neighbors(tree, radius) > MAX_CANDIDATE_PAIRS:
-            raise CrowdedReport(f"more than {MAX_CANDIDATE_PAIRS} pairs of a sensor's confirmed tracks and their central "
-                                "tracks within the association test's reach")
+            raise CrowdedReport(f"more than {MAX_CANDIDATE_PAIRS} pairs of a sensor's confirmed tracks and their "
+                                "central tracks within the association test's reach")
         pairs = near.sparse_distance_matrix(tree, radius, output_type="ndarray")
         i, k = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64)
         j = conf[k]
