@@ -17,7 +17,9 @@ scan, the linearized observation of every track the scan detected, the tracks it
   resets), a confirmed local track that shares its central track with others also takes part
   when it passes the test with a confirmed central track lacking its sensor, its own central track
   one more candidate at its own cost: in a formation, where the test passes the neighbours too, a
-  track kept on a neighbour's central track moves to the one it fits better.
+  track kept on a neighbour's central track moves to the one it fits better. Two such tracks of one
+  sensor that each pass the test with the other's confirmed central track (mapped to each other's
+  targets at their start) may also trade places, when one fits the other's better than its own.
 * **Fusion.** The centre fuses each local observation (``H, R, z``) into its central track at
   the observation's time, predicting the central track there; out-of-sequence observations up
   to ``max_lag`` old are fused exactly (:mod:`.central_track`; each observation fused again is
