@@ -545,7 +545,10 @@ class Launcher:
             return
         with self._lock:
             self.report.measurements[m.sensor] = self.report.measurements.get(m.sensor, 0) + 1
-            self._arrivals.setdefault(m.sensor, collections.deque()).append(time.monotonic())
+            arrivals, now = self._arrivals.setdefault(m.sensor, collections.deque()), time.monotonic()
+            arrivals.append(now)
+            while arrivals[0] < now - RATE_WINDOW_S:  # held for the rates only (quiet: never shown)
+                arrivals.popleft()
             if m.kind == "scan":
                 self.report.scan_stamps.append((m.t, m.stamp_ns))
             else:

@@ -135,6 +135,8 @@ def test_the_progress_line_rates_are_recent(tmp_path: Path, monkeypatch: pytest.
         for sid in ("s1",) * (k < 60) + ("s3",) * (k >= 30 and k % 2 == 0):
             payload = encode(Measurement(sensor=sid, seq=k, t=float(k), kind="position", z=np.zeros(2), R=np.eye(2)))
             launcher._on_meas(SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda p=payload: p)))
+    # quiet (no progress line): only the window's arrivals are held (before: every one of the run, 60 of s1)
+    assert {s: len(q) for s, q in launcher._arrivals.items()} == {"s1": 6, "s3": 3}  # each one's last 5 s
     clock[0] = 1000.0 + 89.5
     assert RATE_WINDOW_S == 5.0 and launcher._status_line(1000.0) == "pictures 0  sensors s1:0.0/s s3:0.4/s"
 
