@@ -69,12 +69,14 @@ def report(sensor: str, k: int, x0: float = -2000.0, v: float = 10.0) -> TrackRe
 
 
 def scans(bus: Bus, ks: range, x0: float = -2000.0, v: float = 10.0) -> None:
+    """Every sensor's region x0y0 report of scans ``ks`` (:func:`report`), put on ``bus``."""
     for k in ks:
         for s in SENSORS:
             bus.put(KEYS.region_report("x0y0", s), encode(report(s, k, x0, v)))
 
 
 def shown(bus: Bus) -> list[tuple[float, tuple[int, ...]]]:
+    """Each picture published on ``bus``: its time and track ids."""
     return [(p.t, p.ids) for p in bus.of(TrackPicture)]
 
 
@@ -223,11 +225,13 @@ def test_an_answer_holding_tracks_its_sub_report_did_not_carry_is_refused(tmp_pa
 # ---------------------------------------------------------------- primary tokens that serve nobody
 
 def picture_at(t: float) -> TrackPicture:
+    """An empty picture at ``t`` (numbered ``int(t)``)."""
     return TrackPicture(seq=int(t), t=t, ids=(), x=np.zeros((0, 4)), P=np.zeros((0, 4)), confirmed=(), sensors=(),
                         fused_sensors=(), fused_seqs=(), left=(), stamp_ns=1, closing=False)
 
 
 def answer(seq: int) -> TrackResets:
+    """An empty answer to sensor s1's report ``seq`` (at ``seq`` s)."""
     return TrackResets(sensor="s1", seq=seq, t=float(seq), q_scale=1.0, ids=(), x=np.zeros((0, 4)), P=np.zeros((0, 4)))
 
 
