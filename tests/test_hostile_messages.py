@@ -231,7 +231,7 @@ def fused(bus: Bus) -> list[FusedTrack]:
     return [m for key, m in bus.published if key == KEYS.fusion_track()]
 
 
-def one_time_jump_changes_nothing(svc: Any, attacked: Bus, clean: Bus) -> None:
+def assert_one_time_jump_changes_nothing(svc: Any, attacked: Bus, clean: Bus) -> None:
     """``svc`` rejected one message, as ``time_jump``, and contested no scan; every fused track of the
     ``attacked`` run is the ``clean`` run's, one a scan."""
     assert svc.counters.get("rejected_time_jump") == 1 and svc.counters["rejected"] == 1
@@ -322,7 +322,8 @@ def test_an_estimate_far_ahead_of_its_scan_is_rejected_and_changes_nothing(tmp_p
             bus.put(KEYS.local_estimate(SENSORS[0]), encode(replace(genuine, t=genuine.t + 1e6)))
 
     attacked, services = paper_run(tmp_path / "attacked", forge)
-    one_time_jump_changes_nothing(services["centre"], attacked, clean)
+    assert services["centre"].counters.get("rejected_numerical", 0) == 0  # it crashed the centre (LinAlgError)
+    assert_one_time_jump_changes_nothing(services["centre"], attacked, clean)
 
 
 # ---------------------------------------------------------------- issue 24, message 3
