@@ -150,20 +150,27 @@ def test_launch_refuses_an_infinite_multitarget_value(tmp_path: Path, capsys: py
     assert_launch_refuses(tmp_path, capsys, f'[deployment]\npacing = "realtime"\n\n[multitarget]\n{table}\n', says)
 
 
+@pytest.fixture(scope="module")
+def small_replay(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """A 3-target, 5 s simulation and its ``mtt-centralized`` pictures: (the simulation's folder, the pictures)."""
+    out = tmp_path_factory.mktemp("small") / "S"
+    assert main(["simulate", "multitarget", "--targets", "3", "--duration", "5", "--out", str(out)]) == 0
+    tracks = out.parent / "c.jsonl"
+    assert main(["replay", "--algorithm", "mtt-centralized", "--config", str(out / "config.toml"),
+                 "--measurements", str(out / "measurements.jsonl"), "--out", str(tracks)]) == 0
+    return out, tracks
+
+
 @pytest.mark.parametrize(("option", "says"), [(["--c", "inf"], "--c must be finite and > 0"),
                                               (["--p", "inf"], "--p finite and >= 1"),
                                               (["--p", "200"], "c^p overflows"),
                                               (["--c", "1e300"], "c^p overflows")])
-def test_evaluate_refuses_a_cut_off_or_order_whose_power_is_not_finite(tmp_path: Path,
+def test_evaluate_refuses_a_cut_off_or_order_whose_power_is_not_finite(tmp_path: Path, small_replay: tuple[Path, Path],
                                                                       capsys: pytest.CaptureFixture[str],
                                                                       option: list[str], says: str) -> None:
     """Before: --c inf printed 'mean GOSPA nan m' with exit 0; --p inf, --p 200 and --c 1e300 were tracebacks
     (scipy: 'cost matrix is infeasible')."""
-    out = tmp_path / "S"
-    assert main(["simulate", "multitarget", "--targets", "3", "--duration", "5", "--out", str(out)]) == 0
-    tracks = tmp_path / "c.jsonl"
-    assert main(["replay", "--algorithm", "mtt-centralized", "--config", str(out / "config.toml"),
-                 "--measurements", str(out / "measurements.jsonl"), "--out", str(tracks)]) == 0
+    out, tracks = small_replay
     capsys.readouterr()
     with pytest.raises(SystemExit) as exit_:
         main(["evaluate", "--tracks", str(tracks), "--truth", str(out / "truth.jsonl"), *option,
@@ -349,13 +356,10 @@ def test_export_geojson_names_a_truth_file_given_as_tracks(tmp_path: Path, capsy
     assert not (tmp_path / "g.geojson").exists()
 
 
-def test_evaluate_config_without_plot_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_evaluate_config_without_plot_is_refused(tmp_path: Path, small_replay: tuple[Path, Path],
+                                                 capsys: pytest.CaptureFixture[str]) -> None:
     """Before: --config without --plot was never read (a missing file, or one with errors, passed unnoticed)."""
-    out = tmp_path / "S"
-    assert main(["simulate", "multitarget", "--targets", "3", "--duration", "5", "--out", str(out)]) == 0
-    tracks = tmp_path / "c.jsonl"
-    assert main(["replay", "--algorithm", "mtt-centralized", "--config", str(out / "config.toml"),
-                 "--measurements", str(out / "measurements.jsonl"), "--out", str(tracks)]) == 0
+    out, tracks = small_replay
     capsys.readouterr()
     with pytest.raises(SystemExit) as exit_:
         main(["evaluate", "--tracks", str(tracks), "--truth", str(out / "truth.jsonl"), "--config",
