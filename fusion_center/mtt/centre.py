@@ -554,14 +554,8 @@ class TrackToTrackCentre:
         xc, Pc = X[at[own[conf]], :d], P[at[own[conf]], :d, :d]  # the confirmed ones: a tight spread
         U, PU = report.x[rows], report.P[rows]
         gate = self.cfg.thresholds.association[d]
-        # candidate_pairs' bound with the largest spreads (confirmed tracks': tight), pairs as arrays
-        radius = math.sqrt(gate) * (np.sqrt(PU[:, 0, 0] + PU[:, 2, 2]).max() + np.sqrt(Pc[:, 0, 0] + Pc[:, 2, 2]).max())
-        near, tree = cKDTree(U[:, XY]), cKDTree(xc[:, XY])
-        if rows.size * conf.size > MAX_CANDIDATE_PAIRS and near.count_neighbors(tree, radius) > MAX_CANDIDATE_PAIRS:
-            raise CrowdedReport(f"more than {MAX_CANDIDATE_PAIRS} pairs of a sensor's confirmed tracks and their "
-                                "central tracks within the association test's reach")
-        pairs = near.sparse_distance_matrix(tree, radius, output_type="ndarray")
-        i, k = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64)
+        i, k = candidate_pairs(U[:, XY], np.sqrt(PU[:, 0, 0] + PU[:, 2, 2]), xc[:, XY],
+                               np.sqrt(Pc[:, 0, 0] + Pc[:, 2, 2]), gate)
         j = conf[k]
         keep = i != j
         i, j, k = i[keep], j[keep], k[keep]
