@@ -150,17 +150,19 @@ def data_regions(spec: str, scans: list[SensorScan | SensorLeft], config: Path |
     extent of the detections' positions (margin: the config's, else 0). A note on stderr when no
     detection is within the config's regions' extent (every track then goes to the nearest region)."""
     configured = load_regions(config)
-    positions = [position_from_detection(s.z, s.R, s.sensor_position)[0][:, :2] for s in scans
-                 if isinstance(s, SensorScan) and s.z.size]
+    positions = (position_from_detection(s.z, s.R, s.sensor_position)[0][:, :2] for s in scans
+                 if isinstance(s, SensorScan) and s.z.size)  # x, y per scan, made as they are read
     if spec == "config":
         if configured is None:
             raise ConfigError(f"--regions config: {config or 'no config file'} has no [regions] table")
         lo, hi = configured.vertices.min(axis=(0, 1)), configured.vertices.max(axis=(0, 1))
-        if positions and not any(((p >= lo) & (p <= hi)).all(axis=1).any() for p in positions):
+        inside = any(((p >= lo) & (p <= hi)).all(axis=1).any() for p in positions)  # stops at the first
+        if not inside and any(isinstance(s, SensorScan) and s.z.size for s in scans):
             print(f"--regions config: note: none of the measurements' detections is within the extent of {config}'s "
                   "regions (each track goes to the nearest region; lat_lon given as lon, lat?)", file=sys.stderr)
         return configured
     nx, ny = parse_grid_spec(spec)
+    positions = list(positions)
     if not positions:
         raise ConfigError("--regions: the measurements hold no detection to span a grid over")
     return grid_over(np.concatenate(positions), nx, ny, 0.0 if configured is None else configured.margin)
