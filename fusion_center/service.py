@@ -42,7 +42,6 @@ from fedtrack.local_filters.vdie.estimation import EVENT_NAMES, EVENT_NONE
 from fedtrack.local_filters.vdie.local import LocalOutput
 from fedtrack.services.base import (
     MAX_CONTESTED,
-    ClockJump,
     Conflict,
     Numerical,
     QueryHandler,
@@ -54,6 +53,7 @@ from fedtrack.services.base import (
     service_kwargs,
     service_parser,
 )
+from fedtrack.services.clock import ClockJump
 from fedtrack.services.lead import NumberedLeadGuard
 from fedtrack.wire import FusedTrack, LocalEstimate, ManeuverEvent, Reset, acceptable_covariances, decode, encode
 

@@ -14,7 +14,7 @@ Subscribes to ``sensor/<ID>/meas`` and publishes ``local/<ID>/estimate``.
   sensor's measurements (see :class:`RadarLocalFilterService`).
 
 After a pause beyond ``max_time_jump_s`` the filter starts again (``restarted``:
-:class:`fedtrack.services.base.ClockJump`). Measurements are processed in ``seq`` order; one
+:class:`fedtrack.services.clock.ClockJump`). Measurements are processed in ``seq`` order; one
 whose time is not after the filter's is rejected (``time_jump``) and dropped when its turn
 comes, as if it never came; one that arrives again for a scan already processed or waiting is
 counted in ``late`` and dropped (never silently) if it is the same message; a second,
@@ -46,7 +46,6 @@ from fedtrack.local_filters.vdie.local import (
 )
 from fedtrack.services.base import (
     NUMERICAL_ERRORS,
-    ClockJump,
     Conflict,
     Numerical,
     Rejected,
@@ -58,6 +57,7 @@ from fedtrack.services.base import (
     service_kwargs,
     service_parser,
 )
+from fedtrack.services.clock import ClockJump
 from fedtrack.services.lead import NumberedLeadGuard
 from fedtrack.wire import (
     FusedTrack,

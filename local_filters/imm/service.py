@@ -8,7 +8,7 @@ probable mode has a non-zero acceleration, and ``extra`` carries ``mode_probabil
 (model name -> probability), ``active_group`` and ``acceleration`` (``sum mu_i a_i``).
 Measurements of another kind or dimension, or older than the last one, are skipped and
 counted (``unsupported``, ``out_of_order`` in Health); after a pause beyond ``max_time_jump_s``
-the tracker starts again (``restarted``: :class:`fedtrack.services.base.ClockJump`). A second,
+the tracker starts again (``restarted``: :class:`fedtrack.services.clock.ClockJump`). A second,
 different measurement for the scan taken last is rejected (``conflict``), counted ``contested``, and the next track is
 flagged ``contested`` with the scan in ``extra["contested_scans"]`` (docs/wire.md).
 """
@@ -26,7 +26,6 @@ from fedtrack.local_filters.imm.config import IMMConfig, load_imm_config
 from fedtrack.local_filters.imm.filter import ALGORITHMS, AO_VSIMM
 from fedtrack.local_filters.imm.tracker import IMMTracker
 from fedtrack.services.base import (
-    ClockJump,
     ScanOrder,
     Service,
     Subscription,
@@ -36,6 +35,7 @@ from fedtrack.services.base import (
     service_kwargs,
     service_parser,
 )
+from fedtrack.services.clock import ClockJump
 from fedtrack.services.lead import NumberedLeadGuard
 from fedtrack.wire import MAX_MAP_ITEMS, FusedTrack, Measurement
 from fedtrack.zsession import id_arg

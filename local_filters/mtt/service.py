@@ -57,13 +57,13 @@ from fedtrack.services.base import (
     Rejected,
     Service,
     Subscription,
-    check_time_jump,
     digest,
     require_covariances,
     require_finite,
     service_kwargs,
     service_parser,
 )
+from fedtrack.services.clock import check_time_jump
 from fedtrack.services.lead import LeadGuard
 from fedtrack.wire import Measurement, TrackResets
 from fedtrack.zsession import id_arg

@@ -11,7 +11,7 @@ another kind or dimension, or older than the last one, are skipped and counted
 (``unsupported``, ``out_of_order`` in Health); a scan at the time of the last one taken, or of
 more than ``MAX_DETECTIONS`` detections, is rejected (``time_jump``, ``too_large``:
 docs/wire.md); after a pause beyond ``max_time_jump_s`` the track manager starts again
-(``restarted``: :class:`fedtrack.services.base.ClockJump`). Health also counts
+(``restarted``: :class:`fedtrack.services.clock.ClockJump`). Health also counts
 ``confirmed_tracks`` published and ``live_tracks`` of the last scan. A second, different
 measurement for the scan taken last is rejected (``conflict``), counted ``contested``, and the confirmed tracks of the
 next scan that has any are flagged ``contested`` with the scan in ``extra["contested_scans"]``
@@ -37,7 +37,6 @@ from fedtrack.local_filters.pda.tracks import (
     tracker_spec,
 )
 from fedtrack.services.base import (
-    ClockJump,
     Rejected,
     ScanOrder,
     Service,
@@ -48,6 +47,7 @@ from fedtrack.services.base import (
     service_kwargs,
     service_parser,
 )
+from fedtrack.services.clock import ClockJump
 from fedtrack.services.lead import NumberedLeadGuard
 from fedtrack.wire import MAX_DETECTIONS, FusedTrack, Measurement
 from fedtrack.zsession import id_arg
