@@ -137,6 +137,11 @@ class ServiceProcess:
         return f"{self.role}/{self.id}"
 
     @property
+    def region(self) -> str | None:
+        """The region of a region centre (``--region RID``), else None."""
+        return self.argv[self.argv.index("--region") + 1] if "--region" in self.argv else None
+
+    @property
     def standby(self) -> bool:
         return "--standby" in self.argv
 
@@ -261,14 +266,16 @@ def apply_zenoh_settings(settings: Settings, config_path: Path, out_dir: Path,
     dep = settings.deployment
 
     def ident(sp: ServiceProcess) -> str:
-        return identity(sp.role, sp.id)
+        return identity(sp.role, sp.id, sp.region)
 
     if settings.zenoh.insecure:  # the file's explicit opt-out, which every ``serve`` then needs off loopback
         for sp in plan:
             sp.argv = [*sp.argv, "--insecure"]
     here = sorted({ident(sp) for sp in plan})  # the certificates this host needs (other hosts hold theirs)
     sensors = sensor_ids(settings.multitarget) if settings.multitarget is not None else [s.id for s in settings.sensor]
-    everyone = sorted({*here, *(identity("sensor", sid) for sid in sensors), "router", "fusion", "recorder"})
+    regions = load_regions(config_path) if settings.multitarget is not None else None
+    centres = [identity("mtt-centre", rid, rid) for rid in (regions.ids if regions is not None else ())]
+    everyone = sorted({*here, *(identity("sensor", sid) for sid in sensors), *centres, "router", "fusion", "recorder"})
     with in_file(config_path):
         paths = write_configs(settings.zenoh, config_path.parent, Keys(dep.name), here, out_dir, everyone)
         if settings.zenoh.tls_dir is not None:

@@ -6,15 +6,18 @@ monitor) a Zenoh configuration file (``--zenoh-config``) written to ``OUT/zenoh/
 * every link is mutual TLS: the router listens with its certificate and asks every client
   for one signed by the deployment's CA (``TLS_DIR/ca.pem``); a client without a valid
   certificate cannot open a session;
-* an identity is a certificate's common name: ``router``, ``fusion`` (the fusion center or the
-  multi-target centre), ``recorder``, ``launcher`` (the launcher's monitor), and ``sensor-<id>``
-  for sensor ``<id>`` **and** its local filter or local multi-target tracker (they run together
-  on the sensor's host);
+* an identity is a certificate's common name: ``router``, ``fusion`` (the fusion center, the
+  multi-target centre of the whole area and the picture merger), ``region-<rid>`` (the centre of
+  region ``<rid>`` of ``[regions]`` and its standbys), ``recorder``, ``launcher`` (the launcher's
+  monitor), and ``sensor-<id>`` for sensor ``<id>`` **and** its local filter or local multi-target
+  tracker (they run together on the sensor's host);
 * the router's access control (default deny) lets every identity subscribe, query and
   receive anything of the deployment, and lets an identity publish, reply (its cache),
   declare queryables and liveliness tokens only on its own keys: ``sensor-<id>`` on
   ``sensor/<id>/meas``, ``local/<id>/estimate``, ``local/<id>/tracks`` and its health/alive
   keys; ``fusion`` on ``fusion/**`` (resets, tracks, events, pictures, the state queryable);
+  ``region-<rid>`` on its region's answers, picture and primary token and on the hand-over keys
+  (``region/*/handover``: it hands tracks to any neighbour), not on another region's outputs;
   ``router`` (another host's router joined by ``router_connect``, forwarding its own clients'
   messages) on anything of the deployment; the others on their health/alive keys. A denied put is
   dropped at the router: nobody receives it.
@@ -108,14 +111,17 @@ def check_transport(zenoh: ZenohSettings, dep: DeploymentConfig) -> None:
 
 
 SENSOR_ROLES = ("sensor", "local-filter", "mtt-local")  # run on the sensor's host, under its identity
-CENTRE_ROLES = ("fusion-center", "mtt-centre", "picture")  # identity ``fusion``
+CENTRE_ROLES = ("fusion-center", "mtt-centre", "picture")  # identity ``fusion`` (a region centre: ``region-<rid>``)
+REGION_PREFIX = "region-"
 
 
-def identity(role: str, service_id: str) -> str:
+def identity(role: str, service_id: str, region: str | None = None) -> str:
     """The certificate common name of a service (see the module docstring; a local filter's or local
-    multi-target tracker's id is its sensor's)."""
+    multi-target tracker's id is its sensor's; a centre of ``region``, primary or standby, is the region's)."""
     if role in SENSOR_ROLES:
         return f"sensor-{service_id}"
+    if role == "mtt-centre" and region is not None:
+        return REGION_PREFIX + region
     return "fusion" if role in CENTRE_ROLES else role
 
 
@@ -126,10 +132,13 @@ def own_keys(keys: Keys, ident: str) -> list[str]:
         data = [keys.sensor_meas(sid), keys.local_estimate(sid), keys.mtt_report(sid), keys.region_report(None, sid)]
         roles = [(role, sid) for role in SENSOR_ROLES]
     elif ident == "fusion":
-        data = [keys.fusion_track().rsplit("/", 1)[0] + "/**", keys.region_resets(), keys.region_handover(),
-                keys.region_picture()]
-        data.append(keys.primary())  # a centre's primary token
+        data = [keys.fusion_track().rsplit("/", 1)[0] + "/**", keys.primary("all")]  # the one centre's token
         roles = [(role, None) for role in CENTRE_ROLES]
+    elif ident.startswith(REGION_PREFIX):  # a region's centres: their ids are the region's, or start "<rid>-"
+        rid = ident.removeprefix(REGION_PREFIX)
+        data = [keys.region_resets(rid), keys.region_handover(), keys.region_picture(rid), keys.primary(rid),
+                keys.health("mtt-centre", rid) + "-$*", keys.alive("mtt-centre", rid) + "-$*"]  # its standbys
+        roles = [("mtt-centre", rid)]
     elif ident == LAUNCHER:
         return []
     elif ident == ROUTER:  # another host's router (router_connect) forwards its own clients' messages, each
@@ -243,11 +252,14 @@ def cert_days(text: str, source: str = "FEDTRACK_CERT_DAYS") -> int:
 
 def known_identity(ident: str) -> str:
     """``ident`` if it is one of the identities a deployment uses (``router``, ``fusion``, ``recorder``,
-    ``launcher``, ``sensor-<id>``); a ConfigError otherwise (``sensor1`` made a certificate nobody used)."""
-    sid = ident.removeprefix("sensor-")
-    if ident in (ROUTER, "fusion", "recorder", LAUNCHER) or (sid != ident and sid):
+    ``launcher``, ``sensor-<id>``, ``region-<rid>``); a ConfigError otherwise (``sensor1`` made a
+    certificate nobody used)."""
+    if ident in (ROUTER, "fusion", "recorder", LAUNCHER):
         return ident
-    raise ConfigError(f"unknown identity {ident!r} (router, fusion, recorder, launcher or sensor-<id>)")
+    for prefix in ("sensor-", REGION_PREFIX):
+        if ident.startswith(prefix) and ident != prefix:
+            return ident
+    raise ConfigError(f"unknown identity {ident!r} (router, fusion, recorder, launcher, sensor-<id> or region-<rid>)")
 
 
 def make_certificates(tls_dir: Path, identities: list[str], extra_san: str = "", days: int = CERT_DAYS) -> list[Path]:
@@ -428,7 +440,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("dir", type=Path, metavar="DIR",
                         help="the certificate folder ([zenoh] tls_dir), created if missing (its own folder must exist)")
     parser.add_argument("identities", nargs="+", metavar="IDENTITY",
-                        help="router, fusion, recorder, launcher or sensor-<id> (docs/deploy.md)")
+                        help="router, fusion, recorder, launcher, sensor-<id> or region-<rid> (docs/deploy.md)")
     parser.add_argument("--san", help="extra subject alternative names, e.g. IP:10.47.0.1,DNS:host-a "
                                       "(default: $FEDTRACK_CERT_SAN, else none)")
     parser.add_argument("--days", help=f"validity of new certificates in days, at least 1 (default: "

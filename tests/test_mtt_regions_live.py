@@ -166,8 +166,11 @@ name = "regionlaunch{port}"
 seed = 4
 pacing = "realtime"
 speed = 4.0
-router_listen = "tcp/127.0.0.1:{port}"
+router_listen = "tls/127.0.0.1:{port}"
 ready_timeout_s = 60.0
+
+[zenoh]
+tls_dir = "certs"
 
 [multitarget]
 algorithm = "mtt-federated"
@@ -188,7 +191,9 @@ grid = {{origin = [-5000.0, -5000.0], cell = [5000.0, 10000.0], nx = 2, ny = 1}}
 
 def test_launch_starts_a_centre_per_region_and_the_merger(tmp_path: Path) -> None:
     """``fedtrack launch`` with ``[regions]``: every role a process; the recorded merged pictures
-    equal ``replay --regions config`` of the recording."""
+    equal ``replay --regions config`` of the recording. With mutual TLS and the router's access
+    control: each region's centre under its own identity (``region-<rid>``) is let publish its
+    region's outputs and hand-overs."""
     import subprocess
     import sys
 
@@ -206,6 +211,8 @@ def test_launch_starts_a_centre_per_region_and_the_merger(tmp_path: Path) -> Non
     replay_mtt("mtt-federated", out / "measurements.jsonl", out / "config.toml", replayed, regions="config")
     assert_same_pictures(live, [json.loads(x) for x in replayed.read_text().splitlines()])
     assert len(live) >= 5 and summary["health"]["picture/picture"]["pictures"] == len(live) + 1  # + closing
+    assert sorted(p.name for p in (tmp_path / "certs").glob("region-*.pem")) == ["region-x0y0.pem", "region-x1y0.pem"]
+    assert sum(h.get("taken_over", 0) for k, h in summary["health"].items() if k.startswith("mtt-centre/")) > 0
 
 
 @pytest.mark.parametrize("extra", [{"maneuver": "vdie"}, {"process_noise": "imm"}])

@@ -102,7 +102,7 @@ def test_the_certificate_command_refuses_bad_input_and_writes_nothing(
     """Before, the CA was made first and the run then failed (a folder with a CA and no certificate)."""
     assert main([str(tmp_path / "c"), "router", *args]) == 2
     assert capsys.readouterr().err == f"fedtrack.deploy.security: {says}" + (
-        " (router, fusion, recorder, launcher or sensor-<id>)\n" if "identity" in says else "\n")
+        " (router, fusion, recorder, launcher, sensor-<id> or region-<rid>)\n" if "identity" in says else "\n")
     assert not (tmp_path / "c").exists()
 
 

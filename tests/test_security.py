@@ -10,6 +10,7 @@ import stat
 import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -49,6 +50,57 @@ def test_identities_and_rules() -> None:
     assert "fedtrack/d/local/1/tracks" in own["own-sensor-1"] and "fedtrack/d/health/mtt-local/1" in own["own-sensor-1"]
     assert "fedtrack/d/fusion/**" in own["own-fusion"] and acl["default_permission"] == "deny"
     assert "fedtrack/d/alive/mtt-centre/*" in own["own-fusion"]
+    assert identity("mtt-centre", "x0y0-standby", "x0y0") == "region-x0y0"
+
+
+def test_a_region_centres_identity_publishes_its_own_regions_outputs_only(tmp_path: Path) -> None:
+    """Every region centre ran as ``fusion``, which might publish every region's picture, answers and
+    primary token: a compromised centre of one region could speak for all. Each region's centres
+    (primary and standbys) are now ``region-<rid>``: the router drops what one sends on another
+    region's keys (the hand-over keys stay open to it: it hands tracks to any neighbour)."""
+    from fedtrack.deploy.demo import free_port
+    from fedtrack.deploy.security import write_configs
+
+    keys = Keys("x")
+    everyone = ["fusion", "region-x0y0", "region-x1y0"]
+    paths = write_configs(ZenohSettings(tls_dir="c"), tmp_path, keys, ["router", *everyone], tmp_path / "o")
+    endpoint = f"tls/127.0.0.1:{free_port()}"
+    router = open_session(SessionOptions(mode="router", connect=(), listen=(endpoint,),
+                                         config_file=str(paths["router"])))
+    sessions = []
+    try:
+        watcher, west = (open_session(SessionOptions(connect=(endpoint,), config_file=str(paths[i])))
+                         for i in ("fusion", "region-x0y0"))
+        sessions = [watcher, west]
+        seen: list[str] = []
+        done = threading.Event()
+        sub = watcher.declare_subscriber("fedtrack/x/**", lambda s: (
+            seen.append(str(s.key_expr)), done.set() if s.payload.to_bytes() == b"end" else None))
+        tokens: list[str] = []
+        liveliness = watcher.liveliness().declare_subscriber("fedtrack/x/alive/**",
+                                                             lambda s: tokens.append(str(s.key_expr)))
+        allowed = [keys.region_picture("x0y0"), keys.region_resets("x0y0", "s1"), keys.region_handover("x1y0"),
+                   keys.health("mtt-centre", "x0y0"), keys.health("mtt-centre", "x0y0-standby")]
+        denied = [keys.region_picture("x1y0"), keys.region_resets("x1y0", "s1"), keys.health("mtt-centre", "x1y0"),
+                  keys.fusion_track(), keys.mtt_picture()]
+        for key in denied + allowed:
+            west.put(key, b"x")
+        west_tokens = [west.liveliness().declare_token(keys.primary(scope, "1")) for scope in ("x0y0", "x1y0", "all")]
+        west.put(keys.region_picture("x0y0"), b"end")  # after the others on the same link
+        assert done.wait(10.0), seen
+        deadline = time.monotonic() + 2.0
+        while keys.primary("x0y0", "1") not in tokens and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert sorted(seen[:-1]) == sorted(allowed)
+        assert tokens == [keys.primary("x0y0", "1")]
+        for t in west_tokens:
+            t.undeclare()
+        sub.undeclare()
+        liveliness.undeclare()
+    finally:
+        for s in sessions:
+            close_session(s)
+        close_session(router)
 
 
 def test_certificates_made_once_with_private_keys(tmp_path: Path) -> None:
