@@ -52,7 +52,7 @@ from fedtrack.config import ConfigError
 from fedtrack.deployment import DeploymentConfig, listen_address, on_loopback
 from fedtrack.jsonl import InputError, output_folder
 from fedtrack.keys import Keys
-from fedtrack.zsession import load_config_file
+from fedtrack.zsession import load_config_file, requires_client_certificates
 
 CA_NAME = "fedtrack-ca"
 CERT_DAYS = 365  # validity of new certificates (``FEDTRACK_CERT_DAYS``)
@@ -91,10 +91,11 @@ def host_endpoints(dep: DeploymentConfig) -> list[tuple[str, str]]:
     return [(name, ep) for name, ep in dict.fromkeys(fields) if ep]
 
 
-def check_transport(zenoh: ZenohSettings, dep: DeploymentConfig) -> None:
-    """Authenticated by default: an endpoint off loopback needs ``tls_dir`` or ``insecure = true``
-    (a ConfigError naming the field); with ``tls_dir`` every endpoint must be ``tls/``. The endpoints
-    are those this host uses (:func:`host_endpoints`)."""
+def check_transport(zenoh: ZenohSettings, dep: DeploymentConfig, base_dir: Path = Path(".")) -> None:
+    """Authenticated by default: an endpoint off loopback needs ``tls_dir``, a ``config`` file (relative
+    to ``base_dir``) that makes TLS mutual with ``tls/`` endpoints, or ``insecure = true`` (a ConfigError
+    naming the field); with ``tls_dir`` every endpoint must be ``tls/``. The endpoints are those this
+    host uses (:func:`host_endpoints`)."""
     fields = host_endpoints(dep)
     if zenoh.tls_dir is not None:
         for name, ep in fields:
@@ -105,9 +106,26 @@ def check_transport(zenoh: ZenohSettings, dep: DeploymentConfig) -> None:
     if zenoh.insecure:
         return
     for name, ep in fields:
-        if not on_loopback(ep):
+        if on_loopback(ep):
+            continue
+        if zenoh.config is None:
             raise ConfigError(f"{name}: {ep} is off loopback and [zenoh] has neither tls_dir (mutual TLS and "
                               "access control) nor insecure = true (an explicit opt-out)")
+        if not (ep.startswith("tls/") and mutual_tls_file(base_dir / zenoh.config)):
+            raise ConfigError(f"{name}: {ep} is off loopback and not tls/ with a [zenoh] config that makes TLS "
+                              "mutual (transport.link.tls: enable_mtls = true and root_ca_certificate): give "
+                              "insecure = true to allow it (an explicit opt-out)")
+
+
+def mutual_tls_file(path: Path) -> bool:
+    """True when the Zenoh configuration file ``path`` makes its TLS links mutual; a ConfigError naming
+    ``zenoh.config`` when it cannot be read."""
+    if not path.is_file():
+        raise ConfigError(f"zenoh.config: {path} does not exist")
+    try:
+        return requires_client_certificates(str(path))
+    except ValueError as exc:
+        raise ConfigError(f"zenoh.config: {exc}") from None
 
 
 SENSOR_ROLES = ("sensor", "local-filter", "mtt-local")  # run on the sensor's host, under its identity

@@ -115,7 +115,7 @@ def check_launchable(settings: Settings, path: Path) -> None:
                               f"{list(mt.origin or ())}, "
                               "the frame the recording's scenario is simulated in (the tracks' lat, lon and lat_lon "
                               "regions would be placed in another)")
-        check_transport(settings.zenoh, settings.deployment)
+        check_transport(settings.zenoh, settings.deployment, path.parent)
 
 
 def load_settings(path: Path | None) -> Settings:

@@ -158,6 +158,33 @@ def test_loopback_needs_no_opt_out(tmp_path: Path) -> None:
         ZenohSettings(tls_dir="c", insecure=True).validate()
 
 
+def test_launch_takes_a_zenoh_config_that_makes_tls_mutual_off_loopback(tmp_path: Path) -> None:
+    """``[zenoh] config`` off loopback asked for ``insecure = true`` whatever the file said, though
+    ``serve`` reads the file and takes one that makes TLS mutual: a deployment authenticated by its own
+    Zenoh file had to be declared insecure, and its services were then given ``--insecure``. Now the
+    launch reads the file as ``serve`` does: mutual TLS with ``tls/`` endpoints passes; a server-only
+    file or a plain endpoint is refused naming the field."""
+    tls = {"root_ca_certificate": "ca.pem", "enable_mtls": True, "connect_certificate": "c.pem",
+           "connect_private_key": "c.key"}
+    (tmp_path / "mutual.json5").write_text(json.dumps({"transport": {"link": {"tls": tls}}}))
+    (tmp_path / "server-only.json5").write_text(json.dumps({"transport": {"link": {"tls": {
+        "listen_certificate": "r.pem", "listen_private_key": "r.key"}}}}))
+    cfg = tmp_path / "c.toml"
+
+    def launchable(config: str, endpoint: str) -> None:
+        cfg.write_text(f'[zenoh]\nconfig = "{config}"\n[deployment]\nrouter_listen = "{endpoint}"\n'
+                       '[[sensor]]\nid = "1"\n')
+        check_launchable(load_settings(cfg), cfg)
+
+    launchable("mutual.json5", "tls/10.47.0.1:7447")
+    for config, endpoint in (("server-only.json5", "tls/10.47.0.1:7447"), ("mutual.json5", "tcp/10.47.0.1:7447")):
+        with pytest.raises(ConfigError, match=r"deployment.router_listen: .* off loopback and not tls/ with a "
+                                              r"\[zenoh\] config that makes TLS mutual"):
+            launchable(config, endpoint)
+    with pytest.raises(ConfigError, match=r"zenoh.config: .*missing.json5 does not exist"):
+        launchable("missing.json5", "tls/10.47.0.1:7447")
+
+
 def test_launch_refuses_tcp_endpoints_with_tls_dir(tmp_path: Path) -> None:
     cfg = tmp_path / "c.toml"
     cfg.write_text('[zenoh]\ntls_dir = "certs"\n[deployment]\nrouter_listen = "tcp/127.0.0.1:1"\n'
