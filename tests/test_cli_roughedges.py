@@ -1,23 +1,18 @@
 """Issue 28's rough edges of simulate / replay / evaluate / export, one test per item (4-10): input
 errors that say what would be right, outputs written whole or not at all, no folder created,
-a closed pipe, every option's help and README row, the final picture, evaluate's maneuver
-rates and plot."""
+a closed pipe, the final picture, evaluate's maneuver rates and plot (item 5, every option's help and
+README row: tests/test_docs_contract.py)."""
 
 from __future__ import annotations
 
-import argparse
-import contextlib
-import io
 import json
 import os
-import re
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
-from fedtrack import cli
 from fedtrack.cli import main
 
 README = Path(__file__).resolve().parent.parent / "README.md"
@@ -173,67 +168,9 @@ def test_a_closed_pipe_ends_quietly(tmp_path: Path) -> None:
     assert json.loads((tmp_path / "e.json").read_text())["pictures"] == 40
 
 
-# --- item 5: every option's meaning and default in --help; every option in the README's table
+# --- item 5: every option's meaning and default in --help and in the README, the sensor ids documented:
+# tests/test_docs_contract.py
 
-def _parsers(argv: list[str]) -> list[argparse.ArgumentParser]:
-    """The parsers that print ``fedtrack ARGV --help``."""
-    seen: list[argparse.ArgumentParser] = []
-    original = argparse.ArgumentParser.print_help
-    argparse.ArgumentParser.print_help = lambda self, file=None: seen.append(self)  # type: ignore[method-assign]
-    try:
-        with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):
-            main([*argv, "--help"])
-    finally:
-        argparse.ArgumentParser.print_help = original  # type: ignore[method-assign]
-    return seen
-
-
-BENCH_SUITES = ("pipeline", "kernels", "montecarlo", "multitarget", "scale", "soak", "hpda-soak", "all")
-COMMANDS = [["reproduce"], ["replay"], *(["simulate", s] for s in cli.SIMULATORS), ["evaluate"], ["export"], ["demo"],
-            ["launch"], *(["train", t] for t in cli.TRAINERS), *(["bench", s] for s in BENCH_SUITES)]
-HELP_CASES = COMMANDS + [["serve", role] for role in cli.SERVICES]
-
-
-def _options(parser: argparse.ArgumentParser) -> list[argparse.Action]:
-    return [a for a in parser._actions if not isinstance(a, (argparse._HelpAction, argparse._SubParsersAction))
-            and a.dest != "help" and a.help != argparse.SUPPRESS]
-
-
-@pytest.mark.parametrize("argv", HELP_CASES, ids=" ".join)
-def test_every_option_has_its_meaning_and_default_in_help(argv: list[str]) -> None:
-    parsers = _parsers(argv)
-    assert parsers
-    for parser in parsers:
-        formatter = parser._get_formatter()
-        for action in _options(parser):
-            text = formatter._expand_help(action) if action.help else ""
-            name = "/".join(action.option_strings) or action.dest
-            assert re.sub(r"\(?default[^)]*\)?", "", text).strip(" ;,.()"), f"{parser.prog} {name}: no meaning"
-            if action.default not in (None, False, argparse.SUPPRESS):
-                assert "default" in text, f"{parser.prog} {name}: default {action.default!r} not in {text!r}"
-
-
-def _readme_row(argv: list[str]) -> str:
-    command = "bench" if argv[0] == "bench" else " ".join(argv)
-    rows = [line for line in README.read_text().splitlines() if line.startswith(f"| `fedtrack {command}")]
-    assert len(rows) == 1, command
-    return rows[0]
-
-
-@pytest.mark.parametrize("argv", COMMANDS, ids=" ".join)
-def test_the_readme_lists_every_option(argv: list[str]) -> None:
-    row = _readme_row(argv)
-    for parser in _parsers(argv):
-        for action in _options(parser):
-            for option in action.option_strings:
-                assert re.search(rf"{re.escape(option)}(?![\w-])", row), f"README: {' '.join(argv)} lacks {option}"
-
-
-def test_simulate_sensor_ids_are_documented(capsys: pytest.CaptureFixture[str]) -> None:
-    with contextlib.suppress(SystemExit):
-        main(["simulate", "multitarget", "--help"])
-    assert "s<k> for a position sensor and r<k> for a radar" in " ".join(capsys.readouterr().out.split())
-    assert "`r<k>`" in _readme_row(["simulate", "multitarget"])
 
 
 # --- item 6 (issue's 8): the last picture holds the end of the data; output lines are pictures

@@ -11,6 +11,7 @@ import argparse
 import ast
 import contextlib
 import dataclasses
+import functools
 import io
 import math
 import re
@@ -270,3 +271,251 @@ def test_the_toml_blocks_and_key_lists_name_every_key_with_its_default() -> None
             else:
                 problems += check_default(where, key, text, code[key])
     assert not problems, "\n".join(problems)
+
+
+# ------------------------------------------------------------------------------------------- reasons and counters
+
+WIRE = DOCS / "wire.md"
+
+
+def _sources() -> Iterator[tuple[Path, ast.AST]]:
+    for root in SOURCES:
+        for path in sorted((ROOT / root).rglob("*.py")):
+            yield path, ast.parse(path.read_text())
+
+
+def _string(node: ast.AST | None) -> str | None:
+    return node.value if isinstance(node, ast.Constant) and isinstance(node.value, str) else None
+
+
+@functools.cache
+def emitted() -> tuple[set[str], set[str], set[str]]:
+    """``(reasons, counters, patterns)`` the services' code can emit: the reasons of ``Rejected(...)`` (and
+    of its subclasses and ``reason_of``), the counter names given to ``self.count`` / ``self.counters[...]``, the
+    keys of the engines' ``counters()`` dicts and the reassembly's ``_drop``; ``patterns`` the f-strings among
+    them, whose names :func:`expand` gives."""
+    reasons, counters, patterns = set(), set(), set()
+    for _, tree in _sources():
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Call):
+                func = node.func
+                name = func.attr if isinstance(func, ast.Attribute) else getattr(func, "id", None)
+                first = node.args[0] if node.args else None
+                if name == "Rejected" or name == "__init__" and isinstance(func, ast.Attribute) \
+                        and isinstance(func.value, ast.Call) and getattr(func.value.func, "id", "") == "super":
+                    reasons |= {r for r in [_string(first)] if r}
+                elif name in ("count", "_count_part") and isinstance(func, ast.Attribute) \
+                        and getattr(func.value, "id", "") == "self" and first is not None:
+                    if _string(first):
+                        counters.add(_string(first))  # type: ignore[arg-type]
+                    elif isinstance(first, ast.JoinedStr):
+                        patterns.add(ast.unparse(first))
+                elif name == "_drop" and len(node.args) > 1 and _string(node.args[1]):
+                    counters.add(_string(node.args[1]))  # type: ignore[arg-type]
+            elif isinstance(node, ast.Subscript) and getattr(node.value, "attr", "") == "counters":
+                if _string(node.slice):
+                    counters.add(_string(node.slice))  # type: ignore[arg-type]
+                elif isinstance(node.slice, ast.JoinedStr):
+                    patterns.add(ast.unparse(node.slice))
+            elif isinstance(node, ast.FunctionDef) and node.name in ("counters", "health_counters", "reason_of"):
+                for sub in ast.walk(node):
+                    if node.name == "reason_of" and isinstance(sub, ast.Return):
+                        reasons |= {c.value for c in ast.walk(sub) if _string(c)}  # type: ignore[attr-defined]
+                    if isinstance(sub, ast.Dict):
+                        counters |= {k for k in map(_string, sub.keys) if k}
+                    if isinstance(sub, ast.DictComp) and isinstance(sub.key, ast.JoinedStr):
+                        patterns.add(ast.unparse(sub.key))
+    return reasons, counters, patterns
+
+
+def expand(pattern: str, reasons: set[str]) -> set[str]:
+    """The counter names an f-string counter of the code stands for (a new f-string fails here, by name)."""
+    from fedtrack.fusion_center.mtt.centre import Counters
+    from fedtrack.local_filters.vdie.estimation import EVENT_NAMES
+    from fedtrack.recording import CONFLICT, DUPLICATE, TABLES
+
+    known = {
+        "f'rejected_{reason}'": {f"rejected_{r}" for r in reasons},
+        "f'{table.name}_recorded'": {f"{t.name}_recorded" for t in TABLES},
+        "f'{TABLE_OF[type(msg)].name}_recorded'": {f"{t.name}_recorded" for t in TABLES} | {DUPLICATE, CONFLICT},
+        "f\"events_{EVENT_NAMES[kind].replace('-', '_')}\"": {f"events_{n.replace('-', '_')}"
+                                                             for n in EVENT_NAMES.values()},
+        "f'centre_{k}'": {f"centre_{k}" for k in vars(Counters())},
+    }
+    assert pattern in known, f"a counter named by the f-string {pattern}: add its names to expand()"
+    return known[pattern]
+
+
+def documented_reasons() -> set[str]:
+    rows = table(section(WIRE, "## Rejections"), "| reason |")
+    return {r for row in rows for r in ticked(row[0])}
+
+
+def documented_counters() -> set[str]:
+    rows = table(section(WIRE, "### Health counters"), "| counter |")
+    return {c for row in rows for c in ticked(row[0])}
+
+
+def test_every_rejection_reason_is_in_the_wire_doc() -> None:
+    reasons, _, _ = emitted()
+    doc = documented_reasons()
+    missing, stale = sorted(reasons - doc), sorted(doc - reasons)
+    assert not missing and not stale, (f"docs/wire.md Rejections: reasons the code emits but the table lacks: "
+                                       f"{missing}; reasons the table lists that the code no longer emits: {stale}")
+
+
+def test_every_health_counter_is_in_the_wire_doc() -> None:
+    reasons, counters, patterns = emitted()
+    for pattern in patterns:
+        counters |= expand(pattern, reasons)
+    counters = {c for c in counters if not c.startswith("rejected_") or c == "rejected_parts"}
+    doc = documented_counters() - {"rejected_<reason>"}
+    missing, stale = sorted(counters - doc), sorted(doc - counters)
+    assert not missing and not stale, (f"docs/wire.md Health counters: counters the code emits but the table "
+                                       f"lacks: {missing}; counters the table lists that the code never emits: {stale}")
+# ------------------------------------------------------------------------------------------- commands and options
+
+def _parsers(argv: list[str]) -> list[argparse.ArgumentParser]:
+    """The parsers that print ``fedtrack ARGV --help``."""
+    seen: list[argparse.ArgumentParser] = []
+    original = argparse.ArgumentParser.print_help
+    argparse.ArgumentParser.print_help = lambda self, file=None: seen.append(self)  # type: ignore[method-assign]
+    try:
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):
+            main([*argv, "--help"])
+    finally:
+        argparse.ArgumentParser.print_help = original  # type: ignore[method-assign]
+    return seen
+
+
+BENCH_SUITES = ("pipeline", "kernels", "montecarlo", "multitarget", "scale", "soak", "hpda-soak", "all")
+COMMANDS = [["reproduce"], ["replay"], *(["simulate", s] for s in cli.SIMULATORS), ["evaluate"], ["export"], ["demo"],
+            ["launch"], *(["train", t] for t in cli.TRAINERS), *(["bench", s] for s in BENCH_SUITES)]
+HELP_CASES = COMMANDS + [["serve", role] for role in cli.SERVICES]
+
+
+def _options(parser: argparse.ArgumentParser) -> list[argparse.Action]:
+    return [a for a in parser._actions if not isinstance(a, (argparse._HelpAction, argparse._SubParsersAction))
+            and a.dest != "help" and a.help != argparse.SUPPRESS]
+
+
+@pytest.mark.parametrize("argv", HELP_CASES, ids=" ".join)
+def test_every_option_has_its_meaning_and_default_in_help(argv: list[str]) -> None:
+    parsers = _parsers(argv)
+    assert parsers
+    for parser in parsers:
+        formatter = parser._get_formatter()
+        for action in _options(parser):
+            text = formatter._expand_help(action) if action.help else ""
+            name = "/".join(action.option_strings) or action.dest
+            assert re.sub(r"\(?default[^)]*\)?", "", text).strip(" ;,.()"), f"{parser.prog} {name}: no meaning"
+            if action.default not in (None, False, argparse.SUPPRESS):
+                assert "default" in text and mentions_default(text, "default", action.default), \
+                    f"{parser.prog} {name}: default {action.default!r} not in {text!r}"
+
+
+def _readme_row(argv: list[str]) -> str:
+    command = "bench" if argv[0] == "bench" else " ".join(argv)
+    rows = [line for line in README.read_text().splitlines() if line.startswith(f"| `fedtrack {command}")]
+    assert len(rows) == 1, command
+    return rows[0]
+
+
+@pytest.mark.parametrize("argv", COMMANDS, ids=" ".join)
+def test_the_readme_lists_every_option(argv: list[str]) -> None:
+    row = _readme_row(argv)
+    for parser in _parsers(argv):
+        for action in _options(parser):
+            for option in action.option_strings:
+                assert re.search(rf"{re.escape(option)}(?![\w-])", row), f"README: {' '.join(argv)} lacks {option}"
+
+def shown(value: Any) -> set[str]:
+    """The ways a default may be written: ``1.0`` as ``1.0`` or ``1``; a list item by item; a path as text."""
+    if isinstance(value, (list, tuple)):
+        return {",".join(map(str, value)), ", ".join(map(str, value)), " ".join(map(str, value))}
+    forms = {str(value)}
+    if isinstance(value, float):
+        forms |= {f"{value:g}", f"{value:,g}"}
+    return forms
+
+
+def mentions_default(text: str, option: str, value: Any) -> bool:
+    """Whether ``text`` gives ``value`` as ``option``'s default: a number as the first number after a mention
+    of the option (``--runs` defaults to 500``, ``[--c 100]``), any other value anywhere in ``text``."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        for match in re.finditer(rf"{re.escape(option)}(?![\w-])", text):
+            first = re.search(r"(?<![\w.])[-+]?(\d[\d,]*\.?\d*|\.\d+)([eE][-+]?\d+)?(?![\w])", text[match.end():])
+            if first and math.isclose(float(first.group(0).replace(",", "")), value, rel_tol=1e-9):
+                return True
+        return False
+    return any(form in text for form in shown(value if not isinstance(value, Path) else str(value)))
+
+
+def has_default(action: argparse.Action) -> bool:
+    return action.default not in (None, False, argparse.SUPPRESS) and not action.required
+
+
+@pytest.mark.parametrize("argv", COMMANDS, ids=" ".join)
+def test_the_readme_gives_every_default(argv: list[str]) -> None:
+    row = _readme_row(argv)
+    missing = [f"{option} {action.default!r}" for parser in _parsers(argv) for action in _options(parser)
+               if has_default(action) for option in action.option_strings[-1:]
+               if not mentions_default(row, option, action.default)]
+    assert not missing, f"README: fedtrack {' '.join(argv)}: defaults not given beside their option: {missing}"
+
+
+def test_every_command_role_and_scenario_is_in_the_readme() -> None:
+    text = README.read_text()
+    commands = section(README, "## Commands")
+    sub = next(a for a in cli.build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    missing = [name for name in sub.choices if f"| `fedtrack {name}" not in commands]
+    missing += [f"serve {role}" for role in cli.SERVICES if f"`{role}`" not in _readme_row(["serve"])]
+    missing += [f"reproduce {name}" for name in cli.REPRODUCERS if f"`{name}`" not in _readme_row(["reproduce"])]
+    missing += [f"replay --algorithm {name}" for name in cli.REPLAY_ALGORITHMS
+                if not re.search(rf"`{name}[` ]", _readme_row(["replay"]))]
+    missing += [f"bench {suite}" for suite in BENCH_SUITES if suite not in _readme_row(["bench"])]
+    missing += [f"{kind} {name}" for kind, names in (("simulate", cli.SIMULATORS), ("train", cli.TRAINERS))
+                for name in names if f"| `fedtrack {kind} {name}" not in text]
+    assert not missing, f"README's command table lacks: {missing}"
+
+
+def serve_options() -> dict[str, tuple[set[str], Any]]:
+    """Each option of ``fedtrack serve ROLE`` -> (the roles that take it, its default per role)."""
+    options: dict[str, tuple[set[str], Any]] = {}
+    for role in cli.SERVICES:
+        for parser in _parsers(["serve", role]):
+            for action in _options(parser):
+                option = action.option_strings[-1]
+                roles, default = options.setdefault(option, (set(), {}))
+                roles.add(role)
+                default[role] = action.default
+    return options
+
+
+def test_the_readme_lists_every_serve_option_with_its_roles_and_default() -> None:
+    rows = {ticked(row[0])[0]: row for row in table(section(README, "### `fedtrack serve` options"), "| option |")}
+    options = serve_options()
+    problems = [f"{option} is not in the table" for option in options if option not in rows]
+    problems += [f"{option} is listed but no role takes it" for option in rows if option not in options]
+    for option, (roles, default) in options.items():
+        if option not in rows:
+            continue
+        listed, text = rows[option][1], rows[option][2]
+        if listed != "every role":
+            named = set(ticked(listed))
+            problems += [f"{option}: {sorted(named ^ roles)} listed wrongly" for _ in [0] if named != roles]
+        elif roles != set(cli.SERVICES):
+            problems.append(f"{option}: 'every role', the code's roles are {sorted(roles)}")
+        for role, value in default.items():
+            if value == role and "the role's name" in text:
+                continue
+            if value not in (None, False) and not any(form in text for form in shown(value)):
+                problems.append(f"{option}: {role}'s default {value!r} is not in {text!r}")
+    assert not problems, "README `fedtrack serve` options:\n" + "\n".join(problems)
+
+
+def test_simulate_sensor_ids_are_documented(capsys: pytest.CaptureFixture[str]) -> None:
+    with contextlib.suppress(SystemExit):
+        main(["simulate", "multitarget", "--help"])
+    assert "s<k> for a position sensor and r<k> for a radar" in " ".join(capsys.readouterr().out.split())
+    assert "`r<k>`" in _readme_row(["simulate", "multitarget"])
