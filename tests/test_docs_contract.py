@@ -16,13 +16,27 @@ import io
 import math
 import re
 import tomllib
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import pytest
 
 from fedtrack import cli
 from fedtrack.cli import main
+from fedtrack.deploy.security import ZenohSettings
+from fedtrack.deploy.settings import MultitargetSettings
+from fedtrack.deployment import DeploymentConfig, SensorConfig
+from fedtrack.geodetic import FrameConfig
+from fedtrack.local_filters.imm.config import IMMConfig
+from fedtrack.local_filters.mtt.config import MTT_VDIE_WINDOW, MhtConfig, MttConfig
+from fedtrack.local_filters.pda.config import ExistenceConfig, PDAParams
+from fedtrack.local_filters.radar.filters import CONFIG_CLASSES
+from fedtrack.local_filters.regions import GridConfig, PolygonConfig, RegionsConfig
+from fedtrack.local_filters.vdie.config import FusionConfig
+from fedtrack.local_filters.vdie.estimation import VdieParams
+from fedtrack.sensors.radar import RadarConfig
+from fedtrack.sensors.sonar import ScenarioConfig, SonarConfig
 
 ROOT = Path(__file__).resolve().parent.parent
 README = ROOT / "README.md"
@@ -69,7 +83,7 @@ def table(text: str, header: str) -> list[list[str]]:
 
 def code_block(text: str, lang: str) -> str:
     """The first fenced ``lang`` block of ``text``."""
-    match = re.search(rf"```{lang}\n(.*?)```", text, re.S)
+    match = re.search(rf"```{lang}\n(.*?)```", text, re.DOTALL)
     assert match, f"no {lang} block"
     return match.group(1)
 
@@ -80,21 +94,6 @@ def ticked(text: str) -> list[str]:
 
 
 # ------------------------------------------------------------------------------------------- config keys
-
-# (config table, the dataclass of its keys, the doc and heading documenting it, the doc's layout)
-from fedtrack.deploy.security import ZenohSettings  # noqa: E402
-from fedtrack.deploy.settings import MultitargetSettings  # noqa: E402
-from fedtrack.deployment import DeploymentConfig, SensorConfig  # noqa: E402
-from fedtrack.geodetic import FrameConfig  # noqa: E402
-from fedtrack.local_filters.imm.config import IMMConfig  # noqa: E402
-from fedtrack.local_filters.mtt.config import MTT_VDIE_WINDOW, MhtConfig, MttConfig  # noqa: E402
-from fedtrack.local_filters.pda.config import ExistenceConfig, PDAParams  # noqa: E402
-from fedtrack.local_filters.radar.filters import CONFIG_CLASSES  # noqa: E402
-from fedtrack.local_filters.regions import GridConfig, PolygonConfig, RegionsConfig  # noqa: E402
-from fedtrack.local_filters.vdie.config import FusionConfig  # noqa: E402
-from fedtrack.local_filters.vdie.estimation import VdieParams  # noqa: E402
-from fedtrack.sensors.radar import RadarConfig  # noqa: E402
-from fedtrack.sensors.sonar import ScenarioConfig, SonarConfig  # noqa: E402
 
 # table -> (its dataclass, keys documented in another table of their own)
 TABLES: dict[str, tuple[type, tuple[str, ...]]] = {
@@ -245,7 +244,7 @@ def test_the_toml_blocks_and_key_lists_name_every_key_with_its_default() -> None
         text = code_block(section(doc, heading), "toml")
         names = {k for cls in classes for k in defaults(cls)}
         written = set(re.findall(r"(\w+)\s*=", text)) - {"r1"}  # r1: a sensor id of [frame.sites]
-        written |= {name.split(".")[-1] for name in re.findall(r"^\[+([\w.]+)\]+", text, re.M)} - {"frame", "regions"}
+        written |= {name.split(".")[-1] for name in re.findall(r"^\[+([\w.]+)\]+", text, re.MULTILINE)} - {"frame", "regions"}
         problems += [f"{doc.name}: the TOML example lacks the key {k}" for k in sorted(names - written)]
         problems += [f"{doc.name}: the TOML example names {k}, which the code does not accept"
                      for k in sorted(written - names)]
