@@ -102,7 +102,7 @@ TABLES: dict[str, tuple[type, tuple[str, ...]]] = {
     "imm": (IMMConfig, ()), "mtt": (MttConfig, ()), "mtt.mht": (MhtConfig, ()),
     "multitarget": (MultitargetSettings, ()),
 }
-# (table, doc, heading, complete: every key of the table is in it; False: a subset, each key known and its default right)
+# (table, doc, heading, complete: every key of the table is in it; False: a subset, each key known, its default right)
 KEY_TABLES = [
     ("fusion", README, "### `[fusion]`", True),
     ("fusion.vdie", README, "### `[fusion.vdie]`", True),
