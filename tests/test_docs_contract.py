@@ -519,3 +519,31 @@ def test_simulate_sensor_ids_are_documented(capsys: pytest.CaptureFixture[str]) 
         main(["simulate", "multitarget", "--help"])
     assert "s<k> for a position sensor and r<k> for a radar" in " ".join(capsys.readouterr().out.split())
     assert "`r<k>`" in _readme_row(["simulate", "multitarget"])
+
+
+# ------------------------------------------------------------------------------------------- keys
+
+
+def test_the_wire_doc_lists_every_key_with_its_keys_method() -> None:
+    """docs/wire.md's key table: each ``Keys`` method once, with the key expression it builds."""
+    from fedtrack.keys import DEFAULT_DEPLOYMENT, Keys
+
+    section_text = section(WIRE, "## Key expressions")
+    keys = Keys(DEFAULT_DEPLOYMENT)
+    methods = {name for name in vars(Keys) if not name.startswith("_") and callable(getattr(Keys, name))} - {"sender"}
+    problems = [] if re.search(rf"default\s+`{DEFAULT_DEPLOYMENT}`", section_text) else \
+        [f"the default deployment is {DEFAULT_DEPLOYMENT!r}, not the one the section names"]
+    listed = set()
+    for row in table(section_text, "| key under"):
+        key, call = ticked(row[0])[0], ticked(row[3])[0]
+        name, args = re.fullmatch(r"(\w+)\((.*)\)", call).groups()  # type: ignore[union-attr]
+        listed.add(name)
+        if name not in methods:
+            problems.append(f"{call}: no such Keys method")
+            continue
+        params = [a.strip() for a in args.split(",") if a.strip()]
+        built = getattr(keys, name)(*(f"<{p}>" for p in params)) if params else getattr(keys, name)()
+        if built != f"fedtrack/{DEFAULT_DEPLOYMENT}/{key}":
+            problems.append(f"{call} builds {built}, the table says fedtrack/<dep>/{key}")
+    problems += [f"Keys.{m} is not in the table" for m in sorted(methods - listed)]
+    assert not problems, "docs/wire.md key table:\n" + "\n".join(problems)
