@@ -47,8 +47,8 @@ SOURCES = ("fedtrack", "local_filters", "fusion_center", "sensors", "deploy")
 
 
 def section(path: Path, heading: str) -> str:
-    """The text under the first heading of ``path`` that starts with ``heading`` (``## Foo``), up to the
-    next heading of the same or a higher level."""
+    """The text under the heading ``heading`` of ``path`` (else the first that starts with it: ``## Foo``), up
+    to the next heading of the same or a higher level."""
     lines = path.read_text().splitlines()
     fence = 0
     headings = []  # (line index, level) outside fenced blocks
@@ -57,7 +57,8 @@ def section(path: Path, heading: str) -> str:
         if not fence and line.startswith("#"):
             headings.append((i, len(line) - len(line.lstrip("#"))))
     level = len(heading) - len(heading.lstrip("#"))
-    start = next((i for i, _ in headings if lines[i].startswith(heading)), None)
+    start = next((i for i, _ in headings if lines[i] == heading), None)  # "## Messages" before "## Messages in parts"
+    start = next((i for i, _ in headings if lines[i].startswith(heading)), None) if start is None else start
     assert start is not None, f"{path.name}: no heading {heading!r}"
     end = next((i for i, depth in headings if i > start and depth <= level), len(lines))
     return "\n".join(lines[start + 1:end])
@@ -547,3 +548,24 @@ def test_the_wire_doc_lists_every_key_with_its_keys_method() -> None:
             problems.append(f"{call} builds {built}, the table says fedtrack/<dep>/{key}")
     problems += [f"Keys.{m} is not in the table" for m in sorted(methods - listed)]
     assert not problems, "docs/wire.md key table:\n" + "\n".join(problems)
+
+
+def test_the_wire_doc_names_every_message_field() -> None:
+    """Every field of every wire message is named in docs/wire.md's Messages (as ``name``, ``Msg.name`` or
+    ``"name"``; ``part`` / ``parts`` in Messages in parts), and a message's field table lists only its fields."""
+    from fedtrack import wire
+
+    messages = section(WIRE, "## Messages") + section(WIRE, "## Messages in parts")
+    problems = []
+    for name, cls in sorted(vars(wire).items()):
+        if not (isinstance(cls, type) and dataclasses.is_dataclass(cls) and cls.__module__ == wire.__name__):
+            continue
+        for field in defaults(cls):
+            if not re.search(rf"`({name}\.)?{field}`|\"{field}\"", messages):
+                problems.append(f"{name}.{field} is not named")
+        heading = f"### `{name}` on"
+        if heading in messages:
+            rows = table(section(WIRE, heading), "| field |")
+            problems += [f"{name}: the table lists {f}, not a field" for row in rows for f in ticked(row[0])
+                         if f not in defaults(cls)]
+    assert not problems, "docs/wire.md messages:\n" + "\n".join(problems)
