@@ -225,6 +225,17 @@ def test_every_config_key_is_in_its_doc_table_with_its_default(table_name: str, 
     assert not problems, "\n".join(problems)
 
 
+def test_the_readme_lists_every_table_of_the_config_file() -> None:
+    """The README's table of tables names each top-level table the config file may hold (fedtrack.config.TABLES)
+    and no other."""
+    from fedtrack.config import TABLES as FILE_TABLES
+
+    rows = table(section(README, "## Configuration (TOML)"), "| table |")
+    named = {re.sub(r"[\[\]]", "", t).split(".")[0] for row in rows for t in ticked(row[0])}
+    assert named == set(FILE_TABLES), (f"README's tables: missing {sorted(set(FILE_TABLES) - named)}, "
+                                       f"unknown {sorted(named - set(FILE_TABLES))}")
+
+
 def test_the_toml_blocks_and_key_lists_name_every_key_with_its_default() -> None:
     """The tables documented as a TOML block (``[pda]``: its defaults; ``[frame]``, ``[regions]``: an example
     naming every key) or as a list of ``key = value`` / ``key value`` (``[sonar]``, ``[radar]``,
