@@ -586,3 +586,42 @@ def test_the_wire_doc_names_every_message_field() -> None:
             problems += [f"{name}: the table lists {f}, not a field" for row in rows for f in ticked(row[0])
                          if f not in defaults(cls)]
     assert not problems, "docs/wire.md messages:\n" + "\n".join(problems)
+
+
+# ------------------------------------------------------------------------------------------- links
+
+
+@functools.cache
+def slugs(path: Path) -> set[str]:
+    """The anchors of ``path``'s headings as GitHub makes them (lower case, punctuation dropped, spaces to
+    hyphens, a repeated one suffixed ``-1``, ``-2`` ...)."""
+    anchors: set[str] = set()
+    counts: dict[str, int] = {}
+    fence = False
+    for line in path.read_text().splitlines():
+        fence ^= line.startswith("```")
+        if fence or not line.startswith("#"):
+            continue
+        slug = re.sub(r"[^\w\- ]", "", line.lstrip("#").strip().lower()).replace(" ", "-")
+        n = counts.get(slug, 0)
+        counts[slug] = n + 1
+        anchors.add(slug if n == 0 else f"{slug}-{n}")
+    return anchors
+
+
+def test_every_local_link_of_the_docs_reaches_its_file_and_heading() -> None:
+    problems = []
+    for doc in [README, *sorted(DOCS.glob("*.md"))]:
+        text = doc.read_text()
+        for match in re.finditer(r"\]\(([^)\s]+)\)", text):
+            target = match.group(1)
+            if re.match(r"\w+:", target):  # http:, mailto:
+                continue
+            path, _, anchor = target.partition("#")
+            linked = (doc.parent / path).resolve() if path else doc
+            line = text.count("\n", 0, match.start()) + 1
+            if not linked.exists():
+                problems.append(f"{doc.name}:{line}: {target}: no such file")
+            elif anchor and linked.suffix == ".md" and anchor not in slugs(linked):
+                problems.append(f"{doc.name}:{line}: {target}: no such heading")
+    assert not problems, "\n".join(problems)
