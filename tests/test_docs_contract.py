@@ -393,14 +393,14 @@ def test_every_health_counter_is_in_the_wire_doc() -> None:
                                        f"lacks: {missing}; counters the table lists that the code never emits: {stale}")
 # ------------------------------------------------------------------------------------------- commands and options
 
-def _parsers(argv: list[str]) -> list[argparse.ArgumentParser]:
-    """The parsers that print ``fedtrack ARGV --help``."""
+def _parsers(argv: list[str], entry: Any = main) -> list[argparse.ArgumentParser]:
+    """The parsers that print ``fedtrack ARGV --help`` (or ``entry``'s, a module's ``main``)."""
     seen: list[argparse.ArgumentParser] = []
     original = argparse.ArgumentParser.print_help
     argparse.ArgumentParser.print_help = lambda self, file=None: seen.append(self)  # type: ignore[method-assign]
     try:
         with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):
-            main([*argv, "--help"])
+            entry([*argv, "--help"])
     finally:
         argparse.ArgumentParser.print_help = original  # type: ignore[method-assign]
     return seen
@@ -480,6 +480,21 @@ def test_the_readme_gives_every_default(argv: list[str]) -> None:
                if has_default(action) for option in action.option_strings[-1:]
                if not mentions_default(row, option, action.default)]
     assert not missing, f"README: fedtrack {' '.join(argv)}: defaults not given beside their option: {missing}"
+
+
+@pytest.mark.parametrize("module", ["security", "wait_ready", "verify_run"])
+def test_the_readme_gives_every_option_of_the_deployment_helpers(module: str) -> None:
+    """``python -m fedtrack.deploy.MODULE``: each option, and its default, in the README's row of helpers."""
+    import importlib
+
+    entry = importlib.import_module(f"fedtrack.deploy.{module}").main
+    row = next(line for line in README.read_text().splitlines() if line.startswith("| `python -m fedtrack.deploy"))
+    assert f"python -m fedtrack.deploy.{module}" in row
+    problems = [f"{option} (default {action.default!r})" for parser in _parsers([], entry)
+                for action in _options(parser) for option in action.option_strings[-1:]
+                if not re.search(rf"{re.escape(option)}(?![\w-])", row)
+                or has_default(action) and not mentions_default(row, option, action.default)]
+    assert not problems, f"README: python -m fedtrack.deploy.{module}: not given: {problems}"
 
 
 def test_every_command_role_and_scenario_is_in_the_readme() -> None:
