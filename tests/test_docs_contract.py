@@ -107,6 +107,7 @@ TABLES: dict[str, tuple[type, tuple[str, ...]]] = {
 # None: a subset whose second column is not the default (geodetic.md's values simulate traffic derives))
 KEY_TABLES = [
     ("fusion", README, "### `[fusion]`", True),
+    ("fusion.vdie", README, "### `[fusion.vdie]`", True),
     ("deployment", README, "### `[deployment]`", True),
     ("deployment", DOCS / "deploy.md", "### `[deployment]`", False),
     ("sensor", README, "### `[[sensor]]`", True),
@@ -119,7 +120,6 @@ KEY_TABLES = [
     ("mtt", DOCS / "multitarget.md", "## Parameters chosen where nothing else says", False),
     ("radar_filter (ekf-ie)", DOCS / "radar.md", "## EKF with direct input estimation", True),
     ("mtt", DOCS / "geodetic.md", "## Recorded air traffic as truth", None),
-    ("fusion.vdie", README, "### `[fusion.vdie]`", True),
 ]
 NUMBER = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
 
@@ -193,6 +193,7 @@ def row_items(row: list[str]) -> Iterator[tuple[str, str, str | None]]:
 
 
 def key_table_problems(table_name: str, doc: Path, heading: str, complete: bool | None) -> list[str]:
+    """What the first key table under ``heading`` of ``doc`` gets wrong about ``table_name`` (KEY_TABLES)."""
     cls, elsewhere = TABLES[table_name]
     code = defaults(cls)
     if table_name == "mtt":
