@@ -514,7 +514,8 @@ def test_every_command_role_and_scenario_is_in_the_readme() -> None:
 
 
 def serve_options() -> dict[str, tuple[set[str], Any]]:
-    """Each option of ``fedtrack serve ROLE`` -> (the roles that take it, its default per role)."""
+    """Each option of ``fedtrack serve ROLE`` -> (the roles that take it, its default per role: ``"(required)"``
+    where the role requires it)."""
     options: dict[str, tuple[set[str], Any]] = {}
     for role in cli.SERVICES:
         for parser in _parsers(["serve", role]):
@@ -522,7 +523,7 @@ def serve_options() -> dict[str, tuple[set[str], Any]]:
                 option = action.option_strings[-1]
                 roles, default = options.setdefault(option, (set(), {}))
                 roles.add(role)
-                default[role] = action.default
+                default[role] = "(required)" if action.required else action.default
     return options
 
 
@@ -542,6 +543,10 @@ def test_the_readme_lists_every_serve_option_with_its_roles_and_default() -> Non
             problems.append(f"{option}: 'every role', the code's roles are {sorted(roles)}")
         for role, value in default.items():
             if value == role and "the role's name" in text:
+                continue
+            if value == "(required)":
+                if not re.search(rf"`{role}`: required|^\(required\)", text):
+                    problems.append(f"{option}: required by {role}, the table does not say so: {text!r}")
                 continue
             if value not in (None, False) and not any(form in text for form in shown(value)):
                 problems.append(f"{option}: {role}'s default {value!r} is not in {text!r}")
