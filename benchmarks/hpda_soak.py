@@ -149,7 +149,7 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--rate", type=float, default=4.0, help="scans per second (default: %(default)s)")
     parser.add_argument("--algorithm", default="hpda", choices=("hpda", "pda-ai"), help="the tracker (default: %(default)s)")
     parser.add_argument("--seed", type=seed_number, default=1, help="seed of the scenario (default: %(default)s)")
-    parser.add_argument("--json", type=Path, help="write the result here")
+    parser.add_argument("--json", type=Path, help="write the result here (default: printed only)")
     args = parser.parse_args(argv)
     if not (1.0 <= args.minutes < math.inf and 0.0 < args.rate < math.inf and 0.0 < args.clutter < math.inf):
         parser.error("--minutes must be finite and >= 1, --rate and --clutter finite and > 0")

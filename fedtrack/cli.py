@@ -217,7 +217,8 @@ def build_parser() -> argparse.ArgumentParser:
     rep.add_argument("--plots", metavar="DIR", help="folder for PNG figures (created if missing; its own folder "
                      "must exist; default: no figures)")
     rep.add_argument("--model", metavar="PATH", help="ts-fuzzy only: a trained model (fedtrack train ts-fuzzy --out "
-                     "PATH) instead of training one, which takes minutes")
+                     "PATH) instead of training one, which takes minutes (default: $FEDTRACK_TS_FUZZY_MODEL, else "
+                     "train one)")
     rep.set_defaults(func=_cmd_reproduce)
 
     rpl = sub.add_parser("replay", help="run an estimator over recorded measurements (JSON Lines)",
@@ -233,12 +234,12 @@ def build_parser() -> argparse.ArgumentParser:
     rpl.add_argument("--period", type=float, metavar="S",
                      help="mtt-*: seconds between track pictures (default: [mtt] period, 1.0)")
     rpl.add_argument("--sensor", metavar="ID", help="mtt-local (required there): the sensor whose tracker runs, "
-                     "e.g. s1 or r3 as simulate multitarget names them")
+                     "e.g. s1 or r3 as simulate multitarget names them (default: none)")
     rpl.add_argument("--regions", metavar="SPEC",
                      help="mtt-federated, mtt-decentralized: a centre per region, tracks handed over at the "
                           "borders; SPEC NXxNY (a grid over the detections' extent, e.g. 2x2) or config "
                           "(the config's [regions]; also the replay of a live region run's recording, each "
-                          "centre in its recorded order); docs/multitarget.md#regions")
+                          "centre in its recorded order); docs/multitarget.md#regions (default: one centre)")
     rpl.add_argument("--status", choices=("all", "confirmed"),
                      help="pda-ai, hpda: write every track or the confirmed ones only (default: all)")
     rpl.set_defaults(func=_cmd_replay)

@@ -357,7 +357,7 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--out", required=True, type=Path, metavar="FILE.jsonl",
                         help="measurements, replay input format (its folder must exist)")
     parser.add_argument("--tracks", type=Path, metavar="FILE.jsonl", help="also write the fused tracks, or the "
-                        "multi-target pictures, here (replay output format)")
+                        "multi-target pictures, here (replay output format; default: the measurements only)")
     args = parser.parse_args(argv)
     for path in (args.out, args.tracks):
         if path is not None:

@@ -431,6 +431,8 @@ def test_every_option_has_its_meaning_and_default_in_help(argv: list[str]) -> No
             if action.default not in (None, False, argparse.SUPPRESS):
                 assert "default" in text and mentions_default(text, "default", action.default), \
                     f"{parser.prog} {name}: default {action.default!r} not in {text!r}"
+            elif action.option_strings and action.nargs != 0 and not action.required:
+                assert "default" in text, f"{parser.prog} {name}: the help says nothing of its default: {text!r}"
 
 
 def _readme_row(argv: list[str]) -> str:

@@ -387,8 +387,9 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--horizontal", action="store_true", help="GOSPA, OSPA and RMSE on x, y only (the "
                         "altitude error is reported on its own either way; default: every axis the states share)")
     parser.add_argument("--json", type=Path, metavar="OUT.json",
-                        help="write the full result (with the per-picture series)")
-    parser.add_argument("--plot", type=Path, metavar="OUT.png", help="PNG: tracks over truth and GOSPA over time")
+                        help="write the full result (with the per-picture series; default: none)")
+    parser.add_argument("--plot", type=Path, metavar="OUT.png",
+                        help="PNG: tracks over truth and GOSPA over time (default: no plot)")
     parser.add_argument("--config", type=Path, metavar="C.toml", help="with --plot: a config whose [frame] puts the "
                         "tracks on the Earth; the map (longitude / latitude, sensor sites marked) goes to PLOT's "
                         "name + -map.png (default: none, no map)")
