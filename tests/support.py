@@ -13,11 +13,27 @@ from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 from typing import Any, Callable
 
+import pytest
+
 from fedtrack.deploy.demo import free_port
 
 WAIT_S = 10.0
 
 __all__ = ["WAIT_S", "Deployment", "free_port", "in_parallel", "replay_evaluated", "wait_until"]
+
+
+def patch_wire(monkeypatch: pytest.MonkeyPatch, name: str, value: Any) -> None:
+    """Set ``name`` (a bound such as MAX_TRACKS, or a private function) to ``value`` in the package
+    ``fedtrack.wire`` and in each of its modules that holds it, as every one of them reads its own
+    binding; undone by ``monkeypatch`` after the test."""
+    import fedtrack.wire
+    from fedtrack.wire import batches, codec, fields, limits, multipart, records, replay_json
+
+    modules = (fedtrack.wire, limits, fields, records, batches, codec, multipart, replay_json)
+    held = [m for m in modules if hasattr(m, name)]
+    assert held, f"fedtrack.wire has no {name!r}"
+    for module in held:
+        monkeypatch.setattr(module, name, value)
 
 
 def wait_until(predicate: Callable[[], bool], timeout: float = WAIT_S) -> bool:

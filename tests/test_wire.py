@@ -29,6 +29,7 @@ from fedtrack.wire import (
     decode,
     encode,
 )
+from tests.support import patch_wire
 
 RNG = np.random.default_rng(7)
 
@@ -361,7 +362,7 @@ def test_keys_reject_bad_ids(bad: str) -> None:
 
 def test_encoder_refuses_payloads_over_the_limit(monkeypatch: pytest.MonkeyPatch) -> None:
     msg = sonar(n_det=50)
-    monkeypatch.setattr(wire, "MAX_PAYLOAD_BYTES", len(encode(msg)) - 1)
+    patch_wire(monkeypatch, "MAX_PAYLOAD_BYTES", len(encode(msg)) - 1)
     with pytest.raises(WireError, match=r"^Measurement: encoded size \d+ bytes exceeds the limit"):
         encode(msg)
 

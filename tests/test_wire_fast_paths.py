@@ -1,6 +1,6 @@
 """The wire's fast paths give exactly the per-item paths' outcomes (hypothesis, about 3 s).
 
-A scan's detections decoded at once (``wire._regular_detections``) against the per-item decode
+A scan's detections decoded at once (``codec._regular_detections``) against the per-item decode
 (the fast path switched off): equal records or the same WireError (field, reason), and the same
 bytes when encoded again. The structure limits walked level by level against the depth-first walk
 that names the error. An array encoded without a conversion when it needs none: the same bytes.
@@ -18,8 +18,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_wire import assert_same
 
-from fedtrack import wire
-from fedtrack.wire import Detection, Measurement, WireError, decode, encode
+from fedtrack.wire import Detection, Measurement, WireError, batches, codec, decode, encode
+from tests.support import patch_wire
 
 pytestmark = pytest.mark.fuzz
 
@@ -40,7 +40,7 @@ def outcome(payload: bytes) -> Measurement | WireError:
 def per_item(payload: bytes) -> Measurement | WireError:
     """The decode with the fast path switched off: every detection through ``_decode_record``."""
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(wire, "_regular_detections", lambda items: None)
+        patch_wire(mp, "_regular_detections", lambda items: None)
         return outcome(payload)
 
 
@@ -110,8 +110,8 @@ def test_decoding_detections_at_once_equals_the_per_item_decode() -> None:
         payload = msgpack.packb(obj, use_bin_type=True)
         fast, slow = outcome(payload), per_item(payload)
         if not mutated:  # a regular list: the fast path takes it whatever the scan's other checks say
-            assert wire._regular_detections(obj["detections"]) is not None
-        seen["fast"] += wire._regular_detections(obj["detections"]) is not None
+            assert codec._regular_detections(obj["detections"]) is not None
+        seen["fast"] += codec._regular_detections(obj["detections"]) is not None
         if isinstance(slow, WireError):
             seen["rejected"] += 1
             assert isinstance(fast, WireError), (slow, fast)
@@ -134,8 +134,8 @@ def test_decoding_detections_at_once_equals_the_per_item_decode() -> None:
 
 
 def test_level_walk_of_the_structure_limits_equals_the_depth_first_walk(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(wire, "MAX_DEPTH", 3)  # small limits, so that generated structures meet either or both
-    monkeypatch.setattr(wire, "MAX_ITEMS", 10)
+    patch_wire(monkeypatch, "MAX_DEPTH", 3)  # small limits, so that generated structures meet either or both
+    patch_wire(monkeypatch, "MAX_ITEMS", 10)
     leaves = st.one_of(st.none(), st.integers())
     structures = st.recursive(leaves, lambda inner: st.one_of(st.lists(inner, max_size=4),
                                                               st.dictionaries(st.text(max_size=2), inner, max_size=3)),
@@ -155,8 +155,8 @@ def test_level_walk_of_the_structure_limits_equals_the_depth_first_walk(monkeypa
                 return exc.reason
             return "passed"
 
-        level = check(wire._check_structure)
-        assert level == check(wire._structure_error)
+        level = check(codec._check_structure)
+        assert level == check(codec._structure_error)
         seen["deep" if "deep" in level else "many" if "items" in level else "passed"] += 1
 
     run()
@@ -177,7 +177,7 @@ def test_an_array_encodes_to_its_values_as_little_endian_float64(shape: list[int
         arr = np.repeat(values, 2, axis=-1)[..., ::2]
     else:
         arr = values.astype(layout)
-    assert wire._encode_array(arr) == {"dtype": "float64", "shape": list(arr.shape),
+    assert codec._encode_array(arr) == {"dtype": "float64", "shape": list(arr.shape),
                                        "data": arr.astype("<f8").tobytes()}
 
 
@@ -200,7 +200,7 @@ def test_per_track_flags_and_counts_at_once_equal_the_per_item_check(items: list
     """``_flags`` and ``_counts`` take a list of plain booleans or in-range ints at once: the same
     tuple (types included) as the per-item check, or, for anything else, the same error."""
     value = tuple(items) if as_tuple else items
-    assert _outcome(wire._flags, value) == _outcome(wire._flags_each, value)
-    assert _outcome(wire._counts, value) == _outcome(wire._counts_each, value)
+    assert _outcome(batches._flags, value) == _outcome(batches._flags_each, value)
+    assert _outcome(batches._counts, value) == _outcome(batches._counts_each, value)
     regular = [bool(i % 2) for i in range(len(items))]
-    assert _outcome(wire._flags, regular) == _outcome(wire._flags_each, regular)
+    assert _outcome(batches._flags, regular) == _outcome(batches._flags_each, regular)

@@ -39,6 +39,7 @@ from fedtrack.wire import (
     payloads,
 )
 from fedtrack.zsession import SessionOptions, close_session, open_session, wait_alive
+from tests.support import patch_wire
 from tests.test_wire import assert_same
 
 SMALL_TRACKS, SMALL_DETECTIONS = 4, 3
@@ -47,8 +48,8 @@ SIZES = st.sampled_from([0, 1, 3, 4, 5, 8, 9, 13])  # 0, 1, the limits, limit + 
 
 @pytest.fixture(autouse=True)
 def small_limits(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(wire, "MAX_TRACKS", SMALL_TRACKS)
-    monkeypatch.setattr(wire, "MAX_DETECTIONS", SMALL_DETECTIONS)
+    patch_wire(monkeypatch, "MAX_TRACKS", SMALL_TRACKS)
+    patch_wire(monkeypatch, "MAX_DETECTIONS", SMALL_DETECTIONS)
 
 
 def spd_stack(rng: np.random.Generator, n: int, d: int) -> np.ndarray:
@@ -143,7 +144,7 @@ def test_a_message_beyond_a_bound_is_refused_whole_and_sent_in_parts() -> None:
 
 def test_a_message_over_the_payload_bytes_is_split_by_size(monkeypatch: pytest.MonkeyPatch) -> None:
     msg = next(m for m in (make_picture(4, s) for s in range(2, 99)) if len(m.fused_seqs) <= 4)  # within the counts
-    monkeypatch.setattr(wire, "MAX_PAYLOAD_BYTES", len(encode(msg)) * 2 // 3)
+    patch_wire(monkeypatch, "MAX_PAYLOAD_BYTES", len(encode(msg)) * 2 // 3)
     split = parts(msg)
     assert len(split) >= 2 and all(len(encode(p)) <= wire.MAX_PAYLOAD_BYTES for p in split)
     assert_same(join(list(split)), msg)
@@ -151,7 +152,7 @@ def test_a_message_over_the_payload_bytes_is_split_by_size(monkeypatch: pytest.M
 
 def test_a_message_needing_more_than_max_parts_is_refused(monkeypatch: pytest.MonkeyPatch) -> None:
     msg = make_report(9, 1)
-    monkeypatch.setattr(wire, "MAX_PARTS", 2)
+    patch_wire(monkeypatch, "MAX_PARTS", 2)
     with pytest.raises(WireError, match=r"^TrackReport: does not fit in MAX_PARTS = 2 messages"):
         parts(msg)
 
@@ -192,8 +193,8 @@ def test_decode_holds_a_payload_to_the_per_message_bounds(monkeypatch: pytest.Mo
     scan = encode(Measurement.unchecked(**{**vars(whole_scan), "detections": whole_scan.detections[:3]}))
     report = encode(parts(whole_report)[1])  # 4 tracks (3 in the first part)
     assert len(decode(scan, Measurement).detections) == 3 and len(decode(report, TrackReport).ids) == 4
-    monkeypatch.setattr(wire, "MAX_DETECTIONS", 2)
-    monkeypatch.setattr(wire, "MAX_TRACKS", 3)
+    patch_wire(monkeypatch, "MAX_DETECTIONS", 2)
+    patch_wire(monkeypatch, "MAX_TRACKS", 3)
     with pytest.raises(WireError, match=r"^Measurement.detections: 3 items exceed the limit of 2$"):
         decode(scan, Measurement)
     with pytest.raises(WireError, match=r"^TrackReport.ids: 4 items exceed the limit of 3 per message$"):
