@@ -19,6 +19,7 @@ import gzip
 import io
 import json
 import math
+import os
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -76,6 +77,14 @@ SIGMA_VELOCITY = 0.5  # m/s: ground speed is reported to the knot, vertical rate
 #: a time this large is milliseconds since 1970 (pandas' JSON, the traffic library's): as seconds it would
 #: be after the year 5000
 MILLISECONDS_FROM = 1e11
+#: memory a window takes: per state of the truth grid (a step of ``DT`` of one aircraft track inside the box) 100
+#: bytes at the peak (six float64 and a flag held, plus each track's states before the grid and the derived keys'
+#: temporaries: measured, 5.44 GB of peak resident memory for the whole of the traffic package's
+#: ``collections/quickstart``, 10,798 s of 244 tracks, 52.7 million states); per scan and detection until they
+#: are written (Python's dicts and lists, measured with tracemalloc: 1,000 + 430 a detection)
+TRUTH_CELL_BYTES = 100
+SCAN_BYTES = 1000
+DETECTION_BYTES = 430
 SQUITTER_S = (0.4, 0.6)  # s: airborne position squitters at random intervals of 0.4-0.6 s (DO-260B)
 #: the trackers' two motion modes (``[mtt] process_noise = "imm"``) from civil air-traffic kinematics, not
 #: from a recording (docs/geodetic.md, "The motion model"): turns at 25 deg of bank or 3 deg/s, whichever
@@ -337,11 +346,29 @@ def common_velocity(frame: Frame, t: np.ndarray, lla: np.ndarray, local: np.ndar
     return common_from_local_vectors(frame, lla[:, 0], lla[:, 1], np.where(np.isfinite(local), local, slope))
 
 
+def memory_room() -> float:
+    """Bytes a window's truth and scans may take: a quarter of the machine's physical memory (1 GiB where it is not
+    known)."""
+    try:
+        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") / 4
+    except (AttributeError, ValueError, OSError):
+        return 2.0**30
+
+
+def _steps_before(t: float, steps: int, after: bool = False) -> int:
+    """How many of the grid's times ``k DT`` (``k < steps``) are before ``t`` (``after``: at or before it)."""
+    k = min(max(math.floor(t / DT) - 1, 0), steps)  # then exact: k DT as the grid computes it
+    while k < steps and (k * DT <= t if after else k * DT < t):
+        k += 1
+    return k
+
+
 def build_truth(rec: Recording, frame: Frame, start: float, duration: float | None, box: float,
-                max_gap: float) -> Truth:
+                max_gap: float, scan_bytes: float = 0.0) -> Truth:
     """Truth on the ``DT`` grid from the first sample + ``start`` for ``duration`` s (None: to the last
     sample); a target is alive between its track's first and last samples while inside the square of
-    side ``box`` [m] about the origin."""
+    side ``box`` [m] about the origin. A window whose grid, with ``scan_bytes`` a second of it for the
+    sensors' scans, would take more than :func:`memory_room` is refused before it is made."""
     t0 = float(rec.t.min()) + start
     end = float(rec.t.max()) if duration is None else t0 + duration
     if not end > t0:
@@ -353,26 +380,37 @@ def build_truth(rec: Recording, frame: Frame, start: float, duration: float | No
     # rounded to it; the recorded times less t0 are exact (Sterbenz) and the grid k DT is the same for
     # any shift of the whole recording
     rel = rec.t - t0
-    grid = np.arange(steps) * DT
     found = segments(rec, max_gap)
-    pieces = [p for p in found.pieces if rel[p[-1]] >= 0 and rec.t[p[0]] <= end]
-    x = np.zeros((steps, len(pieces), 6))
-    alive = np.zeros((steps, len(pieces)), bool)
-    for j, rows in enumerate(pieces):
+    kept: list[tuple[slice, np.ndarray, np.ndarray, str]] = []  # each track inside the box: its steps, states, inside
+    for rows in (p for p in found.pieces if rel[p[-1]] >= 0 and rec.t[p[0]] <= end):
+        live = slice(_steps_before(rel[rows[0]], steps), _steps_before(rel[rows[-1]], steps, after=True))
+        grid = np.arange(live.start, live.stop) * DT  # the window's grid k DT, each track's steps only
         pos = enu_from_geodetic(frame, *rec.lla[rows].T)
         if np.isfinite(rec.velocity[rows]).any():
             pos = reconcile(rel[rows], pos, common_velocity(frame, rel[rows], rec.lla[rows], rec.velocity[rows], pos))
         vel = common_velocity(frame, rel[rows], rec.lla[rows], rec.velocity[rows], pos)
         spline = CubicHermiteSpline(rel[rows], pos, vel)
-        live = (grid >= rel[rows[0]]) & (grid <= rel[rows[-1]])
-        p, v = spline(grid[live]), spline(grid[live], 1)
-        x[live, j] = np.stack([p[:, 0], v[:, 0], p[:, 1], v[:, 1], p[:, 2], v[:, 2]], axis=-1)
-        alive[live, j] = np.all(np.abs(p[:, :2]) <= box / 2, axis=1)
-    keep = alive.any(axis=0)
-    icao24 = [str(rec.icao24[p[0]]) for p, k in zip(pieces, keep) if k]
+        p, v = spline(grid), spline(grid, 1)
+        inside = np.all(np.abs(p[:, :2]) <= box / 2, axis=1)
+        if inside.any():  # a track never inside the box takes no room in the grid
+            kept.append((live, np.stack([p[:, 0], v[:, 0], p[:, 1], v[:, 1], p[:, 2], v[:, 2]], axis=-1), inside,
+                         str(rec.icao24[rows[0]])))
+    need, room = steps * len(kept) * TRUTH_CELL_BYTES + (steps - 1) * DT * scan_bytes, memory_room()
+    if need > room:
+        raise InputError(f"the window is too long: {(steps - 1) * DT:g} s of {len(kept)} aircraft tracks inside the "
+                         f"box and the sensors' scans need {need / 2**30:.3g} GiB of memory, more than a quarter of "
+                         f"this machine's ({room / 2**30:.3g} GiB); the recording's airborne samples span "
+                         f"{float(rec.t.max() - rec.t.min()):g} s: give a shorter --duration (and --start) or a "
+                         "smaller --box")
+    x = np.zeros((steps, len(kept), 6))
+    alive = np.zeros((steps, len(kept)), bool)
+    for j, (live, state, inside, _) in enumerate(kept):
+        x[live, j] = state
+        alive[live, j] = inside
+    icao24 = [icao for *_, icao in kept]
     dropped = {**rec.dropped, "repeating a time or position": found.repeated, "in a track of one sample": found.single,
                "aircraft with no track inside the box and window": len(set(rec.icao24.tolist())) - len(set(icao24))}
-    return Truth(t0, x[:, keep], alive[:, keep], icao24, dropped)
+    return Truth(t0, x, alive, icao24, dropped)
 
 
 def parse_kinds(spec: str) -> list[SensorSpec]:
@@ -474,7 +512,9 @@ def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, star
     """Write ``measurements.jsonl``, ``truth.jsonl`` and ``config.toml`` to ``out``, each whole or not
     at all (a library caller's folder is created; the command checks it first: :func:`main`)."""
     rng = np.random.default_rng(seed)
-    truth = build_truth(rec, frame, start, duration, box, max_gap)
+    scan_bytes = sum((SCAN_BYTES + DETECTION_BYTES * (clutter if s.kind != "adsb" else 0.0)) / s.period
+                     for s in parse_kinds(spec))  # a second's scans, the aircraft's detections left out
+    truth = build_truth(rec, frame, start, duration, box, max_gap, scan_bytes)
     if not truth.icao24:
         t0 = float(rec.t.min())
         window = f"{start:g} s to {'the end' if duration is None else f'{start + duration:g} s'} after the first sample"

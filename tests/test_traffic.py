@@ -19,6 +19,7 @@ from fedtrack.jsonl import InputError
 from fedtrack.local_filters.radar.measurement import cartesian_from_polar, polar_from_cartesian, wrap_angle
 from fedtrack.sensors.multitarget import DT, Scenario, SensorSpec, sensor_lines
 from fedtrack.sensors.traffic import (
+    TRUTH_CELL_BYTES,
     Truth,
     adsb_view,
     build_truth,
@@ -110,6 +111,32 @@ def test_truth_passes_through_the_samples_in_the_common_frame(tmp_path: Path) ->
     # the local east turned to the north by the meridians' convergence, (lon - lon0) sin(lat), about 1.5 deg
     convergence = np.radians(rec.lla[1:-1, 1] - PARIS.lon) * np.sin(np.radians(48.86))
     np.testing.assert_allclose(np.arctan2(vel[:, 1], vel[:, 0]), convergence, atol=np.radians(0.02))
+
+
+def test_a_window_too_long_for_memory_is_one_line_and_writes_nothing(tmp_path: Path,
+                                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    """Two flights three years apart (``onground/zurich_airport`` spans 55 days): the whole recording's window
+    on the 0.05 s grid needs about 200 GB. Before: numpy's MemoryError as a traceback (or the machine's memory
+    taken); now one line naming --duration, exit 2, no folder."""
+    rows = [f"{t0 + k},{icao},48.86,{2.40 + 0.002 * k},3000" for t0, icao in ((0, "a"), (1e8, "b")) for k in range(10)]
+    source = _write_csv(tmp_path / "a.csv", "time,icao24,lat,lon,alt", rows)
+    code = main(["simulate", "traffic", "--source", str(source), "--origin", "48.86,2.40", "--out", str(tmp_path / "o")])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 2 and len(err) == 1 and "the window is too long" in err[0] and "--duration" in err[0], err
+    assert not (tmp_path / "o").exists()
+
+
+def test_tracks_outside_the_box_take_no_room_in_the_truth_grid(tmp_path: Path,
+                                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    """Memory for one track of the window's grid: one aircraft inside the box and 30 outside it fit; two
+    inside do not (before, the grid held every track of the window, inside the box or not)."""
+    rows = [f"{k},{i:06x},{48.86 + 0.5 * i + 0.0009 * k},2.40,3000,100,0,0" for i in range(31) for k in range(100)]
+    monkeypatch.setattr("fedtrack.sensors.traffic.memory_room", lambda: 1.5 * 1981 * TRUTH_CELL_BYTES)
+    rec = read_recording(_write_csv(tmp_path / "a.csv", "time,icao24,lat,lon,alt,gs,track,vertical_rate", rows))
+    truth = build_truth(rec, PARIS, 0.0, None, 40e3, 30.0)
+    assert truth.icao24 == ["000000"] and truth.x.shape == (1981, 1, 6)
+    with pytest.raises(InputError, match="the window is too long"):
+        build_truth(rec, PARIS, 0.0, None, 150e3, 30.0)
 
 
 def _cv_truth(n: int, seconds: float, rng: np.random.Generator) -> Truth:
