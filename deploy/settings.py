@@ -15,7 +15,7 @@ from typing import Any
 from fedtrack.config import ConfigError, in_file, load_tables
 from fedtrack.deploy.security import ZenohSettings, check_transport
 from fedtrack.deployment import DeploymentConfig, SensorConfig
-from fedtrack.geodetic import FrameConfig
+from fedtrack.geodetic import FrameConfig, geodetic_error
 from fedtrack.local_filters.imm.config import IMMConfig
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.pda.config import PDAReplayConfig
@@ -65,6 +65,9 @@ class MultitargetSettings:
             raise ConfigError(f"units: must be one of {', '.join(sorted(UNITS))}, got {self.units!r}")
         if self.source and (self.origin is None or not 0 < self.box < math.inf or not 0 <= self.start < math.inf):
             raise ConfigError("source: needs origin = [lat, lon, h], a finite box > 0 and a finite start >= 0")
+        problem = None if self.origin is None else geodetic_error(*self.origin)
+        if problem:  # the [frame] range: the scenario's config.toml carries it as [frame] origin
+            raise ConfigError(f"origin: {problem}, got {list(self.origin)}")
         for key in ("join_at", "kill_at"):
             for sensor, t in getattr(self, key).items():
                 if not 0 < t < self.duration:

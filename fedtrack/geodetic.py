@@ -158,9 +158,15 @@ WGS84_E2 = 6.69437999014e-3
 REFRACTION_K = 4.0 / 3.0
 
 
+def gaussian_radius(lat: float) -> float:
+    """The Earth's Gaussian radius of curvature [m] at geodetic latitude ``lat`` [deg],
+    ``a sqrt(1 - e^2) / (1 - e^2 sin^2 lat)``: 6,335 km at the equator to 6,400 km at the poles."""
+    return WGS84_A * math.sqrt(1.0 - WGS84_E2) / (1.0 - WGS84_E2 * math.sin(math.radians(lat)) ** 2)
+
+
 def above_radio_horizon(site: RadarSite, enu: np.ndarray, k: float = REFRACTION_K) -> np.ndarray:
     """Whether the radar at ``site`` sees each common-frame position (N, 3) (N,): on a sphere of the
-    Earth's Gaussian radius of curvature at the site, ``R = a sqrt(1 - e^2) / (1 - e^2 sin^2 lat)``, a
+    Earth's Gaussian radius of curvature at the site (:func:`gaussian_radius`) ``R``, a
     target at height ``h_t`` and ground distance ``d`` from a radar at height ``h_r`` is in sight when
     ``d <= sqrt(2 k R h_r) + sqrt(2 k R h_t)``: the distances to the radio horizon of the radar and of
     the target, on the Earth of radius ``k R``. Heights are above the surface, taken at the ellipsoid or,
@@ -168,7 +174,7 @@ def above_radio_horizon(site: RadarSite, enu: np.ndarray, k: float = REFRACTION_
     surface: 0); terrain is not modelled."""
     lat, _, h_site = site.geodetic
     surface = min(h_site, 0.0)
-    radius = WGS84_A * math.sqrt(1.0 - WGS84_E2) / (1.0 - WGS84_E2 * math.sin(math.radians(lat)) ** 2)
+    radius = gaussian_radius(lat)
     own = own_from_enu(site, enu)
     up = own[..., 2] + radius + h_site  # from the ellipsoid sphere's centre, along the site's up
     h_t = np.hypot(np.hypot(own[..., 0], own[..., 1]), up) - radius
@@ -177,10 +183,38 @@ def above_radio_horizon(site: RadarSite, enu: np.ndarray, k: float = REFRACTION_
     return d <= reach
 
 
+def radio_reach(site: RadarSite, h_target: float, k: float = REFRACTION_K) -> float:
+    """The ground distance [m] out to which the radar at ``site`` sees a target ``h_target`` [m] above the
+    ellipsoid (:func:`above_radio_horizon`'s bound)."""
+    lat, _, h_site = site.geodetic
+    surface, radius = min(h_site, 0.0), gaussian_radius(lat)
+    return math.sqrt(2 * k * radius * (h_site - surface)) + math.sqrt(2 * k * radius * max(h_target - surface, 0.0))
+
+
+def ground_angle(lat1: float, lon1: float, lat2: float, lon2: float) -> float:
+    """The angle [rad] between the ellipsoid normals at two geodetic points [deg] (times the Earth's
+    radius, the ground distance between them)."""
+    a, b = ecef_to_enu_rotation(lat1, lon1)[2], ecef_to_enu_rotation(lat2, lon2)[2]
+    return math.atan2(float(np.linalg.norm(np.cross(a, b))), float(a @ b))
+
+
+#: the heights [m] a site or origin may have (``[frame]``, ``simulate traffic``): the Dead Sea's shore is at
+#: -430 m and the ellipsoid's height of the geoid between -107 and +85 m; the highest radars and aircraft are
+#: below 100 km
+HEIGHTS = (-1.0e4, 1.0e5)
+
+
+def geodetic_error(lat: float, lon: float, h: float) -> str | None:
+    """Why ``lat``, ``lon`` [deg], ``h`` [m] is no place for an origin or a site (None: it is one)."""
+    if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 360.0 and HEIGHTS[0] <= h <= HEIGHTS[1]):
+        return f"expected lat deg in [-90, 90], lon deg in [-180, 360], h m in [{HEIGHTS[0]:g}, {HEIGHTS[1]:g}]"
+    return None
+
+
 def _check_geodetic(value: tuple[float, float, float], key: str) -> None:
-    lat, lon, h = value
-    if not (-90.0 <= lat <= 90.0 and -180.0 <= lon <= 360.0 and -1.0e4 <= h <= 1.0e5):
-        raise ConfigError(f"{key}: expected [lat deg in [-90, 90], lon deg, h m in [-1e4, 1e5]], got {list(value)}")
+    problem = geodetic_error(*value)
+    if problem:
+        raise ConfigError(f"{key}: {problem}, got {list(value)}")
 
 
 @dataclass(frozen=True)

@@ -30,12 +30,17 @@ from scipy.linalg import solveh_banded
 
 from fedtrack.config import seed_number, to_toml
 from fedtrack.geodetic import (
+    WGS84_A,
+    WGS84_E2,
     Frame,
     RadarSite,
     common_from_local_vectors,
     enu_from_geodetic,
+    geodetic_error,
     geodetic_from_enu,
+    ground_angle,
     local_from_common_vectors,
+    radio_reach,
     site_from_geodetic,
     wrap_lon,
 )
@@ -441,10 +446,13 @@ def parse_noise(kind: str, sigmas: str, item: str) -> np.ndarray | None:
     return np.diag(np.square(sd))
 
 
-def parse_sensors(spec: str, frame: Frame, box: float,
-                  rng: np.random.Generator) -> list[tuple[SensorSpec, RadarSite | None, np.ndarray | None]]:
+def parse_sensors(spec: str, frame: Frame, box: float, rng: np.random.Generator,
+                  highest: float = math.inf) -> list[tuple[SensorSpec, RadarSite | None, np.ndarray | None]]:
     """``radar:4/70/0.08@49.1/2.1/90,pos:1/100,adsb:1`` -> sensors ``r1``, ``s2``, ``a3`` with their
-    sites (a radar without one stands on the box's edge) and noises (:func:`parse_noise`)."""
+    sites (a radar without one stands on the box's edge) and noises (:func:`parse_noise`). A site from
+    which no aircraft up to ``highest`` [m] inside the box is above the radio horizon is refused: a site
+    in radians, or with its latitude and longitude swapped, stands thousands of km away and its radar
+    would give clutter only."""
     items = [item.strip().partition("@") for item in spec.split(",")]
     out: list[tuple[SensorSpec, RadarSite | None, np.ndarray | None]] = []
     for s, (base, at, where) in zip(parse_kinds(spec), items):
@@ -463,10 +471,19 @@ def parse_sensors(spec: str, frame: Frame, box: float,
         try:
             lat, lon, h = (float(v) for v in where.split("/"))
         except ValueError:
-            lat = math.nan
-        if not (-90 <= lat <= 90 and -180 <= lon <= 360):
-            raise InputError(f"--sensors: {base}@{where}: the site is not LAT/LON/H (degrees, degrees, metres)")
-        out.append((s, site_from_geodetic(frame, lat, lon, h), noise))
+            lat = lon = h = math.nan
+        problem = geodetic_error(lat, lon, h)
+        if problem:
+            raise InputError(f"--sensors: {base}@{where}: the site is not LAT/LON/H ({problem})")
+        site = site_from_geodetic(frame, lat, lon, h)
+        # the box's farthest point is box / sqrt(2) from the origin; the ground distance is taken on the sphere
+        # of the smallest radius of curvature, which makes it short by up to 1 % and the refusal a sure one
+        distance = WGS84_A * (1.0 - WGS84_E2) * ground_angle(lat, lon, frame.lat, frame.lon) - box / math.sqrt(2.0)
+        if distance > radio_reach(site, highest):
+            raise InputError(f"--sensors: {base}@{where}: the site is {distance / 1e3:.0f} km from the box, beyond "
+                             f"the radio horizon ({radio_reach(site, highest) / 1e3:.0f} km) of every aircraft in it "
+                             f"(up to {highest:.0f} m): is it LAT/LON/H in degrees, degrees, metres?")
+        out.append((s, site, noise))
     return out
 
 
@@ -523,7 +540,7 @@ def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, star
                          f"{float(rec.t.max()) - t0:g} s, latitudes {rec.lla[:, 0].min():g} to "
                          f"{rec.lla[:, 0].max():g}, longitudes {rec.lla[:, 1].min():g} to {rec.lla[:, 1].max():g}: "
                          "move --origin, widen --box or change --start / --duration")
-    sensors = parse_sensors(spec, frame, box, rng)
+    sensors = parse_sensors(spec, frame, box, rng, float(rec.lla[:, 2].max()))
     specs = [s for s, _, _ in sensors]
     steps = truth.alive.shape[0]
     sc = Scenario(targets=len(truth.icao24), duration=(steps - 1) * DT, region=box / 2, pd=pd, clutter=clutter,
@@ -582,8 +599,9 @@ def _origin(text: str) -> Frame:
         values = [float(v) for v in text.split(",")]
     except ValueError:
         values = []
-    if len(values) not in (2, 3) or not (-90 <= values[0] <= 90 and -180 <= values[1] <= 360):
-        raise InputError(f"--origin: {text!r} is not LAT,LON[,H] (degrees, degrees, metres)")
+    problem = geodetic_error(*values, *[0.0] * (3 - len(values))) if len(values) in (2, 3) else "two or three numbers"
+    if problem:
+        raise InputError(f"--origin: {text!r} is not LAT,LON[,H] (degrees, degrees, metres; {problem})")
     return Frame(*values)
 
 

@@ -144,9 +144,14 @@ def assert_launch_refuses(tmp_path: Path, capsys: pytest.CaptureFixture[str], te
 @pytest.mark.parametrize(("table", "says"), [("clutter = inf", "multitarget.clutter: must be in [0, "),
                                              ("duration = inf", "multitarget.duration: must be finite and > 0"),
                                              ('source = "x.csv"\norigin = [1.0, 2.0, 0.0]\nbox = inf',
-                                              "a finite box > 0")])
+                                              "a finite box > 0"),
+                                             ('source = "x.csv"\norigin = [48.86, 2.4, 200000.0]',
+                                              "multitarget.origin: expected lat deg in [-90, 90], lon deg in "
+                                              "[-180, 360], h m in [-10000, 100000]")])
 def test_launch_refuses_an_infinite_multitarget_value(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                                       table: str, says: str) -> None:
+    """The origin 200 km up (before 2026-11-27 the run went ahead and wrote a config.toml whose [frame] origin
+    replay then refused)."""
     assert_launch_refuses(tmp_path, capsys, f'[deployment]\npacing = "realtime"\n\n[multitarget]\n{table}\n', says)
 
 

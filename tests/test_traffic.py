@@ -239,6 +239,27 @@ def test_cli_errors_and_help(tmp_path: Path, capsys: pytest.CaptureFixture[str])
         assert word in text or word.lower() in text.lower(), word
 
 
+@pytest.mark.parametrize(("option", "says"), [
+    (["--sensors", "radar:4@0.8528/0.0419/100"], "the site is 5242 km from the box, beyond the radio horizon"),  # rad
+    (["--sensors", "radar:4@2.40/48.86/100"], "the site is 6678 km from the box"),  # longitude and latitude swapped
+    (["--sensors", "radar:4@49.2/2.0/120000"], ("the site is not LAT/LON/H (expected lat deg in [-90, 90], lon deg "
+                                                "in [-180, 360], h m in [-10000, 100000])")),  # 120 m in mm
+    (["--origin", "48.86,2.40,120000"], "--origin: '48.86,2.40,120000' is not LAT,LON[,H]")],
+    ids=["radians", "swapped", "millimetres", "origin-height"])
+def test_a_site_or_origin_in_the_wrong_units_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                         option: list[str], says: str) -> None:
+    """Before: a site in radians or with latitude and longitude swapped was taken (its radar, thousands of km
+    away, gave clutter only, silently); a height out of ``[frame]``'s range was written to config.toml, which
+    replay then refused."""
+    rows = [f"{k},{icao},{48.86 + 0.01 * i},{2.40 + 0.002 * k},3000" for i, icao in enumerate("abc") for k in range(20)]
+    args = {"--origin": "48.86,2.40", "--sensors": "radar:4,pos:2"} | dict([option])
+    code = main(["simulate", "traffic", "--source", str(_write_csv(tmp_path / "a.csv", "time,icao24,lat,lon,alt", rows)),
+                 *[v for item in args.items() for v in item], "--out", str(tmp_path / "o")])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 2 and len(err) == 1 and says in err[0], err
+    assert not (tmp_path / "o").exists()
+
+
 def test_tracks_on_the_earth_geojson_and_map(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                              monkeypatch: pytest.MonkeyPatch) -> None:
     """Replay with a [frame] gives each track lat, lon, alt; export --geojson parses as GeoJSON whose
