@@ -221,7 +221,7 @@ def _check_geodetic(value: tuple[float, float, float], key: str) -> None:
 class FrameConfig:
     """``[frame]``: the common frame's WGS-84 origin and (``[frame.sites]``) sensor sites in WGS-84."""
 
-    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    origin: tuple[float, float, float]  # required: a frame placed nowhere in particular is an error
     sites: dict[str, tuple[float, float, float]] = field(default_factory=dict)  # sensor id -> lat, lon, h
 
     def validate(self) -> None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pymap3d
 import pytest
@@ -14,6 +16,7 @@ from fedtrack.geodetic import (
     enu_from_aer,
     enu_from_geodetic,
     geodetic_from_enu,
+    load_frame,
     own_from_aer,
     own_from_enu,
     site_from_enu,
@@ -124,3 +127,12 @@ def test_local_vectors_turned_into_the_common_frame() -> None:
     moved = np.column_stack(pymap3d.ecef2geodetic(ecef[:, 0], ecef[:, 1], ecef[:, 2]))
     expected = (enu_from_geodetic(frame, *moved.T) - enu_from_geodetic(frame, *lla.T)) * 1e3
     np.testing.assert_allclose(common_from_local_vectors(frame, lla[:, 0], lla[:, 1], v), expected, atol=1e-5)
+
+
+def test_a_frame_without_its_origin_is_refused(tmp_path: Path) -> None:
+    """``[frame]`` without ``origin`` placed the common frame at (0, 0, 0), off West Africa, without a word
+    (sites given in WGS-84 then landed thousands of km away); its origin is now required."""
+    path = tmp_path / "c.toml"
+    path.write_text("[frame]\n[frame.sites]\nr1 = [48.0, 2.0, 100.0]\n")
+    with pytest.raises(ConfigError, match=r"missing config key frame.origin"):
+        load_frame(path)
