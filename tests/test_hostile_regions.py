@@ -28,7 +28,7 @@ from fedtrack.fusion_center.mtt import standby as standby_module
 from fedtrack.fusion_center.mtt.picture_merge import PictureMergeService
 from fedtrack.fusion_center.mtt.service import MttCentreService
 from fedtrack.fusion_center.mtt.shards import handover_to_wire
-from fedtrack.fusion_center.mtt.standby import SILENT_S, Standby
+from fedtrack.fusion_center.mtt.standby import SILENT_S, Standby, claim_instance
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.service import MttLocalService
 from fedtrack.local_filters.regions import load_regions
@@ -235,23 +235,26 @@ def answer(seq: int) -> TrackResets:
     return TrackResets(sensor="s1", seq=seq, t=float(seq), q_scale=1.0, ids=(), x=np.zeros((0, 4)), P=np.zeros((0, 4)))
 
 
+FORGED = "9" * 20  # a primary token's instance claimed after any other (claim_instance)
+
+
 def test_a_forged_primary_token_cannot_silence_a_region() -> None:
     """Any ``fusion`` identity may declare a primary token (``alive/mtt-primary/<region>/<instance>``).
-    One with a low instance (``0``) made the region's primary step down (a primary yields to a lower
-    instance: the split-brain rule) and its standby wait (a token stood): nothing of the region was
+    One with a late claim (``99...9``) makes the region's primary step down (a primary yields to a later
+    claim: the split-brain rule) and its standby wait (a token stood): nothing of the region was
     published again while the token stood, and a dead region's standby never took over. Now a standby
     that made an answer SILENT_S (5 s) ago while nothing of its primary arrived for as long takes
     over beside the token, which serves nobody (``silent``: no primary yields to it) until it is
     withdrawn; a live primary, or a frozen one that wakes and publishes, keeps the old rules."""
-    primary = Standby("x0y0", 0.0, instance="b1", primary=True)
-    standby = Standby("x0y0", 0.0, instance="c2")
-    standby.token(True, 0.0, "b1")
+    primary = Standby("x0y0", 0.0, instance=claim_instance("b", 1), primary=True)
+    standby = Standby("x0y0", 0.0, instance=claim_instance("c", 2))
+    standby.token(True, 0.0, primary.instance)
     for sb in (primary, standby):
-        sb.token(True, 1.0, "0")  # the forgery
+        sb.token(True, 1.0, FORGED)
     assert primary.yields()  # the split-brain rule: it steps down
     primary.step_down(1.0)
-    primary.token(False, 1.0, "b1")
-    standby.token(False, 1.0, "b1")
+    primary.token(False, 1.0, primary.instance)
+    standby.token(False, 1.0, primary.instance)
     for k in range(2, 10):  # reports keep coming: both make their answers, nobody publishes them
         for sb in (primary, standby):
             sb.hold("res", answer(k), float(k))
@@ -261,11 +264,11 @@ def test_a_forged_primary_token_cannot_silence_a_region() -> None:
     assert primary.due(1.0 + SILENT_S + 1.0) and standby.due(1.0 + SILENT_S + 1.0)
     assert [msg.seq for _, msg in primary.take_over()] == list(range(2, 7))
     standby.take_over()  # the two take over at once ...
-    assert primary.silent == standby.silent == {"0"} and not primary.yields() and not standby.yields()
-    standby.token(True, 7.01, "b1")  # ... and see each other's tokens: the lower instance keeps the region
-    primary.token(True, 7.01, "c2")
-    assert not primary.yields() and standby.yields()
-    primary.token(False, 20.0, "0")  # withdrawn: a token of that instance is judged afresh
+    assert primary.silent == standby.silent == {FORGED} and not primary.yields() and not standby.yields()
+    standby.token(True, 7.01, primary.instance)  # ... and see each other's tokens: the later claim keeps the region
+    primary.token(True, 7.01, standby.instance)
+    assert primary.yields() and not standby.yields()
+    primary.token(False, 20.0, FORGED)  # withdrawn: a token of that instance is judged afresh
     assert primary.silent == set()
 
 
@@ -273,9 +276,11 @@ def test_a_live_primary_keeps_its_standby_waiting_and_a_woken_one_its_region() -
     """The silence rule needs both: no output of the primary for SILENT_S and an answer made that long
     ago. A primary frozen past SILENT_S and woken (its token never went) publishes again: the standby
     that took over beside it hears another session on the region's keys and the instance order
-    decides again."""
-    standby = Standby("x0y0", 0.0, instance="c2")
-    standby.token(True, 0.0, "b1")
+    decides again: the standby's claim, the later, keeps the region (the woken primary missed the reports
+    of its freeze; with the session ids' order it kept the region when its id was the lower)."""
+    frozen = claim_instance("a-lower-session", 1)
+    standby = Standby("x0y0", 0.0, instance=claim_instance("z-higher-session", 2))
+    standby.token(True, 0.0, frozen)
     standby.hold("res", answer(0), 0.0)
     standby.token(True, SILENT_S, "a0")  # another token, fresh: it may be a primary that just took over
     assert not standby.due(SILENT_S + 0.5)
@@ -291,9 +296,9 @@ def test_a_live_primary_keeps_its_standby_waiting_and_a_woken_one_its_region() -
     assert not standby.due(20.0 + SILENT_S + 0.5)
     assert standby.due(21.0 + SILENT_S)  # then falls silent (frozen): taken over beside its token
     standby.take_over()
-    assert standby.silent == {"b1"} and not standby.yields()
-    standby.heard_remote(30.0)  # the frozen primary woke and publishes: the lower instance keeps the region
-    assert standby.silent == set() and standby.yields()
+    assert standby.silent == {frozen} and not standby.yields()
+    standby.heard_remote(30.0)  # the frozen primary woke and publishes: the later claim keeps the region
+    assert standby.silent == set() and not standby.yields()
 
 
 # ---------------------------------------------------------------- Health

@@ -29,7 +29,14 @@ from fedtrack.deploy.report import LaunchReport
 from fedtrack.deploy.settings import load_settings
 from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.fusion_center.mtt.service import MttCentreService
-from fedtrack.fusion_center.mtt.standby import SETTLE_S, START_GRACE_S, WITHHELD_S, Standby, next_after
+from fedtrack.fusion_center.mtt.standby import (
+    SETTLE_S,
+    START_GRACE_S,
+    WITHHELD_S,
+    Standby,
+    claim_instance,
+    next_after,
+)
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.regions import load_regions, region_of
 from fedtrack.wire import TrackPicture, TrackResets
@@ -80,13 +87,13 @@ def test_a_standby_that_never_sees_a_primary_takes_over_after_the_start_grace_an
 
 
 @pytest.mark.parametrize("standbys", [True, False])
-def test_two_primaries_at_once_leave_exactly_one_the_lower_instance(standbys: bool) -> None:
+def test_two_primaries_at_once_leave_exactly_one_the_later_claim(standbys: bool) -> None:
     """Split brain: two standbys of one region started together see no primary and both take over
     at the start grace (or two primaries started together); once each has seen the other's token,
-    the higher instance steps down, whichever saw the other first, and takes over again when the
-    lower one's token goes."""
-    a, b = Standby("x0y0", 0.0, instance="a2", primary=not standbys), Standby("x0y0", 0.0, instance="b1",
-                                                                              primary=not standbys)
+    the earlier claim steps down, whichever saw the other first, and takes over again when the
+    later one's token goes."""
+    a, b = (Standby("x0y0", 0.0, instance=claim_instance(zid, ns), primary=not standbys)
+            for zid, ns in (("b1", 2), ("a2", 1)))
     for sb in (a, b):
         if standbys:
             assert sb.due(START_GRACE_S)
@@ -100,7 +107,7 @@ def test_two_primaries_at_once_leave_exactly_one_the_lower_instance(standbys: bo
     assert [sb.primary for sb in (a, b)] == [True, False]
     assert not b.due(100.0)  # a's token is there
     b.hold("pic", picture(9, (1,)), 5.0)  # withheld again
-    b.token(False, 5.0, "a2")  # the winner died
+    b.token(False, 5.0, a.instance)  # the winner died
     assert b.due(5.0 + SETTLE_S) and [msg.seq for _, msg in b.take_over()] == [9]
     assert b.primary and not b.yields()
 
@@ -143,7 +150,7 @@ def test_a_primary_takes_no_sample_of_its_own_outputs_until_it_steps_down(tmp_pa
 def test_two_primaries_of_one_region_over_zenoh_leave_one_when_they_meet(tmp_path: Path) -> None:
     """Split brain live: two standbys of one region, each in its own thread behind its own loopback
     router (a partition), see no primary and both take over; once a third router joins the two,
-    each sees the other's token and the higher instance steps down: one primary token and one
+    each sees the other's token and the earlier claim steps down: one primary token and one
     publishing centre remain. About 5 s."""
     config = tmp_path / "config.toml"
     config.write_text("[regions]\nmargin = 500.0\ngrid = {origin = [0.0, 0.0], cell = [1.0, 1.0], nx = 2, ny = 1}\n")
@@ -170,7 +177,7 @@ def test_two_primaries_of_one_region_over_zenoh_leave_one_when_they_meet(tmp_pat
         session = open_session(opts[0])
         tokens = [str(r.ok.key_expr) for r in session.liveliness().get("fedtrack/splitbrain/alive/mtt-primary/**",
                                                                        timeout=1.0) if r.ok is not None]
-        winner = min(centres, key=lambda c: c.standby.instance)
+        winner = max(centres, key=lambda c: c.standby.instance)
         assert [c.standby.primary for c in centres] == [c is winner for c in centres]
         assert tokens == [f"fedtrack/splitbrain/alive/mtt-primary/x0y0/{winner.standby.instance}"]
         assert [c.counters.get("stepped_down", 0) for c in centres] == [int(c is not winner) for c in centres]

@@ -90,6 +90,7 @@ class PictureClock:
     k: int | None = None
     high: float = -math.inf
     departed: bool = False  # a sensor left after the latest scan
+    first: int | None = None  # the ``k`` of picture number 0 (:meth:`number`)
 
     def left(self) -> None:
         """A sensor left (a departure line, or a live centre dropping it)."""
@@ -99,6 +100,8 @@ class PictureClock:
         """Picture times due before a scan at ``t`` is ingested."""
         if self.k is None:
             self.k = math.ceil(t / self.period - 1e-9)
+        if self.first is None:
+            self.first = self.k
         self.high = max(self.high, t)
         self.departed = False
         out = []
@@ -106,6 +109,20 @@ class PictureClock:
             out.append(self.k * self.period)
             self.k += 1
         return out
+
+    def number(self, T: float) -> int:
+        """The number of the picture at ``T`` (a closing record: the next picture's): its place on the
+        period grid counted from picture 0's, so that a centre started again, or a standby taking over,
+        numbers a picture time as the first run did once it knows that run's ``first`` (:meth:`numbered`),
+        never below 0. Before 2026-11-27 each process counted its own pictures from 0, and the
+        recorder, which keys pictures by number, refused every picture of a cold standby that took
+        over, and of a restarted ``serve picture``, whose number an earlier one had had (``conflict``):
+        15 and 9 pictures of a 40 s run missing from the recording."""
+        return max(round(T / self.period) - (self.first or 0), 0)
+
+    def numbered(self, seq: int, T: float) -> None:
+        """Picture ``seq`` of the run is at ``T``: number as it does (a cold standby, from its primary's)."""
+        self.first = round(T / self.period) - seq
 
     def final(self) -> list[float]:
         """Picture times still due at the end of the data: up to the first whole period at or after

@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from fedtrack.config import ConfigError, load_tables
+from fedtrack.fusion_center.mtt.engines import PictureClock
 from fedtrack.fusion_center.mtt.regional import RegionPicture, merge_pictures, rows_of
 from fedtrack.fusion_center.mtt.service import PICTURE_ITEMS, picture_message, picture_tracks
 from fedtrack.geodetic import Frame, geodetic_of_states, load_frame
@@ -80,7 +81,7 @@ class PictureMergeService(Service):
 
     role = "picture"
     tick_period_s = 0.05
-    state_attrs = ("pending", "started", "closing", "late", "merged_t", "seq", "lead", "latest", "contested")
+    state_attrs = ("pending", "started", "closing", "late", "merged_t", "seq", "clock", "lead", "latest", "contested")
 
     def __init__(self, regions: Regions, dim: int, wait_s: float, period: float, frame: Frame | None = None,
                  **kwargs: Any) -> None:
@@ -94,7 +95,8 @@ class PictureMergeService(Service):
         self.late: list[Entries] = [[] for _ in range(R)]  # entries of pictures that came after their time
         self.first_seen: dict[float, float] = {}  # picture time -> monotonic time of its first region picture
         self.merged_t: float | None = None
-        self.seq = 0
+        self.seq = 0  # pictures published
+        self.clock = PictureClock(period, 0.0)  # their numbers: the regions' (PictureClock.number)
         self.latest: list[TrackPicture | None] = [None] * R  # each region's latest picture taken (queued or merged)
         self.contested = False  # a region sent a second, different picture of a time it had sent: the next merge says so
         # a region picture stamped far ahead of the others waits for a witness (fedtrack/services/lead.py)
@@ -145,6 +147,8 @@ class PictureMergeService(Service):
             return
         self.latest[r] = msg
         self.lead.took(self.regions.ids[r], msg.t)
+        if self.clock.first is None:  # a merger started again numbers on from the last one's numbers
+            self.clock.numbered(msg.seq, msg.t)
         if self.merged_t is not None and msg.t <= self.merged_t:
             self.count("late_picture")
             self.log.warning("region %s's picture at t=%g came after that time was merged", self.regions.ids[r], msg.t)
@@ -195,8 +199,11 @@ class PictureMergeService(Service):
         handovers = [i for i, e in enumerate(entries) if e[2] == "handover"]
         contested = contested or self.contested or any(p is not None and p.contested for p in parts)
         self.contested = False
+        # a closing record is numbered after the last picture
+        number = self.clock.number(T) if not closing else 0 if self.merged_t is None else self.clock.number(
+            self.merged_t) + 1
         self.publish(self.keys.mtt_picture(), picture_message(
-            self.seq, T, tracks, order, left, contested, closing, handovers, tuple(e[3] for e in entries),
+            number, T, tracks, order, left, contested, closing, handovers, tuple(e[3] for e in entries),
             lla=None if self.frame is None else geodetic_of_states(self.frame, tracks.x)))
         self.seq += 1
         self.counters["pictures"] = self.seq

@@ -62,7 +62,14 @@ from fedtrack.fusion_center.mtt.engines import (
 from fedtrack.fusion_center.mtt.regional import RegionEngine
 from fedtrack.fusion_center.mtt.shards import handover_from_wire, handover_to_wire
 from fedtrack.fusion_center.mtt.silence import Silence
-from fedtrack.fusion_center.mtt.standby import NUMBER_ROOM, SILENT_S, Standby, next_after, numbers_of
+from fedtrack.fusion_center.mtt.standby import (
+    NUMBER_ROOM,
+    SILENT_S,
+    Standby,
+    claim_instance,
+    next_after,
+    numbers_of,
+)
 from fedtrack.geodetic import Frame, geodetic_of_states
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
 from fedtrack.local_filters.mtt.local import report_from_wire, resets_to_wire
@@ -393,7 +400,8 @@ class MttCentreService(Service):
         else:
             tracks = self.engine.picture(T)
         require_finite(f"the picture at t={T}", tracks.x, tracks.P)
-        picture = picture_message(self.pictures, T, tracks, self.order, self.left_at, self.contested, closing,
+        seq = self.clock.number((self.clock.k or 0) * self.clock.period if closing else T)
+        picture = picture_message(seq, T, tracks, self.order, self.left_at, self.contested, closing,
                                   self.handovers_at, flying=flying,
                                   lla=None if self.frame is None else geodetic_of_states(self.frame, tracks.x))
         self.pictures += 1
@@ -414,16 +422,24 @@ class MttCentreService(Service):
 
     def _start_failover(self) -> None:
         """Watch the primary tokens; a primary claims one (refusing to start if another holds one;
-        two started together both claim, and the higher instance steps down: :meth:`_failover_tick`)."""
+        two started together both claim, and the earlier claim steps down: :meth:`_failover_tick`)."""
         assert self.session is not None
-        self.standby.instance = str(self.session.zid())
         key = self.keys.primary(self._scope())
+        present = any(reply.ok is not None for reply in self.session.liveliness().get(key, timeout=1.0))
         if self.standby.primary:
-            if any(reply.ok is not None for reply in self.session.liveliness().get(key, timeout=1.0)):
+            if present:
                 raise ConfigError(f"{key}: this centre already has a primary; start another with --standby")
-            self.primary_token = self.session.liveliness().declare_token(self.keys.primary(self._scope(),
-                                                                                           self.standby.instance))
+            self._claim()
+        elif not present:
+            self.standby.found_none(time.monotonic())
         self._inputs.append(self.session.liveliness().declare_subscriber(key, self._on_primary, history=True))
+
+    def _claim(self) -> None:
+        """Declare this centre's primary token, under a new instance (:func:`.standby.claim_instance`)."""
+        assert self.session is not None
+        self.standby.instance = claim_instance(str(self.session.zid()), time.time_ns())
+        self.primary_token = self.session.liveliness().declare_token(self.keys.primary(self._scope(),
+                                                                                       self.standby.instance))
 
     def _on_primary(self, sample: zenoh.Sample) -> None:
         """Zenoh thread: a primary token appeared or went; the worker acts on it (on_tick)."""
@@ -461,7 +477,10 @@ class MttCentreService(Service):
 
     def _catch_up(self, msg: TrackPicture | TrackResets | HandOver) -> None:
         """A cold standby keeps its track ids and hand-over numbers ahead of its primary's
-        (:func:`.standby.next_after`)."""
+        (:func:`.standby.next_after`), and numbers its pictures as its primary does
+        (:meth:`PictureClock.numbered`)."""
+        if isinstance(msg, TrackPicture) and not msg.closing:
+            self.clock.numbered(msg.seq, msg.t)
         engine = self.engine
         region = engine.region if isinstance(engine, RegionEngine) else None
         centre = region.centre if region is not None else getattr(engine, "centre", None)
@@ -482,7 +501,7 @@ class MttCentreService(Service):
     def _failover_tick(self) -> None:
         """A standby takes over once no primary token exists, or only tokens that serve nobody
         (:meth:`Standby.due`): it claims the token and publishes what the dead primary never sent. A
-        primary that sees another primary's token of a lower instance, one not known to serve nobody,
+        primary that sees another primary's token of a later claim, one not known to serve nobody,
         steps down (:meth:`Standby.yields`): it withdraws its token."""
         standby = self.standby
         while self.primary_seen:
@@ -495,13 +514,12 @@ class MttCentreService(Service):
                 self.primary_token = None
             self.count("stepped_down")
             self.log.warning("stepped down as the primary of %s: another primary (instance %s) holds it; this one "
-                             "(%s) is its hot standby", self._scope(), min(standby.holders - standby.silent),
+                             "(%s) is its hot standby", self._scope(), max(standby.holders - standby.silent),
                              standby.instance)
             return
         if not standby.due(time.monotonic()):
             return
-        assert self.session is not None
-        self.primary_token = self.session.liveliness().declare_token(self.keys.primary(self._scope(), standby.instance))
+        self._claim()
         standing = sorted(standby.holders - standby.silent)
         flushed = standby.take_over()
         if standing:
