@@ -90,7 +90,7 @@ class PictureClock:
     k: int | None = None
     high: float = -math.inf
     departed: bool = False  # a sensor left after the latest scan
-    first: int | None = None  # the ``k`` of picture number 0 (:meth:`number`)
+    first: int | None = None  # the ``k`` of picture number 0: 0, or the first picture's when before t = 0
 
     def left(self) -> None:
         """A sensor left (a departure line, or a live centre dropping it)."""
@@ -100,8 +100,8 @@ class PictureClock:
         """Picture times due before a scan at ``t`` is ingested."""
         if self.k is None:
             self.k = math.ceil(t / self.period - 1e-9)
-        if self.first is None:
-            self.first = self.k
+        if self.first is None:  # t = 0 is picture 0 (times before it: the first picture is)
+            self.first = min(self.k, 0)
         self.high = max(self.high, t)
         self.departed = False
         out = []
@@ -112,9 +112,10 @@ class PictureClock:
 
     def number(self, T: float) -> int:
         """The number of the picture at ``T`` (a closing record: the next picture's): its place on the
-        period grid counted from picture 0's, so that a centre started again, or a standby taking over,
-        numbers a picture time as the first run did once it knows that run's ``first`` (:meth:`numbered`),
-        never below 0. Before 2026-11-27 each process counted its own pictures from 0, and the
+        period grid counted from t = 0 (from the first picture when that is earlier), so that a centre
+        started again, or a standby taking over, numbers a picture time as the first run did, without
+        having seen any of its pictures (a live deployment's times count from the sensors' start); with
+        times before 0, once it knows that run's ``first`` (:meth:`numbered`); never below 0. Before 2026-11-27 each process counted its own pictures from 0, and the
         recorder, which keys pictures by number, refused every picture of a cold standby that took
         over, and of a restarted ``serve picture``, whose number an earlier one had had (``conflict``):
         15 and 9 pictures of a 40 s run missing from the recording."""
