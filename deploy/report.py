@@ -41,15 +41,17 @@ class LaunchReport:
     failed: list[str] = field(default_factory=list)
     restarts: dict[str, int] = field(default_factory=dict)  # service -> times the launcher restarted it
     processes: dict[str, dict[str, float]] = field(default_factory=dict)  # service -> peak RSS (MB), CPU (s)
-    events: list[tuple[str, str, float]] = field(default_factory=list)  # (started | killed, service, wall time)
+    # (started | killed | stopped starting, service, wall time)
+    events: list[tuple[str, str, float]] = field(default_factory=list)
     # failovers of a centre (``[multitarget] standby``): per primary lost, what the launcher saw (launcher.Failover)
     failovers: list[dict[str, Any]] = field(default_factory=list)
     wall_s: float = 0.0
 
     @property
     def killed(self) -> set[str]:
-        """Services the schedule killed (``[multitarget] kill_at``): their -9 is not a failure."""
-        return {name for what, name, _ in self.events if what == "killed"}
+        """Services the schedule killed (``[multitarget] kill_at``), or the stop's SIGTERM met while a
+        restart of theirs was not up yet: their signal is not a failure."""
+        return {name for what, name, _ in self.events if what in ("killed", "stopped starting")}
 
     def latency_percentiles(self) -> tuple[float, float]:
         if not self.latencies_ms:

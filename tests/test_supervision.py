@@ -116,3 +116,33 @@ def test_realtime_sensors_wait_for_the_start_the_launcher_gives_once_they_are_re
     late = SensorService([{}], period, "realtime", speed, 5.0, start_file=path, service_id="2", options=SessionOptions())
     with pytest.raises(ValueError, match="start-at: not a start time in Unix seconds: 'soon"):
         late.on_tick()
+
+
+def test_a_restart_still_starting_when_the_run_ends_is_no_failure(tmp_path: Path) -> None:
+    """The stop's SIGTERM meets a restarted service before it is up (it has not declared its liveliness
+    token, nor its SIGTERM handler): its exit by the signal is no failure. A local filter SIGKILLed at
+    scan 35 of a lockstep ``deploy/local.toml`` run was still starting when the last scan went out, and
+    the launch ended in exit 1 ('local-filter/2 failed; ... exited with code -15'). A restarted service
+    that is up, and one never restarted, keep the rule: a signal is a failure."""
+    from support import free_port
+
+    from fedtrack.zsession import SessionOptions, close_session, open_session
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = open_session(SessionOptions(mode="router", connect=(), listen=(endpoint,)))
+    monitor = open_session(SessionOptions(connect=(endpoint,), connect_timeout_s=5.0))
+    sleeper = [sys.executable, "-c", "import time; print('starting', flush=True); time.sleep(60)"]
+    starting, never = (ServiceProcess("local-filter", sid, sleeper, tmp_path / f"{sid}.log") for sid in ("2", "3"))
+    launcher = Launcher(Settings(), [starting, never], quiet=True)
+    launcher._session = monitor
+    try:
+        for sp in (starting, never):
+            launcher._start(sp)
+        launcher.report.restarts = {starting.name: 1}
+        assert wait_until(lambda: all("starting" in sp.log_path.read_text() for sp in (starting, never)), 10.0)
+        launcher.stop_all()
+    finally:
+        close_session(monitor)
+        close_session(router)
+    assert launcher.report.exit_codes == {starting.name: -15, never.name: -15}
+    assert launcher.report.killed == {starting.name}
