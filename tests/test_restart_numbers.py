@@ -9,6 +9,7 @@ In-process, on the bus of ``test_hostile_messages``."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from test_hostile_messages import KEYS, OPTIONS, Bus
@@ -23,7 +24,7 @@ from fedtrack.services.recorder import Recorder
 from fedtrack.wire import TrackPicture, encode
 
 
-def merged_on(bus_services: list, times: range) -> list[TrackPicture]:
+def merged_on(bus_services: list[Any], times: range) -> list[TrackPicture]:
     """The merged pictures ``bus_services``' merger publishes for the two regions' pictures at ``times``."""
     merger = bus_services[0]
     bus = Bus(bus_services)
@@ -43,7 +44,7 @@ def test_a_restarted_merger_numbers_on_and_the_recorder_keeps_every_picture(tmp_
     recorder.on_start()
     first, again = (PictureMergeService(regions, 4, 2.0, 1.0, service_id="picture", options=OPTIONS,
                                         deployment=KEYS.deployment) for _ in range(2))
-    before = merged_on([first, recorder], range(0, 4))  # then SIGKILLed: t = 4, 5 merged by nobody
+    before = merged_on([first, recorder], range(4))  # then SIGKILLed: t = 4, 5 merged by nobody
     after = merged_on([again, recorder], range(6, 9))  # the launcher's restart
     assert [(p.seq, p.t) for p in before + after] == [(k, float(k)) for k in (0, 1, 2, 3, 6, 7, 8)]
     recorder.on_stop()
