@@ -161,7 +161,10 @@ def membership_summary(out: Path, report: LaunchReport, settings: Settings) -> d
     for sensor, when in killed.items():
         summary["left"][sensor] = {"killed_at": when, "dropped_after_s": dropped[sensor] - when if sensor in dropped else None}
     measurements = out / "measurements.jsonl"
-    if mt.algorithm == "mtt-centralized" or not measurements.is_file():
+    # a region run's recording lists a scan once per region it reached (replay --regions config), which the
+    # one centre's replay here cannot take: it failed on the first line (unknown field 'region') and the launch
+    # ended in a traceback without summary.json; its joins and losses are not measured
+    if mt.algorithm == "mtt-centralized" or not measurements.is_file() or load_regions(out / "config.toml"):
         return summary
     scans = read_scans(measurements, settings.mtt)
     joined, left = membership(scans, settings.mtt, state_dim(scans), mt.algorithm == "mtt-federated", set(mt.join_at))
@@ -202,7 +205,7 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Se
     makes a picture due, delayed by ``[mtt] picture_delay``, to its arrival at the launcher;
     with ``join_at`` / ``kill_at``, what they did) and plot of a multi-target run; prints the
     summary."""
-    delay = settings.mtt.picture_delay
+    delay, mt = settings.mtt.picture_delay, settings.multitarget
     truth = out / "truth.jsonl"
     shutil.copyfile(out / SCENARIO_DIR / "truth.jsonl", truth)
     tracks = out / "tracks.jsonl"
@@ -213,7 +216,6 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Se
     if tracks.is_file() and tracks.stat().st_size:
         result = evaluate(tracks, truth, horizontal=settings.frame is not None)
         png = out / "tracks.png"
-        mt = settings.multitarget
         events = {} if mt is None else {**{f"{sid} joins": t for sid, t in mt.join_at.items()},
                                         **{f"{sid} killed": t for sid, t in mt.kill_at.items()}}
         label = None if mt is None else f"live {mt.algorithm}"
@@ -229,7 +231,7 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Se
     if latencies:
         summary["picture_latency_ms"] = {"p50": float(np.percentile(latencies, 50)),
                                          "p99": float(np.percentile(latencies, 99)), "pictures": len(latencies)}
-    if report.events:
+    if mt is not None and (mt.join_at or mt.kill_at):
         summary["membership"] = membership_summary(out, report, settings)
     if report.failovers:
         summary["failovers"] = report.failovers

@@ -4,6 +4,7 @@ each, the centre and the recorder; its pictures equal the replay of its recordin
 
 from __future__ import annotations
 
+import datetime
 import json
 import sqlite3
 import subprocess
@@ -133,3 +134,29 @@ def test_a_wrong_join_or_kill_schedule_fails_at_start(tmp_path: Path, extra: str
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and field in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1
+
+
+def test_a_sensor_killed_in_a_region_launch_is_summarised_without_a_replay(tmp_path: Path) -> None:
+    """``kill_at`` with ``[regions]``: the summary's membership replayed the recording with the one
+    centre, which does not take a region run's lines (each scan once per region, tagged ``region``):
+    the launch ended in a traceback after its run (``unknown field 'region'``), without summary.json.
+    Now a region run's membership says when the centre dropped the killed sensor, and nothing it
+    would need that replay for. In-process, on a recording of one line."""
+    from fedtrack.deploy.multitarget import membership_summary
+    from fedtrack.deploy.report import LaunchReport
+    from fedtrack.deploy.settings import load_settings
+
+    config = tmp_path / "config.toml"
+    config.write_text(CONFIG.format(port=free_port(), algorithm="mtt-federated").replace(
+        'clutter = 3.0\n', 'clutter = 3.0\nkill_at = { s1 = 8.0 }\n') + "[regions]\nmargin = 500.0\n"
+        "grid = {origin = [-5000.0, -5000.0], cell = [5000.0, 10000.0], nx = 2, ny = 1}\n")
+    (tmp_path / "measurements.jsonl").write_text(json.dumps(
+        {"t": 0.25, "sensor": "s3", "R": [[100.0, 0.0], [0.0, 100.0]], "detections": [{"z": [1.0, 2.0]}], "seq": 0,
+         "region": "x0y0"}) + "\n")
+    (tmp_path / "logs").mkdir()
+    (tmp_path / "logs" / "mtt-centre-x0y0.log").write_text(
+        "2026-11-27 10:00:02,500 fedtrack.mtt-centre.x0y0 INFO: sensor s1 left: dropped from fusion\n")
+    killed = datetime.datetime(2026, 11, 27, 10, 0, 2, 400000).timestamp()
+    report = LaunchReport(events=[("killed", "mtt-local/s1", killed), ("killed", "sensor/s1", killed)])
+    summary = membership_summary(tmp_path, report, load_settings(config))
+    assert summary["joined"] == {} and summary["left"]["s1"]["dropped_after_s"] == pytest.approx(0.1, abs=1e-3)
