@@ -127,6 +127,30 @@ def test_an_honest_hand_over_still_passes(tmp_path: Path) -> None:
     assert 1001 in centre.tracks
 
 
+def test_a_cold_standby_takes_a_track_of_its_region_handed_back_that_left_before_it_started(tmp_path: Path) -> None:
+    """A centre restarted as a standby (cold) has not seen the tracks its region handed away before it
+    started: one handed back was refused as 'an id this region has not issued' (``conflict``, measured
+    live: SIGKILL of x0y1's primary at a hand-over, 1 honest hand-over refused), and would have been
+    lost at its take-over. A cold standby takes it, numbering after it; a hot one still refuses it."""
+    primary_bus, primary = centre_of_x0y0(tmp_path)
+    scans(primary_bus, range(5))
+    centre = primary.engine.region.centre  # type: ignore[union-attr]
+    record = copy.deepcopy(centre).hand_over(next(iter(centre.tracks)))
+    back = replace(handover_to_wire(record, "x1y0", 0), id=40)  # x0y0's ids are even (region 0 of 2)
+    for cold in (True, False):
+        bus, svc = centre_of_x0y0(tmp_path, standby=True)
+        bus.put(KEYS.region_picture("x0y0"), encode(TrackPicture(
+            seq=3 if cold else 0, t=3.0 if cold else 0.0, ids=(), x=np.zeros((0, 4)), P=np.zeros((0, 4)),
+            confirmed=(), sensors=(), fused_sensors=(), fused_seqs=(), left=(), stamp_ns=1, closing=False)))
+        bus.put(KEYS.region_handover("x0y0"), encode(back))
+        region = svc.engine.region  # type: ignore[union-attr]
+        if cold:
+            assert svc.counters.get("taken_over") == 1 and "rejected" not in {k for k, v in svc.counters.items() if v}
+            assert 40 in region.centre.tracks and region.centre.next_id == 42
+        else:
+            assert svc.counters["rejected_conflict"] == 1 and 40 not in region.centre.tracks
+
+
 @pytest.mark.parametrize("output", ["picture", "handover"])
 def test_a_cold_standby_keeps_room_to_number_its_tracks(tmp_path: Path, output: str) -> None:
     """A cold standby numbers its tracks and hand-overs after every id and number of its region that

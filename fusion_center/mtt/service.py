@@ -377,9 +377,16 @@ class MttCentreService(Service):
         self._in_scale(f"hand-over {msg.serial} of {msg.source}", np.concatenate([ring["x"].ravel(), ring["z"].ravel()]),
                        np.concatenate([ring["P"].ravel(), ring["R"].ravel()]))  # its observations are fused again
         centre, R, here = engine.region.centre, len(engine.regions.ids), engine.index
-        if msg.id in centre.tracks or (msg.id % R == here and msg.id >= centre.next_id):
+        unissued = msg.id % R == here and msg.id >= centre.next_id
+        late = self.standby.cold and not self.standby.primary  # its primary issued ids before it started
+        if msg.id in centre.tracks or (unissued and not late):
             raise Rejected("conflict", f"central track {msg.id} is already here, or is an id this region has "
                                        "not issued")
+        if unissued:  # a track of this region that left before the cold standby started and comes back
+            if msg.id >= NUMBER_ROOM:
+                raise Rejected("seq_jump", f"hand-over {msg.serial} of {msg.source}: id {msg.id}, at most "
+                               f"{NUMBER_ROOM - 1} (NUMBER_ROOM) leaves room to number after it")
+            centre.next_id = next_after(centre.next_id, centre.id_step, [msg.id])
         self._room(f"hand-over {msg.serial} of {msg.source}")
         engine.take_over(record)
         seen = {**seen, msg.serial: digest(msg)}
