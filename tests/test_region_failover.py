@@ -17,6 +17,7 @@ import os
 import signal
 import threading
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -76,6 +77,27 @@ def test_a_standby_withholds_what_it_makes_and_publishes_on_take_over_only_what_
     flushed = sb.take_over()
     assert [(key, msg.seq) for key, msg in flushed] == [("res", 7), ("pic", 3)]  # in the order made
     assert sb.primary and not sb.due(10.0) and not sb.held
+
+
+def test_a_standby_behind_its_primary_never_publishes_what_the_primary_went_past() -> None:
+    """A primary woken from a freeze steps down and runs through the reports queued before it, making
+    answers and pictures the new primary sent long ago (forgotten by then: ``WITHHELD_S``). Killed, the
+    new primary left it to take over, and it published them all: live (2 x 2 regions, x0y0's primary
+    SIGSTOPped 12 s, then its standby, the primary since, killed), 24 pictures of times merged before
+    and 15 answers to reports the trackers had left, each refused. What the primary went past, of its
+    kind (pictures, a sensor's answers, a region's hand-overs), is not held."""
+    sb = Standby("x0y0", started=0.0)
+    sb.token(True, 0.0, "p")
+    sb.sent(picture(20, (1,)), 30.0)
+    sb.sent(resets(30), 30.0)
+    sb.sent(replace(resets(4), sensor="s2"), 30.0)
+    for k in range(8, 13):  # the backlog of its freeze, made after the primary's copies were forgotten
+        sb.hold("pic", picture(k, (1,)), 30.0 + WITHHELD_S + k)
+        sb.hold("res", resets(18 + k), 30.0 + WITHHELD_S + k)
+    sb.hold("res", replace(resets(5), sensor="s2"), 45.0)  # s2's next answer: not sent yet
+    sb.hold("pic", picture(21, (1,)), 45.0)
+    sb.token(False, 46.0, "p")
+    assert [(type(m).__name__, m.seq) for _, m in sb.take_over()] == [("TrackResets", 5), ("TrackPicture", 21)]
 
 
 def test_a_standby_that_never_sees_a_primary_takes_over_after_the_start_grace_and_forgets_old_outputs() -> None:

@@ -46,6 +46,7 @@ wire's integers.
 
 from __future__ import annotations
 
+import math
 from collections import OrderedDict
 from collections.abc import Hashable, Iterable
 from dataclasses import dataclass, field
@@ -97,6 +98,23 @@ def output_of(msg: Message) -> Hashable:
     raise TypeError(f"a centre does not publish {type(msg).__name__}")
 
 
+def place_of(msg: Message) -> tuple[Hashable, float] | None:
+    """An output's kind and its place in the kind's order, in which the primary sends them: a picture's
+    time, an answer's report number (per sensor), a hand-over's number (per sending region); None for a
+    closing record. A standby that made an output its primary has gone past (:meth:`Standby.hold`) is
+    behind: a primary woken from a freeze, stepped down, runs through the reports queued before it; it
+    kept every such output (the primary's own had been forgotten after ``WITHHELD_S``) and published them
+    at its take-over: 24 pictures of times merged long before and 15 answers to reports the trackers had
+    left, all refused (live, 2 x 2 regions: x0y0's primary frozen 12 s, then its standby killed)."""
+    if isinstance(msg, TrackResets):
+        return ("resets", msg.sensor), msg.seq
+    if isinstance(msg, HandOver):
+        return ("handover", msg.source), msg.serial
+    if isinstance(msg, TrackPicture) and not msg.closing:
+        return ("picture",), msg.t
+    return None
+
+
 def numbers_of(msg: Message) -> list[int]:
     """The track ids and hand-over numbers an output shows (what a cold standby numbers after)."""
     if isinstance(msg, TrackPicture):
@@ -137,6 +155,7 @@ class Standby:
     held: OrderedDict[Hashable, tuple[float, str, Message]] = field(default_factory=OrderedDict)  # (made, key, msg)
     # (seen, "", a picture or None): the primary's outputs not made here yet (SETTLED_MAX, PICTURES_SETTLED)
     settled: OrderedDict[Hashable, tuple[float, str, Message | None]] = field(default_factory=OrderedDict)
+    past: dict[Hashable, float] = field(default_factory=dict)  # per kind, the latest place the primary sent (place_of)
     cold: bool | None = None  # started after the primary had published (None: no picture of it seen yet)
     same: int = 0  # pictures equal to the primary's (ids and states)
     differ: int = 0  # pictures with other ids or states
@@ -216,6 +235,9 @@ class Standby:
             if sent[2] is not None:
                 self._compare(msg, sent[2])
             return
+        place = place_of(msg)
+        if place is not None and place[1] <= self.past.get(place[0], -math.inf):
+            return  # the primary has sent a later one of its kind: this one it sent (or lost) long ago
         self.held[output] = (now, key, msg)
 
     def sent(self, msg: Message, now: float) -> None:
@@ -225,6 +247,11 @@ class Standby:
             self.cold = msg.seq > 0
         self._forget(now)
         output = output_of(msg)
+        place = place_of(msg)
+        if place is not None:
+            self.past[place[0]] = max(self.past.pop(place[0], -math.inf), place[1])  # the latest kind last
+            while len(self.past) > SETTLED_MAX:  # one per sensor and region: more are a flood, the oldest forgotten
+                del self.past[next(iter(self.past))]
         mine = self.held.pop(output, None)
         if mine is not None:
             self._compare(mine[2], msg)
