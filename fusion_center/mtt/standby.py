@@ -31,7 +31,8 @@ standbys ran the same centre on the same inputs, so what both published in betwe
 outputs twice (within a token's propagation, milliseconds on one network); a woken primary missed
 the reports of its freeze, and the later claim keeps the region.
 
-Withheld outputs older than ``WITHHELD_S`` are forgotten (the primary was alive long after
+An output of a kind of which the primary sent a later one (:func:`place_of`) is not withheld: the
+primary went past it. Withheld outputs older than ``WITHHELD_S`` are forgotten (the primary was alive long after
 them, so it sent them, or they were lost between it and the standby).
 
 A standby started after its primary had published (the launcher's restart of a dead centre) is
