@@ -316,8 +316,9 @@ def test_a_live_primary_keeps_its_standby_waiting_and_a_woken_one_its_region() -
         assert not standby.due(k + 0.01)
     standby.hold("res", answer(20), 20.0)  # a report the primary did not take: its answer stays withheld ...
     assert not standby.due(20.0 + SILENT_S - 0.1)
-    standby.sent(answer(21), 21.0)  # ... but the primary publishes
+    standby.sent(answer(21), 21.0)  # ... but the primary publishes (and went past it: not held any more)
     assert not standby.due(20.0 + SILENT_S + 0.5)
+    standby.hold("res", answer(22), 21.0)  # the next report: the primary froze before answering it
     assert standby.due(21.0 + SILENT_S)  # then falls silent (frozen): taken over beside its token
     standby.take_over()
     assert standby.silent == {frozen} and not standby.yields()

@@ -88,6 +88,9 @@ def test_a_standby_behind_its_primary_never_publishes_what_the_primary_went_past
     kind (pictures, a sensor's answers, a region's hand-overs), is not held."""
     sb = Standby("x0y0", started=0.0)
     sb.token(True, 0.0, "p")
+    for k in range(3):  # made before the primary's later ones arrive (they queue behind the backlog)
+        sb.hold("pic", picture(5 + k, (1,)), 29.0)
+        sb.hold("res", resets(10 + k), 29.0)
     sb.sent(picture(20, (1,)), 30.0)
     sb.sent(resets(30), 30.0)
     sb.sent(replace(resets(4), sensor="s2"), 30.0)

@@ -116,6 +116,12 @@ def place_of(msg: Message) -> tuple[Hashable, float] | None:
     return None
 
 
+def behind(msg: Message, place: tuple[Hashable, float]) -> bool:
+    """Whether ``msg`` is of ``place``'s kind and not after it (:func:`place_of`)."""
+    mine = place_of(msg)
+    return mine is not None and mine[0] == place[0] and mine[1] <= place[1]
+
+
 def numbers_of(msg: Message) -> list[int]:
     """The track ids and hand-over numbers an output shows (what a cold standby numbers after)."""
     if isinstance(msg, TrackPicture):
@@ -237,7 +243,7 @@ class Standby:
                 self._compare(msg, sent[2])
             return
         place = place_of(msg)
-        if place is not None and place[1] <= self.past.get(place[0], -math.inf):
+        if place is not None and behind(msg, (place[0], self.past.get(place[0], -math.inf))):
             return  # the primary has sent a later one of its kind: this one it sent (or lost) long ago
         self.held[output] = (now, key, msg)
 
@@ -253,6 +259,8 @@ class Standby:
             self.past[place[0]] = max(self.past.pop(place[0], -math.inf), place[1])  # the latest kind last
             while len(self.past) > SETTLED_MAX:  # one per sensor and region: more are a flood, the oldest forgotten
                 del self.past[next(iter(self.past))]
+            for gone in [k for k, (_, _, m) in self.held.items() if k != output and behind(m, place)]:
+                del self.held[gone]  # made before this arrived, of a place the primary has gone past
         mine = self.held.pop(output, None)
         if mine is not None:
             self._compare(mine[2], msg)
