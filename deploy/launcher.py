@@ -38,7 +38,7 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import zenoh
@@ -62,7 +62,8 @@ from fedtrack.jsonl import InputError, output_folder
 from fedtrack.keys import Keys
 from fedtrack.local_filters.regions import load_regions
 from fedtrack.recording import Recording
-from fedtrack.wire import FusedTrack, Health, Measurement, TrackPicture, WireError, decode
+from fedtrack.services.base import clip
+from fedtrack.wire import FusedTrack, Health, M, Measurement, TrackPicture, WireError, decode
 from fedtrack.zsession import SessionError, SessionOptions, close_session, open_session, wait_alive
 
 STOP_GRACE_S = 5.0
@@ -497,11 +498,34 @@ class Launcher:
             self._session.declare_subscriber(self.keys.region_picture(), self._on_region_picture),
         ]
 
+    def _monitored(self, sample: zenoh.Sample, msg_type: type[M], key_of: Callable[[M], str] | None = None) -> M | None:
+        """The message of ``sample`` decoded as ``msg_type`` or None when it is rejected: malformed, or
+        (``key_of``) published on another key than the one its payload names as its sender's (a Health's
+        role and id, a measurement's sensor). The access control admits an identity on its own keys
+        only, not its payloads: before 2026-11-27 sensor 1's identity could publish the fusion centre's
+        Health, with its counters, on ``health/sensor/1``, and the summary showed them. Counted in
+        ``LaunchReport.monitor_rejected`` (in the summary's rejected total), the first one logged."""
+        key = str(sample.key_expr)
+        try:
+            msg = decode(sample.payload.to_bytes(), msg_type)
+        except WireError as exc:
+            return self._monitor_rejects(key, str(exc))
+        if key_of is not None and key_of(msg) != key:
+            return self._monitor_rejects(key, f"sender: its payload is of {key_of(msg)}")
+        return msg
+
+    def _monitor_rejects(self, key: str, reason: str) -> None:
+        with self._lock:
+            self.report.monitor_rejected += 1
+            first = self.report.monitor_rejected == 1
+        if first:
+            self._say(f"rejected a message on {clip(key)}: {clip(reason)} (every one is counted in summary.json's "
+                      "monitor_rejected)")
+
     def _on_track(self, sample: zenoh.Sample) -> None:
         now = time.time_ns()
-        try:
-            track = decode(sample.payload.to_bytes(), FusedTrack)
-        except WireError:
+        track = self._monitored(sample, FusedTrack)
+        if track is None:
             return
         with self._lock:
             self.report.scans_fused += 1
@@ -512,9 +536,8 @@ class Launcher:
 
     def _on_picture(self, sample: zenoh.Sample) -> None:
         now = time.time_ns()
-        try:
-            pic = decode(sample.payload.to_bytes(), TrackPicture)
-        except WireError:
+        pic = self._monitored(sample, TrackPicture)
+        if pic is None:
             return
         if pic.closing or pic.part != pic.parts - 1:  # a picture in parts arrived with its last (docs/wire.md)
             return
@@ -558,9 +581,8 @@ class Launcher:
                 f.covered_ns = now
 
     def _on_meas(self, sample: zenoh.Sample) -> None:
-        try:
-            m = decode(sample.payload.to_bytes(), Measurement)
-        except WireError:
+        m = self._monitored(sample, Measurement, lambda m: self.keys.sensor_meas(m.sensor))
+        if m is None:
             return
         if m.part != m.parts - 1:  # a scan in parts counts once, with its last part
             return
@@ -576,9 +598,8 @@ class Launcher:
                 self.report.publish_stamps_ns.setdefault(m.seq, []).append(m.stamp_ns)
 
     def _on_health(self, sample: zenoh.Sample) -> None:
-        try:
-            h = decode(sample.payload.to_bytes(), Health)
-        except WireError:
+        h = self._monitored(sample, Health, lambda h: self.keys.health(h.role, h.id))
+        if h is None:
             return
         with self._lock:
             self.report.health[f"{h.role}/{h.id}"] = dict(h.counters)

@@ -210,8 +210,8 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Se
     shutil.copyfile(out / SCENARIO_DIR / "truth.jsonl", truth)
     tracks = out / "tracks.jsonl"
     summary: dict[str, Any] = {"pictures": 0, "exit_codes": report.exit_codes, "restarts": report.restarts,
-                               "rejected": report.rejected(), "health": report.health, "wall_s": report.wall_s,
-                               "processes": report.processes}
+                               "rejected": report.rejected(), "monitor_rejected": report.monitor_rejected,
+                               "health": report.health, "wall_s": report.wall_s, "processes": report.processes}
     written = "measurements.jsonl tracks.jsonl truth.jsonl summary.json tracks.png config.toml"
     if tracks.is_file() and tracks.stat().st_size:
         result = evaluate(tracks, truth, horizontal=settings.frame is not None)

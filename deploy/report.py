@@ -46,6 +46,7 @@ class LaunchReport:
     # failovers of a centre (``[multitarget] standby``): per primary lost, what the launcher saw (launcher.Failover)
     failovers: list[dict[str, Any]] = field(default_factory=list)
     wall_s: float = 0.0
+    monitor_rejected: int = 0  # messages the launcher's own session rejected (Launcher._monitored)
 
     @property
     def killed(self) -> set[str]:
@@ -73,7 +74,8 @@ class LaunchReport:
         return out
 
     def rejected(self) -> int:
-        return sum(c.get("rejected", 0) for c in self.health.values())
+        """What every service's final Health counted ``rejected``, and what the launcher's monitor rejected."""
+        return sum(c.get("rejected", 0) for c in self.health.values()) + self.monitor_rejected
 
 
 def _lines(path: Path) -> list[dict[str, Any]]:
@@ -114,6 +116,7 @@ def summarize(out: Path, settings: Settings, report: LaunchReport, config_path: 
         "maneuvers_detected_at": [e["t"] for e in events if e["event"] in ("onset", "new-ca")],
         "latency_ms": {"p50": p50, "p99": p99, "samples": len(report.latencies_ms)},
         "rejected_messages": report.rejected(),
+        "monitor_rejected": report.monitor_rejected,
         "health": report.health,
         "exit_codes": report.exit_codes,
         "restarts": report.restarts,

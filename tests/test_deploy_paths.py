@@ -134,7 +134,8 @@ def test_the_progress_line_rates_are_recent(tmp_path: Path, monkeypatch: pytest.
         clock[0] = 1000.0 + k
         for sid in ("s1",) * (k < 60) + ("s3",) * (k >= 30 and k % 2 == 0):
             payload = encode(Measurement(sensor=sid, seq=k, t=float(k), kind="position", z=np.zeros(2), R=np.eye(2)))
-            launcher._on_meas(SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda p=payload: p)))
+            launcher._on_meas(SimpleNamespace(key_expr=launcher.keys.sensor_meas(sid),
+                                               payload=SimpleNamespace(to_bytes=lambda p=payload: p)))
     # quiet (no progress line): only the window's arrivals are held (before: every one of the run, 60 of s1)
     assert {s: len(q) for s, q in launcher._arrivals.items()} == {"s1": 6, "s3": 3}  # each one's last 5 s
     clock[0] = 1000.0 + 89.5
