@@ -67,3 +67,82 @@ def test_a_measurement_on_another_sensors_key_is_not_counted_for_it(launcher: La
     assert launcher.report.measurements == {"1": 1} and set(launcher._arrivals) == {"1"}
     assert launcher.report.publish_stamps_ns[0] == [launcher.report.publish_stamps_ns[0][0]]
     assert launcher.report.monitor_rejected == 2
+
+
+# ---------------------------------------------------------------- the state queryable (fusion/state)
+
+class FakeQuery:
+    """What a queryable's callback gets (the fields the service reads), recording its replies."""
+
+    def __init__(self, key: str, payload: bytes | None = None, parameters: str = "") -> None:
+        self.key_expr, self.parameters, self.attachment = key, parameters, None
+        self.payload = None if payload is None else zenoh.ZBytes(payload)
+        self.replies: list[tuple[str, bytes]] = []
+        self.dropped = False
+
+    def reply(self, key: str, payload: bytes, **_: Any) -> None:
+        self.replies.append((str(key), payload))
+
+    def drop(self) -> None:
+        self.dropped = True
+
+    def __enter__(self) -> FakeQuery:
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        self.drop()
+
+
+@pytest.fixture
+def centre() -> Any:
+    from fedtrack.fusion_center.centre import FederatedCentre
+    from fedtrack.fusion_center.service import FusionCenterService
+    from fedtrack.local_filters.vdie.config import FusionConfig
+    from fedtrack.wire import FusedTrack
+    from fedtrack.zsession import SessionOptions
+
+    svc = FusionCenterService(["1", "2"], FederatedCentre(["1", "2"], FusionConfig()), 0.5, service_id="fusion",
+                              options=SessionOptions(connect=("tcp/127.0.0.1:1",)), deployment="mon")
+    svc._queryables = svc.queryables()
+    svc.last_track = FusedTrack(seq=3, t=3.0, model="cv", x=np.zeros(4), P=np.eye(4), maneuver=False,
+                                degraded=False, sensors=("1", "2"), stamp_ns=1, extra={})
+    return svc
+
+
+def ask(svc: Any, query: FakeQuery) -> None:
+    """The query as the Zenoh callback hands it over, then handled by the worker."""
+    svc._on_query(0, query)
+    while svc._queue.qsize():
+        svc._dispatch(svc._queue.get_nowait())
+
+
+def test_a_wildcard_query_is_answered_on_the_state_key(centre: Any) -> None:
+    """``get fedtrack/<dep>/**`` was answered on ``fedtrack/<dep>/**`` itself: a reply on a wildcard,
+    which the access control refuses (the ``fusion`` identity replies on ``fusion/**`` only)."""
+    query = FakeQuery("fedtrack/mon/**")
+    ask(centre, query)
+    assert [k for k, _ in query.replies] == ["fedtrack/mon/fusion/state"]
+    assert centre.counters["rejected"] == 0
+
+
+def test_a_query_with_a_payload_or_parameters_is_refused_where_it_arrives(centre: Any) -> None:
+    """The queryable takes no payload: one was answered as if absent, and held in the inbox until then
+    uncounted by its byte bound (10,000 queries of any size). Now the query is dropped (unanswered) in
+    the Zenoh callback, and the worker counts it ``rejected_query``."""
+    held = FakeQuery("fedtrack/mon/fusion/state", payload=b"x" * 1_000_000)
+    centre._on_query(0, held)
+    assert held.dropped and all(item[3] is not held for stream in centre._queue._streams.values() for item in stream)
+    ask(centre, FakeQuery("fedtrack/mon/fusion/state", parameters="_time=[..]"))
+    assert not held.replies and centre.counters.get("rejected_query") == 2 and centre.counters["rejected"] == 2
+
+
+def test_queries_on_many_selectors_take_one_turn_of_the_inbox(centre: Any) -> None:
+    """The inbox serves each stream in turn; a query's stream was its selector, so a querier spreading
+    a flood over 100 selectors of ``fusion/state`` won 100 turns for each of an estimate's."""
+    queries = [FakeQuery(f"fedtrack/mon/fusion/{'s' * k}$*") for k in range(1, 101)]
+    for query in queries:
+        centre._on_query(0, query)
+    assert len(centre._queue._streams) == 1
+    while centre._queue.qsize():
+        centre._dispatch(centre._queue.get_nowait())
+    assert all(len(q.replies) == 1 for q in queries)

@@ -512,9 +512,21 @@ class Service:
                 origin = zenoh.Locality.REMOTE if sub.remote else zenoh.Locality.ANY
                 self._inputs.append(self.session.declare_subscriber(sub.key, on_sample, allowed_origin=origin))
         for index, qh in enumerate(self._queryables):
-            def on_query(query: zenoh.Query, index: int = index) -> None:
-                self._enqueue(("query", index, str(query.key_expr), query))
-            self._inputs.append(self.session.declare_queryable(qh.key, on_query))
+            self._inputs.append(self.session.declare_queryable(qh.key, lambda q, index=index: self._on_query(index, q)))
+
+    def _on_query(self, index: int, query: zenoh.Query) -> None:
+        """Zenoh thread: queue a query for the worker, on its queryable's stream (a querier's selectors
+        are no streams of their own: 100 of them won 100 turns of the inbox for each of a sender's).
+        The queryables take no payload, parameters or attachment: such a query is dropped here, its
+        payload held nowhere (the inbox's byte bound counts no query), and the worker counts it
+        ``rejected_query``."""
+        key = self._queryables[index].key
+        if query.payload is None and query.attachment is None and not str(query.parameters):
+            self._enqueue(("query", index, key, query))
+            return
+        size = sum(len(part) for part in (query.payload, query.attachment) if part is not None)
+        query.drop()
+        self._enqueue(("query", index, key, size))
 
     def _on_router(self, sample: zenoh.Sample) -> None:
         """Zenoh thread: log the router's loss (the link closed) and its return, with the outage's length."""
@@ -602,13 +614,22 @@ class Service:
         except Exception as exc:  # noqa: BLE001 - no message may kill a service
             self._reject(str(item[2]), 0, exc)
 
+    def _answer(self, index: int, key: str, query: zenoh.Query | int) -> None:
+        """Reply to ``query`` on its queryable's ``key`` (whatever the selector: never on a wildcard, which
+        the access control refuses), or count one that :meth:`_on_query` refused (its size instead)."""
+        if isinstance(query, int):
+            self._reject(key, query, Rejected("query", "a query with a payload, parameters or an attachment "
+                                                       "(this queryable takes none): dropped unanswered"))
+            return
+        with query, self.guarded(f"query on {key}"):
+            reply = self._queryables[index].handler()
+            if reply is not None:
+                query.reply(key, encode(reply), encoding=_ENCODING)
+
     def _handle(self, item: tuple[Any, ...]) -> None:
         kind, index, key, payload = item
         if kind == "query":
-            with payload as query, self.guarded(f"query on {key}"):
-                reply = self._queryables[index].handler()
-                if reply is not None:
-                    query.reply(query.key_expr, encode(reply), encoding=_ENCODING)
+            self._answer(index, key, payload)
             return
         sub = self._subscriptions[index]
         size = len(payload)
