@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Any
+from typing import Any, Self
 
 import numpy as np
 import pytest
@@ -86,7 +86,7 @@ class FakeQuery:
     def drop(self) -> None:
         self.dropped = True
 
-    def __enter__(self) -> FakeQuery:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *_: object) -> None:
