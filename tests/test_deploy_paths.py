@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 from support import free_port
-from test_cli_roughedges import _options, _parsers
+from test_docs_contract import _options, _parsers
 
 from fedtrack import cli
 from fedtrack.deploy.launcher import LaunchError, prepare_launcher
