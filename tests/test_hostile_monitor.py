@@ -146,3 +146,24 @@ def test_queries_on_many_selectors_take_one_turn_of_the_inbox(centre: Any) -> No
     while centre._queue.qsize():
         centre._dispatch(centre._queue.get_nowait())
     assert all(len(q.replies) == 1 for q in queries)
+
+
+# ---------------------------------------------------------------- the router's liveliness token
+
+def test_a_router_token_declared_and_withdrawn_by_another_is_no_outage(centre: Any) -> None:
+    """Every client counts ``router_outages`` and logs 'router ... is gone' when a router token goes.
+    A token under ``alive/router/`` that any session (unauthenticated) declared and withdrew was an
+    outage at every service, though its router never went (the live hostile test sends such tokens);
+    so was, at a host's services, another host's router stopping. Now only the last router token
+    going is: the link to its own router closed, which takes every token with it."""
+    def token(name: str, kind: zenoh.SampleKind) -> None:
+        centre._on_router(SimpleNamespace(key_expr=centre.keys.alive("router", name), kind=kind))
+
+    token("router", zenoh.SampleKind.PUT)
+    token("forged", zenoh.SampleKind.PUT)
+    token("forged", zenoh.SampleKind.DELETE)
+    assert centre._router_outages == 0 and centre._router_lost_at is None
+    token("router", zenoh.SampleKind.DELETE)  # its own router's link closed
+    assert centre._router_outages == 1 and centre._router_lost_at is not None
+    token("router", zenoh.SampleKind.PUT)
+    assert centre._router_lost_at is None

@@ -379,6 +379,7 @@ class Service:
         self._missed = 0
         self._router_outages = 0
         self._router_lost_at: float | None = None
+        self._routers: set[str] = set()  # the router tokens alive (a Zenoh thread's)
         self._miss_lock = threading.Lock()
         self._reassembly = Reassembly(self._count_part)
 
@@ -529,15 +530,23 @@ class Service:
         self._enqueue(("query", index, key, size))
 
     def _on_router(self, sample: zenoh.Sample) -> None:
-        """Zenoh thread: log the router's loss (the link closed) and its return, with the outage's length."""
+        """Zenoh thread: log the router's loss and its return, with the outage's length. The loss is the
+        last router token going (the link to this client's router closed, which takes every token with
+        it): a token that another session declared and withdrew, or another host's router stopping, is
+        none (each was an outage at every service)."""
+        name = str(sample.key_expr).rsplit("/", 1)[-1]
         if sample.kind == zenoh.SampleKind.DELETE:
+            self._routers.discard(name)
+            if self._routers or self._router_lost_at is not None:
+                return
             self._router_lost_at = time.monotonic()
             with self._miss_lock:
                 self._router_outages += 1
-            self.log.warning("router %s is gone: reconnecting", str(sample.key_expr).rsplit("/", 1)[-1])
-        elif self._router_lost_at is not None:
-            self.log.warning("router %s is back after %.2f s", str(sample.key_expr).rsplit("/", 1)[-1],
-                             time.monotonic() - self._router_lost_at)
+            self.log.warning("router %s is gone: reconnecting", clip(name))
+            return
+        self._routers.add(name)
+        if self._router_lost_at is not None:
+            self.log.warning("router %s is back after %.2f s", clip(name), time.monotonic() - self._router_lost_at)
             self._router_lost_at = None
 
     def _on_miss(self, miss: zenoh.ext.Miss) -> None:
