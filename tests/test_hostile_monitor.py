@@ -1,5 +1,5 @@
-"""Hostile messages at the launcher's monitor (``fedtrack launch`` / ``demo``'s own session) and at
-the state queryable, driven in-process.
+"""Hostile messages at the launcher's monitor (``fedtrack launch`` / ``demo``'s own session), at the
+state queryable and at every service's watch of the router's liveliness token, driven in-process.
 
 The monitor subscribes to every service's Health and every sensor's measurements and builds the
 run's summary from them (``summary.json``: each service's final counters, the rejected total, the
@@ -153,9 +153,9 @@ def test_queries_on_many_selectors_take_one_turn_of_the_inbox(centre: Any) -> No
 def test_a_router_token_declared_and_withdrawn_by_another_is_no_outage(centre: Any) -> None:
     """Every client counts ``router_outages`` and logs 'router ... is gone' when a router token goes.
     A token under ``alive/router/`` that any session (unauthenticated) declared and withdrew was an
-    outage at every service, though its router never went (the live hostile test sends such tokens);
-    so was, at a host's services, another host's router stopping. Now only the last router token
-    going is: the link to its own router closed, which takes every token with it."""
+    outage at every service, though its router never went (the live hostile test sends such tokens).
+    Now only the last router token going is: the link to its own router closed, which takes every
+    token with it."""
     def token(name: str, kind: zenoh.SampleKind) -> None:
         centre._on_router(SimpleNamespace(key_expr=centre.keys.alive("router", name), kind=kind))
 
