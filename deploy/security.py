@@ -12,7 +12,8 @@ monitor) a Zenoh configuration file (``--zenoh-config``) written to ``OUT/zenoh/
   monitor), and ``sensor-<id>`` for sensor ``<id>`` **and** its local filter or local multi-target
   tracker (they run together on the sensor's host);
 * the router's access control (default deny) lets every identity subscribe, query and
-  receive anything of the deployment, and lets an identity publish, reply (its cache),
+  receive anything of the deployment, but query only the advanced publishers' caches of what it
+  subscribes to with history or recovery (:func:`cache_keys`), and lets an identity publish, reply (its cache),
   declare queryables and liveliness tokens only on its own keys: ``sensor-<id>`` on
   ``sensor/<id>/meas``, ``local/<id>/estimate``, ``local/<id>/tracks`` and its health/alive
   keys; ``fusion`` on ``fusion/**`` (resets, tracks, events, pictures, the state queryable);
@@ -168,26 +169,46 @@ def own_keys(keys: Keys, ident: str) -> list[str]:
     return own + [f"{k}/@adv/**" for k in own]
 
 
+def cache_keys(keys: Keys, ident: str) -> list[str]:
+    """The advanced publishers' caches (``<key>/@adv/**``) ``ident`` may query: those of the keys it
+    subscribes to with history or recovery (``Subscription(history=..., recover=...)``): the recorder
+    every key, the fusion centre the estimates, a sensor's local filter its measurements and resets,
+    another host's router its clients'. Any identity could query every cache: asked again and again,
+    every publisher sent its whole cache (up to 64 MiB a key) each time."""
+    if ident in (ROUTER, "recorder"):
+        return [f"fedtrack/{keys.deployment}/**/@adv/**"]
+    if ident == "fusion":
+        return [f"{keys.local_estimate()}/@adv/**"]
+    if ident.startswith("sensor-"):
+        sid = ident.removeprefix("sensor-")
+        return [f"{keys.sensor_meas(sid)}/@adv/**", f"{keys.fusion_reset(sid)}/@adv/**"]
+    return []
+
+
 def access_control(keys: Keys, identities: list[str]) -> dict[str, Any]:
     """The router's ``access_control`` section for the given identities."""
     everything = [f"fedtrack/{keys.deployment}/**", f"fedtrack/{keys.deployment}/**/@adv/**"]
     rules: list[dict[str, Any]] = [
         {"id": "receive", "messages": ALL_MESSAGES, "flows": ["egress"], "permission": "allow",
          "key_exprs": everything},
-        {"id": "read", "messages": READ_MESSAGES, "flows": ["ingress"], "permission": "allow",
-         "key_exprs": everything},
+        {"id": "read", "messages": [m for m in READ_MESSAGES if m != "query"], "flows": ["ingress"],
+         "permission": "allow", "key_exprs": everything},
+        {"id": "query", "messages": ["query"], "flows": ["ingress"], "permission": "allow",
+         "key_exprs": everything[:1]},  # no cache (``@adv``): cache_keys
         {"id": "adv-sub", "messages": ["liveliness_token"], "flows": ["ingress"], "permission": "allow",
          "key_exprs": [f"fedtrack/{keys.deployment}/**/@adv/sub/**"]},
     ]
     subjects: list[dict[str, Any]] = [{"id": "authenticated"}]
-    policies: list[dict[str, Any]] = [{"rules": ["receive", "read", "adv-sub"], "subjects": ["authenticated"]}]
+    policies: list[dict[str, Any]] = [{"rules": ["receive", "read", "query", "adv-sub"],
+                                       "subjects": ["authenticated"]}]
     for ident in identities:
-        own = own_keys(keys, ident)
         subjects.append({"id": ident, "cert_common_names": [ident]})
-        if own:
-            rules.append({"id": f"own-{ident}", "messages": OWN_MESSAGES, "flows": ["ingress"],
-                          "permission": "allow", "key_exprs": own})
-            policies.append({"rules": [f"own-{ident}"], "subjects": [ident]})
+        for name, messages, key_exprs in (("own", OWN_MESSAGES, own_keys(keys, ident)),
+                                          ("cache", ["query"], cache_keys(keys, ident))):
+            if key_exprs:
+                rules.append({"id": f"{name}-{ident}", "messages": messages, "flows": ["ingress"],
+                              "permission": "allow", "key_exprs": key_exprs})
+                policies.append({"rules": [f"{name}-{ident}"], "subjects": [ident]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
             "policies": policies}
 
