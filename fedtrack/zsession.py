@@ -183,10 +183,23 @@ def requires_client_certificates(config_file: str) -> bool:
     return value("enable_mtls") is True and bool(value("root_ca_certificate"))
 
 
-def check_authenticated(endpoint: str, flag: str, config_file: str | None) -> None:
+def denies_by_default(config_file: str) -> bool:
+    """True when the Zenoh configuration ``config_file`` enables access control with default deny (the
+    router's file that ``launch`` writes: each identity on its own keys only)."""
+    config = load_config_file(config_file)
+
+    def value(key: str) -> Any:
+        return json.loads(config.get_json(f"access_control/{key}"))
+
+    return value("enabled") is True and value("default_permission") == "deny"
+
+
+def check_authenticated(endpoint: str, flag: str, config_file: str | None, router: bool = False) -> None:
     """Authenticated by default, as ``launch`` is (``fedtrack.deploy.security.check_transport``): an
     endpoint off loopback must be ``tls/`` with a Zenoh configuration (``--zenoh-config``) that makes
-    it mutual TLS; a ValueError naming ``flag`` otherwise (``--insecure`` opts out)."""
+    it mutual TLS and, where a ``router`` listens, enables access control with default deny (without
+    it every certificate of the CA, a sensor's, could publish on every key); a ValueError naming
+    ``flag`` otherwise (``--insecure`` opts out)."""
     try:
         loopback = on_loopback(endpoint)
     except ConfigError:  # not PROTO/HOST:PORT: not known to be loopback (Zenoh names what is wrong with it)
@@ -194,11 +207,16 @@ def check_authenticated(endpoint: str, flag: str, config_file: str | None) -> No
     if loopback:
         return
     if endpoint.startswith("tls/") and config_file is not None:
-        if requires_client_certificates(config_file):
-            return
-        raise ValueError(f"{flag}: {endpoint} is off loopback and --zenoh-config {config_file} does not make its TLS "
-                         "mutual (transport.link.tls: enable_mtls = true and root_ca_certificate), so a peer without "
-                         "a certificate could connect: give --insecure to allow it (an explicit opt-out)")
+        if not requires_client_certificates(config_file):
+            raise ValueError(f"{flag}: {endpoint} is off loopback and --zenoh-config {config_file} does not make its "
+                             "TLS mutual (transport.link.tls: enable_mtls = true and root_ca_certificate), so a peer "
+                             "without a certificate could connect: give --insecure to allow it (an explicit opt-out)")
+        if router and flag == "--listen" and not denies_by_default(config_file):
+            raise ValueError(f"{flag}: {endpoint} is off loopback and --zenoh-config {config_file} has no access "
+                             "control with default deny (access_control: enabled = true, default_permission = "
+                             "\"deny\"), so any certificate of its CA could publish on every key: give --insecure "
+                             "to allow it (an explicit opt-out)")
+        return
     raise ValueError(f"{flag}: {endpoint} is off loopback and not tls/ with --zenoh-config (mutual TLS); a plain link "
                      "there is unauthenticated: give --insecure to allow it (an explicit opt-out)")
 
@@ -224,7 +242,7 @@ def add_endpoint_args(parser: argparse.ArgumentParser, listen_default: tuple[str
     group.add_argument("--insecure", action="store_true",
                        help="allow plain (unauthenticated) endpoints off loopback: an explicit opt-out; without it an "
                             "endpoint off loopback must be tls/ with a --zenoh-config that makes TLS mutual "
-                            "(docs/deploy.md)")
+                            "(a router's --listen: and enables access control, default deny; docs/deploy.md)")
     parser.set_defaults(_listen_default=tuple(listen_default))
 
 
@@ -239,7 +257,7 @@ def options_from_args(args: argparse.Namespace, mode: str = "client") -> Session
                 raise ValueError(f"{flag}: {ep} is TLS but no --zenoh-config gives the certificates (the file "
                                  "fedtrack launch writes to OUT/zenoh/<identity>.json5)")
             if not args.insecure:
-                check_authenticated(ep, flag, args.zenoh_config)
+                check_authenticated(ep, flag, args.zenoh_config, router=mode == "router")
     return SessionOptions(mode=mode, connect=connect, listen=listen,
                           connect_timeout_s=args.connect_timeout, lease_ms=args.lease_ms,
                           config_file=args.zenoh_config)

@@ -44,6 +44,42 @@ def test_serve_router_off_loopback_is_one_line_and_exit_2(tmp_path: Path) -> Non
     assert "Traceback" not in run.stderr
 
 
+def test_serve_router_off_loopback_needs_access_control_in_its_config(tmp_path: Path) -> None:
+    """``serve router --listen tls/... --zenoh-config F`` off loopback took F when it made TLS mutual,
+    whatever else it said: without F's access control every certificate of the CA (a sensor's) could
+    publish on every key, the fused tracks included. A router's file must now also enable access
+    control with default deny (``launch`` writes it so), else exit 2 naming the option; ``--insecure``
+    opts out as for a plain endpoint."""
+    import json
+
+    from fedtrack.deploy.security import ZenohSettings, write_configs
+    from fedtrack.keys import Keys
+
+    paths = write_configs(ZenohSettings(tls_dir="c"), tmp_path, Keys("x"), ["router", "sensor-1"], tmp_path / "o")
+    config = json.loads(paths["router"].read_text())
+    open_acl = tmp_path / "no-acl.json5"
+    open_acl.write_text(json.dumps({k: v for k, v in config.items() if k != "access_control"}))
+    allow_all = tmp_path / "allow.json5"
+    allow_all.write_text(json.dumps({**config, "access_control": {**config["access_control"],
+                                                                  "default_permission": "allow"}}))
+    parser = service_parser("router", "test")
+    endpoint = "tls/192.0.2.1:7447"
+    for bad in (open_acl, allow_all):
+        with pytest.raises(SystemExit) as stop:
+            service_kwargs(parser, parser.parse_args(["--listen", endpoint, "--zenoh-config", str(bad)]), "router")
+        assert stop.value.code == 2
+        service_kwargs(parser, parser.parse_args(["--listen", endpoint, "--zenoh-config", str(bad), "--insecure"]),
+                       "router")
+    kwargs = service_kwargs(parser, parser.parse_args(["--listen", endpoint, "--zenoh-config", str(paths["router"])]),
+                            "router")
+    assert kwargs["options"].listen == (endpoint,)
+    service_kwargs(parser, parser.parse_args(["--listen", "tls/127.0.0.1:7447", "--zenoh-config", str(open_acl)]),
+                   "router")  # loopback: nothing off the machine reaches it
+    client = service_parser("recorder", "test")  # a client connects to a router that enforces it
+    service_kwargs(client, client.parse_args(["--connect", endpoint, "--zenoh-config", str(paths["sensor-1"])]),
+                   "client")
+
+
 def broken_certificates(tls_dir: Path, how: str) -> Path:
     """A certificate directory for identities ``router`` and ``sensor-1`` with sensor-1's made ``how``
     wrong; returns the file at fault."""
