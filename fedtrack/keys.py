@@ -89,6 +89,13 @@ class Keys:
             return rest[2]
         return None
 
+    def region_of(self, key: str) -> str | None:
+        """The region a concrete ``region/<rid>/...`` key is of, else None."""
+        parts = key.split("/")
+        if len(parts) >= 5 and parts[0] == ROOT and parts[1] == self.deployment and parts[2] == "region":
+            return parts[3]
+        return None
+
     def sensor_meas(self, sensor: str | None = None) -> str:
         """``sensor/<id>/meas``: a sensor's measurements."""
         return self._key("sensor", self._chunk(sensor, "sensor id"), "meas")

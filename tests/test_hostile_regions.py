@@ -218,8 +218,8 @@ def test_a_flood_on_the_primarys_keys_is_not_held_by_its_standby(tmp_path: Path,
 def test_an_answer_holding_tracks_its_sub_report_did_not_carry_is_refused(tmp_path: Path) -> None:
     """A local tracker notes, for every local track a region's answer says it holds, that region as its
     holder, and forgets it only when the track is retired or the region stops holding it in a later
-    answer: a region centre (any ``fusion`` identity) answering with 2,048 ids the tracker never had
-    grew its routing table by as many with every report, for good, and the table is pickled with every
+    answer: a region centre (any ``fusion`` identity, before per-region identities) answering with
+    2,048 ids the tracker never had grew its routing table by as many with every report, for good, and the table is pickled with every
     message the tracker handles (10 answers of 131,072 ids in 64 parts: 1.3 million entries, a 9.2 MB
     pickle, 0.32 s a scan instead of 0.007 and growing). An answer holding or resetting a local track
     its sub-report did not carry is now refused (``unexpected``); the tracker goes on without it after
@@ -244,6 +244,33 @@ def test_an_answer_holding_tracks_its_sub_report_did_not_carry_is_refused(tmp_pa
             svc.on_tick()
     assert svc.router is not None and len(svc.router.holder) <= 2
     assert svc.counters["reports"] == 20 and svc.counters["rejected_unexpected"] == 20
+
+
+
+def test_an_answer_naming_another_region_than_its_key_is_refused(tmp_path: Path) -> None:
+    """Each region's centres publish under their own identity (``region-<rid>``), which the router lets
+    publish on their region's keys only; but a local tracker took the answering region from the
+    payload's ``region``: x0y0's centre answering on its own key in x1y0's name would have been taken
+    as x1y0's answer (x1y0's genuine one then refused as a second). Now a payload's region must be its
+    key's (``sender``), and the genuine answer is taken."""
+    config = tmp_path / "regions.toml"
+    config.write_text(REGIONS_CONFIG)
+    regions = load_regions(config)
+    assert regions is not None
+    svc = MttLocalService("s1", False, MttConfig(sensors=("s1",), max_lag=3.0, clutter_density=1e-7), 10.0,
+                          regions=regions, service_id="s1", options=OPTIONS, deployment=KEYS.deployment)
+    bus = Bus([svc])
+    bus.put(KEYS.sensor_meas("s1"), encode(scan("s1", 0, 0.0, np.array([[-1000.0, 0.0], [1000.0, 50.0]]))))
+    subs = {key.split("/")[3]: sub for key, sub in bus.published[-2:]}
+
+    def answer_of(rid: str) -> TrackResets:
+        return TrackResets(sensor="s1", seq=0, t=subs[rid].t, q_scale=1.0, ids=(), x=np.zeros((0, 4)),
+                           P=np.zeros((0, 4)), region=rid, held=subs[rid].ids)
+
+    bus.put(KEYS.region_resets("x0y0", "s1"), encode(answer_of("x1y0")))  # in x1y0's name on x0y0's key
+    assert svc.counters["rejected_sender"] == 1 and not svc.answers
+    bus.put(KEYS.region_resets("x1y0", "s1"), encode(answer_of("x1y0")))
+    assert list(svc.answers) == [1] and svc.counters.get("rejected_unexpected", 0) == 0
 
 
 # ---------------------------------------------------------------- primary tokens that serve nobody

@@ -109,11 +109,15 @@ from fedtrack.zsession import (
 
 
 def check_sender(keys: Keys, key: str, msg: Message) -> None:
-    """Rejected("sender") when the id in the payload is not the id in the key it came on."""
+    """Rejected("sender") when the id in the payload is not the id in the key it came on, or the region
+    a payload names as its sender's (a region centre's answer) is not the region of its key."""
     named = keys.sender(key)
     claimed = getattr(msg, "sensor", None) if not isinstance(msg, Health) else msg.id
     if named is not None and claimed is not None and claimed != named:
         raise Rejected("sender", f"payload from {claimed!r} on the key of {named!r}")
+    region, claimed_region = keys.region_of(key), getattr(msg, "region", None)
+    if region is not None and claimed_region is not None and claimed_region != region:
+        raise Rejected("sender", f"answer of region {claimed_region!r} on the key of region {region!r}")
 
 
 def digest(msg: Message) -> bytes:
