@@ -219,8 +219,8 @@ def test_an_answer_holding_tracks_its_sub_report_did_not_carry_is_refused(tmp_pa
     """A local tracker notes, for every local track a region's answer says it holds, that region as its
     holder, and forgets it only when the track is retired or the region stops holding it in a later
     answer: a region centre (any ``fusion`` identity, before per-region identities) answering with
-    2,048 ids the tracker never had grew its routing table by as many with every report, for good, and the table is pickled with every
-    message the tracker handles (10 answers of 131,072 ids in 64 parts: 1.3 million entries, a 9.2 MB
+    2,048 ids the tracker never had grew its routing table by as many with every report, for good, and
+    the table is pickled with every message the tracker handles (10 answers of 131,072 ids in 64 parts: 1.3 million entries, a 9.2 MB
     pickle, 0.32 s a scan instead of 0.007 and growing). An answer holding or resetting a local track
     its sub-report did not carry is now refused (``unexpected``); the tracker goes on without it after
     its reset timeout, as without any answer of that region."""
@@ -271,6 +271,37 @@ def test_an_answer_naming_another_region_than_its_key_is_refused(tmp_path: Path)
     assert svc.counters["rejected_sender"] == 1 and not svc.answers
     bus.put(KEYS.region_resets("x1y0", "s1"), encode(answer_of("x1y0")))
     assert list(svc.answers) == [1] and svc.counters.get("rejected_unexpected", 0) == 0
+
+
+
+@pytest.mark.parametrize("with_regions", [False, True])
+def test_resets_that_come_after_their_wait_timed_out_are_late_not_rejected(tmp_path: Path,
+                                                                           with_regions: bool) -> None:
+    """An honest centre slow under load answered after the tracker's ``--reset-timeout``: the tracker
+    had gone on, and counted the answer ``rejected_unexpected``, as it would a forgery (seen in a
+    ``demo --scenario traffic`` at load average 62). An answer to one of the reports whose wait timed
+    out is now counted ``late_resets`` and dropped; one for a report never sent is still refused."""
+    regions = None
+    if with_regions:
+        config = tmp_path / "regions.toml"
+        config.write_text(REGIONS_CONFIG)
+        regions = load_regions(config)
+    svc = MttLocalService("s1", True, MttConfig(sensors=("s1",), max_lag=3.0, clutter_density=1e-7), 0.0,
+                          regions=regions, service_id="s1", options=OPTIONS, deployment=KEYS.deployment)
+    bus = Bus([svc])
+    bus.put(KEYS.sensor_meas("s1"), encode(scan("s1", 0, 0.0, np.array([[-1000.0, 0.0], [1000.0, 50.0]]))))
+    with svc.guarded("on_tick", svc.tick_state_attrs):  # the wait (0 s here) is over
+        svc.on_tick()
+    assert svc.counters["reset_timeouts"] == 1 and svc.awaiting is None
+    reports = bus.published[-2:] if with_regions else bus.published[-1:]
+    for key, sent in reports:
+        rid = key.split("/")[3] if with_regions else None
+        late = TrackResets(sensor="s1", seq=0, t=sent.t, q_scale=1.0, ids=(), x=np.zeros((0, 4)), P=np.zeros((0, 4)),
+                           region=rid, held=sent.ids if rid else ())
+        bus.put(KEYS.region_resets(rid, "s1") if rid else KEYS.mtt_resets("s1"), encode(late))
+        bus.put(KEYS.region_resets(rid, "s1") if rid else KEYS.mtt_resets("s1"), encode(replace(late, seq=99)))
+    assert svc.counters["late_resets"] == len(reports)
+    assert svc.counters["rejected"] == svc.counters["rejected_unexpected"] == len(reports)
 
 
 # ---------------------------------------------------------------- primary tokens that serve nobody

@@ -19,7 +19,8 @@ a sensor the config does not allow (``unknown_sensor``), a scan number more than
 ``[deployment] max_seq_jump`` ahead (``seq_jump``) or a time more than ``max_time_jump_s``
 ahead (``time_jump``), a second different scan with a number already taken or second,
 different resets for the report whose resets it adopted (``conflict``; an identical one is a
-``duplicate``), resets for a report not awaiting them (``unexpected``) or of another state size
+``duplicate``), resets for a report not awaiting them (``unexpected``; those of one of the last ``TIMED_OUT_KEPT``
+reports whose wait timed out are late, counted ``late_resets`` and dropped) or of another state size
 (``wrong_model``). A conflict is also counted ``contested`` and named in the next report's
 ``contested`` (the first message may have been the forgery: docs/wire.md, "Contested scans").
 
@@ -68,6 +69,8 @@ from fedtrack.services.lead import LeadGuard
 from fedtrack.wire import Measurement, TrackResets
 from fedtrack.zsession import id_arg
 
+TIMED_OUT_KEPT = 16  # reports whose late resets are told apart from unexpected ones
+
 
 class MttLocalService(Service):
     """The local multi-target tracker of one sensor."""
@@ -78,7 +81,7 @@ class MttLocalService(Service):
     # put back by the transaction if a scan fails; ``received`` is only changed once a scan was
     # handled (compute, then commit)
     state_attrs = ("tracker", "queue", "awaiting", "awaiting_since", "awaiting_scan", "adopted",
-                   "contested_scans", "router", "sent", "answers", "lead")
+                   "contested_scans", "router", "sent", "answers", "lead", "timed_out")
 
     def __init__(self, sensor: str, federated: bool, cfg: MttConfig, reset_timeout_s: float = 2.0,
                  max_seq_jump: int = 1000, max_time_jump_s: float = 3600.0, regions: Regions | None = None,
@@ -102,6 +105,8 @@ class MttLocalService(Service):
         self.awaiting_scan: SensorScan | None = None  # the scan of that report
         self.awaiting_since = 0.0
         self.adopted: tuple[int, bytes] | None = None  # the report number and digest of the resets adopted last
+        # the latest reports whose resets or answers timed out: one that comes after all is late, not unexpected
+        self.timed_out: deque[int] = deque(maxlen=TIMED_OUT_KEPT)
         self.noted = False  # whether the count's note (MttConfig.count_note) was judged
 
     def subscriptions(self) -> list[Subscription]:
@@ -155,6 +160,9 @@ class MttLocalService(Service):
                 msg.seq, f"second, different resets for report {msg.seq} (the first were adopted)"))
             return
         if self.awaiting is None or msg.seq != self.awaiting:
+            if msg.seq in self.timed_out:
+                self.count("late_resets")
+                return
             raise Rejected("unexpected", f"resets for report {msg.seq}, awaiting {self.awaiting}")
         assert self.tracker is not None and self.awaiting_scan is not None
         d = self.tracker.tracker.state.tracks.x.shape[1]
@@ -175,6 +183,9 @@ class MttLocalService(Service):
         if msg.seq != self.awaiting or region in self.answers:
             if region in self.answers and msg.seq == self.awaiting and digest(msg) == self.answers[region][1]:
                 self.count("duplicate")
+                return
+            if msg.seq != self.awaiting and msg.seq in self.timed_out:
+                self.count("late_resets")
                 return
             raise Rejected("unexpected", f"answer of {msg.region} for report {msg.seq}, awaiting {self.awaiting}")
         assert self.tracker is not None and self.awaiting_scan is not None
@@ -205,6 +216,7 @@ class MttLocalService(Service):
     def on_tick(self) -> None:
         if self.awaiting is not None and time.monotonic() - self.awaiting_since > self.reset_timeout_s:
             self.count("reset_timeouts")
+            self.timed_out.append(self.awaiting)
             self.log.warning("no resets for report %d after %.1f s: going on without them",
                              self.awaiting, self.reset_timeout_s)
             if self.regions is not None:
