@@ -219,11 +219,12 @@ def test_an_answer_holding_tracks_its_sub_report_did_not_carry_is_refused(tmp_pa
     """A local tracker notes, for every local track a region's answer says it holds, that region as its
     holder, and forgets it only when the track is retired or the region stops holding it in a later
     answer: a region centre (any ``fusion`` identity, before per-region identities) answering with
-    2,048 ids the tracker never had grew its routing table by as many with every report, for good, and
-    the table is pickled with every message the tracker handles (10 answers of 131,072 ids in 64
-    parts: 1.3 million entries, a 9.2 MB pickle, 0.32 s a scan instead of 0.007 and growing). An answer holding or resetting a local track
-    its sub-report did not carry is now refused (``unexpected``); the tracker goes on without it after
-    its reset timeout, as without any answer of that region."""
+    2,048 ids the tracker never had grew its routing table by as many with every report, for good,
+    and the table is pickled with every message the tracker handles (10 answers of 131,072 ids in 64
+    parts: 1.3 million entries, a 9.2 MB pickle, 0.32 s a scan instead of 0.007 and growing). An
+    answer holding or resetting a local track its sub-report did not carry is now refused
+    (``unexpected``); the tracker goes on without it after its reset timeout, as without any answer
+    of that region."""
     config = tmp_path / "regions.toml"
     config.write_text(REGIONS_CONFIG)
     regions = load_regions(config)
