@@ -180,3 +180,29 @@ def test_simulate_non_fifo_links_reorder_a_sensors_own_scans_and_mtt_local_fuses
         for a, b in zip(g["tracks"], w["tracks"]):
             for key in ("x", "P"):
                 np.testing.assert_allclose(a[key], b[key], rtol=1e-9, atol=1e-9 * np.max(np.abs(b[key])))
+
+
+@pytest.mark.parametrize("algorithm", ["mtt-federated", "mtt-decentralized"])
+def test_a_late_scan_does_not_map_again_a_local_track_that_later_scans_deleted(tmp_path: Path, algorithm: str) -> None:
+    """One target; sensor ``b`` sees it every 0.7 s, sensor ``a`` at 0.5 and 1.5 s, not at 2.5 and 3.5
+    (its tentative track then deleted), and again from 4.5 s (a new track). ``a``'s 1.5 s scan arrives
+    after its 3.5 s one: the re-run's report holds the first track, which the later scans deleted
+    again. It was mapped to the central track again and never retired, so ``a``'s new track could
+    not join that central track (it had a track of ``a``) and started a second one, in every
+    picture to the end (untuned5)."""
+    rng = np.random.default_rng(3)
+    x0 = np.array([100.0, 12.0, -200.0, 5.0])
+
+    def scan(sensor: str, t: float, seen: bool) -> dict:
+        z = x0[[0, 2]] + t * x0[[1, 3]] + rng.multivariate_normal([0, 0], R_POS)
+        return {"t": t, "sensor": sensor, "R": R_POS, "detections": [{"z": z.tolist()}] if seen else []}
+
+    a = {t: scan("a", t, not 2.0 < t < 4.0) for t in np.arange(0.5, 20.0, 1.0).tolist()}
+    rows = [(t + 0.01, row) for t, row in a.items() if t != 1.5] + [(3.6, a[1.5])]
+    rows += [(t + 0.01, scan("b", t, True)) for t in (0.2 + 0.7 * np.arange(28)).tolist()]
+    arrived = [row for _, row in sorted(rows, key=lambda r: r[0])]
+    assert own_scans_out_of_sequence(arrived, "a") == 1
+    pictures = replay(tmp_path, "late", arrived, algorithm, max_lag=3.0, pd=0.95, clutter_density=1e-9)
+    for p in pictures[-8:]:
+        assert [tr["status"] for tr in p["tracks"]] == ["confirmed"], f"t = {p['t']}: {p['tracks']}"
+        assert p["tracks"][0]["sensors"] == ["a", "b"]

@@ -340,7 +340,9 @@ class TrackToTrackCentre:
         col = self._note_scan(report)
         det_rows = (report.detected if rows is None else report.detected & rows).nonzero()[0]
         if det_rows.size:
-            return self._fuse_rows(report, det_rows, col, None if rows is None else rows[report.detected].nonzero()[0])
+            resets = self._fuse_rows(report, det_rows, col, None if rows is None else rows[report.detected].nonzero()[0])
+            self._unmap_retired(report)  # a late scan's own tracks that later scans deleted: fused, now unmapped
+            return resets
         self.moved = det_rows, det_rows.copy()  # nothing fused into: no track moved
         self._count_scan(col, det_rows, report)
         return no_resets(report.sensor, report.t, report.x.shape[1])
@@ -359,14 +361,18 @@ class TrackToTrackCentre:
         self.n_live = len(self.live_sensors(t))
         col = self._col(s)
         self.column_interval[col] = t - previous
+        self._unmap_retired(report)
+        return col
+
+    def _unmap_retired(self, report: LocalReport) -> None:
+        """Unmap the report's retired local tracks that are mapped."""
         if report.retired.size:
-            retired = report.retired.tolist()
+            s, retired = report.sensor, report.retired.tolist()
             for key in self.mapping.keys() & {(s, lid) for lid in retired}:  # retired and mapped
                 self._unmap(key)
                 self.counters.unmapped += 1
             for lid in retired if self.strikes else ():
                 self.strikes.pop((s, lid), None)
-        return col
 
     def _fuse_rows(self, report: LocalReport, det_rows: np.ndarray, col: int, obs: np.ndarray | None = None
                    ) -> Resets:

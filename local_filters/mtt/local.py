@@ -40,7 +40,9 @@ class LocalReport(NamedTuple):
     obs_R: np.ndarray  # (K, m, m)
     obs_z: np.ndarray  # (K, m)
     started: np.ndarray  # (K,) bool: the detected track started at this scan
-    retired: np.ndarray  # ids of the previous report this one no longer holds (deleted; mht: or left the best hypothesis)
+    # ids of the previous report this one no longer holds (deleted; mht: or left the best hypothesis);
+    # a late scan's report also those of its own that the later scans deleted (:class:`SensorTracker`)
+    retired: np.ndarray
     existence: np.ndarray | None = None  # (N,) each track's existence probability (jipda), else None
 
 
@@ -167,7 +169,8 @@ class SensorTracker:
     centre gets the report of the late scan, which it fuses out of sequence
     (:mod:`fedtrack.fusion_center.mtt.central_track`); the later scans' reports are not sent
     again. Local track ids are never reused: the tracks a re-run starts take new ids, and the
-    late scan's report retires the ids that the re-run no longer has.
+    late scan's report retires the ids that the re-run no longer has, its own tracks among them
+    (a track it holds that a later scan deleted: the centre fuses its observation, then unmaps it).
     """
 
     def __init__(self, scan: SensorScan, cfg: MttConfig, feedback: bool = False) -> None:
@@ -203,8 +206,8 @@ class SensorTracker:
         k = self.history.insert(scan.t, Entry(scan), self._step)
         report = self.history.after[k][1]
         rerun = len(self.history.times) - 1 - k
-        if rerun:
-            gone = np.setdiff1d(before, self.tracker.state.tracks.ids)
+        if rerun:  # retired: what the re-run deleted, and the report's own tracks the later scans deleted
+            gone = np.setdiff1d(np.union1d(before, report.ids), self.tracker.state.tracks.ids)
             report = report._replace(retired=np.union1d(report.retired, gone))
         self.history.fold()
         return report, rerun
