@@ -141,6 +141,26 @@ def test_a_lone_sensor_witnesses_itself_only_with_a_later_scan() -> None:
     assert guard.admit("s1", 700.0, "i") == [] and guard.admit("s1", 701.0, "j") == ["i", "j"]
 
 
+def test_a_burst_after_a_pause_longer_than_the_bound_is_taken_when_the_data_resumes() -> None:
+    """s2 sends bursts of 4 scans 0.05 s apart every 4 s (its usual interval 0.05 s, so its bound is
+    ``max_lag``, 3 s); s1 (0.7 s) stops at 89.6 s and resumes at 100.2 s. s2's burst at 96.5 s leads
+    (3.85 s after the newest time) and is held; s1's scan at 100.2 s leads too and witnesses it with
+    s2's next burst. The held burst lies before the witness, behind the resumed data: it is taken.
+    It was dropped as not near the witness (4 scans lost; every track left the pictures of 98-100 s,
+    untuned5)."""
+    guard: LeadGuard[tuple[str, float]] = LeadGuard(max_lag=3.0)
+    s1 = [("s1", round(0.7 * k, 2)) for k in range(1, 129)] + [("s1", round(100.2 + 0.7 * k, 2)) for k in range(20)]
+    s2 = [("s2", round(0.5 + 4.0 * k + 0.05 * j, 2)) for k in range(26) for j in range(4)]
+    taken = []
+    for sensor, t in sorted(s1 + s2, key=lambda item: item[1]):
+        for got in guard.admit(sensor, t, (sensor, t)):
+            guard.took(*got)
+            taken.append(got[1])
+    assert guard.usual["s2"] == pytest.approx(0.05) and guard.bound("s2") == 3.0
+    assert guard.dropped == 0 and len(taken) == len(s1) + len(s2)
+    assert taken[taken.index(96.5):taken.index(100.5) + 1] == [96.5, 96.55, 96.6, 96.65, 100.2, 100.5]
+
+
 def test_held_scans_are_bounded() -> None:
     """A flood of leading scans from one of two live sensors: at most HELD_MAX held, every one of
     them counted once dropped."""

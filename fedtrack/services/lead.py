@@ -19,8 +19,11 @@ once (the guard is transparent to data without leads). A leading scan is held un
   tracker, or the others left), however far after it: a lone sensor whose usual interval was
   made tiny (a burst of scans milliseconds apart) had each later scan, one real interval after the
   last, held and never witnessed, for good (before 2026-11-27; ``tests/test_hostile_trackers.py``).
-  The held scans near the witness are then taken in their arrival order, and the witness after
-  them: the data resumed after a gap (every sensor's clock moved on together);
+  The held scans near the witness, or before it, are then taken in their arrival order, and the
+  witness after them: the data resumed after a gap (every sensor's clock moved on together), and a
+  held scan before the witness is behind the resumed data, not ahead of it (a sensor sending bursts
+  of scans a few milliseconds apart, then nothing for longer than ``max_lag``, while the others
+  were silent: its burst was dropped as not near the witness before untuned5);
 * or a scan that does not lead arrives (the rest of the data is still at the old time): the held
   scans are dropped, each counted in ``dropped`` (a forged or broken time).
 
@@ -146,7 +149,9 @@ class LeadGuard(Generic[T]):
             self.held.append(arrived)
             self.dropped += _bounded(self.held)
             return []
-        taken = [h for h in self.held if near(h)]
+        # near the witness, or before it: the resumed data has passed a held scan's time (a sensor's scans
+        # a gap of more than the bound apart, as a burst's after a long pause, led and are not ahead of it)
+        taken = [h for h in self.held if near(h) or h[1] < t]
         self.dropped += len(self.held) - len(taken)
         self.held.clear()
         return [*taken, arrived]
