@@ -161,6 +161,25 @@ def test_a_burst_after_a_pause_longer_than_the_bound_is_taken_when_the_data_resu
     assert taken[taken.index(96.5):taken.index(100.5) + 1] == [96.5, 96.55, 96.6, 96.65, 100.2, 100.5]
 
 
+def test_a_burst_led_by_a_slow_sensors_bound_is_taken_when_that_sensor_passes_it() -> None:
+    """s2 scans every 12 s (bound 48 s), s3 sends bursts of 4 scans 0.05 s apart every 8 s (bound
+    ``max_lag``, 3 s): a burst more than 3 s after the newest time is held, and s2's next scan, which
+    does not lead, comes after it: the burst is behind the data and is taken before it. Each such
+    burst was dropped (32 of these 60 scans of s3; untuned5)."""
+    guard: LeadGuard[tuple[str, float]] = LeadGuard(max_lag=3.0)
+    s2 = [("s2", 0.1 + 12.0 * k) for k in range(10)]
+    s3 = [("s3", round(0.5 + 8.0 * k + 0.05 * j, 2)) for k in range(15) for j in range(4)]
+    taken = []
+    for sensor, t in sorted(s2 + s3, key=lambda item: item[1]):
+        for got in guard.admit(sensor, t, (sensor, t)):
+            guard.took(*got)
+            taken.append(got)
+    guard.end()
+    held_last = [item for item in s3 if item[1] > s2[-1][1] + 3.0]  # after s2's last scan: never passed
+    assert guard.bound("s3") == 3.0 and guard.dropped == len(held_last) == 4
+    assert sorted(taken, key=lambda item: item[1]) == taken and len(taken) == len(s2) + len(s3) - 4
+
+
 def test_held_scans_are_bounded() -> None:
     """A flood of leading scans from one of two live sensors: at most HELD_MAX held, every one of
     them counted once dropped."""

@@ -25,7 +25,9 @@ once (the guard is transparent to data without leads). A leading scan is held un
   of scans a few milliseconds apart, then nothing for longer than ``max_lag``, while the others
   were silent: its burst was dropped as not near the witness before untuned5);
 * or a scan that does not lead arrives (the rest of the data is still at the old time): the held
-  scans are dropped, each counted in ``dropped`` (a forged or broken time).
+  scans after it are dropped, each counted in ``dropped`` (a forged or broken time); those before
+  it are taken before it (behind the data: a bursty sensor's burst, led by its tiny usual interval,
+  and passed by a slow sensor's scan within that sensor's wider bound; dropped before untuned5).
 
 ``LEAD_INTERVALS = 4``: a sensor's scan arrives up to two of its periods late (the simulator's
 ``--late``, docs/multitarget-formats.md), so its newest scan taken is at most three intervals
@@ -137,9 +139,12 @@ class LeadGuard(Generic[T]):
         """The lead rule (module docstring): what to take now, as (sensor, t, item, bytes)."""
         arrived = (sensor, t, item, size)
         if self.newest is None or t - self.newest <= self.bound(sensor):
-            self.dropped += len(self.held)
+            # the data is still near the old time: the held scans after ``t`` led it and are dropped; those
+            # before ``t`` (within this sensor's wider bound) are behind the data, not ahead of it
+            behind = [h for h in self.held if h[1] < t]
+            self.dropped += len(self.held) - len(behind)
             self.held.clear()
-            return [arrived]
+            return [*behind, arrived]
         lone = not (self.live - {sensor})
 
         def near(h: tuple[str, float, T, int]) -> bool:  # a lone sensor's later scan, however far: it moved on
