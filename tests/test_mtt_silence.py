@@ -3,6 +3,8 @@ after ``leave_after_s`` and four of the sensor's own usual intervals between mes
 
 from __future__ import annotations
 
+import pytest
+
 from fedtrack.fusion_center.mtt.silence import LEAVE_INTERVALS, Silence
 
 
@@ -43,3 +45,21 @@ def test_a_sensor_heard_once_takes_the_others_pace_and_rejoins_with_its_interval
     assert "s1" not in silence.last and silence.bound_s("s1") == 40.0  # a rejoiner keeps its pace
     silence.heard("s1", 200.0)
     assert silence.silent(230.0) == ["radar", "s2"]  # s1 (median interval still 10 s) is live; the others went quiet
+
+
+def test_a_bursty_sensor_is_not_dropped_between_its_bursts() -> None:
+    """Bursts of 4 messages 0.05 s apart every 8 s: the usual interval is the 7.85 s pause (the time
+    between messages is mostly spent there), so the sensor stays live through its pauses and is
+    dropped once silent for four of them; a sensor whose one long interval was an outage keeps its
+    1 s. Before untuned5 the usual interval was the median, 0.05 s, and the bound the 5 s floor:
+    the bursty sensor was dropped at every pause."""
+    silence = Silence(floor_s=5.0)
+    for k in range(4):
+        for j in range(4):
+            silence.heard("burst", 8.0 * k + 0.05 * j)
+    last = 8.0 * 3 + 0.15
+    assert silence.bound_s("burst") == pytest.approx(LEAVE_INTERVALS * 7.85)
+    assert silence.silent(last + 7.9) == [] and silence.silent(last + 4 * 7.85 + 0.1) == ["burst"]
+    t = heard_every(silence, "s1", 1.0, 5)
+    t = heard_every(silence, "s1", 1.0, 4, start=t + 60.0)  # back after 60 s
+    assert silence.bound_s("s1") == 5.0 and silence.silent(t + 5.1) == ["burst", "s1"]

@@ -15,9 +15,9 @@ import dataclasses
 import math
 import sys
 import time
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
@@ -25,7 +25,7 @@ from fedtrack.config import ConfigError, did_you_mean, load_tables
 from fedtrack.fusion_center.mtt.centre import CrowdedReport
 from fedtrack.fusion_center.mtt.engines import ALGORITHMS, Engine, PictureClock, PictureTracks, make_engine
 from fedtrack.fusion_center.mtt.regional import is_region_recording, read_region_entries, recorded_pictures
-from fedtrack.fusion_center.mtt.silence import silence_bound
+from fedtrack.fusion_center.mtt.silence import silence_bound, usual_intervals
 from fedtrack.geodetic import geodetic_line, load_frame
 from fedtrack.jsonl import InputError, check_output, output_file, read_jsonl
 from fedtrack.local_filters.mtt.config import MttConfig, MttSettings
@@ -116,7 +116,8 @@ def silent(guard: LeadGuard, heard: dict[str, float], T: float, floor_s: float) 
     sensor whose scans come steadily but stamped behind the others' (a slow link) is not silent.
     The replay of data without departure lines drops them as the live centre would have
     (docs/multitarget.md, "Silence in a replay")."""
-    return sorted(s for s in guard.live if T - heard[s] > silence_bound(s, guard.usual, floor_s))
+    usual = usual_intervals(guard.gaps)  # the silence rule's usual interval, not the guard's median
+    return sorted(s for s in guard.live if T - heard[s] > silence_bound(s, usual, floor_s))
 
 
 def _picture(engine: Engine, T: float) -> tuple[float, PictureTracks]:
