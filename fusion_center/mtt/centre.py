@@ -340,7 +340,8 @@ class TrackToTrackCentre:
         col = self._note_scan(report)
         det_rows = (report.detected if rows is None else report.detected & rows).nonzero()[0]
         if det_rows.size:
-            resets = self._fuse_rows(report, det_rows, col, None if rows is None else rows[report.detected].nonzero()[0])
+            obs = None if rows is None else rows[report.detected].nonzero()[0]
+            resets = self._fuse_rows(report, det_rows, col, obs)
             self._unmap_retired(report)  # a late scan's own tracks that later scans deleted: fused, now unmapped
             return resets
         self.moved = det_rows, det_rows.copy()  # nothing fused into: no track moved
