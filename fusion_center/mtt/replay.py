@@ -139,6 +139,8 @@ def counter_lines(counts: dict[str, int]) -> list[str]:
         lines += [f"{counts['centre_fused']} centre observations fused",
                   f"{counts['centre_reprocessed']} centre observations re-processed (fused again after an older one)",
                   f"{counts['centre_late']} centre observations late (older than max_lag), not fused",
+                  (f"{counts.get('centre_late_reports', 0)} reports late (older than max_lag before the centre's "
+                   "newest), neither fused nor associated"),
                   (f"{counts['centre_before_start']} centre observations older than their central track's "
                    "start, not fused")]
     if "centre_handed_over" in counts:
