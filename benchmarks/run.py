@@ -74,7 +74,7 @@ def summarize_run(launcher: Launcher, n_sensors: int, startup_scans: int) -> dic
     first, last, skew, startup = [], [], [], []
     first_seq = min(arrivals, default=0)
     for seq, arrival in arrivals.items():
-        stamps = launcher.report.publish_stamps_ns.get(seq, [])
+        stamps = list(launcher.report.publish_stamps_ns.get(seq, {}).values())
         if len(stamps) != n_sensors:  # some measurement of the scan was not seen by the monitor
             continue
         if seq - first_seq < startup_scans:

@@ -235,6 +235,8 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Se
         summary["membership"] = membership_summary(out, report, settings)
     if report.failovers:
         summary["failovers"] = report.failovers
+    if report.router_outages:
+        summary["router_outages"] = report.router_outages
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     mean = summary.get("mean")
     if mean:
@@ -264,5 +266,9 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Se
         print(f"{title}: failover of {f['scope']}: primary lost at t = {said['t']} s, standby took over after "
               f"{said['took_over_after_s']} s, next picture after {said['covered_after_s']} s ({said['scans']} scans "
               "of the slowest sensor)", file=sys.stderr)
+    for o in report.router_outages:
+        said = {k: "-" if o[k] is None else f"{o[k]:.2f}" for k in ("t", "back_after_s")}
+        print(f"{title}: router outage at t = {said['t']} s, back after {said['back_after_s']} s (no failover: the "
+              "centres' tokens went with the link)", file=sys.stderr)
     print(f"wrote {out}/: {written}")
     return summary

@@ -35,7 +35,8 @@ class LaunchReport:
     latencies_ms: list[float] = field(default_factory=list)
     measurements: dict[str, int] = field(default_factory=dict)
     track_arrivals_ns: dict[int, int] = field(default_factory=dict)  # seq -> wall-clock arrival
-    publish_stamps_ns: dict[int, list[int]] = field(default_factory=dict)  # seq -> sensors' publish stamps
+    # seq -> sensor -> its publish stamp (the first; only up to max_seq_jump beyond the newest fused track's seq)
+    publish_stamps_ns: dict[int, dict[str, int]] = field(default_factory=dict)
     health: dict[str, dict[str, int]] = field(default_factory=dict)
     exit_codes: dict[str, int] = field(default_factory=dict)
     failed: list[str] = field(default_factory=list)
@@ -45,6 +46,8 @@ class LaunchReport:
     events: list[tuple[str, str, float]] = field(default_factory=list)
     # failovers of a centre (``[multitarget] standby``): per primary lost, what the launcher saw (launcher.Failover)
     failovers: list[dict[str, Any]] = field(default_factory=list)
+    # the launcher's link to its router lost and back (launcher.RouterOutage): no failover of the centres
+    router_outages: list[dict[str, Any]] = field(default_factory=list)
     wall_s: float = 0.0
     monitor_rejected: int = 0  # messages the launcher's own session rejected (Launcher._monitored)
 

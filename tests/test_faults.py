@@ -173,7 +173,7 @@ def test_kill_sensor_in_realtime_run(tmp_path: Path) -> None:
     # nothing waits on the dead: the degraded scans were fused at once, not after the 0.5 s deadline
     # (the median latency from the scan's first publish to its track; robust to one scheduling hiccup)
     report_ = run.launcher.report
-    latency = [(report_.track_arrivals_ns[k] - min(report_.publish_stamps_ns[k])) / 1e9 for k in degraded
+    latency = [(report_.track_arrivals_ns[k] - min(report_.publish_stamps_ns[k].values())) / 1e9 for k in degraded
                if k in report_.track_arrivals_ns and report_.publish_stamps_ns.get(k)]
     print(f"kill sensor: degraded scans' latency median {np.median(latency) * 1e3:.1f} ms, "
           f"max {max(latency) * 1e3:.1f} ms (deadline 500 ms)")

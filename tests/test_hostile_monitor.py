@@ -65,8 +65,43 @@ def test_a_measurement_on_another_sensors_key_is_not_counted_for_it(launcher: La
         launcher._on_meas(sample(keys.sensor_meas("1"), encode(m)))
     launcher._on_meas(sample(keys.sensor_meas("1"), b"\x81\xa6schema\x02"))  # malformed: counted too
     assert launcher.report.measurements == {"1": 1} and set(launcher._arrivals) == {"1"}
-    assert launcher.report.publish_stamps_ns[0] == [launcher.report.publish_stamps_ns[0][0]]
+    assert list(launcher.report.publish_stamps_ns[0]) == ["1"]
     assert launcher.report.monitor_rejected == 2
+
+
+def test_a_sensor_numbering_scans_afresh_grows_the_monitor_by_a_bounded_amount(launcher: Launcher) -> None:
+    """The monitor kept every measurement's publish stamp by scan number (the latency figures), for
+    good: sensor 1 numbering its scans afresh on its own key grew it by 212 B a number (21 MB per
+    100,000), and repeating one number by 8 B a copy. It now keeps one stamp per sensor and number, up
+    to ``max_seq_jump`` (1000) beyond the newest fused track's number (the services reject one further
+    ahead); an honest run's stamps, a number at a time with its track, are all kept."""
+    from fedtrack.wire import FusedTrack
+
+    keys = launcher.keys
+
+    def measurement(sensor: str, seq: int) -> Any:
+        m = Measurement(sensor=sensor, seq=seq, t=float(seq), kind="position", z=np.zeros(2), R=np.eye(2),
+                        stamp_ns=seq + 1)
+        return sample(keys.sensor_meas(sensor), encode(m))
+
+    def track(seq: int) -> Any:
+        t = FusedTrack(seq=seq, t=float(seq), model="cv", x=np.zeros(4), P=np.eye(4), maneuver=False, degraded=False,
+                       sensors=("1", "2"), stamp_ns=1, extra={})
+        return sample(keys.fusion_track(), encode(t))
+
+    for seq in range(300):  # honest: both sensors' scan, then its track
+        launcher._on_meas(measurement("1", seq))
+        launcher._on_meas(measurement("2", seq))
+        launcher._on_track(track(seq))
+    stamps = launcher.report.publish_stamps_ns
+    assert all(stamps[seq] == {"1": seq + 1, "2": seq + 1} for seq in range(300))
+    for seq in range(5000):  # the flood: 5,000 numbers, then one number 1,000 times
+        launcher._on_meas(measurement("1", seq))
+    for _ in range(1000):
+        launcher._on_meas(measurement("1", 7))
+    assert len(stamps) == 299 + 1 + launcher.settings.deployment.max_seq_jump
+    assert all(stamps[seq] == {"1": seq + 1, "2": seq + 1} for seq in range(300))  # the first stamp stays
+    assert all(len(stamps[seq]) == 1 for seq in range(300, 1300))
 
 
 # ---------------------------------------------------------------- the state queryable (fusion/state)

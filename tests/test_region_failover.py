@@ -19,10 +19,11 @@ import threading
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import pytest
+import zenoh
 from support import assert_same_pictures, free_port, wait_until
 
 from fedtrack.deploy.launcher import prepare_launcher
@@ -32,6 +33,7 @@ from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.fusion_center.mtt.service import MttCentreService
 from fedtrack.fusion_center.mtt.standby import (
     SETTLE_S,
+    SILENT_S,
     START_GRACE_S,
     WITHHELD_S,
     Standby,
@@ -184,6 +186,76 @@ def test_a_primary_takes_no_sample_of_its_own_outputs_until_it_steps_down(tmp_pa
         assert all(sub.wanted() for sub in standby._primary_outputs())
         primary.standby.step_down(0.0)
         assert all(sub.wanted() for sub in watch)
+
+
+class Token(NamedTuple):
+    """A liveliness sample as the launcher's callbacks read it."""
+
+    key_expr: str
+    kind: zenoh.SampleKind
+
+
+@pytest.fixture
+def watching(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> tuple[Any, list[int]]:
+    """A launcher of two regions with standbys, its monitor's callbacks driven by hand on a wall clock
+    of our own (``clock[0]``, ns)."""
+    from fedtrack.deploy import launcher as launcher_module
+
+    config = tmp_path / "regions.toml"
+    config.write_text("[multitarget]\nstandby = true\n[regions]\nmargin = 500.0\n"
+                      "grid = {origin = [0.0, 0.0], cell = [1.0, 1.0], nx = 2, ny = 1}\n")
+    settings = load_settings(config)
+    clock = [10**18]
+    monkeypatch.setattr(launcher_module.time, "time_ns", lambda: clock[0])
+    return launcher_module.Launcher(settings, [], quiet=True,
+                                    scopes=launcher_module.failover_scopes(settings, config)), clock
+
+
+def test_a_router_outage_is_reported_as_one_not_as_a_failover_per_region(watching: tuple[Any, list[int]]) -> None:
+    """A killed router takes every token with the launcher's link: each region's primary token went and
+    came back unchanged when the router did (no centre died, no standby took over). The report listed
+    one failover per region (2 here, 4 in a 2 x 2 run); now no failover and one router outage."""
+    launcher, clock = watching
+    put, gone = zenoh.SampleKind.PUT, zenoh.SampleKind.DELETE
+    keys = launcher.keys
+    launcher._on_router_token(Token(keys.alive("router", "router"), put))
+    for rid, instance in (("x0y0", "1.a"), ("x1y0", "1.b")):
+        launcher._on_primary_token(Token(keys.primary(rid, instance), put))
+    clock[0] += 10**9
+    launcher._on_router_token(Token(keys.alive("router", "router"), gone))
+    for rid, instance in (("x0y0", "1.a"), ("x1y0", "1.b")):
+        launcher._on_primary_token(Token(keys.primary(rid, instance), gone))
+    clock[0] += 2 * 10**9
+    launcher._on_router_token(Token(keys.alive("router", "router"), put))
+    for rid, instance in (("x0y0", "1.a"), ("x1y0", "1.b")):
+        launcher._on_primary_token(Token(keys.primary(rid, instance), put))
+    assert launcher._failovers == []
+    assert [o.summary(None, 1.0)["back_after_s"] for o in launcher._outages] == [2.0]
+
+
+def test_a_take_over_from_a_frozen_primary_is_a_failover(watching: tuple[Any, list[int]]) -> None:
+    """A frozen primary's token stands until its lease ends; its standby takes over by the silence rule
+    (``SILENT_S`` without its outputs) beside it, a later claim. The report listed no failover (the
+    region's last token never went: the frozen one's went after the standby's came); now one, from the
+    region's last picture, taken over when the standby claimed the token, covered by the next picture.
+    The frozen token's end and a second claim of the same take-over add none."""
+    launcher, clock = watching
+    put, gone = zenoh.SampleKind.PUT, zenoh.SampleKind.DELETE
+    keys = launcher.keys
+    launcher._on_primary_token(Token(keys.primary("x0y0", "1.a"), put))
+    launcher._on_region_picture(Token(keys.region_picture("x0y0"), put))  # the frozen primary's last
+    last = clock[0]
+    clock[0] += int((SILENT_S + 0.3) * 1e9)
+    launcher._on_primary_token(Token(keys.primary("x0y0", "2.b"), put))  # the standby's claim
+    clock[0] += int(0.5e9)
+    launcher._on_region_picture(Token(keys.region_picture("x0y0"), put))
+    clock[0] += int(5e9)
+    launcher._on_primary_token(Token(keys.primary("x0y0", "1.a"), gone))  # the lease ended
+    launcher._on_primary_token(Token(keys.primary("x0y0", "1.a"), put))  # woken: an earlier claim, no take-over
+    summary = [f.summary(None, 1.0, 1.0) for f in launcher._failovers]
+    assert [(f["scope"], f["took_over_after_s"], f["covered_after_s"]) for f in summary] == \
+        [("x0y0", pytest.approx(SILENT_S + 0.3), pytest.approx(SILENT_S + 0.8))]
+    assert launcher._failovers[0].lost_ns == last
 
 
 @pytest.mark.faults
