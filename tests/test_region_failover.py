@@ -188,6 +188,29 @@ def test_a_primary_takes_no_sample_of_its_own_outputs_until_it_steps_down(tmp_pa
         assert all(sub.wanted() for sub in watch)
 
 
+def test_a_standby_whose_own_link_went_does_not_take_over() -> None:
+    """A killed router takes every token with the link: each standby saw its primary's token go and took
+    over 0.2 s later, and each primary stepped down when the router was back (live, 2 x 2 regions: 4
+    failovers). Cut off, a standby no longer takes over; back, its primary's token comes again; one
+    that does not within ``START_GRACE_S`` died meanwhile."""
+    standby = Standby("x0y0", 0.0)
+    standby.token(True, 0.1, "a")
+    standby.token(False, 5.0, "a")  # the link went: the token with it, the router's token just after
+    standby.link(False, 5.01)
+    assert not standby.due(5.0 + SETTLE_S) and not standby.due(60.0)
+    standby.link(True, 60.0)
+    standby.token(True, 60.01, "a")
+    assert not standby.due(60.0 + START_GRACE_S + 1.0)
+    standby.token(False, 70.0, "a")  # now the primary dies: the usual take-over
+    assert not standby.due(70.0 + SETTLE_S / 2) and standby.due(70.0 + SETTLE_S)
+    dead = Standby("x0y0", 0.0)  # the primary died during the outage: its token never comes back
+    dead.token(True, 0.1, "a")
+    dead.token(False, 5.0, "a")
+    dead.link(False, 5.0)
+    dead.link(True, 9.0)
+    assert not dead.due(9.0 + SETTLE_S) and dead.due(9.0 + START_GRACE_S)
+
+
 class Token(NamedTuple):
     """A liveliness sample as the launcher's callbacks read it."""
 

@@ -514,6 +514,8 @@ class MttCentreService(Service):
         while self.primary_seen:
             alive, now, instance = self.primary_seen.popleft()
             standby.token(alive, now, instance)
+        if standby.cut != (self._router_lost_at is not None):  # its own link to the router went or came back
+            standby.link(self._router_lost_at is None, time.monotonic())
         if standby.yields():
             standby.step_down(time.monotonic())
             if self.primary_token is not None:

@@ -158,6 +158,8 @@ class Standby:
     since: dict[str, float] = field(default_factory=dict)  # when each holder's token appeared
     silent: set[str] = field(default_factory=set)  # of them, those that stood while nothing was published (SILENT_S)
     absent_since: float | None = None  # when the token was last seen going (or the start)
+    fresh: float = 0.0  # the start, or when this centre's link to its router came back: START_GRACE_S from then
+    cut: bool = False  # this centre's link to its router is gone (every token went with it): no take-over
     heard: float = 0.0  # when an output of the primary last arrived (or the start, or this one stepped down)
     held: OrderedDict[Hashable, tuple[float, str, Message]] = field(default_factory=OrderedDict)  # (made, key, msg)
     # (seen, "", a picture or None): the primary's outputs not made here yet (SETTLED_MAX, PICTURES_SETTLED)
@@ -169,7 +171,7 @@ class Standby:
     max_difference: float = 0.0  # largest state difference among the pictures with the same ids
 
     def __post_init__(self) -> None:
-        self.absent_since = self.heard = self.started
+        self.absent_since = self.heard = self.fresh = self.started
 
     @property
     def present(self) -> bool:
@@ -196,8 +198,8 @@ class Standby:
         after ``SETTLE_S``, not ``START_GRACE_S``, unless a token appears meanwhile. The grace waited
         for tokens that the query has already answered for: it left a region whose primary and standby
         were both killed uncovered 2 s longer (4.1 scans of 1.3 s at 2x, instead of 1.1)."""
-        if not self.holders and self.absent_since == self.started:
-            self.absent_since = max(now, self.started + 1e-9)  # not the start's any more: SETTLE_S from now
+        if not self.holders and self.absent_since == self.fresh:
+            self.absent_since = max(now, self.fresh + 1e-9)  # not the start's any more: SETTLE_S from now
 
     def due(self, now: float) -> bool:
         """Whether to take over now: no primary token for ``SETTLE_S`` (``START_GRACE_S`` when
@@ -205,7 +207,7 @@ class Standby:
         nothing of the primary arrived for as long while this standby made an answer or a picture that
         long ago (not a hand-over: a cold standby numbers its own) (:meth:`take_over` then marks their
         holders ``silent``)."""
-        if self.primary:
+        if self.primary or self.cut:
             return False
         if self.present:
             ago = now - SILENT_S
@@ -213,8 +215,18 @@ class Standby:
                     and any(made <= ago and output[0] != "handover" for output, (made, _, _) in self.held.items()))
         if self.absent_since is None:
             return False
-        wait = START_GRACE_S if self.absent_since == self.started else SETTLE_S
+        wait = START_GRACE_S if self.absent_since == self.fresh else SETTLE_S
         return now - self.absent_since >= wait
+
+    def link(self, up: bool, now: float) -> None:
+        """This centre's link to its router went (the last router token gone: every other token went with
+        it, which says nothing of the primary) or came back. Cut, it never takes over: before, a killed
+        router made every standby take over and every primary step down when it was back (4 failovers
+        of a 2 x 2 run, each region's tracks moved to a standby's). Back, the primary's token comes
+        again within milliseconds; one that has not after ``START_GRACE_S`` died meanwhile."""
+        self.cut = not up
+        if up and not self.present:
+            self.absent_since = self.fresh = now
 
     def yields(self) -> bool:
         """Whether this primary must step down: another primary's claim is later (split brain; instances
