@@ -172,13 +172,14 @@ def own_keys(keys: Keys, ident: str) -> list[str]:
 def cache_keys(keys: Keys, ident: str) -> list[str]:
     """The advanced publishers' caches (``<key>/@adv/**``) ``ident`` may query: those of the keys it
     subscribes to with history or recovery (``Subscription(history=..., recover=...)``): the recorder
-    every key, the fusion centre the estimates, a sensor's local filter its measurements and resets,
+    every key, the fusion centre the estimates (and ``serve picture``, also ``fusion``, the region
+    pictures), a sensor's local filter its measurements and resets,
     another host's router its clients'. Any identity could query every cache: asked again and again,
     every publisher sent its whole cache (up to 64 MiB a key) each time."""
     if ident in (ROUTER, "recorder"):
         return [f"fedtrack/{keys.deployment}/**/@adv/**"]
     if ident == "fusion":
-        return [f"{keys.local_estimate()}/@adv/**"]
+        return [f"{keys.local_estimate()}/@adv/**", f"{keys.region_picture()}/@adv/**"]
     if ident.startswith("sensor-"):
         sid = ident.removeprefix("sensor-")
         return [f"{keys.sensor_meas(sid)}/@adv/**", f"{keys.fusion_reset(sid)}/@adv/**"]

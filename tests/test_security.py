@@ -50,6 +50,8 @@ def test_identities_and_rules() -> None:
     assert "fedtrack/d/local/1/tracks" in own["own-sensor-1"] and "fedtrack/d/health/mtt-local/1" in own["own-sensor-1"]
     assert "fedtrack/d/fusion/**" in own["own-fusion"] and acl["default_permission"] == "deny"
     assert "fedtrack/d/alive/mtt-centre/*" in own["own-fusion"]
+    # serve picture (``fusion``) reads the region pictures with history: their caches
+    assert own["cache-fusion"] == ["fedtrack/d/local/*/estimate/@adv/**", "fedtrack/d/region/*/picture/@adv/**"]
     assert identity("mtt-centre", "x0y0-standby", "x0y0") == "region-x0y0"
 
 

@@ -23,15 +23,19 @@ import pytest
 import zenoh
 from support import WAIT_S, free_port, wait_until
 
+from fedtrack.fusion_center.mtt.service import MttCentreService, picture_window
 from fedtrack.keys import Keys
+from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.services import base
 from fedtrack.services.base import QueryHandler, Service, Subscription
 from fedtrack.wire import (
+    MAX_TRACKS,
     Detection,
     FusedTrack,
     Health,
     ManeuverEvent,
     Measurement,
+    TrackPicture,
     decode,
     encode,
     measurement_to_replay,
@@ -353,13 +357,54 @@ def test_a_cache_outgrown_by_its_messages_keeps_about_cache_bytes_of_the_latest(
         assert late == list(range(11 - depth, 11))
 
 
+class RegionPictures(Echo):
+    """Echo that publishes, per measurement ``seq`` of s1, region x0y0's picture at ``t = seq`` of
+    ``seq`` tracks, on a region centre's windowed publisher (``[mtt] period`` 1 s, real time)."""
+
+    role = "regionpictures"
+    cfg, speed = MttConfig(), 1.0  # what MttCentreService.windowed_outputs reads
+    windowed_outputs = MttCentreService.windowed_outputs
+
+    def on_measurement(self, msg: Measurement) -> None:
+        n = msg.seq
+        self.publish(self.keys.region_picture("x0y0"), TrackPicture(
+            seq=msg.seq, t=float(msg.seq), ids=tuple(range(n)), x=np.ones((n, 4)), P=np.tile(np.eye(4), (n, 1)),
+            confirmed=(True,) * n, sensors=(("s1", "s2"),) * n, fused_sensors=(), fused_seqs=(), stamp_ns=1))
+        self.last = msg
+
+
+def test_a_region_centre_keeps_its_last_picture_window_of_pictures() -> None:
+    """A region picture's advanced publisher keeps the last ``picture_window`` pictures (13 at 1 s, real
+    time), in their parts: a late subscriber with history (a restarted ``serve picture``) gets exactly
+    those, once they grow to 2 parts too, so that the cache holds at most 13 pictures' bytes (not
+    CACHE_BYTES: 64 MiB)."""
+    keys = Keys("t7")
+    window = picture_window(1.0, 1.0)
+    with served(lambda options: RegionPictures(service_id="r1", options=options, deployment="t7")) as (session, svc):
+        service: RegionPictures = svc  # type: ignore[assignment]
+        def upto(seqs: range) -> list[tuple[int, int]]:
+            for seq in seqs:
+                session.put(keys.sensor_meas("s1"), encode(measurement("s1", seq)))
+            assert wait_until(lambda: service.last is not None and service.last.seq == seqs[-1])
+            return late_history(session, keys.region_picture("x0y0"),
+                                lambda s: (decode(s.payload.to_bytes(), TrackPicture), len(s.payload.to_bytes())))
+        late = upto(range(1, 21))
+        assert [m.seq for m, _ in late] == list(range(21 - window, 21)) and window == 13
+        big = MAX_TRACKS + 1  # two parts a picture from here on: the cache is declared again, 26 parts deep
+        late = upto(range(big, big + 20))
+        assert service._publishers[keys.region_picture("x0y0")][1] == 2 * window
+        assert sorted({m.seq for m, _ in late}) == list(range(big + 20 - window, big + 20)) and len(late) == 2 * window
+        largest = sum(size for m, size in late if m.seq == big + 19)
+        assert sum(size for _, size in late) <= window * largest
+
+
 def test_no_plain_output_is_read_from_a_cache() -> None:
     """The outputs the multi-target centre and trackers publish without a cache are none of the
     keys that services read with history or recovery (the recorder's, the single-target filters'
-    and fusion center's), and they cover the centre's answers, hand-overs and region pictures."""
+    and fusion center's), and they cover the centre's answers and hand-overs; the region pictures,
+    which ``serve picture`` reads with history, keep a window of them."""
     from types import SimpleNamespace
 
-    from fedtrack.fusion_center.mtt.service import MttCentreService
     from fedtrack.fusion_center.service import FusionCenterService
     from fedtrack.local_filters.mtt.service import MttLocalService
     from fedtrack.local_filters.service import LocalFilterService
@@ -374,8 +419,9 @@ def test_no_plain_output_is_read_from_a_cache() -> None:
     assert keys.mtt_picture() in read and keys.sensor_meas("s1") in read
     assert not [(str(p), k) for p in plain for k in read if p.intersects(zenoh.KeyExpr(k))]
     for output in (keys.mtt_resets("s1"), keys.region_resets("x0y0", "s1"), keys.region_handover("x1y0"),
-                   keys.region_picture("x0y0"), keys.mtt_report("s1"), keys.region_report("x0y0", "s1")):
+                   keys.mtt_report("s1"), keys.region_report("x0y0", "s1")):
         assert any(p.includes(zenoh.KeyExpr(output)) for p in plain), output
+    assert not any(p.intersects(zenoh.KeyExpr(keys.region_picture("x0y0"))) for p in plain)
 
 
 def test_service_stop_is_clean_and_publishes_final_health() -> None:

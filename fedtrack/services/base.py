@@ -41,7 +41,8 @@ subscriber declared with ``Subscription(..., history=True)`` (the recorder) gets
 it (re)starts, what was published while it was away, and recovers samples lost in
 transit; samples it could not recover are counted in ``counters["missed"]``. The keys a
 service names in :meth:`Service.plain_outputs` (read by plain subscribers only) have a
-plain publisher instead: no cache, whose messages would only fill the process's memory.
+plain publisher instead: no cache, whose messages would only fill the process's memory; those in
+:meth:`Service.windowed_outputs` keep only their last N messages (their parts).
 ``HISTORY_RECHECK_S`` after start, such a service queries the publishers' caches once
 more (``<key>/@adv/**``, the advanced publishers' own queryable): in zenoh-ext 1.x a
 live sample that overtakes the per-publisher history reply makes the advanced
@@ -69,10 +70,11 @@ import sys
 import threading
 import time
 import traceback
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, fields
 from hashlib import blake2b
-from typing import Any, Callable, ClassVar, Iterator
+from typing import Any, ClassVar
 
 import numpy as np
 import zenoh
@@ -403,6 +405,13 @@ class Service:
         which holds every message until it is full (a 1,000-track centre's answers: about 40 MB a
         minute; docs/multitarget.md, "Memory of a centre")."""
         return ()
+
+    def windowed_outputs(self) -> dict[str, int]:
+        """Key expressions of outputs whose advanced publisher keeps only the last N messages (key
+        expression -> N; each message's parts, the cache declared again when a message has more parts
+        than before), not ``CACHE_BYTES`` of them: a reader with history needs only the last few (the
+        region pictures, for a restarted ``serve picture``)."""
+        return {}
 
     def on_start(self) -> None:
         """Called once the session and subscribers exist, before the liveliness token."""
@@ -784,15 +793,18 @@ class Service:
         if self.session is None:
             raise RuntimeError("publish() called before run() opened the session")
         encoded = payloads(msg)
-        needed = cache_depth(max(map(len, encoded)))
         pub, depth = self._publishers.get(key, (None, 0))
+        window = next((n for k, n in self.windowed_outputs().items()
+                       if zenoh.KeyExpr(k).includes(zenoh.KeyExpr(key))), None)
+        needed = cache_depth(max(map(len, encoded))) if window is None else window * len(encoded)
         if pub is None and any(zenoh.KeyExpr(plain).includes(zenoh.KeyExpr(key)) for plain in self.plain_outputs()):
             pub = self.session.declare_publisher(key, encoding=_ENCODING,
                                                  congestion_control=zenoh.CongestionControl.BLOCK)
             self._publishers[key] = (pub, 0)
-        elif pub is None or depth > 2 * needed:
+        elif pub is None or (depth > 2 * needed if window is None else 0 < depth < needed):  # 0: a plain publisher
             # new, or its messages outgrew its cache (one grows from a few tracks to thousands): a
-            # publisher with a cache of about CACHE_BYTES (the old one's samples are dropped)
+            # publisher with a cache of about CACHE_BYTES, or of its window's messages in their parts
+            # (the old one's samples are dropped)
             if pub is not None:
                 pub.undeclare()
             depth = needed

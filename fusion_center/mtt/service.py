@@ -41,6 +41,7 @@ most that many sensors, and each live sensor raises every tracker's sharing fact
 
 from __future__ import annotations
 
+import math
 import time
 from collections import deque
 from pathlib import Path
@@ -116,6 +117,19 @@ HANDOVERS_KEPT = 64
 # within one picture period (a sensor counting its reports microseconds apart) made the picture
 # unpublishable, and every report after them was rejected with it
 PICTURE_ITEMS = MAX_PARTS * MAX_TRACKS
+# A restarted ``serve picture`` merges the region pictures of its outage from the region centres' caches
+# (docs/deploy.md, "serve picture dies"): the launcher has it back within about RESTART_WINDOW_S (three
+# restarts: backoffs 0.5 + 1 + 2 s and a start of about 2 s each, as the recorder's base.CACHE_BYTES), and
+# when it died it may have held a picture time for up to MERGE_WAIT_S (its --wait) waiting for a region
+RESTART_WINDOW_S = 10.0
+MERGE_WAIT_S = 2.0
+
+
+def picture_window(period: float, speed: float) -> int:
+    """The region pictures a region centre keeps for a restarted merger: those of the last
+    RESTART_WINDOW_S + MERGE_WAIT_S seconds of wall time at ``speed`` times real time (its pictures
+    come every ``period`` scenario seconds), and one more being merged."""
+    return math.ceil((RESTART_WINDOW_S + MERGE_WAIT_S) * speed / period) + 1
 
 
 class MttCentreService(Service):
@@ -131,9 +145,10 @@ class MttCentreService(Service):
 
     def __init__(self, algorithm: str, cfg: MttConfig, dim: int = 4, max_seq_jump: int = 1000,
                  frame: Frame | None = None, region: str | None = None, regions: Regions | None = None,
-                 standby: bool = False,
+                 standby: bool = False, speed: float = 1.0,
                  **kwargs: Any) -> None:
         super().__init__(**kwargs)
+        self.speed = speed  # [deployment] speed: its pictures' pace, for picture_window
         self.frame = frame  # [frame]: each picture track's WGS-84 position too
         if algorithm not in ALGORITHMS:
             raise ConfigError(f"algorithm: expected one of {', '.join(ALGORITHMS)}, got {algorithm!r}")
@@ -204,11 +219,16 @@ class MttCentreService(Service):
         return self._inputs_of_centre() + self._primary_outputs()
 
     def plain_outputs(self) -> tuple[str, ...]:
-        """The answers, hand-overs and region pictures: their readers (the trackers, the region
-        centres and standbys, ``serve picture``, the launcher) are plain subscribers. The one
-        centre's ``fusion/picture`` keeps its cache: the recorder reads it with history."""
+        """The answers and hand-overs: their readers (the trackers, the region centres and standbys,
+        the launcher) are plain subscribers. The one centre's ``fusion/picture`` keeps its cache: the
+        recorder reads it with history."""
         k = self.keys
-        return k.mtt_resets(), k.region_resets(), k.region_handover(), k.region_picture()
+        return k.mtt_resets(), k.region_resets(), k.region_handover()
+
+    def windowed_outputs(self) -> dict[str, int]:
+        """The region pictures: the last :func:`picture_window` of them, which a restarted ``serve
+        picture`` (a subscriber with history) merges."""
+        return {self.keys.region_picture(): picture_window(self.cfg.period, self.speed)}
 
     def _inputs_of_centre(self) -> list[Subscription]:
         if self.algorithm == "mtt-centralized":
@@ -613,7 +633,7 @@ def service_from_args(argv: list[str]) -> MttCentreService:
     frame = None if settings.frame is None else settings.frame.frame
     regions = load_regions(path) if args.region else None
     return MttCentreService(args.algorithm, settings.mtt, args.dim, settings.deployment.max_seq_jump, frame,
-                            args.region, regions, standby=args.standby, **kwargs)
+                            args.region, regions, standby=args.standby, speed=settings.deployment.speed, **kwargs)
 
 
 def main(argv: list[str]) -> int:
