@@ -74,6 +74,7 @@ PR_SET_PDEATHSIG = 1
 ESSENTIAL_ROLES = ("router", "fusion-center", "recorder")
 MAX_RESTARTS = 3
 SNAPSHOT = "fusion-center.snapshot"  # the fusion center's state, for its restarts within this run
+PICTURE_SNAPSHOT = "picture.snapshot"  # serve picture's last merged time, for its restarts within this run
 RESTART_BACKOFF_S = 0.5
 RESTART_BACKOFF_MAX_S = 4.0
 START_FILE = "start-at"  # beside the sensors' logs: their common start time (realtime), written once all are ready
@@ -224,7 +225,8 @@ def service_plan(settings: Settings, config_path: Path, out_dir: Path, log_dir: 
         for role, sid, args in service_args(settings, out_dir / SCENARIO_DIR / "measurements.jsonl",
                                             load_regions(config_path)):
             if runs_here(settings, role, sid, args):
-                add(role, sid, [*args, *cfg, *common])
+                snapshot = ["--snapshot", str(out_dir / PICTURE_SNAPSHOT)] if role == "picture" else []
+                add(role, sid, [*args, *cfg, *common, *snapshot])
                 if role in ("sensor", "mtt-local"):
                     plan[-1].join_at_s, plan[-1].kill_at_s = mt.join_at.get(sid), mt.kill_at.get(sid)
                 if role == "mtt-centre" and mt.standby:

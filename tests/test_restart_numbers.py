@@ -8,10 +8,12 @@ In-process, on the bus of ``test_hostile_messages``."""
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 from test_hostile_messages import KEYS, OPTIONS, Bus
 from test_hostile_sequences import region_picture
 from test_mtt_regions_live import CONFIG as REGIONS_CONFIG
@@ -49,6 +51,58 @@ def test_a_restarted_merger_numbers_on_and_the_recorder_keeps_every_picture(tmp_
     assert [(p.seq, p.t) for p in before + after] == [(k, float(k)) for k in (0, 1, 2, 3, 6, 7, 8)]
     recorder.on_stop()
     assert recorder.counters.get("pictures_recorded") == 7 and "conflict" not in recorder.counters, recorder.counters
+
+
+@pytest.mark.parametrize("snapshot", [True, False])
+def test_a_restarted_merger_merges_the_pictures_of_its_outage_from_the_region_caches(tmp_path: Path,
+                                                                                     snapshot: bool) -> None:
+    """The merger SIGKILLed after t = 3, back when the regions are at t = 9: it subscribes to the region
+    pictures with history, so the regions' caches replay their last pictures (region b's holds one more,
+    t = 2, than a's), a's overtaken by its live t = 10, which comes among b's replies (held as leading
+    them by 5 s and dropped by the next reply, it was missing from the merged t = 10); the base
+    service's second query of the caches and a standby's cache deliver them again. It publishes t = 4-9 in order, numbered 4-9, none contested,
+    every re-delivery a duplicate. With the launcher's ``--snapshot`` it knows t = 3 was merged; without
+    it merges t = 3 again (the recorder keeps the first: a conflict) and not t = 2, which only b's cache
+    holds (merged, it would lack region a). Before: the region pictures had no cache (nothing of t = 4-8
+    came: 5 of 10 merged pictures missing), and a picture older than its region's latest was refused."""
+    config = tmp_path / "config.toml"
+    config.write_text(REGIONS_CONFIG)
+    regions = load_regions(config)
+    assert regions is not None
+    state = tmp_path / "picture.snapshot" if snapshot else None
+    first, again = (PictureMergeService(regions, 4, 2.0, 1.0, service_id="picture", options=OPTIONS,
+                                        deployment=KEYS.deployment, snapshot=state) for _ in range(2))
+    assert all(sub.history for sub in again.subscriptions())
+    recorder = Recorder(tmp_path / "rec.db", service_id="rec", options=OPTIONS, deployment=KEYS.deployment)
+    recorder.on_start()
+    before = merged_on([first, recorder], range(4))
+    bus = Bus([again, recorder])
+    again.on_start()  # settling: the caches' replies come in
+    a, b = (KEYS.region_picture(rid) for rid in regions.ids)
+    pictures = {(key, k): encode(region_picture(float(k), ids)) for key, ids in ((a, (0, 2)), (b, (1, 3)))
+                for k in range(2, 11)}
+    replies = ([(b, k) for k in range(2, 6)] + [(a, 10)]  # a's live t = 10 among b's replies: 5 s ahead of them
+               + [(a, k) for k in range(3, 10)] + [(b, k) for k in range(6, 10)])
+    for key, k in replies + replies[::-1]:  # the caches' replies, then the second query's (any order)
+        bus.put(key, pictures[key, k])
+    assert not bus.of(TrackPicture)  # nothing merged while the replies come in
+    again.settle_until = time.monotonic()  # HISTORY_SETTLE_S later
+    with again.guarded("on_tick", again.tick_state_attrs):
+        again.on_tick()
+    for key, k in [(b, 8), (b, 9), (b, 10)]:  # a standby's cache, then the live picture
+        bus.put(key, pictures[key, k])
+    after = bus.of(TrackPicture)
+    resent = [] if snapshot else [3]
+    assert [(p.seq, p.t) for p in before + after] == [(k, float(k)) for k in (0, 1, 2, 3, *resent, *range(4, 11))]
+    assert [p.ids for p in after] == [(0, 1, 2, 3)] * len(after) and not any(p.contested for p in after)
+    assert again.counters["duplicate"] == len(replies) + 2
+    assert (again.counters.get("merged_before"), again.counters.get("cache_partial")) == ((3, None) if snapshot
+                                                                                           else (None, 1))
+    assert again.counters["rejected"] == 0 and "contested" not in again.counters
+    recorder.on_stop()
+    assert recorder.counters.get("pictures_recorded") == 11 and recorder.counters.get("conflict", 0) == len(resent)
+    if state is not None:
+        assert state.read_text() == "10.0"
 
 
 def test_a_cold_standby_numbers_its_pictures_as_its_primary() -> None:

@@ -26,10 +26,28 @@ the next merged picture marked ``contested``. With ``[frame]`` in the config eac
 position (``lla``, as a centre's picture does: the recorder's ``tracks.jsonl`` then has the ``lat``,
 ``lon``, ``alt`` that ``replay --regions config`` writes). On a clean stop it merges what it holds and
 publishes a closing record with the regions' closing lists.
+
+It subscribes with history: a region centre keeps its last ``picture_window`` pictures
+(:meth:`MttCentreService.windowed_outputs`), so a merger started again after it died merges the
+pictures of its outage, in order, numbered as they would have been. For ``HISTORY_SETTLE_S`` after its
+start it merges nothing (the caches' replies, and the base service's second query of them, come in;
+they are held, each once, and go through the lead guard in time order: interleaved with the regions'
+live pictures, a live picture came far ahead of the replies taken so far, was held as leading and
+dropped by the next reply, 15 in a live run), then starts at the first time every region's cache
+holds (``cache_partial``: a region whose cache was one picture shorter would otherwise be missing from
+the oldest). A region's picture of a time not yet merged that
+comes after a later one (its cache's reply overtaken by a live picture) is queued in time order; the
+digests of each region's last ``window`` pictures taken tell a re-delivery (a ``duplicate``: the
+second query, a standby's cache) from a second, different picture (``conflict``). With ``--snapshot
+PATH`` (``launch`` gives ``OUT/picture.snapshot`` and removes it when a run starts) it writes the time
+of each picture it publishes there; started again, it merges only the times after it (the region
+pictures of earlier times counted ``merged_before``): the last one's pictures sent again would carry
+new stamps, each a ``conflict`` at the recorder and a repeat to a display.
 """
 
 from __future__ import annotations
 
+import os
 import time
 from collections import deque
 from functools import partial
@@ -41,14 +59,32 @@ import numpy as np
 from fedtrack.config import ConfigError, load_tables
 from fedtrack.fusion_center.mtt.engines import PictureClock
 from fedtrack.fusion_center.mtt.regional import RegionPicture, merge_pictures, rows_of
-from fedtrack.fusion_center.mtt.service import PICTURE_ITEMS, picture_message, picture_tracks
+from fedtrack.fusion_center.mtt.service import (
+    MERGE_WAIT_S,
+    PICTURE_ITEMS,
+    picture_message,
+    picture_tracks,
+    picture_window,
+)
 from fedtrack.geodetic import Frame, geodetic_of_states, load_frame
 from fedtrack.local_filters.mtt.config import MttServiceSettings
 from fedtrack.local_filters.regions import Regions, load_regions
-from fedtrack.services.base import Conflict, Rejected, Service, Subscription, digest, service_kwargs, service_parser
+from fedtrack.services.base import (
+    HISTORY_RECHECK_S,
+    Conflict,
+    Rejected,
+    Service,
+    Subscription,
+    digest,
+    service_kwargs,
+    service_parser,
+)
 from fedtrack.services.lead import LeadGuard
 from fedtrack.wire import TrackPicture
 
+# a merger's first HISTORY_SETTLE_S: the caches' replies and the base service's second query of them (at
+# HISTORY_RECHECK_S) are in (loopback: milliseconds after it)
+HISTORY_SETTLE_S = HISTORY_RECHECK_S + 0.5
 # A merged picture carries at most PICTURE_ITEMS tracks and fused entries, as any picture. Each of R
 # regions' pictures may hold 1/R of it (rejected ``too_large`` beyond: 65,536 for 2 regions, 1,310 for
 # 100, above a region's period of scans, 64 live sensors at 10 Hz, and issue 27's 10^5 tracks over the
@@ -81,12 +117,20 @@ class PictureMergeService(Service):
 
     role = "picture"
     tick_period_s = 0.05
-    state_attrs = ("pending", "started", "closing", "late", "merged_t", "seq", "clock", "lead", "latest", "contested")
+    state_attrs = ("pending", "started", "closing", "late", "merged_t", "seq", "clock", "lead", "latest", "contested",
+                   "seen", "settle_until", "settling")
 
     def __init__(self, regions: Regions, dim: int, wait_s: float, period: float, frame: Frame | None = None,
-                 **kwargs: Any) -> None:
+                 window: int | None = None, snapshot: Path | None = None, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.regions, self.dim, self.wait_s, self.period = regions, dim, wait_s, period
+        # the region pictures a region centre keeps (picture_window; default: at real time)
+        self.window = picture_window(period, 1.0) if window is None else window
+        self.seen: list[dict[float, bytes]] = [{} for _ in regions.ids]  # its last ``window`` times taken: digest
+        self.settle_until: float | None = None  # merge nothing before (on_start: the caches' replies come in)
+        self.settling: list[tuple[int, TrackPicture]] = []  # pictures that came before it, in arrival order
+        self.snapshot = snapshot  # where the time of the last picture published is kept (--snapshot)
+        self.resumed_t: float | None = None  # the last time merged before this start (read from the snapshot)
         self.frame = frame  # [frame]: each merged track's WGS-84 position too
         R = len(regions.ids)
         self.pending: list[deque[TrackPicture]] = [deque() for _ in range(R)]
@@ -103,8 +147,18 @@ class PictureMergeService(Service):
         self.lead: LeadGuard[TrackPicture] = LeadGuard(max_lag=0.0)
 
     def subscriptions(self) -> list[Subscription]:
-        return [Subscription(self.keys.region_picture(rid), TrackPicture, partial(self.on_picture, r))
+        return [Subscription(self.keys.region_picture(rid), TrackPicture, partial(self.on_picture, r), history=True)
                 for r, rid in enumerate(self.regions.ids)]
+
+    def on_start(self) -> None:
+        self.settle_until = time.monotonic() + HISTORY_SETTLE_S
+        if self.snapshot is not None and self.snapshot.exists():
+            try:
+                self.resumed_t = float(self.snapshot.read_text())
+                self.log.info("pictures up to t=%g were merged before this start (%s)", self.resumed_t, self.snapshot)
+            except (OSError, ValueError) as exc:
+                self.log.warning("%s: not a snapshot (%s): every time the region caches hold is merged", self.snapshot,
+                                 exc)
 
     def on_picture(self, r: int, msg: TrackPicture) -> None:
         if msg.ids and msg.x.shape[1] != self.dim:  # its merge with the others' would fail
@@ -122,39 +176,59 @@ class PictureMergeService(Service):
             self.closing[r] = msg
             self._merge()
             return
+        if self.settle_until is not None:  # the caches' replies, interleaved with live pictures: sorted first
+            if any(q == r and p.t == msg.t and digest(p) == digest(msg) for q, p in self.settling):
+                self.count("duplicate")
+            else:
+                self.settling.append((r, msg))
+        else:
+            self._admit(r, msg)
+        self._merge()
+
+    def _admit(self, r: int, msg: TrackPicture) -> None:
+        """Take region ``r``'s picture, and those it witnesses, through the lead guard."""
         rid = self.regions.ids[r]
         for region, picture in self.in_time(self.lead, self.keys.region_picture(rid), msg, rid, (r, msg)):
             self._take(region, picture)
-        self._merge()
 
     def _take(self, r: int, msg: TrackPicture) -> None:
         """Queue region ``r``'s picture for its time, or count it late when that time was merged. A
-        region's pictures come in time order: one not after the latest taken from it (a re-sent
-        picture, or two primaries' during a split brain, before or after the merge of its time) is a
-        ``duplicate`` when equal to the one taken for its time, else rejected (``conflict``; the
-        first stays) and the next merged picture ``contested``."""
-        latest = self.latest[r]
-        if latest is not None and msg.t <= latest.t:
-            first = next((p for p in (*self.pending[r], latest) if p.t == msg.t), None)
-            if first is not None and digest(first) == digest(msg):
+        picture of a time taken from the region before (a re-delivery from a cache, or two primaries'
+        during a split brain, before or after the merge of its time) is a ``duplicate`` when equal to
+        the one taken, else rejected (``conflict``; the first stays) and the next merged picture
+        ``contested``; so is one before the latest taken whose time was merged. One before the latest
+        whose time was not merged (a cache's reply overtaken by a live picture) is queued in order."""
+        latest, seen, mark = self.latest[r], self.seen[r], digest(msg)
+        merged = self.merged_t is not None and msg.t <= self.merged_t
+        if msg.t in seen or (latest is not None and msg.t <= latest.t and merged):
+            if seen.get(msg.t) == mark:
                 self.count("duplicate")
                 return
             if not self.contested:
                 self.count("contested")
             self.contested = True
             self.note_rejected(self.keys.region_picture(self.regions.ids[r]), Conflict(msg.seq, (
-                f"region {self.regions.ids[r]}'s picture at t={msg.t}: it has sent one at t={latest.t}")))
+                f"region {self.regions.ids[r]}'s picture at t={msg.t}: it has sent one at "
+                f"t={msg.t if latest is None else latest.t}")))
             return
-        self.latest[r] = msg
+        seen[msg.t] = mark
+        while len(seen) > self.window:
+            del seen[min(seen)]
+        if latest is None or msg.t > latest.t:
+            self.latest[r] = msg
         self.lead.took(self.regions.ids[r], msg.t)
         if self.clock.first is None:  # a merger started again numbers on from the last one's numbers
             self.clock.numbered(msg.seq, msg.t)
+        if self.resumed_t is not None and msg.t <= self.resumed_t:  # the last merger published that time
+            self.count("merged_before")
+            return
         if self.merged_t is not None and msg.t <= self.merged_t:
             self.count("late_picture")
             self.log.warning("region %s's picture at t=%g came after that time was merged", self.regions.ids[r], msg.t)
             self.late[r] += entries_of(msg, self.regions.ids[r])
         else:
-            self.pending[r].append(msg)
+            queue = self.pending[r]
+            queue.insert(sum(p.t < msg.t for p in queue), msg)
             self.first_seen.setdefault(msg.t, time.monotonic())
 
     def on_tick(self) -> None:
@@ -162,6 +236,14 @@ class PictureMergeService(Service):
 
     def _merge(self, force: bool = False) -> None:
         """Publish every picture time that is complete (or whose wait is over, or all when ``force``)."""
+        if self.settle_until is not None:
+            if not force and time.monotonic() < self.settle_until:
+                return
+            self.settle_until = None
+            for r, msg in sorted(self.settling, key=lambda item: item[1].t):
+                self._admit(r, msg)
+            self.settling = []
+            self._from_caches()
         while True:
             heads = [q[0].t for q in self.pending if q]
             if not heads:
@@ -177,6 +259,17 @@ class PictureMergeService(Service):
             self._publish(T, parts, contested=any(self.started[r] for r in absent))
             self.first_seen.pop(T, None)
             self.merged_t = T
+
+    def _from_caches(self) -> None:
+        """At the end of the start's settling: when every region has pictures queued (its cache's), drop
+        the times before the first all of them hold, which would be merged without a region."""
+        if not all(self.pending):
+            return
+        first = max(q[0].t for q in self.pending)
+        for queue in self.pending:
+            while queue[0].t < first:
+                self.first_seen.pop(queue.popleft().t, None)
+                self.count("cache_partial")
 
     def _publish(self, T: float, parts: list[TrackPicture | None], contested: bool = False,
                  closing: bool = False) -> None:
@@ -207,6 +300,18 @@ class PictureMergeService(Service):
             lla=None if self.frame is None else geodetic_of_states(self.frame, tracks.x)))
         self.seq += 1
         self.counters["pictures"] = self.seq
+        if self.snapshot is not None and not closing:
+            self._keep(T)
+
+    def _keep(self, T: float) -> None:
+        """Write ``T`` to the snapshot (a whole file, renamed into place)."""
+        assert self.snapshot is not None
+        temporary = self.snapshot.with_name(self.snapshot.name + ".tmp")
+        try:
+            temporary.write_text(repr(T))
+            os.replace(temporary, self.snapshot)
+        except OSError as exc:
+            self.log.warning("%s: %s (a restart merges again what the region caches hold)", self.snapshot, exc)
 
     def on_stop(self) -> None:
         """The pictures still held, then one closing record of the regions' closing lists (a picture
@@ -225,7 +330,11 @@ def service_from_args(argv: list[str]) -> PictureMergeService:
                         "[deployment] and [frame] (the merged tracks' lat, lon, alt)")
     parser.add_argument("--dim", type=int, choices=(4, 6), default=4,
                         help="central state size: 6 when any sensor is a radar (default: %(default)s)")
-    parser.add_argument("--wait", type=float, default=2.0, metavar="SECONDS",
+    parser.add_argument("--snapshot", type=Path, metavar="PATH",
+                        help="keep the time of the last picture published here; started again, merge only later "
+                        "times (launch: OUT/picture.snapshot; default: none, a restart merges again every time the "
+                        "region centres' caches hold)")
+    parser.add_argument("--wait", type=float, default=MERGE_WAIT_S, metavar="SECONDS",
                         help="merge a picture time without a region after this long (default: %(default)s)")
     args = parser.parse_args(argv)
     if not args.wait > 0:
@@ -234,9 +343,11 @@ def service_from_args(argv: list[str]) -> PictureMergeService:
     regions = load_regions(Path(args.config))
     if regions is None:
         raise ConfigError(f"{args.config}: serve picture needs a [regions] table")
-    period = load_tables(Path(args.config), MttServiceSettings).mtt.period  # the region centres' picture period
+    settings = load_tables(Path(args.config), MttServiceSettings)
+    period = settings.mtt.period  # the region centres' picture period
     frame = load_frame(Path(args.config))
-    return PictureMergeService(regions, args.dim, args.wait, period, None if frame is None else frame.frame, **kwargs)
+    return PictureMergeService(regions, args.dim, args.wait, period, None if frame is None else frame.frame,
+                               picture_window(period, settings.deployment.speed), args.snapshot, **kwargs)
 
 
 def main(argv: list[str]) -> int:
