@@ -20,7 +20,7 @@ from fedtrack.fusion_center.mtt.evaluation import evaluate
 from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.scan import SensorScan
-from fedtrack.local_filters.mtt.tracker import empty_tracks, scan_counts, scan_sees, track_params
+from fedtrack.local_filters.mtt.tracker import Sight, empty_tracks, radar_view, scan_counts, scan_sees, track_params
 
 WARM_UP_S = 20.0  # the trackers' start, left out of the count
 
@@ -117,7 +117,8 @@ def test_scan_sees_a_track_inside_the_extent_of_its_detections() -> None:
     params = track_params(MttConfig(), None, 4)._replace(sensor_bit=2)
     scan = SensorScan(1.0, "s2", np.eye(2), np.array([[0.0, 0.0], [100.0, 50.0]]), None, None)
     x = np.array([[50.0, 0.0, 25.0, 0.0], [150.0, 0.0, 25.0, 0.0], [50.0, 0.0, 50.0, 0.0]])
-    assert scan_sees(x, None, scan, params).tolist() == [True, False, False]
+    sight = scan_sees(x, None, scan, params)
+    assert sight.place.tolist() == [True, False, False] and sight.view.all()
     assert scan_sees(x, None, scan, params._replace(sensor_bit=0)) is None
 
 
@@ -133,10 +134,80 @@ def test_scan_counts_for_the_sensors_that_detected_or_see_a_track() -> None:
     after, counted, need = scan_counts(tracks, none, params)
     assert counted.tolist() == [False, True] and need.tolist() == [3, 4]
     assert after.detected_by.tolist() == [one, one | two]
-    _, counted, _ = scan_counts(tracks, none, params, np.array([True, False]))
+    _, counted, _ = scan_counts(tracks, none, params, Sight(np.array([True, False]), np.ones(2, bool)))
     assert counted.tolist() == [True, True]
+    _, counted, _ = scan_counts(tracks, none, params, Sight(np.zeros(2, bool), np.array([True, False])))
+    assert counted.tolist() == [False, False]  # the second left the radar's view: no longer counted
+    lone = tracks._replace(detected_by=np.array([two, two], dtype=np.int64))
+    _, counted, _ = scan_counts(lone, none, params, Sight(np.zeros(2, bool), np.array([True, False])))
+    assert counted.tolist() == [True, True]  # no other sensor detected it: its own sensor still counts
     after, counted, need = scan_counts(tracks, np.array([True, False]), params)  # sensor 2 detects the first
     assert after.detected_by.tolist() == [one | two, one | two] and counted.tolist() == [True, True]
     assert need.tolist() == [4, 4]
     _, counted, need = scan_counts(tracks, none, params._replace(sensor_bit=0))  # one sensor's tracker
     assert counted is True and need == 6
+
+
+FAR_S = 60.0  # seconds of the far-radar scenario
+
+
+def far_radar_scans(path: Path) -> None:
+    """A low target (300 m up, 50 m/s along x) seen by a position sensor every 4 s, and a radar
+    150 km away scanning every second: its clutter (20 a scan, ranges 20-300 km, every azimuth,
+    elevations 0.01-0.3 rad) surrounds the target in x-y, but the target is below its lowest
+    elevation (2 mrad): the radar detects it in its first scan only, as a radar does an aircraft
+    that then descends below its horizon."""
+    rng = np.random.default_rng(7)
+    site = np.array([-150_000.0, 0.0, 0.0])
+    lines = []
+    for k in range(int(FAR_S)):
+        t = float(k)
+        target = np.array([50.0 * t, 0.0, 300.0])
+        if k % 4 == 0:
+            z = target[:2] + rng.normal(0.0, 10.0, 2)
+            lines.append({"t": t, "sensor": "s1", "R": (100.0 * np.eye(2)).tolist(), "detections": [{"z": z.tolist()}]})
+        n = 20
+        dets = np.column_stack([rng.uniform(20e3, 300e3, n), rng.uniform(-np.pi, np.pi, n), rng.uniform(0.01, 0.3, n)])
+        if k == 0:
+            rel = target - site
+            own = [np.linalg.norm(rel), np.arctan2(rel[1], rel[0]), np.arcsin(rel[2] / np.linalg.norm(rel))]
+            dets = np.vstack([dets, own])
+        lines.append({"t": t + 0.5, "sensor": "r1", "R": np.diag([100.0, 4e-6, 4e-6]).tolist(),
+                      "sensor_position": site.tolist(), "detections": [{"z": d.tolist()} for d in dets]})
+    path.write_text("".join(json.dumps(line) + "\n" for line in lines))
+
+
+@pytest.mark.parametrize("associator", ["gnn", "jipda", "mht"])
+def test_a_far_radars_clutter_round_a_low_target_does_not_delete_its_track(tmp_path: Path, associator: str) -> None:
+    """:func:`far_radar_scans`: the target's track, confirmed on the position sensor's plots, is held
+    by one id from 15 s on (before the radar's view, its misses deleted it: no track from 15 s on)."""
+    scans, config, out = tmp_path / "scans.jsonl", tmp_path / "c.toml", tmp_path / "out.jsonl"
+    far_radar_scans(scans)
+    density = 20 / (280e3 * 2 * np.pi * 0.29)
+    config.write_text(f'[mtt]\nassociator = "{associator}"\nsensors = ["s1", "r1"]\npd = 0.9\n'
+                      f'clutter_density = 1e-12\nperiod = 1.0\n\n[mtt.sensor.r1]\nclutter_density = {density}\n')
+    replay_mtt("mtt-centralized", scans, config, out)
+    held = []
+    for picture in map(json.loads, out.read_text().splitlines()):
+        near = [tr["id"] for tr in picture["tracks"] if tr.get("status", "confirmed") == "confirmed"
+                and abs(tr["x"][0] - 50.0 * picture["t"]) < 300.0 and abs(tr["x"][2]) < 300.0]
+        if picture["t"] >= 15.0:
+            held.append(near)
+    assert held and all(len(ids) == 1 for ids in held), held
+    assert len({ids[0] for ids in held}) == 1, held
+
+
+def test_radar_view_is_the_elevation_range_and_azimuth_arc_its_detections_span() -> None:
+    """A radar at the origin with detections at azimuths 170 to -170 deg (across +-180), elevations
+    0.1-0.2 rad, ranges 1-10 km: a track inside is in view; below the lowest elevation, beyond the
+    farthest range, or outside the arc, it is not."""
+    scan = SensorScan(1.0, "r1", np.eye(3), np.array([[1e3, np.radians(170.0), 0.1], [10e3, np.radians(-170.0), 0.2],
+                                                      [5e3, np.radians(180.0), 0.15]]), None, np.zeros(3))
+
+    def state(r: float, az_deg: float, el: float) -> list[float]:
+        a = np.radians(az_deg)
+        return [r * np.cos(el) * np.cos(a), 0.0, r * np.cos(el) * np.sin(a), 0.0, r * np.sin(el), 0.0]
+
+    x = np.array([state(5e3, 175.0, 0.15), state(5e3, -175.0, 0.15), state(5e3, 175.0, 0.05),
+                  state(12e3, 175.0, 0.15), state(5e3, 0.0, 0.15), state(5e3, 160.0, 0.15), state(5e3, 175.0, 0.099)])
+    assert radar_view(x, scan).tolist() == [True, True, False, False, False, False, False]

@@ -17,6 +17,11 @@ once the sensor detected it or put a detection in its gate (``tracker.scan_count
 ``gnn-sensor-counts.json.gz`` (frozen when it came) holds the centralized cases with that rule, and
 with every scan counted for every track (``CentralizedEngine.bit`` 0) they equal the references above.
 
+Since the far-radar session a radar's scan counts for a track another sensor also detected only
+inside the radar's view its detections show (``tracker.radar_view``): ``gnn-radar-view.json.gz``
+(frozen when it came) holds the radar scenario's centralized cases with that rule, and with every
+track in view they equal ``gnn-sensor-counts.json.gz`` (the position scenario's have no radar).
+
 Since the untuned3 session a tracker of scans less than 1 s apart deletes after more misses
 (``config.scan_lost``: ``LOST`` a second as well as a scan), which changes the pictures of the
 trackers of the 0.7 s and 0.8 s sensors: every case is compared with that taken out
@@ -39,6 +44,7 @@ DATA = Path(__file__).parent / "data" / "mtt_reference"
 REFERENCE = DATA / "gnn-886cab1.json.gz"
 RELINEARIZED = DATA / "gnn-relinearized.json.gz"  # the cases the altitude's relinearization changes
 SENSOR_COUNTS = DATA / "gnn-sensor-counts.json.gz"  # the centralized cases: the scans counted per track
+RADAR_VIEW = DATA / "gnn-radar-view.json.gz"  # the radar scenario's centralized cases: the radar's view
 CASES = [(scenario, maneuver, algorithm) for scenario in ("pos", "radar") for maneuver in ("none", "vdie")
          for algorithm in ("mtt-local", "mtt-centralized", "mtt-federated", "mtt-decentralized")]
 LOCAL_SENSOR = {"pos": "s2", "radar": "r1"}
@@ -93,6 +99,10 @@ def test_gnn_pictures_equal_main_886cab1(tmp_path: Path, scenario: str, maneuver
     monkeypatch.setattr(config, "LOST_SCAN_S", 0.0)  # a count per scan only, as before the untuned3 session
 
     key = f"{scenario}-{maneuver}-{algorithm}"
+    viewed = json.loads(gzip.decompress(RADAR_VIEW.read_bytes()))
+    if key in viewed:
+        assert_fingerprints_equal(fingerprint(replay_case(tmp_path, scenario, maneuver, algorithm)), viewed[key])
+        monkeypatch.setattr(tracker, "radar_view", lambda x, scan: np.ones(x.shape[0], bool))  # every track in view
     counted = json.loads(gzip.decompress(SENSOR_COUNTS.read_bytes()))
     if key in counted:
         assert_fingerprints_equal(fingerprint(replay_case(tmp_path, scenario, maneuver, algorithm)), counted[key])

@@ -362,7 +362,7 @@ def gate_modes(z: np.ndarray, lin: Linearized, S: np.ndarray, modes: Modes, x0: 
 
 
 def associate(state: TrackerState, gating: Gating | None, scan: SensorScan, params: TrackParams,
-              dt: float = 0.0, sees: np.ndarray | None = None) -> Association:
+              dt: float = 0.0, sees: Sight | None = None) -> Association:
     """Role 3: the associator's answer (nothing to associate without gated pairs, unless the
     associator keeps the existence of tracks, which a scan without pairs still lowers); ``sees``:
     :func:`scan_sees`."""
@@ -376,7 +376,7 @@ def associate(state: TrackerState, gating: Gating | None, scan: SensorScan, para
     return params.associator.associate(AssociationInput(
         n, n_det, rows, cols, log_l, scan.dim, state.tracks.confirmed, state.tracks.existence,
         params.pd, params.clutter_density, scan.amplitude, state.memory, params.gate[scan.dim], dt,
-        None if by is None or sees is None else ((by & params.sensor_bit) == 0) & ~sees))
+        None if by is None or sees is None else ~sees.counts(by, params.sensor_bit)))
 
 
 def predict_tracks(tracks: TrackSet, dt: float, params: TrackParams, q_scale: float | np.ndarray = 1.0
@@ -452,46 +452,87 @@ def popcount(bits: np.ndarray) -> np.ndarray:
     return np.unpackbits(np.ascontiguousarray(bits, dtype=np.int64).view(np.uint8).reshape(-1, 8), axis=1).sum(axis=1)
 
 
-def scan_sees(x: np.ndarray, gating: Gating | None, scan: SensorScan, params: TrackParams) -> np.ndarray | None:
+class Sight(NamedTuple):
+    """What one scan of a tracker of several sensors' scans shows of each track's place
+    (:func:`scan_sees`): ``place``, that its sensor sees it (a detection in the track's gate, or the
+    track inside the extent of the scan's detections); ``view``, that the track is inside the
+    radar's view the detections show (True for a position scan: its extent is ``place``'s)."""
+
+    place: np.ndarray  # (N,) bool
+    view: np.ndarray  # (N,) bool
+
+    def take(self, idx: np.ndarray) -> Sight:
+        return Sight(self.place[idx], self.view[idx])
+
+    def counts(self, detected_by: np.ndarray, sensor_bit: int) -> np.ndarray:
+        """The tracks the scan counts for: its sensor sees the place, or detected the track before
+        and the track is still inside its view."""
+        others = (detected_by & ~sensor_bit) != 0
+        return (((detected_by & sensor_bit) != 0) & (self.view | ~others)) | self.place
+
+
+def radar_view(x: np.ndarray, scan: SensorScan) -> np.ndarray:
+    """Per track (its predicted state in ``x``, 3-D), whether it is inside a radar scan's view as
+    its detections (targets' and clutter) show it, seen from ``sensor_position``: at an elevation
+    above the lowest detection's (below it: the radar's horizon or lowest beam), at a range below
+    the farthest detection's (its reach), and in the arc of azimuth the detections span (its sector:
+    outside the largest gap between neighbouring detections' azimuths). A track on an edge is outside."""
+    rel = x[:, [0, 2, 4]] - scan.sensor_position
+    rng = np.linalg.norm(rel, axis=1)
+    el = np.arctan2(rel[:, 2], np.hypot(rel[:, 0], rel[:, 1]))
+    az = np.arctan2(rel[:, 1], rel[:, 0])
+    r, a, e = scan.z[:, 0], np.sort(np.mod(scan.z[:, 1], 2 * np.pi)), scan.z[:, 2]
+    gaps = np.diff(np.concatenate([a, a[:1] + 2 * np.pi]))
+    k = int(np.argmax(gaps))  # the largest gap: from a[k] on, counter-clockwise, for gaps[k]
+    return (el > e.min()) & (rng < r.max()) & (np.mod(az - a[k], 2 * np.pi) > gaps[k])
+
+
+def scan_sees(x: np.ndarray, gating: Gating | None, scan: SensorScan, params: TrackParams) -> Sight | None:
     """In a tracker of several sensors' scans (``params.sensor_bit``; else None), per track (its
-    predicted state in ``x``) whether the scan shows that its sensor sees the track's place: a
-    detection of the scan in the track's gate, or the track's position strictly inside the x-y
-    extent of the scan's detections (targets' and clutter: a sensor's detections lie in what it
-    sees; a sensor that covers the area puts its clutter all round a track)."""
+    predicted state in ``x``) what the scan shows of its place (:class:`Sight`): a detection of the
+    scan in the track's gate, or the track's position strictly inside the x-y extent of the scan's
+    detections (targets' and clutter: a sensor's detections lie in what it sees; a sensor that
+    covers the area puts its clutter all round a track) and, for a radar, inside its view
+    (:func:`radar_view`: a far radar's clutter surrounds a low aircraft in x-y, above its horizon)."""
     if not params.sensor_bit:
         return None
     n = x.shape[0]
     sees = np.zeros(n, dtype=bool) if gating is None else np.bincount(gating.pairs.rows, minlength=n) > 0
+    view = np.ones(n, dtype=bool)
     if n and scan.z.shape[0] > 1:
         pos = scan.z if scan.sensor_position is None else scan.sensor_position + cartesian_from_polar(scan.z)
         xy = pos[:, :2]
         lo, hi, at = xy.min(axis=0), xy.max(axis=0), x[:, [0, 2]]
-        sees |= ((at > lo) & (at < hi)).all(axis=1)
-    return sees
+        if scan.sensor_position is not None:
+            view = radar_view(x, scan)
+        sees |= ((at > lo) & (at < hi)).all(axis=1) & view
+    return Sight(sees, view)
 
 
-def scan_counts(tracks: TrackSet, detected: np.ndarray, params: TrackParams, sees: np.ndarray | None = None
+def scan_counts(tracks: TrackSet, detected: np.ndarray, params: TrackParams, sight: Sight | None = None
                 ) -> tuple[TrackSet, np.ndarray | bool, np.ndarray | int]:
     """Which tracks the scan counts for in the life rules, and the misses in a row that delete each.
 
     One sensor's tracker: every track, ``delete_misses``. A tracker of several sensors' scans
-    (``params.sensor_bit``): a sensor's scan counts for a track once that sensor has detected it
-    (now or before: ``detected_by``) or when the scan shows that the sensor sees the track's place
-    (``sees``, :func:`scan_sees`: a detection in its gate, as beside a target's own track for its
-    twin, or the track inside the extent of the scan's detections); a sensor that has none of these
-    may not see the target at all (out of its range or field of view, behind the horizon), and its
-    misses are then no evidence against it (docs/multitarget.md#sensors-that-cannot-see-a-target).
-    A confirmed track is deleted after ``sensor_misses`` misses in a row per sensor that detected
-    it, at least ``lone_misses``, at most ``delete_misses``."""
+    (``params.sensor_bit``): a sensor's scan counts for a track where the scan shows that the
+    sensor sees the track's place (``sight``, :func:`scan_sees`: a detection in its gate, as beside
+    a target's own track for its twin, or the track inside the extent of the scan's detections), or
+    once that sensor has detected the track (now or before: ``detected_by``) while the track is
+    inside the radar's view the scan shows (a radar's; a track that descended below a radar's
+    horizon is no longer counted by it); a sensor that has none of these may not see the target at
+    all (out of its range or field of view, behind the horizon), and its misses are then no
+    evidence against it (docs/multitarget.md#sensors-that-cannot-see-a-target). A confirmed track
+    is deleted after ``sensor_misses`` misses in a row per sensor that detected it, at least
+    ``lone_misses``, at most ``delete_misses``."""
     if not params.sensor_bit or tracks.detected_by is None:
         return tracks, True, params.delete_misses
     by = tracks.detected_by | np.where(detected, params.sensor_bit, 0)
-    counted = (by & params.sensor_bit) != 0
+    counted = (by & params.sensor_bit) != 0 if sight is None else sight.counts(by, params.sensor_bit) | detected
     need = np.clip(params.sensor_misses * popcount(by), params.lone_misses, params.delete_misses)
-    return tracks._replace(detected_by=by), counted if sees is None else counted | sees, need
+    return tracks._replace(detected_by=by), counted, need
 
 
-def m_of_n(tracks: TrackSet, detected: np.ndarray, params: TrackParams, sees: np.ndarray | None = None
+def m_of_n(tracks: TrackSet, detected: np.ndarray, params: TrackParams, sees: Sight | None = None
            ) -> tuple[TrackSet, np.ndarray]:
     """Role 6: the track counts after the scan, and which tracks stay (M-of-N confirmation,
     deletion after ``delete_misses`` consecutive misses; the scans counted: :func:`scan_counts`,
@@ -531,7 +572,7 @@ def jipda_update(tracks: TrackSet, pred: GaussianState, gating: Gating | None, a
                    Observation(*obs))
 
 
-def existence_manage(tracks: TrackSet, detected: np.ndarray, params: TrackParams, sees: np.ndarray | None = None
+def existence_manage(tracks: TrackSet, detected: np.ndarray, params: TrackParams, sees: Sight | None = None
                      ) -> tuple[TrackSet, np.ndarray]:
     """Role 6 for ``jipda``: confirmation and deletion by existence (:func:`jipda.derived_rules`);
     the counts kept as :func:`m_of_n` keeps them."""
@@ -664,7 +705,8 @@ def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale
         cx[hit], cP[hit] = detection_update(x0, cP[hit], cmodes, np.flatnonzero(hit), nu[pidx], H, scan.R)
         obs = Observation(H, np.broadcast_to(scan.R, (pidx.size, m, m)).copy(), nu[pidx] + np.einsum("nij,nj->ni", H, x0))
     sees = scan_sees(x, gating, scan, params)
-    old, counted, need = scan_counts(leaves.take(br.parent), hit, params, None if sees is None else sees[br.parent])
+    old, counted, need = scan_counts(leaves.take(br.parent), hit, params,
+                                     None if sees is None else sees.take(br.parent))
     step = np.where(hit, 0.0, miss * counted)  # each branch's score increment (a miss the scan counts)
     step[hit] = inc[pidx]
     score = mem.score[br.parent] + step
