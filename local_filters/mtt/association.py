@@ -34,7 +34,7 @@ come from the :class:`Associator`; the others are shared.
 * ``manage`` (optional; None: :func:`~.tracker.m_of_n`, M-of-N confirmation and deletion after
   ``delete_misses`` misses): ``manage(tracks, detected, params, sees) -> (tracks, live)``, the
   tracks with their counts after the scan and which stay (``sees``: in a tracker of several
-  sensors' scans, the tracks whose place the scan shows its sensor sees, :func:`~.tracker.scan_sees`,
+  sensors' scans, what the scan shows of each track's place, :func:`~.tracker.scan_sees`,
   else None; such a tracker counts a scan for a track only where its sensor detected the track or
   sees there: :func:`~.tracker.scan_counts`); ``jipda`` confirms and deletes by existence thresholds
   (``tracks.existence``). A new track's existence is ``params.initial_existence``.
@@ -68,9 +68,10 @@ class AssociationInput(NamedTuple):
     memory: Any = None  # the associator's memory after the previous scan
     gate_d2: float = float("inf")  # the chi-square gate of the scan's measurement size
     dt: float = 0.0  # time since the tracker's previous scan (existence prediction)
-    # (N,) bool: the tracks the scan's sensor never detected and does not show it sees (a tracker
-    # of several sensors' scans; None: one sensor's): its miss is no evidence against them
-    # (tracker.scan_counts, tracker.scan_sees)
+    # (N,) bool: the tracks the scan does not count for (its sensor never detected them, or they
+    # left its radar's view, and it does not show it sees them; a tracker of several sensors'
+    # scans; None: one sensor's): its miss is no evidence against them (tracker.scan_counts,
+    # tracker.scan_sees)
     blind: np.ndarray | None = None
 
 

@@ -466,7 +466,8 @@ class Sight(NamedTuple):
 
     def counts(self, detected_by: np.ndarray, sensor_bit: int) -> np.ndarray:
         """The tracks the scan counts for: its sensor sees the place, or detected the track before
-        and the track is still inside its view."""
+        and the track is still inside its view (or no other sensor detected it: the sensor that
+        holds a track alone always counts, so that it can be deleted)."""
         others = (detected_by & ~sensor_bit) != 0
         return (((detected_by & sensor_bit) != 0) & (self.view | ~others)) | self.place
 
@@ -518,8 +519,8 @@ def scan_counts(tracks: TrackSet, detected: np.ndarray, params: TrackParams, sig
     sensor sees the track's place (``sight``, :func:`scan_sees`: a detection in its gate, as beside
     a target's own track for its twin, or the track inside the extent of the scan's detections), or
     once that sensor has detected the track (now or before: ``detected_by``) while the track is
-    inside the radar's view the scan shows (a radar's; a track that descended below a radar's
-    horizon is no longer counted by it); a sensor that has none of these may not see the target at
+    inside the radar's view the scan shows (a track that descended below a radar's horizon is no
+    longer counted by it, unless no other sensor detected it); a sensor that has none of these may not see the target at
     all (out of its range or field of view, behind the horizon), and its misses are then no
     evidence against it (docs/multitarget.md#sensors-that-cannot-see-a-target). A confirmed track
     is deleted after ``sensor_misses`` misses in a row per sensor that detected it, at least
