@@ -118,9 +118,11 @@ def test_a_window_too_long_for_memory_is_one_line_and_writes_nothing(tmp_path: P
     """Two flights three years apart (``onground/zurich_airport`` spans 55 days): the whole recording's window
     on the 0.05 s grid needs about 200 GB. Before: numpy's MemoryError as a traceback (or the machine's memory
     taken); now one line naming --duration, exit 2, no folder."""
-    rows = [f"{t0 + k},{icao},48.86,{2.40 + 0.002 * k},3000" for t0, icao in ((0, "a"), (1e8, "b")) for k in range(10)]
+    rows = [f"{t0 + k},{icao},48.86,{2.40 + 0.002 * k},3000"
+            for t0, icao in ((0, "a"), (1e8, "b")) for k in range(10)]
     source = _write_csv(tmp_path / "a.csv", "time,icao24,lat,lon,alt", rows)
-    code = main(["simulate", "traffic", "--source", str(source), "--origin", "48.86,2.40", "--out", str(tmp_path / "o")])
+    code = main(["simulate", "traffic", "--source", str(source), "--origin", "48.86,2.40",
+                 "--out", str(tmp_path / "o")])
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert code == 2 and len(err) == 1 and "the window is too long" in err[0] and "--duration" in err[0], err
     assert not (tmp_path / "o").exists()
@@ -253,7 +255,8 @@ def test_a_site_or_origin_in_the_wrong_units_is_one_line(tmp_path: Path, capsys:
     replay then refused."""
     rows = [f"{k},{icao},{48.86 + 0.01 * i},{2.40 + 0.002 * k},3000" for i, icao in enumerate("abc") for k in range(20)]
     args = {"--origin": "48.86,2.40", "--sensors": "radar:4,pos:2"} | dict([option])
-    code = main(["simulate", "traffic", "--source", str(_write_csv(tmp_path / "a.csv", "time,icao24,lat,lon,alt", rows)),
+    source = _write_csv(tmp_path / "a.csv", "time,icao24,lat,lon,alt", rows)
+    code = main(["simulate", "traffic", "--source", str(source),
                  *[v for item in args.items() for v in item], "--out", str(tmp_path / "o")])
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
     assert code == 2 and len(err) == 1 and says in err[0], err

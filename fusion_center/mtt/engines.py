@@ -115,10 +115,10 @@ class PictureClock:
         period grid counted from t = 0 (from the first picture when that is earlier), so that a centre
         started again, or a standby taking over, numbers a picture time as the first run did, without
         having seen any of its pictures (a live deployment's times count from the sensors' start); with
-        times before 0, once it knows that run's ``first`` (:meth:`numbered`); never below 0. Before 2026-11-27 each process counted its own pictures from 0, and the
-        recorder, which keys pictures by number, refused every picture of a cold standby that took
-        over, and of a restarted ``serve picture``, whose number an earlier one had had (``conflict``):
-        15 and 9 pictures of a 40 s run missing from the recording."""
+        times before 0, once it knows that run's ``first`` (:meth:`numbered`); never below 0. (A count
+        of each process's own pictures from 0 gave a cold standby's and a restarted ``serve picture``'s
+        pictures the numbers of earlier ones, and the recorder, which keys pictures by number, refused
+        them as ``conflict``s.)"""
         return max(round(T / self.period) - (self.first or 0), 0)
 
     def numbered(self, seq: int, T: float) -> None:
