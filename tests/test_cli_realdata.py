@@ -131,14 +131,13 @@ def test_values_no_run_can_use_are_one_line_errors(tmp_path: Path, capsys: pytes
     assert not (tmp_path / "o").exists()
 
 
-def assert_launch_refuses(tmp_path: Path, capsys: pytest.CaptureFixture[str], text: str, says: str) -> None:
-    """``launch`` of a config ``text``: one line saying ``says``, exit 2, no output folder."""
+def launch_config(tmp_path: Path, capsys: pytest.CaptureFixture[str], text: str) -> tuple[int, list[str], bool]:
+    """``launch`` of a config ``text``: (its exit code, its stderr lines, whether it made the output folder)."""
     config = tmp_path / "c.toml"
     config.write_text(text)
     code = main(["launch", str(config), "--out", str(tmp_path / "o")])
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
-    assert code == 2 and len(err) == 1 and says in err[0], err
-    assert not (tmp_path / "o").exists()
+    return code, err, (tmp_path / "o").exists()
 
 
 @pytest.mark.parametrize(("table", "says"), [("clutter = inf", "multitarget.clutter: must be in [0, "),
@@ -148,11 +147,12 @@ def assert_launch_refuses(tmp_path: Path, capsys: pytest.CaptureFixture[str], te
                                              ('source = "x.csv"\norigin = [48.86, 2.4, 200000.0]',
                                               "multitarget.origin: expected lat deg in [-90, 90], lon deg in "
                                               "[-180, 360], h m in [-10000, 100000]")])
-def test_launch_refuses_an_infinite_multitarget_value(tmp_path: Path, capsys: pytest.CaptureFixture[str],
-                                                      table: str, says: str) -> None:
-    """The origin 200 km up (before 2026-11-27 the run went ahead and wrote a config.toml whose [frame] origin
-    replay then refused)."""
-    assert_launch_refuses(tmp_path, capsys, f'[deployment]\npacing = "realtime"\n\n[multitarget]\n{table}\n', says)
+def test_launch_refuses_a_multitarget_value_out_of_range(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                         table: str, says: str) -> None:
+    """Infinite values; the origin 200 km up (before 2026-11-27 the run went ahead and wrote a config.toml whose
+    [frame] origin replay then refused)."""
+    code, err, made = launch_config(tmp_path, capsys, f'[deployment]\npacing = "realtime"\n\n[multitarget]\n{table}\n')
+    assert code == 2 and len(err) == 1 and says in err[0] and not made, err
 
 
 @pytest.fixture(scope="module")
@@ -212,7 +212,8 @@ def test_a_negative_seed_is_refused_before_anything_is_written(tmp_path: Path, c
 def test_launch_refuses_a_negative_seed_or_an_endless_run(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                                           table: str, says: str) -> None:
     """Before: the services started, then a traceback (numpy's seed; OverflowError of an infinite duration)."""
-    assert_launch_refuses(tmp_path, capsys, f'[deployment]\n{table}\n\n[[sensor]]\nid = "1"\n', says)
+    code, err, made = launch_config(tmp_path, capsys, f'[deployment]\n{table}\n\n[[sensor]]\nid = "1"\n')
+    assert code == 2 and len(err) == 1 and says in err[0] and not made, err
 
 
 def test_reproduce_with_one_run_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -240,9 +241,11 @@ def test_launch_refuses_a_frame_other_than_the_recordings(tmp_path: Path, capsys
     """A recording's scenario is simulated in ``[multitarget] origin``'s frame and the services place tracks
     (lat, lon) and ``lat_lon`` regions in ``[frame] origin``'s: 98 km apart here, taken without a word before
     2026-11-27."""
-    assert_launch_refuses(tmp_path, capsys, '[deployment]\npacing = "realtime"\n\n[multitarget]\nsource = "x.csv"\n'
-                          'origin = [48.878, 2.423, 0.0]\n\n[frame]\norigin = [48.0, 2.423, 0.0]\n',
-                          "frame.origin: [48.0, 2.423, 0.0] is not multitarget.origin [48.878, 2.423, 0.0]")
+    code, err, made = launch_config(tmp_path, capsys, '[deployment]\npacing = "realtime"\n\n[multitarget]\n'
+                                    'source = "x.csv"\norigin = [48.878, 2.423, 0.0]\n\n[frame]\n'
+                                    'origin = [48.0, 2.423, 0.0]\n')
+    says = "frame.origin: [48.0, 2.423, 0.0] is not multitarget.origin [48.878, 2.423, 0.0]"
+    assert code == 2 and len(err) == 1 and says in err[0] and not made, err
 
 
 def test_demo_and_launch_read_a_recording_in_aviation_units(tmp_path: Path) -> None:
