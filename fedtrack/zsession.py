@@ -171,27 +171,25 @@ def id_arg(what: str) -> Callable[[str], str]:
 _deployment_arg = id_arg("deployment")
 
 
+def _config_values(config_file: str, section: str, *keys: str) -> list[Any]:
+    """The values of ``section/<key>`` for each of ``keys`` in the Zenoh configuration ``config_file``."""
+    config = load_config_file(config_file)
+    return [json.loads(config.get_json(f"{section}/{key}")) for key in keys]
+
+
 def requires_client_certificates(config_file: str) -> bool:
     """True when the Zenoh configuration ``config_file`` makes its TLS links mutual: ``enable_mtls`` with
     a ``root_ca_certificate`` to check the peer's certificate against (TLS without it authenticates
     the listening side only: any client may connect)."""
-    tls = load_config_file(config_file)
-
-    def value(key: str) -> Any:
-        return json.loads(tls.get_json(f"transport/link/tls/{key}"))
-
-    return value("enable_mtls") is True and bool(value("root_ca_certificate"))
+    mtls, ca = _config_values(config_file, "transport/link/tls", "enable_mtls", "root_ca_certificate")
+    return mtls is True and bool(ca)
 
 
 def denies_by_default(config_file: str) -> bool:
     """True when the Zenoh configuration ``config_file`` enables access control with default deny (the
     router's file that ``launch`` writes: each identity on its own keys only)."""
-    config = load_config_file(config_file)
-
-    def value(key: str) -> Any:
-        return json.loads(config.get_json(f"access_control/{key}"))
-
-    return value("enabled") is True and value("default_permission") == "deny"
+    enabled, default = _config_values(config_file, "access_control", "enabled", "default_permission")
+    return enabled is True and default == "deny"
 
 
 def check_authenticated(endpoint: str, flag: str, config_file: str | None, router: bool = False) -> None:
