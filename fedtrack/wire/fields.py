@@ -203,3 +203,10 @@ def _check_part(part: int, parts: int) -> None:
 def _check_square(P: np.ndarray, n: int, path: str, against: str) -> None:
     if P.shape != (n, n):
         raise WireError(path, f"expected shape ({n}, {n}) to match {against}, got {P.shape}")
+
+
+def _check_state(x: np.ndarray, P: np.ndarray, path: str = "x", cov_path: str = "P") -> None:
+    """A state ``x`` (not empty) and its covariance ``P`` (square, of its size)."""
+    if x.shape[0] == 0:
+        raise WireError(path, "must not be empty")
+    _check_square(P, x.shape[0], cov_path, path)

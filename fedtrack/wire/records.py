@@ -15,6 +15,7 @@ import numpy as np
 from fedtrack.wire.fields import (
     _check_part,
     _check_square,
+    _check_state,
     _choice,
     _count,
     _counters,
@@ -314,13 +315,8 @@ class LocalEstimate(_Record):
     _records = {"maneuver": ManeuverInfo}
 
     def _check(self) -> None:
-        n = self.x.shape[0]
-        if n == 0:
-            raise WireError("x", "must not be empty")
-        _check_square(self.P, n, "P", "x")
-        if self.x_prior.shape[0] == 0:
-            raise WireError("x_prior", "must not be empty")
-        _check_square(self.P_prior, self.x_prior.shape[0], "P_prior", "x_prior")
+        _check_state(self.x, self.P)
+        _check_state(self.x_prior, self.P_prior, "x_prior", "P_prior")
 
 
 @dataclass(frozen=True, eq=False)
@@ -346,9 +342,7 @@ class Reset(_Record):
     _arrays = ("x", "P")
 
     def _check(self) -> None:
-        if self.x.shape[0] == 0:
-            raise WireError("x", "must not be empty")
-        _check_square(self.P, self.x.shape[0], "P", "x")
+        _check_state(self.x, self.P)
         if not 0.0 < self.beta <= 1.0:
             raise WireError("beta", f"must be in (0, 1], got {self.beta}")
 
@@ -383,9 +377,7 @@ class FusedTrack(_Record):
     _arrays = ("x", "P")
 
     def _check(self) -> None:
-        if self.x.shape[0] == 0:
-            raise WireError("x", "must not be empty")
-        _check_square(self.P, self.x.shape[0], "P", "x")
+        _check_state(self.x, self.P)
 
 
 @dataclass(frozen=True, eq=False)
