@@ -141,6 +141,16 @@ def test_a_lone_sensor_witnesses_itself_only_with_a_later_scan() -> None:
     assert guard.admit("s1", 700.0, "i") == [] and guard.admit("s1", 701.0, "j") == ["i", "j"]
 
 
+def admitted(guard: LeadGuard[tuple[str, float]], scans: list[tuple[str, float]]) -> list[tuple[str, float]]:
+    """The ``(sensor, t)`` scans in time order through ``guard``: those it took, in the order it took them."""
+    taken = []
+    for sensor, t in sorted(scans, key=lambda item: item[1]):
+        for got in guard.admit(sensor, t, (sensor, t)):
+            guard.took(*got)
+            taken.append(got)
+    return taken
+
+
 def test_a_burst_after_a_pause_longer_than_the_bound_is_taken_when_the_data_resumes() -> None:
     """s2 sends bursts of 4 scans 0.05 s apart every 4 s (its usual interval 0.05 s, so its bound is
     ``max_lag``, 3 s); s1 (0.7 s) stops at 89.6 s and resumes at 100.2 s. s2's burst at 96.5 s leads
@@ -151,11 +161,7 @@ def test_a_burst_after_a_pause_longer_than_the_bound_is_taken_when_the_data_resu
     guard: LeadGuard[tuple[str, float]] = LeadGuard(max_lag=3.0)
     s1 = [("s1", round(0.7 * k, 2)) for k in range(1, 129)] + [("s1", round(100.2 + 0.7 * k, 2)) for k in range(20)]
     s2 = [("s2", round(0.5 + 4.0 * k + 0.05 * j, 2)) for k in range(26) for j in range(4)]
-    taken = []
-    for sensor, t in sorted(s1 + s2, key=lambda item: item[1]):
-        for got in guard.admit(sensor, t, (sensor, t)):
-            guard.took(*got)
-            taken.append(got[1])
+    taken = [t for _, t in admitted(guard, s1 + s2)]
     assert guard.usual["s2"] == pytest.approx(0.05) and guard.bound("s2") == 3.0
     assert guard.dropped == 0 and len(taken) == len(s1) + len(s2)
     assert taken[taken.index(96.5):taken.index(100.5) + 1] == [96.5, 96.55, 96.6, 96.65, 100.2, 100.5]
@@ -169,11 +175,7 @@ def test_a_burst_led_by_a_slow_sensors_bound_is_taken_when_that_sensor_passes_it
     guard: LeadGuard[tuple[str, float]] = LeadGuard(max_lag=3.0)
     s2 = [("s2", 0.1 + 12.0 * k) for k in range(10)]
     s3 = [("s3", round(0.5 + 8.0 * k + 0.05 * j, 2)) for k in range(15) for j in range(4)]
-    taken = []
-    for sensor, t in sorted(s2 + s3, key=lambda item: item[1]):
-        for got in guard.admit(sensor, t, (sensor, t)):
-            guard.took(*got)
-            taken.append(got)
+    taken = admitted(guard, s2 + s3)
     guard.end()
     held_last = [item for item in s3 if item[1] > s2[-1][1] + 3.0]  # after s2's last scan: never passed
     assert guard.bound("s3") == 3.0 and guard.dropped == len(held_last) == 4
