@@ -215,6 +215,15 @@ def test_a_flood_on_the_primarys_keys_is_not_held_by_its_standby(tmp_path: Path,
     assert list(settled)[:8] == [("resets", "s1", k) for k in range(32, 40)]
 
 
+def region_tracker(tmp_path: Path, federated: bool, reset_timeout_s: float, regions: bool = True) -> MttLocalService:
+    """Sensor s1's local tracker with the two regions of ``test_mtt_regions_live`` (``regions``; else none)."""
+    config = tmp_path / "regions.toml"
+    config.write_text(REGIONS_CONFIG)
+    return MttLocalService("s1", federated, MttConfig(sensors=("s1",), max_lag=3.0, clutter_density=1e-7),
+                           reset_timeout_s, regions=load_regions(config) if regions else None, service_id="s1",
+                           options=OPTIONS, deployment=KEYS.deployment)
+
+
 def test_an_answer_holding_tracks_its_sub_report_did_not_carry_is_refused(tmp_path: Path) -> None:
     """A local tracker notes, for every local track a region's answer says it holds, that region as its
     holder, and forgets it only when the track is retired or the region stops holding it in a later
@@ -225,12 +234,7 @@ def test_an_answer_holding_tracks_its_sub_report_did_not_carry_is_refused(tmp_pa
     answer holding or resetting a local track its sub-report did not carry is now refused
     (``unexpected``); the tracker goes on without it after its reset timeout, as without any answer
     of that region."""
-    config = tmp_path / "regions.toml"
-    config.write_text(REGIONS_CONFIG)
-    regions = load_regions(config)
-    assert regions is not None
-    svc = MttLocalService("s1", False, MttConfig(sensors=("s1",), max_lag=3.0, clutter_density=1e-7), 0.0,
-                          regions=regions, service_id="s1", options=OPTIONS, deployment=KEYS.deployment)
+    svc = region_tracker(tmp_path, False, 0.0)
     bus = Bus([svc])
     for k in range(20):
         z = np.array([[-1000.0 + 10.0 * k, 0.0], [1000.0 - 10.0 * k, 50.0]])  # a target in each region
@@ -247,19 +251,13 @@ def test_an_answer_holding_tracks_its_sub_report_did_not_carry_is_refused(tmp_pa
     assert svc.counters["reports"] == 20 and svc.counters["rejected_unexpected"] == 20
 
 
-
 def test_an_answer_naming_another_region_than_its_key_is_refused(tmp_path: Path) -> None:
     """Each region's centres publish under their own identity (``region-<rid>``), which the router lets
     publish on their region's keys only; but a local tracker took the answering region from the
     payload's ``region``: x0y0's centre answering on its own key in x1y0's name would have been taken
     as x1y0's answer (x1y0's genuine one then refused as a second). Now a payload's region must be its
     key's (``sender``), and the genuine answer is taken."""
-    config = tmp_path / "regions.toml"
-    config.write_text(REGIONS_CONFIG)
-    regions = load_regions(config)
-    assert regions is not None
-    svc = MttLocalService("s1", False, MttConfig(sensors=("s1",), max_lag=3.0, clutter_density=1e-7), 10.0,
-                          regions=regions, service_id="s1", options=OPTIONS, deployment=KEYS.deployment)
+    svc = region_tracker(tmp_path, False, 10.0)
     bus = Bus([svc])
     bus.put(KEYS.sensor_meas("s1"), encode(scan("s1", 0, 0.0, np.array([[-1000.0, 0.0], [1000.0, 50.0]]))))
     subs = {key.split("/")[3]: sub for key, sub in bus.published[-2:]}
@@ -274,7 +272,6 @@ def test_an_answer_naming_another_region_than_its_key_is_refused(tmp_path: Path)
     assert list(svc.answers) == [1] and svc.counters.get("rejected_unexpected", 0) == 0
 
 
-
 @pytest.mark.parametrize("with_regions", [False, True])
 def test_resets_that_come_after_their_wait_timed_out_are_late_not_rejected(tmp_path: Path,
                                                                            with_regions: bool) -> None:
@@ -282,13 +279,7 @@ def test_resets_that_come_after_their_wait_timed_out_are_late_not_rejected(tmp_p
     had gone on, and counted the answer ``rejected_unexpected``, as it would a forgery (seen in a
     ``demo --scenario traffic`` at load average 62). An answer to one of the reports whose wait timed
     out is now counted ``late_resets`` and dropped; one for a report never sent is still refused."""
-    regions = None
-    if with_regions:
-        config = tmp_path / "regions.toml"
-        config.write_text(REGIONS_CONFIG)
-        regions = load_regions(config)
-    svc = MttLocalService("s1", True, MttConfig(sensors=("s1",), max_lag=3.0, clutter_density=1e-7), 0.0,
-                          regions=regions, service_id="s1", options=OPTIONS, deployment=KEYS.deployment)
+    svc = region_tracker(tmp_path, True, 0.0, with_regions)
     bus = Bus([svc])
     bus.put(KEYS.sensor_meas("s1"), encode(scan("s1", 0, 0.0, np.array([[-1000.0, 0.0], [1000.0, 50.0]]))))
     with svc.guarded("on_tick", svc.tick_state_attrs):  # the wait (0 s here) is over
