@@ -158,7 +158,8 @@ class Keys:
 
     def primary(self, scope: str | None = None, instance: str | None = None) -> str:
         """``alive/mtt-primary/<scope>/<instance>``: liveliness token held by the primary centre of
-        ``<scope>`` (a region, or ``all``); ``<instance>``: its Zenoh session id (the lowest keeps it)."""
+        ``<scope>`` (a region, or ``all``); ``<instance>``: its claim (the claim's time, then its Zenoh
+        session id: ``claim_instance``); of two, the later claim keeps it."""
         return self._key("alive", "mtt-primary", self._chunk(scope, "scope"), self._chunk(instance, "instance"))
 
     def alive(self, role: str | None = None, service_id: str | None = None) -> str:
