@@ -92,7 +92,7 @@ def host_endpoints(dep: DeploymentConfig) -> list[tuple[str, str]]:
     return [(name, ep) for name, ep in dict.fromkeys(fields) if ep]
 
 
-def check_transport(zenoh: ZenohSettings, dep: DeploymentConfig, base_dir: Path = Path(".")) -> None:
+def check_transport(zenoh: ZenohSettings, dep: DeploymentConfig, base_dir: Path) -> None:
     """Authenticated by default: an endpoint off loopback needs ``tls_dir``, a ``config`` file (relative
     to ``base_dir``) that makes TLS mutual with ``tls/`` endpoints, or ``insecure = true`` (a ConfigError
     naming the field); with ``tls_dir`` every endpoint must be ``tls/``. The endpoints are those this
