@@ -5,11 +5,13 @@ Certificates are made in tmp_path (fedtrack.deploy.security, the cryptography pa
 
 from __future__ import annotations
 
+import contextlib
 import json
 import stat
 import subprocess
 import sys
 import threading
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -55,25 +57,40 @@ def test_identities_and_rules() -> None:
     assert identity("mtt-centre", "x0y0-standby", "x0y0") == "region-x0y0"
 
 
+@contextlib.contextmanager
+def secure_router(tmp_path: Path, keys: Keys, identities: list[str]) -> Iterator[Callable[[str], Any]]:
+    """A router on a free loopback TLS port with the access control of ``identities`` (certificates made
+    in ``tmp_path``); yields a function that opens a client session under one of them. Every session and
+    the router are closed after."""
+    from fedtrack.deploy.demo import free_port
+    from fedtrack.deploy.security import write_configs
+
+    paths = write_configs(ZenohSettings(tls_dir="c"), tmp_path, keys, ["router", *identities], tmp_path / "o")
+    endpoint = f"tls/127.0.0.1:{free_port()}"
+    router = open_session(SessionOptions(mode="router", connect=(), listen=(endpoint,),
+                                         config_file=str(paths["router"])))
+    sessions: list[Any] = []
+
+    def client(ident: str) -> Any:
+        sessions.append(open_session(SessionOptions(connect=(endpoint,), config_file=str(paths[ident]))))
+        return sessions[-1]
+
+    try:
+        yield client
+    finally:
+        for session in sessions:
+            close_session(session)
+        close_session(router)
+
+
 def test_a_region_centres_identity_publishes_its_own_regions_outputs_only(tmp_path: Path) -> None:
     """Every region centre ran as ``fusion``, which might publish every region's picture, answers and
     primary token: a compromised centre of one region could speak for all. Each region's centres
     (primary and standbys) are now ``region-<rid>``: the router drops what one sends on another
     region's keys (the hand-over keys stay open to it: it hands tracks to any neighbour)."""
-    from fedtrack.deploy.demo import free_port
-    from fedtrack.deploy.security import write_configs
-
     keys = Keys("x")
-    everyone = ["fusion", "region-x0y0", "region-x1y0"]
-    paths = write_configs(ZenohSettings(tls_dir="c"), tmp_path, keys, ["router", *everyone], tmp_path / "o")
-    endpoint = f"tls/127.0.0.1:{free_port()}"
-    router = open_session(SessionOptions(mode="router", connect=(), listen=(endpoint,),
-                                         config_file=str(paths["router"])))
-    sessions = []
-    try:
-        watcher, west = (open_session(SessionOptions(connect=(endpoint,), config_file=str(paths[i])))
-                         for i in ("fusion", "region-x0y0"))
-        sessions = [watcher, west]
+    with secure_router(tmp_path, keys, ["fusion", "region-x0y0", "region-x1y0"]) as client:
+        watcher, west = client("fusion"), client("region-x0y0")
         seen: list[str] = []
         done = threading.Event()
         probed = threading.Event()
@@ -110,10 +127,6 @@ def test_a_region_centres_identity_publishes_its_own_regions_outputs_only(tmp_pa
             t.undeclare()
         sub.undeclare()
         liveliness.undeclare()
-    finally:
-        for s in sessions:
-            close_session(s)
-        close_session(router)
 
 
 def test_only_the_identities_that_recover_a_key_may_query_its_cache(tmp_path: Path) -> None:
@@ -125,20 +138,10 @@ def test_only_the_identities_that_recover_a_key_may_query_its_cache(tmp_path: Pa
     subscribe to with history or recovery), and nobody else any."""
     import zenoh.ext
 
-    from fedtrack.deploy.demo import free_port
-    from fedtrack.deploy.security import write_configs
-
     keys = Keys("x")
     everyone = ["fusion", "recorder", "sensor-1", "sensor-2"]
-    paths = write_configs(ZenohSettings(tls_dir="c"), tmp_path, keys, ["router", *everyone], tmp_path / "o")
-    endpoint = f"tls/127.0.0.1:{free_port()}"
-    router = open_session(SessionOptions(mode="router", connect=(), listen=(endpoint,),
-                                         config_file=str(paths["router"])))
-    sessions: list[Any] = []
-    try:
-        sessions = [open_session(SessionOptions(connect=(endpoint,), config_file=str(paths[i])))
-                    for i in [*everyone, "sensor-1"]]
-        fusion, recorder, s1, s2, filter1 = sessions  # filter1: sensor 1's local filter (its identity)
+    with secure_router(tmp_path, keys, everyone) as client:
+        fusion, recorder, s1, s2, filter1 = map(client, [*everyone, "sensor-1"])  # filter1: sensor 1's local filter
         publishers = [zenoh.ext.declare_advanced_publisher(session, key, cache=zenoh.ext.CacheConfig(max_samples=4),
                                                            sample_miss_detection=zenoh.ext.MissDetectionConfig())
                       for session, key in ((fusion, keys.mtt_picture()), (fusion, keys.fusion_reset("1")),
@@ -159,10 +162,6 @@ def test_only_the_identities_that_recover_a_key_may_query_its_cache(tmp_path: Pa
         assert cached(filter1, keys.sensor_meas("1")) == {keys.sensor_meas("1")}
         assert cached(fusion, keys.local_estimate()) == {keys.local_estimate("2")}  # the centre's recovery
         assert cached(s2, keys.fusion_reset("1")) == cached(s2, keys.sensor_meas("1")) == set()
-    finally:
-        for session in sessions:
-            close_session(session)
-        close_session(router)
 
 
 def test_certificates_made_once_with_private_keys(tmp_path: Path) -> None:
