@@ -41,9 +41,10 @@ import ipaddress
 import json
 import os
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 if TYPE_CHECKING:  # imported where certificates are made: every service reads this module's settings
     from cryptography import x509
@@ -55,6 +56,7 @@ from fedtrack.jsonl import InputError, output_folder
 from fedtrack.keys import Keys
 from fedtrack.zsession import load_config_file, requires_client_certificates
 
+T = TypeVar("T")
 CA_NAME = "fedtrack-ca"
 CERT_DAYS = 365  # validity of new certificates (``FEDTRACK_CERT_DAYS``)
 OWN_MESSAGES = ["put", "delete", "reply", "declare_queryable", "liveliness_token"]
@@ -112,19 +114,19 @@ def check_transport(zenoh: ZenohSettings, dep: DeploymentConfig, base_dir: Path)
         if zenoh.config is None:
             raise ConfigError(f"{name}: {ep} is off loopback and [zenoh] has neither tls_dir (mutual TLS and "
                               "access control) nor insecure = true (an explicit opt-out)")
-        if not (ep.startswith("tls/") and mutual_tls_file(base_dir / zenoh.config)):
+        if not (ep.startswith("tls/") and read_zenoh_config(base_dir / zenoh.config, requires_client_certificates)):
             raise ConfigError(f"{name}: {ep} is off loopback and not tls/ with a [zenoh] config that makes TLS "
                               "mutual (transport.link.tls: enable_mtls = true and root_ca_certificate): give "
                               "insecure = true to allow it (an explicit opt-out)")
 
 
-def mutual_tls_file(path: Path) -> bool:
-    """True when the Zenoh configuration file ``path`` makes its TLS links mutual; a ConfigError naming
-    ``zenoh.config`` when it cannot be read."""
+def read_zenoh_config(path: Path, read: Callable[[str], T]) -> T:
+    """``read`` of the ``[zenoh] config`` file ``path``; a ConfigError naming ``zenoh.config`` when it is
+    missing or cannot be used (``read``'s ValueError)."""
     if not path.is_file():
         raise ConfigError(f"zenoh.config: {path} does not exist")
     try:
-        return requires_client_certificates(str(path))
+        return read(str(path))
     except ValueError as exc:
         raise ConfigError(f"zenoh.config: {exc}") from None
 
@@ -449,12 +451,7 @@ def write_configs(settings: ZenohSettings, base_dir: Path, keys: Keys, identitie
     ``everyone`` (every identity of the deployment, other hosts' too; default ``identities``)."""
     if settings.config is not None:
         path = (base_dir / settings.config).resolve()
-        if not path.is_file():
-            raise ConfigError(f"zenoh.config: {path} does not exist")
-        try:
-            load_config_file(str(path))  # read before anything starts (was: the router exited with it, exit 1)
-        except ValueError as exc:
-            raise ConfigError(f"zenoh.config: {exc}") from None
+        read_zenoh_config(path, load_config_file)  # read before anything starts (was: the router exited with it)
         return {ident: path for ident in [*identities, LAUNCHER]}
     if settings.tls_dir is None:
         return {}
