@@ -173,22 +173,20 @@ def above_radio_horizon(site: RadarSite, enu: np.ndarray, k: float = REFRACTION_
     for a radar below it (the Dead Sea's shore, -430 m), at the radar's own height (a target below the
     surface: 0); terrain is not modelled."""
     lat, _, h_site = site.geodetic
-    surface = min(h_site, 0.0)
     radius = gaussian_radius(lat)
     own = own_from_enu(site, enu)
     up = own[..., 2] + radius + h_site  # from the ellipsoid sphere's centre, along the site's up
     h_t = np.hypot(np.hypot(own[..., 0], own[..., 1]), up) - radius
     d = radius * np.arctan2(np.hypot(own[..., 0], own[..., 1]), up)
-    reach = np.sqrt(2 * k * radius * (h_site - surface)) + np.sqrt(2 * k * radius * np.maximum(h_t - surface, 0.0))
-    return d <= reach
+    return d <= radio_reach(site, h_t, k)
 
 
-def radio_reach(site: RadarSite, h_target: float, k: float = REFRACTION_K) -> float:
-    """The ground distance [m] out to which the radar at ``site`` sees a target ``h_target`` [m] above the
-    ellipsoid (:func:`above_radio_horizon`'s bound)."""
+def radio_reach(site: RadarSite, h_target: float | np.ndarray, k: float = REFRACTION_K) -> np.ndarray:
+    """The ground distance [m] out to which the radar at ``site`` sees a target ``h_target`` [m] (each of
+    an array) above the ellipsoid: :func:`above_radio_horizon`'s bound."""
     lat, _, h_site = site.geodetic
     surface, radius = min(h_site, 0.0), gaussian_radius(lat)
-    return math.sqrt(2 * k * radius * (h_site - surface)) + math.sqrt(2 * k * radius * max(h_target - surface, 0.0))
+    return np.sqrt(2 * k * radius * (h_site - surface)) + np.sqrt(2 * k * radius * np.maximum(h_target - surface, 0.0))
 
 
 def ground_angle(lat1: float, lon1: float, lat2: float, lon2: float) -> float:
