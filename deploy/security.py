@@ -54,7 +54,7 @@ from fedtrack.config import ConfigError
 from fedtrack.deployment import DeploymentConfig, listen_address, on_loopback
 from fedtrack.jsonl import InputError, output_folder
 from fedtrack.keys import Keys
-from fedtrack.zsession import load_config_file, requires_client_certificates
+from fedtrack.zsession import denies_by_default, load_config_file, requires_client_certificates
 
 T = TypeVar("T")
 CA_NAME = "fedtrack-ca"
@@ -96,9 +96,10 @@ def host_endpoints(dep: DeploymentConfig) -> list[tuple[str, str]]:
 
 def check_transport(zenoh: ZenohSettings, dep: DeploymentConfig, base_dir: Path) -> None:
     """Authenticated by default: an endpoint off loopback needs ``tls_dir``, a ``config`` file (relative
-    to ``base_dir``) that makes TLS mutual with ``tls/`` endpoints, or ``insecure = true`` (a ConfigError
-    naming the field); with ``tls_dir`` every endpoint must be ``tls/``. The endpoints are those this
-    host uses (:func:`host_endpoints`)."""
+    to ``base_dir``) that makes TLS mutual with ``tls/`` endpoints (and, where this host's router listens,
+    enables access control with default deny, as ``serve router`` asks), or ``insecure = true`` (a
+    ConfigError naming the field); with ``tls_dir`` every endpoint must be ``tls/``. The endpoints are
+    those this host uses (:func:`host_endpoints`)."""
     fields = host_endpoints(dep)
     if zenoh.tls_dir is not None:
         for name, ep in fields:
@@ -118,6 +119,11 @@ def check_transport(zenoh: ZenohSettings, dep: DeploymentConfig, base_dir: Path)
             raise ConfigError(f"{name}: {ep} is off loopback and not tls/ with a [zenoh] config that makes TLS "
                               "mutual (transport.link.tls: enable_mtls = true and root_ca_certificate): give "
                               "insecure = true to allow it (an explicit opt-out)")
+        if (name, ep) == ("deployment.router_listen", dep.router_listen) and "router" in dep.services \
+                and not read_zenoh_config(base_dir / zenoh.config, denies_by_default):
+            raise ConfigError(f"{name}: {ep} is off loopback and the [zenoh] config has no access control with "
+                              "default deny (access_control: enabled = true, default_permission = \"deny\"), which "
+                              "serve router asks of it: give insecure = true to allow it (an explicit opt-out)")
 
 
 def read_zenoh_config(path: Path, read: Callable[[str], T]) -> T:

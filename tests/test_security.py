@@ -224,24 +224,31 @@ def test_launch_takes_a_zenoh_config_that_makes_tls_mutual_off_loopback(tmp_path
     ``serve`` reads the file and takes one that makes TLS mutual: a deployment authenticated by its own
     Zenoh file had to be declared insecure, and its services were then given ``--insecure``. Now the
     launch reads the file as ``serve`` does: mutual TLS with ``tls/`` endpoints passes; a server-only
-    file or a plain endpoint is refused naming the field."""
+    file or a plain endpoint is refused naming the field. Where the launch's router listens off loopback,
+    ``serve router`` also asks the file for access control with default deny: a file without it was
+    taken by the launch, whose router then exited 2 at its start; now the launch refuses it first."""
     tls = {"root_ca_certificate": "ca.pem", "enable_mtls": True, "connect_certificate": "c.pem",
            "connect_private_key": "c.key"}
-    (tmp_path / "mutual.json5").write_text(json.dumps({"transport": {"link": {"tls": tls}}}))
+    deny = {"enabled": True, "default_permission": "deny"}
+    (tmp_path / "mutual.json5").write_text(json.dumps({"transport": {"link": {"tls": tls}}, "access_control": deny}))
+    (tmp_path / "open.json5").write_text(json.dumps({"transport": {"link": {"tls": tls}}}))
     (tmp_path / "server-only.json5").write_text(json.dumps({"transport": {"link": {"tls": {
         "listen_certificate": "r.pem", "listen_private_key": "r.key"}}}}))
     cfg = tmp_path / "c.toml"
 
-    def launchable(config: str, endpoint: str) -> None:
-        cfg.write_text(f'[zenoh]\nconfig = "{config}"\n[deployment]\nrouter_listen = "{endpoint}"\n'
+    def launchable(config: str, endpoint: str, services: str = "") -> None:
+        cfg.write_text(f'[zenoh]\nconfig = "{config}"\n[deployment]\nrouter_listen = "{endpoint}"\n{services}'
                        '[[sensor]]\nid = "1"\n')
         check_launchable(load_settings(cfg), cfg)
 
     launchable("mutual.json5", "tls/10.47.0.1:7447")
+    launchable("open.json5", "tls/10.47.0.1:7447", 'services = ["sensor", "local-filter"]\n')  # no router here
     for config, endpoint in (("server-only.json5", "tls/10.47.0.1:7447"), ("mutual.json5", "tcp/10.47.0.1:7447")):
         with pytest.raises(ConfigError, match=r"deployment.router_listen: .* off loopback and not tls/ with a "
                                               r"\[zenoh\] config that makes TLS mutual"):
             launchable(config, endpoint)
+    with pytest.raises(ConfigError, match=r"deployment.router_listen: .* has no access control with default deny"):
+        launchable("open.json5", "tls/10.47.0.1:7447")
     with pytest.raises(ConfigError, match=r"zenoh.config: .*missing.json5 does not exist"):
         launchable("missing.json5", "tls/10.47.0.1:7447")
 
