@@ -587,9 +587,10 @@ class Launcher:
         router made one failover per region); by another, its standby took over. A claim later than
         every token standing, the scope's pictures silent, is a take-over from a primary whose token
         stands (frozen: the standby's silence rule, ``SILENT_S``; silent here for half of it, the rest
-        for the links' delays): a failover from the scope's last picture. A second primary's token, withdrawn when it steps down, is none. A token of a scope the
-        deployment has no centre of is ignored: any ``fusion`` identity may declare one, and each
-        declared and withdrawn was a failover in the report, for good."""
+        for the links' delays): a failover from the scope's last picture. A second primary's token,
+        withdrawn when it steps down, is none. A token of a scope the deployment has no centre of is
+        ignored: any ``fusion`` identity may declare one, and each declared and withdrawn was a failover
+        in the report, for good."""
         now, (scope, instance) = time.time_ns(), str(sample.key_expr).rsplit("/", 2)[-2:]
         with self._lock:
             if self._stopping or scope not in self._scopes:  # a token of no centre of its: forged, kept nowhere
