@@ -151,6 +151,7 @@ class PictureMergeService(Service):
                 for r, rid in enumerate(self.regions.ids)]
 
     def on_start(self) -> None:
+        """Settle the region caches' replies from now on; resume after the snapshot's time, if any."""
         self.settle_until = time.monotonic() + HISTORY_SETTLE_S
         if self.snapshot is not None and self.snapshot.exists():
             try:
