@@ -64,7 +64,7 @@ from fedtrack.jsonl import InputError, output_folder
 from fedtrack.keys import Keys
 from fedtrack.local_filters.regions import load_regions
 from fedtrack.recording import Recording
-from fedtrack.services.base import clip
+from fedtrack.services.rejections import clip
 from fedtrack.wire import FusedTrack, Health, M, Measurement, TrackPicture, WireError, decode
 from fedtrack.zsession import SessionError, SessionOptions, close_session, open_session, wait_alive
 

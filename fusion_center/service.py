@@ -40,21 +40,11 @@ from fedtrack.local_filters.linear.models import CA_ACC, CV_IN_CA
 from fedtrack.local_filters.vdie.config import PipelineSettings
 from fedtrack.local_filters.vdie.estimation import EVENT_NAMES, EVENT_NONE
 from fedtrack.local_filters.vdie.local import LocalOutput
-from fedtrack.services.base import (
-    MAX_CONTESTED,
-    Conflict,
-    Numerical,
-    QueryHandler,
-    Rejected,
-    Service,
-    Subscription,
-    contested_extra,
-    digest,
-    service_kwargs,
-    service_parser,
-)
+from fedtrack.services.admission import MAX_CONTESTED, contested_extra, digest
+from fedtrack.services.base import QueryHandler, Service, Subscription, service_kwargs, service_parser
 from fedtrack.services.clock import ClockJump
 from fedtrack.services.lead import NumberedLeadGuard
+from fedtrack.services.rejections import Conflict, Numerical, Rejected
 from fedtrack.wire import FusedTrack, LocalEstimate, ManeuverEvent, Reset, acceptable_covariances, decode, encode
 
 FUSED_KEPT = 64  # fused scans whose estimate digests are kept to tell a late conflict from a re-delivery

@@ -44,21 +44,18 @@ from fedtrack.local_filters.vdie.local import (
     LocalOutput,
     VdieLocalFilter,
 )
-from fedtrack.services.base import (
+from fedtrack.services.admission import digest
+from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
+from fedtrack.services.clock import ClockJump
+from fedtrack.services.lead import NumberedLeadGuard
+from fedtrack.services.rejections import (
     NUMERICAL_ERRORS,
     Conflict,
     Numerical,
     Rejected,
-    Service,
-    Subscription,
-    digest,
     require_covariances,
     require_finite,
-    service_kwargs,
-    service_parser,
 )
-from fedtrack.services.clock import ClockJump
-from fedtrack.services.lead import NumberedLeadGuard
 from fedtrack.wire import (
     FusedTrack,
     LocalEstimate,

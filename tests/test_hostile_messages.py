@@ -379,7 +379,7 @@ def test_a_messages_digest_ignores_its_stamp_only(tmp_path: Path) -> None:
     with its stamp cleared; another stamp gives the same, another estimate another."""
     from hashlib import blake2b
 
-    from fedtrack.services.base import digest
+    from fedtrack.services.admission import digest
     from fedtrack.wire import TrackReport, decode
 
     scans = mtt_lines(tmp_path)

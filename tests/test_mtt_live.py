@@ -242,7 +242,7 @@ def test_a_report_with_observations_of_an_unusable_size_is_rejected() -> None:
     """A well-formed report whose observations are not a position (2) or a radar's (3) within the
     local state is rejected as wrong_model before the centre changes anything (it would not fit
     the central tracks' buffers)."""
-    from fedtrack.services.base import Rejected
+    from fedtrack.services.rejections import Rejected
 
     opts = SessionOptions(connect=(f"tcp/127.0.0.1:{free_port()}",), connect_timeout_s=0.5)  # never opened
     centre = MttCentreService("mtt-federated", MttConfig(), 6, service_id="centre", options=opts, deployment="mttlive")

@@ -73,7 +73,6 @@ import traceback
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, fields
-from hashlib import blake2b
 from typing import Any, ClassVar
 
 import numpy as np
@@ -84,9 +83,17 @@ from fedtrack.config import ConfigError
 from fedtrack.deployment import deployment_of, endpoints_of
 from fedtrack.jsonl import InputError
 from fedtrack.keys import DEFAULT_DEPLOYMENT, InvalidName, Keys, check_id
+from fedtrack.services.admission import MAX_CONTESTED, ReceivedScans, ScanOrder, check_sender
 from fedtrack.services.inbox import Inbox
 from fedtrack.services.lead import LeadGuard, NumberedLeadGuard
 from fedtrack.services.reassembly import Reassembly
+from fedtrack.services.rejections import (
+    Conflict,
+    Rejected,
+    clip,
+    reason_of,
+    text_of,
+)
 from fedtrack.wire import (
     MAX_MAP_ITEMS,
     Health,
@@ -95,7 +102,6 @@ from fedtrack.wire import (
     Measurement,
     Message,
     WireError,
-    acceptable_covariances,
     decode,
     encode,
     payloads,
@@ -110,29 +116,6 @@ from fedtrack.zsession import (
 )
 
 
-def check_sender(keys: Keys, key: str, msg: Message) -> None:
-    """Rejected("sender") when the id in the payload is not the id in the key it came on, or the region
-    a payload names as its sender's (a region centre's answer) is not the region of its key."""
-    named = keys.sender(key)
-    claimed = getattr(msg, "sensor", None) if not isinstance(msg, Health) else msg.id
-    if named is not None and claimed is not None and claimed != named:
-        raise Rejected("sender", f"payload from {claimed!r} on the key of {named!r}")
-    region, claimed_region = keys.region_of(key), getattr(msg, "region", None)
-    if region is not None and claimed_region is not None and claimed_region != region:
-        raise Rejected("sender", f"answer of region {claimed_region!r} on the key of region {region!r}")
-
-
-def digest(msg: Message) -> bytes:
-    """A 16-byte digest of ``msg`` with its ``stamp_ns`` (if it has one) cleared: two messages for
-    one (sensor, scan) are the same message when their digests are equal (a re-delivery), else a
-    conflict. ``msg`` was checked when decoded: its copy is not checked again (a report's
-    covariances and flags were half of a centre's decoding). A message beyond a per-message bound
-    (joined from parts) is digested as the payloads of its parts."""
-    if hasattr(msg, "stamp_ns"):
-        msg = type(msg).unchecked(**{**{f.name: getattr(msg, f.name) for f in fields(msg)}, "stamp_ns": 0})
-    return blake2b(b"".join(payloads(msg)), digest_size=16).digest()
-
-
 def cache_depth(size: int) -> int:
     """The messages an advanced publisher keeps when its samples are ``size`` bytes: CACHE_BYTES
     worth, between MIN_CACHE_SAMPLES and CACHE_SAMPLES. The cache is what a restarted recorder
@@ -142,66 +125,6 @@ def cache_depth(size: int) -> int:
     return max(MIN_CACHE_SAMPLES, min(CACHE_SAMPLES, CACHE_BYTES // max(size, 1)))
 
 
-class ScanOrder:
-    """The last scan a single-sensor tracker took: a repeat of it is counted ``duplicate`` (if
-    identical) or rejected as a :class:`Conflict` (a different message for the same scan, which
-    would otherwise update the track twice); an older scan is rejected as ``late``."""
-
-    def __init__(self) -> None:
-        self.last: tuple[int, bytes] | None = None  # the scan number and digest of the message taken last
-
-    def check(self, msg: Measurement) -> bool:
-        """False for a duplicate to ignore; raises Rejected for a conflict or a late scan."""
-        if self.last is None or msg.seq > self.last[0]:
-            return True
-        if msg.seq < self.last[0]:
-            raise Rejected("late", f"scan {msg.seq} after scan {self.last[0]}")
-        if digest(msg) == self.last[1]:
-            return False
-        raise Conflict(msg.seq, f"a second, different message for scan {msg.seq} (the first stays)")
-
-    def took(self, msg: Measurement) -> None:
-        self.last = (msg.seq, digest(msg))
-
-
-class ReceivedScans:
-    """Per sensor, the scan numbers a multi-target service took (with a digest of their payloads,
-    stamps cleared): an identical repeat is a duplicate (``check`` returns False), a different
-    message with a number already taken a :class:`Conflict`, a number more than ``max_seq_jump``
-    past the sensor's highest a ``seq_jump`` (both Rejected). Scans may come in any order. ``check``
-    changes nothing; ``take`` records a checked message once its handling succeeded (so that a
-    handler that fails in between leaves no trace)."""
-
-    def __init__(self, max_seq_jump: int) -> None:
-        self.max_seq_jump = max_seq_jump
-        self.taken: dict[str, dict[int, bytes]] = {}
-
-    def check(self, msg: Message) -> bool:
-        """True for a new scan; False for an identical repeat; Rejected for a conflict or a seq jump."""
-        sensor, seq = msg.sensor, msg.seq  # type: ignore[union-attr]
-        seen = self.taken.get(sensor, {})
-        if seq in seen:
-            if seen[seq] == digest(msg):
-                return False
-            raise Conflict(seq, f"a second, different message for scan {seq} of {sensor!r} (the first stays)")
-        if seen and seq > max(seen) + self.max_seq_jump:
-            raise Rejected("seq_jump", f"scan {seq} of {sensor!r} is more than {self.max_seq_jump} after {max(seen)}")
-        return True
-
-    def take(self, msg: Message) -> None:
-        """Record ``msg`` (checked by :meth:`check`) as taken."""
-        seen = self.taken.setdefault(msg.sensor, {})  # type: ignore[union-attr]
-        seen[msg.seq] = digest(msg)  # type: ignore[union-attr]
-        if len(seen) > 4 * self.max_seq_jump:
-            del seen[min(seen)]
-
-
-def contested_extra(scans: tuple[int, ...]) -> dict[str, list[float]]:
-    """The ``FusedTrack.extra`` entry naming the contested scans an output depends on (none: {})."""
-    return {"contested_scans": [float(s) for s in scans]} if scans else {}
-
-
-MAX_CONTESTED = 64  # contested scans one output names at most (wire: MAX_LIST_ITEMS)
 QUEUE_SIZE = 10_000
 REJECT_LOG_INTERVAL_S = 5.0
 CLOSE_DEADLINE_S = 2.0
@@ -252,48 +175,6 @@ class QueryHandler:
     handler: Callable[[], Message | None]
 
 
-class Rejected(Exception):
-    """Raised by a handler to reject a decoded message: counted in ``rejected`` and
-    ``rejected_<reason>``, logged (rate-limited), never fatal; the state is restored."""
-
-    def __init__(self, reason: str, detail: str) -> None:
-        super().__init__(f"{reason}: {detail}")
-        self.reason = reason
-
-
-class Conflict(Rejected):
-    """A second, different message for scan ``seq`` of one sender (the first stays): counted as
-    ``rejected_conflict`` and, by a service that calls :meth:`Service.contest`, ``contested``."""
-
-    def __init__(self, seq: int, detail: str) -> None:
-        super().__init__("conflict", detail)
-        self.seq = seq
-
-
-class Numerical(Rejected):
-    """A computation that came out non-finite or not positive definite: ``rejected_numerical``."""
-
-    def __init__(self, detail: str) -> None:
-        super().__init__("numerical", detail)
-
-
-NUMERICAL_ERRORS = (np.linalg.LinAlgError, FloatingPointError, OverflowError)
-LOG_CHARS = 300  # a log line's untrusted part (key, reason) is cut to this many characters
-
-
-def clip(text: str, limit: int = LOG_CHARS) -> str:
-    """``text`` cut to ``limit`` characters for a log line (its length said when cut)."""
-    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
-
-
-def text_of(exc: Exception) -> str:
-    """``str(exc)``, or its type's name if even that fails (an argument whose text recurses)."""
-    try:
-        return str(exc)
-    except Exception:  # noqa: BLE001
-        return f"<{type(exc).__name__} that cannot be shown>"
-
-
 BASE_COUNTERS = ("received", "rejected", "published", "dropped")  # every service's, in every Health
 
 
@@ -312,29 +193,6 @@ def health_counters(counters: dict[str, int]) -> dict[str, int]:
         return {k: counters[k] for k in names}
     kept = names[:MAX_MAP_ITEMS - 1]
     return {**{k: counters[k] for k in kept}, "counters_omitted": len(names) - len(kept)}
-
-
-def reason_of(exc: Exception) -> str:
-    """The rejection reason of an exception a handler raised (docs/wire.md, "Rejections")."""
-    if isinstance(exc, Rejected):
-        return exc.reason
-    return "numerical" if isinstance(exc, NUMERICAL_ERRORS) else "handler_error"
-
-
-def require_finite(what: str, *arrays: Any) -> None:
-    """:class:`Numerical` unless every value of ``arrays`` is finite (a result about to be kept)."""
-    for a in arrays:
-        if not np.all(np.isfinite(a)):
-            raise Numerical(f"{what} is not finite")
-
-
-def require_covariances(what: str, *covariances: np.ndarray) -> None:
-    """:class:`Numerical` unless every covariance (each argument one matrix or a stack of them) is
-    one a receiver accepts (:func:`fedtrack.wire.acceptable_covariances`): an estimate that every
-    receiver would refuse is a failure of the scan that made it, undone there, not a message sent."""
-    for P in covariances:
-        if not acceptable_covariances(P):
-            raise Numerical(f"{what}: a covariance is not positive definite within the wire's bounds")
 
 
 @dataclass

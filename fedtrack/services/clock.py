@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Iterable
 
-from fedtrack.services.base import Rejected
+from fedtrack.services.rejections import Rejected
 
 
 def check_time_jump(last: float | None, t: float, bound: float) -> None:

@@ -69,17 +69,10 @@ from fedtrack.fusion_center.mtt.service import (
 from fedtrack.geodetic import Frame, geodetic_of_states, load_frame
 from fedtrack.local_filters.mtt.config import MttServiceSettings
 from fedtrack.local_filters.regions import Regions, load_regions
-from fedtrack.services.base import (
-    HISTORY_RECHECK_S,
-    Conflict,
-    Rejected,
-    Service,
-    Subscription,
-    digest,
-    service_kwargs,
-    service_parser,
-)
+from fedtrack.services.admission import digest
+from fedtrack.services.base import HISTORY_RECHECK_S, Service, Subscription, service_kwargs, service_parser
 from fedtrack.services.lead import LeadGuard
+from fedtrack.services.rejections import Conflict, Rejected
 from fedtrack.wire import TrackPicture
 
 # a merger's first HISTORY_SETTLE_S: the caches' replies and the base service's second query of them (at

@@ -77,19 +77,10 @@ from fedtrack.local_filters.mtt.local import report_from_wire, resets_to_wire
 from fedtrack.local_filters.mtt.routing import answer_to_wire
 from fedtrack.local_filters.mtt.scan import scan_from_measurement
 from fedtrack.local_filters.regions import Regions, load_regions
-from fedtrack.services.base import (
-    Conflict,
-    ReceivedScans,
-    Rejected,
-    Service,
-    Subscription,
-    digest,
-    require_covariances,
-    require_finite,
-    service_kwargs,
-    service_parser,
-)
+from fedtrack.services.admission import ReceivedScans, digest
+from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
 from fedtrack.services.lead import LeadGuard
+from fedtrack.services.rejections import Conflict, Rejected, require_covariances, require_finite
 from fedtrack.wire import (
     MAX_LIST_ITEMS,
     MAX_MAGNITUDE,

@@ -25,18 +25,11 @@ from fedtrack.keys import check_id
 from fedtrack.local_filters.imm.config import IMMConfig, load_imm_config
 from fedtrack.local_filters.imm.filter import ALGORITHMS, AO_VSIMM
 from fedtrack.local_filters.imm.tracker import IMMTracker
-from fedtrack.services.base import (
-    ScanOrder,
-    Service,
-    Subscription,
-    contested_extra,
-    require_covariances,
-    require_finite,
-    service_kwargs,
-    service_parser,
-)
+from fedtrack.services.admission import ScanOrder, contested_extra
+from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
 from fedtrack.services.clock import ClockJump
 from fedtrack.services.lead import NumberedLeadGuard
+from fedtrack.services.rejections import require_covariances, require_finite
 from fedtrack.wire import MAX_MAP_ITEMS, FusedTrack, Measurement
 from fedtrack.zsession import id_arg
 

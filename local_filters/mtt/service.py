@@ -52,20 +52,11 @@ from fedtrack.local_filters.mtt.routing import (
 )
 from fedtrack.local_filters.mtt.scan import SensorScan, scan_from_measurement
 from fedtrack.local_filters.regions import Regions, load_regions
-from fedtrack.services.base import (
-    Conflict,
-    ReceivedScans,
-    Rejected,
-    Service,
-    Subscription,
-    digest,
-    require_covariances,
-    require_finite,
-    service_kwargs,
-    service_parser,
-)
+from fedtrack.services.admission import ReceivedScans, digest
+from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
 from fedtrack.services.clock import check_time_jump
 from fedtrack.services.lead import LeadGuard
+from fedtrack.services.rejections import Conflict, Rejected, require_covariances, require_finite
 from fedtrack.wire import Measurement, TrackResets
 from fedtrack.zsession import id_arg
 

@@ -36,19 +36,11 @@ from fedtrack.local_filters.pda.tracks import (
     manager_step,
     tracker_spec,
 )
-from fedtrack.services.base import (
-    Rejected,
-    ScanOrder,
-    Service,
-    Subscription,
-    contested_extra,
-    require_covariances,
-    require_finite,
-    service_kwargs,
-    service_parser,
-)
+from fedtrack.services.admission import ScanOrder, contested_extra
+from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
 from fedtrack.services.clock import ClockJump
 from fedtrack.services.lead import NumberedLeadGuard
+from fedtrack.services.rejections import Rejected, require_covariances, require_finite
 from fedtrack.wire import MAX_DETECTIONS, FusedTrack, Measurement
 from fedtrack.zsession import id_arg
 
