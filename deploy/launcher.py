@@ -45,6 +45,7 @@ import numpy as np
 import zenoh
 
 from fedtrack.config import ConfigError, in_file
+from fedtrack.deploy.failovers import FailoverWatch
 from fedtrack.deploy.multitarget import (
     SCENARIO_DIR,
     check_multitarget,
@@ -59,7 +60,6 @@ from fedtrack.deploy.report import LaunchReport, finish
 from fedtrack.deploy.security import LAUNCHER, check_router_names, host_endpoints, identity, write_configs
 from fedtrack.deploy.settings import Settings, check_launchable, load_settings
 from fedtrack.deployment import ROLES, listen_address, port_in_use
-from fedtrack.fusion_center.mtt.standby import SILENT_S
 from fedtrack.jsonl import InputError, output_folder
 from fedtrack.keys import Keys
 from fedtrack.local_filters.regions import load_regions
@@ -97,43 +97,6 @@ RATE_WINDOW_S = 5.0  # the progress line's per-sensor rates: scans a second over
 # run before 2026-11-27, so a sensor killed at 60 s still showed 1/s at 90 s and one joining at 30 s 0/s)
 USAGE_SAMPLE_S = 0.5  # how often the launcher samples its services' peak RSS and CPU time
 STOP_STAGE = {"fusion-center": 1, "mtt-centre": 1, "picture": 2, "recorder": 3, "router": 4}  # others 0
-
-
-@dataclass
-class Failover:
-    """A centre's primary token went (``lost_ns``, wall clock), its standby claimed it
-    (``took_over_ns``), and the first picture of its scope arrived after that (``covered_ns``)."""
-
-    scope: str
-    lost_ns: int
-    took_over_ns: int | None = None
-    covered_ns: int | None = None
-    instance: str = ""  # the primary token that went: back unchanged, its primary lived (a router outage)
-
-    def summary(self, epoch: float | None, speed: float, scan_s: float) -> dict[str, Any]:
-        """The report's entry: times in seconds after the loss, the loss in scenario seconds, and
-        the time to the next picture in scans of ``scan_s`` scenario seconds."""
-        def after(ns: int | None) -> float | None:
-            return None if ns is None else (ns - self.lost_ns) / 1e9
-        covered = after(self.covered_ns)
-        return {"scope": self.scope, "lost_at": self.lost_ns / 1e9,
-                "t": None if epoch is None else (self.lost_ns / 1e9 - epoch) * speed,
-                "took_over_after_s": after(self.took_over_ns), "covered_after_s": covered,
-                "scans": None if covered is None else covered * speed / scan_s}
-
-
-@dataclass
-class RouterOutage:
-    """The launcher's link to its router went (``lost_ns``, wall clock: the last router token gone)
-    and came back (``back_ns``); every token went with it, each region's primary token among them."""
-
-    lost_ns: int
-    back_ns: int | None = None
-
-    def summary(self, epoch: float | None, speed: float) -> dict[str, Any]:
-        """The report's entry: the loss in scenario seconds, the outage in seconds."""
-        return {"lost_at": self.lost_ns / 1e9, "t": None if epoch is None else (self.lost_ns / 1e9 - epoch) * speed,
-                "back_after_s": None if self.back_ns is None else (self.back_ns - self.lost_ns) / 1e9}
 
 
 class LaunchError(RuntimeError):
@@ -356,13 +319,7 @@ class Launcher:
         self._session: zenoh.Session | None = None
         self._subs: list[Any] = []
         self._restart_at: dict[str, float] = {}  # service -> monotonic time of its pending restart
-        self._failovers: list[Failover] = []
-        self._primaries: dict[str, set[str]] = {}  # scope -> the instances holding its primary token
-        self._pictured: dict[str, int] = {}  # scope -> wall-clock ns of its latest picture
-        self._routers: set[str] = set()  # router tokens seen (alive/router/*)
-        self._outages: list[RouterOutage] = []
-        self._scopes = scopes  # the deployment's centres' scopes (failover_scopes): other tokens are no failovers
-        self._stopping = False  # stop_all began: primary tokens going now are no failovers
+        self.watch = FailoverWatch(scopes)  # failovers and router outages, from the tokens and pictures
         self._epoch: float | None = None  # wall-clock time of the sensors' scenario time 0
         self._arrivals: dict[str, collections.deque[float]] = {}  # sensor -> its scans of the last RATE_WINDOW_S
         # the newest fused track's scan number: a measurement's publish stamp is kept only up to max_seq_jump beyond
@@ -471,7 +428,7 @@ class Launcher:
         """
         self._sample_usage()
         with self._lock:
-            self._stopping = True
+            self.watch.stopping = True
         running = [sp for sp in reversed(self.plan) if sp.proc is not None and sp.proc.poll() is None]
         starting = self._starting(running)
         stages = [[sp for sp in running if STOP_STAGE.get(sp.role, 0) == k] for k in range(max(STOP_STAGE.values()) + 1)]
@@ -573,73 +530,28 @@ class Launcher:
         with self._lock:
             self.report.pictures += 1
             self.report.picture_arrivals.append((pic.t, now))
-            self._covered("all", now)
+            self.watch.covered("all", now)
 
     def _on_region_picture(self, sample: zenoh.Sample) -> None:
         """A region centre's picture (``region/<rid>/picture``): covers its region after a failover."""
         with self._lock:
-            self._covered(str(sample.key_expr).split("/")[-2], time.time_ns())
+            self.watch.covered(str(sample.key_expr).split("/")[-2], time.time_ns())
 
     def _on_primary_token(self, sample: zenoh.Sample) -> None:
-        """A centre's primary token went (its primary died: the last of its scope's) or was claimed.
-        A claim ends the failover of its scope: by the token that went, back unchanged, it was no
-        failover (its primary lived; the link to the router went, taking every token with it: a killed
-        router made one failover per region); by another, its standby took over. A claim later than
-        every token standing, the scope's pictures silent, is a take-over from a primary whose token
-        stands (frozen: the standby's silence rule, ``SILENT_S``; silent here for half of it, the rest
-        for the links' delays): a failover from the scope's last picture. A second primary's token,
-        withdrawn when it steps down, is none. A token of a scope the deployment has no centre of is
-        ignored: any ``fusion`` identity may declare one, and each declared and withdrawn was a failover
-        in the report, for good."""
+        """A centre's primary token went or was claimed (:meth:`FailoverWatch.primary_token`)."""
         now, (scope, instance) = time.time_ns(), str(sample.key_expr).rsplit("/", 2)[-2:]
         with self._lock:
-            if self._stopping or scope not in self._scopes:  # a token of no centre of its: forged, kept nowhere
-                return
-            holders = self._primaries.setdefault(scope, set())
-            if sample.kind == zenoh.SampleKind.DELETE:
-                holders.discard(instance)
-                if holders:
-                    return
-                self._failovers.append(Failover(scope, now, instance=instance))
-                self._say(f"the primary centre of {scope} is gone")
-                return
-            standing, quiet = set(holders), now - self._pictured.get(scope, now) >= SILENT_S / 2 * 1e9  # links' delay
-            holders.add(instance)
-            open_ = [f for f in self._failovers if f.scope == scope and f.took_over_ns is None]
-            for f in open_:
-                if f.instance == instance:  # the same primary: its link came back (a router outage)
-                    self._failovers.remove(f)
-                    self._say(f"the primary centre of {scope} is back (its link went, not the centre)")
-                    continue
-                f.took_over_ns = now
-                self._say(f"a standby took over {scope} after {(now - f.lost_ns) / 1e6:.0f} ms")
-            if not open_ and standing and quiet and all(instance > other for other in standing):
-                self._failovers.append(Failover(scope, self._pictured[scope], now, instance=instance))
-                self._say(f"a standby took over {scope} from a silent primary")
+            line = self.watch.primary_token(scope, instance, sample.kind == zenoh.SampleKind.DELETE, now)
+        if line:
+            self._say(line)
 
     def _on_router_token(self, sample: zenoh.Sample) -> None:
-        """The last router token went (the launcher's link to its router: a router outage) or one came
-        back (the outage's end)."""
+        """A router token went or came (:meth:`FailoverWatch.router_token`)."""
         now, name = time.time_ns(), str(sample.key_expr).rsplit("/", 1)[-1]
         with self._lock:
-            if sample.kind == zenoh.SampleKind.DELETE:
-                self._routers.discard(name)
-                if not self._routers and not self._stopping and not any(o.back_ns is None for o in self._outages):
-                    self._outages.append(RouterOutage(now))
-                    self._say("the router is gone")
-                return
-            self._routers.add(name)
-            for o in self._outages:
-                if o.back_ns is None:
-                    o.back_ns = now
-                    self._say(f"the router is back after {(now - o.lost_ns) / 1e9:.2f} s")
-
-    def _covered(self, scope: str, now: int) -> None:
-        """A picture of ``scope`` arrived: the first after a takeover ends that failover (lock held)."""
-        self._pictured[scope] = now
-        for f in self._failovers:
-            if f.scope == scope and f.took_over_ns is not None and f.covered_ns is None:
-                f.covered_ns = now
+            line = self.watch.router_token(name, sample.kind == zenoh.SampleKind.DELETE, now)
+        if line:
+            self._say(line)
 
     def _on_meas(self, sample: zenoh.Sample) -> None:
         m = self._monitored(sample, Measurement, lambda m: self.keys.sensor_meas(m.sensor))
@@ -729,8 +641,8 @@ class Launcher:
             if self._session is not None:
                 close_session(self._session)
             self.report.wall_s = time.monotonic() - start
-            self.report.failovers = [f.summary(self._epoch, dep.speed, self._scan_s()) for f in self._failovers]
-            self.report.router_outages = [o.summary(self._epoch, dep.speed) for o in self._outages]
+            self.report.failovers = [f.summary(self._epoch, dep.speed, self._scan_s()) for f in self.watch.failovers]
+            self.report.router_outages = [o.summary(self._epoch, dep.speed) for o in self.watch.outages]
         if stopped:
             raise Stopped(self.report)
         failed = {n: c for n, c in self.report.exit_codes.items() if c not in (0, None) and n not in self.report.killed}

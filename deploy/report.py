@@ -44,9 +44,9 @@ class LaunchReport:
     processes: dict[str, dict[str, float]] = field(default_factory=dict)  # service -> peak RSS (MB), CPU (s)
     # (started | killed | stopped starting, service, wall time)
     events: list[tuple[str, str, float]] = field(default_factory=list)
-    # failovers of a centre (``[multitarget] standby``): per primary lost, what the launcher saw (launcher.Failover)
+    # failovers of a centre (``[multitarget] standby``): per primary lost, what the launcher saw (failovers.Failover)
     failovers: list[dict[str, Any]] = field(default_factory=list)
-    # the launcher's link to its router lost and back (launcher.RouterOutage): no failover of the centres
+    # the launcher's link to its router lost and back (failovers.RouterOutage): no failover of the centres
     router_outages: list[dict[str, Any]] = field(default_factory=list)
     wall_s: float = 0.0
     monitor_rejected: int = 0  # messages the launcher's own session rejected (Launcher._monitored)

@@ -62,7 +62,7 @@ def test_a_centre_of_another_host_ending_is_no_failover_without_standbys(tmp_pat
     launcher = Launcher(settings, [], quiet=True, scopes=failover_scopes(settings, cfg))
     for kind in (zenoh.SampleKind.PUT, zenoh.SampleKind.DELETE):
         launcher._on_primary_token(SimpleNamespace(key_expr=launcher.keys.primary("all", "abc"), kind=kind))
-    assert [f.scope for f in launcher._failovers] == (["all"] if standby else [])
+    assert [f.scope for f in launcher.watch.failovers] == (["all"] if standby else [])
 
 
 def test_serve_router_on_a_port_in_use_is_one_line_and_exit_2(capsys: pytest.CaptureFixture[str]) -> None:

@@ -468,4 +468,4 @@ def test_the_launcher_reports_failovers_of_its_own_centres_only(tmp_path: Path) 
             launcher._on_primary_token(TokenSample(launcher.keys.primary(f"zz{k}", "0"), kind))
     for instance, kind in (("a", put), ("a", gone), ("b", put)):  # a primary of x0y0 dies, its standby takes over
         launcher._on_primary_token(TokenSample(launcher.keys.primary("x0y0", instance), kind))
-    assert [(f.scope, f.took_over_ns is not None) for f in launcher._failovers] == [("x0y0", True)]
+    assert [(f.scope, f.took_over_ns is not None) for f in launcher.watch.failovers] == [("x0y0", True)]

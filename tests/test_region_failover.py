@@ -252,8 +252,8 @@ def test_a_router_outage_is_reported_as_one_not_as_a_failover_per_region(watchin
     launcher._on_router_token(Token(keys.alive("router", "router"), put))
     for rid, instance in (("x0y0", "1.a"), ("x1y0", "1.b")):
         launcher._on_primary_token(Token(keys.primary(rid, instance), put))
-    assert launcher._failovers == []
-    assert [o.summary(None, 1.0)["back_after_s"] for o in launcher._outages] == [2.0]
+    assert launcher.watch.failovers == []
+    assert [o.summary(None, 1.0)["back_after_s"] for o in launcher.watch.outages] == [2.0]
 
 
 def test_a_take_over_from_a_frozen_primary_is_a_failover(watching: tuple[Any, list[int]]) -> None:
@@ -275,10 +275,10 @@ def test_a_take_over_from_a_frozen_primary_is_a_failover(watching: tuple[Any, li
     clock[0] += int(5e9)
     launcher._on_primary_token(Token(keys.primary("x0y0", "1.a"), gone))  # the lease ended
     launcher._on_primary_token(Token(keys.primary("x0y0", "1.a"), put))  # woken: an earlier claim, no take-over
-    summary = [f.summary(None, 1.0, 1.0) for f in launcher._failovers]
+    summary = [f.summary(None, 1.0, 1.0) for f in launcher.watch.failovers]
     assert [(f["scope"], f["took_over_after_s"], f["covered_after_s"]) for f in summary] == \
         [("x0y0", pytest.approx(SILENT_S + 0.3), pytest.approx(SILENT_S + 0.8))]
-    assert launcher._failovers[0].lost_ns == last
+    assert launcher.watch.failovers[0].lost_ns == last
 
 
 @pytest.mark.faults
