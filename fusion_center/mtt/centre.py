@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections import deque
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -60,6 +61,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from fedtrack.fusion_center.mtt.central_track import CentralTracks, DepartedTracks, padded
+from fedtrack.fusion_center.mtt.silence import INTERVALS_KEPT, silence_bound, usual_intervals
 from fedtrack.local_filters.linear.gating import track_difference_d2
 from fedtrack.local_filters.mtt.associators.gnn import assign
 from fedtrack.local_filters.mtt.config import MttConfig, miss_count, scan_lost
@@ -197,6 +199,8 @@ class TrackToTrackCentre:
     strikes: dict[LocalKey, int] = field(default_factory=dict)
     sensor_seen: dict[str, float] = field(default_factory=dict)
     sensor_names: list[str] = field(default_factory=list)  # column order of the per-sensor arrays
+    # sensor -> its last intervals between scans on the data's time (a late scan adds none)
+    scan_gaps: dict[str, deque[float]] = field(default_factory=dict)
     next_id: int = 0
     id_step: int = 1  # ids next_id, next_id + id_step, ...: region r of R starts at r, steps by R (shards)
     counters: Counters = field(default_factory=Counters)
@@ -277,6 +281,7 @@ class TrackToTrackCentre:
         answer on) nor in the deletion rule, and its local tracks leave their central tracks
         (a central track left without any is deleted by the next :meth:`prune`)."""
         self.sensor_seen.pop(sensor, None)
+        self.scan_gaps.pop(sensor, None)
         for key in [k for k in self.mapping if k[0] == sensor]:
             self._unmap(key)
             self.strikes.pop(key, None)
@@ -299,7 +304,16 @@ class TrackToTrackCentre:
         self.count_judged.discard(sensor)
 
     def live_sensors(self, now: float) -> list[str]:
-        return sorted(s for s, t in self.sensor_seen.items() if now - t <= self.cfg.central_timeout)
+        """The sensors whose latest scan is within their silence bound of ``now`` (the live centre's
+        rule on the data's time, :func:`~.silence.silence_bound` with ``central_timeout`` as its floor:
+        a sensor scanning every 8 s, or in bursts 8 s apart, stays live between its scans)."""
+        usual = self._usual_intervals()
+        return sorted(s for s, t in self.sensor_seen.items()
+                      if now - t <= silence_bound(s, usual, self.cfg.central_timeout))
+
+    def _usual_intervals(self) -> dict[str, float]:
+        """Each sensor's usual interval between scans on the data's time (:func:`~.silence.usual_interval`)."""
+        return usual_intervals(self.scan_gaps)
 
     def _embed(self, H: np.ndarray) -> np.ndarray:
         """A local observation matrix in the central state (2-D states are the prefix of 3-D)."""
@@ -369,6 +383,8 @@ class TrackToTrackCentre:
                 self.local_confirmation = True
         previous = self.sensor_seen.get(s, t)
         self.sensor_seen[s] = max(previous, t)
+        if t > previous:
+            self.scan_gaps.setdefault(s, deque(maxlen=INTERVALS_KEPT)).append(t - previous)
         self.n_live = len(self.live_sensors(t))
         col = self._col(s)
         self.column_interval[col] = t - previous
@@ -621,7 +637,8 @@ class TrackToTrackCentre:
         :func:`needs_local_confirmation`, a track is confirmed when the rule holds and a local track
         that its tracker confirmed maps to it); a confirmed track that this sensor tracks (a local
         track maps to it) and did not detect misses, and is deleted after ``delete_misses``
-        consecutive misses (``CENTRAL_MISSES`` of each tracking sensor when several track it); a
+        consecutive misses (when several track it, misses as unlikely as ``CENTRAL_MISSES`` of each
+        tracking sensor, in any mix: :meth:`_misses_enough`); a
         track confirmed now is confirmed from the scan's time on (:meth:`CentralTracks.as_of`)."""
         cfg, tracks = self.cfg, self.tracks
         hit = np.zeros(tracks.capacity, dtype=bool)
@@ -638,7 +655,7 @@ class TrackToTrackCentre:
             tracking = self.support[missed] > 0
             n_tracking = np.count_nonzero(tracking, axis=1)
             need = self._misses_needed(tracking, n_tracking, scan_lost(float(self.column_interval[col])))[:, None]
-            dead = missed[(n_tracking > 0) & (~tracking | (streak >= need)).all(axis=1)]
+            dead = missed[(n_tracking > 0) & self._misses_enough(streak, tracking, need)]
         young = (live ^ old).nonzero()[0]  # live and tentative
         window = np.concatenate([self.window[young, 1:], hit[young, None]], axis=1)
         self.window[young] = window
@@ -651,6 +668,16 @@ class TrackToTrackCentre:
             tracks.confirmed[now], tracks.confirmed_t[now] = True, report.t
         for cid in tracks.ids[dead].tolist():
             self._delete(cid)
+
+    def _misses_enough(self, streak: np.ndarray, tracking: np.ndarray, need: np.ndarray) -> np.ndarray:
+        """Per row, whether the tracking sensors' misses since the track's last detection (``streak``,
+        rows x sensor columns) are as unlikely for a live target as ``need`` misses of each of them
+        (``need``, rows x 1): the sum of their log miss probabilities is at most theirs, in any mix of
+        sensors, as ``mtt-centralized`` counts misses in a row over every sensor's scans. Each of them
+        missing ``need`` times waited for the slowest: a dead target's track stayed in about 2 pictures
+        against 0.8 for ``mtt-centralized`` (jipda, sensors at 1.0 / 0.7 / 1.3 s; before fedids)."""
+        log_miss = np.where(tracking, self.column_log_miss, 0.0)
+        return (streak * log_miss).sum(axis=1) <= need[:, 0] * log_miss.sum(axis=1)
 
     def _misses_needed(self, tracking: np.ndarray, n_tracking: np.ndarray, lost: float) -> np.ndarray:
         """Misses in a row per tracking sensor before a confirmed track is deleted, per row of
