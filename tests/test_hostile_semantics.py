@@ -223,7 +223,8 @@ def test_the_merger_outlives_region_pictures_it_cannot_merge(tmp_path: Path) -> 
     config.write_text(REGIONS_CONFIG)
     regions = load_regions(config)
     assert regions is not None and len(regions.ids) == 2
-    svc = PictureMergeService(regions, 4, 2.0, 0.25, service_id="picture", options=OPTIONS,  # the late times on its grid
+    # the late times on its grid
+    svc = PictureMergeService(regions, 4, 2.0, 0.25, service_id="picture", options=OPTIONS,
                               deployment=KEYS.deployment)
     svc._subscriptions = svc.subscriptions()
     merged: list[TrackPicture] = []

@@ -76,8 +76,9 @@ def test_a_multitarget_launch_needs_realtime_pacing(tmp_path: Path) -> None:
     """Paced in real time without ``pacing`` in the file (CONFIG has none: the launches above); an
     explicit other pacing is refused."""
     config = tmp_path / "mtt.toml"
-    config.write_text(CONFIG.format(port=free_port(), algorithm="mtt-federated").replace("seed = 3\n",
-                                                                                        'seed = 3\npacing = "lockstep"\n'))
+    lockstep = CONFIG.format(port=free_port(), algorithm="mtt-federated").replace("seed = 3\n",
+                                                                                   'seed = 3\npacing = "lockstep"\n')
+    config.write_text(lockstep)
     proc = subprocess.run([sys.executable, "-m", "fedtrack.cli", "launch", str(config), "--out", str(tmp_path / "o")],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and "deployment.pacing" in proc.stderr and "Traceback" not in proc.stderr

@@ -164,7 +164,9 @@ def test_regions_holding_none_of_the_data_are_noted(tmp_path: Path, capsys: pyte
     config = tmp_path / "c.toml"
     config.write_text(f"[frame]\norigin = [48.5, 2.5, 0.0]\n[regions]\nmargin = 100.0\n[[regions.polygon]]\n"
                       f"id = \"a\"\nlat_lon = {lat_lon}\n")
-    assert replay_mtt("mtt-federated", tmp_path / "measurements.jsonl", config, tmp_path / "p.jsonl", regions="config") == 4
+    pictures = replay_mtt("mtt-federated", tmp_path / "measurements.jsonl", config, tmp_path / "p.jsonl",
+                          regions="config")
+    assert pictures == 4
     notes = [line for line in capsys.readouterr().err.splitlines() if line.startswith("--regions config: note")]
     assert len(notes) == noted and all("none of the measurements' detections is within the extent" in n for n in notes)
 

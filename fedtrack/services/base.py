@@ -580,7 +580,8 @@ class Service:
         return False
 
     def restarted(self, msg: Measurement | LocalEstimate, why: str = "after a pause beyond max_time_jump_s") -> None:
-        """Count and log that a tracker starts again at scan ``msg``, ``why`` (:class:`fedtrack.services.clock.ClockJump`)."""
+        """Count and log that a tracker starts again at scan ``msg``, ``why``
+        (:class:`fedtrack.services.clock.ClockJump`)."""
         self.count("restarted")
         self.log.warning("scan %d of %s at t=%g: the tracker starts again %s", msg.seq, msg.sensor, msg.t, why)
 
@@ -600,7 +601,8 @@ class Service:
         """``msg`` (a scan or an estimate of ``msg.sensor``, or of ``source``, at ``msg.t``, published on
         ``key``; held as ``item`` if given) and those it witnesses, in order; none while it is held for
         being stamped (or numbered: :class:`NumberedLeadGuard`) far ahead of the data
-        (:class:`LeadGuard`); the held messages it contradicts are counted ``rejected_time_lead``. The handler calls ``guard.took`` for each one it takes."""
+        (:class:`LeadGuard`); the held messages it contradicts are counted ``rejected_time_lead``. The
+        handler calls ``guard.took`` for each one it takes."""
         dropped = guard.dropped
         size = sum(getattr(msg, f.name).nbytes for f in fields(msg) if isinstance(getattr(msg, f.name), np.ndarray))
         released = guard.admit(msg.sensor if source is None else source, msg.t, msg if item is None else item, size)
