@@ -494,13 +494,9 @@ class Service:
         except Exception as exc:  # noqa: BLE001 - no message may kill a service
             self._reject(str(item[2]), 0, exc)
 
-    def _answer(self, index: int, key: str, query: zenoh.Query | int) -> None:
+    def _answer(self, index: int, key: str, query: zenoh.Query) -> None:
         """Reply to ``query`` on its queryable's ``key`` (whatever the selector: never on a wildcard, which
-        the access control refuses), or count one that :meth:`_on_query` refused (its size instead)."""
-        if isinstance(query, int):
-            self._reject(key, query, Rejected("query", "a query with a payload, parameters or an attachment "
-                                                       "(this queryable takes none): dropped unanswered"))
-            return
+        the access control refuses)."""
         with query, self.guarded(f"query on {key}"):
             reply = self._queryables[index].handler()
             if reply is not None:
@@ -508,8 +504,12 @@ class Service:
 
     def _handle(self, item: tuple[Any, ...]) -> None:
         kind, index, key, payload = item
-        if kind == "query":
-            self._answer(index, key, payload)
+        if kind == "query":  # a query, or the size of one that _on_query refused (on the same stream)
+            if isinstance(payload, int):
+                self._reject(key, payload, Rejected("query", "a query with a payload, parameters or an attachment "
+                                                             "(this queryable takes none): dropped unanswered"))
+            else:
+                self._answer(index, key, payload)
             return
         sub = self._subscriptions[index]
         size = len(payload)
