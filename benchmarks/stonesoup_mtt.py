@@ -56,7 +56,7 @@ from typing import Any
 import numpy as np
 from scipy.special import chdtri
 
-from fedtrack.fusion_center.mtt.centre import CENTRAL_MISSES
+from fedtrack.fusion_center.mtt.centre.track_life import CENTRAL_MISSES
 
 EPOCH = datetime.datetime(2000, 1, 1)
 

@@ -18,7 +18,8 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-from fedtrack.fusion_center.mtt.centre import LocalKey, TrackToTrackCentre
+from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
+from fedtrack.fusion_center.mtt.centre.association import LocalKey
 from fedtrack.fusion_center.mtt.engines import TrackToTrackEngine
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.scan import SensorLeft, SensorScan

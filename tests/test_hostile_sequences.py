@@ -16,7 +16,7 @@ import pytest
 from test_hostile_messages import KEYS, OPTIONS, Bus, mtt_lines, mtt_services
 from test_mtt_regions_live import CONFIG as REGIONS_CONFIG
 
-from fedtrack.fusion_center.mtt import centre as centre_module
+from fedtrack.fusion_center.mtt.centre import association, candidates
 from fedtrack.fusion_center.mtt.picture_merge import PictureMergeService
 from fedtrack.fusion_center.mtt.service import MttCentreService
 from fedtrack.local_filters.mtt.config import MttConfig
@@ -254,13 +254,13 @@ def test_a_report_of_many_tracks_in_one_spot_costs_the_centre_no_more_than_sprea
     made: 8,192 such tracks take 0.3 s and 244 MB, 65,536 2.6 s (measured), and the pictures are
     those of the old rule (the test refused exactly the pairs now not made)."""
     made: list[int] = []
-    real = centre_module.candidate_pairs
+    real = association.candidate_pairs
 
     def counted(*args: Any) -> tuple[np.ndarray, np.ndarray]:
         pairs = real(*args)
         made.append(pairs[0].size)
         return pairs
-    monkeypatch.setattr(centre_module, "candidate_pairs", counted)
+    monkeypatch.setattr(association, "candidate_pairs", counted)
     svc = MttCentreService("mtt-decentralized", MttConfig(sensors=("h1", "h2", "h3"), max_lag=3.0), 4,
                            service_id="centre", options=OPTIONS, deployment=KEYS.deployment)
     bus = Bus([svc])
@@ -284,7 +284,7 @@ def test_a_crowd_against_another_sensors_crowd_is_refused_before_its_pairs_are_m
     report; 4,096: 45 s and 9 GB). Beyond ``MAX_CANDIDATE_PAIRS`` (counted by the k-d tree before
     any pair is made) the report is refused ``crowded`` and the centre is put back: its pictures
     are those of the run without the second crowd. The bound is lowered here to keep the test small."""
-    monkeypatch.setattr(centre_module, "MAX_CANDIDATE_PAIRS", 100_000)
+    monkeypatch.setattr(candidates, "MAX_CANDIDATE_PAIRS", 100_000)
 
     def run(attack: bool) -> tuple[list[TrackPicture], MttCentreService]:
         svc = MttCentreService("mtt-decentralized", MttConfig(sensors=("h1", "h2", "h3"), max_lag=3.0), 4,
@@ -315,8 +315,8 @@ def test_a_replay_of_crowds_is_one_line_of_error(tmp_path: Path, monkeypatch: py
 
     from fedtrack.cli import main as cli
 
-    monkeypatch.setattr(centre_module, "MAX_CANDIDATE_PAIRS", 1_000)
-    monkeypatch.setattr(centre_module, "DIRECT_PAIRS", 100)  # the k-d tree's path, where the count is
+    monkeypatch.setattr(candidates, "MAX_CANDIDATE_PAIRS", 1_000)
+    monkeypatch.setattr(candidates, "DIRECT_PAIRS", 100)  # the k-d tree's path, where the count is
     rng = np.random.default_rng(1)
     lines = [{"t": k + (0.1 if s == "s2" else 0.0), "sensor": s, "R": [[100.0, 0.0], [0.0, 100.0]],
               "detections": [{"z": z.tolist()} for z in rng.normal(0.0, 1.0, (40, 2))]}

@@ -25,7 +25,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from fedtrack.fusion_center.mtt.centre import CENTRAL_MISSES, TrackToTrackCentre
+from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
+from fedtrack.fusion_center.mtt.centre.track_life import CENTRAL_MISSES
 from fedtrack.fusion_center.mtt.shards import ShardedCentre
 from fedtrack.local_filters.mtt.associators import jipda
 from fedtrack.local_filters.mtt.config import LOST, MttConfig, miss_count, scan_lost

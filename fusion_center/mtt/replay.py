@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from fedtrack.config import ConfigError, did_you_mean, load_tables
-from fedtrack.fusion_center.mtt.centre import CrowdedReport
+from fedtrack.fusion_center.mtt.centre.candidates import CrowdedReport
 from fedtrack.fusion_center.mtt.engines import ALGORITHMS, Engine, PictureClock, PictureTracks, make_engine
 from fedtrack.fusion_center.mtt.regional import is_region_recording, read_region_entries, recorded_pictures
 from fedtrack.fusion_center.mtt.silence import silence_bound, usual_intervals

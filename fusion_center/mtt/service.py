@@ -51,7 +51,7 @@ import numpy as np
 import zenoh
 
 from fedtrack.config import ConfigError, load_tables
-from fedtrack.fusion_center.mtt.centre import CrowdedReport
+from fedtrack.fusion_center.mtt.centre.candidates import CrowdedReport
 from fedtrack.fusion_center.mtt.engines import (
     CentralizedEngine,
     PictureClock,

@@ -36,7 +36,8 @@ from scipy.special import ndtri
 
 from fedtrack import wire
 from fedtrack.fusion_center.mtt.central_track import MAX_ENTRIES
-from fedtrack.fusion_center.mtt.centre import Counters, HandOver, LocalKey, TrackToTrackCentre
+from fedtrack.fusion_center.mtt.centre import Counters, HandOver, TrackToTrackCentre
+from fedtrack.fusion_center.mtt.centre.association import LocalKey
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import LocalReport, Resets
 from fedtrack.local_filters.mtt.routing import RegionAnswer, RegionRouter, join_answers

@@ -47,48 +47,27 @@ scan, the linearized observation of every track the scan detected, the tracks it
   (``delete_misses`` when one sensor tracks it; more at a lower P_D: :func:`~fedtrack.local_filters.mtt.config.miss_count`): a target that died goes within two scans of the
   slowest sensor instead of lingering until every local tracker deleted its track. It is also deleted when no local
   track maps to it any more or none supported it for ``central_timeout`` seconds.
-"""
 
+This module holds the centre's state, the fusion, the feedback and the hand-over; the association
+and duplicate merge are in :mod:`.association`, the life rules in :mod:`.track_life`, the candidate
+pairs' search in :mod:`.candidates`.
+"""
 from __future__ import annotations
 
 import itertools
-import math
 from collections import deque
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from fedtrack.fusion_center.mtt.central_track import CentralTracks, DepartedTracks, padded
+from fedtrack.fusion_center.mtt.centre.association import CentreAssociation, LocalKey
+from fedtrack.fusion_center.mtt.centre.track_life import CentreLife, needs_local_confirmation
 from fedtrack.fusion_center.mtt.silence import INTERVALS_KEPT, silence_bound, usual_intervals
 from fedtrack.local_filters.linear.gating import track_difference_d2
-from fedtrack.local_filters.mtt.associators.gnn import assign
-from fedtrack.local_filters.mtt.config import MttConfig, miss_count, scan_lost
+from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import LocalReport, Resets, no_resets
-
-LocalKey = tuple[str, int]  # (sensor, local track id)
-
-# A confirmed track that several sensors see is deleted once each of them missed it on its
-# last CENTRAL_MISSES scans ((1 - P_D)^4 = 1e-4 or less for a live target with P_D = 0.9): the
-# track-to-track centre's rule per tracking sensor, and mtt-centralized's as misses in a row
-# over every sensor's scans (CENTRAL_MISSES per sensor: engines.central_params).
-CENTRAL_MISSES = 2
-# At the sensors' detection probabilities the counts may need to be longer: config.miss_count.
-
-
-ASSOCIATION_SHIFT = 1e6  # larger than any gated pair's d2 + ln det
-XY = slice(0, 3, 2)  # the x and y positions of a state [x, vx, y, vy(, z, vz)], as a view
-
-
-def needs_local_confirmation(cfg: MttConfig, sensor: str, R: np.ndarray) -> bool:
-    """Whether a central track also needs a local track confirmed by its tracker, judged on position
-    sensor ``sensor`` of noise covariance ``R``: where the local trackers confirm by a test with a
-    false-confirmation bound (:attr:`MttConfig.confirm_bound`) and the count's chance to confirm a
-    track started on that sensor's clutter exceeds that bound (:meth:`MttConfig.counts_false_confirm`
-    of :meth:`MttConfig.clutter_gate_hit`)."""
-    bound = cfg.confirm_bound
-    return bound is not None and cfg.counts_false_confirm(cfg.clutter_gate_hit(sensor, R)) > bound
 
 
 @dataclass
@@ -103,66 +82,6 @@ class Counters:
     merged: int = 0
     left: int = 0
     late_reports: int = 0  # reports older than max_lag before the newest report: neither fused nor mapped
-
-
-# At most this many (query, position) pairs are tested directly rather than through a k-d tree:
-# building and querying a tree costs about 60 us at any size, the direct test about 1 us per
-# 1,000 pairs (measured: equal near 30,000 pairs); a centre's few unmapped local tracks or
-# merge candidates against its tracks are a few thousand pairs.
-DIRECT_PAIRS = 1 << 15
-# At most this many candidate pairs of one query (a report's unmapped local tracks, or the merge
-# test's tracks) and the centre's tracks: each pair's difference, covariance sum and Cholesky
-# factor take about 0.5 kB (4-D states; 0.7 kB 6-D), so a report costs at most about 0.5-0.7 GB
-# there. Honest reports stay far below: a local track reaches the few central tracks of its
-# target's neighbours (10,000 rows with 10 each are 10^5 pairs; a crowd of 1,000 tracks 20 m
-# apart within one another's reach, about 140 each at 10 m noise, 1.4 x 10^5), while a report of
-# 2,048 fresh local tracks within a metre of 2,048 central ones made 4.2 x 10^6 (14 s, 2.3 GB;
-# 4,096: 45 s, 9 GB): refused as CrowdedReport instead (the service counts it rejected_crowded).
-MAX_CANDIDATE_PAIRS = 1 << 20
-
-
-class CrowdedReport(ValueError):
-    """A report whose tracks would make more than ``MAX_CANDIDATE_PAIRS`` candidate pairs."""
-
-
-def candidate_pairs(pos_q: np.ndarray, spread_q: np.ndarray, pos: np.ndarray, spread: np.ndarray, gate: float
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """The pairs ``(i, j)`` of a query ``pos_q[i]`` and a position ``pos[j]`` that can pass the
-    chi-square test ``d' (P_i + P_j)^-1 d <= gate``, as two arrays (``i`` ascending, then ``j``):
-    its x-y marginal alone needs ``|dxy|^2 <= gate tr(P_xy,i + P_xy,j) <= gate (spread_i +
-    spread_j)^2`` (``spread``: root of the x-y position variances), so a pair farther apart fails.
-
-    Up to ``DIRECT_PAIRS`` pairs that bound is tested on every pair. Beyond, one k-d tree query
-    per query position with the reach of the largest spread among the ordinary positions (about
-    the 90th percentile of the spreads, one partition instead of a quantile's sort and
-    interpolation), plus a direct check against the few with a larger spread (tentative tracks
-    with a large velocity uncertainty), so that one of them does not make every query cover the
-    region; that gives some farther pairs too (the reach only splits the work: the test decides).
-    More than ``MAX_CANDIDATE_PAIRS`` pairs from the tree: :class:`CrowdedReport` (counted before
-    any is made).
-    """
-    factor = math.sqrt(gate)
-    if pos_q.shape[0] * pos.shape[0] <= DIRECT_PAIRS:
-        dx, dy = pos_q[:, 0, None] - pos[:, 0], pos_q[:, 1, None] - pos[:, 1]
-        reach = factor * (spread_q[:, None] + spread)
-        return np.nonzero(dx * dx + dy * dy <= reach * reach)
-    kth = int(0.9 * (spread.size - 1))
-    big_spread = float(np.partition(spread, kth)[kth])
-    big = (spread > big_spread).nonzero()[0]
-    tree, radius = cKDTree(pos), factor * (spread_q + big_spread)
-    if pos_q.shape[0] * pos.shape[0] > MAX_CANDIDATE_PAIRS:
-        n = int(np.sum(tree.query_ball_point(pos_q, radius, return_length=True)))
-        if n > MAX_CANDIDATE_PAIRS:
-            raise CrowdedReport(f"{n} pairs of tracks within the association test's reach, at most "
-                                f"{MAX_CANDIDATE_PAIRS}")
-    near = tree.query_ball_point(pos_q, radius)
-    if big.size:
-        reach = factor * (spread_q[:, None] + spread[big][None, :])
-        close = np.linalg.norm(pos_q[:, None, :] - pos[big][None, :, :], axis=-1) <= reach
-        near = [sorted(set(js) | set(big[close[i]].tolist())) for i, js in enumerate(near)]
-    counts = np.fromiter(map(len, near), dtype=np.int64, count=len(near))
-    j = np.fromiter(itertools.chain.from_iterable(near), dtype=np.int64, count=int(counts.sum()))
-    return np.repeat(np.arange(len(near)), counts), j
 
 
 class HandOver(NamedTuple):
@@ -185,7 +104,7 @@ class HandOver(NamedTuple):
 
 
 @dataclass
-class TrackToTrackCentre:
+class TrackToTrackCentre(CentreAssociation, CentreLife):
     """Central tracks of dimension ``dim`` (4 or 6) fused from local trackers' reports.
 
     The central tracks' states live in :class:`CentralTracks`; the life rules' counts in arrays
@@ -204,7 +123,6 @@ class TrackToTrackCentre:
     next_id: int = 0
     id_step: int = 1  # ids next_id, next_id + id_step, ...: region r of R starts at r, steps by R (shards)
     counters: Counters = field(default_factory=Counters)
-
     def __post_init__(self) -> None:
         cfg = self.cfg
         self.tracks = CentralTracks(self.dim, cfg.q, cfg.noise_model, cfg.max_lag,
@@ -472,236 +390,6 @@ class TrackToTrackCentre:
         self._merge_duplicates(slots[still_live], t, (X, P, at), supported)
         return resets
 
-    def _states_now(self, slots: np.ndarray, t: float, states: tuple[np.ndarray, np.ndarray, np.ndarray],
-                    touched: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """What :meth:`CentralTracks.states_at` ``t`` gives for ``slots``, from what the report has
-        (``touched``: the slots it fused into or started): an untouched track's estimate in ``states``
-        (X, P, at: the report's prediction); a touched one's entry at ``t`` (a prediction over 0 s
-        leaves it as it is; with motion modes it combines the modes again, so it is predicted); the
-        rest (none in :meth:`_fuse_rows`) predicted."""
-        tracks = self.tracks
-        X0, P0, at = states
-        new = np.zeros(tracks.capacity, dtype=bool)
-        new[touched] = True
-        new = new[slots]
-        row = np.where(new, -1, at[slots])
-        X, P = np.empty((slots.size,) + X0.shape[1:]), np.empty((slots.size,) + P0.shape[1:])
-        kept = row >= 0
-        X[kept], P[kept] = X0[row[kept]], P0[row[kept]]
-        if tracks.modes is None and new.any():
-            s = slots[new]
-            p = tracks._entry_at(s, t)[0]
-            X[new], P[new] = tracks.x[s, p], tracks.P[s, p]
-            kept |= new
-        if not kept.all():
-            rest = ~kept
-            X[rest], P[rest] = tracks.states_at(slots[rest], t)
-        return X, P
-
-    def _hysteresis(self, report: LocalReport, keys: list[LocalKey], check: np.ndarray, d2: np.ndarray,
-                    cid: np.ndarray, slots: np.ndarray) -> bool:
-        """The check of the mapped rows ``check`` (``d2``: each one's test against its central track): a
-        local track inconsistent with its central track ``unmap_after`` times in a row is unmapped
-        (its ``cid`` and ``slots`` set to -1), a consistent one's strikes forgiven; returns whether
-        one was unmapped."""
-        cfg, s = self.cfg, report.sensor
-        bad = d2 > cfg.thresholds.association[report.x.shape[1]]
-        struck = [key for key in self.strikes if key[0] == s]
-        if struck:  # a consistent local track's strikes are forgiven
-            good = {keys[k][1] for k in check[~bad].tolist()}
-            for key in struck:
-                if key[1] in good:
-                    del self.strikes[key]
-        unmapped = False
-        for k in check[bad].tolist():
-            key = keys[k]
-            self.strikes[key] = self.strikes.get(key, 0) + 1
-            if self.strikes[key] >= cfg.unmap_after:
-                self._unmap(key)
-                self.strikes.pop(key)
-                self.counters.unmapped += 1
-                cid[k] = slots[k] = -1
-                unmapped = True
-        return unmapped
-
-    def _unassociated(self, report: LocalReport, det_rows: np.ndarray, cid: np.ndarray, slots: np.ndarray
-                      ) -> tuple[list[int], list[int]]:
-        """The rows the association takes: the unmapped ones, and the confirmed local tracks alone on
-        their central tracks (no other local track maps there)."""
-        mapped = (cid >= 0).nonzero()[0]
-        lonely = report.confirmed[det_rows[mapped]] & (self.support[slots[mapped]].sum(axis=1) == 1)
-        return (cid < 0).nonzero()[0].tolist(), mapped[lonely].tolist()
-
-    def _movers(self, report: LocalReport, det_rows: np.ndarray, cid: np.ndarray, slots: np.ndarray,
-                checked: tuple[np.ndarray, np.ndarray], alone: list[int], col: int,
-                states: tuple[np.ndarray, np.ndarray, np.ndarray]
-                ) -> tuple[list[int], tuple[np.ndarray, np.ndarray, np.ndarray]]:
-        """Decentralized: the rows of the mapped confirmed local tracks that share their central
-        track with other local tracks (the ``alone`` ones aside) and pass the test with a confirmed
-        central track of other sensors that has none of sensor column ``col``, or with another such
-        row's confirmed central track (the two may swap): each takes part in the association, the
-        movers' own central tracks more candidates and only confirmed ones besides
-        (:meth:`_associate`). Returns the rows and the swap pairs ``(i, j, d2 + ln det)``: mover ``i``
-        passes the test with mover ``j``'s own central track, and ``j`` with ``i``'s, and one of them
-        fits the other's better than its own (else the swap costs more). Only the rows the
-        hysteresis check tested (``checked``: the rows and each one's ``d2 + ln det`` against its
-        own central track, the cost of staying) can move. ``states``: as :meth:`_pairs`'."""
-        check, staying = checked
-        none = np.zeros(0, dtype=np.int64)
-        sharing = np.zeros(cid.size, dtype=bool)
-        sharing[check] = True
-        sharing &= (cid >= 0) & report.confirmed[det_rows]
-        sharing[sharing] = self.support[slots[sharing]].sum(axis=1) > 1
-        sharing[alone] = False
-        rows = sharing.nonzero()[0]
-        if not rows.size:
-            return [], (none, none, np.zeros(0))
-        gate = self.cfg.thresholds.association[report.x.shape[1]]
-        ri, _, diff, S = self._pairs(report, det_rows[rows], col, states, movers=True)[1]
-        moving = set(rows[ri[track_difference_d2(diff, S)[0] <= gate]].tolist()) if ri.size else set()
-        si, sj, cost = self._swap_pairs(report, det_rows[rows], slots[rows], states)
-        if si.size:  # both ways pass, and one of the two fits the other's better than its own
-            own = staying[np.searchsorted(check, rows)]
-            better = cost < own[si]
-            pair = si * rows.size + sj
-            back = np.isin(pair, sj * rows.size + si)
-            either = np.isin(pair, (sj * rows.size + si)[better]) | better
-            si, sj, cost = si[back & either], sj[back & either], cost[back & either]
-        moving.update(rows[si].tolist(), rows[sj].tolist())
-        movers = sorted(moving)
-        index = np.searchsorted(movers, rows)
-        return movers, (index[si], index[sj], cost)
-
-    def _swap_pairs(self, report: LocalReport, rows: np.ndarray, own: np.ndarray,
-                    states: tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The pairs ``(i, j)`` of the local tracks ``rows`` (one sensor's, each on its own central
-        track, slots ``own``) where track ``i`` passes the test with track ``j``'s central track, a
-        confirmed one, with their ``d2 + ln det``: two tracks of a sensor mapped to each other's
-        targets (a swap in a formation, made at their start) can only trade places."""
-        X, P, at = states
-        d = report.x.shape[1]
-        none = np.zeros(0, dtype=np.int64)
-        conf = self.tracks.confirmed[own].nonzero()[0]
-        if not conf.size:
-            return none, none, np.zeros(0)
-        xc, Pc = X[at[own[conf]], :d], P[at[own[conf]], :d, :d]  # the confirmed ones: a tight spread
-        U, PU = report.x[rows], report.P[rows]
-        gate = self.cfg.thresholds.association[d]
-        i, k = candidate_pairs(U[:, XY], np.sqrt(PU[:, 0, 0] + PU[:, 2, 2]), xc[:, XY],
-                               np.sqrt(Pc[:, 0, 0] + Pc[:, 2, 2]), gate)
-        j = conf[k]
-        keep = i != j
-        i, j, k = i[keep], j[keep], k[keep]
-        d2, logdet = track_difference_d2(U[i] - xc[k], PU[i] + Pc[k])
-        passes = d2 <= gate
-        return i[passes], j[passes], (d2 + logdet)[passes]
-
-    def _pairs(self, report: LocalReport, rows: np.ndarray, col: int, states: tuple[np.ndarray, np.ndarray, np.ndarray],
-               movers: bool = False) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
-        """The association's candidates (the central tracks without a track of sensor column ``col``,
-        in increasing id) and its candidate pairs ``(ri, ci)`` of the local tracks ``rows`` and those
-        within the chi-square test's reach, with their differences and covariance sums to test.
-        ``states``: the central tracks' estimates at the report's time and each slot's row there.
-        ``movers``: :meth:`_movers`' candidates and pairs: only the confirmed candidates that local
-        tracks map to, the pairs looked up from their side (they are far fewer than ``rows``)."""
-        ids, d = self.tracks.ids, report.x.shape[1]
-        cands = ((self.support[:, col] == 0) & (ids >= 0)).nonzero()[0]
-        if movers:
-            cands = cands[self.tracks.confirmed[cands] & self.support[cands].any(axis=1)]
-        cands = cands[ids[cands].argsort()]
-        if not (rows.size and cands.size):
-            none = np.zeros(0, dtype=np.int64)
-            return cands, (none, none, np.zeros((0, d)), np.zeros((0, d, d)))
-        X, P, at = states
-        xc, Pc = X[at[cands], :d], P[at[cands], :d, :d]
-        U = report.x[rows]  # their covariances gathered for the pairs only
-        local = U[:, XY], np.sqrt(report.P[rows, 0, 0] + report.P[rows, 2, 2])
-        central = xc[:, XY], np.sqrt(Pc[:, 0, 0] + Pc[:, 2, 2])
-        gate = self.cfg.thresholds.association[d]
-        if movers:
-            ci, ri = candidate_pairs(*central, *local, gate)
-        else:
-            ri, ci = candidate_pairs(*local, *central, gate)
-        return cands, (ri, ci, U[ri] - xc[ci], report.P[rows[ri]] + Pc[ci])
-
-    def _vouched(self, report: LocalReport) -> np.ndarray:
-        """Slots of the central tracks that a track confirmed by the report's tracker maps to."""
-        s, mapping = report.sensor, self.mapping
-        cids = [mapping[key] for key in ((s, lid) for lid in report.ids[report.confirmed].tolist()) if key in mapping]
-        return self.tracks.slots_of(cids)
-
-    def _count_scan(self, col: int, detected: np.ndarray, report: LocalReport) -> None:
-        """One scan (``report``) of sensor column ``col`` in the life rules: M-of-N confirmation of
-        tentative tracks (the centralized rule over every sensor's scans; where the local trackers'
-        own test is safer than the count in some position sensor's clutter,
-        :func:`needs_local_confirmation`, a track is confirmed when the rule holds and a local track
-        that its tracker confirmed maps to it); a confirmed track that this sensor tracks (a local
-        track maps to it) and did not detect misses, and is deleted after ``delete_misses``
-        consecutive misses (when several track it, misses as unlikely as ``CENTRAL_MISSES`` of each
-        tracking sensor, in any mix: :meth:`_misses_enough`); a
-        track confirmed now is confirmed from the scan's time on (:meth:`CentralTracks.as_of`)."""
-        cfg, tracks = self.cfg, self.tracks
-        hit = np.zeros(tracks.capacity, dtype=bool)
-        hit[detected] = True
-        live = tracks.ids >= 0
-        old = live & tracks.confirmed
-        self.streak[old & hit] = 0
-        missed = (old > hit).nonzero()[0]  # confirmed and not detected
-        dead = missed[:0]
-        if missed.size:
-            streak = self.streak[missed]
-            streak[:, col] += 1
-            self.streak[missed] = streak
-            tracking = self.support[missed] > 0
-            n_tracking = np.count_nonzero(tracking, axis=1)
-            need = self._misses_needed(tracking, n_tracking, scan_lost(float(self.column_interval[col])))[:, None]
-            dead = missed[(n_tracking > 0) & self._misses_enough(streak, tracking, need)]
-        young = (live ^ old).nonzero()[0]  # live and tentative
-        window = np.concatenate([self.window[young, 1:], hit[young, None]], axis=1)
-        self.window[young] = window
-        now = young[np.count_nonzero(window, axis=1) >= cfg.confirm_hits]
-        if cfg.confirm_bound is not None and self.n_live == 1:
-            now = np.intersect1d(young, self._vouched(report))  # one sensor: its tracker's own test
-        elif self.local_confirmation and now.size:
-            now = np.intersect1d(now, self._vouched(report))
-        if now.size:
-            tracks.confirmed[now], tracks.confirmed_t[now] = True, report.t
-        for cid in tracks.ids[dead].tolist():
-            self._delete(cid)
-
-    def _misses_enough(self, streak: np.ndarray, tracking: np.ndarray, need: np.ndarray) -> np.ndarray:
-        """Per row, whether the tracking sensors' misses since the track's last detection (``streak``,
-        rows x sensor columns) are as unlikely for a live target as ``need`` misses of each of them
-        (``need``, rows x 1): the sum of their log miss probabilities is at most theirs, in any mix of
-        sensors, as ``mtt-centralized`` counts misses in a row over every sensor's scans. Each of them
-        missing ``need`` times waited for the slowest: a dead target's track stayed in about 2 pictures
-        against 0.8 for ``mtt-centralized`` (jipda, sensors at 1.0 / 0.7 / 1.3 s; before fedids)."""
-        log_miss = np.where(tracking, self.column_log_miss, 0.0)
-        return (streak * log_miss).sum(axis=1) <= need[:, 0] * log_miss.sum(axis=1)
-
-    def _misses_needed(self, tracking: np.ndarray, n_tracking: np.ndarray, lost: float) -> np.ndarray:
-        """Misses in a row per tracking sensor before a confirmed track is deleted, per row of
-        ``tracking`` (tracks x sensor columns; ``n_tracking`` its row sums): ``CENTRAL_MISSES`` with
-        several tracking sensors, ``delete_misses`` with one, or more where a miss by each of them
-        is likely enough that the chance of as many for a live target exceeds ``lost``
-        (:func:`miss_count`; ``LOST``, or ``LOST`` a second at a scan less than a second after its
-        sensor's previous one: :func:`~fedtrack.local_filters.mtt.config.scan_lost`)."""
-        floor = np.where(n_tracking > 1, CENTRAL_MISSES, self.cfg.delete_misses)
-        total = tracking @ self.column_log_miss  # 0: none tracks the row
-        return np.maximum(miss_count(np.where(total < 0.0, total, -np.inf), lost), floor).astype(np.int64)
-
-    def _delete(self, cid: int) -> None:
-        """Delete ``cid`` by the life rules; a confirmed one stays in later pictures up to its last
-        supported time (:class:`DepartedTracks`) unless its local tracks moved to another track."""
-        slot = self.tracks.slot[cid]
-        if self.tracks.confirmed[slot] and cid not in self.absorbed:
-            self.departed.keep(cid, self.tracks, float(self.last_support[slot]),
-                               self.sensor_lists(np.array([slot]))[0])
-        for key in list(self.members.get(cid, ())):
-            self._unmap(key)
-        self.tracks.delete(cid)
-        self.counters.deleted += 1
-
     def _fuse_scan(self, observations: tuple[np.ndarray, np.ndarray, np.ndarray], slots: np.ndarray,
                    fresh: np.ndarray, t: float, states: tuple[np.ndarray, np.ndarray, np.ndarray]
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -742,115 +430,6 @@ class TrackToTrackCentre:
         self.counters.reprocessed += self.tracks.reprocessed - reprocessed
         return ok, X, P
 
-    def _merge_duplicates(self, updated: np.ndarray, t: float, states: tuple[np.ndarray, np.ndarray, np.ndarray],
-                          touched: np.ndarray) -> None:
-        """Merge a central track into an older one that passes the track-to-track test and shares
-        no sensor with it (two sensors' tracks of one target that missed each other at the start).
-
-        Both tracks of such a pair lack some sensor that has local tracks (a track supported by
-        every such sensor shares one with any other), so only those tracks are looked at; their
-        estimates at ``t`` from the report's (:meth:`_states_now`: ``states``, the slots ``touched``)."""
-        tracks = self.tracks
-        if len(tracks) < 2 or not updated.size:
-            return
-        has = self.support > 0  # a free slot has none
-        partial = ((has != has.any(axis=0)).any(axis=1) & (tracks.ids >= 0)).nonzero()[0]
-        if partial.size < 2:
-            return
-        mark = np.zeros(tracks.capacity, dtype=bool)
-        mark[updated] = True  # ``updated``: the slots of this scan's tracks
-        partial = partial[tracks.ids[partial].argsort()]  # in increasing id
-        mine = mark[partial].nonzero()[0]
-        if not mine.size:
-            return
-        X, P = self._states_now(partial, t, states, touched)
-        gate = self.cfg.thresholds.association[self.dim]
-        pos, spread = X[:, XY], np.sqrt(P[:, 0, 0] + P[:, 2, 2])
-        # a track with a sensor every track of this scan has (the reporting one) merges with none of
-        # them: left out before the pairs are made (one report of 8,192 local tracks within a few
-        # metres made all 67 million pairs, 14 s and 3.7 GB for a test that refused each of them)
-        common = has[partial[mine]].all(axis=0)
-        others = (~has[partial][:, common].any(axis=1)).nonzero()[0]
-        K, J = candidate_pairs(pos[mine], spread[mine], pos[others], spread[others], gate)
-        K, J = mine[K], others[J]
-        # a track never merges with itself, nor with one that shares a sensor with it (a track keeps
-        # its sensors, and a kept track gains the merged one's): only the other pairs are tested
-        tested = (K != J) & ~(has[partial[K]] & has[partial[J]]).any(axis=1)
-        K, J = K[tested], J[tested]
-        if not K.size:
-            return
-        diff = X[J] - X[K]  # the chi-square test of every candidate pair at once
-        passes = track_difference_d2(diff, P[J] + P[K])[0] <= gate
-        close: dict[int, list[int]] = {}
-        for k, j in zip(K[passes].tolist(), J[passes].tolist()):
-            close.setdefault(k, []).append(j)
-        ids = tracks.ids[partial].tolist()
-        for k in mine.tolist():
-            if ids[k] not in tracks:
-                continue
-            for j in sorted(close.get(k, ())):
-                cid, other = ids[k], ids[j]
-                if other not in tracks:
-                    continue
-                mask, other_mask = self.support[partial[k]] > 0, self.support[partial[j]] > 0
-                if not other_mask.any() or (mask & other_mask).any():
-                    continue  # shares a sensor, or no local track maps to it any more (pruned next)
-                keep, drop = min(cid, other), max(cid, other)
-                for key in list(self.members.get(drop, ())):
-                    self._map(key, keep)
-                ks, ds = tracks.slot[keep], tracks.slot[drop]
-                tracks.merge_life(ks, ds)
-                self.last_support[ks] = max(self.last_support[ks], self.last_support[ds])
-                tracks.delete(drop)
-                self.counters.merged += 1
-                break
-
-    def _associate(self, report: LocalReport, det_rows: np.ndarray, unmapped: list[int], alone: list[int],
-                   cands: np.ndarray, tested: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
-                   stay: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None) -> set[LocalKey]:
-        """Map the scan's unmapped local tracks (those not associated start central tracks) and
-        move its confirmed local tracks that are alone on their central tracks to central tracks of
-        other sensors that pass the test (their own central tracks, left without a local track,
-        go at the next :meth:`prune`); returns the local tracks that started central tracks.
-        ``cands``, ``tested``: :meth:`_pairs`' candidates and pairs ``(ri, ci)`` with their test
-        (``d2``, ``ln det``); ``stay``: the movers' own central tracks (slots, one a mover, the last
-        rows) and their pairs with them (mover, own central track of mover, cost): staying, or a swap."""
-        fresh: set[LocalKey] = set()
-        if not unmapped and not alone:
-            return fresh
-        cfg, t, s = self.cfg, report.t, report.sensor
-        rows = det_rows[unmapped + alone]
-        d = report.x.shape[1]
-        assigned: dict[int, int] = {}
-        if cands.size or stay is not None:
-            ri, ci, d2, logdet = tested
-            gate = cfg.thresholds.association[d]
-            # a confirmed track moves only to another sensor's central track: one that no local
-            # track maps to any more (its track retired or unmapped in this report) is pruned next
-            inside = (d2 <= gate) & ((ri < len(unmapped)) | self.support[cands[ci]].any(axis=1))
-            ri, ci, cost = ri[inside], ci[inside], d2[inside] + logdet[inside]
-            if stay is not None:  # the last rows (movers) may stay on their own central tracks, or swap them
-                own, mover, to, own_cost = stay
-                keep = (ri < len(rows) - own.size) | self.tracks.confirmed[cands[ci]]  # movers: to confirmed ones
-                ri = np.concatenate([ri[keep], len(rows) - own.size + mover])
-                ci = np.concatenate([ci[keep], cands.size + to])
-                cost = np.concatenate([cost[keep], own_cost])
-                cands = np.concatenate([cands, own])
-            # most gated pairs first, then the least cost: a shift makes every gated pair's cost negative
-            picked = assign(len(rows), cands.size, ri, ci, cost - ASSOCIATION_SHIFT)
-            cand_ids = self.tracks.ids[cands]
-            assigned = {int(ri[k]): int(cand_ids[ci[k]]) for k in picked}
-        for u in range(len(unmapped) + len(alone)):
-            row = int(rows[u])
-            key = (s, int(report.ids[row]))
-            if u in assigned:
-                if self.mapping.get(key) != assigned[u]:  # a mover may stay
-                    self._map(key, assigned[u])
-            elif u < len(unmapped):
-                self._map(key, self._start(t, report.x[row], report.P[row]))
-                fresh.add(key)
-        return fresh
-
     def answer(self, report: LocalReport, rows: np.ndarray | None = None) -> tuple[Resets, float]:
         """Everything the centre does with one report (its ``rows``: :meth:`ingest`): fuse it, then
         delete unsupported central tracks; returns the resets for its sensor and the process-noise
@@ -859,23 +438,6 @@ class TrackToTrackCentre:
         q_scale = float(max(self.n_live, 1)) if self.feedback else 1.0
         self.prune(report.t)
         return resets, q_scale
-
-    def prune(self, now: float) -> None:
-        """Delete central tracks no local track maps to, or unsupported for ``central_timeout``."""
-        self._delete_where(now - self.last_support > self.cfg.central_timeout)
-        self.departed.expire(now)
-
-    def drop_unsupported(self) -> None:
-        """Delete the central tracks no local track maps to (after :meth:`drop_sensor`), as the
-        next :meth:`prune` would: a picture before the next report does not show them."""
-        self._delete_where(np.zeros(self.tracks.ids.shape, bool))
-
-    def _delete_where(self, stale: np.ndarray) -> None:
-        ids = self.tracks.ids  # over every slot at once; only live ones are deleted
-        gone = ~self.support.any(axis=1) | stale
-        for cid in ids[gone & (ids >= 0)].tolist():
-            self._delete(cid)
-        self.absorbed.clear()
 
     def hand_over(self, cid: int) -> HandOver:
         """Remove central track ``cid`` (to a neighbour region's centre) and return its record."""
