@@ -57,11 +57,19 @@ from fedtrack.deploy.multitarget import (
 )
 from fedtrack.deploy.procstat import process_usage
 from fedtrack.deploy.report import LaunchReport, finish
-from fedtrack.deploy.security import LAUNCHER, check_router_names, host_endpoints, identity, write_configs
+from fedtrack.deploy.security import (
+    LAUNCHER,
+    check_router_names,
+    host_endpoints,
+    identity,
+    router_limits,
+    write_configs,
+)
 from fedtrack.deploy.settings import Settings, check_launchable, load_settings
 from fedtrack.deployment import ROLES, listen_address, port_in_use
 from fedtrack.jsonl import InputError, output_folder
 from fedtrack.keys import Keys
+from fedtrack.local_filters.mtt.service import RESET_TIMEOUT_S
 from fedtrack.local_filters.regions import load_regions
 from fedtrack.recording import Recording
 from fedtrack.services.rejections import clip
@@ -260,7 +268,8 @@ def apply_zenoh_settings(settings: Settings, config_path: Path, out_dir: Path,
     centres = [identity("mtt-centre", rid, rid) for rid in (regions.ids if regions is not None else ())]
     everyone = sorted({*here, *(identity("sensor", sid) for sid in sensors), *centres, "router", "fusion", "recorder"})
     with in_file(config_path):
-        paths = write_configs(settings.zenoh, config_path.parent, Keys(dep.name), here, out_dir, everyone)
+        paths = write_configs(settings.zenoh, config_path.parent, Keys(dep.name), here, out_dir, everyone,
+                              router_limits(dep.deadline_s, RESET_TIMEOUT_S))
         if settings.zenoh.tls_dir is not None:
             check_router_names((config_path.parent / settings.zenoh.tls_dir).resolve(), host_endpoints(dep))
     if not paths:

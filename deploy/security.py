@@ -44,7 +44,7 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import TYPE_CHECKING, Any, NamedTuple, TypeVar
 
 if TYPE_CHECKING:  # imported where certificates are made: every service reads this module's settings
     from cryptography import x509
@@ -64,6 +64,39 @@ READ_MESSAGES = ["declare_subscriber", "query", "liveliness_query", "declare_liv
 ALL_MESSAGES = OWN_MESSAGES + READ_MESSAGES
 LAUNCHER = "launcher"
 ROUTER = "router"
+STALL_SHARE = 4  # a reader that stops reading is cut within this share of the deployment's shortest wait
+MIN_WAIT_BEFORE_CLOSE_S = 0.1  # a descheduled process on a loaded machine; below it honest readers could be cut
+ACCEPT_TIMEOUT_S = 1.0  # Zenoh's open handshake after TLS: two round trips, each well under 0.5 s
+
+
+class RouterLimits(NamedTuple):
+    """What the router gives a client before cutting it: ``wait_before_close_s``, how long a message may
+    wait for room in a reader's full queue (Zenoh's ``wait_before_close``: the link is then closed; while it
+    waits, the publisher's whole link waits, every other reader's messages from it too), and
+    ``accept_timeout_s``, how long a link that passed TLS may take to open its session (one that never
+    does held one of Zenoh's ``accept_pending`` 100 places for Zenoh's 10 s)."""
+
+    wait_before_close_s: float
+    accept_timeout_s: float = ACCEPT_TIMEOUT_S
+
+
+def router_limits(*waits_s: float) -> RouterLimits:
+    """The limits of a deployment whose services wait ``waits_s`` for another's message before they go on
+    without it (``deadline_s``, the multi-target trackers' reset timeout): a slow reader is cut within a
+    quarter (``STALL_SHARE``) of the shortest, at least ``MIN_WAIT_BEFORE_CLOSE_S``, so the messages it held
+    up still arrive within that wait."""
+    return RouterLimits(max(min(waits_s) / STALL_SHARE, MIN_WAIT_BEFORE_CLOSE_S))
+
+
+def router_transport(limits: RouterLimits, tls: dict[str, Any]) -> dict[str, Any]:
+    """The router's ``transport`` section: its ``tls`` and ``limits`` (Zenoh counts ``wait_before_close`` in
+    microseconds, ``accept_timeout`` in milliseconds)."""
+    block = {"wait_before_close": round(limits.wait_before_close_s * 1e6)}
+    return {"unicast": {"accept_timeout": round(limits.accept_timeout_s * 1e3)},
+            "link": {"tls": tls, "tx": {"queue": {"congestion_control": {"block": block}}}}}
+
+
+DEFAULT_LIMITS = router_limits(DeploymentConfig.deadline_s)
 
 
 @dataclass(frozen=True)
@@ -449,12 +482,14 @@ def check_router_names(tls_dir: Path, endpoints: list[tuple[str, str]]) -> None:
 
 
 def write_configs(settings: ZenohSettings, base_dir: Path, keys: Keys, identities: list[str],
-                  out_dir: Path, everyone: list[str] | None = None) -> dict[str, Path]:
+                  out_dir: Path, everyone: list[str] | None = None,
+                  limits: RouterLimits = DEFAULT_LIMITS) -> dict[str, Path]:
     """Write one Zenoh config file per identity of this host (``identities``, and the launcher's;
     ``ident -> path``); empty without ``[zenoh]`` settings. With ``config`` every identity gets that
     file; with ``tls_dir`` each gets its own, and only these identities' certificates must be in
     ``tls_dir`` (made there if missing and the CA's key is there). The router's access control names
-    ``everyone`` (every identity of the deployment, other hosts' too; default ``identities``)."""
+    ``everyone`` (every identity of the deployment, other hosts' too; default ``identities``); its
+    transport cuts slow readers and unopened links by ``limits`` (default: those of the default ``deadline_s``)."""
     if settings.config is not None:
         path = (base_dir / settings.config).resolve()
         read_zenoh_config(path, load_config_file)  # read before anything starts (was: the router exited with it)
@@ -467,8 +502,10 @@ def write_configs(settings: ZenohSettings, base_dir: Path, keys: Keys, identitie
     out.mkdir(parents=True, exist_ok=True)
     paths = {}
     for ident in [*identities, LAUNCHER]:
-        config: dict[str, Any] = {"transport": {"link": {"tls": tls_config(tls_dir, ident, ident == ROUTER)}}}
+        tls = tls_config(tls_dir, ident, ident == ROUTER)
+        config: dict[str, Any] = {"transport": {"link": {"tls": tls}}}
         if ident == ROUTER:
+            config["transport"] = router_transport(limits, tls)
             config["access_control"] = access_control(keys, everyone if everyone is not None else identities)
         paths[ident] = out / f"{ident}.json5"
         paths[ident].write_text(json.dumps(config, indent=2))

@@ -8,10 +8,11 @@ import multiprocessing
 import signal
 import subprocess
 import time
+from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import pytest
 
@@ -19,7 +20,8 @@ from fedtrack.deploy.demo import free_port
 
 WAIT_S = 10.0
 
-__all__ = ["WAIT_S", "Deployment", "free_port", "in_parallel", "replay_evaluated", "wait_until"]
+__all__ = ["WAIT_S", "Deployment", "SecureBus", "free_port", "in_parallel", "replay_evaluated", "secure_router",
+           "wait_until"]
 
 
 def patch_wire(monkeypatch: pytest.MonkeyPatch, name: str, value: Any) -> None:
@@ -190,6 +192,44 @@ class Deployment:
             close_session(self.session)
         for name in reversed(list(self.procs)):
             self.stop(name)
+
+
+class SecureBus:
+    """A router's endpoint and the Zenoh files of its identities (:func:`secure_router`); calling it opens a
+    client session under one of them, ``link`` added to the endpoint (``#so_rcvbuf=4096``: Zenoh's link
+    options)."""
+
+    def __init__(self, endpoint: str, paths: dict[str, Path]) -> None:
+        self.endpoint = endpoint
+        self.paths = paths
+        self.sessions: list[Any] = []
+
+    def __call__(self, ident: str, link: str = "") -> Any:
+        from fedtrack.zsession import SessionOptions, open_session
+
+        self.sessions.append(open_session(SessionOptions(connect=(self.endpoint + link,),
+                                                         config_file=str(self.paths[ident]))))
+        return self.sessions[-1]
+
+
+@contextlib.contextmanager
+def secure_router(tmp_path: Path, keys: Any, identities: list[str]) -> Iterator[SecureBus]:
+    """A router on a free loopback TLS port with the access control of ``identities`` (certificates made
+    in ``tmp_path / "c"``, the files ``launch`` writes); yields its :class:`SecureBus`. Every session and
+    the router are closed after."""
+    from fedtrack.deploy.security import ZenohSettings, write_configs
+    from fedtrack.zsession import SessionOptions, close_session, open_session
+
+    paths = write_configs(ZenohSettings(tls_dir="c"), tmp_path, keys, ["router", *identities], tmp_path / "o")
+    bus = SecureBus(f"tls/127.0.0.1:{free_port()}", paths)
+    router = open_session(SessionOptions(mode="router", connect=(), listen=(bus.endpoint,),
+                                         config_file=str(paths["router"])))
+    try:
+        yield bus
+    finally:
+        for session in bus.sessions:
+            close_session(session)
+        close_session(router)
 
 
 def assert_same_pictures(live: list[dict[str, Any]], again: list[dict[str, Any]]) -> None:

@@ -5,19 +5,17 @@ Certificates are made in tmp_path (fedtrack.deploy.security, the cryptography pa
 
 from __future__ import annotations
 
-import contextlib
 import json
 import stat
 import subprocess
 import sys
 import threading
-from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
-from support import Deployment, wait_until
+from support import Deployment, secure_router, wait_until
 
 from fedtrack.config import ConfigError
 from fedtrack.deploy.security import ZenohSettings, access_control, identity, make_certificates, on_loopback
@@ -55,32 +53,6 @@ def test_identities_and_rules() -> None:
     # serve picture (``fusion``) reads the region pictures with history: their caches
     assert own["cache-fusion"] == ["fedtrack/d/local/*/estimate/@adv/**", "fedtrack/d/region/*/picture/@adv/**"]
     assert identity("mtt-centre", "x0y0-standby", "x0y0") == "region-x0y0"
-
-
-@contextlib.contextmanager
-def secure_router(tmp_path: Path, keys: Keys, identities: list[str]) -> Iterator[Callable[[str], Any]]:
-    """A router on a free loopback TLS port with the access control of ``identities`` (certificates made
-    in ``tmp_path``); yields a function that opens a client session under one of them. Every session and
-    the router are closed after."""
-    from fedtrack.deploy.demo import free_port
-    from fedtrack.deploy.security import write_configs
-
-    paths = write_configs(ZenohSettings(tls_dir="c"), tmp_path, keys, ["router", *identities], tmp_path / "o")
-    endpoint = f"tls/127.0.0.1:{free_port()}"
-    router = open_session(SessionOptions(mode="router", connect=(), listen=(endpoint,),
-                                         config_file=str(paths["router"])))
-    sessions: list[Any] = []
-
-    def client(ident: str) -> Any:
-        sessions.append(open_session(SessionOptions(connect=(endpoint,), config_file=str(paths[ident]))))
-        return sessions[-1]
-
-    try:
-        yield client
-    finally:
-        for session in sessions:
-            close_session(session)
-        close_session(router)
 
 
 def test_a_region_centres_identity_publishes_its_own_regions_outputs_only(tmp_path: Path) -> None:

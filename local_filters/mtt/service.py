@@ -61,6 +61,7 @@ from fedtrack.wire import Measurement, TrackResets
 from fedtrack.zsession import id_arg
 
 TIMED_OUT_KEPT = 16  # reports whose late resets are told apart from unexpected ones
+RESET_TIMEOUT_S = 2.0  # federated: go on without the centre's answers after this long (``--reset-timeout``)
 
 
 class MttLocalService(Service):
@@ -74,7 +75,7 @@ class MttLocalService(Service):
     state_attrs = ("tracker", "queue", "awaiting", "awaiting_since", "awaiting_scan", "adopted",
                    "contested_scans", "router", "sent", "answers", "lead", "timed_out")
 
-    def __init__(self, sensor: str, federated: bool, cfg: MttConfig, reset_timeout_s: float = 2.0,
+    def __init__(self, sensor: str, federated: bool, cfg: MttConfig, reset_timeout_s: float = RESET_TIMEOUT_S,
                  max_seq_jump: int = 1000, max_time_jump_s: float = 3600.0, regions: Regions | None = None,
                  **kwargs: object) -> None:
         super().__init__(**kwargs)  # type: ignore[arg-type]
@@ -264,7 +265,7 @@ def main(argv: list[str]) -> int:
                         help="federated: take the centre's resets; decentralized: none (default: %(default)s)")
     parser.add_argument("--config", help="configuration file; reads [mtt] and [deployment] (docs/multitarget.md; "
                         "default: none, every key at its default)")
-    parser.add_argument("--reset-timeout", type=float, default=2.0, metavar="SECONDS",
+    parser.add_argument("--reset-timeout", type=float, default=RESET_TIMEOUT_S, metavar="SECONDS",
                         help="federated: go on without the centre's resets after this long (default: %(default)s)")
     args = parser.parse_args(argv)
     if args.reset_timeout <= 0:
