@@ -60,8 +60,9 @@ T = TypeVar("T")
 CA_NAME = "fedtrack-ca"
 CERT_DAYS = 365  # validity of new certificates (``FEDTRACK_CERT_DAYS``)
 OWN_MESSAGES = ["put", "delete", "reply", "declare_queryable", "liveliness_token"]
-READ_MESSAGES = ["declare_subscriber", "query", "liveliness_query", "declare_liveliness_subscriber"]
-ALL_MESSAGES = OWN_MESSAGES + READ_MESSAGES
+READ_MESSAGES = ["declare_subscriber", "query"]  # each identity on what its roles read (read_keys)
+TOKEN_READS = ["liveliness_query", "declare_liveliness_subscriber"]  # every identity, every token
+ALL_MESSAGES = OWN_MESSAGES + READ_MESSAGES + TOKEN_READS
 LAUNCHER = "launcher"
 ROUTER = "router"
 STALL_SHARE = 4  # a reader that stops reading is cut within this share of the deployment's shortest wait
@@ -227,26 +228,50 @@ def cache_keys(keys: Keys, ident: str) -> list[str]:
     return []
 
 
+def read_keys(keys: Keys, ident: str) -> list[str]:
+    """The keys ``ident`` may subscribe to (and their advanced subscribers' ``@adv`` heartbeats) and query,
+    caches aside (:func:`cache_keys`): what its roles read. A sensor's identity its measurements (its local
+    filter or tracker), the centre's answers to it, the fused tracks and its single-sensor trackers'
+    (lockstep pacing) and ``fusion/state`` (a local filter's rejoin); a region's its region's keys and the
+    hand-overs (a standby watches its primary's); the launcher's monitor the tracks, measurements, health
+    and pictures it summarises; ``fusion`` (the centres and the merger), the recorder and another host's
+    router every key. Every identity could read every key: one whose session stops reading its link held
+    up each publisher it reads for the router's ``wait_before_close``, so it now can only those it reads."""
+    if ident.startswith("sensor-"):
+        sid = ident.removeprefix("sensor-")
+        read = [keys.sensor_meas(sid), keys.fusion_reset(sid), keys.mtt_resets(sid), keys.region_resets(None, sid),
+                keys.fusion_track(), keys.tracker_track(None, sid), keys.fusion_state()]
+    elif ident.startswith(REGION_PREFIX):
+        rid = ident.removeprefix(REGION_PREFIX)
+        read = [keys.region_report(rid), keys.region_handover(), keys.region_picture(rid), keys.region_resets(rid)]
+    elif ident == LAUNCHER:
+        read = [keys.fusion_track(), keys.sensor_meas(), keys.health(), keys.mtt_picture(), keys.region_picture()]
+    elif ident in (ROUTER, "recorder", "fusion"):
+        read = [f"fedtrack/{keys.deployment}/**"]
+    else:
+        read = []
+    return read + [f"{k}/@adv/**" for k in read]
+
+
 def access_control(keys: Keys, identities: list[str]) -> dict[str, Any]:
     """The router's ``access_control`` section for the given identities."""
     everything = [f"fedtrack/{keys.deployment}/**", f"fedtrack/{keys.deployment}/**/@adv/**"]
     rules: list[dict[str, Any]] = [
         {"id": "receive", "messages": ALL_MESSAGES, "flows": ["egress"], "permission": "allow",
          "key_exprs": everything},
-        {"id": "read", "messages": [m for m in READ_MESSAGES if m != "query"], "flows": ["ingress"],
-         "permission": "allow", "key_exprs": everything},
-        {"id": "query", "messages": ["query"], "flows": ["ingress"], "permission": "allow",
-         "key_exprs": everything[:1]},  # no cache (``@adv``): cache_keys
+        {"id": "tokens", "messages": TOKEN_READS, "flows": ["ingress"], "permission": "allow",
+         "key_exprs": everything},
         {"id": "adv-sub", "messages": ["liveliness_token"], "flows": ["ingress"], "permission": "allow",
          "key_exprs": [f"fedtrack/{keys.deployment}/**/@adv/sub/**"]},
     ]
     subjects: list[dict[str, Any]] = [{"id": "authenticated"}]
-    policies: list[dict[str, Any]] = [{"rules": ["receive", "read", "query", "adv-sub"],
-                                       "subjects": ["authenticated"]}]
+    policies: list[dict[str, Any]] = [{"rules": ["receive", "tokens", "adv-sub"], "subjects": ["authenticated"]}]
     for ident in identities:
         subjects.append({"id": ident, "cert_common_names": [ident]})
+        reads = [k for k in read_keys(keys, ident) if "/@adv/" not in k]
         for name, messages, key_exprs in (("own", OWN_MESSAGES, own_keys(keys, ident)),
-                                          ("cache", ["query"], cache_keys(keys, ident))):
+                                          ("read", ["declare_subscriber"], read_keys(keys, ident)),
+                                          ("query", ["query"], reads + cache_keys(keys, ident))):
             if key_exprs:
                 rules.append({"id": f"{name}-{ident}", "messages": messages, "flows": ["ingress"],
                               "permission": "allow", "key_exprs": key_exprs})

@@ -30,7 +30,8 @@ counted in the ``rejected`` counter of every service that subscribes to its key.
   ``deploy/multitarget.toml``): the attacker holds a valid certificate, sensor 1's. The router
   admits its messages only on sensor 1's own keys (its measurements, its local filter's or
   tracker's output, their health and liveliness); forgeries on every other key never arrive (the
-  test's own observer, on the launcher's certificate, sees none). On its own keys it sends every
+  test's own observer, on the recorder's certificate, sees none; the attacker learns the keys on it too,
+  as sensor 1's may read only what its roles read). On its own keys it sends every
   class but the plausible forgeries (``replay``): a compromised sensor can always lie about its
   own data, which no authentication prevents. Asserted: the fused output (every fused track, or
   every picture) equals the clean run's (the offline replay of the genuine measurements) to 1e-9.
@@ -220,12 +221,15 @@ class Attacker:
     """A client that learns the deployment's keys and publishes hostile variants on them."""
 
     def __init__(self, endpoint: str, keys: Keys, zenoh_config: str | None, own: set[str] | None,
-                 ready: set[str]) -> None:
+                 ready: set[str], learn_config: str | None) -> None:
         self.keys = keys
         self.ready = ready  # key families to have seen twice before the attack starts
         self.own = own  # keys the router admits from this identity (None: every key)
         self.session = open_session(SessionOptions(connect=(endpoint,), connect_timeout_s=20.0,
                                                    config_file=zenoh_config))
+        # sensor 1's identity reads only what its roles read: the keys are learnt as a reader of every key
+        self.learner = open_session(SessionOptions(connect=(endpoint,), connect_timeout_s=20.0,
+                                                   config_file=learn_config))
         self.lock = threading.Lock()
         self.seen: dict[str, list[bytes]] = {}
         self.alive: set[str] = set()
@@ -235,8 +239,8 @@ class Attacker:
         self.absurd: set[bytes] = set()  # those of them no genuine service will ever publish (not ``replay``)
         self.genuine: set[bytes] = set()
         root = f"fedtrack/{keys.deployment}"
-        self.subs = [self.session.declare_subscriber(f"{root}/**", self._on_sample),
-                     self.session.liveliness().declare_subscriber(f"{root}/alive/**", self._on_alive, history=True)]
+        self.subs = [self.learner.declare_subscriber(f"{root}/**", self._on_sample),
+                     self.learner.liveliness().declare_subscriber(f"{root}/alive/**", self._on_alive, history=True)]
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._attack, daemon=True)
         self.span = (math.nan, math.nan)  # wall-clock start and end of the attack
@@ -313,10 +317,12 @@ class Attacker:
         for sub in self.subs:
             sub.undeclare()
         close_session(self.session)
+        close_session(self.learner)
 
 
 def observe_outputs(endpoint: str, keys: Keys, zenoh_config: str | None, sink: list[tuple[str, bytes]]) -> Any:
-    """A session (the launcher's identity) collecting every sample under the deployment: what arrived."""
+    """A session (the recorder's identity, which reads every key) collecting every sample under the
+    deployment: what arrived."""
     session = open_session(SessionOptions(connect=(endpoint,), connect_timeout_s=20.0, config_file=zenoh_config))
     sub = session.declare_subscriber(f"fedtrack/{keys.deployment}/**",
                                      lambda s: sink.append((str(s.key_expr), s.payload.to_bytes())))
@@ -364,9 +370,11 @@ def attack(tmp_path: Path, settings: Settings, secure: bool) -> tuple[LaunchRepo
     while launcher._session is None and runner.is_alive() and time.monotonic() < deadline:
         time.sleep(0.02)  # the router listens and the monitor is connected
     seen: list[tuple[str, bytes]] = []
-    observer, spy = observe_outputs(endpoint, keys, str(zdir / "launcher.json5") if secure else None, seen)
+    reader = str(zdir / "recorder.json5") if secure else None
+    observer, spy = observe_outputs(endpoint, keys, reader, seen)
     ready = {"meas", "report"} if settings.multitarget is not None else {"meas", "estimate", "reset", "track"}
-    attacker = Attacker(endpoint, keys, str(zdir / f"sensor-{attacker_sensor}.json5") if secure else None, own, ready)
+    attacker = Attacker(endpoint, keys, str(zdir / f"sensor-{attacker_sensor}.json5") if secure else None, own, ready,
+                        reader)
     attacker.thread.start()
     try:
         attacker.thread.join(60)

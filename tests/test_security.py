@@ -10,6 +10,7 @@ import stat
 import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -51,7 +52,10 @@ def test_identities_and_rules() -> None:
     assert "fedtrack/d/fusion/**" in own["own-fusion"] and acl["default_permission"] == "deny"
     assert "fedtrack/d/alive/mtt-centre/*" in own["own-fusion"]
     # serve picture (``fusion``) reads the region pictures with history: their caches
-    assert own["cache-fusion"] == ["fedtrack/d/local/*/estimate/@adv/**", "fedtrack/d/region/*/picture/@adv/**"]
+    assert own["query-fusion"] == ["fedtrack/d/**", "fedtrack/d/local/*/estimate/@adv/**",
+                                   "fedtrack/d/region/*/picture/@adv/**"]
+    assert "fedtrack/d/fusion/reset/1" in own["read-sensor-1"] and "fedtrack/d/fusion/state" in own["query-sensor-1"]
+    assert not any("sensor/2" in k or "reset/2" in k or k.endswith("**") for k in own["read-sensor-1"][:7])
     assert identity("mtt-centre", "x0y0-standby", "x0y0") == "region-x0y0"
 
 
@@ -161,6 +165,53 @@ def test_certificates_made_once_with_private_keys(tmp_path: Path) -> None:
     assert done.returncode == 0 and done.stdout.strip() == f"made {tmp_path / 'c' / 'recorder.pem'}"
 
 
+def test_each_identity_reads_only_what_its_roles_read(tmp_path: Path) -> None:
+    """Every identity could subscribe to every key and query every queryable: one whose session stopped
+    reading its link held up each publisher of the deployment (docs/deploy.md, "Slow readers"). Now sensor
+    2's identity reads its own resets, the fused tracks (lockstep pacing) and ``fusion/state``, not sensor
+    1's measurements or resets (a subscription to everything is refused whole); the launcher's monitor the
+    tracks and measurements, not the estimates; ``fusion`` (the centres) every key."""
+    keys = Keys("x")
+    with secure_router(tmp_path, keys, ["fusion", "sensor-1", "sensor-2", "launcher"]) as client:
+        centre, s1, s2, monitor = map(client, ["fusion", "sensor-1", "sensor-2", "launcher"])
+        got: dict[tuple[str, str], set[str]] = {}
+
+        def watch(name: str, session: Any, key: str) -> None:
+            got[(name, key)] = set()
+            session.declare_subscriber(key, lambda s: got[(name, key)].add(str(s.key_expr)))
+
+        every = f"fedtrack/{keys.deployment}/**"  # on a session of its own: a session hands a sample that
+        watch("sensor-2", client("sensor-2"), every)  # one of its subscriptions was sent to all that match it
+        watch("launcher", client("launcher"), every)
+        for key in (keys.fusion_reset("2"), keys.fusion_track(), keys.fusion_reset("1"), keys.sensor_meas("1")):
+            watch("sensor-2", s2, key)
+        for key in (keys.sensor_meas(), keys.fusion_track(), keys.local_estimate()):
+            watch("launcher", monitor, key)
+        watch("fusion", centre, every)
+        centre.declare_queryable(keys.fusion_state(), lambda q: q.reply(keys.fusion_state(), b"state"))
+        published = [(s1, keys.sensor_meas("1")), (s1, keys.local_estimate("1")), (centre, keys.fusion_track()),
+                     (centre, keys.fusion_reset("1")), (centre, keys.fusion_reset("2"))]
+        allowed = [("sensor-2", keys.fusion_reset("2")), ("sensor-2", keys.fusion_track()),
+                   ("launcher", keys.sensor_meas()), ("launcher", keys.fusion_track())]
+
+        def delivered() -> bool:
+            for session, key in published:
+                session.put(key, b"x")
+            return len(got[("fusion", every)]) == len(published) and all(got[a] for a in allowed)
+        assert wait_until(delivered, 30.0), got
+        for _ in range(3):
+            delivered()
+        time.sleep(0.3)
+        assert got.pop(("fusion", every)) == {k for _, k in published}
+        assert got == {("sensor-2", every): set(), ("sensor-2", keys.fusion_reset("2")): {keys.fusion_reset("2")},
+                       ("sensor-2", keys.fusion_track()): {keys.fusion_track()}, ("sensor-2", keys.fusion_reset("1")):
+                       set(), ("sensor-2", keys.sensor_meas("1")): set(), ("launcher", every): set(),
+                       ("launcher", keys.sensor_meas()): {keys.sensor_meas("1")},
+                       ("launcher", keys.fusion_track()): {keys.fusion_track()}, ("launcher", keys.local_estimate()): set()}
+        assert [r.ok.payload.to_bytes() for r in s2.get(keys.fusion_state(), timeout=2.0) if r.ok] == [b"state"]
+        assert [r for r in monitor.get(keys.fusion_state(), timeout=1.0) if r.ok] == []
+
+
 @pytest.mark.parametrize("table, field", [
     ('router_listen = "tcp/10.47.0.1:7447"', "deployment.router_listen"),
     ('router_listen = "tcp/0.0.0.0:7447"', "deployment.router_listen"),
@@ -230,7 +281,7 @@ def test_launch_refuses_tcp_endpoints_with_tls_dir(tmp_path: Path) -> None:
     cfg.write_text('[zenoh]\ntls_dir = "certs"\n[deployment]\nrouter_listen = "tcp/127.0.0.1:1"\n'
                    '[[sensor]]\nid = "1"\n')
     done = subprocess.run([sys.executable, "-m", "fedtrack.cli", "launch", str(cfg)], capture_output=True,
-                          text=True, timeout=60)
+                          text=True, timeout=60, check=False)
     assert done.returncode == 2 and "zenoh.tls_dir: endpoint tcp/127.0.0.1:1 is not tls/" in done.stderr
     assert str(cfg) in done.stderr and "Traceback" not in done.stderr
     with pytest.raises(ConfigError):
