@@ -513,7 +513,8 @@ def write_configs(settings: ZenohSettings, base_dir: Path, keys: Keys, identitie
     ``ident -> path``); empty without ``[zenoh]`` settings. With ``config`` every identity gets that
     file; with ``tls_dir`` each gets its own, and only these identities' certificates must be in
     ``tls_dir`` (made there if missing and the CA's key is there). The router's access control names
-    ``everyone`` (every identity of the deployment, other hosts' too; default ``identities``); its
+    ``everyone`` (every identity of the deployment, other hosts' too; default ``identities``) and the
+    launcher's; its
     transport cuts slow readers and unopened links by ``limits`` (default: those of the default ``deadline_s``)."""
     if settings.config is not None:
         path = (base_dir / settings.config).resolve()
@@ -531,7 +532,8 @@ def write_configs(settings: ZenohSettings, base_dir: Path, keys: Keys, identitie
         config: dict[str, Any] = {"transport": {"link": {"tls": tls}}}
         if ident == ROUTER:
             config["transport"] = router_transport(limits, tls)
-            config["access_control"] = access_control(keys, everyone if everyone is not None else identities)
+            named = everyone if everyone is not None else identities
+            config["access_control"] = access_control(keys, sorted({*named, LAUNCHER}))  # every host's monitor
         paths[ident] = out / f"{ident}.json5"
         paths[ident].write_text(json.dumps(config, indent=2))
     return paths
