@@ -11,9 +11,10 @@ monitor) a Zenoh configuration file (``--zenoh-config``) written to ``OUT/zenoh/
   region ``<rid>`` of ``[regions]`` and its standbys), ``recorder``, ``launcher`` (the launcher's
   monitor), and ``sensor-<id>`` for sensor ``<id>`` **and** its local filter or local multi-target
   tracker (they run together on the sensor's host);
-* the router's access control (default deny) lets every identity subscribe, query and
-  receive anything of the deployment, but query only the advanced publishers' caches of what it
-  subscribes to with history or recovery (:func:`cache_keys`), and lets an identity publish, reply (its cache),
+* the router's access control (default deny) lets every identity receive anything of the deployment and
+  read every liveliness token, but subscribe to and query only what its roles read (:func:`read_keys`), the
+  advanced publishers' caches only of what it subscribes to with history or recovery (:func:`cache_keys`),
+  and lets an identity publish, reply (its cache),
   declare queryables and liveliness tokens only on its own keys: ``sensor-<id>`` on
   ``sensor/<id>/meas``, ``local/<id>/estimate``, ``local/<id>/tracks`` and its health/alive
   keys; ``fusion`` on ``fusion/**`` (resets, tracks, events, pictures, the state queryable);
@@ -21,7 +22,9 @@ monitor) a Zenoh configuration file (``--zenoh-config``) written to ``OUT/zenoh/
   (``region/*/handover``: it hands tracks to any neighbour), not on another region's outputs;
   ``router`` (another host's router joined by ``router_connect``, forwarding its own clients'
   messages) on anything of the deployment; the others on their health/alive keys. A denied put is
-  dropped at the router: nobody receives it.
+  dropped at the router: nobody receives it;
+* the router cuts a reader that stops reading and a link that never opens its session
+  (:func:`router_limits`).
 
 Missing certificates are made on first use by :func:`make_certificates` (the ``cryptography``
 package, a dependency: nothing else is needed on a fresh machine); ``python -m
@@ -68,6 +71,7 @@ ROUTER = "router"
 STALL_SHARE = 4  # a reader that stops reading is cut within this share of the deployment's shortest wait
 MIN_WAIT_BEFORE_CLOSE_S = 0.1  # a descheduled process on a loaded machine; below it honest readers could be cut
 ACCEPT_TIMEOUT_S = 1.0  # Zenoh's open handshake after TLS: two round trips, each well under 0.5 s
+SESSIONS_PER_IDENTITY = 4  # an identity's services, one restarted beside a frozen one's session, the tools
 
 
 class RouterLimits(NamedTuple):
@@ -89,11 +93,15 @@ def router_limits(*waits_s: float) -> RouterLimits:
     return RouterLimits(max(min(waits_s) / STALL_SHARE, MIN_WAIT_BEFORE_CLOSE_S))
 
 
-def router_transport(limits: RouterLimits, tls: dict[str, Any]) -> dict[str, Any]:
-    """The router's ``transport`` section: its ``tls`` and ``limits`` (Zenoh counts ``wait_before_close`` in
-    microseconds, ``accept_timeout`` in milliseconds)."""
+def router_transport(limits: RouterLimits, tls: dict[str, Any], identities: int) -> dict[str, Any]:
+    """The router's ``transport`` section: its ``tls``, ``limits`` (Zenoh counts ``wait_before_close`` in
+    microseconds, ``accept_timeout`` in milliseconds) and at most ``SESSIONS_PER_IDENTITY`` sessions per
+    identity of the deployment (``max_sessions``, Zenoh's 1,000: sessions of one identity, each reading the
+    fused tracks, multiplied what the router sends; a sensor's and its local filter's are two, a centre's,
+    its standby's and the merger's three)."""
     block = {"wait_before_close": round(limits.wait_before_close_s * 1e6)}
-    return {"unicast": {"accept_timeout": round(limits.accept_timeout_s * 1e3)},
+    return {"unicast": {"accept_timeout": round(limits.accept_timeout_s * 1e3),
+                        "max_sessions": SESSIONS_PER_IDENTITY * identities},
             "link": {"tls": tls, "tx": {"queue": {"congestion_control": {"block": block}}}}}
 
 
@@ -514,8 +522,8 @@ def write_configs(settings: ZenohSettings, base_dir: Path, keys: Keys, identitie
     file; with ``tls_dir`` each gets its own, and only these identities' certificates must be in
     ``tls_dir`` (made there if missing and the CA's key is there). The router's access control names
     ``everyone`` (every identity of the deployment, other hosts' too; default ``identities``) and the
-    launcher's; its
-    transport cuts slow readers and unopened links by ``limits`` (default: those of the default ``deadline_s``)."""
+    launcher's; its transport cuts slow readers and unopened links by ``limits`` (default: those of the
+    default ``deadline_s``) and takes ``SESSIONS_PER_IDENTITY`` sessions per identity named."""
     if settings.config is not None:
         path = (base_dir / settings.config).resolve()
         read_zenoh_config(path, load_config_file)  # read before anything starts (was: the router exited with it)
@@ -531,9 +539,9 @@ def write_configs(settings: ZenohSettings, base_dir: Path, keys: Keys, identitie
         tls = tls_config(tls_dir, ident, ident == ROUTER)
         config: dict[str, Any] = {"transport": {"link": {"tls": tls}}}
         if ident == ROUTER:
-            config["transport"] = router_transport(limits, tls)
-            named = everyone if everyone is not None else identities
-            config["access_control"] = access_control(keys, sorted({*named, LAUNCHER}))  # every host's monitor
+            named = sorted({*(everyone if everyone is not None else identities), LAUNCHER})  # every host's monitor
+            config["transport"] = router_transport(limits, tls, len(named))
+            config["access_control"] = access_control(keys, named)
         paths[ident] = out / f"{ident}.json5"
         paths[ident].write_text(json.dumps(config, indent=2))
     return paths

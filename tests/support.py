@@ -204,11 +204,11 @@ class SecureBus:
         self.paths = paths
         self.sessions: list[Any] = []
 
-    def __call__(self, ident: str, link: str = "") -> Any:
+    def __call__(self, ident: str, link: str = "", connect_timeout_s: float = 10.0) -> Any:
         from fedtrack.zsession import SessionOptions, open_session
 
-        self.sessions.append(open_session(SessionOptions(connect=(self.endpoint + link,),
-                                                         config_file=str(self.paths[ident]))))
+        self.sessions.append(open_session(SessionOptions(connect=(self.endpoint + link,), config_file=str(
+            self.paths[ident]), connect_timeout_s=connect_timeout_s)))
         return self.sessions[-1]
 
 
