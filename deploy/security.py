@@ -237,8 +237,8 @@ def cache_keys(keys: Keys, ident: str) -> list[str]:
 
 
 def read_keys(keys: Keys, ident: str) -> list[str]:
-    """The keys ``ident`` may subscribe to (and their advanced subscribers' ``@adv`` heartbeats) and query,
-    caches aside (:func:`cache_keys`): what its roles read. A sensor's identity its measurements (its local
+    """The keys ``ident`` may subscribe to (with their advanced subscribers' ``.../@adv/**`` heartbeats) and
+    query, caches aside (:func:`cache_keys`): what its roles read. A sensor's identity its measurements (its local
     filter or tracker), the centre's answers to it, the fused tracks and its single-sensor trackers'
     (lockstep pacing) and ``fusion/state`` (a local filter's rejoin); a region's its region's keys and the
     hand-overs (a standby watches its primary's); the launcher's monitor the tracks, measurements, health
@@ -258,7 +258,7 @@ def read_keys(keys: Keys, ident: str) -> list[str]:
         read = [f"fedtrack/{keys.deployment}/**"]
     else:
         read = []
-    return read + [f"{k}/@adv/**" for k in read]
+    return read
 
 
 def access_control(keys: Keys, identities: list[str]) -> dict[str, Any]:
@@ -276,9 +276,9 @@ def access_control(keys: Keys, identities: list[str]) -> dict[str, Any]:
     policies: list[dict[str, Any]] = [{"rules": ["receive", "tokens", "adv-sub"], "subjects": ["authenticated"]}]
     for ident in identities:
         subjects.append({"id": ident, "cert_common_names": [ident]})
-        reads = [k for k in read_keys(keys, ident) if "/@adv/" not in k]
+        reads = read_keys(keys, ident)
         for name, messages, key_exprs in (("own", OWN_MESSAGES, own_keys(keys, ident)),
-                                          ("read", ["declare_subscriber"], read_keys(keys, ident)),
+                                          ("read", ["declare_subscriber"], reads + [f"{k}/@adv/**" for k in reads]),
                                           ("query", ["query"], reads + cache_keys(keys, ident))):
             if key_exprs:
                 rules.append({"id": f"{name}-{ident}", "messages": messages, "flows": ["ingress"],
