@@ -207,7 +207,8 @@ def test_each_identity_reads_only_what_its_roles_read(tmp_path: Path) -> None:
                        ("sensor-2", keys.fusion_track()): {keys.fusion_track()}, ("sensor-2", keys.fusion_reset("1")):
                        set(), ("sensor-2", keys.sensor_meas("1")): set(), ("launcher", every): set(),
                        ("launcher", keys.sensor_meas()): {keys.sensor_meas("1")},
-                       ("launcher", keys.fusion_track()): {keys.fusion_track()}, ("launcher", keys.local_estimate()): set()}
+                       ("launcher", keys.fusion_track()): {keys.fusion_track()},
+                       ("launcher", keys.local_estimate()): set()}
         assert [r.ok.payload.to_bytes() for r in s2.get(keys.fusion_state(), timeout=2.0) if r.ok] == [b"state"]
         assert [r for r in monitor.get(keys.fusion_state(), timeout=1.0) if r.ok] == []
 
