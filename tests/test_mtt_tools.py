@@ -11,7 +11,7 @@ import pytest
 
 from fedtrack.cli import main as cli
 from fedtrack.config import load_tables
-from fedtrack.fusion_center.mtt.evaluation import evaluate, id_changes, set_distance
+from fedtrack.fusion_center.mtt.evaluation import evaluate, id_changes, nees_line, set_distance
 from fedtrack.local_filters.mtt.config import MttSettings
 
 
@@ -55,7 +55,8 @@ def test_evaluate_counts_a_swap_and_nees(tmp_path: Path) -> None:
 def test_evaluate_nees_per_part_dof_and_band(tmp_path: Path) -> None:
     """Each pair's NEES by hand under P = diag(4, 1, 4, 1): errors (2, 1, 0, 0), (0.1, 0, 0, 0),
     (8, 0, 0, 3) give 2, 0.0025, 25 for the state (4 dof) and 1, 0.0025, 16 for the position
-    (2 dof): one of three inside each band, the chi-square 2.5% and 97.5% quantiles of its dof."""
+    (2 dof): one of three inside each band, the chi-square 2.5% and 97.5% quantiles of its dof, one
+    below it (P too large) and one above; the text line says both sides."""
     P = np.diag([4.0, 1.0, 4.0, 1.0]).tolist()
     errors = [[2.0, 1.0, 0.0, 0.0], [0.1, 0.0, 0.0, 0.0], [8.0, 0.0, 0.0, 3.0]]  # NEES 2, 0.0025, 25
     truth = [{"t": float(k), "targets": [{"id": 0, "x": [100.0, 1.0, 0.0, 0.0]}]} for k in range(3)]
@@ -70,6 +71,8 @@ def test_evaluate_nees_per_part_dof_and_band(tmp_path: Path) -> None:
     assert state["band_95"] == pytest.approx([0.484419, 11.143287], abs=1e-6)
     assert position["band_95"] == pytest.approx([0.050636, 7.377759], abs=1e-6)
     assert state["inside_95"] == pytest.approx(1 / 3) and position["inside_95"] == pytest.approx(1 / 3)
+    assert state["below_95"] == pytest.approx(1 / 3) and position["below_95"] == pytest.approx(1 / 3)
+    assert "below it 33.3%: P too large, above 33.3%: P too small" in nees_line(state)
 
 
 def test_simulate_replay_evaluate(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:

@@ -20,7 +20,8 @@
   sizes agree (a 2-D track against a 3-D truth: the truth's ``[x, vx, y, vy]``, the prefix of its
   ``[x, vx, y, vy, z, vz]``), in two parts with their degrees of freedom: the full ``state`` (4 or 6) and the
   ``position`` alone (its block of ``P``: 2 or 3); per part the mean, the fraction inside the
-  two-sided 95% chi-square band of its dof (a consistent filter puts 95% of its pairs there),
+  two-sided 95% chi-square band of its dof (a consistent filter puts 95% of its pairs there)
+  and the fraction below it (``P`` too large; the rest, above, ``P`` too small),
   and both while the truth accelerates and while it moves straight (below), where a CV filter
   errs in opposite directions (docs/multitarget.md#covariance-consistency-nees).
 * **Maneuver flags** (a track with a ``maneuver`` field, or in the CA model): the fraction of
@@ -172,7 +173,8 @@ def nees_parts(errors: list[np.ndarray], covariances: list[np.ndarray], motions:
                ) -> list[dict[str, Any]]:
     """NEES of the pairs (``errors`` truth minus estimate, ``covariances`` the estimate's ``P``),
     per part (``state``, ``position``) and state size: pairs, dof, mean, the two-sided 95%
-    chi-square band and the fraction inside it, overall and per truth motion."""
+    chi-square band and the fractions inside it and below it (``P`` larger than the error; the
+    rest is above: ``P`` too small), overall and per truth motion."""
     out = []
     for dim in sorted({e.size for e in errors}):
         idx = [k for k, e in enumerate(errors) if e.size == dim]
@@ -182,13 +184,15 @@ def nees_parts(errors: list[np.ndarray], covariances: list[np.ndarray], motions:
         for part, sel in (("state", np.arange(dim)), ("position", pos)):
             v = nees(e[:, sel], P[:, sel[:, None], sel[None, :]])
             lo, hi = float(chdtri(sel.size, 0.975)), float(chdtri(sel.size, 0.025))
-            inside = (v >= lo) & (v <= hi)
+            inside, below = (v >= lo) & (v <= hi), v < lo
             row: dict[str, Any] = {"part": part, "dof": int(sel.size), "pairs": int(v.size), "mean": float(v.mean()),
-                                   "band_95": [lo, hi], "inside_95": float(inside.mean())}
+                                   "band_95": [lo, hi], "inside_95": float(inside.mean()),
+                                   "below_95": float(below.mean())}
             for kind in ("maneuvering", "straight"):
                 m = kinds == kind
                 row[kind] = {"pairs": int(m.sum()), "mean": float(v[m].mean()) if m.any() else None,
-                             "inside_95": float(inside[m].mean()) if m.any() else None}
+                             "inside_95": float(inside[m].mean()) if m.any() else None,
+                             "below_95": float(below[m].mean()) if m.any() else None}
             out.append(row)
     return out
 
@@ -357,17 +361,21 @@ def plot(result: dict[str, Any], tracks_path: Path, truth_path: Path, out: Path,
 
 
 def nees_line(row: dict[str, Any]) -> str:
-    """One line of a :func:`nees_parts` row: dof, mean, the fraction inside the 95% band, and
-    both while the truth accelerates and while it moves straight."""
+    """One line of a :func:`nees_parts` row: dof, mean, the fractions inside the 95% band and on
+    either side of it, and both while the truth accelerates and while it moves straight."""
     names = {("state", 4): "x, vx, y, vy", ("state", 6): "x, vx, y, vy, z, vz", ("position", 2): "x, y",
              ("position", 3): "x, y, z"}
     lo, hi = row["band_95"]
-    by = "; ".join(f"{label} {row[k]['mean']:.2f}, {100 * row[k]['inside_95']:.1f}% of {row[k]['pairs']}"
+    by = "; ".join(f"{label} {row[k]['mean']:.2f}, {100 * row[k]['inside_95']:.1f}% of {row[k]['pairs']} "
+                   f"({100 * row[k]['below_95']:.1f}% below)"
                    for k, label in (("maneuvering", "while accelerating"), ("straight", "straight"))
                    if row[k]["pairs"])
+    above = 1.0 - row["inside_95"] - row["below_95"]
     return (f"NEES {row['part']} ({names.get((row['part'], row['dof']), row['part'])}; {row['dof']} dof): mean "
             f"{row['mean']:.2f} (consistent: {row['dof']}), {100 * row['inside_95']:.1f}% of {row['pairs']} "
-            f"assigned pairs inside the 95% band [{lo:.2f}, {hi:.2f}] (consistent: 95%)" + (f"; {by}" if by else ""))
+            f"assigned pairs inside the 95% band [{lo:.2f}, {hi:.2f}] (consistent: 95%; below it "
+            f"{100 * row['below_95']:.1f}%: P too large, above {100 * above:.1f}%: P too small)"
+            + (f"; {by}" if by else ""))
 
 
 def main(argv: list[str]) -> int:
