@@ -11,6 +11,7 @@ import pytest
 from support import in_parallel, replay_evaluated
 
 from fedtrack.config import load_tables
+from fedtrack.experiments.nees_straight import QS, straight_nees
 from fedtrack.local_filters.mtt.config import MttSettings
 from fedtrack.sensors.multitarget import (
     DT,
@@ -32,6 +33,21 @@ def test_process_noise_from_the_truths_maximum_acceleration_and_the_longest_peri
     assert 0.9 * MAX_ACCELERATION < accel.max() <= MAX_ACCELERATION + 1e-9
     assert process_noise(parse_spec("pos:1.0,pos:0.7,pos:1.3")) == pytest.approx(math.pi**2 / 4 * 1.3, abs=1e-6)
     assert process_noise(parse_spec("pos:0.5,radar:2.0")) == pytest.approx(math.pi**2 / 4 * 2.0, abs=1e-6)
+
+
+def test_a_cv_filter_alone_puts_86_percent_of_straight_legs_in_the_band_whatever_q() -> None:
+    """Why the state's 90% is not reached (docs/multitarget.md, "Straight legs at 86 % whatever q"):
+    a CV Kalman filter alone, no association, on straight legs seen by the default sensors
+    (experiments/nees_straight.py, 50 runs of 200 s): with the derived q and with q / 100 the same
+    84-89% of the 4-dof NEES inside the band, the rest below, the velocity error a quarter of its
+    variance (the steady state is scale-free; measured 86.2 / 86.8 %, 0.244 / 0.248); only at q =
+    3e-6, whose steady state does not come within 200 s, more than 90% (93.2 %, 0.99)."""
+    for q in (QS[0], QS[0] / 100):
+        result = straight_nees(q, runs=50)
+        assert 0.84 <= result.inside <= 0.89 and result.below >= 0.1, result
+        assert 0.2 <= result.velocity_ratio <= 0.3, result
+    tiny = straight_nees(3e-6, runs=50)
+    assert tiny.inside > 0.9 and tiny.velocity_ratio > 0.8, tiny
 
 
 @pytest.fixture(scope="module")
