@@ -30,7 +30,11 @@ duplicate, a different one as a conflict (the first row stays).
 
 Durability: ``journal_mode=WAL``, ``synchronous=FULL``, and every row is its own
 transaction, committed (and fsynced) before the next message is handled: a row that
-was committed survives SIGKILL of the recorder and a power loss.
+was committed survives SIGKILL of the recorder and a power loss. A row that cannot be
+written (the disk full, the file size limit reached, the file or its folder made read-only,
+an I/O error) raises :class:`StorageError` naming the file, the rows committed before
+staying readable; a database damaged on disk (cut or overwritten) is refused by the readers
+in one line (InputError naming the file), never half-exported.
 
 ``fedtrack export --db PATH --out FILE.jsonl [--tracks FILE.jsonl]`` writes the
 measurements in the ``replay`` input format, in scan order (``t``, then arrival), so
@@ -77,7 +81,25 @@ from fedtrack.wire import (
 
 SCHEMA_VERSION = 2
 RECORDED, DUPLICATE, CONFLICT = "recorded", "duplicate", "conflict"
+# SQLite's primary result codes of a store that cannot take a row (not a fault of the row itself)
+STORAGE_FAULTS = frozenset({sqlite3.SQLITE_FULL, sqlite3.SQLITE_IOERR, sqlite3.SQLITE_READONLY, sqlite3.SQLITE_CANTOPEN,
+                            sqlite3.SQLITE_CORRUPT, sqlite3.SQLITE_NOTADB, sqlite3.SQLITE_PERM, sqlite3.SQLITE_BUSY,
+                            sqlite3.SQLITE_LOCKED})
 SCANS_KEPT = 256  # decoded scans an export keeps: a region run lists a scan in every region it reached, pictures apart
+
+
+class StorageError(OSError):
+    """The recording database cannot take a row; the message names the file and SQLite's reason."""
+
+
+@contextlib.contextmanager
+def _read_of(path: Path) -> Iterator[None]:
+    """A database error while reading ``path`` (a page cut or overwritten on disk) as one InputError
+    naming it; before 2026-11-27 ``export`` of such a file ended in a traceback."""
+    try:
+        yield
+    except sqlite3.DatabaseError as exc:
+        raise InputError(f"{path}: a damaged recording, cannot be read ({exc})") from None
 
 
 @dataclass(frozen=True)
@@ -175,23 +197,31 @@ class Recording:
         table = TABLE_OF[type(msg)]
         values = table.values(msg)
         cols = list(table.columns)
-        cur = self.db.execute(
-            f"INSERT INTO {table.name} ({', '.join(cols)}, received_ns, payload) "
-            f"VALUES ({', '.join('?' * (len(cols) + 2))}) ON CONFLICT DO NOTHING",
-            (*values, time.time_ns(), payload))
-        if cur.rowcount == 1:
-            return RECORDED
-        key = {c: v for c, v in zip(cols, values) if c in table.unique}
-        where = " AND ".join(f"{c} = ?" for c in key)
-        stored = self.db.execute(f"SELECT payload FROM {table.name} WHERE {where}", tuple(key.values())).fetchone()
+        try:
+            cur = self.db.execute(
+                f"INSERT INTO {table.name} ({', '.join(cols)}, received_ns, payload) "
+                f"VALUES ({', '.join('?' * (len(cols) + 2))}) ON CONFLICT DO NOTHING",
+                (*values, time.time_ns(), payload))
+            if cur.rowcount == 1:
+                return RECORDED
+            key = {c: v for c, v in zip(cols, values) if c in table.unique}
+            where = " AND ".join(f"{c} = ?" for c in key)
+            stored = self.db.execute(f"SELECT payload FROM {table.name} WHERE {where}", tuple(key.values())).fetchone()
+        except sqlite3.Error as exc:
+            if getattr(exc, "sqlite_errorcode", 0) & 0xFF not in STORAGE_FAULTS:
+                raise
+            raise StorageError(f"{self.path}: cannot record: {exc} ({exc.sqlite_errorname})") from None
         return DUPLICATE if stored is not None and bytes(stored[0]) == payload else CONFLICT
 
     def count(self, msg_type: type) -> int:
         """Rows of ``msg_type`` (0 for a table an older recording, opened read-only, does not have)."""
-        try:
-            return int(self.db.execute(f"SELECT COUNT(*) FROM {TABLE_OF[msg_type].name}").fetchone()[0])
-        except sqlite3.OperationalError:
-            return 0
+        with _read_of(self.path):
+            try:
+                return int(self.db.execute(f"SELECT COUNT(*) FROM {TABLE_OF[msg_type].name}").fetchone()[0])
+            except sqlite3.OperationalError as exc:
+                if exc.sqlite_errorcode != sqlite3.SQLITE_ERROR:  # no such table: SQLITE_ERROR; a read fault: others
+                    raise
+                return 0
 
     def messages(self, msg_type: type, order: str) -> Iterator[Any]:
         """The stored messages of ``msg_type`` in ``order`` (an ORDER BY clause of the table's
@@ -229,10 +259,11 @@ class Recording:
 
     def export(self, measurements: Path | None = None, tracks: Path | None = None) -> tuple[int, int]:
         """Write the replay-format measurements and tracks (see the module docstring); returns the line counts."""
-        if self.count(TrackPicture):
-            return self._export_pictures(measurements, tracks)
-        return (_write_lines(measurements, (measurement_to_replay(m) for m in self.messages(Measurement, "t, id"))),
-                _write_lines(tracks, (_track_row(f) for f in self.messages(FusedTrack, "seq"))))
+        with _read_of(self.path):
+            if self.count(TrackPicture):
+                return self._export_pictures(measurements, tracks)
+            return (_write_lines(measurements, (measurement_to_replay(m) for m in self.messages(Measurement, "t, id"))),
+                    _write_lines(tracks, (_track_row(f) for f in self.messages(FusedTrack, "seq"))))
 
     def _export_pictures(self, measurements: Path | None, tracks: Path | None) -> tuple[int, int]:
         """A multi-target recording in one pass over the pictures (each decoded once): a picture's

@@ -26,6 +26,12 @@ def meas(sensor: str, seq: int, t: float, z0: float = 1.0) -> Measurement:
     return Measurement(sensor=sensor, seq=seq, t=t, kind="position", z=np.array([z0, 2.0]), R=np.eye(2), stamp_ns=7)
 
 
+def scan(sensor: str, seq: int, n: int) -> Measurement:
+    """A multi-target scan of ``n`` detections."""
+    return Measurement(sensor=sensor, seq=seq, t=float(seq), kind="scan", z=np.zeros(0), R=np.eye(2),
+                       detections=tuple(Detection(z=np.array([float(i), 0.0]), amplitude=0.0) for i in range(n)))
+
+
 def test_rows_are_stored_once_and_export_in_scan_order(tmp_path: Path) -> None:
     db = tmp_path / "r.db"
     rec = Recording(db)
@@ -263,3 +269,101 @@ def test_parts_that_never_complete_cost_an_export_nothing_to_hold(tmp_path: Path
         rec.close()
     assert [encode(m) for m in got] == [encode(m) for m in honest] and rec.incomplete == 20
     assert peak < 1e6, peak  # before: 10.7 MB
+
+
+def test_a_full_store_ends_the_recorder_and_what_it_committed_stays_exportable(tmp_path: Path) -> None:
+    """A row the database cannot take (here SQLite's page limit: the disk full) is no rejection of the
+    message: the recorder's handler raises ServiceFault, which ends the service (exit 1) for the
+    launcher to restart it; before 2026-11-27 it was counted ``rejected_handler_error`` and every later
+    message lost the same way, the recorder exiting 0. The rows committed before are exported whole."""
+    from fedtrack.keys import Keys
+    from fedtrack.recording import StorageError
+    from fedtrack.services.base import ServiceFault
+    from fedtrack.services.recorder import Recorder
+    from fedtrack.zsession import SessionOptions
+
+    db = tmp_path / "r.db"
+    rec = Recording(db)
+    for seq in range(5):
+        m = meas("a", seq, float(seq))
+        assert rec.add(m, encode(m)) == RECORDED
+    rec.db.execute(f"PRAGMA max_page_count = {rec.db.execute('PRAGMA page_count').fetchone()[0]}")
+    big = scan("a", 5, 200)
+    with pytest.raises(StorageError, match=f"{db}: cannot record: database or disk is full"):
+        rec.add(big, encode(big))
+    svc = Recorder(db=db, service_id="recorder", options=SessionOptions(connect=("tcp/127.0.0.1:1",)), deployment="t")
+    svc.recording, svc._subscriptions = rec, svc.subscriptions()
+    with pytest.raises(ServiceFault, match="database or disk is full"):
+        svc._dispatch(("sample", 0, Keys("t").sensor_meas("a"), encode(big)))
+    assert svc.counters.get("rejected", 0) == 0
+    rec.close()
+    readonly = Recording(db, readonly=True)
+    assert readonly.export(tmp_path / "m.jsonl") == (5, 0)
+    readonly.close()
+
+
+def test_a_recording_damaged_on_disk_is_refused_in_one_line_naming_it(tmp_path: Path,
+                                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    """``fedtrack export`` of a recording whose pages were overwritten: exit 2, one line naming the file,
+    no output written (before 2026-11-27: a DatabaseError traceback)."""
+    from fedtrack.cli import main
+
+    db = tmp_path / "r.db"
+    rec = Recording(db)
+    rec.db.execute("PRAGMA synchronous = OFF")  # no fsync a row: this test is about reading
+    for seq in range(400):
+        m = scan("a", seq, 20)
+        rec.add(m, encode(m))
+    rec.close()
+    data = bytearray(db.read_bytes())
+    data[len(data) // 2:len(data) // 2 + 8192] = b"\xab" * 8192  # pages in the middle, the header intact
+    db.write_bytes(bytes(data))
+    capsys.readouterr()
+    assert main(["export", "--db", str(db), "--out", str(tmp_path / "m.jsonl")]) == 2
+    assert capsys.readouterr().err.splitlines() == [f"fedtrack: error: {db}: a damaged recording, cannot be read "
+                                                    "(database disk image is malformed)"]
+    assert [p.name for p in tmp_path.iterdir() if not p.name.startswith("r.db")] == []  # nothing half-written
+
+
+@pytest.mark.faults
+def test_a_recorder_past_its_file_size_limit_exits_1_naming_its_database(tmp_path: Path) -> None:
+    """A live recorder under RLIMIT_FSIZE (the disk full for it alone) stops at the first row it cannot
+    write: exit 1 within seconds, one line naming the database, no traceback; the rows it committed
+    stay readable (before 2026-11-27 it ran on, every later message rejected, and exited 0 when stopped)."""
+    import resource
+
+    from fedtrack.keys import Keys
+    from fedtrack.zsession import SessionOptions, close_session, open_session, wait_alive
+    from support import free_port
+
+    endpoint, keys, db, log = f"tcp/127.0.0.1:{free_port()}", Keys("fsize"), tmp_path / "r.db", tmp_path / "rec.log"
+    router = open_session(SessionOptions(mode="router", connect=(), listen=(endpoint,)))
+    client = open_session(SessionOptions(connect=(endpoint,)))
+    limit = 256 * 1024  # the database's first pages and some 100 scans of its write-ahead log
+
+    def limited() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, resource.RLIM_INFINITY))
+    with log.open("wb") as out:
+        proc = subprocess.Popen([sys.executable, "-m", "fedtrack.cli", "serve", "recorder", "--db", str(db),
+                                 "--connect", endpoint, "--deployment", keys.deployment], stdout=out,
+                                stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, preexec_fn=limited)
+    try:
+        assert not wait_alive(client, [keys.alive("recorder", "recorder")], 30.0), log.read_text()
+        sent = 0
+        while proc.poll() is None and sent < 600:  # about 3 times what fits
+            client.put(keys.sensor_meas("a"), encode(scan("a", sent, 100)))
+            sent += 1
+            time.sleep(0.002)
+        assert wait_until(lambda: proc.poll() is not None, 10.0), "the recorder ran on past its file size limit"
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait(10)
+        close_session(client)
+        close_session(router)
+    text = log.read_text()
+    assert proc.returncode == 1 and "Traceback" not in text, text
+    assert f"ERROR: {db}: cannot record: disk I/O error (SQLITE_IOERR_WRITE): stopping" in text, text
+    rec = Recording(db, readonly=True)
+    assert 0 < rec.count(Measurement) < sent
+    rec.close()

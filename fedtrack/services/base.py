@@ -33,6 +33,11 @@ state its handlers change) are checkpointed (pickled) before it runs and restore
 anything; the message is then rejected (``rejected_numerical`` for a linear-algebra or
 floating-point failure or :class:`Numerical`, ``rejected_handler_error`` for anything else, a
 bug: logged with its exception and place) and the service goes on as if it had never come.
+A handler that cannot do its job for any message, through no fault of the message (the
+recorder's database cannot take a row: the disk full, the file unwritable), raises
+:class:`ServiceFault` instead: ``run`` logs it in one line and returns 1, and the supervisor
+restarts the service (before 2026-11-27 the recorder rejected every later message as a
+``handler_error`` and exited 0: a silent loss).
 
 Every publisher is a ``zenoh.ext`` advanced publisher that keeps its last
 messages per key (``cache_depth``: about ``CACHE_BYTES`` of them, between ``MIN_CACHE_SAMPLES`` and
@@ -55,7 +60,7 @@ SIGTERM/SIGINT or ``stop()`` -> undeclare subscribers, process what is already
 queued -> ``on_stop()`` -> final Health (status "stopped", or "failed" after an
 error) -> close the session
 within a deadline. Returns 0 on a clean stop, 1 if ``on_start`` raised (logged with its
-traceback), 2 for a user error there (OSError, ConfigError, InputError) and 1 if the
+traceback) or a handler raised :class:`ServiceFault` (logged in one line), 2 for a user error there (OSError, ConfigError, InputError) and 1 if the
 session could not be opened.
 """
 
@@ -140,6 +145,11 @@ MIN_CACHE_SAMPLES = 64  # the floor for the largest samples (2 MiB parts): 128 M
 HEARTBEAT_S = 0.5
 HISTORY_RECHECK_S = 1.0
 _ENCODING = zenoh.Encoding("application/msgpack")
+
+
+class ServiceFault(Exception):
+    """Raised by a handler when the service itself cannot go on, whatever the message (its storage
+    failed): never a rejection; the service stops with exit code 1, its message logged in one line."""
 
 
 @dataclass(frozen=True)
@@ -342,6 +352,9 @@ class Service:
             self._loop()
             self._close_inputs()
             self._drain()
+        except ServiceFault as exc:
+            self.log.error("%s: stopping", exc)
+            code = 1
         except (OSError, ConfigError, InputError) as exc:
             self.log.error("%s", exc)
             code = 2
@@ -449,6 +462,8 @@ class Service:
                 try:
                     with self.guarded("on_tick", self.tick_state_attrs):
                         self.on_tick()
+                except ServiceFault:
+                    raise
                 except Exception as exc:  # noqa: BLE001 - outside its transaction (see _dispatch)
                     self._reject("on_tick", 0, exc)
                 next_tick = max(next_tick + self.tick_period_s, now)  # type: ignore[operator]
@@ -491,6 +506,8 @@ class Service:
         checkpoint: a state that cannot be pickled) is a rejection too, never the service's end."""
         try:
             self._handle(item)
+        except ServiceFault:
+            raise
         except Exception as exc:  # noqa: BLE001 - no message may kill a service
             self._reject(str(item[2]), 0, exc)
 
@@ -549,6 +566,8 @@ class Service:
         attempt = Attempt()
         try:
             yield attempt
+        except ServiceFault:
+            raise
         except Exception as exc:  # noqa: BLE001 - a handler must not end the service (module docstring)
             state, counters, status = saved
             for name, value in pickle.loads(state).items():

@@ -11,7 +11,11 @@ counted in ``duplicate``, a different message with the same key in ``conflict``)
 With ``--out DIR`` it writes, on a clean stop, ``DIR/measurements.jsonl`` (replay
 input, scan order) and ``DIR/tracks.jsonl`` (replay output) from the database, as
 ``fedtrack export`` does; ``--db`` defaults to ``DIR/recording.db``. It publishes only
-its Health (counters ``<table>_recorded``, ``duplicate``, ``conflict``).
+its Health (counters ``<table>_recorded``, ``duplicate``, ``conflict``). A row the database cannot
+take (the disk full, the file size limit, the file made unwritable) stops it at once, exit 1, with
+one line naming the database and the reason: restarted by the launcher, it recovers from the
+publishers' caches what it had not stored (before 2026-11-27 it rejected every later message and
+exited 0, the run's recording silently cut short).
 """
 
 from __future__ import annotations
@@ -21,8 +25,8 @@ from typing import Any
 
 from fedtrack.deployment import deployment_of
 from fedtrack.jsonl import check_output, check_output_folder
-from fedtrack.recording import RECORDED, TABLE_OF, TABLES, Recording
-from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
+from fedtrack.recording import RECORDED, TABLE_OF, TABLES, Recording, StorageError
+from fedtrack.services.base import Service, ServiceFault, Subscription, service_kwargs, service_parser
 from fedtrack.wire import Message
 
 DB_NAME = "recording.db"
@@ -55,7 +59,10 @@ class Recorder(Service):
 
     def on_message(self, msg: Message, payload: bytes) -> None:
         assert self.recording is not None
-        outcome = self.recording.add(msg, payload)
+        try:
+            outcome = self.recording.add(msg, payload)
+        except StorageError as exc:
+            raise ServiceFault(str(exc)) from None
         if outcome == RECORDED:
             self.count(f"{TABLE_OF[type(msg)].name}_recorded")
         else:
