@@ -19,10 +19,8 @@ from the first scan of local estimates it receives, as at start-up (counter ``re
 
 from __future__ import annotations
 
-import os
 import pickle
 import time
-from hashlib import blake2b
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +43,7 @@ from fedtrack.services.base import QueryHandler, Service, Subscription, service_
 from fedtrack.services.clock import ClockJump
 from fedtrack.services.lead import NumberedLeadGuard
 from fedtrack.services.rejections import Conflict, Numerical, Rejected
+from fedtrack.services.snapshot import unsealed, write_sealed
 from fedtrack.wire import FusedTrack, LocalEstimate, ManeuverEvent, Reset, acceptable_covariances, decode, encode
 
 FUSED_KEPT = 64  # fused scans whose estimate digests are kept to tell a late conflict from a re-delivery
@@ -104,7 +103,7 @@ class FusionCenterService(Service):
         if self.snapshot is None or not self.snapshot.is_file():
             return
         try:
-            state = pickle.loads(checked_snapshot(self.snapshot.read_bytes()))
+            state = pickle.loads(unsealed(self.snapshot.read_bytes(), SNAPSHOT_MAGIC))
             centre, track = state["centre"], decode(state["track"], FusedTrack)
             usable = (state["deployment"] == self.keys.deployment and type(centre) is type(self.centre)
                       and centre.sensors == self.sensors)
@@ -123,10 +122,8 @@ class FusionCenterService(Service):
         """Write the state after ``track`` to ``--snapshot`` (atomically: a kill leaves the previous one)."""
         if self.snapshot is None:
             return
-        tmp = self.snapshot.with_name(self.snapshot.name + ".tmp")
         data = pickle.dumps({"deployment": self.keys.deployment, "centre": self.centre, "track": encode(track)})
-        tmp.write_bytes(SNAPSHOT_MAGIC + blake2b(data, digest_size=32).digest() + data)
-        os.replace(tmp, self.snapshot)
+        write_sealed(self.snapshot, SNAPSHOT_MAGIC, data)
 
     def on_stop(self) -> None:
         for sub in self._liveliness:
@@ -319,18 +316,6 @@ class FusionCenterService(Service):
                 onset=float(ev.onset) if ev is not None else buf.t,
                 u=np.asarray(ev.u) if ev is not None else np.asarray(result.estimate.x[CA_ACC]),
                 statistic=float(ev.statistic) if ev is not None else 0.0))
-
-
-def checked_snapshot(raw: bytes) -> bytes:
-    """The pickle of a snapshot file whose digest matches (a file cut or corrupted on disk is
-    refused before anything unpickles it); ValueError otherwise."""
-    head = len(SNAPSHOT_MAGIC) + 32
-    if not raw.startswith(SNAPSHOT_MAGIC) or len(raw) < head:
-        raise ValueError("not a fedtrack centre snapshot")
-    data = raw[head:]
-    if blake2b(data, digest_size=32).digest() != raw[len(SNAPSHOT_MAGIC):head]:
-        raise ValueError("checksum mismatch (a corrupted or cut file)")
-    return data
 
 
 def usable(result: CentreResult) -> bool:

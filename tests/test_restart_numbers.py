@@ -18,7 +18,7 @@ from test_hostile_messages import KEYS, OPTIONS, Bus
 from test_hostile_sequences import region_picture
 from test_mtt_regions_live import CONFIG as REGIONS_CONFIG
 
-from fedtrack.fusion_center.mtt.picture_merge import PictureMergeService
+from fedtrack.fusion_center.mtt.picture_merge import PictureMergeService, resumed_time
 from fedtrack.fusion_center.mtt.service import MttCentreService
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.regions import load_regions
@@ -103,7 +103,7 @@ def test_a_restarted_merger_merges_the_pictures_of_its_outage_from_the_region_ca
     recorder.on_stop()
     assert recorder.counters.get("pictures_recorded") == 11 and recorder.counters.get("conflict", 0) == len(resent)
     if state is not None:
-        assert state.read_text() == "10.0"
+        assert resumed_time(state.read_bytes()) == 10.0
 
 
 def test_a_cold_standby_numbers_its_pictures_as_its_primary() -> None:
@@ -121,3 +121,32 @@ def test_a_cold_standby_numbers_its_pictures_as_its_primary() -> None:
                               options=OPTIONS, deployment=KEYS.deployment)
     unseen.clock.due(8.3)  # its first scan, at 8.3 s: it saw no picture of the primary (up after it died)
     assert unseen._picture(9.0).seq == 9
+
+
+def test_a_merger_snapshot_cut_or_corrupted_on_disk_is_refused_and_every_cached_time_merged(tmp_path: Path) -> None:
+    """``serve picture --snapshot``: a file whose time was changed on disk (12.0 to 92.0), cut, of the
+    format before 2026-11-27 (the time alone, which such a change turned into a restart skipping every
+    picture up to t = 92) or not finite is refused: the restart merges every time the caches hold, as
+    without a snapshot, and skips none."""
+    from fedtrack.fusion_center.mtt.picture_merge import SNAPSHOT_MAGIC
+    from fedtrack.services.snapshot import write_sealed
+
+    config = tmp_path / "config.toml"
+    config.write_text(REGIONS_CONFIG)
+    regions = load_regions(config)
+    assert regions is not None
+    state = tmp_path / "picture.snapshot"
+
+    def started() -> PictureMergeService:
+        merger = PictureMergeService(regions, 4, 2.0, 1.0, service_id="picture", options=OPTIONS,
+                                     deployment=KEYS.deployment, snapshot=state)
+        merger.on_start()
+        return merger
+    started()._keep(12.0)
+    good = state.read_bytes()
+    assert started().resumed_t == 12.0
+    write_sealed(state, SNAPSHOT_MAGIC, b"inf")
+    infinite = state.read_bytes()
+    for bad in (good.replace(b"12.0", b"92.0"), good[:-1], b"92.0", infinite):
+        state.write_bytes(bad)
+        assert started().resumed_t is None, bad

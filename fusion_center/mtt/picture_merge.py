@@ -40,14 +40,14 @@ comes after a later one (its cache's reply overtaken by a live picture) is queue
 digests of each region's last ``window`` pictures taken tell a re-delivery (a ``duplicate``: the
 second query, a standby's cache) from a second, different picture (``conflict``). With ``--snapshot
 PATH`` (``launch`` gives ``OUT/picture.snapshot`` and removes it when a run starts) it writes the time
-of each picture it publishes there; started again, it merges only the times after it (the region
+of each picture it publishes there, behind a digest (a file cut or corrupted on disk is refused, and
+every time the caches hold is merged); started again, it merges only the times after it (the region
 pictures of earlier times counted ``merged_before``): the last one's pictures sent again would carry
 new stamps, each a ``conflict`` at the recorder and a repeat to a display.
 """
 
 from __future__ import annotations
 
-import os
 import time
 from collections import deque
 from functools import partial
@@ -73,11 +73,13 @@ from fedtrack.services.admission import digest
 from fedtrack.services.base import HISTORY_RECHECK_S, Service, Subscription, service_kwargs, service_parser
 from fedtrack.services.lead import LeadGuard
 from fedtrack.services.rejections import Conflict, Rejected
+from fedtrack.services.snapshot import unsealed, write_sealed
 from fedtrack.wire import TrackPicture
 
 # a merger's first HISTORY_SETTLE_S: the caches' replies and the base service's second query of them (at
 # HISTORY_RECHECK_S) are in (loopback: milliseconds after it)
 HISTORY_SETTLE_S = HISTORY_RECHECK_S + 0.5
+SNAPSHOT_MAGIC = b"fedtrack-picture-1\n"  # --snapshot: then the digest, then the last merged time (its repr)
 # A merged picture carries at most PICTURE_ITEMS tracks and fused entries, as any picture. Each of R
 # regions' pictures may hold 1/R of it (rejected ``too_large`` beyond: 65,536 for 2 regions, 1,310 for
 # 100, above a region's period of scans, 64 live sensors at 10 Hz, and issue 27's 10^5 tracks over the
@@ -103,6 +105,16 @@ def region_picture_of(msg: TrackPicture) -> RegionPicture:
     order = np.argsort(msg.in_flight)
     return RegionPicture(rows_of(tracks, ~flying), rows_of(tracks, flying),
                          tuple(msg.in_flight_t[k] for k in order.tolist()))
+
+
+def resumed_time(raw: bytes) -> float:
+    """The last merged time in a snapshot file's bytes ``raw``; ValueError for a file that is not one, or
+    cut or corrupted (checked by its digest: before 2026-11-27 the file held the time alone, and a digit
+    changed on disk, 12.0 to 92.0, made a restart skip every picture up to t = 92 unmerged)."""
+    T = float(unsealed(raw, SNAPSHOT_MAGIC).decode())
+    if not np.isfinite(T):
+        raise ValueError(f"a time of {T}")
+    return T
 
 
 class PictureMergeService(Service):
@@ -148,7 +160,7 @@ class PictureMergeService(Service):
         self.settle_until = time.monotonic() + HISTORY_SETTLE_S
         if self.snapshot is not None and self.snapshot.exists():
             try:
-                self.resumed_t = float(self.snapshot.read_text())
+                self.resumed_t = resumed_time(self.snapshot.read_bytes())
                 self.log.info("pictures up to t=%g were merged before this start (%s)", self.resumed_t, self.snapshot)
             except (OSError, ValueError) as exc:
                 self.log.warning("%s: not a snapshot (%s): every time the region caches hold is merged", self.snapshot,
@@ -300,10 +312,8 @@ class PictureMergeService(Service):
     def _keep(self, T: float) -> None:
         """Write ``T`` to the snapshot (a whole file, renamed into place)."""
         assert self.snapshot is not None
-        temporary = self.snapshot.with_name(self.snapshot.name + ".tmp")
         try:
-            temporary.write_text(repr(T))
-            os.replace(temporary, self.snapshot)
+            write_sealed(self.snapshot, SNAPSHOT_MAGIC, repr(T).encode())
         except OSError as exc:
             self.log.warning("%s: %s (a restart merges again what the region caches hold)", self.snapshot, exc)
 

@@ -1,0 +1,31 @@
+"""A service's state file for its restarts within a run (the fusion centre's state, the picture
+merger's last merged time): written whole, a temporary file renamed into place (a kill leaves the
+previous one), behind a BLAKE2b digest of its data that is checked before anything reads the data,
+so a file cut or corrupted on disk is refused, never half-read."""
+
+from __future__ import annotations
+
+import os
+from hashlib import blake2b
+from pathlib import Path
+
+DIGEST_BYTES = 32
+
+
+def write_sealed(path: Path, magic: bytes, data: bytes) -> None:
+    """Write ``magic``, the digest of ``data`` and ``data`` to ``path``, atomically."""
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_bytes(magic + blake2b(data, digest_size=DIGEST_BYTES).digest() + data)
+    os.replace(tmp, path)
+
+
+def unsealed(raw: bytes, magic: bytes) -> bytes:
+    """The data of a file's bytes ``raw`` written by :func:`write_sealed` with ``magic``; ValueError
+    when it is not one or its digest does not match (a corrupted or cut file)."""
+    head = len(magic) + DIGEST_BYTES
+    if not raw.startswith(magic) or len(raw) < head:
+        raise ValueError(f"not a {magic.decode(errors='replace').strip()} file")
+    data = raw[head:]
+    if blake2b(data, digest_size=DIGEST_BYTES).digest() != raw[len(magic):head]:
+        raise ValueError("checksum mismatch (a corrupted or cut file)")
+    return data
