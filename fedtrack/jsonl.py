@@ -5,6 +5,7 @@ at all)."""
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import math
 import os
@@ -16,6 +17,8 @@ import numpy as np
 import orjson
 
 from fedtrack.config import did_you_mean
+
+STORAGE_FULL = frozenset({errno.ENOSPC, errno.EFBIG, errno.EDQUOT})  # a write the disk or a limit refused
 
 
 class InputError(ValueError):
@@ -74,7 +77,9 @@ def output_file(path: str | Path, mode: str = "w") -> Iterator[IO[Any]]:
     """Write ``path`` whole or not at all: the block writes to a temporary file in the same folder,
     renamed onto ``path`` when the block ends without an exception and removed when it raises, so
     an error half-way (a bad input line, Ctrl-C) leaves no half-written output and an existing
-    file untouched. ``mode`` is ``"w"`` (text) or ``"wb"``."""
+    file untouched. ``mode`` is ``"w"`` (text) or ``"wb"``. The disk full or the file size limit
+    reached while it is written is an InputError naming ``path`` (a write's OSError names no file:
+    before 2026-11-27 the launcher said 'could not export the recording: None: cannot write')."""
     p = check_output(path)
     tmp = p.parent / f".{p.name}.{os.getpid()}.{secrets.token_hex(4)}.part"
     try:
@@ -85,9 +90,11 @@ def output_file(path: str | Path, mode: str = "w") -> Iterator[IO[Any]]:
         with fh:
             yield fh
         os.replace(tmp, p)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
+        if isinstance(exc, OSError) and exc.filename is None and exc.errno in STORAGE_FULL:
+            raise InputError(f"{p}: cannot write: {exc.strerror or exc}") from None
         raise
 
 

@@ -367,3 +367,30 @@ def test_a_recorder_past_its_file_size_limit_exits_1_naming_its_database(tmp_pat
     rec = Recording(db, readonly=True)
     assert 0 < rec.count(Measurement) < sent
     rec.close()
+
+
+def test_an_export_onto_a_full_disk_names_its_file_and_leaves_nothing(tmp_path: Path) -> None:
+    """A multi-target export's writes refused (here by RLIMIT_FSIZE, set for a moment in this process: EFBIG, as
+    ENOSPC on a full disk) end in an InputError naming the file written, no part of it left (before
+    2026-11-27 the launcher said 'could not export the recording: None: cannot write: ...')."""
+    import resource
+
+    db = tmp_path / "r.db"
+    rec = Recording(db)
+    rec.db.execute("PRAGMA synchronous = OFF")  # no fsync a row: this test is about the export
+    for seq in range(100):
+        m, pic = scan("a", seq, 50), picture(seq, float(seq), (("a", seq),))
+        rec.add(m, encode(m))
+        rec.add(pic, encode(pic))
+    out = tmp_path / "out"
+    out.mkdir()
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (64 * 1024, hard))
+    try:
+        with pytest.raises(InputError) as caught:
+            rec.export(out / "m.jsonl")
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+        rec.close()
+    assert str(caught.value) == f"{out / 'm.jsonl'}: cannot write: File too large"
+    assert list(out.iterdir()) == []
