@@ -48,6 +48,7 @@ from fedtrack.wire import FusedTrack, LocalEstimate, ManeuverEvent, Reset, accep
 
 FUSED_KEPT = 64  # fused scans whose estimate digests are kept to tell a late conflict from a re-delivery
 SNAPSHOT_MAX_GAP = 3  # scans missed beyond which a restored snapshot is dropped for a rebuild
+SNAPSHOT_FAILURES_LOGGED = 100  # a snapshot that cannot be written: the first failure logged, then every 100th
 SNAPSHOT_MAGIC = b"fedtrack-centre-1\n"  # then a 32-byte BLAKE2b digest of the pickle, then the pickle
 
 
@@ -119,11 +120,23 @@ class FusionCenterService(Service):
         self.log.warning("restored the state of scan %d (t=%g) from %s", track.seq, track.t, self.snapshot)
 
     def _save(self, track: FusedTrack) -> None:
-        """Write the state after ``track`` to ``--snapshot`` (atomically: a kill leaves the previous one)."""
+        """Write the state after ``track`` to ``--snapshot`` (atomically: a kill leaves the previous one).
+        A write that fails (the disk full, the file size limit, no file descriptor left) is counted
+        ``snapshot_failed`` and the scan stands: the snapshot only serves a restart, which then finds an
+        older one (``SNAPSHOT_MAX_GAP``). Before 2026-11-27 the failure undid the scan after its track and
+        resets were out: under a 1,000-byte file size limit from scan 43, 58 of 101 scans were rejected
+        as ``handler_error``, the state stayed at scan 43 and the replay no longer equalled the tracks."""
         if self.snapshot is None:
             return
         data = pickle.dumps({"deployment": self.keys.deployment, "centre": self.centre, "track": encode(track)})
-        write_sealed(self.snapshot, SNAPSHOT_MAGIC, data)
+        try:
+            write_sealed(self.snapshot, SNAPSHOT_MAGIC, data)
+        except OSError as exc:
+            self.count("snapshot_failed")
+            if self.counters["snapshot_failed"] % SNAPSHOT_FAILURES_LOGGED == 1:
+                self.log.warning("%s: cannot write the snapshot of scan %d: %s (%d failed so far; the scans go on, "
+                                 "a restart finds an older snapshot)", self.snapshot, track.seq,
+                                 exc.strerror or exc, self.counters["snapshot_failed"])
 
     def on_stop(self) -> None:
         for sub in self._liveliness:

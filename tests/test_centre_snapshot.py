@@ -37,3 +37,18 @@ def test_snapshot_round_trip_and_refusals(tmp_path: Path) -> None:
     broken = centre(tmp_path)
     broken._restore()
     assert not broken.restored and broken.last_track is None
+
+
+def test_a_snapshot_that_cannot_be_written_leaves_every_scan_fused(tmp_path: Path) -> None:
+    """A snapshot write that fails (here its folder is gone; live, a file size limit or a full disk)
+    is counted and the scan stands: the tracks equal those of a centre without a snapshot. Before
+    2026-11-27 the failure undid each scan after its track and resets were out (rejected as a
+    ``handler_error``), so the centre's state stayed at the last scan it could save."""
+    from test_fuzz_handlers import SCANS, run
+
+    plain, failing = run(), run(snapshot=tmp_path / "gone" / "fc.snapshot")
+    assert [(t.seq, t.x.tolist(), t.P.tolist()) for t in failing.tracks()] == \
+        [(t.seq, t.x.tolist(), t.P.tolist()) for t in plain.tracks()]
+    assert len(failing.tracks()) == SCANS
+    assert failing.centre.counters["snapshot_failed"] == SCANS and failing.centre.counters["rejected"] == 0
+    assert list(tmp_path.iterdir()) == []

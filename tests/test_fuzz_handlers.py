@@ -14,6 +14,7 @@ through each of the three handlers (measurement, estimate, reset).
 from __future__ import annotations
 
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -57,7 +58,7 @@ MEASUREMENTS = measurements()
 class Pipeline:
     """The services, their dispatch, and what they published."""
 
-    def __init__(self) -> None:
+    def __init__(self, snapshot: Path | None = None) -> None:
         config = FusionConfig()
         self.published: list[tuple[str, Any]] = []
         n = len(SENSORS)
@@ -65,7 +66,8 @@ class Pipeline:
                                              service_id=s, options=OPTIONS, deployment=KEYS.deployment)
                        for s in SENSORS}
         self.centre = FusionCenterService(list(SENSORS), FederatedCentre(list(SENSORS), config), 0.5,
-                                          service_id="fusion", options=OPTIONS, deployment=KEYS.deployment)
+                                          service_id="fusion", options=OPTIONS, deployment=KEYS.deployment,
+                                          snapshot=snapshot)
         for svc in (*self.locals.values(), self.centre):
             svc._subscriptions = svc.subscriptions()
             svc.publish = lambda key, msg: self.published.append((key, msg))  # type: ignore[method-assign]
@@ -95,10 +97,10 @@ class Pipeline:
         return sum(svc.counters.get(c, 0) for svc in (*self.locals.values(), self.centre) for c in counted)
 
 
-def run(attacks: dict[int, list[tuple[str, str, float]]] | None = None) -> Pipeline:
+def run(attacks: dict[int, list[tuple[str, str, float]]] | None = None, snapshot: Path | None = None) -> Pipeline:
     """The stream scan by scan: sensor 1's measurement and estimate, the hostile messages of the
-    scan, sensor 2's (which completes the scan); returns the pipeline."""
-    pipe = Pipeline()
+    scan, sensor 2's (which completes the scan); returns the pipeline (its centre's ``--snapshot``)."""
+    pipe = Pipeline(snapshot)
     for k in range(SCANS):
         scan_attacks = (attacks or {}).get(k, [])
         for s in SENSORS:

@@ -5,6 +5,7 @@ so a file cut or corrupted on disk is refused, never half-read."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 from hashlib import blake2b
 from pathlib import Path
@@ -13,10 +14,17 @@ DIGEST_BYTES = 32
 
 
 def write_sealed(path: Path, magic: bytes, data: bytes) -> None:
-    """Write ``magic``, the digest of ``data`` and ``data`` to ``path``, atomically."""
+    """Write ``magic``, the digest of ``data`` and ``data`` to ``path``, atomically; on an OSError (the
+    disk full, the file size limit, no file descriptor left) ``path`` is as it was and no temporary
+    file is left."""
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_bytes(magic + blake2b(data, digest_size=DIGEST_BYTES).digest() + data)
-    os.replace(tmp, path)
+    try:
+        tmp.write_bytes(magic + blake2b(data, digest_size=DIGEST_BYTES).digest() + data)
+        os.replace(tmp, path)
+    except OSError:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
 
 
 def unsealed(raw: bytes, magic: bytes) -> bytes:
