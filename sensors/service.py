@@ -111,6 +111,7 @@ class SensorService(Service):
         self.total = len(self.due_s)
         self.lockstep_timeout_s = lockstep_timeout_s
         self.start_at = start_at  # wall-clock time of scan 0 (realtime); None: from start_file, else when ready
+        self.start_mono: float | None = None  # start_at on the monotonic clock, taken once start_at is known
         self.start_file = start_file
         self.next_seq = 0
         self.last_publish = -float("inf")
@@ -144,6 +145,11 @@ class SensorService(Service):
             self.start_at = read_start(self.start_file) if self.start_file is not None else time.time()
             if self.start_at is None:
                 return  # the launcher has not given the start yet
+        if self.pacing == "realtime" and self.start_mono is None:
+            # the common start is a wall-clock time (hosts share no other clock), the scans' times after it
+            # monotonic: the wall clock stepped back 30 s mid-run stopped every sensor for 30 s before
+            # 2026-11-27, and one stepped forward sent the scans of the skipped seconds at once
+            self.start_mono = now + (self.start_at - time.time())
         if self.next_seq >= self.total:
             waited = now - self.last_publish
             if self.scans is not None or self.fused_up_to >= self.total - 1 or waited >= self.lockstep_timeout_s:
@@ -155,7 +161,7 @@ class SensorService(Service):
                 self.count("lockstep_timeouts")
                 due = True
         else:
-            due = time.time() >= self.start_at + self.due_s[self.next_seq]
+            due = now >= self.start_mono + self.due_s[self.next_seq]
         if due:
             self.publish_scan(now)
 

@@ -118,6 +118,41 @@ def test_realtime_sensors_wait_for_the_start_the_launcher_gives_once_they_are_re
         late.on_tick()
 
 
+def test_a_realtime_sensor_keeps_its_pace_when_the_wall_clock_steps(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The common start is a wall-clock time; the scans after it are paced on the monotonic clock. The
+    wall clock stepped back by 30 s after scan 2 and then forward by 60 s: scans 3 and 4 go out 1 s
+    apart as before (before 2026-11-27 the sensor sent nothing for the 30 s, then at once every scan
+    the forward step skipped)."""
+    from types import SimpleNamespace
+
+    import fedtrack.sensors.service as module
+    from fedtrack.zsession import SessionOptions
+
+    clock = {"wall": 1000.0, "mono": 50.0}
+    monkeypatch.setattr(module, "time", SimpleNamespace(time=lambda: clock["wall"], monotonic=lambda: clock["mono"]))
+    sensor = module.SensorService([{}] * 40, 1.0, "realtime", 1.0, 5.0, start_at=1000.0, service_id="1",
+                                  options=SessionOptions())
+    sent: list[float] = []  # the monotonic times of the scans
+
+    def publish_scan(now: float) -> None:
+        sent.append(now)
+        sensor.next_seq += 1
+
+    sensor.publish_scan = publish_scan  # type: ignore[method-assign]
+
+    def run(seconds: float) -> None:  # the base service's ticks, every 10 ms
+        for _ in range(round(seconds / 0.01)):
+            sensor.on_tick()
+            clock["wall"] += 0.01
+            clock["mono"] += 0.01
+    run(2.5)
+    clock["wall"] -= 30.0
+    run(1.0)
+    clock["wall"] += 60.0
+    run(1.0)
+    assert sent == pytest.approx([50.0, 51.0, 52.0, 53.0, 54.0], abs=0.011)
+
+
 def test_a_restart_still_starting_when_the_run_ends_is_no_failure(tmp_path: Path) -> None:
     """The stop's SIGTERM meets a restarted service before it is up (it has not declared its liveliness
     token, nor its SIGTERM handler): its exit by the signal is no failure. A local filter SIGKILLed at
