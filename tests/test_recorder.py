@@ -394,3 +394,24 @@ def test_an_export_onto_a_full_disk_names_its_file_and_leaves_nothing(tmp_path: 
         rec.close()
     assert str(caught.value) == f"{out / 'm.jsonl'}: cannot write: File too large"
     assert list(out.iterdir()) == []
+
+
+def test_a_service_out_of_memory_stops_rather_than_rejecting_every_message(tmp_path: Path,
+                                                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    """A MemoryError in a handler (numpy's, refused an allocation as under RLIMIT_AS) is no rejection of the
+    message: it leaves ``_dispatch`` for ``run`` to stop the service (exit 1, one line) and the launcher to
+    restart it; before 2026-11-27 every such message was counted ``rejected_handler_error`` and the
+    service went on."""
+    from fedtrack.keys import Keys
+    from fedtrack.services.recorder import Recorder
+    from fedtrack.zsession import SessionOptions
+
+    svc = Recorder(db=tmp_path / "r.db", service_id="recorder", options=SessionOptions(connect=("tcp/127.0.0.1:1",)),
+                   deployment="t")
+    svc.recording, svc._subscriptions = Recording(tmp_path / "r.db"), svc.subscriptions()
+    monkeypatch.setattr(svc.recording, "add", lambda msg, payload: np.empty(2**62, dtype=np.uint8))
+    m = meas("a", 0, 0.0)
+    with pytest.raises(MemoryError):
+        svc._dispatch(("sample", 0, Keys("t").sensor_meas("a"), encode(m)))
+    assert svc.counters.get("rejected", 0) == 0
+    svc.recording.close()
