@@ -154,6 +154,29 @@ def test_two_primaries_at_once_leave_exactly_one_the_later_claim(standbys: bool)
     assert b.primary and not b.yields()
 
 
+def test_a_take_over_claims_after_the_primary_it_replaces_whatever_the_wall_clock_did() -> None:
+    """The wall clock stepped back 30 s between the primary's claim and its standby's take-over (the
+    primary frozen, its token standing): the standby's claim is still the later one, so the primary,
+    woken, steps down and not the standby (live, 2 x 1 regions at 2x: before 2026-11-27 the standby
+    stepped down when the stale primary woke, 24 messages rejected, 1.59 missed targets a picture). A
+    token chunk of another form, or of 20 nines, moves no claim."""
+    t0 = 1_795_782_794_760_818_134
+    primary = Standby("x0y0", 0.0, instance=claim_instance("a1", t0), primary=True)
+    standby = Standby("x0y0", 0.0)
+    standby.token(True, 1.0, primary.instance)
+    standby.token(True, 1.0, "zz.forged")
+    standby.token(False, 1.0, "zz.forged")
+    assert standby.latest == primary.instance
+    standby.instance = claim_instance("b2", t0 - 30 * 10**9 + 12 * 10**9, standby.latest)  # 12 s later, stepped
+    standby.primary = True
+    assert standby.instance == f"{t0 + 1:020d}.b2"
+    primary.token(True, 2.0, standby.instance)  # the primary wakes and sees the standby's token
+    standby.token(True, 2.0, primary.instance)
+    assert primary.yields() and not standby.yields()
+    assert claim_instance("c3", 5, "99999999999999999999") == f"{5:020d}.c3"
+    assert claim_instance("c3", 5, "1.x") == claim_instance("c3", 5) == f"{5:020d}.c3"
+
+
 def test_a_cold_standby_numbers_its_tracks_after_every_id_of_its_sequence_it_saw() -> None:
     assert next_after(1, 4, [0, 5, 13, 2, 7]) == 17  # region 1 of 4: 1, 5, 9, 13 -> 17
     assert next_after(21, 4, [5, 13]) == 21  # already ahead

@@ -455,7 +455,7 @@ class MttCentreService(Service):
     def _claim(self) -> None:
         """Declare this centre's primary token, under a new instance (:func:`.standby.claim_instance`)."""
         assert self.session is not None
-        self.standby.instance = claim_instance(str(self.session.zid()), time.time_ns())
+        self.standby.instance = claim_instance(str(self.session.zid()), time.time_ns(), self.standby.latest)
         self.primary_token = self.session.liveliness().declare_token(self.keys.primary(self._scope(),
                                                                                        self.standby.instance))
 

@@ -78,14 +78,30 @@ PICTURES_SETTLED = 4
 SILENT_S = 5.0
 
 
-def claim_instance(session: str, now_ns: int) -> str:
+def claim_instance(session: str, now_ns: int, after: str = "") -> str:
     """The last chunk of a primary token claimed at ``now_ns`` (wall clock) by Zenoh session ``session``:
     the claim's time first (20 digits), so that of two primaries the later claim sorts last and keeps
     the scope (:meth:`Standby.yields`). The earlier one may be a primary frozen past its lease (its
     session, woken, declares its token again) that missed every report since: with the session ids'
     order alone it kept the region as often as not, its tracks as they were before the freeze (7 of a
-    region's confirmed tracks gone from the pictures after a 12 s SIGSTOP)."""
-    return f"{now_ns:020d}.{session}"
+    region's confirmed tracks gone from the pictures after a 12 s SIGSTOP). The claim's time is at
+    least 1 ns after that of ``after``, the latest claim this centre has seen (:attr:`Standby.latest`): a
+    take-over is later than the primary it replaces whatever the wall clock did (stepped back 30 s
+    before a 12 s freeze of the primary, the standby's claim sorted first, and it stepped down when the
+    stale primary woke: 24 messages rejected); a claim of 20 nines (which only a forger makes) is not
+    followed past the 20 digits."""
+    before = claimed_ns(after)
+    ns = now_ns if before is None else max(now_ns, before + 1)
+    return f"{ns if ns < 10**20 else now_ns:020d}.{session}"
+
+
+def claimed_ns(instance: str) -> int | None:
+    """The claim time of a primary token's ``instance`` (:func:`claim_instance`), None for a chunk of
+    another form (a token anyone else declared)."""
+    head = instance[:20]
+    if len(head) == 20 and head.isascii() and head.isdigit() and instance[20:21] in ("", "."):
+        return int(head)
+    return None
 
 
 def output_of(msg: Message) -> Hashable:
@@ -153,6 +169,7 @@ class Standby:
     region: str
     started: float
     instance: str = ""  # the last chunk of this centre's token while it claims one (claim_instance)
+    latest: str = ""  # the latest instance whose token this centre saw (claim_instance's ``after``)
     primary: bool = False
     holders: set[str] = field(default_factory=set)  # the instances whose primary token exists, this one's aside
     since: dict[str, float] = field(default_factory=dict)  # when each holder's token appeared
@@ -186,6 +203,8 @@ class Standby:
         if alive:
             self.holders.add(instance)
             self.since.setdefault(instance, now)
+            if claimed_ns(instance) is not None:
+                self.latest = max(self.latest, instance)
         else:
             self.holders.discard(instance)
             self.since.pop(instance, None)
