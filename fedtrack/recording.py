@@ -223,6 +223,14 @@ class Recording:
                     raise
                 return 0
 
+    def scans(self) -> dict[str, int]:
+        """The measurements recorded per sensor, a message in parts counted once all its parts are in."""
+        parts = "MAX(parts)" if self.version > 1 else "1"
+        with _read_of(self.path):
+            return dict(self.db.execute(
+                f"SELECT sensor, COUNT(*) FROM (SELECT sensor FROM measurements GROUP BY sensor, seq "
+                f"HAVING COUNT(*) = {parts}) GROUP BY sensor").fetchall())
+
     def messages(self, msg_type: type, order: str) -> Iterator[Any]:
         """The stored messages of ``msg_type`` in ``order`` (an ORDER BY clause of the table's
         columns); a message stored in parts joined, in the place of its last part (module docstring)."""
