@@ -329,6 +329,7 @@ class Launcher:
         self._subs: list[Any] = []
         self._restart_at: dict[str, float] = {}  # service -> monotonic time of its pending restart
         self.watch = FailoverWatch(scopes)  # failovers and router outages, from the tokens and pictures
+        self._wall0_ns, self._mono0_ns = time.time_ns(), time.monotonic_ns()  # the watch's clock (_watch_ns)
         self._epoch: float | None = None  # wall-clock time of the sensors' scenario time 0
         self._arrivals: dict[str, collections.deque[float]] = {}  # sensor -> its scans of the last RATE_WINDOW_S
         # the newest fused track's scan number: a measurement's publish stamp is kept only up to max_seq_jump beyond
@@ -539,16 +540,23 @@ class Launcher:
         with self._lock:
             self.report.pictures += 1
             self.report.picture_arrivals.append((pic.t, now))
-            self.watch.covered("all", now)
+            self.watch.covered("all", self._watch_ns())
+
+    def _watch_ns(self) -> int:
+        """The failover watch's clock: the wall clock as it read at the launcher's start, advanced by the
+        monotonic clock, so that a step of the host's clock moves no failover or outage figure (stepped
+        back 30 s before a frozen primary's take-over, its region's pictures seemed silent for -25 s and
+        the take-over was no failover, before 2026-11-27)."""
+        return self._wall0_ns + time.monotonic_ns() - self._mono0_ns
 
     def _on_region_picture(self, sample: zenoh.Sample) -> None:
         """A region centre's picture (``region/<rid>/picture``): covers its region after a failover."""
         with self._lock:
-            self.watch.covered(str(sample.key_expr).split("/")[-2], time.time_ns())
+            self.watch.covered(str(sample.key_expr).split("/")[-2], self._watch_ns())
 
     def _on_primary_token(self, sample: zenoh.Sample) -> None:
         """A centre's primary token went or was claimed (:meth:`FailoverWatch.primary_token`)."""
-        now, (scope, instance) = time.time_ns(), str(sample.key_expr).rsplit("/", 2)[-2:]
+        now, (scope, instance) = self._watch_ns(), str(sample.key_expr).rsplit("/", 2)[-2:]
         with self._lock:
             line = self.watch.primary_token(scope, instance, sample.kind == zenoh.SampleKind.DELETE, now)
         if line:
@@ -556,7 +564,7 @@ class Launcher:
 
     def _on_router_token(self, sample: zenoh.Sample) -> None:
         """A router token went or came (:meth:`FailoverWatch.router_token`)."""
-        now, name = time.time_ns(), str(sample.key_expr).rsplit("/", 1)[-1]
+        now, name = self._watch_ns(), str(sample.key_expr).rsplit("/", 1)[-1]
         with self._lock:
             line = self.watch.router_token(name, sample.kind == zenoh.SampleKind.DELETE, now)
         if line:

@@ -243,16 +243,17 @@ class Token(NamedTuple):
 
 @pytest.fixture
 def watching(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> tuple[Any, list[int]]:
-    """A launcher of two regions with standbys, its monitor's callbacks driven by hand on a wall clock
-    of our own (``clock[0]``, ns)."""
+    """A launcher of two regions with standbys, its monitor's callbacks driven by hand on clocks of our
+    own: ``clock[0]`` the monotonic clock (ns), the wall clock ``clock[0] + clock[1]`` (a step)."""
     from fedtrack.deploy import launcher as launcher_module
 
     config = tmp_path / "regions.toml"
     config.write_text("[multitarget]\nstandby = true\n[regions]\nmargin = 500.0\n"
                       "grid = {origin = [0.0, 0.0], cell = [1.0, 1.0], nx = 2, ny = 1}\n")
     settings = load_settings(config)
-    clock = [10**18]
-    monkeypatch.setattr(launcher_module.time, "time_ns", lambda: clock[0])
+    clock = [10**18, 0]
+    monkeypatch.setattr(launcher_module.time, "time_ns", lambda: clock[0] + clock[1])
+    monkeypatch.setattr(launcher_module.time, "monotonic_ns", lambda: clock[0])
     return launcher_module.Launcher(settings, [], quiet=True,
                                     scopes=launcher_module.failover_scopes(settings, config)), clock
 
@@ -279,18 +280,22 @@ def test_a_router_outage_is_reported_as_one_not_as_a_failover_per_region(watchin
     assert [o.summary(None, 1.0)["back_after_s"] for o in launcher.watch.outages] == [2.0]
 
 
-def test_a_take_over_from_a_frozen_primary_is_a_failover(watching: tuple[Any, list[int]]) -> None:
+@pytest.mark.parametrize("step_s", [0.0, -30.0])
+def test_a_take_over_from_a_frozen_primary_is_a_failover(watching: tuple[Any, list[int]], step_s: float) -> None:
     """A frozen primary's token stands until its lease ends; its standby takes over by the silence rule
     (``SILENT_S`` without its outputs) beside it, a later claim. The report listed no failover (the
     region's last token never went: the frozen one's went after the standby's came); now one, from the
     region's last picture, taken over when the standby claimed the token, covered by the next picture.
-    The frozen token's end and a second claim of the same take-over add none."""
+    The frozen token's end and a second claim of the same take-over add none. The same with the wall
+    clock stepped back 30 s after the last picture: before 2026-11-27 the watch read the wall clock, the
+    pictures seemed silent for -25 s, and the take-over was no failover (live, ``regions70``)."""
     launcher, clock = watching
     put, gone = zenoh.SampleKind.PUT, zenoh.SampleKind.DELETE
     keys = launcher.keys
     launcher._on_primary_token(Token(keys.primary("x0y0", "1.a"), put))
     launcher._on_region_picture(Token(keys.region_picture("x0y0"), put))  # the frozen primary's last
     last = clock[0]
+    clock[1] = int(step_s * 1e9)
     clock[0] += int((SILENT_S + 0.3) * 1e9)
     launcher._on_primary_token(Token(keys.primary("x0y0", "2.b"), put))  # the standby's claim
     clock[0] += int(0.5e9)
