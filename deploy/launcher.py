@@ -583,7 +583,9 @@ class Launcher:
             while arrivals[0] < now - RATE_WINDOW_S:  # held for the rates only (quiet: never shown)
                 arrivals.popleft()
             if m.kind == "scan":
-                self.report.scan_stamps.append((m.t, m.stamp_ns))
+                mt = self.settings.multitarget
+                self.report.note_scan(m.t, m.stamp_ns, self.settings.mtt.period, self.settings.mtt.picture_delay,
+                                      mt.duration if mt is not None else 0.0)
             elif m.seq <= self._newest_track + self.settings.deployment.max_seq_jump:
                 self.report.publish_stamps_ns.setdefault(m.seq, {}).setdefault(m.sensor, m.stamp_ns)
 

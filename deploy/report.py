@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import bisect
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,7 +31,10 @@ class LaunchReport:
 
     scans_fused: int = 0
     pictures: int = 0  # multi-target pictures seen
-    scan_stamps: list[tuple[float, int]] = field(default_factory=list)  # (scan t, publish ns), multi-target
+    # multi-target, per picture period k (scans later than k period + picture_delay, up to the next): the first
+    # scan (t, publish ns), the one that makes picture k due (note_scan); the first and last publish seen
+    scan_slots: dict[int, tuple[float, int]] = field(default_factory=dict)
+    scan_span_ns: tuple[int, int] | None = None
     picture_arrivals: list[tuple[float, int]] = field(default_factory=list)  # (picture T, arrival ns)
     latencies_ms: list[float] = field(default_factory=list)
     measurements: dict[str, int] = field(default_factory=dict)
@@ -63,17 +67,33 @@ class LaunchReport:
         p50, p99 = np.percentile(self.latencies_ms, [50, 99])
         return float(p50), float(p99)
 
-    def picture_latencies_ms(self, delay: float) -> list[float]:
-        """Per picture at ``T``: its arrival minus the publish time of the first scan later than
-        ``T + delay`` (the one that made it due), in ms (pictures published at the end, with no
-        later scan, are left out)."""
-        scans = sorted(self.scan_stamps)
-        times = [t for t, _ in scans]
+    def note_scan(self, t: float, stamp_ns: int, period: float, delay: float, horizon: float) -> None:
+        """A multi-target scan at ``t`` published at ``stamp_ns``: kept for the picture latency only if it
+        is the first of its picture period (the pictures are at k ``period``; a scan later than
+        k period + ``delay``, up to the next, makes picture k due) and within the scenario's 0 to
+        ``horizon`` seconds (a period either side). Before 2026-11-27 every scan's stamp was kept, so a
+        sensor flooding its own key grew the launcher by a stamp a scan; now by one a picture period of
+        the scenario at most."""
+        span = self.scan_span_ns
+        self.scan_span_ns = (stamp_ns, stamp_ns) if span is None else (min(span[0], stamp_ns), max(span[1], stamp_ns))
+        if not -period <= t <= horizon + period:
+            return
+        k = math.ceil((t - delay) / period) - 1
+        if k not in self.scan_slots or (t, stamp_ns) < self.scan_slots[k]:
+            self.scan_slots[k] = (t, stamp_ns)
+
+    def picture_latencies_ms(self, period: float, delay: float) -> list[float]:
+        """Per picture at ``T`` (k ``period``): its arrival minus the publish time of the first scan
+        later than ``T + delay`` (the one that made it due), in ms (pictures published at the end, with
+        no later scan, are left out)."""
+        slots = sorted(self.scan_slots)
         out = []
         for T, arrival in self.picture_arrivals:
-            k = bisect.bisect_right(times, T + delay)
-            if k < len(scans):  # realtime sensors publish in time order: the first later scan
-                out.append((arrival - scans[k][1]) / 1e6)
+            i = bisect.bisect_left(slots, math.floor(T / period + 1e-9))
+            while i < len(slots) and self.scan_slots[slots[i]][0] <= T + delay:
+                i += 1
+            if i < len(slots):  # the first later scan
+                out.append((arrival - self.scan_slots[slots[i]][1]) / 1e6)
         return out
 
     def rejected(self) -> int:

@@ -104,6 +104,42 @@ def test_a_sensor_numbering_scans_afresh_grows_the_monitor_by_a_bounded_amount(l
     assert all(len(stamps[seq]) == 1 for seq in range(300, 1300))
 
 
+def test_a_multi_target_sensors_flood_keeps_one_scan_stamp_a_picture_period(tmp_path: Path) -> None:
+    """The picture latency needs, per picture at T, the first scan later than T + ``picture_delay``. The
+    monitor kept every multi-target scan's (t, publish stamp) for it, so sensor s1 flooding its own key
+    grew the launcher by a stamp a scan, for good; it now keeps the first scan of each picture period
+    of the scenario (60 s here), and the latencies equal those of every scan kept, the old rule."""
+    import bisect
+
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('[deployment]\nname = "mon"\n[multitarget]\nduration = 60.0\n[mtt]\nperiod = 1.0\n'
+                   "picture_delay = 0.3\n")
+    launcher = Launcher(load_settings(cfg), [], quiet=True)
+    keys, rng = launcher.keys, np.random.default_rng(5)
+
+    def scan(sensor: str, seq: int, t: float, stamp: int) -> Any:
+        m = Measurement(sensor=sensor, seq=seq, t=t, kind="scan", z=np.zeros(0), R=np.eye(2), stamp_ns=stamp)
+        return sample(keys.sensor_meas(sensor), encode(m))
+
+    every: list[tuple[float, int]] = []
+    for seq, t in enumerate(np.sort(rng.uniform(0.0, 60.0, 200))):  # an honest sensor, stamps in ms
+        stamp = int(t * 1e9) + int(rng.integers(0, 10**7))
+        every.append((float(t), stamp))
+        launcher._on_meas(scan("s2", seq, float(t), stamp))
+    arrivals = [(float(T), int((T + 0.3) * 1e9) + 5 * 10**7) for T in range(1, 60)]
+    launcher.report.picture_arrivals = arrivals
+
+    def old() -> list[float]:  # every scan kept: the first later than T + delay
+        scans, times = sorted(every), [t for t, _ in sorted(every)]
+        return [(a - scans[k][1]) / 1e6 for T, a in arrivals if (k := bisect.bisect_right(times, T + 0.3)) < len(scans)]
+    assert launcher.report.picture_latencies_ms(1.0, 0.3) == old() and len(old()) == 59
+    for seq in range(2_000):  # the flood: times all over, stamped late
+        t = float(rng.uniform(-1e6, 1e6))
+        every.append((t, 2 * 10**18))
+        launcher._on_meas(scan("s1", seq, t, 2 * 10**18))
+    assert len(launcher.report.scan_slots) <= 63 and launcher.report.picture_latencies_ms(1.0, 0.3) == old()
+
+
 # ---------------------------------------------------------------- the state queryable (fusion/state)
 
 class FakeQuery:
@@ -202,3 +238,4 @@ def test_a_router_token_declared_and_withdrawn_by_another_is_no_outage(centre: A
     assert centre._router_outages == 1 and centre._router_lost_at is not None
     token("router", zenoh.SampleKind.PUT)
     assert centre._router_lost_at is None
+

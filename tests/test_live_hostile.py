@@ -442,7 +442,7 @@ def print_attack(title: str, attacker: Attacker, counts: dict[str, tuple[int, in
 def input_span(report: LaunchReport) -> tuple[float, float]:
     """Wall-clock time of the sensors' first and last publish (as the launcher's monitor saw them)."""
     stamps = [ns / 1e9 for seq in report.publish_stamps_ns.values() for ns in seq.values()] + \
-        [ns / 1e9 for _, ns in report.scan_stamps]
+        [ns / 1e9 for ns in report.scan_span_ns or ()]
     return min(stamps), max(stamps)
 
 
