@@ -320,8 +320,8 @@ def test_a_recording_damaged_on_disk_is_refused_in_one_line_naming_it(tmp_path: 
     db.write_bytes(bytes(data))
     capsys.readouterr()
     assert main(["export", "--db", str(db), "--out", str(tmp_path / "m.jsonl")]) == 2
-    assert capsys.readouterr().err.splitlines() == [f"fedtrack: error: {db}: a damaged recording, cannot be read "
-                                                    "(database disk image is malformed)"]
+    expected = f"fedtrack: error: {db}: a damaged recording, cannot be read (database disk image is malformed)"
+    assert capsys.readouterr().err.splitlines() == [expected]
     assert [p.name for p in tmp_path.iterdir() if not p.name.startswith("r.db")] == []  # nothing half-written
 
 
@@ -330,23 +330,21 @@ def test_a_recorder_past_its_file_size_limit_exits_1_naming_its_database(tmp_pat
     """A live recorder under RLIMIT_FSIZE (the disk full for it alone) stops at the first row it cannot
     write: exit 1 within seconds, one line naming the database, no traceback; the rows it committed
     stay readable (before 2026-11-27 it ran on, every later message rejected, and exited 0 when stopped)."""
-    import resource
+    from support import free_port
 
     from fedtrack.keys import Keys
     from fedtrack.zsession import SessionOptions, close_session, open_session, wait_alive
-    from support import free_port
 
     endpoint, keys, db, log = f"tcp/127.0.0.1:{free_port()}", Keys("fsize"), tmp_path / "r.db", tmp_path / "rec.log"
     router = open_session(SessionOptions(mode="router", connect=(), listen=(endpoint,)))
     client = open_session(SessionOptions(connect=(endpoint,)))
     limit = 256 * 1024  # the database's first pages and some 100 scans of its write-ahead log
-
-    def limited() -> None:
-        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, resource.RLIM_INFINITY))
+    limited = (f"import resource, sys; resource.setrlimit(resource.RLIMIT_FSIZE, ({limit}, resource.RLIM_INFINITY)); "
+               "from fedtrack.cli import main; sys.exit(main())")  # set in the child itself: no preexec_fn
     with log.open("wb") as out:
-        proc = subprocess.Popen([sys.executable, "-m", "fedtrack.cli", "serve", "recorder", "--db", str(db),
+        proc = subprocess.Popen([sys.executable, "-c", limited, "serve", "recorder", "--db", str(db),
                                  "--connect", endpoint, "--deployment", keys.deployment], stdout=out,
-                                stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, preexec_fn=limited)
+                                stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
     try:
         assert not wait_alive(client, [keys.alive("recorder", "recorder")], 30.0), log.read_text()
         sent = 0
