@@ -213,7 +213,8 @@ def unrecorded_scans(out: Path, settings: Settings) -> dict[str, int]:
         return {}
     local = settings.deployment.local_sensors
     ids = [s for s in sensor_ids(mt) if (local is None or s in local) and s not in mt.join_at and s not in mt.kill_at]
-    expected = collections.Counter(obj.get("sensor") for _, obj in read_jsonl(out / SCENARIO_DIR / "measurements.jsonl"))
+    scenario = out / SCENARIO_DIR / "measurements.jsonl"
+    expected = collections.Counter(obj.get("sensor") for _, obj in read_jsonl(scenario))
     recording = Recording(db, readonly=True)
     try:
         recorded = recording.scans()

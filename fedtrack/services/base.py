@@ -38,9 +38,9 @@ recorder's database cannot take a row: the disk full, the file unwritable), rais
 :class:`ServiceFault` instead: ``run`` logs it in one line and returns 1, and the supervisor
 restarts the service (before 2026-11-27 the recorder rejected every later message as a
 ``handler_error`` and exited 0: a silent loss). So does a ``MemoryError`` (the process's memory
-or ``RLIMIT_AS`` exhausted): every message is bounded (docs/wire.md, "Bounds chosen here"), so it is the
-process that is out of memory, not a message that asks too much, and a service that went on would
-reject every message it could not make room for.
+or ``RLIMIT_AS`` exhausted): every message is bounded (docs/wire.md, "Bounds chosen here"), so it
+is the process that is out of memory, not a message that asks too much, and a service that went
+on would reject every message it could not make room for.
 
 Every publisher is a ``zenoh.ext`` advanced publisher that keeps its last
 messages per key (``cache_depth``: about ``CACHE_BYTES`` of them, between ``MIN_CACHE_SAMPLES`` and
@@ -63,8 +63,8 @@ SIGTERM/SIGINT or ``stop()`` -> undeclare subscribers, process what is already
 queued -> ``on_stop()`` -> final Health (status "stopped", or "failed" after an
 error) -> close the session
 within a deadline. Returns 0 on a clean stop, 1 if ``on_start`` raised (logged with its
-traceback) or a handler raised :class:`ServiceFault` (logged in one line), 2 for a user error there (OSError, ConfigError, InputError) and 1 if the
-session could not be opened.
+traceback) or a handler raised :class:`ServiceFault` or ``MemoryError`` (logged in one line), 2 for
+a user error there (OSError, ConfigError, InputError) and 1 if the session could not be opened.
 """
 
 from __future__ import annotations
