@@ -682,7 +682,8 @@ class Launcher:
             if sp.role != "recorder" or "--out" in sp.argv:
                 continue
             db = Path(sp.argv[sp.argv.index("--db") + 1])
-            if not db.is_file():
+            if not db.is_file():  # removed while the run went on (it was set aside before the start)
+                self._say(f"no recording to export: {db} is gone")
                 continue
             started = time.monotonic()
             try:

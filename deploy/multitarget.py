@@ -209,17 +209,19 @@ def unrecorded_scans(out: Path, settings: Settings) -> dict[str, int]:
     with them), and the summary said nothing of it but the number of pictures (11 of 39; its GOSPA, over
     those 11, lower than the run's without the fault). A restarted sensor's skipped scans count too."""
     mt, db = settings.multitarget, out / "recording.db"
-    if mt is None or not db.is_file():
+    if mt is None or "recorder" not in settings.deployment.services:
         return {}
     local = settings.deployment.local_sensors
     ids = [s for s in sensor_ids(mt) if (local is None or s in local) and s not in mt.join_at and s not in mt.kill_at]
     scenario = out / SCENARIO_DIR / "measurements.jsonl"
     expected = collections.Counter(obj.get("sensor") for _, obj in read_jsonl(scenario))
-    recording = Recording(db, readonly=True)
-    try:
-        recorded = recording.scans()
-    finally:
-        recording.close()
+    recorded: dict[str, int] = {}  # none when the database is gone
+    if db.is_file():
+        recording = Recording(db, readonly=True)
+        try:
+            recorded = recording.scans()
+        finally:
+            recording.close()
     return {s: expected[s] - recorded.get(s, 0) for s in ids if expected[s] > recorded.get(s, 0)}
 
 

@@ -302,6 +302,33 @@ def test_a_full_store_ends_the_recorder_and_what_it_committed_stays_exportable(t
     readonly.close()
 
 
+def test_a_recording_removed_or_replaced_under_the_recorder_ends_it(tmp_path: Path) -> None:
+    """SQLite writes on into the file it opened: removed mid-run, a launch recorded 128 scans and 40
+    pictures into it, exported nothing and exited 0 (before 2026-11-27). The recorder's tick (every
+    second) now finds the file gone or replaced and stops (ServiceFault: exit 1, restarted by the
+    launcher on a new file, recovering from the caches)."""
+    from fedtrack.recording import StorageError
+    from fedtrack.services.base import ServiceFault
+    from fedtrack.services.recorder import Recorder
+    from fedtrack.zsession import SessionOptions
+
+    db = tmp_path / "r.db"
+    svc = Recorder(db=db, service_id="recorder", options=SessionOptions(connect=("tcp/127.0.0.1:1",)), deployment="t")
+    svc.recording = Recording(db)
+    svc.on_tick()  # the file it opened: nothing to say
+    db.unlink()
+    with pytest.raises(ServiceFault, match=f"{db}: removed or replaced while recording"):
+        with svc.guarded("on_tick"):
+            svc.on_tick()
+    svc.recording.close()
+    other = Recording(db)  # another file at the path
+    db.rename(tmp_path / "elsewhere.db")
+    db.write_bytes((tmp_path / "elsewhere.db").read_bytes())
+    with pytest.raises(StorageError, match="removed or replaced"):
+        other.check_file()
+    other.close()
+
+
 def test_a_recording_damaged_on_disk_is_refused_in_one_line_naming_it(tmp_path: Path,
                                                                       capsys: pytest.CaptureFixture[str]) -> None:
     """``fedtrack export`` of a recording whose pages were overwritten: exit 2, one line naming the file,
@@ -430,7 +457,7 @@ def test_the_scans_a_sensor_published_that_the_recording_lacks_are_counted_per_s
     (tmp_path / SCENARIO_DIR / "measurements.jsonl").write_text(
         "".join(json.dumps({"t": float(k), "sensor": s}) + "\n" for s, n in (("s1", 3), ("s2", 2), ("s3", 4))
                 for k in range(n)))
-    assert unrecorded_scans(tmp_path, settings) == {}  # no recording: nothing said
+    assert unrecorded_scans(tmp_path, settings) == {"s1": 3, "s2": 2}  # the recording gone: every scan
     rec = Recording(tmp_path / "recording.db")
     for m in (meas("s1", 0, 0.0), meas("s1", 1, 1.0), meas("s2", 0, 0.0), meas("s2", 1, 1.0)):
         rec.add(m, encode(m))

@@ -20,8 +20,9 @@ exited 0, the run's recording silently cut short).
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 from fedtrack.deployment import deployment_of
 from fedtrack.jsonl import check_output, check_output_folder
@@ -32,10 +33,20 @@ from fedtrack.wire import Message
 DB_NAME = "recording.db"
 
 
+@contextmanager
+def storage_faults() -> Iterator[None]:
+    """The database failing (:class:`StorageError`) ends the recorder: a :class:`ServiceFault`."""
+    try:
+        yield
+    except StorageError as exc:
+        raise ServiceFault(str(exc)) from None
+
+
 class Recorder(Service):
     """Subscribes to the measurements, estimates, fused tracks and events; stores them in SQLite."""
 
     role = "recorder"
+    tick_period_s = 1.0  # how often it checks that its database file is still the one it writes (check_file)
 
     def __init__(self, db: Path, out: Path | None = None, **kwargs: Any) -> None:
         super().__init__(**kwargs)
@@ -59,14 +70,17 @@ class Recorder(Service):
 
     def on_message(self, msg: Message, payload: bytes) -> None:
         assert self.recording is not None
-        try:
+        with storage_faults():
             outcome = self.recording.add(msg, payload)
-        except StorageError as exc:
-            raise ServiceFault(str(exc)) from None
         if outcome == RECORDED:
             self.count(f"{TABLE_OF[type(msg)].name}_recorded")
         else:
             self.count(outcome)
+
+    def on_tick(self) -> None:
+        assert self.recording is not None
+        with storage_faults():
+            self.recording.check_file()
 
     def on_stop(self) -> None:
         if self.recording is None:
