@@ -833,10 +833,14 @@ def main(argv: list[str]) -> int:
     except LaunchError as exc:
         print(f"fedtrack launch: {exc}", file=sys.stderr)
         return 1
-    if settings.multitarget is not None:
-        finish_multitarget(out, report, "fedtrack launch", settings)
-    else:
-        finish(out, settings, report, args.config.resolve(), "fedtrack launch")
+    try:
+        if settings.multitarget is not None:
+            finish_multitarget(out, report, "fedtrack launch", settings)
+        else:
+            finish(out, settings, report, args.config.resolve(), "fedtrack launch")
+    except InputError as exc:  # the disk full at the end: before 2026-11-27 exit 2 naming the copy's source
+        print(f"fedtrack launch: the run's summary not written: {exc}", file=sys.stderr)
+        return 1
     if code is not None:
         return code
     return 1 if report.failed or any(c not in (0, None) and n not in report.killed for n, c in report.exit_codes.items()) else 0

@@ -38,7 +38,7 @@ from fedtrack.fusion_center.mtt.evaluation import evaluate, plot
 from fedtrack.fusion_center.mtt.replay import read_scans, state_dim
 from fedtrack.geodetic import Frame
 from fedtrack.geojson import feature_collection
-from fedtrack.jsonl import InputError, read_jsonl
+from fedtrack.jsonl import InputError, output_file, read_jsonl
 from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.recording import Recording
 from fedtrack.sensors.multitarget import Scenario, SensorSpec, parse_spec, simulate
@@ -232,7 +232,8 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Se
     summary."""
     delay, mt = settings.mtt.picture_delay, settings.multitarget
     truth = out / "truth.jsonl"
-    shutil.copyfile(out / SCENARIO_DIR / "truth.jsonl", truth)
+    with output_file(truth, "wb") as fh, (out / SCENARIO_DIR / "truth.jsonl").open("rb") as src:
+        shutil.copyfileobj(src, fh)  # whole or not at all, the disk full named as this file
     tracks = out / "tracks.jsonl"
     summary: dict[str, Any] = {"pictures": 0, "exit_codes": report.exit_codes, "restarts": report.restarts,
                                "rejected": report.rejected(), "monitor_rejected": report.monitor_rejected,
@@ -268,7 +269,8 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Se
         lost = {}
     if lost:
         summary["scans_not_recorded"] = lost
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    with output_file(out / "summary.json") as fh:
+        fh.write(json.dumps(summary, indent=2))
     mean = summary.get("mean")
     if mean:
         unit = summary["c"] ** summary["p"] / summary["alpha"]  # GOSPA^p per missed or false track

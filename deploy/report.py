@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from fedtrack.deploy.settings import Settings
-from fedtrack.jsonl import write_jsonl
+from fedtrack.jsonl import output_file, write_jsonl
 from fedtrack.sensors.scenarios import deployment_scenario, deployment_truth, paper004_scenario
 
 REPLAY_ALGORITHM = {"federated": "fvdie", "decentralized": "dvdie"}
@@ -235,7 +235,8 @@ def finish(out: Path, settings: Settings, report: LaunchReport, config_path: Pat
     if "sensor" in settings.deployment.services:
         files.append(write_truth(out, settings).name)
     summary = summarize(out, settings, report, config_path)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    with output_file(out / "summary.json") as fh:
+        fh.write(json.dumps(summary, indent=2))
     files.append("summary.json")
     png = plot(out, settings, title)
     if png is not None:

@@ -466,3 +466,27 @@ def test_the_scans_a_sensor_published_that_the_recording_lacks_are_counted_per_s
     rec.add(first, encode(first))
     rec.close()
     assert unrecorded_scans(tmp_path, settings) == {"s1": 1}  # s3, killed by the schedule, is not judged
+
+
+def test_a_launch_summary_onto_a_full_disk_names_its_file_and_leaves_nothing_half_written(tmp_path: Path) -> None:
+    """The disk full at the run's end (RLIMIT_FSIZE here, EFBIG as ENOSPC): the copy of the truth raises an
+    InputError naming OUT/truth.jsonl and leaves none of it (before 2026-11-27: 'fedtrack: error:
+    OUT/scenario/truth.jsonl: No space left on device', the copy's source, exit 2, half a truth.jsonl)."""
+    import resource
+
+    from fedtrack.deploy.multitarget import SCENARIO_DIR, finish_multitarget
+    from fedtrack.deploy.report import LaunchReport
+    from fedtrack.deploy.settings import load_settings
+
+    config = tmp_path / "c.toml"
+    config.write_text('[multitarget]\nsensors = "pos:1.0"\n')
+    (tmp_path / SCENARIO_DIR).mkdir()
+    (tmp_path / SCENARIO_DIR / "truth.jsonl").write_text(json.dumps({"t": 0.0, "pad": "x" * 200_000}) + "\n")
+    soft, hard = resource.getrlimit(resource.RLIMIT_FSIZE)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (64 * 1024, hard))
+    try:
+        with pytest.raises(InputError, match=f"^{tmp_path / 'truth.jsonl'}: cannot write: File too large$"):
+            finish_multitarget(tmp_path, LaunchReport(), "fedtrack launch", load_settings(config))
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (soft, hard))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.toml", SCENARIO_DIR]
