@@ -37,10 +37,10 @@ A handler that cannot do its job for any message, through no fault of the messag
 recorder's database cannot take a row: the disk full, the file unwritable), raises
 :class:`ServiceFault` instead: ``run`` logs it in one line and returns 1, and the supervisor
 restarts the service (before 2026-11-27 the recorder rejected every later message as a
-``handler_error`` and exited 0: a silent loss). So does a ``MemoryError`` (the process's memory
-or ``RLIMIT_AS`` exhausted): every message is bounded (docs/wire.md, "Bounds chosen here"), so it
-is the process that is out of memory, not a message that asks too much, and a service that went
-on would reject every message it could not make room for.
+``handler_error`` and exited 0: a silent loss). A ``MemoryError`` stays a rejection of its message: a
+message may ask for a bounded but large allocation (docs/wire.md, "Bounds chosen here") that a
+small host refuses, and a stop would let that message, sent again, restart the service again and
+again.
 
 Every publisher is a ``zenoh.ext`` advanced publisher that keeps its last
 messages per key (``cache_depth``: about ``CACHE_BYTES`` of them, between ``MIN_CACHE_SAMPLES`` and
@@ -63,7 +63,7 @@ SIGTERM/SIGINT or ``stop()`` -> undeclare subscribers, process what is already
 queued -> ``on_stop()`` -> final Health (status "stopped", or "failed" after an
 error) -> close the session
 within a deadline. Returns 0 on a clean stop, 1 if ``on_start`` raised (logged with its
-traceback) or a handler raised :class:`ServiceFault` or ``MemoryError`` (logged in one line), 2 for
+traceback) or a handler raised :class:`ServiceFault` (logged in one line), 2 for
 a user error there (OSError, ConfigError, InputError) and 1 if the session could not be opened.
 """
 
@@ -358,9 +358,6 @@ class Service:
         except ServiceFault as exc:
             self.log.error("%s: stopping", exc)
             code = 1
-        except MemoryError as exc:
-            self.log.error("out of memory (%s): stopping", clip(str(exc) or "MemoryError"))
-            code = 1
         except (OSError, ConfigError, InputError) as exc:
             self.log.error("%s", exc)
             code = 2
@@ -468,7 +465,7 @@ class Service:
                 try:
                     with self.guarded("on_tick", self.tick_state_attrs):
                         self.on_tick()
-                except (ServiceFault, MemoryError):
+                except ServiceFault:
                     raise
                 except Exception as exc:  # noqa: BLE001 - outside its transaction (see _dispatch)
                     self._reject("on_tick", 0, exc)
@@ -512,7 +509,7 @@ class Service:
         checkpoint: a state that cannot be pickled) is a rejection too, never the service's end."""
         try:
             self._handle(item)
-        except (ServiceFault, MemoryError):
+        except ServiceFault:
             raise
         except Exception as exc:  # noqa: BLE001 - no message may kill a service
             self._reject(str(item[2]), 0, exc)
@@ -572,7 +569,7 @@ class Service:
         attempt = Attempt()
         try:
             yield attempt
-        except (ServiceFault, MemoryError):
+        except ServiceFault:
             raise
         except Exception as exc:  # noqa: BLE001 - a handler must not end the service (module docstring)
             state, counters, status = saved
