@@ -212,6 +212,7 @@ class Engine:
     scans: int = 0  # scans fused
     duplicates: int = 0  # a scan equal to one fused before: not fused again
     rerun: int = 0  # scans run again after an out-of-sequence scan before them
+    repeated: int = 0  # detections equal to an earlier one of their scan, dropped (scan.distinct)
     stage_s: dict[str, float] = field(default_factory=dict)  # wall seconds per stage (replay's report)
     lead: LeadGuard | None = None  # the replay's guard against scans stamped far ahead (its `dropped`)
 
@@ -233,7 +234,7 @@ class Engine:
 
     def counters(self) -> dict[str, int]:
         return {"scans": self.scans, "late": self.late, "duplicates": self.duplicates, "rerun": self.rerun,
-                "lead": self.lead.dropped if self.lead is not None else 0}
+                "repeated": self.repeated, "lead": self.lead.dropped if self.lead is not None else 0}
 
 
 @dataclass

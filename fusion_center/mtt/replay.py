@@ -87,6 +87,7 @@ def pictures(engine: Engine, scans: list[SensorScan | SensorLeft], period: float
                     guard.leave(sensor)
                     engine.leave(sensor, at_once=True)
                 yield _picture(engine, T)
+            engine.repeated += scan.repeated
             try:
                 engine.ingest(scan)
             except CrowdedReport as exc:
@@ -133,6 +134,7 @@ def counter_lines(counts: dict[str, int]) -> list[str]:
              f"{counts['late']} scans late (older than max_lag before their tracker's newest), not fused",
              f"{counts['duplicates']} duplicate scans (equal to one fused before), not fused",
              f"{counts['rerun']} scans run again after an out-of-sequence scan before them",
+             f"{counts.get('repeated', 0)} detections equal to an earlier one of their scan, dropped",
              (f"{counts.get('lead', 0)} scans stamped too far ahead of the data and never witnessed, not fused "
               "(docs/multitarget.md#scans-stamped-far-ahead)")]
     if "centre_fused" in counts:

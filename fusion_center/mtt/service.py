@@ -270,7 +270,9 @@ class MttCentreService(Service):
         pictures = [self._picture(T) for T in self.clock.due(msg.t)]
         self._room(f"scan {msg.seq} of {msg.sensor}")
         if isinstance(msg, Measurement):
-            self.engine.ingest(scan_from_measurement(msg))
+            scan = scan_from_measurement(msg)
+            self.engine.ingest(scan)
+            self.engine.repeated += scan.repeated
         else:
             self._fuse(msg)
         for picture in pictures:

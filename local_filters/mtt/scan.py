@@ -32,6 +32,7 @@ class SensorScan(NamedTuple):
     z: np.ndarray  # (M, m)
     amplitude: np.ndarray | None  # (M,) when every detection carries one
     sensor_position: np.ndarray | None  # (3,) for a radar
+    repeated: int = 0  # detections dropped as equal to an earlier one of the scan (:func:`distinct`)
 
     @property
     def dim(self) -> int:
@@ -98,7 +99,7 @@ def parse_scan(obj: dict[str, Any], where: str) -> SensorScan:
         if z is not None and z.shape == (len(dets), m) and np.all(np.isfinite(z)):
             if sensor_position is not None and np.any(z[:, 0] <= 0):
                 raise InputError(f"{where}: radar range must be > 0")
-            return SensorScan(t, sensor, R, z, None, sensor_position)
+            return distinct(SensorScan(t, sensor, R, z, None, sensor_position))
     z = np.empty((len(dets), m))
     amp = np.empty(len(dets))
     has_amp = 0
@@ -114,7 +115,22 @@ def parse_scan(obj: dict[str, Any], where: str) -> SensorScan:
         raise InputError(f"{where}: amplitude must be given for every detection of a scan or for none")
     if sensor_position is not None and np.any(z[:, 0] <= 0):
         raise InputError(f"{where}: radar range must be > 0")
-    return SensorScan(t, sensor, R, z, amp if has_amp else None, sensor_position)
+    return distinct(SensorScan(t, sensor, R, z, amp if has_amp else None, sensor_position))
+
+
+def distinct(scan: SensorScan) -> SensorScan:
+    """``scan`` without the detections whose ``z`` equals an earlier one's of the same scan (a sensor
+    or link that reports a detection twice), their number in ``repeated``. A repeat carries no new
+    information, and a tracker that took it as a second detection started a second track on every
+    target (docs/multitarget-formats.md, "Repeated detections")."""
+    if scan.z.shape[0] < 2:
+        return scan
+    _, first = np.unique(scan.z, axis=0, return_index=True)
+    if first.size == scan.z.shape[0]:
+        return scan
+    keep = np.sort(first)
+    amp = None if scan.amplitude is None else scan.amplitude[keep]
+    return scan._replace(z=scan.z[keep], amplitude=amp, repeated=scan.repeated + scan.z.shape[0] - keep.size)
 
 
 def scan_to_measurement(scan: SensorScan, seq: int, stamp_ns: int) -> Measurement:
@@ -126,8 +142,9 @@ def scan_to_measurement(scan: SensorScan, seq: int, stamp_ns: int) -> Measuremen
 
 
 def scan_from_measurement(msg: Measurement) -> SensorScan:
-    """Inverse of :func:`scan_to_measurement`; ValueError naming the field for a measurement that
-    is not a valid multi-target scan (another kind, wrong sizes, a radar range <= 0)."""
+    """Inverse of :func:`scan_to_measurement` (repeated detections dropped: :func:`distinct`); ValueError
+    naming the field for a measurement that is not a valid multi-target scan (another kind, wrong
+    sizes, a radar range <= 0)."""
     if msg.kind != "scan":
         raise ValueError(f"kind: expected 'scan', got {msg.kind!r}")
     m = 2 if msg.sensor_position is None else 3
@@ -137,5 +154,5 @@ def scan_from_measurement(msg: Measurement) -> SensorScan:
     amp = np.array([d.amplitude for d in msg.detections])
     if msg.sensor_position is not None and np.any(z[:, 0] <= 0):
         raise ValueError("detections: radar range must be > 0")
-    return SensorScan(msg.t, msg.sensor, np.array(msg.R), z, amp if np.any(amp != 0) else None,
-                      None if msg.sensor_position is None else np.array(msg.sensor_position))
+    return distinct(SensorScan(msg.t, msg.sensor, np.array(msg.R), z, amp if np.any(amp != 0) else None,
+                               None if msg.sensor_position is None else np.array(msg.sensor_position)))

@@ -238,6 +238,8 @@ class MttLocalService(Service):
                 if self.tracker.is_duplicate(scan):
                     self.count("duplicate")
                     continue
+                if scan.repeated:
+                    self.count("repeated", scan.repeated)
                 report, rerun = self.tracker.track(scan)
                 require_finite(f"scan {seq}: the local tracks", report.x, report.P)
                 require_covariances(f"scan {seq}: the local tracks", report.P)

@@ -1,0 +1,56 @@
+"""The multi-target trackers on what real sensor networks bring and the simulator does not
+(untuned6 session): repeated detections, duplicated feeds, registration errors."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fedtrack.cli import main as cli
+from fedtrack.local_filters.mtt.scan import parse_scan, scan_from_measurement, scan_to_measurement
+
+
+def two_target_scans(path: Path, repeat: int = 1) -> None:
+    """One sensor's scans of two targets 500 m apart at 10 m/s for 20 s, noiseless, no clutter; each
+    detection listed ``repeat`` times in its scan."""
+    rows = [{"t": float(k), "sensor": "s1", "R": [[25.0, 0.0], [0.0, 25.0]],
+             "detections": [{"z": [10.0 * k, y]} for y in (0.0, 500.0) for _ in range(repeat)]} for k in range(20)]
+    path.write_text("".join(json.dumps(r) + "\n" for r in rows))
+
+
+def test_a_repeated_detection_is_dropped_and_counted() -> None:
+    """A detection equal to an earlier one of its scan is dropped (the first kept, order and
+    amplitudes with it), on a file's line and on the wire alike, and ``repeated`` counts it."""
+    line = {"t": 1.0, "sensor": "s1", "R": [[4.0, 0.0], [0.0, 4.0]],
+            "detections": [{"z": [1.0, 2.0], "amplitude": 3.0}, {"z": [5.0, 6.0], "amplitude": 4.0},
+                           {"z": [1.0, 2.0], "amplitude": 9.0}, {"z": [1.0, 2.5], "amplitude": 1.0}]}
+    scan = parse_scan(line, "m.jsonl:1")
+    assert scan.z.tolist() == [[1.0, 2.0], [5.0, 6.0], [1.0, 2.5]] and scan.amplitude.tolist() == [3.0, 4.0, 1.0]
+    assert scan.repeated == 1
+    wired = scan_from_measurement(scan_to_measurement(scan._replace(z=np.repeat(scan.z, 2, axis=0),
+                                                                    amplitude=np.repeat(scan.amplitude, 2)), 1, 0))
+    assert np.array_equal(wired.z, scan.z) and wired.repeated == 3
+    assert parse_scan({**line, "detections": line["detections"][:2]}, "m.jsonl:1").repeated == 0
+
+
+@pytest.mark.parametrize("algorithm", [["mtt-local", "--sensor", "s1"], ["mtt-centralized"], ["mtt-federated"]])
+def test_a_sensor_reporting_each_detection_twice_gives_the_pictures_of_once(
+        tmp_path: Path, capsys: pytest.CaptureFixture, algorithm: list[str]) -> None:
+    """Each detection twice in its scan: the second copy started a second track on every target,
+    confirmed by the next scans' copies (``simulate multitarget --targets 20 --duration 120``, each
+    s1 detection twice: 17.3 confirmed tracks a picture for 16.6, gnn ``mtt-federated`` 194 id
+    switches, mean GOSPA 45.3 -> 199.5); now the pictures of the scans with each detection once."""
+    (tmp_path / "c.toml").write_text("[mtt]\nclutter_density = 1e-9\n")
+    out = {}
+    for repeat in (1, 2):
+        two_target_scans(tmp_path / f"m{repeat}.jsonl", repeat)
+        assert cli(["replay", "--algorithm", *algorithm, "--config", str(tmp_path / "c.toml"), "--measurements",
+                    str(tmp_path / f"m{repeat}.jsonl"), "--out", str(tmp_path / f"t{repeat}.jsonl")]) == 0
+        out[repeat] = (tmp_path / f"t{repeat}.jsonl").read_text()
+        err = capsys.readouterr().err
+    assert {t["id"] for line in out[2].splitlines() for t in json.loads(line)["tracks"]} == {0, 1}
+    assert out[2] == out[1]
+    assert f"{algorithm[0]}: 40 detections equal to an earlier one of their scan, dropped" in err
