@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from fedtrack.cli import main as cli
+from fedtrack.fusion_center.mtt.evaluation import evaluate
 from fedtrack.local_filters.mtt.scan import parse_scan, scan_from_measurement, scan_to_measurement
 
 
@@ -54,3 +55,30 @@ def test_a_sensor_reporting_each_detection_twice_gives_the_pictures_of_once(
     assert {t["id"] for line in out[2].splitlines() for t in json.loads(line)["tracks"]} == {0, 1}
     assert out[2] == out[1]
     assert f"{algorithm[0]}: 40 detections equal to an earlier one of their scan, dropped" in err
+
+
+def test_evaluate_recovers_a_sensors_registration_errors(tmp_path: Path) -> None:
+    """Tracks of one sensor that are truth shifted by b = (30, -20) m, rotated by 1 deg about the
+    origin and 0.5 s behind (track = truth + b + tau v + theta J p exactly, tau = -0.5): the
+    fit gives them back to 1e-9; another sensor's tracks 150 m off every target count as false."""
+    b, tau, theta = np.array([30.0, -20.0]), -0.5, np.radians(1.0)
+    rng = np.random.default_rng(3)
+    start = rng.uniform(-2000, 2000, (6, 2))
+    vel = rng.uniform(-20, 20, (6, 2))
+    truth, tracks = [], []
+    for k in range(10):
+        p = start + k * vel
+        x = np.column_stack([p[:, 0], vel[:, 0], p[:, 1], vel[:, 1]])
+        q = p + b + tau * vel + theta * np.column_stack([-p[:, 1], p[:, 0]])
+        truth.append({"t": float(k), "targets": [{"id": i, "x": x[i].tolist()} for i in range(6)]})
+        tracks.append({"t": float(k), "tracks": [
+            *({"id": i, "x": [q[i, 0], vel[i, 0], q[i, 1], vel[i, 1]], "sensors": ["s1"]} for i in range(6)),
+            {"id": 99, "x": [p[0, 0] + 150.0, 0.0, p[0, 1], 0.0], "sensors": ["s2"]}]})
+    (tmp_path / "u.jsonl").write_text("".join(json.dumps(r) + "\n" for r in truth))
+    (tmp_path / "t.jsonl").write_text("".join(json.dumps(r) + "\n" for r in tracks))
+    reg = evaluate(tmp_path / "t.jsonl", tmp_path / "u.jsonl")["registration"]
+    assert reg["s1"]["pairs"] == 60 and reg["s1"]["false"] == 0
+    assert reg["s1"]["offset"] == pytest.approx(b.tolist(), abs=1e-9)
+    assert reg["s1"]["time_offset"] == pytest.approx(tau, abs=1e-9)
+    assert reg["s1"]["rotation_deg"] == pytest.approx(1.0, abs=1e-9)
+    assert reg["s2"] == {"pairs": 0, "false": 10}

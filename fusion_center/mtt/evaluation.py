@@ -32,6 +32,14 @@
   (a track flagged in a picture and not in its previous one); only when a detector ran (the
   pictures' ``detector`` is not ``"none"``; a file that does not say: when some track is
   flagged), "not applicable" (None) otherwise.
+* **Registration by supporting sensors**: the track pictures grouped by their ``sensors``, per
+  group how many were assigned and how many false, and the least-squares fit of the assigned
+  pairs' x, y errors to ``track − truth ≈ b' + τ v + θ J p`` (:func:`fit`): a sensor with a
+  constant bias ``b``, a frame rotated by a small ``θ`` about its site ``s`` or time stamps ``δ``
+  late puts a target at ``p`` moving at ``v`` near ``p + b + θ J (p − s) − δ v`` (``J`` the
+  rotation by 90°), so the fit gives the offset ``b' = b − θ J s`` [m], the time offset
+  ``τ = −δ`` [s] and the rotation ``θ`` about the origin. Its standard errors are the least-squares
+  ones from the residual scatter, lower bounds (a track's consecutive pairs are correlated).
 
 Only confirmed tracks are evaluated unless ``all_tracks``.
 """
@@ -45,6 +53,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
+from scipy.linalg import qr, solve_triangular
 from scipy.optimize import linear_sum_assignment
 from scipy.special import chdtri
 
@@ -220,6 +229,8 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
     covariances: list[np.ndarray] = []
     motions: list[str | None] = []
     alt_err: list[float] = []
+    by_sensors: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}  # a track's sensors -> (truth, track) states
+    unassigned: dict[str, int] = {}  # a track's sensors -> its pictures assigned to no truth (false)
     skipped = 0
     for t, items in _load(tracks_path, "tracks"):
         targets = truth.get(round(t, 6))
@@ -237,6 +248,9 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
         series.append({"t": t, "gospa": dist.gospa, "localisation": dist.localisation, "missed": dist.missed,
                        "false": dist.false, "ospa": dist.ospa, "truths": len(X), "tracks": len(Y)})
         assigned = dict(dist.pairs)
+        for j in set(range(len(shown))) - set(assigned.values()):
+            group = ",".join(shown[j].get("sensors", [])) or "-"
+            unassigned[group] = unassigned.get(group, 0) + 1
         for i, g in enumerate(targets):
             j = assigned.get(i)
             sequences.setdefault(g["id"], []).append(None if j is None else shown[j]["id"])
@@ -250,6 +264,7 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
                 flags[kind][0] += 1
                 flags[kind][1] += flagged(shown[j])
             xt, xe = np.asarray(g["x"], float), np.asarray(shown[j]["x"], float)
+            by_sensors.setdefault(",".join(shown[j].get("sensors", [])) or "-", []).append((xt[:4], xe[:4]))
             if xe.size == 4 and xt.size == 6:  # a 2-D tracker against a 3-D truth: its horizontal state
                 xt = xt[:4]
             if "P" in shown[j] and xt.shape == xe.shape:
@@ -280,6 +295,7 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
         "altitude_rmse": math.sqrt(float(np.mean(np.square(alt_err)))) if alt_err else None,
         "altitude_bias": float(np.mean(alt_err)) if alt_err else None,
         "nees": nees_parts(errors, covariances, motions),
+        "registration": registration(by_sensors, unassigned),
         "maneuvers": {"detector": detector, "applicable": applicable, "onsets": onsets if applicable else None,
                       "maneuver_accel": MANEUVER_ACCEL, "straight_accel": STRAIGHT_ACCEL,
                       "straight_for_s": STRAIGHT_FOR_S,
@@ -288,6 +304,78 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
                          for kind, (n, hit) in flags.items()}},
         "series": series,
     }
+
+
+MIN_PAIRS = 20  # a group of fewer assigned pairs than this (5 per parameter of the registration fit) is not fitted
+
+
+class Registration(NamedTuple):
+    """One group's fit: the estimates and their standard errors (``b'`` x, y [m], ``τ`` [s], ``θ`` [rad])."""
+
+    pairs: int
+    estimate: np.ndarray  # (4,) b'x, b'y, tau, theta
+    std_error: np.ndarray  # (4,)
+
+
+def design(truth: np.ndarray) -> np.ndarray:
+    """The rows of the model for truth states ``[x, vx, y, vy, ...]`` (n, >= 4): (2 n, 4), x rows
+    then y rows interleaved per pair."""
+    n = truth.shape[0]
+    A = np.zeros((n, 2, 4))
+    A[:, 0, 0] = A[:, 1, 1] = 1.0
+    A[:, 0, 2], A[:, 1, 2] = truth[:, 1], truth[:, 3]
+    A[:, 0, 3], A[:, 1, 3] = -truth[:, 2], truth[:, 0]
+    return A.reshape(2 * n, 4)
+
+
+def fit(truth: np.ndarray, error: np.ndarray) -> Registration | None:
+    """The least-squares fit of ``error`` (n, 2: track − truth in x, y) to :func:`design` of
+    ``truth``; None for fewer than :data:`MIN_PAIRS` pairs or a degenerate design (every target
+    at one velocity or one place)."""
+    n = truth.shape[0]
+    if n < MIN_PAIRS:
+        return None
+    A, y = design(truth), error.reshape(2 * n)
+    Q, R = qr(A, mode="economic")
+    if np.min(np.abs(np.diag(R))) <= 1e-9 * np.max(np.abs(np.diag(R))):
+        return None
+    beta = solve_triangular(R, Q.T @ y)
+    resid = y - A @ beta
+    sigma2 = float(resid @ resid) / max(2 * n - 4, 1)
+    Rinv = solve_triangular(R, np.eye(4))
+    return Registration(n, beta, np.sqrt(sigma2 * np.sum(Rinv ** 2, axis=1)))
+
+
+def registration_line(sensors: str, row: dict[str, Any]) -> str:
+    """One group of ``evaluate``'s ``registration`` as ``evaluate`` prints it."""
+    head = f"  {sensors}: {row['pairs']} assigned, {row['false']} false"
+    if "offset" not in row:
+        return head + " (not fitted: too few pairs or one geometry)"
+    (bx, by), (sx, sy) = row["offset"], row["offset_se"]
+    return (head + f"; offset ({bx:+.1f} ± {sx:.1f}, {by:+.1f} ± {sy:.1f}) m, time {row['time_offset']:+.3f} ± "
+            f"{row['time_offset_se']:.3f} s, rotation {row['rotation_deg']:+.3f} ± {row['rotation_deg_se']:.3f} deg")
+
+
+def registration(by_sensors: dict[str, list[tuple[np.ndarray, np.ndarray]]],
+                 unassigned: dict[str, int]) -> dict[str, dict[str, Any]]:
+    """Per group of supporting sensors (most track pictures first): its ``pairs`` (assigned) and
+    ``false`` track pictures, and with enough pairs the fit of :mod:`.registration`: ``offset``
+    [m], ``time_offset`` [s], ``rotation_deg`` and their ``*_se``."""
+    out: dict[str, dict[str, Any]] = {}
+    groups = set(by_sensors) | set(unassigned)
+    for sensors in sorted(groups, key=lambda g: (-len(by_sensors.get(g, ())) - unassigned.get(g, 0), g)):
+        pairs = by_sensors.get(sensors, [])
+        row: dict[str, Any] = {"pairs": len(pairs), "false": unassigned.get(sensors, 0)}
+        if pairs:
+            truth = np.array([xt for xt, _ in pairs])
+            track = np.array([xe for _, xe in pairs])
+            reg = fit(truth, track[:, [0, 2]] - truth[:, [0, 2]])
+            if reg is not None:
+                (bx, by, tau, th), (sx, sy, st, sth) = reg.estimate, reg.std_error
+                row.update({"offset": [bx, by], "offset_se": [sx, sy], "time_offset": tau, "time_offset_se": st,
+                            "rotation_deg": math.degrees(th), "rotation_deg_se": math.degrees(sth)})
+        out[sensors] = row
+    return out
 
 
 def check_figure_format(out: Path) -> None:
@@ -444,6 +532,12 @@ def main(argv: list[str]) -> int:
     if result["altitude_rmse"] is not None:
         print(f"altitude error over the assigned pairs: RMSE {result['altitude_rmse']:.2f} m, mean "
               f"{result['altitude_bias']:+.2f} m (track - truth)")
+    if result["registration"]:
+        print("by supporting sensors: track pictures assigned and false; registration (track - truth = offset + "
+              "time offset x velocity + rotation about the origin, least squares over the assigned pairs; "
+              "docs/multitarget.md#registration-errors):")
+        for sensors, reg in result["registration"].items():
+            print(registration_line(sensors, reg))
     man = result["maneuvers"]
     if not man["applicable"]:
         print("maneuver flags: not applicable (no maneuver detector ran: the pictures' detector is "
