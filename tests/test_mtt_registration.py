@@ -82,3 +82,21 @@ def test_evaluate_recovers_a_sensors_registration_errors(tmp_path: Path) -> None
     assert reg["s1"]["time_offset"] == pytest.approx(tau, abs=1e-9)
     assert reg["s1"]["rotation_deg"] == pytest.approx(1.0, abs=1e-9)
     assert reg["s2"] == {"pairs": 0, "false": 10}
+
+
+def test_mtt_centralized_fuses_a_duplicated_feed_once(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """A second sensor id carrying the very same scans as s1 (a duplicated feed): ``mtt-centralized``
+    took each detection twice as independent, so tracks twice as confident as they are, and a
+    second track where the copy's detection went unclaimed (``simulate multitarget --targets 20
+    --duration 120``, s1 copied as s9: jipda mean GOSPA 37.19 -> 192.59, 24.4 confirmed tracks a
+    picture for 16.6); now the copy is not fused and the pictures are those of s1's scans alone."""
+    two_target_scans(tmp_path / "m1.jsonl")
+    lines = (tmp_path / "m1.jsonl").read_text().splitlines()
+    copy = [json.dumps({**json.loads(x), "sensor": "s9"}) for x in lines]
+    (tmp_path / "m2.jsonl").write_text("".join(f"{a}\n{b}\n" for a, b in zip(lines, copy)))
+    (tmp_path / "c.toml").write_text('[mtt]\nclutter_density = 1e-9\nassociator = "jipda"\n')
+    for k in (1, 2):
+        assert cli(["replay", "--algorithm", "mtt-centralized", "--config", str(tmp_path / "c.toml"), "--measurements",
+                    str(tmp_path / f"m{k}.jsonl"), "--out", str(tmp_path / f"t{k}.jsonl")]) == 0
+    assert (tmp_path / "t2.jsonl").read_text() == (tmp_path / "t1.jsonl").read_text()
+    assert "mtt-centralized: 20 scans equal to another sensor's (a duplicated feed), not fused" in capsys.readouterr().err

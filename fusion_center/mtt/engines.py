@@ -31,7 +31,7 @@ from fedtrack.fusion_center.mtt.shards import ShardedCentre
 from fedtrack.local_filters.mtt.associators import jipda
 from fedtrack.local_filters.mtt.config import LOST, MttConfig, miss_count, scan_lost
 from fedtrack.local_filters.mtt.history import ScanHistory
-from fedtrack.local_filters.mtt.local import LocalReport, Resets, SensorTracker, is_duplicate
+from fedtrack.local_filters.mtt.local import LocalReport, Resets, SensorTracker, copies_another, is_duplicate
 from fedtrack.local_filters.mtt.maneuver import predicted_view
 from fedtrack.local_filters.mtt.models import modes_predict, predict_batch
 from fedtrack.local_filters.mtt.scan import SensorScan
@@ -337,6 +337,7 @@ class CentralizedEngine(ScanTrackerEngine):
     quiet: bool = False  # every sensor fell silent (replay.pictures) and none has scanned since
     bits: dict[str, int] = field(default_factory=dict)  # sensor -> its bit in the tracks' detected_by
     intervals: dict[str, float] = field(default_factory=dict)  # sensor -> its latest time between scans
+    copies: int = 0  # scans equal to another sensor's (a duplicated feed): not fused, the sensor not seen
 
     def bit(self, sensor: str) -> int:
         """The sensor's bit in the tracks' ``detected_by``, in order of first scan (beyond 63
@@ -344,12 +345,18 @@ class CentralizedEngine(ScanTrackerEngine):
         return 1 << self.bits.setdefault(sensor, len(self.bits) % 63)
 
     def ingest(self, scan: SensorScan) -> None:
+        if self.history is not None and copies_another(self.history, scan, lambda s: s):
+            self.copies += 1
+            return
         newest = self.seen.get(scan.sensor, scan.t)
         if scan.t > newest:
             self.intervals[scan.sensor] = scan.t - newest
         self.seen[scan.sensor] = max(scan.t, newest)
         self.quiet = False
         super().ingest(scan)
+
+    def counters(self) -> dict[str, int]:
+        return {**super().counters(), "copies": self.copies}
 
     def leave(self, sensor: str, at_once: bool = False) -> None:
         self.seen.pop(sensor, None)

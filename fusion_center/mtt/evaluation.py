@@ -535,7 +535,7 @@ def main(argv: list[str]) -> int:
     if result["registration"]:
         print("by supporting sensors: track pictures assigned and false; registration (track - truth = offset + "
               "time offset x velocity + rotation about the origin, least squares over the assigned pairs; "
-              "docs/multitarget.md#registration-errors):")
+              "docs/multitarget.md#registration-errors-untuned6-session):")
         for sensors, reg in result["registration"].items():
             print(registration_line(sensors, reg))
     man = result["maneuvers"]

@@ -137,6 +137,8 @@ def counter_lines(counts: dict[str, int]) -> list[str]:
              f"{counts.get('repeated', 0)} detections equal to an earlier one of their scan, dropped",
              (f"{counts.get('lead', 0)} scans stamped too far ahead of the data and never witnessed, not fused "
               "(docs/multitarget.md#scans-stamped-far-ahead)")]
+    if "copies" in counts:
+        lines.append(f"{counts['copies']} scans equal to another sensor's (a duplicated feed), not fused")
     if "centre_fused" in counts:
         lines += [f"{counts['centre_fused']} centre observations fused",
                   f"{counts['centre_reprocessed']} centre observations re-processed (fused again after an older one)",

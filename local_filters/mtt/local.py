@@ -14,7 +14,7 @@ know what the centre knows at the moment its next scan arrives.
 from __future__ import annotations
 
 import bisect
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import NamedTuple
 
 import numpy as np
@@ -228,9 +228,22 @@ class SensorTracker:
 
 def is_duplicate(history: ScanHistory, scan: SensorScan, scan_of: Callable[[object], SensorScan]) -> bool:
     """Whether ``history`` holds a scan equal to ``scan`` (sensor, time, ``R``, detections)."""
+    return any(other.sensor == scan.sensor and np.array_equal(other.R, scan.R)
+               for other in _same_detections(history, scan, scan_of))
+
+
+def copies_another(history: ScanHistory, scan: SensorScan, scan_of: Callable[[object], SensorScan]) -> bool:
+    """Whether ``history`` holds another sensor's scan at the same time with the same detections, at
+    least one: a duplicated feed (independent sensors' noisy detections never agree to the bit)."""
+    return scan.z.shape[0] > 0 and any(other.sensor != scan.sensor
+                                       for other in _same_detections(history, scan, scan_of))
+
+
+def _same_detections(history: ScanHistory, scan: SensorScan,
+                     scan_of: Callable[[object], SensorScan]) -> Iterator[SensorScan]:
+    """The scans of ``history`` at ``scan``'s time with its detections."""
     lo, hi = bisect.bisect_left(history.times, scan.t), bisect.bisect_right(history.times, scan.t)
     for entry in history.entries[lo:hi]:
         other = scan_of(entry)
-        if other.sensor == scan.sensor and np.array_equal(other.z, scan.z) and np.array_equal(other.R, scan.R):
-            return True
-    return False
+        if np.array_equal(other.z, scan.z):
+            yield other
