@@ -436,6 +436,17 @@ def test_replay_notes_when_the_count_confirms_clutter_tracks(tmp_path: Path, cap
         assert (f"sensor s1's clutter_density {noted}" in err and 'associator = "jipda"' in err) == bool(noted)
 
 
+def test_no_count_note_for_a_sensor_without_clutter() -> None:
+    """``confirm_hits = 1`` confirms every track at birth, so the note said that a 1-of-1 count
+    confirms a clutter track with probability 1 even at ``clutter_density = 0``, where no track
+    starts on clutter (untuned6 session); there it says nothing, at 1e-7 it still warns."""
+    from fedtrack.local_filters.mtt.config import MttConfig
+
+    R = {"s1": 100.0 * np.eye(2)}
+    assert MttConfig(confirm_hits=1, confirm_window=1, clutter_density=0.0).count_note(R) is None
+    assert "1-of-1 count confirms" in (MttConfig(confirm_hits=1, confirm_window=1).count_note(R) or "")
+
+
 def _report(sensor: str, t: float, tracks: dict[int, tuple[float, bool, bool]], retired: tuple[int, ...] = ()
             ) -> LocalReport:
     """A position sensor's report: ``tracks`` maps a local id to (x, confirmed, started), every

@@ -207,14 +207,15 @@ class MttConfig:
     def count_note(self, position_sensors: Mapping[str, np.ndarray]) -> str | None:
         """A warning when the count rules the tracks (``gnn``, mht's ``"counts"``) and some position
         sensor's clutter (``position_sensors``: each one's noise covariance ``R``) makes its tracker
-        confirm clutter tracks more often than jipda's bound allows."""
+        confirm clutter tracks more often than jipda's bound allows (a sensor without clutter,
+        ``clutter_density`` 0, starts no track on clutter, whatever the count)."""
         from fedtrack.local_filters.mtt.associators.jipda import FALSE_CONFIRM
 
         if self.confirm_bound is not None:
             return None
         chance, sensor, sd = max(((self.counts_false_confirm(self.clutter_gate_hit(s, R)), s,
-                                   math.sqrt(float(np.max(np.diag(R))))) for s, R in position_sensors.items()),
-                                 default=(0.0, "", 0.0))
+                                   math.sqrt(float(np.max(np.diag(R))))) for s, R in position_sensors.items()
+                                  if self.clutter_of(s) > 0), default=(0.0, "", 0.0))
         if chance <= FALSE_CONFIRM:
             return None
         return (f"at sensor {sensor}'s clutter_density {self.clutter_of(sensor):g} per m^2 (noise {sd:.3g} m) the "
