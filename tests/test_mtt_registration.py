@@ -99,4 +99,5 @@ def test_mtt_centralized_fuses_a_duplicated_feed_once(tmp_path: Path, capsys: py
         assert cli(["replay", "--algorithm", "mtt-centralized", "--config", str(tmp_path / "c.toml"), "--measurements",
                     str(tmp_path / f"m{k}.jsonl"), "--out", str(tmp_path / f"t{k}.jsonl")]) == 0
     assert (tmp_path / "t2.jsonl").read_text() == (tmp_path / "t1.jsonl").read_text()
-    assert "mtt-centralized: 20 scans equal to another sensor's (a duplicated feed), not fused" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "mtt-centralized: 20 scans equal to another sensor's (a duplicated feed), not fused" in err
