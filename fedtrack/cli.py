@@ -84,7 +84,7 @@ SIMULATORS: dict[str, str] = {
 }
 
 COMMANDS: dict[str, str] = {
-    "evaluate": "fedtrack.fusion_center.mtt.evaluation:main",
+    "evaluate": "fedtrack.fusion_center.mtt.evaluation.cli:main",
     "demo": "fedtrack.deploy.demo:main",
     "launch": "fedtrack.deploy.launcher:main",
     "bench": "fedtrack.benchmarks.suites:main",
