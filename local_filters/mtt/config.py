@@ -44,6 +44,11 @@ MAX_PERIOD = 3600.0
 # [mtt] associator: the association methods of the multi-target tracker (local_filters/mtt/association.py)
 ASSOCIATORS = ("gnn", "jipda", "mht")
 MHT_MANAGEMENTS = ("score", "counts")  # local_filters/mtt/associators/mht.py
+# [m/s] [mtt] max_speed's default, the speed bound of two-point starts (local_filters/mtt/initiation.py): about
+# Mach 3 at sea level (3 x 340 m/s), above every aircraft flown (the SR-71's 980 m/s, Mach 3.3 at altitude) and
+# most cruise and air-defence missiles; a bound of what flies in air, not of any scenario's targets
+# (docs/multitarget.md#fast-targets-two-point-starts)
+MAX_SPEED = 1000.0
 
 
 # mht's window = "auto": the chance that a target is missed on every one of the window's later scans
@@ -136,6 +141,7 @@ class MttConfig:
     picture_delay: float = 0.0
     init_velocity_std: float = 30.0
     init_z_std: float = 1000.0
+    max_speed: float = MAX_SPEED
     sensors: tuple[str, ...] | str = "any"
     confirm_hits: int = 3
     confirm_window: int = 4
@@ -250,7 +256,7 @@ class MttConfig:
             raise ConfigError(f"maneuver: must be one of {', '.join(MANEUVER_MODES)}")
         if self.associator in ("jipda", "mht") and self.maneuver != "none":
             raise ConfigError(f'maneuver: "vdie" works with associator = "gnn" only ({self.associator}\'s tracks are CV)')
-        for key in ("max_lag", "picture_delay", "clutter_density"):
+        for key in ("max_lag", "picture_delay", "clutter_density", "max_speed"):
             if not getattr(self, key) >= 0:
                 raise ConfigError(f"{key}: must be >= 0")
         for key in ("pd", "gate_probability", "association_gate_probability"):

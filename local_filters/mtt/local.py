@@ -80,7 +80,7 @@ def local_step(tracker: LocalTracker, scan: SensorScan, cfg: MttConfig) -> tuple
     res = tracker_step(tracker.state, scan, track_params(cfg, scan.sensor, d, tracker.feedback),
                        q_scale=tracker.q_scale)
     tr = res.state.tracks
-    started = tr.age[res.detected] == 1
+    started = tr.ids[res.detected] >= tracker.state.next_id  # new ids (a two-point start's age is its first point's)
     # retired: every reported track this report no longer holds (with mht also one that only left
     # the best hypothesis: the centre unmaps it, and maps it afresh if it comes back)
     retired = np.union1d(res.retired, np.setdiff1d(tracker.state.tracks.ids, tr.ids))

@@ -14,10 +14,12 @@
    (``jipda``) or one with memory (``mht``) plugs in: :mod:`.association`.
 4. **update** (:func:`hard_update`, or the associator's): a track with one detection by the EKF
    (Joseph form; exact Kalman for position sensors).
-5. **initiate** (:func:`start_tracks`): every detection the associator did not claim starts a
+5. **initiate** (:func:`initiate`): every detection the associator did not claim starts a
    tentative track: position from the detection and its covariance, zero velocity with
    ``init_velocity_std`` per axis (and, for a 2-D detection in a 3-D state, altitude 0 with
-   ``init_z_std``). Ids are integers in order of creation, never reused.
+   ``init_z_std``); or, where it pairs with an earlier one-point start that it lies beyond but
+   within ``max_speed`` of, the two-point start of :mod:`.initiation` (a fast target's). Ids are
+   integers in order of creation, never reused.
 6. **confirm / delete** (:func:`m_of_n`, or the associator's): a track is confirmed once it has
    ``confirm_hits`` detections within its first ``confirm_window`` scans; a tentative track that
    can no longer reach that is deleted; a confirmed track is deleted after ``delete_misses``
@@ -34,6 +36,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from scipy.special import expit, logit
 
 from fedtrack.local_filters.linear.gating import gate_ball_pairs, track_difference_d2
 from fedtrack.local_filters.linear.kalman import (
@@ -44,7 +47,7 @@ from fedtrack.local_filters.linear.kalman import (
     spd_inverse_logdet,
     update_residual,
 )
-from fedtrack.local_filters.mtt import detector, maneuver
+from fedtrack.local_filters.mtt import detector, initiation, maneuver
 from fedtrack.local_filters.mtt.association import Association, AssociationInput, Associator
 from fedtrack.local_filters.mtt.associators import jipda, mht
 from fedtrack.local_filters.mtt.associators.gnn import GNN
@@ -99,6 +102,7 @@ class TrackParams(NamedTuple):
     sensor_bit: int = 0
     sensor_misses: int = 0
     lone_misses: int = 0
+    max_speed: float = 0.0  # [m/s] two-point starts' speed bound (:mod:`.initiation`); 0: none
 
 
 def track_params(cfg: MttConfig, sensor: str | None, dim: int, feedback: bool = False,
@@ -122,7 +126,7 @@ def track_params(cfg: MttConfig, sensor: str | None, dim: int, feedback: bool = 
                        cfg.thresholds.gate, cfg.confirm_hits, cfg.confirm_window, cfg.misses_to_delete(sensor), vdie, detect,
                        ASSOCIATORS[cfg.associator], jipda.BIRTH_EXISTENCE if cfg.associator == "jipda" else None,
                        mht=cfg.mht_settings if cfg.associator == "mht" else None,
-                       modes=cfg.mode_rates if vdie is None and not feedback else None)
+                       modes=cfg.mode_rates if vdie is None and not feedback else None, max_speed=cfg.max_speed)
 
 
 N_ARRAYS = 7  # TrackSet's per-track arrays before the optional per-track states
@@ -175,6 +179,7 @@ class TrackerState(NamedTuple):
     t: float | None
     next_id: int
     memory: object = None  # the associator's memory (Association.memory)
+    starts: initiation.Starts = initiation.NO_STARTS  # one-point starts waiting for a second detection
 
 
 class Observation(NamedTuple):
@@ -589,9 +594,12 @@ JIPDA = Associator("jipda", jipda.associate_scan, jipda_update, existence_manage
 ASSOCIATORS[JIPDA.name] = JIPDA
 
 
-def start_tracks(scan: SensorScan, det: np.ndarray, params: TrackParams, first_id: int
-                 ) -> tuple[TrackSet, Observation]:
-    """Tentative tracks from the detections ``det`` of ``scan`` (one-point initialization)."""
+def start_tracks(scan: SensorScan, det: np.ndarray, params: TrackParams, first_id: int,
+                 two: tuple[initiation.Pairing, TrackSet] | None = None) -> tuple[TrackSet, Observation]:
+    """Tentative tracks from the detections ``det`` of ``scan`` (one-point initialization); with
+    ``two`` (the scan's pairs, :func:`initiation.pair_starts`, with their starts' tracks after the
+    scan), a paired detection's track has the pair's two-point state, two hits, its start's age and
+    sensors (the start's track goes on: a slow target's start missed once keeps its chance)."""
     d = params.dim
     pos, Ppos = position_from_detection(scan.z[det], scan.R, scan.sensor_position)
     k = pos.shape[1]
@@ -607,15 +615,72 @@ def start_tracks(scan: SensorScan, det: np.ndarray, params: TrackParams, first_i
         P[:, 4, 4] = params.init_z_std**2
     obs = Observation(np.broadcast_to(position_matrix(d, k), (n, k, d)).copy(), Ppos, pos)
     one = np.ones(n, np.int64)
+    hits, age = one.copy(), one.copy()
+    by = np.full(n, params.sensor_bit, np.int64) if params.sensor_bit else None
+    if two is not None and two[0].det.size:
+        pairs, partners = two
+        x[pairs.det], P[pairs.det], hits[pairs.det] = pairs.x, pairs.P, 2
+        age[pairs.det] = np.maximum(partners.age, 2)
+        if by is not None and partners.detected_by is not None:
+            by[pairs.det] |= partners.detected_by
     ids = first_id + np.arange(n, dtype=np.int64)
     man = None if params.maneuver is None else maneuver.start(x, P, scan.t, params.maneuver)
     inputs = None if params.detector is None else detector.start(n, d, scan.t, params.detector)
     existence = None if params.initial_existence is None else np.full(n, params.initial_existence)
     modes = None if params.modes is None else start_modes(x, P, params.modes)
-    # confirmed at birth by the count (1 of 1) only where the count confirms: jipda's existence does
-    born = (one >= params.confirm_hits) & (existence is None)
-    by = np.full(n, params.sensor_bit, np.int64) if params.sensor_bit else None
-    return TrackSet(ids, x, P, one, one.copy(), np.zeros(n, np.int64), born, man, inputs, existence, modes, by), obs
+    # confirmed at birth by the count only where the count confirms: jipda's existence does
+    born = (hits >= params.confirm_hits) & (existence is None)
+    return TrackSet(ids, x, P, hits, age, np.zeros(n, np.int64), born, man, inputs, existence, modes, by), obs
+
+
+class Initiated(NamedTuple):
+    """Role 5's result: the new tracks with their observations, the one-point starts still waiting
+    after the scan, and the scan's pairs (:func:`initiation.pair_starts`, ``det`` indexing the new
+    tracks) with their starts' rows in the tracks given to :func:`initiate`."""
+
+    tracks: TrackSet
+    observations: Observation
+    starts: initiation.Starts
+    pairs: initiation.Pairing
+    partners: np.ndarray
+
+
+def initiate(starts: initiation.Starts, tracks: TrackSet, live: np.ndarray, scan: SensorScan, det: np.ndarray,
+             params: TrackParams, first_id: int) -> Initiated:
+    """Role 5: tracks from the detections ``det`` no track took, one-point or two-point
+    (:mod:`.initiation`). ``tracks``, ``live``: the tracker's tracks (or mht's leaves) after the
+    scan's update and life rules; a start waits while its track is live with its one detection."""
+    lone = np.flatnonzero(live & (tracks.hits == 1))
+    order = np.argsort(tracks.ids[lone], kind="stable")
+    at = np.minimum(np.searchsorted(tracks.ids[lone], starts.ids, sorter=order), max(lone.size - 1, 0))
+    rows = lone[order[at]] if lone.size else np.zeros(starts.ids.size, np.int64)
+    waiting = (tracks.ids[rows] == starts.ids) if lone.size else np.zeros(starts.ids.size, bool)
+    pos, cov = position_from_detection(scan.z[det], scan.R, scan.sensor_position)
+    scale = np.ones(det.size)
+    if scan.sensor_position is not None:  # a radar's clutter per m^3: its density over |det J| = r^2 cos(el)
+        scale = 1.0 / (scan.z[det, 0] ** 2 * np.abs(np.cos(scan.z[det, 2])))
+    pairs = initiation.pair_starts(starts, waiting, scan.t, pos, cov, scale, initiation.PairParams(
+        params.dim, params.q, params.noise_model, params.max_speed, params.init_velocity_std, params.init_z_std,
+        params.gate, params.pd, params.clutter_density, initiation.least_log_lr(
+            params.pd, params.initial_existence is not None or (params.mht is not None and params.mht.management == "score"))))
+    partners = rows[pairs.start]
+    new, obs = start_tracks(scan, det, params, first_id, (pairs, tracks.take(partners)))
+    single = np.ones(det.size, bool)
+    single[pairs.det] = False
+    waiting[pairs.start] = False
+    kept = initiation.recorded(starts, waiting, new.ids[single], scan.t, pos[single], cov[single])
+    return Initiated(new, obs, kept, pairs, partners)
+
+
+def paired_log_odds(log_odds: np.ndarray, init: Initiated, partner_log_odds: np.ndarray) -> np.ndarray:
+    """New tracks' existence log odds (jipda's existence, mht's score): ``log_odds`` (a one-point
+    start's), and for a pair's track its start's after the scan (``partner_log_odds``, over the
+    tracks given to :func:`initiate`) plus the pair's log-likelihood ratio: the start's track
+    updated by the second detection under the speed bound (a factor of mean 1 under clutter, so
+    jipda's and mht's false-confirmation bounds hold)."""
+    out = log_odds.copy()
+    out[init.pairs.det] = partner_log_odds[init.partners] + init.pairs.log_lr
+    return out
 
 
 def deletion_at(params: TrackParams, dt: float) -> TrackParams:
@@ -656,12 +721,17 @@ def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
         upd = role.update(at_scan, pred, gating, assoc, scan, dt, params, q_scale)
     updated, live = (m_of_n if role.manage is None else role.manage)(upd.tracks, upd.detected, params, sees)
     det = np.flatnonzero(~assoc.claimed)
-    new, obs_new = start_tracks(scan, det, params, state.next_id)
-    if assoc.birth is not None:
-        new = new._replace(existence=assoc.birth[det])
+    init = initiate(state.starts, updated, live, scan, det, params, state.next_id)
+    new, obs_new = init.tracks, init.observations
+    if assoc.birth is not None or new.existence is not None:
+        born = assoc.birth[det] if assoc.birth is not None else new.existence
+        if init.pairs.det.size:
+            born = expit(paired_log_odds(logit(born), init, logit(updated.existence)))
+        new = new._replace(existence=born)
     detected = np.concatenate([upd.detected[live], np.ones(new.size, bool)])
     keep_info = live[upd.detected]
-    return ScanResult(TrackerState(_concat(updated.take(live), new), scan.t, state.next_id + new.size, assoc.memory),
+    return ScanResult(TrackerState(_concat(updated.take(live), new), scan.t, state.next_id + new.size, assoc.memory,
+                                   init.starts),
                       detected, Observation(*(np.concatenate([u[keep_info], v]) for u, v in zip(upd.observations,
                                                                                                  obs_new))),
                       tracks.ids[~live])
@@ -716,8 +786,11 @@ def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale
     confirmed, live = mht.manage(mp._replace(delete_misses=need), old.confirmed, score, peak, hits, age, misses)
     children = TrackSet(old.ids, cx, cP, hits, age, misses, confirmed, modes=cmodes, detected_by=old.detected_by)
     fresh = br.births  # a detection that a kept hypothesis of its cluster leaves unused starts a track there
-    new, obs_new = start_tracks(scan, fresh, params, state.next_id)
+    init = initiate(state.starts, children, live, scan, fresh, params, state.next_id)
+    new, obs_new = init.tracks, init.observations
     new_score = mht.birth_scores(mp, None if scan.amplitude is None else scan.amplitude[fresh], fresh.size)
+    if init.pairs.det.size:  # a pair's track: its start's leaf's score and the pair's likelihood ratio
+        new_score = paired_log_odds(new_score, init, score)
     if mp.management == "score":
         new = new._replace(confirmed=new_score >= mp.confirm_score)
     n_child = br.parent.size
@@ -743,7 +816,7 @@ def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale
     all_obs = [np.concatenate([u, v]) for u, v in zip(obs, obs_new)]
     tracks = mem.leaves.take(best)
     tracks = tracks._replace(confirmed=mht.shown(mp.management, tracks.confirmed, mem.existence[best]))
-    return ScanResult(TrackerState(tracks, scan.t, state.next_id + fresh.size, mem), rows >= 0,
+    return ScanResult(TrackerState(tracks, scan.t, state.next_id + fresh.size, mem, init.starts), rows >= 0,
                       Observation(*(a[rows[rows >= 0]] for a in all_obs)),
                       np.setdiff1d(leaves.ids, mem.leaves.ids))
 

@@ -1,0 +1,217 @@
+"""Two-point track initiation: a fast target's second detection, which falls outside the gate of
+the zero-velocity track its first detection started, starts a track with the velocity of the
+difference (two-point differencing: Bar-Shalom, Li & Kirubarajan 2001, 'Estimation with
+Applications to Tracking and Navigation', sec. 5.5.3; docs/multitarget.md#fast-targets-two-point-starts).
+
+A tracker keeps its one-point starts that still wait for a second detection (:class:`Starts`: each
+one's track id, time and Cartesian position with its covariance). At a scan, a detection that no
+track took (the tracker's own roles ran first, so a slow target's second detection went to its
+one-point track as before) pairs (:func:`pair_starts`) with a waiting start of an earlier scan when
+
+* the start's track still has its one detection (missed since: not updated, still alive),
+* the difference ``d`` of the two positions is outside the gate of the start's zero-velocity
+  prediction (``init_velocity_std``): beyond what the one-point start covers, and
+* ``d`` is within the gate of the ball ``|v| dt <= max_speed dt`` (the speed bound, ``[mtt]
+  max_speed``): its excess over ``max_speed dt`` along ``d`` passes the chi-square gate under
+  both detections' covariances and the process noise;
+
+each detection and each start pairs at most once (an assignment preferring the lowest implied
+speed). The pair's track (:func:`two_point_state`) is the posterior of the state at the second
+detection given both detections with a flat prior on the velocity (exact for position sensors:
+the velocity ``(z_2 - z_1) / dt`` with the covariance that follows from both ``R`` and ``Q``).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from fedtrack.local_filters.linear.kalman import solve_spd, symmetrize
+from fedtrack.local_filters.mtt.associators.gnn import assign
+from fedtrack.local_filters.mtt.models import motion, position_matrix
+
+
+class Starts(NamedTuple):
+    """One-point starts waiting for a second detection: each one's track id, its scan's time, its
+    detection's Cartesian position (n, 3; ``z`` 0 where ``k`` is 2) with its covariance (n, 3, 3)
+    and the position's size ``k`` (2: a 2-D position sensor's, 3: a radar's)."""
+
+    ids: np.ndarray
+    t: np.ndarray
+    pos: np.ndarray
+    cov: np.ndarray
+    k: np.ndarray
+
+    def take(self, idx: np.ndarray) -> Starts:
+        return Starts(*(a[idx] for a in self))
+
+
+NO_STARTS = Starts(np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3, 3)), np.zeros(0, np.int64))
+
+
+def padded(pos: np.ndarray, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Positions (n, k) and covariances (n, k, k) as (n, 3) and (n, 3, 3) (zeros beyond ``k``)."""
+    n, k = pos.shape
+    p, c = np.zeros((n, 3)), np.zeros((n, 3, 3))
+    p[:, :k], c[:, :k, :k] = pos, cov
+    return p, c
+
+
+def recorded(starts: Starts, waiting: np.ndarray, ids: np.ndarray, t: float, pos: np.ndarray, cov: np.ndarray
+             ) -> Starts:
+    """``starts`` where ``waiting`` (bool over them) with the new one-point starts ``ids`` at ``t``
+    (positions ``pos`` (n, k), covariances ``cov``) added."""
+    p, c = padded(pos, cov)
+    new = Starts(ids.astype(np.int64), np.full(ids.size, t), p, c, np.full(ids.size, pos.shape[1], np.int64))
+    kept = starts.take(np.flatnonzero(waiting))
+    return Starts(*(np.concatenate([a, b]) for a, b in zip(kept, new)))
+
+
+class PairParams(NamedTuple):
+    """What the pairing needs of the tracker's parameters."""
+
+    dim: int  # the state size D (4 or 6)
+    q: float
+    noise_model: str
+    max_speed: float  # [m/s] the speed bound; 0: no two-point starts
+    init_velocity_std: float  # the one-point start's velocity prior (what it already covers)
+    init_z_std: float
+    gate: dict[int, float]  # chi-square gate by measurement size
+    pd: float
+    clutter_density: float  # of the scan's sensor, per unit of its measurement space
+    min_log_lr: float = 0.0  # a pair's log-likelihood ratio must exceed this (:func:`least_log_lr`)
+
+
+def least_log_lr(pd: float, by_existence: bool) -> float:
+    """The least log-likelihood ratio ``ln(1 - P_D + P_D / (lambda V))`` of a pair that starts a track,
+    each associator's own rule for a detection: where the tracks keep an existence (jipda) or a
+    score (mht's ``"score"``), 0: the pair raises its start's odds (so its track never starts below
+    its start's); where they count (gnn, mht's ``"counts"``), gnn's assignment rule, ``P_D p / (lambda
+    (1 - P_D)) > 1`` with the pair's density ``p = 1 / V``: ``ln(2 (1 - P_D))``."""
+    return 0.0 if by_existence or pd >= 1.0 else math.log(2.0 * (1.0 - pd))
+
+
+class Pairing(NamedTuple):
+    """The pairs of one scan: the detection (index into the given positions) and the start (index
+    into :class:`Starts`) of each, the two-point state at the scan, and the pair's log-likelihood
+    ratio ``ln(1 - P_D + P_D / (lambda V))`` against clutter (``V`` the volume that the speed bound
+    allows the second detection; ``lambda`` the clutter density there)."""
+
+    det: np.ndarray
+    start: np.ndarray
+    x: np.ndarray
+    P: np.ndarray
+    log_lr: np.ndarray
+
+
+def no_pairing(dim: int) -> Pairing:
+    none = np.zeros(0, np.int64)
+    return Pairing(none, none, np.zeros((0, dim)), np.zeros((0, dim, dim)), np.zeros(0))
+
+
+def cv_back(dim: int, dt: np.ndarray, q: float, noise_model: str) -> tuple[np.ndarray, np.ndarray]:
+    """``F(dt)^-1`` and ``Q(dt)`` (n, D, D) of the CV model of :func:`~.models.motion` for each ``dt`` (n,)."""
+    n, axes = dt.size, dim // 2
+    back, Q = np.zeros((n, dim, dim)), np.zeros((n, dim, dim))
+    if noise_model == "continuous":
+        q11, q12, q22 = q * dt**3 / 3.0, q * dt**2 / 2.0, q * dt
+    else:
+        q11, q12, q22 = q * dt**4 / 4.0, q * dt**3 / 2.0, q * dt**2
+    for a in range(axes):
+        p, v = 2 * a, 2 * a + 1
+        back[:, p, p] = back[:, v, v] = 1.0
+        back[:, p, v] = -dt
+        Q[:, p, p], Q[:, p, v], Q[:, v, p], Q[:, v, v] = q11, q12, q12, q22
+    return back, Q
+
+
+def two_point_state(first: Starts, pos: np.ndarray, cov: np.ndarray, k: int, dt: np.ndarray, p: PairParams
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """The state at the second detections (``pos`` (n, 3), ``cov`` (n, 3, 3), position size ``k``)
+    given the first (``first``, each ``dt`` (n,) earlier), with a flat prior on the position and the
+    velocity they observe: in information form, the second detection as ``H x`` and the first as
+    ``H F^-1 x`` with covariance ``R_1 + H F^-1 Q F^-T H'`` (the first's position given the state at
+    the second under the CV model: exact). A 3-D state's altitude observed by neither detection keeps
+    the one-point start's prior (``z`` 0 with ``init_z_std``), and its vertical velocity observed by
+    fewer than two the one-point start's ``init_velocity_std``. Returns ``x`` (n, D) and ``P``."""
+    n, d = dt.size, p.dim
+    back, Q = cv_back(d, dt, p.q, p.noise_model)
+    Y, y = np.zeros((n, d, d)), np.zeros((n, d))
+    for size, rows, R0, z in ((k, np.arange(n), cov, pos), *((int(j), np.flatnonzero(first.k == j), first.cov,
+                                                              first.pos) for j in np.unique(first.k))):
+        H = np.broadcast_to(position_matrix(d, size), (rows.size, size, d))
+        R = R0[rows, :size, :size]
+        if z is first.pos:  # the first detection, seen from the second's time
+            H = H @ back[rows]
+            R = symmetrize(R + H @ Q[rows] @ np.swapaxes(H, -1, -2))
+        Ht = np.swapaxes(H, -1, -2)
+        Y[rows] += Ht @ solve_spd(R, H)
+        y[rows] += (Ht @ solve_spd(R, z[rows, :size, None]))[..., 0]
+    if d == 6:
+        seen = (first.k == 3).astype(int) + (k == 3)
+        Y[seen == 0, 4, 4] += 1.0 / p.init_z_std**2
+        Y[seen < 2, 5, 5] += 1.0 / p.init_velocity_std**2
+    P = symmetrize(np.linalg.solve(Y, np.broadcast_to(np.eye(d), Y.shape)))
+    return (P @ y[..., None])[..., 0], P
+
+
+def _ball(k: int, r: np.ndarray) -> np.ndarray:
+    """The volume of a ``k``-ball (2: a disc) of radii ``r``."""
+    return math.pi * r**2 if k == 2 else 4.0 / 3.0 * math.pi * r**3
+
+
+def pair_starts(starts: Starts, waiting: np.ndarray, t: float, pos: np.ndarray, cov: np.ndarray,
+                density_scale: np.ndarray, p: PairParams) -> Pairing:
+    """The two-point pairs of a scan at ``t`` (module docstring): the detections no track took, at
+    Cartesian positions ``pos`` (M, k) with covariances ``cov``, against the ``waiting`` starts (bool
+    over ``starts``). ``density_scale`` (M,): each detection's clutter density per m^k over the
+    sensor's per unit of its measurement space (1 for a position sensor; a radar's ``1 / |det J|``)."""
+    cand = np.flatnonzero(waiting & (starts.t < t))
+    m, k = pos.shape
+    if p.max_speed <= 0.0 or not cand.size or not m:
+        return no_pairing(p.dim)
+    posp, covp = padded(pos, cov)
+    dt = t - starts.t[cand]
+    three = np.minimum(starts.k[cand], k) == 3  # both observe the altitude
+    gate = np.where(three, p.gate[3], p.gate[2])
+    q_pos = p.q * (dt**3 / 3.0 if p.noise_model == "continuous" else dt**4 / 4.0)
+    spread = np.trace(starts.cov[cand], axis1=-2, axis2=-1) + np.trace(cov, axis1=-2, axis2=-1).max() + 3 * q_pos
+    reach = p.max_speed * dt
+    near = cKDTree(pos[:, :2]).query_ball_point(starts.pos[cand, :2], reach + np.sqrt(gate * spread))
+    counts = np.fromiter(map(len, near), dtype=np.int64, count=cand.size)
+    if not counts.sum():
+        return no_pairing(p.dim)
+    ri = np.repeat(np.arange(cand.size), counts)
+    cj = np.concatenate([np.asarray(a, np.int64) for a in near])
+    flat = ~three[ri]  # 2-D pairs: the altitude left out (its row and column the identity's)
+    diff = posp[cj] - starts.pos[cand[ri]]
+    diff[flat, 2] = 0.0
+    S = covp[cj] + starts.cov[cand[ri]] + q_pos[ri, None, None] * np.eye(3)
+    S[flat, 2, :] = S[flat, :, 2] = 0.0
+    S[flat, 2, 2] = 1.0
+    dist = np.linalg.norm(diff, axis=1)
+    excess = diff * np.maximum(0.0, 1.0 - reach[ri] / np.maximum(dist, 1e-300))[:, None]
+    d2_fast = np.einsum("ni,ni->n", excess, solve_spd(S, excess[..., None])[..., 0])
+    widen = (p.init_velocity_std * dt[ri]) ** 2
+    slow = S + widen[:, None, None] * np.eye(3)
+    slow[flat, 2, 2] = 1.0
+    d2_slow = np.einsum("ni,ni->n", diff, solve_spd(slow, diff[..., None])[..., 0])
+    r = reach[ri]
+    if k == 2:
+        volume = _ball(2, r)
+    else:  # a radar's plot: the ball, or beside a 2-D start the disc times the altitude's spread
+        volume = np.where(three[ri], _ball(3, r), _ball(2, r) * np.sqrt(2 * math.pi * (p.init_z_std**2 + covp[cj, 2, 2])))
+    log_lr = np.log(1.0 - p.pd + p.pd / (max(p.clutter_density, 1e-300) * density_scale[cj] * volume))
+    ok = (d2_fast <= gate[ri]) & (d2_slow > gate[ri]) & (log_lr > p.min_log_lr)
+    ri, cj, dist, log_lr = ri[ok], cj[ok], dist[ok], log_lr[ok]
+    if not ri.size:
+        return no_pairing(p.dim)
+    speed = dist / dt[ri]
+    # each start and each detection at most once, the lowest implied speed first (every cost negative)
+    picked = assign(cand.size, m, ri, cj, speed / max(float(speed.max()), 1.0) - 2.0)
+    ri, cj = ri[picked], cj[picked]
+    x, P = two_point_state(starts.take(cand[ri]), posp[cj], covp[cj], k, dt[ri], p)
+    return Pairing(cj, cand[ri], x, P, log_lr[picked])
