@@ -259,6 +259,8 @@ class MttConfig:
         for key in ("max_lag", "picture_delay", "clutter_density", "max_speed"):
             if not getattr(self, key) >= 0:
                 raise ConfigError(f"{key}: must be >= 0")
+        if not math.isfinite(self.max_speed):
+            raise ConfigError("max_speed: must be a finite speed [m/s] (0: no two-point starts)")
         for key in ("pd", "gate_probability", "association_gate_probability"):
             if not 0 < getattr(self, key) < 1 and not (key == "pd" and self.pd == 1):
                 raise ConfigError(f"{key}: must be in (0, 1)" + (" or 1" if key == "pd" else ""))

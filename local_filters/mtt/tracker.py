@@ -674,10 +674,11 @@ def initiate(starts: initiation.Starts, tracks: TrackSet, live: np.ndarray, scan
 
 def paired_log_odds(log_odds: np.ndarray, init: Initiated, partner_log_odds: np.ndarray) -> np.ndarray:
     """New tracks' existence log odds (jipda's existence, mht's score): ``log_odds`` (a one-point
-    start's), and for a pair's track its start's after the scan (``partner_log_odds``, over the
-    tracks given to :func:`initiate`) plus the pair's log-likelihood ratio: the start's track
-    updated by the second detection under the speed bound (a factor of mean 1 under clutter, so
-    jipda's and mht's false-confirmation bounds hold)."""
+    start's), and for a pair's track its start's before the scan (``partner_log_odds``, over the
+    tracks given to :func:`initiate`) plus the pair's log-likelihood ratio
+    ``ln(1 - P_D + P_D / (lambda V))``: the start's track updated, as jipda's and mht's own
+    update of a track with one detection in its gate, by the second detection under the speed
+    bound (its density ``1 / V``) instead of the zero-velocity start's gate."""
     out = log_odds.copy()
     out[init.pairs.det] = partner_log_odds[init.partners] + init.pairs.log_lr
     return out
@@ -725,8 +726,8 @@ def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
     new, obs_new = init.tracks, init.observations
     if assoc.birth is not None or new.existence is not None:
         born = assoc.birth[det] if assoc.birth is not None else new.existence
-        if init.pairs.det.size:
-            born = expit(paired_log_odds(logit(born), init, logit(updated.existence)))
+        if init.pairs.det.size:  # a pair's track: its start's existence before the scan, predicted to it
+            born = expit(paired_log_odds(logit(born), init, logit(jipda.predicted_existence(tracks.existence, dt))))
         new = new._replace(existence=born)
     detected = np.concatenate([upd.detected[live], np.ones(new.size, bool)])
     keep_info = live[upd.detected]
@@ -789,8 +790,8 @@ def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale
     init = initiate(state.starts, children, live, scan, fresh, params, state.next_id)
     new, obs_new = init.tracks, init.observations
     new_score = mht.birth_scores(mp, None if scan.amplitude is None else scan.amplitude[fresh], fresh.size)
-    if init.pairs.det.size:  # a pair's track: its start's leaf's score and the pair's likelihood ratio
-        new_score = paired_log_odds(new_score, init, score)
+    if init.pairs.det.size:  # a pair's track: its start's leaf's score before the scan and the pair's ratio
+        new_score = paired_log_odds(new_score, init, mem.score[br.parent])
     if mp.management == "score":
         new = new._replace(confirmed=new_score >= mp.confirm_score)
     n_child = br.parent.size

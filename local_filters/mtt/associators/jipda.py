@@ -346,6 +346,11 @@ def scan_constants(pd: float, clutter_density: float, gate_d2: float, m: int) ->
     return jipda_constants(pd, clutter_density, gate_d2, m, SNR)
 
 
+def predicted_existence(mu: np.ndarray, dt: float) -> np.ndarray:
+    """Existence probabilities ``mu`` predicted over ``dt`` [s] (survival ``p11`` of :func:`survival`)."""
+    return existence_predict(mu, survival(dt, 1.0, SURVIVAL_PER_SECOND), 0.0)
+
+
 def associate_scan(inp: association.AssociationInput) -> association.Association:
     """The tracker's associate role: existence predicted over ``inp.dt`` (:func:`survival`), the
     joint association, and the tracker's view of it (every gated pair with its ``beta_ij``; a
@@ -353,7 +358,7 @@ def associate_scan(inp: association.AssociationInput) -> association.Association
     is at least 1/2)."""
     c = scan_constants(inp.pd, inp.clutter_density, inp.gate_d2, inp.dim)
     mu = np.full(inp.n_tracks, BIRTH_EXISTENCE) if inp.existence is None else inp.existence
-    mu_bar = existence_predict(mu, survival(inp.dt, 1.0, SURVIVAL_PER_SECOND), 0.0)
+    mu_bar = predicted_existence(mu, inp.dt)
     pairs = Pairs(inp.rows, inp.cols, np.zeros((inp.rows.size, inp.dim)), np.zeros(inp.rows.size), inp.log_likelihood)
     log_a = np.zeros(inp.n_detections) if inp.amplitude is None else log_amplitude_ratio(inp.amplitude, c)
     assoc = associate(inp.n_detections, pairs, log_a, mu_bar, c)

@@ -1,0 +1,144 @@
+"""Fast targets with the default configuration: two-point starts (local_filters/mtt/initiation.py)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fedtrack.cli import main as cli
+from fedtrack.fusion_center.mtt.replay import replay_mtt
+from fedtrack.local_filters.mtt import initiation
+from fedtrack.local_filters.mtt.config import MttConfig
+
+
+def params(dim: int = 4, q: float = 1.0, **kw: float) -> initiation.PairParams:
+    cfg = MttConfig()
+    return initiation.PairParams(dim, q, "continuous", cfg.max_speed, cfg.init_velocity_std, cfg.init_z_std,
+                                 cfg.thresholds.gate, cfg.pd, kw.get("clutter_density", cfg.clutter_density))
+
+
+def test_two_point_state_is_the_difference_of_the_detections() -> None:
+    """Without process noise the pair's state is two-point differencing exactly: position ``z_2``,
+    velocity ``(z_2 - z_1) / dt``, ``P = [[R_2, R_2 / dt], [R_2 / dt, (R_1 + R_2) / dt^2]]`` per
+    block (Bar-Shalom, Li & Kirubarajan 2001); with it, the batch least-squares estimate of the
+    state at the second detection from both (``A^-1 W A^-T``, ``W`` the first's ``R`` plus the
+    process noise carried back)."""
+    R1, R2 = np.array([[2500.0, 300.0], [300.0, 1600.0]]), np.array([[900.0, -100.0], [-100.0, 400.0]])
+    z1, z2, dt = np.array([1000.0, -2000.0]), np.array([1450.0, -1300.0]), 0.8
+    first = initiation.Starts(np.array([7]), np.array([0.0]), *initiation.padded(z1[None], R1[None]), np.array([2]))
+    pos, cov = initiation.padded(z2[None], R2[None])
+    x, P = initiation.two_point_state(first, pos, cov, 2, np.array([dt]), params(q=0.0))
+    pi, vi = [0, 2], [1, 3]
+    assert np.allclose(x[0, pi], z2, rtol=0, atol=1e-9) and np.allclose(x[0, vi], (z2 - z1) / dt, rtol=0, atol=1e-9)
+    assert np.allclose(P[0][np.ix_(pi, pi)], R2, rtol=0, atol=1e-9)
+    assert np.allclose(P[0][np.ix_(pi, vi)], R2 / dt, rtol=0, atol=1e-9)
+    assert np.allclose(P[0][np.ix_(vi, vi)], (R1 + R2) / dt**2, rtol=0, atol=1e-9)
+    q = 3.0
+    x, P = initiation.two_point_state(first, pos, cov, 2, np.array([dt]), params(q=q))
+    back, Q = initiation.cv_back(4, np.array([dt]), q, "continuous")
+    H = np.zeros((2, 4))
+    H[0, 0] = H[1, 2] = 1.0
+    A = np.vstack([H @ back[0], H])
+    W = np.zeros((4, 4))
+    W[:2, :2], W[2:, 2:] = R1 + H @ back[0] @ Q[0] @ back[0].T @ H.T, R2
+    Ainv = np.linalg.inv(A)
+    assert np.allclose(x[0], Ainv @ np.concatenate([z1, z2]), rtol=0, atol=1e-9)
+    assert np.allclose(P[0], Ainv @ W @ Ainv.T, rtol=0, atol=1e-9)
+
+
+def fast_scans(path: Path, period: float, radar: bool = False, scans: int = 12, seed: int = 1) -> list[np.ndarray]:
+    """Four targets at 300-700 m/s, one sensor every ``period`` s (a 50 m position sensor, or a radar
+    at 50 m and 1 mrad with the targets at 3-9 km), P_D 1, no clutter; returns each target's
+    position at each scan."""
+    rng = np.random.default_rng(seed)
+    speed, head = np.array([300.0, 430.0, 560.0, 700.0]), rng.uniform(0, 2 * np.pi, 4)
+    v = np.c_[speed * np.cos(head), speed * np.sin(head), np.zeros(4)]
+    p0 = np.c_[rng.uniform(-20000, 20000, (4, 2)), rng.uniform(3000, 9000, 4)]
+    site, R = np.array([-80000.0, 0.0, 0.0]), np.diag([2500.0, 1e-6, 1e-6])
+    rows, truth = [], []
+    for k in range(scans):
+        t = k * period
+        p = p0 + v * t
+        truth.append(p)
+        if radar:
+            rel = p - site
+            r = np.linalg.norm(rel, axis=1)
+            z = np.c_[r, np.arctan2(rel[:, 1], rel[:, 0]), np.arcsin(rel[:, 2] / r)]
+            z = z + rng.standard_normal(z.shape) * np.sqrt(np.diag(R))
+            rows.append({"t": t, "sensor": "r1", "R": R.tolist(), "sensor_position": site.tolist(),
+                         "detections": [{"z": d.tolist()} for d in z]})
+        else:
+            z = p[:, :2] + 50.0 * rng.standard_normal((4, 2))
+            rows.append({"t": t, "sensor": "s1", "R": [[2500.0, 0.0], [0.0, 2500.0]],
+                         "detections": [{"z": d.tolist()} for d in z]})
+    path.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    return truth
+
+
+def covered_from(pictures: list[dict], truth: list[np.ndarray], period: float, within: float = 300.0) -> float | None:
+    """The first picture time from which every target has a confirmed track within ``within`` m in
+    every later picture at a scan time (None: never)."""
+    at = {round(p["t"], 6): p for p in pictures}
+    first = None
+    for k, targets in enumerate(truth):
+        pic = at.get(round(k * period, 6))
+        if pic is None:
+            continue
+        pos = np.array([tr["pos"][:2] for tr in pic["tracks"] if tr["status"] == "confirmed"]).reshape(-1, 2)
+        ok = pos.size and all(np.min(np.linalg.norm(pos - g[:2], axis=1)) < within for g in targets)
+        first = (first if first is not None else k * period) if ok else None
+    return first
+
+
+CASES = [("gnn", alg) for alg in ("mtt-local", "mtt-centralized", "mtt-federated", "mtt-decentralized")] + [
+    (assoc, "mtt-centralized") for assoc in ("jipda", "mht")]
+
+
+@pytest.mark.parametrize("associator, algorithm", CASES)
+def test_fast_targets_get_tracks_with_the_default_config(tmp_path: Path, associator: str, algorithm: str) -> None:
+    """Four targets at 300-700 m/s seen every second by a 50 m position sensor, every key at its
+    default (``associator`` aside): every target has a confirmed track from the third scan on with
+    gnn (the fourth at a track-to-track centre, whose count starts at its central track's start),
+    the fourth with jipda and the fifth with mht (their tests of existence and score). Before
+    two-point starts none got a track: each second detection fell outside the gate of the
+    zero-velocity start (30 m/s) of the first and started another. 0.05 s each."""
+    truth = fast_scans(tmp_path / "m.jsonl", 1.0)
+    (tmp_path / "c.toml").write_text(f'[mtt]\nassociator = "{associator}"\n')
+    replay_mtt(algorithm, tmp_path / "m.jsonl", tmp_path / "c.toml", tmp_path / "t.jsonl",
+               sensor="s1" if algorithm == "mtt-local" else None)
+    pictures = [json.loads(x) for x in (tmp_path / "t.jsonl").read_text().splitlines()]
+    start = covered_from(pictures, truth, 1.0)
+    centre = algorithm in ("mtt-federated", "mtt-decentralized")  # its own count from the central track's start
+    bound = {"gnn": 2.0, "jipda": 3.0, "mht": 4.0}[associator] + centre
+    assert start is not None and start <= bound, (associator, algorithm, start)
+
+
+@pytest.mark.parametrize("period, radar", [(5.0, False), (1.0, True)])
+def test_fast_targets_of_a_slow_sensor_or_a_radar(tmp_path: Path, period: float, radar: bool) -> None:
+    """The same at 0.2 Hz (the second detection up to 3.5 km from the first) and with a radar (the
+    targets at 3-9 km altitude, 3-D tracks): ``mtt-centralized`` gnn covers every target from the
+    fourth scan on. About 1 s."""
+    truth = fast_scans(tmp_path / "m.jsonl", period, radar)
+    replay_mtt("mtt-centralized", tmp_path / "m.jsonl", None, tmp_path / "t.jsonl", period=period)
+    pictures = [json.loads(x) for x in (tmp_path / "t.jsonl").read_text().splitlines()]
+    start = covered_from(pictures, truth, period)
+    assert start is not None and start <= 3 * period, (period, radar, start)
+
+
+def test_max_speed_must_be_a_finite_non_negative_speed(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """``[mtt] max_speed``: 0 turns two-point starts off (the fast targets then get no track, as
+    before them); a negative or infinite one is refused, exit 2 naming the key."""
+    fast_scans(tmp_path / "m.jsonl", 1.0)
+    for bad in ("-1.0", "inf"):
+        (tmp_path / "c.toml").write_text(f"[mtt]\nmax_speed = {bad}\n")
+        assert cli(["replay", "--algorithm", "mtt-centralized", "--config", str(tmp_path / "c.toml"),
+                    "--measurements", str(tmp_path / "m.jsonl"), "--out", str(tmp_path / "t.jsonl")]) == 2
+        assert "max_speed" in capsys.readouterr().err
+    assert not (tmp_path / "t.jsonl").exists()
+    (tmp_path / "c.toml").write_text("[mtt]\nmax_speed = 0\n")
+    replay_mtt("mtt-centralized", tmp_path / "m.jsonl", tmp_path / "c.toml", tmp_path / "t.jsonl")
+    pictures = [json.loads(x) for x in (tmp_path / "t.jsonl").read_text().splitlines()]
+    assert not any(tr["status"] == "confirmed" for p in pictures for tr in p["tracks"])
