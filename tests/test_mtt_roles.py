@@ -26,6 +26,10 @@ Since the untuned3 session a tracker of scans less than 1 s apart deletes after 
 (``config.scan_lost``: ``LOST`` a second as well as a scan), which changes the pictures of the
 trackers of the 0.7 s and 0.8 s sensors: every case is compared with that taken out
 (``LOST_SCAN_S`` = 0).
+
+Since the fastinit session a detection no track took may pair with an earlier one-point start
+(two-point starts, :mod:`fedtrack.local_filters.mtt.initiation`): ``gnn-two-point.json.gz`` (frozen
+when it came) holds the cases that changes, and with no pairs they equal the references above.
 """
 
 from __future__ import annotations
@@ -45,6 +49,7 @@ REFERENCE = DATA / "gnn-886cab1.json.gz"
 RELINEARIZED = DATA / "gnn-relinearized.json.gz"  # the cases the altitude's relinearization changes
 SENSOR_COUNTS = DATA / "gnn-sensor-counts.json.gz"  # the centralized cases: the scans counted per track
 RADAR_VIEW = DATA / "gnn-radar-view.json.gz"  # the radar scenario's centralized cases: the radar's view
+TWO_POINT = DATA / "gnn-two-point.json.gz"  # the cases two-point starts change
 CASES = [(scenario, maneuver, algorithm) for scenario in ("pos", "radar") for maneuver in ("none", "vdie")
          for algorithm in ("mtt-local", "mtt-centralized", "mtt-federated", "mtt-decentralized")]
 LOCAL_SENSOR = {"pos": "s2", "radar": "r1"}
@@ -94,11 +99,16 @@ def assert_fingerprints_equal(got: list, expected: list) -> None:
 def test_gnn_pictures_equal_main_886cab1(tmp_path: Path, scenario: str, maneuver: str, algorithm: str,
                                          monkeypatch: pytest.MonkeyPatch) -> None:
     from fedtrack.fusion_center.mtt.engines import CentralizedEngine
-    from fedtrack.local_filters.mtt import config, tracker
+    from fedtrack.local_filters.mtt import config, initiation, tracker
 
     monkeypatch.setattr(config, "LOST_SCAN_S", 0.0)  # a count per scan only, as before the untuned3 session
 
     key = f"{scenario}-{maneuver}-{algorithm}"
+    paired = json.loads(gzip.decompress(TWO_POINT.read_bytes()))
+    if key in paired:
+        assert_fingerprints_equal(fingerprint(replay_case(tmp_path, scenario, maneuver, algorithm)), paired[key])
+    monkeypatch.setattr(initiation, "pair_starts",  # no two-point starts, as before the fastinit session
+                        lambda starts, waiting, t, pos, cov, scale, p: initiation.no_pairing(p.dim))
     viewed = json.loads(gzip.decompress(RADAR_VIEW.read_bytes()))
     if key in viewed:
         assert_fingerprints_equal(fingerprint(replay_case(tmp_path, scenario, maneuver, algorithm)), viewed[key])
