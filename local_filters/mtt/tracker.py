@@ -597,9 +597,9 @@ ASSOCIATORS[JIPDA.name] = JIPDA
 def start_tracks(scan: SensorScan, det: np.ndarray, params: TrackParams, first_id: int,
                  two: tuple[initiation.Pairing, TrackSet] | None = None) -> tuple[TrackSet, Observation]:
     """Tentative tracks from the detections ``det`` of ``scan`` (one-point initialization); with
-    ``two`` (the scan's pairs, :func:`initiation.pair_starts`, with their starts' tracks after the
-    scan), a paired detection's track has the pair's two-point state, two hits, its start's age and
-    sensors (the start's track goes on: a slow target's start missed once keeps its chance)."""
+    ``two`` (pairs of these detections, :func:`initiation.pair_starts`, with their starts' tracks),
+    the pairs' two-point states and, in a tracker of several sensors' scans, their starts' sensors
+    too."""
     d = params.dim
     pos, Ppos = position_from_detection(scan.z[det], scan.R, scan.sensor_position)
     k = pos.shape[1]
@@ -615,31 +615,30 @@ def start_tracks(scan: SensorScan, det: np.ndarray, params: TrackParams, first_i
         P[:, 4, 4] = params.init_z_std**2
     obs = Observation(np.broadcast_to(position_matrix(d, k), (n, k, d)).copy(), Ppos, pos)
     one = np.ones(n, np.int64)
-    hits, age = one.copy(), one.copy()
     by = np.full(n, params.sensor_bit, np.int64) if params.sensor_bit else None
-    if two is not None and two[0].det.size:
-        pairs, partners = two
-        x[pairs.det], P[pairs.det], hits[pairs.det] = pairs.x, pairs.P, 2
-        age[pairs.det] = np.maximum(partners.age, 2)
-        if by is not None and partners.detected_by is not None:
-            by[pairs.det] |= partners.detected_by
+    if two is not None:
+        x, P = two[0].x.copy(), two[0].P.copy()
+        if by is not None and two[1].detected_by is not None:
+            by |= two[1].detected_by
     ids = first_id + np.arange(n, dtype=np.int64)
     man = None if params.maneuver is None else maneuver.start(x, P, scan.t, params.maneuver)
     inputs = None if params.detector is None else detector.start(n, d, scan.t, params.detector)
     existence = None if params.initial_existence is None else np.full(n, params.initial_existence)
     modes = None if params.modes is None else start_modes(x, P, params.modes)
-    # confirmed at birth by the count only where the count confirms: jipda's existence does
-    born = (hits >= params.confirm_hits) & (existence is None)
-    return TrackSet(ids, x, P, hits, age, np.zeros(n, np.int64), born, man, inputs, existence, modes, by), obs
+    # confirmed at birth by the count (1 of 1) only where the count confirms: jipda's existence does
+    born = (one >= params.confirm_hits) & (existence is None)
+    return TrackSet(ids, x, P, one, one.copy(), np.zeros(n, np.int64), born, man, inputs, existence, modes, by), obs
 
 
 class Initiated(NamedTuple):
-    """Role 5's result: the new tracks with their observations, the one-point starts still waiting
-    after the scan, and the scan's pairs (:func:`initiation.pair_starts`, ``det`` indexing the new
-    tracks) with their starts' rows in the tracks given to :func:`initiate`."""
+    """Role 5's result: the new tracks (one per detection given, then one per pair) with their
+    observations and each one's detection (index into the detections given), the one-point starts
+    waiting after the scan, and the scan's pairs (:func:`initiation.pair_starts`) with their starts'
+    rows in the tracks given to :func:`initiate`."""
 
     tracks: TrackSet
     observations: Observation
+    source: np.ndarray
     starts: initiation.Starts
     pairs: initiation.Pairing
     partners: np.ndarray
@@ -647,9 +646,15 @@ class Initiated(NamedTuple):
 
 def initiate(starts: initiation.Starts, tracks: TrackSet, live: np.ndarray, scan: SensorScan, det: np.ndarray,
              params: TrackParams, first_id: int) -> Initiated:
-    """Role 5: tracks from the detections ``det`` no track took, one-point or two-point
-    (:mod:`.initiation`). ``tracks``, ``live``: the tracker's tracks (or mht's leaves) after the
-    scan's update and life rules; a start waits while its track is live with its one detection."""
+    """Role 5: tracks from the detections ``det`` no track took: a one-point start from each (as
+    before two-point starts: a slow target's first detection starts its track whatever it pairs
+    with) and a two-point start from each pair (:mod:`.initiation`; at most one per detection). A
+    pair's track counts afresh, one hit at one scan old (its second detection says only that it
+    lies within the speed bound's reach, as a clutter detection there does with probability
+    ``lambda V``; counted as a second hit it let clutter pairs confirm on one more clutter hit: the
+    false tracks of gnn's ``mtt-local`` on the default scenario doubled). ``tracks``, ``live``: the
+    tracker's tracks (or mht's leaves) after the scan's update and life rules; a start waits while
+    its track is live with its one detection, each at most until it pairs."""
     lone = np.flatnonzero(live & (tracks.hits == 1))
     order = np.argsort(tracks.ids[lone], kind="stable")
     at = np.minimum(np.searchsorted(tracks.ids[lone], starts.ids, sorter=order), max(lone.size - 1, 0))
@@ -664,24 +669,22 @@ def initiate(starts: initiation.Starts, tracks: TrackSet, live: np.ndarray, scan
         params.gate, params.pd, params.clutter_density, initiation.least_log_lr(
             params.pd, params.initial_existence is not None or (params.mht is not None and params.mht.management == "score"))))
     partners = rows[pairs.start]
-    new, obs = start_tracks(scan, det, params, first_id, (pairs, tracks.take(partners)))
-    single = np.ones(det.size, bool)
-    single[pairs.det] = False
+    one, obs = start_tracks(scan, det, params, first_id)
+    two, obs_two = start_tracks(scan, det[pairs.det], params, first_id + det.size, (pairs, tracks.take(partners)))
     waiting[pairs.start] = False
-    kept = initiation.recorded(starts, waiting, new.ids[single], scan.t, pos[single], cov[single])
-    return Initiated(new, obs, kept, pairs, partners)
+    kept = initiation.recorded(starts, waiting, one.ids, scan.t, pos, cov)
+    return Initiated(_concat(one, two), Observation(*(np.concatenate(u) for u in zip(obs, obs_two))),
+                     np.concatenate([np.arange(det.size), pairs.det]), kept, pairs, partners)
 
 
 def paired_log_odds(log_odds: np.ndarray, init: Initiated, partner_log_odds: np.ndarray) -> np.ndarray:
-    """New tracks' existence log odds (jipda's existence, mht's score): ``log_odds`` (a one-point
-    start's), and for a pair's track its start's before the scan (``partner_log_odds``, over the
+    """New tracks' existence log odds (jipda's existence, mht's score): ``log_odds`` (the one-point
+    starts'), then for each pair's track its start's before the scan (``partner_log_odds``, over the
     tracks given to :func:`initiate`) plus the pair's log-likelihood ratio
     ``ln(1 - P_D + P_D / (lambda V))``: the start's track updated, as jipda's and mht's own
     update of a track with one detection in its gate, by the second detection under the speed
     bound (its density ``1 / V``) instead of the zero-velocity start's gate."""
-    out = log_odds.copy()
-    out[init.pairs.det] = partner_log_odds[init.partners] + init.pairs.log_lr
-    return out
+    return np.concatenate([log_odds, partner_log_odds[init.partners] + init.pairs.log_lr])
 
 
 def deletion_at(params: TrackParams, dt: float) -> TrackParams:
@@ -725,7 +728,7 @@ def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
     init = initiate(state.starts, updated, live, scan, det, params, state.next_id)
     new, obs_new = init.tracks, init.observations
     if assoc.birth is not None or new.existence is not None:
-        born = assoc.birth[det] if assoc.birth is not None else new.existence
+        born = assoc.birth[det] if assoc.birth is not None else new.existence[:det.size]
         if init.pairs.det.size:  # a pair's track: its start's existence before the scan, predicted to it
             born = expit(paired_log_odds(logit(born), init, logit(jipda.predicted_existence(tracks.existence, dt))))
         new = new._replace(existence=born)
@@ -795,29 +798,29 @@ def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale
     if mp.management == "score":
         new = new._replace(confirmed=new_score >= mp.confirm_score)
     n_child = br.parent.size
-    serial = mem.next_branch + np.arange(n_child + fresh.size)
+    serial = mem.next_branch + np.arange(n_child + new.size)
     lineage = np.concatenate([mem.lineage[br.parent, 1:], serial[:n_child, None]], axis=1)
     grown = mht.MhtState(_concat(children, new), np.concatenate([score, new_score]),
                          np.concatenate([peak, new_score]),
                          np.concatenate([lineage, np.repeat(serial[n_child:, None], settings.window, axis=1)]),
-                         np.concatenate([br.holds, br.birth_holds], axis=1), br.value,
+                         np.concatenate([br.holds, br.birth_holds[:, init.source]], axis=1), br.value,
                          int(mem.next_branch + serial.size),
                          np.concatenate([mht.leaf_existence(mem.existence[br.parent], step, dt),
                                          mht.birth_existence(new_score)]),
-                         np.concatenate([br.cluster, br.birth_cluster]))
+                         np.concatenate([br.cluster, br.birth_cluster[init.source]]))
     branch_det = np.full(n_child, -1)  # each branch's detection (-1: a miss), then the new tracks'
     branch_det[hit] = g_cols[pidx]
-    branch_det = np.concatenate([branch_det, fresh])
+    branch_det = np.concatenate([branch_det, fresh[init.source]])  # a pair's track: its detection's too
     branch_obs = np.full(branch_det.size, -1)  # each branch's row of the observations
-    branch_obs[branch_det >= 0] = np.arange(pidx.size + fresh.size)
-    mem, kept = mht.prune(grown, np.concatenate([live, np.ones(fresh.size, bool)]), mp)
+    branch_obs[branch_det >= 0] = np.arange(pidx.size + new.size)
+    mem, kept = mht.prune(grown, np.concatenate([live, np.ones(new.size, bool)]), mp)
     best = np.flatnonzero(mem.hyps[0])
     best = best[np.argsort(mem.leaves.ids[best], kind="stable")]
     rows = branch_obs[kept[best]]
     all_obs = [np.concatenate([u, v]) for u, v in zip(obs, obs_new)]
     tracks = mem.leaves.take(best)
     tracks = tracks._replace(confirmed=mht.shown(mp.management, tracks.confirmed, mem.existence[best]))
-    return ScanResult(TrackerState(tracks, scan.t, state.next_id + fresh.size, mem, init.starts), rows >= 0,
+    return ScanResult(TrackerState(tracks, scan.t, state.next_id + new.size, mem, init.starts), rows >= 0,
                       Observation(*(a[rows[rows >= 0]] for a in all_obs)),
                       np.setdiff1d(leaves.ids, mem.leaves.ids))
 
