@@ -47,7 +47,7 @@ MHT_MANAGEMENTS = ("score", "counts")  # local_filters/mtt/associators/mht.py
 # [m/s] [mtt] max_speed's default, the speed bound of two-point starts (local_filters/mtt/initiation.py): about
 # Mach 3 at sea level (3 x 340 m/s), above every aircraft flown (the SR-71's 980 m/s, Mach 3.3 at altitude) and
 # most cruise and air-defence missiles; a bound of what flies in air, not of any scenario's targets
-# (docs/multitarget.md#fast-targets-two-point-starts)
+# (docs/multitarget.md#fast-targets-two-point-starts-fastinit-session)
 MAX_SPEED = 1000.0
 
 

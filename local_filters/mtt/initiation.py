@@ -1,7 +1,8 @@
 """Two-point track initiation: a fast target's second detection, which falls outside the gate of
 the zero-velocity track its first detection started, starts a track with the velocity of the
 difference (two-point differencing: Bar-Shalom, Li & Kirubarajan 2001, 'Estimation with
-Applications to Tracking and Navigation', sec. 5.5.3; docs/multitarget.md#fast-targets-two-point-starts).
+Applications to Tracking and Navigation', sec. 5.5.3;
+docs/multitarget.md#fast-targets-two-point-starts-fastinit-session).
 
 A tracker keeps its one-point starts that still wait for a second detection (:class:`Starts`: each
 one's track id, time and Cartesian position with its covariance). At a scan, a detection that no
@@ -16,9 +17,12 @@ one-point track as before) pairs (:func:`pair_starts`) with a waiting start of a
   both detections' covariances and the process noise;
 
 each detection and each start pairs at most once (an assignment preferring the lowest implied
-speed). The pair's track (:func:`two_point_state`) is the posterior of the state at the second
-detection given both detections with a flat prior on the velocity (exact for position sensors:
-the velocity ``(z_2 - z_1) / dt`` with the covariance that follows from both ``R`` and ``Q``).
+speed), and only where the pair's likelihood ratio against clutter passes the associator's own
+rule (:func:`least_log_lr`). The pair's track (:func:`two_point_state`) is the posterior of the
+state at the second detection given both detections with a flat prior on the velocity (for
+position sensors the velocity ``(z_2 - z_1) / dt`` with the covariance that follows from both
+``R`` and ``Q``); the tracker starts it beside the one-point track of its second detection
+(``tracker.initiate``).
 """
 
 from __future__ import annotations
@@ -113,19 +117,11 @@ def no_pairing(dim: int) -> Pairing:
 
 
 def cv_back(dim: int, dt: np.ndarray, q: float, noise_model: str) -> tuple[np.ndarray, np.ndarray]:
-    """``F(dt)^-1`` and ``Q(dt)`` (n, D, D) of the CV model of :func:`~.models.motion` for each ``dt`` (n,)."""
-    n, axes = dt.size, dim // 2
-    back, Q = np.zeros((n, dim, dim)), np.zeros((n, dim, dim))
-    if noise_model == "continuous":
-        q11, q12, q22 = q * dt**3 / 3.0, q * dt**2 / 2.0, q * dt
-    else:
-        q11, q12, q22 = q * dt**4 / 4.0, q * dt**3 / 2.0, q * dt**2
-    for a in range(axes):
-        p, v = 2 * a, 2 * a + 1
-        back[:, p, p] = back[:, v, v] = 1.0
-        back[:, p, v] = -dt
-        Q[:, p, p], Q[:, p, v], Q[:, v, p], Q[:, v, v] = q11, q12, q12, q22
-    return back, Q
+    """``F(dt)^-1 = F(-dt)`` and ``Q(dt)`` (n, D, D) of the CV model (:func:`~.models.motion`) for
+    each ``dt`` (n,) (a scan's few intervals: cached)."""
+    back = [motion(dim, -step, q, noise_model).F for step in dt.tolist()]
+    Q = [motion(dim, step, q, noise_model).Q for step in dt.tolist()]
+    return np.array(back).reshape(-1, dim, dim), np.array(Q).reshape(-1, dim, dim)
 
 
 def two_point_state(first: Starts, pos: np.ndarray, cov: np.ndarray, k: int, dt: np.ndarray, p: PairParams
@@ -177,7 +173,7 @@ def pair_starts(starts: Starts, waiting: np.ndarray, t: float, pos: np.ndarray, 
     dt = t - starts.t[cand]
     three = np.minimum(starts.k[cand], k) == 3  # both observe the altitude
     gate = np.where(three, p.gate[3], p.gate[2])
-    q_pos = p.q * (dt**3 / 3.0 if p.noise_model == "continuous" else dt**4 / 4.0)
+    q_pos = cv_back(2, dt, p.q, p.noise_model)[1][:, 0, 0]  # the process noise of a position coordinate
     spread = np.trace(starts.cov[cand], axis1=-2, axis2=-1) + np.trace(cov, axis1=-2, axis2=-1).max() + 3 * q_pos
     reach = p.max_speed * dt
     near = cKDTree(pos[:, :2]).query_ball_point(starts.pos[cand, :2], reach + np.sqrt(gate * spread))
