@@ -655,6 +655,10 @@ def initiate(starts: initiation.Starts, tracks: TrackSet, live: np.ndarray, scan
     false tracks of gnn's ``mtt-local`` on the default scenario doubled). ``tracks``, ``live``: the
     tracker's tracks (or mht's leaves) after the scan's update and life rules; a start waits while
     its track is live with its one detection, each at most until it pairs."""
+    one, obs = start_tracks(scan, det, params, first_id)
+    if params.max_speed <= 0.0:  # no two-point starts: nothing waits
+        return Initiated(one, obs, np.arange(det.size), starts, initiation.no_pairing(params.dim),
+                         np.zeros(0, np.int64))
     lone = np.flatnonzero(live & (tracks.hits == 1))
     order = np.argsort(tracks.ids[lone], kind="stable")
     at = np.minimum(np.searchsorted(tracks.ids[lone], starts.ids, sorter=order), max(lone.size - 1, 0))
@@ -669,10 +673,11 @@ def initiate(starts: initiation.Starts, tracks: TrackSet, live: np.ndarray, scan
         params.gate, params.pd, params.clutter_density, initiation.least_log_lr(
             params.pd, params.initial_existence is not None or (params.mht is not None and params.mht.management == "score"))))
     partners = rows[pairs.start]
-    one, obs = start_tracks(scan, det, params, first_id)
-    two, obs_two = start_tracks(scan, det[pairs.det], params, first_id + det.size, (pairs, tracks.take(partners)))
     waiting[pairs.start] = False
     kept = initiation.recorded(starts, waiting, one.ids, scan.t, pos, cov)
+    if not pairs.det.size:
+        return Initiated(one, obs, np.arange(det.size), kept, pairs, partners)
+    two, obs_two = start_tracks(scan, det[pairs.det], params, first_id + det.size, (pairs, tracks.take(partners)))
     return Initiated(_concat(one, two), Observation(*(np.concatenate(u) for u in zip(obs, obs_two))),
                      np.concatenate([np.arange(det.size), pairs.det]), kept, pairs, partners)
 
