@@ -80,6 +80,31 @@ def geodetic_from_enu(frame: Frame, enu: np.ndarray) -> np.ndarray:
     return np.stack(np.broadcast_arrays(lat, wrap_lon(lon), h), axis=-1)
 
 
+def surface_enu(frame: Frame, xy: np.ndarray) -> np.ndarray:
+    """The points (N, 3) of the WGS-84 ellipsoid (h = 0) whose east, north in ``frame`` are ``xy`` (N, 2): where
+    the line through ``(x, y, 0)`` along the origin's up meets the ellipsoid, its upper crossing (NaN past the
+    ellipsoid's limb, 6,000 km and more from the origin). The inverse of :func:`surface_xy`: a 2-D track's place
+    on the Earth."""
+    import pymap3d
+
+    xy = np.asarray(xy, float)
+    axes = ecef_to_enu_rotation(frame.lat, frame.lon)  # rows: east, north, up in ECEF
+    scale = 1.0 / np.array([WGS84_A, WGS84_A, WGS84_A * math.sqrt(1.0 - WGS84_E2)])  # the ellipsoid -> the unit sphere
+    p0 = (np.array(pymap3d.geodetic2ecef(*frame)) + xy[..., :1] * axes[0] + xy[..., 1:2] * axes[1]) * scale
+    up = axes[2] * scale
+    b, c = p0 @ up, np.einsum("...i,...i", p0, p0) - 1.0
+    with np.errstate(invalid="ignore"):
+        z = -c / (b + np.sqrt(b * b - (up @ up) * c))  # the upper root of |p0 + z up|^2 = 1, without cancellation
+    return np.concatenate([xy[..., :2], z[..., None]], axis=-1)
+
+
+def surface_xy(frame: Frame, enu: np.ndarray) -> np.ndarray:
+    """East, north (N, 2) in ``frame`` of the points of the WGS-84 ellipsoid below ENU positions (N, 3): each
+    position's latitude and longitude at h = 0, what a 2-D position sensor on the Earth measures."""
+    lla = geodetic_from_enu(frame, enu)
+    return enu_from_geodetic(frame, lla[..., 0], lla[..., 1], np.zeros(lla.shape[:-1]))[..., :2]
+
+
 def common_from_local_vectors(frame: Frame, lat: np.ndarray, lon: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Vectors (N, 3) given in the ENU axes at each point ``lat``, ``lon`` (N,) [deg] (a ground speed's
     east, north, up), in the common frame's axes: ``R_origin R_point' v``."""
@@ -246,24 +271,24 @@ def load_frame(path: str | Path | None) -> FrameConfig | None:
 
 def add_geodetic(frame: Frame, rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Picture or truth rows (each with ``x`` = ``[x, vx, y, vy(, z, vz)]``) with ``lat``, ``lon`` [deg]
-    and, for a 3-D state, ``alt`` [m above the ellipsoid] beside ``x`` (:func:`fedtrack.wire.with_geodetic`);
-    a 2-D state is placed on the common frame's plane (z = 0)."""
-    if not rows:
-        return rows
-    pos = np.zeros((len(rows), 3))
-    for i, row in enumerate(rows):
-        p = row["x"][0::2][: len(row["x"]) // 2]
-        pos[i, : len(p)] = p
-    return with_geodetic(rows, geodetic_from_enu(frame, pos))
+    and, for a 3-D state, ``alt`` [m above the ellipsoid] beside ``x`` (:func:`fedtrack.wire.with_geodetic`;
+    a 2-D state on the ellipsoid: :func:`geodetic_of_states`)."""
+    lla = np.zeros((len(rows), 3))
+    sizes = np.array([len(row["x"]) for row in rows])
+    for size in set(sizes.tolist()):  # one batch per state size
+        which = np.flatnonzero(sizes == size)
+        lla[which] = geodetic_of_states(frame, np.array([rows[i]["x"] for i in which], float))
+    return with_geodetic(rows, lla)
 
 
 def geodetic_of_states(frame: Frame, X: np.ndarray) -> np.ndarray:
-    """``[lat, lon, h]`` (n, 3) of the positions of states ``X`` (n, 4 or 6; a 2-D state on z = 0):
-    what :func:`add_geodetic` computes for picture rows of these states."""
-    pos = np.zeros((X.shape[0], 3))
-    k = X.shape[1] // 2
-    pos[:, :k] = X[:, 0::2][:, :k]
-    return geodetic_from_enu(frame, pos)
+    """``[lat, lon, h]`` (n, 3) of the positions of states ``X`` (n, 4 or 6): a 3-D state's position, a 2-D
+    state's point of the ellipsoid at its x, y (:func:`surface_enu`, the inverse of what a 2-D position sensor
+    measures: :func:`surface_xy`)."""
+    X = np.asarray(X, float)
+    if X.shape[1] == 4:
+        return geodetic_from_enu(frame, surface_enu(frame, X[:, [0, 2]]))
+    return geodetic_from_enu(frame, X[:, [0, 2, 4]])
 
 
 def geodetic_line(line: str, frame: Frame) -> str:

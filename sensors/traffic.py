@@ -42,6 +42,7 @@ from fedtrack.geodetic import (
     local_from_common_vectors,
     radio_reach,
     site_from_geodetic,
+    surface_enu,
     wrap_lon,
 )
 from fedtrack.jsonl import InputError, check_output_folder, check_readable, output_file, read_jsonl
@@ -149,13 +150,16 @@ class Recording(NamedTuple):
 class Truth(NamedTuple):
     """States ``x`` (steps, N, 6) ``[x, vx, y, vy, z, vz]`` on the ``DT`` grid from ``t0`` [s since
     1970], ``alive`` (steps, N), each target's ``icao24`` (N,); ``dropped``: the recording's samples
-    and aircraft left out, by reason (:func:`build_truth`)."""
+    and aircraft left out, by reason (:func:`build_truth`). ``surface``: the world is the ellipsoid's
+    surface (2-D sensors only): ``x``, ``y`` are the common frame's east, north of the point of the ellipsoid
+    below the aircraft, ``z`` its height above the ellipsoid (:func:`on_surface`)."""
 
     t0: float
     x: np.ndarray
     alive: np.ndarray
     icao24: list[str]
     dropped: dict[str, int]
+    surface: bool = False
 
 
 class Segments(NamedTuple):
@@ -351,6 +355,28 @@ def common_velocity(frame: Frame, t: np.ndarray, lla: np.ndarray, local: np.ndar
     return common_from_local_vectors(frame, lla[:, 0], lla[:, 1], np.where(np.isfinite(local), local, slope))
 
 
+def on_surface(frame: Frame, pos: np.ndarray, vel: np.ndarray, dt: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    """Positions and velocities (n, 3) of common-frame ``pos``, ``vel`` (n, 3) in a 2-D world on the Earth: east,
+    north of the point of the ellipsoid below each position (its latitude and longitude at h = 0: what a 2-D
+    position sensor measures, :func:`fedtrack.geodetic.surface_xy`) and its height above the ellipsoid; the
+    velocities by central differences along ``vel`` over +-``dt`` s (second order: 1e-9 m/s off)."""
+    lla = geodetic_from_enu(frame, np.concatenate([pos, pos - vel * dt, pos + vel * dt]))
+    out = enu_from_geodetic(frame, lla[:, 0], lla[:, 1], np.zeros(len(lla)))
+    out[:, 2] = lla[:, 2]
+    here, before, after = np.split(out, 3)
+    return here, (after - before) / (2.0 * dt)
+
+
+def truth_geodetic(frame: Frame, truth: Truth, states: np.ndarray) -> np.ndarray:
+    """``[lat, lon, h]`` (n, 3) of the truth's states (n, 6): a 3-D world's positions, a 2-D world's points of the
+    ellipsoid with the height kept beside them."""
+    if not truth.surface:
+        return geodetic_from_enu(frame, states[:, [0, 2, 4]]).reshape(-1, 3)
+    lla = geodetic_from_enu(frame, surface_enu(frame, states[:, [0, 2]])).reshape(-1, 3)
+    lla[:, 2] = states[:, 4]
+    return lla
+
+
 def memory_room() -> float:
     """Bytes a window's truth and scans may take: a quarter of the machine's physical memory (1 GiB where it is not
     known)."""
@@ -369,11 +395,12 @@ def _steps_before(t: float, steps: int, after: bool = False) -> int:
 
 
 def build_truth(rec: Recording, frame: Frame, start: float, duration: float | None, box: float,
-                max_gap: float, scan_bytes: float = 0.0) -> Truth:
+                max_gap: float, scan_bytes: float = 0.0, surface: bool = False) -> Truth:
     """Truth on the ``DT`` grid from the first sample + ``start`` for ``duration`` s (None: to the last
     sample); a target is alive between its track's first and last samples while inside the square of
     side ``box`` [m] about the origin. A window whose grid, with ``scan_bytes`` a second of it for the
-    sensors' scans, would take more than :func:`memory_room` is refused before it is made."""
+    sensors' scans, would take more than :func:`memory_room` is refused before it is made. ``surface``: a 2-D
+    world, each track's samples :func:`on_surface` before the Hermite pieces."""
     t0 = float(rec.t.min()) + start
     end = float(rec.t.max()) if duration is None else t0 + duration
     if not end > t0:
@@ -394,6 +421,8 @@ def build_truth(rec: Recording, frame: Frame, start: float, duration: float | No
         if np.isfinite(rec.velocity[rows]).any():
             pos = reconcile(rel[rows], pos, common_velocity(frame, rel[rows], rec.lla[rows], rec.velocity[rows], pos))
         vel = common_velocity(frame, rel[rows], rec.lla[rows], rec.velocity[rows], pos)
+        if surface:
+            pos, vel = on_surface(frame, pos, vel)
         spline = CubicHermiteSpline(rel[rows], pos, vel)
         p, v = spline(grid), spline(grid, 1)
         inside = np.all(np.abs(p[:, :2]) <= box / 2, axis=1)
@@ -415,7 +444,7 @@ def build_truth(rec: Recording, frame: Frame, start: float, duration: float | No
     icao24 = [icao for *_, icao in kept]
     dropped = {**rec.dropped, "repeating a time or position": found.repeated, "in a track of one sample": found.single,
                "aircraft with no track inside the box and window": len(set(rec.icao24.tolist())) - len(set(icao24))}
-    return Truth(t0, x, alive, icao24, dropped)
+    return Truth(t0, x, alive, icao24, dropped, surface)
 
 
 def parse_kinds(spec: str) -> list[SensorSpec]:
@@ -531,7 +560,8 @@ def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, star
     rng = np.random.default_rng(seed)
     scan_bytes = sum((SCAN_BYTES + DETECTION_BYTES * (clutter if s.kind != "adsb" else 0.0)) / s.period
                      for s in parse_kinds(spec))  # a second's scans, the aircraft's detections left out
-    truth = build_truth(rec, frame, start, duration, box, max_gap, scan_bytes)
+    three_d = any(s.kind == "radar" for s in parse_kinds(spec))
+    truth = build_truth(rec, frame, start, duration, box, max_gap, scan_bytes, surface=not three_d)
     if not truth.icao24:
         t0 = float(rec.t.min())
         window = f"{start:g} s to {'the end' if duration is None else f'{start + duration:g} s'} after the first sample"
@@ -560,13 +590,12 @@ def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, star
     with output_file(out / "measurements.jsonl") as fh:
         for _, line in lines:
             fh.write(json.dumps(line) + "\n")
-    three_d = any(s.kind == "radar" for s in specs)
     dims = [0, 1, 2, 3, 4, 5] if three_d else [0, 1, 2, 3]
     with output_file(out / "truth.jsonl") as fh:
         for second in range(int(sc.duration) + 1):
             step = int(round(second / DT))
             live = np.flatnonzero(truth.alive[step])
-            lla = geodetic_from_enu(frame, truth.x[step][live][:, [0, 2, 4]]).reshape(-1, 3)
+            lla = truth_geodetic(frame, truth, truth.x[step][live])
             targets = [{"id": int(i), "x": truth.x[step, i, dims].tolist(), "icao24": truth.icao24[i],
                         "lat": round(float(g[0]), 8), "lon": float(wrap_lon(round(float(g[1]), 8))),  # 180 -> -180
                         "alt": round(float(g[2]), 3)}
