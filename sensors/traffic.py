@@ -99,6 +99,7 @@ MANEUVER_ACCELERATION = 9.80665 * math.tan(math.radians(25.0))
 MANEUVER_S = 90.0 / 3.0  # s: a 90 deg heading change at the standard rate of 3 deg/s
 STRAIGHT_S = 120.0  # s: terminal-area legs between heading changes (holding legs 1-1.5 min, approach segments 1-3 min)
 CHI2_2_95 = math.sqrt(-2.0 * math.log(0.05))  # the 95 % radius of a 2-D standard normal: 2.448
+CHI2_2_999 = math.sqrt(-2.0 * math.log(0.001))  # its 99.9 % radius: 3.717
 
 HELP_COLUMNS = """input columns (names are matched case-insensitively; the first name is ours, the others
 OpenSky's and the traffic library's):
@@ -377,6 +378,28 @@ def truth_geodetic(frame: Frame, truth: Truth, states: np.ndarray) -> np.ndarray
     return lla
 
 
+def velocity_at_odds(frame: Frame, t: np.ndarray, lla: np.ndarray, local: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    """Which samples' recorded horizontal velocities ``local`` (n, 3) [m/s, the axes at each sample ``lla``] point
+    where the recorded positions ``pos`` (n, 3, common frame) at times ``t`` rule out (n,): the recorded ground
+    track is off the direction of the chord between the sample's neighbours (at a track's ends, the sample and its
+    one neighbour), ``span`` s apart, by more than the heading change of a turn at ``MANEUVER_ACCELERATION`` over
+    half the span plus the chord's own direction noise at its 99.9 % radius, ``asin(CHI2_2_999 sqrt(2)
+    SIGMA_POSITION / span / |chord|)`` (a chord shorter than that radius points nowhere). Only the direction: a
+    stale position (OpenSky's) makes a chord's speed wrong. E.g. a track stored as an 8-bit integer (the traffic
+    package's calibration samples: -128 to 127, 104 deg off for a true track of 128 deg or more)."""
+    k = np.arange(len(t))
+    lo, hi = np.maximum(k - 1, 0), np.minimum(k + 1, len(t) - 1)
+    span = t[hi] - t[lo]
+    chord = local_from_common_vectors(frame, lla[:, 0], lla[:, 1], (pos[hi] - pos[lo]) / span[:, None])[:, :2]
+    v = local[:, :2]
+    speed, moved = np.linalg.norm(v, axis=1), np.linalg.norm(chord, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = CHI2_2_999 * math.sqrt(2.0) * SIGMA_POSITION / span / moved
+        noise = np.where(ratio < 1.0, np.arcsin(np.minimum(ratio, 1.0)), np.pi)
+        angle = np.arccos(np.clip(np.sum(v * chord, axis=1) / (speed * moved), -1.0, 1.0))
+        return angle > MANEUVER_ACCELERATION / speed * span / 2.0 + noise  # NaN (not recorded): False
+
+
 def memory_room() -> float:
     """Bytes a window's truth and scans may take: a quarter of the machine's physical memory (1 GiB where it is not
     known)."""
@@ -414,19 +437,24 @@ def build_truth(rec: Recording, frame: Frame, start: float, duration: float | No
     rel = rec.t - t0
     found = segments(rec, max_gap)
     kept: list[tuple[slice, np.ndarray, np.ndarray, str]] = []  # each track inside the box: its steps, states, inside
+    at_odds = 0
     for rows in (p for p in found.pieces if rel[p[-1]] >= 0 and rec.t[p[0]] <= end):
         live = slice(_steps_before(rel[rows[0]], steps), _steps_before(rel[rows[-1]], steps, after=True))
         grid = np.arange(live.start, live.stop) * DT  # the window's grid k DT, each track's steps only
         pos = enu_from_geodetic(frame, *rec.lla[rows].T)
-        if np.isfinite(rec.velocity[rows]).any():
-            pos = reconcile(rel[rows], pos, common_velocity(frame, rel[rows], rec.lla[rows], rec.velocity[rows], pos))
-        vel = common_velocity(frame, rel[rows], rec.lla[rows], rec.velocity[rows], pos)
+        recorded = rec.velocity[rows].copy()
+        odd = velocity_at_odds(frame, rel[rows], rec.lla[rows], recorded, pos)
+        recorded[odd, :2] = np.nan  # the positions' derivative instead
+        if np.isfinite(recorded).any():
+            pos = reconcile(rel[rows], pos, common_velocity(frame, rel[rows], rec.lla[rows], recorded, pos))
+        vel = common_velocity(frame, rel[rows], rec.lla[rows], recorded, pos)
         if surface:
             pos, vel = on_surface(frame, pos, vel)
         spline = CubicHermiteSpline(rel[rows], pos, vel)
         p, v = spline(grid), spline(grid, 1)
         inside = np.all(np.abs(p[:, :2]) <= box / 2, axis=1)
         if inside.any():  # a track never inside the box takes no room in the grid
+            at_odds += int(odd.sum())
             kept.append((live, np.stack([p[:, 0], v[:, 0], p[:, 1], v[:, 1], p[:, 2], v[:, 2]], axis=-1), inside,
                          str(rec.icao24[rows[0]])))
     need, room = steps * len(kept) * TRUTH_CELL_BYTES + (steps - 1) * DT * scan_bytes, memory_room()
@@ -443,6 +471,7 @@ def build_truth(rec: Recording, frame: Frame, start: float, duration: float | No
         alive[live, j] = inside
     icao24 = [icao for *_, icao in kept]
     dropped = {**rec.dropped, "repeating a time or position": found.repeated, "in a track of one sample": found.single,
+               "horizontal velocities at odds with the positions (their derivative taken)": at_odds,
                "aircraft with no track inside the box and window": len(set(rec.icao24.tolist())) - len(set(icao24))}
     return Truth(t0, x, alive, icao24, dropped, surface)
 

@@ -113,6 +113,24 @@ def test_truth_passes_through_the_samples_in_the_common_frame(tmp_path: Path) ->
     np.testing.assert_allclose(np.arctan2(vel[:, 1], vel[:, 0]), convergence, atol=np.radians(0.02))
 
 
+def test_a_recorded_track_the_positions_rule_out_is_not_the_truths(tmp_path: Path) -> None:
+    """An aircraft flying straight south-east (135 deg) at 65 m/s, a state vector every 5 s, its track stored as
+    an 8-bit integer (-121: read as 239 deg, as in the traffic package's calibration samples): the truth's velocity
+    is the positions' (within 1 m/s) and the command says how many recorded velocities it left out (all); the same
+    recording with its track right keeps them all. Before, the truth followed the recorded velocities, 104 deg
+    off, and looped between the samples (its velocity 100 m/s off)."""
+    heading = np.radians(135.0)
+    enu = np.array([[np.sin(heading), np.cos(heading), 0.0]]) * 65.0 * np.arange(0.0, 300.0, 5.0)[:, None]
+    lla = geodetic_from_enu(PARIS, enu + [0.0, 0.0, 600.0])
+    for track, odd in ((-121, 60), (135, 0)):
+        rows = [f"{1000 + 5 * k},a,{la},{lo},{h},{65.0},{track},0" for k, (la, lo, h) in enumerate(lla.tolist())]
+        rec = read_recording(_write_csv(tmp_path / "a.csv", "time,icao24,lat,lon,alt,gs,track,vertical_rate", rows))
+        truth = build_truth(rec, PARIS, 0.0, None, 400e3, 30.0)
+        vel = truth.x[truth.alive[:, 0], 0][:, [1, 3]]
+        assert np.abs(vel - 65.0 * np.array([np.sin(heading), np.cos(heading)])).max() < 1.0
+        assert truth.dropped["horizontal velocities at odds with the positions (their derivative taken)"] == odd
+
+
 def test_a_window_too_long_for_memory_is_one_line_and_writes_nothing(tmp_path: Path,
                                                                     capsys: pytest.CaptureFixture[str]) -> None:
     """Two flights three years apart (``onground/zurich_airport`` spans 55 days): the whole recording's window
