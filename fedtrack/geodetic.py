@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -136,6 +137,13 @@ def site_from_enu(frame: Frame, position: np.ndarray) -> RadarSite:
     lat, lon, h = geodetic_from_enu(frame, np.asarray(position, float)).tolist()
     site = site_from_geodetic(frame, lat, lon, h)
     return site._replace(position=np.array(position, float))
+
+
+@lru_cache(maxsize=64)
+def own_axes(frame: Frame, position: tuple[float, float, float]) -> np.ndarray:
+    """The rotation (3, 3) from the common frame's axes to the own east-north-up axes of a site at ``position``
+    (common frame): :func:`site_from_enu`'s ``rotation``, kept for the sites a tracker sees scan after scan."""
+    return site_from_enu(frame, np.array(position, float)).rotation
 
 
 def own_from_enu(site: RadarSite, enu: np.ndarray) -> np.ndarray:

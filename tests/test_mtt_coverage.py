@@ -18,9 +18,11 @@ from fedtrack.cli import main as cli
 from fedtrack.fusion_center.mtt.engines import CentralizedEngine
 from fedtrack.fusion_center.mtt.evaluation import evaluate
 from fedtrack.fusion_center.mtt.replay import replay_mtt
+from fedtrack.geodetic import Frame, enu_from_own, own_from_aer, site_from_geodetic
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.scan import SensorScan
 from fedtrack.local_filters.mtt.tracker import Sight, empty_tracks, radar_view, scan_counts, scan_sees, track_params
+from fedtrack.local_filters.radar.measurement import polar_from_cartesian
 
 WARM_UP_S = 20.0  # the trackers' start, left out of the count
 
@@ -211,3 +213,23 @@ def test_radar_view_is_the_elevation_range_and_azimuth_arc_its_detections_span()
     x = np.array([state(5e3, 175.0, 0.15), state(5e3, -175.0, 0.15), state(5e3, 175.0, 0.05),
                   state(12e3, 175.0, 0.15), state(5e3, 0.0, 0.15), state(5e3, 160.0, 0.15), state(5e3, 175.0, 0.099)])
     assert radar_view(x, scan).tolist() == [True, True, False, False, False, False, False]
+
+
+def test_a_far_radars_view_is_in_its_own_axes_on_the_earth() -> None:
+    """A radar 195 km west of the origin (Heathrow's far radar), its clutter drawn in its own frame at
+    elevations 0.005-0.05 rad all round: a track 150 km east of it at 0.002 rad in its own frame is below
+    its view (below its horizon), one at 0.03 rad inside. In the common frame's axes the radar's horizontal
+    leans 1.75 deg (0.031 rad) up towards the origin, the clutter away from it as much down, and both
+    tracks were inside (a radar scan counted as a miss for a low track it could not see: docs/geodetic.md)."""
+    frame = Frame(51.5, 0.0)
+    site = site_from_geodetic(frame, 51.5, -2.8, 50.0)
+    rng = np.random.default_rng(1)
+    n = 40
+    own = own_from_aer(np.column_stack([rng.uniform(0, 2 * np.pi, n), rng.uniform(0.005, 0.05, n),
+                                        rng.uniform(20e3, 250e3, n)]))
+    z = polar_from_cartesian(enu_from_own(site, own) - site.position)
+    scan = SensorScan(1.0, "r1", np.eye(3), z, None, site.position)
+    tracks = enu_from_own(site, own_from_aer(np.array([[np.pi / 2, 0.002, 150e3], [np.pi / 2, 0.03, 150e3]])))
+    x = np.column_stack([tracks[:, 0], np.zeros(2), tracks[:, 1], np.zeros(2), tracks[:, 2], np.zeros(2)])
+    assert radar_view(x, scan, frame).tolist() == [False, True]
+    assert radar_view(x, scan).tolist() == [True, True]  # the common frame's axes: the low track inside

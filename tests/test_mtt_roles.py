@@ -112,7 +112,7 @@ def test_gnn_pictures_equal_main_886cab1(tmp_path: Path, scenario: str, maneuver
     viewed = json.loads(gzip.decompress(RADAR_VIEW.read_bytes()))
     if key in viewed:
         assert_fingerprints_equal(fingerprint(replay_case(tmp_path, scenario, maneuver, algorithm)), viewed[key])
-        monkeypatch.setattr(tracker, "radar_view", lambda x, scan: np.ones(x.shape[0], bool))  # every track in view
+        monkeypatch.setattr(tracker, "radar_view", lambda x, scan, frame=None: np.ones(x.shape[0], bool))  # all in view
     counted = json.loads(gzip.decompress(SENSOR_COUNTS.read_bytes()))
     if key in counted:
         assert_fingerprints_equal(fingerprint(replay_case(tmp_path, scenario, maneuver, algorithm)), counted[key])

@@ -28,6 +28,7 @@ import numpy as np
 from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
 from fedtrack.fusion_center.mtt.centre.track_life import CENTRAL_MISSES
 from fedtrack.fusion_center.mtt.shards import ShardedCentre
+from fedtrack.geodetic import Frame
 from fedtrack.local_filters.mtt.associators import jipda
 from fedtrack.local_filters.mtt.config import LOST, MttConfig, miss_count, scan_lost
 from fedtrack.local_filters.mtt.history import ScanHistory
@@ -338,6 +339,7 @@ class CentralizedEngine(ScanTrackerEngine):
     bits: dict[str, int] = field(default_factory=dict)  # sensor -> its bit in the tracks' detected_by
     intervals: dict[str, float] = field(default_factory=dict)  # sensor -> its latest time between scans
     copies: int = 0  # scans equal to another sensor's (a duplicated feed): not fused, the sensor not seen
+    frame: Frame | None = None  # [frame]: each radar's view in its own axes (tracker.radar_view)
 
     def bit(self, sensor: str) -> int:
         """The sensor's bit in the tracks' ``detected_by``, in order of first scan (beyond 63
@@ -376,7 +378,8 @@ class CentralizedEngine(ScanTrackerEngine):
     def params(self, sensor: str | None) -> TrackParams:
         if sensor is None:
             return central_params(self.cfg, sensor, self.dim, self.present())
-        return central_params(self.cfg, sensor, self.dim, self.present(), self.bit(sensor), self.intervals.get(sensor, 0.0))
+        return central_params(self.cfg, sensor, self.dim, self.present(), self.bit(sensor),
+                              self.intervals.get(sensor, 0.0))._replace(frame=self.frame)
 
     def senders(self) -> list[str]:
         return sorted({s.sensor for s in self.history.entries}) if self.history is not None else []
@@ -551,13 +554,13 @@ def union_picture(parts: list[PictureTracks | None], dim: int) -> PictureTracks:
 
 
 def make_engine(algorithm: str, cfg: MttConfig, dim: int, sensor: str | None = None,
-                regions: Regions | None = None) -> Engine:
+                regions: Regions | None = None, frame: Frame | None = None) -> Engine:
     if algorithm == "mtt-local":
         if not sensor:
             raise ValueError("mtt-local needs --sensor ID")
         return LocalEngine(cfg, dim, sensor=sensor)
     if algorithm == "mtt-centralized":
-        return CentralizedEngine(cfg, dim)
+        return CentralizedEngine(cfg, dim, frame=frame)
     if algorithm in ("mtt-federated", "mtt-decentralized"):
         return TrackToTrackEngine(cfg, dim, feedback=algorithm == "mtt-federated", regions=regions)
     raise ValueError(f"unknown multi-target algorithm {algorithm!r}")

@@ -197,6 +197,7 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
     if recording and (regions is None or algorithm == "mtt-local"):
         raise ConfigError(f"{measurements}: a live region run's recording (its lines name their region): replay it "
                           "with --algorithm mtt-federated or mtt-decentralized --regions config")
+    frame = load_frame(config)  # [frame]: the tracks on the Earth too (lat, lon, alt), each radar's own axes
     if recording:
         # a live region run's recording: each region centre in its recorded order (regional.py)
         if regions != "config":
@@ -214,7 +215,7 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
             raise InputError(f"{measurements}: no scan of sensor {sensor!r}")
         dim = state_dim(scans, sensor)
         shards = None if regions is None else data_regions(regions, scans, config)
-        engine = make_engine(algorithm, cfg, dim, sensor, shards)
+        engine = make_engine(algorithm, cfg, dim, sensor, shards, None if frame is None else frame.frame)
         source = pictures(engine, scans, cfg.period, cfg.picture_delay)
         recorded = {}
     note = cfg.count_note({s.sensor: s.R for s in reversed(scans) if isinstance(s, SensorScan) and s.dim == 2
@@ -222,7 +223,6 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
     if note:
         print(f"{algorithm}: note: {note}", file=sys.stderr)
     read_s = time.perf_counter() - start
-    frame = load_frame(config)  # [frame]: the tracks on the Earth too (lat, lon, alt)
     n = onsets = 0
     detector = False  # whether the pictures carry maneuver events (a detector runs)
     maneuvering: set[int] = set()

@@ -156,7 +156,7 @@ class MttCentreService(Service):
                                   f"has it ({', '.join(regions.ids) if regions else 'no [regions]'})")
             self.engine = RegionEngine(cfg, dim, feedback=feedback, regions=regions, index=regions.ids.index(region))
         else:
-            self.engine = (CentralizedEngine(cfg, dim) if algorithm == "mtt-centralized"
+            self.engine = (CentralizedEngine(cfg, dim, frame=frame) if algorithm == "mtt-centralized"
                            else TrackToTrackEngine(cfg, dim, feedback=feedback))
         self.picture_key = self.keys.mtt_picture() if region is None else self.keys.region_picture(region)
         self.handovers_at: list[int] = []  # positions in ``order`` that are hand-overs taken over
