@@ -43,6 +43,7 @@ from fedtrack.geodetic import (
     radio_reach,
     site_from_geodetic,
     surface_enu,
+    surface_xy,
     wrap_lon,
 )
 from fedtrack.jsonl import InputError, check_output_folder, check_readable, output_file, read_jsonl
@@ -360,10 +361,10 @@ def on_surface(frame: Frame, pos: np.ndarray, vel: np.ndarray, dt: float = 0.5) 
     """Positions and velocities (n, 3) of common-frame ``pos``, ``vel`` (n, 3) in a 2-D world on the Earth: east,
     north of the point of the ellipsoid below each position (its latitude and longitude at h = 0: what a 2-D
     position sensor measures, :func:`fedtrack.geodetic.surface_xy`) and its height above the ellipsoid; the
-    velocities by central differences along ``vel`` over +-``dt`` s (second order: 1e-9 m/s off)."""
-    lla = geodetic_from_enu(frame, np.concatenate([pos, pos - vel * dt, pos + vel * dt]))
-    out = enu_from_geodetic(frame, lla[:, 0], lla[:, 1], np.zeros(len(lla)))
-    out[:, 2] = lla[:, 2]
+    velocities by central differences along ``vel`` over +-``dt`` s (within 1e-6 m/s of a step of 0.01 s, aircraft up
+    to 400 km from the origin)."""
+    points = np.concatenate([pos, pos - vel * dt, pos + vel * dt])
+    out = np.column_stack([surface_xy(frame, points), geodetic_from_enu(frame, points)[:, 2]])
     here, before, after = np.split(out, 3)
     return here, (after - before) / (2.0 * dt)
 
