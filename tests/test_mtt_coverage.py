@@ -233,3 +233,42 @@ def test_a_far_radars_view_is_in_its_own_axes_on_the_earth() -> None:
     x = np.column_stack([tracks[:, 0], np.zeros(2), tracks[:, 1], np.zeros(2), tracks[:, 2], np.zeros(2)])
     assert radar_view(x, scan, frame).tolist() == [False, True]
     assert radar_view(x, scan).tolist() == [True, True]  # the common frame's axes: the low track inside
+
+
+def test_a_far_radar_on_the_earth_does_not_delete_a_low_track_below_its_horizon(tmp_path: Path) -> None:
+    """:func:`far_radar_scans` on the Earth: the radar 195 km west of the origin (51.5 N 2.8 W, 50 m up), its
+    clutter drawn in its own frame (elevations 0.005-0.3 rad), the target 300 m up near the origin, below the
+    radar's own horizon but 0.017 rad up in the common frame's axes. With the config's [frame] (the view in the
+    radar's own axes) the track is held by one id from 15 s on; the same run without it (the common axes, as
+    before: the clutter away from the origin lies down to -0.026 rad there) loses it."""
+    frame = Frame(51.5, 0.0)
+    site = site_from_geodetic(frame, 51.5, -2.8, 50.0)
+    rng = np.random.default_rng(7)
+    lines = []
+    for k in range(int(FAR_S)):
+        target = np.array([50.0 * k, 0.0, 300.0])
+        if k % 4 == 0:
+            z = target[:2] + rng.normal(0.0, 10.0, 2)
+            lines.append({"t": float(k), "sensor": "s1", "R": (100.0 * np.eye(2)).tolist(),
+                          "detections": [{"z": z.tolist()}]})
+        own = own_from_aer(np.column_stack([rng.uniform(0, 2 * np.pi, 20), rng.uniform(0.005, 0.3, 20),
+                                            rng.uniform(20e3, 300e3, 20)]))
+        dets = polar_from_cartesian(enu_from_own(site, own) - site.position)
+        if k == 0:  # detected once, as an aircraft that then descends below the horizon
+            dets = np.vstack([dets, polar_from_cartesian(target - site.position)])
+        lines.append({"t": k + 0.5, "sensor": "r1", "R": np.diag([100.0, 4e-6, 4e-6]).tolist(),
+                      "sensor_position": site.position.tolist(), "detections": [{"z": d.tolist()} for d in dets]})
+    scans = tmp_path / "scans.jsonl"
+    scans.write_text("".join(json.dumps(line) + "\n" for line in lines))
+    held = {}
+    for name, table in (("earth", "\n[frame]\norigin = [51.5, 0.0, 0.0]\n"), ("flat", "")):
+        config, out = tmp_path / f"{name}.toml", tmp_path / f"{name}.jsonl"
+        config.write_text(f'[mtt]\nsensors = ["s1", "r1"]\npd = 0.9\nclutter_density = 1e-12\nperiod = 1.0\n\n'
+                          f'[mtt.sensor.r1]\nclutter_density = {20 / (280e3 * 2 * np.pi * 0.295)}\n{table}')
+        replay_mtt("mtt-centralized", scans, config, out)
+        held[name] = [[tr["id"] for tr in p["tracks"] if tr["status"] == "confirmed"
+                       and abs(tr["x"][0] - 50.0 * p["t"]) < 300.0 and abs(tr["x"][2]) < 300.0]
+                      for p in map(json.loads, out.read_text().splitlines()) if p["t"] >= 15.0]
+    assert held["earth"] and all(len(ids) == 1 for ids in held["earth"]), held["earth"]
+    assert len({ids[0] for ids in held["earth"]}) == 1, held["earth"]
+    assert any(len(ids) != 1 for ids in held["flat"]) or len({ids[0] for ids in held["flat"]}) > 1
