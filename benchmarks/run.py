@@ -46,7 +46,8 @@ from fedtrack.benchmarks.floor import measure_floor
 from fedtrack.benchmarks.kf_micro import bench_kf
 from fedtrack.config import seed_number
 from fedtrack.deploy.demo import demo_settings, free_port, write_config
-from fedtrack.deploy.launcher import Launcher, apply_zenoh_settings, service_plan
+from fedtrack.deploy.launcher import Launcher
+from fedtrack.deploy.plan import apply_zenoh_settings, service_plan
 from fedtrack.jsonl import check_output, output_file
 from fedtrack.progress import progress_bar
 

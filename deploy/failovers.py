@@ -1,6 +1,6 @@
 """Failovers and router outages as a launcher sees them: from the centres' primary tokens
 (``alive/mtt-primary/<scope>/<instance>``), the router tokens (``alive/router/*``) and the times of
-each scope's pictures. Pure bookkeeping, no Zenoh: :class:`fedtrack.deploy.launcher.Launcher` calls it
+each scope's pictures. Pure bookkeeping, no Zenoh: :class:`fedtrack.deploy.monitor.Monitor` calls it
 under its lock and logs the lines it returns; ``summary.json`` lists ``failovers`` and
 ``router_outages`` (docs/deploy.md)."""
 
@@ -51,7 +51,7 @@ class RouterOutage:
 
 @dataclass
 class FailoverWatch:
-    """The failovers of the deployment's centres (``scopes``: :func:`fedtrack.deploy.launcher.failover_scopes`;
+    """The failovers of the deployment's centres (``scopes``: :func:`fedtrack.deploy.plan.failover_scopes`;
     another scope's tokens are ignored) and the outages of the launcher's router link. ``stopping``:
     the launcher is stopping everything, and tokens going now are no failover."""
 

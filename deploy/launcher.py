@@ -22,12 +22,14 @@ primary dies its standby takes over (:mod:`fedtrack.fusion_center.mtt.standby`) 
 restarts the dead process as the new standby; the report lists each failover (the centre's
 scope, when its primary token went, how long until the standby held it and until the scope's
 next picture arrived, in seconds and in scans of the slowest sensor).
+
+The plan of processes and their arguments is :mod:`fedtrack.deploy.plan`'s, the Zenoh session that
+watches the deployment :mod:`fedtrack.deploy.monitor`'s; this module starts, supervises and stops.
 """
 
 from __future__ import annotations
 
 import argparse
-import collections
 import ctypes
 import os
 import shutil
@@ -36,56 +38,39 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
-import numpy as np
-import zenoh
-
-from fedtrack.config import ConfigError, in_file
-from fedtrack.deploy.failovers import FailoverWatch
+from fedtrack.config import ConfigError
+from fedtrack.deploy.monitor import LaunchError, Monitor
 from fedtrack.deploy.multitarget import (
-    SCENARIO_DIR,
     check_multitarget,
     finish_multitarget,
     prepare,
-    sensor_ids,
     sensor_specs,
-    service_args,
+)
+from fedtrack.deploy.plan import (
+    ServiceProcess,
+    apply_zenoh_settings,
+    await_start,
+    failover_scopes,
+    release_sensors,
+    service_plan,
 )
 from fedtrack.deploy.procstat import process_usage
 from fedtrack.deploy.report import LaunchReport, finish
-from fedtrack.deploy.security import (
-    LAUNCHER,
-    check_router_names,
-    host_endpoints,
-    identity,
-    router_limits,
-    write_configs,
-)
 from fedtrack.deploy.settings import Settings, check_launchable, load_settings
-from fedtrack.deployment import ROLES, listen_address, port_in_use
+from fedtrack.deployment import listen_address, port_in_use
 from fedtrack.jsonl import InputError, output_folder
-from fedtrack.keys import Keys
-from fedtrack.local_filters.mtt.service import RESET_TIMEOUT_S
-from fedtrack.local_filters.regions import load_regions
 from fedtrack.recording import Recording
-from fedtrack.services.rejections import clip
-from fedtrack.wire import FusedTrack, Health, M, Measurement, TrackPicture, WireError, decode
-from fedtrack.zsession import SessionError, SessionOptions, close_session, open_session, wait_alive
+from fedtrack.zsession import close_session, wait_alive
 
 STOP_GRACE_S = 5.0
 RECORDER_GRACE_S = 20.0  # the recorder commits what it still holds (a row an fsync) before it stops
 PR_SET_PDEATHSIG = 1
 ESSENTIAL_ROLES = ("router", "fusion-center", "recorder")
 MAX_RESTARTS = 3
-SNAPSHOT = "fusion-center.snapshot"  # the fusion center's state, for its restarts within this run
-PICTURE_SNAPSHOT = "picture.snapshot"  # serve picture's last merged time, for its restarts within this run
 RESTART_BACKOFF_S = 0.5
 RESTART_BACKOFF_MAX_S = 4.0
-START_FILE = "start-at"  # beside the sensors' logs: their common start time (realtime), written once all are ready
 START_MARGIN_S = 0.25  # the start is this long after the last sensor was ready: 25 of the sensors' 10 ms polls of START_FILE
 JOIN_LEAD_S = 2.0  # a joining sensor's processes start this long before its join time
 ROUTER_DRAIN_S = 0.5  # a router joined to other hosts' routers is stopped this long after the rest (in-flight data)
@@ -100,46 +85,8 @@ def describe_exit(code: int) -> str:
             return f"signal {-code}"
     return f"exit code {code}"
 
-
-RATE_WINDOW_S = 5.0  # the progress line's per-sensor rates: scans a second over the last 5 s (over the whole
-# run before 2026-11-27, so a sensor killed at 60 s still showed 1/s at 90 s and one joining at 30 s 0/s)
 USAGE_SAMPLE_S = 0.5  # how often the launcher samples its services' peak RSS and CPU time
 STOP_STAGE = {"fusion-center": 1, "mtt-centre": 1, "picture": 2, "recorder": 3, "router": 4}  # others 0
-
-
-class LaunchError(RuntimeError):
-    """A service failed to start or an essential service died."""
-
-
-@dataclass
-class ServiceProcess:
-    role: str
-    id: str
-    argv: list[str]
-    log_path: Path
-    proc: subprocess.Popen[bytes] | None = None
-    join_at_s: float | None = None  # scenario seconds: started then (``[multitarget] join_at``)
-    kill_at_s: float | None = None  # scenario seconds: SIGKILLed then, never restarted (``kill_at``)
-    killed: bool = False
-
-    @property
-    def name(self) -> str:
-        return f"{self.role}/{self.id}"
-
-    @property
-    def region(self) -> str | None:
-        """The region of a region centre (``--region RID``), else None."""
-        return self.argv[self.argv.index("--region") + 1] if "--region" in self.argv else None
-
-    @property
-    def standby(self) -> bool:
-        return "--standby" in self.argv
-
-    def log_tail(self, lines: int = 15) -> str:
-        try:
-            return "\n".join(self.log_path.read_text(errors="replace").splitlines()[-lines:])
-        except OSError:
-            return "(no log)"
 
 
 class Stopped(KeyboardInterrupt):
@@ -167,55 +114,6 @@ def _die_with_parent() -> None:
         pass
 
 
-def service_plan(settings: Settings, config_path: Path, out_dir: Path, log_dir: Path,
-                 recorder_exports: bool = True) -> list[ServiceProcess]:
-    """The processes this host starts, in start order (sensors last). The recorder writes
-    ``out_dir``'s JSON Lines files itself when it stops (``--out``) unless ``recorder_exports``
-    is false: ``fedtrack launch`` writes them once everything has stopped."""
-    dep = settings.deployment
-    connect = [a for ep in dep.connect_endpoints for a in ("--connect", ep)]
-    common = ["--deployment", dep.name, *connect]
-    base = [sys.executable, "-m", "fedtrack.cli", "serve"]
-    sensors = [s.id for s in settings.sensor]
-    here = [s for s in sensors if dep.local_sensors is None or s in dep.local_sensors]
-    plan: list[ServiceProcess] = []
-    exports = ["--out", str(out_dir)] if recorder_exports else []
-
-    def add(role: str, sid: str, args: list[str]) -> None:
-        plan.append(ServiceProcess(role, sid, base + [role, "--id", sid] + args,
-                                   log_dir / f"{role}-{sid}.log"))
-
-    if "router" in dep.services and dep.router_listen:
-        peers = [a for ep in dep.router_connect for a in ("--connect", ep)]
-        add("router", "router", ["--deployment", dep.name, "--listen", dep.router_listen, *peers])
-    cfg = ["--config", str(config_path)]
-    if settings.multitarget is not None:
-        if "recorder" in dep.services:
-            add("recorder", "recorder", ["--db", str(out_dir / "recording.db"), *exports, *common])
-        mt = settings.multitarget
-        for role, sid, args in service_args(settings, out_dir / SCENARIO_DIR / "measurements.jsonl",
-                                            load_regions(config_path)):
-            if runs_here(settings, role, sid, args):
-                snapshot = ["--snapshot", str(out_dir / PICTURE_SNAPSHOT)] if role == "picture" else []
-                add(role, sid, [*args, *cfg, *common, *snapshot])
-                if role in ("sensor", "mtt-local"):
-                    plan[-1].join_at_s, plan[-1].kill_at_s = mt.join_at.get(sid), mt.kill_at.get(sid)
-                if role == "mtt-centre" and mt.standby:
-                    add(role, f"{sid}-standby", [*args, *cfg, *common, "--standby"])
-        return plan
-    if "local-filter" in dep.services:
-        for s in here:
-            add("local-filter", s, ["--sensor", s, *cfg, *common])
-    if "fusion-center" in dep.services:
-        add("fusion-center", "fusion", [*cfg, *common, "--snapshot", str(out_dir / SNAPSHOT)])
-    if "recorder" in dep.services:
-        add("recorder", "recorder", ["--db", str(out_dir / "recording.db"), *exports, *common])
-    if "sensor" in dep.services:
-        for s in here:
-            add("sensor", s, [*cfg, *common])
-    return plan
-
-
 def set_aside_recording(db: Path) -> Path | None:
     """Move an earlier run's recording database ``db`` (with SQLite's ``-wal`` and ``-shm``
     files) to ``db.previous``, replacing the one kept there; returns where, or None without one.
@@ -231,111 +129,19 @@ def set_aside_recording(db: Path) -> Path | None:
     return kept
 
 
-def runs_here(settings: Settings, role: str, sid: str, args: list[str]) -> bool:
-    """Whether this host runs a multi-target service: its role is in ``deployment.services``, a
-    sensor's services only for ``local_sensors``, a region's centre only for ``local_regions``."""
-    dep = settings.deployment
-    if role in ("sensor", "mtt-local") and sid not in here_mtt(settings):
-        return False
-    if "--region" in args and dep.local_regions is not None and args[args.index("--region") + 1] not in dep.local_regions:
-        return False
-    return role in dep.services or role not in ROLES
 
-
-def here_mtt(settings: Settings) -> list[str]:
-    """The multi-target scenario's sensors this host runs (``deployment.local_sensors``, default all)."""
-    assert settings.multitarget is not None
-    ids = sensor_ids(settings.multitarget)
-    local = settings.deployment.local_sensors
-    return [s for s in ids if local is None or s in local]
-
-
-def apply_zenoh_settings(settings: Settings, config_path: Path, out_dir: Path,
-                         plan: list[ServiceProcess]) -> str | None:
-    """Hand every service of ``plan`` its Zenoh configuration (``[zenoh]`` table, see
-    :mod:`fedtrack.deploy.security`) with ``--zenoh-config``; returns the launcher monitor's file."""
-    dep = settings.deployment
-
-    def ident(sp: ServiceProcess) -> str:
-        return identity(sp.role, sp.id, sp.region)
-
-    if settings.zenoh.insecure:  # the file's explicit opt-out, which every ``serve`` then needs off loopback
-        for sp in plan:
-            sp.argv = [*sp.argv, "--insecure"]
-    here = sorted({ident(sp) for sp in plan})  # the certificates this host needs (other hosts hold theirs)
-    sensors = sensor_ids(settings.multitarget) if settings.multitarget is not None else [s.id for s in settings.sensor]
-    regions = load_regions(config_path) if settings.multitarget is not None else None
-    centres = [identity("mtt-centre", rid, rid) for rid in (regions.ids if regions is not None else ())]
-    everyone = sorted({*here, *(identity("sensor", sid) for sid in sensors), *centres, "router", "fusion", "recorder"})
-    with in_file(config_path):
-        paths = write_configs(settings.zenoh, config_path.parent, Keys(dep.name), here, out_dir, everyone,
-                              router_limits(dep.deadline_s, RESET_TIMEOUT_S))
-        if settings.zenoh.tls_dir is not None:
-            check_router_names((config_path.parent / settings.zenoh.tls_dir).resolve(), host_endpoints(dep))
-    if not paths:
-        return None
-    for sp in plan:
-        sp.argv = [*sp.argv, "--zenoh-config", str(paths[ident(sp)])]
-    return str(paths[LAUNCHER])
-
-
-def await_start(sensors: list[ServiceProcess]) -> Path | None:
-    """Have the realtime ``sensors`` wait, once ready, for their common start time in one file
-    (``START_FILE`` beside their logs, an earlier run's removed): ``--start-file``; returns the file."""
-    if not sensors:
-        return None
-    path = sensors[0].log_path.parent / START_FILE
-    path.unlink(missing_ok=True)
-    for sp in sensors:
-        sp.argv = [*sp.argv, "--start-file", str(path)]
-    return path
-
-
-def release_sensors(sensors: list[ServiceProcess], path: Path | None, start_at: float) -> float:
-    """Give the ``sensors`` one wall-clock start time (realtime pacing schedules scan k at
-    start + k T / speed, so they stay in step and do not drift): written to ``path`` for those
-    waiting on it, and ``--start-at`` instead of ``--start-file`` for their later starts (restarts,
-    sensors that join); returns it."""
-    if path is not None:
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(f"{start_at:.6f}\n")
-        tmp.replace(path)
-    for sp in sensors:
-        if "--start-file" in sp.argv:
-            i = sp.argv.index("--start-file")
-            sp.argv = [*sp.argv[:i], *sp.argv[i + 2:]]
-        sp.argv = [*sp.argv, "--start-at", f"{start_at:.6f}"]
-    return start_at
-
-
-class Launcher:
-    """Runs a plan of service processes and watches the deployment over Zenoh."""
+class Launcher(Monitor):
+    """Runs a plan of service processes and watches the deployment over Zenoh (:class:`Monitor`)."""
 
     def __init__(self, settings: Settings, plan: list[ServiceProcess], quiet: bool = False,
                  max_scans: int | None = None, zenoh_config: str | None = None, title: str = "fedtrack launch",
                  scopes: frozenset[str] = frozenset()) -> None:
-        self.settings = settings
-        self.title = title  # the command the launcher's own lines name (``fedtrack demo`` runs one too)
-        self.zenoh_config = zenoh_config
+        super().__init__(settings, max_scans, zenoh_config, title, scopes)
         self.plan = plan
         self.quiet = quiet
-        self.max_scans = max_scans
-        self._enough = threading.Event()
-        self.keys = Keys(settings.deployment.name)
-        self.report = LaunchReport()
-        self._lock = threading.Lock()
         self._stop = threading.Event()
-        self._session: zenoh.Session | None = None
-        self._subs: list[Any] = []
         self._restart_at: dict[str, float] = {}  # service -> monotonic time of its pending restart
-        self.watch = FailoverWatch(scopes)  # failovers and router outages, from the tokens and pictures
-        self._wall0_ns, self._mono0_ns = time.time_ns(), time.monotonic_ns()  # the watch's clock (_watch_ns)
         self._epoch: float | None = None  # wall-clock time of the sensors' scenario time 0
-        self._arrivals: dict[str, collections.deque[float]] = {}  # sensor -> its scans of the last RATE_WINDOW_S
-        # the newest fused track's scan number: a measurement's publish stamp is kept only up to max_seq_jump beyond
-        # it (the services reject one further ahead), one per sensor and scan: a sensor numbering its scans
-        # afresh on its own key grew the launcher by 212 B each (21 MB per 100,000), for good
-        self._newest_track = -1
 
     # ------------------------------------------------------------ processes
     def _start(self, sp: ServiceProcess) -> None:
@@ -421,10 +227,6 @@ class Launcher:
                 if not self.quiet:
                     self._say(f"{sp.name} killed (SIGKILL at t = {sp.kill_at_s:g} s)")
 
-    def _say(self, text: str) -> None:
-        sys.stderr.write(f"\n{self.title}: {text}\n")
-        sys.stderr.flush()
-
     def stop_all(self) -> None:
         """SIGTERM every child still running, stage by stage, SIGKILL after a grace period.
 
@@ -473,143 +275,6 @@ class Launcher:
         return {sp.name for sp in restarted if self.keys.alive(sp.role, sp.id) in missing}
 
     # ------------------------------------------------------------ zenoh monitoring
-    def _open_monitor(self) -> None:
-        opts = SessionOptions(mode="client", connect=self.settings.deployment.connect_endpoints,
-                              connect_timeout_s=self.settings.deployment.ready_timeout_s,
-                              config_file=self.zenoh_config)
-        try:
-            self._session = open_session(opts)
-        except SessionError as exc:  # a host without a router, whose router is not up (was a traceback)
-            raise LaunchError(f"no router reached within ready_timeout_s = {opts.connect_timeout_s:g} s: "
-                              f"{exc}") from None
-        self._subs = [
-            self._session.declare_subscriber(self.keys.fusion_track(), self._on_track),
-            self._session.declare_subscriber(self.keys.sensor_meas(), self._on_meas),
-            self._session.declare_subscriber(self.keys.health(), self._on_health),
-            self._session.declare_subscriber(self.keys.mtt_picture(), self._on_picture),
-            self._session.liveliness().declare_subscriber(self.keys.primary(), self._on_primary_token),
-            self._session.liveliness().declare_subscriber(self.keys.alive("router"), self._on_router_token,
-                                                          history=True),
-            self._session.declare_subscriber(self.keys.region_picture(), self._on_region_picture),
-        ]
-
-    def _monitored(self, sample: zenoh.Sample, msg_type: type[M], key_of: Callable[[M], str] | None = None) -> M | None:
-        """The message of ``sample`` decoded as ``msg_type`` or None when it is rejected: malformed, or
-        (``key_of``) published on another key than the one its payload names as its sender's (a Health's
-        role and id, a measurement's sensor). The access control admits an identity on its own keys
-        only, not its payloads: before 2026-11-27 sensor 1's identity could publish the fusion centre's
-        Health, with its counters, on ``health/sensor/1``, and the summary showed them. Counted in
-        ``LaunchReport.monitor_rejected`` (in the summary's rejected total), the first one logged."""
-        key = str(sample.key_expr)
-        try:
-            msg = decode(sample.payload.to_bytes(), msg_type)
-        except WireError as exc:
-            return self._monitor_rejects(key, str(exc))
-        if key_of is not None and key_of(msg) != key:
-            return self._monitor_rejects(key, f"sender: its payload is of {key_of(msg)}")
-        return msg
-
-    def _monitor_rejects(self, key: str, reason: str) -> None:
-        with self._lock:
-            self.report.monitor_rejected += 1
-            first = self.report.monitor_rejected == 1
-        if first:
-            self._say(f"rejected a message on {clip(key)}: {clip(reason)} (every one is counted in summary.json's "
-                      "monitor_rejected)")
-
-    def _on_track(self, sample: zenoh.Sample) -> None:
-        now = time.time_ns()
-        track = self._monitored(sample, FusedTrack)
-        if track is None:
-            return
-        with self._lock:
-            self.report.scans_fused += 1
-            self.report.latencies_ms.append((now - track.stamp_ns) / 1e6)
-            self.report.track_arrivals_ns[track.seq] = now
-            self._newest_track = max(self._newest_track, track.seq)
-            if self.max_scans is not None and self.report.scans_fused >= self.max_scans:
-                self._enough.set()
-
-    def _on_picture(self, sample: zenoh.Sample) -> None:
-        now = time.time_ns()
-        pic = self._monitored(sample, TrackPicture)
-        if pic is None:
-            return
-        if pic.closing or pic.part != pic.parts - 1:  # a picture in parts arrived with its last (docs/wire.md)
-            return
-        with self._lock:
-            self.report.pictures += 1
-            self.report.picture_arrivals.append((pic.t, now))
-            self.watch.covered("all", self._watch_ns())
-
-    def _watch_ns(self) -> int:
-        """The failover watch's clock: the wall clock as it read at the launcher's start, advanced by the
-        monotonic clock, so that a step of the host's clock moves no failover or outage figure (stepped
-        back 30 s before a frozen primary's take-over, its region's pictures seemed silent for -25 s and
-        the take-over was no failover, before 2026-11-27)."""
-        return self._wall0_ns + time.monotonic_ns() - self._mono0_ns
-
-    def _on_region_picture(self, sample: zenoh.Sample) -> None:
-        """A region centre's picture (``region/<rid>/picture``): covers its region after a failover."""
-        with self._lock:
-            self.watch.covered(str(sample.key_expr).split("/")[-2], self._watch_ns())
-
-    def _on_primary_token(self, sample: zenoh.Sample) -> None:
-        """A centre's primary token went or was claimed (:meth:`FailoverWatch.primary_token`)."""
-        now, (scope, instance) = self._watch_ns(), str(sample.key_expr).rsplit("/", 2)[-2:]
-        with self._lock:
-            line = self.watch.primary_token(scope, instance, sample.kind == zenoh.SampleKind.DELETE, now)
-        if line:
-            self._say(line)
-
-    def _on_router_token(self, sample: zenoh.Sample) -> None:
-        """A router token went or came (:meth:`FailoverWatch.router_token`)."""
-        now, name = self._watch_ns(), str(sample.key_expr).rsplit("/", 1)[-1]
-        with self._lock:
-            line = self.watch.router_token(name, sample.kind == zenoh.SampleKind.DELETE, now)
-        if line:
-            self._say(line)
-
-    def _on_meas(self, sample: zenoh.Sample) -> None:
-        m = self._monitored(sample, Measurement, lambda m: self.keys.sensor_meas(m.sensor))
-        if m is None:
-            return
-        if m.part != m.parts - 1:  # a scan in parts counts once, with its last part
-            return
-        with self._lock:
-            self.report.measurements[m.sensor] = self.report.measurements.get(m.sensor, 0) + 1
-            arrivals, now = self._arrivals.setdefault(m.sensor, collections.deque()), time.monotonic()
-            arrivals.append(now)
-            while arrivals[0] < now - RATE_WINDOW_S:  # held for the rates only (quiet: never shown)
-                arrivals.popleft()
-            if m.kind == "scan":
-                mt = self.settings.multitarget
-                self.report.note_scan(m.t, m.stamp_ns, self.settings.mtt.period, self.settings.mtt.picture_delay,
-                                      mt.duration if mt is not None else 0.0)
-            elif m.seq <= self._newest_track + self.settings.deployment.max_seq_jump:
-                self.report.publish_stamps_ns.setdefault(m.seq, {}).setdefault(m.sensor, m.stamp_ns)
-
-    def _on_health(self, sample: zenoh.Sample) -> None:
-        h = self._monitored(sample, Health, lambda h: self.keys.health(h.role, h.id))
-        if h is None:
-            return
-        with self._lock:
-            self.report.health[f"{h.role}/{h.id}"] = dict(h.counters)
-
-    def _status_line(self, start: float) -> str:
-        with self._lock:
-            now = time.monotonic()
-            window = min(max(now - start, 1e-9), RATE_WINDOW_S)
-            for times in self._arrivals.values():
-                while times and times[0] < now - window:
-                    times.popleft()
-            rates = " ".join(f"{s}:{len(self._arrivals[s]) / window:.1f}/s" for s in sorted(self._arrivals))
-            lat = self.report.latencies_ms[-50:]
-            last = f"{np.median(lat):.1f} ms" if lat else "-"
-            if self.settings.multitarget is not None:
-                return f"pictures {self.report.pictures}  sensors {rates or '-'}"
-            return f"scans fused {self.report.scans_fused}  sensors {rates or '-'}  latency(p50 last 50) {last}"
-
     # ------------------------------------------------------------ run
     def request_stop(self) -> None:
         self._stop.set()
@@ -790,18 +455,6 @@ def prepare_launcher(settings: Settings, config_path: Path, out_dir: Path, quiet
     monitor_config = apply_zenoh_settings(settings, config_path, out_dir, plan)
     return Launcher(settings, plan, quiet=quiet, zenoh_config=monitor_config, title=title,
                     scopes=failover_scopes(settings, config_path))
-
-
-def failover_scopes(settings: Settings, config_path: Path) -> frozenset[str]:
-    """The scopes of a deployment's multi-target centres (their primary tokens' second-last chunk):
-    each region of ``[regions]``, or ``all`` for the one centre; none without ``[multitarget]``, and none
-    without its ``standby = true``: a centre's token going is then its end, no failover (host A of
-    deploy/multihost-regions/, run in its documented order, reported host C's centre stopping as
-    'failover of x1y0 ... took over after - s')."""
-    if settings.multitarget is None or not settings.multitarget.standby:
-        return frozenset()
-    regions = load_regions(config_path)
-    return frozenset(regions.ids) if regions is not None else frozenset({"all"})
 
 
 def main(argv: list[str]) -> int:

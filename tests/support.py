@@ -96,7 +96,7 @@ class Deployment:
         from dataclasses import replace
 
         from fedtrack.deploy.demo import demo_settings, write_config
-        from fedtrack.deploy.launcher import apply_zenoh_settings, service_plan
+        from fedtrack.deploy.plan import apply_zenoh_settings, service_plan
         from fedtrack.deploy.security import ZenohSettings
         from fedtrack.keys import Keys
 

@@ -54,7 +54,8 @@ def test_a_centre_of_another_host_ending_is_no_failover_without_standbys(tmp_pat
 
     import zenoh
 
-    from fedtrack.deploy.launcher import Launcher, failover_scopes
+    from fedtrack.deploy.launcher import Launcher
+    from fedtrack.deploy.plan import failover_scopes
 
     cfg = tmp_path / "a.toml"
     cfg.write_text(f'[deployment]\npacing = "realtime"\n[multitarget]\nstandby = {str(standby).lower()}\n')
@@ -122,14 +123,15 @@ def test_the_progress_line_rates_are_recent(tmp_path: Path, monkeypatch: pytest.
 
     import numpy as np
 
-    from fedtrack.deploy.launcher import RATE_WINDOW_S, Launcher
+    from fedtrack.deploy.launcher import Launcher
+    from fedtrack.deploy.monitor import RATE_WINDOW_S
     from fedtrack.wire import Measurement, encode
 
     cfg = tmp_path / "c.toml"
     cfg.write_text('[deployment]\npacing = "realtime"\n[multitarget]\n')
     launcher = Launcher(load_settings(cfg), [], quiet=True)
     clock = [1000.0]
-    monkeypatch.setattr("fedtrack.deploy.launcher.time.monotonic", lambda: clock[0])
+    monkeypatch.setattr("fedtrack.deploy.monitor.time.monotonic", lambda: clock[0])
     for k in range(90):  # s1 once a second until it dies at 60 s; s3 every other second from 30 s on
         clock[0] = 1000.0 + k
         for sid in ("s1",) * (k < 60) + ("s3",) * (k >= 30 and k % 2 == 0):

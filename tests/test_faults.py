@@ -23,7 +23,8 @@ import pytest
 from support import free_port, wait_until
 
 from fedtrack.deploy.demo import demo_settings, write_config
-from fedtrack.deploy.launcher import Launcher, service_plan
+from fedtrack.deploy.launcher import Launcher
+from fedtrack.deploy.plan import service_plan
 from fedtrack.fusion_center.replay import replay_fusion
 from fedtrack.sensors.scenarios import deployment_truth, paper004_scenario
 from fedtrack.sensors.service import SensorSettings, position_scans

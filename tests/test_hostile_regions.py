@@ -22,7 +22,8 @@ from test_hostile_semantics import one_track_report, scan
 from test_hostile_sequences import region_picture
 from test_mtt_regions_live import CONFIG as REGIONS_CONFIG
 
-from fedtrack.deploy.launcher import Launcher, failover_scopes
+from fedtrack.deploy.launcher import Launcher
+from fedtrack.deploy.plan import failover_scopes
 from fedtrack.deploy.settings import load_settings
 from fedtrack.fusion_center.mtt import standby as standby_module
 from fedtrack.fusion_center.mtt.picture_merge import PictureMergeService

@@ -177,7 +177,8 @@ def test_the_launcher_exports_a_picture_recording_in_the_centres_order_after_eve
     after one was killed): the scans in the order the pictures list them (a region run's scan once
     per region, tagged), a departure, the scans no picture lists in unprocessed.jsonl, no closing
     record among the pictures."""
-    from fedtrack.deploy.launcher import Launcher, service_plan
+    from fedtrack.deploy.launcher import Launcher
+    from fedtrack.deploy.plan import service_plan
     from fedtrack.deploy.settings import load_settings
 
     db = tmp_path / "recording.db"

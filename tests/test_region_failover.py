@@ -246,6 +246,7 @@ def watching(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> tuple[Any, list
     """A launcher of two regions with standbys, its monitor's callbacks driven by hand on clocks of our
     own: ``clock[0]`` the monotonic clock (ns), the wall clock ``clock[0] + clock[1]`` (a step)."""
     from fedtrack.deploy import launcher as launcher_module
+    from fedtrack.deploy.plan import failover_scopes
 
     config = tmp_path / "regions.toml"
     config.write_text("[multitarget]\nstandby = true\n[regions]\nmargin = 500.0\n"
@@ -255,7 +256,7 @@ def watching(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> tuple[Any, list
     monkeypatch.setattr(launcher_module.time, "time_ns", lambda: clock[0] + clock[1])
     monkeypatch.setattr(launcher_module.time, "monotonic_ns", lambda: clock[0])
     return launcher_module.Launcher(settings, [], quiet=True,
-                                    scopes=launcher_module.failover_scopes(settings, config)), clock
+                                    scopes=failover_scopes(settings, config)), clock
 
 
 def test_a_router_outage_is_reported_as_one_not_as_a_failover_per_region(watching: tuple[Any, list[int]]) -> None:

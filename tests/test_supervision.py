@@ -10,7 +10,8 @@ import pytest
 from support import wait_until
 
 from fedtrack.deploy import launcher as launcher_mod
-from fedtrack.deploy.launcher import Launcher, LaunchError, ServiceProcess, describe_exit
+from fedtrack.deploy.launcher import Launcher, LaunchError, describe_exit
+from fedtrack.deploy.plan import ServiceProcess
 from fedtrack.deploy.settings import Settings
 
 
@@ -81,7 +82,7 @@ def test_realtime_sensors_wait_for_the_start_the_launcher_gives_once_they_are_re
     """``await_start`` points every sensor at one start file (an earlier run's removed); a sensor
     told it publishes nothing until the file holds the start, then scan k at start + k T / speed;
     ``release_sensors`` writes the file whole and gives later starts (restarts, joins) ``--start-at``."""
-    from fedtrack.deploy.launcher import await_start, release_sensors
+    from fedtrack.deploy.plan import await_start, release_sensors
     from fedtrack.sensors.service import SensorService
     from fedtrack.zsession import SessionOptions
 
