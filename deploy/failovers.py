@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from fedtrack.fusion_center.mtt.standby import SILENT_S
+from fedtrack.fusion_center.mtt.failover.standby import SILENT_S
 
 
 @dataclass

@@ -18,7 +18,7 @@ sensor or local filter is left out and the rest goes on degraded (exit 1 at the 
 
 Failover (``[multitarget] standby = true``): every multi-target centre gets a hot standby
 (``<id>-standby``, ``serve mtt-centre --standby``), started once the primaries are ready. When a
-primary dies its standby takes over (:mod:`fedtrack.fusion_center.mtt.standby`) and the launcher
+primary dies its standby takes over (:mod:`fedtrack.fusion_center.mtt.failover.standby`) and the launcher
 restarts the dead process as the new standby; the report lists each failover (the centre's
 scope, when its primary token went, how long until the standby held it and until the scope's
 next picture arrived, in seconds and in scans of the slowest sensor).

@@ -25,11 +25,11 @@ from test_mtt_regions_live import CONFIG as REGIONS_CONFIG
 from fedtrack.deploy.launcher import Launcher
 from fedtrack.deploy.plan import failover_scopes
 from fedtrack.deploy.settings import load_settings
-from fedtrack.fusion_center.mtt import standby as standby_module
+from fedtrack.fusion_center.mtt.failover import standby as standby_module
+from fedtrack.fusion_center.mtt.failover.standby import SILENT_S, Standby, claim_instance
 from fedtrack.fusion_center.mtt.picture_merge import PictureMergeService
 from fedtrack.fusion_center.mtt.service import MttCentreService
 from fedtrack.fusion_center.mtt.shards import handover_to_wire
-from fedtrack.fusion_center.mtt.standby import SILENT_S, Standby, claim_instance
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.service import MttLocalService
 from fedtrack.local_filters.regions import load_regions

@@ -1,4 +1,4 @@
-"""Failover of a centre to its hot standby (issue 27 item 4; :mod:`fedtrack.fusion_center.mtt.standby`).
+"""Failover of a centre to its hot standby (issue 27 item 4; :mod:`fedtrack.fusion_center.mtt.failover.standby`).
 
 Unit tests of :class:`Standby` (what it withholds, what it settles, when it takes over), and,
 under the ``faults`` marker, a live deployment on loopback (``fedtrack launch`` machinery,
@@ -29,9 +29,7 @@ from support import assert_same_pictures, free_port, wait_until
 from fedtrack.deploy.launcher import prepare_launcher
 from fedtrack.deploy.report import LaunchReport
 from fedtrack.deploy.settings import load_settings
-from fedtrack.fusion_center.mtt.replay import replay_mtt
-from fedtrack.fusion_center.mtt.service import MttCentreService
-from fedtrack.fusion_center.mtt.standby import (
+from fedtrack.fusion_center.mtt.failover.standby import (
     SETTLE_S,
     SILENT_S,
     START_GRACE_S,
@@ -40,6 +38,8 @@ from fedtrack.fusion_center.mtt.standby import (
     claim_instance,
     next_after,
 )
+from fedtrack.fusion_center.mtt.replay import replay_mtt
+from fedtrack.fusion_center.mtt.service import MttCentreService
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.regions import load_regions, region_of
 from fedtrack.wire import TrackPicture, TrackResets

@@ -23,7 +23,8 @@ import pytest
 import zenoh
 from support import WAIT_S, free_port, wait_until
 
-from fedtrack.fusion_center.mtt.service import MttCentreService, picture_window
+from fedtrack.fusion_center.mtt.pictures import picture_window
+from fedtrack.fusion_center.mtt.service import MttCentreService
 from fedtrack.keys import Keys
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.services import base

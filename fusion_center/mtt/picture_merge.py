@@ -58,14 +58,14 @@ import numpy as np
 
 from fedtrack.config import ConfigError, load_tables
 from fedtrack.fusion_center.mtt.engines import PictureClock
-from fedtrack.fusion_center.mtt.regional import RegionPicture, merge_pictures, rows_of
-from fedtrack.fusion_center.mtt.service import (
+from fedtrack.fusion_center.mtt.pictures import (
     MERGE_WAIT_S,
     PICTURE_ITEMS,
     picture_message,
     picture_tracks,
     picture_window,
 )
+from fedtrack.fusion_center.mtt.regional import RegionPicture, merge_pictures, rows_of
 from fedtrack.geodetic import Frame, geodetic_of_states, load_frame
 from fedtrack.local_filters.mtt.config import MttServiceSettings
 from fedtrack.local_filters.regions import Regions, load_regions

@@ -37,11 +37,13 @@ recorded scans). Rejected (docs/wire.md#rejections): a sensor the config does no
 ``[deployment] max_seq_jump`` ahead of the sensor's last (``seq_jump``), and a sensor that would
 be live beside ``MAX_LIST_ITEMS`` (64) others (``too_many_sensors``: a picture's track lists at
 most that many sensors, and each live sensor raises every tracker's sharing factor).
+
+Its failover (a primary's token, ``--standby``) is :mod:`fedtrack.fusion_center.mtt.failover`'s, its
+pictures as messages :mod:`fedtrack.fusion_center.mtt.pictures`'.
 """
 
 from __future__ import annotations
 
-import math
 import time
 from collections import deque
 from pathlib import Path
@@ -55,22 +57,16 @@ from fedtrack.fusion_center.mtt.centre.candidates import CrowdedReport
 from fedtrack.fusion_center.mtt.engines import (
     CentralizedEngine,
     PictureClock,
-    PictureTracks,
     TrackToTrackEngine,
     no_tracks,
     union_picture,
 )
+from fedtrack.fusion_center.mtt.failover.service import CentreFailover
+from fedtrack.fusion_center.mtt.failover.standby import NUMBER_ROOM, Standby, next_after
+from fedtrack.fusion_center.mtt.pictures import PICTURE_ITEMS, picture_message, picture_window
 from fedtrack.fusion_center.mtt.regional import RegionEngine
 from fedtrack.fusion_center.mtt.shards import handover_from_wire, handover_to_wire
 from fedtrack.fusion_center.mtt.silence import Silence
-from fedtrack.fusion_center.mtt.standby import (
-    NUMBER_ROOM,
-    SILENT_S,
-    Standby,
-    claim_instance,
-    next_after,
-    numbers_of,
-)
 from fedtrack.geodetic import Frame, geodetic_of_states
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
 from fedtrack.local_filters.mtt.local import report_from_wire, resets_to_wire
@@ -81,19 +77,7 @@ from fedtrack.services.admission import ReceivedScans, digest
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
 from fedtrack.services.lead import LeadGuard
 from fedtrack.services.rejections import Conflict, Rejected, require_covariances, require_finite
-from fedtrack.wire import (
-    MAX_LIST_ITEMS,
-    MAX_MAGNITUDE,
-    MAX_PARTS,
-    MAX_TRACKS,
-    HandOver,
-    Measurement,
-    Message,
-    TrackPicture,
-    TrackReport,
-    TrackResets,
-    predictable,
-)
+from fedtrack.wire import MAX_LIST_ITEMS, MAX_MAGNITUDE, HandOver, Measurement, TrackPicture, TrackReport, predictable
 
 ALGORITHMS = ("mtt-federated", "mtt-decentralized", "mtt-centralized")
 # hand-overs per sending region whose digests are kept to tell a re-delivery (a duplicate) or a second,
@@ -101,29 +85,9 @@ ALGORITHMS = ("mtt-federated", "mtt-decentralized", "mtt-centralized")
 # hand-overs in order and a re-sent one (after a failover) is among its latest; an older one is late. Kept
 # all, they grew with every hand-over and were pickled with every message (100,000: 56 ms a message)
 HANDOVERS_KEPT = 64
-# tracks, and entries of the fused lists, one picture can carry: MAX_PARTS messages of MAX_TRACKS each. A
-# centre takes at most PICTURE_ITEMS - MAX_LIST_ITEMS reports, scans and hand-overs between two pictures
-# (room left for the departures of its 64 live sensors; more are rejected too_large: a real period holds
-# hundreds, 64 sensors at 10 Hz are 640), so that every picture can be sent: before, 131,073 reports
-# within one picture period (a sensor counting its reports microseconds apart) made the picture
-# unpublishable, and every report after them was rejected with it
-PICTURE_ITEMS = MAX_PARTS * MAX_TRACKS
-# A restarted ``serve picture`` merges the region pictures of its outage from the region centres' caches
-# (docs/deploy.md, "serve picture dies"): the launcher has it back within about RESTART_WINDOW_S (three
-# restarts: backoffs 0.5 + 1 + 2 s and a start of about 2 s each, as the recorder's base.CACHE_BYTES), and
-# when it died it may have held a picture time for up to MERGE_WAIT_S (its --wait) waiting for a region
-RESTART_WINDOW_S = 10.0
-MERGE_WAIT_S = 2.0
 
 
-def picture_window(period: float, speed: float) -> int:
-    """The region pictures a region centre keeps for a restarted merger: those of the last
-    RESTART_WINDOW_S + MERGE_WAIT_S seconds of wall time at ``speed`` times real time (its pictures
-    come every ``period`` scenario seconds), and one more being merged."""
-    return math.ceil((RESTART_WINDOW_S + MERGE_WAIT_S) * speed / period) + 1
-
-
-class MttCentreService(Service):
+class MttCentreService(CentreFailover, Service):
     """The multi-target fusion centre."""
 
     role = "mtt-centre"
@@ -435,131 +399,6 @@ class MttCentreService(Service):
     def _publish_picture(self, T: float, closing: bool = False) -> None:
         self.publish(self.picture_key, self._picture(T, closing))
 
-    # ------------------------------------------------------------ failover (:mod:`.standby`)
-    def _scope(self) -> str:
-        """What this centre covers, the chunk of its primary token: its region, or ``all``."""
-        return self.region or "all"
-
-    def _start_failover(self) -> None:
-        """Watch the primary tokens; a primary claims one (refusing to start if another holds one;
-        two started together both claim, and the earlier claim steps down: :meth:`_failover_tick`)."""
-        assert self.session is not None
-        key = self.keys.primary(self._scope())
-        present = any(reply.ok is not None for reply in self.session.liveliness().get(key, timeout=1.0))
-        if self.standby.primary:
-            if present:
-                raise ConfigError(f"{key}: this centre already has a primary; start another with --standby")
-            self._claim()
-        elif not present:
-            self.standby.found_none(time.monotonic())
-        self._inputs.append(self.session.liveliness().declare_subscriber(key, self._on_primary, history=True))
-
-    def _claim(self) -> None:
-        """Declare this centre's primary token, under a new instance (:func:`.standby.claim_instance`)."""
-        assert self.session is not None
-        self.standby.instance = claim_instance(str(self.session.zid()), time.time_ns(), self.standby.latest)
-        self.primary_token = self.session.liveliness().declare_token(self.keys.primary(self._scope(),
-                                                                                       self.standby.instance))
-
-    def _on_primary(self, sample: zenoh.Sample) -> None:
-        """Zenoh thread: a primary token appeared or went; the worker acts on it (on_tick)."""
-        self.primary_seen.append((sample.kind == zenoh.SampleKind.PUT, time.monotonic(),
-                                  str(sample.key_expr).rsplit("/", 1)[-1]))
-
-    def _primary_outputs(self) -> list[Subscription]:
-        """A standby watches what its primary publishes (:meth:`Standby.sent`): the pictures, the
-        answers and (a region's) the hand-overs it sends to the other regions; a primary declares
-        them too, for it may step down (:meth:`_failover_tick`), but takes no sample while it is the
-        primary (``wanted``): decoding its own pictures and answers cost a 1,000-track centre about a
-        fifth of its CPU."""
-        def watching() -> bool:
-            return not self.standby.primary or bool(self.standby.silent)
-
-        keys = ([self.keys.mtt_picture(), self.keys.mtt_resets()] if self.region is None else
-                [self.keys.region_picture(self.region), self.keys.region_resets(self.region),
-                 self.keys.region_handover()])
-        return [Subscription(key, kind, self._primary_sent, wanted=watching, remote=True)
-                for key, kind in zip(keys, (TrackPicture, TrackResets, HandOver))]
-
-    def _primary_sent(self, msg: TrackPicture | TrackResets | HandOver) -> None:
-        if isinstance(msg, HandOver) and msg.source != self.region:
-            return
-        if self.standby.primary:  # another session publishes this region's outputs: a silent token's holder?
-            self.standby.heard_remote(time.monotonic())
-            return
-        beyond = [n for n in numbers_of(msg) if n >= NUMBER_ROOM]
-        if beyond:  # no primary issues one; numbering after it would leave the wire's integers
-            raise Rejected("seq_jump", f"an output of the primary with id or number {beyond[0]}: at most "
-                           f"{NUMBER_ROOM - 1} (NUMBER_ROOM) leaves room to number after it")
-        self.standby.sent(msg, time.monotonic())
-        if self.standby.cold:
-            self._catch_up(msg)
-
-    def _catch_up(self, msg: TrackPicture | TrackResets | HandOver) -> None:
-        """A cold standby keeps its track ids and hand-over numbers ahead of its primary's
-        (:func:`.standby.next_after`), and numbers its pictures as its primary does
-        (:meth:`PictureClock.numbered`)."""
-        if isinstance(msg, TrackPicture) and not msg.closing:
-            self.clock.numbered(msg.seq, msg.t)
-        engine = self.engine
-        region = engine.region if isinstance(engine, RegionEngine) else None
-        centre = region.centre if region is not None else getattr(engine, "centre", None)
-        if isinstance(msg, HandOver) and region is not None:
-            region.serial = max(region.serial, msg.serial + 1)
-        if centre is not None and isinstance(msg, (TrackPicture, HandOver)):
-            ids = msg.ids if isinstance(msg, TrackPicture) else (msg.id,)
-            centre.next_id = next_after(centre.next_id, centre.id_step, ids)
-
-    def publish(self, key: str, msg: Message) -> None:
-        """Publish, or, as a standby that has not taken over, withhold (:meth:`Standby.hold`)."""
-        if self.standby.primary:
-            super().publish(key, msg)
-            return
-        self.standby.hold(key, msg, time.monotonic())
-        self.count("withheld")
-
-    def _failover_tick(self) -> None:
-        """A standby takes over once no primary token exists, or only tokens that serve nobody
-        (:meth:`Standby.due`): it claims the token and publishes what the dead primary never sent. A
-        primary that sees another primary's token of a later claim, one not known to serve nobody,
-        steps down (:meth:`Standby.yields`): it withdraws its token."""
-        standby = self.standby
-        while self.primary_seen:
-            alive, now, instance = self.primary_seen.popleft()
-            standby.token(alive, now, instance)
-        if standby.cut != (self._router_lost_at is not None):  # its own link to the router went or came back
-            standby.link(self._router_lost_at is None, time.monotonic())
-        if standby.yields():
-            standby.step_down(time.monotonic())
-            if self.primary_token is not None:
-                self.primary_token.undeclare()
-                self.primary_token = None
-            self.count("stepped_down")
-            self.log.warning("stepped down as the primary of %s: another primary (instance %s) holds it; this one "
-                             "(%s) is its hot standby", self._scope(), max(standby.holders - standby.silent),
-                             standby.instance)
-            return
-        if not standby.due(time.monotonic()):
-            return
-        self._claim()
-        standing = sorted(standby.holders - standby.silent)
-        flushed = standby.take_over()
-        if standing:
-            self.count("silent_tokens", len(standing))
-            self.log.warning("the primary token(s) of %s (instance %s) stood, but nothing of the region was published "
-                             "for %g s while reports came: taking over beside them", self._scope(),
-                             ", ".join(standing), SILENT_S)
-        for key, msg in flushed:
-            self.publish(key, msg)
-        self.counters["took_over"] = 1
-        self.log.warning("took over as the primary of %s: published %d withheld output(s) the primary never sent; "
-                         "as a standby %d picture(s) equal to the primary's, %d differed (largest state difference "
-                         "%.3g)", self._scope(), len(flushed), standby.same, standby.differ, standby.max_difference)
-
-    def _failover_counters(self) -> None:
-        if self.started_standby:
-            self.counters["standby_same"], self.counters["standby_differ"] = self.standby.same, self.standby.differ
-
     def on_stop(self) -> None:
         """The pictures still due at the end of the data (as the replay writes them), then the
         closing record of the scans processed after the last picture; messages still held for a
@@ -570,41 +409,6 @@ class MttCentreService(Service):
         if self.order:
             self._publish_picture(self.clock.high, closing=True)
 
-
-def picture_message(seq: int, T: float, tracks: PictureTracks, order: list[tuple[str, int]], left: list[int],
-                    contested: bool, closing: bool = False, handovers: list[int] | tuple[int, ...] = (),
-                    regions: tuple[str, ...] = (), lla: np.ndarray | None = None,
-                    flying: dict[int, float] | None = None) -> TrackPicture:
-    """The ``TrackPicture`` of ``tracks`` at ``T``, listing the entries ``order`` processed since the
-    previous one (``left``, ``handovers``: the positions that are departures and hand-overs taken
-    over; ``regions``: each entry's region, in a merged picture; ``lla``: the tracks on the Earth;
-    ``flying``: the ids of a region centre's copies of tracks it handed over, with the hand-overs' times)."""
-    d = tracks.x.shape[1]
-    ca = tuple(model == "ca" for model in tracks.models)
-    maneuvering = tracks.maneuver_rows()
-    return TrackPicture.unchecked(
-        seq=seq, t=T, ids=tuple(tracks.ids), x=tracks.x, P=tracks.P.reshape(-1, d),
-        confirmed=tuple(tracks.confirmed), sensors=tuple(tuple(s) for s in tracks.sensors),
-        fused_sensors=tuple(s for s, _ in order), fused_seqs=tuple(q for _, q in order),
-        stamp_ns=time.time_ns(), closing=closing, left=tuple(left), ca=ca if any(ca) else (),
-        maneuvering=tuple(maneuvering), maneuver=None if tracks.maneuver is None else tracks.maneuver[maneuvering],
-        contested=contested, existence=None if tracks.existence is None else np.array(tracks.existence), lla=lla,
-        handovers=tuple(handovers), regions=regions,
-        in_flight=tuple(k for k, i in enumerate(tracks.ids) if flying and i in flying),
-        in_flight_t=tuple(flying[i] for i in tracks.ids if flying and i in flying))
-
-
-def picture_tracks(msg: TrackPicture) -> PictureTracks:
-    """The tracks of a ``TrackPicture`` (inverse of :func:`picture_message`'s)."""
-    n, d = len(msg.ids), msg.x.shape[1]
-    maneuver = None
-    if msg.maneuver is not None:
-        maneuver = np.full((n, 4), np.nan)
-        maneuver[list(msg.maneuvering)] = msg.maneuver
-    models = ["ca" if ca else "cv" for ca in msg.ca] if msg.ca else ["cv"] * n
-    return PictureTracks(list(msg.ids), np.array(msg.x), np.array(msg.P).reshape(n, d, d), list(msg.confirmed),
-                         [list(s) for s in msg.sensors], models, maneuver,
-                         None if msg.existence is None else msg.existence.tolist())
 
 
 def service_from_args(argv: list[str]) -> MttCentreService:
