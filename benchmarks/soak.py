@@ -29,7 +29,7 @@ from typing import Any
 
 from fedtrack.deploy.procstat import process_usage
 from fedtrack.jsonl import check_output, output_file, output_folder
-from fedtrack.services.base import CACHE_SAMPLES
+from fedtrack.services.publishing import CACHE_SAMPLES
 
 SAMPLE_S = 5.0
 MAX_RATE = 60.0  # scans per second the scenario is sized for (lockstep reaches ~20 here)

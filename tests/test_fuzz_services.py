@@ -57,7 +57,7 @@ from fedtrack.fusion_center.centre import FederatedCentre
 from fedtrack.fusion_center.service import FusionCenterService
 from fedtrack.local_filters.service import LocalFilterService
 from fedtrack.local_filters.vdie.config import FusionConfig
-from fedtrack.services import base as service_base
+from fedtrack.services import dispatch as service_dispatch
 from fedtrack.wire import (
     FusedTrack,
     HandOver,
@@ -204,13 +204,13 @@ def rejected_by_decoder(payload: bytes, msg_type: type) -> bool:
 
 
 class Decoded:
-    """What the services' own decoder (:func:`fedtrack.services.base.decode`, wrapped while the
+    """What the services' own decoder (:func:`fedtrack.services.dispatch.decode`, wrapped while the
     test runs) said of each payload since the last :meth:`outcome`: a payload a subscriber
     decoded need not be decoded again for the tally (the test's time was a quarter in that)."""
 
     def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
         self.seen: dict[tuple[bytes, type], bool] = {}
-        real = service_base.decode
+        real = service_dispatch.decode
 
         def logged(payload: bytes, msg_type: type) -> Any:
             try:
@@ -220,7 +220,7 @@ class Decoded:
                 raise
             self.seen[payload, msg_type] = False
             return msg
-        monkeypatch.setattr(service_base, "decode", logged)
+        monkeypatch.setattr(service_dispatch, "decode", logged)
 
     def forget(self) -> None:
         self.seen.clear()

@@ -279,7 +279,7 @@ def test_a_full_store_ends_the_recorder_and_what_it_committed_stays_exportable(t
     message lost the same way, the recorder exiting 0. The rows committed before are exported whole."""
     from fedtrack.keys import Keys
     from fedtrack.recording import StorageError
-    from fedtrack.services.base import ServiceFault
+    from fedtrack.services.dispatch import ServiceFault
     from fedtrack.services.recorder import Recorder
     from fedtrack.zsession import SessionOptions
 
@@ -309,7 +309,7 @@ def test_a_recording_removed_or_replaced_under_the_recorder_ends_it(tmp_path: Pa
     second) now finds the file gone or replaced and stops (ServiceFault: exit 1, restarted by the
     launcher on a new file, recovering from the caches)."""
     from fedtrack.recording import StorageError
-    from fedtrack.services.base import ServiceFault
+    from fedtrack.services.dispatch import ServiceFault
     from fedtrack.services.recorder import Recorder
     from fedtrack.zsession import SessionOptions
 

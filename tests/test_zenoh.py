@@ -27,7 +27,7 @@ from fedtrack.fusion_center.mtt.pictures import picture_window
 from fedtrack.fusion_center.mtt.service import MttCentreService
 from fedtrack.keys import Keys
 from fedtrack.local_filters.mtt.config import MttConfig
-from fedtrack.services import base
+from fedtrack.services import publishing
 from fedtrack.services.base import QueryHandler, Service, Subscription
 from fedtrack.wire import (
     MAX_TRACKS,
@@ -342,8 +342,8 @@ def test_a_cache_outgrown_by_its_messages_keeps_about_cache_bytes_of_the_latest(
     """An advanced publisher keeps ``cache_depth`` messages: once they grow (a picture from a few
     tracks to thousands) it is declared again with a smaller cache, and a late subscriber with
     history gets the latest messages, as many as fit in about CACHE_BYTES."""
-    monkeypatch.setattr(base, "CACHE_BYTES", 40_000)
-    monkeypatch.setattr(base, "MIN_CACHE_SAMPLES", 3)
+    monkeypatch.setattr(publishing, "CACHE_BYTES", 40_000)
+    monkeypatch.setattr(publishing, "MIN_CACHE_SAMPLES", 3)
     keys = Keys("t6")
     with served(lambda options: Grower(service_id="g1", options=options, deployment="t6")) as (session, service):
         session.put(keys.sensor_meas("s1"), encode(measurement("s1", 0)))  # an empty scan: a deep cache

@@ -65,25 +65,25 @@ error) -> close the session
 within a deadline. Returns 0 on a clean stop, 1 if ``on_start`` raised (logged with its
 traceback) or a handler raised :class:`ServiceFault` (logged in one line), 2 for
 a user error there (OSError, ConfigError, InputError) and 1 if the session could not be opened.
+
+The class's parts by job: this module holds the lifecycle, the inputs, Health and the router's
+watch; :mod:`fedtrack.services.dispatch` the transactional dispatch and the rejections;
+:mod:`fedtrack.services.publishing` the publishers and their caches.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
-import pickle
 import queue
 import signal
 import sys
 import threading
 import time
-import traceback
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
-from dataclasses import dataclass, fields
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
-import numpy as np
 import zenoh
 import zenoh.ext
 
@@ -91,29 +91,12 @@ from fedtrack.config import ConfigError
 from fedtrack.deployment import deployment_of, endpoints_of
 from fedtrack.jsonl import InputError
 from fedtrack.keys import DEFAULT_DEPLOYMENT, InvalidName, Keys, check_id
-from fedtrack.services.admission import MAX_CONTESTED, ReceivedScans, ScanOrder, check_sender
+from fedtrack.services.dispatch import Dispatch, ServiceFault
 from fedtrack.services.inbox import Inbox
-from fedtrack.services.lead import LeadGuard, NumberedLeadGuard
+from fedtrack.services.publishing import Publishing
 from fedtrack.services.reassembly import Reassembly
-from fedtrack.services.rejections import (
-    Conflict,
-    Rejected,
-    clip,
-    reason_of,
-    text_of,
-)
-from fedtrack.wire import (
-    MAX_MAP_ITEMS,
-    Health,
-    LocalEstimate,
-    M,
-    Measurement,
-    Message,
-    WireError,
-    decode,
-    encode,
-    payloads,
-)
+from fedtrack.services.rejections import clip
+from fedtrack.wire import MAX_MAP_ITEMS, Health, M, Message, WireError, decode
 from fedtrack.zsession import (
     SessionError,
     SessionOptions,
@@ -123,36 +106,11 @@ from fedtrack.zsession import (
     options_from_args,
 )
 
-
-def cache_depth(size: int) -> int:
-    """The messages an advanced publisher keeps when its samples are ``size`` bytes: CACHE_BYTES
-    worth, between MIN_CACHE_SAMPLES and CACHE_SAMPLES. The cache is what a restarted recorder
-    receives of what it missed, seconds after it died (the launcher's backoff is at most 4 s), so
-    minutes of it are plenty; 4,096 samples of a 1,000-track picture (150 kB) were 600 MB of a
-    centre's memory after 68 minutes, of a 10,000-track one (5 parts of 0.5 MB) 2.2 GB after 14."""
-    return max(MIN_CACHE_SAMPLES, min(CACHE_SAMPLES, CACHE_BYTES // max(size, 1)))
-
-
 QUEUE_SIZE = 10_000
-REJECT_LOG_INTERVAL_S = 5.0
 CLOSE_DEADLINE_S = 2.0
 DRAIN_DEADLINE_S = 2.0
 _POLL_S = 0.05
-CACHE_SAMPLES = 4096  # messages an advanced publisher keeps per key, at most ...
-# ... and about this many bytes of them (cache_depth): a restarted recorder needs what it missed,
-# at most about 10 s under the launcher (three restarts: backoffs 0.5 + 1 + 2 s and a start of
-# about 2 s each); 64 MiB is 25 s of 10,000-track pictures at 1 Hz (5 parts of 0.5 MB), 7.5
-# minutes of 1,000-track ones; beyond about 30,000 tracks a picture at 1 Hz it holds less than 10 s
-CACHE_BYTES = 64 * 1024 * 1024
-MIN_CACHE_SAMPLES = 64  # the floor for the largest samples (2 MiB parts): 128 MiB a key
-HEARTBEAT_S = 0.5
 HISTORY_RECHECK_S = 1.0
-_ENCODING = zenoh.Encoding("application/msgpack")
-
-
-class ServiceFault(Exception):
-    """Raised by a handler when the service itself cannot go on, whatever the message (its storage
-    failed): never a rejection; the service stops with exit code 1, its message logged in one line."""
 
 
 @dataclass(frozen=True)
@@ -208,14 +166,7 @@ def health_counters(counters: dict[str, int]) -> dict[str, int]:
     return {**{k: counters[k] for k in kept}, "counters_omitted": len(names) - len(kept)}
 
 
-@dataclass
-class Attempt:
-    """What :meth:`Service.guarded` yields: ``failed`` once the block raised (and was undone)."""
-
-    failed: bool = False
-
-
-class Service:
+class Service(Dispatch, Publishing):
     """Base class of a service process (see the module docstring)."""
 
     role: ClassVar[str] = "service"
@@ -269,21 +220,6 @@ class Service:
         """Queries this service answers (called once, before ``on_start``)."""
         return []
 
-    def plain_outputs(self) -> tuple[str, ...]:
-        """Key expressions of this service's outputs that only plain subscribers take (no
-        ``Subscription(history=True)`` or ``recover`` anywhere reads them): published without the
-        advanced publisher's cache of ``CACHE_SAMPLES`` messages, which nothing would read and
-        which holds every message until it is full (a 1,000-track centre's answers: about 40 MB a
-        minute; docs/multitarget.md, "Memory of a centre")."""
-        return ()
-
-    def windowed_outputs(self) -> dict[str, int]:
-        """Key expressions of outputs whose advanced publisher keeps only the last N messages (key
-        expression -> N; each message's parts, the cache declared again when a message has more parts
-        than before), not ``CACHE_BYTES`` of them: a reader with history needs only the last few (the
-        region pictures, for a restarted ``serve picture``)."""
-        return {}
-
     def on_start(self) -> None:
         """Called once the session and subscribers exist, before the liveliness token."""
 
@@ -294,15 +230,6 @@ class Service:
         """Called once after the last message was handled (flush files here)."""
 
     # ------------------------------------------------------------ API for subclasses
-    def publish(self, key: str, msg: Message) -> None:
-        """Encode ``msg`` and put it on ``key`` (reliable, blocking congestion control); a message
-        beyond a per-message bound of the wire goes as its parts, one put each (:func:`fedtrack.wire.parts`).
-
-        Call it from the hooks and handlers (the worker thread), not from other threads.
-        """
-        self._put(key, msg)
-        self.counters["published"] += 1
-
     def query(self, key: str, msg_type: type[M], timeout_s: float = 1.0) -> list[M]:
         """``get`` on ``key``: the valid replies decoded as ``msg_type`` (invalid ones are counted in ``rejected``).
 
@@ -504,163 +431,6 @@ class Service:
         self.counters["dropped"] += left
         self.log.warning("stopped with %d queued message(s) unhandled after %.1f s", left, DRAIN_DEADLINE_S)
 
-    def _dispatch(self, item: tuple[Any, ...]) -> None:
-        """Handle one queued sample or query; whatever escapes the handler's own transaction (its
-        checkpoint: a state that cannot be pickled) is a rejection too, never the service's end."""
-        try:
-            self._handle(item)
-        except ServiceFault:
-            raise
-        except Exception as exc:  # noqa: BLE001 - no message may kill a service
-            self._reject(str(item[2]), 0, exc)
-
-    def _answer(self, index: int, key: str, query: zenoh.Query) -> None:
-        """Reply to ``query`` on its queryable's ``key`` (whatever the selector: never on a wildcard, which
-        the access control refuses)."""
-        with query, self.guarded(f"query on {key}"):
-            reply = self._queryables[index].handler()
-            if reply is not None:
-                query.reply(key, encode(reply), encoding=_ENCODING)
-
-    def _handle(self, item: tuple[Any, ...]) -> None:
-        kind, index, key, payload = item
-        if kind == "query":  # a query, or the size of one that _on_query refused (on the same stream)
-            if isinstance(payload, int):
-                self._reject(key, payload, Rejected("query", "a query with a payload, parameters or an attachment "
-                                                             "(this queryable takes none): dropped unanswered"))
-            else:
-                self._answer(index, key, payload)
-            return
-        sub = self._subscriptions[index]
-        size = len(payload)
-        try:
-            msg = decode(payload, sub.msg_type)
-            check_sender(self.keys, key, msg)
-            if getattr(msg, "parts", 1) > 1 and not sub.raw:  # a raw handler (the recorder) takes each part
-                try:
-                    whole = self._reassembly.add(key, msg, payload, time.monotonic())
-                except WireError as exc:  # parts that are not one message's
-                    raise Rejected("parts", str(exc)) from None
-                if whole is None:
-                    return
-                msg, size = whole
-        except WireError as exc:
-            self.counters["rejected"] += 1
-            self._log_rejected(key, size, str(exc))
-            return
-        except Rejected as exc:
-            self._reject(key, size, exc)
-            return
-        self.counters["received"] += 1
-        with self.guarded(f"a message on {key}", key=key, size=size):
-            sub.handler(*((msg, payload) if sub.raw else (msg,)))
-
-    @contextmanager
-    def guarded(self, what: str, attrs: tuple[str, ...] | None = None, key: str | None = None,
-                size: int = 0) -> Iterator[Attempt]:
-        """Run the block as one transaction: if it raises anything, the attributes ``attrs``
-        (default ``state_attrs``), the counters and the status are put back as they were when
-        it began, the failure is counted as a rejection (:func:`reason_of`) and logged (bounded),
-        and the service goes on (the :class:`Attempt` yielded says ``failed``). A handler that
-        publishes does so last (compute, then commit), so that nothing it failed on was sent."""
-        names = self.state_attrs if attrs is None else attrs
-        saved = (pickle.dumps({name: getattr(self, name) for name in names}, protocol=pickle.HIGHEST_PROTOCOL),
-                 dict(self.counters), self.status)
-        attempt = Attempt()
-        try:
-            yield attempt
-        except ServiceFault:
-            raise
-        except Exception as exc:  # noqa: BLE001 - a handler must not end the service (module docstring)
-            state, counters, status = saved
-            for name, value in pickle.loads(state).items():
-                setattr(self, name, value)
-            self.counters, self.status = counters, status
-            attempt.failed = True
-            self._reject(key or what, size, exc)
-
-    def contest(self, key: str, exc: Conflict) -> None:
-        """A second, different message on ``key`` for scan ``exc.seq`` (the first stays, maybe
-        already used): rejected without undoing anything, counted ``contested`` once per scan,
-        and the scan named by this service's next output (:meth:`take_contested`; docs/wire.md,
-        "Contested scans")."""
-        if exc.seq not in self.contested_scans and len(self.contested_scans) < MAX_CONTESTED:
-            self.count("contested")
-            self.contested_scans.append(exc.seq)
-        self.note_rejected(key, exc)
-
-    def admitted(self, order: ScanOrder | ReceivedScans, msg: Measurement) -> bool:
-        """Whether a sensor's scan ``msg`` is new to ``order``: an identical repeat is counted
-        ``duplicate``, a second, different message for a scan already taken is contested
-        (:meth:`contest`); both are False, and the handler drops the message."""
-        try:
-            if order.check(msg):
-                return True
-            self.count("duplicate")
-        except Conflict as exc:  # the first may be the forgery: the next output names the scan
-            self.contest(self.keys.sensor_meas(msg.sensor), exc)
-        return False
-
-    def restarted(self, msg: Measurement | LocalEstimate, why: str = "after a pause beyond max_time_jump_s") -> None:
-        """Count and log that a tracker starts again at scan ``msg``, ``why``
-        (:class:`fedtrack.services.clock.ClockJump`)."""
-        self.count("restarted")
-        self.log.warning("scan %d of %s at t=%g: the tracker starts again %s", msg.seq, msg.sensor, msg.t, why)
-
-    def take_contested(self) -> tuple[int, ...]:
-        """The scans contested since the last output (sorted), which the output about to be
-        published names; the list starts again empty."""
-        scans, self.contested_scans = tuple(sorted(self.contested_scans)), []
-        return scans
-
-    def note_rejected(self, key: str, exc: Rejected) -> None:
-        """Count and log the rejection of a message on ``key`` without raising, for a handler that
-        keeps what it changed (e.g. a scan marked contested)."""
-        self._reject(key, 0, exc)
-
-    def in_time(self, guard: LeadGuard[Any] | NumberedLeadGuard[Any], key: str, msg: Any, source: str | None = None,
-                item: Any = None) -> list[Any]:
-        """``msg`` (a scan or an estimate of ``msg.sensor``, or of ``source``, at ``msg.t``, published on
-        ``key``; held as ``item`` if given) and those it witnesses, in order; none while it is held for
-        being stamped (or numbered: :class:`NumberedLeadGuard`) far ahead of the data
-        (:class:`LeadGuard`); the held messages it contradicts are counted ``rejected_time_lead``. The
-        handler calls ``guard.took`` for each one it takes."""
-        dropped = guard.dropped
-        size = sum(getattr(msg, f.name).nbytes for f in fields(msg) if isinstance(getattr(msg, f.name), np.ndarray))
-        released = guard.admit(msg.sensor if source is None else source, msg.t, msg if item is None else item, size)
-        self.note_leads(key, guard.dropped - dropped)
-        return released
-
-    def note_leads(self, key: str, n: int) -> None:
-        """Count ``n`` scans (or reports) on ``key`` that were stamped too far ahead of the data and
-        that no witness confirmed (:mod:`fedtrack.services.lead`): ``rejected_time_lead``."""
-        for _ in range(n):
-            self.note_rejected(key, Rejected("time_lead", "stamped too far ahead of the data and never witnessed by "
-                                                          "another scan (a forged or broken clock): not fused"))
-
-    def _reject(self, key: str, size: int, exc: Exception) -> None:
-        reason = reason_of(exc)
-        self.counters["rejected"] += 1
-        self.count(f"rejected_{reason}")
-        if reason == "handler_error":  # a bug: say what and where, at error level
-            frame = traceback.extract_tb(exc.__traceback__)[-1] if exc.__traceback__ else None
-            where = f" at {frame.filename}:{frame.lineno} in {frame.name}" if frame else ""
-            self._log_rejected(key, size, f"{type(exc).__name__}: {text_of(exc)}{where}", logging.ERROR)
-        else:
-            self._log_rejected(key, size, text_of(exc))
-
-    def _log_rejected(self, key: str, size: int, reason: str, level: int = logging.WARNING) -> None:
-        """Log a rejection (at most one per REJECT_LOG_INTERVAL_S and level): the key, the payload's
-        size and the reason, each cut to LOG_CHARS, never the payload itself."""
-        now = time.monotonic()
-        if now - self._last_log.get(level, -float("inf")) < REJECT_LOG_INTERVAL_S:
-            self._suppressed[level] = self._suppressed.get(level, 0) + 1
-            return
-        more = self._suppressed.pop(level, 0)
-        self.log.log(level, "rejected a message on %s (%d bytes): %s%s", clip(key), size, clip(reason),
-                     f" ({more} more rejected since the last report)" if more else "")
-        self._last_log[level] = now
-
     def _health(self) -> Health:
         self._health_seq += 1
         with self._miss_lock:
@@ -671,39 +441,6 @@ class Service:
         return Health(role=self.role, id=self.id, seq=self._health_seq, counters=health_counters(self.counters),
                       status=self.status)
 
-    def _put(self, key: str, msg: Message) -> None:
-        if self.session is None:
-            raise RuntimeError("publish() called before run() opened the session")
-        encoded = payloads(msg)
-        pub, depth = self._publishers.get(key, (None, 0))
-        window = next((n for k, n in self.windowed_outputs().items()
-                       if zenoh.KeyExpr(k).includes(zenoh.KeyExpr(key))), None)
-        needed = cache_depth(max(map(len, encoded))) if window is None else window * len(encoded)
-        if pub is None and any(zenoh.KeyExpr(plain).includes(zenoh.KeyExpr(key)) for plain in self.plain_outputs()):
-            pub = self.session.declare_publisher(key, encoding=_ENCODING,
-                                                 congestion_control=zenoh.CongestionControl.BLOCK)
-            self._publishers[key] = (pub, 0)
-        elif pub is None or (depth > 2 * needed if window is None else 0 < depth < needed):  # 0: a plain publisher
-            # new, or its messages outgrew its cache (one grows from a few tracks to thousands): a
-            # publisher with a cache of about CACHE_BYTES, or of its window's messages in their parts
-            # (the old one's samples are dropped)
-            if pub is not None:
-                pub.undeclare()
-            depth = needed
-            pub = zenoh.ext.declare_advanced_publisher(
-                self.session, key, encoding=_ENCODING, congestion_control=zenoh.CongestionControl.BLOCK,
-                cache=zenoh.ext.CacheConfig(max_samples=depth),
-                sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=HEARTBEAT_S),
-                publisher_detection=True)
-            self._publishers[key] = (pub, depth)
-        for payload in encoded:
-            pub.put(payload)
-
-    def _count_part(self, name: str) -> None:
-        """A counter of the reassembly of split messages (``rejected_parts`` is also a rejection)."""
-        self.count(name)
-        if name == "rejected_parts":
-            self.counters["rejected"] += 1
 
     def _close_inputs(self) -> None:
         self._closing = True

@@ -27,7 +27,8 @@ from typing import Any, Iterator
 from fedtrack.deployment import deployment_of
 from fedtrack.jsonl import check_output, check_output_folder
 from fedtrack.recording import RECORDED, TABLE_OF, TABLES, Recording, StorageError
-from fedtrack.services.base import Service, ServiceFault, Subscription, service_kwargs, service_parser
+from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
+from fedtrack.services.dispatch import ServiceFault
 from fedtrack.wire import Message
 
 DB_NAME = "recording.db"

@@ -22,7 +22,7 @@ from fedtrack.wire import MAX_PARTS, MAX_TRACKS, TrackPicture
 PICTURE_ITEMS = MAX_PARTS * MAX_TRACKS
 # A restarted ``serve picture`` merges the region pictures of its outage from the region centres' caches
 # (docs/deploy.md, "serve picture dies"): the launcher has it back within about RESTART_WINDOW_S (three
-# restarts: backoffs 0.5 + 1 + 2 s and a start of about 2 s each, as the recorder's base.CACHE_BYTES), and
+# restarts: backoffs 0.5 + 1 + 2 s and a start of about 2 s each, as the recorder's publishing.CACHE_BYTES), and
 # when it died it may have held a picture time for up to MERGE_WAIT_S (its --wait) waiting for a region
 RESTART_WINDOW_S = 10.0
 MERGE_WAIT_S = 2.0
