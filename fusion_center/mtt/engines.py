@@ -26,6 +26,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
+from fedtrack.fusion_center.mtt.centre.consistency import Transition
 from fedtrack.fusion_center.mtt.centre.track_life import CENTRAL_MISSES
 from fedtrack.fusion_center.mtt.shards import ShardedCentre
 from fedtrack.geodetic import Frame
@@ -455,6 +456,12 @@ class TrackToTrackEngine(Engine):
         if self.existence is not None:
             self.existence.retain(picture.ids)
         return picture
+
+    def consistency_transitions(self) -> list[Transition]:
+        """The sensors flagged or cleared by the centre's consistency test (each region's) since the last call."""
+        if isinstance(self.centre, ShardedCentre):
+            return sorted(tr for c in self.centre.centres for tr in c.centre.consistency.drain())
+        return [] if self.centre is None else self.centre.consistency.drain()
 
     def counters(self) -> dict[str, int]:
         out = super().counters()

@@ -23,6 +23,7 @@ import numpy as np
 
 from fedtrack.config import ConfigError, did_you_mean, load_tables
 from fedtrack.fusion_center.mtt.centre.candidates import CrowdedReport
+from fedtrack.fusion_center.mtt.centre.consistency import Transition
 from fedtrack.fusion_center.mtt.engines import ALGORITHMS, Engine, PictureClock, PictureTracks, make_engine
 from fedtrack.fusion_center.mtt.regional import is_region_recording, read_region_entries, recorded_pictures
 from fedtrack.fusion_center.mtt.silence import silence_bound, usual_intervals
@@ -147,9 +148,22 @@ def counter_lines(counts: dict[str, int]) -> list[str]:
                    "newest), neither fused nor associated"),
                   (f"{counts['centre_before_start']} centre observations older than their central track's "
                    "start, not fused")]
+    if "centre_inconsistency_onsets" in counts:
+        lines.append(f"{counts['centre_inconsistency_onsets']} sensors flagged inconsistent (innovations against the "
+                     f"others' beyond the 1e-6 test), {counts['centre_inconsistent_sensors']} still flagged at the end")
     if "centre_handed_over" in counts:
         lines.append(f"{counts['centre_handed_over']} central tracks handed over between regions")
     return lines
+
+
+def consistency_lines(transitions: list[Transition], shown: int = 10) -> list[str]:
+    """The sensors the centre flagged inconsistent, with the times they were flagged (the first ``shown``)."""
+    onsets = [tr for tr in transitions if tr.flagged]
+    if not onsets:
+        return []
+    listed = ", ".join(f"{tr.sensor} at t={tr.t:.2f} (x{tr.ratio:.2f})" for tr in onsets[:shown])
+    more = f" and {len(onsets) - shown} more" if len(onsets) > shown else ""
+    return [f"sensors flagged inconsistent: {listed}{more}"]
 
 
 def data_regions(spec: str, scans: list[SensorScan | SensorLeft], config: Path | None) -> Regions:
@@ -242,6 +256,9 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
             onsets, maneuvering = onsets + len(now - maneuvering), now
     counts = recorded or engine.counters()
     for line in counter_lines(counts):
+        print(f"{algorithm}: {line}", file=sys.stderr)
+    for line in consistency_lines(engine.consistency_transitions() if hasattr(engine, "consistency_transitions")
+                                  else []):
         print(f"{algorithm}: {line}", file=sys.stderr)
     if detector:
         print(f"{algorithm}: {onsets} maneuver onsets detected (pictures with a track's maneuver that the "

@@ -306,6 +306,11 @@ class MttCentreService(CentreFailover, Service):
                     self.publish(self.keys.mtt_resets(msg.sensor), resets_to_wire(msg.seq, resets, q_scale))
         except CrowdedReport as exc:  # the transaction puts the centre back (fedtrack.services.base)
             raise Rejected("crowded", f"report {msg.seq} of {msg.sensor}: {exc}") from None
+        for tr in (engine.region.centre.consistency.drain() if isinstance(engine, RegionEngine)
+                   else engine.consistency_transitions()):
+            self.log.warning("sensor %s %s at t=%.2f: its innovations %.2f times the others', tail probability %.2g",
+                             tr.sensor, "inconsistent" if tr.flagged else "consistent again", tr.t, tr.ratio,
+                             math.exp(tr.log_p))
         self.contested = self.contested or bool(msg.contested)
 
     def _answer(self, engine: RegionEngine, msg: TrackReport, report: Any) -> None:

@@ -63,6 +63,7 @@ import numpy as np
 
 from fedtrack.fusion_center.mtt.central_track import CentralTracks, DepartedTracks, padded
 from fedtrack.fusion_center.mtt.centre.association import CentreAssociation, LocalKey
+from fedtrack.fusion_center.mtt.centre.consistency import SensorConsistency, normalized_innovations, window_seconds
 from fedtrack.fusion_center.mtt.centre.track_life import CentreLife, needs_local_confirmation
 from fedtrack.fusion_center.mtt.silence import INTERVALS_KEPT, silence_bound, usual_intervals
 from fedtrack.local_filters.linear.gating import track_difference_d2
@@ -82,6 +83,8 @@ class Counters:
     merged: int = 0
     left: int = 0
     late_reports: int = 0  # reports older than max_lag before the newest report: neither fused nor mapped
+    inconsistent_sensors: int = 0  # sensors whose innovations fail the relative test now (.consistency)
+    inconsistency_onsets: int = 0  # times a sensor was flagged
 
 
 class HandOver(NamedTuple):
@@ -144,6 +147,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.moved = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
         self.departed = DepartedTracks(self.tracks)  # confirmed tracks deleted, for later pictures
         self.absorbed: set[int] = set()  # tracks whose local tracks moved to another (not departed)
+        self.consistency = SensorConsistency()
         self._fit()
 
     def _fit(self) -> None:
@@ -204,6 +208,8 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
             self._unmap(key)
             self.strikes.pop(key, None)
         self._drop_column(sensor)
+        self.consistency.drop(sensor)
+        self.counters.inconsistent_sensors = len(self.consistency.flagged)
         self.counters.left += 1
 
     def _drop_column(self, sensor: str) -> None:
@@ -376,6 +382,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         if at.size < tracks.capacity:  # a track started since has none
             at = np.concatenate([at, np.full(tracks.capacity - at.size, -1, dtype=np.int64)])
         fused, x_post, P_post = self._fuse_scan((H, R, z), slots, is_fresh, t, (X, P, at))
+        self._monitor(s, t, (H, R, z), slots, fused & ~is_fresh, col, (X, P, at))
         rows = slice(None) if fused.all() else fused.nonzero()[0]  # each row's observation fused (the usual)
         supported = slots[rows]
         self.moved = cid[rows], supported
@@ -429,6 +436,23 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
             pending = pending[~np.isin(pending, now, assume_unique=True)] if now.size < pending.size else now[:0]
         self.counters.reprocessed += self.tracks.reprocessed - reprocessed
         return ok, X, P
+
+    def _monitor(self, sensor: str, t: float, observations: tuple[np.ndarray, np.ndarray, np.ndarray],
+                 slots: np.ndarray, fused: np.ndarray, col: int, states: tuple[np.ndarray, np.ndarray, np.ndarray]
+                 ) -> None:
+        """The scan's normalized innovations against the central predictions ``states`` (X, P, at) at ``t``,
+        of the rows ``fused`` into a central track (one observation of it in the scan) that another
+        sensor also supports, added to the sensor's consistency window (:mod:`.consistency`)."""
+        X, P, at = states
+        row = at[slots]
+        has = self.support[slots] > 0
+        once = np.bincount(slots, minlength=self.tracks.capacity)[slots] == 1
+        use = (fused & (row >= 0) & once & (has.sum(axis=1) - has[:, col] > 0)).nonzero()[0]
+        H, R, z = (a[use] for a in observations)
+        nis = normalized_innovations(self._embed(H), R, z, X[row[use]], P[row[use]]) if use.size else np.zeros(0)
+        self.consistency.add(sensor, t, nis, np.full(use.size, z.shape[-1]), window_seconds(self._usual_intervals()))
+        self.counters.inconsistent_sensors = len(self.consistency.flagged)
+        self.counters.inconsistency_onsets = self.consistency.onsets
 
     def answer(self, report: LocalReport, rows: np.ndarray | None = None) -> tuple[Resets, float]:
         """Everything the centre does with one report (its ``rows``: :meth:`ingest`): fuse it, then

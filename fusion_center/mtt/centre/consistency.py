@@ -1,0 +1,156 @@
+"""Per-sensor consistency monitoring at the track-to-track centre (fault detection, not isolation).
+
+Every local observation ``(H, R, z)`` fused into a central track that another sensor also supports
+has a normalized innovation ``nu' S^-1 nu`` against the central prediction at its time (``nu = z - H
+x``, ``S = H P H' + R``; the prediction carries the other sensors' detections). The central track is a
+centralized filter of every sensor's detections, so under the model its innovations are independent
+and each is chi-square with ``m`` (the observation's size) degrees of freedom.
+
+The test is relative: over the last ``window`` seconds of the data's time, a sensor's sum ``A`` of
+``a`` degrees of freedom against the other sensors' sum ``B`` of ``b``. Under the model ``(A / a) /
+(B / b)`` is F(a, b) distributed whatever the window holds, and a factor common to every sensor (a
+maneuver, a process noise too small, both raising every innovation of the track) cancels. The sensor
+is flagged when its upper tail ``log P(F >= f)`` is below ``log(FALSE_ALARM)`` (1e-6 per test, in log
+space: ``scipy.stats.f.logsf``), and stays flagged until a window's tail probability is back above
+``CLEAR_P`` (1e-2). One-sided: a sensor whose innovations are smaller than the others' (an ``R``
+claimed too large) only loses weight in the fusion and is not flagged.
+
+A single innovation enters the sums at most at ``CAP`` (the chi-square quantile of ``m`` dof at
+1 - 1e-4, in log space): a detection misassociated by a local tracker (clutter in a crossing) adds
+one bounded term rather than one that outweighs a window of honest ones. Under the model the cap
+moves the expected sum by under 1e-3 of itself, and both sides alike.
+
+With two sensors on the tracks the test cannot tell which of them is wrong (each one's innovations
+carry the other's error): both raise ``A / a`` and ``B / b`` alike and no one is flagged; with three
+or more, a faulty sensor's error is shared out among the others and stands out in its own. The central
+tracks a faulty sensor pulls raise the honest sensors' innovations too (most those of the sensors
+with the smallest noise): a sensor is flagged only when its test is also the worst of every sensor's
+at that time (isolation by the largest residual); tested against the others pooled alone, a 50 m bias
+on the fastest of three sensors also flagged an honest one 3 times in 200 s.
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+from scipy import stats
+
+FALSE_ALARM = 1e-6  # per test of one sensor's window, under the model
+CLEAR_P = 1e-2  # a flagged sensor is cleared when its window's tail probability is above this
+WINDOW_SCANS = 5  # the window holds this many scans of the slowest sensor (seconds: its usual interval x 5)
+DEFAULT_WINDOW_S = 5.0  # before any sensor's usual interval is known
+MIN_OBSERVATIONS = 10  # a test needs this many innovations on each side
+CAP_TAIL = 1e-4  # each innovation capped at its chi-square quantile 1 - CAP_TAIL
+
+
+class ScanInnovations(NamedTuple):
+    """One sensor scan's contribution: its time, the capped sum of its innovations and their dof."""
+
+    t: float
+    nis: float
+    dof: int
+    count: int
+
+
+class Transition(NamedTuple):
+    """A sensor flagged (``flagged``) or cleared at data time ``t``, with its window's log tail probability."""
+
+    t: float
+    sensor: str
+    flagged: bool
+    log_p: float
+    ratio: float
+
+
+def normalized_innovations(H: np.ndarray, R: np.ndarray, z: np.ndarray, x: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """``nu' S^-1 nu`` per row, ``nu = z - H x``, ``S = H P H' + R`` (symmetrized, a solve)."""
+    nu = z - np.einsum("kmd,kd->km", H, x)
+    S = np.einsum("kmd,kde,kne->kmn", H, P, H) + R
+    S = 0.5 * (S + np.swapaxes(S, -1, -2))
+    return np.einsum("km,km->k", nu, np.linalg.solve(S, nu[..., None])[..., 0])
+
+
+def cap(m: int) -> float:
+    """The largest value one innovation of ``m`` dof adds to a window's sum."""
+    return float(stats.chi2.isf(CAP_TAIL, m))
+
+
+def relative_tail(a_sum: float, a_dof: int, b_sum: float, b_dof: int) -> tuple[float, float]:
+    """The ratio ``(A / a) / (B / b)`` and ``log P(F(a, b) >= ratio)``: the sensor's innovations against
+    the others' (both sums of chi-square terms under the model)."""
+    ratio = (a_sum / a_dof) / max(b_sum / b_dof, 1e-300)
+    return ratio, float(stats.f.logsf(ratio, a_dof, b_dof))
+
+
+@dataclass
+class SensorConsistency:
+    """Each sensor's innovations over the window and the sensors flagged now."""
+
+    scans: dict[str, deque[ScanInnovations]] = field(default_factory=dict)
+    flagged: dict[str, float] = field(default_factory=dict)  # sensor -> data time it was flagged
+    onsets: int = 0
+    transitions: list[Transition] = field(default_factory=list)  # not yet logged (the service drains them)
+    newest: float = -math.inf
+    _caps: dict[int, float] = field(default_factory=dict)
+
+    def add(self, sensor: str, t: float, nis: np.ndarray, dof: np.ndarray, window: float) -> None:
+        """One scan's innovations of ``sensor`` at ``t``; then its test over ``window`` seconds."""
+        self.newest = max(self.newest, t)
+        for s, kept in self.scans.items():
+            while kept and kept[0].t < self.newest - window:
+                kept.popleft()
+        if nis.size:
+            capped = np.minimum(nis, [self._cap(int(m)) for m in dof.tolist()])
+            self.scans.setdefault(sensor, deque()).append(
+                ScanInnovations(t, float(capped.sum()), int(dof.sum()), int(nis.size)))
+        self._judge(sensor, t)
+
+    def _cap(self, m: int) -> float:
+        if m not in self._caps:
+            self._caps[m] = cap(m)
+        return self._caps[m]
+
+    def tests(self) -> dict[str, tuple[float, float]]:
+        """Each sensor's ratio and log tail probability over the window (those with enough innovations
+        on both sides)."""
+        sums = {s: (sum(e.nis for e in kept), sum(e.dof for e in kept), sum(e.count for e in kept))
+                for s, kept in self.scans.items()}
+        total = [sum(v[k] for v in sums.values()) for k in range(3)]
+        out = {}
+        for s, (a, a_dof, a_n) in sums.items():
+            b, b_dof, b_n = total[0] - a, total[1] - a_dof, total[2] - a_n
+            if min(a_n, b_n) >= MIN_OBSERVATIONS:
+                out[s] = relative_tail(a, a_dof, b, b_dof)
+        return out
+
+    def _judge(self, sensor: str, t: float) -> None:
+        tests = self.tests()
+        if sensor not in tests:
+            return
+        ratio, log_p = tests[sensor]
+        worst = min(lp for _, lp in tests.values())
+        if sensor not in self.flagged and log_p < math.log(FALSE_ALARM) and log_p <= worst:
+            self.flagged[sensor] = t
+            self.onsets += 1
+            self.transitions.append(Transition(t, sensor, True, log_p, ratio))
+        elif sensor in self.flagged and log_p > math.log(CLEAR_P):
+            del self.flagged[sensor]
+            self.transitions.append(Transition(t, sensor, False, log_p, ratio))
+
+    def drop(self, sensor: str) -> None:
+        """A sensor left: its window and flag go (a flag ends with no transition logged)."""
+        self.scans.pop(sensor, None)
+        self.flagged.pop(sensor, None)
+
+    def drain(self) -> list[Transition]:
+        """The transitions since the last call."""
+        out, self.transitions = self.transitions, []
+        return out
+
+
+def window_seconds(usual: dict[str, float]) -> float:
+    """The window: ``WINDOW_SCANS`` scans of the slowest sensor (``DEFAULT_WINDOW_S`` before any is known)."""
+    return WINDOW_SCANS * max(usual.values()) if usual else DEFAULT_WINDOW_S
