@@ -101,7 +101,7 @@ class SensorConsistency:
     def add(self, sensor: str, t: float, nis: np.ndarray, dof: np.ndarray, window: float) -> None:
         """One scan's innovations of ``sensor`` at ``t``; then its test over ``window`` seconds."""
         self.newest = max(self.newest, t)
-        for s, kept in self.scans.items():
+        for kept in self.scans.values():
             while kept and kept[0].t < self.newest - window:
                 kept.popleft()
         if nis.size:
