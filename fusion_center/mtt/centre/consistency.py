@@ -99,15 +99,17 @@ class SensorConsistency:
     _caps: dict[int, float] = field(default_factory=dict)
 
     def add(self, sensor: str, t: float, nis: np.ndarray, dof: np.ndarray, window: float) -> None:
-        """One scan's innovations of ``sensor`` at ``t``; then its test over ``window`` seconds."""
+        """One scan's innovations of ``sensor`` at ``t``; then its test over ``window`` seconds. A scan
+        without any changes nothing (as a report without detected rows, which never gets here)."""
+        if not nis.size:
+            return
         self.newest = max(self.newest, t)
         for kept in self.scans.values():
             while kept and kept[0].t < self.newest - window:
                 kept.popleft()
-        if nis.size:
-            capped = np.minimum(nis, [self._cap(int(m)) for m in dof.tolist()])
-            self.scans.setdefault(sensor, deque()).append(
-                ScanInnovations(t, float(capped.sum()), int(dof.sum()), int(nis.size)))
+        capped = np.minimum(nis, [self._cap(int(m)) for m in dof.tolist()])
+        self.scans.setdefault(sensor, deque()).append(
+            ScanInnovations(t, float(capped.sum()), int(dof.sum()), int(nis.size)))
         self._judge(sensor, t)
 
     def _cap(self, m: int) -> float:
