@@ -118,7 +118,8 @@ def test_normalized_innovations_solve_the_innovation_covariance() -> None:
 def test_the_live_centre_counts_and_logs_a_flagged_sensor(scenario: Path, tmp_path: Path,
                                                         caplog: pytest.LogCaptureFixture) -> None:
     """``serve mtt-centre`` (in-process, its trackers and recorder on a bus): s2's scans of the first 25 s
-    with ``R`` claimed 100x smaller from t = 15 on raise the Health counters and log the onset."""
+    with ``R`` claimed 100x smaller from t = 15 on raise the Health counters, name s2 in its status
+    and log the onset."""
     services = mtt_services(tmp_path)
     bus = Bus(list(services.values()))
     seq: dict[str, int] = {}
@@ -133,5 +134,6 @@ def test_the_live_centre_counts_and_logs_a_flagged_sensor(scenario: Path, tmp_pa
                                                        else m))
     centre = services["centre"]
     assert centre.counters["centre_inconsistency_onsets"] >= 1 and centre.counters["rejected"] == 0
+    assert centre.status == "inconsistent sensors: s2"
     assert any("sensor s2 inconsistent at t=" in r.getMessage() for r in caplog.records)
     assert not any(f"sensor {s} inconsistent" in r.getMessage() for r in caplog.records for s in ("s1", "s3"))

@@ -463,6 +463,12 @@ class TrackToTrackEngine(Engine):
             return sorted(tr for c in self.centre.centres for tr in c.centre.consistency.drain())
         return [] if self.centre is None else self.centre.consistency.drain()
 
+    def inconsistent_sensors(self) -> list[str]:
+        """The sensors the centre (some region's) flags inconsistent now."""
+        if isinstance(self.centre, ShardedCentre):
+            return sorted({s for c in self.centre.centres for s in c.centre.consistency.flagged})
+        return [] if self.centre is None else sorted(self.centre.consistency.flagged)
+
     def counters(self) -> dict[str, int]:
         out = super().counters()
         if isinstance(self.centre, ShardedCentre):

@@ -77,7 +77,16 @@ from fedtrack.services.admission import ReceivedScans, digest
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
 from fedtrack.services.lead import LeadGuard
 from fedtrack.services.rejections import Conflict, Rejected, require_covariances, require_finite
-from fedtrack.wire import MAX_LIST_ITEMS, MAX_MAGNITUDE, HandOver, Measurement, TrackPicture, TrackReport, predictable
+from fedtrack.wire import (
+    MAX_LIST_ITEMS,
+    MAX_MAGNITUDE,
+    MAX_STRING_LENGTH,
+    HandOver,
+    Measurement,
+    TrackPicture,
+    TrackReport,
+    predictable,
+)
 
 ALGORITHMS = ("mtt-federated", "mtt-decentralized", "mtt-centralized")
 # hand-overs per sending region whose digests are kept to tell a re-delivery (a duplicate) or a second,
@@ -311,6 +320,9 @@ class MttCentreService(CentreFailover, Service):
             self.log.warning("sensor %s %s at t=%.2f: its innovations %.2f times the others', tail probability %.2g",
                              tr.sensor, "inconsistent" if tr.flagged else "consistent again", tr.t, tr.ratio,
                              math.exp(tr.log_p))
+        flagged = (sorted(engine.region.centre.consistency.flagged) if isinstance(engine, RegionEngine)
+                   else engine.inconsistent_sensors())
+        self.status = f"inconsistent sensors: {','.join(flagged)}"[:MAX_STRING_LENGTH] if flagged else "ok"
         self.contested = self.contested or bool(msg.contested)
 
     def _answer(self, engine: RegionEngine, msg: TrackReport, report: Any) -> None:
