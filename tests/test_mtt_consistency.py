@@ -17,7 +17,12 @@ from test_hostile_messages import KEYS, Bus, mtt_services
 
 from fedtrack.cli import main as cli
 from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
-from fedtrack.fusion_center.mtt.centre.consistency import normalized_innovations, relative_tail
+from fedtrack.fusion_center.mtt.centre.consistency import (
+    SensorConsistency,
+    cap,
+    normalized_innovations,
+    relative_tail,
+)
 from fedtrack.local_filters.mtt.scan import parse_scan, scan_to_measurement
 from fedtrack.wire import encode
 
@@ -137,3 +142,14 @@ def test_the_live_centre_counts_and_logs_a_flagged_sensor(scenario: Path, tmp_pa
     assert centre.status == "inconsistent sensors: s2"
     assert any("sensor s2 inconsistent at t=" in r.getMessage() for r in caplog.records)
     assert not any(f"sensor {s} inconsistent" in r.getMessage() for r in caplog.records for s in ("s1", "s3"))
+
+
+def test_a_non_finite_innovation_enters_at_its_cap() -> None:
+    """An innovation that came out infinite or NaN adds the cap, not a NaN that would hide the sensor
+    from every later test of the window."""
+    monitor = SensorConsistency()
+    for k in range(4):
+        monitor.add("a", float(k), np.full(5, 2.0), np.full(5, 2), 10.0)
+        monitor.add("b", float(k) + 0.5, np.array([np.nan, np.inf, 2.0, 2.0, 2.0]), np.full(5, 2), 10.0)
+    ratio, log_p = monitor.tests()["b"]
+    assert ratio == pytest.approx((2 * cap(2) + 6.0) / 10.0 / 1.0, rel=1e-12) and np.isfinite(log_p)

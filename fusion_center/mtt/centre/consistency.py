@@ -107,7 +107,7 @@ class SensorConsistency:
         for kept in self.scans.values():
             while kept and kept[0].t < self.newest - window:
                 kept.popleft()
-        capped = np.minimum(nis, [self._cap(int(m)) for m in dof.tolist()])
+        capped = np.fmin(nis, [self._cap(int(m)) for m in dof.tolist()])  # a NaN too enters at the cap
         self.scans.setdefault(sensor, deque()).append(
             ScanInnovations(t, float(capped.sum()), int(dof.sum()), int(nis.size)))
         self._judge(sensor, t)
