@@ -44,6 +44,7 @@ pictures as messages :mod:`fedtrack.fusion_center.mtt.pictures`'.
 
 from __future__ import annotations
 
+import math
 import time
 from collections import deque
 from pathlib import Path
