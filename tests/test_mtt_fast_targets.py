@@ -12,6 +12,7 @@ from fedtrack.cli import main as cli
 from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.local_filters.mtt import initiation
 from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.wire import acceptable_covariances
 
 
 def params(dim: int = 4, q: float = 1.0, **kw: float) -> initiation.PairParams:
@@ -141,3 +142,32 @@ def test_max_speed_must_be_a_finite_non_negative_speed(tmp_path: Path, capsys: p
     replay_mtt("mtt-centralized", tmp_path / "m.jsonl", tmp_path / "c.toml", tmp_path / "t.jsonl")
     pictures = [json.loads(x) for x in (tmp_path / "t.jsonl").read_text().splitlines()]
     assert not any(tr["status"] == "confirmed" for p in pictures for tr in p["tracks"])
+
+
+@pytest.mark.parametrize("associator, dt", [("jipda", 1e-6), ("mht", 1e-6), ("gnn", 2e-13), ("jipda", 2e-13)])
+def test_scans_microseconds_apart_start_no_pair(tmp_path: Path, associator: str, dt: float) -> None:
+    """A sensor's scans ``dt`` apart (at t = 1000 s: 2e-13 is two float steps), each with one
+    detection just beyond the first's one-point gate (10 m noise) and within its gate of the speed
+    ball (r = max_speed dt, 1 mm or 0.2 nm). The pair's velocity was the noise over dt: at 1 us
+    jipda and mht confirmed the pair's track at once (its likelihood ratio e^29: a ball of 3 mm^2
+    for the second detection), at 52,566 km/s, three pairs three ghosts in the pictures; at 2e-13
+    s, 2.3e14 m/s with variances of 1e28 and covariances not positive definite (min eigenvalue
+    -5e11: a live picture every receiver refuses). A pair now measures the velocity within the
+    bound (the difference's noise at most (max_speed dt)^2) or is not made. 0.05 s each."""
+    gate = MttConfig().thresholds.gate[2]
+    t0 = 1000.0
+    step = (t0 + dt) - t0
+    dist = float(np.sqrt(gate * (200.0 + (30 * step) ** 2)) + 1000 * step / 2)
+    R = [[100.0, 0.0], [0.0, 100.0]]
+    rows = []
+    for k in range(3):
+        base = np.array([5000.0 * k, 0.0])
+        rows += [{"t": t0 + k, "sensor": "s1", "R": R, "detections": [{"z": base.tolist()}]},
+                 {"t": t0 + k + dt, "sensor": "s1", "R": R, "detections": [{"z": (base + [dist, 0.0]).tolist()}]}]
+    (tmp_path / "m.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    (tmp_path / "c.toml").write_text(f'[mtt]\nassociator = "{associator}"\n')
+    replay_mtt("mtt-centralized", tmp_path / "m.jsonl", tmp_path / "c.toml", tmp_path / "t.jsonl")
+    tracks = [tr for x in (tmp_path / "t.jsonl").read_text().splitlines() for tr in json.loads(x)["tracks"]]
+    assert len(tracks) > 3 and not [tr for tr in tracks if tr["status"] == "confirmed"]
+    assert max(np.hypot(*tr["vel"]) for tr in tracks) <= MttConfig().max_speed
+    assert acceptable_covariances(np.array([tr["P"] for tr in tracks]))

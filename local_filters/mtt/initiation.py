@@ -14,7 +14,10 @@ one-point track as before) pairs (:func:`pair_starts`) with a waiting start of a
   prediction (``init_velocity_std``): beyond what the one-point start covers, and
 * ``d`` is within the gate of the ball ``|v| dt <= max_speed dt`` (the speed bound, ``[mtt]
   max_speed``): its excess over ``max_speed dt`` along ``d`` passes the chi-square gate under
-  both detections' covariances and the process noise;
+  both detections' covariances and the process noise, and
+* the pair measures the velocity within the bound: the variance of ``d`` (summed over the axes)
+  is at most ``(max_speed dt)^2`` (scans microseconds apart pair no detections: their velocity
+  would be the noise over ``dt``);
 
 each detection and each start pairs at most once (an assignment preferring the lowest implied
 speed), and only where the pair's likelihood ratio against clutter passes the associator's own
@@ -201,7 +204,11 @@ def pair_starts(starts: Starts, waiting: np.ndarray, t: float, pos: np.ndarray, 
     else:  # a radar's plot: the ball, or beside a 2-D start the disc times the altitude's spread
         volume = np.where(three[ri], _ball(3, r), _ball(2, r) * np.sqrt(2 * math.pi * (p.init_z_std**2 + covp[cj, 2, 2])))
     log_lr = np.log(1.0 - p.pd + p.pd / (max(p.clutter_density, 1e-300) * density_scale[cj] * volume))
-    ok = (d2_fast <= gate[ri]) & (d2_slow > gate[ri]) & (log_lr > p.min_log_lr)
+    # the pair must measure the velocity to within the bound: the noise of the difference (its
+    # variance summed over the axes) at most (max_speed dt)^2, else the pair's state is the noise
+    # over dt (scans 1 ps apart: velocity variances of 1e26 and covariances not positive definite)
+    measured = np.trace(S, axis1=-2, axis2=-1) - flat <= r**2
+    ok = (d2_fast <= gate[ri]) & (d2_slow > gate[ri]) & (log_lr > p.min_log_lr) & measured
     ri, cj, dist, log_lr = ri[ok], cj[ok], dist[ok], log_lr[ok]
     if not ri.size:
         return no_pairing(p.dim)
