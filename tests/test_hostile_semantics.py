@@ -24,6 +24,7 @@ from fedtrack.fusion_center.mtt.picture_merge import PictureMergeService
 from fedtrack.fusion_center.mtt.service import HANDOVERS_KEPT, MttCentreService
 from fedtrack.local_filters.imm.config import load_imm_config
 from fedtrack.local_filters.imm.service import IMMService
+from fedtrack.local_filters.linear import gating
 from fedtrack.local_filters.mtt import history as history_module
 from fedtrack.local_filters.mtt import service as service_module
 from fedtrack.local_filters.mtt.config import MttConfig
@@ -505,3 +506,31 @@ def test_a_flooding_stream_neither_starves_the_others_nor_fills_memory() -> None
     while small.qsize():
         order.append(small.get(timeout=0.0)[3])
     assert order == [b"\x00", b"b", b"\x01", b"\x02"]  # each stream in its own order, the streams in turn
+
+
+# ---------------------------------------------------------------- crowds of detections
+
+@pytest.mark.parametrize("role", ["mtt-local", "mtt-centralized"])
+def test_a_crowd_of_detections_on_its_own_tracks_is_refused_before_its_pairs_are_made(
+        monkeypatch: Any, role: str) -> None:
+    """A sensor's scans of detections equal up to round-off (each distinct, so ``scan.distinct``
+    keeps them), the second on the tracks the first started: every track gates every detection,
+    n² pairs (2,048 in one message: 4.2 million, 1.5-2 s and 840 MB a scan; 4,096 in two parts:
+    27 s and 4.7 GB for three scans; 131,072 would need terabytes). Beyond ``MAX_GATED_PAIRS``
+    (2^20; 5,000 here, for speed), counted by the k-d tree before any pair is made, the scan is
+    refused ``crowded`` and the tracker put back; the next honest scan is tracked. 0.1 s each."""
+    monkeypatch.setattr(gating, "MAX_GATED_PAIRS", 5000)
+    crowd = np.array([1000.0, 2000.0]) + np.arange(100)[:, None] * np.spacing(2000.0)
+    if role == "mtt-local":
+        bus, svc = mtt_local(federated=False)
+    else:
+        svc = MttCentreService("mtt-centralized", MttConfig(sensors=("s1",), max_lag=3.0, clutter_density=1e-7), 4,
+                               service_id="centre", options=OPTIONS, deployment=KEYS.deployment)
+        bus = Bus([svc])
+    for k, z in enumerate([crowd, crowd, np.array([[5000.0, 0.0]])]):
+        bus.put(KEYS.sensor_meas("s1"), encode(scan("s1", k, float(k), z)))
+    assert svc.counters.get("rejected_crowded") == 1 and svc.counters["rejected"] == 1
+    assert "rejected_handler_error" not in svc.counters
+    if role == "mtt-local":  # scans 0 and 2 tracked
+        assert svc.counters["reports"] == 2
+        assert len(svc.tracker.tracker.state.tracks.ids) == 101  # type: ignore[union-attr]

@@ -29,6 +29,7 @@ from fedtrack.fusion_center.mtt.regional import is_region_recording, read_region
 from fedtrack.fusion_center.mtt.silence import silence_bound, usual_intervals
 from fedtrack.geodetic import geodetic_line, load_frame
 from fedtrack.jsonl import InputError, check_output, output_file, read_jsonl
+from fedtrack.local_filters.linear.gating import CrowdedScan
 from fedtrack.local_filters.mtt.config import MttConfig, MttSettings
 from fedtrack.local_filters.mtt.models import position_from_detection
 from fedtrack.local_filters.mtt.scan import SensorLeft, SensorScan, parse_line
@@ -91,7 +92,7 @@ def pictures(engine: Engine, scans: list[SensorScan | SensorLeft], period: float
             engine.repeated += scan.repeated
             try:
                 engine.ingest(scan)
-            except CrowdedReport as exc:
+            except (CrowdedReport, CrowdedScan) as exc:
                 raise CrowdedReport(f"the scan of {scan.sensor} at t = {scan.t:g}: {exc}") from None
             guard.took(scan.sensor, scan.t)
             heard[scan.sensor] = guard.newest

@@ -69,6 +69,7 @@ from fedtrack.fusion_center.mtt.regional import RegionEngine
 from fedtrack.fusion_center.mtt.shards import handover_from_wire, handover_to_wire
 from fedtrack.fusion_center.mtt.silence import Silence
 from fedtrack.geodetic import Frame, geodetic_of_states
+from fedtrack.local_filters.linear.gating import CrowdedScan
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
 from fedtrack.local_filters.mtt.local import report_from_wire, resets_to_wire
 from fedtrack.local_filters.mtt.routing import answer_to_wire
@@ -245,7 +246,10 @@ class MttCentreService(CentreFailover, Service):
         self._room(f"scan {msg.seq} of {msg.sensor}")
         if isinstance(msg, Measurement):
             scan = scan_from_measurement(msg)
-            self.engine.ingest(scan)
+            try:
+                self.engine.ingest(scan)
+            except CrowdedScan as exc:  # the transaction puts the centre back
+                raise Rejected("crowded", f"scan {msg.seq} of {msg.sensor}: {exc}") from None
             self.engine.repeated += scan.repeated
         else:
             self._fuse(msg)

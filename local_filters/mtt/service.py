@@ -40,6 +40,7 @@ from pathlib import Path
 from fedtrack.config import load_tables
 from fedtrack.deployment import MODES
 from fedtrack.keys import check_id
+from fedtrack.local_filters.linear.gating import CrowdedScan
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
 from fedtrack.local_filters.mtt.history import MAX_ENTRIES
 from fedtrack.local_filters.mtt.local import LocalReport, SensorTracker, report_to_wire, resets_from_wire
@@ -240,7 +241,10 @@ class MttLocalService(Service):
                     continue
                 if scan.repeated:
                     self.count("repeated", scan.repeated)
-                report, rerun = self.tracker.track(scan)
+                try:
+                    report, rerun = self.tracker.track(scan)
+                except CrowdedScan as exc:  # the transaction puts the tracker back
+                    raise Rejected("crowded", f"scan {seq} of {self.sensor}: {exc}") from None
                 require_finite(f"scan {seq}: the local tracks", report.x, report.P)
                 require_covariances(f"scan {seq}: the local tracks", report.P)
                 contested = self.take_contested()

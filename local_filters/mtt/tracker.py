@@ -156,7 +156,7 @@ class TrackSet(NamedTuple):
     modes: Modes | None = None
     detected_by: np.ndarray | None = None  # (N,) int64
 
-    def take(self, idx: np.ndarray) -> "TrackSet":
+    def take(self, idx: np.ndarray) -> TrackSet:
         return TrackSet(*(a[idx] for a in self[:N_ARRAYS]),
                         None if self.man is None else maneuver.take(self.man, idx),
                         None if self.inputs is None else detector.take(self.inputs, idx),
@@ -254,7 +254,7 @@ def gate(z: np.ndarray, lin: Linearized, S: np.ndarray, gate_d2: float) -> tuple
         n, m = S.shape[0], z.shape[0]
         rows, cols = np.repeat(np.arange(n), m), np.tile(np.arange(m), n)
     else:
-        rows, cols = gate_ball_pairs(z, lin.zhat, S, gate_d2)
+        rows, cols = gate_ball_pairs(z, lin.zhat, S, gate_d2, bounded=True)
     S_inv, logdet = spd_inverse_logdet(S)
     nu = z[cols] - lin.zhat[rows]
     for k in lin.angular:
@@ -351,8 +351,8 @@ def gate_modes(z: np.ndarray, lin: Linearized, S: np.ndarray, modes: Modes, x0: 
         rows, cols = np.repeat(np.arange(n), m_det), np.tile(np.arange(m_det), n)
     else:  # the union of the combination's and every mode's balls
         zhat_j, S_j = mi.at.zhat.reshape(n, k, m), mi.S.reshape(n, k, m, m)
-        balls = [gate_ball_pairs(z, lin.zhat, S, gate_d2)] + [
-            gate_ball_pairs(z, zhat_j[:, j], S_j[:, j], gate_d2) for j in range(k)]
+        balls = [gate_ball_pairs(z, lin.zhat, S, gate_d2, bounded=True)] + [
+            gate_ball_pairs(z, zhat_j[:, j], S_j[:, j], gate_d2, bounded=True) for j in range(k)]
         keys = np.unique(np.concatenate([r * m_det + c for r, c in balls]))
         rows, cols = keys // m_det, keys % m_det
     S_inv, logdet = spd_inverse_logdet(S)
