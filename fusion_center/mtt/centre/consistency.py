@@ -11,9 +11,11 @@ The test is relative: over the last ``window`` seconds of the data's time, a sen
 (B / b)`` is F(a, b) distributed whatever the window holds, and a factor common to every sensor (a
 maneuver, a process noise too small, both raising every innovation of the track) cancels. The sensor
 is flagged when its upper tail ``log P(F >= f)`` is below ``log(FALSE_ALARM)`` (1e-6 per test, in log
-space: ``scipy.stats.f.logsf``), and stays flagged until a window's tail probability is back above
-``CLEAR_P`` (1e-2). One-sided: a sensor whose innovations are smaller than the others' (an ``R``
-claimed too large) only loses weight in the fusion and is not flagged.
+space: ``scipy.special.fdtrc``, what ``scipy.stats.f.sf`` computes, without importing
+``scipy.stats``: 20 MB of every centre process and 0.06 ms a call), and stays flagged until a
+window's tail probability is back above ``CLEAR_P`` (1e-2). One-sided: a sensor whose innovations
+are smaller than the others' (an ``R`` claimed too large) only loses weight in the fusion and is not
+flagged.
 
 A single innovation enters the sums at most at its cap, the chi-square quantile of ``m`` dof at
 1 - ``CAP_TAIL`` (1e-3): a detection misassociated by a local tracker (clutter in a formation) adds one
@@ -24,7 +26,8 @@ dense scenario (``--scenario dense``, formations in heavy clutter) flagged an ho
 120 s, at tail probabilities of 10^-6.1.
 
 With two sensors on the tracks the test cannot tell which of them is wrong (each one's innovations
-carry the other's error); with three or more, a faulty sensor's error is shared out among the others and stands out in its own. The central
+carry the other's error); with three or more, a faulty sensor's error is shared out among the
+others and stands out in its own. The central
 tracks a faulty sensor pulls raise the honest sensors' innovations too (most those of the sensors
 with the smallest noise): a sensor is flagged only when its test is also the worst of every sensor's
 at that time (isolation by the largest residual); tested against the others pooled alone, a 50 m bias
@@ -38,7 +41,7 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 FALSE_ALARM = 1e-6  # per test of one sensor's window, under the model
 CLEAR_P = 1e-2  # a flagged sensor is cleared when its window's tail probability is above this
@@ -77,14 +80,14 @@ def normalized_innovations(H: np.ndarray, R: np.ndarray, z: np.ndarray, x: np.nd
 
 def cap(m: int) -> float:
     """The largest value one innovation of ``m`` dof adds to a window's sum."""
-    return float(stats.chi2.isf(CAP_TAIL, m))
+    return float(special.chdtri(m, CAP_TAIL))  # scipy.stats.chi2.isf's own function, without scipy.stats
 
 
 def relative_tail(a_sum: float, a_dof: int, b_sum: float, b_dof: int) -> tuple[float, float]:
     """The ratio ``(A / a) / (B / b)`` and ``log P(F(a, b) >= ratio)``: the sensor's innovations against
     the others' (both sums of chi-square terms under the model)."""
     ratio = (a_sum / a_dof) / max(b_sum / b_dof, 1e-300)
-    return ratio, float(stats.f.logsf(ratio, a_dof, b_dof))
+    return ratio, math.log(special.fdtrc(a_dof, b_dof, ratio)) if ratio < math.inf else -math.inf
 
 
 @dataclass
