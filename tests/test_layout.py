@@ -196,3 +196,17 @@ def test_every_package_folder_is_installed() -> None:
     listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
     found = {module_name(p) for p in source_files() if p.name == "__init__.py"}
     assert found == listed, f"missing: {sorted(found - listed)}, stale: {sorted(listed - found)}"
+
+
+@pytest.mark.parametrize("service", ["fedtrack.fusion_center.mtt.service", "fedtrack.local_filters.mtt.service",
+                                     "fedtrack.fusion_center.mtt.picture_merge"])
+def test_multi_target_services_do_not_import_scipy_stats(service: str) -> None:
+    """``scipy.stats`` adds about 20 MB to a process and its distributions cost about 60 us a call: the
+    consistency monitor's F tail from it raised every region centre's RSS from 87 to 108 MB after import
+    and its per-report cost (issue 27's load bars); what the services need is in ``scipy.special``."""
+    import subprocess
+    import sys
+
+    code = f"import sys, {service}; print('scipy.stats' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
+    assert out.stdout.strip() == "False", f"{service} imports scipy.stats"
