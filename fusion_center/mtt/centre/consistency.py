@@ -73,7 +73,7 @@ class Transition(NamedTuple):
 def normalized_innovations(H: np.ndarray, R: np.ndarray, z: np.ndarray, x: np.ndarray, P: np.ndarray) -> np.ndarray:
     """``nu' S^-1 nu`` per row, ``nu = z - H x``, ``S = H P H' + R`` (symmetrized, a solve)."""
     nu = z - np.einsum("kmd,kd->km", H, x)
-    S = np.einsum("kmd,kde,kne->kmn", H, P, H) + R
+    S = H @ P @ np.swapaxes(H, -1, -2) + R
     S = 0.5 * (S + np.swapaxes(S, -1, -2))
     return np.einsum("km,km->k", nu, np.linalg.solve(S, nu[..., None])[..., 0])
 
@@ -101,18 +101,18 @@ class SensorConsistency:
     newest: float = -math.inf
     _caps: dict[int, float] = field(default_factory=dict)
 
-    def add(self, sensor: str, t: float, nis: np.ndarray, dof: np.ndarray, window: float) -> None:
-        """One scan's innovations of ``sensor`` at ``t``; then its test over ``window`` seconds. A scan
-        without any changes nothing (as a report without detected rows, which never gets here)."""
+    def add(self, sensor: str, t: float, nis: np.ndarray, m: int, window: float) -> None:
+        """One scan's innovations ``nis`` of ``sensor`` at ``t``, each of ``m`` dof (a scan's observations
+        are all of one size); then its test over ``window`` seconds. A scan without any changes nothing
+        (as a report without detected rows, which never gets here)."""
         if not nis.size:
             return
         self.newest = max(self.newest, t)
         for kept in self.scans.values():
             while kept and kept[0].t < self.newest - window:
                 kept.popleft()
-        capped = np.fmin(nis, [self._cap(int(m)) for m in dof.tolist()])  # a NaN too enters at the cap
-        self.scans.setdefault(sensor, deque()).append(
-            ScanInnovations(t, float(capped.sum()), int(dof.sum()), int(nis.size)))
+        capped = np.fmin(nis, self._cap(m))  # a NaN too enters at the cap
+        self.scans.setdefault(sensor, deque()).append(ScanInnovations(t, float(capped.sum()), m * nis.size, nis.size))
         self._judge(sensor, t)
 
     def _cap(self, m: int) -> float:

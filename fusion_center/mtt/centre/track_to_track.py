@@ -450,7 +450,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         use = (fused & (row >= 0) & once & (has.sum(axis=1) - has[:, col] > 0)).nonzero()[0]
         H, R, z = (a[use] for a in observations)
         nis = normalized_innovations(self._embed(H), R, z, X[row[use]], P[row[use]]) if use.size else np.zeros(0)
-        self.consistency.add(sensor, t, nis, np.full(use.size, z.shape[-1]), window_seconds(self._usual_intervals()))
+        self.consistency.add(sensor, t, nis, z.shape[-1], window_seconds(self._usual_intervals()))
         self.counters.inconsistent_sensors = len(self.consistency.flagged)
         self.counters.inconsistency_onsets = self.consistency.onsets
 
