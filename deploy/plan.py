@@ -117,7 +117,8 @@ def runs_here(settings: Settings, role: str, sid: str, args: list[str]) -> bool:
     dep = settings.deployment
     if role in ("sensor", "mtt-local") and sid not in here_mtt(settings):
         return False
-    if "--region" in args and dep.local_regions is not None and args[args.index("--region") + 1] not in dep.local_regions:
+    region = args[args.index("--region") + 1] if "--region" in args else None
+    if region is not None and dep.local_regions is not None and region not in dep.local_regions:
         return False
     return role in dep.services or role not in ROLES
 

@@ -37,7 +37,8 @@ def scenario(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def altered(src: Path, dst: Path, sensor: str, onset: float, *, r_scale: float = 1.0, bias: float = 0.0) -> None:
-    """``sensor``'s scans from ``onset`` on with ``R`` claimed ``r_scale`` times its own, positions moved by ``bias`` m."""
+    """``sensor``'s scans from ``onset`` on with ``R`` claimed ``r_scale`` times its own, positions moved
+    by ``bias`` m."""
     with src.open() as f, dst.open("w") as g:
         for line in f:
             m = json.loads(line)

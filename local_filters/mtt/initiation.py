@@ -209,7 +209,8 @@ def pair_starts(starts: Starts, waiting: np.ndarray, t: float, pos: np.ndarray, 
     if k == 2:
         volume = _ball(2, r)
     else:  # a radar's plot: the ball, or beside a 2-D start the disc times the altitude's spread
-        volume = np.where(three[ri], _ball(3, r), _ball(2, r) * np.sqrt(2 * math.pi * (p.init_z_std**2 + covp[cj, 2, 2])))
+        z_spread = np.sqrt(2 * math.pi * (p.init_z_std**2 + covp[cj, 2, 2]))
+        volume = np.where(three[ri], _ball(3, r), _ball(2, r) * z_spread)
     log_lr = np.log(1.0 - p.pd + p.pd / (max(p.clutter_density, 1e-300) * density_scale[cj] * volume))
     # the pair must measure the velocity to within the bound: the noise of the difference (its
     # variance summed over the axes) at most (max_speed dt)^2, else the pair's state is the noise

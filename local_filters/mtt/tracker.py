@@ -679,10 +679,11 @@ def initiate(starts: initiation.Starts, tracks: TrackSet, live: np.ndarray, scan
     scale = np.ones(det.size)
     if scan.sensor_position is not None:  # a radar's clutter per m^3: its density over |det J| = r^2 cos(el)
         scale = 1.0 / (scan.z[det, 0] ** 2 * np.abs(np.cos(scan.z[det, 2])))
+    by_existence = params.initial_existence is not None or (params.mht is not None
+                                                            and params.mht.management == "score")
     pairs = initiation.pair_starts(starts, waiting, scan.t, pos, cov, scale, initiation.PairParams(
         params.dim, params.q, params.noise_model, params.max_speed, params.init_velocity_std, params.init_z_std,
-        params.gate, params.pd, params.clutter_density, initiation.least_log_lr(
-            params.pd, params.initial_existence is not None or (params.mht is not None and params.mht.management == "score"))))
+        params.gate, params.pd, params.clutter_density, initiation.least_log_lr(params.pd, by_existence)))
     partners = rows[pairs.start]
     waiting[pairs.start] = False
     kept = initiation.recorded(starts, waiting, one.ids, scan.t, pos, cov)

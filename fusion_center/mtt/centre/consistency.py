@@ -26,9 +26,9 @@ dense scenario (``--scenario dense``, formations in heavy clutter) flagged an ho
 120 s, at tail probabilities of 10^-6.1.
 
 With two sensors on the tracks the test cannot tell which of them is wrong (each one's innovations
-carry the other's error); with three or more, a faulty sensor's error is shared out among the
-others and stands out in its own. The central
-tracks a faulty sensor pulls raise the honest sensors' innovations too (most those of the sensors
+carry the other's error); with three or more, a faulty sensor's error is shared out among the others
+and stands out in its own. The central tracks a faulty sensor pulls raise the honest sensors'
+innovations too (most those of the sensors
 with the smallest noise): a sensor is flagged only when its test is also the worst of every sensor's
 at that time (isolation by the largest residual); tested against the others pooled alone, a 50 m bias
 on the fastest of three sensors also flagged an honest one 3 times in 200 s (cap at 1 - 1e-4).
