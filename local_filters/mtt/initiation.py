@@ -54,6 +54,7 @@ class Starts(NamedTuple):
     k: np.ndarray
 
     def take(self, idx: np.ndarray) -> Starts:
+        """The starts at ``idx`` (indices or a bool mask)."""
         return Starts(*(a[idx] for a in self))
 
 
@@ -116,6 +117,7 @@ class Pairing(NamedTuple):
 
 
 def no_pairing(dim: int) -> Pairing:
+    """A scan's pairs when there are none (states of size ``dim``)."""
     none = np.zeros(0, np.int64)
     return Pairing(none, none, np.zeros((0, dim)), np.zeros((0, dim, dim)), np.zeros(0))
 

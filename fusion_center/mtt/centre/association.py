@@ -18,8 +18,10 @@ ASSOCIATION_SHIFT = 1e6  # larger than any gated pair's d2 + ln det
 
 
 class CentreAssociation:
-    """Association and duplicate merge of :class:`~.centre.TrackToTrackCentre` (mixed into it: the
-    methods use its mapping, per-slot arrays, central tracks and configuration)."""
+    """Association and duplicate merge of :class:`~.centre.TrackToTrackCentre` (mixed into it). It
+    relies on the centre's ``cfg``, ``dim``, ``counters``, ``tracks`` (central tracks), ``mapping``
+    and ``members`` (local tracks to slots and back), ``strikes``, ``support`` and ``last_support``
+    (per-slot arrays), and on its methods ``_map``, ``_unmap`` and ``_start``."""
 
     def _hysteresis(self, report: LocalReport, keys: list[LocalKey], check: np.ndarray, d2: np.ndarray,
                     cid: np.ndarray, slots: np.ndarray) -> bool:

@@ -29,7 +29,10 @@ def needs_local_confirmation(cfg: MttConfig, sensor: str, R: np.ndarray) -> bool
 
 class CentreLife:
     """Confirmation and deletion of :class:`~.centre.TrackToTrackCentre`'s central tracks (mixed
-    into it: the methods use its per-slot arrays, mapping, central tracks and configuration)."""
+    into it). It relies on the centre's ``cfg``, ``counters``, ``tracks``, ``departed``, ``absorbed``,
+    ``mapping``, ``members``, ``local_confirmation``, ``n_live``, the per-slot arrays ``support``,
+    ``streak``, ``window`` and ``last_support``, the per-column ``column_interval`` and
+    ``column_log_miss``, and on its methods ``_unmap`` and ``sensor_lists``."""
 
     def _vouched(self, report: LocalReport) -> np.ndarray:
         """Slots of the central tracks that a track confirmed by the report's tracker maps to."""

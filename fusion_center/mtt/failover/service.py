@@ -18,8 +18,10 @@ from fedtrack.wire import HandOver, Message, TrackPicture, TrackResets
 
 
 class CentreFailover:
-    """The failover hooks of :class:`fedtrack.fusion_center.mtt.service.MttCentreService` (which
-    sets ``standby``, ``primary_token``, ``primary_seen`` and ``started_standby`` up)."""
+    """The failover hooks of :class:`fedtrack.fusion_center.mtt.service.MttCentreService`. It relies
+    on that service's ``standby``, ``primary_token``, ``primary_seen``, ``started_standby``,
+    ``engine``, ``region`` and ``clock``, and on :class:`fedtrack.services.base.Service`'s ``session``,
+    ``keys``, ``counters``, ``count``, ``log``, ``_inputs`` and ``_router_lost_at``."""
 
     def _scope(self) -> str:
         """What this centre covers, the chunk of its primary token: its region, or ``all``."""
