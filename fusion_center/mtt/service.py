@@ -146,7 +146,7 @@ class MttCentreService(CentreFailover, Service):
         self.silence = Silence(cfg.leave_after_s)  # the sensors heard from, and when one counts as gone
         self.gone: deque[str] = deque()  # liveliness lost (filled by a Zenoh thread)
         self.contested = False  # a conflicting message since the last picture (docs/wire.md)
-        # failover (:mod:`.standby`): a primary's (``primary``), or a hot standby's withheld outputs
+        # failover (:mod:`.failover.standby`): a primary's (``primary``), or a hot standby's withheld outputs
         self.started_standby = standby
         self.standby = Standby(self._scope(), time.monotonic(), primary=not standby)
         self.primary_token: Any = None  # the liveliness token ``alive/mtt-primary/<scope>/<instance>``, while primary

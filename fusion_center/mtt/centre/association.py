@@ -1,7 +1,7 @@
 """The track-to-track centre's association of local tracks with central tracks (its mixin
 :class:`CentreAssociation`): the hysteresis check of mapped local tracks, the association of the
 unmapped and lonely ones (and, decentralized, the movers and swaps in formations), and the merge of
-duplicate central tracks. The rules are in :mod:`.centre`'s docstring."""
+duplicate central tracks. The rules are in :mod:`.track_to_track`'s docstring."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ ASSOCIATION_SHIFT = 1e6  # larger than any gated pair's d2 + ln det
 
 
 class CentreAssociation:
-    """Association and duplicate merge of :class:`~.centre.TrackToTrackCentre` (mixed into it). It
+    """Association and duplicate merge of :class:`~.track_to_track.TrackToTrackCentre` (mixed into it). It
     relies on the centre's ``cfg``, ``dim``, ``counters``, ``tracks`` (central tracks), ``mapping``
     and ``members`` (local tracks to slots and back), ``strikes``, ``support`` and ``last_support``
     (per-slot arrays), and on its methods ``_map``, ``_unmap`` and ``_start``."""

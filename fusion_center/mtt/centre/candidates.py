@@ -1,6 +1,6 @@
 """Candidate pairs for a chi-square test of track differences: the pairs of a query's positions and
 a centre's tracks close enough in x-y that the test can pass (the track-to-track centre's
-association, its hand-over check and its duplicate merge; :mod:`.centre`)."""
+association, its hand-over check and its duplicate merge; :mod:`.track_to_track`)."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """The track-to-track centre's life rules (its mixin :class:`CentreLife`): M-of-N confirmation over
 every sensor's scans, deletion by the tracking sensors' misses, by lost support and by timeout.
-The rules are in :mod:`.centre`'s docstring."""
+The rules are in :mod:`.track_to_track`'s docstring."""
 
 from __future__ import annotations
 
@@ -28,7 +28,7 @@ def needs_local_confirmation(cfg: MttConfig, sensor: str, R: np.ndarray) -> bool
 
 
 class CentreLife:
-    """Confirmation and deletion of :class:`~.centre.TrackToTrackCentre`'s central tracks (mixed
+    """Confirmation and deletion of :class:`~.track_to_track.TrackToTrackCentre`'s central tracks (mixed
     into it). It relies on the centre's ``cfg``, ``counters``, ``tracks``, ``departed``, ``absorbed``,
     ``mapping``, ``members``, ``local_confirmation``, ``n_live``, the per-slot arrays ``support``,
     ``streak``, ``window`` and ``last_support``, the per-column ``column_interval`` and
