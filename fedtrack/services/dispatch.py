@@ -43,8 +43,10 @@ class Attempt:
 
 
 class Dispatch:
-    """The dispatch of :class:`fedtrack.services.base.Service` (which sets ``counters``, ``status``,
-    ``contested_scans``, the subscriptions, queryables and reassembly and the rejection log's state up)."""
+    """The dispatch of :class:`fedtrack.services.base.Service`. It relies on that class's ``keys``,
+    ``log``, ``counters``, ``status``, ``contested_scans``, ``state_attrs``, ``_subscriptions``,
+    ``_queryables``, ``_reassembly``, the rejection log's ``_last_log`` and ``_suppressed``, and its
+    method ``count``."""
 
     def _dispatch(self, item: tuple[Any, ...]) -> None:
         """Handle one queued sample or query; whatever escapes the handler's own transaction (its
