@@ -43,6 +43,8 @@ from typing import NamedTuple
 import numpy as np
 from scipy import special
 
+from fedtrack.local_filters.linear.kalman import symmetrize
+
 FALSE_ALARM = 1e-6  # per test of one sensor's window, under the model
 CLEAR_P = 1e-2  # a flagged sensor is cleared when its window's tail probability is above this
 WINDOW_SCANS = 5  # the window holds this many scans of the slowest sensor (seconds: its usual interval x 5)
@@ -52,7 +54,8 @@ CAP_TAIL = 1e-3  # each innovation capped at its chi-square quantile 1 - CAP_TAI
 
 
 class ScanInnovations(NamedTuple):
-    """One sensor scan's contribution: its time, the capped sum of its innovations and their dof."""
+    """One sensor scan's contribution: its time, the capped sum of its innovations, their dof and
+    their number."""
 
     t: float
     nis: float
@@ -61,7 +64,8 @@ class ScanInnovations(NamedTuple):
 
 
 class Transition(NamedTuple):
-    """A sensor flagged (``flagged``) or cleared at data time ``t``, with its window's log tail probability."""
+    """A sensor flagged (``flagged``) or cleared at data time ``t``, with its window's ratio to the
+    others' and its log tail probability."""
 
     t: float
     sensor: str
@@ -73,8 +77,7 @@ class Transition(NamedTuple):
 def normalized_innovations(H: np.ndarray, R: np.ndarray, z: np.ndarray, x: np.ndarray, P: np.ndarray) -> np.ndarray:
     """``nu' S^-1 nu`` per row, ``nu = z - H x``, ``S = H P H' + R`` (symmetrized, a solve)."""
     nu = z - np.einsum("kmd,kd->km", H, x)
-    S = H @ P @ np.swapaxes(H, -1, -2) + R
-    S = 0.5 * (S + np.swapaxes(S, -1, -2))
+    S = symmetrize(H @ P @ np.swapaxes(H, -1, -2) + R)
     return np.einsum("km,km->k", nu, np.linalg.solve(S, nu[..., None])[..., 0])
 
 
