@@ -10,6 +10,8 @@ import pytest
 
 from fedtrack.cli import main as cli
 from fedtrack.fusion_center.mtt.replay import replay_mtt
+from fedtrack.local_filters.linear import gating
+from fedtrack.local_filters.linear.gating import CrowdedScan
 from fedtrack.local_filters.mtt import initiation
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.wire import acceptable_covariances
@@ -171,3 +173,22 @@ def test_scans_microseconds_apart_start_no_pair(tmp_path: Path, associator: str,
     assert len(tracks) > 3 and not [tr for tr in tracks if tr["status"] == "confirmed"]
     assert max(np.hypot(*tr["vel"]) for tr in tracks) <= MttConfig().max_speed
     assert acceptable_covariances(np.array([tr["P"] for tr in tracks]))
+
+
+def test_a_crowd_of_starts_and_detections_is_refused_at_the_trackers_bound(monkeypatch: pytest.MonkeyPatch) -> None:
+    """100 waiting starts and 100 detections 1 s later, all within ``max_speed`` of one another: 10^4
+    pairs to test. Beyond ``gating.MAX_GATED_PAIRS`` (5,000 here) the scan is refused
+    :class:`CrowdedScan` before its pairs are made; within it (20,000) it is paired. Before, the
+    pairing read its own copy of the bound, which a change of the trackers' bound missed."""
+    rng = np.random.default_rng(3)
+    first, second = rng.uniform(-100.0, 100.0, (2, 100, 2))
+    starts = initiation.recorded(initiation.NO_STARTS, np.zeros(0, bool), np.arange(100), 0.0, first,
+                                 np.broadcast_to(100.0 * np.eye(2), (100, 2, 2)))
+    pos, cov = first + second + 600.0, np.broadcast_to(100.0 * np.eye(2), (100, 2, 2))
+    waiting = np.ones(100, bool)
+    monkeypatch.setattr(gating, "MAX_GATED_PAIRS", 5000)
+    with pytest.raises(CrowdedScan, match="two-point starts"):
+        initiation.pair_starts(starts, waiting, 1.0, pos, cov, np.ones(100), params(clutter_density=1e-9))
+    monkeypatch.setattr(gating, "MAX_GATED_PAIRS", 20000)
+    pairs = initiation.pair_starts(starts, waiting, 1.0, pos, cov, np.ones(100), params(clutter_density=1e-9))
+    assert pairs.det.size > 0

@@ -28,6 +28,20 @@ class CrowdedScan(ValueError):
     """A scan whose detections would make more than ``MAX_GATED_PAIRS`` candidate pairs."""
 
 
+def ball_query(tree: cKDTree, centres: np.ndarray, radius: np.ndarray | float, what: str,
+               bounded: bool = True) -> np.ndarray:
+    """``tree.query_ball_point(centres, radius)`` (an index list per centre); with ``bounded``,
+    :class:`CrowdedScan` (naming the pairs as ``what``) where the lists would hold more than
+    ``MAX_GATED_PAIRS`` indices, counted first, only where the centres times the tree's points exceed
+    the bound. Both the trackers' gates and the two-point starts' pairs (:mod:`...mtt.initiation`)
+    read the bound here."""
+    if bounded and centres.shape[0] * tree.n > MAX_GATED_PAIRS:
+        total = int(np.sum(tree.query_ball_point(centres, radius, return_length=True)))
+        if total > MAX_GATED_PAIRS:
+            raise CrowdedScan(f"{total} pairs of {what}, at most {MAX_GATED_PAIRS}")
+    return tree.query_ball_point(centres, radius)
+
+
 def gate_ball_pairs(z: np.ndarray, centres: np.ndarray, S: np.ndarray, gate: float, bounded: bool = False
                     ) -> tuple[np.ndarray, np.ndarray]:
     """``(rows, cols)``: track ``rows[k]`` and detection ``cols[k]`` of ``z`` (M, m) lie within
@@ -38,13 +52,7 @@ def gate_ball_pairs(z: np.ndarray, centres: np.ndarray, S: np.ndarray, gate: flo
     if n == 0 or z.shape[0] == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     radius = np.sqrt(gate * np.trace(S, axis1=-2, axis2=-1))
-    tree = cKDTree(z)
-    if bounded and n * z.shape[0] > MAX_GATED_PAIRS:
-        total = int(np.sum(tree.query_ball_point(centres, radius, return_length=True)))
-        if total > MAX_GATED_PAIRS:
-            raise CrowdedScan(f"{total} pairs of tracks and detections within one another's gates, at most "
-                              f"{MAX_GATED_PAIRS}")
-    near = tree.query_ball_point(centres, radius)
+    near = ball_query(cKDTree(z), centres, radius, "tracks and detections within one another's gates", bounded)
     counts = np.fromiter(map(len, near), dtype=np.int64, count=n)
     cols = np.fromiter(itertools.chain.from_iterable(near), dtype=np.int64, count=int(counts.sum()))
     return np.repeat(np.arange(n), counts), cols

@@ -36,7 +36,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
-from fedtrack.local_filters.linear.gating import MAX_GATED_PAIRS, CrowdedScan
+from fedtrack.local_filters.linear.gating import ball_query
 from fedtrack.local_filters.linear.kalman import solve_spd, symmetrize
 from fedtrack.local_filters.mtt.associators.gnn import assign
 from fedtrack.local_filters.mtt.models import motion, position_matrix
@@ -182,13 +182,9 @@ def pair_starts(starts: Starts, waiting: np.ndarray, t: float, pos: np.ndarray, 
     q_pos = cv_back(2, dt, p.q, p.noise_model)[1][:, 0, 0]  # the process noise of a position coordinate
     spread = np.trace(starts.cov[cand], axis1=-2, axis2=-1) + np.trace(cov, axis1=-2, axis2=-1).max() + 3 * q_pos
     reach = p.max_speed * dt
-    tree, radius = cKDTree(pos[:, :2]), reach + np.sqrt(gate * spread)
-    if cand.size * m > MAX_GATED_PAIRS:  # a crowd of starts and detections: refused before its pairs are made
-        total = int(np.sum(tree.query_ball_point(starts.pos[cand, :2], radius, return_length=True)))
-        if total > MAX_GATED_PAIRS:
-            raise CrowdedScan(f"{total} pairs of two-point starts and detections within max_speed, at most "
-                              f"{MAX_GATED_PAIRS}")
-    near = tree.query_ball_point(starts.pos[cand, :2], radius)
+    # a crowd of starts and detections is refused before its pairs are made (CrowdedScan)
+    near = ball_query(cKDTree(pos[:, :2]), starts.pos[cand, :2], reach + np.sqrt(gate * spread),
+                      "two-point starts and detections within max_speed")
     counts = np.fromiter(map(len, near), dtype=np.int64, count=cand.size)
     if not counts.sum():
         return no_pairing(p.dim)
