@@ -36,6 +36,8 @@ def straight_states(v: np.ndarray, t: float) -> np.ndarray:
 
 
 class StraightNees(NamedTuple):
+    """One process noise ``q``'s NEES on straight legs (:func:`straight_nees`)."""
+
     q: float
     inside: float  # fraction of the pictures' NEES inside the two-sided 95% band (4 dof)
     inside_se: float  # its standard error over the batches (runs of one batch share their sensors)
@@ -92,6 +94,7 @@ def straight_nees(q: float, runs: int = 400, duration: float = 200.0, warm: floa
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``python -m fedtrack.experiments.nees_straight``: the table of :data:`QS`."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--runs", type=int, default=400, help="straight legs per q (default: %(default)s)")
     parser.add_argument("--seed", type=int, default=0, help="seed (default: %(default)s)")
