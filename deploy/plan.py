@@ -33,6 +33,9 @@ START_FILE = "start-at"  # beside the sensors' logs: their common start time (re
 
 @dataclass
 class ServiceProcess:
+    """One process of the plan: its role, service id, command line and log file, and once started
+    its ``proc``."""
+
     role: str
     id: str
     argv: list[str]
@@ -44,6 +47,7 @@ class ServiceProcess:
 
     @property
     def name(self) -> str:
+        """``role/id``, as the launcher's lines and summary name the process."""
         return f"{self.role}/{self.id}"
 
     @property
@@ -53,9 +57,11 @@ class ServiceProcess:
 
     @property
     def standby(self) -> bool:
+        """Whether it is a hot standby (``--standby``)."""
         return "--standby" in self.argv
 
     def log_tail(self, lines: int = 15) -> str:
+        """The last ``lines`` lines of its log, or ``(no log)``."""
         try:
             return "\n".join(self.log_path.read_text(errors="replace").splitlines()[-lines:])
         except OSError:
