@@ -142,8 +142,11 @@ def site_from_enu(frame: Frame, position: np.ndarray) -> RadarSite:
 @lru_cache(maxsize=64)
 def own_axes(frame: Frame, position: tuple[float, float, float]) -> np.ndarray:
     """The rotation (3, 3) from the common frame's axes to the own east-north-up axes of a site at ``position``
-    (common frame): :func:`site_from_enu`'s ``rotation``, kept for the sites a tracker sees scan after scan."""
-    return site_from_enu(frame, np.array(position, float)).rotation
+    (common frame): :func:`site_from_enu`'s ``rotation``, kept for the sites a tracker sees scan after scan
+    (read-only: every caller shares the cached array)."""
+    rotation = site_from_enu(frame, np.array(position, float)).rotation.copy()
+    rotation.flags.writeable = False
+    return rotation
 
 
 def own_from_enu(site: RadarSite, enu: np.ndarray) -> np.ndarray:

@@ -18,6 +18,7 @@ from fedtrack.geodetic import (
     enu_from_geodetic,
     geodetic_from_enu,
     load_frame,
+    own_axes,
     own_from_aer,
     own_from_enu,
     site_from_enu,
@@ -157,3 +158,15 @@ def test_a_frame_without_its_origin_is_refused(tmp_path: Path) -> None:
     path.write_text("[frame]\n[frame.sites]\nr1 = [48.0, 2.0, 100.0]\n")
     with pytest.raises(ConfigError, match=r"missing config key frame.origin"):
         load_frame(path)
+
+
+def test_own_axes_are_the_sites_rotation_and_read_only() -> None:
+    """``own_axes`` (cached per frame and site, as a tracker asks scan after scan) equals
+    ``site_from_enu``'s rotation, and the shared array cannot be written: a caller changing it in
+    place would have turned every later scan's view of that radar."""
+    frame, position = Frame(51.5, 0.0), (-195e3, 1e3, 50.0)
+    axes = own_axes(frame, position)
+    np.testing.assert_array_equal(axes, site_from_enu(frame, np.array(position)).rotation)
+    with pytest.raises(ValueError):
+        axes[0, 0] = 2.0
+    assert own_axes(frame, position) is axes
