@@ -157,6 +157,7 @@ class TrackSet(NamedTuple):
     detected_by: np.ndarray | None = None  # (N,) int64
 
     def take(self, idx: np.ndarray) -> TrackSet:
+        """The tracks at ``idx`` (indices or a bool mask), every per-track state with them."""
         return TrackSet(*(a[idx] for a in self[:N_ARRAYS]),
                         None if self.man is None else maneuver.take(self.man, idx),
                         None if self.inputs is None else detector.take(self.inputs, idx),

@@ -18,6 +18,7 @@ from fedtrack.jsonl import check_output, output_file
 
 
 def main(argv: list[str]) -> int:
+    """``fedtrack evaluate``: score a track picture file against truth (the package's docstring)."""
     parser = argparse.ArgumentParser(prog="fedtrack evaluate", description="GOSPA, OSPA, id switches, "
                                      "fragmentations, RMSE, NEES and maneuver flags of a track picture file against "
                                      "truth")
