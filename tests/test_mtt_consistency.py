@@ -153,4 +153,4 @@ def test_a_non_finite_innovation_enters_at_its_cap() -> None:
         monitor.add("a", float(k), np.full(5, 2.0), 2, 10.0)
         monitor.add("b", float(k) + 0.5, np.array([np.nan, np.inf, 2.0, 2.0, 2.0]), 2, 10.0)
     ratio, log_p = monitor.tests()["b"]
-    assert ratio == pytest.approx((2 * cap(2) + 6.0) / 10.0 / 1.0, rel=1e-12) and np.isfinite(log_p)
+    assert ratio == pytest.approx((2 * cap(2, monitor.cap_tail) + 6.0) / 10.0 / 1.0, rel=1e-12) and np.isfinite(log_p)

@@ -17,12 +17,14 @@ window's tail probability is back above ``CLEAR_P`` (1e-2). One-sided: a sensor 
 are smaller than the others' (an ``R`` claimed too large) only loses weight in the fusion and is not
 flagged.
 
-A single innovation enters the sums at most at its cap, the chi-square quantile of ``m`` dof at
-1 - ``CAP_TAIL`` (1e-3): a detection misassociated by a local tracker (clutter in a formation) adds one
-bounded term rather than one that outweighs a window of honest ones. Under the model the cap lowers
+A single innovation enters the sums at most at its cap, the chi-square quantile of ``m`` dof at the
+local trackers' ``gate_probability`` (``[mtt]``, 0.999 by default: ``cap_tail`` = 1e-3): the edge of
+what a tracker takes as its track's detection, so a detection misassociated by a local tracker (clutter
+in a formation) adds one bounded term rather than one that outweighs a window of honest ones, while
+an honest innovation passes the cap as often as it passes the tracker's gate. Under the model the cap lowers
 the expected sum by ``E[(X - c)+] / m`` of itself: 1.0e-3 for ``m = 2``, 7.0e-4 for ``m = 3``, both
-sides alike (the test then rejects slightly less often than its level). With a cap at 1 - 1e-4 the
-dense scenario (``--scenario dense``, formations in heavy clutter) flagged an honest sensor once in
+sides alike (the test then rejects slightly less often than its level). A looser cap (1 - 1e-4) let the
+dense scenario (``--scenario dense``, formations in heavy clutter) flag an honest sensor once in
 120 s, at tail probabilities of 10^-6.1.
 
 With two sensors on the tracks the test cannot tell which of them is wrong (each one's innovations
@@ -44,13 +46,13 @@ import numpy as np
 from scipy import special
 
 from fedtrack.local_filters.linear.kalman import symmetrize
+from fedtrack.local_filters.mtt.config import MttConfig
 
 FALSE_ALARM = 1e-6  # per test of one sensor's window, under the model
 CLEAR_P = 1e-2  # a flagged sensor is cleared when its window's tail probability is above this
 WINDOW_SCANS = 5  # the window holds this many scans of the slowest sensor (seconds: its usual interval x 5)
 DEFAULT_WINDOW_S = 5.0  # before any sensor's usual interval is known
 MIN_OBSERVATIONS = 10  # a test needs this many innovations on each side
-CAP_TAIL = 1e-3  # each innovation capped at its chi-square quantile 1 - CAP_TAIL
 
 
 class ScanInnovations(NamedTuple):
@@ -81,9 +83,10 @@ def normalized_innovations(H: np.ndarray, R: np.ndarray, z: np.ndarray, x: np.nd
     return np.einsum("km,km->k", nu, np.linalg.solve(S, nu[..., None])[..., 0])
 
 
-def cap(m: int) -> float:
-    """The largest value one innovation of ``m`` dof adds to a window's sum."""
-    return float(special.chdtri(m, CAP_TAIL))  # scipy.stats.chi2.isf's own function, without scipy.stats
+def cap(m: int, tail: float) -> float:
+    """The largest value one innovation of ``m`` dof adds to a window's sum: its chi-square quantile at
+    ``1 - tail``."""
+    return float(special.chdtri(m, tail))  # scipy.stats.chi2.isf's own function, without scipy.stats
 
 
 def relative_tail(a_sum: float, a_dof: int, b_sum: float, b_dof: int) -> tuple[float, float]:
@@ -95,8 +98,10 @@ def relative_tail(a_sum: float, a_dof: int, b_sum: float, b_dof: int) -> tuple[f
 
 @dataclass
 class SensorConsistency:
-    """Each sensor's innovations over the window and the sensors flagged now."""
+    """Each sensor's innovations over the window and the sensors flagged now; ``cap_tail``: ``1 -
+    gate_probability`` of the local trackers (each innovation's cap)."""
 
+    cap_tail: float = 1.0 - MttConfig.gate_probability
     scans: dict[str, deque[ScanInnovations]] = field(default_factory=dict)
     flagged: dict[str, float] = field(default_factory=dict)  # sensor -> data time it was flagged
     onsets: int = 0
@@ -120,7 +125,7 @@ class SensorConsistency:
 
     def _cap(self, m: int) -> float:
         if m not in self._caps:
-            self._caps[m] = cap(m)
+            self._caps[m] = cap(m, self.cap_tail)
         return self._caps[m]
 
     def tests(self) -> dict[str, tuple[float, float]]:

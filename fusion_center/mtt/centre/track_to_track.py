@@ -44,9 +44,11 @@ scan, the linearized observation of every track the scan detected, the tracks it
   tracker confirmed: in heavy clutter the count alone confirmed tracks on several sensors'
   clutter tracks. A confirmed track is deleted once every sensor that tracks it (a local track
   maps to it) missed it on its last ``CENTRAL_MISSES`` (2) scans since its last detection
-  (``delete_misses`` when one sensor tracks it; more at a lower P_D: :func:`~fedtrack.local_filters.mtt.config.miss_count`): a target that died goes within two scans of the
-  slowest sensor instead of lingering until every local tracker deleted its track. It is also deleted when no local
-  track maps to it any more or none supported it for ``central_timeout`` seconds.
+  (``delete_misses`` when one sensor tracks it; more at a lower P_D:
+  :func:`~fedtrack.local_filters.mtt.config.miss_count`): a target that died goes within two scans of
+  the slowest sensor instead of lingering until every local tracker deleted its track. It is also
+  deleted when no local track maps to it any more or none supported it for ``central_timeout``
+  seconds.
 
 This module holds the centre's state, the fusion, the feedback and the hand-over; the association
 and duplicate merge are in :mod:`.association`, the life rules in :mod:`.track_life`, the candidate
@@ -147,7 +149,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.moved = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
         self.departed = DepartedTracks(self.tracks)  # confirmed tracks deleted, for later pictures
         self.absorbed: set[int] = set()  # tracks whose local tracks moved to another (not departed)
-        self.consistency = SensorConsistency()
+        self.consistency = SensorConsistency(1.0 - cfg.gate_probability)
         self._fit()
 
     def _fit(self) -> None:
