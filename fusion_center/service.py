@@ -69,7 +69,8 @@ class FusionCenterService(Service):
     role = "fusion-center"
     tick_period_s = 0.01
     # the centre's records are rebound, never changed in place: a pickle of these is the whole state
-    state_attrs = ("centre", "scans", "next_seq", "last_track", "restored", "fused", "contested_scans", "lead")
+    state_attrs = ("centre", "scans", "next_seq", "last_track", "restored", "fused", "left_out", "contested_scans",
+                   "lead")
     tick_state_attrs = ()  # on_tick checkpoints only when a scan is waiting (100 ticks a second)
 
     def __init__(self, sensors: list[str], centre: FederatedCentre | DecentralizedCentre,
@@ -89,6 +90,7 @@ class FusionCenterService(Service):
         self.next_seq: int | None = None
         self.last_track: FusedTrack | None = None
         self.fused: dict[int, dict[str, bytes]] = {}  # the last FUSED_KEPT scans' estimate digests per sensor
+        self.left_out: tuple[str, ...] = ()  # sensors whose estimates the last scan received but did not fuse
         self.gone: set[str] = set()  # sensors whose sensor or local filter liveliness token went away
         self._gone: dict[str, set[str]] = {"sensor": set(), "local-filter": set()}
         self._liveliness: list[Any] = []
@@ -291,6 +293,7 @@ class FusionCenterService(Service):
 
     def fuse_scan(self, seq: int, buf: ScanBuffer, degraded: bool) -> None:
         if seq > 0 and (self.last_track is None or all(o.init for o in buf.outputs.values())):
+            degraded = True  # not the federated filter's estimate: the local filters' fused as independent
             self.count("rebuilt")
             why = "started mid-run (a restart)" if self.last_track is None else "every local filter went on alone"
             self.log.warning("%s: state rebuilt from the local estimates of scan %d", why, seq)
@@ -306,12 +309,20 @@ class FusionCenterService(Service):
             result = self.centre.fuse(buf.t, buf.outputs)
             if not usable(result):
                 raise Numerical(f"scan {seq}: fused covariance not positive definite, even rebuilt")
+        left_out = tuple(s for s in self.sensors if s in buf.outputs and s not in result.fused)
+        if left_out:  # went on alone, or in the other model: not fused this scan (the reset brings them back)
+            self.count("estimates_left_out", len(left_out))
+            degraded = True
+            if left_out != self.left_out:
+                self.log.warning("scan %d: estimates of %s left out (made alone, without the last reset, or in "
+                                 "the other model)", seq, ", ".join(left_out))
+        self.left_out = left_out
         if degraded:
             self.count("degraded_scans")
         named = tuple(sorted(buf.named | set(self.take_contested()) | ({seq} if buf.contested else set())))[:MAX_CONTESTED]
         if named:
             self.log.warning("scan %d: fused track contested (scans %s)", seq, list(named))
-        track = make_track(seq, buf, result, degraded, [s for s in self.sensors if s in buf.outputs], named)
+        track = make_track(seq, buf, result, degraded, list(result.fused), named)
         self.publish(self.keys.fusion_track(), track)  # the output first; the resets are for the next scan
         for sensor, cmd in result.resets.items():
             self.publish(self.keys.fusion_reset(sensor), Reset.unchecked(
