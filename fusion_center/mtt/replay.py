@@ -23,7 +23,7 @@ import numpy as np
 
 from fedtrack.config import ConfigError, did_you_mean, load_tables
 from fedtrack.fusion_center.mtt.centre.candidates import CrowdedReport
-from fedtrack.fusion_center.mtt.centre.consistency import Transition
+from fedtrack.fusion_center.mtt.centre.consistency import FALSE_ALARM, Transition
 from fedtrack.fusion_center.mtt.engines import ALGORITHMS, Engine, PictureClock, PictureTracks, make_engine
 from fedtrack.fusion_center.mtt.regional import is_region_recording, read_region_entries, recorded_pictures
 from fedtrack.fusion_center.mtt.silence import silence_bound, usual_intervals
@@ -151,7 +151,7 @@ def counter_lines(counts: dict[str, int]) -> list[str]:
                    "start, not fused")]
     if "centre_inconsistency_onsets" in counts:
         lines.append(f"{counts['centre_inconsistency_onsets']} sensors flagged inconsistent (innovations against the "
-                     f"others' beyond the 1e-6 test), {counts['centre_inconsistent_sensors']} still flagged at the end")
+                     f"others' beyond the {FALSE_ALARM:g} test), {counts['centre_inconsistent_sensors']} still flagged at the end")
     if "centre_handed_over" in counts:
         lines.append(f"{counts['centre_handed_over']} central tracks handed over between regions")
     return lines
