@@ -10,6 +10,7 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
+from fedtrack.atomic import write_atomic
 from fedtrack.config import in_file
 from fedtrack.deploy.multitarget import SCENARIO_DIR, sensor_ids, service_args
 from fedtrack.deploy.security import (
@@ -184,9 +185,7 @@ def release_sensors(sensors: list[ServiceProcess], path: Path | None, start_at: 
     waiting on it, and ``--start-at`` instead of ``--start-file`` for their later starts (restarts,
     sensors that join); returns it."""
     if path is not None:
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(f"{start_at:.6f}\n")
-        tmp.replace(path)
+        write_atomic(path, f"{start_at:.6f}\n".encode())
     for sp in sensors:
         if "--start-file" in sp.argv:
             i = sp.argv.index("--start-file")

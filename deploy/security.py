@@ -53,6 +53,7 @@ if TYPE_CHECKING:  # imported where certificates are made: every service reads t
     from cryptography import x509
     from cryptography.hazmat.primitives.asymmetric import ec
 
+from fedtrack.atomic import write_atomic
 from fedtrack.config import ConfigError
 from fedtrack.deployment import DeploymentConfig, listen_address, on_loopback
 from fedtrack.jsonl import InputError, output_folder
@@ -301,11 +302,7 @@ def tls_config(tls_dir: Path, ident: str, router: bool) -> dict[str, Any]:
 
 def _write_private(path: Path, data: bytes) -> None:
     """Write ``data`` readable by the owner only (created with mode 0600, replaced atomically)."""
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    with os.fdopen(fd, "wb") as f:
-        f.write(data)
-    os.replace(tmp, path)
+    write_atomic(path, data, permissions=0o600)
 
 
 def _certificate(subject: str, key: ec.EllipticCurvePrivateKey, issuer: x509.Name, signer: ec.EllipticCurvePrivateKey,

@@ -8,14 +8,13 @@ import contextlib
 import errno
 import json
 import math
-import os
-import secrets
 from pathlib import Path
 from typing import IO, Any, Iterator
 
 import numpy as np
 import orjson
 
+from fedtrack.atomic import atomic_file
 from fedtrack.config import did_you_mean
 
 STORAGE_FULL = frozenset({errno.ENOSPC, errno.EFBIG, errno.EDQUOT})  # a write the disk or a limit refused
@@ -74,26 +73,20 @@ def output_folder(path: str | Path) -> Path:
 
 @contextlib.contextmanager
 def output_file(path: str | Path, mode: str = "w") -> Iterator[IO[Any]]:
-    """Write ``path`` whole or not at all: the block writes to a temporary file in the same folder,
-    renamed onto ``path`` when the block ends without an exception and removed when it raises, so
-    an error half-way (a bad input line, Ctrl-C) leaves no half-written output and an existing
-    file untouched. ``mode`` is ``"w"`` (text) or ``"wb"``. The disk full or the file size limit
+    """Write ``path`` whole or not at all (:func:`fedtrack.atomic.atomic_file`: a temporary file in the
+    same folder, fsync'ed and renamed onto ``path`` when the block ends without an exception, removed
+    when it raises), so an error half-way (a bad input line, Ctrl-C) leaves no half-written output
+    and an existing file untouched. ``mode`` is ``"w"`` (text) or ``"wb"``. The disk full or the file size limit
     reached while it is written is an InputError naming ``path`` (a write's OSError names no file:
     before 2026-11-27 the launcher said 'could not export the recording: None: cannot write')."""
     p = check_output(path)
-    tmp = p.parent / f".{p.name}.{os.getpid()}.{secrets.token_hex(4)}.part"
+    entered = False
     try:
-        fh = open(tmp, mode.replace("w", "x"))  # a new file, with the mode the umask gives any output
-    except OSError as exc:
-        raise InputError(f"{p}: cannot write: {exc.strerror or exc}") from None
-    try:
-        with fh:
+        with atomic_file(p, mode) as fh:
+            entered = True
             yield fh
-        os.replace(tmp, p)
-    except BaseException as exc:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        if isinstance(exc, OSError) and exc.filename is None and exc.errno in STORAGE_FULL:
+    except OSError as exc:  # the temporary file is gone (fedtrack.atomic); the output named
+        if not entered or (exc.filename is None and exc.errno in STORAGE_FULL):
             raise InputError(f"{p}: cannot write: {exc.strerror or exc}") from None
         raise
 

@@ -25,7 +25,7 @@ def test_snapshot_round_trip_and_refusals(tmp_path: Path) -> None:
     track = FusedTrack(seq=7, t=7.0, model="cv", x=np.ones(4), P=np.eye(4), maneuver=False, degraded=False,
                        sensors=("1", "2"), stamp_ns=1)
     first._save(track)
-    assert not (tmp_path / "fc.snapshot.tmp").exists()
+    assert [p.name for p in tmp_path.iterdir()] == ["fc.snapshot"]  # no temporary left
     again = centre(tmp_path)
     again._restore()
     assert again.restored and again.next_seq == 8 and again.last_track.seq == 7 and again.centre.t == 7.0

@@ -5,26 +5,19 @@ so a file cut or corrupted on disk is refused, never half-read."""
 
 from __future__ import annotations
 
-import contextlib
-import os
 from hashlib import blake2b
 from pathlib import Path
+
+from fedtrack.atomic import write_atomic
 
 DIGEST_BYTES = 32
 
 
 def write_sealed(path: Path, magic: bytes, data: bytes) -> None:
-    """Write ``magic``, the digest of ``data`` and ``data`` to ``path``, atomically; on an OSError (the
-    disk full, the file size limit, no file descriptor left) ``path`` is as it was and no temporary
-    file is left."""
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        tmp.write_bytes(magic + blake2b(data, digest_size=DIGEST_BYTES).digest() + data)
-        os.replace(tmp, path)
-    except OSError:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
-        raise
+    """Write ``magic``, the digest of ``data`` and ``data`` to ``path``, atomically
+    (:func:`fedtrack.atomic.write_atomic`); on an OSError (the disk full, the file size limit, no file
+    descriptor left), raised as it came, ``path`` is as it was and no temporary file is left."""
+    write_atomic(path, magic + blake2b(data, digest_size=DIGEST_BYTES).digest() + data)
 
 
 def unsealed(raw: bytes, magic: bytes) -> bytes:

@@ -1,0 +1,51 @@
+"""The one way fedtrack replaces a file whole (outputs, service snapshots, keys and certificates, the
+launcher's start file): :func:`atomic_file` and :func:`write_atomic`.
+
+The contract: the data go to a new temporary file in the target's own folder (``.NAME.PID.RANDOM.part``,
+created exclusively with ``permissions`` less the umask), are flushed and fsync'ed, and the file is
+renamed onto the target (``os.replace``, atomic within one file system). A reader therefore sees the old
+file or the whole new one, never a part, and after a crash of the machine the renamed file holds its
+data (the folder is not fsync'ed: a power cut may leave the old file in place, never a torn one). On
+any exception (an OSError of the write, the fsync or the rename, the caller's own error raised in the
+block, Ctrl-C) the temporary file is removed, the target is as it was, and the exception propagates
+unchanged: each caller keeps its own error contract (:func:`fedtrack.jsonl.output_file` turns a full
+disk into an InputError naming the file; a snapshot's writer counts the OSError)."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import secrets
+from pathlib import Path
+from typing import IO, Any, Iterator
+
+
+def temporary_name(path: Path) -> Path:
+    """A fresh temporary file's name beside ``path`` (hidden, unique to this process and call)."""
+    return path.parent / f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.part"
+
+
+@contextlib.contextmanager
+def atomic_file(path: str | Path, mode: str = "wb", permissions: int = 0o666) -> Iterator[IO[Any]]:
+    """Replace ``path`` whole with what the block writes to the yielded file (``mode`` ``"w"``, text,
+    or ``"wb"``), or leave it untouched if anything raises (the module's contract). OSError when the
+    temporary file cannot be created (the folder missing or read-only)."""
+    p = Path(path)
+    tmp = temporary_name(p)
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, permissions)
+    try:
+        with open(fd, mode) as fh:
+            yield fh
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, p)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def write_atomic(path: str | Path, data: bytes, permissions: int = 0o666) -> None:
+    """Replace ``path`` whole with ``data`` (:func:`atomic_file`)."""
+    with atomic_file(path, "wb", permissions) as fh:
+        fh.write(data)

@@ -1,0 +1,78 @@
+"""fedtrack.atomic: the one atomic-write helper (temporary file in the same folder, fsync, rename; the
+temporary removed on any error; the caller's error type preserved)."""
+
+from __future__ import annotations
+
+import os
+import stat
+from pathlib import Path
+
+import pytest
+
+from fedtrack.atomic import atomic_file, write_atomic
+
+
+class CallersError(Exception):
+    """An error of the caller's own, raised half-way through a write."""
+
+
+def test_a_file_is_replaced_whole_after_an_fsync_of_its_temporary_in_the_same_folder(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    target = tmp_path / "out.bin"
+    target.write_bytes(b"old")
+    synced: list[str] = []
+    real_fsync, real_replace = os.fsync, os.replace
+
+    def fsync(fd: int) -> None:
+        synced.append(os.readlink(f"/proc/self/fd/{fd}"))
+        real_fsync(fd)
+
+    def replace(src: str | Path, dst: str | Path) -> None:
+        assert [Path(p) for p in synced] == [Path(src)] and Path(src).parent == tmp_path  # fsync'ed, then renamed
+        assert target.read_bytes() == b"old"  # nothing reached the target before the rename
+        real_replace(src, dst)
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    monkeypatch.setattr(os, "replace", replace)
+    write_atomic(target, b"new data")
+    assert target.read_bytes() == b"new data" and len(synced) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.bin"]
+
+
+def test_permissions_are_those_asked_less_the_umask(tmp_path: Path) -> None:
+    write_atomic(tmp_path / "key.pem", b"secret", permissions=0o600)
+    assert stat.S_IMODE((tmp_path / "key.pem").stat().st_mode) == 0o600
+    old = os.umask(0o022)
+    try:
+        with atomic_file(tmp_path / "out.txt", "w") as fh:
+            fh.write("text")
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE((tmp_path / "out.txt").stat().st_mode) == 0o644
+    assert (tmp_path / "out.txt").read_text() == "text"
+
+
+@pytest.mark.parametrize("error", [CallersError("half-way"), KeyboardInterrupt(), OSError(28, "No space left")])
+def test_an_error_in_the_block_leaves_the_target_as_it_was_and_no_temporary(tmp_path: Path,
+                                                                           error: BaseException) -> None:
+    target = tmp_path / "out.bin"
+    target.write_bytes(b"old")
+    with pytest.raises(type(error)) as raised:
+        with atomic_file(target) as fh:
+            fh.write(b"partial")
+            raise error
+    assert raised.value is error  # the caller's own error, not wrapped
+    assert target.read_bytes() == b"old" and [p.name for p in tmp_path.iterdir()] == ["out.bin"]
+
+
+def test_a_rename_that_fails_removes_the_temporary_and_raises_its_oserror(tmp_path: Path) -> None:
+    (tmp_path / "dir").mkdir()  # the target is a folder: os.replace refuses
+    with pytest.raises(IsADirectoryError):
+        write_atomic(tmp_path / "dir", b"data")
+    assert [p.name for p in tmp_path.iterdir()] == ["dir"] and not any((tmp_path / "dir").iterdir())
+
+
+def test_a_folder_that_does_not_exist_is_an_oserror_and_creates_nothing(tmp_path: Path) -> None:
+    with pytest.raises(FileNotFoundError):
+        write_atomic(tmp_path / "gone" / "out.bin", b"data")
+    assert list(tmp_path.iterdir()) == []
