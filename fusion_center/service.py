@@ -10,16 +10,17 @@ costs no waiting, a frozen one costs the deadline. Scans are fused in order. Pub
 ``fusion/reset/<id>`` (federated), the track ``fusion/track``, and on a maneuver decision
 ``fusion/event``. ``fusion/state`` answers with the latest track (restarted sensors and
 local filters resume from it). With ``--snapshot PATH`` (``launch`` gives
-``OUT/fusion-center.snapshot`` and removes it when a run starts) the centre pickles its
-state after every scan (written atomically) and a restarted centre resumes from it
-(counter ``restored``) if it missed at most ``SNAPSHOT_MAX_GAP`` scans; otherwise (the
-local filters went on alone meanwhile), and without a snapshot, it rebuilds its state
-from the first scan of local estimates it receives, as at start-up (counter ``rebuilt``).
+``OUT/fusion-center.snapshot`` and removes it when a run starts) the centre writes its
+state after every scan (atomically, as data only: ``fedtrack.fusion_center.snapshot``) and a
+restarted centre resumes from it (counter ``restored``) if it missed at most
+``SNAPSHOT_MAX_GAP`` scans; otherwise (the local filters went on alone meanwhile), without a
+snapshot, and with one it refuses (counter ``snapshot_refused``: another deployment, version
+or configuration, cut, corrupted or tampered with), it rebuilds its state from the first scan
+of local estimates it receives, as at start-up (counter ``rebuilt``).
 """
 
 from __future__ import annotations
 
-import pickle
 import time
 from pathlib import Path
 from typing import Any
@@ -34,6 +35,7 @@ from fedtrack.fusion_center.centre import (
     DecentralizedCentre,
     FederatedCentre,
 )
+from fedtrack.fusion_center.snapshot import SNAPSHOT_MAGIC, restored, snapshot_data
 from fedtrack.local_filters.linear.models import CA_ACC, CV_IN_CA
 from fedtrack.local_filters.vdie.config import PipelineSettings
 from fedtrack.local_filters.vdie.estimation import EVENT_NAMES, EVENT_NONE
@@ -43,13 +45,12 @@ from fedtrack.services.base import QueryHandler, Service, Subscription, service_
 from fedtrack.services.clock import ClockJump
 from fedtrack.services.lead import NumberedLeadGuard
 from fedtrack.services.rejections import Conflict, Numerical, Rejected
-from fedtrack.services.snapshot import unsealed, write_sealed
-from fedtrack.wire import FusedTrack, LocalEstimate, ManeuverEvent, Reset, acceptable_covariances, decode, encode
+from fedtrack.services.snapshot import read_sealed, write_sealed
+from fedtrack.wire import FusedTrack, LocalEstimate, ManeuverEvent, Reset, acceptable_covariances
 
 FUSED_KEPT = 64  # fused scans whose estimate digests are kept to tell a late conflict from a re-delivery
 SNAPSHOT_MAX_GAP = 3  # scans missed beyond which a restored snapshot is dropped for a rebuild
 SNAPSHOT_FAILURES_LOGGED = 100  # a snapshot that cannot be written: the first failure logged, then every 100th
-SNAPSHOT_MAGIC = b"fedtrack-centre-1\n"  # then a 32-byte BLAKE2b digest of the pickle, then the pickle
 
 
 class ScanBuffer:
@@ -68,7 +69,8 @@ class ScanBuffer:
 class FusionCenterService(Service):
     role = "fusion-center"
     tick_period_s = 0.01
-    # the centre's records are rebound, never changed in place: a pickle of these is the whole state
+    # the centre's records are rebound, never changed in place: a pickle of these (dispatch's checkpoint,
+    # in memory) is the whole state
     state_attrs = ("centre", "scans", "next_seq", "last_track", "restored", "fused", "left_out", "contested_scans",
                    "lead")
     tick_state_attrs = ()  # on_tick checkpoints only when a scan is waiting (100 ticks a second)
@@ -102,19 +104,17 @@ class FusionCenterService(Service):
             for role in self._gone]
 
     def _restore(self) -> None:
-        """Resume from ``--snapshot`` if it holds this deployment's centre (a restart mid-run)."""
+        """Resume from ``--snapshot`` if it holds this deployment's centre (a restart mid-run). A file
+        it refuses (read as data only, every field checked: fedtrack.fusion_center.snapshot) is
+        logged in one line naming the field and counted ``snapshot_refused``; the centre then starts
+        fresh, as without one."""
         if self.snapshot is None or not self.snapshot.is_file():
             return
         try:
-            state = pickle.loads(unsealed(self.snapshot.read_bytes(), SNAPSHOT_MAGIC))
-            centre, track = state["centre"], decode(state["track"], FusedTrack)
-            usable = (state["deployment"] == self.keys.deployment and type(centre) is type(self.centre)
-                      and centre.sensors == self.sensors)
-        except Exception as exc:  # unreadable or from another version: start fresh, say so
-            self.log.warning("snapshot %s unusable (%s: %s): starting fresh", self.snapshot, type(exc).__name__, exc)
-            return
-        if not usable:
-            self.log.warning("snapshot %s is of another deployment or sensor list: starting fresh", self.snapshot)
+            centre, track = restored(read_sealed(self.snapshot, SNAPSHOT_MAGIC), self.keys.deployment, self.centre)
+        except (OSError, ValueError) as exc:  # every refusal of the reader is a ValueError naming the field
+            self.count("snapshot_refused")
+            self.log.warning("snapshot %s refused (%s: %s): starting fresh", self.snapshot, type(exc).__name__, exc)
             return
         self.centre, self.last_track, self.next_seq = centre, track, track.seq + 1
         self.restored = True
@@ -130,7 +130,7 @@ class FusionCenterService(Service):
         as ``handler_error``, the state stayed at scan 43 and the replay no longer equalled the tracks."""
         if self.snapshot is None:
             return
-        data = pickle.dumps({"deployment": self.keys.deployment, "centre": self.centre, "track": encode(track)})
+        data = snapshot_data(self.keys.deployment, self.centre, track)
         try:
             write_sealed(self.snapshot, SNAPSHOT_MAGIC, data)
         except OSError as exc:

@@ -57,10 +57,9 @@ def test_an_error_in_the_block_leaves_the_target_as_it_was_and_no_temporary(tmp_
                                                                            error: BaseException) -> None:
     target = tmp_path / "out.bin"
     target.write_bytes(b"old")
-    with pytest.raises(type(error)) as raised:
-        with atomic_file(target) as fh:
-            fh.write(b"partial")
-            raise error
+    with pytest.raises(type(error)) as raised, atomic_file(target) as fh:
+        fh.write(b"partial")
+        raise error
     assert raised.value is error  # the caller's own error, not wrapped
     assert target.read_bytes() == b"old" and [p.name for p in tmp_path.iterdir()] == ["out.bin"]
 
