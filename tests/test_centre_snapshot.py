@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import os
 import pickle
 from collections.abc import Callable, Iterable
 from hashlib import blake2b
@@ -27,13 +28,15 @@ from fedtrack.wire import FusedTrack, LocalEstimate, encode
 from fedtrack.zsession import SessionOptions
 
 
-def centre(folder: Path, deployment: str = "d", sensors: tuple[str, ...] = ("1", "2"),
+def centre(folder: Path | None, deployment: str = "d", sensors: tuple[str, ...] = ("1", "2"),
            kind: type[FederatedCentre | DecentralizedCentre] = FederatedCentre,
            config: FusionConfig | None = None) -> FusionCenterService:
-    """A centre whose ``--snapshot`` is ``folder/fc.snapshot`` (the folder made if missing)."""
-    folder.mkdir(exist_ok=True)
+    """A centre whose ``--snapshot`` is ``folder/fc.snapshot`` (the folder made if missing; None: no
+    snapshot)."""
+    if folder is not None:
+        folder.mkdir(exist_ok=True)
     return FusionCenterService(list(sensors), kind(list(sensors), config or FusionConfig()), 0.5,
-                               snapshot=folder / "fc.snapshot", service_id="fusion",
+                               snapshot=folder and folder / "fc.snapshot", service_id="fusion",
                                options=SessionOptions(connect=("tcp/127.0.0.1:1",)), deployment=deployment)
 
 
@@ -75,6 +78,13 @@ def test_a_snapshot_that_cannot_be_written_leaves_every_scan_fused(tmp_path: Pat
 KEYS = Keys("d")
 
 
+@pytest.fixture(autouse=True)
+def no_fsync(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Snapshots written without their fsync (15 ms each on the CI disk, 34 a run): the format is what
+    these tests check; the write's durability is tests/test_atomic.py's."""
+    monkeypatch.setattr(os, "fsync", lambda fd: None)
+
+
 @functools.cache
 def stream() -> tuple[tuple[LocalEstimate, ...], tuple[bytes, ...]]:
     """The local estimates of ``test_fuzz_handlers``' federated pipeline (paper 004 scenario 1, two
@@ -103,7 +113,7 @@ def test_a_centre_resumed_from_its_snapshot_fuses_exactly_the_tracks_of_one_neve
     """A centre stopped after scan ``k`` and started again from its snapshot publishes, byte for byte,
     the tracks of a centre that never stopped (its state read back equals the one written)."""
     estimates, _ = stream()
-    whole = fed(centre(tmp_path / "whole", kind=kind), estimates)
+    whole = fed(centre(None, kind=kind), estimates)
     first = centre(tmp_path / "run", kind=kind)
     assert fed(first, [e for e in estimates if e.seq <= k]) == whole[:k + 1]
     again = centre(tmp_path / "run", kind=kind)
@@ -145,7 +155,7 @@ def test_a_pickle_in_the_snapshot_is_refused_unread_and_creates_nothing(
     assert len(lines) == 1 and "refused" in lines[0] and "starting fresh" in lines[0] and "\n" not in lines[0]
     assert ("version '1' of the format" if magic != SNAPSHOT_MAGIC else "not valid msgpack") in lines[0], lines
     estimates, _ = stream()
-    fresh = centre(tmp_path / "fresh")
+    fresh = centre(None)
     later = [e for e in estimates if e.seq >= 20]
     assert fed(svc, later) == fed(fresh, later) and svc.counters["rebuilt"] == 1
 

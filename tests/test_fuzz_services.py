@@ -25,10 +25,12 @@ counts a payload its decoder rejected; the handlers count theirs by reason).
 
 from __future__ import annotations
 
+import io
 import logging
 import math
 import random
 from collections.abc import Callable
+from hashlib import blake2b
 from pathlib import Path
 from typing import Any
 
@@ -55,9 +57,11 @@ from test_wire import health
 
 from fedtrack.fusion_center.centre import FederatedCentre
 from fedtrack.fusion_center.service import FusionCenterService
+from fedtrack.fusion_center.snapshot import SNAPSHOT_MAGIC
 from fedtrack.local_filters.service import LocalFilterService
 from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.services import dispatch as service_dispatch
+from fedtrack.services.snapshot import DIGEST_BYTES
 from fedtrack.wire import (
     FusedTrack,
     HandOver,
@@ -372,7 +376,7 @@ def region_bus(tmp_path: Path) -> Bus:
 
 
 class InMemory:
-    """A snapshot file's stand-in (``is_file``, ``read_bytes``): 10,000 disk writes would be the test's time."""
+    """A snapshot file's stand-in (``is_file``, ``open``): 10,000 disk writes would be the test's time."""
 
     def __init__(self, data: bytes) -> None:
         self.data = data
@@ -380,8 +384,9 @@ class InMemory:
     def is_file(self) -> bool:
         return True
 
-    def read_bytes(self) -> bytes:
-        return self.data
+    def open(self, mode: str) -> io.BytesIO:
+        assert mode == "rb"
+        return io.BytesIO(self.data)
 
 
 class Sample:
@@ -417,8 +422,9 @@ def test_liveliness_callbacks_take_any_token(tmp_path: Path) -> None:
 
 
 def test_a_corrupted_snapshot_never_stops_the_centre(tmp_path: Path) -> None:
-    """10,000 mutations of a real centre snapshot (bytes flipped, cut, extended): the centre
-    starts fresh or resumes, never raises, and fuses the next scan (or rejects it, counted)."""
+    """10,000 mutations of a real centre snapshot (bytes flipped, cut, extended), half of them of its
+    map behind a digest made again (as a writer of the output folder could): the centre starts fresh
+    or resumes, never raises, and fuses the next scan (or rejects it, counted)."""
     services = paper_services(tmp_path / "run")
     snapshot = tmp_path / "centre.snapshot"
     centre: FusionCenterService = services["centre"]  # type: ignore[assignment]
@@ -442,11 +448,14 @@ def test_a_corrupted_snapshot_never_stops_the_centre(tmp_path: Path) -> None:
 
 
 def restore_corrupted(good: bytes, estimate: LocalEstimate, outcomes: dict[str, int]) -> None:
-    """PAYLOADS centres restored from corruptions of the snapshot ``good``; every 500th then takes ``estimate``."""
+    """PAYLOADS centres restored from corruptions of the snapshot ``good`` (every other one of its map,
+    sealed again); every 500th then takes ``estimate``."""
     mutator = Mutator(SEED)
     opts = SessionOptions(connect=("tcp/127.0.0.1:1",))
+    head = len(SNAPSHOT_MAGIC) + DIGEST_BYTES
     for i in range(PAYLOADS):
-        data = bytearray(good)
+        resealed = i % 2 == 1
+        data = bytearray(good[head:] if resealed else good)
         how = mutator.rng.randrange(3)
         if how == 0:
             for _ in range(mutator.rng.randint(1, 4)):
@@ -455,6 +464,8 @@ def restore_corrupted(good: bytes, estimate: LocalEstimate, outcomes: dict[str, 
             del data[mutator.rng.randrange(len(data)):]
         else:
             data[mutator.rng.randrange(len(data)):mutator.rng.randrange(len(data))] = bytes(8)
+        if resealed:
+            data[:0] = SNAPSHOT_MAGIC + blake2b(bytes(data), digest_size=DIGEST_BYTES).digest()
         fresh = FusionCenterService(list(SENSORS), FederatedCentre(list(SENSORS), FusionConfig()), 0.5,
                                     snapshot=InMemory(bytes(data)), service_id="fusion",  # type: ignore[arg-type]
                                     options=opts, deployment=KEYS.deployment)
