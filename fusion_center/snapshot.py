@@ -3,10 +3,10 @@ only, read back field by field against what this build and configuration make (d
 "Snapshot format").
 
 The file is :func:`fedtrack.services.snapshot.write_sealed`'s: ``SNAPSHOT_MAGIC`` (the format's name
-and version), a BLAKE2b digest, then one msgpack map ``{deployment, mode, sensors, t, state, track}``:
-the deployment's name, ``"federated"`` or ``"decentralized"``, the centre's sensor ids in order, the
-time of its last scan, its filter state (:func:`~fedtrack.services.snapshot.record_maps` of the FVDIE
-master's ``VdieState`` or the DVDIE centre's ``CentreState``) and the last fused track's wire bytes.
+and version), a BLAKE2b digest, then one msgpack map ``{deployment, mode, sensors, state, track}``:
+the deployment's name, ``"federated"`` or ``"decentralized"``, the centre's sensor ids in order, its
+filter state (:func:`~fedtrack.services.snapshot.record_maps` of the FVDIE master's ``VdieState`` or
+the DVDIE centre's ``CentreState``) and the last fused track's wire bytes (its time is the centre's).
 Before 2026-11-27 the map was a pickle of the centre object (version 1), which ran any code a file
 put in the output folder held when the centre restarted."""
 
@@ -23,7 +23,7 @@ from fedtrack.services.snapshot import SnapshotError, record_from_maps, record_m
 from fedtrack.wire import MAX_MAGNITUDE, FusedTrack, WireError, acceptable_covariances, decode, encode, unpack
 
 SNAPSHOT_MAGIC = b"fedtrack-centre-2\n"  # then a 32-byte BLAKE2b digest of the map, then the map
-FIELDS = ("deployment", "mode", "sensors", "t", "state", "track")
+FIELDS = ("deployment", "mode", "sensors", "state", "track")
 Centre = FederatedCentre | DecentralizedCentre
 S = TypeVar("S", VdieState, CentreState)
 
@@ -35,7 +35,7 @@ class Restored(NamedTuple):
     track: FusedTrack
 
 
-def mode_of(centre: Centre) -> str:
+def _mode(centre: Centre) -> str:
     return "federated" if isinstance(centre, FederatedCentre) else "decentralized"
 
 
@@ -55,9 +55,9 @@ def _template(centre: Centre) -> VdieState | CentreState:
 def snapshot_data(deployment: str, centre: Centre, track: FusedTrack) -> bytes:
     """The snapshot map's bytes of ``centre`` after the scan of ``track``."""
     state = _state(centre)
-    return msgpack.packb({"deployment": deployment, "mode": mode_of(centre), "sensors": list(centre.sensors),
-                          "t": None if centre.t is None else float(centre.t), "state": None if state is None else record_maps(state),
-                          "track": encode(track)}, use_bin_type=True)
+    return msgpack.packb({"deployment": deployment, "mode": _mode(centre), "sensors": list(centre.sensors),
+                          "state": None if state is None else record_maps(state), "track": encode(track)},
+                         use_bin_type=True)
 
 
 def restored(data: bytes, deployment: str, blank: Centre) -> Restored:
@@ -74,12 +74,9 @@ def restored(data: bytes, deployment: str, blank: Centre) -> Restored:
     if not isinstance(obj, dict) or set(obj) != set(FIELDS):
         keys = sorted(map(str, obj))[:10] if isinstance(obj, dict) else type(obj).__name__
         raise SnapshotError("snapshot", f"expected the fields {list(FIELDS)}, got {keys}")
-    for name, want in (("deployment", deployment), ("mode", mode_of(blank)), ("sensors", list(blank.sensors))):
+    for name, want in (("deployment", deployment), ("mode", _mode(blank)), ("sensors", list(blank.sensors))):
         if obj[name] != want:
             raise SnapshotError(name, f"the snapshot's is {str(obj[name])[:80]!r}, this centre's {want!r}")
-    t = obj["t"]
-    if t is not None and (not isinstance(t, float) or not np.isfinite(t)):
-        raise SnapshotError("t", f"expected a finite time, got {str(t)[:40]!r}")
     if not isinstance(obj["track"], bytes):
         raise SnapshotError("track", f"expected the wire bytes of a FusedTrack, got {type(obj['track']).__name__}")
     try:
@@ -88,7 +85,7 @@ def restored(data: bytes, deployment: str, blank: Centre) -> Restored:
         raise SnapshotError(f"track.{exc.field}", exc.reason) from None
     state = None if obj["state"] is None else _checked(record_from_maps(obj["state"], _template(blank), "state"))
     centre = type(blank)(blank.sensors, blank.config)
-    centre.t = t
+    centre.t = track.t  # a centre's time is that of its last fused scan
     if isinstance(centre, FederatedCentre):
         centre.vdie = state
     else:
