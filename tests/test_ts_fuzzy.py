@@ -53,8 +53,9 @@ def test_ga_identifies_a_nonlinear_map_with_few_rules():
 def test_model_file_round_trip_and_bad_file(tmp_path):
     m = TSModel(np.zeros((2, 3)), np.ones((2, 3)), np.ones((2, 4, 6)), np.zeros(3), np.ones(3),
                 np.zeros(6), np.ones(6))
-    save_model(tmp_path / "m.npz", m, train_seed=3)
-    back, meta = load_model(tmp_path / "m.npz")
+    save_model(tmp_path / "m", m, train_seed=3)  # written whole, under the name given (numpy's savez adds .npz)
+    assert [p.name for p in tmp_path.iterdir()] == ["m"]
+    back, meta = load_model(tmp_path / "m")
     for a, b in zip(back, m):
         np.testing.assert_array_equal(a, b)
     assert int(meta["train_seed"]) == 3

@@ -34,6 +34,7 @@ from typing import Callable, NamedTuple
 import numpy as np
 from scipy.special import logsumexp
 
+from fedtrack.atomic import atomic_file
 from fedtrack.config import ConfigError
 
 
@@ -229,8 +230,10 @@ def identify(x: np.ndarray, y: np.ndarray, params: GAParams, rng: np.random.Gene
 
 
 def save_model(path: str | Path, model: TSModel, **meta: np.ndarray | float | int | str) -> None:
-    """Write the model (and metadata) to an ``.npz`` file."""
-    np.savez(path, **model._asdict(), **{f"meta_{k}": np.asarray(v) for k, v in meta.items()})
+    """Write the model (and metadata) to ``path``, an ``.npz`` file (whole or not at all:
+    :func:`fedtrack.atomic.atomic_file`; the name as given, no suffix added)."""
+    with atomic_file(path) as fh:
+        np.savez(fh, **model._asdict(), **{f"meta_{k}": np.asarray(v) for k, v in meta.items()})
 
 
 def load_model(path: str | Path) -> tuple[TSModel, dict[str, np.ndarray]]:
