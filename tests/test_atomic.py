@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from fedtrack.atomic import atomic_file, write_atomic
+from fedtrack.services.snapshot import read_sealed, write_sealed
 
 
 class CallersError(Exception):
@@ -37,6 +38,15 @@ def test_a_file_is_replaced_whole_after_an_fsync_of_its_temporary_in_the_same_fo
     write_atomic(target, b"new data")
     assert target.read_bytes() == b"new data" and len(synced) == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.bin"]
+
+
+def test_a_snapshot_is_written_whole_without_an_fsync(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    synced: list[int] = []
+    monkeypatch.setattr(os, "fsync", synced.append)
+    write_sealed(tmp_path / "s.snapshot", b"magic\n", b"state")
+    assert synced == [] and read_sealed(tmp_path / "s.snapshot", b"magic\n") == b"state"
+    write_atomic(tmp_path / "out.bin", b"data")
+    assert len(synced) == 1  # the default: durable
 
 
 def test_permissions_are_those_asked_less_the_umask(tmp_path: Path) -> None:

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import functools
 import logging
-import os
 import pickle
 from collections.abc import Iterable
 from hashlib import blake2b
@@ -28,13 +27,6 @@ from fedtrack.wire import FusedTrack, LocalEstimate, encode
 from fedtrack.zsession import SessionOptions
 
 KEYS = Keys("d")
-
-
-@pytest.fixture(autouse=True)
-def no_fsync(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Snapshots written without their fsync (about 12 ms each on the build machine, 34 a run): the format is what
-    these tests check; the write's durability is tests/test_atomic.py's."""
-    monkeypatch.setattr(os, "fsync", lambda fd: None)
 
 
 def centre(folder: Path | None, deployment: str = "d", sensors: tuple[str, ...] = ("1", "2"),

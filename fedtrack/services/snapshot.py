@@ -33,9 +33,10 @@ class SnapshotError(ValueError):
 
 def write_sealed(path: Path, magic: bytes, data: bytes) -> None:
     """Write ``magic``, the digest of ``data`` and ``data`` to ``path``, atomically
-    (:func:`fedtrack.atomic.write_atomic`); on an OSError (the disk full, the file size limit, no file
+    (:func:`fedtrack.atomic.write_atomic`, not fsync'ed: a snapshot serves a restart of its process, and
+    is written after every scan or picture); on an OSError (the disk full, the file size limit, no file
     descriptor left), raised as it came, ``path`` is as it was and no temporary file is left."""
-    write_atomic(path, magic + blake2b(data, digest_size=DIGEST_BYTES).digest() + data)
+    write_atomic(path, magic + blake2b(data, digest_size=DIGEST_BYTES).digest() + data, durable=False)
 
 
 def read_sealed(path: Path, magic: bytes) -> bytes:
