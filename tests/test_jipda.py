@@ -27,7 +27,7 @@ from fedtrack.local_filters.mtt.association import AssociationInput
 from fedtrack.local_filters.mtt.associators import events, jipda
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.models import Linearized, linearize, motion
-from fedtrack.local_filters.mtt.tracker import gate as chi2_gate
+from fedtrack.local_filters.mtt.roles.gating import gate as chi2_gate
 from fedtrack.local_filters.pda.association import (
     PDAParams,
     constants,

@@ -337,7 +337,7 @@ def test_gated_pairs_are_those_of_the_full_scan(radar: bool) -> None:
     """The k-d tree candidates lose no pair of the dense N x M gate, with the same distances."""
     from fedtrack.local_filters.linear.kalman import innovation_covariance
     from fedtrack.local_filters.mtt.models import linearize
-    from fedtrack.local_filters.mtt.tracker import gate
+    from fedtrack.local_filters.mtt.roles.gating import gate
     from fedtrack.local_filters.radar.measurement import polar_from_cartesian, wrap_angle
 
     rng = np.random.default_rng(5)

@@ -1,7 +1,7 @@
 """Sensors that cannot see every target (coverage session): a tracker of several sensors' scans
 (``mtt-centralized``) counts a sensor's scan for a track only once the sensor detected the track,
 or where the scan shows the sensor sees the track's place: a detection in its gate, or the track
-inside the extent of the scan's detections (``tracker.scan_counts``, ``tracker.scan_sees``).
+inside the extent of the scan's detections (``roles.life.scan_counts``, ``roles.life.scan_sees``).
 Before, every scan counted for every track, so a target that one of three sensors saw was never
 confirmed (the other two sensors' scans were misses in its M-of-N window) or lost its existence
 to their misses (jipda, mht)."""
@@ -20,8 +20,10 @@ from fedtrack.fusion_center.mtt.evaluation import evaluate
 from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.geodetic import Frame, enu_from_own, own_from_aer, site_from_geodetic
 from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.mtt.roles.life import Sight, radar_view, scan_counts, scan_sees
+from fedtrack.local_filters.mtt.roles.tracks import empty_tracks
 from fedtrack.local_filters.mtt.scan import SensorScan
-from fedtrack.local_filters.mtt.tracker import Sight, empty_tracks, radar_view, scan_counts, scan_sees, track_params
+from fedtrack.local_filters.mtt.tracker import track_params
 from fedtrack.local_filters.radar.measurement import polar_from_cartesian
 
 WARM_UP_S = 20.0  # the trackers' start, left out of the count

@@ -8,17 +8,17 @@ pictures main 886cab1 (the tracker before the split) wrote for them with each al
 
 Since issue 26's altitude fix the centralized tracker of the radar scenario (its tracks started from
 the position sensor's plots at z = 0, then updated by the radar) relinearizes the radar about a
-plot's altitude (:func:`~fedtrack.local_filters.mtt.tracker.relinearize_altitude`): those two cases
+plot's altitude (:func:`~fedtrack.local_filters.mtt.roles.gating.relinearize_altitude`): those two cases
 equal 886cab1 with the relinearization taken out, and ``gnn-relinearized.json.gz`` (frozen when it
 came) with it.
 
 Since the sensor-coverage session a centralized tracker counts a sensor's scan for a track only
-once the sensor detected it or put a detection in its gate (``tracker.scan_counts``):
+once the sensor detected it or put a detection in its gate (``roles.life.scan_counts``):
 ``gnn-sensor-counts.json.gz`` (frozen when it came) holds the centralized cases with that rule, and
 with every scan counted for every track (``CentralizedEngine.bit`` 0) they equal the references above.
 
 Since the far-radar session a radar's scan counts for a track another sensor also detected only
-inside the radar's view its detections show (``tracker.radar_view``): ``gnn-radar-view.json.gz``
+inside the radar's view its detections show (``roles.life.radar_view``): ``gnn-radar-view.json.gz``
 (frozen when it came) holds the radar scenario's centralized cases with that rule, and with every
 track in view they equal ``gnn-sensor-counts.json.gz`` (the position scenario's have no radar).
 
@@ -99,7 +99,8 @@ def assert_fingerprints_equal(got: list, expected: list) -> None:
 def test_gnn_pictures_equal_main_886cab1(tmp_path: Path, scenario: str, maneuver: str, algorithm: str,
                                          monkeypatch: pytest.MonkeyPatch) -> None:
     from fedtrack.fusion_center.mtt.engines import CentralizedEngine
-    from fedtrack.local_filters.mtt import config, initiation, tracker
+    from fedtrack.local_filters.mtt import config, initiation
+    from fedtrack.local_filters.mtt.roles import gating, life
 
     monkeypatch.setattr(config, "LOST_SCAN_S", 0.0)  # a count per scan only, as before the untuned3 session
 
@@ -112,7 +113,7 @@ def test_gnn_pictures_equal_main_886cab1(tmp_path: Path, scenario: str, maneuver
     viewed = json.loads(gzip.decompress(RADAR_VIEW.read_bytes()))
     if key in viewed:
         assert_fingerprints_equal(fingerprint(replay_case(tmp_path, scenario, maneuver, algorithm)), viewed[key])
-        monkeypatch.setattr(tracker, "radar_view", lambda x, scan, frame=None: np.ones(x.shape[0], bool))  # all in view
+        monkeypatch.setattr(life, "radar_view", lambda x, scan, frame=None: np.ones(x.shape[0], bool))  # all in view
     counted = json.loads(gzip.decompress(SENSOR_COUNTS.read_bytes()))
     if key in counted:
         assert_fingerprints_equal(fingerprint(replay_case(tmp_path, scenario, maneuver, algorithm)), counted[key])
@@ -120,7 +121,7 @@ def test_gnn_pictures_equal_main_886cab1(tmp_path: Path, scenario: str, maneuver
     relinearized = json.loads(gzip.decompress(RELINEARIZED.read_bytes()))
     if key in relinearized:
         assert_fingerprints_equal(fingerprint(replay_case(tmp_path, scenario, maneuver, algorithm)), relinearized[key])
-        monkeypatch.setattr(tracker, "relinearize_altitude", lambda pred, lin, scan, gate_d2: lin)
+        monkeypatch.setattr(gating, "relinearize_altitude", lambda pred, lin, scan, gate_d2: lin)
     expected = json.loads(gzip.decompress(REFERENCE.read_bytes()))[key]
     assert_fingerprints_equal(fingerprint(replay_case(tmp_path, scenario, maneuver, algorithm)), expected)
 
@@ -147,14 +148,10 @@ def test_a_soft_associator_with_memory_and_existence_plugs_in() -> None:
     from fedtrack.local_filters.linear.kalman import GaussianState, update_residual
     from fedtrack.local_filters.mtt.association import Association, AssociationInput, Associator
     from fedtrack.local_filters.mtt.config import MttConfig
+    from fedtrack.local_filters.mtt.roles.filtering import Updated
+    from fedtrack.local_filters.mtt.roles.tracks import Observation
     from fedtrack.local_filters.mtt.scan import SensorScan
-    from fedtrack.local_filters.mtt.tracker import (
-        Observation,
-        Updated,
-        initial_state,
-        track_params,
-        tracker_step,
-    )
+    from fedtrack.local_filters.mtt.tracker import initial_state, track_params, tracker_step
 
     def associate(inp: AssociationInput) -> Association:
         w = np.exp(inp.log_likelihood)

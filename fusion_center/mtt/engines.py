@@ -36,15 +36,9 @@ from fedtrack.local_filters.mtt.history import ScanHistory
 from fedtrack.local_filters.mtt.local import LocalReport, Resets, SensorTracker, copies_another, is_duplicate
 from fedtrack.local_filters.mtt.maneuver import predicted_view
 from fedtrack.local_filters.mtt.models import modes_predict, predict_batch
+from fedtrack.local_filters.mtt.roles.tracks import TrackParams
 from fedtrack.local_filters.mtt.scan import SensorScan
-from fedtrack.local_filters.mtt.tracker import (
-    TrackerState,
-    TrackParams,
-    initial_state,
-    mht_decided,
-    track_params,
-    tracker_step,
-)
+from fedtrack.local_filters.mtt.tracker import TrackerState, initial_state, mht_decided, track_params, tracker_step
 from fedtrack.local_filters.pda.association import existence_predict
 from fedtrack.local_filters.regions import Regions
 from fedtrack.local_filters.vdie.estimation import VdieParams
@@ -156,7 +150,7 @@ def central_params(cfg: MttConfig, sensor: str | None, dim: int, present: tuple[
     few seconds: 10 id switches among 6 targets in 100 s). ``bit``: the sensor's bit in the tracks'
     ``detected_by`` (:meth:`CentralizedEngine.bit`): a sensor's scans count for a track once it has
     detected it, and a confirmed track goes after ``CENTRAL_MISSES`` misses in a row per sensor that
-    detected it (:func:`~fedtrack.local_filters.mtt.tracker.scan_counts`), so that a target only
+    detected it (:func:`~fedtrack.local_filters.mtt.roles.life.scan_counts`), so that a target only
     some sensors can see is tracked as well as by those sensors' own trackers. ``interval``: the
     sensor's latest time between its scans (``CentralizedEngine.intervals``); below 1 s a track
     it alone detected goes after at least the misses its own tracker takes there
@@ -340,7 +334,7 @@ class CentralizedEngine(ScanTrackerEngine):
     bits: dict[str, int] = field(default_factory=dict)  # sensor -> its bit in the tracks' detected_by
     intervals: dict[str, float] = field(default_factory=dict)  # sensor -> its latest time between scans
     copies: int = 0  # scans equal to another sensor's (a duplicated feed): not fused, the sensor not seen
-    frame: Frame | None = None  # [frame]: each radar's view in its own axes (tracker.radar_view)
+    frame: Frame | None = None  # [frame]: each radar's view in its own axes (roles.life.radar_view)
 
     def bit(self, sensor: str) -> int:
         """The sensor's bit in the tracks' ``detected_by``, in order of first scan (beyond 63

@@ -19,24 +19,24 @@ come from the :class:`Associator`; the others are shared.
   existence probabilities (None: the associator does not keep existence), and the memory it
   wants back at the next scan (``mht``'s hypotheses; kept in the track order of ``rows``: the
   tracker does not reorder it, so an associator with memory keeps it by track id).
-* ``update`` (optional; None: :func:`~.tracker.hard_update`, the EKF update in Joseph form of
+* ``update`` (optional; None: :func:`~.roles.filtering.hard_update`, the EKF update in Joseph form of
   each track by its one pair, the hard case). A soft associator gives its mixture update (the
   PDA combination with the spread-of-means term; ``local_filters/pda`` holds the single-target
   form): ``update(tracks, pred, gating, association, scan, dt, params, q_scale) ->
-  tracker.Updated`` (``tracks`` arrive with their modes predicted to the scan,
-  :func:`~.tracker.predict_tracks`; it returns the tracks with their posterior ``x``, ``P``
+  roles.filtering.Updated`` (``tracks`` arrive with their modes predicted to the scan,
+  :func:`~.roles.filtering.predict_tracks`; it returns the tracks with their posterior ``x``, ``P``
   and existence, which tracks to report as detected, and their linearized observations
   ``(H, R, z)`` for a fusion centre, in track order). ``gating`` is None when the scan or the track set is empty.
 * ``step`` (optional; None: the chain above): an associator that predicts, gates and updates
   its own branches rather than the tracks (``mht``: each track's alternative histories) takes
   the whole scan, ``step(state, scan, params, q_scale) -> ScanResult``; its memory holds the
   branches and the tracker's tracks are its best global hypothesis's.
-* ``manage`` (optional; None: :func:`~.tracker.m_of_n`, M-of-N confirmation and deletion after
+* ``manage`` (optional; None: :func:`~.roles.life.m_of_n`, M-of-N confirmation and deletion after
   ``delete_misses`` misses): ``manage(tracks, detected, params, sees) -> (tracks, live)``, the
   tracks with their counts after the scan and which stay (``sees``: in a tracker of several
-  sensors' scans, what the scan shows of each track's place, :func:`~.tracker.scan_sees`,
+  sensors' scans, what the scan shows of each track's place, :func:`~.roles.life.scan_sees`,
   else None; such a tracker counts a scan for a track only where its sensor detected the track or
-  sees there: :func:`~.tracker.scan_counts`); ``jipda`` confirms and deletes by existence thresholds
+  sees there: :func:`~.roles.life.scan_counts`); ``jipda`` confirms and deletes by existence thresholds
   (``tracks.existence``). A new track's existence is ``params.initial_existence``.
 
 Everything is batched over the tracks (N), the detections (M) and the gated pairs (K); an
@@ -70,8 +70,8 @@ class AssociationInput(NamedTuple):
     dt: float = 0.0  # time since the tracker's previous scan (existence prediction)
     # (N,) bool: the tracks the scan does not count for (its sensor never detected them, or they
     # left its radar's view, and it does not show it sees them; a tracker of several sensors'
-    # scans; None: one sensor's): its miss is no evidence against them (tracker.scan_counts,
-    # tracker.scan_sees)
+    # scans; None: one sensor's): its miss is no evidence against them (roles.life.scan_counts,
+    # roles.life.scan_sees)
     blind: np.ndarray | None = None
 
 

@@ -1,4 +1,8 @@
-"""Two-point track initiation: a fast target's second detection, which falls outside the gate of
+"""Role 5 of a local tracker's scan, track starts (:func:`initiate`): every detection that no track
+took starts a tentative track at its position with zero velocity (a one-point start,
+:func:`start_tracks`), and where it pairs with an earlier one-point start, a two-point start too.
+
+Two-point track initiation: a fast target's second detection, which falls outside the gate of
 the zero-velocity track its first detection started, starts a track with the velocity of the
 difference (two-point differencing: Bar-Shalom, Li & Kirubarajan 2001, 'Estimation with
 Applications to Tracking and Navigation', sec. 5.5.3;
@@ -25,7 +29,7 @@ rule (:func:`least_log_lr`). The pair's track (:func:`two_point_state`) is the p
 state at the second detection given both detections with a flat prior on the velocity (for
 position sensors the velocity ``(z_2 - z_1) / dt`` with the covariance that follows from both
 ``R`` and ``Q``); the tracker starts it beside the one-point track of its second detection
-(``tracker.initiate``).
+(:func:`initiate`).
 """
 
 from __future__ import annotations
@@ -38,8 +42,11 @@ from scipy.spatial import cKDTree
 
 from fedtrack.local_filters.linear.gating import ball_query
 from fedtrack.local_filters.linear.kalman import solve_spd, symmetrize
+from fedtrack.local_filters.mtt import detector, maneuver
 from fedtrack.local_filters.mtt.associators.gnn import assign
-from fedtrack.local_filters.mtt.models import motion, position_matrix
+from fedtrack.local_filters.mtt.models import motion, position_from_detection, position_matrix, start_modes
+from fedtrack.local_filters.mtt.roles.tracks import Observation, TrackParams, TrackSet, concat
+from fedtrack.local_filters.mtt.scan import SensorScan
 
 
 class Starts(NamedTuple):
@@ -224,3 +231,102 @@ def pair_starts(starts: Starts, waiting: np.ndarray, t: float, pos: np.ndarray, 
     ri, cj = ri[picked], cj[picked]
     x, P = two_point_state(starts.take(cand[ri]), posp[cj], covp[cj], k, dt[ri], p)
     return Pairing(cj, cand[ri], x, P, log_lr[picked])
+
+
+def start_tracks(scan: SensorScan, det: np.ndarray, params: TrackParams, first_id: int,
+                 two: tuple[Pairing, TrackSet] | None = None) -> tuple[TrackSet, Observation]:
+    """Tentative tracks from the detections ``det`` of ``scan`` (one-point initialization); with
+    ``two`` (pairs of these detections, :func:`pair_starts`, with their starts' tracks),
+    the pairs' two-point states and, in a tracker of several sensors' scans, their starts' sensors
+    too."""
+    d = params.dim
+    pos, Ppos = position_from_detection(scan.z[det], scan.R, scan.sensor_position)
+    k = pos.shape[1]
+    n = pos.shape[0]
+    pidx = [0, 2, 4][:k]
+    x = np.zeros((n, d))
+    x[:, pidx] = pos
+    P = np.zeros((n, d, d))
+    P[np.ix_(np.arange(n), pidx, pidx)] = Ppos
+    for v in (1, 3, 5)[: d // 2]:
+        P[:, v, v] = params.init_velocity_std**2
+    if d == 6 and k == 2:
+        P[:, 4, 4] = params.init_z_std**2
+    obs = Observation(np.broadcast_to(position_matrix(d, k), (n, k, d)).copy(), Ppos, pos)
+    one = np.ones(n, np.int64)
+    by = np.full(n, params.sensor_bit, np.int64) if params.sensor_bit else None
+    if two is not None:
+        x, P = two[0].x.copy(), two[0].P.copy()
+        if by is not None and two[1].detected_by is not None:
+            by |= two[1].detected_by
+    ids = first_id + np.arange(n, dtype=np.int64)
+    man = None if params.maneuver is None else maneuver.start(x, P, scan.t, params.maneuver)
+    inputs = None if params.detector is None else detector.start(n, d, scan.t, params.detector)
+    existence = None if params.initial_existence is None else np.full(n, params.initial_existence)
+    modes = None if params.modes is None else start_modes(x, P, params.modes)
+    # confirmed at birth by the count (1 of 1) only where the count confirms: jipda's existence does
+    born = (one >= params.confirm_hits) & (existence is None)
+    return TrackSet(ids, x, P, one, one.copy(), np.zeros(n, np.int64), born, man, inputs, existence, modes, by), obs
+
+
+class Initiated(NamedTuple):
+    """Role 5's result: the new tracks (one per detection given, then one per pair) with their
+    observations and each one's detection (index into the detections given), the one-point starts
+    waiting after the scan, and the scan's pairs (:func:`pair_starts`) with their starts'
+    rows in the tracks given to :func:`initiate`."""
+
+    tracks: TrackSet
+    observations: Observation
+    source: np.ndarray
+    starts: Starts
+    pairs: Pairing
+    partners: np.ndarray
+
+
+def initiate(starts: Starts, tracks: TrackSet, live: np.ndarray, scan: SensorScan, det: np.ndarray,
+             params: TrackParams, first_id: int) -> Initiated:
+    """Role 5: tracks from the detections ``det`` no track took: a one-point start from each (as
+    before two-point starts: a slow target's first detection starts its track whatever it pairs
+    with) and a two-point start from each pair (:mod:`.initiation`; at most one per detection). A
+    pair's track counts afresh, one hit at one scan old (its second detection says only that it
+    lies within the speed bound's reach, as a clutter detection there does with probability
+    ``lambda V``; counted as a second hit it let clutter pairs confirm on one more clutter hit: the
+    false tracks of gnn's ``mtt-local`` on the default scenario doubled). ``tracks``, ``live``: the
+    tracker's tracks (or mht's leaves) after the scan's update and life rules; a start waits while
+    its track is live with its one detection, each at most until it pairs."""
+    one, obs = start_tracks(scan, det, params, first_id)
+    if params.max_speed <= 0.0:  # no two-point starts: nothing waits
+        return Initiated(one, obs, np.arange(det.size), starts, no_pairing(params.dim),
+                         np.zeros(0, np.int64))
+    lone = np.flatnonzero(live & (tracks.hits == 1))
+    order = np.argsort(tracks.ids[lone], kind="stable")
+    at = np.minimum(np.searchsorted(tracks.ids[lone], starts.ids, sorter=order), max(lone.size - 1, 0))
+    rows = lone[order[at]] if lone.size else np.zeros(starts.ids.size, np.int64)
+    waiting = (tracks.ids[rows] == starts.ids) if lone.size else np.zeros(starts.ids.size, bool)
+    pos, cov = position_from_detection(scan.z[det], scan.R, scan.sensor_position)
+    scale = np.ones(det.size)
+    if scan.sensor_position is not None:  # a radar's clutter per m^3: its density over |det J| = r^2 cos(el)
+        scale = 1.0 / (scan.z[det, 0] ** 2 * np.abs(np.cos(scan.z[det, 2])))
+    by_existence = params.initial_existence is not None or (params.mht is not None
+                                                            and params.mht.management == "score")
+    pairs = pair_starts(starts, waiting, scan.t, pos, cov, scale, PairParams(
+        params.dim, params.q, params.noise_model, params.max_speed, params.init_velocity_std, params.init_z_std,
+        params.gate, params.pd, params.clutter_density, least_log_lr(params.pd, by_existence)))
+    partners = rows[pairs.start]
+    waiting[pairs.start] = False
+    kept = recorded(starts, waiting, one.ids, scan.t, pos, cov)
+    if not pairs.det.size:
+        return Initiated(one, obs, np.arange(det.size), kept, pairs, partners)
+    two, obs_two = start_tracks(scan, det[pairs.det], params, first_id + det.size, (pairs, tracks.take(partners)))
+    return Initiated(concat(one, two), Observation(*(np.concatenate(u) for u in zip(obs, obs_two))),
+                     np.concatenate([np.arange(det.size), pairs.det]), kept, pairs, partners)
+
+
+def paired_log_odds(log_odds: np.ndarray, init: Initiated, partner_log_odds: np.ndarray) -> np.ndarray:
+    """New tracks' existence log odds (jipda's existence, mht's score): ``log_odds`` (the one-point
+    starts'), then for each pair's track its start's before the scan (``partner_log_odds``, over the
+    tracks given to :func:`initiate`) plus the pair's log-likelihood ratio
+    ``ln(1 - P_D + P_D / (lambda V))``: the start's track updated, as jipda's and mht's own
+    update of a track with one detection in its gate, by the second detection under the speed
+    bound (its density ``1 / V``) instead of the zero-velocity start's gate."""
+    return np.concatenate([log_odds, partner_log_odds[init.partners] + init.pairs.log_lr])

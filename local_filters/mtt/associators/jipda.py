@@ -3,7 +3,7 @@ multi-target (joint integrated PDA, Musicki & Evans 2004), as pure functions bat
 
 Per scan, tracks ``i`` with predicted state and predicted existence ``mu_bar_i`` (the Markov chain of
 eqs (8), (15): :func:`~fedtrack.local_filters.pda.association.existence_predict`), and the gated pairs
-``(i, j)`` of :func:`fedtrack.local_filters.mtt.tracker.gate`:
+``(i, j)`` of :func:`fedtrack.local_filters.mtt.roles.gating.gate`:
 
 * pair factor ``r_ij = mu_bar_i P_D N(nu_ij; 0, S_i) A_j / lambda`` (eq (4)'s numerator over the
   clutter density, with (9)'s ``N / P_G`` likelihood times ``P_G``; ``A_j`` the amplitude likelihood
