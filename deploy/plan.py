@@ -12,15 +12,10 @@ from pathlib import Path
 
 from fedtrack.atomic import write_atomic
 from fedtrack.config import in_file
+from fedtrack.deploy.access_control import LAUNCHER, identity
+from fedtrack.deploy.certificates import check_router_names
 from fedtrack.deploy.multitarget import SCENARIO_DIR, sensor_ids, service_args
-from fedtrack.deploy.security import (
-    LAUNCHER,
-    check_router_names,
-    host_endpoints,
-    identity,
-    router_limits,
-    write_configs,
-)
+from fedtrack.deploy.security import host_endpoints, router_limits, write_configs
 from fedtrack.deploy.settings import Settings
 from fedtrack.deployment import ROLES
 from fedtrack.keys import Keys

@@ -19,7 +19,9 @@ import time
 from pathlib import Path
 
 from fedtrack.config import ConfigError
-from fedtrack.deploy.security import LAUNCHER, check_certificates, tls_config
+from fedtrack.deploy.access_control import LAUNCHER
+from fedtrack.deploy.certificates import check_certificates
+from fedtrack.deploy.security import tls_config
 from fedtrack.keys import InvalidName, Keys
 from fedtrack.zsession import (
     SessionError,

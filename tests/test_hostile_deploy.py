@@ -83,7 +83,7 @@ def test_serve_router_off_loopback_needs_access_control_in_its_config(tmp_path: 
 def broken_certificates(tls_dir: Path, how: str) -> Path:
     """A certificate directory for identities ``router`` and ``sensor-1`` with sensor-1's made ``how``
     wrong; returns the file at fault."""
-    from fedtrack.deploy.security import make_certificates
+    from fedtrack.deploy.certificates import make_certificates
 
     make_certificates(tls_dir, ["router", "sensor-1", "launcher"])
     cert = tls_dir / "sensor-1.pem"

@@ -65,10 +65,10 @@ import pytest
 import zenoh
 from support import assert_same_pictures
 
+from fedtrack.deploy.access_control import identity, own_keys
 from fedtrack.deploy.demo import demo_settings, free_port, multitarget_settings, write_config
 from fedtrack.deploy.launcher import Stopped, prepare_launcher
 from fedtrack.deploy.report import LaunchReport
-from fedtrack.deploy.security import identity, own_keys
 from fedtrack.deploy.settings import Settings
 from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.fusion_center.replay import replay_fusion

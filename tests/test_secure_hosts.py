@@ -13,7 +13,8 @@ import pytest
 from support import free_port
 
 from fedtrack.config import ConfigError
-from fedtrack.deploy.security import ZenohSettings, main, make_certificates, write_configs
+from fedtrack.deploy.certificates import make_certificates
+from fedtrack.deploy.security import ZenohSettings, main, write_configs
 from fedtrack.deploy.settings import check_launchable, load_settings
 from fedtrack.keys import Keys
 from fedtrack.zsession import SessionOptions, close_session, open_session

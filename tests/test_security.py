@@ -19,7 +19,9 @@ import pytest
 from support import Deployment, secure_router, wait_until
 
 from fedtrack.config import ConfigError
-from fedtrack.deploy.security import ZenohSettings, access_control, identity, make_certificates, on_loopback
+from fedtrack.deploy.access_control import access_control, identity
+from fedtrack.deploy.certificates import make_certificates
+from fedtrack.deploy.security import ZenohSettings, on_loopback
 from fedtrack.deploy.settings import check_launchable, load_settings
 from fedtrack.fusion_center.replay import replay_fusion
 from fedtrack.keys import Keys
