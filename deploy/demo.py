@@ -51,7 +51,7 @@ from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.sensors.multitarget import Scenario, clutter_density, parse_spec
 from fedtrack.sensors.scenarios import DEFAULT_R
-from fedtrack.sensors.traffic import UNITS, read_recording
+from fedtrack.sensors.state_vectors import UNITS, read_recording
 
 MULTITARGET_SPEED = 5.0  # the live multi-target demo runs at 5x real time
 # the live recorded-traffic demo: 600 s of the committed Paris extract at 10x real time (docs/geodetic.md)

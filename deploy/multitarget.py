@@ -42,8 +42,10 @@ from fedtrack.jsonl import InputError, output_file, read_jsonl
 from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.recording import Recording
 from fedtrack.sensors.multitarget import Scenario, SensorSpec, parse_spec, simulate
-from fedtrack.sensors.traffic import parse_kinds, read_line, read_recording
+from fedtrack.sensors.state_vectors import read_recording
+from fedtrack.sensors.traffic import read_line
 from fedtrack.sensors.traffic import simulate as simulate_traffic
+from fedtrack.sensors.traffic_sensors import parse_kinds
 
 SCENARIO_DIR = "scenario"
 

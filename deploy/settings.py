@@ -23,7 +23,7 @@ from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.sensors.multitarget import MAX_CLUTTER, Scenario
 from fedtrack.sensors.radar import RadarConfig
 from fedtrack.sensors.sonar import SonarConfig
-from fedtrack.sensors.traffic import UNITS
+from fedtrack.sensors.state_vectors import UNITS
 
 MTT_ALGORITHMS = ("mtt-federated", "mtt-decentralized", "mtt-centralized")
 

@@ -18,7 +18,7 @@ import pytest
 
 from fedtrack.cli import main
 from fedtrack.sensors.multitarget import MAX_CLUTTER
-from fedtrack.sensors.traffic import read_recording
+from fedtrack.sensors.state_vectors import read_recording
 
 # three aircraft, 40 s of 1 s state vectors in the traffic package's columns and units (ft, kt, ft/min, ms)
 T0_MS = 1_600_000_000_000

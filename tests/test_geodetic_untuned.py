@@ -30,7 +30,8 @@ from fedtrack.geodetic import (
 )
 from fedtrack.geojson import antimeridian_parts
 from fedtrack.local_filters.regions import load_regions, region_of
-from fedtrack.sensors.traffic import build_truth, read_recording
+from fedtrack.sensors.state_vectors import read_recording
+from fedtrack.sensors.traffic_truth import build_truth
 from fedtrack.wire import with_geodetic
 
 HEADER = "time,icao24,lat,lon,alt"

@@ -18,16 +18,9 @@ from fedtrack.geodetic import Frame, aer_from_enu, enu_from_geodetic, geodetic_f
 from fedtrack.jsonl import InputError
 from fedtrack.local_filters.radar.measurement import cartesian_from_polar, polar_from_cartesian, wrap_angle
 from fedtrack.sensors.multitarget import DT, Scenario, SensorSpec, sensor_lines
-from fedtrack.sensors.traffic import (
-    TRUTH_CELL_BYTES,
-    Truth,
-    adsb_view,
-    build_truth,
-    parse_noise,
-    read_recording,
-    reconcile,
-    segments,
-)
+from fedtrack.sensors.state_vectors import read_recording
+from fedtrack.sensors.traffic_sensors import adsb_view, parse_noise
+from fedtrack.sensors.traffic_truth import TRUTH_CELL_BYTES, Truth, build_truth, reconcile, segments
 
 DATA = Path(__file__).resolve().parent / "data"
 PARIS = Frame(48.86, 2.40, 0.0)
@@ -151,7 +144,7 @@ def test_tracks_outside_the_box_take_no_room_in_the_truth_grid(tmp_path: Path,
     """Memory for one track of the window's grid: one aircraft inside the box and 30 outside it fit; two
     inside do not (before, the grid held every track of the window, inside the box or not)."""
     rows = [f"{k},{i:06x},{48.86 + 0.5 * i + 0.0009 * k},2.40,3000,100,0,0" for i in range(31) for k in range(100)]
-    monkeypatch.setattr("fedtrack.sensors.traffic.memory_room", lambda: 1.5 * 1981 * TRUTH_CELL_BYTES)
+    monkeypatch.setattr("fedtrack.sensors.traffic_truth.memory_room", lambda: 1.5 * 1981 * TRUTH_CELL_BYTES)
     rec = read_recording(_write_csv(tmp_path / "a.csv", "time,icao24,lat,lon,alt,gs,track,vertical_rate", rows))
     truth = build_truth(rec, PARIS, 0.0, None, 40e3, 30.0)
     assert truth.icao24 == ["000000"] and truth.x.shape == (1981, 1, 6)

@@ -1,0 +1,238 @@
+"""The truth of ``fedtrack simulate traffic``: a recording's window (``--start``, ``--duration``) inside
+the box (``--box``), each airborne aircraft's samples in the common ENU frame about ``--origin``
+(:mod:`fedtrack.geodetic`), split where a gap exceeds ``--max-gap`` (:func:`segments`), positions
+reconciled with the recorded velocities (:func:`reconcile`; a velocity the positions rule out left
+out, :func:`velocity_at_odds`) and interpolated on the ``DT`` grid by cubic Hermite pieces
+(:func:`build_truth`); a window too large for the machine's memory is refused before it is made.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import NamedTuple
+
+import numpy as np
+from scipy.interpolate import CubicHermiteSpline
+from scipy.linalg import solveh_banded
+
+from fedtrack.geodetic import (
+    Frame,
+    common_from_local_vectors,
+    enu_from_geodetic,
+    geodetic_from_enu,
+    local_from_common_vectors,
+    surface_enu,
+    surface_xy,
+)
+from fedtrack.jsonl import InputError
+from fedtrack.sensors.multitarget import DT
+from fedtrack.sensors.state_vectors import Recording
+
+#: the reconciliation of recorded positions with recorded velocities (docs/geodetic.md)
+SIGMA_POSITION = 50.0  # m: a state vector's position is up to a second older or newer than its time
+SIGMA_VELOCITY = 0.5  # m/s: ground speed is reported to the knot, vertical rate to 64 ft/min
+#: memory a window takes: per state of the truth grid (a step of ``DT`` of one aircraft track inside the box) 100
+#: bytes at the peak (six float64 and a flag held, plus each track's states before the grid and the derived keys'
+#: temporaries: measured, 5.44 GB of peak resident memory for the whole of the traffic package's
+#: ``collections/quickstart``, 10,798 s of 244 tracks, 52.7 million states); per scan and detection until they
+#: are written (Python's dicts and lists, measured with tracemalloc: 1,000 + 430 a detection)
+TRUTH_CELL_BYTES = 100
+SCAN_BYTES = 1000
+DETECTION_BYTES = 430
+#: the trackers' two motion modes (``[mtt] process_noise = "imm"``) from civil air-traffic kinematics, not
+#: from a recording (docs/geodetic.md, "The motion model"): turns at 25 deg of bank or 3 deg/s, whichever
+#: is less (ICAO PANS-OPS), so a horizontal acceleration of at most g tan 25 deg = 4.57 m/s^2
+MANEUVER_ACCELERATION = 9.80665 * math.tan(math.radians(25.0))
+MANEUVER_S = 90.0 / 3.0  # s: a 90 deg heading change at the standard rate of 3 deg/s
+STRAIGHT_S = 120.0  # s: terminal-area legs between heading changes (holding legs 1-1.5 min, approach segments 1-3 min)
+CHI2_2_999 = math.sqrt(-2.0 * math.log(0.001))  # its 99.9 % radius: 3.717
+
+
+class Truth(NamedTuple):
+    """States ``x`` (steps, N, 6) ``[x, vx, y, vy, z, vz]`` on the ``DT`` grid from ``t0`` [s since
+    1970], ``alive`` (steps, N), each target's ``icao24`` (N,); ``dropped``: the recording's samples
+    and aircraft left out, by reason (:func:`build_truth`). ``surface``: the world is the ellipsoid's
+    surface (2-D sensors only): ``x``, ``y`` are the common frame's east, north of the point of the ellipsoid
+    below the aircraft, ``z`` its height above the ellipsoid (:func:`on_surface`)."""
+
+    t0: float
+    x: np.ndarray
+    alive: np.ndarray
+    icao24: list[str]
+    dropped: dict[str, int]
+    surface: bool = False
+
+
+class Segments(NamedTuple):
+    """Row indices of each track (:func:`segments`), and how many rows were left out: ``repeated``
+    (a time or position repeated), ``single`` (a track of one sample)."""
+
+    pieces: list[np.ndarray]
+    repeated: int
+    single: int
+
+
+def segments(rec: Recording, max_gap: float) -> Segments:
+    """Row indices of each track: one aircraft's samples, a repeated (stale) position or time dropped,
+    split where the gap between samples exceeds ``max_gap`` [s]; tracks of one sample dropped."""
+    out = []
+    repeated = single = 0
+    bounds = np.flatnonzero(np.r_[True, rec.icao24[1:] != rec.icao24[:-1], True])
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        rows = np.arange(a, b)
+        same = np.r_[False, (np.diff(rec.t[rows]) <= 0)
+                     | np.all(np.diff(rec.lla[rows, :2], axis=0) == 0, axis=1)]
+        repeated += int(same.sum())
+        rows = rows[~same]
+        for piece in np.split(rows, np.flatnonzero(np.diff(rec.t[rows]) > max_gap) + 1):
+            if len(piece) >= 2:
+                out.append(piece)
+            else:
+                single += len(piece)
+    return Segments(out, repeated, single)
+
+
+def reconcile(t: np.ndarray, pos: np.ndarray, vel: np.ndarray, sigma_p: float = SIGMA_POSITION,
+              sigma_v: float = SIGMA_VELOCITY) -> np.ndarray:
+    """Positions (n, 3) consistent with the recorded velocities: the least-squares ``s`` of
+    ``sum |s_k - p_k|^2 / sigma_p^2 + sum |s_k+1 - s_k - (v_k + v_k+1) dt_k / 2|^2 / (sigma_v dt_k)^2``,
+    a tridiagonal system (one solve for the three axes)."""
+    dt = np.diff(t)
+    w = 1.0 / (sigma_v * dt) ** 2
+    step = 0.5 * (vel[1:] + vel[:-1]) * dt[:, None]
+    diag = np.full(len(t), 1.0 / sigma_p**2)
+    diag[:-1] += w
+    diag[1:] += w
+    rhs = pos / sigma_p**2
+    rhs[:-1] -= w[:, None] * step
+    rhs[1:] += w[:, None] * step
+    return solveh_banded(np.vstack([np.r_[0.0, -w], diag]), rhs)
+
+
+def common_velocity(frame: Frame, t: np.ndarray, lla: np.ndarray, local: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    """A track's recorded velocities ``local`` (n, 3) [m/s, the axes at each sample ``lla``] in the common
+    axes, a component not recorded (NaN: a vertical rate, a cell) the derivative's of the common-frame
+    positions ``pos`` (n, 3) at times ``t``, filled in the local axes (the turn mixes the three)."""
+    slope = local_from_common_vectors(frame, lla[:, 0], lla[:, 1], np.gradient(pos, t, axis=0))
+    return common_from_local_vectors(frame, lla[:, 0], lla[:, 1], np.where(np.isfinite(local), local, slope))
+
+
+def on_surface(frame: Frame, pos: np.ndarray, vel: np.ndarray, dt: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
+    """Positions and velocities (n, 3) of common-frame ``pos``, ``vel`` (n, 3) in a 2-D world on the Earth: east,
+    north of the point of the ellipsoid below each position (its latitude and longitude at h = 0: what a 2-D
+    position sensor measures, :func:`fedtrack.geodetic.surface_xy`) and its height above the ellipsoid; the
+    velocities by central differences along ``vel`` over +-``dt`` s (within 1e-6 m/s of a step of 0.01 s, aircraft up
+    to 400 km from the origin)."""
+    points = np.concatenate([pos, pos - vel * dt, pos + vel * dt])
+    out = np.column_stack([surface_xy(frame, points), geodetic_from_enu(frame, points)[:, 2]])
+    here, before, after = np.split(out, 3)
+    return here, (after - before) / (2.0 * dt)
+
+
+def truth_geodetic(frame: Frame, truth: Truth, states: np.ndarray) -> np.ndarray:
+    """``[lat, lon, h]`` (n, 3) of the truth's states (n, 6): a 3-D world's positions, a 2-D world's points of the
+    ellipsoid with the height kept beside them."""
+    if not truth.surface:
+        return geodetic_from_enu(frame, states[:, [0, 2, 4]]).reshape(-1, 3)
+    lla = geodetic_from_enu(frame, surface_enu(frame, states[:, [0, 2]])).reshape(-1, 3)
+    lla[:, 2] = states[:, 4]
+    return lla
+
+
+def velocity_at_odds(frame: Frame, t: np.ndarray, lla: np.ndarray, local: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    """Which samples' recorded horizontal velocities ``local`` (n, 3) [m/s, the axes at each sample ``lla``] point
+    where the recorded positions ``pos`` (n, 3, common frame) at times ``t`` rule out (n,): the recorded ground
+    track is off the direction of the chord between the sample's neighbours (at a track's ends, the sample and its
+    one neighbour), ``span`` s apart, by more than the heading change of a turn at ``MANEUVER_ACCELERATION`` over
+    half the span plus the chord's own direction noise at its 99.9 % radius, ``asin(CHI2_2_999 sqrt(2)
+    SIGMA_POSITION / span / |chord|)`` (a chord shorter than that radius points nowhere). Only the direction: a
+    stale position (OpenSky's) makes a chord's speed wrong. E.g. a track stored as an 8-bit integer (the traffic
+    package's calibration samples: -128 to 127, 104 deg off for a true track of 128 deg or more)."""
+    k = np.arange(len(t))
+    lo, hi = np.maximum(k - 1, 0), np.minimum(k + 1, len(t) - 1)
+    span = t[hi] - t[lo]
+    chord = local_from_common_vectors(frame, lla[:, 0], lla[:, 1], (pos[hi] - pos[lo]) / span[:, None])[:, :2]
+    v = local[:, :2]
+    speed, moved = np.linalg.norm(v, axis=1), np.linalg.norm(chord, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = CHI2_2_999 * math.sqrt(2.0) * SIGMA_POSITION / span / moved
+        noise = np.where(ratio < 1.0, np.arcsin(np.minimum(ratio, 1.0)), np.pi)
+        angle = np.arccos(np.clip(np.sum(v * chord, axis=1) / (speed * moved), -1.0, 1.0))
+        return angle > MANEUVER_ACCELERATION / speed * span / 2.0 + noise  # NaN (not recorded): False
+
+
+def memory_room() -> float:
+    """Bytes a window's truth and scans may take: a quarter of the machine's physical memory (1 GiB where it is not
+    known)."""
+    try:
+        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") / 4
+    except (AttributeError, ValueError, OSError):
+        return 2.0**30
+
+
+def _steps_before(t: float, steps: int, after: bool = False) -> int:
+    """How many of the grid's times ``k DT`` (``k < steps``) are before ``t`` (``after``: at or before it)."""
+    k = min(max(math.floor(t / DT) - 1, 0), steps)  # then exact: k DT as the grid computes it
+    while k < steps and (k * DT <= t if after else k * DT < t):
+        k += 1
+    return k
+
+
+def build_truth(rec: Recording, frame: Frame, start: float, duration: float | None, box: float,
+                max_gap: float, scan_bytes: float = 0.0, surface: bool = False) -> Truth:
+    """Truth on the ``DT`` grid from the first sample + ``start`` for ``duration`` s (None: to the last
+    sample); a target is alive between its track's first and last samples while inside the square of
+    side ``box`` [m] about the origin. A window whose grid, with ``scan_bytes`` a second of it for the
+    sensors' scans, would take more than :func:`memory_room` is refused before it is made. ``surface``: a 2-D
+    world, each track's samples :func:`on_surface` before the Hermite pieces."""
+    t0 = float(rec.t.min()) + start
+    end = float(rec.t.max()) if duration is None else t0 + duration
+    if not end > t0:
+        span = float(rec.t.max() - rec.t.min())
+        raise InputError(f"--start {start:g}: no data after it (the recording spans {span:g} s from its first "
+                         f"sample; --start must be less)")
+    steps = int(round((end - t0) / DT)) + 1
+    # times from t0: at 1.7e9 s a float's step is 2.4e-7 s, 5e-5 m at 200 m/s, and t0 + k DT would be
+    # rounded to it; the recorded times less t0 are exact (Sterbenz) and the grid k DT is the same for
+    # any shift of the whole recording
+    rel = rec.t - t0
+    found = segments(rec, max_gap)
+    kept: list[tuple[slice, np.ndarray, np.ndarray, str]] = []  # each track inside the box: its steps, states, inside
+    at_odds = 0
+    for rows in (p for p in found.pieces if rel[p[-1]] >= 0 and rec.t[p[0]] <= end):
+        live = slice(_steps_before(rel[rows[0]], steps), _steps_before(rel[rows[-1]], steps, after=True))
+        grid = np.arange(live.start, live.stop) * DT  # the window's grid k DT, each track's steps only
+        pos = enu_from_geodetic(frame, *rec.lla[rows].T)
+        recorded = rec.velocity[rows].copy()
+        odd = velocity_at_odds(frame, rel[rows], rec.lla[rows], recorded, pos)
+        recorded[odd, :2] = np.nan  # the positions' derivative instead
+        if np.isfinite(recorded).any():
+            pos = reconcile(rel[rows], pos, common_velocity(frame, rel[rows], rec.lla[rows], recorded, pos))
+        vel = common_velocity(frame, rel[rows], rec.lla[rows], recorded, pos)
+        if surface:
+            pos, vel = on_surface(frame, pos, vel)
+        spline = CubicHermiteSpline(rel[rows], pos, vel)
+        p, v = spline(grid), spline(grid, 1)
+        inside = np.all(np.abs(p[:, :2]) <= box / 2, axis=1)
+        if inside.any():  # a track never inside the box takes no room in the grid
+            at_odds += int(odd.sum())
+            kept.append((live, np.stack([p[:, 0], v[:, 0], p[:, 1], v[:, 1], p[:, 2], v[:, 2]], axis=-1), inside,
+                         str(rec.icao24[rows[0]])))
+    need, room = steps * len(kept) * TRUTH_CELL_BYTES + (steps - 1) * DT * scan_bytes, memory_room()
+    if need > room:
+        raise InputError(f"the window is too long: {(steps - 1) * DT:g} s of {len(kept)} aircraft tracks inside the "
+                         f"box and the sensors' scans need {need / 2**30:.3g} GiB of memory, more than a quarter of "
+                         f"this machine's ({room / 2**30:.3g} GiB); the recording's airborne samples span "
+                         f"{float(rec.t.max() - rec.t.min()):g} s: give a shorter --duration (and --start) or a "
+                         "smaller --box")
+    x = np.zeros((steps, len(kept), 6))
+    alive = np.zeros((steps, len(kept)), bool)
+    for j, (live, state, inside, _) in enumerate(kept):
+        x[live, j] = state
+        alive[live, j] = inside
+    icao24 = [icao for *_, icao in kept]
+    dropped = {**rec.dropped, "repeating a time or position": found.repeated, "in a track of one sample": found.single,
+               "horizontal velocities at odds with the positions (their derivative taken)": at_odds,
+               "aircraft with no track inside the box and window": len(set(rec.icao24.tolist())) - len(set(icao24))}
+    return Truth(t0, x, alive, icao24, dropped, surface)
