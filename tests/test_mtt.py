@@ -332,9 +332,11 @@ def test_centre_picture_with_delay_shows_the_tracks_as_they_were_at_its_time(tmp
                 np.testing.assert_allclose(a["x"], b["x"], atol=1e-9)
 
 
-@pytest.mark.parametrize("radar", [False, True])
-def test_gated_pairs_are_those_of_the_full_scan(radar: bool) -> None:
-    """The k-d tree candidates lose no pair of the dense N x M gate, with the same distances."""
+@pytest.mark.parametrize("radar,west", [(False, False), (True, False), (True, True)])
+def test_gated_pairs_are_those_of_the_full_scan(radar: bool, west: bool) -> None:
+    """The k-d tree candidates lose no pair of the dense N x M gate, with the same distances; a
+    radar's too (before attacks10 it kept every pair), also with the targets to its west, where the
+    azimuth wraps at +-pi, and with azimuths given whole turns away."""
     from fedtrack.local_filters.linear.kalman import innovation_covariance
     from fedtrack.local_filters.mtt.models import linearize
     from fedtrack.local_filters.mtt.roles.gating import gate
@@ -347,8 +349,9 @@ def test_gated_pairs_are_those_of_the_full_scan(radar: bool) -> None:
     A = rng.normal(size=(n, 6, 6)) * 30
     P = A @ np.swapaxes(A, -1, -2) + 100 * np.eye(6)
     if radar:
-        sensor = np.array([-5000.0, 100.0, 0.0])
+        sensor = np.array([5000.0 if west else -5000.0, 100.0, 0.0])
         z = polar_from_cartesian(rng.uniform(-2000, 2000, (m_det, 3)) + [0, 0, 3000] - sensor)
+        z[::3, 1] += 2 * np.pi * rng.integers(-3, 4, z[::3].shape[0]) * west
         R = np.diag([25.0, 1e-5, 1e-5])
     else:
         sensor, R = None, np.array([[400.0, 50.0], [50.0, 300.0]])
@@ -362,6 +365,7 @@ def test_gated_pairs_are_those_of_the_full_scan(radar: bool) -> None:
     d2 = np.einsum("nmi,nmi->nm", nu, np.linalg.solve(S[:, None], nu[..., None])[..., 0])
     rows, cols = np.nonzero(d2 <= 9.21)
     assert rows.size > 30  # the test has pairs to lose
+    assert not radar or np.any(np.abs(z[cols, 1] - lin.zhat[rows, 1]) > np.pi) == west  # west: pairs across the wrap
     got = sorted(zip(g.rows.tolist(), g.cols.tolist()))
     assert got == sorted(zip(rows.tolist(), cols.tolist()))
     np.testing.assert_allclose(g.d2[np.lexsort((g.cols, g.rows))], d2[rows, cols], rtol=1e-9)

@@ -35,15 +35,9 @@ class Gated(NamedTuple):
 
 
 def gate(z: np.ndarray, lin: Linearized, S: np.ndarray, gate_d2: float) -> tuple[Gated, np.ndarray]:
-    """The gated pairs and ``ln det S`` (N,) per track (``d2 = nu' S^-1 nu``).
-
-    Only a position sensor's pairs within the balls of :func:`gate_ball_pairs` are computed; a
-    radar's azimuth residual wraps, so it keeps every pair."""
-    if lin.angular:
-        n, m = S.shape[0], z.shape[0]
-        rows, cols = np.repeat(np.arange(n), m), np.tile(np.arange(m), n)
-    else:
-        rows, cols = gate_ball_pairs(z, lin.zhat, S, gate_d2, bounded=True)
+    """The gated pairs and ``ln det S`` (N,) per track (``d2 = nu' S^-1 nu``), computed only for
+    the pairs within the balls of :func:`gate_ball_pairs` (a radar's azimuth on its circle)."""
+    rows, cols = gate_ball_pairs(z, lin.zhat, S, gate_d2, bounded=True, angular=lin.angular)
     S_inv, logdet = spd_inverse_logdet(S)
     nu = z[cols] - lin.zhat[rows]
     for k in lin.angular:
@@ -86,17 +80,19 @@ def relinearize_altitude(pred: GaussianState, lin: Linearized, scan: SensorScan,
     if not wide.size:
         return lin
     pos, Ppos = position_from_detection(scan.z, scan.R, scan.sensor_position)
-    n_wide, n_det = wide.size, pos.shape[0]
-    diff = (pos[None, :, :2] - pred.x[wide][:, None, [0, 2]]).reshape(-1, 2)
-    S = pred.P[wide][:, None][..., [0, 2], :][..., [0, 2]] + Ppos[None, :, :2, :2]
-    d2 = track_difference_d2(diff, S.reshape(-1, 2, 2))[0].reshape(n_wide, n_det)
-    nearest = np.argmin(d2, axis=1)
-    near = d2[np.arange(n_wide), nearest] <= gate_d2
-    rows = wide[near]
+    xy, Pxy = pred.x[wide][:, [0, 2]], pred.P[wide][:, [0, 2]][:, :, [0, 2]]
+    widest = np.trace(Ppos[:, :2, :2], axis1=-2, axis2=-1).max()  # the balls' S: trace P_xy + the widest R_xy
+    ri, cj = gate_ball_pairs(pos[:, :2], xy, Pxy + 0.5 * widest * np.eye(2), gate_d2, bounded=True)
+    d2 = track_difference_d2(pos[cj, :2] - xy[ri], Pxy[ri] + Ppos[cj, :2, :2])[0]
+    inside = d2 <= gate_d2
+    order = np.lexsort((cj[inside], d2[inside], ri[inside]))  # each track's nearest first (argmin's tie)
+    ri, cj = ri[inside][order], cj[inside][order]
+    first = np.unique(ri, return_index=True)[1]
+    rows = wide[ri[first]]
     if not rows.size:
         return lin
     x0 = pred.x[rows].copy()
-    x0[:, 4] = pos[nearest[near], 2]
+    x0[:, 4] = pos[cj[first], 2]
     at = linearize(x0, scan.sensor_position)
     zhat, H = lin.zhat.copy(), lin.H.copy()
     zhat[rows] = at.zhat + at.H[:, :, 4] * (pred.x[rows, 4] - x0[:, 4])[:, None]
@@ -136,14 +132,11 @@ def gate_modes(z: np.ndarray, lin: Linearized, S: np.ndarray, modes: Modes, x0: 
     n, m_det = x0.shape[0], z.shape[0]
     mi = mode_innovations(modes, x0, lin, R)
     k, m = mi.shift.shape[1], z.shape[1]
-    if lin.angular:
-        rows, cols = np.repeat(np.arange(n), m_det), np.tile(np.arange(m_det), n)
-    else:  # the union of the combination's and every mode's balls
-        zhat_j, S_j = mi.at.zhat.reshape(n, k, m), mi.S.reshape(n, k, m, m)
-        balls = [gate_ball_pairs(z, lin.zhat, S, gate_d2, bounded=True)] + [
-            gate_ball_pairs(z, zhat_j[:, j], S_j[:, j], gate_d2, bounded=True) for j in range(k)]
-        keys = np.unique(np.concatenate([r * m_det + c for r, c in balls]))
-        rows, cols = keys // m_det, keys % m_det
+    zhat_j, S_j = mi.at.zhat.reshape(n, k, m), mi.S.reshape(n, k, m, m)  # the union of the combination's
+    balls = [gate_ball_pairs(z, lin.zhat, S, gate_d2, True, lin.angular)] + [  # and every mode's balls
+        gate_ball_pairs(z, zhat_j[:, j], S_j[:, j], gate_d2, True, lin.angular) for j in range(k)]
+    keys = np.unique(np.concatenate([r * m_det + c for r, c in balls]))
+    rows, cols = keys // m_det, keys % m_det
     S_inv, logdet = spd_inverse_logdet(S)
     nu = z[cols] - lin.zhat[rows]
     for a in lin.angular:
