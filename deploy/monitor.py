@@ -55,6 +55,7 @@ class Monitor:
         # it (the services reject one further ahead), one per sensor and scan: a sensor numbering its scans
         # afresh on its own key grew the launcher by 212 B each (21 MB per 100,000), for good
         self._newest_track = -1
+        self._router_status: dict[str, str] = {}  # router role/id -> the Health status last said
 
     def _say(self, text: str) -> None:
         sys.stderr.write(f"\n{self.title}: {text}\n")
@@ -177,11 +178,19 @@ class Monitor:
                 self.report.publish_stamps_ns.setdefault(m.seq, {}).setdefault(m.sensor, m.stamp_ns)
 
     def _on_health(self, sample: zenoh.Sample) -> None:
+        """A service's Health: its counters kept for the summary; a router's status said when it changes
+        (out of file descriptors: :mod:`fedtrack.services.router`)."""
         h = self._monitored(sample, Health, lambda h: self.keys.health(h.role, h.id))
         if h is None:
             return
+        name = f"{h.role}/{h.id}"
         with self._lock:
-            self.report.health[f"{h.role}/{h.id}"] = dict(h.counters)
+            self.report.health[name] = dict(h.counters)
+            said = self._router_status.get(name, "ok")
+            if h.role == "router":
+                self._router_status[name] = h.status
+        if h.role == "router" and h.status != said:
+            self._say(f"{name}: {clip(h.status)}")
 
     def _status_line(self, start: float) -> str:
         with self._lock:

@@ -1,0 +1,86 @@
+"""A router out of file descriptors says so (marker ``faults``; docs/deploy.md#machine-and-storage-faults).
+
+Under ``prlimit --nofile`` a router whose descriptors ran out refused every new session (its clients'
+``cannot open a zenoh client session ... Timeout!``) and logged nothing: Zenoh's only signal is a WARN
+of its own Rust log, which no fedtrack process enables. The router now counts its descriptors each
+second (:func:`fedtrack.services.router.descriptors`), and the launcher says a router's status when it
+changes. Driven in-process (the router's tick, the launcher's Health callback) and, for the count
+itself, in a child process under a low ``RLIMIT_NOFILE``; about 1 s in all.
+"""
+
+from __future__ import annotations
+
+import logging
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from test_hostile_monitor import sample
+
+from fedtrack.deploy.launcher import Launcher
+from fedtrack.deploy.settings import load_settings
+from fedtrack.services import router as router_module
+from fedtrack.services.router import Router
+from fedtrack.wire import Health, encode
+from fedtrack.zsession import SessionOptions
+
+pytestmark = pytest.mark.faults
+
+FILL = """
+import os, resource
+from fedtrack.services.router import descriptors
+resource.setrlimit(resource.RLIMIT_NOFILE, (64, 64))
+before = descriptors()
+held = []
+try:
+    while True:
+        held.append(os.open(os.devnull, os.O_RDONLY))
+except OSError:
+    pass
+print(before[0], before[1], *descriptors())
+"""
+
+
+def test_descriptors_counts_up_to_the_limit() -> None:
+    """In a process under ``RLIMIT_NOFILE`` 64: fewer than 64 open at first, then, every descriptor
+    taken (``/proc/self/fd`` can no longer be listed), 64 of 64."""
+    out = subprocess.run([sys.executable, "-c", FILL], capture_output=True, text=True, timeout=30, check=True)
+    used, limit, used_full, limit_full = map(int, out.stdout.split())
+    assert limit == limit_full == 64 and 3 <= used < 64 and used_full == 64
+
+
+def test_a_router_out_of_descriptors_says_so_once_and_again_when_free(
+        monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
+    """Three ticks out of descriptors between two with room: one error line when they run out, one
+    when there is room again, Health status saying it meanwhile and ``fd_exhausted`` 3 (seconds)."""
+    counts: Iterator[tuple[int, int]] = iter([(30, 40), (40, 40), (40, 40), (40, 40), (25, 40)])
+    monkeypatch.setattr(router_module, "descriptors", lambda: next(counts))
+    svc = Router("router", SessionOptions(mode="router", connect=()), deployment="fd")
+    statuses = []
+    with caplog.at_level(logging.INFO, logger="fedtrack.router.router"):
+        for _ in range(5):
+            svc.on_tick()
+            statuses.append(svc.status)
+    assert statuses[0] == statuses[4] == "ok"
+    assert statuses[1:4] == ["out of file descriptors (40 open, RLIMIT_NOFILE 40): new sessions are refused"] * 3
+    assert svc.counters["fd_exhausted"] == 3
+    assert [(r.levelname, r.getMessage()) for r in caplog.records] == [
+        ("ERROR", statuses[1]), ("WARNING", "file descriptors free again (25 open, RLIMIT_NOFILE 40)")]
+
+
+def test_the_launcher_says_a_routers_status_when_it_changes(tmp_path: Path, capsys: pytest.CaptureFixture[str]
+                                                            ) -> None:
+    """The launcher's monitor says a router's Health status once per change (not every second), and
+    another service's status never (the centre's ``inconsistent sensors`` is its own report's)."""
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('[deployment]\nname = "fd"\n')
+    launcher = Launcher(load_settings(cfg), [], quiet=True)
+    out = "out of file descriptors (40 open, RLIMIT_NOFILE 40): new sessions are refused"
+    for seq, (role, status) in enumerate([("router", "ok"), ("router", out), ("router", out), ("router", "ok"),
+                                          ("mtt-centre", "inconsistent sensors: s1")]):
+        h = Health(role=role, id="r", seq=seq, counters={"received": 0}, status=status)
+        launcher._on_health(sample(launcher.keys.health(role, "r"), encode(h)))
+    said = [line for line in capsys.readouterr().err.splitlines() if line]
+    assert said == [f"fedtrack launch: router/r: {out}", "fedtrack launch: router/r: ok"]
