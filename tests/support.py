@@ -203,6 +203,7 @@ class SecureBus:
         self.endpoint = endpoint
         self.paths = paths
         self.sessions: list[Any] = []
+        self.router: Any = None  # the router's own session
 
     def __call__(self, ident: str, link: str = "", connect_timeout_s: float = 10.0) -> Any:
         from fedtrack.zsession import SessionOptions, open_session
@@ -222,8 +223,8 @@ def secure_router(tmp_path: Path, keys: Any, identities: list[str]) -> Iterator[
 
     paths = write_configs(ZenohSettings(tls_dir="c"), tmp_path, keys, ["router", *identities], tmp_path / "o")
     bus = SecureBus(f"tls/127.0.0.1:{free_port()}", paths)
-    router = open_session(SessionOptions(mode="router", connect=(), listen=(bus.endpoint,),
-                                         config_file=str(paths["router"])))
+    router = bus.router = open_session(SessionOptions(mode="router", connect=(), listen=(bus.endpoint,),
+                                                      config_file=str(paths["router"])))
     try:
         yield bus
     finally:

@@ -1,11 +1,13 @@
-"""A router out of file descriptors says so (marker ``faults``; docs/deploy.md#machine-and-storage-faults).
+"""A router that takes no new session says why (marker ``faults``; docs/deploy.md#machine-and-storage-faults).
 
 Under ``prlimit --nofile`` a router whose descriptors ran out refused every new session (its clients'
 ``cannot open a zenoh client session ... Timeout!``) and logged nothing: Zenoh's only signal is a WARN
-of its own Rust log, which no fedtrack process enables. The router now counts its descriptors each
-second (:func:`fedtrack.services.router.descriptors`), and the launcher says a router's status when it
-changes. Driven in-process (the router's tick, the launcher's Health callback) and, for the count
-itself, in a child process under a low ``RLIMIT_NOFILE``; about 1 s in all.
+of its own Rust log, which no fedtrack process enables; nor did it say when one identity held every
+session place. The router now counts its descriptors and its sessions by identity each second
+(:func:`fedtrack.services.router.descriptors`, :func:`~fedtrack.services.router.sessions_by_identity`,
+the latter live in ``tests/test_slow_readers.py``), and the launcher says a router's status when it
+changes. Driven in-process (the router's tick, the launcher's Health callback) and, for the count of
+descriptors, in a child process under a low ``RLIMIT_NOFILE``; about 1 s in all.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from __future__ import annotations
 import logging
 import subprocess
 import sys
-from collections.abc import Iterator
+from collections import Counter
 from pathlib import Path
 
 import pytest
@@ -51,23 +53,37 @@ def test_descriptors_counts_up_to_the_limit() -> None:
     assert limit == limit_full == 64 and 3 <= used < 64 and used_full == 64
 
 
-def test_a_router_out_of_descriptors_says_so_once_and_again_when_free(
-        monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
-    """Three ticks out of descriptors between two with room: one error line when they run out, one
-    when there is room again, Health status saying it meanwhile and ``fd_exhausted`` 3 (seconds)."""
-    counts: Iterator[tuple[int, int]] = iter([(30, 40), (40, 40), (40, 40), (40, 40), (25, 40)])
-    monkeypatch.setattr(router_module, "descriptors", lambda: next(counts))
-    svc = Router("router", SessionOptions(mode="router", connect=()), deployment="fd")
+def test_a_router_that_takes_no_session_says_why_once_and_again_when_it_does(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
+    """Ticks out of descriptors, then with every session place taken (``max_sessions`` 16 of the router's
+    Zenoh configuration; sensor 2 holding 15), then with room: one line per change of cause, Health
+    status naming it meanwhile, ``fd_exhausted`` and ``sessions_full`` counting the seconds."""
+    few, full = Counter({"fusion": 1, "sensor-2": 3}), Counter({"fusion": 1, "sensor-2": 15})
+    ticks = iter([((30, 40), few), ((40, 40), few), ((40, 40), few), ((30, 40), full), ((25, 40), few)])
+    now: list[tuple[tuple[int, int], Counter[str]]] = []
+
+    def descriptors() -> tuple[int, int]:  # each tick reads the descriptors first
+        now[:] = [next(ticks)]
+        return now[0][0]
+
+    monkeypatch.setattr(router_module, "descriptors", descriptors)
+    monkeypatch.setattr(router_module, "sessions_by_identity", lambda session: now[0][1])
+    config = tmp_path / "router.json5"
+    config.write_text('{"transport": {"unicast": {"max_sessions": 16}}}')
+    svc = Router("router", SessionOptions(mode="router", connect=(), config_file=str(config)), deployment="fd")
+    svc.session = object()  # type: ignore[assignment]  # the admin space is read through sessions_by_identity
     statuses = []
     with caplog.at_level(logging.INFO, logger="fedtrack.router.router"):
         for _ in range(5):
             svc.on_tick()
             statuses.append(svc.status)
-    assert statuses[0] == statuses[4] == "ok"
-    assert statuses[1:4] == ["out of file descriptors (40 open, RLIMIT_NOFILE 40): new sessions are refused"] * 3
-    assert svc.counters["fd_exhausted"] == 3
+    fds = "out of file descriptors (40 open, RLIMIT_NOFILE 40): new sessions are refused"
+    places = "every session place taken (16 of max_sessions 16; sensor-2 holds 15): new sessions are refused"
+    assert statuses == ["ok", fds, fds, places, "ok"]
+    assert svc.counters["fd_exhausted"] == 2 and svc.counters["sessions_full"] == 1
     assert [(r.levelname, r.getMessage()) for r in caplog.records] == [
-        ("ERROR", statuses[1]), ("WARNING", "file descriptors free again (25 open, RLIMIT_NOFILE 40)")]
+        ("ERROR", fds), ("ERROR", places),
+        ("WARNING", "new sessions are taken again (4 open, 25 file descriptors of RLIMIT_NOFILE 40)")]
 
 
 def test_the_launcher_says_a_routers_status_when_it_changes(tmp_path: Path, capsys: pytest.CaptureFixture[str]

@@ -20,6 +20,7 @@ from support import secure_router, wait_until
 
 from fedtrack.deploy.security import DEFAULT_LIMITS, SESSIONS_PER_IDENTITY, STALL_SHARE
 from fedtrack.keys import Keys
+from fedtrack.services.router import sessions_by_identity
 from fedtrack.zsession import SessionError, SessionOptions, open_session
 
 pytestmark = pytest.mark.security
@@ -102,7 +103,8 @@ def test_one_identity_opens_no_more_sessions_than_the_router_takes_for_the_deplo
     sends: 400 of sensor 2's, at 20 kB and 100 Hz, took the recorder's tracks from p50 0.5 ms to 1.16 s
     (p99 1.86 s); the router took up to Zenoh's 1,000. It now takes ``SESSIONS_PER_IDENTITY`` per identity
     of the deployment (here 4 x 4: router, fusion, sensor 2, the launcher) and refuses the next, while the
-    sessions it has go on."""
+    sessions it has go on. The router's admin space names each session's identity (its Health status says
+    which holds the most when every place is taken: ``tests/test_router_descriptors.py``)."""
     keys = Keys("x")
     with secure_router(tmp_path, keys, ["fusion", "sensor-2"]) as bus:
         centre = bus("fusion")
@@ -111,6 +113,7 @@ def test_one_identity_opens_no_more_sessions_than_the_router_takes_for_the_deplo
             bus("sensor-2")
         with pytest.raises(SessionError):
             bus("sensor-2", connect_timeout_s=1.0)
+        assert sessions_by_identity(bus.router) == {"fusion": 1, "sensor-2": taken}  # what the router says
         got: list[bytes] = []
         bus.sessions[-1].declare_subscriber(keys.fusion_track(), lambda s: got.append(s.payload.to_bytes()))
         assert wait_until(lambda: centre.put(keys.fusion_track(), b"t") or got != [], 10.0)

@@ -4,25 +4,39 @@ A Python session in router mode (no separate zenohd needed), listening on
 ``--listen``, else ``deployment.router_listen`` of ``--config``, else
 ``tcp/127.0.0.1:7447``, with multicast scouting off. It holds the liveliness token ``alive/router/<id>`` and publishes Health.
 
-Out of file descriptors (its ``RLIMIT_NOFILE``), Zenoh refuses every new link, retrying the accept
-every 100 ms, and says so only in its own Rust log (``Too many open files (os error 24) ... Hint:
-increase the system open file limit``, a WARN of ``zenoh_link_tcp``), which reaches nobody unless
-``zenoh.init_log_from_env_or`` is called, then 10 lines a second on stdout; its Python API gives no
-signal. So the router counts its own open descriptors each second (:func:`descriptors`): while none
-is left its Health status says so and counts ``fd_exhausted`` (seconds), and it logs one line when
-they run out and one when there is room again (docs/deploy.md#machine-and-storage-faults).
+When it takes no new session, Zenoh says nothing to Python, so the router looks once a second
+(``on_tick``) and says why: its Health status names the cause, it logs one line when new sessions
+start being refused and one when they are taken again, and the launcher prints the status
+(docs/deploy.md#machine-and-storage-faults, #slow-readers-and-unopened-links):
+
+* out of file descriptors (its ``RLIMIT_NOFILE``; :func:`descriptors`, counted ``fd_exhausted``,
+  seconds): Zenoh refuses every new link, retrying the accept every 100 ms, and says so only in its
+  own Rust log (``Too many open files (os error 24) ... Hint: increase the system open file limit``,
+  a WARN of ``zenoh_link_tcp``), which reaches nobody unless ``zenoh.init_log_from_env_or`` is
+  called, then 10 lines a second on stdout;
+* every session place taken (``transport/unicast/max_sessions`` of its Zenoh configuration;
+  :func:`sessions_by_identity`, counted ``sessions_full``): the status names the identity holding
+  the most (Zenoh bounds sessions for the router as a whole, not per identity, so one certificate can
+  take every place the others do not hold).
 """
 
 from __future__ import annotations
 
 import errno
+import json
 import os
 import resource
+from collections import Counter
 from pathlib import Path
 
+import zenoh
+
 from fedtrack.deployment import listen_address, port_in_use
+from fedtrack.keys import DEFAULT_DEPLOYMENT
 from fedtrack.services.base import Service, service_kwargs, service_parser
-from fedtrack.zsession import DEFAULT_ROUTER
+from fedtrack.zsession import DEFAULT_ROUTER, SessionOptions, load_config_file
+
+ADMIN_TIMEOUT_S = 0.5  # the router's own admin space answers locally, in milliseconds
 
 
 def descriptors() -> tuple[int, int]:
@@ -37,26 +51,53 @@ def descriptors() -> tuple[int, int]:
         return limit, limit
 
 
+def sessions_by_identity(session: zenoh.Session) -> Counter[str]:
+    """The sessions open at the router of ``session`` by identity: its admin space lists each
+    session's link (one a session: ``max_links`` 1) with the certificate's common name
+    (``auth_identifier``; ``""`` on a link without one)."""
+    held: Counter[str] = Counter()
+    for reply in session.get(f"@/{session.zid()}/session/transport/unicast/*/link/*", timeout=ADMIN_TIMEOUT_S):
+        if reply.ok is not None:
+            held[json.loads(reply.ok.payload.to_string()).get("auth_identifier") or ""] += 1
+    return held
+
+
 class Router(Service):
-    """Routes data between the client sessions; handles no messages itself; says when it runs out of
-    file descriptors (module docstring)."""
+    """Routes data between the client sessions; handles no messages itself; says when it takes no new
+    session (module docstring)."""
 
     role = "router"
     tick_period_s = 1.0
 
+    def __init__(self, service_id: str, options: SessionOptions, deployment: str = DEFAULT_DEPLOYMENT,
+                 health_period_s: float = 1.0) -> None:
+        super().__init__(service_id, options, deployment, health_period_s)
+        config = load_config_file(options.config_file) if options.config_file is not None else zenoh.Config()
+        self.max_sessions = int(json.loads(config.get_json("transport/unicast/max_sessions")))
+
     def on_tick(self) -> None:
-        """Health status and ``fd_exhausted`` while no file descriptor is left, a line when that changes."""
+        """Health status, ``fd_exhausted`` and ``sessions_full`` while new sessions are refused, a line
+        when that changes."""
         used, limit = descriptors()
-        status = "ok" if used < limit else (f"out of file descriptors ({used} open, RLIMIT_NOFILE {limit}): "
-                                             "new sessions are refused")
+        causes = []
+        if used >= limit:
+            causes.append(f"out of file descriptors ({used} open, RLIMIT_NOFILE {limit})")
+            self.count("fd_exhausted")
+        assert self.session is not None
+        held = sessions_by_identity(self.session)
+        if held.total() >= self.max_sessions:
+            who, most = held.most_common(1)[0]
+            causes.append(f"every session place taken ({held.total()} of max_sessions {self.max_sessions}; "
+                          f"{who or 'a link without a certificate'} holds {most})")
+            self.count("sessions_full")
+        status = "; ".join(causes) + ": new sessions are refused" if causes else "ok"
         if status != self.status:
             if status == "ok":
-                self.log.warning("file descriptors free again (%d open, RLIMIT_NOFILE %d)", used, limit)
+                self.log.warning("new sessions are taken again (%d open, %d file descriptors of RLIMIT_NOFILE %d)",
+                                 held.total(), used, limit)
             else:
                 self.log.error("%s", status)
         self.status = status
-        if status != "ok":
-            self.count("fd_exhausted")
 
 
 def main(argv: list[str]) -> int:
