@@ -230,7 +230,7 @@ def test_shared_prediction_and_box_owners_leave_what_the_full_paths_leave(data: 
     from fedtrack.fusion_center.mtt.central_track import CentralTracks
     from fedtrack.local_filters.linear import gating
     from fedtrack.local_filters.mtt.routing import sub_report
-    from fedtrack.local_filters.regions import grid_regions, region_of
+    from fedtrack.local_filters.regions import distances, grid_regions, region_of
 
     taken = {"masked": 0, "prior": 0, "behind": 0, "kept": 0, "fused": 0, "boxed": 0, "looked": 0, "retest": 0}
     answer = TrackToTrackCentre.answer
@@ -335,9 +335,20 @@ def test_shared_prediction_and_box_owners_leave_what_the_full_paths_leave(data: 
     near = np.concatenate([edges, edges + 1e-9, edges - 1e-9, edges * (1 + 1e-15), edges + 1e-6])
     xy = np.concatenate([rng.uniform(-6000, 6000, size=(400, 2)), rng.choice(near, size=(400, 2)),
                          np.stack([rng.choice(near, 200), rng.uniform(-4000, 4000, 200)], axis=1)])
+    # the hand-over band from a cell's sides: distances()' decision, also at the band's edge and at a
+    # corner (positions the band, its round-off and beyond from the cells' sides and corners)
+    band = np.array([0.0, 1e-9, -1e-9, 1e-6, -1e-6, 50.0, -50.0]) + 100.0  # the margin: large sigmas
+    P = np.tile(np.diag([1e6, 1.0, 1e6, 1.0]), (len(xy) + 2 * len(edges) * len(band), 1, 1))
+    off = np.array(np.meshgrid(edges, band)).reshape(2, -1).T
+    xs = np.concatenate([xy, np.stack([off[:, 0] + off[:, 1], off[:, 0] * 0.3], axis=1),
+                         np.stack([off[:, 0] - off[:, 1] / np.sqrt(2.0), off[:, 0] + off[:, 1] / np.sqrt(2.0)], axis=1)])
+    X = np.zeros((len(xs), 4))
+    X[:, 0], X[:, 2] = xs[:, 0], xs[:, 1]
     for r in range(8):
         rc = RegionCentre(MttConfig(), 4, True, regions, r)
         assert np.array_equal(owners(rc, xy[:, 0], xy[:, 1]), region_of(regions, xy))
+        outside = distances(rc.own, xs)[:, 0] > 100.0
+        assert rc.rect is not None and np.array_equal(rc.beyond_band(X, P), outside) and outside.any()
 
 
 def test_targets_on_and_along_borders_are_not_handed_over_back_and_forth(tmp_path: Path) -> None:

@@ -52,6 +52,18 @@ FALSE_HAND_OVER = 1e-3
 HAND_OVER_SIGMAS = float(ndtri(1.0 - FALSE_HAND_OVER))  # 3.09
 
 
+def rectangle(regions: Regions, r: int) -> tuple[float, float, float, float] | None:
+    """Region ``r``'s bounds ``(x0, x1, y0, y1)`` when it is an axis-parallel rectangle (a grid cell),
+    else None."""
+    corners = regions.vertices[r]
+    ring = corners[np.any(corners != np.roll(corners, 1, axis=0), axis=1)]  # repeats dropped
+    step = ring != np.roll(ring, -1, axis=0)  # per edge: x changes, y changes
+    if ring.shape[0] != 4 or not (np.array_equal(step[:, 0], ~step[:, 1]) and step[0, 0] != step[1, 0]):
+        return None
+    (x0, y0), (x1, y1) = ring.min(axis=0).tolist(), ring.max(axis=0).tolist()
+    return x0, x1, y0, y1
+
+
 def interior(regions: Regions, r: int) -> np.ndarray:
     """An open box ``(x0, x1, y0, y1)`` whose every point :func:`region_of` gives to region ``r``,
     or NaNs (none known): a region that is an axis-parallel rectangle (a grid cell), shrunk by
@@ -62,12 +74,9 @@ def interior(regions: Regions, r: int) -> np.ndarray:
     v = regions.vertices
     lo, hi = v.min(axis=1), v.max(axis=1)  # (R, 2) bounding boxes
     eps = 1e-9 * max(float(np.abs(v).max()), 1.0)
-    corners = v[r]
-    ring = corners[np.any(corners != np.roll(corners, 1, axis=0), axis=1)]  # repeats dropped
-    step = ring != np.roll(ring, -1, axis=0)  # per edge: x changes, y changes
     a, b = lo[r] + eps, hi[r] - eps
-    if (ring.shape[0] != 4 or not (np.array_equal(step[:, 0], ~step[:, 1]) and step[0, 0] != step[1, 0])
-            or np.any(a >= b) or np.any(np.all((lo[:r] - eps < b) & (hi[:r] + eps > a), axis=1))):
+    if (rectangle(regions, r) is None or np.any(a >= b)
+            or np.any(np.all((lo[:r] - eps < b) & (hi[:r] + eps > a), axis=1))):
         return np.full(4, np.nan)  # not a rectangle with axis-parallel edges, or an earlier region near
     return np.array([a[0], b[0], a[1], b[1]])
 
@@ -101,6 +110,8 @@ class RegionCentre:
                                          id_step=len(self.regions.ids))
         self.boxes = np.stack([interior(self.regions, r) for r in range(len(self.regions.ids))])  # (R, 4)
         self.own = self.regions._replace(ids=(self.name,), vertices=self.regions.vertices[self.index:self.index + 1])
+        self.rect = rectangle(self.regions, self.index)  # its bounds if a rectangle (beyond_band)
+        self.scale = float(np.abs(self.own.vertices).max())
 
     @property
     def name(self) -> str:
@@ -141,11 +152,25 @@ class RegionCentre:
     def beyond_band(self, x: np.ndarray, P: np.ndarray) -> np.ndarray:
         """Per estimate (states ``x``, covariances ``P``) outside the region: whether it lies farther
         outside than ``HAND_OVER_SIGMAS`` times its largest position sigma, capped at ``margin``
-        (the hysteresis of the module constants; the tracker sends the rows to the holder anyway)."""
+        (the hysteresis of the module constants; the tracker sends the rows to the holder anyway).
+
+        The distance outside a rectangle (a grid cell) from its sides, not :func:`distances`' test
+        of every edge (a third of its time on a few estimates); where the two could round to different
+        sides of the band (within ``1e-9`` of the coordinates), :func:`distances` decides."""
         a, b, d = P[:, 0, 0], P[:, 0, 2], P[:, 2, 2]
         sigma = np.sqrt(0.5 * (a + d) + np.hypot(0.5 * (a - d), b))  # the 2 x 2 block's largest eigenvalue
-        outside = distances(self.own, x[:, [0, 2]])[:, 0]
-        return outside > np.minimum(HAND_OVER_SIGMAS * sigma, self.regions.margin)
+        band = np.minimum(HAND_OVER_SIGMAS * sigma, self.regions.margin)
+        if self.rect is None:
+            return distances(self.own, x[:, [0, 2]])[:, 0] > band
+        x0, x1, y0, y1 = self.rect
+        px, py = x[:, 0], x[:, 2]
+        dx, dy = np.maximum(np.maximum(x0 - px, px - x1), 0.0), np.maximum(np.maximum(y0 - py, py - y1), 0.0)
+        outside = np.sqrt(dx * dx + dy * dy)
+        beyond = outside > band
+        near = (np.abs(outside - band) <= 1e-9 * (np.abs(px) + np.abs(py) + self.scale)).nonzero()[0]
+        if near.size:
+            beyond[near] = distances(self.own, x[near][:, [0, 2]])[:, 0] > band[near]
+        return beyond
 
     def answer(self, report: LocalReport, elsewhere: np.ndarray
                ) -> tuple[RegionAnswer, list[tuple[int, int, HandOver]]]:
