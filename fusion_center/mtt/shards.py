@@ -122,8 +122,9 @@ class RegionCentre:
         s, ids = report.sensor, report.ids.tolist()
         mine = keyed(self.centre.mapping, s, ids)
         free = ~mine & ~elsewhere
-        if self.forwarded:
-            gone = keyed(self.forwarded, s, ids) & ~mine
+        away = {lid for sensor, lid in self.forwarded if sensor == s}  # a few in flight: ids, not (sensor, id) keys
+        if away:
+            gone = np.fromiter(map(away.__contains__, ids), dtype=bool, count=len(ids)) & ~mine
             self.in_flight += int(gone.sum())
             free &= ~gone
         if free.any() and self.boxes.shape[0] > 1:  # one region owns every position
