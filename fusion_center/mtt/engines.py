@@ -27,6 +27,7 @@ import numpy as np
 
 from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
 from fedtrack.fusion_center.mtt.centre.consistency import Transition
+from fedtrack.fusion_center.mtt.centre.copies import Found
 from fedtrack.fusion_center.mtt.centre.track_life import CENTRAL_MISSES
 from fedtrack.fusion_center.mtt.shards import ShardedCentre
 from fedtrack.geodetic import Frame
@@ -456,6 +457,12 @@ class TrackToTrackEngine(Engine):
         if isinstance(self.centre, ShardedCentre):
             return sorted(tr for c in self.centre.centres for tr in c.centre.consistency.drain())
         return [] if self.centre is None else self.centre.consistency.drain()
+
+    def feed_copies(self) -> list[Found]:
+        """The sensors found to copy another's feed, or released, by the centre (each region's) since the last call."""
+        if isinstance(self.centre, ShardedCentre):
+            return sorted(f for c in self.centre.centres for f in c.centre.copies.drain())
+        return [] if self.centre is None else self.centre.copies.drain()
 
     def inconsistent_sensors(self) -> list[str]:
         """The sensors the centre (some region's) flags inconsistent now."""

@@ -24,6 +24,7 @@ import numpy as np
 from fedtrack.config import ConfigError, did_you_mean, load_tables
 from fedtrack.fusion_center.mtt.centre.candidates import CrowdedReport
 from fedtrack.fusion_center.mtt.centre.consistency import FALSE_ALARM, Transition
+from fedtrack.fusion_center.mtt.centre.copies import Found
 from fedtrack.fusion_center.mtt.engines import ALGORITHMS, Engine, PictureClock, PictureTracks, make_engine
 from fedtrack.fusion_center.mtt.regional import is_region_recording, read_region_entries, recorded_pictures
 from fedtrack.fusion_center.mtt.silence import silence_bound, usual_intervals
@@ -149,6 +150,9 @@ def counter_lines(counts: dict[str, int]) -> list[str]:
                    "newest), neither fused nor associated"),
                   (f"{counts['centre_before_start']} centre observations older than their central track's "
                    "start, not fused")]
+    if "centre_copies" in counts:
+        lines.append(f"{counts['centre_copies']} reports of a sensor copying another's feed (the same observations at "
+                     "the same times), not fused")
     if "centre_inconsistency_onsets" in counts:
         lines.append(f"{counts['centre_inconsistency_onsets']} sensors flagged inconsistent (innovations against the "
                      f"others' beyond the {FALSE_ALARM:g} test), {counts['centre_inconsistent_sensors']} still flagged at the end")
@@ -165,6 +169,20 @@ def consistency_lines(transitions: list[Transition], shown: int = 10) -> list[st
     listed = ", ".join(f"{tr.sensor} at t={tr.t:.2f} (x{tr.ratio:.2f})" for tr in onsets[:shown])
     more = f" and {len(onsets) - shown} more" if len(onsets) > shown else ""
     return [f"sensors flagged inconsistent: {listed}{more}"]
+
+
+def copy_lines(found: list[Found], shown: int = 10) -> list[str]:
+    """The sensors the centre found to copy another's feed, and those released, with the times (the first
+    ``shown`` of each)."""
+    lines = []
+    for is_found, what in ((True, "sensors found copying another's feed (their reports not fused)"),
+                           (False, "copying sensors released (fused again)")):
+        some = [f for f in found if f.found is is_found]
+        if some:
+            listed = ", ".join(f"{f.copy} of {f.original} at t={f.t:.2f}" for f in some[:shown])
+            more = f" and {len(some) - shown} more" if len(some) > shown else ""
+            lines.append(f"{what}: {listed}{more}")
+    return lines
 
 
 def data_regions(spec: str, scans: list[SensorScan | SensorLeft], config: Path | None) -> Regions:
@@ -260,6 +278,8 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
         print(f"{algorithm}: {line}", file=sys.stderr)
     for line in consistency_lines(engine.consistency_transitions() if hasattr(engine, "consistency_transitions")
                                   else []):
+        print(f"{algorithm}: {line}", file=sys.stderr)
+    for line in copy_lines(engine.feed_copies() if hasattr(engine, "feed_copies") else []):
         print(f"{algorithm}: {line}", file=sys.stderr)
     if detector:
         print(f"{algorithm}: {onsets} maneuver onsets detected (pictures with a track's maneuver that the "

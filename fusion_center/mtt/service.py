@@ -325,6 +325,10 @@ class MttCentreService(CentreFailover, Service):
             self.log.warning("sensor %s %s at t=%.2f: its innovations %.2f times the others', tail probability %.2g",
                              tr.sensor, "inconsistent" if tr.flagged else "consistent again", tr.t, tr.ratio,
                              math.exp(tr.log_p))
+        for f in (engine.region.centre.copies.drain() if isinstance(engine, RegionEngine) else engine.feed_copies()):
+            self.log.warning("sensor %s %s %s's feed at t=%.2f (the same observations at the same times): its reports "
+                             "are %s", f.copy, "copies" if f.found else "no longer copies", f.original, f.t,
+                             "not fused" if f.found else "fused again")
         flagged = (sorted(engine.region.centre.consistency.flagged) if isinstance(engine, RegionEngine)
                    else engine.inconsistent_sensors())
         self.status = f"inconsistent sensors: {','.join(flagged)}"[:MAX_STRING_LENGTH] if flagged else "ok"

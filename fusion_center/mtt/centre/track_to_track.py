@@ -66,6 +66,7 @@ import numpy as np
 from fedtrack.fusion_center.mtt.central_track import CentralTracks, DepartedTracks, padded
 from fedtrack.fusion_center.mtt.centre.association import CentreAssociation, LocalKey
 from fedtrack.fusion_center.mtt.centre.consistency import SensorConsistency, normalized_innovations, window_seconds
+from fedtrack.fusion_center.mtt.centre.copies import FeedCopies
 from fedtrack.fusion_center.mtt.centre.track_life import CentreLife, needs_local_confirmation
 from fedtrack.fusion_center.mtt.silence import INTERVALS_KEPT, silence_bound, usual_intervals
 from fedtrack.local_filters.linear.gating import track_difference_d2
@@ -87,6 +88,8 @@ class Counters:
     late_reports: int = 0  # reports older than max_lag before the newest report: neither fused nor mapped
     inconsistent_sensors: int = 0  # sensors whose innovations fail the relative test now (.consistency)
     inconsistency_onsets: int = 0  # times a sensor was flagged
+    copies: int = 0  # reports of a sensor found to copy another's feed (.copies): not fused
+    copying_sensors: int = 0  # sensors found to copy another's feed now
 
 
 class HandOver(NamedTuple):
@@ -150,6 +153,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.departed = DepartedTracks(self.tracks)  # confirmed tracks deleted, for later pictures
         self.absorbed: set[int] = set()  # tracks whose local tracks moved to another (not departed)
         self.consistency = SensorConsistency(1.0 - cfg.gate_probability)
+        self.copies = FeedCopies(cfg.max_lag)  # sensors whose reports carry another's observations
         self._fit()
 
     def _fit(self) -> None:
@@ -203,7 +207,15 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         """A sensor left (its tracker's liveliness was lost, or it fell silent): it no longer
         counts as live (the other trackers' sharing factors are renormalized from their next
         answer on) nor in the deletion rule, and its local tracks leave their central tracks
-        (a central track left without any is deleted by the next :meth:`prune`)."""
+        (a central track left without any is deleted by the next :meth:`prune`); a copy of its feed
+        is fused again (:mod:`.copies`)."""
+        self._forget(sensor)
+        self.copies.drop(sensor)
+        self.counters.copying_sensors = len(self.copies.copy_of)
+        self.counters.left += 1
+
+    def _forget(self, sensor: str) -> None:
+        """The sensor no longer live, its local tracks unmapped, its column and consistency window gone."""
         self.sensor_seen.pop(sensor, None)
         self.scan_gaps.pop(sensor, None)
         for key in [k for k in self.mapping if k[0] == sensor]:
@@ -212,7 +224,6 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self._drop_column(sensor)
         self.consistency.drop(sensor)
         self.counters.inconsistent_sensors = len(self.consistency.flagged)
-        self.counters.left += 1
 
     def _drop_column(self, sensor: str) -> None:
         """Free a departed sensor's column of the per-sensor arrays (a column a slot and a
@@ -282,9 +293,17 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         A report older than ``max_lag`` before the newest one (a sensor's missed scans sent in a burst
         when it wakes) is late: neither fused nor associated, counted ``late_reports``. Its local
         tracks, compared with the central tracks at its time, far behind theirs, had started a
-        central track each, kept beside the others' (a 12 s freeze: 96 false tracks in a picture)."""
-        if report.t < max(self.sensor_seen.values(), default=report.t) - self.cfg.max_lag:
-            self.counters.late_reports += 1
+        central track each, kept beside the others' (a 12 s freeze: 96 false tracks in a picture).
+
+        A report of a sensor found to copy another's feed (:mod:`.copies`) is neither fused nor
+        associated either, counted ``copies``; when the sensor is found, its local tracks leave their
+        central tracks and it is no longer live."""
+        copy = self._copied(report, rows)
+        if copy or report.t < max(self.sensor_seen.values(), default=report.t) - self.cfg.max_lag:
+            if copy:
+                self.counters.copies += 1
+            else:
+                self.counters.late_reports += 1
             self.moved = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
             return no_resets(report.sensor, report.t, report.x.shape[1])
         col = self._note_scan(report)
@@ -297,6 +316,16 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.moved = det_rows, det_rows.copy()  # nothing fused into: no track moved
         self._count_scan(col, det_rows, report)
         return no_resets(report.sensor, report.t, report.x.shape[1])
+
+    def _copied(self, report: LocalReport, rows: np.ndarray | None) -> bool:
+        """Whether the report's sensor copies another's feed (its observations of ``rows`` compared)."""
+        was = report.sensor in self.copies.copy_of
+        z = report.obs_z if rows is None else report.obs_z[rows[report.detected]]
+        copy = self.copies.is_copy(report.sensor, report.t, z)
+        if copy and not was:
+            self._forget(report.sensor)
+        self.counters.copying_sensors = len(self.copies.copy_of)
+        return copy
 
     def _note_scan(self, report: LocalReport) -> int:
         """The sensor's latest scan time and its retired local tracks unmapped (and, at its first
@@ -461,7 +490,8 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         delete unsupported central tracks; returns the resets for its sensor and the process-noise
         factor (the number of live sensors, 1 when decentralized) for that sensor's next scan."""
         resets = self.ingest(report, rows)
-        q_scale = float(max(self.n_live, 1)) if self.feedback else 1.0
+        alone = report.sensor in self.copies.copy_of  # a copy's tracker runs on its own (no resets)
+        q_scale = float(max(self.n_live, 1)) if self.feedback and not alone else 1.0
         self.prune(report.t)
         return resets, q_scale
 

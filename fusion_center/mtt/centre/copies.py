@@ -1,0 +1,133 @@
+"""A sensor's feed copied under a second sensor id, found at the track-to-track centre from the reports.
+
+The centre never sees the scans, but a report carries the data behind it: each detected track's
+observation ``(H, R, z)``. For a position sensor ``z`` is the detection itself (a start's, exactly; an
+update's ``nu + H x0``, the detection up to round-off), and so is jipda's equivalent observation of a
+track with one detection in its gate (its ``R`` is not the scan's). A copied feed's tracker gets the
+same scans at the same times, so its observations equal the original's to round-off, federated too,
+where the centre's resets make the two trackers' tracks differ; the tracks, covariances and ``R`` are
+no test (equal ``R`` and periods are what honest sensors of one make share). Two independent
+sensors' noisy detections never agree to round-off.
+
+A report of ``s`` at ``t`` is compared with every report another sensor ``o`` made at the very same
+``t`` (held for ``max_lag``): it agrees when at least one of its observations and at least half of
+them each equal one of ``o``'s (:func:`equal_rows`: every coordinate within ``ROUND_OFF`` of the row's
+largest magnitude, 1 at least; the half keeps apart honest sensors whose detections are quantized,
+which may share a value now and then). ``REPEAT`` agreeing comparisons of the pair in a row make
+the two one feed: the sensor whose report came second is the copy, and from then on none of its
+reports is fused (:class:`~.track_to_track.TrackToTrackCentre` counts them ``copies``; its local
+tracks leave their central tracks and it is not live). ``REPEAT`` comparisons in a row that do not
+agree release it (the feed was fixed, or the id reused by a real sensor), as does either sensor's
+departure.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+
+ROUND_OFF = 1e-9  # relative: what separates a copy's observation from the original's (measured: 1e-18 of |z|)
+REPEAT = 3  # agreeing comparisons of a pair in a row that make them one feed; disagreeing ones that release it
+
+
+class Found(NamedTuple):
+    """At data time ``t`` sensor ``copy`` was found to copy ``original``'s feed (``found``), or released."""
+
+    t: float
+    copy: str
+    original: str
+    found: bool
+
+
+def equal_rows(z: np.ndarray, other: np.ndarray) -> int:
+    """How many rows of ``z`` (K, m) equal some row of ``other`` (L, m) to round-off: every coordinate
+    within ``ROUND_OFF`` times the row's largest magnitude (at least 1)."""
+    if not len(z) or not len(other):
+        return 0
+    order = np.argsort(other[:, 0], kind="stable")
+    first = other[order, 0]
+    tol = ROUND_OFF * np.maximum(1.0, np.abs(z).max(axis=1))
+    rows = np.arange(len(z))
+    at = np.searchsorted(first, z[:, 0] - tol)  # each row's first candidate by its first coordinate
+    hit = np.zeros(len(z), dtype=bool)
+    while rows.size:  # the candidates in turn while some row has one within its tolerance (one, as a rule)
+        near = at < first.size
+        near[near] = first[at[near]] <= z[rows[near], 0] + tol[rows[near]]
+        rows, at = rows[near], at[near]
+        same = (np.abs(other[order[at]] - z[rows]) <= tol[rows, None]).all(axis=1)
+        hit[rows[same]] = True
+        rows, at = rows[~same], at[~same] + 1
+    return int(np.count_nonzero(hit))
+
+
+def agrees(z: np.ndarray, other: np.ndarray) -> bool:
+    """Whether a report's observations ``z`` are another sensor's ``other``: at least one, and at least
+    half of them, equal one of ``other``'s (:func:`equal_rows`)."""
+    n = equal_rows(z, other)
+    return n >= 1 and 2 * n >= len(z)
+
+
+@dataclass
+class FeedCopies:
+    """The reports' observations of the last ``max_lag`` seconds by time and sensor, the pairs' runs of
+    agreeing comparisons, and the sensors found to copy another's feed."""
+
+    max_lag: float
+    held: dict[float, dict[str, np.ndarray]] = field(default_factory=dict)  # t -> sensor -> its observations
+    streak: dict[tuple[str, str], int] = field(default_factory=dict)  # sorted pair -> agreeing in a row
+    copy_of: dict[str, str] = field(default_factory=dict)  # copy -> original
+    apart: dict[str, int] = field(default_factory=dict)  # copy -> comparisons with its original in a row not agreeing
+    newest: float = -math.inf
+    found: list[Found] = field(default_factory=list)  # not yet logged (drained)
+
+    def is_copy(self, sensor: str, t: float, z: np.ndarray) -> bool:
+        """Compare ``sensor``'s report at ``t`` (its observations ``z``) with the other sensors' at ``t``;
+        returns whether ``sensor`` copies another's feed (its report not to be fused)."""
+        if t > self.newest:
+            self.newest = t
+            for old in [k for k in self.held if k < t - self.max_lag]:
+                del self.held[old]
+        elif t < self.newest - self.max_lag:  # too old to compare (and late at the centre anyway)
+            return sensor in self.copy_of
+        same_t = self.held.setdefault(t, {})
+        for other, zo in same_t.items():
+            if other != sensor:
+                self._compare(sensor, other, agrees(z, zo), t)
+        same_t[sensor] = z
+        return sensor in self.copy_of
+
+    def _compare(self, sensor: str, other: str, agree: bool, t: float) -> None:
+        copy = sensor if self.copy_of.get(sensor) == other else other if self.copy_of.get(other) == sensor else None
+        if copy is not None:  # a known pair: does it still hold?
+            self.apart[copy] = 0 if agree else self.apart.get(copy, 0) + 1
+            if self.apart[copy] >= REPEAT:
+                self.found.append(Found(t, copy, self.copy_of[copy], False))
+                self._release(copy)
+            return
+        pair = (sensor, other) if sensor < other else (other, sensor)
+        self.streak[pair] = self.streak.get(pair, 0) + 1 if agree else 0
+        if self.streak[pair] >= REPEAT and sensor not in self.copy_of:
+            del self.streak[pair]
+            self.copy_of[sensor] = other
+            self.found.append(Found(t, sensor, other, True))
+
+    def _release(self, copy: str) -> None:
+        del self.copy_of[copy]
+        self.apart.pop(copy, None)
+
+    def drop(self, sensor: str) -> None:
+        """``sensor`` left: its observations, runs and pairs go (a copy of it is fused again; released
+        this way, no :class:`Found` is logged)."""
+        for kept in self.held.values():
+            kept.pop(sensor, None)
+        self.streak = {p: n for p, n in self.streak.items() if sensor not in p}
+        for copy in [c for c, o in self.copy_of.items() if sensor in (c, o)]:
+            self._release(copy)
+
+    def drain(self) -> list[Found]:
+        """The pairs found or released since the last call."""
+        out, self.found = self.found, []
+        return out
