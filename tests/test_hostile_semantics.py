@@ -203,6 +203,29 @@ def test_more_live_sensors_than_a_picture_can_list_are_refused() -> None:
     assert {r.q_scale for _, r in bus.published if isinstance(r, TrackResets)} <= {float(s) for s in range(1, 65)}
 
 
+def test_the_live_centre_does_not_fuse_a_copied_feed(caplog: pytest.LogCaptureFixture) -> None:
+    """s1's reports published again as s9's (a feed copied under a second id) beside an honest s2 at
+    the same times: the centre fused s9 as a third independent sensor (every sharing factor 3). Now s9
+    is found at its third report: logged once, that report and the later ones counted
+    ``centre_copies``, answered without resets and with a factor of 1, and s1 and s2 shares of 2 again."""
+    svc = MttCentreService("mtt-federated", MttConfig(sensors="any", max_lag=3.0), 4, service_id="centre",
+                           options=OPTIONS, deployment=KEYS.deployment)
+    bus = Bus([svc])
+    with caplog.at_level("WARNING"):
+        for k in range(6):
+            report = one_track_report("s1", k)
+            bus.put(KEYS.mtt_report("s1"), encode(report))
+            bus.put(KEYS.mtt_report("s9"), encode(replace(report, sensor="s9")))
+            bus.put(KEYS.mtt_report("s2"), encode(replace(report, sensor="s2", obs_z=report.obs_z + 3.0)))
+    counts = svc.engine.counters()  # Health's, as of the latest picture (t = 5): s9's reports at 2, 3 and 4
+    assert counts["centre_copies"] == 4 and counts["centre_copying_sensors"] == 1 and svc.counters["centre_copies"] == 3
+    resets = {s: [r for _, r in bus.published if isinstance(r, TrackResets) and r.sensor == s] for s in ("s1", "s2", "s9")}
+    assert [(len(r.ids), r.q_scale) for r in resets["s9"][2:]] == [(0, 1.0)] * 4
+    assert resets["s2"][-1].q_scale == 2.0 and len(resets["s2"][-1].ids) == 1
+    assert [r.getMessage() for r in caplog.records if "feed" in r.getMessage()] == [
+        "sensor s9 copies s1's feed at t=2.00 (the same observations at the same times): its reports are not fused"]
+
+
 # ---------------------------------------------------------------- serve picture
 
 def region_picture(t: float, fused: int, tracks: int = 0) -> TrackPicture:

@@ -94,7 +94,7 @@ class FeedCopies:
             return sensor in self.copy_of
         same_t = self.held.setdefault(t, {})
         for other, zo in same_t.items():
-            if other != sensor:
+            if other != sensor and len(z) and len(zo):  # a report without observations tells nothing
                 self._compare(sensor, other, agrees(z, zo), t)
         same_t[sensor] = z
         return sensor in self.copy_of
