@@ -461,7 +461,7 @@ class TrackToTrackEngine(Engine):
     def feed_copies(self) -> list[Found]:
         """The sensors found to copy another's feed, or released, by the centre (each region's) since the last call."""
         if isinstance(self.centre, ShardedCentre):
-            return sorted(f for c in self.centre.centres for f in c.centre.copies.drain())
+            return sorted({f for c in self.centre.centres for f in c.centre.copies.drain()})  # each region finds it
         return [] if self.centre is None else self.centre.copies.drain()
 
     def inconsistent_sensors(self) -> list[str]:

@@ -10,10 +10,11 @@ no test (equal ``R`` and periods are what honest sensors of one make share). Two
 sensors' noisy detections never agree to round-off.
 
 A report of ``s`` at ``t`` is compared with every report another sensor ``o`` made at the very same
-``t`` (held for ``max_lag``): it agrees when at least one of its observations and at least half of
-them each equal one of ``o``'s (:func:`equal_rows`: every coordinate within ``ROUND_OFF`` of the row's
-largest magnitude, 1 at least; the half keeps apart honest sensors whose detections are quantized,
-which may share a value now and then). ``REPEAT`` agreeing comparisons of the pair in a row make
+``t`` (held for ``max_lag``): it agrees when at least one, and at least half, of its first ``SAMPLE``
+observations each equal one of ``o``'s (:func:`equal_rows`: every coordinate within ``ROUND_OFF`` times
+the sample's largest magnitude, 1 at least; the half keeps apart honest sensors whose detections are
+quantized, which may share a value now and then; the sample bounds the cost, a sort of 64 rows and
+a look-up of ``o``'s, made only when two sensors report at the same time). ``REPEAT`` agreeing comparisons of the pair in a row make
 the two one feed: the sensor whose report came second is the copy, and from then on none of its
 reports is fused (:class:`~.track_to_track.TrackToTrackCentre` counts them ``copies``; its local
 tracks leave their central tracks and it is not live). ``REPEAT`` comparisons in a row that do not
@@ -30,6 +31,7 @@ from typing import NamedTuple
 import numpy as np
 
 ROUND_OFF = 1e-9  # relative: what separates a copy's observation from the original's (measured: 1e-18 of |z|)
+SAMPLE = 64  # a report's observations compared (its first): a copy's agree all but a few, honest ones none
 REPEAT = 3  # agreeing comparisons of a pair in a row that make them one feed; disagreeing ones that release it
 
 
@@ -44,30 +46,32 @@ class Found(NamedTuple):
 
 def equal_rows(z: np.ndarray, other: np.ndarray) -> int:
     """How many rows of ``z`` (K, m) equal some row of ``other`` (L, m) to round-off: every coordinate
-    within ``ROUND_OFF`` times the row's largest magnitude (at least 1)."""
+    within ``ROUND_OFF`` times the largest magnitude in ``z`` (at least 1). ``z`` is sorted by its first
+    coordinate and each row of ``other`` looked up there (``z`` the smaller: a report's sample)."""
     if not len(z) or not len(other):
         return 0
-    order = np.argsort(other[:, 0], kind="stable")
-    first = other[order, 0]
-    tol = ROUND_OFF * np.maximum(1.0, np.abs(z).max(axis=1))
-    rows = np.arange(len(z))
-    at = np.searchsorted(first, z[:, 0] - tol)  # each row's first candidate by its first coordinate
+    tol = ROUND_OFF * max(1.0, float(np.abs(z).max()))
+    order = np.argsort(z[:, 0], kind="stable")
+    first = z[order, 0]
+    rows = np.arange(len(other))
+    at = np.searchsorted(first, other[:, 0] - tol)  # each row's first candidate in z by the first coordinate
     hit = np.zeros(len(z), dtype=bool)
-    while rows.size:  # the candidates in turn while some row has one within its tolerance (one, as a rule)
+    while rows.size:  # the candidates in turn while a row has one within the tolerance (none or one, as a rule)
         near = at < first.size
-        near[near] = first[at[near]] <= z[rows[near], 0] + tol[rows[near]]
+        near[near] = first[at[near]] <= other[rows[near], 0] + tol
         rows, at = rows[near], at[near]
-        same = (np.abs(other[order[at]] - z[rows]) <= tol[rows, None]).all(axis=1)
-        hit[rows[same]] = True
+        same = (np.abs(z[order[at]] - other[rows]) <= tol).all(axis=1)
+        hit[order[at[same]]] = True
         rows, at = rows[~same], at[~same] + 1
     return int(np.count_nonzero(hit))
 
 
 def agrees(z: np.ndarray, other: np.ndarray) -> bool:
     """Whether a report's observations ``z`` are another sensor's ``other``: at least one, and at least
-    half of them, equal one of ``other``'s (:func:`equal_rows`)."""
-    n = equal_rows(z, other)
-    return n >= 1 and 2 * n >= len(z)
+    half, of its first ``SAMPLE`` equal one of ``other``'s (:func:`equal_rows`)."""
+    sample = z[:SAMPLE]
+    n = equal_rows(sample, other)
+    return n >= 1 and 2 * n >= len(sample)
 
 
 @dataclass

@@ -509,14 +509,18 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         return record
 
     def take_over(self, record: HandOver) -> None:
-        """Continue a neighbour region's central track from its :meth:`hand_over` record."""
+        """Continue a neighbour region's central track from its :meth:`hand_over` record (without the local
+        tracks of a sensor found here to copy another's feed: its reports are not taken here)."""
         slot = self.tracks.place(record.id, record.confirmed, record.entries)
         self._fit()
-        cols = [self._col(s) for s in record.sensors]
+        keep = [k for k, s in enumerate(record.sensors) if s not in self.copies.copy_of]
+        cols = [self._col(record.sensors[k]) for k in keep]
         self.support[slot], self.streak[slot] = 0, 0
-        self.support[slot, cols], self.streak[slot, cols] = record.support, record.streak
+        self.support[slot, cols], self.streak[slot, cols] = record.support[keep], record.streak[keep]
         self.window[slot], self.last_support[slot] = record.window, record.last_support
         for key, strikes in zip(record.members, record.strikes):
+            if key[0] in self.copies.copy_of:
+                continue
             self.mapping[key] = record.id
             self.members.setdefault(record.id, set()).add(key)
             if strikes:
