@@ -90,15 +90,15 @@ class FeedCopies:
     def is_copy(self, sensor: str, t: float, z: np.ndarray) -> bool:
         """Compare ``sensor``'s report at ``t`` (its observations ``z``) with the other sensors' at ``t``;
         returns whether ``sensor`` copies another's feed (its report not to be fused)."""
+        if not len(z) or t < self.newest - self.max_lag:  # no observation tells nothing; too old (and late)
+            return sensor in self.copy_of
         if t > self.newest:
             self.newest = t
             for old in [k for k in self.held if k < t - self.max_lag]:
                 del self.held[old]
-        elif t < self.newest - self.max_lag:  # too old to compare (and late at the centre anyway)
-            return sensor in self.copy_of
         same_t = self.held.setdefault(t, {})
         for other, zo in same_t.items():
-            if other != sensor and len(z) and len(zo):  # a report without observations tells nothing
+            if other != sensor:
                 self._compare(sensor, other, agrees(z, zo), t)
         same_t[sensor] = z
         return sensor in self.copy_of
