@@ -144,7 +144,9 @@ def test_track_to_track_centre_fuses_a_duplicated_feed_once(tmp_path: Path, caps
 def test_feed_copies_rules() -> None:
     """The copy test on observations alone: equal to round-off, not to 1e-6; quantized honest detections
     sharing one value of ten each scan are no copy; the second to arrive is the copy, whichever sensor
-    it is; three comparisons in a row that disagree release it, and so does the original's departure."""
+    it is; three comparisons in a row that disagree release it, and so does the original's departure;
+    a radar's 3-D observations beside a position sensor's at the same time are compared with nothing
+    (they raised ValueError, ending a replay of a radar and position sensors scanning together)."""
     rng = np.random.default_rng(5)
     z = rng.uniform(-5e3, 5e3, (10, 2))
     assert equal_rows(z, z * (1 + 4e-16)) == 10 and equal_rows(z, z + 1e-6 * np.abs(z).max()) == 0
@@ -172,3 +174,5 @@ def test_feed_copies_rules() -> None:
         assert feeds.is_copy("s9", float(t), z) == (t == 9)
     feeds.drop("s1")  # the original left: its copy is fused again
     assert not feeds.copy_of and feeds.drain() == [Found(9.0, "s9", "s1", True)]
+    mixed = FeedCopies(max_lag=3.0)  # a radar's observations beside a position sensor's at one time (a broadcast error)
+    assert not mixed.is_copy("r1", 0.0, np.zeros((3, 3))) and not mixed.is_copy("s2", 0.0, np.zeros((3, 2)))

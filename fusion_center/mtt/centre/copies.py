@@ -98,8 +98,8 @@ class FeedCopies:
                 del self.held[old]
         same_t = self.held.setdefault(t, {})
         for other, zo in same_t.items():
-            if other != sensor:
-                self._compare(sensor, other, agrees(z, zo), t)
+            if other != sensor:  # observations of another size (a radar's beside a position sensor's) are no copy
+                self._compare(sensor, other, zo.shape[1] == z.shape[1] and agrees(z, zo), t)
         same_t[sensor] = z
         return sensor in self.copy_of
 
