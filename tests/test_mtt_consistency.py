@@ -108,6 +108,16 @@ def test_the_relative_test_is_the_f_distribution_under_the_model() -> None:
                                                                abs=1e-9)
 
 
+def test_a_tail_below_the_doubles_range_is_minus_infinity() -> None:
+    """The others' innovations all exactly 0 (a copied feed's observations fused right after the
+    original's: s1 copied as s9, ``simulate multitarget --targets 20 --duration 120 --seed 2``, at t =
+    0.05): the ratio was finite, its F tail 0.0, and its log raised ValueError, ending the replay with a
+    traceback; now the tail is -inf (beyond every test)."""
+    ratio, log_p = relative_tail(27.67, 26, 0.0, 48)
+    assert ratio > 1e290 and log_p == -math.inf
+    assert relative_tail(1.0, 2, 0.0, 2)[1] < -690.0 and relative_tail(0.0, 2, 1.0, 2)[1] == 0.0
+
+
 def test_normalized_innovations_solve_the_innovation_covariance() -> None:
     rng = np.random.default_rng(2)
     H = np.tile(np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]]), (3, 1, 1))

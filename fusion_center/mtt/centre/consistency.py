@@ -93,7 +93,8 @@ def relative_tail(a_sum: float, a_dof: int, b_sum: float, b_dof: int) -> tuple[f
     """The ratio ``(A / a) / (B / b)`` and ``log P(F(a, b) >= ratio)``: the sensor's innovations against
     the others' (both sums of chi-square terms under the model)."""
     ratio = (a_sum / a_dof) / max(b_sum / b_dof, 1e-300)
-    return ratio, math.log(special.fdtrc(a_dof, b_dof, ratio)) if ratio < math.inf else -math.inf
+    tail = float(special.fdtrc(a_dof, b_dof, ratio)) if ratio < math.inf else 0.0
+    return ratio, math.log(tail) if tail > 0.0 else -math.inf  # a tail below the doubles' range (B = 0): -inf
 
 
 @dataclass
