@@ -219,7 +219,8 @@ def test_the_live_centre_does_not_fuse_a_copied_feed(caplog: pytest.LogCaptureFi
             bus.put(KEYS.mtt_report("s2"), encode(replace(report, sensor="s2", obs_z=report.obs_z + 3.0)))
     counts = svc.engine.counters()  # Health's, as of the latest picture (t = 5): s9's reports at 2, 3 and 4
     assert counts["centre_copies"] == 4 and counts["centre_copying_sensors"] == 1 and svc.counters["centre_copies"] == 3
-    resets = {s: [r for _, r in bus.published if isinstance(r, TrackResets) and r.sensor == s] for s in ("s1", "s2", "s9")}
+    answers = [r for _, r in bus.published if isinstance(r, TrackResets)]
+    resets = {s: [r for r in answers if r.sensor == s] for s in ("s1", "s2", "s9")}
     assert [(len(r.ids), r.q_scale) for r in resets["s9"][2:]] == [(0, 1.0)] * 4
     assert resets["s2"][-1].q_scale == 2.0 and len(resets["s2"][-1].ids) == 1
     assert [r.getMessage() for r in caplog.records if "feed" in r.getMessage()] == [

@@ -14,10 +14,10 @@ A report of ``s`` at ``t`` is compared with every report another sensor ``o`` ma
 observations each equal one of ``o``'s (:func:`equal_rows`: every coordinate within ``ROUND_OFF`` times
 the sample's largest magnitude, 1 at least; the half keeps apart honest sensors whose detections are
 quantized, which may share a value now and then; the sample bounds the cost, a sort of 64 rows and
-a look-up of ``o``'s, made only when two sensors report at the same time). ``REPEAT`` agreeing comparisons of the pair in a row make
-the two one feed: the sensor whose report came second is the copy, and from then on none of its
-reports is fused (:class:`~.track_to_track.TrackToTrackCentre` counts them ``copies``; its local
-tracks leave their central tracks and it is not live). ``REPEAT`` comparisons in a row that do not
+a look-up of ``o``'s, made only when two sensors report at the same time). ``REPEAT`` agreeing
+comparisons of the pair in a row make the two one feed: the sensor whose report came second is the
+copy, and from then on none of its reports is fused (:class:`~.track_to_track.TrackToTrackCentre`
+counts them ``copies``; its local tracks leave their central tracks and it is not live). ``REPEAT`` comparisons in a row that do not
 agree release it (the feed was fixed, or the id reused by a real sensor), as does either sensor's
 departure.
 """
@@ -30,7 +30,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-ROUND_OFF = 1e-9  # relative: what separates a copy's observation from the original's (measured: 1e-18 of |z|)
+ROUND_OFF = 1e-9  # relative: a copy's observations differ from the original's by round-off (measured: 7e-15 m)
 SAMPLE = 64  # a report's observations compared (its first): a copy's agree all but a few, honest ones none
 REPEAT = 3  # agreeing comparisons of a pair in a row that make them one feed; disagreeing ones that release it
 
