@@ -17,9 +17,9 @@ quantized, which may share a value now and then; the sample bounds the cost, a s
 a look-up of ``o``'s, made only when two sensors report at the same time). ``REPEAT`` agreeing
 comparisons of the pair in a row make the two one feed: the sensor whose report came second is the
 copy, and from then on none of its reports is fused (:class:`~.track_to_track.TrackToTrackCentre`
-counts them ``copies``; its local tracks leave their central tracks and it is not live). ``REPEAT`` comparisons in a row that do not
-agree release it (the feed was fixed, or the id reused by a real sensor), as does either sensor's
-departure.
+counts them ``copies``; its local tracks leave their central tracks and it is not live). ``REPEAT``
+comparisons in a row that do not agree release it (the feed was fixed, or the id reused by a real
+sensor), as does either sensor's departure.
 """
 
 from __future__ import annotations
