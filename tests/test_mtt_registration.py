@@ -142,37 +142,39 @@ def test_track_to_track_centre_fuses_a_duplicated_feed_once(tmp_path: Path, caps
 
 
 def test_feed_copies_rules() -> None:
-    """The copy test on observations alone: equal to round-off, not to 1e-6; quantized honest detections
-    sharing one value of ten each scan are no copy; the second to arrive is the copy, whichever sensor
+    """The copy test on observations alone: equal within 1e-3 of their sigma, not beyond; quantized honest
+    detections sharing one value of ten each scan are no copy; the second to arrive is the copy, whichever sensor
     it is; three comparisons in a row that disagree release it, and so does the original's departure;
     a radar's 3-D observations beside a position sensor's at the same time are compared with nothing
     (they raised ValueError, ending a replay of a radar and position sensors scanning together)."""
     rng = np.random.default_rng(5)
-    z = rng.uniform(-5e3, 5e3, (10, 2))
-    assert equal_rows(z, z * (1 + 4e-16)) == 10 and equal_rows(z, z + 1e-6 * np.abs(z).max()) == 0
-    assert equal_rows(z, np.flipud(z)[:4]) == 4 and equal_rows(z, np.zeros((0, 2))) == 0
+    z, tol = rng.uniform(-5e3, 5e3, (10, 2)), np.full((10, 2), 0.01)  # 1e-3 of 10 m
+    assert equal_rows(z, tol, z * (1 + 4e-16)) == 10 and equal_rows(z, tol, z + [0.0, 0.011]) == 0
+    assert equal_rows(z, tol, np.flipud(z)[:4] + 0.009) == 4 and equal_rows(z, tol, np.zeros((0, 2))) == 0
+    R = np.tile(100.0 * np.eye(2), (10, 1, 1))  # 10 m noise
     quantized = FeedCopies(max_lag=3.0)
     for t in range(10):
         a, b = np.round(rng.uniform(-5e3, 5e3, (2, 10, 2)))
         b[0] = a[3]  # one detection of ten in common every scan
-        assert not quantized.is_copy("s1", float(t), a) and not quantized.is_copy("s2", float(t), b)
+        assert not quantized.is_copy("s1", float(t), a, R) and not quantized.is_copy("s2", float(t), b, R)
     feeds = FeedCopies(max_lag=3.0)
     for t in range(3):  # s9's reports arrive first: s1 is taken for the copy (the first to arrive is kept)
         z = rng.uniform(-5e3, 5e3, (6, 2))
-        assert not feeds.is_copy("s9", float(t), z)
-        assert feeds.is_copy("s1", float(t), z) == (t == 2)
+        assert not feeds.is_copy("s9", float(t), z, R[:6])
+        assert feeds.is_copy("s1", float(t), z, R[:6]) == (t == 2)
     z = rng.uniform(-5e3, 5e3, (6, 2))
-    assert feeds.is_copy("s1", 3.0, z) and not feeds.is_copy("s9", 3.0, z)  # the pair holds in either order
+    assert feeds.is_copy("s1", 3.0, z, R[:6]) and not feeds.is_copy("s9", 3.0, z, R[:6])  # either order
     assert feeds.drain() == [Found(2.0, "s1", "s9", True)]
     for t in range(4, 7):  # three comparisons that disagree release s1
-        assert not feeds.is_copy("s9", float(t), rng.uniform(-5e3, 5e3, (6, 2)))
-        assert feeds.is_copy("s1", float(t), rng.uniform(-5e3, 5e3, (6, 2))) == (t < 6)
+        assert not feeds.is_copy("s9", float(t), rng.uniform(-5e3, 5e3, (6, 2)), R[:6])
+        assert feeds.is_copy("s1", float(t), rng.uniform(-5e3, 5e3, (6, 2)), R[:6]) == (t < 6)
     assert feeds.drain() == [Found(6.0, "s1", "s9", False)]
     for t in range(7, 10):
         z = rng.uniform(-5e3, 5e3, (6, 2))
-        assert not feeds.is_copy("s1", float(t), z)
-        assert feeds.is_copy("s9", float(t), z) == (t == 9)
+        assert not feeds.is_copy("s1", float(t), z, R[:6])
+        assert feeds.is_copy("s9", float(t), z, R[:6]) == (t == 9)
     feeds.drop("s1")  # the original left: its copy is fused again
     assert not feeds.copy_of and feeds.drain() == [Found(9.0, "s9", "s1", True)]
-    mixed = FeedCopies(max_lag=3.0)  # a radar's observations beside a position sensor's at one time (a broadcast error)
-    assert not mixed.is_copy("r1", 0.0, np.zeros((3, 3))) and not mixed.is_copy("s2", 0.0, np.zeros((3, 2)))
+    mixed = FeedCopies(max_lag=3.0)  # a radar's observations beside a position sensor's at one time
+    assert not mixed.is_copy("r1", 0.0, np.zeros((3, 3)), np.tile(np.eye(3), (3, 1, 1)))
+    assert not mixed.is_copy("s2", 0.0, np.zeros((3, 2)), R[:3])

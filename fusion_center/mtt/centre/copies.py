@@ -3,23 +3,24 @@
 The centre never sees the scans, but a report carries the data behind it: each detected track's
 observation ``(H, R, z)``. For a position sensor ``z`` is the detection itself (a start's, exactly; an
 update's ``nu + H x0``, the detection up to round-off), and so is jipda's equivalent observation of a
-track with one detection in its gate (its ``R`` is not the scan's). A copied feed's tracker gets the
-same scans at the same times, so its observations equal the original's to round-off, federated too,
-where the centre's resets make the two trackers' tracks differ; the tracks, covariances and ``R`` are
-no test (equal ``R`` and periods are what honest sensors of one make share). Two independent
-sensors' noisy detections never agree to round-off.
+track with one detection in its gate (its ``R`` is not the scan's); a radar's update is linearized
+about the track's prediction ``x0``. A copied feed's tracker gets the same scans at the same times, so
+its observations equal the original's to round-off, or, federated, where the centre's resets move
+the copy's tracks (and a radar's ``x0``) away from the original's, to far below their noise. The
+tracks, covariances and ``R`` are no test (equal ``R`` and periods are what honest sensors of one
+make share); two independent sensors' noisy detections differ by their noise.
 
 A report of ``s`` at ``t`` is compared with every report another sensor ``o`` made at the very same
-``t`` (held for ``max_lag``): it agrees when at least one, and at least half, of its first ``SAMPLE``
-observations each equal one of ``o``'s (:func:`equal_rows`: every coordinate within ``ROUND_OFF`` times
-the sample's largest magnitude, 1 at least; the half keeps apart honest sensors whose detections are
-quantized, which may share a value now and then; the sample bounds the cost, a sort of 64 rows and
-a look-up of ``o``'s, made only when two sensors report at the same time). ``REPEAT`` agreeing
-comparisons of the pair in a row make the two one feed: the sensor whose report came second is the
-copy, and from then on none of its reports is fused (:class:`~.track_to_track.TrackToTrackCentre`
-counts them ``copies``; its local tracks leave their central tracks and it is not live). ``REPEAT``
-comparisons in a row that do not agree release it (the feed was fixed, or the id reused by a real
-sensor), as does either sensor's departure.
+``t`` (held for ``max_lag``), of the same observation size: it agrees when at least one, and at least
+half, of its first ``SAMPLE`` observations each equal one of ``o``'s within ``TOLERANCE`` of their own
+standard deviation in every coordinate (:func:`equal_rows`; the half keeps apart honest sensors whose
+detections are quantized, which may share a value now and then; the sample bounds the cost, a sort of
+64 rows and a look-up of ``o``'s, made only when two sensors report at the same time). ``REPEAT``
+agreeing comparisons of the pair in a row make the two one feed: the sensor whose report came second
+is the copy, and from then on none of its reports is fused
+(:class:`~.track_to_track.TrackToTrackCentre` counts them ``copies``; its local tracks leave their
+central tracks and it is not live). ``REPEAT`` comparisons in a row that do not agree release it (the
+feed was fixed, or the id reused by a real sensor), as does either sensor's departure.
 """
 
 from __future__ import annotations
@@ -30,7 +31,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-ROUND_OFF = 1e-9  # relative: a copy's observations differ from the original's by round-off (measured: 7e-15 m)
+TOLERANCE = 1e-3  # of an observation's standard deviation per coordinate: a copy's differ by round-off (7e-15 m),
+# a federated radar copy's linearized ones by 1e-4 m (its tracker's resets move the linearization point)
 SAMPLE = 64  # a report's observations compared (its first): a copy's agree all but a few, honest ones none
 REPEAT = 3  # agreeing comparisons of a pair in a row that make them one feed; disagreeing ones that release it
 
@@ -44,33 +46,34 @@ class Found(NamedTuple):
     found: bool
 
 
-def equal_rows(z: np.ndarray, other: np.ndarray) -> int:
-    """How many rows of ``z`` (K, m) equal some row of ``other`` (L, m) to round-off: every coordinate
-    within ``ROUND_OFF`` times the largest magnitude in ``z`` (at least 1). ``z`` is sorted by its first
-    coordinate and each row of ``other`` looked up there (``z`` the smaller: a report's sample)."""
+def equal_rows(z: np.ndarray, tol: np.ndarray, other: np.ndarray) -> int:
+    """How many rows of ``z`` (K, m) equal some row of ``other`` (L, m) within ``tol`` (K, m), coordinate by
+    coordinate. ``z`` is sorted by its first coordinate and each row of ``other`` looked up there (``z``
+    the smaller: a report's sample), first by the first coordinate within the largest of its tolerances."""
     if not len(z) or not len(other):
         return 0
-    tol = ROUND_OFF * max(1.0, float(np.abs(z).max()))
     order = np.argsort(z[:, 0], kind="stable")
-    first = z[order, 0]
+    first, reach = z[order, 0], float(tol[:, 0].max())
     rows = np.arange(len(other))
-    at = np.searchsorted(first, other[:, 0] - tol)  # each row's first candidate in z by the first coordinate
+    at = np.searchsorted(first, other[:, 0] - reach)  # each row's first candidate in z
     hit = np.zeros(len(z), dtype=bool)
-    while rows.size:  # the candidates in turn while a row has one within the tolerance (none or one, as a rule)
+    while rows.size:  # the candidates in turn while a row has one within reach (none or one, as a rule)
         near = at < first.size
-        near[near] = first[at[near]] <= other[rows[near], 0] + tol
+        near[near] = first[at[near]] <= other[rows[near], 0] + reach
         rows, at = rows[near], at[near]
-        same = (np.abs(z[order[at]] - other[rows]) <= tol).all(axis=1)
+        same = (np.abs(z[order[at]] - other[rows]) <= tol[order[at]]).all(axis=1)
         hit[order[at[same]]] = True
         rows, at = rows[~same], at[~same] + 1
     return int(np.count_nonzero(hit))
 
 
-def agrees(z: np.ndarray, other: np.ndarray) -> bool:
-    """Whether a report's observations ``z`` are another sensor's ``other``: at least one, and at least
-    half, of its first ``SAMPLE`` equal one of ``other``'s (:func:`equal_rows`)."""
+def agrees(z: np.ndarray, R: np.ndarray, other: np.ndarray) -> bool:
+    """Whether a report's observations ``z`` (covariances ``R``) are another sensor's ``other``: at least
+    one, and at least half, of its first ``SAMPLE`` equal one of ``other``'s within ``TOLERANCE`` of their
+    own standard deviation in every coordinate (:func:`equal_rows`)."""
     sample = z[:SAMPLE]
-    n = equal_rows(sample, other)
+    tol = TOLERANCE * np.sqrt(np.diagonal(R[:SAMPLE], axis1=1, axis2=2))
+    n = equal_rows(sample, tol, other)
     return n >= 1 and 2 * n >= len(sample)
 
 
@@ -87,8 +90,9 @@ class FeedCopies:
     newest: float = -math.inf
     found: list[Found] = field(default_factory=list)  # not yet logged (drained)
 
-    def is_copy(self, sensor: str, t: float, z: np.ndarray) -> bool:
-        """Compare ``sensor``'s report at ``t`` (its observations ``z``) with the other sensors' at ``t``;
+    def is_copy(self, sensor: str, t: float, z: np.ndarray, R: np.ndarray) -> bool:
+        """Compare ``sensor``'s report at ``t`` (its observations ``z``, covariances ``R``) with the other
+        sensors' at ``t``;
         returns whether ``sensor`` copies another's feed (its report not to be fused)."""
         if not len(z) or t < self.newest - self.max_lag:  # no observation tells nothing; too old (and late)
             return sensor in self.copy_of
@@ -99,7 +103,7 @@ class FeedCopies:
         same_t = self.held.setdefault(t, {})
         for other, zo in same_t.items():
             if other != sensor:  # observations of another size (a radar's beside a position sensor's) are no copy
-                self._compare(sensor, other, zo.shape[1] == z.shape[1] and agrees(z, zo), t)
+                self._compare(sensor, other, zo.shape[1] == z.shape[1] and agrees(z, R, zo), t)
         same_t[sensor] = z
         return sensor in self.copy_of
 

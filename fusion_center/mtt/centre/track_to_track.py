@@ -320,8 +320,8 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
     def _copied(self, report: LocalReport, rows: np.ndarray | None) -> bool:
         """Whether the report's sensor copies another's feed (its observations of ``rows`` compared)."""
         was = report.sensor in self.copies.copy_of
-        z = report.obs_z if rows is None else report.obs_z[rows[report.detected]]
-        copy = self.copies.is_copy(report.sensor, report.t, z)
+        obs = slice(None) if rows is None else rows[report.detected]
+        copy = self.copies.is_copy(report.sensor, report.t, report.obs_z[obs], report.obs_R[obs])
         if copy and not was:
             self._forget(report.sensor)
         self.counters.copying_sensors = len(self.copies.copy_of)
