@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from fedtrack.cli import main as cli
-from fedtrack.fusion_center.mtt.centre.copies import FeedCopies, Found, equal_rows
+from fedtrack.fusion_center.mtt.centre.copies import FeedCopies, Found, Observations, equal_rows
 from fedtrack.fusion_center.mtt.evaluation import evaluate
 from fedtrack.local_filters.mtt.scan import parse_scan, scan_from_measurement, scan_to_measurement
 
@@ -141,40 +141,54 @@ def test_track_to_track_centre_fuses_a_duplicated_feed_once(tmp_path: Path, caps
         assert np.allclose(a["P"], b["P"], rtol=1e-5) and np.allclose(a["x"], b["x"], atol=0.01)  # with s9: 0.29, 1.1 m
 
 
+def seen(z: np.ndarray, radar: bool = False) -> Observations:
+    """Observations ``z`` of 10 m noise, each its detection (position updates), or a radar's linearized
+    updates (``radar``: compared with nothing)."""
+    k, m = z.shape
+    H = np.tile(np.full((m, 2 * m), 0.5) if radar else np.eye(m, 2 * m), (k, 1, 1))
+    return Observations(z, np.tile(100.0 * np.eye(m), (k, 1, 1)), H, np.zeros(k, dtype=bool))
+
+
 def test_feed_copies_rules() -> None:
     """The copy test on observations alone: equal within 1e-3 of their sigma, not beyond; quantized honest
     detections sharing one value of ten each scan are no copy; the second to arrive is the copy, whichever sensor
     it is; three comparisons in a row that disagree release it, and so does the original's departure;
-    a radar's 3-D observations beside a position sensor's at the same time are compared with nothing
-    (they raised ValueError, ending a replay of a radar and position sensors scanning together)."""
+    a radar's updates (linearized about its track, which a federated copy's resets move) are left out
+    and its starts compared; a radar's 3-D observations beside a position sensor's at the same time
+    are compared with nothing (they raised ValueError, ending a replay of a radar and position
+    sensors scanning together)."""
     rng = np.random.default_rng(5)
     z, tol = rng.uniform(-5e3, 5e3, (10, 2)), np.full((10, 2), 0.01)  # 1e-3 of 10 m
     assert equal_rows(z, tol, z * (1 + 4e-16)) == 10 and equal_rows(z, tol, z + [0.0, 0.011]) == 0
     assert equal_rows(z, tol, np.flipud(z)[:4] + 0.009) == 4 and equal_rows(z, tol, np.zeros((0, 2))) == 0
-    R = np.tile(100.0 * np.eye(2), (10, 1, 1))  # 10 m noise
     quantized = FeedCopies(max_lag=3.0)
     for t in range(10):
         a, b = np.round(rng.uniform(-5e3, 5e3, (2, 10, 2)))
         b[0] = a[3]  # one detection of ten in common every scan
-        assert not quantized.is_copy("s1", float(t), a, R) and not quantized.is_copy("s2", float(t), b, R)
+        assert not quantized.is_copy("s1", float(t), seen(a)) and not quantized.is_copy("s2", float(t), seen(b))
     feeds = FeedCopies(max_lag=3.0)
     for t in range(3):  # s9's reports arrive first: s1 is taken for the copy (the first to arrive is kept)
         z = rng.uniform(-5e3, 5e3, (6, 2))
-        assert not feeds.is_copy("s9", float(t), z, R[:6])
-        assert feeds.is_copy("s1", float(t), z, R[:6]) == (t == 2)
+        assert not feeds.is_copy("s9", float(t), seen(z))
+        assert feeds.is_copy("s1", float(t), seen(z)) == (t == 2)
     z = rng.uniform(-5e3, 5e3, (6, 2))
-    assert feeds.is_copy("s1", 3.0, z, R[:6]) and not feeds.is_copy("s9", 3.0, z, R[:6])  # either order
+    assert feeds.is_copy("s1", 3.0, seen(z)) and not feeds.is_copy("s9", 3.0, seen(z))  # either order
     assert feeds.drain() == [Found(2.0, "s1", "s9", True)]
     for t in range(4, 7):  # three comparisons that disagree release s1
-        assert not feeds.is_copy("s9", float(t), rng.uniform(-5e3, 5e3, (6, 2)), R[:6])
-        assert feeds.is_copy("s1", float(t), rng.uniform(-5e3, 5e3, (6, 2)), R[:6]) == (t < 6)
+        assert not feeds.is_copy("s9", float(t), seen(rng.uniform(-5e3, 5e3, (6, 2))))
+        assert feeds.is_copy("s1", float(t), seen(rng.uniform(-5e3, 5e3, (6, 2)))) == (t < 6)
     assert feeds.drain() == [Found(6.0, "s1", "s9", False)]
     for t in range(7, 10):
         z = rng.uniform(-5e3, 5e3, (6, 2))
-        assert not feeds.is_copy("s1", float(t), z, R[:6])
-        assert feeds.is_copy("s9", float(t), z, R[:6]) == (t == 9)
+        assert not feeds.is_copy("s1", float(t), seen(z))
+        assert feeds.is_copy("s9", float(t), seen(z)) == (t == 9)
     feeds.drop("s1")  # the original left: its copy is fused again
     assert not feeds.copy_of and feeds.drain() == [Found(9.0, "s9", "s1", True)]
+    federated = FeedCopies(max_lag=3.0)  # a radar copy's linearized updates differ (1 m), its starts do not
+    for t in range(3):
+        r1 = seen(rng.uniform(-5e3, 5e3, (6, 3)), radar=True)
+        r9 = r1._replace(z=r1.z + np.repeat([[0.0], [1.0]], [2, 4], axis=0), started=np.arange(6) < 2)
+        assert not federated.is_copy("r1", float(t), r1) and federated.is_copy("r9", float(t), r9) == (t == 2)
     mixed = FeedCopies(max_lag=3.0)  # a radar's observations beside a position sensor's at one time
-    assert not mixed.is_copy("r1", 0.0, np.zeros((3, 3)), np.tile(np.eye(3), (3, 1, 1)))
-    assert not mixed.is_copy("s2", 0.0, np.zeros((3, 2)), R[:3])
+    assert not mixed.is_copy("r1", 0.0, seen(np.zeros((3, 3))))
+    assert not mixed.is_copy("s2", 0.0, seen(np.zeros((3, 2))))

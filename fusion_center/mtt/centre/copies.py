@@ -4,18 +4,20 @@ The centre never sees the scans, but a report carries the data behind it: each d
 observation ``(H, R, z)``. For a position sensor ``z`` is the detection itself (a start's, exactly; an
 update's ``nu + H x0``, the detection up to round-off), and so is jipda's equivalent observation of a
 track with one detection in its gate (its ``R`` is not the scan's); a radar's update is linearized
-about the track's prediction ``x0``. A copied feed's tracker gets the same scans at the same times, so
-its observations equal the original's to round-off, or, federated, where the centre's resets move
-the copy's tracks (and a radar's ``x0``) away from the original's, to far below their noise. The
-tracks, covariances and ``R`` are no test (equal ``R`` and periods are what honest sensors of one
-make share); two independent sensors' noisy detections differ by their noise.
+about the track's prediction ``x0``, and only its starts are the detection. A copied feed's tracker
+gets the same scans at the same times, so these observations equal the original's to round-off,
+federated too, where the centre's resets move the copy's tracks (and a radar's ``x0``, its updates'
+``z`` by about a tenth of their noise) away from the original's. The tracks, covariances and ``R``
+are no test (equal ``R`` and periods are what honest sensors of one make share); two independent
+sensors' noisy detections differ by their noise.
 
 A report of ``s`` at ``t`` is compared with every report another sensor ``o`` made at the very same
 ``t`` (held for ``max_lag``), of the same observation size: it agrees when at least one, and at least
-half, of its first ``SAMPLE`` observations each equal one of ``o``'s within ``TOLERANCE`` of their own
-standard deviation in every coordinate (:func:`equal_rows`; the half keeps apart honest sensors whose
-detections are quantized, which may share a value now and then; the sample bounds the cost, a sort of
-64 rows and a look-up of ``o``'s, made only when two sensors report at the same time). ``REPEAT``
+half, of its first ``SAMPLE`` observations that are detections (:func:`sample`) each equal one of
+``o``'s within ``TOLERANCE`` of their own standard deviation in every coordinate (:func:`equal_rows`;
+the half keeps apart honest sensors whose detections are quantized, which may share a value now and
+then; the sample bounds the cost, a sort of 64 rows and a look-up of ``o``'s, made only when two
+sensors report at the same time). ``REPEAT``
 agreeing comparisons of the pair in a row make the two one feed: the sensor whose report came second
 is the copy, and from then on none of its reports is fused
 (:class:`~.track_to_track.TrackToTrackCentre` counts them ``copies``; its local tracks leave their
@@ -31,8 +33,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-TOLERANCE = 1e-3  # of an observation's standard deviation per coordinate: a copy's differ by round-off (7e-15 m),
-# a federated radar copy's linearized ones by 1e-4 m (its tracker's resets move the linearization point)
+TOLERANCE = 1e-3  # of an observation's standard deviation per coordinate: a copy's differ by round-off (7e-15 m)
 SAMPLE = 64  # a report's observations compared (its first): a copy's agree all but a few, honest ones none
 REPEAT = 3  # agreeing comparisons of a pair in a row that make them one feed; disagreeing ones that release it
 
@@ -67,14 +68,30 @@ def equal_rows(z: np.ndarray, tol: np.ndarray, other: np.ndarray) -> int:
     return int(np.count_nonzero(hit))
 
 
-def agrees(z: np.ndarray, R: np.ndarray, other: np.ndarray) -> bool:
-    """Whether a report's observations ``z`` (covariances ``R``) are another sensor's ``other``: at least
-    one, and at least half, of its first ``SAMPLE`` equal one of ``other``'s within ``TOLERANCE`` of their
-    own standard deviation in every coordinate (:func:`equal_rows`)."""
-    sample = z[:SAMPLE]
-    tol = TOLERANCE * np.sqrt(np.diagonal(R[:SAMPLE], axis1=1, axis2=2))
-    n = equal_rows(sample, tol, other)
-    return n >= 1 and 2 * n >= len(sample)
+class Observations(NamedTuple):
+    """A report's observations: ``z`` (K, m), ``R`` (K, m, m), ``H`` (K, m, d) and ``started`` (K,) bool."""
+
+    z: np.ndarray
+    R: np.ndarray
+    H: np.ndarray
+    started: np.ndarray
+
+
+def sample(obs: Observations) -> tuple[np.ndarray, np.ndarray]:
+    """The first ``SAMPLE`` observations that are the detection itself (a start, or an update whose ``H``
+    selects coordinates: a radar's update is linearized about its track's prediction, which the
+    centre's resets move in a federated copy's tracker) and their tolerances (``TOLERANCE`` of each
+    coordinate's standard deviation)."""
+    raw = obs.started | ((obs.H == 0.0) | (obs.H == 1.0)).all(axis=(1, 2))
+    rows = np.flatnonzero(raw)[:SAMPLE]
+    return obs.z[rows], TOLERANCE * np.sqrt(np.diagonal(obs.R[rows], axis1=1, axis2=2))
+
+
+def agrees(z: np.ndarray, tol: np.ndarray, other: np.ndarray) -> bool:
+    """Whether a report's sample ``z`` (tolerances ``tol``: :func:`sample`) is another sensor's observations
+    ``other``: at least one, and at least half, of its rows equal one of ``other``'s (:func:`equal_rows`)."""
+    n = equal_rows(z, tol, other)
+    return n >= 1 and 2 * n >= len(z)
 
 
 @dataclass
@@ -90,10 +107,10 @@ class FeedCopies:
     newest: float = -math.inf
     found: list[Found] = field(default_factory=list)  # not yet logged (drained)
 
-    def is_copy(self, sensor: str, t: float, z: np.ndarray, R: np.ndarray) -> bool:
-        """Compare ``sensor``'s report at ``t`` (its observations ``z``, covariances ``R``) with the other
-        sensors' at ``t``;
+    def is_copy(self, sensor: str, t: float, obs: Observations) -> bool:
+        """Compare ``sensor``'s report at ``t`` (its observations ``obs``) with the other sensors' at ``t``;
         returns whether ``sensor`` copies another's feed (its report not to be fused)."""
+        z = obs.z
         if not len(z) or t < self.newest - self.max_lag:  # no observation tells nothing; too old (and late)
             return sensor in self.copy_of
         if t > self.newest:
@@ -101,9 +118,12 @@ class FeedCopies:
             for old in [k for k in self.held if k < t - self.max_lag]:
                 del self.held[old]
         same_t = self.held.setdefault(t, {})
+        mine = None
         for other, zo in same_t.items():
-            if other != sensor:  # observations of another size (a radar's beside a position sensor's) are no copy
-                self._compare(sensor, other, zo.shape[1] == z.shape[1] and agrees(z, R, zo), t)
+            if other != sensor and zo.shape[1] == z.shape[1]:  # a radar's beside a position sensor's: no copy
+                mine = sample(obs) if mine is None else mine
+                if len(mine[0]):  # updates of a radar alone tell nothing
+                    self._compare(sensor, other, agrees(*mine, zo), t)
         same_t[sensor] = z
         return sensor in self.copy_of
 

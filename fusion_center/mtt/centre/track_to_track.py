@@ -66,7 +66,7 @@ import numpy as np
 from fedtrack.fusion_center.mtt.central_track import CentralTracks, DepartedTracks, padded
 from fedtrack.fusion_center.mtt.centre.association import CentreAssociation, LocalKey
 from fedtrack.fusion_center.mtt.centre.consistency import SensorConsistency, normalized_innovations, window_seconds
-from fedtrack.fusion_center.mtt.centre.copies import FeedCopies
+from fedtrack.fusion_center.mtt.centre.copies import FeedCopies, Observations
 from fedtrack.fusion_center.mtt.centre.track_life import CentreLife, needs_local_confirmation
 from fedtrack.fusion_center.mtt.silence import INTERVALS_KEPT, silence_bound, usual_intervals
 from fedtrack.local_filters.linear.gating import track_difference_d2
@@ -320,8 +320,9 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
     def _copied(self, report: LocalReport, rows: np.ndarray | None) -> bool:
         """Whether the report's sensor copies another's feed (its observations of ``rows`` compared)."""
         was = report.sensor in self.copies.copy_of
-        obs = slice(None) if rows is None else rows[report.detected]
-        copy = self.copies.is_copy(report.sensor, report.t, report.obs_z[obs], report.obs_R[obs])
+        k = slice(None) if rows is None else rows[report.detected]
+        obs = Observations(report.obs_z[k], report.obs_R[k], report.obs_H[k], report.started[k])
+        copy = self.copies.is_copy(report.sensor, report.t, obs)
         if copy and not was:
             self._forget(report.sensor)
         self.counters.copying_sensors = len(self.copies.copy_of)
