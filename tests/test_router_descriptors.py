@@ -15,18 +15,20 @@ from __future__ import annotations
 import logging
 import subprocess
 import sys
+import threading
 from collections import Counter
 from pathlib import Path
 
 import pytest
+from support import free_port
 from test_hostile_monitor import sample
 
 from fedtrack.deploy.launcher import Launcher
 from fedtrack.deploy.settings import load_settings
 from fedtrack.services import router as router_module
-from fedtrack.services.router import Router
+from fedtrack.services.router import Router, sessions_by_identity
 from fedtrack.wire import Health, encode
-from fedtrack.zsession import SessionOptions
+from fedtrack.zsession import SessionOptions, close_session, open_session
 
 pytestmark = pytest.mark.faults
 
@@ -53,6 +55,25 @@ def test_descriptors_counts_up_to_the_limit() -> None:
     assert limit == limit_full == 64 and 3 <= used < 64 and used_full == 64
 
 
+def test_a_router_counts_more_sessions_than_a_zenoh_channel_holds() -> None:
+    """A router with 260 client sessions counts them all at once. Read from its admin space (before
+    2026-11-27), whose replies its own ``get`` queues into a channel of 256, the count never returned:
+    the router's tick hung for good beyond 256 sessions (here, from a thread, it fails within 10 s)."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = open_session(SessionOptions(mode="router", connect=(), listen=(endpoint,)))
+    clients = []
+    try:
+        clients = [open_session(SessionOptions(connect=(endpoint,))) for _ in range(260)]
+        counted: list[Counter[str]] = []
+        reader = threading.Thread(target=lambda: counted.append(sessions_by_identity(router)), daemon=True)
+        reader.start()
+        reader.join(10.0)
+        assert counted == [Counter({"": 260})]  # no certificate on these links
+    finally:
+        for session in [*clients, router]:
+            close_session(session)
+
+
 def test_a_router_that_takes_no_session_says_why_once_and_again_when_it_does(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
     """Ticks out of descriptors, then with every session place taken (``max_sessions`` 16 of the router's
@@ -71,7 +92,7 @@ def test_a_router_that_takes_no_session_says_why_once_and_again_when_it_does(
     config = tmp_path / "router.json5"
     config.write_text('{"transport": {"unicast": {"max_sessions": 16}}}')
     svc = Router("router", SessionOptions(mode="router", connect=(), config_file=str(config)), deployment="fd")
-    svc.session = object()  # type: ignore[assignment]  # the admin space is read through sessions_by_identity
+    svc.session = object()  # type: ignore[assignment]  # its links are read through sessions_by_identity
     statuses = []
     with caplog.at_level(logging.INFO, logger="fedtrack.router.router"):
         for _ in range(5):

@@ -103,7 +103,7 @@ def test_one_identity_opens_no_more_sessions_than_the_router_takes_for_the_deplo
     sends: 400 of sensor 2's, at 20 kB and 100 Hz, took the recorder's tracks from p50 0.5 ms to 1.16 s
     (p99 1.86 s); the router took up to Zenoh's 1,000. It now takes ``SESSIONS_PER_IDENTITY`` per identity
     of the deployment (here 4 x 4: router, fusion, sensor 2, the launcher) and refuses the next, while the
-    sessions it has go on. The router's admin space names each session's identity (its Health status says
+    sessions it has go on. The router's links name each session's identity (its Health status says
     which holds the most when every place is taken: ``tests/test_router_descriptors.py``)."""
     keys = Keys("x")
     with secure_router(tmp_path, keys, ["fusion", "sensor-2"]) as bus:

@@ -36,8 +36,6 @@ from fedtrack.keys import DEFAULT_DEPLOYMENT
 from fedtrack.services.base import Service, service_kwargs, service_parser
 from fedtrack.zsession import DEFAULT_ROUTER, SessionOptions, load_config_file
 
-ADMIN_TIMEOUT_S = 0.5  # the router's own admin space answers locally, in milliseconds
-
 
 def descriptors() -> tuple[int, int]:
     """``(open, limit)``: this process's open file descriptors (``/proc/self/fd``, less the one
@@ -52,14 +50,12 @@ def descriptors() -> tuple[int, int]:
 
 
 def sessions_by_identity(session: zenoh.Session) -> Counter[str]:
-    """The sessions open at the router of ``session`` by identity: its admin space lists each
-    session's link (one a session: ``max_links`` 1) with the certificate's common name
-    (``auth_identifier``; ``""`` on a link without one)."""
-    held: Counter[str] = Counter()
-    for reply in session.get(f"@/{session.zid()}/session/transport/unicast/*/link/*", timeout=ADMIN_TIMEOUT_S):
-        if reply.ok is not None:
-            held[json.loads(reply.ok.payload.to_string()).get("auth_identifier") or ""] += 1
-    return held
+    """The sessions open at the router of ``session`` by identity: its links (``session.info.links()``,
+    one a session: ``max_links`` 1) by the certificate's common name (``auth_identifier``; ``""`` on a
+    link without one). Before 2026-11-27 they were read from its admin space, which answers inside
+    ``get`` into get's channel of 256 replies: with more than 256 sessions the router's tick blocked
+    for good (no Health, no stop), and with 1,000 one call cost 0.7 s (0.5 s of CPU) against 1 ms now."""
+    return Counter(link.auth_identifier or "" for link in session.info.links())
 
 
 class Router(Service):
