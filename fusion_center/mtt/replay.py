@@ -155,7 +155,8 @@ def counter_lines(counts: dict[str, int]) -> list[str]:
                      "the same times), not fused")
     if "centre_inconsistency_onsets" in counts:
         lines.append(f"{counts['centre_inconsistency_onsets']} sensors flagged inconsistent (innovations against the "
-                     f"others' beyond the {FALSE_ALARM:g} test), {counts['centre_inconsistent_sensors']} still flagged at the end")
+                     f"others' beyond the {FALSE_ALARM:g} test), {counts['centre_inconsistent_sensors']} still "
+                     "flagged at the end")
     if "centre_handed_over" in counts:
         lines.append(f"{counts['centre_handed_over']} central tracks handed over between regions")
     return lines
