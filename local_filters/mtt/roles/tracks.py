@@ -106,11 +106,14 @@ class Observation(NamedTuple):
 
 
 def empty_tracks(dim: int) -> TrackSet:
+    """No tracks, of state dimension ``dim``."""
     return TrackSet(np.zeros(0, np.int64), np.zeros((0, dim)), np.zeros((0, dim, dim)), np.zeros(0, np.int64),
                     np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, bool))
 
 
 def concat(a: TrackSet, b: TrackSet) -> TrackSet:
+    """The tracks of ``a`` then ``b``, each per-track state joined (kept from the side that has tracks
+    where the other's is None)."""
     extras = []  # the per-track states beside x, P (None on an empty side: its tracker had no tracks)
     for u, v, join in ((a.man, b.man, maneuver.concat), (a.inputs, b.inputs, detector.concat),
                        (a.existence, b.existence, lambda u, v: np.concatenate([u, v])),
