@@ -24,6 +24,7 @@ from fedtrack.services.rejections import clip
 from fedtrack.wire import FusedTrack, Health, M, Measurement, TrackPicture, WireError, decode
 from fedtrack.zsession import SessionError, SessionOptions, open_session
 
+FINAL_STATUSES = ("stopped", "failed")  # a service's last Health status (fedtrack.services.base)
 RATE_WINDOW_S = 5.0  # the progress line's per-sensor rates: scans a second over the last 5 s (over the whole
 # run before 2026-11-27, so a sensor killed at 60 s still showed 1/s at 90 s and one joining at 30 s 0/s)
 
@@ -179,7 +180,8 @@ class Monitor:
 
     def _on_health(self, sample: zenoh.Sample) -> None:
         """A service's Health: its counters kept for the summary; a router's status said when it changes
-        (out of file descriptors: :mod:`fedtrack.services.router`)."""
+        (out of file descriptors: :mod:`fedtrack.services.router`), but for its last (the launcher says
+        a process's end itself)."""
         h = self._monitored(sample, Health, lambda h: self.keys.health(h.role, h.id))
         if h is None:
             return
@@ -189,7 +191,7 @@ class Monitor:
             said = self._router_status.get(name, "ok")
             if h.role == "router":
                 self._router_status[name] = h.status
-        if h.role == "router" and h.status != said:
+        if h.role == "router" and h.status != said and h.status not in FINAL_STATUSES:
             self._say(f"{name}: {clip(h.status)}")
 
     def _status_line(self, start: float) -> str:

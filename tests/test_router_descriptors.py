@@ -110,13 +110,14 @@ def test_a_router_that_takes_no_session_says_why_once_and_again_when_it_does(
 def test_the_launcher_says_a_routers_status_when_it_changes(tmp_path: Path, capsys: pytest.CaptureFixture[str]
                                                             ) -> None:
     """The launcher's monitor says a router's Health status once per change (not every second), and
-    another service's status never (the centre's ``inconsistent sensors`` is its own report's)."""
+    another service's status never (the centre's ``inconsistent sensors`` is its own report's), nor the
+    router's last, ``stopped`` (every run's end said 'router/router: stopped')."""
     cfg = tmp_path / "c.toml"
     cfg.write_text('[deployment]\nname = "fd"\n')
     launcher = Launcher(load_settings(cfg), [], quiet=True)
     out = "out of file descriptors (40 open, RLIMIT_NOFILE 40): new sessions are refused"
     for seq, (role, status) in enumerate([("router", "ok"), ("router", out), ("router", out), ("router", "ok"),
-                                          ("mtt-centre", "inconsistent sensors: s1")]):
+                                          ("mtt-centre", "inconsistent sensors: s1"), ("router", "stopped")]):
         h = Health(role=role, id="r", seq=seq, counters={"received": 0}, status=status)
         launcher._on_health(sample(launcher.keys.health(role, "r"), encode(h)))
     said = [line for line in capsys.readouterr().err.splitlines() if line]
