@@ -16,12 +16,13 @@ import msgpack
 import numpy as np
 import pytest
 
+from fedtrack.config import ConfigError
 from fedtrack.fusion_center.centre import DecentralizedCentre, FederatedCentre
 from fedtrack.fusion_center.service import FusionCenterService
 from fedtrack.fusion_center.snapshot import SNAPSHOT_MAGIC, snapshot_data
 from fedtrack.keys import Keys
 from fedtrack.local_filters.vdie.config import FusionConfig
-from fedtrack.local_filters.vdie.estimation import VdieParams
+from fedtrack.local_filters.vdie.estimation import MAX_WINDOW, VdieParams
 from fedtrack.services.snapshot import DIGEST_BYTES, unsealed, write_sealed
 from fedtrack.wire import FusedTrack, LocalEstimate, encode
 from fedtrack.zsession import SessionOptions
@@ -197,3 +198,20 @@ def test_a_cut_tampered_or_wrong_shape_snapshot_is_refused_and_the_centre_starts
         assert svc.counters["snapshot_refused"] == 1, reason
         (message, *args), = [c.args for c in warn.call_args_list]
         assert reason in message % tuple(args), (reason, message % tuple(args))
+
+
+def test_the_largest_detector_window_a_config_takes_still_resumes_from_its_snapshot(tmp_path: Path) -> None:
+    """``[fusion.vdie] window`` and ``p`` are bounded (MAX_WINDOW): beyond, the snapshot's arrays outgrew
+    the wire's size limits its reader applies, so every restart started fresh."""
+    with pytest.raises(ConfigError, match=f"window: must be between 1 and {MAX_WINDOW}"):
+        VdieParams(window=MAX_WINDOW + 1).validate()
+    with pytest.raises(ConfigError, match=f"p: must be between 1 and {MAX_WINDOW}"):
+        VdieParams(p=MAX_WINDOW + 1).validate()
+    config = FusionConfig(vdie=VdieParams(window=MAX_WINDOW, p=MAX_WINDOW))
+    estimates, _ = stream()
+    first = centre(tmp_path, config=config)
+    fed(first, [e for e in estimates if e.seq <= 31])
+    again = centre(tmp_path, config=config)
+    again._restore()
+    assert again.restored and again.counters.get("snapshot_refused", 0) == 0
+    assert again.last_track is not None and again.last_track.seq == 31

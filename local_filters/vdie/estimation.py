@@ -67,6 +67,14 @@ def sigma_to_chi2(k_sigma: float, dof: int) -> float:
     return float(chdtri(dof, 2.0 * ndtr(-k_sigma)))  # chi2.isf(2 norm.sf(k), dof), without scipy.stats
 
 
+# scans of the detector's window and of the return test, at most: every scan tests each of the window's
+# candidate onsets, and the state (a snapshot's arrays, a hand-over's) grows with both; 1,000 scans is
+# minutes of data at any sensor's rate, far beyond a maneuver's onset (the paper's window is 6), and
+# keeps a centre's snapshot inside the wire's size limits that its reader applies (a window of 6,145
+# or more made every snapshot too large to be read back)
+MAX_WINDOW = 1000
+
+
 @dataclass(frozen=True)
 class VdieParams:
     """Maneuver-detection parameters (paper 004 section IV: window 6, p = 2, "3 sigma", "0.5 sigma").
@@ -90,10 +98,10 @@ class VdieParams:
     detect_correction: str = "sidak"
 
     def validate(self) -> None:
-        if self.window < 1:
-            raise ConfigError("window: must be >= 1")
-        if self.p < 1:
-            raise ConfigError("p: must be >= 1")
+        if not 1 <= self.window <= MAX_WINDOW:
+            raise ConfigError(f"window: must be between 1 and {MAX_WINDOW}")
+        if not 1 <= self.p <= MAX_WINDOW:
+            raise ConfigError(f"p: must be between 1 and {MAX_WINDOW}")
         if not 1 <= self.min_samples <= self.window:
             raise ConfigError("min_samples: must be between 1 and window")
         if not self.detect_sigma > 0:
