@@ -163,12 +163,14 @@ def test_a_scan_ahead_of_every_other_sensor_waits_and_is_taken_in_time_order() -
     assert crowd.end() == HELD_MAX and crowd.dropped == HELD_MAX + 5
 
 
-def one_track_report(sensor: str, seq: int, t: float) -> TrackReport:
-    """A report of one confirmed local track (id 1) of a target at (10 t, 0) moving at 10 m/s."""
+def one_track_report(sensor: str, seq: int, t: float, noise: float = 0.0) -> TrackReport:
+    """A report of one confirmed local track (id 1) of a target at (10 t, 0) moving at 10 m/s, its
+    detection ``noise`` m off in y (two sensors' reports with equal detections are one feed copied)."""
     x = np.array([[10.0 * t, 10.0, 0.0, 0.0]])
     return TrackReport(sensor=sensor, seq=seq, t=t, ids=(1,), x=x, P=np.diag([25.0, 4.0, 25.0, 4.0]),
                        confirmed=(True,), detected=(True,), obs_H=np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]]),
-                       obs_R=np.eye(2) * 25.0, obs_z=x[:, [0, 2]], started=(False,), retired=(), stamp_ns=1)
+                       obs_R=np.eye(2) * 25.0, obs_z=x[:, [0, 2]] + [0.0, noise], started=(False,), retired=(),
+                       stamp_ns=1)
 
 
 def test_sensors_that_left_leave_no_column_behind() -> None:
@@ -190,10 +192,10 @@ def test_sensors_that_left_leave_no_column_behind() -> None:
             bus.put(KEYS.mtt_report(f"r{i}"), encode(one_track_report(f"r{i}", k, t)))
         svc.gone.append(f"r{i}")  # its liveliness token went
         svc.on_tick()
-    for k in range(30):  # two sensors stay
+    for k in range(30):  # two sensors stay, their detections 1 m apart (each 5 m noise)
         t += 0.5
-        for s in ("h1", "h2"):
-            bus.put(KEYS.mtt_report(s), encode(one_track_report(s, k, t)))
+        for s, noise in (("h1", 0.5), ("h2", -0.5)):
+            bus.put(KEYS.mtt_report(s), encode(one_track_report(s, k, t, noise)))
     assert svc.counters["sensors_left"] == 66 and "rejected_handler_error" not in svc.counters
     last = bus.of(TrackPicture)[-1]
     assert len(last.ids) == 1 and last.sensors == (("h1", "h2"),)
