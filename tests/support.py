@@ -7,12 +7,13 @@ import io
 import multiprocessing
 import signal
 import subprocess
+import sys
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import pytest
 
@@ -20,8 +21,8 @@ from fedtrack.deploy.demo import free_port
 
 WAIT_S = 10.0
 
-__all__ = ["WAIT_S", "Deployment", "SecureBus", "free_port", "in_parallel", "replay_evaluated", "secure_router",
-           "wait_until"]
+__all__ = ["WAIT_S", "CliOutcome", "Deployment", "SecureBus", "cli_in_process", "cli_in_subprocess", "free_port",
+           "in_parallel", "replay_evaluated", "secure_router", "wait_until"]
 
 
 def patch_wire(monkeypatch: pytest.MonkeyPatch, name: str, value: Any) -> None:
@@ -36,6 +37,39 @@ def patch_wire(monkeypatch: pytest.MonkeyPatch, name: str, value: Any) -> None:
     assert held, f"fedtrack.wire has no {name!r}"
     for module in held:
         monkeypatch.setattr(module, name, value)
+
+
+class CliOutcome(NamedTuple):
+    """A ``fedtrack`` command's exit code and standard error."""
+
+    returncode: int
+    stderr: str
+
+
+def cli_in_subprocess(args: list[str], timeout: float = 60.0) -> CliOutcome:
+    """``python -m fedtrack.cli ARGS`` in a new interpreter, as a user runs it."""
+    proc = subprocess.run([sys.executable, "-m", "fedtrack.cli", *args], capture_output=True, text=True,
+                          timeout=timeout, check=False)
+    return CliOutcome(proc.returncode, proc.stderr)
+
+
+def cli_in_process(args: list[str], capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> CliOutcome:
+    """``fedtrack ARGS`` as ``cli.main`` in this process, without an interpreter's start-up (1-2 s a
+    command): a traceback is an exception that fails the test, and a command that would start a
+    process (``subprocess.Popen``, as launch does) fails it too instead of starting one."""
+    from fedtrack import cli
+
+    def refuse(*args: Any, **kwargs: Any) -> None:
+        raise AssertionError(f"a process was started: {args[:1]}")
+
+    with monkeypatch.context() as patched:
+        patched.setattr(subprocess, "Popen", refuse)
+        capsys.readouterr()
+        try:
+            code = cli.main(args)
+        except SystemExit as exc:  # argparse's errors
+            code = exc.code if isinstance(exc.code, int) else int(exc.code is not None)
+    return CliOutcome(code, capsys.readouterr().err)
 
 
 def wait_until(predicate: Callable[[], bool], timeout: float = WAIT_S) -> bool:

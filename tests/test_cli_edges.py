@@ -1,12 +1,17 @@
-"""Every file a command reads or writes fails cleanly: one line naming the file, exit 2, no traceback."""
+"""Every file a command reads or writes fails cleanly: one line naming the file, exit 2, no traceback.
+
+Most cases call ``cli.main`` in this process (a traceback is an exception that fails the test; no
+process may be started); one bad file per sub-command, and the deeply nested JSON, whose recursion
+limit is the interpreter's own, run ``python -m fedtrack.cli`` as a user would, for the exit code."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from support import CliOutcome, cli_in_process
+from support import cli_in_subprocess as run
 
 BAD_INPUTS = {
     "binary": lambda p: p.write_bytes(bytes(range(256)) * 4),
@@ -30,12 +35,16 @@ COMMANDS = {
 }
 
 
-def run(args: list[str], timeout: float = 60.0) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "fedtrack.cli", *args], capture_output=True, text=True,
-                          timeout=timeout)
+Run = Callable[[list[str]], CliOutcome]
 
 
-def assert_one_line_error(proc: subprocess.CompletedProcess, name: str) -> None:
+@pytest.fixture
+def run_here(capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> Run:
+    """:func:`cli_in_process` with this test's capture and patches."""
+    return lambda args: cli_in_process(args, capsys, monkeypatch)
+
+
+def assert_one_line_error(proc: CliOutcome, name: str) -> None:
     assert proc.returncode == 2, (proc.returncode, proc.stderr[-2000:])
     assert "Traceback" not in proc.stderr, proc.stderr[-2000:]
     lines = [line for line in proc.stderr.splitlines() if line.strip()]
@@ -54,23 +63,28 @@ def good(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 CASES = [(c, k) for c in ("replay measurements", "replay config") for k in sorted(BAD_INPUTS)]
 CASES += [(c, k) for c in sorted(COMMANDS) if c not in ("replay measurements", "replay config")
           for k in ("directory", "utf16")]
+# in a new process: one case per sub-command (its exit code as a shell sees it) and the deep JSON
+IN_SUBPROCESS = {("replay measurements", "deep_json"), ("replay config", "deep_json"), ("evaluate tracks", "utf16"),
+                 ("export db", "directory"), ("launch config", "directory"), ("serve config", "utf16")}
+assert IN_SUBPROCESS <= set(CASES) and {COMMANDS[c][0] for c, _ in IN_SUBPROCESS} == {a[0] for a in COMMANDS.values()}
 
 
 @pytest.mark.parametrize(("command", "kind"), CASES)
-def test_bad_input_file_is_one_line_naming_it(tmp_path: Path, good: dict[str, Path], command: str, kind: str) -> None:
+def test_bad_input_file_is_one_line_naming_it(tmp_path: Path, good: dict[str, Path], run_here: Run, command: str,
+                                              kind: str) -> None:
     bad = tmp_path / f"bad_{kind}"
     BAD_INPUTS[kind](bad)
     args = [a.format(bad=bad, out=tmp_path / "out.jsonl", **good) for a in COMMANDS[command]]
-    assert_one_line_error(run(args), bad.name)
+    assert_one_line_error(run(args) if (command, kind) in IN_SUBPROCESS else run_here(args), bad.name)
 
 
 @pytest.mark.parametrize("out_arg", [["--out", "{missing}/o.jsonl"], ["--out", "{dir}"]])
-def test_output_in_a_missing_folder_or_on_a_directory(tmp_path: Path, out_arg: list[str]) -> None:
+def test_output_in_a_missing_folder_or_on_a_directory(tmp_path: Path, run_here: Run, out_arg: list[str]) -> None:
     measurements = tmp_path / "m.jsonl"
     measurements.write_text('{"t": 0.0, "sensor": "s1", "z": [1.0, 2.0], "R": [[100.0, 0.0], [0.0, 100.0]]}\n')
     (tmp_path / "adir").mkdir()
     out = [a.format(missing=tmp_path / "nowhere", dir=tmp_path / "adir") for a in out_arg]
-    proc = run(["replay", "--algorithm", "kf", "--measurements", str(measurements), *out])
+    proc = run_here(["replay", "--algorithm", "kf", "--measurements", str(measurements), *out])
     assert_one_line_error(proc, Path(out[1]).name)
 
 
@@ -95,11 +109,12 @@ LAUNCH_CASES = {
 
 
 @pytest.mark.parametrize("case", sorted(LAUNCH_CASES))
-def test_launch_validates_the_whole_deployment_before_starting_anything(tmp_path: Path, case: str) -> None:
+def test_launch_validates_the_whole_deployment_before_starting_anything(tmp_path: Path, run_here: Run,
+                                                                        case: str) -> None:
     edit, expected = LAUNCH_CASES[case]
     config = tmp_path / "deploy.toml"
     config.write_text(edit(LAUNCH_BASE).replace("{port}", "7447"))
-    proc = run(["launch", str(config), "--out", str(tmp_path / "out")])
+    proc = run_here(["launch", str(config), "--out", str(tmp_path / "out")])
     assert_one_line_error(proc, config.name)
     assert expected in proc.stderr
     assert not (tmp_path / "out" / "logs").exists()  # no process was started
