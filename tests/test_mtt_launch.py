@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from support import assert_same_pictures, free_port
+from support import assert_same_pictures, cli_in_process, free_port
 
 from fedtrack.fusion_center.mtt.replay import replay_mtt
 
@@ -127,12 +127,14 @@ def test_a_sensor_joins_and_another_is_killed_during_a_launch(tmp_path: Path) ->
     ("pd = 1.5", "multitarget.pd: must be in (0, 1], got 1.5"),
     ("pd = nan", "multitarget.pd: must be in (0, 1], got nan"),
 ])
-def test_a_wrong_join_or_kill_schedule_fails_at_start(tmp_path: Path, extra: str, field: str) -> None:
+def test_a_wrong_join_or_kill_schedule_fails_at_start(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                     monkeypatch: pytest.MonkeyPatch, extra: str, field: str) -> None:
+    """In this process (starting a process fails the test); the exit code as a shell sees it: the
+    test above, also a launch refused at start."""
     config = tmp_path / "mtt.toml"
     config.write_text(CONFIG.format(port=free_port(), algorithm="mtt-federated").replace(
         "duration = 16.0", f"duration = 16.0\n{extra}"))
-    proc = subprocess.run([sys.executable, "-m", "fedtrack.cli", "launch", str(config), "--out", str(tmp_path / "o")],
-                          capture_output=True, text=True, timeout=60)
+    proc = cli_in_process(["launch", str(config), "--out", str(tmp_path / "o")], capsys, monkeypatch)
     assert proc.returncode == 2 and field in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1
 
