@@ -198,15 +198,25 @@ def test_every_package_folder_is_installed() -> None:
     assert found == listed, f"missing: {sorted(found - listed)}, stale: {sorted(listed - found)}"
 
 
-@pytest.mark.parametrize("service", ["fedtrack.fusion_center.mtt.service", "fedtrack.local_filters.mtt.service",
-                                     "fedtrack.fusion_center.mtt.picture_merge"])
-def test_multi_target_services_do_not_import_scipy_stats(service: str) -> None:
+MULTI_TARGET_SERVICES = ("fedtrack.fusion_center.mtt.service", "fedtrack.local_filters.mtt.service",
+                         "fedtrack.fusion_center.mtt.picture_merge")
+
+
+def test_multi_target_services_do_not_import_scipy_stats() -> None:
     """``scipy.stats`` adds about 20 MB to a process and its distributions cost about 60 us a call: the
     consistency monitor's F tail from it raised every region centre's RSS from 87 to 108 MB after import
-    and its per-report cost (issue 27's load bars); what the services need is in ``scipy.special``."""
+    and its per-report cost (issue 27's load bars); what the services need is in ``scipy.special``.
+    One fresh interpreter imports the services in turn, asked after each: an import only adds to
+    ``sys.modules``, so the first service that answers True is one that imports it."""
     import subprocess
     import sys
 
-    code = f"import sys, {service}; print('scipy.stats' in sys.modules)"
+    code = ("import importlib, sys\n"
+            f"for name in {MULTI_TARGET_SERVICES!r}:\n"
+            "    importlib.import_module(name)\n"
+            "    print(name, 'scipy.stats' in sys.modules)\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True)
-    assert out.stdout.strip() == "False", f"{service} imports scipy.stats"
+    answers = dict(line.split() for line in out.stdout.splitlines())
+    assert list(answers) == list(MULTI_TARGET_SERVICES), out.stdout
+    importing = [name for name, answer in answers.items() if answer != "False"]
+    assert not importing, f"{importing[0]} imports scipy.stats"
