@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from support import Deployment, wait_until
+from support import Deployment, cli_in_process, wait_until
 
 from fedtrack.fusion_center.replay import replay_fusion
 from fedtrack.jsonl import InputError
@@ -32,7 +32,8 @@ def scan(sensor: str, seq: int, n: int) -> Measurement:
                        detections=tuple(Detection(z=np.array([float(i), 0.0]), amplitude=0.0) for i in range(n)))
 
 
-def test_rows_are_stored_once_and_export_in_scan_order(tmp_path: Path) -> None:
+def test_rows_are_stored_once_and_export_in_scan_order(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                       monkeypatch: pytest.MonkeyPatch) -> None:
     db = tmp_path / "r.db"
     rec = Recording(db)
     late = meas("b", 0, 0.0)
@@ -64,12 +65,11 @@ def test_rows_are_stored_once_and_export_in_scan_order(tmp_path: Path) -> None:
     assert rows[1]["z"] == [1.0, 2.0]  # the first of the conflicting pair stays
     assert json.loads(tracks.read_text())["sensors"] == ["a", "b"]
 
-    for args, what in (([*cli, "--out", str(tmp_path / "missing" / "m.jsonl")], "does not exist"),
-                       ([sys.executable, "-m", "fedtrack.cli", "export", "--db", str(tmp_path / "none.db"),
-                         "--out", str(out)], "no such recording database"),
-                       ([sys.executable, "-m", "fedtrack.cli", "export", "--db", str(out), "--out",
-                         str(tmp_path / "x.jsonl")], "not a fedtrack recording")):
-        bad = subprocess.run(args, capture_output=True, text=True, timeout=60)
+    # the refusals in this process (the exit code as a shell sees it: the export above)
+    for args, what in ((["--db", str(db), "--out", str(tmp_path / "missing" / "m.jsonl")], "does not exist"),
+                       (["--db", str(tmp_path / "none.db"), "--out", str(out)], "no such recording database"),
+                       (["--db", str(out), "--out", str(tmp_path / "x.jsonl")], "not a fedtrack recording")):
+        bad = cli_in_process(["export", *args], capsys, monkeypatch)
         assert bad.returncode == 2 and what in bad.stderr and "Traceback" not in bad.stderr, bad.stderr
 
 
