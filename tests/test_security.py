@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from support import Deployment, secure_router, wait_until
+from support import Deployment, cli_in_process, secure_router, wait_until
 
 from fedtrack.config import ConfigError
 from fedtrack.deploy.access_control import access_control, identity
@@ -220,14 +220,15 @@ def test_each_identity_reads_only_what_its_roles_read(tmp_path: Path) -> None:
     ('router_listen = "tcp/0.0.0.0:7447"', "deployment.router_listen"),
     ('router_listen = ""\nconnect = ["tcp/127.0.0.1:7447", "tcp/host-a:7447"]', "deployment.connect"),
 ])
-def test_launch_refuses_plain_endpoints_off_loopback(tmp_path: Path, table: str, field: str) -> None:
+def test_launch_refuses_plain_endpoints_off_loopback(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                    monkeypatch: pytest.MonkeyPatch, table: str, field: str) -> None:
     """Authenticated by default: off loopback, plain TCP needs ``[zenoh] insecure = true`` (exit 2,
-    one line naming the file and the field, before anything starts); with it the check passes."""
+    one line naming the file and the field, before anything starts); with it the check passes.
+    Launched in this process (support.cli_in_process: starting a process fails the test)."""
     cfg = tmp_path / "c.toml"
     body = f'[deployment]\n{table}\n[[sensor]]\nid = "1"\n'
     cfg.write_text(body)
-    done = subprocess.run([sys.executable, "-m", "fedtrack.cli", "launch", str(cfg), "--out", str(tmp_path / "o")],
-                          capture_output=True, text=True, timeout=60, check=False)
+    done = cli_in_process(["launch", str(cfg), "--out", str(tmp_path / "o")], capsys, monkeypatch)
     assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
     assert done.stderr.startswith(f"fedtrack: error: {cfg}: {field}: ") and "off loopback" in done.stderr and "insecure" in done.stderr
     assert not (tmp_path / "o").exists()
@@ -279,12 +280,13 @@ def test_launch_takes_a_zenoh_config_that_makes_tls_mutual_off_loopback(tmp_path
         launchable("missing.json5", "tls/10.47.0.1:7447")
 
 
-def test_launch_refuses_tcp_endpoints_with_tls_dir(tmp_path: Path) -> None:
+def test_launch_refuses_tcp_endpoints_with_tls_dir(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
     cfg = tmp_path / "c.toml"
     cfg.write_text('[zenoh]\ntls_dir = "certs"\n[deployment]\nrouter_listen = "tcp/127.0.0.1:1"\n'
                    '[[sensor]]\nid = "1"\n')
-    done = subprocess.run([sys.executable, "-m", "fedtrack.cli", "launch", str(cfg)], capture_output=True,
-                          text=True, timeout=60, check=False)
+    monkeypatch.chdir(tmp_path)  # launch's default --out
+    done = cli_in_process(["launch", str(cfg)], capsys, monkeypatch)
     assert done.returncode == 2 and "zenoh.tls_dir: endpoint tcp/127.0.0.1:1 is not tls/" in done.stderr
     assert str(cfg) in done.stderr and "Traceback" not in done.stderr
     with pytest.raises(ConfigError):
