@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from support import cli_in_process
 
 from fedtrack.services.base import service_kwargs, service_parser
 
@@ -121,7 +122,9 @@ def test_a_broken_certificate_is_named_before_anything_starts(tmp_path: Path, ho
     assert str(at_fault) in str(error.value) and "zenoh.tls_dir" in str(error.value)
 
 
-def test_launch_with_an_expired_certificate_is_one_line_and_starts_nothing(tmp_path: Path) -> None:
+def test_launch_with_an_expired_certificate_is_one_line_and_starts_nothing(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    """Launched in this process (support.cli_in_process: starting a process fails the test)."""
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
@@ -129,8 +132,7 @@ def test_launch_with_an_expired_certificate_is_one_line_and_starts_nothing(tmp_p
     cfg = tmp_path / "c.toml"
     cfg.write_text(f'[zenoh]\ntls_dir = "certs"\n[deployment]\nrouter_listen = "tls/127.0.0.1:{port}"\n'
                    'duration_s = 3.0\n[[sensor]]\nid = "1"\n')
-    done = subprocess.run([sys.executable, "-m", "fedtrack.cli", "launch", str(cfg), "--out", str(tmp_path / "o")],
-                          capture_output=True, text=True, timeout=120, check=False)
+    done = cli_in_process(["launch", str(cfg), "--out", str(tmp_path / "o")], capsys, monkeypatch)
     assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
     assert f"{cfg}: zenoh.tls_dir: {tmp_path / 'certs' / 'sensor-1.pem'}: expired on" in done.stderr
     assert not list((tmp_path / "o").glob("logs/*"))  # no service was started
@@ -164,7 +166,8 @@ def test_regions_an_operator_got_wrong_are_named(tmp_path: Path, polygons: list[
     assert str(error.value).startswith(f"{path}: {says}")
 
 
-def test_regions_sharing_borders_are_fine_and_a_grid_beyond_the_wire_is_refused(tmp_path: Path) -> None:
+def test_regions_sharing_borders_are_fine_and_a_grid_beyond_the_wire_is_refused(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
     from fedtrack.config import ConfigError
     from fedtrack.local_filters.regions import load_regions
 
@@ -178,8 +181,7 @@ def test_regions_sharing_borders_are_fine_and_a_grid_beyond_the_wire_is_refused(
     path.write_text("[regions]\nmargin = 10.0\ngrid = {origin = [-1e308, 0], cell = [1e308, 1], nx = 2, ny = 1}\n")
     with pytest.raises(ConfigError, match="regions.grid: the grid reaches beyond"):
         load_regions(path)
-    run = subprocess.run([sys.executable, "-m", "fedtrack.cli", "replay", "--algorithm", "mtt-decentralized",
-                          "--regions", "config", "--config", str(path), "--measurements", "/dev/null", "--out",
-                          str(tmp_path / "p.jsonl")], capture_output=True, text=True, timeout=60, check=False)
+    run = cli_in_process(["replay", "--algorithm", "mtt-decentralized", "--regions", "config", "--config", str(path),
+                          "--measurements", "/dev/null", "--out", str(tmp_path / "p.jsonl")], capsys, monkeypatch)
     assert run.returncode == 2 and len(run.stderr.strip().splitlines()) == 1, run.stderr
     assert not (tmp_path / "p.jsonl").exists()
