@@ -167,6 +167,14 @@ def two_point_state(first: Starts, pos: np.ndarray, cov: np.ndarray, k: int, dt:
     return (P @ y[..., None])[..., 0], P
 
 
+def unmeasured(tracks: TrackSet, init_velocity_std: float) -> np.ndarray:
+    """The tracks whose horizontal velocity is still more the one-point start's prior than measured:
+    a variance of either axis above half the prior's ``init_velocity_std^2`` (their detections gave
+    less information on it than the prior had; a one-point start's track with its one detection has
+    the prior's)."""
+    return np.maximum(tracks.P[:, 1, 1], tracks.P[:, 3, 3]) > 0.5 * init_velocity_std**2
+
+
 def _ball(k: int, r: np.ndarray) -> np.ndarray:
     """The volume of a ``k``-ball (2: a disc) of radii ``r``."""
     return math.pi * r**2 if k == 2 else 4.0 / 3.0 * math.pi * r**3
@@ -298,7 +306,7 @@ def initiate(starts: Starts, tracks: TrackSet, live: np.ndarray, scan: SensorSca
     if params.max_speed <= 0.0:  # no two-point starts: nothing waits
         return Initiated(one, obs, np.arange(det.size), starts, no_pairing(params.dim),
                          np.zeros(0, np.int64))
-    lone = np.flatnonzero(live & (tracks.hits == 1))
+    lone = np.flatnonzero(live & unmeasured(tracks, params.init_velocity_std))
     order = np.argsort(tracks.ids[lone], kind="stable")
     at = np.minimum(np.searchsorted(tracks.ids[lone], starts.ids, sorter=order), max(lone.size - 1, 0))
     rows = lone[order[at]] if lone.size else np.zeros(starts.ids.size, np.int64)
