@@ -13,7 +13,10 @@ one's track id, time and Cartesian position with its covariance). At a scan, a d
 track took (the tracker's own roles ran first, so a slow target's second detection went to its
 one-point track as before) pairs (:func:`pair_starts`) with a waiting start of an earlier scan when
 
-* the start's track still has its one detection (missed since: not updated, still alive),
+* the start's track is alive and its velocity still unmeasured (:func:`unmeasured`): its one
+  detection, or more that told too little of the velocity, as a fast target's next detection does
+  when it falls inside the zero-velocity start's gate (a radar's plot 100 m across at 100 km, half
+  a second later) and the track takes it with the prior's velocity,
 * the difference ``d`` of the two positions is outside the gate of the start's zero-velocity
   prediction (``init_velocity_std``): beyond what the one-point start covers, and
 * ``d`` is within the gate of the ball ``|v| dt <= max_speed dt`` (the speed bound, ``[mtt]
@@ -301,7 +304,7 @@ def initiate(starts: Starts, tracks: TrackSet, live: np.ndarray, scan: SensorSca
     ``lambda V``; counted as a second hit it let clutter pairs confirm on one more clutter hit: the
     false tracks of gnn's ``mtt-local`` on the default scenario doubled). ``tracks``, ``live``: the
     tracker's tracks (or mht's leaves) after the scan's update and life rules; a start waits while
-    its track is live with its one detection, each at most until it pairs."""
+    its track is live with its velocity unmeasured (:func:`unmeasured`), each at most until it pairs."""
     one, obs = start_tracks(scan, det, params, first_id)
     if params.max_speed <= 0.0:  # no two-point starts: nothing waits
         return Initiated(one, obs, np.arange(det.size), starts, no_pairing(params.dim),
