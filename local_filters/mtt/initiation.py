@@ -284,7 +284,8 @@ class Initiated(NamedTuple):
     """Role 5's result: the new tracks (one per detection given, then one per pair) with their
     observations and each one's detection (index into the detections given), the one-point starts
     waiting after the scan, and the scan's pairs (:func:`pair_starts`) with their starts'
-    rows in the tracks given to :func:`initiate`."""
+    rows in the tracks given to :func:`initiate` and whether each start's track still had only its
+    start's detection (``alone``)."""
 
     tracks: TrackSet
     observations: Observation
@@ -292,6 +293,7 @@ class Initiated(NamedTuple):
     starts: Starts
     pairs: Pairing
     partners: np.ndarray
+    alone: np.ndarray
 
 
 def initiate(starts: Starts, tracks: TrackSet, live: np.ndarray, scan: SensorScan, det: np.ndarray,
@@ -308,7 +310,7 @@ def initiate(starts: Starts, tracks: TrackSet, live: np.ndarray, scan: SensorSca
     one, obs = start_tracks(scan, det, params, first_id)
     if params.max_speed <= 0.0:  # no two-point starts: nothing waits
         return Initiated(one, obs, np.arange(det.size), starts, no_pairing(params.dim),
-                         np.zeros(0, np.int64))
+                         np.zeros(0, np.int64), np.zeros(0, bool))
     lone = np.flatnonzero(live & unmeasured(tracks, params.init_velocity_std))
     order = np.argsort(tracks.ids[lone], kind="stable")
     at = np.minimum(np.searchsorted(tracks.ids[lone], starts.ids, sorter=order), max(lone.size - 1, 0))
@@ -324,13 +326,14 @@ def initiate(starts: Starts, tracks: TrackSet, live: np.ndarray, scan: SensorSca
         params.dim, params.q, params.noise_model, params.max_speed, params.init_velocity_std, params.init_z_std,
         params.gate, params.pd, params.clutter_density, least_log_lr(params.pd, by_existence)))
     partners = rows[pairs.start]
+    alone = tracks.hits[partners] == 1
     waiting[pairs.start] = False
     kept = recorded(starts, waiting, one.ids, scan.t, pos, cov)
     if not pairs.det.size:
-        return Initiated(one, obs, np.arange(det.size), kept, pairs, partners)
+        return Initiated(one, obs, np.arange(det.size), kept, pairs, partners, alone)
     two, obs_two = start_tracks(scan, det[pairs.det], params, first_id + det.size, (pairs, tracks.take(partners)))
     return Initiated(concat(one, two), Observation(*(np.concatenate(u) for u in zip(obs, obs_two))),
-                     np.concatenate([np.arange(det.size), pairs.det]), kept, pairs, partners)
+                     np.concatenate([np.arange(det.size), pairs.det]), kept, pairs, partners, alone)
 
 
 def paired_log_odds(log_odds: np.ndarray, init: Initiated, partner_log_odds: np.ndarray) -> np.ndarray:
@@ -339,5 +342,9 @@ def paired_log_odds(log_odds: np.ndarray, init: Initiated, partner_log_odds: np.
     tracks given to :func:`initiate`) plus the pair's log-likelihood ratio
     ``ln(1 - P_D + P_D / (lambda V))``: the start's track updated, as jipda's and mht's own
     update of a track with one detection in its gate, by the second detection under the speed
-    bound (its density ``1 / V``) instead of the zero-velocity start's gate."""
-    return np.concatenate([log_odds, partner_log_odds[init.partners] + init.pairs.log_lr])
+    bound (its density ``1 / V``) instead of the zero-velocity start's gate. A start whose track
+    took more detections since (its velocity still unmeasured: :func:`unmeasured`) gives instead
+    the odds of a one-point start, the paired detection's own: its track's odds rose on detections
+    the pair does not take (a slow target's, where a clutter detection pairs with its start)."""
+    start = np.where(init.alone, partner_log_odds[init.partners], log_odds[init.pairs.det])
+    return np.concatenate([log_odds, start + init.pairs.log_lr])
