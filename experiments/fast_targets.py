@@ -139,10 +139,12 @@ def fast_share(tracks: Path, truth: Path) -> float:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Write ``--row``'s scenario, replay it with each associator and centre, print the table."""
     parser = argparse.ArgumentParser(prog="python -m fedtrack.experiments.fast_targets", description=__doc__)
     parser.add_argument("--row", choices=ROWS, required=True)
     parser.add_argument("--seed", type=int, default=1)
-    parser.add_argument("--out", type=Path, help="keep the scenario and the pictures here (default: a temporary folder)")
+    parser.add_argument("--out", type=Path,
+                        help="keep the scenario and the pictures here (default: a temporary folder)")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
         out = args.out or Path(tmp)
@@ -151,7 +153,8 @@ def main(argv: list[str] | None = None) -> int:
         rows = []
         for assoc in ("gnn", "jipda", "mht"):
             config = out / f"config-{assoc}.toml"
-            config.write_text((out / "config.toml").read_text().replace("[mtt]\n", f'[mtt]\nassociator = "{assoc}"\n', 1))
+            config.write_text((out / "config.toml").read_text().replace("[mtt]\n", f'[mtt]\nassociator = "{assoc}"\n',
+                                                                        1))
             for algorithm in ("mtt-centralized", "mtt-federated", "mtt-decentralized"):
                 tracks = out / f"tracks-{assoc}-{algorithm}.jsonl"
                 replay_mtt(algorithm, out / "measurements.jsonl", config, tracks)
@@ -160,7 +163,8 @@ def main(argv: list[str] | None = None) -> int:
                 share = f"{100 * fast_share(tracks, out / 'truth.jsonl'):.0f} %" if args.row == "mixed" else "-"
                 rows.append([assoc, algorithm, f"{mean['gospa']:.1f}", f"{mean['missed'] / half:.2f}",
                              f"{mean['false'] / half:.2f}", share])
-        print_table(f"{args.row}, seed {args.seed}", ["associator", "algorithm", "GOSPA", "missed", "false", "fast share"], rows)
+        print_table(f"{args.row}, seed {args.seed}",
+                    ["associator", "algorithm", "GOSPA", "missed", "false", "fast share"], rows)
     return 0
 
 

@@ -97,8 +97,8 @@ def two_radar_scans(path: Path, scans: int = 12, seed: int = 3) -> list[np.ndarr
         truth.append(p)
         rel = p - site
         r = np.linalg.norm(rel, axis=1)
-        z = np.c_[r, np.arctan2(rel[:, 1], rel[:, 0]), np.arcsin(rel[:, 2] / r)] + rng.standard_normal((4, 3)) * np.sqrt(
-            np.diag(R))
+        noise = rng.standard_normal((4, 3)) * np.sqrt(np.diag(R))
+        z = np.c_[r, np.arctan2(rel[:, 1], rel[:, 0]), np.arcsin(rel[:, 2] / r)] + noise
         rows.append({"t": t, "sensor": f"r{k % 2 + 1}", "R": R.tolist(), "sensor_position": site.tolist(),
                      "detections": [{"z": d.tolist()} for d in z]})
     path.write_text("".join(json.dumps(r) + "\n" for r in rows))
