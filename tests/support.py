@@ -67,7 +67,9 @@ def cli_in_process(args: list[str], capsys: pytest.CaptureFixture[str], monkeypa
         capsys.readouterr()
         try:
             code = cli.main(args)
-        except SystemExit as exc:  # argparse's errors
+        except SystemExit as exc:  # argparse's errors; a message the interpreter would print, exit 1
+            if exc.code is not None and not isinstance(exc.code, int):
+                print(exc.code, file=sys.stderr)
             code = exc.code if isinstance(exc.code, int) else int(exc.code is not None)
     return CliOutcome(code, capsys.readouterr().err)
 

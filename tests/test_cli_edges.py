@@ -6,6 +6,7 @@ limit is the interpreter's own, run ``python -m fedtrack.cli`` as a user would, 
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable
 from pathlib import Path
 
@@ -118,6 +119,16 @@ def test_launch_validates_the_whole_deployment_before_starting_anything(tmp_path
     assert_one_line_error(proc, config.name)
     assert expected in proc.stderr
     assert not (tmp_path / "out" / "logs").exists()  # no process was started
+
+
+def test_a_message_exit_is_reported_in_this_process_as_by_the_interpreter(run_here: Run,
+                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """A command that ends with ``SystemExit(message)`` (a service module missing from the build) prints
+    the message and exits 1 in a new interpreter; :func:`cli_in_process` says the same (it lost the
+    message: exit 1 with nothing on standard error)."""
+    monkeypatch.setitem(sys.modules, "fedtrack.fusion_center.mtt.service", None)  # not importable
+    missing = "fedtrack: fedtrack.fusion_center.mtt.service is not available in this build\n"
+    assert run_here(["serve", "mtt-centre"]) == CliOutcome(1, missing)
 
 
 def test_busy_router_port_fails_at_once_naming_port_and_role(tmp_path: Path) -> None:
