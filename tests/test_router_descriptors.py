@@ -77,10 +77,13 @@ def test_a_router_counts_more_sessions_than_a_zenoh_channel_holds() -> None:
 def test_a_router_that_takes_no_session_says_why_once_and_again_when_it_does(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
     """Ticks out of descriptors, then with every session place taken (``max_sessions`` 16 of the router's
-    Zenoh configuration; sensor 2 holding 15), then with room: one line per change of cause, Health
-    status naming it meanwhile, ``fd_exhausted`` and ``sessions_full`` counting the seconds."""
+    Zenoh configuration; sensor 2 holding 15, then 14), then with room: one line per change of cause (not
+    per change of its counts), Health status naming it meanwhile, ``fd_exhausted`` and ``sessions_full``
+    counting the seconds."""
     few, full = Counter({"fusion": 1, "sensor-2": 3}), Counter({"fusion": 1, "sensor-2": 15})
-    ticks = iter([((30, 40), few), ((40, 40), few), ((40, 40), few), ((30, 40), full), ((25, 40), few)])
+    still_full = Counter({"fusion": 2, "sensor-2": 14})
+    ticks = iter([((30, 40), few), ((40, 40), few), ((40, 40), few), ((30, 40), full), ((31, 40), still_full),
+                  ((25, 40), few)])
     now: list[tuple[tuple[int, int], Counter[str]]] = []
 
     def descriptors() -> tuple[int, int]:  # each tick reads the descriptors first
@@ -95,13 +98,13 @@ def test_a_router_that_takes_no_session_says_why_once_and_again_when_it_does(
     svc.session = object()  # type: ignore[assignment]  # its links are read through sessions_by_identity
     statuses = []
     with caplog.at_level(logging.INFO, logger="fedtrack.router.router"):
-        for _ in range(5):
+        for _ in range(6):
             svc.on_tick()
             statuses.append(svc.status)
     fds = "out of file descriptors (40 open, RLIMIT_NOFILE 40): new sessions are refused"
     places = "every session place taken (16 of max_sessions 16; sensor-2 holds 15): new sessions are refused"
-    assert statuses == ["ok", fds, fds, places, "ok"]
-    assert svc.counters["fd_exhausted"] == 2 and svc.counters["sessions_full"] == 1
+    assert statuses == ["ok", fds, fds, places, places, "ok"]
+    assert svc.counters["fd_exhausted"] == 2 and svc.counters["sessions_full"] == 2
     assert [(r.levelname, r.getMessage()) for r in caplog.records] == [
         ("ERROR", fds), ("ERROR", places),
         ("WARNING", "new sessions are taken again (4 open, 25 file descriptors of RLIMIT_NOFILE 40)")]

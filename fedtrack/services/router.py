@@ -70,10 +70,11 @@ class Router(Service):
         super().__init__(service_id, options, deployment, health_period_s)
         config = load_config_file(options.config_file) if options.config_file is not None else zenoh.Config()
         self.max_sessions = int(json.loads(config.get_json("transport/unicast/max_sessions")))
+        self.refusing: tuple[str, ...] = ()  # why new sessions are refused now (none: they are taken)
 
     def on_tick(self) -> None:
-        """Health status, ``fd_exhausted`` and ``sessions_full`` while new sessions are refused, a line
-        when that changes."""
+        """Health status, ``fd_exhausted`` and ``sessions_full`` while new sessions are refused; a line
+        and a status when the causes change (the counts in them are the episode's first)."""
         used, limit = descriptors()
         causes = []
         if used >= limit:
@@ -86,14 +87,16 @@ class Router(Service):
             causes.append(f"every session place taken ({held.total()} of max_sessions {self.max_sessions}; "
                           f"{who or 'a link without a certificate'} holds {most})")
             self.count("sessions_full")
-        status = "; ".join(causes) + ": new sessions are refused" if causes else "ok"
-        if status != self.status:
-            if status == "ok":
-                self.log.warning("new sessions are taken again (%d open, %d file descriptors of RLIMIT_NOFILE %d)",
-                                 held.total(), used, limit)
-            else:
-                self.log.error("%s", status)
-        self.status = status
+        kinds = tuple(cause.split(" (", 1)[0] for cause in causes)
+        if kinds == self.refusing:  # the same episode: its status (and counts) as when it began, said once
+            return
+        self.refusing = kinds
+        self.status = "; ".join(causes) + ": new sessions are refused" if causes else "ok"
+        if causes:
+            self.log.error("%s", self.status)
+        else:
+            self.log.warning("new sessions are taken again (%d open, %d file descriptors of RLIMIT_NOFILE %d)",
+                             held.total(), used, limit)
 
 
 def main(argv: list[str]) -> int:
