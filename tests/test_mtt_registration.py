@@ -141,6 +141,28 @@ def test_track_to_track_centre_fuses_a_duplicated_feed_once(tmp_path: Path, caps
         assert np.allclose(a["P"], b["P"], rtol=1e-5) and np.allclose(a["x"], b["x"], atol=0.01)  # with s9: 0.29, 1.1 m
 
 
+@pytest.mark.parametrize("copied, found, reports", [
+    ((5, 19), "s9 of s1 at t=7.00", 12), ((0, 9), "s1 of s9 at t=2.00", 11)])
+def test_a_copy_sent_first_takes_the_original_only_from_the_start_and_while_it_lasts(
+        tmp_path: Path, capsys: pytest.CaptureFixture, copied: tuple[int, int], found: str, reports: int) -> None:
+    """s1's scans copied as s9 at ``copied`` times, each s9 line before its s1 line, beside an honest s2:
+    a copier joining at t = 5 had s1 taken for the copy (``s1 of s9 at t=7.00``); now s9 is, forgotten by
+    the centre at s1's report (its local tracks leave: none in the last picture). One there from the start
+    still takes s1 for the copy; when it stops after t = 9, s1 is fused again from its report at t = 13
+    (it was from t = 16, once s9 had left: 13 and 14 reports not fused before, 12 and 11 now)."""
+    s1, s2 = noisy_scans("s1", 1), noisy_scans("s2", 2)
+    lines = [[{**a, "sensor": "s9"}] * (copied[0] <= a["t"] <= copied[1]) + [a, b] for a, b in zip(s1, s2)]
+    (tmp_path / "m.jsonl").write_text("".join(json.dumps(s) + "\n" for group in lines for s in group))
+    (tmp_path / "c.toml").write_text("[mtt]\nclutter_density = 1e-9\n")
+    assert cli(["replay", "--algorithm", "mtt-federated", "--config", str(tmp_path / "c.toml"), "--measurements",
+                str(tmp_path / "m.jsonl"), "--out", str(tmp_path / "t.jsonl")]) == 0
+    err = capsys.readouterr().err
+    assert f"mtt-federated: {reports} reports of a sensor copying another's feed" in err
+    assert f"sensors found copying another's feed (their reports not fused): {found}\n" in err
+    last = json.loads((tmp_path / "t.jsonl").read_text().splitlines()[-1])["tracks"]
+    assert [t["sensors"] for t in last] == [["s1", "s2"]] * 2
+
+
 def seen(z: np.ndarray, radar: bool = False) -> Observations:
     """Observations ``z`` of 10 m noise, each its detection (position updates), or a radar's linearized
     updates (``radar``: compared with nothing)."""
@@ -151,8 +173,8 @@ def seen(z: np.ndarray, radar: bool = False) -> Observations:
 
 def test_feed_copies_rules() -> None:
     """The copy test on observations alone: equal within 1e-3 of their sigma, not beyond; quantized honest
-    detections sharing one value of ten each scan are no copy; the second to arrive is the copy, whichever sensor
-    it is; three comparisons in a row that disagree release it, and so does the original's departure;
+    detections sharing one value of ten each scan are no copy; the sensor heard from later is the copy, whichever
+    report arrives first; three comparisons in a row that disagree release it, and so does the original's departure;
     a radar's updates (linearized about its track, which a federated copy's resets move) are left out
     and its starts compared; a radar's 3-D observations beside a position sensor's at the same time
     are compared with nothing (they raised ValueError, ending a replay of a radar and position
@@ -167,7 +189,7 @@ def test_feed_copies_rules() -> None:
         b[0] = a[3]  # one detection of ten in common every scan
         assert not quantized.is_copy("s1", float(t), seen(a)) and not quantized.is_copy("s2", float(t), seen(b))
     feeds = FeedCopies(max_lag=3.0)
-    for t in range(3):  # s9's reports arrive first: s1 is taken for the copy (the first to arrive is kept)
+    for t in range(3):  # both there from the start, s9's reports first: s1 is taken for the copy (s9 heard first)
         z = rng.uniform(-5e3, 5e3, (6, 2))
         assert not feeds.is_copy("s9", float(t), seen(z))
         assert feeds.is_copy("s1", float(t), seen(z)) == (t == 2)
@@ -178,12 +200,13 @@ def test_feed_copies_rules() -> None:
         assert not feeds.is_copy("s9", float(t), seen(rng.uniform(-5e3, 5e3, (6, 2))))
         assert feeds.is_copy("s1", float(t), seen(rng.uniform(-5e3, 5e3, (6, 2)))) == (t < 6)
     assert feeds.drain() == [Found(6.0, "s1", "s9", False)]
-    for t in range(7, 10):
+    for t in range(7, 10):  # s1's reports now arrive first, but s9 was heard from first: s1 is the copy again
         z = rng.uniform(-5e3, 5e3, (6, 2))
         assert not feeds.is_copy("s1", float(t), seen(z))
-        assert feeds.is_copy("s9", float(t), seen(z)) == (t == 9)
-    feeds.drop("s1")  # the original left: its copy is fused again
-    assert not feeds.copy_of and feeds.drain() == [Found(9.0, "s9", "s1", True)]
+        assert not feeds.is_copy("s9", float(t), seen(z))
+    assert feeds.is_copy("s1", 10.0, seen(z))
+    feeds.drop("s9")  # the original left: its copy is fused again
+    assert not feeds.copy_of and feeds.drain() == [Found(9.0, "s1", "s9", True)]
     federated = FeedCopies(max_lag=3.0)  # a radar copy's linearized updates differ (1 m), its starts do not
     for t in range(3):
         r1 = seen(rng.uniform(-5e3, 5e3, (6, 3)), radar=True)
@@ -192,3 +215,26 @@ def test_feed_copies_rules() -> None:
     mixed = FeedCopies(max_lag=3.0)  # a radar's observations beside a position sensor's at one time
     assert not mixed.is_copy("r1", 0.0, seen(np.zeros((3, 3))))
     assert not mixed.is_copy("s2", 0.0, seen(np.zeros((3, 2))))
+
+
+def test_a_copier_joining_later_is_the_copy_and_a_silent_original_releases_it() -> None:
+    """A sender that joins s1's feed later and gets each copy to the centre first: s1, arriving second, was
+    taken for the copy and dropped while s9 copied; now the sensor heard from later (s9) is. One there from
+    the start and heard first is kept (what it can still do); when it goes silent, s1 is released at its
+    third report after one s9 did not match (it was released only on s9's departure: ``central_timeout``
+    and four intervals after it stopped), and a sensor with an empty report first is heard from then."""
+    rng = np.random.default_rng(7)
+    feeds = FeedCopies(max_lag=3.0)
+    assert not feeds.is_copy("s1", 0.0, seen(np.zeros((0, 2))))  # heard from, with nothing detected
+    for t in range(1, 5):
+        z = rng.uniform(-5e3, 5e3, (6, 2))
+        assert feeds.is_copy("s9", float(t), seen(z)) == (t == 4) and not feeds.is_copy("s1", float(t), seen(z))
+        assert feeds.copy_of == ({"s9": "s1"} if t >= 3 else {})  # found at s1's third report
+    assert feeds.drain() == [Found(3.0, "s9", "s1", True)]
+    early = FeedCopies(max_lag=3.0)  # s9 there first: s1 the copy until s9 stops after t = 3
+    for t in range(0, 9):
+        z = rng.uniform(-5e3, 5e3, (6, 2))
+        if t <= 3:
+            assert not early.is_copy("s9", float(t), seen(z))
+        assert early.is_copy("s1", float(t), seen(z)) == (2 <= t <= 6)
+    assert early.drain() == [Found(2.0, "s1", "s9", True), Found(7.0, "s1", "s9", False)]

@@ -18,11 +18,14 @@ half, of its first ``SAMPLE`` observations that are detections (:func:`sample`) 
 the half keeps apart honest sensors whose detections are quantized, which may share a value now and
 then; the sample bounds the cost, a sort of 64 rows and a look-up of ``o``'s, made only when two
 sensors report at the same time). ``REPEAT``
-agreeing comparisons of the pair in a row make the two one feed: the sensor whose report came second
-is the copy, and from then on none of its reports is fused
-(:class:`~.track_to_track.TrackToTrackCentre` counts them ``copies``; its local tracks leave their
-central tracks and it is not live). ``REPEAT`` comparisons in a row that do not agree release it (the
-feed was fixed, or the id reused by a real sensor), as does either sensor's departure.
+agreeing comparisons of the pair in a row make the two one feed: the sensor heard from later (its first
+report arrived later: an honest sensor is normally there before a copier joins) is the copy, and from
+then on none of its reports is fused (:class:`~.track_to_track.TrackToTrackCentre` counts them
+``copies``; its local tracks leave their central tracks and it is not live). ``REPEAT`` comparisons in a
+row that do not agree release it (the feed was fixed, or the id reused by a real sensor), and so do
+``REPEAT`` of its reports in a row after one the original did not match (nothing of the original at or
+after the copy's previous report: the kept sensor went silent, and the copy's reports are the only
+data), and either sensor's departure.
 """
 
 from __future__ import annotations
@@ -103,7 +106,10 @@ class FeedCopies:
     held: dict[float, dict[str, np.ndarray]] = field(default_factory=dict)  # t -> sensor -> its observations
     streak: dict[tuple[str, str], int] = field(default_factory=dict)  # sorted pair -> agreeing in a row
     copy_of: dict[str, str] = field(default_factory=dict)  # copy -> original
-    apart: dict[str, int] = field(default_factory=dict)  # copy -> comparisons with its original in a row not agreeing
+    apart: dict[str, int] = field(default_factory=dict)  # copy -> its reports in a row its original did not match
+    heard: dict[str, int] = field(default_factory=dict)  # sensor -> its first report's place in arrival order
+    last: dict[str, float] = field(default_factory=dict)  # sensor -> its latest report's time (with observations)
+    arrivals: int = 0
     newest: float = -math.inf
     found: list[Found] = field(default_factory=list)  # not yet logged (drained)
 
@@ -111,12 +117,17 @@ class FeedCopies:
         """Compare ``sensor``'s report at ``t`` (its observations ``obs``) with the other sensors' at ``t``;
         returns whether ``sensor`` copies another's feed (its report not to be fused)."""
         z = obs.z
-        if not len(z) or t < self.newest - self.max_lag:  # no observation tells nothing; too old (and late)
+        if t < self.newest - self.max_lag:  # too old (and late)
             return sensor in self.copy_of
-        if t > self.newest:
+        if sensor not in self.heard:
+            self.heard[sensor], self.arrivals = self.arrivals, self.arrivals + 1
+        if t > self.newest:  # any report's, as the centre's rule for a late one (none heard here is late there)
             self.newest = t
             for old in [k for k in self.held if k < t - self.max_lag]:
                 del self.held[old]
+        if not len(z):  # no observation tells nothing
+            return sensor in self.copy_of
+        self._original_silent(sensor, t)
         same_t = self.held.setdefault(t, {})
         mine = None
         for other, zo in same_t.items():
@@ -125,22 +136,36 @@ class FeedCopies:
                 if len(mine[0]):  # updates of a radar alone tell nothing
                     self._compare(sensor, other, agrees(*mine, zo), t)
         same_t[sensor] = z
+        self.last[sensor] = max(t, self.last.get(sensor, t))
         return sensor in self.copy_of
+
+    def _original_silent(self, sensor: str, t: float) -> None:
+        """A copy's report at ``t``: its previous one, if the original made none at or after it, counts as
+        a comparison that did not agree (the kept sensor silent: the copy's reports are the only data)."""
+        original = self.copy_of.get(sensor)
+        before = self.last.get(sensor, t)
+        if original is not None and before < t and self.last.get(original, -math.inf) < before:
+            self._apart(sensor, False, t)
 
     def _compare(self, sensor: str, other: str, agree: bool, t: float) -> None:
         copy = sensor if self.copy_of.get(sensor) == other else other if self.copy_of.get(other) == sensor else None
         if copy is not None:  # a known pair: does it still hold?
-            self.apart[copy] = 0 if agree else self.apart.get(copy, 0) + 1
-            if self.apart[copy] >= REPEAT:
-                self.found.append(Found(t, copy, self.copy_of[copy], False))
-                self._release(copy)
+            self._apart(copy, agree, t)
             return
         pair = (sensor, other) if sensor < other else (other, sensor)
         self.streak[pair] = self.streak.get(pair, 0) + 1 if agree else 0
-        if self.streak[pair] >= REPEAT and sensor not in self.copy_of:
+        copy, original = (sensor, other) if self.heard[sensor] > self.heard[other] else (other, sensor)
+        if self.streak[pair] >= REPEAT and copy not in self.copy_of:
             del self.streak[pair]
-            self.copy_of[sensor] = other
-            self.found.append(Found(t, sensor, other, True))
+            self.copy_of[copy] = original
+            self.found.append(Found(t, copy, original, True))
+
+    def _apart(self, copy: str, agree: bool, t: float) -> None:
+        """The copy's run of reports its original did not match, ended by one that did; released at ``REPEAT``."""
+        self.apart[copy] = 0 if agree else self.apart.get(copy, 0) + 1
+        if self.apart[copy] >= REPEAT:
+            self.found.append(Found(t, copy, self.copy_of[copy], False))
+            self._release(copy)
 
     def _release(self, copy: str) -> None:
         del self.copy_of[copy]
@@ -151,6 +176,8 @@ class FeedCopies:
         this way, no :class:`Found` is logged)."""
         for kept in self.held.values():
             kept.pop(sensor, None)
+        self.heard.pop(sensor, None)
+        self.last.pop(sensor, None)
         self.streak = {p: n for p, n in self.streak.items() if sensor not in p}
         for copy in [c for c, o in self.copy_of.items() if sensor in (c, o)]:
             self._release(copy)

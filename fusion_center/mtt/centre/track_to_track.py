@@ -318,13 +318,15 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         return no_resets(report.sensor, report.t, report.x.shape[1])
 
     def _copied(self, report: LocalReport, rows: np.ndarray | None) -> bool:
-        """Whether the report's sensor copies another's feed (its observations of ``rows`` compared)."""
-        was = report.sensor in self.copies.copy_of
+        """Whether the report's sensor copies another's feed (its observations of ``rows`` compared); a copy
+        found now (this sensor, or one whose report at this time came earlier) is forgotten."""
+        logged = len(self.copies.found)
         k = slice(None) if rows is None else rows[report.detected]
         obs = Observations(report.obs_z[k], report.obs_R[k], report.obs_H[k], report.started[k])
         copy = self.copies.is_copy(report.sensor, report.t, obs)
-        if copy and not was:
-            self._forget(report.sensor)
+        for found in self.copies.found[logged:]:
+            if found.found:
+                self._forget(found.copy)
         self.counters.copying_sensors = len(self.copies.copy_of)
         return copy
 
