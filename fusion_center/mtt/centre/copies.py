@@ -25,7 +25,7 @@ then on none of its reports is fused (:class:`~.track_to_track.TrackToTrackCentr
 row that do not agree release it (the feed was fixed, or the id reused by a real sensor), and so do
 ``REPEAT`` of its reports in a row after one the original did not match (nothing of the original at or
 after the copy's previous report: the kept sensor went silent, and the copy's reports are the only
-data), and either sensor's departure.
+data; the pair is then found again at its next agreeing comparison), and either sensor's departure.
 """
 
 from __future__ import annotations
@@ -69,6 +69,11 @@ def equal_rows(z: np.ndarray, tol: np.ndarray, other: np.ndarray) -> int:
         hit[order[at[same]]] = True
         rows, at = rows[~same], at[~same] + 1
     return int(np.count_nonzero(hit))
+
+
+def pair(a: str, b: str) -> tuple[str, str]:
+    """Two sensors' key in :attr:`FeedCopies.streak` (sorted)."""
+    return (a, b) if a < b else (b, a)
 
 
 class Observations(NamedTuple):
@@ -143,29 +148,35 @@ class FeedCopies:
         """A copy's report at ``t``: its previous one, if the original made none at or after it, counts as
         a comparison that did not agree (the kept sensor silent: the copy's reports are the only data)."""
         original = self.copy_of.get(sensor)
+        if original is None:
+            return
         before = self.last.get(sensor, t)
-        if original is not None and before < t and self.last.get(original, -math.inf) < before:
-            self._apart(sensor, False, t)
+        silent = before < t and self.last.get(original, -math.inf) < before
+        if silent and self._apart(sensor, False, t):  # released: found again at the pair's next agreeing comparison
+            self.streak[pair(sensor, original)] = REPEAT - 1
 
     def _compare(self, sensor: str, other: str, agree: bool, t: float) -> None:
         copy = sensor if self.copy_of.get(sensor) == other else other if self.copy_of.get(other) == sensor else None
         if copy is not None:  # a known pair: does it still hold?
             self._apart(copy, agree, t)
             return
-        pair = (sensor, other) if sensor < other else (other, sensor)
-        self.streak[pair] = self.streak.get(pair, 0) + 1 if agree else 0
+        both = pair(sensor, other)
+        self.streak[both] = self.streak.get(both, 0) + 1 if agree else 0
         copy, original = (sensor, other) if self.heard[sensor] > self.heard[other] else (other, sensor)
-        if self.streak[pair] >= REPEAT and copy not in self.copy_of:
-            del self.streak[pair]
+        if self.streak[both] >= REPEAT and copy not in self.copy_of:
+            del self.streak[both]
             self.copy_of[copy] = original
             self.found.append(Found(t, copy, original, True))
 
-    def _apart(self, copy: str, agree: bool, t: float) -> None:
-        """The copy's run of reports its original did not match, ended by one that did; released at ``REPEAT``."""
+    def _apart(self, copy: str, agree: bool, t: float) -> bool:
+        """The copy's run of reports its original did not match, ended by one that did; released at ``REPEAT``
+        (returns whether it was)."""
         self.apart[copy] = 0 if agree else self.apart.get(copy, 0) + 1
-        if self.apart[copy] >= REPEAT:
-            self.found.append(Found(t, copy, self.copy_of[copy], False))
-            self._release(copy)
+        if self.apart[copy] < REPEAT:
+            return False
+        self.found.append(Found(t, copy, self.copy_of[copy], False))
+        self._release(copy)
+        return True
 
     def _release(self, copy: str) -> None:
         del self.copy_of[copy]
