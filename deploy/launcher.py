@@ -72,7 +72,6 @@ MAX_RESTARTS = 3
 RESTART_BACKOFF_S = 0.5
 RESTART_BACKOFF_MAX_S = 4.0
 START_MARGIN_S = 0.25  # the start is this long after the last sensor was ready: 25 of the sensors' 10 ms polls of START_FILE
-JOIN_LEAD_S = 2.0  # a joining sensor's processes start this long before its join time
 ROUTER_DRAIN_S = 0.5  # a router joined to other hosts' routers is stopped this long after the rest (in-flight data)
 
 
@@ -205,20 +204,15 @@ class Launcher(Monitor):
                                                                        or sp.name in self.report.failed)
 
     def _follow_schedule(self) -> None:
-        """``[multitarget] join_at`` / ``kill_at``: start a joining sensor's processes
-        ``JOIN_LEAD_S`` before its join time (its sensor publishes only the scans from then on);
-        SIGKILL a leaving sensor's processes at their time (a crash: nothing is said to the
-        centre, and the launcher does not restart them)."""
+        """``[multitarget] kill_at``: SIGKILL a leaving sensor's processes at their time (a crash:
+        nothing is said to the centre, and the launcher does not restart them). A joining sensor's
+        processes start with the others (ready before the common start); its sensor publishes only
+        its scans from ``join_at`` on."""
         if self._epoch is None:
             return
         speed = self.settings.deployment.speed
         now = time.time()
         for sp in self.plan:
-            if sp.join_at_s is not None and sp.proc is None and now >= self._epoch + sp.join_at_s / speed - JOIN_LEAD_S:
-                self._start(sp)
-                self.report.events.append(("started", sp.name, now))
-                if not self.quiet:
-                    self._say(f"{sp.name} started (joins at t = {sp.join_at_s:g} s)")
             if (sp.kill_at_s is not None and not sp.killed and sp.proc is not None
                     and now >= self._epoch + sp.kill_at_s / speed):
                 sp.proc.kill()
@@ -284,8 +278,7 @@ class Launcher(Monitor):
         start = time.monotonic()
         dep = self.settings.deployment
         sensors = [sp for sp in self.plan if sp.role == "sensor"]
-        others = [sp for sp in self.plan if sp.role not in ("sensor", "router") and sp.join_at_s is None
-                  and not sp.standby]
+        others = [sp for sp in self.plan if sp.role not in ("sensor", "router") and not sp.standby]
         standbys = [sp for sp in self.plan if sp.standby]  # once their primaries hold the tokens
         routers = [sp for sp in self.plan if sp.role == "router"]
         stopped = False
@@ -307,12 +300,13 @@ class Launcher(Monitor):
             for sp in standbys:
                 self._start(sp)
             self._wait_ready(standbys, dep.ready_timeout_s)
-            first = [sp for sp in sensors if sp.join_at_s is None]
-            start_file = await_start(first) if dep.pacing == "realtime" else None
-            for sp in first:
+            # a joining sensor's too: started mid-run, 2 s before its join time, it and its tracker were
+            # ready 5.4 / 7.8 s after the start at load 14 and none of its scans was recorded (join at 2.5 s)
+            start_file = await_start(sensors) if dep.pacing == "realtime" else None
+            for sp in sensors:
                 self._start(sp)
             if dep.pacing == "realtime":
-                self._wait_ready(first, dep.ready_timeout_s)
+                self._wait_ready(sensors, dep.ready_timeout_s)
                 self._epoch = release_sensors(sensors, start_file, time.time() + START_MARGIN_S)
             self._watch(sensors, start)
         except KeyboardInterrupt:

@@ -205,18 +205,20 @@ def print_membership(summary: dict[str, Any], title: str) -> None:
 
 
 def unrecorded_scans(out: Path, settings: Settings) -> dict[str, int]:
-    """Per sensor of this host that the schedule neither joins nor kills, the scans of the scenario it
-    was to publish that this host's recording lacks (sensors that lack none left out): a router frozen
-    past its lease until the sensors' last scan lost what they published meanwhile (their caches went
-    with them), and the summary said nothing of it but the number of pictures (11 of 39; its GOSPA, over
-    those 11, lower than the run's without the fault). A restarted sensor's skipped scans count too."""
+    """Per sensor of this host that the schedule does not kill, the scans of the scenario it was to
+    publish (a joining sensor's from its ``join_at`` on) that this host's recording lacks (sensors that
+    lack none left out): a router frozen past its lease until the sensors' last scan lost what they
+    published meanwhile (their caches went with them), and the summary said nothing of it but the number
+    of pictures (11 of 39; its GOSPA, over those 11, lower than the run's without the fault). A restarted
+    sensor's skipped scans count too, and a joining sensor's published before its tracker listened."""
     mt, db = settings.multitarget, out / "recording.db"
     if mt is None or "recorder" not in settings.deployment.services:
         return {}
     local = settings.deployment.local_sensors
-    ids = [s for s in sensor_ids(mt) if (local is None or s in local) and s not in mt.join_at and s not in mt.kill_at]
+    ids = [s for s in sensor_ids(mt) if (local is None or s in local) and s not in mt.kill_at]
     scenario = out / SCENARIO_DIR / "measurements.jsonl"
-    expected = collections.Counter(obj.get("sensor") for _, obj in read_jsonl(scenario))
+    expected = collections.Counter(obj.get("sensor") for _, obj in read_jsonl(scenario)
+                                   if obj.get("t", 0.0) >= mt.join_at.get(obj.get("sensor"), 0.0))
     recorded: dict[str, int] = {}  # none when the database is gone
     if db.is_file():
         recording = Recording(db, readonly=True)

@@ -37,7 +37,6 @@ class ServiceProcess:
     argv: list[str]
     log_path: Path
     proc: subprocess.Popen[bytes] | None = None
-    join_at_s: float | None = None  # scenario seconds: started then (``[multitarget] join_at``)
     kill_at_s: float | None = None  # scenario seconds: SIGKILLed then, never restarted (``kill_at``)
     killed: bool = False
 
@@ -96,7 +95,7 @@ def service_plan(settings: Settings, config_path: Path, out_dir: Path, log_dir: 
                 snapshot = ["--snapshot", str(out_dir / PICTURE_SNAPSHOT)] if role == "picture" else []
                 add(role, sid, [*args, *cfg, *common, *snapshot])
                 if role in ("sensor", "mtt-local"):
-                    plan[-1].join_at_s, plan[-1].kill_at_s = mt.join_at.get(sid), mt.kill_at.get(sid)
+                    plan[-1].kill_at_s = mt.kill_at.get(sid)
                 if role == "mtt-centre" and mt.standby:
                     add(role, f"{sid}-standby", [*args, *cfg, *common, "--standby"])
         return plan

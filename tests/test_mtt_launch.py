@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import datetime
 import json
+import os
 import sqlite3
 import subprocess
 import sys
@@ -89,7 +90,14 @@ def test_a_sensor_joins_and_another_is_killed_during_a_launch(tmp_path: Path) ->
     """``join_at`` / ``kill_at``: s3 (which the config does not name) starts a third of the way in,
     s1's tracker and sensor are SIGKILLed two thirds in; nothing restarts, the centre drops s1
     within 1 s, s3's tracks associate within 3 of its scans, no central track that another sensor
-    supported is lost, and the recording still replays to the live pictures."""
+    supported is lost, and the recording still replays to the live pictures. s3's tracker is made 2 s
+    slower to start (a sitecustomize on PYTHONPATH; at load 14 it was ready 7.8 s after the start):
+    started mid-run, 2 s before its join, none of s3's scans was recorded (``KeyError: 's3'``); now
+    every one of them is (no ``scans_not_recorded``)."""
+    slow = tmp_path / "slow"
+    slow.mkdir()
+    (slow / "sitecustomize.py").write_text('import sys, time\nif sys.argv[1:5] == ["serve", "mtt-local", "--id", "s3"]:'
+                                           '\n    time.sleep(2.0)\n')
     config = tmp_path / "mtt.toml"
     text = CONFIG.format(port=free_port(), algorithm="mtt-federated")
     text = text.replace('sensors = "pos:1.0,radar:1.3,pos:0.7"', 'sensors = "pos:1.0,pos:0.7,pos:1.3"')
@@ -99,10 +107,12 @@ def test_a_sensor_joins_and_another_is_killed_during_a_launch(tmp_path: Path) ->
     config.write_text(text)
     out = tmp_path / "out"
     proc = subprocess.run([sys.executable, "-m", "fedtrack.cli", "launch", str(config), "--out", str(out)],
-                          capture_output=True, text=True, timeout=180)
+                          capture_output=True, text=True, timeout=180,
+                          env={**os.environ, "PYTHONPATH": os.pathsep.join([str(slow), *filter(None, [os.environ.get("PYTHONPATH")])])})
     assert proc.returncode == 0, proc.stderr[-3000:]
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["restarts"] == {} and summary["rejected"] == 0
+    assert summary["restarts"] == {} and summary["rejected"] == 0 and "scans_not_recorded" not in summary
+    assert "s3" in summary["membership"]["joined"], proc.stderr[-3000:]
     codes = summary["exit_codes"]
     assert codes.pop("mtt-local/s1") == -9 and codes.pop("sensor/s1") == -9 and set(codes.values()) == {0}
     joined, left = summary["membership"]["joined"]["s3"], summary["membership"]["left"]["s1"]
