@@ -470,6 +470,8 @@ def test_the_scans_a_sensor_published_that_the_recording_lacks_are_counted_per_s
     rec.add(first, encode(first))
     rec.close()
     assert unrecorded_scans(tmp_path, settings) == {"s1": 1}  # s3, killed by the schedule, is not judged
+    config.write_text('[multitarget]\nsensors = "pos:1.0,pos:0.7,pos:1.3"\njoin_at = {s3 = 2.0}\n')
+    assert unrecorded_scans(tmp_path, load_settings(config)) == {"s1": 1, "s3": 2}  # a joiner: its scans from 2 s on
 
 
 def test_a_launch_summary_onto_a_full_disk_names_its_file_and_leaves_nothing_half_written(tmp_path: Path) -> None:
