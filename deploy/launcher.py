@@ -301,7 +301,7 @@ class Launcher(Monitor):
                 self._start(sp)
             self._wait_ready(standbys, dep.ready_timeout_s)
             # a joining sensor's too: started mid-run, 2 s before its join time, it and its tracker were
-            # ready 5.4 / 7.8 s after the start at load 14 and none of its scans was recorded (join at 2.5 s)
+            # ready 5.4 / 7.8 s after the start at load 14 (join at 2.5 s) and none of its scans reached its tracker
             start_file = await_start(sensors) if dep.pacing == "realtime" else None
             for sp in sensors:
                 self._start(sp)

@@ -176,8 +176,8 @@ def await_start(sensors: list[ServiceProcess]) -> Path | None:
 def release_sensors(sensors: list[ServiceProcess], path: Path | None, start_at: float) -> float:
     """Give the ``sensors`` one wall-clock start time (realtime pacing schedules scan k at
     start + k T / speed, so they stay in step and do not drift): written to ``path`` for those
-    waiting on it, and ``--start-at`` instead of ``--start-file`` for their later starts (restarts,
-    sensors that join); returns it."""
+    waiting on it, and ``--start-at`` instead of ``--start-file`` for their later starts
+    (restarts); returns it."""
     if path is not None:
         write_atomic(path, f"{start_at:.6f}\n".encode())
     for sp in sensors:

@@ -106,9 +106,9 @@ def test_a_sensor_joins_and_another_is_killed_during_a_launch(tmp_path: Path) ->
     text = text.replace("clutter_density = 1e-8\n", "")
     config.write_text(text)
     out = tmp_path / "out"
+    path = os.pathsep.join([str(slow), *filter(None, [os.environ.get("PYTHONPATH")])])
     proc = subprocess.run([sys.executable, "-m", "fedtrack.cli", "launch", str(config), "--out", str(out)],
-                          capture_output=True, text=True, timeout=180,
-                          env={**os.environ, "PYTHONPATH": os.pathsep.join([str(slow), *filter(None, [os.environ.get("PYTHONPATH")])])})
+                          capture_output=True, text=True, timeout=180, env={**os.environ, "PYTHONPATH": path})
     assert proc.returncode == 0, proc.stderr[-3000:]
     summary = json.loads((out / "summary.json").read_text())
     assert summary["restarts"] == {} and summary["rejected"] == 0 and "scans_not_recorded" not in summary
