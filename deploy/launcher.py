@@ -1,8 +1,9 @@
 """fedtrack launch CONFIG.toml: start every service of a deployment as separate processes.
 
 Order: router -> local filters, fusion center, recorder -> (all announced by liveliness)
--> sensors -> (all announced) -> with realtime pacing, their common start time, given
-``START_MARGIN_S`` ahead (:func:`release_sensors`). While it runs it shows scans fused, per-sensor scan rates and the latency
+-> sensors -> (all announced) -> their common start time (:func:`release_sensors`), with realtime
+pacing given ``START_MARGIN_S`` ahead, with lockstep pacing now (scan 0 then, the next scans as the
+fused tracks come). While it runs it shows scans fused, per-sensor scan rates and the latency
 from a sensor's publish to the fused track's arrival. It ends when the sensors have
 published their last scan (then stops the rest), or on Ctrl-C / SIGTERM (stops
 everything, no orphans: every child also gets SIGTERM if the launcher dies). Exit code
@@ -302,12 +303,14 @@ class Launcher(Monitor):
             self._wait_ready(standbys, dep.ready_timeout_s)
             # a joining sensor's too: started mid-run, 2 s before its join time, it and its tracker were
             # ready 5.4 / 7.8 s after the start at load 14 (join at 2.5 s) and none of its scans reached its tracker
-            start_file = await_start(sensors) if dep.pacing == "realtime" else None
+            start_file = await_start(sensors)
             for sp in sensors:
                 self._start(sp)
+            self._wait_ready(sensors, dep.ready_timeout_s)
             if dep.pacing == "realtime":
-                self._wait_ready(sensors, dep.ready_timeout_s)
                 self._epoch = release_sensors(sensors, start_file, time.time() + START_MARGIN_S)
+            else:  # lockstep follows the fused tracks, not the clock: scan 0 once every sensor has read the start
+                release_sensors(sensors, start_file, time.time())
             self._watch(sensors, start)
         except KeyboardInterrupt:
             stopped = True

@@ -24,7 +24,7 @@ from fedtrack.local_filters.regions import load_regions
 
 SNAPSHOT = "fusion-center.snapshot"  # the fusion center's state, for its restarts within this run
 PICTURE_SNAPSHOT = "picture.snapshot"  # serve picture's last merged time, for its restarts within this run
-START_FILE = "start-at"  # beside the sensors' logs: their common start time (realtime), written once all are ready
+START_FILE = "start-at"  # beside the sensors' logs: their common start time, written once all are ready
 
 
 @dataclass
@@ -162,7 +162,7 @@ def apply_zenoh_settings(settings: Settings, config_path: Path, out_dir: Path,
 
 
 def await_start(sensors: list[ServiceProcess]) -> Path | None:
-    """Have the realtime ``sensors`` wait, once ready, for their common start time in one file
+    """Have the ``sensors`` wait, once ready, for their common start time in one file
     (``START_FILE`` beside their logs, an earlier run's removed): ``--start-file``; returns the file."""
     if not sensors:
         return None
@@ -175,7 +175,8 @@ def await_start(sensors: list[ServiceProcess]) -> Path | None:
 
 def release_sensors(sensors: list[ServiceProcess], path: Path | None, start_at: float) -> float:
     """Give the ``sensors`` one wall-clock start time (realtime pacing schedules scan k at
-    start + k T / speed, so they stay in step and do not drift): written to ``path`` for those
+    start + k T / speed, so they stay in step and do not drift; lockstep pacing sends scan 0 then, so
+    that none is fused before a sensor still starting could send its own): written to ``path`` for those
     waiting on it, and ``--start-at`` instead of ``--start-file`` for their later starts
     (restarts); returns it."""
     if path is not None:

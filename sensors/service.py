@@ -2,12 +2,17 @@
 
 Pacing:
 
-* ``lockstep``: scan k+1 is published once the fused track of scan k is out (or after
-  ``--lockstep-timeout`` seconds without it, counted in ``lockstep_timeouts``), so a
+* ``lockstep``: scan 0 at the common start, scan k+1 once the fused track of scan k is out (or
+  after ``--lockstep-timeout`` seconds without it, counted in ``lockstep_timeouts``), so a
   whole scenario runs as fast as the pipeline allows;
-* ``realtime``: scan k at wall-clock time ``start + k T / speed`` (``--start-at``, or
-  ``--start-file``: the launcher starts a host's sensors, waits until all of them are ready and
-  then writes their common start into that file, so they stay in step).
+* ``realtime``: scan k at wall-clock time ``start + k T / speed``.
+
+The common start is ``--start-at``, or ``--start-file``: the launcher starts a host's sensors, waits
+until all of them are ready and then writes their common start into that file, so they stay in step
+(without either, when the sensor is ready). A lockstep sensor that went first on its own, as before
+2026-11-27, had its scan 0 fused without the sensors still starting once the centre's ``deadline_s``
+had passed: on a loaded machine (load average 15) one of 14 launches of 3 sensors fused scan 0
+degraded and the late sensor, finding a fused track, skipped its scan 0 as if restarted.
 
 After its last scan a paper-pipeline sensor waits for that scan's fused track (at most
 ``--lockstep-timeout``) and exits 0. A multi-target sensor (kind ``scan``) exits at once: no
@@ -141,15 +146,17 @@ class SensorService(Service):
 
     def on_tick(self) -> None:
         now = time.monotonic()
-        if self.pacing == "realtime" and self.start_at is None:
+        if self.start_at is None:
             self.start_at = read_start(self.start_file) if self.start_file is not None else time.time()
             if self.start_at is None:
                 return  # the launcher has not given the start yet
-        if self.pacing == "realtime" and self.start_mono is None:
+        if self.start_mono is None:
             # the common start is a wall-clock time (hosts share no other clock), the scans' times after it
             # monotonic: the wall clock stepped back 30 s mid-run stopped every sensor for 30 s before
             # 2026-11-27, and one stepped forward sent the scans of the skipped seconds at once
             self.start_mono = now + (self.start_at - time.time())
+        if now < self.start_mono:
+            return  # scan 0 (either pacing) goes out at the common start
         if self.next_seq >= self.total:
             waited = now - self.last_publish
             if self.scans is not None or self.fused_up_to >= self.total - 1 or waited >= self.lockstep_timeout_s:
@@ -204,12 +211,11 @@ def add_sensor_args(parser: argparse.ArgumentParser) -> None:
                         help="publish the next scan anyway after this long without a fused track "
                              "(default: %(default)s)")
     parser.add_argument("--start-at", type=float, metavar="EPOCH_S",
-                        help="realtime pacing: wall-clock time (Unix seconds) of scan 0, shared by the sensors "
-                             "of a deployment (default: when this sensor is ready)")
+                        help="wall-clock time (Unix seconds) of scan 0, shared by the sensors of a deployment "
+                             "(default: when this sensor is ready)")
     parser.add_argument("--start-file", type=Path, metavar="PATH",
-                        help="realtime pacing without --start-at: wait until PATH holds the start time (Unix "
-                             "seconds; fedtrack launch writes it once every sensor of its host is ready; default: "
-                             "none)")
+                        help="without --start-at: wait until PATH holds the start time (Unix seconds; fedtrack "
+                             "launch writes it once every sensor of its host is ready; default: none)")
     parser.add_argument("--join-at", type=float, metavar="SECONDS",
                         help="kind scan: publish only the scans at t >= SECONDS (a sensor that joins a running "
                              "deployment; scan times count from --start-at; default: every scan)")

@@ -119,6 +119,39 @@ def test_realtime_sensors_wait_for_the_start_the_launcher_gives_once_they_are_re
         late.on_tick()
 
 
+def test_a_lockstep_sensor_waits_for_the_start_then_for_each_track(tmp_path: Path) -> None:
+    """Lockstep pacing: a sensor told ``--start-file`` sends nothing until the file holds the start
+    (the launcher writes it once every sensor is up), then scan 0, then scan k + 1 once the fused
+    track of scan k is out. Before 2026-11-27 it sent scan 0 as soon as it was up, ahead of sensors
+    still starting (``tests/test_launch_start.py``)."""
+    from types import SimpleNamespace
+
+    from fedtrack.sensors.service import SensorService
+    from fedtrack.zsession import SessionOptions
+
+    path = tmp_path / "start-at"
+    sensor = SensorService([{}] * 3, 1.0, "lockstep", 1.0, 5.0, start_file=path, service_id="1",
+                           options=SessionOptions())
+    sent: list[int] = []
+
+    def publish_scan(now: float) -> None:
+        sent.append(sensor.next_seq)
+        sensor.next_seq += 1
+        sensor.last_publish = now
+
+    sensor.publish_scan = publish_scan  # type: ignore[method-assign]
+    for _ in range(3):
+        sensor.on_tick()
+    assert sent == []
+    path.write_text(f"{time.time():.6f}\n")
+    sensor.on_tick()
+    sensor.on_tick()
+    assert sent == [0]  # scan 1 waits for scan 0's track
+    sensor.on_track(SimpleNamespace(seq=0))  # type: ignore[arg-type]
+    sensor.on_tick()
+    assert sent == [0, 1] and sensor.counters.get("lockstep_timeouts", 0) == 0
+
+
 def test_a_realtime_sensor_keeps_its_pace_when_the_wall_clock_steps(monkeypatch: pytest.MonkeyPatch) -> None:
     """The common start is a wall-clock time; the scans after it are paced on the monotonic clock. The
     wall clock stepped back by 30 s after scan 2 and then forward by 60 s: scans 3 and 4 go out 1 s
