@@ -72,7 +72,8 @@ ESSENTIAL_ROLES = ("router", "fusion-center", "recorder")
 MAX_RESTARTS = 3
 RESTART_BACKOFF_S = 0.5
 RESTART_BACKOFF_MAX_S = 4.0
-START_MARGIN_S = 0.25  # the start is this long after the last sensor was ready: 25 of the sensors' 10 ms polls of START_FILE
+# realtime: the start is this long after the last sensor was ready: 25 of the sensors' 10 ms polls of START_FILE
+START_MARGIN_S = 0.25
 ROUTER_DRAIN_S = 0.5  # a router joined to other hosts' routers is stopped this long after the rest (in-flight data)
 
 
