@@ -11,8 +11,8 @@ The common start is ``--start-at``, or ``--start-file``: the launcher starts a h
 until all of them are ready and then writes their common start into that file, so they stay in step
 (without either, when the sensor is ready). A lockstep sensor that went first on its own, as before
 2026-11-27, had its scan 0 fused without the sensors still starting once the centre's ``deadline_s``
-had passed: on a loaded machine (load average 15) one of 14 launches of 3 sensors fused scan 0
-degraded and the late sensor, finding a fused track, skipped its scan 0 as if restarted.
+had passed, and a late one, finding a fused track, skipped its scan 0 as if restarted
+(docs/deploy.md, Launching).
 
 After its last scan a paper-pipeline sensor waits for that scan's fused track (at most
 ``--lockstep-timeout``) and exits 0. A multi-target sensor (kind ``scan``) exits at once: no
