@@ -200,6 +200,7 @@ def test_a_scan_without_rows_leaves_what_the_full_path_leaves(data: Path) -> Non
         retired += empty and report.retired.size > 0
         a, qa = short.answer(report)
         if empty:
+            assert not full._copied(report, None)  # ingest's copy check first: it notes the sensor as heard
             b = full._fuse_rows(report, report.detected.nonzero()[0], full._note_scan(report))
             qb = float(max(len(full.live_sensors(report.t)), 1))
             full.prune(report.t)  # the rest of answer()
