@@ -36,7 +36,13 @@ from typing import NamedTuple
 
 import numpy as np
 
-TOLERANCE = 1e-3  # of an observation's standard deviation per coordinate: a copy's differ by round-off (7e-15 m)
+# Two honest sensors' detections of one target differ by noise of sqrt(2) sigma per coordinate: they fall
+# within TOLERANCE sigma of each other with probability 2e-3 / (sqrt(2 pi) sqrt(2)) = 5.6e-4 per coordinate,
+# 3.2e-7 for a 2-D detection, so half of a report's detections agreeing by chance is out of reach; a copy's
+# differ by round-off (7e-15 m), a federated radar copy's linearized ones by about 0.1 sigma (only starts
+# compared). REPEAT is not needed against chance but against quantized detections (a shared grid value now
+# and then) and one report's coincidence; 3 in a row lets a copy's first 2 reports through.
+TOLERANCE = 1e-3  # of an observation's standard deviation per coordinate
 SAMPLE = 64  # a report's observations compared (its first): a copy's agree all but a few, honest ones none
 REPEAT = 3  # agreeing comparisons of a pair in a row that make them one feed; disagreeing ones that release it
 
