@@ -154,7 +154,9 @@ class SensorService(Service):
             # the common start is a wall-clock time (hosts share no other clock), the scans' times after it
             # monotonic: the wall clock stepped back 30 s mid-run stopped every sensor for 30 s before
             # 2026-11-27, and one stepped forward sent the scans of the skipped seconds at once
-            self.start_mono = now + (self.start_at - time.time())
+            # both clocks read together: `now` was read before the start file, and the time that took
+            # would put scan 0 that much before the common start
+            self.start_mono = time.monotonic() + (self.start_at - time.time())
         if now < self.start_mono:
             return  # scan 0 (either pacing) goes out at the common start
         if self.next_seq >= self.total:

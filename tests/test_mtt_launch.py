@@ -67,7 +67,9 @@ def test_live_multitarget_deployment_equals_its_replay(tmp_path: Path) -> None:
     db = sqlite3.connect(out / "recording.db")
     lag = np.array(db.execute("SELECT stamp_ns / 1e9 - ? - t / 4.0 FROM measurements", (start,)).fetchall())
     db.close()
-    assert lag.size >= 40 and 0.0 <= lag.min() and lag.max() < 1.0, (lag.min(), lag.max())
+    # a sensor keeps the start on its monotonic clock, converted once from the wall clock (hosts share no
+    # other); the two clocks may differ by a step of the wall clock (NTP) mid-run: 1 ms allowed for that
+    assert lag.size >= 40 and -1e-3 <= lag.min() and lag.max() < 1.0, (lag.min(), lag.max())
     replayed = tmp_path / "replay.jsonl"
     replay_mtt("mtt-federated", out / "measurements.jsonl", config, replayed)  # `fedtrack replay`'s call
     assert_same_pictures(live, [json.loads(x) for x in replayed.read_text().splitlines()])
