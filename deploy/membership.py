@@ -22,7 +22,7 @@ from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
 from fedtrack.fusion_center.mtt.centre.association import LocalKey
 from fedtrack.fusion_center.mtt.engines import TrackToTrackEngine
 from fedtrack.local_filters.mtt.config import MttConfig
-from fedtrack.local_filters.mtt.scan import SensorLeft, SensorScan
+from fedtrack.local_filters.mtt.scan import SensorLeft, SensorScan, TrackerRestarted
 
 
 class Joined(NamedTuple):
@@ -59,7 +59,7 @@ def _lost(engine: TrackToTrackEngine, support: dict[int, set[LocalKey]]) -> list
                                                       for k in keys))
 
 
-def membership(scans: list[SensorScan | SensorLeft], cfg: MttConfig, dim: int, feedback: bool,
+def membership(scans: list[SensorScan | SensorLeft | TrackerRestarted], cfg: MttConfig, dim: int, feedback: bool,
                joiners: set[str]) -> tuple[list[Joined], list[Left]]:
     """Replay ``scans`` (a recording's ``measurements.jsonl``, parsed) through the track-to-track
     engine and measure the joins of ``joiners`` and every departure."""
@@ -84,6 +84,9 @@ def membership(scans: list[SensorScan | SensorLeft], cfg: MttConfig, dim: int, f
             engine.leave(item.sensor)
             remaining = set(engine.centre.sensor_seen) if engine.centre is not None else set()
             departures.append(_Departure(Left(item.sensor, last_t, len(support), []), support, remaining))
+            continue
+        if isinstance(item, TrackerRestarted):
+            engine.restart(item.sensor)
             continue
         engine.ingest(item)
         last_t, s, centre = item.t, item.sensor, engine.centre

@@ -329,6 +329,9 @@ class Recording:
                         tag = {"region": pic.regions[i]} if pic.regions else {}
                         if i in pic.left:
                             write(0, m_out, {"t": pic.t, "sensor": key[0], "left": True, **tag})
+                        elif i in pic.restarted:  # the sensor's tracker started afresh with its report key[1]
+                            write(0, m_out, {"t": pic.t, "sensor": key[0], "restarted": True,
+                                             **({"seq": key[1], **tag} if tag else {})})
                         elif i in pic.handovers and tag:
                             write(0, m_out, {"t": pic.t, "handover": key[1], "from": key[0], **tag})
                         elif (key in rowid and (tag or rowid[key] not in used)

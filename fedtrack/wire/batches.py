@@ -140,15 +140,17 @@ class TrackReport(_Record):
     # a region's sub-report (docs/multitarget.md#regions): per track, whether its tracker believes
     # another region's centre holds it (empty: none does; omitted then)
     elsewhere: tuple[bool, ...] = ()
+    first: bool = False  # the first report of this tracker process; on the wire only when true
     part: int = 0  # this part's index, parts: how many (docs/wire.md, "Messages in parts"); on the wire only when > 1
     parts: int = 1
 
     _fields = {"sensor": _identifier, "seq": _count, "t": _real, "ids": _counts, "x": _batch, "P": _batch,
                "confirmed": _flags, "detected": _flags, "obs_H": _batch, "obs_R": _batch, "obs_z": _batch,
                "started": _flags, "retired": _counts, "stamp_ns": _count, "contested": _scans,
-               "existence": _optional_batch_vector, "elsewhere": _flags, "part": _count, "parts": _count}
+               "existence": _optional_batch_vector, "elsewhere": _flags, "first": _flag, "part": _count,
+               "parts": _count}
     _arrays = ("x", "P", "obs_H", "obs_R", "obs_z", "existence")
-    _omitted = ("elsewhere", "part", "parts")
+    _omitted = ("elsewhere", "first", "part", "parts")
     _items = (_Items(("ids", "x", "P", "confirmed", "detected", "existence", "elsewhere"), "MAX_TRACKS"),
               _Items(("started", "obs_H", "obs_R", "obs_z"), "MAX_TRACKS", "of", "detected"),
               _Items(("retired",), "MAX_TRACKS"))
@@ -239,7 +241,9 @@ class TrackPicture(_Record):
     ``sensors`` per track), and the scans it processed since the previous picture, in its
     processing order (``fused_sensors[i]``, ``fused_seqs[i]``): the order a replay of the
     recorded scans must follow. The entries at the positions ``left`` are no scans but
-    departures: the centre dropped that sensor there (its ``fused_seqs`` entry is 0). A
+    departures: the centre dropped that sensor there (its ``fused_seqs`` entry is 0); those at
+    ``restarted``, the sensor's tracker started afresh there (a restarted process), with the
+    report of scan ``fused_seqs`` (the next entry of that sensor). A
     ``closing`` record (the last one, on a clean stop) is no picture: it has no tracks and only
     lists what the centre processed after the last picture. ``contested``: since the previous
     picture a second, different message arrived for a (sensor, scan) the centre had already
@@ -276,6 +280,7 @@ class TrackPicture(_Record):
     # until their new owner shows them) and the data time of each hand-over
     in_flight: tuple[int, ...] = ()
     in_flight_t: tuple[float, ...] = ()
+    restarted: tuple[int, ...] = ()
     part: int = 0  # this part's index, parts: how many (docs/wire.md, "Messages in parts"); on the wire only when > 1
     parts: int = 1
 
@@ -285,15 +290,16 @@ class TrackPicture(_Record):
                "fused_seqs": _counts, "stamp_ns": _count, "closing": _flag, "left": _counts, "contested": _flag,
                "existence": _optional_batch_vector, "lla": _optional_batch,
                "handovers": _counts, "regions": _identifier_list,
-               "in_flight": _counts, "in_flight_t": _reals, "part": _count, "parts": _count}
+               "in_flight": _counts, "in_flight_t": _reals, "restarted": _counts, "part": _count, "parts": _count}
     _arrays = ("x", "P", "maneuver", "existence", "lla")
-    _omitted = ("handovers", "regions", "in_flight", "in_flight_t", "part", "parts")
+    _omitted = ("handovers", "regions", "in_flight", "in_flight_t", "restarted", "part", "parts")
     _items = (_Items(("ids", "x", "P", "confirmed", "sensors", "ca", "existence", "lla"), "MAX_TRACKS"),
               _Items(("fused_seqs", "fused_sensors", "regions"), "MAX_TRACKS"),
               _Items(("maneuvering", "maneuver"), "MAX_TRACKS", "at", "ids"),
               _Items(("in_flight", "in_flight_t"), "MAX_TRACKS", "at", "ids"),
               _Items(("left",), "MAX_TRACKS", "at", "fused_seqs"),
-              _Items(("handovers",), "MAX_TRACKS", "at", "fused_seqs"))
+              _Items(("handovers",), "MAX_TRACKS", "at", "fused_seqs"),
+              _Items(("restarted",), "MAX_TRACKS", "at", "fused_seqs"))
 
     def _check(self) -> None:
         n = len(self.ids)
@@ -315,6 +321,9 @@ class TrackPicture(_Record):
         if (len(set(self.handovers)) != len(self.handovers) or set(self.handovers) & set(self.left)
                 or any(i >= len(self.fused_seqs) for i in self.handovers)):
             raise WireError("handovers", "expected distinct positions in the fused lists, none a departure")
+        if (len(set(self.restarted)) != len(self.restarted) or set(self.restarted) & (set(self.left) | set(self.handovers))
+                or any(i >= len(self.fused_seqs) for i in self.restarted)):
+            raise WireError("restarted", "expected distinct positions in the fused lists, none a departure or hand-over")
         if len(self.regions) not in (0, len(self.fused_seqs)):
             raise WireError("regions", "expected none or one for each entry of the fused lists")
         if (len(set(self.in_flight)) != len(self.in_flight) or any(i >= n for i in self.in_flight)

@@ -229,6 +229,10 @@ class Engine:
     def leave(self, sensor: str, at_once: bool = False) -> None:
         """A departure (:class:`SensorLeft`), or a sensor silent in a replay (``at_once``)."""
 
+    def restart(self, sensor: str) -> None:
+        """``sensor``'s local tracker started afresh (:class:`TrackerRestarted`: a restarted process);
+        a tracker of scans (``mtt-centralized``) has no local tracker to restart."""
+
     def counters(self) -> dict[str, int]:
         return {"scans": self.scans, "late": self.late, "duplicates": self.duplicates, "rerun": self.rerun,
                 "repeated": self.repeated, "lead": self.lead.dropped if self.lead is not None else 0}
@@ -312,6 +316,10 @@ class LocalEngine(ScanTrackerEngine):
 
     def leave(self, sensor: str, at_once: bool = False) -> None:
         self.away = self.away or (at_once and sensor == self.sensor)
+
+    def restart(self, sensor: str) -> None:
+        if sensor == self.sensor:
+            self.history = None
 
     def picture(self, T: float) -> PictureTracks:
         """The tracks at ``T``; none while the sensor is silent (as the centre drops a silent
@@ -426,6 +434,15 @@ class TrackToTrackEngine(Engine):
             [c.centre for c in self.centre.centres] if isinstance(self.centre, ShardedCentre) else [self.centre])
         for c in centres:
             c.drop_unsupported()
+        if self.existence is not None:
+            self.existence.leave(sensor)
+
+    def restart(self, sensor: str) -> None:
+        """The sensor's tracker starts afresh with its next scan, and the centre drops the local
+        tracks of its former process (their ids will be issued again), as at a departure."""
+        self.local.pop(sensor, None)
+        if self.centre is not None:
+            self.centre.drop_sensor(sensor, departed=False)
         if self.existence is not None:
             self.existence.leave(sensor)
 

@@ -85,14 +85,14 @@ SNAPSHOT_MAGIC = b"fedtrack-picture-1\n"  # --snapshot: then the digest, then th
 # 100, above a region's period of scans, 64 live sensors at 10 Hz, and issue 27's 10^5 tracks over the
 # regions); the entries of late pictures go into the next merged picture, or are dropped when they do
 # not fit beside its regions' own (``late_dropped``), so that every merged picture can be sent
-Entries = list[tuple[str, int, str, str]]  # (sensor or sending region, seq, kind: scan/left/handover, region)
+Entries = list[tuple[str, int, str, str]]  # (sensor or sending region, seq, kind: scan/left/handover/restarted, region)
 
 
 def entries_of(msg: TrackPicture, region: str) -> Entries:
     """A region picture's fused lists as tagged entries."""
-    left, handovers = set(msg.left), set(msg.handovers)
-    return [(s, q, "left" if i in left else "handover" if i in handovers else "scan", region)
-            for i, (s, q) in enumerate(zip(msg.fused_sensors, msg.fused_seqs))]
+    kinds = {**{i: "left" for i in msg.left}, **{i: "handover" for i in msg.handovers},
+             **{i: "restarted" for i in msg.restarted}}
+    return [(s, q, kinds.get(i, "scan"), region) for i, (s, q) in enumerate(zip(msg.fused_sensors, msg.fused_seqs))]
 
 
 def region_picture_of(msg: TrackPicture) -> RegionPicture:
@@ -296,6 +296,7 @@ class PictureMergeService(Service):
         order = [(s, q) for s, q, _, _ in entries]
         left = [i for i, e in enumerate(entries) if e[2] == "left"]
         handovers = [i for i, e in enumerate(entries) if e[2] == "handover"]
+        restarted = [i for i, e in enumerate(entries) if e[2] == "restarted"]
         contested = contested or self.contested or any(p is not None and p.contested for p in parts)
         self.contested = False
         # a closing record is numbered after the last picture
@@ -303,7 +304,7 @@ class PictureMergeService(Service):
             self.merged_t) + 1
         self.publish(self.keys.mtt_picture(), picture_message(
             number, T, tracks, order, left, contested, closing, handovers, tuple(e[3] for e in entries),
-            lla=None if self.frame is None else geodetic_of_states(self.frame, tracks.x)))
+            lla=None if self.frame is None else geodetic_of_states(self.frame, tracks.x), restarted=restarted))
         self.seq += 1
         self.counters["pictures"] = self.seq
         if self.snapshot is not None and not closing:

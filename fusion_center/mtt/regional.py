@@ -36,7 +36,7 @@ from fedtrack.jsonl import InputError, read_jsonl
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import LocalReport, SensorTracker
 from fedtrack.local_filters.mtt.routing import RegionAnswer, RegionRouter, join_answers
-from fedtrack.local_filters.mtt.scan import SensorLeft, SensorScan, parse_line
+from fedtrack.local_filters.mtt.scan import SensorLeft, SensorScan, TrackerRestarted, parse_line
 from fedtrack.local_filters.regions import Regions
 
 
@@ -100,6 +100,10 @@ class RegionEngine(Engine):
 
     def leave(self, sensor: str, at_once: bool = False) -> None:
         self.region.drop_sensor(sensor)
+
+    def restart(self, sensor: str) -> None:
+        """The sensor's tracker restarted: the local tracks of its former process go (as at a departure)."""
+        self.region.drop_sensor(sensor, departed=False)
 
     def picture(self, T: float) -> PictureTracks:
         return centre_picture(self.region.centre, T) or no_tracks(self.dim)
@@ -172,7 +176,8 @@ class Handed(NamedTuple):
     serial: int
 
 
-Entry = tuple[SensorScan, int] | SensorLeft | Handed  # (scan, its number), a departure, a hand-over
+# (scan, its number), a departure, a tracker's restart (with its next scan's number), a hand-over
+Entry = tuple[SensorScan, int] | SensorLeft | TrackerRestarted | Handed
 
 
 def read_region_entries(path: Path, regions: Regions) -> list[tuple[int, Entry]]:
@@ -193,10 +198,10 @@ def read_region_entries(path: Path, regions: Regions) -> list[tuple[int, Entry]]
             continue
         seq = obj.pop("seq", None)
         entry = parse_line(obj, where)
-        if isinstance(entry, SensorScan):
+        if isinstance(entry, (SensorScan, TrackerRestarted)):
             if not isinstance(seq, int) or isinstance(seq, bool) or seq < 0:
-                raise InputError(f"{where}: seq: a region run's scan line needs its scan number")
-            out.append((index[rid], (entry, seq)))
+                raise InputError(f"{where}: seq: a region run's scan or restart line needs its scan number")
+            out.append((index[rid], (entry, seq) if isinstance(entry, SensorScan) else entry._replace(seq=seq)))
         else:
             out.append((index[rid], entry))
     return out
@@ -233,9 +238,11 @@ def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions
     queues: list[deque[Entry]] = [deque() for _ in range(R)]
     trackers: dict[str, _Tracker] = {}
     firsts: set[tuple[str, int]] = set()
+    # (sensor, scan number): its tracker restarted with that scan (each region lists the restart)
+    restarts = {(e.sensor, e.seq) for _, e in entries if isinstance(e, TrackerRestarted)}
     for r, entry in entries:
         queues[r].append(entry)
-        if isinstance(entry, tuple) and not isinstance(entry, (SensorLeft, Handed)):
+        if isinstance(entry, tuple) and not isinstance(entry, (SensorLeft, TrackerRestarted, Handed)):
             scan, seq = entry
             if (scan.sensor, seq) not in firsts:
                 firsts.add((scan.sensor, seq))
@@ -250,6 +257,8 @@ def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions
         if tr.seq is None and tr.next < len(tr.scans) and tr.scans[tr.next][1] == seq:
             scan = tr.scans[tr.next][0]
             tr.next += 1
+            if (sensor, seq) in restarts:  # a new tracker process: tracks, ids and what it learnt afresh
+                tr.tracker, tr.router = None, RegionRouter(regions)
             if tr.tracker is None:
                 tr.tracker = SensorTracker(scan, cfg, feedback)
             report, _ = tr.tracker.track(scan)
@@ -266,6 +275,8 @@ def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions
         elif isinstance(entry, SensorLeft):
             engines[r].leave(entry.sensor)
             clocks[r].left()
+        elif isinstance(entry, TrackerRestarted):
+            engines[r].restart(entry.sensor)
         else:
             scan, seq = entry
             tr = report_of(scan.sensor, seq)

@@ -33,16 +33,19 @@ from fedtrack.jsonl import InputError, check_output, output_file, read_jsonl
 from fedtrack.local_filters.linear.gating import CrowdedScan
 from fedtrack.local_filters.mtt.config import MttConfig, MttSettings
 from fedtrack.local_filters.mtt.models import position_from_detection
-from fedtrack.local_filters.mtt.scan import SensorLeft, SensorScan, parse_line
+from fedtrack.local_filters.mtt.scan import SensorLeft, SensorScan, TrackerRestarted, parse_line
 from fedtrack.local_filters.regions import Regions, grid_over, load_regions, parse_grid_spec
 from fedtrack.progress import progress_bar
 from fedtrack.services.lead import LeadGuard
 
 
-def read_scans(path: Path, cfg: MttConfig) -> list[SensorScan | SensorLeft]:
-    """Every line of ``path`` (scans and departures), validated; a sensor the config does not
+Line = SensorScan | SensorLeft | TrackerRestarted  # a line of the multi-target input
+
+
+def read_scans(path: Path, cfg: MttConfig) -> list[Line]:
+    """Every line of ``path`` (scans, departures and restarts), validated; a sensor the config does not
     allow is an error."""
-    scans: list[SensorScan | SensorLeft] = []
+    scans: list[Line] = []
     kind: dict[str, tuple[bool, int]] = {}  # sensor -> (radar, line of its first scan)
     for lineno, obj in read_jsonl(path):
         where = f"{path}:{lineno}"
@@ -63,26 +66,29 @@ def read_scans(path: Path, cfg: MttConfig) -> list[SensorScan | SensorLeft]:
 _KIND = {True: "radar (sensor_position)", False: "2-D position"}
 
 
-def state_dim(scans: list[SensorScan | SensorLeft], sensor: str | None = None) -> int:
+def state_dim(scans: list[Line], sensor: str | None = None) -> int:
     """The state size of a tracker of ``scans`` (of ``sensor``'s only, if given): 6 when any is a
     radar's, else 4."""
     return 6 if any(isinstance(s, SensorScan) and s.sensor_position is not None
                     and (sensor is None or s.sensor == sensor) for s in scans) else 4
 
 
-def pictures(engine: Engine, scans: list[SensorScan | SensorLeft], period: float,
+def pictures(engine: Engine, scans: list[Line], period: float,
              delay: float) -> Iterator[tuple[float, PictureTracks]]:
     """Feed ``scans`` in arrival order and yield each picture once the data has passed its time; a
     scan stamped far ahead of the data waits for a witness (:class:`LeadGuard`, ``engine.lead``)."""
     clock = PictureClock(period, delay)
     engine.lead = guard = engine.lead or LeadGuard(engine.cfg.max_lag, corroborate=True)
-    recorded = any(isinstance(item, SensorLeft) for item in scans)  # a live centre's departures
+    recorded = any(isinstance(item, (SensorLeft, TrackerRestarted)) for item in scans)  # a live centre's recording
     heard: dict[str, float] = {}  # sensor -> the data's time (the newest scan taken) at its last scan
     for item in scans:
         if isinstance(item, SensorLeft):
             guard.leave(item.sensor)
             engine.leave(item.sensor)
             clock.left()
+            continue
+        if isinstance(item, TrackerRestarted):
+            engine.restart(item.sensor)
             continue
         for scan in guard.admit(item.sensor, item.t, item):
             for T in clock.due(scan.t):
@@ -186,7 +192,7 @@ def copy_lines(found: list[Found], shown: int = 10) -> list[str]:
     return lines
 
 
-def data_regions(spec: str, scans: list[SensorScan | SensorLeft], config: Path | None) -> Regions:
+def data_regions(spec: str, scans: list[Line], config: Path | None) -> Regions:
     """``--regions SPEC``: ``config`` (the config file's ``[regions]``) or ``NXxNY``, a grid over the
     extent of the detections' positions (margin: the config's, else 0). A note on stderr when no
     detection is within the config's regions' extent (every track then goes to the nearest region)."""

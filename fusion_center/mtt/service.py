@@ -105,7 +105,7 @@ class MttCentreService(CentreFailover, Service):
     tick_period_s = 0.05
     # restored after a failed handler (the engine changes in place: pickled before each message;
     # ``received`` is only changed once a message was handled); on_tick guards its departures itself
-    state_attrs = ("engine", "clock", "order", "left_at", "pictures", "silence", "contested", "handovers_at",
+    state_attrs = ("engine", "clock", "order", "left_at", "restarted_at", "pictures", "silence", "contested", "handovers_at",
                    "taken", "lead")
     tick_state_attrs = ()
 
@@ -142,6 +142,7 @@ class MttCentreService(CentreFailover, Service):
         self.lead: LeadGuard[Measurement | TrackReport] = LeadGuard(cfg.max_lag, corroborate=True)
         self.order: list[tuple[str, int]] = []  # scans processed since the last picture
         self.left_at: list[int] = []  # positions in ``order`` that are departures
+        self.restarted_at: list[int] = []  # positions in ``order`` where a sensor's tracker restarted
         self.pictures = 0
         self.silence = Silence(cfg.leave_after_s)  # the sensors heard from, and when one counts as gone
         self.gone: deque[str] = deque()  # liveliness lost (filled by a Zenoh thread)
@@ -252,6 +253,7 @@ class MttCentreService(CentreFailover, Service):
                 raise Rejected("crowded", f"scan {msg.seq} of {msg.sensor}: {exc}") from None
             self.engine.repeated += scan.repeated
         else:
+            self._restart(msg)
             self._fuse(msg)
         for picture in pictures:
             self.publish(self.picture_key, picture)
@@ -259,6 +261,19 @@ class MttCentreService(CentreFailover, Service):
         self.silence.heard(msg.sensor, time.monotonic())
         self.lead.took(msg.sensor, msg.t)
         self.received.take(msg)
+
+    def _restart(self, msg: TrackReport) -> None:
+        """The first report of a tracker process from a sensor heard before: its tracker restarted
+        (its tracks and ids afresh). The local tracks of its former process leave their central
+        tracks, and the next picture lists the restart before the report, so that a replay of the
+        recording starts that sensor's tracker afresh there too (docs/multitarget.md)."""
+        if not msg.first or msg.sensor not in self.silence.previous:
+            return
+        self.engine.restart(msg.sensor)
+        self.restarted_at.append(len(self.order))
+        self.order.append((msg.sensor, msg.seq))
+        self.count("trackers_restarted")
+        self.log.info("sensor %s's tracker restarted: its former tracks dropped from fusion", msg.sensor)
 
     def _room(self, what: str) -> None:
         """Rejected("too_large") when the next picture already lists as many entries as it may."""
@@ -412,10 +427,11 @@ class MttCentreService(CentreFailover, Service):
         require_finite(f"the picture at t={T}", tracks.x, tracks.P)
         seq = self.clock.number((self.clock.k or 0) * self.clock.period if closing else T)
         picture = picture_message(seq, T, tracks, self.order, self.left_at, self.contested, closing,
-                                  self.handovers_at, flying=flying,
+                                  self.handovers_at, flying=flying, restarted=self.restarted_at,
                                   lla=None if self.frame is None else geodetic_of_states(self.frame, tracks.x))
         self.pictures += 1
         self.order, self.left_at, self.contested, self.handovers_at = [], [], False, []
+        self.restarted_at = []
         self.counters["pictures"] = self.pictures
         for name, value in self.engine.counters().items():
             self.counters[name] = value

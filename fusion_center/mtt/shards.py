@@ -220,8 +220,8 @@ class RegionCentre:
         self.centre.take_over(record)
         self.taken_over += 1
 
-    def drop_sensor(self, sensor: str) -> None:
-        self.centre.drop_sensor(sensor)
+    def drop_sensor(self, sensor: str, departed: bool = True) -> None:
+        self.centre.drop_sensor(sensor, departed)
         for key in [k for k in self.forwarded if k[0] == sensor]:
             del self.forwarded[key]
 
@@ -342,9 +342,9 @@ class ShardedCentre:
     def handed_over(self) -> int:
         return sum(c.handed_over for c in self.centres)
 
-    def drop_sensor(self, sensor: str) -> None:
+    def drop_sensor(self, sensor: str, departed: bool = True) -> None:
         for c in self.centres:
-            c.drop_sensor(sensor)
+            c.drop_sensor(sensor, departed)
 
     def counters(self) -> dict[str, int]:
         """The centres' counters added up (a departure once), the hand-overs and the rows in flight."""

@@ -107,9 +107,10 @@ def adopt(tracker: LocalTracker, resets: Resets, q_scale: float) -> LocalTracker
 # ---------------------------------------------------------------- wire
 
 def report_to_wire(report: LocalReport, seq: int, stamp_ns: int, contested: tuple[int, ...] = (),
-                   elsewhere: tuple[bool, ...] = ()) -> wire.TrackReport:
+                   elsewhere: tuple[bool, ...] = (), first: bool = False) -> wire.TrackReport:
     """The wire report of scan ``seq``; ``contested``: the scans it names contested (docs/wire.md);
-    ``elsewhere``: a region's sub-report's flags (docs/multitarget.md#regions)."""
+    ``elsewhere``: a region's sub-report's flags (docs/multitarget.md#regions); ``first``: the
+    tracker process's first report."""
     d = report.x.shape[1]
     k, m = report.obs_z.shape
     return wire.TrackReport.unchecked(
@@ -118,7 +119,7 @@ def report_to_wire(report: LocalReport, seq: int, stamp_ns: int, contested: tupl
         detected=tuple(report.detected.tolist()), obs_H=report.obs_H.reshape(k * m, d),
         obs_R=report.obs_R.reshape(k * m, m), obs_z=report.obs_z, started=tuple(report.started.tolist()),
         retired=tuple(report.retired.tolist()), stamp_ns=stamp_ns, contested=contested, existence=report.existence,
-        elsewhere=elsewhere)
+        elsewhere=elsewhere, first=first)
 
 
 def report_from_wire(msg: wire.TrackReport) -> LocalReport:

@@ -7,7 +7,9 @@ Line format (JSON Lines, one line per sensor scan, in arrival order)::
 
 A line with ``sensor_position`` is a radar scan (``z`` = range [m], azimuth, elevation
 [rad]); without it, a 2-D position scan (``z`` = [x, y] [m]). A line ``{"t", "sensor",
-"left": true}`` records that a live centre dropped the sensor there (:class:`SensorLeft`).
+"left": true}`` records that a live centre dropped the sensor there (:class:`SensorLeft`); one
+``{"t", "sensor", "restarted": true}`` that the sensor's local tracker started afresh there, a
+restarted process (:class:`TrackerRestarted`).
 """
 
 from __future__ import annotations
@@ -48,22 +50,36 @@ class SensorLeft(NamedTuple):
     sensor: str
 
 
-LEFT_FIELDS = frozenset({"t", "sensor", "left"})
+class TrackerRestarted(NamedTuple):
+    """A restart line ``{"t": s, "sensor": id, "restarted": true}``: the sensor's local tracker
+    started afresh with its next scan (its process restarted: tracks and ids new), and the centre
+    dropped the local tracks of the former one (a live centre writes one where it took the first
+    report of a tracker process from a sensor it had heard before; ``t`` as a departure's;
+    ``seq``: in a region run's recording, the number of that next scan)."""
+
+    t: float
+    sensor: str
+    seq: int | None = None
 
 
-def parse_line(obj: dict[str, Any], where: str) -> SensorScan | SensorLeft:
-    """A scan line, or a departure line (one with ``"left": true``)."""
-    if "left" not in obj:
+MARKS = {"left": ("departure", SensorLeft), "restarted": ("restart", TrackerRestarted)}
+
+
+def parse_line(obj: dict[str, Any], where: str) -> SensorScan | SensorLeft | TrackerRestarted:
+    """A scan line, a departure line (one with ``"left": true``) or a restart line (``"restarted": true``)."""
+    mark = next((name for name in MARKS if name in obj), None)
+    if mark is None:
         return parse_scan(obj, where)
-    check_fields(obj, LEFT_FIELDS, "departure", where)
-    if obj["left"] is not True:
-        raise InputError(f"{where}: left must be true")
+    what, kind = MARKS[mark]
+    check_fields(obj, frozenset({"t", "sensor", mark}), what, where)
+    if obj[mark] is not True:
+        raise InputError(f"{where}: {mark} must be true")
     sensor = require(obj, "sensor", where)
     try:
         check_id(sensor)
     except (InvalidName, TypeError) as exc:
         raise InputError(f"{where}: sensor: {exc}") from exc
-    return SensorLeft(as_float(require(obj, "t", where), "t", where), sensor)
+    return kind(as_float(require(obj, "t", where), "t", where), sensor)
 
 
 def parse_scan(obj: dict[str, Any], where: str) -> SensorScan:

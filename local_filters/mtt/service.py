@@ -231,7 +231,8 @@ class MttLocalService(Service):
         while self.queue and self.awaiting is None:
             seq, scan, stamp = self.queue.popleft()
             with self.guarded(f"scan {seq}", key=self.keys.sensor_meas(self.sensor)) as attempt:
-                if self.tracker is None:
+                first = self.tracker is None  # this process's first report: the centre records a restart
+                if first:
                     self.tracker = SensorTracker(scan, self.cfg, self.federated)
                 if self.tracker.is_late(scan):
                     self.count("late")
@@ -252,10 +253,11 @@ class MttLocalService(Service):
                     parts = self.router.split(report)
                     for rid, (sub, elsewhere) in zip(self.regions.ids, parts):
                         self.publish(self.keys.region_report(rid, self.sensor),
-                                     report_to_wire(sub, seq, stamp, contested, tuple(elsewhere.tolist())))
+                                     report_to_wire(sub, seq, stamp, contested, tuple(elsewhere.tolist()), first))
                     self.sent, self.answers = [sub for sub, _ in parts], {}
                 else:
-                    self.publish(self.keys.mtt_report(self.sensor), report_to_wire(report, seq, stamp, contested))
+                    self.publish(self.keys.mtt_report(self.sensor),
+                                 report_to_wire(report, seq, stamp, contested, first=first))
                 self.count("reports")
                 if rerun:
                     self.count("rerun", rerun)

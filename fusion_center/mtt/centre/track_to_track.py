@@ -203,16 +203,17 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
             self.support[slot, self._column[key[0]]] -= 1
         return True
 
-    def drop_sensor(self, sensor: str) -> None:
+    def drop_sensor(self, sensor: str, departed: bool = True) -> None:
         """A sensor left (its tracker's liveliness was lost, or it fell silent): it no longer
         counts as live (the other trackers' sharing factors are renormalized from their next
         answer on) nor in the deletion rule, and its local tracks leave their central tracks
         (a central track left without any is deleted by the next :meth:`prune`); a copy of its feed
-        is fused again (:mod:`.copies`)."""
+        is fused again (:mod:`.copies`). ``departed`` False: its tracker restarted (the same, not
+        counted as a departure: the fresh tracker's report follows at once)."""
         self._forget(sensor)
         self.copies.drop(sensor)
         self.counters.copying_sensors = len(self.copies.copy_of)
-        self.counters.left += 1
+        self.counters.left += int(departed)
 
     def _forget(self, sensor: str) -> None:
         """The sensor no longer live, its local tracks unmapped, its column and consistency window gone."""
