@@ -276,7 +276,7 @@ def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions
             engines[r].leave(entry.sensor)
             clocks[r].left()
         elif isinstance(entry, TrackerRestarted):
-            engines[r].restart(entry.sensor)
+            pass  # taken with the scan it names, after the pictures due (as the live centre takes it)
         else:
             scan, seq = entry
             tr = report_of(scan.sensor, seq)
@@ -284,6 +284,8 @@ def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions
                 return False
             for T in clocks[r].due(scan.t):
                 shown[r][T] = engines[r].region_picture(T)
+            if (scan.sensor, seq) in restarts:
+                engines[r].restart(scan.sensor)
             answer, moving = engines[r].answer(*tr.parts[r])
             outbox.update(((r, serial), record) for _, serial, record in moving)
             tr.answers[r] = answer

@@ -81,14 +81,15 @@ def pictures(engine: Engine, scans: list[Line], period: float,
     engine.lead = guard = engine.lead or LeadGuard(engine.cfg.max_lag, corroborate=True)
     recorded = any(isinstance(item, (SensorLeft, TrackerRestarted)) for item in scans)  # a live centre's recording
     heard: dict[str, float] = {}  # sensor -> the data's time (the newest scan taken) at its last scan
+    restarts: set[str] = set()  # sensors whose tracker restarts with their next scan, after the pictures due
     for item in scans:
         if isinstance(item, SensorLeft):
             guard.leave(item.sensor)
             engine.leave(item.sensor)
             clock.left()
             continue
-        if isinstance(item, TrackerRestarted):
-            engine.restart(item.sensor)
+        if isinstance(item, TrackerRestarted):  # the live centre took it with the report, after the pictures due
+            restarts.add(item.sensor)
             continue
         for scan in guard.admit(item.sensor, item.t, item):
             for T in clock.due(scan.t):
@@ -96,6 +97,9 @@ def pictures(engine: Engine, scans: list[Line], period: float,
                     guard.leave(sensor)
                     engine.leave(sensor, at_once=True)
                 yield _picture(engine, T)
+            if scan.sensor in restarts:
+                restarts.discard(scan.sensor)
+                engine.restart(scan.sensor)
             engine.repeated += scan.repeated
             try:
                 engine.ingest(scan)

@@ -1,0 +1,70 @@
+"""A local multi-target tracker restarted mid-run (a crash the launcher restarts): the new process
+starts afresh (tracks and ids new), so the centre drops the former process's local tracks and the
+recording lists the restart; its replay starts that tracker afresh there too, and equals the live
+pictures. Before, the replay ran the sensor's tracker on through the restart: `fedtrack launch` with
+s2's tracker and sensor SIGKILLed and restarted had `verify_run` report ``max_replay_diff`` inf (the
+tracks of s2 differing from the restart on), and a restart the centre took before the lost liveliness
+(no departure) fused the new process's ids 0, 1, ... into the central tracks of the old one's.
+In process (:class:`test_hostile_messages.Bus`), about 1 s."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from support import assert_same_pictures
+from test_hostile_messages import KEYS, MTT_SENSORS, OPTIONS, Bus, mtt_lines, mtt_services
+
+from fedtrack.fusion_center.mtt.replay import replay_mtt
+from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.mtt.service import MttLocalService
+from fedtrack.wire import encode
+
+RESTART_T = 6.0  # s2's tracker restarts then (the scenario is 12 s)
+
+
+def lines(path: Path) -> list[dict]:
+    return [json.loads(line) for line in path.read_text().splitlines()]
+
+
+@pytest.mark.parametrize(("algorithm", "departed"), [("mtt-federated", True), ("mtt-decentralized", True),
+                                                     ("mtt-federated", False)],
+                         ids=["federated-after-its-departure", "decentralized-after-its-departure",
+                              "federated-before-its-departure"])
+def test_a_restarted_tracker_starts_afresh_in_the_replay_too(tmp_path: Path, algorithm: str, departed: bool) -> None:
+    services = mtt_services(tmp_path, algorithm)
+    centre, recorder = services["centre"], services["recorder"]
+    bus = Bus(list(services.values()))
+    restarted = False
+    for msg in mtt_lines(tmp_path):
+        if msg.t >= RESTART_T and not restarted:
+            restarted = True
+            if departed:  # its liveliness token went with the process
+                centre.gone.append("s2")  # type: ignore[attr-defined]
+                centre.on_tick()
+            cfg = MttConfig(sensors=MTT_SENSORS, max_lag=3.0, clutter_density=2.0 / 5000.0**2)
+            services["s2"] = MttLocalService("s2", algorithm == "mtt-federated", cfg, 5.0, service_id="s2", options=OPTIONS,
+                                             deployment=KEYS.deployment)
+            published = bus.published
+            bus = Bus(list(services.values()))
+            bus.published = published
+        bus.put(KEYS.sensor_meas(msg.sensor), encode(msg))
+    centre.on_stop()
+    bus.drain()
+    assert centre.counters["trackers_restarted"] == 1
+    assert centre.counters.get("sensors_left", 0) == int(departed)  # a restart is no departure
+    assert "rejected_handler_error" not in centre.counters
+
+    measurements, live = tmp_path / "m.jsonl", tmp_path / "live.jsonl"
+    recorder.recording.export(measurements, live)  # type: ignore[attr-defined]
+    marks = [obj for obj in lines(measurements) if "detections" not in obj]
+    assert [(m["sensor"], "left" in m) for m in marks] == [("s2", True)] * departed + [("s2", False)]
+    config = tmp_path / "c.toml"
+    config.write_text('[mtt]\nsensors = ["s1", "s2", "s3"]\nmax_lag = 3.0\nclutter_density = 8e-8\n')
+    again = tmp_path / "again.jsonl"
+    replay_mtt(algorithm, measurements, config, again)
+    assert_same_pictures(lines(live), lines(again))
+    # s2's tracks after the restart are the new process's: its first local track id is 0 again
+    s2_after = [tr for p in lines(live) if p["t"] > RESTART_T + 2 for tr in p["tracks"] if tr["sensors"] == ["s2"]]
+    assert all(tr["status"] == "tentative" for tr in s2_after[:1])
