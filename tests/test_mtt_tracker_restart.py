@@ -5,7 +5,7 @@ pictures. Before, the replay ran the sensor's tracker on through the restart: `f
 s2's tracker and sensor SIGKILLed and restarted had `verify_run` report ``max_replay_diff`` inf (the
 tracks of s2 differing from the restart on), and a restart the centre took before the lost liveliness
 (no departure) fused the new process's ids 0, 1, ... into the central tracks of the old one's.
-In process (:class:`test_hostile_messages.Bus`), about 1 s."""
+In process (:class:`test_hostile_messages.Bus`), about 1 s each."""
 
 from __future__ import annotations
 
@@ -65,6 +65,3 @@ def test_a_restarted_tracker_starts_afresh_in_the_replay_too(tmp_path: Path, alg
     again = tmp_path / "again.jsonl"
     replay_mtt(algorithm, measurements, config, again)
     assert_same_pictures(lines(live), lines(again))
-    # s2's tracks after the restart are the new process's: its first local track id is 0 again
-    s2_after = [tr for p in lines(live) if p["t"] > RESTART_T + 2 for tr in p["tracks"] if tr["sensors"] == ["s2"]]
-    assert all(tr["status"] == "tentative" for tr in s2_after[:1])
