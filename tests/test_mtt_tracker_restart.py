@@ -44,8 +44,8 @@ def test_a_restarted_tracker_starts_afresh_in_the_replay_too(tmp_path: Path, alg
                 centre.gone.append("s2")  # type: ignore[attr-defined]
                 centre.on_tick()
             cfg = MttConfig(sensors=MTT_SENSORS, max_lag=3.0, clutter_density=2.0 / 5000.0**2)
-            services["s2"] = MttLocalService("s2", algorithm == "mtt-federated", cfg, 5.0, service_id="s2", options=OPTIONS,
-                                             deployment=KEYS.deployment)
+            services["s2"] = MttLocalService("s2", algorithm == "mtt-federated", cfg, 5.0, service_id="s2",
+                                             options=OPTIONS, deployment=KEYS.deployment)
             published = bus.published
             bus = Bus(list(services.values()))
             bus.published = published

@@ -321,9 +321,10 @@ class TrackPicture(_Record):
         if (len(set(self.handovers)) != len(self.handovers) or set(self.handovers) & set(self.left)
                 or any(i >= len(self.fused_seqs) for i in self.handovers)):
             raise WireError("handovers", "expected distinct positions in the fused lists, none a departure")
-        if (len(set(self.restarted)) != len(self.restarted) or set(self.restarted) & (set(self.left) | set(self.handovers))
+        if (len(set(self.restarted)) != len(self.restarted) or set(self.restarted) & {*self.left, *self.handovers}
                 or any(i >= len(self.fused_seqs) for i in self.restarted)):
-            raise WireError("restarted", "expected distinct positions in the fused lists, none a departure or hand-over")
+            raise WireError("restarted", "expected distinct positions in the fused lists, none a departure or a "
+                                         "hand-over")
         if len(self.regions) not in (0, len(self.fused_seqs)):
             raise WireError("regions", "expected none or one for each entry of the fused lists")
         if (len(set(self.in_flight)) != len(self.in_flight) or any(i >= n for i in self.in_flight)

@@ -38,11 +38,13 @@ def picture_window(period: float, speed: float) -> int:
 def picture_message(seq: int, T: float, tracks: PictureTracks, order: list[tuple[str, int]], left: list[int],
                     contested: bool, closing: bool = False, handovers: list[int] | tuple[int, ...] = (),
                     regions: tuple[str, ...] = (), lla: np.ndarray | None = None,
-                    flying: dict[int, float] | None = None, restarted: list[int] | tuple[int, ...] = ()) -> TrackPicture:
+                    flying: dict[int, float] | None = None,
+                    restarted: list[int] | tuple[int, ...] = ()) -> TrackPicture:
     """The ``TrackPicture`` of ``tracks`` at ``T``, listing the entries ``order`` processed since the
     previous one (``left``, ``handovers``, ``restarted``: the positions that are departures, hand-overs
-    taken over and trackers restarted; ``regions``: each entry's region, in a merged picture; ``lla``: the tracks on the Earth;
-    ``flying``: the ids of a region centre's copies of tracks it handed over, with the hand-overs' times)."""
+    taken over and trackers restarted; ``regions``: each entry's region, in a merged picture; ``lla``:
+    the tracks on the Earth; ``flying``: the ids of a region centre's copies of tracks it handed over,
+    with the hand-overs' times)."""
     d = tracks.x.shape[1]
     ca = tuple(model == "ca" for model in tracks.models)
     maneuvering = tracks.maneuver_rows()

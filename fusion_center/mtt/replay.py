@@ -38,7 +38,6 @@ from fedtrack.local_filters.regions import Regions, grid_over, load_regions, par
 from fedtrack.progress import progress_bar
 from fedtrack.services.lead import LeadGuard
 
-
 Line = SensorScan | SensorLeft | TrackerRestarted  # a line of the multi-target input
 
 

@@ -105,8 +105,8 @@ class MttCentreService(CentreFailover, Service):
     tick_period_s = 0.05
     # restored after a failed handler (the engine changes in place: pickled before each message;
     # ``received`` is only changed once a message was handled); on_tick guards its departures itself
-    state_attrs = ("engine", "clock", "order", "left_at", "restarted_at", "pictures", "silence", "contested", "handovers_at",
-                   "taken", "lead")
+    state_attrs = ("engine", "clock", "order", "left_at", "restarted_at", "pictures", "silence", "contested",
+                   "handovers_at", "taken", "lead")
     tick_state_attrs = ()
 
     def __init__(self, algorithm: str, cfg: MttConfig, dim: int = 4, max_seq_jump: int = 1000,

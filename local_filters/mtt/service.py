@@ -11,8 +11,10 @@ may differ from the replay). A scan older than the tracker's newest (the sensor'
 it) is fused in time order, the later scans run again (counted ``rerun``;
 :class:`fedtrack.local_filters.mtt.local.SensorTracker`), and reported; one more than ``max_lag``
 older is dropped and counted ``late``, and one equal to a scan tracked before (another number)
-``duplicate``, as in the replay. At most ``MAX_ENTRIES`` scans wait (for resets, or behind a slow
-tracker): beyond, the oldest waiting one is dropped and counted ``queue_dropped``.
+``duplicate``, as in the replay. The report of the process's first scan is marked ``first``: a
+restarted tracker starts afresh, and the centre lists the restart for the replay. At most
+``MAX_ENTRIES`` scans wait (for resets, or behind a slow tracker): beyond, the oldest waiting one
+is dropped and counted ``queue_dropped``.
 
 Rejected (docs/wire.md#rejections): a measurement of another kind or shape (``wrong_model``),
 a sensor the config does not allow (``unknown_sensor``), a scan number more than
