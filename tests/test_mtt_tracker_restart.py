@@ -65,3 +65,40 @@ def test_a_restarted_tracker_starts_afresh_in_the_replay_too(tmp_path: Path, alg
     again = tmp_path / "again.jsonl"
     replay_mtt(algorithm, measurements, config, again)
     assert_same_pictures(lines(live), lines(again))
+
+
+
+def test_a_restarted_tracker_of_a_region_run_starts_afresh_in_its_replay_too(tmp_path: Path) -> None:
+    """The same with a centre per region (each lists the restart; the replay restarts the shared
+    tracker once, with the scan the lines name)."""
+    from test_mtt_regions_live import CONFIG, services
+
+    config = tmp_path / "config.toml"
+    config.write_text(CONFIG)
+    cfg = MttConfig(sensors=MTT_SENSORS, max_lag=3.0, clutter_density=1.2e-7)
+    common = {"options": OPTIONS, "deployment": KEYS.deployment}
+    centres, local, merger, recorder = services(tmp_path, "mtt-federated", config, cfg, common)
+    recorder.on_start()
+    bus = Bus([*centres, *local, merger, recorder])
+    restarted = False
+    for m in mtt_lines(tmp_path):
+        if m.t >= RESTART_T and not restarted:
+            restarted = True
+            for c in centres:  # s2's liveliness token went with its process
+                c.gone.append("s2")
+                c.on_tick()
+            local[1] = MttLocalService("s2", True, cfg, 5.0, regions=merger.regions, service_id="s2", **common)
+            published = bus.published
+            bus = Bus([*centres, *local, merger, recorder])
+            bus.published = published
+        bus.put(KEYS.sensor_meas(m.sensor), encode(m))
+    for svc in [*local, *centres, merger]:
+        svc.on_stop()
+        bus.drain()
+    recorder.on_stop()
+    assert [c.counters.get("trackers_restarted") for c in centres] == [1, 1]
+    marks = [obj for obj in lines(tmp_path / "out" / "measurements.jsonl") if obj.get("restarted")]
+    assert sorted(m["region"] for m in marks) == ["x0y0", "x1y0"] and all(m["sensor"] == "s2" for m in marks)
+    again = tmp_path / "again.jsonl"
+    replay_mtt("mtt-federated", tmp_path / "out" / "measurements.jsonl", config, again, regions="config")
+    assert_same_pictures(lines(tmp_path / "out" / "tracks.jsonl"), lines(again))
