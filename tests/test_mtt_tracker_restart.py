@@ -28,10 +28,9 @@ def lines(path: Path) -> list[dict]:
     return [json.loads(line) for line in path.read_text().splitlines()]
 
 
-@pytest.mark.parametrize(("algorithm", "departed"), [("mtt-federated", True), ("mtt-decentralized", True),
-                                                     ("mtt-federated", False)],
-                         ids=["federated-after-its-departure", "decentralized-after-its-departure",
-                              "federated-before-its-departure"])
+# (federated after the departure: the centre's resets made the old replay's pictures equal on this scenario)
+@pytest.mark.parametrize(("algorithm", "departed"), [("mtt-decentralized", True), ("mtt-federated", False)],
+                         ids=["decentralized-after-its-departure", "federated-before-its-departure"])
 def test_a_restarted_tracker_starts_afresh_in_the_replay_too(tmp_path: Path, algorithm: str, departed: bool) -> None:
     services = mtt_services(tmp_path, algorithm)
     centre, recorder = services["centre"], services["recorder"]
@@ -70,14 +69,14 @@ def test_a_restarted_tracker_starts_afresh_in_the_replay_too(tmp_path: Path, alg
 
 def test_a_restarted_tracker_of_a_region_run_starts_afresh_in_its_replay_too(tmp_path: Path) -> None:
     """The same with a centre per region (each lists the restart; the replay restarts the shared
-    tracker once, with the scan the lines name)."""
+    tracker once, with the scan the lines name); decentralized, whose pictures the old replay missed."""
     from test_mtt_regions_live import CONFIG, services
 
     config = tmp_path / "config.toml"
     config.write_text(CONFIG)
     cfg = MttConfig(sensors=MTT_SENSORS, max_lag=3.0, clutter_density=1.2e-7)
     common = {"options": OPTIONS, "deployment": KEYS.deployment}
-    centres, local, merger, recorder = services(tmp_path, "mtt-federated", config, cfg, common)
+    centres, local, merger, recorder = services(tmp_path, "mtt-decentralized", config, cfg, common)
     recorder.on_start()
     bus = Bus([*centres, *local, merger, recorder])
     restarted = False
@@ -87,7 +86,7 @@ def test_a_restarted_tracker_of_a_region_run_starts_afresh_in_its_replay_too(tmp
             for c in centres:  # s2's liveliness token went with its process
                 c.gone.append("s2")
                 c.on_tick()
-            local[1] = MttLocalService("s2", True, cfg, 5.0, regions=merger.regions, service_id="s2", **common)
+            local[1] = MttLocalService("s2", False, cfg, 5.0, regions=merger.regions, service_id="s2", **common)
             published = bus.published
             bus = Bus([*centres, *local, merger, recorder])
             bus.published = published
@@ -100,5 +99,5 @@ def test_a_restarted_tracker_of_a_region_run_starts_afresh_in_its_replay_too(tmp
     marks = [obj for obj in lines(tmp_path / "out" / "measurements.jsonl") if obj.get("restarted")]
     assert sorted(m["region"] for m in marks) == ["x0y0", "x1y0"] and all(m["sensor"] == "s2" for m in marks)
     again = tmp_path / "again.jsonl"
-    replay_mtt("mtt-federated", tmp_path / "out" / "measurements.jsonl", config, again, regions="config")
+    replay_mtt("mtt-decentralized", tmp_path / "out" / "measurements.jsonl", config, again, regions="config")
     assert_same_pictures(lines(tmp_path / "out" / "tracks.jsonl"), lines(again))
