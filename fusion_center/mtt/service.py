@@ -266,7 +266,7 @@ class MttCentreService(CentreFailover, Service):
         """The first report of a tracker process from a sensor heard before: its tracker restarted
         (its tracks and ids afresh). The local tracks of its former process leave their central
         tracks, and the next picture lists the restart before the report, so that a replay of the
-        recording starts that sensor's tracker afresh there too (docs/multitarget.md)."""
+        recording starts that sensor's tracker afresh there too (docs/multitarget-formats.md, restart line)."""
         if not msg.first or msg.sensor not in self.silence.previous:
             return
         self.engine.restart(msg.sensor)
