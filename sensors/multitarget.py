@@ -14,7 +14,8 @@ apart (``POS_SD_MAX`` to ``2 POS_SD_MAX``: 20-40 m). ``--scenario dense`` is iss
 scenario: groups of three crossing other groups, P_D 0.8, 50 false detections per scan, 120 s.
 
 Sensors (``SPEC`` = comma-separated ``kind:period``, kind ``pos`` or ``radar``): each has its
-own period and a random phase; every target is detected with ``pd``; ``clutter`` false
+own period and a random phase (its first scan within the period, or within the scenario when the
+period is longer: every sensor scans at least once); every target is detected with ``pd``; ``clutter`` false
 detections per scan on average (Poisson), uniform over the region (radar: over its range,
 azimuth and elevation cover). Position sensors have noise std 10-20 m per axis; radars
 10 m in range and 2 mrad in angle, standing at the region's edge.
@@ -185,7 +186,9 @@ def sensor_lines(spec: SensorSpec, sc: Scenario, x: np.ndarray, alive: np.ndarra
     (:func:`fedtrack.geodetic.above_radio_horizon`). Without a site it stands at a random point of the
     region's edge and measures in the common frame's axes. ``noise``: the sensor's ``R`` (default:
     a position sensor's 10-20 m per axis, drawn; a radar's ``RADAR_SD``)."""
-    phase = round(rng.uniform(0, spec.period) / DT) * DT
+    # the first scan at a random phase within the period, or within the scenario when the period is
+    # longer (else such a sensor had no scan at all with chance 1 - duration / period: its launch failed)
+    phase = round(rng.uniform(0, min(spec.period, sc.duration)) / DT) * DT
     times = np.arange(phase, sc.duration + 1e-9, spec.period)
     out: list[tuple[float, dict[str, Any]]] = []
     last_arrival = -np.inf

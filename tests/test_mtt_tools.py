@@ -153,3 +153,22 @@ def test_simulate_half_width_bounds_the_clutter_and_sets_its_density(tmp_path: P
         assert load_tables(out / "config.toml", MttSettings).mtt.clutter_density == pytest.approx(
             50 / (2 * half) ** 2, rel=1e-12)
     assert extents["small"] <= 2000.0 + 100.0 < extents["default"]  # the one target's noise: under 100 m
+
+
+def test_a_sensor_slower_than_the_scenario_still_scans_once() -> None:
+    """A sensor whose period exceeds the scenario scans once, at a random time within it (before,
+    its first scan came at a random phase within its period, so with chance 1 - duration / period it
+    had none: `pos:1.0,pos:40` over 30 s left s2 without a scan for seeds 4, 6 and 8 of 1-8, and a
+    `launch` of it failed at start, the sensor exiting 2: "no scan of sensor 's2'"). A period within
+    the scenario draws its phase as before."""
+    from fedtrack.sensors.multitarget import Scenario, SensorSpec, sensor_lines, simulate_truth
+
+    sc = Scenario(targets=2, duration=30.0, late=0.0)
+    first = []
+    for seed in range(1, 9):
+        rng = np.random.default_rng(seed)
+        x, alive = simulate_truth(sc, False, rng)
+        times = [line["t"] for _, line in sensor_lines(SensorSpec("s2", "pos", 40.0), sc, x, alive, False, rng)]
+        assert len(times) == 1 and 0.0 <= times[0] <= sc.duration
+        first.append(times[0])
+    assert len(set(first)) == 8  # still a random time
