@@ -35,6 +35,7 @@ from fedtrack.sensors.multitarget import (
     check_options,
     clutter_density,
     position_clutter_density,
+    revisits,
 )
 from fedtrack.sensors.state_vectors import UNITS, Recording, read_recording
 from fedtrack.sensors.traffic_sensors import NACP_EPU, parse_kinds, parse_sensors, sensor_scans
@@ -87,9 +88,12 @@ sensors (--sensors, comma-separated KIND:PERIOD[/SIGMA...][@LAT/LON/H]):
 def derived_tracker(truth: Truth, specs: list[SensorSpec]) -> dict[str, float | str]:
     """The tracker keys derived from the recording, the sensors and civil air-traffic kinematics
     (docs/geodetic.md): two motion modes, straight and maneuvering, the maneuvering one's ``q`` letting
-    the velocity change by ``MANEUVER_ACCELERATION`` times the longest sensor period over that period."""
+    the velocity change by ``MANEUVER_ACCELERATION`` times the longest sensor period over that period
+    (of the sensors that scan again within the window: a slower one scans once, never late;
+    :func:`~fedtrack.sensors.multitarget.revisits`)."""
     v = truth.x[..., [1, 3]]
-    longest = max(s.period for s in specs)
+    duration = (truth.alive.shape[0] - 1) * DT
+    longest = max(revisits(specs, duration), default=min(duration, max(s.period for s in specs)))
     speed = np.linalg.norm(v, axis=-1)[truth.alive]
     alt = truth.x[..., 4][truth.alive]
     return {"process_noise": "imm", "q": round(MANEUVER_ACCELERATION**2 * longest, 3), "maneuver_s": MANEUVER_S,

@@ -172,3 +172,18 @@ def test_a_sensor_slower_than_the_scenario_still_scans_once() -> None:
         assert len(times) == 1 and 0.0 <= times[0] <= sc.duration
         first.append(times[0])
     assert len(set(first)) == 8  # still a random time
+
+
+def test_a_sensor_that_scans_once_does_not_set_the_process_noise_or_max_lag(tmp_path: Path) -> None:
+    """`[mtt] q` and `max_lag` follow the sensors that scan again within the scenario: one slower than
+    it scans once (no interval to predict across, never late). Before, `pos:1.0,pos:0.7,pos:1e9` over
+    120 s wrote q = 2.5e9 and max_lag 2e9 s (mean GOSPA of mtt-federated 414 m; 32 m with these)."""
+    from fedtrack.sensors.multitarget import parse_spec, process_noise
+
+    out = tmp_path / "slow"
+    assert cli(["simulate", "multitarget", "--sensors", "pos:1.0,pos:0.7,pos:1e9", "--targets", "2", "--duration",
+                "30", "--out", str(out)]) == 0
+    cfg = load_tables(out / "config.toml", MttSettings).mtt
+    assert cfg.q == pytest.approx(math.pi**2 / 4 * 1.0, abs=1e-6) and cfg.max_lag == 3.0
+    assert process_noise(parse_spec("pos:40,pos:50"), 30.0) == pytest.approx(math.pi**2 / 4 * 30.0, abs=1e-6)
+    assert process_noise(parse_spec("pos:1.0,pos:20"), 30.0) == pytest.approx(math.pi**2 / 4 * 20.0, abs=1e-6)

@@ -416,3 +416,17 @@ def test_radar_plots_update_the_tracks_2d_plots_started(tmp_path: Path) -> None:
             assert sd < 400.0 and abs(x[4] - p[near, 4]) < 5 * sd, (picture["t"], tr["id"], x[4], p[near, 4], sd)
             normalized.append((x[4] - p[near, 4]) / sd)
     assert len(normalized) >= 50 * n and np.mean(np.square(normalized)) < 2.0
+
+
+def test_a_sensor_slower_than_the_window_does_not_set_the_tracker_keys() -> None:
+    """`q`, `max_lag` and `central_timeout` follow the sensors that scan again within the window: one
+    slower than it scans once (before, `radar:4,radar:5,pos:1000` over 300 s of the Swiss extract wrote
+    q 20,912, max_lag and central_timeout 2,001 s, and mtt-federated's mean GOSPA was 176 m; 111 m now,
+    the keys those of the two radars)."""
+    from fedtrack.sensors.traffic import derived_tracker
+
+    truth = _cv_truth(3, 100.0, np.random.default_rng(1))
+    radars = [SensorSpec("r1", "radar", 4.0), SensorSpec("r2", "radar", 5.0)]
+    assert derived_tracker(truth, [*radars, SensorSpec("s3", "pos", 1000.0)]) == derived_tracker(truth, radars)
+    once = derived_tracker(truth, [SensorSpec("s1", "pos", 1000.0)])  # no sensor scans twice: the window
+    assert once["max_lag"] == 2 * 100.0 + 1.0
