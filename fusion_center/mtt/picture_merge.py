@@ -85,7 +85,8 @@ SNAPSHOT_MAGIC = b"fedtrack-picture-1\n"  # --snapshot: then the digest, then th
 # 100, above a region's period of scans, 64 live sensors at 10 Hz, and issue 27's 10^5 tracks over the
 # regions); the entries of late pictures go into the next merged picture, or are dropped when they do
 # not fit beside its regions' own (``late_dropped``), so that every merged picture can be sent
-Entries = list[tuple[str, int, str, str]]  # (sensor or sending region, seq, kind: scan/left/handover/restarted, region)
+# (sensor or sending region, seq, kind: scan / left / handover / restarted, region)
+Entries = list[tuple[str, int, str, str]]
 
 
 def entries_of(msg: TrackPicture, region: str) -> Entries:
