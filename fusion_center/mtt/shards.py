@@ -195,8 +195,10 @@ class RegionCentre:
                                     dtype=bool, count=int(out.sum()))
                 out[out] = ~whole | self.beyond_band(c.tracks.x[sl[out], p[out]], c.tracks.P[sl[out], p[out]])
             if out.any():
-                cids, first = np.unique(ids[live][out], return_index=True)  # in increasing id
-                for cid, o in zip(cids.tolist(), owner[out][first].tolist()):
+                first: dict[int, int] = {}  # each track leaving, to its owner at its first row
+                for cid, o in zip(ids[live][out].tolist(), owner[out].tolist()):
+                    first.setdefault(cid, o)
+                for cid, o in sorted(first.items()):  # in increasing id
                     record = c.hand_over(cid)
                     self.forwarded.update((key, o) for key in record.members)
                     moving.append((o, self.serial, record))

@@ -132,27 +132,36 @@ class SensorConsistency:
     def tests(self) -> dict[str, tuple[float, float]]:
         """Each sensor's ratio and log tail probability over the window (those with enough innovations
         on both sides)."""
+        sums, total = self._sums()
+        return {s: test for s in sums if (test := self._test(sums[s], total)) is not None}
+
+    def _sums(self) -> tuple[dict[str, tuple[float, int, int]], list[float]]:
+        """Each sensor's window sums (innovations, dof, count) and their totals over the sensors."""
         sums = {s: (sum(e.nis for e in kept), sum(e.dof for e in kept), sum(e.count for e in kept))
                 for s, kept in self.scans.items()}
-        total = [sum(v[k] for v in sums.values()) for k in range(3)]
-        out = {}
-        for s, (a, a_dof, a_n) in sums.items():
-            b, b_dof, b_n = total[0] - a, total[1] - a_dof, total[2] - a_n
-            if min(a_n, b_n) >= MIN_OBSERVATIONS:
-                out[s] = relative_tail(a, a_dof, b, b_dof)
-        return out
+        return sums, [sum(v[k] for v in sums.values()) for k in range(3)]
+
+    @staticmethod
+    def _test(own: tuple[float, int, int], total: list[float]) -> tuple[float, float] | None:
+        """One sensor's :func:`relative_tail` against the others (``total`` less its ``own`` sums), or
+        None without enough innovations on both sides."""
+        a, a_dof, a_n = own
+        b, b_dof, b_n = total[0] - a, total[1] - a_dof, total[2] - a_n
+        return relative_tail(a, a_dof, b, b_dof) if min(a_n, b_n) >= MIN_OBSERVATIONS else None
 
     def _judge(self, sensor: str, t: float) -> None:
-        tests = self.tests()
-        if sensor not in tests:
+        """The reporting sensor's test; the others' only when it would be flagged (it must be the worst)."""
+        sums, total = self._sums()
+        test = self._test(sums[sensor], total)
+        if test is None:
             return
-        ratio, log_p = tests[sensor]
-        worst = min(lp for _, lp in tests.values())
-        if sensor not in self.flagged and log_p < math.log(FALSE_ALARM) and log_p <= worst:
-            self.flagged[sensor] = t
-            self.onsets += 1
-            self.transitions.append(Transition(t, sensor, True, log_p, ratio))
-        elif sensor in self.flagged and log_p > math.log(CLEAR_P):
+        ratio, log_p = test
+        if sensor not in self.flagged:
+            if log_p < math.log(FALSE_ALARM) and log_p <= min(lp for _, lp in self.tests().values()):
+                self.flagged[sensor] = t
+                self.onsets += 1
+                self.transitions.append(Transition(t, sensor, True, log_p, ratio))
+        elif log_p > math.log(CLEAR_P):
             del self.flagged[sensor]
             self.transitions.append(Transition(t, sensor, False, log_p, ratio))
 

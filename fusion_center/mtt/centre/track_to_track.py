@@ -139,6 +139,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.column_log_miss = np.zeros(0)  # per sensor column, ln(1 - P_D) of its sensor (MttConfig.log_miss)
         self.column_interval = np.zeros(0)  # per sensor column, its latest scan's time since its previous one
         self.n_live = 0  # live sensors at the latest report's time (live_sensors), counted once a report
+        self.usual: dict[str, float] = {}  # each sensor's usual interval at the latest report (_note_scan)
         self.support = np.zeros((0, 0), dtype=np.int64)  # local tracks of each sensor mapped to a slot
         self.streak = np.zeros((0, 0), dtype=np.int64)  # a confirmed slot's misses in a row per sensor
         self.window = np.zeros((0, cfg.confirm_window), dtype=bool)  # a tentative slot's last scans
@@ -245,7 +246,10 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         """The sensors whose latest scan is within their silence bound of ``now`` (the live centre's
         rule on the data's time, :func:`~.silence.silence_bound` with ``central_timeout`` as its floor:
         a sensor scanning every 8 s, or in bursts 8 s apart, stays live between its scans)."""
-        usual = self._usual_intervals()
+        return self._live(now, self._usual_intervals())
+
+    def _live(self, now: float, usual: dict[str, float]) -> list[str]:
+        """:meth:`live_sensors` with the sensors' ``usual`` intervals given."""
         return sorted(s for s, t in self.sensor_seen.items()
                       if now - t <= silence_bound(s, usual, self.cfg.central_timeout))
 
@@ -299,7 +303,8 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         A report of a sensor found to copy another's feed (:mod:`.copies`) is neither fused nor
         associated either, counted ``copies``; when the sensor is found, its local tracks leave their
         central tracks and it is no longer live."""
-        copy = self._copied(report, rows)
+        obs = None if rows is None else rows[report.detected].nonzero()[0]  # the rows' observations
+        copy = self._copied(report, obs)
         if copy or report.t < max(self.sensor_seen.values(), default=report.t) - self.cfg.max_lag:
             if copy:
                 self.counters.copies += 1
@@ -310,7 +315,6 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         col = self._note_scan(report)
         det_rows = (report.detected if rows is None else report.detected & rows).nonzero()[0]
         if det_rows.size:
-            obs = None if rows is None else rows[report.detected].nonzero()[0]
             resets = self._fuse_rows(report, det_rows, col, obs)
             self._unmap_retired(report)  # a late scan's own tracks that later scans deleted: fused, now unmapped
             return resets
@@ -318,11 +322,11 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self._count_scan(col, det_rows, report)
         return no_resets(report.sensor, report.t, report.x.shape[1])
 
-    def _copied(self, report: LocalReport, rows: np.ndarray | None) -> bool:
-        """Whether the report's sensor copies another's feed (its observations of ``rows`` compared); a copy
-        found now (this sensor, or one whose report at this time came earlier) is forgotten."""
+    def _copied(self, report: LocalReport, obs_rows: np.ndarray | None) -> bool:
+        """Whether the report's sensor copies another's feed (its observations ``obs_rows`` compared, None:
+        all); a copy found now (this sensor, or one whose report at this time came earlier) is forgotten."""
         logged = len(self.copies.found)
-        k = slice(None) if rows is None else rows[report.detected]
+        k = slice(None) if obs_rows is None else obs_rows
         obs = Observations(report.obs_z[k], report.obs_R[k], report.obs_H[k], report.started[k])
         copy = self.copies.is_copy(report.sensor, report.t, obs)
         for found in self.copies.found[logged:]:
@@ -344,7 +348,8 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.sensor_seen[s] = max(previous, t)
         if t > previous:
             self.scan_gaps.setdefault(s, deque(maxlen=INTERVALS_KEPT)).append(t - previous)
-        self.n_live = len(self.live_sensors(t))
+        self.usual = self._usual_intervals()  # once a report: the live sensors, the monitor's window
+        self.n_live = len(self._live(t, self.usual))
         col = self._col(s)
         self.column_interval[col] = t - previous
         self._unmap_retired(report)
@@ -485,7 +490,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         use = (fused & (row >= 0) & once & (has.sum(axis=1) - has[:, col] > 0)).nonzero()[0]
         H, R, z = (a[use] for a in observations)
         nis = normalized_innovations(self._embed(H), R, z, X[row[use]], P[row[use]]) if use.size else np.zeros(0)
-        self.consistency.add(sensor, t, nis, z.shape[-1], window_seconds(self._usual_intervals()))
+        self.consistency.add(sensor, t, nis, z.shape[-1], window_seconds(self.usual))
         self.counters.inconsistent_sensors = len(self.consistency.flagged)
         self.counters.inconsistency_onsets = self.consistency.onsets
 
