@@ -109,6 +109,7 @@ class RegionCentre:
         self.centre = TrackToTrackCentre(self.cfg, self.dim, self.feedback, next_id=self.index,
                                          id_step=len(self.regions.ids))
         self.boxes = np.stack([interior(self.regions, r) for r in range(len(self.regions.ids))])  # (R, 4)
+        self.box = tuple(self.boxes[self.index].tolist())  # its own, as floats (owners)
         self.own = self.regions._replace(ids=(self.name,), vertices=self.regions.vertices[self.index:self.index + 1])
         self.rect = rectangle(self.regions, self.index)  # its bounds if a rectangle (beyond_band)
         self.scale = float(np.abs(self.own.vertices).max())
@@ -121,14 +122,14 @@ class RegionCentre:
         """The rows of a sub-report this centre fuses (bool per row)."""
         s, ids = report.sensor, report.ids.tolist()
         mine = keyed(self.centre.mapping, s, ids)
-        free = ~mine & ~elsewhere
+        free = ~(mine | elsewhere)
         away = {lid for sensor, lid in self.forwarded if sensor == s}  # a few in flight: ids, not (sensor, id) keys
         if away:
             gone = np.fromiter(map(away.__contains__, ids), dtype=bool, count=len(ids)) & ~mine
             self.in_flight += int(gone.sum())
             free &= ~gone
-        if free.any() and self.boxes.shape[0] > 1:  # one region owns every position
-            rows = free.nonzero()[0]
+        rows = free.nonzero()[0] if self.boxes.shape[0] > 1 else free[:0]  # one region owns every position
+        if rows.size:
             free[rows] = self.owners(report.x[rows, 0], report.x[rows, 2]) == self.index
         return mine | free
 
@@ -136,7 +137,7 @@ class RegionCentre:
         """The region of each position (:func:`region_of`): this region's inside its interior box,
         else that of the other interior box containing it (:func:`interior`: the boxes are disjoint,
         and every point of region ``r``'s is ``r``'s), else :func:`region_of`'s look at the regions."""
-        x0, x1, y0, y1 = self.boxes[self.index]
+        x0, x1, y0, y1 = self.box
         owner = np.full(x.size, self.index)
         out = (~((x > x0) & (x < x1) & (y > y0) & (y < y1))).nonzero()[0]  # most positions are inside
         if out.size:
