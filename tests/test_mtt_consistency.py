@@ -16,9 +16,12 @@ from scipy import stats
 from test_hostile_messages import KEYS, Bus, mtt_services
 
 from fedtrack.cli import main as cli
-from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
+from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre, consistency
 from fedtrack.fusion_center.mtt.centre.consistency import (
+    CLEAR_P,
+    FALSE_ALARM,
     SensorConsistency,
+    Transition,
     cap,
     normalized_innovations,
     relative_tail,
@@ -164,3 +167,47 @@ def test_a_non_finite_innovation_enters_at_its_cap() -> None:
         monitor.add("b", float(k) + 0.5, np.array([np.nan, np.inf, 2.0, 2.0, 2.0]), 2, 10.0)
     ratio, log_p = monitor.tests()["b"]
     assert ratio == pytest.approx((2 * cap(2, monitor.cap_tail) + 6.0) / 10.0 / 1.0, rel=1e-12) and np.isfinite(log_p)
+
+
+class EveryTest(SensorConsistency):
+    """The rule as it was before session fixedcost: every sensor's window tested at every scan."""
+
+    def _judge(self, sensor: str, t: float) -> None:
+        tests = self.tests()
+        if sensor not in tests:
+            return
+        ratio, log_p = tests[sensor]
+        worst = min(lp for _, lp in tests.values())
+        if sensor not in self.flagged and log_p < math.log(FALSE_ALARM) and log_p <= worst:
+            self.flagged[sensor] = t
+            self.onsets += 1
+            self.transitions.append(Transition(t, sensor, True, log_p, ratio))
+        elif sensor in self.flagged and log_p > math.log(CLEAR_P):
+            del self.flagged[sensor]
+            self.transitions.append(Transition(t, sensor, False, log_p, ratio))
+
+
+def test_a_scan_tests_its_own_sensor_alone_unless_it_would_be_flagged(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A scan's window test is its own sensor's alone (one F tail a scan, not one per sensor: a fixed cost of
+    every region centre's report, docs/bench.md), the others' only when its tail is below ``FALSE_ALARM``
+    (a flag needs it to be the worst). Seeded scans of twelve sensors, d's innovations 9x and c's 6x from
+    scan 10 (d's scan first: c's tail below the bound while d's is worse), both honest from scan 24: the
+    same flags, clears and transitions as testing every sensor at every scan."""
+    rng = np.random.default_rng(3)
+    new, old = SensorConsistency(), EveryTest()
+    calls: list[int] = []
+    tail = consistency.relative_tail
+    monkeypatch.setattr(consistency, "relative_tail", lambda *a: calls.append(1) or tail(*a))
+    tails: list[tuple[int, bool]] = []  # per scan of the new rule: F tails computed, a sensor flagged by it
+    for k in range(40):
+        for j, sensor in enumerate("dcabefghijkl"):
+            nis = rng.chisquare(2, 20) * {"c": 6.0, "d": 9.0}.get(sensor, 1.0) ** (10 <= k < 24)
+            t = k + 0.05 * j
+            old.add(sensor, t, nis, 2, 3.0)
+            before, onsets = len(calls), new.onsets
+            new.add(sensor, t, nis, 2, 3.0)
+            tails.append((len(calls) - before, new.onsets > onsets))
+    assert new.transitions == old.transitions and new.flagged == old.flagged and new.onsets == old.onsets
+    assert [tr.sensor for tr in new.transitions if tr.flagged][:1] == ["d"]
+    assert any(n > 1 and not flag for n, flag in tails)  # below the bound, not the worst: not flagged
+    assert sum(n == 1 for n, _ in tails) > 400 and max(n for n, _ in tails) <= 13  # twelve a scan before
