@@ -9,6 +9,9 @@ than its deadline (``close()`` can take ~12 s against a frozen peer).
 ``--zenoh-config FILE`` (``SessionOptions.config_file``): a Zenoh JSON5 configuration
 file loaded first (TLS certificates, access control, authentication, ...); the
 settings above and the endpoints are then applied on top of it.
+
+Liveliness across a router outage (:class:`Peers`): a peer whose token went with this client's own
+link to its router is not dead; it has ``LINK_GRACE_S`` after the link is back to return.
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ import re
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any, Callable, NamedTuple
 
 import zenoh
 
@@ -28,6 +31,7 @@ from fedtrack.deployment import listen_address, on_loopback
 from fedtrack.keys import DEFAULT_DEPLOYMENT, InvalidName, check_id
 
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
+RETRY_PERIOD_MAX_S = 1.0  # a client retries its connection every 0.1 s, doubling up to this
 MODES = ("client", "peer", "router")
 _RUST_LOCATION = re.compile(r"\s+at \S+\.rs:\d+\.?")
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/\S+$")
@@ -89,7 +93,8 @@ def make_config(opts: SessionOptions) -> zenoh.Config:
         "connect/endpoints": list(opts.connect),
         "listen/endpoints": list(opts.listen),
         "connect/timeout_ms": -1 if opts.connect_timeout_s < 0 else int(opts.connect_timeout_s * 1000),
-        "connect/retry": {"period_init_ms": 100, "period_max_ms": 1000, "period_increase_factor": 2},
+        "connect/retry": {"period_init_ms": 100, "period_max_ms": int(RETRY_PERIOD_MAX_S * 1000),
+                          "period_increase_factor": 2},
         "scouting/multicast/enabled": False,
         "transport/shared_memory/enabled": False,
     }
@@ -141,6 +146,64 @@ def wait_alive(session: zenoh.Session, keys: list[str], timeout_s: float) -> set
         if not missing or time.monotonic() >= deadline:
             return missing
         time.sleep(0.05)
+
+
+LINK_GRACE_S = 2 * RETRY_PERIOD_MAX_S
+LOST_KEPT = 64  # tokens gone kept (the oldest forgotten): a flood of forged tokens declared and withdrawn
+
+
+class Link(NamedTuple):
+    """This client's link to its router, as the router's liveliness token shows it."""
+
+    cut: bool = False  # the last router token went (the link closed): every other token went with it
+    back_at: float | None = None  # monotonic time the link last came back after a cut (None: never cut)
+
+
+class Peers:
+    """The liveliness tokens of some peers (their keys), as they come and go (a Zenoh thread's
+    callbacks rebind the sets, which another thread reads whole), and which peers a service stops
+    waiting for (:meth:`gone`).
+
+    A peer's token ``alive/<role>/<id>`` going away says the peer died (its link closed within
+    milliseconds of the process ending), and a service waiting on it (the fusion centre on a local
+    filter's estimate, a federated local filter on the centre's reset) goes on without it at once. But
+    a client's link to its router closing takes every token with it: after a router outage the peers
+    come back one by one, each session reconnecting on its own retry schedule, and the first estimates
+    recovered from the publishers' caches arrive while the others' tokens are still missing. Taken as
+    deaths (before 2026-11-27), they had the centre fuse a scan with the one estimate there (the
+    others, a few milliseconds later, were late) and a local filter go on alone with its backlog, and
+    after a 2.5 s router restart two of three filters went on alone for 33 scans of the maneuver
+    (``tests/test_faults.py::test_kill_and_restart_router`` under load: 14.2 m RMS against 7.1 m).
+
+    So a token that went while this service's own link was up is gone at once; one that went before
+    the link came back (with it) is gone only if it is not back ``LINK_GRACE_S`` after the link is:
+    every session lost its link when the router died and retries on the same schedule, so a live peer
+    reconnects at most one retry period (``RETRY_PERIOD_MAX_S``) after this one, and its token follows
+    at once; the second period is room for a loaded machine's scheduling. Meanwhile such a peer costs
+    what a frozen one does: the wait's own deadline."""
+
+    def __init__(self) -> None:
+        self.present: frozenset[str] = frozenset()
+        self.lost: dict[str, float] = {}  # tokens that went and have not come back, with when they went
+
+    def token(self, key: str, alive: bool, now: float) -> None:
+        """Token ``key`` appeared (``alive``) or went at ``now``."""
+        if alive:
+            self.present = self.present | {key}
+            self.lost = {k: t for k, t in self.lost.items() if k != key}
+        else:
+            self.present = self.present - {key}
+            lost = {k: t for k, t in self.lost.items() if k != key} | {key: now}
+            self.lost = dict(list(lost.items())[-LOST_KEPT:])
+
+    def gone(self, link: Link, now: float) -> frozenset[str]:
+        """The tokens that went and count as their peers' deaths at ``now`` (see the module): none while
+        the link is cut; one that went with the link only ``LINK_GRACE_S`` after the link is back."""
+        if link.cut:
+            return frozenset()
+        if link.back_at is None or now - link.back_at >= LINK_GRACE_S:
+            return frozenset(self.lost)
+        return frozenset(key for key, when in self.lost.items() if when > link.back_at)
 
 
 def _endpoint_arg(value: str) -> str:

@@ -2,7 +2,9 @@
 
 Collects ``local/<id>/estimate`` per scan (``seq``) and fuses scan k when every expected
 local filter has reported, except those whose liveliness token ``alive/local-filter/<id>``
-or ``alive/sensor/<id>`` went away (the process died; logged), or when ``deadline_s``
+or ``alive/sensor/<id>`` went away (the process died; logged; not a token that went with the
+centre's own link to its router, until it has had ``LINK_GRACE_S`` to come back:
+:class:`fedtrack.zsession.Peers`), or when ``deadline_s``
 has passed since the first estimate arrived. A scan fused without
 every configured sensor uses those it has (sharing factors renormalized) and is marked
 degraded; a dead local filter (its token gone within milliseconds of the process dying)
@@ -47,6 +49,7 @@ from fedtrack.services.lead import NumberedLeadGuard
 from fedtrack.services.rejections import Conflict, Numerical, Rejected
 from fedtrack.services.snapshot import read_sealed, write_sealed
 from fedtrack.wire import FusedTrack, LocalEstimate, ManeuverEvent, Reset, acceptable_covariances
+from fedtrack.zsession import Peers
 
 FUSED_KEPT = 64  # fused scans whose estimate digests are kept to tell a late conflict from a re-delivery
 SNAPSHOT_MAX_GAP = 3  # scans missed beyond which a restored snapshot is dropped for a rebuild
@@ -93,15 +96,15 @@ class FusionCenterService(Service):
         self.last_track: FusedTrack | None = None
         self.fused: dict[int, dict[str, bytes]] = {}  # the last FUSED_KEPT scans' estimate digests per sensor
         self.left_out: tuple[str, ...] = ()  # sensors whose estimates the last scan received but did not fuse
-        self.gone: set[str] = set()  # sensors whose sensor or local filter liveliness token went away
-        self._gone: dict[str, set[str]] = {"sensor": set(), "local-filter": set()}
+        # the sensors' and local filters' liveliness tokens (keys ROLE/ID), filled by Zenoh threads
+        self.peers = Peers()
         self._liveliness: list[Any] = []
 
     def on_start(self) -> None:
         self._restore()
         self._liveliness = [self.session.liveliness().declare_subscriber(
             self.keys.alive(role), lambda s, role=role: self._on_liveliness(role, s), history=True)
-            for role in self._gone]
+            for role in ("sensor", "local-filter")]
 
     def _restore(self) -> None:
         """Resume from ``--snapshot`` if it holds this deployment's centre (a restart mid-run). A file
@@ -145,19 +148,22 @@ class FusionCenterService(Service):
             sub.undeclare()
 
     def _on_liveliness(self, role: str, sample: Any) -> None:
-        """Zenoh thread: track sensors and local filters that died (set rebinding is atomic); a
-        token of a sensor not configured changes nothing."""
+        """Zenoh thread: track the tokens of sensors and local filters (:class:`Peers`); a token of a
+        sensor not configured changes nothing."""
         sensor = str(sample.key_expr).rsplit("/", 1)[-1]
         if sensor not in self.sensors:
             return
-        if sample.kind == zenoh.SampleKind.PUT:
-            if sensor in self._gone[role]:
-                self.log.warning("%s %s is back", role, sensor)
-            self._gone[role].discard(sensor)
-        else:
-            self._gone[role].add(sensor)
+        key, alive = f"{role}/{sensor}", sample.kind == zenoh.SampleKind.PUT
+        if alive and key in self.peers.lost:
+            self.log.warning("%s %s is back", role, sensor)
+        elif not alive:
             self.log.warning("%s %s is gone (liveliness): fusing without it", role, sensor)
-        self.gone = self._gone["sensor"] | self._gone["local-filter"]
+        self.peers.token(key, alive, time.monotonic())
+
+    def gone(self, now: float) -> set[str]:
+        """The sensors whose sensor or local filter died (:meth:`Peers.gone`: not those whose tokens went
+        with this centre's link to its router and may still come back): not waited for."""
+        return {key.rsplit("/", 1)[-1] for key in self.peers.gone(self.link(), now)}
 
     def subscriptions(self) -> list[Subscription]:
         return [Subscription(self.keys.local_estimate(), LocalEstimate, self.on_estimate, recover=True)]
@@ -186,10 +192,11 @@ class FusionCenterService(Service):
         last_t = self.last_track.t if self.last_track is not None else None
         if last_t is not None and msg.t <= last_t:
             raise Rejected("time_jump", f"scan {msg.seq} at t={msg.t}, not after the last fused scan (t={last_t})")
-        others = [s for s in self.sensors if s != msg.sensor and s not in self.gone]
+        gone = self.gone(time.monotonic())
+        others = [s for s in self.sensors if s != msg.sensor and s not in gone]
         if self.jump.restart(last_t, msg.sensor, msg.seq, msg.t, witnesses=others):
             self.start_again(msg)
-        for sensor in self.gone:  # a dead sensor keeps no other's lone estimates from witnessing themselves
+        for sensor in gone:  # a dead sensor keeps no other's lone estimates from witnessing themselves
             self.lead.leave(sensor)
         for estimate in self.in_time(self.lead, self.keys.local_estimate(msg.sensor), msg):
             self._collect(estimate)
@@ -246,6 +253,7 @@ class FusionCenterService(Service):
     def fuse_ready(self) -> None:
         """Fuse complete scans in order; a scan whose deadline passed is fused as it is."""
         now = time.monotonic()
+        gone = self.gone(now)
         while self.scans:
             if self.next_seq is None or self.next_seq not in self.scans:
                 oldest = min(self.scans)
@@ -266,7 +274,7 @@ class FusionCenterService(Service):
                 self.next_seq = oldest
             buf = self.scans[self.next_seq]
             complete = len(buf.outputs) == len(self.sensors)
-            waiting_for = [s for s in self.sensors if s not in buf.outputs and s not in self.gone]
+            waiting_for = [s for s in self.sensors if s not in buf.outputs and s not in gone]
             if waiting_for and now - buf.first_arrival < self.deadline_s:
                 return
             del self.scans[self.next_seq]

@@ -5,8 +5,8 @@ Subscribes to ``sensor/<ID>/meas`` and publishes ``local/<ID>/estimate``.
 * federated: the FVDIE local filter. Scan k+1 is processed only after the centre's
   reset of scan k has been applied (``fusion/reset/<ID>``); if that reset has not come
   within the deployment's ``deadline_s``, or at once when the centre's liveliness token
-  is gone, the filter goes on alone from its own estimate (logged once) and flags the
-  estimate ``no-reset`` (counted in ``no_reset``) until resets come again. On start, and
+  is gone (not with the filter's own link to its router: :class:`fedtrack.zsession.Peers`), the
+  filter goes on alone from its own estimate (logged once) and flags the estimate ``no-reset`` (counted in ``no_reset``) until resets come again. On start, and
   after a gap in its measurements, it adopts the centre's latest track (``fusion/state``)
   and rejoins from the scan after it (counted in ``rejoined``; gaps in ``gaps``).
 * decentralized: the DVDIE local filter, a stand-alone single-sensor VDIE.
@@ -64,7 +64,7 @@ from fedtrack.wire import (
     Reset,
     measurement_to_replay,
 )
-from fedtrack.zsession import id_arg
+from fedtrack.zsession import Peers, id_arg
 
 FILTERS = ("vdie", "ekf", "ekf-ie", "ekf-tsfuzzy")
 TAKEN_KEPT = 64  # processed scans whose measurement digest is kept to tell a conflict from a re-delivery
@@ -100,8 +100,7 @@ class LocalFilterService(Service):
         self.reset_up_to = -1
         self.waiting_since: float | None = None
         self.alone = False  # carrying on without resets (the fusion centre is silent or gone)
-        self.centre_gone = False  # the fusion centre's liveliness token went away
-        self._centres: frozenset[str] = frozenset()  # the fusion centre tokens alive
+        self.centres = Peers()  # the fusion centre's liveliness tokens (filled by a Zenoh thread)
         self._liveliness: Any = None
 
     def subscriptions(self) -> list[Subscription]:
@@ -121,14 +120,17 @@ class LocalFilterService(Service):
             self._liveliness.undeclare()
 
     def _on_centre_liveliness(self, sample: Any) -> None:
-        """Zenoh thread: a dead fusion centre is not waited for (its resets cannot come). It is gone
-        when no token under ``alive/fusion-center/`` is left: a token of another id declared and
-        withdrawn (a forgery, without authentication) does not end the wait for the real centre's
-        resets (set rebinding is atomic)."""
-        key = str(sample.key_expr)
-        gone = sample.kind == zenoh.SampleKind.DELETE
-        self._centres = self._centres - {key} if gone else self._centres | {key}
-        self.centre_gone = gone and not self._centres
+        """Zenoh thread: a fusion centre token appeared or went (:meth:`centre_gone`)."""
+        self.centres.token(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT, time.monotonic())
+
+    def centre_gone(self, now: float) -> bool:
+        """A dead fusion centre is not waited for (its resets cannot come). It is gone when no token under
+        ``alive/fusion-center/`` is left and every one that went counts as a death (:meth:`Peers.gone`: not
+        one that went with this filter's own link to its router, until it had its time to come back): a
+        token of another id declared and withdrawn (a forgery, without authentication) does not end the
+        wait for the real centre's resets."""
+        lost = self.centres.lost
+        return not self.centres.present and bool(lost) and self.centres.gone(self.link(), now) >= lost.keys()
 
     def rejoin(self, why: str) -> None:
         """Federated: adopt the fusion centre's latest track (``fusion/state``), if there is one, as a
@@ -241,12 +243,13 @@ class LocalFilterService(Service):
                 now = time.monotonic()
                 if self.waiting_since is None:
                     self.waiting_since = now
-                if not (self.alone or self.centre_gone) and now - self.waiting_since < self.reset_timeout_s:
+                centre_gone = self.centre_gone(now)
+                if not (self.alone or centre_gone) and now - self.waiting_since < self.reset_timeout_s:
                     return
                 self.count("no_reset")
                 if not self.alone:
                     self.alone = True
-                    why = ("the fusion centre is gone (liveliness)" if self.centre_gone else
+                    why = ("the fusion centre is gone (liveliness)" if centre_gone else
                            f"no reset for scan {self.processed_up_to} within {self.reset_timeout_s:g} s")
                     self.log.warning("%s: carrying on alone (estimates flagged no-reset)", why)
                 self.reset_up_to = self.processed_up_to  # go on from the local estimate

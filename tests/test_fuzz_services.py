@@ -29,6 +29,7 @@ import io
 import logging
 import math
 import random
+import time
 from collections.abc import Callable
 from hashlib import blake2b
 from pathlib import Path
@@ -77,7 +78,7 @@ from fedtrack.wire import (
     decode,
     encode,
 )
-from fedtrack.zsession import SessionOptions
+from fedtrack.zsession import LOST_KEPT, SessionOptions
 
 pytestmark = pytest.mark.fuzz
 
@@ -416,7 +417,8 @@ def test_liveliness_callbacks_take_any_token(tmp_path: Path) -> None:
             n += 1
         mcentre.on_tick()
     assert n == 4 * PAYLOADS
-    assert centre.gone <= set(centre.sensors) and len(mcentre.gone) == 0
+    assert centre.gone(time.monotonic()) <= set(centre.sensors) and len(mcentre.gone) == 0
+    assert len(local.centres.lost) <= LOST_KEPT
     assert set(mcentre.silence.last) <= set(MTT_SENSORS)
     print(f"\nliveliness: {n} samples over {len(callbacks)} callbacks")
 

@@ -98,6 +98,7 @@ from fedtrack.services.reassembly import Reassembly
 from fedtrack.services.rejections import clip
 from fedtrack.wire import MAX_MAP_ITEMS, Health, M, Message, WireError, decode
 from fedtrack.zsession import (
+    Link,
     SessionError,
     SessionOptions,
     add_endpoint_args,
@@ -207,6 +208,7 @@ class Service(Dispatch, Publishing):
         self._missed = 0
         self._router_outages = 0
         self._router_lost_at: float | None = None
+        self._router_back_at: float | None = None
         self._routers: set[str] = set()  # the router tokens alive (a Zenoh thread's)
         self._miss_lock = threading.Lock()
         self._reassembly = Reassembly(self._count_part)
@@ -360,8 +362,14 @@ class Service(Dispatch, Publishing):
             return
         self._routers.add(name)
         if self._router_lost_at is not None:
-            self.log.warning("router %s is back after %.2f s", clip(name), time.monotonic() - self._router_lost_at)
+            self._router_back_at = time.monotonic()
+            self.log.warning("router %s is back after %.2f s", clip(name), self._router_back_at - self._router_lost_at)
             self._router_lost_at = None
+
+    def link(self) -> Link:
+        """This client's link to its router, for :meth:`fedtrack.zsession.Peers.gone` (a Zenoh
+        thread rebinds what it reads: the time it came back before the cut ends)."""
+        return Link(cut=self._router_lost_at is not None, back_at=self._router_back_at)
 
     def _on_miss(self, miss: zenoh.ext.Miss) -> None:
         """Zenoh thread: samples an advanced subscriber lost for good (gone from the publisher's cache)."""
