@@ -158,6 +158,19 @@ class Link(NamedTuple):
     cut: bool = False  # the last router token went (the link closed): every other token went with it
     back_at: float | None = None  # monotonic time the link last came back after a cut (None: never cut)
 
+    def waited(self, since: float, now: float) -> float:
+        """How long a wait for other sessions' messages begun at ``since`` has run at ``now``, counted
+        while the link held: nothing can arrive while it is cut, so a deadline does not run then, and
+        after a cut it runs from the link's return. Before 2026-11-27 the fusion centre fused a scan
+        without the estimate the outage held up, and a local filter went on alone for want of the reset
+        the outage held up, both during a router restart of 3.6 s; the filter then ran ahead through its
+        backlog alone, and once it was more than the deadline ahead the centre fused scans 45-80 from its
+        estimates alone (``tests/test_faults.py::test_kill_and_restart_router`` under load: 38.7 m RMS
+        against 7.1 m)."""
+        if self.cut:
+            return 0.0
+        return now - (since if self.back_at is None else max(since, self.back_at))
+
 
 class Peers:
     """The liveliness tokens of some peers (their keys), as they come and go (a Zenoh thread's

@@ -5,7 +5,8 @@ local filter has reported, except those whose liveliness token ``alive/local-fil
 or ``alive/sensor/<id>`` went away (the process died; logged; not a token that went with the
 centre's own link to its router, until it has had ``LINK_GRACE_S`` to come back:
 :class:`fedtrack.zsession.Peers`), or when ``deadline_s``
-has passed since the first estimate arrived. A scan fused without
+has passed since the first estimate arrived (counted while the centre's link to its router holds:
+:meth:`fedtrack.zsession.Link.waited`). A scan fused without
 every configured sensor uses those it has (sharing factors renormalized) and is marked
 degraded; a dead local filter (its token gone within milliseconds of the process dying)
 costs no waiting, a frozen one costs the deadline. Scans are fused in order. Publishes, per scan: the resets
@@ -252,13 +253,13 @@ class FusionCenterService(Service):
 
     def fuse_ready(self) -> None:
         """Fuse complete scans in order; a scan whose deadline passed is fused as it is."""
-        now = time.monotonic()
+        now, link = time.monotonic(), self.link()
         gone = self.gone(now)
         while self.scans:
             if self.next_seq is None or self.next_seq not in self.scans:
                 oldest = min(self.scans)
                 # nothing at all arrived for next_seq: skip it once a later scan is overdue
-                if self.next_seq is not None and now - self.scans[oldest].first_arrival < self.deadline_s:
+                if self.next_seq is not None and link.waited(self.scans[oldest].first_arrival, now) < self.deadline_s:
                     return
                 if self.next_seq is not None:
                     self.count("skipped_scans", oldest - self.next_seq)
@@ -275,7 +276,7 @@ class FusionCenterService(Service):
             buf = self.scans[self.next_seq]
             complete = len(buf.outputs) == len(self.sensors)
             waiting_for = [s for s in self.sensors if s not in buf.outputs and s not in gone]
-            if waiting_for and now - buf.first_arrival < self.deadline_s:
+            if waiting_for and link.waited(buf.first_arrival, now) < self.deadline_s:
                 return
             del self.scans[self.next_seq]
             seq, self.next_seq = self.next_seq, self.next_seq + 1
