@@ -10,8 +10,9 @@ than its deadline (``close()`` can take ~12 s against a frozen peer).
 file loaded first (TLS certificates, access control, authentication, ...); the
 settings above and the endpoints are then applied on top of it.
 
-Liveliness across a router outage (:class:`Peers`): a peer whose token went with this client's own
-link to its router is not dead; it has ``LINK_GRACE_S`` after the link is back to return.
+Liveliness across a router outage (:class:`Peers`, :class:`Link`): a peer whose token went with this
+client's own link to its router is not dead; it has ``LINK_GRACE_S`` after the link is back to return,
+and a wait for other services' messages runs neither while the link is cut nor in that time.
 """
 
 from __future__ import annotations
@@ -148,6 +149,11 @@ def wait_alive(session: zenoh.Session, keys: list[str], timeout_s: float) -> set
         time.sleep(0.05)
 
 
+# After this client's link to its router is back, how long its peers have to be back too: each lost its
+# link when the router died and retries on the same schedule, so a live peer reconnects at most one retry
+# period after this one; what it published before this client's subscribers were known at the router again
+# arrives with the recovery its publisher's next heartbeat sets off (fedtrack.services.publishing's
+# HEARTBEAT_S, 0.5 s; live, 0.34 s after the link's return); the rest is room for a loaded machine.
 LINK_GRACE_S = 2 * RETRY_PERIOD_MAX_S
 LOST_KEPT = 64  # tokens gone kept (the oldest forgotten): a flood of forged tokens declared and withdrawn
 
@@ -160,16 +166,18 @@ class Link(NamedTuple):
 
     def waited(self, since: float, now: float) -> float:
         """How long a wait for other sessions' messages begun at ``since`` has run at ``now``, counted
-        while the link held: nothing can arrive while it is cut, so a deadline does not run then, and
-        after a cut it runs from the link's return. Before 2026-11-27 the fusion centre fused a scan
-        without the estimate the outage held up, and a local filter went on alone for want of the reset
-        the outage held up, both during a router restart of 3.6 s; the filter then ran ahead through its
-        backlog alone, and once it was more than the deadline ahead the centre fused scans 45-80 from its
-        estimates alone (``tests/test_faults.py::test_kill_and_restart_router`` under load: 38.7 m RMS
-        against 7.1 m)."""
+        while the link held and its peers had time to be back: nothing can arrive while it is cut, so a
+        deadline does not run then, and after a cut it runs from ``LINK_GRACE_S`` after the link's return.
+        Before 2026-11-27 it ran throughout: the fusion centre fused a scan without the estimate the outage
+        held up, and a local filter went on alone for want of the reset the outage held up, both during a
+        router restart of 3.6 s; the filter then ran ahead through its backlog alone, and once it was more
+        than the deadline ahead the centre fused scans 45-80 from its estimates alone; and after a 1.5 s
+        restart every filter gave up waiting for one reset and went on alone through its backlog, the
+        centre rebuilding 16 scans from their estimates (``tests/test_faults.py::test_kill_and_restart_router``
+        under load: 38.7 and 39.9 m RMS against 7.1 m)."""
         if self.cut:
             return 0.0
-        return now - (since if self.back_at is None else max(since, self.back_at))
+        return now - (since if self.back_at is None else max(since, self.back_at + LINK_GRACE_S))
 
 
 class Peers:
@@ -190,10 +198,8 @@ class Peers:
 
     So a token that went while this service's own link was up is gone at once; one that went before
     the link came back (with it) is gone only if it is not back ``LINK_GRACE_S`` after the link is:
-    every session lost its link when the router died and retries on the same schedule, so a live peer
-    reconnects at most one retry period (``RETRY_PERIOD_MAX_S``) after this one, and its token follows
-    at once; the second period is room for a loaded machine's scheduling. Meanwhile such a peer costs
-    what a frozen one does: the wait's own deadline."""
+    a live peer's is back by then (see ``LINK_GRACE_S``). Meanwhile such a peer costs what a frozen one
+    does: the wait's deadline, which after a cut runs from then (:meth:`Link.waited`)."""
 
     def __init__(self) -> None:
         self.present: frozenset[str] = frozenset()
