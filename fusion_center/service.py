@@ -5,8 +5,8 @@ local filter has reported, except those whose liveliness token ``alive/local-fil
 or ``alive/sensor/<id>`` went away (the process died; logged; not a token that went with the
 centre's own link to its router, until it has had ``LINK_GRACE_S`` to come back:
 :class:`fedtrack.zsession.Peers`), or when ``deadline_s``
-has passed since the first estimate arrived (counted while the centre's link to its router holds:
-:meth:`fedtrack.zsession.Link.waited`). A scan fused without
+has passed since the first estimate arrived (not counting a router outage and ``LINK_GRACE_S``
+after it: :meth:`fedtrack.zsession.Link.waited`). A scan fused without
 every configured sensor uses those it has (sharing factors renormalized) and is marked
 degraded; a dead local filter (its token gone within milliseconds of the process dying)
 costs no waiting, a frozen one costs the deadline. Scans are fused in order. Publishes, per scan: the resets

@@ -4,12 +4,13 @@ Subscribes to ``sensor/<ID>/meas`` and publishes ``local/<ID>/estimate``.
 
 * federated: the FVDIE local filter. Scan k+1 is processed only after the centre's
   reset of scan k has been applied (``fusion/reset/<ID>``); if that reset has not come
-  within the deployment's ``deadline_s`` (counted while the filter's link to its router holds:
-  :meth:`fedtrack.zsession.Link.waited`), or at once when the centre's liveliness token
-  is gone (not with the filter's own link to its router: :class:`fedtrack.zsession.Peers`), the
-  filter goes on alone from its own estimate (logged once) and flags the estimate ``no-reset`` (counted in ``no_reset``) until resets come again. On start, and
-  after a gap in its measurements, it adopts the centre's latest track (``fusion/state``)
-  and rejoins from the scan after it (counted in ``rejoined``; gaps in ``gaps``).
+  within the deployment's ``deadline_s`` (not counting a router outage and ``LINK_GRACE_S`` after
+  it: :meth:`fedtrack.zsession.Link.waited`), or at once when the centre's liveliness token is
+  gone (not with the filter's own link to its router: :class:`fedtrack.zsession.Peers`), the
+  filter goes on alone from its own estimate (logged once) and flags the estimate ``no-reset``
+  (counted in ``no_reset``) until resets come again. On start, and after a gap in its
+  measurements, it adopts the centre's latest track (``fusion/state``) and rejoins from the scan
+  after it (counted in ``rejoined``; gaps in ``gaps``).
 * decentralized: the DVDIE local filter, a stand-alone single-sensor VDIE.
 * ``--filter ekf|ekf-ie|ekf-tsfuzzy``: a 3-D radar filter (papers 002/003) on a radar
   sensor's measurements (see :class:`RadarLocalFilterService`).
@@ -245,7 +246,7 @@ class LocalFilterService(Service):
                 if self.waiting_since is None:
                     self.waiting_since = now
                 centre_gone = self.centre_gone(now)
-                waited = self.link().waited(self.waiting_since, now)  # not while its link to the router is cut
+                waited = self.link().waited(self.waiting_since, now)  # not during a router outage
                 if not (self.alone or centre_gone) and waited < self.reset_timeout_s:
                     return
                 self.count("no_reset")
