@@ -4,8 +4,8 @@ Subscribes to ``sensor/<ID>/meas`` and publishes ``local/<ID>/estimate``.
 
 * federated: the FVDIE local filter. Scan k+1 is processed only after the centre's
   reset of scan k has been applied (``fusion/reset/<ID>``); if that reset has not come
-  within the deployment's ``deadline_s`` (not counting a router outage and ``LINK_GRACE_S`` after
-  it: :meth:`fedtrack.zsession.Link.waited`), or at once when the centre's liveliness token is
+  within two of the deployment's ``deadline_s`` (``RESET_WAIT_DEADLINES``; not counting a router
+  outage and ``LINK_GRACE_S`` after it: :meth:`fedtrack.zsession.Link.waited`), or at once when the centre's liveliness token is
   gone (not with the filter's own link to its router: :class:`fedtrack.zsession.Peers`), the
   filter goes on alone from its own estimate (logged once) and flags the estimate ``no-reset``
   (counted in ``no_reset``) until resets come again. On start, and after a gap in its
@@ -70,6 +70,14 @@ from fedtrack.zsession import Peers, id_arg
 
 FILTERS = ("vdie", "ekf", "ekf-ie", "ekf-tsfuzzy")
 TAKEN_KEPT = 64  # processed scans whose measurement digest is kept to tell a conflict from a re-delivery
+# Deadlines (deployment.deadline_s) a federated filter waits for its reset before it goes on alone: the
+# centre fuses the scan at the latest one deadline after the scan's first estimate arrived, and the reset
+# must then still be made and delivered, which the second deadline bounds. With one, whenever the centre
+# waited out its deadline (another filter slow) the first filter gave up just before the reset came and went
+# on alone; on a loaded machine its later resets all came after its next scan, so it stayed alone (before
+# 2026-11-27: tests/test_faults.py::test_kill_local_filter_mid_maneuver at load 21, filter 2 alone for
+# scans 25-42 and the degraded scans not those of the kill).
+RESET_WAIT_DEADLINES = 2
 
 
 class LocalFilterService(Service):
@@ -83,7 +91,7 @@ class LocalFilterService(Service):
     tick_state_attrs = ()  # on_tick checkpoints only when a scan is waiting (50 ticks a second)
 
     def __init__(self, sensor: str, mode: str, filt: FederatedLocalFilter | VdieLocalFilter,
-                 reset_timeout_s: float, max_seq_jump: int = 1000, max_time_jump_s: float = 3600.0,
+                 deadline_s: float, max_seq_jump: int = 1000, max_time_jump_s: float = 3600.0,
                  **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.sensor = sensor
@@ -94,7 +102,7 @@ class LocalFilterService(Service):
         self.mode = mode
         self.filter = filt
         self.fresh = pickle.dumps(filt)  # the filter as it starts (again, after a pause: start_again)
-        self.reset_timeout_s = reset_timeout_s
+        self.reset_timeout_s = RESET_WAIT_DEADLINES * deadline_s
         self.pending: dict[int, Measurement] = {}
         self.lead: NumberedLeadGuard[Measurement] = NumberedLeadGuard()  # far ahead: waits for the next
         self.taken: dict[int, bytes] = {}  # digests of the last TAKEN_KEPT scans processed, by seq

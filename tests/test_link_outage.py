@@ -197,3 +197,30 @@ def test_the_deadlines_stand_still_while_the_router_is_down() -> None:
     assert [encode(t) for t in pipe.tracks()] == [encode(t) for t in plain]
     counters = [svc.counters for svc in services]
     assert not any(c.get(name) for c in counters for name in ("no_reset", "degraded_scans", "late", "rejected"))
+
+
+def test_a_filter_waits_for_the_reset_the_centre_makes_at_its_deadline() -> None:
+    """Filter 2's estimate of scan 20 reaches the centre first and filter 2 holds scan 21; filter 1's
+    estimate is held up (a process descheduled) until the centre's deadline, 0.5 s after the first
+    estimate, has passed. The centre then fuses without it and sends its resets. Filter 2 waited for its
+    reset one deadline, from about the same moment, so it gave up just before the reset came and went on
+    alone (live at load 21: alone for scans 25-42, every later reset coming after its next scan). Now it
+    waits two (``RESET_WAIT_DEADLINES``) and takes the reset."""
+    pipe = Pipeline()
+    for k in range(OUTAGE_AT):
+        scan(pipe, k)
+        resets(pipe, k)
+    slow, first = SENSORS
+    for k in (OUTAGE_AT, OUTAGE_AT + 1):
+        pipe.measurement(first, first, encode(MEASUREMENTS[first][k]))
+    estimate(pipe, OUTAGE_AT, first)
+    elapsed = pipe.centre.deadline_s + 0.05  # since filter 2 published and began to wait
+    pipe.locals[first].waiting_since -= elapsed
+    pipe.centre.scans[OUTAGE_AT].first_arrival -= elapsed
+    pipe.locals[first].on_tick()  # the filter's clock runs out first (it began to wait first) ...
+    pipe.centre.on_tick()  # ... then the centre's: scan 20 fused without filter 1, the resets sent
+    assert pipe.tracks()[-1].seq == OUTAGE_AT and pipe.tracks()[-1].sensors == (first,)
+    resets(pipe, OUTAGE_AT)
+    estimates = [m for _, m in pipe.published if isinstance(m, LocalEstimate) and m.sensor == first]
+    assert estimates[-1].seq == OUTAGE_AT + 1 and estimates[-1].degraded == ()  # made after the reset
+    assert not pipe.locals[first].alone and not pipe.locals[first].counters.get("no_reset")
