@@ -210,7 +210,7 @@ def test_a_filter_waits_for_the_reset_the_centre_makes_at_its_deadline() -> None
     for k in range(OUTAGE_AT):
         scan(pipe, k)
         resets(pipe, k)
-    slow, first = SENSORS
+    first = SENSORS[1]  # filter 1 (SENSORS[0]) is the slow one
     for k in (OUTAGE_AT, OUTAGE_AT + 1):
         pipe.measurement(first, first, encode(MEASUREMENTS[first][k]))
     estimate(pipe, OUTAGE_AT, first)
