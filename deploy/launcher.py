@@ -7,7 +7,9 @@ fused tracks come). While it runs it shows scans fused, per-sensor scan rates an
 from a sensor's publish to the fused track's arrival. It ends when the sensors have
 published their last scan (then stops the rest), or on Ctrl-C / SIGTERM (stops
 everything, no orphans: every child also gets SIGTERM if the launcher dies). Exit code
-0 when every service ended cleanly, 1 naming the service that failed. Once everything has
+0 when every service ended cleanly, 1 naming the service that failed. A service that the stop's
+grace SIGKILLs after its final Health said ``stopped`` (its interpreter's exit outlived the grace)
+ended cleanly: it is listed as killed after a clean stop (:meth:`Launcher._note_exit`). Once everything has
 stopped, it writes ``measurements.jsonl`` and ``tracks.jsonl`` from this host's recording
 (:meth:`Launcher._export_recording`).
 
@@ -58,7 +60,7 @@ from fedtrack.deploy.plan import (
     service_plan,
 )
 from fedtrack.deploy.procstat import process_usage
-from fedtrack.deploy.report import LaunchReport, finish
+from fedtrack.deploy.report import CLEAN_STOP_KILLED, LaunchReport, finish
 from fedtrack.deploy.settings import Settings, check_launchable, load_settings
 from fedtrack.deployment import listen_address, port_in_use
 from fedtrack.jsonl import InputError, output_folder
@@ -146,6 +148,8 @@ class Launcher(Monitor):
 
     # ------------------------------------------------------------ processes
     def _start(self, sp: ServiceProcess) -> None:
+        with self._lock:  # a status said by the process before this one (a restart) says nothing of this one
+            self.report.statuses.pop(sp.name, None)
         sp.log_path.parent.mkdir(parents=True, exist_ok=True)
         log = sp.log_path.open("ab" if sp.proc is not None else "wb")  # a restart appends to the log
         env = dict(os.environ, PYTHONUNBUFFERED="1")
@@ -255,9 +259,29 @@ class Launcher(Monitor):
                     sp.proc.wait(timeout=5)
         for sp in self.plan:
             if sp.proc is not None:
-                self.report.exit_codes[sp.name] = sp.proc.returncode
-                if sp.name in starting and sp.proc.returncode == -signal.SIGTERM:
-                    self.report.events.append(("stopped starting", sp.name, time.time()))
+                self._note_exit(sp, starting)
+
+    def _note_exit(self, sp: ServiceProcess, starting: set[str]) -> None:
+        """Record ``sp``'s exit code once the stop is over, and whether its signal is no failure: a restart
+        still starting met by the SIGTERM, or an exit ended by a signal (the grace's SIGKILL) after the
+        process's final Health said ``stopped``. By then its work was done (``on_stop``, the final
+        counters, the session closed); the signal cut short only the interpreter's exit. A process killed
+        that never said so stays a failure."""
+        assert sp.proc is not None
+        code = sp.proc.returncode
+        self.report.exit_codes[sp.name] = code
+        if code is None or code >= 0:
+            return
+        if sp.name in starting and code == -signal.SIGTERM:
+            self.report.events.append(("stopped starting", sp.name, time.time()))
+            return
+        with self._lock:
+            said = self.report.statuses.get(sp.name)
+        if said == "stopped":
+            self.report.events.append((CLEAN_STOP_KILLED, sp.name, time.time()))
+            if not self.quiet:
+                self._say(f"{sp.name} ended by {describe_exit(code)} in its exit, after its final Health said "
+                          "stopped: not a failure")
 
     def _starting(self, running: list[ServiceProcess]) -> set[str]:
         """The restarted services of ``running`` not up yet (no liveliness token): the SIGTERM of the stop
@@ -327,7 +351,7 @@ class Launcher(Monitor):
             self.report.router_outages = [o.summary(self._epoch, dep.speed) for o in self.watch.outages]
         if stopped:
             raise Stopped(self.report)
-        failed = {n: c for n, c in self.report.exit_codes.items() if c not in (0, None) and n not in self.report.killed}
+        failed = self.report.failed_exits()
         if failed and not self._stop.is_set():
             name = next(iter(failed))
             sp = next(p for p in self.plan if p.name == name)
@@ -494,4 +518,4 @@ def main(argv: list[str]) -> int:
         return 1
     if code is not None:
         return code
-    return 1 if report.failed or any(c not in (0, None) and n not in report.killed for n, c in report.exit_codes.items()) else 0
+    return 1 if report.failed or report.failed_exits() else 0

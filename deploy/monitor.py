@@ -188,6 +188,7 @@ class Monitor:
         name = f"{h.role}/{h.id}"
         with self._lock:
             self.report.health[name] = dict(h.counters)
+            self.report.statuses[name] = h.status
             said = self._router_status.get(name, "ok")
             if h.role == "router":
                 self._router_status[name] = h.status

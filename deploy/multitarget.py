@@ -239,7 +239,8 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Se
     with output_file(truth, "wb") as fh, (out / SCENARIO_DIR / "truth.jsonl").open("rb") as src:
         shutil.copyfileobj(src, fh)  # whole or not at all, the disk full named as this file
     tracks = out / "tracks.jsonl"
-    summary: dict[str, Any] = {"pictures": 0, "exit_codes": report.exit_codes, "restarts": report.restarts,
+    summary: dict[str, Any] = {"pictures": 0, "exit_codes": report.exit_codes,
+                               "killed_after_clean_stop": report.killed_after_clean_stop, "restarts": report.restarts,
                                "rejected": report.rejected(), "monitor_rejected": report.monitor_rejected,
                                "health": report.health, "wall_s": report.wall_s, "processes": report.processes}
     written = "measurements.jsonl tracks.jsonl truth.jsonl summary.json tracks.png config.toml"

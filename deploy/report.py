@@ -23,6 +23,7 @@ from fedtrack.jsonl import output_file, write_jsonl
 from fedtrack.sensors.scenarios import deployment_scenario, deployment_truth, paper004_scenario
 
 REPLAY_ALGORITHM = {"federated": "fvdie", "decentralized": "dvdie"}
+CLEAN_STOP_KILLED = "killed after a clean stop"  # the event of LaunchReport.killed_after_clean_stop
 
 
 @dataclass
@@ -46,8 +47,10 @@ class LaunchReport:
     failed: list[str] = field(default_factory=list)
     restarts: dict[str, int] = field(default_factory=dict)  # service -> times the launcher restarted it
     processes: dict[str, dict[str, float]] = field(default_factory=dict)  # service -> peak RSS (MB), CPU (s)
-    # (started | killed | stopped starting, service, wall time)
+    # (started | killed | stopped starting | killed after a clean stop, service, wall time)
     events: list[tuple[str, str, float]] = field(default_factory=list)
+    # service -> the status of the last Health its running process sent (``stopped``: its final one, a clean stop)
+    statuses: dict[str, str] = field(default_factory=dict)
     # failovers of a centre (``[multitarget] standby``): per primary lost, what the launcher saw (failovers.Failover)
     failovers: list[dict[str, Any]] = field(default_factory=list)
     # the launcher's link to its router lost and back (failovers.RouterOutage): no failover of the centres
@@ -57,9 +60,22 @@ class LaunchReport:
 
     @property
     def killed(self) -> set[str]:
-        """Services the schedule killed (``[multitarget] kill_at``), or the stop's SIGTERM met while a
-        restart of theirs was not up yet: their signal is not a failure."""
-        return {name for what, name, _ in self.events if what in ("killed", "stopped starting")}
+        """Services the schedule killed (``[multitarget] kill_at``), the stop's SIGTERM met while a
+        restart of theirs was not up yet, or a signal ended after their final Health said ``stopped``
+        (:attr:`killed_after_clean_stop`): their signal is not a failure."""
+        return {name for what, name, _ in self.events if what in ("killed", "stopped starting", CLEAN_STOP_KILLED)}
+
+    @property
+    def killed_after_clean_stop(self) -> list[str]:
+        """Services ended by a signal (the stop grace's SIGKILL) in their interpreter's exit, after their
+        final Health said ``stopped``: summary.json's ``killed_after_clean_stop``."""
+        return sorted({name for what, name, _ in self.events if what == CLEAN_STOP_KILLED})
+
+    def failed_exits(self) -> dict[str, int]:
+        """The services whose last process ended with a non-zero code or a signal that is a failure (not
+        in :attr:`killed`), with that code: what makes ``launch`` exit 1 (with ``failed``)."""
+        killed = self.killed
+        return {name: code for name, code in self.exit_codes.items() if code not in (0, None) and name not in killed}
 
     def latency_percentiles(self) -> tuple[float, float]:
         if not self.latencies_ms:
@@ -142,6 +158,7 @@ def summarize(out: Path, settings: Settings, report: LaunchReport, config_path: 
         "monitor_rejected": report.monitor_rejected,
         "health": report.health,
         "exit_codes": report.exit_codes,
+        "killed_after_clean_stop": report.killed_after_clean_stop,
         "restarts": report.restarts,
         "wall_time_s": report.wall_s,
         "mode": dep.mode,

@@ -18,7 +18,7 @@ import os
 import sys
 import threading
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, NoReturn
 
 from fedtrack.config import ConfigError, seed_number
 from fedtrack.jsonl import InputError, check_output, output_folder
@@ -320,7 +320,7 @@ def _closed_pipe() -> int:
     return 141
 
 
-def run() -> None:
+def run() -> NoReturn:
     """The ``fedtrack`` command (the console script, ``python -m fedtrack.cli``): :func:`main`, then the
     process's exit. A ``serve`` process that has returned (its service stopped: final Health sent,
     session closed, ``stopped`` logged) ends with ``os._exit`` once Python's exit handlers have run
