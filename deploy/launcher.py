@@ -9,8 +9,8 @@ published their last scan (then stops the rest), or on Ctrl-C / SIGTERM (stops
 everything, no orphans: every child also gets SIGTERM if the launcher dies). Exit code
 0 when every service ended cleanly, 1 naming the service that failed. A service that the stop's
 grace SIGKILLs after its final Health said ``stopped`` (its interpreter's exit outlived the grace)
-ended cleanly: it is listed as killed after a clean stop (:meth:`Launcher._note_exit`). Once everything has
-stopped, it writes ``measurements.jsonl`` and ``tracks.jsonl`` from this host's recording
+ended cleanly: it is listed as killed after a clean stop (:meth:`Launcher._note_exit`). Once
+everything has stopped, it writes ``measurements.jsonl`` and ``tracks.jsonl`` from this host's recording
 (:meth:`Launcher._export_recording`).
 
 Supervision: a service that exits with a non-zero code (or a signal) after start-up is

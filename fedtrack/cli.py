@@ -325,9 +325,9 @@ def run() -> NoReturn:
     process's exit. A ``serve`` process that has returned (its service stopped: final Health sent,
     session closed, ``stopped`` logged) ends with ``os._exit`` once Python's exit handlers have run
     and the streams are flushed: the interpreter's teardown of numpy, scipy and the rest is skipped.
-    That teardown took 0.1-0.2 s of CPU here, 1-3 s of wall time at load average 10-14, and outlived
-    the launcher's stop grace under heavier load (docs/deploy.md, "Stopping"). A non-daemon thread
-    still running keeps the ordinary exit, which waits for it."""
+    That teardown took about 0.1 s of CPU a process, 1-3 s of wall time at load average 10-14, and
+    outlived the launcher's stop grace under heavier load (docs/deploy.md, "Stopping"). A non-daemon
+    thread still running keeps the ordinary exit, which waits for it."""
     code = main()
     if sys.argv[1:2] == ["serve"] and not any(t.is_alive() and not t.daemon for t in threading.enumerate()
                                                if t is not threading.main_thread()):
