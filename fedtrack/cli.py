@@ -322,23 +322,26 @@ def _closed_pipe() -> int:
 
 def run() -> NoReturn:
     """The ``fedtrack`` command (the console script, ``python -m fedtrack.cli``): :func:`main`, then the
-    process's exit. A ``serve`` process that has returned (its service stopped: final Health sent,
-    session closed, ``stopped`` logged) ends with ``os._exit`` once Python's exit handlers have run
-    and the streams are flushed: the interpreter's teardown of numpy, scipy and the rest is skipped.
-    That teardown took about 0.1 s of CPU a process, 1-3 s of wall time at load average 10-14, and
-    outlived the launcher's stop grace under heavier load (docs/deploy.md, "Stopping"). A non-daemon
-    thread still running keeps the ordinary exit, which waits for it."""
+    process's exit. A ``serve`` process whose service has stopped (final Health sent, session closed,
+    ``stopped`` logged) exits as Python would, but for the teardown of its modules: it waits for its
+    non-daemon threads (zenoh-python runs Python callbacks on such threads, which end once their
+    subscriber is gone), runs Python's exit handlers (``logging.shutdown`` among them), flushes the
+    standard streams and ends with ``os._exit``. The teardown of numpy, scipy and the rest took about
+    0.1 s of CPU a process, 1-3 s of wall time at load average 10-14, and outlived the launcher's stop
+    grace under heavier load (docs/deploy.md, "Stopping")."""
     code = main()
-    if sys.argv[1:2] == ["serve"] and not any(t.is_alive() and not t.daemon for t in threading.enumerate()
-                                               if t is not threading.main_thread()):
-        atexit._run_exitfuncs()  # logging.shutdown among them
-        for stream in (sys.stdout, sys.stderr):
-            try:
-                stream.flush()
-            except (OSError, ValueError):  # closed or gone: nothing left to write
-                pass
-        os._exit(code)
-    sys.exit(code)
+    if sys.argv[1:2] != ["serve"]:
+        sys.exit(code)
+    for thread in threading.enumerate():
+        if thread is not threading.current_thread() and not thread.daemon:
+            thread.join()
+    atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # closed or gone: nothing left to write
+            pass
+    os._exit(code)
 
 
 if __name__ == "__main__":

@@ -288,11 +288,12 @@ def test_a_process_killed_in_its_exit_after_its_final_health_said_stopped_is_no_
 
 
 def test_a_serve_process_ends_without_the_interpreters_teardown(tmp_path: Path) -> None:
-    """``python -m fedtrack.cli serve router`` (the launcher's command line), SIGTERMed once ready, with a module
-    whose teardown takes 60 s (a ``sitecustomize`` on PYTHONPATH): it exits 0 at once after ``stopped``,
-    Python's exit handlers run, the interpreter's teardown skipped (:func:`fedtrack.cli.run`). Before
-    2026-11-27 the teardown ran: numpy's, scipy's and the rest's took 1-3 s at load average 10-14 after a
-    service logged ``stopped``, beyond the launcher's 5 s grace under heavier load."""
+    """``python -m fedtrack.cli serve router`` (the launcher's command line), SIGTERMed once ready, with a
+    ``sitecustomize`` on PYTHONPATH whose teardown takes 60 s and whose non-daemon thread ends 0.5 s after
+    the ``stopped`` line: the process waits for the thread, runs the exit handlers, skips the teardown and
+    exits 0 at once (:func:`fedtrack.cli.run`). Before 2026-11-27 the teardown ran: numpy's, scipy's and
+    the rest's took 1-3 s at load average 10-14 after a service logged ``stopped``, beyond the launcher's
+    5 s grace under heavier load."""
     import os
     import signal
     import subprocess
@@ -300,11 +301,25 @@ def test_a_serve_process_ends_without_the_interpreters_teardown(tmp_path: Path) 
     from support import free_port
 
     (tmp_path / "sitecustomize.py").write_text(
-        "import atexit, time\n"
+        "import atexit, logging, threading, time\n"
+        "stopped = threading.Event()\n"
+        "class Watch(logging.Handler):\n"
+        "    def emit(self, record):\n"
+        "        if record.getMessage().startswith('stopped (exit code'):\n"
+        "            stopped.set()\n"
+        "logging.getLogger('fedtrack').addHandler(Watch())\n"
+        "def late():\n"
+        "    stopped.wait(60)\n"
+        "    time.sleep(0.5)\n"
+        "    print('thread done', flush=True)\n"
+        "threading.Thread(target=late).start()\n"
         "atexit.register(print, 'exit handlers ran', flush=True)\n"
+        "import slow_teardown\n")
+    (tmp_path / "slow_teardown.py").write_text(  # freed in the teardown (sleep bound: the module's globals may be gone)
+        "import time\n"
         "class SlowTeardown:\n"
-        "    def __del__(self):\n"
-        "        time.sleep(60)\n"
+        "    def __del__(self, sleep=time.sleep):\n"
+        "        sleep(60)\n"
         "held = SlowTeardown()\n")
     env = dict(os.environ, PYTHONPATH=str(tmp_path))
     log = tmp_path / "router.log"
@@ -322,4 +337,4 @@ def test_a_serve_process_ends_without_the_interpreters_teardown(tmp_path: Path) 
             proc.wait(5)
     text = log.read_text()
     assert proc.returncode == 0, text
-    assert "stopped (exit code 0)" in text and text.rstrip().endswith("exit handlers ran"), text
+    assert "stopped (exit code 0)" in text and text.rstrip().endswith("thread done\nexit handlers ran"), text
