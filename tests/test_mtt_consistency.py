@@ -27,7 +27,7 @@ from fedtrack.fusion_center.mtt.centre.consistency import (
     relative_tail,
 )
 from fedtrack.local_filters.mtt.scan import parse_scan, scan_to_measurement
-from fedtrack.wire import encode
+from fedtrack.wire import TrackReport, encode
 
 
 @pytest.fixture(scope="module")
@@ -134,13 +134,19 @@ def test_normalized_innovations_solve_the_innovation_covariance() -> None:
         assert got[k] == pytest.approx(nu @ np.linalg.inv(S) @ nu, rel=1e-9)
 
 
+@pytest.mark.parametrize("restarting", [False, True], ids=["plain", "every-report-first"])
 def test_the_live_centre_counts_and_logs_a_flagged_sensor(scenario: Path, tmp_path: Path,
-                                                        caplog: pytest.LogCaptureFixture) -> None:
+                                                        caplog: pytest.LogCaptureFixture, restarting: bool) -> None:
     """``serve mtt-centre`` (in-process, its trackers and recorder on a bus): s2's scans of the first 25 s
     with ``R`` claimed 100x smaller from t = 15 on raise the Health counters, name s2 in its status
-    and log the onset."""
+    and log the onset. ``restarting``: s2's tracker marks every report ``first`` (a restarted process),
+    which emptied s2's window at every report, so that it was never flagged (tour47 session): a restart
+    keeps the sensor's window."""
     services = mtt_services(tmp_path)
     bus = Bus(list(services.values()))
+    if restarting:
+        s2, send = services["s2"], services["s2"].publish
+        s2.publish = lambda key, msg: send(key, replace(msg, first=True) if isinstance(msg, TrackReport) else msg)
     seq: dict[str, int] = {}
     with caplog.at_level("WARNING"):
         for line in (scenario / "measurements.jsonl").read_text().splitlines():
@@ -152,6 +158,8 @@ def test_the_live_centre_counts_and_logs_a_flagged_sensor(scenario: Path, tmp_pa
             bus.put(KEYS.sensor_meas(m.sensor), encode(replace(m, R=m.R / 100.0) if m.sensor == "s2" and m.t >= 15.0
                                                        else m))
     centre = services["centre"]
+    assert centre.counters.get("trackers_restarted", 0) == (sum(m.sensor == "s2" for m in bus.of(TrackReport)) - 1
+                                                           if restarting else 0)
     assert centre.counters["centre_inconsistency_onsets"] >= 1 and centre.counters["rejected"] == 0
     assert centre.status == "inconsistent sensors: s2"
     assert any("sensor s2 inconsistent at t=" in r.getMessage() for r in caplog.records)

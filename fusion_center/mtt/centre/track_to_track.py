@@ -209,23 +209,32 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         counts as live (the other trackers' sharing factors are renormalized from their next
         answer on) nor in the deletion rule, and its local tracks leave their central tracks
         (a central track left without any is deleted by the next :meth:`prune`); a copy of its feed
-        is fused again (:mod:`.copies`). ``departed`` False: its tracker restarted (the same, not
-        counted as a departure: the fresh tracker's report follows at once)."""
-        self._forget(sensor)
-        self.copies.drop(sensor)
-        self.counters.copying_sensors = len(self.copies.copy_of)
+        is fused again (:mod:`.copies`). ``departed`` False: its tracker restarted (not counted as a
+        departure: the fresh tracker's report follows at once): its local tracks leave as at a
+        departure, but what the centre learnt of the sensor's data stays, its consistency window and
+        the copied-feed check's (which sensor was heard from first, the pairs' runs, a copy found). A
+        restart is the tracker's, the sensor and its data are the same; before, a tracker marking every
+        report ``TrackReport.first`` escaped both checks, and an honest sensor's restart made a
+        copier of its feed the sensor heard from longer, its own reports then not fused
+        (``tests/test_hostile_semantics.py``)."""
+        self._forget(sensor, judged=not departed)
+        if departed:
+            self.copies.drop(sensor)
+            self.counters.copying_sensors = len(self.copies.copy_of)
         self.counters.left += int(departed)
 
-    def _forget(self, sensor: str) -> None:
-        """The sensor no longer live, its local tracks unmapped, its column and consistency window gone."""
+    def _forget(self, sensor: str, judged: bool = False) -> None:
+        """The sensor no longer live, its local tracks unmapped, its column gone, and its consistency
+        window too unless ``judged`` (kept)."""
         self.sensor_seen.pop(sensor, None)
         self.scan_gaps.pop(sensor, None)
         for key in [k for k in self.mapping if k[0] == sensor]:
             self._unmap(key)
             self.strikes.pop(key, None)
         self._drop_column(sensor)
-        self.consistency.drop(sensor)
-        self.counters.inconsistent_sensors = len(self.consistency.flagged)
+        if not judged:
+            self.consistency.drop(sensor)
+            self.counters.inconsistent_sensors = len(self.consistency.flagged)
 
     def _drop_column(self, sensor: str) -> None:
         """Free a departed sensor's column of the per-sensor arrays (a column a slot and a
