@@ -323,16 +323,19 @@ class Recording:
                 m_out, t_out = (None if path is None else files.enter_context(output_file(path))
                                 for path in (measurements, tracks))
                 for pic in self.messages(TrackPicture, "seq"):
+                    # the positions as sets: a picture's tuples looked up for each of its up to 131,072 entries
+                    # took minutes (32,768 departures and 32,768 restarts: 160 s for one picture, tour47)
+                    left, restarted, handovers = set(pic.left), set(pic.restarted), set(pic.handovers)
                     for i, key in enumerate(zip(pic.fused_sensors, pic.fused_seqs)):
                         # a region run's merged picture: every entry of every region, tagged with it
                         # (a hand-over's entry names its sending region and its number: docs/multitarget.md#regions)
                         tag = {"region": pic.regions[i]} if pic.regions else {}
-                        if i in pic.left:
+                        if i in left:
                             write(0, m_out, {"t": pic.t, "sensor": key[0], "left": True, **tag})
-                        elif i in pic.restarted:  # the sensor's tracker started afresh with its report key[1]
+                        elif i in restarted:  # the sensor's tracker started afresh with its report key[1]
                             write(0, m_out, {"t": pic.t, "sensor": key[0], "restarted": True,
                                              **({"seq": key[1], **tag} if tag else {})})
-                        elif i in pic.handovers and tag:
+                        elif i in handovers and tag:
                             write(0, m_out, {"t": pic.t, "handover": key[1], "from": key[0], **tag})
                         elif (key in rowid and (tag or rowid[key] not in used)
                               and (line := scan_line(rowid[key])) is not None):
