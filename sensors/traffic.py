@@ -92,7 +92,9 @@ def derived_tracker(truth: Truth, specs: list[SensorSpec]) -> dict[str, float | 
     (of the sensors that scan again within the window: a slower one scans once, never late;
     :func:`~fedtrack.sensors.multitarget.revisits`)."""
     v = truth.x[..., [1, 3]]
-    duration = (truth.alive.shape[0] - 1) * DT
+    # at least one step of the grid: a window of one row (a --duration below DT, or a --start within DT of
+    # the recording's end) gave q 0, which replay refuses in the config it wrote
+    duration = max(truth.alive.shape[0] - 1, 1) * DT
     longest = max(revisits(specs, duration), default=min(duration, max(s.period for s in specs)))
     speed = np.linalg.norm(v, axis=-1)[truth.alive]
     alt = truth.x[..., 4][truth.alive]

@@ -430,3 +430,15 @@ def test_a_sensor_slower_than_the_window_does_not_set_the_tracker_keys() -> None
     assert derived_tracker(truth, [*radars, SensorSpec("s3", "pos", 1000.0)]) == derived_tracker(truth, radars)
     once = derived_tracker(truth, [SensorSpec("s1", "pos", 1000.0)])  # no sensor scans twice: the window
     assert once["max_lag"] == 2 * 100.0 + 1.0
+
+
+def test_a_window_of_one_truth_step_writes_a_config_that_replays(tmp_path: Path) -> None:
+    """``--duration 0.01`` (below the truth's 0.05 s step; ``--start`` within it of the recording's end
+    alike): the window's one grid row made its length 0 and ``q`` 0, and ``replay`` refused the config
+    ``simulate traffic`` had written ("mtt.q: must be > 0", tour47 session). Now one step."""
+    out = tmp_path / "run"
+    assert main(["simulate", "traffic", "--source", str(DATA / "traffic_switzerland.csv.gz"), "--origin", "46.9,8.2",
+                 "--duration", "0.01", "--out", str(out)]) == 0
+    assert tomllib.loads((out / "config.toml").read_text())["mtt"]["q"] > 0.0
+    assert main(["replay", "--algorithm", "mtt-centralized", "--config", str(out / "config.toml"),
+                 "--measurements", str(out / "measurements.jsonl"), "--out", str(out / "tracks.jsonl")]) == 0
