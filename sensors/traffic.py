@@ -122,8 +122,8 @@ def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, star
         raise InputError(f"no airborne aircraft inside the box during the window (box {box / 1e3:g} km about "
                          f"{frame.lat:g}, {frame.lon:g}; window {window}); the recording's airborne samples span "
                          f"{float(rec.t.max()) - t0:g} s, latitudes {rec.lla[:, 0].min():g} to "
-                         f"{rec.lla[:, 0].max():g}, longitudes {rec.lla[:, 1].min():g} to {rec.lla[:, 1].max():g}: "
-                         "move --origin, widen --box or change --start / --duration")
+                         f"{rec.lla[:, 0].max():g}, longitudes {rec.lla[:, 1].min():g} to {rec.lla[:, 1].max():g}"
+                         f"{_single(truth.dropped, max_gap)}move --origin, widen --box or change --start / --duration")
     sensors = parse_sensors(spec, frame, box, rng, float(rec.lla[:, 2].max()))
     specs = [s for s, _, _ in sensors]
     steps = truth.alive.shape[0]
@@ -159,6 +159,14 @@ def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, star
             "start": truth.t0, "duration": sc.duration,
             "most_alive": int(truth.alive.sum(axis=1).max()), "derived": derived,
             "sensors": [f"{s.id} ({s.kind}, {s.period:g} s)" for s in specs]}
+
+
+def _single(dropped: dict[str, int], max_gap: float) -> str:
+    """What the error for a window without truth adds when ``--max-gap`` cut tracks to one sample each (a
+    gap shorter than the recording's sampling interval: the box and window were not the cause)."""
+    n = dropped.get("in a track of one sample", 0)
+    return (f"; {n} samples left out as tracks of one sample (a gap of more than --max-gap {max_gap:g} s before "
+            "and after each): raise --max-gap above the recording's sampling interval, " if n else ": ")
 
 
 def read_line(source: Path, info: dict[str, Any]) -> str:

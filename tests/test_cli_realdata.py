@@ -310,6 +310,22 @@ def test_no_aircraft_in_the_box_says_where_the_recording_is(tmp_path: Path, caps
     assert not (tmp_path / "o").exists()
 
 
+def test_tracks_cut_to_single_samples_by_max_gap_are_named_as_the_cause(tmp_path: Path,
+                                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """``--max-gap 0.5`` on 1 s state vectors cut every aircraft's track into tracks of one sample, all left
+    out: the error said only that no aircraft was inside the box and advised moving the origin or the box,
+    which were right (tour47 session). Now it names the samples left out and ``--max-gap``."""
+    source = _csv(tmp_path / "s.csv", _records())
+    argv = ["simulate", "traffic", "--source", str(source), "--origin", "-33.9,151.2", "--units", "aviation",
+            "--out", str(tmp_path / "o")]
+    assert main([*argv, "--max-gap", "0.5"]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert len(err) == 1 and "120 samples left out as tracks of one sample" in err[0], err
+    assert "raise --max-gap above the recording's sampling interval" in err[0]
+    assert main(argv) == 0 and not capsys.readouterr().err  # the same box and window, the default gap
+    assert (tmp_path / "o" / "config.toml").exists()
+
+
 def test_version_into_a_closed_pipe_ends_quietly() -> None:
     """``fedtrack --version | true``: was a BrokenPipeError traceback, exit 1 (--version prints while the command
     line is parsed, outside the closed-pipe handling)."""
