@@ -217,22 +217,22 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         report ``TrackReport.first`` escaped both checks, and an honest sensor's restart made a
         copier of its feed the sensor heard from longer, its own reports then not fused
         (``tests/test_hostile_semantics.py``)."""
-        self._forget(sensor, judged=not departed)
+        self._forget(sensor, keep_window=not departed)
         if departed:
             self.copies.drop(sensor)
             self.counters.copying_sensors = len(self.copies.copy_of)
         self.counters.left += int(departed)
 
-    def _forget(self, sensor: str, judged: bool = False) -> None:
+    def _forget(self, sensor: str, keep_window: bool = False) -> None:
         """The sensor no longer live, its local tracks unmapped, its column gone, and its consistency
-        window too unless ``judged`` (kept)."""
+        window too unless ``keep_window``."""
         self.sensor_seen.pop(sensor, None)
         self.scan_gaps.pop(sensor, None)
         for key in [k for k in self.mapping if k[0] == sensor]:
             self._unmap(key)
             self.strikes.pop(key, None)
         self._drop_column(sensor)
-        if not judged:
+        if not keep_window:
             self.consistency.drop(sensor)
             self.counters.inconsistent_sensors = len(self.consistency.flagged)
 
