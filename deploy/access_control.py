@@ -13,8 +13,9 @@ recovery (:func:`cache_keys`), and lets an identity publish, reply (its cache), 
 and liveliness tokens only on its own keys (:func:`own_keys`): ``sensor-<id>`` on
 ``sensor/<id>/meas``, ``local/<id>/estimate``, ``local/<id>/tracks`` and its health/alive keys;
 ``fusion`` on ``fusion/**`` (resets, tracks, events, pictures, the state queryable);
-``region-<rid>`` on its region's answers, picture and primary token and on the hand-over keys
-(``region/*/handover``: it hands tracks to any neighbour), not on another region's outputs;
+``region-<rid>`` on its region's answers, picture and primary token and on its own hand-over keys
+(``region/*/handover/<rid>``: it hands tracks to any neighbour, as itself), not on another region's
+outputs;
 ``router`` (another host's router joined by ``router_connect``, forwarding its own clients'
 messages) on anything of the deployment; the others on their health/alive keys. A denied put is
 dropped at the router: nobody receives it.
@@ -71,7 +72,7 @@ def own_keys(keys: Keys, ident: str) -> list[str]:
         roles = [(role, None) for role in CENTRE_ROLES]
     elif ident.startswith(REGION_PREFIX):  # a region's centres: their ids are the region's, or start "<rid>-"
         rid = ident.removeprefix(REGION_PREFIX)
-        data = [keys.region_resets(rid), keys.region_handover(), keys.region_picture(rid), keys.primary(rid),
+        data = [keys.region_resets(rid), keys.region_handover(None, rid), keys.region_picture(rid), keys.primary(rid),
                 keys.health("mtt-centre", rid) + "-$*", keys.alive("mtt-centre", rid) + "-$*"]  # its standbys
         roles = [("mtt-centre", rid)]
     elif ident == LAUNCHER:
@@ -106,18 +107,20 @@ def read_keys(keys: Keys, ident: str) -> list[str]:
     """The keys ``ident`` may subscribe to (with their advanced subscribers' ``.../@adv/**`` heartbeats) and
     query, caches aside (:func:`cache_keys`): what its roles read. A sensor's identity its measurements (its local
     filter or tracker), the centre's answers to it, the fused tracks and its single-sensor trackers'
-    (lockstep pacing) and ``fusion/state`` (a local filter's rejoin); a region's its region's keys and the
-    hand-overs (a standby watches its primary's); the launcher's monitor the tracks, measurements, health
-    and pictures it summarises; ``fusion`` (the centres and the merger), the recorder and another host's
-    router every key. Every identity could read every key: one whose session stops reading its link held
-    up each publisher it reads for the router's ``wait_before_close``, so it now can only those it reads."""
+    (lockstep pacing) and ``fusion/state`` (a local filter's rejoin); a region's its region's keys, the
+    hand-overs to it and its own (a standby watches its primary's); the launcher's monitor the tracks,
+    measurements, health and pictures it summarises; ``fusion`` (the centres and the merger), the
+    recorder and another host's router every key. Every identity could read every key: one whose
+    session stops reading its link held up each publisher it reads for the router's
+    ``wait_before_close``, so it now can only those it reads."""
     if ident.startswith("sensor-"):
         sid = ident.removeprefix("sensor-")
         read = [keys.sensor_meas(sid), keys.fusion_reset(sid), keys.mtt_resets(sid), keys.region_resets(None, sid),
                 keys.fusion_track(), keys.tracker_track(None, sid), keys.fusion_state()]
     elif ident.startswith(REGION_PREFIX):
         rid = ident.removeprefix(REGION_PREFIX)
-        read = [keys.region_report(rid), keys.region_handover(), keys.region_picture(rid), keys.region_resets(rid)]
+        read = [keys.region_report(rid), keys.region_handover(rid), keys.region_handover(None, rid),
+                keys.region_picture(rid), keys.region_resets(rid)]
     elif ident == LAUNCHER:
         read = [keys.fusion_track(), keys.sensor_meas(), keys.health(), keys.mtt_picture(), keys.region_picture()]
     elif ident in (ROUTER, "recorder", "fusion"):

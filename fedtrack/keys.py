@@ -73,14 +73,14 @@ class Keys:
         """The sensor or service id a concrete key names as its publisher's (``sensor/<id>/meas``,
         ``local/<id>/estimate``, ``local/<id>/tracks``, ``fusion/reset/<id>``,
         ``fusion/mtt-resets/<id>``, ``health/<role>/<id>``, ``region/<rid>/local/<id>/tracks``,
-        ``region/<rid>/mtt-resets/<id>``), else None."""
+        ``region/<rid>/mtt-resets/<id>``, ``region/<rid>/handover/<src>``: region ``<src>``), else None."""
         parts = key.split("/")
         if len(parts) < 4 or parts[0] != ROOT or parts[1] != self.deployment:
             return None
         rest = parts[2:]
         if len(rest) == 5 and rest[0] == "region" and (rest[2], rest[4]) == ("local", "tracks"):
             return rest[3]
-        if len(rest) == 4 and rest[0] == "region" and rest[2] == "mtt-resets":
+        if len(rest) == 4 and rest[0] == "region" and rest[2] in ("mtt-resets", "handover"):
             return rest[3]
         if len(rest) == 3 and (rest[0], rest[2]) in (("sensor", "meas"), ("local", "estimate"), ("local", "tracks")):
             return rest[1]
@@ -124,9 +124,10 @@ class Keys:
         """``region/<rid>/mtt-resets/<id>``: region ``<rid>``'s centre's answer to sensor ``<id>``'s sub-report."""
         return self._key("region", self._chunk(region, "region id"), "mtt-resets", self._chunk(sensor, "sensor id"))
 
-    def region_handover(self, region: str | None = None) -> str:
-        """``region/<rid>/handover``: central tracks handed to region ``<rid>``'s centre (``HandOver``)."""
-        return self._key("region", self._chunk(region, "region id"), "handover")
+    def region_handover(self, region: str | None = None, source: str | None = None) -> str:
+        """``region/<rid>/handover/<src>``: central tracks region ``<src>``'s centre hands to region
+        ``<rid>``'s (``HandOver``; one key per sender, which the access control ties to its identity)."""
+        return self._key("region", self._chunk(region, "region id"), "handover", self._chunk(source, "region id"))
 
     def region_picture(self, region: str | None = None) -> str:
         """``region/<rid>/picture``: region ``<rid>``'s centre's picture (``TrackPicture``)."""

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import zenoh
 from test_hostile_messages import KEYS, OPTIONS, Bus
-from test_hostile_semantics import one_track_report, scan
+from test_hostile_semantics import hand_over, one_track_report, scan
 from test_hostile_sequences import region_picture
 from test_mtt_regions_live import CONFIG as REGIONS_CONFIG
 
@@ -28,7 +28,7 @@ from fedtrack.deploy.settings import load_settings
 from fedtrack.fusion_center.mtt.failover import standby as standby_module
 from fedtrack.fusion_center.mtt.failover.standby import SILENT_S, Standby, claim_instance
 from fedtrack.fusion_center.mtt.picture_merge import PictureMergeService
-from fedtrack.fusion_center.mtt.service import MttCentreService
+from fedtrack.fusion_center.mtt.service import HANDOVERS_KEPT, MttCentreService
 from fedtrack.fusion_center.mtt.shards import handover_to_wire
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.service import MttLocalService
@@ -108,7 +108,7 @@ def test_a_hand_over_that_is_no_tracks_record_is_refused(tmp_path: Path, forgery
         msg = replace(msg, id=1001, ring=ring, last_support=msg.last_support + 100.0)
     else:
         msg = replace(msg, id=1001, member_sensors=(), member_ids=(), strikes=(), last_support=1e9)
-    bus.put(KEYS.region_handover("x0y0"), encode(msg))
+    bus.put(KEYS.region_handover("x0y0", "x1y0"), encode(msg))
     scans(bus, range(5, 12))
     assert shown(bus) == shown(clean_bus) and len(shown(bus)) == 12
     for a, b in zip(bus.of(TrackPicture), clean_bus.of(TrackPicture)):
@@ -123,9 +123,34 @@ def test_an_honest_hand_over_still_passes(tmp_path: Path) -> None:
     scans(bus, range(5))
     centre = svc.engine.region.centre  # type: ignore[union-attr]
     record = copy.deepcopy(centre).hand_over(next(iter(centre.tracks)))
-    bus.put(KEYS.region_handover("x0y0"), encode(replace(handover_to_wire(record, "x1y0", 0), id=1001)))
+    bus.put(KEYS.region_handover("x0y0", "x1y0"), encode(replace(handover_to_wire(record, "x1y0", 0), id=1001)))
     assert svc.counters["taken_over"] == 1 and "rejected" not in {k for k, v in svc.counters.items() if v}
     assert 1001 in centre.tracks
+
+
+def test_a_hand_over_whose_source_is_not_its_keys_is_refused(tmp_path: Path) -> None:
+    """A hand-over's ``source`` was taken from the payload, and every region identity could put on
+    every ``region/<rid>/handover``: 64 hand-overs to x0y0 claiming to be x1y0's, numbered from 10^6
+    up, were all taken over and made x1y0's genuine hand-overs ``late`` (dropped, nothing rejected
+    or contested: the tracks crossing from x1y0 vanished). A region now hands over on its own key,
+    ``region/<rid>/handover/<src>`` (the access control lets ``region-<src>`` put on no other), and
+    a hand-over whose ``source`` is not its key's ``<src>`` is rejected (``sender``): here x2y0's
+    forgeries on its own key, and the genuine hand-over of x1y0 is taken."""
+    config = tmp_path / "three.toml"
+    config.write_text(REGIONS_CONFIG.replace("nx = 2", "nx = 3"))
+    cfg = MttConfig(sensors=SENSORS, max_lag=3.0)
+    svc = MttCentreService("mtt-decentralized", cfg, 4, region="x0y0", regions=load_regions(config),
+                           service_id="x0y0", options=OPTIONS, deployment=KEYS.deployment)
+    bus = Bus([svc])
+    P = np.diag([100.0, 25.0, 100.0, 25.0])
+    for n in range(HANDOVERS_KEPT):  # ids 3n + 1: not x0y0's (region 0 of 3)
+        forged = replace(hand_over(svc, cfg, 10**6 + n, [-4000.0 + 40.0 * n, 10.0, 0.0, 0.0], P), id=3 * n + 1)
+        bus.put(KEYS.region_handover("x0y0", "x2y0"), encode(forged))
+    genuine = replace(hand_over(svc, cfg, 0, [-2000.0, 10.0, 0.0, 0.0], P), id=3 * HANDOVERS_KEPT + 1)
+    bus.put(KEYS.region_handover("x0y0", "x1y0"), encode(genuine))
+    assert svc.counters["rejected_sender"] == svc.counters["rejected"] == HANDOVERS_KEPT
+    assert svc.counters["taken_over"] == 1 and svc.counters.get("late", 0) == 0
+    assert list(svc.engine.region.centre.tracks) == [genuine.id]  # type: ignore[union-attr]
 
 
 def test_a_cold_standby_takes_a_track_of_its_region_handed_back_that_left_before_it_started(tmp_path: Path) -> None:
@@ -143,7 +168,7 @@ def test_a_cold_standby_takes_a_track_of_its_region_handed_back_that_left_before
         bus.put(KEYS.region_picture("x0y0"), encode(TrackPicture(
             seq=3 if cold else 0, t=3.0 if cold else 0.0, ids=(), x=np.zeros((0, 4)), P=np.zeros((0, 4)),
             confirmed=(), sensors=(), fused_sensors=(), fused_seqs=(), left=(), stamp_ns=1, closing=False)))
-        bus.put(KEYS.region_handover("x0y0"), encode(back))
+        bus.put(KEYS.region_handover("x0y0", "x1y0"), encode(back))
         region = svc.engine.region  # type: ignore[union-attr]
         if cold:
             assert svc.counters.get("taken_over") == 1 and "rejected" not in {k for k, v in svc.counters.items() if v}
@@ -176,7 +201,7 @@ def test_a_cold_standby_keeps_room_to_number_its_tracks(tmp_path: Path, output: 
         forged_h = HandOver(source="x0y0", serial=2**63 - 1, id=40, confirmed=True, ring=np.zeros((1, 1)), neg_inf=(),
                             sensors=(), support=(), streak=(), window=(), last_support=0.0, member_sensors=(),
                             member_ids=(), strikes=())
-        bus.put(KEYS.region_handover("x1y0"), encode(forged_h))
+        bus.put(KEYS.region_handover("x1y0", "x0y0"), encode(forged_h))
     region = svc.engine.region  # type: ignore[union-attr]
     next_id, serial = region.centre.next_id, region.serial
     svc.standby.take_over()  # its primary gone

@@ -328,7 +328,7 @@ def test_a_hand_over_with_an_indefinite_covariance_is_refused(tmp_path: Path) ->
     Each covariance of a ring is now checked as the wire checks any covariance: the hand-over is
     rejected (``wrong_model``) and the pictures go on."""
     bus, svc, cfg = region_centre(tmp_path)
-    bus.put(KEYS.region_handover("x0y0"), encode(hand_over(svc, cfg, 0, [-2000.0, 10.0, 0.0, 0.0],
+    bus.put(KEYS.region_handover("x0y0", "x1y0"), encode(hand_over(svc, cfg, 0, [-2000.0, 10.0, 0.0, 0.0],
                                                           np.diag([-1.0, 1.0, 1.0, 1.0]))))
     assert svc.counters["rejected_wrong_model"] == 1 and "taken_over" not in svc.counters
     for k in range(1, 5):
@@ -349,7 +349,7 @@ def test_a_second_different_hand_over_with_a_number_taken_is_contested(tmp_path:
     P = np.diag([100.0, 25.0, 100.0, 25.0])
     first = hand_over(svc, cfg, 7, [-2000.0, 10.0, 0.0, 0.0], P)
     for msg in (first, first, hand_over(svc, cfg, 7, [-1500.0, 10.0, 0.0, 0.0], P)):
-        bus.put(KEYS.region_handover("x0y0"), encode(msg))
+        bus.put(KEYS.region_handover("x0y0", "x1y0"), encode(msg))
     assert svc.counters["taken_over"] == 1 and svc.counters["duplicate"] == 1
     assert svc.counters["rejected_conflict"] == 1 and svc.counters["contested"] == 1
     for k in (2, 3, 4):
@@ -408,12 +408,13 @@ def test_the_hand_overs_a_centre_remembers_are_bounded(tmp_path: Path) -> None:
     n = HANDOVERS_KEPT + 6
     for serial in range(n):
         msg = replace(hand_over(svc, cfg, serial, [-4000.0 + 40.0 * serial, 10.0, 0.0, 0.0], P), id=2 * serial + 1)
-        bus.put(KEYS.region_handover("x0y0"), encode(msg))
+        bus.put(KEYS.region_handover("x0y0", "x1y0"), encode(msg))
     assert svc.counters["taken_over"] == n and sorted(svc.taken["x1y0"]) == list(range(6, n))
-    bus.put(KEYS.region_handover("x0y0"), encode(replace(hand_over(svc, cfg, 2, [0.0] * 4, P), id=999)))
+    bus.put(KEYS.region_handover("x0y0", "x1y0"), encode(replace(hand_over(svc, cfg, 2, [0.0] * 4, P), id=999)))
     assert svc.counters["late"] == 1 and svc.counters["taken_over"] == n
     for source in ("x0y0", "elsewhere"):
-        bus.put(KEYS.region_handover("x0y0"), encode(replace(hand_over(svc, cfg, n, [0.0] * 4, P), source=source)))
+        msg = replace(hand_over(svc, cfg, n, [0.0] * 4, P), source=source)
+        bus.put(KEYS.region_handover("x0y0", source), encode(msg))
     assert svc.counters["rejected_unknown_region"] == 2
 
 
@@ -431,7 +432,7 @@ def test_a_hand_over_naming_more_sensors_than_a_picture_lists_is_refused(tmp_pat
     stranger = replace(hand_over(svc, cfg, 1, [-2000.0, 10.0, 0.0, 0.0], P), sensors=("z1",), support=(1,),
                        streak=(0,))
     for msg in (many, stranger):
-        bus.put(KEYS.region_handover("x0y0"), encode(msg))
+        bus.put(KEYS.region_handover("x0y0", "x1y0"), encode(msg))
     assert svc.counters["rejected_wrong_model"] == 2 and "taken_over" not in svc.counters
 
 

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+import zenoh
 from support import Deployment, cli_in_process, secure_router, wait_until
 
 from fedtrack.config import ConfigError
@@ -61,11 +62,32 @@ def test_identities_and_rules() -> None:
     assert identity("mtt-centre", "x0y0-standby", "x0y0") == "region-x0y0"
 
 
+def test_a_region_identity_hands_over_on_its_own_key_only() -> None:
+    """Every ``region-<rid>`` might put on every ``region/*/handover``, so any region could send hand-overs
+    naming another as their ``source`` (tests/test_hostile_regions.py). The generated access control now lets
+    ``region-<rid>`` (its standbys too) put hand-overs to any region on ``region/*/handover/<rid>`` only, and
+    read those to it and its own (a standby watches its primary's)."""
+    keys = Keys("d")
+    acl = access_control(keys, ["region-x0y0", "region-x1y0"])
+    rules = {r["id"]: [zenoh.KeyExpr(k) for k in r["key_exprs"]] for r in acl["rules"]}
+
+    def allows(rule: str, key: str) -> bool:
+        return any(k.intersects(zenoh.KeyExpr(key)) for k in rules[rule])
+    assert allows("own-region-x0y0", keys.region_handover("x1y0", "x0y0"))
+    assert not allows("own-region-x0y0", keys.region_handover("x0y0", "x1y0"))
+    assert not allows("own-region-x0y0", keys.region_handover("x1y0", "x1y0"))
+    assert not allows("own-region-x1y0", keys.region_handover("x0y0", "x0y0"))
+    assert allows("read-region-x0y0", keys.region_handover("x0y0", "x1y0"))
+    assert allows("read-region-x0y0", keys.region_handover("x1y0", "x0y0"))
+    assert identity("mtt-centre", "x0y0-standby", "x0y0") == "region-x0y0"
+
+
 def test_a_region_centres_identity_publishes_its_own_regions_outputs_only(tmp_path: Path) -> None:
     """Every region centre ran as ``fusion``, which might publish every region's picture, answers and
     primary token: a compromised centre of one region could speak for all. Each region's centres
     (primary and standbys) are now ``region-<rid>``: the router drops what one sends on another
-    region's keys (the hand-over keys stay open to it: it hands tracks to any neighbour)."""
+    region's keys (and on hand-over keys other than its own, ``region/*/handover/<rid>``: it hands
+    tracks to any neighbour, as itself)."""
     keys = Keys("x")
     with secure_router(tmp_path, keys, ["fusion", "region-x0y0", "region-x1y0"]) as client:
         watcher, west = client("fusion"), client("region-x0y0")
@@ -88,10 +110,11 @@ def test_a_region_centres_identity_publishes_its_own_regions_outputs_only(tmp_pa
                                                              lambda s: tokens.append(str(s.key_expr)), history=True)
         # until the router routes west's puts to the watcher
         assert wait_until(lambda: west.put(keys.region_picture("x0y0"), b"probe") or probed.is_set(), 30.0)
-        allowed = [keys.region_picture("x0y0"), keys.region_resets("x0y0", "s1"), keys.region_handover("x1y0"),
-                   keys.health("mtt-centre", "x0y0"), keys.health("mtt-centre", "x0y0-standby")]
+        allowed = [keys.region_picture("x0y0"), keys.region_resets("x0y0", "s1"),
+                   keys.region_handover("x1y0", "x0y0"), keys.health("mtt-centre", "x0y0"),
+                   keys.health("mtt-centre", "x0y0-standby")]
         denied = [keys.region_picture("x1y0"), keys.region_resets("x1y0", "s1"), keys.health("mtt-centre", "x1y0"),
-                  keys.fusion_track(), keys.mtt_picture()]
+                  keys.fusion_track(), keys.mtt_picture(), keys.region_handover("x0y0", "x1y0")]
         for key in denied + allowed:
             west.put(key, b"x")
         west_tokens = [west.liveliness().declare_token(keys.primary(scope, n))  # the last: after the others

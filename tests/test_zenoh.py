@@ -419,7 +419,7 @@ def test_no_plain_output_is_read_from_a_cache() -> None:
                                  LocalFilterService.subscriptions(me)) for sub in subs if sub.history or sub.recover]
     assert keys.mtt_picture() in read and keys.sensor_meas("s1") in read
     assert not [(str(p), k) for p in plain for k in read if p.intersects(zenoh.KeyExpr(k))]
-    for output in (keys.mtt_resets("s1"), keys.region_resets("x0y0", "s1"), keys.region_handover("x1y0"),
+    for output in (keys.mtt_resets("s1"), keys.region_resets("x0y0", "s1"), keys.region_handover("x1y0", "x0y0"),
                    keys.mtt_report("s1"), keys.region_report("x0y0", "s1")):
         assert any(p.includes(zenoh.KeyExpr(output)) for p in plain), output
     assert not any(p.intersects(zenoh.KeyExpr(keys.region_picture("x0y0"))) for p in plain)

@@ -10,6 +10,7 @@ from hashlib import blake2b
 from fedtrack.keys import Keys
 from fedtrack.services.rejections import Conflict, Rejected
 from fedtrack.wire import (
+    HandOver,
     Health,
     Measurement,
     Message,
@@ -18,10 +19,12 @@ from fedtrack.wire import (
 
 
 def check_sender(keys: Keys, key: str, msg: Message) -> None:
-    """Rejected("sender") when the id in the payload is not the id in the key it came on, or the region
-    a payload names as its sender's (a region centre's answer) is not the region of its key."""
+    """Rejected("sender") when the id in the payload (a hand-over's ``source``) is not the id in the key
+    it came on, or the region a payload names as its sender's (a region centre's answer) is not the
+    region of its key."""
     named = keys.sender(key)
-    claimed = getattr(msg, "sensor", None) if not isinstance(msg, Health) else msg.id
+    claimed = (msg.id if isinstance(msg, Health) else msg.source if isinstance(msg, HandOver)
+               else getattr(msg, "sensor", None))
     if named is not None and claimed is not None and claimed != named:
         raise Rejected("sender", f"payload from {claimed!r} on the key of {named!r}")
     region, claimed_region = keys.region_of(key), getattr(msg, "region", None)

@@ -23,10 +23,10 @@ picture, so that the replay drops it at the same point.
 
 ``--region RID`` (track-to-track only; the config's ``[regions]``, docs/multitarget.md#regions):
 the centre of one region. It takes the sub-reports ``region/RID/local/*/tracks`` and the
-hand-overs ``region/RID/handover`` in arrival order (:class:`fedtrack.fusion_center.mtt.regional.RegionEngine`),
+hand-overs ``region/RID/handover/*`` in arrival order (:class:`fedtrack.fusion_center.mtt.regional.RegionEngine`),
 answers every sub-report on ``region/RID/mtt-resets/<id>`` (decentralized too: the answer says
 which local tracks it holds), sends the central tracks that left its region as ``HandOver``
-to ``region/<new>/handover`` and publishes its region's picture on ``region/RID/picture``, its
+to ``region/<new>/handover/RID`` and publishes its region's picture on ``region/RID/picture``, its
 fused lists naming the hand-overs it took over (``handovers``); ``serve picture`` merges them.
 
 ``--dim``: the central state size, 6 when any sensor is a radar (the replay's rule on the
@@ -354,9 +354,10 @@ class MttCentreService(CentreFailover, Service):
         assert self.regions is not None
         elsewhere = np.array(msg.elsewhere, dtype=bool) if msg.elsewhere else np.zeros(len(msg.ids), dtype=bool)
         answer, moving = engine.answer(report, elsewhere)
+        here = self.regions.ids[engine.index]
         for owner, serial, record in moving:
-            self.publish(self.keys.region_handover(self.regions.ids[owner]),
-                         handover_to_wire(record, self.regions.ids[engine.index], serial))
+            self.publish(self.keys.region_handover(self.regions.ids[owner], here),
+                         handover_to_wire(record, here, serial))
         self.count("handed_over", len(moving))
         self.publish(self.keys.region_resets(self.region, msg.sensor),
                      answer_to_wire(msg.seq, answer, self.regions, engine.index))
@@ -377,7 +378,7 @@ class MttCentreService(CentreFailover, Service):
             if not self.contested:  # either may be the forgery: the next picture says so
                 self.count("contested")
             self.contested = True
-            self.note_rejected(self.keys.region_handover(self.region), Conflict(
+            self.note_rejected(self.keys.region_handover(self.region, msg.source), Conflict(
                 msg.serial, f"a second, different hand-over {msg.serial} of {msg.source} (the first was taken)"))
             return
         if len(seen) >= HANDOVERS_KEPT and msg.serial < min(seen):  # older than every one kept: a re-delivery

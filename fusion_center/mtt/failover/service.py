@@ -64,13 +64,11 @@ class CentreFailover:
 
         keys = ([self.keys.mtt_picture(), self.keys.mtt_resets()] if self.region is None else
                 [self.keys.region_picture(self.region), self.keys.region_resets(self.region),
-                 self.keys.region_handover()])
+                 self.keys.region_handover(None, self.region)])
         return [Subscription(key, kind, self._primary_sent, wanted=watching, remote=True)
                 for key, kind in zip(keys, (TrackPicture, TrackResets, HandOver))]
 
     def _primary_sent(self, msg: TrackPicture | TrackResets | HandOver) -> None:
-        if isinstance(msg, HandOver) and msg.source != self.region:
-            return
         if self.standby.primary:  # another session publishes this region's outputs: a silent token's holder?
             self.standby.heard_remote(time.monotonic())
             return
