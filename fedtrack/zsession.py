@@ -216,13 +216,19 @@ class Peers:
             self.lost = dict(list(lost.items())[-LOST_KEPT:])
 
     def gone(self, link: Link, now: float) -> frozenset[str]:
-        """The tokens that went and count as their peers' deaths at ``now`` (see the module): none while
-        the link is cut; one that went with the link only ``LINK_GRACE_S`` after the link is back."""
+        """The tokens that went and count as their peers' deaths at ``now`` (:meth:`went`)."""
+        return frozenset(self.went(link, now))
+
+    def went(self, link: Link, now: float) -> dict[str, float]:
+        """The tokens that went and count as their peers' deaths at ``now`` (see the module), with when
+        each went (a service acting once on each death tells them apart by it): none while the link is
+        cut; one that went with the link only ``LINK_GRACE_S`` after the link is back."""
+        lost = self.lost
         if link.cut:
-            return frozenset()
+            return {}
         if link.back_at is None or now - link.back_at >= LINK_GRACE_S:
-            return frozenset(self.lost)
-        return frozenset(key for key, when in self.lost.items() if when > link.back_at)
+            return dict(lost)
+        return {key: when for key, when in lost.items() if when > link.back_at}
 
 
 def _endpoint_arg(value: str) -> str:

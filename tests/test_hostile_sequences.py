@@ -9,10 +9,12 @@ from __future__ import annotations
 
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 import pytest
+import zenoh
 from test_hostile_messages import KEYS, OPTIONS, Bus, mtt_lines, mtt_services
 from test_mtt_regions_live import CONFIG as REGIONS_CONFIG
 
@@ -190,7 +192,7 @@ def test_sensors_that_left_leave_no_column_behind() -> None:
         for k in range(2):
             t += 0.1
             bus.put(KEYS.mtt_report(f"r{i}"), encode(one_track_report(f"r{i}", k, t)))
-        svc.gone.append(f"r{i}")  # its liveliness token went
+        svc._on_alive(SimpleNamespace(key_expr=KEYS.alive("mtt-local", f"r{i}"), kind=zenoh.SampleKind.DELETE))
         svc.on_tick()
     for k in range(30):  # two sensors stay, their detections 1 m apart (each 5 m noise)
         t += 0.5

@@ -11,8 +11,11 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
 
 import pytest
+import zenoh
 from support import assert_same_pictures
 from test_hostile_messages import KEYS, MTT_SENSORS, OPTIONS, Bus, mtt_lines, mtt_services
 
@@ -22,6 +25,11 @@ from fedtrack.local_filters.mtt.service import MttLocalService
 from fedtrack.wire import encode
 
 RESTART_T = 6.0  # s2's tracker restarts then (the scenario is 12 s)
+
+
+def lose_token(centre: Any, sensor: str) -> None:
+    """The centre sees ``sensor``'s tracker's liveliness token go."""
+    centre._on_alive(SimpleNamespace(key_expr=KEYS.alive("mtt-local", sensor), kind=zenoh.SampleKind.DELETE))
 
 
 def lines(path: Path) -> list[dict]:
@@ -40,7 +48,7 @@ def test_a_restarted_tracker_starts_afresh_in_the_replay_too(tmp_path: Path, alg
         if msg.t >= RESTART_T and not restarted:
             restarted = True
             if departed:  # its liveliness token went with the process
-                centre.gone.append("s2")  # type: ignore[attr-defined]
+                lose_token(centre, "s2")
                 centre.on_tick()
             cfg = MttConfig(sensors=MTT_SENSORS, max_lag=3.0, clutter_density=2.0 / 5000.0**2)
             services["s2"] = MttLocalService("s2", algorithm == "mtt-federated", cfg, 5.0, service_id="s2",
@@ -84,7 +92,7 @@ def test_a_restarted_tracker_of_a_region_run_starts_afresh_in_its_replay_too(tmp
         if m.t >= RESTART_T and not restarted:
             restarted = True
             for c in centres:  # s2's liveliness token went with its process
-                c.gone.append("s2")
+                lose_token(c, "s2")
                 c.on_tick()
             local[1] = MttLocalService("s2", False, cfg, 5.0, regions=merger.regions, service_id="s2", **common)
             published = bus.published

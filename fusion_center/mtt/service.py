@@ -14,7 +14,9 @@ gives the same pictures.
 
 Sensors join by publishing (any sensor ``[mtt] sensors`` allows, at any time). A sensor
 leaves when its tracker's liveliness token (``alive/mtt-local/<id>``; for ``mtt-centralized``
-the sensor's own, ``alive/sensor/<id>``) disappears, or when nothing of it arrived for
+the sensor's own, ``alive/sensor/<id>``) disappears (one that went with the centre's own link to
+its router only if it is not back ``LINK_GRACE_S`` after the link is: :class:`fedtrack.zsession.Peers`),
+or when nothing of it arrived for
 ``[mtt] leave_after_s`` seconds of wall-clock time and four of its usual intervals between
 messages (:mod:`fedtrack.fusion_center.mtt.silence`): within one tick (50 ms) the centre drops it
 (:meth:`TrackToTrackCentre.drop_sensor`: no longer live, so the others' sharing factors are
@@ -89,6 +91,7 @@ from fedtrack.wire import (
     TrackReport,
     predictable,
 )
+from fedtrack.zsession import Peers
 
 ALGORITHMS = ("mtt-federated", "mtt-decentralized", "mtt-centralized")
 # hand-overs per sending region whose digests are kept to tell a re-delivery (a duplicate) or a second,
@@ -145,7 +148,8 @@ class MttCentreService(CentreFailover, Service):
         self.restarted_at: list[int] = []  # positions in ``order`` where a sensor's tracker restarted
         self.pictures = 0
         self.silence = Silence(cfg.leave_after_s)  # the sensors heard from, and when one counts as gone
-        self.gone: deque[str] = deque()  # liveliness lost (filled by a Zenoh thread)
+        self.peers = Peers()  # the tokens of the sensors heard from, by sensor (a Zenoh thread's)
+        self.departed: dict[str, float] = {}  # sensor -> when its token went, for the losses acted on
         self.contested = False  # a conflicting message since the last picture (docs/wire.md)
         # failover (:mod:`.failover.standby`): a primary's (``primary``), or a hot standby's withheld outputs
         self.started_standby = standby
@@ -160,15 +164,27 @@ class MttCentreService(CentreFailover, Service):
         self._start_failover()
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
-        """Zenoh thread: a tracker's (or sensor's) token went away; the worker drops it (on_tick)."""
-        if sample.kind == zenoh.SampleKind.DELETE:
-            self.gone.append(str(sample.key_expr).rsplit("/", 1)[-1])
+        """Zenoh thread: a tracker's (or sensor's) token came or went (:class:`Peers`); the worker drops
+        the sensor of one gone (on_tick). Only the sensors heard from are followed: another's token
+        changes nothing (a flood of forged tokens holds no memory)."""
+        sensor = str(sample.key_expr).rsplit("/", 1)[-1]
+        if sensor in self.silence.previous:
+            self.peers.token(sensor, sample.kind == zenoh.SampleKind.PUT, time.monotonic())
+
+    def _token_departures(self, now: float) -> list[str]:
+        """The sensors whose tokens went and count as their trackers' deaths at ``now`` (:meth:`Peers.went`:
+        not one that went with this centre's link to its router and may still come back), each loss once
+        (a sensor heard again without its token back, a report in flight from a dead tracker, leaves no
+        second time for it)."""
+        went, lost = self.peers.went(self.link(), now), self.peers.lost
+        new = [sensor for sensor, when in went.items() if self.departed.get(sensor) != when]
+        self.departed = {s: when for s, when in {**self.departed, **went}.items() if lost.get(s) == when}
+        return new
 
     def on_tick(self) -> None:
         self._failover_tick()
-        silent = self.silence.silent(time.monotonic())
-        while self.gone:
-            silent.append(self.gone.popleft())
+        now = time.monotonic()
+        silent = self.silence.silent(now) + self._token_departures(now)
         for sensor in dict.fromkeys(silent):
             if sensor not in self.silence.last:
                 continue

@@ -6,8 +6,8 @@ Consumes the sensor's scans (``Measurement`` of kind ``scan`` on ``sensor/<ID>/m
 ``TrackReport`` on ``local/<ID>/tracks``. Federated: after each report it holds the next scans
 until the centre's ``TrackResets`` for that report (``fusion/mtt-resets/<ID>``) has been
 adopted, so that its tracker sees exactly what the replay's does; after ``--reset-timeout``
-seconds without them it goes on (counted in ``reset_timeouts``; from then on the live tracks
-may differ from the replay). A scan older than the tracker's newest (the sensor's link reordered
+seconds without them (not counting a router outage and ``LINK_GRACE_S`` after it) it goes on
+(counted in ``reset_timeouts``; from then on the live tracks may differ from the replay). A scan older than the tracker's newest (the sensor's link reordered
 it) is fused in time order, the later scans run again (counted ``rerun``;
 :class:`fedtrack.local_filters.mtt.local.SensorTracker`), and reported; one more than ``max_lag``
 older is dropped and counted ``late``, and one equal to a scan tracked before (another number)
@@ -211,7 +211,10 @@ class MttLocalService(Service):
         self._advance()
 
     def on_tick(self) -> None:
-        if self.awaiting is not None and time.monotonic() - self.awaiting_since > self.reset_timeout_s:
+        """Go on without the answers awaited ``--reset-timeout`` seconds, not counting a router outage and
+        ``LINK_GRACE_S`` after it (:meth:`fedtrack.zsession.Link.waited`: nothing can come meanwhile)."""
+        if self.awaiting is not None and self.link().waited(self.awaiting_since,
+                                                             time.monotonic()) > self.reset_timeout_s:
             self.count("reset_timeouts")
             self.timed_out.append(self.awaiting)
             self.log.warning("no resets for report %d after %.1f s: going on without them",
