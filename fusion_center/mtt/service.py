@@ -160,7 +160,10 @@ class MttCentreService(CentreFailover, Service):
     def on_start(self) -> None:
         assert self.session is not None
         role = "sensor" if self.algorithm == "mtt-centralized" else "mtt-local"
-        self._inputs.append(self.session.liveliness().declare_subscriber(self.keys.alive(role), self._on_alive))
+        # with history: the tokens already at the router when this centre's link comes back (the trackers that
+        # reconnected first) come as PUTs too, as the fusion centre's do (else they would count as deaths)
+        self._inputs.append(self.session.liveliness().declare_subscriber(self.keys.alive(role), self._on_alive,
+                                                                         history=True))
         self._start_failover()
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
