@@ -312,7 +312,8 @@ def simulate(sc: Scenario, specs: list[SensorSpec], seed: int, out: Path,
             step = int(round(second / DT))
             targets = [{"id": int(i), "x": x[step, i, dims].tolist()} for i in np.flatnonzero(alive[step])]
             fh.write(json.dumps({"t": float(second), "targets": targets}) + "\n")
-    mtt: dict[str, Any] = {"q": process_noise(specs, sc.duration), "pd": sc.pd, "clutter_density": position_clutter_density(sc),
+    mtt: dict[str, Any] = {"q": process_noise(specs, sc.duration), "pd": sc.pd,
+                           "clutter_density": position_clutter_density(sc),
                            "max_lag": max_lag(sc, specs), "period": 1.0, "init_velocity_std": 30.0,
                            "sensors": [s.id for s in specs]}
     mtt["sensor"] = {s.id: {"clutter_density": clutter_density(s, sc)} for s in specs if s.kind == "radar"}

@@ -60,6 +60,17 @@ def resets(pipe: Pipeline, k: int) -> None:
         pipe.reset(r.sensor, encode(r))
 
 
+def finish_as_without_outage(pipe: Pipeline, plain: list[Any]) -> None:
+    """The scans after the backlog in lockstep; the tracks equal those of the run without the outage, and
+    nothing was fused without a reset, degraded, late or rejected."""
+    for k in range(OUTAGE_AT + 2, SCANS):
+        scan(pipe, k)
+        resets(pipe, k)
+    assert [encode(t) for t in pipe.tracks()] == [encode(t) for t in plain]
+    counters = [svc.counters for svc in (*pipe.locals.values(), pipe.centre)]
+    assert not any(c.get(name) for c in counters for name in ("no_reset", "degraded_scans", "late", "rejected"))
+
+
 def test_peers_lost_with_the_link_get_its_grace() -> None:
     """A token that went while the link held is gone at once; one that went with the link is not while
     the link is cut, nor for ``LINK_GRACE_S`` after it is back; a flood of tokens is bounded."""
@@ -134,12 +145,7 @@ def test_a_router_outage_costs_nothing_when_the_peers_come_back(returns: str) ->
     for s in SENSORS:  # each filter's estimate of scan 21, made once its reset of scan 20 applied
         estimate(pipe, OUTAGE_AT + 1, s)
     resets(pipe, OUTAGE_AT + 1)
-    for k in range(OUTAGE_AT + 2, SCANS):
-        scan(pipe, k)
-        resets(pipe, k)
-    assert [encode(t) for t in pipe.tracks()] == [encode(t) for t in plain]
-    counters = [svc.counters for svc in (*pipe.locals.values(), pipe.centre)]
-    assert not any(c.get(name) for c in counters for name in ("no_reset", "degraded_scans", "late", "rejected"))
+    finish_as_without_outage(pipe, plain)
 
 
 def test_a_wait_does_not_run_while_the_link_is_cut() -> None:
@@ -191,12 +197,7 @@ def test_the_deadlines_stand_still_while_the_router_is_down() -> None:
     for s in SENSORS:
         estimate(pipe, OUTAGE_AT + 1, s)
     resets(pipe, OUTAGE_AT + 1)
-    for k in range(OUTAGE_AT + 2, SCANS):
-        scan(pipe, k)
-        resets(pipe, k)
-    assert [encode(t) for t in pipe.tracks()] == [encode(t) for t in plain]
-    counters = [svc.counters for svc in services]
-    assert not any(c.get(name) for c in counters for name in ("no_reset", "degraded_scans", "late", "rejected"))
+    finish_as_without_outage(pipe, plain)
 
 
 def test_a_filter_waits_for_the_reset_the_centre_makes_at_its_deadline() -> None:
