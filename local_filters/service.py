@@ -6,7 +6,8 @@ Subscribes to ``sensor/<ID>/meas`` and publishes ``local/<ID>/estimate``.
   reset of scan k has been applied (``fusion/reset/<ID>``); if that reset has not come
   within two of the deployment's ``deadline_s`` (``RESET_WAIT_DEADLINES``; not counting a router
   outage and ``LINK_GRACE_S`` after it: :meth:`fedtrack.zsession.Link.waited`), or at once when the
-  centre's liveliness token is gone (not with the filter's own link to its router: :class:`fedtrack.zsession.Peers`), the
+  centre's liveliness token is gone (not with the filter's own link to its router:
+  :class:`fedtrack.zsession.Peers`), the
   filter goes on alone from its own estimate (logged once) and flags the estimate ``no-reset``
   (counted in ``no_reset``) until resets come again. On start, and after a gap in its
   measurements, it adopts the centre's latest track (``fusion/state``) and rejoins from the scan

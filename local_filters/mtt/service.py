@@ -8,7 +8,8 @@ until the centre's ``TrackResets`` for that report (``fusion/mtt-resets/<ID>``) 
 adopted, so that its tracker sees exactly what the replay's does; after ``--reset-timeout``
 seconds without them (not counting a router outage and ``LINK_GRACE_S`` after it) it goes on
 (counted in ``reset_timeouts``; from then on the live tracks may differ from the replay). A scan
-older than the tracker's newest (the sensor's link reordered it) is fused in time order, the later scans run again (counted ``rerun``;
+older than the tracker's newest (the sensor's link reordered it) is fused in time order, the later
+scans run again (counted ``rerun``;
 :class:`fedtrack.local_filters.mtt.local.SensorTracker`), and reported; one more than ``max_lag``
 older is dropped and counted ``late``, and one equal to a scan tracked before (another number)
 ``duplicate``, as in the replay. The report of the process's first scan is marked ``first``: a
