@@ -247,16 +247,22 @@ def revisits(specs: list[SensorSpec], duration: float) -> list[float]:
     return [s.period for s in specs if s.period <= duration]
 
 
+def longest_revisit(specs: list[SensorSpec], duration: float) -> float:
+    """The longest interval a tracker predicts across in ``duration`` seconds: the period of the slowest
+    sensor that scans again (:func:`revisits`), or the duration when none does."""
+    return max(revisits(specs, duration), default=duration)
+
+
 def process_noise(specs: list[SensorSpec], duration: float = math.inf) -> float:
     """``[mtt] q`` [m^2/s^3] for this simulator: ``(a_M / 2)^2 T`` with ``a_M`` = ``MAX_ACCELERATION``
-    and ``T`` the longest period of a sensor that scans again within ``duration`` (:func:`revisits`;
+    and ``T`` the longest period of a sensor that scans again within ``duration`` (:func:`longest_revisit`;
     none: the duration). Bar-Shalom, Li, Kirubarajan (2001), sections 6.2.2 and
     6.3.2: the velocity change over a scan interval, ``sqrt(q T)`` for a continuous white-noise
     acceleration, should be ``0.5 a_M`` to ``a_M`` times ``T``; the lower end, since the targets
     turn a fraction of the time and mostly below ``a_M``. (Before 2026-11-27 ``T`` was the longest
     period of all: a sensor of period 1e9 s in a 120 s scenario, which scans once, made q 2.5e9 and
     the mean GOSPA of the two others' tracks 414 m instead of 32.)"""
-    T = max(revisits(specs, duration), default=min(duration, max(s.period for s in specs)))
+    T = longest_revisit(specs, duration)
     return round((MAX_ACCELERATION / 2.0) ** 2 * T, 6)
 
 

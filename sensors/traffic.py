@@ -34,8 +34,8 @@ from fedtrack.sensors.multitarget import (
     SensorSpec,
     check_options,
     clutter_density,
+    longest_revisit,
     position_clutter_density,
-    revisits,
 )
 from fedtrack.sensors.state_vectors import UNITS, Recording, read_recording
 from fedtrack.sensors.traffic_sensors import NACP_EPU, parse_kinds, parse_sensors, sensor_scans
@@ -90,12 +90,12 @@ def derived_tracker(truth: Truth, specs: list[SensorSpec]) -> dict[str, float | 
     (docs/geodetic.md): two motion modes, straight and maneuvering, the maneuvering one's ``q`` letting
     the velocity change by ``MANEUVER_ACCELERATION`` times the longest sensor period over that period
     (of the sensors that scan again within the window: a slower one scans once, never late;
-    :func:`~fedtrack.sensors.multitarget.revisits`)."""
+    :func:`~fedtrack.sensors.multitarget.longest_revisit`)."""
     v = truth.x[..., [1, 3]]
     # at least one step of the grid: a window of one row (a --duration below DT, or a --start within DT of
     # the recording's end) gave q 0, which replay refuses in the config it wrote
     duration = max(truth.alive.shape[0] - 1, 1) * DT
-    longest = max(revisits(specs, duration), default=min(duration, max(s.period for s in specs)))
+    longest = longest_revisit(specs, duration)
     speed = np.linalg.norm(v, axis=-1)[truth.alive]
     alt = truth.x[..., 4][truth.alive]
     return {"process_noise": "imm", "q": round(MANEUVER_ACCELERATION**2 * longest, 3), "maneuver_s": MANEUVER_S,
