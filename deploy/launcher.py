@@ -308,9 +308,10 @@ class Launcher(Monitor):
         standbys = [sp for sp in self.plan if sp.standby]  # once their primaries hold the tokens
         routers = [sp for sp in self.plan if sp.role == "router"]
         stopped = False
-        for sp in self.plan:  # a snapshot left by an earlier run must not be resumed from
-            if "--snapshot" in sp.argv:
-                Path(sp.argv[sp.argv.index("--snapshot") + 1]).unlink(missing_ok=True)
+        for sp in self.plan:  # a snapshot or numbers file left by an earlier run must not be resumed from
+            for flag in ("--snapshot", "--numbers"):
+                if flag in sp.argv:
+                    Path(sp.argv[sp.argv.index(flag) + 1]).unlink(missing_ok=True)
             if "--db" in sp.argv:  # nor an earlier run's recording appended to
                 kept = set_aside_recording(Path(sp.argv[sp.argv.index("--db") + 1]))
                 if kept is not None and not self.quiet:

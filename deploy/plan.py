@@ -24,6 +24,7 @@ from fedtrack.local_filters.regions import load_regions
 
 SNAPSHOT = "fusion-center.snapshot"  # the fusion center's state, for its restarts within this run
 PICTURE_SNAPSHOT = "picture.snapshot"  # serve picture's last merged time, for its restarts within this run
+NUMBERS = "{sid}.numbers"  # a region centre's reserved track ids and hand-over numbers, for its restarts within this run
 START_FILE = "start-at"  # beside the sensors' logs: their common start time, written once all are ready
 
 
@@ -93,11 +94,12 @@ def service_plan(settings: Settings, config_path: Path, out_dir: Path, log_dir: 
                                             load_regions(config_path)):
             if runs_here(settings, role, sid, args):
                 snapshot = ["--snapshot", str(out_dir / PICTURE_SNAPSHOT)] if role == "picture" else []
-                add(role, sid, [*args, *cfg, *common, *snapshot])
+                add(role, sid, [*args, *cfg, *common, *snapshot, *numbers_args(out_dir, sid, args)])
                 if role in ("sensor", "mtt-local"):
                     plan[-1].kill_at_s = mt.kill_at.get(sid)
                 if role == "mtt-centre" and mt.standby:
-                    add(role, f"{sid}-standby", [*args, *cfg, *common, "--standby"])
+                    standby = f"{sid}-standby"
+                    add(role, standby, [*args, *cfg, *common, "--standby", *numbers_args(out_dir, standby, args)])
         return plan
     if "local-filter" in dep.services:
         for s in here:
@@ -110,6 +112,11 @@ def service_plan(settings: Settings, config_path: Path, out_dir: Path, log_dir: 
         for s in here:
             add("sensor", s, [*cfg, *common])
     return plan
+
+
+def numbers_args(out_dir: Path, sid: str, args: list[str]) -> list[str]:
+    """A region centre's ``--numbers`` file (its own per process id: a standby numbers as itself), else none."""
+    return ["--numbers", str(out_dir / NUMBERS.format(sid=sid))] if "--region" in args else []
 
 
 def runs_here(settings: Settings, role: str, sid: str, args: list[str]) -> bool:

@@ -66,6 +66,7 @@ from fedtrack.fusion_center.mtt.engines import (
 )
 from fedtrack.fusion_center.mtt.failover.service import CentreFailover
 from fedtrack.fusion_center.mtt.failover.standby import NUMBER_ROOM, Standby, next_after
+from fedtrack.fusion_center.mtt.numbers import Numbers, read_numbers, reservation, write_numbers
 from fedtrack.fusion_center.mtt.pictures import PICTURE_ITEMS, picture_message, picture_window
 from fedtrack.fusion_center.mtt.regional import RegionEngine
 from fedtrack.fusion_center.mtt.shards import handover_from_wire, handover_to_wire
@@ -114,7 +115,7 @@ class MttCentreService(CentreFailover, Service):
 
     def __init__(self, algorithm: str, cfg: MttConfig, dim: int = 4, max_seq_jump: int = 1000,
                  frame: Frame | None = None, region: str | None = None, regions: Regions | None = None,
-                 standby: bool = False, speed: float = 1.0,
+                 standby: bool = False, speed: float = 1.0, numbers: Path | None = None,
                  **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.speed = speed  # [deployment] speed: its pictures' pace, for picture_window
@@ -134,9 +135,18 @@ class MttCentreService(CentreFailover, Service):
                                   f"has it ({', '.join(regions.ids) if regions else 'no [regions]'})")
             self.engine = RegionEngine(cfg, dim, feedback=feedback, regions=regions, index=regions.ids.index(region))
         else:
+            if numbers is not None:
+                raise ConfigError("--numbers: a region centre's (--region) only")
             self.engine = (CentralizedEngine(cfg, dim, frame=frame) if algorithm == "mtt-centralized"
                            else TrackToTrackEngine(cfg, dim, feedback=feedback))
         self.picture_key = self.keys.mtt_picture() if region is None else self.keys.region_picture(region)
+        # --numbers: the ids and hand-over numbers reserved there (:mod:`.numbers`); a former process's go on
+        self.numbers, self.reserved = numbers, None
+        if numbers is not None and isinstance(self.engine, RegionEngine):
+            r = self.engine.region
+            self.reserved = read_numbers(numbers, r.name, r.index, r.centre.id_step)
+            if self.reserved is not None:
+                r.centre.next_id, r.serial = self.reserved
         self.handovers_at: list[int] = []  # positions in ``order`` that are hand-overs taken over
         self.taken: dict[str, dict[int, bytes]] = {}  # sending region -> its last HANDOVERS_KEPT numbers taken: digest
         self.clock = PictureClock(cfg.period, cfg.picture_delay)
@@ -372,6 +382,7 @@ class MttCentreService(CentreFailover, Service):
         """A region centre's part of a sub-report: fuse, hand over, answer (sends last)."""
         assert self.regions is not None
         elsewhere = np.array(msg.elsewhere, dtype=bool) if msg.elsewhere else np.zeros(len(msg.ids), dtype=bool)
+        self._reserve(engine, len(msg.ids))
         answer, moving = engine.answer(report, elsewhere)
         here = self.regions.ids[engine.index]
         for owner, serial, record in moving:
@@ -380,6 +391,25 @@ class MttCentreService(CentreFailover, Service):
         self.count("handed_over", len(moving))
         self.publish(self.keys.region_resets(self.region, msg.sensor),
                      answer_to_wire(msg.seq, answer, self.regions, engine.index))
+
+    def _reserve(self, engine: RegionEngine, rows: int) -> None:
+        """Before a sub-report of ``rows`` rows is fused: reserve in the numbers file the ids and hand-over
+        numbers it may issue (:func:`.numbers.reservation`). A file that cannot be written is counted
+        ``numbers_unsaved`` and the centre fuses on (a restart would number from the last reservation)."""
+        if self.numbers is None:
+            return
+        region = engine.region
+        due = reservation(Numbers(region.centre.next_id, region.serial), self.reserved, region.centre.id_step, rows)
+        if due is None:
+            return
+        try:
+            write_numbers(self.numbers, region.name, due)
+        except OSError as exc:
+            self.count("numbers_unsaved")
+            self.log.warning("numbers file %s not written (%s): a restart would number from its last reservation",
+                             self.numbers, exc.strerror)
+            return
+        self.reserved = due
 
     def on_handover(self, msg: HandOver) -> None:
         """A neighbour's central track taken over (listed in the next picture's fused lists)."""
@@ -485,6 +515,9 @@ def service_from_args(argv: list[str]) -> MttCentreService:
                         "(docs/multitarget.md#regions; default: none, the one centre of the whole area)")
     parser.add_argument("--standby", action="store_true",
                         help="hot standby: run the centre, publish nothing until the primary is gone (docs/deploy.md)")
+    parser.add_argument("--numbers", metavar="PATH", help="with --region: the file where the centre reserves its track "
+                        "ids and hand-over numbers before issuing them; started again with it, it numbers after its "
+                        "former process (docs/deploy.md; default: none, numbering from the start)")
     args = parser.parse_args(argv)
     kwargs = service_kwargs(parser, args)
     path = Path(args.config) if args.config else None
@@ -492,7 +525,8 @@ def service_from_args(argv: list[str]) -> MttCentreService:
     frame = None if settings.frame is None else settings.frame.frame
     regions = load_regions(path) if args.region else None
     return MttCentreService(args.algorithm, settings.mtt, args.dim, settings.deployment.max_seq_jump, frame,
-                            args.region, regions, standby=args.standby, speed=settings.deployment.speed, **kwargs)
+                            args.region, regions, standby=args.standby, speed=settings.deployment.speed,
+                            numbers=Path(args.numbers) if args.numbers else None, **kwargs)
 
 
 def main(argv: list[str]) -> int:
