@@ -15,8 +15,11 @@ import pytest
 from test_hostile_messages import KEYS, OPTIONS, Bus
 from test_hostile_regions import SENSORS, report
 from test_mtt_regions_live import CONFIG as REGIONS_CONFIG
+from test_mtt_regions_live import LAUNCH
 
 from fedtrack.cli import main
+from fedtrack.deploy.plan import service_plan
+from fedtrack.deploy.settings import load_settings
 from fedtrack.fusion_center.mtt.numbers import RESERVE_AHEAD, Numbers, read_numbers, reservation
 from fedtrack.fusion_center.mtt.picture_merge import PictureMergeService
 from fedtrack.fusion_center.mtt.service import MttCentreService
@@ -139,3 +142,15 @@ def test_a_numbers_file_that_cannot_be_written_is_counted_and_fusion_goes_on(tmp
         put(bus, "x0y0", k, [(1, -2000.0, 0)])
     assert svc.counters["numbers_unsaved"] == 9 and svc.counters.get("rejected", 0) == 0
     assert list(svc.engine.region.centre.tracks) == [0]  # type: ignore[union-attr]
+
+
+def test_the_launcher_gives_each_region_centre_and_standby_a_numbers_file_of_its_own(tmp_path: Path) -> None:
+    """``fedtrack launch`` of regions with standbys: every region centre, and every standby (which
+    numbers as itself until it takes over), reserves in ``OUT/<id>.numbers``; the unsharded-centre
+    roles and the rest get none."""
+    config = tmp_path / "launch.toml"
+    config.write_text(LAUNCH.format(port=7447).replace('duration = 8.0', 'duration = 8.0\nstandby = true'))
+    plan = service_plan(load_settings(config), config, tmp_path / "out", tmp_path / "logs")
+    numbers = {sp.id: sp.argv[sp.argv.index("--numbers") + 1] for sp in plan if "--numbers" in sp.argv}
+    assert numbers == {sid: str(tmp_path / "out" / f"{sid}.numbers")
+                       for sid in ("x0y0", "x1y0", "x0y0-standby", "x1y0-standby")}
