@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from test_hostile_messages import KEYS, OPTIONS, Bus
 from test_hostile_regions import SENSORS, report
+from test_hostile_semantics import hand_over
 from test_mtt_regions_live import CONFIG as REGIONS_CONFIG
 from test_mtt_regions_live import LAUNCH
 
@@ -154,3 +155,22 @@ def test_the_launcher_gives_each_region_centre_and_standby_a_numbers_file_of_its
     numbers = {sp.id: sp.argv[sp.argv.index("--numbers") + 1] for sp in plan if "--numbers" in sp.argv}
     assert numbers == {sid: str(tmp_path / "out" / f"{sid}.numbers")
                        for sid in ("x0y0", "x1y0", "x0y0-standby", "x1y0-standby")}
+
+
+def test_a_track_of_the_former_process_handed_back_is_taken(tmp_path: Path) -> None:
+    """A track the former process numbered (0) and handed away, handed back to the new process by
+    x1y0: the new process, numbering from 0 again, refused it as 'an id this region has not issued'
+    (``rejected_conflict``: the track was lost); numbering after the reservation, it takes it."""
+    numbers = tmp_path / "x0y0.numbers"
+    first = centre(tmp_path, "x0y0", numbers)
+    bus = Bus([first])
+    for k in range(2):
+        put(bus, "x0y0", k, [(1, -2000.0, 0)])
+    assert list(first.engine.region.centre.tracks) == [0]  # type: ignore[union-attr]
+    again = centre(tmp_path, "x0y0", numbers)
+    bus = Bus([again])
+    back = replace(hand_over(again, again.cfg, 0, [-2000.0, 50.0, 0.0, 0.0], np.diag([100.0, 25.0, 100.0, 25.0])),
+                   id=0)
+    bus.put(KEYS.region_handover("x0y0", "x1y0"), encode(back))
+    assert again.counters.get("taken_over") == 1 and again.counters.get("rejected", 0) == 0
+    assert list(again.engine.region.centre.tracks) == [0]  # type: ignore[union-attr]
