@@ -24,7 +24,7 @@ from fedtrack.local_filters.regions import load_regions
 
 SNAPSHOT = "fusion-center.snapshot"  # the fusion center's state, for its restarts within this run
 PICTURE_SNAPSHOT = "picture.snapshot"  # serve picture's last merged time, for its restarts within this run
-NUMBERS = "{sid}.numbers"  # a region centre's reserved track ids and hand-over numbers, for its restarts within this run
+NUMBERS = "{sid}.numbers"  # a region centre's reserved track ids and hand-over numbers, for its restarts in this run
 START_FILE = "start-at"  # beside the sensors' logs: their common start time, written once all are ready
 
 

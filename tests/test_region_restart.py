@@ -174,3 +174,10 @@ def test_a_track_of_the_former_process_handed_back_is_taken(tmp_path: Path) -> N
     bus.put(KEYS.region_handover("x0y0", "x1y0"), encode(back))
     assert again.counters.get("taken_over") == 1 and again.counters.get("rejected", 0) == 0
     assert list(again.engine.region.centre.tracks) == [0]  # type: ignore[union-attr]
+
+
+def test_numbers_are_a_region_centres_only(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The one centre of the whole area has no hand-overs and no neighbours: ``--numbers`` without
+    ``--region`` is refused (exit 2), not ignored."""
+    code = main(["serve", "mtt-centre", "--numbers", str(tmp_path / "all.numbers"), "--connect", "tcp/127.0.0.1:1"])
+    assert code == 2 and "--numbers: a region centre's (--region) only" in capsys.readouterr().err

@@ -29,7 +29,9 @@ hand-overs ``region/RID/handover/*`` in arrival order (:class:`fedtrack.fusion_c
 answers every sub-report on ``region/RID/mtt-resets/<id>`` (decentralized too: the answer says
 which local tracks it holds), sends the central tracks that left its region as ``HandOver``
 to ``region/<new>/handover/RID`` and publishes its region's picture on ``region/RID/picture``, its
-fused lists naming the hand-overs it took over (``handovers``); ``serve picture`` merges them.
+fused lists naming the hand-overs it took over (``handovers``); ``serve picture`` merges them. With
+``--numbers PATH`` it reserves its track ids and hand-over numbers there before issuing them, and a
+process started again numbers after its former one (:mod:`fedtrack.fusion_center.mtt.numbers`).
 
 ``--dim``: the central state size, 6 when any sensor is a radar (the replay's rule on the
 recorded scans). Rejected (docs/wire.md#rejections): a sensor the config does not allow
@@ -141,7 +143,8 @@ class MttCentreService(CentreFailover, Service):
                            else TrackToTrackEngine(cfg, dim, feedback=feedback))
         self.picture_key = self.keys.mtt_picture() if region is None else self.keys.region_picture(region)
         # --numbers: the ids and hand-over numbers reserved there (:mod:`.numbers`); a former process's go on
-        self.numbers, self.reserved = numbers, None
+        self.numbers = numbers
+        self.reserved: Numbers | None = None
         if numbers is not None and isinstance(self.engine, RegionEngine):
             r = self.engine.region
             self.reserved = read_numbers(numbers, r.name, r.index, r.centre.id_step)
@@ -515,9 +518,10 @@ def service_from_args(argv: list[str]) -> MttCentreService:
                         "(docs/multitarget.md#regions; default: none, the one centre of the whole area)")
     parser.add_argument("--standby", action="store_true",
                         help="hot standby: run the centre, publish nothing until the primary is gone (docs/deploy.md)")
-    parser.add_argument("--numbers", metavar="PATH", help="with --region: the file where the centre reserves its track "
-                        "ids and hand-over numbers before issuing them; started again with it, it numbers after its "
-                        "former process (docs/deploy.md; default: none, numbering from the start)")
+    parser.add_argument("--numbers", metavar="PATH",
+                        help="with --region: the file where the centre reserves its track ids and hand-over numbers "
+                        "before issuing them; started again with it, it numbers after its former process "
+                        "(docs/deploy.md; default: none, numbering from the start)")
     args = parser.parse_args(argv)
     kwargs = service_kwargs(parser, args)
     path = Path(args.config) if args.config else None
