@@ -245,6 +245,38 @@ def geodetic_error(lat: float, lon: float, h: float) -> str | None:
     return None
 
 
+#: how far [m] a radar scan's ``sensor_position`` may lie from the common-frame place of its ``[frame.sites]``
+#: site: the two are one point written twice, equal to round-off when both come from the same numbers; a
+#: metre is below any radar's range noise, and far below the mistakes it catches (a height above mean sea
+#: level for one above the ellipsoid: the geoid is -107 to +85 m from it; a site's latitude and longitude
+#: swapped; a radar's plots given about another radar's site)
+SITE_TOLERANCE_M = 1.0
+
+
+def sensor_position_error(frame_cfg: FrameConfig, sensor: str, position: np.ndarray) -> str | None:
+    """Why ``position`` (3,), a radar scan's ``sensor_position`` in the common frame of ``frame_cfg``, cannot be
+    radar ``sensor``'s (None: it can): on the Earth no higher or lower than a site may be (:data:`HEIGHTS`);
+    with ``[frame.sites]``, the radar's site listed there and ``position`` within :data:`SITE_TOLERANCE_M` of it."""
+    frame = frame_cfg.frame
+    lat, lon, h = geodetic_from_enu(frame, np.asarray(position, float)).tolist()
+    if not HEIGHTS[0] <= h <= HEIGHTS[1]:
+        return (f"sensor_position is {h:.6g} m above the WGS-84 ellipsoid (lat {lat:.6f}, lon {lon:.6f}), expected "
+                f"h in [{HEIGHTS[0]:g}, {HEIGHTS[1]:g}] m: it is the radar's east, north, up [m] in the common "
+                "frame of [frame] origin")
+    if not frame_cfg.sites:
+        return None
+    if sensor not in frame_cfg.sites:
+        return (f"sensor_position: radar {sensor!r} has no site in [frame.sites] (sites of "
+                f"{', '.join(sorted(frame_cfg.sites))}): add {sensor} = [lat, lon, h]")
+    site = enu_from_geodetic(frame, *(np.array([v]) for v in frame_cfg.sites[sensor]))[0]
+    off = float(np.linalg.norm(np.asarray(position, float) - site))
+    if off > SITE_TOLERANCE_M:
+        return (f"sensor_position {np.round(position, 3).tolist()} is {off:.6g} m from the site of radar {sensor!r} "
+                f"in [frame.sites], {list(frame_cfg.sites[sensor])}, at {np.round(site, 3).tolist()} in the common "
+                f"frame (at most {SITE_TOLERANCE_M:g} m: heights are above the WGS-84 ellipsoid, not sea level)")
+    return None
+
+
 def _check_geodetic(value: tuple[float, float, float], key: str) -> None:
     problem = geodetic_error(*value)
     if problem:

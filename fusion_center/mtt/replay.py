@@ -28,7 +28,7 @@ from fedtrack.fusion_center.mtt.centre.copies import Found
 from fedtrack.fusion_center.mtt.engines import ALGORITHMS, Engine, PictureClock, PictureTracks, make_engine
 from fedtrack.fusion_center.mtt.regional import is_region_recording, read_region_entries, recorded_pictures
 from fedtrack.fusion_center.mtt.silence import silence_bound, usual_intervals
-from fedtrack.geodetic import geodetic_line, load_frame
+from fedtrack.geodetic import FrameConfig, geodetic_line, load_frame, sensor_position_error
 from fedtrack.jsonl import InputError, check_output, output_file, read_jsonl
 from fedtrack.local_filters.linear.gating import CrowdedScan
 from fedtrack.local_filters.mtt.config import MttConfig, MttSettings
@@ -41,11 +41,13 @@ from fedtrack.services.lead import LeadGuard
 Line = SensorScan | SensorLeft | TrackerRestarted  # a line of the multi-target input
 
 
-def read_scans(path: Path, cfg: MttConfig) -> list[Line]:
+def read_scans(path: Path, cfg: MttConfig, frame: FrameConfig | None = None) -> list[Line]:
     """Every line of ``path`` (scans, departures and restarts), validated; a sensor the config does not
-    allow is an error."""
+    allow is an error, and so is, with a ``[frame]``, a radar scan's ``sensor_position`` that cannot be its
+    sensor's (:func:`sensor_position_error`)."""
     scans: list[Line] = []
     kind: dict[str, tuple[bool, int]] = {}  # sensor -> (radar, line of its first scan)
+    placed: set[tuple[str, tuple[float, ...]]] = set()  # (radar, sensor_position) already checked
     for lineno, obj in read_jsonl(path):
         where = f"{path}:{lineno}"
         scan = parse_line(obj, where)
@@ -58,6 +60,11 @@ def read_scans(path: Path, cfg: MttConfig) -> list[Line]:
                 raise InputError(f"{where}: sensor {scan.sensor!r} sent {_KIND[radar]} scans (line {first}) and "
                                  f"now a {_KIND[not radar]} scan; a sensor's scans are all of one kind (give the "
                                  "other kind's scans their own sensor id)")
+            if frame is not None and radar and (scan.sensor, tuple(scan.sensor_position)) not in placed:
+                problem = sensor_position_error(frame, scan.sensor, scan.sensor_position)
+                if problem:
+                    raise InputError(f"{where}: {problem}")
+                placed.add((scan.sensor, tuple(scan.sensor_position)))
         scans.append(scan)
     return scans
 
@@ -253,7 +260,7 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
         recorded: dict[str, int] = {}
         source = recorded_pictures(cfg, dim, algorithm == "mtt-federated", shards, entries, recorded)
     else:
-        scans = read_scans(measurements, cfg)
+        scans = read_scans(measurements, cfg, frame)
         if sensor is not None and not any(s.sensor == sensor for s in scans):
             raise InputError(f"{measurements}: no scan of sensor {sensor!r}")
         dim = state_dim(scans, sensor)

@@ -20,6 +20,7 @@ import numpy as np
 
 from fedtrack.jsonl import COMMON_FIELDS, InputError, as_covariance, as_float, as_vector, check_fields, require
 from fedtrack.keys import InvalidName, check_id
+from fedtrack.local_filters.radar.measurement import polar_error
 from fedtrack.wire import Measurement
 
 SCAN_FIELDS = COMMON_FIELDS | {"detections", "sensor_position"}
@@ -113,8 +114,8 @@ def parse_scan(obj: dict[str, Any], where: str) -> SensorScan:
         except (TypeError, ValueError):
             z = None  # a malformed one: the loop below names it
         if z is not None and z.shape == (len(dets), m) and np.all(np.isfinite(z)):
-            if sensor_position is not None and np.any(z[:, 0] <= 0):
-                raise InputError(f"{where}: radar range must be > 0")
+            if sensor_position is not None:
+                check_plots(z, where)
             return distinct(SensorScan(t, sensor, R, z, None, sensor_position))
     z = np.empty((len(dets), m))
     amp = np.empty(len(dets))
@@ -129,9 +130,17 @@ def parse_scan(obj: dict[str, Any], where: str) -> SensorScan:
             has_amp += 1
     if 0 < has_amp < len(dets):
         raise InputError(f"{where}: amplitude must be given for every detection of a scan or for none")
-    if sensor_position is not None and np.any(z[:, 0] <= 0):
-        raise InputError(f"{where}: radar range must be > 0")
+    if sensor_position is not None:
+        check_plots(z, where)
     return distinct(SensorScan(t, sensor, R, z, amp if has_amp else None, sensor_position))
+
+
+def check_plots(z: np.ndarray, where: str) -> None:
+    """A radar scan's detections ``z`` (M, 3) are plots (:func:`polar_error`), else an error naming ``where``, the
+    detection and its component."""
+    problem = polar_error(z)
+    if problem:
+        raise InputError(f"{where}: detections[{problem[0]}].{problem[1]}")
 
 
 def distinct(scan: SensorScan) -> SensorScan:
@@ -160,7 +169,7 @@ def scan_to_measurement(scan: SensorScan, seq: int, stamp_ns: int) -> Measuremen
 def scan_from_measurement(msg: Measurement) -> SensorScan:
     """Inverse of :func:`scan_to_measurement` (repeated detections dropped: :func:`distinct`); ValueError
     naming the field for a measurement that is not a valid multi-target scan (another kind, wrong
-    sizes, a radar range <= 0)."""
+    sizes, a radar plot that :func:`polar_error` refuses)."""
     if msg.kind != "scan":
         raise ValueError(f"kind: expected 'scan', got {msg.kind!r}")
     m = 2 if msg.sensor_position is None else 3
@@ -168,7 +177,8 @@ def scan_from_measurement(msg: Measurement) -> SensorScan:
         raise ValueError(f"R: expected ({m}, {m}) for a {'radar' if m == 3 else 'position'} scan, got {msg.R.shape}")
     z = np.array([d.z for d in msg.detections]).reshape(-1, m)
     amp = np.array([d.amplitude for d in msg.detections])
-    if msg.sensor_position is not None and np.any(z[:, 0] <= 0):
-        raise ValueError("detections: radar range must be > 0")
+    problem = None if msg.sensor_position is None else polar_error(z)
+    if problem:
+        raise ValueError(f"detections[{problem[0]}].{problem[1]}")
     return distinct(SensorScan(msg.t, msg.sensor, np.array(msg.R), z, amp if np.any(amp != 0) else None,
                                None if msg.sensor_position is None else np.array(msg.sensor_position)))

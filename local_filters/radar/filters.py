@@ -35,6 +35,7 @@ from fedtrack.local_filters.radar.input_estimation import (
     ie_init,
     ie_step,
 )
+from fedtrack.local_filters.radar.measurement import polar_error
 from fedtrack.local_filters.radar.ts_fuzzy import TSModel, load_model
 from fedtrack.local_filters.radar.ts_fuzzy_ekf import (
     TAU_S,
@@ -211,10 +212,9 @@ def parse_measurement(obj: dict[str, Any], where: str) -> Measurement:
     if not isinstance(sensor, str) or not sensor:
         raise InputError(f"{where}: sensor must be a non-empty string")
     z = as_vector(require(obj, "z", where), "z", where, 3)
-    if z[0] <= 0.0:
-        raise InputError(f"{where}: z[0] (range) must be > 0")
-    if abs(z[2]) >= np.pi / 2:
-        raise InputError(f"{where}: z[2] (elevation) must be in (-pi/2, pi/2)")
+    problem = polar_error(z)
+    if problem:
+        raise InputError(f"{where}: {problem[1]}")
     return Measurement(as_float(require(obj, "t", where), "t", where), sensor, z,
                        as_covariance(require(obj, "R", where), "R", where, 3),
                        as_vector(require(obj, "sensor_position", where), "sensor_position", where, 3))

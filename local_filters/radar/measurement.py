@@ -4,7 +4,9 @@ Paper 002 eq. (39), paper 003 eq. (2) with atan2 per the errata::
 
     r  = |d|,  az = atan2(d_y, d_x),  el = atan2(d_z, sqrt(d_x^2 + d_y^2)),  d = p - sensor
 
-Azimuth is wrapped to (-pi, pi]. Shared by the radar filters and the radar simulator.
+Azimuth is wrapped to (-pi, pi]. Shared by the radar filters and the radar simulator. A plot given as
+input is checked by :func:`polar_error`: angles in radians, the azimuth within one turn either way of
+zero (so (-pi, pi] and [0, 2 pi) both read as meant), the elevation strictly between -pi/2 and pi/2.
 """
 
 from __future__ import annotations
@@ -17,6 +19,27 @@ import numpy as np
 def wrap_angle(a: np.ndarray) -> np.ndarray:
     """Wrap angles to (-pi, pi]."""
     return a - 2.0 * np.pi * np.ceil((a - np.pi) / (2.0 * np.pi))
+
+
+#: the largest azimuth magnitude [rad] of a plot: one turn either way of zero. Beyond it the value is no
+#: angle in radians (an azimuth of 400 degrees, or a plot in degrees, which the trackers took as radians)
+AZIMUTH_BOUND = 2.0 * math.pi
+
+
+def polar_error(z: np.ndarray) -> tuple[int, str] | None:
+    """The first plot (row of ``z`` (M, 3) ``[range m, azimuth rad, elevation rad]``, finite) that is no
+    radar plot, and what is wrong with it naming its component: a range <= 0, an azimuth beyond
+    :data:`AZIMUTH_BOUND`, an elevation not strictly between -pi/2 and pi/2 (None: every row is one)."""
+    z = np.asarray(z, float).reshape(-1, 3)
+    tests = ((z[:, 0] <= 0.0, 0, "range", "must be > 0 [m]"),
+             (np.abs(z[:, 1]) > AZIMUTH_BOUND, 1, "azimuth",
+              "must be in [-2 pi, 2 pi] [rad] (radians, not degrees)"),
+             (np.abs(z[:, 2]) >= math.pi / 2, 2, "elevation", "must be in (-pi/2, pi/2) [rad] (radians, not degrees)"))
+    bad = [(int(np.argmax(rows)), k, name, rule) for rows, k, name, rule in tests if rows.any()]
+    if not bad:
+        return None
+    row, k, name, rule = min(bad)
+    return row, f"z[{k}] ({name}) {rule}, got {z[row, k]:g}"
 
 
 def polar_from_cartesian(d: np.ndarray) -> np.ndarray:
