@@ -7,17 +7,23 @@ from __future__ import annotations
 
 import json
 import math
+import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
+from test_hostile_messages import KEYS, OPTIONS, Bus
 
 from fedtrack.cli import main
-from fedtrack.geodetic import Frame, enu_from_aer, site_from_geodetic
+from fedtrack.fusion_center.mtt.service import MttCentreService
+from fedtrack.geodetic import Frame, FrameConfig, enu_from_aer, site_from_geodetic
 from fedtrack.jsonl import InputError
+from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.scan import SensorScan, parse_scan, scan_from_measurement, scan_to_measurement
+from fedtrack.local_filters.mtt.service import MttLocalService
 from fedtrack.local_filters.radar.filters import parse_measurement
 from fedtrack.local_filters.radar.measurement import polar_from_cartesian
+from fedtrack.wire import Measurement, encode
 
 ORIGIN = (-17.6, 179.8, 20.0)  # Fiji, across the antimeridian from r2
 SITES = {"r1": (-17.75, 179.70, 35.0), "r2": (-16.62, -179.95, 420.0)}
@@ -131,3 +137,38 @@ def test_a_sensor_position_that_is_not_its_radars_site_is_one_line(tmp_path: Pat
     first["sensor_position"] = change(first["sensor_position"])
     line = replay_one_line_error(tmp_path, capsys, [first, scan_line(4.0, "r1", GOOD)], config)
     assert expected in line, line
+
+
+def live_tracker(role: str, bad: int | None) -> dict[str, int]:
+    """The Health counters of ``role`` (with the config's ``[frame]``) after four scans of r1 4 s apart, scan
+    ``bad``'s ``sensor_position`` 60 m above r1's site (the site's height taken above sea level)."""
+    config = tomllib.loads(CONFIG)["frame"]
+    sites = FrameConfig(tuple(config["origin"]), {k: tuple(v) for k, v in config["sites"].items()})
+    cfg = MttConfig(sensors=("r1",), max_lag=3.0)
+    if role == "mtt-local":
+        svc: MttLocalService | MttCentreService = MttLocalService("r1", False, cfg, sites=sites, service_id="r1",
+                                                                  options=OPTIONS, deployment=KEYS.deployment)
+    else:
+        svc = MttCentreService("mtt-centralized", cfg, 6, sites=sites, service_id="centre", options=OPTIONS,
+                               deployment=KEYS.deployment)
+    bus = Bus([svc])
+    for seq in range(4):
+        line = scan_line(4.0 * seq, "r1", GOOD)
+        where = np.array(line["sensor_position"]) + (0.0, 0.0, 60.0 if seq == bad else 0.0)
+        bus.put(KEYS.sensor_meas("r1"), encode(Measurement(
+            sensor="r1", seq=seq, t=line["t"], kind="scan", z=np.zeros(0), R=R3, sensor_position=where,
+            detections=[(np.array(d["z"]), 0.0) for d in line["detections"]], stamp_ns=1)))
+    return dict(svc.counters)
+
+
+@pytest.mark.parametrize("role", ["mtt-local", "mtt-centre"])
+def test_the_live_trackers_reject_a_scan_off_its_radars_site_counted(role: str) -> None:
+    """``serve mtt-local`` and ``serve mtt-centre --algorithm mtt-centralized`` with the config's ``[frame]``: a
+    scan whose ``sensor_position`` is not its radar's site is rejected (``rejected_wrong_site``), as ``replay``
+    refuses the file; the scans at the site are tracked. Before, every one was taken, and the run's recording
+    was one that ``replay`` refused."""
+    done = "reports" if role == "mtt-local" else "scans"  # the centre takes a scan when the next one comes
+    honest, misplaced = live_tracker(role, None), live_tracker(role, 3)
+    assert honest["rejected"] == 0 and honest[done] >= 3, honest
+    assert misplaced.get("rejected_wrong_site") == 1 and misplaced["rejected"] == 1, misplaced
+    assert misplaced[done] == honest[done] - 1, (honest, misplaced)

@@ -28,12 +28,12 @@ from fedtrack.fusion_center.mtt.centre.copies import Found
 from fedtrack.fusion_center.mtt.engines import ALGORITHMS, Engine, PictureClock, PictureTracks, make_engine
 from fedtrack.fusion_center.mtt.regional import is_region_recording, read_region_entries, recorded_pictures
 from fedtrack.fusion_center.mtt.silence import silence_bound, usual_intervals
-from fedtrack.geodetic import FrameConfig, geodetic_line, load_frame, sensor_position_error
+from fedtrack.geodetic import FrameConfig, geodetic_line, load_frame
 from fedtrack.jsonl import InputError, check_output, output_file, read_jsonl
 from fedtrack.local_filters.linear.gating import CrowdedScan
 from fedtrack.local_filters.mtt.config import MttConfig, MttSettings
 from fedtrack.local_filters.mtt.models import position_from_detection
-from fedtrack.local_filters.mtt.scan import SensorLeft, SensorScan, TrackerRestarted, parse_line
+from fedtrack.local_filters.mtt.scan import SensorLeft, SensorScan, TrackerRestarted, misplaced, parse_line
 from fedtrack.local_filters.regions import Regions, grid_over, load_regions, parse_grid_spec
 from fedtrack.progress import progress_bar
 from fedtrack.services.lead import LeadGuard
@@ -44,7 +44,7 @@ Line = SensorScan | SensorLeft | TrackerRestarted  # a line of the multi-target 
 def read_scans(path: Path, cfg: MttConfig, frame: FrameConfig | None = None) -> list[Line]:
     """Every line of ``path`` (scans, departures and restarts), validated; a sensor the config does not
     allow is an error, and so is, with a ``[frame]``, a radar scan's ``sensor_position`` that cannot be its
-    sensor's (:func:`sensor_position_error`)."""
+    sensor's (:func:`~fedtrack.local_filters.mtt.scan.misplaced`)."""
     scans: list[Line] = []
     kind: dict[str, tuple[bool, int]] = {}  # sensor -> (radar, line of its first scan)
     placed: set[tuple[str, tuple[float, ...]]] = set()  # (radar, sensor_position) already checked
@@ -60,8 +60,8 @@ def read_scans(path: Path, cfg: MttConfig, frame: FrameConfig | None = None) -> 
                 raise InputError(f"{where}: sensor {scan.sensor!r} sent {_KIND[radar]} scans (line {first}) and "
                                  f"now a {_KIND[not radar]} scan; a sensor's scans are all of one kind (give the "
                                  "other kind's scans their own sensor id)")
-            if frame is not None and radar and (scan.sensor, tuple(scan.sensor_position)) not in placed:
-                problem = sensor_position_error(frame, scan.sensor, scan.sensor_position)
+            if radar and (scan.sensor, tuple(scan.sensor_position)) not in placed:
+                problem = misplaced(scan, frame)
                 if problem:
                     raise InputError(f"{where}: {problem}")
                 placed.add((scan.sensor, tuple(scan.sensor_position)))

@@ -73,12 +73,12 @@ from fedtrack.fusion_center.mtt.pictures import PICTURE_ITEMS, picture_message, 
 from fedtrack.fusion_center.mtt.regional import RegionEngine
 from fedtrack.fusion_center.mtt.shards import handover_from_wire, handover_to_wire
 from fedtrack.fusion_center.mtt.silence import Silence
-from fedtrack.geodetic import Frame, geodetic_of_states
+from fedtrack.geodetic import Frame, FrameConfig, geodetic_of_states
 from fedtrack.local_filters.linear.gating import CrowdedScan
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
 from fedtrack.local_filters.mtt.local import report_from_wire, resets_to_wire
 from fedtrack.local_filters.mtt.routing import answer_to_wire
-from fedtrack.local_filters.mtt.scan import scan_from_measurement
+from fedtrack.local_filters.mtt.scan import misplaced, scan_from_measurement
 from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.services.admission import ReceivedScans, digest
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
@@ -118,10 +118,12 @@ class MttCentreService(CentreFailover, Service):
     def __init__(self, algorithm: str, cfg: MttConfig, dim: int = 4, max_seq_jump: int = 1000,
                  frame: Frame | None = None, region: str | None = None, regions: Regions | None = None,
                  standby: bool = False, speed: float = 1.0, numbers: Path | None = None,
+                 sites: FrameConfig | None = None,
                  **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.speed = speed  # [deployment] speed: its pictures' pace, for picture_window
         self.frame = frame  # [frame]: each picture track's WGS-84 position too
+        self.sites = sites  # [frame] with its sites: a radar scan's sensor_position checked (scan.misplaced)
         if algorithm not in ALGORITHMS:
             raise ConfigError(f"algorithm: expected one of {', '.join(ALGORITHMS)}, got {algorithm!r}")
         self.algorithm = algorithm
@@ -318,6 +320,9 @@ class MttCentreService(CentreFailover, Service):
             scan = scan_from_measurement(msg)
         except ValueError as exc:
             raise Rejected("wrong_model", str(exc)) from None
+        problem = misplaced(scan, self.sites)
+        if problem:
+            raise Rejected("wrong_site", f"scan {msg.seq} of {msg.sensor}: {problem}")
         if scan.sensor_position is not None and self.dim != 6:
             raise Rejected("wrong_model", "a radar scan at a 2-D centre (--dim 4)")
         where = scan.z if scan.sensor_position is None else np.concatenate([scan.z.ravel(), scan.sensor_position])
@@ -530,7 +535,7 @@ def service_from_args(argv: list[str]) -> MttCentreService:
     regions = load_regions(path) if args.region else None
     return MttCentreService(args.algorithm, settings.mtt, args.dim, settings.deployment.max_seq_jump, frame,
                             args.region, regions, standby=args.standby, speed=settings.deployment.speed,
-                            numbers=Path(args.numbers) if args.numbers else None, **kwargs)
+                            numbers=Path(args.numbers) if args.numbers else None, sites=settings.frame, **kwargs)
 
 
 def main(argv: list[str]) -> int:

@@ -18,6 +18,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from fedtrack.geodetic import FrameConfig, sensor_position_error
 from fedtrack.jsonl import COMMON_FIELDS, InputError, as_covariance, as_float, as_vector, check_fields, require
 from fedtrack.keys import InvalidName, check_id
 from fedtrack.local_filters.radar.measurement import polar_error
@@ -141,6 +142,15 @@ def check_plots(z: np.ndarray, where: str) -> None:
     problem = polar_error(z)
     if problem:
         raise InputError(f"{where}: detections[{problem[0]}].{problem[1]}")
+
+
+def misplaced(scan: SensorScan, frame: FrameConfig | None) -> str | None:
+    """Why a radar scan's ``sensor_position`` cannot be its radar's on the Earth of ``frame`` (``[frame]``: its
+    heights, its ``[frame.sites]``; :func:`~fedtrack.geodetic.sensor_position_error`); None when it can, or for a
+    position scan or without a frame. ``replay`` refuses such a file, the live trackers such a scan."""
+    if frame is None or scan.sensor_position is None:
+        return None
+    return sensor_position_error(frame, scan.sensor, scan.sensor_position)
 
 
 def distinct(scan: SensorScan) -> SensorScan:

@@ -42,6 +42,7 @@ from pathlib import Path
 
 from fedtrack.config import load_tables
 from fedtrack.deployment import MODES
+from fedtrack.geodetic import FrameConfig
 from fedtrack.keys import check_id
 from fedtrack.local_filters.linear.gating import CrowdedScan
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
@@ -54,7 +55,7 @@ from fedtrack.local_filters.mtt.routing import (
     answers_only,
     join_answers,
 )
-from fedtrack.local_filters.mtt.scan import SensorScan, scan_from_measurement
+from fedtrack.local_filters.mtt.scan import SensorScan, misplaced, scan_from_measurement
 from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.services.admission import ReceivedScans, digest
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
@@ -81,8 +82,9 @@ class MttLocalService(Service):
 
     def __init__(self, sensor: str, federated: bool, cfg: MttConfig, reset_timeout_s: float = RESET_TIMEOUT_S,
                  max_seq_jump: int = 1000, max_time_jump_s: float = 3600.0, regions: Regions | None = None,
-                 **kwargs: object) -> None:
+                 sites: FrameConfig | None = None, **kwargs: object) -> None:
         super().__init__(**kwargs)  # type: ignore[arg-type]
+        self.sites = sites  # [frame] with its sites: a radar scan's sensor_position checked (scan.misplaced)
         self.regions = regions
         self.router = None if regions is None else RegionRouter(regions)
         self.sent: list[LocalReport] = []  # the sub-reports of the report awaiting answers (regions)
@@ -126,6 +128,9 @@ class MttLocalService(Service):
             raise Rejected("wrong_model", str(exc)) from None
         if not self.cfg.allows(msg.sensor):
             raise Rejected("unknown_sensor", f"sensor {msg.sensor!r} is not in mtt.sensors")
+        problem = misplaced(scan, self.sites)
+        if problem:
+            raise Rejected("wrong_site", f"scan {msg.seq} of {msg.sensor}: {problem}")
         check_time_jump(self.lead.newest, msg.t, self.max_time_jump_s)
         if not self.admitted(self.received, msg):
             return
@@ -279,8 +284,8 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--sensor", required=True, type=id_arg("--sensor"), help="sensor id whose scans to track")
     parser.add_argument("--mode", choices=MODES, default="federated",
                         help="federated: take the centre's resets; decentralized: none (default: %(default)s)")
-    parser.add_argument("--config", help="configuration file; reads [mtt] and [deployment] (docs/multitarget.md; "
-                        "default: none, every key at its default)")
+    parser.add_argument("--config", help="configuration file; reads [mtt], [deployment] and [frame] (a radar scan's "
+                        "sensor_position against its site; docs/multitarget.md; default: none, every key at its default)")
     parser.add_argument("--reset-timeout", type=float, default=RESET_TIMEOUT_S, metavar="SECONDS",
                         help="federated: go on without the centre's resets after this long (default: %(default)s)")
     args = parser.parse_args(argv)
@@ -291,4 +296,4 @@ def main(argv: list[str]) -> int:
     settings = load_tables(path, MttServiceSettings)  # a ConfigError is the CLI's one-line error
     dep = settings.deployment
     return MttLocalService(args.sensor, args.mode == "federated", settings.mtt, args.reset_timeout,
-                           dep.max_seq_jump, dep.max_time_jump_s, load_regions(path), **kwargs).run()
+                           dep.max_seq_jump, dep.max_time_jump_s, load_regions(path), sites=settings.frame, **kwargs).run()
