@@ -256,23 +256,31 @@ SITE_TOLERANCE_M = 1.0
 def sensor_position_error(frame_cfg: FrameConfig, sensor: str, position: np.ndarray) -> str | None:
     """Why ``position`` (3,), a radar scan's ``sensor_position`` in the common frame of ``frame_cfg``, cannot be
     radar ``sensor``'s (None: it can): on the Earth no higher or lower than a site may be (:data:`HEIGHTS`);
-    with ``[frame.sites]``, the radar's site listed there and ``position`` within :data:`SITE_TOLERANCE_M` of it."""
-    frame = frame_cfg.frame
-    lat, lon, h = geodetic_from_enu(frame, np.asarray(position, float)).tolist()
+    with ``[frame.sites]``, the radar's site listed there and ``position`` within :data:`SITE_TOLERANCE_M` of it.
+    Remembered for the last places asked about (a radar sends its one place with every scan)."""
+    return _position_error(frame_cfg.origin, frame_cfg.sites.get(sensor), tuple(sorted(frame_cfg.sites)), sensor,
+                           tuple(np.asarray(position, float).tolist()))
+
+
+@lru_cache(maxsize=256)
+def _position_error(origin: tuple[float, float, float], site: tuple[float, float, float] | None,
+                    listed: tuple[str, ...], sensor: str, position: tuple[float, float, float]) -> str | None:
+    frame = Frame(*origin)
+    lat, lon, h = geodetic_from_enu(frame, np.array(position)).tolist()
     if not HEIGHTS[0] <= h <= HEIGHTS[1]:
         return (f"sensor_position is {h:.6g} m above the WGS-84 ellipsoid (lat {lat:.6f}, lon {lon:.6f}), expected "
                 f"h in [{HEIGHTS[0]:g}, {HEIGHTS[1]:g}] m: it is the radar's east, north, up [m] in the common "
                 "frame of [frame] origin")
-    if not frame_cfg.sites:
+    if not listed:
         return None
-    if sensor not in frame_cfg.sites:
-        return (f"sensor_position: radar {sensor!r} has no site in [frame.sites] (sites of "
-                f"{', '.join(sorted(frame_cfg.sites))}): add {sensor} = [lat, lon, h]")
-    site = enu_from_geodetic(frame, *(np.array([v]) for v in frame_cfg.sites[sensor]))[0]
-    off = float(np.linalg.norm(np.asarray(position, float) - site))
+    if site is None:
+        return (f"sensor_position: radar {sensor!r} has no site in [frame.sites] (sites of {', '.join(listed)}): "
+                f"add {sensor} = [lat, lon, h]")
+    place = enu_from_geodetic(frame, *(np.array([v]) for v in site))[0]
+    off = float(np.linalg.norm(np.array(position) - place))
     if off > SITE_TOLERANCE_M:
         return (f"sensor_position {np.round(position, 3).tolist()} is {off:.6g} m from the site of radar {sensor!r} "
-                f"in [frame.sites], {list(frame_cfg.sites[sensor])}, at {np.round(site, 3).tolist()} in the common "
+                f"in [frame.sites], {list(site)}, at {np.round(place, 3).tolist()} in the common "
                 f"frame (at most {SITE_TOLERANCE_M:g} m: heights are above the WGS-84 ellipsoid, not sea level)")
     return None
 

@@ -47,7 +47,6 @@ def read_scans(path: Path, cfg: MttConfig, frame: FrameConfig | None = None) -> 
     sensor's (:func:`~fedtrack.local_filters.mtt.scan.misplaced`)."""
     scans: list[Line] = []
     kind: dict[str, tuple[bool, int]] = {}  # sensor -> (radar, line of its first scan)
-    placed: set[tuple[str, tuple[float, ...]]] = set()  # (radar, sensor_position) already checked
     for lineno, obj in read_jsonl(path):
         where = f"{path}:{lineno}"
         scan = parse_line(obj, where)
@@ -60,11 +59,9 @@ def read_scans(path: Path, cfg: MttConfig, frame: FrameConfig | None = None) -> 
                 raise InputError(f"{where}: sensor {scan.sensor!r} sent {_KIND[radar]} scans (line {first}) and "
                                  f"now a {_KIND[not radar]} scan; a sensor's scans are all of one kind (give the "
                                  "other kind's scans their own sensor id)")
-            if radar and (scan.sensor, tuple(scan.sensor_position)) not in placed:
-                problem = misplaced(scan, frame)
-                if problem:
-                    raise InputError(f"{where}: {problem}")
-                placed.add((scan.sensor, tuple(scan.sensor_position)))
+            problem = misplaced(scan, frame)
+            if problem:
+                raise InputError(f"{where}: {problem}")
         scans.append(scan)
     return scans
 
