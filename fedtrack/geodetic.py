@@ -256,26 +256,24 @@ SITE_TOLERANCE_M = 1.0
 def sensor_position_error(frame_cfg: FrameConfig, sensor: str, position: np.ndarray) -> str | None:
     """Why ``position`` (3,), a radar scan's ``sensor_position`` in the common frame of ``frame_cfg``, cannot be
     radar ``sensor``'s (None: it can): on the Earth no higher or lower than a site may be (:data:`HEIGHTS`);
-    with ``[frame.sites]``, the radar's site listed there and ``position`` within :data:`SITE_TOLERANCE_M` of it.
-    Remembered for the last places asked about (a radar sends its one place with every scan)."""
-    return _position_error(frame_cfg.origin, frame_cfg.sites.get(sensor), tuple(sorted(frame_cfg.sites)), sensor,
+    for a radar with a site in ``[frame.sites]``, ``position`` within :data:`SITE_TOLERANCE_M` of it (a radar
+    without one, on a ship or one the table leaves out, is checked for its height only). Remembered for the
+    last places asked about (a radar sends its one place with every scan)."""
+    return _position_error(frame_cfg.origin, frame_cfg.sites.get(sensor), sensor,
                            tuple(np.asarray(position, float).tolist()))
 
 
 @lru_cache(maxsize=256)
 def _position_error(origin: tuple[float, float, float], site: tuple[float, float, float] | None,
-                    listed: tuple[str, ...], sensor: str, position: tuple[float, float, float]) -> str | None:
+                    sensor: str, position: tuple[float, float, float]) -> str | None:
     frame = Frame(*origin)
     lat, lon, h = geodetic_from_enu(frame, np.array(position)).tolist()
     if not HEIGHTS[0] <= h <= HEIGHTS[1]:
         return (f"sensor_position is {h:.6g} m above the WGS-84 ellipsoid (lat {lat:.6f}, lon {lon:.6f}), expected "
                 f"h in [{HEIGHTS[0]:g}, {HEIGHTS[1]:g}] m: it is the radar's east, north, up [m] in the common "
                 "frame of [frame] origin")
-    if not listed:
-        return None
     if site is None:
-        return (f"sensor_position: radar {sensor!r} has no site in [frame.sites] (sites of {', '.join(listed)}): "
-                f"add {sensor} = [lat, lon, h]")
+        return None
     place = enu_from_geodetic(frame, *(np.array([v]) for v in site))[0]
     off = float(np.linalg.norm(np.array(position) - place))
     if off > SITE_TOLERANCE_M:

@@ -123,8 +123,9 @@ SITE_CASES = {  # (the first line's sensor_position changed so, or the config; t
                                                                       "179.8, 20.0]\n\n[frame.sites]\nr1 = "
                                                                       "[-17.75, 179.7, 95.0]"),
                                           "is 60 m from the site of radar 'r1' in [frame.sites]"),
-    "a radar without a site": (lambda p: p, CONFIG.replace("r2 = [-16.62, -179.95, 420.0]\n", ""),
-                               "m.jsonl:1: sensor_position: radar 'r2' has no site in [frame.sites] (sites of r1)"),
+    "a radar without a site 1e7 m up": (lambda p: [p[0], p[1], 1e7],
+                                        CONFIG.replace("r2 = [-16.62, -179.95, 420.0]\n", ""),
+                                        "m.jsonl:1: sensor_position is 1.00"),
 }
 
 
@@ -172,3 +173,14 @@ def test_the_live_trackers_reject_a_scan_off_its_radars_site_counted(role: str) 
     assert honest["rejected"] == 0 and honest[done] >= 3, honest
     assert misplaced.get("rejected_wrong_site") == 1 and misplaced["rejected"] == 1, misplaced
     assert misplaced[done] == honest[done] - 1, (honest, misplaced)
+
+
+def test_a_radar_without_a_site_replays_wherever_it_is(tmp_path: Path) -> None:
+    """``[frame.sites]`` is optional per radar: one the table leaves out (on a ship, its ``sensor_position``
+    moving) replays, checked for its height only."""
+    (tmp_path / "c.toml").write_text(CONFIG.replace("r2 = [-16.62, -179.95, 420.0]\n", ""))
+    rows = [scan_line(0.0, "r2", GOOD), scan_line(4.0, "r1", GOOD), scan_line(5.0, "r2", GOOD)]
+    rows[2]["sensor_position"] = [v + 50.0 for v in rows[2]["sensor_position"][:2]] + rows[2]["sensor_position"][2:]
+    (tmp_path / "m.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    assert main(["replay", "--algorithm", "mtt-centralized", "--config", str(tmp_path / "c.toml"),
+                 "--measurements", str(tmp_path / "m.jsonl"), "--out", str(tmp_path / "p.jsonl")]) == 0
