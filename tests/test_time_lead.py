@@ -225,6 +225,48 @@ def test_live_services_drop_a_forged_scan_and_report_far_ahead(tmp_path: Path) -
     assert pictures(forged) == pictures(clean) and len(pictures(clean)) > 5
 
 
+def test_a_scan_far_ahead_before_any_interval_is_known_waits_for_another_sensor() -> None:
+    """The guard on the data's first interval: three sensors have one scan each, none an interval yet,
+    and a second scan of one of them comes 10^9 s ahead. It led by no bound (none without an interval)
+    and was corroborated by any other sensor (their reach, ``max_lag`` + an unknown usual interval, was
+    infinite). It now waits for another sensor's data within ``max_lag`` of it, and the others' second
+    scans, and its sensor's genuine one, are taken as they come."""
+    guard: LeadGuard[str] = LeadGuard(max_lag=3.0, corroborate=True)
+    for s in ("a", "b", "c"):
+        assert guard.admit(s, 0.0, f"{s}0") == [f"{s}0"]
+        guard.took(s, 0.0)
+    assert guard.admit("a", 1e9, "forged") == [] and guard.newest == 0.0
+    for s, t in (("b", 0.7), ("a", 1.0), ("c", 1.3)):
+        assert guard.admit(s, t, f"{s}{t}") == [f"{s}{t}"]
+        guard.took(s, t)
+    assert guard.end() == 1 and guard.newest == 1.3
+
+
+def test_the_centre_drops_a_second_scan_far_ahead_at_its_start(tmp_path: Path) -> None:
+    """The live multi-target centre (in-process bus, ``mtt-centralized``): once every sensor has sent its
+    first scan, a second scan of s1 stamped 1,000 s ahead (a sensor's own key, which the access control
+    admits) made the centre publish a picture for every period up to it, 1,000 s of pictures (10^9 s:
+    the centre busy for good), and every genuine scan after it was late (no picture after t = 1,000).
+    It now waits for a corroboration that never comes (``rejected_time_lead`` at the stop) and every
+    picture equals the clean run's."""
+    msgs = mtt_lines(tmp_path)
+    at = next(i for i, m in enumerate(msgs) if {x.sensor for x in msgs[:i + 1]} == {"s1", "s2", "s3"})
+    runs = []
+    for name, forge in (("clean", False), ("forged", True)):
+        services = mtt_services(tmp_path / name, "mtt-centralized")
+        bus = Bus(list(services.values()))
+        for i, m in enumerate(msgs):
+            bus.put(KEYS.sensor_meas(m.sensor), encode(m))
+            if forge and i == at:
+                s1 = next(x for x in msgs[:at + 1][::-1] if x.sensor == "s1")
+                bus.put(KEYS.sensor_meas("s1"), encode(replace(s1, seq=s1.seq + 500, t=s1.t + 1000.0)))
+        services["centre"].on_stop()
+        runs.append((pictures(bus), services["centre"]))
+    (clean, _), (forged, centre) = runs
+    assert forged == clean and len(clean) > 5
+    assert centre.counters.get("rejected_time_lead") == 1
+
+
 def same_tracker_tracks(attacked: Bus, clean: Bus) -> None:
     """The IMM's and the HPDA tracker's tracks of the two runs are the same, and there are some."""
     for role in ("imm", "hpda"):

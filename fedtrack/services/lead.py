@@ -42,7 +42,9 @@ a sensor sending its scans one usual interval apart but faster than the data com
 tracker counting ahead) made the centre's clock run away, every other sensor's scans late and
 the pictures empty. So when at least ``CORROBORATORS`` other sensors are live, a scan that the
 rule above gives is taken only if another sensor ``o`` has reached near its time: a scan of
-``o`` taken, given or waiting at most ``reach(o) = max_lag + usual(o)`` before it. Else it
+``o`` taken, given or waiting at most ``reach(o) = max_lag + usual(o)`` before it (no sensor with an
+interval yet: ``max_lag``; it was infinite, and a sensor's second scan 10^9 s ahead, once three
+sensors had sent one each, moved the clock there). Else it
 waits (bounded as the held scans, the oldest dropped, counted), and is taken, in time order with
 what comes, once another sensor's data gets there or fewer other sensors are live. ``reach``:
 ``max_lag`` bounds how far a scan arrives behind the newest one (docs/multitarget.md, "Simulated
@@ -170,10 +172,11 @@ class LeadGuard(Generic[T]):
         return any(at >= t - self.max_lag - self._usual(o) for o, at in reached.items() if o != sensor)
 
     def _usual(self, sensor: str) -> float:
-        """``sensor``'s usual interval; without one, the longest of the others' (none: infinite)."""
+        """``sensor``'s usual interval; without one, the longest of the others'; none known yet (the data's
+        first interval): 0, so that a scan is corroborated by another sensor's within ``max_lag`` of it."""
         if sensor in self.usual:
             return self.usual[sensor]
-        return max(self.usual.values()) if self.usual else float("inf")
+        return max(self.usual.values()) if self.usual else 0.0
 
     def _witnesses(self, sensor: str, t: float, held: tuple[str, float, T, int]) -> bool:
         """Whether a leading scan of ``sensor`` at ``t`` witnesses ``held``: another sensor's, or
