@@ -13,7 +13,8 @@ recovery (:func:`cache_keys`), and lets an identity publish, reply (its cache), 
 and liveliness tokens only on its own keys (:func:`own_keys`): ``sensor-<id>`` on
 ``sensor/<id>/meas``, ``local/<id>/estimate``, ``local/<id>/tracks`` and its health/alive keys;
 ``fusion`` on ``fusion/**`` (resets, tracks, events, pictures, the state queryable);
-``region-<rid>`` on its region's answers, picture and primary token and on its own hand-over keys
+``region-<rid>`` on its region's answers, picture and primary token, the health/alive keys of its centre
+(``<rid>``) and of its standby (``<rid>-standby``: :func:`fedtrack.keys.standby_id`) and on its own hand-over keys
 (``region/*/handover/<rid>``: it hands tracks to any neighbour, as itself), not on another region's
 outputs;
 ``router`` (another host's router joined by ``router_connect``, forwarding its own clients'
@@ -26,7 +27,7 @@ from __future__ import annotations
 from typing import Any
 
 from fedtrack.config import ConfigError
-from fedtrack.keys import Keys
+from fedtrack.keys import Keys, standby_id
 
 OWN_MESSAGES = ["put", "delete", "reply", "declare_queryable", "liveliness_token"]
 READ_MESSAGES = ["declare_subscriber", "query"]  # each identity on what its roles read (read_keys)
@@ -70,11 +71,10 @@ def own_keys(keys: Keys, ident: str) -> list[str]:
     elif ident == "fusion":
         data = [keys.fusion_track().rsplit("/", 1)[0] + "/**", keys.primary("all")]  # the one centre's token
         roles = [(role, None) for role in CENTRE_ROLES]
-    elif ident.startswith(REGION_PREFIX):  # a region's centres: their ids are the region's, or start "<rid>-"
+    elif ident.startswith(REGION_PREFIX):  # a region's centres: the region's id and its standby's
         rid = ident.removeprefix(REGION_PREFIX)
-        data = [keys.region_resets(rid), keys.region_handover(None, rid), keys.region_picture(rid), keys.primary(rid),
-                keys.health("mtt-centre", rid) + "-$*", keys.alive("mtt-centre", rid) + "-$*"]  # its standbys
-        roles = [("mtt-centre", rid)]
+        data = [keys.region_resets(rid), keys.region_handover(None, rid), keys.region_picture(rid), keys.primary(rid)]
+        roles = [("mtt-centre", rid), ("mtt-centre", standby_id(rid))]
     elif ident == LAUNCHER:
         return []
     elif ident == ROUTER:  # another host's router (router_connect) forwards its own clients' messages, each

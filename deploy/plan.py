@@ -18,7 +18,7 @@ from fedtrack.deploy.multitarget import SCENARIO_DIR, sensor_ids, service_args
 from fedtrack.deploy.security import host_endpoints, router_limits, write_configs
 from fedtrack.deploy.settings import Settings
 from fedtrack.deployment import ROLES
-from fedtrack.keys import Keys
+from fedtrack.keys import Keys, standby_id
 from fedtrack.local_filters.mtt.service import RESET_TIMEOUT_S
 from fedtrack.local_filters.regions import load_regions
 
@@ -98,7 +98,7 @@ def service_plan(settings: Settings, config_path: Path, out_dir: Path, log_dir: 
                 if role in ("sensor", "mtt-local"):
                     plan[-1].kill_at_s = mt.kill_at.get(sid)
                 if role == "mtt-centre" and mt.standby:
-                    standby = f"{sid}-standby"
+                    standby = standby_id(sid)
                     add(role, standby, [*args, *cfg, *common, "--standby", *numbers_args(out_dir, standby, args)])
         return plan
     if "local-filter" in dep.services:

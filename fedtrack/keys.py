@@ -31,6 +31,12 @@ MAX_ID_LENGTH = 64
 _FORBIDDEN = frozenset("/*$?#")
 
 
+def standby_id(centre: str) -> str:
+    """The id of centre ``centre``'s hot standby (``launch``: ``serve mtt-centre --standby``), under the
+    centre's identity (``deploy/access_control.py`` names it exactly)."""
+    return f"{centre}-standby"
+
+
 class InvalidName(ValueError):
     """A deployment, role or id that cannot be one key-expression chunk."""
 

@@ -36,7 +36,7 @@ import numpy as np
 
 from fedtrack.config import ConfigError, load_tables
 from fedtrack.geodetic import Frame, FrameConfig, enu_from_geodetic
-from fedtrack.keys import InvalidName, check_id
+from fedtrack.keys import MAX_ID_LENGTH, InvalidName, check_id, standby_id
 from fedtrack.wire import MAX_MAGNITUDE
 
 MAX_REGIONS = 10_000
@@ -81,6 +81,9 @@ class PolygonConfig:
             check_id(self.id, "id")
         except InvalidName as exc:
             raise ConfigError(str(exc)) from exc
+        if len(standby_id(self.id)) > MAX_ID_LENGTH:  # a key chunk too (deploy/access_control.py)
+            raise ConfigError(f"id is longer than {MAX_ID_LENGTH - len(standby_id(''))} characters (its standby's id, "
+                              f"{standby_id('<id>')}, is at most {MAX_ID_LENGTH})")
         if bool(self.points) == bool(self.lat_lon):
             raise ConfigError(f"{self.id}: give exactly one of points, lat_lon")
         corners = self.points or self.lat_lon
@@ -109,6 +112,10 @@ class RegionsConfig:
         dup = sorted({i for i in ids if ids.count(i) > 1})
         if dup:
             raise ConfigError(f"polygon: id {dup[0]!r} given twice")
+        standbys = sorted(set(ids) & {standby_id(i) for i in ids})
+        if standbys:  # a region's centres would run as two identities' (deploy/access_control.py)
+            raise ConfigError(f"polygon: id {standbys[0]!r} is the id of the standby of region "
+                              f"{standbys[0].removesuffix(standby_id(''))!r}")
         if len(ids) > MAX_REGIONS:
             raise ConfigError(f"polygon: at most {MAX_REGIONS} regions")
 

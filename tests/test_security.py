@@ -26,6 +26,7 @@ from fedtrack.deploy.security import ZenohSettings, on_loopback
 from fedtrack.deploy.settings import check_launchable, load_settings
 from fedtrack.fusion_center.replay import replay_fusion
 from fedtrack.keys import Keys
+from fedtrack.local_filters.regions import load_regions
 from fedtrack.recording import Recording
 from fedtrack.wire import FusedTrack, LocalEstimate, Measurement, Reset, decode, encode
 from fedtrack.zsession import SessionError, SessionOptions, close_session, open_session
@@ -80,6 +81,34 @@ def test_a_region_identity_hands_over_on_its_own_key_only() -> None:
     assert allows("read-region-x0y0", keys.region_handover("x0y0", "x1y0"))
     assert allows("read-region-x0y0", keys.region_handover("x1y0", "x0y0"))
     assert identity("mtt-centre", "x0y0-standby", "x0y0") == "region-x0y0"
+
+
+def test_a_region_identity_speaks_for_its_own_centres_only_whatever_the_ids(tmp_path: Path) -> None:
+    """``region-<rid>`` might publish the Health and declare the token of every ``mtt-centre/<rid>-...`` (its
+    standbys): with polygon regions ``north`` and ``north-east``, ``region-north`` could forge the Health of
+    region north-east's centre (its counters in the summary, a final ``stopped`` that makes a SIGKILL at
+    the stop no failure) and its ``alive`` token (the launcher's readiness wait). It now may the ids of its
+    own centre and its standby (``<rid>-standby``) only, and a ``[regions]`` whose ids would make one
+    region's standby another region is refused."""
+    keys = Keys("d")
+    acl = access_control(keys, ["region-north", "region-north-east"])
+    own = {r["id"]: [zenoh.KeyExpr(k) for k in r["key_exprs"]] for r in acl["rules"]}
+
+    def allows(ident: str, key: str) -> bool:
+        return any(k.intersects(zenoh.KeyExpr(key)) for k in own[f"own-{ident}"])
+    for centre in ("north", "north-standby"):
+        assert allows("region-north", keys.health("mtt-centre", centre))
+        assert allows("region-north", keys.alive("mtt-centre", centre))
+    for centre in ("north-east", "north-east-standby"):
+        assert not allows("region-north", keys.health("mtt-centre", centre))
+        assert not allows("region-north", keys.alive("mtt-centre", centre))
+        assert allows("region-north-east", keys.health("mtt-centre", centre))
+    config = tmp_path / "regions.toml"
+    polygon = '[[regions.polygon]]\nid = "{}"\npoints = [[{x}, 0.0], [{w}, 0.0], [{w}, 10.0]]\n'
+    config.write_text("[regions]\nmargin = 1.0\n" + polygon.format("north", x=0.0, w=10.0)
+                      + polygon.format("north-standby", x=20.0, w=30.0))
+    with pytest.raises(ConfigError, match="'north-standby' is the id of the standby of region 'north'"):
+        load_regions(config)
 
 
 def test_a_region_centres_identity_publishes_its_own_regions_outputs_only(tmp_path: Path) -> None:
