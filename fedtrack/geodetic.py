@@ -83,20 +83,30 @@ def geodetic_from_enu(frame: Frame, enu: np.ndarray) -> np.ndarray:
 
 def surface_enu(frame: Frame, xy: np.ndarray) -> np.ndarray:
     """The points (N, 3) of the WGS-84 ellipsoid (h = 0) whose east, north in ``frame`` are ``xy`` (N, 2): where
-    the line through ``(x, y, 0)`` along the origin's up meets the ellipsoid, its upper crossing (NaN past the
-    ellipsoid's limb, 6,000 km and more from the origin). The inverse of :func:`surface_xy`: a 2-D track's place
-    on the Earth."""
+    the line through ``(x, y, 0)`` along the origin's up meets the ellipsoid, its upper crossing. The inverse of
+    :func:`surface_xy`: a 2-D track's place on the Earth. A line past the ellipsoid's limb (6,000 km and more
+    from the origin: no 2-D sensor on the Earth measures there) meets it nowhere; its point is then the
+    ellipsoid's nearest to the line (the limb in that direction; the unit sphere's metric), whose east and north
+    are not ``xy``: it was NaN, and a picture holding such a track (one forged detection 8,000 km out) was
+    refused by every receiver (``TrackPicture.lla``)."""
     import pymap3d
 
     xy = np.asarray(xy, float)
     axes = ecef_to_enu_rotation(frame.lat, frame.lon)  # rows: east, north, up in ECEF
     scale = 1.0 / np.array([WGS84_A, WGS84_A, WGS84_A * math.sqrt(1.0 - WGS84_E2)])  # the ellipsoid -> the unit sphere
-    p0 = (np.array(pymap3d.geodetic2ecef(*frame)) + xy[..., :1] * axes[0] + xy[..., 1:2] * axes[1]) * scale
+    origin = np.array(pymap3d.geodetic2ecef(*frame))
+    p0 = (origin + xy[..., :1] * axes[0] + xy[..., 1:2] * axes[1]) * scale
     up = axes[2] * scale
     b, c = p0 @ up, np.einsum("...i,...i", p0, p0) - 1.0
+    disc = b * b - (up @ up) * c
     with np.errstate(invalid="ignore"):
-        z = -c / (b + np.sqrt(b * b - (up @ up) * c))  # the upper root of |p0 + z up|^2 = 1, without cancellation
-    return np.concatenate([xy[..., :2], z[..., None]], axis=-1)
+        z = -c / (b + np.sqrt(disc))  # the upper root of |p0 + z up|^2 = 1, without cancellation
+    enu = np.concatenate([xy[..., :2], z[..., None]], axis=-1)
+    past = ~(disc >= 0)
+    if past.any():  # the line's point nearest the centre, onto the unit sphere, back to the frame
+        near = p0[past] - (b[past] / (up @ up))[:, None] * up
+        enu[past] = (near / np.linalg.norm(near, axis=-1, keepdims=True) / scale - origin) @ axes.T
+    return enu
 
 
 def surface_xy(frame: Frame, enu: np.ndarray) -> np.ndarray:

@@ -70,6 +70,29 @@ def test_a_2d_state_is_placed_where_a_2d_sensor_measured_it(origin: tuple[float,
 
 
 @pytest.mark.parametrize("origin", ORIGINS)
+def test_a_2d_state_past_the_limb_is_placed_at_the_limb(origin: tuple[float, float, float]) -> None:
+    """A 2-D state 6,000 km and more from the origin (its line along the origin's up misses the ellipsoid: no
+    2-D sensor on the Earth measures there) had NaN latitude and longitude, and a picture holding one was
+    refused by every receiver. It is now placed at the ellipsoid's point nearest its line (on the ellipsoid,
+    continuous at the limb), however far out (up to the wire's 1e100 m)."""
+    frame = Frame(*origin)
+    for angle in np.linspace(0.0, 2 * np.pi, 13)[:-1]:
+        direction = np.array([np.cos(angle), np.sin(angle)])
+        inside, past = 1e6, 1e8  # the limb between them: bisect it
+        for _ in range(100):
+            mid = (inside + past) / 2
+            inside, past = (mid, past) if np.allclose(surface_enu(frame, mid * direction[None])[0, :2], mid * direction,
+                                                      rtol=0, atol=1e-6) else (inside, mid)
+        near = surface_enu(frame, np.array([inside, past])[:, None] * direction)
+        assert np.linalg.norm(near[0] - near[1]) < 1e-3  # continuous at the limb
+        far = np.array([2 * past, 1e9, 1e30, 1e99])[:, None] * direction
+        lla = add_geodetic(frame, [{"x": [x, 0.0, y, 0.0]} for x, y in far.tolist()])
+        lat_lon = np.array([[r["lat"], r["lon"]] for r in lla])
+        assert np.isfinite(lat_lon).all() and (np.abs(lat_lon[:, 0]) <= 90).all() and (np.abs(lat_lon[:, 1]) <= 180).all()
+        assert np.abs(geodetic_from_enu(frame, surface_enu(frame, far))[:, 2]).max() < 1e-3  # on the ellipsoid
+
+
+@pytest.mark.parametrize("origin", ORIGINS)
 def test_radar_frame_round_trip_exact(origin: tuple[float, float, float]) -> None:
     """Sites up to 200 km from the origin (given in WGS-84 and in ENU), targets up to 400 km from each."""
     frame = Frame(*origin)

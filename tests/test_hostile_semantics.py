@@ -22,6 +22,7 @@ from test_mtt_regions_live import CONFIG as REGIONS_CONFIG
 from fedtrack.fusion_center.mtt import service as centre_service_module
 from fedtrack.fusion_center.mtt.picture_merge import PictureMergeService
 from fedtrack.fusion_center.mtt.service import HANDOVERS_KEPT, MttCentreService
+from fedtrack.geodetic import Frame
 from fedtrack.local_filters.imm.config import load_imm_config
 from fedtrack.local_filters.imm.service import IMMService
 from fedtrack.local_filters.linear import gating
@@ -35,10 +36,12 @@ from fedtrack.local_filters.regions import load_regions
 from fedtrack.local_filters.service import LocalFilterService, RadarLocalFilterService
 from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.local_filters.vdie.local import VdieLocalFilter
+from fedtrack.services.recorder import Recorder
 from fedtrack.wire import (
     MAX_LIST_ITEMS,
     MAX_PARTS,
     MAX_TRACKS,
+    Detection,
     FusedTrack,
     HandOver,
     LocalEstimate,
@@ -169,6 +172,28 @@ def test_a_scan_whose_tracks_no_receiver_takes_is_dropped_where_it_is_tracked(tm
     assert centre.counters["rejected"] == 0 and s1.counters["rejected_numerical"] == 1
     assert s1.awaiting is None and not s1.queue
     assert s1.counters["reports"] == sum(m.sensor == "s1" for m in lines) - 1
+
+
+def test_a_detection_past_the_earths_limb_leaves_every_picture_readable(tmp_path: Path) -> None:
+    """With ``[frame]`` a centre's pictures carry each track's latitude and longitude (``lla``). A sensor
+    adding one detection 8,000 km out to its scans (its own key) started a track past the ellipsoid's limb,
+    whose 2-D place on the Earth was NaN: every picture holding it (7 of 11) was refused by every receiver,
+    the recorder here (``TrackPicture.lla: contains NaN or infinity``; the launcher and ``serve picture``
+    alike). Such a track is now placed at the limb: every picture is recorded."""
+    cfg = MttConfig(sensors=("s1", "s2", "s3"), max_lag=3.0, clutter_density=2.0 / 5000.0**2)
+    common: dict[str, Any] = {"options": OPTIONS, "deployment": KEYS.deployment}
+    centre = MttCentreService("mtt-centralized", cfg, 4, frame=Frame(48.0, 11.0, 0.0), service_id="centre", **common)
+    recorder = Recorder(tmp_path / "r.db", service_id="rec", **common)
+    recorder.on_start()
+    bus = Bus([centre, recorder])
+    far = Detection(np.array([8e6, 0.0]), 1.0)
+    for m in mtt_lines(tmp_path):
+        bus.put(KEYS.sensor_meas(m.sensor), encode(replace(m, detections=(*m.detections, far)) if m.sensor == "s1"
+                                                    and m.t > 4.0 else m))
+    pictures = bus.of(TrackPicture)
+    assert len(pictures) > 5 and any(np.abs(p.x[:, 0]).max() > 7e6 for p in pictures)
+    assert recorder.counters["rejected"] == 0
+    assert all(decode(payload, TrackPicture) for p in pictures for payload in payloads(p))
 
 
 # ---------------------------------------------------------------- many sensor ids
