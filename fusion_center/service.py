@@ -46,6 +46,7 @@ from fedtrack.local_filters.vdie.local import LocalOutput
 from fedtrack.services.admission import MAX_CONTESTED, contested_extra, digest
 from fedtrack.services.base import QueryHandler, Service, Subscription, service_kwargs, service_parser
 from fedtrack.services.clock import ClockJump
+from fedtrack.services.dispatch import REJECT_LOG_INTERVAL_S
 from fedtrack.services.lead import NumberedLeadGuard
 from fedtrack.services.rejections import Conflict, Numerical, Rejected
 from fedtrack.services.snapshot import read_sealed, write_sealed
@@ -55,6 +56,7 @@ from fedtrack.zsession import Peers
 FUSED_KEPT = 64  # fused scans whose estimate digests are kept to tell a late conflict from a re-delivery
 SNAPSHOT_MAX_GAP = 3  # scans missed beyond which a restored snapshot is dropped for a rebuild
 SNAPSHOT_FAILURES_LOGGED = 100  # a snapshot that cannot be written: the first failure logged, then every 100th
+TOKEN_LINES = 2  # lines a peer's token may have logged every REJECT_LOG_INTERVAL_S: its going and its return
 
 
 class ScanBuffer:
@@ -99,6 +101,8 @@ class FusionCenterService(Service):
         self.left_out: tuple[str, ...] = ()  # sensors whose estimates the last scan received but did not fuse
         # the sensors' and local filters' liveliness tokens (keys ROLE/ID), filled by Zenoh threads
         self.peers = Peers()
+        # token -> (start of its logging window, lines in it, changes not logged since the last line)
+        self._token_said: dict[str, tuple[float, int, int]] = {}
         self._liveliness: list[Any] = []
 
     def on_start(self) -> None:
@@ -150,16 +154,30 @@ class FusionCenterService(Service):
 
     def _on_liveliness(self, role: str, sample: Any) -> None:
         """Zenoh thread: track the tokens of sensors and local filters (:class:`Peers`); a token of a
-        sensor not configured changes nothing."""
+        sensor not configured changes nothing. Its going and its return are logged, at most
+        ``TOKEN_LINES`` lines a token every ``REJECT_LOG_INTERVAL_S`` (a death and a restart: the next line
+        counts the changes not logged): a sensor's process declaring and withdrawing its token in a loop
+        (its own key, which the access control admits) had the centre write a line a change, 4,000 a second."""
         sensor = str(sample.key_expr).rsplit("/", 1)[-1]
         if sensor not in self.sensors:
             return
-        key, alive = f"{role}/{sensor}", sample.kind == zenoh.SampleKind.PUT
-        if alive and key in self.peers.lost:
-            self.log.warning("%s %s is back", role, sensor)
-        elif not alive:
-            self.log.warning("%s %s is gone (liveliness): fusing without it", role, sensor)
-        self.peers.token(key, alive, time.monotonic())
+        key, alive, now = f"{role}/{sensor}", sample.kind == zenoh.SampleKind.PUT, time.monotonic()
+        back = alive and key in self.peers.lost
+        self.peers.token(key, alive, now)
+        if not back and alive:
+            return
+        since, lines, unsaid = self._token_said.get(key, (-float("inf"), 0, 0))
+        if now - since >= REJECT_LOG_INTERVAL_S:
+            since, lines = now, 0
+        if lines >= TOKEN_LINES:
+            self._token_said[key] = (since, lines, unsaid + 1)
+            return
+        self._token_said[key] = (since, lines + 1, 0)
+        more = f" ({unsaid} more changes of its token not logged)" if unsaid else ""
+        if back:
+            self.log.warning("%s %s is back%s", role, sensor, more)
+        else:
+            self.log.warning("%s %s is gone (liveliness): fusing without it%s", role, sensor, more)
 
     def gone(self, now: float) -> set[str]:
         """The sensors whose sensor or local filter died (:meth:`Peers.gone`: not those whose tokens went

@@ -6,6 +6,7 @@ with the backlog recovered from the publishers' caches (:class:`fedtrack.zsessio
 
 from __future__ import annotations
 
+import logging
 from types import SimpleNamespace
 from typing import Any
 
@@ -13,6 +14,7 @@ import pytest
 import zenoh
 from test_fuzz_handlers import KEYS, MEASUREMENTS, SCANS, SENSORS, Pipeline, run
 
+from fedtrack.services.dispatch import REJECT_LOG_INTERVAL_S
 from fedtrack.wire import LocalEstimate, Reset, encode
 from fedtrack.zsession import LINK_GRACE_S, LOST_KEPT, Link, Peers
 
@@ -225,3 +227,29 @@ def test_a_filter_waits_for_the_reset_the_centre_makes_at_its_deadline() -> None
     estimates = [m for _, m in pipe.published if isinstance(m, LocalEstimate) and m.sensor == first]
     assert estimates[-1].seq == OUTAGE_AT + 1 and estimates[-1].degraded == ()  # made after the reset
     assert not pipe.locals[first].alone and not pipe.locals[first].counters.get("no_reset")
+
+
+def test_a_token_declared_and_withdrawn_in_a_loop_is_logged_a_bounded_number_of_times(caplog: Any) -> None:
+    """A sensor's process declaring and withdrawing its own token in a loop (its key: the access control
+    admits it; 2,000 a second measured through a router, each a PUT and a DELETE at every subscriber) had
+    the centre log a line a change: 4,000 lines for 2,000 toggles. It now logs a token's going and return
+    at most ``TOKEN_LINES`` times every ``REJECT_LOG_INTERVAL_S``, the next line counting the changes not
+    logged; a sensor that dies and restarts is still logged both ways, and the centre still sees the token
+    as it stands."""
+    pipe = Pipeline()
+    sensor = SENSORS[0]
+    with caplog.at_level(logging.WARNING, logger=pipe.centre.log.name):
+        peer_tokens(pipe, (sensor,), True)
+        peer_tokens(pipe, (sensor,), False)  # a death and a restart: both logged
+        peer_tokens(pipe, (sensor,), True)
+        assert [r.getMessage() for r in caplog.records] == [f"{role} {sensor} {what}" for what in (
+            "is gone (liveliness): fusing without it", "is back") for role in ("sensor", "local-filter")]
+        for k in range(2000):
+            token(lambda x: pipe.centre._on_liveliness("sensor", x), KEYS.alive("sensor", sensor), k % 2 == 1)
+        assert len(caplog.records) == 4
+        pipe.centre._token_said = {key: (since - REJECT_LOG_INTERVAL_S, lines, unsaid)  # the interval is over
+                                   for key, (since, lines, unsaid) in pipe.centre._token_said.items()}
+        token(lambda x: pipe.centre._on_liveliness("sensor", x), KEYS.alive("sensor", sensor), False)
+    assert caplog.records[-1].getMessage() == (f"sensor {sensor} is gone (liveliness): fusing without it "
+                                               "(2000 more changes of its token not logged)")
+    assert pipe.centre.gone(1e9) == {sensor}
