@@ -29,6 +29,12 @@ class SensorConfig:
             raise ConfigError("R: must be a finite symmetric positive-definite 2x2 matrix")
 
 
+# [deployment] max_time_jump_s' default: the longest gap in a tracker's data it predicts across (a scan later is a
+# broken or forged clock, or the data resuming after a pause: fedtrack.services.clock), and the longest a
+# multi-target centre makes pictures for before its data (fedtrack.fusion_center.mtt.engines.PictureClock)
+MAX_TIME_JUMP_S = 3600.0
+
+
 @dataclass(frozen=True)
 class DeploymentConfig:
     """The ``[deployment]`` table."""
@@ -41,7 +47,7 @@ class DeploymentConfig:
     speed: float = 1.0
     deadline_s: float = 2.0
     max_seq_jump: int = 1000
-    max_time_jump_s: float = 3600.0
+    max_time_jump_s: float = MAX_TIME_JUMP_S
     duration_s: float = 100.0
     router_listen: str = "tcp/127.0.0.1:7447"
     router_connect: tuple[str, ...] = ()  # other hosts' routers this host's router joins (one router per host)

@@ -19,12 +19,13 @@ from test_mtt_regions_live import services as region_services
 from fedtrack.fusion_center.mtt.engines import Engine, PictureClock, make_engine
 from fedtrack.fusion_center.mtt.replay import pictures as replay_pictures
 from fedtrack.fusion_center.mtt.replay import silent
+from fedtrack.fusion_center.mtt.service import MttCentreService
 from fedtrack.keys import Keys
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.scan import SensorScan, parse_line
 from fedtrack.sensors.multitarget import Scenario, parse_spec, simulate
 from fedtrack.services.lead import HELD_BYTES, HELD_MAX, LEAD_INTERVALS, LeadGuard
-from fedtrack.wire import FusedTrack, LocalEstimate, encode
+from fedtrack.wire import FusedTrack, LocalEstimate, TrackPicture, encode
 
 CFG = MttConfig(sensors=("s1", "s2", "s3"), max_lag=3.0, clutter_density=3.0 / 5000.0**2)
 ALGORITHMS = [("mtt-centralized", None), ("mtt-federated", None), ("mtt-decentralized", None), ("mtt-local", "s1")]
@@ -265,6 +266,37 @@ def test_the_centre_drops_a_second_scan_far_ahead_at_its_start(tmp_path: Path) -
     (clean, _), (forged, centre) = runs
     assert forged == clean and len(clean) > 5
     assert centre.counters.get("rejected_time_lead") == 1
+
+
+def test_no_picture_is_made_more_than_max_time_jump_before_the_data() -> None:
+    """The picture clock makes a picture a period from its first scan on: a first scan 1,000 s before the
+    data made 1,000 pictures at the data's first scan (10^9 s: the centre busy for good). None is made more
+    than ``max_gap`` (``[deployment] max_time_jump_s``) before the data now (counted ``skipped``), and the
+    pictures are numbered from the first one made, as a centre that never saw that scan numbers them."""
+    clock, honest = PictureClock(1.0, 0.0), PictureClock(1.0, 0.0)
+    clock.max_gap = honest.max_gap = 10.0
+    assert clock.due(-1000.0) == [] and clock.due(0.5) == [float(k) for k in range(-9, 1)]
+    assert clock.skipped == 991 and clock.number(0.0) == 9
+    assert honest.due(-9.0) == [] and honest.due(0.5) == [float(k) for k in range(-9, 1)] and honest.skipped == 0
+    assert honest.number(0.0) == clock.number(0.0)
+
+
+def test_a_first_scan_far_before_the_data_costs_the_centre_a_bounded_number_of_pictures(tmp_path: Path) -> None:
+    """The live multi-target centre (in-process bus, ``mtt-centralized``): a sensor's first scan, the first
+    the centre took, stamped 2,000 s before the others' (a scan needs no witness before any is taken) made
+    2,012 pictures, one a period from it (10^9 s before: the centre busy for good). With ``max_time_jump_s =
+    60`` it makes those of the last 60 s before the data and goes on with every honest scan."""
+    msgs = mtt_lines(tmp_path)
+    cfg = MttConfig(sensors=("s1", "s2", "s3"), max_lag=3.0, clutter_density=2.0 / 5000.0**2)
+    centre = MttCentreService("mtt-centralized", cfg, 4, service_id="centre", options=OPTIONS, deployment=KEYS.deployment)
+    centre.clock.max_gap = 60.0  # --config's [deployment] max_time_jump_s (service_from_args)
+    bus = Bus([centre])
+    bus.put(KEYS.sensor_meas(msgs[0].sensor), encode(replace(msgs[0], seq=0, t=-2000.0)))
+    for m in msgs:
+        bus.put(KEYS.sensor_meas(m.sensor), encode(m))
+    made = [p.t for p in bus.of(TrackPicture)]
+    assert made[0] >= -60.0 - cfg.period and made[-1] >= 10.0 and len(made) <= 60 / cfg.period + 14
+    assert centre.counters["skipped_pictures"] > 1900 and centre.engine.counters()["late"] == 0
 
 
 def same_tracker_tracks(attacked: Bus, clean: Bus) -> None:

@@ -25,6 +25,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from fedtrack.deployment import MAX_TIME_JUMP_S
 from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
 from fedtrack.fusion_center.mtt.centre.consistency import Transition
 from fedtrack.fusion_center.mtt.centre.copies import Found
@@ -81,7 +82,11 @@ class PictureTracks(NamedTuple):
 @dataclass
 class PictureClock:
     """When pictures are due: the picture at ``T = k period`` once a scan later than
-    ``T + delay`` arrives (``high`` is the latest scan time seen), the rest at the end."""
+    ``T + delay`` arrives (``high`` is the latest scan time seen), the rest at the end; none more
+    than ``max_gap`` (``[deployment] max_time_jump_s``) before the data (those are ``skipped``): a
+    gap in the data, or a first scan far before the rest, made a picture for every period of it, one
+    scan of a sensor's stamped 20,000 s before the others' 20,000 pictures (27 s of a centre's time;
+    10^9 s: for good)."""
 
     period: float
     delay: float
@@ -89,6 +94,9 @@ class PictureClock:
     high: float = -math.inf
     departed: bool = False  # a sensor left after the latest scan
     first: int | None = None  # the ``k`` of picture number 0: 0, or the first picture's when before t = 0
+    max_gap: float = MAX_TIME_JUMP_S
+    skipped: int = 0  # picture times not made: more than ``max_gap`` before the data
+    fixed: bool = False  # ``first`` is final: a picture was made, or :meth:`numbered` gave it
 
     def left(self) -> None:
         """A sensor left (a departure line, or a live centre dropping it)."""
@@ -98,14 +106,19 @@ class PictureClock:
         """Picture times due before a scan at ``t`` is ingested."""
         if self.k is None:
             self.k = math.ceil(t / self.period - 1e-9)
-        if self.first is None:  # t = 0 is picture 0 (times before it: the first picture is)
-            self.first = min(self.k, 0)
         self.high = max(self.high, t)
         self.departed = False
+        oldest = math.ceil((self.high - self.delay - self.max_gap) / self.period - 1e-9)
+        if oldest > self.k:
+            self.skipped += oldest - self.k
+            self.k = oldest
+        if not self.fixed:  # t = 0 is picture 0 (times before it: the first picture made is)
+            self.first = min(self.k, 0)
         out = []
         while self.k * self.period + self.delay < self.high:
             out.append(self.k * self.period)
             self.k += 1
+        self.fixed = self.fixed or bool(out)
         return out
 
     def number(self, T: float) -> int:
@@ -122,6 +135,7 @@ class PictureClock:
     def numbered(self, seq: int, T: float) -> None:
         """Picture ``seq`` of the run is at ``T``: number as it does (a cold standby, from its primary's)."""
         self.first = round(T / self.period) - seq
+        self.fixed = True
 
     def final(self) -> list[float]:
         """Picture times still due at the end of the data: up to the first whole period at or after

@@ -22,6 +22,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from fedtrack.deployment import MAX_TIME_JUMP_S
 from fedtrack.fusion_center.mtt.centre import HandOver, TrackToTrackCentre
 from fedtrack.fusion_center.mtt.engines import (
     Engine,
@@ -229,12 +230,13 @@ class _Tracker:
 
 
 def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions, entries: list[tuple[int, Entry]],
-                      counts: dict[str, int]) -> Iterator[tuple[float, PictureTracks]]:
+                      counts: dict[str, int], max_gap: float = MAX_TIME_JUMP_S) -> Iterator[tuple[float, PictureTracks]]:
     """The merged pictures of a live region run from its recorded entries (module docstring);
-    ``counts`` gets the trackers' scans and the centres' counters added up (the replay's report)."""
+    ``counts`` gets the trackers' scans and the centres' counters added up (the replay's report);
+    ``max_gap``: the centres' ``[deployment] max_time_jump_s`` (:class:`PictureClock`)."""
     R = len(regions.ids)
     engines = [RegionEngine(cfg, dim, feedback=feedback, regions=regions, index=r) for r in range(R)]
-    clocks = [PictureClock(cfg.period, cfg.picture_delay) for _ in range(R)]
+    clocks = [PictureClock(cfg.period, cfg.picture_delay, max_gap=max_gap) for _ in range(R)]
     queues: list[deque[Entry]] = [deque() for _ in range(R)]
     trackers: dict[str, _Tracker] = {}
     firsts: set[tuple[str, int]] = set()

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from fedtrack.config import ConfigError, did_you_mean, load_tables
+from fedtrack.deployment import MAX_TIME_JUMP_S, max_time_jump
 from fedtrack.fusion_center.mtt.centre.candidates import CrowdedReport
 from fedtrack.fusion_center.mtt.centre.consistency import FALSE_ALARM, Transition
 from fedtrack.fusion_center.mtt.centre.copies import Found
@@ -76,11 +77,12 @@ def state_dim(scans: list[Line], sensor: str | None = None) -> int:
                     and (sensor is None or s.sensor == sensor) for s in scans) else 4
 
 
-def pictures(engine: Engine, scans: list[Line], period: float,
-             delay: float) -> Iterator[tuple[float, PictureTracks]]:
-    """Feed ``scans`` in arrival order and yield each picture once the data has passed its time; a
+def pictures(engine: Engine, scans: list[Line], period: float, delay: float,
+             max_gap: float = MAX_TIME_JUMP_S) -> Iterator[tuple[float, PictureTracks]]:
+    """Feed ``scans`` in arrival order and yield each picture once the data has passed its time (none more
+    than ``max_gap``, ``[deployment] max_time_jump_s``, before the data: :class:`PictureClock`); a
     scan stamped far ahead of the data waits for a witness (:class:`LeadGuard`, ``engine.lead``)."""
-    clock = PictureClock(period, delay)
+    clock = PictureClock(period, delay, max_gap=max_gap)
     engine.lead = guard = engine.lead or LeadGuard(engine.cfg.max_lag, corroborate=True)
     recorded = any(isinstance(item, (SensorLeft, TrackerRestarted)) for item in scans)  # a live centre's recording
     heard: dict[str, float] = {}  # sensor -> the data's time (the newest scan taken) at its last scan
@@ -255,7 +257,8 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
         dim = state_dim(scans)
         engine = make_engine(algorithm, cfg, dim)
         recorded: dict[str, int] = {}
-        source = recorded_pictures(cfg, dim, algorithm == "mtt-federated", shards, entries, recorded)
+        source = recorded_pictures(cfg, dim, algorithm == "mtt-federated", shards, entries, recorded,
+                                   max_time_jump(config))
     else:
         scans = read_scans(measurements, cfg, frame)
         if sensor is not None and not any(s.sensor == sensor for s in scans):
@@ -263,7 +266,7 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
         dim = state_dim(scans, sensor)
         shards = None if regions is None else data_regions(regions, scans, config)
         engine = make_engine(algorithm, cfg, dim, sensor, shards, None if frame is None else frame.frame)
-        source = pictures(engine, scans, cfg.period, cfg.picture_delay)
+        source = pictures(engine, scans, cfg.period, cfg.picture_delay, max_time_jump(config))
         recorded = {}
     note = cfg.count_note({s.sensor: s.R for s in reversed(scans) if isinstance(s, SensorScan) and s.dim == 2
                            and (sensor is None or s.sensor == sensor)})  # each sensor's first R

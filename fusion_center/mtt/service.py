@@ -58,6 +58,7 @@ import numpy as np
 import zenoh
 
 from fedtrack.config import ConfigError, load_tables
+from fedtrack.deployment import MAX_TIME_JUMP_S
 from fedtrack.fusion_center.mtt.centre.candidates import CrowdedReport
 from fedtrack.fusion_center.mtt.engines import (
     CentralizedEngine,
@@ -118,7 +119,7 @@ class MttCentreService(CentreFailover, Service):
     def __init__(self, algorithm: str, cfg: MttConfig, dim: int = 4, max_seq_jump: int = 1000,
                  frame: Frame | None = None, region: str | None = None, regions: Regions | None = None,
                  standby: bool = False, speed: float = 1.0, numbers: Path | None = None,
-                 sites: FrameConfig | None = None,
+                 sites: FrameConfig | None = None, max_time_jump_s: float = MAX_TIME_JUMP_S,
                  **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.speed = speed  # [deployment] speed: its pictures' pace, for picture_window
@@ -154,7 +155,7 @@ class MttCentreService(CentreFailover, Service):
                 r.centre.next_id, r.serial = self.reserved
         self.handovers_at: list[int] = []  # positions in ``order`` that are hand-overs taken over
         self.taken: dict[str, dict[int, bytes]] = {}  # sending region -> its last HANDOVERS_KEPT numbers taken: digest
-        self.clock = PictureClock(cfg.period, cfg.picture_delay)
+        self.clock = PictureClock(cfg.period, cfg.picture_delay, max_gap=max_time_jump_s)
         # a scan or report stamped far ahead of the data waits for a witness (fedtrack/services/lead.py)
         # ... and, beside two or more other live sensors, for another sensor's data near its time
         self.lead: LeadGuard[Measurement | TrackReport] = LeadGuard(cfg.max_lag, corroborate=True)
@@ -277,7 +278,12 @@ class MttCentreService(CentreFailover, Service):
     def _process(self, msg: Measurement | TrackReport) -> None:
         """Make the pictures due before data at ``msg.t``, process ``msg``, then publish them (compute,
         then commit: a failure undoes both) and note the scan."""
+        skipped = self.clock.skipped
         pictures = [self._picture(T) for T in self.clock.due(msg.t)]
+        if self.clock.skipped > skipped:
+            self.count("skipped_pictures", self.clock.skipped - skipped)
+            self.log.warning("scan %d of %s at t=%g: %d picture times more than max_time_jump_s = %g s before it not made",
+                             msg.seq, msg.sensor, msg.t, self.clock.skipped - skipped, self.clock.max_gap)
         self._room(f"scan {msg.seq} of {msg.sensor}")
         if isinstance(msg, Measurement):
             scan = scan_from_measurement(msg)
@@ -535,7 +541,8 @@ def service_from_args(argv: list[str]) -> MttCentreService:
     regions = load_regions(path) if args.region else None
     return MttCentreService(args.algorithm, settings.mtt, args.dim, settings.deployment.max_seq_jump, frame,
                             args.region, regions, standby=args.standby, speed=settings.deployment.speed,
-                            numbers=Path(args.numbers) if args.numbers else None, sites=settings.frame, **kwargs)
+                            numbers=Path(args.numbers) if args.numbers else None, sites=settings.frame,
+                            max_time_jump_s=settings.deployment.max_time_jump_s, **kwargs)
 
 
 def main(argv: list[str]) -> int:
