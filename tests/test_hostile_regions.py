@@ -460,6 +460,29 @@ def test_a_region_picture_off_the_picture_grid_is_refused(tmp_path: Path) -> Non
     assert svc.counters["rejected_time_jump"] == 6
 
 
+def test_a_region_picture_passed_over_is_counted_missing_and_contested(tmp_path: Path) -> None:
+    """A picture time is merged once every region has sent its picture of that time or a later one (a
+    region that started later has none). A region that had sent pictures before and whose next one is
+    later (its picture of that time lost, or held as stamped far ahead and dropped) was taken for one that
+    started later: the merged picture lacked its tracks, uncounted and not ``contested``. It is now
+    counted ``missing_region`` and the merged picture ``contested``, as a region absent past ``--wait``."""
+    config = tmp_path / "regions.toml"
+    config.write_text(REGIONS_CONFIG)
+    regions = load_regions(config)
+    assert regions is not None
+    svc = PictureMergeService(regions, 4, 2.0, 1.0, service_id="picture", options=OPTIONS, deployment=KEYS.deployment)
+    bus = Bus([svc])
+    a, b = (KEYS.region_picture(rid) for rid in regions.ids)
+    for k in range(5):
+        if k != 1:  # region x0y0's picture at t = 1 never comes
+            bus.put(a, encode(region_picture(float(k), (0, 2))))
+        bus.put(b, encode(region_picture(float(k), (1, 3))))
+    merged = [(p.t, p.ids, p.contested) for p in bus.of(TrackPicture)]
+    assert merged == [(0.0, (0, 1, 2, 3), False), (1.0, (1, 3), True)] + [(float(k), (0, 1, 2, 3), False)
+                                                                       for k in range(2, 5)]
+    assert svc.counters["missing_region"] == 1
+
+
 def test_a_forged_token_cannot_silence_a_centre_that_answers_nothing() -> None:
     """The unsharded decentralized centre publishes pictures only (no answers): its standby judges the
     token by them."""

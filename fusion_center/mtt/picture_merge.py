@@ -10,9 +10,10 @@ and the fused lists of every region in region order, each entry tagged with its 
 config`` of the recording takes each region's entries in its order.
 
 A picture time is merged once every region has published its picture of that time, a later one
-(it has none of that time: it started later) or its closing record; after ``--wait`` seconds
-(from the first region's picture of that time) without one, it is merged without that region:
-counted ``missing_region``, logged, and the picture marked ``contested`` when the region had
+(it has none of that time: it started later, or, when it had published a picture before that time,
+lost it: counted ``missing_region`` and the picture ``contested``) or its closing record; after
+``--wait`` seconds (from the first region's picture of that time) without one, it is merged without
+that region: counted ``missing_region``, logged, and the picture marked ``contested`` when the region had
 published before (a region's picture that comes after its time was merged is counted
 ``late_picture``; its fused lists go into the next merged picture, its tracks nowhere: live and
 replay then differ at that picture; when they do not fit beside the regions' own entries in one
@@ -124,7 +125,7 @@ class PictureMergeService(Service):
     role = "picture"
     tick_period_s = 0.05
     state_attrs = ("pending", "started", "closing", "late", "merged_t", "seq", "clock", "lead", "latest", "contested",
-                   "seen", "settle_until", "settling")
+                   "seen", "settle_until", "settling", "earliest")
 
     def __init__(self, regions: Regions, dim: int, wait_s: float, period: float, frame: Frame | None = None,
                  window: int | None = None, snapshot: Path | None = None, **kwargs: Any) -> None:
@@ -148,6 +149,7 @@ class PictureMergeService(Service):
         self.seq = 0  # pictures published
         self.clock = PictureClock(period, 0.0)  # their numbers: the regions' (PictureClock.number)
         self.latest: list[TrackPicture | None] = [None] * R  # each region's latest picture taken (queued or merged)
+        self.earliest: list[float] = [np.inf] * R  # each region's earliest picture time taken
         self.contested = False  # a region sent a second, different picture of a time it had sent: the next merge says so
         # a region picture stamped far ahead of the others waits for a witness (fedtrack/services/lead.py)
         self.lead: LeadGuard[TrackPicture] = LeadGuard(max_lag=0.0)
@@ -223,6 +225,7 @@ class PictureMergeService(Service):
             del seen[min(seen)]
         if latest is None or msg.t > latest.t:
             self.latest[r] = msg
+        self.earliest[r] = min(self.earliest[r], msg.t)
         self.lead.took(self.regions.ids[r], msg.t)
         if self.clock.first is None:  # a merger started again numbers on from the last one's numbers
             self.clock.numbered(msg.seq, msg.t)
@@ -259,11 +262,13 @@ class PictureMergeService(Service):
             absent = [r for r, q in enumerate(self.pending) if not q and self.closing[r] is None]
             if absent and not force and time.monotonic() - self.first_seen[T] < self.wait_s:
                 return
-            for r in absent:
+            # a region that had sent a picture before T and whose next is after it lost T's (or skipped it)
+            passed = [r for r, q in enumerate(self.pending) if q and q[0].t > T and self.earliest[r] < T]
+            for r in absent + passed:
                 self.count("missing_region")
                 self.log.warning("picture at t=%g merged without region %s", T, self.regions.ids[r])
             parts = [q.popleft() if q and q[0].t == T else None for q in self.pending]
-            self._publish(T, parts, contested=any(self.started[r] for r in absent))
+            self._publish(T, parts, contested=bool(passed) or any(self.started[r] for r in absent))
             self.first_seen.pop(T, None)
             self.merged_t = T
 
