@@ -299,6 +299,28 @@ def test_a_first_scan_far_before_the_data_costs_the_centre_a_bounded_number_of_p
     assert centre.counters["skipped_pictures"] > 1900 and centre.engine.counters()["late"] == 0
 
 
+def test_a_time_whose_picture_number_leaves_the_wire_is_refused(tmp_path: Path) -> None:
+    """A first scan at t = 1e20 s (a valid time) became the multi-target centre's clock: its closing picture,
+    number 1e20, did not fit msgpack's integers and the centre's stop failed (``OverflowError``); at 1e19 its
+    pictures carried a number every receiver refuses. A time whose picture number would leave the wire's
+    integers is refused (``time_jump``) before it is taken, and the run is the clean one."""
+    msgs = mtt_lines(tmp_path)
+    runs = []
+    for forge in (False, True):
+        services = mtt_services(tmp_path / str(forge), "mtt-centralized")
+        bus = Bus(list(services.values()))
+        if forge:
+            bus.put(KEYS.sensor_meas("s1"), encode(replace(msgs[0], sensor="s1", seq=500, t=1e20)))
+        for m in msgs:
+            bus.put(KEYS.sensor_meas(m.sensor), encode(m))
+        services["centre"].on_stop()
+        bus.drain()
+        runs.append((pictures(bus), services))
+    (clean, _), (forged, services) = runs
+    assert forged == clean and len(clean) > 5
+    assert services["centre"].counters["rejected_time_jump"] == 1 and services["recorder"].counters["rejected"] == 0
+
+
 def same_tracker_tracks(attacked: Bus, clean: Bus) -> None:
     """The IMM's and the HPDA tracker's tracks of the two runs are the same, and there are some."""
     for role in ("imm", "hpda"):

@@ -206,6 +206,9 @@ def expect(payload: bytes, msg_type: type, field: str, reason: str) -> None:
     (position, {"seq": True}, "Measurement.seq", "integer"),
     (position, {"seq": -1}, "Measurement.seq", "[0, 2**63)"),
     (position, {"t": "now"}, "Measurement.t", "number"),
+    (position, {"t": 1e300}, "Measurement.t", "beyond +-1e+100"),  # taken before 2026-11-27, as any finite real
+    (sonar, {"detections": [{"z": arr([1.0, 2.0]), "amplitude": -1e101}]},
+     "Measurement.detections[0].amplitude", "beyond +-1e+100"),
     (position, {"kind": "lidar"}, "Measurement.kind", "one of"),
     (position, {"detections": [{"z": arr([1.0, 2.0]), "amplitude": 1.0}]}, "Measurement.detections", "only sonar"),
     (radar, {"sensor_position": None}, "Measurement.sensor_position", "required for radar"),

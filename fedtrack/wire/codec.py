@@ -130,7 +130,7 @@ def _regular_detections(items: list[Any]) -> list[Detection] | None:
 
     Regular: at least one item; every item a map of exactly ``z`` and ``amplitude``; every ``z`` an
     array map of exactly ``dtype``, ``shape``, ``data`` with the same wire dtype and the same 1-D
-    shape, and its data of the right length; every amplitude a finite real. The ``z`` data are
+    shape, and its data of the right length; every amplitude a real within +-MAX_MAGNITUDE. The ``z`` data are
     joined and checked with one magnitude reduction (as :func:`_array`); the records are built
     without re-running their field checks, so that they equal the per-item path's: read-only
     float64 ``z`` (a row of one array), float ``amplitude``."""
@@ -150,7 +150,7 @@ def _regular_detections(items: list[Any]) -> list[Detection] | None:
                and (type(a := item["amplitude"]) is float or type(a) is int) for item in items):
         return None
     amplitudes = [float(item["amplitude"]) for item in items]
-    if not all(map(math.isfinite, amplitudes)):
+    if not all(abs(a) <= MAX_MAGNITUDE for a in amplitudes):  # NaN fails too: the per-item path names it
         return None
     block = np.frombuffer(b"".join([item["z"]["data"] for item in items]), dtype=dtype).reshape(len(items), shape[0])
     block = block.astype(np.float64, copy=False)

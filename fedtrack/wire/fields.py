@@ -57,10 +57,14 @@ def _count(value: Any, path: str) -> int:
 
 
 def _real(value: Any, path: str) -> float:
+    """A finite real within +-MAX_MAGNITUDE, as every array's values (a time of 1e300 s was taken: a
+    multi-target centre's picture numbers then left the wire's integers)."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise WireError(path, f"expected a number, got {type(value).__name__}")
     if not math.isfinite(value):
         raise WireError(path, f"must be finite, got {value}")
+    if not abs(value) <= MAX_MAGNITUDE:
+        raise WireError(path, f"beyond +-{MAX_MAGNITUDE:g} (overflow-scale), got {brief(value)}")
     return float(value)
 
 

@@ -333,6 +333,7 @@ class MttCentreService(CentreFailover, Service):
             raise Rejected("wrong_model", "a radar scan at a 2-D centre (--dim 4)")
         where = scan.z if scan.sensor_position is None else np.concatenate([scan.z.ravel(), scan.sensor_position])
         self._in_scale(f"scan {msg.seq} of {msg.sensor}", where, scan.R)
+        self._numbered(f"scan {msg.seq} of {msg.sensor}", msg.t)
         if self._admit(msg):
             self._take(msg)
 
@@ -345,6 +346,7 @@ class MttCentreService(CentreFailover, Service):
             raise Rejected("wrong_model", f"observations of size {m} from a local state of size {d}")
         self._in_scale(f"report {msg.seq} of {msg.sensor}", np.concatenate([msg.x.ravel(), msg.obs_z.ravel()]),
                        np.concatenate([msg.P.ravel(), msg.obs_R.ravel()]))  # the observations are fused too
+        self._numbered(f"report {msg.seq} of {msg.sensor}", msg.t)
         if not self._admit(msg):
             return
         if msg.contested:  # its local tracker took a conflicting scan or resets (docs/wire.md)
@@ -361,6 +363,14 @@ class MttCentreService(CentreFailover, Service):
             raise Rejected("scale", f"{what}: values up to {np.max(np.abs(values), initial=0.0):.3g}, covariances up "
                            f"to {np.max(np.abs(P), initial=0.0):.3g}: predicted over {horizon:g} s they could leave "
                            f"the wire's +-{MAX_MAGNITUDE:g}")
+
+    def _numbered(self, what: str, t: float) -> None:
+        """Refuse (``time_jump``) a time whose picture's number would leave the wire's integers
+        (``NUMBER_ROOM`` periods from t = 0): a first scan at t = 1e19 s made the closing record
+        unpublishable and the centre's stop fail (``OverflowError``)."""
+        if not abs(t) / self.cfg.period < NUMBER_ROOM:
+            raise Rejected("time_jump", f"{what} at t={t:g}: its picture would be number {abs(t) / self.cfg.period:.3g}, "
+                           f"beyond {NUMBER_ROOM:.3g} ({self.cfg.period:g} s pictures from t = 0)")
 
     def _fuse(self, msg: TrackReport) -> None:
         """The centre's part of a report (its region's part at a region centre); the next picture is
