@@ -483,6 +483,28 @@ def test_a_region_picture_passed_over_is_counted_missing_and_contested(tmp_path:
     assert svc.counters["missing_region"] == 1
 
 
+def test_a_region_picture_numbered_off_the_grid_cannot_number_the_merged_pictures(tmp_path: Path) -> None:
+    """``serve picture`` numbers its pictures as the first region picture it takes (a merger started again
+    numbers on from the last one's). Region x0y0 (its identity) sending its first picture numbered 2**63 - 1
+    at t = 0 made every later merged picture's number 2**63 and more: each refused by every receiver, for
+    the whole run. A region picture numbered NUMBER_ROOM (2**62) or more, or at NUMBER_ROOM / 2 periods or
+    more from t = 0, is refused (``seq_jump``): no centre numbers so."""
+    config = tmp_path / "regions.toml"
+    config.write_text(REGIONS_CONFIG)
+    regions = load_regions(config)
+    assert regions is not None
+    svc = PictureMergeService(regions, 4, 2.0, 1.0, service_id="picture", options=OPTIONS, deployment=KEYS.deployment)
+    bus = Bus([svc])
+    a, b = (KEYS.region_picture(rid) for rid in regions.ids)
+    for k in range(4):
+        first = replace(region_picture(0.0, (0, 2)), seq=2**63 - 1)
+        bus.put(a, encode(first if k == 0 else region_picture(float(k), (0, 2))))
+        bus.put(b, encode(region_picture(float(k), (1, 3))))
+    merged = bus.of(TrackPicture)
+    assert [p.seq for p in merged] == [0, 1, 2, 3] and svc.counters["rejected_seq_jump"] == 1
+    assert all(decode(encode(p), TrackPicture) for p in merged)
+
+
 def test_a_forged_token_cannot_silence_a_centre_that_answers_nothing() -> None:
     """The unsharded decentralized centre publishes pictures only (no answers): its standby judges the
     token by them."""

@@ -59,6 +59,7 @@ import numpy as np
 
 from fedtrack.config import ConfigError, load_tables
 from fedtrack.fusion_center.mtt.engines import PictureClock
+from fedtrack.fusion_center.mtt.failover.standby import NUMBER_ROOM
 from fedtrack.fusion_center.mtt.pictures import (
     MERGE_WAIT_S,
     PICTURE_ITEMS,
@@ -176,6 +177,13 @@ class PictureMergeService(Service):
         if not msg.closing and round(msg.t / self.period) * self.period != msg.t:  # PictureClock's k period
             raise Rejected("time_jump", f"region {self.regions.ids[r]}'s picture at t={msg.t!r} is not at a multiple "
                            f"of the picture period {self.period:g} s ([mtt] period), where every region's are")
+        if not msg.closing and not (msg.seq < NUMBER_ROOM and abs(msg.t) / self.period < NUMBER_ROOM / 2):
+            # the merged pictures are numbered on from the first region picture taken (PictureClock.numbered): within
+            # these, every merged picture's number stays below 2**63; a first picture numbered 2**63 - 1 at t = 0 made
+            # every merged picture's number leave the wire's integers, each refused by every receiver
+            raise Rejected("seq_jump", f"region {self.regions.ids[r]}'s picture {msg.seq} at t={msg.t:g}: a number of "
+                           f"{NUMBER_ROOM:.3g} or more, or a time of {NUMBER_ROOM / 2:.3g} periods or more from t = 0: "
+                           "the merged pictures numbered on from it could leave the wire's integers")
         share = PICTURE_ITEMS // len(self.regions.ids)
         if max(len(msg.ids), len(msg.fused_sensors)) > share:
             raise Rejected("too_large", f"region {self.regions.ids[r]}'s picture at t={msg.t}: {len(msg.ids)} tracks, "
