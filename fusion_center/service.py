@@ -24,7 +24,6 @@ of local estimates it receives, as at start-up (counter ``rebuilt``).
 
 from __future__ import annotations
 
-import math
 import time
 from pathlib import Path
 from typing import Any
@@ -48,7 +47,7 @@ from fedtrack.services.admission import MAX_CONTESTED, contested_extra, digest
 from fedtrack.services.base import QueryHandler, Service, Subscription, service_kwargs, service_parser
 from fedtrack.services.clock import ClockJump
 from fedtrack.services.dispatch import REJECT_LOG_INTERVAL_S
-from fedtrack.services.lead import LEAD_INTERVALS, NumberedLeadGuard
+from fedtrack.services.lead import NumberedLeadGuard
 from fedtrack.services.rejections import Conflict, Numerical, Rejected
 from fedtrack.services.snapshot import read_sealed, write_sealed
 from fedtrack.wire import FusedTrack, LocalEstimate, ManeuverEvent, Reset, acceptable_covariances
@@ -78,8 +77,8 @@ class FusionCenterService(Service):
     tick_period_s = 0.01
     # the centre's records are rebound, never changed in place: a pickle of these (dispatch's checkpoint,
     # in memory) is the whole state
-    state_attrs = ("centre", "scans", "next_seq", "next_since", "last_track", "restored", "fused", "left_out",
-                   "contested_scans", "lead")
+    state_attrs = ("centre", "scans", "next_seq", "last_track", "restored", "fused", "left_out", "contested_scans",
+                   "lead")
     tick_state_attrs = ()  # on_tick checkpoints only when a scan is waiting (100 ticks a second)
 
     def __init__(self, sensors: list[str], centre: FederatedCentre | DecentralizedCentre,
@@ -97,7 +96,6 @@ class FusionCenterService(Service):
         # an estimate stamped far ahead of the data waits for another sensor's (fedtrack/services/lead.py)
         self.lead: NumberedLeadGuard[LocalEstimate] = NumberedLeadGuard()
         self.next_seq: int | None = None
-        self.next_since = -math.inf  # monotonic time next_seq became the next scan (fuse_ready)
         self.last_track: FusedTrack | None = None
         self.fused: dict[int, dict[str, bytes]] = {}  # the last FUSED_KEPT scans' estimate digests per sensor
         self.left_out: tuple[str, ...] = ()  # sensors whose estimates the last scan received but did not fuse
@@ -276,26 +274,21 @@ class FusionCenterService(Service):
         now, link = time.monotonic(), self.link()
         gone = self.gone(now)
         while self.scans:
-            if self.next_seq is None:  # nothing fused since the start: where the scans start
-                first = self._first_scan(gone)
-                if first is None:
-                    return
-                self.next_seq, self.next_since = first, now
-            if self.next_seq not in self.scans:
+            if self.next_seq is None or self.next_seq not in self.scans:
                 oldest = min(self.scans)
-                # nothing at all arrived for next_seq: skip it once a later scan is overdue, counted from its
-                # arrival or from when next_seq became the next (a scan waiting since before is no sign yet)
-                if link.waited(max(self.scans[oldest].first_arrival, self.next_since), now) < self.deadline_s:
+                # nothing at all arrived for next_seq: skip it once a later scan is overdue
+                if self.next_seq is not None and link.waited(self.scans[oldest].first_arrival, now) < self.deadline_s:
                     return
-                self.count("skipped_scans", oldest - self.next_seq)
-                self.log.warning("scans %d..%d: no estimate arrived (skipped)", self.next_seq, oldest - 1)
-                if self.restored and oldest - self.next_seq > SNAPSHOT_MAX_GAP:
-                    # the local filters went on alone meanwhile: their estimates describe the target
-                    # better than the snapshot predicted over the gap
-                    self.centre = type(self.centre)(self.sensors, self.centre.config)
-                    self.last_track = None
-                    self.log.warning("snapshot %d scans old: rebuilding from the local estimates instead",
-                                     oldest - self.next_seq)
+                if self.next_seq is not None:
+                    self.count("skipped_scans", oldest - self.next_seq)
+                    self.log.warning("scans %d..%d: no estimate arrived (skipped)", self.next_seq, oldest - 1)
+                    if self.restored and oldest - self.next_seq > SNAPSHOT_MAX_GAP:
+                        # the local filters went on alone meanwhile: their estimates describe the target
+                        # better than the snapshot predicted over the gap
+                        self.centre = type(self.centre)(self.sensors, self.centre.config)
+                        self.last_track = None
+                        self.log.warning("snapshot %d scans old: rebuilding from the local estimates instead",
+                                         oldest - self.next_seq)
                 self.restored = False
                 self.next_seq = oldest
             buf = self.scans[self.next_seq]
@@ -304,36 +297,10 @@ class FusionCenterService(Service):
             if waiting_for and link.waited(buf.first_arrival, now) < self.deadline_s:
                 return
             del self.scans[self.next_seq]
-            seq, self.next_seq, self.next_since = self.next_seq, self.next_seq + 1, now
+            seq, self.next_seq = self.next_seq, self.next_seq + 1
             with self.guarded(f"fusing scan {seq}"):  # a scan that fails is dropped, its state undone
                 self.fuse_scan(seq, buf, degraded=not complete)
                 self.drop_earlier()
-
-    def _first_scan(self, gone: set[str]) -> int | None:
-        """The scan the centre starts from (nothing fused since its start): the lowest one waiting; but
-        while two or more sensors' local filters are live (their tokens present, not gone), the lowest
-        holding estimates of two of them, or none yet (wait), and the other scans waiting go: those
-        before it are ``late``, one sensor's alone more than ``LEAD_INTERVALS`` after it were stamped far
-        ahead (``rejected_time_lead``). One estimate of sensor 1 numbered 10^9 (its own key), sent before
-        the first scan, made the centre start there and every genuine estimate after it late: 1 of 34
-        scans fused (the forged one, at its deadline)."""
-        live = [s for s in self.sensors if f"local-filter/{s}" in self.peers.present and s not in gone]
-        if len(live) < 2:
-            return min(self.scans)
-        seconded = [q for q, buf in self.scans.items() if len(buf.outputs) >= 2]
-        if not seconded:
-            return None
-        first = min(seconded)
-        for seq in [q for q, buf in self.scans.items() if q < first or (q > first + LEAD_INTERVALS and len(buf.outputs) < 2)]:
-            buf = self.scans.pop(seq)
-            if seq < first:
-                self.count("late", len(buf.outputs))
-                continue
-            for sensor in buf.outputs:
-                self.note_rejected(self.keys.local_estimate(sensor), Rejected(
-                    "time_lead", f"scan {seq} of {sensor} alone, more than {LEAD_INTERVALS} scans after the first "
-                    f"scan fused ({first})"))
-        return first
 
     def drop_earlier(self) -> None:
         """Reject (``time_jump``) the estimates of later scans that are not after the track just

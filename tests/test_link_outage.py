@@ -7,7 +7,6 @@ with the backlog recovered from the publishers' caches (:class:`fedtrack.zsessio
 from __future__ import annotations
 
 import logging
-from dataclasses import replace
 from types import SimpleNamespace
 from typing import Any
 
@@ -254,29 +253,3 @@ def test_a_token_declared_and_withdrawn_in_a_loop_is_logged_a_bounded_number_of_
     assert caplog.records[-1].getMessage() == (f"sensor {sensor} is gone (liveliness): fusing without it "
                                                "(2000 more changes of its token not logged)")
     assert pipe.centre.gone(1e9) == {sensor}
-
-
-@pytest.mark.parametrize(("seq", "t"), [(10**9, 1e4), (3, 0.05)])
-def test_one_sensors_estimate_before_the_first_scan_cannot_start_the_centre(seq: int, t: float) -> None:
-    """Nothing fused yet (a start, or a restart without a snapshot), the centre took the first scan number
-    that came as where the scans start. Sensor 1 (its own key) sending one estimate numbered 10^9 before the
-    sensors started, its deadline passed: the centre fused it alone and every genuine estimate after it was
-    late, 1 scan of 34 fused; numbered 3, scans 1-2 were skipped, waiting since before. Now, both filters
-    live, the centre starts from the first scan both filters' estimates hold (one sensor's alone far after
-    it rejected ``time_lead``), and a later scan is overdue only a deadline after its predecessor was
-    fused: the tracks equal the run without it."""
-    plain = run().tracks()
-    first = Pipeline()
-    first.measurement(SENSORS[0], SENSORS[0], encode(MEASUREMENTS[SENSORS[0]][0]))
-    forged = replace(first.estimates_of_last_scan()[-1], seq=seq, t=t)
-    pipe = Pipeline()
-    peer_tokens(pipe, SENSORS, True)
-    pipe.estimate(SENSORS[0], encode(forged))
-    for buf in pipe.centre.scans.values():  # its deadline passed before the sensors' first scan
-        buf.first_arrival -= 10 * pipe.centre.deadline_s
-    pipe.centre.on_tick()
-    for k in range(SCANS):
-        scan(pipe, k)
-        resets(pipe, k)
-    assert [encode(t) for t in pipe.tracks()] == [encode(t) for t in plain] and len(plain) == SCANS
-    assert pipe.centre.counters["rejected"] == 1
