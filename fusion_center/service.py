@@ -47,7 +47,7 @@ from fedtrack.services.admission import MAX_CONTESTED, contested_extra, digest
 from fedtrack.services.base import QueryHandler, Service, Subscription, service_kwargs, service_parser
 from fedtrack.services.clock import ClockJump
 from fedtrack.services.dispatch import REJECT_LOG_INTERVAL_S
-from fedtrack.services.lead import NumberedLeadGuard
+from fedtrack.services.lead import LEAD_INTERVALS, NumberedLeadGuard
 from fedtrack.services.rejections import Conflict, Numerical, Rejected
 from fedtrack.services.snapshot import read_sealed, write_sealed
 from fedtrack.wire import FusedTrack, LocalEstimate, ManeuverEvent, Reset, acceptable_covariances
@@ -56,6 +56,7 @@ from fedtrack.zsession import Peers
 FUSED_KEPT = 64  # fused scans whose estimate digests are kept to tell a late conflict from a re-delivery
 SNAPSHOT_MAX_GAP = 3  # scans missed beyond which a restored snapshot is dropped for a rebuild
 SNAPSHOT_FAILURES_LOGGED = 100  # a snapshot that cannot be written: the first failure logged, then every 100th
+BEHIND_KEPT = 2 * LEAD_INTERVALS  # scans passed over whose late estimates are kept while one sensor's started them
 TOKEN_LINES = 2  # lines a peer's token may have logged every REJECT_LOG_INTERVAL_S: its going and its return
 
 
@@ -78,7 +79,7 @@ class FusionCenterService(Service):
     # the centre's records are rebound, never changed in place: a pickle of these (dispatch's checkpoint,
     # in memory) is the whole state
     state_attrs = ("centre", "scans", "next_seq", "last_track", "restored", "fused", "left_out", "contested_scans",
-                   "lead")
+                   "lead", "seconded", "behind")
     tick_state_attrs = ()  # on_tick checkpoints only when a scan is waiting (100 ticks a second)
 
     def __init__(self, sensors: list[str], centre: FederatedCentre | DecentralizedCentre,
@@ -99,6 +100,10 @@ class FusionCenterService(Service):
         self.last_track: FusedTrack | None = None
         self.fused: dict[int, dict[str, bytes]] = {}  # the last FUSED_KEPT scans' estimate digests per sensor
         self.left_out: tuple[str, ...] = ()  # sensors whose estimates the last scan received but did not fuse
+        # whether the scans' start stands: a scan with two sensors' estimates fused (or the state restored);
+        # until then, the late estimates of scans passed over (:meth:`_passed_over`)
+        self.seconded = len(sensors) < 2
+        self.behind: dict[int, dict[str, LocalEstimate]] = {}
         # the sensors' and local filters' liveliness tokens (keys ROLE/ID), filled by Zenoh threads
         self.peers = Peers()
         # token -> (start of its logging window, lines in it, changes not logged since the last line)
@@ -125,7 +130,7 @@ class FusionCenterService(Service):
             self.log.warning("snapshot %s refused (%s: %s): starting fresh", self.snapshot, type(exc).__name__, exc)
             return
         self.centre, self.last_track, self.next_seq = centre, track, track.seq + 1
-        self.restored = True
+        self.restored = self.seconded = True
         self.count("restored")
         self.log.warning("restored the state of scan %d (t=%g) from %s", track.seq, track.t, self.snapshot)
 
@@ -199,6 +204,9 @@ class FusionCenterService(Service):
                            "and 6-D ca states")
         if self.next_seq is not None and msg.seq < self.next_seq:
             first = self.fused.get(msg.seq, {}).get(msg.sensor)
+            if first is None and not self.seconded:
+                self._passed_over(msg)
+                return
             if first is None or first == digest(msg):
                 self.count("late")
                 return
@@ -221,11 +229,35 @@ class FusionCenterService(Service):
             self._collect(estimate)
         self.fuse_ready()
 
-    def start_again(self, msg: LocalEstimate) -> None:
-        """Estimate ``msg`` follows one rejected beyond ``max_time_jump_s`` (:class:`ClockJump`): the
-        centre starts again from its scan (the local filters did: their estimates are flagged
-        ``init``), dropping the scans still waiting."""
-        self.restarted(msg)
+    def _passed_over(self, msg: LocalEstimate) -> None:
+        """A late estimate (``msg.seq`` before the next scan) while no scan with two sensors' estimates
+        has been fused: counted ``late`` and kept (the last ``BEHIND_KEPT`` scans). Once two sensors'
+        estimates of one scan at least ``LEAD_INTERVALS`` before the next have come so, the scans
+        start again from it (counted ``restarted``): the start was one sensor's alone, far ahead of
+        the others. One estimate of sensor 1 numbered 10^9, sent before the first scan (at a start,
+        or a restart without a snapshot), started the scans there and made every genuine estimate
+        late: 1 scan of 34 fused. Waiting for two sensors instead would fuse nothing while a local
+        filter is up and its sensor silent."""
+        self.count("late")
+        assert self.next_seq is not None
+        kept = {**self.behind.get(msg.seq, {})}
+        kept.setdefault(msg.sensor, msg)
+        self.behind = dict(sorted({**self.behind, msg.seq: kept}.items())[-BEHIND_KEPT:])
+        if len(kept) < 2 or self.next_seq - msg.seq < LEAD_INTERVALS:
+            return
+        behind = [m for seq, by in sorted(self.behind.items()) if seq >= msg.seq for m in by.values()]
+        self.start_again(min(behind, key=lambda m: m.seq), "before the scans one sensor started far ahead")
+        self.behind = {}
+        for estimate in behind:
+            self._collect(estimate)
+        self.fuse_ready()
+
+    def start_again(self, msg: LocalEstimate, why: str = "after a pause beyond max_time_jump_s") -> None:
+        """Estimate ``msg`` follows one rejected beyond ``max_time_jump_s`` (:class:`ClockJump`), or
+        two sensors' estimates of its scan came after one sensor's scans far ahead were fused
+        (:meth:`_passed_over`): the centre starts again from its scan (in the first case the local
+        filters did: their estimates are flagged ``init``), dropping the scans still waiting."""
+        self.restarted(msg, why)
         self.count("dropped_scans", len(self.scans))
         self.centre = type(self.centre)(self.sensors, self.centre.config)
         self.scans, self.lead, self.last_track, self.next_seq = {}, NumberedLeadGuard(), None, msg.seq
@@ -355,6 +387,8 @@ class FusionCenterService(Service):
             self.publish(self.keys.fusion_reset(sensor), Reset.unchecked(
                 sensor=sensor, seq=seq, t=buf.t, model=cmd.model, x=cmd.x, P=cmd.P, beta=cmd.share))
         self.last_track = track
+        if len(buf.outputs) >= 2:  # the scans' start stands
+            self.seconded, self.behind = True, {}
         self.fused = {q: d for q, d in self.fused.items() if q > seq - FUSED_KEPT} | {seq: buf.digests}
         self._save(track)
         self.count("scans_fused")

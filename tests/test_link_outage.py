@@ -7,6 +7,7 @@ with the backlog recovered from the publishers' caches (:class:`fedtrack.zsessio
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 from types import SimpleNamespace
 from typing import Any
 
@@ -253,3 +254,43 @@ def test_a_token_declared_and_withdrawn_in_a_loop_is_logged_a_bounded_number_of_
     assert caplog.records[-1].getMessage() == (f"sensor {sensor} is gone (liveliness): fusing without it "
                                                "(2000 more changes of its token not logged)")
     assert pipe.centre.gone(1e9) == {sensor}
+
+
+@pytest.mark.parametrize(("seq", "t"), [(10**9, 1e4), (4, 0.05)])
+def test_one_sensors_estimate_before_the_first_scan_cannot_start_the_centre(seq: int, t: float) -> None:
+    """Nothing fused yet (a start, or a restart without a snapshot), the centre takes the first scan that
+    comes as where the scans start. Sensor 1 (its own key) sent one estimate numbered 10^9 before the
+    sensors started: the centre fused it alone and every genuine estimate after it was late, 1 scan of 34
+    fused. Now two sensors' estimates of one scan passed over start the scans again from it: after the
+    forged track, the tracks are those of the run without it."""
+    plain = run().tracks()
+    first = Pipeline()
+    first.measurement(SENSORS[0], SENSORS[0], encode(MEASUREMENTS[SENSORS[0]][0]))
+    forged = replace(first.estimates_of_last_scan()[-1], seq=seq, t=t)
+    pipe = Pipeline()
+    peer_tokens(pipe, SENSORS, True)
+    pipe.estimate(SENSORS[0], encode(forged))
+    for buf in pipe.centre.scans.values():  # its deadline passed before the sensors' first scan
+        buf.first_arrival -= 10 * pipe.centre.deadline_s
+    pipe.centre.on_tick()
+    assert [t.seq for t in pipe.tracks()] == [seq]
+    for k in range(SCANS):
+        scan(pipe, k)
+        resets(pipe, k)
+    assert [encode(t) for t in pipe.tracks()[1:]] == [encode(t) for t in plain] and len(plain) == SCANS
+    assert pipe.centre.counters["restarted"] == 1
+
+
+def test_a_silent_filter_does_not_stop_the_scans_of_the_other() -> None:
+    """Both local filters live, sensor 2 silent: sensor 1's scans are fused alone at their deadlines
+    (degraded), as before; its late estimates alone start nothing again."""
+    pipe = Pipeline()
+    peer_tokens(pipe, SENSORS, True)
+    for k in range(SCANS):
+        scan(pipe, k, sensors=(SENSORS[0],))
+        for buf in pipe.centre.scans.values():
+            buf.first_arrival -= 10 * pipe.centre.deadline_s
+        pipe.centre.on_tick()
+        resets(pipe, k)
+    assert [t.seq for t in pipe.tracks()] == list(range(SCANS))
+    assert not pipe.centre.counters.get("restarted")
