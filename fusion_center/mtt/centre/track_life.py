@@ -67,6 +67,7 @@ class CentreLife:
             need = self._misses_needed(tracking, n_tracking, scan_lost(float(self.column_interval[col])))[:, None]
             dead = missed[(n_tracking > 0) & self._misses_enough(streak, tracking, need)]
         young = (live ^ old).nonzero()[0]  # live and tentative
+        young = young[hit[young] | ~self._blind_to(young, col, report)]
         window = np.concatenate([self.window[young, 1:], hit[young, None]], axis=1)
         self.window[young] = window
         now = young[np.count_nonzero(window, axis=1) >= cfg.confirm_hits]
@@ -78,6 +79,25 @@ class CentreLife:
             tracks.confirmed[now], tracks.confirmed_t[now] = True, report.t
         for cid in tracks.ids[dead].tolist():
             self._delete(cid)
+
+    def _blind_to(self, slots: np.ndarray, col: int, report: LocalReport) -> np.ndarray:
+        """Per tentative track of ``slots``, whether the report of sensor column ``col`` is no evidence
+        against it: two other sensors' local tracks map to it (so it is no one sensor's ghost), none of
+        this sensor's does, and its position at the report's time lies outside the x-y extent of the
+        report's local tracks (a sensor's tracks, its clutter's too, lie in what it sees), where this
+        sensor may be blind. Counted as misses, a faster sensor's scans of another part of the area
+        filled the window and kept the tracks of two slower sensors tentative for good."""
+        support = self.support[slots] > 0
+        maybe = (np.count_nonzero(support, axis=1) >= 2) & ~support[:, col]
+        if not maybe.any():
+            return maybe
+        at = self.tracks.states_at(slots[maybe], report.t)[0][:, [0, 2]]
+        inside = np.zeros(at.shape[0], dtype=bool)
+        if report.x.shape[0] > 1:
+            xy = report.x[:, [0, 2]]
+            inside = ((at > xy.min(axis=0)) & (at < xy.max(axis=0))).all(axis=1)
+        maybe[maybe] = ~inside
+        return maybe
 
     def _misses_enough(self, streak: np.ndarray, tracking: np.ndarray, need: np.ndarray) -> np.ndarray:
         """Per row, whether the tracking sensors' misses since the track's last detection (``streak``,
