@@ -114,6 +114,48 @@ def test_where_every_sensor_sees_the_rule_changes_little(tmp_path: Path, monkeyp
     capsys.readouterr()
 
 
+def blind_fast_sensor_scans(path: Path) -> tuple[Path, np.ndarray]:
+    """Two slow sensors see everything (``a`` every 4 s, ``b`` every 12 s); a fast one, ``c`` every 2 s,
+    sees x < 0 only (its clutter there too). A target at x > 0 that ``a`` and ``b`` see, 100 s;
+    returns the file and the target's position per second."""
+    rng = np.random.default_rng(11)
+    R = [[400.0, 0.0], [0.0, 400.0]]
+    start, vel = np.array([3000.0, 0.0]), np.array([4.0, 2.0])
+    rows = []
+    for sensor, period, phase in (("a", 4.0, 0.3), ("b", 12.0, 1.1), ("c", 2.0, 0.0)):
+        for t in np.arange(phase, 100.0, period):
+            dets = [] if sensor == "c" or rng.random() > 0.9 else [start + vel * t + rng.normal(0.0, 20.0, 2)]
+            if sensor == "c":  # three false detections a scan over the half it sees
+                dets += list(np.column_stack([rng.uniform(-5000.0, 0.0, 3), rng.uniform(-5000.0, 5000.0, 3)]))
+            rows.append({"t": round(float(t), 6), "sensor": sensor, "R": R, "detections": [{"z": list(map(float, z))} for z in dets]})
+    rows.sort(key=lambda r: r["t"])
+    path.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    return path, start + vel * np.arange(101.0)[:, None]
+
+
+@pytest.mark.parametrize("algorithm", ["mtt-federated", "mtt-decentralized"])
+def test_a_fast_sensor_blind_to_a_target_leaves_it_to_the_two_that_see_it(tmp_path: Path, algorithm: str) -> None:
+    """The track-to-track centre's confirmation window (3 of the last 4 reports of any sensor) took each
+    report of the fast sensor ``c``, blind where the target is, as a miss: its 2 s reports filled the
+    window and the target that ``a`` and ``b`` track was never confirmed (0 of the pictures; a fusion
+    worse than ``a`` alone). A tentative track that two sensors' local tracks map to now skips a report
+    of another sensor whose local tracks' extent it lies outside: confirmed from t = 40 s on in every
+    picture. (A one-sensor ghost still needs another sensor: ``test_mtt.py::
+    test_centre_life_rules_use_every_sensors_scans``.)"""
+    measurements, truth = blind_fast_sensor_scans(tmp_path / "m.jsonl")
+    config = tmp_path / "c.toml"
+    config.write_text('[mtt]\npd = 0.9\nclutter_density = 6e-8\n')
+    out = tmp_path / "o.jsonl"
+    replay_mtt(algorithm, measurements, config, out)
+    shown = []
+    for picture in map(json.loads, out.read_text().splitlines()):
+        if 40.0 <= picture["t"] <= 100.0:
+            near = [np.hypot(*(np.array(tr["pos"]) - truth[int(picture["t"])])) < 100.0 for tr in picture["tracks"]
+                    if tr["status"] == "confirmed"]
+            shown.append(any(near))
+    assert len(shown) > 50 and all(shown), shown
+
+
 def test_scan_sees_a_track_inside_the_extent_of_its_detections() -> None:
     """A position scan with detections at (0, 0) and (100, 50): a track at (50, 25) is inside their
     extent, one at (150, 25) and one on the edge (50, 50) are not, unless a detection of the scan
