@@ -127,7 +127,8 @@ def blind_fast_sensor_scans(path: Path) -> tuple[Path, np.ndarray]:
             dets = [] if sensor == "c" or rng.random() > 0.9 else [start + vel * t + rng.normal(0.0, 20.0, 2)]
             if sensor == "c":  # three false detections a scan over the half it sees
                 dets += list(np.column_stack([rng.uniform(-5000.0, 0.0, 3), rng.uniform(-5000.0, 5000.0, 3)]))
-            rows.append({"t": round(float(t), 6), "sensor": sensor, "R": R, "detections": [{"z": list(map(float, z))} for z in dets]})
+            rows.append({"t": round(float(t), 6), "sensor": sensor, "R": R,
+                         "detections": [{"z": list(map(float, z))} for z in dets]})
     rows.sort(key=lambda r: r["t"])
     path.write_text("".join(json.dumps(r) + "\n" for r in rows))
     return path, start + vel * np.arange(101.0)[:, None]
@@ -150,8 +151,8 @@ def test_a_fast_sensor_blind_to_a_target_leaves_it_to_the_two_that_see_it(tmp_pa
     shown = []
     for picture in map(json.loads, out.read_text().splitlines()):
         if 40.0 <= picture["t"] <= 100.0:
-            near = [np.hypot(*(np.array(tr["pos"]) - truth[int(picture["t"])])) < 100.0 for tr in picture["tracks"]
-                    if tr["status"] == "confirmed"]
+            near = [np.hypot(*(np.array(tr["pos"]) - truth[int(picture["t"])])) < 100.0
+                    for tr in picture["tracks"] if tr["status"] == "confirmed"]
             shown.append(any(near))
     assert len(shown) > 50 and all(shown), shown
 

@@ -32,21 +32,22 @@ scan, the linearized observation of every track the scan detected, the tracks it
   central estimate with ``P_i = beta_i P`` (``beta_i`` = the number of live sensors, so the
   shares sum to one and renormalize when sensors join or leave); the local tracker then
   predicts with ``Q_i = beta_i Q`` (paper 004 eqs. (17)-(22)). **Decentralized**: no feedback.
-* **Life.** A central track is confirmed by the centralized tracker's M-of-N rule applied to
-  the scans of every sensor: ``confirm_hits`` detections among the last ``confirm_window``
-  sensor scans the centre received since the track started (the starting scan included). A
-  false local track of one sensor gets no detections from the others' scans and stays
-  tentative; with one live sensor the rule is that sensor's tracker's own (the count for gnn,
-  a local track confirmed by its tracker for jipda and mht's score). Where the local trackers confirm
-  by a test with a false-confirmation bound (jipda's existence, mht's score) and the count's
-  chance to confirm a track started on clutter exceeds that bound at some position sensor's
-  clutter density and noise (:func:`needs_local_confirmation`), a track also needs a local track that its
-  tracker confirmed: in heavy clutter the count alone confirmed tracks on several sensors'
-  clutter tracks. A confirmed track is deleted once every sensor that tracks it (a local track
-  maps to it) missed it on its last ``CENTRAL_MISSES`` (2) scans since its last detection
-  (``delete_misses`` when one sensor tracks it; more at a lower P_D:
-  :func:`~fedtrack.local_filters.mtt.config.miss_count`): a target that died goes within two scans of
-  the slowest sensor instead of lingering until every local tracker deleted its track. It is also
+* **Life.** A central track is confirmed by the centralized tracker's M-of-N rule applied to the
+  scans of every sensor: ``confirm_hits`` detections among the last ``confirm_window`` sensor scans
+  the centre received since the track started (the starting scan included). A false local track of
+  one sensor gets no detections from the others' scans and stays tentative; a report of a sensor
+  that may be blind where a track of two other sensors lies is skipped
+  (:meth:`~.track_life.CentreLife._blind_to`); with one live sensor the rule is that sensor's
+  tracker's own (the count for gnn, a local track confirmed by its tracker for jipda and mht's
+  score). Where the local trackers confirm by a test with a false-confirmation bound (jipda's
+  existence, mht's score) and the count's chance to confirm a track started on clutter exceeds that
+  bound at some position sensor's clutter density and noise (:func:`needs_local_confirmation`), a
+  track also needs a local track that its tracker confirmed: in heavy clutter the count alone
+  confirmed tracks on several sensors' clutter tracks. A confirmed track is deleted once every
+  sensor that tracks it (a local track maps to it) missed it on its last ``CENTRAL_MISSES`` (2)
+  scans since its last detection (``delete_misses`` when one sensor tracks it; more at a lower P_D:
+  :func:`~fedtrack.local_filters.mtt.config.miss_count`): a target that died goes within two scans
+  of the slowest sensor instead of lingering until every local tracker deleted its track. It is also
   deleted when no local track maps to it any more or none supported it for ``central_timeout``
   seconds.
 
