@@ -12,9 +12,11 @@ after the latest scan (the last picture holds every scan).
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 import sys
 import time
+from collections import deque
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -146,6 +148,17 @@ def _picture(engine: Engine, T: float) -> tuple[float, PictureTracks]:
     return T, picture
 
 
+def periods(scans: list[Line]) -> dict[str, float]:
+    """Each sensor's usual interval between its scans (:func:`~.silence.usual_intervals` of their times in
+    order), for sensors with two scans or more."""
+    times: dict[str, list[float]] = {}
+    for scan in scans:
+        if isinstance(scan, SensorScan):
+            times.setdefault(scan.sensor, []).append(scan.t)
+    gaps = {s: deque(b - a for a, b in itertools.pairwise(sorted(ts)) if b > a) for s, ts in times.items()}
+    return usual_intervals(gaps)
+
+
 def counter_lines(counts: dict[str, int]) -> list[str]:
     """What the engine's counters count, one line each (the centre's only for a centre)."""
     lines: list[str] = [f"{counts['scans']} scans fused",
@@ -269,7 +282,8 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
         source = pictures(engine, scans, cfg.period, cfg.picture_delay, max_time_jump(config))
         recorded = {}
     note = cfg.count_note({s.sensor: s.R for s in reversed(scans) if isinstance(s, SensorScan) and s.dim == 2
-                           and (sensor is None or s.sensor == sensor)})  # each sensor's first R
+                           and (sensor is None or s.sensor == sensor)},  # each sensor's first R
+                          periods(scans))
     if note:
         print(f"{algorithm}: note: {note}", file=sys.stderr)
     read_s = time.perf_counter() - start

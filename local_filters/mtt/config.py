@@ -180,15 +180,15 @@ class MttConfig:
         """``process_noise`` resolved: ``"fixed"`` or ``"imm"`` (``"auto"``: the associator's own)."""
         return AUTO_PROCESS_NOISE.get(self.associator, "fixed") if self.process_noise == "auto" else self.process_noise
 
-    def clutter_gate_hit(self, sensor: str, R: np.ndarray) -> float:
+    def clutter_gate_hit(self, sensor: str, R: np.ndarray, interval: float = 1.0) -> float:
         """The chance that a scan of position sensor ``sensor`` (noise covariance ``R``, 2 x 2) puts
-        a clutter detection into the gate of a track started on one of its clutter detections, one
-        second later: ``1 - exp(-lambda V)``, ``V = pi g sqrt(det S)`` the gate's area, ``S = 2 R +
-        (sigma_v T)^2 I`` (the start's position noise, ``init_velocity_std`` over ``T`` = 1 s, the
-        new detection's noise), ``g`` the 2-D gate's chi-square quantile, ``lambda`` the sensor's
-        clutter density per m^2. A radar's density is per m rad^2 of its own measurement space:
-        not for this formula."""
-        S = 2.0 * np.asarray(R, float) + self.init_velocity_std**2 * np.eye(2)
+        a clutter detection into the gate of a track started on one of its clutter detections, its
+        next scan ``interval`` seconds later (the sensor's period where known, else 1 s): ``1 -
+        exp(-lambda V)``, ``V = pi g sqrt(det S)`` the gate's area, ``S = 2 R + (sigma_v T)^2 I`` (the
+        start's position noise, ``init_velocity_std`` over ``T`` = ``interval``, the new detection's
+        noise), ``g`` the 2-D gate's chi-square quantile, ``lambda`` the sensor's clutter density per
+        m^2. A radar's density is per m rad^2 of its own measurement space: not for this formula."""
+        S = 2.0 * np.asarray(R, float) + (self.init_velocity_std * interval) ** 2 * np.eye(2)
         area = math.pi * self.thresholds.gate[2] * math.sqrt(max(float(np.linalg.det(S)), 0.0))
         return -math.expm1(-self.clutter_of(sensor) * area)
 
@@ -210,16 +210,19 @@ class MttConfig:
             return FALSE_CONFIRM
         return self.mht.false_track if self.associator == "mht" and self.mht.management == "score" else None
 
-    def count_note(self, position_sensors: Mapping[str, np.ndarray]) -> str | None:
+    def count_note(self, position_sensors: Mapping[str, np.ndarray], intervals: Mapping[str, float] | None = None
+                   ) -> str | None:
         """A warning when the count rules the tracks (``gnn``, mht's ``"counts"``) and some position
-        sensor's clutter (``position_sensors``: each one's noise covariance ``R``) makes its tracker
-        confirm clutter tracks more often than jipda's bound allows (a sensor without clutter,
-        ``clutter_density`` 0, starts no track on clutter, whatever the count)."""
+        sensor's clutter (``position_sensors``: each one's noise covariance ``R``; ``intervals``: each
+        one's period, 1 s where not given) makes its tracker confirm clutter tracks more often than
+        jipda's bound allows (a sensor without clutter, ``clutter_density`` 0, starts no track on
+        clutter, whatever the count)."""
         from fedtrack.local_filters.mtt.associators.jipda import FALSE_CONFIRM
 
         if self.confirm_bound is not None:
             return None
-        chance, sensor, sd = max(((self.counts_false_confirm(self.clutter_gate_hit(s, R)), s,
+        every = intervals or {}
+        chance, sensor, sd = max(((self.counts_false_confirm(self.clutter_gate_hit(s, R, every.get(s, 1.0))), s,
                                    math.sqrt(float(np.max(np.diag(R))))) for s, R in position_sensors.items()
                                   if self.clutter_of(s) > 0), default=(0.0, "", 0.0))
         if chance <= FALSE_CONFIRM:

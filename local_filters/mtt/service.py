@@ -106,6 +106,7 @@ class MttLocalService(Service):
         # the latest reports whose resets or answers timed out: one that comes after all is late, not unexpected
         self.timed_out: deque[int] = deque(maxlen=TIMED_OUT_KEPT)
         self.noted = False  # whether the count's note (MttConfig.count_note) was judged
+        self.first_t: float | None = None  # the first scan's time: the note is judged over the next interval
 
     def subscriptions(self) -> list[Subscription]:
         # recovered from the sensor's cache (which the recorder reads with history) when the router's link
@@ -148,9 +149,12 @@ class MttLocalService(Service):
             self.lead.restore(times)
             return
         self.received.take(msg)
-        if not self.noted:  # the count's chance on this sensor's clutter, once (a position sensor's is per m^2)
-            self.noted = True
-            note = self.cfg.count_note({self.sensor: scan.R} if scan.dim == 2 else {})
+        if self.first_t is None:
+            self.first_t = scan.t
+        elif not self.noted and scan.t > self.first_t:  # the count's chance on this sensor's clutter over its
+            self.noted = True  # interval, once (a position sensor's is per m^2)
+            note = self.cfg.count_note({self.sensor: scan.R} if scan.dim == 2 else {},
+                                       {self.sensor: scan.t - self.first_t})
             if note:
                 self.log.warning("%s", note)
 

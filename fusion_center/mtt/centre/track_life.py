@@ -17,14 +17,14 @@ CENTRAL_MISSES = 2
 # At the sensors' detection probabilities the counts may need to be longer: config.miss_count.
 
 
-def needs_local_confirmation(cfg: MttConfig, sensor: str, R: np.ndarray) -> bool:
+def needs_local_confirmation(cfg: MttConfig, sensor: str, R: np.ndarray, interval: float = 1.0) -> bool:
     """Whether a central track also needs a local track confirmed by its tracker, judged on position
-    sensor ``sensor`` of noise covariance ``R``: where the local trackers confirm by a test with a
-    false-confirmation bound (:attr:`MttConfig.confirm_bound`) and the count's chance to confirm a
-    track started on that sensor's clutter exceeds that bound (:meth:`MttConfig.counts_false_confirm`
+    sensor ``sensor`` of noise covariance ``R`` and period ``interval``: where the local trackers confirm
+    by a test with a false-confirmation bound (:attr:`MttConfig.confirm_bound`) and the count's chance to
+    confirm a track started on that sensor's clutter exceeds that bound (:meth:`MttConfig.counts_false_confirm`
     of :meth:`MttConfig.clutter_gate_hit`)."""
     bound = cfg.confirm_bound
-    return bound is not None and cfg.counts_false_confirm(cfg.clutter_gate_hit(sensor, R)) > bound
+    return bound is not None and cfg.counts_false_confirm(cfg.clutter_gate_hit(sensor, R, interval)) > bound
 
 
 class CentreLife:

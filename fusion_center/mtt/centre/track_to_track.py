@@ -346,19 +346,22 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         return copy
 
     def _note_scan(self, report: LocalReport) -> int:
-        """The sensor's latest scan time and its retired local tracks unmapped (and, at its first
-        report with an observation, whether its clutter and noise make the count unsafe: a position
-        sensor's observations are 2-D); returns its column."""
+        """The sensor's latest scan time and its retired local tracks unmapped (and, at its reports with
+        an observation until one comes with its usual interval known, whether its clutter and noise make
+        the count unsafe over that interval, 1 s before: a position sensor's observations are 2-D);
+        returns its column."""
         t, s = report.t, report.sensor
-        if s not in self.count_judged and len(report.obs_R):
-            self.count_judged.add(s)
-            if report.obs_R.shape[1] == 2 and needs_local_confirmation(self.cfg, s, report.obs_R[0]):
-                self.local_confirmation = True
         previous = self.sensor_seen.get(s, t)
         self.sensor_seen[s] = max(previous, t)
         if t > previous:
             self.scan_gaps.setdefault(s, deque(maxlen=INTERVALS_KEPT)).append(t - previous)
         self.usual = self._usual_intervals()  # once a report: the live sensors, the monitor's window
+        if s not in self.count_judged and len(report.obs_R):
+            if s in self.usual:
+                self.count_judged.add(s)
+            if report.obs_R.shape[1] == 2 and needs_local_confirmation(self.cfg, s, report.obs_R[0],
+                                                                       self.usual.get(s, 1.0)):
+                self.local_confirmation = True
         self.n_live = len(self._live(t, self.usual))
         col = self._col(s)
         self.column_interval[col] = t - previous
