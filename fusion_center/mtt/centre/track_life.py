@@ -83,20 +83,28 @@ class CentreLife:
     def _blind_to(self, slots: np.ndarray, col: int, report: LocalReport) -> np.ndarray:
         """Per tentative track of ``slots``, whether the report of sensor column ``col`` is no evidence
         against it: two other sensors' local tracks map to it (so it is no one sensor's ghost), none of
-        this sensor's does, and its position at the report's time lies outside the x-y extent of the
-        report's local tracks (a sensor's tracks, its clutter's too, lie in what it sees), where this
-        sensor may be blind. Counted as misses, a faster sensor's scans of another part of the area
-        filled the window and kept the tracks of two slower sensors tentative for good."""
+        this sensor's does, and at the report's time it lies outside the x-y extent of the report's local
+        tracks (a sensor's tracks, its clutter's too, lie in what it sees) and beyond the association
+        test's reach of each of them (in x-y: a sensor without clutter, whose extent is its targets', sees
+        the target beside which another sensor's track is a duplicate), where this sensor may be blind.
+        Counted as misses, a faster sensor's scans of another part of the area filled the window and kept
+        the tracks of two slower sensors tentative for good."""
         support = self.support[slots] > 0
         maybe = (np.count_nonzero(support, axis=1) >= 2) & ~support[:, col]
         if not maybe.any():
             return maybe
-        at = self.tracks.states_at(slots[maybe], report.t)[0][:, [0, 2]]
-        inside = np.zeros(at.shape[0], dtype=bool)
-        if report.x.shape[0] > 1:
-            xy = report.x[:, [0, 2]]
-            inside = ((at > xy.min(axis=0)) & (at < xy.max(axis=0))).all(axis=1)
-        maybe[maybe] = ~inside
+        X, P = self.tracks.states_at(slots[maybe], report.t)
+        xy, n = [0, 2], report.x.shape[0]
+        at, local = X[:, xy], report.x[:, xy]
+        seen = np.zeros(at.shape[0], dtype=bool)
+        if n > 1:
+            seen = ((at > local.min(axis=0)) & (at < local.max(axis=0))).all(axis=1)
+        if n:
+            d = at[:, None, :] - local[None, :, :]
+            S = P[:, None][..., xy, :][..., xy] + report.P[None][..., xy, :][..., xy]
+            d2 = np.einsum("mni,mni->mn", d, np.linalg.solve(S, d[..., None])[..., 0])
+            seen |= (d2 <= self.cfg.thresholds.association[2]).any(axis=1)
+        maybe[maybe] = ~seen
         return maybe
 
     def _misses_enough(self, streak: np.ndarray, tracking: np.ndarray, need: np.ndarray) -> np.ndarray:
