@@ -88,7 +88,8 @@ def test_a_2d_state_past_the_limb_is_placed_at_the_limb(origin: tuple[float, flo
         far = np.array([2 * past, 1e9, 1e30, 1e99])[:, None] * direction
         lla = add_geodetic(frame, [{"x": [x, 0.0, y, 0.0]} for x, y in far.tolist()])
         lat_lon = np.array([[r["lat"], r["lon"]] for r in lla])
-        assert np.isfinite(lat_lon).all() and (np.abs(lat_lon[:, 0]) <= 90).all() and (np.abs(lat_lon[:, 1]) <= 180).all()
+        assert np.isfinite(lat_lon).all()
+        assert (np.abs(lat_lon[:, 0]) <= 90).all() and (np.abs(lat_lon[:, 1]) <= 180).all()
         assert np.abs(geodetic_from_enu(frame, surface_enu(frame, far))[:, 2]).max() < 1e-3  # on the ellipsoid
 
 

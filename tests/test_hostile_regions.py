@@ -439,19 +439,22 @@ def test_a_health_of_more_counters_than_fit_says_how_many_it_left_out() -> None:
 
 # ---------------------------------------------------------------- serve picture
 
+def picture_merger(tmp_path: Path) -> tuple[PictureMergeService, Bus, list[str]]:
+    """``serve picture`` of the two regions of ``REGIONS_CONFIG`` on a bus, and their picture keys."""
+    config = tmp_path / "regions.toml"
+    config.write_text(REGIONS_CONFIG)
+    regions = load_regions(config)
+    assert regions is not None
+    svc = PictureMergeService(regions, 4, 2.0, 1.0, service_id="picture", options=OPTIONS, deployment=KEYS.deployment)
+    return svc, Bus([svc]), [KEYS.region_picture(rid) for rid in regions.ids]
+
 def test_a_region_picture_off_the_picture_grid_is_refused(tmp_path: Path) -> None:
     """Every region centre makes its pictures at multiples of ``[mtt] period`` (PictureClock). A region
     (its ``fusion`` identity, or a centre configured with another period) publishing pictures between
     them made a merged picture of each such time from that region alone: every other merged picture
     held none of the other regions' tracks (here 5 empty pictures among 11), uncounted and not
     contested. ``serve picture`` now refuses a picture off the grid (``time_jump``)."""
-    config = tmp_path / "regions.toml"
-    config.write_text(REGIONS_CONFIG)
-    regions = load_regions(config)
-    assert regions is not None
-    svc = PictureMergeService(regions, 4, 2.0, 1.0, service_id="picture", options=OPTIONS, deployment=KEYS.deployment)
-    bus = Bus([svc])
-    a, b = (KEYS.region_picture(rid) for rid in regions.ids)
+    svc, bus, (a, b) = picture_merger(tmp_path)
     for k in range(6):
         bus.put(a, encode(region_picture(float(k), (0, 2))))
         bus.put(b, encode(region_picture(float(k), (1, 3))))
@@ -466,13 +469,7 @@ def test_a_region_picture_passed_over_is_counted_missing_and_contested(tmp_path:
     later (its picture of that time lost, or held as stamped far ahead and dropped) was taken for one that
     started later: the merged picture lacked its tracks, uncounted and not ``contested``. It is now
     counted ``missing_region`` and the merged picture ``contested``, as a region absent past ``--wait``."""
-    config = tmp_path / "regions.toml"
-    config.write_text(REGIONS_CONFIG)
-    regions = load_regions(config)
-    assert regions is not None
-    svc = PictureMergeService(regions, 4, 2.0, 1.0, service_id="picture", options=OPTIONS, deployment=KEYS.deployment)
-    bus = Bus([svc])
-    a, b = (KEYS.region_picture(rid) for rid in regions.ids)
+    svc, bus, (a, b) = picture_merger(tmp_path)
     for k in range(5):
         if k != 1:  # region x0y0's picture at t = 1 never comes
             bus.put(a, encode(region_picture(float(k), (0, 2))))
@@ -489,13 +486,7 @@ def test_a_region_picture_numbered_off_the_grid_cannot_number_the_merged_picture
     at t = 0 made every later merged picture's number 2**63 and more: each refused by every receiver, for
     the whole run. A region picture numbered NUMBER_ROOM (2**62) or more, or at NUMBER_ROOM / 2 periods or
     more from t = 0, is refused (``seq_jump``): no centre numbers so."""
-    config = tmp_path / "regions.toml"
-    config.write_text(REGIONS_CONFIG)
-    regions = load_regions(config)
-    assert regions is not None
-    svc = PictureMergeService(regions, 4, 2.0, 1.0, service_id="picture", options=OPTIONS, deployment=KEYS.deployment)
-    bus = Bus([svc])
-    a, b = (KEYS.region_picture(rid) for rid in regions.ids)
+    svc, bus, (a, b) = picture_merger(tmp_path)
     for k in range(4):
         first = replace(region_picture(0.0, (0, 2)), seq=2**63 - 1)
         bus.put(a, encode(first if k == 0 else region_picture(float(k), (0, 2))))

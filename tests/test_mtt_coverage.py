@@ -329,7 +329,8 @@ def still_tracks(sensor: str, t: float, places: dict[int, float]) -> LocalReport
     x = np.array([[places[i], 0.0, 0.0, 0.0] for i in ids]).reshape(-1, 4)
     H = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
     return LocalReport(sensor, t, ids, x, np.tile(np.diag([100.0, 100.0, 100.0, 100.0]), (n, 1, 1)),
-                       np.zeros(n, bool), np.ones(n, bool), np.tile(H, (n, 1, 1)), np.tile(100.0 * np.eye(2), (n, 1, 1)),
+                       np.zeros(n, bool), np.ones(n, bool), np.tile(H, (n, 1, 1)),
+                       np.tile(100.0 * np.eye(2), (n, 1, 1)),
                        x[:, [0, 2]].copy(), np.full(n, t == 0.0), np.zeros(0, dtype=np.int64))
 
 

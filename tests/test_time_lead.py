@@ -281,14 +281,16 @@ def test_no_picture_is_made_more_than_max_time_jump_before_the_data() -> None:
     assert honest.number(0.0) == clock.number(0.0)
 
 
-def test_a_first_scan_far_before_the_data_costs_the_centre_a_bounded_number_of_pictures(tmp_path: Path) -> None:
+def test_a_first_scan_far_before_the_data_costs_the_centre_a_bounded_number_of_pictures(
+        tmp_path: Path) -> None:
     """The live multi-target centre (in-process bus, ``mtt-centralized``): a sensor's first scan, the first
     the centre took, stamped 2,000 s before the others' (a scan needs no witness before any is taken) made
     2,012 pictures, one a period from it (10^9 s before: the centre busy for good). With ``max_time_jump_s =
     60`` it makes those of the last 60 s before the data and goes on with every honest scan."""
     msgs = mtt_lines(tmp_path)
     cfg = MttConfig(sensors=("s1", "s2", "s3"), max_lag=3.0, clutter_density=2.0 / 5000.0**2)
-    centre = MttCentreService("mtt-centralized", cfg, 4, service_id="centre", options=OPTIONS, deployment=KEYS.deployment)
+    centre = MttCentreService("mtt-centralized", cfg, 4, service_id="centre", options=OPTIONS,
+                              deployment=KEYS.deployment)
     centre.clock.max_gap = 60.0  # --config's [deployment] max_time_jump_s (service_from_args)
     bus = Bus([centre])
     bus.put(KEYS.sensor_meas(msgs[0].sensor), encode(replace(msgs[0], seq=0, t=-2000.0)))

@@ -230,7 +230,8 @@ class _Tracker:
 
 
 def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions, entries: list[tuple[int, Entry]],
-                      counts: dict[str, int], max_gap: float = MAX_TIME_JUMP_S) -> Iterator[tuple[float, PictureTracks]]:
+                      counts: dict[str, int],
+                      max_gap: float = MAX_TIME_JUMP_S) -> Iterator[tuple[float, PictureTracks]]:
     """The merged pictures of a live region run from its recorded entries (module docstring);
     ``counts`` gets the trackers' scans and the centres' counters added up (the replay's report);
     ``max_gap``: the centres' ``[deployment] max_time_jump_s`` (:class:`PictureClock`)."""

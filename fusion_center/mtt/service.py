@@ -282,8 +282,8 @@ class MttCentreService(CentreFailover, Service):
         pictures = [self._picture(T) for T in self.clock.due(msg.t)]
         if self.clock.skipped > skipped:
             self.count("skipped_pictures", self.clock.skipped - skipped)
-            self.log.warning("scan %d of %s at t=%g: %d picture times more than max_time_jump_s = %g s before it not made",
-                             msg.seq, msg.sensor, msg.t, self.clock.skipped - skipped, self.clock.max_gap)
+            self.log.warning("scan %d of %s at t=%g: %d picture times more than max_time_jump_s = %g s before it "
+                             "not made", msg.seq, msg.sensor, msg.t, self.clock.skipped - skipped, self.clock.max_gap)
         self._room(f"scan {msg.seq} of {msg.sensor}")
         if isinstance(msg, Measurement):
             scan = scan_from_measurement(msg)
@@ -369,8 +369,9 @@ class MttCentreService(CentreFailover, Service):
         (``NUMBER_ROOM`` periods from t = 0): a first scan at t = 1e19 s made the closing record
         unpublishable and the centre's stop fail (``OverflowError``)."""
         if not abs(t) / self.cfg.period < NUMBER_ROOM:
-            raise Rejected("time_jump", f"{what} at t={t:g}: its picture would be number {abs(t) / self.cfg.period:.3g}, "
-                           f"beyond {NUMBER_ROOM:.3g} ({self.cfg.period:g} s pictures from t = 0)")
+            raise Rejected("time_jump", f"{what} at t={t:g}: its picture would be number "
+                           f"{abs(t) / self.cfg.period:.3g}, beyond {NUMBER_ROOM:.3g} ({self.cfg.period:g} s "
+                           "pictures from t = 0)")
 
     def _fuse(self, msg: TrackReport) -> None:
         """The centre's part of a report (its region's part at a region centre); the next picture is

@@ -7,8 +7,8 @@ Line format (JSON Lines, one line per sensor scan, in arrival order)::
 
 A line with ``sensor_position`` is a radar scan (``z`` = range [m], azimuth, elevation
 [rad] of the target less ``sensor_position`` in the common frame's axes: azimuth ``atan2(d_y, d_x)``,
-elevation above the x-y plane; :func:`check_plots`); without it, a 2-D position scan (``z`` = [x, y] [m]). A line ``{"t", "sensor",
-"left": true}`` records that a live centre dropped the sensor there (:class:`SensorLeft`); one
+elevation above the x-y plane; :func:`check_plots`); without it, a 2-D position scan (``z`` = [x, y] [m]).
+A line ``{"t", "sensor", "left": true}`` records that a live centre dropped the sensor there (:class:`SensorLeft`); one
 ``{"t", "sensor", "restarted": true}`` that the sensor's local tracker started afresh there, a
 restarted process (:class:`TrackerRestarted`).
 """

@@ -288,8 +288,9 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--sensor", required=True, type=id_arg("--sensor"), help="sensor id whose scans to track")
     parser.add_argument("--mode", choices=MODES, default="federated",
                         help="federated: take the centre's resets; decentralized: none (default: %(default)s)")
-    parser.add_argument("--config", help="configuration file; reads [mtt], [deployment] and [frame] (a radar scan's "
-                        "sensor_position against its site; docs/multitarget.md; default: none, every key at its default)")
+    parser.add_argument("--config", help="configuration file; reads [mtt], [deployment] and [frame] (a radar "
+                        "scan's sensor_position against its site; docs/multitarget.md; default: none, every key at "
+                        "its default)")
     parser.add_argument("--reset-timeout", type=float, default=RESET_TIMEOUT_S, metavar="SECONDS",
                         help="federated: go on without the centre's resets after this long (default: %(default)s)")
     args = parser.parse_args(argv)
@@ -300,4 +301,5 @@ def main(argv: list[str]) -> int:
     settings = load_tables(path, MttServiceSettings)  # a ConfigError is the CLI's one-line error
     dep = settings.deployment
     return MttLocalService(args.sensor, args.mode == "federated", settings.mtt, args.reset_timeout,
-                           dep.max_seq_jump, dep.max_time_jump_s, load_regions(path), sites=settings.frame, **kwargs).run()
+                           dep.max_seq_jump, dep.max_time_jump_s, load_regions(path), sites=settings.frame,
+                           **kwargs).run()
