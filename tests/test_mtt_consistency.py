@@ -1,6 +1,6 @@
 """Per-sensor consistency monitoring at the track-to-track centre (fusion_center/mtt/centre/consistency.py):
-a sensor whose detections disagree with the others' is flagged, an honest run flags no one, and the
-pictures stay as they were (detection only)."""
+a sensor whose detections disagree with the others' is flagged, an honest run flags no one, and a
+flagged sensor's observations are left out of the fusion until it is cleared."""
 
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ from test_hostile_messages import KEYS, Bus, mtt_services
 
 from fedtrack.cli import main as cli
 from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre, consistency
+from fedtrack.fusion_center.mtt.centre.track_to_track import excluded_sensors
 from fedtrack.fusion_center.mtt.centre.consistency import (
     CLEAR_P,
     FALSE_ALARM,
@@ -39,13 +40,14 @@ def scenario(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
-def altered(src: Path, dst: Path, sensor: str, onset: float, *, r_scale: float = 1.0, bias: float = 0.0) -> None:
-    """``sensor``'s scans from ``onset`` on with ``R`` claimed ``r_scale`` times its own, positions moved
-    by ``bias`` m."""
+def altered(src: Path, dst: Path, sensor: str, onset: float, *, r_scale: float = 1.0, bias: float = 0.0,
+            until: float = math.inf) -> None:
+    """``sensor``'s scans from ``onset`` on (before ``until``) with ``R`` claimed ``r_scale`` times its own,
+    positions moved by ``bias`` m."""
     with src.open() as f, dst.open("w") as g:
         for line in f:
             m = json.loads(line)
-            if m["sensor"] == sensor and m["t"] >= onset:
+            if m["sensor"] == sensor and onset <= m["t"] < until:
                 m["R"] = (np.array(m["R"]) * r_scale).tolist()
                 for d in m["detections"]:
                     d["z"][0] += bias / math.sqrt(2)
@@ -82,18 +84,50 @@ def test_a_faulty_sensor_is_flagged_within_a_few_scans(scenario: Path, tmp_path:
     assert "s1 at" not in line and "s3 at" not in line
 
 
-def test_a_flagged_sensor_leaves_the_pictures_as_they_were(scenario: Path, tmp_path: Path,
-                                                           capsys: pytest.CaptureFixture,
-                                                           monkeypatch: pytest.MonkeyPatch) -> None:
-    """Detection only: the pictures of a run with s2 flagged are byte-identical to those of the same run
-    with the monitor switched off."""
+@pytest.mark.parametrize("algorithm", ["mtt-federated", "mtt-decentralized"])
+def test_a_flagged_sensor_is_left_out_until_cleared(scenario: Path, tmp_path: Path, algorithm: str,
+                                                    capsys: pytest.CaptureFixture,
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    """s2 claims ``R`` 100x smaller than its noise from t = 15 to 28: while flagged (three live sensors)
+    its reports leave every central track as it was (the same ring entries, none started), get no
+    resets and a process-noise factor of 1, and the others' factor counts the fused sensors only (2);
+    once cleared its reports are fused again. Before this, a flagged sensor was fused (detection only)."""
     bad = tmp_path / "m.jsonl"
-    altered(scenario / "measurements.jsonl", bad, "s2", 20.0, r_scale=0.01)
-    assert flagged(scenario, bad, "mtt-decentralized", capsys).startswith("mtt-decentralized: sensors flagged")
-    watched = bad.with_suffix(".mtt-decentralized.out").read_bytes()
-    monkeypatch.setattr(TrackToTrackCentre, "_monitor", lambda *args: None)
-    assert flagged(scenario, bad, "mtt-decentralized", capsys) == ""
-    assert bad.with_suffix(".mtt-decentralized.out").read_bytes() == watched
+    altered(scenario / "measurements.jsonl", bad, "s2", 15.0, r_scale=0.01, until=28.0)
+    seen: dict[str, list] = {"left_out": [], "fused_after": [], "q_others": []}
+    answer = TrackToTrackCentre.answer
+
+    def watched(self: TrackToTrackCentre, report, rows=None):  # type: ignore[no-untyped-def]
+        before = {cid: self.tracks.entries(cid) for cid in self.tracks}
+        fused, cleared = self.counters.fused, self.consistency.onsets and not self.consistency.flagged
+        resets, q_scale = answer(self, report, rows)
+        if report.sensor in self.excluded:
+            assert set(self.tracks) <= set(before) and resets.ids.size == 0 and q_scale == 1.0
+            for cid in self.tracks:
+                assert all(np.array_equal(a, b) for a, b in zip(self.tracks.entries(cid), before[cid]))
+            seen["left_out"].append(report.t)
+        elif self.excluded and self.feedback:
+            seen["q_others"].append(q_scale)
+        if cleared and report.sensor == "s2":
+            seen["fused_after"].append(self.counters.fused - fused)
+        return resets, q_scale
+
+    monkeypatch.setattr(TrackToTrackCentre, "answer", watched)
+    line = flagged(scenario, bad, algorithm, capsys)
+    first = re.search(r"sensors flagged inconsistent: (\w+) at t=([0-9.]+)", line)
+    assert first and first[1] == "s2" and 15.0 <= float(first[2]) <= 28.0, line
+    assert len(seen["left_out"]) >= 3 and min(seen["left_out"]) >= 15.0
+    assert seen["fused_after"] and sum(seen["fused_after"]) > 0  # cleared: fused again
+    assert all(q == 2.0 for q in seen["q_others"]) and (seen["q_others"] or algorithm == "mtt-decentralized")
+
+
+def test_exclusion_needs_three_live_sensors_two_of_them_unflagged() -> None:
+    """With two sensors the test cannot tell which is wrong: nobody is left out."""
+    flags = {"s2": 10.0}
+    assert excluded_sensors(["s1", "s2", "s3"], flags) == {"s2"}
+    assert excluded_sensors(["s1", "s2"], flags) == set()
+    assert excluded_sensors(["s1", "s2", "s3"], {"s2": 1.0, "s3": 2.0}) == set()
+    assert excluded_sensors(["s1", "s3", "s4"], flags) == set()
 
 
 def test_the_relative_test_is_the_f_distribution_under_the_model() -> None:

@@ -184,7 +184,8 @@ def counter_lines(counts: dict[str, int]) -> list[str]:
     if "centre_inconsistency_onsets" in counts:
         lines.append(f"{counts['centre_inconsistency_onsets']} sensors flagged inconsistent (innovations against the "
                      f"others' beyond the {FALSE_ALARM:g} test), {counts['centre_inconsistent_sensors']} still "
-                     "flagged at the end")
+                     f"flagged at the end, {counts.get('centre_excluded_observations', 0)} of their observations "
+                     "left out of the fusion")
     if "centre_handed_over" in counts:
         lines.append(f"{counts['centre_handed_over']} central tracks handed over between regions")
     return lines

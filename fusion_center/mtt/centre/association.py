@@ -151,14 +151,16 @@ class CentreAssociation:
 
     def _associate(self, report: LocalReport, det_rows: np.ndarray, unmapped: list[int], alone: list[int],
                    cands: np.ndarray, tested: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
-                   stay: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None) -> set[LocalKey]:
+                   stay: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None, start: bool = True
+                   ) -> set[LocalKey]:
         """Map the scan's unmapped local tracks (those not associated start central tracks) and
         move its confirmed local tracks that are alone on their central tracks to central tracks of
         other sensors that pass the test (their own central tracks, left without a local track,
         go at the next :meth:`prune`); returns the local tracks that started central tracks.
         ``cands``, ``tested``: :meth:`_pairs`' candidates and pairs ``(ri, ci)`` with their test
         (``d2``, ``ln det``); ``stay``: the movers' own central tracks (slots, one a mover, the last
-        rows) and their pairs with them (mover, own central track of mover, cost): staying, or a swap."""
+        rows) and their pairs with them (mover, own central track of mover, cost): staying, or a swap.
+        ``start`` False (an excluded sensor, :mod:`.consistency`): those not associated stay unmapped."""
         fresh: set[LocalKey] = set()
         if not unmapped and not alone:
             return fresh
@@ -190,7 +192,7 @@ class CentreAssociation:
             if u in assigned:
                 if self.mapping.get(key) != assigned[u]:  # a mover may stay
                     self._map(key, assigned[u])
-            elif u < len(unmapped):
+            elif u < len(unmapped) and start:
                 self._map(key, self._start(t, report.x[row], report.P[row]))
                 fresh.add(key)
         return fresh

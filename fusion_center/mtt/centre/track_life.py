@@ -30,9 +30,9 @@ def needs_local_confirmation(cfg: MttConfig, sensor: str, R: np.ndarray, interva
 class CentreLife:
     """Confirmation and deletion of :class:`~.track_to_track.TrackToTrackCentre`'s central tracks (mixed
     into it). It relies on the centre's ``cfg``, ``counters``, ``tracks``, ``departed``, ``absorbed``,
-    ``mapping``, ``members``, ``local_confirmation``, ``n_live``, the per-slot arrays ``support``,
-    ``streak``, ``window`` and ``last_support``, the per-column ``column_interval`` and
-    ``column_log_miss``, and on its methods ``_unmap`` and ``sensor_lists``."""
+    ``mapping``, ``members``, ``local_confirmation``, ``n_live``, ``excluded``, ``sensor_names``, the
+    per-slot arrays ``support``, ``streak``, ``window`` and ``last_support``, the per-column
+    ``column_interval`` and ``column_log_miss``, and on its methods ``_unmap`` and ``sensor_lists``."""
 
     def _vouched(self, report: LocalReport) -> np.ndarray:
         """Slots of the central tracks that a track confirmed by the report's tracker maps to."""
@@ -63,6 +63,8 @@ class CentreLife:
             streak[:, col] += 1
             self.streak[missed] = streak
             tracking = self.support[missed] > 0
+            if self.excluded:  # an excluded sensor's misses do not count (nor do its detections)
+                tracking &= np.array([name not in self.excluded for name in self.sensor_names])
             n_tracking = np.count_nonzero(tracking, axis=1)
             need = self._misses_needed(tracking, n_tracking, scan_lost(float(self.column_interval[col])))[:, None]
             dead = missed[(n_tracking > 0) & self._misses_enough(streak, tracking, need)]

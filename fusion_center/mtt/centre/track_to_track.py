@@ -89,6 +89,7 @@ class Counters:
     late_reports: int = 0  # reports older than max_lag before the newest report: neither fused nor mapped
     inconsistent_sensors: int = 0  # sensors whose innovations fail the relative test now (.consistency)
     inconsistency_onsets: int = 0  # times a sensor was flagged
+    excluded_observations: int = 0  # observations of a flagged sensor left out of the fusion (three or more live)
     copies: int = 0  # reports of a sensor found to copy another's feed (.copies): not fused
     copying_sensors: int = 0  # sensors found to copy another's feed now
 
@@ -139,7 +140,8 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self._column: dict[str, int] = {}
         self.column_log_miss = np.zeros(0)  # per sensor column, ln(1 - P_D) of its sensor (MttConfig.log_miss)
         self.column_interval = np.zeros(0)  # per sensor column, its latest scan's time since its previous one
-        self.n_live = 0  # live sensors at the latest report's time (live_sensors), counted once a report
+        self.n_live = 0  # live sensors fused at the latest report's time (live_sensors less excluded)
+        self.excluded: set[str] = set()  # flagged live sensors left out of the fusion now (_note_scan)
         self.usual: dict[str, float] = {}  # each sensor's usual interval at the latest report (_note_scan)
         self.support = np.zeros((0, 0), dtype=np.int64)  # local tracks of each sensor mapped to a slot
         self.streak = np.zeros((0, 0), dtype=np.int64)  # a confirmed slot's misses in a row per sensor
@@ -236,6 +238,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         if not keep_window:
             self.consistency.drop(sensor)
             self.counters.inconsistent_sensors = len(self.consistency.flagged)
+        self.excluded.discard(sensor)
 
     def _drop_column(self, sensor: str) -> None:
         """Free a departed sensor's column of the per-sensor arrays (a column a slot and a
@@ -329,7 +332,8 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
             self._unmap_retired(report)  # a late scan's own tracks that later scans deleted: fused, now unmapped
             return resets
         self.moved = det_rows, det_rows.copy()  # nothing fused into: no track moved
-        self._count_scan(col, det_rows, report)
+        if report.sensor not in self.excluded:
+            self._count_scan(col, det_rows, report)
         return no_resets(report.sensor, report.t, report.x.shape[1])
 
     def _copied(self, report: LocalReport, obs_rows: np.ndarray | None) -> bool:
@@ -362,7 +366,9 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
             if report.obs_R.shape[1] == 2 and needs_local_confirmation(self.cfg, s, report.obs_R[0],
                                                                        self.usual.get(s, 1.0)):
                 self.local_confirmation = True
-        self.n_live = len(self._live(t, self.usual))
+        live = self._live(t, self.usual)
+        self.excluded = excluded_sensors(live, self.consistency.flagged)
+        self.n_live = len(live) - len(self.excluded)
         col = self._col(s)
         self.column_interval[col] = t - previous
         self._unmap_retired(report)
@@ -426,7 +432,11 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
             alone = alone + movers
             cands, (ri, ci, diff, S) = self._pairs(report, det_rows[unmapped_rows + alone], col, (X, P, at))
             tested = (ri, ci, *track_difference_d2(diff, S))
-        fresh = self._associate(report, det_rows, unmapped_rows, alone, cands, tested, stay)
+        excluded = s in self.excluded
+        fresh = self._associate(report, det_rows, unmapped_rows, alone, cands, tested, stay, start=not excluded)
+        if excluded:
+            self._left_out(s, t, (H, R, z), self._central_ids(keys)[1], col, (X, P, at))
+            return no_resets(s, t, d)
         for k in unmapped_rows + alone:
             cid[k] = self.mapping[keys[k]]
             slots[k] = tracks.slot[cid[k]]
@@ -507,12 +517,24 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.counters.inconsistent_sensors = len(self.consistency.flagged)
         self.counters.inconsistency_onsets = self.consistency.onsets
 
+    def _left_out(self, sensor: str, t: float, observations: tuple[np.ndarray, np.ndarray, np.ndarray],
+                  slots: np.ndarray, col: int, states: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+        """A scan of an excluded sensor: none of its ``observations`` fused, nor counted in the life rules;
+        those of local tracks mapped to a central track (``slots`` >= 0) go to its consistency window, so
+        that its flag can clear."""
+        mapped = (slots >= 0).nonzero()[0]
+        self._monitor(sensor, t, tuple(a[mapped] for a in observations), slots[mapped],  # type: ignore[arg-type]
+                      np.ones(mapped.size, dtype=bool), col, states)
+        self.counters.excluded_observations += slots.size
+        self.moved = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+
     def answer(self, report: LocalReport, rows: np.ndarray | None = None) -> tuple[Resets, float]:
         """Everything the centre does with one report (its ``rows``: :meth:`ingest`): fuse it, then
         delete unsupported central tracks; returns the resets for its sensor and the process-noise
         factor (the number of live sensors, 1 when decentralized) for that sensor's next scan."""
         resets = self.ingest(report, rows)
-        alone = report.sensor in self.copies.copy_of  # a copy's tracker runs on its own (no resets)
+        # a copy's tracker, and an excluded sensor's, runs on its own (no resets)
+        alone = report.sensor in self.copies.copy_of or report.sensor in self.excluded
         q_scale = float(max(self.n_live, 1)) if self.feedback and not alone else 1.0
         self.prune(report.t)
         return resets, q_scale
@@ -558,3 +580,11 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         unique, inverse = np.unique(self.support[slots] > 0, axis=0, return_inverse=True)  # each sensor set once
         sets = [sorted(names[c] for c in np.flatnonzero(row).tolist()) for row in unique]
         return [list(sets[k]) for k in inverse.ravel().tolist()]
+
+
+def excluded_sensors(live: list[str], flagged: dict[str, float]) -> set[str]:
+    """The flagged ``live`` sensors whose observations are left out of the fusion: all of them when three or
+    more sensors are live and two or more of them are not flagged (where the monitor's isolation holds), else
+    none."""
+    out = {s for s in live if s in flagged}
+    return out if len(live) >= 3 and len(live) - len(out) >= 2 else set()
