@@ -192,7 +192,7 @@ class RegionCentre:
             owner = self.owners(c.tracks.x[sl, p, 0], c.tracks.x[sl, p, 2])  # of the latest estimates' positions
             out = owner != self.index
             if out.any():  # a track short of a live sensor's local track goes at once (its twin may be next door)
-                whole = np.fromiter((len(c.members.get(cid, ())) >= c.n_live for cid in ids[live][out].tolist()),
+                whole = np.fromiter((c.fused_members(cid) >= c.n_live for cid in ids[live][out].tolist()),
                                     dtype=bool, count=int(out.sum()))
                 out[out] = ~whole | self.beyond_band(c.tracks.x[sl[out], p[out]], c.tracks.P[sl[out], p[out]])
             if out.any():

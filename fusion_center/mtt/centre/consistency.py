@@ -1,4 +1,4 @@
-"""Per-sensor consistency monitoring at the track-to-track centre: detection only, nothing left out of the fusion.
+"""Per-sensor consistency monitoring at the track-to-track centre: a flagged sensor is left out of the fusion.
 
 Every local observation ``(H, R, z)`` fused into a central track that another sensor also supports
 has a normalized innovation ``nu' S^-1 nu`` against the central prediction at its time (``nu = z - H
@@ -34,6 +34,12 @@ innovations too (most those of the sensors
 with the smallest noise): a sensor is flagged only when its test is also the worst of every sensor's
 at that time (isolation by the largest residual); tested against the others pooled alone, a 50 m bias
 on the fastest of three sensors also flagged an honest one 3 times in 200 s (cap at 1 - 1e-4).
+
+While a sensor is flagged and the isolation holds (three or more live sensors, two or more of them not
+flagged: :func:`~.track_to_track.excluded_sensors`), the centre fuses none of its observations; they
+still enter its window here, tested against the central predictions of the others' detections alone,
+so that the flag clears when its data agrees with theirs again, and it is fused again from its next
+report on.
 """
 from __future__ import annotations
 
