@@ -13,11 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy import stats
+from support import assert_same_pictures
 from test_hostile_messages import KEYS, Bus, mtt_services
 
 from fedtrack.cli import main as cli
 from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre, consistency
 from fedtrack.fusion_center.mtt.centre.track_to_track import excluded_sensors
+from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.fusion_center.mtt.centre.consistency import (
     CLEAR_P,
     FALSE_ALARM,
@@ -172,8 +174,8 @@ def test_normalized_innovations_solve_the_innovation_covariance() -> None:
 def test_the_live_centre_counts_and_logs_a_flagged_sensor(scenario: Path, tmp_path: Path,
                                                         caplog: pytest.LogCaptureFixture, restarting: bool) -> None:
     """``serve mtt-centre`` (in-process, its trackers and recorder on a bus): s2's scans of the first 25 s
-    with ``R`` claimed 100x smaller from t = 15 on raise the Health counters, name s2 in its status
-    and log the onset. ``restarting``: s2's tracker marks every report ``first`` (a restarted process),
+    with ``R`` claimed 100x smaller from t = 15 on raise the Health counters (its observations left out
+    counted), name s2 in its status and log the onset; its recording replays to its pictures. ``restarting``: s2's tracker marks every report ``first`` (a restarted process),
     which emptied s2's window at every report, so that it was never flagged (tour47 session): a restart
     keeps the sensor's window."""
     services = mtt_services(tmp_path)
@@ -195,9 +197,22 @@ def test_the_live_centre_counts_and_logs_a_flagged_sensor(scenario: Path, tmp_pa
     assert centre.counters.get("trackers_restarted", 0) == (sum(m.sensor == "s2" for m in bus.of(TrackReport)) - 1
                                                            if restarting else 0)
     assert centre.counters["centre_inconsistency_onsets"] >= 1 and centre.counters["rejected"] == 0
+    assert centre.counters["centre_excluded_observations"] > 0  # left out, as replay does (the same centre)
     assert centre.status == "inconsistent sensors: s2"
-    assert any("sensor s2 inconsistent at t=" in r.getMessage() for r in caplog.records)
+    assert any("sensor s2 inconsistent at t=" in r.getMessage() and "left out of the fusion" in r.getMessage()
+               for r in caplog.records)
     assert not any(f"sensor {s} inconsistent" in r.getMessage() for r in caplog.records for s in ("s1", "s3"))
+    if restarting:  # such a recording does not replay to the live pictures, before exclusion too (left, reported)
+        return
+    centre.on_stop()
+    bus.drain()
+    measurements, live = tmp_path / "m.jsonl", tmp_path / "live.jsonl"
+    services["recorder"].recording.export(measurements, live)  # type: ignore[attr-defined]
+    config = tmp_path / "c.toml"
+    config.write_text('[mtt]\nsensors = ["s1", "s2", "s3"]\nmax_lag = 3.0\nclutter_density = 8e-8\n')
+    again = tmp_path / "again.jsonl"
+    replay_mtt("mtt-federated", measurements, config, again)  # the live centre's exclusion, replayed
+    assert_same_pictures(*([json.loads(x) for x in f.read_text().splitlines()] for f in (live, again)))
 
 
 def test_a_non_finite_innovation_enters_at_its_cap() -> None:
