@@ -18,8 +18,6 @@ from test_hostile_messages import KEYS, Bus, mtt_services
 
 from fedtrack.cli import main as cli
 from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre, consistency
-from fedtrack.fusion_center.mtt.centre.track_to_track import excluded_sensors
-from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.fusion_center.mtt.centre.consistency import (
     CLEAR_P,
     FALSE_ALARM,
@@ -29,6 +27,8 @@ from fedtrack.fusion_center.mtt.centre.consistency import (
     normalized_innovations,
     relative_tail,
 )
+from fedtrack.fusion_center.mtt.centre.track_to_track import excluded_sensors
+from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.local_filters.mtt.scan import parse_scan, scan_to_measurement
 from fedtrack.wire import TrackReport, encode
 
@@ -175,9 +175,10 @@ def test_the_live_centre_counts_and_logs_a_flagged_sensor(scenario: Path, tmp_pa
                                                         caplog: pytest.LogCaptureFixture, restarting: bool) -> None:
     """``serve mtt-centre`` (in-process, its trackers and recorder on a bus): s2's scans of the first 25 s
     with ``R`` claimed 100x smaller from t = 15 on raise the Health counters (its observations left out
-    counted), name s2 in its status and log the onset; its recording replays to its pictures. ``restarting``: s2's tracker marks every report ``first`` (a restarted process),
-    which emptied s2's window at every report, so that it was never flagged (tour47 session): a restart
-    keeps the sensor's window."""
+    counted), name s2 in its status and log the onset; its recording replays to its pictures.
+    ``restarting``: s2's tracker marks every report ``first`` (a restarted process), which emptied s2's
+    window at every report, so that it was never flagged (tour47 session): a restart keeps the sensor's
+    window (such a recording does not replay to the live pictures, exclusion or not: not checked)."""
     services = mtt_services(tmp_path)
     bus = Bus(list(services.values()))
     if restarting:
@@ -202,7 +203,7 @@ def test_the_live_centre_counts_and_logs_a_flagged_sensor(scenario: Path, tmp_pa
     assert any("sensor s2 inconsistent at t=" in r.getMessage() and "left out of the fusion" in r.getMessage()
                for r in caplog.records)
     assert not any(f"sensor {s} inconsistent" in r.getMessage() for r in caplog.records for s in ("s1", "s3"))
-    if restarting:  # such a recording does not replay to the live pictures, before exclusion too (left, reported)
+    if restarting:
         return
     centre.on_stop()
     bus.drain()

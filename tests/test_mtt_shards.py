@@ -300,11 +300,12 @@ def test_shared_prediction_and_box_owners_leave_what_the_full_paths_leave(data: 
         return out
 
     def checked_associate(centre: TrackToTrackCentre, report: Any, det_rows: np.ndarray, unmapped: list[int],
-                          alone: list[int], cands: np.ndarray, tested: Any, stay: Any = None) -> Any:
+                          alone: list[int], cands: np.ndarray, tested: Any, stay: Any = None,
+                          start: bool = True) -> Any:
         cands_full, (ri, ci, diff, S) = last[id(centre)]  # the latest pairs: the re-test's if there was one
         assert np.array_equal(cands, cands_full) and np.array_equal(ri, tested[0]) and np.array_equal(ci, tested[1])
         assert all(np.array_equal(a, b) for a, b in zip(gating.track_difference_d2(diff, S), tested[2:]))
-        return associate(centre, report, det_rows, unmapped, alone, cands, tested, stay)
+        return associate(centre, report, det_rows, unmapped, alone, cands, tested, stay, start)
 
     monkeypatch.setattr(TrackToTrackCentre, "answer", checked_answer)
     monkeypatch.setattr(CentralTracks, "fuse", checked_fuse)

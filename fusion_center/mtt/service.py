@@ -391,8 +391,8 @@ class MttCentreService(CentreFailover, Service):
             raise Rejected("crowded", f"report {msg.seq} of {msg.sensor}: {exc}") from None
         for tr in (engine.region.centre.consistency.drain() if isinstance(engine, RegionEngine)
                    else engine.consistency_transitions()):
-            self.log.warning("sensor %s %s at t=%.2f: its innovations %.2f times the others', tail probability %.2g; %s",
-                             tr.sensor, "inconsistent" if tr.flagged else "consistent again", tr.t, tr.ratio,
+            self.log.warning("sensor %s %s at t=%.2f: its innovations %.2f times the others', tail probability "
+                             "%.2g; %s", tr.sensor, "inconsistent" if tr.flagged else "consistent again", tr.t, tr.ratio,
                              math.exp(tr.log_p), "its observations are left out of the fusion while it is flagged "
                              "and three or more sensors are live" if tr.flagged else "fused again")
         for f in (engine.region.centre.copies.drain() if isinstance(engine, RegionEngine) else engine.feed_copies()):

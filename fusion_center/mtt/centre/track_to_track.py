@@ -531,8 +531,9 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         those of local tracks mapped to a central track (``slots`` >= 0) go to its consistency window, so
         that its flag can clear."""
         mapped = (slots >= 0).nonzero()[0]
-        self._monitor(sensor, t, tuple(a[mapped] for a in observations), slots[mapped],  # type: ignore[arg-type]
-                      np.ones(mapped.size, dtype=bool), col, states)
+        H, R, z = observations
+        self._monitor(sensor, t, (H[mapped], R[mapped], z[mapped]), slots[mapped], np.ones(mapped.size, dtype=bool),
+                      col, states)
         self.counters.excluded_observations += slots.size
         self.moved = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
 
