@@ -62,9 +62,7 @@ class CentreLife:
             streak = self.streak[missed]
             streak[:, col] += 1
             self.streak[missed] = streak
-            tracking = self.support[missed] > 0
-            if self.excluded:  # an excluded sensor's misses do not count (nor do its detections)
-                tracking &= np.array([name not in self.excluded for name in self.sensor_names])
+            tracking = self._fused_support(missed)
             n_tracking = np.count_nonzero(tracking, axis=1)
             need = self._misses_needed(tracking, n_tracking, scan_lost(float(self.column_interval[col])))[:, None]
             dead = missed[(n_tracking > 0) & self._misses_enough(streak, tracking, need)]
@@ -82,6 +80,14 @@ class CentreLife:
         for cid in tracks.ids[dead].tolist():
             self._delete(cid)
 
+    def _fused_support(self, slots: np.ndarray) -> np.ndarray:
+        """Per slot and sensor column, whether a local track of that sensor maps there, an excluded
+        sensor's not counted (its misses and its tracks count for nothing while it is left out)."""
+        support = self.support[slots] > 0
+        if self.excluded:
+            support &= np.array([name not in self.excluded for name in self.sensor_names])
+        return support
+
     def _blind_to(self, slots: np.ndarray, col: int, report: LocalReport) -> np.ndarray:
         """Per tentative track of ``slots``, whether the report of sensor column ``col`` is no evidence
         against it: two other sensors' local tracks map to it (so it is no one sensor's ghost), none of
@@ -91,7 +97,7 @@ class CentreLife:
         the target beside which another sensor's track is a duplicate), where this sensor may be blind.
         Counted as misses, a faster sensor's scans of another part of the area filled the window and kept
         the tracks of two slower sensors tentative for good."""
-        support = self.support[slots] > 0
+        support = self._fused_support(slots)
         maybe = (np.count_nonzero(support, axis=1) >= 2) & ~support[:, col]
         if not maybe.any():
             return maybe
