@@ -257,15 +257,18 @@ def test_a_tracker_restart_keeps_the_copied_feed_check() -> None:
     emptied the copied-feed check's evidence of the sensor (tour47 session): s9, copying s1 and marking
     every report ``first``, was never found (0 of its 12 reports left out, s2's factor 3: s1's data
     fused twice); and s1's one honest restart at t = 6 made s9 the sensor heard from longer, so that
-    s1 was taken for the copy at t = 8 and its reports were not fused, s9's in their stead."""
+    s1 was taken for the copy at t = 8 and its reports were not fused, s9's in their stead. A report
+    marked ``first`` is a restart where a fresh tracker could have sent it (its track started by the
+    scan): so s9's and s1's here."""
     for cheat in (True, False):
         svc = MttCentreService("mtt-federated", MttConfig(sensors="any", max_lag=3.0), 4, service_id="centre",
                                options=OPTIONS, deployment=KEYS.deployment)
         bus = Bus([svc])
         for k in range(12):
             report = one_track_report("s1", k)
-            bus.put(KEYS.mtt_report("s1"), encode(replace(report, first=not cheat and k == 6)))
-            bus.put(KEYS.mtt_report("s9"), encode(replace(report, sensor="s9", first=cheat)))
+            restart = replace(report, first=True, started=(True,))
+            bus.put(KEYS.mtt_report("s1"), encode(restart if not cheat and k == 6 else report))
+            bus.put(KEYS.mtt_report("s9"), encode(replace(restart if cheat else report, sensor="s9")))
             bus.put(KEYS.mtt_report("s2"), encode(replace(report, sensor="s2", obs_z=report.obs_z + 3.0)))
         assert svc.counters["trackers_restarted"] == (11 if cheat else 1)
         assert svc.engine.centre.copies.copy_of == {"s9": "s1"}

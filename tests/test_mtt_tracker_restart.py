@@ -21,6 +21,8 @@ from test_hostile_messages import KEYS, MTT_SENSORS, OPTIONS, Bus, mtt_lines, mt
 
 from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.mtt.local import SensorTracker, could_be_first, report_to_wire
+from fedtrack.local_filters.mtt.scan import scan_from_measurement
 from fedtrack.local_filters.mtt.service import MttLocalService
 from fedtrack.wire import encode
 
@@ -109,3 +111,16 @@ def test_a_restarted_tracker_of_a_region_run_starts_afresh_in_its_replay_too(tmp
     again = tmp_path / "again.jsonl"
     replay_mtt("mtt-decentralized", tmp_path / "out" / "measurements.jsonl", config, again, regions="config")
     assert_same_pictures(lines(tmp_path / "out" / "tracks.jsonl"), lines(again))
+
+
+
+@pytest.mark.parametrize("associator", ["gnn", "jipda", "mht"])
+def test_only_a_fresh_trackers_report_could_be_first(tmp_path: Path, associator: str) -> None:
+    """A tracker's first report (tracks in it) is one a fresh tracker could send (every track started
+    by its scan, none retired), so the centre takes it as a restart; none of its later reports is (a
+    report marked ``first`` then: ``restarts_ignored``, docs/multitarget-formats.md)."""
+    cfg = MttConfig(sensors=MTT_SENSORS, max_lag=3.0, clutter_density=2.0 / 5000.0**2, associator=associator)
+    scans = [scan_from_measurement(m) for m in mtt_lines(tmp_path) if m.sensor == "s2"]
+    tracker = SensorTracker(scans[0], cfg, False)
+    reports = [report_to_wire(tracker.track(scan)[0], seq, 1) for seq, scan in enumerate(scans)]
+    assert reports[0].ids and [could_be_first(r) for r in reports] == [True] + [False] * (len(reports) - 1)

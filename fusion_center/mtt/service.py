@@ -77,7 +77,7 @@ from fedtrack.fusion_center.mtt.silence import Silence
 from fedtrack.geodetic import Frame, FrameConfig, geodetic_of_states
 from fedtrack.local_filters.linear.gating import CrowdedScan
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
-from fedtrack.local_filters.mtt.local import report_from_wire, resets_to_wire
+from fedtrack.local_filters.mtt.local import could_be_first, report_from_wire, resets_to_wire
 from fedtrack.local_filters.mtt.routing import answer_to_wire
 from fedtrack.local_filters.mtt.scan import misplaced, scan_from_measurement
 from fedtrack.local_filters.regions import Regions, load_regions
@@ -306,8 +306,12 @@ class MttCentreService(CentreFailover, Service):
         """The first report of a tracker process from a sensor heard before: its tracker restarted
         (its tracks and ids afresh). The local tracks of its former process leave their central
         tracks, and the next picture lists the restart before the report, so that a replay of the
-        recording starts that sensor's tracker afresh there too (docs/multitarget-formats.md, restart line)."""
+        recording starts that sensor's tracker afresh there too (docs/multitarget-formats.md, restart line).
+        A report marked ``first`` that keeps tracks of earlier scans is no restart (``restarts_ignored``)."""
         if not msg.first or msg.sensor not in self.silence.previous:
+            return
+        if not could_be_first(msg):  # its tracker ran on: a replay, restarting it there, would part from live
+            self.count("restarts_ignored")
             return
         self.engine.restart(msg.sensor)
         self.restarted_at.append(len(self.order))

@@ -122,6 +122,14 @@ def report_to_wire(report: LocalReport, seq: int, stamp_ns: int, contested: tupl
         elsewhere=elsewhere, first=first)
 
 
+def could_be_first(msg: wire.TrackReport) -> bool:
+    """Whether ``msg`` is a report a tracker process's first scan can give: each of its tracks
+    started by that scan (detected, its observation ``started``) and none retired (an empty
+    tracker has none to keep or delete). A report marked ``first`` that is not one is a tracker
+    run on (docs/multitarget-formats.md, restart line)."""
+    return not msg.retired and all(msg.detected) and all(msg.started)
+
+
 def report_from_wire(msg: wire.TrackReport) -> LocalReport:
     d = msg.x.shape[1]
     k, m = msg.obs_z.shape
