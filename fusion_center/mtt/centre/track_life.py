@@ -4,8 +4,11 @@ The rules are in :mod:`.track_to_track`'s docstring."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
+from fedtrack.local_filters.mtt.associators.jipda import FALSE_CONFIRM
 from fedtrack.local_filters.mtt.config import MttConfig, miss_count, scan_lost
 from fedtrack.local_filters.mtt.local import LocalReport
 
@@ -30,8 +33,8 @@ def needs_local_confirmation(cfg: MttConfig, sensor: str, R: np.ndarray, interva
 class CentreLife:
     """Confirmation and deletion of :class:`~.track_to_track.TrackToTrackCentre`'s central tracks (mixed
     into it). It relies on the centre's ``cfg``, ``counters``, ``tracks``, ``departed``, ``absorbed``,
-    ``mapping``, ``members``, ``local_confirmation``, ``n_live``, ``excluded``, ``sensor_names``, the
-    per-slot arrays ``support``, ``streak``, ``window`` and ``last_support``, the per-column
+    ``mapping``, ``members``, ``local_confirmation``, ``own_confirmed``, ``n_live``, ``excluded``,
+    ``sensor_names``, the per-slot arrays ``support``, ``streak``, ``window`` and ``last_support``, the per-column
     ``column_interval`` and ``column_log_miss``, and on its methods ``_unmap`` and ``sensor_lists``."""
 
     def _vouched(self, report: LocalReport) -> np.ndarray:
@@ -90,15 +93,19 @@ class CentreLife:
 
     def _blind_to(self, slots: np.ndarray, col: int, report: LocalReport) -> np.ndarray:
         """Per tentative track of ``slots``, whether the report of sensor column ``col`` is no evidence
-        against it: two other sensors' local tracks map to it (so it is no one sensor's ghost), none of
-        this sensor's does, and at the report's time it lies outside the x-y extent of the report's local
-        tracks (a sensor's tracks, its clutter's too, lie in what it sees) and beyond the association
-        test's reach of each of them (in x-y: a sensor without clutter, whose extent is its targets', sees
-        the target beside which another sensor's track is a duplicate), where this sensor may be blind.
+        against it: none of this sensor's local tracks maps to it, and at the report's time it lies outside
+        the x-y extent of the report's local tracks (a sensor's tracks, its clutter's too, lie in what it
+        sees) and beyond the association test's reach of each of them (in x-y: a sensor without clutter,
+        whose extent is its targets', sees the target beside which another sensor's track is a duplicate),
+        where this sensor may be blind; and it is no one sensor's ghost: two other sensors' local tracks map
+        to it, or one sensor's local track that its tracker confirmed does and this sensor's clutter shows
+        it is blind there (:meth:`_clutter_would_show`; a sensor whose reports show one target and no
+        clutter shows nothing of where it is blind, and a ghost of another sensor stays tentative beside it).
         Counted as misses, a faster sensor's scans of another part of the area filled the window and kept
-        the tracks of two slower sensors tentative for good."""
+        the tracks of slower sensors tentative for good."""
         support = self._fused_support(slots)
-        maybe = (np.count_nonzero(support, axis=1) >= 2) & ~support[:, col]
+        n_support = np.count_nonzero(support, axis=1)
+        maybe = ((n_support >= 2) | ((n_support == 1) & self._own_confirmed(slots))) & ~support[:, col]
         if not maybe.any():
             return maybe
         X, P = self.tracks.states_at(slots[maybe], report.t)
@@ -112,8 +119,29 @@ class CentreLife:
             S = P[:, None][..., xy, :][..., xy] + report.P[None][..., xy, :][..., xy]
             d2 = np.einsum("mni,mni->mn", d, np.linalg.solve(S, d[..., None])[..., 0])
             seen |= (d2 <= self.cfg.thresholds.association[2]).any(axis=1)
-        maybe[maybe] = ~seen
+        maybe[maybe] = ~seen & ((n_support[maybe] >= 2) | self._clutter_would_show(at, report))
         return maybe
+
+    def _own_confirmed(self, slots: np.ndarray) -> np.ndarray:
+        """Per slot of ``slots``, whether a local track that its tracker confirmed (at its latest report) maps
+        to it."""
+        keys = ((s, lid) for s, lids in self.own_confirmed.items() for lid in lids)
+        mark = np.zeros(self.tracks.capacity, dtype=bool)
+        mark[self.tracks.slots_of([self.mapping[key] for key in keys if key in self.mapping])] = True
+        return mark[slots]
+
+    def _clutter_would_show(self, at: np.ndarray, report: LocalReport) -> np.ndarray:
+        """Per x-y place of ``at``, whether the report's sensor, had it seen there, would have put a clutter
+        detection, which starts a local track, nearer to it than the nearest of the report's local tracks
+        but for a chance of ``FALSE_CONFIRM`` (jipda's bound on confirming clutter, which the count's note
+        also holds the count to): ``exp(-lambda pi d^2) <= FALSE_CONFIRM``, ``lambda`` the sensor's clutter
+        density per m^2 (one scan's clutter), ``d`` that distance. False where that shows nothing: a sensor
+        without clutter, a report without local tracks, a radar's (its density is per m rad^2)."""
+        lam, local = self.cfg.clutter_of(report.sensor), report.x[:, [0, 2]]
+        if lam <= 0.0 or not local.shape[0] or report.obs_R.shape[1:] != (2, 2):
+            return np.zeros(at.shape[0], dtype=bool)
+        d2 = ((at[:, None, :] - local[None, :, :]) ** 2).sum(axis=2).min(axis=1)
+        return -lam * math.pi * d2 <= math.log(FALSE_CONFIRM)
 
     def _misses_enough(self, streak: np.ndarray, tracking: np.ndarray, need: np.ndarray) -> np.ndarray:
         """Per row, whether the tracking sensors' misses since the track's last detection (``streak``,

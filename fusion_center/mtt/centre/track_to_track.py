@@ -157,6 +157,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         # whether the count alone is unsafe on some position sensor's clutter (judged once per sensor)
         self.local_confirmation = False
         self.count_judged: set[str] = set()
+        self.own_confirmed: dict[str, set[int]] = {}  # each sensor's local tracks its tracker confirmed (latest report)
         self.last_support = np.zeros(0)  # when a local observation was last fused into a slot
         # the ids and slots of the central tracks the last report's observations were fused into (or
         # started), one per fused row (an id may repeat; a track deleted since no longer has its id in
@@ -379,6 +380,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.n_live = len(live) - len(self.excluded)
         col = self._col(s)
         self.column_interval[col] = t - previous
+        self.own_confirmed[s] = set(report.ids[report.confirmed].tolist())
         self._unmap_retired(report)
         return col
 
