@@ -44,7 +44,8 @@ scan, the linearized observation of every track the scan detected, the tracks it
   scans of every sensor: ``confirm_hits`` detections among the last ``confirm_window`` sensor scans
   the centre received since the track started (the starting scan included). A false local track of
   one sensor gets no detections from the others' scans and stays tentative; a report of a sensor
-  that may be blind where a track of two other sensors lies is skipped
+  that may be blind where a track of two other sensors lies is skipped, and where one other sensor's
+  local track confirmed by its tracker lies when the skipped sensor's clutter shows it blind there
   (:meth:`~.track_life.CentreLife._blind_to`); with one live sensor the rule is that sensor's
   tracker's own (the count for gnn, a local track confirmed by its tracker for jipda and mht's
   score). Where the local trackers confirm by a test with a false-confirmation bound (jipda's
