@@ -125,7 +125,7 @@ class CentreLife:
     def _own_confirmed(self, slots: np.ndarray) -> np.ndarray:
         """Per slot of ``slots``, whether a local track that its tracker confirmed (at its latest report) maps
         to it."""
-        keys = ((s, lid) for s, lids in self.own_confirmed.items() for lid in lids)
+        keys = ((s, lid) for s, lids in self.own_confirmed.items() for lid in lids.tolist())
         mark = np.zeros(self.tracks.capacity, dtype=bool)
         mark[self.tracks.slots_of([self.mapping[key] for key in keys if key in self.mapping])] = True
         return mark[slots]

@@ -158,7 +158,8 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         # whether the count alone is unsafe on some position sensor's clutter (judged once per sensor)
         self.local_confirmation = False
         self.count_judged: set[str] = set()
-        self.own_confirmed: dict[str, set[int]] = {}  # each sensor's local tracks its tracker confirmed (latest report)
+        # each sensor's local tracks that its tracker confirmed, at its latest report (of its taken rows)
+        self.own_confirmed: dict[str, np.ndarray] = {}
         self.last_support = np.zeros(0)  # when a local observation was last fused into a slot
         # the ids and slots of the central tracks the last report's observations were fused into (or
         # started), one per fused row (an id may repeat; a track deleted since no longer has its id in
@@ -335,7 +336,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
                 self.counters.late_reports += 1
             self.moved = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
             return no_resets(report.sensor, report.t, report.x.shape[1])
-        col = self._note_scan(report)
+        col = self._note_scan(report, rows)
         det_rows = (report.detected if rows is None else report.detected & rows).nonzero()[0]
         if det_rows.size:
             resets = self._fuse_rows(report, det_rows, col, obs)
@@ -359,11 +360,11 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.counters.copying_sensors = len(self.copies.copy_of)
         return copy
 
-    def _note_scan(self, report: LocalReport) -> int:
-        """The sensor's latest scan time and its retired local tracks unmapped (and, at its reports with
-        an observation until one comes with its usual interval known, whether its clutter and noise make
-        the count unsafe over that interval, 1 s before: a position sensor's observations are 2-D);
-        returns its column."""
+    def _note_scan(self, report: LocalReport, rows: np.ndarray | None = None) -> int:
+        """The sensor's latest scan time, its local tracks that its tracker confirmed (of ``rows``, None:
+        all) and its retired local tracks unmapped (and, at its reports with an observation until one
+        comes with its usual interval known, whether its clutter and noise make the count unsafe over that
+        interval, 1 s before: a position sensor's observations are 2-D); returns its column."""
         t, s = report.t, report.sensor
         previous = self.sensor_seen.get(s, t)
         self.sensor_seen[s] = max(previous, t)
@@ -381,7 +382,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.n_live = len(live) - len(self.excluded)
         col = self._col(s)
         self.column_interval[col] = t - previous
-        self.own_confirmed[s] = set(report.ids[report.confirmed].tolist())
+        self.own_confirmed[s] = report.ids[report.confirmed if rows is None else report.confirmed & rows]
         self._unmap_retired(report)
         return col
 
