@@ -397,8 +397,8 @@ class MttCentreService(CentreFailover, Service):
                    else engine.consistency_transitions()):
             self.log.warning("sensor %s %s at t=%.2f: its innovations %.2f times the others', tail probability "
                              "%.2g; %s", tr.sensor, "inconsistent" if tr.flagged else "consistent again", tr.t,
-                             tr.ratio, math.exp(tr.log_p), "its observations are left out of the fusion while it is flagged "
-                             "and three or more sensors are live" if tr.flagged else "fused again")
+                             tr.ratio, math.exp(tr.log_p), "its observations are left out of the fusion while it is "
+                             "flagged and three or more sensors are live" if tr.flagged else "fused again")
         for f in (engine.region.centre.copies.drain() if isinstance(engine, RegionEngine) else engine.feed_copies()):
             self.log.warning("sensor %s %s %s's feed at t=%.2f (the same observations at the same times): its reports "
                              "are %s", f.copy, "copies" if f.found else "no longer copies", f.original, f.t,
