@@ -66,6 +66,8 @@ pairs' search in :mod:`.candidates`.
 """
 from __future__ import annotations
 
+import math
+
 import itertools
 from collections import deque
 from dataclasses import dataclass, field
@@ -378,7 +380,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
                                                                        self.usual.get(s, 1.0)):
                 self.local_confirmation = True
         live = self._live(t, self.usual)
-        self.excluded = excluded_sensors(live, self.consistency.flagged)
+        self.excluded = excluded_sensors(live, self.consistency.flagged, t, window_seconds(self.usual))
         self.n_live = len(live) - len(self.excluded)
         col = self._col(s)
         self.column_interval[col] = t - previous
@@ -600,9 +602,15 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         return [list(sets[k]) for k in inverse.ravel().tolist()]
 
 
-def excluded_sensors(live: list[str], flagged: dict[str, float]) -> set[str]:
-    """The flagged ``live`` sensors whose observations are left out of the fusion: all of them when three or
-    more sensors are live and two or more of them are not flagged (where the monitor's isolation holds), else
-    none."""
+def excluded_sensors(live: list[str], flagged: dict[str, float], t: float = math.inf, window: float = 0.0) -> set[str]:
+    """The ``live`` sensors flagged (``flagged``: since when) for a whole ``window`` at ``t`` whose
+    observations are left out of the fusion: all of them when three or more sensors are live and two or
+    more of them are not flagged (where the monitor's isolation holds), else none. A flag is a test at
+    1e-6 of any excess, which the thousands of innovations of a window find in honest data for a moment:
+    1,000 targets and 4 sensors (``bench scale``'s scenario) flagged s4, s1 and s2 at t = 1.7, 1.85 and
+    4.25 s (ratios 1.12-1.44), each cleared within the window, and leaving them out from the flag on
+    cost 1 % of GOSPA (409.89 -> 414.09 m; 2 regions 419.00). A fault holds its flag."""
     out = {s for s in live if s in flagged}
-    return out if len(live) >= 3 and len(live) - len(out) >= 2 else set()
+    if len(live) < 3 or len(live) - len(out) < 2:
+        return set()
+    return {s for s in out if t - flagged[s] >= window}
