@@ -105,7 +105,10 @@ class CentreLife:
         the tracks of slower sensors tentative for good."""
         support = self._fused_support(slots)
         n_support = np.count_nonzero(support, axis=1)
-        maybe = ((n_support >= 2) | ((n_support == 1) & self._own_confirmed(slots))) & ~support[:, col]
+        maybe = (n_support >= 1) & ~support[:, col]
+        one = maybe & (n_support == 1)
+        if one.any():
+            maybe[one] = self._own_confirmed(slots[one])
         if not maybe.any():
             return maybe
         X, P = self.tracks.states_at(slots[maybe], report.t)
@@ -124,11 +127,10 @@ class CentreLife:
 
     def _own_confirmed(self, slots: np.ndarray) -> np.ndarray:
         """Per slot of ``slots``, whether a local track that its tracker confirmed (at its latest report) maps
-        to it."""
-        keys = ((s, lid) for s, lids in self.own_confirmed.items() for lid in lids.tolist())
-        mark = np.zeros(self.tracks.capacity, dtype=bool)
-        mark[self.tracks.slots_of([self.mapping[key] for key in keys if key in self.mapping])] = True
-        return mark[slots]
+        to it (looked up from the slot's local tracks: each sensor's confirmed ones are a set)."""
+        confirmed = self.own_confirmed
+        return np.array([any(lid in confirmed.get(s, ()) for s, lid in self.members.get(cid, ()))
+                         for cid in self.tracks.ids[slots].tolist()], dtype=bool)
 
     def _clutter_would_show(self, at: np.ndarray, report: LocalReport) -> np.ndarray:
         """Per x-y place of ``at``, whether the report's sensor, had it seen there, would have put a clutter

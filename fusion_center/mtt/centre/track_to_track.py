@@ -161,7 +161,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.local_confirmation = False
         self.count_judged: set[str] = set()
         # each sensor's local tracks that its tracker confirmed, at its latest report (of its taken rows)
-        self.own_confirmed: dict[str, np.ndarray] = {}
+        self.own_confirmed: dict[str, frozenset[int]] = {}
         self.last_support = np.zeros(0)  # when a local observation was last fused into a slot
         # the ids and slots of the central tracks the last report's observations were fused into (or
         # started), one per fused row (an id may repeat; a track deleted since no longer has its id in
@@ -384,7 +384,8 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.n_live = len(live) - len(self.excluded)
         col = self._col(s)
         self.column_interval[col] = t - previous
-        self.own_confirmed[s] = report.ids[report.confirmed if rows is None else report.confirmed & rows]
+        confirmed = report.confirmed if rows is None else report.confirmed & rows
+        self.own_confirmed[s] = frozenset(report.ids[confirmed].tolist())
         self._unmap_retired(report)
         return col
 
