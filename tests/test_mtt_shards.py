@@ -252,7 +252,8 @@ def test_shared_prediction_and_box_owners_leave_what_the_full_paths_leave(data: 
         assert out[1] == expected[1] and all(np.array_equal(a, b) for a, b in zip(out[0][2:], expected[0][2:]))
         # sets: a copy's iteration order may differ (the sensor names' with some hash seeds, e.g. 13)
         assert centre.members == full.members and centre.count_judged == full.count_judged
-        sets = {"members": None, "count_judged": None}
+        assert centre.own_confirmed == full.own_confirmed
+        sets = {"members": None, "count_judged": None, "own_confirmed": None}
         assert pickle.dumps({**vars(centre), **sets}) == pickle.dumps({**vars(full), **sets})
         return out
 
