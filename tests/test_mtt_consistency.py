@@ -125,11 +125,11 @@ def test_a_flagged_sensor_is_left_out_until_cleared(scenario: Path, tmp_path: Pa
 
 def test_exclusion_needs_three_live_sensors_two_of_them_unflagged() -> None:
     """With two sensors the test cannot tell which is wrong: nobody is left out."""
-    flags = {"s2": 10.0}
-    assert excluded_sensors(["s1", "s2", "s3"], flags) == {"s2"}
-    assert excluded_sensors(["s1", "s2"], flags) == set()
-    assert excluded_sensors(["s1", "s2", "s3"], {"s2": 1.0, "s3": 2.0}) == set()
-    assert excluded_sensors(["s1", "s3", "s4"], flags) == set()
+    flags, t, window = {"s2": 10.0}, 20.0, 5.0  # flagged for a whole window at t
+    assert excluded_sensors(["s1", "s2", "s3"], flags, t, window) == {"s2"}
+    assert excluded_sensors(["s1", "s2"], flags, t, window) == set()
+    assert excluded_sensors(["s1", "s2", "s3"], {"s2": 1.0, "s3": 2.0}, t, window) == set()
+    assert excluded_sensors(["s1", "s3", "s4"], flags, t, window) == set()
 
 
 def test_the_relative_test_is_the_f_distribution_under_the_model() -> None:

@@ -32,8 +32,8 @@ scan, the linearized observation of every track the scan detected, the tracks it
   central estimate with ``P_i = beta_i P`` (``beta_i`` = the number of live sensors, so the
   shares sum to one and renormalize when sensors join or leave); the local tracker then
   predicts with ``Q_i = beta_i Q`` (paper 004 eqs. (17)-(22)). **Decentralized**: no feedback.
-* **Exclusion.** A sensor flagged by the consistency monitor (:mod:`.consistency`) while three or more
-  sensors are live, two of them unflagged (:func:`excluded_sensors`), is left out: its local tracks are
+* **Exclusion.** A sensor flagged by the consistency monitor (:mod:`.consistency`) for a whole window
+  while three or more sensors are live, two of them unflagged (:func:`excluded_sensors`), is left out: its local tracks are
   associated as usual (mapped ones stay mapped, so that it rejoins without churn) but start no central
   track, none of its observations is fused nor counted in the life rules (its misses neither), and
   their innovations still go to its window so that the flag can clear. Federated, its tracker gets no
@@ -65,8 +65,6 @@ and duplicate merge are in :mod:`.association`, the life rules in :mod:`.track_l
 pairs' search in :mod:`.candidates`.
 """
 from __future__ import annotations
-
-import math
 
 import itertools
 from collections import deque
@@ -603,7 +601,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         return [list(sets[k]) for k in inverse.ravel().tolist()]
 
 
-def excluded_sensors(live: list[str], flagged: dict[str, float], t: float = math.inf, window: float = 0.0) -> set[str]:
+def excluded_sensors(live: list[str], flagged: dict[str, float], t: float, window: float) -> set[str]:
     """The ``live`` sensors flagged (``flagged``: since when) for a whole ``window`` at ``t`` whose
     observations are left out of the fusion: all of them when three or more sensors are live and two or
     more of them are not flagged (where the monitor's isolation holds), else none. A flag is a test at
