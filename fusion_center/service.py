@@ -56,7 +56,11 @@ from fedtrack.zsession import Peers
 FUSED_KEPT = 64  # fused scans whose estimate digests are kept to tell a late conflict from a re-delivery
 SNAPSHOT_MAX_GAP = 3  # scans missed beyond which a restored snapshot is dropped for a rebuild
 SNAPSHOT_FAILURES_LOGGED = 100  # a snapshot that cannot be written: the first failure logged, then every 100th
-BEHIND_KEPT = 2 * LEAD_INTERVALS  # scans passed over whose late estimates are kept while one sensor's started them
+# scans passed over whose late estimates are kept while one sensor's start stands alone (_passed_over): a
+# bound on memory, not a tuning. The scans start again from one at least LEAD_INTERVALS before the next, and
+# the sensors' estimates of one scan arrive within LEAD_INTERVALS scans of each other (the lead rule's bound on
+# how late a scan may be); twice that keeps such a scan until its second sensor's estimate comes.
+BEHIND_KEPT = 2 * LEAD_INTERVALS
 TOKEN_LINES = 2  # lines a peer's token may have logged every REJECT_LOG_INTERVAL_S: its going and its return
 
 
