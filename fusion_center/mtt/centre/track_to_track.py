@@ -34,12 +34,13 @@ scan, the linearized observation of every track the scan detected, the tracks it
   predicts with ``Q_i = beta_i Q`` (paper 004 eqs. (17)-(22)). **Decentralized**: no feedback.
 * **Exclusion.** A sensor flagged by the consistency monitor (:mod:`.consistency`) for a whole window
   while three or more sensors are live, two of them unflagged (:func:`excluded_sensors`), is left out:
-  its local tracks are associated as usual (mapped ones stay mapped, so that it rejoins without
-  churn) but start no central track, none of its observations is fused nor counted in the life rules
-  (its misses neither), and their innovations still go to its window so that the flag can clear. Federated, its tracker gets no
-  resets and runs with ``q_scale`` 1 (as a copy's does), and ``beta_i`` of the others is the number of
-  live sensors less the excluded ones: the shares renormalize as at a departure, from each sensor's next
-  answer on, and as at a join when it is cleared (its next fused report resets its local tracks).
+  its local tracks are associated as usual (mapped ones stay mapped, so that it rejoins without churn)
+  but start no central track, none of its observations is fused nor counted in the life rules (its
+  misses neither), and their innovations still go to its window so that the flag can clear. Federated,
+  its tracker gets no resets and runs with ``q_scale`` 1 (as a copy's does), and ``beta_i`` of the
+  others is the number of live sensors less the excluded ones: the shares renormalize as at a departure,
+  from each sensor's next answer on, and as at a join when it is cleared (its next fused report resets
+  its local tracks).
 * **Life.** A central track is confirmed by the centralized tracker's M-of-N rule applied to the
   scans of every sensor: ``confirm_hits`` detections among the last ``confirm_window`` sensor scans
   the centre received since the track started (the starting scan included). A false local track of
