@@ -7,6 +7,8 @@ fresh process, and a second target crosses."""
 
 from __future__ import annotations
 
+import os
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
@@ -132,6 +134,28 @@ def test_a_numbers_file_it_cannot_number_after_is_refused_in_one_line(
                  str(config), "--numbers", str(numbers), "--connect", "tcp/127.0.0.1:1"])
     err = capsys.readouterr().err.strip()
     assert code == 2 and "\n" not in err and err.startswith(f"fedtrack: error: {numbers}:1: ") and field in err
+
+
+@pytest.mark.parametrize(("make", "reason"), [
+    (lambda p: p.write_bytes(b'\xff{"region": "x0y0"}'), ":1: not UTF-8 text (byte 0)"),
+    (lambda p: p.write_text("[" * 2000 + "]" * 2000), ":1: not a JSON object (nested too deeply)"),
+    (lambda p: p.write_text(" " * 5000 + '{"region": "x0y0", "next_id": 8, "serial": 0}'), ": larger than 4096 bytes"),
+    (lambda p: p.symlink_to("/dev/zero"), ": not a regular file"),  # read whole: a MemoryError
+    (lambda p: os.mkfifo(p), ": not a regular file"),  # opened to read: the start blocked for good
+    (lambda p: p.mkdir(), ": not a regular file"),
+])
+def test_a_numbers_file_that_is_no_small_text_file_is_refused_in_one_line(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], make: Callable[[Path], None], reason: str) -> None:
+    """A numbers file that is not UTF-8, nests deeply, or is no short regular file ends the start with
+    exit 2 and one line naming the file (before: a traceback, a MemoryError, or a start that hung)."""
+    config = tmp_path / "regions.toml"
+    config.write_text(REGIONS_CONFIG)
+    numbers = tmp_path / "x0y0.numbers"
+    make(numbers)
+    code = main(["serve", "mtt-centre", "--algorithm", "mtt-decentralized", "--region", "x0y0", "--config",
+                 str(config), "--numbers", str(numbers), "--connect", "tcp/127.0.0.1:1"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "\n" not in err and err.startswith(f"fedtrack: error: {numbers}{reason}")
 
 
 def test_a_numbers_file_that_cannot_be_written_is_counted_and_fusion_goes_on(tmp_path: Path) -> None:

@@ -18,6 +18,8 @@ The file is one JSON object: ``{"region": RID, "next_id": N, "serial": S}`` (``N
 from __future__ import annotations
 
 import json
+import os
+import stat
 from pathlib import Path
 from typing import NamedTuple
 
@@ -29,6 +31,9 @@ from fedtrack.wire import MAX_TRACKS
 # reserved beyond what the sub-report at hand can issue: a write per MAX_TRACKS ids or hand-overs at most, and
 # a restart skips at most that many and one sub-report's rows (MAX_PARTS x MAX_TRACKS): far from NUMBER_ROOM
 RESERVE_AHEAD = MAX_TRACKS
+# the file is one short line (a region id of at most 64 characters, two integers below 2^62): a larger one, or
+# one that is no regular file (/dev/zero, a FIFO that would block the start), is no numbers file and is read no further
+MAX_NUMBERS_BYTES = 4096
 
 
 class Numbers(NamedTuple):
@@ -52,16 +57,16 @@ def read_numbers(path: Path, region: str, index: int, step: int) -> Numbers | No
     """The reservation in ``path`` of region ``region`` (region ``index`` of ``step``), None when
     there is no file (a first start); ConfigError naming the file and field for one it cannot
     number after (another region's, not its sequence, beyond ``NUMBER_ROOM``, not JSON)."""
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
+    raw = _read_small(path)
+    if raw is None:
         return None
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read the numbers file: {exc.strerror}") from None
     try:
-        obj = json.loads(text)
-    except ValueError as exc:
-        raise ConfigError(f"{path}:1: not a JSON object ({exc})") from None
+        obj = json.loads(raw.decode())
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}:1: not UTF-8 text (byte {exc.start})") from None
+    except (ValueError, RecursionError) as exc:
+        reason = "nested too deeply" if isinstance(exc, RecursionError) else str(exc)
+        raise ConfigError(f"{path}:1: not a JSON object ({reason})") from None
     if not isinstance(obj, dict) or set(obj) != {"region", "next_id", "serial"}:
         raise ConfigError(f"{path}:1: expected {{\"region\", \"next_id\", \"serial\"}}")
     if obj["region"] != region:
@@ -74,6 +79,28 @@ def read_numbers(path: Path, region: str, index: int, step: int) -> Numbers | No
         raise ConfigError(f"{path}:1: next_id: {obj['next_id']} is not in region {region}'s sequence "
                           f"({index} modulo {step})")
     return Numbers(obj["next_id"], obj["serial"])
+
+
+def _read_small(path: Path) -> bytes | None:
+    """The bytes of the regular file ``path``, None when there is none; ConfigError for a file that is
+    not regular (opened without blocking) or longer than ``MAX_NUMBERS_BYTES``, read no further."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read the numbers file: {exc.strerror}") from None
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise ConfigError(f"{path}: not a regular file, not a numbers file")
+    with os.fdopen(fd, "rb") as fh:
+        try:
+            raw = fh.read(MAX_NUMBERS_BYTES + 1)
+        except OSError as exc:
+            raise ConfigError(f"{path}: cannot read the numbers file: {exc.strerror}") from None
+    if len(raw) > MAX_NUMBERS_BYTES:
+        raise ConfigError(f"{path}: larger than {MAX_NUMBERS_BYTES} bytes, not a numbers file")
+    return raw
 
 
 def write_numbers(path: Path, region: str, numbers: Numbers) -> None:
