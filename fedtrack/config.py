@@ -6,6 +6,8 @@ import argparse
 import contextlib
 import dataclasses
 import difflib
+import os
+import stat
 import tomllib
 import types
 import typing
@@ -13,6 +15,9 @@ from pathlib import Path
 from typing import Any, Iterator, TypeVar
 
 T = TypeVar("T")
+# a config file read at start is at most this long (the largest written, a [frame.sites] or [regions] table of
+# many entries, is kilobytes): a larger one, or one that is no regular file, is refused unread
+MAX_CONFIG_BYTES = 16 * 2**20
 
 
 class ConfigError(ValueError):
@@ -37,23 +42,45 @@ def seed_number(text: str) -> int:
     return value
 
 
+def read_small_file(path: Path, limit: int, what: str) -> bytes | None:
+    """The bytes of the regular file ``path`` (``what`` it is, for the errors), None when there is none;
+    ConfigError for one that cannot be read, is not a regular file (opened without blocking: a FIFO
+    would block the start for good) or is longer than ``limit`` bytes (read no further: a link to
+    /dev/zero was read until a MemoryError)."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read the {what}: {exc.strerror or exc}") from None
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise ConfigError(f"{path}: not a regular file, not a {what}")
+    with os.fdopen(fd, "rb") as fh:
+        try:
+            raw = fh.read(limit + 1)
+        except OSError as exc:
+            raise ConfigError(f"{path}: cannot read the {what}: {exc.strerror or exc}") from None
+    if len(raw) > limit:
+        raise ConfigError(f"{path}: larger than {limit} bytes, not a {what}")
+    return raw
+
+
 def load_toml(path: str | Path) -> dict[str, Any]:
-    """Parse a TOML file, turning parse errors into :class:`ConfigError`."""
+    """Parse a TOML file (at most ``MAX_CONFIG_BYTES``), turning parse errors into :class:`ConfigError`."""
     p = Path(path)
     if p.is_dir():
         raise ConfigError(f"{p}: is a directory, not a config file")
+    raw = read_small_file(p, MAX_CONFIG_BYTES, "config file")
+    if raw is None:
+        raise ConfigError(f"config file {p} does not exist")
     try:
-        with p.open("rb") as fh:
-            return tomllib.load(fh)
-    except FileNotFoundError as exc:
-        raise ConfigError(f"config file {p} does not exist") from exc
+        return tomllib.loads(raw.decode())
     except UnicodeDecodeError as exc:
         raise ConfigError(f"{p}: invalid TOML: not UTF-8 text (byte {exc.start})") from exc
     except (tomllib.TOMLDecodeError, RecursionError) as exc:
         reason = "nested too deeply" if isinstance(exc, RecursionError) else str(exc)
         raise ConfigError(f"{p}: invalid TOML: {reason}") from exc
-    except OSError as exc:
-        raise ConfigError(f"{p}: cannot read: {exc.strerror or exc}") from exc
 
 
 def _coerce(value: Any, annotation: Any, key: str) -> Any:

@@ -4,12 +4,14 @@ unknown fields of every input format are errors naming ``file:line`` and the fie
 from __future__ import annotations
 
 import json
+import os
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
 from fedtrack.cli import main
-from fedtrack.config import ConfigError, load_tables
+from fedtrack.config import MAX_CONFIG_BYTES, ConfigError, load_tables
 from fedtrack.deploy.settings import load_settings
 from fedtrack.deployment import DeploymentConfig
 from fedtrack.local_filters.imm.config import load_imm_config
@@ -127,3 +129,20 @@ def test_deployment_duration_extends_the_scenario_at_constant_velocity() -> None
     a, b = deployment_truth(paper, 3), deployment_truth(longer, 3)
     np.testing.assert_allclose(b[:101], a, atol=1e-9)  # the paper's 100 s unchanged
     assert np.all(b[101:, [2, 5]] == 0.0)  # no commanded acceleration after the last maneuver
+
+
+@pytest.mark.parametrize(("make", "reason"), [
+    (lambda p: p.symlink_to("/dev/zero"), "not a regular file, not a config file"),  # read whole: a MemoryError
+    (lambda p: os.mkfifo(p), "not a regular file, not a config file"),  # opened to read: the start blocked for good
+    (lambda p: p.write_text("#" * (MAX_CONFIG_BYTES + 1)), f"larger than {MAX_CONFIG_BYTES} bytes, not a config file"),
+])
+def test_a_config_that_is_no_regular_file_of_a_sane_size_is_refused_unread(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], make: Callable[[Path], None], reason: str) -> None:
+    """``--config`` naming a link to /dev/zero, a FIFO or a file of more than ``MAX_CONFIG_BYTES`` ends
+    the start with exit 2 and one line naming the file (before: a MemoryError's traceback, a start blocked
+    until something wrote to the FIFO, a file of any size read whole)."""
+    config = tmp_path / "config.toml"
+    make(config)
+    code = main(["serve", "mtt-centre", "--config", str(config), "--connect", "tcp/127.0.0.1:1"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err == f"fedtrack: error: {config}: {reason}"

@@ -18,13 +18,11 @@ The file is one JSON object: ``{"region": RID, "next_id": N, "serial": S}`` (``N
 from __future__ import annotations
 
 import json
-import os
-import stat
 from pathlib import Path
 from typing import NamedTuple
 
 from fedtrack.atomic import write_atomic
-from fedtrack.config import ConfigError
+from fedtrack.config import ConfigError, read_small_file
 from fedtrack.fusion_center.mtt.failover.standby import NUMBER_ROOM
 from fedtrack.wire import MAX_TRACKS
 
@@ -57,7 +55,7 @@ def read_numbers(path: Path, region: str, index: int, step: int) -> Numbers | No
     """The reservation in ``path`` of region ``region`` (region ``index`` of ``step``), None when
     there is no file (a first start); ConfigError naming the file and field for one it cannot
     number after (another region's, not its sequence, beyond ``NUMBER_ROOM``, not JSON)."""
-    raw = _read_small(path)
+    raw = read_small_file(path, MAX_NUMBERS_BYTES, "numbers file")
     if raw is None:
         return None
     try:
@@ -79,28 +77,6 @@ def read_numbers(path: Path, region: str, index: int, step: int) -> Numbers | No
         raise ConfigError(f"{path}:1: next_id: {obj['next_id']} is not in region {region}'s sequence "
                           f"({index} modulo {step})")
     return Numbers(obj["next_id"], obj["serial"])
-
-
-def _read_small(path: Path) -> bytes | None:
-    """The bytes of the regular file ``path``, None when there is none; ConfigError for a file that is
-    not regular (opened without blocking) or longer than ``MAX_NUMBERS_BYTES``, read no further."""
-    try:
-        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK)
-    except FileNotFoundError:
-        return None
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read the numbers file: {exc.strerror}") from None
-    if not stat.S_ISREG(os.fstat(fd).st_mode):
-        os.close(fd)
-        raise ConfigError(f"{path}: not a regular file, not a numbers file")
-    with os.fdopen(fd, "rb") as fh:
-        try:
-            raw = fh.read(MAX_NUMBERS_BYTES + 1)
-        except OSError as exc:
-            raise ConfigError(f"{path}: cannot read the numbers file: {exc.strerror}") from None
-    if len(raw) > MAX_NUMBERS_BYTES:
-        raise ConfigError(f"{path}: larger than {MAX_NUMBERS_BYTES} bytes, not a numbers file")
-    return raw
 
 
 def write_numbers(path: Path, region: str, numbers: Numbers) -> None:
