@@ -8,6 +8,7 @@ In-process, on the bus of ``test_hostile_messages``."""
 
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 from typing import Any
@@ -126,8 +127,8 @@ def test_a_cold_standby_numbers_its_pictures_as_its_primary() -> None:
 def test_a_merger_snapshot_cut_or_corrupted_on_disk_is_refused_and_every_cached_time_merged(tmp_path: Path) -> None:
     """``serve picture --snapshot``: a file whose time was changed on disk (12.0 to 92.0), cut, of the
     format before 2026-11-27 (the time alone, which such a change turned into a restart skipping every
-    picture up to t = 92) or not finite is refused: the restart merges every time the caches hold, as
-    without a snapshot, and skips none."""
+    picture up to t = 92) or not finite is refused, as is a FIFO or a link to /dev/zero put in its place (unread):
+    the restart merges every time the caches hold, as without a snapshot, and skips none."""
     from fedtrack.fusion_center.mtt.picture_merge import SNAPSHOT_MAGIC
     from fedtrack.services.snapshot import write_sealed
 
@@ -150,3 +151,9 @@ def test_a_merger_snapshot_cut_or_corrupted_on_disk_is_refused_and_every_cached_
     for bad in (good.replace(b"12.0", b"92.0"), good[:-1], b"92.0", infinite):
         state.write_bytes(bad)
         assert started().resumed_t is None, bad
+    state.unlink()
+    state.symlink_to("/dev/zero")  # read whole: a MemoryError ended the start
+    assert started().resumed_t is None
+    state.unlink()
+    os.mkfifo(state)  # opened to read: the start blocked until something wrote to it
+    assert started().resumed_t is None

@@ -15,6 +15,7 @@ from typing import Any, NamedTuple, TypeVar
 import numpy as np
 
 from fedtrack.atomic import write_atomic
+from fedtrack.config import read_small_file
 from fedtrack.wire import MAX_PAYLOAD_BYTES
 
 DIGEST_BYTES = 32
@@ -40,12 +41,12 @@ def write_sealed(path: Path, magic: bytes, data: bytes) -> None:
 
 
 def read_sealed(path: Path, magic: bytes) -> bytes:
-    """The data of the file ``path`` written by :func:`write_sealed` (:func:`unsealed`); a file larger
-    than MAX_SNAPSHOT_BYTES is a SnapshotError, read no further."""
-    with path.open("rb") as fh:
-        raw = fh.read(MAX_SNAPSHOT_BYTES + 1)
-    if len(raw) > MAX_SNAPSHOT_BYTES:
-        raise SnapshotError("file", f"larger than {MAX_SNAPSHOT_BYTES} bytes")
+    """The data of the file ``path`` written by :func:`write_sealed` (:func:`unsealed`); a ValueError for
+    one missing, not a regular file or larger than MAX_SNAPSHOT_BYTES (read no further:
+    :func:`~fedtrack.config.read_small_file`)."""
+    raw = read_small_file(path, MAX_SNAPSHOT_BYTES, "snapshot")
+    if raw is None:
+        raise SnapshotError("file", f"{path} does not exist")
     return unsealed(raw, magic)
 
 

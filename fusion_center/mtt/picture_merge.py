@@ -57,7 +57,7 @@ from typing import Any
 
 import numpy as np
 
-from fedtrack.config import ConfigError, load_tables
+from fedtrack.config import ConfigError, load_tables, read_small_file
 from fedtrack.fusion_center.mtt.engines import PictureClock
 from fedtrack.fusion_center.mtt.failover.standby import NUMBER_ROOM
 from fedtrack.fusion_center.mtt.pictures import (
@@ -75,7 +75,7 @@ from fedtrack.services.admission import digest
 from fedtrack.services.base import HISTORY_RECHECK_S, Service, Subscription, service_kwargs, service_parser
 from fedtrack.services.lead import LeadGuard
 from fedtrack.services.rejections import Conflict, Rejected
-from fedtrack.services.snapshot import unsealed, write_sealed
+from fedtrack.services.snapshot import MAX_SNAPSHOT_BYTES, unsealed, write_sealed
 from fedtrack.wire import TrackPicture
 
 # a merger's first HISTORY_SETTLE_S: the caches' replies and the base service's second query of them (at
@@ -163,8 +163,8 @@ class PictureMergeService(Service):
         """Settle the region caches' replies from now on; resume after the snapshot's time, if any."""
         self.settle_until = time.monotonic() + HISTORY_SETTLE_S
         if self.snapshot is not None and self.snapshot.exists():
-            try:
-                self.resumed_t = resumed_time(self.snapshot.read_bytes())
+            try:  # a FIFO or a link to /dev/zero is refused unread (it blocked the start; a MemoryError)
+                self.resumed_t = resumed_time(read_small_file(self.snapshot, MAX_SNAPSHOT_BYTES, "snapshot") or b"")
                 self.log.info("pictures up to t=%g were merged before this start (%s)", self.resumed_t, self.snapshot)
             except (OSError, ValueError) as exc:
                 self.log.warning("%s: not a snapshot (%s): every time the region caches hold is merged", self.snapshot,
