@@ -41,7 +41,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from fedtrack.config import load_tables, seed_number
+from fedtrack.config import load_tables, read_small_file, seed_number
 from fedtrack.deployment import PACINGS, DeploymentConfig, SensorConfig
 from fedtrack.jsonl import InputError, read_jsonl
 from fedtrack.local_filters.mtt.scan import SensorScan, parse_scan, scan_to_measurement
@@ -56,6 +56,7 @@ from fedtrack.services.base import Service, Subscription, service_kwargs, servic
 from fedtrack.wire import FusedTrack, Measurement, measurement_from_replay
 
 KINDS = ("position", "sonar", "radar", "scan")
+START_FILE_BYTES = 64  # the start file holds one time in Unix seconds (the launcher writes its repr)
 
 
 
@@ -257,10 +258,10 @@ def main(argv: list[str]) -> int:
 def read_start(path: Path) -> float | None:
     """The start time (Unix seconds) in ``path``, or None while the file does not exist (the
     launcher writes it whole: a temporary file renamed)."""
-    try:
-        text = path.read_text()
-    except FileNotFoundError:
+    raw = read_small_file(path, START_FILE_BYTES, "start file")  # a FIFO, /dev/zero: refused unread
+    if raw is None:
         return None
+    text = raw.decode(errors="replace")
     try:
         start = float(text)
     except ValueError:

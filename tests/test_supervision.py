@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from pathlib import Path
@@ -117,6 +118,29 @@ def test_realtime_sensors_wait_for_the_start_the_launcher_gives_once_they_are_re
     late = SensorService([{}], period, "realtime", speed, 5.0, start_file=path, service_id="2", options=SessionOptions())
     with pytest.raises(ValueError, match="start-at: not a start time in Unix seconds: 'soon"):
         late.on_tick()
+
+
+def test_a_start_file_that_is_no_short_regular_file_is_refused_unread(tmp_path: Path) -> None:
+    """A FIFO or a link to /dev/zero where the launcher's start file goes: a sensor's tick blocked on the
+    FIFO for good, or read /dev/zero until a MemoryError; now each is a ValueError (the tick rejected, the
+    sensor waiting on), as is a file longer than one time, and non-UTF-8 bytes are no time either."""
+    from fedtrack.sensors.service import read_start
+
+    path = tmp_path / "start-at"
+    path.symlink_to("/dev/zero")
+    with pytest.raises(ValueError, match="start-at: not a regular file, not a start file"):
+        read_start(path)
+    path.unlink()
+    os.mkfifo(path)
+    with pytest.raises(ValueError, match="start-at: not a regular file, not a start file"):
+        read_start(path)
+    path.unlink()
+    path.write_bytes(b"\xff1.0")
+    with pytest.raises(ValueError, match="not a start time in Unix seconds"):
+        read_start(path)
+    path.write_text(" " * 100 + "1.0")
+    with pytest.raises(ValueError, match="larger than 64 bytes"):
+        read_start(path)
 
 
 def test_a_lockstep_sensor_waits_for_the_start_then_for_each_track(tmp_path: Path) -> None:
