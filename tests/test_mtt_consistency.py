@@ -283,3 +283,26 @@ def test_a_sensor_is_left_out_once_flagged_for_a_whole_window() -> None:
     assert excluded_sensors(live, {"s2": 4.25, "s1": 1.0}, 20.0, window) == {"s1", "s2"}
     assert excluded_sensors(live, {"s2": 4.25, "s1": 1.0, "s3": 1.0}, 20.0, window) == set()
     assert excluded_sensors(live[:2], {"s2": 0.0}, 20.0, window) == set()
+
+
+def test_a_sensor_pulling_the_tracks_gets_no_honest_sensor_flagged() -> None:
+    """A compromised tracker claiming a small ``R`` pulls the central tracks, its own innovations small (its
+    reports at the central predictions, or a little off them) and every other sensor's raised: the
+    pooled test flagged the honest sensors in turn, the worst first, and two of three flagged switched the
+    exclusion off (in process: ``simulate multitarget --seed 1``, s1 from t = 100 s, ``mtt-federated``:
+    s2 then s3 flagged, s1 never). A sensor whose excess is matched by another's window lying further
+    below the rest is not flagged now; a sensor's own fault, which raises the others' innovations, is
+    flagged as before. Seeded chi-square windows of three sensors."""
+    def run(scale: dict[str, float], seed: int) -> SensorConsistency:
+        rng, monitor = np.random.default_rng(seed), SensorConsistency()
+        for k in range(18):  # honest for 6 s, then the fault, in a 5 s window
+            for j, sensor in enumerate("abc"):
+                monitor.add(sensor, k + 0.3 * j, rng.chisquare(2, 20) * (scale[sensor] if k >= 6 else 1.0), 2, 5.0)
+        return monitor
+
+    for seed in range(5):
+        pulled = run({"a": 0.2, "b": 1.8, "c": 1.8}, seed)  # a pulls: its innovations a ninth of b's and c's
+        assert min(pulled.tests()["b"][1], pulled.tests()["c"][1]) < math.log(FALSE_ALARM)  # failing the pool
+        assert pulled.onsets == 0 and not pulled.flagged, seed
+        faulty = run({"a": 1.2, "b": 3.0, "c": 1.0}, seed)  # b's own fault raises a's and c's innovations a little
+        assert faulty.onsets == 1 and set(faulty.flagged) == {"b"}, seed

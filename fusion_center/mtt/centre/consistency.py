@@ -33,7 +33,12 @@ and stands out in its own. The central tracks a faulty sensor pulls raise the ho
 innovations too (most those of the sensors
 with the smallest noise): a sensor is flagged only when its test is also the worst of every sensor's
 at that time (isolation by the largest residual); tested against the others pooled alone, a 50 m bias
-on the fastest of three sensors also flagged an honest one 3 times in 200 s (cap at 1 - 1e-4).
+on the fastest of three sensors also flagged an honest one 3 times in 200 s (cap at 1 - 1e-4). Nor is it
+flagged when another sensor's window lies further below the rest than its own lies above the pool
+(:meth:`SensorConsistency._pulled`): a sensor claiming a small ``R`` whose reports sit at (or a step off)
+the central predictions pulls the tracks with its own innovations small, and every honest sensor's
+excess is its pull; the pooled test flagged the honest sensors in turn and never the puller (which this
+rule does not flag either: see docs/multitarget.md, "A sensor pulling the tracks").
 
 While a sensor is flagged and the isolation holds (three or more live sensors, two or more of them not
 flagged: :func:`~.track_to_track.excluded_sensors`), the centre fuses none of its observations; they
@@ -103,6 +108,14 @@ def relative_tail(a_sum: float, a_dof: int, b_sum: float, b_dof: int) -> tuple[f
     return ratio, math.log(tail) if tail > 0.0 else -math.inf  # a tail below the doubles' range (B = 0): -inf
 
 
+def lower_tail(a_sum: float, a_dof: int, b_sum: float, b_dof: int) -> float:
+    """``log P(F(a, b) <= ratio)`` of :func:`relative_tail`'s ratio: a sensor's innovations too small
+    against the others'."""
+    ratio = (a_sum / a_dof) / max(b_sum / b_dof, 1e-300)
+    tail = float(special.fdtr(a_dof, b_dof, ratio)) if ratio < math.inf else 1.0
+    return math.log(tail) if tail > 0.0 else -math.inf
+
+
 @dataclass
 class SensorConsistency:
     """Each sensor's innovations over the window and the sensors flagged now; ``cap_tail``: ``1 -
@@ -163,13 +176,30 @@ class SensorConsistency:
             return
         ratio, log_p = test
         if sensor not in self.flagged:
-            if log_p < math.log(FALSE_ALARM) and log_p <= min(lp for _, lp in self.tests().values()):
+            if log_p < math.log(FALSE_ALARM) and log_p <= min(lp for _, lp in self.tests().values()) \
+                    and not self._pulled(sensor, sums, log_p):
                 self.flagged[sensor] = t
                 self.onsets += 1
                 self.transitions.append(Transition(t, sensor, True, log_p, ratio))
         elif log_p > math.log(CLEAR_P):
             del self.flagged[sensor]
             self.transitions.append(Transition(t, sensor, False, log_p, ratio))
+
+    def _pulled(self, sensor: str, sums: dict[str, tuple[float, int, int]], log_p: float) -> bool:
+        """Whether another sensor's window lies below (:func:`lower_tail` under ``FALSE_ALARM``) those of the
+        sensors other than it and ``sensor``: a sensor whose small ``R`` claims pull the central tracks keeps
+        its own innovations small and raises every other's, so that each honest sensor failed the pooled
+        test in turn and was flagged, and two of three flagged switched the exclusion off. ``sensor`` is then
+        not flagged: its excess is the pull's (a sensor's own fault raises the others' innovations, never
+        lowers one's below the rest)."""
+        others = {s: v for s, v in sums.items() if s != sensor}
+        rest = [sum(v[k] for v in others.values()) for k in range(3)]
+        for b, b_dof, b_n in others.values():
+            c, c_dof, c_n = rest[0] - b, rest[1] - b_dof, rest[2] - b_n
+            if min(b_n, c_n) >= MIN_OBSERVATIONS \
+                    and lower_tail(b, b_dof, c, c_dof) < log_p:
+                return True
+        return False
 
     def drop(self, sensor: str) -> None:
         """A sensor left: its window and flag go (a flag ends with no transition logged)."""
