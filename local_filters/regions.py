@@ -28,6 +28,7 @@ slowest sensor plus the association gate's reach of its position error (docs/mul
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
@@ -174,7 +175,7 @@ def regions_of_config(cfg: RegionsConfig, frame: FrameConfig | None) -> Regions:
     polygons = [np.asarray(p.points, dtype=float) for p in cfg.polygon]
     for k, corners in zip(wgs84, lat_lon):
         polygons[k] = to_local(frame.frame, corners)
-    check_polygons(keys, polygons)  # each as given (its edges numbered as written)
+    check_polygons(keys, polygons, [p.lat_lon for p in cfg.polygon])  # each as given (its edges numbered as written)
     for k, corners in zip(wgs84, split_at_junctions(lat_lon) if lat_lon else []):
         polygons[k] = to_local(frame.frame, corners)
     check_overlaps(keys, [p.id for p in cfg.polygon], polygons)
@@ -257,10 +258,12 @@ def _tolerance(points: np.ndarray) -> float:
     return 1e-9 * max(1.0, float(np.abs(points).max()))
 
 
-def check_polygons(keys: list[str], polygons: list[np.ndarray]) -> None:
+def check_polygons(keys: list[str], polygons: list[np.ndarray], written: list[Sequence] | None = None) -> None:
     """Each region a simple polygon (no two edges cross) enclosing an area, every coordinate within
-    +-MAX_MAGNITUDE (squared distances stay finite). A ConfigError naming ``keys[i]`` otherwise."""
-    for key, poly in zip(keys, polygons):
+    +-MAX_MAGNITUDE (squared distances stay finite). A ConfigError naming ``keys[i]`` otherwise; for a
+    polygon ``written`` in WGS-84 (its ``lat_lon``, else empty) that encloses no area, the two of its
+    vertices written as different places that are one (:func:`one_place`)."""
+    for i, (key, poly) in enumerate(zip(keys, polygons)):
         if not np.all(np.abs(poly) <= MAX_MAGNITUDE):
             raise ConfigError(f"{key}: coordinates beyond +-{MAX_MAGNITUDE:g} m (the wire's bound on any position)")
         E = len(poly)
@@ -275,7 +278,27 @@ def check_polygons(keys: list[str], polygons: list[np.ndarray]) -> None:
         area = 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
         extent = float(np.ptp(poly, axis=0).max())
         if not area > 1e-12 * extent * extent:
-            raise ConfigError(f"{key}: encloses no area (its vertices are on one line or one point)")
+            same = one_place(np.asarray(written[i], dtype=float), poly) if written and len(written[i]) else None
+            if same is None:
+                raise ConfigError(f"{key}: encloses no area (its vertices are on one line or one point)")
+            a, b = same
+            raise ConfigError(f"{key}: encloses no area: vertices {a + 1} {list(written[i][a])} and {b + 1} "
+                              f"{list(written[i][b])} are one place (an edge is the straight line between its two "
+                              "vertices in the local frame, not a parallel: a cap about a pole is a ring of vertices "
+                              "along its parallel, a few degrees of longitude apart, not a box of latitudes and "
+                              "longitudes)")
+
+
+def one_place(lat_lon: np.ndarray, local: np.ndarray) -> tuple[int, int] | None:
+    """The first two of a polygon's WGS-84 vertices (n, 2) [lat, lon deg] written as different places
+    that convert to one place of the local frame, ``local`` (n, 2) (within :func:`_tolerance`): the
+    same parallel at longitudes 360 deg apart, or the pole at two longitudes; None if there are none."""
+    tol = _tolerance(local)
+    for a in range(len(local)):
+        for b in range(a + 1, len(local)):
+            if np.hypot(*(local[a] - local[b])) <= tol and not np.array_equal(lat_lon[a], lat_lon[b]):
+                return a, b
+    return None
 
 
 def check_overlaps(keys: list[str], ids: list[str], polygons: list[np.ndarray]) -> None:

@@ -178,6 +178,10 @@ lat_lon = [[-49.29, -178.92], [-49.26, -179.94], [-48.26, -179.85], [-48.29, -17
      "needs [frame] origin"),
     (("[frame]\norigin = [48.0, 2.0, 0.0]\n[regions]\nmargin = 1.0\n[[regions.polygon]]\nid = \"a\"\n"
       "lat_lon = [[48, 2], [48, 1e300], [49, 2]]\n"), "a: lat_lon vertex 2 [48.0, 1e"),
+    # a cap about the pole as a box of latitudes and longitudes: two pairs of vertices, each one place
+    (("[frame]\norigin = [89.6, 2.4, 0.0]\n[regions]\nmargin = 1.0\n[[regions.polygon]]\nid = \"cap\"\n"
+      "lat_lon = [[89.0, -180.0], [89.0, 180.0], [90.0, 180.0], [90.0, -180.0]]\n"),
+     "cap.lat_lon: encloses no area: vertices 1 [89.0, -180.0] and 2 [89.0, 180.0] are one place"),
     ("[regions]\nmargin = 1.0\nsize = 3\ngrid = {origin = [0, 0], cell = [1, 1], nx = 2, ny = 2}\n",
      "unknown config key regions.size"),
 ])
