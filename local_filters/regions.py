@@ -198,6 +198,7 @@ def to_local(frame: Frame, lat_lon: np.ndarray) -> np.ndarray:
     return enu_from_geodetic(frame, lat_lon[:, 0], lat_lon[:, 1], np.zeros(len(lat_lon)))[:, :2]
 
 
+CHUNK = 1 << 20  # elements of a temporary array of pairs (edges and edges, positions and edges): 8 MB of floats
 JUNCTION_DEG = 1e-9  # a vertex this near another polygon's edge, in degrees (0.1 mm), lies on it
 
 
@@ -232,18 +233,30 @@ def split_at_junctions(polygons: list[np.ndarray]) -> list[np.ndarray]:
 
 
 def _crossings(a: np.ndarray, b: np.ndarray, tol: float) -> np.ndarray:
-    """(Ea, Eb) bool: edge i of closed polygon ``a`` (Ea, 2) and edge j of ``b`` cross at one point
-    inside both (touching or collinear overlap is not a crossing; a vertex within ``tol`` [m] of the
-    other edge's line touches it: one place given in two ways, such as a pole at two longitudes,
-    converts to points some 1e-10 m apart)."""
-    a0, a1, b0, b1 = a[:, None], np.roll(a, -1, axis=0)[:, None], b[None], np.roll(b, -1, axis=0)[None]
+    """(K, 2) index pairs ``(i, j)``, in increasing order: edge i of closed polygon ``a`` (Ea, 2) and
+    edge j of ``b`` cross at one point inside both (touching or collinear overlap is not a crossing; a
+    vertex within ``tol`` [m] of the other edge's line touches it: one place given in two ways, such as
+    a pole at two longitudes, converts to points some 1e-10 m apart). Only pairs whose bounding boxes
+    meet are tested (a crossing point lies in both), ``CHUNK`` pairs of boxes at a time: a border of
+    thousands of vertices took its square in memory (3,000: 1 GB)."""
+    a0, a1, b0, b1 = a, np.roll(a, -1, axis=0), b, np.roll(b, -1, axis=0)
+    alo, ahi, blo, bhi = np.minimum(a0, a1), np.maximum(a0, a1), np.minimum(b0, b1), np.maximum(b0, b1)
 
     def side(o: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:  # sign of (p - o) x (q - o), 0 within tol
-        cross = (p[..., 0] - o[..., 0]) * (q[..., 1] - o[..., 1]) - (p[..., 1] - o[..., 1]) * (q[..., 0] - o[..., 0])
-        reach = tol * np.hypot(p[..., 0] - o[..., 0], p[..., 1] - o[..., 1])
+        cross = (p[:, 0] - o[:, 0]) * (q[:, 1] - o[:, 1]) - (p[:, 1] - o[:, 1]) * (q[:, 0] - o[:, 0])
+        reach = tol * np.hypot(p[:, 0] - o[:, 0], p[:, 1] - o[:, 1])
         return np.where(np.abs(cross) > reach, np.sign(cross), 0.0)
 
-    return (side(b0, b1, a0) * side(b0, b1, a1) < 0) & (side(a0, a1, b0) * side(a0, a1, b1) < 0)
+    pairs = [np.zeros((0, 2), dtype=np.int64)]
+    step = max(1, CHUNK // max(len(b), 1))
+    for start in range(0, len(a), step):
+        lo, hi = alo[start:start + step, None], ahi[start:start + step, None]
+        i, j = np.nonzero(np.all((lo <= bhi[None]) & (blo[None] <= hi), axis=-1))
+        i += start
+        hit = ((side(b0[j], b1[j], a0[i]) * side(b0[j], b1[j], a1[i]) < 0)
+               & (side(a0[i], a1[i], b0[j]) * side(a0[i], a1[i], b1[j]) < 0))
+        pairs.append(np.stack([i[hit], j[hit]], axis=1))
+    return np.concatenate(pairs)
 
 
 def _strictly_inside(poly: np.ndarray, pos: np.ndarray, tol: float) -> np.ndarray:
@@ -267,9 +280,9 @@ def check_polygons(keys: list[str], polygons: list[np.ndarray], written: list[Se
         if not np.all(np.abs(poly) <= MAX_MAGNITUDE):
             raise ConfigError(f"{key}: coordinates beyond +-{MAX_MAGNITUDE:g} m (the wire's bound on any position)")
         E = len(poly)
-        k = np.arange(E)
-        gap = np.abs(k[:, None] - k[None])
-        crossed = np.argwhere(np.triu(_crossings(poly, poly, _tolerance(poly)) & (gap > 1) & (gap < E - 1)))
+        pairs = _crossings(poly, poly, _tolerance(poly))
+        apart = pairs[:, 1] - pairs[:, 0]
+        crossed = pairs[(apart > 1) & (apart < E - 1)]  # each pair once, not neighbours
         if crossed.size:
             i, j = crossed[0] + 1
             raise ConfigError(f"{key}: edges {i} and {j} cross (a region must be a simple polygon; edge k runs from "
@@ -315,7 +328,7 @@ def check_overlaps(keys: list[str], ids: list[str], polygons: list[np.ndarray]) 
             probes_b = np.concatenate([b, 0.5 * (b + np.roll(b, -1, axis=0))])
             probes_a = np.concatenate([a, 0.5 * (a + np.roll(a, -1, axis=0))])
             same = {tuple(v) for v in a.tolist()} == {tuple(v) for v in b.tolist()}
-            if (same or _crossings(a, b, tol).any() or _strictly_inside(a, probes_b, tol).any()
+            if (same or _crossings(a, b, tol).size or _strictly_inside(a, probes_b, tol).any()
                     or _strictly_inside(b, probes_a, tol).any()):
                 raise ConfigError(f"{keys[j]}: overlaps region {ids[i]} (regions may share borders, not area: "
                                   "a position belongs to one region)")
@@ -352,7 +365,17 @@ def distances(regions: Regions, pos: np.ndarray) -> np.ndarray:
 
 def _inside_and_edge(regions: Regions, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(N, R) each: whether each position is inside each region (even-odd rule), and its distance
-    to the region's nearest edge."""
+    to the region's nearest edge; positions ``CHUNK`` position-edge pairs at a time."""
+    pos = np.asarray(pos, dtype=float)
+    step = max(1, CHUNK // max(regions.vertices.shape[0] * regions.vertices.shape[1], 1))
+    if pos.shape[0] <= step:
+        return _inside_and_edge_of(regions, pos)
+    parts = [_inside_and_edge_of(regions, pos[k:k + step]) for k in range(0, pos.shape[0], step)]
+    return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+
+
+def _inside_and_edge_of(regions: Regions, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_inside_and_edge` in one pass ((N, R, E) temporaries)."""
     ax, ay = regions.vertices[..., 0], regions.vertices[..., 1]  # (R, E) edge starts
     b = np.roll(regions.vertices, -1, axis=1)  # edge ends (closing edge included)
     abx, aby = b[..., 0] - ax, b[..., 1] - ay
