@@ -21,6 +21,7 @@ from fedtrack.atomic import write_atomic
 from fedtrack.config import ConfigError
 from fedtrack.deployment import listen_address
 from fedtrack.jsonl import output_folder
+from fedtrack.keys import is_identity_name
 
 CA_NAME = "fedtrack-ca"
 CERT_DAYS = 365  # validity of new certificates (``FEDTRACK_CERT_DAYS``)
@@ -101,7 +102,7 @@ def make_certificates(tls_dir: Path, identities: list[str], extra_san: str = "",
     from cryptography.x509.oid import NameOID
 
     for ident in identities:
-        if not ident or any(not (c.isalnum() or c in "._-") for c in ident):
+        if not is_identity_name(ident):
             raise ConfigError(f"bad identity {ident!r} (letters, digits, . _ -)")
     sans = subject_alt_names(extra_san)
     missing = [ident for ident in identities if not (tls_dir / f"{ident}.pem").is_file()]

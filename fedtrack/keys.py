@@ -37,6 +37,12 @@ def standby_id(centre: str) -> str:
     return f"{centre}-standby"
 
 
+def is_identity_name(name: str) -> bool:
+    """Whether ``name`` may name a TLS identity (its certificate's CN and files, ``deploy/certificates.py``):
+    letters (of any script), digits, ``.``, ``_`` and ``-``."""
+    return bool(name) and all(c.isalnum() or c in "._-" for c in name)
+
+
 class InvalidName(ValueError):
     """A deployment, role or id that cannot be one key-expression chunk."""
 

@@ -37,7 +37,7 @@ import numpy as np
 
 from fedtrack.config import ConfigError, load_tables
 from fedtrack.geodetic import Frame, FrameConfig, enu_from_geodetic
-from fedtrack.keys import MAX_ID_LENGTH, InvalidName, check_id, standby_id
+from fedtrack.keys import MAX_ID_LENGTH, InvalidName, check_id, is_identity_name, standby_id
 from fedtrack.wire import MAX_MAGNITUDE
 
 MAX_REGIONS = 10_000
@@ -82,6 +82,9 @@ class PolygonConfig:
             check_id(self.id, "id")
         except InvalidName as exc:
             raise ConfigError(str(exc)) from exc
+        if not is_identity_name(self.id):  # its centres' TLS identity is region-<id> (deploy/access_control.py)
+            raise ConfigError(f"id {self.id!r}: letters, digits, . _ - only (the region's TLS identity, "
+                              f"region-{self.id}, and its certificate's files are named by it)")
         if len(standby_id(self.id)) > MAX_ID_LENGTH:  # a key chunk too (deploy/access_control.py)
             raise ConfigError(f"id is longer than {MAX_ID_LENGTH - len(standby_id(''))} characters (its standby's id, "
                               f"{standby_id('<id>')}, is at most {MAX_ID_LENGTH})")

@@ -244,6 +244,10 @@ lat_lon = [[-49.29, -178.92], [-49.26, -179.94], [-48.26, -179.85], [-48.29, -17
     ("[regions]\nmargin = 1.0\ngrid = {origin = [0, 0], cell = [1, 1], nx = 0, ny = 2}\n", "nx, ny"),
     ("[regions]\nmargin = 1.0\n[[regions.polygon]]\nid = \"a/b\"\npoints = [[0, 0], [1, 0], [0, 1]]\n",
      "forbidden character"),
+    # a key chunk, but not a TLS identity's name: launch with [zenoh] tls_dir refused it only after simulating
+    # the scenario, naming zenoh.tls_dir
+    ("[regions]\nmargin = 1.0\n[[regions.polygon]]\nid = \"Côte_d'Azur\"\npoints = [[0, 0], [1, 0], [0, 1]]\n",
+     "regions.polygon[0].id \"Côte_d'Azur\": letters, digits, . _ - only"),
     ("[regions]\nmargin = 1.0\n[[regions.polygon]]\nid = \"a\"\npoints = [[0, 0], [1, 0]]\n", "at least 3"),
     ("[regions]\nmargin = 1.0\n[[regions.polygon]]\nid = \"a\"\nlat_lon = [[0, 0], [1, 0], [0, 1]]\n",
      "needs [frame] origin"),
