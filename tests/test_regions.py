@@ -12,6 +12,7 @@ import pytest
 from fedtrack.config import ConfigError
 from fedtrack.geodetic import Frame, enu_from_geodetic
 from fedtrack.keys import check_id
+from fedtrack.local_filters import regions as regions_module
 from fedtrack.local_filters.mtt.local import LocalReport
 from fedtrack.local_filters.mtt.routing import RegionRouter
 from fedtrack.local_filters.regions import (
@@ -117,9 +118,10 @@ def test_crossings_tested_by_boxes_are_every_pair_tested_at_once() -> None:
     assert found > 1000
 
 
-def test_distances_in_chunks_are_the_one_pass_distances() -> None:
-    regions = regions_of_config(jagged_border_regions(700), None)
-    pos = np.random.default_rng(3).uniform(-70e3, 70e3, (1000, 2))  # 1000 x 2 x 702 pairs: two chunks
+def test_distances_in_chunks_are_the_one_pass_distances(monkeypatch: pytest.MonkeyPatch) -> None:
+    regions = regions_of_config(jagged_border_regions(100), None)
+    pos = np.random.default_rng(3).uniform(-70e3, 70e3, (300, 2))
+    monkeypatch.setattr(regions_module, "CHUNK", 5000)  # 24 positions of 2 x 102 edges a chunk: 13 chunks
     inside, edge = _inside_and_edge(regions, pos)
     once_inside, once_edge = _inside_and_edge_of(regions, pos)
     assert np.array_equal(inside, once_inside) and np.array_equal(edge, once_edge)
