@@ -22,7 +22,7 @@ from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.geodetic import Frame, enu_from_own, own_from_aer, site_from_geodetic
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import LocalReport
-from fedtrack.local_filters.mtt.roles.life import Sight, radar_view, scan_counts, scan_sees
+from fedtrack.local_filters.mtt.roles.life import Sight, held, radar_view, scan_counts, scan_sees
 from fedtrack.local_filters.mtt.roles.tracks import empty_tracks
 from fedtrack.local_filters.mtt.scan import SensorScan
 from fedtrack.local_filters.mtt.tracker import track_params
@@ -374,3 +374,67 @@ def test_a_third_sensors_report_counts_where_it_has_a_track_near(third: float, c
     assert ("s3", 1) in centre.mapping and centre.mapping[("s3", 1)] != centre.mapping[("s1", 1)]
     expected = np.append(before[1:], False) if counted else before
     assert np.array_equal(centre.window[slot], expected), (before, centre.window[slot])
+
+
+def test_an_empty_scan_of_a_sensor_holding_tracks_shows_no_view() -> None:
+    """A scan without a detection of a sensor that detected three confirmed tracks (P_D 0.9: missing
+    all three at once has a chance of 1e-3) shows no view: it counts only for a track no other sensor
+    detected; with two tracks held, or one sensor's tracker, as before."""
+    params = track_params(MttConfig(), None, 4)._replace(sensor_bit=2)
+    empty = SensorScan(1.0, "s2", np.eye(2), np.zeros((0, 2)), None, None)
+    x = np.zeros((3, 4))
+    assert not scan_sees(x, None, empty, params, 3).view.any()
+    assert scan_sees(x, None, empty, params, 2).view.all()
+    assert scan_sees(x, None, empty, params._replace(sensor_bit=0), 3) is None
+    both, own = 1 | 2, 2
+    tracks = empty_tracks(4)._replace(ids=np.array([4, 5, 6, 6]), confirmed=np.array([True, True, True, True]),
+                                      detected_by=np.array([both, both, own, own], dtype=np.int64))
+    assert held(tracks, 2) == 3 and held(tracks, 1) == 2  # distinct ids: mht's branches of one track
+    _, counted, _ = scan_counts(tracks, np.zeros(4, bool), params, scan_sees(np.zeros((4, 4)), None, empty, params,
+                                                                            held(tracks, 2)))
+    assert counted.tolist() == [False, False, True, True]
+
+
+BLANK = (20.0, 40.0)  # s: the fast sensor's scans hold no detection
+
+
+def blank_sensor_scans(path: Path) -> None:
+    """Four targets 2 km apart at 10 m/s, detected by ``s1`` every second with P_D 0.9 and by ``s2``
+    every 0.5 s (10 m of noise, no clutter), but ``s2``'s scans from 20 s to 40 s are empty: a sensor
+    blinded (jammed, its receiver failed) that still sends its scans."""
+    rng = np.random.default_rng(3)
+    lines = []
+    for k in range(100):
+        t = 0.5 * k
+        truth = np.array([[2000.0 * i, 10.0 * t] for i in range(4)])
+        if k % 2 == 0:
+            z = (truth + rng.normal(0.0, 10.0, truth.shape))[rng.uniform(size=4) < 0.9]
+            lines.append({"t": t, "sensor": "s1", "R": (100.0 * np.eye(2)).tolist(),
+                          "detections": [{"z": d.tolist()} for d in z]})
+        z = truth + rng.normal(0.0, 10.0, truth.shape)
+        blank = BLANK[0] <= t + 0.25 < BLANK[1]
+        lines.append({"t": t + 0.25, "sensor": "s2", "R": (100.0 * np.eye(2)).tolist(),
+                      "detections": [] if blank else [{"z": d.tolist()} for d in z]})
+    path.write_text("".join(json.dumps(line) + "\n" for line in lines))
+
+
+@pytest.mark.parametrize("associator", ["jipda", "mht"])
+def test_a_blinded_sensors_empty_scans_do_not_delete_the_others_tracks(tmp_path: Path, associator: str) -> None:
+    """:func:`blank_sensor_scans`, ``mtt-centralized``: each target is held by one confirmed track
+    from 5 s to the end (before, ``s2``'s empty scans were two misses of every track between ``s1``'s
+    detections, and the tracks' existence fell: each target's track deleted and started again)."""
+    scans, config, out = tmp_path / "scans.jsonl", tmp_path / "c.toml", tmp_path / "out.jsonl"
+    blank_sensor_scans(scans)
+    config.write_text(f'[mtt]\nassociator = "{associator}"\nsensors = ["s1", "s2"]\npd = 0.9\n'
+                      f'clutter_density = 1e-9\nperiod = 1.0\n')
+    replay_mtt("mtt-centralized", scans, config, out)
+    ids: list[set[int]] = [set() for _ in range(4)]
+    for picture in map(json.loads, out.read_text().splitlines()):
+        if picture["t"] < 5.0:
+            continue
+        for i in range(4):
+            near = [tr["id"] for tr in picture["tracks"] if tr.get("status", "confirmed") == "confirmed"
+                    and abs(tr["x"][0] - 2000.0 * i) < 100.0 and abs(tr["x"][2] - 10.0 * picture["t"]) < 100.0]
+            assert len(near) == 1, (picture["t"], i, near)
+            ids[i].update(near)
+    assert all(len(s) == 1 for s in ids), ids

@@ -58,7 +58,8 @@ from fedtrack.local_filters.mtt.roles.filtering import (
     predict_tracks,
 )
 from fedtrack.local_filters.mtt.roles.gating import Gating, gate_scan
-from fedtrack.local_filters.mtt.roles.life import Sight, deletion_at, existence_manage, m_of_n, scan_counts, scan_sees
+from fedtrack.local_filters.mtt.roles.life import (Sight, deletion_at, existence_manage, held, m_of_n, scan_counts,
+                                                   scan_sees)
 from fedtrack.local_filters.mtt.roles.tracks import Observation, TrackParams, TrackSet, concat, empty_tracks
 from fedtrack.local_filters.mtt.scan import SensorScan
 
@@ -145,7 +146,7 @@ def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
         state = state._replace(tracks=tracks)
     at_scan, pred = predict_tracks(tracks, dt, params, q_scale)
     gating = gate_scan(pred, scan, params, modes_at_scan(at_scan, params))
-    sees = scan_sees(pred.x, gating, scan, params)
+    sees = scan_sees(pred.x, gating, scan, params, held(tracks, params.sensor_bit))
     assoc = associate(state, gating, scan, params, dt, sees)
     role = params.associator
     if role.update is None:
@@ -208,7 +209,7 @@ def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale
         H, x0 = gating.lin.H[g_rows[pidx]], cx[hit]
         cx[hit], cP[hit] = detection_update(x0, cP[hit], cmodes, np.flatnonzero(hit), nu[pidx], H, scan.R)
         obs = Observation(H, np.broadcast_to(scan.R, (pidx.size, m, m)).copy(), nu[pidx] + np.einsum("nij,nj->ni", H, x0))
-    sees = scan_sees(x, gating, scan, params)
+    sees = scan_sees(x, gating, scan, params, held(leaves, params.sensor_bit))
     old, counted, need = scan_counts(leaves.take(br.parent), hit, params,
                                      None if sees is None else sees.take(br.parent))
     step = np.where(hit, 0.0, miss * counted)  # each branch's score increment (a miss the scan counts)

@@ -68,18 +68,42 @@ def radar_view(x: np.ndarray, scan: SensorScan, frame: Frame | None = None) -> n
     return (el > e.min()) & (rng < r.max()) & (np.mod(az - a[k], 2 * np.pi) > gaps[k])
 
 
-def scan_sees(x: np.ndarray, gating: Gating | None, scan: SensorScan, params: TrackParams) -> Sight | None:
+def held(tracks: TrackSet, bit: int) -> int:
+    """The confirmed tracks (distinct ids: mht's branches share their track's) that the sensor of
+    ``bit`` has detected, in a tracker of several sensors' scans."""
+    if not bit or tracks.detected_by is None:
+        return 0
+    return int(np.unique(tracks.ids[tracks.confirmed & ((tracks.detected_by & bit) != 0)]).size)
+
+
+def empty_shows_blind(pd: float, held_tracks: int) -> bool:
+    """Whether a scan without a detection shows its sensor blind rather than missing every one of the
+    ``held_tracks`` confirmed tracks it detected before: a sensor that sees them all misses them all
+    with a chance of ``(1 - pd)^held_tracks`` (its clutter's absence left aside), at most ``LOST``
+    (the deletion rule's chance of losing a live target) from :func:`miss_count` tracks on (3 at
+    P_D 0.9)."""
+    return held_tracks > 0 and held_tracks >= int(miss_count(log_miss_of(pd)))
+
+
+def scan_sees(x: np.ndarray, gating: Gating | None, scan: SensorScan, params: TrackParams, held_tracks: int = 0
+              ) -> Sight | None:
     """In a tracker of several sensors' scans (``params.sensor_bit``; else None), per track (its
     predicted state in ``x``) what the scan shows of its place (:class:`Sight`): a detection of the
     scan in the track's gate, or the track's position strictly inside the x-y extent of the scan's
     detections (targets' and clutter: a sensor's detections lie in what it sees; a sensor that
     covers the area puts its clutter all round a track) and, for a radar, inside its view
-    (:func:`radar_view`: a far radar's clutter surrounds a low aircraft in x-y, above its horizon)."""
+    (:func:`radar_view`: a far radar's clutter surrounds a low aircraft in x-y, above its horizon).
+    A scan without a detection whose sensor had detected ``held_tracks`` confirmed tracks (:func:`held`),
+    too many for it to miss them all at once (:func:`empty_shows_blind`: a sensor blinded, jammed or
+    cut off that still sends its scans), shows no view: it counts only for the tracks no other
+    sensor detected (:meth:`Sight.counts`), as a sensor's silence counts for none."""
     if not params.sensor_bit:
         return None
     n = x.shape[0]
     sees = np.zeros(n, dtype=bool) if gating is None else np.bincount(gating.pairs.rows, minlength=n) > 0
     view = np.ones(n, dtype=bool)
+    if not scan.z.shape[0] and empty_shows_blind(params.pd, held_tracks):
+        return Sight(sees, ~view)
     if n and scan.z.shape[0] > 1:
         pos = scan.z if scan.sensor_position is None else scan.sensor_position + cartesian_from_polar(scan.z)
         xy = pos[:, :2]
