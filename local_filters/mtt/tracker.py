@@ -58,8 +58,15 @@ from fedtrack.local_filters.mtt.roles.filtering import (
     predict_tracks,
 )
 from fedtrack.local_filters.mtt.roles.gating import Gating, gate_scan
-from fedtrack.local_filters.mtt.roles.life import (Sight, deletion_at, existence_manage, held, m_of_n, scan_counts,
-                                                   scan_sees)
+from fedtrack.local_filters.mtt.roles.life import (
+    Sight,
+    deletion_at,
+    existence_manage,
+    held,
+    m_of_n,
+    scan_counts,
+    scan_sees,
+)
 from fedtrack.local_filters.mtt.roles.tracks import Observation, TrackParams, TrackSet, concat, empty_tracks
 from fedtrack.local_filters.mtt.scan import SensorScan
 
