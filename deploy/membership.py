@@ -21,6 +21,7 @@ from typing import NamedTuple
 from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
 from fedtrack.fusion_center.mtt.centre.association import LocalKey
 from fedtrack.fusion_center.mtt.engines import TrackToTrackEngine
+from fedtrack.geodetic import RadarSite
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.scan import SensorLeft, SensorScan, TrackerRestarted
 
@@ -60,10 +61,11 @@ def _lost(engine: TrackToTrackEngine, support: dict[int, set[LocalKey]]) -> list
 
 
 def membership(scans: list[SensorScan | SensorLeft | TrackerRestarted], cfg: MttConfig, dim: int, feedback: bool,
-               joiners: set[str]) -> tuple[list[Joined], list[Left]]:
+               joiners: set[str], sites: dict[str, RadarSite] | None = None) -> tuple[list[Joined], list[Left]]:
     """Replay ``scans`` (a recording's ``measurements.jsonl``, parsed) through the track-to-track
-    engine and measure the joins of ``joiners`` and every departure."""
-    engine = TrackToTrackEngine(cfg, dim, feedback=feedback)
+    engine (``sites``: the config's ``[frame.sites]``, as the live centre's) and measure the joins of
+    ``joiners`` and every departure."""
+    engine = TrackToTrackEngine(cfg, dim, feedback=feedback, sites=sites or {})
     done: dict[str, int] = {}  # scans of each joiner so far
     first_t: dict[str, float] = {}
     first_seen: dict[LocalKey, int] = {}

@@ -36,7 +36,7 @@ from fedtrack.deploy.settings import MultitargetSettings, Settings
 from fedtrack.fusion_center.mtt.earthmap import plot_map
 from fedtrack.fusion_center.mtt.evaluation import evaluate, plot
 from fedtrack.fusion_center.mtt.replay import read_scans, state_dim
-from fedtrack.geodetic import Frame
+from fedtrack.geodetic import Frame, load_frame
 from fedtrack.geojson import feature_collection
 from fedtrack.jsonl import InputError, output_file, read_jsonl
 from fedtrack.local_filters.regions import Regions, load_regions
@@ -171,7 +171,9 @@ def membership_summary(out: Path, report: LaunchReport, settings: Settings) -> d
     if mt.algorithm == "mtt-centralized" or not measurements.is_file() or load_regions(out / "config.toml"):
         return summary
     scans = read_scans(measurements, settings.mtt)
-    joined, left = membership(scans, settings.mtt, state_dim(scans), mt.algorithm == "mtt-federated", set(mt.join_at))
+    frame = load_frame(out / "config.toml")  # [frame.sites]: the centre's radars, as the live centre's
+    joined, left = membership(scans, settings.mtt, state_dim(scans), mt.algorithm == "mtt-federated", set(mt.join_at),
+                              {} if frame is None else frame.radar_sites())
     for j in joined:
         delays = j.scans_to_associate
         summary["joined"][j.sensor] = {

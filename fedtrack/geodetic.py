@@ -315,6 +315,10 @@ class FrameConfig:
     def frame(self) -> Frame:
         return Frame(*self.origin)
 
+    def radar_sites(self) -> dict[str, RadarSite]:
+        """Each sensor of ``[frame.sites]`` as a :class:`RadarSite` of the common frame."""
+        return {sid: site_from_geodetic(self.frame, *where) for sid, where in self.sites.items()}
+
 
 @dataclass(frozen=True)
 class FrameSettings:

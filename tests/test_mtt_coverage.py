@@ -19,7 +19,16 @@ from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
 from fedtrack.fusion_center.mtt.engines import CentralizedEngine
 from fedtrack.fusion_center.mtt.evaluation import evaluate
 from fedtrack.fusion_center.mtt.replay import replay_mtt
-from fedtrack.geodetic import Frame, enu_from_own, own_from_aer, site_from_geodetic
+from fedtrack.geodetic import (
+    Frame,
+    above_radio_horizon,
+    enu_from_geodetic,
+    enu_from_own,
+    geodetic_from_enu,
+    own_from_aer,
+    site_from_geodetic,
+    surface_enu,
+)
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import LocalReport
 from fedtrack.local_filters.mtt.roles.life import Sight, held, radar_view, scan_counts, scan_sees
@@ -438,3 +447,77 @@ def test_a_blinded_sensors_empty_scans_do_not_delete_the_others_tracks(tmp_path:
             assert len(near) == 1, (picture["t"], i, near)
             ids[i].update(near)
     assert all(len(s) == 1 for s in ids), ids
+
+
+POLE = Frame(89.3, 0.0)
+POLE_SITES = {"r1": (89.0, 10.0, 60.0), "r2": (89.83, -170.0, 900.0)}  # 131 km apart across the pole (tour49)
+
+
+def pole_scans(path: Path) -> np.ndarray:
+    """Tour49's pole, 100 s: radar ``r1`` every 2 s, 20 clutter plots a scan drawn in its own frame (ranges
+    20-300 km, every azimuth, elevations 0-0.3 rad) all round the target in x-y; ``r2`` every 4 s (P_D 0.9, 3
+    clutter plots a scan) sees a target 400 m up, 245 km from ``r1`` beyond ``r2``: below ``r1``'s radio horizon.
+    Returns the target's position per second."""
+    rng = np.random.default_rng(5)
+    site = {s: site_from_geodetic(POLE, *g) for s, g in POLE_SITES.items()}
+    p1, p2 = site["r1"].position[:2], site["r2"].position[:2]
+    u = (p2 - p1) / np.linalg.norm(p2 - p1)
+    xy = p1 + 245e3 * u + np.outer(np.arange(101.0), 200.0 * np.array([-u[1], u[0]]))
+    lat, lon, _ = geodetic_from_enu(POLE, surface_enu(POLE, xy)).T
+    target = enu_from_geodetic(POLE, lat, lon, np.full(101, 400.0))  # 400 m above the ellipsoid
+    assert not above_radio_horizon(site["r1"], target).any() and above_radio_horizon(site["r2"], target).all()
+    R = np.diag([900.0, np.radians(0.1) ** 2, np.radians(0.1) ** 2])
+    rows = []
+    for sensor, period, n in (("r1", 2.0, 20), ("r2", 4.0, 3)):
+        for t in np.arange(0.5 if sensor == "r1" else 1.0, 100.0, period):
+            own = np.column_stack([rng.uniform(0.0, 2 * np.pi, n), rng.uniform(0.0, 0.3, n), rng.uniform(20e3, 300e3, n)])
+            z = polar_from_cartesian(enu_from_own(site[sensor], own_from_aer(own)) - site[sensor].position)
+            if sensor == "r2" and rng.random() < 0.9:
+                z = np.vstack([z, polar_from_cartesian(target[int(t)] - site[sensor].position) + rng.normal(0.0, 1.0, 3)
+                               * np.sqrt(np.diag(R))])
+            rows.append({"t": float(t), "sensor": sensor, "R": R.tolist(), "sensor_position": site[sensor].position.tolist(),
+                         "detections": [{"z": d.tolist()} for d in z]})
+    rows.sort(key=lambda r: r["t"])
+    path.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    return target
+
+
+@pytest.mark.parametrize("algorithm", ["mtt-federated", "mtt-decentralized"])
+def test_a_radar_blind_below_its_horizon_leaves_the_target_to_the_radar_that_sees_it(tmp_path: Path,
+                                                                                     algorithm: str) -> None:
+    """:func:`pole_scans`: ``r1``'s reports (2 s) filled the centre's window (3 of the last 4 reports) with misses
+    and the target that ``r2`` (4 s) tracks was never confirmed (tour49: 0 of 596 pictures). With ``[frame.sites]``
+    the centre knows that the target lies below ``r1``'s radio horizon (raised by 2.33 standard deviations of its
+    height) and skips ``r1``'s reports for it, though ``r1``'s clutter surrounds it in x-y: confirmed in every picture
+    from 40 s. Without the sites, as before: in none."""
+    target = pole_scans(tmp_path / "m.jsonl")
+    density = 20 / (280e3 * 2 * np.pi * 0.3)
+    mtt = (f'[mtt]\nsensors = ["r1", "r2"]\npd = 0.9\nclutter_density = {density}\nq = 25.0\ninit_velocity_std = 150.0\n'
+           'max_lag = 9.0\ncentral_timeout = 9.0\n')
+    sites = "".join(f"{s} = {list(g)}\n" for s, g in POLE_SITES.items())
+    shown = {}
+    for name, text in (("sites", f"{mtt}\n[frame]\norigin = [89.3, 0.0, 0.0]\n\n[frame.sites]\n{sites}"), ("none", mtt)):
+        config, out = tmp_path / f"{name}.toml", tmp_path / f"{name}.jsonl"
+        config.write_text(text)
+        replay_mtt(algorithm, tmp_path / "m.jsonl", config, out)
+        shown[name] = [any(tr["status"] == "confirmed" and np.hypot(*(np.array(tr["pos"][:2]) - target[int(p["t"]), :2])) < 2000.0
+                           for tr in p["tracks"]) for p in map(json.loads, out.read_text().splitlines()) if p["t"] >= 40.0]
+    assert len(shown["sites"]) > 50 and all(shown["sites"]), shown["sites"]
+    assert not any(shown["none"]), shown["none"]
+
+
+def test_a_radar_blind_below_its_horizon_is_judged_on_its_height_raised_by_its_uncertainty() -> None:
+    """:meth:`CentreLife._below_horizon`: a track 400 m up, 245 km from ``r1`` (its horizon there about 2.7 km up),
+    is below it with a height standard deviation of 500 m (raised to 1.6 km) and not with 2 km (raised to 5.1 km:
+    the target may be above it); a radar without a site, and a position sensor's report, show nothing."""
+    pole_site = {s: site_from_geodetic(POLE, *g) for s, g in POLE_SITES.items()}
+    centre = TrackToTrackCentre(MttConfig(), 6, True, sites={"r1": pole_site["r1"]})
+    p1, p2 = pole_site["r1"].position[:2], pole_site["r2"].position[:2]
+    lat, lon, _ = geodetic_from_enu(POLE, surface_enu(POLE, (p1 + 245e3 * (p2 - p1) / np.linalg.norm(p2 - p1))[None])).T
+    at = enu_from_geodetic(POLE, lat, lon, np.array([400.0]))[0]
+    X = np.tile([at[0], 0.0, at[1], 0.0, at[2], 0.0], (2, 1))
+    P = np.stack([np.diag([1e4, 1.0, 1e4, 1.0, sd**2, 1.0]) for sd in (500.0, 2000.0)])
+    report = still_tracks("r1", 1.0, {})._replace(obs_R=np.zeros((0, 3, 3)))
+    assert centre._below_horizon(X, P, report).tolist() == [True, False]
+    assert not centre._below_horizon(X, P, report._replace(sensor="r2")).any()
+    assert not centre._below_horizon(X, P, report._replace(obs_R=np.zeros((0, 2, 2)))).any()

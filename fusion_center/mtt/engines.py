@@ -31,7 +31,7 @@ from fedtrack.fusion_center.mtt.centre.consistency import Transition
 from fedtrack.fusion_center.mtt.centre.copies import Found
 from fedtrack.fusion_center.mtt.centre.track_life import CENTRAL_MISSES
 from fedtrack.fusion_center.mtt.shards import ShardedCentre
-from fedtrack.geodetic import Frame
+from fedtrack.geodetic import Frame, RadarSite
 from fedtrack.local_filters.mtt.associators import jipda
 from fedtrack.local_filters.mtt.config import LOST, MttConfig, miss_count, scan_lost
 from fedtrack.local_filters.mtt.history import ScanHistory
@@ -417,6 +417,7 @@ class TrackToTrackEngine(Engine):
     centre: TrackToTrackCentre | ShardedCentre | None = None
     regions: Regions | None = None  # a centre per region (:class:`ShardedCentre`), else one centre
     existence: CentralExistence | None = None  # the local trackers keep existence (jipda)
+    sites: dict[str, RadarSite] = field(default_factory=dict)  # [frame.sites]: the centre's radars' sites
 
     def ingest(self, scan: SensorScan) -> None:
         tracker = self.local.get(scan.sensor)
@@ -463,8 +464,8 @@ class TrackToTrackEngine(Engine):
     def fuse(self, report: LocalReport) -> tuple[Resets, float]:
         """The centre's part of a scan, as the live centre does it per report."""
         if self.centre is None:
-            self.centre = (TrackToTrackCentre(self.cfg, self.dim, self.feedback) if self.regions is None
-                           else ShardedCentre(self.cfg, self.dim, self.feedback, self.regions))
+            self.centre = (TrackToTrackCentre(self.cfg, self.dim, self.feedback, sites=self.sites) if self.regions is None
+                           else ShardedCentre(self.cfg, self.dim, self.feedback, self.regions, sites=self.sites))
         self.scans += 1
         if report.existence is not None:
             self.existence = self.existence or CentralExistence()
@@ -599,7 +600,8 @@ def union_picture(parts: list[PictureTracks | None], dim: int) -> PictureTracks:
 
 
 def make_engine(algorithm: str, cfg: MttConfig, dim: int, sensor: str | None = None,
-                regions: Regions | None = None, frame: Frame | None = None) -> Engine:
+                regions: Regions | None = None, frame: Frame | None = None,
+                sites: dict[str, RadarSite] | None = None) -> Engine:
     if algorithm == "mtt-local":
         if not sensor:
             raise ValueError("mtt-local needs --sensor ID")
@@ -607,5 +609,5 @@ def make_engine(algorithm: str, cfg: MttConfig, dim: int, sensor: str | None = N
     if algorithm == "mtt-centralized":
         return CentralizedEngine(cfg, dim, frame=frame)
     if algorithm in ("mtt-federated", "mtt-decentralized"):
-        return TrackToTrackEngine(cfg, dim, feedback=algorithm == "mtt-federated", regions=regions)
+        return TrackToTrackEngine(cfg, dim, feedback=algorithm == "mtt-federated", regions=regions, sites=sites or {})
     raise ValueError(f"unknown multi-target algorithm {algorithm!r}")

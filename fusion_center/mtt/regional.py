@@ -33,6 +33,7 @@ from fedtrack.fusion_center.mtt.engines import (
     union_picture,
 )
 from fedtrack.fusion_center.mtt.shards import RegionCentre
+from fedtrack.geodetic import RadarSite
 from fedtrack.jsonl import InputError, read_jsonl
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import LocalReport, SensorTracker
@@ -72,11 +73,12 @@ class RegionEngine(Engine):
     shadow: TrackToTrackCentre = field(init=False)  # the tracks handed over lately, as they left
     handed_t: dict[int, float] = field(default_factory=dict)  # their ids -> the latest data time at the hand-over
     high: float = -np.inf  # the latest data time of the sub-reports so far
+    sites: dict[str, RadarSite] = field(default_factory=dict)  # [frame.sites]: the radars' sites (life rules)
 
     def __post_init__(self) -> None:
         assert self.regions is not None
-        self.region = RegionCentre(self.cfg, self.dim, self.feedback, self.regions, self.index)
-        self.shadow = TrackToTrackCentre(self.cfg, self.dim, self.feedback)
+        self.region = RegionCentre(self.cfg, self.dim, self.feedback, self.regions, self.index, sites=self.sites)
+        self.shadow = TrackToTrackCentre(self.cfg, self.dim, self.feedback, sites=self.sites)
 
     def answer(self, report: LocalReport, elsewhere: np.ndarray
                ) -> tuple[RegionAnswer, list[tuple[int, int, HandOver]]]:
@@ -230,13 +232,13 @@ class _Tracker:
 
 
 def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions, entries: list[tuple[int, Entry]],
-                      counts: dict[str, int],
-                      max_gap: float = MAX_TIME_JUMP_S) -> Iterator[tuple[float, PictureTracks]]:
+                      counts: dict[str, int], max_gap: float = MAX_TIME_JUMP_S,
+                      sites: dict[str, RadarSite] | None = None) -> Iterator[tuple[float, PictureTracks]]:
     """The merged pictures of a live region run from its recorded entries (module docstring);
     ``counts`` gets the trackers' scans and the centres' counters added up (the replay's report);
-    ``max_gap``: the centres' ``[deployment] max_time_jump_s`` (:class:`PictureClock`)."""
+    ``max_gap``: the centres' ``[deployment] max_time_jump_s`` (:class:`PictureClock`); ``sites``: ``[frame.sites]``."""
     R = len(regions.ids)
-    engines = [RegionEngine(cfg, dim, feedback=feedback, regions=regions, index=r) for r in range(R)]
+    engines = [RegionEngine(cfg, dim, feedback=feedback, regions=regions, index=r, sites=sites or {}) for r in range(R)]
     clocks = [PictureClock(cfg.period, cfg.picture_delay, max_gap=max_gap) for _ in range(R)]
     queues: list[deque[Entry]] = [deque() for _ in range(R)]
     trackers: dict[str, _Tracker] = {}

@@ -261,6 +261,7 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
         raise ConfigError(f"{measurements}: a live region run's recording (its lines name their region): replay it "
                           "with --algorithm mtt-federated or mtt-decentralized --regions config")
     frame = load_frame(config)  # [frame]: the tracks on the Earth too (lat, lon, alt), each radar's own axes
+    sites = {} if frame is None else frame.radar_sites()  # [frame.sites]: a track-to-track centre's radars
     if recording:
         # a live region run's recording: each region centre in its recorded order (regional.py)
         if regions != "config":
@@ -272,14 +273,14 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
         engine = make_engine(algorithm, cfg, dim)
         recorded: dict[str, int] = {}
         source = recorded_pictures(cfg, dim, algorithm == "mtt-federated", shards, entries, recorded,
-                                   max_time_jump(config))
+                                   max_time_jump(config), sites)
     else:
         scans = read_scans(measurements, cfg, frame)
         if sensor is not None and not any(s.sensor == sensor for s in scans):
             raise InputError(f"{measurements}: no scan of sensor {sensor!r}")
         dim = state_dim(scans, sensor)
         shards = None if regions is None else data_regions(regions, scans, config)
-        engine = make_engine(algorithm, cfg, dim, sensor, shards, None if frame is None else frame.frame)
+        engine = make_engine(algorithm, cfg, dim, sensor, shards, None if frame is None else frame.frame, sites)
         source = pictures(engine, scans, cfg.period, cfg.picture_delay, max_time_jump(config))
         recorded = {}
     note = cfg.count_note({s.sensor: s.R for s in reversed(scans) if isinstance(s, SensorScan) and s.dim == 2

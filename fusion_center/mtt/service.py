@@ -134,16 +134,18 @@ class MttCentreService(CentreFailover, Service):
         self.region, self.regions = region, regions
         self.engine: CentralizedEngine | TrackToTrackEngine | RegionEngine
         feedback = algorithm == "mtt-federated"
+        radar_sites = {} if sites is None else sites.radar_sites()  # the life rules' radars (track_life)
         if region is not None:
             if algorithm == "mtt-centralized" or regions is None or region not in regions.ids:
                 raise ConfigError(f"--region {region}: needs a track-to-track algorithm and a config whose [regions] "
                                   f"has it ({', '.join(regions.ids) if regions else 'no [regions]'})")
-            self.engine = RegionEngine(cfg, dim, feedback=feedback, regions=regions, index=regions.ids.index(region))
+            self.engine = RegionEngine(cfg, dim, feedback=feedback, regions=regions, index=regions.ids.index(region),
+                                       sites=radar_sites)
         else:
             if numbers is not None:
                 raise ConfigError("--numbers: a region centre's (--region) only")
             self.engine = (CentralizedEngine(cfg, dim, frame=frame) if algorithm == "mtt-centralized"
-                           else TrackToTrackEngine(cfg, dim, feedback=feedback))
+                           else TrackToTrackEngine(cfg, dim, feedback=feedback, sites=radar_sites))
         self.picture_key = self.keys.mtt_picture() if region is None else self.keys.region_picture(region)
         # --numbers: the ids and hand-over numbers reserved there (:mod:`.numbers`); a former process's go on
         self.numbers = numbers

@@ -38,6 +38,7 @@ from fedtrack import wire
 from fedtrack.fusion_center.mtt.central_track import MAX_ENTRIES
 from fedtrack.fusion_center.mtt.centre import Counters, HandOver, TrackToTrackCentre
 from fedtrack.fusion_center.mtt.centre.association import LocalKey
+from fedtrack.geodetic import RadarSite
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import LocalReport, Resets
 from fedtrack.local_filters.mtt.routing import RegionAnswer, RegionRouter, join_answers
@@ -104,10 +105,11 @@ class RegionCentre:
     in_flight: int = 0  # rows not fused: their central track was handed over, the tracker not yet told
     rows: int = 0  # rows of the sub-reports received
     rows_taken: int = 0  # of them, those fused here (:meth:`taken`); the rest: the margin's, and in flight
+    sites: dict[str, RadarSite] = field(default_factory=dict)  # [frame.sites]: the radars' sites (life rules)
 
     def __post_init__(self) -> None:
         self.centre = TrackToTrackCentre(self.cfg, self.dim, self.feedback, next_id=self.index,
-                                         id_step=len(self.regions.ids))
+                                         id_step=len(self.regions.ids), sites=self.sites)
         self.boxes = np.stack([interior(self.regions, r) for r in range(len(self.regions.ids))])  # (R, 4)
         self.box = tuple(self.boxes[self.index].tolist())  # its own, as floats (owners)
         self.own = self.regions._replace(ids=(self.name,), vertices=self.regions.vertices[self.index:self.index + 1])
@@ -314,10 +316,12 @@ class ShardedCentre:
     # and in) and in routing rows to regions (the local trackers' part in a live deployment)
     cpu_s: list[float] = field(default_factory=list)
     routing_s: float = 0.0
+    sites: dict[str, RadarSite] = field(default_factory=dict)  # [frame.sites]: the radars' sites (life rules)
 
     def __post_init__(self) -> None:
         n = len(self.regions.ids)
-        self.centres = [RegionCentre(self.cfg, self.dim, self.feedback, self.regions, r) for r in range(n)]
+        self.centres = [RegionCentre(self.cfg, self.dim, self.feedback, self.regions, r, sites=self.sites)
+                        for r in range(n)]
         self.cpu_s = [0.0] * n
 
     def answer(self, report: LocalReport) -> tuple[Resets, float]:

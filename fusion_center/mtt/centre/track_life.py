@@ -5,9 +5,11 @@ The rules are in :mod:`.track_to_track`'s docstring."""
 from __future__ import annotations
 
 import math
+from statistics import NormalDist
 
 import numpy as np
 
+from fedtrack.geodetic import above_radio_horizon
 from fedtrack.local_filters.mtt.associators.jipda import FALSE_CONFIRM
 from fedtrack.local_filters.mtt.config import MttConfig, miss_count, scan_lost
 from fedtrack.local_filters.mtt.local import LocalReport
@@ -18,6 +20,9 @@ from fedtrack.local_filters.mtt.local import LocalReport
 # over every sensor's scans (CENTRAL_MISSES per sensor: engines.central_params).
 CENTRAL_MISSES = 2
 # At the sensors' detection probabilities the counts may need to be longer: config.miss_count.
+# A central track's height raised by this many standard deviations before it is judged below a radar's
+# horizon (2.33: above it with a chance of at most FALSE_CONFIRM, :meth:`CentreLife._below_horizon`).
+Z_FALSE_CONFIRM = NormalDist().inv_cdf(1.0 - FALSE_CONFIRM)
 
 
 def needs_local_confirmation(cfg: MttConfig, sensor: str, R: np.ndarray, interval: float = 1.0) -> bool:
@@ -100,9 +105,11 @@ class CentreLife:
         where this sensor may be blind; and it is no one sensor's ghost: two other sensors' local tracks map
         to it, or one sensor's local track that its tracker confirmed does and this sensor's clutter shows
         it is blind there (:meth:`_clutter_would_show`; a sensor whose reports show one target and no
-        clutter shows nothing of where it is blind, and a ghost of another sensor stays tentative beside it).
-        Counted as misses, a faster sensor's scans of another part of the area filled the window and kept
-        the tracks of slower sensors tentative for good."""
+        clutter shows nothing of where it is blind, and a ghost of another sensor stays tentative beside it),
+        or this sensor is a radar with a site that cannot see it: below its radio horizon
+        (:meth:`_below_horizon`), where the extent does not count (a far radar's clutter surrounds a low
+        aircraft in x-y, high above it). Counted as misses, a faster sensor's scans of another part of the
+        area filled the window and kept the tracks of slower sensors tentative for good."""
         support = self._fused_support(slots)
         n_support = np.count_nonzero(support, axis=1)
         maybe = (n_support >= 1) & ~support[:, col]
@@ -114,16 +121,33 @@ class CentreLife:
         X, P = self.tracks.states_at(slots[maybe], report.t)
         xy, n = [0, 2], report.x.shape[0]
         at, local = X[:, xy], report.x[:, xy]
-        seen = np.zeros(at.shape[0], dtype=bool)
+        below = self._below_horizon(X, P, report)
+        inside = np.zeros(at.shape[0], dtype=bool)
         if n > 1:
-            seen = ((at > local.min(axis=0)) & (at < local.max(axis=0))).all(axis=1)
+            inside = ((at > local.min(axis=0)) & (at < local.max(axis=0))).all(axis=1) & ~below
+        reach = np.zeros(at.shape[0], dtype=bool)
         if n:
             d = at[:, None, :] - local[None, :, :]
             S = P[:, None][..., xy, :][..., xy] + report.P[None][..., xy, :][..., xy]
             d2 = np.einsum("mni,mni->mn", d, np.linalg.solve(S, d[..., None])[..., 0])
-            seen |= (d2 <= self.cfg.thresholds.association[2]).any(axis=1)
-        maybe[maybe] = ~seen & ((n_support[maybe] >= 2) | self._clutter_would_show(at, report))
+            reach = (d2 <= self.cfg.thresholds.association[2]).any(axis=1)
+        maybe[maybe] = ~(inside | reach) & ((n_support[maybe] >= 2) | below | self._clutter_would_show(at, report))
         return maybe
+
+    def _below_horizon(self, X: np.ndarray, P: np.ndarray, report: LocalReport) -> np.ndarray:
+        """Per central state of ``X`` (covariances ``P``, 3-D), whether the report's radar cannot see it: the
+        radar has a site (``sites``, ``[frame.sites]``) and the state's place raised by ``Z_FALSE_CONFIRM``
+        standard deviations of its height is below the radar's radio horizon (:func:`above_radio_horizon`: the
+        4/3 Earth, the simulators' own rule of sight). No radar detects below its horizon, so its report is no
+        evidence there; the chance that a target of that estimate stands above it after all (its height
+        Gaussian) is at most ``FALSE_CONFIRM``, jipda's bound on confirming clutter. A track of unknown height
+        (a position sensor's, ``init_z_std``) is raised above any horizon; the horizontal error is left out
+        (at 200 km the horizon's height changes by 2.5 cm a metre)."""
+        site = self.sites.get(report.sensor)
+        if site is None or X.shape[1] != 6 or report.obs_R.shape[1:] == (2, 2):
+            return np.zeros(X.shape[0], dtype=bool)
+        up = X[:, 0::2] + np.outer(Z_FALSE_CONFIRM * np.sqrt(P[:, 4, 4]), [0.0, 0.0, 1.0])
+        return ~above_radio_horizon(site, up)
 
     def _own_confirmed(self, slots: np.ndarray) -> np.ndarray:
         """Per slot of ``slots``, whether a local track that its tracker confirmed (at its latest report) maps
@@ -138,7 +162,9 @@ class CentreLife:
         but for a chance of ``FALSE_CONFIRM`` (jipda's bound on confirming clutter, which the count's note
         also holds the count to): ``exp(-lambda pi d^2) <= FALSE_CONFIRM``, ``lambda`` the sensor's clutter
         density per m^2 (one scan's clutter), ``d`` that distance. False where that shows nothing: a sensor
-        without clutter, a report without local tracks, a radar's (its density is per m rad^2)."""
+        without clutter, a report without local tracks, a radar's (its density is per m rad^2; the same
+        count in its own space shows nothing below its horizon, which bounds its clutter: docs/multitarget.md,
+        "A radar blind below its horizon")."""
         lam, local = self.cfg.clutter_of(report.sensor), report.x[:, [0, 2]]
         if lam <= 0.0 or not local.shape[0] or report.obs_R.shape[1:] != (2, 2):
             return np.zeros(at.shape[0], dtype=bool)

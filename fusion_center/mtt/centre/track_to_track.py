@@ -46,7 +46,8 @@ scan, the linearized observation of every track the scan detected, the tracks it
   the centre received since the track started (the starting scan included). A false local track of
   one sensor gets no detections from the others' scans and stays tentative; a report of a sensor
   that may be blind where a track of two other sensors lies is skipped, and where one other sensor's
-  local track confirmed by its tracker lies when the skipped sensor's clutter shows it blind there
+  local track confirmed by its tracker lies when the skipped sensor's clutter shows it blind there or,
+  for a radar with a site in ``[frame.sites]`` (``sites``), below its radio horizon
   (:meth:`~.track_life.CentreLife._blind_to`); with one live sensor the rule is that sensor's
   tracker's own (the count for gnn, a local track confirmed by its tracker for jipda and mht's
   score). Where the local trackers confirm by a test with a false-confirmation bound (jipda's
@@ -80,6 +81,7 @@ from fedtrack.fusion_center.mtt.centre.consistency import SensorConsistency, nor
 from fedtrack.fusion_center.mtt.centre.copies import FeedCopies, Observations
 from fedtrack.fusion_center.mtt.centre.track_life import CentreLife, needs_local_confirmation
 from fedtrack.fusion_center.mtt.silence import INTERVALS_KEPT, silence_bound, usual_intervals
+from fedtrack.geodetic import RadarSite
 from fedtrack.local_filters.linear.gating import track_difference_d2
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import LocalReport, Resets, no_resets
@@ -143,6 +145,8 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
     next_id: int = 0
     id_step: int = 1  # ids next_id, next_id + id_step, ...: region r of R starts at r, steps by R (shards)
     counters: Counters = field(default_factory=Counters)
+    sites: dict[str, RadarSite] = field(default_factory=dict)  # [frame.sites]: each radar's site (its clutter's place)
+
     def __post_init__(self) -> None:
         cfg = self.cfg
         self.tracks = CentralTracks(self.dim, cfg.q, cfg.noise_model, cfg.max_lag,
