@@ -17,7 +17,7 @@ from support import WAIT_S, assert_same_pictures, free_port, wait_until
 
 from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.fusion_center.mtt.service import MttCentreService
-from fedtrack.geodetic import Frame
+from fedtrack.geodetic import Frame, site_from_geodetic
 from fedtrack.keys import Keys
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.scan import parse_scan, scan_to_measurement
@@ -258,14 +258,18 @@ def test_a_report_with_observations_of_an_unusable_size_is_rejected() -> None:
 
 
 def test_the_centre_reads_its_frame_from_the_config(tmp_path: Path) -> None:
-    """``serve mtt-centre --config`` with ``[frame]`` puts WGS-84 positions in its pictures."""
+    """``serve mtt-centre --config`` with ``[frame]`` puts WGS-84 positions in its pictures, and gives the
+    track-to-track centre the radars' sites of ``[frame.sites]`` (a radar's horizon, ``CentreLife._below_horizon``)."""
     from fedtrack.fusion_center.mtt.service import service_from_args
 
     config = tmp_path / "c.toml"
-    config.write_text('[mtt]\nsensors = "any"\n[frame]\norigin = [48.85, 2.35, 100.0]\n')
+    config.write_text('[mtt]\nsensors = "any"\n[frame]\norigin = [48.85, 2.35, 100.0]\n[frame.sites]\nr1 = [49.2, 1.9, 120.0]\n')
     centre = service_from_args(["--config", str(config), "--id", "c"])
     assert centre.frame == Frame(48.85, 2.35, 100.0)
+    site = site_from_geodetic(centre.frame, 49.2, 1.9, 120.0)
+    assert list(centre.engine.sites) == ["r1"] and np.allclose(centre.engine.sites["r1"].position, site.position)
     assert service_from_args(["--id", "c"]).frame is None
+    assert service_from_args(["--id", "c"]).engine.sites == {}
 
 
 def test_central_existence_forgets_tracks_that_left_the_picture() -> None:
