@@ -145,7 +145,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
     next_id: int = 0
     id_step: int = 1  # ids next_id, next_id + id_step, ...: region r of R starts at r, steps by R (shards)
     counters: Counters = field(default_factory=Counters)
-    sites: dict[str, RadarSite] = field(default_factory=dict)  # [frame.sites]: each radar's site (its clutter's place)
+    sites: dict[str, RadarSite] = field(default_factory=dict)  # [frame.sites]: each radar's site (its horizon, life rules)
 
     def __post_init__(self) -> None:
         cfg = self.cfg
