@@ -338,7 +338,10 @@ def test_equivalent_observation_gives_the_pda_mean() -> None:
 
 def test_derived_rules() -> None:
     rules = jipda.derived_rules(0.9, 0.999)
-    odds = lambda p: p / (1.0 - p)
+
+    def odds(p: float) -> float:
+        return p / (1.0 - p)
+
     assert odds(rules.confirm) == pytest.approx(odds(0.1) / 0.01)
     assert odds(rules.delete) == pytest.approx(odds(0.1) * (1.0 - 0.9 * 0.999) ** 3)  # 3 misses: 0.1 % <= 1 % < 2 misses
     low = jipda.derived_rules(0.5, 0.999)  # 7 misses in a row: 0.8 % <= 1 % < 6 misses
