@@ -164,7 +164,7 @@ class CentralTracks:
             for name, a in zip(Modes._fields, start_modes(x[None], P[None], self.modes)):
                 getattr(self, "mode_" + name)[s, 0] = a[0]
         if self.detector is not None:
-            self._write_detector(np.array([s]), np.zeros(1, dtype=np.int64),  # head 0: position 0
+            self._write_detector(np.array([s * self.depth]),  # head 0: position 0
                                  (new_banks(1, self.detector.window, self.dim, t), no_detection(1)))
         return s
 
@@ -272,10 +272,6 @@ class CentralTracks:
             return None, None
         return self._at("x", slots, p), self._at("P", slots, p)
 
-    def _write_modes(self, slots: np.ndarray, p: np.ndarray, modes: Modes) -> None:
-        for name, a in zip(Modes._fields, modes):
-            getattr(self, "mode_" + name)[slots, p] = a
-
     def maneuvers_at(self, slots: np.ndarray, t: float) -> InputDetection:
         """The maneuver detector's result after each slot's newest observation up to ``t`` (the
         entry :meth:`states_at` predicts from); no estimate without a detector."""
@@ -297,8 +293,8 @@ class CentralTracks:
         fusing ``(H, R, z)``, the maneuver detector's step from ``bank`` (None without a
         detector) and the modes after (None without; with them ``x``, ``P`` are not read).
         ``prior``: that prediction, when the caller made it (:meth:`states_at`; ``x``, ``P`` not read)."""
-        # the interval, unless the caller's prediction is all that it would serve
-        dt = rounded_interval(t - t0) if prior is None or modes is not None or bank is not None else None
+        # the interval (rounded here for the modes and the detector; predict_batch rounds its own)
+        dt = t - t0 if modes is None and bank is None else rounded_interval(t - t0)
         if modes is None:
             if prior is not None:
                 xp, Pp = prior
@@ -315,8 +311,12 @@ class CentralTracks:
                H: np.ndarray, R: np.ndarray, z: np.ndarray, step: DetectorStep, modes: Modes | None = None) -> None:
         """Ring position ``p`` of each slot: the observation ``(H, R, z)`` at ``t`` and the posterior
         (and detector step, and modes) after it."""
-        m, at = H.shape[1], slots * self.depth + p  # one index over the flattened slot and ring axes
-        self.t.reshape(-1)[at], self.m.reshape(-1)[at] = t, m
+        self._write_at(slots * self.depth + p, t, x, P, H, R, z, step, modes)
+
+    def _write_at(self, at: np.ndarray, t: float | np.ndarray, x: np.ndarray, P: np.ndarray, H: np.ndarray,
+                  R: np.ndarray, z: np.ndarray, step: DetectorStep, modes: Modes | None = None) -> None:
+        """:meth:`_write` by one index ``slot * depth + position`` over the flattened slot and ring axes."""
+        self.t.reshape(-1)[at], self.m.reshape(-1)[at] = t, H.shape[1]
         for name, a in (("x", x), ("P", P), ("H", H), ("R", R), ("z", z)):
             ring = getattr(self, name)
             flat = ring.reshape((-1,) + ring.shape[2:])
@@ -325,14 +325,20 @@ class CentralTracks:
             else:  # a smaller observation in the first rows and columns
                 flat[(at,) + tuple(slice(0, k) for k in a.shape[1:])] = a
         if step is not None:
-            self._write_detector(slots, p, step)
-        if modes is not None:
-            self._write_modes(slots, p, modes)
+            self._write_detector(at, step)
+        for name, a in () if modes is None else zip(Modes._fields, modes):
+            self._flat("mode_" + name)[at] = a
 
-    def _write_detector(self, slots: np.ndarray, p: np.ndarray, step: tuple[InputBank, InputDetection]) -> None:
+    def _flat(self, name: str) -> np.ndarray:
+        """Ring field ``name`` with its slot and ring axes as one (a view)."""
+        a = getattr(self, name)
+        return a.reshape((-1,) + a.shape[2:])
+
+    def _write_detector(self, at: np.ndarray, step: tuple[InputBank, InputDetection]) -> None:
+        """The detector's banks and detection at ``at`` (:meth:`_write_at`'s index)."""
         for prefix, record in zip(("bank_", "det_"), step):
             for name, a in zip(record._fields, record):
-                getattr(self, prefix + name)[slots, p] = a
+                self._flat(prefix + name)[at] = a
 
     def _trim(self, slots: np.ndarray, t_newest: float | np.ndarray) -> None:
         """Fold the entries older than ``max_lag`` before each slot's newest (at ``t_newest``) into
@@ -414,48 +420,92 @@ class CentralTracks:
                    t_newest: np.ndarray, prior: tuple[np.ndarray, np.ndarray] | None = None
                    ) -> tuple[np.ndarray, np.ndarray]:
         """Insert observations older than their tracks' newest (at ``t_newest``) and fuse the later
-        ones again (:meth:`fuse` made room for one more entry in each; ``prior`` as there)."""
+        ones again (:meth:`fuse` made room for one more entry in each; ``prior`` as there).
+
+        The tracks are ranked by how many observations they fuse again, most first (stable), so that
+        the tracks of the ``j``-th step of the re-fusion are the first ``k_j`` of them: the later
+        observations are gathered once, step after step, each step's a contiguous run of them, its
+        inputs leading rows of the step before's results, and the ring is written once at the end.
+        Each track's arithmetic is the step by step fusion's (a batched step treats each track as alone)."""
         n_after = self._newer_than(slots, t)
         self.reprocessed += int(n_after.sum())
         keep = self.count[slots] - n_after  # entries up to t stay (>= 1: the checkpoint is not after t)
-        # the observations to fuse again, gathered before the ring is rewritten: (n, most after)
-        later = np.arange(int(n_after.max()))
-        pos = (self.head[slots][:, None] + keep[:, None] + later) % self.depth
-        rows = slots[:, None]
-        old_t, old_m = self.t[rows, pos], self.m[rows, pos]
-        old_H, old_R, old_z = self.H[rows, pos], self.R[rows, pos], self.z[rows, pos]
+        rank = np.argsort(-n_after, kind="stable")
+        ranked = slots[rank]
+        # the observations to fuse again, gathered before the ring is rewritten, step-major: step j's
+        # are at[off[j]:off[j + 1]], of the first k[j] ranked tracks; each moves one position later
+        k = np.bincount(n_after, minlength=int(n_after.max()) + 1)[:0:-1].cumsum()[::-1].tolist()
+        first = self.head[ranked] + keep[rank]
+        pos = (first + np.arange(len(k))[:, None]) % self.depth
+        runs = np.arange(slots.size) < np.array(k)[:, None]  # (steps, tracks)
+        at = (ranked * self.depth + pos)[runs]
+        moved = (ranked * self.depth + (pos + 1) % self.depth)[runs]
+        old_t, old_m, old_H, old_R, old_z = (self._flat(name)[at] for name in ("t", "m", "H", "R", "z"))
         p = self._pos(slots, keep - 1)
-        t_prev = self.t[slots, p]
-        x_at, P_at, step, modes = self._step(t_prev, *(self._state_at(slots, p) if prior is None else (None, None)),
+        x_at, P_at, step, modes = self._step(self.t[slots, p], *(self._state_at(slots, p) if prior is None else (None, None)),
                                              t, H, R, z, self._bank_at(slots, p), self._modes_at(slots, p), prior)
         self._write(slots, self._pos(slots, keep), t, x_at, P_at, H, R, z, step, modes)
-        t_prev[:], x_prev, P_prev = t, x_at.copy(), P_at.copy()
-        bank = None if step is None else step[0]  # each slot's bank after its latest re-fused entry
-        for j in later.tolist():
-            again = (n_after > j).nonzero()[0]
-            sizes = old_m[again, j]
-            if sizes.min() == sizes.max():  # one observation size (the usual): one step, all at once if all
-                groups = [(int(sizes[0]), slice(None) if again.size == slots.size else again)]
+        one_size = bool((old_m == old_m[0]).all())
+        # each ranked track's state after its latest re-fused entry (the inserted one's, then each step's)
+        t_prev, x_prev, P_prev = t, x_at[rank], P_at[rank]
+        bank = None if step is None else InputBank(*(a[rank] for a in step[0]))
+        modes = None if modes is None else modes.take(rank)
+        results: list[tuple[np.ndarray, np.ndarray, DetectorStep, Modes | None]] = []
+        off = 0
+        for kj in k:
+            run = slice(off, off + kj)
+            args = (t_prev if np.ndim(t_prev) == 0 else t_prev[:kj], x_prev[:kj], P_prev[:kj],
+                    None if bank is None else InputBank(*(a[:kj] for a in bank)),
+                    None if modes is None else Modes(*(a[:kj] for a in modes)))
+            if one_size:
+                m = int(old_m[0])
+                out = self._step(*args[:3], old_t[run], old_H[run, :m], old_R[run, :m, :m], old_z[run, :m], *args[3:])
             else:
-                groups = [(m, again[sizes == m]) for m in np.unique(sizes).tolist()]
-            for m, g in groups:
-                tg, Hg, Rg, zg = old_t[g, j], old_H[g, j, :m], old_R[g, j, :m, :m], old_z[g, j, :m]
-                x_prev[g], P_prev[g], step, mode_g = self._step(
-                    t_prev[g], x_prev[g], P_prev[g], tg, Hg, Rg, zg,
-                    None if bank is None else InputBank(*(a[g] for a in bank)),
-                    None if modes is None else modes.take(g))
-                self._write(slots[g], self._pos(slots[g], keep[g] + 1 + j), tg, x_prev[g], P_prev[g], Hg, Rg, zg,
-                            step, mode_g)
-                t_prev[g] = tg
-                if step is not None:
-                    for a, new in zip(bank, step[0]):
-                        a[g] = new
-                if mode_g is not None:  # each slot's modes after its latest re-fused entry
-                    for a, new in zip(modes, mode_g):
-                        a[g] = new
+                out = self._step_by_size(args, old_t[run], old_m[run], old_H[run], old_R[run], old_z[run])
+            results.append(out)
+            t_prev, (x_prev, P_prev, step, modes) = old_t[run], out
+            bank = None if step is None else step[0]
+            off += kj
+        x_all, P_all = np.concatenate([r[0] for r in results]), np.concatenate([r[1] for r in results])
+        steps = None if step is None else tuple(type(part)(*map(np.concatenate, zip(*(r[2][i] for r in results))))
+                                                for i, part in enumerate(step))
+        modes_all = None if modes is None else Modes(*map(np.concatenate, zip(*(r[3] for r in results))))
+        for m, e in [(int(old_m[0]), slice(None))] if one_size else [
+                (m, (old_m == m).nonzero()[0]) for m in np.unique(old_m).tolist()]:
+            self._write_at(moved[e], old_t[e], x_all[e], P_all[e], old_H[e, :m], old_R[e, :m, :m], old_z[e, :m],
+                           None if steps is None else tuple(type(part)(*(a[e] for a in part)) for part in steps),
+                           None if modes_all is None else Modes(*(a[e] for a in modes_all)))
         self.count[slots] = keep + n_after + 1
         self._trim(slots, t_newest)
         return x_at, P_at
+
+    def _step_by_size(self, args: tuple, t: np.ndarray, m: np.ndarray, H: np.ndarray, R: np.ndarray, z: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray, DetectorStep, Modes | None]:
+        """One re-fusion step over observations of several sizes ``m`` (padded to the ring's): a
+        :meth:`_step` per size, the results in the observations' order."""
+        t0, x, P, bank, modes = args
+        n = m.size
+        x_out, P_out = np.empty(x.shape), np.empty(P.shape)
+        step_out: DetectorStep = None
+        modes_out = None if modes is None else Modes(*(np.empty(a.shape, a.dtype) for a in modes))
+        for size in np.unique(m).tolist():
+            g = (m == size).nonzero()[0]
+            xg, Pg, step, mode_g = self._step(
+                t0 if np.ndim(t0) == 0 else t0[g], x[g], P[g], t[g], H[g, :size], R[g, :size, :size],
+                z[g, :size], None if bank is None else InputBank(*(a[g] for a in bank)),
+                None if modes is None else modes.take(g))
+            x_out[g], P_out[g] = xg, Pg
+            if step is not None:
+                if step_out is None:
+                    step_out = tuple(type(part)(*(np.empty((n,) + a.shape[1:], a.dtype) for a in part))
+                                     for part in step)
+                for part, new in zip(step_out, step):
+                    for a, b in zip(part, new):
+                        a[g] = b
+            if mode_g is not None:
+                for a, b in zip(modes_out, mode_g):
+                    a[g] = b
+        return x_out, P_out, step_out, modes_out
 
 
 class DepartedTracks:
