@@ -20,6 +20,7 @@ per track.
 from __future__ import annotations
 
 from collections.abc import Iterator
+from typing import NamedTuple
 
 import numpy as np
 
@@ -40,6 +41,22 @@ from fedtrack.local_filters.vdie.input_bank import (
 
 # one step's result beside the posterior: the maneuver detector's banks and detection, if any
 DetectorStep = tuple[InputBank, InputDetection] | None
+
+
+class Later(NamedTuple):
+    """The observations a re-fusion fuses again (:meth:`CentralTracks._later`): the tracks' ``rank``
+    (most observations first), ``k[j]`` tracks in step ``j``, and per observation, step after step,
+    its ring index after the move one position later (``moved``) and its fields ``t``, ``m``, ``H``,
+    ``R``, ``z`` (padded to the ring's size)."""
+
+    rank: np.ndarray
+    k: list[int]
+    moved: np.ndarray
+    t: np.ndarray
+    m: np.ndarray
+    H: np.ndarray
+    R: np.ndarray
+    z: np.ndarray
 
 
 def padded(a: np.ndarray, shape: tuple[int, ...]) -> np.ndarray:
@@ -395,61 +412,72 @@ class CentralTracks:
             self._trim(slots, t)
             return ahead, x_out, P_out
         ok = (t >= self.t[slots, head]) & (t >= t_new - self.max_lag)
-        if ok.any() and self._room_for(int(count[ok].max()) + 1):
-            p = (self.head[slots] + count - 1) % self.depth
-        ahead &= ok
         n = slots.shape[0]
+        if not ok.any():
+            return ok, np.zeros((n, self.dim)), np.zeros((n, self.dim, self.dim))
+        i: slice | np.ndarray = slice(None) if ok.all() else ok.nonzero()[0]  # none late (the usual): no subsets
+        self._room_for(int(count[i].max()) + 1)
+        x_i, P_i = self._reprocess(slots[i], t, H[i], R[i], z[i], t_new[i],
+                                   None if prior is None else (prior[0][i], prior[1][i]))
+        if isinstance(i, slice):
+            return ok, x_i, P_i
         x_out, P_out = np.zeros((n, self.dim)), np.zeros((n, self.dim, self.dim))
-        i = ahead.nonzero()[0]
-        if i.size:
-            s, pi = slots[i], p[i]
-            x_out[i], P_out[i], step, modes = self._step(
-                t_new[i], *(self._state_at(s, pi) if prior is None else (None, None)), t, H[i], R[i], z[i],
-                self._bank_at(s, pi), self._modes_at(s, pi), None if prior is None else (prior[0][i], prior[1][i]))
-            self._write(s, (pi + 1) % self.depth, t, x_out[i], P_out[i], H[i], R[i], z[i], step, modes)
-            self.count[s] += 1
-            self._trim(s, t)
-        behind = (ok & ~ahead).nonzero()[0]
-        if behind.size:
-            x_out[behind], P_out[behind] = self._reprocess(slots[behind], t, H[behind], R[behind], z[behind],
-                                                           t_new[behind],
-                                                           None if prior is None else (prior[0][behind], prior[1][behind]))
+        x_out[i], P_out[i] = x_i, P_i
         return ok, x_out, P_out
 
     def _reprocess(self, slots: np.ndarray, t: float, H: np.ndarray, R: np.ndarray, z: np.ndarray,
                    t_newest: np.ndarray, prior: tuple[np.ndarray, np.ndarray] | None = None
                    ) -> tuple[np.ndarray, np.ndarray]:
-        """Insert observations older than their tracks' newest (at ``t_newest``) and fuse the later
-        ones again (:meth:`fuse` made room for one more entry in each; ``prior`` as there).
-
-        The tracks are ranked by how many observations they fuse again, most first (stable), so that
-        the tracks of the ``j``-th step of the re-fusion are the first ``k_j`` of them: the later
-        observations are gathered once, step after step, each step's a contiguous run of them, its
-        inputs leading rows of the step before's results, and the ring is written once at the end.
-        Each track's arithmetic is the step by step fusion's (a batched step treats each track as alone)."""
+        """Fuse each observation at ``t`` into its track (:meth:`fuse` made room for one more entry in
+        each; ``prior`` as there; the track's newest entry at ``t_newest``): after the newest, or inserted
+        before the later ones, which are fused again (:meth:`_refuse`). One step for all of them: a track
+        whose newest entry is not after ``t`` fuses nothing again."""
         n_after = self._newer_than(slots, t)
         self.reprocessed += int(n_after.sum())
         keep = self.count[slots] - n_after  # entries up to t stay (>= 1: the checkpoint is not after t)
-        rank = np.argsort(-n_after, kind="stable")
-        ranked = slots[rank]
-        # the observations to fuse again, gathered before the ring is rewritten, step-major: step j's
-        # are at[off[j]:off[j + 1]], of the first k[j] ranked tracks; each moves one position later
-        k = np.bincount(n_after, minlength=int(n_after.max()) + 1)[:0:-1].cumsum()[::-1].tolist()
-        first = self.head[ranked] + keep[rank]
-        pos = (first + np.arange(len(k))[:, None]) % self.depth
-        runs = np.arange(slots.size) < np.array(k)[:, None]  # (steps, tracks)
-        at = (ranked * self.depth + pos)[runs]
-        moved = (ranked * self.depth + (pos + 1) % self.depth)[runs]
-        old_t, old_m, old_H, old_R, old_z = (self._flat(name)[at] for name in ("t", "m", "H", "R", "z"))
+        later = self._later(slots, keep, n_after)  # gathered before the ring is rewritten
         p = self._pos(slots, keep - 1)
         x_at, P_at, step, modes = self._step(self.t[slots, p], *(self._state_at(slots, p) if prior is None else (None, None)),
                                              t, H, R, z, self._bank_at(slots, p), self._modes_at(slots, p), prior)
         self._write(slots, self._pos(slots, keep), t, x_at, P_at, H, R, z, step, modes)
-        one_size = bool((old_m == old_m[0]).all())
-        # each ranked track's state after its latest re-fused entry (the inserted one's, then each step's)
+        if later is not None:
+            self._refuse(later, t, (x_at, P_at, step, modes))
+        self.count[slots] = keep + n_after + 1
+        self._trim(slots, np.maximum(t_newest, t))
+        return x_at, P_at
+
+    def _later(self, slots: np.ndarray, keep: np.ndarray, n_after: np.ndarray) -> Later | None:
+        """The observations after the first ``keep`` entries of each slot (``n_after`` of them), to fuse
+        again, or None (none)."""
+        steps = int(n_after.max())
+        if not steps:
+            return None
+        rank = np.argsort(-n_after, kind="stable")
+        ranked = slots[rank]
+        k = np.bincount(n_after, minlength=steps + 1)[:0:-1].cumsum()[::-1]  # tracks with more than j
+        pos = (self.head[ranked] + keep[rank] + np.arange(steps)[:, None]) % self.depth  # (steps, tracks)
+        runs = np.arange(slots.size) < k[:, None]
+        at = (ranked * self.depth + pos)[runs]  # step-major: step j's are k[j] consecutive ones
+        moved = (ranked * self.depth + (pos + 1) % self.depth)[runs]
+        return Later(rank, k.tolist(), moved, *(self._flat(name)[at] for name in ("t", "m", "H", "R", "z")))
+
+    def _refuse(self, later: Later, t: float, first: tuple[np.ndarray, np.ndarray, DetectorStep, Modes | None]
+                ) -> None:
+        """Fuse the ``later`` observations again, step by step from each track's posterior after the
+        inserted observation at ``t`` (``first``: its posteriors, detector step and modes), and write
+        them each one position later in the ring.
+
+        The tracks are ranked by how many observations they fuse again, most first, so that step
+        ``j``'s tracks are the first ``k_j`` of them: its inputs are leading rows of the step before's
+        results and a run of the observations gathered once; the ring is written once, at the end.
+        A batched step treats each track as alone, so each track's arithmetic is the one of fusing its
+        observations one by one."""
+        rank, k = later.rank, later.k
+        x_at, P_at, step, modes = first
         t_prev, x_prev, P_prev = t, x_at[rank], P_at[rank]
         bank = None if step is None else InputBank(*(a[rank] for a in step[0]))
         modes = None if modes is None else modes.take(rank)
+        one_size = bool((later.m == later.m[0]).all())
         results: list[tuple[np.ndarray, np.ndarray, DetectorStep, Modes | None]] = []
         off = 0
         for kj in k:
@@ -458,26 +486,25 @@ class CentralTracks:
                     None if bank is None else InputBank(*(a[:kj] for a in bank)),
                     None if modes is None else Modes(*(a[:kj] for a in modes)))
             if one_size:
-                m = int(old_m[0])
-                out = self._step(*args[:3], old_t[run], old_H[run, :m], old_R[run, :m, :m], old_z[run, :m], *args[3:])
+                m = int(later.m[0])
+                out = self._step(*args[:3], later.t[run], later.H[run, :m], later.R[run, :m, :m], later.z[run, :m],
+                                 *args[3:])
             else:
-                out = self._step_by_size(args, old_t[run], old_m[run], old_H[run], old_R[run], old_z[run])
+                out = self._step_by_size(args, later.t[run], later.m[run], later.H[run], later.R[run], later.z[run])
             results.append(out)
-            t_prev, (x_prev, P_prev, step, modes) = old_t[run], out
+            t_prev, (x_prev, P_prev, step, modes) = later.t[run], out
             bank = None if step is None else step[0]
             off += kj
         x_all, P_all = np.concatenate([r[0] for r in results]), np.concatenate([r[1] for r in results])
         steps = None if step is None else tuple(type(part)(*map(np.concatenate, zip(*(r[2][i] for r in results))))
                                                 for i, part in enumerate(step))
         modes_all = None if modes is None else Modes(*map(np.concatenate, zip(*(r[3] for r in results))))
-        for m, e in [(int(old_m[0]), slice(None))] if one_size else [
-                (m, (old_m == m).nonzero()[0]) for m in np.unique(old_m).tolist()]:
-            self._write_at(moved[e], old_t[e], x_all[e], P_all[e], old_H[e, :m], old_R[e, :m, :m], old_z[e, :m],
+        for m, e in [(int(later.m[0]), slice(None))] if one_size else [
+                (m, (later.m == m).nonzero()[0]) for m in np.unique(later.m).tolist()]:
+            self._write_at(later.moved[e], later.t[e], x_all[e], P_all[e], later.H[e, :m], later.R[e, :m, :m],
+                           later.z[e, :m],
                            None if steps is None else tuple(type(part)(*(a[e] for a in part)) for part in steps),
                            None if modes_all is None else Modes(*(a[e] for a in modes_all)))
-        self.count[slots] = keep + n_after + 1
-        self._trim(slots, t_newest)
-        return x_at, P_at
 
     def _step_by_size(self, args: tuple, t: np.ndarray, m: np.ndarray, H: np.ndarray, R: np.ndarray, z: np.ndarray
                       ) -> tuple[np.ndarray, np.ndarray, DetectorStep, Modes | None]:
