@@ -97,13 +97,14 @@ def test_a_track_keeps_at_most_max_entries() -> None:
     np.testing.assert_allclose(P[0], P_ref, rtol=0, atol=1e-9)
 
 
-@pytest.mark.parametrize("kind", ["plain", "prior", "detector", "modes"])
+@pytest.mark.parametrize("kind", ["plain", "prior", "detector", "modes", "sizes"])
 def test_a_batch_of_in_order_and_out_of_sequence_observations_fuses_each_as_alone(kind: str) -> None:
     """A batch of observations after their tracks' newest entries and before them (inserted, the later
     entries fused again), as one out-of-sequence report brings: the track table, the posteriors and
     the count of re-fused observations equal fusing each observation alone, to the bit (with the
-    report's prediction as ``prior``, the maneuver detector, two motion modes): the batched steps
-    (the in-order one step, the re-fusion's steps) treat each track as alone."""
+    report's prediction as ``prior``, the maneuver detector, two motion modes, 3-D tracks whose kept
+    observations are of sizes 2 and 3: steps of the re-fusion with both sizes): the batched steps
+    (the in-order one step, the re-fusion's ranked steps) treat each track as alone."""
     import copy
     import pickle
 
@@ -111,19 +112,24 @@ def test_a_batch_of_in_order_and_out_of_sequence_observations_fuses_each_as_alon
     from fedtrack.local_filters.vdie.estimation import VdieParams
 
     rng = np.random.default_rng(11)
-    n_tracks = 9
-    store = CentralTracks(4, Q, "continuous", max_lag=3.0, depth=2,
+    n_tracks, dim = 9, 6 if kind == "sizes" else 4
+    store = CentralTracks(dim, Q, "continuous", max_lag=3.0, depth=2,
                           detector=VdieParams(window=6) if kind == "detector" else None,
                           modes=ModeRates(1.0 / 60.0, 1.0 / 15.0) if kind == "modes" else None)
     for c in range(n_tracks):
-        store.start(c, 0.0, rng.normal(size=4) * 10.0, np.eye(4) * 30.0)
+        store.start(c, 0.0, rng.normal(size=dim) * 10.0, np.eye(dim) * 30.0)
     slots = store.slots_of(list(range(n_tracks)))
-    H, R = np.repeat(position_matrix(4)[None], n_tracks, 0), np.repeat(np.eye(2)[None] * 4.0, n_tracks, 0)
+    H, R = np.repeat(position_matrix(dim)[None], n_tracks, 0), np.repeat(np.eye(2)[None] * 4.0, n_tracks, 0)
     for t in np.round(np.cumsum(rng.uniform(0.2, 0.5, size=8)), 3).tolist():
         some = rng.random(n_tracks) < 0.7  # each track its own history
-        assert store.fuse(slots[some], t, H[some], R[some], rng.normal(size=(int(some.sum()), 2)) * 5.0)[0].all()
+        some[0] &= kind != "sizes" or t < 1.2  # (3-D: track 0's ends early, the others' go on)
+        m = 3 if kind == "sizes" and rng.random() < 0.5 else 2  # a 3-D position or a 2-D one
+        assert store.fuse(slots[some], t, np.repeat(position_matrix(dim, m)[None], int(some.sum()), 0),
+                          np.repeat(np.eye(m)[None] * 4.0, int(some.sum()), 0),
+                          rng.normal(size=(int(some.sum()), m)) * 5.0)[0].all()
     newest = store.newest_t(slots)
-    t = float(newest.max()) - 0.05  # after some tracks' newest entries, before the others'
+    # after some tracks' newest entries, before the others' (3-D: before several of both sizes)
+    t = float(newest.min()) + 0.01 if kind == "sizes" else float(newest.max()) - 0.05
     assert (newest <= t).any() and (newest > t).any()
     z = rng.normal(size=(n_tracks, 2)) * 5.0
     alone = copy.deepcopy(store)

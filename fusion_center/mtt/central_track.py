@@ -383,11 +383,12 @@ class CentralTracks:
         """Fuse observation ``(H[i], R[i], z[i])`` (one size ``m``), taken at ``t``, into distinct
         ``slots[i]``; returns which were fused (False: late) and each posterior at ``t``.
 
-        The tracks whose newest observation is not after ``t`` take one batched step. For the
-        others, the observations from ``t`` on are fused again in time order from the posterior
-        before ``t``, step by step over all those tracks at once (one batched prediction and
-        update per step and observation size). ``prior``: each slot's :meth:`states_at` ``t``, if
-        the caller has it (without motion modes): the prediction the first step makes, not made again.
+        Each observation is fused in one batched step with the others: after its track's newest, or,
+        for a track with newer ones, inserted before them; those are then fused again in time order
+        from the posterior at ``t``, step by step over all those tracks at once (one batched
+        prediction and update per step and observation size: :meth:`_refuse`). ``prior``: each slot's
+        :meth:`states_at` ``t``, if the caller has it (without motion modes): the prediction the first
+        step makes, not made again.
         """
         if H.shape[1] > self.H.shape[2]:
             raise ValueError(f"observations of size {H.shape[1]} in a {self.dim}-D central state")
