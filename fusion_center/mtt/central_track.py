@@ -438,8 +438,9 @@ class CentralTracks:
         keep = self.count[slots] - n_after  # entries up to t stay (>= 1: the checkpoint is not after t)
         later = self._later(slots, keep, n_after)  # gathered before the ring is rewritten
         p = self._pos(slots, keep - 1)
-        x_at, P_at, step, modes = self._step(self.t[slots, p], *(self._state_at(slots, p) if prior is None else (None, None)),
-                                             t, H, R, z, self._bank_at(slots, p), self._modes_at(slots, p), prior)
+        x, P = self._state_at(slots, p) if prior is None else (None, None)
+        x_at, P_at, step, modes = self._step(self.t[slots, p], x, P, t, H, R, z, self._bank_at(slots, p),
+                                             self._modes_at(slots, p), prior)
         self._write(slots, self._pos(slots, keep), t, x_at, P_at, H, R, z, step, modes)
         if later is not None:
             self._refuse(later, t, (x_at, P_at, step, modes))
