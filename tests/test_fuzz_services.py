@@ -25,7 +25,6 @@ counts a payload its decoder rejected; the handlers count theirs by reason).
 
 from __future__ import annotations
 
-import io
 import logging
 import math
 import random
@@ -376,20 +375,6 @@ def region_bus(tmp_path: Path) -> Bus:
     return Bus([*centres, *local, merger, recorder])
 
 
-class InMemory:
-    """A snapshot file's stand-in (``is_file``, ``open``): 10,000 disk writes would be the test's time."""
-
-    def __init__(self, data: bytes) -> None:
-        self.data = data
-
-    def is_file(self) -> bool:
-        return True
-
-    def open(self, mode: str) -> io.BytesIO:
-        assert mode == "rb"
-        return io.BytesIO(self.data)
-
-
 class Sample:
     """A liveliness sample as the callbacks see it."""
 
@@ -442,16 +427,16 @@ def test_a_corrupted_snapshot_never_stops_the_centre(tmp_path: Path) -> None:
     level = quiet.level
     quiet.setLevel(logging.ERROR)
     try:
-        restore_corrupted(good, estimate, outcomes)
+        restore_corrupted(good, estimate, outcomes, tmp_path / "mutated.snapshot")
     finally:
         quiet.setLevel(level)
     print(f"\nsnapshots: {PAYLOADS} corrupted, {outcomes['restored']} restored, {outcomes['fresh']} started fresh")
     assert sum(outcomes.values()) == PAYLOADS and outcomes["fresh"] > 0
 
 
-def restore_corrupted(good: bytes, estimate: LocalEstimate, outcomes: dict[str, int]) -> None:
+def restore_corrupted(good: bytes, estimate: LocalEstimate, outcomes: dict[str, int], mutated: Path) -> None:
     """PAYLOADS centres restored from corruptions of the snapshot ``good`` (every other one of its map,
-    sealed again); every 500th then takes ``estimate``."""
+    sealed again), each written to the file ``mutated`` first; every 500th then takes ``estimate``."""
     mutator = Mutator(SEED)
     opts = SessionOptions(connect=("tcp/127.0.0.1:1",))
     head = len(SNAPSHOT_MAGIC) + DIGEST_BYTES
@@ -468,8 +453,9 @@ def restore_corrupted(good: bytes, estimate: LocalEstimate, outcomes: dict[str, 
             data[mutator.rng.randrange(len(data)):mutator.rng.randrange(len(data))] = bytes(8)
         if resealed:
             data[:0] = SNAPSHOT_MAGIC + blake2b(bytes(data), digest_size=DIGEST_BYTES).digest()
+        mutated.write_bytes(data)
         fresh = FusionCenterService(list(SENSORS), FederatedCentre(list(SENSORS), FusionConfig()), 0.5,
-                                    snapshot=InMemory(bytes(data)), service_id="fusion",  # type: ignore[arg-type]
+                                    snapshot=mutated, service_id="fusion",
                                     options=opts, deployment=KEYS.deployment)
         fresh._restore()
         outcomes["restored" if fresh.restored else "fresh"] += 1
