@@ -252,10 +252,11 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Se
         events = {} if mt is None else {**{f"{sid} joins": t for sid, t in mt.join_at.items()},
                                         **{f"{sid} killed": t for sid, t in mt.kill_at.items()}}
         label = None if mt is None else f"live {mt.algorithm}"
+        regions = load_regions(out / "config.toml") if (out / "config.toml").is_file() else None
         if settings.frame is None:
-            plot(result, tracks, truth, png, events, label=label)
+            plot(result, tracks, truth, png, events, label=label, regions=regions)
         else:  # on the Earth: the map in tracks.png, GOSPA over time beside it, and GeoJSON
-            plot(result, tracks, truth, out / "gospa.png", events, label=label)
+            plot(result, tracks, truth, out / "gospa.png", events, label=label, regions=regions)
             plot_map(tracks, truth, settings.frame, png, label=label)
             (out / "tracks.geojson").write_text(json.dumps(feature_collection(settings.frame, tracks, truth)))
             written += " gospa.png tracks.geojson"

@@ -15,6 +15,7 @@ from fedtrack.fusion_center.mtt.evaluation.registration import registration_line
 from fedtrack.fusion_center.mtt.evaluation.scoring import evaluate
 from fedtrack.geodetic import load_frame
 from fedtrack.jsonl import check_output, output_file
+from fedtrack.local_filters.regions import load_regions
 
 
 def main(argv: list[str]) -> int:
@@ -40,7 +41,8 @@ def main(argv: list[str]) -> int:
                         help="PNG: tracks over truth and GOSPA over time (default: no plot)")
     parser.add_argument("--config", type=Path, metavar="C.toml", help="with --plot: a config whose [frame] puts the "
                         "tracks on the Earth; the map (longitude / latitude, sensor sites marked) goes to PLOT's "
-                        "name + -map.png (default: none, no map)")
+                        "name + -map.png; whose [regions] draws the region borders and the tracks' hand-overs on "
+                        "the plot (default: none, no map, no borders)")
     parser.add_argument("--label", help="the plot title's algorithm (default: the tracks file's \"algorithm\")")
     args = parser.parse_args(argv)
     if args.alpha != 2:
@@ -56,15 +58,17 @@ def main(argv: list[str]) -> int:
     if args.plot is not None:
         check_figure_format(args.plot)
     if args.config is not None and args.plot is None:
-        parser.error("--config applies with --plot (its [frame] draws the map beside the figure)")
+        parser.error("--config applies with --plot (its [frame] draws the map beside the figure, its [regions] the "
+                     "borders on it)")
     frame = load_frame(args.config)  # before the evaluation: a bad config fails at start
+    regions = load_regions(args.config)
     result = evaluate(args.tracks, args.truth, args.c, args.p, args.all_tracks, args.horizontal)
     map_png = args.plot.with_name(args.plot.stem + "-map.png") if frame is not None else None
     if args.json:  # the files first: a reader that stops early (| head) does not cost them
         with output_file(args.json) as fh:
             fh.write(json.dumps(result))
     if args.plot:
-        plot(result, args.tracks, args.truth, args.plot, label=args.label)
+        plot(result, args.tracks, args.truth, args.plot, label=args.label, regions=regions)
     if map_png is not None:
         plot_map(args.tracks, args.truth, frame, map_png, label=args.label or result["algorithm"])
     m = result["mean"]
