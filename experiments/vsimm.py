@@ -200,8 +200,9 @@ def _plot(result: dict[str, Any], plots_dir: Path) -> list[Path]:
         ax.set_yticks(range(len(names)), names, fontsize=7)
         ax.set_title(f"{scen}: active group(s) of run 0 (union = old+activated; lines offset)")
         ax.set_xlabel("k (s)")
+        ax.set_ylabel("active model group")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="upper right")
+        ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))  # beside the axes: no step hidden
         fig.tight_layout()
         path = plots_dir / f"vsimm_{scen}_active_groups_run0.png"
         fig.savefig(path, dpi=110)

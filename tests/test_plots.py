@@ -114,3 +114,17 @@ def test_the_title_names_the_maneuver_detector_and_empty_panels_say_why(tmp_path
     assert fig._suptitle.get_text() == "mtt-federated (maneuver detector vdie): tracks.jsonl"
     assert [t.get_text() for t in fig.axes[0].texts] == ["no confirmed track in tracks.jsonl"]
     assert "confirmed tracks (0), a colour each" in legend_texts(fig.axes[0])
+
+
+def test_vsimm_active_groups_legend_is_beside_the_axes_and_the_axis_named(tmp_path: Path, figures: list[Any]) -> None:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from fedtrack.experiments.vsimm import _plot
+
+    series = {"t": [1, 2, 3], "rms_acc_x": [1.0, 2.0, 1.0], "rms_acc_y": [1.0, 1.0, 2.0]}
+    groups = {key: {"1": "M1", "2": "M1+M2", "3": "M4+M1"} for key in ("vsimm", "ao_vsimm", "vsimm_as_printed")}
+    _plot({"runs": 1, "scenarios": {"S1": {"filters": {"fsimm": series}, "active_groups_run0": groups}}}, tmp_path)
+    fig = figures[1]  # the acceleration RMSE's figure first
+    (ax,) = fig.axes
+    legend = ax.get_legend().get_window_extent(FigureCanvasAgg(fig).get_renderer())
+    assert legend.x0 >= ax.get_window_extent().x1 and ax.get_ylabel() == "active model group"
