@@ -128,3 +128,21 @@ def test_vsimm_active_groups_legend_is_beside_the_axes_and_the_axis_named(tmp_pa
     (ax,) = fig.axes
     legend = ax.get_legend().get_window_extent(FigureCanvasAgg(fig).get_renderer())
     assert legend.x0 >= ax.get_window_extent().x1 and ax.get_ylabel() == "active model group"
+
+
+def test_the_map_legend_names_truth_tracks_sites_and_origin_below_the_axes(tmp_path: Path,
+                                                                            figures: list[Any]) -> None:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from fedtrack.fusion_center.mtt.earthmap import plot_map
+    from fedtrack.geodetic import FrameConfig
+
+    tracks, truth = scene(tmp_path, targets=2)
+    plot_map(tracks, truth, FrameConfig((48.0, 2.0, 0.0), {"r1": (48.01, 2.01, 100.0)}), tmp_path / "m.png",
+             label="mtt-federated")
+    fig = figures[0]
+    (ax,) = fig.axes
+    assert legend_texts(ax) == ["truth (2 aircraft)", "confirmed tracks (2), a colour each", "sensor sites",
+                                "frame origin"]
+    legend = ax.get_legend().get_window_extent(FigureCanvasAgg(fig).get_renderer())
+    assert legend.y1 <= ax.get_window_extent().y0

@@ -43,6 +43,7 @@ def plot_map(tracks: Path, truth: Path | None, frame: FrameConfig, out: Path, la
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
     from matplotlib.ticker import FuncFormatter
 
     fig, ax = plt.subplots(figsize=(9, 8))
@@ -73,7 +74,7 @@ def plot_map(tracks: Path, truth: Path | None, frame: FrameConfig, out: Path, la
             ax.annotate(props["id"], (lon[0], lat[0]), xytext=(6, 6), textcoords="offset points",
                         fontsize=9, weight="bold")
         else:
-            ax.scatter(lon, lat, marker="+", s=120, c="red", zorder=4, label="frame origin")
+            ax.scatter(lon, lat, marker="+", s=120, c="red", zorder=4)
     if plane:
         ax.set_aspect(1.0)
         ax.set_xlabel(f"east of the origin ({lat0:g}, {lon0:g}) [km] (near the pole: the common frame's plane)")
@@ -84,9 +85,14 @@ def plot_map(tracks: Path, truth: Path | None, frame: FrameConfig, out: Path, la
         ax.set_xlabel("longitude [deg]")
         ax.set_ylabel("latitude [deg]")
     fig.suptitle(f"{label or 'algorithm not recorded (--label)'}: {tracks.name}")
-    ax.set_title("confirmed tracks (colours) over truth (grey); sensor sites as triangles")
+    ax.set_title("confirmed tracks over truth")
     ax.grid(alpha=0.3)
-    ax.legend(loc="upper right", fontsize=8)
+    kinds = [props["kind"] for props, _ in features]
+    handles = [Line2D([], [], color=TRUTH_GREY, lw=3.0, label=f"truth ({kinds.count('truth')} aircraft)"),
+               Line2D([], [], color=colours[0], lw=1.0, label=f"confirmed tracks ({n_tracks}), a colour each"),
+               Line2D([], [], color="black", marker="^", ls="none", label="sensor sites"),
+               Line2D([], [], color="red", marker="+", ms=10, ls="none", label="frame origin")]
+    ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.08), ncol=2, fontsize=8, frameon=False)
     fig.tight_layout()
     fig.savefig(out, dpi=110)
     plt.close(fig)
