@@ -216,7 +216,7 @@ def plot(out: Path, settings: Settings, title: str) -> Path | None:
     ax.set_ylabel("y [km]")
     ax.set_aspect("equal")
     ax.grid(True, alpha=0.3)
-    ax.legend(loc="best", fontsize=8)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2, fontsize=8, frameon=False)
     ax.set_title("truth, measurements and fused track")
 
     truth_at = {p["t"]: (p["x"], p["y"]) for p in truth}
@@ -227,18 +227,18 @@ def plot(out: Path, settings: Settings, title: str) -> Path | None:
         e = [np.hypot(m["z"][0] - truth_at[m["t"]][0], m["z"][1] - truth_at[m["t"]][1]) for m in mm]
         ax_err.plot([m["t"] for m in mm], e, ".", ms=3, alpha=0.4, label=f"sensor {sid} measurement error")
     ax_err.plot(t_tr, err, "r-", lw=1.5, label="fused position error")
-    for seg in paper004_scenario(settings.deployment.scenario).segments:
-        ax_err.axvspan(seg.t_start, seg.t_end, color="0.85", zorder=0)
-    for t in tracks:
-        if t.get("event") in ("onset", "new-ca"):
-            ax_err.axvline(t["t"], color="r", ls=":", lw=0.8)
-    ax_err.set_xlabel("time [s] (grey: true maneuvers; dotted: detections)")
+    for k, seg in enumerate(paper004_scenario(settings.deployment.scenario).segments):
+        ax_err.axvspan(seg.t_start, seg.t_end, color="0.85", zorder=0, label="" if k else "true maneuver")
+    for k, t in enumerate([t for t in tracks if t.get("event") in ("onset", "new-ca")]):
+        ax_err.axvline(t["t"], color="r", ls=":", lw=0.8, label="" if k else "maneuver detected")
+    ax_err.set_xlabel("time [s]")
     ax_err.set_ylabel("position error [m]")
     ax_err.grid(True, alpha=0.3)
-    ax_err.legend(loc="upper right", fontsize=8)
+    ax_err.legend(loc="upper center", bbox_to_anchor=(0.5, -0.12), ncol=2, fontsize=8, frameon=False)
     ax_err.set_title("position error against truth")
-    fig.suptitle(f"{title}: scenario {settings.deployment.scenario}, {settings.deployment.mode}, "
-                 f"{len(settings.sensor)} sensors")
+    dep = settings.deployment
+    fig.suptitle(f"{title}: {REPLAY_ALGORITHM[dep.mode].upper()} ({dep.mode}), scenario {dep.scenario}, "
+                 f"{len(settings.sensor)} sensors: tracks.jsonl")
     path = out / "tracks.png"
     fig.tight_layout()
     fig.savefig(path, dpi=110)

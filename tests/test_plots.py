@@ -146,3 +146,25 @@ def test_the_map_legend_names_truth_tracks_sites_and_origin_below_the_axes(tmp_p
                                 "frame origin"]
     legend = ax.get_legend().get_window_extent(FigureCanvasAgg(fig).get_renderer())
     assert legend.y1 <= ax.get_window_extent().y0
+
+
+def test_the_demo_plot_names_the_algorithm_and_marks_maneuvers_in_legends_below_the_axes(
+        tmp_path: Path, figures: list[Any]) -> None:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from fedtrack.deploy.report import plot
+    from fedtrack.deploy.settings import load_settings
+
+    write_lines(tmp_path / "truth.jsonl", [{"t": float(k), "x": 100.0 * k, "y": 0.0} for k in range(40)])
+    write_lines(tmp_path / "measurements.jsonl", [{"t": float(k), "sensor": "1", "z": [100.0 * k + 5, 3.0]}
+                                                  for k in range(40)])
+    write_lines(tmp_path / "tracks.jsonl", [{"t": float(k), "x": [100.0 * k, 100.0, 1.0, 0.0], "model": "cv",
+                                             "event": "onset" if k in (32, 33) else None} for k in range(40)])
+    assert plot(tmp_path, load_settings(None), "fedtrack demo") == tmp_path / "tracks.png"
+    (fig,) = figures
+    assert fig._suptitle.get_text() == "fedtrack demo: FVDIE (federated), scenario 1, 0 sensors: tracks.jsonl"
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    for ax in fig.axes:
+        assert ax.get_legend().get_window_extent(renderer).y1 <= ax.get_window_extent(renderer).y0
+    texts = legend_texts(fig.axes[1])
+    assert texts.count("true maneuver") == 1 and texts.count("maneuver detected") == 1
