@@ -168,3 +168,22 @@ def test_the_demo_plot_names_the_algorithm_and_marks_maneuvers_in_legends_below_
         assert ax.get_legend().get_window_extent(renderer).y1 <= ax.get_window_extent(renderer).y0
     texts = legend_texts(fig.axes[1])
     assert texts.count("true maneuver") == 1 and texts.count("maneuver detected") == 1
+
+
+def test_a_region_launch_draws_its_regions_in_tracks_png(tmp_path: Path, figures: list[Any]) -> None:
+    """``launch`` of a ``[multitarget]`` config with ``[regions]``: its ``tracks.png`` has the borders
+    (in-process: the launcher's finish over the files a run leaves)."""
+    from fedtrack.deploy.multitarget import SCENARIO_DIR, finish_multitarget
+    from fedtrack.deploy.report import LaunchReport
+    from fedtrack.deploy.settings import load_settings
+
+    tracks, truth = scene(tmp_path, targets=2)
+    (tmp_path / SCENARIO_DIR).mkdir()
+    truth.rename(tmp_path / SCENARIO_DIR / "truth.jsonl")
+    config = tmp_path / "config.toml"
+    config.write_text('[deployment]\nname = "plots"\n\n[multitarget]\nalgorithm = "mtt-federated"\ntargets = 2\n'
+                      'sensors = "pos:1.0"\nduration = 20.0\n\n[regions]\nmargin = 50.0\n'
+                      "grid = {origin = [-200.0, -200.0], cell = [200.0, 500.0], nx = 2, ny = 1}\n")
+    finish_multitarget(tmp_path, LaunchReport(), "fedtrack launch", load_settings(config))
+    ax = figures[0].axes[0]
+    assert "region borders (2)" in legend_texts(ax) and (tmp_path / "tracks.png").is_file()
