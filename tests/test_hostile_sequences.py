@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 import zenoh
 from test_hostile_messages import KEYS, OPTIONS, Bus, mtt_lines, mtt_services
+from test_hostile_semantics import mtt_local, scan
 from test_mtt_regions_live import CONFIG as REGIONS_CONFIG
 
 from fedtrack.fusion_center.mtt.centre import association, candidates
@@ -332,3 +333,53 @@ def test_a_replay_of_crowds_is_one_line_of_error(tmp_path: Path, monkeypatch: py
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "m.jsonl: the scan of s2 at t = 0.1: 1600 pairs" in err[0] and "crowded" in err[0], err
     assert not out.exists()
+
+
+# ---------------------------------------------------------------- a scan or report sent again under a new number
+
+def test_a_report_sent_again_under_a_new_number_is_contested_not_fused_twice() -> None:
+    """s1 re-sending its reports under new numbers (the report of t = k again as scan 500 + k, and the
+    one of t = k - 2 as scan 700 + k): the centre fused each copy within ``max_lag`` as another scan
+    (fused 59 -> 75 of three sensors' 20 scans, 55 scans re-processed; the last picture's x variance
+    4.71 -> 3.65 m^2: s1's data counted twice). A new number at a time its sensor's report of another
+    number was taken at is now a conflict: not fused, counted, the pictures contested, their tracks
+    bit for bit the honest run's."""
+    def run(attack: bool) -> tuple[MttCentreService, list[TrackPicture]]:
+        svc = MttCentreService("mtt-federated", MttConfig(sensors="any", max_lag=3.0), 4, service_id="centre",
+                               options=OPTIONS, deployment=KEYS.deployment)
+        bus = Bus([svc])
+        sent: dict[int, TrackReport] = {}
+        for k in range(20):
+            for sensor, offset in (("s1", 0.0), ("s2", 3.0), ("s3", -3.0)):
+                report = one_track_report(sensor, k, float(k), noise=offset)
+                if sensor == "s1":
+                    sent[k] = report
+                bus.put(KEYS.mtt_report(sensor), encode(report))
+            if attack and k >= 12:
+                bus.put(KEYS.mtt_report("s1"), encode(replace(sent[k], seq=500 + k, stamp_ns=2)))
+                bus.put(KEYS.mtt_report("s1"), encode(replace(sent[k - 2], seq=700 + k, stamp_ns=2)))
+        return svc, bus.of(TrackPicture)
+
+    honest, honest_pictures = run(False)
+    svc, pictures = run(True)
+    assert svc.counters["rejected_conflict"] == 16 and svc.counters["contested"] == 8
+    assert svc.engine.counters()["centre_fused"] == honest.engine.counters()["centre_fused"]
+    assert [(p.ids, p.x.tobytes(), p.P.tobytes()) for p in pictures] == [
+        (p.ids, p.x.tobytes(), p.P.tobytes()) for p in honest_pictures]
+    assert [p.contested for p in pictures] == [False] * 12 + [True] * 7
+
+
+def test_a_scan_sent_again_under_a_new_number_is_tracked_once() -> None:
+    """A sensor's scan of t = k sent again as scan 100 + k with its detections moved 5 m: the local
+    tracker updated its track twice at one time and reported both (12 reports of 8 scans), each fused
+    at the centre. Now a conflict (contested), as a second scan with a number already taken is; the
+    same scan sent again so is no longer a mere duplicate either."""
+    for moved in (0.0, 5.0):
+        bus, svc = mtt_local(False)
+        for k in range(8):
+            z = np.array([[100.0 + 10.0 * k, 200.0]])
+            bus.put(KEYS.sensor_meas("s1"), encode(scan("s1", k, float(k), z)))
+            if k >= 4:
+                bus.put(KEYS.sensor_meas("s1"), encode(scan("s1", 100 + k, float(k), z + moved)))
+        assert [r.seq for r in bus.of(TrackReport)] == list(range(8))
+        assert svc.counters["rejected_conflict"] == 4 and svc.counters.get("duplicate", 0) == 0

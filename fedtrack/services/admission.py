@@ -67,34 +67,46 @@ class ScanOrder:
 
 class ReceivedScans:
     """Per sensor, the scan numbers a multi-target service took (with a digest of their payloads,
-    stamps cleared): an identical repeat is a duplicate (``check`` returns False), a different
-    message with a number already taken a :class:`Conflict`, a number more than ``max_seq_jump``
-    past the sensor's highest a ``seq_jump`` (both Rejected). Scans may come in any order. ``check``
+    stamps cleared, and their times): an identical repeat is a duplicate (``check`` returns False), a
+    different message with a number already taken a :class:`Conflict`, and so is a new number at a
+    time already taken under another (a scan or report sent again under a new number: the
+    track-to-track centre fused such a report twice); a number more than ``max_seq_jump`` past the
+    sensor's highest a ``seq_jump`` (both Rejected). Scans may come in any order, numbered in any
+    order (a sensor may number its scans as it sends them, a late one after later ones). ``check``
     changes nothing; ``take`` records a checked message once its handling succeeded (so that a
     handler that fails in between leaves no trace)."""
 
     def __init__(self, max_seq_jump: int) -> None:
         self.max_seq_jump = max_seq_jump
-        self.taken: dict[str, dict[int, bytes]] = {}
+        self.taken: dict[str, dict[int, tuple[bytes, float]]] = {}  # sensor -> number -> (digest, time)
+        self.at: dict[str, dict[float, int]] = {}  # sensor -> time -> the number taken at it
 
     def check(self, msg: Message) -> bool:
         """True for a new scan; False for an identical repeat; Rejected for a conflict or a seq jump."""
-        sensor, seq = msg.sensor, msg.seq  # type: ignore[union-attr]
+        sensor, seq, t = msg.sensor, msg.seq, msg.t  # type: ignore[union-attr]
         seen = self.taken.get(sensor, {})
         if seq in seen:
-            if seen[seq] == digest(msg):
+            if seen[seq][0] == digest(msg):
                 return False
             raise Conflict(seq, f"a second, different message for scan {seq} of {sensor!r} (the first stays)")
         if seen and seq > max(seen) + self.max_seq_jump:
             raise Rejected("seq_jump", f"scan {seq} of {sensor!r} is more than {self.max_seq_jump} after {max(seen)}")
+        other = self.at.get(sensor, {}).get(t)
+        if other is not None:
+            raise Conflict(seq, f"scan {seq} of {sensor!r} at t={t:g}, the time of its scan {other} (the first stays)")
         return True
 
     def take(self, msg: Message) -> None:
         """Record ``msg`` (checked by :meth:`check`) as taken."""
-        seen = self.taken.setdefault(msg.sensor, {})  # type: ignore[union-attr]
-        seen[msg.seq] = digest(msg)  # type: ignore[union-attr]
+        sensor, seq, t = msg.sensor, msg.seq, msg.t  # type: ignore[union-attr]
+        seen, at = self.taken.setdefault(sensor, {}), self.at.setdefault(sensor, {})
+        seen[seq] = (digest(msg), t)
+        at[t] = seq
         if len(seen) > 4 * self.max_seq_jump:
-            del seen[min(seen)]
+            oldest = min(seen)
+            oldest_t = seen.pop(oldest)[1]
+            if at.get(oldest_t) == oldest:
+                del at[oldest_t]
 
 
 def contested_extra(scans: tuple[int, ...]) -> dict[str, list[float]]:
