@@ -128,6 +128,28 @@ def test_an_honest_hand_over_still_passes(tmp_path: Path) -> None:
     assert 1001 in centre.tracks
 
 
+def test_a_hand_over_of_a_track_in_another_region_is_refused(tmp_path: Path) -> None:
+    """A region hands a track over to the region its newest estimate is in. x1y0 handing x0y0 the
+    record of x0y0's own track moved 6 km along x (its newest estimate at x = 4,047 m, in x1y0): taken
+    over with the track's local tracks, x0y0's track 0 deleted, its next report's fusion sent the
+    forged track back to x1y0 (handed_over 1) and started the target afresh as track 2 (pictures from
+    t = 5 on: track 2, not 0). Now refused (``wrong_region``); the pictures are the honest run's."""
+    clean_bus, _ = centre_of_x0y0(tmp_path)
+    scans(clean_bus, range(12))
+    bus, svc = centre_of_x0y0(tmp_path)
+    scans(bus, range(5))
+    centre = svc.engine.region.centre  # type: ignore[union-attr]
+    msg = handover_to_wire(copy.deepcopy(centre).hand_over(next(iter(centre.tracks))), "x1y0", 0)
+    ring = np.array(msg.ring)
+    ring[:, 1] += 6000.0  # every entry's x (after its time)
+    bus.put(KEYS.region_handover("x0y0", "x1y0"), encode(replace(msg, id=1001, ring=ring)))
+    scans(bus, range(5, 12))
+    assert svc.counters["rejected_wrong_region"] == 1 and svc.counters.get("taken_over", 0) == 0
+    assert shown(bus) == shown(clean_bus) and {ids for _, ids in shown(bus)} == {(0,)}
+    for a, b in zip(bus.of(TrackPicture), clean_bus.of(TrackPicture)):
+        np.testing.assert_array_equal(a.x, b.x)
+
+
 def test_a_hand_over_whose_source_is_not_its_keys_is_refused(tmp_path: Path) -> None:
     """A hand-over's ``source`` was taken from the payload, and every region identity could put on
     every ``region/<rid>/handover``: 64 hand-overs to x0y0 claiming to be x1y0's, numbered from 10^6

@@ -474,6 +474,11 @@ class MttCentreService(CentreFailover, Service):
             raise Rejected("time_lead", f"hand-over {msg.serial} of {msg.source}: its newest entry at "
                            f"t={ring['t'][-1]:g} is beyond t={self.lead.horizon():g}, the latest a report "
                            "would be taken here at once")
+        newest = ring["x"][-1]
+        owner = int(engine.region.owners(newest[[0]], newest[[2]])[0])
+        if owner != engine.index:  # its sender hands a track to the owner of its newest estimate's position
+            raise Rejected("wrong_region", f"hand-over {msg.serial} of {msg.source}: its newest estimate, at "
+                           f"({newest[0]:.6g}, {newest[2]:.6g}), is in region {self.regions.ids[owner]!r}")
         self._in_scale(f"hand-over {msg.serial} of {msg.source}", np.concatenate([ring["x"].ravel(), ring["z"].ravel()]),
                        np.concatenate([ring["P"].ravel(), ring["R"].ravel()]))  # its observations are fused again
         centre, R, here = engine.region.centre, len(engine.regions.ids), engine.index
