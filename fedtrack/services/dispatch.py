@@ -151,6 +151,18 @@ class Dispatch:
         self.count("restarted")
         self.log.warning("scan %d of %s at t=%g: the tracker starts again %s", msg.seq, msg.sensor, msg.t, why)
 
+    def after_last(self, last_t: float | None, scan: Measurement) -> bool:
+        """Whether ``scan`` is after the time ``last_t`` of the last scan a single-sensor tracker took;
+        one at that time, under a new number, is rejected (``time_jump``) without raising: at ``hpda``
+        the track manager pools the detections of scans at one time for its births (a sensor repeating
+        its time with new scan numbers grew that pool without bound), and ``imm`` updated its track
+        with the same measurement again (its variance halved, nothing counted)."""
+        if last_t is None or scan.t != last_t:
+            return True
+        self.note_rejected(self.keys.sensor_meas(scan.sensor), Rejected(
+            "time_jump", f"scan {scan.seq} at t={scan.t}, the time of the last scan taken"))
+        return False
+
     def take_contested(self) -> tuple[int, ...]:
         """The scans contested since the last output (sorted), which the output about to be
         published names; the list starts again empty."""

@@ -70,8 +70,8 @@ class IMMService(Service):
             self.restarted(msg)
             self.tracker, self.lead = IMMTracker(self.cfg, self.tracker.algorithm), NumberedLeadGuard()
         for scan in self.in_time(self.lead, self.keys.sensor_meas(self.sensor), msg):
-            if self.admitted(self.order, scan):  # a held scan may have been repeated meanwhile
-                self._track(scan)
+            if self.admitted(self.order, scan) and self.after_last(self.tracker.t, scan):  # (a held scan may
+                self._track(scan)  # have been repeated meanwhile)
 
     def _track(self, msg: Measurement) -> None:
         """Update the IMM with ``msg`` (checked) and publish its estimate."""

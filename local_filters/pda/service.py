@@ -83,19 +83,8 @@ class PDAService(Service):
             self.manager, self.lead = initial_manager(), NumberedLeadGuard()
         for scan in self.in_time(self.lead, self.keys.sensor_meas(self.sensor), msg):
             # (a held scan may have been repeated meanwhile)
-            if self.admitted(self.order, scan) and self._after_last(scan):
+            if self.admitted(self.order, scan) and self.after_last(self.manager.t, scan):
                 self._track(scan)
-
-    def _after_last(self, scan: Measurement) -> bool:
-        """Whether ``scan`` is after the last scan taken; one at its time is rejected (``time_jump``):
-        the track manager pools the detections of scans at one time for its births, so a sensor
-        repeating its time with new scan numbers grew that pool, pickled with every message, without
-        bound."""
-        if self.manager.t is None or scan.t != self.manager.t:
-            return True
-        self.note_rejected(self.keys.sensor_meas(self.sensor), Rejected(
-            "time_jump", f"scan {scan.seq} at t={scan.t}, the time of the last scan taken"))
-        return False
 
     def _track(self, msg: Measurement) -> None:
         """Run the track manager on ``msg`` (checked) and publish the confirmed tracks."""
