@@ -582,6 +582,31 @@ def test_a_flooding_stream_neither_starves_the_others_nor_fills_memory() -> None
     assert order == [b"\x00", b"b", b"\x01", b"\x02"]  # each stream in its own order, the streams in turn
 
 
+def test_a_flood_that_fills_the_inbox_is_counted_in_health() -> None:
+    """A flood that fills a service's inbox holds its Zenoh callback, and with it everything the
+    session receives, until the worker makes room (and an authenticated router cuts a reader that
+    long behind: docs/deploy.md): nothing in Health said so. Each sample or query whose callback
+    found the inbox full is counted ``inbox_full``; what waited is taken once there is room."""
+    import threading
+
+    from fedtrack.services.inbox import Inbox
+
+    svc = MttCentreService("mtt-federated", MttConfig(sensors="any"), 4, service_id="centre", options=OPTIONS,
+                           deployment=KEYS.deployment)
+    svc._queue = Inbox(2)
+    for k in range(2):
+        svc._enqueue(("sample", 0, KEYS.mtt_report("s1"), bytes([k])))
+    assert "inbox_full" not in svc._health().counters
+    waiting = threading.Thread(target=svc._enqueue, args=(("sample", 0, KEYS.mtt_report("s2"), b"genuine"),))
+    waiting.start()
+    waiting.join(0.3)
+    assert waiting.is_alive()  # the callback waits for room
+    svc._queue.get(timeout=0.0)
+    waiting.join(5.0)
+    assert not waiting.is_alive() and svc._health().counters["inbox_full"] == 1
+    assert sorted(svc._queue.get(timeout=0.0)[3] for _ in range(2)) == [b"\x01", b"genuine"]
+
+
 # ---------------------------------------------------------------- crowds of detections
 
 @pytest.mark.parametrize("radar", [False, True])

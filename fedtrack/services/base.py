@@ -206,6 +206,7 @@ class Service(Dispatch, Publishing):
         self._last_log: dict[int, float] = {}  # log level -> monotonic time of the last rejection logged
         self._suppressed: dict[int, int] = {}  # log level -> rejections not logged since
         self._missed = 0
+        self._inbox_full = 0  # samples and queries whose callback waited for room (a Zenoh thread's)
         self._router_outages = 0
         self._router_lost_at: float | None = None
         self._router_back_at: float | None = None
@@ -378,7 +379,12 @@ class Service(Dispatch, Publishing):
         self.log.warning("missed %d sample(s) from %s (no longer in its cache)", miss.nb, miss.source)
 
     def _enqueue(self, item: tuple[Any, ...]) -> None:
-        """Zenoh callback side: block while the inbox is full, give up only when closing."""
+        """Zenoh callback side: block while the inbox is full (counted ``inbox_full``: the session
+        receives nothing else meanwhile), give up only when closing."""
+        if self._queue.put(item, timeout=0.0):
+            return
+        with self._miss_lock:
+            self._inbox_full += 1
         while not self._queue.put(item, timeout=0.1):
             if self._closing:
                 self.counters["dropped"] += 1
@@ -446,6 +452,8 @@ class Service(Dispatch, Publishing):
                 self.counters["missed"] = self._missed
             if self._router_outages:
                 self.counters["router_outages"] = self._router_outages
+            if self._inbox_full:
+                self.counters["inbox_full"] = self._inbox_full
         return Health(role=self.role, id=self.id, seq=self._health_seq, counters=health_counters(self.counters),
                       status=self.status)
 
