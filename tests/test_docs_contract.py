@@ -651,3 +651,20 @@ def test_every_local_link_of_the_docs_reaches_its_file_and_heading() -> None:
             elif anchor and linked.suffix == ".md" and anchor not in slugs(linked):
                 problems.append(f"{doc.name}:{line}: {target}: no such heading")
     assert not problems, "\n".join(problems)
+
+
+TOP_FOLDERS = ("benchmarks/", "deploy/", "docs/", "examples/", "experiments/", "fedtrack/", "fusion_center/",
+               "local_filters/", "sensors/", "tests/")
+
+
+def test_every_file_path_the_docs_name_exists() -> None:
+    """A path in backticks under one of the checkout's folders (``fusion_center/snapshot.py``) names a file
+    that is there; a pattern (``<id>``, ``{a,b}``, ``*``, ``...``) is not a path."""
+    problems = []
+    for doc in [README, *sorted(DOCS.glob("*.md"))]:
+        for number, line in enumerate(doc.read_text().splitlines(), 1):
+            for path in re.findall(r"`([^`\s]+\.(?:py|toml|sh|md|gz|csv|json))`", line):
+                if path.startswith(TOP_FOLDERS) and not re.search(r"[<>{}*|]|\.\.\.", path) \
+                        and not (ROOT / path).is_file():
+                    problems.append(f"{doc.name}:{number}: {path}: no such file")
+    assert not problems, "\n".join(problems)
