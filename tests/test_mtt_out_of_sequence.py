@@ -10,6 +10,7 @@ first), up to two of its periods late, behind its own later scans.
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -96,6 +97,18 @@ def test_counters_say_what_they_count(tmp_path: Path, capsys: pytest.CaptureFixt
     reprocessed = int(err.split("centre observations re-processed")[0].rsplit(": ", 1)[1])
     assert reprocessed > 0
 
+
+def test_the_formats_doc_shows_the_counter_lines_replay_prints(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """docs/multitarget-formats.md quotes ``replay``'s counters on the default scenario: the same lines, in the same
+    order, as ``replay`` prints (numbers aside)."""
+    def shape(lines: list[str]) -> list[str]:
+        return [re.sub(r"\d+(\.\d+)?(e-?\d+)?", "N", line) for line in lines]
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "multitarget-formats.md").read_text()
+    quoted = [line.strip() for line in doc.splitlines() if line.startswith("    mtt-federated: ")]
+    replay(tmp_path, "c", scans(seed=7, duration=10.0)[0], "mtt-federated")
+    printed = capsys.readouterr().err.splitlines()
+    assert quoted and shape(quoted) == shape(printed)
 
 @pytest.mark.parametrize("algorithm", ["mtt-federated", "mtt-decentralized"])
 def test_live_local_trackers_fuse_own_out_of_sequence_scans_as_the_replay(tmp_path: Path, algorithm: str) -> None:
