@@ -418,7 +418,8 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--db", required=True, type=Path, metavar="PATH",
                         help="recording database (fedtrack serve recorder --db)")
     parser.add_argument("--out", required=True, type=Path, metavar="FILE.jsonl",
-                        help="measurements, replay input format (its folder must exist)")
+                        help="measurements, replay input format (its folder must exist); of a multi-target "
+                        "recording, the scans no picture lists also go to unprocessed.jsonl beside it")
     parser.add_argument("--tracks", type=Path, metavar="FILE.jsonl", help="also write the fused tracks, or the "
                         "multi-target pictures, here (replay output format; default: the measurements only)")
     args = parser.parse_args(argv)
@@ -432,5 +433,7 @@ def main(argv: list[str]) -> int:
     finally:
         recording.close()
     print(f"wrote {n_meas} measurements to {args.out}" + (f", {n_tracks} {unit} to {args.tracks}" if args.tracks
-                                                           else ""))
+                                                           else "")
+          + (f", the scans no picture lists to {args.out.with_name('unprocessed.jsonl')}" if unit == "pictures"
+             else ""))
     return 0

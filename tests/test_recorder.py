@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from support import Deployment, cli_in_process, wait_until
 
+from fedtrack import cli
 from fedtrack.fusion_center.replay import replay_fusion
 from fedtrack.jsonl import InputError
 from fedtrack.recording import CONFLICT, DUPLICATE, RECORDED, Recording
@@ -208,6 +209,19 @@ def test_the_launcher_exports_a_picture_recording_in_the_centres_order_after_eve
     tracks = [json.loads(x) for x in (tmp_path / "tracks.jsonl").read_text().splitlines()]
     assert [x["t"] for x in tracks] == [1.0, 2.0] and tracks[0]["tracks"][0]["sensors"] == ["a", "b"]
 
+
+def test_fedtrack_export_names_the_unprocessed_scans_file_it_writes(tmp_path: Path,
+                                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    """``fedtrack export`` of a picture recording writes ``unprocessed.jsonl`` beside ``--out`` and says so."""
+    db = tmp_path / "recording.db"
+    rec = Recording(db)
+    for msg in (meas("a", 0, 0.0), meas("b", 0, 0.2), picture(0, 1.0, (("a", 0),))):
+        assert rec.add(msg, encode(msg)) == RECORDED
+    rec.close()
+    out = tmp_path / "m.jsonl"
+    assert cli.main(["export", "--db", str(db), "--out", str(out)]) == 0
+    assert capsys.readouterr().out == f"wrote 1 measurements to {out}, the scans no picture lists to {tmp_path / 'unprocessed.jsonl'}\n"
+    assert [json.loads(x)["sensor"] for x in (tmp_path / "unprocessed.jsonl").read_text().splitlines()] == ["b"]
 
 def test_a_version_1_recording_is_exported_as_before_and_never_written(tmp_path: Path) -> None:
     """A recording made before messages in parts (schema 1: no ``part`` column, whole messages)
