@@ -668,3 +668,15 @@ def test_every_file_path_the_docs_name_exists() -> None:
                         and not (ROOT / path).is_file():
                     problems.append(f"{doc.name}:{number}: {path}: no such file")
     assert not problems, "\n".join(problems)
+
+
+def test_the_readmes_hpda_table_2_counts_are_docs_hpdas() -> None:
+    """The README's summary of paper 001's Table 2 quotes docs/hpda.md's table: the first five bins of each
+    tracker under the paper's rule, and the mean confirmation times of both rules."""
+    rows = {row[0]: row[1:] for row in table(section(DOCS / "hpda.md", "## Results"), "| bin (s) |")}
+    bins = [rows[b] for b in ("0-150", "150-300", "300-350", "350-375", "375-425")]
+    counts = {column: "/".join(row[column] for row in bins) for column in range(4)}
+    means = [m.removesuffix(" s") for m in rows["mean time"]]
+    summary = " ".join(README.read_text().split("**Paper 001, HPDA**")[1].split("- **Papers 002")[0].split())
+    assert f"IPDA-AI {counts[0]}, HPDA {counts[2]} (paper {counts[1]} and {counts[3]})" in summary, summary
+    assert f"(mean {means[4]} / {means[5]} s against {means[0]} / {means[2]} s)" in summary, summary
