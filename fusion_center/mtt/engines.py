@@ -35,7 +35,14 @@ from fedtrack.geodetic import Frame, RadarSite
 from fedtrack.local_filters.mtt.associators import jipda
 from fedtrack.local_filters.mtt.config import LOST, MttConfig, miss_count, scan_lost
 from fedtrack.local_filters.mtt.history import ScanHistory
-from fedtrack.local_filters.mtt.local import LocalReport, Resets, SensorTracker, copies_another, is_duplicate
+from fedtrack.local_filters.mtt.local import (
+    LocalReport,
+    Resets,
+    SensorTracker,
+    copies_another,
+    is_conflict,
+    is_duplicate,
+)
 from fedtrack.local_filters.mtt.maneuver import predicted_view
 from fedtrack.local_filters.mtt.models import modes_predict, predict_batch
 from fedtrack.local_filters.mtt.roles.tracks import TrackParams
@@ -222,6 +229,7 @@ class Engine:
     late: int = 0  # scans older than max_lag (or than the tracker's checkpoint): not fused
     scans: int = 0  # scans fused
     duplicates: int = 0  # a scan equal to one fused before: not fused again
+    conflicts: int = 0  # a second, different scan of a sensor at a time it has one of: not fused (live refuses it)
     rerun: int = 0  # scans run again after an out-of-sequence scan before them
     repeated: int = 0  # detections equal to an earlier one of their scan, dropped (scan.distinct)
     stage_s: dict[str, float] = field(default_factory=dict)  # wall seconds per stage (replay's report)
@@ -248,7 +256,8 @@ class Engine:
         a tracker of scans (``mtt-centralized``) has no local tracker to restart."""
 
     def counters(self) -> dict[str, int]:
-        return {"scans": self.scans, "late": self.late, "duplicates": self.duplicates, "rerun": self.rerun,
+        return {"scans": self.scans, "late": self.late, "duplicates": self.duplicates, "conflicts": self.conflicts,
+                "rerun": self.rerun,
                 "repeated": self.repeated, "lead": self.lead.dropped if self.lead is not None else 0}
 
 
@@ -281,6 +290,9 @@ class ScanTrackerEngine(Engine):
             return
         if is_duplicate(self.history, scan, lambda s: s):
             self.duplicates += 1
+            return
+        if is_conflict(self.history, scan, lambda s: s):
+            self.conflicts += 1
             return
         self.scans += 1
         start = time.perf_counter()
@@ -428,6 +440,9 @@ class TrackToTrackEngine(Engine):
             return
         if tracker.is_duplicate(scan):
             self.duplicates += 1
+            return
+        if tracker.is_conflict(scan):
+            self.conflicts += 1
             return
         start = time.perf_counter()
         report, rerun = tracker.track(scan)

@@ -316,7 +316,7 @@ def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions
     for r in range(R):
         for T in clocks[r].final():
             shown[r][T] = engines[r].region_picture(T)
-    counts.update({"scans": len(firsts), "late": 0, "duplicates": 0, "rerun": 0, "lead": 0})
+    counts.update({"scans": len(firsts), "late": 0, "duplicates": 0, "conflicts": 0, "rerun": 0, "lead": 0})
     for e in engines:
         for k, v in e.counters().items():
             if k.startswith("centre_") or k in ("handed_over", "in_flight"):

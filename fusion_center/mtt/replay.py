@@ -164,6 +164,8 @@ def counter_lines(counts: dict[str, int]) -> list[str]:
     lines: list[str] = [f"{counts['scans']} scans fused",
              f"{counts['late']} scans late (older than max_lag before their tracker's newest), not fused",
              f"{counts['duplicates']} duplicate scans (equal to one fused before), not fused",
+             (f"{counts.get('conflicts', 0)} scans at a time their sensor has another scan of, not fused "
+              "(live: rejected_conflict)"),
              f"{counts['rerun']} scans run again after an out-of-sequence scan before them",
              f"{counts.get('repeated', 0)} detections equal to an earlier one of their scan, dropped",
              (f"{counts.get('lead', 0)} scans stamped too far ahead of the data and never witnessed, not fused "

@@ -198,6 +198,10 @@ class SensorTracker:
         """The same scan (time, detections, ``R``) is already in the history."""
         return is_duplicate(self.history, scan, lambda e: e.scan)
 
+    def is_conflict(self, scan: SensorScan) -> bool:
+        """Another scan of this sensor at ``scan``'s time is already in the history (:func:`is_conflict`)."""
+        return is_conflict(self.history, scan, lambda e: e.scan)
+
     def _step(self, prev: Step, entry: Entry) -> Step:
         tracker = prev[0]
         if tracker.state.next_id < self.issued:  # a re-run: ids already issued are not reused
@@ -239,6 +243,15 @@ def is_duplicate(history: ScanHistory, scan: SensorScan, scan_of: Callable[[obje
     """Whether ``history`` holds a scan equal to ``scan`` (sensor, time, ``R``, detections)."""
     return any(other.sensor == scan.sensor and np.array_equal(other.R, scan.R)
                for other in _same_detections(history, scan, scan_of))
+
+
+def is_conflict(history: ScanHistory, scan: SensorScan, scan_of: Callable[[object], SensorScan]) -> bool:
+    """Whether ``history`` holds a scan of ``scan``'s sensor at its time (one not equal to it: test
+    :func:`is_duplicate` first): a second, different scan of one sensor at one time, as a scan sent
+    again under a new number is; the live services refuse it (``rejected_conflict``:
+    :class:`~fedtrack.services.admission.ReceivedScans`), and so a replay leaves it out."""
+    lo, hi = bisect.bisect_left(history.times, scan.t), bisect.bisect_right(history.times, scan.t)
+    return any(scan_of(entry).sensor == scan.sensor for entry in history.entries[lo:hi])
 
 
 def copies_another(history: ScanHistory, scan: SensorScan, scan_of: Callable[[object], SensorScan]) -> bool:
