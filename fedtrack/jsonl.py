@@ -296,3 +296,27 @@ def position_line(obj: dict[str, Any], where: str) -> tuple[float, str, np.ndarr
     z = as_vector(require(obj, "z", where), "z", where, size=2)
     R = as_covariance(require(obj, "R", where), "R", where, size=2)
     return t, sensor, z, R
+
+
+class RepeatedTimes:
+    """A single-target replay's rule for a line of a sensor at the time of that sensor's last line
+    taken (as a measurement sent again under a new number is): left out and counted, as the live
+    trackers refuse it (``serve imm``, ``serve hpda``: :meth:`~fedtrack.services.dispatch.Dispatch.after_last`;
+    the 2-D local filters; the radar local filter), so that a replay equals the live run."""
+
+    def __init__(self) -> None:
+        self.left_out = 0
+        self._last: dict[str, float] = {}  # each sensor's time of its last line taken
+
+    def taken(self, sensor: str, t: float) -> bool:
+        """Whether ``sensor``'s line at ``t`` is taken; False (counted) at the time of its last one taken."""
+        if self._last.get(sensor) == t:
+            self.left_out += 1
+            return False
+        self._last[sensor] = t
+        return True
+
+    def line(self, algorithm: str, unit: str, live: str) -> str:
+        """The counter line a replay prints: ``unit`` what a line is, ``live`` the live rejection."""
+        return (f"{algorithm}: {self.left_out} {unit} at the time of their sensor's last one taken, left out "
+                f"(live: rejected_{live})")

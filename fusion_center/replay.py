@@ -2,13 +2,15 @@
 
 Input: JSON Lines, one position measurement per line,
 ``{"t": float, "sensor": str, "z": [x, y], "R": [[..], [..]]}``; lines with the same ``t``
-form one scan (they must be consecutive and ``t`` must never decrease). Output: one
-line per scan, ``{"t", "x", "P", "model", "maneuver", "sensors", "degraded", "event"}``.
+form one scan (they must be consecutive and ``t`` must never decrease); a second line of a sensor
+in a scan is left out and counted, as its local filter refuses it (:class:`~fedtrack.jsonl.RepeatedTimes`). Output:
+one line per scan, ``{"t", "x", "P", "model", "maneuver", "sensors", "degraded", "event"}``.
 """
 
 from __future__ import annotations
 
 import json
+import sys
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -17,7 +19,7 @@ import numpy as np
 
 from fedtrack.config import ConfigError, in_file, load_tables
 from fedtrack.fusion_center.trackers import ModelEstimate, make_tracker
-from fedtrack.jsonl import InputError, output_file, position_line, read_jsonl
+from fedtrack.jsonl import InputError, RepeatedTimes, output_file, position_line, read_jsonl
 from fedtrack.local_filters.linear.models import CA
 from fedtrack.local_filters.vdie.config import PipelineSettings
 
@@ -30,8 +32,10 @@ class Scan(NamedTuple):
     R: dict[str, np.ndarray]
 
 
-def read_scans(path: Path) -> Iterator[Scan]:
-    """Parse and validate a measurements file into scans as it is read (errors name ``file:line``)."""
+def read_scans(path: Path, repeats: RepeatedTimes | None = None) -> Iterator[Scan]:
+    """Parse and validate a measurements file into scans as it is read (errors name ``file:line``); a
+    sensor's second line in a scan is left out, counted in ``repeats``."""
+    repeats = RepeatedTimes() if repeats is None else repeats
     scan: Scan | None = None
     for lineno, obj in read_jsonl(path):
         where = f"{path}:{lineno}"
@@ -42,10 +46,9 @@ def read_scans(path: Path) -> Iterator[Scan]:
             if scan is not None:
                 yield scan
             scan = Scan(t, {}, {})
-        if sensor in scan.z:
-            raise InputError(f"{where}: sensor {sensor!r} appears twice in the scan at t={t}")
-        scan.z[sensor] = z
-        scan.R[sensor] = R
+        if repeats.taken(sensor, t):
+            scan.z[sensor] = z
+            scan.R[sensor] = R
     if scan is None:
         raise InputError(f"{path}: no measurements")
     yield scan
@@ -115,10 +118,11 @@ def replay_fusion(algorithm: str, measurements: Path, config: Path | None, out: 
     with in_file(config):
         sensors = sensor_order(seen, settings.fusion.sensors)
         settings.fusion.betas(len(sensors))  # fails early if the sharing factors do not fit
-    n = 0
+    n, repeats = 0, RepeatedTimes()
     with output_file(out) as fh:
-        for rec in replay_scans(algorithm, read_scans(measurements), sensors, settings.fusion,
+        for rec in replay_scans(algorithm, read_scans(measurements, repeats), sensors, settings.fusion,
                                 settings.deployment.max_time_jump_s):
             fh.write(json.dumps(rec) + "\n")
             n += 1
+    print(repeats.line(algorithm, "measurements", "time_jump"), file=sys.stderr)
     return n

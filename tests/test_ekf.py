@@ -172,7 +172,7 @@ def test_replay_validates_input_and_config(tmp_path):
     with pytest.raises(InputError, match=r"b.jsonl:5: R is not positive definite"):
         replay_radar("ekf", tmp_path / "b.jsonl", None, out)
     bad = [dict(ln) for ln in lines]
-    bad[7]["t"] = bad[6]["t"]
+    bad[7]["t"] = bad[5]["t"]  # (at the time of line 7 it would be left out: the next test)
     write_jsonl(tmp_path / "c.jsonl", bad)
     with pytest.raises(InputError, match=r"c.jsonl:8: t must increase"):
         replay_radar("ekf", tmp_path / "c.jsonl", None, out)
@@ -186,6 +186,26 @@ def test_replay_validates_input_and_config(tmp_path):
     cfg.write_text(f"[radar_filter]\nmodel = '{tmp_path / 'missing.npz'}'\n")
     with pytest.raises(ConfigError, match="does not exist"):
         replay_radar("ekf-tsfuzzy", good, cfg, out)
+
+
+@pytest.mark.parametrize("algorithm", ["ekf", "ekf-ie"])
+def test_replay_leaves_out_a_measurement_at_the_time_of_the_last(tmp_path, capsys, algorithm):
+    """A measurement repeated, moved, at the time of the last one (as one sent again under a new number
+    is; the radar local filter rejects it, ``rejected_input``) ended the replay (``t must increase``,
+    exit 2, nothing written); now it is left out and counted: the estimates are those without it,
+    byte for byte."""
+    lines = list(radar_scans(RadarConfig(straight_s=1.0), seed=1))[:60]
+    again = [m for k, ln in enumerate(lines) for m in
+             ([ln, {**ln, "z": [ln["z"][0] + 30.0, *ln["z"][1:]]}] if k % 20 in (0, 11) else [ln])]
+    write_jsonl(tmp_path / "clean.jsonl", lines)
+    write_jsonl(tmp_path / "again.jsonl", again)
+    n_clean = replay_radar(algorithm, tmp_path / "clean.jsonl", None, tmp_path / "clean-out.jsonl")
+    capsys.readouterr()
+    n = replay_radar(algorithm, tmp_path / "again.jsonl", None, tmp_path / "again-out.jsonl")
+    assert (f"{algorithm}: 6 measurements at the time of their sensor's last one taken, left out "
+            "(live: rejected_input)") in capsys.readouterr().err
+    assert n == n_clean == 59
+    assert (tmp_path / "again-out.jsonl").read_bytes() == (tmp_path / "clean-out.jsonl").read_bytes()
 
 
 def test_input_estimation_params_thresholds():

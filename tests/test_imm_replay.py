@@ -106,13 +106,21 @@ def test_missing_field_and_bad_config_through_the_cli(tmp_path: Path, capsys):
         replay_imm("fsimm", good, cfg, tmp_path / "o.jsonl")
 
 
-def test_repeated_timestamp_is_an_update_only(tmp_path: Path):
-    rows, _ = scenario_lines(5)
-    rows.insert(3, {**rows[2], "z": [rows[2]["z"][0] + 5.0, rows[2]["z"][1]]})
-    n = replay_imm("ao-vsimm", write_lines(tmp_path / "m.jsonl", rows), None, tmp_path / "o.jsonl")
-    out = [json.loads(line) for line in (tmp_path / "o.jsonl").read_text().splitlines()]
-    assert n == 6 and out[2]["t"] == out[3]["t"]
-    assert np.trace(np.array(out[3]["P"])) < np.trace(np.array(out[2]["P"]))  # a second update shrinks P
+@pytest.mark.parametrize("algorithm", ["fsimm", "ao-vsimm"])
+def test_a_measurement_at_the_time_of_the_last_is_left_out(tmp_path: Path, capsys, algorithm: str):
+    """A measurement repeated, moved, at the time of the last one (as one sent again under a new number
+    is; ``serve imm`` rejects it, ``time_jump``) was a second update (an estimate more, ``P`` shrunk);
+    now it is left out and counted: the estimates are those without it, byte for byte."""
+    rows, _ = scenario_lines(30)
+    again = [r for k, row in enumerate(rows) for r in
+             ([row, {**row, "z": [row["z"][0] + 50.0, row["z"][1]]}] if k % 7 == 3 else [row])]
+    n_clean = replay_imm(algorithm, write_lines(tmp_path / "m.jsonl", rows), None, tmp_path / "clean.jsonl")
+    capsys.readouterr()
+    n = replay_imm(algorithm, write_lines(tmp_path / "a.jsonl", again), None, tmp_path / "again.jsonl")
+    assert (f"{algorithm}: 4 measurements at the time of their sensor's last one taken, left out "
+            "(live: rejected_time_jump)") in capsys.readouterr().err
+    assert n == n_clean == 30 and len(again) == 34
+    assert (tmp_path / "again.jsonl").read_bytes() == (tmp_path / "clean.jsonl").read_bytes()
 
 
 def test_reproduce_json_shape_and_plots(tmp_path: Path):

@@ -95,6 +95,25 @@ def test_replay_rejects_bad_input_naming_the_line(tmp_path: Path, bad: dict, mes
     assert message in str(exc.value) and str(meas) in str(exc.value)
 
 
+@pytest.mark.parametrize("algorithm", ["pda-ai", "hpda"])
+def test_a_scan_at_the_time_of_the_last_is_left_out(tmp_path: Path, capsys, algorithm: str):
+    """A scan repeated, moved, at the time of the last one (as one sent again under a new number is;
+    ``serve hpda`` rejects it, ``time_jump``) was tracked again (``dt = 0``: its rows written, its
+    detections pooled with the last scan's for the births); now it is left out and counted: the track
+    lines are those without it, byte for byte."""
+    scans = [good_scan(25.0 * k, 100.0 * k) for k in range(8)]
+    again = [s for k, scan in enumerate(scans) for s in
+             ([scan, {**scan, "detections": [{"z": [100.0 * k + 40.0, 10.0], "amplitude": 50.0}]}]
+              if k in (2, 5) else [scan])]
+    n_clean = replay_pda(algorithm, write_scans(tmp_path / "in.jsonl", scans), None, tmp_path / "clean.jsonl")
+    capsys.readouterr()
+    n = replay_pda(algorithm, write_scans(tmp_path / "again.jsonl", again), None, tmp_path / "again-out.jsonl")
+    assert (f"{algorithm}: 2 scans at the time of their sensor's last one taken, left out "
+            "(live: rejected_time_jump)") in capsys.readouterr().err
+    assert n == n_clean > 0
+    assert (tmp_path / "again-out.jsonl").read_bytes() == (tmp_path / "clean.jsonl").read_bytes()
+
+
 @pytest.mark.parametrize("text, key", [
     ("[pda.tracker]\npd = 0.9\nbogus = 1\n", "c.toml: unknown config key pda.tracker.bogus"),
     ("[pda.existence]\nconfirm_scans = 0\n", "c.toml: pda.existence.confirm_scans"),

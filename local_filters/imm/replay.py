@@ -4,7 +4,8 @@ recorded measurements (JSON Lines).
 Input lines: ``{"t": float, "sensor": str, "z": [x, y], "R": [[..], [..]]}``; every line
 is validated (finite numbers, shapes, symmetric positive-definite ``R``, non-decreasing
 ``t``, a single sensor) as it is read and errors name ``file:line``; the output is streamed to a
-temporary file renamed at the end, so a bad line leaves none.
+temporary file renamed at the end, so a bad line leaves none. A line at the time of the last one
+taken is left out and counted, as ``serve imm`` rejects it (``time_jump``: :class:`~fedtrack.jsonl.RepeatedTimes`).
 Output lines: ``t``, ``sensor``, ``x`` (``[x, vx, y, vy]``), ``P``, ``acceleration``
 (``sum mu_i a_i``), ``mode_probabilities`` (model name -> probability, 0 for models not
 running) and ``active_group`` (``all`` for FSIMM, ``M2``, or ``M2+M1`` for a VSIMM union).
@@ -15,6 +16,7 @@ Time steps and the prior: see :mod:`fedtrack.local_filters.imm.tracker`.
 from __future__ import annotations
 
 import json
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import NamedTuple
@@ -22,7 +24,7 @@ from typing import NamedTuple
 import numpy as np
 
 from fedtrack.deployment import max_time_jump
-from fedtrack.jsonl import InputError, output_file, position_line, read_jsonl
+from fedtrack.jsonl import InputError, RepeatedTimes, output_file, position_line, read_jsonl
 from fedtrack.local_filters.imm.config import load_imm_config
 from fedtrack.local_filters.imm.filter import ALGORITHMS
 from fedtrack.local_filters.imm.tracker import IMMTracker
@@ -62,12 +64,15 @@ def replay_imm(algorithm: str, measurements: Path, config: Path | None, out: Pat
         raise InputError(f"unknown IMM algorithm {algorithm!r} (expected one of {', '.join(ALGORITHMS)})")
     cfg, max_gap = load_imm_config(config), max_time_jump(config)
     tracker, last_t = IMMTracker(cfg, algorithm), np.inf
-    n = 0
+    n, repeats = 0, RepeatedTimes()
     with output_file(out) as fh:  # streamed; whole or not at all
         for m in read_measurements(measurements):
+            if not repeats.taken(m.sensor, m.t):
+                continue
             if m.t - last_t > max_gap:  # a pause longer than the live services accept: start again
                 tracker = IMMTracker(cfg, algorithm)
             last_t = m.t
             fh.write(json.dumps({"sensor": m.sensor, **tracker.update(m.t, m.z, m.R).as_dict()}) + "\n")
             n += 1
+    print(repeats.line(algorithm, "measurements", "time_jump"), file=sys.stderr)
     return n

@@ -11,12 +11,14 @@ Output, one line per live track per scan plus one line when a track is deleted::
 
 ``status`` is ``tentative``, ``confirmed`` or ``deleted``. Detections weaker than the
 tracker's threshold ``tau = -(1 + snr) ln(pd)`` are ignored (the amplitude model holds
-above it only).
+above it only). A scan at the time of its sensor's last scan taken is left out and counted, as
+``serve hpda`` rejects it (``time_jump``: :class:`~fedtrack.jsonl.RepeatedTimes`).
 """
 
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 from typing import Any, Iterator, NamedTuple
 
@@ -27,6 +29,7 @@ from fedtrack.deployment import max_time_jump
 from fedtrack.jsonl import (
     SONAR_FIELDS,
     InputError,
+    RepeatedTimes,
     as_covariance,
     as_float,
     as_vector,
@@ -108,11 +111,15 @@ def report_rows(t: float, sensor: str, rep: ScanReport) -> list[dict[str, Any]]:
 STATUSES = ("all", "confirmed")
 
 
-def run(spec: TrackerSpec, scans: Iterator[Scan], max_gap: float = np.inf) -> Iterator[dict[str, Any]]:
+def run(spec: TrackerSpec, scans: Iterator[Scan], max_gap: float = np.inf,
+        repeats: RepeatedTimes | None = None) -> Iterator[dict[str, Any]]:
     """Track-manager output lines for a stream of scans. After a gap longer than ``max_gap``
-    seconds the manager starts again: its tracks are reported deleted at the next scan."""
-    ms = initial_manager()
+    seconds the manager starts again: its tracks are reported deleted at the next scan. A scan at
+    the time of its sensor's last one taken is left out, counted in ``repeats``."""
+    ms, repeats = initial_manager(), RepeatedTimes() if repeats is None else repeats
     for s in scans:
+        if not repeats.taken(s.sensor, s.t):
+            continue
         if ms.t is not None and s.t - ms.t > max_gap:
             yield from _rows(s.t, s.sensor, ms.tracks, np.full(len(ms.tracks), "deleted"))
             ms = initial_manager()._replace(next_id=ms.next_id)
@@ -130,10 +137,11 @@ def replay_pda(algorithm: str, measurements: Path, config: Path | None, out: Pat
         raise ConfigError(f"--status: one of {', '.join(STATUSES)}, got {status!r}")
     cfg = load_config(config)
     spec = tracker_spec(algorithm, cfg.tracker, cfg.existence)
-    n = 0
+    n, repeats = 0, RepeatedTimes()
     with output_file(out) as fh:
-        for row in run(spec, read_scans(measurements), max_time_jump(config)):
+        for row in run(spec, read_scans(measurements), max_time_jump(config), repeats):
             if status == "all" or row["status"] == status:
                 fh.write(json.dumps(row) + "\n")
                 n += 1
+    print(repeats.line(algorithm, "scans", "time_jump"), file=sys.stderr)
     return n

@@ -253,7 +253,11 @@ class RadarFilter:
         return None if self._last is None else self._last.t
 
     def step(self, meas: dict[str, Any], where: str = "measurement") -> dict[str, Any] | None:
-        m = parse_measurement(meas, where)
+        """:meth:`take` the measurement dict ``meas`` (validated: errors name ``where``)."""
+        return self.take(parse_measurement(meas, where), where)
+
+    def take(self, m: Measurement, where: str = "measurement") -> dict[str, Any] | None:
+        """Filter the validated measurement ``m``: its sensor must be the last one's, its time after it."""
         last = self._last
         if last is not None:
             if m.sensor != last.sensor:
