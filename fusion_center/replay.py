@@ -3,8 +3,9 @@
 Input: JSON Lines, one position measurement per line,
 ``{"t": float, "sensor": str, "z": [x, y], "R": [[..], [..]]}``; lines with the same ``t``
 form one scan (they must be consecutive and ``t`` must never decrease); a second line of a sensor
-in a scan is left out and counted, as its local filter refuses it (:class:`~fedtrack.jsonl.RepeatedTimes`). Output:
-one line per scan, ``{"t", "x", "P", "model", "maneuver", "sensors", "degraded", "event"}``.
+in a scan is left out and counted, as its local filter refuses it
+(:class:`~fedtrack.jsonl.RepeatedTimes`). Output: one line per scan,
+``{"t", "x", "P", "model", "maneuver", "sensors", "degraded", "event"}``.
 """
 
 from __future__ import annotations

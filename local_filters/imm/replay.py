@@ -5,7 +5,8 @@ Input lines: ``{"t": float, "sensor": str, "z": [x, y], "R": [[..], [..]]}``; ev
 is validated (finite numbers, shapes, symmetric positive-definite ``R``, non-decreasing
 ``t``, a single sensor) as it is read and errors name ``file:line``; the output is streamed to a
 temporary file renamed at the end, so a bad line leaves none. A line at the time of the last one
-taken is left out and counted, as ``serve imm`` rejects it (``time_jump``: :class:`~fedtrack.jsonl.RepeatedTimes`).
+taken is left out and counted, as ``serve imm`` rejects it (``time_jump``:
+:class:`~fedtrack.jsonl.RepeatedTimes`).
 Output lines: ``t``, ``sensor``, ``x`` (``[x, vx, y, vy]``), ``P``, ``acceleration``
 (``sum mu_i a_i``), ``mode_probabilities`` (model name -> probability, 0 for models not
 running) and ``active_group`` (``all`` for FSIMM, ``M2``, or ``M2+M1`` for a VSIMM union).
