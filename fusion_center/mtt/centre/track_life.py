@@ -64,13 +64,14 @@ class CentreLife:
         live = tracks.ids >= 0
         old = live & tracks.confirmed
         self.streak[old & hit] = 0
+        self.gave_up[old & hit] = False
         missed = (old > hit).nonzero()[0]  # confirmed and not detected
         dead = missed[:0]
         if missed.size:
             streak = self.streak[missed]
             streak[:, col] += 1
             self.streak[missed] = streak
-            tracking = self._fused_support(missed)
+            tracking = self._tracking(missed)
             n_tracking = np.count_nonzero(tracking, axis=1)
             need = self._misses_needed(tracking, n_tracking, scan_lost(float(self.column_interval[col])))[:, None]
             dead = missed[(n_tracking > 0) & self._misses_enough(streak, tracking, need)]
@@ -95,6 +96,17 @@ class CentreLife:
         if self.excluded:
             support &= np.array([name not in self.excluded for name in self.sensor_names])
         return support
+
+    def _tracking(self, slots: np.ndarray) -> np.ndarray:
+        """Per slot and sensor column, whether that sensor's misses count toward deleting the slot's
+        confirmed track: a local track of the sensor maps there, or its tracker retired its last one
+        there since the track's last detection (``gave_up``: the tracker's own miss evidence, which
+        the sensor's scans since keep adding to; before the tour50 follow-up its column left the count,
+        and the other sensors' misses had to make up for it); an excluded sensor's not counted."""
+        tracking = (self.support[slots] > 0) | self.gave_up[slots]
+        if self.excluded:
+            tracking &= np.array([name not in self.excluded for name in self.sensor_names])
+        return tracking
 
     def _blind_to(self, slots: np.ndarray, col: int, report: LocalReport) -> np.ndarray:
         """Per tentative track of ``slots``, whether the report of sensor column ``col`` is no evidence

@@ -159,6 +159,9 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.usual: dict[str, float] = {}  # each sensor's usual interval at the latest report (_note_scan)
         self.support = np.zeros((0, 0), dtype=np.int64)  # local tracks of each sensor mapped to a slot
         self.streak = np.zeros((0, 0), dtype=np.int64)  # a confirmed slot's misses in a row per sensor
+        # per confirmed slot and sensor, whether that sensor's tracker retired its last local track there
+        # since the slot's last detection (its misses still count: CentreLife._tracking)
+        self.gave_up = np.zeros((0, 0), dtype=bool)
         self.window = np.zeros((0, cfg.confirm_window), dtype=bool)  # a tentative slot's last scans
         # whether the count alone is unsafe on some position sensor's clutter (judged once per sensor)
         self.local_confirmation = False
@@ -181,6 +184,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         rows, cols = self.tracks.capacity, len(self.sensor_names)
         self.support = padded(self.support, (rows, cols))
         self.streak = padded(self.streak, (rows, cols))
+        self.gave_up = padded(self.gave_up, (rows, cols))
         self.window = padded(self.window, (rows, self.cfg.confirm_window))
         self.last_support = padded(self.last_support, (rows,))
 
@@ -266,6 +270,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         del self.sensor_names[col]
         self.support = np.delete(self.support, col, axis=1)
         self.streak = np.delete(self.streak, col, axis=1)
+        self.gave_up = np.delete(self.gave_up, col, axis=1)
         self.column_log_miss = np.delete(self.column_log_miss, col)
         self.column_interval = np.delete(self.column_interval, col)
         self._column = {name: k for k, name in enumerate(self.sensor_names)}
@@ -310,6 +315,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         slot = self.tracks.start(cid, t, *self._central_start(x, P))
         self._fit()
         self.support[slot], self.streak[slot], self.window[slot] = 0, 0, False
+        self.gave_up[slot] = False
         self.last_support[slot] = t
         self.counters.started += 1
         return cid
@@ -393,12 +399,16 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         return col
 
     def _unmap_retired(self, report: LocalReport) -> None:
-        """Unmap the report's retired local tracks that are mapped."""
+        """Unmap the report's retired local tracks that are mapped; a confirmed central track left without
+        a local track of the sensor keeps the sensor's misses in its deletion count (``gave_up``)."""
         if report.retired.size:
             s, retired = report.sensor, report.retired.tolist()
             for key in self.mapping.keys() & {(s, lid) for lid in retired}:  # retired and mapped
+                slot = self.tracks.slot.get(self.mapping[key])
                 self._unmap(key)
                 self.counters.unmapped += 1
+                if slot is not None and self.tracks.confirmed[slot] and not self.support[slot, self._column[s]]:
+                    self.gave_up[slot, self._column[s]] = True
             for lid in retired if self.strikes else ():
                 self.strikes.pop((s, lid), None)
 
@@ -578,7 +588,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self._fit()
         keep = [k for k, s in enumerate(record.sensors) if s not in self.copies.copy_of]
         cols = [self._col(record.sensors[k]) for k in keep]
-        self.support[slot], self.streak[slot] = 0, 0
+        self.support[slot], self.streak[slot], self.gave_up[slot] = 0, 0, False  # gave_up not handed over
         self.support[slot, cols], self.streak[slot, cols] = record.support[keep], record.streak[keep]
         self.window[slot], self.last_support[slot] = record.window, record.last_support
         for key, strikes in zip(record.members, record.strikes):
