@@ -63,9 +63,12 @@ class CentreLife:
         hit[detected] = True
         live = tracks.ids >= 0
         old = live & tracks.confirmed
-        self.streak[old & hit] = 0
-        self.gave_up[old & hit] = False
-        missed = (old > hit).nonzero()[0]  # confirmed and not detected
+        seen = old & hit
+        if seen.any():  # the misses since: a late detection's sensors' scans after it
+            self.streak[seen] = np.minimum(self.streak[seen], self._scans_after(report.t))
+            self.gave_up[seen] &= self.streak[seen] > 0
+        missed = (old > hit) & (report.t > self.last_support)  # confirmed, not detected, after its last detection
+        missed = missed.nonzero()[0]
         dead = missed[:0]
         if missed.size:
             streak = self.streak[missed]
@@ -88,6 +91,15 @@ class CentreLife:
             tracks.confirmed[now], tracks.confirmed_t[now] = True, report.t
         for cid in tracks.ids[dead].tolist():
             self._delete(cid)
+
+    def _scans_after(self, t: float) -> np.ndarray:
+        """Per sensor column, its scans later than ``t`` (of those within ``max_lag`` of its newest): at most
+        the misses a track detected at ``t`` has since. A detection that came late (out of sequence) left
+        the misses of the scans after it counted; before the tour50 follow-up it cleared them, and a dead
+        target's track stayed until the sensors missed it again (mtt-federated jipda on 200 births and deaths
+        over 600 s: 66 of 188 deaths)."""
+        return np.array([sum(1 for u in self.scan_times.get(name, ()) if u > t) for name in self.sensor_names],
+                        dtype=np.int64)
 
     def _fused_support(self, slots: np.ndarray) -> np.ndarray:
         """Per slot and sensor column, whether a local track of that sensor maps there, an excluded

@@ -142,6 +142,8 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
     sensor_names: list[str] = field(default_factory=list)  # column order of the per-sensor arrays
     # sensor -> its last intervals between scans on the data's time (a late scan adds none)
     scan_gaps: dict[str, deque[float]] = field(default_factory=dict)
+    # sensor -> its scans' times within max_lag of the newest report's (a late detection's misses since: _scans_after)
+    scan_times: dict[str, deque[float]] = field(default_factory=dict)
     next_id: int = 0
     id_step: int = 1  # ids next_id, next_id + id_step, ...: region r of R starts at r, steps by R (shards)
     counters: Counters = field(default_factory=Counters)
@@ -251,6 +253,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         window too unless ``keep_window``."""
         self.sensor_seen.pop(sensor, None)
         self.scan_gaps.pop(sensor, None)
+        self.scan_times.pop(sensor, None)
         for key in [k for k in self.mapping if k[0] == sensor]:
             self._unmap(key)
             self.strikes.pop(key, None)
@@ -381,6 +384,10 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.sensor_seen[s] = max(previous, t)
         if t > previous:
             self.scan_gaps.setdefault(s, deque(maxlen=INTERVALS_KEPT)).append(t - previous)
+        times = self.scan_times.setdefault(s, deque())
+        times.append(t)
+        while times[0] < self.sensor_seen[s] - self.cfg.max_lag:
+            times.popleft()
         self.usual = self._usual_intervals()  # once a report: the live sensors, the monitor's window
         if s not in self.count_judged and len(report.obs_R):
             if s in self.usual:
