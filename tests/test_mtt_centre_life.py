@@ -1,8 +1,9 @@
-"""The track-to-track centre's deletion count (:class:`~fedtrack.fusion_center.mtt.centre.track_life.CentreLife`):
-a local track retired by its tracker is that tracker's own miss evidence. Before, the sensor's column
-left the count at the retirement, and the other sensors' misses had to make up for it: a dead target's
-central track stayed until the last tracking sensor missed it ``delete_misses`` times alone (tour50's
-births-and-deaths scenario: 1.70 s from a death to the last picture, gnn federated, against 1.45 s now)."""
+"""The track-to-track centre's deletion count (:class:`~fedtrack.fusion_center.mtt.centre.track_life.CentreLife`),
+misses since a confirmed track's last detection: a local track retired by its tracker is that tracker's own
+miss evidence (before, the sensor's column left the count at the retirement, and the other sensors' misses
+had to make up for it), and a detection that arrives late clears only the misses before it (before, all of
+them). A dead target's central track stayed longer (200 births and deaths over 600 s, gnn federated: 1.70 s
+from a death to the track's last picture, 1.26 s now; docs/multitarget.md, the tour50 follow-up)."""
 
 from __future__ import annotations
 
@@ -74,3 +75,29 @@ def test_a_tracker_restarting_its_track_on_a_live_target_breaks_nothing() -> Non
     centre.answer(report("s1", 5.0, {2: True}, (1,)))
     centre.answer(report("s2", 5.25, {7: False}))
     assert centre.mapping[("s1", 2)] == cid and cid in centre.tracks.slot
+
+
+def test_a_late_detection_clears_only_the_misses_before_it() -> None:
+    """s2's scan at 4.25, the target's last detection, arrives after s1's misses at 4.5 and 5.0: those stay
+    counted, and with s2's miss at 5.25 and s1's at 5.5 they make the rule's four. Before, the late
+    detection cleared them and the track stayed two scans longer."""
+    centre = TrackToTrackCentre(MttConfig(), 4, False)
+    scans = [(t, "s1", 1) for t in np.arange(0.0, 4.01, 0.5)] + [(t, "s2", 7) for t in np.arange(0.25, 3.3, 1.0)]
+    for t, sensor, lid in sorted(scans):
+        centre.answer(report(sensor, float(t), {lid: True}))
+    cid = centre.mapping[("s1", 1)]
+    for t, sensor, held in [(4.5, "s1", {1: False}), (5.0, "s1", {1: False}), (4.25, "s2", {7: True}),
+                            (5.25, "s2", {7: False}), (5.5, "s1", {1: False})]:
+        assert cid in centre.tracks.slot, t
+        centre.answer(report(sensor, t, held))
+    assert cid not in centre.tracks.slot
+
+
+def test_a_late_miss_before_the_latest_detection_does_not_count() -> None:
+    """s2's scan at 4.75 misses the target that s1 detected at 5.0 and arrives after it: no miss since the
+    track's last detection."""
+    centre, cid = confirmed_track()
+    centre.answer(report("s1", 4.5, {1: True}))
+    centre.answer(report("s1", 5.0, {1: True}))
+    centre.answer(report("s2", 4.75, {7: False}))
+    assert not centre.streak[centre.tracks.slot[cid]].any()
