@@ -3,7 +3,7 @@ misses since a confirmed track's last detection: a local track retired by its tr
 miss evidence (before, the sensor's column left the count at the retirement, and the other sensors' misses
 had to make up for it), and a detection that arrives late clears only the misses before it (before, all of
 them). A dead target's central track stayed longer (200 births and deaths over 600 s, gnn federated: 1.70 s
-from a death to the track's last picture, 1.26 s now; docs/multitarget.md, the tour50 follow-up)."""
+from a death to the track's last picture, 1.26 s now; docs/multitarget.md, the linger session)."""
 
 from __future__ import annotations
 

@@ -95,7 +95,7 @@ class CentreLife:
     def _scans_after(self, t: float) -> np.ndarray:
         """Per sensor column, its scans later than ``t`` (of those within ``max_lag`` of its newest): at most
         the misses a track detected at ``t`` has since. A detection that came late (out of sequence) left
-        the misses of the scans after it counted; before the tour50 follow-up it cleared them, and a dead
+        the misses of the scans after it counted; before the linger session it cleared them, and a dead
         target's track stayed until the sensors missed it again (mtt-federated jipda on 200 births and deaths
         over 600 s: 66 of 188 deaths)."""
         return np.array([sum(1 for u in self.scan_times.get(name, ()) if u > t) for name in self.sensor_names],
@@ -104,21 +104,19 @@ class CentreLife:
     def _fused_support(self, slots: np.ndarray) -> np.ndarray:
         """Per slot and sensor column, whether a local track of that sensor maps there, an excluded
         sensor's not counted (its misses and its tracks count for nothing while it is left out)."""
-        support = self.support[slots] > 0
-        if self.excluded:
-            support &= np.array([name not in self.excluded for name in self.sensor_names])
-        return support
+        return (self.support[slots] > 0) & self._not_excluded()
 
     def _tracking(self, slots: np.ndarray) -> np.ndarray:
         """Per slot and sensor column, whether that sensor's misses count toward deleting the slot's
         confirmed track: a local track of the sensor maps there, or its tracker retired its last one
         there since the track's last detection (``gave_up``: the tracker's own miss evidence, which
-        the sensor's scans since keep adding to; before the tour50 follow-up its column left the count,
+        the sensor's scans since keep adding to; before the linger session its column left the count,
         and the other sensors' misses had to make up for it); an excluded sensor's not counted."""
-        tracking = (self.support[slots] > 0) | self.gave_up[slots]
-        if self.excluded:
-            tracking &= np.array([name not in self.excluded for name in self.sensor_names])
-        return tracking
+        return ((self.support[slots] > 0) | self.gave_up[slots]) & self._not_excluded()
+
+    def _not_excluded(self) -> np.ndarray:
+        """Per sensor column, whether its sensor is not left out (:attr:`excluded`)."""
+        return np.array([name not in self.excluded for name in self.sensor_names], dtype=bool)
 
     def _blind_to(self, slots: np.ndarray, col: int, report: LocalReport) -> np.ndarray:
         """Per tentative track of ``slots``, whether the report of sensor column ``col`` is no evidence

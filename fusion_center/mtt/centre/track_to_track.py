@@ -57,8 +57,9 @@ scan, the linearized observation of every track the scan detected, the tracks it
   confirmed tracks on several sensors' clutter tracks. A confirmed track is deleted once every
   sensor that tracks it (a local track maps to it, or its tracker retired the last one there since
   the track's last detection) missed it on its last ``CENTRAL_MISSES`` (2) scans since its last
-  detection (a late detection clears only the misses of the scans before it) (``delete_misses`` when one sensor tracks it; more at a lower P_D:
-  :func:`~fedtrack.local_filters.mtt.config.miss_count`): a target that died goes within two scans
+  detection (``delete_misses`` when one sensor tracks it; more at a lower P_D:
+  :func:`~fedtrack.local_filters.mtt.config.miss_count`; a late detection clears only the misses of
+  the scans before it): a target that died goes within two scans
   of the slowest sensor instead of lingering until every local tracker deleted its track. It is also
   deleted when no local track maps to it any more or none supported it for ``central_timeout``
   seconds.
