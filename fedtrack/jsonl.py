@@ -8,6 +8,7 @@ import contextlib
 import errno
 import json
 import math
+import sys
 from pathlib import Path
 from typing import IO, Any, Iterator
 
@@ -128,6 +129,8 @@ def _parse_line(p: Path, lineno: int, raw: bytes) -> dict[str, Any]:
         raise InputError(f"{where}: invalid JSON at column {exc.colno}: {exc.msg}{hint}") from exc
     except RecursionError as exc:
         raise InputError(f"{where}: invalid JSON: nested too deeply") from exc
+    except ValueError as exc:  # an integer of more digits than Python converts
+        raise InputError(f"{where}: invalid JSON: a number of more than {sys.get_int_max_str_digits()} digits") from exc
     if not isinstance(obj, dict):
         raise InputError(f"{where}: expected a JSON object")
     return obj

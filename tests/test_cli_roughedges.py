@@ -68,6 +68,18 @@ def test_bad_scan_lines_say_what_is_wrong_and_write_nothing(tmp_path: Path, caps
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.jsonl"]  # no output, no temporary file
 
 
+@pytest.mark.parametrize("algorithm", ["kf", "fsimm", "hpda", "ekf"])
+def test_a_number_of_too_many_digits_is_an_input_error(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                        algorithm: str) -> None:
+    """An integer of more digits than Python converts (4,300) was a ValueError traceback, exit 1."""
+    path = tmp_path / "m.jsonl"
+    path.write_text('{"t": 1' + "0" * 5000 + ', "sensor": "s1", "z": [1, 0], "R": [[1, 0], [0, 1]]}\n')
+    code = main(["replay", "--algorithm", algorithm, "--measurements", str(path), "--out", str(tmp_path / "o.jsonl")])
+    assert f"{path}:1: invalid JSON: a number of more than {sys.get_int_max_str_digits()} digits" in \
+        one_line_error(capsys, code)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.jsonl"]
+
+
 def test_nan_token_names_line_and_column(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path = tmp_path / "m.jsonl"
     line = '{"t": 1.0, "sensor": "s1", "R": [[1, 0], [0, 1]], "detections": [{"z": [nan, 0.4]}]}'
