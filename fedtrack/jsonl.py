@@ -320,6 +320,14 @@ class RepeatedTimes:
         self._last[sensor] = t
         return True
 
+    def refused(self, sensor: str, last: float | None) -> None:
+        """The line just taken was refused after all (its estimate failed): ``last`` is again the
+        time of ``sensor``'s last line taken (None: none)."""
+        if last is None:
+            self._last.pop(sensor, None)
+        else:
+            self._last[sensor] = last
+
     def line(self, algorithm: str, unit: str, live: str) -> str:
         """The counter line a replay prints: ``unit`` what a line is, ``live`` the live rejection."""
         return (f"{algorithm}: {self.left_out} {unit} at the time of their sensor's last one taken, left out "

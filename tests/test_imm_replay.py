@@ -144,3 +144,19 @@ def test_reproduce_json_shape_and_plots(tmp_path: Path):
     assert sorted(p.name for p in (tmp_path / "plots").iterdir()) == [
         "vsimm_S1_acc_rmse.png", "vsimm_S1_active_groups_run0.png",
         "vsimm_S2_acc_rmse.png", "vsimm_S2_active_groups_run0.png"]
+
+
+@pytest.mark.parametrize("at", [0, 5])
+def test_a_line_whose_estimate_overflows_is_left_out_as_live(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                              at: int) -> None:
+    """A valid line with z = 1e200 m overflowed the likelihoods: replay wrote NaN (not JSON) on it and
+    every later line, where ``serve imm`` rejects it (rejected_numerical) and keeps its track. Now it
+    is left out and counted, and the rest equals the replay without it (also as the first line)."""
+    rows, _ = scenario_lines(20)
+    bad = {**rows[at], "t": rows[at]["t"] - 0.5 if at else 0.5, "z": [1e200, -1e200]}
+    with_bad = write_lines(tmp_path / "bad.jsonl", rows[:at] + [bad] + rows[at:])
+    without = write_lines(tmp_path / "m.jsonl", rows)
+    assert replay_imm("vsimm", with_bad, None, tmp_path / "a.jsonl") == len(rows)
+    assert "vsimm: 1 measurements whose estimate came out non-finite" in capsys.readouterr().err
+    replay_imm("vsimm", without, None, tmp_path / "b.jsonl")
+    assert (tmp_path / "a.jsonl").read_text() == (tmp_path / "b.jsonl").read_text()

@@ -28,7 +28,8 @@ from fedtrack.deployment import max_time_jump
 from fedtrack.jsonl import InputError, RepeatedTimes, output_file, position_line, read_jsonl
 from fedtrack.local_filters.imm.config import load_imm_config
 from fedtrack.local_filters.imm.filter import ALGORITHMS
-from fedtrack.local_filters.imm.tracker import IMMTracker
+from fedtrack.local_filters.imm.tracker import IMMTracker, TrackPoint
+from fedtrack.services.rejections import NUMERICAL_ERRORS, Numerical, require_covariances, require_finite
 
 
 class Measurement(NamedTuple):
@@ -64,16 +65,38 @@ def replay_imm(algorithm: str, measurements: Path, config: Path | None, out: Pat
     if algorithm not in ALGORITHMS:
         raise InputError(f"unknown IMM algorithm {algorithm!r} (expected one of {', '.join(ALGORITHMS)})")
     cfg, max_gap = load_imm_config(config), max_time_jump(config)
-    tracker, last_t = IMMTracker(cfg, algorithm), np.inf
-    n, repeats = 0, RepeatedTimes()
+    tracker = IMMTracker(cfg, algorithm)
+    n, numerical, repeats = 0, 0, RepeatedTimes()
     with output_file(out) as fh:  # streamed; whole or not at all
         for m in read_measurements(measurements):
             if not repeats.taken(m.sensor, m.t):
                 continue
-            if m.t - last_t > max_gap:  # a pause longer than the live services accept: start again
-                tracker = IMMTracker(cfg, algorithm)
-            last_t = m.t
-            fh.write(json.dumps({"sensor": m.sensor, **tracker.update(m.t, m.z, m.R).as_dict()}) + "\n")
+            kept = tracker, tracker.state, tracker.t
+            if tracker.t is not None and m.t - tracker.t > max_gap:  # a pause longer than the live
+                tracker = IMMTracker(cfg, algorithm)  # services accept: start again
+            point = _checked(tracker, m)
+            if point is None:  # as serve imm: rejected_numerical, the tracker as it was
+                tracker, tracker.state, tracker.t = kept
+                repeats.refused(m.sensor, kept[2])
+                numerical += 1
+                continue
+            fh.write(json.dumps({"sensor": m.sensor, **point.as_dict()}) + "\n")
             n += 1
     print(repeats.line(algorithm, "measurements", "time_jump"), file=sys.stderr)
+    if numerical:
+        print(f"{algorithm}: {numerical} measurements whose estimate came out non-finite or not positive "
+              "definite, left out (live: rejected_numerical)", file=sys.stderr)
     return n
+
+
+def _checked(tracker: IMMTracker, m: Measurement) -> TrackPoint | None:
+    """The tracker's estimate after ``m``, or None where ``serve imm`` would reject it as numerical
+    (a non-finite or unacceptable estimate: a position of 1e200 m overflows the likelihoods)."""
+    try:
+        with np.errstate(over="ignore", invalid="ignore"):  # checked below
+            p = tracker.update(m.t, m.z, m.R)
+        require_finite("the IMM estimate", p.x, p.P, list(p.mode_probabilities.values()))
+        require_covariances("the IMM estimate", p.P)
+    except (Numerical, *NUMERICAL_ERRORS):
+        return None
+    return p
