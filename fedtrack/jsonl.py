@@ -301,6 +301,20 @@ def position_line(obj: dict[str, Any], where: str) -> tuple[float, str, np.ndarr
     return t, sensor, z, R
 
 
+class NumericalRefusals:
+    """A single-target replay's count of lines whose estimate came out non-finite or not positive
+    definite: left out with the tracker kept as it was, as the live tracker rejects them
+    (``rejected_numerical``: its state restored), so that a replay equals the live run."""
+
+    def __init__(self) -> None:
+        self.left_out = 0
+
+    def line(self, algorithm: str, unit: str) -> str | None:
+        """The counter line a replay prints when it left out any ``unit`` (None when not)."""
+        return (f"{algorithm}: {self.left_out} {unit} whose estimate came out non-finite or not positive "
+                "definite, left out (live: rejected_numerical)") if self.left_out else None
+
+
 class RepeatedTimes:
     """A single-target replay's rule for a line of a sensor at the time of that sensor's last line
     taken (as a measurement sent again under a new number is): left out and counted, as the live

@@ -114,6 +114,24 @@ def test_a_scan_at_the_time_of_the_last_is_left_out(tmp_path: Path, capsys, algo
     assert (tmp_path / "again-out.jsonl").read_bytes() == (tmp_path / "clean.jsonl").read_bytes()
 
 
+@pytest.mark.parametrize("algorithm", ["pda-ai", "hpda"])
+def test_a_scan_whose_tracks_overflow_is_left_out_as_live(tmp_path: Path, capsys, algorithm: str):
+    """A valid scan with an amplitude of 1.7e308 overflowed the association weights: the tracks went
+    NaN and the next scan's gate query raised (a traceback, exit 1), where ``serve hpda`` rejects the
+    scan (rejected_numerical) and keeps its tracks. Now it is left out and counted: the track lines
+    are those without it, byte for byte."""
+    scans = [good_scan(25.0 * k, 100.0 * k) for k in range(8)]
+    hostile = {**good_scan(62.5, 250.0), "detections": [{"z": [250.0, 0.0], "amplitude": 1.7e308}]}
+    n_clean = replay_pda(algorithm, write_scans(tmp_path / "in.jsonl", scans), None, tmp_path / "clean.jsonl")
+    capsys.readouterr()
+    n = replay_pda(algorithm, write_scans(tmp_path / "bad.jsonl", scans[:3] + [hostile] + scans[3:]), None,
+                   tmp_path / "bad-out.jsonl")
+    assert (f"{algorithm}: 1 scans whose estimate came out non-finite or not positive definite, left out "
+            "(live: rejected_numerical)") in capsys.readouterr().err
+    assert n == n_clean > 0
+    assert (tmp_path / "bad-out.jsonl").read_bytes() == (tmp_path / "clean.jsonl").read_bytes()
+
+
 @pytest.mark.parametrize("text, key", [
     ("[pda.tracker]\npd = 0.9\nbogus = 1\n", "c.toml: unknown config key pda.tracker.bogus"),
     ("[pda.existence]\nconfirm_scans = 0\n", "c.toml: pda.existence.confirm_scans"),

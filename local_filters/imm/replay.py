@@ -25,7 +25,7 @@ from typing import NamedTuple
 import numpy as np
 
 from fedtrack.deployment import max_time_jump
-from fedtrack.jsonl import InputError, RepeatedTimes, output_file, position_line, read_jsonl
+from fedtrack.jsonl import InputError, NumericalRefusals, RepeatedTimes, output_file, position_line, read_jsonl
 from fedtrack.local_filters.imm.config import load_imm_config
 from fedtrack.local_filters.imm.filter import ALGORITHMS
 from fedtrack.local_filters.imm.tracker import IMMTracker, TrackPoint
@@ -66,7 +66,7 @@ def replay_imm(algorithm: str, measurements: Path, config: Path | None, out: Pat
         raise InputError(f"unknown IMM algorithm {algorithm!r} (expected one of {', '.join(ALGORITHMS)})")
     cfg, max_gap = load_imm_config(config), max_time_jump(config)
     tracker = IMMTracker(cfg, algorithm)
-    n, numerical, repeats = 0, 0, RepeatedTimes()
+    n, repeats, numerical = 0, RepeatedTimes(), NumericalRefusals()
     with output_file(out) as fh:  # streamed; whole or not at all
         for m in read_measurements(measurements):
             if not repeats.taken(m.sensor, m.t):
@@ -78,14 +78,13 @@ def replay_imm(algorithm: str, measurements: Path, config: Path | None, out: Pat
             if point is None:  # as serve imm: rejected_numerical, the tracker as it was
                 tracker, tracker.state, tracker.t = kept
                 repeats.refused(m.sensor, kept[2])
-                numerical += 1
+                numerical.left_out += 1
                 continue
             fh.write(json.dumps({"sensor": m.sensor, **point.as_dict()}) + "\n")
             n += 1
     print(repeats.line(algorithm, "measurements", "time_jump"), file=sys.stderr)
-    if numerical:
-        print(f"{algorithm}: {numerical} measurements whose estimate came out non-finite or not positive "
-              "definite, left out (live: rejected_numerical)", file=sys.stderr)
+    if numerical.left_out:
+        print(numerical.line(algorithm, "measurements"), file=sys.stderr)
     return n
 
 

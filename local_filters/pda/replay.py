@@ -29,6 +29,7 @@ from fedtrack.deployment import max_time_jump
 from fedtrack.jsonl import (
     SONAR_FIELDS,
     InputError,
+    NumericalRefusals,
     RepeatedTimes,
     as_covariance,
     as_float,
@@ -47,6 +48,7 @@ from fedtrack.local_filters.pda.tracks import (
     manager_step,
     tracker_spec,
 )
+from fedtrack.services.rejections import NUMERICAL_ERRORS, Numerical, require_covariances, require_finite
 
 
 class Scan(NamedTuple):
@@ -112,19 +114,33 @@ STATUSES = ("all", "confirmed")
 
 
 def run(spec: TrackerSpec, scans: Iterator[Scan], max_gap: float = np.inf,
-        repeats: RepeatedTimes | None = None) -> Iterator[dict[str, Any]]:
+        repeats: RepeatedTimes | None = None,
+        numerical: NumericalRefusals | None = None) -> Iterator[dict[str, Any]]:
     """Track-manager output lines for a stream of scans. After a gap longer than ``max_gap``
     seconds the manager starts again: its tracks are reported deleted at the next scan. A scan at
-    the time of its sensor's last one taken is left out, counted in ``repeats``."""
+    the time of its sensor's last one taken is left out, counted in ``repeats``; one whose tracks
+    come out non-finite or not positive definite is left out with the manager kept, counted in
+    ``numerical`` (as ``serve hpda`` rejects it, ``rejected_numerical``)."""
     ms, repeats = initial_manager(), RepeatedTimes() if repeats is None else repeats
+    numerical = NumericalRefusals() if numerical is None else numerical
     for s in scans:
         if not repeats.taken(s.sensor, s.t):
             continue
-        if ms.t is not None and s.t - ms.t > max_gap:
-            yield from _rows(s.t, s.sensor, ms.tracks, np.full(len(ms.tracks), "deleted"))
-            ms = initial_manager()._replace(next_id=ms.next_id)
+        restart = ms.t is not None and s.t - ms.t > max_gap
+        start = initial_manager()._replace(next_id=ms.next_id) if restart else ms
         keep = s.amplitude >= spec.c.tau
-        ms, rep = manager_step(spec, ms, s.t, s.z[keep], s.amplitude[keep], s.R)
+        try:
+            with np.errstate(over="ignore", invalid="ignore"):  # checked below
+                after, rep = manager_step(spec, start, s.t, s.z[keep], s.amplitude[keep], s.R)
+            require_finite("the tracks", rep.tracks.state.x, rep.tracks.state.P, rep.tracks.existence)
+            require_covariances("the tracks", rep.tracks.state.P)
+        except (Numerical, *NUMERICAL_ERRORS):
+            repeats.refused(s.sensor, ms.t)
+            numerical.left_out += 1
+            continue
+        if restart:
+            yield from _rows(s.t, s.sensor, ms.tracks, np.full(len(ms.tracks), "deleted"))
+        ms = after
         yield from report_rows(s.t, s.sensor, rep)
 
 
@@ -137,11 +153,13 @@ def replay_pda(algorithm: str, measurements: Path, config: Path | None, out: Pat
         raise ConfigError(f"--status: one of {', '.join(STATUSES)}, got {status!r}")
     cfg = load_config(config)
     spec = tracker_spec(algorithm, cfg.tracker, cfg.existence)
-    n, repeats = 0, RepeatedTimes()
+    n, repeats, numerical = 0, RepeatedTimes(), NumericalRefusals()
     with output_file(out) as fh:
-        for row in run(spec, read_scans(measurements), max_time_jump(config), repeats):
+        for row in run(spec, read_scans(measurements), max_time_jump(config), repeats, numerical):
             if status == "all" or row["status"] == status:
                 fh.write(json.dumps(row) + "\n")
                 n += 1
     print(repeats.line(algorithm, "scans", "time_jump"), file=sys.stderr)
+    if numerical.left_out:
+        print(numerical.line(algorithm, "scans"), file=sys.stderr)
     return n
