@@ -97,7 +97,8 @@ def write_scenario(out: Path, clutter: float, duration: float, seed: int) -> Non
                     aer = aer_from_enu(own_site, at)[0]
                     plots.append(np.array([aer[2], aer[0], aer[1]]) + L @ rng.standard_normal(3))
             m = rng.poisson(clutter)
-            false = np.column_stack([rng.uniform(*REACH, m), rng.uniform(-np.pi, np.pi, m), rng.uniform(0, ELEVATION, m)])
+            false = np.column_stack([rng.uniform(*REACH, m), rng.uniform(-np.pi, np.pi, m),
+                                     rng.uniform(0, ELEVATION, m)])
             own = np.vstack([*plots, false])
             own = own[rng.permutation(len(own))]
             z = polar_from_cartesian(enu_from_aer(own_site, own[:, [1, 2, 0]]) - own_site.position)

@@ -470,12 +470,14 @@ def pole_scans(path: Path) -> np.ndarray:
     rows = []
     for sensor, period, n in (("r1", 2.0, 20), ("r2", 4.0, 3)):
         for t in np.arange(0.5 if sensor == "r1" else 1.0, 100.0, period):
-            own = np.column_stack([rng.uniform(0.0, 2 * np.pi, n), rng.uniform(0.0, 0.3, n), rng.uniform(20e3, 300e3, n)])
+            own = np.column_stack([rng.uniform(0.0, 2 * np.pi, n), rng.uniform(0.0, 0.3, n),
+                                   rng.uniform(20e3, 300e3, n)])
             z = polar_from_cartesian(enu_from_own(site[sensor], own_from_aer(own)) - site[sensor].position)
             if sensor == "r2" and rng.random() < 0.9:
                 z = np.vstack([z, polar_from_cartesian(target[int(t)] - site[sensor].position) + rng.normal(0.0, 1.0, 3)
                                * np.sqrt(np.diag(R))])
-            rows.append({"t": float(t), "sensor": sensor, "R": R.tolist(), "sensor_position": site[sensor].position.tolist(),
+            rows.append({"t": float(t), "sensor": sensor, "R": R.tolist(),
+                         "sensor_position": site[sensor].position.tolist(),
                          "detections": [{"z": d.tolist()} for d in z]})
     rows.sort(key=lambda r: r["t"])
     path.write_text("".join(json.dumps(r) + "\n" for r in rows))
@@ -492,16 +494,19 @@ def test_a_radar_blind_below_its_horizon_leaves_the_target_to_the_radar_that_see
     from 40 s. Without the sites, as before: in none."""
     target = pole_scans(tmp_path / "m.jsonl")
     density = 20 / (280e3 * 2 * np.pi * 0.3)
-    mtt = (f'[mtt]\nsensors = ["r1", "r2"]\npd = 0.9\nclutter_density = {density}\nq = 25.0\ninit_velocity_std = 150.0\n'
-           'max_lag = 9.0\ncentral_timeout = 9.0\n')
+    mtt = (f'[mtt]\nsensors = ["r1", "r2"]\npd = 0.9\nclutter_density = {density}\nq = 25.0\n'
+           'init_velocity_std = 150.0\nmax_lag = 9.0\ncentral_timeout = 9.0\n')
     sites = "".join(f"{s} = {list(g)}\n" for s, g in POLE_SITES.items())
     shown = {}
-    for name, text in (("sites", f"{mtt}\n[frame]\norigin = [89.3, 0.0, 0.0]\n\n[frame.sites]\n{sites}"), ("none", mtt)):
+    with_sites = f"{mtt}\n[frame]\norigin = [89.3, 0.0, 0.0]\n\n[frame.sites]\n{sites}"
+    for name, text in (("sites", with_sites), ("none", mtt)):
         config, out = tmp_path / f"{name}.toml", tmp_path / f"{name}.jsonl"
         config.write_text(text)
         replay_mtt(algorithm, tmp_path / "m.jsonl", config, out)
-        shown[name] = [any(tr["status"] == "confirmed" and np.hypot(*(np.array(tr["pos"][:2]) - target[int(p["t"]), :2])) < 2000.0
-                           for tr in p["tracks"]) for p in map(json.loads, out.read_text().splitlines()) if p["t"] >= 40.0]
+        pictures = [p for p in map(json.loads, out.read_text().splitlines()) if p["t"] >= 40.0]
+        shown[name] = [any(tr["status"] == "confirmed"
+                           and np.hypot(*(np.array(tr["pos"][:2]) - target[int(p["t"]), :2])) < 2000.0
+                           for tr in p["tracks"]) for p in pictures]
     assert len(shown["sites"]) > 50 and all(shown["sites"]), shown["sites"]
     assert not any(shown["none"]), shown["none"]
 

@@ -263,7 +263,8 @@ def test_the_centre_reads_its_frame_from_the_config(tmp_path: Path) -> None:
     from fedtrack.fusion_center.mtt.service import service_from_args
 
     config = tmp_path / "c.toml"
-    config.write_text('[mtt]\nsensors = "any"\n[frame]\norigin = [48.85, 2.35, 100.0]\n[frame.sites]\nr1 = [49.2, 1.9, 120.0]\n')
+    config.write_text('[mtt]\nsensors = "any"\n[frame]\norigin = [48.85, 2.35, 100.0]\n'
+                      '[frame.sites]\nr1 = [49.2, 1.9, 120.0]\n')
     centre = service_from_args(["--config", str(config), "--id", "c"])
     assert centre.frame == Frame(48.85, 2.35, 100.0)
     site = site_from_geodetic(centre.frame, 49.2, 1.9, 120.0)

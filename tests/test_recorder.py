@@ -220,7 +220,8 @@ def test_fedtrack_export_names_the_unprocessed_scans_file_it_writes(tmp_path: Pa
     rec.close()
     out = tmp_path / "m.jsonl"
     assert cli.main(["export", "--db", str(db), "--out", str(out)]) == 0
-    assert capsys.readouterr().out == f"wrote 1 measurements to {out}, the scans no picture lists to {tmp_path / 'unprocessed.jsonl'}\n"
+    unprocessed = tmp_path / "unprocessed.jsonl"
+    assert capsys.readouterr().out == f"wrote 1 measurements to {out}, the scans no picture lists to {unprocessed}\n"
     assert [json.loads(x)["sensor"] for x in (tmp_path / "unprocessed.jsonl").read_text().splitlines()] == ["b"]
 
 def test_a_version_1_recording_is_exported_as_before_and_never_written(tmp_path: Path) -> None:

@@ -101,7 +101,8 @@ def test_crossings_tested_by_boxes_are_every_pair_tested_at_once() -> None:
         a0, a1, b0, b1 = a[:, None], np.roll(a, -1, axis=0)[:, None], b[None], np.roll(b, -1, axis=0)[None]
 
         def side(o: np.ndarray, p: np.ndarray, q: np.ndarray) -> np.ndarray:
-            cross = (p[..., 0] - o[..., 0]) * (q[..., 1] - o[..., 1]) - (p[..., 1] - o[..., 1]) * (q[..., 0] - o[..., 0])
+            cross = ((p[..., 0] - o[..., 0]) * (q[..., 1] - o[..., 1])
+                     - (p[..., 1] - o[..., 1]) * (q[..., 0] - o[..., 0]))
             return np.where(np.abs(cross) > tol * np.hypot(p[..., 0] - o[..., 0], p[..., 1] - o[..., 1]),
                             np.sign(cross), 0.0)
 

@@ -479,7 +479,8 @@ class TrackToTrackEngine(Engine):
     def fuse(self, report: LocalReport) -> tuple[Resets, float]:
         """The centre's part of a scan, as the live centre does it per report."""
         if self.centre is None:
-            self.centre = (TrackToTrackCentre(self.cfg, self.dim, self.feedback, sites=self.sites) if self.regions is None
+            self.centre = (TrackToTrackCentre(self.cfg, self.dim, self.feedback, sites=self.sites)
+                           if self.regions is None
                            else ShardedCentre(self.cfg, self.dim, self.feedback, self.regions, sites=self.sites))
         self.scans += 1
         if report.existence is not None:

@@ -149,7 +149,8 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
     next_id: int = 0
     id_step: int = 1  # ids next_id, next_id + id_step, ...: region r of R starts at r, steps by R (shards)
     counters: Counters = field(default_factory=Counters)
-    sites: dict[str, RadarSite] = field(default_factory=dict)  # [frame.sites]: each radar's site (its horizon, life rules)
+    # [frame.sites]: each radar's site (its horizon, the life rules)
+    sites: dict[str, RadarSite] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         cfg = self.cfg
