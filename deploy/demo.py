@@ -218,8 +218,8 @@ def main(argv: list[str]) -> int:
         return 1
     if settings.multitarget is not None:
         finish_multitarget(out, report, "fedtrack demo", settings)
-    else:
-        finish(out, settings, report, out / "config.toml", "fedtrack demo")
+    elif finish(out, settings, report, out / "config.toml", "fedtrack demo")["tracks_not_recorded"]:
+        failure = failure or "fused tracks seen live are not in the recording"
     if failure is not None:
         print(f"fedtrack demo: {failure}", file=sys.stderr)
         return 1

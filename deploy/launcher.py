@@ -65,10 +65,14 @@ from fedtrack.deploy.settings import Settings, check_launchable, load_settings
 from fedtrack.deployment import listen_address, port_in_use
 from fedtrack.jsonl import InputError, output_folder
 from fedtrack.recording import Recording
+from fedtrack.services.base import CLOSE_DEADLINE_S
+from fedtrack.services.recorder import Recorder
 from fedtrack.zsession import close_session, wait_alive
 
 STOP_GRACE_S = 5.0
-RECORDER_GRACE_S = 20.0  # the recorder commits what it still holds (a row an fsync) before it stops
+# the recorder commits what it still holds (a row an fsync, for at most its drain deadline), then says its
+# final Health and closes its session: its stage's grace outlasts both
+RECORDER_GRACE_S = Recorder.drain_deadline_s + CLOSE_DEADLINE_S + 3.0
 PR_SET_PDEATHSIG = 1
 ESSENTIAL_ROLES = ("router", "fusion-center", "recorder")
 MAX_RESTARTS = 3
@@ -509,14 +513,15 @@ def main(argv: list[str]) -> int:
     except LaunchError as exc:
         print(f"fedtrack launch: {exc}", file=sys.stderr)
         return 1
+    unrecorded: list[int] = []
     try:
         if settings.multitarget is not None:
             finish_multitarget(out, report, "fedtrack launch", settings)
         else:
-            finish(out, settings, report, args.config.resolve(), "fedtrack launch")
+            unrecorded = finish(out, settings, report, args.config.resolve(), "fedtrack launch")["tracks_not_recorded"]
     except InputError as exc:  # the disk full at the end: before 2026-11-27 exit 2 naming the copy's source
         print(f"fedtrack launch: the run's summary not written: {exc}", file=sys.stderr)
         return 1
     if code is not None:
         return code
-    return 1 if report.failed or report.failed_exits() else 0
+    return 1 if report.failed or report.failed_exits() or unrecorded else 0

@@ -179,6 +179,8 @@ class Service(Dispatch, Publishing):
     # those on_tick changes (None: ``state_attrs``); a service whose tick is frequent and whose
     # state is large names fewer and guards the rest itself
     tick_state_attrs: ClassVar[tuple[str, ...] | None] = None
+    # on a stop, handle what is already queued for at most this long; the rest is counted in ``dropped``
+    drain_deadline_s: ClassVar[float] = DRAIN_DEADLINE_S
 
     def __init__(self, service_id: str, options: SessionOptions, deployment: str = DEFAULT_DEPLOYMENT,
                  health_period_s: float = 1.0) -> None:
@@ -435,7 +437,7 @@ class Service(Dispatch, Publishing):
 
     def _drain(self) -> None:
         """Handle what was queued before the subscribers were undeclared."""
-        deadline = time.monotonic() + DRAIN_DEADLINE_S
+        deadline = time.monotonic() + self.drain_deadline_s
         while time.monotonic() < deadline:
             try:
                 self._dispatch(self._queue.get_nowait())
@@ -443,7 +445,7 @@ class Service(Dispatch, Publishing):
                 return
         left = self._queue.qsize()
         self.counters["dropped"] += left
-        self.log.warning("stopped with %d queued message(s) unhandled after %.1f s", left, DRAIN_DEADLINE_S)
+        self.log.warning("stopped with %d queued message(s) unhandled after %.1f s", left, self.drain_deadline_s)
 
     def _health(self) -> Health:
         self._health_seq += 1

@@ -48,6 +48,9 @@ class Recorder(Service):
 
     role = "recorder"
     tick_period_s = 1.0  # how often it checks that its database file is still the one it writes (check_file)
+    # stopped, it commits every row it still holds (a row an fsync): at CI load 11 the base's 2 s left a
+    # third of a lockstep run's fused tracks unrecorded, with exit 0; the launcher's recorder grace outlasts this
+    drain_deadline_s = 15.0
 
     def __init__(self, db: Path, out: Path | None = None, **kwargs: Any) -> None:
         super().__init__(**kwargs)
