@@ -1,9 +1,11 @@
-"""A paper deployment whose recording lacks fused tracks the launcher saw live ends with exit 1 and says
-which (in process: the run itself replaced by its outcome)."""
+"""A paper deployment's recorder stores every fused track the launcher saw live before the stop, or the
+launch says which it lacks and ends with exit 1 (in process: no service is started)."""
 
 from __future__ import annotations
 
 import json
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -12,19 +14,25 @@ import pytest
 from fedtrack.deploy import launcher
 from fedtrack.deploy.demo import free_port, write_config
 from fedtrack.deploy.report import LaunchReport
-from fedtrack.deploy.settings import Settings
+from fedtrack.deploy.settings import Settings, load_settings
 from fedtrack.deployment import DeploymentConfig, SensorConfig
 from fedtrack.local_filters.vdie.config import FusionConfig
+
+
+def paper_config(tmp_path: Path) -> Path:
+    """A one-sensor paper deployment's config in ``tmp_path`` (a free router port)."""
+    cfg = tmp_path / "config.toml"
+    write_config(Settings(fusion=FusionConfig(sensors=("a",)), sensor=(SensorConfig(id="a"),),
+                          deployment=DeploymentConfig(name="unrec", router_listen=f"tcp/127.0.0.1:{free_port()}",
+                                                      out=str(tmp_path))), cfg)
+    return cfg
 
 
 def test_fused_tracks_missing_from_the_recording_end_the_launch_with_exit_1(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
     """At CI load 11 a lockstep run's recorder, stopped with a backlog, left 32 of the 101 fused tracks the
     launcher had seen out of tracks.jsonl and the launch exited 0, its summary saying '69 of 101'."""
-    cfg = tmp_path / "config.toml"
-    write_config(Settings(fusion=FusionConfig(sensors=("a",)), sensor=(SensorConfig(id="a"),),
-                          deployment=DeploymentConfig(name="unrec", router_listen=f"tcp/127.0.0.1:{free_port()}",
-                                                      out=str(tmp_path))), cfg)
+    cfg = paper_config(tmp_path)
 
     def run(self: launcher.Launcher) -> LaunchReport:  # the live run: 5 tracks seen, 3 of them recorded
         lines = [{"t": float(k), "x": [0.0, 0.0, 0.0, 0.0], "P": np.eye(4).tolist(), "model": "cv", "maneuver": False,
@@ -38,3 +46,38 @@ def test_fused_tracks_missing_from_the_recording_end_the_launch_with_exit_1(
     assert "3 of 101 (0 degraded, 2 seen live but not recorded)" in out
     assert "fedtrack launch: 2 fused tracks seen live are not in the recording (scans 2, 4;" in err
     assert json.loads((tmp_path / "summary.json").read_text())["tracks_not_recorded"] == [2, 4]
+
+
+def paper_launcher(tmp_path: Path) -> launcher.Launcher:
+    cfg = paper_config(tmp_path)
+    return launcher.prepare_launcher(load_settings(cfg), cfg, tmp_path, quiet=True)
+
+
+def test_the_launcher_waits_for_a_slow_recorder_to_store_the_tracks_seen_before_it_stops(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The sensors done, the launcher stops nothing while the recorder (its Health's ``tracks_recorded``)
+    still stores the fused tracks seen live: with every fsync slowed to 60 ms a lockstep run's recorder
+    had stored 2 of 101 when the sensors ended, and the stop left 9 in tracks.jsonl (exit 0). Here the
+    count grows a track every 0.1 s; a recorder that stalls is given up after RECORDER_STALL_S."""
+    monkeypatch.setattr(launcher, "RECORDER_STALL_S", 0.5)
+    run = paper_launcher(tmp_path)
+    run.report.track_arrivals_ns = dict.fromkeys(range(10), 1)
+    run.report.health["recorder/recorder"] = {"tracks_recorded": 4}
+
+    def store() -> None:
+        for n in range(5, 11):
+            time.sleep(0.1)
+            with run._lock:
+                run.report.health["recorder/recorder"] = {"tracks_recorded": n}
+
+    writer = threading.Thread(target=store)
+    started = time.monotonic()
+    writer.start()
+    run._await_recording()
+    waited = time.monotonic() - started
+    writer.join()
+    assert 0.5 <= waited < 2.0  # returned once all 10 were stored (before: at once, with 4 of 10)
+    run.report.health["recorder/recorder"] = {"tracks_recorded": 7}  # stalled at 7 of 10
+    started = time.monotonic()
+    run._await_recording()
+    assert 0.5 <= time.monotonic() - started < 1.5
