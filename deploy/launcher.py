@@ -5,7 +5,8 @@ Order: router -> local filters, fusion center, recorder -> (all announced by liv
 pacing given ``START_MARGIN_S`` ahead, with lockstep pacing now (scan 0 then, the next scans as the
 fused tracks come). While it runs it shows scans fused, per-sensor scan rates and the latency
 from a sensor's publish to the fused track's arrival. It ends when the sensors have
-published their last scan (then stops the rest), or on Ctrl-C / SIGTERM (stops
+published their last scan and, in a paper deployment, this host's recorder has stored the fused tracks
+seen (:meth:`Launcher._await_recording`; then stops the rest), or on Ctrl-C / SIGTERM (stops
 everything, no orphans: every child also gets SIGTERM if the launcher dies). Exit code
 0 when every service ended cleanly, 1 naming the service that failed. A service that the stop's
 grace SIGKILLs after its final Health said ``stopped`` (its interpreter's exit outlived the grace)
