@@ -68,6 +68,7 @@ from fedtrack.jsonl import InputError, output_folder
 from fedtrack.recording import Recording
 from fedtrack.services.base import CLOSE_DEADLINE_S
 from fedtrack.services.recorder import Recorder
+from fedtrack.wire import FusedTrack
 from fedtrack.zsession import close_session, wait_alive
 
 STOP_GRACE_S = 5.0
@@ -81,8 +82,9 @@ RESTART_BACKOFF_S = 0.5
 RESTART_BACKOFF_MAX_S = 4.0
 # realtime: the start is this long after the last sensor was ready: 25 of the sensors' 10 ms polls of START_FILE
 START_MARGIN_S = 0.25
-# before the stop, the launcher waits for this host's recorder to store the fused tracks it saw live while its
-# count grows; it gives up after this long without growth: 5 of the recorder's Health periods (1 s)
+# before the stop, the launcher waits for this host's recording to hold the fused tracks it saw live while
+# their count grows; it gives up after this long without one more: far beyond a row's commit (an fsync: 3 ms
+# here, 60 ms slowed on purpose), so only a recorder that stopped storing is given up on
 RECORDER_STALL_S = 5.0
 ROUTER_DRAIN_S = 0.5  # a router joined to other hosts' routers is stopped this long after the rest (in-flight data)
 
@@ -370,31 +372,42 @@ class Launcher(Monitor):
         return self.report
 
     def _await_recording(self) -> None:
-        """Before the stop of a paper deployment: while this host's recorder has stored fewer fused tracks
-        (its Health's ``tracks_recorded``) than the launcher saw live, and that count still grows, wait;
-        given up after ``RECORDER_STALL_S`` without growth. The recorder commits a row an fsync: with every
-        fsync slowed to 60 ms it had stored 2 of a lockstep run's 101 fused tracks when the sensors ended, and
-        its 2 s drain left 9 in tracks.jsonl, exit 0 (2026-11-27; now 101 after 40 s more)."""
+        """Before the stop of a paper deployment: while this host's recording holds fewer fused tracks than
+        the launcher saw live, and their count still grows, wait; given up after ``RECORDER_STALL_S``
+        without growth. The recorder commits a row an fsync: with every fsync slowed to 60 ms it had stored
+        2 of a lockstep run's 101 fused tracks when the sensors ended, and its 2 s drain left 9 in
+        tracks.jsonl, exit 0 (2026-11-27; now 101 after 40 s more)."""
         recorder = next((sp for sp in self.plan if sp.role == "recorder"), None)
         if recorder is None or self.settings.multitarget is not None:
             return
+        db = Path(recorder.argv[recorder.argv.index("--db") + 1])
+        try:
+            recording = Recording(db, readonly=True)
+        except InputError:  # not there (the recorder never started) or damaged: the export says so
+            return
         stored, since, said = -1, time.monotonic(), False
-        while not self._stop.is_set():
-            with self._lock:
-                seen = len(self.report.track_arrivals_ns)
-                now_stored = self.report.health.get(recorder.name, {}).get("tracks_recorded", 0)
-            if now_stored >= seen:
-                return
-            if now_stored != stored:
-                stored, since = now_stored, time.monotonic()
-            elif time.monotonic() - since > RECORDER_STALL_S:
-                self._say(f"{recorder.name} stored {stored} of the {seen} fused tracks seen, none more in "
-                          f"{RECORDER_STALL_S:g} s: stopping")
-                return
-            if not said and not self.quiet:
-                self._say(f"waiting for {recorder.name} to store the fused tracks seen ({stored} of {seen})")
-                said = True
-            time.sleep(0.05)
+        try:
+            while not self._stop.is_set():
+                with self._lock:
+                    seen = len(self.report.track_arrivals_ns)
+                now_stored = recording.count(FusedTrack)
+                if now_stored >= seen:
+                    return
+                if now_stored != stored:
+                    stored, since = now_stored, time.monotonic()
+                elif time.monotonic() - since > RECORDER_STALL_S:
+                    self._say(f"{recorder.name} stored {stored} of the {seen} fused tracks seen, none more in "
+                              f"{RECORDER_STALL_S:g} s: stopping")
+                    return
+                if not said and not self.quiet:
+                    self._say(f"waiting for {recorder.name} to store the fused tracks seen ({stored} of {seen})")
+                    said = True
+                time.sleep(0.05)
+        except InputError as exc:  # a read fault of the recording
+            self._say(f"could not read the recording: {exc}")
+            return
+        finally:
+            recording.close()
         raise KeyboardInterrupt
 
     def _export_recording(self) -> None:

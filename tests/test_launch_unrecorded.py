@@ -17,6 +17,8 @@ from fedtrack.deploy.report import LaunchReport
 from fedtrack.deploy.settings import Settings, load_settings
 from fedtrack.deployment import DeploymentConfig, SensorConfig
 from fedtrack.local_filters.vdie.config import FusionConfig
+from fedtrack.recording import Recording
+from fedtrack.wire import FusedTrack, encode
 
 
 def paper_config(tmp_path: Path) -> Path:
@@ -55,29 +57,40 @@ def paper_launcher(tmp_path: Path) -> launcher.Launcher:
 
 def test_the_launcher_waits_for_a_slow_recorder_to_store_the_tracks_seen_before_it_stops(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """The sensors done, the launcher stops nothing while the recorder (its Health's ``tracks_recorded``)
-    still stores the fused tracks seen live: with every fsync slowed to 60 ms a lockstep run's recorder
-    had stored 2 of 101 when the sensors ended, and the stop left 9 in tracks.jsonl (exit 0). Here the
-    count grows a track every 0.1 s; a recorder that stalls is given up after RECORDER_STALL_S."""
+    """The sensors done, the launcher stops nothing while the recording still grows towards the fused
+    tracks seen live: with every fsync slowed to 60 ms a lockstep run's recorder had stored 2 of 101 when
+    the sensors ended, and the stop left 9 in tracks.jsonl (exit 0). Here a track is committed every
+    0.1 s; a recording that stops growing is given up after RECORDER_STALL_S."""
     monkeypatch.setattr(launcher, "RECORDER_STALL_S", 0.5)
     run = paper_launcher(tmp_path)
     run.report.track_arrivals_ns = dict.fromkeys(range(10), 1)
-    run.report.health["recorder/recorder"] = {"tracks_recorded": 4}
+    db = tmp_path / "recording.db"  # the recorder's (--db of the plan)
 
-    def store() -> None:
-        for n in range(5, 11):
-            time.sleep(0.1)
-            with run._lock:
-                run.report.health["recorder/recorder"] = {"tracks_recorded": n}
+    def store(seqs: range, pause_s: float) -> None:  # the recorder: its own connection, a commit a row
+        recording = Recording(db)
+        for seq in seqs:
+            time.sleep(pause_s)
+            track = FusedTrack(seq=seq, t=float(seq), model="cv", x=np.ones(4), P=np.eye(4), maneuver=False,
+                               degraded=False, sensors=("a",), stamp_ns=1)
+            recording.add(track, encode(track))
+        recording.close()
 
-    writer = threading.Thread(target=store)
+    def stored() -> int:
+        recording = Recording(db, readonly=True)
+        try:
+            return recording.count(FusedTrack)
+        finally:
+            recording.close()
+
+    store(range(4), 0.0)
+    writer = threading.Thread(target=store, args=(range(4, 10), 0.1))
     started = time.monotonic()
     writer.start()
     run._await_recording()
-    waited = time.monotonic() - started
+    waited, held = time.monotonic() - started, stored()
     writer.join()
-    assert 0.5 <= waited < 2.0  # returned once all 10 were stored (before: at once, with 4 of 10)
-    run.report.health["recorder/recorder"] = {"tracks_recorded": 7}  # stalled at 7 of 10
+    assert held == 10 and 0.5 <= waited < 2.0  # returned once all 10 were stored (before: at once, with 4)
+    run.report.track_arrivals_ns = dict.fromkeys(range(12), 1)  # 2 never stored
     started = time.monotonic()
     run._await_recording()
     assert 0.5 <= time.monotonic() - started < 1.5
