@@ -309,10 +309,10 @@ class NumericalRefusals:
     def __init__(self) -> None:
         self.left_out = 0
 
-    def line(self, algorithm: str, unit: str) -> str | None:
-        """The counter line a replay prints when it left out any ``unit`` (None when not)."""
+    def line(self, algorithm: str, unit: str) -> str:
+        """The counter line a replay prints when it left out any ``unit``."""
         return (f"{algorithm}: {self.left_out} {unit} whose estimate came out non-finite or not positive "
-                "definite, left out (live: rejected_numerical)") if self.left_out else None
+                "definite, left out (live: rejected_numerical)")
 
 
 class RepeatedTimes:

@@ -257,8 +257,8 @@ class Engine:
 
     def counters(self) -> dict[str, int]:
         return {"scans": self.scans, "late": self.late, "duplicates": self.duplicates, "conflicts": self.conflicts,
-                "rerun": self.rerun,
-                "repeated": self.repeated, "lead": self.lead.dropped if self.lead is not None else 0}
+                "rerun": self.rerun, "repeated": self.repeated,
+                "lead": self.lead.dropped if self.lead is not None else 0}
 
 
 @dataclass

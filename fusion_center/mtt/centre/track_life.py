@@ -104,7 +104,7 @@ class CentreLife:
     def _fused_support(self, slots: np.ndarray) -> np.ndarray:
         """Per slot and sensor column, whether a local track of that sensor maps there, an excluded
         sensor's not counted (its misses and its tracks count for nothing while it is left out)."""
-        return (self.support[slots] > 0) & self._not_excluded()
+        return self._counted(self.support[slots] > 0)
 
     def _tracking(self, slots: np.ndarray) -> np.ndarray:
         """Per slot and sensor column, whether that sensor's misses count toward deleting the slot's
@@ -112,11 +112,14 @@ class CentreLife:
         there since the track's last detection (``gave_up``: the tracker's own miss evidence, which
         the sensor's scans since keep adding to; before the linger session its column left the count,
         and the other sensors' misses had to make up for it); an excluded sensor's not counted."""
-        return ((self.support[slots] > 0) | self.gave_up[slots]) & self._not_excluded()
+        return self._counted((self.support[slots] > 0) | self.gave_up[slots])
 
-    def _not_excluded(self) -> np.ndarray:
-        """Per sensor column, whether its sensor is not left out (:attr:`excluded`)."""
-        return np.array([name not in self.excluded for name in self.sensor_names], dtype=bool)
+    def _counted(self, columns: np.ndarray) -> np.ndarray:
+        """``columns`` (slots x sensor columns, a fresh array) with the columns of the sensors left out
+        (:attr:`excluded`) cleared; as it is when none is (every report: no array made)."""
+        if self.excluded:
+            columns &= np.array([name not in self.excluded for name in self.sensor_names])
+        return columns
 
     def _blind_to(self, slots: np.ndarray, col: int, report: LocalReport) -> np.ndarray:
         """Per tentative track of ``slots``, whether the report of sensor column ``col`` is no evidence
