@@ -41,7 +41,7 @@ from fedtrack.deploy.launcher import (
     run_deployment,
 )
 from fedtrack.deploy.multitarget import SCENARIO_DIR, finish_multitarget, prepare
-from fedtrack.deploy.report import finish
+from fedtrack.deploy.report import finish, unrecorded
 from fedtrack.deploy.security import ZenohSettings
 from fedtrack.deploy.settings import MultitargetSettings, Settings
 from fedtrack.deployment import MODES, DeploymentConfig, SensorConfig, port_in_use
@@ -217,9 +217,11 @@ def main(argv: list[str]) -> int:
         print(f"fedtrack demo: {exc}", file=sys.stderr)
         return 1
     if settings.multitarget is not None:
-        finish_multitarget(out, report, "fedtrack demo", settings)
-    elif finish(out, settings, report, out / "config.toml", "fedtrack demo")["tracks_not_recorded"]:
-        failure = failure or "fused tracks seen live are not in the recording"
+        summary = finish_multitarget(out, report, "fedtrack demo", settings)
+    else:
+        summary = finish(out, settings, report, out / "config.toml", "fedtrack demo")
+    if unrecorded(summary):
+        failure = failure or "what the live run produced is not all in the recording"
     if failure is not None:
         print(f"fedtrack demo: {failure}", file=sys.stderr)
         return 1

@@ -5,8 +5,8 @@ Order: router -> local filters, fusion center, recorder -> (all announced by liv
 pacing given ``START_MARGIN_S`` ahead, with lockstep pacing now (scan 0 then, the next scans as the
 fused tracks come). While it runs it shows scans fused, per-sensor scan rates and the latency
 from a sensor's publish to the fused track's arrival. It ends when the sensors have
-published their last scan and, in a paper deployment, this host's recorder has stored the fused tracks
-seen (:meth:`Launcher._await_recording`; then stops the rest), or on Ctrl-C / SIGTERM (stops
+published their last scan (then it stops the services, and before this host's recorder waits for the
+recording to hold what was seen live: :meth:`Launcher._await_recording`), or on Ctrl-C / SIGTERM (stops
 everything, no orphans: every child also gets SIGTERM if the launcher dies). Exit code
 0 when every service ended cleanly, 1 naming the service that failed. A service that the stop's
 grace SIGKILLs after its final Health said ``stopped`` (its interpreter's exit outlived the grace)
@@ -61,7 +61,7 @@ from fedtrack.deploy.plan import (
     service_plan,
 )
 from fedtrack.deploy.procstat import process_usage
-from fedtrack.deploy.report import CLEAN_STOP_KILLED, LaunchReport, finish
+from fedtrack.deploy.report import CLEAN_STOP_KILLED, LaunchReport, finish, unrecorded
 from fedtrack.deploy.settings import Settings, check_launchable, load_settings
 from fedtrack.deployment import listen_address, port_in_use
 from fedtrack.jsonl import InputError, output_folder
@@ -82,9 +82,9 @@ RESTART_BACKOFF_S = 0.5
 RESTART_BACKOFF_MAX_S = 4.0
 # realtime: the start is this long after the last sensor was ready: 25 of the sensors' 10 ms polls of START_FILE
 START_MARGIN_S = 0.25
-# before the stop, the launcher waits for this host's recording to hold the fused tracks it saw live while
-# their count grows; it gives up after this long without one more: far beyond a row's commit (an fsync: 3 ms
-# here, 60 ms slowed on purpose), so only a recorder that stopped storing is given up on
+# before it stops its recorder, the launcher waits for this host's recording to hold what it saw live (fused
+# tracks; pictures and scans) while that grows; it gives up after this long without one more: far beyond a
+# row's commit (an fsync: 3 ms here, 60 ms slowed on purpose), so only a recorder that stopped storing is given up on
 RECORDER_STALL_S = 5.0
 ROUTER_DRAIN_S = 0.5  # a router joined to other hosts' routers is stopped this long after the rest (in-flight data)
 
@@ -237,8 +237,9 @@ class Launcher(Monitor):
                 if not self.quiet:
                     self._say(f"{sp.name} killed (SIGKILL at t = {sp.kill_at_s:g} s)")
 
-    def stop_all(self) -> None:
-        """SIGTERM every child still running, stage by stage, SIGKILL after a grace period.
+    def stop_all(self, settle: bool = False) -> None:
+        """SIGTERM every child still running, stage by stage, SIGKILL after a grace period; ``settle`` (the
+        run came to its end): before the recorder's stage, wait for its recording (:meth:`_await_recording`).
 
         Stages: sensors and local filters, then the fusion centres (whose last output, such as
         a multi-target centre's final pictures, still reaches the recorder), then the picture
@@ -255,6 +256,8 @@ class Launcher(Monitor):
         starting = self._starting(running)
         stages = [[sp for sp in running if STOP_STAGE.get(sp.role, 0) == k] for k in range(max(STOP_STAGE.values()) + 1)]
         for group in stages:
+            if settle and any(sp.role == "recorder" for sp in group):
+                self._await_recording()  # what the services stopped before published last included
             if self.settings.deployment.router_connect and any(sp.role == "router" for sp in group):
                 time.sleep(ROUTER_DRAIN_S)  # what the services sent last is still on its way to the other routers
             for sp in group:
@@ -317,7 +320,7 @@ class Launcher(Monitor):
         others = [sp for sp in self.plan if sp.role not in ("sensor", "router") and not sp.standby]
         standbys = [sp for sp in self.plan if sp.standby]  # once their primaries hold the tokens
         routers = [sp for sp in self.plan if sp.role == "router"]
-        stopped = False
+        stopped = settle = False
         for sp in self.plan:  # a snapshot or numbers file left by an earlier run must not be resumed from
             for flag in ("--snapshot", "--numbers"):
                 if flag in sp.argv:
@@ -348,11 +351,12 @@ class Launcher(Monitor):
             else:  # lockstep follows the fused tracks, not the clock: scan 0 once every sensor has read the start
                 release_sensors(sensors, start_file, time.time())
             self._watch(sensors, start)
-            self._await_recording()
+            settle = True
         except KeyboardInterrupt:
             stopped = True
         finally:
-            self.stop_all()
+            self.stop_all(settle)
+            stopped = stopped or self._stop.is_set()  # Ctrl-C while the recorder was waited for
             self._export_recording()
             for sub in self._subs:
                 sub.undeclare()
@@ -372,43 +376,54 @@ class Launcher(Monitor):
         return self.report
 
     def _await_recording(self) -> None:
-        """Before the stop of a paper deployment: while this host's recording holds fewer fused tracks than
-        the launcher saw live, and their count still grows, wait; given up after ``RECORDER_STALL_S``
-        without growth. The recorder commits a row an fsync: with every fsync slowed to 60 ms it had stored
-        2 of a lockstep run's 101 fused tracks when the sensors ended, and its 2 s drain left 9 in
-        tracks.jsonl, exit 0 (2026-11-27; now 101 after 40 s more)."""
+        """Before this host's recorder is stopped: while its recording holds less of what the launcher saw
+        live (:meth:`_recording_holds`) and that still grows, wait; given up after ``RECORDER_STALL_S``
+        without growth, or on Ctrl-C. The recorder commits a row an fsync: with every fsync slowed to 60 ms
+        it had stored 2 of a lockstep run's 101 fused tracks when the sensors ended, and its 2 s drain left 9
+        in tracks.jsonl, exit 0 (2026-11-27; now 101 after 40 s more); a multi-target run's, every fsync
+        slowed to 400 ms, kept 11 of the 15 pictures and 37 of the 51 scans seen after its 15 s drain, exit 0
+        (2026-11-28)."""
         recorder = next((sp for sp in self.plan if sp.role == "recorder"), None)
-        if recorder is None or self.settings.multitarget is not None:
+        if recorder is None:
             return
         db = Path(recorder.argv[recorder.argv.index("--db") + 1])
         try:
             recording = Recording(db, readonly=True)
         except InputError:  # not there (the recorder never started) or damaged: the export says so
             return
-        stored, since, said = -1, time.monotonic(), False
+        what = "fused tracks" if self.settings.multitarget is None else "pictures and scans"
+        held, since, said = -1, time.monotonic(), False
         try:
             while not self._stop.is_set():
-                with self._lock:
-                    seen = len(self.report.track_arrivals_ns)
-                now_stored = recording.count(FusedTrack)
-                if now_stored >= seen:
+                now_held, seen = self._recording_holds(recording)
+                if now_held >= seen:
                     return
-                if now_stored != stored:
-                    stored, since = now_stored, time.monotonic()
+                if now_held != held:
+                    held, since = now_held, time.monotonic()
                 elif time.monotonic() - since > RECORDER_STALL_S:
-                    self._say(f"{recorder.name} stored {stored} of the {seen} fused tracks seen, none more in "
-                              f"{RECORDER_STALL_S:g} s: stopping")
+                    self._say(f"{recorder.name} stored {held} of the {seen} {what} seen, none more in "
+                              f"{RECORDER_STALL_S:g} s: stopping it")
                     return
                 if not said and not self.quiet:
-                    self._say(f"waiting for {recorder.name} to store the fused tracks seen ({stored} of {seen})")
+                    self._say(f"waiting for {recorder.name} to store the {what} seen ({held} of {seen})")
                     said = True
                 time.sleep(0.05)
         except InputError as exc:  # a read fault of the recording
             self._say(f"could not read the recording: {exc}")
-            return
         finally:
             recording.close()
-        raise KeyboardInterrupt
+
+    def _recording_holds(self, recording: Recording) -> tuple[int, int]:
+        """How much of what the launcher saw live ``recording`` holds, and how much it saw: a paper
+        deployment's fused tracks; a multi-target one's pictures (by number) and each sensor's scans."""
+        with self._lock:
+            tracks, pictures, scans = (len(self.report.track_arrivals_ns), set(self.report.picture_seqs),
+                                       dict(self.report.measurements))
+        if self.settings.multitarget is None:
+            return min(recording.count(FusedTrack), tracks), tracks
+        recorded = recording.scans()
+        held = len(pictures & recording.pictures()) + sum(min(n, recorded.get(s, 0)) for s, n in scans.items())
+        return held, len(pictures) + sum(scans.values())
 
     def _export_recording(self) -> None:
         """Write ``measurements.jsonl`` and ``tracks.jsonl`` beside the recording of this host's
@@ -559,15 +574,14 @@ def main(argv: list[str]) -> int:
     except LaunchError as exc:
         print(f"fedtrack launch: {exc}", file=sys.stderr)
         return 1
-    unrecorded: list[int] = []
     try:
         if settings.multitarget is not None:
-            finish_multitarget(out, report, "fedtrack launch", settings)
+            summary = finish_multitarget(out, report, "fedtrack launch", settings)
         else:
-            unrecorded = finish(out, settings, report, args.config.resolve(), "fedtrack launch")["tracks_not_recorded"]
+            summary = finish(out, settings, report, args.config.resolve(), "fedtrack launch")
     except InputError as exc:  # the disk full at the end: before 2026-11-27 exit 2 naming the copy's source
         print(f"fedtrack launch: the run's summary not written: {exc}", file=sys.stderr)
         return 1
     if code is not None:
         return code
-    return 1 if report.failed or report.failed_exits() or unrecorded else 0
+    return 1 if report.failed or report.failed_exits() or unrecorded(summary) else 0

@@ -129,6 +129,7 @@ class Monitor:
         with self._lock:
             self.report.pictures += 1
             self.report.picture_arrivals.append((pic.t, now))
+            self.report.picture_seqs.add(pic.seq)
             self.watch.covered("all", self._watch_ns())
 
     def _watch_ns(self) -> int:

@@ -24,6 +24,8 @@ from fedtrack.jsonl import output_file, write_jsonl
 from fedtrack.sensors.scenarios import deployment_scenario, deployment_truth, paper004_scenario
 
 REPLAY_ALGORITHM = {"federated": "fvdie", "decentralized": "dvdie"}
+# summary.json's lists of what the live run produced that this host's recording lacks: any ends the run with exit 1
+NOT_RECORDED = ("tracks_not_recorded", "scans_not_recorded", "pictures_not_recorded")
 CLEAN_STOP_KILLED = "killed after a clean stop"  # the event of LaunchReport.killed_after_clean_stop
 
 
@@ -38,6 +40,7 @@ class LaunchReport:
     scan_slots: dict[int, tuple[float, int]] = field(default_factory=dict)
     scan_span_ns: tuple[int, int] | None = None
     picture_arrivals: list[tuple[float, int]] = field(default_factory=list)  # (picture T, arrival ns)
+    picture_seqs: set[int] = field(default_factory=set)  # the numbers of the pictures seen (whole, no closing record)
     latencies_ms: list[float] = field(default_factory=list)
     measurements: dict[str, int] = field(default_factory=dict)
     track_arrivals_ns: dict[int, int] = field(default_factory=dict)  # seq -> wall-clock arrival
@@ -116,6 +119,11 @@ class LaunchReport:
     def rejected(self) -> int:
         """What every service's final Health counted ``rejected``, and what the launcher's monitor rejected."""
         return sum(c.get("rejected", 0) for c in self.health.values()) + self.monitor_rejected
+
+
+def unrecorded(summary: dict[str, Any]) -> bool:
+    """Whether ``summary`` lists anything seen or due live that the recording lacks (:data:`NOT_RECORDED`)."""
+    return any(summary.get(key) for key in NOT_RECORDED)
 
 
 def _lines(path: Path) -> list[dict[str, Any]]:
@@ -276,6 +284,6 @@ def finish(out: Path, settings: Settings, report: LaunchReport, config_path: Pat
     lost = summary["tracks_not_recorded"]
     if lost:
         print(f"{title}: {len(lost)} fused tracks seen live are not in the recording (scans "
-              f"{', '.join(map(str, lost[:10]))}{', ...' if len(lost) > 10 else ''}; see {out}/logs/recorder.log)",
+              f"{', '.join(map(str, lost[:10]))}{', ...' if len(lost) > 10 else ''}; see {out}/logs/recorder-recorder.log)",
               file=sys.stderr)
     return summary

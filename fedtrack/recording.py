@@ -249,6 +249,12 @@ class Recording:
                 f"SELECT sensor, COUNT(*) FROM (SELECT sensor FROM measurements GROUP BY sensor, seq "
                 f"HAVING COUNT(*) = {parts}) GROUP BY sensor").fetchall())
 
+    def pictures(self) -> set[int]:
+        """The numbers of the pictures recorded (a closing record's too), one in parts once all its parts are in."""
+        parts = "MAX(parts)" if self.version > 1 else "1"
+        with _read_of(self.path):
+            return {seq for seq, in self.db.execute(f"SELECT seq FROM pictures GROUP BY seq HAVING COUNT(*) = {parts}")}
+
     def messages(self, msg_type: type, order: str) -> Iterator[Any]:
         """The stored messages of ``msg_type`` in ``order`` (an ORDER BY clause of the table's
         columns); a message stored in parts joined, in the place of its last part (module docstring)."""

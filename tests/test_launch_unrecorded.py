@@ -18,7 +18,7 @@ from fedtrack.deploy.settings import Settings, load_settings
 from fedtrack.deployment import DeploymentConfig, SensorConfig
 from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.recording import Recording
-from fedtrack.wire import FusedTrack, encode
+from fedtrack.wire import FusedTrack, Measurement, TrackPicture, encode
 
 
 def paper_config(tmp_path: Path) -> Path:
@@ -94,3 +94,90 @@ def test_the_launcher_waits_for_a_slow_recorder_to_store_the_tracks_seen_before_
     started = time.monotonic()
     run._await_recording()
     assert 0.5 <= time.monotonic() - started < 1.5
+
+
+MTT_CONFIG = """
+[deployment]
+name = "unrecmtt"
+router_listen = "tcp/127.0.0.1:{port}"
+
+[multitarget]
+targets = 2
+sensors = "pos:1.0"
+duration = 4.0
+"""
+
+
+def mtt_launcher(tmp_path: Path) -> launcher.Launcher:
+    """A one-sensor multi-target deployment's launcher (its scenario simulated into ``tmp_path``)."""
+    cfg = tmp_path / "mtt.toml"
+    cfg.write_text(MTT_CONFIG.format(port=free_port()))
+    return launcher.prepare_launcher(load_settings(cfg), cfg, tmp_path, quiet=True)
+
+
+def store_mtt(db: Path, pictures: list[int], scans: list[int], pause_s: float = 0.0) -> None:
+    """The recorder: its own connection, a commit a row (a picture, then a scan of s1, in turn)."""
+    recording = Recording(db)
+    rows: list[TrackPicture | Measurement] = [
+        TrackPicture(seq=k, t=float(k), ids=(), x=np.zeros((0, 4)), P=np.zeros((0, 4)), confirmed=(), sensors=(),
+                     fused_sensors=(), fused_seqs=(), stamp_ns=1) for k in pictures]
+    rows += [Measurement(sensor="s1", seq=k, t=float(k), kind="position", z=np.zeros(2), R=np.eye(2), stamp_ns=1)
+             for k in scans]
+    for row in rows:
+        time.sleep(pause_s)
+        recording.add(row, encode(row))
+    recording.close()
+
+
+def test_the_launcher_waits_for_a_slow_recorder_to_store_the_pictures_and_scans_seen(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A multi-target deployment's recorder is waited for as a paper deployment's: with every fsync slowed to
+    400 ms it held 9 of the 66 pictures and scans seen when the sensors ended, kept 11 of 15 pictures and 37
+    of 51 scans after its 15 s drain, and the launch exited 0 (before: no wait). Here a row is committed every
+    0.1 s; a recording that stops growing is given up after RECORDER_STALL_S."""
+    monkeypatch.setattr(launcher, "RECORDER_STALL_S", 0.5)
+    run = mtt_launcher(tmp_path)
+    run.report.picture_seqs, run.report.measurements = set(range(4)), {"s1": 4}
+    db = tmp_path / "recording.db"
+    store_mtt(db, [0, 1], [0])
+    writer = threading.Thread(target=store_mtt, args=(db, [2, 3], [1, 2, 3], 0.1))
+    started = time.monotonic()
+    writer.start()
+    run._await_recording()
+    waited = time.monotonic() - started
+    writer.join()
+    recording = Recording(db, readonly=True)
+    assert recording.pictures() == {0, 1, 2, 3} and recording.scans() == {"s1": 4}
+    recording.close()
+    assert 0.4 <= waited < 2.0  # returned once all were stored (before: at once)
+    run.report.picture_seqs.add(4)  # never stored
+    started = time.monotonic()
+    run._await_recording()
+    assert 0.5 <= time.monotonic() - started < 1.5
+
+
+@pytest.mark.parametrize("lacks", ["pictures", "scans"])
+def test_pictures_or_scans_missing_from_a_multitarget_recording_end_the_launch_with_exit_1(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], lacks: str) -> None:
+    """The pictures the launcher saw that the recording lacks are listed (``pictures_not_recorded``) and
+    said; they, or scans the sensors were to publish that it lacks (``scans_not_recorded``), end the launch
+    with exit 1: both ended it with exit 0, the pictures not even counted."""
+    cfg = tmp_path / "mtt.toml"
+    cfg.write_text(MTT_CONFIG.format(port=free_port()))
+
+    def run(self: launcher.Launcher) -> LaunchReport:  # the live run: pictures 0-4 seen
+        n = sum(1 for _ in (tmp_path / "scenario" / "measurements.jsonl").open())  # s1's scans
+        store_mtt(tmp_path / "recording.db", [0, 1, 3] if lacks == "pictures" else list(range(5)),
+                  list(range(n - 2 if lacks == "scans" else n)))
+        return LaunchReport(pictures=5, picture_seqs=set(range(5)))
+
+    monkeypatch.setattr(launcher.Launcher, "run", run)
+    assert launcher.main([str(cfg), "--out", str(tmp_path)]) == 1  # before: 0
+    err = capsys.readouterr().err
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    if lacks == "pictures":
+        assert "fedtrack launch: 2 pictures seen live are not in the recording (pictures 2, 4; see " in err
+        assert summary["pictures_not_recorded"] == [2, 4] and "scans_not_recorded" not in summary
+    else:
+        assert "fedtrack launch: 2 scans the sensors were to publish are not in the recording (s1: 2)" in err
+        assert summary["scans_not_recorded"] == {"s1": 2} and "pictures_not_recorded" not in summary
