@@ -319,8 +319,8 @@ class RepeatedTimes:
     """A single-target replay's rule for a line of a sensor at the time of that sensor's last line
     taken (as a measurement sent again under a new number is): left out and counted, as the live
     trackers refuse it (``serve imm``, ``serve hpda``:
-    :meth:`~fedtrack.services.dispatch.Dispatch.after_last`; the 2-D local filters, ``time_jump``;
-    the radar local filter, ``input``), so that a replay equals the live run."""
+    :meth:`~fedtrack.services.dispatch.Dispatch.after_last`; the 2-D and radar local filters,
+    ``time_jump``), so that a replay equals the live run."""
 
     def __init__(self) -> None:
         self.left_out = 0

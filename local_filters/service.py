@@ -40,7 +40,7 @@ import zenoh
 from fedtrack.config import ConfigError, in_file, load_tables
 from fedtrack.deployment import MODES, DeploymentConfig
 from fedtrack.jsonl import InputError
-from fedtrack.local_filters.radar.filters import RadarFilter, make_radar_filter
+from fedtrack.local_filters.radar.filters import RadarFilter, make_radar_filter, parse_measurement, take_checked
 from fedtrack.local_filters.vdie.config import PipelineSettings
 from fedtrack.local_filters.vdie.local import (
     FederatedLocalFilter,
@@ -52,7 +52,6 @@ from fedtrack.services.base import Service, Subscription, service_kwargs, servic
 from fedtrack.services.clock import ClockJump
 from fedtrack.services.lead import NumberedLeadGuard
 from fedtrack.services.rejections import (
-    NUMERICAL_ERRORS,
     Conflict,
     Numerical,
     Rejected,
@@ -292,10 +291,10 @@ class RadarLocalFilterService(Service):
     The state is 3-D (``[x, vx, y, vy, z, vz]``, model ``cv3``/``ca3`` as the filter labels
     it); the 2-D federated fusion center does not fuse such estimates (it counts them as
     ``wrong_model``). The filter keeps no prior for the wire, so ``x_prior``/``P_prior``
-    repeat the posterior and the estimate is flagged ``no-prior``. It starts again (``restarted``)
+    repeat the posterior and the estimate is flagged ``no-prior``. A scan not after the filter's
+    time is rejected (``time_jump``, as at the 2-D local filters). It starts again (``restarted``)
     after a pause beyond ``max_time_jump_s`` (:class:`ClockJump`) and on the second scan in a row
-    it cannot process (``numerical``): predicted over a pause of 3,000 s it failed on every later
-    scan, for good.
+    it cannot process (``numerical``: :func:`take_checked`, which ``replay`` follows too).
     """
 
     role = "local-filter"
@@ -334,38 +333,31 @@ class RadarLocalFilterService(Service):
         self.filter, self.lead = pickle.loads(self.fresh), NumberedLeadGuard()
 
     def _step(self, msg: Measurement) -> None:
-        """Filter radar scan ``msg`` (checked) and publish the estimate; on the second scan in a row
-        that fails (``numerical``), start again from it."""
+        """Filter radar scan ``msg`` and publish the estimate (:func:`take_checked`: on the second scan
+        in a row that fails, ``numerical``, start again from it)."""
+        last_t = self.filter.last_t
+        if last_t is not None and not msg.t > last_t:  # as the 2-D local filters: a broken or forged clock
+            raise Rejected("time_jump", f"scan {msg.seq} at t={msg.t}, not after the filter's time {last_t}")
         self.lead.took(msg.sensor, msg.t, msg.seq)
+        where = f"scan {msg.seq}"
         try:
-            est = self._estimate(msg)
-        except (Numerical, *NUMERICAL_ERRORS):
-            if not self.failed:
-                self.failed = True
-                raise
-            self.start_again(msg, "on the second scan in a row it cannot process")
-            est = self._estimate(msg)
+            filt, est = take_checked(self.filter, parse_measurement(measurement_to_replay(msg), where), self.failed,
+                                     where)
+        except Numerical:
+            self.failed = True
+            raise
         except InputError as exc:  # a rejection like any other: rejected and rejected_input, nothing kept
             raise Rejected("input", str(exc)) from None
-        self.failed = False
-        self.processed_up_to = msg.seq
+        if filt is not self.filter:
+            self.start_again(msg, "on the second scan in a row it cannot process")
+            self.lead.took(msg.sensor, msg.t, msg.seq)
+        self.filter, self.failed, self.processed_up_to = filt, False, msg.seq
         if est is None:  # the first measurement only starts the two-point initialization
             return
-        x, P, model = est
-        self.publish(self.keys.local_estimate(self.sensor), LocalEstimate.unchecked(
-            sensor=self.sensor, seq=msg.seq, t=msg.t, model=model, x=x, P=P, x_prior=x, P_prior=P,
-            stamp_ns=msg.stamp_ns, degraded=("no-prior",)))
-
-    def _estimate(self, msg: Measurement) -> tuple[np.ndarray, np.ndarray, str] | None:
-        """The filter's estimate after scan ``msg`` (``x``, ``P``, model), checked as its receivers
-        check it; None while the filter initializes."""
-        est = self.filter.step(measurement_to_replay(msg), where=f"scan {msg.seq}")
-        if est is None:
-            return None
         x, P = np.asarray(est["x"]), np.asarray(est["P"])
-        require_finite(f"scan {msg.seq}: the radar estimate", x, P)
-        require_covariances(f"scan {msg.seq}: the radar estimate", P)
-        return x, P, est["model"]
+        self.publish(self.keys.local_estimate(self.sensor), LocalEstimate.unchecked(
+            sensor=self.sensor, seq=msg.seq, t=msg.t, model=est["model"], x=x, P=P, x_prior=x, P_prior=P,
+            stamp_ns=msg.stamp_ns, degraded=("no-prior",)))
 
 
 def to_message(sensor: str, meas: Measurement, out: LocalOutput, flags: tuple[str, ...],

@@ -191,7 +191,7 @@ def test_replay_validates_input_and_config(tmp_path):
 @pytest.mark.parametrize("algorithm", ["ekf", "ekf-ie"])
 def test_replay_leaves_out_a_measurement_at_the_time_of_the_last(tmp_path, capsys, algorithm):
     """A measurement repeated, moved, at the time of the last one (as one sent again under a new number
-    is; the radar local filter rejects it, ``rejected_input``) ended the replay (``t must increase``,
+    is; the radar local filter rejects it, ``rejected_time_jump``) ended the replay (``t must increase``,
     exit 2, nothing written); now it is left out and counted: the estimates are those without it,
     byte for byte."""
     lines = list(radar_scans(RadarConfig(straight_s=1.0), seed=1))[:60]
@@ -203,7 +203,7 @@ def test_replay_leaves_out_a_measurement_at_the_time_of_the_last(tmp_path, capsy
     capsys.readouterr()
     n = replay_radar(algorithm, tmp_path / "again.jsonl", None, tmp_path / "again-out.jsonl")
     assert (f"{algorithm}: 6 measurements at the time of their sensor's last one taken, left out "
-            "(live: rejected_input)") in capsys.readouterr().err
+            "(live: rejected_time_jump)") in capsys.readouterr().err
     assert n == n_clean == 59
     assert (tmp_path / "again-out.jsonl").read_bytes() == (tmp_path / "clean-out.jsonl").read_bytes()
 

@@ -9,10 +9,13 @@ Algorithms: ``ekf`` (plain CV EKF), ``ekf-ie`` (EKF with direct input estimation
 * :func:`make_radar_filter` gives a :class:`RadarFilter` whose ``.step(meas)`` takes one
   replay-format measurement dict and returns an estimate dict (or ``None`` while it needs a
   second measurement to initialize). The lead can wrap it as a distributed local filter.
+* :func:`take_checked`: the rule for a measurement the filter cannot process, which the radar
+  local filter and ``replay`` both follow.
 """
 
 from __future__ import annotations
 
+import copy
 import os
 from dataclasses import dataclass
 from functools import partial
@@ -44,6 +47,7 @@ from fedtrack.local_filters.radar.ts_fuzzy_ekf import (
     ts_step,
 )
 from fedtrack.progress import progress_bar
+from fedtrack.services.rejections import NUMERICAL_ERRORS, Numerical, require_covariances, require_finite
 
 ALGORITHMS = ("ekf", "ekf-ie", "ekf-tsfuzzy")
 MODEL_ENV = "FEDTRACK_TS_FUZZY_MODEL"
@@ -256,33 +260,63 @@ class RadarFilter:
         """:meth:`take` the measurement dict ``meas`` (validated: errors name ``where``)."""
         return self.take(parse_measurement(meas, where), where)
 
+    def afresh(self) -> RadarFilter:
+        """This filter as it started (its algorithm and configuration, no measurement taken)."""
+        fresh = copy.copy(self)
+        fresh._state = fresh._last = fresh._model = None
+        return fresh
+
     def take(self, m: Measurement, where: str = "measurement") -> dict[str, Any] | None:
-        """Filter the validated measurement ``m``: its sensor must be the last one's, its time after it."""
+        """Filter the validated measurement ``m``: its sensor must be the last one's, its time after it.
+        :class:`Numerical` (the filter left as it was) when the estimate comes out non-finite or its
+        covariance is one the wire refuses (a range of 1e90 m with a noise the wire takes at that range)."""
         last = self._last
         if last is not None:
             if m.sensor != last.sensor:
                 raise InputError(f"{where}: sensor {m.sensor!r} differs from {last.sensor!r} (one radar per filter)")
             if not m.t > last.t:
                 raise InputError(f"{where}: t must increase (got {m.t} after {last.t})")
-        self._last = m
         if last is None:
+            self._last = m
             return None
         dt = m.t - last.t
         model = self._model
         if model is None or not same_interval(dt, model.T, max(abs(m.t), abs(last.t))):
             model = motion_model_3d(CV3, dt, self.config.q)
-        if self._state is None:
-            self._state = self.kind.init(last.z[None], m.z[None], m.R, model, m.sensor_position)
-        else:
-            state = self._state
-            restart = (model is not self._model) or not np.array_equal(m.sensor_position, last.sensor_position)
-            if restart and "count" in state._fields:  # the input-estimation window (not tuple.count)
-                state = state._replace(count=np.zeros_like(state.count))
-            self._state = self.kind.step(state, m.z[None], m.R, model, m.sensor_position)
-        self._model = model
-        x, P, man = self.kind.estimate(self._state, model)  # batch of one
+        try:
+            with np.errstate(all="ignore"):  # checked below
+                if self._state is None:
+                    state = self.kind.init(last.z[None], m.z[None], m.R, model, m.sensor_position)
+                else:
+                    state = self._state
+                    restart = (model is not self._model) or not np.array_equal(m.sensor_position, last.sensor_position)
+                    if restart and "count" in state._fields:  # the input-estimation window (not tuple.count)
+                        state = state._replace(count=np.zeros_like(state.count))
+                    state = self.kind.step(state, m.z[None], m.R, model, m.sensor_position)
+                x, P, man = self.kind.estimate(state, model)  # batch of one
+        except NUMERICAL_ERRORS as exc:
+            raise Numerical(f"{where}: the radar estimate: {exc}") from None
+        require_finite(f"{where}: the radar estimate", x, P)
+        require_covariances(f"{where}: the radar estimate", P)
+        self._last, self._state, self._model = m, state, model
         return {"t": m.t, "x": x[0].tolist(), "P": P[0].tolist(),
                 "model": self.kind.label(bool(man[0])), "maneuver": bool(man[0])}
+
+
+def take_checked(filt: RadarFilter, m: Measurement, failed: bool,
+                 where: str = "measurement") -> tuple[RadarFilter, dict[str, Any] | None]:
+    """The filter after measurement ``m`` and its estimate (None while it initializes), by the radar
+    local filter's rule for a measurement it cannot process (:meth:`RadarFilter.take`'s
+    :class:`Numerical`): the first in a row is refused (raised, ``filt`` as it was); the second
+    (``failed``: the last one was refused) starts the filter again from it (a new filter returned):
+    predicted over a pause of 3,000 s the filter failed on every later scan, for good."""
+    try:
+        return filt, filt.take(m, where)
+    except Numerical:
+        if not failed:
+            raise
+    fresh = filt.afresh()
+    return fresh, fresh.take(m, where)
 
 
 def make_radar_filter(name: str, config: dict[str, Any] | EkfConfig | None = None) -> RadarFilter:
