@@ -19,7 +19,7 @@ Subscribes to ``sensor/<ID>/meas`` and publishes ``local/<ID>/estimate``.
 After a pause beyond ``max_time_jump_s`` the filter starts again (``restarted``:
 :class:`fedtrack.services.clock.ClockJump`). Measurements are processed in ``seq`` order; one
 whose time is not after the filter's is rejected (``time_jump``) and dropped when its turn
-comes, as if it never came; one that arrives again for a scan already processed or waiting is
+comes (no gap is counted for its number: it came); one that arrives again for a scan already processed or waiting is
 counted in ``late`` and dropped (never silently) if it is the same message; a second,
 *different* measurement for such a scan, or a second, different reset of the scan whose reset
 was applied, is rejected (``conflict``), counted ``contested`` and named
@@ -86,7 +86,7 @@ class LocalFilterService(Service):
     role = "local-filter"
     tick_period_s = 0.02
     # the filter rebinds its records (never changes them in place): a pickle of these is the whole state
-    state_attrs = ("filter", "pending", "processed_up_to", "processed_t", "applied", "reset_up_to",
+    state_attrs = ("filter", "pending", "processed_up_to", "refused_up_to", "processed_t", "applied", "reset_up_to",
                    "waiting_since", "alone", "taken", "contested_scans", "lead")
     tick_state_attrs = ()  # on_tick checkpoints only when a scan is waiting (50 ticks a second)
 
@@ -107,6 +107,7 @@ class LocalFilterService(Service):
         self.lead: NumberedLeadGuard[Measurement] = NumberedLeadGuard()  # far ahead: waits for the next
         self.taken: dict[int, bytes] = {}  # digests of the last TAKEN_KEPT scans processed, by seq
         self.processed_up_to = -1
+        self.refused_up_to = -1  # the last scan refused when its turn came (time_jump, numerical): no gap
         self.reset_up_to = -1
         self.waiting_since: float | None = None
         self.alone = False  # carrying on without resets (the fusion centre is silent or gone)
@@ -175,7 +176,7 @@ class LocalFilterService(Service):
             self.contest(self.keys.sensor_meas(self.sensor), Conflict(
                 msg.seq, f"a second, different measurement for scan {msg.seq} (the first stays)"))
             return
-        expected = max([self.processed_up_to, *self.pending]) + 1
+        expected = max([self.processed_up_to, self.refused_up_to, *self.pending]) + 1
         if self.processed_up_to >= 0 and msg.seq - expected > self.max_seq_jump:
             raise Rejected("seq_jump", f"scan {msg.seq} is more than {self.max_seq_jump} ahead of {expected}")
         if self.jump.restart(self.processed_t, msg.sensor, msg.seq, msg.t):
@@ -199,8 +200,8 @@ class LocalFilterService(Service):
 
     def _take(self, msg: Measurement) -> bool:
         """Queue scan ``msg`` (checked) for the filter, after the rejoin a gap before it calls for;
-        False when that rejoin made it late."""
-        expected = max([self.processed_up_to, *self.pending]) + 1
+        False when that rejoin made it late. A scan refused when its turn came is no gap."""
+        expected = max([self.processed_up_to, self.refused_up_to, *self.pending]) + 1
         if self.processed_up_to >= 0 and msg.seq > expected:
             self.count("gaps", msg.seq - expected)
             self.log.warning("measurements %d..%d of sensor %s never arrived", expected, msg.seq - 1, self.sensor)
@@ -272,7 +273,7 @@ class LocalFilterService(Service):
     def _process(self, msg: Measurement, flags: tuple[str, ...]) -> None:
         """Filter scan ``msg`` (taken off ``pending``) and publish the estimate; a scan the filter
         fails on is dropped, with the filter as it was before it (a rejection)."""
-        with self.guarded(f"scan {msg.seq}", key=self.keys.sensor_meas(self.sensor)):
+        with self.guarded(f"scan {msg.seq}", key=self.keys.sensor_meas(self.sensor)) as attempt:
             if self.filter.t is not None and msg.t <= self.filter.t:  # a broken clock: the filter would predict back
                 raise Rejected("time_jump", f"scan {msg.seq} at t={msg.t}, not after the filter's time {self.filter.t}")
             out = self.filter.process(msg.t, np.asarray(msg.z), np.asarray(msg.R))
@@ -283,6 +284,8 @@ class LocalFilterService(Service):
             self.taken = {seq: d for seq, d in self.taken.items() if seq > msg.seq - TAKEN_KEPT} | {msg.seq: digest(msg)}
             self.publish(self.keys.local_estimate(self.sensor),
                          to_message(self.sensor, msg, out, flags, self.take_contested()))
+        if attempt.failed:
+            self.refused_up_to = max(self.refused_up_to, msg.seq)
 
 
 class RadarLocalFilterService(Service):
