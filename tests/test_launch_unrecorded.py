@@ -4,6 +4,7 @@ launch says which it lacks and ends with exit 1 (in process: no service is start
 from __future__ import annotations
 
 import json
+import subprocess
 import threading
 import time
 from pathlib import Path
@@ -181,3 +182,26 @@ def test_pictures_or_scans_missing_from_a_multitarget_recording_end_the_launch_w
     else:
         assert "fedtrack launch: 2 scans the sensors were to publish are not in the recording (s1: 2)" in err
         assert summary["scans_not_recorded"] == {"s1": 2} and "pictures_not_recorded" not in summary
+
+
+def test_the_recorder_is_waited_for_after_the_services_before_it_stopped(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+                                                                         ) -> None:
+    """The wait comes in the stop, after the centres stopped (a multi-target centre publishes its final
+    pictures and closing record as it stops) and before the recorder's SIGTERM; a run stopped before its end
+    (Ctrl-C, a failure) does not wait."""
+    run = mtt_launcher(tmp_path)
+    centre, recorder = (next(sp for sp in run.plan if sp.role == role) for role in ("mtt-centre", "recorder"))
+    seen: list[tuple[bool, bool]] = []
+
+    def wait() -> None:  # whether the centre had ended and the recorder was still running
+        assert centre.proc is not None and recorder.proc is not None
+        seen.append((centre.proc.poll() is not None, recorder.proc.poll() is None))
+
+    monkeypatch.setattr(run, "_await_recording", wait)
+    for settle in (True, False):
+        run.plan = [centre, recorder]
+        for sp in run.plan:
+            sp.proc = subprocess.Popen(["sleep", "30"])
+        run.stop_all(settle)
+        assert all(sp.proc is not None and sp.proc.returncode is not None for sp in run.plan)
+    assert seen == [(True, True)]  # once (settle), the centre ended, the recorder still running
