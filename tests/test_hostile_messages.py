@@ -423,7 +423,11 @@ def resend_after_a_failure(svc: Service, restored: list[bool]) -> None:
         before, rejected = fingerprint(svc), svc.counters["rejected"]
         dispatch(item)
         if svc.counters["rejected"] > rejected:
-            restored.append(fingerprint(svc) == before)
+            after = fingerprint(svc)
+            # a local filter notes the number of a scan it refused when its turn came (no gap counted after
+            # it, as the refusal's counter is kept): the one trace a refusal leaves, besides the counters
+            noted = [after.pop(k) != before.pop(k) for k in ("refused_up_to",) if k in before]
+            restored.append(after == before and all(noted))
             dispatch(item)
     svc._dispatch = checked  # type: ignore[method-assign]
 
