@@ -298,6 +298,21 @@ def clutter_density(spec: SensorSpec, sc: Scenario) -> float:
     return sc.clutter / ((hi - lo) * 2 * np.pi * radar_elevation(sc))
 
 
+def noise_floors(lines: list[tuple[float, dict[str, Any]]]) -> dict[str, list[float]]:
+    """Each sensor's ``[mtt.sensor.<id>] noise_floor``: per coordinate the least over its scans of
+    ``sqrt(R_ii lambda_min(C))``, ``C`` the correlation matrix of the scan's ``R``, so that ``diag(floor²)``
+    lies below every ``R`` it declared (a radar's diagonal ``R``: its standard deviations; a position
+    sensor's ``sd² [[1, 0.3], [0.3, 1]]``: ``sqrt(0.7) sd`` on both axes)."""
+    floors: dict[str, np.ndarray] = {}
+    for _, line in lines:
+        R = np.array(line["R"])
+        sd = np.sqrt(np.diag(R))
+        floor = sd * math.sqrt(np.linalg.eigvalsh(R / np.outer(sd, sd))[0])
+        sid = line["sensor"]
+        floors[sid] = np.minimum(floors[sid], floor) if sid in floors else floor
+    return {sid: [float(v) for v in f] for sid, f in floors.items()}
+
+
 def simulate(sc: Scenario, specs: list[SensorSpec], seed: int, out: Path,
              truth: tuple[np.ndarray, np.ndarray] | None = None) -> dict[str, Any]:
     """Write ``measurements.jsonl``, ``truth.jsonl`` and ``config.toml`` to ``out`` (a library
@@ -322,7 +337,10 @@ def simulate(sc: Scenario, specs: list[SensorSpec], seed: int, out: Path,
                            "clutter_density": position_clutter_density(sc),
                            "max_lag": max_lag(sc, specs), "period": 1.0, "init_velocity_std": 30.0,
                            "sensors": [s.id for s in specs]}
-    mtt["sensor"] = {s.id: {"clutter_density": clutter_density(s, sc)} for s in specs if s.kind == "radar"}
+    floors = noise_floors(lines)  # the noise each sensor declares: no report claims less (noise_floor.py)
+    mtt["sensor"] = {s.id: {**({"clutter_density": clutter_density(s, sc)} if s.kind == "radar" else {}),
+                            **({"noise_floor": floors[s.id]} if s.id in floors else {})} for s in specs}
+    mtt["sensor"] = {sid: table for sid, table in mtt["sensor"].items() if table}
     if not mtt["sensor"]:
         del mtt["sensor"]
     with output_file(out / "config.toml") as fh:

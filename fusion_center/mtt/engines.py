@@ -45,6 +45,7 @@ from fedtrack.local_filters.mtt.local import (
 )
 from fedtrack.local_filters.mtt.maneuver import predicted_view
 from fedtrack.local_filters.mtt.models import modes_predict, predict_batch
+from fedtrack.local_filters.mtt.noise_floor import raise_to_floor
 from fedtrack.local_filters.mtt.roles.tracks import TrackParams
 from fedtrack.local_filters.mtt.scan import SensorScan
 from fedtrack.local_filters.mtt.tracker import TrackerState, initial_state, mht_decided, track_params, tracker_step
@@ -369,6 +370,8 @@ class CentralizedEngine(ScanTrackerEngine):
     bits: dict[str, int] = field(default_factory=dict)  # sensor -> its bit in the tracks' detected_by
     intervals: dict[str, float] = field(default_factory=dict)  # sensor -> its latest time between scans
     copies: int = 0  # scans equal to another sensor's (a duplicated feed): not fused, the sensor not seen
+    noise_raised: int = 0  # detections whose scan's R claimed less than its sensor's noise_floor: raised to it
+    floor_mismatch: int = 0  # scans whose size is not their sensor's noise_floor's: not fused
     frame: Frame | None = None  # [frame]: each radar's view in its own axes (roles.life.radar_view)
 
     def bit(self, sensor: str) -> int:
@@ -377,6 +380,15 @@ class CentralizedEngine(ScanTrackerEngine):
         return 1 << self.bits.setdefault(sensor, len(self.bits) % 63)
 
     def ingest(self, scan: SensorScan) -> None:
+        floor = self.cfg.noise_floor_of(scan.sensor)
+        if floor is not None:  # the centre's noise floor (local_filters/mtt/noise_floor.py), as a track-to-track one's
+            if floor.size != scan.dim:
+                self.floor_mismatch += 1
+                return
+            R, raised = raise_to_floor(scan.R[None], floor)
+            if raised[0]:
+                scan = scan._replace(R=R[0])
+                self.noise_raised += scan.z.shape[0]
         if self.history is not None and copies_another(self.history, scan, lambda s: s):
             self.copies += 1
             return
@@ -388,7 +400,8 @@ class CentralizedEngine(ScanTrackerEngine):
         super().ingest(scan)
 
     def counters(self) -> dict[str, int]:
-        return {**super().counters(), "copies": self.copies}
+        return {**super().counters(), "copies": self.copies, "noise_raised": self.noise_raised,
+                "floor_mismatch": self.floor_mismatch}
 
     def leave(self, sensor: str, at_once: bool = False) -> None:
         self.seen.pop(sensor, None)

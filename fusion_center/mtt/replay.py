@@ -183,6 +183,11 @@ def counter_lines(counts: dict[str, int]) -> list[str]:
     if "centre_copies" in counts:
         lines.append(f"{counts['centre_copies']} reports of a sensor copying another's feed (the same observations at "
                      "the same times), not fused")
+    if "noise_raised" in counts or "centre_noise_raised" in counts:
+        pre, what = ("", "detections") if "noise_raised" in counts else ("centre_", "centre observations")
+        lines.append(f"{counts[pre + 'noise_raised']} {what} whose R claimed less than their sensor's noise_floor, "
+                     f"raised to it; {counts[pre + 'floor_mismatch']} {'scans' if not pre else 'reports'} of "
+                     "another size than their sensor's noise_floor, not fused")
     if "centre_inconsistency_onsets" in counts:
         lines.append(f"{counts['centre_inconsistency_onsets']} sensors flagged inconsistent (innovations against the "
                      f"others' beyond the {FALSE_ALARM:g} test), {counts['centre_inconsistent_sensors']} still "

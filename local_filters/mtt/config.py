@@ -89,10 +89,13 @@ class MhtConfig:
 
 @dataclass(frozen=True)
 class SensorOverride:
-    """``[mtt.sensor.<id>]``: detection probability and clutter density of one sensor."""
+    """``[mtt.sensor.<id>]``: detection probability, clutter density and noise floor of one sensor."""
 
     pd: float | None = None
     clutter_density: float | None = None
+    # the least noise standard deviation per measured coordinate its class has (2-D: [m, m]; radar: [m, rad,
+    # rad]): a centre raises a claimed R below it (local_filters/mtt/noise_floor.py)
+    noise_floor: tuple[float, ...] | None = None
 
 
 # delete_misses' rationale (3 misses at P_D 0.9: a live target lost by misses once in a thousand
@@ -292,6 +295,10 @@ class MttConfig:
                 raise ConfigError(f"sensor.{sid}.pd: must be in (0, 1]")
             if over.clutter_density is not None and not over.clutter_density >= 0:
                 raise ConfigError(f"sensor.{sid}.clutter_density: must be >= 0")
+            floor = over.noise_floor
+            if floor is not None and not (len(floor) in (2, 3) and all(0 < v < math.inf for v in floor)):
+                raise ConfigError(f"sensor.{sid}.noise_floor: must be 2 (position: m, m) or 3 (radar: m, rad, rad) "
+                                  "finite standard deviations > 0")
 
     @property
     def listed_sensors(self) -> int:
@@ -317,6 +324,11 @@ class MttConfig:
         tracker's last, at most ``LOST`` a second as well (:func:`scan_lost`: 4 at P_D 0.9 from
         0.1 s to 1 s)."""
         return max(self.delete_misses, int(miss_count(self.log_miss(sensor), scan_lost(dt))))
+
+    def noise_floor_of(self, sensor: str) -> np.ndarray | None:
+        """``sensor``'s noise floor (standard deviations per coordinate), None when not configured."""
+        over = self.sensor.get(sensor)
+        return None if over is None or over.noise_floor is None else np.array(over.noise_floor)
 
     def clutter_of(self, sensor: str) -> float:
         over = self.sensor.get(sensor)

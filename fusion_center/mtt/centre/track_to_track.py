@@ -87,6 +87,7 @@ from fedtrack.geodetic import RadarSite
 from fedtrack.local_filters.linear.gating import track_difference_d2
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import LocalReport, Resets, no_resets
+from fedtrack.local_filters.mtt.noise_floor import raise_to_floor
 
 
 @dataclass
@@ -106,6 +107,8 @@ class Counters:
     excluded_observations: int = 0  # observations of a flagged sensor left out of the fusion (three or more live)
     copies: int = 0  # reports of a sensor found to copy another's feed (.copies): not fused
     copying_sensors: int = 0  # sensors found to copy another's feed now
+    noise_raised: int = 0  # observations whose R claimed less than their sensor's noise_floor: raised to it
+    floor_mismatch: int = 0  # reports whose observations' size is not their sensor's noise_floor's: not fused
 
 
 class HandOver(NamedTuple):
@@ -345,9 +348,12 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         associated either, counted ``copies``; when the sensor is found, its local tracks leave their
         central tracks and it is no longer live."""
         obs = None if rows is None else rows[report.detected].nonzero()[0]  # the rows' observations
-        copy = self._copied(report, obs)
-        if copy or report.t < max(self.sensor_seen.values(), default=report.t) - self.cfg.max_lag:
-            if copy:
+        report, mismatch = self._floored(report, obs)
+        copy = not mismatch and self._copied(report, obs)
+        if mismatch or copy or report.t < max(self.sensor_seen.values(), default=report.t) - self.cfg.max_lag:
+            if mismatch:
+                self.counters.floor_mismatch += 1
+            elif copy:
                 self.counters.copies += 1
             else:
                 self.counters.late_reports += 1
@@ -363,6 +369,19 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         if report.sensor not in self.excluded:
             self._count_scan(col, det_rows, report)
         return no_resets(report.sensor, report.t, report.x.shape[1])
+
+    def _floored(self, report: LocalReport, obs_rows: np.ndarray | None) -> tuple[LocalReport, bool]:
+        """The report with each observation's ``R`` that claims less than its sensor's ``noise_floor`` raised to
+        it (:mod:`~fedtrack.local_filters.mtt.noise_floor`; counted ``noise_raised``, of the rows ``obs_rows``),
+        and whether its observations are of another size than the floor (the report is then not fused)."""
+        floor = self.cfg.noise_floor_of(report.sensor)
+        if floor is None or not len(report.obs_R):
+            return report, False
+        if report.obs_R.shape[-1] != floor.size:
+            return report, True
+        R, raised = raise_to_floor(report.obs_R, floor)
+        self.counters.noise_raised += int(np.count_nonzero(raised if obs_rows is None else raised[obs_rows]))
+        return report._replace(obs_R=R), False
 
     def _copied(self, report: LocalReport, obs_rows: np.ndarray | None) -> bool:
         """Whether the report's sensor copies another's feed (its observations ``obs_rows`` compared, None:

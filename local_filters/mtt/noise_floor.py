@@ -1,0 +1,33 @@
+"""A sensor's noise floor: the least measurement noise its class has (``[mtt.sensor.<id>] noise_floor``).
+
+A sensor that claims a smaller ``R`` than its class can measure weighs its detections above everyone
+else's in a fusion: a compromised tracker claiming ``R`` = 1 m² at the centre's predictions, a step off
+them, drags every central track it shares (docs/multitarget.md, "A sensor pulling the tracks"). A centre
+raises such a claim to the floor ``F = diag(floor²)`` by the least factor ``c >= 1`` with ``c R - F``
+positive semi-definite, ``c = lambda_max(R^-1 F)`` (the generalized eigenvalue; the claimed shape kept):
+after it the sensor weighs no more than a sensor of its class, whatever it claims.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+RAISE_TOL = 1e-9  # a claim at the floor to rounding (c <= 1 + RAISE_TOL) is left as it is
+
+
+def floor_factors(R: np.ndarray, floor: np.ndarray) -> np.ndarray:
+    """``lambda_max(R^-1 F)`` of each ``R`` (K, m, m; positive definite) against ``F = diag(floor²)``:
+    the largest eigenvalue of ``(L^-1 D)(L^-1 D)'``, ``L L' = R``, ``D = diag(floor)`` (solves, no inverse)."""
+    A = np.linalg.solve(np.linalg.cholesky(R), np.broadcast_to(np.diag(floor), R.shape))
+    return np.linalg.eigvalsh(A @ np.swapaxes(A, -1, -2))[..., -1]
+
+
+def raise_to_floor(R: np.ndarray, floor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each ``R`` (K, m, m) below the floor (``floor``: m standard deviations) scaled up to it by
+    :func:`floor_factors`; returns the covariances and which were raised (the others unchanged)."""
+    c = floor_factors(R, floor)
+    raised = c > 1.0 + RAISE_TOL
+    if not raised.any():
+        return R, raised
+    out = R.copy()
+    out[raised] *= c[raised, None, None]
+    return out, raised

@@ -1,0 +1,133 @@
+"""A sensor's noise floor (``[mtt.sensor.<id>] noise_floor``): a claimed ``R`` below it is raised to it at the
+centre (local_filters/mtt/noise_floor.py), so that a sensor claiming a tiny ``R`` weighs no more than its class
+(attack50's puller: docs/multitarget.md, "A sensor pulling the tracks")."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import linalg
+
+from fedtrack.config import ConfigError, load_tables
+from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
+from fedtrack.fusion_center.mtt.replay import replay_mtt
+from fedtrack.local_filters.mtt.config import MttConfig, MttSettings, SensorOverride
+from fedtrack.local_filters.mtt.local import LocalReport
+from fedtrack.local_filters.mtt.noise_floor import floor_factors, raise_to_floor
+from fedtrack.sensors.multitarget import Scenario, SensorSpec, noise_floors, simulate
+
+H = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
+
+
+def test_a_claim_below_the_floor_is_scaled_to_just_above_it() -> None:
+    """The factor is the largest generalized eigenvalue of ``(F, R)`` (to 1e-9); the raised ``R`` is ``F`` plus a
+    positive semi-definite matrix with a zero eigenvalue (the least scaling); a claim above the floor is kept."""
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(50, 2, 2))
+    R = A @ np.swapaxes(A, -1, -2) + 0.1 * np.eye(2)
+    floor = np.array([1.5, 0.7])
+    F = np.diag(floor**2)
+    expected = np.array([linalg.eigh(F, r, eigvals_only=True)[-1] for r in R])
+    np.testing.assert_allclose(floor_factors(R, floor), expected, rtol=1e-9)
+    raised_R, raised = raise_to_floor(R, floor)
+    assert raised.any() and not raised.all()
+    np.testing.assert_array_equal(raised_R[~raised], R[~raised])
+    least = np.linalg.eigvalsh(raised_R - F)[:, 0]
+    assert np.all(np.abs(least[raised]) < 1e-9 * np.abs(raised_R[raised]).max()) and np.all(least > -1e-9)
+
+
+def _report(sensor: str, t: float, z: np.ndarray, R: np.ndarray, first: bool) -> LocalReport:
+    """A position sensor's report of local tracks 1..n, each detected at ``z`` (its estimate at ``z``, still)."""
+    n = z.shape[0]
+    x = np.column_stack([z[:, 0], np.zeros(n), z[:, 1], np.zeros(n)])
+    return LocalReport(sensor, t, np.arange(1, n + 1), x, np.tile(np.diag([400.0, 100.0, 400.0, 100.0]), (n, 1, 1)),
+                       np.full(n, not first), np.ones(n, bool), np.tile(H, (n, 1, 1)), np.tile(R, (n, 1, 1)), z,
+                       np.full(n, first), np.zeros(0, dtype=np.int64))
+
+
+def _run(cfg: MttConfig, claimed: np.ndarray) -> tuple[TrackToTrackCentre, np.ndarray]:
+    """Three sensors on two targets for 8 s; s1 reports a walk of 5 m/s off the targets with ``claimed`` as its
+    ``R`` (the others their 15 m). Returns the centre and its central estimates at the end."""
+    centre = TrackToTrackCentre(cfg, 4, True)
+    targets = np.array([[0.0, 0.0], [2000.0, 0.0]])
+    rng = np.random.default_rng(1)
+    honest = 225.0 * np.eye(2)
+    for k in range(8):
+        for j, sensor in enumerate(("s1", "s2", "s3")):
+            t = k + 0.2 * j
+            if sensor == "s1":
+                centre.answer(_report(sensor, t, targets + 5.0 * t, claimed, k == 0))
+            else:
+                centre.answer(_report(sensor, t, targets + rng.normal(0.0, 15.0, (2, 2)), honest, k == 0))
+    ids = sorted(centre.tracks.slot)
+    X, _ = centre.tracks.states_at(np.array([centre.tracks.slot[i] for i in ids]), 8.0)
+    return centre, X
+
+
+def test_a_report_claiming_less_than_its_floor_is_fused_as_one_at_the_floor() -> None:
+    """A sensor claiming ``R`` = 1 m² with a floor of 10 m gives the central tracks it would give claiming 100 m²
+    (to 1e-9), each observation counted ``noise_raised``; without the floor its claim drags them further."""
+    floored = MttConfig(sensor={"s1": SensorOverride(noise_floor=(10.0, 10.0))})
+    tiny, at_floor = np.eye(2), 100.0 * np.eye(2)
+    centre, X = _run(floored, tiny)
+    reference, X_ref = _run(floored, at_floor)
+    np.testing.assert_allclose(X, X_ref, rtol=0, atol=1e-9)
+    assert centre.counters.noise_raised == 16 and reference.counters.noise_raised == 0
+    assert centre.counters.floor_mismatch == 0
+    _, X_free = _run(MttConfig(), tiny)
+    assert np.abs(X_free - X_ref)[:, [0, 2]].max() > 5.0  # the tiny claim pulled the tracks without the floor
+
+
+def test_a_report_of_another_size_than_its_floor_is_not_fused() -> None:
+    """A radar's floor (three numbers) on a sensor reporting 2-D observations: its reports are counted
+    ``floor_mismatch`` and fused nowhere (its claim could not be checked)."""
+    centre, _ = _run(MttConfig(sensor={"s1": SensorOverride(noise_floor=(10.0, 0.001, 0.001))}), np.eye(2))
+    assert centre.counters.floor_mismatch == 8
+    assert "s1" not in centre.sensor_seen and not any(key[0] == "s1" for key in centre.mapping)
+
+
+@pytest.mark.parametrize("text", ["[-1.0, 5.0]", "[5.0]", "[1.0, 2.0, 3.0, 4.0]", "[5.0, inf]"])
+def test_a_bad_noise_floor_fails_at_start_naming_it(tmp_path: Path, text: str) -> None:
+    path = tmp_path / "c.toml"
+    path.write_text(f"[mtt.sensor.s1]\nnoise_floor = {text}\n")
+    with pytest.raises(ConfigError, match=r"sensor\.s1\.noise_floor"):
+        load_tables(path, MttSettings)
+
+
+def test_simulate_declares_each_sensors_noise_and_no_honest_scan_is_raised(tmp_path: Path) -> None:
+    """``simulate multitarget`` writes every sensor's ``noise_floor`` (``sqrt(0.7) sd`` for a position sensor's
+    correlated ``R``, a radar's standard deviations) and no scan it writes claims less."""
+    simulate(Scenario(targets=3, duration=10.0), [SensorSpec("s1", "pos", 1.0), SensorSpec("r2", "radar", 2.0)],
+             1, tmp_path)
+    cfg = load_tables(tmp_path / "config.toml", MttSettings).mtt
+    lines = [json.loads(line) for line in (tmp_path / "measurements.jsonl").read_text().splitlines()]
+    for line in lines:
+        floor = cfg.noise_floor_of(line["sensor"])
+        assert floor is not None and not raise_to_floor(np.array([line["R"]]), floor)[1].any()
+    sd = np.sqrt(lines[[ln["sensor"] for ln in lines].index("s1")]["R"][0][0])
+    np.testing.assert_allclose(cfg.noise_floor_of("s1"), np.sqrt(0.7) * sd, rtol=1e-12)
+    np.testing.assert_allclose(cfg.noise_floor_of("r2"), [10.0, 0.002, 0.002], rtol=1e-12)
+    assert noise_floors([(0.0, {"sensor": "a", "R": [[4.0, 0.0], [0.0, 9.0]]}),
+                         (1.0, {"sensor": "a", "R": [[9.0, 0.0], [0.0, 1.0]]})]) == {"a": [2.0, 1.0]}
+
+
+def test_centralized_replay_of_a_tiny_claim_equals_the_claim_at_the_floor(tmp_path: Path) -> None:
+    """``mtt-centralized`` (the centre fuses the scans): s1's scans claiming ``R / 100`` give, byte for byte,
+    the pictures of the same scans claiming their floor (``R`` scaled to it); the detections are counted."""
+    simulate(Scenario(targets=4, duration=20.0, clutter=2.0),
+             [SensorSpec("s1", "pos", 1.0), SensorSpec("s2", "pos", 0.7)], 2, tmp_path)
+    cfg = load_tables(tmp_path / "config.toml", MttSettings).mtt
+    lines = [json.loads(line) for line in (tmp_path / "measurements.jsonl").read_text().splitlines()]
+    for name, scale in (("tiny", None), ("floor", 1.0)):
+        with open(tmp_path / f"{name}.jsonl", "w") as fh:
+            for line in lines:
+                if line["sensor"] == "s1" and "R" in line:
+                    R = np.array(line["R"]) / 100.0
+                    line = {**line, "R": (R * floor_factors(R[None], cfg.noise_floor_of("s1"))[0]).tolist()
+                            if scale else R.tolist()}
+                fh.write(json.dumps(line) + "\n")
+    for name in ("tiny", "floor"):
+        replay_mtt("mtt-centralized", tmp_path / f"{name}.jsonl", tmp_path / "config.toml", tmp_path / f"{name}.out")
+    assert (tmp_path / "tiny.out").read_bytes() == (tmp_path / "floor.out").read_bytes()
