@@ -35,6 +35,7 @@ from fedtrack.sensors.multitarget import (
     check_options,
     clutter_density,
     longest_revisit,
+    noise_floors,
     position_clutter_density,
 )
 from fedtrack.sensors.state_vectors import UNITS, Recording, read_recording
@@ -150,7 +151,9 @@ def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, star
                            "sensors": [s.id for s in specs]}
     # every sensor its own density: a radar's per m rad^2, a position sensor's per m^2; an ADS-B receiver's
     # false reports are none, written as one per (1000 km)^2 (the tracker's log takes no zero)
-    mtt["sensor"] = {s.id: {"clutter_density": 1e-12 if s.kind == "adsb" else clutter_density(s, sc)} for s in specs}
+    floors = noise_floors(lines)  # the noise each sensor declares: no report claims less (noise_floor.py)
+    mtt["sensor"] = {s.id: {"clutter_density": 1e-12 if s.kind == "adsb" else clutter_density(s, sc),
+                            **({"noise_floor": floors[s.id]} if s.id in floors else {})} for s in specs}
     frame_table = {"origin": list(frame), "sites": {s.id: site.geodetic.tolist() for s, site, _ in sensors if site}}
     with output_file(out / "config.toml") as fh:
         fh.write(to_toml({"mtt": mtt, "frame": frame_table}))

@@ -4,6 +4,7 @@ centre (local_filters/mtt/noise_floor.py), so that a sensor claiming a tiny ``R`
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -131,3 +132,55 @@ def test_centralized_replay_of_a_tiny_claim_equals_the_claim_at_the_floor(tmp_pa
     for name in ("tiny", "floor"):
         replay_mtt("mtt-centralized", tmp_path / f"{name}.jsonl", tmp_path / "config.toml", tmp_path / f"{name}.out")
     assert (tmp_path / "tiny.out").read_bytes() == (tmp_path / "floor.out").read_bytes()
+
+
+def test_the_live_centre_raises_a_tiny_claim_as_the_replay_does(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """The live services, driven in-process through their own dispatch (the path of a Zenoh sample), on three
+    sensors of which s1 claims ``R / 100`` from t = 5 s: the centre publishes the pictures ``replay`` writes (to
+    1e-9) and names what it raised in its Health counter ``centre_noise_raised``, the replay's count."""
+    from fedtrack.fusion_center.mtt.service import MttCentreService
+    from fedtrack.keys import Keys
+    from fedtrack.local_filters.mtt.scan import parse_scan, scan_to_measurement
+    from fedtrack.local_filters.mtt.service import MttLocalService
+    from fedtrack.wire import TrackPicture, TrackReport, TrackResets, encode
+    from fedtrack.zsession import SessionOptions
+
+    simulate(Scenario(targets=4, duration=12.0, clutter=1.0, late=0.0),
+             [SensorSpec("s1", "pos", 1.0), SensorSpec("s2", "pos", 0.7), SensorSpec("s3", "pos", 1.3)], 3, tmp_path)
+    rows = [json.loads(line) for line in (tmp_path / "measurements.jsonl").read_text().splitlines()]
+    rows = [{**r, "R": (np.array(r["R"]) / 100.0).tolist()} if r["sensor"] == "s1" and r["t"] >= 5.0 else r
+            for r in rows]
+    (tmp_path / "attack.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    cfg = load_tables(tmp_path / "config.toml", MttSettings).mtt
+    keys, opts = Keys("floor"), SessionOptions(connect=("tcp/127.0.0.1:1",))
+    published: list[object] = []
+    centre = MttCentreService("mtt-federated", cfg, 4, service_id="centre", options=opts, deployment="floor")
+    local = {s: MttLocalService(s, True, cfg, 5.0, service_id=s, options=opts, deployment="floor")
+             for s in ("s1", "s2", "s3")}
+    for svc in (centre, *local.values()):
+        svc._subscriptions = svc.subscriptions()
+        svc.publish = lambda key, msg: published.append(msg)  # type: ignore[method-assign]
+    seq = dict.fromkeys(local, 0)
+    for row in rows:
+        s = row["sensor"]
+        local[s]._dispatch(("sample", 0, keys.sensor_meas(s), encode(scan_to_measurement(parse_scan(row, "t"),
+                                                                                          seq[s], 1))))
+        seq[s] += 1
+        report = next(m for m in reversed(published) if isinstance(m, TrackReport))
+        centre._dispatch(("sample", 0, keys.mtt_report(s), encode(report)))
+        resets = next(m for m in reversed(published) if isinstance(m, TrackResets))
+        local[s]._dispatch(("sample", 1, keys.mtt_resets(s), encode(resets)))
+    centre.on_stop()
+    live = [m for m in published if isinstance(m, TrackPicture) and not m.closing]
+    capsys.readouterr()
+    replay_mtt("mtt-federated", tmp_path / "attack.jsonl", tmp_path / "config.toml", tmp_path / "out.jsonl")
+    counted = re.search(r"mtt-federated: (\d+) centre observations whose R claimed less", capsys.readouterr().err)
+    want = [json.loads(line) for line in (tmp_path / "out.jsonl").read_text().splitlines()]
+    assert [p.t for p in live] == [p["t"] for p in want]
+    for got, w in zip(live, want):
+        assert list(got.ids) == [tr["id"] for tr in w["tracks"]]
+        want_x = np.array([tr["x"] for tr in w["tracks"]]).reshape(-1, 4)
+        np.testing.assert_allclose(np.asarray(got.x).reshape(-1, 4), want_x, rtol=1e-12, atol=1e-9)
+    raised = centre.counters["centre_noise_raised"]
+    assert counted is not None and raised == int(counted.group(1)) >= 20
+    assert centre.counters["centre_floor_mismatch"] == 0
