@@ -1,5 +1,5 @@
 """A sensor's noise floor (``[mtt.sensor.<id>] noise_floor``): a claimed ``R`` below it is raised to it at the
-centre (local_filters/mtt/noise_floor.py), so that a sensor claiming a tiny ``R`` weighs no more than its class
+centre (local_filters/linear/noise_floor.py), so that a sensor claiming a tiny ``R`` weighs no more than its class
 (attack50's puller: docs/multitarget.md, "A sensor pulling the tracks")."""
 from __future__ import annotations
 
@@ -14,9 +14,9 @@ from scipy import linalg
 from fedtrack.config import ConfigError, load_tables
 from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
 from fedtrack.fusion_center.mtt.replay import replay_mtt
+from fedtrack.local_filters.linear.noise_floor import floor_factors, raise_to_floor
 from fedtrack.local_filters.mtt.config import MttConfig, MttSettings, SensorOverride
 from fedtrack.local_filters.mtt.local import LocalReport
-from fedtrack.local_filters.mtt.noise_floor import floor_factors, raise_to_floor
 from fedtrack.sensors.multitarget import Scenario, SensorSpec, noise_floors, simulate
 
 H = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]])

@@ -32,6 +32,7 @@ from fedtrack.fusion_center.mtt.centre.copies import Found
 from fedtrack.fusion_center.mtt.centre.track_life import CENTRAL_MISSES
 from fedtrack.fusion_center.mtt.shards import ShardedCentre
 from fedtrack.geodetic import Frame, RadarSite
+from fedtrack.local_filters.linear.noise_floor import raise_to_floor
 from fedtrack.local_filters.mtt.associators import jipda
 from fedtrack.local_filters.mtt.config import LOST, MttConfig, miss_count, scan_lost
 from fedtrack.local_filters.mtt.history import ScanHistory
@@ -45,7 +46,6 @@ from fedtrack.local_filters.mtt.local import (
 )
 from fedtrack.local_filters.mtt.maneuver import predicted_view
 from fedtrack.local_filters.mtt.models import modes_predict, predict_batch
-from fedtrack.local_filters.mtt.noise_floor import raise_to_floor
 from fedtrack.local_filters.mtt.roles.tracks import TrackParams
 from fedtrack.local_filters.mtt.scan import SensorScan
 from fedtrack.local_filters.mtt.tracker import TrackerState, initial_state, mht_decided, track_params, tracker_step
@@ -381,7 +381,7 @@ class CentralizedEngine(ScanTrackerEngine):
 
     def ingest(self, scan: SensorScan) -> None:
         floor = self.cfg.noise_floor_of(scan.sensor)
-        if floor is not None:  # the centre's noise floor (local_filters/mtt/noise_floor.py), as a track-to-track one's
+        if floor is not None:  # the centre's noise floor (local_filters/linear/noise_floor.py), as a track-to-track one's
             if floor.size != scan.dim:
                 self.floor_mismatch += 1
                 return

@@ -94,7 +94,7 @@ class SensorOverride:
     pd: float | None = None
     clutter_density: float | None = None
     # the least noise standard deviation per measured coordinate its class has (2-D: [m, m]; radar: [m, rad,
-    # rad]): a centre raises a claimed R below it (local_filters/mtt/noise_floor.py)
+    # rad]): a centre raises a claimed R below it (local_filters/linear/noise_floor.py)
     noise_floor: tuple[float, ...] | None = None
 
 

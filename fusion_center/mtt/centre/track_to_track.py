@@ -85,9 +85,9 @@ from fedtrack.fusion_center.mtt.centre.track_life import CentreLife, needs_local
 from fedtrack.fusion_center.mtt.silence import INTERVALS_KEPT, silence_bound, usual_intervals
 from fedtrack.geodetic import RadarSite
 from fedtrack.local_filters.linear.gating import track_difference_d2
+from fedtrack.local_filters.linear.noise_floor import raise_to_floor
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import LocalReport, Resets, no_resets
-from fedtrack.local_filters.mtt.noise_floor import raise_to_floor
 
 
 @dataclass
@@ -372,7 +372,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
 
     def _floored(self, report: LocalReport, obs_rows: np.ndarray | None) -> tuple[LocalReport, bool]:
         """The report with each observation's ``R`` that claims less than its sensor's ``noise_floor`` raised to
-        it (:mod:`~fedtrack.local_filters.mtt.noise_floor`; counted ``noise_raised``, of the rows ``obs_rows``),
+        it (:mod:`~fedtrack.local_filters.linear.noise_floor`; counted ``noise_raised``, of the rows ``obs_rows``),
         and whether its observations are of another size than the floor (the report is then not fused)."""
         floor = self.cfg.noise_floor_of(report.sensor)
         if floor is None or not len(report.obs_R):
