@@ -47,7 +47,7 @@ from fedtrack.deploy.settings import MultitargetSettings, Settings
 from fedtrack.deployment import MODES, DeploymentConfig, SensorConfig, port_in_use
 from fedtrack.geodetic import FrameConfig, median_lon
 from fedtrack.jsonl import InputError, check_output_folder, output_folder
-from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.mtt.config import MttConfig, SensorOverride
 from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.sensors.multitarget import Scenario, clutter_density, parse_spec
 from fedtrack.sensors.scenarios import DEFAULT_R
@@ -93,16 +93,22 @@ def demo_settings(n_sensors: int, scenario: int, mode: str, seed: int, port: int
 
 def multitarget_settings(mode: str, seed: int, port: int, out: Path, tls_dir: Path | None = None) -> Settings:
     """A live multi-target deployment of the default scenario (``mode`` federated or decentralized),
-    with maneuver handling (maneuver events per central track; ``tls_dir``: see :func:`transport`)."""
+    with maneuver handling (maneuver events per central track; ``tls_dir``: see :func:`transport`) and each
+    sensor's noise floor as ``simulate multitarget`` declares it (simulated here first, as the launch does
+    again into ``OUT/scenario``)."""
     mt = MultitargetSettings(algorithm=f"mtt-{mode}")
     specs = parse_spec(mt.sensors)
     scenario = Scenario(targets=mt.targets, duration=mt.duration, pd=mt.pd, clutter=mt.clutter)
+    prepare(Settings(deployment=DeploymentConfig(seed=seed), multitarget=mt), out, say=False)
+    declared = load_toml(out / SCENARIO_DIR / "config.toml")["mtt"].get("sensor", {})
     endpoint, zenoh = transport(port, tls_dir)
     return Settings(
         deployment=DeploymentConfig(name="demo", mode=mode, seed=seed, pacing="realtime", speed=MULTITARGET_SPEED,
                                     router_listen=endpoint, out=str(out)),
         mtt=MttConfig(pd=mt.pd, clutter_density=clutter_density(specs[0], scenario),
-                      sensors=tuple(s.id for s in specs), maneuver="vdie"),
+                      sensors=tuple(s.id for s in specs), maneuver="vdie",
+                      sensor={sid: parse_dataclass(SensorOverride, table, f"mtt.sensor.{sid}")
+                              for sid, table in declared.items()}),
         multitarget=mt, zenoh=zenoh)
 
 

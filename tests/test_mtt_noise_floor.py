@@ -184,3 +184,15 @@ def test_the_live_centre_raises_a_tiny_claim_as_the_replay_does(tmp_path: Path, 
     raised = centre.counters["centre_noise_raised"]
     assert counted is not None and raised == int(counted.group(1)) >= 20
     assert centre.counters["centre_floor_mismatch"] == 0
+
+
+def test_the_multitarget_demo_declares_the_floors_of_the_sensors_it_simulates(tmp_path: Path) -> None:
+    """``fedtrack demo --scenario multitarget`` runs its centre with each sensor's floor as ``simulate`` declares
+    it for the scenario the launch simulates (its ``OUT/scenario/config.toml``), so a tiny claim is raised live."""
+    from fedtrack.deploy.demo import multitarget_settings
+
+    settings = multitarget_settings("federated", 2, 7447, tmp_path)
+    declared = load_tables(tmp_path / "scenario" / "config.toml", MttSettings).mtt
+    assert set(settings.mtt.sensor) == {"s1", "s2", "s3"}
+    for sid in settings.mtt.sensor:
+        np.testing.assert_array_equal(settings.mtt.noise_floor_of(sid), declared.noise_floor_of(sid))
