@@ -101,3 +101,39 @@ def test_a_late_miss_before_the_latest_detection_does_not_count() -> None:
     centre.answer(report("s1", 5.0, {1: True}))
     centre.answer(report("s2", 4.75, {7: False}))
     assert not centre.streak[centre.tracks.slot[cid]].any()
+
+
+def placed(sensor: str, t: float, places: dict[int, tuple[float, float]]) -> LocalReport:
+    """A position sensor's report of confirmed local tracks standing at ``places`` (local id -> x, y), each
+    detected there by this scan (started at ``t`` = 0)."""
+    ids = np.array(sorted(places), dtype=np.int64)
+    xy = np.array([places[i] for i in sorted(places)], dtype=float).reshape(-1, 2)
+    n = ids.size
+    x = np.column_stack([xy[:, 0], np.zeros(n), xy[:, 1], np.zeros(n)])
+    return LocalReport(sensor, t, ids, x, np.tile(100.0 * np.eye(4), (n, 1, 1)), np.full(n, t > 0.0),
+                       np.ones(n, bool), np.tile(H, (n, 1, 1)), np.tile(100.0 * np.eye(2), (n, 1, 1)), xy,
+                       np.full(n, t == 0.0), np.zeros(0, dtype=np.int64))
+
+
+def test_one_sensors_ghost_where_two_others_see_is_not_confirmed() -> None:
+    """s2 and s3 report targets at (0, 0) and (2000, 2000) once a second; s1 reports them and a ghost at
+    (1000, 1000), between them, from t = 2 s, in three scans a second. Its scans filled the count's window and the
+    ghost, which s2 and s3 see (inside their tracks' extent) and never detect, was confirmed; now it stays tentative,
+    counted ``uncorroborated`` once, while the targets are confirmed. A ghost where s2 and s3 are blind
+    (beyond their tracks' extent and reach) is confirmed as before: one sensor's target outside the others'
+    view."""
+    def run(ghost: tuple[float, float]) -> tuple[TrackToTrackCentre, int, int]:
+        centre = TrackToTrackCentre(MttConfig(), 4, False)
+        targets = {1: (0.0, 0.0), 2: (2000.0, 2000.0)}
+        for k in range(8):
+            for j in range(3):
+                centre.answer(placed("s1", k + 0.1 * j, {**targets, 3: ghost} if k >= 2 else targets))
+            centre.answer(placed("s2", k + 0.4, targets))
+            centre.answer(placed("s3", k + 0.7, targets))
+        return centre, centre.tracks.slot[centre.mapping[("s1", 3)]], centre.tracks.slot[centre.mapping[("s2", 1)]]
+
+    centre, ghost, target = run((1000.0, 1000.0))
+    assert centre.tracks.confirmed[target] and not centre.tracks.confirmed[ghost]
+    assert centre.counters.uncorroborated == 1
+    centre, ghost, _ = run((9000.0, 9000.0))
+    assert centre.tracks.confirmed[ghost] and centre.counters.uncorroborated == 0

@@ -381,7 +381,7 @@ class CentralizedEngine(ScanTrackerEngine):
 
     def ingest(self, scan: SensorScan) -> None:
         floor = self.cfg.noise_floor_of(scan.sensor)
-        if floor is not None:  # the centre's noise floor (local_filters/linear/noise_floor.py), as a track-to-track one's
+        if floor is not None:  # the centre's noise floor (local_filters/linear/noise_floor.py), as track-to-track
             if floor.size != scan.dim:
                 self.floor_mismatch += 1
                 return

@@ -179,7 +179,9 @@ def counter_lines(counts: dict[str, int]) -> list[str]:
                   (f"{counts.get('centre_late_reports', 0)} reports late (older than max_lag before the centre's "
                    "newest), neither fused nor associated"),
                   (f"{counts['centre_before_start']} centre observations older than their central track's "
-                   "start, not fused")]
+                   "start, not fused"),
+                  (f"{counts.get('centre_uncorroborated', 0)} tentative central tracks of one sensor alone held back "
+                   "(another sensor sees their place and missed them)")]
     if "centre_copies" in counts:
         lines.append(f"{counts['centre_copies']} reports of a sensor copying another's feed (the same observations at "
                      "the same times), not fused")

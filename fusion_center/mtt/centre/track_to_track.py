@@ -54,12 +54,15 @@ scan, the linearized observation of every track the scan detected, the tracks it
   existence, mht's score) and the count's chance to confirm a track started on clutter exceeds that
   bound at some position sensor's clutter density and noise (:func:`needs_local_confirmation`), a
   track also needs a local track that its tracker confirmed: in heavy clutter the count alone
-  confirmed tracks on several sensors' clutter tracks. A confirmed track is deleted once every
-  sensor that tracks it (a local track maps to it, or its tracker retired the last one there since
-  the track's last detection) missed it on its last ``CENTRAL_MISSES`` (2) scans since its last
-  detection (``delete_misses`` when one sensor tracks it; more at a lower P_D:
-  :func:`~fedtrack.local_filters.mtt.config.miss_count`; a late detection clears only the misses of
-  the scans before it): a target that died goes within two scans
+  confirmed tracks on several sensors' clutter tracks. A tentative track that one sensor alone
+  supports is confirmed only once another sensor's report came after its start and, where another
+  sensor that sees its place missed it, only when local tracks that two sensors' trackers confirmed
+  map to it (:meth:`~.track_life.CentreLife._corroborated`: one sensor's consistent ghosts). A
+  confirmed track is deleted once every sensor that tracks it (a local track maps to it, or its
+  tracker retired the last one there since the track's last detection) missed it on its last
+  ``CENTRAL_MISSES`` (2) scans since its last detection (``delete_misses`` when one sensor tracks
+  it; more at a lower P_D: :func:`~fedtrack.local_filters.mtt.config.miss_count`; a late detection
+  clears only the misses of the scans before it): a target that died goes within two scans
   of the slowest sensor instead of lingering until every local tracker deleted its track. It is also
   deleted when no local track maps to it any more or none supported it for ``central_timeout``
   seconds.
@@ -109,6 +112,7 @@ class Counters:
     copying_sensors: int = 0  # sensors found to copy another's feed now
     noise_raised: int = 0  # observations whose R claimed less than their sensor's noise_floor: raised to it
     floor_mismatch: int = 0  # reports whose observations' size is not their sensor's noise_floor's: not fused
+    uncorroborated: int = 0  # one sensor's tentative tracks held back: another sensor sees their place, missed them
 
 
 class HandOver(NamedTuple):
@@ -171,6 +175,9 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         # since the slot's last detection (its misses still count: CentreLife._tracking)
         self.gave_up = np.zeros((0, 0), dtype=bool)
         self.window = np.zeros((0, cfg.confirm_window), dtype=bool)  # a tentative slot's last scans
+        # per tentative slot, its vetting by the sensors that do not support it (track_life.VETTED, DENIED,
+        # HELD bits: CentreLife._corroborated)
+        self.vetting = np.zeros(0, dtype=np.int8)
         # whether the count alone is unsafe on some position sensor's clutter (judged once per sensor)
         self.local_confirmation = False
         self.count_judged: set[str] = set()
@@ -194,6 +201,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.streak = padded(self.streak, (rows, cols))
         self.gave_up = padded(self.gave_up, (rows, cols))
         self.window = padded(self.window, (rows, self.cfg.confirm_window))
+        self.vetting = padded(self.vetting, (rows,))
         self.last_support = padded(self.last_support, (rows,))
 
     def _col(self, sensor: str) -> int:
@@ -323,7 +331,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.next_id += self.id_step
         slot = self.tracks.start(cid, t, *self._central_start(x, P))
         self._fit()
-        self.support[slot], self.streak[slot], self.window[slot] = 0, 0, False
+        self.support[slot], self.streak[slot], self.window[slot], self.vetting[slot] = 0, 0, False, 0
         self.gave_up[slot] = False
         self.last_support[slot] = t
         self.counters.started += 1
@@ -618,6 +626,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         keep = [k for k, s in enumerate(record.sensors) if s not in self.copies.copy_of]
         cols = [self._col(record.sensors[k]) for k in keep]
         self.support[slot], self.streak[slot], self.gave_up[slot] = 0, 0, False  # gave_up not handed over
+        self.vetting[slot] = 0  # nor its vetting: the new owner's sensors vet it afresh
         self.support[slot, cols], self.streak[slot, cols] = record.support[keep], record.streak[keep]
         self.window[slot], self.last_support[slot] = record.window, record.last_support
         for key, strikes in zip(record.members, record.strikes):
