@@ -20,10 +20,10 @@ from fedtrack.local_filters.mtt.local import LocalReport
 # over every sensor's scans (CENTRAL_MISSES per sensor: engines.central_params).
 CENTRAL_MISSES = 2
 # At the sensors' detection probabilities the counts may need to be longer: config.miss_count.
-# A tentative central track's vetting by the sensors that do not support it (bits; CentreLife._corroborated):
-# another sensor's scan came (VETTED), one that sees its place missed it while one sensor alone supported it
-# (DENIED), and its confirmation was held back for that (HELD: counted uncorroborated)
-VETTED, DENIED, HELD = 1, 2, 4
+# A tentative central track's vetting (bits; CentreLife._corroborated): a sensor that supports none of it
+# reported since its start (VETTED), and its confirmation was held back for a sensor's denial (HELD: counted
+# uncorroborated once)
+VETTED, HELD = 1, 4
 # A central track's height raised by this many standard deviations before it is judged below a radar's
 # horizon (2.33: above it with a chance of at most FALSE_CONFIRM, :meth:`CentreLife._below_horizon`).
 Z_FALSE_CONFIRM = NormalDist().inv_cdf(1.0 - FALSE_CONFIRM)
@@ -43,8 +43,9 @@ class CentreLife:
     """Confirmation and deletion of :class:`~.track_to_track.TrackToTrackCentre`'s central tracks (mixed
     into it). It relies on the centre's ``cfg``, ``counters``, ``tracks``, ``departed``, ``absorbed``,
     ``mapping``, ``members``, ``local_confirmation``, ``own_confirmed``, ``n_live``, ``excluded``,
-    ``sensor_names``, the per-slot arrays ``support``, ``streak``, ``window``, ``vetting`` and ``last_support``, the
-    per-column ``column_interval`` and ``column_log_miss``, and on its methods ``_unmap`` and ``sensor_lists``."""
+    ``sensor_names``, the per-slot arrays ``support``, ``streak``, ``window``, ``vetting``, ``denied`` and
+    ``last_support``, the per-column ``column_interval`` and ``column_log_miss``, and on its methods ``_unmap`` and
+    ``sensor_lists``."""
 
     def _vouched(self, report: LocalReport) -> np.ndarray:
         """Slots of the central tracks that a track confirmed by the report's tracker maps to."""
@@ -103,25 +104,31 @@ class CentreLife:
         denied by the others. A scan of sensor column ``col`` vets each tentative slot (of ``tentative``) it
         supports none of: blind to it or not, the sensor has had its say. It denies one that exactly one other
         sensor supports when the scan counts for it (``counted``: it sees its place, :meth:`_blind_to`) and did
-        not detect it. A slot that one sensor alone supports is confirmed only once vetted; a denied one only
-        once local tracks that two sensors' trackers confirmed map to it (held back, it is counted
-        ``uncorroborated`` once): a second sensor's local track of clutter, or of a target passing by, mapped
-        for a scan or two, is no corroboration. A
-        compromised sensor's consistent ghosts (its own tracker confirms them) filled the count's window with
-        its own scans and were confirmed for good, before or despite the others' scans: seed 1, 20 ghosts from
-        t = 100 s, mean GOSPA 74 -> 223 m."""
+        not detect it; its next scan that is blind to the slot takes the denial back (blindness is judged on what
+        the centre knows then: a track that its tracker has not confirmed yet gets no skip), a detection does not
+        (a local track of clutter mapped for a scan would).
+        With another live sensor, a slot that one sensor alone supports is confirmed only once vetted; one that
+        a sensor denies now only once local tracks that two sensors' trackers confirmed map to it (held back,
+        it is counted ``uncorroborated`` once): a second sensor's local track of clutter, or of a target passing
+        by, mapped for a scan or two, is no corroboration. A compromised sensor's consistent ghosts (its own
+        tracker confirms them) filled the count's window with its own scans and were confirmed for good, before
+        or despite the others' scans: seed 1, 20 ghosts from t = 100 s, mean GOSPA 74 -> 223 m."""
         self.vetting[tentative[~self._fused_support(tentative)[:, col]]] |= VETTED
+        self.denied[np.setdiff1d(tentative, counted, assume_unique=True), col] = False  # blind to it now
         support = self._fused_support(counted)
         alone = np.count_nonzero(support, axis=1) == 1
-        self.vetting[counted[alone & ~hit[counted] & ~support[:, col]]] |= DENIED
+        self.denied[counted[alone & ~hit[counted] & ~support[:, col]], col] = True
+        if self.n_live < 2:  # no other live sensor to hear from: the count alone, as before
+            return now
         state = self.vetting[now]
         held = (np.count_nonzero(self._fused_support(now), axis=1) == 1) & ((state & VETTED) == 0)
-        denied = ((state & DENIED) > 0).nonzero()[0]
+        denied = self._counted(self.denied[now].copy()).any(axis=1).nonzero()[0]
         if denied.size:
             held[denied] = self._vouching(now[denied]) < 2
         if not held.any():
             return now
-        first = now[held & ((state & DENIED) > 0) & ((state & HELD) == 0)]
+        first = now[held & ((state & HELD) == 0)]
+        first = first[self._counted(self.denied[first].copy()).any(axis=1)]
         self.counters.uncorroborated += first.size
         self.vetting[first] |= HELD
         return now[~held]

@@ -175,9 +175,12 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         # since the slot's last detection (its misses still count: CentreLife._tracking)
         self.gave_up = np.zeros((0, 0), dtype=bool)
         self.window = np.zeros((0, cfg.confirm_window), dtype=bool)  # a tentative slot's last scans
-        # per tentative slot, its vetting by the sensors that do not support it (track_life.VETTED, DENIED,
-        # HELD bits: CentreLife._corroborated)
+        # per tentative slot, whether a sensor that supports none of it reported since its start (track_life.VETTED)
+        # and whether its confirmation was held back (HELD, counted); per slot and sensor, whether that sensor's
+        # latest report saw its place and missed it while one other sensor alone supported it
+        # (CentreLife._corroborated)
         self.vetting = np.zeros(0, dtype=np.int8)
+        self.denied = np.zeros((0, 0), dtype=bool)
         # whether the count alone is unsafe on some position sensor's clutter (judged once per sensor)
         self.local_confirmation = False
         self.count_judged: set[str] = set()
@@ -200,6 +203,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.support = padded(self.support, (rows, cols))
         self.streak = padded(self.streak, (rows, cols))
         self.gave_up = padded(self.gave_up, (rows, cols))
+        self.denied = padded(self.denied, (rows, cols))
         self.window = padded(self.window, (rows, self.cfg.confirm_window))
         self.vetting = padded(self.vetting, (rows,))
         self.last_support = padded(self.last_support, (rows,))
@@ -288,6 +292,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.support = np.delete(self.support, col, axis=1)
         self.streak = np.delete(self.streak, col, axis=1)
         self.gave_up = np.delete(self.gave_up, col, axis=1)
+        self.denied = np.delete(self.denied, col, axis=1)
         self.column_log_miss = np.delete(self.column_log_miss, col)
         self.column_interval = np.delete(self.column_interval, col)
         self._column = {name: k for k, name in enumerate(self.sensor_names)}
@@ -332,6 +337,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         slot = self.tracks.start(cid, t, *self._central_start(x, P))
         self._fit()
         self.support[slot], self.streak[slot], self.window[slot], self.vetting[slot] = 0, 0, False, 0
+        self.denied[slot] = False
         self.gave_up[slot] = False
         self.last_support[slot] = t
         self.counters.started += 1
@@ -626,7 +632,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         keep = [k for k, s in enumerate(record.sensors) if s not in self.copies.copy_of]
         cols = [self._col(record.sensors[k]) for k in keep]
         self.support[slot], self.streak[slot], self.gave_up[slot] = 0, 0, False  # gave_up not handed over
-        self.vetting[slot] = 0  # nor its vetting: the new owner's sensors vet it afresh
+        self.vetting[slot], self.denied[slot] = 0, False  # nor its vetting: the new owner's sensors vet it afresh
         self.support[slot, cols], self.streak[slot, cols] = record.support[keep], record.streak[keep]
         self.window[slot], self.last_support[slot] = record.window, record.last_support
         for key, strikes in zip(record.members, record.strikes):
