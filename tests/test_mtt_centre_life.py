@@ -116,20 +116,22 @@ def placed(sensor: str, t: float, places: dict[int, tuple[float, float]]) -> Loc
 
 
 def test_one_sensors_ghost_where_two_others_see_is_not_confirmed() -> None:
-    """s2 and s3 report targets at (0, 0) and (2000, 2000) once a second; s1 reports them and a ghost at
-    (1000, 1000), between them, from t = 2 s, in three scans a second. Its scans filled the count's window and the
-    ghost, which s2 and s3 see (inside their tracks' extent) and never detect, was confirmed; now it stays tentative,
-    counted ``uncorroborated`` once, while the targets are confirmed. A ghost where s2 and s3 are blind
-    (beyond their tracks' extent and reach) is confirmed as before: one sensor's target outside the others'
-    view."""
+    """s2 and s3 report targets at (0, 0) and (2000, 2000) twice a second; s1 reports them and a ghost at
+    (1000, 1000), between them, from t = 2 s, in a burst of three scans each second. Its burst filled the count's
+    window and the ghost, which s2 and s3 see (inside their tracks' extent) and never detect, was confirmed at its
+    third scan; now it waits for another sensor's scan, and s2's and s3's two misses in a row deny it: it stays
+    tentative, counted ``uncorroborated`` once, while the targets are confirmed. A ghost where s2 and s3 are
+    blind (beyond their tracks' extent and reach) is confirmed as before: one sensor's target outside the
+    others' view."""
     def run(ghost: tuple[float, float]) -> tuple[TrackToTrackCentre, int, int]:
         centre = TrackToTrackCentre(MttConfig(), 4, False)
         targets = {1: (0.0, 0.0), 2: (2000.0, 2000.0)}
         for k in range(8):
             for j in range(3):
                 centre.answer(placed("s1", k + 0.1 * j, {**targets, 3: ghost} if k >= 2 else targets))
-            centre.answer(placed("s2", k + 0.4, targets))
-            centre.answer(placed("s3", k + 0.7, targets))
+            for t in (0.4, 0.6):
+                centre.answer(placed("s2", k + t, targets))
+                centre.answer(placed("s3", k + t + 0.1, targets))
         return centre, centre.tracks.slot[centre.mapping[("s1", 3)]], centre.tracks.slot[centre.mapping[("s2", 1)]]
 
     centre, ghost, target = run((1000.0, 1000.0))

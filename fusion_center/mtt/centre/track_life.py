@@ -24,6 +24,10 @@ CENTRAL_MISSES = 2
 # reported since its start (VETTED), and its confirmation was held back for a sensor's denial (HELD: counted
 # uncorroborated once)
 VETTED, HELD = 1, 4
+# Per tentative slot and sensor (CentreLife._corroborated): the sensor's latest scan that saw the track's
+# place missed it while one other sensor alone supported it (PENDING), and so did its scan before (DENIED:
+# CENTRAL_MISSES misses in a row, which would delete the track if it were confirmed)
+PENDING, DENIED = 1, 2
 # A central track's height raised by this many standard deviations before it is judged below a radar's
 # horizon (2.33: above it with a chance of at most FALSE_CONFIRM, :meth:`CentreLife._below_horizon`).
 Z_FALSE_CONFIRM = NormalDist().inv_cdf(1.0 - FALSE_CONFIRM)
@@ -102,33 +106,39 @@ class CentreLife:
                       col: int) -> np.ndarray:
         """Of the tentative slots ``now`` whose count holds, those that are not one sensor's alone unheard or
         denied by the others. A scan of sensor column ``col`` vets each tentative slot (of ``tentative``) it
-        supports none of: blind to it or not, the sensor has had its say. It denies one that exactly one other
-        sensor supports when the scan counts for it (``counted``: it sees its place, :meth:`_blind_to`) and did
-        not detect it; its next scan that is blind to the slot takes the denial back (blindness is judged on what
-        the centre knows then: a track that its tracker has not confirmed yet gets no skip), a detection does not
-        (a local track of clutter mapped for a scan would).
-        With another live sensor, a slot that one sensor alone supports is confirmed only once vetted; one that
-        a sensor denies now only once local tracks that two sensors' trackers confirmed map to it (held back,
-        it is counted ``uncorroborated`` once): a second sensor's local track of clutter, or of a target passing
-        by, mapped for a scan or two, is no corroboration. A compromised sensor's consistent ghosts (its own
-        tracker confirms them) filled the count's window with its own scans and were confirmed for good, before
-        or despite the others' scans: seed 1, 20 ghosts from t = 100 s, mean GOSPA 74 -> 223 m."""
+        supports none of: blind to it or not, the sensor has had its say. It questions one that exactly one
+        other sensor supports when the scan counts for it (``counted``: it sees its place, :meth:`_blind_to`)
+        and did not detect it (``PENDING``), and denies it when its previous scan did so too (``DENIED``: the
+        ``CENTRAL_MISSES`` misses that would delete it if it were confirmed; a live target at P_D 0.9 once in a
+        hundred); its next detection takes a question back, not a denial (a local track of clutter mapped for
+        a scan would), and its next scan blind to the slot takes either back (blindness is judged on what the
+        centre knows then: a track that its tracker has not confirmed yet gets no skip). With another live
+        sensor, a slot that one sensor alone supports is confirmed only once vetted, not by the report that
+        questions it, and, while a sensor denies it, only once local tracks that two sensors' trackers confirmed
+        map to it (held back, it is counted ``uncorroborated`` once). A compromised sensor's consistent ghosts
+        (its own tracker confirms them) filled the count's window with its own scans and were confirmed for
+        good, before or despite the others' scans: seed 1, 20 ghosts from t = 100 s, mean GOSPA 74 -> 223 m."""
         self.vetting[tentative[~self._fused_support(tentative)[:, col]]] |= VETTED
-        self.denied[np.setdiff1d(tentative, counted, assume_unique=True), col] = False  # blind to it now
+        denied = self.denied
+        denied[np.setdiff1d(tentative, counted, assume_unique=True), col] = 0  # blind to it now
+        detected = counted[hit[counted]]
+        denied[detected[denied[detected, col] == PENDING], col] = 0
         support = self._fused_support(counted)
         alone = np.count_nonzero(support, axis=1) == 1
-        self.denied[counted[alone & ~hit[counted] & ~support[:, col]], col] = True
+        missed = counted[alone & ~hit[counted] & ~support[:, col]]
+        denied[missed, col] = np.where(denied[missed, col] > 0, DENIED, PENDING)
         if self.n_live < 2:  # no other live sensor to hear from: the count alone, as before
             return now
         state = self.vetting[now]
         held = (np.count_nonzero(self._fused_support(now), axis=1) == 1) & ((state & VETTED) == 0)
-        denied = self._counted(self.denied[now].copy()).any(axis=1).nonzero()[0]
-        if denied.size:
-            held[denied] = self._vouching(now[denied]) < 2
+        held |= denied[now, col] > 0  # the report that questions it does not confirm it
+        doubt = self._counted(denied[now] == DENIED).any(axis=1).nonzero()[0]
+        if doubt.size:
+            held[doubt] |= self._vouching(now[doubt]) < 2
         if not held.any():
             return now
         first = now[held & ((state & HELD) == 0)]
-        first = first[self._counted(self.denied[first].copy()).any(axis=1)]
+        first = first[self._counted(denied[first] == DENIED).any(axis=1)]  # not those waiting to be vetted
         self.counters.uncorroborated += first.size
         self.vetting[first] |= HELD
         return now[~held]

@@ -176,11 +176,11 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.gave_up = np.zeros((0, 0), dtype=bool)
         self.window = np.zeros((0, cfg.confirm_window), dtype=bool)  # a tentative slot's last scans
         # per tentative slot, whether a sensor that supports none of it reported since its start (track_life.VETTED)
-        # and whether its confirmation was held back (HELD, counted); per slot and sensor, whether that sensor's
-        # latest report saw its place and missed it while one other sensor alone supported it
-        # (CentreLife._corroborated)
+        # and whether its confirmation was held back (HELD, counted); per slot and sensor, whether that sensor
+        # saw its place and missed it while one other sensor alone supported it, in its latest scan (PENDING) or
+        # in its latest two (DENIED) (CentreLife._corroborated)
         self.vetting = np.zeros(0, dtype=np.int8)
-        self.denied = np.zeros((0, 0), dtype=bool)
+        self.denied = np.zeros((0, 0), dtype=np.int8)
         # whether the count alone is unsafe on some position sensor's clutter (judged once per sensor)
         self.local_confirmation = False
         self.count_judged: set[str] = set()
@@ -337,7 +337,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         slot = self.tracks.start(cid, t, *self._central_start(x, P))
         self._fit()
         self.support[slot], self.streak[slot], self.window[slot], self.vetting[slot] = 0, 0, False, 0
-        self.denied[slot] = False
+        self.denied[slot] = 0
         self.gave_up[slot] = False
         self.last_support[slot] = t
         self.counters.started += 1
@@ -632,7 +632,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         keep = [k for k, s in enumerate(record.sensors) if s not in self.copies.copy_of]
         cols = [self._col(record.sensors[k]) for k in keep]
         self.support[slot], self.streak[slot], self.gave_up[slot] = 0, 0, False  # gave_up not handed over
-        self.vetting[slot], self.denied[slot] = 0, False  # nor its vetting: the new owner's sensors vet it afresh
+        self.vetting[slot], self.denied[slot] = 0, 0  # nor its vetting: the new owner's sensors vet it afresh
         self.support[slot, cols], self.streak[slot, cols] = record.support[keep], record.streak[keep]
         self.window[slot], self.last_support[slot] = record.window, record.last_support
         for key, strikes in zip(record.members, record.strikes):
