@@ -179,6 +179,11 @@ class Link(NamedTuple):
             return 0.0
         return now - (since if self.back_at is None else max(since, self.back_at + LINK_GRACE_S))
 
+    def settled(self, now: float) -> bool:
+        """Whether the link holds and has for ``LINK_GRACE_S`` since it last came back: what this
+        session knows of the other sessions (their tokens, their subscribers) is whole again."""
+        return not self.cut and (self.back_at is None or now >= self.back_at + LINK_GRACE_S)
+
 
 class Peers:
     """The liveliness tokens of some peers (their keys), as they come and go (a Zenoh thread's

@@ -14,7 +14,7 @@ from typing import Any
 
 import pytest
 from support import WAIT_S, assert_same_pictures, free_port, wait_until
-from test_hostile_messages import OPTIONS, Bus
+from test_hostile_messages import OPTIONS, Bus, _matches
 
 from fedtrack.fusion_center.mtt.picture_merge import PictureMergeService
 from fedtrack.fusion_center.mtt.replay import replay_mtt
@@ -114,6 +114,48 @@ def test_region_centres_on_the_bus_equal_the_replay_of_their_recording(tmp_path:
     print(algorithm, {c.id: {k: c.counters.get(k, 0) for k in ("handed_over", "taken_over", "in_flight")}
                       for c in centres}, len(live))
     check(tmp_path, algorithm, config, live)
+
+
+def test_a_region_without_a_centre_holds_no_tracker_up_and_the_recording_still_replays(tmp_path: Path) -> None:
+    """Region x0y0's centre gone from t = 8 to 14 s (its centre and standby dead: nothing takes its
+    sub-reports, as Zenoh's matching status tells the trackers), then back with its state: each tracker
+    goes on at once with the answer of x1y0 (counted ``unreached``), and the recording replays to the
+    merged pictures (the replay waits for the regions whose entries list a report). Before, every
+    tracker waited for x0y0's answer to a report it never got, ``--reset-timeout`` live (every region
+    late), here for ever: no report after t = 8 s, and the replay stopped ('cannot be replayed')."""
+    msgs, cfg, config = scenario(tmp_path)
+    centres, local, merger, recorder = services(tmp_path, "mtt-federated", config, cfg,
+                                                {"options": OPTIONS, "deployment": "hostile"})
+    recorder.on_start()
+    bus = Bus([*centres, *local, merger, recorder])
+    gone, keys = centres[0], Keys("hostile")
+
+    def reaches(key: str) -> bool:
+        return any(_matches(sub.key, key) for svc in bus.services for sub in svc._subscriptions)
+
+    for svc in local:
+        svc.reaches = reaches  # type: ignore[method-assign]
+    for m in msgs:
+        away = 8.0 <= m.t < 14.0
+        if away == (gone in bus.services):
+            bus.services = [svc for svc in bus.services if svc is not gone] if away else [gone, *bus.services]
+            bus._routes.clear()
+        bus.put(keys.sensor_meas(m.sensor), encode(m))
+        # none waits while x0y0 is gone (after, its first report waits for another sensor's: the lead guard)
+        assert not away or all(svc.awaiting is None for svc in local), m.t
+    for svc in [*local, *centres, merger]:
+        svc.on_stop()
+        bus.drain()
+    recorder.on_stop()
+    away_reports = sum(8.0 <= m.t < 14.0 for m in msgs)
+    assert sum(svc.counters.get("unreached", 0) for svc in local) == away_reports
+    assert sum(svc.counters.get("reports", 0) for svc in local) == len(msgs)
+    assert all(svc.counters.get("rejected", 0) == 0 for svc in [*centres, *local, merger, recorder])
+    live = [json.loads(x) for x in (tmp_path / "out" / "tracks.jsonl").read_text().splitlines()]
+    assert len(live) >= 29
+    replayed = tmp_path / "replayed.jsonl"
+    replay_mtt("mtt-federated", tmp_path / "out" / "measurements.jsonl", config, replayed, regions="config")
+    assert_same_pictures(live, [json.loads(x) for x in replayed.read_text().splitlines()])
 
 
 @pytest.mark.parametrize("algorithm", ["mtt-federated", "mtt-decentralized"])

@@ -60,6 +60,24 @@ class Publishing:
         self._put(key, msg)
         self.counters["published"] += 1
 
+    def declare_plain(self, key: str) -> None:
+        """Declare the plain publisher of ``key`` (one of :meth:`plain_outputs`) now, before its first
+        message: its matching status (:meth:`reaches`) is known once the router has answered the
+        declaration (about a millisecond; a publisher declared with its first message said no
+        subscriber for it)."""
+        if self.session is None:
+            raise RuntimeError("declare_plain() called before run() opened the session")
+        if key not in self._publishers:
+            self._publishers[key] = (self.session.declare_publisher(
+                key, encoding=ENCODING, congestion_control=zenoh.CongestionControl.BLOCK), 0)
+
+    def reaches(self, key: str) -> bool:
+        """Whether a subscriber takes what this service publishes on ``key``, as its session knows
+        (Zenoh's matching status of the key's plain publisher, :meth:`declare_plain`); True for a key
+        without one (not known: as if taken)."""
+        pub, depth = self._publishers.get(key, (None, 0))
+        return pub is None or depth > 0 or bool(pub.matching_status.matching)
+
     def _put(self, key: str, msg: Message) -> None:
         if self.session is None:
             raise RuntimeError("publish() called before run() opened the session")
@@ -69,9 +87,8 @@ class Publishing:
                        if zenoh.KeyExpr(k).includes(zenoh.KeyExpr(key))), None)
         needed = cache_depth(max(map(len, encoded))) if window is None else window * len(encoded)
         if pub is None and any(zenoh.KeyExpr(plain).includes(zenoh.KeyExpr(key)) for plain in self.plain_outputs()):
-            pub = self.session.declare_publisher(key, encoding=ENCODING,
-                                                 congestion_control=zenoh.CongestionControl.BLOCK)
-            self._publishers[key] = (pub, 0)
+            self.declare_plain(key)
+            pub = self._publishers[key][0]
         elif pub is None or (depth > 2 * needed if window is None else 0 < depth < needed):  # 0: a plain publisher
             # new, or its messages outgrew its cache (one grows from a few tracks to thousands): a
             # publisher with a cache of about CACHE_BYTES, or of its window's messages in their parts

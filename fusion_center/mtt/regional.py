@@ -245,10 +245,14 @@ def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions
     firsts: set[tuple[str, int]] = set()
     # (sensor, scan number): its tracker restarted with that scan (each region lists the restart)
     restarts = {(e.sensor, e.seq) for _, e in entries if isinstance(e, TrackerRestarted)}
+    # (sensor, report number) -> the regions that fused it: the tracker waits for their answers only (a
+    # region that never fused a report, its centre gone, never answered it: the live tracker went on without)
+    fused_by: dict[tuple[str, int], set[int]] = {}
     for r, entry in entries:
         queues[r].append(entry)
         if isinstance(entry, tuple) and not isinstance(entry, (SensorLeft, TrackerRestarted, Handed)):
             scan, seq = entry
+            fused_by.setdefault((scan.sensor, seq), set()).add(r)
             if (scan.sensor, seq) not in firsts:
                 firsts.add((scan.sensor, seq))
                 trackers.setdefault(scan.sensor, _Tracker([], RegionRouter(regions))).scans.append(entry)
@@ -294,9 +298,10 @@ def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions
             answer, moving = engines[r].answer(*tr.parts[r])
             outbox.update(((r, serial), record) for _, serial, record in moving)
             tr.answers[r] = answer
-            if len(tr.answers) == R:
-                answers = [tr.answers[k] for k in range(R)]
-                tr.router.learn([sub for sub, _ in tr.parts], answers)
+            if len(tr.answers) == len(fused_by[scan.sensor, seq]):
+                got = sorted(tr.answers)
+                answers = [tr.answers[k] for k in got]
+                tr.router.learn([tr.parts[k][0] for k in got], answers, got)
                 if feedback:
                     assert tr.tracker is not None and tr.scan is not None
                     tr.tracker.adopt(tr.scan, *join_answers(answers))

@@ -31,7 +31,12 @@ With ``[regions]`` in the config (docs/multitarget.md#regions) it publishes each
 sub-report per region (:class:`fedtrack.local_filters.mtt.routing.RegionRouter`) on
 ``region/<rid>/local/<ID>/tracks`` and, federated or decentralized, waits for every region
 centre's answer (``region/<rid>/mtt-resets/<ID>``) before its next scan: it learns from them
-which region holds which of its local tracks, and (federated) adopts their resets together.
+which region holds which of its local tracks, and (federated) adopts their resets together. A
+region whose sub-report no subscriber took (its centre and standby both gone: Zenoh's matching
+status, trusted while the link to the router is settled) is not waited for (counted
+``unreached``): that centre never fuses the report, and the replay, which waits for the regions
+whose recorded entries list it, goes on without it too; before, every tracker waited
+``--reset-timeout`` for it on every report, and every region's picture was late.
 """
 
 from __future__ import annotations
@@ -78,7 +83,7 @@ class MttLocalService(Service):
     # put back by the transaction if a scan fails; ``received`` is only changed once a scan was
     # handled (compute, then commit)
     state_attrs = ("tracker", "queue", "awaiting", "awaiting_since", "awaiting_scan", "adopted",
-                   "contested_scans", "router", "sent", "answers", "lead", "timed_out")
+                   "contested_scans", "router", "sent", "answers", "unreached", "lead", "timed_out")
 
     def __init__(self, sensor: str, federated: bool, cfg: MttConfig, reset_timeout_s: float = RESET_TIMEOUT_S,
                  max_seq_jump: int = 1000, max_time_jump_s: float = 3600.0, regions: Regions | None = None,
@@ -89,6 +94,7 @@ class MttLocalService(Service):
         self.router = None if regions is None else RegionRouter(regions)
         self.sent: list[LocalReport] = []  # the sub-reports of the report awaiting answers (regions)
         self.answers: dict[int, tuple[RegionAnswer, bytes]] = {}  # region -> its answer and digest
+        self.unreached: set[int] = set()  # the regions whose sub-report no subscriber took: not awaited
         self.sensor = check_id(sensor, "--sensor")
         self.federated = federated
         self.cfg = cfg
@@ -121,6 +127,12 @@ class MttLocalService(Service):
     def plain_outputs(self) -> tuple[str, ...]:
         """The reports and sub-reports: the centres (and standbys) take them as plain subscribers."""
         return self.keys.mtt_report(), self.keys.region_report()
+
+    def on_start(self) -> None:
+        """Declare the sub-reports' publishers now: whether a region's has a subscriber is known by the
+        first report (:meth:`Publishing.reaches`)."""
+        for rid in self.regions.ids if self.regions is not None else ():
+            self.declare_plain(self.keys.region_report(rid, self.sensor))
 
     def on_scan(self, msg: Measurement) -> None:
         try:
@@ -203,12 +215,17 @@ class MttLocalService(Service):
             raise Rejected("unexpected", f"answer of {msg.region} for report {msg.seq}: it holds or resets local "
                            "tracks its sub-report did not carry")
         self.answers[region] = (answer, digest(msg))
-        if len(self.answers) == len(self.regions.ids):
+        if self._answered():
             self._learn()
 
-    def _learn(self) -> None:
+    def _answered(self) -> bool:
+        """Every region answered the sub-report awaited, but those it did not reach (``unreached``)."""
+        assert self.regions is not None
+        return len(self.answers.keys() | self.unreached) == len(self.regions.ids)
+
+    def _learn(self, advance: bool = True) -> None:
         """Every region answered (or the wait timed out): learn where the local tracks are held and,
-        federated, adopt the resets together; then go on."""
+        federated, adopt the resets together; then go on (``advance``: track the waiting scans)."""
         assert self.router is not None and self.tracker is not None and self.awaiting_scan is not None
         got = sorted(self.answers)
         answers = [self.answers[r][0] for r in got]
@@ -216,9 +233,12 @@ class MttLocalService(Service):
             self.router.learn([self.sent[r] for r in got], answers, got)
             if self.federated:
                 self.tracker.adopt(self.awaiting_scan, *join_answers(answers))
+        if self.unreached and self.awaiting not in self.timed_out:  # an answer of a region not awaited that
+            self.timed_out.append(self.awaiting)  # comes after all is late, not unexpected
         self.awaiting = self.awaiting_scan = None
-        self.sent, self.answers = [], {}
-        self._advance()
+        self.sent, self.answers, self.unreached = [], {}, set()
+        if advance:
+            self._advance()
 
     def on_tick(self) -> None:
         """Go on without the answers awaited ``--reset-timeout`` seconds, not counting a router outage and
@@ -266,10 +286,16 @@ class MttLocalService(Service):
                 contested = self.take_contested()
                 if self.router is not None and self.regions is not None:
                     parts = self.router.split(report)
-                    for rid, (sub, elsewhere) in zip(self.regions.ids, parts):
-                        self.publish(self.keys.region_report(rid, self.sensor),
-                                     report_to_wire(sub, seq, stamp, contested, tuple(elsewhere.tolist()), first))
+                    settled = self.link().settled(time.monotonic())
+                    self.unreached = set()
+                    for r, (rid, (sub, elsewhere)) in enumerate(zip(self.regions.ids, parts)):
+                        key = self.keys.region_report(rid, self.sensor)
+                        self.publish(key, report_to_wire(sub, seq, stamp, contested, tuple(elsewhere.tolist()), first))
+                        if settled and not self.reaches(key):
+                            self.unreached.add(r)
                     self.sent, self.answers = [sub for sub, _ in parts], {}
+                    if self.unreached:
+                        self.count("unreached", len(self.unreached))
                 else:
                     self.publish(self.keys.mtt_report(self.sensor),
                                  report_to_wire(report, seq, stamp, contested, first=first))
@@ -278,6 +304,8 @@ class MttLocalService(Service):
                     self.count("rerun", rerun)
                 if self.federated or self.regions is not None:
                     self.awaiting, self.awaiting_since, self.awaiting_scan = seq, time.monotonic(), scan
+                    if self.regions is not None and self._answered():  # no region reached: none to wait for
+                        self._learn(advance=False)
             if attempt.failed:
                 failed.append(seq)
         return failed
