@@ -7,7 +7,8 @@ with its own :class:`PictureClock`. ``serve picture`` merges the regions' pictur
 (:func:`merge_pictures`) and lists in the merged picture every region's processed entries, tagged
 with the region (``TrackPicture.regions``). :func:`recorded_pictures` replays such a recording:
 every region centre takes its entries in its recorded order, the local trackers track their
-scans in order and go on once every region answered (as the live trackers do), a hand-over is
+scans in order and go on once every region that fused their report answered (as the live trackers
+do: a region whose centre was gone never answered), a hand-over is
 taken over where its region took it, and the pictures are made and merged as the live services
 made them; so the replay of a recording equals its live pictures.
 """
