@@ -27,6 +27,8 @@ from fedtrack.fusion_center.mtt.pictures import picture_window
 from fedtrack.fusion_center.mtt.service import MttCentreService
 from fedtrack.keys import Keys
 from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.mtt.service import MttLocalService
+from fedtrack.local_filters.regions import load_regions
 from fedtrack.services import publishing
 from fedtrack.services.base import QueryHandler, Service, Subscription
 from fedtrack.wire import (
@@ -476,3 +478,23 @@ def test_recorder_with_unusable_output_exits_2(tmp_path: Path) -> None:
         assert recorder.run() == 2 and recorder.status == "failed"
     finally:
         close_session(router)
+
+
+def test_a_tracker_knows_which_regions_its_sub_reports_reach(tmp_path: Path) -> None:
+    """A region deployment's ``mtt-local`` declares its sub-reports' publishers at its start, so that
+    Zenoh's matching status says by its first report whether anything (a region's centre or standby)
+    takes a region's sub-reports: a region none reaches is not waited for (``unreached``)."""
+    config = tmp_path / "regions.toml"
+    config.write_text("[regions]\nmargin = 500.0\n"
+                      "grid = {origin = [-5000.0, -5000.0], cell = [5000.0, 10000.0], nx = 2, ny = 1}\n")
+    regions = load_regions(config)
+    keys = Keys("t8")
+    with served(lambda options: MttLocalService("s1", True, MttConfig(), regions=regions, service_id="s1",
+                                                options=options, deployment="t8")) as (session, svc):
+        tracker: MttLocalService = svc  # type: ignore[assignment]
+        x0, x1 = keys.region_report("x0y0", "s1"), keys.region_report("x1y0", "s1")
+        assert not tracker.reaches(x0) and not tracker.reaches(x1)
+        centre = session.declare_subscriber(keys.region_report("x0y0"), lambda sample: None)
+        assert wait_until(lambda: tracker.reaches(x0), 2.0) and not tracker.reaches(x1)
+        centre.undeclare()
+        assert wait_until(lambda: not tracker.reaches(x0), 2.0)
