@@ -25,6 +25,8 @@ import numpy as np
 import pytest
 import zenoh
 from support import assert_same_pictures, free_port, wait_until
+from test_hostile_messages import OPTIONS, Bus
+from test_mtt_regions_live import scenario, services
 
 from fedtrack.deploy.launcher import prepare_launcher
 from fedtrack.deploy.report import LaunchReport
@@ -40,9 +42,10 @@ from fedtrack.fusion_center.mtt.failover.standby import (
 )
 from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.fusion_center.mtt.service import MttCentreService
+from fedtrack.keys import Keys
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.regions import load_regions, region_of
-from fedtrack.wire import TrackPicture, TrackResets
+from fedtrack.wire import TrackPicture, TrackResets, encode
 from fedtrack.zsession import SessionOptions, close_session, open_session
 
 
@@ -461,4 +464,83 @@ def test_the_standby_takes_over_a_killed_primary_centre(tmp_path: Path, scope: s
     replayed = tmp_path / "replay.jsonl"
     replay_mtt("mtt-federated", out / "measurements.jsonl", config, replayed,  # `fedtrack replay`'s call
                regions="config" if scope != "all" else None)
+    assert_same_pictures(live, lines(replayed))
+
+
+class Reordered:
+    """Stands in for ``svc`` on the bus: what the bus delivers to it is kept, and given to it by
+    :meth:`flush` grouped by key, the keys in reverse order of their first message (each key's
+    messages in order, as one sender's over Zenoh): the sub-reports of several trackers and the
+    hand-overs reach it in another order than the other services."""
+
+    def __init__(self, svc: MttCentreService) -> None:
+        self.svc, self.kept = svc, []  # type: list[tuple[Any, ...]]
+        self._subscriptions = svc._subscriptions
+
+    def _dispatch(self, item: tuple[Any, ...]) -> None:
+        self.kept.append(item)
+
+    def flush(self) -> None:
+        keys = list(dict.fromkeys(item[2] for item in self.kept))[::-1]
+        kept, self.kept = self.kept, []
+        for key in keys:
+            for item in kept:
+                if item[2] == key:
+                    self.svc._dispatch(item)
+
+
+def test_a_standby_fed_in_another_order_takes_its_primarys_and_a_failover_replays(tmp_path: Path) -> None:
+    """Region x0y0's standby gets the sub-reports and hand-overs in another order than its primary (on
+    the in-process bus): it takes them in its primary's order (the fused lists of its pictures), so
+    every picture it makes equals its primary's; the primary dies at t = 8 s, the standby takes over,
+    and the recording replays to the live merged pictures. Before, it fused in its own arrival order,
+    its pictures differed from its primary's, and after the take-over live and replay parted."""
+    msgs, cfg, config = scenario(tmp_path)
+    centres, local, merger, recorder = services(tmp_path, "mtt-federated", config, cfg,
+                                                {"options": OPTIONS, "deployment": "hostile"})
+    regions = load_regions(config)
+    standby = MttCentreService("mtt-federated", cfg, 4, region="x0y0", regions=regions, standby=True,
+                               service_id="x0y0-standby", options=OPTIONS, deployment="hostile")
+    recorder.on_start()
+    bus = Bus([*centres, *local, merger, recorder, standby])
+    late = Reordered(standby)
+    bus.services[-1] = late  # type: ignore[call-overload]
+
+    def withheld(key: str, msg: Any) -> None:  # CentreFailover.publish, onto the bus once it is the primary
+        if standby.standby.primary:
+            bus.published.append((key, msg))
+            bus.pending.append((key, encode(msg)))
+        else:
+            standby.standby.hold(key, msg, time.monotonic())
+
+    standby.publish = withheld  # type: ignore[method-assign]
+    standby.session = type("Tokens", (), {"liveliness": lambda self: self, "zid": lambda self: "b0",
+                                          "declare_token": lambda self, key: type("T", (), {"undeclare": print})()})()
+    keys, primary = Keys("hostile"), centres[0]
+    for k, m in enumerate(m for m in msgs if m.t < 16.0):
+        if m.t >= 8.0 and primary in bus.services:  # the primary dies (its token with it)
+            bus.services.remove(primary)
+            bus._routes.clear()
+            late.flush()
+            standby.standby.token(False, time.monotonic() - 1.0)
+            standby._failover_tick()
+            bus.drain()
+            assert standby.standby.primary and standby.counters["took_over"] == 1
+        bus.put(keys.sensor_meas(m.sensor), encode(m))
+        if k % 3 == 2 or standby.standby.primary:  # three scans' messages reordered while a standby
+            late.flush()
+            bus.drain()
+    late.flush()
+    bus.drain()
+    for svc in [*local, *centres[1:], standby, merger]:
+        svc.on_stop()
+        bus.drain()
+    recorder.on_stop()
+    assert standby.standby.same >= 6 and standby.standby.differ == 0, (standby.standby.same, standby.standby.differ)
+    assert standby.counters.get("order_skipped", 0) == 0
+    assert all(svc.counters.get("reset_timeouts", 0) == 0 and svc.awaiting is None for svc in local)
+    live = lines(tmp_path / "out" / "tracks.jsonl")
+    assert len(live) >= 15
+    replayed = tmp_path / "replayed.jsonl"
+    replay_mtt("mtt-federated", tmp_path / "out" / "measurements.jsonl", config, replayed, regions="config")
     assert_same_pictures(live, lines(replayed))

@@ -67,8 +67,9 @@ from fedtrack.fusion_center.mtt.engines import (
     no_tracks,
     union_picture,
 )
+from fedtrack.fusion_center.mtt.failover.ordered import PrimaryOrder
 from fedtrack.fusion_center.mtt.failover.service import CentreFailover
-from fedtrack.fusion_center.mtt.failover.standby import NUMBER_ROOM, Standby, next_after
+from fedtrack.fusion_center.mtt.failover.standby import NUMBER_ROOM, SETTLED_MAX, Standby, next_after
 from fedtrack.fusion_center.mtt.numbers import Numbers, read_numbers, reservation, write_numbers
 from fedtrack.fusion_center.mtt.pictures import PICTURE_ITEMS, picture_message, picture_window
 from fedtrack.fusion_center.mtt.regional import RegionEngine
@@ -174,6 +175,7 @@ class MttCentreService(CentreFailover, Service):
         self.standby = Standby(self._scope(), time.monotonic(), primary=not standby)
         self.primary_token: Any = None  # the liveliness token ``alive/mtt-primary/<scope>/<instance>``, while primary
         self.primary_seen: deque[tuple[bool, float, str]] = deque()  # primary tokens' changes (a Zenoh thread)
+        self.follow = PrimaryOrder(SETTLED_MAX)  # a warm region standby's inputs, held for its primary's order
 
     def on_start(self) -> None:
         assert self.session is not None
@@ -204,20 +206,27 @@ class MttCentreService(CentreFailover, Service):
 
     def on_tick(self) -> None:
         self._failover_tick()
+        if self.in_order():  # its departures are its primary's, listed in its pictures
+            self._follow()
+            return
         now = time.monotonic()
         silent = self.silence.silent(now) + self._token_departures(now)
         for sensor in dict.fromkeys(silent):
             if sensor not in self.silence.last:
                 continue
             with self.guarded(f"the departure of {sensor}"):
-                self.silence.left(sensor)
-                self.engine.leave(sensor)
-                self.lead.leave(sensor)
-                self.clock.left()
-                self.left_at.append(len(self.order))
-                self.order.append((sensor, 0))
-                self.count("sensors_left")
-                self.log.info("sensor %s left: dropped from fusion", sensor)
+                self._leave(sensor)
+
+    def _leave(self, sensor: str) -> None:
+        """Drop ``sensor`` from fusion (its tracker gone or silent); the next picture lists it."""
+        self.silence.left(sensor)
+        self.engine.leave(sensor)
+        self.lead.leave(sensor)
+        self.clock.left()
+        self.left_at.append(len(self.order))
+        self.order.append((sensor, 0))
+        self.count("sensors_left")
+        self.log.info("sensor %s left: dropped from fusion", sensor)
 
     def subscriptions(self) -> list[Subscription]:
         return self._inputs_of_centre() + self._primary_outputs()
@@ -357,6 +366,9 @@ class MttCentreService(CentreFailover, Service):
             return
         if msg.contested:  # its local tracker took a conflicting scan or resets (docs/wire.md)
             self.log.warning("report %d of %s names contested scans %s", msg.seq, msg.sensor, list(msg.contested))
+        if self.in_order():
+            self.hold_input(msg)
+            return
         self._take(msg)
 
     def _in_scale(self, what: str, values: np.ndarray, P: np.ndarray) -> None:
@@ -444,12 +456,21 @@ class MttCentreService(CentreFailover, Service):
         self.reserved = due
 
     def on_handover(self, msg: HandOver) -> None:
-        """A neighbour's central track taken over (listed in the next picture's fused lists)."""
-        engine = self.engine
-        assert isinstance(engine, RegionEngine)
+        """A neighbour's central track taken over (listed in the next picture's fused lists); a standby in
+        its primary's order holds it until then (:meth:`hold_input`)."""
         assert self.regions is not None
         if msg.source not in self.regions.ids or msg.source == self.region:
             raise Rejected("unknown_region", f"a hand-over from {msg.source!r}: not another region of [regions]")
+        if self.in_order():
+            self.hold_input(msg)
+            return
+        self.take_handover(msg)
+
+    def take_handover(self, msg: HandOver) -> None:
+        """Take a neighbour's central track over (checked: :meth:`on_handover`)."""
+        engine = self.engine
+        assert isinstance(engine, RegionEngine)
+        assert self.regions is not None
         seen = self.taken.get(msg.source, {})
         first = seen.get(msg.serial)
         if first is not None:

@@ -1,7 +1,8 @@
 """A multi-target centre's failover, its service side (:class:`CentreFailover`, mixed into
 :class:`fedtrack.fusion_center.mtt.service.MttCentreService`): the primary token it claims or
-watches, what a standby watches of its primary's outputs and withholds of its own, its take-over
-and a primary's step-down, over Zenoh; the decisions are :mod:`.standby`'s."""
+watches, what a standby watches of its primary's outputs and withholds of its own, a warm region
+standby's inputs taken in its primary's order (:mod:`.ordered`), its take-over and a primary's
+step-down, over Zenoh; the decisions are :mod:`.standby`'s."""
 
 from __future__ import annotations
 
@@ -10,17 +11,21 @@ import time
 import zenoh
 
 from fedtrack.config import ConfigError
+from collections.abc import Hashable
+
+from fedtrack.fusion_center.mtt.failover.ordered import entry_of
 from fedtrack.fusion_center.mtt.failover.standby import NUMBER_ROOM, SILENT_S, claim_instance, next_after, numbers_of
 from fedtrack.fusion_center.mtt.regional import RegionEngine
 from fedtrack.services.base import Subscription
 from fedtrack.services.rejections import Rejected
-from fedtrack.wire import HandOver, Message, TrackPicture, TrackResets
+from fedtrack.wire import HandOver, Message, TrackPicture, TrackReport, TrackResets
 
 
 class CentreFailover:
     """The failover hooks of :class:`fedtrack.fusion_center.mtt.service.MttCentreService`. It relies
     on that service's ``standby``, ``primary_token``, ``primary_seen``, ``started_standby``,
-    ``engine``, ``region`` and ``clock``, and on :class:`fedtrack.services.base.Service`'s ``session``,
+    ``engine``, ``region``, ``clock`` and ``follow`` (its methods ``_take``, ``_process``, ``_leave``,
+    ``take_handover``), and on :class:`fedtrack.services.base.Service`'s ``session``,
     ``keys``, ``counters``, ``count``, ``log``, ``_inputs`` and ``_router_lost_at``."""
 
     def _scope(self) -> str:
@@ -77,8 +82,49 @@ class CentreFailover:
             raise Rejected("seq_jump", f"an output of the primary with id or number {beyond[0]}: at most "
                            f"{NUMBER_ROOM - 1} (NUMBER_ROOM) leaves room to number after it")
         self.standby.sent(msg, time.monotonic())
-        if self.standby.cold:
+        if isinstance(msg, TrackPicture) and not msg.closing and self.in_order():
+            self.follow.listed(msg, time.monotonic())
+            self._follow()
+        if self.standby.cold and not self.in_order():  # a standby in order numbers as its primary does
             self._catch_up(msg)
+
+    def in_order(self) -> bool:
+        """Whether this centre takes its inputs in its primary's order (:mod:`.ordered`): a region's
+        standby started as one, never a primary, warm (undecided until the first picture of its
+        primary: its inputs are held meanwhile)."""
+        return (self.region is not None and self.started_standby and not self.standby.primary
+                and not self.standby.instance and self.follow.warm is not False)
+
+    def hold_input(self, msg: TrackReport | HandOver) -> None:
+        """An admitted sub-report or hand-over of a standby in order: held until its primary lists it."""
+        self._take_held([(entry_of(m), m) for m in self.follow.arrived(msg)])
+        self._follow()
+
+    def _follow(self) -> None:
+        """Take the inputs the primary's pictures listed, in their order, as far as they are here."""
+        skipped = self.follow.skipped
+        self._take_held(self.follow.due(time.monotonic()), listed=True)
+        if self.follow.skipped > skipped:
+            self.count("order_skipped", self.follow.skipped - skipped)
+        if self.follow.warm is False and self.follow.held:  # started after its primary had fused: its state
+            listed, rest = self.follow.release()  # is its own, its inputs taken in arrival order from now on
+            self._take_held(listed + rest)
+
+    def _take_held(self, items: list[tuple[Hashable, TrackReport | HandOver | None]], listed: bool = False) -> None:
+        """Take held inputs, each as its own transaction: listed ones (``listed``; a departure the entry
+        ``("left", sensor)``) as the primary processed them; the others as they arrived (a sub-report
+        through the lead guard)."""
+        for entry, msg in items:
+            with self.guarded(f"{entry} in its primary's order"):
+                if msg is None:
+                    if entry[0] == "left" and entry[1] in self.silence.last:
+                        self._leave(entry[1])
+                elif isinstance(msg, HandOver):
+                    self.take_handover(msg)
+                elif listed:
+                    self._process(msg)
+                else:
+                    self._take(msg)
 
     def _catch_up(self, msg: TrackPicture | TrackResets | HandOver) -> None:
         """A cold standby keeps its track ids and hand-over numbers ahead of its primary's
@@ -126,6 +172,9 @@ class CentreFailover:
             return
         if not standby.due(time.monotonic()):
             return
+        listed, rest = self.follow.release()  # taken as a standby: its outputs withheld, or settled
+        self._take_held(listed, listed=True)
+        self._take_held(rest)
         self._claim()
         standing = sorted(standby.holders - standby.silent)
         flushed = standby.take_over()

@@ -1,0 +1,117 @@
+"""A warm standby's inputs taken in its primary's order (:class:`PrimaryOrder`).
+
+Two centres subscribed to the same keys get each sender's messages in order, but the sub-reports of
+several trackers and the hand-overs of several regions interleave as the router delivers them to
+each, so a standby that takes them in its own arrival order fuses them in another order than its
+primary under load, and its state differs (``standby_differ``: 12 of 24 pictures of an untouched
+region in ``tests/test_region_failover.py``'s run, 43 of 44 of one region of a loaded 4 x 4 grid).
+After a take-over the live pictures then continued from that state while the replay of the recording
+(the primary's order, then the standby's) continued from the primary's. So a warm standby (started
+with its primary: the first picture of it that it sees is its first) holds its inputs until a picture
+of its primary lists them, and takes them in the order listed (its fused lists: sub-reports,
+hand-overs taken, departures); at its take-over it takes what its primary listed and it holds, then
+the rest in arrival order, which its own pictures list for the replay. Its state at the take-over is
+then the primary's at its last picture, and the replay of the recording equals the live pictures.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict, deque
+from collections.abc import Hashable
+from dataclasses import dataclass, field
+
+from fedtrack.wire import HandOver, TrackPicture, TrackReport
+
+# A listed input that has not come after this long is passed over (counted ``order_skipped``): the
+# primary's picture comes after the inputs it lists, on the same router; one that far behind is lost
+# to this standby. The trackers' reset timeout: they go on without a region's answer after it anyway.
+ORDER_WAIT_S = 2.0
+
+
+def entries_listed(msg: TrackPicture) -> list[Hashable]:
+    """The inputs a picture's fused lists name, in its centre's order: ``("report", sensor, seq)``,
+    ``("handover", source, serial)``, ``("left", sensor)`` (a restart is its report's, not listed)."""
+    left, handovers, restarted = set(msg.left), set(msg.handovers), set(msg.restarted)
+    out: list[Hashable] = []
+    for i, (name, seq) in enumerate(zip(msg.fused_sensors, msg.fused_seqs)):
+        if i in restarted:
+            continue
+        out.append(("left", name) if i in left else ("handover", name, seq) if i in handovers
+                   else ("report", name, seq))
+    return out
+
+
+def entry_of(msg: TrackReport | HandOver) -> Hashable:
+    """The entry a picture names an input by (:func:`entries_listed`)."""
+    if isinstance(msg, HandOver):
+        return ("handover", msg.source, msg.serial)
+    return ("report", msg.sensor, msg.seq)
+
+
+@dataclass
+class PrimaryOrder:
+    """The inputs a warm standby holds, and its primary's order of them still to take; times are
+    monotonic seconds given by the caller."""
+
+    limit: int  # inputs held at most (the inbox's bound): beyond, the oldest is taken in arrival order
+    held: OrderedDict[Hashable, TrackReport | HandOver] = field(default_factory=OrderedDict)
+    script: deque[tuple[Hashable, float]] = field(default_factory=deque)  # listed (and when), not taken yet
+    skipped: int = 0
+    # warm: it gets every input its primary's first picture lists (within ORDER_WAIT_S of it), so it has
+    # seen all its primary fused; cold (False): it started later; None: no picture of the primary yet, or
+    # the first one's inputs not all here yet (``missing``)
+    warm: bool | None = None
+    missing: set[Hashable] = field(default_factory=set)
+
+    def arrived(self, msg: TrackReport | HandOver) -> list[TrackReport | HandOver]:
+        """Hold ``msg`` (a second copy of one held is dropped: the admission told it apart); returns
+        the oldest inputs beyond ``limit``, to be taken now."""
+        entry = entry_of(msg)
+        self.held.setdefault(entry, msg)
+        self.missing.discard(entry)
+        if self.warm is None and self.script and not self.missing:
+            self.warm = True
+        over = []
+        while len(self.held) > self.limit:
+            over.append(self.held.popitem(last=False)[1])
+        return over
+
+    def listed(self, msg: TrackPicture, now: float) -> None:
+        """A picture of the primary: its inputs are taken in its order."""
+        entries = entries_listed(msg)
+        if self.warm is None and not self.script:
+            self.missing = {e for e in entries if e[0] != "left" and e not in self.held}
+            self.warm = True if not self.missing else None
+        self.script.extend((e, now) for e in entries)
+
+    def due(self, now: float) -> list[tuple[Hashable, TrackReport | HandOver | None]]:
+        """The listed entries to take now, in order, each with its input (None for a departure); one
+        whose input has not come ``ORDER_WAIT_S`` after it was listed is passed over (``skipped``). Of
+        the first picture, that makes this standby cold (``warm`` False) and nothing is due."""
+        if self.warm is None:
+            if self.script and now - self.script[0][1] >= ORDER_WAIT_S:
+                self.warm = False
+            return []
+        out: list[tuple[Hashable, TrackReport | HandOver | None]] = []
+        while self.script:
+            head, since = self.script[0]
+            if head[0] != "left" and head not in self.held:
+                if now - since < ORDER_WAIT_S:
+                    break
+                self.skipped += 1
+                self.script.popleft()
+                continue
+            self.script.popleft()
+            out.append((head, self.held.pop(head, None)))
+        return out
+
+    def release(self) -> tuple[list[tuple[Hashable, TrackReport | HandOver | None]],
+                               list[tuple[Hashable, TrackReport | HandOver | None]]]:
+        """At a take-over (or once cold): the listed entries whose inputs are held, in order, and every
+        other input held, in arrival order; nothing is held afterwards."""
+        listed = [(e, self.held.pop(e, None)) for e, _ in self.script if e[0] == "left" or e in self.held]
+        rest: list[tuple[Hashable, TrackReport | HandOver | None]] = list(self.held.items())
+        self.held.clear()
+        self.script.clear()
+        self.missing.clear()
+        return listed, rest
