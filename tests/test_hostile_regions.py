@@ -25,6 +25,7 @@ from test_mtt_regions_live import CONFIG as REGIONS_CONFIG
 from fedtrack.deploy.launcher import Launcher
 from fedtrack.deploy.plan import failover_scopes
 from fedtrack.deploy.settings import load_settings
+from fedtrack.fusion_center.mtt.failover import ordered
 from fedtrack.fusion_center.mtt.failover import standby as standby_module
 from fedtrack.fusion_center.mtt.failover.standby import SILENT_S, Standby, claim_instance
 from fedtrack.fusion_center.mtt.picture_merge import PictureMergeService
@@ -175,11 +176,14 @@ def test_a_hand_over_whose_source_is_not_its_keys_is_refused(tmp_path: Path) -> 
     assert list(svc.engine.region.centre.tracks) == [genuine.id]  # type: ignore[union-attr]
 
 
-def test_a_cold_standby_takes_a_track_of_its_region_handed_back_that_left_before_it_started(tmp_path: Path) -> None:
+def test_a_cold_standby_takes_a_track_of_its_region_handed_back_that_left_before_it_started(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A centre restarted as a standby (cold) has not seen the tracks its region handed away before it
     started: one handed back was refused as 'an id this region has not issued' (``conflict``, measured
     live: SIGKILL of x0y1's primary at a hand-over, 1 honest hand-over refused), and would have been
-    lost at its take-over. A cold standby takes it, numbering after it; a hot one still refuses it."""
+    lost at its take-over. A cold standby takes it, numbering after it; a hot one still refuses it,
+    once its primary has not taken it within ``ORDER_WAIT_S`` (it holds its inputs for its primary's
+    order: failover/ordered.py)."""
     primary_bus, primary = centre_of_x0y0(tmp_path)
     scans(primary_bus, range(5))
     centre = primary.engine.region.centre  # type: ignore[union-attr]
@@ -196,6 +200,9 @@ def test_a_cold_standby_takes_a_track_of_its_region_handed_back_that_left_before
             assert svc.counters.get("taken_over") == 1 and "rejected" not in {k for k, v in svc.counters.items() if v}
             assert 40 in region.centre.tracks and region.centre.next_id == 42
         else:
+            assert not svc.counters["rejected"] and len(svc.follow.held) == 1  # held for its primary's order
+            monkeypatch.setattr(ordered, "ORDER_WAIT_S", 0.0)  # which has not listed it for that long
+            svc.on_tick()
             assert svc.counters["rejected_conflict"] == 1 and 40 not in region.centre.tracks
 
 
@@ -426,7 +433,8 @@ def test_a_live_primary_keeps_its_standby_waiting_and_a_woken_one_its_region() -
 
 # ---------------------------------------------------------------- Health
 
-def test_a_standby_counting_many_kinds_of_rejection_still_reports_its_health(tmp_path: Path) -> None:
+def test_a_standby_counting_many_kinds_of_rejection_still_reports_its_health(tmp_path: Path,
+                                                                           monkeypatch: pytest.MonkeyPatch) -> None:
     """A Health carries at most 32 counters (MAX_MAP_ITEMS) and a region standby counts 25 from its
     first picture: what sensor s1's own identity can send it (another sensor's name, a 6-D state, a
     value at the wire's edge, a number far ahead, a repeat, a different repeat, a time far ahead, a
@@ -434,6 +442,7 @@ def test_a_standby_counting_many_kinds_of_rejection_still_reports_its_health(tmp
     could not be made: the worker loop raised (measured with a service over a router: ``fatal:
     Health.counters: 34 entries exceed the limit of 32``, exit 1). A Health now carries the base
     counters and every rejection first, then the other counters that are not zero, as many as fit."""
+    monkeypatch.setattr(ordered, "ORDER_WAIT_S", 0.0)  # its primary lists nothing: it takes them as they come
     bus, svc = centre_of_x0y0(tmp_path, standby=True)
     scans(bus, range(6))
     good = report("s1", 6)

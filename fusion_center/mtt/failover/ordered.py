@@ -48,13 +48,17 @@ def entry_of(msg: TrackReport | HandOver) -> Hashable:
     return ("report", msg.sensor, msg.seq)
 
 
+Item = tuple[Hashable, TrackReport | HandOver | None]
+
+
 @dataclass
 class PrimaryOrder:
     """The inputs a warm standby holds, and its primary's order of them still to take; times are
     monotonic seconds given by the caller."""
 
     limit: int  # inputs held at most (the inbox's bound): beyond, the oldest is taken in arrival order
-    held: OrderedDict[Hashable, TrackReport | HandOver] = field(default_factory=OrderedDict)
+    # entry -> (input, when it came), in arrival order
+    held: OrderedDict[Hashable, tuple[TrackReport | HandOver, float]] = field(default_factory=OrderedDict)
     script: deque[tuple[Hashable, float]] = field(default_factory=deque)  # listed (and when), not taken yet
     skipped: int = 0
     # warm: it gets every input its primary's first picture lists (within ORDER_WAIT_S of it), so it has
@@ -63,37 +67,42 @@ class PrimaryOrder:
     warm: bool | None = None
     missing: set[Hashable] = field(default_factory=set)
 
-    def arrived(self, msg: TrackReport | HandOver) -> list[TrackReport | HandOver]:
+    def arrived(self, msg: TrackReport | HandOver, now: float) -> list[Item]:
         """Hold ``msg`` (a second copy of one held is dropped: the admission told it apart); returns
-        the oldest inputs beyond ``limit``, to be taken now."""
+        the oldest inputs beyond ``limit``, to be taken now in arrival order."""
         entry = entry_of(msg)
-        self.held.setdefault(entry, msg)
+        self.held.setdefault(entry, (msg, now))
         self.missing.discard(entry)
         if self.warm is None and self.script and not self.missing:
             self.warm = True
-        over = []
+        over: list[Item] = []
         while len(self.held) > self.limit:
-            over.append(self.held.popitem(last=False)[1])
+            gone, (old, _) = self.held.popitem(last=False)
+            over.append((gone, old))
         return over
 
     def listed(self, msg: TrackPicture, now: float) -> None:
-        """A picture of the primary: its inputs are taken in its order."""
+        """A picture of the primary: its inputs are taken in its order. The first decides whether this
+        standby is warm: it holds (or gets within ``ORDER_WAIT_S``) every input the picture lists; one
+        that lists none is its primary's first if numbered 0 (else this standby started later)."""
         entries = entries_listed(msg)
         if self.warm is None and not self.script:
-            self.missing = {e for e in entries if e[0] != "left" and e not in self.held}
-            self.warm = True if not self.missing else None
-        self.script.extend((e, now) for e in entries)
+            inputs = [e for e in entries if e[0] != "left"]
+            self.missing = {e for e in inputs if e not in self.held}
+            self.warm = (msg.seq == 0) if not inputs else True if not self.missing else None
+        if self.warm is not False:
+            self.script.extend((e, now) for e in entries)
 
-    def due(self, now: float) -> list[tuple[Hashable, TrackReport | HandOver | None]]:
+    def due(self, now: float) -> tuple[list[Item], list[Item]]:
         """The listed entries to take now, in order, each with its input (None for a departure); one
-        whose input has not come ``ORDER_WAIT_S`` after it was listed is passed over (``skipped``). Of
-        the first picture, that makes this standby cold (``warm`` False) and nothing is due."""
-        if self.warm is None:
-            if self.script and now - self.script[0][1] >= ORDER_WAIT_S:
-                self.warm = False
-            return []
-        out: list[tuple[Hashable, TrackReport | HandOver | None]] = []
-        while self.script:
+        whose input has not come ``ORDER_WAIT_S`` after it was listed is passed over (``skipped``); of
+        the first picture, that makes this standby cold (``warm`` False). And the inputs held that long
+        that no picture listed (its primary refused them, or published no picture meanwhile: a stuck
+        or silent one), to be taken in arrival order."""
+        listed: list[Item] = []
+        if self.warm is None and self.script and now - self.script[0][1] >= ORDER_WAIT_S:
+            self.warm = False
+        while self.warm and self.script:
             head, since = self.script[0]
             if head[0] != "left" and head not in self.held:
                 if now - since < ORDER_WAIT_S:
@@ -102,15 +111,17 @@ class PrimaryOrder:
                 self.script.popleft()
                 continue
             self.script.popleft()
-            out.append((head, self.held.pop(head, None)))
-        return out
+            listed.append((head, self.held.pop(head)[0] if head in self.held else None))
+        waiting = {e for e, _ in self.script}
+        stale = [e for e, (_, came) in self.held.items() if now - came >= ORDER_WAIT_S and e not in waiting]
+        return listed, [(e, self.held.pop(e)[0]) for e in stale]
 
-    def release(self) -> tuple[list[tuple[Hashable, TrackReport | HandOver | None]],
-                               list[tuple[Hashable, TrackReport | HandOver | None]]]:
+    def release(self) -> tuple[list[Item], list[Item]]:
         """At a take-over (or once cold): the listed entries whose inputs are held, in order, and every
         other input held, in arrival order; nothing is held afterwards."""
-        listed = [(e, self.held.pop(e, None)) for e, _ in self.script if e[0] == "left" or e in self.held]
-        rest: list[tuple[Hashable, TrackReport | HandOver | None]] = list(self.held.items())
+        listed = [(e, self.held.pop(e)[0] if e in self.held else None) for e, _ in self.script
+                  if e[0] == "left" or e in self.held]
+        rest: list[Item] = [(e, msg) for e, (msg, _) in self.held.items()]
         self.held.clear()
         self.script.clear()
         self.missing.clear()

@@ -11,9 +11,7 @@ import time
 import zenoh
 
 from fedtrack.config import ConfigError
-from collections.abc import Hashable
-
-from fedtrack.fusion_center.mtt.failover.ordered import entry_of
+from fedtrack.fusion_center.mtt.failover.ordered import Item
 from fedtrack.fusion_center.mtt.failover.standby import NUMBER_ROOM, SILENT_S, claim_instance, next_after, numbers_of
 from fedtrack.fusion_center.mtt.regional import RegionEngine
 from fedtrack.services.base import Subscription
@@ -97,20 +95,22 @@ class CentreFailover:
 
     def hold_input(self, msg: TrackReport | HandOver) -> None:
         """An admitted sub-report or hand-over of a standby in order: held until its primary lists it."""
-        self._take_held([(entry_of(m), m) for m in self.follow.arrived(msg)])
+        self._take_held(self.follow.arrived(msg, time.monotonic()))
         self._follow()
 
     def _follow(self) -> None:
         """Take the inputs the primary's pictures listed, in their order, as far as they are here."""
         skipped = self.follow.skipped
-        self._take_held(self.follow.due(time.monotonic()), listed=True)
+        listed, stale = self.follow.due(time.monotonic())
+        self._take_held(listed, listed=True)
+        self._take_held(stale)
         if self.follow.skipped > skipped:
             self.count("order_skipped", self.follow.skipped - skipped)
         if self.follow.warm is False and self.follow.held:  # started after its primary had fused: its state
             listed, rest = self.follow.release()  # is its own, its inputs taken in arrival order from now on
             self._take_held(listed + rest)
 
-    def _take_held(self, items: list[tuple[Hashable, TrackReport | HandOver | None]], listed: bool = False) -> None:
+    def _take_held(self, items: list[Item], listed: bool = False) -> None:
         """Take held inputs, each as its own transaction: listed ones (``listed``; a departure the entry
         ``("left", sensor)``) as the primary processed them; the others as they arrived (a sub-report
         through the lead guard)."""
