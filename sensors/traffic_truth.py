@@ -47,6 +47,7 @@ MANEUVER_ACCELERATION = 9.80665 * math.tan(math.radians(25.0))
 MANEUVER_S = 90.0 / 3.0  # s: a 90 deg heading change at the standard rate of 3 deg/s
 STRAIGHT_S = 120.0  # s: terminal-area legs between heading changes (holding legs 1-1.5 min, approach segments 1-3 min)
 CHI2_2_999 = math.sqrt(-2.0 * math.log(0.001))  # its 99.9 % radius: 3.717
+GLITCH_STEPS = 5  # steps either side of a sample whose median speed bounds its step (glitches)
 
 
 class Truth(NamedTuple):
@@ -162,6 +163,33 @@ def velocity_at_odds(frame: Frame, t: np.ndarray, lla: np.ndarray, local: np.nda
         return angle > MANEUVER_ACCELERATION / speed * span / 2.0 + noise  # NaN (not recorded): False
 
 
+def glitches(t: np.ndarray, pos: np.ndarray, speed: np.ndarray) -> np.ndarray:
+    """Which of a track's samples (n,) hold a position no aircraft could have reached (a position decoded wrong:
+    ``featured/airbus_tree`` jumps 2.7 km west in 1 s, then 2.9 km south, while it reads 215 m/s): in time order,
+    a sample farther horizontally from the last sample kept than ``(2 v + MANEUVER_ACCELERATION dt / 2) dt`` plus
+    the two positions' noise at its 99.9 % radius, ``CHI2_2_999 sqrt(2) SIGMA_POSITION``, with ``dt`` the time
+    between them and ``v`` the largest of their recorded ground speeds ``speed`` (n,) [m/s] (NaN: not recorded) and
+    the median speed between consecutive positions over the ``GLITCH_STEPS`` steps either side of the sample (a
+    recorded speed can be stale too: ``tv_relay/tour_de_france`` reads 11 m/s for a minute while its positions fly
+    122 m/s; a glitch is one step or two among them and moves no median). The factor 2: a stale position (OpenSky
+    holds a position up to a sampling interval) makes a step up to twice as long as flown (2.15 times measured on
+    the calibration samples' 5 s steps). A track's first sample is taken as right: were it a glitch, the samples
+    after it are dropped until the bound, growing with ``dt``, reaches them (the glitch's distance over the speed,
+    13 s for 2.7 km at 215 m/s)."""
+    step = np.linalg.norm(np.diff(pos[:, :2], axis=0), axis=1) / np.diff(t)
+    out = np.zeros(len(t), bool)
+    last = 0
+    reach = CHI2_2_999 * math.sqrt(2.0) * SIGMA_POSITION
+    for k in range(1, len(t)):
+        dt = t[k] - t[last]
+        v = np.nanmax([speed[k], speed[last], float(np.median(step[max(k - GLITCH_STEPS, 0):k + GLITCH_STEPS]))])
+        if np.linalg.norm(pos[k, :2] - pos[last, :2]) > (2.0 * v + MANEUVER_ACCELERATION * dt / 2.0) * dt + reach:
+            out[k] = True
+        else:
+            last = k
+    return out
+
+
 def memory_room() -> float:
     """Bytes a window's truth and scans may take: a quarter of the machine's physical memory (1 GiB where it is not
     known)."""
@@ -199,11 +227,13 @@ def build_truth(rec: Recording, frame: Frame, start: float, duration: float | No
     rel = rec.t - t0
     found = segments(rec, max_gap)
     kept: list[tuple[slice, np.ndarray, np.ndarray, str]] = []  # each track inside the box: its steps, states, inside
-    at_odds = 0
+    at_odds = glitched = 0
     for rows in (p for p in found.pieces if rel[p[-1]] >= 0 and rec.t[p[0]] <= end):
+        pos = enu_from_geodetic(frame, *rec.lla[rows].T)
+        wrong = glitches(rel[rows], pos, np.linalg.norm(rec.velocity[rows, :2], axis=1))
+        rows, pos = rows[~wrong], pos[~wrong]
         live = slice(_steps_before(rel[rows[0]], steps), _steps_before(rel[rows[-1]], steps, after=True))
         grid = np.arange(live.start, live.stop) * DT  # the window's grid k DT, each track's steps only
-        pos = enu_from_geodetic(frame, *rec.lla[rows].T)
         recorded = rec.velocity[rows].copy()
         odd = velocity_at_odds(frame, rel[rows], rec.lla[rows], recorded, pos)
         recorded[odd, :2] = np.nan  # the positions' derivative instead
@@ -217,6 +247,7 @@ def build_truth(rec: Recording, frame: Frame, start: float, duration: float | No
         inside = np.all(np.abs(p[:, :2]) <= box / 2, axis=1)
         if inside.any():  # a track never inside the box takes no room in the grid
             at_odds += int(odd.sum())
+            glitched += int(wrong.sum())
             kept.append((live, np.stack([p[:, 0], v[:, 0], p[:, 1], v[:, 1], p[:, 2], v[:, 2]], axis=-1), inside,
                          str(rec.icao24[rows[0]])))
     need, room = steps * len(kept) * TRUTH_CELL_BYTES + (steps - 1) * DT * scan_bytes, memory_room()
@@ -234,5 +265,6 @@ def build_truth(rec: Recording, frame: Frame, start: float, duration: float | No
     icao24 = [icao for *_, icao in kept]
     dropped = {**rec.dropped, "repeating a time or position": found.repeated, "in a track of one sample": found.single,
                "horizontal velocities at odds with the positions (their derivative taken)": at_odds,
+               "positions farther from the previous one than the aircraft could fly (glitches)": glitched,
                "aircraft with no track inside the box and window": len(set(rec.icao24.tolist())) - len(set(icao24))}
     return Truth(t0, x, alive, icao24, dropped, surface)

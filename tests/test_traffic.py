@@ -124,6 +124,27 @@ def test_a_recorded_track_the_positions_rule_out_is_not_the_truths(tmp_path: Pat
         assert truth.dropped["horizontal velocities at odds with the positions (their derivative taken)"] == odd
 
 
+def test_a_glitched_position_is_left_out_of_the_truth(tmp_path: Path) -> None:
+    """An aircraft flying straight south-west (224 deg) at 215 m/s, a state vector every second, with two positions
+    decoded wrong as in the traffic package's ``featured/airbus_tree`` (2.7 km west, then 2.9 km south, each for one
+    sample) before a gap of 21 s: both are left out and counted, and the truth flies within 1 m/s of 215 m/s. Before,
+    they made the velocities beside them 'at odds', the positions' derivative (2.8 km/s) was taken for them and the
+    truth flew at up to 1,740 m/s."""
+    heading = np.radians(224.0)
+    times = np.r_[np.arange(0.0, 60.0), np.arange(81.0, 140.0)]
+    enu = np.array([[np.sin(heading), np.cos(heading), 0.0]]) * 215.0 * times[:, None]
+    k = int(np.flatnonzero(times == 58.0)[0])
+    enu[k] += [-2700.0, 0.0, 0.0]
+    enu[k + 1] += [-2700.0, -2900.0, 0.0]
+    lla = geodetic_from_enu(PARIS, enu + [0.0, 0.0, 8000.0])
+    rows = [f"{1000 + t},a,{la},{lo},{h},215.0,224.0,0" for t, (la, lo, h) in zip(times.tolist(), lla.tolist())]
+    rec = read_recording(_write_csv(tmp_path / "a.csv", "time,icao24,lat,lon,alt,gs,track,vertical_rate", rows))
+    truth = build_truth(rec, PARIS, 0.0, None, 400e3, 30.0)
+    speed = np.hypot(*truth.x[truth.alive[:, 0], 0][:, [1, 3]].T)
+    assert np.abs(speed - 215.0).max() < 1.0, speed.max()
+    assert truth.dropped["positions farther from the previous one than the aircraft could fly (glitches)"] == 2
+
+
 def test_a_window_too_long_for_memory_is_one_line_and_writes_nothing(tmp_path: Path,
                                                                     capsys: pytest.CaptureFixture[str]) -> None:
     """Two flights three years apart (``onground/zurich_airport`` spans 55 days): the whole recording's window
