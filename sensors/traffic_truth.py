@@ -172,10 +172,10 @@ def glitches(t: np.ndarray, pos: np.ndarray, speed: np.ndarray) -> np.ndarray:
     the median speed between consecutive positions over the ``GLITCH_STEPS`` steps either side of the sample (a
     recorded speed can be stale too: ``tv_relay/tour_de_france`` reads 11 m/s for a minute while its positions fly
     122 m/s; a glitch is one step or two among them and moves no median). The factor 2: a stale position (OpenSky
-    holds a position up to a sampling interval) makes a step up to twice as long as flown (``calibration/montreal``'s
-    longest, 1,140 m in 5 s at 106 m/s, is inside the bound with its noise term, 1,383 m). A track's first sample is taken as right: were it a glitch, the samples
-    after it are dropped until the bound, growing with ``dt``, reaches them (the glitch's distance over the speed,
-    13 s for 2.7 km at 215 m/s)."""
+    holds a position up to a sampling interval) makes a step up to twice as long as flown
+    (``calibration/montreal``'s longest, 1,140 m in 5 s at 106 m/s, is inside the bound with its noise term, 1,383
+    m). A track's first sample is taken as right: were it a glitch, the samples after it are dropped until the
+    bound, growing with ``dt``, reaches them (the glitch's distance over the speed, 13 s for 2.7 km at 215 m/s)."""
     step = np.linalg.norm(np.diff(pos[:, :2], axis=0), axis=1) / np.diff(t)
     out = np.zeros(len(t), bool)
     last = 0
