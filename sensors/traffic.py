@@ -48,6 +48,7 @@ from fedtrack.sensors.traffic_truth import (
     STRAIGHT_S,
     Truth,
     build_truth,
+    default_max_gap,
     truth_geodetic,
 )
 
@@ -108,11 +109,13 @@ def derived_tracker(truth: Truth, specs: list[SensorSpec]) -> dict[str, float | 
 
 
 def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, start: float = 0.0,
-             duration: float | None = None, box: float = 100e3, max_gap: float = 30.0, pd: float = 0.9,
+             duration: float | None = None, box: float = 100e3, max_gap: float | None = None, pd: float = 0.9,
              clutter: float = 10.0, late: float = 0.2, nacp: int = 9) -> dict[str, Any]:
     """Write ``measurements.jsonl``, ``truth.jsonl`` and ``config.toml`` to ``out``, each whole or not
-    at all (a library caller's folder is created; the command checks it first: :func:`main`)."""
+    at all (a library caller's folder is created; the command checks it first: :func:`main`). ``max_gap`` None:
+    :func:`default_max_gap` of the recording."""
     rng = np.random.default_rng(seed)
+    max_gap = default_max_gap(rec) if max_gap is None else max_gap
     scan_bytes = sum((SCAN_BYTES + DETECTION_BYTES * (clutter if s.kind != "adsb" else 0.0)) / s.period
                      for s in parse_kinds(spec))  # a second's scans, the aircraft's detections left out
     three_d = any(s.kind == "radar" for s in parse_kinds(spec))
@@ -222,8 +225,9 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--duration", type=float, help="seconds (default: to the last sample)")
     parser.add_argument("--box", type=float, default=100.0,
                         help="km: the side of the square about the origin whose aircraft are truth (default 100)")
-    parser.add_argument("--max-gap", type=float, default=30.0,
-                        help="seconds: a longer gap between an aircraft's samples ends its track (default 30)")
+    parser.add_argument("--max-gap", type=float,
+                        help="seconds: a longer gap between an aircraft's samples ends its track (default: three "
+                             "times the recording's median sampling interval, at least 30)")
     parser.add_argument("--units", choices=sorted(UNITS), default="si", help="input units (below; default si)")
     parser.add_argument("--pd", type=float, default=0.9,
                         help="probability that a sensor detects an aircraft in a scan (default: %(default)s)")
@@ -237,7 +241,7 @@ def main(argv: list[str]) -> int:
                         help="ADS-B navigation accuracy category: sigma per axis = EPU / 2.448 (9: 30 m EPU, "
                              "12.3 m; default 9)")
     args = parser.parse_args(_negative_values_joined(argv))
-    check_options(args, (("box", 0 < args.box < math.inf, "finite and > 0"), ("max-gap", args.max_gap > 0, "> 0"),
+    check_options(args, (("box", 0 < args.box < math.inf, "finite and > 0"), ("max-gap", args.max_gap is None or args.max_gap > 0, "> 0"),
                          ("start", 0 <= args.start < math.inf, "finite and >= 0")))
     check_output_folder(args.out)  # created once the data is read and the sensors parsed
     frame = _origin(args.origin)

@@ -47,6 +47,7 @@ MANEUVER_ACCELERATION = 9.80665 * math.tan(math.radians(25.0))
 MANEUVER_S = 90.0 / 3.0  # s: a 90 deg heading change at the standard rate of 3 deg/s
 STRAIGHT_S = 120.0  # s: terminal-area legs between heading changes (holding legs 1-1.5 min, approach segments 1-3 min)
 CHI2_2_999 = math.sqrt(-2.0 * math.log(0.001))  # its 99.9 % radius: 3.717
+MAX_GAP_S = 30.0  # s: --max-gap at least (three of OpenSky's 10 s historical state vectors)
 GLITCH_STEPS = 5  # steps either side of a sample whose median speed bounds its step (glitches)
 
 
@@ -92,6 +93,16 @@ def segments(rec: Recording, max_gap: float) -> Segments:
             else:
                 single += len(piece)
     return Segments(out, repeated, single)
+
+
+def default_max_gap(rec: Recording) -> float:
+    """``--max-gap``'s default [s]: three sampling intervals, the recording's median time between an aircraft's
+    consecutive samples, at least ``MAX_GAP_S`` (three of OpenSky's 10 s historical state vectors): a survey
+    recorded every 29-31 s (the traffic package's ``surveys/texas``, ``indiana``) was cut at 30 s into tracks of one
+    sample, left out, and the truth lost its aircraft between them."""
+    steps = np.diff(rec.t)[rec.icao24[1:] == rec.icao24[:-1]]
+    steps = steps[steps > 0]
+    return max(MAX_GAP_S, 3.0 * float(np.median(steps))) if steps.size else MAX_GAP_S
 
 
 def reconcile(t: np.ndarray, pos: np.ndarray, vel: np.ndarray, sigma_p: float = SIGMA_POSITION,

@@ -145,6 +145,20 @@ def test_a_glitched_position_is_left_out_of_the_truth(tmp_path: Path) -> None:
     assert truth.dropped["positions farther from the previous one than the aircraft could fly (glitches)"] == 2
 
 
+def test_a_recording_sampled_every_31_s_is_one_track(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A survey aircraft recorded every 31 s (as the traffic package's ``surveys/texas``): without --max-gap the
+    truth is one track of it (--max-gap three sampling intervals, 93 s). Before, the default 30 s cut every
+    sample into a track of one, left out, and the command found no aircraft (exit 2)."""
+    rows = [f"{1000 + 31 * k},a,48.86,{2.40 + 0.03 * k},3000" for k in range(12)]
+    source = _write_csv(tmp_path / "a.csv", "time,icao24,lat,lon,alt", rows)
+    code = main(["simulate", "traffic", "--source", str(source), "--origin", "48.86,2.55", "--sensors", "pos:2",
+                 "--out", str(tmp_path / "o")])
+    assert code == 0, capsys.readouterr().err
+    ids = {g["id"] for line in (tmp_path / "o" / "truth.jsonl").read_text().splitlines()
+           for g in json.loads(line)["targets"]}
+    assert ids == {0}
+
+
 def test_a_window_too_long_for_memory_is_one_line_and_writes_nothing(tmp_path: Path,
                                                                     capsys: pytest.CaptureFixture[str]) -> None:
     """Two flights three years apart (``onground/zurich_airport`` spans 55 days): the whole recording's window
