@@ -284,6 +284,7 @@ def finish(out: Path, settings: Settings, report: LaunchReport, config_path: Pat
     lost = summary["tracks_not_recorded"]
     if lost:
         print(f"{title}: {len(lost)} fused tracks seen live are not in the recording (scans "
-              f"{', '.join(map(str, lost[:10]))}{', ...' if len(lost) > 10 else ''}; see {out}/logs/recorder-recorder.log)",
+              f"{', '.join(map(str, lost[:10]))}{', ...' if len(lost) > 10 else ''}; "
+              f"see {out}/logs/recorder-recorder.log)",
               file=sys.stderr)
     return summary

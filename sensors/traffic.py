@@ -241,7 +241,8 @@ def main(argv: list[str]) -> int:
                         help="ADS-B navigation accuracy category: sigma per axis = EPU / 2.448 (9: 30 m EPU, "
                              "12.3 m; default 9)")
     args = parser.parse_args(_negative_values_joined(argv))
-    check_options(args, (("box", 0 < args.box < math.inf, "finite and > 0"), ("max-gap", args.max_gap is None or args.max_gap > 0, "> 0"),
+    check_options(args, (("box", 0 < args.box < math.inf, "finite and > 0"),
+                         ("max-gap", args.max_gap is None or args.max_gap > 0, "> 0"),
                          ("start", 0 <= args.start < math.inf, "finite and >= 0")))
     check_output_folder(args.out)  # created once the data is read and the sensors parsed
     frame = _origin(args.origin)
