@@ -22,11 +22,19 @@ from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.sensors.multitarget import Scenario, parse_spec, simulate
 
 
+def with_mtt_keys(source: Path, out: Path, keys: str) -> None:
+    """``source``'s configuration with ``keys`` (TOML lines) added to its ``[mtt]`` table (simulate writes
+    its ``[mtt.sensor.<id>]`` tables after it, so keys appended at the end would land in the last of them)."""
+    text = source.read_text()
+    assert text.startswith("[mtt]\n")
+    out.write_text("[mtt]\n" + keys + text[len("[mtt]\n"):])
+
+
 @pytest.fixture(scope="module")
 def data(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("shards")
     simulate(Scenario(targets=40, duration=60.0), parse_spec("pos:1.0,pos:0.7,pos:1.3"), 3, out)
-    (out / "config.toml").write_text((out / "config.toml").read_text() + '\nmaneuver = "vdie"\n')
+    with_mtt_keys(out / "config.toml", out / "config.toml", 'maneuver = "vdie"\n')
     return out
 
 
@@ -316,8 +324,7 @@ def test_shared_prediction_and_box_owners_leave_what_the_full_paths_leave(data: 
     monkeypatch.setattr(TrackToTrackCentre, "_pairs", recorded_pairs)
     monkeypatch.setattr(TrackToTrackCentre, "_associate", checked_associate)
     config = data / f"unmap-at-once-{modes}.toml"
-    config.write_text((data / "config.toml").read_text() + "unmap_after = 1\n"
-                      + ('process_noise = "imm"\n' if modes else ""))
+    with_mtt_keys(data / "config.toml", config, "unmap_after = 1\n" + ('process_noise = "imm"\n' if modes else ""))
     replay_mtt("mtt-federated", data / "measurements.jsonl", config, data / "fed-2x2-checked.jsonl", regions="2x2")
     # without modes: 24 sub-reports taken by a mask (the grid's margin is 0 here); 760 fusions from the
     # shared prediction (148 with out-of-sequence observations); the merge test's 11,200 tracks (1,843
