@@ -13,12 +13,13 @@ track, neighbours between one and two noise sigmas of the coarsest possible posi
 apart (``POS_SD_MAX`` to ``2 POS_SD_MAX``: 20-40 m). ``--scenario dense`` is issue 25's dense
 scenario: groups of three crossing other groups, P_D 0.8, 50 false detections per scan, 120 s.
 
-Sensors (``SPEC`` = comma-separated ``kind:period``, kind ``pos`` or ``radar``): each has its
+Sensors (``SPEC`` = comma-separated ``kind:period[/sigma...]``, kind ``pos`` or ``radar``): each has its
 own period and a random phase (its first scan within the period, or within the scenario when the
 period is longer: every sensor scans at least once); every target is detected with ``pd``; ``clutter`` false
 detections per scan on average (Poisson), uniform over the region (radar: over its range,
 azimuth and elevation cover). Position sensors have noise std 10-20 m per axis; radars
-10 m in range and 2 mrad in angle, standing at the region's edge.
+10 m in range and 2 mrad in angle, standing at the region's edge; ``/sigma`` sets a position sensor's
+(m per axis, uncorrelated) or a radar's (``/sigma_r/sigma_az[/sigma_el]``, m and degrees) instead.
 
 Delays: every scan reaches the tracker ``base_delay`` + an exponential jitter after its time,
 and a fraction ``late`` of the scans (never the first) up to two periods later; a sensor's link
@@ -72,6 +73,7 @@ class SensorSpec:
     id: str
     kind: str  # "pos" or "radar"
     period: float
+    noise: tuple[float, ...] = ()  # ``/SIGMA...`` of the spec (:func:`noise_matrix`); () the simulator's own
 
 
 @dataclass(frozen=True)
@@ -97,19 +99,53 @@ PRESETS: dict[str, dict[str, float]] = {
 ID_PREFIX = {"pos": "s", "radar": "r", "adsb": "a"}
 
 
+def noise_matrix(kind: str, sigmas: tuple[float, ...]) -> np.ndarray:
+    """``R`` of a ``pos`` sensor's ``(SIGMA,)`` [m a axis] or a radar's ``(SIGMA_R, SIGMA_AZ[, SIGMA_EL])``
+    [m, deg, deg] (the elevation's default ``RADAR_SD``)."""
+    if kind == "pos":
+        return np.eye(2) * sigmas[0] ** 2
+    sd = [sigmas[0], *np.radians(sigmas[1:])] + list(RADAR_SD[len(sigmas):])
+    return np.diag(np.square(sd))
+
+
+def parse_sigmas(kind: str, sigmas: str, item: str) -> tuple[float, ...]:
+    """The numbers of a sensor's ``/SIGMA...`` (``()`` when not given; :func:`noise_matrix`)."""
+    if not sigmas:
+        return ()
+    sizes = {"pos": (1,), "radar": (2, 3)}.get(kind, ())
+    try:
+        values = tuple(float(v) for v in sigmas.split("/"))
+    except ValueError:
+        values = ()
+    if not sizes:
+        raise InputError(f"--sensors: {item!r}: an ADS-B receiver takes no noise (its accuracy is --nacp's)")
+    if len(values) not in sizes or not all(math.isfinite(v) and v > 0 for v in values):
+        form = "pos:P/SIGMA (m)" if kind == "pos" else "radar:P/SIGMA_R/SIGMA_AZ[/SIGMA_EL] (m, deg, deg)"
+        raise InputError(f"--sensors: {item!r}: the noise is {form}, each > 0")
+    return values
+
+
+def parse_noise(kind: str, sigmas: str, item: str) -> np.ndarray | None:
+    """``R`` of a sensor's ``/SIGMA...`` (None when not given; :func:`parse_sigmas`, :func:`noise_matrix`)."""
+    values = parse_sigmas(kind, sigmas, item)
+    return noise_matrix(kind, values) if values else None
+
+
 def parse_spec(spec: str, kinds: tuple[str, ...] = ("pos", "radar")) -> list[SensorSpec]:
-    """``pos:1.0,pos:0.7,radar:1.3`` -> sensors ``s1``, ``s2``, ``r3`` (``adsb``: ``a``, where ``kinds`` has it)."""
+    """``pos:1.0,pos:0.7/5,radar:1.3`` -> sensors ``s1``, ``s2`` (5 m a axis, :func:`parse_noise`), ``r3``
+    (``adsb``: ``a``, where ``kinds`` has it)."""
     out = []
     for k, item in enumerate(spec.split(","), start=1):
-        kind, _, period = item.strip().partition(":")
+        kind, _, rest = item.strip().partition(":")
+        period, _, sigmas = rest.partition("/")
         try:
             value = float(period)
         except ValueError:
             value = float("nan")
         if kind not in kinds or not DT <= value < math.inf:
-            raise InputError(f"--sensors: {item!r} is not KIND:PERIOD with KIND {' or '.join(kinds)} and PERIOD a "
-                             f"finite number of seconds >= {DT:g} (the truth's time step)")
-        out.append(SensorSpec(f"{ID_PREFIX[kind]}{k}", kind, value))
+            raise InputError(f"--sensors: {item!r} is not KIND:PERIOD[/SIGMA...] with KIND {' or '.join(kinds)} "
+                             f"and PERIOD a finite number of seconds >= {DT:g} (the truth's time step)")
+        out.append(SensorSpec(f"{ID_PREFIX[kind]}{k}", kind, value, parse_sigmas(kind, sigmas, item.strip())))
     return out
 
 
@@ -184,14 +220,17 @@ def sensor_lines(spec: SensorSpec, sc: Scenario, x: np.ndarray, alive: np.ndarra
     given, exactly, as range, azimuth and elevation about ``sensor_position`` in the common frame's
     axes, the trackers' measurement model; it detects only the targets above its radio horizon
     (:func:`fedtrack.geodetic.above_radio_horizon`). Without a site it stands at a random point of the
-    region's edge and measures in the common frame's axes. ``noise``: the sensor's ``R`` (default:
-    a position sensor's 10-20 m per axis, drawn; a radar's ``RADAR_SD``)."""
+    region's edge and measures in the common frame's axes. ``noise``: the sensor's ``R`` (default: the
+    spec's ``/SIGMA...``, else a position sensor's 10-20 m per axis, drawn (drawn either way, so that a
+    given noise leaves the other draws as they were), a radar's ``RADAR_SD``)."""
     # the first scan at a random phase within the period, or within the scenario when the period is
     # longer (else such a sensor had no scan at all with chance 1 - duration / period: its launch failed)
     phase = round(rng.uniform(0, min(spec.period, sc.duration)) / DT) * DT
     times = np.arange(phase, sc.duration + 1e-9, spec.period)
     out: list[tuple[float, dict[str, Any]]] = []
     last_arrival = -np.inf
+    if noise is None and spec.noise:
+        noise = noise_matrix(spec.kind, spec.noise)
     if spec.kind == "pos":
         sd = rng.uniform(POS_SD_MIN, POS_SD_MAX)
         R = np.array([[sd**2, 0.3 * sd**2], [0.3 * sd**2, sd**2]]) if noise is None else noise
@@ -380,8 +419,11 @@ def main(argv: list[str]) -> int:
                         help="number of targets (crossing pairs, turns, some born late or dying early; "
                              "default: %(default)s)")
     parser.add_argument("--sensors", default="pos:1.0,pos:0.7,pos:1.3", metavar="SPEC",
-                        help=f"comma-separated KIND:PERIOD, KIND pos (2-D position) or radar, PERIOD in seconds, "
-                             f"at least {DT:g} (the truth's time step; default: %(default)s)")
+                        help=f"comma-separated KIND:PERIOD[/SIGMA...], KIND pos (2-D position) or radar, PERIOD in "
+                             f"seconds, at least {DT:g} (the truth's time step); /SIGMA: a position sensor's noise "
+                             f"std per axis [m] (default: drawn in {POS_SD_MIN:g}-{POS_SD_MAX:g}), a radar's "
+                             f"/SIGMA_R/SIGMA_AZ[/SIGMA_EL] [m, deg, deg] (default: {RADAR_SD[0]:g} m, "
+                             f"{math.degrees(RADAR_SD[1]):.3g} deg); default: %(default)s")
     parser.add_argument("--seed", type=seed_number, default=1, help="seed of truth, noise, clutter and delays "
                         "(default: %(default)s)")
     parser.add_argument("--duration", type=float,

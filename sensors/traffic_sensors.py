@@ -24,7 +24,7 @@ from fedtrack.geodetic import (
     site_from_geodetic,
 )
 from fedtrack.jsonl import InputError
-from fedtrack.sensors.multitarget import DT, RADAR_SD, Scenario, SensorSpec, parse_spec, sensor_lines
+from fedtrack.sensors.multitarget import DT, Scenario, SensorSpec, parse_noise, parse_spec, sensor_lines
 from fedtrack.sensors.traffic_truth import Truth
 
 #: NACp -> EPU [m], the 95 % bound of the horizontal position error (DO-260B); sigma per axis = EPU / 2.448
@@ -38,27 +38,6 @@ def parse_kinds(spec: str) -> list[SensorSpec]:
     and sites left out."""
     return parse_spec(",".join(item.strip().partition("@")[0].partition("/")[0] for item in spec.split(",")),
                       ("pos", "radar", "adsb"))
-
-
-def parse_noise(kind: str, sigmas: str, item: str) -> np.ndarray | None:
-    """``R`` of a sensor's ``/SIGMA...`` (None when not given): ``pos`` ``/SIGMA`` m per axis; ``radar``
-    ``/SIGMA_R/SIGMA_AZ[/SIGMA_EL]`` in m, degrees, degrees (the elevation's default ``RADAR_SD``)."""
-    if not sigmas:
-        return None
-    sizes = {"pos": (1,), "radar": (2, 3)}.get(kind, ())
-    try:
-        values = [float(v) for v in sigmas.split("/")]
-    except ValueError:
-        values = []
-    if not sizes:
-        raise InputError(f"--sensors: {item!r}: an ADS-B receiver takes no noise (its accuracy is --nacp's)")
-    if len(values) not in sizes or not all(math.isfinite(v) and v > 0 for v in values):
-        form = "pos:P/SIGMA (m)" if kind == "pos" else "radar:P/SIGMA_R/SIGMA_AZ[/SIGMA_EL] (m, deg, deg)"
-        raise InputError(f"--sensors: {item!r}: the noise is {form}, each > 0")
-    if kind == "pos":
-        return np.eye(2) * values[0] ** 2
-    sd = [values[0], *np.radians(values[1:])] + list(RADAR_SD[len(values):])
-    return np.diag(np.square(sd))
 
 
 def parse_sensors(spec: str, frame: Frame, box: float, rng: np.random.Generator,
