@@ -187,3 +187,19 @@ def test_a_sensor_that_scans_once_does_not_set_the_process_noise_or_max_lag(tmp_
     assert cfg.q == pytest.approx(math.pi**2 / 4 * 1.0, abs=1e-6) and cfg.max_lag == 3.0
     assert process_noise(parse_spec("pos:40,pos:50"), 30.0) == pytest.approx(math.pi**2 / 4 * 30.0, abs=1e-6)
     assert process_noise(parse_spec("pos:1.0,pos:20"), 30.0) == pytest.approx(math.pi**2 / 4 * 20.0, abs=1e-6)
+
+
+def test_a_sensors_noise_in_its_spec(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`--sensors pos:1.0/5,pos:0.7/500` gives s1 5 m and s2 500 m a axis (uncorrelated, as `simulate traffic`'s
+    `/SIGMA`); the other draws stay as without it (the truth the same); a bad one is refused naming the item
+    (exit 2). Before, the spec had no noise (every position sensor drawn in 10-20 m)."""
+    out, plain = tmp_path / "noisy", tmp_path / "plain"
+    args = ["simulate", "multitarget", "--targets", "2", "--duration", "5", "--out"]
+    assert cli([*args, str(out), "--sensors", "pos:1.0/5,pos:0.7/500"]) == 0
+    assert cli([*args, str(plain), "--sensors", "pos:1.0,pos:0.7"]) == 0
+    R = {line["sensor"]: line["R"] for line in map(json.loads, (out / "measurements.jsonl").open())}
+    np.testing.assert_array_equal(R["s1"], 25.0 * np.eye(2))
+    np.testing.assert_array_equal(R["s2"], 250000.0 * np.eye(2))
+    assert (out / "truth.jsonl").read_text() == (plain / "truth.jsonl").read_text()
+    assert cli([*args, str(tmp_path / "bad"), "--sensors", "pos:1.0/0"]) == 2
+    assert "'pos:1.0/0': the noise is pos:P/SIGMA (m), each > 0" in capsys.readouterr().err
