@@ -103,15 +103,15 @@ def test_a_late_miss_before_the_latest_detection_does_not_count() -> None:
     assert not centre.streak[centre.tracks.slot[cid]].any()
 
 
-def placed(sensor: str, t: float, places: dict[int, tuple[float, float]]) -> LocalReport:
-    """A position sensor's report of confirmed local tracks standing at ``places`` (local id -> x, y), each
-    detected there by this scan (started at ``t`` = 0)."""
+def placed(sensor: str, t: float, places: dict[int, tuple[float, float]], sd: float = 10.0) -> LocalReport:
+    """A position sensor's report (noise ``sd`` m a axis) of confirmed local tracks standing at ``places`` (local
+    id -> x, y), each detected there by this scan (started at ``t`` = 0)."""
     ids = np.array(sorted(places), dtype=np.int64)
     xy = np.array([places[i] for i in sorted(places)], dtype=float).reshape(-1, 2)
     n = ids.size
     x = np.column_stack([xy[:, 0], np.zeros(n), xy[:, 1], np.zeros(n)])
-    return LocalReport(sensor, t, ids, x, np.tile(100.0 * np.eye(4), (n, 1, 1)), np.full(n, t > 0.0),
-                       np.ones(n, bool), np.tile(H, (n, 1, 1)), np.tile(100.0 * np.eye(2), (n, 1, 1)), xy,
+    return LocalReport(sensor, t, ids, x, np.tile(sd**2 * np.eye(4), (n, 1, 1)), np.full(n, t > 0.0),
+                       np.ones(n, bool), np.tile(H, (n, 1, 1)), np.tile(sd**2 * np.eye(2), (n, 1, 1)), xy,
                        np.full(n, t == 0.0), np.zeros(0, dtype=np.int64))
 
 
@@ -139,3 +139,54 @@ def test_one_sensors_ghost_where_two_others_see_is_not_confirmed() -> None:
     assert centre.counters.uncorroborated == 1
     centre, ghost, _ = run((9000.0, 9000.0))
     assert centre.tracks.confirmed[ghost] and centre.counters.uncorroborated == 0
+
+
+TARGETS = {1: (-2000.0, -2000.0), 2: (2000.0, 2000.0)}
+
+
+def fine_and_coarse(centre: TrackToTrackCentre, times: np.ndarray, fine_extra: dict[int, tuple[float, float]],
+                    retired: tuple[int, ...] = ()) -> None:
+    """A fine sensor ``f`` (5 m, every 1 s) and a coarse one ``c`` (500 m, every 0.5 s, a quarter second
+    later) track the targets at (-2000, -2000) and (2000, 2000), ``c`` also a third place, the origin; ``f``
+    also ``fine_extra`` (its tracker retiring ``retired`` at its first scan)."""
+    for t in times:
+        if t % 1.0 == 0.0:
+            scan = placed("f", float(t), {**TARGETS, **fine_extra}, 5.0)
+            centre.answer(scan._replace(retired=np.array(retired, dtype=np.int64)))
+            retired = ()
+        centre.answer(placed("c", float(t) + 0.25, {**TARGETS, 3: (0.0, 0.0)}, 500.0))
+
+
+def assert_targets_confirmed(centre: TrackToTrackCentre) -> None:
+    for lid in TARGETS:
+        cid = centre.mapping[("f", lid)]
+        assert centre.mapping[("c", lid)] == cid and centre.tracks.confirmed[centre.tracks.slot[cid]]
+
+
+def test_a_coarse_sensors_ghost_is_not_confirmed_where_a_fine_sensor_sees_nothing() -> None:
+    """The coarse sensor's third track (its clutter, or a second track of a target: at the default clutter
+    density its 500 m gate holds a false detection half the time) starts a central track of its own. Its
+    hits are hardly evidence of a target (ln(0.9 / 0.66) = +0.31 each) and the fine sensor, which sees there
+    (its tracks surround the place, none within reach), misses it every second (ln(0.1) = -2.3): the
+    evidence never reaches Wald's 4.6 and the track stays tentative; the targets' are confirmed. Before, the
+    count (3 hits of 4 scans) confirmed it within 1 s."""
+    centre = TrackToTrackCentre(MttConfig(clutter_density=1e-7), 4, False)
+    fine_and_coarse(centre, np.arange(0.0, 20.01, 0.5), {})
+    ghost = centre.mapping[("c", 3)]
+    assert centre.sensors_of(ghost) == ["c"] and not centre.tracks.confirmed[centre.tracks.slot[ghost]]
+    assert_targets_confirmed(centre)
+
+
+def test_a_confirmed_track_the_fine_sensor_lost_goes_though_the_coarse_one_hits_it() -> None:
+    """A target at the origin that both sensors saw dies at 4 s; the fine sensor's tracker retires its track at
+    5 s while the coarse sensor's track there goes on taking its clutter. The fine sensor's misses (its tracker
+    gave up the track) outweigh the coarse sensor's hits within 4 s (evidence as unlikely for a live target as
+    the count's 3 misses of one sensor at P_D 0.9, 1e-3); before, each coarse hit cleared the misses and the
+    track stayed for good. The targets' tracks stay."""
+    centre = TrackToTrackCentre(MttConfig(clutter_density=1e-7), 4, False)
+    fine_and_coarse(centre, np.arange(0.0, 4.01, 0.5), {3: (0.0, 0.0)})
+    cid = centre.mapping[("c", 3)]
+    assert centre.mapping[("f", 3)] == cid and centre.tracks.confirmed[centre.tracks.slot[cid]]
+    fine_and_coarse(centre, np.arange(5.0, 9.01, 0.5), {}, retired=(3,))
+    assert cid not in centre.tracks.slot
+    assert_targets_confirmed(centre)

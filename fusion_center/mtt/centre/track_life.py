@@ -10,7 +10,7 @@ from statistics import NormalDist
 import numpy as np
 
 from fedtrack.geodetic import above_radio_horizon
-from fedtrack.local_filters.mtt.associators.jipda import FALSE_CONFIRM
+from fedtrack.local_filters.mtt.associators.jipda import FALSE_CONFIRM, LOST_TRUE
 from fedtrack.local_filters.mtt.config import MttConfig, miss_count, scan_lost
 from fedtrack.local_filters.mtt.local import LocalReport
 
@@ -31,6 +31,13 @@ PENDING, DENIED = 1, 2
 # A central track's height raised by this many standard deviations before it is judged below a radar's
 # horizon (2.33: above it with a chance of at most FALSE_CONFIRM, :meth:`CentreLife._below_horizon`).
 Z_FALSE_CONFIRM = NormalDist().inv_cdf(1.0 - FALSE_CONFIRM)
+# Wald's upper threshold on a tentative track's evidence since its start (CentreLife._evidence), as jipda's
+# and mht's tests: ln((1 - beta) / alpha) = 4.6 with jipda's alpha FALSE_CONFIRM and beta LOST_TRUE
+CONFIRM_EVIDENCE = math.log((1.0 - LOST_TRUE) / FALSE_CONFIRM)
+# and its lower one, ln(beta / (1 - alpha)) = -4.6: a tentative track's evidence is kept above it (the test
+# started again there, as a new track's would be), so that a track that clutter made look false can still
+# be confirmed by its target's later detections
+DROP_EVIDENCE = math.log(LOST_TRUE / (1.0 - FALSE_CONFIRM))
 
 
 def needs_local_confirmation(cfg: MttConfig, sensor: str, R: np.ndarray, interval: float = 1.0) -> bool:
@@ -76,6 +83,7 @@ class CentreLife:
         if seen.any():  # the misses since: a late detection's sensors' scans after it
             self.streak[seen] = np.minimum(self.streak[seen], self._scans_after(report.t))
             self.gave_up[seen] &= self.streak[seen] > 0
+            self.evidence[seen] = np.minimum(self.evidence[seen] + self.column_log_hit[col], 0.0)
         missed = (old > hit) & (report.t > self.last_support)  # confirmed, not detected, after its last detection
         missed = missed.nonzero()[0]
         dead = missed[:0]
@@ -86,19 +94,29 @@ class CentreLife:
             tracking = self._tracking(missed)
             n_tracking = np.count_nonzero(tracking, axis=1)
             need = self._misses_needed(tracking, n_tracking, scan_lost(float(self.column_interval[col])))[:, None]
-            dead = missed[(n_tracking > 0) & self._misses_enough(streak, tracking, need)]
+            counts = tracking[:, col].copy()  # the misses of a sensor not tracking it where it sees it too
+            others = (~counts).nonzero()[0] if self.sensor_names[col] not in self.excluded else counts[:0]
+            if others.size:
+                counts[others] = self._in_view(missed[others], report)
+            self.evidence[missed[counts]] += self.column_log_absent[col]
+            bound = need[:, 0] * np.where(tracking, self.column_log_miss, 0.0).sum(axis=1)
+            enough = self._misses_enough(streak, tracking, need) | (self.evidence[missed] <= bound)
+            dead = missed[(n_tracking > 0) & enough]
         tentative = (live ^ old).nonzero()[0]  # live and tentative
         young = tentative[hit[tentative] | ~self._blind_to(tentative, col, report)]
         window = np.concatenate([self.window[young, 1:], hit[young, None]], axis=1)
         self.window[young] = window
-        now = self._corroborated(tentative, young, young[np.count_nonzero(window, axis=1) >= cfg.confirm_hits], hit,
-                                 col)
+        evidence = self.evidence[young] + np.where(hit[young], self.column_log_hit[col], self.column_log_absent[col])
+        self.evidence[young] = np.maximum(evidence, DROP_EVIDENCE)
+        counted = (np.count_nonzero(window, axis=1) >= cfg.confirm_hits) & (self.evidence[young] >= CONFIRM_EVIDENCE)
+        now = self._corroborated(tentative, young, young[counted], hit, col)  # the count, Wald's test, the others
         if cfg.confirm_bound is not None and self.n_live == 1:
             now = np.intersect1d(young, self._vouched(report))  # one sensor: its tracker's own test
         elif self.local_confirmation and now.size:
             now = np.intersect1d(now, self._vouched(report))
         if now.size:
             tracks.confirmed[now], tracks.confirmed_t[now] = True, report.t
+            self.evidence[now] = 0.0
         for cid in tracks.ids[dead].tolist():
             self._delete(cid)
 
@@ -202,6 +220,15 @@ class CentreLife:
         if not maybe.any():
             return maybe
         X, P = self.tracks.states_at(slots[maybe], report.t)
+        inside, reach, below = self._view(X, P, report)
+        shows = self._clutter_would_show(X[:, [0, 2]], report)
+        maybe[maybe] = ~(inside | reach) & ((n_support[maybe] >= 2) | below | shows)
+        return maybe
+
+    def _view(self, X: np.ndarray, P: np.ndarray, report: LocalReport) -> tuple[np.ndarray, ...]:
+        """Per central state of ``X`` (covariances ``P``) at the report's time: whether it lies inside the x-y
+        extent of the report's local tracks (two or more) and above a sited radar's horizon; whether it is
+        within the association test's reach (in x-y) of one of them; whether it is below that horizon."""
         xy, n = [0, 2], report.x.shape[0]
         at, local = X[:, xy], report.x[:, xy]
         below = self._below_horizon(X, P, report)
@@ -214,8 +241,26 @@ class CentreLife:
             S = P[:, None][..., xy, :][..., xy] + report.P[None][..., xy, :][..., xy]
             d2 = np.einsum("mni,mni->mn", d, np.linalg.solve(S, d[..., None])[..., 0])
             reach = (d2 <= self.cfg.thresholds.association[2]).any(axis=1)
-        maybe[maybe] = ~(inside | reach) & ((n_support[maybe] >= 2) | below | self._clutter_would_show(at, report))
-        return maybe
+        return inside, reach, below
+
+    def _in_view(self, slots: np.ndarray, report: LocalReport) -> np.ndarray:
+        """Per confirmed track of ``slots`` that the report's sensor does not track, whether the report shows
+        that the sensor sees where it is (:meth:`_view`): inside the extent of its local tracks, above a sited
+        radar's horizon, and beyond the reach of each of them (none of them may hold its detections)."""
+        inside, reach, _ = self._view(*self.tracks.states_at(slots, report.t), report)
+        return inside & ~reach
+
+    def _evidence(self, sensor: str, R: np.ndarray) -> tuple[float, float]:
+        """A scan of position sensor ``sensor`` (noise ``R``) as evidence on a central track, the
+        log-likelihood ratios of a track on a target against one on clutter: ``ln(P_D / p)`` when it
+        detects the track and ``ln((1 - P_D) / (1 - p))`` when not, ``p = 1 - exp(-lambda pi g sqrt(det R))``
+        the chance that its clutter falls into the gate (``g`` at ``gate_probability``) of a track known far
+        better than its noise; a sensor whose clutter is in the gate as often as a target (``p >= P_D``)
+        says nothing either way (0, 0)."""
+        area = math.pi * self.cfg.thresholds.gate[2] * math.sqrt(max(float(np.linalg.det(R)), 0.0))
+        pd = min(self.cfg.pd_of(sensor), 1.0 - 1e-12)
+        p = min(-math.expm1(-self.cfg.clutter_of(sensor) * area), pd)
+        return (math.log(pd / p) if p > 0.0 else math.inf), math.log1p(-pd) - math.log1p(-p)
 
     def _below_horizon(self, X: np.ndarray, P: np.ndarray, report: LocalReport) -> np.ndarray:
         """Per central state of ``X`` (covariances ``P``, 3-D), whether the report's radar cannot see it: the

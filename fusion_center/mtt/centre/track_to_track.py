@@ -166,11 +166,18 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self._column: dict[str, int] = {}
         self.column_log_miss = np.zeros(0)  # per sensor column, ln(1 - P_D) of its sensor (MttConfig.log_miss)
         self.column_interval = np.zeros(0)  # per sensor column, its latest scan's time since its previous one
+        # per sensor column, a scan's log-likelihood ratio (target against clutter) for a confirmed track it
+        # detects and for one it does not (CentreLife._evidence; a sensor without clutter: inf and ln(1 - P_D))
+        self.column_log_hit = np.zeros(0)
+        self.column_log_absent = np.zeros(0)
         self.n_live = 0  # live sensors fused at the latest report's time (live_sensors less excluded)
         self.excluded: set[str] = set()  # flagged live sensors left out of the fusion now (_note_scan)
         self.usual: dict[str, float] = {}  # each sensor's usual interval at the latest report (_note_scan)
         self.support = np.zeros((0, 0), dtype=np.int64)  # local tracks of each sensor mapped to a slot
         self.streak = np.zeros((0, 0), dtype=np.int64)  # a confirmed slot's misses in a row per sensor
+        # a slot's log-likelihood ratio of target against clutter (CentreLife._evidence): a tentative one's since
+        # its start, a confirmed one's since its highest (<= 0)
+        self.evidence = np.zeros(0)
         # per confirmed slot and sensor, whether that sensor's tracker retired its last local track there
         # since the slot's last detection (its misses still count: CentreLife._tracking)
         self.gave_up = np.zeros((0, 0), dtype=bool)
@@ -207,6 +214,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.window = padded(self.window, (rows, self.cfg.confirm_window))
         self.vetting = padded(self.vetting, (rows,))
         self.last_support = padded(self.last_support, (rows,))
+        self.evidence = padded(self.evidence, (rows,))
 
     def _col(self, sensor: str) -> int:
         col = self._column.get(sensor)
@@ -214,6 +222,8 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
             col = self._column[sensor] = len(self.sensor_names)
             self.sensor_names.append(sensor)
             self.column_log_miss = np.append(self.column_log_miss, self.cfg.log_miss(sensor))
+            self.column_log_hit = np.append(self.column_log_hit, np.inf)
+            self.column_log_absent = np.append(self.column_log_absent, self.cfg.log_miss(sensor))
             self.column_interval = np.append(self.column_interval, 0.0)
             self._fit()
         return col
@@ -294,6 +304,8 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.gave_up = np.delete(self.gave_up, col, axis=1)
         self.denied = np.delete(self.denied, col, axis=1)
         self.column_log_miss = np.delete(self.column_log_miss, col)
+        self.column_log_hit = np.delete(self.column_log_hit, col)
+        self.column_log_absent = np.delete(self.column_log_absent, col)
         self.column_interval = np.delete(self.column_interval, col)
         self._column = {name: k for k, name in enumerate(self.sensor_names)}
         self.count_judged.discard(sensor)
@@ -339,7 +351,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.support[slot], self.streak[slot], self.window[slot], self.vetting[slot] = 0, 0, False, 0
         self.denied[slot] = 0
         self.gave_up[slot] = False
-        self.last_support[slot] = t
+        self.last_support[slot], self.evidence[slot] = t, 0.0
         self.counters.started += 1
         return cid
 
@@ -436,6 +448,8 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.n_live = len(live) - len(self.excluded)
         col = self._col(s)
         self.column_interval[col] = t - previous
+        if report.obs_R.shape[0] and report.obs_R.shape[1:] == (2, 2):
+            self.column_log_hit[col], self.column_log_absent[col] = self._evidence(s, report.obs_R[0])
         confirmed = report.confirmed if rows is None else report.confirmed & rows
         self.own_confirmed[s] = frozenset(report.ids[confirmed].tolist())
         self._unmap_retired(report)
@@ -633,6 +647,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         cols = [self._col(record.sensors[k]) for k in keep]
         self.support[slot], self.streak[slot], self.gave_up[slot] = 0, 0, False  # gave_up not handed over
         self.vetting[slot], self.denied[slot] = 0, 0  # nor its vetting: the new owner's sensors vet it afresh
+        self.evidence[slot] = 0.0  # nor its evidence (a tentative one's since its start, else since its highest)
         self.support[slot, cols], self.streak[slot, cols] = record.support[keep], record.streak[keep]
         self.window[slot], self.last_support[slot] = record.window, record.last_support
         for key, strikes in zip(record.members, record.strikes):
