@@ -67,11 +67,14 @@ def _run(cfg: MttConfig, claimed: np.ndarray) -> tuple[TrackToTrackCentre, np.nd
     return centre, X
 
 
-def test_a_report_claiming_less_than_its_floor_is_fused_as_one_at_the_floor() -> None:
+@pytest.mark.parametrize("claim", [1.0, 1e-310])
+def test_a_report_claiming_less_than_its_floor_is_fused_as_one_at_the_floor(claim: float) -> None:
     """A sensor claiming ``R`` = 1 m² with a floor of 10 m gives the central tracks it would give claiming 100 m²
-    (to 1e-9), each observation counted ``noise_raised``; without the floor its claim drags them further."""
+    (to 1e-9), each observation counted ``noise_raised``; without the floor its claim drags them further. So does
+    a subnormal claim, 1e-310 m² (the wire's relative check passes it): its factor overflowed to inf, the NaN
+    compared false and the claim was fused unraised (attack53: 27.8 m from the tracks at the floor)."""
     floored = MttConfig(sensor={"s1": SensorOverride(noise_floor=(10.0, 10.0))})
-    tiny, at_floor = np.eye(2), 100.0 * np.eye(2)
+    tiny, at_floor = claim * np.eye(2), 100.0 * np.eye(2)
     centre, X = _run(floored, tiny)
     reference, X_ref = _run(floored, at_floor)
     np.testing.assert_allclose(X, X_ref, rtol=0, atol=1e-9)
@@ -89,7 +92,7 @@ def test_a_report_of_another_size_than_its_floor_is_not_fused() -> None:
     assert "s1" not in centre.sensor_seen and not any(key[0] == "s1" for key in centre.mapping)
 
 
-@pytest.mark.parametrize("text", ["[-1.0, 5.0]", "[5.0]", "[1.0, 2.0, 3.0, 4.0]", "[5.0, inf]"])
+@pytest.mark.parametrize("text", ["[-1.0, 5.0]", "[5.0]", "[1.0, 2.0, 3.0, 4.0]", "[5.0, inf]", "[1e200, 5.0]"])
 def test_a_bad_noise_floor_fails_at_start_naming_it(tmp_path: Path, text: str) -> None:
     path = tmp_path / "c.toml"
     path.write_text(f"[mtt.sensor.s1]\nnoise_floor = {text}\n")

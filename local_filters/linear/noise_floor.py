@@ -14,20 +14,33 @@ import numpy as np
 RAISE_TOL = 1e-9  # a claim at the floor to rounding (c <= 1 + RAISE_TOL) is left as it is
 
 
+def _scaled_factors(R: np.ndarray, floor: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``R / s`` with ``s`` each ``R``'s largest variance, and ``s c`` (``c = lambda_max(R^-1 F)``): the largest
+    eigenvalue of ``(L^-1 D)(L^-1 D)'``, ``L L' = R / s``, ``D = diag(floor)`` (solves, no inverse). Scaled so that
+    a claim of subnormal size (``R`` = 1e-310 I, which the wire's relative check passes) cannot overflow ``c`` to
+    inf and its NaN comparisons let the claim through unraised."""
+    s = np.max(np.diagonal(R, axis1=-2, axis2=-1), axis=-1)
+    Rs = R / s[..., None, None]
+    A = np.linalg.solve(np.linalg.cholesky(Rs), np.broadcast_to(np.diag(floor), R.shape))
+    return Rs, s, np.linalg.eigvalsh(A @ np.swapaxes(A, -1, -2))[..., -1]
+
+
 def floor_factors(R: np.ndarray, floor: np.ndarray) -> np.ndarray:
-    """``lambda_max(R^-1 F)`` of each ``R`` (K, m, m; positive definite) against ``F = diag(floor²)``:
-    the largest eigenvalue of ``(L^-1 D)(L^-1 D)'``, ``L L' = R``, ``D = diag(floor)`` (solves, no inverse)."""
-    A = np.linalg.solve(np.linalg.cholesky(R), np.broadcast_to(np.diag(floor), R.shape))
-    return np.linalg.eigvalsh(A @ np.swapaxes(A, -1, -2))[..., -1]
+    """``lambda_max(R^-1 F)`` of each ``R`` (K, m, m; positive definite) against ``F = diag(floor²)``
+    (inf where it exceeds the floats: a claim that far below the floor)."""
+    _, s, sc = _scaled_factors(R, floor)
+    with np.errstate(over="ignore"):
+        return sc / s
 
 
 def raise_to_floor(R: np.ndarray, floor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each ``R`` (K, m, m) below the floor (``floor``: m standard deviations) scaled up to it by
-    :func:`floor_factors`; returns the covariances and which were raised (the others unchanged)."""
-    c = floor_factors(R, floor)
-    raised = c > 1.0 + RAISE_TOL
+    :func:`floor_factors` (``c R`` computed as ``(s c)(R / s)``: finite for any claim); returns the covariances
+    and which were raised (the others unchanged)."""
+    Rs, s, sc = _scaled_factors(R, floor)
+    raised = sc > s * (1.0 + RAISE_TOL)
     if not raised.any():
         return R, raised
     out = R.copy()
-    out[raised] *= c[raised, None, None]
+    out[raised] = Rs[raised] * sc[raised, None, None]
     return out, raised

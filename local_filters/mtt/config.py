@@ -17,6 +17,7 @@ from fedtrack.geodetic import FrameConfig
 from fedtrack.keys import InvalidName, check_id
 from fedtrack.local_filters.mtt.models import ModeRates
 from fedtrack.local_filters.vdie.estimation import VdieParams
+from fedtrack.wire.limits import MAX_MAGNITUDE
 
 NOISE_MODELS = ("continuous", "discrete")
 MANEUVER_MODES = ("none", "vdie")  # per-track maneuver handling (local_filters/mtt/maneuver.py)
@@ -296,9 +297,10 @@ class MttConfig:
             if over.clutter_density is not None and not over.clutter_density >= 0:
                 raise ConfigError(f"sensor.{sid}.clutter_density: must be >= 0")
             floor = over.noise_floor
-            if floor is not None and not (len(floor) in (2, 3) and all(0 < v < math.inf for v in floor)):
+            # at most the wire's largest quantity: diag(floor²) stays finite (1e200 made it inf, the floor none)
+            if floor is not None and not (len(floor) in (2, 3) and all(0 < v <= MAX_MAGNITUDE for v in floor)):
                 raise ConfigError(f"sensor.{sid}.noise_floor: must be 2 (position: m, m) or 3 (radar: m, rad, rad) "
-                                  "finite standard deviations > 0")
+                                  f"standard deviations > 0 and <= {MAX_MAGNITUDE:g}")
 
     @property
     def listed_sensors(self) -> int:
