@@ -378,7 +378,10 @@ class Launcher(Monitor):
     def _await_recording(self) -> None:
         """Before this host's recorder is stopped: while its recording holds less of what the launcher saw
         live (:meth:`_recording_holds`) and that still grows, wait; given up after ``RECORDER_STALL_S``
-        without growth, or on Ctrl-C. The recorder commits a row an fsync: with every fsync slowed to 60 ms
+        without growth, or on Ctrl-C. What was seen is taken once, when the wait starts (the services before
+        the recorder stopped): a sender still publishing (a compromised sensor's new scan and a repeat of
+        an old number every 0.1 s, each counted seen, one recorded) kept the count seen ahead of a growing
+        recording and held the launch for as long as it went on (2026-11-28). The recorder commits a row an fsync: with every fsync slowed to 60 ms
         it had stored 2 of a lockstep run's 101 fused tracks when the sensors ended, and its 2 s drain left 9
         in tracks.jsonl, exit 0 (2026-11-27; now 101 after 40 s more); a multi-target run's, every fsync
         slowed to 400 ms, kept 11 of the 15 pictures and 37 of the 51 scans seen after its 15 s drain, exit 0
@@ -393,9 +396,11 @@ class Launcher(Monitor):
             return
         what = "fused tracks" if self.settings.multitarget is None else "pictures and scans"
         held, since, said = -1, time.monotonic(), False
+        with self._lock:
+            live = (len(self.report.track_arrivals_ns), set(self.report.picture_seqs), dict(self.report.measurements))
         try:
             while not self._stop.is_set():
-                now_held, seen = self._recording_holds(recording)
+                now_held, seen = self._recording_holds(recording, *live)
                 if now_held >= seen:
                     return
                 if now_held != held:
@@ -413,12 +418,10 @@ class Launcher(Monitor):
         finally:
             recording.close()
 
-    def _recording_holds(self, recording: Recording) -> tuple[int, int]:
+    def _recording_holds(self, recording: Recording, tracks: int, pictures: set[int],
+                         scans: dict[str, int]) -> tuple[int, int]:
         """How much of what the launcher saw live ``recording`` holds, and how much it saw: a paper
-        deployment's fused tracks; a multi-target one's pictures (by number) and each sensor's scans."""
-        with self._lock:
-            tracks, pictures, scans = (len(self.report.track_arrivals_ns), set(self.report.picture_seqs),
-                                       dict(self.report.measurements))
+        deployment's fused ``tracks``; a multi-target one's ``pictures`` (by number) and each sensor's ``scans``."""
         if self.settings.multitarget is None:
             return min(recording.count(FusedTrack), tracks), tracks
         recorded = recording.scans()

@@ -157,6 +157,38 @@ def test_the_launcher_waits_for_a_slow_recorder_to_store_the_pictures_and_scans_
     assert 0.5 <= time.monotonic() - started < 1.5
 
 
+def test_a_sender_publishing_during_the_wait_does_not_hold_the_launch(tmp_path: Path,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """What was seen is taken when the wait starts: a compromised sensor publishing on after the stop, a new
+    scan (recorded) and a repeat of an old number (counted, not a new row) every 0.05 s, kept the count seen
+    ahead of the growing recording and held the launch for as long as it went on (here 4 s, the bound of this
+    test; before: 4 s); now the wait ends once the recording holds as much as was seen at its start."""
+    monkeypatch.setattr(launcher, "RECORDER_STALL_S", 0.5)
+    run = mtt_launcher(tmp_path)
+    db = tmp_path / "recording.db"
+    store_mtt(db, [0], [0, 1])
+    run.report.picture_seqs, run.report.measurements = {0}, {"s1": 4}
+    done = threading.Event()
+
+    def hostile() -> None:
+        seq, end = 100, time.monotonic() + 4.0
+        while not done.is_set() and time.monotonic() < end:
+            store_mtt(db, [], [seq])
+            with run._lock:
+                run.report.measurements["s1"] += 2
+            seq += 1
+            time.sleep(0.05)
+
+    sender = threading.Thread(target=hostile)
+    sender.start()
+    started = time.monotonic()
+    run._await_recording()
+    waited = time.monotonic() - started
+    done.set()
+    sender.join()
+    assert waited < 1.5
+
+
 @pytest.mark.parametrize("lacks", ["pictures", "scans"])
 def test_pictures_or_scans_missing_from_a_multitarget_recording_end_the_launch_with_exit_1(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], lacks: str) -> None:
