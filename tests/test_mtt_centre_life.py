@@ -190,3 +190,32 @@ def test_a_confirmed_track_the_fine_sensor_lost_goes_though_the_coarse_one_hits_
     fine_and_coarse(centre, np.arange(5.0, 9.01, 0.5), {}, retired=(3,))
     assert cid not in centre.tracks.slot
     assert_targets_confirmed(centre)
+
+
+def scan(sensor: str, t: float, places: dict[int, tuple[float, float]], confirmed: set[int],
+         retired: tuple[int, ...] = ()) -> LocalReport:
+    """A position sensor's report of local tracks at ``places`` (local id -> x, y), each detected there by this
+    scan; ``confirmed``: those its tracker confirmed (the others started now); ``retired``: deleted at this scan."""
+    report = placed(sensor, t, places)
+    own = np.array([i in confirmed for i in sorted(places)], dtype=bool)
+    return report._replace(confirmed=own, started=~own, retired=np.array(retired, dtype=np.int64))
+
+
+def test_a_denial_is_taken_back_when_the_denying_sensors_tracker_vouches_for_the_track() -> None:
+    """A target at (1000, 1000) between two others: s2 misses it twice while s1 alone tracks it (s2 denies it),
+    then s1's tracker retires its track and s1 misses it twice while s2 alone tracks it (s1 denies it); from
+    t = 6 s both trackers hold confirmed tracks of it, detected every scan. Each denial stood until the sensor
+    went blind to the track: both sensors saw and vouched for it and it stayed tentative for good (seed 1 without
+    s2: a target for 250 s, mean GOSPA 93.04 before the ghost rule, 113.46 with it, 93.16 now)."""
+    centre = TrackToTrackCentre(MttConfig(), 4, False)
+    others = {1: (0.0, 0.0), 2: (2000.0, 2000.0)}
+    target = (1000.0, 1000.0)
+    for k in range(13):
+        s1 = {3: target} if k < 3 else {4: target} if k >= 5 else {}
+        own = {1, 2} | ({3} if k else set()) | ({4} if k >= 6 else set())
+        centre.answer(scan("s1", float(k), {**others, **s1}, own, (3,) if k == 3 else ()))
+        s2 = {8: target} if k >= 2 else {}
+        centre.answer(scan("s2", k + 0.5, {**others, **s2}, {1, 2} | ({8} if k >= 3 else set())))
+    slot = centre.tracks.slot[centre.mapping[("s1", 4)]]
+    assert centre.mapping[("s2", 8)] == centre.tracks.ids[slot]
+    assert centre.tracks.confirmed[slot]

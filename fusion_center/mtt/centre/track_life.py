@@ -109,11 +109,12 @@ class CentreLife:
         evidence = self.evidence[young] + np.where(hit[young], self.column_log_hit[col], self.column_log_absent[col])
         self.evidence[young] = np.maximum(evidence, DROP_EVIDENCE)
         counted = (np.count_nonzero(window, axis=1) >= cfg.confirm_hits) & (self.evidence[young] >= CONFIRM_EVIDENCE)
-        now = self._corroborated(tentative, young, young[counted], hit, col)  # the count, Wald's test, the others
+        vouched = self._vouched(report)
+        now = self._corroborated(tentative, young, young[counted], hit, col, vouched)  # the count, Wald's, the others
         if cfg.confirm_bound is not None and self.n_live == 1:
-            now = np.intersect1d(young, self._vouched(report))  # one sensor: its tracker's own test
+            now = np.intersect1d(young, vouched)  # one sensor: its tracker's own test
         elif self.local_confirmation and now.size:
-            now = np.intersect1d(now, self._vouched(report))
+            now = np.intersect1d(now, vouched)
         if now.size:
             tracks.confirmed[now], tracks.confirmed_t[now] = True, report.t
             self.evidence[now] = 0.0
@@ -121,7 +122,7 @@ class CentreLife:
             self._delete(cid)
 
     def _corroborated(self, tentative: np.ndarray, counted: np.ndarray, now: np.ndarray, hit: np.ndarray,
-                      col: int) -> np.ndarray:
+                      col: int, vouched: np.ndarray) -> np.ndarray:
         """Of the tentative slots ``now`` whose count holds, those that are not one sensor's alone unheard or
         denied by the others. A scan of sensor column ``col`` vets each tentative slot (of ``tentative``) it
         supports none of: blind to it or not, the sensor has had its say. It questions one that exactly one
@@ -129,7 +130,11 @@ class CentreLife:
         and did not detect it (``PENDING``), and denies it when its previous scan did so too (``DENIED``: the
         ``CENTRAL_MISSES`` misses that would delete it if it were confirmed; a live target at P_D 0.9 once in a
         hundred); its next detection takes a question back, not a denial (a local track of clutter mapped for
-        a scan would), and its next scan blind to the slot takes either back (blindness is judged on what the
+        a scan would), its local track that its tracker confirmed mapped to the slot (``vouched``, of this
+        report) takes either back (the sensor now says the target is there: kept, a denial by each of two honest
+        sensors while their tracks of a target swapped held it tentative for good, both sensors seeing and
+        vouching for it; seed 1 without s2, one target for 250 s), and its next scan blind to the slot takes
+        either back (blindness is judged on what the
         centre knows then: a track that its tracker has not confirmed yet gets no skip). With another live
         sensor, a slot that one sensor alone supports is confirmed only once vetted, not by the report that
         questions it, and, while a sensor denies it, only once local tracks that two sensors' trackers confirmed
@@ -141,6 +146,7 @@ class CentreLife:
         denied[np.setdiff1d(tentative, counted, assume_unique=True), col] = 0  # blind to it now
         detected = counted[hit[counted]]
         denied[detected[denied[detected, col] == PENDING], col] = 0
+        denied[np.intersect1d(tentative, vouched), col] = 0  # the sensor vouches for it now
         support = self._fused_support(counted)
         alone = np.count_nonzero(support, axis=1) == 1
         missed = counted[alone & ~hit[counted] & ~support[:, col]]
