@@ -16,7 +16,7 @@ then the primary's at its last picture, and the replay of the recording equals t
 
 from __future__ import annotations
 
-from collections import OrderedDict, deque
+from collections import Counter, OrderedDict, deque
 from collections.abc import Hashable
 from dataclasses import dataclass, field
 
@@ -60,6 +60,7 @@ class PrimaryOrder:
     # entry -> (input, when it came), in arrival order
     held: OrderedDict[Hashable, tuple[TrackReport | HandOver, float]] = field(default_factory=OrderedDict)
     script: deque[tuple[Hashable, float]] = field(default_factory=deque)  # listed (and when), not taken yet
+    waiting: Counter[Hashable] = field(default_factory=Counter)  # the entries of ``script``, counted
     skipped: int = 0
     # warm: it gets every input its primary's first picture lists (within ORDER_WAIT_S of it), so it has
     # seen all its primary fused; cold (False): it started later; None: no picture of the primary yet, or
@@ -92,6 +93,7 @@ class PrimaryOrder:
             self.warm = (msg.seq == 0) if not inputs else True if not self.missing else None
         if self.warm is not False:
             self.script.extend((e, now) for e in entries)
+            self.waiting.update(entries)
 
     def due(self, now: float) -> tuple[list[Item], list[Item]]:
         """The listed entries to take now, in order, each with its input (None for a departure); one
@@ -108,13 +110,26 @@ class PrimaryOrder:
                 if now - since < ORDER_WAIT_S:
                     break
                 self.skipped += 1
-                self.script.popleft()
+                self._pop()
                 continue
-            self.script.popleft()
+            self._pop()
             listed.append((head, self.held.pop(head)[0] if head in self.held else None))
-        waiting = {e for e, _ in self.script}
-        stale = [e for e, (_, came) in self.held.items() if now - came >= ORDER_WAIT_S and e not in waiting]
+        stale = []
+        for e, (_, came) in self.held.items():  # in arrival order: the old ones first
+            if now - came < ORDER_WAIT_S:
+                break
+            if not self.waiting[e]:
+                stale.append(e)
         return listed, [(e, self.held.pop(e)[0]) for e in stale]
+
+    def _pop(self) -> None:
+        """The script's head taken or passed over. The entries still listed are counted as they come and go
+        (``waiting``): building their set on each call made an input's cost grow with the script, and a
+        primary's 600 pictures listing 2,000 inputs that never came, 500 a second, took 20.7 s of CPU (1.7 s now)."""
+        head, _ = self.script.popleft()
+        self.waiting[head] -= 1
+        if not self.waiting[head]:
+            del self.waiting[head]
 
     def release(self) -> tuple[list[Item], list[Item]]:
         """At a take-over (or once cold): the listed entries whose inputs are held, in order, and every
@@ -124,5 +139,6 @@ class PrimaryOrder:
         rest: list[Item] = [(e, msg) for e, (msg, _) in self.held.items()]
         self.held.clear()
         self.script.clear()
+        self.waiting.clear()
         self.missing.clear()
         return listed, rest
