@@ -28,6 +28,11 @@ VETTED, HELD = 1, 4
 # place missed it while one other sensor alone supported it (PENDING), and so did its scan before (DENIED:
 # CENTRAL_MISSES misses in a row, which would delete the track if it were confirmed)
 PENDING, DENIED = 1, 2
+# Live sensors needed for a denial to hold a track back (CentreLife._corroborated): with two, a denial is one
+# sensor's word against the other's, and the centre cannot tell which of them is wrong. One lying sensor of
+# two (its scans emptied) held every target of the other tentative: simulate multitarget --seed 1 with s1 and
+# s2 only, mean GOSPA 86.77 -> 521.65 m (attack53); with three a denial costs the liar's targets little.
+DENIAL_LIVE = 3
 # A central track's height raised by this many standard deviations before it is judged below a radar's
 # horizon (2.33: above it with a chance of at most FALSE_CONFIRM, :meth:`CentreLife._below_horizon`).
 Z_FALSE_CONFIRM = NormalDist().inv_cdf(1.0 - FALSE_CONFIRM)
@@ -155,6 +160,8 @@ class CentreLife:
             return now
         state = self.vetting[now]
         held = (np.count_nonzero(self._fused_support(now), axis=1) == 1) & ((state & VETTED) == 0)
+        if self.n_live < DENIAL_LIVE:  # vetted (another sensor has had its say), not denied
+            return now[~held]
         held |= denied[now, col] > 0  # the report that questions it does not confirm it
         doubt = self._counted(denied[now] == DENIED).any(axis=1).nonzero()[0]
         if doubt.size:
