@@ -158,6 +158,41 @@ def test_a_region_without_a_centre_holds_no_tracker_up_and_the_recording_still_r
     assert_same_pictures(live, [json.loads(x) for x in replayed.read_text().splitlines()])
 
 
+def test_a_region_not_yet_known_to_a_tracker_is_waited_for(tmp_path: Path) -> None:
+    """A tracker's session learns the centres' subscribers some time after it opens (under load, after
+    its first reports): Zenoh's matching status says no subscriber while the centres do take its
+    sub-reports. Every region is waited for until one of its sub-reports reached it, so the trackers
+    adopt the answers the replay adopts. Before, with no match for its first two reports' regions, each
+    tracker went on without their answers (``unreached``), and the live pictures left the replay's."""
+    msgs, cfg, config = scenario(tmp_path)
+    centres, local, merger, recorder = services(tmp_path, "mtt-federated", config, cfg,
+                                                {"options": OPTIONS, "deployment": "hostile"})
+    recorder.on_start()
+    bus = Bus([*centres, *local, merger, recorder])
+
+    def unknown_at_first() -> Any:
+        asked = {"n": 0}
+
+        def reaches(key: str) -> bool:  # no match for the first two reports' sub-reports (2 regions each)
+            asked["n"] += 1
+            return asked["n"] > 4
+        return reaches
+
+    for svc in local:
+        svc.reaches = unknown_at_first()  # type: ignore[method-assign]
+    for m in msgs:
+        bus.put(Keys("hostile").sensor_meas(m.sensor), encode(m))
+    for svc in [*local, *centres, merger]:
+        svc.on_stop()
+        bus.drain()
+    recorder.on_stop()
+    live = [json.loads(x) for x in (tmp_path / "out" / "tracks.jsonl").read_text().splitlines()]
+    replayed = tmp_path / "replayed.jsonl"
+    replay_mtt("mtt-federated", tmp_path / "out" / "measurements.jsonl", config, replayed, regions="config")
+    assert_same_pictures(live, [json.loads(x) for x in replayed.read_text().splitlines()])
+    assert sum(svc.counters.get("unreached", 0) for svc in local) == 0 and len(live) >= 25
+
+
 @pytest.mark.parametrize("algorithm", ["mtt-federated", "mtt-decentralized"])
 def test_region_centres_over_zenoh_equal_the_replay_of_their_recording(tmp_path: Path, algorithm: str) -> None:
     """Every service in its own thread over a loopback router: the centres see the sub-reports and

@@ -33,10 +33,13 @@ sub-report per region (:class:`fedtrack.local_filters.mtt.routing.RegionRouter`)
 centre's answer (``region/<rid>/mtt-resets/<ID>``) before its next scan: it learns from them
 which region holds which of its local tracks, and (federated) adopts their resets together. A
 region whose sub-report no subscriber took (its centre and standby both gone: Zenoh's matching
-status, trusted while the link to the router is settled) is not waited for (counted
-``unreached``): that centre never fuses the report, and the replay, which waits for the regions
-whose recorded entries list it, goes on without it too; before, every tracker waited
-``--reset-timeout`` for it on every report, and every region's picture was late.
+status, trusted while the link to the router is settled, and for a region one of its sub-reports
+reached before) is not waited for (counted ``unreached``): that centre never fuses the report, and
+the replay, which waits for the regions whose recorded entries list it, goes on without it too;
+before, every tracker waited ``--reset-timeout`` for it on every report, and every region's
+picture was late. A region never reached is waited for: a new session learns the centres'
+subscribers some time after it opens, and a tracker under load that took them for gone went on
+without the answers of centres that fused its first reports (live and replay differed).
 """
 
 from __future__ import annotations
@@ -83,7 +86,7 @@ class MttLocalService(Service):
     # put back by the transaction if a scan fails; ``received`` is only changed once a scan was
     # handled (compute, then commit)
     state_attrs = ("tracker", "queue", "awaiting", "awaiting_since", "awaiting_scan", "adopted",
-                   "contested_scans", "router", "sent", "answers", "unreached", "lead", "timed_out")
+                   "contested_scans", "router", "sent", "answers", "unreached", "reached", "lead", "timed_out")
 
     def __init__(self, sensor: str, federated: bool, cfg: MttConfig, reset_timeout_s: float = RESET_TIMEOUT_S,
                  max_seq_jump: int = 1000, max_time_jump_s: float = 3600.0, regions: Regions | None = None,
@@ -95,6 +98,9 @@ class MttLocalService(Service):
         self.sent: list[LocalReport] = []  # the sub-reports of the report awaiting answers (regions)
         self.answers: dict[int, tuple[RegionAnswer, bytes]] = {}  # region -> its answer and digest
         self.unreached: set[int] = set()  # the regions whose sub-report no subscriber took: not awaited
+        # the regions a sub-report of this process reached once: only their subscribers' absence is known (a
+        # new session learns the others' subscribers some time after it opens; until then it matches none)
+        self.reached: set[int] = set()
         self.sensor = check_id(sensor, "--sensor")
         self.federated = federated
         self.cfg = cfg
@@ -291,7 +297,9 @@ class MttLocalService(Service):
                     for r, (rid, (sub, elsewhere)) in enumerate(zip(self.regions.ids, parts)):
                         key = self.keys.region_report(rid, self.sensor)
                         self.publish(key, report_to_wire(sub, seq, stamp, contested, tuple(elsewhere.tolist()), first))
-                        if settled and not self.reaches(key):
+                        if self.reaches(key):
+                            self.reached.add(r)
+                        elif settled and r in self.reached:
                             self.unreached.add(r)
                     self.sent, self.answers = [sub for sub, _ in parts], {}
                     if self.unreached:
