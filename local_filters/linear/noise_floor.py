@@ -36,7 +36,11 @@ def floor_factors(R: np.ndarray, floor: np.ndarray) -> np.ndarray:
 def raise_to_floor(R: np.ndarray, floor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Each ``R`` (K, m, m) below the floor (``floor``: m standard deviations) scaled up to it by
     :func:`floor_factors` (``c R`` computed as ``(s c)(R / s)``: finite for any claim); returns the covariances
-    and which were raised (the others unchanged)."""
+    and which were raised (the others unchanged). A report whose observations all claim one ``R`` (a position
+    sensor's plots) is judged on it once."""
+    if len(R) > 1 and bool((R == R[0]).all()):
+        one, raised = raise_to_floor(R[:1], floor)
+        return (np.repeat(one, len(R), axis=0) if raised[0] else R), np.repeat(raised, len(R))
     Rs, s, sc = _scaled_factors(R, floor)
     raised = sc > s * (1.0 + RAISE_TOL)
     if not raised.any():
