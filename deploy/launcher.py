@@ -382,10 +382,10 @@ class Launcher(Monitor):
         the recorder stopped): a sender still publishing (a compromised sensor's new scan and a repeat of
         an old number every 0.1 s, each counted seen, one recorded) kept the count seen ahead of a growing
         recording and held the launch for as long as it went on (2026-11-28). The recorder commits a row an
-        fsync: with every fsync slowed to 60 ms it had stored 2 of a lockstep run's 101 fused tracks when the sensors ended, and its 2 s drain left 9
-        in tracks.jsonl, exit 0 (2026-11-27; now 101 after 40 s more); a multi-target run's, every fsync
-        slowed to 400 ms, kept 11 of the 15 pictures and 37 of the 51 scans seen after its 15 s drain, exit 0
-        (2026-11-28)."""
+        fsync: with every fsync slowed to 60 ms it had stored 2 of a lockstep run's 101 fused tracks when the
+        sensors ended, and its 2 s drain left 9 in tracks.jsonl, exit 0 (2026-11-27; now 101 after 40 s more); a
+        multi-target run's, every fsync slowed to 400 ms, kept 11 of the 15 pictures and 37 of the 51 scans seen
+        after its 15 s drain, exit 0 (2026-11-28)."""
         recorder = next((sp for sp in self.plan if sp.role == "recorder"), None)
         if recorder is None:
             return
