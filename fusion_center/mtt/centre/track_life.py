@@ -144,8 +144,9 @@ class CentreLife:
         sensor, a slot that one sensor alone supports is confirmed only once vetted, not by the report that
         questions it, and, while a sensor denies it (with ``DENIAL_LIVE`` live sensors or more), only once local
         tracks that two sensors' trackers confirmed map to it (held back, it is counted ``uncorroborated`` once).
-        A compromised sensor's consistent ghosts (its own tracker confirms them) filled the count's window with its own scans and were confirmed for
-        good, before or despite the others' scans: seed 1, 20 ghosts from t = 100 s, mean GOSPA 74 -> 223 m."""
+        A compromised sensor's consistent ghosts (its own tracker confirms them) filled the count's window with its
+        own scans and were confirmed for good, before or despite the others' scans: seed 1, 20 ghosts from t = 100
+        s, mean GOSPA 74 -> 223 m."""
         self.vetting[tentative[~self._fused_support(tentative)[:, col]]] |= VETTED
         denied = self.denied
         denied[np.setdiff1d(tentative, counted, assume_unique=True), col] = 0  # blind to it now
