@@ -20,12 +20,13 @@ from collections import Counter, OrderedDict, deque
 from collections.abc import Hashable
 from dataclasses import dataclass, field
 
+from fedtrack.local_filters.mtt.service import RESET_TIMEOUT_S
 from fedtrack.wire import HandOver, TrackPicture, TrackReport
 
 # A listed input that has not come after this long is passed over (counted ``order_skipped``): the
 # primary's picture comes after the inputs it lists, on the same router; one that far behind is lost
 # to this standby. The trackers' reset timeout: they go on without a region's answer after it anyway.
-ORDER_WAIT_S = 2.0
+ORDER_WAIT_S = RESET_TIMEOUT_S
 
 
 def entries_listed(msg: TrackPicture) -> list[Hashable]:
