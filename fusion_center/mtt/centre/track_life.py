@@ -234,35 +234,43 @@ class CentreLife:
         if not maybe.any():
             return maybe
         X, P = self.tracks.states_at(slots[maybe], report.t)
-        inside, reach, below = self._view(X, P, report)
+        inside, below = self._view(X, P, report)
+        out = ~inside
+        out[out] = ~self._reach(X[out], P[out], report)
         shows = self._clutter_would_show(X[:, [0, 2]], report)
-        maybe[maybe] = ~(inside | reach) & ((n_support[maybe] >= 2) | below | shows)
+        maybe[maybe] = out & ((n_support[maybe] >= 2) | below | shows)
         return maybe
 
-    def _view(self, X: np.ndarray, P: np.ndarray, report: LocalReport) -> tuple[np.ndarray, ...]:
+    def _view(self, X: np.ndarray, P: np.ndarray, report: LocalReport) -> tuple[np.ndarray, np.ndarray]:
         """Per central state of ``X`` (covariances ``P``) at the report's time: whether it lies inside the x-y
         extent of the report's local tracks (two or more) and above a sited radar's horizon; whether it is
-        within the association test's reach (in x-y) of one of them; whether it is below that horizon."""
-        xy, n = [0, 2], report.x.shape[0]
-        at, local = X[:, xy], report.x[:, xy]
+        below that horizon."""
         below = self._below_horizon(X, P, report)
-        inside = np.zeros(at.shape[0], dtype=bool)
-        if n > 1:
-            inside = ((at > local.min(axis=0)) & (at < local.max(axis=0))).all(axis=1) & ~below
-        reach = np.zeros(at.shape[0], dtype=bool)
-        if n:
-            d = at[:, None, :] - local[None, :, :]
-            S = P[:, None][..., xy, :][..., xy] + report.P[None][..., xy, :][..., xy]
-            d2 = np.einsum("mni,mni->mn", d, np.linalg.solve(S, d[..., None])[..., 0])
-            reach = (d2 <= self.cfg.thresholds.association[2]).any(axis=1)
-        return inside, reach, below
+        if report.x.shape[0] < 2:
+            return np.zeros(X.shape[0], dtype=bool), below
+        at, local = X[:, [0, 2]], report.x[:, [0, 2]]
+        return ((at > local.min(axis=0)) & (at < local.max(axis=0))).all(axis=1) & ~below, below
+
+    def _reach(self, X: np.ndarray, P: np.ndarray, report: LocalReport) -> np.ndarray:
+        """Per central state of ``X`` (covariances ``P``), whether it is within the association test's reach
+        (in x-y) of one of the report's local tracks: a dense states x local tracks test, so made only for the
+        states whose answer is read."""
+        xy = [0, 2]
+        if not report.x.shape[0] or not X.shape[0]:
+            return np.zeros(X.shape[0], dtype=bool)
+        d = X[:, None, xy] - report.x[None, :, xy]
+        S = P[:, None][..., xy, :][..., xy] + report.P[None][..., xy, :][..., xy]
+        d2 = np.einsum("mni,mni->mn", d, np.linalg.solve(S, d[..., None])[..., 0])
+        return (d2 <= self.cfg.thresholds.association[2]).any(axis=1)
 
     def _in_view(self, slots: np.ndarray, report: LocalReport) -> np.ndarray:
         """Per confirmed track of ``slots`` that the report's sensor does not track, whether the report shows
         that the sensor sees where it is (:meth:`_view`): inside the extent of its local tracks, above a sited
         radar's horizon, and beyond the reach of each of them (none of them may hold its detections)."""
-        inside, reach, _ = self._view(*self.tracks.states_at(slots, report.t), report)
-        return inside & ~reach
+        X, P = self.tracks.states_at(slots, report.t)
+        inside, _ = self._view(X, P, report)
+        inside[inside] = ~self._reach(X[inside], P[inside], report)
+        return inside
 
     def _evidence(self, sensor: str, R: np.ndarray) -> tuple[float, float]:
         """A scan of position sensor ``sensor`` (noise ``R``) as evidence on a central track, the
