@@ -7,6 +7,7 @@ import contextlib
 import dataclasses
 import difflib
 import os
+import re
 import stat
 import tomllib
 import types
@@ -225,9 +226,34 @@ def to_toml(table: dict[str, Any]) -> str:
     def is_array_of_tables(v: Any) -> bool:
         return isinstance(v, (list, tuple)) and bool(v) and all(isinstance(x, dict) for x in v)
 
+    def key(k: str) -> str:
+        return k if re.fullmatch(r"[A-Za-z0-9_-]+", k) else fmt(k)
+
+    def dotted(tbl: dict[str, Any], prefix: str) -> dict[str, Any] | None:
+        """``tbl``'s leaves as dotted keys under ``prefix`` when it holds only scalars and tables of
+        them (no arrays of tables), else None."""
+        flat: dict[str, Any] = {}
+        for k, v in tbl.items():
+            if isinstance(v, dict):
+                sub = dotted(v, f"{prefix}.{key(k)}")
+                if sub is None:
+                    return None
+                flat.update(sub)
+            elif is_array_of_tables(v):
+                return None
+            elif v is not None:
+                flat[f"{prefix}.{key(k)}"] = v
+        return flat
+
     def emit(tbl: dict[str, Any], path: str, header: str = "") -> None:
-        scalars = {k: v for k, v in tbl.items()
+        scalars = {key(k): v for k, v in tbl.items()
                    if not isinstance(v, dict) and not is_array_of_tables(v) and v is not None}
+        if path:  # a top-level table's sub-tables as dotted keys inside it: keys appended to the file land in it
+            for k, v in list(tbl.items()):
+                flat = dotted(v, key(k)) if isinstance(v, dict) else None
+                if flat is not None:
+                    scalars.update(flat)
+                    tbl = {kk: vv for kk, vv in tbl.items() if kk != k}
         tables = {k: v for k, v in tbl.items() if isinstance(v, dict)}
         arrays = {k: v for k, v in tbl.items() if is_array_of_tables(v)}
         if header or (path and (scalars or not (tables or arrays))):

@@ -159,7 +159,7 @@ def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, star
                             **({"noise_floor": floors[s.id]} if s.id in floors else {})} for s in specs}
     frame_table = {"origin": list(frame), "sites": {s.id: site.geodetic.tolist() for s, site, _ in sensors if site}}
     with output_file(out / "config.toml") as fh:
-        fh.write(to_toml({"mtt": mtt, "frame": frame_table}))
+        fh.write(to_toml({"frame": frame_table, "mtt": mtt}))  # [mtt] last: keys appended land in it
     return {"scans": len(lines), "targets": len(truth.icao24), "aircraft": len(set(truth.icao24)),
             "rows": len(rec.t) + sum(rec.dropped.values()), "dropped": truth.dropped,
             "start": truth.t0, "duration": sc.duration,

@@ -24,7 +24,7 @@ from fedtrack.sensors.multitarget import Scenario, parse_spec, simulate
 
 def with_mtt_keys(source: Path, out: Path, keys: str) -> None:
     """``source``'s configuration with ``keys`` (TOML lines) added to its ``[mtt]`` table (simulate writes
-    its ``[mtt.sensor.<id>]`` tables after it, so keys appended at the end would land in the last of them)."""
+    its ``[mtt]`` last, so appending would do too; this puts them first, before its sensors' dotted keys)."""
     text = source.read_text()
     assert text.startswith("[mtt]\n")
     out.write_text("[mtt]\n" + keys + text[len("[mtt]\n"):])

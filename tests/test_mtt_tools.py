@@ -203,3 +203,17 @@ def test_a_sensors_noise_in_its_spec(tmp_path: Path, capsys: pytest.CaptureFixtu
     assert (out / "truth.jsonl").read_text() == (plain / "truth.jsonl").read_text()
     assert cli([*args, str(tmp_path / "bad"), "--sensors", "pos:1.0/0"]) == 2
     assert "'pos:1.0/0': the noise is pos:P/SIGMA (m), each > 0" in capsys.readouterr().err
+
+
+def test_a_key_appended_to_simulates_config_lands_in_mtt(tmp_path: Path) -> None:
+    """``simulate`` writes the sensors' noise floors as dotted keys inside ``[mtt]`` (``[mtt]`` last), so a
+    key appended at the end of its ``config.toml`` is an ``[mtt]`` key (with ``[mtt.sensor.s1]`` headers
+    it was the last sensor's, an unknown key there); the floors read back the same."""
+    out = tmp_path / "sim"
+    assert cli(["simulate", "multitarget", "--targets", "2", "--duration", "5", "--out", str(out)]) == 0
+    path = out / "config.toml"
+    floors = load_tables(path, MttSettings).mtt.sensor
+    with path.open("a") as fh:
+        fh.write('maneuver = "vdie"\n')
+    cfg = load_tables(path, MttSettings).mtt
+    assert cfg.maneuver == "vdie" and cfg.sensor == floors and set(floors) == {"s1", "s2", "s3"}
