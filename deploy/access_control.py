@@ -13,7 +13,7 @@ recovery (:func:`cache_keys`), and lets an identity publish, reply (its cache), 
 and liveliness tokens only on its own keys (:func:`own_keys`): ``sensor-<id>`` on
 ``sensor/<id>/meas``, ``local/<id>/estimate``, ``local/<id>/tracks`` and its health/alive keys;
 ``fusion`` on ``fusion/**`` (resets, tracks, events, pictures, the state queryable);
-``region-<rid>`` on its region's answers, picture and primary token, the health/alive keys of its centre
+``region-<rid>`` on its region's answers, picture, primary token and centre tokens, the health/alive keys of its centre
 (``<rid>``) and of its standby (``<rid>-standby``: :func:`fedtrack.keys.standby_id`) and on its own hand-over keys
 (``region/*/handover/<rid>``: it hands tracks to any neighbour, as itself), not on another region's
 outputs;
@@ -73,7 +73,8 @@ def own_keys(keys: Keys, ident: str) -> list[str]:
         roles = [(role, None) for role in CENTRE_ROLES]
     elif ident.startswith(REGION_PREFIX):  # a region's centres: the region's id and its standby's
         rid = ident.removeprefix(REGION_PREFIX)
-        data = [keys.region_resets(rid), keys.region_handover(None, rid), keys.region_picture(rid), keys.primary(rid)]
+        data = [keys.region_resets(rid), keys.region_handover(None, rid), keys.region_picture(rid), keys.primary(rid),
+                keys.region_centre(rid)]
         roles = [("mtt-centre", rid), ("mtt-centre", standby_id(rid))]
     elif ident == LAUNCHER:
         return []

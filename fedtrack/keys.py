@@ -175,6 +175,12 @@ class Keys:
         session id: ``claim_instance``); of two, the later claim keeps it."""
         return self._key("alive", "mtt-primary", self._chunk(scope, "scope"), self._chunk(instance, "instance"))
 
+    def region_centre(self, region: str | None = None, instance: str | None = None) -> str:
+        """``alive/mtt-region/<rid>/<instance>``: liveliness token held by every centre of region ``<rid>``,
+        primary or standby, while it runs (``<instance>``: its Zenoh session id); ``serve picture`` does not
+        wait for the picture of a region none holds."""
+        return self._key("alive", "mtt-region", self._chunk(region, "region id"), self._chunk(instance, "instance"))
+
     def alive(self, role: str | None = None, service_id: str | None = None) -> str:
         """``alive/<role>/<id>``: liveliness token held while a service is ready."""
         return self._key("alive", self._chunk(role, "role"), self._chunk(service_id, "service id"))

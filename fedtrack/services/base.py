@@ -57,7 +57,7 @@ live sample that overtakes the per-publisher history reply makes the advanced
 subscriber drop that reply as old (measured here: a restarted recorder missed 8 of 202
 measurements in 2 of 6 runs); the recheck delivers them (the handler sees copies).
 
-Lifecycle of ``run()``: open the session -> declare subscribers and queryables ->
+Lifecycle of ``run()``: open the session -> declare subscribers, queryables and token watches ->
 ``on_start()`` -> declare the liveliness token ``alive/<role>/<id>`` -> loop until
 SIGTERM/SIGINT or ``stop()`` -> undeclare subscribers, process what is already
 queued -> ``on_stop()`` -> final Health (status "stopped", or "failed" after an
@@ -147,6 +147,15 @@ class QueryHandler:
     handler: Callable[[], Message | None]
 
 
+@dataclass(frozen=True)
+class TokenWatch:
+    """Follow the liveliness tokens on ``key`` (wildcards allowed): ``handler(key, alive)`` is called on a
+    Zenoh thread as each appears (those already there too: history) or goes."""
+
+    key: str
+    handler: Callable[[str, bool], None]
+
+
 BASE_COUNTERS = ("received", "rejected", "published", "dropped")  # every service's, in every Health
 
 
@@ -223,6 +232,10 @@ class Service(Dispatch, Publishing):
 
     def queryables(self) -> list[QueryHandler]:
         """Queries this service answers (called once, before ``on_start``)."""
+        return []
+
+    def token_watches(self) -> list[TokenWatch]:
+        """Liveliness tokens this service follows (called once, with ``subscriptions``)."""
         return []
 
     def on_start(self) -> None:
@@ -333,6 +346,10 @@ class Service(Dispatch, Publishing):
                 self._inputs.append(self.session.declare_subscriber(sub.key, on_sample, allowed_origin=origin))
         for index, qh in enumerate(self._queryables):
             self._inputs.append(self.session.declare_queryable(qh.key, lambda q, index=index: self._on_query(index, q)))
+        for watch in self.token_watches():
+            def on_token(sample: zenoh.Sample, handler: Callable[[str, bool], None] = watch.handler) -> None:
+                handler(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
+            self._inputs.append(self.session.liveliness().declare_subscriber(watch.key, on_token, history=True))
 
     def _on_query(self, index: int, query: zenoh.Query) -> None:
         """Zenoh thread: queue a query for the worker, on its queryable's stream (a querier's selectors

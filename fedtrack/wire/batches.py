@@ -281,6 +281,8 @@ class TrackPicture(_Record):
     in_flight: tuple[int, ...] = ()
     in_flight_t: tuple[float, ...] = ()
     restarted: tuple[int, ...] = ()
+    # a merged picture: the regions whose picture of its time it lacks (no live centre, or gone past --wait)
+    missing: tuple[str, ...] = ()
     part: int = 0  # this part's index, parts: how many (docs/wire.md, "Messages in parts"); on the wire only when > 1
     parts: int = 1
 
@@ -290,9 +292,10 @@ class TrackPicture(_Record):
                "fused_seqs": _counts, "stamp_ns": _count, "closing": _flag, "left": _counts, "contested": _flag,
                "existence": _optional_batch_vector, "lla": _optional_batch,
                "handovers": _counts, "regions": _identifier_list,
-               "in_flight": _counts, "in_flight_t": _reals, "restarted": _counts, "part": _count, "parts": _count}
+               "in_flight": _counts, "in_flight_t": _reals, "restarted": _counts, "missing": _identifier_list,
+               "part": _count, "parts": _count}
     _arrays = ("x", "P", "maneuver", "existence", "lla")
-    _omitted = ("handovers", "regions", "in_flight", "in_flight_t", "restarted", "part", "parts")
+    _omitted = ("handovers", "regions", "in_flight", "in_flight_t", "restarted", "missing", "part", "parts")
     _items = (_Items(("ids", "x", "P", "confirmed", "sensors", "ca", "existence", "lla"), "MAX_TRACKS"),
               _Items(("fused_seqs", "fused_sensors", "regions"), "MAX_TRACKS"),
               _Items(("maneuvering", "maneuver"), "MAX_TRACKS", "at", "ids"),
@@ -332,6 +335,8 @@ class TrackPicture(_Record):
             raise WireError("in_flight", f"expected distinct positions among the {n} tracks, each with its time")
         if self.closing and n:
             raise WireError("ids", "a closing record has no tracks")
+        if len(set(self.missing)) != len(self.missing):
+            raise WireError("missing", "expected distinct region ids")
         _check_probabilities(self.existence, n)
         if self.lla is not None and (self.lla.shape != (n, 3) or not (np.abs(self.lla[:, 0]) <= 90.0).all()
                                      or not (np.abs(self.lla[:, 1]) <= 180.0).all()):

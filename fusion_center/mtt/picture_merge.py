@@ -11,10 +11,13 @@ config`` of the recording takes each region's entries in its order.
 
 A picture time is merged once every region has published its picture of that time, a later one
 (it has none of that time: it started later, or, when it had published a picture before that time,
-lost it: counted ``missing_region`` and the picture ``contested``) or its closing record; after
+lost it: counted ``missing_region`` and the picture ``contested``) or its closing record, or has no
+live centre (none of its centres, primary or standby, holds its token ``alive/mtt-region/<rid>/*``:
+counted ``missing_region`` and ``no_centre``, not waited for); after
 ``--wait`` seconds (from the first region's picture of that time) without one, it is merged without
 that region: counted ``missing_region``, logged, and the picture marked ``contested`` when the region had
-published before (a region's picture that comes after its time was merged is counted
+published before. The merged picture names the regions it lacks (``missing``). (A region's picture that
+comes after its time was merged is counted
 ``late_picture``; its fused lists go into the next merged picture, its tracks nowhere: live and
 replay then differ at that picture; when they do not fit beside the regions' own entries in one
 merged picture, they are dropped, counted ``late_dropped``). A region picture holding more tracks
@@ -72,11 +75,19 @@ from fedtrack.geodetic import Frame, geodetic_of_states, load_frame
 from fedtrack.local_filters.mtt.config import MttServiceSettings
 from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.services.admission import digest
-from fedtrack.services.base import HISTORY_RECHECK_S, Service, Subscription, service_kwargs, service_parser
+from fedtrack.services.base import (
+    HISTORY_RECHECK_S,
+    Service,
+    Subscription,
+    TokenWatch,
+    service_kwargs,
+    service_parser,
+)
 from fedtrack.services.lead import LeadGuard
 from fedtrack.services.rejections import Conflict, Rejected
 from fedtrack.services.snapshot import MAX_SNAPSHOT_BYTES, unsealed, write_sealed
 from fedtrack.wire import TrackPicture
+from fedtrack.zsession import Peers
 
 # a merger's first HISTORY_SETTLE_S: the caches' replies and the base service's second query of them (at
 # HISTORY_RECHECK_S) are in (loopback: milliseconds after it)
@@ -126,7 +137,7 @@ class PictureMergeService(Service):
     role = "picture"
     tick_period_s = 0.05
     state_attrs = ("pending", "started", "closing", "late", "merged_t", "seq", "clock", "lead", "latest", "contested",
-                   "seen", "settle_until", "settling", "earliest")
+                   "seen", "settle_until", "settling", "earliest", "uncovered")
 
     def __init__(self, regions: Regions, dim: int, wait_s: float, period: float, frame: Frame | None = None,
                  window: int | None = None, snapshot: Path | None = None, **kwargs: Any) -> None:
@@ -154,6 +165,30 @@ class PictureMergeService(Service):
         self.contested = False  # a region sent a second, different picture of a time it had sent: the next merge says so
         # a region picture stamped far ahead of the others waits for a witness (fedtrack/services/lead.py)
         self.lead: LeadGuard[TrackPicture] = LeadGuard(max_lag=0.0)
+        # the region centres' tokens (region_centre), once watched (token_watches; a Zenoh thread's)
+        self.centres: Peers | None = None
+        self.uncovered: frozenset[int] = frozenset()  # the regions last found without a live centre (logged)
+
+    def token_watches(self) -> list[TokenWatch]:
+        """Every region centre's token: a region none holds is not waited for (:meth:`_uncovered`)."""
+        self.centres = Peers()
+        return [TokenWatch(self.keys.region_centre(), self._on_centre)]
+
+    def _on_centre(self, key: str, alive: bool) -> None:
+        """Zenoh thread: a region centre's token came or went (one naming no region of the config changes
+        nothing)."""
+        if self.centres is not None and key.rsplit("/", 2)[-2] in self.regions.ids:
+            self.centres.token(key, alive, time.monotonic())
+
+    def _uncovered(self, now: float) -> frozenset[int]:
+        """The regions without a live centre at ``now``: none holds its token while this merger's link has
+        held long enough for every live one's to be here (:meth:`fedtrack.zsession.Link.settled`: the
+        tokens that went with a router outage are back within ``LINK_GRACE_S``). None before the tokens
+        are watched."""
+        if self.centres is None or not self.link().settled(now):
+            return frozenset()
+        held = {key.rsplit("/", 2)[-2] for key in self.centres.present}
+        return frozenset(r for r, rid in enumerate(self.regions.ids) if rid not in held)
 
     def subscriptions(self) -> list[Subscription]:
         return [Subscription(self.keys.region_picture(rid), TrackPicture, partial(self.on_picture, r), history=True)
@@ -262,23 +297,40 @@ class PictureMergeService(Service):
                 self._admit(r, msg)
             self.settling = []
             self._from_caches()
+        now = time.monotonic()
+        uncovered = self._uncovered(now)
+        self._say_uncovered(uncovered)
         while True:
             heads = [q[0].t for q in self.pending if q]
             if not heads:
                 return
             T = min(heads)
             absent = [r for r, q in enumerate(self.pending) if not q and self.closing[r] is None]
-            if absent and not force and time.monotonic() - self.first_seen[T] < self.wait_s:
+            awaited = [r for r in absent if r not in uncovered]  # a region without a live centre sends nothing
+            if awaited and not force and now - self.first_seen[T] < self.wait_s:
                 return
             # a region that had sent a picture before T and whose next is after it lost T's (or skipped it)
             passed = [r for r, q in enumerate(self.pending) if q and q[0].t > T and self.earliest[r] < T]
             for r in absent + passed:
                 self.count("missing_region")
-                self.log.warning("picture at t=%g merged without region %s", T, self.regions.ids[r])
+                if r in uncovered:
+                    self.count("no_centre")
+                else:
+                    self.log.warning("picture at t=%g merged without region %s", T, self.regions.ids[r])
             parts = [q.popleft() if q and q[0].t == T else None for q in self.pending]
-            self._publish(T, parts, contested=bool(passed) or any(self.started[r] for r in absent))
+            self._publish(T, parts, contested=bool(passed) or any(self.started[r] for r in absent),
+                          missing=tuple(self.regions.ids[r] for r in sorted(absent + passed)))
             self.first_seen.pop(T, None)
             self.merged_t = T
+
+    def _say_uncovered(self, uncovered: frozenset[int]) -> None:
+        """Log each region found without a live centre, and each whose centre is back, once."""
+        for r in sorted(uncovered - self.uncovered):
+            self.log.warning("region %s has no live centre (its token %s went, or none was declared): merging "
+                             "without it at once", self.regions.ids[r], self.keys.region_centre(self.regions.ids[r]))
+        for r in sorted(self.uncovered - uncovered):
+            self.log.warning("region %s has a live centre again: waiting for its pictures", self.regions.ids[r])
+        self.uncovered = uncovered
 
     def _from_caches(self) -> None:
         """At the end of the start's settling: when every region has pictures queued (its cache's), drop
@@ -292,7 +344,7 @@ class PictureMergeService(Service):
                 self.count("cache_partial")
 
     def _publish(self, T: float, parts: list[TrackPicture | None], contested: bool = False,
-                 closing: bool = False) -> None:
+                 closing: bool = False, missing: tuple[str, ...] = ()) -> None:
         tracks, twice = merge_pictures([None if p is None else region_picture_of(p) for p in parts], self.dim)
         if twice:
             self.count("seen_twice", len(twice))
@@ -318,7 +370,8 @@ class PictureMergeService(Service):
             self.merged_t) + 1
         self.publish(self.keys.mtt_picture(), picture_message(
             number, T, tracks, order, left, contested, closing, handovers, tuple(e[3] for e in entries),
-            lla=None if self.frame is None else geodetic_of_states(self.frame, tracks.x), restarted=restarted))
+            lla=None if self.frame is None else geodetic_of_states(self.frame, tracks.x), restarted=restarted,
+            missing=missing))
         self.seq += 1
         self.counters["pictures"] = self.seq
         if self.snapshot is not None and not closing:

@@ -32,7 +32,8 @@ class CentreFailover:
 
     def _start_failover(self) -> None:
         """Watch the primary tokens; a primary claims one (refusing to start if another holds one;
-        two started together both claim, and the earlier claim steps down: :meth:`_failover_tick`)."""
+        two started together both claim, and the earlier claim steps down: :meth:`_failover_tick`). A
+        region's centre, primary or standby, also holds the region's centre token while it runs."""
         assert self.session is not None
         key = self.keys.primary(self._scope())
         present = any(reply.ok is not None for reply in self.session.liveliness().get(key, timeout=1.0))
@@ -43,6 +44,9 @@ class CentreFailover:
         elif not present:
             self.standby.found_none(time.monotonic())
         self._inputs.append(self.session.liveliness().declare_subscriber(key, self._on_primary, history=True))
+        if self.region is not None:  # every centre of a region, primary or standby: serve picture waits for its pictures
+            self._inputs.append(self.session.liveliness().declare_token(
+                self.keys.region_centre(self.region, str(self.session.zid()))))
 
     def _claim(self) -> None:
         """Declare this centre's primary token, under a new instance (:func:`.standby.claim_instance`)."""

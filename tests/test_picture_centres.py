@@ -1,0 +1,117 @@
+"""``serve picture`` and the region centres' tokens (``alive/mtt-region/<rid>/<instance>``): a region
+with no live centre (its centre and standby dead, or none started) is not waited for; a live one that
+is late still is. In-process on the bus of ``test_hostile_messages`` (the tokens given by hand), and
+over a loopback Zenoh router with a real region centre's token (about 3 s)."""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+from support import free_port, wait_until
+from test_hostile_messages import KEYS, OPTIONS, Bus
+from test_hostile_sequences import region_picture
+from test_mtt_regions_live import CONFIG as REGIONS_CONFIG
+
+from fedtrack.fusion_center.mtt.picture_merge import PictureMergeService
+from fedtrack.fusion_center.mtt.service import MttCentreService
+from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.regions import Regions, load_regions
+from fedtrack.wire import TrackPicture, decode, encode
+from fedtrack.zsession import SessionOptions, close_session, open_session
+
+
+def regions_of(tmp_path: Path) -> Regions:
+    config = tmp_path / "regions.toml"
+    config.write_text(REGIONS_CONFIG)
+    regions = load_regions(config)
+    assert regions is not None and regions.ids == ("x0y0", "x1y0")
+    return regions
+
+
+def test_a_region_without_a_live_centre_is_not_waited_for(tmp_path: Path) -> None:
+    """Region x1y0 has no centre: x0y0's picture of t = 0 is merged at once (before: after the whole
+    ``--wait``, 60 s here), its merged picture naming x1y0 ``missing``, counted ``no_centre``, not
+    contested (x1y0 never sent one). x1y0's centre starts: t = 1 waits for its picture. It dies: t = 2
+    is merged at once again, contested (x1y0 had sent pictures). After this merger's own link to the
+    router came back, a region whose token is not back yet is waited for (its token went with the link)."""
+    merger = PictureMergeService(regions_of(tmp_path), 4, 60.0, 1.0, service_id="picture", options=OPTIONS,
+                                 deployment=KEYS.deployment)
+    bus = Bus([merger])
+    merger.token_watches()
+    a, b = KEYS.region_picture("x0y0"), KEYS.region_picture("x1y0")
+    token_a, token_b = KEYS.region_centre("x0y0", "a1"), KEYS.region_centre("x1y0", "b1")
+    merger._on_centre(token_a, True)
+    merger._on_centre(KEYS.region_centre("elsewhere", "c1"), True)  # no region of the config: changes nothing
+    bus.put(a, encode(region_picture(0.0, (0,))))
+    merged = bus.of(TrackPicture)
+    assert [(p.t, p.ids, p.missing, p.contested) for p in merged] == [(0.0, (0,), ("x1y0",), False)]
+    assert merger.counters["no_centre"] == 1 and merger.counters["missing_region"] == 1
+    merger._on_centre(token_b, True)  # x1y0's centre is up: its picture is waited for
+    bus.put(a, encode(region_picture(1.0, (0,))))
+    merger.on_tick()
+    assert len(bus.of(TrackPicture)) == 1
+    bus.put(b, encode(region_picture(1.0, (1,))))
+    assert [(p.t, p.ids, p.missing) for p in bus.of(TrackPicture)[1:]] == [(1.0, (0, 1), ())]
+    merger._on_centre(token_b, False)  # x1y0's centre (and standby) died
+    bus.put(a, encode(region_picture(2.0, (0,))))
+    assert [(p.t, p.missing, p.contested) for p in bus.of(TrackPicture)[2:]] == [(2.0, ("x1y0",), True)]
+    merger._router_back_at = time.monotonic()  # this merger's link just came back: x1y0's token may follow
+    bus.put(a, encode(region_picture(3.0, (0,))))
+    merger.on_tick()
+    assert len(bus.of(TrackPicture)) == 3 and merger.counters["no_centre"] == 2
+    merger._on_centre(token_a, False)
+    merger._on_centre(token_a, True)  # x0y0's own token does not stand for x1y0's
+    merger._router_back_at -= 60.0  # LINK_GRACE_S after the return: x1y0's token did not come back
+    merger.on_tick()
+    assert [(p.t, p.missing) for p in bus.of(TrackPicture)[3:]] == [(3.0, ("x1y0",))]
+    assert merger.counters["rejected"] == 0
+
+
+def test_a_merged_picture_is_not_held_for_a_region_whose_centre_stopped_over_zenoh(tmp_path: Path) -> None:
+    """Live, on a loopback router: region x1y0's centre runs (its token is the real one) but gets no
+    reports; a test session publishes x0y0's pictures. Its picture of t = 0 waits the whole ``--wait``
+    (1 s) for x1y0's, whose centre lives; x1y0's centre stops, its token goes, and the picture of t = 1
+    is merged within 0.5 s, x1y0 ``missing`` (before: 1 s again)."""
+    regions = regions_of(tmp_path)
+    port = free_port()
+    router = open_session(SessionOptions(mode="router", connect=(), listen=(f"tcp/127.0.0.1:{port}",)))
+    opts = SessionOptions(connect=(f"tcp/127.0.0.1:{port}",), connect_timeout_s=5.0)
+    deployment = "centretokens"
+    centre = MttCentreService("mtt-federated", MttConfig(sensors=("s1",)), 4, region="x1y0", regions=regions,
+                              service_id="x1y0", options=opts, deployment=deployment)
+    merger = PictureMergeService(regions, 4, 1.0, 1.0, service_id="picture", options=opts, deployment=deployment)
+    threads = [threading.Thread(target=svc.run, daemon=True) for svc in (centre, merger)]
+    session = None
+    got: list[tuple[float, TrackPicture]] = []
+    try:
+        for th in threads:
+            th.start()
+        session = open_session(opts)
+        keys = type(KEYS)(deployment)
+        session.declare_subscriber(keys.mtt_picture(), lambda s: got.append(
+            (time.monotonic(), decode(s.payload.to_bytes(), TrackPicture))))
+        assert wait_until(lambda: merger.settle_until is None and merger.centres is not None
+                          and len(merger.centres.present) == 1, timeout=10.0)
+        pub = session.declare_publisher(keys.region_picture("x0y0"))
+        delays = []
+        for k in range(2):
+            if k == 1:
+                centre.stop()
+                threads[0].join(10.0)
+            sent = time.monotonic()
+            pub.put(encode(region_picture(float(k), (0,))))
+            assert wait_until(lambda: len(got) > k, timeout=5.0), k
+            delays.append(got[k][0] - sent)
+        assert delays[0] >= 0.9 and delays[1] < 0.5, delays
+        assert [(p.t, p.ids, p.missing) for _, p in got] == [(0.0, (0,), ("x1y0",)), (1.0, (0,), ("x1y0",))]
+        assert merger.counters.get("no_centre") == 1 and merger.counters["rejected"] == 0
+    finally:
+        centre.stop()
+        merger.stop()
+        for th in threads:
+            th.join(10.0)
+        for z in (session, router):
+            if z is not None:
+                close_session(z)
