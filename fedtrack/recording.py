@@ -47,7 +47,8 @@ processed (no local tracker took them, or it dropped them as late) go to
 ``unprocessed.jsonl`` beside the measurements file, in arrival order. A region run's merged
 pictures (``TrackPicture.regions``: docs/multitarget.md#regions) give one line per region entry,
 tagged ``"region"`` (scans with their ``"seq"``; hand-overs as ``{"t", "region", "handover": N,
-"from": region}``), each region's in its processing order.
+"from": region}``; a region centre's start afresh as ``{"t", "region", "began": true, "next_id": N,
+"serial": S}``), each region's in its processing order.
 """
 
 from __future__ import annotations
@@ -332,6 +333,7 @@ class Recording:
                     # the positions as sets: a picture's tuples looked up for each of its up to 131,072 entries
                     # took minutes (32,768 departures and 32,768 restarts: 160 s for one picture, tour47)
                     left, restarted, handovers = set(pic.left), set(pic.restarted), set(pic.handovers)
+                    began = dict(zip(pic.began, pic.began_serials))
                     for i, key in enumerate(zip(pic.fused_sensors, pic.fused_seqs)):
                         # a region run's merged picture: every entry of every region, tagged with it
                         # (a hand-over's entry names its sending region and its number: docs/multitarget.md#regions)
@@ -343,6 +345,8 @@ class Recording:
                                              **({"seq": key[1], **tag} if tag else {})})
                         elif i in handovers and tag:
                             write(0, m_out, {"t": pic.t, "handover": key[1], "from": key[0], **tag})
+                        elif i in began and tag:  # the region's centre began afresh: its first numbers
+                            write(0, m_out, {"t": pic.t, "began": True, "next_id": key[1], "serial": began[i], **tag})
                         elif (key in rowid and (tag or rowid[key] not in used)
                               and (line := scan_line(rowid[key])) is not None):
                             write(0, m_out, {**line, **({"seq": key[1], **tag} if tag else {})})

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import threading
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from support import free_port, wait_until
@@ -115,3 +116,34 @@ def test_a_merged_picture_is_not_held_for_a_region_whose_centre_stopped_over_zen
         for z in (session, router):
             if z is not None:
                 close_session(z)
+
+
+def test_a_region_centre_started_again_is_merged_after_its_former_ones_last_entries(tmp_path: Path) -> None:
+    """x0y0's centre stops (its closing record lists the report it fused last) and a new process of
+    it starts: the merged picture lists the former's last entry, then the new one's start (``began``,
+    its first track id and hand-over number) and its entries, so that the recording replays them in
+    that order. Before, the closing record's entries came at the end of the run, and a region picture
+    listed no start. A region picture listing a start that is not its own first entry, or naming
+    another region or an id outside its sequence, is refused (``wrong_region``)."""
+    merger = PictureMergeService(regions_of(tmp_path), 4, 60.0, 1.0, service_id="picture", options=OPTIONS,
+                                 deployment=KEYS.deployment)
+    bus = Bus([merger])
+    a, b = KEYS.region_picture("x0y0"), KEYS.region_picture("x1y0")
+    for k in range(2):
+        bus.put(a, encode(region_picture(float(k), (0,))))
+        bus.put(b, encode(region_picture(float(k), (1,))))
+    closing = replace(region_picture(1.5, ()), closing=True, fused_seqs=(7,))
+    bus.put(a, encode(closing))
+    fresh = replace(region_picture(2.0, (4098,)), fused_sensors=("x0y0", "s1"), fused_seqs=(4098, 8), began=(0,),
+                    began_serials=(2049,))
+    bus.put(a, encode(fresh))
+    bus.put(b, encode(region_picture(2.0, (1,))))
+    last = bus.of(TrackPicture)[-1]
+    assert last.t == 2.0 and list(zip(last.fused_sensors, last.fused_seqs, last.regions)) == [
+        ("s1", 7, "x0y0"), ("x0y0", 4098, "x0y0"), ("s1", 8, "x0y0"), ("s1", 2, "x1y0")]
+    assert (last.began, last.began_serials) == ((1,), (2049,))
+    for bad in (replace(fresh, t=3.0, began=(1,)), replace(fresh, t=3.0, fused_sensors=("x1y0", "s1")),
+                replace(fresh, t=3.0, fused_seqs=(4099, 8))):
+        bus.put(a, encode(bad))
+    assert merger.counters["rejected_wrong_region"] == 3
+    assert len(bus.of(TrackPicture)) == 3

@@ -7,6 +7,7 @@ fresh process, and a second target crosses."""
 
 from __future__ import annotations
 
+import json
 import os
 from collections.abc import Callable
 from dataclasses import replace
@@ -14,18 +15,21 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_hostile_messages import KEYS, OPTIONS, Bus
+from support import assert_same_pictures
+from test_hostile_messages import KEYS, OPTIONS, Bus, _matches
 from test_hostile_regions import SENSORS, report
 from test_hostile_semantics import hand_over
 from test_mtt_regions_live import CONFIG as REGIONS_CONFIG
-from test_mtt_regions_live import LAUNCH
+from test_mtt_regions_live import LAUNCH, scenario, services
 
 from fedtrack.cli import main
 from fedtrack.deploy.plan import service_plan
 from fedtrack.deploy.settings import load_settings
 from fedtrack.fusion_center.mtt.numbers import RESERVE_AHEAD, Numbers, read_numbers, reservation
 from fedtrack.fusion_center.mtt.picture_merge import PictureMergeService
+from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.fusion_center.mtt.service import MttCentreService
+from fedtrack.keys import Keys
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.wire import HandOver, encode
@@ -205,3 +209,56 @@ def test_numbers_are_a_region_centres_only(tmp_path: Path, capsys: pytest.Captur
     ``--region`` is refused (exit 2), not ignored."""
     code = main(["serve", "mtt-centre", "--numbers", str(tmp_path / "all.numbers"), "--connect", "tcp/127.0.0.1:1"])
     assert code == 2 and "--numbers: a region centre's (--region) only" in capsys.readouterr().err
+
+
+def test_a_region_centre_started_again_empty_replays(tmp_path: Path) -> None:
+    """Region x0y0's centre stopped at t = 8 s (SIGTERM: its last pictures and its closing record; no
+    standby) and a fresh process of it started at t = 14 s, empty, numbering after its former one's
+    reservation: the recording replays to the live merged pictures across the restart. Before, the
+    recording did not say where the new process began: the replay ran the former centre on, x0y0's
+    tracks were missing from the replayed picture of t = 8 and every later picture differed."""
+    msgs, cfg, config = scenario(tmp_path)
+    regions = load_regions(config)
+    assert regions is not None
+    numbers = tmp_path / "x0y0.numbers"
+    centres, local, merger, recorder = services(tmp_path, "mtt-federated", config, cfg,
+                                                {"options": OPTIONS, "deployment": "hostile"})
+    first = MttCentreService("mtt-federated", cfg, 4, region="x0y0", regions=regions, numbers=numbers,
+                             service_id="x0y0", options=OPTIONS, deployment="hostile")
+    recorder.on_start()
+    bus = Bus([first, centres[1], *local, merger, recorder])
+    keys = Keys("hostile")
+
+    def reaches(key: str) -> bool:
+        return any(_matches(sub.key, key) for svc in bus.services for sub in svc._subscriptions)
+
+    for svc in local:
+        svc.reaches = reaches  # type: ignore[method-assign]
+    again = None
+    for m in (m for m in msgs if m.t < 22.0):
+        if m.t >= 8.0 and first in bus.services:  # stopped (SIGTERM): its last pictures and closing record
+            first.on_stop()
+            bus.drain()
+            bus.services.remove(first)
+            bus._routes.clear()
+        if m.t >= 14.0 and again is None:
+            again = MttCentreService("mtt-federated", cfg, 4, region="x0y0", regions=regions, numbers=numbers,
+                                     service_id="x0y0", options=OPTIONS, deployment="hostile")
+            again._subscriptions = again.subscriptions()
+            again.session = first.session
+            again.publish = first.publish  # type: ignore[method-assign]
+            bus.services.insert(0, again)
+            bus._routes.clear()
+        bus.put(keys.sensor_meas(m.sensor), encode(m))
+    assert again is not None
+    for svc in [*local, again, centres[1], merger]:
+        svc.on_stop()
+        bus.drain()
+    recorder.on_stop()
+    assert all(svc.counters.get("rejected", 0) == 0 for svc in [again, centres[1], *local, merger, recorder])
+    assert again.counters.get("pictures", 0) >= 7
+    live = [json.loads(x) for x in (tmp_path / "out" / "tracks.jsonl").read_text().splitlines()]
+    assert any(tr["id"] >= RESERVE_AHEAD for tr in live[-1]["tracks"])  # the new process's, numbered after
+    replayed = tmp_path / "replayed.jsonl"
+    replay_mtt("mtt-federated", tmp_path / "out" / "measurements.jsonl", config, replayed, regions="config")
+    assert_same_pictures(live, [json.loads(x) for x in replayed.read_text().splitlines()])

@@ -483,3 +483,18 @@ def test_picture_line_holds_the_rows_exactly(d: int) -> None:
     nan_line = json.dumps({"t": 12.5, "tracks": picture_rows(ids, broken, P, confirmed, sensors, models)})
     assert picture_line(12.5, ids, broken, P, confirmed, sensors, models) == nan_line
     assert json.loads(picture_line(0.0, [], np.zeros((0, d)), np.zeros((0, d, d)), [], [])) == {"t": 0.0, "tracks": []}
+
+
+def test_a_pictures_centre_starts_and_missing_regions_are_checked() -> None:
+    """``began`` names distinct positions of the fused lists, none a departure, each with its hand-over
+    number; ``missing`` distinct region ids; both round-trip and are left off the wire when empty."""
+    base = dict(seq=1, t=1.0, ids=(), x=np.zeros((0, 4)), P=np.zeros((0, 4)), confirmed=(), sensors=(),
+                fused_sensors=("x0y0", "s1"), fused_seqs=(4, 2), stamp_ns=1)
+    ok = TrackPicture(**base, began=(0,), began_serials=(3,), missing=("x1y0",))
+    again = decode(encode(ok), TrackPicture)
+    assert (again.began, again.began_serials, again.missing) == ((0,), (3,), ("x1y0",))
+    assert b"began" not in encode(TrackPicture(**base)) and b"missing" not in encode(TrackPicture(**base))
+    for bad in (dict(began=(0,)), dict(began=(2,), began_serials=(3,)), dict(began=(1,), began_serials=(3,), left=(1,)),
+                dict(missing=("x1y0", "x1y0"))):
+        with pytest.raises(WireError):
+            TrackPicture(**base, **bad)

@@ -281,6 +281,11 @@ class TrackPicture(_Record):
     in_flight: tuple[int, ...] = ()
     in_flight_t: tuple[float, ...] = ()
     restarted: tuple[int, ...] = ()
+    # a region centre process's first picture (and the merge): the positions in the fused lists where a centre of
+    # the region (``fused_sensors``) began with no tracks, numbering its tracks from ``fused_seqs`` and its
+    # hand-overs from ``began_serials`` (one each)
+    began: tuple[int, ...] = ()
+    began_serials: tuple[int, ...] = ()
     # a merged picture: the regions whose picture of its time it lacks (no live centre, or gone past --wait)
     missing: tuple[str, ...] = ()
     part: int = 0  # this part's index, parts: how many (docs/wire.md, "Messages in parts"); on the wire only when > 1
@@ -292,17 +297,20 @@ class TrackPicture(_Record):
                "fused_seqs": _counts, "stamp_ns": _count, "closing": _flag, "left": _counts, "contested": _flag,
                "existence": _optional_batch_vector, "lla": _optional_batch,
                "handovers": _counts, "regions": _identifier_list,
-               "in_flight": _counts, "in_flight_t": _reals, "restarted": _counts, "missing": _identifier_list,
+               "in_flight": _counts, "in_flight_t": _reals, "restarted": _counts, "began": _counts,
+               "began_serials": _counts, "missing": _identifier_list,
                "part": _count, "parts": _count}
     _arrays = ("x", "P", "maneuver", "existence", "lla")
-    _omitted = ("handovers", "regions", "in_flight", "in_flight_t", "restarted", "missing", "part", "parts")
+    _omitted = ("handovers", "regions", "in_flight", "in_flight_t", "restarted", "began", "began_serials", "missing", "part",
+                "parts")
     _items = (_Items(("ids", "x", "P", "confirmed", "sensors", "ca", "existence", "lla"), "MAX_TRACKS"),
               _Items(("fused_seqs", "fused_sensors", "regions"), "MAX_TRACKS"),
               _Items(("maneuvering", "maneuver"), "MAX_TRACKS", "at", "ids"),
               _Items(("in_flight", "in_flight_t"), "MAX_TRACKS", "at", "ids"),
               _Items(("left",), "MAX_TRACKS", "at", "fused_seqs"),
               _Items(("handovers",), "MAX_TRACKS", "at", "fused_seqs"),
-              _Items(("restarted",), "MAX_TRACKS", "at", "fused_seqs"))
+              _Items(("restarted",), "MAX_TRACKS", "at", "fused_seqs"),
+              _Items(("began", "began_serials"), "MAX_TRACKS", "at", "fused_seqs"))
 
     def _check(self) -> None:
         n = len(self.ids)
@@ -328,6 +336,10 @@ class TrackPicture(_Record):
                 or any(i >= len(self.fused_seqs) for i in self.restarted)):
             raise WireError("restarted", "expected distinct positions in the fused lists, none a departure or a "
                                          "hand-over")
+        if (len(set(self.began)) != len(self.began) or set(self.began) & {*self.left, *self.handovers, *self.restarted}
+                or any(i >= len(self.fused_seqs) for i in self.began) or len(self.began_serials) != len(self.began)):
+            raise WireError("began", "expected distinct positions in the fused lists, none a departure, hand-over or "
+                                     "restart, each with its hand-over number (began_serials)")
         if len(self.regions) not in (0, len(self.fused_seqs)):
             raise WireError("regions", "expected none or one for each entry of the fused lists")
         if (len(set(self.in_flight)) != len(self.in_flight) or any(i >= n for i in self.in_flight)

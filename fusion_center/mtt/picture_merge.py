@@ -16,7 +16,12 @@ live centre (none of its centres, primary or standby, holds its token ``alive/mt
 counted ``missing_region`` and ``no_centre``, not waited for); after
 ``--wait`` seconds (from the first region's picture of that time) without one, it is merged without
 that region: counted ``missing_region``, logged, and the picture marked ``contested`` when the region had
-published before. The merged picture names the regions it lacks (``missing``). (A region's picture that
+published before. The merged picture names the regions it lacks (``missing``). A region centre's first
+picture lists its start (``began``: its first track id and hand-over number, the recorder's centre start
+line), and a region that sends a picture after its closing record (a centre started again after a clean
+stop) has that record's entries merged before the new process's, so that the replay starts the region's
+centre afresh after them; a start other than the picture's first entry, its region's, is refused
+(``wrong_region``). (A region's picture that
 comes after its time was merged is counted
 ``late_picture``; its fused lists go into the next merged picture, its tracks nowhere: live and
 replay then differ at that picture; when they do not fit beside the regions' own entries in one
@@ -98,15 +103,18 @@ SNAPSHOT_MAGIC = b"fedtrack-picture-1\n"  # --snapshot: then the digest, then th
 # 100, above a region's period of scans, 64 live sensors at 10 Hz, and issue 27's 10^5 tracks over the
 # regions); the entries of late pictures go into the next merged picture, or are dropped when they do
 # not fit beside its regions' own (``late_dropped``), so that every merged picture can be sent
-# (sensor or sending region, seq, kind: scan / left / handover / restarted, region)
-Entries = list[tuple[str, int, str, str]]
+# (sensor or sending region, seq, kind: scan / left / handover / restarted / began, region, a began's first
+# hand-over number)
+Entries = list[tuple[str, int, str, str, int]]
 
 
 def entries_of(msg: TrackPicture, region: str) -> Entries:
     """A region picture's fused lists as tagged entries."""
     kinds = {**{i: "left" for i in msg.left}, **{i: "handover" for i in msg.handovers},
-             **{i: "restarted" for i in msg.restarted}}
-    return [(s, q, kinds.get(i, "scan"), region) for i, (s, q) in enumerate(zip(msg.fused_sensors, msg.fused_seqs))]
+             **{i: "restarted" for i in msg.restarted}, **{i: "began" for i in msg.began}}
+    serials = dict(zip(msg.began, msg.began_serials))
+    return [(s, q, kinds.get(i, "scan"), region, serials.get(i, 0))
+            for i, (s, q) in enumerate(zip(msg.fused_sensors, msg.fused_seqs))]
 
 
 def region_picture_of(msg: TrackPicture) -> RegionPicture:
@@ -137,7 +145,7 @@ class PictureMergeService(Service):
     role = "picture"
     tick_period_s = 0.05
     state_attrs = ("pending", "started", "closing", "late", "merged_t", "seq", "clock", "lead", "latest", "contested",
-                   "seen", "settle_until", "settling", "earliest", "uncovered")
+                   "seen", "settle_until", "settling", "earliest", "uncovered", "closed")
 
     def __init__(self, regions: Regions, dim: int, wait_s: float, period: float, frame: Frame | None = None,
                  window: int | None = None, snapshot: Path | None = None, **kwargs: Any) -> None:
@@ -155,6 +163,7 @@ class PictureMergeService(Service):
         self.pending: list[deque[TrackPicture]] = [deque() for _ in range(R)]
         self.started = [False] * R  # the region published a picture
         self.closing: list[TrackPicture | None] = [None] * R
+        self.closed: list[set[bytes]] = [set() for _ in range(R)]  # the closing records taken (digests)
         self.late: list[Entries] = [[] for _ in range(R)]  # entries of pictures that came after their time
         self.first_seen: dict[float, float] = {}  # picture time -> monotonic time of its first region picture
         self.merged_t: float | None = None
@@ -219,12 +228,21 @@ class PictureMergeService(Service):
             raise Rejected("seq_jump", f"region {self.regions.ids[r]}'s picture {msg.seq} at t={msg.t:g}: a number of "
                            f"{NUMBER_ROOM:.3g} or more, or a time of {NUMBER_ROOM / 2:.3g} periods or more from t = 0: "
                            "the merged pictures numbered on from it could leave the wire's integers")
-        share = PICTURE_ITEMS // len(self.regions.ids)
+        rid, R = self.regions.ids[r], len(self.regions.ids)
+        if msg.began and (msg.began != (0,) or msg.fused_sensors[0] != rid or msg.fused_seqs[0] % R != r):
+            # a centre lists its own start, first, once, with a track id of its region's sequence (the replay's check)
+            raise Rejected("wrong_region", f"region {rid}'s picture at t={msg.t}: a centre's start at positions "
+                           f"{list(msg.began)[:4]}, not its own first entry naming {rid} and an id of its sequence")
+        share = PICTURE_ITEMS // R
         if max(len(msg.ids), len(msg.fused_sensors)) > share:
             raise Rejected("too_large", f"region {self.regions.ids[r]}'s picture at t={msg.t}: {len(msg.ids)} tracks, "
                            f"{len(msg.fused_sensors)} entries; its share of a merged picture is {share}")
         self.started[r] = True
         if msg.closing:
+            if digest(msg) in self.closed[r]:  # a re-delivery (a cache's) of one taken
+                self.count("duplicate")
+                return
+            self.closed[r].add(digest(msg))
             self.closing[r] = msg
             self._merge()
             return
@@ -263,6 +281,10 @@ class PictureMergeService(Service):
                 f"region {self.regions.ids[r]}'s picture at t={msg.t}: it has sent one at "
                 f"t={msg.t if latest is None else latest.t}")))
             return
+        closed = self.closing[r]
+        if closed is not None:  # a centre of the region started again after its former one's clean stop
+            self.late[r] += entries_of(closed, self.regions.ids[r])  # what that one processed last goes first
+            self.closing[r] = None
         seen[msg.t] = mark
         while len(seen) > self.window:
             del seen[min(seen)]
@@ -359,10 +381,11 @@ class PictureMergeService(Service):
         for r, now in enumerate(current):
             entries += self.late[r] + now
             self.late[r] = []
-        order = [(s, q) for s, q, _, _ in entries]
+        order = [(s, q) for s, q, _, _, _ in entries]
         left = [i for i, e in enumerate(entries) if e[2] == "left"]
         handovers = [i for i, e in enumerate(entries) if e[2] == "handover"]
         restarted = [i for i, e in enumerate(entries) if e[2] == "restarted"]
+        began = tuple((i, e[4]) for i, e in enumerate(entries) if e[2] == "began")
         contested = contested or self.contested or any(p is not None and p.contested for p in parts)
         self.contested = False
         # a closing record is numbered after the last picture
@@ -371,7 +394,7 @@ class PictureMergeService(Service):
         self.publish(self.keys.mtt_picture(), picture_message(
             number, T, tracks, order, left, contested, closing, handovers, tuple(e[3] for e in entries),
             lla=None if self.frame is None else geodetic_of_states(self.frame, tracks.x), restarted=restarted,
-            missing=missing))
+            missing=missing, began=began))
         self.seq += 1
         self.counters["pictures"] = self.seq
         if self.snapshot is not None and not closing:

@@ -39,12 +39,14 @@ def picture_message(seq: int, T: float, tracks: PictureTracks, order: list[tuple
                     contested: bool, closing: bool = False, handovers: list[int] | tuple[int, ...] = (),
                     regions: tuple[str, ...] = (), lla: np.ndarray | None = None,
                     flying: dict[int, float] | None = None,
-                    restarted: list[int] | tuple[int, ...] = (), missing: tuple[str, ...] = ()) -> TrackPicture:
+                    restarted: list[int] | tuple[int, ...] = (), missing: tuple[str, ...] = (),
+                    began: tuple[tuple[int, int], ...] = ()) -> TrackPicture:
     """The ``TrackPicture`` of ``tracks`` at ``T``, listing the entries ``order`` processed since the
     previous one (``left``, ``handovers``, ``restarted``: the positions that are departures, hand-overs
     taken over and trackers restarted; ``regions``: each entry's region, in a merged picture; ``lla``:
     the tracks on the Earth; ``flying``: the ids of a region centre's copies of tracks it handed over,
-    with the hand-overs' times; ``missing``: the regions a merged picture lacks)."""
+    with the hand-overs' times; ``missing``: the regions a merged picture lacks; ``began``: (position,
+    first hand-over number) where a region's centre began afresh, its first track id that entry's seq)."""
     d = tracks.x.shape[1]
     ca = tuple(model == "ca" for model in tracks.models)
     maneuvering = tracks.maneuver_rows()
@@ -58,7 +60,7 @@ def picture_message(seq: int, T: float, tracks: PictureTracks, order: list[tuple
         handovers=tuple(handovers), regions=regions,
         in_flight=tuple(k for k, i in enumerate(tracks.ids) if flying and i in flying),
         in_flight_t=tuple(flying[i] for i in tracks.ids if flying and i in flying), restarted=tuple(restarted),
-        missing=missing)
+        missing=missing, began=tuple(i for i, _ in began), began_serials=tuple(s for _, s in began))
 
 
 def picture_tracks(msg: TrackPicture) -> PictureTracks:

@@ -33,6 +33,7 @@ from fedtrack.fusion_center.mtt.engines import (
     no_tracks,
     union_picture,
 )
+from fedtrack.fusion_center.mtt.failover.standby import NUMBER_ROOM
 from fedtrack.fusion_center.mtt.shards import RegionCentre
 from fedtrack.geodetic import RadarSite
 from fedtrack.jsonl import InputError, read_jsonl
@@ -180,8 +181,16 @@ class Handed(NamedTuple):
     serial: int
 
 
-# (scan, its number), a departure, a tracker's restart (with its next scan's number), a hand-over
-Entry = tuple[SensorScan, int] | SensorLeft | TrackerRestarted | Handed
+class Began(NamedTuple):
+    """A recorded start of a region centre process with no tracks, numbering its tracks from ``next_id``
+    and its hand-overs from ``serial`` (a centre started again after its former one stopped or died)."""
+
+    next_id: int
+    serial: int
+
+
+# (scan, its number), a departure, a tracker's restart (with its next scan's number), a hand-over, a centre's start
+Entry = tuple[SensorScan, int] | SensorLeft | TrackerRestarted | Handed | Began
 
 
 def read_region_entries(path: Path, regions: Regions) -> list[tuple[int, Entry]]:
@@ -199,6 +208,15 @@ def read_region_entries(path: Path, regions: Regions) -> list[tuple[int, Entry]]
             if set(obj) != {"t", "handover", "from"} or obj["from"] not in index or not isinstance(obj["handover"], int):
                 raise InputError(f"{where}: a hand-over line is {{\"t\", \"region\", \"handover\": N, \"from\": region}}")
             out.append((index[rid], Handed(obj["from"], obj["handover"])))
+            continue
+        if "began" in obj:
+            numbers = [obj.get(k) for k in ("next_id", "serial")]
+            if (set(obj) != {"t", "began", "next_id", "serial"} or obj["began"] is not True
+                    or not all(type(n) is int and 0 <= n < NUMBER_ROOM for n in numbers)
+                    or numbers[0] % len(regions.ids) != index[rid]):
+                raise InputError(f"{where}: a centre's start is {{\"t\", \"region\", \"began\": true, \"next_id\": N, "
+                                 "\"serial\": S}} (integers in [0, 2^62), N in the region's sequence of ids)")
+            out.append((index[rid], Began(numbers[0], numbers[1])))
             continue
         seq = obj.pop("seq", None)
         entry = parse_line(obj, where)
@@ -251,7 +269,7 @@ def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions
     fused_by: dict[tuple[str, int], set[int]] = {}
     for r, entry in entries:
         queues[r].append(entry)
-        if isinstance(entry, tuple) and not isinstance(entry, (SensorLeft, TrackerRestarted, Handed)):
+        if isinstance(entry, tuple) and not isinstance(entry, (SensorLeft, TrackerRestarted, Handed, Began)):
             scan, seq = entry
             fused_by.setdefault((scan.sensor, seq), set()).add(r)
             if (scan.sensor, seq) not in firsts:
@@ -277,7 +295,13 @@ def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions
 
     def step(r: int, entry: Entry) -> bool:
         """Region ``r`` takes ``entry`` if it can now (False: it waits for another region or tracker)."""
-        if isinstance(entry, Handed):
+        if isinstance(entry, Began):  # a new process of the region's centre: empty, its numbers, its own clock
+            for T in clocks[r].final():  # the pictures its former process made as it stopped
+                shown[r][T] = engines[r].region_picture(T)
+            engines[r] = RegionEngine(cfg, dim, feedback=feedback, regions=regions, index=r, sites=sites or {})
+            engines[r].region.centre.next_id, engines[r].region.serial = entry
+            clocks[r] = PictureClock(cfg.period, cfg.picture_delay, max_gap=max_gap)
+        elif isinstance(entry, Handed):
             record = outbox.pop((index[entry.source], entry.serial), None)
             if record is None:
                 return False

@@ -114,7 +114,7 @@ class MttCentreService(CentreFailover, Service):
     # restored after a failed handler (the engine changes in place: pickled before each message;
     # ``received`` is only changed once a message was handled); on_tick guards its departures itself
     state_attrs = ("engine", "clock", "order", "left_at", "restarted_at", "pictures", "silence", "contested",
-                   "handovers_at", "taken", "lead")
+                   "handovers_at", "taken", "lead", "began")
     tick_state_attrs = ()
 
     def __init__(self, algorithm: str, cfg: MttConfig, dim: int = 4, max_seq_jump: int = 1000,
@@ -156,6 +156,10 @@ class MttCentreService(CentreFailover, Service):
             self.reserved = read_numbers(numbers, r.name, r.index, r.centre.id_step)
             if self.reserved is not None:
                 r.centre.next_id, r.serial = self.reserved
+        # a region centre's first picture says it began with no tracks, and its numbers then (a replay of the
+        # recording starts the region's centre afresh there: docs/multitarget.md#regions)
+        self.began = (Numbers(self.engine.region.centre.next_id, self.engine.region.serial)
+                      if isinstance(self.engine, RegionEngine) else None)
         self.handovers_at: list[int] = []  # positions in ``order`` that are hand-overs taken over
         self.taken: dict[str, dict[int, bytes]] = {}  # sending region -> its last HANDOVERS_KEPT numbers taken: digest
         self.clock = PictureClock(cfg.period, cfg.picture_delay, max_gap=max_time_jump_s)
@@ -534,8 +538,15 @@ class MttCentreService(CentreFailover, Service):
             tracks = self.engine.picture(T)
         require_finite(f"the picture at t={T}", tracks.x, tracks.P)
         seq = self.clock.number((self.clock.k or 0) * self.clock.period if closing else T)
-        picture = picture_message(seq, T, tracks, self.order, self.left_at, self.contested, closing,
-                                  self.handovers_at, flying=flying, restarted=self.restarted_at,
+        order, left, handovers, restarted, began = self.order, self.left_at, self.handovers_at, self.restarted_at, ()
+        if self.began is not None:  # this process's first picture: its start is its first entry
+            assert self.region is not None
+            order = [(self.region, self.began.next_id), *order]
+            left, handovers, restarted = ([i + 1 for i in at] for at in (left, handovers, restarted))
+            began = ((0, self.began.serial),)
+            self.began = None
+        picture = picture_message(seq, T, tracks, order, left, self.contested, closing, handovers, flying=flying,
+                                  restarted=restarted, began=began,
                                   lla=None if self.frame is None else geodetic_of_states(self.frame, tracks.x))
         self.pictures += 1
         self.order, self.left_at, self.contested, self.handovers_at = [], [], False, []

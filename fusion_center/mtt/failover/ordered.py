@@ -31,11 +31,12 @@ ORDER_WAIT_S = RESET_TIMEOUT_S
 
 def entries_listed(msg: TrackPicture) -> list[Hashable]:
     """The inputs a picture's fused lists name, in its centre's order: ``("report", sensor, seq)``,
-    ``("handover", source, serial)``, ``("left", sensor)`` (a restart is its report's, not listed)."""
-    left, handovers, restarted = set(msg.left), set(msg.handovers), set(msg.restarted)
+    ``("handover", source, serial)``, ``("left", sensor)`` (a restart is its report's, not listed; nor is
+    the primary's own start, ``began``)."""
+    left, handovers, skipped = set(msg.left), set(msg.handovers), {*msg.restarted, *msg.began}
     out: list[Hashable] = []
     for i, (name, seq) in enumerate(zip(msg.fused_sensors, msg.fused_seqs)):
-        if i in restarted:
+        if i in skipped:
             continue
         out.append(("left", name) if i in left else ("handover", name, seq) if i in handovers
                    else ("report", name, seq))
