@@ -146,13 +146,14 @@ def test_a_region_centres_identity_publishes_its_own_regions_outputs_only(tmp_pa
                   keys.fusion_track(), keys.mtt_picture(), keys.region_handover("x0y0", "x1y0")]
         for key in denied + allowed:
             west.put(key, b"x")
-        west_tokens = [west.liveliness().declare_token(keys.primary(scope, n))  # the last: after the others
-                       for scope, n in (("x0y0", "1"), ("x1y0", "1"), ("all", "1"), ("x0y0", "2"))]
+        west_tokens = [west.liveliness().declare_token(key) for key in (  # the last: after the others
+            keys.primary("x0y0", "1"), keys.primary("x1y0", "1"), keys.primary("all", "1"),
+            keys.region_centre("x0y0", "z"), keys.region_centre("x1y0", "z"), keys.primary("x0y0", "2"))]
         west.put(keys.region_picture("x0y0"), b"end")  # after the others on the same link
         assert done.wait(30.0), seen
         assert wait_until(lambda: keys.primary("x0y0", "2") in tokens, 30.0), tokens
         assert sorted(seen[:-1]) == sorted(allowed)
-        assert tokens == [keys.primary("x0y0", "1"), keys.primary("x0y0", "2")]
+        assert tokens == [keys.primary("x0y0", "1"), keys.region_centre("x0y0", "z"), keys.primary("x0y0", "2")]
         for t in west_tokens:
             t.undeclare()
         sub.undeclare()
