@@ -36,7 +36,8 @@ def test_a_region_without_a_live_centre_is_not_waited_for(tmp_path: Path) -> Non
     ``--wait``, 60 s here), its merged picture naming x1y0 ``missing``, counted ``no_centre``, not
     contested (x1y0 never sent one). x1y0's centre starts: t = 1 waits for its picture. It dies: t = 2
     is merged at once again, contested (x1y0 had sent pictures). After this merger's own link to the
-    router came back, a region whose token is not back yet is waited for (its token went with the link)."""
+    router came back, a region whose token is not back yet is waited for (its token went with the link);
+    so is a region that publishes while none of its tokens shows, until one does."""
     merger = PictureMergeService(regions_of(tmp_path), 4, 60.0, 1.0, service_id="picture", options=OPTIONS,
                                  deployment=KEYS.deployment)
     bus = Bus([merger])
@@ -67,7 +68,18 @@ def test_a_region_without_a_live_centre_is_not_waited_for(tmp_path: Path) -> Non
     merger._router_back_at -= 60.0  # LINK_GRACE_S after the return: x1y0's token did not come back
     merger.on_tick()
     assert [(p.t, p.missing) for p in bus.of(TrackPicture)[3:]] == [(3.0, ("x1y0",))]
-    assert merger.counters["rejected"] == 0
+    # x1y0 publishes while none of its tokens shows (an access control that drops them): waited for again
+    bus.put(a, encode(region_picture(4.0, (0,))))
+    bus.put(b, encode(region_picture(4.0, (1,))))  # late: t = 4 was merged without it
+    bus.put(a, encode(region_picture(5.0, (0,))))
+    merger.on_tick()
+    assert [p.t for p in bus.of(TrackPicture)] == [0.0, 1.0, 2.0, 3.0, 4.0]
+    merger._on_centre(token_b, True)  # its token shows, then goes: judged by it again
+    merger.on_tick()
+    merger._on_centre(token_b, False)
+    merger.on_tick()
+    assert [(p.t, p.missing) for p in bus.of(TrackPicture)[5:]] == [(5.0, ("x1y0",))]
+    assert merger.counters["rejected"] == 0 and merger.counters["late_picture"] == 1
 
 
 def test_a_merged_picture_is_not_held_for_a_region_whose_centre_stopped_over_zenoh(tmp_path: Path) -> None:

@@ -13,7 +13,8 @@ A picture time is merged once every region has published its picture of that tim
 (it has none of that time: it started later, or, when it had published a picture before that time,
 lost it: counted ``missing_region`` and the picture ``contested``) or its closing record, or has no
 live centre (none of its centres, primary or standby, holds its token ``alive/mtt-region/<rid>/*``:
-counted ``missing_region`` and ``no_centre``, not waited for); after
+counted ``missing_region`` and ``no_centre``, not waited for; a region that publishes while none of its
+tokens shows is waited for until one does); after
 ``--wait`` seconds (from the first region's picture of that time) without one, it is merged without
 that region: counted ``missing_region``, logged, and the picture marked ``contested`` when the region had
 published before. The merged picture names the regions it lacks (``missing``). A region centre's first
@@ -145,7 +146,7 @@ class PictureMergeService(Service):
     role = "picture"
     tick_period_s = 0.05
     state_attrs = ("pending", "started", "closing", "late", "merged_t", "seq", "clock", "lead", "latest", "contested",
-                   "seen", "settle_until", "settling", "earliest", "uncovered", "closed")
+                   "seen", "settle_until", "settling", "earliest", "uncovered", "closed", "tokenless")
 
     def __init__(self, regions: Regions, dim: int, wait_s: float, period: float, frame: Frame | None = None,
                  window: int | None = None, snapshot: Path | None = None, **kwargs: Any) -> None:
@@ -177,6 +178,7 @@ class PictureMergeService(Service):
         # the region centres' tokens (region_centre), once watched (token_watches; a Zenoh thread's)
         self.centres: Peers | None = None
         self.uncovered: frozenset[int] = frozenset()  # the regions last found without a live centre (logged)
+        self.tokenless: frozenset[int] = frozenset()  # regions publishing while none of their tokens shows: waited for
 
     def token_watches(self) -> list[TokenWatch]:
         """Every region centre's token: a region none holds is not waited for (:meth:`_uncovered`)."""
@@ -193,11 +195,14 @@ class PictureMergeService(Service):
         """The regions without a live centre at ``now``: none holds its token while this merger's link has
         held long enough for every live one's to be here (:meth:`fedtrack.zsession.Link.settled`: the
         tokens that went with a router outage are back within ``LINK_GRACE_S``). None before the tokens
-        are watched."""
+        are watched; nor a region that published a picture while none of its tokens showed (``tokenless``:
+        an access control written before the token, which drops it, would otherwise have every region
+        merged without), until one shows."""
         if self.centres is None or not self.link().settled(now):
             return frozenset()
         held = {key.rsplit("/", 2)[-2] for key in self.centres.present}
-        return frozenset(r for r, rid in enumerate(self.regions.ids) if rid not in held)
+        self.tokenless = frozenset(r for r in self.tokenless if self.regions.ids[r] not in held)
+        return frozenset(r for r, rid in enumerate(self.regions.ids) if rid not in held) - self.tokenless
 
     def subscriptions(self) -> list[Subscription]:
         return [Subscription(self.keys.region_picture(rid), TrackPicture, partial(self.on_picture, r), history=True)
@@ -305,6 +310,11 @@ class PictureMergeService(Service):
             queue = self.pending[r]
             queue.insert(sum(p.t < msg.t for p in queue), msg)
             self.first_seen.setdefault(msg.t, time.monotonic())
+        if r in self._uncovered(time.monotonic()):
+            self.tokenless |= {r}
+            self.log.warning("region %s publishes pictures, but none of its centres' tokens (%s) shows (an access "
+                             "control without it?): its pictures are waited for until one does", self.regions.ids[r],
+                             self.keys.region_centre(self.regions.ids[r]))
 
     def on_tick(self) -> None:
         self._merge()
