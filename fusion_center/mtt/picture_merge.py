@@ -164,7 +164,7 @@ class PictureMergeService(Service):
         self.pending: list[deque[TrackPicture]] = [deque() for _ in range(R)]
         self.started = [False] * R  # the region published a picture
         self.closing: list[TrackPicture | None] = [None] * R
-        self.closed: list[set[bytes]] = [set() for _ in range(R)]  # the closing records taken (digests)
+        self.closed: list[bytes | None] = [None] * R  # the digest of each region's last closing record taken
         self.late: list[Entries] = [[] for _ in range(R)]  # entries of pictures that came after their time
         self.first_seen: dict[float, float] = {}  # picture time -> monotonic time of its first region picture
         self.merged_t: float | None = None
@@ -244,10 +244,10 @@ class PictureMergeService(Service):
                            f"{len(msg.fused_sensors)} entries; its share of a merged picture is {share}")
         self.started[r] = True
         if msg.closing:
-            if digest(msg) in self.closed[r]:  # a re-delivery (a cache's) of one taken
+            if digest(msg) == self.closed[r]:  # a re-delivery (a cache's) of the one taken
                 self.count("duplicate")
                 return
-            self.closed[r].add(digest(msg))
+            self.closed[r] = digest(msg)
             self.closing[r] = msg
             self._merge()
             return

@@ -276,6 +276,7 @@ def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions
                 firsts.add((scan.sensor, seq))
                 trackers.setdefault(scan.sensor, _Tracker([], RegionRouter(regions))).scans.append(entry)
     outbox: dict[tuple[int, int], HandOver] = {}
+    retired: list[RegionEngine] = []  # the engines of region centre processes that a later one replaced
     shown: list[dict[float, RegionPicture]] = [{} for _ in range(R)]
     index = {rid: r for r, rid in enumerate(regions.ids)}
 
@@ -298,6 +299,7 @@ def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions
         if isinstance(entry, Began):  # a new process of the region's centre: empty, its numbers, its own clock
             for T in clocks[r].final():  # the pictures its former process made as it stopped
                 shown[r][T] = engines[r].region_picture(T)
+            retired.append(engines[r])  # its counters still count
             engines[r] = RegionEngine(cfg, dim, feedback=feedback, regions=regions, index=r, sites=sites or {})
             engines[r].region.centre.next_id, engines[r].region.serial = entry
             clocks[r] = PictureClock(cfg.period, cfg.picture_delay, max_gap=max_gap)
@@ -347,7 +349,7 @@ def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions
         for T in clocks[r].final():
             shown[r][T] = engines[r].region_picture(T)
     counts.update({"scans": len(firsts), "late": 0, "duplicates": 0, "conflicts": 0, "rerun": 0, "lead": 0})
-    for e in engines:
+    for e in engines + retired:
         for k, v in e.counters().items():
             if k.startswith("centre_") or k in ("handed_over", "in_flight"):
                 counts["centre_" + k.removeprefix("centre_")] = counts.get("centre_" + k.removeprefix("centre_"), 0) + v
