@@ -9,6 +9,8 @@ after it the sensor weighs no more than a sensor of its class, whatever it claim
 """
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 RAISE_TOL = 1e-9  # a claim at the floor to rounding (c <= 1 + RAISE_TOL) is left as it is
@@ -39,8 +41,8 @@ def raise_to_floor(R: np.ndarray, floor: np.ndarray) -> tuple[np.ndarray, np.nda
     and which were raised (the others unchanged). A report whose observations all claim one ``R`` (a position
     sensor's plots) is judged on it once."""
     if len(R) > 1 and bool((R == R[0]).all()):
-        one, raised = raise_to_floor(R[:1], floor)
-        return (np.repeat(one, len(R), axis=0) if raised[0] else R), np.repeat(raised, len(R))
+        one, raised = _raise_one(R[0].tobytes(), floor.tobytes(), R.shape[-1], R.dtype.str, floor.dtype.str)
+        return (np.repeat(one, len(R), axis=0) if raised else R), np.full(len(R), raised)
     Rs, s, sc = _scaled_factors(R, floor)
     raised = sc > s * (1.0 + RAISE_TOL)
     if not raised.any():
@@ -48,3 +50,13 @@ def raise_to_floor(R: np.ndarray, floor: np.ndarray) -> tuple[np.ndarray, np.nda
     out = R.copy()
     out[raised] = Rs[raised] * sc[raised, None, None]
     return out, raised
+
+
+@lru_cache(maxsize=256)
+def _raise_one(R: bytes, floor: bytes, m: int, R_type: str, floor_type: str) -> tuple[np.ndarray, bool]:
+    """:func:`raise_to_floor` of one ``R`` (its bytes, m x m, dtype ``R_type``) against ``floor`` (its bytes, dtype
+    ``floor_type``), remembered (read-only): a sensor's plots claim the same ``R`` report after report, and each
+    region's centre judges it."""
+    one, raised = raise_to_floor(np.frombuffer(R, R_type).reshape(1, m, m), np.frombuffer(floor, floor_type))
+    one.flags.writeable = False
+    return one, bool(raised[0])

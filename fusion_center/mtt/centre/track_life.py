@@ -63,11 +63,13 @@ class CentreLife:
     ``last_support``, the per-column ``column_interval`` and ``column_log_miss``, and on its methods ``_unmap`` and
     ``sensor_lists``."""
 
-    def _vouched(self, report: LocalReport) -> np.ndarray:
-        """Slots of the central tracks that a track confirmed by the report's tracker maps to."""
-        s, mapping = report.sensor, self.mapping
-        cids = [mapping[key] for key in ((s, lid) for lid in report.ids[report.confirmed].tolist()) if key in mapping]
-        return self.tracks.slots_of(cids)
+    def _vouched(self, slots: np.ndarray, sensor: str) -> np.ndarray:
+        """Per slot of ``slots``, whether a local track of ``sensor`` that its tracker confirmed (at its latest
+        report, :attr:`own_confirmed`: of the rows taken, which hold every local track mapped here) maps to it;
+        looked up from the few slots' local tracks, not from every confirmed track of the report."""
+        confirmed, members = self.own_confirmed.get(sensor, frozenset()), self.members
+        return np.array([any(s == sensor and lid in confirmed for s, lid in members.get(cid, ()))
+                         for cid in self.tracks.ids[slots].tolist()], dtype=bool)
 
     def _count_scan(self, col: int, detected: np.ndarray, report: LocalReport) -> None:
         """One scan (``report``) of sensor column ``col`` in the life rules: M-of-N confirmation of
@@ -108,34 +110,35 @@ class CentreLife:
             enough = self._misses_enough(streak, tracking, need) | (self.evidence[missed] <= bound)
             dead = missed[(n_tracking > 0) & enough]
         tentative = (live ^ old).nonzero()[0]  # live and tentative
-        young = tentative[hit[tentative] | ~self._blind_to(tentative, col, report)]
+        counts = hit[tentative] | ~self._blind_to(tentative, col, report)  # the scan counts for them
+        young = tentative[counts]
         window = np.concatenate([self.window[young, 1:], hit[young, None]], axis=1)
         self.window[young] = window
         evidence = self.evidence[young] + np.where(hit[young], self.column_log_hit[col], self.column_log_absent[col])
         self.evidence[young] = np.maximum(evidence, DROP_EVIDENCE)
         counted = (np.count_nonzero(window, axis=1) >= cfg.confirm_hits) & (self.evidence[young] >= CONFIRM_EVIDENCE)
-        vouched = self._vouched(report)
-        now = self._corroborated(tentative, young, young[counted], hit, col, vouched)  # the count, Wald's, the others
+        now = self._corroborated(tentative, counts, counted, hit, col, report.sensor)  # the count, Wald's, the others
         if cfg.confirm_bound is not None and self.n_live == 1:
-            now = np.intersect1d(young, vouched)  # one sensor: its tracker's own test
+            now = young[self._vouched(young, report.sensor)]  # one sensor: its tracker's own test
         elif self.local_confirmation and now.size:
-            now = np.intersect1d(now, vouched)
+            now = now[self._vouched(now, report.sensor)]
         if now.size:
             tracks.confirmed[now], tracks.confirmed_t[now] = True, report.t
             self.evidence[now] = 0.0
         for cid in tracks.ids[dead].tolist():
             self._delete(cid)
 
-    def _corroborated(self, tentative: np.ndarray, counted: np.ndarray, now: np.ndarray, hit: np.ndarray,
-                      col: int, vouched: np.ndarray) -> np.ndarray:
-        """Of the tentative slots ``now`` whose count holds, those that are not one sensor's alone unheard or
-        denied by the others. A scan of sensor column ``col`` vets each tentative slot (of ``tentative``) it
+    def _corroborated(self, tentative: np.ndarray, counts: np.ndarray, holds: np.ndarray, hit: np.ndarray,
+                      col: int, sensor: str) -> np.ndarray:
+        """Of the tentative slots whose count holds (``holds``, per slot of ``tentative[counts]``), those that
+        are not one sensor's alone unheard or denied by the others. A scan of sensor ``sensor`` (column ``col``)
+        vets each tentative slot (of ``tentative``) it
         supports none of: blind to it or not, the sensor has had its say. It questions one that exactly one
-        other sensor supports when the scan counts for it (``counted``: it sees its place, :meth:`_blind_to`)
+        other sensor supports when the scan counts for it (``counts``: it sees its place, :meth:`_blind_to`)
         and did not detect it (``PENDING``), and denies it when its previous scan did so too (``DENIED``: the
         ``CENTRAL_MISSES`` misses that would delete it if it were confirmed; a live target at P_D 0.9 once in a
         hundred); its next detection takes a question back, not a denial (a local track of clutter mapped for
-        a scan would), its local track that its tracker confirmed mapped to the slot (``vouched``, of this
+        a scan would), its local track that its tracker confirmed mapped to the slot (:meth:`_vouched`, of this
         report) takes either back (the sensor now says the target is there: kept, a denial by each of two honest
         sensors while their tracks of a target swapped held it tentative for good, both sensors seeing and
         vouching for it; seed 1 without s2, one target for 250 s), and its next scan blind to the slot takes
@@ -150,19 +153,22 @@ class CentreLife:
         others' scans: seed 1, 20 ghosts from t = 100 s, mean GOSPA 74 -> 223 m; from a sensor scanning every
         0.25 s (or sending its scans in bursts) they were confirmed between another sensor's question and its
         denial (attack54: 54 -> 225 m)."""
-        self.vetting[tentative[~self._fused_support(tentative)[:, col]]] |= VETTED
+        support = self._fused_support(tentative)  # looked up once: nothing here changes it
+        self.vetting[tentative[~support[:, col]]] |= VETTED
         denied = self.denied
-        denied[np.setdiff1d(tentative, counted, assume_unique=True), col] = 0  # blind to it now
+        denied[tentative[~counts], col] = 0  # blind to it now
+        counted, support = tentative[counts], support[counts]
         detected = counted[hit[counted]]
         denied[detected[denied[detected, col] == PENDING], col] = 0
-        denied[np.intersect1d(tentative, vouched), col] = 0  # the sensor vouches for it now
-        support = self._fused_support(counted)
-        alone = np.count_nonzero(support, axis=1) == 1
-        missed = counted[alone & ~hit[counted] & ~support[:, col]]
+        asked = tentative[denied[tentative, col] > 0]
+        denied[asked[self._vouched(asked, sensor)], col] = 0  # the sensor vouches for it now
+        n_support = np.count_nonzero(support, axis=1)
+        missed = counted[(n_support == 1) & ~hit[counted] & ~support[:, col]]
         denied[missed, col] = np.where(denied[missed, col] > 0, DENIED, PENDING)
+        now = counted[holds]
         if self.n_live < 2:  # no other live sensor to hear from: the count alone, as before
             return now
-        state, alone = self.vetting[now], np.count_nonzero(self._fused_support(now), axis=1) == 1
+        state, alone = self.vetting[now], n_support[holds] == 1
         held = alone & ((state & VETTED) == 0)
         if self.n_live < DENIAL_LIVE:  # vetted (another sensor has had its say), not denied
             return now[~held]
