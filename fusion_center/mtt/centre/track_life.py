@@ -5,10 +5,12 @@ The rules are in :mod:`.track_to_track`'s docstring."""
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 from statistics import NormalDist
 
 import numpy as np
 
+from fedtrack.fusion_center.mtt.centre.candidates import candidate_pairs
 from fedtrack.geodetic import above_radio_horizon
 from fedtrack.local_filters.mtt.associators.jipda import FALSE_CONFIRM, LOST_TRUE
 from fedtrack.local_filters.mtt.config import MttConfig, miss_count, scan_lost
@@ -43,6 +45,17 @@ CONFIRM_EVIDENCE = math.log((1.0 - LOST_TRUE) / FALSE_CONFIRM)
 # started again there, as a new track's would be), so that a track that clutter made look false can still
 # be confirmed by its target's later detections
 DROP_EVIDENCE = math.log(LOST_TRUE / (1.0 - FALSE_CONFIRM))
+
+
+@lru_cache(maxsize=256)
+def log_ratios(pd: float, clutter: float, gate: float, R: bytes, R_type: str) -> tuple[float, float]:
+    """:meth:`CentreLife._evidence` of a sensor of detection probability ``pd`` and clutter density ``clutter``,
+    gate ``gate`` and noise ``R`` (its bytes, 2 x 2, dtype ``R_type``), remembered: a sensor's plots claim the
+    same ``R`` report after report."""
+    area = math.pi * gate * math.sqrt(max(float(np.linalg.det(np.frombuffer(R, R_type).reshape(2, 2))), 0.0))
+    pd = min(pd, 1.0 - 1e-12)
+    p = min(-math.expm1(-clutter * area), pd)
+    return (math.log(pd / p) if p > 0.0 else math.inf), math.log1p(-pd) - math.log1p(-p)
 
 
 def needs_local_confirmation(cfg: MttConfig, sensor: str, R: np.ndarray, interval: float = 1.0) -> bool:
@@ -263,15 +276,20 @@ class CentreLife:
 
     def _reach(self, X: np.ndarray, P: np.ndarray, report: LocalReport) -> np.ndarray:
         """Per central state of ``X`` (covariances ``P``), whether it is within the association test's reach
-        (in x-y) of one of the report's local tracks: a dense states x local tracks test, so made only for the
-        states whose answer is read."""
+        (in x-y) of one of the report's local tracks: the test made on the pairs close enough that it can pass
+        (:func:`~.candidates.candidate_pairs`: a direct distance bound, a k-d tree beyond), not on every state
+        and local track; made only for the states whose answer is read."""
         xy = [0, 2]
+        reach = np.zeros(X.shape[0], dtype=bool)
         if not report.x.shape[0] or not X.shape[0]:
-            return np.zeros(X.shape[0], dtype=bool)
-        d = X[:, None, xy] - report.x[None, :, xy]
-        S = P[:, None][..., xy, :][..., xy] + report.P[None][..., xy, :][..., xy]
-        d2 = np.einsum("mni,mni->mn", d, np.linalg.solve(S, d[..., None])[..., 0])
-        return (d2 <= self.cfg.thresholds.association[2]).any(axis=1)
+            return reach
+        gate, local = self.cfg.thresholds.association[2], report.x[:, xy]
+        m, n = candidate_pairs(X[:, xy], np.sqrt(P[:, 0, 0] + P[:, 2, 2]), local,
+                               np.sqrt(report.P[:, 0, 0] + report.P[:, 2, 2]), gate)
+        d = X[m][:, xy] - local[n]
+        S = P[m][:, xy][:, :, xy] + report.P[n][:, xy][:, :, xy]
+        reach[m[np.einsum("ki,ki->k", d, np.linalg.solve(S, d[..., None])[..., 0]) <= gate]] = True
+        return reach
 
     def _in_view(self, slots: np.ndarray, report: LocalReport) -> np.ndarray:
         """Per confirmed track of ``slots`` that the report's sensor does not track, whether the report shows
@@ -289,10 +307,8 @@ class CentreLife:
         the chance that its clutter falls into the gate (``g`` at ``gate_probability``) of a track known far
         better than its noise; a sensor whose clutter is in the gate as often as a target (``p >= P_D``)
         says nothing either way (0, 0)."""
-        area = math.pi * self.cfg.thresholds.gate[2] * math.sqrt(max(float(np.linalg.det(R)), 0.0))
-        pd = min(self.cfg.pd_of(sensor), 1.0 - 1e-12)
-        p = min(-math.expm1(-self.cfg.clutter_of(sensor) * area), pd)
-        return (math.log(pd / p) if p > 0.0 else math.inf), math.log1p(-pd) - math.log1p(-p)
+        cfg = self.cfg
+        return log_ratios(cfg.pd_of(sensor), cfg.clutter_of(sensor), cfg.thresholds.gate[2], R.tobytes(), R.dtype.str)
 
     def _below_horizon(self, X: np.ndarray, P: np.ndarray, report: LocalReport) -> np.ndarray:
         """Per central state of ``X`` (covariances ``P``, 3-D), whether the report's radar cannot see it: the
