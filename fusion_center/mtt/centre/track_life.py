@@ -158,14 +158,11 @@ class CentreLife:
         either back (blindness is judged on what the
         centre knows then: a track that its tracker has not confirmed yet gets no skip). With another live
         sensor, a slot that one sensor alone supports is confirmed only once vetted, not by the report that
-        questions it, and, with ``DENIAL_LIVE`` live sensors or more, not while another sensor questions it (until
-        that sensor's next say: its supporter's scans in between are one sensor's word, however many) and, while
-        a sensor denies it, only once local tracks that two sensors' trackers confirmed map to it (held back, it
-        is counted ``uncorroborated`` once). A compromised sensor's consistent ghosts (its own tracker confirms
-        them) filled the count's window with its own scans and were confirmed for good, before or despite the
-        others' scans: seed 1, 20 ghosts from t = 100 s, mean GOSPA 74 -> 223 m; from a sensor scanning every
-        0.25 s (or sending its scans in bursts) they were confirmed between another sensor's question and its
-        denial (attack54: 54 -> 225 m)."""
+        questions it, and, while a sensor denies it (with ``DENIAL_LIVE`` live sensors or more), only once local
+        tracks that two sensors' trackers confirmed map to it (held back, it is counted ``uncorroborated`` once).
+        A compromised sensor's consistent ghosts (its own tracker confirms them) filled the count's window with its
+        own scans and were confirmed for good, before or despite the others' scans: seed 1, 20 ghosts from t = 100
+        s, mean GOSPA 74 -> 223 m."""
         support = self._fused_support(tentative)  # looked up once: nothing here changes it
         self.vetting[tentative[~support[:, col]]] |= VETTED
         denied = self.denied
@@ -186,7 +183,6 @@ class CentreLife:
         if self.n_live < DENIAL_LIVE:  # vetted (another sensor has had its say), not denied
             return now[~held]
         held |= denied[now, col] > 0  # the report that questions it does not confirm it
-        held |= alone & self._counted(denied[now] == PENDING).any(axis=1)  # nor its supporter's before the answer
         doubt = self._counted(denied[now] == DENIED).any(axis=1).nonzero()[0]
         if doubt.size:
             held[doubt] |= self._vouching(now[doubt]) < 2
