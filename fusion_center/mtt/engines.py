@@ -29,6 +29,7 @@ from fedtrack.deployment import MAX_TIME_JUMP_S
 from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
 from fedtrack.fusion_center.mtt.centre.consistency import Transition
 from fedtrack.fusion_center.mtt.centre.copies import Found
+from fedtrack.fusion_center.mtt.centre.registration import SensorRegistration
 from fedtrack.fusion_center.mtt.centre.track_life import CENTRAL_MISSES
 from fedtrack.fusion_center.mtt.shards import ShardedCentre
 from fedtrack.geodetic import Frame, RadarSite
@@ -248,6 +249,11 @@ class Engine:
     def picture(self, T: float) -> PictureTracks:
         """Every track predicted to ``T`` from the data up to ``T``."""
         raise NotImplementedError
+
+    def data_time(self, sensor: str, t: float) -> float:
+        """The time of ``sensor``'s scan stamped ``t`` on the picture clock: ``t`` itself, less a track-to-track
+        centre's correction of the sensor's clock (:mod:`~.centre.registration`)."""
+        return t
 
     def leave(self, sensor: str, at_once: bool = False) -> None:
         """A departure (:class:`SensorLeft`), or a sensor silent in a replay (``at_once``)."""
@@ -512,6 +518,17 @@ class TrackToTrackEngine(Engine):
         if self.existence is not None:
             self.existence.retain(picture.ids)
         return picture
+
+    def data_time(self, sensor: str, t: float) -> float:
+        """``t`` less the centre's clock correction of ``sensor`` (a centre of regions: each corrects its own
+        reports; the picture clock keeps the stamps)."""
+        return t - self.centre.registration.clock(sensor) if isinstance(self.centre, TrackToTrackCentre) else t
+
+    def registrations(self) -> list[SensorRegistration]:
+        """The centre's registration estimators (each region's)."""
+        if isinstance(self.centre, ShardedCentre):
+            return [c.centre.registration for c in self.centre.centres]
+        return [] if self.centre is None else [self.centre.registration]
 
     def consistency_transitions(self) -> list[Transition]:
         """The sensors flagged or cleared by the centre's consistency test (each region's) since the last call."""

@@ -99,7 +99,7 @@ def pictures(engine: Engine, scans: list[Line], period: float, delay: float,
             restarts.add(item.sensor)
             continue
         for scan in guard.admit(item.sensor, item.t, item):
-            for T in clock.due(scan.t):
+            for T in clock.due(engine.data_time(scan.sensor, scan.t)):
                 for sensor in [] if recorded else silent(guard, heard, T, engine.cfg.central_timeout):
                     guard.leave(sensor)
                     engine.leave(sensor, at_once=True)

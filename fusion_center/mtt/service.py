@@ -294,7 +294,7 @@ class MttCentreService(CentreFailover, Service):
         """Make the pictures due before data at ``msg.t``, process ``msg``, then publish them (compute,
         then commit: a failure undoes both) and note the scan."""
         skipped = self.clock.skipped
-        pictures = [self._picture(T) for T in self.clock.due(msg.t)]
+        pictures = [self._picture(T) for T in self.clock.due(self.engine.data_time(msg.sensor, msg.t))]
         if self.clock.skipped > skipped:
             self.count("skipped_pictures", self.clock.skipped - skipped)
             self.log.warning("scan %d of %s at t=%g: %d picture times more than max_time_jump_s = %g s before it "

@@ -84,6 +84,7 @@ from fedtrack.fusion_center.mtt.central_track import CentralTracks, DepartedTrac
 from fedtrack.fusion_center.mtt.centre.association import CentreAssociation, LocalKey
 from fedtrack.fusion_center.mtt.centre.consistency import SensorConsistency, normalized_innovations, window_seconds
 from fedtrack.fusion_center.mtt.centre.copies import FeedCopies, Observations
+from fedtrack.fusion_center.mtt.centre.registration import SensorRegistration, sensor_frame
 from fedtrack.fusion_center.mtt.centre.track_life import CentreLife, needs_local_confirmation
 from fedtrack.fusion_center.mtt.silence import INTERVALS_KEPT, silence_bound, usual_intervals
 from fedtrack.geodetic import RadarSite
@@ -113,6 +114,8 @@ class Counters:
     noise_raised: int = 0  # observations whose R claimed less than their sensor's noise_floor: raised to it
     floor_mismatch: int = 0  # reports whose observations' size is not their sensor's noise_floor's: not fused
     uncorroborated: int = 0  # one sensor's tentative tracks held back: another sensor sees their place, missed them
+    registration_corrections: int = 0  # times a sensor's registration was found off the consensus and corrected
+    registered_sensors: int = 0  # sensors whose reports are corrected now (.registration)
 
 
 class HandOver(NamedTuple):
@@ -202,6 +205,8 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.absorbed: set[int] = set()  # tracks whose local tracks moved to another (not departed)
         self.consistency = SensorConsistency(1.0 - cfg.gate_probability)
         self.copies = FeedCopies(cfg.max_lag)  # sensors whose reports carry another's observations
+        self.registration = SensorRegistration(self.dim // 2 + 1)  # each sensor's offsets and clock offset
+        self.live: list[str] = []  # the live sensors at the latest report's time (_note_scan)
         self._fit()
 
     def _fit(self) -> None:
@@ -289,6 +294,8 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         if not keep_window:
             self.consistency.drop(sensor)
             self.counters.inconsistent_sensors = len(self.consistency.flagged)
+            self.registration.drop(sensor)
+            self.counters.registered_sensors = len(self.registration.applied)
         self.excluded.discard(sensor)
 
     def _drop_column(self, sensor: str) -> None:
@@ -376,6 +383,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         obs = None if rows is None else rows[report.detected].nonzero()[0]  # the rows' observations
         report, mismatch = self._floored(report, obs)
         copy = not mismatch and self._copied(report, obs)
+        report = self.registration.correct(report)  # on the consensus's frame and clock (.registration)
         if mismatch or copy or report.t < max(self.sensor_seen.values(), default=report.t) - self.cfg.max_lag:
             if mismatch:
                 self.counters.floor_mismatch += 1
@@ -443,7 +451,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
             if report.obs_R.shape[1] == 2 and needs_local_confirmation(self.cfg, s, report.obs_R[0],
                                                                        self.usual.get(s, 1.0)):
                 self.local_confirmation = True
-        live = self._live(t, self.usual)
+        live = self.live = self._live(t, self.usual)
         self.excluded = excluded_sensors(live, self.consistency.flagged, t, window_seconds(self.usual))
         self.n_live = len(live) - len(self.excluded)
         col = self._col(s)
@@ -598,9 +606,13 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         use = (fused & (row >= 0) & once & (has.sum(axis=1) - has[:, col] > 0)).nonzero()[0]
         H, R, z = (a[use] for a in observations)
         nis = normalized_innovations(self._embed(H), R, z, X[row[use]], P[row[use]]) if use.size else np.zeros(0)
-        self.consistency.add(sensor, t, nis, z.shape[-1], window_seconds(self.usual))
+        window = window_seconds(self.usual)
+        self.consistency.add(sensor, t, nis, z.shape[-1], window)
         self.counters.inconsistent_sensors = len(self.consistency.flagged)
         self.counters.inconsistency_onsets = self.consistency.onsets
+        self.registration.add(sensor, t, (self._embed(H), R, z), (X[row[use]], P[row[use]]), window, self.live)
+        self.counters.registration_corrections = self.registration.corrections
+        self.counters.registered_sensors = len(self.registration.applied)
 
     def _left_out(self, sensor: str, t: float, observations: tuple[np.ndarray, np.ndarray, np.ndarray],
                   slots: np.ndarray, col: int, states: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
@@ -618,7 +630,8 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         """Everything the centre does with one report (its ``rows``: :meth:`ingest`): fuse it, then
         delete unsupported central tracks; returns the resets for its sensor and the process-noise
         factor (the number of live sensors, 1 when decentralized) for that sensor's next scan."""
-        resets = self.ingest(report, rows)
+        theta = self.registration.applied.get(report.sensor)  # the correction its report gets (ingest may grow it)
+        resets = sensor_frame(self.ingest(report, rows), theta)
         # a copy's tracker, and an excluded sensor's, runs on its own (no resets)
         alone = report.sensor in self.copies.copy_of or report.sensor in self.excluded
         q_scale = float(max(self.n_live, 1)) if self.feedback and not alone else 1.0

@@ -1,0 +1,247 @@
+"""Online sensor registration at the track-to-track centre: each sensor's position offset and clock offset.
+
+A sensor whose positions carry a fixed offset ``b`` (2-D, or 3-D with a 3-D state), or whose clock runs
+``c`` seconds ahead of the others' (its detection stamped ``t`` is of the target at ``t - c``: it sits
+``-c v`` along the velocity), puts each detection ``H (x + D(x) theta)`` for the target's state ``x``,
+with ``theta = (b, c)`` and ``D(x)`` adding ``b - c v`` to the state's positions. Against a central
+track's prediction ``(X, P)`` at its time the observation's innovation is, to first order,
+
+    nu = z - H X = A theta + e,   A = H D(X),   e ~ N(0, S),   S = H P H' + R,
+
+the model of the consistency monitor's innovations (:mod:`.consistency`), with the same rows (a central
+track that another sensor also supports, one observation of it in the scan). Each scan adds its
+information ``A' S^-1 A`` and ``A' S^-1 nu`` (solves); the sum over a window gives the weighted least
+squares estimate of ``theta`` and its covariance, the inverse of the information (a recursive least
+squares estimate restarted at each correction), over every associated track of the scan at once.
+
+**The consensus.** The central tracks fuse every sensor's detections, this one's too, so a faulty
+sensor's estimate is its offset less its pull on the tracks, and every other sensor's estimate is minus
+that pull. Each sensor is therefore compared with the **medoid** of the sensors' estimates over the
+window (the sensor whose estimate lies nearest every other's, in the sum of their Mahalanobis distances):
+the pull, common to every sensor's estimate, cancels in the difference ``d = theta_s - theta_r``, of
+covariance ``C_s + C_r``. With one faulty sensor of three or more the medoid is an honest one. With fewer
+than ``MIN_SENSORS`` (3) sensors estimated and live, which of two differing sensors is wrong cannot be
+told: the estimates are reported, nothing is corrected.
+
+**The rule.** ``d' (C_s + C_r)^-1 d`` is chi-square with ``k = dim(theta)`` degrees of freedom when the
+sensor agrees with the consensus; ``d`` is significant when it exceeds the chi-square quantile at ``1 -
+FALSE_ALARM`` (1e-6 per test, the monitor's level: a test at every scan of every sensor, about 1,000 in a
+default 300 s run, under the model one false correction in a thousand such runs). The sensor's
+correction then grows by ``d``, every window restarts (the tracks' pull changes with the correction), and
+its reports are corrected before association from its next one on: the offsets taken off the positions
+of each local estimate (``x - E b``) and each observation (``z - H E b``, ``E`` putting ``b`` on the
+state's positions), the clock offset off the report's time (``t - c``: its detections and estimates are of
+the targets at ``t - c``, exactly, where ``-c v`` is the first order of it). Federated, the resets go back
+in the sensor's own frame (``x_c + E b`` at ``t + c``): its tracker keeps tracking its raw detections on
+its own clock. The picture clock runs on the corrected times (``Engine.data_time``): a sensor whose clock
+runs ahead otherwise has the pictures made before the others' data of their time came.
+"""
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+from scipy import special
+
+from fedtrack.local_filters.linear.kalman import symmetrize
+from fedtrack.local_filters.mtt.local import LocalReport, Resets
+
+FALSE_ALARM = 1e-6  # per test of one sensor's estimate against the consensus, under the model
+MIN_SENSORS = 3  # sensors estimated (and live) before the consensus is taken and a sensor corrected
+MIN_OBSERVATIONS = 10  # innovations a sensor's window needs for an estimate (the monitor's)
+# the estimate's prior (zero, these standard deviations), only to keep the solve defined where the window
+# leaves a parameter unobserved (targets all moving one way, a 2-D sensor's height offset): far weaker
+# than one observation of the noise of any sensor
+PRIOR_OFFSET_M = 1e4
+PRIOR_CLOCK_S = 1e2
+
+
+class ScanInformation(NamedTuple):
+    """One scan's information on ``theta``: its time, ``A' S^-1 A``, ``A' S^-1 nu`` and the innovations'
+    number."""
+
+    t: float
+    Y: np.ndarray
+    y: np.ndarray
+    count: int
+
+
+class Estimate(NamedTuple):
+    """A sensor's registration against the consensus: ``theta`` (offsets in m, then the clock offset in s),
+    its covariance and ``d' C^-1 d``; ``reference`` the sensor it was compared with (None: fewer than
+    ``MIN_SENSORS``, ``theta`` then against the central tracks)."""
+
+    theta: np.ndarray
+    cov: np.ndarray
+    chi2: float
+    reference: str | None
+
+
+class Correction(NamedTuple):
+    """A correction at data time ``t``: its ``step`` and the sensor's whole correction since (``total``)."""
+
+    t: float
+    sensor: str
+    step: np.ndarray
+    total: np.ndarray
+    chi2: float
+
+
+def layout(dim: int) -> tuple[np.ndarray, np.ndarray]:
+    """The position and velocity indices of a state of size ``dim`` (``[x, vx, y, vy(, z, vz)]``)."""
+    return np.arange(0, dim, 2), np.arange(1, dim, 2)
+
+
+def offset(d: int, theta: np.ndarray) -> np.ndarray:
+    """``E b``: ``theta``'s offsets on the positions of a state of size ``d`` (those beyond them left out)."""
+    pos = layout(d)[0]
+    out = np.zeros(d)
+    out[pos] = theta[: pos.size]
+    return out
+
+
+def design(H: np.ndarray, X: np.ndarray, k: int) -> np.ndarray:
+    """``A = H D(X)`` (n, m, k) for observations ``H`` (n, m, d) of states ``X`` (n, d): the columns of the
+    positions' offsets, then the clock's."""
+    pos, vel = layout(X.shape[-1])
+    A = np.zeros(H.shape[:-1] + (k,))
+    A[..., : pos.size] = H[..., pos]
+    A[..., -1] = -np.einsum("nmp,np->nm", H[..., pos], X[:, vel])
+    return A
+
+
+def scan_information(H: np.ndarray, R: np.ndarray, z: np.ndarray, X: np.ndarray, P: np.ndarray, k: int
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """``sum A' S^-1 A`` and ``sum A' S^-1 nu`` over the observations ``(H, R, z)`` of the central predictions
+    ``(X, P)`` (one solve for both)."""
+    A = design(H, X, k)
+    nu = z - np.einsum("nmd,nd->nm", H, X)
+    S = symmetrize(H @ P @ np.swapaxes(H, -1, -2) + R)
+    W = np.linalg.solve(S, np.concatenate([A, nu[..., None]], axis=-1))  # S^-1 [A nu]
+    M = np.einsum("nmk,nml->kl", A, W)
+    return symmetrize(M[:, :k]), M[:, k]
+
+
+def solve_estimate(Y: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The estimate and covariance of information ``Y`` and ``y`` with the weak prior added."""
+    k = y.size
+    prior = np.diag(np.r_[np.full(k - 1, PRIOR_OFFSET_M ** -2), PRIOR_CLOCK_S ** -2])
+    cov = symmetrize(np.linalg.inv(Y + prior))
+    return cov @ y, cov
+
+
+def sensor_frame(resets: Resets, theta: np.ndarray | None) -> Resets:
+    """Federated resets of a report corrected by ``theta`` (None: none) back in their sensor's frame and
+    clock."""
+    if theta is None:
+        return resets
+    return resets._replace(t=resets.t + float(theta[-1]), x=resets.x + offset(resets.x.shape[1], theta))
+
+
+def chi2_of(d: np.ndarray, C: np.ndarray) -> float:
+    """``d' C^-1 d`` (a solve)."""
+    return float(d @ np.linalg.solve(C, d))
+
+
+@dataclass
+class SensorRegistration:
+    """Each sensor's registration information over the window, its correction and the corrections made;
+    ``k``: the size of ``theta`` (the state's positions, then the clock)."""
+
+    k: int
+    scans: dict[str, deque[ScanInformation]] = field(default_factory=dict)
+    applied: dict[str, np.ndarray] = field(default_factory=dict)  # sensor -> its correction theta
+    estimates: dict[str, Estimate] = field(default_factory=dict)  # at each sensor's latest test
+    corrections: int = 0
+    made: list[Correction] = field(default_factory=list)  # not yet logged (the service drains them)
+    newest: float = -math.inf
+
+    def threshold(self) -> float:
+        """The chi-square quantile of ``k`` dof at ``1 - FALSE_ALARM``."""
+        return float(special.chdtri(self.k, FALSE_ALARM))
+
+    def correct(self, report: LocalReport) -> LocalReport:
+        """The report with its sensor's correction applied (as it is without one)."""
+        theta = self.applied.get(report.sensor)
+        if theta is None:
+            return report
+        shift = offset(report.x.shape[1], theta)
+        return report._replace(t=report.t - float(theta[-1]), x=report.x - shift, obs_z=report.obs_z - report.obs_H @ shift)
+
+    def clock(self, sensor: str) -> float:
+        """The sensor's clock correction (0 without one)."""
+        theta = self.applied.get(sensor)
+        return 0.0 if theta is None else float(theta[-1])
+
+    def add(self, sensor: str, t: float, observations: tuple[np.ndarray, np.ndarray, np.ndarray],
+            states: tuple[np.ndarray, np.ndarray], window: float, live: list[str]) -> None:
+        """One scan's (already corrected) observations ``(H, R, z)`` (central size) of the central predictions
+        ``states`` (X, P); then the sensor's test against the consensus of the ``live`` sensors' windows of
+        ``window`` seconds."""
+        H, R, z = observations
+        if not z.shape[0]:
+            return
+        self.newest = max(self.newest, t)
+        for kept in self.scans.values():
+            while kept and kept[0].t < self.newest - window:
+                kept.popleft()
+        Y, y = scan_information(H, R, z, *states, self.k)
+        self.scans.setdefault(sensor, deque()).append(ScanInformation(t, Y, y, z.shape[0]))
+        self._judge(sensor, t, live)
+
+    def _window_estimates(self, live: list[str]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Each live sensor's estimate and covariance over its window (those with ``MIN_OBSERVATIONS``)."""
+        out = {}
+        for s in live:
+            kept = self.scans.get(s)
+            if kept and sum(e.count for e in kept) >= MIN_OBSERVATIONS:
+                out[s] = solve_estimate(sum(e.Y for e in kept), sum(e.y for e in kept))
+        return out
+
+    def _judge(self, sensor: str, t: float, live: list[str]) -> None:
+        """The reporting sensor's estimate against the consensus (its correction grown by a significant one)."""
+        est = self._window_estimates(live)
+        if sensor not in est:
+            return
+        if len(est) < MIN_SENSORS or len(live) < MIN_SENSORS:  # no consensus: reported only
+            theta, cov = est[sensor]
+            self.estimates[sensor] = Estimate(theta, cov, chi2_of(theta, cov), None)
+            return
+        ref = medoid(est)
+        theta, cov = est[sensor]
+        d, C = theta - est[ref][0], cov + est[ref][1]
+        chi2 = chi2_of(d, C) if ref != sensor else 0.0
+        self.estimates[sensor] = Estimate(d, C, chi2, ref)
+        if chi2 > self.threshold():
+            total = self.applied.get(sensor, np.zeros(self.k)) + d
+            self.applied[sensor] = total
+            self.corrections += 1
+            self.made.append(Correction(t, sensor, d, total.copy(), chi2))
+            self.scans.clear()  # every sensor's innovations had the tracks' pull of the old correction
+
+    def drop(self, sensor: str) -> None:
+        """A sensor left: its window, estimate and correction go (a returning sensor is estimated afresh)."""
+        self.scans.pop(sensor, None)
+        self.estimates.pop(sensor, None)
+        self.applied.pop(sensor, None)
+
+    def drain(self) -> list[Correction]:
+        """The corrections since the last call."""
+        out, self.made = self.made, []
+        return out
+
+
+def medoid(estimates: dict[str, tuple[np.ndarray, np.ndarray]]) -> str:
+    """The sensor whose estimate has the least sum of Mahalanobis distances to the others' (each pair's
+    difference against the sum of their covariances); ties go to the first name in order."""
+    names = sorted(estimates)
+    cost = dict.fromkeys(names, 0.0)
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            dist = math.sqrt(chi2_of(estimates[a][0] - estimates[b][0], estimates[a][1] + estimates[b][1]))
+            cost[a] += dist
+            cost[b] += dist
+    return min(names, key=cost.__getitem__)
