@@ -28,6 +28,7 @@ from fedtrack.deployment import MAX_TIME_JUMP_S, max_time_jump
 from fedtrack.fusion_center.mtt.centre.candidates import CrowdedReport
 from fedtrack.fusion_center.mtt.centre.consistency import FALSE_ALARM, Transition
 from fedtrack.fusion_center.mtt.centre.copies import Found
+from fedtrack.fusion_center.mtt.centre.registration import FALSE_ALARM as REGISTRATION_FALSE_ALARM, correction_lines
 from fedtrack.fusion_center.mtt.engines import ALGORITHMS, Engine, PictureClock, PictureTracks, make_engine
 from fedtrack.fusion_center.mtt.regional import is_region_recording, read_region_entries, recorded_pictures
 from fedtrack.fusion_center.mtt.silence import silence_bound, usual_intervals
@@ -195,6 +196,10 @@ def counter_lines(counts: dict[str, int]) -> list[str]:
                      f"others' beyond the {FALSE_ALARM:g} test), {counts['centre_inconsistent_sensors']} still "
                      f"flagged at the end, {counts.get('centre_excluded_observations', 0)} of their observations "
                      "left out of the fusion")
+    if "centre_registration_corrections" in counts:
+        lines.append(f"{counts['centre_registration_corrections']} registration corrections (a sensor's offsets or "
+                     f"clock off the consensus beyond the {REGISTRATION_FALSE_ALARM:g} test), "
+                     f"{counts['centre_registered_sensors']} sensors corrected at the end")
     if "centre_handed_over" in counts:
         lines.append(f"{counts['centre_handed_over']} central tracks handed over between regions")
     return lines
@@ -323,6 +328,9 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
         print(f"{algorithm}: {line}", file=sys.stderr)
     for line in copy_lines(engine.feed_copies() if hasattr(engine, "feed_copies") else []):
         print(f"{algorithm}: {line}", file=sys.stderr)
+    for reg in engine.registrations() if hasattr(engine, "registrations") else []:
+        for line in correction_lines(reg.drain(), reg.applied):
+            print(f"{algorithm}: {line}", file=sys.stderr)
     if detector:
         print(f"{algorithm}: {onsets} maneuver onsets detected (pictures with a track's maneuver that the "
               "previous picture did not show)", file=sys.stderr)

@@ -60,6 +60,7 @@ import zenoh
 from fedtrack.config import ConfigError, load_tables
 from fedtrack.deployment import MAX_TIME_JUMP_S
 from fedtrack.fusion_center.mtt.centre.candidates import CrowdedReport
+from fedtrack.fusion_center.mtt.centre.registration import describe
 from fedtrack.fusion_center.mtt.engines import (
     CentralizedEngine,
     PictureClock,
@@ -421,9 +422,16 @@ class MttCentreService(CentreFailover, Service):
             self.log.warning("sensor %s %s %s's feed at t=%.2f (the same observations at the same times): its reports "
                              "are %s", f.copy, "copies" if f.found else "no longer copies", f.original, f.t,
                              "not fused" if f.found else "fused again")
+        registrations = [engine.region.centre.registration] if isinstance(engine, RegionEngine) else engine.registrations()
+        for c in (c for reg in registrations for c in reg.drain()):
+            self.log.warning("sensor %s off the consensus at t=%.2f by %s (chi-square %.1f): its reports are corrected by "
+                             "%s from its next one", c.sensor, c.t, describe(c.step), c.chi2, describe(c.total))
         flagged = (sorted(engine.region.centre.consistency.flagged) if isinstance(engine, RegionEngine)
                    else engine.inconsistent_sensors())
-        self.status = f"inconsistent sensors: {','.join(flagged)}"[:MAX_STRING_LENGTH] if flagged else "ok"
+        corrected = sorted({s for reg in registrations for s in reg.applied})
+        parts = ([f"inconsistent sensors: {','.join(flagged)}"] if flagged else []) \
+            + ([f"registration corrected: {','.join(corrected)}"] if corrected else [])
+        self.status = "; ".join(parts)[:MAX_STRING_LENGTH] or "ok"
         self.contested = self.contested or bool(msg.contested)
 
     def _answer(self, engine: RegionEngine, msg: TrackReport, report: Any) -> None:

@@ -14,6 +14,13 @@ information ``A' S^-1 A`` and ``A' S^-1 nu`` (solves); the sum over a window giv
 squares estimate of ``theta`` and its covariance, the inverse of the information (a recursive least
 squares estimate restarted at each correction), over every associated track of the scan at once.
 
+**Position sensors only.** A radar's error is a bias of range, azimuth and elevation, not a Cartesian
+offset, and its updates are linearized about each track's prediction: a sensor any of whose tested
+observations has an ``H`` that does not select coordinates is left out (neither estimated nor corrected,
+nor in the consensus). On the recorded Switzerland traffic (two radars, one position sensor), with the
+radars estimated, radar r2 was "corrected" by (-164, +364, +745) m at t = 172 s (chi-square 2674), taken
+back 14 s later, and ``mtt-federated``'s mean GOSPA went from 86.7 to 125.5 m.
+
 **The consensus.** The central tracks fuse every sensor's detections, this one's too, so a faulty
 sensor's estimate is its offset less its pull on the tracks, and every other sensor's estimate is minus
 that pull. Each sensor is therefore compared with the **medoid** of the sensors' estimates over the
@@ -81,11 +88,13 @@ class Estimate(NamedTuple):
 
 
 class Correction(NamedTuple):
-    """A correction at data time ``t``: its ``step`` and the sensor's whole correction since (``total``)."""
+    """A correction at data time ``t``: its ``step`` with its covariance and the sensor's whole correction since
+    (``total``)."""
 
     t: float
     sensor: str
     step: np.ndarray
+    cov: np.ndarray
     total: np.ndarray
     chi2: float
 
@@ -155,6 +164,7 @@ class SensorRegistration:
     scans: dict[str, deque[ScanInformation]] = field(default_factory=dict)
     applied: dict[str, np.ndarray] = field(default_factory=dict)  # sensor -> its correction theta
     estimates: dict[str, Estimate] = field(default_factory=dict)  # at each sensor's latest test
+    linearized: set[str] = field(default_factory=set)  # sensors with observations linearized (radars): left out
     corrections: int = 0
     made: list[Correction] = field(default_factory=list)  # not yet logged (the service drains them)
     newest: float = -math.inf
@@ -182,7 +192,11 @@ class SensorRegistration:
         ``states`` (X, P); then the sensor's test against the consensus of the ``live`` sensors' windows of
         ``window`` seconds."""
         H, R, z = observations
-        if not z.shape[0]:
+        if not z.shape[0] or sensor in self.linearized:
+            return
+        if not ((H == 0.0) | (H == 1.0)).all():  # a radar's update: linearized about the track's prediction
+            self.linearized.add(sensor)
+            self.scans.pop(sensor, None)
             return
         self.newest = max(self.newest, t)
         for kept in self.scans.values():
@@ -219,7 +233,7 @@ class SensorRegistration:
             total = self.applied.get(sensor, np.zeros(self.k)) + d
             self.applied[sensor] = total
             self.corrections += 1
-            self.made.append(Correction(t, sensor, d, total.copy(), chi2))
+            self.made.append(Correction(t, sensor, d, C, total.copy(), chi2))
             self.scans.clear()  # every sensor's innovations had the tracks' pull of the old correction
 
     def drop(self, sensor: str) -> None:
@@ -232,6 +246,21 @@ class SensorRegistration:
         """The corrections since the last call."""
         out, self.made = self.made, []
         return out
+
+
+def describe(theta: np.ndarray) -> str:
+    """``theta`` as text: ``offset (+1.2, -0.4) m, clock +2.00 s``."""
+    return f"offset ({', '.join(f'{v:+.1f}' for v in theta[:-1])}) m, clock {theta[-1]:+.2f} s"
+
+
+def correction_lines(made: list[Correction], applied: dict[str, np.ndarray], shown: int = 10) -> list[str]:
+    """The corrections made (the first ``shown``) and each sensor's correction at the end (``applied``)."""
+    if not made:
+        return []
+    listed = ", ".join(f"{c.sensor} at t={c.t:.2f} by {describe(c.step)} (chi-square {c.chi2:.1f})" for c in made[:shown])
+    more = f" and {len(made) - shown} more" if len(made) > shown else ""
+    ends = "; ".join(f"{s} {describe(theta)}" for s, theta in sorted(applied.items()))
+    return [f"sensors' registration corrected: {listed}{more}", f"registration corrections at the end: {ends or 'none'}"]
 
 
 def medoid(estimates: dict[str, tuple[np.ndarray, np.ndarray]]) -> str:
