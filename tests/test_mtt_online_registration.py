@@ -76,7 +76,7 @@ def test_one_sensor_off_the_consensus_is_corrected_and_the_honest_ones_are_not()
     the consensus; s1 and s3 never (their estimates against the medoid are noise)."""
     pull = np.array([-10.0, 5.0, 0.3])
     off = np.array([40.0, 25.0, 1.5])
-    reg = SensorRegistration(3)
+    reg = SensorRegistration(3, 3.0)
     feed(reg, {"s1": pull, "s2": pull + off, "s3": pull}, 6, ["s1", "s2", "s3"])
     assert set(reg.applied) == {"s2"} and reg.corrections == 1
     error = reg.applied["s2"] - off
@@ -88,7 +88,7 @@ def test_one_sensor_off_the_consensus_is_corrected_and_the_honest_ones_are_not()
 def test_with_two_live_sensors_nothing_is_corrected_only_reported() -> None:
     """Which of two sensors is off cannot be told: the estimates (against the central tracks) are reported,
     no sensor is corrected."""
-    reg = SensorRegistration(3)
+    reg = SensorRegistration(3, 3.0)
     feed(reg, {"s1": np.zeros(3), "s2": np.array([40.0, 25.0, 1.5])}, 4, ["s1", "s2"])
     assert reg.corrections == 0 and not reg.applied
     assert reg.estimates["s2"].reference is None and reg.estimates["s2"].chi2 > reg.threshold()
@@ -104,7 +104,7 @@ def test_a_corrected_report_is_on_the_consensus_clock_and_its_resets_back_on_the
     report = LocalReport("s2", 10.0, np.arange(3), x, np.broadcast_to(np.eye(4), (3, 4, 4)), np.ones(3, bool),
                          np.array([True, False, True]), H, np.broadcast_to(np.eye(2), (2, 2, 2)), x[[0, 2]][:, [0, 2]],
                          np.zeros(2, bool), np.zeros(0, dtype=np.int64))
-    reg = SensorRegistration(3, applied={"s2": theta})
+    reg = SensorRegistration(3, 3.0, applied={"s2": theta})
     fixed = reg.correct(report)
     assert fixed.t == 8.5
     assert np.array_equal(fixed.x[:, [0, 2]], x[:, [0, 2]] - theta[:2]) and np.array_equal(fixed.x[:, [1, 3]],

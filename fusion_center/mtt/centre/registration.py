@@ -40,7 +40,10 @@ of each local estimate (``x - E b``) and each observation (``z - H E b``, ``E`` 
 state's positions), the clock offset off the report's time (``t - c``: its detections and estimates are of
 the targets at ``t - c``, exactly, where ``-c v`` is the first order of it). Federated, the resets go back
 in the sensor's own frame (``x_c + E b`` at ``t + c``): its tracker keeps tracking its raw detections on
-its own clock. The picture clock runs on the corrected times (``Engine.data_time``): a sensor whose clock
+its own clock. A correction that would put the clock correction beyond ``max_lag`` is not made (reported
+only): the sensor's reports would all be older than ``max_lag`` before the others', late, and the estimate
+that far off is no clock's (a 200 m bias, whose local tracks mostly fail the association test, was
+"corrected" by +5.5 s with offsets of (+32, +61) m, from the few misassociated pairs). The picture clock runs on the corrected times (``Engine.data_time``): a sensor whose clock
 runs ahead otherwise has the pictures made before the others' data of their time came.
 """
 from __future__ import annotations
@@ -158,9 +161,11 @@ def chi2_of(d: np.ndarray, C: np.ndarray) -> float:
 @dataclass
 class SensorRegistration:
     """Each sensor's registration information over the window, its correction and the corrections made;
-    ``k``: the size of ``theta`` (the state's positions, then the clock)."""
+    ``k``: the size of ``theta`` (the state's positions, then the clock); ``max_lag``: the centre's (the
+    largest clock correction made)."""
 
     k: int
+    max_lag: float
     scans: dict[str, deque[ScanInformation]] = field(default_factory=dict)
     applied: dict[str, np.ndarray] = field(default_factory=dict)  # sensor -> its correction theta
     estimates: dict[str, Estimate] = field(default_factory=dict)  # at each sensor's latest test
@@ -229,8 +234,8 @@ class SensorRegistration:
         d, C = theta - est[ref][0], cov + est[ref][1]
         chi2 = chi2_of(d, C) if ref != sensor else 0.0
         self.estimates[sensor] = Estimate(d, C, chi2, ref)
-        if chi2 > self.threshold():
-            total = self.applied.get(sensor, np.zeros(self.k)) + d
+        total = self.applied.get(sensor, np.zeros(self.k)) + d
+        if chi2 > self.threshold() and abs(total[-1]) <= self.max_lag:
             self.applied[sensor] = total
             self.corrections += 1
             self.made.append(Correction(t, sensor, d, C, total.copy(), chi2))
