@@ -44,10 +44,10 @@ def test_the_estimate_is_the_weighted_least_squares_one_and_exact_without_noise(
     squares solution of the stacked, whitened rows (the prior two rows more) to round-off."""
     theta = np.array([30.0, -20.0, 2.0])
     H, R, z, X, P = observations(40, theta)
-    est, _ = solve_estimate(*scan_information(H, R, z, X, P, 3))
+    est, _ = solve_estimate(*scan_information(H, R, z, X, P, 3)[:2])
     assert np.allclose(est, theta, rtol=0, atol=1e-5)
     H, R, z, X, P = observations(40, theta, sigma=12.0)
-    Y, y = scan_information(H, R, z, X, P, 3)
+    Y, y, _ = scan_information(H, R, z, X, P, 3)
     est, cov = solve_estimate(Y, y)
     S = H @ P @ np.swapaxes(H, 1, 2) + R
     L = np.linalg.cholesky(np.linalg.inv(S))  # whitening: L' nu has unit covariance

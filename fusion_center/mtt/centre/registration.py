@@ -56,7 +56,9 @@ from typing import NamedTuple
 import numpy as np
 from scipy import special
 
+from fedtrack.fusion_center.mtt.centre.consistency import cap
 from fedtrack.local_filters.linear.kalman import symmetrize
+from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import LocalReport, Resets
 
 FALSE_ALARM = 1e-6  # per test of one sensor's estimate against the consensus, under the model
@@ -125,16 +127,17 @@ def design(H: np.ndarray, X: np.ndarray, k: int) -> np.ndarray:
     return A
 
 
-def scan_information(H: np.ndarray, R: np.ndarray, z: np.ndarray, X: np.ndarray, P: np.ndarray, k: int
-                     ) -> tuple[np.ndarray, np.ndarray]:
+def scan_information(H: np.ndarray, R: np.ndarray, z: np.ndarray, X: np.ndarray, P: np.ndarray, k: int,
+                     gate: float = math.inf) -> tuple[np.ndarray, np.ndarray, int]:
     """``sum A' S^-1 A`` and ``sum A' S^-1 nu`` over the observations ``(H, R, z)`` of the central predictions
-    ``(X, P)`` (one solve for both)."""
+    ``(X, P)`` whose ``nu' S^-1 nu`` is within ``gate`` (one solve for both), and their number."""
     A = design(H, X, k)
     nu = z - np.einsum("nmd,nd->nm", H, X)
     S = symmetrize(H @ P @ np.swapaxes(H, -1, -2) + R)
     W = np.linalg.solve(S, np.concatenate([A, nu[..., None]], axis=-1))  # S^-1 [A nu]
-    M = np.einsum("nmk,nml->kl", A, W)
-    return symmetrize(M[:, :k]), M[:, k]
+    inside = np.einsum("nm,nm->n", nu, W[..., k]) <= gate  # a NaN's row is left out too
+    M = np.einsum("nmk,nml->kl", A[inside], W[inside])
+    return symmetrize(M[:, :k]), M[:, k], int(np.count_nonzero(inside))
 
 
 def solve_estimate(Y: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -162,10 +165,12 @@ def chi2_of(d: np.ndarray, C: np.ndarray) -> float:
 class SensorRegistration:
     """Each sensor's registration information over the window, its correction and the corrections made;
     ``k``: the size of ``theta`` (the state's positions, then the clock); ``max_lag``: the centre's (the
-    largest clock correction made)."""
+    largest clock correction made); ``gate_tail``: ``1 - gate_probability`` of the local trackers (an
+    innovation beyond their gate is left out)."""
 
     k: int
     max_lag: float
+    gate_tail: float = 1.0 - MttConfig.gate_probability
     scans: dict[str, deque[ScanInformation]] = field(default_factory=dict)
     applied: dict[str, np.ndarray] = field(default_factory=dict)  # sensor -> its correction theta
     estimates: dict[str, Estimate] = field(default_factory=dict)  # at each sensor's latest test
@@ -207,8 +212,9 @@ class SensorRegistration:
         for kept in self.scans.values():
             while kept and kept[0].t < self.newest - window:
                 kept.popleft()
-        Y, y = scan_information(H, R, z, *states, self.k)
-        self.scans.setdefault(sensor, deque()).append(ScanInformation(t, Y, y, z.shape[0]))
+        Y, y, n = scan_information(H, R, z, *states, self.k, cap(z.shape[-1], self.gate_tail))
+        if n:
+            self.scans.setdefault(sensor, deque()).append(ScanInformation(t, Y, y, n))
         self._judge(sensor, t, live)
 
     def _window_estimates(self, live: list[str]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
