@@ -72,13 +72,14 @@ PRIOR_CLOCK_S = 1e2
 
 
 class ScanInformation(NamedTuple):
-    """One scan's information on ``theta``: its time, ``A' S^-1 A``, ``A' S^-1 nu`` and the innovations'
-    number."""
+    """One scan's information on ``theta``: its time, ``A' S^-1 A``, ``A' S^-1 nu``, the number of innovations
+    within the gate (those summed) and of all tested."""
 
     t: float
     Y: np.ndarray
     y: np.ndarray
     count: int
+    tested: int
 
 
 class Estimate(NamedTuple):
@@ -213,16 +214,17 @@ class SensorRegistration:
             while kept and kept[0].t < self.newest - window:
                 kept.popleft()
         Y, y, n = scan_information(H, R, z, *states, self.k, cap(z.shape[-1], self.gate_tail))
-        if n:
-            self.scans.setdefault(sensor, deque()).append(ScanInformation(t, Y, y, n))
+        self.scans.setdefault(sensor, deque()).append(ScanInformation(t, Y, y, n, z.shape[0]))
         self._judge(sensor, t, live)
 
     def _window_estimates(self, live: list[str]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-        """Each live sensor's estimate and covariance over its window (those with ``MIN_OBSERVATIONS``)."""
+        """Each live sensor's estimate and covariance over its window (those with ``MIN_OBSERVATIONS`` within the
+        gate, and at least half of their innovations tested)."""
         out = {}
         for s in live:
             kept = self.scans.get(s)
-            if kept and sum(e.count for e in kept) >= MIN_OBSERVATIONS:
+            n = sum(e.count for e in kept) if kept else 0
+            if n >= MIN_OBSERVATIONS and 2 * n >= sum(e.tested for e in kept):
                 out[s] = solve_estimate(sum(e.Y for e in kept), sum(e.y for e in kept))
         return out
 
