@@ -71,11 +71,12 @@ def feed(reg: SensorRegistration, sensors: dict[str, np.ndarray], scans: int, li
 
 
 def test_one_sensor_off_the_consensus_is_corrected_and_the_honest_ones_are_not() -> None:
-    """s2 off by (40, 25) m and +1.5 s, every estimate of s1, s2 and s3 also pulled by (-10, 5) m, 0.3 s (the
+    """s2 off by (15, -10) m and +0.5 s (within the gate: a sensor is estimated only while half its innovations
+    are), every estimate of s1, s2 and s3 also pulled by (-10, 5) m, 0.3 s (the
     central tracks' pull, common to all): s2 alone is corrected, at its first test with three estimates, by its offset against
     the consensus; s1 and s3 never (their estimates against the medoid are noise)."""
     pull = np.array([-10.0, 5.0, 0.3])
-    off = np.array([40.0, 25.0, 1.5])
+    off = np.array([15.0, -10.0, 0.5])
     reg = SensorRegistration(3, 3.0)
     feed(reg, {"s1": pull, "s2": pull + off, "s3": pull}, 6, ["s1", "s2", "s3"])
     assert set(reg.applied) == {"s2"} and reg.corrections == 1
@@ -85,11 +86,20 @@ def test_one_sensor_off_the_consensus_is_corrected_and_the_honest_ones_are_not()
     assert all(reg.estimates[s].reference is not None and reg.estimates[s].chi2 < reg.threshold() for s in ("s1", "s3"))
 
 
+def test_a_sensor_mostly_beyond_the_gate_is_not_estimated() -> None:
+    """s2 50 m off against predictions of 5 m and noise of 10-12 m: most of its innovations fall beyond the
+    gate (here 27 of 120 within it, above ``MIN_OBSERVATIONS``), and those within it are the tail nearest
+    the consensus, no sample of its offset; s2 gets no estimate and no correction."""
+    reg = SensorRegistration(3, 3.0)
+    feed(reg, {"s1": np.zeros(3), "s2": np.array([35.4, 35.4, 0.0]), "s3": np.zeros(3)}, 6, ["s1", "s2", "s3"])
+    assert reg.corrections == 0 and "s2" not in reg.estimates and "s1" in reg.estimates
+
+
 def test_with_two_live_sensors_nothing_is_corrected_only_reported() -> None:
     """Which of two sensors is off cannot be told: the estimates (against the central tracks) are reported,
     no sensor is corrected."""
     reg = SensorRegistration(3, 3.0)
-    feed(reg, {"s1": np.zeros(3), "s2": np.array([40.0, 25.0, 1.5])}, 4, ["s1", "s2"])
+    feed(reg, {"s1": np.zeros(3), "s2": np.array([15.0, -10.0, 0.5])}, 4, ["s1", "s2"])
     assert reg.corrections == 0 and not reg.applied
     assert reg.estimates["s2"].reference is None and reg.estimates["s2"].chi2 > reg.threshold()
 
