@@ -67,7 +67,7 @@ def feed(reg: SensorRegistration, sensors: dict[str, np.ndarray], scans: int, li
     for k in range(scans):
         for s, theta in sensors.items():
             H, R, z, X, P = observations(20, theta - reg.applied.get(s, 0.0), sigma=10.0)
-            reg.add(s, float(k), (H, R, z), (X, P), 5.0, live)
+            reg.add(s, float(k), (H, R, z), (X, P), 5.0, live, 20)
 
 
 def test_one_sensor_off_the_consensus_is_corrected_and_the_honest_ones_are_not() -> None:
@@ -89,7 +89,7 @@ def test_one_sensor_off_the_consensus_is_corrected_and_the_honest_ones_are_not()
 def test_a_sensor_mostly_beyond_the_gate_is_not_estimated() -> None:
     """s2 50 m off against predictions of 5 m and noise of 10-12 m: most of its innovations fall beyond the
     gate (here 27 of 120 within it, above ``MIN_OBSERVATIONS``), and those within it are the tail nearest
-    the consensus, no sample of its offset; s2 gets no estimate and no correction."""
+    the consensus, no sample of its offset (a sensor is estimated only while half of its observations are); s2 gets no estimate and no correction."""
     reg = SensorRegistration(3, 3.0)
     feed(reg, {"s1": np.zeros(3), "s2": np.array([35.4, 35.4, 0.0]), "s3": np.zeros(3)}, 6, ["s1", "s2", "s3"])
     assert reg.corrections == 0 and "s2" not in reg.estimates and "s1" in reg.estimates

@@ -73,13 +73,13 @@ PRIOR_CLOCK_S = 1e2
 
 class ScanInformation(NamedTuple):
     """One scan's information on ``theta``: its time, ``A' S^-1 A``, ``A' S^-1 nu``, the number of innovations
-    within the gate (those summed) and of all tested."""
+    within the gate (those summed) and of the scan's observations."""
 
     t: float
     Y: np.ndarray
     y: np.ndarray
     count: int
-    tested: int
+    observed: int
 
 
 class Estimate(NamedTuple):
@@ -198,14 +198,14 @@ class SensorRegistration:
         return 0.0 if theta is None else float(theta[-1])
 
     def add(self, sensor: str, t: float, observations: tuple[np.ndarray, np.ndarray, np.ndarray],
-            states: tuple[np.ndarray, np.ndarray], window: float, live: list[str]) -> None:
+            states: tuple[np.ndarray, np.ndarray], window: float, live: list[str], observed: int) -> None:
         """One scan's (already corrected) observations ``(H, R, z)`` (central size) of the central predictions
-        ``states`` (X, P); then the sensor's test against the consensus of the ``live`` sensors' windows of
-        ``window`` seconds."""
+        ``states`` (X, P), of the ``observed`` observations of the scan; then the sensor's test against the
+        consensus of the ``live`` sensors' windows of ``window`` seconds."""
         H, R, z = observations
-        if not z.shape[0] or sensor in self.linearized:
+        if not observed or sensor in self.linearized:
             return
-        if not ((H == 0.0) | (H == 1.0)).all():  # a radar's update: linearized about the track's prediction
+        if z.shape[0] and not ((H == 0.0) | (H == 1.0)).all():  # a radar's update: linearized about the track's prediction
             self.linearized.add(sensor)
             self.scans.pop(sensor, None)
             return
@@ -213,18 +213,19 @@ class SensorRegistration:
         for kept in self.scans.values():
             while kept and kept[0].t < self.newest - window:
                 kept.popleft()
-        Y, y, n = scan_information(H, R, z, *states, self.k, cap(z.shape[-1], self.gate_tail))
-        self.scans.setdefault(sensor, deque()).append(ScanInformation(t, Y, y, n, z.shape[0]))
+        Y, y, n = (scan_information(H, R, z, *states, self.k, cap(z.shape[-1], self.gate_tail)) if z.shape[0]
+                   else (np.zeros((self.k, self.k)), np.zeros(self.k), 0))
+        self.scans.setdefault(sensor, deque()).append(ScanInformation(t, Y, y, n, observed))
         self._judge(sensor, t, live)
 
     def _window_estimates(self, live: list[str]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """Each live sensor's estimate and covariance over its window (those with ``MIN_OBSERVATIONS`` within the
-        gate, and at least half of their innovations tested)."""
+        gate, and at least half of their scans' observations)."""
         out = {}
         for s in live:
             kept = self.scans.get(s)
             n = sum(e.count for e in kept) if kept else 0
-            if n >= MIN_OBSERVATIONS and 2 * n >= sum(e.tested for e in kept):
+            if n >= MIN_OBSERVATIONS and 2 * n >= sum(e.observed for e in kept):
                 out[s] = solve_estimate(sum(e.Y for e in kept), sum(e.y for e in kept))
         return out
 

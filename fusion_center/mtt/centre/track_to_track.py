@@ -538,7 +538,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         if at.size < tracks.capacity:  # a track started since has none
             at = np.concatenate([at, np.full(tracks.capacity - at.size, -1, dtype=np.int64)])
         fused, x_post, P_post = self._fuse_scan((H, R, z), slots, is_fresh, t, (X, P, at))
-        self._monitor(s, t, (H, R, z), slots, fused & ~is_fresh, col, (X, P, at))
+        self._monitor(s, t, (H, R, z), slots, fused & ~is_fresh, col, (X, P, at), slots.size)
         rows = slice(None) if fused.all() else fused.nonzero()[0]  # each row's observation fused (the usual)
         supported = slots[rows]
         self.moved = cid[rows], supported
@@ -594,11 +594,12 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         return ok, X, P
 
     def _monitor(self, sensor: str, t: float, observations: tuple[np.ndarray, np.ndarray, np.ndarray],
-                 slots: np.ndarray, fused: np.ndarray, col: int, states: tuple[np.ndarray, np.ndarray, np.ndarray]
-                 ) -> None:
+                 slots: np.ndarray, fused: np.ndarray, col: int, states: tuple[np.ndarray, np.ndarray, np.ndarray],
+                 observed: int) -> None:
         """The scan's normalized innovations against the central predictions ``states`` (X, P, at) at ``t``,
         of the rows ``fused`` into a central track (one observation of it in the scan) that another
-        sensor also supports, added to the sensor's consistency window (:mod:`.consistency`)."""
+        sensor also supports, added to the sensor's consistency window (:mod:`.consistency`) and its
+        registration's (:mod:`.registration`, of the scan's ``observed`` observations)."""
         X, P, at = states
         row = at[slots]
         has = self.support[slots] > 0
@@ -610,7 +611,8 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.consistency.add(sensor, t, nis, z.shape[-1], window)
         self.counters.inconsistent_sensors = len(self.consistency.flagged)
         self.counters.inconsistency_onsets = self.consistency.onsets
-        self.registration.add(sensor, t, (self._embed(H), R, z), (X[row[use]], P[row[use]]), window, self.live)
+        self.registration.add(sensor, t, (self._embed(H), R, z), (X[row[use]], P[row[use]]), window, self.live,
+                              observed)
         self.counters.registration_corrections = self.registration.corrections
         self.counters.registered_sensors = len(self.registration.applied)
 
@@ -622,7 +624,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         mapped = (slots >= 0).nonzero()[0]
         H, R, z = observations
         self._monitor(sensor, t, (H[mapped], R[mapped], z[mapped]), slots[mapped], np.ones(mapped.size, dtype=bool),
-                      col, states)
+                      col, states, slots.size)
         self.counters.excluded_observations += slots.size
         self.moved = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
 
