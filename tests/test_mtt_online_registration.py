@@ -73,8 +73,8 @@ def feed(reg: SensorRegistration, sensors: dict[str, np.ndarray], scans: int, li
 def test_one_sensor_off_the_consensus_is_corrected_and_the_honest_ones_are_not() -> None:
     """s2 off by (15, -10) m and +0.5 s (within the gate: a sensor is estimated only while half its innovations
     are), every estimate of s1, s2 and s3 also pulled by (-10, 5) m, 0.3 s (the
-    central tracks' pull, common to all): s2 alone is corrected, at its first test with three estimates, by its offset against
-    the consensus; s1 and s3 never (their estimates against the medoid are noise)."""
+    central tracks' pull, common to all): s2 alone is corrected, at its first test with three estimates, by
+    its offset against the consensus; s1 and s3 never (their estimates against the medoid are noise)."""
     pull = np.array([-10.0, 5.0, 0.3])
     off = np.array([15.0, -10.0, 0.5])
     reg = SensorRegistration(3, 3.0)
@@ -89,7 +89,8 @@ def test_one_sensor_off_the_consensus_is_corrected_and_the_honest_ones_are_not()
 def test_a_sensor_mostly_beyond_the_gate_is_not_estimated() -> None:
     """s2 50 m off against predictions of 5 m and noise of 10-12 m: most of its innovations fall beyond the
     gate (here 27 of 120 within it, above ``MIN_OBSERVATIONS``), and those within it are the tail nearest
-    the consensus, no sample of its offset (a sensor is estimated only while half of its observations are); s2 gets no estimate and no correction."""
+    the consensus, no sample of its offset (a sensor is estimated only while half of its observations are);
+    s2 gets no estimate and no correction."""
     reg = SensorRegistration(3, 3.0)
     feed(reg, {"s1": np.zeros(3), "s2": np.array([35.4, 35.4, 0.0]), "s3": np.zeros(3)}, 6, ["s1", "s2", "s3"])
     assert reg.corrections == 0 and "s2" not in reg.estimates and "s1" in reg.estimates
@@ -128,7 +129,8 @@ def test_a_corrected_report_is_on_the_consensus_clock_and_its_resets_back_on_the
 def scenario(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """20 targets, three position sensors (1.0 / 0.7 / 1.3 s), 40 s; and s2's stamps 2 s ahead from t = 15 s."""
     out = tmp_path_factory.mktemp("registration") / "sim"
-    assert cli(["simulate", "multitarget", "--targets", "20", "--duration", "40", "--seed", "1", "--out", str(out)]) == 0
+    assert cli(["simulate", "multitarget", "--targets", "20", "--duration", "40", "--seed", "1", "--out",
+                str(out)]) == 0
     with (out / "measurements.jsonl").open() as f, (out / "clock.jsonl").open("w") as g:
         for line in f:
             m = json.loads(line)
@@ -153,8 +155,9 @@ def mean_gospa(scenario: Path, measurements: str, algorithm: str, capsys: pytest
 def test_a_sensor_clock_two_seconds_ahead_is_found_and_corrected(scenario: Path, capsys: pytest.CaptureFixture,
                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
     """s2's stamps 2 s ahead from t = 15 s (``mtt-decentralized``): s2 is corrected within a few scans, by a
-    clock offset near +2 s (measured: at 20.5 s, +1.12 s, then +0.82 at 24.98 s), and the pictures are nearer the truth than without the correction (the test's
-    quantile infinite: nothing is ever significant)."""
+    clock offset near +2 s (measured: at 20.5 s by +1.12 s, at 24.98 s by +0.82 s), and the pictures are nearer
+    the truth than without the correction (the test's quantile infinite: nothing is ever significant; measured
+    mean GOSPA 82.05 m against 115.63 m, as on main)."""
     with_it, err = mean_gospa(scenario, "clock", "mtt-decentralized", capsys)
     line = next(x for x in err.splitlines() if "sensors' registration corrected:" in x)
     assert "s1 at" not in line and "s3 at" not in line

@@ -28,7 +28,8 @@ from fedtrack.deployment import MAX_TIME_JUMP_S, max_time_jump
 from fedtrack.fusion_center.mtt.centre.candidates import CrowdedReport
 from fedtrack.fusion_center.mtt.centre.consistency import FALSE_ALARM, Transition
 from fedtrack.fusion_center.mtt.centre.copies import Found
-from fedtrack.fusion_center.mtt.centre.registration import FALSE_ALARM as REGISTRATION_FALSE_ALARM, correction_lines
+from fedtrack.fusion_center.mtt.centre.registration import FALSE_ALARM as REGISTRATION_FALSE_ALARM
+from fedtrack.fusion_center.mtt.centre.registration import correction_lines
 from fedtrack.fusion_center.mtt.engines import ALGORITHMS, Engine, PictureClock, PictureTracks, make_engine
 from fedtrack.fusion_center.mtt.regional import is_region_recording, read_region_entries, recorded_pictures
 from fedtrack.fusion_center.mtt.silence import silence_bound, usual_intervals
@@ -329,7 +330,7 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
     for line in copy_lines(engine.feed_copies() if hasattr(engine, "feed_copies") else []):
         print(f"{algorithm}: {line}", file=sys.stderr)
     for reg in engine.registrations() if hasattr(engine, "registrations") else []:
-        for line in correction_lines(reg.drain(), reg.applied):
+        for line in correction_lines(reg):
             print(f"{algorithm}: {line}", file=sys.stderr)
     if detector:
         print(f"{algorithm}: {onsets} maneuver onsets detected (pictures with a track's maneuver that the "

@@ -422,10 +422,12 @@ class MttCentreService(CentreFailover, Service):
             self.log.warning("sensor %s %s %s's feed at t=%.2f (the same observations at the same times): its reports "
                              "are %s", f.copy, "copies" if f.found else "no longer copies", f.original, f.t,
                              "not fused" if f.found else "fused again")
-        registrations = [engine.region.centre.registration] if isinstance(engine, RegionEngine) else engine.registrations()
+        registrations = ([engine.region.centre.registration] if isinstance(engine, RegionEngine)
+                         else engine.registrations())
         for c in (c for reg in registrations for c in reg.drain()):
-            self.log.warning("sensor %s off the consensus at t=%.2f by %s (chi-square %.1f): its reports are corrected by "
-                             "%s from its next one", c.sensor, c.t, describe(c.step), c.chi2, describe(c.total))
+            self.log.warning("sensor %s off the consensus at t=%.2f by %s (chi-square %.1f): its reports are "
+                             "corrected by %s from its next one", c.sensor, c.t, describe(c.step), c.chi2,
+                             describe(c.total))
         flagged = (sorted(engine.region.centre.consistency.flagged) if isinstance(engine, RegionEngine)
                    else engine.inconsistent_sensors())
         corrected = sorted({s for reg in registrations for s in reg.applied})

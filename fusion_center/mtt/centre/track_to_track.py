@@ -205,7 +205,8 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.absorbed: set[int] = set()  # tracks whose local tracks moved to another (not departed)
         self.consistency = SensorConsistency(1.0 - cfg.gate_probability)
         self.copies = FeedCopies(cfg.max_lag)  # sensors whose reports carry another's observations
-        self.registration = SensorRegistration(self.dim // 2 + 1, cfg.max_lag, 1.0 - cfg.gate_probability)  # each sensor's offsets and clock offset
+        # each sensor's offsets and clock offset against the others' (.registration)
+        self.registration = SensorRegistration(self.dim // 2 + 1, cfg.max_lag, 1.0 - cfg.gate_probability)
         self.live: list[str] = []  # the live sensors at the latest report's time (_note_scan)
         self._fit()
 
