@@ -612,8 +612,9 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.consistency.add(sensor, t, nis, z.shape[-1], window)
         self.counters.inconsistent_sensors = len(self.consistency.flagged)
         self.counters.inconsistency_onsets = self.consistency.onsets
-        self.registration.add(sensor, t, (self._embed(H), R, z), (X[row[use]], P[row[use]]), window, self.live,
-                              observed)
+        steady = self.tracks.confirmed[slots[use]]  # a tentative track's velocity is not yet known
+        self.registration.add(sensor, t, (self._embed(H[steady]), R[steady], z[steady]),
+                              (X[row[use[steady]]], P[row[use[steady]]]), window, self.live, observed)
         self.counters.registration_corrections = self.registration.corrections
         self.counters.registered_sensors = len(self.registration.applied)
 
