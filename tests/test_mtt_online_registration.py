@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support import assert_same_pictures
+from test_hostile_messages import KEYS, Bus, mtt_services
 
 from fedtrack.cli import main as cli
 from fedtrack.fusion_center.mtt.centre import registration
@@ -18,7 +20,10 @@ from fedtrack.fusion_center.mtt.centre.registration import (
     sensor_frame,
     solve_estimate,
 )
+from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.local_filters.mtt.local import LocalReport, Resets
+from fedtrack.local_filters.mtt.scan import parse_scan, scan_to_measurement
+from fedtrack.wire import encode
 
 RNG = np.random.default_rng(54)
 
@@ -175,3 +180,39 @@ def test_honest_data_is_not_corrected(scenario: Path, capsys: pytest.CaptureFixt
     """The same 40 s without the clock offset (``mtt-federated``): no sensor corrected."""
     _, err = mean_gospa(scenario, "measurements", "mtt-federated", capsys)
     assert "mtt-federated: 0 registration corrections" in err and "registration corrected" not in err
+
+
+def test_the_live_centre_corrects_reports_and_its_recording_replays_to_its_pictures(
+        scenario: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """``serve mtt-centre`` (in-process, federated, its trackers and recorder on a bus) with s2's stamps 2 s
+    ahead from t = 15 s, the first 30 s: it counts the correction, names s2 in its status, logs it, sends
+    s2's resets on s2's own clock (the stamps of s2's reports), and its recording replays to its pictures
+    (the picture clock on the corrected times in both)."""
+    from fedtrack.wire import TrackReport, TrackResets
+
+    services = mtt_services(tmp_path)
+    bus = Bus(list(services.values()))
+    seq: dict[str, int] = {}
+    with caplog.at_level("WARNING"):
+        for line in (scenario / "clock.jsonl").read_text().splitlines():
+            scan = parse_scan(json.loads(line), "test")
+            if scan.t > 30.0:
+                continue
+            seq[scan.sensor] = seq.get(scan.sensor, -1) + 1
+            bus.put(KEYS.sensor_meas(scan.sensor), encode(scan_to_measurement(scan, seq[scan.sensor], 1)))
+    centre = services["centre"]
+    assert centre.counters["centre_registration_corrections"] >= 1 and centre.counters["centre_registered_sensors"] == 1
+    assert "registration corrected: s2" in centre.status and centre.counters["rejected"] == 0
+    assert any(r.getMessage().startswith("sensor s2 off the consensus at t=") for r in caplog.records)
+    reports = {(m.sensor, m.seq): m.t for m in bus.of(TrackReport)}
+    resets = [m for m in bus.of(TrackResets) if m.sensor == "s2" and m.ids]
+    assert resets and all(m.t == reports[("s2", m.seq)] for m in resets)
+    centre.on_stop()
+    bus.drain()
+    measurements, live = tmp_path / "m.jsonl", tmp_path / "live.jsonl"
+    services["recorder"].recording.export(measurements, live)  # type: ignore[attr-defined]
+    config = tmp_path / "c.toml"
+    config.write_text('[mtt]\nsensors = ["s1", "s2", "s3"]\nmax_lag = 3.0\nclutter_density = 8e-8\n')
+    again = tmp_path / "again.jsonl"
+    replay_mtt("mtt-federated", measurements, config, again)
+    assert_same_pictures(*([json.loads(x) for x in f.read_text().splitlines()] for f in (live, again)))
