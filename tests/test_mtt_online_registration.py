@@ -23,7 +23,7 @@ from fedtrack.fusion_center.mtt.centre.registration import (
 from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.local_filters.mtt.local import LocalReport, Resets
 from fedtrack.local_filters.mtt.scan import parse_scan, scan_to_measurement
-from fedtrack.wire import encode
+from fedtrack.wire import TrackReport, TrackResets, encode
 
 RNG = np.random.default_rng(54)
 
@@ -188,8 +188,6 @@ def test_the_live_centre_corrects_reports_and_its_recording_replays_to_its_pictu
     ahead from t = 15 s, the first 30 s: it counts the correction, names s2 in its status, logs it, sends
     s2's resets on s2's own clock (the stamps of s2's reports), and its recording replays to its pictures
     (the picture clock on the corrected times in both)."""
-    from fedtrack.wire import TrackReport, TrackResets
-
     services = mtt_services(tmp_path)
     bus = Bus(list(services.values()))
     seq: dict[str, int] = {}
