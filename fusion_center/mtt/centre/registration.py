@@ -190,6 +190,8 @@ class SensorRegistration:
     corrections: int = 0
     made: list[Correction] = field(default_factory=list)  # not yet logged (the service drains them)
     newest: float = -math.inf
+    # each sensor's window estimate (None: too few observations) while its window is unchanged
+    _solved: dict[str, tuple[np.ndarray, np.ndarray] | None] = field(default_factory=dict)
 
     def threshold(self) -> float:
         """The chi-square quantile of ``k`` dof at ``1 - FALSE_ALARM``."""
@@ -220,11 +222,14 @@ class SensorRegistration:
         if z.shape[0] and not ((H == 0.0) | (H == 1.0)).all():  # a radar's update: linearized about a prediction
             self.linearized.add(sensor)
             self.scans.pop(sensor, None)
+            self._solved.pop(sensor, None)
             return
         self.newest = max(self.newest, t)
-        for kept in self.scans.values():
+        for s, kept in self.scans.items():
             while kept and kept[0].t < self.newest - window:
                 kept.popleft()
+                self._solved.pop(s, None)
+        self._solved.pop(sensor, None)
         Y, y, n = (scan_information(H, R, z, *states, self.k, cap(z.shape[-1], self.gate_tail)) if z.shape[0]
                    else (np.zeros((self.k, self.k)), np.zeros(self.k), 0))
         self.scans.setdefault(sensor, deque()).append(ScanInformation(t, Y, y, n, observed))
@@ -233,13 +238,13 @@ class SensorRegistration:
     def _window_estimates(self, live: list[str]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """Each live sensor's estimate and covariance over its window (those with ``MIN_OBSERVATIONS`` within the
         gate, and at least half of their scans' observations)."""
-        out = {}
         for s in live:
-            kept = self.scans.get(s)
-            n = sum(e.count for e in kept) if kept else 0
-            if n >= MIN_OBSERVATIONS and 2 * n >= sum(e.observed for e in kept):
-                out[s] = solve_estimate(sum(e.Y for e in kept), sum(e.y for e in kept))
-        return out
+            if s not in self._solved:
+                kept = self.scans.get(s)
+                n = sum(e.count for e in kept) if kept else 0
+                self._solved[s] = (solve_estimate(sum(e.Y for e in kept), sum(e.y for e in kept))
+                                   if n >= MIN_OBSERVATIONS and 2 * n >= sum(e.observed for e in kept) else None)
+        return {s: e for s in live if (e := self._solved[s]) is not None}
 
     def _judge(self, sensor: str, t: float, live: list[str]) -> None:
         """The reporting sensor's estimate against the consensus (its correction grown by a significant one)."""
@@ -261,10 +266,12 @@ class SensorRegistration:
             self.corrections += 1
             self.made.append(Correction(t, sensor, d, C, total.copy(), chi2))
             self.scans.clear()  # every sensor's innovations had the tracks' pull of the old correction
+            self._solved.clear()
 
     def drop(self, sensor: str) -> None:
         """A sensor left: its window, estimate and correction go (a returning sensor is estimated afresh)."""
         self.scans.pop(sensor, None)
+        self._solved.pop(sensor, None)
         self.estimates.pop(sensor, None)
         self.applied.pop(sensor, None)
 
