@@ -301,8 +301,8 @@ class TrackPicture(_Record):
                "began_serials": _counts, "missing": _identifier_list,
                "part": _count, "parts": _count}
     _arrays = ("x", "P", "maneuver", "existence", "lla")
-    _omitted = ("handovers", "regions", "in_flight", "in_flight_t", "restarted", "began", "began_serials", "missing", "part",
-                "parts")
+    _omitted = ("handovers", "regions", "in_flight", "in_flight_t", "restarted", "began", "began_serials", "missing",
+                "part", "parts")
     _items = (_Items(("ids", "x", "P", "confirmed", "sensors", "ca", "existence", "lla"), "MAX_TRACKS"),
               _Items(("fused_seqs", "fused_sensors", "regions"), "MAX_TRACKS"),
               _Items(("maneuvering", "maneuver"), "MAX_TRACKS", "at", "ids"),

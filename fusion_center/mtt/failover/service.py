@@ -44,7 +44,8 @@ class CentreFailover:
         elif not present:
             self.standby.found_none(time.monotonic())
         self._inputs.append(self.session.liveliness().declare_subscriber(key, self._on_primary, history=True))
-        if self.region is not None:  # every centre of a region, primary or standby: serve picture waits for its pictures
+        # every centre of a region, primary or standby: serve picture waits for its pictures
+        if self.region is not None:
             self._inputs.append(self.session.liveliness().declare_token(
                 self.keys.region_centre(self.region, str(self.session.zid()))))
 
