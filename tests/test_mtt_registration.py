@@ -239,26 +239,3 @@ def test_a_copier_joining_later_is_the_copy_and_a_silent_original_releases_it() 
             assert not early.is_copy("s9", float(t), seen(z))
         assert early.is_copy("s1", float(t), seen(z)) == (2 <= t <= 6 or t >= 9)
     assert early.drain() == [Found(2.0, "s1", "s9", True), Found(7.0, "s1", "s9", False), Found(9.0, "s1", "s9", True)]
-
-
-@pytest.mark.parametrize("algorithm", ["mtt-federated", "mtt-centralized"])
-def test_a_sensor_sending_its_own_scans_again_under_new_stamps_is_fused_once(
-        tmp_path: Path, capsys: pytest.CaptureFixture, algorithm: str) -> None:
-    """s1 sends each of its scans again half a second later (its own authentic detections under a fresh stamp)
-    beside an honest s2: each copy was fused as a new scan, s1 weighing twice and its old positions pulling the
-    tracks back (seed 1 of ``simulate multitarget``, s1's scans from t = 100 s sent again at a quarter, a half and
-    three quarters of its period: ``mtt-federated`` mean GOSPA 74.32 -> 122.57 m, the honest s2 and s3 flagged
-    inconsistent against it). Now a scan whose detections equal to the bit those of its sensor's scan at another
-    time is a duplicate: the pictures are those without the copies, which are counted."""
-    s1, s2 = noisy_scans("s1", 1), noisy_scans("s2", 2)
-    again = [{**scan, "t": scan["t"] + 0.5} for scan in s1[:-1]]  # before the next scan: no later picture
-    (tmp_path / "c.toml").write_text("[mtt]\nclutter_density = 1e-9\n")
-    pictures = {}
-    for name, scans in (("again", [*zip(s1, s2, again), (s1[-1], s2[-1])]), ("once", zip(s1, s2))):
-        (tmp_path / f"{name}.jsonl").write_text("".join(json.dumps(s) + "\n" for group in scans for s in group))
-        assert cli(["replay", "--algorithm", algorithm, "--config", str(tmp_path / "c.toml"), "--measurements",
-                    str(tmp_path / f"{name}.jsonl"), "--out", str(tmp_path / f"{name}.out.jsonl")]) == 0
-        pictures[name] = (tmp_path / f"{name}.out.jsonl").read_text()
-        err = capsys.readouterr().err
-        assert f"{algorithm}: {19 if name == 'again' else 0} duplicate scans" in err
-    assert pictures["again"] == pictures["once"]

@@ -240,22 +240,9 @@ class SensorTracker:
 
 
 def is_duplicate(history: ScanHistory, scan: SensorScan, scan_of: Callable[[object], SensorScan]) -> bool:
-    """Whether ``history`` holds a scan equal to ``scan`` (sensor, time, ``R``, detections), or a scan of its
-    sensor at another time with the same detections, at least one (:func:`replays_own`)."""
+    """Whether ``history`` holds a scan equal to ``scan`` (sensor, time, ``R``, detections)."""
     return any(other.sensor == scan.sensor and np.array_equal(other.R, scan.R)
-               for other in _same_detections(history, scan, scan_of)) or replays_own(history, scan, scan_of)
-
-
-def replays_own(history: ScanHistory, scan: SensorScan, scan_of: Callable[[object], SensorScan]) -> bool:
-    """Whether ``history`` holds a scan of ``scan``'s sensor at another time with the same detections, at least
-    one (a sensor's noisy detections never agree to the bit at two times): its own scan sent again under a new
-    stamp. Fused, each copy weighed as a new scan: seed 1, s1 sending each scan from t = 100 s again at
-    a quarter, a half and three quarters of its period, mean GOSPA 74.32 -> 122.57 m, and the honest s2
-    and s3 flagged inconsistent against it (attack54). Only within the history's ``max_lag``."""
-    z = scan.z
-    return z.shape[0] > 0 and any(
-        other.sensor == scan.sensor and other.t != scan.t and other.z.shape == z.shape and np.array_equal(other.z, z)
-        for other in map(scan_of, history.entries))
+               for other in _same_detections(history, scan, scan_of))
 
 
 def is_conflict(history: ScanHistory, scan: SensorScan, scan_of: Callable[[object], SensorScan]) -> bool:
