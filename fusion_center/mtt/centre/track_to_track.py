@@ -20,6 +20,8 @@ scan, the linearized observation of every track the scan detected, the tracks it
   track kept on a neighbour's central track moves to the one it fits better. Two such tracks of one
   sensor that each pass the test with the other's confirmed central track (mapped to each other's
   targets at their start) may also trade places, when one fits the other's better than its own.
+  A detected local track whose covariance is vaguer than its observation's, which no Kalman update gives
+  (:mod:`.posterior_bound`, where the local trackers' update is one), is taken as not detected.
 * **Fusion.** The centre fuses each local observation (``H, R, z``) into its central track at
   the observation's time, predicting the central track there; out-of-sequence observations up
   to ``max_lag`` old are fused exactly (:mod:`.central_track`; each observation fused again is
@@ -84,6 +86,7 @@ from fedtrack.fusion_center.mtt.central_track import CentralTracks, DepartedTrac
 from fedtrack.fusion_center.mtt.centre.association import CentreAssociation, LocalKey
 from fedtrack.fusion_center.mtt.centre.consistency import SensorConsistency, normalized_innovations, window_seconds
 from fedtrack.fusion_center.mtt.centre.copies import FeedCopies, Observations
+from fedtrack.fusion_center.mtt.centre.posterior_bound import kalman_rows, undetected, vaguer_than_detection
 from fedtrack.fusion_center.mtt.centre.registration import SensorRegistration, sensor_frame
 from fedtrack.fusion_center.mtt.centre.track_life import CentreLife, needs_local_confirmation
 from fedtrack.fusion_center.mtt.silence import INTERVALS_KEPT, silence_bound, usual_intervals
@@ -116,6 +119,7 @@ class Counters:
     uncorroborated: int = 0  # one sensor's tentative tracks held back: another sensor sees their place, missed them
     registration_corrections: int = 0  # times a sensor's registration was found off the consensus and corrected
     registered_sensors: int = 0  # sensors whose reports are corrected now (.registration)
+    vague_posteriors: int = 0  # detected local tracks whose covariance exceeds their observation's (.posterior_bound): not fused
 
 
 class HandOver(NamedTuple):
@@ -394,6 +398,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
                 self.counters.late_reports += 1
             self.moved = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
             return no_resets(report.sensor, report.t, report.x.shape[1])
+        report, obs = self._bounded(report, rows, obs)
         col = self._note_scan(report, rows)
         det_rows = (report.detected if rows is None else report.detected & rows).nonzero()[0]
         if det_rows.size:
@@ -417,6 +422,22 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         R, raised = raise_to_floor(report.obs_R, floor)
         self.counters.noise_raised += int(np.count_nonzero(raised if obs_rows is None else raised[obs_rows]))
         return report._replace(obs_R=R), False
+
+    def _bounded(self, report: LocalReport, rows: np.ndarray | None, obs_rows: np.ndarray | None
+                 ) -> tuple[LocalReport, np.ndarray | None]:
+        """The report with its detected rows (of ``rows``, None: all) whose covariance is vaguer than their
+        observation's after a Kalman update (:mod:`.posterior_bound`; where the local trackers' update is one)
+        taken as not detected, counted ``vague_posteriors``, and the rows' observations ``obs_rows`` again."""
+        if not len(report.obs_R) or not kalman_rows(self.cfg, self.feedback, report.x.shape[1]):
+            return report, obs_rows
+        vague = vaguer_than_detection(report.obs_H, report.P[report.detected], report.obs_R)
+        if rows is not None:
+            vague &= rows[report.detected]
+        if not vague.any():
+            return report, obs_rows
+        self.counters.vague_posteriors += int(np.count_nonzero(vague))
+        report = undetected(report, vague)
+        return report, None if rows is None else rows[report.detected].nonzero()[0]
 
     def _copied(self, report: LocalReport, obs_rows: np.ndarray | None) -> bool:
         """Whether the report's sensor copies another's feed (its observations ``obs_rows`` compared, None:
