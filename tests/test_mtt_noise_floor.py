@@ -39,18 +39,21 @@ def test_a_claim_below_the_floor_is_scaled_to_just_above_it() -> None:
     assert np.all(np.abs(least[raised]) < 1e-9 * np.abs(raised_R[raised]).max()) and np.all(least > -1e-9)
 
 
-def _report(sensor: str, t: float, z: np.ndarray, R: np.ndarray, first: bool) -> LocalReport:
-    """A position sensor's report of local tracks 1..n, each detected at ``z`` (its estimate at ``z``, still)."""
+def _report(sensor: str, t: float, z: np.ndarray, R: np.ndarray, first: bool, var: float) -> LocalReport:
+    """A position sensor's report of local tracks 1..n, each detected at ``z`` (its estimate at ``z``, still, its
+    position's variance ``var``: at most the detection's, as after a Kalman update, docs/multitarget.md, "A local
+    track vaguer than its detection")."""
     n = z.shape[0]
     x = np.column_stack([z[:, 0], np.zeros(n), z[:, 1], np.zeros(n)])
-    return LocalReport(sensor, t, np.arange(1, n + 1), x, np.tile(np.diag([400.0, 100.0, 400.0, 100.0]), (n, 1, 1)),
+    return LocalReport(sensor, t, np.arange(1, n + 1), x, np.tile(np.diag([var, 100.0, var, 100.0]), (n, 1, 1)),
                        np.full(n, not first), np.ones(n, bool), np.tile(H, (n, 1, 1)), np.tile(R, (n, 1, 1)), z,
                        np.full(n, first), np.zeros(0, dtype=np.int64))
 
 
-def _run(cfg: MttConfig, claimed: np.ndarray) -> tuple[TrackToTrackCentre, np.ndarray]:
+def _run(cfg: MttConfig, claimed: np.ndarray, var: float | None = None) -> tuple[TrackToTrackCentre, np.ndarray]:
     """Three sensors on two targets for 8 s; s1 reports a walk of 5 m/s off the targets with ``claimed`` as its
-    ``R`` (the others their 15 m). Returns the centre and its central estimates at the end."""
+    ``R`` (its tracks' position variance ``var``, default the claim's; the others their 15 m). Returns the centre
+    and its central estimates at the end."""
     centre = TrackToTrackCentre(cfg, 4, True)
     targets = np.array([[0.0, 0.0], [2000.0, 0.0]])
     rng = np.random.default_rng(1)
@@ -59,9 +62,10 @@ def _run(cfg: MttConfig, claimed: np.ndarray) -> tuple[TrackToTrackCentre, np.nd
         for j, sensor in enumerate(("s1", "s2", "s3")):
             t = k + 0.2 * j
             if sensor == "s1":
-                centre.answer(_report(sensor, t, targets + 5.0 * t, claimed, k == 0))
+                centre.answer(_report(sensor, t, targets + 5.0 * t, claimed, k == 0,
+                                      claimed[0, 0] if var is None else var))
             else:
-                centre.answer(_report(sensor, t, targets + rng.normal(0.0, 15.0, (2, 2)), honest, k == 0))
+                centre.answer(_report(sensor, t, targets + rng.normal(0.0, 15.0, (2, 2)), honest, k == 0, 225.0))
     ids = sorted(centre.tracks.slot)
     X, _ = centre.tracks.states_at(np.array([centre.tracks.slot[i] for i in ids]), 8.0)
     return centre, X
@@ -76,7 +80,7 @@ def test_a_report_claiming_less_than_its_floor_is_fused_as_one_at_the_floor(clai
     floored = MttConfig(sensor={"s1": SensorOverride(noise_floor=(10.0, 10.0))})
     tiny, at_floor = claim * np.eye(2), 100.0 * np.eye(2)
     centre, X = _run(floored, tiny)
-    reference, X_ref = _run(floored, at_floor)
+    reference, X_ref = _run(floored, at_floor, claim)
     np.testing.assert_allclose(X, X_ref, rtol=0, atol=1e-9)
     assert centre.counters.noise_raised == 16 and reference.counters.noise_raised == 0
     assert centre.counters.floor_mismatch == 0

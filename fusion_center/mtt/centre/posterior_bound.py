@@ -41,7 +41,7 @@ def vaguer_than_detection(H: np.ndarray, P: np.ndarray, R: np.ndarray) -> np.nda
     (``R = L L'``, both scaled by ``R``'s largest variance) above ``1 + BOUND_TOL`` (or not a number)."""
     s = np.max(np.diagonal(R, axis1=-2, axis2=-1), axis=-1)[:, None, None]
     L = np.linalg.cholesky(R / s)
-    A = np.linalg.solve(L, H @ (P / s) @ np.swapaxes(H, -1, -2))
+    A = np.linalg.solve(L, H @ P @ np.swapaxes(H, -1, -2) / s)
     A = np.linalg.solve(L, np.swapaxes(A, -1, -2))
     top = np.linalg.eigvalsh(0.5 * (A + np.swapaxes(A, -1, -2)))[:, -1]
     return ~(top <= 1.0 + BOUND_TOL)
