@@ -7,6 +7,8 @@ from a death to the track's last picture, 1.26 s now; docs/multitarget.md, the l
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
@@ -139,6 +141,37 @@ def test_one_sensors_ghost_where_two_others_see_is_not_confirmed() -> None:
     assert centre.counters.uncorroborated == 1
     centre, ghost, _ = run((9000.0, 9000.0))
     assert centre.tracks.confirmed[ghost] and centre.counters.uncorroborated == 0
+
+
+
+def test_a_fast_sensors_ghost_is_held_until_the_questioning_sensor_speaks_again() -> None:
+    """s1 reports every 0.25 s (a fast sensor, or one sending its scans in bursts), s2 and s3 once a second
+    (at k + 0.1 and k + 0.6); s1 adds a ghost at (1000, 1000), between the targets, from t = 2 s. s2 misses it at
+    2.1 s (a question), then s1's scans at 2.25 and 2.5 s fill the count's window and made Wald's evidence, and
+    the ghost was confirmed at 2.5 s, before s2's second miss (a denial) at 3.1 s. Now a track that one sensor
+    alone supports waits while a sensor that sees its place questions it, until that sensor speaks again: it
+    stays tentative (s2's and s3's denials, counted ``uncorroborated`` once). A ghost where s2 and s3 are blind is
+    confirmed as before, and so is the target s2 misses once and then detects."""
+    def run(ghost: tuple[float, float], s2_sees_from: float = math.inf) -> tuple[TrackToTrackCentre, int, bool]:
+        """The centre after 8 s, the slot of s1's third track, and whether it was confirmed before 3.1 s."""
+        centre, early = TrackToTrackCentre(MttConfig(), 4, False), False
+        targets = {1: (0.0, 0.0), 2: (2000.0, 2000.0)}
+        scans = [("s1", k + 0.25 * j) for k in range(8) for j in range(4)]
+        scans += [(s, k + dt) for k in range(8) for s, dt in (("s2", 0.1), ("s3", 0.6))]
+        for sensor, t in sorted(scans, key=lambda scan: scan[1]):
+            sees = (sensor == "s1" and t >= 2.0) or (sensor == "s2" and t >= s2_sees_from)
+            centre.answer(placed(sensor, t, {**targets, 3: ghost} if sees else targets))
+            slot = centre.tracks.slot.get(centre.mapping.get(("s1", 3)), -1)
+            early |= t < 3.1 and slot >= 0 and bool(centre.tracks.confirmed[slot])
+        return centre, slot, early
+
+    centre, ghost, early = run((1000.0, 1000.0))
+    assert not early and not centre.tracks.confirmed[ghost] and centre.counters.uncorroborated == 1
+    assert centre.tracks.confirmed[centre.tracks.slot[centre.mapping[("s2", 1)]]]
+    centre, ghost, early = run((9000.0, 9000.0))
+    assert early and centre.tracks.confirmed[ghost] and centre.counters.uncorroborated == 0
+    centre, target, early = run((1000.0, 1000.0), s2_sees_from=3.0)  # a target s2 misses once, then detects
+    assert not early and centre.tracks.confirmed[target] and centre.counters.uncorroborated == 0
 
 
 TARGETS = {1: (-2000.0, -2000.0), 2: (2000.0, 2000.0)}

@@ -130,7 +130,7 @@ class CentreLife:
         evidence = self.evidence[young] + np.where(hit[young], self.column_log_hit[col], self.column_log_absent[col])
         self.evidence[young] = np.maximum(evidence, DROP_EVIDENCE)
         counted = (np.count_nonzero(window, axis=1) >= cfg.confirm_hits) & (self.evidence[young] >= CONFIRM_EVIDENCE)
-        now = self._corroborated(tentative, counts, counted, hit, col, report.sensor)  # the count, Wald's, the others
+        now = self._corroborated(tentative, counts, counted, hit, col, report.sensor, report.t)  # the count, Wald's, the others
         if cfg.confirm_bound is not None and self.n_live == 1:
             now = young[self._vouched(young, report.sensor)]  # one sensor: its tracker's own test
         elif self.local_confirmation and now.size:
@@ -142,7 +142,7 @@ class CentreLife:
             self._delete(cid)
 
     def _corroborated(self, tentative: np.ndarray, counts: np.ndarray, holds: np.ndarray, hit: np.ndarray,
-                      col: int, sensor: str) -> np.ndarray:
+                      col: int, sensor: str, t: float) -> np.ndarray:
         """Of the tentative slots whose count holds (``holds``, per slot of ``tentative[counts]``), those that
         are not one sensor's alone unheard or denied by the others. A scan of sensor ``sensor`` (column ``col``)
         vets each tentative slot (of ``tentative``) it
@@ -183,6 +183,9 @@ class CentreLife:
         if self.n_live < DENIAL_LIVE:  # vetted (another sensor has had its say), not denied
             return now[~held]
         held |= denied[now, col] > 0  # the report that questions it does not confirm it
+        asking = alone & ~held & self._counted(denied[now] == PENDING).any(axis=1)
+        if asking.any():  # nor its supporter's before the answer of a sensor that surely sees it
+            held[asking] = self._surely_seen(now[asking], denied[now[asking]] == PENDING, t)
         doubt = self._counted(denied[now] == DENIED).any(axis=1).nonzero()[0]
         if doubt.size:
             held[doubt] |= self._vouching(now[doubt]) < 2
@@ -320,6 +323,26 @@ class CentreLife:
             return np.zeros(X.shape[0], dtype=bool)
         up = X[:, 0::2] + np.outer(Z_FALSE_CONFIRM * np.sqrt(P[:, 4, 4]), [0.0, 0.0, 1.0])
         return ~above_radio_horizon(site, up)
+
+    def _surely_seen(self, slots: np.ndarray, asking: np.ndarray, t: float) -> np.ndarray:
+        """Per slot of ``slots`` at ``t``, whether one of the sensors asking about it (``asking``: slots x sensor columns, a
+        fresh array) surely sees its place: a sensor without a site in ``sites`` does (as far as the centre
+        knows), a radar with one when the place lowered by ``Z_FALSE_CONFIRM`` standard deviations of its height
+        is above the radar's radio horizon (the mirror of :meth:`_below_horizon`: below it with a chance of at
+        most ``FALSE_CONFIRM``). A track of unknown height (a position sensor's alone, ``init_z_std``) is lowered
+        below any horizon: a radar's miss may be its horizon's (aircraft on the ground at Orly and Le Bourget,
+        which the recorded Paris traffic's s3 alone sees)."""
+        asking = self._counted(asking)
+        sited = [(c, self.sites[name]) for c, name in enumerate(self.sensor_names) if name in self.sites]
+        if not sited:
+            return asking.any(axis=1)
+        X, P = self.tracks.states_at(slots, t)
+        if X.shape[1] != 6:
+            return asking.any(axis=1)
+        low = X[:, 0::2] - np.outer(Z_FALSE_CONFIRM * np.sqrt(P[:, 4, 4]), [0.0, 0.0, 1.0])
+        for c, site in sited:
+            asking[:, c] &= above_radio_horizon(site, low)
+        return asking.any(axis=1)
 
     def _own_confirmed(self, slots: np.ndarray) -> np.ndarray:
         """Per slot of ``slots``, whether a local track that its tracker confirmed (at its latest report) maps
