@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
+from fedtrack.geodetic import Frame, site_from_geodetic
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import LocalReport
 
@@ -172,6 +173,33 @@ def test_a_fast_sensors_ghost_is_held_until_the_questioning_sensor_speaks_again(
     assert early and centre.tracks.confirmed[ghost] and centre.counters.uncorroborated == 0
     centre, target, early = run((1000.0, 1000.0), s2_sees_from=3.0)  # a target s2 misses once, then detects
     assert not early and centre.tracks.confirmed[target] and centre.counters.uncorroborated == 0
+
+
+def test_a_radars_question_holds_only_a_track_it_surely_sees() -> None:
+    """The hold above waits for a questioning radar with a site only where the track, lowered by 2.33 standard
+    deviations of its height, is above the radar's horizon (55 km off: 178 m). A position sensor's track of
+    unknown height (z 0 +- 3,812 m, ``init_z_std``: the recorded Paris traffic's s3 alone sees aircraft on the
+    ground at Orly and Le Bourget, which its radars cannot) is not held by r1's question, nor one known at 50 +-
+    10 m; one at 3,000 +- 100 m is, and so is any track a sensor without a site questions."""
+    frame = Frame(49.0, 2.5)
+    centre = TrackToTrackCentre(MttConfig(), 6, False, sites={"r1": site_from_geodetic(frame, 49.03, 3.25, 0.0)})
+    heights = {1: (0.0, 3812.5), 2: (50.0, 10.0), 3: (3000.0, 100.0)}
+    ids = np.array(sorted(heights), dtype=np.int64)
+    x = np.array([[-4400.0, 0.0, -3900.0, 0.0, heights[i][0], 0.0] for i in ids])
+    P = np.array([np.diag([100.0, 100.0, 100.0, 100.0, heights[i][1] ** 2, 100.0]) for i in ids])
+    H6 = np.array([[1.0, 0, 0, 0, 0, 0], [0, 0, 1.0, 0, 0, 0]])
+    for sensor, t in (("r1", 0.0), ("s2", 0.0), ("s3", 0.1)):
+        mine = sensor == "s3"
+        n = ids.size if mine else 0
+        centre.answer(LocalReport(sensor, t, ids[:n], x[:n], P[:n], np.ones(n, bool), np.ones(n, bool),
+                                  np.tile(H6, (n, 1, 1)), np.tile(100.0 * np.eye(2), (n, 1, 1)), x[:n][:, [0, 2]],
+                                  np.ones(n, bool), np.zeros(0, dtype=np.int64)))
+    slots = np.array([centre.tracks.slot[centre.mapping[("s3", i)]] for i in ids.tolist()])
+    asking = np.zeros((ids.size, len(centre.sensor_names)), dtype=bool)
+    asking[:, centre.sensor_names.index("r1")] = True
+    assert centre._surely_seen(slots, asking.copy(), 0.1).tolist() == [False, False, True]
+    asking[:, centre.sensor_names.index("s2")] = True
+    assert centre._surely_seen(slots, asking, 0.1).tolist() == [True, True, True]
 
 
 TARGETS = {1: (-2000.0, -2000.0), 2: (2000.0, 2000.0)}
