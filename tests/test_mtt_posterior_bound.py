@@ -85,7 +85,8 @@ def test_a_kalman_posterior_is_within_its_detection_and_the_rule_only_where_upda
     at_bound = np.tile(H, (2, 1, 1)), np.tile(100.0 * np.eye(4), (2, 1, 1)), np.tile(100.0 * np.eye(2), (2, 1, 1))
     assert not vaguer_than_detection(*at_bound).any()
     assert vaguer_than_detection(at_bound[0], 1.01 * at_bound[1], at_bound[2]).all()
-    assert kalman_rows(MttConfig(), False, 4) and kalman_rows(MttConfig(associator="mht", process_noise="fixed"), False, 6)
+    assert kalman_rows(MttConfig(), False, 4)
+    assert kalman_rows(MttConfig(associator="mht", process_noise="fixed"), False, 6)
     assert kalman_rows(MttConfig(associator="mht"), True, 4) and kalman_rows(MttConfig(maneuver="vdie"), False, 6)
     assert not kalman_rows(MttConfig(associator="jipda", process_noise="fixed"), True, 4)
     assert not kalman_rows(MttConfig(associator="mht"), False, 4)  # process_noise "auto": two modes for mht

@@ -119,7 +119,8 @@ class Counters:
     uncorroborated: int = 0  # one sensor's tentative tracks held back: another sensor sees their place, missed them
     registration_corrections: int = 0  # times a sensor's registration was found off the consensus and corrected
     registered_sensors: int = 0  # sensors whose reports are corrected now (.registration)
-    vague_posteriors: int = 0  # detected local tracks whose covariance exceeds their observation's (.posterior_bound): not fused
+    # detected local tracks whose covariance exceeds their observation's (.posterior_bound): not fused
+    vague_posteriors: int = 0
 
 
 class HandOver(NamedTuple):
