@@ -239,3 +239,44 @@ def test_a_copier_joining_later_is_the_copy_and_a_silent_original_releases_it() 
             assert not early.is_copy("s9", float(t), seen(z))
         assert early.is_copy("s1", float(t), seen(z)) == (2 <= t <= 6 or t >= 9)
     assert early.drain() == [Found(2.0, "s1", "s9", True), Found(7.0, "s1", "s9", False), Found(9.0, "s1", "s9", True)]
+
+
+@pytest.mark.parametrize("algorithm", ["mtt-federated", "mtt-centralized"])
+def test_a_sensor_sending_its_own_scans_again_under_new_stamps_is_fused_once(
+        tmp_path: Path, capsys: pytest.CaptureFixture, algorithm: str) -> None:
+    """From its fourth scan on, s1 sends each scan again a quarter period later, its detections reversed (its
+    own authentic detections under a fresh stamp, off its schedule) beside an honest s2: each copy was fused as
+    a new scan, s1 weighing twice (seed 1 of ``simulate multitarget``, s1's scans from t = 100 s sent again at a
+    quarter, a half and three quarters of its period: ``mtt-federated`` 74.32 -> 122.57 m, the honest s2 and s3
+    flagged inconsistent). Now the copies are duplicates: the pictures are those without them, and counted. The
+    same scans on s1's schedule (a standing scene a noise-free sensor repeats) stay scans:
+    :func:`test_repeated_detections_on_the_sensors_schedule_are_tracked`."""
+    s1, s2 = noisy_scans("s1", 1), noisy_scans("s2", 2)
+    again = [{**scan, "t": scan["t"] + 0.25, "detections": scan["detections"][::-1]} for scan in s1[3:-1]]
+    (tmp_path / "c.toml").write_text("[mtt]\nclutter_density = 1e-9\n")
+    pictures = {}
+    for name, scans in (("again", [*zip(s1[:3], s2[:3]), *zip(s1[3:], s2[3:], again), (s1[-1], s2[-1])]),
+                        ("once", zip(s1, s2))):
+        (tmp_path / f"{name}.jsonl").write_text("".join(json.dumps(s) + "\n" for group in scans for s in group))
+        assert cli(["replay", "--algorithm", algorithm, "--config", str(tmp_path / "c.toml"), "--measurements",
+                    str(tmp_path / f"{name}.jsonl"), "--out", str(tmp_path / f"{name}.out.jsonl")]) == 0
+        pictures[name] = (tmp_path / f"{name}.out.jsonl").read_text()
+        err = capsys.readouterr().err
+        assert f"{algorithm}: {len(again) if name == 'again' else 0} duplicate scans" in err
+    assert pictures["again"] == pictures["once"]
+
+
+def test_repeated_detections_on_the_sensors_schedule_are_tracked(tmp_path: Path,
+                                                                   capsys: pytest.CaptureFixture) -> None:
+    """A noise-free sensor of two standing targets sends the same detections every second: every scan is
+    tracked (none a duplicate) and the targets are confirmed (the check on the detections alone, reverted,
+    dropped every repeat within ``max_lag``, and the tracks never confirmed)."""
+    scans = [{"t": float(k), "sensor": "s1", "R": [[25.0, 0.0], [0.0, 25.0]],
+              "detections": [{"z": [0.0, y]} for y in (0.0, 500.0)]} for k in range(10)]
+    (tmp_path / "m.jsonl").write_text("".join(json.dumps(s) + "\n" for s in scans))
+    (tmp_path / "c.toml").write_text("[mtt]\nclutter_density = 1e-9\n")
+    assert cli(["replay", "--algorithm", "mtt-centralized", "--config", str(tmp_path / "c.toml"), "--measurements",
+                str(tmp_path / "m.jsonl"), "--out", str(tmp_path / "p.jsonl")]) == 0
+    assert "mtt-centralized: 0 duplicate scans" in capsys.readouterr().err
+    last = json.loads((tmp_path / "p.jsonl").read_text().splitlines()[-1])
+    assert sum(track["status"] == "confirmed" for track in last["tracks"]) == 2

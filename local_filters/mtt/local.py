@@ -240,9 +240,30 @@ class SensorTracker:
 
 
 def is_duplicate(history: ScanHistory, scan: SensorScan, scan_of: Callable[[object], SensorScan]) -> bool:
-    """Whether ``history`` holds a scan equal to ``scan`` (sensor, time, ``R``, detections)."""
+    """Whether ``history`` holds a scan equal to ``scan`` (sensor, time, ``R``, detections), or ``scan`` is its
+    sensor's scan sent again under a new stamp (:func:`resends_own`)."""
     return any(other.sensor == scan.sensor and np.array_equal(other.R, scan.R)
-               for other in _same_detections(history, scan, scan_of))
+               for other in _same_detections(history, scan, scan_of)) or resends_own(history, scan, scan_of)
+
+
+def resends_own(history: ScanHistory, scan: SensorScan, scan_of: Callable[[object], SensorScan]) -> bool:
+    """Whether ``scan`` (one detection at least) comes off its sensor's schedule, within half its usual interval
+    (the median of its intervals in ``history``, two at least) of one of its scans there, with the detections
+    (in any order) of one of its scans there at another time: its own scan sent again under a fresh stamp.
+    Fused, each copy weighs as a new scan: seed 1, s1 sending each scan from t = 100 s again at a quarter, a
+    half and three quarters of its period, ``mtt-federated``'s mean GOSPA 74.32 -> 122.57 m, the honest s2 and
+    s3 flagged inconsistent (attack54). Both tests, since equal detections at two times alone are also what a
+    noise-free or quantizing sensor sends of standing targets, on its schedule (a check on the detections alone,
+    reverted, dropped three of four such radar scans 4 s apart). Within the history's ``max_lag`` only."""
+    z = scan.z
+    own = [other for other in map(scan_of, history.entries) if other.sensor == scan.sensor and other.t != scan.t]
+    if not z.shape[0] or len(own) < 3:
+        return False
+    times = np.sort([other.t for other in own])
+    if np.min(np.abs(times - scan.t)) > float(np.median(np.diff(times))) / 2.0:
+        return False
+    rows = z[np.lexsort(z.T[::-1])]
+    return any(other.z.shape == z.shape and np.array_equal(other.z[np.lexsort(other.z.T[::-1])], rows) for other in own)
 
 
 def is_conflict(history: ScanHistory, scan: SensorScan, scan_of: Callable[[object], SensorScan]) -> bool:

@@ -11,7 +11,8 @@ seconds without them (not counting a router outage and ``LINK_GRACE_S`` after it
 older than the tracker's newest (the sensor's link reordered it) is fused in time order, the later
 scans run again (counted ``rerun``;
 :class:`fedtrack.local_filters.mtt.local.SensorTracker`), and reported; one more than ``max_lag``
-older is dropped and counted ``late``, and one equal to a scan tracked before (another number)
+older is dropped and counted ``late``, and one equal to a scan tracked before (another number), or its
+sensor's detections again off its schedule (:func:`~fedtrack.local_filters.mtt.local.resends_own`),
 ``duplicate``, as in the replay. The report of the process's first scan is marked ``first``: a
 restarted tracker starts afresh, and the centre lists the restart for the replay. At most
 ``MAX_ENTRIES`` scans wait (for resets, or behind a slow tracker): beyond, the oldest waiting one
