@@ -86,9 +86,9 @@ def test_one_sensor_off_the_consensus_is_corrected_and_the_honest_ones_are_not()
     feed(reg, {"s1": pull, "s2": pull + off, "s3": pull}, 6, ["s1", "s2", "s3"])
     assert set(reg.applied) == {"s2"} and reg.corrections == 1
     error = reg.applied["s2"] - off
-    assert error @ np.linalg.solve(reg.made[0].cov, error) < reg.threshold()  # within the correction's covariance
+    assert error @ np.linalg.solve(reg.made[0].cov, error) < reg.threshold  # within the correction's covariance
     assert reg.made[0].t == 1.0 and reg.made[0].sensor == "s2"  # at t = 0 s3's estimate came after s2's
-    assert all(reg.estimates[s].reference is not None and reg.estimates[s].chi2 < reg.threshold() for s in ("s1", "s3"))
+    assert all(reg.estimates[s].reference is not None and reg.estimates[s].chi2 < reg.threshold for s in ("s1", "s3"))
 
 
 def test_a_sensor_mostly_beyond_the_gate_is_not_estimated() -> None:
@@ -107,7 +107,7 @@ def test_with_two_live_sensors_nothing_is_corrected_only_reported() -> None:
     reg = SensorRegistration(3, 3.0)
     feed(reg, {"s1": np.zeros(3), "s2": np.array([15.0, -10.0, 0.5])}, 4, ["s1", "s2"])
     assert reg.corrections == 0 and not reg.applied
-    assert reg.estimates["s2"].reference is None and reg.estimates["s2"].chi2 > reg.threshold()
+    assert reg.estimates["s2"].reference is None and reg.estimates["s2"].chi2 > reg.threshold
 
 
 def test_a_corrected_report_is_on_the_consensus_clock_and_its_resets_back_on_the_sensors() -> None:

@@ -62,6 +62,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import NamedTuple
 
 import numpy as np
@@ -193,8 +194,9 @@ class SensorRegistration:
     # each sensor's window estimate (None: too few observations) while its window is unchanged
     _solved: dict[str, tuple[np.ndarray, np.ndarray] | None] = field(default_factory=dict)
 
+    @cached_property
     def threshold(self) -> float:
-        """The chi-square quantile of ``k`` dof at ``1 - FALSE_ALARM``."""
+        """The chi-square quantile of ``k`` dof at ``1 - FALSE_ALARM`` (computed once: read at every report)."""
         return float(special.chdtri(self.k, FALSE_ALARM))
 
     def correct(self, report: LocalReport) -> LocalReport:
@@ -261,7 +263,7 @@ class SensorRegistration:
         chi2 = chi2_of(d, C) if ref != sensor else 0.0
         self.estimates[sensor] = Estimate(d, C, chi2, ref)
         total = self.applied.get(sensor, np.zeros(self.k)) + d
-        if chi2 > self.threshold() and abs(total[-1]) <= self.max_lag:
+        if chi2 > self.threshold and abs(total[-1]) <= self.max_lag:
             self.applied[sensor] = total
             self.corrections += 1
             self.made.append(Correction(t, sensor, d, C, total.copy(), chi2))
@@ -298,7 +300,7 @@ def correction_lines(reg: SensorRegistration, shown: int = 10) -> list[str]:
         ends = "; ".join(f"{s} {describe(theta)}" for s, theta in sorted(reg.applied.items()))
         lines += [f"sensors' registration corrected: {listed}{more}",
                   f"registration corrections at the end: {ends or 'none'}"]
-    off = sorted((s, e) for s, e in reg.estimates.items() if e.chi2 > reg.threshold())
+    off = sorted((s, e) for s, e in reg.estimates.items() if e.chi2 > reg.threshold)
     if off:
         lines.append("registration estimates beyond the test at the end: " + "; ".join(
             f"{s} {describe(e.theta)} (chi-square {e.chi2:.1f}, against "
