@@ -1,7 +1,8 @@
 """A detected local track whose covariance is vaguer than its detection's (:mod:`~fedtrack.fusion_center.mtt.centre.
 posterior_bound`): a compromised tracker reporting a confirmed track's id at a phantom place with ``P`` = 1e6 m² I
 passed the hysteresis test for good and its phantom was fused (docs/multitarget.md, "A local track vaguer than
-its detection")."""
+its detection"); with an honest ``P`` and the row flagged ``started``, it skipped the test (docs/multitarget.md,
+"A mapped local track claiming to start")."""
 
 from __future__ import annotations
 
@@ -19,9 +20,11 @@ TARGETS = {1: np.zeros(2), 2: np.array([2000.0, 2000.0])}
 PHANTOM = np.array([300.0, 0.0])
 
 
-def scan(sensor: str, t: float, places: dict[int, np.ndarray], vague: int | None) -> LocalReport:
+def scan(sensor: str, t: float, places: dict[int, np.ndarray], vague: int | None, restart: int | None = None
+         ) -> LocalReport:
     """A position sensor's report (10 m noise a axis) of standing local tracks at ``places``, each detected there,
-    its covariance ``R`` (a one-point start's, the bound), local track ``vague``'s 1e6 m² I."""
+    its covariance ``R`` (a one-point start's, the bound), local track ``vague``'s 1e6 m² I; each flagged started at
+    t = 0, and local track ``restart`` at every scan."""
     ids = np.array(sorted(places), dtype=np.int64)
     xy = np.array([places[i] for i in sorted(places)])
     n = ids.size
@@ -29,24 +32,26 @@ def scan(sensor: str, t: float, places: dict[int, np.ndarray], vague: int | None
     P[ids == vague] = 1e6 * np.eye(4)
     x = np.column_stack([xy[:, 0], np.zeros(n), xy[:, 1], np.zeros(n)])
     return LocalReport(sensor, t, ids, x, P, np.full(n, t > 0.0), np.ones(n, bool), np.tile(H, (n, 1, 1)),
-                       np.tile(100.0 * np.eye(2), (n, 1, 1)), xy, np.full(n, t == 0.0), np.zeros(0, dtype=np.int64))
+                       np.tile(100.0 * np.eye(2), (n, 1, 1)), xy, (ids == restart) | (t == 0.0),
+                       np.zeros(0, dtype=np.int64))
 
 
-def run(feedback: bool, attack: bool) -> tuple[float, int, TrackToTrackCentre]:
+def run(feedback: bool, attack: str | None) -> tuple[float, int, TrackToTrackCentre]:
     """Three sensors once a second for 30 s (s1 at k, s2 at k + 0.33, s3 at k + 0.66), two standing targets; from
-    t = 5 s s1 reports its track of target 1 at the phantom, 300 m off, with ``P`` = 1e6 m² I (``attack``).
-    Returns the largest distance of s2's central track of target 1 from the target, the central ids s3's track of
-    it was mapped to, and the centre."""
+    t = 5 s s1 reports its track of target 1 at the phantom, 300 m off, with ``P`` = 1e6 m² I (``attack``
+    "vague") or with its honest ``P`` flagged started (``attack`` "started"). Returns the largest distance of s2's
+    central track of target 1 from the target, the central ids s3's track of it was mapped to, and the centre."""
     rng = np.random.default_rng(0)
     centre = TrackToTrackCentre(MttConfig(), 4, feedback)
     pull, ids = 0.0, set()
     for k in range(31):
         for sensor, dt in (("s1", 0.0), ("s2", 0.33), ("s3", 0.66)):
             places = {i: p + rng.normal(0.0, 10.0, 2) for i, p in TARGETS.items()}
-            lie = attack and sensor == "s1" and k >= 5
+            lie = attack is not None and sensor == "s1" and k >= 5
             if lie:
                 places[1] = PHANTOM + rng.normal(0.0, 10.0, 2)
-            centre.answer(scan(sensor, k + dt, places, 1 if lie else None))
+            centre.answer(scan(sensor, k + dt, places, 1 if lie and attack == "vague" else None,
+                               1 if lie and attack == "started" else None))
             ids.add(centre.mapping.get(("s3", 1)))
             cid = centre.mapping.get(("s2", 1))
             if cid in centre.tracks:
@@ -61,11 +66,29 @@ def test_a_local_track_vaguer_than_its_detection_steers_nothing(feedback: bool) 
     """Before, the phantom was fused for good: target 1's central track pulled 158 m (14 m honest) and s3's honest
     track, now failing its own test, unmapped 16 times, under 9 central ids. Now each of the 26 lying rows is taken
     as not detected (counted ``vague_posteriors``): the pull is the honest run's within noise, one id."""
-    honest_pull, honest_ids, honest = run(feedback, attack=False)
-    pull, ids, centre = run(feedback, attack=True)
+    honest_pull, honest_ids, honest = run(feedback, attack=None)
+    pull, ids, centre = run(feedback, attack="vague")
     assert honest_ids == 1 and honest.counters.vague_posteriors == 0
     assert pull < honest_pull + 5.0 and ids == 1 and centre.counters.unmapped == 0
     assert centre.counters.vague_posteriors == 26
+
+
+@pytest.mark.parametrize("feedback", [False, True])
+def test_a_mapped_local_track_claiming_to_start_at_every_scan_is_still_checked(feedback: bool) -> None:
+    """s1's track of target 1 at the phantom with its honest ``P``, flagged started at every scan: the hysteresis
+    check skipped started rows, so it stayed mapped and its phantom was fused into target 1's central track for
+    good; s2's and s3's tracks, failing their own test, were unmapped and started another, and the target's
+    confirmed id ended at the phantom (294 m off), s1's alone. Now the flag exempts nothing: as without it (the
+    honest-``P`` attack, docs/multitarget.md), s1's track is unmapped after ``unmap_after`` scans, and every
+    confirmed central track is at a target, the phantom's tentative (held back: one sensor's)."""
+    _, _, centre = run(feedback, attack="started")
+    slots = np.array([centre.tracks.slot[cid] for cid in centre.tracks.slot])
+    shown = slots[centre.tracks.confirmed[slots]]
+    x = centre.tracks.states_at(shown, 30.66)[0]
+    off = np.min([np.hypot(x[:, 0] - p[0], x[:, 2] - p[1]) for p in TARGETS.values()], axis=0)
+    assert shown.size == 2 and off.max() < 30.0
+    assert centre.mapping[("s1", 1)] not in {centre.mapping[("s2", 1)], centre.mapping[("s3", 1)]}
+    assert centre.counters.unmapped >= 1 and centre.counters.vague_posteriors == 0
 
 
 def test_a_kalman_posterior_is_within_its_detection_and_the_rule_only_where_updates_are_kalman() -> None:

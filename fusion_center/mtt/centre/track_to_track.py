@@ -9,7 +9,8 @@ scan, the linearized observation of every track the scan detected, the tracks it
   ``association_gate_probability`` (dof = local state size), and an assignment
   (``linear_sum_assignment``) over the scan's unmapped tracks and the central tracks that
   have no track of this sensor yet; the rest start central tracks. A mapped pair that fails
-  the test ``unmap_after`` times in a row is unmapped (hysteresis) and associated afresh. A
+  the test ``unmap_after`` times in a row is unmapped (hysteresis) and associated afresh (a row
+  flagged ``started`` too: a tracker issues an id once, so a mapped one is no new track). A
   confirmed local track alone on its central track (it started it and no other sensor's track
   joined) takes part in every association of its sensor's scans, so that a track that narrowly
   failed the test at its start (one detection, no velocity) joins the others' central track once
@@ -507,8 +508,8 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         ``obs``: their observations' rows (None: every observation's)."""
         t, s = report.t, report.sensor
         d = report.x.shape[1]
-        started, H, R, z = ((report.started, report.obs_H, report.obs_R, report.obs_z) if obs is None else
-                            (report.started[obs], report.obs_H[obs], report.obs_R[obs], report.obs_z[obs]))
+        H, R, z = ((report.obs_H, report.obs_R, report.obs_z) if obs is None else
+                   (report.obs_H[obs], report.obs_R[obs], report.obs_z[obs]))
         keys = [(s, i) for i in report.ids[det_rows].tolist()]
         cid, slots = self._central_ids(keys)  # a mapped local track's central track is live; -1: unmapped
         # the estimates at t of the central tracks of the rows to check, of those without a track of
@@ -516,7 +517,10 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         # the check, the association, the fusion and the merge test (``at``: each slot's row, -1: none).
         # The association's candidates are among them (a track loses this sensor's last local track
         # before it only by the check below), and so are the merge test's tracks (_merge_duplicates)
-        check = ((cid >= 0) > started).nonzero()[0]  # mapped and not started by the local tracker now
+        # every mapped row, whatever its ``started`` flag says: a tracker issues an id once, so a started row
+        # of a mapped id is a report that came late (after a later one mapped it) or a lie (``started``
+        # exempted it, and a phantom under a target's id was fused for good: docs/multitarget.md)
+        check = (cid >= 0).nonzero()[0]
         tracks = self.tracks
         has = self.support > 0
         others = ~has[:, col] | (has != has.any(axis=0)).any(axis=1)
