@@ -11,9 +11,12 @@ import pytest
 
 from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
 from fedtrack.fusion_center.mtt.centre.posterior_bound import kalman_rows, vaguer_than_detection
-from fedtrack.local_filters.linear.kalman import GaussianState, update_residual
+from fedtrack.local_filters.imm.filter import IMMState, combine
+from fedtrack.local_filters.linear.kalman import GaussianState, update, update_residual
+from fedtrack.local_filters.mtt.associators import jipda
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import LocalReport
+from fedtrack.local_filters.mtt.models import Linearized
 
 H = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
 TARGETS = {1: np.zeros(2), 2: np.array([2000.0, 2000.0])}
@@ -115,3 +118,36 @@ def test_a_kalman_posterior_is_within_its_detection_and_the_rule_only_where_upda
     assert not kalman_rows(MttConfig(associator="mht"), False, 4)  # process_noise "auto": two modes for mht
     assert not kalman_rows(MttConfig(process_noise="imm"), False, 6)
     assert not kalman_rows(MttConfig(maneuver="vdie"), False, 4)
+
+
+def largest_over(HPH: np.ndarray, R: np.ndarray) -> float:
+    """The largest eigenvalue of ``R^-1 H P H'`` (``R = L L'``: of ``L^-1 H P H' L^-T``)."""
+    L = np.linalg.cholesky(R)
+    return float(np.linalg.eigvalsh(np.linalg.solve(L, np.linalg.solve(L, HPH).T))[-1])
+
+
+def test_honest_jipda_and_two_mode_rows_can_be_vaguer_than_the_attacks_lie() -> None:
+    """Why the rule is off for jipda and two modes (docs/multitarget.md, "No bound for jipda and two-mode
+    trackers"): what a report carries bounds neither. The attack's lie is ``H P H'`` = 1e4 ``R``. An honest jipda
+    update at ``clutter_density`` 0 (prediction 1e5 m² a axis, two detections at the gate's edge either side)
+    reports ``H P+ H'`` 13,803 times its ``R_eq``; two modes predicted 3 km either side of their detection
+    (inside the combination's gate) combine to 22,500 ``R``."""
+    R = 100.0 * np.eye(2)
+    lin = Linearized(np.zeros((1, 2)), H[None], (), (0, 2))
+    pred = GaussianState(np.zeros((1, 4)), np.diag([1e5, 900.0, 1e5, 900.0])[None])
+    gate = MttConfig().thresholds.gate[2]
+    c = jipda.scan_constants(0.9, 0.0, gate, 2)
+    S = lin.innovation_covariance(pred.P, R)
+    nu = np.array([[1.0, 0.0], [-1.0, 0.0]]) * np.sqrt(gate * S[0, 0, 0])
+    log_n = np.full(2, -0.5 * gate - np.log(2.0 * np.pi) - 0.5 * np.linalg.slogdet(S[0])[1])
+    pairs = jipda.Pairs(np.zeros(2, dtype=np.int64), np.arange(2), nu, np.full(2, gate), log_n)
+    assoc = jipda.associate(2, pairs, np.zeros(2), np.array([0.5]), c)
+    post = jipda.update(pred, lin, R, pairs, assoc, c)
+    reports, (_, R_eq, _) = jipda.equivalent_observation(pred, lin, R, pairs, assoc)
+    assert reports[0] and largest_over(H @ post.P[0] @ H.T, R_eq[0]) > 1e4
+    modes = GaussianState(np.array([[3000.0, 0, 0, 0], [-3000.0, 0, 0, 0]]), np.tile(100.0 * np.eye(4), (2, 1, 1)))
+    x0 = combine(IMMState(modes.x, modes.P, np.array([0.5, 0.5])))
+    assert np.linalg.norm(H @ x0.x) == 0.0  # the detection (at 0) at the combination's mean: inside its gate
+    updated = update(modes, np.zeros((2, 2)), np.tile(H, (2, 1, 1)), R)[0]
+    both = combine(IMMState(updated.x, updated.P, np.array([0.5, 0.5])))
+    assert largest_over(H @ both.P @ H.T, R) > 1e4
