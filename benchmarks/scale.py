@@ -13,6 +13,11 @@ it a new id shows there), ids twice in a picture and central tracks held by two 
 picture (both 0 when every hand-over moved its track), the routing CPU seconds (the local
 trackers' part live).
 One region is the unsharded centre (identical pictures, tests/test_mtt_shards.py).
+All of these are measured in one process, each region's centre in turn. Then each centre is measured in
+its own process (``own_process``, :mod:`.centre_replay`): its calls recorded in the run, replayed in a
+fresh process built as ``serve mtt-centre`` builds the centre, in rounds; its CPU seconds, RSS before the
+first call and peak, the busiest over the one region's per round (mean and SE), and issue 27's load
+point at 4 regions under both readings of its CPU bar (``issue_27_load``, printed beside the in-process one).
 
 ``--targets N`` keeps the 1,000-target scenario's densities: the square's half side
 ``Scenario.region`` and the clutter count per scan are scaled by ``sqrt(N / 1000)`` and ``N /
@@ -38,6 +43,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from fedtrack.benchmarks.centre_replay import Recording, measure, regions_config
 from fedtrack.config import load_tables
 from fedtrack.fusion_center.mtt.engines import TrackToTrackEngine
 from fedtrack.fusion_center.mtt.evaluation import evaluate
@@ -51,6 +57,9 @@ from fedtrack.sensors.multitarget import SPEED, Scenario, parse_spec, simulate
 GRIDS = {1: "1x1", 2: "2x1", 4: "2x2", 8: "4x2"}
 BASE_TARGETS = 1000  # the scenario whose densities every --targets keeps
 MARGIN_M = 500.0  # docs/multitarget.md#regions: 30 m/s targets, 1 s scans, 10 m noise need ~ 75 m
+PROCESS_ROUNDS = 5  # each centre's own-process replay, in rounds (.centre_replay)
+# issue 27's load bar at 4 regions, both readings of "1/4 of the unsharded centre's CPU plus 15 %"; RSS at most 1/2
+CPU_BAR_PLUS, CPU_BAR_TIMES, RSS_BAR = 0.25 + 0.15, 0.25 * 1.15, 0.5
 
 
 def margin_share(regions: Regions, pos: np.ndarray) -> float:
@@ -94,10 +103,13 @@ def thinned_truth(truth: Path, every: int, out: Path) -> Path:
 
 
 def bench_scale(quick: bool, targets: int | None = None, duration: float | None = None,
-                gospa_every: int = 1) -> dict[str, Any]:
+                gospa_every: int = 1, process_rounds: int | None = None) -> dict[str, Any]:
     """``targets`` (default 1,000; ``quick``: 50 over the default area) at the 1,000-target densities;
     GOSPA over every ``gospa_every``-th second's picture (``evaluate``'s assignment is dense: about
-    10 s a picture at 10,000 targets)."""
+    10 s a picture at 10,000 targets); each centre replayed in its own process ``process_rounds`` times
+    (default ``PROCESS_ROUNDS``, ``quick`` 1; 0: not at all; :mod:`.centre_replay`)."""
+    if process_rounds is None:
+        process_rounds = 1 if quick else PROCESS_ROUNDS
     if targets is None and quick:
         sc = Scenario(targets=50, duration=duration or 20.0)
     else:
@@ -119,9 +131,15 @@ def bench_scale(quick: bool, targets: int | None = None, duration: float | None 
         truth = sim / "truth.jsonl" if gospa_every == 1 else thinned_truth(sim / "truth.jsonl", gospa_every,
                                                                               sim / "truth-thinned.jsonl")
         scans = read_scans(sim / "measurements.jsonl", cfg)
+        dim = state_dim(scans)
+        recorded: dict[int, tuple[Recording, Path, Regions]] = {}
         for n, spec in GRIDS.items():
             regions = data_regions(spec, scans, sim / "regions.toml")
-            engine = TrackToTrackEngine(cfg, state_dim(scans), feedback=True, regions=regions)
+            centre = ShardedCentre(cfg, dim, True, regions)
+            engine = TrackToTrackEngine(cfg, dim, feedback=True, regions=regions, centre=centre)
+            if process_rounds:
+                recorded[n] = (Recording(sim / f"calls-{n}", centre), regions_config(
+                    sim / "config.toml", regions, sim / f"regions-{n}.toml"), regions)
             path = sim / f"{n}.jsonl"
             start = time.perf_counter()
             twice = held_twice = 0
@@ -130,9 +148,14 @@ def bench_scale(quick: bool, targets: int | None = None, duration: float | None 
                                       total=int(duration / cfg.period), unit="picture", mininterval=5.0, leave=False):
                     fh.write(tracks.line(T, {"algorithm": "mtt-federated"}) + "\n")
                     twice += len(tracks.ids) - len(set(tracks.ids))
-                    held_twice += ids_held_by_two(engine.centre)
+                    held_twice += ids_held_by_two(centre)
+                    if n in recorded:
+                        mark = time.perf_counter()
+                        recorded[n][0].picture(T, tracks)
+                        start += time.perf_counter() - mark  # the recording's time is not the run's
             wall = time.perf_counter() - start
-            centre: ShardedCentre = engine.centre
+            if n in recorded:
+                recorded[n][0].close()
             score = evaluate(path, truth)
             last = engine.picture(scans[-1].t)
             out["runs"][n] = {
@@ -172,4 +195,53 @@ def bench_scale(quick: bool, targets: int | None = None, duration: float | None 
                                   "hand_overs_per_s_model": load_model(n, targets, 4, 1.0, side / math.sqrt(n),
                                                                        MARGIN_M, speed)["hand_overs_per_s"]}
                               for n, row in out["runs"].items() if n in (4,)}
+        if process_rounds:
+            with tqdm(total=process_rounds * (1 + sum(GRIDS)), desc="centres in their own processes", unit="process",
+                      mininterval=5.0, leave=False) as progress:
+                out["own_process"] = measure(recorded, dim, process_rounds, sim, progress)
+            out["issue_27_load"] = load_bar(out)
+            print_table(out)
     return out
+
+
+def load_bar(out: dict[str, Any]) -> dict[str, Any]:
+    """Issue 27's load point at 4 regions: the busiest centre's CPU over the one region's against
+    1/4 + 0.15 and against the stricter 1/4 x 1.15, the largest centre's RSS over the one's against 1/2;
+    in one process (``cpu_s``, the state-size proxy) and each centre in its own (mean and SE over the rounds)."""
+    inproc, own = out["runs"][4], out["own_process"]["runs"][4]
+    cpu, rss = own["busiest_vs_one"], own["largest_rss_vs_one"]
+    return {"regions": 4, "cpu_bar_plus_0.15": CPU_BAR_PLUS, "cpu_bar_times_1.15": CPU_BAR_TIMES, "rss_bar": RSS_BAR,
+            "in_process_busiest_vs_one": inproc["max_cpu_vs_one"],
+            "own_process_busiest_vs_one": cpu, "own_process_busiest_vs_one_se": own["busiest_vs_one_se"],
+            "own_process_busiest_vs_unsharded": own["busiest_vs_unsharded"],
+            "own_process_busiest_vs_unsharded_se": own["busiest_vs_unsharded_se"],
+            "cpu_met_plus_0.15": cpu <= CPU_BAR_PLUS, "cpu_met_times_1.15": cpu <= CPU_BAR_TIMES,
+            "in_process_state_vs_one": inproc["max_state_vs_one"],
+            "own_process_rss_vs_one": rss, "own_process_rss_vs_one_se": own["largest_rss_vs_one_se"],
+            "own_process_own_rss_vs_one": own["largest_own_rss_vs_one"],
+            "own_process_own_rss_vs_one_se": own["largest_own_rss_vs_one_se"],
+            "rss_met": rss <= RSS_BAR, "own_rss_met": own["largest_own_rss_vs_one"] <= RSS_BAR}
+
+
+def print_table(out: dict[str, Any]) -> None:
+    """The busiest (largest) centre over the one region's, in one process and each in its own."""
+    own = out["own_process"]
+
+    def pm(row: dict[str, Any], key: str) -> str:
+        se = row[f"{key}_se"]
+        return f"{row[key]:.3f}" + ("" if se is None else f" +- {se:.3f}")
+
+    print(f"\nbench scale: busiest (largest) centre / the one region's; own process: mean +- SE over {own['rounds']} "
+          "rounds\n| regions | CPU, in one process | CPU, own process | own / unsharded | busiest CPU s, own "
+          "| RSS peak, own | own memory (peak - before) | state bytes (proxy) |\n" + "| --- " * 8 + "|")
+    for n, row in out["runs"].items():
+        p = own["runs"][n]
+        print(f"| {n} | {row['max_cpu_vs_one']:.3f} | {pm(p, 'busiest_vs_one')} | {pm(p, 'busiest_vs_unsharded')} "
+              f"| {p['cpu_s'][p['busiest']]:.3f} | {pm(p, 'largest_rss_vs_one')} ({max(p['rss_peak_mb']):.1f} MB) "
+              f"| {pm(p, 'largest_own_rss_vs_one')} ({max(p['own_rss_mb']):.1f} MB) | {row['max_state_vs_one']:.3f} |")
+    bar = out["issue_27_load"]
+    print(f"issue 27 at 4 regions: CPU {bar['own_process_busiest_vs_one']:.3f} (own process) against "
+          f"{CPU_BAR_PLUS:g} (1/4 + 0.15: {'met' if bar['cpu_met_plus_0.15'] else 'not met'}) and "
+          f"{CPU_BAR_TIMES:g} (1/4 x 1.15: {'met' if bar['cpu_met_times_1.15'] else 'not met'}); RSS "
+          f"{bar['own_process_rss_vs_one']:.3f} (process), {bar['own_process_own_rss_vs_one']:.3f} (own memory) "
+          f"against {RSS_BAR:g}", flush=True)

@@ -93,15 +93,18 @@ def test_bench_kernels_quick_reports_ratios_side_by_side(tmp_path: Path) -> None
 
 
 def test_bench_scale_quick_reports_every_region(tmp_path: Path) -> None:
-    """``bench scale --quick --targets 100`` (about 5 s): per region count, a CPU time and state size
-    per region, hand-overs, GOSPA; one region's GOSPA is the reference of the others; the area and
-    the clutter count scaled to keep the 1,000-target scenario's densities."""
+    """``bench scale --quick --targets 100 --process-rounds 2`` (about 50 s, 32 replay processes): per
+    region count, a CPU time and state size per region, hand-overs, GOSPA; one region's GOSPA is the
+    reference of the others; the area and the clutter count scaled to keep the 1,000-target scenario's
+    densities; each centre in its own process, two rounds: CPU seconds and RSS per region with their
+    standard errors, the busiest's ratio to the one region's, issue 27's two CPU readings and its RSS bar."""
     from fedtrack.benchmarks.scale import load_model
     from fedtrack.sensors.multitarget import Scenario
 
     out = tmp_path / "scale.json"
     proc = subprocess.run([sys.executable, "-m", "fedtrack.cli", "bench", "scale", "--quick", "--targets", "100",
-                           "--json", str(out)], cwd=REPO, capture_output=True, text=True, timeout=120)
+                           "--process-rounds", "2", "--json", str(out)], cwd=REPO, capture_output=True, text=True,
+                          timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     scale = json.loads(out.read_text())["scale"]
     assert scale["targets"] == 100 and scale["duration_s"] == 20.0
@@ -119,6 +122,29 @@ def test_bench_scale_quick_reports_every_region(tmp_path: Path) -> None:
     for row in runs.values():  # every hand-over moved its track: never in two centres or twice in a picture
         assert row["ids_twice_in_a_picture"] == 0 and row["ids_held_by_two_centres"] == 0
         assert row["id_switches"] >= 0 and row["id_switches_vs_one"] == row["id_switches"] - runs["1"]["id_switches"]
+    own = scale["own_process"]
+    assert own["rounds"] == 2 and sorted(own["runs"], key=int) == ["1", "2", "4", "8"]
+    assert own["unsharded"]["cpu_s"] > 0 and own["unsharded"]["cpu_s_se"] >= 0
+    for n, row in own["runs"].items():
+        for key in ("cpu_s", "calls_cpu_s", "picture_cpu_s", "rss_before_mb", "rss_peak_mb", "own_rss_mb"):
+            assert len(row[key]) == len(row[f"{key}_se"]) == int(n) and all(se >= 0 for se in row[f"{key}_se"])
+        assert all(c > 0 for c in row["cpu_s"]) and all(0 <= m for m in row["own_rss_mb"])
+        assert all(p >= b > 0 for p, b in zip(row["rss_peak_mb"], row["rss_before_mb"]))
+        busiest = row["busiest"]
+        assert row["cpu_s"][busiest] == max(row["cpu_s"]) and len(row["busiest_vs_one_rounds"]) == 2
+        assert row["busiest_vs_one"] == pytest.approx(np.mean(row["busiest_vs_one_rounds"]))
+        for key in ("busiest_vs_one", "busiest_calls_vs_one", "busiest_vs_unsharded", "largest_rss_vs_one",
+                    "largest_own_rss_vs_one"):
+            assert row[key] > 0 and row[f"{key}_se"] >= 0
+    assert own["runs"]["1"]["busiest_vs_one"] == 1.0 and own["runs"]["1"]["busiest_vs_one_se"] == 0.0
+    bar = scale["issue_27_load"]
+    assert bar["cpu_bar_plus_0.15"] == 0.4 and bar["cpu_bar_times_1.15"] == pytest.approx(0.2875)
+    assert bar["rss_bar"] == 0.5
+    assert bar["in_process_busiest_vs_one"] == runs["4"]["max_cpu_vs_one"]
+    assert bar["own_process_busiest_vs_one"] == own["runs"]["4"]["busiest_vs_one"]
+    assert bar["cpu_met_plus_0.15"] == (bar["own_process_busiest_vs_one"] <= 0.4)
+    assert bar["cpu_met_times_1.15"] == (bar["own_process_busiest_vs_one"] <= 0.2875)
+    assert "own process" in proc.stdout and "in one process" in proc.stdout  # the printed table, both beside
     # the model: no margin share when the margin is nil, all of it when it spans the cell
     assert load_model(4, 100, 2, 1.0, 1000.0, 0.0, 10.0)["margin_share"] == 0.0
     assert load_model(4, 100, 2, 1.0, 1000.0, 500.0, 10.0)["margin_share"] == 1.0

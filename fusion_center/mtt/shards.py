@@ -317,12 +317,22 @@ class ShardedCentre:
     cpu_s: list[float] = field(default_factory=list)
     routing_s: float = 0.0
     sites: dict[str, RadarSite] = field(default_factory=dict)  # [frame.sites]: the radars' sites (life rules)
+    # when a list (one per region, ``record()``): each region centre's calls as made, in order, for a replay of
+    # that centre alone (``fedtrack bench scale``'s own-process measurement); None: nothing kept
+    calls: list[list[tuple[Any, ...]]] | None = None
 
     def __post_init__(self) -> None:
         n = len(self.regions.ids)
         self.centres = [RegionCentre(self.cfg, self.dim, self.feedback, self.regions, r, sites=self.sites)
                         for r in range(n)]
         self.cpu_s = [0.0] * n
+
+    def record(self) -> list[list[tuple[Any, ...]]]:
+        """Keep each region centre's calls from now on, to be drained by the caller: ``("answer", sub-report,
+        elsewhere, [(new owner, hand-over number, track id) of each hand-over out])``, ``("take_over",
+        record)``, ``("drop", sensor, departed)``; the objects themselves (not copies), after each call."""
+        self.calls = [[] for _ in self.centres]
+        return self.calls
 
     def answer(self, report: LocalReport) -> tuple[Resets, float]:
         """Every region centre's answer to its sub-report, the hand-overs taken over, the answers
@@ -336,12 +346,16 @@ class ShardedCentre:
             start = time.process_time()
             answer, out = c.answer(sub, elsewhere)
             self.cpu_s[r] += time.process_time() - start
+            if self.calls is not None:
+                self.calls[r].append(("answer", sub, elsewhere, [(o, k, h.id) for o, k, h in out]))
             answers.append(answer)
             moving += out
         for owner, _, record in moving:
             start = time.process_time()
             self.centres[owner].take_over(record)
             self.cpu_s[owner] += time.process_time() - start
+            if self.calls is not None:
+                self.calls[owner].append(("take_over", record))
         router.learn([sub for sub, _ in parts], answers)
         return join_answers(answers)
 
@@ -350,8 +364,10 @@ class ShardedCentre:
         return sum(c.handed_over for c in self.centres)
 
     def drop_sensor(self, sensor: str, departed: bool = True) -> None:
-        for c in self.centres:
+        for r, c in enumerate(self.centres):
             c.drop_sensor(sensor, departed)
+            if self.calls is not None:
+                self.calls[r].append(("drop", sensor, departed))
 
     def counters(self) -> dict[str, int]:
         """The centres' counters added up (a departure once), the hand-overs and the rows in flight."""
