@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from typing import NamedTuple
 
 import numpy as np
@@ -49,6 +50,11 @@ STRAIGHT_S = 120.0  # s: terminal-area legs between heading changes (holding leg
 CHI2_2_999 = math.sqrt(-2.0 * math.log(0.001))  # its 99.9 % radius: 3.717
 MAX_GAP_S = 30.0  # s: --max-gap at least (three of OpenSky's 10 s historical state vectors)
 GLITCH_STEPS = 5  # steps either side of a sample whose median speed bounds its step (glitches)
+#: an altitude glitch's bounds (:func:`altitude_glitches`): the largest vertical acceleration flown, 1 g (a parabolic
+#: flight's, the traffic package's ``featured/zero_gravity``), and Mode C's altitude resolution, 100 ft (the coarsest
+#: a transponder reports: Gillham code; Mode S's Q-bit reports 25 ft)
+VERTICAL_ACCELERATION = 9.80665
+ALTITUDE_RESOLUTION = 30.48
 
 
 class Truth(NamedTuple):
@@ -201,6 +207,34 @@ def glitches(t: np.ndarray, pos: np.ndarray, speed: np.ndarray) -> np.ndarray:
     return out
 
 
+def altitude_glitches(t: np.ndarray, alt: np.ndarray, rate: np.ndarray) -> np.ndarray:
+    """Which of a track's samples (n,) hold an altitude decoded wrong (a Mode S altitude error: the Paris extract's
+    ``4d21ec`` reads 1,410 m, 9,754 m, 1,410 m a second apart, three times): above both or below both the median
+    altitude of the ``GLITCH_STEPS`` samples before it and of those after it, each by more than the aircraft could
+    climb or descend in the time ``s`` to the farthest of them, ``v s + VERTICAL_ACCELERATION s^2 / 2`` plus
+    ``ALTITUDE_RESOLUTION``, with ``v`` the larger of its recorded vertical rate ``rate`` (n,) [m/s] (NaN: not
+    recorded) and the median vertical speed between consecutive samples over the ``GLITCH_STEPS`` steps either side
+    (a glitch is one step or two among them and moves no median). Both sides: an altitude held and then caught up
+    (``featured/dreamliner_airfrance`` 7,925 -> 8,222 m in a second), a step, agrees with one side and is kept, so
+    is a track's first or last sample. The positions' bound (:func:`glitches`) is horizontal: before 2026-11-28 such a
+    sample went into the truth, an 8 km jump for a second where no vertical rate is recorded."""
+    n, w = len(t), GLITCH_STEPS
+    pad = np.full(w, np.nan)
+    t_win = np.lib.stride_tricks.sliding_window_view(np.r_[pad, t, pad], 2 * w + 1)
+    h_win = np.lib.stride_tricks.sliding_window_view(np.r_[pad, alt, pad], 2 * w + 1)
+    climb = np.abs(np.diff(alt)) / np.diff(t)
+    steps = np.lib.stride_tricks.sliding_window_view(np.r_[pad, climb, pad], 2 * w)[:n]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a track's ends: one side empty (all NaN), never a glitch
+        v = np.fmax(np.abs(rate), np.nanmedian(steps, axis=1))
+        offs, reach = [], []
+        for side in (slice(0, w), slice(w + 1, 2 * w + 1)):
+            s = np.nanmax(np.abs(t_win[:, side] - t[:, None]), axis=1)
+            offs.append(alt - np.nanmedian(h_win[:, side], axis=1))
+            reach.append(v * s + VERTICAL_ACCELERATION * s * s / 2.0 + ALTITUDE_RESOLUTION)
+    return (offs[0] * offs[1] > 0) & (np.abs(offs[0]) > reach[0]) & (np.abs(offs[1]) > reach[1])
+
+
 def memory_room() -> float:
     """Bytes a window's truth and scans may take: a quarter of the machine's physical memory (1 GiB where it is not
     known)."""
@@ -238,10 +272,12 @@ def build_truth(rec: Recording, frame: Frame, start: float, duration: float | No
     rel = rec.t - t0
     found = segments(rec, max_gap)
     kept: list[tuple[slice, np.ndarray, np.ndarray, str]] = []  # each track inside the box: its steps, states, inside
-    at_odds = glitched = 0
+    at_odds = glitched = high = 0
     for rows in (p for p in found.pieces if rel[p[-1]] >= 0 and rec.t[p[0]] <= end):
         pos = enu_from_geodetic(frame, *rec.lla[rows].T)
         wrong = glitches(rel[rows], pos, np.linalg.norm(rec.velocity[rows, :2], axis=1))
+        aloft = altitude_glitches(rel[rows], rec.lla[rows, 2], rec.velocity[rows, 2]) & ~wrong
+        wrong |= aloft
         rows, pos = rows[~wrong], pos[~wrong]
         live = slice(_steps_before(rel[rows[0]], steps), _steps_before(rel[rows[-1]], steps, after=True))
         grid = np.arange(live.start, live.stop) * DT  # the window's grid k DT, each track's steps only
@@ -258,7 +294,8 @@ def build_truth(rec: Recording, frame: Frame, start: float, duration: float | No
         inside = np.all(np.abs(p[:, :2]) <= box / 2, axis=1)
         if inside.any():  # a track never inside the box takes no room in the grid
             at_odds += int(odd.sum())
-            glitched += int(wrong.sum())
+            glitched += int((wrong & ~aloft).sum())
+            high += int(aloft.sum())
             kept.append((live, np.stack([p[:, 0], v[:, 0], p[:, 1], v[:, 1], p[:, 2], v[:, 2]], axis=-1), inside,
                          str(rec.icao24[rows[0]])))
     need, room = steps * len(kept) * TRUTH_CELL_BYTES + (steps - 1) * DT * scan_bytes, memory_room()
@@ -277,5 +314,7 @@ def build_truth(rec: Recording, frame: Frame, start: float, duration: float | No
     dropped = {**rec.dropped, "repeating a time or position": found.repeated, "in a track of one sample": found.single,
                "horizontal velocities at odds with the positions (their derivative taken)": at_odds,
                "positions farther from the previous one than the aircraft could fly (glitches)": glitched,
+               "altitudes off those either side by more than the aircraft could climb or descend (altitude glitches)":
+                   high,
                "aircraft with no track inside the box and window": len(set(rec.icao24.tolist())) - len(set(icao24))}
     return Truth(t0, x, alive, icao24, dropped, surface)

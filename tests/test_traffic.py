@@ -20,7 +20,14 @@ from fedtrack.local_filters.radar.measurement import cartesian_from_polar, polar
 from fedtrack.sensors.multitarget import DT, Scenario, SensorSpec, sensor_lines
 from fedtrack.sensors.state_vectors import read_recording
 from fedtrack.sensors.traffic_sensors import adsb_view, parse_noise
-from fedtrack.sensors.traffic_truth import TRUTH_CELL_BYTES, Truth, build_truth, reconcile, segments
+from fedtrack.sensors.traffic_truth import (
+    TRUTH_CELL_BYTES,
+    Truth,
+    altitude_glitches,
+    build_truth,
+    reconcile,
+    segments,
+)
 
 DATA = Path(__file__).resolve().parent / "data"
 PARIS = Frame(48.86, 2.40, 0.0)
@@ -143,6 +150,43 @@ def test_a_glitched_position_is_left_out_of_the_truth(tmp_path: Path) -> None:
     speed = np.hypot(*truth.x[truth.alive[:, 0], 0][:, [1, 3]].T)
     assert np.abs(speed - 215.0).max() < 1.0, speed.max()
     assert truth.dropped["positions farther from the previous one than the aircraft could fly (glitches)"] == 2
+
+
+@pytest.mark.parametrize("rate", [True, False], ids=["vertical-rate", "no-vertical-rate"])
+def test_an_altitude_decoded_wrong_is_left_out_of_the_truth(tmp_path: Path, rate: bool) -> None:
+    """An aircraft descending at 5 m/s from 1,410 m, flying east at 80 m/s, a state vector every second, with three
+    altitudes decoded wrong as in the Paris extract's ``4d21ec`` (a sample 8.3-8.4 km above the others, once two in
+    a row): they are left out and counted, and the truth's altitude stays within 1 m of the descent, with the vertical
+    rate recorded or not. Before, with it recorded the reconciliation spread the glitches over the track (the truth
+    up to 221 m above the descent); without it the truth climbed to 9.4 km above it in a second."""
+    times = np.arange(0.0, 120.0)
+    alt = 1410.0 - 5.0 * times
+    wrong = np.isin(times, [30.0, 70.0, 71.0])
+    recorded = np.where(wrong, alt + 8344.0, alt)
+    lla = geodetic_from_enu(PARIS, np.column_stack([80.0 * times, np.zeros((len(times), 2))]))
+    lla[:, 2] = recorded
+    velocity, header = (",80.0,90.0,-5.0", ",gs,track,vertical_rate") if rate else ("", "")
+    rows = [f"{1000 + t},a,{la},{lo},{h}{velocity}" for t, (la, lo, h) in zip(times.tolist(), lla.tolist())]
+    rec = read_recording(_write_csv(tmp_path / "a.csv", "time,icao24,lat,lon,alt" + header, rows))
+    truth = build_truth(rec, PARIS, 0.0, None, 400e3, 30.0)
+    at = np.round((rec.t - truth.t0) / DT).astype(int)
+    flown = geodetic_from_enu(PARIS, truth.x[at[0]:at[-1] + 1, 0][:, [0, 2, 4]])[:, 2]
+    expected = 1410.0 - 5.0 * np.arange(len(flown)) * DT
+    assert np.abs(flown - expected).max() < 1.0, np.abs(flown - expected).max()
+    assert truth.dropped["altitudes off those either side by more than the aircraft could climb or descend "
+                         "(altitude glitches)"] == 3
+
+
+def test_an_altitude_held_a_step_or_a_parabola_is_no_glitch() -> None:
+    """What aircraft fly and recordings hold is kept: an altitude held for 10 s and then caught up (a step, as
+    ``featured/dreamliner_airfrance`` records), a climb at 30 m/s, a parabolic flight's 1 g pull-up and push-over
+    (``featured/zero_gravity``), samples 1 s apart, 30 s apart, and a track's ends."""
+    t = np.arange(0.0, 60.0)
+    held = np.where(t < 20.0, 7925.0, 8222.0)
+    parabola = 8000.0 - 9.80665 * (t - 30.0) ** 2 / 2.0
+    for times, alt in ((t, held), (t, 3000.0 + 30.0 * t), (t, parabola), (30.0 * t, 3000.0 + 10.0 * t)):
+        assert not altitude_glitches(times, alt, np.full_like(times, np.nan)).any()
+    assert not altitude_glitches(t[:2], np.array([1000.0, 9000.0]), np.full(2, np.nan)).any()
 
 
 def test_a_recording_sampled_every_31_s_is_one_track(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
