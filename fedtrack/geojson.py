@@ -20,7 +20,28 @@ from typing import Any
 
 from fedtrack.config import ConfigError
 from fedtrack.geodetic import Frame, FrameConfig, add_geodetic, load_frame, wrap_lon
-from fedtrack.jsonl import InputError, check_output, output_file, picture_rows, read_jsonl
+from fedtrack.jsonl import InputError, as_float, check_output, output_file, picture_rows, read_jsonl, require
+
+
+def _placed(r: Any, frame: Frame, where: str) -> dict[str, Any]:
+    """A picture or truth row with its ``lat``, ``lon`` (and ``alt`` when it has one) checked, or placed from ``x`` in
+    ``frame`` when it has no ``lat``; an InputError naming ``where`` and the field otherwise (before 2026-11-28 a
+    ``lat`` of 95, null, a string or 1e400 was written into the GeoJSON, exit 0, and a ``lat`` without ``lon`` or a
+    list for ``id`` ended in a traceback)."""
+    needs = f"{where}: each needs \"id\" (a number or a string) and \"x\" ([x, vx, y, vy(, z, vz)])"
+    if not isinstance(r, dict) or "id" not in r or isinstance(r["id"], (bool, list, dict)):
+        raise InputError(needs)
+    if "lat" not in r:
+        try:
+            return add_geodetic(frame, [r])[0]
+        except (KeyError, TypeError, IndexError, ValueError) as exc:
+            raise InputError(needs) from exc
+    if not -90.0 <= as_float(r["lat"], "lat", where) <= 90.0:
+        raise InputError(f"{where}: lat must be in [-90, 90] (degrees), got {r['lat']}")
+    as_float(require(r, "lon", where), "lon", where)
+    if "alt" in r:
+        as_float(r["alt"], "alt", where)
+    return r
 
 
 def _paths(path: Path, key: str, frame: Frame, confirmed_only: bool) -> dict[Any, dict[str, Any]]:
@@ -28,14 +49,10 @@ def _paths(path: Path, key: str, frame: Frame, confirmed_only: bool) -> dict[Any
     out: dict[Any, dict[str, Any]] = {}
     for lineno, obj in read_jsonl(path):
         where = f"{path}:{lineno}"
-        rows = picture_rows(obj, key, where)
-        if confirmed_only:
-            rows = [r for r in rows if r.get("status", "confirmed") == "confirmed"]
-        try:
-            rows = [r if "lat" in r else add_geodetic(frame, [r])[0] for r in rows]
-        except (KeyError, TypeError, IndexError, ValueError) as exc:
-            raise InputError(f"{where}: {key}: each needs \"id\" and \"x\" ([x, vx, y, vy(, z, vz)])") from exc
-        for r in rows:
+        for i, row in enumerate(picture_rows(obj, key, where)):
+            if confirmed_only and isinstance(row, dict) and row.get("status", "confirmed") != "confirmed":
+                continue
+            r = _placed(row, frame, f"{where}: {key}[{i}]")
             item = out.setdefault(r["id"], {"coords": [], "times": [], "props": {}})
             point = [float(wrap_lon(r["lon"])), r["lat"]] + ([r["alt"]] if "alt" in r else [])
             item["coords"].append(point)

@@ -414,6 +414,33 @@ def test_tracks_on_the_earth_geojson_and_map(tmp_path: Path, capsys: pytest.Capt
                  str(out / "truth.jsonl")]) == 2
 
 
+@pytest.mark.parametrize(("row", "says"), [
+    ('"lat": 95, "lon": 3', "tracks[1]: lat must be in [-90, 90] (degrees), got 95"),
+    ('"lat": 1e400, "lon": 3', "tracks[1]: lat must be a finite number, got Infinity"),
+    ('"lat": null, "lon": 3', "tracks[1]: lat must be a finite number, got null"),
+    ('"lat": 3', "tracks[1]: missing field 'lon'"),
+    ('"lat": 3, "lon": 3, "alt": "x"', 'tracks[1]: alt must be a finite number, got "x" (a string)'),
+    ('"id": [1]', 'tracks[1]: each needs "id" (a number or a string) and "x"')],
+    ids=["lat-95", "lat-inf", "lat-null", "no-lon", "alt-string", "id-list"])
+def test_export_geojson_refuses_a_row_off_the_earth_in_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                                 row: str, says: str) -> None:
+    """A tracks file's row whose lat, lon, alt are not a place on the Earth, or whose id is no id: exit 2, one line
+    naming the file, the line, the row and the field, no GeoJSON written. Before, a lat of 95, null or 1e400 and an alt
+    "x" were written into the GeoJSON (exit 0: 1e400 as Infinity, not JSON), and a lat without lon or a list for id
+    ended in a traceback."""
+    config = tmp_path / "c.toml"
+    config.write_text("[frame]\norigin = [46.9, 8.2, 0.0]\n")
+    fields = row if row.startswith('"id"') else f'"id": 2, {row}'
+    tracks = tmp_path / "t.jsonl"
+    tracks.write_text('{"t": 0, "tracks": [{"id": 1, "x": [0, 0, 0, 0]}]}\n'
+                      f'{{"t": 1, "tracks": [{{"id": 1, "x": [0, 0, 0, 0]}}, {{{fields}, "x": [1, 2, 3, 4]}}]}}\n')
+    geo = tmp_path / "t.geojson"
+    assert main(["export", "--geojson", str(geo), "--config", str(config), "--tracks", str(tracks)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.splitlines() == [err] and f"t.jsonl:2: {says}" in err, err
+    assert not geo.exists()
+
+
 def test_parquet_reads_as_csv(tmp_path: Path) -> None:
     """Parquet (pyarrow: the ``real`` and ``dev`` extras) gives the CSV's samples."""
     import pyarrow as pa
