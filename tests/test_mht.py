@@ -23,7 +23,7 @@ from fedtrack.local_filters.mtt.associators.mht import (
 )
 from fedtrack.local_filters.mtt.config import MhtConfig, MttConfig
 from fedtrack.local_filters.mtt.scan import SensorScan
-from fedtrack.local_filters.mtt.tracker import initial_state, mht_step, track_params, tracker_step
+from fedtrack.local_filters.mtt.tracker import initial_state, track_params, tracker_step
 from fedtrack.local_filters.pda.association import constants, log_amplitude_ratio
 from fedtrack.local_filters.pda.config import PDAParams
 from fedtrack.local_filters.radar.measurement import polar_from_cartesian
@@ -158,7 +158,7 @@ def test_window_one_k_one_with_gnn_management_is_gnn(seed: int, radar: bool, mot
     worst, assigned, confirmed = 0.0, 0, 0
     for scan in scans:
         g = tracker_step(gnn, scan, gnn_params)
-        h = mht_step(mht, scan, params)
+        h = tracker_step(mht, scan, params)  # mht_step, after the count and deletion rules of the scan
         gnn, mht = g.state, h.state
         a, b = gnn.tracks, mht.tracks
         assert np.array_equal(a.ids, b.ids)

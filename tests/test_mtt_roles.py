@@ -36,6 +36,12 @@ unmeasured, not only while the track has its one detection (``initiation.unmeasu
 ``gnn-start-waits.json.gz`` (frozen when it came) holds the cases that
 changes (the position scenario's ``mtt-federated``: one more tentative track in two pictures, the
 ids after it one higher), and with the old rule they equal ``gnn-two-point.json.gz``.
+Since the untuned56 session a counting tracker raises its M-of-N count on a position sensor whose
+clutter the count would confirm (:func:`~fedtrack.local_filters.mtt.roles.life.count_at`,
+``config.raised_count``), and a track-to-track centre then asks for a local confirmation: the radar
+scenario's config gives its position sensor the radar's clutter density (8.8e-5, per m rad^2, read as
+per m^2: the simulator's before 2026-11-26), so its fusions change; ``gnn-cluttered-count.json.gz``
+(frozen when it came) holds them, and with the count as configured they equal the references above.
 """
 
 from __future__ import annotations
@@ -57,6 +63,7 @@ SENSOR_COUNTS = DATA / "gnn-sensor-counts.json.gz"  # the centralized cases: the
 RADAR_VIEW = DATA / "gnn-radar-view.json.gz"  # the radar scenario's centralized cases: the radar's view
 TWO_POINT = DATA / "gnn-two-point.json.gz"  # the cases two-point starts change
 START_WAITS = DATA / "gnn-start-waits.json.gz"  # the cases a start waiting while its velocity is unmeasured changes
+CLUTTERED = DATA / "gnn-cluttered-count.json.gz"  # the cases a count raised on a cluttered sensor changes
 CASES = [(scenario, maneuver, algorithm) for scenario in ("pos", "radar") for maneuver in ("none", "vdie")
          for algorithm in ("mtt-local", "mtt-centralized", "mtt-federated", "mtt-decentralized")]
 LOCAL_SENSOR = {"pos": "s2", "radar": "r1"}
@@ -112,6 +119,11 @@ def test_gnn_pictures_equal_main_886cab1(tmp_path: Path, scenario: str, maneuver
     monkeypatch.setattr(config, "LOST_SCAN_S", 0.0)  # a count per scan only, as before the untuned3 session
 
     key = f"{scenario}-{maneuver}-{algorithm}"
+    raised = json.loads(gzip.decompress(CLUTTERED.read_bytes()))
+    if key in raised:
+        assert_fingerprints_equal(fingerprint(replay_case(tmp_path, scenario, maneuver, algorithm)), raised[key])
+    for module in (config, life):  # the count as configured, as before the untuned56 session
+        monkeypatch.setattr(module, "raised_count", lambda hit, pd, hits, window: (hits, window))
     waited = json.loads(gzip.decompress(START_WAITS.read_bytes()))
     if key in waited:
         assert_fingerprints_equal(fingerprint(replay_case(tmp_path, scenario, maneuver, algorithm)), waited[key])

@@ -60,7 +60,10 @@ def test_the_counts_chance_on_clutter_is_judged_over_the_sensors_period(
     the track-to-track centre confirmed central tracks by the count instead of asking for a local track its
     tracker confirmed (``local_confirmation``), and gnn's replay gave no note. Now each sensor is judged over its
     usual interval (``simulate multitarget --sensors pos:5,pos:12,pos:0.5 --late 0.5 --non-fifo --targets 20
-    --duration 200 --seed 2``, jipda: mean GOSPA federated 52.54 -> 48.18, decentralized 50.99 -> 46.43)."""
+    --duration 200 --seed 2``, jipda: mean GOSPA federated 52.54 -> 48.18, decentralized 50.99 -> 46.43). gnn's
+    trackers raise their count there to 8-of-9 (0.0085; a real target at P_D 0.9 confirms with 0.81), so its
+    centre asks for their confirmation too and its replay gives no note (before the untuned56 session the
+    centre counted 3 of 4 and the note said 0.398)."""
     rng = np.random.default_rng(4)
     R = [[225.0, 0.0], [0.0, 225.0]]
     rows = [{"t": round(float(t), 6), "sensor": s, "R": R,
@@ -83,6 +86,5 @@ def test_the_counts_chance_on_clutter_is_judged_over_the_sensors_period(
         replay_mtt("mtt-federated", measurements, config, tmp_path / "o.jsonl")
         last[associator], seen[:] = seen[-1], []
     err = capsys.readouterr().err
-    assert last == {"jipda": judged, "gnn": False}, last  # gnn's count is its own rule
-    assert ("sensor a's clutter_density 1e-07 per m^2 (noise 15 m) the 3-of-4 count confirms a track started on "
-            "clutter with probability 0.398" in err) == judged, err
+    assert last == {"jipda": judged, "gnn": judged}, last  # gnn's local count raised: the centre asks for it
+    assert "count (raised" not in err and "count confirms" not in err, err

@@ -379,6 +379,7 @@ class CentralizedEngine(ScanTrackerEngine):
     noise_raised: int = 0  # detections whose scan's R claimed less than its sensor's noise_floor: raised to it
     floor_mismatch: int = 0  # scans whose size is not their sensor's noise_floor's: not fused
     frame: Frame | None = None  # [frame]: each radar's view in its own axes (roles.life.radar_view)
+    noise: dict[str, np.ndarray] = field(default_factory=dict)  # position sensor -> its latest scan's R
 
     def bit(self, sensor: str) -> int:
         """The sensor's bit in the tracks' ``detected_by``, in order of first scan (beyond 63
@@ -401,6 +402,8 @@ class CentralizedEngine(ScanTrackerEngine):
         newest = self.seen.get(scan.sensor, scan.t)
         if scan.t > newest:
             self.intervals[scan.sensor] = scan.t - newest
+        if scan.dim == 2:
+            self.noise[scan.sensor] = scan.R
         self.seen[scan.sensor] = max(scan.t, newest)
         self.quiet = False
         super().ingest(scan)
@@ -425,10 +428,20 @@ class CentralizedEngine(ScanTrackerEngine):
         return tuple(sorted(s for s, t in self.seen.items() if newest - t <= self.cfg.central_timeout))
 
     def params(self, sensor: str | None) -> TrackParams:
+        """:func:`central_params` of a scan of ``sensor``; where the count rules the tracks (``gnn``, mht's
+        ``"counts"``), with the count raised as far as the most cluttered present position sensor's
+        tracker raises its own (:meth:`MttConfig.raised_count_of` at its latest ``R`` and interval): any
+        sensor's scans may hit a track started on any one's clutter."""
+        present = self.present()
         if sensor is None:
-            return central_params(self.cfg, sensor, self.dim, self.present())
-        return central_params(self.cfg, sensor, self.dim, self.present(), self.bit(sensor),
-                              self.intervals.get(sensor, 0.0))._replace(frame=self.frame)
+            return central_params(self.cfg, sensor, self.dim, present)
+        p = central_params(self.cfg, sensor, self.dim, present, self.bit(sensor),
+                           self.intervals.get(sensor, 0.0))._replace(frame=self.frame)
+        if self.cfg.confirm_bound is not None:
+            return p
+        hits, window = max([(p.confirm_hits, p.confirm_window)] + [
+            self.cfg.raised_count_of(s, self.noise[s], self.intervals.get(s, 1.0)) for s in present if s in self.noise])
+        return p._replace(confirm_hits=hits, confirm_window=window)
 
     def senders(self) -> list[str]:
         return sorted({s.sensor for s in self.history.entries}) if self.history is not None else []

@@ -128,6 +128,44 @@ def scan_lost(dt: float) -> float:
     return max(LOST * dt / LOST_SCAN_S, sys.float_info.min) if 0.0 < dt < LOST_SCAN_S else LOST
 
 
+def clutter_hit(density: float, R: np.ndarray, interval: float, init_velocity_std: float, gate2: float) -> float:
+    """The chance that a position scan (noise covariance ``R``, 2 x 2) puts a clutter detection into
+    the gate of a track started on one of its clutter detections ``interval`` seconds before (at
+    least 1 s): ``1 - exp(-lambda V)``, ``V = pi g sqrt(det S)`` the gate's area, ``S = 2 R +
+    (sigma_v T)^2 I`` (the start's position noise, ``init_velocity_std`` over ``T = max(interval,
+    1 s)``, the new detection's noise), ``g = gate2`` the 2-D gate's chi-square quantile, ``lambda =
+    density`` the clutter density per m^2."""
+    S = 2.0 * np.asarray(R, float) + (init_velocity_std * max(interval, 1.0)) ** 2 * np.eye(2)
+    area = math.pi * gate2 * math.sqrt(max(float(np.linalg.det(S)), 0.0))
+    return -math.expm1(-density * area)
+
+
+def count_chance(hit: float, hits: int, window: int) -> float:
+    """The chance that the ``hits``-of-``window`` count confirms a track started on one detection when
+    each of the next ``window - 1`` scans hits it with probability ``hit``: it needs ``hits - 1`` of
+    them (the binomial tail). With ``hit`` a clutter hit (:func:`clutter_hit`) the count's false
+    confirmation, with P_D a real target's confirmation within the window."""
+    n = window - 1
+    return sum(math.comb(n, j) * hit**j * (1.0 - hit) ** (n - j) for j in range(hits - 1, n + 1))
+
+
+def raised_count(hit: float, pd: float, hits: int, window: int) -> tuple[int, int]:
+    """The count of a tracker whose scans hit a clutter track with probability ``hit`` (:func:`clutter_hit`):
+    ``hits`` and ``window`` raised together by the fewest ``k`` (the misses the window allows kept) whose
+    chance of confirming a clutter track is at most jipda's bound ``FALSE_CONFIRM`` (0.01), but never so far
+    that a real target (detected with ``pd``) confirms within the window less often than not (``SHOW``, 1/2,
+    as a picture shows a track); as given where the given count meets the bound, or where raising it would
+    drop a real target's chance below 1/2 (3-of-4 at P_D 0.6: 0.65, 4-of-5: 0.48; 16-of-17 the most at 0.9).
+    docs/multitarget.md#a-cluttered-sensors-count-untuned56-session"""
+    from fedtrack.local_filters.mtt.associators.jipda import FALSE_CONFIRM, SHOW
+
+    k = 0
+    while (count_chance(hit, hits + k, window + k) > FALSE_CONFIRM
+           and count_chance(pd, hits + k + 1, window + k + 1) >= SHOW):
+        k += 1
+    return hits + k, window + k
+
+
 @dataclass(frozen=True)
 class MttConfig:
     """Multi-target tracking parameters (see docs/multitarget.md for the rules they drive)."""
@@ -185,27 +223,27 @@ class MttConfig:
         return AUTO_PROCESS_NOISE.get(self.associator, "fixed") if self.process_noise == "auto" else self.process_noise
 
     def clutter_gate_hit(self, sensor: str, R: np.ndarray, interval: float = 1.0) -> float:
-        """The chance that a scan of position sensor ``sensor`` (noise covariance ``R``, 2 x 2) puts
-        a clutter detection into the gate of a track started on one of its clutter detections, its
-        next scan ``interval`` seconds later (the sensor's period where known, else 1 s), or one
-        second later for a faster sensor: ``1 - exp(-lambda V)``, ``V = pi g sqrt(det S)`` the gate's
-        area, ``S = 2 R + (sigma_v T)^2 I`` (the start's position noise, ``init_velocity_std`` over
-        ``T = max(interval, 1 s)``, the new detection's noise), ``g`` the 2-D gate's chi-square
-        quantile, ``lambda`` the sensor's clutter density per m^2. A faster sensor starts as many more
+        """:func:`clutter_hit` of position sensor ``sensor`` (its clutter density per m^2, noise
+        covariance ``R``), its next scan ``interval`` seconds later (the sensor's period where known,
+        else 1 s), or one second later for a faster sensor: a faster sensor starts as many more
         tracks a second as its gates are smaller (a 10 Hz sensor's chance at its own 0.1 s, a tenth,
         took away the note where 2.4 false tracks a picture were confirmed): its chance stays judged
         over a second, as the deletion counts are (:func:`scan_lost`). A radar's density is per m rad^2
         of its own measurement space: not for this formula."""
-        S = 2.0 * np.asarray(R, float) + (self.init_velocity_std * max(interval, 1.0)) ** 2 * np.eye(2)
-        area = math.pi * self.thresholds.gate[2] * math.sqrt(max(float(np.linalg.det(S)), 0.0))
-        return -math.expm1(-self.clutter_of(sensor) * area)
+        return clutter_hit(self.clutter_of(sensor), R, interval, self.init_velocity_std, self.thresholds.gate[2])
 
     def counts_false_confirm(self, hit: float) -> float:
-        """The chance that the M-of-N count confirms a track started on clutter when each of the
-        next ``confirm_window - 1`` scans hits it with probability ``hit`` (one sensor's tracker:
-        :meth:`clutter_gate_hit`); the count needs ``confirm_hits - 1`` of them (the binomial tail)."""
-        n = self.confirm_window - 1
-        return sum(math.comb(n, j) * hit**j * (1.0 - hit) ** (n - j) for j in range(self.confirm_hits - 1, n + 1))
+        """The chance that the configured M-of-N count confirms a track started on clutter when each
+        of the next ``confirm_window - 1`` scans hits it with probability ``hit`` (:func:`count_chance`;
+        one sensor's tracker: :meth:`clutter_gate_hit`)."""
+        return count_chance(hit, self.confirm_hits, self.confirm_window)
+
+    def raised_count_of(self, sensor: str, R: np.ndarray, interval: float = 1.0) -> tuple[int, int]:
+        """The M-of-N count a tracker of position sensor ``sensor``'s scans (noise covariance ``R``, its
+        scans ``interval`` seconds apart) confirms by where the count rules the tracks (``gnn``, mht's
+        ``"counts"``): :func:`raised_count` of :meth:`clutter_gate_hit` at the sensor's P_D."""
+        return raised_count(self.clutter_gate_hit(sensor, R, interval), self.pd_of(sensor), self.confirm_hits,
+                            self.confirm_window)
 
     @property
     def confirm_bound(self) -> float | None:
@@ -223,22 +261,27 @@ class MttConfig:
         """A warning when the count rules the tracks (``gnn``, mht's ``"counts"``) and some position
         sensor's clutter (``position_sensors``: each one's noise covariance ``R``; ``intervals``: each
         one's period, 1 s where not given) makes its tracker confirm clutter tracks more often than
-        jipda's bound allows (a sensor without clutter, ``clutter_density`` 0, starts no track on
-        clutter, whatever the count)."""
+        jipda's bound allows even with the count its tracker raises there (:func:`raised_count`: as far
+        as a real target keeps a chance of 1/2 of confirming; a sensor without clutter,
+        ``clutter_density`` 0, starts no track on clutter, whatever the count)."""
         from fedtrack.local_filters.mtt.associators.jipda import FALSE_CONFIRM
 
         if self.confirm_bound is not None:
             return None
         every = intervals or {}
-        chance, sensor, sd = max(((self.counts_false_confirm(self.clutter_gate_hit(s, R, every.get(s, 1.0))), s,
-                                   math.sqrt(float(np.max(np.diag(R))))) for s, R in position_sensors.items()
-                                  if self.clutter_of(s) > 0), default=(0.0, "", 0.0))
+        worst = (0.0, "", 0.0, self.confirm_hits, self.confirm_window)
+        for s, R in position_sensors.items():
+            if self.clutter_of(s) > 0:
+                hit = self.clutter_gate_hit(s, R, every.get(s, 1.0))
+                m, n = self.raised_count_of(s, R, every.get(s, 1.0))
+                worst = max(worst, (count_chance(hit, m, n), s, math.sqrt(float(np.max(np.diag(R)))), m, n))
+        chance, sensor, sd, m, n = worst
         if chance <= FALSE_CONFIRM:
             return None
         return (f"at sensor {sensor}'s clutter_density {self.clutter_of(sensor):g} per m^2 (noise {sd:.3g} m) the "
-                f"{self.confirm_hits}-of-{self.confirm_window} count confirms a track started on clutter with "
-                f"probability {chance:.3f} (above {FALSE_CONFIRM:g}): expect false tracks; associator = "
-                '"jipda" confirms by existence, or raise confirm_hits and confirm_window')
+                f"{m}-of-{n} count (raised as far as a real target keeps a chance of 1/2 to confirm) confirms a "
+                f"track started on clutter with probability {chance:.3f} (above {FALSE_CONFIRM:g}): expect false "
+                'tracks; associator = "jipda" confirms by existence')
 
     @property
     def mode_rates(self) -> ModeRates | None:

@@ -24,7 +24,8 @@ each role a small pure function:
    within ``max_speed`` of, the two-point start of :mod:`.initiation` (a fast target's). Ids are
    integers in order of creation, never reused.
 6. **confirm / delete** (:func:`~.roles.life.m_of_n`, or the associator's): a track is confirmed once
-   it has ``confirm_hits`` detections within its first ``confirm_window`` scans; a tentative track
+   it has ``confirm_hits`` detections within its first ``confirm_window`` scans (both raised on a
+   cluttered position sensor's scans, :func:`~.roles.life.count_at`); a tentative track
    that can no longer reach that is deleted; a confirmed track is deleted after ``delete_misses``
    consecutive misses, or more on a fast sensor (:func:`~.roles.life.deletion_at`).
 
@@ -60,6 +61,7 @@ from fedtrack.local_filters.mtt.roles.filtering import (
 from fedtrack.local_filters.mtt.roles.gating import Gating, gate_scan
 from fedtrack.local_filters.mtt.roles.life import (
     Sight,
+    count_at,
     deletion_at,
     existence_manage,
     held,
@@ -145,7 +147,7 @@ def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
     if state.t is not None and scan.t < state.t:
         raise ValueError(f"scan at t = {scan.t} is before the tracker's time {state.t}")
     dt = 0.0 if state.t is None else scan.t - state.t
-    params = deletion_at(params, dt)
+    params = count_at(deletion_at(params, dt), scan, dt)
     if params.associator.step is not None:
         return params.associator.step(state, scan, params, q_scale)
     if params.initial_existence is not None and tracks.existence is None:  # an empty set keeping existence

@@ -60,12 +60,16 @@ def log_ratios(pd: float, clutter: float, gate: float, R: bytes, R_type: str) ->
 
 def needs_local_confirmation(cfg: MttConfig, sensor: str, R: np.ndarray, interval: float = 1.0) -> bool:
     """Whether a central track also needs a local track confirmed by its tracker, judged on position
-    sensor ``sensor`` of noise covariance ``R`` and period ``interval``: where the local trackers confirm
-    by a test with a false-confirmation bound (:attr:`MttConfig.confirm_bound`) and the count's chance to
-    confirm a track started on that sensor's clutter exceeds that bound (:meth:`MttConfig.counts_false_confirm`
-    of :meth:`MttConfig.clutter_gate_hit`)."""
+    sensor ``sensor`` of noise covariance ``R`` and period ``interval``: where the local trackers' own
+    rule is safer there than the centre's count, whose chance to confirm a track started on that
+    sensor's clutter (:meth:`MttConfig.counts_false_confirm` of :meth:`MttConfig.clutter_gate_hit`)
+    exceeds the local trackers' bound: a test's (:attr:`MttConfig.confirm_bound`), or, where they
+    count (``gnn``, mht's ``"counts"``), their count raised on that clutter
+    (:meth:`MttConfig.raised_count_of`, the same rule with jipda's bound)."""
     bound = cfg.confirm_bound
-    return bound is not None and cfg.counts_false_confirm(cfg.clutter_gate_hit(sensor, R, interval)) > bound
+    if bound is None:
+        return cfg.raised_count_of(sensor, R, interval)[0] > cfg.confirm_hits
+    return cfg.counts_false_confirm(cfg.clutter_gate_hit(sensor, R, interval)) > bound
 
 
 class CentreLife:

@@ -55,8 +55,9 @@ scan, the linearized observation of every track the scan detected, the tracks it
   tracker's own (the count for gnn, a local track confirmed by its tracker for jipda and mht's
   score). Where the local trackers confirm by a test with a false-confirmation bound (jipda's
   existence, mht's score) and the count's chance to confirm a track started on clutter exceeds that
-  bound at some position sensor's clutter density and noise (:func:`needs_local_confirmation`), a
-  track also needs a local track that its tracker confirmed: in heavy clutter the count alone
+  bound at some position sensor's clutter density and noise, or where they count (gnn) and raise their
+  count there (:func:`needs_local_confirmation`), a track also needs a local track that its tracker
+  confirmed: in heavy clutter the count alone
   confirmed tracks on several sensors' clutter tracks. A tentative track that one sensor alone
   supports is confirmed only once another sensor's report came after its start and, where another
   sensor that sees its place missed it, only when local tracks that two sensors' trackers confirmed

@@ -1,6 +1,7 @@
 """Role 6 of a scan, confirmation and deletion: M-of-N (:func:`m_of_n`), or by existence for
 ``jipda`` (:func:`existence_manage`); the misses in a row that delete a track on a fast sensor
-(:func:`deletion_at`); and, in a tracker of several sensors' scans, which scans count for a track
+(:func:`deletion_at`); the count raised on a cluttered sensor's scans (:func:`count_at`); and, in a
+tracker of several sensors' scans, which scans count for a track
 (:func:`scan_sees`, :func:`scan_counts`)."""
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ import numpy as np
 
 from fedtrack.geodetic import Frame, own_axes
 from fedtrack.local_filters.mtt.associators import jipda
-from fedtrack.local_filters.mtt.config import LOST, log_miss_of, miss_count, scan_lost
+from fedtrack.local_filters.mtt.config import LOST, clutter_hit, log_miss_of, miss_count, raised_count, scan_lost
 from fedtrack.local_filters.mtt.roles.gating import Gating
 from fedtrack.local_filters.mtt.roles.tracks import TrackParams, TrackSet
 from fedtrack.local_filters.mtt.scan import SensorScan
@@ -175,3 +176,20 @@ def deletion_at(params: TrackParams, dt: float) -> TrackParams:
         return params
     m = int(miss_count(log_miss_of(params.pd), lost))
     return params._replace(delete_misses=m) if m > params.delete_misses else params
+
+
+def count_at(params: TrackParams, scan: SensorScan, dt: float) -> TrackParams:
+    """``params`` for a position scan ``dt`` [s] after the tracker's last, where the M-of-N count
+    rules the tracks (``gnn``, mht's ``"counts"``): ``confirm_hits`` and ``confirm_window`` raised
+    together (:func:`~..config.raised_count`) until the chance of confirming a track started on the
+    scan's clutter is at most jipda's bound, 0.01, each later scan hitting it with the chance
+    :func:`~..config.clutter_hit` gives at the scan's ``R`` and clutter density over ``dt`` (at least
+    1 s: as the deletion counts, judged a second on a faster sensor), as far as a real target keeps a
+    chance of 1/2 of confirming within the window. A radar's scan (its density per m rad^2) and a
+    sensor without clutter keep the configured count."""
+    if (scan.dim != 2 or params.clutter_density <= 0 or params.initial_existence is not None
+            or params.mht is not None and params.mht.management != "counts"):
+        return params
+    hit = clutter_hit(params.clutter_density, scan.R, dt, params.init_velocity_std, params.gate[2])
+    hits, window = raised_count(hit, params.pd, params.confirm_hits, params.confirm_window)
+    return params._replace(confirm_hits=hits, confirm_window=window) if hits > params.confirm_hits else params
