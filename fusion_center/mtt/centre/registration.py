@@ -59,6 +59,8 @@ make up the rest.
 """
 from __future__ import annotations
 
+import functools
+import itertools
 import math
 from collections import deque
 from dataclasses import dataclass, field
@@ -153,11 +155,17 @@ def scan_information(H: np.ndarray, R: np.ndarray, z: np.ndarray, X: np.ndarray,
     return symmetrize(M[:, :k]), M[:, k], int(np.count_nonzero(inside))
 
 
+@functools.cache
+def prior_information(k: int) -> np.ndarray:
+    """The weak prior's information on ``theta`` of size ``k`` (made once per size: read at every report)."""
+    out = np.diag(np.r_[np.full(k - 1, PRIOR_OFFSET_M ** -2), PRIOR_CLOCK_S ** -2])
+    out.flags.writeable = False
+    return out
+
+
 def solve_estimate(Y: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The estimate and covariance of information ``Y`` and ``y`` with the weak prior added."""
-    k = y.size
-    prior = np.diag(np.r_[np.full(k - 1, PRIOR_OFFSET_M ** -2), PRIOR_CLOCK_S ** -2])
-    cov = symmetrize(np.linalg.inv(Y + prior))
+    cov = symmetrize(np.linalg.inv(Y + prior_information(y.size)))
     return cov @ y, cov
 
 
@@ -257,10 +265,10 @@ class SensorRegistration:
             theta, cov = est[sensor]
             self.estimates[sensor] = Estimate(theta, cov, chi2_of(theta, cov), None)
             return
-        ref = medoid(est)
+        ref, pair_chi2 = medoid(est)
         theta, cov = est[sensor]
         d, C = theta - est[ref][0], cov + est[ref][1]
-        chi2 = chi2_of(d, C) if ref != sensor else 0.0
+        chi2 = pair_chi2[min(sensor, ref), max(sensor, ref)] if ref != sensor else 0.0  # chi2_of(d, C): -d's is d's
         self.estimates[sensor] = Estimate(d, C, chi2, ref)
         total = self.applied.get(sensor, np.zeros(self.k)) + d
         if chi2 > self.threshold and abs(total[-1]) <= self.max_lag:
@@ -308,14 +316,21 @@ def correction_lines(reg: SensorRegistration, shown: int = 10) -> list[str]:
     return lines
 
 
-def medoid(estimates: dict[str, tuple[np.ndarray, np.ndarray]]) -> str:
+def medoid(estimates: dict[str, tuple[np.ndarray, np.ndarray]]) -> tuple[str, dict[tuple[str, str], float]]:
     """The sensor whose estimate has the least sum of Mahalanobis distances to the others' (each pair's
-    difference against the sum of their covariances); ties go to the first name in order."""
+    difference against the sum of their covariances); ties go to the first name in order. Also each pair's
+    ``d' C^-1 d`` (:func:`chi2_of`, by the names in order): the pairs' systems solved in one call (each as
+    :func:`chi2_of` solves it alone)."""
     names = sorted(estimates)
     cost = dict.fromkeys(names, 0.0)
-    for i, a in enumerate(names):
-        for b in names[i + 1:]:
-            dist = math.sqrt(chi2_of(estimates[a][0] - estimates[b][0], estimates[a][1] + estimates[b][1]))
-            cost[a] += dist
-            cost[b] += dist
-    return min(names, key=cost.__getitem__)
+    pairs = list(itertools.combinations(names, 2))
+    if not pairs:
+        return names[0], {}
+    d = np.stack([estimates[a][0] - estimates[b][0] for a, b in pairs])
+    w = np.linalg.solve(np.stack([estimates[a][1] + estimates[b][1] for a, b in pairs]), d[..., None])[..., 0]
+    chi2 = dict(zip(pairs, map(float, map(np.dot, d, w))))
+    for (a, b), c in chi2.items():
+        dist = math.sqrt(c)
+        cost[a] += dist
+        cost[b] += dist
+    return min(names, key=cost.__getitem__), chi2
