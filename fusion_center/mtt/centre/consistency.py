@@ -94,6 +94,11 @@ def normalized_innovations(H: np.ndarray, R: np.ndarray, z: np.ndarray, x: np.nd
     return np.einsum("km,km->k", nu, np.linalg.solve(S, nu[..., None])[..., 0])
 
 
+def window_sums(kept: deque[ScanInnovations]) -> tuple[float, int, int]:
+    """A sensor's window sums: its scans' capped innovations, their dof and their number."""
+    return sum(e.nis for e in kept), sum(e.dof for e in kept), sum(e.count for e in kept)
+
+
 def cap(m: int, tail: float) -> float:
     """The largest value one innovation of ``m`` dof adds to a window's sum: its chi-square quantile at
     ``1 - tail``."""
@@ -128,6 +133,9 @@ class SensorConsistency:
     transitions: list[Transition] = field(default_factory=list)  # not yet logged (the service drains them)
     newest: float = -math.inf
     _caps: dict[int, float] = field(default_factory=dict)
+    # each sensor's window sums (innovations, dof, count) while its window is unchanged (a report changes its
+    # own and those whose oldest scans it ends: the others' sums are not made again at every report)
+    _summed: dict[str, tuple[float, int, int]] = field(default_factory=dict)
 
     def add(self, sensor: str, t: float, nis: np.ndarray, m: int, window: float) -> None:
         """One scan's innovations ``nis`` of ``sensor`` at ``t``, each of ``m`` dof (a scan's observations
@@ -136,9 +144,11 @@ class SensorConsistency:
         if not nis.size:
             return
         self.newest = max(self.newest, t)
-        for kept in self.scans.values():
+        for s, kept in self.scans.items():
             while kept and kept[0].t < self.newest - window:
                 kept.popleft()
+                self._summed.pop(s, None)
+        self._summed.pop(sensor, None)
         capped = np.fmin(nis, self._cap(m))  # a NaN too enters at the cap
         self.scans.setdefault(sensor, deque()).append(ScanInnovations(t, float(capped.sum()), m * nis.size, nis.size))
         self._judge(sensor, t)
@@ -156,8 +166,10 @@ class SensorConsistency:
 
     def _sums(self) -> tuple[dict[str, tuple[float, int, int]], list[float]]:
         """Each sensor's window sums (innovations, dof, count) and their totals over the sensors."""
-        sums = {s: (sum(e.nis for e in kept), sum(e.dof for e in kept), sum(e.count for e in kept))
-                for s, kept in self.scans.items()}
+        for s, kept in self.scans.items():
+            if s not in self._summed:
+                self._summed[s] = window_sums(kept)
+        sums = {s: self._summed[s] for s in self.scans}
         return sums, [sum(v[k] for v in sums.values()) for k in range(3)]
 
     @staticmethod
@@ -204,6 +216,7 @@ class SensorConsistency:
     def drop(self, sensor: str) -> None:
         """A sensor left: its window and flag go (a flag ends with no transition logged)."""
         self.scans.pop(sensor, None)
+        self._summed.pop(sensor, None)
         self.flagged.pop(sensor, None)
 
     def drain(self) -> list[Transition]:
