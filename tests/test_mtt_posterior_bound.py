@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
+from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre, track_to_track
 from fedtrack.fusion_center.mtt.centre.posterior_bound import kalman_rows, vaguer_than_detection
 from fedtrack.local_filters.imm.filter import IMMState, combine
 from fedtrack.local_filters.linear.kalman import GaussianState, update, update_residual
@@ -180,3 +180,23 @@ def test_honest_jipda_and_two_mode_rows_can_be_vaguer_than_the_attacks_lie() -> 
     updated = update(modes, np.zeros((2, 2)), np.tile(H, (2, 1, 1)), R)[0]
     both = combine(IMMState(updated.x, updated.P, np.array([0.5, 0.5])))
     assert largest_over(H @ both.P @ H.T, R) > 1e4
+
+
+def test_a_sub_report_is_held_to_the_bound_on_its_rows_taken_only(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A region centre's sub-report (``rows``: those it takes) tests only the rows taken (its margin's rows of other
+    regions' tracks are not fused there: before, every detected row was tested and the answer masked, a cost of
+    each region centre's report in its margin's rows, docs/bench.md): a vague row taken is taken as not detected,
+    one not taken is not counted; a sub-report taking no detected row tests nothing."""
+    tested: list[int] = []
+    bound = track_to_track.vaguer_than_detection
+    monkeypatch.setattr(track_to_track, "vaguer_than_detection",
+                        lambda H, P, R: tested.append(len(H)) or bound(H, P, R))
+    centre = TrackToTrackCentre(MttConfig(), 4, True)
+    places = {1: np.zeros(2), 2: np.array([2000.0, 2000.0]), 3: np.array([4000.0, 0.0]), 4: PHANTOM}
+    report = scan("s1", 0.0, places, 4)
+    centre.answer(report, np.array([True, True, False, False]))
+    assert tested == [2] and centre.counters.vague_posteriors == 0
+    centre.answer(scan("s1", 1.0, places, 4), np.array([False, True, False, True]))
+    assert tested == [2, 2] and centre.counters.vague_posteriors == 1
+    centre.answer(scan("s1", 2.0, places, 4), np.zeros(4, dtype=bool))
+    assert tested == [2, 2] and centre.counters.vague_posteriors == 1

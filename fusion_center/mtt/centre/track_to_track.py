@@ -433,9 +433,14 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         taken as not detected, counted ``vague_posteriors``, and the rows' observations ``obs_rows`` again."""
         if not len(report.obs_R) or not kalman_rows(self.cfg, self.feedback, report.x.shape[1]):
             return report, obs_rows
-        vague = vaguer_than_detection(report.obs_H, report.P[report.detected], report.obs_R)
-        if rows is not None:
-            vague &= rows[report.detected]
+        if obs_rows is None:
+            vague = vaguer_than_detection(report.obs_H, report.P[report.detected], report.obs_R)
+        else:  # only the rows taken (a region's sub-report: its margin's rows are not fused here)
+            vague = np.zeros(len(report.obs_R), dtype=bool)
+            if obs_rows.size:
+                vague[obs_rows] = vaguer_than_detection(report.obs_H[obs_rows],
+                                                        report.P[report.detected.nonzero()[0][obs_rows]],
+                                                        report.obs_R[obs_rows])
         if not vague.any():
             return report, obs_rows
         self.counters.vague_posteriors += int(np.count_nonzero(vague))
