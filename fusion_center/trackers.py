@@ -271,10 +271,40 @@ def scan_event(local_kinds: np.ndarray) -> np.ndarray:
     return np.where(det != EVENT_NONE, det, np.where(ended, EVENT_END, EVENT_NONE))
 
 
+def _where_sensors(mask: np.ndarray, a, b, n_batch: int):
+    """Per sensor, ``a`` where ``mask`` (N,) else ``b``: arrays (or tuples of them) with the sensor axis
+    after ``n_batch`` batch axes."""
+    if isinstance(a, tuple):
+        return type(a)(*(_where_sensors(mask, u, v, n_batch) for u, v in zip(a, b, strict=True)))
+    return np.where(mask.reshape(mask.shape + (1,) * (a.ndim - n_batch - 1)), a, b)
+
+
+def _take_sensors(idx: np.ndarray, a, n_batch: int):
+    """The sensors ``idx`` of ``a`` (an array or a tuple of them, the sensor axis after ``n_batch``)."""
+    if isinstance(a, tuple):
+        return type(a)(*(_take_sensors(idx, u, n_batch) for u in a))
+    return np.take(a, idx, axis=n_batch)
+
+
 class DVDIE(VdieStart, DecentralizedKF):
-    """Single-sensor VDIE in every local filter; the centre fuses without feedback."""
+    """Single-sensor VDIE in every local filter; the centre fuses without feedback.
+
+    As the live :class:`~fedtrack.fusion_center.centre.DecentralizedCentre`, the centre takes the
+    reports of the scan's sensors only (a silent local's estimate is a prediction, which fused as
+    independent at a re-initialization pulled the centre off), and a sensor's local filter starts at
+    its own first measurement (before, one absent from the first scan started from ``z = 0``).
+    """
 
     name = "dvdie"
+
+    def _start(self, local, present, t):
+        est = super()._start(local, present, t)
+        self.started = np.ones(self.n_sensors, dtype=bool) if present is None else present.copy()
+        return est
+
+    def _start_prior(self, prior, t):
+        super()._start_prior(prior, t)
+        self.started = np.ones(self.n_sensors, dtype=bool)
 
     def _init_vdie(self, t: float) -> None:
         x, P = embed_cv(self.local.x, self.local.P)
@@ -286,12 +316,22 @@ class DVDIE(VdieStart, DecentralizedKF):
         def step_fn(post_prev: GaussianState, model: LinearModel) -> tuple[GaussianState, GaussianState]:
             return local_kf_step(post_prev, model, zs, Rs, present)
 
+        n_batch = zs.ndim - 2
+        got = np.ones(self.n_sensors, dtype=bool) if present is None else present
+        new = got & ~self.started  # a local filter's first measurement: it starts there (live: init)
         before = self.vdie
         self.vdie, events, trace = vdie_step(before, t, cv, ca, self.config.vdie, step_fn)
-        reports = local_reports(before, self.vdie, events, trace)
-        self.centre_state = dvdie_centre_step(self.centre_state, cv, ca, reports)
+        if new.any():
+            x, P = embed_cv(*one_point_init(zs, Rs, self.n_sensors * self.config.initial_velocity_std ** 2))
+            fresh = vdie_init(x, P, np.zeros(x.shape[:-1], dtype=bool), self.config.vdie, t)
+            self.vdie = _where_sensors(new, fresh, self.vdie, n_batch)
+            events = events._replace(kind=np.where(new, EVENT_NONE, events.kind))
+            self.started = self.started | new
+        idx = np.flatnonzero(got)
+        reports = _take_sensors(idx, local_reports(before, self.vdie, events, trace), n_batch)
+        self.centre_state = dvdie_centre_step(self.centre_state, cv, ca, reports, restart=bool(new.any()))
         return ScanEstimate(self.centre_state.x, self.centre_state.P, self.centre_state.is_ca,
-                            scan_event(events.kind))
+                            scan_event(reports.kind))
 
 
 TRACKERS: dict[str, type[Tracker]] = {
