@@ -48,6 +48,7 @@ from fedtrack.local_filters.vdie.estimation import (
     EVENT_NONE,
     EVENT_ONSET,
     CentreState,
+    LocalReports,
     dvdie_centre_step,
     embed_cv,
     local_reports,
@@ -271,14 +272,6 @@ def scan_event(local_kinds: np.ndarray) -> np.ndarray:
     return np.where(det != EVENT_NONE, det, np.where(ended, EVENT_END, EVENT_NONE))
 
 
-def _where_sensors(mask: np.ndarray, a, b, n_batch: int):
-    """Per sensor, ``a`` where ``mask`` (N,) else ``b``: arrays (or tuples of them) with the sensor axis
-    after ``n_batch`` batch axes."""
-    if isinstance(a, tuple):
-        return type(a)(*(_where_sensors(mask, u, v, n_batch) for u, v in zip(a, b, strict=True)))
-    return np.where(mask.reshape(mask.shape + (1,) * (a.ndim - n_batch - 1)), a, b)
-
-
 def _take_sensors(idx: np.ndarray, a, n_batch: int):
     """The sensors ``idx`` of ``a`` (an array or a tuple of them, the sensor axis after ``n_batch``)."""
     if isinstance(a, tuple):
@@ -286,13 +279,32 @@ def _take_sensors(idx: np.ndarray, a, n_batch: int):
     return np.take(a, idx, axis=n_batch)
 
 
+def _put_sensors(idx: np.ndarray, part, whole, n_batch: int):
+    """``whole`` with its sensors ``idx`` replaced by ``part`` (same nesting as :func:`_take_sensors`)."""
+    if isinstance(whole, tuple):
+        return type(whole)(*(_put_sensors(idx, p, w, n_batch) for p, w in zip(part, whole, strict=True)))
+    out = whole.copy()
+    out[(slice(None),) * n_batch + (idx,)] = part
+    return out
+
+
+def _concat_sensors(parts: list, n_batch: int):
+    """Tuples of arrays (or arrays) joined along the sensor axis."""
+    if isinstance(parts[0], tuple):
+        return type(parts[0])(*(_concat_sensors(list(fields), n_batch) for fields in zip(*parts, strict=True)))
+    return np.concatenate(parts, axis=n_batch)
+
+
 class DVDIE(VdieStart, DecentralizedKF):
     """Single-sensor VDIE in every local filter; the centre fuses without feedback.
 
-    As the live :class:`~fedtrack.fusion_center.centre.DecentralizedCentre`, the centre takes the
-    reports of the scan's sensors only (a silent local's estimate is a prediction, which fused as
-    independent at a re-initialization pulled the centre off), and a sensor's local filter starts at
-    its own first measurement (before, one absent from the first scan started from ``z = 0``).
+    As live (:class:`~fedtrack.fusion_center.centre.DecentralizedCentre` fed by
+    :class:`~fedtrack.local_filters.vdie.local.VdieLocalFilter`): a local filter starts at its own
+    sensor's first measurement and steps at its sensor's measurements only, over the interval since
+    its last one, and the centre takes the reports of the scan's sensors. Before the single56
+    session the replay fused a silent local's prediction as an independent estimate at every
+    re-initialization, stepped a silent local's detector through the scans it missed, and started
+    a local absent from the first scan at ``z = 0``.
     """
 
     name = "dvdie"
@@ -300,11 +312,13 @@ class DVDIE(VdieStart, DecentralizedKF):
     def _start(self, local, present, t):
         est = super()._start(local, present, t)
         self.started = np.ones(self.n_sensors, dtype=bool) if present is None else present.copy()
+        self.last_t = np.full(self.n_sensors, t)
         return est
 
     def _start_prior(self, prior, t):
         super()._start_prior(prior, t)
         self.started = np.ones(self.n_sensors, dtype=bool)
+        self.last_t = np.full(self.n_sensors, t)
 
     def _init_vdie(self, t: float) -> None:
         x, P = embed_cv(self.local.x, self.local.P)
@@ -313,25 +327,39 @@ class DVDIE(VdieStart, DecentralizedKF):
         self.centre_state = CentreState(cx, cP, np.zeros(cx.shape[:-1], dtype=bool))
 
     def _update(self, cv, ca, zs, Rs, present, t):
-        def step_fn(post_prev: GaussianState, model: LinearModel) -> tuple[GaussianState, GaussianState]:
-            return local_kf_step(post_prev, model, zs, Rs, present)
-
         n_batch = zs.ndim - 2
         got = np.ones(self.n_sensors, dtype=bool) if present is None else present
         new = got & ~self.started  # a local filter's first measurement: it starts there (live: init)
-        before = self.vdie
-        self.vdie, events, trace = vdie_step(before, t, cv, ca, self.config.vdie, step_fn)
+        stepped = np.flatnonzero(got & self.started)
+        if stepped.size == self.n_sensors and np.all(self.last_t == self.last_t[0]):
+            groups = [(stepped, cv, ca)]  # every local over the scan interval: one batched step
+        else:
+            groups = [(stepped[j:j + 1], *models_for(rounded_interval(t - self.last_t[i]), self.config.q))
+                      for j, i in enumerate(stepped)]
+        reports = {}
+        for idx, cv_i, ca_i in groups:
+            def step_fn(post_prev: GaussianState, model: LinearModel, idx=idx) -> tuple[GaussianState, GaussianState]:
+                return local_kf_step(post_prev, model, zs[..., idx, :], Rs[..., idx, :, :], None)
+
+            before = self.vdie if idx.size == self.n_sensors else _take_sensors(idx, self.vdie, n_batch)
+            after, events, trace = vdie_step(before, t, cv_i, ca_i, self.config.vdie, step_fn)
+            self.vdie = after if idx.size == self.n_sensors else _put_sensors(idx, after, self.vdie, n_batch)
+            rep = local_reports(before, after, events, trace)
+            reports.update({i: _take_sensors(np.array([j]), rep, n_batch) for j, i in enumerate(idx)})
         if new.any():
             x, P = embed_cv(*one_point_init(zs, Rs, self.n_sensors * self.config.initial_velocity_std ** 2))
-            fresh = vdie_init(x, P, np.zeros(x.shape[:-1], dtype=bool), self.config.vdie, t)
-            self.vdie = _where_sensors(new, fresh, self.vdie, n_batch)
-            events = events._replace(kind=np.where(new, EVENT_NONE, events.kind))
-            self.started = self.started | new
-        idx = np.flatnonzero(got)
-        reports = _take_sensors(idx, local_reports(before, self.vdie, events, trace), n_batch)
-        self.centre_state = dvdie_centre_step(self.centre_state, cv, ca, reports, restart=bool(new.any()))
+            no = np.zeros(x.shape[:-1], dtype=bool)
+            fresh = vdie_init(x, P, no, self.config.vdie, t)
+            self.vdie = _put_sensors(np.flatnonzero(new), _take_sensors(np.flatnonzero(new), fresh, n_batch),
+                                     self.vdie, n_batch)
+            start = LocalReports(no, x, P, no, np.full(no.shape, EVENT_NONE), GaussianState(x, P), GaussianState(x, P))
+            reports.update({i: _take_sensors(np.array([i]), start, n_batch) for i in np.flatnonzero(new)})
+        self.started = self.started | new
+        self.last_t = np.where(got, t, self.last_t)
+        joined = _concat_sensors([reports[i] for i in np.flatnonzero(got)], n_batch)
+        self.centre_state = dvdie_centre_step(self.centre_state, cv, ca, joined, restart=bool(new.any()))
         return ScanEstimate(self.centre_state.x, self.centre_state.P, self.centre_state.is_ca,
-                            scan_event(reports.kind))
+                            scan_event(joined.kind))
 
 
 TRACKERS: dict[str, type[Tracker]] = {
