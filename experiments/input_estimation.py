@@ -138,6 +138,7 @@ def reproduce_input_estimation(runs: int, seed: int, json_path: Path, plots_dir:
              f"3-D radar turn scenario, {runs} Monte Carlo runs, seed {seed}")
     wall0 = time.perf_counter()
     radar, cfg = RadarConfig(), EkfIEConfig()
+    window = cfg.params.scans(radar.T)
     traj, zs = simulate(radar, runs, np.random.default_rng(seed))
     kinds = {"ekf": filter_kind("ekf", cfg), "ekf_ie": filter_kind("ekf-ie", cfg)}
     res = run_filters(kinds, zs, radar, cfg.q)
@@ -149,8 +150,8 @@ def reproduce_input_estimation(runs: int, seed: int, json_path: Path, plots_dir:
     straight_ratio = _paired_ratio(errs, "ekf_ie", "ekf", slice(0, t0), rng)
     result = {
         "paper": "002", "runs": runs, "seed": seed, "scenario": scenario_json(radar, traj),
-        "config": {"q": cfg.q, "window": cfg.window, "p_false_alarm": cfg.p_false_alarm,
-                   "p_input": cfg.p_input, "eta_window": cfg.params.eta_window,
+        "config": {"q": cfg.q, "window": window, "window_s": cfg.params.window_s, "p_false_alarm": cfg.p_false_alarm,
+                   "p_input": cfg.p_input, "eta_window": cfg.params.eta_window(window),
                    "eta_input": cfg.params.eta_input},
         "t": traj.t.tolist(), "filters": filters,
         "acceptance": {

@@ -210,7 +210,7 @@ def test_replay_leaves_out_a_measurement_at_the_time_of_the_last(tmp_path, capsy
 
 def test_input_estimation_params_thresholds():
     p = InputEstimationParams(window=10, p_false_alarm=0.01, p_input=0.05)
-    assert p.eta_window == pytest.approx(chi2.ppf(0.99, 30), rel=1e-12)
+    assert p.eta_window(10) == pytest.approx(chi2.ppf(0.99, 30), rel=1e-12)
     assert p.eta_input == pytest.approx(chi2.ppf(0.95, 3), rel=1e-12)
 
 
@@ -234,3 +234,70 @@ def test_input_estimation_never_starts_a_window_at_the_initialization() -> None:
         x, _, _ = kind.estimate(state, model)
         worst = max(worst, float(np.linalg.norm(x[0, [0, 2, 4]] - traj.pos[k])))
     assert worst < 50.0
+
+
+def _replay_x(lines, config):
+    filt = make_radar_filter("ekf-ie", config)
+    outs = [filt.step(ln) for ln in lines]
+    return np.array([o["x"] for o in outs if o is not None]), [o["maneuver"] for o in outs if o is not None]
+
+
+@pytest.mark.parametrize("rate_hz, scans", [(10.0, 20), (5.0, 10)])
+@pytest.mark.parametrize("drop_second", [False, True])
+def test_window_default_is_two_seconds_at_the_data_rate(rate_hz, scans, drop_second):
+    """The window was 100 scans at every rate (10 s at 10 Hz, 20 s at 5 Hz: longer than the turn's input
+    stays put; seed 3, position RMS 129.6 and 208.0 m against 10.2 and 13.4 m with a 2 s window). The
+    default is now 2 s at the data's scan interval: the same estimates as ``window`` = 2 s in scans. With
+    the second scan missing the filter starts at twice the interval (W = scans / 2) and the window's
+    length is taken again at the restart the interval change causes."""
+    lines = list(radar_scans(RadarConfig(rate_hz=rate_hz, straight_s=4.0), seed=3))[:int(20 * rate_hz)]
+    if drop_second:
+        del lines[1]
+    x, man = _replay_x(lines, {})
+    x_scans, man_scans = _replay_x(lines, {"window": scans})
+    np.testing.assert_array_equal(x, x_scans)
+    assert man == man_scans and any(man)
+    x_seconds, _ = _replay_x(lines, {"window_s": 2.0})
+    np.testing.assert_array_equal(x, x_seconds)
+
+
+@pytest.mark.parametrize("t0", [0.0, 1.7e9])
+def test_window_at_the_papers_rate_is_its_100_scans(t0):
+    """At the paper's 50 Hz (also with epoch stamps, whose intervals vary by 1e-5 of themselves) the
+    2 s default is the former default of 100 scans: the same estimates (to 1e-9)."""
+    lines = [{**ln, "t": t0 + ln["t"]} for ln in radar_scans(RadarConfig(straight_s=2.0), seed=4)][:450]
+    x, man = _replay_x(lines, {})
+    x_old, man_old = _replay_x(lines, {"window": 100})
+    np.testing.assert_allclose(x, x_old, rtol=1e-9, atol=1e-9)
+    assert man == man_old and any(man)
+
+
+def test_window_scans_from_the_interval():
+    p = InputEstimationParams()
+    assert [p.scans(T) for T in (0.02, 0.02 - 2.4e-7, 0.02 + 2.4e-7, 0.1, 0.2, 0.7, 5.0)] == [100, 100, 100, 20, 10,
+                                                                                              3, 2]
+    assert InputEstimationParams(window=7).scans(0.2) == 7
+    assert InputEstimationParams(window_s=1.0).scans(0.02) == 50
+
+
+def test_window_buffers_hold_no_more_than_the_scans_seen():
+    """A scan 1 us after the last makes the 2 s window 2,000,000 scans long at that interval: the buffers
+    grow with the scans taken, never to the window's length ahead of them."""
+    lines = list(radar_scans(RadarConfig(rate_hz=10.0), seed=3))[:30]
+    lines.insert(20, {**lines[19], "t": lines[19]["t"] + 1e-6})
+    filt = make_radar_filter("ekf-ie", {})
+    outs = [filt.step(ln) for ln in lines]
+    assert np.isfinite(outs[-1]["x"]).all()
+    assert filt._state.zs.shape[1] <= len(lines) and filt._state.xs.shape[1] <= len(lines)
+
+
+def test_window_in_scans_and_seconds_is_a_config_error(tmp_path):
+    lines = list(radar_scans(RadarConfig(straight_s=1.0), seed=1))[:5]
+    write_jsonl(tmp_path / "m.jsonl", lines)
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[radar_filter]\nwindow = 20\nwindow_s = 2.0\n")
+    with pytest.raises(ConfigError, match=r"^\S*c\.toml: radar_filter\.window: given with window_s"):
+        replay_radar("ekf-ie", tmp_path / "m.jsonl", cfg, tmp_path / "o.jsonl")
+    cfg.write_text("[radar_filter]\nwindow_s = 0.0\n")
+    with pytest.raises(ConfigError, match=r"c\.toml: radar_filter\.window_s: must be > 0"):
+        replay_radar("ekf-ie", tmp_path / "m.jsonl", cfg, tmp_path / "o.jsonl")

@@ -34,6 +34,7 @@ from fedtrack.local_filters.radar.ekf import (
     two_point_init,
 )
 from fedtrack.local_filters.radar.input_estimation import (
+    WINDOW_S,
     InputEstimationParams,
     ie_init,
     ie_step,
@@ -66,9 +67,13 @@ class EkfConfig:
 
 @dataclass(frozen=True)
 class EkfIEConfig(EkfConfig):
-    """Plain EKF keys plus the input-estimation window and test probabilities."""
+    """Plain EKF keys plus the input-estimation window and test probabilities.
 
-    window: int = 100
+    The window is ``window_s`` seconds at the data's scan interval, or ``window`` scans when that is given
+    (an override; a ``[radar_filter]`` table giving both is an error: :func:`make_radar_filter`)."""
+
+    window: int | None = None
+    window_s: float = WINDOW_S
     p_false_alarm: float = 1e-3
     p_input: float = 1e-3
 
@@ -78,7 +83,7 @@ class EkfIEConfig(EkfConfig):
 
     @property
     def params(self) -> InputEstimationParams:
-        return InputEstimationParams(self.window, self.p_false_alarm, self.p_input)
+        return InputEstimationParams(self.window, self.p_false_alarm, self.p_input, self.window_s)
 
 
 @dataclass(frozen=True)
@@ -240,7 +245,8 @@ class RadarFilter:
     ``step(meas)`` returns ``None`` for the first measurement (initialization needs two) and
     afterwards ``{"t", "x", "P", "model", "maneuver"}`` with ``x`` in the 3-D CV order
     ``[x, vx, y, vy, z, vz]``. The sampling interval is the time difference of consecutive
-    measurements; when it (or the sensor position) changes, the input-estimation window restarts.
+    measurements; when it (or the sensor position) changes, the input-estimation window restarts
+    (its length in scans taken again at the new interval when it is given in seconds).
     The state is kept as a batch of one so the batched filter functions apply unchanged.
     """
 
@@ -325,6 +331,8 @@ def make_radar_filter(name: str, config: dict[str, Any] | EkfConfig | None = Non
         raise ConfigError(f"algorithm: unknown radar filter {name!r} (expected one of {ALGORITHMS})")
     cls = CONFIG_CLASSES[name]
     cfg = config if isinstance(config, EkfConfig) else parse_dataclass(cls, config or {}, "radar_filter")
+    if isinstance(config, dict) and "window" in config and "window_s" in config:  # keys of ekf-ie only
+        raise ConfigError("radar_filter.window: given with window_s (the window in scans or in seconds, not both)")
     if type(cfg) is not cls:
         raise ConfigError(f"config for {name} must be a {cls.__name__}")
     return RadarFilter(name, cfg)

@@ -51,26 +51,37 @@ from fedtrack.local_filters.radar.ekf import (
     two_point_init,
 )
 
+#: Default window duration (s): paper 002's window of 100 scans at its 50 Hz (docs/radar.md). A duration,
+#: not a scan count: 100 scans at 10 Hz (10 s) or 5 Hz (20 s) outlast the turn and average its rotating input.
+WINDOW_S = 2.0
+
 
 @dataclass(frozen=True)
 class InputEstimationParams:
-    """Window length W (steps) and the two false-alarm probabilities of the tests."""
+    """Window (``window`` scans, else ``window_s`` seconds at the scan interval) and the tests' probabilities."""
 
-    window: int = 100
+    window: int | None = None
     p_false_alarm: float = 1e-3
     p_input: float = 1e-3
+    window_s: float = WINDOW_S
 
     def validate(self) -> None:
-        if self.window < 2:
+        if self.window is not None and self.window < 2:
             raise ConfigError("window: must be >= 2")
+        if not 0.0 < self.window_s < float("inf"):
+            raise ConfigError("window_s: must be > 0 and finite")
         for name in ("p_false_alarm", "p_input"):
             if not 0.0 < getattr(self, name) < 1.0:
                 raise ConfigError(f"{name}: must be in (0, 1)")
 
-    @cached_property
-    def eta_window(self) -> float:
-        """Threshold eta1 of eq. (18): chi-square with 3W degrees of freedom."""
-        return float(chdtri(3 * self.window, self.p_false_alarm))
+    def scans(self, T: float) -> int:
+        """Window length W in scans at the scan interval ``T``: ``window``, else ``window_s / T``
+        rounded (at least 2); 2 s at the paper's 0.02 s (also 0.01999998 s at epoch stamps) is 100."""
+        return self.window if self.window is not None else max(2, round(self.window_s / T))
+
+    def eta_window(self, W: int) -> float:
+        """Threshold eta1 of eq. (18) for a window of W scans: chi-square with 3W degrees of freedom."""
+        return float(chdtri(3 * W, self.p_false_alarm))
 
     @cached_property
     def eta_input(self) -> float:
@@ -83,7 +94,8 @@ class IEState(NamedTuple):
 
     ``xs``/``Ps`` (..., W+1, ...) hold the last W+1 posteriors (the last is the current one);
     ``zs``, ``Rs``, ``Ks``, ``Hs``, ``nis`` the last W measurements, noise covariances, gains,
-    Jacobians and normalized innovations squared; ``count`` how many of them belong to the
+    Jacobians and normalized innovations squared, W the window at the current scan interval
+    (:meth:`InputEstimationParams.scans`; fewer while they fill); ``count`` how many of them belong to the
     current window (since the last reset; negative while the filter settles after its
     initialization); ``u`` the applied input; ``maneuver`` the mode.
     """
@@ -113,25 +125,26 @@ def ie_init(z0: np.ndarray, z1: np.ndarray, R: np.ndarray, model: MotionModel3D,
             sensor_position: np.ndarray, params: InputEstimationParams) -> IEState:
     """Two-point initialization in CV mode with empty window buffers (``z0``, ``z1``: (N, 3)).
 
-    ``count`` starts at ``-W``: the first window starts W scans after the initialization, never
+    ``count`` starts at ``-W`` (W at the interval of the first two scans): the first window starts W scans
+    after the initialization, never
     at the two-point state itself, whose velocity uncertainty (hundreds of m/s at 50 Hz) makes
     the linearized GLS of eqs. (26)-(29) meaningless (a false alarm of the first window once
     identified -5,117 m/s^2 there and threw the track 1.9 km off: seed 11, run 127 of
     ``reproduce input-estimation``).
     """
     s = two_point_init(z0, z1, R, model, sensor_position)
-    batch, n, W = s.x.shape[:-1], model.dim, params.window
+    batch, n = s.x.shape[:-1], model.dim
     return IEState(
-        s, np.zeros(batch + (3,)), np.zeros(batch, bool), np.full(batch, -W),
-        np.broadcast_to(s.x[..., None, :], batch + (W + 1, n)).copy(),
-        np.broadcast_to(s.P[..., None, :, :], batch + (W + 1, n, n)).copy(),
-        np.zeros(batch + (W, 3)), np.broadcast_to(R, batch + (W, 3, 3)).copy(),
-        np.zeros(batch + (W, n, 3)), np.zeros(batch + (W, 3, n)), np.zeros(batch + (W,)))
+        s, np.zeros(batch + (3,)), np.zeros(batch, bool), np.full(batch, -params.scans(model.T)),
+        s.x[..., None, :].copy(), s.P[..., None, :, :].copy(), np.zeros(batch + (0, 3)),
+        np.zeros(batch + (0, 3, 3)), np.zeros(batch + (0, n, 3)), np.zeros(batch + (0, 3, n)), np.zeros(batch + (0,)))
 
 
-def _push(buf: np.ndarray, new: np.ndarray, axis: int) -> np.ndarray:
-    """Drop the oldest entry along ``axis`` and append ``new`` (a new array)."""
-    return np.concatenate([np.delete(buf, 0, axis=axis), np.expand_dims(new, axis)], axis=axis)
+def _push(buf: np.ndarray, new: np.ndarray, axis: int, size: int) -> np.ndarray:
+    """Append ``new`` along ``axis`` and keep the last ``size`` entries (a new array; a buffer shorter
+    than ``size`` grows, so that it never holds more than the scans seen since the initialization)."""
+    kept = np.take(buf, np.arange(max(0, buf.shape[axis] - size + 1), buf.shape[axis]), axis=axis)
+    return np.concatenate([kept, np.expand_dims(new, axis)], axis=axis)
 
 
 def window_covariance(Ho: np.ndarray, Sig: np.ndarray, F: np.ndarray, Rs: np.ndarray) -> np.ndarray:
@@ -197,12 +210,13 @@ def ie_step(state: IEState, z: np.ndarray, R: np.ndarray, model: MotionModel3D,
     nis = normalized_innovation_squared(res.innovation)  # eq. (14)
     x, P = res.state.x.copy(), res.state.P.copy()
     u, maneuver = state.u.copy(), state.maneuver.copy()
-    count = np.minimum(state.count + 1, params.window)
-    xs, Ps = _push(state.xs, x, -2), _push(state.Ps, P, -3)
-    zs, Rs = _push(state.zs, z, -2), _push(state.Rs, np.broadcast_to(R, P.shape[:-2] + (3, 3)), -3)
-    Ks, Hs, nis_buf = _push(state.Ks, res.K, -3), _push(state.Hs, res.H, -3), _push(state.nis, nis, -1)
-    full = count >= params.window
-    onset = full & ~maneuver & (nis_buf.sum(axis=-1) >= params.eta_window)  # eqs. (15), (18)
+    W = params.scans(model.T)
+    count = np.minimum(state.count + 1, W)
+    xs, Ps = _push(state.xs, x, -2, W + 1), _push(state.Ps, P, -3, W + 1)
+    zs, Rs = _push(state.zs, z, -2, W), _push(state.Rs, np.broadcast_to(R, P.shape[:-2] + (3, 3)), -3, W)
+    Ks, Hs, nis_buf = _push(state.Ks, res.K, -3, W), _push(state.Hs, res.H, -3, W), _push(state.nis, nis, -1, W)
+    full = count >= W
+    onset = full & ~maneuver & (nis_buf.sum(axis=-1) >= params.eta_window(W))  # eqs. (15), (18)
     block = full & maneuver
     idx = np.flatnonzero(onset | block)
     if idx.size:
