@@ -92,6 +92,17 @@ class Replies:
     def get(self, key: str, timeout: float) -> list[Any]:
         return [self._Reply(p) for p in self.payloads]
 
+    def liveliness(self) -> Any:
+        """No liveliness token is found (a centre stopped on the bus publishes its end as alone)."""
+        return NoTokens()
+
+
+class NoTokens:
+    """A liveliness query's answer on the bus: no token."""
+
+    def get(self, key: str, timeout: float) -> list[Any]:
+        return []
+
 
 class Bus:
     """In-process delivery of what the services publish, in publication order (queries get the

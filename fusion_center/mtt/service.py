@@ -572,9 +572,12 @@ class MttCentreService(CentreFailover, Service):
 
     def on_stop(self) -> None:
         """The pictures still due at the end of the data (as the replay writes them), then the
-        closing record of the scans processed after the last picture; messages still held for a
-        witness (stamped far ahead) are counted ``rejected_time_lead``."""
+        closing record of the scans processed after the last picture, unless a region primary steps
+        aside for its standby (:meth:`_steps_aside`); messages still held for a witness (stamped far
+        ahead) are counted ``rejected_time_lead``."""
         self.note_leads(self.keys.mtt_report(), self.lead.end())
+        if self._steps_aside():
+            return
         for T in self.clock.final():
             self._publish_picture(T)
         if self.order:

@@ -195,6 +195,33 @@ class CentreFailover:
                          "as a standby %d picture(s) equal to the primary's, %d differed (largest state difference "
                          "%.3g)", self._scope(), len(flushed), standby.same, standby.differ, standby.max_difference)
 
+    def _steps_aside(self) -> bool:
+        """At a clean stop: whether this region primary leaves its region to its standby as a killed one
+        does, publishing nothing more (no pictures of the end of the data, no closing record): the
+        deployment runs on (a tracker holds its token) and another centre of the region (its standby)
+        holds its centre token. Before, such a primary (SIGTERM mid-run) published the pictures due at the
+        end of the data, made early, and a closing record: the merger took its early picture and refused
+        the standby's of that time (``rejected_conflict``), and the replay of the recording parted from
+        the live pictures. At the end of a run the trackers stop first (the launcher's ``STOP_STAGE``)."""
+        if self.region is None or not self.standby.primary or self.session is None:
+            return False
+        liveliness = self.session.liveliness()
+
+        def holders(key: str) -> set[str]:
+            return {str(reply.ok.key_expr).rsplit("/", 1)[-1] for reply in liveliness.get(key, timeout=1.0)
+                    if reply.ok is not None}
+
+        if not holders(self.keys.alive("mtt-local")):
+            return False
+        others = holders(self.keys.region_centre(self.region)) - {str(self.session.zid())}
+        if not others:
+            return False
+        self.count("stepped_aside")
+        self.log.warning("stopping while the trackers run on: left region %s to its other centre(s) (%s) as a "
+                         "killed primary, with no pictures of the end of the data and no closing record",
+                         self.region, ", ".join(sorted(others)))
+        return True
+
     def _failover_counters(self) -> None:
         if self.started_standby:
             self.counters["standby_same"], self.counters["standby_differ"] = self.standby.same, self.standby.differ
