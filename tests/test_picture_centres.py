@@ -159,3 +159,28 @@ def test_a_region_centre_started_again_is_merged_after_its_former_ones_last_entr
         bus.put(a, encode(bad))
     assert merger.counters["rejected_wrong_region"] == 3
     assert len(bus.of(TrackPicture)) == 3
+
+
+def test_a_run_that_ends_while_the_merger_settles_keeps_its_closing_records_last(tmp_path: Path) -> None:
+    """Both regions' pictures of t = 0 and 1 and their closing records (each listing the report its
+    centre fused last) arrive within the merger's first ``HISTORY_SETTLE_S`` (a short run, or a
+    merger started late): the closing records' entries come after the pictures', in the merger's
+    closing record, as when they arrive later. Before, a closing record was kept at once and the
+    settled pictures then taken for a new process's (a centre started again after a clean stop): its
+    entries were listed first, in the merged picture of t = 0, and the replay of the recording failed
+    (a tracker's scan before its time: ``test_mtt_regions_live``'s run over Zenoh on a fast machine)."""
+    merger = PictureMergeService(regions_of(tmp_path), 4, 60.0, 1.0, service_id="picture", options=OPTIONS,
+                                 deployment=KEYS.deployment)
+    bus = Bus([merger])
+    merger.settle_until = time.monotonic() + 60.0  # on_start's: the caches' replies come in
+    for key, seq in ((KEYS.region_picture("x0y0"), 7), (KEYS.region_picture("x1y0"), 9)):
+        for k in range(2):
+            bus.put(key, encode(replace(region_picture(float(k), (seq,)), fused_sensors=("s1",), fused_seqs=(k,))))
+        bus.put(key, encode(replace(region_picture(1.5, ()), closing=True, fused_sensors=("s1",), fused_seqs=(seq,))))
+    assert bus.of(TrackPicture) == []
+    merger.settle_until = time.monotonic()  # HISTORY_SETTLE_S later
+    merger.on_tick()
+    merger.on_stop()
+    merged = [(p.t, p.closing, list(zip(p.fused_seqs, p.regions))) for p in bus.of(TrackPicture)]
+    assert merged == [(0.0, False, [(0, "x0y0"), (0, "x1y0")]), (1.0, False, [(1, "x0y0"), (1, "x1y0")]),
+                      (1.5, True, [(7, "x0y0"), (9, "x1y0")])]

@@ -243,22 +243,24 @@ class PictureMergeService(Service):
             raise Rejected("too_large", f"region {self.regions.ids[r]}'s picture at t={msg.t}: {len(msg.ids)} tracks, "
                            f"{len(msg.fused_sensors)} entries; its share of a merged picture is {share}")
         self.started[r] = True
-        if msg.closing:
-            if digest(msg) == self.closed[r]:  # a re-delivery (a cache's) of the one taken
-                self.count("duplicate")
-                return
-            self.closed[r] = digest(msg)
-            self.closing[r] = msg
-            self._merge()
-            return
         if self.settle_until is not None:  # the caches' replies, interleaved with live pictures: sorted first
             if any(q == r and p.t == msg.t and digest(p) == digest(msg) for q, p in self.settling):
                 self.count("duplicate")
             else:
                 self.settling.append((r, msg))
+        elif msg.closing:
+            self._close(r, msg)
         else:
             self._admit(r, msg)
         self._merge()
+
+    def _close(self, r: int, msg: TrackPicture) -> None:
+        """Keep region ``r``'s closing record: a picture of the region taken after it is a new process's."""
+        if digest(msg) == self.closed[r]:  # a re-delivery (a cache's) of the one taken
+            self.count("duplicate")
+            return
+        self.closed[r] = digest(msg)
+        self.closing[r] = msg
 
     def _admit(self, r: int, msg: TrackPicture) -> None:
         """Take region ``r``'s picture, and those it witnesses, through the lead guard."""
@@ -325,8 +327,14 @@ class PictureMergeService(Service):
             if not force and time.monotonic() < self.settle_until:
                 return
             self.settle_until = None
-            for r, msg in sorted(self.settling, key=lambda item: item[1].t):
-                self._admit(r, msg)
+            # a closing record (at its centre's latest data time) in time order too, after the pictures of its time;
+            # before 2026-11-28 it was kept at once, so that a run ended within the settling took the region's
+            # pictures for a new process's and put its last entries first
+            for r, msg in sorted(self.settling, key=lambda item: (item[1].t, item[1].closing)):
+                if msg.closing:
+                    self._close(r, msg)
+                else:
+                    self._admit(r, msg)
             self.settling = []
             self._from_caches()
         now = time.monotonic()
