@@ -299,3 +299,24 @@ def test_one_of_two_sensors_cannot_deny_the_others_target() -> None:
             centre.answer(scan("s1", t, {**others, 3: (1000.0, 1000.0)}, {1, 2, 3}))
     slot = centre.tracks.slot[centre.mapping[("s1", 3)]]
     assert centre.tracks.confirmed[slot] and centre.counters.uncorroborated == 0
+
+
+def test_one_of_two_sensors_target_does_not_wait_for_the_slow_ones_next_scan() -> None:
+    """Two live sensors, s1 every 0.2 s and s2 every 5 s, both tracking targets at (0, 0) and (2000, 2000); a
+    target is born at (1000, 1000) at 6 s, after s2's scan at 5.1 s, and s1 detects it every scan. Its central
+    track waited, tentative, for s2's next scan (10.1 s): with two sensors that scan bought no protection (no
+    denial; a fast liar's next scans refill the count) and cost the fast sensor's new targets up to the slow one's
+    period (fast beside slow, 20 targets over 90 s: mtt-federated worse than s1 alone; fastslow56). Now the count
+    confirms it on s1's scans, before s2's next one."""
+    centre = TrackToTrackCentre(MttConfig(), 4, False)
+    targets = {1: (0.0, 0.0), 2: (2000.0, 2000.0)}
+    scans = [("s1", round(0.2 * k, 1)) for k in range(50)] + [("s2", 0.1), ("s2", 5.1)]
+    confirmed_at = math.inf
+    for sensor, t in sorted(scans, key=lambda scan: scan[1]):
+        places = {**targets, 3: (1000.0, 1000.0)} if sensor == "s1" and t >= 6.0 else targets
+        centre.answer(scan(sensor, t, places, {1, 2} | ({3} if t > 6.0 else set())))
+        slot = centre.tracks.slot.get(centre.mapping.get(("s1", 3)), -1)
+        if slot >= 0 and centre.tracks.confirmed[slot]:
+            confirmed_at = min(confirmed_at, t)
+    assert centre.n_live == 2 and centre.counters.uncorroborated == 0
+    assert confirmed_at < 7.0

@@ -58,8 +58,8 @@ scan, the linearized observation of every track the scan detected, the tracks it
   bound at some position sensor's clutter density and noise, or where they count (gnn) and raise their
   count there (:func:`needs_local_confirmation`), a track also needs a local track that its tracker
   confirmed: in heavy clutter the count alone
-  confirmed tracks on several sensors' clutter tracks. A tentative track that one sensor alone
-  supports is confirmed only once another sensor's report came after its start and, where another
+  confirmed tracks on several sensors' clutter tracks. With three live sensors or more, a tentative track
+  that one sensor alone supports is confirmed only once another sensor's report came after its start and, where another
   sensor that sees its place missed it, only when local tracks that two sensors' trackers confirmed
   map to it (:meth:`~.track_life.CentreLife._corroborated`: one sensor's consistent ghosts). A
   confirmed track is deleted once every sensor that tracks it (a local track maps to it, or its
