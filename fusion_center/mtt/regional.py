@@ -290,6 +290,10 @@ def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions
                 tr.tracker, tr.router = None, RegionRouter(regions)
             if tr.tracker is None:
                 tr.tracker = SensorTracker(scan, cfg, feedback)
+            if tr.tracker.is_late(scan):  # the live tracker took no late scan: not the order it took them in
+                raise InputError(f"the recorded region entries list scan {seq} of {sensor} (t = {scan.t:g}) after "
+                                 f"its tracker's scan of t = {tr.tracker.history.times[-1]:g}, more than max_lag "
+                                 "later: not an order its tracker took them in")
             report, _ = tr.tracker.track(scan)
             tr.seq, tr.scan, tr.parts, tr.answers = seq, scan, tr.router.split(report), {}
         return tr if tr.seq == seq else None
