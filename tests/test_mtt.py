@@ -427,12 +427,13 @@ def test_replay_notes_when_the_count_confirms_clutter_tracks(tmp_path: Path, cap
     longer does (0.0028): replay says nothing (before the untuned56 session it noted the 3-of-4
     count's chance and kept it); at the default density nothing; with a sensor of 500 m noise,
     whose gate holds clutter at the default density, even the count raised as far as a real target
-    keeps an even chance of confirming (16-of-17) confirms a clutter track with 0.442: the note
-    says so and what to do (it ignored the noise before the untuned4 session); with jipda, nothing."""
+    keeps an even chance of confirming confirms a clutter track with 0.420 (25-of-27 since count56,
+    2 misses allowed; 16-of-17 with 0.442 before): the note says so and what to do (it ignored the
+    noise before the untuned4 session); with jipda, nothing."""
     data = tmp_path / "m.jsonl"
     # a radar's density is per m rad^2 (here 4e-4, as simulate writes for 200 false a scan): never judged per m^2
-    raised = ("1e-07 per m^2 (noise 500 m) the 16-of-17 count (raised as far as a real target keeps a chance of 1/2 "
-              "to confirm) confirms a track started on clutter with probability 0.442")
+    raised = ("1e-07 per m^2 (noise 500 m) the 25-of-27 count (raised as far as a real target keeps a chance of 1/2 "
+              "to confirm) confirms a track started on clutter with probability 0.420")
     for associator, clutter, sd, noted in (("gnn", 2e-6, 10.0, ""), ("gnn", 1e-7, 10.0, ""), ("jipda", 2e-6, 10.0, ""),
                                            ("gnn", 1e-7, 500.0, raised)):
         lines = [{"t": 0.0, "sensor": "s1", "R": [[sd**2, 0.0], [0.0, sd**2]], "detections": [{"z": [0.0, 0.0]}]},
@@ -451,15 +452,17 @@ def test_no_count_note_for_a_sensor_without_clutter() -> None:
     """``confirm_hits = 1`` confirms every track at birth, so the note said that a 1-of-1 count
     confirms a clutter track with probability 1 even at ``clutter_density = 0``, where no track
     starts on clutter (untuned6 session); there it says nothing; at 1e-7 the tracker raises the
-    count to 2-of-2 (0.0048) and the note says nothing either, at 500 m noise even the 7-of-7 count
-    (a real target at P_D 0.9 then confirms with 0.53, with 8-of-8 with 0.48) confirms one with 0.485."""
+    count to 2-of-2 (0.0048) and the note says nothing either, at 500 m noise even the 25-of-27 count
+    (since count56 any M of N with up to 2 misses, P_D 0.9's deletion count less one: the searched count of
+    the fewest false confirmations, a real target's chance 0.51; before, 7-of-7 with 0.485) confirms one with
+    0.420."""
     from fedtrack.local_filters.mtt.config import MttConfig
 
     R = {"s1": 100.0 * np.eye(2)}
     assert MttConfig(confirm_hits=1, confirm_window=1, clutter_density=0.0).count_note(R) is None
     assert MttConfig(confirm_hits=1, confirm_window=1).count_note(R) is None
-    assert "7-of-7 count" in (MttConfig(confirm_hits=1, confirm_window=1).count_note({"s1": 500.0**2 * np.eye(2)})
-                              or "")
+    note = MttConfig(confirm_hits=1, confirm_window=1).count_note({"s1": 500.0**2 * np.eye(2)}) or ""
+    assert "25-of-27 count" in note and "probability 0.420" in note
 
 
 def _report(sensor: str, t: float, tracks: dict[int, tuple[float, bool, bool]], retired: tuple[int, ...] = ()

@@ -375,15 +375,16 @@ def test_a_cluttered_sensors_count_is_raised() -> None:
     jipda's bound 0.01; the tracker raises it to 4-of-5 (0.0028; a real target at P_D 0.9 still
     confirms within the window with 0.95), so hits at scans 0, 1, 3 confirm only with the hit at 4
     (before: at scan 3, and the --clutter 100 scenario's gnn trackers showed 2-5 false tracks a
-    picture). At the default density (chance 1e-4) and at P_D 0.6 (4-of-5 would confirm a real
-    target with 0.48, less often than not) it stays 3-of-4; a 5 s sensor's wider gate at the default
-    density and 19.5 m raises it too (0.026 -> 4-of-5)."""
+    picture). At the default density (chance 1e-4) it stays 3-of-4; at P_D 0.6 (4-of-5 would confirm a
+    real target with 0.48, less often than not) it stayed 3-of-4 until count56 and is 4-of-6 now; a 5 s
+    sensor's wider gate at the default density and 19.5 m raises it too (0.026 -> 4-of-5)."""
     hits = (True, True, False, True, True)
     assert _confirmed_after(MttConfig(clutter_density=2e-6), hits) == [False, False, False, False, True]
     assert _confirmed_after(MttConfig(clutter_density=2e-6, confirm_hits=4, confirm_window=5), hits) == [
         False, False, False, False, True]  # the 4-of-5 count itself, given
-    for cfg, period in ((MttConfig(), 1.0), (MttConfig(clutter_density=2e-6, pd=0.6), 1.0)):
-        assert _confirmed_after(cfg, hits, period=period) == [False, False, False, True, True]
+    assert _confirmed_after(MttConfig(), hits) == [False, False, False, True, True]
+    # P_D 0.6: 4-of-6 since count56 (0.0066; a real target 0.68): the hit at scan 4 confirms
+    assert _confirmed_after(MttConfig(clutter_density=2e-6, pd=0.6), hits) == [False, False, False, False, True]
     assert _confirmed_after(MttConfig(clutter_density=1e-7), hits, sd=19.5, period=5.0) == [
         False, False, False, False, True]
     from fedtrack.local_filters.mtt.config import clutter_hit, count_chance, raised_count
@@ -391,7 +392,45 @@ def test_a_cluttered_sensors_count_is_raised() -> None:
     cfg = MttConfig(clutter_density=2e-6)
     hit = clutter_hit(2e-6, 100.0 * np.eye(2), 1.0, cfg.init_velocity_std, cfg.thresholds.gate[2])
     assert count_chance(hit, 3, 4) > 0.01 >= count_chance(hit, *raised_count(hit, 0.9, 3, 4))
-    assert raised_count(hit, 0.9, 3, 4) == (4, 5) and raised_count(hit, 0.6, 3, 4) == (3, 4)
-    assert count_chance(0.9, 5, 6) >= 0.5 > count_chance(0.6, 4, 5)
-    # a count no clutter can meet stops where a real target keeps an even chance: 16-of-17 at P_D 0.9
+    assert raised_count(hit, 0.9, 3, 4) == (4, 5) and raised_count(hit, 0.6, 3, 4) == (4, 6)
+    assert count_chance(0.9, 5, 6) >= 0.5 > count_chance(0.6, 4, 5) and count_chance(0.6, 4, 6) >= 0.5
+    # a count no clutter can meet: the searched count (misses allowed below P_D's deletion count, a real target's
+    # even chance) of the fewest false confirmations: 16-of-17 at P_D 0.9 (2 misses allowed confirm clutter more),
     assert raised_count(0.99, 0.9, 3, 4) == (16, 17) and count_chance(0.9, 17, 18) < 0.5 <= count_chance(0.9, 16, 17)
+    # 11-of-17 at P_D 0.6 and a hit of 0.5 (3-of-4's 0.5 was kept before: 4-of-5 drops P_D 0.6's to 0.48)
+    assert raised_count(0.5, 0.6, 3, 4) == (11, 17) and count_chance(0.5, 11, 17) < 0.23 < count_chance(0.5, 3, 4)
+
+
+def _smallest_count(hit: float, pd: float, hits: int, window: int) -> tuple[int, int] | None:
+    """Brute force: the smallest ``N``, then ``M``, with ``M >= hits``, ``window - hits <= N - M < D`` (P_D's
+    deletion count: 3 at 0.9, 5 at 0.8, 8 at 0.6) meeting the false chance ``<= 0.01`` and a real target's
+    ``>= 1/2``."""
+    from fedtrack.local_filters.mtt.config import count_chance
+
+    most = {0.6: 7, 0.8: 4, 0.9: 2}[pd]
+    for n in range(window, 40):
+        for m in range(max(hits, n - most), n - (window - hits) + 1):
+            if count_chance(hit, m, n) <= 0.01 and count_chance(pd, m, n) >= 0.5:
+                return m, n
+    return None
+
+
+def test_a_cluttered_sensors_count_any_m_of_n() -> None:
+    """count56: the count is searched over any ``M``-of-``N`` (the smallest ``N``, then ``M``; hits and misses
+    allowed at least the configured ones, misses fewer than P_D's deletion count), not only 3 + k of 4 + k. At
+    1e-6 m^-2 and 19.5 m (a gate hit 0.070, 3-of-4 confirms clutter with 0.0148) P_D 0.6 kept 3-of-4 (4-of-5:
+    a real target 0.475); now 4-of-6 (0.0030; a real target 0.683)."""
+    from fedtrack.local_filters.mtt.config import count_chance, raised_count
+
+    cfg = MttConfig(clutter_density=1e-6)
+    hit = cfg.clutter_gate_hit("s1", 19.5**2 * np.eye(2))
+    assert 0.0695 < hit < 0.0696 and count_chance(hit, 3, 4) > 0.01 and count_chance(0.6, 4, 5) < 0.5
+    assert raised_count(hit, 0.6, 3, 4) == (4, 6) == _smallest_count(hit, 0.6, 3, 4)
+    for h in np.linspace(0.005, 0.3, 60):
+        for pd in (0.6, 0.8, 0.9):
+            m, n = raised_count(float(h), pd, 3, 4)
+            found = _smallest_count(float(h), pd, 3, 4)
+            assert (m, n) == found or found is None and count_chance(h, m, n) > 0.01, (h, pd)
+    # the tracker: one detection at the origin on scans 0, 1, 3, 5 (P_D 0.6, 19.5 m): confirmed at 5 (was 3)
+    hits = (True, True, False, True, False, True)
+    assert _confirmed_after(MttConfig(clutter_density=1e-6, pd=0.6), hits, sd=19.5) == [False] * 5 + [True]

@@ -7,7 +7,7 @@ import math
 import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from functools import cached_property
+from functools import cached_property, lru_cache
 
 import numpy as np
 
@@ -149,21 +149,37 @@ def count_chance(hit: float, hits: int, window: int) -> float:
     return sum(math.comb(n, j) * hit**j * (1.0 - hit) ** (n - j) for j in range(hits - 1, n + 1))
 
 
+@lru_cache(maxsize=4096)
 def raised_count(hit: float, pd: float, hits: int, window: int) -> tuple[int, int]:
     """The count of a tracker whose scans hit a clutter track with probability ``hit`` (:func:`clutter_hit`):
-    ``hits`` and ``window`` raised together by the fewest ``k`` (the misses the window allows kept) whose
-    chance of confirming a clutter track is at most jipda's bound ``FALSE_CONFIRM`` (0.01), but never so far
-    that a real target (detected with ``pd``) confirms within the window less often than not (``SHOW``, 1/2,
-    as a picture shows a track); as given where the given count meets the bound, or where raising it would
-    drop a real target's chance below 1/2 (3-of-4 at P_D 0.6: 0.65, 4-of-5: 0.48; 16-of-17 the most at 0.9).
-    docs/multitarget.md#a-cluttered-sensors-count-untuned56-session"""
+    the ``M``-of-``N`` count with ``M >= hits`` and ``N - M >= window - hits`` (never fewer hits or misses
+    allowed than configured) of the smallest ``N``, then ``M``, that meets both bounds: the chance of
+    confirming a track started on clutter, ``count_chance(hit, M, N)``, at most jipda's ``FALSE_CONFIRM``
+    (0.01), and a real target (detected with ``pd``) confirming within the window at least as often as not
+    (``count_chance(pd, M, N) >= SHOW``, 1/2). The misses allowed stay below the ``D`` in a row that delete a
+    live target with at most ``LOST`` (:func:`miss_count` at ``pd``: 3 at P_D 0.9, 8 at 0.6), which with
+    ``SHOW`` bounds the windows searched. Where none meets the first bound: the searched count of the least
+    false confirmations (the configured one where every scan hits, ``hit`` 1). As given where the given
+    count meets the bound (4-of-6 at P_D 0.6, 1e-6 m^-2 and 19.5 m).
+    docs/multitarget.md#a-cluttered-sensors-count-any-m-of-n-count56-session"""
     from fedtrack.local_filters.mtt.associators.jipda import FALSE_CONFIRM, SHOW
 
-    k = 0
-    while (count_chance(hit, hits + k, window + k) > FALSE_CONFIRM
-           and count_chance(pd, hits + k + 1, window + k + 1) >= SHOW):
-        k += 1
-    return hits + k, window + k
+    if count_chance(hit, hits, window) <= FALSE_CONFIRM or hit >= 1.0:
+        return hits, window
+    least = window - hits
+    most = max(least, int(miss_count(log_miss_of(pd))) - 1)
+    best = (count_chance(hit, hits, window), window, hits)
+    n = window
+    while count_chance(pd, max(hits, n - most), n) >= SHOW:
+        for m in range(max(hits, n - most), n - least + 1):
+            if count_chance(pd, m, n) < SHOW:
+                break
+            false = count_chance(hit, m, n)
+            if false <= FALSE_CONFIRM:
+                return m, n
+            best = min(best, (false, n, m))
+        n += 1
+    return best[2], best[1]
 
 
 @dataclass(frozen=True)

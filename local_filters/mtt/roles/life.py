@@ -181,10 +181,11 @@ def deletion_at(params: TrackParams, dt: float) -> TrackParams:
 def count_at(params: TrackParams, scan: SensorScan, dt: float) -> TrackParams:
     """``params`` for a position scan ``dt`` [s] after the tracker's last, where the M-of-N count
     rules the tracks (``gnn``, mht's ``"counts"``): ``confirm_hits`` and ``confirm_window`` raised
-    together (:func:`~..config.raised_count`) until the chance of confirming a track started on the
-    scan's clutter is at most jipda's bound, 0.01, each later scan hitting it with the chance
+    (:func:`~..config.raised_count`: the smallest window, then hits, never fewer of either or of the
+    misses allowed than configured) until the chance of confirming a track started on the scan's
+    clutter is at most jipda's bound, 0.01, each later scan hitting it with the chance
     :func:`~..config.clutter_hit` gives at the scan's ``R`` and clutter density over ``dt`` (at least
-    1 s: as the deletion counts, judged a second on a faster sensor), as far as a real target keeps a
+    1 s: as the deletion counts, judged a second on a faster sensor), while a real target keeps a
     chance of 1/2 of confirming within the window. A radar's scan (its density per m rad^2) and a
     sensor without clutter keep the configured count."""
     if (scan.dim != 2 or params.clutter_density <= 0 or params.initial_existence is not None
@@ -192,4 +193,6 @@ def count_at(params: TrackParams, scan: SensorScan, dt: float) -> TrackParams:
         return params
     hit = clutter_hit(params.clutter_density, scan.R, dt, params.init_velocity_std, params.gate[2])
     hits, window = raised_count(hit, params.pd, params.confirm_hits, params.confirm_window)
-    return params._replace(confirm_hits=hits, confirm_window=window) if hits > params.confirm_hits else params
+    if (hits, window) == (params.confirm_hits, params.confirm_window):
+        return params
+    return params._replace(confirm_hits=hits, confirm_window=window)
