@@ -69,7 +69,8 @@ def own_keys(keys: Keys, ident: str) -> list[str]:
         data = [keys.sensor_meas(sid), keys.local_estimate(sid), keys.mtt_report(sid), keys.region_report(None, sid)]
         roles = [(role, sid) for role in SENSOR_ROLES]
     elif ident == "fusion":
-        data = [keys.fusion_track().rsplit("/", 1)[0] + "/**", keys.primary("all")]  # the one centre's token
+        data = [keys.fusion_track().rsplit("/", 1)[0] + "/**", keys.primary("all"),  # the one centre's tokens
+                keys.region_centre("all")]
         roles = [(role, None) for role in CENTRE_ROLES]
     elif ident.startswith(REGION_PREFIX):  # a region's centres: the region's id and its standby's
         rid = ident.removeprefix(REGION_PREFIX)

@@ -14,8 +14,9 @@ ended cleanly: it is listed as killed after a clean stop (:meth:`Launcher._note_
 everything has stopped, it writes ``measurements.jsonl`` and ``tracks.jsonl`` from this host's recording
 (:meth:`Launcher._export_recording`).
 
-Supervision: a service that exits with a non-zero code (or a signal) after start-up is
-restarted after a backoff (``RESTART_BACKOFF_S``, doubling up to ``RESTART_BACKOFF_MAX_S``),
+Supervision: a service that exits with a non-zero code (or a signal) after start-up, or a
+centre of a standby pair that exits 0 mid-run (:meth:`Launcher._paired`), is restarted after a
+backoff (``RESTART_BACKOFF_S``, doubling up to ``RESTART_BACKOFF_MAX_S``),
 the reason logged, at most ``MAX_RESTARTS`` times per service. Beyond that, an essential
 service (router, fusion center, recorder) stops the deployment cleanly (exit 1); a
 sensor or local filter is left out and the rest goes on degraded (exit 1 at the end).
@@ -172,8 +173,8 @@ class Launcher(Monitor):
         restarted after a backoff, up to MAX_RESTARTS times (see the module docstring)."""
         now = time.monotonic()
         for sp in group:
-            if (sp.proc is None or sp.proc.poll() is None or sp.proc.returncode == 0 or sp.name in self.report.failed
-                    or sp.killed):
+            if (sp.proc is None or sp.proc.poll() is None or sp.name in self.report.failed or sp.killed
+                    or sp.proc.returncode == 0 and (starting or self._stop.is_set() or not self._paired(sp))):
                 continue
             reason = describe_exit(sp.proc.returncode)
             if starting:
@@ -199,10 +200,18 @@ class Launcher(Monitor):
             self._restart_at[sp.name] = now + delay
             self._say(f"{sp.name} exited with {reason}; restart {done + 1} of {MAX_RESTARTS} in {delay:g} s")
 
+    def _paired(self, sp: ServiceProcess) -> bool:
+        """Whether ``sp`` is a multi-target centre with a twin (``[multitarget] standby``). Such a centre
+        that exits 0 mid-run is restarted too: a centre exits 0 only when stopped (SIGTERM, SIGINT), and the
+        launcher stops it only after the sensors' end or on its own stop (not restarted then), so an operator
+        stopped it, and its twin took over; restarted as the standby, the pair is whole again (a rolling
+        restart). Before, it stayed stopped and its scope ran on without a standby."""
+        mt = self.settings.multitarget
+        return sp.role == "mtt-centre" and mt is not None and mt.standby
+
     def _as_standby(self, sp: ServiceProcess) -> None:
         """A centre with standbys restarts as a standby: its twin took over (or will) when it died."""
-        mt = self.settings.multitarget
-        if sp.role == "mtt-centre" and mt is not None and mt.standby and not sp.standby:
+        if self._paired(sp) and not sp.standby:
             sp.argv = [*sp.argv, "--standby"]
             self._say(f"{sp.name} restarts as a standby")
 

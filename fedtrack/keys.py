@@ -176,9 +176,10 @@ class Keys:
         return self._key("alive", "mtt-primary", self._chunk(scope, "scope"), self._chunk(instance, "instance"))
 
     def region_centre(self, region: str | None = None, instance: str | None = None) -> str:
-        """``alive/mtt-region/<rid>/<instance>``: liveliness token held by every centre of region ``<rid>``,
-        primary or standby, while it runs (``<instance>``: its Zenoh session id); ``serve picture`` does not
-        wait for the picture of a region none holds."""
+        """``alive/mtt-region/<rid>/<instance>``: liveliness token held by every centre of region ``<rid>``
+        (``all``: the unsharded centre's), primary or standby, while it runs (``<instance>``: its Zenoh session
+        id); ``serve picture`` does not wait for the picture of a region none holds, and a primary stopped
+        mid-run steps aside for another holder."""
         return self._key("alive", "mtt-region", self._chunk(region, "region id"), self._chunk(instance, "instance"))
 
     def alive(self, role: str | None = None, service_id: str | None = None) -> str:

@@ -13,7 +13,7 @@ from support import wait_until
 from fedtrack.deploy import launcher as launcher_mod
 from fedtrack.deploy.launcher import Launcher, LaunchError, describe_exit
 from fedtrack.deploy.plan import ServiceProcess
-from fedtrack.deploy.settings import Settings
+from fedtrack.deploy.settings import MultitargetSettings, Settings
 
 
 def crashing(role: str, tmp_path: Path) -> ServiceProcess:
@@ -50,6 +50,34 @@ def test_restart_with_backoff_then_the_limit(tmp_path: Path, role: str, monkeypa
     err = capsys.readouterr().err
     assert f"{sp.name} exited with exit code 3; restart 1 of 3 in 0.01 s" in err
     assert describe_exit(-9) == "signal SIGKILL"
+
+
+@pytest.mark.parametrize("standby", [True, False])
+def test_a_centre_of_a_standby_pair_stopped_mid_run_is_restarted_as_the_standby(
+        tmp_path: Path, standby: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A centre exits 0 only when stopped, and the launcher stops it only at the end: one of a standby pair
+    that exits 0 mid-run was stopped by an operator (its twin took over) and is restarted as the standby, as a
+    killed one is. Without standbys, and on the launcher's own stop, a clean exit stays one. Before, a centre
+    of a pair that exited 0 was left stopped and its scope ran on without a standby."""
+    monkeypatch.setattr(launcher_mod, "RESTART_BACKOFF_S", 0.01)
+    clean = [sys.executable, "-c", "print('up')"]
+    centre, sensor = (ServiceProcess(role, "c", clean, tmp_path / f"{role}.log") for role in ("mtt-centre", "sensor"))
+    launcher = Launcher(Settings(multitarget=MultitargetSettings(standby=standby)), [centre, sensor], quiet=True)
+    for sp in (centre, sensor):
+        launcher._start(sp)
+    assert wait_until(lambda: centre.proc.poll() == 0 and sensor.proc.poll() == 0, 10.0)
+    first = centre.proc
+    launcher._check_alive([centre, sensor])  # schedules the centre's restart (a pair) ...
+    if standby:
+        assert wait_until(lambda: launcher._check_alive([centre, sensor]) or centre.proc is not first, 5.0)
+        assert centre.argv == [*clean, "--standby"]  # ... as the standby
+    else:
+        assert centre.proc is first and centre.argv == clean
+    assert launcher.report.restarts == ({centre.name: 1} if standby else {})
+    assert wait_until(lambda: centre.proc.poll() == 0, 10.0)
+    launcher._stop.set()  # the launcher's own stop (Ctrl-C reaches the children too): no restart
+    launcher._check_alive([centre, sensor])
+    assert launcher.report.restarts == ({centre.name: 1} if standby else {}) and not launcher._restart_at
 
 
 def test_a_new_run_sets_an_earlier_runs_recording_aside(tmp_path: Path) -> None:

@@ -244,6 +244,10 @@ class Service(Dispatch, Publishing):
     def on_tick(self) -> None:
         """Called every ``tick_period_s`` seconds in the worker thread."""
 
+    def on_stopping(self) -> None:
+        """Called once at a clean stop, before the inputs close: the liveliness subscribers still up (a
+        liveliness query once they are undeclared can miss tokens that stand)."""
+
     def on_stop(self) -> None:
         """Called once after the last message was handled (flush files here)."""
 
@@ -298,6 +302,7 @@ class Service(Dispatch, Publishing):
                     self.keys.alive("router"), self._on_router, history=True))
             self.log.info("ready (%s)", self.keys.alive(self.role, self.id))
             self._loop()
+            self.on_stopping()
             self._close_inputs()
             self._drain()
         except ServiceFault as exc:

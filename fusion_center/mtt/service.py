@@ -181,6 +181,7 @@ class MttCentreService(CentreFailover, Service):
         self.primary_token: Any = None  # the liveliness token ``alive/mtt-primary/<scope>/<instance>``, while primary
         self.primary_seen: deque[tuple[bool, float, str]] = deque()  # primary tokens' changes (a Zenoh thread)
         self.follow = PrimaryOrder(SETTLED_MAX)  # a warm region standby's inputs, held for its primary's order
+        self.aside = False  # stepped aside at its clean stop (on_stopping)
 
     def on_start(self) -> None:
         assert self.session is not None
@@ -572,11 +573,11 @@ class MttCentreService(CentreFailover, Service):
 
     def on_stop(self) -> None:
         """The pictures still due at the end of the data (as the replay writes them), then the
-        closing record of the scans processed after the last picture, unless a region primary steps
+        closing record of the scans processed after the last picture, unless this primary stepped
         aside for its standby (:meth:`_steps_aside`); messages still held for a witness (stamped far
         ahead) are counted ``rejected_time_lead``."""
         self.note_leads(self.keys.mtt_report(), self.lead.end())
-        if self._steps_aside():
+        if self.aside:
             return
         for T in self.clock.final():
             self._publish_picture(T)

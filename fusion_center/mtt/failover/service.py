@@ -22,8 +22,8 @@ from fedtrack.wire import HandOver, Message, TrackPicture, TrackReport, TrackRes
 class CentreFailover:
     """The failover hooks of :class:`fedtrack.fusion_center.mtt.service.MttCentreService`. It relies
     on that service's ``standby``, ``primary_token``, ``primary_seen``, ``started_standby``,
-    ``engine``, ``region``, ``clock`` and ``follow`` (its methods ``_take``, ``_process``, ``_leave``,
-    ``take_handover``), and on :class:`fedtrack.services.base.Service`'s ``session``,
+    ``peers``, ``silence``, ``engine``, ``region``, ``clock`` and ``follow`` (its methods ``_take``,
+    ``_process``, ``_leave``, ``take_handover``), and on :class:`fedtrack.services.base.Service`'s ``session``,
     ``keys``, ``counters``, ``count``, ``log``, ``_inputs`` and ``_router_lost_at``."""
 
     def _scope(self) -> str:
@@ -44,10 +44,10 @@ class CentreFailover:
         elif not present:
             self.standby.found_none(time.monotonic())
         self._inputs.append(self.session.liveliness().declare_subscriber(key, self._on_primary, history=True))
-        # every centre of a region, primary or standby: serve picture waits for its pictures
-        if self.region is not None:
-            self._inputs.append(self.session.liveliness().declare_token(
-                self.keys.region_centre(self.region, str(self.session.zid()))))
+        # every centre of a scope, primary or standby: serve picture waits for a region's pictures, and a
+        # primary stopped mid-run leaves its scope to another centre of it (_steps_aside)
+        self._inputs.append(self.session.liveliness().declare_token(
+            self.keys.region_centre(self._scope(), str(self.session.zid()))))
 
     def _claim(self) -> None:
         """Declare this centre's primary token, under a new instance (:func:`.standby.claim_instance`)."""
@@ -195,31 +195,36 @@ class CentreFailover:
                          "as a standby %d picture(s) equal to the primary's, %d differed (largest state difference "
                          "%.3g)", self._scope(), len(flushed), standby.same, standby.differ, standby.max_difference)
 
+    def on_stopping(self) -> None:
+        """At a clean stop, while its watches are up: whether to step aside (:meth:`_steps_aside`)."""
+        self.aside = self._steps_aside()
+
     def _steps_aside(self) -> bool:
-        """At a clean stop: whether this region primary leaves its region to its standby as a killed one
-        does, publishing nothing more (no pictures of the end of the data, no closing record): the
-        deployment runs on (a tracker holds its token) and another centre of the region (its standby)
-        holds its centre token. Before, such a primary (SIGTERM mid-run) published the pictures due at the
-        end of the data, made early, and a closing record: the merger took its early picture and refused
-        the standby's of that time (``rejected_conflict``), and the replay of the recording parted from
-        the live pictures. At the end of a run the trackers stop first (the launcher's ``STOP_STAGE``)."""
-        if self.region is None or not self.standby.primary or self.session is None:
+        """At a clean stop: whether this primary (a region's or the unsharded centre) leaves its scope to
+        its standby as a killed one does, publishing nothing more (no pictures of the end of the data, no
+        closing record): the deployment runs on (a tracker it heard from still holds its token: ``peers``)
+        and another centre of the scope (its standby) holds the scope's centre token. Before, such a primary
+        (SIGTERM mid-run) published the pictures due at the end of the data, made early, and a closing
+        record: the merger took a region's early picture and refused the standby's of that time
+        (``rejected_conflict``), and the replay of the recording parted from the live pictures (the
+        unsharded centre's too). A liveliness query of the trackers' tokens, which this centre also
+        watches, found none in 10 of 28 live stops of the unsharded centre (it then published the end as
+        before); and ``mtt-centralized``'s are the sensors'. At the end of a run the trackers stop first
+        (the launcher's ``STOP_STAGE``): their tokens are gone."""
+        if not self.standby.primary or self.session is None:
             return False
-        liveliness = self.session.liveliness()
-
-        def holders(key: str) -> set[str]:
-            return {str(reply.ok.key_expr).rsplit("/", 1)[-1] for reply in liveliness.get(key, timeout=1.0)
-                    if reply.ok is not None}
-
-        if not holders(self.keys.alive("mtt-local")):
+        if all(sensor in self.peers.lost for sensor in self.silence.previous):
             return False
-        others = holders(self.keys.region_centre(self.region)) - {str(self.session.zid())}
+        others = {str(reply.ok.key_expr).rsplit("/", 1)[-1] for reply in
+                  self.session.liveliness().get(self.keys.region_centre(self._scope()), timeout=1.0)
+                  if reply.ok is not None} - {str(self.session.zid())}
         if not others:
             return False
         self.count("stepped_aside")
-        self.log.warning("stopping while the trackers run on: left region %s to its other centre(s) (%s) as a "
+        self.log.warning("stopping while the trackers run on: left %s to its other centre(s) (%s) as a "
                          "killed primary, with no pictures of the end of the data and no closing record",
-                         self.region, ", ".join(sorted(others)))
+                         "region " + self.region if self.region is not None else "the unsharded centre's scope",
+                         ", ".join(sorted(others)))
         return True
 
     def _failover_counters(self) -> None:
