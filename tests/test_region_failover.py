@@ -46,7 +46,7 @@ from fedtrack.keys import Keys
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.regions import load_regions, region_of
 from fedtrack.wire import TrackPicture, TrackResets, encode
-from fedtrack.zsession import SessionOptions, close_session, open_session
+from fedtrack.zsession import LOST_KEPT, SessionOptions, close_session, open_session
 
 
 def picture(seq: int, ids: tuple[int, ...], shift: float = 0.0) -> TrackPicture:
@@ -314,6 +314,55 @@ def test_a_take_over_from_a_frozen_primary_is_a_failover(watching: tuple[Any, li
 
 
 @pytest.mark.faults
+class TokenSession:
+    """A session stand-in whose liveliness queries find ``tokens`` (keys) matching the asked key's prefix."""
+
+    def __init__(self, tokens: list[str], zid: str) -> None:
+        self.tokens, self.id = tokens, zid
+
+    def zid(self) -> str:
+        return self.id
+
+    def liveliness(self) -> Any:
+        return self
+
+    def get(self, key: str, timeout: float) -> list[Any]:
+        def reply(k: str) -> Any:
+            return type("Reply", (), {"ok": type("Sample", (), {"key_expr": k})()})()
+        return [reply(k) for k in self.tokens if k.startswith(key.rstrip("*"))]
+
+
+@pytest.mark.parametrize("region", [None, "x0y0"])
+def test_a_primary_steps_aside_at_its_stop_while_a_tracker_it_heard_from_holds_its_token(tmp_path: Path,
+                                                                                          region: str | None) -> None:
+    """The unsharded centre's rule is the region's (before, the unsharded primary never stepped aside: its
+    end of the data, made early, stood against its standby's pictures). The trackers are those this centre
+    heard from, as its token watch (``peers``) last saw them: a liveliness query at the stop missed
+    standing tokens in about 1 of 3 live stops; more gone than ``LOST_KEPT``, it cannot tell."""
+    keys = Keys("aside")
+    config = tmp_path / "config.toml"
+    config.write_text("[regions]\nmargin = 500.0\ngrid = {origin = [0.0, 0.0], cell = [1.0, 1.0], nx = 2, ny = 1}\n")
+    regions = load_regions(config) if region else None
+    svc = MttCentreService("mtt-federated", MttConfig(sensors=("s1", "s2")), 4, region=region, regions=regions,
+                           service_id="c", options=SessionOptions(), deployment="aside")
+    scope = region or "all"
+    svc.session = TokenSession([keys.region_centre(scope, "mine"), keys.region_centre(scope, "twin")], "mine")
+    svc.silence.previous.update(s1=0.0, s2=0.0)
+    assert svc._steps_aside() and svc.counters["stepped_aside"] == 1  # both trackers' tokens stand
+    svc.peers.token("s1", False, 1.0)
+    assert svc._steps_aside()  # s2's stands
+    svc.session.tokens = [keys.region_centre(scope, "mine")]
+    assert not svc._steps_aside()  # no other centre of its scope
+    svc.session.tokens = [keys.region_centre(scope, "twin")]
+    svc.peers.token("s2", False, 1.0)
+    assert not svc._steps_aside()  # every tracker gone: the end of the run
+    svc.peers.token("s2", True, 2.0)
+    for k in range(LOST_KEPT):
+        svc.peers.token(f"forged{k}", False, 3.0)
+    assert not svc._steps_aside()  # more gone than Peers keeps
+    assert svc.counters["stepped_aside"] == 2
+
+
 def test_two_primaries_of_one_region_over_zenoh_leave_one_when_they_meet(tmp_path: Path) -> None:
     """Split brain live: two standbys of one region, each in its own thread behind its own loopback
     router (a partition), see no primary and both take over; once a third router joins the two,

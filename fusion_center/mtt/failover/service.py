@@ -17,6 +17,7 @@ from fedtrack.fusion_center.mtt.regional import RegionEngine
 from fedtrack.services.base import Subscription
 from fedtrack.services.rejections import Rejected
 from fedtrack.wire import HandOver, Message, TrackPicture, TrackReport, TrackResets
+from fedtrack.zsession import LOST_KEPT
 
 
 class CentreFailover:
@@ -213,7 +214,8 @@ class CentreFailover:
         (the launcher's ``STOP_STAGE``): their tokens are gone."""
         if not self.standby.primary or self.session is None:
             return False
-        if all(sensor in self.peers.lost for sensor in self.silence.previous):
+        lost = self.peers.lost  # more gone than Peers keeps (LOST_KEPT): it cannot tell, and publishes the end
+        if len(lost) >= LOST_KEPT or all(sensor in lost for sensor in self.silence.previous):
             return False
         others = {str(reply.ok.key_expr).rsplit("/", 1)[-1] for reply in
                   self.session.liveliness().get(self.keys.region_centre(self._scope()), timeout=1.0)
