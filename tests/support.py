@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import contextlib
 import io
+import json
+import math
 import multiprocessing
 import signal
 import subprocess
@@ -18,11 +20,13 @@ from typing import Any, NamedTuple
 import pytest
 
 from fedtrack.deploy.demo import free_port
+from fedtrack.local_filters.mtt.scan import parse_scan, scan_to_measurement
+from fedtrack.wire import Measurement
 
 WAIT_S = 10.0
 
 __all__ = ["WAIT_S", "CliOutcome", "Deployment", "SecureBus", "cli_in_process", "cli_in_subprocess", "free_port",
-           "in_parallel", "replay_evaluated", "secure_router", "wait_until"]
+           "in_parallel", "numbered_measurements", "replay_evaluated", "secure_router", "wait_until"]
 
 
 def patch_wire(monkeypatch: pytest.MonkeyPatch, name: str, value: Any) -> None:
@@ -72,6 +76,20 @@ def cli_in_process(args: list[str], capsys: pytest.CaptureFixture[str], monkeypa
                 print(exc.code, file=sys.stderr)
             code = exc.code if isinstance(exc.code, int) else int(exc.code is not None)
     return CliOutcome(code, capsys.readouterr().err)
+
+
+def numbered_measurements(path: Path, until: float = math.inf) -> list[Measurement]:
+    """The multi-target scan lines of ``path`` up to time ``until``, in file (arrival) order, as the sensors'
+    measurements: each sensor's scans numbered from 0 (``seq``) in that order."""
+    seq: dict[str, int] = {}
+    out = []
+    for line in path.read_text().splitlines():
+        scan = parse_scan(json.loads(line), str(path))
+        if scan.t > until:
+            continue
+        seq[scan.sensor] = seq.get(scan.sensor, -1) + 1
+        out.append(scan_to_measurement(scan, seq[scan.sensor], 1))
+    return out
 
 
 def wait_until(predicate: Callable[[], bool], timeout: float = WAIT_S) -> bool:

@@ -21,6 +21,7 @@ from typing import Any
 import msgpack
 import numpy as np
 import pytest
+from support import numbered_measurements
 from test_fuzz_handlers import MEASUREMENTS, SCANS, SENSORS
 from test_fuzz_trackers import sonar_stream
 
@@ -33,7 +34,6 @@ from fedtrack.local_filters.imm.config import load_imm_config
 from fedtrack.local_filters.imm.service import IMMService
 from fedtrack.local_filters.imm.tracker import IMMTracker
 from fedtrack.local_filters.mtt.config import MttConfig
-from fedtrack.local_filters.mtt.scan import parse_scan, scan_to_measurement
 from fedtrack.local_filters.mtt.service import MttLocalService
 from fedtrack.local_filters.pda.config import load_config
 from fedtrack.local_filters.pda.service import PDAService
@@ -256,13 +256,7 @@ def assert_one_time_jump_changes_nothing(svc: Any, attacked: Bus, clean: Bus) ->
 def mtt_lines(tmp_path: Path) -> list[Measurement]:
     out = tmp_path / "mtt-scenario"
     simulate(Scenario(targets=4, duration=12.0, clutter=2.0, late=0.0), parse_spec("pos:1.0,pos:0.7,pos:1.3"), 3, out)
-    seq: dict[str, int] = {}
-    msgs = []
-    for line in (out / "measurements.jsonl").read_text().splitlines():
-        scan = parse_scan(__import__("json").loads(line), "test")
-        seq[scan.sensor] = seq.get(scan.sensor, -1) + 1
-        msgs.append(scan_to_measurement(scan, seq[scan.sensor], 1))
-    return msgs
+    return numbered_measurements(out / "measurements.jsonl")
 
 
 def mtt_services(tmp_path: Path, algorithm: str = "mtt-federated") -> dict[str, Service]:

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy import stats
-from support import assert_same_pictures
+from support import assert_same_pictures, numbered_measurements
 from test_hostile_messages import KEYS, Bus, mtt_services
 
 from fedtrack.cli import main as cli
@@ -29,7 +29,6 @@ from fedtrack.fusion_center.mtt.centre.consistency import (
 )
 from fedtrack.fusion_center.mtt.centre.track_to_track import excluded_sensors
 from fedtrack.fusion_center.mtt.replay import replay_mtt
-from fedtrack.local_filters.mtt.scan import parse_scan, scan_to_measurement
 from fedtrack.wire import TrackReport, encode
 
 
@@ -194,14 +193,8 @@ def test_the_live_centre_counts_and_logs_a_flagged_sensor(scenario: Path, tmp_pa
     if restarting:
         s2, send = services["s2"], services["s2"].publish
         s2.publish = lambda key, msg: send(key, replace(msg, first=True) if isinstance(msg, TrackReport) else msg)
-    seq: dict[str, int] = {}
     with caplog.at_level("WARNING"):
-        for line in (scenario / "measurements.jsonl").read_text().splitlines():
-            scan = parse_scan(json.loads(line), "test")
-            if scan.t > 35.0:
-                continue
-            seq[scan.sensor] = seq.get(scan.sensor, -1) + 1
-            m = scan_to_measurement(scan, seq[scan.sensor], 1)
+        for m in numbered_measurements(scenario / "measurements.jsonl", until=35.0):
             bus.put(KEYS.sensor_meas(m.sensor), encode(replace(m, R=m.R / 100.0) if m.sensor == "s2" and m.t >= 15.0
                                                        else m))
     centre = services["centre"]

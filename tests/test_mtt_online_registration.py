@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from support import assert_same_pictures
+from support import assert_same_pictures, numbered_measurements
 from test_hostile_messages import KEYS, Bus, mtt_services
 
 from fedtrack.cli import main as cli
@@ -25,7 +25,6 @@ from fedtrack.fusion_center.mtt.centre.registration import (
 )
 from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.local_filters.mtt.local import LocalReport, Resets
-from fedtrack.local_filters.mtt.scan import parse_scan, scan_to_measurement
 from fedtrack.wire import TrackReport, TrackResets, encode
 
 RNG = np.random.default_rng(54)
@@ -237,14 +236,9 @@ def test_the_live_centre_corrects_reports_and_its_recording_replays_to_its_pictu
     (the picture clock on the corrected times in both)."""
     services = mtt_services(tmp_path)
     bus = Bus(list(services.values()))
-    seq: dict[str, int] = {}
     with caplog.at_level("WARNING"):
-        for line in (scenario / "clock.jsonl").read_text().splitlines():
-            scan = parse_scan(json.loads(line), "test")
-            if scan.t > 30.0:
-                continue
-            seq[scan.sensor] = seq.get(scan.sensor, -1) + 1
-            bus.put(KEYS.sensor_meas(scan.sensor), encode(scan_to_measurement(scan, seq[scan.sensor], 1)))
+        for m in numbered_measurements(scenario / "clock.jsonl", until=30.0):
+            bus.put(KEYS.sensor_meas(m.sensor), encode(m))
     centre = services["centre"]
     assert centre.counters["centre_registration_corrections"] >= 1 and centre.counters["centre_registered_sensors"] == 1
     assert "registration corrected: s2" in centre.status and centre.counters["rejected"] == 0

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 import pytest
-from support import WAIT_S, assert_same_pictures, free_port, wait_until
+from support import WAIT_S, assert_same_pictures, free_port, numbered_measurements, wait_until
 from test_hostile_messages import OPTIONS, Bus, _matches
 
 from fedtrack.fusion_center.mtt.picture_merge import PictureMergeService
@@ -21,7 +21,6 @@ from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.fusion_center.mtt.service import MttCentreService
 from fedtrack.keys import Keys
 from fedtrack.local_filters.mtt.config import MttConfig
-from fedtrack.local_filters.mtt.scan import parse_scan, scan_to_measurement
 from fedtrack.local_filters.mtt.service import MttLocalService
 from fedtrack.local_filters.regions import load_regions
 from fedtrack.sensors.multitarget import Scenario, parse_spec, simulate
@@ -44,12 +43,7 @@ grid = {origin = [-5000.0, -5000.0], cell = [5000.0, 10000.0], nx = 2, ny = 1}
 def scenario(tmp_path: Path) -> tuple[list[Any], MttConfig, Path]:
     out = tmp_path / "scenario"
     simulate(Scenario(targets=10, duration=30.0, clutter=3.0, late=0.0), parse_spec("pos:1.0,pos:0.7,pos:1.3"), 4, out)
-    seq: dict[str, int] = {}
-    msgs = []
-    for line in (out / "measurements.jsonl").read_text().splitlines():
-        scan = parse_scan(json.loads(line), "test")
-        seq[scan.sensor] = seq.get(scan.sensor, -1) + 1
-        msgs.append(scan_to_measurement(scan, seq[scan.sensor], 1))
+    msgs = numbered_measurements(out / "measurements.jsonl")
     config = tmp_path / "config.toml"
     config.write_text(CONFIG)
     return msgs, MttConfig(sensors=("s1", "s2", "s3"), max_lag=3.0, clutter_density=1.2e-7), config
