@@ -16,7 +16,7 @@ updates with the first scan.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -272,14 +272,14 @@ def scan_event(local_kinds: np.ndarray) -> np.ndarray:
     return np.where(det != EVENT_NONE, det, np.where(ended, EVENT_END, EVENT_NONE))
 
 
-def _take_sensors(idx: np.ndarray, a, n_batch: int):
+def _take_sensors(idx: np.ndarray, a: Any, n_batch: int) -> Any:
     """The sensors ``idx`` of ``a`` (an array or a tuple of them, the sensor axis after ``n_batch``)."""
     if isinstance(a, tuple):
         return type(a)(*(_take_sensors(idx, u, n_batch) for u in a))
     return np.take(a, idx, axis=n_batch)
 
 
-def _put_sensors(idx: np.ndarray, part, whole, n_batch: int):
+def _put_sensors(idx: np.ndarray, part: Any, whole: Any, n_batch: int) -> Any:
     """``whole`` with its sensors ``idx`` replaced by ``part`` (same nesting as :func:`_take_sensors`)."""
     if isinstance(whole, tuple):
         return type(whole)(*(_put_sensors(idx, p, w, n_batch) for p, w in zip(part, whole, strict=True)))
@@ -288,7 +288,7 @@ def _put_sensors(idx: np.ndarray, part, whole, n_batch: int):
     return out
 
 
-def _concat_sensors(parts: list, n_batch: int):
+def _concat_sensors(parts: list[Any], n_batch: int) -> Any:
     """Tuples of arrays (or arrays) joined along the sensor axis."""
     if isinstance(parts[0], tuple):
         return type(parts[0])(*(_concat_sensors(list(fields), n_batch) for fields in zip(*parts, strict=True)))
@@ -309,13 +309,13 @@ class DVDIE(VdieStart, DecentralizedKF):
 
     name = "dvdie"
 
-    def _start(self, local, present, t):
+    def _start(self, local: GaussianState, present: np.ndarray | None, t: float) -> ScanEstimate:
         est = super()._start(local, present, t)
         self.started = np.ones(self.n_sensors, dtype=bool) if present is None else present.copy()
         self.last_t = np.full(self.n_sensors, t)
         return est
 
-    def _start_prior(self, prior, t):
+    def _start_prior(self, prior: GaussianState, t: float) -> None:
         super()._start_prior(prior, t)
         self.started = np.ones(self.n_sensors, dtype=bool)
         self.last_t = np.full(self.n_sensors, t)
