@@ -10,6 +10,7 @@ federated local trackers, the centre, the recorder).
 
 from __future__ import annotations
 
+import json
 import logging
 import pickle
 from collections import deque
@@ -21,12 +22,13 @@ from typing import Any
 import msgpack
 import numpy as np
 import pytest
-from support import numbered_measurements
+from support import assert_same_pictures, numbered_measurements
 from test_fuzz_handlers import MEASUREMENTS, SCANS, SENSORS
 from test_fuzz_trackers import sonar_stream
 
 from fedtrack.fusion_center.centre import FederatedCentre
 from fedtrack.fusion_center.mtt.engines import TrackToTrackEngine
+from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.fusion_center.mtt.service import MttCentreService
 from fedtrack.fusion_center.service import FusionCenterService
 from fedtrack.keys import Keys
@@ -271,6 +273,20 @@ def mtt_services(tmp_path: Path, algorithm: str = "mtt-federated") -> dict[str, 
     recorder.recording.db.execute("PRAGMA synchronous = OFF")  # type: ignore[union-attr]
     services["recorder"] = recorder
     return services
+
+
+def assert_recording_replays(services: dict[str, Service], bus: Bus, tmp_path: Path) -> None:
+    """The centre of :func:`mtt_services` (``mtt-federated``, sensors s1-s3) stopped, its recording exported and
+    replayed with a config of those sensors: the replay's pictures are the live ones."""
+    services["centre"].on_stop()
+    bus.drain()
+    measurements, live = tmp_path / "m.jsonl", tmp_path / "live.jsonl"
+    services["recorder"].recording.export(measurements, live)  # type: ignore[attr-defined]
+    config = tmp_path / "c.toml"
+    config.write_text('[mtt]\nsensors = ["s1", "s2", "s3"]\nmax_lag = 3.0\nclutter_density = 8e-8\n')
+    again = tmp_path / "again.jsonl"
+    replay_mtt("mtt-federated", measurements, config, again)
+    assert_same_pictures(*([json.loads(x) for x in f.read_text().splitlines()] for f in (live, again)))
 
 
 def pictures(bus: Bus) -> list[tuple[Any, ...]]:

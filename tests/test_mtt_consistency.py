@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy import stats
-from support import assert_same_pictures, numbered_measurements
-from test_hostile_messages import KEYS, Bus, mtt_services
+from support import numbered_measurements
+from test_hostile_messages import KEYS, Bus, assert_recording_replays, mtt_services
 
 from fedtrack.cli import main as cli
 from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre, consistency
@@ -28,7 +28,6 @@ from fedtrack.fusion_center.mtt.centre.consistency import (
     relative_tail,
 )
 from fedtrack.fusion_center.mtt.centre.track_to_track import excluded_sensors
-from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.wire import TrackReport, encode
 
 
@@ -207,15 +206,7 @@ def test_the_live_centre_counts_and_logs_a_flagged_sensor(scenario: Path, tmp_pa
     assert any("sensor s2 inconsistent at t=" in r.getMessage() and "left out of the fusion" in r.getMessage()
                for r in caplog.records)
     assert not any(f"sensor {s} inconsistent" in r.getMessage() for r in caplog.records for s in ("s1", "s3"))
-    centre.on_stop()
-    bus.drain()
-    measurements, live = tmp_path / "m.jsonl", tmp_path / "live.jsonl"
-    services["recorder"].recording.export(measurements, live)  # type: ignore[attr-defined]
-    config = tmp_path / "c.toml"
-    config.write_text('[mtt]\nsensors = ["s1", "s2", "s3"]\nmax_lag = 3.0\nclutter_density = 8e-8\n')
-    again = tmp_path / "again.jsonl"
-    replay_mtt("mtt-federated", measurements, config, again)  # the live centre's exclusion, replayed
-    assert_same_pictures(*([json.loads(x) for x in f.read_text().splitlines()] for f in (live, again)))
+    assert_recording_replays(services, bus, tmp_path)  # the live centre's exclusion, replayed
 
 
 def test_a_non_finite_innovation_enters_at_its_cap() -> None:

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from support import assert_same_pictures, numbered_measurements
-from test_hostile_messages import KEYS, Bus, mtt_services
+from support import numbered_measurements
+from test_hostile_messages import KEYS, Bus, assert_recording_replays, mtt_services
 
 from fedtrack.cli import main as cli
 from fedtrack.fusion_center.mtt.centre import registration
@@ -23,7 +23,6 @@ from fedtrack.fusion_center.mtt.centre.registration import (
     sensor_frame,
     solve_estimate,
 )
-from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.local_filters.mtt.local import LocalReport, Resets
 from fedtrack.wire import TrackReport, TrackResets, encode
 
@@ -246,12 +245,4 @@ def test_the_live_centre_corrects_reports_and_its_recording_replays_to_its_pictu
     reports = {(m.sensor, m.seq): m.t for m in bus.of(TrackReport)}
     resets = [m for m in bus.of(TrackResets) if m.sensor == "s2" and m.ids]
     assert resets and all(m.t == reports[("s2", m.seq)] for m in resets)
-    centre.on_stop()
-    bus.drain()
-    measurements, live = tmp_path / "m.jsonl", tmp_path / "live.jsonl"
-    services["recorder"].recording.export(measurements, live)  # type: ignore[attr-defined]
-    config = tmp_path / "c.toml"
-    config.write_text('[mtt]\nsensors = ["s1", "s2", "s3"]\nmax_lag = 3.0\nclutter_density = 8e-8\n')
-    again = tmp_path / "again.jsonl"
-    replay_mtt("mtt-federated", measurements, config, again)
-    assert_same_pictures(*([json.loads(x) for x in f.read_text().splitlines()] for f in (live, again)))
+    assert_recording_replays(services, bus, tmp_path)
