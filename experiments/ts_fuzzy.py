@@ -144,13 +144,14 @@ def reproduce_ts_fuzzy(runs: int, seed: int, json_path: Path, plots_dir: Path | 
     """
     wall0 = time.perf_counter()
     radar, cfg = RadarConfig(), EkfTsFuzzyConfig()
+    named = "--model" if model is not None else f"${MODEL_ENV}"  # where the model file was given
     model = model or (Path(os.environ[MODEL_ENV]) if os.environ.get(MODEL_ENV) else None)
     what = f"CV EKF vs TS-fuzzy compensated EKF on the 3-D radar turn scenario, {runs} runs, seed {seed}"
     if model is not None:
         if not model.is_file():
-            raise ConfigError(f"--model: {model} does not exist")
+            raise ConfigError(f"{named}: {model} does not exist")
         announce(f"reproduce ts-fuzzy: paper 003, {what}; model {model}")
-        ts = load_compatible_model(model)
+        ts = load_compatible_model(model, named)
         training = {"source": str(model), **{k: v.item() for k, v in load_model(model)[1].items()}}
     else:
         ga = GAParams()

@@ -179,11 +179,12 @@ TABLES = ("fusion", "deployment", "sensor", "sonar", "radar", "radar_filter", "i
 
 @contextlib.contextmanager
 def in_file(path: str | Path | None) -> Iterator[None]:
-    """Prefix a :class:`ConfigError` raised inside the block with ``path`` (``FILE: ...``)."""
+    """Prefix a :class:`ConfigError` raised inside the block with ``path`` (``FILE: ...``); not one that names
+    an environment variable (``$NAME: ...``), which the file did not set."""
     try:
         yield
     except ConfigError as exc:
-        if path is None or str(exc).startswith(f"{path}:"):
+        if path is None or str(exc).startswith((f"{path}:", "$")):
             raise
         raise ConfigError(f"{path}: {exc}") from exc
 

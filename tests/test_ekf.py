@@ -188,6 +188,35 @@ def test_replay_validates_input_and_config(tmp_path):
         replay_radar("ekf-tsfuzzy", good, cfg, out)
 
 
+def test_ts_fuzzy_model_errors_name_where_the_model_was_given(tmp_path, monkeypatch):
+    """A missing or wrong TS-fuzzy model is named by where it was given: ``radar_filter.model`` in the
+    config file, else ``$FEDTRACK_TS_FUZZY_MODEL`` (not blamed on a config file that does not set it), and a
+    file that is no ``.npz`` is said to be none. Before (tour57) every such line said ``model:``, the env's
+    path came out as ``c.toml: model: file ... does not exist``, and a CSV given as the model was answered
+    with numpy's advice to load it with ``allow_pickle``."""
+    good, out = tmp_path / "m.jsonl", tmp_path / "o.jsonl"
+    write_jsonl(good, list(radar_scans(RadarConfig(), seed=1))[:5])
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("")
+    monkeypatch.delenv("FEDTRACK_TS_FUZZY_MODEL", raising=False)
+    with pytest.raises(ConfigError, match=r"^\S*c\.toml: radar_filter\.model: no TS-fuzzy model given: set it to a "
+                       r"file `fedtrack train ts-fuzzy --out MODEL\.npz` wrote, or \$FEDTRACK_TS_FUZZY_MODEL$"):
+        replay_radar("ekf-tsfuzzy", good, cfg, out)
+    cfg.write_text(f"[radar_filter]\nmodel = '{tmp_path / 'missing.npz'}'\n")
+    with pytest.raises(ConfigError, match=r"^\S*c\.toml: radar_filter\.model: file \S*missing\.npz does not exist"):
+        replay_radar("ekf-tsfuzzy", good, cfg, out)
+    cfg.write_text("")
+    monkeypatch.setenv("FEDTRACK_TS_FUZZY_MODEL", str(tmp_path / "gone.npz"))
+    with pytest.raises(ConfigError, match=r"^\$FEDTRACK_TS_FUZZY_MODEL: file \S*gone\.npz does not exist"):
+        replay_radar("ekf-tsfuzzy", good, cfg, out)
+    monkeypatch.setenv("FEDTRACK_TS_FUZZY_MODEL", str(good))  # a text file, not a model
+    with pytest.raises(ConfigError, match=r"^\$FEDTRACK_TS_FUZZY_MODEL: \S*m\.jsonl is not a TS-fuzzy model file "
+                       r"\(not an \.npz archive, which `fedtrack train ts-fuzzy` writes\)$") as err:
+        replay_radar("ekf-tsfuzzy", good, None, out)
+    assert "pickle" not in str(err.value)
+    assert not out.exists()
+
+
 @pytest.mark.parametrize("algorithm", ["ekf", "ekf-ie"])
 def test_replay_leaves_out_a_measurement_at_the_time_of_the_last(tmp_path, capsys, algorithm):
     """A measurement repeated, moved, at the time of the last one (as one sent again under a new number

@@ -70,3 +70,23 @@ def test_ts_fuzzy_says_it_trains(tmp_path: Path, tiny_model: Path, monkeypatch: 
     with pytest.raises(SystemExit) as exc:
         cli.main(["reproduce", "vsimm", "--runs", "2", "--json", str(tmp_path / "v.json"), "--model", str(tiny_model)])
     assert exc.value.code == 2
+
+
+@pytest.mark.parametrize("given", ["--model", "env"])
+def test_ts_fuzzy_names_where_a_missing_model_was_given(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                         capsys: pytest.CaptureFixture[str], given: str) -> None:
+    """A model file that is not there is named by where it was given: ``--model``, or
+    ``$FEDTRACK_TS_FUZZY_MODEL`` (before tour57 the environment's path was reported as ``--model``'s)."""
+    from fedtrack.experiments import ts_fuzzy
+
+    missing = tmp_path / "gone.npz"
+    argv = ["reproduce", "ts-fuzzy", "--runs", "2", "--json", str(tmp_path / "r.json")]
+    if given == "env":
+        monkeypatch.setenv(ts_fuzzy.MODEL_ENV, str(missing))
+    else:
+        monkeypatch.delenv(ts_fuzzy.MODEL_ENV, raising=False)
+        argv += ["--model", str(missing)]
+    assert cli.main(argv) == 2
+    named = "--model" if given == "--model" else f"${ts_fuzzy.MODEL_ENV}"
+    assert f"error: {named}: {missing} does not exist" in capsys.readouterr().err
+    assert not (tmp_path / "r.json").exists()

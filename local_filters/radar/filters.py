@@ -96,11 +96,14 @@ class EkfTsFuzzyConfig(EkfConfig):
     model: str = ""
 
     @property
-    def model_path(self) -> Path:
-        path = self.model or os.environ.get(MODEL_ENV, "")
-        if not path:
-            raise ConfigError(f"model: no TS-fuzzy model given (set the key or ${MODEL_ENV})")
-        return Path(path)
+    def model_source(self) -> tuple[Path, str]:
+        """The model file and where it was named: ``radar_filter.model``, else ``$FEDTRACK_TS_FUZZY_MODEL``."""
+        if self.model:
+            return Path(self.model), "radar_filter.model"
+        if os.environ.get(MODEL_ENV):
+            return Path(os.environ[MODEL_ENV]), f"${MODEL_ENV}"
+        raise ConfigError(f"radar_filter.model: no TS-fuzzy model given: set it to a file `fedtrack train ts-fuzzy "
+                          f"--out MODEL.npz` wrote, or ${MODEL_ENV}")
 
 
 CONFIG_CLASSES: dict[str, type[EkfConfig]] = {
@@ -124,11 +127,12 @@ def _no_maneuver(x: np.ndarray) -> np.ndarray:
     return np.zeros(x.shape[:-1], bool)
 
 
-def load_compatible_model(path: Path) -> TSModel:
-    """Load a TS model trained on the features this code computes (same smoothing constant)."""
-    ts, meta = load_model(path)
+def load_compatible_model(path: Path, name: str = "model") -> TSModel:
+    """Load a TS model trained on the features this code computes (same smoothing constant); errors name
+    the file and ``name``, where it was given (``radar_filter.model``, ``$FEDTRACK_TS_FUZZY_MODEL``, ``--model``)."""
+    ts, meta = load_model(path, name)
     if "tau_s" not in meta or not np.isclose(float(meta["tau_s"]), TAU_S):
-        raise ConfigError(f"model: {path} was trained with another feature smoothing constant; retrain it")
+        raise ConfigError(f"{name}: {path} was trained with another feature smoothing constant; retrain it")
     return ts
 
 
@@ -166,7 +170,7 @@ def filter_kind(algorithm: str, config: EkfConfig, ts_model: TSModel | None = No
                           partial(_label, CV3, "cv+input"))
     if algorithm == "ekf-tsfuzzy":
         assert isinstance(config, EkfTsFuzzyConfig)  # narrowed by the check above
-        ts = ts_model if ts_model is not None else load_compatible_model(config.model_path)
+        ts = ts_model if ts_model is not None else load_compatible_model(*config.model_source)
         return FilterKind(ts_init, ts_step, partial(_ts_estimate, ts), partial(_label, "cv+ts-fuzzy", "cv+ts-fuzzy"))
     raise ConfigError(f"algorithm: unknown radar filter {algorithm!r} (expected one of {ALGORITHMS})")
 

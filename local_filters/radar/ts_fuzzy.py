@@ -27,6 +27,7 @@ Identification:
 
 from __future__ import annotations
 
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, NamedTuple
@@ -236,17 +237,21 @@ def save_model(path: str | Path, model: TSModel, **meta: np.ndarray | float | in
         np.savez(fh, **model._asdict(), **{f"meta_{k}": np.asarray(v) for k, v in meta.items()})
 
 
-def load_model(path: str | Path) -> tuple[TSModel, dict[str, np.ndarray]]:
-    """Read a model written by :func:`save_model`; a bad file is a :class:`ConfigError`."""
+def load_model(path: str | Path, name: str = "model") -> tuple[TSModel, dict[str, np.ndarray]]:
+    """Read a model written by :func:`save_model`; a bad file is a :class:`ConfigError` naming ``name``,
+    where the file was given."""
     p = Path(path)
+    if p.is_file() and not zipfile.is_zipfile(p):  # np.load would offer to unpickle it
+        raise ConfigError(f"{name}: {p} is not a TS-fuzzy model file (not an .npz archive, which "
+                          "`fedtrack train ts-fuzzy` writes)")
     try:
         with np.load(p) as data:
             model = TSModel(*(np.asarray(data[f], float) for f in TSModel._fields))
             meta = {k[5:]: data[k] for k in data.files if k.startswith("meta_")}
     except FileNotFoundError as exc:
-        raise ConfigError(f"model: file {p} does not exist (train one with `fedtrack train ts-fuzzy`)") from exc
+        raise ConfigError(f"{name}: file {p} does not exist (train one with `fedtrack train ts-fuzzy`)") from exc
     except (KeyError, ValueError, OSError) as exc:
-        raise ConfigError(f"model: {p} is not a TS-fuzzy model file ({exc})") from exc
+        raise ConfigError(f"{name}: {p} is not a TS-fuzzy model file ({exc})") from exc
     if model.centers.ndim != 2 or model.consequents.shape[:2] != (model.n_rules, model.centers.shape[1] + 1):
-        raise ConfigError(f"model: {p} has inconsistent shapes")
+        raise ConfigError(f"{name}: {p} has inconsistent shapes")
     return model, meta
