@@ -251,6 +251,11 @@ class Service(Dispatch, Publishing):
     def on_stop(self) -> None:
         """Called once after the last message was handled (flush files here)."""
 
+    def held(self) -> bool:
+        """Whether the service holds input that messages still to come release (a federated tracker's scans
+        waiting for the centre's resets): at a clean stop it keeps handling messages while so (:meth:`_settle`)."""
+        return False
+
     # ------------------------------------------------------------ API for subclasses
     def query(self, key: str, msg_type: type[M], timeout_s: float = 1.0) -> list[M]:
         """``get`` on ``key``: the valid replies decoded as ``msg_type`` (invalid ones are counted in ``rejected``).
@@ -301,7 +306,8 @@ class Service(Dispatch, Publishing):
                 self._inputs.append(self.session.liveliness().declare_subscriber(
                     self.keys.alive("router"), self._on_router, history=True))
             self.log.info("ready (%s)", self.keys.alive(self.role, self.id))
-            self._loop()
+            self._loop(lambda: self._stop_requested)
+            self._settle()
             self.on_stopping()
             self._close_inputs()
             self._drain()
@@ -414,12 +420,13 @@ class Service(Dispatch, Publishing):
                 self.counters["dropped"] += 1
                 return
 
-    def _loop(self) -> None:
+    def _loop(self, done: Callable[[], bool]) -> None:
+        """Handle messages, ticks and Health until ``done()``."""
         now = time.monotonic()
         next_health = now
         next_tick = now + self.tick_period_s if self.tick_period_s else float("inf")
         recheck = now + HISTORY_RECHECK_S if any(sub.history for sub in self._subscriptions) else float("inf")
-        while not self._stop_requested:
+        while not done():
             wait = min(next_health, next_tick) - time.monotonic()
             try:
                 self._dispatch(self._queue.get(timeout=min(max(wait, 0.0), _POLL_S)))
@@ -442,6 +449,13 @@ class Service(Dispatch, Publishing):
             if now >= recheck:
                 self._query_caches()
                 recheck = float("inf")
+
+    def _settle(self) -> None:
+        """At a clean stop, before the inputs close: while the service holds input that messages still to come
+        release (:meth:`held`), go on as before for at most ``drain_deadline_s``."""
+        deadline = time.monotonic() + self.drain_deadline_s
+        if self.held():
+            self._loop(lambda: not self.held() or time.monotonic() >= deadline)
 
     def _query_caches(self) -> None:
         """Ask the advanced publishers' caches again for every history subscription (see the module doc)."""

@@ -16,7 +16,8 @@ sensor's detections again off its schedule (:func:`~fedtrack.local_filters.mtt.l
 ``duplicate``, as in the replay. The report of the process's first scan is marked ``first``: a
 restarted tracker starts afresh, and the centre lists the restart for the replay. At most
 ``MAX_ENTRIES`` scans wait (for resets, or behind a slow tracker): beyond, the oldest waiting one
-is dropped and counted ``queue_dropped``.
+is dropped and counted ``queue_dropped``. Stopped while scans wait for the centre's answers, it tracks them
+first (:meth:`MttLocalService.held`; at most ``drain_deadline_s``, the rest counted ``dropped``).
 
 Rejected (docs/wire.md#rejections): a measurement of another kind or shape (``wrong_model``),
 a sensor the config does not allow (``unknown_sensor``), a scan number more than
@@ -262,9 +263,18 @@ class MttLocalService(Service):
             self.awaiting = self.awaiting_scan = None
             self._advance()
 
+    def held(self) -> bool:
+        """Scans wait for the answers to a report: at a clean stop the tracker goes on until it has tracked them
+        (the centre, stopped after the trackers, still answers), for at most ``drain_deadline_s``."""
+        return self.awaiting is not None and bool(self.queue)
+
     def on_stop(self) -> None:
-        """A scan still held for a witness (stamped far ahead, lead.py) is counted ``rejected_time_lead``."""
+        """A scan still held for a witness (stamped far ahead, lead.py) is counted ``rejected_time_lead``; one still
+        waiting for the answers to a report, ``dropped``."""
         self.note_leads(self.keys.sensor_meas(self.sensor), self.lead.end())
+        if self.queue:
+            self.count("dropped", len(self.queue))
+            self.log.warning("stopped with %d scan(s) waiting for the centre's answers, not tracked", len(self.queue))
 
     def _advance(self) -> list[int]:
         """Track the waiting scans, in arrival order, while no resets are due; returns the scan
