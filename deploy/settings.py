@@ -1,8 +1,8 @@
 """The deployment tables of the configuration file, as ``launch`` and ``demo`` read them.
 
 Every table is optional; unknown tables or keys fail at start naming the file, the table
-and the key. ``launch`` checks every table of the file (also ``[imm]`` and ``[pda]``, which
-it does not use itself), so that a typo fails before any process starts.
+and the key. ``launch`` checks every table of the file (also ``[imm]``, ``[pda]`` and ``[regions]``,
+which it does not use itself, or not in every deployment), so that a typo fails before any process starts.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from fedtrack.geodetic import FrameConfig, geodetic_error
 from fedtrack.local_filters.imm.config import IMMConfig
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.pda.config import PDAReplayConfig
+from fedtrack.local_filters.regions import load_regions
 from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.sensors.multitarget import MAX_CLUTTER, Scenario
 from fedtrack.sensors.radar import RadarConfig
@@ -122,5 +123,8 @@ def check_launchable(settings: Settings, path: Path) -> None:
 
 
 def load_settings(path: Path | None) -> Settings:
-    """Parse a config file (or the defaults when ``path`` is None)."""
-    return load_tables(path, Settings)
+    """Parse a config file (or the defaults when ``path`` is None), ``[regions]`` too (its keys and its
+    geometry, :func:`~fedtrack.local_filters.regions.load_regions`), which its own consumers read."""
+    settings = load_tables(path, Settings)
+    load_regions(path)
+    return settings

@@ -18,6 +18,7 @@ from fedtrack.local_filters.imm.config import load_imm_config
 from fedtrack.local_filters.pda.config import load_config as load_pda_config
 from fedtrack.local_filters.radar.filters import make_radar_filter
 from fedtrack.local_filters.radar.replay import RadarFilterSettings
+from fedtrack.local_filters.regions import load_regions
 from fedtrack.local_filters.vdie.config import PipelineSettings
 from fedtrack.sensors.service import SensorSettings
 from fedtrack.services.base import service_kwargs, service_parser
@@ -61,6 +62,14 @@ def _pipeline(path: Path) -> PipelineSettings:
     ("[pda.existence]\nfoo = 1\n", "unknown config key pda.existence.foo", (load_pda_config,), "hpda"),
     ("[deployment]\nnmae = 'x'\n", "unknown config key deployment.nmae", (_pipeline,), "kf"),
     ("[fusoin]\nq = 1.0\n", "unknown config key fusoin", (_pipeline, load_imm_config, load_pda_config), "fvdie"),
+    # [regions] was read only by its consumers (replay --regions config, the region services, launch of a multi-target
+    # deployment): replay of any other algorithm and serve of another role took these files (before tour57)
+    ("[regions]\nmargin = 100.0\ngridd = 1\n", "unknown config key regions.gridd: did you mean regions.grid",
+     (load_regions,), "kf"),
+    ("[regions]\nmargin = -1.0\ngrid = {origin = [0.0, 0.0], cell = [1.0, 1.0], nx = 2, ny = 1}\n",
+     "regions.margin: must be >= 0", (load_regions,), "mtt-federated"),
+    ("[regions]\nmargin = 1.0\n[[regions.polygon]]\nid = 'a'\nlat_lon = [[49.0, 2.0], [49.1, 2.0], [49.1, 2.1]]\n",
+     "regions.polygon.a.lat_lon: needs ", (load_regions,), "fvdie"),
 ])
 def test_config_errors_name_file_table_and_key(tmp_path: Path, text: str, message: str, consumers: tuple,
                                                algorithm: str, capsys: pytest.CaptureFixture[str]) -> None:
