@@ -20,6 +20,7 @@ from fedtrack.fusion_center.mtt.evaluation.consistency import (
 from fedtrack.fusion_center.mtt.evaluation.metrics import id_changes, set_distance
 from fedtrack.fusion_center.mtt.evaluation.registration import registration
 from fedtrack.jsonl import InputError, is_number, picture_rows, read_jsonl
+from fedtrack.progress import progress_bar
 
 
 def _load(path: Path, key: str) -> list[tuple[float, list[dict[str, Any]]]]:
@@ -81,51 +82,54 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
     by_sensors: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}  # a track's sensors -> (truth, track) states
     unassigned: dict[str, int] = {}  # a track's sensors -> its pictures assigned to no truth (false)
     skipped = 0
-    for t, items in _load(tracks_path, "tracks"):
-        targets = truth.get(round(t, 6))
-        if targets is None:
-            skipped += 1
-            continue
-        shown = [tr for tr in items if all_tracks or tr.get("status", "confirmed") == "confirmed"]
-        for tr in shown:
-            now = flagged(tr)
-            onsets += now and not was_flagged.get(tr["id"], False)
-            was_flagged[tr["id"]] = now
-        X, Y = _stack([g["x"] for g in targets]), _stack([tr["x"] for tr in shown])
-        k = 2 if horizontal else min(X.shape[1], Y.shape[1])
-        dist = set_distance(X[:, :k], Y[:, :k], c, p)
-        series.append({"t": t, "gospa": dist.gospa, "localisation": dist.localisation, "missed": dist.missed,
-                       "false": dist.false, "ospa": dist.ospa, "truths": len(X), "tracks": len(Y)})
-        assigned = dict(dist.pairs)
-        for j in set(range(len(shown))) - set(assigned.values()):
-            group = ",".join(shown[j].get("sensors", [])) or "-"
-            unassigned[group] = unassigned.get(group, 0) + 1
-        for i, g in enumerate(targets):
-            j = assigned.get(i)
-            sequences.setdefault(g["id"], []).append(None if j is None else shown[j]["id"])
-            if j is None:
+    pictures = _load(tracks_path, "tracks")
+    with progress_bar(len(pictures), "evaluate: pictures") as bar:  # GOSPA: 10 s a picture at 10,000 targets
+        for t, items in pictures:
+            bar.update()
+            targets = truth.get(round(t, 6))
+            if targets is None:
+                skipped += 1
                 continue
-            sq_err.append(float(np.sum((X[i, :k] - Y[j, :k]) ** 2)))
-            if X.shape[1] > 2 and Y.shape[1] > 2:
-                alt_err.append(float(Y[j, 2] - X[i, 2]))
-            kind = motion.get((round(t, 6), g["id"]))
-            if kind in flags:
-                flags[kind][0] += 1
-                flags[kind][1] += flagged(shown[j])
-            xt, xe = np.asarray(g["x"], float), np.asarray(shown[j]["x"], float)
-            by_sensors.setdefault(",".join(shown[j].get("sensors", [])) or "-", []).append((xt[:4], xe[:4]))
-            if xe.size == 4 and xt.size == 6:  # a 2-D tracker against a 3-D truth: its horizontal state
-                xt = xt[:4]
-            if "P" in shown[j] and xt.shape == xe.shape:
-                P = np.asarray(shown[j]["P"], float)
-                try:
-                    np.linalg.cholesky(P)
-                except np.linalg.LinAlgError:
-                    raise InputError(f"{tracks_path}: the picture at t = {t:g}: track {shown[j]['id']}'s P is "
-                                     "not positive definite (a covariance must be)") from None
-                errors.append(xt - xe)
-                covariances.append(P)
-                motions.append(kind)
+            shown = [tr for tr in items if all_tracks or tr.get("status", "confirmed") == "confirmed"]
+            for tr in shown:
+                now = flagged(tr)
+                onsets += now and not was_flagged.get(tr["id"], False)
+                was_flagged[tr["id"]] = now
+            X, Y = _stack([g["x"] for g in targets]), _stack([tr["x"] for tr in shown])
+            k = 2 if horizontal else min(X.shape[1], Y.shape[1])
+            dist = set_distance(X[:, :k], Y[:, :k], c, p)
+            series.append({"t": t, "gospa": dist.gospa, "localisation": dist.localisation, "missed": dist.missed,
+                           "false": dist.false, "ospa": dist.ospa, "truths": len(X), "tracks": len(Y)})
+            assigned = dict(dist.pairs)
+            for j in set(range(len(shown))) - set(assigned.values()):
+                group = ",".join(shown[j].get("sensors", [])) or "-"
+                unassigned[group] = unassigned.get(group, 0) + 1
+            for i, g in enumerate(targets):
+                j = assigned.get(i)
+                sequences.setdefault(g["id"], []).append(None if j is None else shown[j]["id"])
+                if j is None:
+                    continue
+                sq_err.append(float(np.sum((X[i, :k] - Y[j, :k]) ** 2)))
+                if X.shape[1] > 2 and Y.shape[1] > 2:
+                    alt_err.append(float(Y[j, 2] - X[i, 2]))
+                kind = motion.get((round(t, 6), g["id"]))
+                if kind in flags:
+                    flags[kind][0] += 1
+                    flags[kind][1] += flagged(shown[j])
+                xt, xe = np.asarray(g["x"], float), np.asarray(shown[j]["x"], float)
+                by_sensors.setdefault(",".join(shown[j].get("sensors", [])) or "-", []).append((xt[:4], xe[:4]))
+                if xe.size == 4 and xt.size == 6:  # a 2-D tracker against a 3-D truth: its horizontal state
+                    xt = xt[:4]
+                if "P" in shown[j] and xt.shape == xe.shape:
+                    P = np.asarray(shown[j]["P"], float)
+                    try:
+                        np.linalg.cholesky(P)
+                    except np.linalg.LinAlgError:
+                        raise InputError(f"{tracks_path}: the picture at t = {t:g}: track {shown[j]['id']}'s P is "
+                                         "not positive definite (a covariance must be)") from None
+                    errors.append(xt - xe)
+                    covariances.append(P)
+                    motions.append(kind)
     if not series:
         raise InputError(f"{tracks_path}: no picture has a truth line at its time in {truth_path}")
     switches = fragments = 0
