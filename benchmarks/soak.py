@@ -118,7 +118,9 @@ def run_soak(minutes: float, sensors: int, out: Path) -> dict[str, Any]:
 
 
 def main(argv: list[str]) -> int:
-    parser = argparse.ArgumentParser(prog="fedtrack bench soak", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="fedtrack bench soak", description=(
+        "fedtrack bench soak: a federated deployment at the lockstep rate for --minutes, stopped as Ctrl-C stops it; "
+        "scans fused and lost, and every process's resident memory in the first and last minute (issue 13)."))
     parser.add_argument("--minutes", type=float, default=10.0, help="length of the soak (default 10)")
     parser.add_argument("--sensors", type=int, default=4, help="position sensors (default 4)")
     parser.add_argument("--json", type=Path, default=Path("soak.json"), help="output JSON (default soak.json)")

@@ -49,6 +49,20 @@ from fedtrack.config import ConfigError
 from fedtrack.jsonl import InputError, check_output, output_file
 
 SUITES = ("kernels", "montecarlo", "multitarget", "scale", "pipeline", "soak", "hpda-soak", "all")
+# what ``fedtrack bench SUITE --help`` says each suite does (plain text; the module docstring has the details)
+ABOUT = {
+    "kernels": "fedtrack bench kernels: CV KF and radar EKF steps against FilterPy, Stone Soup and a numpy floor, "
+               "and batched KF target-steps per second.",
+    "montecarlo": "fedtrack bench montecarlo: the wall time of reproduce fvdie and reproduce hpda at 500 runs, and "
+                  "AO-VSIMM's CPU time over FSIMM's in reproduce vsimm at 200 runs.",
+    "multitarget": "fedtrack bench multitarget: 1,000 targets replayed by mtt-centralized, mtt-federated and "
+                   "mtt-decentralized; GOSPA beside Stone Soup's trackers; two live deployments (200 targets; sensors "
+                   "joining and leaving); the association table of gnn, jipda and mht.",
+    "scale": "fedtrack bench scale: the centre sharded by region, 1 / 2 / 4 / 8 regions at 1,000 targets or --targets "
+             "N at the same densities, then every region centre replayed in its own process (not part of all).",
+    "all": "fedtrack bench all: kernels, montecarlo, multitarget and pipeline, and the start-up costs (not scale, soak "
+           "or hpda-soak).",
+}
 RATIO_KEYS = ("kf_vs_filterpy", "kf_vs_stonesoup", "ekf_vs_filterpy", "ekf_vs_stonesoup", "imm13_vs_filterpy",
               "aovsimm_vs_fsimm_cpu", "pda_vs_stonesoup")
 
@@ -452,7 +466,7 @@ def main(argv: list[str]) -> int:
     if suite == "pipeline":  # the deployment bench and its own options (the default suite)
         from fedtrack.benchmarks.run import main as pipeline_main
         return pipeline_main(argv[1:] if argv and argv[0] == "pipeline" else argv)
-    parser = argparse.ArgumentParser(prog=f"fedtrack bench {suite}", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog=f"fedtrack bench {suite}", description=ABOUT[suite])
     parser.add_argument("--json", type=Path, default=Path("bench.json"), help="output JSON (default bench.json)")
     parser.add_argument("--quick", action="store_true", help="small sizes (a smoke test; the numbers mean little)")
     if suite == "scale":
