@@ -142,6 +142,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--config", required=True, type=Path, help="the deployment TOML of the fusion host")
     parser.add_argument("--run", required=True, type=Path, help="the recorder's output directory")
     args = parser.parse_args(argv)
+    if not args.run.is_dir():  # not the first file looked for in it
+        print(f"verify_run: error: --run {args.run}: no such folder (the output folder of the launch, its --out "
+              "or [deployment] out)", file=sys.stderr)
+        return 2
     try:
         check: RunCheck | PictureCheck = (verify_mtt_run(args.config, args.run)
                                           if load_settings(args.config).multitarget is not None

@@ -574,3 +574,14 @@ def test_a_stopped_recorder_commits_its_whole_backlog_before_it_says_stopped(tmp
     assert svc.recording.count(FusedTrack) == 100
     svc.recording.close()
     assert svc.drain_deadline_s + CLOSE_DEADLINE_S < RECORDER_GRACE_S  # its final Health goes out before a SIGKILL
+
+
+def test_verify_run_names_a_run_folder_that_is_not_there(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``verify_run --run`` of a folder that does not exist says so; before (tour57) it named the first file it
+    looked for in it, ``RUN/tracks.jsonl: file does not exist``, as if the run had been cut short."""
+    from fedtrack.deploy.verify_run import main as verify_main
+
+    config = Path(__file__).resolve().parents[1] / "deploy" / "local.toml"
+    assert verify_main(["--config", str(config), "--run", str(tmp_path / "nope")]) == 2
+    err = capsys.readouterr().err
+    assert f"--run {tmp_path / 'nope'}: no such folder" in err and "tracks.jsonl" not in err
