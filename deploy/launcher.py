@@ -364,13 +364,15 @@ class Launcher(Monitor):
         except KeyboardInterrupt:
             stopped = True
         finally:
-            self.stop_all(settle)
-            stopped = stopped or self._stop.is_set()  # Ctrl-C while the recorder was waited for
-            self._export_recording()
-            for sub in self._subs:
-                sub.undeclare()
-            if self._session is not None:
-                close_session(self._session)
+            try:
+                self.stop_all(settle)
+                stopped = stopped or self._stop.is_set()  # Ctrl-C while the recorder was waited for
+                self._export_recording()
+            finally:  # also when saying so fails (a closed pipe): each subscriber's callback thread outlives it
+                for sub in self._subs:  # and held the process at its exit, for good (tour57)
+                    sub.undeclare()
+                if self._session is not None:
+                    close_session(self._session)
             self.report.wall_s = time.monotonic() - start
             self.report.failovers = [f.summary(self._epoch, dep.speed, self._scan_s()) for f in self.watch.failovers]
             self.report.router_outages = [o.summary(self._epoch, dep.speed) for o in self.watch.outages]

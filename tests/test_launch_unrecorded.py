@@ -237,3 +237,38 @@ def test_the_recorder_is_waited_for_after_the_services_before_it_stopped(tmp_pat
         run.stop_all(settle)
         assert all(sp.proc is not None and sp.proc.returncode is not None for sp in run.plan)
     assert seen == [(True, True)]  # once (settle), the centre ended, the recorder still running
+
+
+def test_a_closed_pipe_at_the_end_still_closes_the_launchers_session(tmp_path: Path,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """``fedtrack demo --scenario multitarget 2>&1 | head -2``: the export's line to the closed pipe raised, the
+    launcher's subscribers were never undeclared nor its session closed, and their callback threads (not daemons)
+    held the process at its exit for good, after exit code 141 was decided (before tour57). Now they are closed
+    whatever the end raises. Here every step runs in process, none starts a service; the export raises."""
+    fleet = paper_launcher(tmp_path)
+    undeclared: list[int] = []
+    closed: list[object] = []
+
+    class Sub:
+        def __init__(self, k: int) -> None:
+            self.k = k
+
+        def undeclare(self) -> None:
+            undeclared.append(self.k)
+
+    def open_monitor(self: launcher.Launcher) -> None:
+        self._session, self._subs = "session", [Sub(k) for k in range(3)]  # type: ignore[assignment]
+
+    def broken_pipe(self: launcher.Launcher) -> None:
+        raise BrokenPipeError(32, "Broken pipe")
+
+    for name in ("_start", "_wait_listening", "_wait_ready", "_watch", "stop_all"):
+        monkeypatch.setattr(launcher.Launcher, name, lambda self, *a, **k: None)
+    monkeypatch.setattr(launcher.Launcher, "_open_monitor", open_monitor)
+    monkeypatch.setattr(launcher.Launcher, "_export_recording", broken_pipe)
+    monkeypatch.setattr(launcher, "await_start", lambda sensors: tmp_path / "start-at")
+    monkeypatch.setattr(launcher, "release_sensors", lambda *a: 0.0)
+    monkeypatch.setattr(launcher, "close_session", closed.append)
+    with pytest.raises(BrokenPipeError):
+        fleet.run()
+    assert undeclared == [0, 1, 2] and closed == ["session"]
