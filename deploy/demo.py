@@ -185,6 +185,8 @@ def main(argv: list[str]) -> int:
         parser.error("--sensors must be between 1 and 32")
     if (args.source is not None or args.units != "si") and args.scenario != "traffic":
         parser.error("--source and --units apply to --scenario traffic only")
+    if args.units != "si" and args.source is None:  # it would read the committed extract in the wrong units
+        parser.error("--units applies to --source FILE only (the committed Paris extract is in si units)")
     if args.port is not None and not 1 <= args.port <= 65535:
         parser.error(f"--port must be in 1-65535, got {args.port}")
     if args.port is not None and port_in_use(f"tcp/127.0.0.1:{args.port}"):  # was named as OUT/config.toml's

@@ -237,6 +237,24 @@ def test_demo_input_errors_leave_no_output_folder(tmp_path: Path, capsys: pytest
     assert not (tmp_path / "o").exists()
 
 
+def test_demo_refuses_units_without_a_source(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    """``demo --scenario traffic --units aviation`` without ``--source`` read the committed Paris extract (in si
+    units: m, m/s) as ft and kt, altitudes 0.3048 of the truth's, and ran the whole deployment on it (before
+    tour57); ``--units`` is the units of ``--source`` (README: ``[--source FILE [--units si|aviation]]``)."""
+    from fedtrack.deploy import demo
+
+    def started(*args: object, **kwargs: object) -> None:
+        raise AssertionError("the demo went on to simulate the extract")
+    monkeypatch.setattr(demo, "traffic_settings", started)
+    with pytest.raises(SystemExit) as exc:
+        main(["demo", "--scenario", "traffic", "--units", "aviation", "--out", str(tmp_path / "o")])
+    assert exc.value.code == 2
+    assert "--units applies to --source FILE only (the committed Paris extract is in si units)" in \
+        capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
 def test_launch_refuses_a_frame_other_than_the_recordings(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """A recording's scenario is simulated in ``[multitarget] origin``'s frame and the services place tracks
     (lat, lon) and ``lat_lon`` regions in ``[frame] origin``'s: 98 km apart here, taken without a word before
