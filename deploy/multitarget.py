@@ -276,6 +276,8 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Se
             (out / "tracks.geojson").write_text(json.dumps(feature_collection(settings.frame, tracks, truth)))
             written += " gospa.png tracks.geojson"
         summary.update({k: v for k, v in result.items() if k != "series"})
+        if mt is not None and summary.get("algorithm") is None:  # the recorder's pictures do not carry it
+            summary["algorithm"] = mt.algorithm
     latencies = report.picture_latencies_ms(settings.mtt.period, delay)
     if latencies:
         summary["picture_latency_ms"] = {"p50": float(np.percentile(latencies, 50)),

@@ -170,6 +170,25 @@ def test_the_demo_plot_names_the_algorithm_and_marks_maneuvers_in_legends_below_
     assert texts.count("true maneuver") == 1 and texts.count("maneuver detected") == 1
 
 
+def test_a_launch_summary_names_its_algorithm(tmp_path: Path) -> None:
+    """The recorder's pictures carry no ``algorithm``: every live multi-target run's summary.json said
+    ``"algorithm": null`` (before tour57) though ``[multitarget] algorithm`` names it (the plot's title did)."""
+    from fedtrack.deploy.multitarget import SCENARIO_DIR, finish_multitarget
+    from fedtrack.deploy.report import LaunchReport
+    from fedtrack.deploy.settings import load_settings
+
+    tracks, truth = scene(tmp_path, targets=2)
+    write_lines(tracks, [{k: v for k, v in json.loads(x).items() if k not in ("algorithm", "detector")}
+                         for x in tracks.read_text().splitlines()])  # as the recorder's export writes them
+    (tmp_path / SCENARIO_DIR).mkdir()
+    truth.rename(tmp_path / SCENARIO_DIR / "truth.jsonl")
+    config = tmp_path / "config.toml"
+    config.write_text('[multitarget]\nalgorithm = "mtt-decentralized"\ntargets = 2\nsensors = "pos:1.0"\n')
+    finish_multitarget(tmp_path, LaunchReport(), "fedtrack launch", load_settings(config))
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["algorithm"] == "mtt-decentralized" and summary["pictures"] == 20
+
+
 def test_a_region_launch_draws_its_regions_in_tracks_png(tmp_path: Path, figures: list[Any]) -> None:
     """``launch`` of a ``[multitarget]`` config with ``[regions]``: its ``tracks.png`` has the borders
     (in-process: the launcher's finish over the files a run leaves)."""
