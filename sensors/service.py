@@ -276,5 +276,6 @@ def own_scans(path: Path, sensor: str) -> list[SensorScan]:
     scans = [parse_scan(obj, f"{path}:{lineno}") for lineno, obj in read_jsonl(path)]
     own = sorted((s for s in scans if s.sensor == sensor), key=lambda s: s.t)
     if not own:
-        raise InputError(f"{path}: no scan of sensor {sensor!r}")
+        raise InputError(f"{path}: no scan of sensor {sensor!r} (its sensors: "
+                         f"{', '.join(sorted({s.sensor for s in scans})) or 'none'})")
     return own

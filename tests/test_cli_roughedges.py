@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from fedtrack.cli import main
+from fedtrack.jsonl import InputError
 
 README = Path(__file__).resolve().parent.parent / "README.md"
 TRAFFIC = README.parent / "tests" / "data" / "traffic_paris.csv.gz"
@@ -88,6 +89,20 @@ def test_nan_token_names_line_and_column(tmp_path: Path, capsys: pytest.CaptureF
                  "--out", str(tmp_path / "o.jsonl")])
     assert (f"{path}:2: invalid JSON at column {line.index('nan') + 1}: Expecting value (nan and infinity are not "
             "JSON numbers: a finite number is expected)") in one_line_error(capsys, code)
+
+
+def test_a_sensor_with_no_scan_names_the_files_sensors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``replay --algorithm mtt-local --sensor s9`` of a file without s9 names the sensors it has (what would be
+    right); before (tour57) only ``no scan of sensor 's9'``. The sensor service's ``--measurements`` the same."""
+    from fedtrack.sensors.service import own_scans
+
+    path = write_lines(tmp_path / "m.jsonl", [scan(0.0, "s2"), scan(0.5, "r1"), scan(1.0, "s2")])
+    code = main(["replay", "--algorithm", "mtt-local", "--sensor", "s9", "--measurements", str(path),
+                 "--out", str(tmp_path / "o.jsonl")])
+    assert one_line_error(capsys, code) == f"fedtrack: error: {path}: no scan of sensor 's9' (its sensors: r1, s2)"
+    with pytest.raises(InputError, match=r"no scan of sensor 's9' \(its sensors: r1, s2\)$"):
+        own_scans(path, "s9")
+    assert not (tmp_path / "o.jsonl").exists()
 
 
 def test_a_multitarget_file_given_to_kf_says_to_use_mtt(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

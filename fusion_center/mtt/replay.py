@@ -292,7 +292,8 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
     else:
         scans = read_scans(measurements, cfg, frame)
         if sensor is not None and not any(s.sensor == sensor for s in scans):
-            raise InputError(f"{measurements}: no scan of sensor {sensor!r}")
+            raise InputError(f"{measurements}: no scan of sensor {sensor!r} (its sensors: "
+                             f"{', '.join(sorted({s.sensor for s in scans})) or 'none'})")
         dim = state_dim(scans, sensor)
         shards = None if regions is None else data_regions(regions, scans, config)
         engine = make_engine(algorithm, cfg, dim, sensor, shards, None if frame is None else frame.frame, sites)
