@@ -127,6 +127,22 @@ def test_live_pictures_carry_existence_and_the_earth(tmp_path: Path, algorithm: 
     assert_same_pictures(live, [json.loads(x) for x in replayed.read_text().splitlines()])
 
 
+def s2_on_loopback(tmp_path: Path, n: int) -> tuple[list[Any], MttConfig, Any, SessionOptions]:
+    """s2's first ``n`` scans of :func:`scenario`, its config, a loopback router and its clients' options."""
+    lines, cfg, _ = scenario(tmp_path)
+    port = free_port()
+    router = open_session(SessionOptions(mode="router", connect=(), listen=(f"tcp/127.0.0.1:{port}",)))
+    return ([parse_scan(line, "test") for line in lines if line["sensor"] == "s2"][:n], cfg, router,
+            SessionOptions(connect=(f"tcp/127.0.0.1:{port}",), connect_timeout_s=5.0))
+
+
+def publish_when_up(session: Any, keys: Keys, services: list[Any], scans: list[Any]) -> None:
+    """Once ``services`` are alive, publish ``scans`` as s2's, numbered from 0."""
+    assert wait_alive(session, [keys.alive(svc.role, svc.id) for svc in services], WAIT_S) == set()
+    for k, scan in enumerate(scans):
+        session.put(keys.sensor_meas("s2"), encode(scan_to_measurement(scan, k, 1)))
+
+
 def test_a_federated_tracker_stopped_tracks_the_scans_it_holds_first(tmp_path: Path) -> None:
     """Stopped (SIGTERM, ``stop()``) while scans wait for the centre's answers to its last report, a federated
     tracker tracks them before it goes: the centre, stopped after the trackers, still answers. Before (tour57) it
@@ -134,12 +150,8 @@ def test_a_federated_tracker_stopped_tracks_the_scans_it_holds_first(tmp_path: P
     deploy/multitarget.toml` at load 12 (picture latency p99 1.4 s) left s2's last 8 of 85 scans and s1's 4, s3's
     3 untracked (`unprocessed.jsonl`), the last 3 of 59 pictures were never made, and the launch exited 0.
     Here the tracker is held in its first answer's handler until the test has stopped it, its later scans queued."""
-    lines, cfg, _ = scenario(tmp_path)
-    scans = [parse_scan(line, "test") for line in lines if line["sensor"] == "s2"][:6]
-    port = free_port()
+    scans, cfg, router, opts = s2_on_loopback(tmp_path, 6)
     keys = Keys("mttstop")
-    router = open_session(SessionOptions(mode="router", connect=(), listen=(f"tcp/127.0.0.1:{port}",)))
-    opts = SessionOptions(connect=(f"tcp/127.0.0.1:{port}",), connect_timeout_s=5.0)
     common = {"options": opts, "deployment": "mttstop"}
     centre = MttCentreService("mtt-federated", cfg, 4, service_id="centre", **common)
     tracker = MttLocalService("s2", True, cfg, 30.0, service_id="s2", **common)
@@ -155,9 +167,7 @@ def test_a_federated_tracker_stopped_tracks_the_scans_it_holds_first(tmp_path: P
         th.start()
     session = open_session(opts)
     try:
-        assert wait_alive(session, [keys.alive(svc.role, svc.id) for svc in (centre, tracker)], WAIT_S) == set()
-        for k, scan in enumerate(scans):
-            session.put(keys.sensor_meas("s2"), encode(scan_to_measurement(scan, k, 1)))
+        publish_when_up(session, keys, [centre, tracker], scans)
         assert wait_until(lambda: len(tracker.queue) + tracker._queue.qsize() == len(scans) - 1, timeout=WAIT_S)
         tracker.stop()
         gate.set()
@@ -176,21 +186,15 @@ def test_a_federated_tracker_stopped_tracks_the_scans_it_holds_first(tmp_path: P
 def test_a_federated_tracker_stopped_without_answers_counts_the_scans_it_held(tmp_path: Path) -> None:
     """With no centre to answer, the stopped tracker waits ``drain_deadline_s`` and counts the scans still waiting
     ``dropped`` (with a log line); before (tour57) they were counted nowhere."""
-    lines, cfg, _ = scenario(tmp_path)
-    scans = [parse_scan(line, "test") for line in lines if line["sensor"] == "s2"][:4]
-    port = free_port()
+    scans, cfg, router, opts = s2_on_loopback(tmp_path, 4)
     keys = Keys("mttnoans")
-    router = open_session(SessionOptions(mode="router", connect=(), listen=(f"tcp/127.0.0.1:{port}",)))
-    opts = SessionOptions(connect=(f"tcp/127.0.0.1:{port}",), connect_timeout_s=5.0)
     tracker = MttLocalService("s2", True, cfg, 30.0, service_id="s2", options=opts, deployment="mttnoans")
     tracker.drain_deadline_s = 0.2  # type: ignore[misc]
     thread = threading.Thread(target=tracker.run, daemon=True)
     thread.start()
     session = open_session(opts)
     try:
-        assert wait_alive(session, [keys.alive(tracker.role, tracker.id)], WAIT_S) == set()
-        for k, scan in enumerate(scans):
-            session.put(keys.sensor_meas("s2"), encode(scan_to_measurement(scan, k, 1)))
+        publish_when_up(session, keys, [tracker], scans)
         assert wait_until(lambda: len(tracker.queue) == len(scans) - 1, timeout=WAIT_S)
         tracker.stop()
         thread.join(WAIT_S)
