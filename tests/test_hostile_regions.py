@@ -151,6 +151,38 @@ def test_a_hand_over_of_a_track_in_another_region_is_refused(tmp_path: Path) -> 
         np.testing.assert_array_equal(a.x, b.x)
 
 
+def test_a_hand_over_taking_a_tracks_local_tracks_elsewhere_is_refused(tmp_path: Path) -> None:
+    """A hand-over moves the local tracks it names (its members) to the track it brings, from whichever
+    track held them here. x1y0 sending x0y0, before each scan from t = 5 s on, the record of x0y0's track
+    (its local tracks included) under a new id of its own, 300 m ahead of it along x and still in x0y0,
+    was taken over each time: the target's track was renamed at every scan and shown 208-435 m ahead of
+    it (mean 283 m over the 7 pictures, against the clean run's track), as far as the forger liked, a
+    tentative duplicate started at the target every third picture. A record naming a
+    local track held here by a track it does not pass the association gate with (as the duplicate merge
+    tests two tracks of one target) is now refused (``conflict``, the next picture contested), and the
+    pictures are the clean run's; the same record at the track's own state is still taken (the honest
+    hand-over that crossed a report: :func:`test_an_honest_hand_over_still_passes`)."""
+    clean_bus, _ = centre_of_x0y0(tmp_path)
+    scans(clean_bus, range(12))
+    bus, svc = centre_of_x0y0(tmp_path)
+    scans(bus, range(5))
+    centre = svc.engine.region.centre  # type: ignore[union-attr]
+    for k in range(5, 12):
+        (victim,) = list(centre.tracks)
+        msg = handover_to_wire(copy.deepcopy(centre).hand_over(victim), "x1y0", k)
+        assert len(msg.member_ids) == len(SENSORS)  # every sensor's local track of the target
+        ring = np.array(msg.ring)
+        ring[:, 1] += 300.0  # every entry's x (after its time)
+        bus.put(KEYS.region_handover("x0y0", "x1y0"), encode(replace(msg, id=1001 + 2 * k, ring=ring)))
+        scans(bus, range(k, k + 1))
+    assert svc.counters["rejected_conflict"] == svc.counters["rejected"] == 7
+    assert svc.counters.get("taken_over", 0) == 0 and svc.counters["contested"] == 7
+    assert [p.contested for p in bus.of(TrackPicture)] == [False] * 5 + [True] * 7
+    assert shown(bus) == shown(clean_bus) and {ids for _, ids in shown(bus)} == {(0,)}
+    for a, b in zip(bus.of(TrackPicture), clean_bus.of(TrackPicture)):
+        np.testing.assert_array_equal(a.x, b.x)
+
+
 def test_a_hand_over_whose_source_is_not_its_keys_is_refused(tmp_path: Path) -> None:
     """A hand-over's ``source`` was taken from the payload, and every region identity could put on
     every ``region/<rid>/handover``: 64 hand-overs to x0y0 claiming to be x1y0's, numbered from 10^6

@@ -74,7 +74,7 @@ from fedtrack.fusion_center.mtt.failover.standby import NUMBER_ROOM, SETTLED_MAX
 from fedtrack.fusion_center.mtt.numbers import Numbers, read_numbers, reservation, write_numbers
 from fedtrack.fusion_center.mtt.pictures import PICTURE_ITEMS, picture_message, picture_window
 from fedtrack.fusion_center.mtt.regional import RegionEngine
-from fedtrack.fusion_center.mtt.shards import handover_from_wire, handover_to_wire
+from fedtrack.fusion_center.mtt.shards import disputed, handover_from_wire, handover_to_wire
 from fedtrack.fusion_center.mtt.silence import Silence
 from fedtrack.geodetic import Frame, FrameConfig, geodetic_of_states
 from fedtrack.local_filters.linear.gating import CrowdedScan
@@ -492,11 +492,7 @@ class MttCentreService(CentreFailover, Service):
             if first == digest(msg):
                 self.count("duplicate")
                 return
-            if not self.contested:  # either may be the forgery: the next picture says so
-                self.count("contested")
-            self.contested = True
-            self.note_rejected(self.keys.region_handover(self.region, msg.source), Conflict(
-                msg.serial, f"a second, different hand-over {msg.serial} of {msg.source} (the first was taken)"))
+            self._contest(msg, f"a second, different hand-over {msg.serial} of {msg.source} (the first was taken)")
             return
         if len(seen) >= HANDOVERS_KEPT and msg.serial < min(seen):  # older than every one kept: a re-delivery
             self.count("late")
@@ -517,6 +513,12 @@ class MttCentreService(CentreFailover, Service):
                            f"({newest[0]:.6g}, {newest[2]:.6g}), is in region {self.regions.ids[owner]!r}")
         self._in_scale(f"hand-over {msg.serial} of {msg.source}", np.concatenate([ring["x"].ravel(), ring["z"].ravel()]),
                        np.concatenate([ring["P"].ravel(), ring["R"].ravel()]))  # its observations are fused again
+        holder = disputed(engine.region.centre, record)
+        if holder is not None:  # two claims on one local track, as far apart as two targets' tracks
+            self._contest(msg, f"hand-over {msg.serial} of {msg.source}: names local tracks of central track "
+                               f"{holder[0]} here, which it is not an estimate of (chi-square {holder[1]:.4g}, beyond "
+                               f"the association gate {self.cfg.thresholds.association[self.dim]:.4g})")
+            return
         centre, R, here = engine.region.centre, len(engine.regions.ids), engine.index
         unissued = msg.id % R == here and msg.id >= centre.next_id
         late = self.standby.cold and not self.standby.primary  # its primary issued ids before it started
@@ -535,6 +537,15 @@ class MttCentreService(CentreFailover, Service):
         self.handovers_at.append(len(self.order))
         self.order.append((msg.source, msg.serial))
         self.count("taken_over")
+
+    def _contest(self, msg: HandOver, detail: str) -> None:
+        """Refuse a hand-over that contradicts what was taken (``conflict``, the state kept) and mark the next
+        picture contested: either may be the forgery."""
+        if not self.contested:
+            self.count("contested")
+        self.contested = True
+        self.note_rejected(self.keys.region_handover(self.region, msg.source),
+                           Conflict(msg.serial, detail))
 
     def _picture(self, T: float, closing: bool = False) -> TrackPicture:
         """The next picture, at ``T`` (it lists the scans since the previous one)."""

@@ -39,8 +39,10 @@ from fedtrack.fusion_center.mtt.central_track import MAX_ENTRIES
 from fedtrack.fusion_center.mtt.centre import Counters, HandOver, TrackToTrackCentre
 from fedtrack.fusion_center.mtt.centre.association import LocalKey
 from fedtrack.geodetic import RadarSite
+from fedtrack.local_filters.linear.gating import track_difference_d2
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import LocalReport, Resets
+from fedtrack.local_filters.mtt.models import predict_batch
 from fedtrack.local_filters.mtt.routing import RegionAnswer, RegionRouter, join_answers
 from fedtrack.local_filters.regions import Regions, distances, region_of
 
@@ -296,6 +298,33 @@ def handover_from_wire(msg: wire.HandOver, centre: TrackToTrackCentre) -> HandOv
     return HandOver(msg.id, msg.confirmed, tuple(entries), msg.sensors, np.array(msg.support, dtype=np.int64),
                     np.array(msg.streak, dtype=np.int64), np.array(msg.window, dtype=bool), msg.last_support,
                     tuple(zip(msg.member_sensors, msg.member_ids)), msg.strikes)
+
+
+def disputed(centre: TrackToTrackCentre, record: HandOver) -> tuple[int, float] | None:
+    """A central track of ``centre`` holding a local track that ``record`` names (its members) of which the
+    record's newest estimate is not an estimate, and the chi-square between the two; None when there is none.
+
+    Both are predicted to the later of their newest times and tested as the duplicate merge tests two
+    central tracks (the association gate, ``[mtt] association_gate_probability``, on the whole state): an
+    honest record's member mapped here too (its row taken here as the hand-over crossed the tracker's next
+    report) maps a track of the same target, whose errors the shared local track correlates with the record's,
+    so it passes at least at the gate's probability. A record that fails it would take that track's local
+    tracks to a state elsewhere (docs/wire.md, ``conflict`` of ``mtt-centre --region``)."""
+    tracks = centre.tracks
+    holders = sorted({centre.mapping[key] for key in record.members if key in centre.mapping})
+    if not holders:
+        return None
+    ring = dict(zip(tracks._ring, record.entries))
+    t_r = float(ring["t"][-1])
+    slots = tracks.slots_of(holders)
+    T = max(t_r, float(tracks.newest_t(slots).max()))
+    X, P = tracks.states_at(slots, T)
+    x_r, P_r = predict_batch(ring["x"][-1:], ring["P"][-1:], T - t_r, tracks.q, tracks.noise_model)
+    d2 = track_difference_d2(X - x_r, P + P_r)[0]
+    worst = int(d2.argmax())
+    if d2[worst] <= centre.cfg.thresholds.association[tracks.dim]:
+        return None
+    return holders[worst], float(d2[worst])
 
 
 # ---------------------------------------------------------------- the replay of a scans file
