@@ -93,12 +93,17 @@ from fedtrack.services.lead import LeadGuard
 from fedtrack.services.rejections import Conflict, Rejected
 from fedtrack.services.snapshot import MAX_SNAPSHOT_BYTES, unsealed, write_sealed
 from fedtrack.wire import TrackPicture
-from fedtrack.zsession import Peers
+from fedtrack.zsession import LOST_KEPT, Peers
 
 # a merger's first HISTORY_SETTLE_S: the caches' replies and the base service's second query of them (at
 # HISTORY_RECHECK_S) are in (loopback: milliseconds after it)
 HISTORY_SETTLE_S = HISTORY_RECHECK_S + 0.5
 SNAPSHOT_MAGIC = b"fedtrack-picture-1\n"  # --snapshot: then the digest, then the last merged time (its repr)
+# A region's centre tokens followed: its primary and its standby, each restarted at most MAX_RESTARTS (3) times
+# by the launcher, a killed one's token standing until its lease ends, hold at most 2 x (1 + 3) = 8 at once;
+# LOST_KEPT (64) leaves room for standbys an operator adds. More come from a flood (the region's identity may
+# declare any ``alive/mtt-region/<rid>/*``): not followed, counted ``tokens_ignored``.
+CENTRE_TOKENS_KEPT = LOST_KEPT
 # A merged picture carries at most PICTURE_ITEMS tracks and fused entries, as any picture. Each of R
 # regions' pictures may hold 1/R of it (rejected ``too_large`` beyond: 65,536 for 2 regions, 1,310 for
 # 100, above a region's period of scans, 64 live sensors at 10 Hz, and issue 27's 10^5 tracks over the
@@ -175,21 +180,22 @@ class PictureMergeService(Service):
         self.contested = False  # a region sent a second, different picture of a time it had sent: the next merge says so
         # a region picture stamped far ahead of the others waits for a witness (fedtrack/services/lead.py)
         self.lead: LeadGuard[TrackPicture] = LeadGuard(max_lag=0.0)
-        # the region centres' tokens (region_centre), once watched (token_watches; a Zenoh thread's)
-        self.centres: Peers | None = None
+        # each region's centres' tokens (region_centre), once watched (token_watches; a Zenoh thread's)
+        self.centres: dict[str, Peers] | None = None
         self.uncovered: frozenset[int] = frozenset()  # the regions last found without a live centre (logged)
         self.tokenless: frozenset[int] = frozenset()  # regions publishing while none of their tokens shows: waited for
 
     def token_watches(self) -> list[TokenWatch]:
         """Every region centre's token: a region none holds is not waited for (:meth:`_uncovered`)."""
-        self.centres = Peers()
+        self.centres = {rid: Peers(CENTRE_TOKENS_KEPT) for rid in self.regions.ids}
         return [TokenWatch(self.keys.region_centre(), self._on_centre)]
 
     def _on_centre(self, key: str, alive: bool) -> None:
         """Zenoh thread: a region centre's token came or went (one naming no region of the config changes
-        nothing)."""
-        if self.centres is not None and key.rsplit("/", 2)[-2] in self.regions.ids:
-            self.centres.token(key, alive, time.monotonic())
+        nothing; nor one beyond ``CENTRE_TOKENS_KEPT`` of its region's)."""
+        peers = None if self.centres is None else self.centres.get(key.rsplit("/", 2)[-2])
+        if peers is not None:
+            peers.token(key, alive, time.monotonic())
 
     def _uncovered(self, now: float) -> frozenset[int]:
         """The regions without a live centre at ``now``: none holds its token while this merger's link has
@@ -200,7 +206,7 @@ class PictureMergeService(Service):
         merged without), until one shows."""
         if self.centres is None or not self.link().settled(now):
             return frozenset()
-        held = {key.rsplit("/", 2)[-2] for key in self.centres.present}
+        held = {rid for rid, peers in self.centres.items() if peers.present}
         self.tokenless = frozenset(r for r in self.tokenless if self.regions.ids[r] not in held)
         return frozenset(r for r, rid in enumerate(self.regions.ids) if rid not in held) - self.tokenless
 
@@ -319,6 +325,9 @@ class PictureMergeService(Service):
                              self.keys.region_centre(self.regions.ids[r]))
 
     def on_tick(self) -> None:
+        ignored = sum(peers.ignored for peers in (self.centres or {}).values())
+        if ignored:
+            self.counters["tokens_ignored"] = ignored
         self._merge()
 
     def _merge(self, force: bool = False) -> None:
