@@ -55,6 +55,7 @@ class ExistenceConfig:
     false_track_rate: float = 0.01
     one_track_per_detection: bool = True
     clutter_from_scans: bool = True
+    supported_streak: bool = True
 
     def evidence_threshold(self, births: int) -> float:
         """``log(births / false_track_rate)``; ``-inf`` with the test off."""

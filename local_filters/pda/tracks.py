@@ -7,7 +7,8 @@ batched call (leading axis = tracks). Per scan:
    its data association (PDA-AI or HPDA); its existence follows eq (8)/(9) (IPDA-AI) or
    eq (15)/(16) (HPDA);
 2. a track whose existence exceeds ``confirm_threshold`` on ``confirm_scans`` consecutive
-   updates, and whose evidence passes the false-track test below, is confirmed; one whose
+   updates, and whose evidence passes the false-track test below, is confirmed (with
+   ``supported_streak`` only updates that raise its existence count, see below); one whose
    existence falls below ``delete_threshold`` is deleted; with ``one_track_per_detection``
    one detection supports one tentative track (:func:`shared_detection_losers`): the others
    are deleted;
@@ -31,7 +32,14 @@ amplitudes give a likelihood ratio of ``e^10`` or more per detection at rho = 20
 costs it little. The association also uses the larger of the configured clutter density and
 the scans' own estimate (``clutter_from_scans``, :func:`scan_constants`): the bound needs the
 clutter likelihood ratio to average 1. ``false_track_rate = 0``, ``one_track_per_detection =
-false`` and ``clutter_from_scans = false`` give the paper's rule alone.
+false``, ``clutter_from_scans = false`` and ``supported_streak = false`` give the paper's rule alone.
+
+Supported streak: the ``confirm_scans`` updates above ``confirm_threshold`` must each raise the
+existence (eq (8): ``logit mu_k = log(1 - delta_k) + logit mu_bar``, so the update raises it iff the
+scan's likelihood ratio exceeds 1); a miss while the existence stays above the threshold holds the
+count. Without it, at low P_D a miss costs little (``1 - delta = 1 - P_D P_G``, 0.5 at P_D = 0.5):
+a track that caught one target detection (its evidence then passes at once) stayed above the
+threshold through the misses that followed and was confirmed while running away from the target.
 """
 
 from __future__ import annotations
@@ -211,7 +219,10 @@ def _update_tracks(spec: TrackerSpec, c: Constants, tracks: TrackSet, dt: float,
     losers = (shared_detection_losers(dominant, evidence, tracks.confirmed) if e.one_track_per_detection
               else np.zeros(n, dtype=bool))
     mu = existence_update(tracks.existence, log_lr, e.p11, e.p21)
-    streak = np.where(mu > e.confirm_threshold, tracks.streak + 1, 0)
+    # a streak counts the updates that raise the existence (eq (8): log(1 - delta) > 0, the scan's data
+    # support the track); with supported_streak a miss above the threshold holds the count, it adds nothing
+    step = (log_lr > 0.0) if e.supported_streak else 1
+    streak = np.where(mu > e.confirm_threshold, tracks.streak + step, 0)
     passed = (streak >= e.confirm_scans) & (evidence >= tracks.evidence_needed) & ~losers
     confirmed = tracks.confirmed | passed
     inside = np.zeros((n, z.shape[0]), dtype=bool)
