@@ -109,6 +109,18 @@ def surface_enu(frame: Frame, xy: np.ndarray) -> np.ndarray:
     return enu
 
 
+def level_z(frame: Frame | None, xy: np.ndarray) -> np.ndarray:
+    """The common frame's ``z`` (N,) of the origin's height carried over the Earth at east, north ``xy`` (N, 2):
+    the ellipsoid's point along the origin's up (:func:`surface_enu`) raised by the origin's height ``frame.h``.
+    0 at the origin, about ``-d^2 / 2R`` at ``d`` from it (7 km at 300 km): where a 3-D track started from a 2-D
+    plot is centred, its altitude unknown (docs/geodetic.md, "A 2-D start on the Earth"). Without a frame (a flat
+    world) 0."""
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    if frame is None:
+        return np.zeros(len(xy))
+    return surface_enu(frame, xy)[:, 2] + frame.h
+
+
 def surface_xy(frame: Frame, enu: np.ndarray) -> np.ndarray:
     """East, north (N, 2) in ``frame`` of the points of the WGS-84 ellipsoid below ENU positions (N, 3): each
     position's latitude and longitude at h = 0, what a 2-D position sensor on the Earth measures."""

@@ -128,7 +128,9 @@ def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, star
                          f"{float(rec.t.max()) - t0:g} s, latitudes {rec.lla[:, 0].min():g} to "
                          f"{rec.lla[:, 0].max():g}, longitudes {rec.lla[:, 1].min():g} to {rec.lla[:, 1].max():g}"
                          f"{_single(truth.dropped, max_gap)}move --origin, widen --box or change --start / --duration")
-    sensors = parse_sensors(spec, frame, box, rng, float(rec.lla[:, 2].max()))
+    # the site check's aircraft: the truth's highest (before 2026-11-28 the recording's, glitches included: an
+    # altitude decoded 20 km high widened every radar's reach by 400 km; docs/geodetic.md)
+    sensors = parse_sensors(spec, frame, box, rng, truth.highest)
     specs = [s for s, _, _ in sensors]
     steps = truth.alive.shape[0]
     sc = Scenario(targets=len(truth.icao24), duration=(steps - 1) * DT, region=box / 2, pd=pd, clutter=clutter,

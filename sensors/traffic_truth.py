@@ -62,7 +62,8 @@ class Truth(NamedTuple):
     1970], ``alive`` (steps, N), each target's ``icao24`` (N,); ``dropped``: the recording's samples
     and aircraft left out, by reason (:func:`build_truth`). ``surface``: the world is the ellipsoid's
     surface (2-D sensors only): ``x``, ``y`` are the common frame's east, north of the point of the ellipsoid
-    below the aircraft, ``z`` its height above the ellipsoid (:func:`on_surface`)."""
+    below the aircraft, ``z`` its height above the ellipsoid (:func:`on_surface`). ``highest``: the highest
+    recorded altitude [m] of the samples its tracks kept (the altitude glitches left out; -inf: none)."""
 
     t0: float
     x: np.ndarray
@@ -70,6 +71,7 @@ class Truth(NamedTuple):
     icao24: list[str]
     dropped: dict[str, int]
     surface: bool = False
+    highest: float = -math.inf
 
 
 class Segments(NamedTuple):
@@ -273,6 +275,7 @@ def build_truth(rec: Recording, frame: Frame, start: float, duration: float | No
     found = segments(rec, max_gap)
     kept: list[tuple[slice, np.ndarray, np.ndarray, str]] = []  # each track inside the box: its steps, states, inside
     at_odds = glitched = high = 0
+    highest = -math.inf
     for rows in (p for p in found.pieces if rel[p[-1]] >= 0 and rec.t[p[0]] <= end):
         pos = enu_from_geodetic(frame, *rec.lla[rows].T)
         wrong = glitches(rel[rows], pos, np.linalg.norm(rec.velocity[rows, :2], axis=1))
@@ -296,6 +299,7 @@ def build_truth(rec: Recording, frame: Frame, start: float, duration: float | No
             at_odds += int(odd.sum())
             glitched += int((wrong & ~aloft).sum())
             high += int(aloft.sum())
+            highest = max(highest, float(rec.lla[rows, 2].max()))
             kept.append((live, np.stack([p[:, 0], v[:, 0], p[:, 1], v[:, 1], p[:, 2], v[:, 2]], axis=-1), inside,
                          str(rec.icao24[rows[0]])))
     need, room = steps * len(kept) * TRUTH_CELL_BYTES + (steps - 1) * DT * scan_bytes, memory_room()
@@ -317,4 +321,4 @@ def build_truth(rec: Recording, frame: Frame, start: float, duration: float | No
                "altitudes off those either side by more than the aircraft could climb or descend (altitude glitches)":
                    high,
                "aircraft with no track inside the box and window": len(set(rec.icao24.tolist())) - len(set(icao24))}
-    return Truth(t0, x, alive, icao24, dropped, surface)
+    return Truth(t0, x, alive, icao24, dropped, surface, highest)

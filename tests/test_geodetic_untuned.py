@@ -348,3 +348,49 @@ def test_a_live_scenario_from_a_recording_says_what_it_left_out(tmp_path: Path,
     prepare(Settings(deployment=DeploymentConfig(seed=1), multitarget=mt), tmp_path)
     assert (f"scenario: read {tmp_path / 'r.csv'}: 43 rows; left out: 1 in a track of one sample, 1 aircraft with "
             "no track inside the box and window") in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("algorithm", ["mtt-centralized", "mtt-federated"])
+def test_a_track_without_an_altitude_yet_is_placed_at_the_ground_far_from_the_origin(
+        tmp_path: Path, algorithm: str) -> None:
+    """Aircraft at 1,000-1,200 m 550 km from the origin, seen by a position sensor only (the radar at the origin is
+    below their radio horizon): every 3-D track starts from a 2-D plot, its altitude never measured. Before
+    2026-11-28 it started at z = 0, the origin's tangent plane, 24 km above the ground there: its ``alt`` read 24 km
+    and its ``lat``, ``lon`` (the point of ``x`` at that z) were ``z d / R`` = 2 km outward. Now it starts at the
+    origin's height carried over the Earth (``level_z``): its ``alt`` is off by the aircraft's altitude above the
+    origin's height (1.2 km at most) and its ``lat``, ``lon`` by that over R times d (100 m) plus the plots' noise."""
+    source = _csv(tmp_path / "far.csv", _flights(53.9, 2.5, n=3, seconds=120, alt=(1000.0, 1200.0), seed=4))
+    out = tmp_path / "far"
+    assert _simulate(source, "49.0,2.5", out, "radar:4@49.0/2.5/0,pos:2/10", "--box", "1300") == 0
+    assert main(["replay", "--algorithm", algorithm, "--config", str(out / "config.toml"), "--measurements",
+                 str(out / "measurements.jsonl"), "--out", str(out / "t.jsonl")]) == 0
+    truth = {round(o["t"], 6): o["targets"] for o in map(json.loads, (out / "truth.jsonl").read_text().splitlines())}
+    off, up = [], []
+    for picture in map(json.loads, (out / "t.jsonl").read_text().splitlines()):
+        for row in (r for r in picture["tracks"] if r["status"] == "confirmed" and round(picture["t"], 6) in truth):
+            near = min(truth[round(picture["t"], 6)], key=lambda g: np.hypot(g["x"][0] - row["x"][0],
+                                                                            g["x"][2] - row["x"][2]))
+            north = (row["lat"] - near["lat"]) * 111.2e3
+            east = (row["lon"] - near["lon"]) * 111.2e3 * np.cos(np.radians(near["lat"]))
+            off.append(np.hypot(north, east))
+            up.append(row["alt"] - near["alt"])
+    assert len(off) > 100
+    assert max(off) < 100.0 + 5 * 10.0 * np.sqrt(2), max(off)  # 1.2 km x 550 km / R, the plots' 10 m at 5 sigma
+    assert max(np.abs(up)) < 2 * 1200.0, max(np.abs(up))  # the prior's centre: the ground (origin h = 0)
+
+
+def test_the_radar_site_check_takes_the_truths_highest_altitude_not_a_glitch(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A site 296 km from the box of aircraft at 3 km is beyond their radio horizon (226 km, the site at 0 m) and
+    refused as a site in the wrong units. Before 2026-11-28 the check took the recording's highest altitude, and one
+    altitude decoded 30 km high (left out of the truth as an altitude glitch) widened the reach to 714 km: the site
+    was taken, its radar writing clutter only."""
+    rows = _flights(48.86, 2.40, n=3, seconds=20, alt=(3000.0, 3000.0), seed=5)
+    rows[10][4] = 30000.0
+    source = _csv(tmp_path / "g.csv", rows)
+    code = _simulate(source, "48.86,2.40", tmp_path / "o", "radar:4@52.5/2.40/0,pos:2")
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 2 and len(err) == 1 and "beyond the radio horizon" in err[0], err
+    assert 3000.0 <= float(err[0].split("up to ")[1].split(" m")[0]) < 3010.0, err  # the truth's, not the glitch
+    assert not (tmp_path / "o").exists()
+    assert _simulate(source, "48.86,2.40", tmp_path / "near", "radar:4@49.5/2.40/0,pos:2") == 0  # 71 km: taken

@@ -462,6 +462,7 @@ class TrackToTrackEngine(Engine):
     regions: Regions | None = None  # a centre per region (:class:`ShardedCentre`), else one centre
     existence: CentralExistence | None = None  # the local trackers keep existence (jipda)
     sites: dict[str, RadarSite] = field(default_factory=dict)  # [frame.sites]: the centre's radars' sites
+    frame: Frame | None = None  # [frame]: a 2-D report's track starts at the origin's height there (level_z)
 
     def ingest(self, scan: SensorScan) -> None:
         tracker = self.local.get(scan.sensor)
@@ -511,9 +512,10 @@ class TrackToTrackEngine(Engine):
     def fuse(self, report: LocalReport) -> tuple[Resets, float]:
         """The centre's part of a scan, as the live centre does it per report."""
         if self.centre is None:
-            self.centre = (TrackToTrackCentre(self.cfg, self.dim, self.feedback, sites=self.sites)
+            self.centre = (TrackToTrackCentre(self.cfg, self.dim, self.feedback, sites=self.sites, frame=self.frame)
                            if self.regions is None
-                           else ShardedCentre(self.cfg, self.dim, self.feedback, self.regions, sites=self.sites))
+                           else ShardedCentre(self.cfg, self.dim, self.feedback, self.regions, sites=self.sites,
+                                            frame=self.frame))
         self.scans += 1
         if report.existence is not None:
             self.existence = self.existence or CentralExistence()
@@ -668,5 +670,6 @@ def make_engine(algorithm: str, cfg: MttConfig, dim: int, sensor: str | None = N
     if algorithm == "mtt-centralized":
         return CentralizedEngine(cfg, dim, frame=frame)
     if algorithm in ("mtt-federated", "mtt-decentralized"):
-        return TrackToTrackEngine(cfg, dim, feedback=algorithm == "mtt-federated", regions=regions, sites=sites or {})
+        return TrackToTrackEngine(cfg, dim, feedback=algorithm == "mtt-federated", regions=regions, sites=sites or {},
+                                  frame=frame)
     raise ValueError(f"unknown multi-target algorithm {algorithm!r}")

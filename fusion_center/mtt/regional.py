@@ -35,7 +35,7 @@ from fedtrack.fusion_center.mtt.engines import (
 )
 from fedtrack.fusion_center.mtt.failover.standby import NUMBER_ROOM
 from fedtrack.fusion_center.mtt.shards import RegionCentre
-from fedtrack.geodetic import RadarSite
+from fedtrack.geodetic import Frame, RadarSite
 from fedtrack.jsonl import InputError, read_jsonl
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import LocalReport, SensorTracker
@@ -76,11 +76,13 @@ class RegionEngine(Engine):
     handed_t: dict[int, float] = field(default_factory=dict)  # their ids -> the latest data time at the hand-over
     high: float = -np.inf  # the latest data time of the sub-reports so far
     sites: dict[str, RadarSite] = field(default_factory=dict)  # [frame.sites]: the radars' sites (life rules)
+    frame: Frame | None = None  # [frame]: a 2-D report's track starts at the origin's height there (level_z)
 
     def __post_init__(self) -> None:
         assert self.regions is not None
-        self.region = RegionCentre(self.cfg, self.dim, self.feedback, self.regions, self.index, sites=self.sites)
-        self.shadow = TrackToTrackCentre(self.cfg, self.dim, self.feedback, sites=self.sites)
+        self.region = RegionCentre(self.cfg, self.dim, self.feedback, self.regions, self.index, sites=self.sites,
+                                   frame=self.frame)
+        self.shadow = TrackToTrackCentre(self.cfg, self.dim, self.feedback, sites=self.sites, frame=self.frame)
 
     def answer(self, report: LocalReport, elsewhere: np.ndarray
                ) -> tuple[RegionAnswer, list[tuple[int, int, HandOver]]]:
@@ -252,12 +254,15 @@ class _Tracker:
 
 def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions, entries: list[tuple[int, Entry]],
                       counts: dict[str, int], max_gap: float = MAX_TIME_JUMP_S,
-                      sites: dict[str, RadarSite] | None = None) -> Iterator[tuple[float, PictureTracks]]:
+                      sites: dict[str, RadarSite] | None = None, frame: Frame | None = None
+                      ) -> Iterator[tuple[float, PictureTracks]]:
     """The merged pictures of a live region run from its recorded entries (module docstring);
     ``counts`` gets the trackers' scans and the centres' counters added up (the replay's report);
-    ``max_gap``: the centres' ``[deployment] max_time_jump_s`` (:class:`PictureClock`); ``sites``: ``[frame.sites]``."""
+    ``max_gap``: the centres' ``[deployment] max_time_jump_s`` (:class:`PictureClock`); ``sites``: ``[frame.sites]``;
+    ``frame``: ``[frame]``."""
     R = len(regions.ids)
-    engines = [RegionEngine(cfg, dim, feedback=feedback, regions=regions, index=r, sites=sites or {}) for r in range(R)]
+    engines = [RegionEngine(cfg, dim, feedback=feedback, regions=regions, index=r, sites=sites or {},
+                            frame=frame) for r in range(R)]
     clocks = [PictureClock(cfg.period, cfg.picture_delay, max_gap=max_gap) for _ in range(R)]
     queues: list[deque[Entry]] = [deque() for _ in range(R)]
     trackers: dict[str, _Tracker] = {}
@@ -304,7 +309,8 @@ def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions
             for T in clocks[r].final():  # the pictures its former process made as it stopped
                 shown[r][T] = engines[r].region_picture(T)
             retired.append(engines[r])  # its counters still count
-            engines[r] = RegionEngine(cfg, dim, feedback=feedback, regions=regions, index=r, sites=sites or {})
+            engines[r] = RegionEngine(cfg, dim, feedback=feedback, regions=regions, index=r, sites=sites or {},
+                                      frame=frame)
             engines[r].region.centre.next_id, engines[r].region.serial = entry
             clocks[r] = PictureClock(cfg.period, cfg.picture_delay, max_gap=max_gap)
         elif isinstance(entry, Handed):

@@ -288,7 +288,7 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
         engine = make_engine(algorithm, cfg, dim)
         recorded: dict[str, int] = {}
         source = recorded_pictures(cfg, dim, algorithm == "mtt-federated", shards, entries, recorded,
-                                   max_time_jump(config), sites)
+                                   max_time_jump(config), sites, None if frame is None else frame.frame)
     else:
         scans = read_scans(measurements, cfg, frame)
         if sensor is not None and not any(s.sensor == sensor for s in scans):

@@ -142,12 +142,13 @@ class MttCentreService(CentreFailover, Service):
                 raise ConfigError(f"--region {region}: needs a track-to-track algorithm and a config whose [regions] "
                                   f"has it ({', '.join(regions.ids) if regions else 'no [regions]'})")
             self.engine = RegionEngine(cfg, dim, feedback=feedback, regions=regions, index=regions.ids.index(region),
-                                       sites=radar_sites)
+                                       sites=radar_sites, frame=frame)
         else:
             if numbers is not None:
                 raise ConfigError("--numbers: a region centre's (--region) only")
             self.engine = (CentralizedEngine(cfg, dim, frame=frame) if algorithm == "mtt-centralized"
-                           else TrackToTrackEngine(cfg, dim, feedback=feedback, sites=radar_sites))
+                           else TrackToTrackEngine(cfg, dim, feedback=feedback, sites=radar_sites,
+                                                  frame=frame))
         self.picture_key = self.keys.mtt_picture() if region is None else self.keys.region_picture(region)
         # --numbers: the ids and hand-over numbers reserved there (:mod:`.numbers`); a former process's go on
         self.numbers = numbers

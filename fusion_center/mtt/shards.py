@@ -38,7 +38,7 @@ from fedtrack import wire
 from fedtrack.fusion_center.mtt.central_track import MAX_ENTRIES
 from fedtrack.fusion_center.mtt.centre import Counters, HandOver, TrackToTrackCentre
 from fedtrack.fusion_center.mtt.centre.association import LocalKey
-from fedtrack.geodetic import RadarSite
+from fedtrack.geodetic import Frame, RadarSite
 from fedtrack.local_filters.linear.gating import track_difference_d2
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import LocalReport, Resets
@@ -108,10 +108,12 @@ class RegionCentre:
     rows: int = 0  # rows of the sub-reports received
     rows_taken: int = 0  # of them, those fused here (:meth:`taken`); the rest: the margin's, and in flight
     sites: dict[str, RadarSite] = field(default_factory=dict)  # [frame.sites]: the radars' sites (life rules)
+    frame: Frame | None = None  # [frame]: a 2-D report's track starts at the origin's height there (level_z)
 
     def __post_init__(self) -> None:
         self.centre = TrackToTrackCentre(self.cfg, self.dim, self.feedback, next_id=self.index,
-                                         id_step=len(self.regions.ids), sites=self.sites)
+                                         id_step=len(self.regions.ids), sites=self.sites,
+                                         frame=self.frame)
         self.boxes = np.stack([interior(self.regions, r) for r in range(len(self.regions.ids))])  # (R, 4)
         self.box = tuple(self.boxes[self.index].tolist())  # its own, as floats (owners)
         self.own = self.regions._replace(ids=(self.name,), vertices=self.regions.vertices[self.index:self.index + 1])
@@ -346,13 +348,15 @@ class ShardedCentre:
     cpu_s: list[float] = field(default_factory=list)
     routing_s: float = 0.0
     sites: dict[str, RadarSite] = field(default_factory=dict)  # [frame.sites]: the radars' sites (life rules)
+    frame: Frame | None = None  # [frame]: a 2-D report's track starts at the origin's height there (level_z)
     # when a list (one per region, ``record()``): each region centre's calls as made, in order, for a replay of
     # that centre alone (``fedtrack bench scale``'s own-process measurement); None: nothing kept
     calls: list[list[tuple[Any, ...]]] | None = None
 
     def __post_init__(self) -> None:
         n = len(self.regions.ids)
-        self.centres = [RegionCentre(self.cfg, self.dim, self.feedback, self.regions, r, sites=self.sites)
+        self.centres = [RegionCentre(self.cfg, self.dim, self.feedback, self.regions, r, sites=self.sites,
+                                     frame=self.frame)
                         for r in range(n)]
         self.cpu_s = [0.0] * n
 

@@ -43,6 +43,7 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
+from fedtrack.geodetic import Frame, level_z
 from fedtrack.local_filters.linear.gating import ball_query
 from fedtrack.local_filters.linear.kalman import solve_spd, symmetrize
 from fedtrack.local_filters.mtt import detector, maneuver
@@ -102,6 +103,7 @@ class PairParams(NamedTuple):
     pd: float
     clutter_density: float  # of the scan's sensor, per unit of its measurement space
     min_log_lr: float = 0.0  # a pair's log-likelihood ratio must exceed this (:func:`least_log_lr`)
+    frame: Frame | None = None  # [frame]: an altitude unobserved is centred on the Earth (:func:`level_z`)
 
 
 def least_log_lr(pd: float, by_existence: bool) -> float:
@@ -147,8 +149,9 @@ def two_point_state(first: Starts, pos: np.ndarray, cov: np.ndarray, k: int, dt:
     velocity they observe: in information form, the second detection as ``H x`` and the first as
     ``H F^-1 x`` with covariance ``R_1 + H F^-1 Q F^-T H'`` (the first's position given the state at
     the second under the CV model: exact). A 3-D state's altitude observed by neither detection keeps
-    the one-point start's prior (``z`` 0 with ``init_z_std``), and its vertical velocity observed by
-    fewer than two the one-point start's ``init_velocity_std``. Returns ``x`` (n, D) and ``P``."""
+    the one-point start's prior (``z`` the origin's height at the second detection, :func:`level_z`, with
+    ``init_z_std``), and its vertical velocity observed by fewer than two the one-point start's
+    ``init_velocity_std``. Returns ``x`` (n, D) and ``P``."""
     n, d = dt.size, p.dim
     back, Q = cv_back(d, dt, p.q, p.noise_model)
     Y, y = np.zeros((n, d, d)), np.zeros((n, d))
@@ -165,6 +168,7 @@ def two_point_state(first: Starts, pos: np.ndarray, cov: np.ndarray, k: int, dt:
     if d == 6:
         seen = (first.k == 3).astype(int) + (k == 3)
         Y[seen == 0, 4, 4] += 1.0 / p.init_z_std**2
+        y[seen == 0, 4] += level_z(p.frame, pos[seen == 0, :2]) / p.init_z_std**2
         Y[seen < 2, 5, 5] += 1.0 / p.init_velocity_std**2
     P = symmetrize(np.linalg.solve(Y, np.broadcast_to(np.eye(d), Y.shape)))
     return (P @ y[..., None])[..., 0], P
@@ -261,7 +265,8 @@ def start_tracks(scan: SensorScan, det: np.ndarray, params: TrackParams, first_i
     P[np.ix_(np.arange(n), pidx, pidx)] = Ppos
     for v in (1, 3, 5)[: d // 2]:
         P[:, v, v] = params.init_velocity_std**2
-    if d == 6 and k == 2:
+    if d == 6 and k == 2:  # the altitude unknown: the origin's height there, +-init_z_std (docs/geodetic.md)
+        x[:, 4] = level_z(params.frame, pos)
         P[:, 4, 4] = params.init_z_std**2
     obs = Observation(np.broadcast_to(position_matrix(d, k), (n, k, d)).copy(), Ppos, pos)
     one = np.ones(n, np.int64)
@@ -324,7 +329,7 @@ def initiate(starts: Starts, tracks: TrackSet, live: np.ndarray, scan: SensorSca
                                                             and params.mht.management == "score")
     pairs = pair_starts(starts, waiting, scan.t, pos, cov, scale, PairParams(
         params.dim, params.q, params.noise_model, params.max_speed, params.init_velocity_std, params.init_z_std,
-        params.gate, params.pd, params.clutter_density, least_log_lr(params.pd, by_existence)))
+        params.gate, params.pd, params.clutter_density, least_log_lr(params.pd, by_existence), params.frame))
     partners = rows[pairs.start]
     alone = tracks.hits[partners] == 1
     waiting[pairs.start] = False

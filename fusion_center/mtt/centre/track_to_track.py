@@ -92,7 +92,7 @@ from fedtrack.fusion_center.mtt.centre.posterior_bound import kalman_rows, undet
 from fedtrack.fusion_center.mtt.centre.registration import SensorRegistration, sensor_frame
 from fedtrack.fusion_center.mtt.centre.track_life import CentreLife, needs_local_confirmation
 from fedtrack.fusion_center.mtt.silence import INTERVALS_KEPT, silence_bound, usual_intervals
-from fedtrack.geodetic import RadarSite
+from fedtrack.geodetic import Frame, RadarSite, level_z
 from fedtrack.local_filters.linear.gating import track_difference_d2
 from fedtrack.local_filters.linear.noise_floor import raise_to_floor
 from fedtrack.local_filters.mtt.config import MttConfig
@@ -168,6 +168,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
     counters: Counters = field(default_factory=Counters)
     # [frame.sites]: each radar's site (its horizon, the life rules)
     sites: dict[str, RadarSite] = field(default_factory=dict)
+    frame: Frame | None = None  # [frame]: a 2-D report's track starts at the origin's height there (level_z)
 
     def __post_init__(self) -> None:
         cfg = self.cfg
@@ -354,6 +355,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
             return x.copy(), P.copy()
         xc, Pc = np.zeros(self.dim), np.zeros((self.dim, self.dim))
         xc[:d], Pc[:d, :d] = x, P
+        xc[4] = level_z(self.frame, x[[0, 2]])[0]  # its altitude unknown: the origin's height there (docs/geodetic.md)
         Pc[4, 4], Pc[5, 5] = self.cfg.init_z_std**2, self.cfg.init_velocity_std**2
         return xc, Pc
 
