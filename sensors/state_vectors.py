@@ -44,13 +44,15 @@ MILLISECONDS_FROM = 1e11
 class Recording(NamedTuple):
     """Airborne samples, sorted by aircraft then time: ``t`` [s since 1970], ``icao24``, ``lla`` (N, 3)
     [deg, deg, m], ``velocity`` (N, 3) east, north, up [m/s] in the local axes (NaN: not recorded);
-    ``dropped``: the rows read but left out, by reason."""
+    ``dropped``: the rows read but left out, by reason; ``ground``: each aircraft's times of its rows on the ground
+    (sorted; a report on the ground bounds its altitude seconds away: :func:`~.traffic_truth.above_the_runways`)."""
 
     t: np.ndarray
     icao24: np.ndarray
     lla: np.ndarray
     velocity: np.ndarray
     dropped: dict[str, int]
+    ground: dict[str, np.ndarray] | None = None
 
 
 def _rows(path: Path) -> tuple[list[str], list[tuple[int, list[Any]]]]:
@@ -166,12 +168,18 @@ def read_recording(path: Path, units: str = "si") -> Recording:
     k_alt, k_gs, k_vr = UNITS[units]
     t, ids, lla, vel = [], [], [], []
     ground = missing = 0
+    grounded: dict[str, list[float]] = {}
     for lineno, row in rows:
         where = f"{path}:{lineno}"
         if len(row) < len(names):
             raise InputError(f"{where}: {len(row)} fields, the header has {len(names)}")
         if "onground" in index and _flag(row[index["onground"]]):
             ground += 1
+            try:  # its time only bounds the airborne samples' altitudes: a row it cannot read bounds nothing
+                icao, when = _address(row[index["icao24"]], where), _seconds(row[index["time"]], where)
+            except InputError:
+                continue
+            grounded.setdefault(icao, []).append(when)
             continue
         point = [_number(row[index[c]], where, c) for c in ("latitude", "longitude", "altitude")]
         if not all(map(math.isfinite, point)):
@@ -189,4 +197,5 @@ def read_recording(path: Path, units: str = "si") -> Recording:
         raise InputError(f"{path}: no airborne sample with a position")
     order = np.lexsort((np.array(t), np.array(ids)))
     return Recording(np.array(t)[order], np.array(ids)[order], np.array(lla, float)[order],
-                     np.array(vel, float)[order], {"on the ground": ground, "without a position or altitude": missing})
+                     np.array(vel, float)[order], {"on the ground": ground, "without a position or altitude": missing},
+                     {icao: np.sort(np.array(times)) for icao, times in grounded.items()})

@@ -55,6 +55,9 @@ GLITCH_STEPS = 5  # steps either side of a sample whose median speed bounds its 
 #: a transponder reports: Gillham code; Mode S's Q-bit reports 25 ft)
 VERTICAL_ACCELERATION = 9.80665
 ALTITUDE_RESOLUTION = 30.48
+#: the highest runway an aircraft reported on the ground can stand on: Daocheng Yading airport's, 4,411 m, the highest
+#: airport with scheduled flights (:func:`above_the_runways`)
+HIGHEST_RUNWAY = 4411.0
 
 
 class Truth(NamedTuple):
@@ -237,6 +240,24 @@ def altitude_glitches(t: np.ndarray, alt: np.ndarray, rate: np.ndarray) -> np.nd
     return (offs[0] * offs[1] > 0) & (np.abs(offs[0]) > reach[0]) & (np.abs(offs[1]) > reach[1])
 
 
+def above_the_runways(t: np.ndarray, alt: np.ndarray, rate: np.ndarray, ground: np.ndarray) -> np.ndarray:
+    """Which of a track's samples (n,) at times ``t`` hold an altitude ``alt`` that an aircraft reported on the ground
+    before it and after it (times ``ground``, sorted; those rows dropped on reading) could not reach and leave:
+    higher than ``HIGHEST_RUNWAY`` by more than ``v s + VERTICAL_ACCELERATION s^2 / 2 + ALTITUDE_RESOLUTION``, ``s``
+    the time to the farther of the two reports and ``v`` its recorded vertical rate ``rate`` (NaN: not recorded, 0).
+    Both sides: a flag on the ground can be wrong too (``collections/savan`` cruises at 6.7 km and 142 m/s with one
+    report on the ground 14-21 s away). ``noisy/noisy_takeoff`` taxis at 22 m/s while its rows flagged airborne,
+    between rows flagged on the ground every few seconds, read 10,965 m: a track of its own, since a 107 s gap
+    follows, that agrees with itself (no glitch to :func:`altitude_glitches`)."""
+    if not ground.size:
+        return np.zeros(len(t), bool)
+    at = np.searchsorted(ground, t)
+    inside = (at > 0) & (at < ground.size)  # a report on the ground before it and one after it
+    s = np.maximum(t - ground[np.maximum(at - 1, 0)], ground[np.minimum(at, ground.size - 1)] - t)
+    v = np.nan_to_num(np.abs(rate))
+    return inside & (alt > HIGHEST_RUNWAY + v * s + VERTICAL_ACCELERATION * s * s / 2.0 + ALTITUDE_RESOLUTION)
+
+
 def memory_room() -> float:
     """Bytes a window's truth and scans may take: a quarter of the machine's physical memory (1 GiB where it is not
     known)."""
@@ -274,13 +295,20 @@ def build_truth(rec: Recording, frame: Frame, start: float, duration: float | No
     rel = rec.t - t0
     found = segments(rec, max_gap)
     kept: list[tuple[slice, np.ndarray, np.ndarray, str]] = []  # each track inside the box: its steps, states, inside
-    at_odds = glitched = high = 0
+    at_odds = glitched = high = runway = lone = 0
+    ground = rec.ground or {}
     highest = -math.inf
     for rows in (p for p in found.pieces if rel[p[-1]] >= 0 and rec.t[p[0]] <= end):
         pos = enu_from_geodetic(frame, *rec.lla[rows].T)
         wrong = glitches(rel[rows], pos, np.linalg.norm(rec.velocity[rows, :2], axis=1))
         aloft = altitude_glitches(rel[rows], rec.lla[rows, 2], rec.velocity[rows, 2]) & ~wrong
-        wrong |= aloft
+        landed = above_the_runways(rec.t[rows], rec.lla[rows, 2], rec.velocity[rows, 2],
+                                   ground.get(str(rec.icao24[rows[0]]), np.zeros(0))) & ~wrong & ~aloft
+        wrong |= aloft | landed
+        if (~wrong).sum() < 2:  # nothing left to fly: a track of its own at an altitude no runway has
+            runway += int(landed.sum())
+            lone += int((~wrong).sum())
+            continue
         rows, pos = rows[~wrong], pos[~wrong]
         live = slice(_steps_before(rel[rows[0]], steps), _steps_before(rel[rows[-1]], steps, after=True))
         grid = np.arange(live.start, live.stop) * DT  # the window's grid k DT, each track's steps only
@@ -297,8 +325,9 @@ def build_truth(rec: Recording, frame: Frame, start: float, duration: float | No
         inside = np.all(np.abs(p[:, :2]) <= box / 2, axis=1)
         if inside.any():  # a track never inside the box takes no room in the grid
             at_odds += int(odd.sum())
-            glitched += int((wrong & ~aloft).sum())
+            glitched += int((wrong & ~aloft & ~landed).sum())
             high += int(aloft.sum())
+            runway += int(landed.sum())
             highest = max(highest, float(rec.lla[rows, 2].max()))
             kept.append((live, np.stack([p[:, 0], v[:, 0], p[:, 1], v[:, 1], p[:, 2], v[:, 2]], axis=-1), inside,
                          str(rec.icao24[rows[0]])))
@@ -315,10 +344,12 @@ def build_truth(rec: Recording, frame: Frame, start: float, duration: float | No
         x[live, j] = state
         alive[live, j] = inside
     icao24 = [icao for *_, icao in kept]
-    dropped = {**rec.dropped, "repeating a time or position": found.repeated, "in a track of one sample": found.single,
+    dropped = {**rec.dropped, "repeating a time or position": found.repeated,
+               "in a track of one sample": found.single + lone,
                "horizontal velocities at odds with the positions (their derivative taken)": at_odds,
                "positions farther from the previous one than the aircraft could fly (glitches)": glitched,
                "altitudes off those either side by more than the aircraft could climb or descend (altitude glitches)":
                    high,
+               "altitudes above every runway between reports on the ground": runway,
                "aircraft with no track inside the box and window": len(set(rec.icao24.tolist())) - len(set(icao24))}
     return Truth(t0, x, alive, icao24, dropped, surface, highest)

@@ -23,6 +23,7 @@ from fedtrack.sensors.traffic_sensors import adsb_view, parse_noise
 from fedtrack.sensors.traffic_truth import (
     TRUTH_CELL_BYTES,
     Truth,
+    above_the_runways,
     altitude_glitches,
     build_truth,
     reconcile,
@@ -187,6 +188,32 @@ def test_an_altitude_held_a_step_or_a_parabola_is_no_glitch() -> None:
     for times, alt in ((t, held), (t, 3000.0 + 30.0 * t), (t, parabola), (30.0 * t, 3000.0 + 10.0 * t)):
         assert not altitude_glitches(times, alt, np.full_like(times, np.nan)).any()
     assert not altitude_glitches(t[:2], np.array([1000.0, 9000.0]), np.full(2, np.nan)).any()
+
+
+def test_an_aircraft_on_the_ground_read_11_km_up_is_left_out_of_the_truth(tmp_path: Path) -> None:
+    """As ``noisy/noisy_takeoff``: an aircraft taxis east at 20 m/s for 61 s, its rows flagged on the ground (altitude
+    empty) and airborne (10,965 m) alternating every 3 s; 100 s later it takes off from a runway at 400 m and climbs
+    at 15 m/s, a row on the ground 1 s before its first. The taxiing rows, between reports on the ground seconds away
+    and far above any runway, are left out and counted; the climb is kept whole (on the ground before it only).
+    Before, the truth held a track at 10,965 m moving at 20 m/s, and the site check and init_z_std took it."""
+    rows = []
+    for t in range(61):
+        la, lo, _ = geodetic_from_enu(PARIS, np.array([20.0 * t, 0.0, 0.0])).tolist()
+        on = (t // 3) % 2 == 0
+        rows.append(f"{1000 + t},a,{la},{lo},{'' if on else 10965.0},{str(on).lower()}")
+    for t in range(160, 280):
+        la, lo, _ = geodetic_from_enu(PARIS, np.array([20.0 * 60 + 80.0 * (t - 160), 0.0, 0.0])).tolist()
+        rows.append(f"{1000 + t},a,{la},{lo},{400.0 + 15.0 * (t - 159) if t > 160 else 400.0},{str(t == 160).lower()}")
+    rec = read_recording(_write_csv(tmp_path / "a.csv", "time,icao24,lat,lon,alt,onground", rows))
+    truth = build_truth(rec, PARIS, 0.0, None, 400e3, 30.0)
+    assert len(truth.icao24) == 1 and truth.highest == 400.0 + 15.0 * 120, (truth.icao24, truth.highest)
+    assert truth.dropped["altitudes above every runway between reports on the ground"] == 30
+    # what can be flown between two reports on the ground 1 s and 30 s away (at 1 g off the highest runway) is kept
+    nan = np.full(2, np.nan)
+    assert above_the_runways(np.array([1.0, 1.0]), np.array([4411.0 + 30.0 + 9.80665 / 2, 5000.0]), nan,
+                             np.array([0.0, 2.0])).tolist() == [False, True]
+    assert not above_the_runways(np.array([30.0, 30.0]), np.array([8800.0, 8800.0]), nan, np.array([0.0, 60.0])).any()
+    assert not above_the_runways(np.array([1.0]), np.array([9000.0]), nan[:1], np.array([0.0])).any()  # one side
 
 
 def test_a_recording_sampled_every_31_s_is_one_track(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
