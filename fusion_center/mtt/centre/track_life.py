@@ -153,7 +153,9 @@ class CentreLife:
         are not one sensor's alone unheard or denied by the others. A scan of sensor ``sensor`` (column ``col``)
         vets each tentative slot (of ``tentative``) it
         supports none of: blind to it or not, the sensor has had its say. It questions one that exactly one
-        other sensor supports when the scan counts for it (``counts``: it sees its place, :meth:`_blind_to`)
+        other sensor supports when the scan counts for it (``counts``: it sees its place, :meth:`_blind_to`),
+        it surely sees that place (:meth:`_surely_seen`: a radar's miss of a track of unknown height may be its
+        horizon's; before 2026-11-28 such misses denied an aircraft below every radar's horizon for good)
         and did not detect it (``PENDING``), and denies it when its previous scan did so too (``DENIED``: the
         ``CENTRAL_MISSES`` misses that would delete it if it were confirmed; a live target at P_D 0.9 once in a
         hundred); its next detection takes a question back, not a denial (a local track of clutter mapped for
@@ -183,6 +185,10 @@ class CentreLife:
         denied[asked[self._vouched(asked, sensor)], col] = 0  # the sensor vouches for it now
         n_support = np.count_nonzero(support, axis=1)
         missed = counted[(n_support == 1) & ~hit[counted] & ~support[:, col]]
+        if missed.size:  # a sensor questions only a place it surely sees: a radar's miss may be its horizon's
+            alone_col = np.zeros((missed.size, len(self.sensor_names)), dtype=bool)
+            alone_col[:, col] = True
+            missed = missed[self._surely_seen(missed, alone_col, t)]
         denied[missed, col] = np.where(denied[missed, col] > 0, DENIED, PENDING)
         now = counted[holds]
         if self.n_live < DENIAL_LIVE:  # no third sensor to settle a question: the count alone (fastslow56)
