@@ -433,7 +433,7 @@ def test_replay_notes_when_the_count_confirms_clutter_tracks(tmp_path: Path, cap
     data = tmp_path / "m.jsonl"
     # a radar's density is per m rad^2 (here 4e-4, as simulate writes for 200 false a scan): never judged per m^2
     raised = ("1e-07 per m^2 (noise 500 m) the 25-of-27 count (raised as far as a real target keeps a chance of 1/2 "
-              "to confirm) confirms a track started on clutter with probability 0.420")
+              "to confirm, within 27 scans) confirms a track started on clutter with probability 0.420")
     for associator, clutter, sd, noted in (("gnn", 2e-6, 10.0, ""), ("gnn", 1e-7, 10.0, ""), ("jipda", 2e-6, 10.0, ""),
                                            ("gnn", 1e-7, 500.0, raised)):
         lines = [{"t": 0.0, "sensor": "s1", "R": [[sd**2, 0.0], [0.0, sd**2]], "detections": [{"z": [0.0, 0.0]}]},

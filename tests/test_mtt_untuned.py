@@ -434,3 +434,30 @@ def test_a_cluttered_sensors_count_any_m_of_n() -> None:
     # the tracker: one detection at the origin on scans 0, 1, 3, 5 (P_D 0.6, 19.5 m): confirmed at 5 (was 3)
     hits = (True, True, False, True, False, True)
     assert _confirmed_after(MttConfig(clutter_density=1e-6, pd=0.6), hits, sd=19.5) == [False] * 5 + [True]
+
+
+def test_a_raised_counts_window_is_capped() -> None:
+    """untuned57: at P_D near 1 the misses bound no longer limits the windows searched, and the count met jipda's
+    0.01 only with an endless window (at 3e-6 m^-2 and 100 m, a gate hit of 0.934: 99-of-100 at P_D 0.99 and 1;
+    at a hit of 0.999, 6,636-of-6,637), so a real target confirmed after 99 scans or never, and no note said so.
+    The window now stops at ``COUNT_WINDOW_CAP``, the longest the search reaches at P_D 0.9 (27 scans), and where
+    no count within it meets the bound the note says so."""
+    from fedtrack.local_filters.mtt.config import COUNT_WINDOW_CAP, count_chance, raised_count
+
+    # the cap is the P_D 0.9 search's own end: 2 misses allowed (its deletion count less one), an even chance
+    assert count_chance(0.9, COUNT_WINDOW_CAP - 2, COUNT_WINDOW_CAP) >= 0.5 > count_chance(
+        0.9, COUNT_WINDOW_CAP - 1, COUNT_WINDOW_CAP + 1) and COUNT_WINDOW_CAP == 27
+    R = {"s1": 100.0**2 * np.eye(2)}
+    for pd in (0.99, 1.0):
+        cfg = MttConfig(pd=pd, clutter_density=3e-6)
+        hit = cfg.clutter_gate_hit("s1", R["s1"])
+        assert 0.934 < hit < 0.935
+        m, n = cfg.raised_count_of("s1", R["s1"])
+        assert (m, n) == (26, 27) and count_chance(hit, m, n) > 0.01
+        assert "26-of-27 count" in (cfg.count_note(R) or "")
+        # a target detected on every scan confirms with its 26th detection
+        assert _confirmed_after(cfg, (True,) * 30, sd=100.0) == [False] * 25 + [True] * 5
+    # where the bound is met within the cap nothing changes: P_D 0.99 and a gate hit of 0.5, 11-of-12
+    assert raised_count(0.5, 0.99, 3, 4) == (11, 12)
+    # a configured window above the cap is kept
+    assert raised_count(0.999, 1.0, 30, 31) == (30, 31)

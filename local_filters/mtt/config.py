@@ -149,6 +149,27 @@ def count_chance(hit: float, hits: int, window: int) -> float:
     return sum(math.comb(n, j) * hit**j * (1.0 - hit) ** (n - j) for j in range(hits - 1, n + 1))
 
 
+def window_cap(pd: float, hits: int, most: int) -> int:
+    """The longest window ``N`` in which a real target detected with ``pd`` meets ``max(hits, N - most)``
+    hits (at most ``most`` misses) at least as often as not (jipda's ``SHOW``, 1/2); ``pd`` below 1."""
+    from fedtrack.local_filters.mtt.associators.jipda import SHOW
+
+    n = hits
+    while count_chance(pd, max(hits, n + 1 - most), n + 1) >= SHOW:
+        n += 1
+    return n
+
+
+# the P_D delete_misses' rationale is made for: 3 misses in a row lose a live target with LOST at 0.9 ([mtt] pd's
+# and delete_misses' defaults)
+RATIONALE_PD = 0.9
+# The longest window a raised count takes (raised_count): the longest the count56 search reaches at RATIONALE_PD
+# (misses allowed below its 3, a real target's even chance: 27 scans). A real target detected more often needs no
+# longer; a longer window there only waits for a clutter track's rare misses (6,637 scans at P_D 1 and a gate hit
+# of 0.999), so a real target waited for ever unseen and no warning told it.
+COUNT_WINDOW_CAP = window_cap(RATIONALE_PD, 1, int(miss_count(log_miss_of(RATIONALE_PD))) - 1)
+
+
 @lru_cache(maxsize=4096)
 def raised_count(hit: float, pd: float, hits: int, window: int) -> tuple[int, int]:
     """The count of a tracker whose scans hit a clutter track with probability ``hit`` (:func:`clutter_hit`):
@@ -158,10 +179,13 @@ def raised_count(hit: float, pd: float, hits: int, window: int) -> tuple[int, in
     (0.01), and a real target (detected with ``pd``) confirming within the window at least as often as not
     (``count_chance(pd, M, N) >= SHOW``, 1/2). The misses allowed stay below the ``D`` in a row that delete a
     live target with at most ``LOST`` (:func:`miss_count` at ``pd``: 3 at P_D 0.9, 8 at 0.6), which with
-    ``SHOW`` bounds the windows searched. Where none meets the first bound: the searched count of the least
-    false confirmations (the configured one where every scan hits, ``hit`` 1). As given where the given
-    count meets the bound (4-of-6 at P_D 0.6, 1e-6 m^-2 and 19.5 m).
-    docs/multitarget.md#a-cluttered-sensors-count-any-m-of-n-count56-session"""
+    ``SHOW`` bounds the windows searched, and so does :data:`COUNT_WINDOW_CAP` (27 scans, never below the
+    configured window) where P_D above 0.9 leaves the first bound loose (6,637 scans at P_D 1 and a hit of
+    0.999). Where none meets the first bound: the searched count of the least false confirmations (the
+    configured one where every scan hits, ``hit`` 1), and :meth:`MttConfig.count_note` warns. As given where
+    the given count meets the bound (4-of-6 at P_D 0.6, 1e-6 m^-2 and 19.5 m).
+    docs/multitarget.md#a-cluttered-sensors-count-any-m-of-n-count56-session,
+    docs/multitarget.md#a-count-that-never-ends-the-windows-cap-untuned57-session"""
     from fedtrack.local_filters.mtt.associators.jipda import FALSE_CONFIRM, SHOW
 
     if count_chance(hit, hits, window) <= FALSE_CONFIRM or hit >= 1.0:
@@ -170,7 +194,7 @@ def raised_count(hit: float, pd: float, hits: int, window: int) -> tuple[int, in
     most = max(least, int(miss_count(log_miss_of(pd))) - 1)
     best = (count_chance(hit, hits, window), window, hits)
     n = window
-    while count_chance(pd, max(hits, n - most), n) >= SHOW:
+    while n <= max(window, COUNT_WINDOW_CAP) and count_chance(pd, max(hits, n - most), n) >= SHOW:
         for m in range(max(hits, n - most), n - least + 1):
             if count_chance(pd, m, n) < SHOW:
                 break
@@ -278,8 +302,8 @@ class MttConfig:
         sensor's clutter (``position_sensors``: each one's noise covariance ``R``; ``intervals``: each
         one's period, 1 s where not given) makes its tracker confirm clutter tracks more often than
         jipda's bound allows even with the count its tracker raises there (:func:`raised_count`: as far
-        as a real target keeps a chance of 1/2 of confirming; a sensor without clutter,
-        ``clutter_density`` 0, starts no track on clutter, whatever the count)."""
+        as a real target keeps a chance of 1/2 of confirming, within :data:`COUNT_WINDOW_CAP` scans; a sensor
+        without clutter, ``clutter_density`` 0, starts no track on clutter, whatever the count)."""
         from fedtrack.local_filters.mtt.associators.jipda import FALSE_CONFIRM
 
         if self.confirm_bound is not None:
@@ -295,9 +319,10 @@ class MttConfig:
         if chance <= FALSE_CONFIRM:
             return None
         return (f"at sensor {sensor}'s clutter_density {self.clutter_of(sensor):g} per m^2 (noise {sd:.3g} m) the "
-                f"{m}-of-{n} count (raised as far as a real target keeps a chance of 1/2 to confirm) confirms a "
-                f"track started on clutter with probability {chance:.3f} (above {FALSE_CONFIRM:g}): expect false "
-                'tracks; associator = "jipda" confirms by existence')
+                f"{m}-of-{n} count (raised as far as a real target keeps a chance of 1/2 to confirm, within "
+                f"{max(COUNT_WINDOW_CAP, self.confirm_window)} scans) confirms a track started on clutter with "
+                f"probability {chance:.3f} (above {FALSE_CONFIRM:g}): expect false tracks; associator = \"jipda\" "
+                "confirms by existence")
 
     @property
     def mode_rates(self) -> ModeRates | None:
