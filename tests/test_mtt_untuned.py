@@ -461,3 +461,14 @@ def test_a_raised_counts_window_is_capped() -> None:
     assert raised_count(0.5, 0.99, 3, 4) == (11, 12)
     # a configured window above the cap is kept
     assert raised_count(0.999, 1.0, 30, 31) == (30, 31)
+
+
+def test_mht_counts_at_pd_one() -> None:
+    """untuned57: mht's ``"counts"`` takes ``P_G = 1`` (gnn's model), so at P_D 1 a miss's log-likelihood was
+    ``ln(1 - 1)`` and the first scan without a detection ended the replay in a ValueError traceback; now finite
+    (``config.log_miss_of``), and the count confirms as gnn's does: 3 of 4, the miss at scan 2 allowed."""
+    from fedtrack.local_filters.mtt.config import MhtConfig
+
+    cfg = MttConfig(pd=1.0, associator="mht", mht=MhtConfig(management="counts"))
+    assert _confirmed_after(cfg, (True, True, False, True, True)) == [False, False, False, True, True]
+    assert _confirmed_after(MttConfig(pd=1.0), (True, True, False, True, True)) == [False, False, False, True, True]

@@ -79,7 +79,7 @@ from fedtrack.local_filters.mtt.associators.jipda import (
     scan_constants,
     survival,
 )
-from fedtrack.local_filters.mtt.config import MHT_WINDOW_MISS, MhtConfig
+from fedtrack.local_filters.mtt.config import MHT_WINDOW_MISS, MhtConfig, log_miss_of
 from fedtrack.local_filters.pda.association import Constants, existence_update, log_amplitude_ratio
 
 
@@ -171,8 +171,9 @@ def score_increments(log_n: np.ndarray, params: MhtParams, amplitude: np.ndarray
 
 
 def miss_increment(params: MhtParams) -> float:
-    """``ln(1 - P_D P_G)``: the track produced no detection in its gate."""
-    return math.log1p(-params.pd * params.pg)
+    """``ln(1 - P_D P_G)``: the track produced no detection in its gate; finite where ``P_D P_G`` is 1
+    (:func:`~..config.log_miss_of`: P_D 1 with ``"counts"``' ``P_G = 1`` made it ``ln 0``, a traceback)."""
+    return log_miss_of(params.pd * params.pg)
 
 
 def birth_scores(params: MhtParams, amplitude: np.ndarray | None, n: int) -> np.ndarray:
