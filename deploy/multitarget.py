@@ -29,7 +29,7 @@ from typing import Any, Callable, TypeVar
 
 import numpy as np
 
-from fedtrack.config import ConfigError, in_file, load_toml
+from fedtrack.config import ConfigError, did_you_mean, in_file, load_toml
 from fedtrack.deploy.membership import membership
 from fedtrack.deploy.report import LaunchReport
 from fedtrack.deploy.settings import MultitargetSettings, Settings
@@ -83,11 +83,35 @@ def check_multitarget(settings: Settings, path: Path) -> Settings:
             stray = [s for s in getattr(mt, key) if s not in ids]
             if stray:
                 raise ConfigError(f"multitarget.{key}.{stray[0]}: not a sensor of the scenario ({', '.join(ids)})")
+        check_scenario_sensors(settings, sensor_specs(mt))
         if mt.join_at and set(mt.join_at) >= set(ids):
             raise ConfigError("multitarget.join_at: at least one sensor must run from the start")
         if load_regions(path) is not None and mt.algorithm == "mtt-centralized":
             raise ConfigError("regions: region centres run mtt-federated or mtt-decentralized, not mtt-centralized")
     return settings
+
+
+# the coordinates a sensor kind measures: a [mtt.sensor.<id>] noise_floor has one standard deviation each
+FLOOR_SIZES = {"pos": 2, "radar": 3}
+
+
+def check_scenario_sensors(settings: Settings, specs: list[SensorSpec]) -> None:
+    """``[deployment] local_sensors`` and the ``[mtt.sensor.<id>]`` tables name the scenario's sensors, and a
+    ``noise_floor`` has a value per coordinate its sensor measures (another size: every report refused by the
+    centre, ``centre_floor_mismatch``)."""
+    ids = [s.id for s in specs]
+    for key, named in (("deployment.local_sensors", settings.deployment.local_sensors or ()),
+                       ("mtt.sensor", tuple(settings.mtt.sensor))):
+        stray = [sid for sid in named if sid not in ids]
+        if stray:
+            where = f"mtt.sensor.{stray[0]}" if key == "mtt.sensor" else key
+            raise ConfigError(f"{where}: {stray[0]!r} is not a sensor of the scenario ({', '.join(ids)})"
+                              + did_you_mean(stray[0], ids))
+    for spec in specs:
+        floor, size = settings.mtt.noise_floor_of(spec.id), FLOOR_SIZES.get(spec.kind)
+        if floor is not None and size is not None and len(floor) != size:
+            raise ConfigError(f"mtt.sensor.{spec.id}.noise_floor: {len(floor)} values for a {spec.kind} sensor, "
+                              f"which measures {size} coordinates (2: m, m; 3: m, rad, rad)")
 
 
 def prepare(settings: Settings, out: Path, say: bool = True) -> Path:

@@ -12,14 +12,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from fedtrack.config import ConfigError, in_file, load_tables
+from fedtrack.config import ConfigError, did_you_mean, in_file, load_tables, load_toml
 from fedtrack.deploy.security import ZenohSettings, check_transport
 from fedtrack.deployment import DeploymentConfig, SensorConfig
 from fedtrack.geodetic import FrameConfig, geodetic_error
 from fedtrack.local_filters.imm.config import IMMConfig
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.pda.config import PDAReplayConfig
-from fedtrack.local_filters.regions import load_regions
+from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.sensors.multitarget import MAX_CLUTTER, Scenario
 from fedtrack.sensors.radar import RadarConfig
@@ -112,7 +112,10 @@ def check_launchable(settings: Settings, path: Path) -> None:
         users = {"sensor", "local-filter", "fusion-center"} & set(settings.deployment.services)
         if users and settings.multitarget is None and not ids and not settings.fusion.sensors:
             raise ConfigError(f"sensor: no [[sensor]] table, but the services {', '.join(sorted(users))} "
-                              "need at least one sensor")
+                              f"need at least one sensor{not_a_deployment(path)}")
+        if settings.multitarget is None and ids:
+            check_paper_sensors(settings, ids)
+        check_local_regions(settings.deployment, load_regions(path))
         mt = settings.multitarget
         if mt is not None and mt.source and settings.frame is not None and settings.frame.origin != mt.origin:
             raise ConfigError(f"frame.origin: {list(settings.frame.origin)} is not multitarget.origin "
@@ -120,6 +123,47 @@ def check_launchable(settings: Settings, path: Path) -> None:
                               "the frame the recording's scenario is simulated in (the tracks' lat, lon and lat_lon "
                               "regions would be placed in another)")
         check_transport(settings.zenoh, settings.deployment, path.parent)
+
+
+def not_a_deployment(path: Path) -> str:
+    """``" (FILE holds [imm] only: a replay config, ...)"``: what a file without any deployment table is for."""
+    tables = sorted(load_toml(path))
+    if {"deployment", "sensor", "multitarget", "fusion"} & set(tables):
+        return ""
+    return (f"; the file holds {', '.join(f'[{t}]' for t in tables) or 'no table'} only: a configuration for "
+            "`fedtrack replay --config` or `fedtrack serve ROLE --config`, not a deployment to launch")
+
+
+def check_paper_sensors(settings: Settings, ids: list[str]) -> None:
+    """A paper deployment's sensors: ``[fusion] sensors`` and ``[deployment] local_sensors`` name
+    ``[[sensor]]`` ids, and ``[fusion] sharing`` has a factor per sensor."""
+    fused = settings.fusion.sensors or tuple(ids)
+    for key, named in (("fusion.sensors", settings.fusion.sensors or ()),
+                       ("deployment.local_sensors", settings.deployment.local_sensors or ())):
+        stray = [sid for sid in named if sid not in ids]
+        if stray:
+            raise ConfigError(f"{key}: {stray[0]!r} is no [[sensor]] id ({', '.join(ids)})"
+                              + did_you_mean(stray[0], ids))
+    unfused = [sid for sid in ids if sid not in fused]
+    if unfused:
+        raise ConfigError(f"fusion.sensors: leaves out [[sensor]] {unfused[0]!r} (list every sensor the centre fuses)")
+    sharing = settings.fusion.sharing
+    if sharing is not None and len(sharing) != len(fused):
+        raise ConfigError(f"fusion.sharing: {len(sharing)} factors for the {len(fused)} sensors "
+                          f"{', '.join(fused)} (one factor per sensor)")
+
+
+def check_local_regions(dep: DeploymentConfig, regions: Regions | None) -> None:
+    """``[deployment] local_regions`` names regions of ``[regions]``."""
+    if dep.local_regions is None:
+        return
+    if regions is None:
+        raise ConfigError("deployment.local_regions: the file has no [regions] table to name regions of")
+    stray = [rid for rid in dep.local_regions if rid not in regions.ids]
+    if stray:
+        raise ConfigError(f"deployment.local_regions: {stray[0]!r} is no region of [regions] "
+                          f"({', '.join(regions.ids[:8])}{', ...' if len(regions.ids) > 8 else ''})"
+                          + did_you_mean(stray[0], regions.ids))
 
 
 def load_settings(path: Path | None) -> Settings:

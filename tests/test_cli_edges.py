@@ -89,6 +89,7 @@ def test_output_in_a_missing_folder_or_on_a_directory(tmp_path: Path, run_here: 
     assert_one_line_error(proc, Path(out[1]).name)
 
 
+IMM_EXAMPLE = Path(__file__).resolve().parents[1] / "deploy" / "imm-3model.toml"
 LAUNCH_BASE = """
 [deployment]
 name = "edges"
@@ -106,6 +107,25 @@ LAUNCH_CASES = {
     "empty fusion sensors": (lambda b: b + "\n[fusion]\nsensors = []\n", "fusion.sensors: empty list"),
     "bad port": (lambda b: b.replace("{port}", "99999"), "router_listen"),
     "bad endpoint": (lambda b: b.replace("tcp/127.0.0.1:{port}", "localhost"), "router_listen"),
+    # cross-field rules (validate58): each launched before, a fusion centre waiting out every scan's deadline for a
+    # sensor that never comes, the [[sensor]] it would not fuse, a service dying at start on the sharing factors, or
+    # a host starting no sensor or no region centre
+    "fusion sensor not defined": (lambda b: b + '\n[fusion]\nsensors = ["1", "3"]\n',
+                                  "fusion.sensors: '3' is no [[sensor]] id (1, 2)"),
+    "sensor not fused": (lambda b: b + '\n[fusion]\nsensors = ["1"]\n', "fusion.sensors: leaves out [[sensor]] '2'"),
+    "sharing per sensor": (lambda b: b + "\n[fusion]\nsharing = [3.0, 3.0, 3.0]\n",
+                           "fusion.sharing: 3 factors for the 2 sensors 1, 2"),
+    "local sensor not defined": (lambda b: b.replace('name = "edges"', 'name = "edges"\nlocal_sensors = ["l"]'),
+                                 "deployment.local_sensors: 'l' is no [[sensor]] id (1, 2)"),
+    "local region not defined": (lambda b: b.replace('name = "edges"', 'name = "edges"\nlocal_regions = ["x2y0"]')
+                                 + "\n[regions]\nmargin = 100.0\n"
+                                 "grid = {origin = [0.0, 0.0], cell = [10.0, 10.0], nx = 2, ny = 1}\n",
+                                 "deployment.local_regions: 'x2y0' is no region of [regions] (x0y0, x1y0)"),
+    "local region without regions": (lambda b: b.replace('name = "edges"', 'name = "edges"\nlocal_regions = ["a"]'),
+                                     "deployment.local_regions: the file has no [regions] table"),
+    # deploy/imm-3model.toml launched said only "no [[sensor]] table": now also what the file is for
+    "a replay config": (lambda b: IMM_EXAMPLE.read_text(), "the file holds [imm] only: a configuration for "
+                        "`fedtrack replay --config` or `fedtrack serve ROLE --config`, not a deployment to launch"),
 }
 
 

@@ -15,6 +15,7 @@ from fedtrack.config import MAX_CONFIG_BYTES, ConfigError, load_tables
 from fedtrack.deploy.settings import load_settings
 from fedtrack.deployment import DeploymentConfig
 from fedtrack.local_filters.imm.config import load_imm_config
+from fedtrack.local_filters.mtt.config import MttSettings
 from fedtrack.local_filters.pda.config import load_config as load_pda_config
 from fedtrack.local_filters.radar.filters import make_radar_filter
 from fedtrack.local_filters.radar.replay import RadarFilterSettings
@@ -57,6 +58,10 @@ def _pipeline(path: Path) -> PipelineSettings:
     return load_tables(path, PipelineSettings)
 
 
+def _mtt(path: Path) -> MttSettings:
+    return load_tables(path, MttSettings)
+
+
 @pytest.mark.parametrize("text, message, consumers, algorithm", [
     ("[imm]\nfoo = 1\n", "unknown config key imm.foo", (load_imm_config,), "fsimm"),
     ("[pda.existence]\nfoo = 1\n", "unknown config key pda.existence.foo", (load_pda_config,), "hpda"),
@@ -70,6 +75,22 @@ def _pipeline(path: Path) -> PipelineSettings:
      "regions.margin: must be >= 0", (load_regions,), "mtt-federated"),
     ("[regions]\nmargin = 1.0\n[[regions.polygon]]\nid = 'a'\nlat_lon = [[49.0, 2.0], [49.1, 2.0], [49.1, 2.1]]\n",
      "regions.polygon.a.lat_lon: needs ", (load_regions,), "fvdie"),
+    # cross-field rules (validate58), each accepted before: delete_threshold 0.9 replayed 61 sonar scans to no
+    # confirmed track, silently; a repeated or unlisted [mtt] sensor passed; picture_delay > max_lag was refused
+    # by replay alone (serve mtt-centre and launch took it)
+    ("[pda.existence]\ndelete_threshold = 0.9\n", "pda.existence.delete_threshold, initial_existence, "
+     "confirm_threshold: must rise in that order",
+     (load_pda_config,), "hpda"),
+    ("[pda.existence]\ninitial_existence = 0.7\n", "pda.existence.delete_threshold, initial_existence, "
+     "confirm_threshold: must rise", (load_pda_config,), "hpda"),
+    ("[pda.existence]\ndelete_threshold = 0.2\n", "pda.existence.delete_threshold, initial_existence, "
+     "confirm_threshold: must rise", (load_pda_config,), "hpda"),
+    ('[mtt]\nsensors = ["s1", "s2", "s1"]\n', "mtt.sensors: sensor id 's1' listed twice", (_mtt,),
+     "mtt-federated"),
+    ('[mtt]\nsensors = ["s1", "s2"]\n[mtt.sensor.s3]\npd = 0.8\n',
+     "mtt.sensor.s3: a table for a sensor that sensors = ", (_mtt,), "mtt-federated"),
+    ("[mtt]\npicture_delay = 4.0\nmax_lag = 3.0\n", "mtt.picture_delay: must be <= max_lag", (_mtt,),
+     "mtt-centralized"),
 ])
 def test_config_errors_name_file_table_and_key(tmp_path: Path, text: str, message: str, consumers: tuple,
                                                algorithm: str, capsys: pytest.CaptureFixture[str]) -> None:

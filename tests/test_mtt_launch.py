@@ -10,6 +10,7 @@ import os
 import sqlite3
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -154,6 +155,30 @@ def test_a_wrong_join_or_kill_schedule_fails_at_start(tmp_path: Path, capsys: py
     proc = cli_in_process(["launch", str(config), "--out", str(tmp_path / "o")], capsys, monkeypatch)
     assert proc.returncode == 2 and field in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("edit, field", [
+    (lambda c: c.replace("ready_timeout_s = 60.0", 'ready_timeout_s = 60.0\nlocal_sensors = ["s2"]'),
+     "deployment.local_sensors: 's2' is not a sensor of the scenario (s1, r2, s3)"),
+    (lambda c: c.replace('sensors = ["s1", "r2", "s3"]', 'sensors = "any"') + "\n[mtt.sensor.r3]\npd = 0.8\n",
+     "mtt.sensor.r3: 'r3' is not a sensor of the scenario (s1, r2, s3)"),
+    (lambda c: c + "noise_floor = [10.0, 10.0]\n",
+     "mtt.sensor.r2.noise_floor: 2 values for a radar sensor, which measures 3 coordinates"),
+    (lambda c: c + "\n[mtt.sensor.s1]\nnoise_floor = [10.0, 0.002, 0.002]\n",
+     "mtt.sensor.s1.noise_floor: 3 values for a pos sensor, which measures 2 coordinates"),
+])
+def test_a_scenario_sensor_table_that_fits_no_sensor_fails_at_start(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch,
+        edit: Callable[[str], str], field: str) -> None:
+    """``local_sensors`` and ``[mtt.sensor.<id>]`` name the scenario's sensors, a ``noise_floor`` one value per
+    coordinate its sensor measures (validate58): launched before, a host started no sensor of its own, a table
+    went unused, or the centre refused every report of the sensor (``centre_floor_mismatch``)."""
+    config = tmp_path / "mtt.toml"
+    config.write_text(edit(CONFIG.format(port=free_port(), algorithm="mtt-federated")))
+    proc = cli_in_process(["launch", str(config), "--out", str(tmp_path / "o")], capsys, monkeypatch)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    (line,) = proc.stderr.strip().splitlines()
+    assert line.startswith(f"fedtrack: error: {config}: {field}"), line
 
 
 def test_a_sensor_killed_in_a_region_launch_is_summarised_without_a_replay(tmp_path: Path) -> None:

@@ -265,8 +265,6 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
             cfg.validate()
         except ConfigError as err:
             raise ConfigError(f"--{err}") from None
-    if cfg.picture_delay > cfg.max_lag:
-        raise ConfigError(f"{config}: mtt.picture_delay must be <= mtt.max_lag")
     if (algorithm == "mtt-local") != (sensor is not None):
         raise ConfigError("--sensor ID is required by mtt-local and only by it")
     check_output(out)

@@ -354,6 +354,9 @@ class MttConfig:
         for key in ("max_lag", "picture_delay", "clutter_density", "max_speed"):
             if not getattr(self, key) >= 0:
                 raise ConfigError(f"{key}: must be >= 0")
+        if not self.picture_delay <= self.max_lag:  # the centre keeps its states max_lag back (engines.py)
+            raise ConfigError(f"picture_delay: must be <= max_lag ({self.max_lag:g} s: a picture waits for late "
+                              f"data at most as long as it is kept), got {self.picture_delay:g}")
         if not math.isfinite(self.max_speed):
             raise ConfigError("max_speed: must be a finite speed [m/s] (0: no two-point starts)")
         for key in ("pd", "gate_probability", "association_gate_probability"):
@@ -375,6 +378,14 @@ class MttConfig:
                 check_id(sid)
             except InvalidName as exc:
                 raise ConfigError(f"sensors: {exc}") from exc
+        listed = () if isinstance(self.sensors, str) else self.sensors
+        repeated = sorted({sid for sid in listed if listed.count(sid) > 1})
+        if repeated:
+            raise ConfigError(f"sensors: sensor id {repeated[0]!r} listed twice (each sensor once)")
+        unused = [sid for sid in self.sensor if not self.allows(sid)]
+        if unused:
+            raise ConfigError(f"sensor.{unused[0]}: a table for a sensor that sensors = {list(listed)} does not "
+                              f"allow (its scans are refused; add {unused[0]!r} to sensors or drop the table)")
         for sid, over in self.sensor.items():
             if over.pd is not None and not 0 < over.pd <= 1:
                 raise ConfigError(f"sensor.{sid}.pd: must be in (0, 1]")

@@ -70,6 +70,14 @@ class ExistenceConfig:
         for name in ("initial_existence", "confirm_threshold", "delete_threshold"):
             if not 0.0 < getattr(self, name) < 1.0:
                 raise ConfigError(f"{name}: must lie in (0, 1), got {getattr(self, name)}")
+        # a track is born at initial_existence, deleted below delete_threshold, confirmed above confirm_threshold
+        # (local_filters/pda/tracks.py): born at or below the deletion, a track must jump past it at its first update or
+        # go (delete_threshold 0.9 confirmed none of 61 sonar scans' tracks); born at or above the confirmation, the
+        # threshold asks no evidence of it
+        if not self.delete_threshold < self.initial_existence < self.confirm_threshold:
+            raise ConfigError(f"delete_threshold, initial_existence, confirm_threshold: must rise in that order "
+                              f"(delete < initial < confirm), got {self.delete_threshold:g}, "
+                              f"{self.initial_existence:g}, {self.confirm_threshold:g}")
         if self.confirm_scans < 1:
             raise ConfigError(f"confirm_scans: must be >= 1, got {self.confirm_scans}")
         if self.max_tentative < 1:
