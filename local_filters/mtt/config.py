@@ -397,11 +397,6 @@ class MttConfig:
                 raise ConfigError(f"sensor.{sid}.noise_floor: must be 2 (position: m, m) or 3 (radar: m, rad, rad) "
                                   f"standard deviations > 0 and <= {MAX_MAGNITUDE:g}")
 
-    @property
-    def listed_sensors(self) -> int:
-        """How many sensors ``sensors`` names (1 for ``"any"``)."""
-        return 1 if isinstance(self.sensors, str) else max(len(self.sensors), 1)
-
     def allows(self, sensor: str) -> bool:
         return self.sensors == "any" or sensor in self.sensors
 
