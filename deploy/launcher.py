@@ -376,6 +376,7 @@ class Launcher(Monitor):
             self.report.wall_s = time.monotonic() - start
             self.report.failovers = [f.summary(self._epoch, dep.speed, self._scan_s()) for f in self.watch.failovers]
             self.report.router_outages = [o.summary(self._epoch, dep.speed) for o in self.watch.outages]
+            self.report.primary_tokens_ignored = self.watch.tokens_ignored
         if stopped:
             raise Stopped(self.report)
         failed = self.report.failed_exits()

@@ -312,6 +312,8 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Se
         summary["failovers"] = report.failovers
     if report.router_outages:
         summary["router_outages"] = report.router_outages
+    if report.primary_tokens_ignored:
+        summary["primary_tokens_ignored"] = report.primary_tokens_ignored
     try:
         lost, pictures_lost = unrecorded_scans(out, settings), unrecorded_pictures(out, settings, report)
     except InputError:  # a damaged recording: the export said so in one line

@@ -59,6 +59,7 @@ class LaunchReport:
     failovers: list[dict[str, Any]] = field(default_factory=list)
     # the launcher's link to its router lost and back (failovers.RouterOutage): no failover of the centres
     router_outages: list[dict[str, Any]] = field(default_factory=list)
+    primary_tokens_ignored: int = 0  # primary tokens beyond CENTRE_TOKENS_KEPT of a scope, not followed
     wall_s: float = 0.0
     monitor_rejected: int = 0  # messages the launcher's own session rejected (Launcher._monitored)
 

@@ -594,3 +594,41 @@ def test_the_launcher_reports_failovers_of_its_own_centres_only(tmp_path: Path) 
     for instance, kind in (("a", put), ("a", gone), ("b", put)):  # a primary of x0y0 dies, its standby takes over
         launcher._on_primary_token(TokenSample(launcher.keys.primary("x0y0", instance), kind))
     assert [(f.scope, f.took_over_ns is not None) for f in launcher.watch.failovers] == [("x0y0", True)]
+
+
+def test_a_flood_of_primary_tokens_is_followed_a_bounded_number(tmp_path: Path) -> None:
+    """Any ``fusion`` identity may declare any ``alive/mtt-primary/<rid>/*``, and a region's standby (its
+    ``present`` a copy of the holders at each token) and the launcher (a copy of the scope's tokens at each
+    claim) followed them all: 20,000 forged tokens cost each 2.6-2.7 s of CPU. Each now follows at most
+    ``CENTRE_TOKENS_KEPT`` of a region's, as ``serve picture`` its centre tokens, and counts the rest
+    (``tokens_ignored``; the launcher's ``summary.json``: ``primary_tokens_ignored``); the genuine primary,
+    declared first, still keeps its standby waiting, and its death is still a failover."""
+    kept = getattr(standby_module, "CENTRE_TOKENS_KEPT", 0)
+    n = 5_000
+    _, svc = centre_of_x0y0(tmp_path, standby=True)
+    config = tmp_path / "launch.toml"
+    config.write_text("[multitarget]\nstandby = true\n" + REGIONS_CONFIG)
+    settings = load_settings(config)
+    launcher = Launcher(settings, [], quiet=True, scopes=failover_scopes(settings, config))
+    put, gone = zenoh.SampleKind.PUT, zenoh.SampleKind.DELETE
+    genuine = claim_instance("a", 1)
+    svc.primary_seen.append((True, 0.0, genuine))
+    launcher._on_primary_token(TokenSample(launcher.keys.primary("x0y0", genuine), put))
+    for i in range(n):
+        svc.primary_seen.append((True, 0.5, f"forged{i}"))
+        launcher._on_primary_token(TokenSample(launcher.keys.primary("x0y0", f"forged{i}"), put))
+    svc._failover_tick()
+    standby = svc.standby
+    assert len(standby.holders) == kept and genuine in standby.holders and not standby.due(100.0)
+    assert svc.counters["tokens_ignored"] == n + 1 - kept
+    assert len(launcher.watch.primaries["x0y0"]) == kept and launcher.watch.tokens_ignored == n + 1 - kept
+    for i in range(n):  # withdrawn, then the genuine primary dies: its standby takes over, a failover
+        svc.primary_seen.append((False, 1.0, f"forged{i}"))
+        launcher._on_primary_token(TokenSample(launcher.keys.primary("x0y0", f"forged{i}"), gone))
+    svc.primary_seen.append((False, 2.0, genuine))
+    launcher._on_primary_token(TokenSample(launcher.keys.primary("x0y0", genuine), gone))
+    while svc.primary_seen:
+        alive, now, instance = svc.primary_seen.popleft()
+        standby.token(alive, now, instance)
+    assert not standby.holders and standby.due(2.0 + 1.0)
+    assert [f.scope for f in launcher.watch.failovers] == ["x0y0"]

@@ -68,7 +68,7 @@ import numpy as np
 
 from fedtrack.config import ConfigError, load_tables, read_small_file
 from fedtrack.fusion_center.mtt.engines import PictureClock
-from fedtrack.fusion_center.mtt.failover.standby import NUMBER_ROOM
+from fedtrack.fusion_center.mtt.failover.standby import CENTRE_TOKENS_KEPT, NUMBER_ROOM
 from fedtrack.fusion_center.mtt.pictures import (
     MERGE_WAIT_S,
     PICTURE_ITEMS,
@@ -93,17 +93,12 @@ from fedtrack.services.lead import LeadGuard
 from fedtrack.services.rejections import Conflict, Rejected
 from fedtrack.services.snapshot import MAX_SNAPSHOT_BYTES, unsealed, write_sealed
 from fedtrack.wire import TrackPicture
-from fedtrack.zsession import LOST_KEPT, Peers
+from fedtrack.zsession import Peers
 
 # a merger's first HISTORY_SETTLE_S: the caches' replies and the base service's second query of them (at
 # HISTORY_RECHECK_S) are in (loopback: milliseconds after it)
 HISTORY_SETTLE_S = HISTORY_RECHECK_S + 0.5
 SNAPSHOT_MAGIC = b"fedtrack-picture-1\n"  # --snapshot: then the digest, then the last merged time (its repr)
-# A region's centre tokens followed: its primary and its standby, each restarted at most MAX_RESTARTS (3) times
-# by the launcher, a killed one's token standing until its lease ends, hold at most 2 x (1 + 3) = 8 at once;
-# LOST_KEPT (64) leaves room for standbys an operator adds. More come from a flood (the region's identity may
-# declare any ``alive/mtt-region/<rid>/*``): not followed, counted ``tokens_ignored``.
-CENTRE_TOKENS_KEPT = LOST_KEPT
 # A merged picture carries at most PICTURE_ITEMS tracks and fused entries, as any picture. Each of R
 # regions' pictures may hold 1/R of it (rejected ``too_large`` beyond: 65,536 for 2 regions, 1,310 for
 # 100, above a region's period of scans, 64 live sensors at 10 Hz, and issue 27's 10^5 tracks over the

@@ -164,6 +164,8 @@ class CentreFailover:
         while self.primary_seen:
             alive, now, instance = self.primary_seen.popleft()
             standby.token(alive, now, instance)
+        if standby.ignored:
+            self.counters["tokens_ignored"] = standby.ignored
         if standby.cut != (self._router_lost_at is not None):  # its own link to the router went or came back
             standby.link(self._router_lost_at is None, time.monotonic())
         if standby.yields():
