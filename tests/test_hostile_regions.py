@@ -632,3 +632,79 @@ def test_a_flood_of_primary_tokens_is_followed_a_bounded_number(tmp_path: Path) 
         standby.token(alive, now, instance)
     assert not standby.holders and standby.due(2.0 + 1.0)
     assert [f.scope for f in launcher.watch.failovers] == ["x0y0"]
+
+
+# ---------------------------------------------------------------- an id a third region issues later
+
+THREE_REGIONS = """[regions]
+margin = 500.0
+grid = {origin = [-7500.0, -5000.0], cell = [5000.0, 10000.0], nx = 3, ny = 1}
+"""
+
+
+def rows_report(sensor: str, k: int, targets: list[tuple[int, float, float]]) -> TrackReport:
+    """Scan ``k`` of ``sensor`` (at ``k`` s plus a third of a second per sensor): a confirmed local track
+    ``(id, x0, y)`` of each target flying along x from ``(x0, y)`` at 10 m/s."""
+    t = k + SENSORS.index(sensor) / 3.0
+    base = one_track_report(sensor, k)
+    n = len(targets)
+    x = np.array([[x0 + 10.0 * t, 10.0, y, 0.0] for _, x0, y in targets]).reshape(n, 4)
+    return replace(base, t=t, ids=tuple(i for i, _, _ in targets), x=x, P=np.tile(base.P, (n, 1)),
+                   confirmed=(True,) * n, detected=(True,) * n, obs_H=np.tile(base.obs_H, (n, 1)),
+                   obs_R=np.tile(base.obs_R, (n, 1)), obs_z=x[:, [0, 2]], started=(k == 0,) * n)
+
+
+def three_regions(tmp_path: Path, forged: bool) -> tuple[list[TrackPicture], PictureMergeService]:
+    """Three regions in a row (x0y0, x1y0, x2y0; ids 0, 3, ... / 1, 4, ... / 2, 5, ...), their centres and
+    ``serve picture`` on one bus, 30 scans of three sensors: target A in x1y0 from the start, target B in x2y0
+    from scan 10 (x0y0 sees none). ``forged``: after scan 4, x0y0's identity hands x1y0 its own track A
+    under id 2, the id x2y0 will give B. Returns the merged pictures and the merger."""
+    config = tmp_path / "three.toml"
+    config.write_text(THREE_REGIONS)
+    regions = load_regions(config)
+    assert regions is not None and regions.ids == ("x0y0", "x1y0", "x2y0")
+    centres = [MttCentreService("mtt-decentralized", MttConfig(sensors=SENSORS, max_lag=3.0), 4, region=rid,
+                                regions=regions, service_id=rid, options=OPTIONS, deployment=KEYS.deployment)
+               for rid in regions.ids]
+    merger = PictureMergeService(regions, 4, 2.0, 1.0, service_id="picture", options=OPTIONS,
+                                 deployment=KEYS.deployment)
+    bus = Bus([*centres, merger])
+    for k in range(30):
+        if forged and k == 5:
+            centre = centres[1].engine.region.centre  # type: ignore[union-attr]
+            record = copy.deepcopy(centre).hand_over(next(iter(centre.tracks)))
+            bus.put(KEYS.region_handover("x1y0", "x0y0"), encode(replace(handover_to_wire(record, "x0y0", 0), id=2)))
+        for s in SENSORS:
+            for rid, targets in (("x0y0", []), ("x1y0", [(1, -1000.0, 0.0)]),
+                                 ("x2y0", [(2, 4000.0, 2000.0)] if k >= 10 else [])):
+                bus.put(KEYS.region_report(rid, s), encode(rows_report(s, k, targets)))
+        with merger.guarded("on_tick", merger.tick_state_attrs):
+            merger.on_tick()
+    return [m for key, m in bus.published if key == KEYS.mtt_picture()], merger
+
+
+def shown_targets(picture: TrackPicture) -> tuple[bool, bool]:
+    """Whether a confirmed track of the merged picture lies within 50 m of target A, of target B."""
+    at = [(-1000.0 + 10.0 * picture.t, 0.0), (4000.0 + 10.0 * picture.t, 2000.0)]
+    pos = picture.x[np.array(picture.confirmed, dtype=bool)][:, [0, 2]]
+    return tuple(bool(np.any(np.hypot(*(pos - p).T) < 50.0)) for p in at)  # type: ignore[return-value]
+
+
+def test_a_hand_over_naming_an_id_a_third_region_issues_later_drops_no_target(tmp_path: Path) -> None:
+    """A region's identity may hand a neighbour a track under any id, and ids are unique only as each
+    region numbers its own (region r of R: r, r + R, ...): x0y0 handing x1y0 its own track A under id 2,
+    which x2y0 gives target B five scans later, had the merger show id 2 once (the first region's,
+    ``seen_twice``): B was missing from the 16 merged pictures from t = 14 s on (A in all, 20 ids ``seen_twice``;
+    without the forgery both in all). The merger now tells a hand-over's two copies of one track (one
+    target: within the association gate, as the duplicate merge tests two tracks) from two tracks under
+    one id: the id's issuing region keeps it, the other is shown under an alias (``id_collision``, the
+    picture contested)."""
+    clean, _ = three_regions(tmp_path, forged=False)
+    merged, merger = three_regions(tmp_path, forged=True)
+    assert len(clean) == len(merged) >= 25
+    late = [p for p in clean if p.t >= 14.0]
+    assert all(shown_targets(p) == (True, True) for p in late)
+    both = [shown_targets(p) for p in merged if p.t >= 14.0]
+    assert both == [(True, True)] * len(late), f"(A, B) shown: {both}"
+    assert all(len(set(p.ids)) == len(p.ids) for p in merged)
+    assert merger.counters["id_collision"] > 0 and any(p.contested for p in merged)

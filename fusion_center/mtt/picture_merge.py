@@ -4,7 +4,8 @@ Subscribes to every region's picture (``region/<rid>/picture`` for each region o
 ``[regions]``) and publishes one ``TrackPicture`` per picture time on ``fusion/picture`` (the
 recorder records it as the unsharded centre's): the union of the regions' tracks by id, each id
 once (an id in two regions' pictures, a hand-over between their pictures, is taken from the first
-region and counted ``seen_twice``; :func:`fedtrack.fusion_center.mtt.regional.merge_pictures`),
+region and counted ``seen_twice``; two tracks of different targets under one id both, the second under an
+alias, counted ``id_collision``: :func:`fedtrack.fusion_center.mtt.regional.merge_pictures`),
 and the fused lists of every region in region order, each entry tagged with its region
 (``regions``; ``left`` and ``handovers`` shifted to their positions), so that ``replay --regions
 config`` of the recording takes each region's entries in its order.
@@ -78,7 +79,7 @@ from fedtrack.fusion_center.mtt.pictures import (
 )
 from fedtrack.fusion_center.mtt.regional import RegionPicture, merge_pictures, rows_of
 from fedtrack.geodetic import Frame, geodetic_of_states, load_frame
-from fedtrack.local_filters.mtt.config import MttServiceSettings
+from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
 from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.services.admission import digest
 from fedtrack.services.base import (
@@ -149,9 +150,12 @@ class PictureMergeService(Service):
                    "seen", "settle_until", "settling", "earliest", "uncovered", "closed", "tokenless")
 
     def __init__(self, regions: Regions, dim: int, wait_s: float, period: float, frame: Frame | None = None,
-                 window: int | None = None, snapshot: Path | None = None, **kwargs: Any) -> None:
+                 window: int | None = None, snapshot: Path | None = None, gate: float | None = None,
+                 **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.regions, self.dim, self.wait_s, self.period = regions, dim, wait_s, period
+        # two regions' tracks under one id are one track's copies within it ([mtt] association_gate_probability)
+        self.gate = MttConfig().thresholds.association[dim] if gate is None else gate
         # the region pictures a region centre keeps (picture_window; default: at real time)
         self.window = picture_window(period, 1.0) if window is None else window
         self.seen: list[dict[float, bytes]] = [{} for _ in regions.ids]  # its last ``window`` times taken: digest
@@ -389,10 +393,16 @@ class PictureMergeService(Service):
 
     def _publish(self, T: float, parts: list[TrackPicture | None], contested: bool = False,
                  closing: bool = False, missing: tuple[str, ...] = ()) -> None:
-        tracks, twice = merge_pictures([None if p is None else region_picture_of(p) for p in parts], self.dim)
+        tracks, twice, aliased = merge_pictures([None if p is None else region_picture_of(p) for p in parts],
+                                                self.dim, self.gate)
         if twice:
             self.count("seen_twice", len(twice))
             self.log.warning("picture at t=%g: ids %s in two regions' pictures (the first region's taken)", T, twice)
+        if aliased:  # two tracks under one id: one was handed over under an id its region did not issue
+            self.count("id_collision", len(aliased))
+            self.log.warning("picture at t=%g: ids %s held by two regions' tracks of different targets (the "
+                             "issuing region's shown under the id, the other under an alias)", T, aliased)
+            contested = True
         current = [[] if p is None else entries_of(p, self.regions.ids[r]) for r, p in enumerate(parts)]
         held = sum(map(len, self.late))
         if held + sum(map(len, current)) > PICTURE_ITEMS:  # the late ones do not fit beside them: dropped
@@ -464,7 +474,8 @@ def service_from_args(argv: list[str]) -> PictureMergeService:
     period = settings.mtt.period  # the region centres' picture period
     frame = load_frame(Path(args.config))
     return PictureMergeService(regions, args.dim, args.wait, period, None if frame is None else frame.frame,
-                               picture_window(period, settings.deployment.speed), args.snapshot, **kwargs)
+                               picture_window(period, settings.deployment.speed), args.snapshot,
+                               settings.mtt.thresholds.association[args.dim], **kwargs)
 
 
 def main(argv: list[str]) -> int:

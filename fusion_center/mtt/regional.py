@@ -37,6 +37,7 @@ from fedtrack.fusion_center.mtt.failover.standby import NUMBER_ROOM
 from fedtrack.fusion_center.mtt.shards import RegionCentre
 from fedtrack.geodetic import Frame, RadarSite
 from fedtrack.jsonl import InputError, read_jsonl
+from fedtrack.local_filters.linear.gating import track_difference_d2
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.local import LocalReport, SensorTracker
 from fedtrack.local_filters.mtt.routing import RegionAnswer, RegionRouter, join_answers
@@ -145,21 +146,62 @@ def rows_of(p: PictureTracks, keep: np.ndarray) -> PictureTracks:
                          None if p.existence is None else [p.existence[i] for i in pick])
 
 
-def merge_pictures(parts: list[RegionPicture | None], dim: int) -> tuple[PictureTracks, list[int]]:
+def alias(i: int, r: int, regions: int) -> int:
+    """The id under which the merged picture shows region ``r``'s track ``i`` (of ``regions``) when another
+    region's track holds ``i`` (:func:`merge_pictures`): past every id a region issues (``NUMBER_ROOM``)."""
+    return NUMBER_ROOM + (i * regions + r) % NUMBER_ROOM
+
+
+def one_target(a: PictureTracks, i: int, b: PictureTracks, j: int, gate: float) -> bool:
+    """Whether track ``i`` of picture ``a`` and track ``j`` of picture ``b`` (of one time) are estimates of
+    one target: their difference within ``gate`` (chi-square), as the duplicate merge tests two tracks."""
+    d2, _ = track_difference_d2((a.x[i] - b.x[j])[None], (a.P[i] + b.P[j])[None])
+    return bool(d2[0] <= gate)
+
+
+def merge_pictures(parts: list[RegionPicture | None], dim: int, gate: float
+                   ) -> tuple[PictureTracks, list[int], list[int]]:
     """The regions' pictures of one time (in region order; None: the region has none) as one, in
     increasing id: every held track, an id held in two regions' pictures (a hand-over between their
-    pictures) from the first region; then the handed-over copies of ids no region holds, the latest
-    hand-over's. Returns it and the ids held twice."""
-    seen: set[int] = set()
+    pictures: two copies of one track, within ``gate`` of each other) from the first region; then the
+    handed-over copies of ids no region holds, the latest hand-over's. Two tracks under one id (beyond
+    ``gate``: a region handed a track under an id another issued, docs/multitarget.md) are both shown:
+    the id's issuing region's (region ``r`` of ``R`` issues ``r, r + R, ...``; else the first region's)
+    under it, the other under its :func:`alias`. Returns it, the ids held twice and the ids aliased."""
+    R = len(parts)
+    where: dict[int, list[tuple[int, int]]] = {}  # id -> (region, row) of each held copy, in region order
+    for k, p in enumerate(parts):
+        if p is not None:
+            for row, i in enumerate(p.held.ids):
+                where.setdefault(i, []).append((k, row))
+    keep = [np.ones(0 if p is None else len(p.held.ids), dtype=bool) for p in parts]
+    renamed: list[dict[int, int]] = [{} for _ in parts]  # per region: row -> its alias
     twice: list[int] = []
+    aliased: list[int] = []
+    for i, copies in where.items():
+        if len(copies) == 1:
+            continue
+        same = [one_target(parts[copies[0][0]].held, copies[0][1], parts[k].held, row, gate)  # type: ignore[union-attr]
+                for k, row in copies[1:]]
+        keeper = copies[0] if all(same) else next((c for c in copies if c[0] == i % R), copies[0])
+        for k, row in copies:
+            if (k, row) == keeper:
+                continue
+            if one_target(parts[keeper[0]].held, keeper[1], parts[k].held, row, gate):  # type: ignore[union-attr]
+                keep[k][row] = False
+                twice.append(i)
+            else:
+                renamed[k][row] = alias(i, k, R)
+                aliased.append(i)
     kept: list[PictureTracks | None] = []
-    for p in parts:
+    for k, p in enumerate(parts):
         if p is None:
             continue
-        keep = np.array([i not in seen for i in p.held.ids], dtype=bool)
-        twice += [i for i, k in zip(p.held.ids, keep.tolist()) if not k]
-        seen.update(p.held.ids)
-        kept.append(p.held if keep.all() else rows_of(p.held, keep))
+        held = p.held if keep[k].all() else rows_of(p.held, keep[k])
+        if renamed[k]:
+            held = held._replace(ids=[renamed[k].get(row, i) for row, i in enumerate(p.held.ids) if keep[k][row]])
+        kept.append(held)
+    seen = set(where)
     latest: dict[int, tuple[float, int]] = {}  # id -> (hand-over time, region position in parts)
     for k, p in enumerate(parts):
         if p is not None and p.flying is not None:
@@ -171,7 +213,7 @@ def merge_pictures(parts: list[RegionPicture | None], dim: int) -> tuple[Picture
             keep = np.array([latest.get(i, (0.0, -1))[1] == k for i in p.flying.ids], dtype=bool)
             if keep.any():
                 kept.append(rows_of(p.flying, keep))
-    return union_picture(kept, dim), twice
+    return union_picture(kept, dim), twice, aliased
 
 
 # ---------------------------------------------------------------- the replay of a recording
@@ -364,4 +406,4 @@ def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions
             if k.startswith("centre_") or k in ("handed_over", "in_flight"):
                 counts["centre_" + k.removeprefix("centre_")] = counts.get("centre_" + k.removeprefix("centre_"), 0) + v
     for T in sorted(set().union(*shown)):
-        yield T, merge_pictures([s.get(T) for s in shown], dim)[0]
+        yield T, merge_pictures([s.get(T) for s in shown], dim, cfg.thresholds.association[dim])[0]
