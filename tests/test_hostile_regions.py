@@ -12,7 +12,7 @@ from __future__ import annotations
 import copy
 from dataclasses import replace
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import pytest
@@ -82,6 +82,18 @@ def shown(bus: Bus) -> list[tuple[float, tuple[int, ...]]]:
     return [(p.t, p.ids) for p in bus.of(TrackPicture)]
 
 
+def forged_copy(tmp_path: Path, k: int) -> tuple[Bus, Bus, MttCentreService, Any]:
+    """The clean run's bus after 12 scans; a bus and centre after ``k``; the record of that centre's one track
+    then (a forged copy of it: the track stays)."""
+    clean_bus, _ = centre_of_x0y0(tmp_path)
+    scans(clean_bus, range(12))
+    bus, svc = centre_of_x0y0(tmp_path)
+    scans(bus, range(k))
+    centre = svc.engine.region.centre  # type: ignore[union-attr]
+    (victim,) = list(centre.tracks)
+    return clean_bus, bus, svc, copy.deepcopy(centre).hand_over(victim)
+
+
 @pytest.mark.parametrize("forgery", ["ahead", "unsupported"])
 def test_a_hand_over_that_is_no_tracks_record_is_refused(tmp_path: Path, forgery: str) -> None:
     """A hand-over's times and life counts were taken as sent. ``ahead``: the region's own track,
@@ -95,13 +107,7 @@ def test_a_hand_over_that_is_no_tracks_record_is_refused(tmp_path: Path, forgery
     beyond what a report would be taken at (``time_lead``), whose support is not its local tracks'
     count or whose last support is after its newest entry (``wrong_model``) is refused, and the
     pictures are those of the run without it."""
-    clean_bus, _ = centre_of_x0y0(tmp_path)
-    scans(clean_bus, range(12))
-    bus, svc = centre_of_x0y0(tmp_path)
-    scans(bus, range(5))
-    centre = svc.engine.region.centre  # type: ignore[union-attr]
-    (victim,) = list(centre.tracks)
-    record = copy.deepcopy(centre).hand_over(victim)  # the track as its record: a forged copy of it
+    clean_bus, bus, svc, record = forged_copy(tmp_path, 5)
     msg = handover_to_wire(record, "x1y0", 0)
     if forgery == "ahead":
         ring = np.array(msg.ring)
@@ -181,6 +187,25 @@ def test_a_hand_over_taking_a_tracks_local_tracks_elsewhere_is_refused(tmp_path:
     assert shown(bus) == shown(clean_bus) and {ids for _, ids in shown(bus)} == {(0,)}
     for a, b in zip(bus.of(TrackPicture), clean_bus.of(TrackPicture)):
         np.testing.assert_array_equal(a.x, b.x)
+
+
+def test_a_hand_over_older_than_the_track_holding_its_local_tracks_is_refused(tmp_path: Path) -> None:
+    """A record stamped in the past passes the association gate (its covariance predicted over the gap, and a
+    target flying straight is where the old record predicts it): x1y0 sending x0y0, before each scan from
+    t = 5 s on, the record x0y0's track had at t = 3 s, under a new id each time, had the track renamed at
+    every scan (7 of 7 pictures, each under another id; 0 m off). A record naming a local track held here by
+    a confirmed track whose newest state is after the record's newest entry (the holder has fused what the
+    record's sender had not) is now refused (``conflict``, the next picture contested); the pictures are the
+    clean run's."""
+    clean_bus, bus, svc, record = forged_copy(tmp_path, 4)
+    old = handover_to_wire(record, "x1y0", 0)
+    scans(bus, range(4, 5))
+    for k in range(5, 12):
+        bus.put(KEYS.region_handover("x0y0", "x1y0"), encode(replace(old, serial=k, id=1001 + 2 * k)))
+        scans(bus, range(k, k + 1))
+    assert svc.counters.get("taken_over", 0) == 0 and svc.counters["rejected_conflict"] == 7
+    assert shown(bus) == shown(clean_bus) and {ids for _, ids in shown(bus)} == {(0,)}
+    assert [p.contested for p in bus.of(TrackPicture)] == [False] * 5 + [True] * 7
 
 
 def test_a_hand_over_whose_source_is_not_its_keys_is_refused(tmp_path: Path) -> None:

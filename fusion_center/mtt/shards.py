@@ -302,6 +302,32 @@ def handover_from_wire(msg: wire.HandOver, centre: TrackToTrackCentre) -> HandOv
                     tuple(zip(msg.member_sensors, msg.member_ids)), msg.strikes)
 
 
+def holders_of(centre: TrackToTrackCentre, record: HandOver) -> list[int]:
+    """The central tracks of ``centre`` holding a local track that ``record`` names (its members), in increasing id."""
+    return sorted({centre.mapping[key] for key in record.members if key in centre.mapping})
+
+
+def superseded(centre: TrackToTrackCentre, record: HandOver) -> tuple[int, float] | None:
+    """A confirmed central track of ``centre`` holding a local track that ``record`` names, whose newest state is
+    after the record's newest entry, and that state's time; None when there is none.
+
+    An honest record's member mapped here too was taken from a row that arrived before the record, by a track
+    started here (tentative: the record comes within one report); one confirmed and newer has fused what the
+    record's sender had not, and a record stamped in the past passes :func:`disputed` (its covariance
+    predicted over the gap) and would rename that track (docs/wire.md, ``conflict`` of ``mtt-centre --region``)."""
+    holders = holders_of(centre, record)
+    if not holders:
+        return None
+    tracks = centre.tracks
+    slots = tracks.slots_of(holders)
+    t_r = float(dict(zip(tracks._ring, record.entries))["t"][-1])
+    newer = tracks.confirmed[slots] & (tracks.newest_t(slots) > t_r)
+    if not newer.any():
+        return None
+    k = int(np.flatnonzero(newer)[0])
+    return holders[k], float(tracks.newest_t(slots)[k])
+
+
 def disputed(centre: TrackToTrackCentre, record: HandOver) -> tuple[int, float] | None:
     """A central track of ``centre`` holding a local track that ``record`` names (its members) of which the
     record's newest estimate is not an estimate, and the chi-square between the two; None when there is none.
@@ -313,7 +339,7 @@ def disputed(centre: TrackToTrackCentre, record: HandOver) -> tuple[int, float] 
     so it passes at least at the gate's probability. A record that fails it would take that track's local
     tracks to a state elsewhere (docs/wire.md, ``conflict`` of ``mtt-centre --region``)."""
     tracks = centre.tracks
-    holders = sorted({centre.mapping[key] for key in record.members if key in centre.mapping})
+    holders = holders_of(centre, record)
     if not holders:
         return None
     ring = dict(zip(tracks._ring, record.entries))
