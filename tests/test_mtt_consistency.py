@@ -24,6 +24,7 @@ from fedtrack.fusion_center.mtt.centre.consistency import (
     SensorConsistency,
     Transition,
     cap,
+    innovations,
     normalized_innovations,
     relative_tail,
 )
@@ -170,10 +171,26 @@ def test_normalized_innovations_solve_the_innovation_covariance() -> None:
     P = L @ np.swapaxes(L, 1, 2) + np.eye(4)
     R = np.tile(np.diag([4.0, 9.0]), (3, 1, 1))
     x, z = rng.normal(size=(3, 4)), rng.normal(size=(3, 2))
-    got = normalized_innovations(H, R, z, x, P)
+    got = normalized_innovations(*innovations(H, R, z, x, P))
     for k in range(3):
         nu, S = z[k] - H[k] @ x[k], H[k] @ P[k] @ H[k].T + R[k]
         assert got[k] == pytest.approx(nu @ np.linalg.inv(S) @ nu, rel=1e-9)
+
+
+def test_innovations_of_a_subset_of_rows_are_those_rows_of_the_whole_to_the_bit() -> None:
+    """The registration takes the monitor's innovations and covariances of its rows (the confirmed tracks'),
+    made once a report (load57: before, made again from the observations): each row's are its own to the bit."""
+    rng = np.random.default_rng(57)
+    for n, m in ((1, 2), (37, 2), (300, 3)):
+        H = np.zeros((n, m, 6))
+        H[:, np.arange(m), 2 * np.arange(m)] = 1.0
+        L = rng.normal(size=(n, 6, 6)) * 30.0
+        P, R = L @ np.swapaxes(L, 1, 2), np.tile(np.diag(rng.uniform(10.0, 900.0, m)), (n, 1, 1))
+        x, z = rng.normal(size=(n, 6)) * 1e4, rng.normal(size=(n, m)) * 1e4
+        nu, S = innovations(H, R, z, x, P)
+        rows = rng.random(n) < 0.6
+        sub_nu, sub_S = innovations(H[rows], R[rows], z[rows], x[rows], P[rows])
+        assert nu[rows].tobytes() == sub_nu.tobytes() and S[rows].tobytes() == sub_S.tobytes()
 
 
 @pytest.mark.parametrize("restarting", [False, True], ids=["plain", "every-report-first"])

@@ -12,9 +12,12 @@ from test_hostile_messages import KEYS, Bus, assert_recording_replays, mtt_servi
 
 from fedtrack.cli import main as cli
 from fedtrack.fusion_center.mtt.centre import registration
+from fedtrack.fusion_center.mtt.centre.consistency import innovations
 from fedtrack.fusion_center.mtt.centre.registration import (
     PRIOR_CLOCK_S,
     PRIOR_OFFSET_M,
+    WINDOW_ROOM,
+    InformationWindow,
     SensorRegistration,
     chi2_of,
     design,
@@ -50,10 +53,10 @@ def test_the_estimate_is_the_weighted_least_squares_one_and_exact_without_noise(
     squares solution of the stacked, whitened rows (the prior two rows more) to round-off."""
     theta = np.array([30.0, -20.0, 2.0])
     H, R, z, X, P = observations(40, theta)
-    est, _ = solve_estimate(*scan_information(H, R, z, X, P, 3)[:2])
+    est, _ = solve_estimate(*scan_information(H, *innovations(H, R, z, X, P), X, 3)[:2])
     assert np.allclose(est, theta, rtol=0, atol=1e-5)
     H, R, z, X, P = observations(40, theta, sigma=12.0)
-    Y, y, _ = scan_information(H, R, z, X, P, 3)
+    Y, y, _ = scan_information(H, *innovations(H, R, z, X, P), X, 3)
     est, cov = solve_estimate(Y, y)
     S = H @ P @ np.swapaxes(H, 1, 2) + R
     L = np.linalg.cholesky(np.linalg.inv(S))  # whitening: L' nu has unit covariance
@@ -73,7 +76,7 @@ def feed(reg: SensorRegistration, sensors: dict[str, np.ndarray], scans: int, li
     for k in range(scans):
         for s, theta in sensors.items():
             H, R, z, X, P = observations(20, theta - reg.applied.get(s, 0.0), sigma=10.0)
-            reg.add(s, float(k), (H, R, z), (X, P), 5.0, live, 20)
+            reg.add(s, float(k), (H, *innovations(H, R, z, X, P)), X, 5.0, live, 20)
 
 
 def test_one_sensor_off_the_consensus_is_corrected_and_the_honest_ones_are_not() -> None:
@@ -130,10 +133,32 @@ def test_the_medoid_solves_its_pairs_in_one_call_to_the_bit(monkeypatch: pytest.
     solve = np.linalg.solve
     monkeypatch.setattr(registration.np.linalg, "solve", lambda *a: solves.append(1) or solve(*a))
     H, R, z, X, P = observations(40, np.zeros(3), sigma=10.0)
-    reg.add("s1", 4.0, (H, R, z), (X, P), 5.0, live, 40)
+    reg.add("s1", 4.0, (H, *innovations(H, R, z, X, P)), X, 5.0, live, 40)
     assert len(solves) == 2 and reg.estimates["s1"].reference is not None
     assert registration.prior_information(3) is registration.prior_information(3)
     assert not registration.prior_information(3).flags.writeable
+
+
+def test_a_window_sums_its_scans_as_adding_them_one_by_one_to_the_bit() -> None:
+    """A sensor's window keeps its scans' information as rows of one array and sums them in one reduction
+    (load57: before, Python's ``sum`` over the scans' arrays at every report); the sums are those of adding the
+    scans one by one from 0, to the bit (a -0.0 sum too), as scans leave and come, the rows move to the front
+    and the array grows."""
+    rng = np.random.default_rng(57)
+    window, scans = InformationWindow(3), []
+    for k in range(5 * WINDOW_ROOM):
+        Y, y = rng.normal(size=(3, 3)) * 10.0 ** rng.uniform(-6, 8), rng.normal(size=3) * 10.0 ** rng.uniform(-6, 8)
+        Y[0, 1], y[2] = -0.0, -0.0  # a column of -0.0 only: Python's sum from 0 gives 0.0
+        window.append(float(k), Y, y, k % 7, 10)
+        scans.append((float(k), Y, y, k % 7, 10))
+        cut = k - (3 if k < 2 * WINDOW_ROOM else 2 * WINDOW_ROOM - 1) + 0.5  # a short window, then one that grows
+        assert window.drop_before(cut) == (scans[0][0] < cut)
+        scans = [e for e in scans if e[0] >= cut]
+        Ys, ys, n, observed = window.sums()
+        want_Y, want_y = sum(e[1] for e in scans), sum(e[2] for e in scans)
+        assert len(window) == len(scans) and n == sum(e[3] for e in scans) and observed == 10 * len(scans)
+        assert Ys.tobytes() == want_Y.tobytes() and ys.tobytes() == want_y.tobytes()
+    assert WINDOW_ROOM < window.rows.shape[0] <= 4 * WINDOW_ROOM  # grown, and bounded by twice the window
 
 
 def test_a_sensor_mostly_beyond_the_gate_is_not_estimated() -> None:

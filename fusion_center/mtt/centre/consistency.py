@@ -87,10 +87,15 @@ class Transition(NamedTuple):
     ratio: float
 
 
-def normalized_innovations(H: np.ndarray, R: np.ndarray, z: np.ndarray, x: np.ndarray, P: np.ndarray) -> np.ndarray:
-    """``nu' S^-1 nu`` per row, ``nu = z - H x``, ``S = H P H' + R`` (symmetrized, a solve)."""
-    nu = z - np.einsum("kmd,kd->km", H, x)
-    S = symmetrize(H @ P @ np.swapaxes(H, -1, -2) + R)
+def innovations(H: np.ndarray, R: np.ndarray, z: np.ndarray, x: np.ndarray, P: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Per row the innovation ``nu = z - H x`` and its covariance ``S = H P H' + R`` (symmetrized); each row's
+    are those of that row alone (the registration takes a subset of the monitor's rows)."""
+    return z - np.einsum("kmd,kd->km", H, x), symmetrize(H @ P @ np.swapaxes(H, -1, -2) + R)
+
+
+def normalized_innovations(nu: np.ndarray, S: np.ndarray) -> np.ndarray:
+    """``nu' S^-1 nu`` per row (a solve) of :func:`innovations`."""
     return np.einsum("km,km->k", nu, np.linalg.solve(S, nu[..., None])[..., 0])
 
 

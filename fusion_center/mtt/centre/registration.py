@@ -83,17 +83,50 @@ MIN_OBSERVATIONS = 10  # innovations a sensor's window needs for an estimate (th
 # than one observation of the noise of any sensor
 PRIOR_OFFSET_M = 1e4
 PRIOR_CLOCK_S = 1e2
+WINDOW_ROOM = 16  # rows of a sensor's window array at first (doubled when full: a window of 5 s holds 5 scans at 1 Hz)
 
 
-class ScanInformation(NamedTuple):
-    """One scan's information on ``theta``: its time, ``A' S^-1 A``, ``A' S^-1 nu``, the number of innovations
-    within the gate (those summed) and of the scan's observations."""
+class InformationWindow:
+    """A sensor's scans' information on ``theta`` (of size ``k``) over the window, oldest first: per scan its time
+    and a row holding ``A' S^-1 A`` (flattened), ``A' S^-1 nu``, the number of innovations within the gate (those
+    summed) and of the scan's observations, the rows in order in one array, so that the window's sums are one
+    reduction (over the first axis: row after row, the sums of adding the scans one by one, as Python's ``sum``
+    of the scans' arrays made them at every report)."""
 
-    t: float
-    Y: np.ndarray
-    y: np.ndarray
-    count: int
-    observed: int
+    def __init__(self, k: int) -> None:
+        self.k = k
+        self.t: deque[float] = deque()
+        self.rows = np.zeros((WINDOW_ROOM, k * k + k + 2))
+        self.start = 0  # the window's rows: rows[start:start + len(t)]
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def append(self, t: float, Y: np.ndarray, y: np.ndarray, count: int, observed: int) -> None:
+        """One scan's information at ``t`` after the others (the rows moved to the front, or into an array
+        twice the size, when there is no room after them)."""
+        n, end = len(self.t), self.start + len(self.t)
+        if end == self.rows.shape[0]:
+            rows = self.rows if 2 * n < self.rows.shape[0] else np.zeros((2 * self.rows.shape[0], self.rows.shape[1]))
+            rows[:n] = self.rows[self.start:end]
+            self.rows, self.start, end = rows, 0, n
+        self.rows[end] = np.concatenate([Y.ravel(), y, (count, observed)])
+        self.t.append(t)
+
+    def drop_before(self, t: float) -> bool:
+        """Leave out the scans before ``t``; whether there were any."""
+        kept, n = self.t, len(self.t)
+        while kept and kept[0] < t:
+            kept.popleft()
+        self.start += n - len(kept)
+        return len(kept) < n
+
+    def sums(self) -> tuple[np.ndarray, np.ndarray, int, int]:
+        """The window's ``A' S^-1 A``, ``A' S^-1 nu`` and innovations within the gate and observations, summed
+        (``+ 0.0``: a sum of -0.0 only is 0.0, as Python's ``sum`` from its start 0 gives it)."""
+        k = self.k
+        total = np.add.reduce(self.rows[self.start:self.start + len(self.t)], axis=0) + 0.0
+        return total[:k * k].reshape(k, k), total[k * k:k * k + k], int(total[-2]), int(total[-1])
 
 
 class Estimate(NamedTuple):
@@ -142,13 +175,12 @@ def design(H: np.ndarray, X: np.ndarray, k: int) -> np.ndarray:
     return A
 
 
-def scan_information(H: np.ndarray, R: np.ndarray, z: np.ndarray, X: np.ndarray, P: np.ndarray, k: int,
+def scan_information(H: np.ndarray, nu: np.ndarray, S: np.ndarray, X: np.ndarray, k: int,
                      gate: float = math.inf) -> tuple[np.ndarray, np.ndarray, int]:
-    """``sum A' S^-1 A`` and ``sum A' S^-1 nu`` over the observations ``(H, R, z)`` of the central predictions
-    ``(X, P)`` whose ``nu' S^-1 nu`` is within ``gate`` (one solve for both), and their number."""
+    """``sum A' S^-1 A`` and ``sum A' S^-1 nu`` over the observations ``H`` of the central predictions ``X``, with
+    innovations ``nu`` and their covariances ``S`` (:func:`~.consistency.innovations`), whose ``nu' S^-1 nu`` is
+    within ``gate`` (one solve for both), and their number."""
     A = design(H, X, k)
-    nu = z - np.einsum("nmd,nd->nm", H, X)
-    S = symmetrize(H @ P @ np.swapaxes(H, -1, -2) + R)
     W = np.linalg.solve(S, np.concatenate([A, nu[..., None]], axis=-1))  # S^-1 [A nu]
     inside = np.einsum("nm,nm->n", nu, W[..., k]) <= gate  # a NaN's row is left out too
     M = np.einsum("nmk,nml->kl", A[inside], W[inside])
@@ -192,7 +224,7 @@ class SensorRegistration:
     k: int
     max_lag: float
     gate_tail: float = 1.0 - MttConfig.gate_probability
-    scans: dict[str, deque[ScanInformation]] = field(default_factory=dict)
+    scans: dict[str, InformationWindow] = field(default_factory=dict)
     applied: dict[str, np.ndarray] = field(default_factory=dict)  # sensor -> its correction theta
     estimates: dict[str, Estimate] = field(default_factory=dict)  # at each sensor's latest test
     linearized: set[str] = field(default_factory=set)  # sensors with observations linearized (radars): left out
@@ -221,28 +253,31 @@ class SensorRegistration:
         theta = self.applied.get(sensor)
         return 0.0 if theta is None else float(theta[-1])
 
-    def add(self, sensor: str, t: float, observations: tuple[np.ndarray, np.ndarray, np.ndarray],
-            states: tuple[np.ndarray, np.ndarray], window: float, live: list[str], observed: int) -> None:
-        """One scan's (already corrected) observations ``(H, R, z)`` (central size) of the central predictions
-        ``states`` (X, P), of the ``observed`` observations of the scan; then the sensor's test against the
-        consensus of the ``live`` sensors' windows of ``window`` seconds."""
-        H, R, z = observations
+    def add(self, sensor: str, t: float, observations: tuple[np.ndarray, np.ndarray, np.ndarray], X: np.ndarray,
+            window: float, live: list[str], observed: int) -> None:
+        """One scan's (already corrected) observations ``H`` (central size) of the central predictions ``X``, with
+        their innovations and covariances ``(H, nu, S)`` (:func:`~.consistency.innovations`), of the ``observed``
+        observations of the scan; then the sensor's test against the consensus of the ``live`` sensors' windows of
+        ``window`` seconds."""
+        H, nu, S = observations
         if not observed or sensor in self.linearized:
             return
-        if z.shape[0] and not ((H == 0.0) | (H == 1.0)).all():  # a radar's update: linearized about a prediction
+        if nu.shape[0] and not ((H == 0.0) | (H == 1.0)).all():  # a radar's update: linearized about a prediction
             self.linearized.add(sensor)
             self.scans.pop(sensor, None)
             self._solved.pop(sensor, None)
             return
         self.newest = max(self.newest, t)
         for s, kept in self.scans.items():
-            while kept and kept[0].t < self.newest - window:
-                kept.popleft()
+            if kept.drop_before(self.newest - window):
                 self._solved.pop(s, None)
         self._solved.pop(sensor, None)
-        Y, y, n = (scan_information(H, R, z, *states, self.k, cap(z.shape[-1], self.gate_tail)) if z.shape[0]
+        Y, y, n = (scan_information(H, nu, S, X, self.k, cap(nu.shape[-1], self.gate_tail)) if nu.shape[0]
                    else (np.zeros((self.k, self.k)), np.zeros(self.k), 0))
-        self.scans.setdefault(sensor, deque()).append(ScanInformation(t, Y, y, n, observed))
+        kept = self.scans.get(sensor)
+        if kept is None:
+            kept = self.scans[sensor] = InformationWindow(self.k)
+        kept.append(t, Y, y, n, observed)
         self._judge(sensor, t, live)
 
     def _window_estimates(self, live: list[str]) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -251,9 +286,8 @@ class SensorRegistration:
         for s in live:
             if s not in self._solved:
                 kept = self.scans.get(s)
-                n = sum(e.count for e in kept) if kept else 0
-                self._solved[s] = (solve_estimate(sum(e.Y for e in kept), sum(e.y for e in kept))
-                                   if n >= MIN_OBSERVATIONS and 2 * n >= sum(e.observed for e in kept) else None)
+                Y, y, n, observed = kept.sums() if kept else (None, None, 0, 0)
+                self._solved[s] = (solve_estimate(Y, y) if n >= MIN_OBSERVATIONS and 2 * n >= observed else None)
         return {s: e for s in live if (e := self._solved[s]) is not None}
 
     def _judge(self, sensor: str, t: float, live: list[str]) -> None:

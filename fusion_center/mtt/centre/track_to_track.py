@@ -86,7 +86,12 @@ import numpy as np
 
 from fedtrack.fusion_center.mtt.central_track import CentralTracks, DepartedTracks, padded
 from fedtrack.fusion_center.mtt.centre.association import CentreAssociation, LocalKey
-from fedtrack.fusion_center.mtt.centre.consistency import SensorConsistency, normalized_innovations, window_seconds
+from fedtrack.fusion_center.mtt.centre.consistency import (
+    SensorConsistency,
+    innovations,
+    normalized_innovations,
+    window_seconds,
+)
 from fedtrack.fusion_center.mtt.centre.copies import FeedCopies, Observations
 from fedtrack.fusion_center.mtt.centre.posterior_bound import kalman_rows, undetected, vaguer_than_detection
 from fedtrack.fusion_center.mtt.centre.registration import SensorRegistration, sensor_frame
@@ -641,14 +646,15 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         once = np.bincount(slots, minlength=self.tracks.capacity)[slots] == 1
         use = (fused & (row >= 0) & once & (has.sum(axis=1) - has[:, col] > 0)).nonzero()[0]
         H, R, z = (a[use] for a in observations)
-        nis = normalized_innovations(self._embed(H), R, z, X[row[use]], P[row[use]]) if use.size else np.zeros(0)
+        H, X = self._embed(H), X[row[use]]
+        nu, S = innovations(H, R, z, X, P[row[use]]) if use.size else (z, R)  # (none: z, R are empty alike)
+        nis = normalized_innovations(nu, S) if use.size else np.zeros(0)
         window = window_seconds(self.usual)
         self.consistency.add(sensor, t, nis, z.shape[-1], window)
         self.counters.inconsistent_sensors = len(self.consistency.flagged)
         self.counters.inconsistency_onsets = self.consistency.onsets
         steady = self.tracks.confirmed[slots[use]]  # a tentative track's velocity is not yet known
-        self.registration.add(sensor, t, (self._embed(H[steady]), R[steady], z[steady]),
-                              (X[row[use[steady]]], P[row[use[steady]]]), window, self.live, observed)
+        self.registration.add(sensor, t, (H[steady], nu[steady], S[steady]), X[steady], window, self.live, observed)
         self.counters.registration_corrections = self.registration.corrections
         self.counters.registered_sensors = len(self.registration.applied)
 
