@@ -135,6 +135,9 @@ def test_the_medoid_solves_its_pairs_in_one_call_to_the_bit(monkeypatch: pytest.
     H, R, z, X, P = observations(40, np.zeros(3), sigma=10.0)
     reg.add("s1", 4.0, (H, *innovations(H, R, z, X, P)), X, 5.0, live, 40)
     assert len(solves) == 2 and reg.estimates["s1"].reference is not None
+    monkeypatch.setattr(registration.np, "stack", None)  # the pairs as arrays of a list, not np.stack (load57)
+    reg.add("s2", 4.0, (H, *innovations(H, R, z, X, P)), X, 5.0, live, 40)
+    assert len(solves) == 4 and reg.estimates["s2"].reference is not None
     assert registration.prior_information(3) is registration.prior_information(3)
     assert not registration.prior_information(3).flags.writeable
 

@@ -136,7 +136,8 @@ class RegionCentre:
             free &= ~gone
         rows = free.nonzero()[0] if self.boxes.shape[0] > 1 else free[:0]  # one region owns every position
         if rows.size:
-            free[rows] = self.owners(report.x[rows, 0], report.x[rows, 2]) == self.index
+            x = report.x[rows]  # one gather, its columns viewed
+            free[rows] = self.owners(x[:, 0], x[:, 2]) == self.index
         return mine | free
 
     def owners(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -195,12 +196,13 @@ class RegionCentre:
             live = c.tracks.ids[slots] == ids  # not merged away, deleted or pruned since
             sl = slots[live]
             p = c.tracks.newest(sl)
-            owner = self.owners(c.tracks.x[sl, p, 0], c.tracks.x[sl, p, 2])  # of the latest estimates' positions
+            x = c.tracks.x[sl, p]  # the latest estimates (one gather; their positions' columns viewed)
+            owner = self.owners(x[:, 0], x[:, 2])
             out = owner != self.index
             if out.any():  # a track short of a live sensor's local track goes at once (its twin may be next door)
                 whole = np.fromiter((c.fused_members(cid) >= c.n_live for cid in ids[live][out].tolist()),
                                     dtype=bool, count=int(out.sum()))
-                out[out] = ~whole | self.beyond_band(c.tracks.x[sl[out], p[out]], c.tracks.P[sl[out], p[out]])
+                out[out] = ~whole | self.beyond_band(x[out], c.tracks.P[sl[out], p[out]])
             if out.any():
                 first: dict[int, int] = {}  # each track leaving, to its owner at its first row
                 for cid, o in zip(ids[live][out].tolist(), owner[out].tolist()):
