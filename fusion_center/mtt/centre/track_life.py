@@ -136,7 +136,7 @@ class CentreLife:
         evidence = self.evidence[young] + np.where(hit[young], self.column_log_hit[col], self.column_log_absent[col])
         self.evidence[young] = np.maximum(evidence, DROP_EVIDENCE)
         counted = (np.count_nonzero(window, axis=1) >= cfg.confirm_hits) & (self.evidence[young] >= CONFIRM_EVIDENCE)
-        now = self._corroborated(tentative, counts, counted, hit, col, report.sensor, report.t)  # count, Wald, others
+        now = self._corroborated(tentative, counts, counted, hit, col, report)  # count, Wald, others
         if cfg.confirm_bound is not None and self.n_live == 1:
             now = young[self._vouched(young, report.sensor)]  # one sensor: its tracker's own test
         elif self.local_confirmation and now.size:
@@ -148,15 +148,18 @@ class CentreLife:
             self._delete(cid)
 
     def _corroborated(self, tentative: np.ndarray, counts: np.ndarray, holds: np.ndarray, hit: np.ndarray,
-                      col: int, sensor: str, t: float) -> np.ndarray:
+                      col: int, report: LocalReport) -> np.ndarray:
         """Of the tentative slots whose count holds (``holds``, per slot of ``tentative[counts]``), those that
-        are not one sensor's alone unheard or denied by the others. A scan of sensor ``sensor`` (column ``col``)
+        are not one sensor's alone unheard or denied by the others. A scan (``report``) of sensor column ``col``
         vets each tentative slot (of ``tentative``) it
         supports none of: blind to it or not, the sensor has had its say. It questions one that exactly one
         other sensor supports when the scan counts for it (``counts``: it sees its place, :meth:`_blind_to`),
         it surely sees that place (:meth:`_surely_seen`: a radar's miss of a track of unknown height may be its
-        horizon's; before 2026-11-28 such misses denied an aircraft below every radar's horizon for good)
-        and did not detect it (``PENDING``), and denies it when its previous scan did so too (``DENIED``: the
+        horizon's; before 2026-11-28 such misses denied an aircraft below every radar's horizon for good),
+        did not detect it and holds no track of its own there mapped to a duplicate (:meth:`_duplicate_beside`:
+        fast beside two slow sensors, seed 1, each of the 7 slow sensors' questions that held a target's track came
+        from its detected local track 14-150 m from it, mapped to a central track of its own; fastslow57)
+        (``PENDING``), and denies it when its previous scan did so too (``DENIED``: the
         ``CENTRAL_MISSES`` misses that would delete it if it were confirmed; a live target at P_D 0.9 once in a
         hundred); its next detection takes a question back, not a denial (a local track of clutter mapped for
         a scan would), its local track that its tracker confirmed mapped to the slot (:meth:`_vouched`, of this
@@ -174,6 +177,7 @@ class CentreLife:
         were confirmed for good, before or despite the others' scans: seed 1, 20 ghosts from t = 100 s, mean GOSPA
         74 -> 223 m; from a sensor scanning every 0.25 s (or sending its scans in bursts) they were confirmed
         between another sensor's question and its denial (attack54: 54 -> 225 m)."""
+        sensor, t = report.sensor, report.t
         support = self._fused_support(tentative)  # looked up once: nothing here changes it
         self.vetting[tentative[~support[:, col]]] |= VETTED
         denied = self.denied
@@ -189,6 +193,8 @@ class CentreLife:
             alone_col = np.zeros((missed.size, len(self.sensor_names)), dtype=bool)
             alone_col[:, col] = True
             missed = missed[self._surely_seen(missed, alone_col, t)]
+        if missed.size:  # nor where its own track of the target may be mapped to a duplicate
+            missed = missed[~self._duplicate_beside(missed, support[np.searchsorted(counted, missed)], report)]
         denied[missed, col] = np.where(denied[missed, col] > 0, DENIED, PENDING)
         now = counted[holds]
         if self.n_live < DENIAL_LIVE:  # no third sensor to settle a question: the count alone (fastslow56)
@@ -209,6 +215,32 @@ class CentreLife:
         self.counters.uncorroborated += first.size
         self.vetting[first] |= HELD
         return now[~held]
+
+    def _duplicate_beside(self, slots: np.ndarray, support: np.ndarray, report: LocalReport) -> np.ndarray:
+        """Per tentative slot of ``slots`` that one sensor alone supports (``support``: slots x sensor columns),
+        whether the report's sensor holds a local track there that may be its own track of the same target: a track
+        of two detections or more (its tracker confirmed it, or this scan updated it, not started it), within the
+        association test's reach of the slot in x-y (:meth:`_reach_pairs`), mapped to another central track that no
+        local track of the slot's supporter maps to (the two sensors' tracks of one target, kept apart by the
+        association test on the whole state: a slow sensor's velocity). Its miss of the slot is then no evidence
+        against it: the detection is there, under the duplicate. A ghost beside a target that the supporter tracks
+        too (the sensor's track mapped to the target's track, which the supporter supports) is still questioned,
+        and so is one beside the sensor's newly started tracks (its clutter, one detection)."""
+        beside = np.zeros(slots.size, dtype=bool)
+        m, n = self._reach_pairs(*self.tracks.states_at(slots, report.t), report)
+        updated = report.detected.copy()  # detected by this scan and not started by it: two detections or more
+        updated[report.detected.nonzero()[0][report.started]] = False
+        keep = report.confirmed[n] | updated[n]
+        m, n = m[keep], n[keep]
+        if not m.size:
+            return beside
+        slot_of, mapping, sensor = self.tracks.slot, self.mapping, report.sensor
+        other = np.array([slot_of.get(mapping.get((sensor, int(lid))), -1) for lid in report.ids[n].tolist()])
+        mapped = other >= 0
+        m, other = m[mapped], other[mapped]
+        supporter = support[m].argmax(axis=1)
+        beside[m[~self._fused_support(other)[np.arange(m.size), supporter]]] = True
+        return beside
 
     def _vouching(self, slots: np.ndarray) -> np.ndarray:
         """Per slot of ``slots``, how many sensors have a local track that their tracker confirmed (at their
@@ -288,20 +320,26 @@ class CentreLife:
 
     def _reach(self, X: np.ndarray, P: np.ndarray, report: LocalReport) -> np.ndarray:
         """Per central state of ``X`` (covariances ``P``), whether it is within the association test's reach
-        (in x-y) of one of the report's local tracks: the test made on the pairs close enough that it can pass
-        (:func:`~.candidates.candidate_pairs`: a direct distance bound, a k-d tree beyond), not on every state
-        and local track; made only for the states whose answer is read."""
-        xy = [0, 2]
+        (in x-y) of one of the report's local tracks (:meth:`_reach_pairs`)."""
         reach = np.zeros(X.shape[0], dtype=bool)
+        reach[self._reach_pairs(X, P, report)[0]] = True
+        return reach
+
+    def _reach_pairs(self, X: np.ndarray, P: np.ndarray, report: LocalReport) -> tuple[np.ndarray, np.ndarray]:
+        """The pairs ``(i, j)`` of a central state ``X[i]`` (covariance ``P[i]``) and a report's local track ``j``
+        within the association test's reach of each other in x-y: the test made on the pairs close enough that it
+        can pass (:func:`~.candidates.candidate_pairs`: a direct distance bound, a k-d tree beyond), not on every
+        state and local track."""
+        xy = [0, 2]
         if not report.x.shape[0] or not X.shape[0]:
-            return reach
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
         gate, local = self.cfg.thresholds.association[2], report.x[:, xy]
         m, n = candidate_pairs(X[:, xy], np.sqrt(P[:, 0, 0] + P[:, 2, 2]), local,
                                np.sqrt(report.P[:, 0, 0] + report.P[:, 2, 2]), gate)
         d = X[m][:, xy] - local[n]
         S = P[m][:, xy][:, :, xy] + report.P[n][:, xy][:, :, xy]
-        reach[m[np.einsum("ki,ki->k", d, np.linalg.solve(S, d[..., None])[..., 0]) <= gate]] = True
-        return reach
+        ok = np.einsum("ki,ki->k", d, np.linalg.solve(S, d[..., None])[..., 0]) <= gate
+        return m[ok], n[ok]
 
     def _in_view(self, slots: np.ndarray, report: LocalReport) -> np.ndarray:
         """Per confirmed track of ``slots`` that the report's sensor does not track, whether the report shows
