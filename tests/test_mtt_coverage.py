@@ -21,6 +21,7 @@ from fedtrack.fusion_center.mtt.evaluation import evaluate
 from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.geodetic import (
     Frame,
+    RadarSite,
     above_radio_horizon,
     enu_from_geodetic,
     enu_from_own,
@@ -314,14 +315,41 @@ def test_a_far_radars_view_is_in_its_own_axes_on_the_earth() -> None:
     assert radar_view(x, scan).tolist() == [True, True]  # the common frame's axes: the low track inside
 
 
+def own_clutter_scan(site: RadarSite, t: float, rng: np.random.Generator, plots: list[np.ndarray]) -> dict:
+    """Radar ``r1``'s scan line at ``site`` and ``t``: 20 clutter plots drawn in its own frame (every azimuth,
+    elevations 0.005-0.3 rad, ranges 20-300 km), then ``plots`` (range, azimuth, elevation in the common axes)."""
+    own = own_from_aer(np.column_stack([rng.uniform(0, 2 * np.pi, 20), rng.uniform(0.005, 0.3, 20),
+                                        rng.uniform(20e3, 300e3, 20)]))
+    dets = np.vstack([polar_from_cartesian(enu_from_own(site, own) - site.position), *plots])
+    return {"t": t, "sensor": "r1", "R": np.diag([100.0, 4e-6, 4e-6]).tolist(),
+            "sensor_position": site.position.tolist(), "detections": [{"z": d.tolist()} for d in dets]}
+
+
+def low_target_ids(tmp_path: Path, lines: list[dict], algorithm: str, tables: dict[str, str]) -> dict[str, list]:
+    """``lines`` (``s1`` and ``r1`` of a target 300 m up at x = 50 t) replayed by ``algorithm`` with each config of
+    ``tables`` (name: the tables after ``[mtt]``'s); per config, per picture from 15 s on, the ids of the confirmed
+    tracks within 300 m of the target."""
+    scans = tmp_path / "scans.jsonl"
+    scans.write_text("".join(json.dumps(line) + "\n" for line in lines))
+    held = {}
+    for name, table in tables.items():
+        config, out = tmp_path / f"{name}.toml", tmp_path / f"{name}.jsonl"
+        config.write_text(f'[mtt]\nsensors = ["s1", "r1"]\npd = 0.9\nclutter_density = 1e-12\nperiod = 1.0\n\n'
+                          f'[mtt.sensor.r1]\nclutter_density = {20 / (280e3 * 2 * np.pi * 0.295)}\n{table}')
+        replay_mtt(algorithm, scans, config, out)
+        held[name] = [[tr["id"] for tr in p["tracks"] if tr["status"] == "confirmed"
+                       and abs(tr["x"][0] - 50.0 * p["t"]) < 300.0 and abs(tr["x"][2]) < 300.0]
+                      for p in map(json.loads, out.read_text().splitlines()) if p["t"] >= 15.0]
+    return held
+
+
 def test_a_far_radar_on_the_earth_does_not_delete_a_low_track_below_its_horizon(tmp_path: Path) -> None:
     """:func:`far_radar_scans` on the Earth: the radar 195 km west of the origin (51.5 N 2.8 W, 50 m up), its
     clutter drawn in its own frame (elevations 0.005-0.3 rad), the target 300 m up near the origin, below the
     radar's own horizon but 0.017 rad up in the common frame's axes. With the config's [frame] (the view in the
     radar's own axes) the track is held by one id from 15 s on; the same run without it (the common axes, as
     before: the clutter away from the origin lies down to -0.026 rad there) loses it."""
-    frame = Frame(51.5, 0.0)
-    site = site_from_geodetic(frame, 51.5, -2.8, 50.0)
+    site = site_from_geodetic(Frame(51.5, 0.0), 51.5, -2.8, 50.0)
     rng = np.random.default_rng(7)
     lines = []
     for k in range(int(FAR_S)):
@@ -330,27 +358,43 @@ def test_a_far_radar_on_the_earth_does_not_delete_a_low_track_below_its_horizon(
             z = target[:2] + rng.normal(0.0, 10.0, 2)
             lines.append({"t": float(k), "sensor": "s1", "R": (100.0 * np.eye(2)).tolist(),
                           "detections": [{"z": z.tolist()}]})
-        own = own_from_aer(np.column_stack([rng.uniform(0, 2 * np.pi, 20), rng.uniform(0.005, 0.3, 20),
-                                            rng.uniform(20e3, 300e3, 20)]))
-        dets = polar_from_cartesian(enu_from_own(site, own) - site.position)
-        if k == 0:  # detected once, as an aircraft that then descends below the horizon
-            dets = np.vstack([dets, polar_from_cartesian(target - site.position)])
-        lines.append({"t": k + 0.5, "sensor": "r1", "R": np.diag([100.0, 4e-6, 4e-6]).tolist(),
-                      "sensor_position": site.position.tolist(), "detections": [{"z": d.tolist()} for d in dets]})
-    scans = tmp_path / "scans.jsonl"
-    scans.write_text("".join(json.dumps(line) + "\n" for line in lines))
-    held = {}
-    for name, table in (("earth", "\n[frame]\norigin = [51.5, 0.0, 0.0]\n"), ("flat", "")):
-        config, out = tmp_path / f"{name}.toml", tmp_path / f"{name}.jsonl"
-        config.write_text(f'[mtt]\nsensors = ["s1", "r1"]\npd = 0.9\nclutter_density = 1e-12\nperiod = 1.0\n\n'
-                          f'[mtt.sensor.r1]\nclutter_density = {20 / (280e3 * 2 * np.pi * 0.295)}\n{table}')
-        replay_mtt("mtt-centralized", scans, config, out)
-        held[name] = [[tr["id"] for tr in p["tracks"] if tr["status"] == "confirmed"
-                       and abs(tr["x"][0] - 50.0 * p["t"]) < 300.0 and abs(tr["x"][2]) < 300.0]
-                      for p in map(json.loads, out.read_text().splitlines()) if p["t"] >= 15.0]
+        once = [polar_from_cartesian(target - site.position)] if k == 0 else []  # then it descends below the horizon
+        lines.append(own_clutter_scan(site, k + 0.5, rng, once))
+    held = low_target_ids(tmp_path, lines, "mtt-centralized",
+                          {"earth": "\n[frame]\norigin = [51.5, 0.0, 0.0]\n", "flat": ""})
     assert held["earth"] and all(len(ids) == 1 for ids in held["earth"]), held["earth"]
     assert len({ids[0] for ids in held["earth"]}) == 1, held["earth"]
     assert any(len(ids) != 1 for ids in held["flat"]) or len({ids[0] for ids in held["flat"]}) > 1
+
+
+@pytest.mark.parametrize("algorithm", ["mtt-federated", "mtt-decentralized"])
+def test_a_radar_that_cannot_surely_see_a_track_does_not_delete_it(tmp_path: Path, algorithm: str) -> None:
+    """The track-to-track centre's deletion evidence (kiruna57): a low target (300 m up near the origin, 51.5 N 0 E)
+    that only a position sensor sees (every 2 s; two misses in a row at 20 s and at 40 s, at P_D 0.9 once in a
+    hundred), and a radar 195 km west (50 m up, every 3 s) whose clutter, drawn in its own frame, surrounds the
+    target in x-y while the target is below its radio horizon (1.6 km up there). A confirmed track's evidence fell
+    at each scan of a sensor not tracking it that saw its place (``_in_view``: inside the x-y extent, and not below
+    the horizon once raised by 2.33 standard deviations of its height: never, for a position sensor's track of
+    unknown height), so two radar scans and the two misses (4 misses, as unlikely as the tracking sensor's
+    ``delete_misses`` of 3) deleted it and the next plot started a new one (``calibration/kiruna``: 23 id switches
+    in 30 min). Now such a miss counts only where the radar surely sees the place (``surely_above``, as for its
+    denials): one id from 15 s on. Without ``[frame.sites]`` the centre cannot know that the radar is blind there,
+    and loses the track as before."""
+    site = site_from_geodetic(Frame(51.5, 0.0), 51.5, -2.8, 50.0)
+    rng = np.random.default_rng(7)
+    s1 = [{"t": float(k), "sensor": "s1", "R": (100.0 * np.eye(2)).tolist(),
+           "detections": [{"z": (np.array([50.0 * k, 0.0]) + rng.normal(0.0, 10.0, 2)).tolist()}]
+           if k < 20 or k % 20 not in (0, 2) else []}  # two misses in a row at 20-22 s and at 40-42 s
+          for k in range(0, int(FAR_S), 2)]
+    r1 = [own_clutter_scan(site, k + 0.5, rng, []) for k in range(0, int(FAR_S), 3)]
+    lines = sorted(s1 + r1, key=lambda line: line["t"])
+    assert not above_radio_horizon(site, np.array([[50.0 * FAR_S, 0.0, 1000.0]])).any()
+    earth = "\n[frame]\norigin = [51.5, 0.0, 0.0]\n"
+    held = low_target_ids(tmp_path, lines, algorithm, {"sites": f"{earth}\n[frame.sites]\nr1 = [51.5, -2.8, 50.0]\n",
+                                                       "none": earth})
+    assert len(held["sites"]) > 40 and all(len(ids) == 1 for ids in held["sites"]), held["sites"]
+    assert len({ids[0] for ids in held["sites"]}) == 1, held["sites"]
+    assert any(len(ids) != 1 for ids in held["none"]) or len({ids[0] for ids in held["none"]}) > 1
 
 
 def still_tracks(sensor: str, t: float, places: dict[int, float]) -> LocalReport:

@@ -11,7 +11,7 @@ from statistics import NormalDist
 import numpy as np
 
 from fedtrack.fusion_center.mtt.centre.candidates import candidate_pairs
-from fedtrack.geodetic import above_radio_horizon
+from fedtrack.geodetic import RadarSite, above_radio_horizon
 from fedtrack.local_filters.mtt.associators.jipda import FALSE_CONFIRM, LOST_TRUE
 from fedtrack.local_filters.mtt.config import MttConfig, miss_count, scan_lost
 from fedtrack.local_filters.mtt.local import LocalReport
@@ -58,6 +58,17 @@ def log_ratios(pd: float, clutter: float, gate: float, R: bytes, R_type: str) ->
     pd = min(pd, 1.0 - 1e-12)
     p = min(-math.expm1(-clutter * area), pd)
     return (math.log(pd / p) if p > 0.0 else math.inf), math.log1p(-pd) - math.log1p(-p)
+
+
+def surely_above(site: RadarSite | None, X: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """Per central state of ``X`` (covariances ``P``), whether a radar at ``site`` surely sees its place: the
+    place lowered by ``Z_FALSE_CONFIRM`` standard deviations of its height is above the radar's radio horizon
+    (:func:`above_radio_horizon`; below it with a chance of at most ``FALSE_CONFIRM``, the mirror of
+    :meth:`CentreLife._below_horizon`). A sensor without a site (``None``) and a 2-D state: always. A track of
+    unknown height (a position sensor's alone, ``init_z_std``) is lowered below any horizon."""
+    if site is None or X.shape[1] != 6:
+        return np.ones(X.shape[0], dtype=bool)
+    return above_radio_horizon(site, X[:, 0::2] - np.outer(Z_FALSE_CONFIRM * np.sqrt(P[:, 4, 4]), [0.0, 0.0, 1.0]))
 
 
 def needs_local_confirmation(cfg: MttConfig, sensor: str, R: np.ndarray, interval: float = 1.0) -> bool:
@@ -343,10 +354,14 @@ class CentreLife:
 
     def _in_view(self, slots: np.ndarray, report: LocalReport) -> np.ndarray:
         """Per confirmed track of ``slots`` that the report's sensor does not track, whether the report shows
-        that the sensor sees where it is (:meth:`_view`): inside the extent of its local tracks, above a sited
-        radar's horizon, and beyond the reach of each of them (none of them may hold its detections)."""
+        that the sensor sees where it is (:meth:`_view`): inside the extent of its local tracks, surely above a sited
+        radar's horizon (:func:`surely_above`: a miss there may be the horizon's; before 2026-11-28, kiruna57, the
+        track raised above it as for a tentative one, and a far radar's misses deleted a position sensor's track of
+        unknown height again and again: ``calibration/kiruna``, 23 id switches in 30 min), and beyond the reach of
+        each of them (none of them may hold its detections)."""
         X, P = self.tracks.states_at(slots, report.t)
         inside, _ = self._view(X, P, report)
+        inside &= surely_above(self.sites.get(report.sensor), X, P)
         inside[inside] = ~self._reach(X[inside], P[inside], report)
         return inside
 
@@ -385,11 +400,10 @@ class CentreLife:
         Le Bourget, which the recorded Paris traffic's s3 alone sees)."""
         asking = self._counted(asking)
         sited = [(c, self.sites[name]) for c, name in enumerate(self.sensor_names) if name in self.sites]
-        X, P = self.tracks.states_at(slots, t) if sited else (np.zeros((slots.size, 0)), None)
-        if X.shape[1] == 6:
-            low = X[:, 0::2] - np.outer(Z_FALSE_CONFIRM * np.sqrt(P[:, 4, 4]), [0.0, 0.0, 1.0])
+        if sited:
+            X, P = self.tracks.states_at(slots, t)
             for c, site in sited:
-                asking[:, c] &= above_radio_horizon(site, low)
+                asking[:, c] &= surely_above(site, X, P)
         return asking.any(axis=1)
 
     def _own_confirmed(self, slots: np.ndarray) -> np.ndarray:
