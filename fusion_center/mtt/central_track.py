@@ -192,6 +192,10 @@ class CentralTracks:
         order = self._pos(np.full(int(self.count[s]), s), np.arange(int(self.count[s])))
         return tuple(getattr(self, name)[s, order] for name in self._ring)  # indexing by ``order`` copies
 
+    def ring_of(self, entries: tuple[np.ndarray, ...]) -> dict[str, np.ndarray]:
+        """``entries`` (as :meth:`entries` gives them, or a hand-over carries them) by field name."""
+        return dict(zip(self._ring, entries))
+
     def place(self, cid: int, confirmed: bool, entries: tuple[np.ndarray, ...]) -> int:
         """Track ``cid`` from another table's :meth:`entries` (a hand-over); returns its slot."""
         if not self.free:

@@ -159,6 +159,15 @@ def one_target(a: PictureTracks, i: int, b: PictureTracks, j: int, gate: float) 
     return bool(d2[0] <= gate)
 
 
+def same_target(parts: list[RegionPicture | None], keeper: tuple[int, int], copies: list[tuple[int, int]],
+                gate: float) -> dict[tuple[int, int], bool]:
+    """Each copy (region, row) of ``copies`` but ``keeper``: whether it is an estimate of ``keeper``'s target
+    (:func:`one_target` on the regions' held tracks)."""
+    kept = parts[keeper[0]].held  # type: ignore[union-attr]
+    return {(k, row): one_target(kept, keeper[1], parts[k].held, row, gate)  # type: ignore[union-attr]
+            for k, row in copies if (k, row) != keeper}
+
+
 def merge_pictures(parts: list[RegionPicture | None], dim: int, gate: float
                    ) -> tuple[PictureTracks, list[int], list[int]]:
     """The regions' pictures of one time (in region order; None: the region has none) as one, in
@@ -181,13 +190,12 @@ def merge_pictures(parts: list[RegionPicture | None], dim: int, gate: float
     for i, copies in where.items():
         if len(copies) == 1:
             continue
-        same = [one_target(parts[copies[0][0]].held, copies[0][1], parts[k].held, row, gate)  # type: ignore[union-attr]
-                for k, row in copies[1:]]
-        keeper = copies[0] if all(same) else next((c for c in copies if c[0] == i % R), copies[0])
-        for k, row in copies:
-            if (k, row) == keeper:
-                continue
-            if one_target(parts[keeper[0]].held, keeper[1], parts[k].held, row, gate):  # type: ignore[union-attr]
+        verdicts = same_target(parts, copies[0], copies, gate)
+        if not all(verdicts.values()):
+            keeper = next((c for c in copies if c[0] == i % R), copies[0])
+            verdicts = verdicts if keeper == copies[0] else same_target(parts, keeper, copies, gate)
+        for (k, row), same in verdicts.items():
+            if same:
                 keep[k][row] = False
                 twice.append(i)
             else:

@@ -502,7 +502,7 @@ class MttCentreService(CentreFailover, Service):
             record = handover_from_wire(msg, engine.region.centre)
         except ValueError as exc:
             raise Rejected("wrong_model", str(exc)) from None
-        ring = dict(zip(engine.region.centre.tracks._ring, record.entries))
+        ring = engine.region.centre.tracks.ring_of(record.entries)
         if ring["t"][-1] > self.lead.horizon():  # the sender fused it from a report this centre gets too
             raise Rejected("time_lead", f"hand-over {msg.serial} of {msg.source}: its newest entry at "
                            f"t={ring['t'][-1]:g} is beyond t={self.lead.horizon():g}, the latest a report "

@@ -323,12 +323,13 @@ def superseded(centre: TrackToTrackCentre, record: HandOver) -> tuple[int, float
         return None
     tracks = centre.tracks
     slots = tracks.slots_of(holders)
-    t_r = float(dict(zip(tracks._ring, record.entries))["t"][-1])
-    newer = tracks.confirmed[slots] & (tracks.newest_t(slots) > t_r)
+    t_r = float(tracks.ring_of(record.entries)["t"][-1])
+    newest = tracks.newest_t(slots)
+    newer = tracks.confirmed[slots] & (newest > t_r)
     if not newer.any():
         return None
     k = int(np.flatnonzero(newer)[0])
-    return holders[k], float(tracks.newest_t(slots)[k])
+    return holders[k], float(newest[k])
 
 
 def disputed(centre: TrackToTrackCentre, record: HandOver) -> tuple[int, float] | None:
@@ -345,7 +346,7 @@ def disputed(centre: TrackToTrackCentre, record: HandOver) -> tuple[int, float] 
     holders = holders_of(centre, record)
     if not holders:
         return None
-    ring = dict(zip(tracks._ring, record.entries))
+    ring = tracks.ring_of(record.entries)
     t_r = float(ring["t"][-1])
     slots = tracks.slots_of(holders)
     T = max(t_r, float(tracks.newest_t(slots).max()))
