@@ -2,7 +2,8 @@
 
 At least 10,000 generated payloads per message type: valid messages with one field replaced
 by an arbitrary value (overflow-scale numbers, 2^63, huge or nested containers, malformed
-arrays of any shape and dtype), plus arbitrary msgpack structures and raw bytes for every type.
+arrays of any shape and dtype, msgpack extension types and timestamps), plus arbitrary msgpack
+structures and raw bytes for every type.
 """
 
 from __future__ import annotations
@@ -27,18 +28,23 @@ from test_wire import (
     track_resets,
 )
 
-from fedtrack.wire import MESSAGE_TYPES, WireError, decode, encode
+from fedtrack.wire import MESSAGE_TYPES, HandOver, WireError, decode, encode
 
 pytestmark = pytest.mark.fuzz
 
+HAND_OVER = HandOver(source="x1y0", serial=0, id=1, confirmed=True, ring=np.zeros((1, 5)), neg_inf=(0,),
+                     sensors=("s1",), support=(1,), streak=(0,), window=(True, False), last_support=0.0,
+                     member_sensors=("s1",), member_ids=(3,), strikes=(0,))
 SAMPLES = {type(m): m for m in (position(), local_estimate(), reset(), fused(), event(), health(), track_report(),
-                                track_resets(), track_picture())}
+                                track_resets(), track_picture(), HAND_OVER)}
 PAYLOADS = 10_000  # per message type
 
 numbers = st.one_of(st.integers(min_value=-(2**63), max_value=2**64 - 1),
                     st.floats(allow_nan=True, allow_infinity=True),
                     st.sampled_from([9e307, -9e307, 1e308, 2.0**63, 2**62, 2**63, -1, 0, 1e-320]))
-scalars = st.one_of(st.none(), st.booleans(), numbers, st.text(max_size=12), st.binary(max_size=40))
+extensions = st.one_of(st.builds(msgpack.ExtType, st.integers(0, 127), st.binary(max_size=16)),
+                       st.builds(msgpack.Timestamp, st.integers(0, 2**34 - 1), st.integers(0, 999_999_999)))
+scalars = st.one_of(st.none(), st.booleans(), numbers, st.text(max_size=12), st.binary(max_size=40), extensions)
 
 
 def arrays() -> st.SearchStrategy[dict[str, Any]]:
@@ -70,7 +76,9 @@ def check(payload: bytes, msg_type: type) -> bool:
 
 @pytest.mark.parametrize("msg_type", sorted(SAMPLES, key=lambda t: t.__name__), ids=lambda t: t.__name__)
 def test_mutated_messages_are_valid_or_rejected(msg_type: type) -> None:
-    """Each generated value goes into every field in turn (and as an extra field)."""
+    """Each generated value goes into every field in turn (and as an extra field); every message type
+    (``HandOver`` since the redteam59 session)."""
+    assert set(SAMPLES) == set(MESSAGE_TYPES)
     base = msgpack.unpackb(encode(SAMPLES[msg_type]), raw=False)
     keys = sorted(base) + ["extra"]
     sent = 0

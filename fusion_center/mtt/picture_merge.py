@@ -146,8 +146,8 @@ class PictureMergeService(Service):
 
     role = "picture"
     tick_period_s = 0.05
-    state_attrs = ("pending", "started", "closing", "late", "merged_t", "seq", "clock", "lead", "latest", "contested",
-                   "seen", "settle_until", "settling", "earliest", "uncovered", "closed", "tokenless")
+    state_attrs = ("pending", "started", "closing", "late", "merged_t", "shown", "seq", "clock", "lead", "latest",
+                   "contested", "seen", "settle_until", "settling", "earliest", "uncovered", "closed", "tokenless")
 
     def __init__(self, regions: Regions, dim: int, wait_s: float, period: float, frame: Frame | None = None,
                  window: int | None = None, snapshot: Path | None = None, gate: float | None = None,
@@ -172,6 +172,7 @@ class PictureMergeService(Service):
         self.late: list[Entries] = [[] for _ in range(R)]  # entries of pictures that came after their time
         self.first_seen: dict[float, float] = {}  # picture time -> monotonic time of its first region picture
         self.merged_t: float | None = None
+        self.shown: dict[int, int] = {}  # the region showing each id under it in the last merged picture
         self.seq = 0  # pictures published
         self.clock = PictureClock(period, 0.0)  # their numbers: the regions' (PictureClock.number)
         self.latest: list[TrackPicture | None] = [None] * R  # each region's latest picture taken (queued or merged)
@@ -393,15 +394,16 @@ class PictureMergeService(Service):
 
     def _publish(self, T: float, parts: list[TrackPicture | None], contested: bool = False,
                  closing: bool = False, missing: tuple[str, ...] = ()) -> None:
-        tracks, twice, aliased = merge_pictures([None if p is None else region_picture_of(p) for p in parts],
-                                                self.dim, self.gate)
+        tracks, twice, aliased, self.shown = merge_pictures(
+            [None if p is None else region_picture_of(p) for p in parts], self.dim, self.gate, self.shown)
         if twice:
             self.count("seen_twice", len(twice))
             self.log.warning("picture at t=%g: ids %s in two regions' pictures (the first region's taken)", T, twice)
         if aliased:  # two tracks under one id: one was handed over under an id its region did not issue
             self.count("id_collision", len(aliased))
-            self.log.warning("picture at t=%g: ids %s held by two regions' tracks of different targets (the "
-                             "issuing region's shown under the id, the other under an alias)", T, aliased)
+            self.log.warning("picture at t=%g: ids %s held by two regions' tracks of different targets (the one "
+                             "shown under the id before keeps it, else the issuing region's; the other under an "
+                             "alias)", T, aliased)
             contested = True
         current = [[] if p is None else entries_of(p, self.regions.ids[r]) for r, p in enumerate(parts)]
         held = sum(map(len, self.late))

@@ -168,15 +168,18 @@ def same_target(parts: list[RegionPicture | None], keeper: tuple[int, int], copi
             for k, row in copies if (k, row) != keeper}
 
 
-def merge_pictures(parts: list[RegionPicture | None], dim: int, gate: float
-                   ) -> tuple[PictureTracks, list[int], list[int]]:
+def merge_pictures(parts: list[RegionPicture | None], dim: int, gate: float, before: dict[int, int] | None = None
+                   ) -> tuple[PictureTracks, list[int], list[int], dict[int, int]]:
     """The regions' pictures of one time (in region order; None: the region has none) as one, in
     increasing id: every held track, an id held in two regions' pictures (a hand-over between their
     pictures: two copies of one track, within ``gate`` of each other) from the first region; then the
     handed-over copies of ids no region holds, the latest hand-over's. Two tracks under one id (beyond
     ``gate``: a region handed a track under an id another issued, docs/multitarget.md) are both shown:
-    the id's issuing region's (region ``r`` of ``R`` issues ``r, r + R, ...``; else the first region's)
-    under it, the other under its :func:`alias`. Returns it, the ids held twice and the ids aliased."""
+    the one of the region that showed the id in the previous merged picture (``before``: id -> region), so
+    that no shown track changes its id, else the id's issuing region's (region ``r`` of ``R`` issues ``r,
+    r + R, ...``), else the first region's, under it, the other under its :func:`alias`. Returns it, the
+    ids held twice, the ids aliased and the region showing each held id under it (the next ``before``)."""
+    before = before or {}
     R = len(parts)
     where: dict[int, list[tuple[int, int]]] = {}  # id -> (region, row) of each held copy, in region order
     for k, p in enumerate(parts):
@@ -192,7 +195,8 @@ def merge_pictures(parts: list[RegionPicture | None], dim: int, gate: float
             continue
         verdicts = same_target(parts, copies[0], copies, gate)
         if not all(verdicts.values()):
-            keeper = next((c for c in copies if c[0] == i % R), copies[0])
+            keeper = next((c for c in copies if c[0] == before.get(i, i % R)),
+                          next((c for c in copies if c[0] == i % R), copies[0]))
             verdicts = verdicts if keeper == copies[0] else same_target(parts, keeper, copies, gate)
         for (k, row), same in verdicts.items():
             if same:
@@ -201,6 +205,7 @@ def merge_pictures(parts: list[RegionPicture | None], dim: int, gate: float
             else:
                 renamed[k][row] = alias(i, k, R)
                 aliased.append(i)
+    shown = {i: k for i, copies in where.items() for k, row in copies if keep[k][row] and row not in renamed[k]}
     kept: list[PictureTracks | None] = []
     for k, p in enumerate(parts):
         if p is None:
@@ -221,7 +226,7 @@ def merge_pictures(parts: list[RegionPicture | None], dim: int, gate: float
             keep = np.array([latest.get(i, (0.0, -1))[1] == k for i in p.flying.ids], dtype=bool)
             if keep.any():
                 kept.append(rows_of(p.flying, keep))
-    return union_picture(kept, dim), twice, aliased
+    return union_picture(kept, dim), twice, aliased, shown
 
 
 # ---------------------------------------------------------------- the replay of a recording
@@ -413,5 +418,7 @@ def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions
         for k, v in e.counters().items():
             if k.startswith("centre_") or k in ("handed_over", "in_flight"):
                 counts["centre_" + k.removeprefix("centre_")] = counts.get("centre_" + k.removeprefix("centre_"), 0) + v
+    before: dict[int, int] = {}
     for T in sorted(set().union(*shown)):
-        yield T, merge_pictures([s.get(T) for s in shown], dim, cfg.thresholds.association[dim])[0]
+        merged, _, _, before = merge_pictures([s.get(T) for s in shown], dim, cfg.thresholds.association[dim], before)
+        yield T, merged

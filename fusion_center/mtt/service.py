@@ -74,7 +74,7 @@ from fedtrack.fusion_center.mtt.failover.standby import NUMBER_ROOM, SETTLED_MAX
 from fedtrack.fusion_center.mtt.numbers import Numbers, read_numbers, reservation, write_numbers
 from fedtrack.fusion_center.mtt.pictures import PICTURE_ITEMS, picture_message, picture_window
 from fedtrack.fusion_center.mtt.regional import RegionEngine
-from fedtrack.fusion_center.mtt.shards import disputed, handover_from_wire, handover_to_wire, superseded
+from fedtrack.fusion_center.mtt.shards import confirmed_holder, disputed, handover_from_wire, handover_to_wire
 from fedtrack.fusion_center.mtt.silence import Silence
 from fedtrack.geodetic import Frame, FrameConfig, geodetic_of_states
 from fedtrack.local_filters.linear.gating import CrowdedScan
@@ -181,6 +181,7 @@ class MttCentreService(CentreFailover, Service):
         self.standby = Standby(self._scope(), time.monotonic(), primary=not standby)
         self.primary_token: Any = None  # the liveliness token ``alive/mtt-primary/<scope>/<instance>``, while primary
         self.primary_seen: deque[tuple[bool, float, str]] = deque()  # primary tokens' changes (a Zenoh thread)
+        self.tokens_dropped = 0  # of them, not queued: PRIMARY_CHANGES_KEPT were waiting (a Zenoh thread's)
         self.follow = PrimaryOrder(SETTLED_MAX)  # a warm region standby's inputs, held for its primary's order
         self.aside = False  # stepped aside at its clean stop (on_stopping)
 
@@ -514,11 +515,11 @@ class MttCentreService(CentreFailover, Service):
                            f"({newest[0]:.6g}, {newest[2]:.6g}), is in region {self.regions.ids[owner]!r}")
         self._in_scale(f"hand-over {msg.serial} of {msg.source}", np.concatenate([ring["x"].ravel(), ring["z"].ravel()]),
                        np.concatenate([ring["P"].ravel(), ring["R"].ravel()]))  # its observations are fused again
-        newer = superseded(engine.region.centre, record)
-        if newer is not None:  # a confirmed track here has fused what the record's sender had not: a stale copy
+        held = confirmed_holder(engine.region.centre, record)
+        if held is not None:  # a confirmed track here fuses the local tracks the record would take to a new id
             self._contest(msg, f"hand-over {msg.serial} of {msg.source}: names local tracks of confirmed central "
-                               f"track {newer[0]} here, whose newest state (t={newer[1]:g}) is after the record's "
-                               f"newest entry (t={ring['t'][-1]:g})")
+                               f"track {held[0]} here (newest state t={held[1]:g}; the record's newest entry "
+                               f"t={ring['t'][-1]:g})")
             return
         holder = disputed(engine.region.centre, record)
         if holder is not None:  # two claims on one local track, as far apart as two targets' tracks

@@ -309,27 +309,26 @@ def holders_of(centre: TrackToTrackCentre, record: HandOver) -> list[int]:
     return sorted({centre.mapping[key] for key in record.members if key in centre.mapping})
 
 
-def superseded(centre: TrackToTrackCentre, record: HandOver) -> tuple[int, float] | None:
-    """A confirmed central track of ``centre`` holding a local track that ``record`` names, whose newest state is
-    after the record's newest entry, and that state's time; None when there is none.
+def confirmed_holder(centre: TrackToTrackCentre, record: HandOver) -> tuple[int, float] | None:
+    """A confirmed central track of ``centre`` holding a local track that ``record`` names, and its newest
+    state's time; None when there is none.
 
     An honest record's member mapped here too was taken from a row that arrived before the record, mostly by a
-    track started here (tentative: the record comes within one report; 1 of 1,390 honest hand-overs in the
-    replays of docs/multitarget.md found a confirmed one); one confirmed and newer has fused what the record's
-    sender had not, and a record stamped in the past passes :func:`disputed` (its covariance
-    predicted over the gap) and would rename that track (docs/wire.md, ``conflict`` of ``mtt-centre --region``)."""
+    track started here (tentative: the record comes within one report; docs/multitarget.md counts the honest
+    hand-overs that found a confirmed one). A record naming the local tracks of a confirmed track here takes them
+    to a new id: stamped in the past it passes :func:`disputed` (its covariance predicted over the gap), and a
+    copy of the track's own state passes it at any time, so either renamed the target's track
+    (docs/wire.md, ``conflict`` of ``mtt-centre --region``)."""
     holders = holders_of(centre, record)
     if not holders:
         return None
     tracks = centre.tracks
     slots = tracks.slots_of(holders)
-    t_r = float(tracks.ring_of(record.entries)["t"][-1])
-    newest = tracks.newest_t(slots)
-    newer = tracks.confirmed[slots] & (newest > t_r)
-    if not newer.any():
+    confirmed = tracks.confirmed[slots]
+    if not confirmed.any():
         return None
-    k = int(np.flatnonzero(newer)[0])
-    return holders[k], float(newest[k])
+    k = int(np.flatnonzero(confirmed)[0])
+    return holders[k], float(tracks.newest_t(slots[k:k + 1])[0])
 
 
 def disputed(centre: TrackToTrackCentre, record: HandOver) -> tuple[int, float] | None:

@@ -12,7 +12,14 @@ import zenoh
 
 from fedtrack.config import ConfigError
 from fedtrack.fusion_center.mtt.failover.ordered import Item
-from fedtrack.fusion_center.mtt.failover.standby import NUMBER_ROOM, SILENT_S, claim_instance, next_after, numbers_of
+from fedtrack.fusion_center.mtt.failover.standby import (
+    NUMBER_ROOM,
+    PRIMARY_CHANGES_KEPT,
+    SILENT_S,
+    claim_instance,
+    next_after,
+    numbers_of,
+)
 from fedtrack.fusion_center.mtt.regional import RegionEngine
 from fedtrack.services.base import Subscription
 from fedtrack.services.rejections import Rejected
@@ -22,7 +29,7 @@ from fedtrack.zsession import LOST_KEPT
 
 class CentreFailover:
     """The failover hooks of :class:`fedtrack.fusion_center.mtt.service.MttCentreService`. It relies
-    on that service's ``standby``, ``primary_token``, ``primary_seen``, ``started_standby``,
+    on that service's ``standby``, ``primary_token``, ``primary_seen``, ``tokens_dropped``, ``started_standby``,
     ``peers``, ``silence``, ``engine``, ``region``, ``clock`` and ``follow`` (its methods ``_take``,
     ``_process``, ``_leave``, ``take_handover``), and on :class:`fedtrack.services.base.Service`'s ``session``,
     ``keys``, ``counters``, ``count``, ``log``, ``_inputs`` and ``_router_lost_at``."""
@@ -58,7 +65,12 @@ class CentreFailover:
                                                                                        self.standby.instance))
 
     def _on_primary(self, sample: zenoh.Sample) -> None:
-        """Zenoh thread: a primary token appeared or went; the worker acts on it (on_tick)."""
+        """Zenoh thread: a primary token appeared or went; the worker acts on it (on_tick). At most
+        ``PRIMARY_CHANGES_KEPT`` wait at once, the rest dropped and counted (``tokens_dropped``): before, a flood
+        of forged tokens between two ticks queued every change (tests/test_hostile_regions.py)."""
+        if len(self.primary_seen) >= PRIMARY_CHANGES_KEPT:
+            self.tokens_dropped += 1
+            return
         self.primary_seen.append((sample.kind == zenoh.SampleKind.PUT, time.monotonic(),
                                   str(sample.key_expr).rsplit("/", 1)[-1]))
 
@@ -166,6 +178,8 @@ class CentreFailover:
             standby.token(alive, now, instance)
         if standby.ignored:
             self.counters["tokens_ignored"] = standby.ignored
+        if self.tokens_dropped:
+            self.counters["tokens_dropped"] = self.tokens_dropped
         if standby.cut != (self._router_lost_at is not None):  # its own link to the router went or came back
             standby.link(self._router_lost_at is None, time.monotonic())
         if standby.yields():

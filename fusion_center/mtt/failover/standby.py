@@ -83,6 +83,11 @@ SILENT_S = 5.0
 # 2 x (1 + 3) = 8 at once; LOST_KEPT (64) leaves room for standbys an operator adds. More come from a flood (any
 # ``fusion`` identity may declare them): not followed, counted ``tokens_ignored``
 CENTRE_TOKENS_KEPT = LOST_KEPT
+# The primary tokens' changes a centre queues between two of its ticks (its Zenoh thread's, read by its worker):
+# each token it may follow appearing and going within one tick, 2 x CENTRE_TOKENS_KEPT (a centre claims a new
+# instance each time, so a genuine token appears and goes once). More are a flood between two ticks: the newest
+# dropped, counted ``tokens_dropped`` (a genuine primary's going lost among them is still found by SILENT_S)
+PRIMARY_CHANGES_KEPT = 2 * CENTRE_TOKENS_KEPT
 
 
 def claim_instance(session: str, now_ns: int, after: str = "") -> str:
