@@ -589,6 +589,24 @@ def test_a_region_picture_numbered_off_the_grid_cannot_number_the_merged_picture
     assert all(decode(encode(p), TrackPicture) for p in merged)
 
 
+def test_a_first_region_picture_stamped_far_ahead_cannot_shut_its_region_out(tmp_path: Path) -> None:
+    """The lead guard holds a region picture stamped far ahead of the data, but took the first picture of all
+    as it came (nothing to lead yet; and no region's interval known): x1y0's identity sending first a picture
+    at t = 10^9 made x1y0 a region that started later, and each of its genuine pictures came after its time
+    was merged without it and was refused (``conflict``: 4 of 4 merged pictures without its tracks,
+    contested). The first pictures now wait until two regions have sent one (or ``--wait``) and go through
+    the guard in time order, each region's interval its period from the start: the far one is held, dropped
+    when x1y0's genuine picture comes (``time_lead``), and the merged pictures are the clean run's."""
+    svc, bus, (a, b) = picture_merger(tmp_path)
+    bus.put(b, encode(replace(region_picture(1e9, (1, 3)), seq=10**9)))
+    for k in range(4):
+        bus.put(a, encode(region_picture(float(k), (0, 2))))
+        bus.put(b, encode(region_picture(float(k), (1, 3))))
+    merged = [(p.t, p.ids, p.contested) for p in bus.of(TrackPicture)]
+    assert merged == [(float(k), (0, 1, 2, 3), False) for k in range(4)]
+    assert svc.counters["rejected"] == svc.counters["rejected_time_lead"] == 1
+
+
 def test_a_forged_token_cannot_silence_a_centre_that_answers_nothing() -> None:
     """The unsharded decentralized centre publishes pictures only (no answers): its standby judges the
     token by them."""

@@ -15,7 +15,8 @@ A picture time is merged once every region has published its picture of that tim
 lost it: counted ``missing_region`` and the picture ``contested``) or its closing record, or has no
 live centre (none of its centres, primary or standby, holds its token ``alive/mtt-region/<rid>/*``:
 counted ``missing_region`` and ``no_centre``, not waited for; a region that publishes while none of its
-tokens shows is waited for until one does); after
+tokens shows is waited for until one does; the first pictures wait until two regions with a live centre
+have sent one, and go through the lead guard in time order: :meth:`PictureMergeService._admit`); after
 ``--wait`` seconds (from the first region's picture of that time) without one, it is merged without
 that region: counted ``missing_region``, logged, and the picture marked ``contested`` when the region had
 published before. The merged picture names the regions it lacks (``missing``). A region centre's first
@@ -147,7 +148,8 @@ class PictureMergeService(Service):
     role = "picture"
     tick_period_s = 0.05
     state_attrs = ("pending", "started", "closing", "late", "merged_t", "shown", "seq", "clock", "lead", "latest",
-                   "contested", "seen", "settle_until", "settling", "earliest", "uncovered", "closed", "tokenless")
+                   "contested", "seen", "settle_until", "settling", "first", "first_at", "earliest", "uncovered",
+                   "closed", "tokenless")
 
     def __init__(self, regions: Regions, dim: int, wait_s: float, period: float, frame: Frame | None = None,
                  window: int | None = None, snapshot: Path | None = None, gate: float | None = None,
@@ -161,6 +163,8 @@ class PictureMergeService(Service):
         self.seen: list[dict[float, bytes]] = [{} for _ in regions.ids]  # its last ``window`` times taken: digest
         self.settle_until: float | None = None  # merge nothing before (on_start: the caches' replies come in)
         self.settling: list[tuple[int, TrackPicture]] = []  # pictures that came before it, in arrival order
+        self.first: list[tuple[int, TrackPicture]] = []  # the pictures before the lead guard took one (_admit)
+        self.first_at: float | None = None  # when the first of them came
         self.snapshot = snapshot  # where the time of the last picture published is kept (--snapshot)
         self.resumed_t: float | None = None  # the last time merged before this start (read from the snapshot)
         self.frame = frame  # [frame]: each merged track's WGS-84 position too
@@ -179,7 +183,8 @@ class PictureMergeService(Service):
         self.earliest: list[float] = [np.inf] * R  # each region's earliest picture time taken
         self.contested = False  # a region sent a second, different picture of a time it had sent: the next merge says so
         # a region picture stamped far ahead of the others waits for a witness (fedtrack/services/lead.py)
-        self.lead: LeadGuard[TrackPicture] = LeadGuard(max_lag=0.0)
+        # ... each region's usual interval its period from the start (a region makes a picture every period)
+        self.lead: LeadGuard[TrackPicture] = LeadGuard(max_lag=0.0, usual=dict.fromkeys(regions.ids, period))
         # each region's centres' tokens (region_centre), once watched (token_watches; a Zenoh thread's)
         self.centres: dict[str, Peers] | None = None
         self.uncovered: frozenset[int] = frozenset()  # the regions last found without a live centre (logged)
@@ -269,7 +274,28 @@ class PictureMergeService(Service):
         self.closing[r] = msg
 
     def _admit(self, r: int, msg: TrackPicture) -> None:
-        """Take region ``r``'s picture, and those it witnesses, through the lead guard."""
+        """Take region ``r``'s picture, and those it witnesses, through the lead guard. Before the guard has
+        taken any (it takes the first as it comes: nothing to lead yet), the pictures wait until two regions
+        with a live centre have sent one, or ``--wait``, and go through it in time order (:meth:`_release`): a
+        region's identity sending first a picture stamped 10^9 s ahead made it a region that started later,
+        and every genuine picture of it was refused (before the redteam59 session)."""
+        if self.lead.newest is None:
+            self.first.append((r, msg))
+            self.first_at = time.monotonic() if self.first_at is None else self.first_at
+            covered = len(self.regions.ids) - len(self._uncovered(time.monotonic()))
+            if len({q for q, _ in self.first}) >= min(2, covered):
+                self._release()
+            return
+        self._guarded(r, msg)
+
+    def _release(self) -> None:
+        """The first pictures held by :meth:`_admit`, through the lead guard in time order."""
+        first, self.first, self.first_at = sorted(self.first, key=lambda item: item[1].t), [], None
+        for r, msg in first:
+            self._guarded(r, msg)
+
+    def _guarded(self, r: int, msg: TrackPicture) -> None:
+        """Region ``r``'s picture, and those it witnesses, through the lead guard (:meth:`_take`)."""
         rid = self.regions.ids[r]
         for region, picture in self.in_time(self.lead, self.keys.region_picture(rid), msg, rid, (r, msg)):
             self._take(region, picture)
@@ -347,6 +373,8 @@ class PictureMergeService(Service):
             self.settling = []
             self._from_caches()
         now = time.monotonic()
+        if self.first and (force or now - self.first_at >= self.wait_s):  # type: ignore[operator]
+            self._release()
         uncovered = self._uncovered(now)
         self._say_uncovered(uncovered)
         while True:
@@ -445,6 +473,8 @@ class PictureMergeService(Service):
     def on_stop(self) -> None:
         """The pictures still held, then one closing record of the regions' closing lists (a picture
         still held for a witness, stamped far ahead, is counted ``rejected_time_lead``)."""
+        if self.first:
+            self._release()
         self.note_leads(self.keys.region_picture(), self.lead.end())
         self._merge(force=True)
         if any(self.closing) or any(self.late):
