@@ -380,8 +380,9 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--sensor", required=True, type=id_arg("--sensor"), help="the sensor id this filter serves")
     parser.add_argument("--mode", choices=MODES, help="federated or decentralized (default: deployment.mode of "
                                                         f"--config, else {DeploymentConfig().mode})")
-    parser.add_argument("--config", type=Path, help="deployment TOML ([deployment], [fusion], [[sensor]]; "
-                                                    "default: none, every key at its default)")
+    parser.add_argument("--config", type=Path, help="deployment TOML ([deployment], [fusion], [[sensor]]; default: "
+                        "none, every key at its default, but --filter vdie needs the deployment's sensors from it: "
+                        "[fusion] sensors or the [[sensor]] ids)")
     parser.add_argument("--filter", choices=FILTERS, default="vdie",
                         help="vdie: the 2-D federated/DVDIE local filter (default); ekf, ekf-ie, ekf-tsfuzzy: "
                              "3-D radar filters configured by [radar_filter]")
@@ -391,14 +392,18 @@ def main(argv: list[str]) -> int:
     settings = load_tables(args.config, PipelineSettings)
     if args.filter != "vdie":
         with in_file(args.config):
-            radar = make_radar_filter(args.filter, settings.radar_filter)
+            folder = None if args.config is None else args.config.parent
+            radar = make_radar_filter(args.filter, settings.radar_filter, folder)
         return RadarLocalFilterService(args.sensor, radar, settings.deployment.max_time_jump_s,
                                        **service_kwargs(parser, args)).run()
     mode = args.mode or settings.deployment.mode
     sensors = settings.fusion.sensors or tuple(s.id for s in settings.sensor)
     with in_file(args.config):
+        if not sensors:  # the filter's share of the information, 1/beta_i, needs every sensor of the deployment
+            raise ConfigError(f"fusion.sensors: none given: the filter of sensor {args.sensor!r} needs every sensor "
+                              "of the deployment; give --config FILE with [fusion] sensors or [[sensor]] ids")
         if args.sensor not in sensors:
-            raise ConfigError(f"fusion.sensors: sensor {args.sensor!r} is not listed ({', '.join(sensors) or 'empty'})")
+            raise ConfigError(f"fusion.sensors: sensor {args.sensor!r} is not listed ({', '.join(sensors)})")
         n = len(sensors)
         betas = settings.fusion.betas(n)
     if mode == "federated":

@@ -1,6 +1,7 @@
 """3-D radar EKF, EKF with direct input estimation (paper 002), radar step API and replay."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,6 +14,8 @@ from fedtrack.local_filters.radar.ekf import ekf_step, ekf_update, motion_model_
 from fedtrack.local_filters.radar.filters import EkfIEConfig, filter_kind, make_radar_filter, run_batch
 from fedtrack.local_filters.radar.input_estimation import InputEstimationParams, estimate_input, window_covariance
 from fedtrack.local_filters.radar.replay import replay_radar
+from fedtrack.local_filters.radar.ts_fuzzy import TSModel, save_model
+from fedtrack.local_filters.radar.ts_fuzzy_ekf import TAU_S
 from fedtrack.sensors.radar import RadarConfig, radar_scans, simulate
 
 SENSOR = np.zeros(3)
@@ -330,3 +333,33 @@ def test_window_in_scans_and_seconds_is_a_config_error(tmp_path):
     cfg.write_text("[radar_filter]\nwindow_s = 0.0\n")
     with pytest.raises(ConfigError, match=r"c\.toml: radar_filter\.window_s: must be > 0"):
         replay_radar("ekf-ie", tmp_path / "m.jsonl", cfg, tmp_path / "o.jsonl")
+
+
+def test_a_relative_ts_fuzzy_model_is_taken_in_the_config_files_folder(tmp_path, monkeypatch):
+    """``radar_filter.model = "m.npz"`` names the file beside the configuration file (as ``[zenoh] tls_dir``
+    does), whatever the working directory, for ``replay`` and ``serve local-filter --filter ekf-tsfuzzy``
+    alike (both :func:`make_radar_filter` with the file's folder); an absolute path stays as it is. Before
+    (tour58) it was taken in the working directory: a replay started elsewhere said the file did not exist."""
+    conf = tmp_path / "conf"
+    conf.mkdir()
+    # a zero correction: one rule, the 3 features in, the 6 state errors out
+    zero = TSModel(np.zeros((1, 3)), np.ones((1, 3)), np.zeros((1, 4, 6)), np.zeros(3), np.ones(3), np.zeros(6),
+                   np.ones(6))
+    save_model(conf / "m.npz", zero, tau_s=TAU_S)
+    lines = list(radar_scans(RadarConfig(straight_s=1.0), seed=1))[:10]
+    write_jsonl(tmp_path / "scans.jsonl", lines)
+    cfg = conf / "c.toml"
+    cfg.write_text("[radar_filter]\nmodel = 'm.npz'\n")
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)  # no m.npz here
+    assert replay_radar("ekf-tsfuzzy", tmp_path / "scans.jsonl", cfg, tmp_path / "rel.jsonl") == len(lines) - 1
+    monkeypatch.chdir(tmp_path)  # the config named relative to the working directory: still its own folder
+    assert replay_radar("ekf-tsfuzzy", Path("scans.jsonl"), Path("conf/c.toml"), Path("rel2.jsonl")) == len(lines) - 1
+    cfg.write_text(f"[radar_filter]\nmodel = '{conf / 'm.npz'}'\n")
+    assert replay_radar("ekf-tsfuzzy", tmp_path / "scans.jsonl", cfg, tmp_path / "abs.jsonl") == len(lines) - 1
+    assert ((tmp_path / "rel.jsonl").read_bytes() == (tmp_path / "rel2.jsonl").read_bytes()
+            == (tmp_path / "abs.jsonl").read_bytes())
+    cfg.write_text("[radar_filter]\nmodel = 'gone.npz'\n")
+    with pytest.raises(ConfigError, match=rf"^\S*c\.toml: radar_filter\.model: file {conf / 'gone.npz'} does not exist"):
+        replay_radar("ekf-tsfuzzy", tmp_path / "scans.jsonl", cfg, tmp_path / "o.jsonl")

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import copy
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import partial
 from pathlib import Path
 from typing import Any, Callable, NamedTuple
@@ -329,8 +329,11 @@ def take_checked(filt: RadarFilter, m: Measurement, failed: bool,
     return fresh, fresh.take(m, where)
 
 
-def make_radar_filter(name: str, config: dict[str, Any] | EkfConfig | None = None) -> RadarFilter:
-    """A :class:`RadarFilter` for algorithm ``name`` from a ``[radar_filter]`` table (strict keys) or object."""
+def make_radar_filter(name: str, config: dict[str, Any] | EkfConfig | None = None,
+                      folder: Path | None = None) -> RadarFilter:
+    """A :class:`RadarFilter` for algorithm ``name`` from a ``[radar_filter]`` table (strict keys) or object;
+    a relative ``model`` path is taken in ``folder``, the configuration file's (None: the working directory),
+    as ``[zenoh] tls_dir`` is."""
     if name not in CONFIG_CLASSES:
         raise ConfigError(f"algorithm: unknown radar filter {name!r} (expected one of {ALGORITHMS})")
     cls = CONFIG_CLASSES[name]
@@ -339,4 +342,6 @@ def make_radar_filter(name: str, config: dict[str, Any] | EkfConfig | None = Non
         raise ConfigError("radar_filter.window: given with window_s (the window in scans or in seconds, not both)")
     if type(cfg) is not cls:
         raise ConfigError(f"config for {name} must be a {cls.__name__}")
+    if isinstance(cfg, EkfTsFuzzyConfig) and cfg.model and folder is not None:
+        cfg = replace(cfg, model=str(folder / cfg.model))  # an absolute model stays as it is
     return RadarFilter(name, cfg)

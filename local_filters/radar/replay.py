@@ -50,7 +50,7 @@ def replay_radar(algorithm: str, measurements: Path, config: Path | None, out: P
         raise ConfigError(f"algorithm: {algorithm!r} is not a radar filter ({', '.join(ALGORITHMS)})")
     with in_file(config):
         table = load_tables(config, RadarFilterSettings).radar_filter
-        filt = make_radar_filter(algorithm, table)
+        filt = make_radar_filter(algorithm, table, None if config is None else config.parent)
     max_gap = max_time_jump(config)
     n, repeats, numerical, off_wire, failed = 0, RepeatedTimes(), NumericalRefusals(), 0, False
     with output_file(out) as fh:  # streamed; whole or not at all
