@@ -84,6 +84,7 @@ def check_multitarget(settings: Settings, path: Path) -> Settings:
             if stray:
                 raise ConfigError(f"multitarget.{key}.{stray[0]}: not a sensor of the scenario ({', '.join(ids)})")
         check_scenario_sensors(settings, sensor_specs(mt))
+        check_central_timeout(settings.mtt.central_timeout, sensor_specs(mt), mt.duration)
         if mt.join_at and set(mt.join_at) >= set(ids):
             raise ConfigError("multitarget.join_at: at least one sensor must run from the start")
         if load_regions(path) is not None and mt.algorithm == "mtt-centralized":
@@ -112,6 +113,17 @@ def check_scenario_sensors(settings: Settings, specs: list[SensorSpec]) -> None:
         if floor is not None and size is not None and len(floor) != size:
             raise ConfigError(f"mtt.sensor.{spec.id}.noise_floor: {len(floor)} values for a {spec.kind} sensor, "
                               f"which measures {size} coordinates (2: m, m; 3: m, rad, rad)")
+
+
+def check_central_timeout(timeout: float, specs: list[SensorSpec], duration: float) -> None:
+    """``[mtt] central_timeout`` at least the period of every sensor that scans again within ``duration``
+    (:func:`~fedtrack.sensors.multitarget.revisits`): a shorter one deletes every central track only that
+    sensor supports between two of its scans, and counts the sensor silent between them (docs/deploy.md)."""
+    slow = max((s for s in specs if s.period <= duration), key=lambda s: s.period, default=None)
+    if slow is not None and timeout < slow.period:
+        raise ConfigError(f"mtt.central_timeout: {timeout:g} s is shorter than sensor {slow.id}'s period "
+                          f"{slow.period:g} s: a central track only {slow.id} supports would be deleted between its "
+                          f"scans; set it to {slow.period:g} s or more")
 
 
 def prepare(settings: Settings, out: Path, say: bool = True) -> Path:

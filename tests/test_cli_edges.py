@@ -101,6 +101,14 @@ id = "1"
 [[sensor]]
 id = "2"
 """
+MT_BASE = """
+[deployment]
+name = "edges"
+router_listen = "tcp/127.0.0.1:{port}"
+
+[multitarget]
+sensors = "pos:1.0,pos:0.7,pos:1.3"
+"""
 LAUNCH_CASES = {
     "no sensor": (lambda b: b[: b.index("[[sensor]]")], "no [[sensor]] table"),
     "duplicate sensor": (lambda b: b.replace('id = "2"', 'id = "1"'), "duplicate id '1'"),
@@ -123,6 +131,16 @@ LAUNCH_CASES = {
                                  "deployment.local_regions: 'x2y0' is no region of [regions] (x0y0, x1y0)"),
     "local region without regions": (lambda b: b.replace('name = "edges"', 'name = "edges"\nlocal_regions = ["a"]'),
                                      "deployment.local_regions: the file has no [regions] table"),
+    # a sensor slower than [mtt] central_timeout (tour58): launched before, every central track only it supported
+    # was deleted between its scans (simulate multitarget --seed 1 --duration 120, mtt-federated: central_timeout
+    # 1.0 beside s3's 1.3 s, id switches 28 -> 42; 0.5, below every period, 554 and mean GOSPA 96.5 -> 174.1 m)
+    "central_timeout below a period": (lambda b: MT_BASE + "\n[mtt]\ncentral_timeout = 1.0\n",
+                                       "mtt.central_timeout: 1 s is shorter than sensor s3's period 1.3 s: a central "
+                                       "track only s3 supports would be deleted between its scans; set it to 1.3 s "
+                                       "or more"),
+    "a sensor slower than the default central_timeout": (lambda b: MT_BASE.replace("pos:1.3", "pos:6"),
+                                                         "mtt.central_timeout: 5 s is shorter than sensor s3's "
+                                                         "period 6 s"),
     # deploy/imm-3model.toml launched said only "no [[sensor]] table": now also what the file is for
     "a replay config": (lambda b: IMM_EXAMPLE.read_text(), "the file holds [imm] only: a configuration for "
                         "`fedtrack replay --config` or `fedtrack serve ROLE --config`, not a deployment to launch"),
