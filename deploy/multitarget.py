@@ -56,6 +56,9 @@ def sensor_specs(mt: MultitargetSettings) -> list[SensorSpec]:
     return parse_kinds(mt.sensors) if mt.source else parse_spec(mt.sensors)
 
 
+UNPROCESSED = "unprocessed.jsonl"  # the export's: the recorded scans no picture lists (fedtrack.recording)
+
+
 def sensor_ids(mt: MultitargetSettings) -> list[str]:
     return [s.id for s in sensor_specs(mt)]
 
@@ -262,6 +265,16 @@ def unrecorded_scans(out: Path, settings: Settings) -> dict[str, int]:
     return {s: expected[s] - recorded.get(s, 0) for s in ids if expected[s] > recorded.get(s, 0)}
 
 
+def untracked_scans(out: Path) -> dict[str, int]:
+    """Per sensor, the recorded scans no picture lists (``OUT/unprocessed.jsonl``, the export's): a tracker
+    stopped with scans still queued (its drain deadline, 2 s: ``dropped``), or that took them as late. The
+    launch said nothing of them (tour58); a run on an idle machine has none."""
+    path = out / UNPROCESSED
+    if not path.is_file():
+        return {}
+    return dict(collections.Counter(str(obj.get("sensor")) for _, obj in read_jsonl(path)))
+
+
 def unrecorded_pictures(out: Path, settings: Settings, report: LaunchReport) -> list[int]:
     """The numbers of the pictures the launcher saw live that this host's recording lacks: a recorder whose
     commits (an fsync each) were slowed to 400 ms kept 11 of a run's pictures after its 15 s drain and the
@@ -332,6 +345,9 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Se
         lost, pictures_lost = {}, []
     if lost:
         summary["scans_not_recorded"] = lost
+    untracked = untracked_scans(out)
+    if untracked:
+        summary["scans_not_tracked"] = untracked
     if pictures_lost:
         summary["pictures_not_recorded"] = pictures_lost
     with output_file(out / "summary.json") as fh:
@@ -367,6 +383,11 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Se
     if lost:
         print(f"{title}: {sum(lost.values())} scans the sensors were to publish are not in the recording "
               f"({', '.join(f'{s}: {n}' for s, n in sorted(lost.items()))}): lost, or skipped by a restarted sensor",
+              file=sys.stderr)
+    if untracked:
+        print(f"{title}: {sum(untracked.values())} recorded scans are in no picture "
+              f"({', '.join(f'{s}: {n}' for s, n in sorted(untracked.items()))}; {out / UNPROCESSED}): no tracker "
+              "took them (see each mtt-local's counters dropped, late and queue_dropped in summary.json)",
               file=sys.stderr)
     if pictures_lost:
         print(f"{title}: {len(pictures_lost)} pictures seen live are not in the recording (pictures "

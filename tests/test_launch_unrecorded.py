@@ -272,3 +272,35 @@ def test_a_closed_pipe_at_the_end_still_closes_the_launchers_session(tmp_path: P
     with pytest.raises(BrokenPipeError):
         fleet.run()
     assert undeclared == [0, 1, 2] and closed == ["session"]
+
+
+def test_recorded_scans_no_picture_lists_are_said_and_counted(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """The recorded scans no picture lists (a tracker stopped with them still queued beyond its 2 s drain counts
+    them ``dropped``) went only to ``unprocessed.jsonl``, the launch saying nothing (tour58): now they are counted
+    per sensor in ``summary.json``'s ``scans_not_tracked`` and said in a line. The exit stays 0: the recording
+    holds them and its replay gives the live pictures."""
+    cfg = tmp_path / "mtt.toml"
+    cfg.write_text(MTT_CONFIG.format(port=free_port()))
+
+    def run(self: launcher.Launcher) -> LaunchReport:  # the live run: one picture, of every scan but the last 2
+        n = sum(1 for _ in (tmp_path / "scenario" / "measurements.jsonl").open())  # s1's scans
+        recording = Recording(tmp_path / "recording.db")
+        rows: list[TrackPicture | Measurement] = [
+            Measurement(sensor="s1", seq=k, t=float(k), kind="position", z=np.zeros(2), R=np.eye(2), stamp_ns=1)
+            for k in range(n)]
+        rows.insert(n - 2, TrackPicture(seq=0, t=float(n - 3), ids=(), x=np.zeros((0, 4)), P=np.zeros((0, 4)),
+                                        confirmed=(), sensors=(), fused_sensors=("s1",) * (n - 2),
+                                        fused_seqs=tuple(range(n - 2)), stamp_ns=1))
+        for row in rows:
+            recording.add(row, encode(row))
+        recording.close()
+        self._export_recording()  # as the run does once every service has stopped
+        return LaunchReport(pictures=1, picture_seqs={0}, measurements={"s1": n})
+
+    monkeypatch.setattr(launcher.Launcher, "run", run)
+    assert launcher.main([str(cfg), "--out", str(tmp_path)]) == 0
+    err = capsys.readouterr().err
+    assert (f"fedtrack launch: 2 recorded scans are in no picture (s1: 2; {tmp_path / 'unprocessed.jsonl'}): no "
+            "tracker took them (see each mtt-local's counters dropped, late and queue_dropped in summary.json)") in err
+    assert json.loads((tmp_path / "summary.json").read_text())["scans_not_tracked"] == {"s1": 2}
