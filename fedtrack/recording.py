@@ -12,6 +12,7 @@ table             columns besides id, received_ns, payload        unique (one ro
 ``tracks``        seq, t, model, degraded, sensors, stamp_ns      (seq)
 ``events``        seq, t, kind                                    (seq, kind)
 ``pictures``      seq, t, stamp_ns, part, parts (``TrackPicture``)  (seq, part)
+``tracker_tracks``  tracker, sensor, seq, t, track, stamp_ns        (tracker, sensor, seq, track)
 ``meta``          key, value (``schema_version``)                 (key)
 ================  ==============================================  =========================
 
@@ -22,6 +23,12 @@ joined, in the place of its last part in the order asked for, and leave out a me
 are not all recorded or do not join (counted in ``Recording.incomplete``). Version 1 (before
 2026-11-27) had no ``part`` column and only whole messages: it is read (``export``, ``verify_run``)
 as before, and a recorder refuses to write into it, naming its version.
+
+``tracker_tracks`` holds the single-sensor trackers' tracks (``serve imm`` and ``serve hpda``, key
+``tracker/<tracker>/<sensor>/track``; ``tracker`` their algorithm, the message's ``model``; ``track``
+hpda's track id, -1 for an IMM's one track): a ``FusedTrack`` like the fused tracks, in a table of its own
+(tour58: before, the recorder did not subscribe to them). A version-2 database written before gets the
+table when a recorder opens it; read only, it has none (no rows).
 
 Every table with a ``t`` has an index on ``t``; the unique keys double as the index
 on ``sensor``. A message whose unique key is already stored is not stored again: a
@@ -36,11 +43,12 @@ an I/O error) raises :class:`StorageError` naming the file, the rows committed b
 staying readable; a database damaged on disk (cut or overwritten) is refused by the readers
 in one line (InputError naming the file), never half-exported.
 
-``fedtrack export --db PATH --out FILE.jsonl [--tracks FILE.jsonl]`` writes the
+``fedtrack export --db PATH --out FILE.jsonl [--tracks FILE.jsonl] [--tracker-tracks FILE.jsonl]`` writes the
 measurements in the ``replay`` input format, in scan order (``t``, then arrival), so
 that ``fedtrack replay`` always accepts what was recorded, and optionally the fused
-tracks in the replay output format (``seq`` order). A multi-target recording (one with
-pictures) is written in the centre's processing order instead (the scans and departures each
+tracks in the replay output format (``seq`` order), and optionally the single-sensor trackers' tracks in
+the same format (arrival order; ``model`` the tracker's algorithm, ``sensors`` its sensor). A multi-target
+recording (one with pictures) is written in the centre's processing order instead (the scans and departures each
 picture lists, picture by picture): the order ``replay --algorithm mtt-*`` must follow to give
 the recorded pictures, which are the tracks file (one picture a line). Scans the centre never
 processed (no local tracker took them, or it dropped them as late) go to
@@ -131,6 +139,12 @@ class Table:
         return stmts
 
 
+# the single-sensor trackers' tracks (serve imm, serve hpda): FusedTracks on keys of their own (module docstring)
+TRACKER_TRACKS = Table("tracker_tracks", FusedTrack,
+                       {"tracker": "TEXT", "sensor": "TEXT", "seq": "INTEGER", "t": "REAL", "track": "INTEGER",
+                        "stamp_ns": "INTEGER"},
+                       ("tracker", "sensor", "seq", "track"),
+                       lambda f: (f.model, ",".join(f.sensors), f.seq, f.t, int(f.extra.get("track", -1)), f.stamp_ns))
 TABLES: tuple[Table, ...] = (
     Table("measurements", Measurement,
           {"sensor": "TEXT", "seq": "INTEGER", "t": "REAL", "kind": "TEXT", "stamp_ns": "INTEGER", "part": "INTEGER",
@@ -148,8 +162,10 @@ TABLES: tuple[Table, ...] = (
     Table("pictures", TrackPicture,
           {"seq": "INTEGER", "t": "REAL", "stamp_ns": "INTEGER", "part": "INTEGER", "parts": "INTEGER"},
           ("seq", "part"), lambda p: (p.seq, p.t, p.stamp_ns, p.part, p.parts)),
+    TRACKER_TRACKS,
 )
-TABLE_OF: dict[type, Table] = {table.msg_type: table for table in TABLES}
+# a message type's table: a FusedTrack's is the fused tracks'
+TABLE_OF: dict[type, Table] = {table.msg_type: table for table in TABLES if table is not TRACKER_TRACKS}
 
 
 class Recording:
@@ -203,9 +219,10 @@ class Recording:
             if version == "1" else ""
         raise InputError(f"{self.path}: recording schema version {version}, expected {SCHEMA_VERSION}{older}")
 
-    def add(self, msg: Message, payload: bytes) -> str:
-        """Store ``msg`` (received as ``payload``) and commit; returns RECORDED, DUPLICATE or CONFLICT."""
-        table = TABLE_OF[type(msg)]
+    def add(self, msg: Message, payload: bytes, table: Table | None = None) -> str:
+        """Store ``msg`` (received as ``payload``) in ``table`` (None: its type's) and commit; returns RECORDED,
+        DUPLICATE or CONFLICT."""
+        table = table or TABLE_OF[type(msg)]
         values = table.values(msg)
         cols = list(table.columns)
         try:
@@ -232,11 +249,13 @@ class Recording:
         if _file_id(self.path) != self.file_id:
             raise StorageError(f"{self.path}: removed or replaced while recording (rows written since are lost)")
 
-    def count(self, msg_type: type) -> int:
-        """Rows of ``msg_type`` (0 for a table an older recording, opened read-only, does not have)."""
+    def count(self, of: type | Table) -> int:
+        """Rows of a message type's table or of a :class:`Table` (0 for a table an older recording, opened
+        read-only, does not have)."""
+        table = of if isinstance(of, Table) else TABLE_OF[of]
         with _read_of(self.path):
             try:
-                return int(self.db.execute(f"SELECT COUNT(*) FROM {TABLE_OF[msg_type].name}").fetchone()[0])
+                return int(self.db.execute(f"SELECT COUNT(*) FROM {table.name}").fetchone()[0])
             except sqlite3.OperationalError as exc:
                 if exc.sqlite_errorcode != sqlite3.SQLITE_ERROR:  # no such table: SQLITE_ERROR; a read fault: others
                     raise
@@ -256,10 +275,11 @@ class Recording:
         with _read_of(self.path):
             return {seq for seq, in self.db.execute(f"SELECT seq FROM pictures GROUP BY seq HAVING COUNT(*) = {parts}")}
 
-    def messages(self, msg_type: type, order: str) -> Iterator[Any]:
-        """The stored messages of ``msg_type`` in ``order`` (an ORDER BY clause of the table's
-        columns); a message stored in parts joined, in the place of its last part (module docstring)."""
-        table = TABLE_OF[msg_type]
+    def messages(self, of: type | Table, order: str) -> Iterator[Any]:
+        """The stored messages of a message type's table or of a :class:`Table` in ``order`` (an ORDER BY
+        clause of the table's columns); a message stored in parts joined, in the place of its last part (module
+        docstring)."""
+        table = of if isinstance(of, Table) else TABLE_OF[of]
         if "parts" not in table.columns or self.version == 1:  # whole messages only
             for rowid, payload in self.db.execute(f"SELECT id, payload FROM {table.name} ORDER BY {order}"):
                 yield _decoded(self.path, table, rowid, payload)
@@ -297,6 +317,13 @@ class Recording:
                 return self._export_pictures(measurements, tracks)
             return (_write_lines(measurements, (measurement_to_replay(m) for m in self.messages(Measurement, "t, id"))),
                     _write_lines(tracks, (_track_row(f) for f in self.messages(FusedTrack, "seq"))))
+
+    def export_tracker_tracks(self, path: Path) -> int:
+        """Write the single-sensor trackers' tracks (``tracker_tracks``) to ``path`` in the replay output format,
+        in arrival order; returns the line count (0 of a recording without the table)."""
+        with _read_of(self.path):
+            rows = self.messages(TRACKER_TRACKS, "id") if self.count(TRACKER_TRACKS) else iter(())
+            return _write_lines(path, (track_to_replay(f) for f in rows))
 
     def _export_pictures(self, measurements: Path | None, tracks: Path | None) -> tuple[int, int]:
         """A multi-target recording in one pass over the pictures (each decoded once): a picture's
@@ -432,18 +459,23 @@ def main(argv: list[str]) -> int:
                         "recording, the scans no picture lists also go to unprocessed.jsonl beside it")
     parser.add_argument("--tracks", type=Path, metavar="FILE.jsonl", help="also write the fused tracks, or the "
                         "multi-target pictures, here (replay output format; default: the measurements only)")
+    parser.add_argument("--tracker-tracks", type=Path, metavar="FILE.jsonl", help="also write the single-sensor "
+                        "trackers' tracks (serve imm, serve hpda) here, in arrival order (replay output format, model "
+                        "the tracker's algorithm; default: not written)")
     args = parser.parse_args(argv)
-    for path in (args.out, args.tracks):
+    for path in (args.out, args.tracks, args.tracker_tracks):
         if path is not None:
             check_output(path)
     recording = Recording(args.db, readonly=True)
     try:
         n_meas, n_tracks = recording.export(args.out, args.tracks)
         unit = "pictures" if recording.count(TrackPicture) else "tracks"
+        n_tracker = None if args.tracker_tracks is None else recording.export_tracker_tracks(args.tracker_tracks)
     finally:
         recording.close()
     print(f"wrote {n_meas} measurements to {args.out}" + (f", {n_tracks} {unit} to {args.tracks}" if args.tracks
                                                            else "")
+          + (f", {n_tracker} single-sensor tracker tracks to {args.tracker_tracks}" if n_tracker is not None else "")
           + (f", the scans no picture lists to {args.out.with_name('unprocessed.jsonl')}" if unit == "pictures"
              else ""))
     return 0

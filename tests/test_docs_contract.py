@@ -355,8 +355,8 @@ def expand(pattern: str, reasons: set[str]) -> set[str]:
 
     known = {
         "f'rejected_{reason}'": {f"rejected_{r}" for r in reasons},
-        "f'{table.name}_recorded'": {f"{t.name}_recorded" for t in TABLES},
-        "f'{TABLE_OF[type(msg)].name}_recorded'": {f"{t.name}_recorded" for t in TABLES} | {DUPLICATE, CONFLICT},
+        # the recorder counts a row recorded in its table, else the outcome (self.count(outcome))
+        "f'{table.name}_recorded'": {f"{t.name}_recorded" for t in TABLES} | {DUPLICATE, CONFLICT},
         "f\"events_{EVENT_NAMES[kind].replace('-', '_')}\"": {f"events_{n.replace('-', '_')}"
                                                              for n in EVENT_NAMES.values()},
         "f'centre_{k}'": {f"centre_{k}" for k in vars(Counters())},

@@ -558,9 +558,9 @@ def test_a_stopped_recorder_commits_its_whole_backlog_before_it_says_stopped(tmp
     svc.recording, svc._subscriptions = Recording(tmp_path / "r.db"), svc.subscriptions()
     add = svc.recording.add
 
-    def slow_add(msg: object, payload: bytes) -> str:
+    def slow_add(msg: object, payload: bytes, table: object = None) -> str:
         time.sleep(0.025)
-        return add(msg, payload)
+        return add(msg, payload, table)
 
     monkeypatch.setattr(svc.recording, "add", slow_add)
     index = next(i for i, sub in enumerate(svc._subscriptions) if sub.msg_type is FusedTrack)

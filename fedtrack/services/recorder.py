@@ -21,12 +21,13 @@ exited 0, the run's recording silently cut short).
 from __future__ import annotations
 
 from contextlib import contextmanager
+from functools import partial
 from pathlib import Path
 from typing import Any, Iterator
 
 from fedtrack.deployment import deployment_of
 from fedtrack.jsonl import check_output, check_output_folder
-from fedtrack.recording import RECORDED, TABLE_OF, TABLES, Recording, StorageError
+from fedtrack.recording import RECORDED, TABLES, Recording, StorageError, Table
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
 from fedtrack.services.dispatch import ServiceFault
 from fedtrack.wire import Message
@@ -44,7 +45,8 @@ def storage_faults() -> Iterator[None]:
 
 
 class Recorder(Service):
-    """Subscribes to the measurements, estimates, fused tracks and events; stores them in SQLite."""
+    """Subscribes to the measurements, estimates, fused tracks, events, pictures and the single-sensor trackers'
+    tracks; stores them in SQLite."""
 
     role = "recorder"
     tick_period_s = 1.0  # how often it checks that its database file is still the one it writes (check_file)
@@ -61,23 +63,25 @@ class Recorder(Service):
     def subscriptions(self) -> list[Subscription]:
         keys = {"measurements": self.keys.sensor_meas(), "estimates": self.keys.local_estimate(),
                 "tracks": self.keys.fusion_track(), "events": self.keys.fusion_event(),
-                "pictures": self.keys.mtt_picture()}
-        return [Subscription(keys[t.name], t.msg_type, self.on_message, history=True, raw=True) for t in TABLES]
+                "pictures": self.keys.mtt_picture(), "tracker_tracks": self.keys.tracker_track()}
+        return [Subscription(keys[t.name], t.msg_type, partial(self.on_message, t), history=True, raw=True)
+                for t in TABLES]
 
     def on_start(self) -> None:
         if self.out is not None:
             self.out.mkdir(parents=True, exist_ok=True)
         self.recording = Recording(self.db_path)
         for table in TABLES:
-            self.counters[f"{table.name}_recorded"] = self.recording.count(table.msg_type)
+            self.counters[f"{table.name}_recorded"] = self.recording.count(table)
         self.log.info("recording to %s", self.db_path)
 
-    def on_message(self, msg: Message, payload: bytes) -> None:
+    def on_message(self, table: Table, msg: Message, payload: bytes) -> None:
+        """Store ``msg`` in ``table``, the table of the key it came on."""
         assert self.recording is not None
         with storage_faults():
-            outcome = self.recording.add(msg, payload)
+            outcome = self.recording.add(msg, payload, table)
         if outcome == RECORDED:
-            self.count(f"{TABLE_OF[type(msg)].name}_recorded")
+            self.count(f"{table.name}_recorded")
         else:
             self.count(outcome)
 
