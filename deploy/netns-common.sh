@@ -3,8 +3,8 @@
 # and the network (one namespace per host a, b, c on a bridge in namespace <tag>sw).
 #
 # The caller sets NAME (log prefix), TAG (namespace prefix, unique per run), TIMEOUT_S, SUBNET and
-# SUBNET_VAR (the environment variable that gave SUBNET, for the error) and OUT (may not exist yet),
-# then sources this file and calls netns_preflight and netns_network.
+# SUBNET_VAR (the environment variable that gave SUBNET, for the error) and OUT (the folder given, may not
+# exist yet, or empty), then sources this file and calls netns_preflight, netns_out and netns_network.
 
 HERE=$(cd "$(dirname "${BASH_SOURCE[1]}")" && pwd)
 REPO=$(dirname "$HERE")
@@ -58,9 +58,24 @@ netns_preflight() {  # root, iproute2 and a well-formed subnet, or exit 77 / 1
     [[ $SUBNET =~ ^[0-9]+\.[0-9]+\.[0-9]+$ ]] || fail "$SUBNET_VAR must be three octets, got '$SUBNET'"
 }
 
+netns_out() {  # netns_out PREFIX: OUT made absolute; none given: a new folder made now, after the preflight (a
+    # run that cannot start left an empty /tmp/PREFIX.XXXXXX behind, tour58) and removed again if namespaces fail
+    if [[ -z $OUT ]]; then
+        OUT=$(mktemp -d "${TMPDIR:-/tmp}/$1.XXXXXX")
+        MADE_OUT=1
+    fi
+    mkdir -p "$OUT"
+    OUT=$(cd "$OUT" && pwd)
+}
+
 netns_network() {  # the bridge namespace and one namespace per host, eth0 at addr HOST (/24)
-    local h ns
-    ip netns add "$NS_SW" 2>"$OUT/netns-error.txt" || skip "ip netns add failed: $(tr '\n' ' ' <"$OUT/netns-error.txt")"
+    local h ns err
+    if ! ip netns add "$NS_SW" 2>"$OUT/netns-error.txt"; then
+        err=$(tr '\n' ' ' <"$OUT/netns-error.txt")
+        rm -f "$OUT/netns-error.txt"
+        [[ -z ${MADE_OUT:-} ]] || rmdir "$OUT"
+        skip "ip netns add failed: $err"
+    fi
     CREATED_NS+=("$NS_SW")
     rm -f "$OUT/netns-error.txt"
     ip -n "$NS_SW" link set lo up

@@ -33,7 +33,7 @@ TAG="ftnd$$"
 TIMEOUT_S=${NETNS_DEMO_TIMEOUT_S:-80}
 SUBNET=${NETNS_DEMO_SUBNET:-10.47.0}
 SUBNET_VAR=NETNS_DEMO_SUBNET
-OUT=${1:-$(mktemp -d "${TMPDIR:-/tmp}/fedtrack-netns.XXXXXX")}
+OUT=${1:-}  # none: a new folder, made after the preflight (netns_out)
 # shellcheck source=deploy/netns-common.sh
 source "$(dirname "${BASH_SOURCE[0]}")/netns-common.sh"
 
@@ -42,8 +42,7 @@ netns_preflight
 for f in host-a.toml host-b.toml host-c.toml; do
     [[ -f $HERE/multihost/$f ]] || fail "missing $HERE/multihost/$f"
 done
-mkdir -p "$OUT"
-OUT=$(cd "$OUT" && pwd)
+netns_out fedtrack-netns
 log "run $TAG, output in $OUT, python $PY, timeout ${TIMEOUT_S}s"
 
 # ------------------------------------------------------------------ network

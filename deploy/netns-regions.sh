@@ -38,7 +38,7 @@ TAG="ftnr$$"
 TIMEOUT_S=${NETNS_REGIONS_TIMEOUT_S:-80}
 SUBNET=${NETNS_REGIONS_SUBNET:-10.47.1}
 SUBNET_VAR=NETNS_REGIONS_SUBNET
-OUT=${1:-$(mktemp -d "${TMPDIR:-/tmp}/fedtrack-netns-regions.XXXXXX")}
+OUT=${1:-}  # none: a new folder, made after the preflight (netns_out)
 # shellcheck source=deploy/netns-common.sh
 source "$(dirname "${BASH_SOURCE[0]}")/netns-common.sh"
 
@@ -52,8 +52,7 @@ FILES=(host-a host-b host-c host-c-sensors)
 for f in "${FILES[@]}"; do
     [[ -f $CONFIGS/$f.toml ]] || fail "missing $CONFIGS/$f.toml"
 done
-mkdir -p "$OUT"
-OUT=$(cd "$OUT" && pwd)
+netns_out fedtrack-netns-regions
 log "run $TAG, output in $OUT, python $PY, timeout ${TIMEOUT_S}s"
 
 # ------------------------------------------------------------------ network

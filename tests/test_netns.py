@@ -67,3 +67,17 @@ def test_netns_demo_three_hosts(tmp_path: Path) -> None:
     tag = re.search(r"run (ftnd\d+)", err)
     assert tag is not None, err
     assert tag.group(1) not in namespaces(), "namespaces left behind"
+
+
+@pytest.mark.parametrize("script, subnet_var", [("netns-demo.sh", "NETNS_DEMO_SUBNET"),
+                                                ("netns-regions.sh", "NETNS_REGIONS_SUBNET")])
+def test_a_run_that_cannot_start_leaves_no_output_folder(tmp_path: Path, script: str, subnet_var: str) -> None:
+    """Refused by its preflight (not root: exit 77; a malformed subnet: exit 1), a run without OUT_DIR leaves no
+    folder behind: before (tour58) its default ``$TMPDIR/fedtrack-netns.XXXXXX`` was made first, and every refused
+    run left an empty one. Needs neither root nor namespaces: the preflight refuses before any is made."""
+    env = {**os.environ, "TMPDIR": str(tmp_path), subnet_var: "not-a-subnet"}
+    proc = subprocess.run(["bash", str(REPO / "deploy" / script)], capture_output=True, text=True, timeout=30,
+                          env=env, check=False)
+    assert proc.returncode in (1, 77), proc.stderr
+    assert "must be three octets" in proc.stderr or "cannot run" in proc.stderr, proc.stderr
+    assert list(tmp_path.iterdir()) == []
