@@ -376,7 +376,7 @@ def to_message(sensor: str, meas: Measurement, out: LocalOutput, flags: tuple[st
 
 
 def main(argv: list[str]) -> int:
-    parser = service_parser("local-filter", "run one sensor's local filter")
+    parser = service_parser("local-filter", "run one sensor's local filter", per_sensor=True)
     parser.add_argument("--sensor", required=True, type=id_arg("--sensor"), help="the sensor id this filter serves")
     parser.add_argument("--mode", choices=MODES, help="federated or decentralized (default: deployment.mode of "
                                                         f"--config, else {DeploymentConfig().mode})")
@@ -387,8 +387,6 @@ def main(argv: list[str]) -> int:
                         help="vdie: the 2-D federated/DVDIE local filter (default); ekf, ekf-ie, ekf-tsfuzzy: "
                              "3-D radar filters configured by [radar_filter]")
     args = parser.parse_args(argv)
-    if args.id == "local-filter":
-        args.id = args.sensor
     settings = load_tables(args.config, PipelineSettings)
     if args.filter != "vdie":
         with in_file(args.config):

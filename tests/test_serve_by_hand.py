@@ -27,3 +27,24 @@ def test_a_local_filter_without_the_deployments_sensors_says_where_to_give_them(
                          monkeypatch)
     assert (out.returncode, out.stderr.strip()) == (2, f"fedtrack: error: {cfg}: fusion.sensors: sensor '9' is not "
                                                        "listed (1, 2)")
+
+
+@pytest.mark.parametrize("role", ["local-filter", "mtt-local", "imm", "hpda"])
+def test_a_per_sensor_service_started_by_hand_takes_its_sensors_id(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch, role: str) -> None:
+    """``serve mtt-local --sensor s1`` (and ``imm``, ``hpda``) without ``--id`` runs as ``s1``, as ``local-filter``
+    did: a multi-target centre takes a tracker's token ``alive/mtt-local/<id>`` for its sensor's, so that a tracker
+    that dies is dropped at once. Before (tour58) three trackers started by hand were all ``mtt-local``: one
+    Health key for three, a token the centre never followed (a dead tracker's sensor dropped only after
+    ``leave_after_s`` of silence). ``--id`` given still wins."""
+    from fedtrack.services.base import Service
+
+    started: list[str] = []
+    monkeypatch.setattr(Service, "run", lambda self: started.append(self.id) or 0)
+    cfg = tmp_path / "d.toml"
+    cfg.write_text('[fusion]\nsensors = ["s1", "s2"]\n')
+    for extra in ([], ["--id", "mine"]):
+        out = cli_in_process(["serve", role, "--sensor", "s1", "--config", str(cfg), *extra, *NOWHERE], capsys,
+                             monkeypatch)
+        assert out.returncode == 0, out.stderr
+    assert started == ["s1", "mine"]

@@ -526,10 +526,16 @@ class Service(Dispatch, Publishing):
         return code
 
 
-def service_parser(role: str, description: str, listen_default: tuple[str, ...] = ()) -> argparse.ArgumentParser:
-    """An argument parser for ``fedtrack serve <role>`` with ``--id``, ``--health-period`` and the Zenoh options."""
+def service_parser(role: str, description: str, listen_default: tuple[str, ...] = (),
+                   per_sensor: bool = False) -> argparse.ArgumentParser:
+    """An argument parser for ``fedtrack serve <role>`` with ``--id``, ``--health-period`` and the Zenoh options;
+    ``per_sensor``: a role run once per sensor (``--sensor``), whose ``--id`` defaults to the sensor's
+    (:func:`service_kwargs`; a multi-target centre follows a tracker's token ``alive/mtt-local/<id>`` as its
+    sensor's). Before the tour58 session every ``serve mtt-local`` started by hand had the id ``mtt-local``."""
     parser = argparse.ArgumentParser(prog=f"fedtrack serve {role}", description=description)
-    parser.add_argument("--id", default=role, help="service id, unique per role (default: %(default)s)")
+    parser.add_argument("--id", default=None if per_sensor else role,
+                        help="service id, unique per role (default: " + ("the --sensor id" if per_sensor else role)
+                        + ")")
     parser.add_argument("--health-period", type=float, default=1.0, metavar="SECONDS",
                         help="publish Health this often (default: %(default)s)")
     add_endpoint_args(parser, listen_default)
@@ -552,6 +558,8 @@ def service_kwargs(parser: argparse.ArgumentParser, args: argparse.Namespace, mo
         if mode == "router" and not args.listen and dep.router_listen:
             args.listen = [dep.router_listen]
     args.deployment = args.deployment or DEFAULT_DEPLOYMENT
+    if args.id is None:  # a per-sensor role (service_parser)
+        args.id = args.sensor
     try:
         check_id(args.id, "--id")
         if args.health_period <= 0:

@@ -91,7 +91,7 @@ class IMMService(Service):
 
 
 def main(argv: list[str]) -> int:
-    parser = service_parser("imm", "single-sensor IMM tracker (FSIMM, VSIMM, activation-only VSIMM)")
+    parser = service_parser("imm", "single-sensor IMM tracker (FSIMM, VSIMM, activation-only VSIMM)", per_sensor=True)
     parser.add_argument("--sensor", required=True, type=id_arg("--sensor"), help="sensor id whose measurements to track")
     parser.add_argument("--algorithm", default=AO_VSIMM, choices=ALGORITHMS, help="the IMM variant, paper 000 (default: %(default)s)")
     parser.add_argument("--config", help="configuration file; reads [imm] (default: paper 000's model set)")

@@ -331,7 +331,7 @@ class MttLocalService(Service):
 
 
 def main(argv: list[str]) -> int:
-    parser = service_parser("mtt-local", "one sensor's local multi-target tracker")
+    parser = service_parser("mtt-local", "one sensor's local multi-target tracker", per_sensor=True)
     parser.add_argument("--sensor", required=True, type=id_arg("--sensor"), help="sensor id whose scans to track")
     parser.add_argument("--mode", choices=MODES, default="federated",
                         help="federated: take the centre's resets; decentralized: none (default: %(default)s)")

@@ -110,7 +110,7 @@ class PDAService(Service):
 
 
 def main(argv: list[str]) -> int:
-    parser = service_parser("hpda", "cluttered-sensor tracker with track initiation (HPDA or IPDA-AI)")
+    parser = service_parser("hpda", "cluttered-sensor tracker with track initiation (HPDA or IPDA-AI)", per_sensor=True)
     parser.add_argument("--sensor", required=True, type=id_arg("--sensor"), help="sonar sensor id whose scans to track")
     parser.add_argument("--algorithm", default="hpda", choices=ALGORITHMS, help="the track manager: PDA-AI or HPDA, paper 001 (default: %(default)s)")
     parser.add_argument("--config", help="configuration file; reads [pda.tracker] and [pda.existence] (see "
