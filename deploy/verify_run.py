@@ -9,7 +9,10 @@ prints a JSON verdict. Exit code 0 when the run is complete and matches the repl
 With ``[multitarget]`` in the config (a live multi-target deployment) the replay is ``fedtrack
 replay --algorithm <[multitarget] algorithm>``, with ``--regions config`` when the config has
 ``[regions]``, and the verdict compares every picture: the same times, ids, statuses and
-sensors, states and covariances to ``TOLERANCE`` (relative, as above).
+sensors, states and covariances to ``TOLERANCE`` (relative, as above). ``--algorithm mtt-*`` does the
+same for a config without ``[multitarget]`` (the services started by hand, ``serve mtt-centre --algorithm``);
+a run of pictures checked without either is refused in one line saying so (before the tour58 session the
+paper replay read the scans and said ``unknown field 'detections'``).
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ import numpy as np
 
 from fedtrack.config import ConfigError
 from fedtrack.deploy.report import REPLAY_ALGORITHM
-from fedtrack.deploy.settings import load_settings
+from fedtrack.deploy.settings import MTT_ALGORITHMS, load_settings
 from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.fusion_center.replay import replay_fusion
 from fedtrack.jsonl import InputError, read_jsonl
@@ -113,15 +116,20 @@ class PictureCheck:
         return {**self.__dict__, "tolerance": TOLERANCE, "ok": self.ok}
 
 
-def verify_mtt_run(config: Path, run_dir: Path) -> PictureCheck:
-    """Compare a multi-target run's ``tracks.jsonl`` with the replay of its ``measurements.jsonl``."""
-    settings = load_settings(config)
-    assert settings.multitarget is not None
+def _pictures(tracks: Path) -> bool:
+    """Whether ``tracks`` (a run's ``tracks.jsonl``) holds multi-target pictures: its first line has ``tracks``."""
+    for _, obj in read_jsonl(tracks):
+        return "tracks" in obj
+    return False
+
+
+def verify_mtt_run(config: Path, run_dir: Path, algorithm: str) -> PictureCheck:
+    """Compare a multi-target run's ``tracks.jsonl`` with the replay by ``algorithm`` of its ``measurements.jsonl``."""
     regions = load_regions(config)
     live = _rows(run_dir / "tracks.jsonl")
     with tempfile.TemporaryDirectory() as tmp:
         replay_path = Path(tmp) / "replay.jsonl"
-        replay_mtt(settings.multitarget.algorithm, run_dir / "measurements.jsonl", config, replay_path,
+        replay_mtt(algorithm, run_dir / "measurements.jsonl", config, replay_path,
                    regions=None if regions is None else "config")
         replay = _rows(replay_path)
 
@@ -141,14 +149,21 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m fedtrack.deploy.verify_run", description=__doc__.splitlines()[0])
     parser.add_argument("--config", required=True, type=Path, help="the deployment TOML of the fusion host")
     parser.add_argument("--run", required=True, type=Path, help="the recorder's output directory")
+    parser.add_argument("--algorithm", choices=MTT_ALGORITHMS, help="a multi-target run's centre algorithm (default: "
+                        "[multitarget] algorithm of --config; a paper deployment's run: none)")
     args = parser.parse_args(argv)
     if not args.run.is_dir():  # not the first file looked for in it
         print(f"verify_run: error: --run {args.run}: no such folder (the output folder of the launch, its --out "
               "or [deployment] out)", file=sys.stderr)
         return 2
     try:
-        check: RunCheck | PictureCheck = (verify_mtt_run(args.config, args.run)
-                                          if load_settings(args.config).multitarget is not None
+        mt = load_settings(args.config).multitarget
+        algorithm = args.algorithm or (None if mt is None else mt.algorithm)
+        if algorithm is None and _pictures(args.run / "tracks.jsonl"):
+            raise ConfigError(f"{args.run / 'tracks.jsonl'}: multi-target pictures, but {args.config} has no "
+                              "[multitarget] table naming the centre's algorithm: give --algorithm (mtt-federated, "
+                              "mtt-decentralized or mtt-centralized)")
+        check: RunCheck | PictureCheck = (verify_mtt_run(args.config, args.run, algorithm) if algorithm is not None
                                           else verify_run(args.config, args.run))
     except (OSError, ConfigError, InputError) as exc:
         print(f"verify_run: error: {exc}", file=sys.stderr)

@@ -585,3 +585,27 @@ def test_verify_run_names_a_run_folder_that_is_not_there(tmp_path: Path, capsys:
     assert verify_main(["--config", str(config), "--run", str(tmp_path / "nope")]) == 2
     err = capsys.readouterr().err
     assert f"--run {tmp_path / 'nope'}: no such folder" in err and "tracks.jsonl" not in err
+
+
+def test_verify_run_of_a_multitarget_run_started_by_hand(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The services started by hand (``serve mtt-centre --algorithm ... --config C``) leave a config without
+    ``[multitarget]``: ``verify_run --algorithm mtt-*`` checks their pictures against the replay, and without it
+    the line says what to give. Before (tour58) the paper replay read the scans: ``measurements.jsonl:1: unknown
+    field 'detections'``, and no option could say which centre ran."""
+    from fedtrack.deploy.verify_run import main as verify_main
+
+    sim, run = tmp_path / "sim", tmp_path / "run"
+    run.mkdir()
+    assert cli.main(["simulate", "multitarget", "--targets", "3", "--duration", "8", "--out", str(sim)]) == 0
+    (run / "measurements.jsonl").write_bytes((sim / "measurements.jsonl").read_bytes())
+    assert cli.main(["replay", "--algorithm", "mtt-federated", "--config", str(sim / "config.toml"),
+                     "--measurements", str(run / "measurements.jsonl"), "--out", str(run / "tracks.jsonl")]) == 0
+    capsys.readouterr()
+    assert verify_main(["--config", str(sim / "config.toml"), "--run", str(run)]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"verify_run: error: {run / 'tracks.jsonl'}: multi-target pictures, but {sim / 'config.toml'} has no "
+        "[multitarget] table naming the centre's algorithm: give --algorithm (mtt-federated, mtt-decentralized or "
+        "mtt-centralized)")
+    assert verify_main(["--config", str(sim / "config.toml"), "--run", str(run), "--algorithm", "mtt-federated"]) == 0
+    verdict = json.loads(capsys.readouterr().out)
+    assert verdict["ok"] and verdict["pictures"] == verdict["replayed"] == 8 and verdict["max_replay_diff"] == 0.0
