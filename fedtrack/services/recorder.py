@@ -30,7 +30,7 @@ from fedtrack.jsonl import check_output, check_output_folder
 from fedtrack.recording import RECORDED, TABLES, Recording, StorageError, Table
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
 from fedtrack.services.dispatch import ServiceFault
-from fedtrack.wire import Message
+from fedtrack.wire import Message, TrackPicture
 
 DB_NAME = "recording.db"
 
@@ -96,7 +96,8 @@ class Recorder(Service):
         try:
             if self.out is not None:
                 n_meas, n_tracks = self.recording.export(self.out / "measurements.jsonl", self.out / "tracks.jsonl")
-                self.log.info("wrote %d measurements and %d tracks to %s", n_meas, n_tracks, self.out)
+                unit = "pictures" if self.recording.count(TrackPicture) else "tracks"  # as fedtrack export says
+                self.log.info("wrote %d measurements and %d %s to %s", n_meas, n_tracks, unit, self.out)
         finally:
             self.recording.close()
 
