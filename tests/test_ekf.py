@@ -361,5 +361,6 @@ def test_a_relative_ts_fuzzy_model_is_taken_in_the_config_files_folder(tmp_path,
     assert ((tmp_path / "rel.jsonl").read_bytes() == (tmp_path / "rel2.jsonl").read_bytes()
             == (tmp_path / "abs.jsonl").read_bytes())
     cfg.write_text("[radar_filter]\nmodel = 'gone.npz'\n")
-    with pytest.raises(ConfigError, match=rf"^\S*c\.toml: radar_filter\.model: file {conf / 'gone.npz'} does not exist"):
+    gone = conf / "gone.npz"
+    with pytest.raises(ConfigError, match=rf"^\S*c\.toml: radar_filter\.model: file {gone} does not exist"):
         replay_radar("ekf-tsfuzzy", tmp_path / "scans.jsonl", cfg, tmp_path / "o.jsonl")

@@ -19,8 +19,9 @@ def test_a_local_filter_without_the_deployments_sensors_says_where_to_give_them(
     same case named its ``--sensors``. A sensor missing from a config's list is named with the list."""
     out = cli_in_process(["serve", "local-filter", "--sensor", "1", *NOWHERE], capsys, monkeypatch)
     assert out.returncode == 2
-    assert out.stderr.strip() == ("fedtrack: error: fusion.sensors: none given: the filter of sensor '1' needs every "
-                                  "sensor of the deployment; give --config FILE with [fusion] sensors or [[sensor]] ids")
+    assert out.stderr.strip() == ("fedtrack: error: fusion.sensors: none given: the filter of sensor '1' needs "
+                                  "every sensor of the deployment; give --config FILE with [fusion] sensors or "
+                                  "[[sensor]] ids")
     cfg = tmp_path / "d.toml"
     cfg.write_text('[fusion]\nsensors = ["1", "2"]\n')
     out = cli_in_process(["serve", "local-filter", "--sensor", "9", "--config", str(cfg), *NOWHERE], capsys,
