@@ -64,7 +64,7 @@ from fedtrack.deploy.plan import (
 from fedtrack.deploy.procstat import process_usage
 from fedtrack.deploy.report import CLEAN_STOP_KILLED, LaunchReport, finish, unrecorded
 from fedtrack.deploy.settings import Settings, check_launchable, load_settings
-from fedtrack.deployment import listen_address, port_in_use
+from fedtrack.deployment import listen_problem, port_in_use
 from fedtrack.jsonl import InputError, output_folder
 from fedtrack.recording import Recording
 from fedtrack.services.base import CLOSE_DEADLINE_S
@@ -546,9 +546,9 @@ def prepare_launcher(settings: Settings, config_path: Path, out_dir: Path, quiet
     """What :func:`run_deployment` does before it runs: the checks (port, multi-target scenario), the
     plan and the Zenoh configurations; the launcher is ready to ``run()`` (from any thread)."""
     dep = settings.deployment
-    if "router" in dep.services and dep.router_listen and port_in_use(dep.router_listen):
-        raise ConfigError(f"{config_path}: deployment.router_listen: port {listen_address(dep.router_listen, '')[1]} "
-                          f"for the router is already in use ({dep.router_listen})")
+    problem = listen_problem(dep.router_listen) if "router" in dep.services and dep.router_listen else None
+    if problem:
+        raise ConfigError(f"{config_path}: deployment.router_listen: {problem}, where the router would listen")
     if settings.multitarget is not None:
         settings = check_multitarget(settings, config_path)
         prepare(settings, out_dir)

@@ -140,24 +140,34 @@ def on_loopback(endpoint: str) -> bool:
         return False
 
 
-def port_in_use(endpoint: str) -> bool:
-    """True when a TCP endpoint's port on this host cannot be bound (another process holds it).
+def listen_problem(endpoint: str) -> str | None:
+    """Why a TCP endpoint cannot be listened on here, None when it can (or it is no TCP endpoint): ``port N is
+    already in use`` (another process holds it), or ``address H is not an address of this host`` (a file of another
+    host, such as deploy/multihost's 10.47.0.1: before the tour58 session said to be a port in use).
 
     The probe binds as the Zenoh router does, with ``SO_REUSEADDR``: the connections of a run that
     just ended, left in TIME_WAIT for a minute, do not hold the port (a socket listening on it does)."""
+    import errno
     import socket
 
     if not endpoint.startswith(("tcp/", "tls/")):
-        return False
+        return None
     host, port = listen_address(endpoint, "router_listen")
     family = socket.AF_INET6 if ":" in host else socket.AF_INET
     with socket.socket(family, socket.SOCK_STREAM) as probe:
         probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             probe.bind((host, port))
-        except OSError:
-            return True
-    return False
+        except OSError as exc:
+            if exc.errno == errno.EADDRNOTAVAIL:
+                return f"address {host} is not an address of this host ({endpoint})"
+            return f"port {port} is already in use ({endpoint})"
+    return None
+
+
+def port_in_use(endpoint: str) -> bool:
+    """True when a TCP endpoint cannot be bound on this host (:func:`listen_problem`)."""
+    return listen_problem(endpoint) is not None
 
 
 @dataclass(frozen=True)

@@ -84,6 +84,19 @@ def test_serve_router_on_a_port_in_use_is_one_line_and_exit_2(capsys: pytest.Cap
                                                         f"{endpoint.rsplit(':', 1)[1]} is already in use ({endpoint})")
 
 
+def test_serve_router_on_an_address_of_another_host_says_so(capsys: pytest.CaptureFixture[str]) -> None:
+    """``serve router --listen`` on an address this host does not have (a multi-host file's router address on
+    the wrong machine) says so; before (tour58) it said the port was already in use."""
+    from fedtrack.services.router import main as router
+
+    endpoint = "tcp/192.0.2.1:7447"  # TEST-NET-1: on no host
+    with pytest.raises(SystemExit) as stop:
+        router(["--listen", endpoint, "--insecure"])
+    assert stop.value.code == 2
+    assert capsys.readouterr().err.splitlines()[-1] == (f"fedtrack serve router: error: --listen: address 192.0.2.1 "
+                                                        f"is not an address of this host ({endpoint})")
+
+
 def test_serve_sensor_with_an_id_its_config_does_not_list_is_refused(tmp_path: Path,
                                                                      capsys: pytest.CaptureFixture[str]) -> None:
     """``fedtrack serve sensor --config deploy/local.toml`` without ``--id`` (id ``sensor``) or with a

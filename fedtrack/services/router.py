@@ -31,7 +31,7 @@ from pathlib import Path
 
 import zenoh
 
-from fedtrack.deployment import listen_address, port_in_use
+from fedtrack.deployment import listen_problem
 from fedtrack.keys import DEFAULT_DEPLOYMENT
 from fedtrack.services.base import Service, service_kwargs, service_parser
 from fedtrack.zsession import DEFAULT_ROUTER, SessionOptions, load_config_file
@@ -106,6 +106,7 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
     kwargs = service_kwargs(parser, args, mode="router")
     for endpoint in kwargs["options"].listen:  # as launch checks router_listen (was: exit 1 and a log line)
-        if port_in_use(endpoint):
-            parser.error(f"--listen: port {listen_address(endpoint, '--listen')[1]} is already in use ({endpoint})")
+        problem = listen_problem(endpoint)
+        if problem:
+            parser.error(f"--listen: {problem}")
     return Router(**kwargs).run()
