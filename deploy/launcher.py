@@ -450,8 +450,9 @@ class Launcher(Monitor):
             if sp.role != "recorder" or "--out" in sp.argv:
                 continue
             db = Path(sp.argv[sp.argv.index("--db") + 1])
-            if not db.is_file():  # removed while the run went on (it was set aside before the start)
-                self._say(f"no recording to export: {db} is gone")
+            if not db.is_file():  # never made (a stop before the recorder stored a row), or removed during the run
+                self._say(f"no recording to export: {db} does not exist (the recorder stored nothing, or the file "
+                          "was removed during the run)")
                 continue
             started = time.monotonic()
             try:

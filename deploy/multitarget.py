@@ -309,7 +309,7 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Se
                                "killed_after_clean_stop": report.killed_after_clean_stop, "restarts": report.restarts,
                                "rejected": report.rejected(), "monitor_rejected": report.monitor_rejected,
                                "health": report.health, "wall_s": report.wall_s, "processes": report.processes}
-    written = "measurements.jsonl tracks.jsonl truth.jsonl summary.json tracks.png config.toml"
+    names = ["measurements.jsonl", "tracks.jsonl", "truth.jsonl", "summary.json", "tracks.png", "config.toml"]
     if tracks.is_file() and tracks.stat().st_size:
         result = evaluate(tracks, truth, horizontal=settings.frame is not None)
         png = out / "tracks.png"
@@ -323,7 +323,7 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Se
             plot(result, tracks, truth, out / "gospa.png", events, label=label, regions=regions)
             plot_map(tracks, truth, settings.frame, png, label=label)
             (out / "tracks.geojson").write_text(json.dumps(feature_collection(settings.frame, tracks, truth)))
-            written += " gospa.png tracks.geojson"
+            names += ["gospa.png", "tracks.geojson"]
         summary.update({k: v for k, v in result.items() if k != "series"})
         if mt is not None and summary.get("algorithm") is None:  # the recorder's pictures do not carry it
             summary["algorithm"] = mt.algorithm
@@ -397,5 +397,7 @@ def finish_multitarget(out: Path, report: LaunchReport, title: str, settings: Se
         said = {k: "-" if o[k] is None else f"{o[k]:.2f}" for k in ("t", "back_after_s")}
         print(f"{title}: router outage at t = {said['t']} s, back after {said['back_after_s']} s (no failover: the "
               "centres' tokens went with the link)", file=sys.stderr)
-    print(f"wrote {out}/: {written}")
+    # the files there: a run stopped before its recorder stored anything has no measurements, tracks or plot (all
+    # six were said written until tour58)
+    print(f"wrote {out}/: {' '.join(n for n in names if (out / n).is_file())}")
     return summary

@@ -304,3 +304,24 @@ def test_recorded_scans_no_picture_lists_are_said_and_counted(tmp_path: Path, mo
     assert (f"fedtrack launch: 2 recorded scans are in no picture (s1: 2; {tmp_path / 'unprocessed.jsonl'}): no "
             "tracker took them (see each mtt-local's counters dropped, late and queue_dropped in summary.json)") in err
     assert json.loads((tmp_path / "summary.json").read_text())["scans_not_tracked"] == {"s1": 2}
+
+
+def test_a_run_stopped_before_anything_was_recorded_names_only_the_files_written(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """Ctrl-C during a multi-target launch's start (the recorder not yet storing) ends with the files there named:
+    before (tour58) it said ``wrote OUT/: measurements.jsonl tracks.jsonl truth.jsonl summary.json tracks.png
+    config.toml`` of a folder without the first two and the plot, and ``no recording to export: OUT/recording.db
+    is gone`` of a file never made."""
+    cfg = tmp_path / "mtt.toml"
+    cfg.write_text(MTT_CONFIG.format(port=free_port()))
+
+    def run(self: launcher.Launcher) -> LaunchReport:  # stopped before the recorder made its database
+        self._export_recording()
+        return LaunchReport()
+
+    monkeypatch.setattr(launcher.Launcher, "run", run)
+    launcher.main([str(cfg), "--out", str(tmp_path)])
+    out, err = capsys.readouterr()
+    assert f"wrote {tmp_path}/: truth.jsonl summary.json config.toml\n" in out
+    assert (f"no recording to export: {tmp_path / 'recording.db'} does not exist (the recorder stored nothing, or the "
+            "file was removed during the run)") in err
