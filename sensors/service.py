@@ -41,7 +41,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from fedtrack.config import load_tables, read_small_file, seed_number
+from fedtrack.config import ConfigError, load_tables, read_small_file, seed_number
 from fedtrack.deployment import PACINGS, DeploymentConfig, SensorConfig
 from fedtrack.jsonl import InputError, read_jsonl
 from fedtrack.local_filters.mtt.scan import SensorScan, parse_scan, scan_to_measurement
@@ -234,9 +234,15 @@ def main(argv: list[str]) -> int:
                                    ("speed", args.speed)) if v is not None}
     if overrides:
         settings = replace(settings, deployment=replace(dep, **overrides))
-        settings.deployment.validate()
+        try:
+            settings.deployment.validate()
+        except ConfigError as exc:  # an option's value (the file's were checked as it was read): named as the option
+            parser.error(f"--{exc}")
     if args.lockstep_timeout <= 0:
         parser.error("--lockstep-timeout must be > 0")
+    if args.kind != "scan" and (args.measurements is not None or args.join_at is not None):
+        parser.error(f"--measurements and --join-at apply to --kind scan only (a {args.kind} sensor simulates its "
+                     "scans)")
     if args.kind == "scan":
         if args.measurements is None or settings.deployment.pacing != "realtime":
             parser.error("--kind scan needs --measurements FILE and realtime pacing")

@@ -49,3 +49,17 @@ def test_a_per_sensor_service_started_by_hand_takes_its_sensors_id(
                              monkeypatch)
         assert out.returncode == 0, out.stderr
     assert started == ["s1", "mine"]
+
+
+def test_a_sensor_option_it_cannot_use_or_a_bad_value_is_named_as_the_option(
+        capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    """``serve sensor --join-at 5`` of a simulated position sensor was accepted and ignored (only ``--kind scan``
+    replays scans from a time on), and ``--speed 0`` was refused as ``speed: ...``, the config key's name, not the
+    option given (tour58)."""
+    out = cli_in_process(["serve", "sensor", "--join-at", "5", *NOWHERE], capsys, monkeypatch)
+    assert out.returncode == 2
+    assert out.stderr.splitlines()[-1] == ("fedtrack serve sensor: error: --measurements and --join-at apply to --kind "
+                                           "scan only (a position sensor simulates its scans)")
+    out = cli_in_process(["serve", "sensor", "--speed", "0", *NOWHERE], capsys, monkeypatch)
+    assert out.returncode == 2
+    assert out.stderr.splitlines()[-1] == "fedtrack serve sensor: error: --speed: must be finite and > 0"
