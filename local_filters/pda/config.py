@@ -56,6 +56,7 @@ class ExistenceConfig:
     one_track_per_detection: bool = True
     clutter_from_scans: bool = True
     supported_streak: bool = True
+    amplitude_existence: bool = True
 
     def evidence_threshold(self, births: int) -> float:
         """``log(births / false_track_rate)``; ``-inf`` with the test off."""

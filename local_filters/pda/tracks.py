@@ -32,7 +32,15 @@ amplitudes give a likelihood ratio of ``e^10`` or more per detection at rho = 20
 costs it little. The association also uses the larger of the configured clutter density and
 the scans' own estimate (``clutter_from_scans``, :func:`scan_constants`): the bound needs the
 clutter likelihood ratio to average 1. ``false_track_rate = 0``, ``one_track_per_detection =
-false``, ``clutter_from_scans = false`` and ``supported_streak = false`` give the paper's rule alone.
+false``, ``clutter_from_scans = false``, ``supported_streak = false`` and ``amplitude_existence = false`` give the
+paper's rule alone.
+
+Amplitude existence: the existence of an HPDA track follows eq (9)'s likelihood ratio, as IPDA-AI's does
+(:func:`~fedtrack.local_filters.pda.association.scan_evidence`: every gated detection with its amplitude),
+not eq (16)'s, which takes the selected detection's rank but not its amplitude and so raises a track that
+caught one target detection to about 0.4 only (eq (9): 1.00). At P_D = 0.5, where three detections in a
+row are rare, the paper's eq (16) confirmed the target 190 s later than IPDA-AI; with eq (9) HPDA confirms
+it as IPDA-AI does. IPDA-AI's ratio is eq (9) already (the same number, to the bit).
 
 Supported streak: the ``confirm_scans`` updates above ``confirm_threshold`` must each raise the
 existence (eq (8): ``logit mu_k = log(1 - delta_k) + logit mu_bar``, so the update raises it iff the
@@ -218,6 +226,8 @@ def _update_tracks(spec: TrackerSpec, c: Constants, tracks: TrackSet, dt: float,
     e = spec.existence
     losers = (shared_detection_losers(dominant, evidence, tracks.confirmed) if e.one_track_per_detection
               else np.zeros(n, dtype=bool))
+    if e.amplitude_existence:  # HPDA too: eq (9)'s ratio of every gated detection and amplitude, not eq (16)'s
+        log_lr = said.log_lr
     mu = existence_update(tracks.existence, log_lr, e.p11, e.p21)
     # a streak counts the updates that raise the existence (eq (8): log(1 - delta) > 0, the scan's data
     # support the track); with supported_streak a miss above the threshold holds the count, it adds nothing
