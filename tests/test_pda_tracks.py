@@ -298,3 +298,70 @@ def test_hpda_existence_takes_the_amplitudes_as_ipda_ai() -> None:
     assert ipda[6] and not ipda[5]
     assert confirmed_on_alternate_detections("hpda", ExistenceConfig()) == ipda
     assert not any(confirmed_on_alternate_detections("hpda", ExistenceConfig(amplitude_existence=False)))
+
+
+def held_after_onset(max_accel: float, seed: int) -> float:
+    """Share of the scans from the maneuver's onset (800 s) with a confirmed track within 60 m of a
+    target turning at 0.01 g (10x the paper's maneuver), no clutter, PDA-AI with the default rule."""
+    import dataclasses
+
+    from fedtrack.sensors.sonar import G0, ScenarioConfig, SonarConfig, scan, truth_states
+
+    sonar = dataclasses.replace(SonarConfig(), pd=0.999, clutter_density=1e-9,
+                                scenario=ScenarioConfig(maneuver_accel=(0.0, -0.01 * G0)))
+    spec = tracker_spec("pda-ai", PDAParams(pd=0.999, clutter_density=1e-9, max_accel=max_accel), ExistenceConfig())
+    times, truth = truth_states(sonar.scenario)
+    rng, ms, held = np.random.default_rng(seed), initial_manager(), []
+    for k, (t, x) in enumerate(zip(times, truth)):
+        dets = scan(rng, sonar, k, x)
+        ms, rep = manager_step(spec, ms, t, dets.z, dets.amplitude, sonar.sigma_r**2 * np.eye(2))
+        if t >= 800.0:
+            off = np.linalg.norm(rep.tracks.state.x[:, [0, 3]] - x[[0, 3]], axis=1)
+            held.append(bool(np.any(rep.tracks.confirmed & (off <= 60.0))))
+    return float(np.mean(held))
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_a_maneuver_model_holds_a_target_beyond_sigma_a(seed: int) -> None:
+    """The paper's Singer model (sigma_a 0.01 m/s^2) loses a 0.01 g maneuver at its onset, even without
+    clutter, and every track the manager starts again loses it too: the target was held in 8 % of the
+    scans after the onset (30 seeded runs, docs/hpda.md). With ``max_accel`` (the targets' largest
+    acceleration, here 0.1 g) a second Singer model of ``max_accel / sqrt(3)`` runs in an IMM and the
+    target is held throughout."""
+    from fedtrack.sensors.sonar import G0
+
+    assert held_after_onset(0.1 * G0, seed) >= 0.95
+    assert held_after_onset(0.0, seed) < 0.3
+
+
+def test_an_imm_of_two_equal_models_is_the_one_model_tracker() -> None:
+    """Two Singer models of the same sigma_a (``max_accel = sqrt(3) sigma_a``): mixing, the models'
+    associations, their probabilities and the combination give the one-model tracker's tracks."""
+    import dataclasses
+
+    from fedtrack.sensors.sonar import SonarConfig, sonar_scans
+
+    sonar = dataclasses.replace(SonarConfig(), clutter_density=5e-5)
+    one = tracker_spec("hpda", PDAParams(clutter_density=5e-5), ExistenceConfig())
+    two = tracker_spec("hpda", PDAParams(clutter_density=5e-5, max_accel=np.sqrt(3.0) * one.params.sigma_a),
+                       ExistenceConfig())
+    assert len(two.params.sigmas) == 2 and np.isclose(two.params.sigmas[1], one.params.sigmas[0])
+    a, b = initial_manager(), initial_manager()
+    for line in list(sonar_scans(sonar, 3))[:20]:
+        z = np.array([d["z"] for d in line["detections"]]).reshape(-1, 2)
+        amp = np.array([d["amplitude"] for d in line["detections"]])
+        a, ra = manager_step(one, a, line["t"], z, amp, np.array(line["R"]))
+        b, rb = manager_step(two, b, line["t"], z, amp, np.array(line["R"]))
+        assert ra.tracks.ids.tolist() == rb.tracks.ids.tolist()
+        assert ra.tracks.confirmed.tolist() == rb.tracks.confirmed.tolist()
+        np.testing.assert_allclose(rb.tracks.state.x, ra.tracks.state.x, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(rb.tracks.existence, ra.tracks.existence, rtol=0, atol=1e-9)
+    assert np.any(rb.tracks.confirmed)
+
+
+@pytest.mark.parametrize("value", [-1.0, float("nan"), float("inf")])
+def test_max_accel_must_be_finite_and_not_negative(value: float) -> None:
+    from fedtrack.config import ConfigError
+
+    with pytest.raises(ConfigError, match="max_accel: must be a finite number >= 0"):
+        PDAParams(max_accel=value).validate()

@@ -27,6 +27,7 @@ class PDAParams:
     gate: float = 9.21
     sigma_a: float = 0.01
     tau_s: float = 500.0
+    max_accel: float = 0.0  # m/s^2, the targets' largest acceleration: > 0 adds a maneuver model (IMM)
 
     def validate(self) -> None:
         if not 0.0 < self.pd < 1.0:
@@ -38,6 +39,15 @@ class PDAParams:
         for name in ("gate", "sigma_a", "tau_s"):
             if not getattr(self, name) > 0.0:
                 raise ConfigError(f"{name}: must be > 0, got {getattr(self, name)}")
+        if not 0.0 <= self.max_accel < np.inf:
+            raise ConfigError(f"max_accel: must be a finite number >= 0 (0: no maneuver model), got {self.max_accel}")
+
+    @property
+    def sigmas(self) -> tuple[float, ...]:
+        """The Singer models' ``sigma_a``: the paper's, and with ``max_accel`` a maneuver model's
+        ``max_accel / sqrt(3)`` (Singer's rule ``A_max^2 (1 + 4 P_max - P_0) / 3`` with ``P_max = P_0 = 0``:
+        accelerations uniform over ``[-A_max, A_max]``)."""
+        return (self.sigma_a,) if self.max_accel == 0.0 else (self.sigma_a, self.max_accel / np.sqrt(3.0))
 
 
 @dataclasses.dataclass(frozen=True)

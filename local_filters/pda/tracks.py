@@ -35,6 +35,10 @@ clutter likelihood ratio to average 1. ``false_track_rate = 0``, ``one_track_per
 false``, ``clutter_from_scans = false``, ``supported_streak = false`` and ``amplitude_existence = false`` give the
 paper's rule alone.
 
+Maneuver model: with ``[pda.tracker] max_accel`` > 0 every track runs an IMM of the paper's Singer model and
+one of ``max_accel / sqrt(3)`` (:func:`_imm`); the paper's model alone loses a maneuver of ten times its
+``sigma_a`` at the onset, and the tracks started again after it lose it too (docs/hpda.md).
+
 Amplitude existence: the existence of an HPDA track follows eq (9)'s likelihood ratio, as IPDA-AI's does
 (:func:`~fedtrack.local_filters.pda.association.scan_evidence`: every gated detection with its amplitude),
 not eq (16)'s, which takes the selected detection's rank but not its amplitude and so raises a track that
@@ -59,7 +63,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from fedtrack.config import ConfigError
-from fedtrack.local_filters.linear.kalman import GaussianState, predict
+from fedtrack.local_filters.linear.kalman import GaussianState, logsumexp, predict, symmetrize
 from fedtrack.local_filters.linear.models import LinearModel
 from fedtrack.local_filters.pda.association import (
     ALGORITHMS,
@@ -109,6 +113,9 @@ class TrackSet(NamedTuple):
     confirmed: np.ndarray  # (N,) bool
     evidence: np.ndarray  # (N,) sum of eq (9) log likelihood ratios since birth
     evidence_needed: np.ndarray  # (N,) false-track test threshold on ``evidence``
+    modes_x: np.ndarray = np.zeros((0, 0, 6))  # (N, r, 6) each Singer model's posterior (r = 0: one model)
+    modes_P: np.ndarray = np.zeros((0, 0, 6, 6))  # (N, r, 6, 6)
+    mode_prob: np.ndarray = np.zeros((0, 0))  # (N, r)
 
     def take(self, idx: np.ndarray) -> "TrackSet":
         return TrackSet(self.ids[idx], GaussianState(self.state.x[idx], self.state.P[idx]),
@@ -124,14 +131,21 @@ def empty_tracks() -> TrackSet:
 
 
 def new_tracks(ids: np.ndarray, state: GaussianState, existence: float,
-               evidence_needed: float) -> TrackSet:
-    """Tentative tracks just born, with no streak and no evidence yet."""
+               evidence_needed: float, models: int = 1) -> TrackSet:
+    """Tentative tracks just born, with no streak and no evidence yet; with several Singer models each
+    starts at the born state, all its probability on the first (the paper's) model."""
     n = ids.shape[0]
+    r = 0 if models == 1 else models
+    prob = np.zeros((n, r))
+    prob[:, :1] = 1.0
     return TrackSet(ids, state, np.full(n, existence), np.zeros(n, dtype=np.int64),
-                    np.zeros(n, dtype=bool), np.zeros(n), np.full(n, evidence_needed))
+                    np.zeros(n, dtype=bool), np.zeros(n), np.full(n, evidence_needed),
+                    np.repeat(state.x[:, None], r, axis=1), np.repeat(state.P[:, None], r, axis=1), prob)
 
 
 def join(a: TrackSet, b: TrackSet) -> TrackSet:
+    if not len(a):  # (an empty set's model arrays may have another number of models)
+        return b
     return TrackSet(np.concatenate([a.ids, b.ids]),
                     GaussianState(np.concatenate([a.state.x, b.state.x]),
                                   np.concatenate([a.state.P, b.state.P])),
@@ -209,25 +223,92 @@ def shared_detection_losers(dominant: np.ndarray, evidence: np.ndarray, senior: 
     return losers & ~senior
 
 
+class ScanTerms(NamedTuple):
+    """What one scan's association gives every track, whatever its motion models."""
+
+    post: GaussianState  # (N, 6) the (combined) posterior
+    log_lr: np.ndarray  # (N,) the existence ratio: eq (9), or eq (16) for HPDA without amplitude_existence
+    evidence_lr: np.ndarray  # (N,) eq (9)'s ratio, for the false-track test
+    dominant: np.ndarray  # (N,) the detection holding half the association weight, -1 if none
+    inside: np.ndarray  # (N, M) gate membership
+    modes: tuple[np.ndarray, np.ndarray, np.ndarray]  # the models' posteriors and probabilities (r = 0: one)
+
+
+def _scan_terms(spec: TrackerSpec, c: Constants, pred: GaussianState, z: np.ndarray, amplitude: np.ndarray,
+                R: np.ndarray, H: np.ndarray) -> tuple[GaussianState, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Gate, associate and update the predictions ``pred`` (K, 6): posterior, the existence ratio, eq (9)'s
+    ratio, the dominant detection (an index of ``z``) and the gates' membership (K, M)."""
+    index, valid = candidates(pred, z, H, R, c)
+    aa = amplitude[index]
+    g = gate(pred, z[index], valid, H, R, c)
+    post, log_lr = associate(spec.algorithm, pred, g, aa, c)
+    said = scan_evidence(g, aa, c)
+    if spec.existence.amplitude_existence:  # HPDA too: eq (9)'s ratio of every gated detection and amplitude
+        log_lr = said.log_lr
+    inside = np.zeros((pred.x.shape[0], z.shape[0]), dtype=bool)
+    rows, cols = np.nonzero(g.inside)
+    inside[rows, index[rows, cols]] = True
+    return post, log_lr, said.log_lr, original_index(said.dominant, index), inside
+
+
+def _moments(w: np.ndarray, x: np.ndarray, P: np.ndarray) -> GaussianState:
+    """The Gaussian matching the mixture of ``x`` (N, r, 6), ``P`` (N, r, 6, 6) with weights ``w`` (N, r)."""
+    m = np.einsum("nr,nri->ni", w, x)
+    d = x - m[:, None]
+    return GaussianState(m, symmetrize(np.einsum("nr,nrij->nij", w, P + d[..., :, None] * d[..., None, :])))
+
+
+def _single_model(spec: TrackerSpec, c: Constants, tracks: TrackSet, dt: float, z: np.ndarray,
+                  amplitude: np.ndarray, R: np.ndarray) -> ScanTerms:
+    """The paper's tracker: one Singer model."""
+    model = _model(dt, spec.params.sigma_a, spec.params.tau_s)
+    terms = _scan_terms(spec, c, predict(tracks.state, model.F, model.Q), z, amplitude, R, model.H)
+    return ScanTerms(*terms, (tracks.modes_x, tracks.modes_P, tracks.mode_prob))
+
+
+def _imm(spec: TrackerSpec, c: Constants, tracks: TrackSet, dt: float, z: np.ndarray,
+         amplitude: np.ndarray, R: np.ndarray) -> ScanTerms:
+    """An IMM of the Singer models of ``PDAParams.sigmas`` (IMM-PDA, Houles and Bar-Shalom 1989; IMM-IPDA,
+    Musicki and Suvorova): each model stays with probability ``exp(-dt / tau_s)`` (the Singer correlation
+    time), the others share the rest; mixing, each model's association, the model probabilities by eq (9)'s
+    ratio of each (eq (16) is no likelihood ratio), the track's ratios the mixtures ``sum_m cbar_m L_m``."""
+    sigmas = spec.params.sigmas
+    n, r = len(tracks), len(sigmas)
+    stay = np.exp(-dt / spec.params.tau_s)
+    Pi = np.full((r, r), (1.0 - stay) / (r - 1))
+    np.fill_diagonal(Pi, stay)
+    cbar = tracks.mode_prob @ Pi
+    live = cbar[:, None, :] > 0.0  # a model of probability 0 (dt = 0) keeps its own state
+    mixing = np.where(live, tracks.mode_prob[:, :, None] * Pi[None] / np.where(live, cbar[:, None, :], 1.0),
+                      np.eye(r)[None])  # (N, i, j)
+    preds = []
+    for j, sigma in enumerate(sigmas):
+        model = _model(dt, sigma, spec.params.tau_s)
+        preds.append(predict(_moments(mixing[:, :, j], tracks.modes_x, tracks.modes_P), model.F, model.Q))
+    flat = GaussianState(np.stack([q.x for q in preds], 1).reshape(n * r, 6),
+                         np.stack([q.P for q in preds], 1).reshape(n * r, 6, 6))
+    post, log_lr, evidence_lr, dominant, inside = _scan_terms(spec, c, flat, z, amplitude, R, model.H)
+    log_cbar = np.log(np.maximum(cbar, 1e-300))
+    log_w = log_cbar + evidence_lr.reshape(n, r)
+    log_l = logsumexp(log_w, axis=1)
+    prob = np.exp(log_w - log_l[:, None])
+    x, P = post.x.reshape(n, r, 6), post.P.reshape(n, r, 6, 6)
+    best = np.argmax(prob, axis=1)
+    return ScanTerms(_moments(prob, x, P), logsumexp(log_cbar + log_lr.reshape(n, r), axis=1), log_l,
+                     dominant.reshape(n, r)[np.arange(n), best], inside.reshape(n, r, -1).any(axis=1),
+                     (x, P, prob))
+
+
 def _update_tracks(spec: TrackerSpec, c: Constants, tracks: TrackSet, dt: float, z: np.ndarray,
                    amplitude: np.ndarray, R: np.ndarray) -> Updated:
     """Predict, gate, associate and update every track, then confirm those that pass."""
-    p = spec.params
-    model = _model(dt, p.sigma_a, p.tau_s)
-    pred = predict(tracks.state, model.F, model.Q)
     n = len(tracks)
-    index, valid = candidates(pred, z, model.H, R, c)
-    aa = amplitude[index]
-    g = gate(pred, z[index], valid, model.H, R, c)
-    post, log_lr = associate(spec.algorithm, pred, g, aa, c)
-    said = scan_evidence(g, aa, c)
-    dominant = original_index(said.dominant, index)
-    evidence = tracks.evidence + said.log_lr
+    terms = (_imm if len(spec.params.sigmas) > 1 else _single_model)(spec, c, tracks, dt, z, amplitude, R)
+    dominant, log_lr = terms.dominant, terms.log_lr
+    evidence = tracks.evidence + terms.evidence_lr
     e = spec.existence
     losers = (shared_detection_losers(dominant, evidence, tracks.confirmed) if e.one_track_per_detection
               else np.zeros(n, dtype=bool))
-    if e.amplitude_existence:  # HPDA too: eq (9)'s ratio of every gated detection and amplitude, not eq (16)'s
-        log_lr = said.log_lr
     mu = existence_update(tracks.existence, log_lr, e.p11, e.p21)
     # a streak counts the updates that raise the existence (eq (8): log(1 - delta) > 0, the scan's data
     # support the track); with supported_streak a miss above the threshold holds the count, it adds nothing
@@ -235,11 +316,8 @@ def _update_tracks(spec: TrackerSpec, c: Constants, tracks: TrackSet, dt: float,
     streak = np.where(mu > e.confirm_threshold, tracks.streak + step, 0)
     passed = (streak >= e.confirm_scans) & (evidence >= tracks.evidence_needed) & ~losers
     confirmed = tracks.confirmed | passed
-    inside = np.zeros((n, z.shape[0]), dtype=bool)
-    rows, cols = np.nonzero(g.inside)
-    inside[rows, index[rows, cols]] = True
-    return Updated(TrackSet(tracks.ids, post, mu, streak, confirmed, evidence, tracks.evidence_needed),
-                   inside, losers)
+    return Updated(TrackSet(tracks.ids, terms.post, mu, streak, confirmed, evidence, tracks.evidence_needed,
+                            *terms.modes), terms.inside, losers)
 
 
 def duplicates(tracks: TrackSet, senior: np.ndarray, R: np.ndarray, c: Constants) -> np.ndarray:
@@ -326,7 +404,8 @@ def manager_step(spec: TrackerSpec, ms: ManagerState, t: float, z: np.ndarray,
         if i.size:
             born = two_point_init(ms.pending[j], free[i], dt, R, spec.params.sigma_a)
             ids = ms.next_id + np.arange(i.size)
-            tracks = join(tracks, new_tracks(ids, born, e.initial_existence, e.evidence_threshold(i.size)))
+            tracks = join(tracks, new_tracks(ids, born, e.initial_existence, e.evidence_threshold(i.size),
+                                             len(spec.params.sigmas)))
             newly = np.concatenate([newly, np.zeros(i.size, dtype=bool)])
             ms = ms._replace(next_id=ms.next_id + i.size)
     pending = free if dt > 0.0 or ms.t is None else np.concatenate([ms.pending, free])
