@@ -183,7 +183,9 @@ def counter_lines(counts: dict[str, int]) -> list[str]:
                   (f"{counts['centre_before_start']} centre observations older than their central track's "
                    "start, not fused"),
                   (f"{counts.get('centre_uncorroborated', 0)} tentative central tracks of one sensor alone held back "
-                   "(another sensor sees their place and missed them)")]
+                   "(another sensor sees their place and missed them)"),
+                  (f"{counts.get('centre_demoted', 0)} confirmed central tracks of one sensor alone made tentative "
+                   "again (the others see their place and deny them)")]
     if "centre_copies" in counts:
         lines.append(f"{counts['centre_copies']} reports of a sensor copying another's feed (the same observations at "
                      "the same times), not fused")

@@ -157,6 +157,47 @@ class CentreLife:
             self.evidence[now] = 0.0
         for cid in tracks.ids[dead].tolist():
             self._delete(cid)
+        old &= tracks.ids >= 0  # the tracks confirmed before this scan and not deleted by it
+        self._denied_confirmed(old.nonzero()[0], hit, col, report)
+
+    def _denied_confirmed(self, confirmed: np.ndarray, hit: np.ndarray, col: int, report: LocalReport) -> None:
+        """Make tentative again (counted ``demoted``) those of the confirmed slots ``confirmed`` that the scan
+        (``report``, sensor column ``col``) and the other sensors' latest scans deny. A sensor's misses in a row
+        of a confirmed track that one other sensor alone supports (``denied``, per slot and column: its supporter's
+        detections do not reset them, as they reset the tracking sensors' count) are those of its scans that
+        surely see the place: inside the x-y extent of its local tracks and above a sited radar's horizon with
+        the track lowered by ``Z_FALSE_CONFIRM`` standard deviations of its height (:meth:`_view`,
+        :func:`surely_above`), and holding no local track that may be its own of the target
+        (:meth:`_duplicate_beside`); any other scan of it resets its count. Once those misses are as unlikely for
+        a live target as the misses that delete a confirmed track its sensors track (:meth:`_misses_needed`,
+        :meth:`_misses_enough`: ``CENTRAL_MISSES`` each when two or more deny, ``delete_misses`` for one, more
+        at a low P_D), the track is tentative again, denied (``DENIED``): the hold of :meth:`_corroborated`
+        keeps it there until local tracks that two sensors' trackers confirmed map to it. With fewer than
+        ``DENIAL_LIVE`` live sensors a denial is one sensor's word against the other's: none. A lying sensor's
+        ghost that the others see and never detect, confirmed on its own scans, stayed in the picture for good
+        (its detections reset the count that deletes a confirmed track)."""
+        denied, misses = self.denied, np.zeros(confirmed.size, dtype=np.int8)
+        if self.n_live >= DENIAL_LIVE and self.sensor_names[col] not in self.excluded and confirmed.size:
+            support = self._fused_support(confirmed)
+            alone = ((np.count_nonzero(support, axis=1) == 1) & ~support[:, col] & ~hit[confirmed]).nonzero()[0]
+            X, P = self.tracks.states_at(confirmed[alone], report.t)
+            sees = self._view(X, P, report)[0] & surely_above(self.sites.get(report.sensor), X, P)
+            sees[sees] = ~self._duplicate_beside(confirmed[alone[sees]], support[alone[sees]], report)
+            seen = alone[sees]
+            misses[seen] = np.minimum(denied[confirmed[seen], col], np.iinfo(np.int8).max - 1) + 1
+        denied[confirmed, col] = misses
+        asked = confirmed[misses > 0]
+        if not asked.size:
+            return
+        deniers = self._counted(denied[asked] > 0)
+        lost = scan_lost(float(self.column_interval[col]))
+        need = self._misses_needed(deniers, np.count_nonzero(deniers, axis=1), lost)[:, None]
+        out = asked[self._misses_enough(denied[asked].astype(np.int64), deniers, need)]
+        if out.size:
+            self.tracks.confirmed[out] = False
+            self.window[out], self.evidence[out] = False, 0.0
+            denied[out] = np.minimum(denied[out], DENIED)
+            self.counters.demoted += out.size
 
     def _corroborated(self, tentative: np.ndarray, counts: np.ndarray, holds: np.ndarray, hit: np.ndarray,
                       col: int, report: LocalReport) -> np.ndarray:

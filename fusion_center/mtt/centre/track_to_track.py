@@ -61,7 +61,10 @@ scan, the linearized observation of every track the scan detected, the tracks it
   confirmed tracks on several sensors' clutter tracks. With three live sensors or more, a tentative track
   that one sensor alone supports is confirmed only once another sensor's report came after its start and, where another
   sensor that sees its place missed it, only when local tracks that two sensors' trackers confirmed
-  map to it (:meth:`~.track_life.CentreLife._corroborated`: one sensor's consistent ghosts). A
+  map to it (:meth:`~.track_life.CentreLife._corroborated`: one sensor's consistent ghosts); a confirmed
+  track that one sensor alone supports is made tentative again, denied, once the others that surely see its
+  place missed it as often as would delete a track they track
+  (:meth:`~.track_life.CentreLife._denied_confirmed`). A
   confirmed track is deleted once every sensor that tracks it (a local track maps to it, or its
   tracker retired the last one there since the track's last detection) missed it on its last
   ``CENTRAL_MISSES`` (2) scans since its last detection (``delete_misses`` when one sensor tracks
@@ -124,6 +127,7 @@ class Counters:
     noise_raised: int = 0  # observations whose R claimed less than their sensor's noise_floor: raised to it
     floor_mismatch: int = 0  # reports whose observations' size is not their sensor's noise_floor's: not fused
     uncorroborated: int = 0  # one sensor's tentative tracks held back: another sensor sees their place, missed them
+    demoted: int = 0  # one sensor's confirmed tracks made tentative again: the others see their place, deny them
     registration_corrections: int = 0  # times a sensor's registration was found off the consensus and corrected
     registered_sensors: int = 0  # sensors whose reports are corrected now (.registration)
     # detected local tracks whose covariance exceeds their observation's (.posterior_bound): not fused
@@ -201,7 +205,8 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         # per tentative slot, whether a sensor that supports none of it reported since its start (track_life.VETTED)
         # and whether its confirmation was held back (HELD, counted); per slot and sensor, whether that sensor
         # saw its place and missed it while one other sensor alone supported it, in its latest scan (PENDING) or
-        # in its latest two (DENIED) (CentreLife._corroborated)
+        # in its latest two (DENIED) (CentreLife._corroborated); of a confirmed slot, how many of its latest scans in
+        # a row did so (CentreLife._denied_confirmed)
         self.vetting = np.zeros(0, dtype=np.int8)
         self.denied = np.zeros((0, 0), dtype=np.int8)
         # whether the count alone is unsafe on some position sensor's clutter (judged once per sensor)
