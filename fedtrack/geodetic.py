@@ -344,30 +344,59 @@ def load_frame(path: str | Path | None) -> FrameConfig | None:
     return None if path is None else load_tables(path, FrameSettings).frame
 
 
-def add_geodetic(frame: Frame, rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+def add_geodetic(frame: Frame, rows: list[dict[str, Any]], init_z_std: float | None = None) -> list[dict[str, Any]]:
     """Picture or truth rows (each with ``x`` = ``[x, vx, y, vy(, z, vz)]``) with ``lat``, ``lon`` [deg]
     and, for a 3-D state, ``alt`` [m above the ellipsoid] beside ``x`` (:func:`fedtrack.wire.with_geodetic`;
-    a 2-D state on the ellipsoid: :func:`geodetic_of_states`)."""
+    a 2-D state on the ellipsoid: :func:`geodetic_of_states`). With ``init_z_std`` (``[mtt]``'s), a 3-D
+    track row (with ``P``) whose altitude is not measured (:func:`altitude_unmeasured`) is placed at the
+    origin's height and marked ``"alt_measured": false``."""
     lla = np.zeros((len(rows), 3))
+    flat = np.zeros(len(rows), bool)
     sizes = np.array([len(row["x"]) for row in rows])
     for size in set(sizes.tolist()):  # one batch per state size
         which = np.flatnonzero(sizes == size)
-        lla[which] = geodetic_of_states(frame, np.array([rows[i]["x"] for i in which], float))
-    return with_geodetic(rows, lla)
+        P = None
+        if size == 6 and init_z_std is not None and all("P" in rows[i] for i in which):
+            P = np.array([rows[i]["P"] for i in which], float)
+            flat[which] = altitude_unmeasured(P, init_z_std)
+        lla[which] = geodetic_of_states(frame, np.array([rows[i]["x"] for i in which], float), P, init_z_std)
+    out = with_geodetic(rows, lla)
+    for i in np.flatnonzero(flat).tolist():
+        out[i]["alt_measured"] = False
+    return out
 
 
-def geodetic_of_states(frame: Frame, X: np.ndarray) -> np.ndarray:
+def altitude_unmeasured(P: np.ndarray, init_z_std: float) -> np.ndarray:
+    """Which 3-D states (covariances ``P`` (n, 6, 6)) carry an altitude that is more the prior's than measured:
+    a variance above half the one-point start's ``init_z_std^2``, the rule ``initiation.unmeasured`` applies to
+    the velocity (their altitude plots gave less information than the prior had): never measured (a 2-D
+    sensor's track), or measured so long ago that the motion's noise has spread it that wide (a radar's altitude
+    gone stale below its horizon; docs/geodetic.md, "Altitudes nobody measured")."""
+    return np.asarray(P, float)[:, 4, 4] > 0.5 * init_z_std**2
+
+
+def geodetic_of_states(frame: Frame, X: np.ndarray, P: np.ndarray | None = None,
+                       init_z_std: float | None = None) -> np.ndarray:
     """``[lat, lon, h]`` (n, 3) of the positions of states ``X`` (n, 4 or 6): a 3-D state's position, a 2-D
     state's point of the ellipsoid at its x, y (:func:`surface_enu`, the inverse of what a 2-D position sensor
-    measures: :func:`surface_xy`)."""
+    measures: :func:`surface_xy`). Given ``P`` and ``init_z_std``, a 3-D state whose altitude is not measured
+    (:func:`altitude_unmeasured`) is placed at its x, y at the origin's height (:func:`level_z`, the prior's
+    centre) instead of its extrapolated z (before 2026-11-28 a descent extrapolated for minutes put aircraft
+    2.3 km underground)."""
     X = np.asarray(X, float)
     if X.shape[1] == 4:
         return geodetic_from_enu(frame, surface_enu(frame, X[:, [0, 2]]))
-    return geodetic_from_enu(frame, X[:, [0, 2, 4]])
+    enu = X[:, [0, 2, 4]]
+    if P is not None and init_z_std is not None:
+        flat = altitude_unmeasured(P, init_z_std)
+        if flat.any():
+            enu = enu.copy()
+            enu[flat, 2] = level_z(frame, X[flat][:, [0, 2]])
+    return geodetic_from_enu(frame, enu)
 
 
-def geodetic_line(line: str, frame: Frame) -> str:
+def geodetic_line(line: str, frame: Frame, init_z_std: float | None = None) -> str:
     """A tracks-file line (``{"t", "tracks"}``) with :func:`add_geodetic`'s fields in each track."""
     obj = orjson.loads(line)
-    obj["tracks"] = add_geodetic(frame, obj["tracks"])
+    obj["tracks"] = add_geodetic(frame, obj["tracks"], init_z_std)
     return orjson.dumps(obj).decode()

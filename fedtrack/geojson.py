@@ -7,7 +7,8 @@ sensor site of ``[frame.sites]`` and one for the frame's origin. A track that ap
 picture only is a ``Point``. Positions come from the rows' ``lat``, ``lon``, ``alt`` when they carry
 them (replay with a ``[frame]``, ``simulate traffic``'s truth), else from ``x`` in the config's frame.
 Longitudes are in [-180, 180); a line that crosses the antimeridian is cut there into a
-``MultiLineString`` (RFC 7946 section 3.1.9), its parts ending and starting at 180 and -180.
+``MultiLineString`` (RFC 7946 section 3.1.9), its parts ending and starting at 180 and -180. A track line
+some of whose rows are marked ``"alt_measured": false`` has ``properties.alt_measured``, a boolean per position.
 """
 
 from __future__ import annotations
@@ -53,10 +54,11 @@ def _paths(path: Path, key: str, frame: Frame, confirmed_only: bool) -> dict[Any
             if confirmed_only and isinstance(row, dict) and row.get("status", "confirmed") != "confirmed":
                 continue
             r = _placed(row, frame, f"{where}: {key}[{i}]")
-            item = out.setdefault(r["id"], {"coords": [], "times": [], "props": {}})
+            item = out.setdefault(r["id"], {"coords": [], "times": [], "props": {}, "measured": []})
             point = [float(wrap_lon(r["lon"])), r["lat"]] + ([r["alt"]] if "alt" in r else [])
             item["coords"].append(point)
             item["times"].append(float(obj["t"]))
+            item["measured"].append(r.get("alt_measured", True) is not False)
             for extra in ("icao24", "sensors"):
                 if extra in r:
                     item["props"][extra] = r[extra]
@@ -97,8 +99,10 @@ def feature_collection(frame_cfg: FrameConfig, tracks: Path | None, truth: Path 
         if path is None:
             continue
         for tid, item in _paths(path, key, frame, kind == "track").items():
+            # a line with altitudes nobody measured says which, position by position (docs/geodetic.md)
+            measured = {} if all(item["measured"]) else {"alt_measured": item["measured"]}
             features.append({"type": "Feature", "geometry": _geometry(item["coords"]),
-                             "properties": {"kind": kind, "id": tid, "times": item["times"], **item["props"]}})
+                             "properties": {"kind": kind, "id": tid, "times": item["times"], **item["props"], **measured}})
     points = [({"kind": "sensor", "id": sid}, where) for sid, where in frame_cfg.sites.items()]
     for props, (lat, lon, h) in points + [({"kind": "origin"}, frame)]:
         features.append({"type": "Feature", "geometry": {"type": "Point", "coordinates": [float(wrap_lon(lon)), lat, h]},

@@ -27,6 +27,7 @@ import numpy as np
 from fedtrack.config import seed_number, to_toml
 from fedtrack.geodetic import Frame, geodetic_error, wrap_lon
 from fedtrack.jsonl import InputError, check_output_folder, output_file
+from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.sensors.multitarget import (
     DT,
     MAX_CLUTTER,
@@ -87,23 +88,26 @@ sensors (--sensors, comma-separated KIND:PERIOD[/SIGMA...][@LAT/LON/H]):
                  accuracy from --nacp; no clutter"""
 
 
-def derived_tracker(truth: Truth, specs: list[SensorSpec]) -> dict[str, float | str]:
+def derived_tracker(truth: Truth, specs: list[SensorSpec], frame: Frame) -> dict[str, float | str]:
     """The tracker keys derived from the recording, the sensors and civil air-traffic kinematics
     (docs/geodetic.md): two motion modes, straight and maneuvering, the maneuvering one's ``q`` letting
     the velocity change by ``MANEUVER_ACCELERATION`` times the longest sensor period over that period
     (of the sensors that scan again within the window: a slower one scans once, never late;
-    :func:`~fedtrack.sensors.multitarget.longest_revisit`)."""
+    :func:`~fedtrack.sensors.multitarget.longest_revisit`); ``init_z_std`` half the largest height of an
+    aircraft above or below the origin's, where a 2-D start is centred (:func:`~fedtrack.geodetic.level_z`)."""
     v = truth.x[..., [1, 3]]
     # at least one step of the grid: a window of one row (a --duration below DT, or a --start within DT of
     # the recording's end) gave q 0, which replay refuses in the config it wrote
     duration = max(truth.alive.shape[0] - 1, 1) * DT
     longest = longest_revisit(specs, duration)
     speed = np.linalg.norm(v, axis=-1)[truth.alive]
-    alt = truth.x[..., 4][truth.alive]
+    # heights above the ellipsoid, not the common frame's z: that holds the Earth's curvature too (d^2 / 2R, 14.2 km
+    # for the Paris extract about an origin 555 km south against 4.2 km about it; docs/geodetic.md)
+    alt = truth_geodetic(frame, truth, truth.x[truth.alive])[:, 2] - frame.h
     return {"process_noise": "imm", "q": round(MANEUVER_ACCELERATION**2 * longest, 3), "maneuver_s": MANEUVER_S,
             "straight_s": STRAIGHT_S,
             "init_velocity_std": round(float(speed.max()) / 2 if speed.size else 30.0, 1),
-            "init_z_std": round(max(float(np.abs(alt).max()) / 2 if alt.size else 1000.0, 1000.0), 1),
+            "init_z_std": round(max(float(np.abs(alt).max()) / 2 if alt.size else 0.0, MttConfig.init_z_std), 1),
             "max_lag": round(2 * longest + 1.0, 3),
             "central_timeout": round(max(5.0, 2 * longest + 1.0), 3)}
 
@@ -151,7 +155,7 @@ def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, star
                         "alt": round(float(g[2]), 3)}
                        for i, g in zip(live, lla)]
             fh.write(json.dumps({"t": float(second), "targets": targets}) + "\n")
-    derived = derived_tracker(truth, specs)
+    derived = derived_tracker(truth, specs, frame)
     mtt: dict[str, Any] = {**derived, "pd": pd, "clutter_density": position_clutter_density(sc), "period": 1.0,
                            "sensors": [s.id for s in specs]}
     # every sensor its own density: a radar's per m rad^2, a position sensor's per m^2; an ADS-B receiver's

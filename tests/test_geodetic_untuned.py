@@ -19,6 +19,7 @@ from fedtrack.geodetic import (
     WGS84_E2,
     Frame,
     above_radio_horizon,
+    add_geodetic,
     common_from_local_vectors,
     enu_from_geodetic,
     enu_from_own,
@@ -377,6 +378,47 @@ def test_a_track_without_an_altitude_yet_is_placed_at_the_ground_far_from_the_or
     assert len(off) > 100
     assert max(off) < 100.0 + 5 * 10.0 * np.sqrt(2), max(off)  # 1.2 km x 550 km / R, the plots' 10 m at 5 sigma
     assert max(np.abs(up)) < 2 * 1200.0, max(np.abs(up))  # the prior's centre: the ground (origin h = 0)
+
+
+def test_an_altitude_nobody_measured_is_marked_and_shown_at_the_origins_height(tmp_path: Path) -> None:
+    """The far start above, 550 km from the origin, its altitude never measured: every confirmed track's row is
+    marked ``"alt_measured": false`` and its ``alt`` is the origin's height (the prior's centre, 0 m), not its
+    extrapolated state; a descent extrapolated for minutes after the radar lost the aircraft (the Paris extract
+    about an origin 170 km from its radar: z -2,278 m, sigma 8.4 km) is placed there too, while a measured altitude
+    is the state's. Before 2026-11-28 the rows carried no mark and showed the state's z, 2.3 km underground."""
+    source = _csv(tmp_path / "far.csv", _flights(53.9, 2.5, n=3, seconds=120, alt=(1000.0, 1200.0), seed=4))
+    out = tmp_path / "far"
+    assert _simulate(source, "49.0,2.5", out, "radar:4@49.0/2.5/0,pos:2/10", "--box", "1300") == 0
+    rows = [r for line in _replay(out, "mtt-centralized").read_text().splitlines()
+            for r in json.loads(line)["tracks"] if r["status"] == "confirmed"]
+    assert len(rows) > 100 and all(r["alt_measured"] is False and abs(r["alt"]) < 0.01 for r in rows)
+    geo = out / "t.geojson"
+    assert main(["export", "--geojson", str(geo), "--config", str(out / "config.toml"), "--tracks",
+                 str(out / "mtt-centralized.jsonl")]) == 0
+    lines = [f for f in json.loads(geo.read_text())["features"] if f["properties"]["kind"] == "track"]
+    assert lines and all(f["properties"]["alt_measured"] == [False] * len(f["properties"]["times"]) for f in lines)
+    frame = Frame(49.0, 2.5, 35.0)
+    P = np.diag([100.0, 1.0, 100.0, 1.0, 8434.0**2, 39.5**2])
+    stale = {"x": [30e3, 50.0, 20e3, 60.0, -2278.0, -13.4], "P": P.tolist()}
+    fresh = {"x": [30e3, 50.0, 20e3, 60.0, 600.0, -13.4], "P": np.diag([100.0, 1.0, 100.0, 1.0, 60.0**2, 4.0]).tolist()}
+    placed = add_geodetic(frame, [stale, fresh], init_z_std=3812.5)
+    assert placed[0]["alt_measured"] is False and abs(placed[0]["alt"] - 35.0) < 0.01
+    assert "alt_measured" not in placed[1]
+    assert placed[1]["alt"] == add_geodetic(frame, [fresh])[0]["alt"] and placed[1]["alt"] > 500.0
+
+
+def test_init_z_std_is_the_aircrafts_height_not_the_origins_distance(tmp_path: Path) -> None:
+    """``init_z_std`` is half the aircraft's largest height above or below the origin's (where a 2-D start is
+    centred): the same about an origin 550 km away as about one among them. Before 2026-11-28 it was half the
+    truth's largest |z| in the common frame, which holds the Earth's curvature (d^2 / 2R, 24 km at 550 km): 10.4 km
+    far against 1.7 km near."""
+    source = _csv(tmp_path / "h.csv", _flights(53.9, 2.5, n=3, seconds=60, alt=(3000.0, 3400.0), seed=4))
+    got = []
+    for name, origin, box in (("far", "49.0,2.5", "1300"), ("near", "53.9,2.5", "150")):
+        assert _simulate(source, origin, tmp_path / name, "radar:4@53.5/2.5/0,pos:2/10", "--box", box) == 0
+        got.append(tomllib.loads((tmp_path / name / "config.toml").read_text())["mtt"]["init_z_std"])
+    high = max(r[4] for r in _flights(53.9, 2.5, n=3, seconds=60, alt=(3000.0, 3400.0), seed=4))
+    assert got[0] == got[1] == pytest.approx(high / 2, abs=0.1), got
 
 
 def test_the_radar_site_check_takes_the_truths_highest_altitude_not_a_glitch(

@@ -12,6 +12,7 @@ import pytest
 from fedtrack.cli import main as cli
 from fedtrack.config import load_tables
 from fedtrack.fusion_center.mtt.evaluation import evaluate, id_changes, nees_line, set_distance
+from fedtrack.jsonl import InputError
 from fedtrack.local_filters.mtt.config import MttSettings
 
 
@@ -50,6 +51,30 @@ def test_evaluate_counts_a_swap_and_nees(tmp_path: Path) -> None:
     assert res["mean"]["gospa"] == 0.0 and res["position_rmse"] == 0.0
     assert [(r["part"], r["dof"], r["pairs"], r["mean"]) for r in res["nees"]] == [("state", 4, 12, 0.0),
                                                                                   ("position", 2, 12, 0.0)]
+
+
+def test_evaluate_scores_an_altitude_nobody_measured_on_x_y(tmp_path: Path) -> None:
+    """A track marked ``"alt_measured": false`` (its altitude more the prior's than measured: replay on the Earth
+    marks it, docs/geodetic.md) is scored on x, y in the 3-D GOSPA and the RMSE and left out of the altitude
+    error; a measured one 3 km off is scored in 3-D (missed and false at c = 100 m). Before 2026-11-28 both were
+    missed and false, the unmeasured altitude (the prior's centre) scored as if a sensor had said it."""
+    P = np.eye(6).tolist()
+    truth = [{"t": float(k), "targets": [{"id": 0, "x": [0.0, 1.0, 0.0, 0.0, 3000.0, 0.0]},
+                                         {"id": 1, "x": [5000.0, 1.0, 0.0, 0.0, 3000.0, 0.0]}]} for k in range(4)]
+    tracks = [{"t": float(k), "tracks": [
+        {"id": 5, "x": [3.0, 1.0, 4.0, 0.0, 0.0, 0.0], "P": P, "status": "confirmed", "alt_measured": False},
+        {"id": 6, "x": [5000.0, 1.0, 0.0, 0.0, 0.0, 0.0], "P": P, "status": "confirmed"}]} for k in range(4)]
+    (tmp_path / "u.jsonl").write_text("".join(json.dumps(r) + "\n" for r in truth))
+    (tmp_path / "t.jsonl").write_text("".join(json.dumps(r) + "\n" for r in tracks))
+    res = evaluate(tmp_path / "t.jsonl", tmp_path / "u.jsonl")
+    assert res["mean"]["localisation"] == pytest.approx(25.0)  # 3-4-5 on x, y: the unmeasured z left out
+    assert res["mean"]["missed"] == res["mean"]["false"] == pytest.approx(100.0**2 / 2)  # the measured one, 3 km off
+    assert res["position_rmse"] == pytest.approx(5.0) and res["altitude_rmse"] is None
+    assert res["altitude_unmeasured_pairs"] == 4
+    tracks[2]["tracks"][0]["alt_measured"] = "no"
+    (tmp_path / "t.jsonl").write_text("".join(json.dumps(r) + "\n" for r in tracks))
+    with pytest.raises(InputError, match=r"t.jsonl:3: tracks\[0\].alt_measured must be true or false"):
+        evaluate(tmp_path / "t.jsonl", tmp_path / "u.jsonl")
 
 
 def test_evaluate_shows_its_progress_over_the_pictures(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,

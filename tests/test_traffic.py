@@ -14,7 +14,7 @@ from matplotlib.figure import Figure
 
 from fedtrack.cli import main
 from fedtrack.fusion_center.mtt.replay import replay_mtt
-from fedtrack.geodetic import Frame, aer_from_enu, enu_from_geodetic, geodetic_from_enu, site_from_geodetic
+from fedtrack.geodetic import Frame, aer_from_enu, enu_from_geodetic, geodetic_from_enu, level_z, site_from_geodetic
 from fedtrack.jsonl import InputError
 from fedtrack.local_filters.radar.measurement import cartesian_from_polar, polar_from_cartesian, wrap_angle
 from fedtrack.sensors.multitarget import DT, Scenario, SensorSpec, sensor_lines
@@ -395,6 +395,9 @@ def test_tracks_on_the_earth_geojson_and_map(tmp_path: Path, capsys: pytest.Capt
     rows = [r for p in pictures for r in p["tracks"]]
     assert rows and all({"lat", "lon", "alt"} <= set(r) for r in rows)
     enu = np.array([np.asarray(r["x"])[[0, 2, 4]] for r in rows])
+    flat = np.array([r.get("alt_measured", True) is False for r in rows])  # an altitude not measured: the origin's h
+    assert flat.any() and all(r["alt_measured"] is False for r in rows if "alt_measured" in r)
+    enu[flat, 2] = level_z(Frame(46.9, 8.2), enu[flat, :2])
     lla = geodetic_from_enu(Frame(46.9, 8.2), enu)  # written to 1e-9 deg and 1e-4 m
     np.testing.assert_allclose([[r["lat"], r["lon"]] for r in rows], lla[:, :2], atol=1e-9)
     np.testing.assert_allclose([r["alt"] for r in rows], lla[:, 2], atol=1e-4)
@@ -560,8 +563,9 @@ def test_a_sensor_slower_than_the_window_does_not_set_the_tracker_keys() -> None
 
     truth = _cv_truth(3, 100.0, np.random.default_rng(1))
     radars = [SensorSpec("r1", "radar", 4.0), SensorSpec("r2", "radar", 5.0)]
-    assert derived_tracker(truth, [*radars, SensorSpec("s3", "pos", 1000.0)]) == derived_tracker(truth, radars)
-    once = derived_tracker(truth, [SensorSpec("s1", "pos", 1000.0)])  # no sensor scans twice: the window
+    assert derived_tracker(truth, [*radars, SensorSpec("s3", "pos", 1000.0)], PARIS) == derived_tracker(
+        truth, radars, PARIS)
+    once = derived_tracker(truth, [SensorSpec("s1", "pos", 1000.0)], PARIS)  # no sensor scans twice: the window
     assert once["max_lag"] == 2 * 100.0 + 1.0
 
 

@@ -153,7 +153,7 @@ class PictureMergeService(Service):
 
     def __init__(self, regions: Regions, dim: int, wait_s: float, period: float, frame: Frame | None = None,
                  window: int | None = None, snapshot: Path | None = None, gate: float | None = None,
-                 **kwargs: Any) -> None:
+                 init_z_std: float | None = None, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.regions, self.dim, self.wait_s, self.period = regions, dim, wait_s, period
         # two regions' tracks under one id are one track's copies within it ([mtt] association_gate_probability)
@@ -168,6 +168,7 @@ class PictureMergeService(Service):
         self.snapshot = snapshot  # where the time of the last picture published is kept (--snapshot)
         self.resumed_t: float | None = None  # the last time merged before this start (read from the snapshot)
         self.frame = frame  # [frame]: each merged track's WGS-84 position too
+        self.init_z_std = init_z_std  # [mtt]'s: an altitude not measured is placed at the origin's height (geodetic)
         R = len(regions.ids)
         self.pending: list[deque[TrackPicture]] = [deque() for _ in range(R)]
         self.started = [False] * R  # the region published a picture
@@ -455,7 +456,8 @@ class PictureMergeService(Service):
             self.merged_t) + 1
         self.publish(self.keys.mtt_picture(), picture_message(
             number, T, tracks, order, left, contested, closing, handovers, tuple(e[3] for e in entries),
-            lla=None if self.frame is None else geodetic_of_states(self.frame, tracks.x), restarted=restarted,
+            lla=None if self.frame is None else geodetic_of_states(self.frame, tracks.x, tracks.P, self.init_z_std),
+            restarted=restarted,
             missing=missing, began=began))
         self.seq += 1
         self.counters["pictures"] = self.seq
@@ -507,7 +509,7 @@ def service_from_args(argv: list[str]) -> PictureMergeService:
     frame = load_frame(Path(args.config))
     return PictureMergeService(regions, args.dim, args.wait, period, None if frame is None else frame.frame,
                                picture_window(period, settings.deployment.speed), args.snapshot,
-                               settings.mtt.thresholds.association[args.dim], **kwargs)
+                               settings.mtt.thresholds.association[args.dim], settings.mtt.init_z_std, **kwargs)
 
 
 def main(argv: list[str]) -> int:

@@ -316,7 +316,7 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
             bar.update()
             start = time.perf_counter()
             line = tracks.line(T, head)
-            fh.write((line if frame is None else geodetic_line(line, frame.frame)) + "\n")
+            fh.write((line if frame is None else geodetic_line(line, frame.frame, cfg.init_z_std)) + "\n")
             engine.took("writing", start)
             n += 1
             detector = detector or tracks.maneuver is not None

@@ -577,7 +577,8 @@ class MttCentreService(CentreFailover, Service):
             self.began = None
         picture = picture_message(seq, T, tracks, order, left, self.contested, closing, handovers, flying=flying,
                                   restarted=restarted, began=began,
-                                  lla=None if self.frame is None else geodetic_of_states(self.frame, tracks.x))
+                                  lla=None if self.frame is None else geodetic_of_states(self.frame, tracks.x, tracks.P,
+                                                                                         self.cfg.init_z_std))
         self.pictures += 1
         self.order, self.left_at, self.contested, self.handovers_at = [], [], False, []
         self.restarted_at = []

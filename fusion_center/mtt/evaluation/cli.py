@@ -88,6 +88,9 @@ def main(argv: list[str]) -> int:
     if result["altitude_rmse"] is not None:
         print(f"altitude error over the assigned pairs: RMSE {result['altitude_rmse']:.2f} m, mean "
               f"{result['altitude_bias']:+.2f} m (track - truth)")
+    if result["altitude_unmeasured_pairs"]:
+        print(f"altitude not measured (alt_measured false): {result['altitude_unmeasured_pairs']} assigned pairs "
+              "scored on x, y only, left out of the altitude error")
     if result["registration"]:
         print("by supporting sensors: track pictures assigned and false; registration (track - truth = offset + "
               "time offset x velocity + rotation about the origin, least squares over the assigned pairs; "

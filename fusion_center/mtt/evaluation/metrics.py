@@ -22,14 +22,19 @@ class SetDistance(NamedTuple):
     pairs: list[tuple[int, int]]  # (truth index, track index) with d < c
 
 
-def set_distance(truth: np.ndarray, tracks: np.ndarray, c: float, p: float) -> SetDistance:
-    """GOSPA (alpha = 2) and OSPA between position sets ``truth`` (n, k) and ``tracks`` (m, k)."""
+def set_distance(truth: np.ndarray, tracks: np.ndarray, c: float, p: float, flat: np.ndarray | None = None
+                 ) -> SetDistance:
+    """GOSPA (alpha = 2) and OSPA between position sets ``truth`` (n, k) and ``tracks`` (m, k); ``flat`` (m,):
+    the tracks whose distances are taken on x, y only (an altitude not measured)."""
     n, m = len(truth), len(tracks)
     half = c**p / 2.0
     if n == 0 or m == 0:
         gospa_p = half * (n + m)
         return SetDistance(gospa_p ** (1 / p), 0.0, half * n, half * m, 0.0 if n == m else c, [])
-    d = np.linalg.norm(truth[:, None, :] - tracks[None, :, :], axis=-1)
+    diff = truth[:, None, :] - tracks[None, :, :]
+    if flat is not None and flat.any():
+        diff[:, flat, 2:] = 0.0
+    d = np.linalg.norm(diff, axis=-1)
     cost = np.minimum(d, c) ** p
     ri, ci = linear_sum_assignment(cost)
     close = d[ri, ci] < c

@@ -40,6 +40,9 @@ def _load(path: Path, key: str) -> list[tuple[float, list[dict[str, Any]]]]:
                                              for r in P)):
                 raise InputError(f"{where}: {key}[{j}].P must be a {len(x)}x{len(x)} matrix of finite numbers, "
                                  "like x")
+            if not isinstance(item.get("alt_measured", True), bool):
+                raise InputError(f"{where}: {key}[{j}].alt_measured must be true or false, got "
+                                 f"{item['alt_measured']!r}")
         out.append((float(obj["t"]), obj[key]))
     return out
 
@@ -79,6 +82,7 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
     covariances: list[np.ndarray] = []
     motions: list[str | None] = []
     alt_err: list[float] = []
+    unmeasured_pairs = 0  # assigned pairs whose track's altitude is not measured (scored on x, y)
     by_sensors: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}  # a track's sensors -> (truth, track) states
     unassigned: dict[str, int] = {}  # a track's sensors -> its pictures assigned to no truth (false)
     skipped = 0
@@ -97,7 +101,8 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
                 was_flagged[tr["id"]] = now
             X, Y = _stack([g["x"] for g in targets]), _stack([tr["x"] for tr in shown])
             k = 2 if horizontal else min(X.shape[1], Y.shape[1])
-            dist = set_distance(X[:, :k], Y[:, :k], c, p)
+            flat = np.array([tr.get("alt_measured", True) is False for tr in shown], bool)
+            dist = set_distance(X[:, :k], Y[:, :k], c, p, flat if k == 3 else None)
             series.append({"t": t, "gospa": dist.gospa, "localisation": dist.localisation, "missed": dist.missed,
                            "false": dist.false, "ospa": dist.ospa, "truths": len(X), "tracks": len(Y)})
             assigned = dict(dist.pairs)
@@ -109,8 +114,10 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
                 sequences.setdefault(g["id"], []).append(None if j is None else shown[j]["id"])
                 if j is None:
                     continue
-                sq_err.append(float(np.sum((X[i, :k] - Y[j, :k]) ** 2)))
-                if X.shape[1] > 2 and Y.shape[1] > 2:
+                kj = 2 if flat[j] else k
+                sq_err.append(float(np.sum((X[i, :kj] - Y[j, :kj]) ** 2)))
+                unmeasured_pairs += bool(flat[j])
+                if X.shape[1] > 2 and Y.shape[1] > 2 and not flat[j]:
                     alt_err.append(float(Y[j, 2] - X[i, 2]))
                 kind = motion.get((round(t, 6), g["id"]))
                 if kind in flags:
@@ -147,6 +154,7 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
         "position_rmse": math.sqrt(float(np.mean(sq_err))) if sq_err else None, "horizontal": horizontal,
         "altitude_rmse": math.sqrt(float(np.mean(np.square(alt_err)))) if alt_err else None,
         "altitude_bias": float(np.mean(alt_err)) if alt_err else None,
+        "altitude_unmeasured_pairs": unmeasured_pairs,
         "nees": nees_parts(errors, covariances, motions),
         "registration": registration(by_sensors, unassigned),
         "maneuvers": {"detector": detector, "applicable": applicable, "onsets": onsets if applicable else None,
