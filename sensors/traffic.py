@@ -106,7 +106,10 @@ def derived_tracker(truth: Truth, specs: list[SensorSpec], frame: Frame) -> dict
     alt = truth_geodetic(frame, truth, truth.x[truth.alive])[:, 2] - frame.h
     return {"process_noise": "imm", "q": round(MANEUVER_ACCELERATION**2 * longest, 3), "maneuver_s": MANEUVER_S,
             "straight_s": STRAIGHT_S,
-            "init_velocity_std": round(float(speed.max()) / 2 if speed.size else 30.0, 1),
+            # at least the tracker's own default, as init_z_std: a window of aircraft standing still (a parked one not
+            # flagged on the ground) wrote 0.0, which replay refused in the config this wrote
+            "init_velocity_std": round(max(float(speed.max()) / 2 if speed.size else 0.0, MttConfig.init_velocity_std),
+                                       1),
             "init_z_std": round(max(float(np.abs(alt).max()) / 2 if alt.size else 0.0, MttConfig.init_z_std), 1),
             "max_lag": round(2 * longest + 1.0, 3),
             "central_timeout": round(max(5.0, 2 * longest + 1.0), 3)}

@@ -421,6 +421,18 @@ def test_init_z_std_is_the_aircrafts_height_not_the_origins_distance(tmp_path: P
     assert got[0] == got[1] == pytest.approx(high / 2, abs=0.1), got
 
 
+def test_a_window_of_aircraft_standing_still_writes_a_config_that_replays(tmp_path: Path) -> None:
+    """An aircraft parked at 0 m, not flagged on the ground, its position creeping by 1 cm/s (``traffic``'s
+    ``featured/switzerland_map`` at Geneva): ``init_velocity_std``, half the fastest truth speed, was written as 0.0
+    and ``replay`` refused the config ``simulate traffic`` had written ("mtt.init_velocity_std: must be > 0"). Now it
+    is at least the tracker's own default, as ``init_z_std`` is."""
+    rows = [[1.7e9 + t, "4b088c", round(46.233 + 1e-7 * t, 8), 6.0978, 0.0] for t in range(120)]
+    out = tmp_path / "parked"
+    assert _simulate(_csv(tmp_path / "p.csv", rows), "46.233,6.0978", out, "radar:4@46.233/6.0978/50,pos:2") == 0
+    assert tomllib.loads((out / "config.toml").read_text())["mtt"]["init_velocity_std"] == 30.0
+    _replay(out, "mtt-centralized")
+
+
 def test_the_radar_site_check_takes_the_truths_highest_altitude_not_a_glitch(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """A site 296 km from the box of aircraft at 3 km is beyond their radio horizon (226 km, the site at 0 m) and
