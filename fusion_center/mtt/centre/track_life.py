@@ -180,11 +180,12 @@ class CentreLife:
         if self.n_live >= DENIAL_LIVE and self.sensor_names[col] not in self.excluded and confirmed.size:
             support = self._fused_support(confirmed)
             alone = ((np.count_nonzero(support, axis=1) == 1) & ~support[:, col] & ~hit[confirmed]).nonzero()[0]
-            X, P = self.tracks.states_at(confirmed[alone], report.t)
-            sees = self._view(X, P, report)[0] & surely_above(self.sites.get(report.sensor), X, P)
-            sees[sees] = ~self._duplicate_beside(confirmed[alone[sees]], support[alone[sees]], report)
-            seen = alone[sees]
-            misses[seen] = np.minimum(denied[confirmed[seen], col], np.iinfo(np.int8).max - 1) + 1
+            if alone.size:  # (most reports of an honest scene have none: no predictions made)
+                X, P = self.tracks.states_at(confirmed[alone], report.t)
+                sees = self._view(X, P, report)[0] & surely_above(self.sites.get(report.sensor), X, P)
+                sees[sees] = ~self._duplicate_beside(confirmed[alone[sees]], support[alone[sees]], report)
+                seen = alone[sees]
+                misses[seen] = np.minimum(denied[confirmed[seen], col], np.iinfo(np.int8).max - 1) + 1
         denied[confirmed, col] = misses
         asked = confirmed[misses > 0]
         if not asked.size:
