@@ -589,6 +589,18 @@ def test_a_region_picture_numbered_off_the_grid_cannot_number_the_merged_picture
     assert all(decode(encode(p), TrackPicture) for p in merged)
 
 
+def merged_after_a_first_picture(tmp_path: Path,
+                                  forged: TrackPicture) -> tuple[PictureMergeService, list[tuple[float, Any, bool]]]:
+    """``serve picture`` of two regions given ``forged`` on x1y0's key first, then 4 genuine pictures of each
+    region: the merger and its merged pictures' (t, ids, contested)."""
+    svc, bus, (a, b) = picture_merger(tmp_path)
+    bus.put(b, encode(forged))
+    for k in range(4):
+        bus.put(a, encode(region_picture(float(k), (0, 2))))
+        bus.put(b, encode(region_picture(float(k), (1, 3))))
+    return svc, [(p.t, p.ids, p.contested) for p in bus.of(TrackPicture)]
+
+
 def test_a_first_region_picture_stamped_far_ahead_cannot_shut_its_region_out(tmp_path: Path) -> None:
     """The lead guard holds a region picture stamped far ahead of the data, but took the first picture of all
     as it came (nothing to lead yet; and no region's interval known): x1y0's identity sending first a picture
@@ -597,14 +609,20 @@ def test_a_first_region_picture_stamped_far_ahead_cannot_shut_its_region_out(tmp
     contested). The first pictures now wait until two regions have sent one (or ``--wait``) and go through
     the guard in time order, each region's interval its period from the start: the far one is held, dropped
     when x1y0's genuine picture comes (``time_lead``), and the merged pictures are the clean run's."""
-    svc, bus, (a, b) = picture_merger(tmp_path)
-    bus.put(b, encode(replace(region_picture(1e9, (1, 3)), seq=10**9)))
-    for k in range(4):
-        bus.put(a, encode(region_picture(float(k), (0, 2))))
-        bus.put(b, encode(region_picture(float(k), (1, 3))))
-    merged = [(p.t, p.ids, p.contested) for p in bus.of(TrackPicture)]
+    svc, merged = merged_after_a_first_picture(tmp_path, replace(region_picture(1e9, (1, 3)), seq=10**9))
     assert merged == [(float(k), (0, 1, 2, 3), False) for k in range(4)]
     assert svc.counters["rejected"] == svc.counters["rejected_time_lead"] == 1
+
+
+def test_a_first_region_picture_stamped_far_behind_is_not_merged(tmp_path: Path) -> None:
+    """The lead guard took the first picture of all as it came: x1y0's identity sending, before any other, a
+    picture at t = -10^12 had it merged alone as a picture of that time (x0y0 taken for a region that
+    started later; uncounted, not contested), then the clean run's (before the redteam60 session). The first
+    pictures now wait until two agree within ``max_time_jump_s`` (lead.py, the start): it is dropped and
+    counted (``time_behind``) and the merged pictures are the clean run's."""
+    svc, merged = merged_after_a_first_picture(tmp_path, replace(region_picture(0.0, (1, 3)), t=-1e12))
+    assert merged == [(float(k), (0, 1, 2, 3), False) for k in range(4)]
+    assert svc.counters["rejected"] == svc.counters["rejected_time_behind"] == 1
 
 
 def test_a_forged_token_cannot_silence_a_centre_that_answers_nothing() -> None:

@@ -142,10 +142,12 @@ def test_a_lone_sensor_witnesses_itself_only_with_a_later_scan() -> None:
     assert guard.admit("s1", 700.0, "i") == [] and guard.admit("s1", 701.0, "j") == ["i", "j"]
 
 
-def admitted(guard: LeadGuard[tuple[str, float]], scans: list[tuple[str, float]]) -> list[tuple[str, float]]:
-    """The ``(sensor, t)`` scans in time order through ``guard``: those it took, in the order it took them."""
+def admitted(guard: LeadGuard[tuple[str, float]], scans: list[tuple[str, float]],
+             arrival: bool = False) -> list[tuple[str, float]]:
+    """The ``(sensor, t)`` scans in time order (or as listed: ``arrival``) through ``guard``: those it took, in
+    the order it took them."""
     taken = []
-    for sensor, t in sorted(scans, key=lambda item: item[1]):
+    for sensor, t in scans if arrival else sorted(scans, key=lambda item: item[1]):
         for got in guard.admit(sensor, t, (sensor, t)):
             guard.took(*got)
             taken.append(got)
@@ -299,6 +301,18 @@ def test_a_first_scan_far_before_the_data_costs_the_centre_a_bounded_number_of_p
     made = [p.t for p in bus.of(TrackPicture)]
     assert made[0] >= -60.0 - cfg.period and made[-1] >= 10.0 and len(made) <= 60 / cfg.period + 14
     assert centre.counters["skipped_pictures"] > 1900 and centre.engine.counters()["late"] == 0
+
+
+def test_honest_first_scans_are_taken_as_they_came() -> None:
+    """The start rule holds the first scan until a second agrees with it, then gives both in arrival order
+    (a late one first too): what the guard without it took, in the same order."""
+    for order in ([("a", 0.0), ("b", 0.4), ("c", 0.2), ("a", 1.0)], [("a", 0.7), ("a", 0.0), ("b", 0.5)]):
+        plain: LeadGuard[tuple[str, float]] = LeadGuard(max_lag=3.0, corroborate=True)
+        started: LeadGuard[tuple[str, float]] = LeadGuard(max_lag=3.0, corroborate=True, start_gap=3600.0)
+        assert admitted(started, order, True) == admitted(plain, order, True) == order
+    guard: LeadGuard[tuple[str, float]] = LeadGuard(max_lag=3.0, start_gap=3600.0)
+    assert admitted(guard, [("a", -1e12), ("a", 1e9), ("b", 0.3), ("a", 0.5)], True) == [("b", 0.3), ("a", 0.5)]
+    assert guard.behind == guard.dropped == 1
 
 
 def test_a_time_whose_picture_number_leaves_the_wire_is_refused(tmp_path: Path) -> None:

@@ -181,10 +181,14 @@ class Dispatch:
         being stamped (or numbered: :class:`NumberedLeadGuard`) far ahead of the data
         (:class:`LeadGuard`); the held messages it contradicts are counted ``rejected_time_lead``. The
         handler calls ``guard.took`` for each one it takes."""
-        dropped = guard.dropped
+        dropped, behind = guard.dropped, guard.behind
         size = sum(getattr(msg, f.name).nbytes for f in fields(msg) if isinstance(getattr(msg, f.name), np.ndarray))
         released = guard.admit(msg.sensor if source is None else source, msg.t, msg if item is None else item, size)
         self.note_leads(key, guard.dropped - dropped)
+        for _ in range(guard.behind - behind):
+            self.note_rejected(key, Rejected("time_behind", "a first scan stamped more than max_time_jump_s before "
+                                                            "the start two scans agreed on (a forged or broken "
+                                                            "clock): not fused"))
         return released
 
     def note_leads(self, key: str, n: int) -> None:

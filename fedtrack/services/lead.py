@@ -52,6 +52,19 @@ delays and max_lag"), so when a scan at ``t`` arrives every other sensor has one
 ``t - max_lag - usual(o)`` (its scans one interval apart, each within ``max_lag``): honest data
 never waits. One liar among three or more sensors is outvoted; of two, nothing tells the racing
 clock from the lagging one, and the rule is off.
+
+**The start** (``start_gap``: ``serve picture``, ``[deployment] max_time_jump_s``). The rules above lead from
+the newest time taken, so the first message of all is taken as it comes: a region's first picture stamped t =
+-10^12 s, sent before any other, was merged alone as a picture of that time (before the redteam60 session).
+With ``start_gap``, the first messages are held until one arrives within ``start_gap`` of a held one (another
+sensor's, or another time of its own sensor: a repeat is no witness): the data's start is where two agree.
+Those within ``start_gap`` of it are taken, in arrival order (as they came without the rule), and it after
+them; those more than ``start_gap`` before it are dropped, counted in ``behind``; those after it in
+``dropped``. ``start_gap`` is the deployment's bound on a plausible gap between two scans
+(``max_time_jump_s``, 3,600 s: a tracker predicts over no longer), so honest data agrees at its second
+message. One message cannot set the start; two of one identity that agree with each other, sent before any
+honest one, still can (and a lone region's, at ``serve picture``). Not used by the scan trackers
+(docs/multitarget.md, "Scans stamped far ahead": measured and left).
 """
 
 from __future__ import annotations
@@ -106,6 +119,9 @@ class LeadGuard(Generic[T]):
     dropped: int = 0  # held scans never witnessed (or beyond HELD_MAX): not taken
     corroborate: bool = False  # scans wait for another sensor's data near their time (module docstring)
     waiting: list[tuple[str, float, T, int]] = field(default_factory=list)  # not corroborated yet, arrival order
+    start_gap: float | None = None  # the first scans wait until two agree within it (module docstring); None: not
+    first: tuple[tuple[str, float, T, int], ...] = ()  # the scans held before the start, arrival order
+    behind: int = 0  # first scans dropped as more than start_gap before the start
 
     def bound(self, sensor: str) -> float:
         """How far after the newest time a scan of ``sensor`` may be and still be taken at once."""
@@ -125,8 +141,9 @@ class LeadGuard(Generic[T]):
         witnessed held items and ``item`` when it is a witness; with ``corroborate``, of those and
         the waiting ones, the corroborated, in time order. The caller reports each item it took
         with :meth:`took`."""
-        given = self._witnessed(sensor, t, item, size)
-        if not self.corroborate:
+        started = self.start_gap is None or self.newest is not None
+        given = self._witnessed(sensor, t, item, size) if started else self._start(sensor, t, item, size)
+        if not self.corroborate or not started:  # the start's scans in arrival order, as they came before it
             return [g[2] for g in given]
         pool = self.waiting + given
         reached = {o: self.last[o] for o in self.live}
@@ -163,6 +180,21 @@ class LeadGuard(Generic[T]):
         self.held.clear()
         return [*taken, arrived]
 
+    def _start(self, sensor: str, t: float, item: T, size: int) -> list[tuple[str, float, T, int]]:
+        """The start rule (module docstring): ``[]`` until ``item`` agrees with a held first scan, then the held
+        scans within ``start_gap`` of it, in arrival order, and it."""
+        arrived, gap = (sensor, t, item, size), self.start_gap or 0.0
+        if not any(abs(t - h[1]) <= gap and (h[0], h[1]) != (sensor, t) for h in self.first):
+            held = [*self.first, arrived]
+            self.dropped += _bounded(held)
+            self.first = tuple(held)
+            return []
+        taken = [h for h in self.first if abs(t - h[1]) <= gap]
+        self.behind += sum(h[1] < t - gap for h in self.first)
+        self.dropped += sum(h[1] > t + gap for h in self.first)
+        self.first = ()
+        return [*taken, arrived]
+
     def _corroborated(self, sensor: str, t: float, reached: dict[str, float]) -> bool:
         """Whether a scan of ``sensor`` at ``t`` may be taken: fewer than CORROBORATORS other
         sensors are live, or another sensor's data (``reached``: each sensor's newest time taken,
@@ -196,10 +228,11 @@ class LeadGuard(Generic[T]):
     def end(self) -> int:
         """The data ended (a replay's input, a service stopping): the scans still held or waiting are
         dropped; returns how many."""
-        n = len(self.held) + len(self.waiting)
+        n = len(self.held) + len(self.waiting) + len(self.first)
         self.dropped += n
         self.held.clear()
         self.waiting.clear()
+        self.first = ()
         return n
 
     def times(self) -> Times:
@@ -249,6 +282,10 @@ class NumberedLeadGuard(Generic[N]):
     @property
     def dropped(self) -> int:
         return self.time.dropped + self.number.dropped
+
+    @property
+    def behind(self) -> int:
+        return self.time.behind + self.number.behind
 
     @property
     def newest(self) -> float | None:

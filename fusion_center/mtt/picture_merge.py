@@ -69,6 +69,7 @@ from typing import Any
 import numpy as np
 
 from fedtrack.config import ConfigError, load_tables, read_small_file
+from fedtrack.deployment import MAX_TIME_JUMP_S
 from fedtrack.fusion_center.mtt.engines import PictureClock
 from fedtrack.fusion_center.mtt.failover.standby import CENTRE_TOKENS_KEPT, NUMBER_ROOM
 from fedtrack.fusion_center.mtt.pictures import (
@@ -153,7 +154,7 @@ class PictureMergeService(Service):
 
     def __init__(self, regions: Regions, dim: int, wait_s: float, period: float, frame: Frame | None = None,
                  window: int | None = None, snapshot: Path | None = None, gate: float | None = None,
-                 init_z_std: float | None = None, **kwargs: Any) -> None:
+                 init_z_std: float | None = None, start_gap: float = MAX_TIME_JUMP_S, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.regions, self.dim, self.wait_s, self.period = regions, dim, wait_s, period
         # two regions' tracks under one id are one track's copies within it ([mtt] association_gate_probability)
@@ -185,7 +186,9 @@ class PictureMergeService(Service):
         self.contested = False  # a region sent a second, different picture of a time it had sent: the next merge says so
         # a region picture stamped far ahead of the others waits for a witness (fedtrack/services/lead.py)
         # ... each region's usual interval its period from the start (a region makes a picture every period)
-        self.lead: LeadGuard[TrackPicture] = LeadGuard(max_lag=0.0, usual=dict.fromkeys(regions.ids, period))
+        # ... and the first pictures until two agree within start_gap ([deployment] max_time_jump_s)
+        self.lead: LeadGuard[TrackPicture] = LeadGuard(max_lag=0.0, usual=dict.fromkeys(regions.ids, period),
+                                                       start_gap=start_gap)
         # each region's centres' tokens (region_centre), once watched (token_watches; a Zenoh thread's)
         self.centres: dict[str, Peers] | None = None
         self.uncovered: frozenset[int] = frozenset()  # the regions last found without a live centre (logged)
@@ -292,6 +295,8 @@ class PictureMergeService(Service):
     def _release(self) -> None:
         """The first pictures held by :meth:`_admit`, through the lead guard in time order."""
         first, self.first, self.first_at = sorted(self.first, key=lambda item: item[1].t), [], None
+        if len({r for r, _ in first}) < 2:  # one region's: nothing to agree with, its first picture starts
+            self.lead.start_gap = None
         for r, msg in first:
             self._guarded(r, msg)
 
@@ -509,7 +514,8 @@ def service_from_args(argv: list[str]) -> PictureMergeService:
     frame = load_frame(Path(args.config))
     return PictureMergeService(regions, args.dim, args.wait, period, None if frame is None else frame.frame,
                                picture_window(period, settings.deployment.speed), args.snapshot,
-                               settings.mtt.thresholds.association[args.dim], settings.mtt.init_z_std, **kwargs)
+                               settings.mtt.thresholds.association[args.dim], settings.mtt.init_z_std,
+                               settings.deployment.max_time_jump_s, **kwargs)
 
 
 def main(argv: list[str]) -> int:
