@@ -382,9 +382,10 @@ class MttCentreService(CentreFailover, Service):
     def _in_scale(self, what: str, values: np.ndarray, P: np.ndarray) -> None:
         """Refuse (``scale``) states or covariances that a picture predicted from them could carry
         beyond the wire's bound, which every receiver would refuse: the horizon is the longest a
-        picture predicts a track from the data that made it, ``central_timeout`` (unsupported tracks
-        are deleted) + ``max_lag`` (the data's own lag) + ``period`` (:func:`fedtrack.wire.predictable`)."""
-        horizon = self.cfg.central_timeout + self.cfg.max_lag + self.cfg.period
+        picture predicts a track from the data that made it, ``unsupported_s`` (unsupported tracks are
+        deleted: ``central_timeout``, or ``max_lag`` where longer) + ``max_lag`` (the data's own lag) +
+        ``period`` (:func:`fedtrack.wire.predictable`)."""
+        horizon = self.cfg.unsupported_s + self.cfg.max_lag + self.cfg.period
         if not predictable(values, P, horizon):
             raise Rejected("scale", f"{what}: values up to {np.max(np.abs(values), initial=0.0):.3g}, covariances up "
                            f"to {np.max(np.abs(P), initial=0.0):.3g}: predicted over {horizon:g} s they could leave "

@@ -325,6 +325,14 @@ class MttConfig:
                 "confirms by existence")
 
     @property
+    def unsupported_s(self) -> float:
+        """[s] The longest a track-to-track centre keeps a central track without a fused observation:
+        ``central_timeout``, or ``max_lag`` where longer (a track of a sensor slower than ``central_timeout``
+        is kept up to four of its scan intervals, never beyond the lag the data may have: so a picture
+        predicts a track at most ``unsupported_s + max_lag + period`` past its data)."""
+        return max(self.central_timeout, self.max_lag)
+
+    @property
     def mode_rates(self) -> ModeRates | None:
         """The two modes' switching rates (``process_noise = "imm"``), None: CV with ``q``."""
         return ModeRates(1.0 / self.straight_s, 1.0 / self.maneuver_s) if self.motion == "imm" else None

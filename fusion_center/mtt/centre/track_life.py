@@ -11,6 +11,7 @@ from statistics import NormalDist
 import numpy as np
 
 from fedtrack.fusion_center.mtt.centre.candidates import candidate_pairs
+from fedtrack.fusion_center.mtt.silence import LEAVE_INTERVALS
 from fedtrack.geodetic import RadarSite, above_radio_horizon
 from fedtrack.local_filters.mtt.associators.jipda import FALSE_CONFIRM, LOST_TRUE
 from fedtrack.local_filters.mtt.config import MttConfig, miss_count, scan_lost
@@ -88,8 +89,8 @@ def needs_local_confirmation(cfg: MttConfig, sensor: str, R: np.ndarray, interva
 class CentreLife:
     """Confirmation and deletion of :class:`~.track_to_track.TrackToTrackCentre`'s central tracks (mixed
     into it). It relies on the centre's ``cfg``, ``counters``, ``tracks``, ``departed``, ``absorbed``,
-    ``mapping``, ``members``, ``local_confirmation``, ``own_confirmed``, ``n_live``, ``excluded``,
-    ``sensor_names``, the per-slot arrays ``support``, ``streak``, ``window``, ``vetting``, ``denied`` and
+    ``mapping``, ``members``, ``local_confirmation``, ``own_confirmed``, ``n_live``, ``feedback``, ``excluded``,
+    ``sensor_names``, ``usual``, the per-slot arrays ``support``, ``streak``, ``window``, ``vetting``, ``denied`` and
     ``last_support``, the per-column ``column_interval`` and ``column_log_miss``, and on its methods ``_unmap`` and
     ``sensor_lists``."""
 
@@ -504,9 +505,29 @@ class CentreLife:
         self.counters.deleted += 1
 
     def prune(self, now: float) -> None:
-        """Delete central tracks no local track maps to, or unsupported for ``central_timeout``."""
-        self._delete_where(now - self.last_support > self.cfg.central_timeout)
+        """Delete central tracks no local track maps to, or unsupported for longer than :meth:`_support_bound`."""
+        self._delete_where(now - self.last_support > self._support_bound())
         self.departed.expire(now)
+
+    def _support_bound(self) -> np.ndarray:
+        """Per slot, how long its central track may go without a fused observation: ``central_timeout``, or,
+        where longer, the silence bound of its fastest tracking sensor (``LEAVE_INTERVALS`` of the sensor's
+        usual interval, :mod:`~fedtrack.fusion_center.mtt.silence`) up to ``max_lag``
+        (:meth:`~fedtrack.local_filters.mtt.config.MttConfig.unsupported_s`): while a sensor tracking it may
+        still be live, its scans and misses judge the track (the misses rule, its tracker's own deletion), not
+        the clock. The fixed 5 s deleted a track of a sensor scanning every 8 s at the sensor's first miss,
+        where its tracker keeps it, so that one sensor's centre was not its tracker (untuned58 session).
+        Federated with more than one live sensor the clock stays: a held central track resets its sensors'
+        local tracks to its prediction with ``beta`` = the live sensors' count inflating their covariance and
+        process noise, so that a slow sensor's track held unsupported gates far clutter and runs away (tour48's
+        federated gate; three sensors at 7-13 s: mean GOSPA +4 to +19 %)."""
+        if self.feedback and self.n_live > 1:
+            return np.full(self.last_support.shape, self.cfg.central_timeout)
+        usual = self.usual
+        reach = LEAVE_INTERVALS * np.array([usual.get(s, 0.0) for s in self.sensor_names])
+        fastest = np.where(self.support > 0, reach, np.inf).min(axis=1, initial=np.inf)
+        return np.clip(np.where(np.isfinite(fastest), fastest, 0.0), self.cfg.central_timeout,
+                       self.cfg.unsupported_s)
 
     def drop_unsupported(self) -> None:
         """Delete the central tracks no local track maps to (after :meth:`drop_sensor`), as the
