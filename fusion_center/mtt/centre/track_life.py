@@ -509,7 +509,7 @@ class CentreLife:
         self._delete_where(now - self.last_support > self._support_bound())
         self.departed.expire(now)
 
-    def _support_bound(self) -> np.ndarray:
+    def _support_bound(self) -> np.ndarray | float:
         """Per slot, how long its central track may go without a fused observation: ``central_timeout``, or,
         where longer, the silence bound of its fastest tracking sensor (``LEAVE_INTERVALS`` of the sensor's
         usual interval, :mod:`~fedtrack.fusion_center.mtt.silence`) up to ``max_lag``
@@ -521,8 +521,8 @@ class CentreLife:
         local tracks to its prediction with ``beta`` = the live sensors' count inflating their covariance and
         process noise, so that a slow sensor's track held unsupported gates far clutter and runs away (tour48's
         federated gate; three sensors at 7-13 s: mean GOSPA +4 to +19 %)."""
-        if self.feedback and self.n_live > 1:
-            return np.full(self.last_support.shape, self.cfg.central_timeout)
+        if (self.feedback and self.n_live > 1) or self.cfg.unsupported_s <= self.cfg.central_timeout:
+            return self.cfg.central_timeout  # (the defaults: max_lag within central_timeout)
         usual = self.usual
         reach = LEAVE_INTERVALS * np.array([usual.get(s, 0.0) for s in self.sensor_names])
         fastest = np.where(self.support > 0, reach, np.inf).min(axis=1, initial=np.inf)
