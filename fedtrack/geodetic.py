@@ -360,10 +360,21 @@ def add_geodetic(frame: Frame, rows: list[dict[str, Any]], init_z_std: float | N
             P = np.array([rows[i]["P"] for i in which], float)
             flat[which] = altitude_unmeasured(P, init_z_std)
         lla[which] = geodetic_of_states(frame, np.array([rows[i]["x"] for i in which], float), P, init_z_std)
-    out = with_geodetic(rows, lla)
-    for i in np.flatnonzero(flat).tolist():
-        out[i]["alt_measured"] = False
-    return out
+    return with_geodetic(rows, lla, tuple((~flat).tolist()) if flat.any() else ())
+
+
+def picture_geodetic(frame: Frame | None, X: np.ndarray, P: np.ndarray,
+                     init_z_std: float | None) -> tuple[np.ndarray | None, tuple[bool, ...]]:
+    """A live picture's ``TrackPicture.lla`` and ``alt_measured`` for states ``X`` (n, d), ``P`` (n, d, d):
+    :func:`geodetic_of_states`, and per track whether its altitude was measured (:func:`altitude_unmeasured`),
+    empty when every one was, so that ``serve mtt-centre`` and ``serve picture`` mark a track as ``replay`` does
+    (:func:`add_geodetic`). Without a frame ``(None, ())``."""
+    if frame is None:
+        return None, ()
+    flat = np.zeros(len(X), bool)
+    if X.shape[1] == 6 and init_z_std is not None:
+        flat = altitude_unmeasured(P, init_z_std)
+    return geodetic_of_states(frame, X, P, init_z_std), tuple((~flat).tolist()) if flat.any() else ()
 
 
 def altitude_unmeasured(P: np.ndarray, init_z_std: float) -> np.ndarray:
@@ -393,6 +404,44 @@ def geodetic_of_states(frame: Frame, X: np.ndarray, P: np.ndarray | None = None,
             enu = enu.copy()
             enu[flat, 2] = level_z(frame, X[flat][:, [0, 2]])
     return geodetic_from_enu(frame, enu)
+
+
+#: the lowest the Earth's surface lies anywhere [m above the WGS-84 ellipsoid]: the lowest land, the Dead Sea's
+#: shore at -430 m, over the geoid's lowest height above the ellipsoid, -107 m (:data:`HEIGHTS`); nothing that
+#: flies is below it, wherever it is (docs/geodetic.md, "Altitudes below the Earth")
+LOWEST_SURFACE_H = -537.0
+
+
+def above_the_surface(frame: Frame, X: np.ndarray, P: np.ndarray,
+                      init_z_std: float) -> tuple[np.ndarray, np.ndarray]:
+    """3-D states ``X`` (n, 6), ``P`` (n, 6, 6) whose altitude was measured (not :func:`altitude_unmeasured`)
+    conditioned on being above the Earth's lowest surface, ``z >= z_s`` with ``z_s`` the ellipsoid below the
+    state's x, y (:func:`surface_enu`) raised by :data:`LOWEST_SURFACE_H`: the Gaussian's altitude truncated
+    there, its mean and variance the truncated normal's, ``mu + sigma lam`` and ``sigma^2 (1 - lam (lam - a))``
+    with ``a = (z_s - mu) / sigma`` and ``lam = phi(a) / (1 - Phi(a))`` (Johnson, Kotz and Balakrishnan,
+    *Continuous Univariate Distributions* 1, eq. 13.134-13.135), carried to the other components by their
+    regression on z (Simon, *Kalman filtering with state constraints*, IET CTA 2010, section 4.3, "PDF
+    truncation"). A state far above (``a`` below -38) is returned unchanged to the bit; a 2-D state, or one whose
+    altitude nobody measured (shown at the origin's height, scored on x, y), as given."""
+    from scipy.special import erfcx
+
+    X, P = np.asarray(X, float), np.asarray(P, float)
+    if X.shape[1] != 6 or not len(X):
+        return X, P
+    live = np.flatnonzero(~altitude_unmeasured(P, init_z_std))
+    var = P[live, 4, 4]
+    sigma = np.sqrt(var)
+    a = (surface_enu(frame, X[live][:, [0, 2]])[:, 2] + LOWEST_SURFACE_H - X[live, 4]) / sigma
+    with np.errstate(over="ignore"):
+        lam = math.sqrt(2.0 / math.pi) / erfcx(a / math.sqrt(2.0))  # phi(a) / (1 - Phi(a)), without underflow
+    # the variance's fall, lam (lam - a); past a = 1e3 its asymptote 1 - 1/a^2, where the difference cancels
+    fall = np.where(a > 1e3, 1.0 - 1.0 / np.maximum(a, 1e3) ** 2, lam * (lam - a))
+    gain = P[live, :, 4] / var[:, None]  # each component's regression on z
+    X, P = X.copy(), P.copy()
+    X[live] += gain * (sigma * lam)[:, None]
+    P[live] -= fall[:, None, None] * gain[:, :, None] * P[live, None, 4, :]
+    P[live] = 0.5 * (P[live] + np.swapaxes(P[live], 1, 2))
+    return X, P
 
 
 def geodetic_line(line: str, frame: Frame, init_z_std: float | None = None) -> str:

@@ -11,9 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from matplotlib.figure import Figure
+from scipy.stats import truncnorm
 
 from fedtrack.cli import main
+from fedtrack.fusion_center.mtt.engines import PictureTracks
+from fedtrack.fusion_center.mtt.pictures import picture_message
 from fedtrack.geodetic import (
+    LOWEST_SURFACE_H,
     REFRACTION_K,
     WGS84_A,
     WGS84_E2,
@@ -26,14 +30,16 @@ from fedtrack.geodetic import (
     geodetic_from_enu,
     local_from_common_vectors,
     median_lon,
+    picture_geodetic,
     site_from_geodetic,
+    surface_enu,
     wrap_lon,
 )
 from fedtrack.geojson import antimeridian_parts
 from fedtrack.local_filters.regions import load_regions, region_of
 from fedtrack.sensors.state_vectors import read_recording
 from fedtrack.sensors.traffic_truth import build_truth
-from fedtrack.wire import with_geodetic
+from fedtrack.wire import TrackPicture, WireError, decode, encode, picture_to_replay, with_geodetic
 
 HEADER = "time,icao24,lat,lon,alt"
 
@@ -405,6 +411,66 @@ def test_an_altitude_nobody_measured_is_marked_and_shown_at_the_origins_height(t
     assert placed[0]["alt_measured"] is False and abs(placed[0]["alt"] - 35.0) < 0.01
     assert "alt_measured" not in placed[1]
     assert placed[1]["alt"] == add_geodetic(frame, [fresh])[0]["alt"] and placed[1]["alt"] > 500.0
+
+
+def test_a_live_picture_carries_the_altitude_mark_as_replay_does() -> None:
+    """``serve mtt-centre`` and ``serve picture`` build their ``TrackPicture`` by ``picture_message``; the recorder
+    writes its rows by ``picture_to_replay``. The stale track above (z -2,278 m, sigma 8.4 km) went on the wire with
+    its ``lla`` at the origin's height but no mark, so a live recording's row lacked the ``"alt_measured": false``
+    that ``replay`` writes. Now the picture carries ``alt_measured`` and the row is ``replay``'s; a picture whose
+    altitudes were all measured sends the bytes it sent before (the field left out), and a mark for a track the
+    picture does not have is refused."""
+    frame, init_z_std = Frame(49.0, 2.5, 35.0), 3812.5
+    X = np.array([[30e3, 50.0, 20e3, 60.0, -2278.0, -13.4], [30e3, 50.0, 20e3, 60.0, 600.0, -13.4]])
+    P = np.stack([np.diag([100.0, 1.0, 100.0, 1.0, 8434.0**2, 39.5**2]),
+                  np.diag([100.0, 1.0, 100.0, 1.0, 60.0**2, 4.0])])
+
+    def live(k: slice) -> TrackPicture:
+        tracks = PictureTracks([1, 2][k], X[k], P[k], [True, True][k], [["s1"], ["s1"]][k], ["cv", "cv"][k])
+        return picture_message(3, 3.0, tracks, [], [], False, earth=picture_geodetic(frame, X[k], P[k], init_z_std))
+
+    got = decode(encode(live(slice(None))), TrackPicture)
+    assert got.alt_measured == (False, True)
+    replayed = add_geodetic(frame, [{"x": x, "P": p} for x, p in zip(X.tolist(), P.tolist())], init_z_std)
+    rows = picture_to_replay(got)["tracks"]
+    assert [r.get("alt_measured") for r in rows] == [r.get("alt_measured") for r in replayed] == [False, None]
+    assert [r["alt"] for r in rows] == [r["alt"] for r in replayed] and abs(rows[0]["alt"] - 35.0) < 0.01
+    measured = live(slice(1, None))
+    assert measured.alt_measured == () and b"alt_measured" not in encode(measured)
+    with pytest.raises(WireError, match="alt_measured"):
+        TrackPicture(**{**vars(got), "alt_measured": (False,)})
+
+
+def test_a_measured_altitude_is_held_above_the_earths_lowest_surface() -> None:
+    """A radar's altitude gone stale but still under the line, extrapolated with a descent (``paris-near``: -1,222 m,
+    sigma 0.5 km; the standard Paris check: aircraft that landed, -267 m, sigma 382 m) was shown and scored below any
+    ground on the Earth. A picture's measured altitude is now the state conditioned on being above the lowest
+    surface, LOWEST_SURFACE_H (-537 m: the Dead Sea's shore over the geoid's lowest height): the truncated normal's
+    mean and variance, carried to the vertical speed by its regression on z. A track far above, one whose altitude
+    nobody measured and a 2-D track are unchanged to the bit."""
+    frame, init_z_std = Frame(49.0, 2.5, 0.0), 3924.7
+    X = np.array([[30e3, 50.0, 20e3, 60.0, -1222.0, -49.0], [30e3, 50.0, 20e3, 60.0, -267.4, -4.45],
+                  [30e3, 50.0, 20e3, 60.0, 9000.0, 0.0], [30e3, 50.0, 20e3, 60.0, -2278.0, -13.4],
+                  [30e3, 50.0, 20e3, 60.0, -9e6, 0.0]])
+    sd = [(500.0, 12.0, 0.9), (382.0, 12.0, 0.9), (50.0, 2.0, 0.0), (8434.0, 39.5, 0.0), (1.0, 1.0, 0.0)]
+    P = np.stack([np.diag([100.0, 1.0, 100.0, 1.0, z * z, v * v]) for z, v, _ in sd])
+    P[:, 4, 5] = P[:, 5, 4] = [r * z * v for z, v, r in sd]
+    tracks = PictureTracks(list(range(5)), X, P, [True] * 5, [["r1"]] * 5, ["cv"] * 5)
+    shown = tracks.on_the_earth(frame, init_z_std)
+    floor = surface_enu(frame, X[:, [0, 2]])[:, 2] + LOWEST_SURFACE_H
+    for i in (0, 1):
+        z, sz = X[i, 4], np.sqrt(P[i, 4, 4])
+        mean, var = truncnorm.stats((floor[i] - z) / sz, np.inf, loc=z, scale=sz, moments="mv")
+        assert shown.x[i, 4] == pytest.approx(mean, rel=1e-9) and shown.P[i, 4, 4] == pytest.approx(var, rel=1e-9)
+        assert shown.x[i, 5] - X[i, 5] == pytest.approx(P[i, 5, 4] / P[i, 4, 4] * (mean - z), rel=1e-9)
+        assert shown.x[i, 4] > X[i, 4] and (shown.x[i, :4] == X[i, :4]).all()
+    assert shown.x[0, 4] > LOWEST_SURFACE_H + 100.0 and shown.x[4, 4] == pytest.approx(floor[4], abs=1e-3)
+    assert (shown.x[2:4] == X[2:4]).all() and (shown.P[2:4] == P[2:4]).all()
+    assert (shown.P == np.swapaxes(shown.P, 1, 2)).all() and (np.linalg.eigvalsh(shown.P) > 0).all()
+    flat = tracks._replace(x=X[:, :4], P=P[:, :4, :4])
+    assert flat.on_the_earth(frame, init_z_std) == flat and tracks.on_the_earth(None, init_z_std) is tracks
+    rows = json.loads(shown.line(1.0))["tracks"]
+    assert [r["x"][4] for r in rows[:2]] == shown.x[:2, 4].tolist()
 
 
 def test_init_z_std_is_the_aircrafts_height_not_the_origins_distance(tmp_path: Path) -> None:

@@ -270,6 +270,9 @@ class TrackPicture(_Record):
     contested: bool = False
     existence: np.ndarray | None = None  # (n,) each track's existence probability, None: not kept
     lla: np.ndarray | None = None  # (n, 3) [lat deg, lon deg, h m] of each track ([frame] set), else None
+    # per track: false when its altitude nobody measured (its ``lla`` at the origin's height,
+    # fedtrack.geodetic.altitude_unmeasured); empty when every track's was (or no [frame])
+    alt_measured: tuple[bool, ...] = ()
     # region centres (docs/multitarget.md#regions; absent without regions): ``handovers``, the
     # positions in the fused lists that are hand-overs taken over there (``fused_sensors``: the
     # sending region, ``fused_seqs``: its hand-over number); in the merged picture, ``regions``
@@ -296,14 +299,14 @@ class TrackPicture(_Record):
                "fused_sensors": _identifier_list,
                "fused_seqs": _counts, "stamp_ns": _count, "closing": _flag, "left": _counts, "contested": _flag,
                "existence": _optional_batch_vector, "lla": _optional_batch,
-               "handovers": _counts, "regions": _identifier_list,
+               "alt_measured": _flags, "handovers": _counts, "regions": _identifier_list,
                "in_flight": _counts, "in_flight_t": _reals, "restarted": _counts, "began": _counts,
                "began_serials": _counts, "missing": _identifier_list,
                "part": _count, "parts": _count}
     _arrays = ("x", "P", "maneuver", "existence", "lla")
     _omitted = ("handovers", "regions", "in_flight", "in_flight_t", "restarted", "began", "began_serials", "missing",
-                "part", "parts")
-    _items = (_Items(("ids", "x", "P", "confirmed", "sensors", "ca", "existence", "lla"), "MAX_TRACKS"),
+                "alt_measured", "part", "parts")
+    _items = (_Items(("ids", "x", "P", "confirmed", "sensors", "ca", "existence", "lla", "alt_measured"), "MAX_TRACKS"),
               _Items(("fused_seqs", "fused_sensors", "regions"), "MAX_TRACKS"),
               _Items(("maneuvering", "maneuver"), "MAX_TRACKS", "at", "ids"),
               _Items(("in_flight", "in_flight_t"), "MAX_TRACKS", "at", "ids"),
@@ -354,6 +357,9 @@ class TrackPicture(_Record):
                                      or not (np.abs(self.lla[:, 1]) <= 180.0).all()):
             raise WireError("lla", "expected one row [lat, lon, h] (|lat| <= 90, |lon| <= 180) for each of the "
                                    f"{n} tracks")
+        if self.alt_measured and (len(self.alt_measured) != n or self.lla is None or self.x.shape[1] != 6):
+            raise WireError("alt_measured", f"expected none or one for each of the {n} tracks, with lla and 3-D "
+                                            "states")
 
 
 @dataclass(frozen=True, eq=False)

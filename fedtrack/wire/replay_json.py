@@ -38,13 +38,15 @@ def measurement_to_replay(m: Measurement) -> dict[str, Any]:
 
 def picture_rows(ids: list[int], X: np.ndarray, P: np.ndarray, confirmed: list[bool], sensors: list[list[str]],
                  models: list[str] | None = None, maneuver: np.ndarray | None = None,
-                 existence: list[float] | None = None, lla: np.ndarray | None = None) -> list[dict[str, Any]]:
+                 existence: list[float] | None = None, lla: np.ndarray | None = None,
+                 alt_measured: tuple[bool, ...] = ()) -> list[dict[str, Any]]:
     """The tracks of a multi-target picture line (docs/multitarget-formats.md), from batched
     states ``X`` (n, d), ``P`` (n, d, d): ``x`` is the CV state (a CA track's marginal), ``models``
     each track's motion model (all ``"cv"`` when None), ``maneuver`` (n, 4) each central track's
     detected maneuver ``[onset, ax, ay, statistic]`` (a row of NaN: none; None: no detector),
     ``existence`` each track's existence probability (``[mtt] associator = "jipda"``; None: not kept),
-    ``lla`` (n, 3) each track's WGS-84 position (:func:`with_geodetic`; None: no ``[frame]``)."""
+    ``lla`` (n, 3) each track's WGS-84 position and ``alt_measured`` whether its altitude was measured
+    (:func:`with_geodetic`; None: no ``[frame]``)."""
     k = X.shape[1] // 2
     xs, Ps = X.tolist(), P.tolist()
     models = models or ["cv"] * len(ids)
@@ -58,19 +60,24 @@ def picture_rows(ids: list[int], X: np.ndarray, P: np.ndarray, confirmed: list[b
     if existence is not None:
         for row, e in zip(rows, existence):
             row["existence"] = e
-    return rows if lla is None else with_geodetic(rows, lla)
+    return rows if lla is None else with_geodetic(rows, lla, alt_measured)
 
 
-def with_geodetic(rows: list[dict[str, Any]], lla: np.ndarray) -> list[dict[str, Any]]:
+def with_geodetic(rows: list[dict[str, Any]], lla: np.ndarray,
+                  alt_measured: tuple[bool, ...] = ()) -> list[dict[str, Any]]:
     """Picture or truth rows with ``lat``, ``lon`` [deg] (9 decimals) and, for a 3-D state (``x`` of
     6), ``alt`` [m above the ellipsoid] (4 decimals) from ``lla`` (n, 3), placed beside ``x``; a
-    longitude in [-180, 180) stays there once rounded (179.9999999997 is -180.0, not 180.0)."""
+    longitude in [-180, 180) stays there once rounded (179.9999999997 is -180.0, not 180.0). A row whose
+    ``alt_measured`` (none or one per row) is false gets ``"alt_measured": false`` last (docs/geodetic.md,
+    "Altitudes nobody measured")."""
     out = []
-    for row, (lat, lon, h) in zip(rows, lla.tolist()):
+    for i, (row, (lat, lon, h)) in enumerate(zip(rows, lla.tolist())):
         lon = round(lon, 9)
         extra = {"lat": round(lat, 9), "lon": lon - 360.0 if lon >= 180.0 else lon}
         if len(row["x"]) >= 6:
             extra["alt"] = round(h, 4)
+        if alt_measured and not alt_measured[i]:
+            extra["alt_measured"] = False
         out.append({**row, **extra})
     return out
 
@@ -100,7 +107,8 @@ def picture_to_replay(pic: TrackPicture) -> dict[str, Any]:
         maneuver[list(pic.maneuvering)] = pic.maneuver
     existence = None if pic.existence is None else pic.existence.tolist()
     line = {"t": pic.t, "tracks": picture_rows(list(pic.ids), pic.x, pic.P.reshape(-1, d, d), list(pic.confirmed),
-                                               [list(s) for s in pic.sensors], models, maneuver, existence, pic.lla)}
+                                               [list(s) for s in pic.sensors], models, maneuver, existence, pic.lla,
+                                               pic.alt_measured)}
     if pic.contested:
         line["contested"] = True
     return line

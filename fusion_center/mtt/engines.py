@@ -32,7 +32,7 @@ from fedtrack.fusion_center.mtt.centre.copies import Found
 from fedtrack.fusion_center.mtt.centre.registration import SensorRegistration
 from fedtrack.fusion_center.mtt.centre.track_life import CENTRAL_MISSES
 from fedtrack.fusion_center.mtt.shards import ShardedCentre
-from fedtrack.geodetic import Frame, RadarSite
+from fedtrack.geodetic import Frame, RadarSite, above_the_surface
 from fedtrack.local_filters.linear.noise_floor import raise_to_floor
 from fedtrack.local_filters.mtt.associators import jipda
 from fedtrack.local_filters.mtt.config import LOST, MttConfig, miss_count, scan_lost
@@ -86,6 +86,15 @@ class PictureTracks(NamedTuple):
         """The picture's line in a tracks file (``{"t": t, **head, "tracks": rows}`` as JSON)."""
         return picture_line(t, self.ids, self.x, self.P, self.confirmed, self.sensors, self.models, self.maneuver,
                             self.existence, head)
+
+    def on_the_earth(self, frame: Frame | None, init_z_std: float) -> PictureTracks:
+        """The tracks with a measured altitude held above the Earth's lowest surface
+        (:func:`fedtrack.geodetic.above_the_surface`), as ``replay`` and the live centres show them; without a
+        ``[frame]`` (a flat world) as they are."""
+        if frame is None:
+            return self
+        x, P = above_the_surface(frame, self.x, self.P, init_z_std)
+        return self._replace(x=x, P=P)
 
 
 @dataclass

@@ -80,7 +80,7 @@ from fedtrack.fusion_center.mtt.pictures import (
     picture_window,
 )
 from fedtrack.fusion_center.mtt.regional import RegionPicture, merge_pictures, rows_of
-from fedtrack.geodetic import Frame, geodetic_of_states, load_frame
+from fedtrack.geodetic import Frame, load_frame, picture_geodetic
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
 from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.services.admission import digest
@@ -461,7 +461,7 @@ class PictureMergeService(Service):
             self.merged_t) + 1
         self.publish(self.keys.mtt_picture(), picture_message(
             number, T, tracks, order, left, contested, closing, handovers, tuple(e[3] for e in entries),
-            lla=None if self.frame is None else geodetic_of_states(self.frame, tracks.x, tracks.P, self.init_z_std),
+            earth=picture_geodetic(self.frame, tracks.x, tracks.P, self.init_z_std),
             restarted=restarted,
             missing=missing, began=began))
         self.seq += 1

@@ -37,16 +37,17 @@ def picture_window(period: float, speed: float) -> int:
 
 def picture_message(seq: int, T: float, tracks: PictureTracks, order: list[tuple[str, int]], left: list[int],
                     contested: bool, closing: bool = False, handovers: list[int] | tuple[int, ...] = (),
-                    regions: tuple[str, ...] = (), lla: np.ndarray | None = None,
+                    regions: tuple[str, ...] = (), earth: tuple[np.ndarray | None, tuple[bool, ...]] = (None, ()),
                     flying: dict[int, float] | None = None,
                     restarted: list[int] | tuple[int, ...] = (), missing: tuple[str, ...] = (),
                     began: tuple[tuple[int, int], ...] = ()) -> TrackPicture:
     """The ``TrackPicture`` of ``tracks`` at ``T``, listing the entries ``order`` processed since the
     previous one (``left``, ``handovers``, ``restarted``: the positions that are departures, hand-overs
-    taken over and trackers restarted; ``regions``: each entry's region, in a merged picture; ``lla``:
-    the tracks on the Earth; ``flying``: the ids of a region centre's copies of tracks it handed over,
-    with the hand-overs' times; ``missing``: the regions a merged picture lacks; ``began``: (position,
-    first hand-over number) where a region's centre began afresh, its first track id that entry's seq)."""
+    taken over and trackers restarted; ``regions``: each entry's region, in a merged picture; ``earth``:
+    the tracks on the Earth and whether their altitudes were measured (``fedtrack.geodetic.picture_geodetic``);
+    ``flying``: the ids of a region centre's copies of tracks it handed over, with the hand-overs' times;
+    ``missing``: the regions a merged picture lacks; ``began``: (position, first hand-over number) where a
+    region's centre began afresh, its first track id that entry's seq)."""
     d = tracks.x.shape[1]
     ca = tuple(model == "ca" for model in tracks.models)
     maneuvering = tracks.maneuver_rows()
@@ -56,7 +57,8 @@ def picture_message(seq: int, T: float, tracks: PictureTracks, order: list[tuple
         fused_sensors=tuple(s for s, _ in order), fused_seqs=tuple(q for _, q in order),
         stamp_ns=time.time_ns(), closing=closing, left=tuple(left), ca=ca if any(ca) else (),
         maneuvering=tuple(maneuvering), maneuver=None if tracks.maneuver is None else tracks.maneuver[maneuvering],
-        contested=contested, existence=None if tracks.existence is None else np.array(tracks.existence), lla=lla,
+        contested=contested, existence=None if tracks.existence is None else np.array(tracks.existence), lla=earth[0],
+        alt_measured=earth[1],
         handovers=tuple(handovers), regions=regions,
         in_flight=tuple(k for k, i in enumerate(tracks.ids) if flying and i in flying),
         in_flight_t=tuple(flying[i] for i in tracks.ids if flying and i in flying), restarted=tuple(restarted),

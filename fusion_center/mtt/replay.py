@@ -315,7 +315,7 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
         for T, tracks in source:
             bar.update()
             start = time.perf_counter()
-            line = tracks.line(T, head)
+            line = tracks.on_the_earth(None if frame is None else frame.frame, cfg.init_z_std).line(T, head)
             fh.write((line if frame is None else geodetic_line(line, frame.frame, cfg.init_z_std)) + "\n")
             engine.took("writing", start)
             n += 1

@@ -76,7 +76,7 @@ from fedtrack.fusion_center.mtt.pictures import PICTURE_ITEMS, picture_message, 
 from fedtrack.fusion_center.mtt.regional import RegionEngine
 from fedtrack.fusion_center.mtt.shards import confirmed_holder, disputed, handover_from_wire, handover_to_wire
 from fedtrack.fusion_center.mtt.silence import Silence
-from fedtrack.geodetic import Frame, FrameConfig, geodetic_of_states
+from fedtrack.geodetic import Frame, FrameConfig, picture_geodetic
 from fedtrack.local_filters.linear.gating import CrowdedScan
 from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
 from fedtrack.local_filters.mtt.local import could_be_first, report_from_wire, resets_to_wire
@@ -567,6 +567,7 @@ class MttCentreService(CentreFailover, Service):
             flying = dict(zip(shown.flying.ids, shown.flying_t)) if shown.flying is not None else {}
         else:
             tracks = self.engine.picture(T)
+        tracks = tracks.on_the_earth(self.frame, self.cfg.init_z_std)
         require_finite(f"the picture at t={T}", tracks.x, tracks.P)
         seq = self.clock.number((self.clock.k or 0) * self.clock.period if closing else T)
         order, left, handovers, restarted, began = self.order, self.left_at, self.handovers_at, self.restarted_at, ()
@@ -578,8 +579,7 @@ class MttCentreService(CentreFailover, Service):
             self.began = None
         picture = picture_message(seq, T, tracks, order, left, self.contested, closing, handovers, flying=flying,
                                   restarted=restarted, began=began,
-                                  lla=None if self.frame is None else geodetic_of_states(self.frame, tracks.x, tracks.P,
-                                                                                         self.cfg.init_z_std))
+                                  earth=picture_geodetic(self.frame, tracks.x, tracks.P, self.cfg.init_z_std))
         self.pictures += 1
         self.order, self.left_at, self.contested, self.handovers_at = [], [], False, []
         self.restarted_at = []
