@@ -145,6 +145,21 @@ def test_values_a_run_cannot_use_fail_at_start_with_one_line(tmp_path: Path,
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.toml", "m.jsonl", "u.jsonl"]
 
 
+@pytest.mark.parametrize(("key", "value", "right"), [
+    ("pd", "1.5", "must be in (0, 1] (a detection probability), got 1.5"),
+    ("pd", "0.0", "must be in (0, 1] (a detection probability), got 0"),
+    ("gate_probability", "1.0", "must be in (0, 1) (a probability; 1 is an infinite gate), got 1")])
+def test_a_probability_out_of_range_says_its_interval(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                      key: str, value: str, right: str) -> None:
+    """``[mtt] pd`` accepts 1 (a sensor that never misses): said as ``(0, 1]``, was "must be in (0, 1) or 1"."""
+    config = tmp_path / "c.toml"
+    config.write_text(f"[mtt]\n{key} = {value}\n")
+    code = main(["replay", "--algorithm", "mtt-centralized", "--measurements",
+                 str(write_lines(tmp_path / "m.jsonl", [scan(0.0)])), "--config", str(config),
+                 "--out", str(tmp_path / "o.jsonl")])
+    assert one_line_error(capsys, code) == f"fedtrack: error: {config}: mtt.{key}: {right}"
+
+
 def test_a_failed_replay_leaves_the_previous_output_untouched(tmp_path: Path,
                                                               capsys: pytest.CaptureFixture[str]) -> None:
     """The radar switch fails after pictures were made: nothing of them reaches ``--out``."""

@@ -367,9 +367,12 @@ class MttConfig:
                               f"data at most as long as it is kept), got {self.picture_delay:g}")
         if not math.isfinite(self.max_speed):
             raise ConfigError("max_speed: must be a finite speed [m/s] (0: no two-point starts)")
-        for key in ("pd", "gate_probability", "association_gate_probability"):
-            if not 0 < getattr(self, key) < 1 and not (key == "pd" and self.pd == 1):
-                raise ConfigError(f"{key}: must be in (0, 1)" + (" or 1" if key == "pd" else ""))
+        if not 0 < self.pd <= 1:  # 1: a sensor that never misses a target in its view
+            raise ConfigError(f"pd: must be in (0, 1] (a detection probability), got {self.pd:g}")
+        for key in ("gate_probability", "association_gate_probability"):
+            if not 0 < getattr(self, key) < 1:
+                raise ConfigError(f"{key}: must be in (0, 1) (a probability; 1 is an infinite gate), "
+                                  f"got {getattr(self, key):g}")
         if not self.vdie.min_samples <= self.central_maneuver_window <= MAX_CENTRAL_MANEUVER_WINDOW:
             raise ConfigError(f"central_maneuver_window: must be in mtt.vdie.min_samples.."
                               f"{MAX_CENTRAL_MANEUVER_WINDOW}")
