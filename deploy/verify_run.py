@@ -13,14 +13,20 @@ sensors, states and covariances to ``TOLERANCE`` (relative, as above). ``--algor
 same for a config without ``[multitarget]`` (the services started by hand, ``serve mtt-centre --algorithm``);
 a run of pictures checked without either is refused in one line saying so (before the tour58 session the
 paper replay read the scans and said ``unknown field 'detections'``).
+
+The replay's own lines (its counters, stage timings, notes) are held back and written to stderr only when
+the verdict is not ok or the check fails, where they help explain it: a run that agrees prints the verdict
+alone (before the tour59 session they went to stderr every time, noise in ``netns-demo.sh``'s output).
 """
 
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import sys
 import tempfile
+from contextlib import redirect_stderr
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -156,6 +162,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"verify_run: error: --run {args.run}: no such folder (the output folder of the launch, its --out "
               "or [deployment] out)", file=sys.stderr)
         return 2
+    replay_lines = io.StringIO()
     try:
         mt = load_settings(args.config).multitarget
         algorithm = args.algorithm or (None if mt is None else mt.algorithm)
@@ -163,12 +170,15 @@ def main(argv: list[str] | None = None) -> int:
             raise ConfigError(f"{args.run / 'tracks.jsonl'}: multi-target pictures, but {args.config} has no "
                               "[multitarget] table naming the centre's algorithm: give --algorithm (mtt-federated, "
                               "mtt-decentralized or mtt-centralized)")
-        check: RunCheck | PictureCheck = (verify_mtt_run(args.config, args.run, algorithm) if algorithm is not None
-                                          else verify_run(args.config, args.run))
+        with redirect_stderr(replay_lines):
+            check: RunCheck | PictureCheck = (verify_mtt_run(args.config, args.run, algorithm)
+                                              if algorithm is not None else verify_run(args.config, args.run))
     except (OSError, ConfigError, InputError) as exc:
-        print(f"verify_run: error: {exc}", file=sys.stderr)
+        print(replay_lines.getvalue() + f"verify_run: error: {exc}", file=sys.stderr)
         return 2
     print(json.dumps(check.as_dict()))
+    if not check.ok:
+        print(replay_lines.getvalue(), end="", file=sys.stderr)
     return 0 if check.ok else 1
 
 

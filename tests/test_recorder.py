@@ -611,6 +611,30 @@ def test_verify_run_of_a_multitarget_run_started_by_hand(tmp_path: Path, capsys:
     assert verdict["ok"] and verdict["pictures"] == verdict["replayed"] == 8 and verdict["max_replay_diff"] == 0.0
 
 
+def test_verify_run_that_agrees_prints_its_verdict_alone(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """A run equal to its replay: the verdict on stdout and nothing on stderr (before, tour59: the replay's
+    counter and stage-timing lines, noise in ``netns-demo.sh``); a run that disagrees: the replay's lines on
+    stderr after the verdict, where they help explain it."""
+    from fedtrack.deploy.verify_run import main as verify_main
+
+    sim, run = tmp_path / "sim", tmp_path / "run"
+    run.mkdir()
+    assert cli.main(["simulate", "multitarget", "--targets", "3", "--duration", "8", "--out", str(sim)]) == 0
+    (run / "measurements.jsonl").write_bytes((sim / "measurements.jsonl").read_bytes())
+    assert cli.main(["replay", "--algorithm", "mtt-centralized", "--config", str(sim / "config.toml"),
+                     "--measurements", str(run / "measurements.jsonl"), "--out", str(run / "tracks.jsonl")]) == 0
+    capsys.readouterr()
+    verify = ["--config", str(sim / "config.toml"), "--run", str(run), "--algorithm", "mtt-centralized"]
+    assert verify_main(verify) == 0
+    out, err = capsys.readouterr()
+    assert json.loads(out)["ok"] and err == ""
+    lines = (run / "tracks.jsonl").read_text().splitlines()
+    (run / "tracks.jsonl").write_text("\n".join(lines[:-1]) + "\n")  # the last picture lost
+    assert verify_main(verify) == 1
+    out, err = capsys.readouterr()
+    assert json.loads(out)["pictures"] == len(lines) - 1 and "mtt-centralized: seconds per input scan" in err
+
+
 def test_a_recorder_with_out_says_pictures_of_a_multitarget_recording(tmp_path: Path,
                                                                      caplog: pytest.LogCaptureFixture) -> None:
     """``serve recorder --out`` of a multi-target run says how many pictures it wrote, as ``fedtrack export``
