@@ -378,6 +378,7 @@ class Launcher(Monitor):
             self.report.router_outages = [o.summary(self._epoch, dep.speed) for o in self.watch.outages]
             self.report.primary_tokens_ignored = self.watch.tokens_ignored
         if stopped:
+            self.report.stopped = True
             raise Stopped(self.report)
         failed = self.report.failed_exits()
         if failed and not self._stop.is_set():

@@ -61,6 +61,7 @@ class LaunchReport:
     router_outages: list[dict[str, Any]] = field(default_factory=list)
     primary_tokens_ignored: int = 0  # primary tokens beyond CENTRE_TOKENS_KEPT of a scope, not followed
     wall_s: float = 0.0
+    stopped: bool = False  # Ctrl-C or SIGTERM before the scenario's end: the sensors published only part of it
     monitor_rejected: int = 0  # messages the launcher's own session rejected (Launcher._monitored)
 
     @property

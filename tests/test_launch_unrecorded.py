@@ -325,3 +325,32 @@ def test_a_run_stopped_before_anything_was_recorded_names_only_the_files_written
     assert f"wrote {tmp_path}/: truth.jsonl summary.json config.toml\n" in out
     assert (f"no recording to export: {tmp_path / 'recording.db'} does not exist (the recorder stored nothing, or the "
             "file was removed during the run)") in err
+
+
+def test_a_run_stopped_at_the_start_does_not_call_the_unpublished_scenario_lost(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """Ctrl-C while the services start: exit 130 and no scan said lost (tour58: '191 scans the sensors were to
+    publish are not in the recording', of scans never published). A run stopped later is held to the scans the
+    launcher saw live: 3 seen, 2 recorded, 1 said."""
+    cfg = tmp_path / "mtt.toml"
+    cfg.write_text(MTT_CONFIG.format(port=free_port()))
+
+    def ctrl_c(self: launcher.Launcher, sp: object) -> None:  # the first service's start interrupted
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(launcher.Launcher, "_start", ctrl_c)
+    assert launcher.main([str(cfg), "--out", str(tmp_path)]) == 130
+    err = capsys.readouterr().err
+    assert "not in the recording" not in err and "scans_not_recorded" not in json.loads(
+        (tmp_path / "summary.json").read_text())
+
+    def seen_three(self: launcher.Launcher, sp: object) -> None:  # three scans of s1 live, two recorded
+        self.report.measurements = {"s1": 3}
+        store_mtt(tmp_path / "recording.db", [], [0, 1])
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(launcher.Launcher, "_start", seen_three)
+    assert launcher.main([str(cfg), "--out", str(tmp_path)]) == 130
+    err = capsys.readouterr().err
+    assert "fedtrack launch: 1 scans seen live are not in the recording (s1: 1)" in err
+    assert json.loads((tmp_path / "summary.json").read_text())["scans_not_recorded"] == {"s1": 1}
