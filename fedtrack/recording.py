@@ -32,8 +32,10 @@ table when a recorder opens it; read only, it has none (no rows).
 
 Every table with a ``t`` has an index on ``t``; the unique keys double as the index
 on ``sensor``. A message whose unique key is already stored is not stored again: a
-byte-identical copy (a redelivery from Zenoh's history or recovery) counts as a
-duplicate, a different one as a conflict (the first row stays).
+copy (a redelivery from Zenoh's history or recovery; the same message stamped anew, as a restarted
+sensor sends its scans again) counts as a duplicate, a different one as a conflict (the first row
+stays; the recorder says so in its log). Before the tour59 session a copy differing only in its
+``stamp_ns`` counted as a conflict, which the services call a duplicate (``admission.digest``).
 
 Durability: ``journal_mode=WAL``, ``synchronous=FULL``, and every row is its own
 transaction, committed (and fsynced) before the next message is handled: a row that
@@ -73,6 +75,7 @@ from typing import IO, Any, Callable, Iterator
 import orjson
 
 from fedtrack.jsonl import InputError, check_output, output_file
+from fedtrack.services.admission import digest
 from fedtrack.wire import (
     FusedTrack,
     LocalEstimate,
@@ -239,7 +242,11 @@ class Recording:
             if getattr(exc, "sqlite_errorcode", 0) & 0xFF not in STORAGE_FAULTS:
                 raise
             raise StorageError(f"{self.path}: cannot record: {exc} ({exc.sqlite_errorname})") from None
-        return DUPLICATE if stored is not None and bytes(stored[0]) == payload else CONFLICT
+        if stored is None:
+            return CONFLICT
+        kept = bytes(stored[0])
+        # the same message sent again (a restarted sensor's scan, stamped anew) is a duplicate, as at the services
+        return DUPLICATE if kept == payload or digest(decode(kept, type(msg))) == digest(msg) else CONFLICT
 
     def check_file(self) -> None:
         """StorageError when the database file is no longer the one opened (removed, or replaced by

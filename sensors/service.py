@@ -151,6 +151,10 @@ class SensorService(Service):
             self.start_at = read_start(self.start_file) if self.start_file is not None else time.time()
             if self.start_at is None:
                 return  # the launcher has not given the start yet
+            if self.start_file is None and self.pacing == "realtime":  # started by hand: how to resume is said
+                self.log.info("scan 0 at %.3f (Unix s): restarted with --start-at %.3f, this sensor resumes at the "
+                              "scan then due (without it, it numbers its scans from 0 again)",
+                              self.start_at, self.start_at)
         if self.start_mono is None:
             # the common start is a wall-clock time (hosts share no other clock), the scans' times after it
             # monotonic: the wall clock stepped back 30 s mid-run stopped every sensor for 30 s before

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import logging
 import os
 import random
 import sqlite3
@@ -19,7 +21,7 @@ from support import Deployment, cli_in_process, wait_until
 from fedtrack import cli
 from fedtrack.fusion_center.replay import replay_fusion
 from fedtrack.jsonl import InputError
-from fedtrack.recording import CONFLICT, DUPLICATE, RECORDED, Recording
+from fedtrack.recording import CONFLICT, DUPLICATE, RECORDED, TABLE_OF, Recording
 from fedtrack.wire import Detection, FusedTrack, Measurement, TrackPicture, encode, parts
 
 
@@ -574,6 +576,33 @@ def test_a_stopped_recorder_commits_its_whole_backlog_before_it_says_stopped(tmp
     assert svc.recording.count(FusedTrack) == 100
     svc.recording.close()
     assert svc.drain_deadline_s + CLOSE_DEADLINE_S < RECORDER_GRACE_S  # its final Health goes out before a SIGKILL
+
+
+def test_a_restarted_sensors_scans_sent_again_are_duplicates_and_a_conflict_is_said(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    """A sensor started by hand, stopped and started again numbers its scans from 0 again: the same scans,
+    stamped anew. The recorder counted each a ``conflict`` (tour59: 38 of them on a by-hand run at 10x, where
+    the services count the same ``duplicate``) and said nothing; now they are duplicates, and a scan that
+    really differs (a sensor given another --seed or file) is a conflict said once for its sensor."""
+    from fedtrack.services.recorder import Recorder
+    from fedtrack.zsession import SessionOptions
+
+    svc = Recorder(db=tmp_path / "r.db", service_id="recorder", options=SessionOptions(connect=("tcp/127.0.0.1:1",)),
+                   deployment="t")
+    svc.on_start()
+    table = TABLE_OF[Measurement]
+    first, again = scan("s1", 0, 3), dataclasses.replace(scan("s1", 0, 3), stamp_ns=99)
+    with caplog.at_level(logging.WARNING):
+        svc.on_message(table, first, encode(first))
+        svc.on_message(table, again, encode(again))  # the restart's scan 0: only its stamp differs
+        assert svc.counters.get("duplicate") == 1 and not svc.counters.get("conflict")
+        for n in (4, 5):  # two scans that differ: one line for the sensor
+            other = scan("s1", 0, n)
+            svc.on_message(table, other, encode(other))
+    assert svc.counters.get("conflict") == 2
+    said = [r.getMessage() for r in caplog.records if "not stored" in r.getMessage()]
+    assert len(said) == 1 and said[0].startswith("measurements s1 0: a different message") and "--start-at" in said[0]
+    svc.recording.close()
 
 
 def test_verify_run_names_a_run_folder_that_is_not_there(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -239,6 +239,36 @@ def test_a_realtime_sensor_keeps_its_pace_when_the_wall_clock_steps(monkeypatch:
     assert sent == pytest.approx([50.0, 51.0, 52.0, 53.0, 54.0], abs=0.011)
 
 
+def test_a_sensor_started_by_hand_says_the_start_a_restart_resumes_from(monkeypatch: pytest.MonkeyPatch,
+                                                                        caplog: pytest.LogCaptureFixture) -> None:
+    """A realtime sensor started by hand (no --start-at, no start file) says its scan 0's time and that a
+    restart given it resumes there: restarted without it, it numbered its scans from 0 again, each a scan
+    recorded before (tour59: the recorder kept the first and counted the rest, nothing said). Given it, the
+    restart 10 s later resumes at scan 10."""
+    import logging
+    from types import SimpleNamespace
+
+    import fedtrack.sensors.service as module
+    from fedtrack.zsession import SessionOptions
+
+    clock = {"wall": 1000.0, "mono": 50.0}
+    monkeypatch.setattr(module, "time", SimpleNamespace(time=lambda: clock["wall"], monotonic=lambda: clock["mono"]))
+    sensor = module.SensorService([{}] * 40, 1.0, "realtime", 1.0, 5.0, service_id="s1", options=SessionOptions())
+    sensor.publish_scan = lambda now: None  # type: ignore[method-assign]
+    with caplog.at_level(logging.INFO):
+        sensor.on_tick()
+        sensor.on_tick()
+    said = [r.getMessage() for r in caplog.records if "scan 0 at" in r.getMessage()]
+    assert said == ["scan 0 at 1000.000 (Unix s): restarted with --start-at 1000.000, this sensor resumes at the scan "
+                    "then due (without it, it numbers its scans from 0 again)"]
+    clock["wall"] += 10.0
+    again = module.SensorService([{}] * 40, 1.0, "realtime", 1.0, 5.0, start_at=1000.0, service_id="s1",
+                                 options=SessionOptions())
+    again.count = lambda *args: None  # type: ignore[method-assign]
+    again.on_start()
+    assert again.next_seq == 10
+
+
 def test_a_restart_still_starting_when_the_run_ends_is_no_failure(tmp_path: Path) -> None:
     """The stop's SIGTERM meets a restarted service before it is up (it has not declared its liveliness
     token, nor its SIGTERM handler): its exit by the signal is no failure. A local filter SIGKILLed at

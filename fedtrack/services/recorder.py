@@ -6,7 +6,8 @@ message is handled, so a SIGKILL loses nothing that was committed. The recorder
 subscribes with ``zenoh.ext`` advanced subscribers (history + recovery): restarted on
 the same database it receives what the publishers still hold in their caches (what
 was published while it was down) and stores each message once (a redelivered copy is
-counted in ``duplicate``, a different message with the same key in ``conflict``).
+counted in ``duplicate``, a different message with the same key in ``conflict``, its first of each sensor
+also said in the log: before the tour59 session only the counter held them).
 
 With ``--out DIR`` it writes, on a clean stop, ``DIR/measurements.jsonl`` (replay
 input, scan order) and ``DIR/tracks.jsonl`` (replay output) from the database, as
@@ -27,7 +28,7 @@ from typing import Any, Iterator
 
 from fedtrack.deployment import deployment_of
 from fedtrack.jsonl import check_output, check_output_folder
-from fedtrack.recording import RECORDED, TABLES, Recording, StorageError, Table
+from fedtrack.recording import CONFLICT, RECORDED, TABLES, Recording, StorageError, Table
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
 from fedtrack.services.dispatch import ServiceFault
 from fedtrack.wire import Message, TrackPicture
@@ -59,6 +60,7 @@ class Recorder(Service):
         self.db_path = db
         self.out = out
         self.recording: Recording | None = None
+        self.conflicted: set[str] = set()  # senders whose conflicts were said (the first of each)
 
     def subscriptions(self) -> list[Subscription]:
         keys = {"measurements": self.keys.sensor_meas(), "estimates": self.keys.local_estimate(),
@@ -82,8 +84,15 @@ class Recorder(Service):
             outcome = self.recording.add(msg, payload, table)
         if outcome == RECORDED:
             self.count(f"{table.name}_recorded")
-        else:
-            self.count(outcome)
+            return
+        self.count(outcome)
+        sender = getattr(msg, "sensor", table.name)
+        if outcome == CONFLICT and sender not in self.conflicted:  # said once a sender: a flood fills no log
+            self.conflicted.add(sender)
+            self.log.warning("%s %s %s: a different message than the one recorded under its number, not stored (the "
+                             "first stays; a sensor restarted by hand numbers its scans from 0 again: give it "
+                             "--start-at, the first start's time, to resume; counter conflict)", table.name, sender,
+                             getattr(msg, "seq", "-"))
 
     def on_tick(self) -> None:
         assert self.recording is not None
