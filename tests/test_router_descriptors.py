@@ -125,3 +125,37 @@ def test_the_launcher_says_a_routers_status_when_it_changes(tmp_path: Path, caps
         launcher._on_health(sample(launcher.keys.health(role, "r"), encode(h)))
     said = [line for line in capsys.readouterr().err.splitlines() if line]
     assert said == [f"fedtrack launch: router/r: {out}", "fedtrack launch: router/r: ok"]
+
+
+def test_a_router_without_a_link_to_a_router_it_joins_says_so_until_it_has_one(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """``router_connect`` to another host's router that is not up: Zenoh retries for good and the router, the
+    launch with it, ran on alone and silent (tour59). Past ``--connect-timeout`` (0.5 s here) its status and a line
+    name the endpoint without a link, and a line says when the link comes; a joined endpoint (given by a
+    host name) is never named."""
+    from support import wait_until
+
+    joined, later = f"tcp/127.0.0.1:{free_port()}", f"tcp/127.0.0.1:{free_port()}"
+    by_name = joined.replace("127.0.0.1", "localhost")
+    first = open_session(SessionOptions(mode="router", connect=(), listen=(joined,)))
+    options = SessionOptions(mode="router", connect=(by_name, later), listen=(f"tcp/127.0.0.1:{free_port()}",),
+                             connect_timeout_s=0.5)
+    svc = Router("router", options, deployment="rc")
+    svc.session = open_session(options)
+    second = None
+    try:
+        with caplog.at_level(logging.INFO, logger="fedtrack.router.router"):
+            assert wait_until(lambda: bool(list(svc.session.info.links())), 10.0)  # type: ignore[union-attr]
+            svc.on_tick()
+            assert wait_until(lambda: (svc.on_tick(), svc.status != "ok")[1], 10.0)
+            assert svc.status == f"no link to the router at {later} (--connect; retrying)"
+            second = open_session(SessionOptions(mode="router", connect=(), listen=(later,)))
+            assert wait_until(lambda: (svc.on_tick(), svc.status == "ok")[1], 10.0)
+        assert [(r.levelname, r.getMessage()) for r in caplog.records] == [
+            ("ERROR", f"no link to the router at {later} after 0.5 s (retrying): its host's router not up, or the "
+                      "address or port wrong?"),
+            ("WARNING", f"joined the router at {later}")]
+    finally:
+        for session in (svc.session, first, second):
+            if session is not None:
+                close_session(session)

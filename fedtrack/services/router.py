@@ -14,6 +14,10 @@ start being refused and one when they are taken again, and the launcher prints t
   own Rust log (``Too many open files (os error 24) ... Hint: increase the system open file limit``,
   a WARN of ``zenoh_link_tcp``), which reaches nobody unless ``zenoh.init_log_from_env_or`` is
   called, then 10 lines a second on stdout;
+* a ``--connect`` endpoint (another host's router, ``[deployment] router_connect``) without a link
+  ``--connect-timeout`` after the start (:func:`unjoined`): Zenoh retries it for good and said nothing, so
+  a host whose peer router was unreachable ran on alone, its data reaching no other host (tour59); the
+  status names the endpoints (the launcher prints it) and a line says when a link comes;
 * every session place taken (``transport/unicast/max_sessions`` of its Zenoh configuration;
   :func:`sessions_by_identity`, counted ``sessions_full``): the status names the identity holding
   the most (Zenoh bounds sessions for the router as a whole, not per identity, so one certificate can
@@ -26,6 +30,8 @@ import errno
 import json
 import os
 import resource
+import socket
+import time
 from collections import Counter
 from pathlib import Path
 
@@ -58,6 +64,30 @@ def sessions_by_identity(session: zenoh.Session) -> Counter[str]:
     return Counter(link.auth_identifier or "" for link in session.info.links())
 
 
+def _address(endpoint: str) -> tuple[str, str, str]:
+    """``(protocol, host, port)`` of a Zenoh endpoint or locator (``tcp/[::1]:7447#...`` -> tcp, ::1, 7447)."""
+    proto, _, rest = endpoint.split("#", 1)[0].split("?", 1)[0].partition("/")
+    host, _, port = rest.rpartition(":")
+    return proto, host.strip("[]"), port
+
+
+def resolved(endpoint: str) -> frozenset[tuple[str, str, str]]:
+    """The addresses ``endpoint`` names (its host name resolved; as written when it cannot be)."""
+    proto, host, port = _address(endpoint)
+    try:
+        ips = {info[4][0] for info in socket.getaddrinfo(host, port, proto=socket.IPPROTO_TCP)}
+    except (OSError, UnicodeError):
+        ips = set()
+    return frozenset((proto, ip, port) for ip in ips | {host})
+
+
+def unjoined(endpoints: dict[str, frozenset[tuple[str, str, str]]], links: list[str]) -> list[str]:
+    """The ``endpoints`` (each with its :func:`resolved` addresses) that none of ``links`` (the
+    destinations of this router's links, ``session.info.links()``) goes to."""
+    reached = {_address(dst) for dst in links}
+    return [ep for ep, addresses in endpoints.items() if not addresses & reached]
+
+
 class Router(Service):
     """Routes data between the client sessions; handles no messages itself; says when it takes no new
     session (module docstring)."""
@@ -71,6 +101,10 @@ class Router(Service):
         config = load_config_file(options.config_file) if options.config_file is not None else zenoh.Config()
         self.max_sessions = int(json.loads(config.get_json("transport/unicast/max_sessions")))
         self.refusing: tuple[str, ...] = ()  # why new sessions are refused now (none: they are taken)
+        self.peers = {ep: resolved(ep) for ep in options.connect}  # the other hosts' routers it joins
+        self.peers_wait_s = max(options.connect_timeout_s, 0.0)  # negative (wait for good): said at once
+        self.peers_due = time.monotonic() + self.peers_wait_s  # when a missing link is said
+        self.missing: tuple[str, ...] = ()  # the peers without a link, said
 
     def on_tick(self) -> None:
         """Health status, ``fd_exhausted`` and ``sessions_full`` while new sessions are refused; a line
@@ -88,15 +122,26 @@ class Router(Service):
                           f"{who or 'a link without a certificate'} holds {most})")
             self.count("sessions_full")
         kinds = tuple(cause.split(" (", 1)[0] for cause in causes)
-        if kinds == self.refusing:  # the same episode: its status (and counts) as when it began, said once
+        missing = tuple(unjoined(self.peers, [str(link.dst) for link in self.session.info.links()])
+                        if self.peers and time.monotonic() >= self.peers_due else ())
+        if kinds == self.refusing and missing == self.missing:  # the same episode: its status said once
             return
-        self.refusing = kinds
-        self.status = "; ".join(causes) + ": new sessions are refused" if causes else "ok"
-        if causes:
-            self.log.error("%s", self.status)
-        else:
-            self.log.warning("new sessions are taken again (%d open, %d file descriptors of RLIMIT_NOFILE %d)",
-                             held.total(), used, limit)
+        if kinds != self.refusing:
+            if causes:
+                self.log.error("%s: new sessions are refused", "; ".join(causes))
+            else:
+                self.log.warning("new sessions are taken again (%d open, %d file descriptors of RLIMIT_NOFILE %d)",
+                                 held.total(), used, limit)
+        joined = [ep for ep in self.missing if ep not in missing]
+        if missing:
+            self.log.error("no link to the router at %s after %g s (retrying): its host's router not up, or the "
+                           "address or port wrong?", ", ".join(missing), self.peers_wait_s)
+        if joined:
+            self.log.warning("joined the router at %s", ", ".join(joined))
+        self.refusing, self.missing = kinds, missing
+        said = ["; ".join(causes) + ": new sessions are refused"] if causes else []
+        said += [f"no link to the router at {', '.join(missing)} (--connect; retrying)"] if missing else []
+        self.status = "; ".join(said) or "ok"
 
 
 def main(argv: list[str]) -> int:
