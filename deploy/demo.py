@@ -171,7 +171,8 @@ def main(argv: list[str]) -> int:
                         help="traffic: the units of --source, as simulate traffic --units (si: m, m/s; aviation: "
                              "ft, kt, ft/min, the traffic library's; default: %(default)s)")
     parser.add_argument("--mode", choices=MODES, default="federated",
-                        help="federated (FVDIE, reset feedback) or decentralized (DVDIE; default: %(default)s)")
+                        help="federated (FVDIE, reset feedback; multitarget, traffic: mtt-federated) or "
+                             "decentralized (DVDIE; mtt-decentralized; default: %(default)s)")
     parser.add_argument("--seed", type=seed_number, default=1, help="seed of truth and noise (default: %(default)s)")
     parser.add_argument("--port", type=int, help="router port on 127.0.0.1 (default: a free one)")
     parser.add_argument("--insecure", action="store_true",
@@ -182,7 +183,7 @@ def main(argv: list[str]) -> int:
         parser.error(f"--sensors applies to --scenario 1 or 2 only ({args.scenario} has its own sensor set)")
     args.sensors = 2 if args.sensors is None else args.sensors
     if not 1 <= args.sensors <= 32:
-        parser.error("--sensors must be between 1 and 32")
+        parser.error(f"--sensors must be between 1 and 32, got {args.sensors}")
     if (args.source is not None or args.units != "si") and args.scenario != "traffic":
         parser.error("--source and --units apply to --scenario traffic only")
     if args.units != "si" and args.source is None:  # it would read the committed extract in the wrong units

@@ -212,3 +212,16 @@ def test_a_port_left_in_time_wait_by_the_last_run_is_free_a_listening_one_is_not
         client.recv(1)
         client.close()
     assert not port_in_use(f"tcp/127.0.0.1:{port}")
+
+
+@pytest.mark.parametrize("sensors", ["0", "33"])
+def test_a_demo_sensor_count_out_of_range_says_the_count_given(sensors: str,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """``demo --sensors 33``: the range and the value given (tour59: the range alone)."""
+    from fedtrack.deploy import demo
+
+    with pytest.raises(SystemExit) as exit_:
+        demo.main(["--sensors", sensors])
+    assert exit_.value.code == 2
+    assert capsys.readouterr().err.splitlines()[-1] == (f"fedtrack demo: error: --sensors must be between 1 and 32, "
+                                                        f"got {sensors}")
