@@ -146,15 +146,19 @@ def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="fedtrack bench hpda-soak", description=(
         "fedtrack bench hpda-soak: fedtrack serve hpda for --minutes in dense clutter (the paper's densest, 600 "
         "detections a scan); latency, track counts and resident memory per minute (issue 15)."))
-    parser.add_argument("--minutes", type=float, default=10.0, help="length of the soak (default: %(default)s)")
+    parser.add_argument("--minutes", type=float, default=10.0, help="length of the soak, at least 1 (its numbers are "
+                        "per minute; default: %(default)s)")
     parser.add_argument("--clutter", type=float, default=1.5e-4, help="clutter density per m^2 (default: %(default)s)")
     parser.add_argument("--rate", type=float, default=4.0, help="scans per second (default: %(default)s)")
     parser.add_argument("--algorithm", default="hpda", choices=("hpda", "pda-ai"), help="the tracker (default: %(default)s)")
     parser.add_argument("--seed", type=seed_number, default=1, help="seed of the scenario (default: %(default)s)")
     parser.add_argument("--json", type=Path, help="write the result here (default: printed only)")
     args = parser.parse_args(argv)
-    if not (1.0 <= args.minutes < math.inf and 0.0 < args.rate < math.inf and 0.0 < args.clutter < math.inf):
-        parser.error("--minutes must be finite and >= 1, --rate and --clutter finite and > 0")
+    if not 1.0 <= args.minutes < math.inf:
+        parser.error(f"--minutes: must be finite and >= 1 (its numbers are per minute), got {args.minutes:g}")
+    for name in ("rate", "clutter"):
+        if not 0.0 < getattr(args, name) < math.inf:
+            parser.error(f"--{name}: must be finite and > 0, got {getattr(args, name):g}")
     if args.json:
         check_output(args.json)
     result = run(args.minutes, args.clutter, args.rate, args.algorithm, args.seed)

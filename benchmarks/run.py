@@ -236,9 +236,10 @@ def versions() -> dict[str, str]:
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="fedtrack bench [pipeline]", description=__doc__.splitlines()[0],
-                                     epilog="Other suites: fedtrack bench "
-                                            "kernels|montecarlo|multitarget|scale|soak|hpda-soak|all "
-                                            "[--json PATH] [--quick]; each has its own --help (docs/bench.md).")
+                                     epilog="Other suites: fedtrack bench kernels|montecarlo|multitarget|scale|all "
+                                            "[--json PATH] [--quick], fedtrack bench soak|hpda-soak [--minutes M] "
+                                            "[--json PATH] (no --quick: --minutes sets their length); each has its "
+                                            "own --help (docs/bench.md).")
     parser.add_argument("--sensors", type=sensor_counts, default=[2, 4, 8], help="sensor counts (default 2,4,8)")
     parser.add_argument("--quick", action="store_true",
                         help=f"smoke test: {QUICK_SCANS} scans per deployment (the first {QUICK_SCANS // 4} "

@@ -41,7 +41,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
 from fedtrack.benchmarks.centre_replay import Recording, measure, regions_config
 from fedtrack.config import load_tables
@@ -52,6 +51,7 @@ from fedtrack.fusion_center.mtt.shards import ShardedCentre
 from fedtrack.jsonl import output_file
 from fedtrack.local_filters.mtt.config import MttSettings
 from fedtrack.local_filters.regions import Regions, distances, region_of
+from fedtrack.progress import progress_bar
 from fedtrack.sensors.multitarget import SPEED, Scenario, parse_spec, simulate
 
 GRIDS = {1: "1x1", 2: "2x1", 4: "2x2", 8: "4x2"}
@@ -143,9 +143,10 @@ def bench_scale(quick: bool, targets: int | None = None, duration: float | None 
             path = sim / f"{n}.jsonl"
             start = time.perf_counter()
             twice = held_twice = 0
-            with output_file(path) as fh:
-                for T, tracks in tqdm(pictures(engine, scans, cfg.period, cfg.picture_delay), f"{n} regions",
-                                      total=int(duration / cfg.period), unit="picture", mininterval=5.0, leave=False):
+            with output_file(path) as fh, progress_bar(int(duration / cfg.period), f"{n} regions", unit="picture",
+                                                       mininterval=5.0, leave=False) as bar:
+                for T, tracks in pictures(engine, scans, cfg.period, cfg.picture_delay):
+                    bar.update()
                     fh.write(tracks.line(T, {"algorithm": "mtt-federated"}) + "\n")
                     twice += len(tracks.ids) - len(set(tracks.ids))
                     held_twice += ids_held_by_two(centre)
@@ -196,8 +197,8 @@ def bench_scale(quick: bool, targets: int | None = None, duration: float | None 
                                                                        MARGIN_M, speed)["hand_overs_per_s"]}
                               for n, row in out["runs"].items() if n in (4,)}
         if process_rounds:
-            with tqdm(total=process_rounds * (1 + sum(GRIDS)), desc="centres in their own processes", unit="process",
-                      mininterval=5.0, leave=False) as progress:
+            with progress_bar(process_rounds * (1 + sum(GRIDS)), "centres in their own processes", unit="process",
+                              mininterval=5.0, leave=False) as progress:
                 out["own_process"] = measure(recorded, dim, process_rounds, sim, progress)
             out["issue_27_load"] = load_bar(out)
             print_table(out)

@@ -126,8 +126,10 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--json", type=Path, default=Path("soak.json"), help="output JSON (default soak.json)")
     parser.add_argument("--out", type=Path, help="keep the deployment's files here (default: a temporary folder)")
     args = parser.parse_args(argv)
-    if not 0 < args.minutes < math.inf or not 1 <= args.sensors <= 32:
-        parser.error("--minutes must be finite and > 0 and --sensors between 1 and 32")
+    if not 0 < args.minutes < math.inf:
+        parser.error(f"--minutes: must be finite and > 0, got {args.minutes:g}")
+    if not 1 <= args.sensors <= 32:
+        parser.error(f"--sensors: must be between 1 and 32, got {args.sensors}")
     check_output(args.json)
     if args.out is not None:
         output_folder(args.out)

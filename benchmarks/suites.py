@@ -43,11 +43,14 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
-from tqdm import tqdm
 
 from fedtrack.config import ConfigError
 from fedtrack.jsonl import InputError, check_output, output_file
+from fedtrack.progress import progress_bar
 
+# fedtrack is installed from its checkout (make install), not from a package index: 'pip install fedtrack[bench]', as
+# the bench said until the tour59 session, would look for a package of that name there
+INSTALL_BENCH = "the bench extra: .venv/bin/pip install -e '.[bench]' in the checkout"
 SUITES = ("kernels", "montecarlo", "multitarget", "scale", "pipeline", "soak", "hpda-soak", "all")
 # what ``fedtrack bench SUITE --help`` says each suite does (plain text; the module docstring has the details)
 ABOUT = {
@@ -314,8 +317,8 @@ def dense_over_seeds(quick: bool) -> dict[str, Any]:
     seeds = list(DENSE_SEEDS)[:2] if quick else list(DENSE_SEEDS)
     size = ["--targets", "15", "--duration", "30"] if quick else []
     gospa: dict[str, list[float]] = {a: [] for a in ("gnn", "jipda", "mht")}
-    with tempfile.TemporaryDirectory() as tmp:
-        for seed in tqdm(seeds, desc="dense seeds", unit="seed", file=sys.stderr):
+    with tempfile.TemporaryDirectory() as tmp, progress_bar(len(seeds), "dense seeds", unit="seed") as progress:
+        for seed in seeds:
             folder = Path(tmp) / f"dense-{seed}"
             timed(fedtrack_cmd("simulate", "multitarget", "--scenario", "dense", "--seed", str(seed), *size,
                                "--out", str(folder)))
@@ -327,6 +330,7 @@ def dense_over_seeds(quick: bool) -> dict[str, Any]:
                 timed(fedtrack_cmd("replay", "--algorithm", "mtt-centralized", "--config", str(config),
                                    "--measurements", str(folder / "measurements.jsonl"), "--out", str(path)))
                 gospa[associator].append(evaluate(path, folder / "truth.jsonl")["mean"]["gospa"])
+            progress.update()
     out: dict[str, Any] = {"seeds": seeds, "gospa": gospa}
     for associator in ("jipda", "mht"):
         r = np.array(gospa[associator]) / np.array(gospa["gnn"])
@@ -404,7 +408,7 @@ def stonesoup_config(config: Path) -> Any | None:
     try:
         import stonesoup  # noqa: F401
     except ImportError:
-        print("fedtrack bench: stonesoup not installed (pip install 'fedtrack[bench]'): the multi-target "
+        print(f"fedtrack bench: stonesoup not installed ({INSTALL_BENCH}): the multi-target "
               "comparison with Stone Soup is skipped", file=sys.stderr)
         return None
     from fedtrack.config import load_tables
@@ -494,7 +498,7 @@ def main(argv: list[str]) -> int:
         result["ratios"].update({k: v for k, v in kernels["ratios"].items() if k in RATIO_KEYS})
         result["batched_target_steps_per_s"] = kernels["batched_target_steps_per_s"]
         if kernels["missing"]:
-            print(f"fedtrack bench: {', '.join(kernels['missing'])} not installed (pip install 'fedtrack[bench]'): "
+            print(f"fedtrack bench: {', '.join(kernels['missing'])} not installed ({INSTALL_BENCH}): "
                   "those comparisons are skipped", file=sys.stderr)
     if args.suite in ("montecarlo", "all"):
         montecarlo = bench_montecarlo(args.quick)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -92,6 +93,20 @@ def test_bench_kernels_quick_reports_ratios_side_by_side(tmp_path: Path) -> None
             assert result["ratios"][f"kf_vs_{lib}"] == times["kf"]["fedtrack"] / times["kf"][lib]
 
 
+def test_bench_without_its_extra_says_how_to_install_it(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                        capsys: pytest.CaptureFixture[str]) -> None:
+    """FilterPy and Stone Soup not importable (a fresh ``make install``): ``bench kernels --quick`` skips their
+    columns and says how to install the extra from the checkout, as docs/bench.md does (tour59: it said
+    ``pip install 'fedtrack[bench]'``, a package index's name, not this checkout)."""
+    from fedtrack import cli
+
+    for name in ("filterpy", "stonesoup"):
+        monkeypatch.setitem(sys.modules, name, None)  # an import of it, or of a submodule, fails
+    assert cli.main(["bench", "kernels", "--quick", "--json", str(tmp_path / "k.json")]) == 0
+    assert ("fedtrack bench: filterpy, stonesoup not installed (the bench extra: .venv/bin/pip install -e '.[bench]' "
+            "in the checkout): those comparisons are skipped") in capsys.readouterr().err
+
+
 def test_bench_scale_quick_reports_every_region(tmp_path: Path) -> None:
     """``bench scale --quick --targets 100 --process-rounds 2`` (about 50 s, 32 replay processes): per
     region count, a CPU time and state size per region, hand-overs, GOSPA; one region's GOSPA is the
@@ -150,6 +165,21 @@ def test_bench_scale_quick_reports_every_region(tmp_path: Path) -> None:
     assert load_model(4, 100, 2, 1.0, 1000.0, 500.0, 10.0)["margin_share"] == 1.0
 
 
+def test_bench_scale_shows_progress_by_the_progress_rule(tmp_path: Path) -> None:
+    """``bench scale``'s bars follow every command's rule (fedtrack.progress): none when stderr is no terminal
+    (tour59: a run into a log file got each region's bar, carriage returns and all), one given
+    ``FEDTRACK_PROGRESS=1``."""
+    argv = [sys.executable, "-m", "fedtrack.cli", "bench", "scale", "--quick", "--targets", "10", "--duration", "4",
+            "--process-rounds", "0", "--json", str(tmp_path / "s.json")]
+    env = {k: v for k, v in os.environ.items() if k != "FEDTRACK_PROGRESS"}
+    quiet = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=300, env=env)
+    forced = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=300,
+                            env={**env, "FEDTRACK_PROGRESS": "1"})
+    assert quiet.returncode == forced.returncode == 0, quiet.stderr[-2000:] + forced.stderr[-2000:]
+    assert "regions:" not in quiet.stderr and "%|" not in quiet.stderr
+    assert "1 regions:" in forced.stderr and "picture" in forced.stderr
+
+
 def test_ids_held_by_two_counts_each_extra_holder() -> None:
     """A track id live in two region centres counts once, in three twice; dead slots never."""
     from types import SimpleNamespace
@@ -164,3 +194,19 @@ def test_ids_held_by_two_counts_each_extra_holder() -> None:
     assert ids_held_by_two(apart) == 0
     copied = SimpleNamespace(centres=[region([1, 2], [0, 1]), region([2, 3], [0, 1]), region([2], [0])])
     assert ids_held_by_two(copied) == 2
+
+
+@pytest.mark.parametrize(("argv", "said"), [
+    (["soak", "--minutes", "0"], "fedtrack bench soak: error: --minutes: must be finite and > 0, got 0"),
+    (["soak", "--sensors", "40"], "fedtrack bench soak: error: --sensors: must be between 1 and 32, got 40"),
+    (["hpda-soak", "--minutes", "0.3"],
+     "fedtrack bench hpda-soak: error: --minutes: must be finite and >= 1 (its numbers are per minute), got 0.3"),
+    (["hpda-soak", "--rate", "inf"], "fedtrack bench hpda-soak: error: --rate: must be finite and > 0, got inf")])
+def test_a_soak_refused_names_the_option_and_value(argv: list[str], said: str,
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    """The soaks' bounds, one option and its value a line (tour59: one sentence for all options, no value)."""
+    from fedtrack import cli
+
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["bench", *argv])
+    assert exit_.value.code == 2 and capsys.readouterr().err.splitlines()[-1] == said
