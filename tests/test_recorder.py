@@ -616,6 +616,18 @@ def test_verify_run_names_a_run_folder_that_is_not_there(tmp_path: Path, capsys:
     assert f"--run {tmp_path / 'nope'}: no such folder" in err and "tracks.jsonl" not in err
 
 
+def replayed_run(tmp_path: Path, algorithm: str) -> tuple[Path, Path]:
+    """A 3-target, 8 s scenario simulated into ``tmp_path/sim`` and a run folder ``tmp_path/run`` holding its
+    measurements and their replay by ``algorithm`` as the run's tracks (a run equal to its replay)."""
+    sim, run = tmp_path / "sim", tmp_path / "run"
+    run.mkdir()
+    assert cli.main(["simulate", "multitarget", "--targets", "3", "--duration", "8", "--out", str(sim)]) == 0
+    (run / "measurements.jsonl").write_bytes((sim / "measurements.jsonl").read_bytes())
+    assert cli.main(["replay", "--algorithm", algorithm, "--config", str(sim / "config.toml"),
+                     "--measurements", str(run / "measurements.jsonl"), "--out", str(run / "tracks.jsonl")]) == 0
+    return sim, run
+
+
 def test_verify_run_of_a_multitarget_run_started_by_hand(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """The services started by hand (``serve mtt-centre --algorithm ... --config C``) leave a config without
     ``[multitarget]``: ``verify_run --algorithm mtt-*`` checks their pictures against the replay, and without it
@@ -623,12 +635,7 @@ def test_verify_run_of_a_multitarget_run_started_by_hand(tmp_path: Path, capsys:
     field 'detections'``, and no option could say which centre ran."""
     from fedtrack.deploy.verify_run import main as verify_main
 
-    sim, run = tmp_path / "sim", tmp_path / "run"
-    run.mkdir()
-    assert cli.main(["simulate", "multitarget", "--targets", "3", "--duration", "8", "--out", str(sim)]) == 0
-    (run / "measurements.jsonl").write_bytes((sim / "measurements.jsonl").read_bytes())
-    assert cli.main(["replay", "--algorithm", "mtt-federated", "--config", str(sim / "config.toml"),
-                     "--measurements", str(run / "measurements.jsonl"), "--out", str(run / "tracks.jsonl")]) == 0
+    sim, run = replayed_run(tmp_path, "mtt-federated")
     capsys.readouterr()
     assert verify_main(["--config", str(sim / "config.toml"), "--run", str(run)]) == 2
     assert capsys.readouterr().err.strip() == (
@@ -646,12 +653,7 @@ def test_verify_run_that_agrees_prints_its_verdict_alone(tmp_path: Path, capsys:
     stderr after the verdict, where they help explain it."""
     from fedtrack.deploy.verify_run import main as verify_main
 
-    sim, run = tmp_path / "sim", tmp_path / "run"
-    run.mkdir()
-    assert cli.main(["simulate", "multitarget", "--targets", "3", "--duration", "8", "--out", str(sim)]) == 0
-    (run / "measurements.jsonl").write_bytes((sim / "measurements.jsonl").read_bytes())
-    assert cli.main(["replay", "--algorithm", "mtt-centralized", "--config", str(sim / "config.toml"),
-                     "--measurements", str(run / "measurements.jsonl"), "--out", str(run / "tracks.jsonl")]) == 0
+    sim, run = replayed_run(tmp_path, "mtt-centralized")
     capsys.readouterr()
     verify = ["--config", str(sim / "config.toml"), "--run", str(run), "--algorithm", "mtt-centralized"]
     assert verify_main(verify) == 0
