@@ -33,6 +33,7 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import subprocess
@@ -403,13 +404,22 @@ def bench_live(quick: bool) -> dict[str, Any]:
     return out
 
 
-def stonesoup_config(config: Path) -> Any | None:
-    """``config``'s ``[mtt]`` for Stone Soup's trackers, or None without the ``bench`` extra."""
+@functools.cache
+def stonesoup_missing() -> bool:
+    """Whether Stone Soup (the ``bench`` extra) is not installed; said once a run (``bench multitarget --quick``
+    said it four times, once per scenario, until the tour59 session)."""
     try:
         import stonesoup  # noqa: F401
     except ImportError:
         print(f"fedtrack bench: stonesoup not installed ({INSTALL_BENCH}): the multi-target "
-              "comparison with Stone Soup is skipped", file=sys.stderr)
+              "comparisons with Stone Soup are skipped", file=sys.stderr)
+        return True
+    return False
+
+
+def stonesoup_config(config: Path) -> Any | None:
+    """``config``'s ``[mtt]`` for Stone Soup's trackers, or None without the ``bench`` extra."""
+    if stonesoup_missing():
         return None
     from fedtrack.config import load_tables
     from fedtrack.local_filters.mtt.config import MttSettings

@@ -210,3 +210,19 @@ def test_a_soak_refused_names_the_option_and_value(argv: list[str], said: str,
     with pytest.raises(SystemExit) as exit_:
         cli.main(["bench", *argv])
     assert exit_.value.code == 2 and capsys.readouterr().err.splitlines()[-1] == said
+
+
+def test_stone_soup_missing_is_said_once_a_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """Without the ``bench`` extra each Stone Soup comparison is skipped, said in one line for the run (tour59:
+    ``bench multitarget --quick`` said it four times, once per scenario)."""
+    from fedtrack.benchmarks import suites
+
+    monkeypatch.setitem(sys.modules, "stonesoup", None)
+    suites.stonesoup_missing.cache_clear()
+    try:
+        assert suites.stonesoup_runs(tmp_path, tmp_path / "c.toml", ("s1",), {}) is None
+        assert suites.stonesoup_associations(tmp_path, tmp_path / "c.toml", ("gnn", "jpda")) == {}
+    finally:
+        suites.stonesoup_missing.cache_clear()  # the next test's run looks again
+    assert capsys.readouterr().err.count("stonesoup not installed") == 1
