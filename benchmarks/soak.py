@@ -29,6 +29,7 @@ from typing import Any
 
 from fedtrack.deploy.procstat import process_usage
 from fedtrack.jsonl import check_output, output_file, output_folder
+from fedtrack.progress import progress_bar
 from fedtrack.services.publishing import CACHE_SAMPLES
 
 SAMPLE_S = 5.0
@@ -76,15 +77,20 @@ def run_soak(minutes: float, sensors: int, out: Path) -> dict[str, Any]:
                               stdout=log, stderr=subprocess.STDOUT)
     samples: dict[str, list[tuple[float, float]]] = {}
     t0 = time.monotonic()
+    # the soak's seconds (a bar on a terminal: the launch's own lines go to launch.log; tour59 found 10 minutes
+    # of nothing on the screen)
+    bar = progress_bar(round(minutes * 60.0), "soak", unit="s")
     try:
         while time.monotonic() - t0 < minutes * 60.0 and launch.poll() is None:
             now = time.monotonic() - t0
+            bar.update(round(now) - bar.n)
             for pid, who in deployment_processes(name).items():
                 rss = rss_mb(pid)
                 if rss is not None:
                     samples.setdefault(who, []).append((now, rss))
             time.sleep(SAMPLE_S)
     finally:
+        bar.close()
         if launch.poll() is None:
             launch.send_signal(signal.SIGINT)
         code = launch.wait(120)

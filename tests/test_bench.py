@@ -226,3 +226,15 @@ def test_stone_soup_missing_is_said_once_a_run(tmp_path: Path, monkeypatch: pyte
     finally:
         suites.stonesoup_missing.cache_clear()  # the next test's run looks again
     assert capsys.readouterr().err.count("stonesoup not installed") == 1
+
+
+def test_bench_soak_shows_its_progress(tmp_path: Path) -> None:
+    """``bench soak`` runs for ``--minutes`` (10 by default) with the launch's lines in its launch.log: a bar
+    of the soak's seconds on a terminal (forced here; tour59: nothing on the screen until the end)."""
+    env = {**os.environ, "FEDTRACK_PROGRESS": "1"}
+    proc = subprocess.run([sys.executable, "-m", "fedtrack.cli", "bench", "soak", "--minutes", "0.1", "--sensors", "1",
+                           "--json", str(tmp_path / "soak.json")], cwd=REPO, capture_output=True, text=True,
+                          timeout=300, env=env)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "soak:" in proc.stderr and "/6 [" in proc.stderr  # the bar: seconds done of 6
+    assert json.loads((tmp_path / "soak.json").read_text())["launch_exit_code"] == 0
