@@ -120,15 +120,21 @@ def bench_montecarlo(quick: bool) -> dict[str, Any]:
     two scenarios of AO-VSIMM's CPU time over FSIMM's in ``reproduce vsimm --runs 200``."""
     runs = "20" if quick else "500"
     out: dict[str, Any] = {}
-    with tempfile.TemporaryDirectory() as tmp:
+    # a bar of the three reproductions, each named as it starts (their own bars go to a log: hpda's 500 runs
+    # took minutes with nothing on the screen until the tour59 session)
+    with tempfile.TemporaryDirectory() as tmp, progress_bar(3, "montecarlo", unit="reproduction") as bar:
         for name in ("fvdie", "hpda"):
+            bar.set_description(f"montecarlo: reproduce {name} --runs {runs}")
             wall, _ = timed(fedtrack_cmd("reproduce", name, "--runs", runs, "--seed", "1", "--json",
                                          str(Path(tmp) / f"{name}.json")))
             out[f"{name}_{runs}"] = wall
+            bar.update()
         vsimm_runs = "20" if quick else "200"
         path = Path(tmp) / "vsimm.json"
+        bar.set_description(f"montecarlo: reproduce vsimm --runs {vsimm_runs}")
         out[f"vsimm_{vsimm_runs}"], _ = timed(fedtrack_cmd("reproduce", "vsimm", "--runs", vsimm_runs, "--seed", "1",
                                                            "--json", str(path)))
+        bar.update()
         scenarios = json.loads(path.read_text())["scenarios"].values()
         out["aovsimm_vs_fsimm_cpu"] = max(sc["filters"]["ao_vsimm"]["cpu_ratio_to_fsimm"] for sc in scenarios)
         out["aovsimm_rmse_vs_fsimm"] = max(sc["filters"]["ao_vsimm"]["mean_rms_acc"] / sc["filters"]["fsimm"]["mean_rms_acc"]

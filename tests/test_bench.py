@@ -238,3 +238,25 @@ def test_bench_soak_shows_its_progress(tmp_path: Path) -> None:
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "soak:" in proc.stderr and "/6 [" in proc.stderr  # the bar: seconds done of 6
     assert json.loads((tmp_path / "soak.json").read_text())["launch_exit_code"] == 0
+
+
+def test_bench_montecarlo_names_each_reproduction_as_it_starts(monkeypatch: pytest.MonkeyPatch,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    """``bench montecarlo`` runs three reproductions (hpda's 500 runs take minutes) with their output in a log:
+    on a terminal (forced here) a bar names each as it starts (tour59: nothing until the end). The
+    reproductions stand in for themselves here (a wall time of 1 s, vsimm's JSON)."""
+    from fedtrack.benchmarks import suites
+
+    def reproduce(cmd: list[str], cwd: Path | None = None) -> tuple[float, float]:
+        if "vsimm" in cmd:
+            filters = {"ao_vsimm": {"cpu_ratio_to_fsimm": 0.8, "mean_rms_acc": 1.0}, "fsimm": {"mean_rms_acc": 1.0}}
+            Path(cmd[cmd.index("--json") + 1]).write_text(json.dumps({"scenarios": {"a": {"filters": filters}}}))
+        return 1.0, 0.0
+
+    monkeypatch.setattr(suites, "timed", reproduce)
+    monkeypatch.setenv("FEDTRACK_PROGRESS", "1")
+    assert suites.bench_montecarlo(quick=True) == {"fvdie_20": 1.0, "hpda_20": 1.0, "vsimm_20": 1.0,
+                                                   "aovsimm_vs_fsimm_cpu": 0.8, "aovsimm_rmse_vs_fsimm": 1.0}
+    err = capsys.readouterr().err
+    assert all(f"montecarlo: reproduce {name} --runs 20" in err for name in ("fvdie", "hpda", "vsimm"))
+    assert "3/3" in err
