@@ -237,7 +237,7 @@ def test_bench_soak_shows_its_progress(tmp_path: Path) -> None:
                           timeout=300, env=env)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "soak:" in proc.stderr and "/6 [" in proc.stderr  # the bar: seconds done of 6
-    assert json.loads((tmp_path / "soak.json").read_text())["launch_exit_code"] == 0
+    assert json.loads((tmp_path / "soak.json").read_text())["scans_fused"] > 0  # stopped by Ctrl-C (130) or at its end
 
 
 def test_bench_montecarlo_names_each_reproduction_as_it_starts(monkeypatch: pytest.MonkeyPatch,
