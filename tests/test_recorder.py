@@ -682,3 +682,32 @@ def test_a_recorder_with_out_says_pictures_of_a_multitarget_recording(tmp_path: 
     with caplog.at_level("INFO"):
         svc.on_stop()
     assert f"wrote 0 measurements and 1 pictures to {tmp_path}" in caplog.text
+
+
+@pytest.mark.security
+@pytest.mark.parametrize("track", ["", 1e80, 2.5, [1.0]])
+def test_a_tracker_track_whose_id_no_integer_column_holds_is_rejected_and_counted(tmp_path: Path, track: object
+                                                                                   ) -> None:
+    """A single-sensor tracker's track (``tracker/<tracker>/<sensor>/track``) whose ``extra.track`` is not a whole
+    number the ``tracker_tracks`` table holds is refused (``rejected_track``); before, ``int("")`` or ``int(1e80)``
+    in the table's row failed the handler (found by test_fuzz_services), and a good one after it is recorded."""
+    from fedtrack.keys import Keys
+    from fedtrack.services.recorder import Recorder
+    from fedtrack.zsession import SessionOptions
+
+    svc = Recorder(db=tmp_path / "r.db", service_id="recorder", options=SessionOptions(connect=("tcp/127.0.0.1:1",)),
+                   deployment="t")
+    svc.recording, svc._subscriptions = Recording(tmp_path / "r.db"), svc.subscriptions()
+    key = Keys("t").tracker_track("hpda", "sonar1")
+    sub = next(i for i, s in enumerate(svc._subscriptions) if s.msg_type is FusedTrack and "tracker" in s.key)
+
+    def hpda_track(seq: int, track_id: object) -> bytes:
+        return encode(FusedTrack(seq=seq, t=float(seq), model="hpda", x=np.zeros(6), P=np.eye(6), maneuver=False,
+                                 degraded=False, sensors=("sonar1",), stamp_ns=1, extra={"track": track_id}))
+
+    svc._dispatch(("sample", sub, key, hpda_track(0, track)))
+    assert svc.counters.get("rejected_track", 0) == 1, svc.counters
+    assert svc.counters.get("rejected_handler_error", 0) == 0
+    svc._dispatch(("sample", sub, key, hpda_track(1, 3.0)))
+    assert svc.counters.get("tracker_tracks_recorded", 0) == 1
+    svc.recording.close()

@@ -414,7 +414,7 @@ def test_no_plain_output_is_read_from_a_cache() -> None:
     from fedtrack.services.recorder import Recorder
 
     keys = Keys("d")
-    me = SimpleNamespace(keys=keys, sensor="s1", mode="federated", on_message=None, on_estimate=None,
+    me = SimpleNamespace(keys=keys, sensor="s1", mode="federated", on_message=print, on_estimate=None,
                          on_measurement=None, on_reset=None)  # the services' attributes their methods read
     plain = [zenoh.KeyExpr(k) for k in MttCentreService.plain_outputs(me) + MttLocalService.plain_outputs(me)]
     read = [sub.key for subs in (Recorder.subscriptions(me), FusionCenterService.subscriptions(me),

@@ -31,6 +31,7 @@ from fedtrack.jsonl import check_output, check_output_folder
 from fedtrack.recording import CONFLICT, RECORDED, TABLES, Recording, StorageError, Table
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
 from fedtrack.services.dispatch import ServiceFault
+from fedtrack.services.rejections import Rejected
 from fedtrack.wire import Message, TrackPicture
 
 DB_NAME = "recording.db"
@@ -43,6 +44,16 @@ def storage_faults() -> Iterator[None]:
         yield
     except StorageError as exc:
         raise ServiceFault(str(exc)) from None
+
+
+def _check_track_id(msg: Any) -> None:
+    """A tracker's track (``serve hpda``'s ``extra["track"]``, a whole number; none: an IMM's one track) whose
+    id the table's integer column can hold; anything else is refused (``rejected_track``), before a hostile
+    ``""`` or ``1e300`` failed the handler (test_fuzz_services)."""
+    track = msg.extra.get("track", -1)
+    if isinstance(track, bool) or not isinstance(track, (int, float)) or not abs(track) <= 2**53 \
+            or track != int(track):
+        raise Rejected("track", f"extra.track must be a whole number within 2^53, got {track!r}")
 
 
 class Recorder(Service):
@@ -80,6 +91,8 @@ class Recorder(Service):
     def on_message(self, table: Table, msg: Message, payload: bytes) -> None:
         """Store ``msg`` in ``table``, the table of the key it came on."""
         assert self.recording is not None
+        if table.name == "tracker_tracks":
+            _check_track_id(msg)
         with storage_faults():
             outcome = self.recording.add(msg, payload, table)
         if outcome == RECORDED:
