@@ -49,7 +49,7 @@ def storage_faults() -> Iterator[None]:
 def _check_track_id(msg: Any) -> None:
     """A tracker's track (``serve hpda``'s ``extra["track"]``, a whole number; none: an IMM's one track) whose
     id the table's integer column can hold; anything else is refused (``rejected_track``), before a hostile
-    ``""`` or ``1e300`` failed the handler (test_fuzz_services)."""
+    ``""`` or ``1e80`` failed the handler (test_fuzz_services)."""
     track = msg.extra.get("track", -1)
     if isinstance(track, bool) or not isinstance(track, (int, float)) or not abs(track) <= 2**53 \
             or track != int(track):
