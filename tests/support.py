@@ -92,6 +92,22 @@ def numbered_measurements(path: Path, until: float = math.inf) -> list[Measureme
     return out
 
 
+def route_reports(centre: Any, local: dict[str, Any], published: list[Any], keys: Any, done: int) -> int:
+    """Deliver what the in-process services published from ``published[done]`` on as Zenoh would: each report to
+    ``centre``, each answer (federated resets) to its sensor's tracker in ``local``, in publication order, until
+    nothing new comes; returns the new ``done``. A message held (the centre's start, fedtrack/services/lead.py)
+    is answered later, when what it waits for came."""
+    from fedtrack.wire import TrackReport, TrackResets, encode
+
+    while done < len(published):
+        msg, done = published[done], done + 1
+        if isinstance(msg, TrackReport):
+            centre._dispatch(("sample", 0, keys.mtt_report(msg.sensor), encode(msg)))
+        elif isinstance(msg, TrackResets):
+            local[msg.sensor]._dispatch(("sample", 1, keys.mtt_resets(msg.sensor), encode(msg)))
+    return done
+
+
 def wait_until(predicate: Callable[[], bool], timeout: float = WAIT_S) -> bool:
     """Poll ``predicate`` every 20 ms until it holds or ``timeout`` seconds pass."""
     deadline = time.monotonic() + timeout

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from scipy import linalg
+from support import route_reports
 
 from fedtrack.config import ConfigError, load_tables
 from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
@@ -149,7 +150,7 @@ def test_the_live_centre_raises_a_tiny_claim_as_the_replay_does(tmp_path: Path, 
     from fedtrack.keys import Keys
     from fedtrack.local_filters.mtt.scan import parse_scan, scan_to_measurement
     from fedtrack.local_filters.mtt.service import MttLocalService
-    from fedtrack.wire import TrackPicture, TrackReport, TrackResets, encode
+    from fedtrack.wire import TrackPicture, encode
     from fedtrack.zsession import SessionOptions
 
     simulate(Scenario(targets=4, duration=12.0, clutter=1.0, late=0.0),
@@ -167,16 +168,13 @@ def test_the_live_centre_raises_a_tiny_claim_as_the_replay_does(tmp_path: Path, 
     for svc in (centre, *local.values()):
         svc._subscriptions = svc.subscriptions()
         svc.publish = lambda key, msg: published.append(msg)  # type: ignore[method-assign]
-    seq = dict.fromkeys(local, 0)
+    seq, done = dict.fromkeys(local, 0), 0
     for row in rows:
         s = row["sensor"]
         local[s]._dispatch(("sample", 0, keys.sensor_meas(s), encode(scan_to_measurement(parse_scan(row, "t"),
                                                                                           seq[s], 1))))
         seq[s] += 1
-        report = next(m for m in reversed(published) if isinstance(m, TrackReport))
-        centre._dispatch(("sample", 0, keys.mtt_report(s), encode(report)))
-        resets = next(m for m in reversed(published) if isinstance(m, TrackResets))
-        local[s]._dispatch(("sample", 1, keys.mtt_resets(s), encode(resets)))
+        done = route_reports(centre, local, published, keys, done)
     centre.on_stop()
     live = [m for m in published if isinstance(m, TrackPicture) and not m.closing]
     capsys.readouterr()

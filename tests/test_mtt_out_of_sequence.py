@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from support import route_reports
 
 from fedtrack.fusion_center.mtt.replay import replay_mtt
 
@@ -144,7 +145,7 @@ def test_live_local_trackers_fuse_own_out_of_sequence_scans_as_the_replay(tmp_pa
     from fedtrack.local_filters.mtt.config import MttConfig
     from fedtrack.local_filters.mtt.scan import parse_scan, scan_to_measurement
     from fedtrack.local_filters.mtt.service import MttLocalService
-    from fedtrack.wire import TrackPicture, TrackReport, TrackResets, encode
+    from fedtrack.wire import TrackPicture, encode
     from fedtrack.zsession import SessionOptions
 
     arrived, _ = scans(seed=7, duration=25.0)
@@ -158,17 +159,13 @@ def test_live_local_trackers_fuse_own_out_of_sequence_scans_as_the_replay(tmp_pa
     for svc in (centre, *local.values()):
         svc._subscriptions = svc.subscriptions()
         svc.publish = lambda key, msg: published.append(msg)  # type: ignore[method-assign]
-    seq = dict.fromkeys(PERIODS, 0)
+    seq, done = dict.fromkeys(PERIODS, 0), 0
     for row in arrived:
         s = row["sensor"]
         meas = scan_to_measurement(parse_scan(row, "test"), seq[s], 1)
         seq[s] += 1
         local[s]._dispatch(("sample", 0, keys.sensor_meas(s), encode(meas)))
-        report = next(m for m in reversed(published) if isinstance(m, TrackReport))
-        centre._dispatch(("sample", 0, keys.mtt_report(s), encode(report)))
-        if federated:
-            resets = next(m for m in reversed(published) if isinstance(m, TrackResets))
-            local[s]._dispatch(("sample", 1, keys.mtt_resets(s), encode(resets)))
+        done = route_reports(centre, local, published, keys, done)
     centre.on_stop()
     live = [m for m in published if isinstance(m, TrackPicture) and not m.closing]
     assert local["a"].counters.get("rerun", 0) >= own_scans_out_of_sequence(arrived, "a")

@@ -12,7 +12,18 @@ import numpy as np
 import pytest
 from test_fuzz_handlers import MEASUREMENTS, SENSORS
 from test_fuzz_trackers import sonar_stream
-from test_hostile_messages import KEYS, OPTIONS, Bus, fused, mtt_lines, mtt_services, paper_run, pictures, same_tracks
+from test_hostile_messages import (
+    KEYS,
+    MTT_SENSORS,
+    OPTIONS,
+    Bus,
+    fused,
+    mtt_lines,
+    mtt_services,
+    paper_run,
+    pictures,
+    same_tracks,
+)
 from test_mtt_regions_live import scenario as region_scenario
 from test_mtt_regions_live import services as region_services
 
@@ -23,6 +34,7 @@ from fedtrack.fusion_center.mtt.service import MttCentreService
 from fedtrack.keys import Keys
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.scan import SensorScan, parse_line
+from fedtrack.local_filters.mtt.service import MttLocalService
 from fedtrack.sensors.multitarget import Scenario, parse_spec, simulate
 from fedtrack.services.lead import HELD_BYTES, HELD_MAX, LEAD_INTERVALS, LeadGuard
 from fedtrack.wire import FusedTrack, LocalEstimate, TrackPicture, encode
@@ -268,6 +280,76 @@ def test_the_centre_drops_a_second_scan_far_ahead_at_its_start(tmp_path: Path) -
     (clean, _), (forged, centre) = runs
     assert forged == clean and len(clean) > 5
     assert centre.counters.get("rejected_time_lead") == 1
+
+
+def first_forged(tmp_path: Path, algorithm: str, dt: float) -> tuple[list[tuple], list[tuple], MttCentreService]:
+    """The clean run's pictures and those of a run whose first message of all at the centre is s1's first one (a
+    scan at ``mtt-centralized``, the clean run's first report else) re-stamped ``dt`` s off and
+    numbered 500 on; and the attacked run's centre, stopped."""
+    msgs = mtt_lines(tmp_path)
+    clean_services = mtt_services(tmp_path / "clean", algorithm)
+    clean = Bus(list(clean_services.values()))
+    for m in msgs:
+        clean.put(KEYS.sensor_meas(m.sensor), encode(m))
+    clean_services["centre"].on_stop()
+    services = mtt_services(tmp_path / "forged", algorithm)
+    forged = Bus(list(services.values()))
+    if algorithm == "mtt-centralized":
+        s1 = next(m for m in msgs if m.sensor == "s1")
+        forged.put(KEYS.sensor_meas("s1"), encode(replace(s1, seq=s1.seq + 500, t=s1.t + dt)))
+    else:
+        first = next(r for key, r in clean.published if key == KEYS.mtt_report("s1"))
+        forged.put(KEYS.mtt_report("s1"), encode(replace(first, seq=first.seq + 500, t=first.t + dt)))
+    for m in msgs:
+        forged.put(KEYS.sensor_meas(m.sensor), encode(m))
+    services["centre"].on_stop()
+    return pictures(clean), pictures(forged), services["centre"]  # type: ignore[return-value]
+
+
+@pytest.mark.parametrize("algorithm", ["mtt-centralized", "mtt-federated", "mtt-decentralized"])
+@pytest.mark.parametrize("dt", [1e9, -1e12])
+def test_the_first_message_of_all_far_off_sets_no_start(tmp_path: Path, algorithm: str, dt: float) -> None:
+    """The first message of all at the live centre, s1's, stamped 10^9 s ahead or 10^12 s behind (redteam60's
+    table): taken as it came, it froze the centre (10^9: 1 picture of 12, every honest scan or report ``late``;
+    -10^12: 3,612 pictures, 3,600 before the data). It now waits until two agree within max_time_jump_s (two
+    other sensors' first messages do) and is dropped, counted; every picture is the clean run's."""
+    clean, forged, centre = first_forged(tmp_path, algorithm, dt)
+    assert forged == clean and len(clean) > 5
+    assert centre.counters.get("rejected_time_lead" if dt > 0 else "rejected_time_behind") == 1
+    assert centre.counters.get("start_unwitnessed", 0) == 0
+
+
+@pytest.mark.parametrize("sensors", [MTT_SENSORS, ("s1",)])
+def test_a_first_report_nothing_witnesses_is_answered_after_leave_after_s(tmp_path: Path,
+                                                                         sensors: tuple[str, ...]) -> None:
+    """A federated tracker waits for the answer to its first report, so with only s1 running of the three
+    sensors allowed, nothing witnesses its first report: the centre holds it for ``start_wait_s`` of wall-clock
+    time (here: its clock set that far on), then takes it as it came (``start_unwitnessed``) and answers.
+    With one sensor allowed the start rule is off and the report is answered at once."""
+    cfg = MttConfig(sensors=sensors, max_lag=3.0, clutter_density=2.0 / 5000.0**2)
+    common = {"options": OPTIONS, "deployment": KEYS.deployment}
+    centre = MttCentreService("mtt-federated", cfg, 4, service_id="centre", **common)
+    tracker = MttLocalService("s1", True, cfg, 5.0, service_id="s1", **common)
+    bus = Bus([centre, tracker])
+    s1 = [m for m in mtt_lines(tmp_path) if m.sensor == "s1"]
+    bus.put(KEYS.sensor_meas("s1"), encode(s1[0]))
+
+    def answered() -> int:
+        return sum(key == KEYS.mtt_resets("s1") for key, _ in bus.published)
+    if len(sensors) == 1:
+        assert answered() == 1 and centre.start_held_at is None
+        return
+    assert answered() == 0 and centre.start_held_at is not None
+    centre.on_tick()  # within leave_after_s: still held
+    assert answered() == 0
+    assert centre.start_wait_s == 1.0  # min(leave_after_s 5 s, the trackers' --reset-timeout 2 s / 2)
+    centre.start_held_at -= centre.start_wait_s
+    centre.on_tick()
+    bus.drain()
+    assert answered() == 1 and centre.counters.get("start_unwitnessed") == 1 and centre.start_held_at is None
+    for m in s1[1:4]:  # and it goes on as without the rule
+        bus.put(KEYS.sensor_meas("s1"), encode(m))
+    assert answered() == 4 and centre.counters.get("rejected", 0) == 0
 
 
 def test_no_picture_is_made_more_than_max_time_jump_before_the_data() -> None:

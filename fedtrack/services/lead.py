@@ -63,8 +63,19 @@ them; those more than ``start_gap`` before it are dropped, counted in ``behind``
 ``dropped``. ``start_gap`` is the deployment's bound on a plausible gap between two scans
 (``max_time_jump_s``, 3,600 s: a tracker predicts over no longer), so honest data agrees at its second
 message. One message cannot set the start; two of one identity that agree with each other, sent before any
-honest one, still can (and a lone region's, at ``serve picture``). Not used by the scan trackers
-(docs/multitarget.md, "Scans stamped far ahead": measured and left).
+honest one, still can (and a lone region's, at ``serve picture``).
+
+``serve mtt-centre`` (each region centre too) uses it live where a witness can come: ``[mtt] sensors`` lists two
+or more sensors or is ``"any"`` (one listed: the first message is taken as it comes). A sensor configured but not
+running never witnesses, and a federated tracker waits for its first answer before it reports again, so the wait is
+bounded in wall-clock time by ``start_wait_s = min([mtt] leave_after_s, RESET_TIMEOUT_S / 2)``: no longer than
+the centre's own bound on a live sensor's silence (its silence rule; 5 s), and the answer to a held first report
+reaches its tracker within the trackers' default ``--reset-timeout`` (2 s; the other half for the report's fusion
+and the answer's way), so a tracker running alone goes on as the replay does. Then the held first messages are
+taken as they came (:meth:`LeadGuard.open_start`, counted ``start_unwitnessed``): a forged first message sent
+more than ``start_wait_s`` before any honest one still sets the start, as one of a lone sensor must. Not used by
+the scan trackers nor the replay, which takes the recorded order (docs/multitarget.md, "Scans stamped far
+ahead": measured and left).
 """
 
 from __future__ import annotations
@@ -122,6 +133,7 @@ class LeadGuard(Generic[T]):
     start_gap: float | None = None  # the first scans wait until two agree within it (module docstring); None: not
     first: tuple[tuple[str, float, T, int], ...] = ()  # the scans held before the start, arrival order
     behind: int = 0  # first scans dropped as more than start_gap before the start
+    unwitnessed: int = 0  # first scans taken unwitnessed when the start's wait ran out (open_start)
 
     def bound(self, sensor: str) -> float:
         """How far after the newest time a scan of ``sensor`` may be and still be taken at once."""
@@ -194,6 +206,14 @@ class LeadGuard(Generic[T]):
         self.dropped += sum(h[1] > t + gap for h in self.first)
         self.first = ()
         return [*taken, arrived]
+
+    def open_start(self) -> list[T]:
+        """The start's wait ran out (the service's bound, module docstring): the held first scans, taken as they
+        came (arrival order, as without the rule), each counted in ``unwitnessed``; the start rule is off."""
+        items = [h[2] for h in self.first]
+        self.unwitnessed += len(items)
+        self.first, self.start_gap = (), None
+        return items
 
     def _corroborated(self, sensor: str, t: float, reached: dict[str, float]) -> bool:
         """Whether a scan of ``sensor`` at ``t`` may be taken: fewer than CORROBORATORS other

@@ -82,6 +82,7 @@ from fedtrack.local_filters.mtt.config import MttConfig, MttServiceSettings
 from fedtrack.local_filters.mtt.local import could_be_first, report_from_wire, resets_to_wire
 from fedtrack.local_filters.mtt.routing import answer_to_wire
 from fedtrack.local_filters.mtt.scan import misplaced, scan_from_measurement
+from fedtrack.local_filters.mtt.service import RESET_TIMEOUT_S
 from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.services.admission import ReceivedScans, digest
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
@@ -115,7 +116,7 @@ class MttCentreService(CentreFailover, Service):
     # restored after a failed handler (the engine changes in place: pickled before each message;
     # ``received`` is only changed once a message was handled); on_tick guards its departures itself
     state_attrs = ("engine", "clock", "order", "left_at", "restarted_at", "pictures", "silence", "contested",
-                   "handovers_at", "taken", "lead", "began")
+                   "handovers_at", "taken", "lead", "began", "start_held_at")
     tick_state_attrs = ()
 
     def __init__(self, algorithm: str, cfg: MttConfig, dim: int = 4, max_seq_jump: int = 1000,
@@ -167,7 +168,13 @@ class MttCentreService(CentreFailover, Service):
         self.clock = PictureClock(cfg.period, cfg.picture_delay, max_gap=max_time_jump_s)
         # a scan or report stamped far ahead of the data waits for a witness (fedtrack/services/lead.py)
         # ... and, beside two or more other live sensors, for another sensor's data near its time
-        self.lead: LeadGuard[Measurement | TrackReport] = LeadGuard(cfg.max_lag, corroborate=True)
+        # ... and, where a witness can come (two or more sensors allowed), the first messages until two agree within
+        # max_time_jump_s, for at most start_wait_s of wall-clock time (fedtrack/services/lead.py, "The start")
+        witnessed = cfg.sensors == "any" or len(cfg.sensors) >= 2
+        self.lead: LeadGuard[Measurement | TrackReport] = LeadGuard(
+            cfg.max_lag, corroborate=True, start_gap=max_time_jump_s if witnessed else None)
+        self.start_wait_s = min(cfg.leave_after_s, RESET_TIMEOUT_S / 2)
+        self.start_held_at: float | None = None  # when the first message held for the start came (time.monotonic)
         self.order: list[tuple[str, int]] = []  # scans processed since the last picture
         self.left_at: list[int] = []  # positions in ``order`` that are departures
         self.restarted_at: list[int] = []  # positions in ``order`` where a sensor's tracker restarted
@@ -218,12 +225,26 @@ class MttCentreService(CentreFailover, Service):
             self._follow()
             return
         now = time.monotonic()
+        if self.lead.first and self.start_held_at is not None and now - self.start_held_at >= self.start_wait_s:
+            self._open_start()
         silent = self.silence.silent(now) + self._token_departures(now)
         for sensor in dict.fromkeys(silent):
             if sensor not in self.silence.last:
                 continue
             with self.guarded(f"the departure of {sensor}"):
                 self._leave(sensor)
+
+    def _open_start(self) -> None:
+        """No witness of the first messages held within ``start_wait_s``: take them as they came (counted
+        ``start_unwitnessed``; fedtrack/services/lead.py, "The start")."""
+        held = self.lead.open_start()
+        self.start_held_at = None
+        self.count("start_unwitnessed", len(held))
+        self.log.warning("%d first message(s) not witnessed within %g s: taken as they came", len(held),
+                         self.start_wait_s)
+        for msg in held:
+            with self.guarded(f"first message {msg.seq} of {msg.sensor}"):
+                self._process(msg)
 
     def _leave(self, sensor: str) -> None:
         """Drop ``sensor`` from fusion (its tracker gone or silent); the next picture lists it."""
@@ -289,6 +310,7 @@ class MttCentreService(CentreFailover, Service):
         processed in time order."""
         key = self.keys.mtt_report(msg.sensor) if isinstance(msg, TrackReport) else self.keys.sensor_meas(msg.sensor)
         released = self.in_time(self.lead, key, msg)
+        self.start_held_at = (self.start_held_at or time.monotonic()) if self.lead.first else None
         if not any(item is msg for item in released):
             self.received.take(msg)
         for held in released:
