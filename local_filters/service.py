@@ -171,6 +171,12 @@ class LocalFilterService(Service):
         if msg.seq <= self.processed_up_to or msg.seq in self.pending:
             first = digest(self.pending[msg.seq]) if msg.seq in self.pending else self.taken.get(msg.seq)
             if first is None or first == digest(msg):
+                again = self.lead.contradicted(msg)
+                if self.abandons(again, msg):
+                    self.start_again(msg, forget=True)
+                    for scan in again:
+                        self.on_measurement(scan)
+                    return
                 self.count("late")
                 return
             self.contest(self.keys.sensor_meas(self.sensor), Conflict(
@@ -189,11 +195,16 @@ class LocalFilterService(Service):
         if msg.seq in queued and msg.seq not in self.pending and self.taken.get(msg.seq) is None:
             self.lead.restore(times)  # the filter failed on it: as if it never came
 
-    def start_again(self, msg: Measurement) -> None:
+    def start_again(self, msg: Measurement, forget: bool = False) -> None:
         """Scan ``msg`` follows one rejected beyond ``max_time_jump_s`` (:class:`ClockJump`): the
         filter starts again from it, dropping the scans still waiting, and waits for no reset of the
-        scans before it (its estimate is flagged ``init``: the centre starts again too)."""
-        self.restarted(msg)
+        scans before it (its estimate is flagged ``init``: the centre starts again too). ``forget``: the
+        filter's only scan was abandoned (:meth:`abandons`, counted there), the numbers taken forgotten too."""
+        if forget:
+            self.processed_up_to = self.refused_up_to = -1
+            self.taken = {}
+        else:
+            self.restarted(msg)
         self.count("dropped_scans", len(self.pending))
         self.filter, self.pending, self.lead = pickle.loads(self.fresh), {}, NumberedLeadGuard()
         self.processed_t, self.reset_up_to, self.waiting_since = None, self.processed_up_to, None

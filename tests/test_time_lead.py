@@ -36,7 +36,7 @@ from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.scan import SensorScan, parse_line
 from fedtrack.local_filters.mtt.service import MttLocalService
 from fedtrack.sensors.multitarget import Scenario, parse_spec, simulate
-from fedtrack.services.lead import HELD_BYTES, HELD_MAX, LEAD_INTERVALS, LeadGuard
+from fedtrack.services.lead import HELD_BYTES, HELD_MAX, LEAD_INTERVALS, LeadGuard, NumberedLeadGuard
 from fedtrack.wire import FusedTrack, LocalEstimate, TrackPicture, encode
 
 CFG = MttConfig(sensors=("s1", "s2", "s3"), max_lag=3.0, clutter_density=3.0 / 5000.0**2)
@@ -508,3 +508,87 @@ def test_single_target_services_drop_a_scan_and_an_estimate_numbered_far_ahead(t
         assert services[name].counters.get("rejected_time_lead") == 1, name
     same_tracks(fused(attacked), fused(clean))
     same_tracker_tracks(attacked, clean)
+
+
+def tracker_tracks(bus: Bus, role: str) -> list[FusedTrack]:
+    return [m for key, m in bus.published if isinstance(m, FusedTrack) and f"/{role}/" in key]
+
+
+def test_one_sensor_trackers_abandon_a_first_scan_numbered_far_ahead(tmp_path: Path) -> None:
+    """The paper pipeline (in-process bus): the first message of all is a genuine measurement of sensor 1
+    (and of the sonar) numbered 50 ahead. Taken as it came, every honest scan after it was ``late``: the local
+    filter fused none of 34, the IMM tracked 1 (the forged one), the HPDA 0 of 4 (redteam60's table). Now the
+    next two scans, each more than LEAD_INTERVALS behind it and agreeing with each other, abandon it
+    (``start_abandoned``): every fused track and HPDA track is the clean run's, the IMM's after the forged one."""
+    sonar = sonar_stream()
+    clean, _ = paper_run(tmp_path / "clean")
+
+    def forge(bus: Bus, k: int) -> None:
+        if k == 0:
+            for m in (MEASUREMENTS[SENSORS[0]][0], sonar[0]):
+                bus.put(KEYS.sensor_meas(m.sensor), encode(replace(m, seq=m.seq + 50)))
+
+    attacked, services = paper_run(tmp_path / "attacked", forge)
+    same_tracks(fused(attacked), fused(clean))
+    assert len(fused(attacked)) == 34
+    for name in (f"local-{SENSORS[0]}", "imm", "hpda"):
+        assert services[name].counters.get("start_abandoned") == 1, name
+    same_tracks(tracker_tracks(attacked, "hpda"), tracker_tracks(clean, "hpda"))
+    assert len(tracker_tracks(clean, "hpda")) > 0
+    imm = tracker_tracks(attacked, "imm")
+    assert imm[0].seq == 50 and len(imm) == 35
+    same_tracks(imm[1:], tracker_tracks(clean, "imm"))
+
+
+@pytest.mark.parametrize("algorithm", ["mtt-federated", "mtt-decentralized"])
+@pytest.mark.parametrize("dt", [1e9, -1e12])
+def test_mtt_local_abandons_a_first_scan_stamped_far_off(tmp_path: Path, algorithm: str, dt: float) -> None:
+    """The first message of all at s1's ``mtt-local``, its first scan stamped 10^9 s ahead (or 10^12 s before):
+    taken as it came, every honest scan of s1 was refused (``late``; ``time_jump``; federated, queued behind the
+    forged report, whose answer never came) and s1 was missing from every picture. Now s1's next two scans abandon it
+    (``start_abandoned``), its first honest scan is tracked when its second arrives, and every picture is that of
+    the clean data delivered in that order (s1's first scan just before its second)."""
+    msgs = mtt_lines(tmp_path)
+    s1 = [i for i, m in enumerate(msgs) if m.sensor == "s1"]
+    late_first = [m for i, m in enumerate(msgs) if i != s1[0]]
+    late_first.insert(late_first.index(msgs[s1[1]]), msgs[s1[0]])
+    runs = []
+    for name, forged, order in (("clean", False, late_first), ("forged", True, msgs)):
+        services = mtt_services(tmp_path / name, algorithm)
+        bus = Bus(list(services.values()))
+        if forged:
+            bus.put(KEYS.sensor_meas("s1"), encode(replace(msgs[s1[0]], seq=500, t=msgs[s1[0]].t + dt)))
+        for m in order:
+            bus.put(KEYS.sensor_meas(m.sensor), encode(m))
+        services["centre"].on_stop()
+        runs.append((pictures(bus), services["s1"]))
+    (clean, _), (attacked, local) = runs
+    assert attacked == clean and len(clean) > 5
+    assert all("s1" in p[5] for p in clean[:3])
+    assert local.counters.get("start_abandoned") == 1 and local.counters.get("reports") == 1 + len(s1)
+
+
+def admitted_numbers(guard: NumberedLeadGuard, seqs: list[int]) -> list[list[int]]:
+    """Each scan number's arrival, as a one-sensor tracker handles it: ``[-1]`` when it abandons the start, ``[]``
+    when it contradicts it (refused), else what the guard gives (taken)."""
+    out: list[list[int]] = []
+    for seq in seqs:
+        m = replace(MEASUREMENTS[SENSORS[0]][0], seq=seq, t=float(seq))
+        again = guard.contradicted(m)
+        if again or guard.contradicts(m):
+            out.append([-1] if again else [])
+            continue
+        given = guard.admit(m.sensor, m.t, m)
+        for g in given:
+            guard.took(g.sensor, g.t, g.seq)
+        out.append([g.seq for g in given])
+    return out
+
+
+def test_an_honest_start_is_never_abandoned() -> None:
+    """Honest scans reordered at the start (at most two periods late: three numbers behind) never abandon the first
+    one, nor do scans after a second one was taken; a forged first 50 ahead is abandoned by the next two."""
+    assert admitted_numbers(NumberedLeadGuard(), [3, 0, 1, 2, 4, 5]) == [[3], [0], [1], [2], [4], [5]]
+    assert admitted_numbers(NumberedLeadGuard(), [20, 21, 0, 1, 2]) == [[20], [21], [0], [1], [2]]
+    assert admitted_numbers(NumberedLeadGuard(), [50, 0, 1]) == [[50], [], [-1]]
+    assert admitted_numbers(NumberedLeadGuard(), [50, 0, 9, 10]) == [[50], [], [], [-1]]  # 9 - 0 > gap: not 0 and 9

@@ -11,7 +11,7 @@ import logging
 import pickle
 import time
 import traceback
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, fields
 from typing import Any
@@ -20,7 +20,7 @@ import numpy as np
 import zenoh
 
 from fedtrack.services.admission import MAX_CONTESTED, ReceivedScans, ScanOrder, check_sender
-from fedtrack.services.lead import LeadGuard, NumberedLeadGuard
+from fedtrack.services.lead import LEAD_INTERVALS, LeadGuard, NumberedLeadGuard
 from fedtrack.services.publishing import ENCODING
 from fedtrack.services.rejections import Conflict, Rejected, clip, reason_of, text_of
 from fedtrack.wire import LocalEstimate, Measurement, WireError, decode, encode
@@ -150,6 +150,32 @@ class Dispatch:
         (:class:`fedtrack.services.clock.ClockJump`)."""
         self.count("restarted")
         self.log.warning("scan %d of %s at t=%g: the tracker starts again %s", msg.seq, msg.sensor, msg.t, why)
+
+    def abandons(self, again: list[Any], msg: Measurement) -> bool:
+        """Whether the tracker abandons its only scan for ``again`` (:meth:`LoneStart.contradicted`, on ``msg``'s
+        arrival): counted ``start_abandoned`` and ``restarted``; the caller starts again from ``again``."""
+        if again:
+            self.count("start_abandoned")
+            self.restarted(msg, "from two scans that contradict its only one (lead.LoneStart)")
+        return bool(again)
+
+    def contradicting(self, guard: NumberedLeadGuard[Measurement], msg: Measurement, fresh: Callable[[], None],
+                      handle: Callable[[Measurement], None]) -> bool:
+        """Whether scan ``msg`` contradicts a one-sensor tracker's only scan (:class:`LoneStart`, on scan numbers):
+        refused ``late`` without raising (a raising handler would put ``guard`` back), or, with the scan that
+        contradicted it before, abandoning it (:meth:`abandons`): ``fresh()`` starts the tracker afresh, then
+        ``handle`` takes the two. True: the handler is done with ``msg``."""
+        again = guard.contradicted(msg)
+        if self.abandons(again, msg):
+            fresh()
+            for scan in again:
+                handle(scan)
+            return True
+        if guard.contradicts(msg):
+            self.note_rejected(self.keys.sensor_meas(msg.sensor), Rejected(
+                "late", f"scan {msg.seq}, more than {LEAD_INTERVALS} behind the only scan taken (lead.LoneStart)"))
+            return True
+        return False
 
     def after_last(self, last_t: float | None, scan: Measurement) -> bool:
         """Whether ``scan`` is after the time ``last_t`` of the last scan a single-sensor tracker took;

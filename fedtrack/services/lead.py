@@ -65,6 +65,20 @@ them; those more than ``start_gap`` before it are dropped, counted in ``behind``
 message. One message cannot set the start; two of one identity that agree with each other, sent before any
 honest one, still can (and a lone region's, at ``serve picture``).
 
+**The start at a one-sensor tracker** (:class:`LoneStart`: ``serve local-filter``, ``imm``, ``hpda`` on scan
+numbers, ``mtt-local`` on times). A tracker of one sensor has no other sensor to witness its first scan, and holding
+the first scan for the sensor's next one changes when a tracker answers (a report per scan at once). So the first
+scan is taken as it comes, and abandoned when the data contradicts it: while it is the only scan taken, two later
+scans each more than ``gap`` behind it (or, on times, after it), the second after the first within ``gap`` of it
+(the sensor's data goes on there), make the tracker start again from them (``start_abandoned``): a scan numbered 50
+ahead (or stamped 10^9 s ahead), sent first, made every honest scan after it ``late`` (one 10^12 s before,
+``time_jump``), for good. ``gap``: for scan numbers ``LEAD_INTERVALS`` (a scan arrives at most two periods late, so
+an honest one is never more than three numbers behind the newest: the rule above); for times ``[deployment]
+max_time_jump_s`` (``start_gap``'s bound on a plausible gap). A scan taken after the first that does not contradict
+it ends the rule: honest data never abandons its start (its second scan agrees). Two forged scans of the sensor that
+agree with each other, sent right after its first honest one, still restart the tracker from them (as two set the
+start above).
+
 ``serve mtt-centre`` (each region centre too) uses it live where a witness can come: ``[mtt] sensors`` lists two
 or more sensors or is ``"any"`` (one listed: the first message is taken as it comes). A sensor configured but not
 running never witnesses, and a federated tracker waits for its first answer before it reports again, so the wait is
@@ -82,8 +96,8 @@ from __future__ import annotations
 
 import statistics
 from collections import deque
-from dataclasses import dataclass, field
-from typing import Generic, NamedTuple, Protocol, TypeVar
+from dataclasses import dataclass, field, replace
+from typing import Any, Generic, NamedTuple, Protocol, TypeVar
 
 from fedtrack import wire
 
@@ -110,6 +124,7 @@ class Times(NamedTuple):
     gaps: dict[str, deque[float]]
     usual: dict[str, float]
     live: set[str]
+    lone: LoneStart[Any] | None
 
 
 T = TypeVar("T")  # what is held: a scan or a message (or what a service keeps of it)
@@ -134,6 +149,7 @@ class LeadGuard(Generic[T]):
     first: tuple[tuple[str, float, T, int], ...] = ()  # the scans held before the start, arrival order
     behind: int = 0  # first scans dropped as more than start_gap before the start
     unwitnessed: int = 0  # first scans taken unwitnessed when the start's wait ran out (open_start)
+    lone: LoneStart[T] | None = None  # a one-sensor tracker's first scan, abandoned if contradicted (module docstring)
 
     def bound(self, sensor: str) -> float:
         """How far after the newest time a scan of ``sensor`` may be and still be taken at once."""
@@ -244,6 +260,8 @@ class LeadGuard(Generic[T]):
         self.last[sensor] = max(t, self.last.get(sensor, t))
         self.newest = t if self.newest is None else max(self.newest, t)
         self.live.add(sensor)
+        if self.lone is not None:
+            self.lone.took(t)
 
     def end(self) -> int:
         """The data ended (a replay's input, a service stopping): the scans still held or waiting are
@@ -258,11 +276,11 @@ class LeadGuard(Generic[T]):
     def times(self) -> Times:
         """A copy of what :meth:`took` changes, for :meth:`restore`."""
         return Times(self.newest, dict(self.last), {s: deque(g, maxlen=INTERVALS_KEPT) for s, g in self.gaps.items()},
-                     dict(self.usual), set(self.live))
+                     dict(self.usual), set(self.live), None if self.lone is None else replace(self.lone))
 
     def restore(self, times: Times) -> None:
         """Forget the scans taken since :meth:`times` gave ``times`` (their handling failed)."""
-        self.newest, self.last, self.gaps, self.usual, self.live = times
+        self.newest, self.last, self.gaps, self.usual, self.live, self.lone = times
 
     def leave(self, sensor: str) -> None:
         """``sensor`` left: it no longer keeps another sensor's lone scans from witnessing themselves."""
@@ -276,6 +294,38 @@ def _bounded(items: list[tuple[str, float, T, int]]) -> int:
         items.pop(0)
         n += 1
     return n
+
+
+@dataclass
+class LoneStart(Generic[T]):
+    """The first scan a one-sensor tracker took, abandoned when two later scans contradict it (module docstring,
+    "The start at a one-sensor tracker")."""
+
+    gap: float  # a scan more than this behind the first contradicts it (a number, or a time)
+    ahead: bool = False  # one more than gap ahead of it too (times: a tracker refuses it, time_jump)
+    start: float | None = None  # the first scan's number (or time) while it is the only one taken
+    taken: int = 0  # scans taken (the rule is on while one is)
+    against: tuple[float, T] | None = None  # the last scan that contradicted it: its number (or time), itself
+
+    def took(self, at: float) -> None:
+        """A scan at ``at`` (number or time) was taken."""
+        self.taken += 1
+        self.start = at if self.taken == 1 else None
+        self.against = None
+
+    def contradicts(self, at: float) -> bool:
+        """Whether a scan at ``at`` is more than ``gap`` behind (or, ``ahead``, after) the first while it is the only
+        one taken. The tracker refuses it without raising (a raising handler would put the guard back)."""
+        return self.start is not None and (at < self.start - self.gap or (self.ahead and at > self.start + self.gap))
+
+    def contradicted(self, at: float, item: T) -> list[T]:
+        """``item`` (at ``at``) arrived: ``[]``, or, when it contradicts the first and agrees with the scan that
+        contradicted it before (the second later, within ``gap``), both, in order: the tracker
+        abandons its first scan and starts again from them."""
+        if not self.contradicts(at):
+            return []
+        prior, self.against = self.against, (at, item)
+        return [prior[1], item] if prior is not None and prior[0] < at <= prior[0] + self.gap else []
 
 
 class Numbered(Protocol):
@@ -297,7 +347,7 @@ class NumberedLeadGuard(Generic[N]):
     order. A scan passes the time guard, then the number guard."""
 
     time: LeadGuard[N] = field(default_factory=lambda: LeadGuard(max_lag=0.0))
-    number: LeadGuard[N] = field(default_factory=lambda: LeadGuard(max_lag=0.0))
+    number: LeadGuard[N] = field(default_factory=lambda: LeadGuard(max_lag=0.0, lone=LoneStart(LEAD_INTERVALS)))
 
     @property
     def dropped(self) -> int:
@@ -319,6 +369,14 @@ class NumberedLeadGuard(Generic[N]):
     def took(self, sensor: str, t: float, seq: int) -> None:
         self.time.took(sensor, t)
         self.number.took(sensor, float(seq))
+
+    def contradicts(self, msg: N) -> bool:
+        """:meth:`LoneStart.contradicts` on the scan numbers."""
+        return self.number.lone is not None and self.number.lone.contradicts(float(msg.seq))
+
+    def contradicted(self, msg: N) -> list[N]:
+        """:meth:`LoneStart.contradicted` on the scan numbers: the scans to start again from, or ``[]``."""
+        return self.number.lone.contradicted(float(msg.seq), msg) if self.number.lone is not None else []
 
     def end(self) -> int:
         return self.time.end() + self.number.end()

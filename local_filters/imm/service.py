@@ -53,12 +53,19 @@ class IMMService(Service):
         self.tracker = IMMTracker(cfg, algorithm)
         self.moving = np.any(self.tracker.bank.acc != 0.0, axis=1)
 
+    def _fresh(self) -> None:
+        """The tracker starts afresh (its only scan abandoned: :meth:`contradicting`)."""
+        self.tracker = IMMTracker(self.cfg, self.tracker.algorithm)
+        self.lead, self.order = NumberedLeadGuard(), ScanOrder()
+
     def subscriptions(self) -> list[Subscription]:
         return [Subscription(self.keys.sensor_meas(self.sensor), Measurement, self.on_measurement)]
 
     def on_measurement(self, msg: Measurement) -> None:
         if msg.kind != "position" or msg.z.shape != (2,):
             self.count("unsupported")
+            return
+        if self.contradicting(self.lead, msg, self._fresh, self.on_measurement):
             return
         if self.tracker.t is not None and msg.t < self.tracker.t:
             self.count("out_of_order")

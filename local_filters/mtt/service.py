@@ -69,8 +69,8 @@ from fedtrack.local_filters.mtt.scan import SensorScan, misplaced, scan_from_mea
 from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.services.admission import ReceivedScans, digest
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
-from fedtrack.services.clock import check_time_jump
-from fedtrack.services.lead import LeadGuard
+from fedtrack.services.clock import check_time_jump, time_jump
+from fedtrack.services.lead import LeadGuard, LoneStart
 from fedtrack.services.rejections import Conflict, Rejected, require_covariances, require_finite
 from fedtrack.wire import Measurement, TrackResets
 from fedtrack.zsession import id_arg
@@ -111,7 +111,7 @@ class MttLocalService(Service):
         self.tracker: SensorTracker | None = None
         self.queue: deque[tuple[int, SensorScan, int]] = deque()  # (seq, scan, stamp) waiting
         # a scan stamped far ahead waits for the sensor's next one (lead.py)
-        self.lead: LeadGuard[tuple[int, SensorScan, int]] = LeadGuard(cfg.max_lag)
+        self.lead: LeadGuard[tuple[int, SensorScan, int]] = self._guard()
         self.received = ReceivedScans(max_seq_jump)
         self.awaiting: int | None = None  # report whose resets are due (federated)
         self.awaiting_scan: SensorScan | None = None  # the scan of that report
@@ -152,6 +152,20 @@ class MttLocalService(Service):
         problem = misplaced(scan, self.sites)
         if problem:
             raise Rejected("wrong_site", f"scan {msg.seq} of {msg.sensor}: {problem}")
+        lone = self.lead.lone
+        assert lone is not None
+        again = lone.contradicted(msg.t, msg)
+        if self.abandons(again, msg):
+            self._forget()
+            for scan in again:
+                self.on_scan(scan)
+            return
+        if lone.contradicts(msg.t):  # refused without raising: the guard keeps it as a contradiction
+            if lone.start is not None and msg.t > lone.start:
+                self.note_rejected(self.keys.sensor_meas(self.sensor), time_jump(lone.start, msg.t, lone.gap))
+            else:
+                self.count("late")
+            return
         check_time_jump(self.lead.newest, msg.t, self.max_time_jump_s)
         if not self.admitted(self.received, msg):
             return
@@ -225,6 +239,19 @@ class MttLocalService(Service):
         self.answers[region] = (answer, digest(msg))
         if self._answered():
             self._learn()
+
+    def _guard(self) -> LeadGuard[tuple[int, SensorScan, int]]:
+        """The guard against scans stamped far ahead, with the start's recovery rule on times (lead.LoneStart)."""
+        return LeadGuard(self.cfg.max_lag, lone=LoneStart(self.max_time_jump_s, ahead=True))
+
+    def _forget(self) -> None:
+        """The tracker's only scan was abandoned (:meth:`abandons`): it starts again as this process did (its next
+        report flagged first), the scans and answers it waited for and the numbers it took forgotten."""
+        self.tracker, self.lead, self.received = None, self._guard(), ReceivedScans(self.received.max_seq_jump)
+        self.queue.clear()
+        self.awaiting = self.awaiting_scan = None
+        self.sent, self.answers, self.unreached = [], {}, set()
+        self.first_t, self.noted = None, False
 
     def _answered(self) -> bool:
         """Every region answered the sub-report awaited, but those it did not reach (``unreached``)."""

@@ -61,12 +61,18 @@ class PDAService(Service):
         self.spec: TrackerSpec = tracker_spec(algorithm, cfg.tracker, cfg.existence)
         self.manager: ManagerState = initial_manager()
 
+    def _fresh(self) -> None:
+        """The tracker starts afresh (its only scan abandoned: :meth:`contradicting`)."""
+        self.manager, self.lead, self.order = initial_manager(), NumberedLeadGuard(), ScanOrder()
+
     def subscriptions(self) -> list[Subscription]:
         return [Subscription(self.keys.sensor_meas(self.sensor), Measurement, self.on_measurement)]
 
     def on_measurement(self, msg: Measurement) -> None:
         if msg.kind != "sonar" or msg.R.shape != (2, 2):
             self.count("unsupported")
+            return
+        if self.contradicting(self.lead, msg, self._fresh, self.on_measurement):
             return
         if self.manager.t is not None and msg.t < self.manager.t:
             self.count("out_of_order")
