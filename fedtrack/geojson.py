@@ -102,7 +102,8 @@ def feature_collection(frame_cfg: FrameConfig, tracks: Path | None, truth: Path 
             # a line with altitudes nobody measured says which, position by position (docs/geodetic.md)
             measured = {} if all(item["measured"]) else {"alt_measured": item["measured"]}
             features.append({"type": "Feature", "geometry": _geometry(item["coords"]),
-                             "properties": {"kind": kind, "id": tid, "times": item["times"], **item["props"], **measured}})
+                             "properties": {"kind": kind, "id": tid, "times": item["times"], **item["props"],
+                                            **measured}})
     points = [({"kind": "sensor", "id": sid}, where) for sid, where in frame_cfg.sites.items()]
     for props, (lat, lon, h) in points + [({"kind": "origin"}, frame)]:
         features.append({"type": "Feature", "geometry": {"type": "Point", "coordinates": [float(wrap_lon(lon)), lat, h]},

@@ -64,7 +64,8 @@ def test_a_restarted_merger_merges_the_pictures_of_its_outage_from_the_region_ca
     service's second query of the caches and a standby's cache deliver them again. It publishes t = 4-9
     in order, numbered 4-9, none contested, every re-delivery a duplicate. With the launcher's
     ``--snapshot`` it knows t = 3 was merged; without it merges t = 3 again (the recorder keeps the
-    first: the same picture stamped anew, a duplicate; a conflict before the tour59 session) and not t = 2, which only b's cache holds (merged, it would lack region a).
+    first: the same picture stamped anew, a duplicate; a conflict before the tour59 session) and not t = 2,
+    which only b's cache holds (merged, it would lack region a).
     Before: the region pictures had no cache (nothing of t = 4-8 came: 5 of 10 merged pictures
     missing), and a picture older than its region's latest was refused."""
     config = tmp_path / "config.toml"
