@@ -380,3 +380,89 @@ def test_targets_on_and_along_borders_are_not_handed_over_back_and_forth(tmp_pat
     out = measure(tmp_path, grid_regions((-half, -half), (half, half), 2, 2, 500.0), "border")
     assert out["hand_overs_per_track_min"] < 6.0, out
     assert out["duplicates_per_picture"] < 1.0, out
+
+
+@pytest.mark.parametrize("feedback", [True, False])
+def test_a_hand_over_arriving_reports_late_is_still_taken_unbroken(data: Path, feedback: bool) -> None:
+    """A hand-over that reaches its new owner several reports after the tracker heard of it (the old owner's
+    answer; the two travel on different keys): the tracker flags the track's rows as awaiting it, so the new
+    owner starts no track of its own on them, and the record is taken without a conflict (before: the new
+    owner took them as free rows and confirmed its own track, and the record was refused, ``conflict``)."""
+    from fedtrack.fusion_center.mtt.engines import TrackToTrackEngine
+    from fedtrack.fusion_center.mtt.replay import data_regions, read_scans
+    from fedtrack.fusion_center.mtt.shards import confirmed_holder, disputed
+
+    cfg = MttConfig(maneuver="vdie")
+    scans = read_scans(data / "measurements.jsonl", cfg)
+    engine = TrackToTrackEngine(cfg, 4, feedback=feedback, regions=data_regions("2x2", scans, None))
+    lag = 8  # reports of any sensor (three sensors: about 3 s of data, as the loaded live run saw)
+    held: list[tuple[int, Any, Any, Any]] = []  # (due, centre, its take_over, record)
+    calls, refused, taken = [0], [], [0]
+
+    def deliver(upto: int) -> None:
+        for item in [h for h in held if h[0] <= upto]:
+            held.remove(item)
+            _, c, take, record = item
+            if confirmed_holder(c.centre, record) or disputed(c.centre, record):
+                refused.append(record.id)
+            else:
+                take(record)
+                taken[0] += 1
+
+    def late(c: RegionCentre) -> None:
+        take, answer = c.take_over, c.answer
+        c.take_over = lambda record: held.append((calls[0] + lag * len(engine.regions.ids), c, take, record))
+
+        def answering(*args: Any) -> Any:
+            calls[0] += 1
+            deliver(calls[0])
+            return answer(*args)
+        c.answer = answering
+
+    for scan in scans:
+        engine.ingest(scan)
+        if isinstance(engine.centre, ShardedCentre) and not hasattr(engine.centre, "late"):
+            engine.centre.late = [late(c) for c in engine.centre.centres]
+    deliver(calls[0] + 10**9)
+    assert engine.centre.handed_over == taken[0] + len(refused) > 5
+    assert refused == []
+    assert sum(r.expired for r in engine.centre.routers.values()) == 0
+
+
+def test_a_track_awaiting_its_new_owner_is_flagged_everywhere_and_forgotten_after_unsupported_s() -> None:
+    """The router flags a handed-over local track ``elsewhere`` in every sub-report until its new owner holds
+    it, keeps the belief while that owner's answers do not hold it yet, and forgets it (``expired``) after a
+    report made more than ``wait_s`` after the move whose answers still do not hold it."""
+    from fedtrack.local_filters.mtt.local import LocalReport, Resets
+    from fedtrack.local_filters.mtt.routing import RegionAnswer, RegionRouter
+    from fedtrack.local_filters.regions import grid_regions
+
+    router = RegionRouter(grid_regions((0.0, 0.0), (1000.0, 1000.0), 2, 1, 0.0), wait_s=5.0)
+    none = np.zeros(0, np.int64)
+
+    def report(t: float) -> LocalReport:  # local track 7 in region 1 (x1y0)
+        return LocalReport("s1", t, np.array([7]), np.array([[1500.0, 0.0, 500.0, 0.0]]), np.eye(4)[None] * 100.0,
+                           np.ones(1, bool), np.zeros(1, bool), np.zeros((0, 2, 4)), np.zeros((0, 2, 2)),
+                           np.zeros((0, 2)), np.zeros(0, bool), none)
+
+    def answer(held: list[int], moved: list[int], to: list[int]) -> RegionAnswer:
+        return RegionAnswer(Resets("s1", 0.0, none, np.zeros((0, 4)), np.zeros((0, 4, 4))), 1.0,
+                            np.array(held, np.int64), np.array(moved, np.int64), np.array(to, np.int64))
+
+    router.holder[7] = 0  # region 0 held it; its answer says it went to region 1
+    parts = router.split(report(1.0))
+    router.learn([sub for sub, _ in parts], [answer([], [7], [1]), answer([], [], [])])
+    flags = []
+    for t in (2.0, 4.0, 6.0, 6.5):  # region 1 has not taken the record: its answers hold nothing
+        parts = router.split(report(t))
+        flags.append([e.tolist() for _, e in parts])
+        router.learn([sub for sub, _ in parts], [answer([], [], []), answer([], [], [])])
+    assert flags == [[[], [True]]] * 4 and router.holder == {} and router.expired == 1  # 6.5 - 1.0 > 5
+    assert [e.tolist() for _, e in router.split(report(7.0))] == [[], [False]]  # a free row again
+    router.holder[7] = 0  # and a record that does come: held, no longer awaited
+    parts = router.split(report(8.0))
+    router.learn([sub for sub, _ in parts], [answer([], [7], [1]), answer([], [], [])])
+    parts = router.split(report(9.0))
+    router.learn([sub for sub, _ in parts], [answer([], [], []), answer([7], [], [])])
+    assert router.holder == {7: 1} and not router.awaiting
+    assert [e.tolist() for _, e in router.split(report(10.0))] == [[], [False]]

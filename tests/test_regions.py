@@ -290,7 +290,7 @@ def test_a_row_goes_to_its_believed_holder_however_far_beyond_the_margin() -> No
     report = LocalReport("s1", 1.0, np.array([4, 5, 6]), x, np.tile(np.eye(4), (3, 1, 1)), np.ones(3, bool),
                          np.zeros(3, bool), np.zeros((0, 2, 4)), np.zeros((0, 2, 2)), np.zeros((0, 2)),
                          np.zeros(0, bool), np.zeros(0, np.int64))
-    router = RegionRouter(regions, holder={4: 0, 5: 0, 6: 0})  # 6: 1,950 m beyond region 0, margin 100 m
+    router = RegionRouter(regions, 5.0, holder={4: 0, 5: 0, 6: 0})  # 6: 1,950 m beyond region 0, margin 100 m
     (r0, e0), (r1, e1), (r2, e2) = router.split(report)
     assert r0.ids.tolist() == [4, 5, 6] and e0.tolist() == [False, False, False]
     assert r1.ids.tolist() == [5] and e1.tolist() == [True]  # 5 is 50 m inside region 1: by position too

@@ -334,7 +334,8 @@ def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions
             fused_by.setdefault((scan.sensor, seq), set()).add(r)
             if (scan.sensor, seq) not in firsts:
                 firsts.add((scan.sensor, seq))
-                trackers.setdefault(scan.sensor, _Tracker([], RegionRouter(regions))).scans.append(entry)
+                tracker = trackers.setdefault(scan.sensor, _Tracker([], RegionRouter(regions, cfg.unsupported_s)))
+                tracker.scans.append(entry)
     outbox: dict[tuple[int, int], HandOver] = {}
     retired: list[RegionEngine] = []  # the engines of region centre processes that a later one replaced
     shown: list[dict[float, RegionPicture]] = [{} for _ in range(R)]
@@ -347,7 +348,7 @@ def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions
             scan = tr.scans[tr.next][0]
             tr.next += 1
             if (sensor, seq) in restarts:  # a new tracker process: tracks, ids and what it learnt afresh
-                tr.tracker, tr.router = None, RegionRouter(regions)
+                tr.tracker, tr.router = None, RegionRouter(regions, cfg.unsupported_s)
             if tr.tracker is None:
                 tr.tracker = SensorTracker(scan, cfg, feedback)
             if tr.tracker.is_late(scan):  # the live tracker took no late scan: not the order it took them in

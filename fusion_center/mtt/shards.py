@@ -400,7 +400,7 @@ class ShardedCentre:
         """Every region centre's answer to its sub-report, the hand-overs taken over, the answers
         learnt by the report's router; returns the joined resets and the process-noise factor."""
         start = time.process_time()
-        router = self.routers.setdefault(report.sensor, RegionRouter(self.regions))
+        router = self.routers.setdefault(report.sensor, RegionRouter(self.regions, self.cfg.unsupported_s))
         parts = router.split(report)
         self.routing_s += time.process_time() - start
         answers, moving = [], []

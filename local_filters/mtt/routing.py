@@ -9,11 +9,20 @@ the rows it fused, the rows it holds after it, and the local tracks it handed ov
 answer to this sensor with their new regions), and the tracker learns from the answers which
 region holds which of its local tracks (:meth:`RegionRouter.learn`). The same code routes in the
 replay and in ``serve mtt-local``, so both send the same rows to the same centres.
+
+A local track handed over (an answer's ``moved``) awaits its new owner: until that region's answer holds it,
+its rows are flagged ``elsewhere`` in every sub-report, so that no centre takes them as a free row and starts
+a track of its own before the hand-over itself has arrived there (the two travel on different keys, and under
+load the hand-over came several reports late: docs/multitarget.md, "The race"). The wait is bounded by
+``wait_s`` of data time, ``[mtt]``'s ``unsupported_s``: the longest the new owner keeps the handed-over
+central track unfed, past which its record would be deleted there anyway; then the belief is forgotten
+(counted ``expired``) and the rows are free again.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -52,43 +61,58 @@ class RegionRouter:
     """One tracker's belief of which region's centre holds each of its local tracks."""
 
     regions: Regions
+    wait_s: float  # [s] of data time: the longest a handed-over local track awaits its new owner
     holder: dict[int, int] = field(default_factory=dict)  # local track id -> region index
+    awaiting: dict[int, float] = field(default_factory=dict)  # handed over, not yet held by its new owner -> since
+    latest: float = -math.inf  # the newest report time split
+    expired: int = 0  # local tracks whose new owner did not hold them within wait_s (then forgotten)
 
     def split(self, report: LocalReport) -> list[tuple[LocalReport, np.ndarray]]:
-        """Per region (in order) its sub-report and the rows' ``elsewhere`` flags; forgets the
-        retired tracks."""
+        """Per region (in order) its sub-report and the rows' ``elsewhere`` flags (a local track awaiting its
+        new owner: flagged in every one); forgets the retired tracks."""
+        self.latest = max(self.latest, report.t)
         n, R = report.ids.size, len(self.regions.ids)
         believed = np.fromiter(map(self.holder.get, report.ids.tolist(), [-1] * n), dtype=np.int64, count=n)
         rows = near_regions(self.regions, report.x[:, [0, 2]]) if n else np.zeros((0, R), dtype=bool)
         held = np.flatnonzero(believed >= 0)
         rows[held, believed[held]] = True
+        waits = np.fromiter(map(self.awaiting.__contains__, report.ids.tolist()), dtype=bool, count=n)
         for lid in report.retired.tolist():
             self.holder.pop(lid, None)
+            self.awaiting.pop(lid, None)
         out = []
         for r in range(R):
             mine = rows[:, r]
             out.append((report if mine.all() else sub_report(report, mine),
-                        (believed[mine] >= 0) & (believed[mine] != r)))
+                        (believed[mine] >= 0) & ((believed[mine] != r) | waits[mine])))
         return out
 
     def learn(self, sent: list[LocalReport], answers: list[RegionAnswer], answering: list[int] | None = None) -> None:
         """The answers of the regions ``answering`` (default: every region, in order) to the
         sub-reports ``sent`` to them: a local track a region held before and no longer holds is
-        forgotten, then the hand-overs (``moved``) and the holdings (``held``) are noted, in region order."""
+        forgotten (but one awaiting that region as its new owner), then the hand-overs (``moved``: awaited from
+        the newest report time) and the holdings (``held``: no longer awaited) are noted, in region order; a local
+        track still awaited after a report made more than ``wait_s`` after its move is forgotten (``expired``)."""
         regions = list(range(len(answers))) if answering is None else answering
         before = dict(self.holder)
         for r, sub, answer in zip(regions, sent, answers):
             for lid in np.setdiff1d(sub.ids, answer.held).tolist():
-                if before.get(lid) == r and self.holder.get(lid) == r:
+                if before.get(lid) == r and self.holder.get(lid) == r and lid not in self.awaiting:
                     del self.holder[lid]
         live = set(np.concatenate([sub.ids for sub in sent]).tolist()) if sent else set()
         for answer in answers:
             for lid, to in zip(answer.moved.tolist(), answer.moved_to.tolist()):
                 if lid in live:  # not retired since
                     self.holder[lid] = to
+                    self.awaiting[lid] = self.latest
         for r, answer in zip(regions, answers):
             for lid in answer.held.tolist():
                 self.holder[lid] = r
+                self.awaiting.pop(lid, None)
+        for lid in [lid for lid, since in self.awaiting.items() if self.latest - since > self.wait_s]:
+            del self.awaiting[lid]  # a report made wait_s after the move, and still no answer holds it
+            self.holder.pop(lid, None)
+            self.expired += 1
 
 
 def answers_only(sub: LocalReport, answer: RegionAnswer) -> bool:

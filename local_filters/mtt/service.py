@@ -96,7 +96,7 @@ class MttLocalService(Service):
         super().__init__(**kwargs)  # type: ignore[arg-type]
         self.sites = sites  # [frame] with its sites: a radar scan's sensor_position checked (scan.misplaced)
         self.regions = regions
-        self.router = None if regions is None else RegionRouter(regions)
+        self.router = None if regions is None else RegionRouter(regions, cfg.unsupported_s)
         self.sent: list[LocalReport] = []  # the sub-reports of the report awaiting answers (regions)
         self.answers: dict[int, tuple[RegionAnswer, bytes]] = {}  # region -> its answer and digest
         self.unreached: set[int] = set()  # the regions whose sub-report no subscriber took: not awaited
@@ -329,7 +329,10 @@ class MttLocalService(Service):
                 require_covariances(f"scan {seq}: the local tracks", report.P)
                 contested = self.take_contested()
                 if self.router is not None and self.regions is not None:
+                    expired = self.router.expired
                     parts = self.router.split(report)
+                    if self.router.expired > expired:  # hand-overs whose new owner did not hold them in time
+                        self.count("handover_expired", self.router.expired - expired)
                     settled = self.link().settled(time.monotonic())
                     self.unreached = set()
                     for r, (rid, (sub, elsewhere)) in enumerate(zip(self.regions.ids, parts)):
