@@ -49,7 +49,6 @@ from fedtrack.local_filters.linear.kalman import solve_spd, symmetrize
 from fedtrack.local_filters.mtt import detector, maneuver
 from fedtrack.local_filters.mtt.associators.gnn import assign
 from fedtrack.local_filters.mtt.models import motion, position_from_detection, position_matrix, start_modes
-from fedtrack.local_filters.mtt.roles.life import keeps_evidence
 from fedtrack.local_filters.mtt.roles.tracks import Observation, TrackParams, TrackSet, concat
 from fedtrack.local_filters.mtt.scan import SensorScan
 
@@ -283,9 +282,7 @@ def start_tracks(scan: SensorScan, det: np.ndarray, params: TrackParams, first_i
     modes = None if params.modes is None else start_modes(x, P, params.modes)
     # confirmed at birth by the count (1 of 1) only where the count confirms: jipda's existence does
     born = (one >= params.confirm_hits) & (existence is None)
-    evidence = np.zeros((n, 2)) if keeps_evidence(params) else None  # Wald's test starts (roles.life.m_of_n)
-    return TrackSet(ids, x, P, one, one.copy(), np.zeros(n, np.int64), born, man, inputs, existence, modes, by,
-                    evidence), obs
+    return TrackSet(ids, x, P, one, one.copy(), np.zeros(n, np.int64), born, man, inputs, existence, modes, by), obs
 
 
 class Initiated(NamedTuple):

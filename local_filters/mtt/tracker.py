@@ -39,7 +39,6 @@ needs to fuse the local tracks exactly (docs/multitarget.md).
 
 from __future__ import annotations
 
-import math
 from typing import NamedTuple
 
 import numpy as np
@@ -172,8 +171,6 @@ def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
         if init.pairs.det.size:  # a pair's track: its start's existence before the scan, predicted to it
             born = expit(paired_log_odds(logit(born), init, logit(jipda.predicted_existence(tracks.existence, dt))))
         new = new._replace(existence=born)
-    if new.evidence is not None and new.size:  # the scan's births share Wald's false confirmations (roles.life.m_of_n)
-        new.evidence[:, 1] = math.log(new.size)
     detected = np.concatenate([upd.detected[live], np.ones(new.size, bool)])
     keep_info = live[upd.detected]
     return ScanResult(TrackerState(concat(updated.take(live), new), scan.t, state.next_id + new.size, assoc.memory,
