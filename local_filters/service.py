@@ -104,7 +104,7 @@ class LocalFilterService(Service):
         self.fresh = pickle.dumps(filt)  # the filter as it starts (again, after a pause: start_again)
         self.reset_timeout_s = RESET_WAIT_DEADLINES * deadline_s
         self.pending: dict[int, Measurement] = {}
-        self.lead: NumberedLeadGuard[Measurement] = NumberedLeadGuard()  # far ahead: waits for the next
+        self.lead: NumberedLeadGuard[Measurement] = NumberedLeadGuard.one_sensor()  # far ahead: waits for the next
         self.taken: dict[int, bytes] = {}  # digests of the last TAKEN_KEPT scans processed, by seq
         self.processed_up_to = -1
         self.refused_up_to = -1  # the last scan refused when its turn came (time_jump, numerical): no gap
@@ -206,7 +206,7 @@ class LocalFilterService(Service):
         else:
             self.restarted(msg)
         self.count("dropped_scans", len(self.pending))
-        self.filter, self.pending, self.lead = pickle.loads(self.fresh), {}, NumberedLeadGuard()
+        self.filter, self.pending, self.lead = pickle.loads(self.fresh), {}, NumberedLeadGuard.one_sensor()
         self.processed_t, self.reset_up_to, self.waiting_since = None, self.processed_up_to, None
 
     def _take(self, msg: Measurement) -> bool:

@@ -588,7 +588,8 @@ def admitted_numbers(guard: NumberedLeadGuard, seqs: list[int]) -> list[list[int
 def test_an_honest_start_is_never_abandoned() -> None:
     """Honest scans reordered at the start (at most two periods late: three numbers behind) never abandon the first
     one, nor do scans after a second one was taken; a forged first 50 ahead is abandoned by the next two."""
-    assert admitted_numbers(NumberedLeadGuard(), [3, 0, 1, 2, 4, 5]) == [[3], [0], [1], [2], [4], [5]]
-    assert admitted_numbers(NumberedLeadGuard(), [20, 21, 0, 1, 2]) == [[20], [21], [0], [1], [2]]
-    assert admitted_numbers(NumberedLeadGuard(), [50, 0, 1]) == [[50], [], [-1]]
-    assert admitted_numbers(NumberedLeadGuard(), [50, 0, 9, 10]) == [[50], [], [], [-1]]  # 9 - 0 > gap: not 0 and 9
+    assert admitted_numbers(NumberedLeadGuard.one_sensor(), [3, 0, 1, 2, 4, 5]) == [[3], [0], [1], [2], [4], [5]]
+    assert admitted_numbers(NumberedLeadGuard.one_sensor(), [20, 21, 0, 1, 2]) == [[20], [21], [0], [1], [2]]
+    assert admitted_numbers(NumberedLeadGuard.one_sensor(), [50, 0, 1]) == [[50], [], [-1]]
+    # 9 - 0 > gap: not 0 and 9
+    assert admitted_numbers(NumberedLeadGuard.one_sensor(), [50, 0, 9, 10]) == [[50], [], [], [-1]]

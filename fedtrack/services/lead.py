@@ -347,7 +347,13 @@ class NumberedLeadGuard(Generic[N]):
     order. A scan passes the time guard, then the number guard."""
 
     time: LeadGuard[N] = field(default_factory=lambda: LeadGuard(max_lag=0.0))
-    number: LeadGuard[N] = field(default_factory=lambda: LeadGuard(max_lag=0.0, lone=LoneStart(LEAD_INTERVALS)))
+    number: LeadGuard[N] = field(default_factory=lambda: LeadGuard(max_lag=0.0))
+
+    @classmethod
+    def one_sensor(cls) -> NumberedLeadGuard[N]:
+        """The guard of a one-sensor tracker (``local-filter``, ``imm``, ``hpda``): its number guard keeps a
+        :class:`LoneStart` on the scan numbers (module docstring); the fusion centre's, of several sensors, none."""
+        return cls(number=LeadGuard(max_lag=0.0, lone=LoneStart(LEAD_INTERVALS)))
 
     @property
     def dropped(self) -> int:

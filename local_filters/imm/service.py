@@ -45,7 +45,7 @@ class IMMService(Service):
         super().__init__(**kwargs)  # type: ignore[arg-type]
         self.jump = ClockJump(max_time_jump_s)
         self.order = ScanOrder()
-        self.lead: NumberedLeadGuard[Measurement] = NumberedLeadGuard()  # far ahead: waits for the next
+        self.lead: NumberedLeadGuard[Measurement] = NumberedLeadGuard.one_sensor()  # far ahead: waits for the next
         if len(cfg.models) > MAX_MAP_ITEMS:
             raise ConfigError(f"models: at most {MAX_MAP_ITEMS} models fit FusedTrack.extra, got {len(cfg.models)}")
         self.sensor = check_id(sensor, "--sensor")
@@ -56,7 +56,7 @@ class IMMService(Service):
     def _fresh(self) -> None:
         """The tracker starts afresh (its only scan abandoned: :meth:`contradicting`)."""
         self.tracker = IMMTracker(self.cfg, self.tracker.algorithm)
-        self.lead, self.order = NumberedLeadGuard(), ScanOrder()
+        self.lead, self.order = NumberedLeadGuard.one_sensor(), ScanOrder()
 
     def subscriptions(self) -> list[Subscription]:
         return [Subscription(self.keys.sensor_meas(self.sensor), Measurement, self.on_measurement)]
@@ -75,7 +75,7 @@ class IMMService(Service):
             return
         if restart:
             self.restarted(msg)
-            self.tracker, self.lead = IMMTracker(self.cfg, self.tracker.algorithm), NumberedLeadGuard()
+            self.tracker, self.lead = IMMTracker(self.cfg, self.tracker.algorithm), NumberedLeadGuard.one_sensor()
         for scan in self.in_time(self.lead, self.keys.sensor_meas(self.sensor), msg):
             if self.admitted(self.order, scan) and self.after_last(self.tracker.t, scan):  # (a held scan may
                 self._track(scan)  # have been repeated meanwhile)

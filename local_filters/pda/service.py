@@ -56,14 +56,14 @@ class PDAService(Service):
         super().__init__(**kwargs)  # type: ignore[arg-type]
         self.jump = ClockJump(max_time_jump_s)
         self.order = ScanOrder()
-        self.lead: NumberedLeadGuard[Measurement] = NumberedLeadGuard()  # far ahead: waits for the next
+        self.lead: NumberedLeadGuard[Measurement] = NumberedLeadGuard.one_sensor()  # far ahead: waits for the next
         self.sensor = check_id(sensor, "--sensor")
         self.spec: TrackerSpec = tracker_spec(algorithm, cfg.tracker, cfg.existence)
         self.manager: ManagerState = initial_manager()
 
     def _fresh(self) -> None:
         """The tracker starts afresh (its only scan abandoned: :meth:`contradicting`)."""
-        self.manager, self.lead, self.order = initial_manager(), NumberedLeadGuard(), ScanOrder()
+        self.manager, self.lead, self.order = initial_manager(), NumberedLeadGuard.one_sensor(), ScanOrder()
 
     def subscriptions(self) -> list[Subscription]:
         return [Subscription(self.keys.sensor_meas(self.sensor), Measurement, self.on_measurement)]
@@ -86,7 +86,7 @@ class PDAService(Service):
             return
         if restart:
             self.restarted(msg)
-            self.manager, self.lead = initial_manager(), NumberedLeadGuard()
+            self.manager, self.lead = initial_manager(), NumberedLeadGuard.one_sensor()
         for scan in self.in_time(self.lead, self.keys.sensor_meas(self.sensor), msg):
             # (a held scan may have been repeated meanwhile)
             if self.admitted(self.order, scan) and self.after_last(self.manager.t, scan):
