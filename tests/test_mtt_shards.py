@@ -429,6 +429,30 @@ def test_a_hand_over_arriving_reports_late_is_still_taken_unbroken(data: Path, f
     assert sum(r.expired for r in engine.centre.routers.values()) == 0
 
 
+def test_hand_overs_whose_record_never_arrives_expire_and_the_replay_counts_them(data: Path) -> None:
+    """Every hand-over record lost on its way: the trackers forget the moved tracks after ``unsupported_s``
+    (``RegionRouter.expired``), and the replay's counters and lines give their sum, as the live trackers'
+    ``handover_expired`` Health counters do (before: neither the counters nor the lines had it)."""
+    from fedtrack.fusion_center.mtt.engines import TrackToTrackEngine
+    from fedtrack.fusion_center.mtt.replay import counter_lines, data_regions, read_scans
+
+    cfg = MttConfig(maneuver="vdie")
+    scans = read_scans(data / "measurements.jsonl", cfg)
+    engine = TrackToTrackEngine(cfg, 4, feedback=True, regions=data_regions("2x2", scans, None))
+    for scan in scans:
+        engine.ingest(scan)
+        if isinstance(engine.centre, ShardedCentre):
+            for c in engine.centre.centres:
+                c.take_over = lambda record: None  # the record lost on the wire
+    expired = sum(r.expired for r in engine.centre.routers.values())
+    counts = engine.counters()
+    assert engine.centre.handed_over > 0 and expired > 0
+    assert counts["centre_handover_expired"] == expired
+    assert (f"{counts['centre_handed_over']} central tracks handed over between regions, {expired} local tracks "
+            "whose new owner did not hold them within unsupported_s, forgotten (live: the trackers' "
+            "handover_expired)") in counter_lines(counts)
+
+
 def test_a_track_awaiting_its_new_owner_is_flagged_everywhere_and_forgotten_after_unsupported_s() -> None:
     """The router flags a handed-over local track ``elsewhere`` in every sub-report until its new owner holds
     it, keeps the belief while that owner's answers do not hold it yet, and forgets it (``expired``) after a

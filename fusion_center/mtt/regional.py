@@ -305,6 +305,7 @@ class _Tracker:
     scan: SensorScan | None = None
     parts: list[tuple[LocalReport, np.ndarray]] = field(default_factory=list)
     answers: dict[int, RegionAnswer] = field(default_factory=dict)
+    expired: int = 0  # the hand-overs its former processes' routers let expire (``RegionRouter.expired``)
 
 
 def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions, entries: list[tuple[int, Entry]],
@@ -348,6 +349,7 @@ def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions
             scan = tr.scans[tr.next][0]
             tr.next += 1
             if (sensor, seq) in restarts:  # a new tracker process: tracks, ids and what it learnt afresh
+                tr.expired += tr.router.expired
                 tr.tracker, tr.router = None, RegionRouter(regions, cfg.unsupported_s)
             if tr.tracker is None:
                 tr.tracker = SensorTracker(scan, cfg, feedback)
@@ -419,6 +421,7 @@ def recorded_pictures(cfg: MttConfig, dim: int, feedback: bool, regions: Regions
         for k, v in e.counters().items():
             if k.startswith("centre_") or k in ("handed_over", "in_flight"):
                 counts["centre_" + k.removeprefix("centre_")] = counts.get("centre_" + k.removeprefix("centre_"), 0) + v
+    counts["centre_handover_expired"] = sum(tr.expired + tr.router.expired for tr in trackers.values())
     before: dict[int, int] = {}
     for T in sorted(set().union(*shown)):
         merged, _, _, before = merge_pictures([s.get(T) for s in shown], dim, cfg.thresholds.association[dim], before)

@@ -204,7 +204,9 @@ def counter_lines(counts: dict[str, int]) -> list[str]:
                      f"clock off the consensus beyond the {REGISTRATION_FALSE_ALARM:g} test), "
                      f"{counts['centre_registered_sensors']} sensors corrected at the end")
     if "centre_handed_over" in counts:
-        lines.append(f"{counts['centre_handed_over']} central tracks handed over between regions")
+        lines.append(f"{counts['centre_handed_over']} central tracks handed over between regions, "
+                     f"{counts.get('centre_handover_expired', 0)} local tracks whose new owner did not hold them "
+                     "within unsupported_s, forgotten (live: the trackers' handover_expired)")
     return lines
 
 

@@ -432,7 +432,9 @@ class ShardedCentre:
                 self.calls[r].append(("drop", sensor, departed))
 
     def counters(self) -> dict[str, int]:
-        """The centres' counters added up (a departure once), the hand-overs and the rows in flight."""
+        """The centres' counters added up (a departure once), the hand-overs, the rows in flight and the trackers'
+        hand-overs whose new owner did not hold them in time (``handover_expired``, :class:`RegionRouter`)."""
         total = {k: sum(getattr(c.centre.counters, k) for c in self.centres) for k in vars(Counters())}
         total["left"] = self.centres[0].centre.counters.left
-        return {**total, "handed_over": self.handed_over, "in_flight": sum(c.in_flight for c in self.centres)}
+        return {**total, "handed_over": self.handed_over, "in_flight": sum(c.in_flight for c in self.centres),
+                "handover_expired": sum(router.expired for router in self.routers.values())}
