@@ -153,7 +153,7 @@ def test_window_one_k_one_with_gnn_management_is_gnn(seed: int, radar: bool, mot
     mht_cfg = MttConfig(clutter_density=density, associator="mht", process_noise=motion,
                         mht=MhtConfig(window=1, k=1, max_branches=1, management="counts"))
     params = track_params(mht_cfg, "s1", dim)
-    assert mht_params(params.mht, params.pd, params.clutter_density, params.gate[2], 2, (3, 4, 3)).pg == 1.0
+    assert mht_params(params.mht, params.pd, params.clutter_density, params.gate[2], 2, 3).pg == 1.0
     gnn, mht = initial_state(dim), initial_state(dim)
     worst, assigned, confirmed = 0.0, 0, 0
     for scan in scans:
@@ -230,7 +230,7 @@ def test_score_terms() -> None:
     """The detection increment is ``ln(P_D N(nu; 0, S) / lambda)`` plus paper 001's amplitude
     log-ratio; the miss ``ln(1 - P_D P_G)``; Wald's thresholds."""
     amp = constants(PDAParams(pd=0.8, clutter_density=1e-5, snr=10.0))
-    mp = mht_params(MhtConfig(), 0.8, 1e-5, 9.21, 2, (3, 4, 3))._replace(pg=0.99, amplitude=amp)
+    mp = mht_params(MhtConfig(), 0.8, 1e-5, 9.21, 2, 3)._replace(pg=0.99, amplitude=amp)
     log_n, a = np.array([-9.0, -12.5]), np.array([5.0, 9.0])
     inc, miss = score_increments(log_n, mp, a)
     expect = np.log(0.8) + log_n - np.log(1e-5) + log_amplitude_ratio(a, amp)
@@ -362,7 +362,7 @@ def test_an_established_track_keeps_its_detection_against_a_newborn() -> None:
 
     from fedtrack.local_filters.mtt.associators.mht import MhtState, birth_scores, extend_clusters, value_increments
 
-    mp = mht_params(MhtConfig(), 0.8, 5e-7, 9.21, 2, (3, 4, 3))
+    mp = mht_params(MhtConfig(), 0.8, 5e-7, 9.21, 2, 3)
     newborn = float(birth_scores(mp, None, 50)[0])
     assert newborn == pytest.approx(np.log(0.1 / 0.9))
     rows, cols, inc = np.array([0, 1]), np.array([0, 0]), np.array([5.0, 7.0])
@@ -450,7 +450,7 @@ def test_an_ended_targets_track_leaves_the_picture_by_existence(management: str)
             gone_at = gone_at if gone_at is not None else k
             continue
         # one miss of the branch: survival over dt, then the miss's likelihood ratio 1 - P_D P_G
-        mp = mht_params(cfg.mht, params.pd, params.clutter_density, params.gate[2], 2, (3, 4, 6))
+        mp = mht_params(cfg.mht, params.pd, params.clutter_density, params.gate[2], 2, 6)
         miss = 1.0 - params.pd * mp.pg
         mu_bar = SURVIVAL_PER_SECOND**dt * mu
         mu = mu_bar * miss / (1.0 - mu_bar + mu_bar * miss)

@@ -42,6 +42,10 @@ clutter the count would confirm (:func:`~fedtrack.local_filters.mtt.roles.life.c
 scenario's config gives its position sensor the radar's clutter density (8.8e-5, per m rad^2, read as
 per m^2: the simulator's before 2026-11-26), so its fusions change; ``gnn-cluttered-count.json.gz``
 (frozen when it came) holds them, and with the count as configured they equal the references above.
+Since the mixnoise59 session ``mtt-centralized`` gnn keeps the configured count and adds Wald's test on each
+scan's evidence (:func:`~fedtrack.local_filters.mtt.roles.life.m_of_n`, ``keeps_evidence``):
+``gnn-evidence.json.gz`` (frozen when it came) holds the centralized cases, and without that test they equal
+the references above.
 """
 
 from __future__ import annotations
@@ -64,6 +68,7 @@ RADAR_VIEW = DATA / "gnn-radar-view.json.gz"  # the radar scenario's centralized
 TWO_POINT = DATA / "gnn-two-point.json.gz"  # the cases two-point starts change
 START_WAITS = DATA / "gnn-start-waits.json.gz"  # the cases a start waiting while its velocity is unmeasured changes
 CLUTTERED = DATA / "gnn-cluttered-count.json.gz"  # the cases a count raised on a cluttered sensor changes
+EVIDENCE = DATA / "gnn-evidence.json.gz"  # the centralized cases: Wald's test on each scan's evidence
 CASES = [(scenario, maneuver, algorithm) for scenario in ("pos", "radar") for maneuver in ("none", "vdie")
          for algorithm in ("mtt-local", "mtt-centralized", "mtt-federated", "mtt-decentralized")]
 LOCAL_SENSOR = {"pos": "s2", "radar": "r1"}
@@ -112,6 +117,7 @@ def assert_fingerprints_equal(got: list, expected: list) -> None:
 @pytest.mark.parametrize("scenario, maneuver, algorithm", CASES)
 def test_gnn_pictures_equal_main_886cab1(tmp_path: Path, scenario: str, maneuver: str, algorithm: str,
                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    from fedtrack.fusion_center.mtt import engines
     from fedtrack.fusion_center.mtt.engines import CentralizedEngine
     from fedtrack.local_filters.mtt import config, initiation
     from fedtrack.local_filters.mtt.roles import gating, life
@@ -119,6 +125,11 @@ def test_gnn_pictures_equal_main_886cab1(tmp_path: Path, scenario: str, maneuver
     monkeypatch.setattr(config, "LOST_SCAN_S", 0.0)  # a count per scan only, as before the untuned3 session
 
     key = f"{scenario}-{maneuver}-{algorithm}"
+    weighed = json.loads(gzip.decompress(EVIDENCE.read_bytes()))
+    if key in weighed:
+        assert_fingerprints_equal(fingerprint(replay_case(tmp_path, scenario, maneuver, algorithm)), weighed[key])
+    for module in (engines, initiation, life):  # the count alone, as before the mixnoise59 session
+        monkeypatch.setattr(module, "keeps_evidence", lambda params: False)
     raised = json.loads(gzip.decompress(CLUTTERED.read_bytes()))
     if key in raised:
         assert_fingerprints_equal(fingerprint(replay_case(tmp_path, scenario, maneuver, algorithm)), raised[key])

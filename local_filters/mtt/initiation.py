@@ -49,6 +49,7 @@ from fedtrack.local_filters.linear.kalman import solve_spd, symmetrize
 from fedtrack.local_filters.mtt import detector, maneuver
 from fedtrack.local_filters.mtt.associators.gnn import assign
 from fedtrack.local_filters.mtt.models import motion, position_from_detection, position_matrix, start_modes
+from fedtrack.local_filters.mtt.roles.life import keeps_evidence
 from fedtrack.local_filters.mtt.roles.tracks import Observation, TrackParams, TrackSet, concat
 from fedtrack.local_filters.mtt.scan import SensorScan
 
@@ -282,7 +283,18 @@ def start_tracks(scan: SensorScan, det: np.ndarray, params: TrackParams, first_i
     modes = None if params.modes is None else start_modes(x, P, params.modes)
     # confirmed at birth by the count (1 of 1) only where the count confirms: jipda's existence does
     born = (one >= params.confirm_hits) & (existence is None)
-    return TrackSet(ids, x, P, one, one.copy(), np.zeros(n, np.int64), born, man, inputs, existence, modes, by), obs
+    evidence = np.zeros((n, 2)) if keeps_evidence(params) else None  # Wald's test starts (:func:`births_share`)
+    return TrackSet(ids, x, P, one, one.copy(), np.zeros(n, np.int64), born, man, inputs, existence, modes, by,
+                    evidence), obs
+
+
+def births_share(new: TrackSet) -> TrackSet:
+    """The scan's new tracks, where the tracker keeps their evidence (``roles.life.keeps_evidence``), with Wald's
+    test started: no evidence yet, and the log of their number (``evidence[:, 1]``), by which the test's
+    threshold rises for each (``roles.life.count_life``): the births share the scan's false confirmations."""
+    if new.evidence is None or not new.size:
+        return new
+    return new._replace(evidence=np.column_stack([np.zeros(new.size), np.full(new.size, math.log(new.size))]))
 
 
 class Initiated(NamedTuple):
@@ -314,7 +326,7 @@ def initiate(starts: Starts, tracks: TrackSet, live: np.ndarray, scan: SensorSca
     its track is live with its velocity unmeasured (:func:`unmeasured`), each at most until it pairs."""
     one, obs = start_tracks(scan, det, params, first_id)
     if params.max_speed <= 0.0:  # no two-point starts: nothing waits
-        return Initiated(one, obs, np.arange(det.size), starts, no_pairing(params.dim),
+        return Initiated(births_share(one), obs, np.arange(det.size), starts, no_pairing(params.dim),
                          np.zeros(0, np.int64), np.zeros(0, bool))
     lone = np.flatnonzero(live & unmeasured(tracks, params.init_velocity_std))
     order = np.argsort(tracks.ids[lone], kind="stable")
@@ -335,9 +347,9 @@ def initiate(starts: Starts, tracks: TrackSet, live: np.ndarray, scan: SensorSca
     waiting[pairs.start] = False
     kept = recorded(starts, waiting, one.ids, scan.t, pos, cov)
     if not pairs.det.size:
-        return Initiated(one, obs, np.arange(det.size), kept, pairs, partners, alone)
+        return Initiated(births_share(one), obs, np.arange(det.size), kept, pairs, partners, alone)
     two, obs_two = start_tracks(scan, det[pairs.det], params, first_id + det.size, (pairs, tracks.take(partners)))
-    return Initiated(concat(one, two), Observation(*(np.concatenate(u) for u in zip(obs, obs_two))),
+    return Initiated(births_share(concat(one, two)), Observation(*(np.concatenate(u) for u in zip(obs, obs_two))),
                      np.concatenate([np.arange(det.size), pairs.det]), kept, pairs, partners, alone)
 
 

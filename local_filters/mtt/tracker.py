@@ -25,7 +25,9 @@ each role a small pure function:
    integers in order of creation, never reused.
 6. **confirm / delete** (:func:`~.roles.life.m_of_n`, or the associator's): a track is confirmed once
    it has ``confirm_hits`` detections within its first ``confirm_window`` scans (both raised on a
-   cluttered position sensor's scans, :func:`~.roles.life.count_at`); a tentative track
+   cluttered position sensor's scans, :func:`~.roles.life.count_at`; in ``mtt-centralized`` kept where a
+   present sensor's clutter would raise it, each scan's evidence weighed instead: :func:`~.roles.life.count_life`,
+   mht's ``"counts"`` too); a tentative track
    that can no longer reach that is deleted; a confirmed track is deleted after ``delete_misses``
    consecutive misses, or more on a fast sensor (:func:`~.roles.life.deletion_at`).
 
@@ -62,12 +64,13 @@ from fedtrack.local_filters.mtt.roles.gating import Gating, gate_scan
 from fedtrack.local_filters.mtt.roles.life import (
     Sight,
     count_at,
+    count_life,
     deletion_at,
     existence_manage,
     held,
     m_of_n,
-    scan_counts,
     scan_sees,
+    tally,
 )
 from fedtrack.local_filters.mtt.roles.tracks import Observation, TrackParams, TrackSet, concat, empty_tracks
 from fedtrack.local_filters.mtt.scan import SensorScan
@@ -189,8 +192,7 @@ def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale
     leaves first (a federated tracker's resets; otherwise they are those leaves')."""
     settings, d, m = params.mht, params.dim, scan.dim
     mem = state.memory if state.memory is not None else mht.initial_state(empty_tracks(d), settings.window)
-    mp = mht.mht_params(settings, params.pd, params.clutter_density, params.gate[m], m,
-                        (params.confirm_hits, params.confirm_window, params.delete_misses))
+    mp = mht.mht_params(settings, params.pd, params.clutter_density, params.gate[m], m, params.delete_misses)
     leaves, n_det = mem.leaves, scan.z.shape[0]
     best = np.flatnonzero(mem.hyps[0])
     best = best[np.argsort(leaves.ids[best], kind="stable")]
@@ -219,15 +221,17 @@ def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale
         cx[hit], cP[hit] = detection_update(x0, cP[hit], cmodes, np.flatnonzero(hit), nu[pidx], H, scan.R)
         obs = Observation(H, np.broadcast_to(scan.R, (pidx.size, m, m)).copy(), nu[pidx] + np.einsum("nij,nj->ni", H, x0))
     sees = scan_sees(x, gating, scan, params, held(leaves, params.sensor_bit))
-    old, counted, need = scan_counts(leaves.take(br.parent), hit, params,
-                                     None if sees is None else sees.take(br.parent))
+    old, counted, need = tally(leaves.take(br.parent), hit, params, None if sees is None else sees.take(br.parent))
     step = np.where(hit, 0.0, miss * counted)  # each branch's score increment (a miss the scan counts)
     step[hit] = inc[pidx]
     score = mem.score[br.parent] + step
     peak = np.maximum(mem.peak[br.parent], score)
-    hits, age, misses = old.hits + hit, old.age + counted, np.where(hit, 0, old.misses + counted)
-    confirmed, live = mht.manage(mp._replace(delete_misses=need), old.confirmed, score, peak, hits, age, misses)
-    children = TrackSet(old.ids, cx, cP, hits, age, misses, confirmed, modes=cmodes, detected_by=old.detected_by)
+    if mp.management == "counts":  # gnn's rule (roles.life.count_life): window 1, k 1 is gnn
+        confirmed, live = count_life(old, params, need)
+    else:
+        confirmed, live = mht.manage(mp._replace(delete_misses=need), old.confirmed, score, peak, old.misses)
+    children = TrackSet(old.ids, cx, cP, old.hits, old.age, old.misses, confirmed, modes=cmodes,
+                        detected_by=old.detected_by, evidence=old.evidence)
     fresh = br.births  # a detection that a kept hypothesis of its cluster leaves unused starts a track there
     init = initiate(state.starts, children, live, scan, fresh, params, state.next_id)
     new, obs_new = init.tracks, init.observations

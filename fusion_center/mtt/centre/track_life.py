@@ -13,9 +13,10 @@ import numpy as np
 from fedtrack.fusion_center.mtt.centre.candidates import candidate_pairs
 from fedtrack.fusion_center.mtt.silence import LEAVE_INTERVALS
 from fedtrack.geodetic import RadarSite, above_radio_horizon
-from fedtrack.local_filters.mtt.associators.jipda import FALSE_CONFIRM, LOST_TRUE
+from fedtrack.local_filters.mtt.associators.jipda import FALSE_CONFIRM
 from fedtrack.local_filters.mtt.config import MttConfig, miss_count, scan_lost
 from fedtrack.local_filters.mtt.local import LocalReport
+from fedtrack.local_filters.mtt.roles.life import CONFIRM_EVIDENCE, DROP_EVIDENCE
 
 # A confirmed track that several sensors see is deleted once each of them missed it on its
 # last CENTRAL_MISSES scans ((1 - P_D)^4 = 1e-4 or less for a live target with P_D = 0.9): the
@@ -41,13 +42,10 @@ DENIAL_LIVE = 3
 # A central track's height raised by this many standard deviations before it is judged below a radar's
 # horizon (2.33: above it with a chance of at most FALSE_CONFIRM, :meth:`CentreLife._below_horizon`).
 Z_FALSE_CONFIRM = NormalDist().inv_cdf(1.0 - FALSE_CONFIRM)
-# Wald's upper threshold on a tentative track's evidence since its start (CentreLife._evidence), as jipda's
-# and mht's tests: ln((1 - beta) / alpha) = 4.6 with jipda's alpha FALSE_CONFIRM and beta LOST_TRUE
-CONFIRM_EVIDENCE = math.log((1.0 - LOST_TRUE) / FALSE_CONFIRM)
-# and its lower one, ln(beta / (1 - alpha)) = -4.6: a tentative track's evidence is kept above it (the test
-# started again there, as a new track's would be), so that a track that clutter made look false can still
-# be confirmed by its target's later detections
-DROP_EVIDENCE = math.log(LOST_TRUE / (1.0 - FALSE_CONFIRM))
+# Wald's thresholds on a tentative track's evidence since its start (CentreLife._evidence): roles.life's
+# CONFIRM_EVIDENCE, and DROP_EVIDENCE, above which a tentative central track's evidence is kept (the test
+# started again there, as a new track's would be), so that a track that clutter made look false can still be
+# confirmed by its target's later detections
 
 
 @lru_cache(maxsize=256)

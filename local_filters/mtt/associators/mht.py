@@ -39,8 +39,10 @@ Per scan:
 4. The branches the kept hypotheses use are the new leaves: a miss keeps the
    prediction, a detection is the (E)KF update (Joseph form) of its parent; with ``process_noise =
    "imm"`` every leaf carries its two motion modes, as a gnn track does (docs/mht.md).
-5. Track management per branch (:func:`manage`): ``"score"``, Wald's SPRT on the track score
-   (:func:`sprt_thresholds`), or ``"counts"``, gnn's M-of-N rules (with gnn's precedence of the
+5. Track management per branch: ``"score"``, Wald's SPRT on the track score (:func:`manage`,
+   :func:`sprt_thresholds`), or ``"counts"``, gnn's rules, the same function
+   (:func:`~fedtrack.local_filters.mtt.roles.life.count_life`: M-of-N, or where a tracker of several
+   sensors' scans weighs each scan's evidence, Wald's test on it; with gnn's precedence of the
    confirmed tracks in step 3 and P_G = 1, gnn's cost: :func:`mht_params`). A deleted branch
    leaves its track out of the hypotheses that held it. ``"score"`` also keeps each branch's
    existence probability with jipda's survival (:func:`leaf_existence`): a confirmed track is in
@@ -88,9 +90,7 @@ class MhtParams(NamedTuple):
 
     pd: float
     clutter_density: float
-    confirm_hits: int  # "counts" management: gnn's M-of-N
-    confirm_window: int
-    delete_misses: int
+    delete_misses: int  # "score": a confirmed branch deleted after this many misses in a row (and its fall)
     window: int  # N: scans back to the branch that N-scan pruning keeps (1: the best leaf only)
     k: int  # global hypotheses kept
     max_branches: int  # leaves kept per track
@@ -122,18 +122,18 @@ LOG_BIRTH_ODDS = math.log(BIRTH_EXISTENCE / (1.0 - BIRTH_EXISTENCE))
 
 
 def mht_params(settings: MhtConfig, pd: float, clutter_density: float, gate_d2: float, m: int,
-               counts: tuple[int, int, int]) -> MhtParams:
-    """The MHT's parameters for a scan of measurement size ``m`` gated at ``gate_d2``; ``counts``
-    are gnn's ``(confirm_hits, confirm_window, delete_misses)``. ``"counts"`` management is gnn's
-    model too: its M-of-N rules and track precedence, and a gate that holds every target
-    detection (``P_G = 1`` in the miss term: gnn's cost), so that window 1 and k 1 are gnn.
+               delete_misses: int) -> MhtParams:
+    """The MHT's parameters for a scan of measurement size ``m`` gated at ``gate_d2``; ``delete_misses``
+    is gnn's. ``"counts"`` management is gnn's model too: its M-of-N rules (the tracker's
+    :func:`~fedtrack.local_filters.mtt.roles.life.count_life`) and track precedence, and a gate that holds
+    every target detection (``P_G = 1`` in the miss term: gnn's cost), so that window 1 and k 1 are gnn.
     ``"score"``: a track's score is its log posterior odds (:func:`birth_scores`), so Wald's
     thresholds are moved by the prior log odds ``ln odds(B)``: the SPRT on the track's likelihood
     ratio since its birth."""
     c = scan_constants(pd, clutter_density, gate_d2, m)
     confirm, delete = sprt_thresholds(settings.false_track, settings.miss)
     prior = LOG_BIRTH_ODDS if settings.management == "score" else 0.0
-    return MhtParams(pd, clutter_density, *counts, settings.window, settings.k, settings.max_branches,
+    return MhtParams(pd, clutter_density, delete_misses, settings.window, settings.k, settings.max_branches,
                      settings.management, 1.0 if settings.management == "counts" else c.pg, confirm + prior,
                      delete + prior, delete, c)
 
@@ -455,21 +455,16 @@ def value_increments(score: np.ndarray, g_rows: np.ndarray, inc: np.ndarray, mis
     return leaf_miss, np.logaddexp(0.0, score[g_rows] + inc) - base[g_rows] - leaf_miss[g_rows]
 
 
-def manage(params: MhtParams, confirmed: np.ndarray, score: np.ndarray, peak: np.ndarray, hits: np.ndarray,
-           age: np.ndarray, misses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Step 5: each branch's confirmation and whether it stays. ``"score"``: confirmed once its
+def manage(params: MhtParams, confirmed: np.ndarray, score: np.ndarray, peak: np.ndarray, misses: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """Step 5 with ``"score"``: each branch's confirmation and whether it stays. Confirmed once its
     score reaches the SPRT's upper threshold (moved by the birth prior, :func:`mht_params`); a
     tentative branch deleted at the lower one, a
     confirmed one when its score has fallen that far below its peak (the test restarted at the
     peak: "a false track since then") and it has missed ``delete_misses`` scans in a row (the
     tracker's rule, which for a tracker of every sensor's scans is the fusion centre's: misses
-    over the merged stream). ``"counts"``: gnn's M-of-N (``hits`` within the first
-    ``confirm_window`` scans; ``delete_misses`` misses in a row)."""
-    if params.management == "counts":
-        confirmed = confirmed | (hits >= params.confirm_hits)
-        live = np.where(confirmed, misses < params.delete_misses,
-                        params.confirm_window - age >= params.confirm_hits - hits)
-        return confirmed, live
+    over the merged stream). ``"counts"`` is gnn's rule itself
+    (:func:`fedtrack.local_filters.mtt.roles.life.count_life`, in the tracker)."""
     confirmed = confirmed | (score >= params.confirm_score)
     kept = (score - peak > params.drop_score) | (misses < params.delete_misses)
     return confirmed, np.where(confirmed, kept, score > params.delete_score)

@@ -6,6 +6,7 @@ tracker of several sensors' scans, which scans count for a track
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -17,6 +18,14 @@ from fedtrack.local_filters.mtt.roles.gating import Gating
 from fedtrack.local_filters.mtt.roles.tracks import TrackParams, TrackSet
 from fedtrack.local_filters.mtt.scan import SensorScan
 from fedtrack.local_filters.radar.measurement import cartesian_from_polar
+
+# Wald's thresholds on a tentative track's evidence since its start (:func:`m_of_n` where the count rules a tracker
+# of several sensors' scans; the track-to-track centre's CentreLife._evidence), as jipda's and mht's tests:
+# ln((1 - beta) / alpha) = 4.6 with jipda's alpha FALSE_CONFIRM and beta LOST_TRUE, and ln(beta / (1 - alpha))
+CONFIRM_EVIDENCE = math.log((1.0 - jipda.LOST_TRUE) / jipda.FALSE_CONFIRM)
+DROP_EVIDENCE = math.log(jipda.LOST_TRUE / (1.0 - jipda.FALSE_CONFIRM))
+# the volume of the unit ball in m dimensions (a gate's volume: UNIT_BALL[m] g^(m/2) sqrt(det S))
+UNIT_BALL = {2: math.pi, 3: 4.0 * math.pi / 3.0}
 
 
 def popcount(bits: np.ndarray) -> np.ndarray:
@@ -32,9 +41,10 @@ class Sight(NamedTuple):
 
     place: np.ndarray  # (N,) bool
     view: np.ndarray  # (N,) bool
+    log_hit: np.ndarray | None = None  # (N,) a detection's evidence for the track (keeps_evidence), else None
 
     def take(self, idx: np.ndarray) -> Sight:
-        return Sight(self.place[idx], self.view[idx])
+        return Sight(self.place[idx], self.view[idx], None if self.log_hit is None else self.log_hit[idx])
 
     def counts(self, detected_by: np.ndarray, sensor_bit: int) -> np.ndarray:
         """The tracks the scan counts for: its sensor sees the place, or detected the track before
@@ -103,8 +113,11 @@ def scan_sees(x: np.ndarray, gating: Gating | None, scan: SensorScan, params: Tr
     n = x.shape[0]
     sees = np.zeros(n, dtype=bool) if gating is None else np.bincount(gating.pairs.rows, minlength=n) > 0
     view = np.ones(n, dtype=bool)
+    log_hit = None
+    if keeps_evidence(params):  # no gating: no detection, no hit to weigh
+        log_hit = np.zeros(n) if gating is None else hit_evidence(gating.logdet, scan.dim, params)
     if not scan.z.shape[0] and empty_shows_blind(params.pd, held_tracks):
-        return Sight(sees, ~view)
+        return Sight(sees, ~view, log_hit)
     if n and scan.z.shape[0] > 1:
         pos = scan.z if scan.sensor_position is None else scan.sensor_position + cartesian_from_polar(scan.z)
         xy = pos[:, :2]
@@ -112,7 +125,32 @@ def scan_sees(x: np.ndarray, gating: Gating | None, scan: SensorScan, params: Tr
         if scan.sensor_position is not None:
             view = radar_view(x, scan, params.frame)
         sees |= ((at > lo) & (at < hi)).all(axis=1) & view
-    return Sight(sees, view)
+    return Sight(sees, view, log_hit)
+
+
+def keeps_evidence(params: TrackParams) -> bool:
+    """Whether a tracker keeps each tentative track's evidence, for Wald's test (:func:`count_life`, where
+    ``params.weighed``): a tracker of several sensors' scans (``sensor_bit``) whose count rules its tracks
+    (``gnn``, mht's ``"counts"``; not jipda's existence, nor mht's score)."""
+    return (bool(params.sensor_bit) and params.initial_existence is None
+            and (params.mht is None or params.mht.management == "counts"))
+
+
+def hit_evidence(logdet: np.ndarray, m: int, params: TrackParams) -> np.ndarray:
+    """Per track, the log-likelihood ratio of a detection in its gate (``ln det S`` per track, ``m``
+    measured dimensions) for a target against the scan's clutter: ``ln((P_D (1 - p) + p) / p)``, ``p = 1 -
+    exp(-lambda V)`` the chance that clutter (density ``lambda`` per unit of the measurement space) falls into
+    the gate of volume ``V = UNIT_BALL[m] g^(m/2) sqrt(det S)``, a target's detection (``P_D``) or clutter
+    putting one there. Without clutter: a hit is certain (``inf``). A miss weighs ``ln(1 - P_D)``
+    whatever ``p`` (no detection: neither the target's nor clutter's, against clutter's alone)."""
+    lam = params.clutter_density
+    if lam <= 0.0:
+        return np.full(logdet.shape, np.inf)
+    volume = UNIT_BALL[m] * params.gate[m] ** (m / 2.0) * np.exp(0.5 * logdet)
+    p = -np.expm1(-lam * volume)
+    pd = min(params.pd, 1.0 - 1e-12)
+    with np.errstate(divide="ignore"):
+        return np.log(pd * (1.0 - p) + p) - np.log(p)
 
 
 def scan_counts(tracks: TrackSet, detected: np.ndarray, params: TrackParams, sight: Sight | None = None
@@ -138,18 +176,53 @@ def scan_counts(tracks: TrackSet, detected: np.ndarray, params: TrackParams, sig
     return tracks._replace(detected_by=by), counted, need
 
 
+def tally(tracks: TrackSet, detected: np.ndarray, params: TrackParams, sees: Sight | None = None
+          ) -> tuple[TrackSet, np.ndarray | bool, np.ndarray | int]:
+    """The track counts after the scan: hits, scans counted (:func:`scan_counts`, ``sees``: :func:`scan_sees`)
+    and misses in a row, and where the tracker keeps it (:func:`keeps_evidence`, ``sees`` carrying each track's
+    :func:`hit_evidence`) each tentative track's evidence (``evidence[:, 0]``), Wald's log-likelihood ratio
+    since its start: a hit adds its :func:`hit_evidence`, a counted miss ``ln(1 - P_D)``. With the scans
+    counted and the misses in a row that delete each track (:func:`scan_counts`)."""
+    tracks, counted, need = scan_counts(tracks, detected, params, sees)
+    evidence = tracks.evidence
+    if evidence is not None and sees is not None and sees.log_hit is not None:
+        step = np.where(detected, sees.log_hit, np.where(counted, math.log1p(-min(params.pd, 1.0 - 1e-12)), 0.0))
+        evidence = evidence.copy()
+        evidence[:, 0] = np.where(tracks.confirmed, 0.0, evidence[:, 0] + step)
+    return tracks._replace(hits=tracks.hits + detected, age=tracks.age + counted,
+                           misses=np.where(detected, 0, tracks.misses + counted), evidence=evidence), counted, need
+
+
+def count_life(tracks: TrackSet, params: TrackParams, need: np.ndarray | int) -> tuple[np.ndarray, np.ndarray]:
+    """The count's rule, gnn's (:func:`m_of_n`) and mht's ``"counts"`` (:func:`..tracker.mht_step`), on the
+    counts :func:`tally` left: which tracks are confirmed and which stay. M-of-N: confirmed with
+    ``confirm_hits`` hits within the first ``confirm_window`` counted scans, a tentative track that can no
+    longer reach that deleted, a confirmed one after ``need`` misses in a row. Where the tracker weighs each
+    scan's evidence (``params.weighed``: some present sensor's clutter would raise the count), the configured
+    count with Wald's test instead of the window: confirmed once the track has ``confirm_hits`` hits and its
+    evidence reaches ``CONFIRM_EVIDENCE`` plus the log of the tracks its start's scan started (``evidence[:,
+    1]``: the scan's births share the test's false confirmations, as jipda's births share its prior odds, so
+    that a scan confirms clutter with at most ``FALSE_CONFIRM``), a tentative track deleted once its evidence
+    falls to ``DROP_EVIDENCE`` (a true target lost with ``LOST_TRUE``): each scan weighed by its own sensor's
+    clutter in the track's gate, so that a coarse sensor's clutter does not raise the count for the tracks a
+    fine sensor confirms (docs/multitarget.md, mixnoise60)."""
+    hits, evidence = tracks.hits, tracks.evidence
+    if params.weighed and evidence is not None:
+        confirmed = tracks.confirmed | ((hits >= params.confirm_hits)
+                                        & (evidence[:, 0] >= CONFIRM_EVIDENCE + evidence[:, 1]))
+        tentative_live = evidence[:, 0] > DROP_EVIDENCE
+    else:
+        confirmed = tracks.confirmed | (hits >= params.confirm_hits)
+        tentative_live = params.confirm_window - tracks.age >= params.confirm_hits - hits
+    return confirmed, np.where(confirmed, tracks.misses < need, tentative_live)
+
+
 def m_of_n(tracks: TrackSet, detected: np.ndarray, params: TrackParams, sees: Sight | None = None
            ) -> tuple[TrackSet, np.ndarray]:
-    """Role 6: the track counts after the scan, and which tracks stay (M-of-N confirmation,
-    deletion after ``delete_misses`` consecutive misses; the scans counted: :func:`scan_counts`,
-    ``sees``: :func:`scan_sees`)."""
-    tracks, counted, need = scan_counts(tracks, detected, params, sees)
-    hits = tracks.hits + detected
-    age = tracks.age + counted
-    misses = np.where(detected, 0, tracks.misses + counted)
-    confirmed = tracks.confirmed | (hits >= params.confirm_hits)
-    live = np.where(confirmed, misses < need, params.confirm_window - age >= params.confirm_hits - hits)
-    return tracks._replace(hits=hits, age=age, misses=misses, confirmed=confirmed), live
+    """Role 6: the track counts after the scan (:func:`tally`), and which tracks stay (:func:`count_life`)."""
+    tracks, _, need = tally(tracks, detected, params, sees)
+    confirmed, live = count_life(tracks, params, need)
+    return tracks._replace(confirmed=confirmed), live
 
 
 def existence_manage(tracks: TrackSet, detected: np.ndarray, params: TrackParams, sees: Sight | None = None
@@ -186,10 +259,11 @@ def count_at(params: TrackParams, scan: SensorScan, dt: float) -> TrackParams:
     clutter is at most jipda's bound, 0.01, each later scan hitting it with the chance
     :func:`~..config.clutter_hit` gives at the scan's ``R`` and clutter density over ``dt`` (at least
     1 s: as the deletion counts, judged a second on a faster sensor), while a real target keeps a
-    chance of 1/2 of confirming within the window. A radar's scan (its density per m rad^2) and a
-    sensor without clutter keep the configured count."""
+    chance of 1/2 of confirming within the window. A radar's scan (its density per m rad^2), a
+    sensor without clutter and a tracker that weighs each scan's evidence instead (``params.weighed``) keep the
+    configured count."""
     if (scan.dim != 2 or params.clutter_density <= 0 or params.initial_existence is not None
-            or params.mht is not None and params.mht.management != "counts"):
+            or params.mht is not None and params.mht.management != "counts" or params.weighed):
         return params
     hit = clutter_hit(params.clutter_density, scan.R, dt, params.init_velocity_std, params.gate[2])
     hits, window = raised_count(hit, params.pd, params.confirm_hits, params.confirm_window)

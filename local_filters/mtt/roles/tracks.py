@@ -46,6 +46,9 @@ class TrackParams(NamedTuple):
     lone_misses: int = 0
     max_speed: float = 0.0  # [m/s] two-point starts' speed bound (:mod:`..initiation`); 0: none
     frame: Frame | None = None  # [frame]: radars stand on the Earth, each with its own axes (:func:`.life.radar_view`)
+    # the configured count and Wald's test on each scan's evidence confirm (:func:`.life.m_of_n`): mtt-centralized
+    # gnn where a present sensor's clutter would raise the count (CentralizedEngine.params)
+    weighed: bool = False
 
 
 N_ARRAYS = 7  # TrackSet's per-track arrays before the optional per-track states
@@ -58,7 +61,9 @@ class TrackSet(NamedTuple):
     associator that keeps it, ``existence``, every track's existence probability; with
     ``process_noise = "imm"``, ``modes``, every track's two motion modes, of which ``x``, ``P``
     are the combination: :class:`~..models.Modes`; in a tracker of several sensors' scans,
-    ``detected_by``, each track's sensors that detected it, as bits: :func:`.life.scan_counts`)."""
+    ``detected_by``, each track's sensors that detected it, as bits: :func:`.life.scan_counts`; and where
+    the count rules its tracks (``gnn``), ``evidence``, each tentative track's Wald log-likelihood ratio since
+    its start and the log of the tracks its scan started: :func:`.life.m_of_n`)."""
 
     ids: np.ndarray
     x: np.ndarray
@@ -72,6 +77,7 @@ class TrackSet(NamedTuple):
     existence: np.ndarray | None = None
     modes: Modes | None = None
     detected_by: np.ndarray | None = None  # (N,) int64
+    evidence: np.ndarray | None = None  # (N, 2) float
 
     def take(self, idx: np.ndarray) -> TrackSet:
         """The tracks at ``idx`` (indices or a bool mask), every per-track state with them."""
@@ -80,7 +86,8 @@ class TrackSet(NamedTuple):
                         None if self.inputs is None else detector.take(self.inputs, idx),
                         None if self.existence is None else self.existence[idx],
                         None if self.modes is None else self.modes.take(idx),
-                        None if self.detected_by is None else self.detected_by[idx])
+                        None if self.detected_by is None else self.detected_by[idx],
+                        None if self.evidence is None else self.evidence[idx])
 
     @property
     def models(self) -> list[str]:
@@ -118,7 +125,8 @@ def concat(a: TrackSet, b: TrackSet) -> TrackSet:
     for u, v, join in ((a.man, b.man, maneuver.concat), (a.inputs, b.inputs, detector.concat),
                        (a.existence, b.existence, lambda u, v: np.concatenate([u, v])),
                        (a.modes, b.modes, lambda u, v: Modes(*(np.concatenate([p, r]) for p, r in zip(u, v)))),
-                       (a.detected_by, b.detected_by, lambda u, v: np.concatenate([u, v]))):
+                       (a.detected_by, b.detected_by, lambda u, v: np.concatenate([u, v])),
+                       (a.evidence, b.evidence, lambda u, v: np.concatenate([u, v]))):
         if u is None or v is None:
             extras.append(v if a.size == 0 else u if b.size == 0 else None)
         else:
