@@ -322,14 +322,20 @@ class RadarLocalFilterService(Service):
         self.jump = ClockJump(max_time_jump_s)
         self.failed = False  # the last scan failed (numerical); not checkpointed: its rejection must remember it
         self.processed_up_to = -1
-        self.lead: NumberedLeadGuard[Measurement] = NumberedLeadGuard()  # far ahead: waits for the next
+        self.lead: NumberedLeadGuard[Measurement] = NumberedLeadGuard.one_sensor()  # far ahead: waits for the next
 
     def subscriptions(self) -> list[Subscription]:
         return [Subscription(self.keys.sensor_meas(self.sensor), Measurement, self.on_measurement)]
 
+    def _fresh(self) -> None:
+        """The filter starts afresh (its only scan abandoned: :meth:`contradicting`), the numbers taken forgotten."""
+        self.filter, self.lead, self.processed_up_to = pickle.loads(self.fresh), NumberedLeadGuard.one_sensor(), -1
+
     def on_measurement(self, msg: Measurement) -> None:
         if msg.kind != "radar":
             self.count("wrong_kind")
+            return
+        if self.contradicting(self.lead, msg, self._fresh, self.on_measurement):
             return
         if msg.seq <= self.processed_up_to:
             self.count("late")
@@ -344,7 +350,7 @@ class RadarLocalFilterService(Service):
     def start_again(self, msg: Measurement, why: str = "after a pause beyond max_time_jump_s") -> None:
         """The filter starts again from scan ``msg`` (two-point initialization)."""
         self.restarted(msg, why)
-        self.filter, self.lead = pickle.loads(self.fresh), NumberedLeadGuard()
+        self.filter, self.lead = pickle.loads(self.fresh), NumberedLeadGuard.one_sensor()
 
     def _step(self, msg: Measurement) -> None:
         """Filter radar scan ``msg`` and publish the estimate (:func:`take_checked`: on the second scan

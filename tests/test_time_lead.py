@@ -35,9 +35,12 @@ from fedtrack.keys import Keys
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.scan import SensorScan, parse_line
 from fedtrack.local_filters.mtt.service import MttLocalService
+from fedtrack.local_filters.radar.filters import make_radar_filter
+from fedtrack.local_filters.service import RadarLocalFilterService
 from fedtrack.sensors.multitarget import Scenario, parse_spec, simulate
+from fedtrack.sensors.radar import RadarConfig, radar_scans
 from fedtrack.services.lead import HELD_BYTES, HELD_MAX, LEAD_INTERVALS, LeadGuard, NumberedLeadGuard
-from fedtrack.wire import FusedTrack, LocalEstimate, TrackPicture, encode
+from fedtrack.wire import FusedTrack, LocalEstimate, Measurement, TrackPicture, encode
 
 CFG = MttConfig(sensors=("s1", "s2", "s3"), max_lag=3.0, clutter_density=3.0 / 5000.0**2)
 ALGORITHMS = [("mtt-centralized", None), ("mtt-federated", None), ("mtt-decentralized", None), ("mtt-local", "s1")]
@@ -538,6 +541,27 @@ def test_one_sensor_trackers_abandon_a_first_scan_numbered_far_ahead(tmp_path: P
     imm = tracker_tracks(attacked, "imm")
     assert imm[0].seq == 50 and len(imm) == 35
     same_tracks(imm[1:], tracker_tracks(clean, "imm"))
+
+
+@pytest.mark.parametrize("algorithm", ["ekf", "ekf-ie"])
+def test_the_radar_local_filter_abandons_a_first_scan_numbered_far_ahead(algorithm: str) -> None:
+    """The radar local filter's first message of all a genuine scan numbered 50 ahead: taken as it came, every
+    honest scan after it was ``late`` (0 estimates of 39; redteam63). Now the next two abandon it
+    (``start_abandoned``, :class:`LoneStart` as at the 2-D local filter) and every estimate is the clean run's."""
+    lines = list(radar_scans(RadarConfig(), seed=3))[:40]
+    scans = [Measurement(sensor="r1", seq=k, t=line["t"], kind="radar", z=np.array(line["z"]), R=np.array(line["R"]),
+                         sensor_position=np.array(line["sensor_position"]), stamp_ns=1) for k, line in enumerate(lines)]
+    runs = []
+    for forged in ([], [replace(scans[0], seq=50)]):
+        svc = RadarLocalFilterService("r1", make_radar_filter(algorithm), service_id="r1", options=OPTIONS,
+                                      deployment=KEYS.deployment)
+        bus = Bus([svc])
+        for m in [*forged, *scans]:
+            bus.put(KEYS.sensor_meas("r1"), encode(m))
+        runs.append((svc, [(e.seq, e.t, e.x.tobytes(), e.P.tobytes()) for e in bus.of(LocalEstimate)]))
+    (_, clean), (svc, attacked) = runs
+    assert len(clean) == len(scans) - 1 and attacked == clean
+    assert svc.counters.get("start_abandoned") == 1 and svc.counters.get("rejected_late") == 1
 
 
 @pytest.mark.parametrize("algorithm", ["mtt-federated", "mtt-decentralized"])

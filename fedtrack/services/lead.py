@@ -65,8 +65,9 @@ them; those more than ``start_gap`` before it are dropped, counted in ``behind``
 message. One message cannot set the start; two of one identity that agree with each other, sent before any
 honest one, still can (and a lone region's, at ``serve picture``).
 
-**The start at a one-sensor tracker** (:class:`LoneStart`: ``serve local-filter``, ``imm``, ``hpda`` on scan
-numbers, ``mtt-local`` on times). A tracker of one sensor has no other sensor to witness its first scan, and holding
+**The start at a one-sensor tracker** (:class:`LoneStart`: ``serve local-filter`` (the radar one too, since the
+redteam63 session: its first scan numbered 50 ahead left 0 of 39 estimates), ``imm``, ``hpda`` on scan numbers,
+``mtt-local`` on times). A tracker of one sensor has no other sensor to witness its first scan, and holding
 the first scan for the sensor's next one changes when a tracker answers (a report per scan at once). So the first
 scan is taken as it comes, and abandoned when the data contradicts it: while it is the only scan taken, two later
 scans each more than ``gap`` behind it (or, on times, after it), the second after the first within ``gap`` of it
@@ -351,8 +352,9 @@ class NumberedLeadGuard(Generic[N]):
 
     @classmethod
     def one_sensor(cls) -> NumberedLeadGuard[N]:
-        """The guard of a one-sensor tracker (``local-filter``, ``imm``, ``hpda``): its number guard keeps a
-        :class:`LoneStart` on the scan numbers (module docstring); the fusion centre's, of several sensors, none."""
+        """The guard of a one-sensor tracker (``local-filter``, 2-D and radar, ``imm``, ``hpda``): its number guard
+        keeps a :class:`LoneStart` on the scan numbers (module docstring); the fusion centre's, of several sensors,
+        none."""
         return cls(number=LeadGuard(max_lag=0.0, lone=LoneStart(LEAD_INTERVALS)))
 
     @property
