@@ -10,6 +10,7 @@ own dispatch (:class:`test_hostile_messages.Bus`).
 from __future__ import annotations
 
 import copy
+import time
 from dataclasses import replace
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -740,13 +741,14 @@ def rows_report(sensor: str, k: int, targets: list[tuple[int, float, float]]) ->
                    obs_R=np.tile(base.obs_R, (n, 1)), obs_z=x[:, [0, 2]], started=(k == 0,) * n)
 
 
-def three_regions(tmp_path: Path, c_id: int, target_d: bool = False) -> tuple[list[TrackPicture],
-                                                                              PictureMergeService]:
+def three_regions(tmp_path: Path, c_id: int, target_d: bool = False, restart_at: int | None = None
+                  ) -> tuple[list[TrackPicture], PictureMergeService]:
     """Three regions in a row (x0y0, x1y0, x2y0; ids 0, 3, ... / 1, 4, ... / 2, 5, ...), their centres and
     ``serve picture`` on one bus, 30 scans of three sensors: target A in x1y0 from the start, target B in x2y0
     from scan 10, and target C in x1y0 that a hand-over of x0y0 brings under id ``c_id`` after scan 4 (its
     record made by a centre of x1y0 on its own over scans 0-4; the trackers' rows of it from scan 5 on);
-    x0y0 sees none, or (``target_d``) target D from scan 10. Returns the merged pictures and the merger."""
+    x0y0 sees none, or (``target_d``) target D from scan 10. ``restart_at``: the merger (``--snapshot``) is
+    killed before that scan and another started with its snapshot. Returns the merged pictures and the merger."""
     config = tmp_path / "three.toml"
     config.write_text(THREE_REGIONS)
     regions = load_regions(config)
@@ -756,9 +758,11 @@ def three_regions(tmp_path: Path, c_id: int, target_d: bool = False) -> tuple[li
         return MttCentreService("mtt-decentralized", MttConfig(sensors=SENSORS, max_lag=3.0), 4, region=rid,
                                 regions=regions, service_id=rid, options=OPTIONS, deployment=KEYS.deployment)
 
-    centres = [centre(rid) for rid in regions.ids]
-    merger = PictureMergeService(regions, 4, 2.0, 1.0, service_id="picture", options=OPTIONS,
-                                 deployment=KEYS.deployment)
+    def merging() -> PictureMergeService:
+        return PictureMergeService(regions, 4, 2.0, 1.0, service_id="picture", options=OPTIONS,
+                                   deployment=KEYS.deployment, snapshot=tmp_path / "picture.snapshot")
+
+    centres, merger, merged = [centre(rid) for rid in regions.ids], merging(), []
     bus, aside = Bus([*centres, merger]), centre("x1y0")
     target_c = [(3, -1000.0, -3000.0)]
     for k in range(5):
@@ -767,6 +771,12 @@ def three_regions(tmp_path: Path, c_id: int, target_d: bool = False) -> tuple[li
     held = aside.engine.region.centre  # type: ignore[union-attr]
     record = handover_to_wire(held.hand_over(next(iter(held.tracks))), "x0y0", 0)
     for k in range(30):
+        if k == restart_at:  # killed (no stop), started again: the snapshot tells what it merged
+            merged += [m for key, m in bus.published if key == KEYS.mtt_picture()]
+            merger = merging()
+            bus = Bus([*centres, merger])
+            merger.on_start()
+            merger.settle_until = time.monotonic()  # HISTORY_SETTLE_S later (no cache here to settle)
         if k == 5:
             bus.put(KEYS.region_handover("x1y0", "x0y0"), encode(replace(record, id=c_id)))
         for s in SENSORS:
@@ -777,7 +787,7 @@ def three_regions(tmp_path: Path, c_id: int, target_d: bool = False) -> tuple[li
         with merger.guarded("on_tick", merger.tick_state_attrs):
             merger.on_tick()
     assert centres[1].counters["taken_over"] == 1
-    return [m for key, m in bus.published if key == KEYS.mtt_picture()], merger
+    return merged + [m for key, m in bus.published if key == KEYS.mtt_picture()], merger
 
 
 def shown_ids(picture: TrackPicture) -> list[set[int]]:
@@ -825,3 +835,17 @@ def test_an_id_planted_by_its_issuing_region_does_not_rename_the_track_shown_und
     assert all(len(ids) == 1 for ids in per_target), f"ids of A, B, C, D: {per_target}"
     assert per_target[2] == {0} and per_target[3] != {0}
     assert merger.counters["id_collision"] > 0 and any(p.contested for p in merged)
+
+
+def test_a_restarted_merger_keeps_an_id_with_the_track_shown_under_it(tmp_path: Path) -> None:
+    """The same forgery, the merger killed at scan 20 (C under id 0, D under an alias since scan 10) and
+    started again with its ``--snapshot``: the snapshot held the last merged time alone, so the new merger
+    gave id 0 to its issuing region's D and showed C under an alias, both ids changed (redteam63). It now
+    keeps the region that showed each id too: every merged picture is the one without the restart."""
+    (tmp_path / "clean").mkdir()
+    clean, _ = three_regions(tmp_path / "clean", 0, target_d=True)
+    merged, merger = three_regions(tmp_path, 0, target_d=True, restart_at=20)
+    per_target = [set().union(*(shown_ids(p)[j] for p in merged if p.t >= 6.0)) for j in range(4)]
+    assert all(len(ids) == 1 for ids in per_target), f"ids of A, B, C, D: {per_target}"
+    assert [(p.seq, p.t, p.ids, p.x.tobytes()) for p in merged] == [(p.seq, p.t, p.ids, p.x.tobytes()) for p in clean]
+    assert merger.counters["id_collision"] > 0 and len(clean) >= 25

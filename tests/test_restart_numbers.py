@@ -19,7 +19,7 @@ from test_hostile_messages import KEYS, OPTIONS, Bus
 from test_hostile_sequences import region_picture
 from test_mtt_regions_live import CONFIG as REGIONS_CONFIG
 
-from fedtrack.fusion_center.mtt.picture_merge import PictureMergeService, resumed_time
+from fedtrack.fusion_center.mtt.picture_merge import PictureMergeService, resumed
 from fedtrack.fusion_center.mtt.service import MttCentreService
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.regions import load_regions
@@ -106,7 +106,7 @@ def test_a_restarted_merger_merges_the_pictures_of_its_outage_from_the_region_ca
     assert recorder.counters.get("pictures_recorded") == 11 and "conflict" not in recorder.counters
     assert recorder.counters.get("duplicate", 0) == len(resent)  # t = 3 again, equal but for its stamp
     if state is not None:
-        assert resumed_time(state.read_bytes()) == 10.0
+        assert resumed(state.read_bytes(), 2) == (10.0, {})
 
 
 def test_a_cold_standby_numbers_its_pictures_as_its_primary() -> None:
@@ -131,7 +131,7 @@ def test_a_merger_snapshot_cut_or_corrupted_on_disk_is_refused_and_every_cached_
     format before 2026-11-27 (the time alone, which such a change turned into a restart skipping every
     picture up to t = 92) or not finite is refused, as is a FIFO or a link to /dev/zero put in its place (unread):
     the restart merges every time the caches hold, as without a snapshot, and skips none."""
-    from fedtrack.fusion_center.mtt.picture_merge import SNAPSHOT_MAGIC
+    from fedtrack.fusion_center.mtt.picture_merge import SHOWN_DTYPE, SNAPSHOT_MAGIC
     from fedtrack.services.snapshot import write_sealed
 
     config = tmp_path / "config.toml"
@@ -148,9 +148,13 @@ def test_a_merger_snapshot_cut_or_corrupted_on_disk_is_refused_and_every_cached_
     started()._keep(12.0)
     good = state.read_bytes()
     assert started().resumed_t == 12.0
-    write_sealed(state, SNAPSHOT_MAGIC, b"inf")
-    infinite = state.read_bytes()
-    for bad in (good.replace(b"12.0", b"92.0"), good[:-1], b"92.0", infinite):
+    sealed = []
+    for magic, data in ((SNAPSHOT_MAGIC, b"inf"), (b"fedtrack-picture-1\n", b"12.0"),  # the time alone: version 1
+                        (SNAPSHOT_MAGIC, b"12.0\n" + np.array([(5, 2)], SHOWN_DTYPE).tobytes()),  # region 2 of 2
+                        (SNAPSHOT_MAGIC, b"12.0\n" + bytes(5))):  # no whole (id, region)
+        write_sealed(state, magic, data)
+        sealed.append(state.read_bytes())
+    for bad in (good.replace(b"12.0", b"92.0"), good[:-1], b"92.0", *sealed):
         state.write_bytes(bad)
         assert started().resumed_t is None, bad
     state.unlink()

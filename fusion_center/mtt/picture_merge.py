@@ -52,10 +52,12 @@ comes after a later one (its cache's reply overtaken by a live picture) is queue
 digests of each region's last ``window`` pictures taken tell a re-delivery (a ``duplicate``: the
 second query, a standby's cache) from a second, different picture (``conflict``). With ``--snapshot
 PATH`` (``launch`` gives ``OUT/picture.snapshot`` and removes it when a run starts) it writes the time
-of each picture it publishes there, behind a digest (a file cut or corrupted on disk is refused, and
+of each picture it publishes there, and the region that showed each id (only those another region than
+the id's issuer showed), behind a digest (a file cut or corrupted on disk is refused, and
 every time the caches hold is merged); started again, it merges only the times after it (the region
 pictures of earlier times counted ``merged_before``): the last one's pictures sent again would carry
-new stamps, each a ``conflict`` at the recorder and a repeat to a display.
+new stamps, each a ``conflict`` at the recorder and a repeat to a display; and an id two regions' tracks
+hold stays with the track shown under it (since the redteam63 session).
 """
 
 from __future__ import annotations
@@ -101,7 +103,11 @@ from fedtrack.zsession import Peers
 # a merger's first HISTORY_SETTLE_S: the caches' replies and the base service's second query of them (at
 # HISTORY_RECHECK_S) are in (loopback: milliseconds after it)
 HISTORY_SETTLE_S = HISTORY_RECHECK_S + 0.5
-SNAPSHOT_MAGIC = b"fedtrack-picture-1\n"  # --snapshot: then the digest, then the last merged time (its repr)
+# --snapshot: then the digest, the last merged time (its repr), a newline and the ids the last merged picture showed
+# from another region than their issuer's (merge_pictures' ``before`` beyond its default, id % regions), each an
+# int64 id and a uint32 region: at most PICTURE_ITEMS of 12 bytes, 1.5 MiB, within MAX_SNAPSHOT_BYTES
+SNAPSHOT_MAGIC = b"fedtrack-picture-2\n"
+SHOWN_DTYPE = np.dtype([("id", "<i8"), ("region", "<u4")])
 # A merged picture carries at most PICTURE_ITEMS tracks and fused entries, as any picture. Each of R
 # regions' pictures may hold 1/R of it (rejected ``too_large`` beyond: 65,536 for 2 regions, 1,310 for
 # 100, above a region's period of scans, 64 live sensors at 10 Hz, and issue 27's 10^5 tracks over the
@@ -133,14 +139,31 @@ def region_picture_of(msg: TrackPicture) -> RegionPicture:
                          tuple(msg.in_flight_t[k] for k in order.tolist()))
 
 
-def resumed_time(raw: bytes) -> float:
-    """The last merged time in a snapshot file's bytes ``raw``; ValueError for a file that is not one, or
-    cut or corrupted (checked by its digest: before 2026-11-27 the file held the time alone, and a digit
-    changed on disk, 12.0 to 92.0, made a restart skip every picture up to t = 92 unmerged)."""
-    T = float(unsealed(raw, SNAPSHOT_MAGIC).decode())
+def snapshot_data(T: float, shown: dict[int, int], regions: int) -> bytes:
+    """What the snapshot keeps after the merged picture of time ``T`` (``SNAPSHOT_MAGIC``): ``T`` and the ids that
+    picture showed from another region (of ``regions``) than their issuer's (``shown``: id -> region)."""
+    moved = [(i, k) for i, k in shown.items() if k != i % regions]
+    return repr(T).encode() + b"\n" + np.array(moved, dtype=SHOWN_DTYPE).tobytes()
+
+
+def resumed(raw: bytes, regions: int) -> tuple[float, dict[int, int]]:
+    """The last merged time and the region showing each id under it (:func:`snapshot_data`; an id not listed: its
+    issuer, id % ``regions``) in a snapshot file's bytes ``raw``; ValueError for a file that is not one, or cut or
+    corrupted (checked by its digest: before 2026-11-27 the file held the time alone, and a digit changed on disk,
+    12.0 to 92.0, made a restart skip every picture up to t = 92 unmerged), or naming a region not of ``regions``.
+    Before the redteam63 session the file held the time alone: a merger started again forgot which region showed
+    an id, so an id held by two regions' tracks of different targets went to its issuer's, renaming the track
+    shown under it."""
+    head, newline, rest = unsealed(raw, SNAPSHOT_MAGIC).partition(b"\n")
+    T = float(head.decode())
     if not np.isfinite(T):
         raise ValueError(f"a time of {T}")
-    return T
+    if not newline or len(rest) % SHOWN_DTYPE.itemsize:
+        raise ValueError(f"a list of the ids shown of {len(rest)} bytes, not a multiple of {SHOWN_DTYPE.itemsize}")
+    shown = np.frombuffer(rest, SHOWN_DTYPE)
+    if (shown["id"] < 0).any() or (shown["region"] >= regions).any():
+        raise ValueError(f"an id shown below 0 or by a region beyond the {regions} of the config")
+    return T, dict(zip(shown["id"].tolist(), shown["region"].tolist()))
 
 
 class PictureMergeService(Service):
@@ -228,7 +251,8 @@ class PictureMergeService(Service):
         self.settle_until = time.monotonic() + HISTORY_SETTLE_S
         if self.snapshot is not None and self.snapshot.exists():
             try:  # a FIFO or a link to /dev/zero is refused unread (it blocked the start; a MemoryError)
-                self.resumed_t = resumed_time(read_small_file(self.snapshot, MAX_SNAPSHOT_BYTES, "snapshot") or b"")
+                raw = read_small_file(self.snapshot, MAX_SNAPSHOT_BYTES, "snapshot") or b""
+                self.resumed_t, self.shown = resumed(raw, len(self.regions.ids))
                 self.log.info("pictures up to t=%g were merged before this start (%s)", self.resumed_t, self.snapshot)
             except (OSError, ValueError) as exc:
                 self.log.warning("%s: not a snapshot (%s): every time the region caches hold is merged", self.snapshot,
@@ -470,10 +494,10 @@ class PictureMergeService(Service):
             self._keep(T)
 
     def _keep(self, T: float) -> None:
-        """Write ``T`` to the snapshot (a whole file, renamed into place)."""
+        """Write ``T`` and the ids shown (:func:`snapshot_data`) to the snapshot (a whole file, renamed into place)."""
         assert self.snapshot is not None
         try:
-            write_sealed(self.snapshot, SNAPSHOT_MAGIC, repr(T).encode())
+            write_sealed(self.snapshot, SNAPSHOT_MAGIC, snapshot_data(T, self.shown, len(self.regions.ids)))
         except OSError as exc:
             self.log.warning("%s: %s (a restart merges again what the region caches hold)", self.snapshot, exc)
 
