@@ -285,10 +285,12 @@ def test_the_centre_drops_a_second_scan_far_ahead_at_its_start(tmp_path: Path) -
     assert centre.counters.get("rejected_time_lead") == 1
 
 
-def first_forged(tmp_path: Path, algorithm: str, dt: float) -> tuple[list[tuple], list[tuple], MttCentreService]:
+def first_forged(tmp_path: Path, algorithm: str, dt: float, forged: int = 1, opened: bool = False
+                 ) -> tuple[list[tuple], list[tuple], MttCentreService]:
     """The clean run's pictures and those of a run whose first message of all at the centre is s1's first one (a
     scan at ``mtt-centralized``, the clean run's first report else) re-stamped ``dt`` s off and
-    numbered 500 on; and the attacked run's centre, stopped."""
+    numbered 500 on (``forged`` 2: and a second such message half a second after it, numbered 501; ``opened``: the
+    start's wait runs out before any honest message comes); and the attacked run's centre, stopped."""
     msgs = mtt_lines(tmp_path)
     clean_services = mtt_services(tmp_path / "clean", algorithm)
     clean = Bus(list(clean_services.values()))
@@ -296,17 +298,25 @@ def first_forged(tmp_path: Path, algorithm: str, dt: float) -> tuple[list[tuple]
         clean.put(KEYS.sensor_meas(m.sensor), encode(m))
     clean_services["centre"].on_stop()
     services = mtt_services(tmp_path / "forged", algorithm)
-    forged = Bus(list(services.values()))
-    if algorithm == "mtt-centralized":
-        s1 = next(m for m in msgs if m.sensor == "s1")
-        forged.put(KEYS.sensor_meas("s1"), encode(replace(s1, seq=s1.seq + 500, t=s1.t + dt)))
-    else:
-        first = next(r for key, r in clean.published if key == KEYS.mtt_report("s1"))
-        forged.put(KEYS.mtt_report("s1"), encode(replace(first, seq=first.seq + 500, t=first.t + dt)))
+    forged_bus = Bus(list(services.values()))
+    centre = services["centre"]
+    assert isinstance(centre, MttCentreService)
+    for k in range(forged):
+        if algorithm == "mtt-centralized":
+            s1 = next(m for m in msgs if m.sensor == "s1")
+            forged_bus.put(KEYS.sensor_meas("s1"), encode(replace(s1, seq=s1.seq + 500 + k, t=s1.t + dt + 0.5 * k)))
+        else:
+            first = next(r for key, r in clean.published if key == KEYS.mtt_report("s1"))
+            forged_bus.put(KEYS.mtt_report("s1"), encode(replace(first, seq=first.seq + 500 + k,
+                                                                  t=first.t + dt + 0.5 * k)))
+    if opened and centre.start_held_at is not None:  # start_wait_s later, nothing else come
+        centre.start_held_at -= centre.start_wait_s
+        centre.on_tick()
+        forged_bus.drain()
     for m in msgs:
-        forged.put(KEYS.sensor_meas(m.sensor), encode(m))
-    services["centre"].on_stop()
-    return pictures(clean), pictures(forged), services["centre"]  # type: ignore[return-value]
+        forged_bus.put(KEYS.sensor_meas(m.sensor), encode(m))
+    centre.on_stop()
+    return pictures(clean), pictures(forged_bus), centre
 
 
 @pytest.mark.parametrize("algorithm", ["mtt-centralized", "mtt-federated", "mtt-decentralized"])
@@ -320,6 +330,23 @@ def test_the_first_message_of_all_far_off_sets_no_start(tmp_path: Path, algorith
     assert forged == clean and len(clean) > 5
     assert centre.counters.get("rejected_time_lead" if dt > 0 else "rejected_time_behind") == 1
     assert centre.counters.get("start_unwitnessed", 0) == 0
+
+
+@pytest.mark.parametrize("algorithm", ["mtt-centralized", "mtt-federated", "mtt-decentralized"])
+@pytest.mark.parametrize(("dt", "forged", "opened"), [(1e9, 2, False), (-1e12, 2, False), (1e9, 1, True),
+                                                      (-1e12, 1, True)])
+def test_a_start_of_one_sensor_is_abandoned_when_two_others_agree_against_it(
+        tmp_path: Path, algorithm: str, dt: float, forged: int, opened: bool) -> None:
+    """The attacks the start rule left open (redteam63): two forged first messages of s1 that agree with each other
+    (10^9 s ahead or 10^12 s behind) set the start, and so did one taken unwitnessed when ``start_wait_s`` ran out
+    before any honest message came: every honest message was then late (10^9; 0 pictures of 12) or the centre made
+    up to 3,600 pictures before the data (-10^12). Now the centre abandons such a start, every message taken of one
+    sensor, when two other sensors' messages agree against it (``start_abandoned``): every picture is the clean
+    run's."""
+    clean, attacked, centre = first_forged(tmp_path, algorithm, dt, forged, opened)
+    assert attacked == clean and len(clean) > 5
+    assert centre.counters.get("start_abandoned") == 1
+    assert centre.counters.get("start_unwitnessed", 0) == (1 if opened else 0)
 
 
 @pytest.mark.parametrize("sensors", [MTT_SENSORS, ("s1",)])

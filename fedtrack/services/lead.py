@@ -80,6 +80,21 @@ it ends the rule: honest data never abandons its start (its second scan agrees).
 agree with each other, sent right after its first honest one, still restart the tracker from them (as two set the
 start above).
 
+**The start of one sensor at a centre** (:class:`SoleStart`: ``serve mtt-centre`` where the start rule is on).
+Two messages of one sensor that agree with each other (its own later message witnesses its first) set the start, and
+so does one taken unwitnessed when ``start_wait_s`` ran out (below): a compromised peer sending first two messages
+stamped 10^9 s ahead, or one more than ``start_wait_s`` before any honest message, made every honest message late
+(before the redteam63 session). So while every message the centre took is of one sensor, a message more than
+``gap`` (``max_time_jump_s``, ``start_gap``'s) before or after that sensor's times contradicts the start: it is held,
+not processed (counted ``rejected_time_behind`` or ``rejected_time_lead``), and when a held one of another sensor
+agrees with it within ``gap`` the centre abandons its start (its state as before its first message;
+``start_abandoned``) and starts again from the held ones within ``gap`` of it, in arrival order, through the start
+rule (they agree). Two sensors against one: one identity cannot abandon another's start, and an honest start is
+abandoned only when two other sensors agree on a time more than ``max_time_jump_s`` from it, a gap no service
+predicts over. A message of another sensor taken ends the rule, so honest data never meets it. At most HELD_MAX
+messages and HELD_BYTES are held (the oldest dropped, counted as above). With two sensors, one of them the liar,
+nothing tells the two apart and the first start stands.
+
 ``serve mtt-centre`` (each region centre too) uses it live where a witness can come: ``[mtt] sensors`` lists two
 or more sensors or is ``"any"`` (one listed: the first message is taken as it comes). A sensor configured but not
 running never witnesses, and a federated tracker waits for its first answer before it reports again, so the wait is
@@ -327,6 +342,42 @@ class LoneStart(Generic[T]):
             return []
         prior, self.against = self.against, (at, item)
         return [prior[1], item] if prior is not None and prior[0] < at <= prior[0] + self.gap else []
+
+
+@dataclass
+class SoleStart(Generic[T]):
+    """A centre's start while every message it took is of one sensor, abandoned when two other sensors' messages
+    agree against it (module docstring, "The start of one sensor at a centre")."""
+
+    gap: float  # a message more than this before or after the start's times contradicts it
+    sensor: str | None = None  # the one sensor whose messages were taken; None: none yet
+    span: tuple[float, float] | None = None  # the earliest and the latest time taken of it
+    ended: bool = False  # a message of another sensor was taken: the start is witnessed
+    against: list[tuple[str, float, T, int]] = field(default_factory=list)  # (sensor, t, item, bytes), arrival order
+
+    def took(self, sensor: str, t: float) -> None:
+        """A message of ``sensor`` at ``t`` was taken."""
+        if self.ended:
+            return
+        if self.sensor is not None and sensor != self.sensor:
+            self.ended, self.against = True, []
+            return
+        self.sensor, self.span = sensor, (t, t) if self.span is None else (min(self.span[0], t), max(self.span[1], t))
+
+    def contradicts(self, t: float) -> bool:
+        """Whether a message at ``t`` is more than ``gap`` before or after the times of the start's sensor, every
+        message taken being of it."""
+        return not self.ended and self.span is not None and not self.span[0] - self.gap <= t <= self.span[1] + self.gap
+
+    def contradicted(self, sensor: str, t: float, item: T, size: int = 0) -> list[T]:
+        """A message that contradicts the start arrived: ``[]`` while held (the oldest dropped beyond HELD_MAX or
+        HELD_BYTES), or, when one held of another sensor agrees with it within ``gap``, the held ones within
+        ``gap`` of it, in arrival order, and it: the centre abandons its start and starts again from them."""
+        if any(h[0] != sensor and abs(h[1] - t) <= self.gap for h in self.against):
+            return [h[2] for h in self.against if abs(h[1] - t) <= self.gap] + [item]
+        self.against.append((sensor, t, item, size))
+        _bounded(self.against)  # (each counted as it came)
+        return []
 
 
 class Numbered(Protocol):

@@ -49,6 +49,7 @@ pictures as messages :mod:`fedtrack.fusion_center.mtt.pictures`'.
 from __future__ import annotations
 
 import math
+import pickle
 import time
 from collections import deque
 from pathlib import Path
@@ -86,7 +87,7 @@ from fedtrack.local_filters.mtt.service import RESET_TIMEOUT_S
 from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.services.admission import ReceivedScans, digest
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
-from fedtrack.services.lead import LeadGuard
+from fedtrack.services.lead import LeadGuard, SoleStart
 from fedtrack.services.rejections import Conflict, Rejected, require_covariances, require_finite
 from fedtrack.wire import (
     MAX_LIST_ITEMS,
@@ -116,7 +117,9 @@ class MttCentreService(CentreFailover, Service):
     # restored after a failed handler (the engine changes in place: pickled before each message;
     # ``received`` is only changed once a message was handled); on_tick guards its departures itself
     state_attrs = ("engine", "clock", "order", "left_at", "restarted_at", "pictures", "silence", "contested",
-                   "handovers_at", "taken", "lead", "began", "start_held_at")
+                   "handovers_at", "taken", "lead", "began", "start_held_at", "sole")
+    # what a centre abandoning a start of one sensor puts back as it was before its first message (SoleStart)
+    start_attrs = tuple(a for a in state_attrs if a != "pictures")
     tick_state_attrs = ()
 
     def __init__(self, algorithm: str, cfg: MttConfig, dim: int = 4, max_seq_jump: int = 1000,
@@ -174,6 +177,8 @@ class MttCentreService(CentreFailover, Service):
         self.lead: LeadGuard[Measurement | TrackReport] = LeadGuard(
             cfg.max_lag, corroborate=True, start_gap=max_time_jump_s if witnessed else None)
         self.start_wait_s = min(cfg.leave_after_s, RESET_TIMEOUT_S / 2)
+        # ... and a start of one sensor's messages, abandoned when two others agree against it (lead.SoleStart)
+        self.sole: SoleStart[Measurement | TrackReport] = SoleStart(max_time_jump_s, ended=not witnessed)
         self.start_held_at: float | None = None  # when the first message held for the start came (time.monotonic)
         self.order: list[tuple[str, int]] = []  # scans processed since the last picture
         self.left_at: list[int] = []  # positions in ``order`` that are departures
@@ -191,6 +196,7 @@ class MttCentreService(CentreFailover, Service):
         self.tokens_dropped = 0  # of them, not queued: PRIMARY_CHANGES_KEPT were waiting (a Zenoh thread's)
         self.follow = PrimaryOrder(SETTLED_MAX)  # a warm region standby's inputs, held for its primary's order
         self.aside = False  # stepped aside at its clean stop (on_stopping)
+        self.fresh = pickle.dumps(tuple(getattr(self, a) for a in self.start_attrs))  # before the first message
 
     def on_start(self) -> None:
         assert self.session is not None
@@ -309,6 +315,9 @@ class MttCentreService(CentreFailover, Service):
         (:class:`LeadGuard`; taken as received meanwhile), and the messages released with it are
         processed in time order."""
         key = self.keys.mtt_report(msg.sensor) if isinstance(msg, TrackReport) else self.keys.sensor_meas(msg.sensor)
+        if self.sole.contradicts(msg.t):
+            self._contradicting(key, msg)
+            return
         released = self.in_time(self.lead, key, msg)
         self.start_held_at = (self.start_held_at or time.monotonic()) if self.lead.first else None
         if not any(item is msg for item in released):
@@ -341,7 +350,31 @@ class MttCentreService(CentreFailover, Service):
         self.order.append((msg.sensor, msg.seq))
         self.silence.heard(msg.sensor, time.monotonic())
         self.lead.took(msg.sensor, msg.t)
+        self.sole.took(msg.sensor, msg.t)
         self.received.take(msg)
+
+    def _contradicting(self, key: str, msg: Measurement | TrackReport) -> None:
+        """``msg`` contradicts a start of one sensor's messages (:class:`SoleStart`): held, counted
+        ``rejected_time_behind`` or ``rejected_time_lead``; or, with a held one of another sensor that agrees with
+        it, the start abandoned (``start_abandoned``): the centre's state as before its first message, then the held
+        messages near it and it taken again."""
+        self.received.take(msg)
+        again = self.sole.contradicted(msg.sensor, msg.t, msg)
+        if not again:
+            assert self.sole.span is not None
+            early = msg.t < self.sole.span[0]
+            self.note_rejected(key, Rejected("time_behind" if early else "time_lead", (
+                f"{msg.sensor}'s message {msg.seq} at t={msg.t:g}, more than max_time_jump_s from the start, "
+                f"every message taken {self.sole.sensor}'s (held: lead.SoleStart)")))
+            return
+        self.count("start_abandoned")
+        self.log.warning("%s's message %d at t=%g and another sensor's agree against the start, every message "
+                         "taken %s's: started again from them (lead.SoleStart)", msg.sensor, msg.seq, msg.t,
+                         self.sole.sensor)
+        for name, value in zip(self.start_attrs, pickle.loads(self.fresh)):
+            setattr(self, name, value)
+        for held in again:
+            self._take(held)
 
     def _restart(self, msg: TrackReport) -> None:
         """The first report of a tracker process from a sensor heard before: its tracker restarted
