@@ -39,7 +39,7 @@ from fedtrack.local_filters.radar.filters import make_radar_filter
 from fedtrack.local_filters.service import RadarLocalFilterService
 from fedtrack.sensors.multitarget import Scenario, parse_spec, simulate
 from fedtrack.sensors.radar import RadarConfig, radar_scans
-from fedtrack.services.lead import HELD_BYTES, HELD_MAX, LEAD_INTERVALS, LeadGuard, NumberedLeadGuard
+from fedtrack.services.lead import HELD_BYTES, HELD_MAX, LEAD_INTERVALS, LeadGuard, NumberedLeadGuard, SoleStart
 from fedtrack.wire import FusedTrack, LocalEstimate, Measurement, TrackPicture, encode
 
 CFG = MttConfig(sensors=("s1", "s2", "s3"), max_lag=3.0, clutter_density=3.0 / 5000.0**2)
@@ -347,6 +347,26 @@ def test_a_start_of_one_sensor_is_abandoned_when_two_others_agree_against_it(
     assert attacked == clean and len(clean) > 5
     assert centre.counters.get("start_abandoned") == 1
     assert centre.counters.get("start_unwitnessed", 0) == (1 if opened else 0)
+
+
+def test_a_start_of_one_sensor_holds_what_contradicts_it_within_bounds_and_ends_when_witnessed() -> None:
+    """:class:`SoleStart`: a flood of messages contradicting the start (one sensor's, so never two agreeing) is held
+    within HELD_MAX messages and HELD_BYTES; two other sensors' that agree give the held ones near them; a message of
+    another sensor taken ends the rule, so nothing after contradicts it."""
+    sole: SoleStart[int] = SoleStart(3600.0)
+    sole.took("s1", 1e9)
+    for k in range(HELD_MAX + 10):
+        assert sole.contradicts(float(k)) and sole.contradicted("s2", float(k), k, 100) == []
+    assert len(sole.against) == HELD_MAX
+    big = HELD_BYTES // 4 + 1
+    for k in range(5):
+        sole.contradicted("s2", 1.0, -k, big)
+    assert sum(h[3] for h in sole.against) <= HELD_BYTES and len(sole.against) < 5
+    assert sole.contradicted("s3", 2.0, 99, 0) == [h[2] for h in sole.against] + [99]
+    witnessed: SoleStart[int] = SoleStart(3600.0)
+    witnessed.took("s1", 0.0)
+    witnessed.took("s2", 0.5)
+    assert not witnessed.contradicts(1e9) and not witnessed.contradicts(-1e12)
 
 
 @pytest.mark.parametrize("sensors", [MTT_SENSORS, ("s1",)])

@@ -28,6 +28,11 @@ from fedtrack.wire import LocalEstimate, Measurement, WireError, decode, encode
 REJECT_LOG_INTERVAL_S = 5.0
 
 
+def held_bytes(msg: Any) -> int:
+    """About how many bytes holding message ``msg`` takes: its arrays' (the lead guards' HELD_BYTES bound)."""
+    return sum(getattr(msg, f.name).nbytes for f in fields(msg) if isinstance(getattr(msg, f.name), np.ndarray))
+
+
 class ServiceFault(Exception):
     """Raised by a handler when the service itself cannot go on, whatever the message (its storage
     failed): never a rejection; the service stops with exit code 1, its message logged in one line."""
@@ -208,8 +213,8 @@ class Dispatch:
         (:class:`LeadGuard`); the held messages it contradicts are counted ``rejected_time_lead``. The
         handler calls ``guard.took`` for each one it takes."""
         dropped, behind = guard.dropped, guard.behind
-        size = sum(getattr(msg, f.name).nbytes for f in fields(msg) if isinstance(getattr(msg, f.name), np.ndarray))
-        released = guard.admit(msg.sensor if source is None else source, msg.t, msg if item is None else item, size)
+        released = guard.admit(msg.sensor if source is None else source, msg.t, msg if item is None else item,
+                               held_bytes(msg))
         self.note_leads(key, guard.dropped - dropped)
         for _ in range(guard.behind - behind):
             self.note_rejected(key, Rejected("time_behind", "a first scan stamped more than max_time_jump_s before "

@@ -63,7 +63,8 @@ them; those more than ``start_gap`` before it are dropped, counted in ``behind``
 ``dropped``. ``start_gap`` is the deployment's bound on a plausible gap between two scans
 (``max_time_jump_s``, 3,600 s: a tracker predicts over no longer), so honest data agrees at its second
 message. One message cannot set the start; two of one identity that agree with each other, sent before any
-honest one, still can (and a lone region's, at ``serve picture``).
+honest one, still can (and a lone region's, at ``serve picture``); at ``serve mtt-centre`` such a start is abandoned
+when two other sensors agree against it (:class:`SoleStart`, below).
 
 **The start at a one-sensor tracker** (:class:`LoneStart`: ``serve local-filter`` (the radar one too, since the
 redteam63 session: its first scan numbered 50 ahead left 0 of 39 estimates), ``imm``, ``hpda`` on scan numbers,
@@ -103,7 +104,8 @@ the centre's own bound on a live sensor's silence (its silence rule; 5 s), and t
 reaches its tracker within the trackers' default ``--reset-timeout`` (2 s; the other half for the report's fusion
 and the answer's way), so a tracker running alone goes on as the replay does. Then the held first messages are
 taken as they came (:meth:`LeadGuard.open_start`, counted ``start_unwitnessed``): a forged first message sent
-more than ``start_wait_s`` before any honest one still sets the start, as one of a lone sensor must. Not used by
+more than ``start_wait_s`` before any honest one still sets the start, as one of a lone sensor must (abandoned
+when two other sensors agree against it: :class:`SoleStart`). Not used by
 the scan trackers nor the replay, which takes the recorded order (docs/multitarget.md, "Scans stamped far
 ahead": measured and left).
 """

@@ -87,6 +87,7 @@ from fedtrack.local_filters.mtt.service import RESET_TIMEOUT_S
 from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.services.admission import ReceivedScans, digest
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
+from fedtrack.services.dispatch import held_bytes
 from fedtrack.services.lead import LeadGuard, SoleStart
 from fedtrack.services.rejections import Conflict, Rejected, require_covariances, require_finite
 from fedtrack.wire import (
@@ -359,7 +360,7 @@ class MttCentreService(CentreFailover, Service):
         it, the start abandoned (``start_abandoned``): the centre's state as before its first message, then the held
         messages near it and it taken again."""
         self.received.take(msg)
-        again = self.sole.contradicted(msg.sensor, msg.t, msg)
+        again = self.sole.contradicted(msg.sensor, msg.t, msg, held_bytes(msg))
         if not again:
             assert self.sole.span is not None
             early = msg.t < self.sole.span[0]
