@@ -41,7 +41,7 @@ from fedtrack.geojson import feature_collection
 from fedtrack.jsonl import InputError, output_file, read_jsonl
 from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.recording import Recording
-from fedtrack.sensors.multitarget import Scenario, SensorSpec, parse_spec, simulate
+from fedtrack.sensors.multitarget import Scenario, SensorSpec, check_room, parse_spec, simulate
 from fedtrack.sensors.state_vectors import read_recording
 from fedtrack.sensors.traffic import read_line
 from fedtrack.sensors.traffic import simulate as simulate_traffic
@@ -88,6 +88,12 @@ def check_multitarget(settings: Settings, path: Path) -> Settings:
                 raise ConfigError(f"multitarget.{key}.{stray[0]}: not a sensor of the scenario ({', '.join(ids)})")
         check_scenario_sensors(settings, sensor_specs(mt))
         check_central_timeout(settings.mtt.central_timeout, sensor_specs(mt), mt.duration)
+        if not mt.source:
+            try:
+                check_room(scenario(mt), sensor_specs(mt), "set a shorter duration, fewer targets, less clutter or "
+                           "slower sensors")
+            except InputError as exc:
+                raise ConfigError(f"multitarget: {exc}") from None
         if mt.join_at and set(mt.join_at) >= set(ids):
             raise ConfigError("multitarget.join_at: at least one sensor must run from the start")
         if load_regions(path) is not None and mt.algorithm == "mtt-centralized":
@@ -129,6 +135,12 @@ def check_central_timeout(timeout: float, specs: list[SensorSpec], duration: flo
                           f"scans; set it to {slow.period:g} s or more")
 
 
+def scenario(mt: MultitargetSettings) -> Scenario:
+    """The simulated scenario of ``[multitarget]`` (no scan delivered late: the live links' own delays)."""
+    return Scenario(targets=mt.targets, duration=mt.duration, region=mt.half_width, pd=mt.pd, clutter=mt.clutter,
+                    late=0.0)
+
+
 def prepare(settings: Settings, out: Path, say: bool = True) -> Path:
     """Simulate the scenario into ``out/scenario``; returns its measurements file. ``say``: print what a
     recording's simulation read and left out (stderr)."""
@@ -143,9 +155,7 @@ def prepare(settings: Settings, out: Path, say: bool = True) -> Path:
         if say:
             print(f"scenario: {read_line(Path(mt.source), info)}", file=sys.stderr)
         return folder / "measurements.jsonl"
-    scenario = Scenario(targets=mt.targets, duration=mt.duration, region=mt.half_width, pd=mt.pd, clutter=mt.clutter,
-                        late=0.0)
-    simulate(scenario, parse_spec(mt.sensors), settings.deployment.seed, folder)
+    simulate(scenario(mt), parse_spec(mt.sensors), settings.deployment.seed, folder)
     return folder / "measurements.jsonl"
 
 

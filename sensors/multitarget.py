@@ -39,6 +39,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -66,6 +67,16 @@ JITTER_S = 0.02  # s: the mean of a scan's exponential delay jitter
 LATE_TAIL = 1e-6  # the chance per scan that its jitter exceeds the bound max_lag allows for
 POS_SD_MIN, POS_SD_MAX = 10.0, 20.0  # a position sensor's noise std per axis (m)
 RADAR_SD = (10.0, 0.002, 0.002)  # a radar's noise std: range (m), azimuth, elevation (rad)
+#: memory a simulation takes (``simulate traffic``'s window, ``simulate multitarget``'s scenario: :func:`memory_need`):
+#: per state of the truth grid (a step of ``DT`` of one target) 100 bytes at the peak (six float64 and a flag held,
+#: plus, for traffic, each track's states before the grid and the derived keys' temporaries: measured, 5.44 GB of
+#: peak resident memory for the whole of the traffic package's ``collections/quickstart``, 10,798 s of 244 tracks,
+#: 52.7 million states; ``simulate multitarget``'s default scenario 101 bytes with tracemalloc, the turn rates and
+#: alive masks beside the states); per scan and detection until they are written (Python's dicts and lists,
+#: measured with tracemalloc: 1,000 + 430 a detection)
+TRUTH_CELL_BYTES = 100
+SCAN_BYTES = 1000
+DETECTION_BYTES = 430
 
 
 @dataclass(frozen=True)
@@ -352,11 +363,43 @@ def noise_floors(lines: list[tuple[float, dict[str, Any]]]) -> dict[str, list[fl
     return {sid: [float(v) for v in f] for sid, f in floors.items()}
 
 
+def memory_room() -> float:
+    """Bytes a window's truth and scans may take: a quarter of the machine's physical memory (1 GiB where it is not
+    known)."""
+    try:
+        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") / 4
+    except (AttributeError, ValueError, OSError):
+        return 2.0**30
+
+
+def memory_need(sc: Scenario, specs: list[SensorSpec]) -> float:
+    """Bytes :func:`simulate` takes at most for ``sc``'s random truth and its scans: ``TRUTH_CELL_BYTES`` per step
+    of ``DT`` of each trajectory and, in formations, of each target (the groups' copy of their trajectories), and
+    every scan with a detection of each target and its mean clutter count held until they are written."""
+    steps = round(sc.duration / DT) + 1
+    cells = steps * (-(-sc.targets // sc.formation) + (sc.targets if sc.formation > 1 else 0))
+    scans = sum(math.floor(sc.duration / s.period) + 1 for s in specs)
+    return cells * TRUTH_CELL_BYTES + scans * (SCAN_BYTES + DETECTION_BYTES * (sc.targets * sc.pd + sc.clutter))
+
+
+def check_room(sc: Scenario, specs: list[SensorSpec],
+               hint: str = "give a shorter --duration, fewer --targets, less --clutter or slower --sensors") -> None:
+    """An InputError, before anything is made, when :func:`memory_need` exceeds :func:`memory_room`, ending
+    with ``hint`` (before 2026-11-28 ``--duration 1e9`` ended in numpy's MemoryError and a traceback)."""
+    need, room = memory_need(sc, specs), memory_room()
+    if need > room:
+        raise InputError(f"the scenario is too large: {sc.duration:g} s of {sc.targets} targets and the sensors' "
+                         f"scans need {need / 2**30:.3g} GiB of memory, more than a quarter of this machine's "
+                         f"({room / 2**30:.3g} GiB): {hint}")
+
+
 def simulate(sc: Scenario, specs: list[SensorSpec], seed: int, out: Path,
              truth: tuple[np.ndarray, np.ndarray] | None = None) -> dict[str, Any]:
     """Write ``measurements.jsonl``, ``truth.jsonl`` and ``config.toml`` to ``out`` (a library
     caller's folder is created; the command checks it first: :func:`main`); ``truth``: given states
     and alive mask (as :func:`simulate_truth` returns) instead of the scenario's random ones."""
+    if truth is None:
+        check_room(sc, specs)
     rng = np.random.default_rng(seed)
     three_d = any(s.kind == "radar" for s in specs)
     x, alive = simulate_truth(sc, three_d, rng) if truth is None else truth
@@ -457,9 +500,10 @@ def main(argv: list[str]) -> int:
     check_options(args, (("targets", args.targets >= 1, ">= 1"), ("formation", args.formation >= 1, ">= 1"),
                          ("half-width", 0 < args.half_width < math.inf, "finite and > 0")))
     specs = parse_spec(args.sensors)
-    output_folder(args.out)
     sc = Scenario(targets=args.targets, duration=args.duration, region=args.half_width, pd=args.pd,
                   clutter=args.clutter, late=args.late, formation=int(args.formation), fifo=not args.non_fifo)
+    check_room(sc, specs)
+    output_folder(args.out)
     info = simulate(sc, specs, args.seed, args.out)
     print(f"wrote {args.out}/measurements.jsonl ({info['scans']} scans, {info['out_of_sequence']} out of "
           f"sequence), truth.jsonl ({args.targets} targets), config.toml; sensors: {', '.join(info['sensors'])}")

@@ -29,8 +29,10 @@ from fedtrack.geodetic import Frame, geodetic_error, wrap_lon
 from fedtrack.jsonl import InputError, check_output_folder, output_file
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.sensors.multitarget import (
+    DETECTION_BYTES,
     DT,
     MAX_CLUTTER,
+    SCAN_BYTES,
     Scenario,
     SensorSpec,
     check_options,
@@ -42,10 +44,8 @@ from fedtrack.sensors.multitarget import (
 from fedtrack.sensors.state_vectors import UNITS, Recording, read_recording
 from fedtrack.sensors.traffic_sensors import NACP_EPU, parse_kinds, parse_sensors, sensor_scans
 from fedtrack.sensors.traffic_truth import (
-    DETECTION_BYTES,
     MANEUVER_ACCELERATION,
     MANEUVER_S,
-    SCAN_BYTES,
     STRAIGHT_S,
     Truth,
     build_truth,

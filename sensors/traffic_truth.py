@@ -9,7 +9,6 @@ out, :func:`velocity_at_odds`) and interpolated on the ``DT`` grid by cubic Herm
 from __future__ import annotations
 
 import math
-import os
 import warnings
 from typing import NamedTuple
 
@@ -27,20 +26,12 @@ from fedtrack.geodetic import (
     surface_xy,
 )
 from fedtrack.jsonl import InputError
-from fedtrack.sensors.multitarget import DT
+from fedtrack.sensors.multitarget import DT, TRUTH_CELL_BYTES, memory_room
 from fedtrack.sensors.state_vectors import Recording
 
 #: the reconciliation of recorded positions with recorded velocities (docs/geodetic.md)
 SIGMA_POSITION = 50.0  # m: a state vector's position is up to a second older or newer than its time
 SIGMA_VELOCITY = 0.5  # m/s: ground speed is reported to the knot, vertical rate to 64 ft/min
-#: memory a window takes: per state of the truth grid (a step of ``DT`` of one aircraft track inside the box) 100
-#: bytes at the peak (six float64 and a flag held, plus each track's states before the grid and the derived keys'
-#: temporaries: measured, 5.44 GB of peak resident memory for the whole of the traffic package's
-#: ``collections/quickstart``, 10,798 s of 244 tracks, 52.7 million states); per scan and detection until they
-#: are written (Python's dicts and lists, measured with tracemalloc: 1,000 + 430 a detection)
-TRUTH_CELL_BYTES = 100
-SCAN_BYTES = 1000
-DETECTION_BYTES = 430
 #: the trackers' two motion modes (``[mtt] process_noise = "imm"``) from civil air-traffic kinematics, not
 #: from a recording (docs/geodetic.md, "The motion model"): turns at 25 deg of bank or 3 deg/s, whichever
 #: is less (ICAO PANS-OPS), so a horizontal acceleration of at most g tan 25 deg = 4.57 m/s^2
@@ -256,15 +247,6 @@ def above_the_runways(t: np.ndarray, alt: np.ndarray, rate: np.ndarray, ground: 
     s = np.maximum(t - ground[np.maximum(at - 1, 0)], ground[np.minimum(at, ground.size - 1)] - t)
     v = np.nan_to_num(np.abs(rate))
     return inside & (alt > HIGHEST_RUNWAY + v * s + VERTICAL_ACCELERATION * s * s / 2.0 + ALTITUDE_RESOLUTION)
-
-
-def memory_room() -> float:
-    """Bytes a window's truth and scans may take: a quarter of the machine's physical memory (1 GiB where it is not
-    known)."""
-    try:
-        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE") / 4
-    except (AttributeError, ValueError, OSError):
-        return 2.0**30
 
 
 def _steps_before(t: float, steps: int, after: bool = False) -> int:

@@ -147,6 +147,9 @@ LAUNCH_CASES = {
     "a sensor slower than the default central_timeout": (lambda b: MT_BASE.replace("pos:1.3", "pos:6"),
                                                          "mtt.central_timeout: 5 s is shorter than sensor s3's "
                                                          "period 6 s"),
+    # a scenario beyond the machine's memory (tour60): numpy's MemoryError and a traceback before, the output made
+    "a scenario too large for memory": (lambda b: MT_BASE + "duration = 1e9\n",
+                                        "multitarget: the scenario is too large: 1e+09 s of 20 targets"),
     # deploy/imm-3model.toml launched said only "no [[sensor]] table": now also what the file is for
     "a replay config": (lambda b: IMM_EXAMPLE.read_text(), "the file holds [imm] only: a configuration for "
                         "`fedtrack replay --config` or `fedtrack serve ROLE --config`, not a deployment to launch"),

@@ -259,3 +259,36 @@ def test_a_key_appended_to_simulates_config_lands_in_mtt(tmp_path: Path) -> None
         fh.write('maneuver = "vdie"\n')
     cfg = load_tables(path, MttSettings).mtt
     assert cfg.maneuver == "vdie" and cfg.sensor == floors and set(floors) == {"s1", "s2", "s3"}
+
+
+def test_a_scenario_too_large_for_memory_is_one_line_and_makes_nothing(tmp_path: Path,
+                                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    """`--duration 1e9` (or ten million targets) is refused before anything is made: exit 2, one line saying
+    what to give, no folder (before, numpy's MemoryError and a traceback, the folder made empty)."""
+    for extra in (["--duration", "1e9", "--targets", "1"], ["--targets", "10000000"]):
+        out = tmp_path / "big"
+        assert cli(["simulate", "multitarget", "--out", str(out), *extra]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "the scenario is too large" in err[0] and "--duration" in err[0], err
+        assert not out.exists()
+
+
+def test_the_memory_a_scenario_needs_bounds_what_it_takes(tmp_path: Path) -> None:
+    """:func:`memory_need` is above the peak tracemalloc measures for scenarios of many steps, many targets,
+    formations and heavy clutter (so that the check refuses only what would not fit)."""
+    import tracemalloc
+
+    from fedtrack.sensors.multitarget import Scenario, memory_need, parse_spec, simulate
+
+    cases = ((Scenario(targets=1, duration=500.0), "pos:100"), (Scenario(targets=200, duration=5.0), "pos:1.0"),
+             (Scenario(targets=12, duration=20.0, formation=3), "pos:1.0,pos:0.7"),
+             (Scenario(targets=2, duration=2.0, clutter=2000.0), "pos:0.1,radar:0.5"))
+    for k, (sc, spec) in enumerate(cases):
+        specs = parse_spec(spec)
+        tracemalloc.start()
+        try:
+            simulate(sc, specs, 1, tmp_path / str(k))
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+        assert peak < memory_need(sc, specs), (k, peak, memory_need(sc, specs))
