@@ -38,6 +38,7 @@ from fedtrack.config import ConfigError, load_toml, parse_dataclass, seed_number
 from fedtrack.deploy.launcher import (
     LaunchError,
     ServiceFailed,
+    Stopped,
     run_deployment,
 )
 from fedtrack.deploy.multitarget import SCENARIO_DIR, finish_multitarget, prepare
@@ -214,12 +215,14 @@ def main(argv: list[str]) -> int:
     write_config(settings, out / "config.toml")
     print(f"fedtrack demo: {what}, {args.mode}, router {settings.deployment.router_listen} (deployment "
           f"{settings.deployment.name}); output in {out}", file=sys.stderr)
-    failure = None
+    failure, code = None, None
     try:
         report = run_deployment(settings, out / "config.toml", out, title="fedtrack demo")
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         print("fedtrack demo: stopped; every service was shut down", file=sys.stderr)
-        return 130
+        if not isinstance(exc, Stopped):  # before any service started (the scenario being simulated)
+            return 130
+        report, code = exc.report, 130  # as launch: the summary of what ran (before the tour60 session, none)
     except ServiceFailed as exc:  # the scenario ran to its end without some service
         report, failure = exc.report, str(exc)
     except LaunchError as exc:
@@ -229,6 +232,8 @@ def main(argv: list[str]) -> int:
         summary = finish_multitarget(out, report, "fedtrack demo", settings)
     else:
         summary = finish(out, settings, report, out / "config.toml", "fedtrack demo")
+    if code is not None:
+        return code
     if unrecorded(summary):
         failure = failure or "what the live run produced is not all in the recording"
     if failure is not None:

@@ -354,3 +354,22 @@ def test_a_run_stopped_at_the_start_does_not_call_the_unpublished_scenario_lost(
     err = capsys.readouterr().err
     assert "fedtrack launch: 1 scans seen live are not in the recording (s1: 1)" in err
     assert json.loads((tmp_path / "summary.json").read_text())["scans_not_recorded"] == {"s1": 1}
+
+
+def test_a_demo_stopped_by_ctrl_c_writes_its_summary_as_launch_does(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """``fedtrack demo`` stopped by Ctrl-C once the services start: exit 130 with the summary of what ran
+    (``summary.json``, ``truth.jsonl``), as ``launch``; before the tour60 session it returned 130 with neither
+    (docs/deploy.md: "At the end (also after Ctrl-C / SIGTERM ...)")."""
+    from fedtrack.deploy import demo
+
+    def ctrl_c(self: launcher.Launcher, sp: object) -> None:  # the first service's start interrupted
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(launcher.Launcher, "_start", ctrl_c)
+    out = tmp_path / "out"
+    assert demo.main(["--scenario", "multitarget", "--insecure", "--out", str(out)]) == 130
+    err = capsys.readouterr().err
+    assert "fedtrack demo: stopped; every service was shut down" in err
+    assert json.loads((out / "summary.json").read_text())["pictures"] == 0
+    assert (out / "truth.jsonl").is_file()
