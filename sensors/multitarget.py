@@ -42,7 +42,7 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 import numpy as np
 
@@ -393,6 +393,22 @@ def check_room(sc: Scenario, specs: list[SensorSpec],
                          f"({room / 2**30:.3g} GiB): {hint}")
 
 
+def write_scenario(out: Path, lines: list[tuple[float, dict[str, Any]]], truth_rows: Iterable[dict[str, Any]],
+                   config: dict[str, Any]) -> None:
+    """``measurements.jsonl`` (``lines`` in order), ``truth.jsonl`` and ``config.toml`` into ``out`` (created) as one:
+    each to its temporary file, all renamed at the end, so that an error or Ctrl-C half-way leaves the folder's
+    files, an earlier run's scenario, as they were (before the tour60 session each file was renamed when written: a
+    Ctrl-C after the first left this run's measurements beside the earlier run's truth and config)."""
+    out.mkdir(parents=True, exist_ok=True)
+    with (output_file(out / "measurements.jsonl") as meas, output_file(out / "truth.jsonl") as truth,
+          output_file(out / "config.toml") as cfg):
+        for _, line in lines:
+            meas.write(json.dumps(line) + "\n")
+        for row in truth_rows:
+            truth.write(json.dumps(row) + "\n")
+        cfg.write(to_toml(config))
+
+
 def simulate(sc: Scenario, specs: list[SensorSpec], seed: int, out: Path,
              truth: tuple[np.ndarray, np.ndarray] | None = None) -> dict[str, Any]:
     """Write ``measurements.jsonl``, ``truth.jsonl`` and ``config.toml`` to ``out`` (a library
@@ -405,16 +421,10 @@ def simulate(sc: Scenario, specs: list[SensorSpec], seed: int, out: Path,
     x, alive = simulate_truth(sc, three_d, rng) if truth is None else truth
     lines = [item for spec in specs for item in sensor_lines(spec, sc, x, alive, three_d, rng)]
     lines.sort(key=lambda item: item[0])
-    out.mkdir(parents=True, exist_ok=True)
-    with output_file(out / "measurements.jsonl") as fh:
-        for _, line in lines:
-            fh.write(json.dumps(line) + "\n")
     dims = [0, 1, 2, 3, 4, 5] if three_d else [0, 1, 2, 3]
-    with output_file(out / "truth.jsonl") as fh:
-        for second in range(int(sc.duration) + 1):
-            step = int(round(second / DT))
-            targets = [{"id": int(i), "x": x[step, i, dims].tolist()} for i in np.flatnonzero(alive[step])]
-            fh.write(json.dumps({"t": float(second), "targets": targets}) + "\n")
+    truth_rows = ({"t": float(sec), "targets": [{"id": int(i), "x": x[round(sec / DT), i, dims].tolist()}
+                                                for i in np.flatnonzero(alive[round(sec / DT)])]}
+                  for sec in range(int(sc.duration) + 1))
     mtt: dict[str, Any] = {"q": process_noise(specs, sc.duration), "pd": sc.pd,
                            "clutter_density": position_clutter_density(sc),
                            "max_lag": max_lag(sc, specs), "period": 1.0, "init_velocity_std": 30.0,
@@ -425,8 +435,7 @@ def simulate(sc: Scenario, specs: list[SensorSpec], seed: int, out: Path,
     mtt["sensor"] = {sid: table for sid, table in mtt["sensor"].items() if table}
     if not mtt["sensor"]:
         del mtt["sensor"]
-    with output_file(out / "config.toml") as fh:
-        fh.write(to_toml({"mtt": mtt}))
+    write_scenario(out, lines, truth_rows, {"mtt": mtt})
     out_of_order = sum(1 for a, b in zip(lines, lines[1:]) if b[1]["t"] < a[1]["t"])
     return {"scans": len(lines), "out_of_sequence": out_of_order, "targets": sc.targets,
             "sensors": [f"{s.id} ({s.kind}, {s.period:g} s)" for s in specs]}

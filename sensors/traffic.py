@@ -16,7 +16,6 @@ them together and writes the files (:func:`simulate`), the tracker keys derived 
 from __future__ import annotations
 
 import argparse
-import json
 import math
 from datetime import datetime, timezone
 from pathlib import Path
@@ -24,9 +23,9 @@ from typing import Any
 
 import numpy as np
 
-from fedtrack.config import seed_number, to_toml
+from fedtrack.config import seed_number
 from fedtrack.geodetic import Frame, geodetic_error, wrap_lon
-from fedtrack.jsonl import InputError, check_output_folder, output_file
+from fedtrack.jsonl import InputError, check_output_folder
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.sensors.multitarget import (
     DETECTION_BYTES,
@@ -40,6 +39,7 @@ from fedtrack.sensors.multitarget import (
     longest_revisit,
     noise_floors,
     position_clutter_density,
+    write_scenario,
 )
 from fedtrack.sensors.state_vectors import UNITS, Recording, read_recording
 from fedtrack.sensors.traffic_sensors import NACP_EPU, parse_kinds, parse_sensors, sensor_scans
@@ -143,21 +143,7 @@ def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, star
     sc = Scenario(targets=len(truth.icao24), duration=(steps - 1) * DT, region=box / 2, pd=pd, clutter=clutter,
                   late=late)
     lines = sensor_scans(truth, sensors, sc, nacp, rng)
-    out.mkdir(parents=True, exist_ok=True)
-    with output_file(out / "measurements.jsonl") as fh:
-        for _, line in lines:
-            fh.write(json.dumps(line) + "\n")
     dims = [0, 1, 2, 3, 4, 5] if three_d else [0, 1, 2, 3]
-    with output_file(out / "truth.jsonl") as fh:
-        for second in range(int(sc.duration) + 1):
-            step = int(round(second / DT))
-            live = np.flatnonzero(truth.alive[step])
-            lla = truth_geodetic(frame, truth, truth.x[step][live])
-            targets = [{"id": int(i), "x": truth.x[step, i, dims].tolist(), "icao24": truth.icao24[i],
-                        "lat": round(float(g[0]), 8), "lon": float(wrap_lon(round(float(g[1]), 8))),  # 180 -> -180
-                        "alt": round(float(g[2]), 3)}
-                       for i, g in zip(live, lla)]
-            fh.write(json.dumps({"t": float(second), "targets": targets}) + "\n")
     derived = derived_tracker(truth, specs, frame)
     mtt: dict[str, Any] = {**derived, "pd": pd, "clutter_density": position_clutter_density(sc), "period": 1.0,
                            "sensors": [s.id for s in specs]}
@@ -167,13 +153,25 @@ def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, star
     mtt["sensor"] = {s.id: {"clutter_density": 1e-12 if s.kind == "adsb" else clutter_density(s, sc),
                             **({"noise_floor": floors[s.id]} if s.id in floors else {})} for s in specs}
     frame_table = {"origin": list(frame), "sites": {s.id: site.geodetic.tolist() for s, site, _ in sensors if site}}
-    with output_file(out / "config.toml") as fh:
-        fh.write(to_toml({"frame": frame_table, "mtt": mtt}))  # [mtt] last: keys appended land in it
+    write_scenario(out, lines, (truth_row(frame, truth, second, dims) for second in range(int(sc.duration) + 1)),
+                   {"frame": frame_table, "mtt": mtt})  # [mtt] last: keys appended land in it
     return {"scans": len(lines), "targets": len(truth.icao24), "aircraft": len(set(truth.icao24)),
             "rows": len(rec.t) + sum(rec.dropped.values()), "dropped": truth.dropped,
             "start": truth.t0, "duration": sc.duration,
             "most_alive": int(truth.alive.sum(axis=1).max()), "derived": derived,
             "sensors": [f"{s.id} ({s.kind}, {s.period:g} s)" for s in specs]}
+
+
+def truth_row(frame: Frame, truth: Truth, second: int, dims: list[int]) -> dict[str, Any]:
+    """``truth.jsonl``'s line of ``second``: every live aircraft's state, ``icao24`` and place on the Earth."""
+    step = int(round(second / DT))
+    live = np.flatnonzero(truth.alive[step])
+    lla = truth_geodetic(frame, truth, truth.x[step][live])
+    targets = [{"id": int(i), "x": truth.x[step, i, dims].tolist(), "icao24": truth.icao24[i],
+                "lat": round(float(g[0]), 8), "lon": float(wrap_lon(round(float(g[1]), 8))),  # 180 -> -180
+                "alt": round(float(g[2]), 3)}
+               for i, g in zip(live, lla)]
+    return {"t": float(second), "targets": targets}
 
 
 def _single(dropped: dict[str, int], max_gap: float) -> str:

@@ -292,3 +292,27 @@ def test_the_memory_a_scenario_needs_bounds_what_it_takes(tmp_path: Path) -> Non
         finally:
             tracemalloc.stop()
         assert peak < memory_need(sc, specs), (k, peak, memory_need(sc, specs))
+
+
+def test_simulate_interrupted_leaves_the_earlier_scenario_whole(tmp_path: Path,
+                                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """Ctrl-C while ``simulate multitarget`` writes into a folder that holds an earlier scenario (here while it
+    writes the truth, after the measurements): the folder keeps the earlier measurements, truth and config, no mix
+    of the two runs and no temporary file. Before the tour60 session the measurements were already renamed: this
+    run's measurements beside the earlier run's truth and config."""
+    import fedtrack.sensors.multitarget as mt
+
+    out = tmp_path / "sim"
+    args = ["simulate", "multitarget", "--targets", "2", "--duration", "5", "--out", str(out)]
+    assert cli(args) == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    real_dumps = json.dumps
+
+    def ctrl_c_at_the_truth(obj: object) -> str:
+        if isinstance(obj, dict) and "targets" in obj:
+            raise KeyboardInterrupt
+        return real_dumps(obj)
+
+    monkeypatch.setattr(mt.json, "dumps", ctrl_c_at_the_truth)
+    assert cli([*args, "--seed", "2"]) == 130
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
