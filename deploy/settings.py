@@ -19,6 +19,7 @@ from fedtrack.geodetic import FrameConfig, geodetic_error
 from fedtrack.local_filters.imm.config import IMMConfig
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.pda.config import PDAReplayConfig
+from fedtrack.local_filters.radar.filters import check_radar_filter
 from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.sensors.multitarget import MAX_CLUTTER, Scenario
@@ -81,7 +82,7 @@ class MultitargetSettings:
 @dataclass(frozen=True)
 class Settings:
     """``[fusion]``, ``[deployment]``, ``[[sensor]]``; ``[sonar]`` / ``[radar]`` for those sensor
-    kinds, ``[radar_filter]`` (checked by the radar filter chosen with ``--filter``), ``[imm]``
+    kinds, ``[radar_filter]`` (its keys those of some radar filter; the one chosen with ``--filter`` reads its own), ``[imm]``
     and ``[pda]``; ``[mtt]`` and ``[multitarget]`` (a live multi-target deployment,
     :mod:`fedtrack.deploy.multitarget`); ``[zenoh]`` (the services' Zenoh configuration, :mod:`fedtrack.deploy.security`)."""
 
@@ -170,5 +171,8 @@ def load_settings(path: Path | None) -> Settings:
     """Parse a config file (or the defaults when ``path`` is None), ``[regions]`` too (its keys and its
     geometry, :func:`~fedtrack.local_filters.regions.load_regions`), which its own consumers read."""
     settings = load_tables(path, Settings)
+    if settings.radar_filter is not None:
+        with in_file(path):
+            check_radar_filter(settings.radar_filter)
     load_regions(path)
     return settings

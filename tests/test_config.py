@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from fedtrack.cli import main
-from fedtrack.config import MAX_CONFIG_BYTES, ConfigError, load_tables
+from fedtrack.config import MAX_CONFIG_BYTES, ConfigError, in_file, load_tables
 from fedtrack.deploy.settings import load_settings
 from fedtrack.deployment import DeploymentConfig
 from fedtrack.local_filters.imm.config import load_imm_config
@@ -62,6 +62,11 @@ def _mtt(path: Path) -> MttSettings:
     return load_tables(path, MttSettings)
 
 
+def _radar_filter(path: Path) -> object:
+    with in_file(path):
+        return make_radar_filter("ekf-ie", load_tables(path, RadarFilterSettings).radar_filter)
+
+
 @pytest.mark.parametrize("text, message, consumers, algorithm", [
     ("[imm]\nfoo = 1\n", "unknown config key imm.foo", (load_imm_config,), "fsimm"),
     ("[pda.existence]\nfoo = 1\n", "unknown config key pda.existence.foo", (load_pda_config,), "hpda"),
@@ -91,6 +96,11 @@ def _mtt(path: Path) -> MttSettings:
      "mtt.sensor.s3: a table for a sensor that sensors = ", (_mtt,), "mtt-federated"),
     ("[mtt]\npicture_delay = 4.0\nmax_lag = 3.0\n", "mtt.picture_delay: must be <= max_lag", (_mtt,),
      "mtt-centralized"),
+    # [radar_filter] was read only by the radar filters (replay ekf..., serve local-filter --filter ekf...): a typo
+    # or a negative q passed every other command (tour60)
+    ("[radar_filter]\nwindw = 3\n", "unknown config key radar_filter.windw: did you mean radar_filter.window",
+     (_radar_filter,), "mtt-federated"),
+    ("[radar_filter]\nq = -1.0\n", "radar_filter.q: must be > 0", (_radar_filter,), "fvdie"),
 ])
 def test_config_errors_name_file_table_and_key(tmp_path: Path, text: str, message: str, consumers: tuple,
                                                algorithm: str, capsys: pytest.CaptureFixture[str]) -> None:

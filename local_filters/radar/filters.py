@@ -106,6 +106,23 @@ class EkfTsFuzzyConfig(EkfConfig):
                           f"--out MODEL.npz` wrote, or ${MODEL_ENV}")
 
 
+@dataclass(frozen=True)
+class RadarFilterKeys(EkfIEConfig):
+    """Every key of any radar filter: ``[radar_filter]`` as every command checks it (:func:`check_radar_filter`);
+    the filter chosen then reads its own keys only."""
+
+    model: str = ""
+
+
+def check_radar_filter(table: Any) -> None:
+    """A ConfigError naming the key when ``[radar_filter]`` holds a key no radar filter reads or a value out of its
+    range (before the tour60 session only ``replay --algorithm ekf...`` and ``serve local-filter --filter ekf...``
+    read the table: ``[radar_filter] qq = 1`` passed every other command, against the one-file rule)."""
+    if not isinstance(table, dict):
+        raise ConfigError(f"radar_filter: expected a table, got {table!r}")
+    parse_dataclass(RadarFilterKeys, table, "radar_filter")
+
+
 CONFIG_CLASSES: dict[str, type[EkfConfig]] = {
     "ekf": EkfConfig, "ekf-ie": EkfIEConfig, "ekf-tsfuzzy": EkfTsFuzzyConfig}
 
