@@ -6,6 +6,7 @@ import argparse
 import contextlib
 import dataclasses
 import difflib
+import math
 import os
 import re
 import stat
@@ -40,6 +41,19 @@ def seed_number(text: str) -> int:
         value = -1
     if value < 0:
         raise argparse.ArgumentTypeError(f"must be a whole number >= 0, got {text!r}")
+    return value
+
+
+def finite_number(text: str) -> float:
+    """A ``fedtrack serve`` option's seconds (``--health-period``, ``--deadline``, ``--start-at`` ...): a finite
+    number (``nan`` passed every ``<= 0`` check before the tour60 session, and ``--connect-timeout nan`` ended in
+    a traceback)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
     return value
 
 

@@ -27,7 +27,7 @@ from typing import Any, Callable, NamedTuple
 
 import zenoh
 
-from fedtrack.config import ConfigError
+from fedtrack.config import ConfigError, finite_number
 from fedtrack.deployment import listen_address, on_loopback
 from fedtrack.keys import DEFAULT_DEPLOYMENT, InvalidName, check_id
 
@@ -334,7 +334,7 @@ def add_endpoint_args(parser: argparse.ArgumentParser, listen_default: tuple[str
     group.add_argument("--deployment", type=_deployment_arg,
                        help="key prefix fedtrack/<deployment>/... (default: deployment.name of --config, "
                             f"else {DEFAULT_DEPLOYMENT})")
-    group.add_argument("--connect-timeout", type=float, default=10.0, metavar="SECONDS",
+    group.add_argument("--connect-timeout", type=finite_number, default=10.0, metavar="SECONDS",
                        help="wait this long for a connect endpoint; negative = forever (default: %(default)s)")
     group.add_argument("--lease-ms", type=int, default=None, metavar="MS",
                        help="link lease: a frozen peer is declared dead after this (default: zenoh's 10000)")

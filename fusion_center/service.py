@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from fedtrack.config import ConfigError, in_file, load_tables
+from fedtrack.config import ConfigError, finite_number, in_file, load_tables
 from fedtrack.deployment import MODES, DeploymentConfig
 from fedtrack.fusion_center.centre import (
     CentreResult,
@@ -435,7 +435,7 @@ def main(argv: list[str]) -> int:
                                                         f"--config, else {defaults.mode})")
     parser.add_argument("--config", type=Path, help="deployment TOML ([deployment], [fusion], [[sensor]]; "
                                                     "default: none, every key at its default)")
-    parser.add_argument("--deadline", type=float,
+    parser.add_argument("--deadline", type=finite_number,
                         help="seconds to wait for a scan's estimates (default: deployment.deadline_s of --config, "
                              f"else {defaults.deadline_s:g})")
     parser.add_argument("--snapshot", type=Path, help="write the state here after every scan; resume from it at start "

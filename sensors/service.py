@@ -41,7 +41,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from fedtrack.config import ConfigError, load_tables, read_small_file, seed_number
+from fedtrack.config import ConfigError, finite_number, load_tables, read_small_file, seed_number
 from fedtrack.deployment import PACINGS, DeploymentConfig, SensorConfig
 from fedtrack.jsonl import InputError, read_jsonl
 from fedtrack.local_filters.mtt.scan import SensorScan, parse_scan, scan_to_measurement
@@ -212,18 +212,18 @@ def add_sensor_args(parser: argparse.ArgumentParser) -> None:
                         help=f"deployment seed (default: deployment.seed of --config, else {dep.seed})")
     parser.add_argument("--pacing", choices=PACINGS,
                         help=f"lockstep or realtime (default: deployment.pacing of --config, else {dep.pacing})")
-    parser.add_argument("--speed", type=float, help="realtime pacing: speed-up factor over real time (default: "
+    parser.add_argument("--speed", type=finite_number, help="realtime pacing: speed-up factor over real time (default: "
                                                     f"deployment.speed of --config, else {dep.speed:g})")
-    parser.add_argument("--lockstep-timeout", type=float, default=5.0, metavar="SECONDS",
+    parser.add_argument("--lockstep-timeout", type=finite_number, default=5.0, metavar="SECONDS",
                         help="publish the next scan anyway after this long without a fused track "
                              "(default: %(default)s)")
-    parser.add_argument("--start-at", type=float, metavar="EPOCH_S",
+    parser.add_argument("--start-at", type=finite_number, metavar="EPOCH_S",
                         help="wall-clock time (Unix seconds) of scan 0, shared by the sensors of a deployment "
                              "(default: when this sensor is ready)")
     parser.add_argument("--start-file", type=Path, metavar="PATH",
                         help="without --start-at: wait until PATH holds the start time (Unix seconds; fedtrack "
                              "launch writes it once every sensor of its host is ready; default: none)")
-    parser.add_argument("--join-at", type=float, metavar="SECONDS",
+    parser.add_argument("--join-at", type=finite_number, metavar="SECONDS",
                         help="kind scan: publish only the scans at t >= SECONDS (a sensor that joins a running "
                              "deployment; scan times count from --start-at; default: every scan)")
 

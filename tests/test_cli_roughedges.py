@@ -292,3 +292,21 @@ def test_plot_track_colours_are_never_grey_and_the_title_names_algorithm_and_fil
     lines = fig.axes[0].get_lines()
     grey = [line for line in lines if len({round(c, 3) for c in matplotlib.colors.to_rgb(line.get_color())}) == 1]
     assert len(grey) == 2 and len(lines) == 26  # the two truths alone are grey
+
+
+@pytest.mark.parametrize(("role", "option", "extra"), [
+    ("sensor", "--health-period", []), ("router", "--connect-timeout", []), ("sensor", "--start-at", []),
+    ("sensor", "--lockstep-timeout", []), ("mtt-local", "--reset-timeout", ["--sensor", "s1"]),
+    ("fusion-center", "--deadline", ["--sensors", "1,2"])])
+def test_a_serve_option_of_nan_seconds_is_refused_at_start(role: str, option: str, extra: list[str],
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """``nan`` passed every ``<= 0`` check of the services' seconds (the service started, with a Health period,
+    deadline or reset wait that never elapses or always does) and ``--connect-timeout nan`` ended in a traceback;
+    now exit 2 before any session opens, the option named (tour60). An unreachable endpoint keeps a service
+    that would start short."""
+    timeout = ["--connect-timeout", "0.2"] if option != "--connect-timeout" else []
+    with pytest.raises(SystemExit) as stop:  # the option parser's exit, as in a process of its own
+        main(["serve", role, *extra, "--connect", "tcp/127.0.0.1:1", *timeout, option, "nan"])
+    err = capsys.readouterr().err
+    assert stop.value.code == 2 and "Traceback" not in err, (stop.value.code, err)
+    assert err.strip().splitlines()[-1].endswith(f"error: argument {option}: must be a finite number, got 'nan'")

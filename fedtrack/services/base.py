@@ -87,7 +87,7 @@ from typing import Any, ClassVar
 import zenoh
 import zenoh.ext
 
-from fedtrack.config import ConfigError
+from fedtrack.config import ConfigError, finite_number
 from fedtrack.deployment import deployment_of, endpoints_of
 from fedtrack.jsonl import InputError
 from fedtrack.keys import DEFAULT_DEPLOYMENT, InvalidName, Keys, check_id
@@ -536,7 +536,7 @@ def service_parser(role: str, description: str, listen_default: tuple[str, ...] 
     parser.add_argument("--id", default=None if per_sensor else role,
                         help="service id, unique per role (default: " + ("the --sensor id" if per_sensor else role)
                         + ")")
-    parser.add_argument("--health-period", type=float, default=1.0, metavar="SECONDS",
+    parser.add_argument("--health-period", type=finite_number, default=1.0, metavar="SECONDS",
                         help="publish Health this often (default: %(default)s)")
     add_endpoint_args(parser, listen_default)
     return parser

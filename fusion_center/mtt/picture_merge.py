@@ -70,7 +70,7 @@ from typing import Any
 
 import numpy as np
 
-from fedtrack.config import ConfigError, load_tables, read_small_file
+from fedtrack.config import ConfigError, finite_number, load_tables, read_small_file
 from fedtrack.deployment import MAX_TIME_JUMP_S
 from fedtrack.fusion_center.mtt.engines import PictureClock
 from fedtrack.fusion_center.mtt.failover.standby import CENTRE_TOKENS_KEPT, NUMBER_ROOM
@@ -524,7 +524,7 @@ def service_from_args(argv: list[str]) -> PictureMergeService:
                         help="keep the time of the last picture published here; started again, merge only later "
                         "times (launch: OUT/picture.snapshot; default: none, a restart merges again every time the "
                         "region centres' caches hold)")
-    parser.add_argument("--wait", type=float, default=MERGE_WAIT_S, metavar="SECONDS",
+    parser.add_argument("--wait", type=finite_number, default=MERGE_WAIT_S, metavar="SECONDS",
                         help="merge a picture time without a region after this long (default: %(default)s)")
     args = parser.parse_args(argv)
     if not args.wait > 0:

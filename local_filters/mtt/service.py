@@ -50,7 +50,7 @@ import time
 from collections import deque
 from pathlib import Path
 
-from fedtrack.config import load_tables
+from fedtrack.config import finite_number, load_tables
 from fedtrack.deployment import MODES
 from fedtrack.geodetic import FrameConfig
 from fedtrack.keys import check_id
@@ -368,7 +368,7 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--config", help="configuration file; reads [mtt], [deployment] and [frame] (a radar "
                         "scan's sensor_position against its site; docs/multitarget.md; default: none, every key at "
                         "its default)")
-    parser.add_argument("--reset-timeout", type=float, default=RESET_TIMEOUT_S, metavar="SECONDS",
+    parser.add_argument("--reset-timeout", type=finite_number, default=RESET_TIMEOUT_S, metavar="SECONDS",
                         help="federated: go on without the centre's resets after this long (default: %(default)s)")
     args = parser.parse_args(argv)
     if args.reset_timeout <= 0:
