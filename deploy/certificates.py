@@ -25,6 +25,9 @@ from fedtrack.keys import is_identity_name
 
 CA_NAME = "fedtrack-ca"
 CERT_DAYS = 365  # validity of new certificates (``FEDTRACK_CERT_DAYS``)
+#: the last time an X.509 certificate can hold (RFC 5280's GeneralizedTime 99991231235959Z): --days 100000000 was
+#: an OverflowError traceback before the tour60 session
+LAST_DATE = datetime.datetime(9999, 12, 31, 23, 59, 59, tzinfo=datetime.UTC)
 
 
 def _write_private(path: Path, data: bytes) -> None:
@@ -78,14 +81,18 @@ def subject_alt_names(extra: str = "", source: str = "FEDTRACK_CERT_SAN") -> lis
 
 
 def cert_days(text: str, source: str = "FEDTRACK_CERT_DAYS") -> int:
-    """A validity in whole days, at least 1 (a ConfigError naming ``source`` otherwise: 0 made a
-    certificate that had expired when it was made, a negative number a traceback)."""
+    """A validity in whole days, at least 1 and ending by ``LAST_DATE`` (a ConfigError naming ``source`` otherwise: 0
+    made a certificate that had expired when it was made, a negative number a traceback)."""
     try:
         days = int(text)
     except ValueError:
         raise ConfigError(f"{source}: expected a whole number of days, got {text!r}") from None
     if days < 1:
         raise ConfigError(f"{source}: must be at least 1 day, got {days}")
+    last = (LAST_DATE - datetime.datetime.now(datetime.UTC)).days  # a certificate ends by X.509's last date
+    if days > last:
+        raise ConfigError(f"{source}: must be at most {last} days (a certificate ends by 9999-12-31, the last date "
+                          f"X.509 can write), got {days}")
     return days
 
 

@@ -107,6 +107,17 @@ def test_the_certificate_command_refuses_bad_input_and_writes_nothing(
     assert not (tmp_path / "c").exists()
 
 
+def test_a_validity_past_the_last_date_x509_can_write_is_refused(tmp_path: Path,
+                                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    """``--days 100000000`` (273,000 years) was an OverflowError traceback after the CA was made (tour60): now exit
+    2 naming the most days a certificate made today can have (to 9999-12-31), nothing written."""
+    assert main([str(tmp_path / "c"), "router", "--days", "100000000"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("fedtrack.deploy.security: --days: must be at most ") and err.endswith(
+        " days (a certificate ends by 9999-12-31, the last date X.509 can write), got 100000000\n"), err
+    assert not (tmp_path / "c").exists()
+
+
 def test_the_certificate_command_creates_no_folder_above_its_own(tmp_path: Path,
                                                                  capsys: pytest.CaptureFixture[str]) -> None:
     """Before: ``... security /no/such/dir/certs router`` made /no, /no/such and /no/such/dir (and a
