@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any, Callable, NoReturn
 
 from fedtrack.config import ConfigError, seed_number
-from fedtrack.jsonl import InputError, check_output, output_folder
+from fedtrack.jsonl import InputError, check_outputs, output_folder
 
 # name -> "module:function(runs, seed, json_path, plots_dir) -> dict"
 REPRODUCERS: dict[str, str] = {
@@ -108,7 +108,7 @@ def resolve(target: str) -> Callable[..., Any]:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
-    check_output(args.json)  # before minutes of Monte Carlo
+    check_outputs({"--json": args.json}, {"--model": args.model})  # before minutes of Monte Carlo
     if args.runs < 2:
         raise InputError(f"--runs: must be at least 2 (standard errors need two runs), got {args.runs}")
     if args.plots:
@@ -148,7 +148,7 @@ def replay_unit(algorithm: str) -> str:
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
-    check_output(args.out)
+    check_outputs({"--out": args.out}, {"--measurements": args.measurements, "--config": args.config})
     check_config(args.config)
     fn = resolve(REPLAY_ALGORITHMS[args.algorithm])
     options = {k: v for k, v in (("period", args.period), ("sensor", args.sensor), ("status", args.status),

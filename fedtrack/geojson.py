@@ -21,7 +21,7 @@ from typing import Any
 
 from fedtrack.config import ConfigError
 from fedtrack.geodetic import Frame, FrameConfig, add_geodetic, load_frame, wrap_lon
-from fedtrack.jsonl import InputError, as_float, check_output, output_file, picture_rows, read_jsonl, require
+from fedtrack.jsonl import InputError, as_float, check_outputs, output_file, picture_rows, read_jsonl, require
 
 
 def _placed(r: Any, frame: Frame, where: str) -> dict[str, Any]:
@@ -128,7 +128,7 @@ def export_main(argv: list[str]) -> int:
     parser.add_argument("--truth", type=Path, metavar="U.jsonl", help="a truth file (simulate's truth.jsonl; "
                         "default: none)")
     args = parser.parse_args(argv)
-    check_output(args.geojson)
+    check_outputs({"--geojson": args.geojson}, {"--config": args.config, "--tracks": args.tracks, "--truth": args.truth})
     if args.tracks is None and args.truth is None:
         parser.error("give --tracks, --truth or both")
     frame = load_frame(args.config)

@@ -47,6 +47,33 @@ def check_output(path: str | Path) -> Path:
     return p
 
 
+def _file_key(path: Path) -> tuple[Any, ...]:
+    """What makes two paths one file: an existing file's device and inode (a link, ``./x`` or another spelling of
+    it), a missing one's resolved path."""
+    try:
+        st = path.stat()
+    except OSError:
+        return ("path", str(path.resolve()))
+    return ("inode", st.st_dev, st.st_ino)
+
+
+def check_outputs(outputs: dict[str, str | Path | None], inputs: dict[str, str | Path | None] | None = None) -> None:
+    """:func:`check_output` of each of a command's ``outputs`` (option -> path; None: not given), and an InputError
+    naming both options when an output is one of its ``inputs`` or another output, by any path: written whole at the
+    end, it would replace what the command read or wrote first (before the tour60 session ``replay --out M
+    --measurements M`` left the estimates where the measurements had been, and ``export --tracks R --db R`` wrote
+    the tracks over the recording database)."""
+    seen = {_file_key(Path(p)): option for option, p in (inputs or {}).items() if p is not None}
+    for option, p in outputs.items():
+        if p is None:
+            continue
+        key = _file_key(check_output(p))
+        if key in seen:
+            raise InputError(f"{p}: {option} is also {seen[key]} (an output is written whole at the end and would "
+                             "replace it; give another path)")
+        seen[key] = option
+
+
 def check_output_folder(path: str | Path) -> Path:
     """``path`` as a folder a command will write several files into, or an InputError naming it:
     a folder, or missing in a folder that exists (the rule of :func:`check_output`). A command

@@ -74,7 +74,7 @@ from typing import IO, Any, Callable, Iterator
 
 import orjson
 
-from fedtrack.jsonl import InputError, check_output, output_file
+from fedtrack.jsonl import InputError, check_outputs, output_file
 from fedtrack.services.admission import digest
 from fedtrack.wire import (
     FusedTrack,
@@ -470,9 +470,8 @@ def main(argv: list[str]) -> int:
                         "trackers' tracks (serve imm, serve hpda) here, in arrival order (replay output format, model "
                         "the tracker's algorithm; default: not written)")
     args = parser.parse_args(argv)
-    for path in (args.out, args.tracks, args.tracker_tracks):
-        if path is not None:
-            check_output(path)
+    check_outputs({"--out": args.out, "--tracks": args.tracks, "--tracker-tracks": args.tracker_tracks,
+                   "unprocessed.jsonl beside --out": args.out.with_name("unprocessed.jsonl")}, {"--db": args.db})
     recording = Recording(args.db, readonly=True)
     try:
         n_meas, n_tracks = recording.export(args.out, args.tracks)

@@ -228,3 +228,34 @@ def test_a_demo_sensor_count_out_of_range_says_the_count_given(sensors: str,
     assert exit_.value.code == 2
     assert capsys.readouterr().err.splitlines()[-1] == (f"fedtrack demo: error: --sensors must be between 1 and 32, "
                                                         f"got {sensors}")
+
+
+def test_an_output_that_is_an_input_or_another_output_is_refused_and_nothing_is_replaced(tmp_path: Path,
+                                                                                         run_here: Run) -> None:
+    """An output naming one of the command's inputs (by any path: a link, ``dir/../dir``) or another of its outputs:
+    exit 2, one line naming both options, every file as it was. Before the tour60 session ``replay --out M
+    --measurements M`` replaced the measurements with the estimates, ``export --tracks R --db R`` the recording
+    database with the tracks, ``evaluate --json U --truth U`` the truth with the result (each exit 0)."""
+    from fedtrack.recording import Recording
+
+    meas = tmp_path / "m.jsonl"
+    meas.write_text('{"t": 0.0, "sensor": "s1", "z": [1.0, 2.0], "R": [[100.0, 0.0], [0.0, 100.0]]}\n')
+    truth, tracks = tmp_path / "u.jsonl", tmp_path / "t.jsonl"
+    truth.write_text('{"t": 0.0, "targets": []}\n')
+    tracks.write_text('{"t": 0.0, "tracks": []}\n')
+    Recording(tmp_path / "r.db").close()
+    (tmp_path / "link.jsonl").symlink_to(meas)
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    cases = [
+        (["replay", "--algorithm", "kf", "--measurements", str(meas), "--out", str(tmp_path / "link.jsonl")],
+         "--out is also --measurements"),
+        (["export", "--db", str(tmp_path / "r.db"), "--out", str(tmp_path / "e.jsonl"), "--tracks",
+          str(tmp_path / ".." / tmp_path.name / "r.db")], "--tracks is also --db"),
+        (["export", "--db", str(tmp_path / "r.db"), "--out", str(tmp_path / "e.jsonl"), "--tracks",
+          str(tmp_path / "e.jsonl")], "--tracks is also --out"),
+        (["evaluate", "--tracks", str(tracks), "--truth", str(truth), "--json", str(truth)], "--json is also --truth"),
+    ]
+    for args, said in cases:
+        proc = run_here(args)
+        assert_one_line_error(proc, said)
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before

@@ -310,3 +310,4 @@ def test_a_serve_option_of_nan_seconds_is_refused_at_start(role: str, option: st
     err = capsys.readouterr().err
     assert stop.value.code == 2 and "Traceback" not in err, (stop.value.code, err)
     assert err.strip().splitlines()[-1].endswith(f"error: argument {option}: must be a finite number, got 'nan'")
+

@@ -14,7 +14,7 @@ from fedtrack.fusion_center.mtt.evaluation.metrics import MAX_POWER_EXPONENT
 from fedtrack.fusion_center.mtt.evaluation.registration import registration_line
 from fedtrack.fusion_center.mtt.evaluation.scoring import evaluate
 from fedtrack.geodetic import load_frame
-from fedtrack.jsonl import check_output, output_file
+from fedtrack.jsonl import check_outputs, output_file
 from fedtrack.local_filters.regions import load_regions
 
 
@@ -52,9 +52,9 @@ def main(argv: list[str]) -> int:
     if args.p * math.log10(args.c) >= MAX_POWER_EXPONENT:
         parser.error(f"--c {args.c:g} --p {args.p:g}: c^p overflows (the p-th power parts are sums of up to c^p a "
                      f"target or track): need p log10(c) < {MAX_POWER_EXPONENT}")
-    for path in (args.json, args.plot):
-        if path is not None:
-            check_output(path)
+    map_name = args.plot.with_name(args.plot.stem + "-map.png") if args.plot is not None and args.config else None
+    check_outputs({"--json": args.json, "--plot": args.plot, "the map beside --plot": map_name},
+                  {"--tracks": args.tracks, "--truth": args.truth, "--config": args.config})
     if args.plot is not None:
         check_figure_format(args.plot)
     if args.config is not None and args.plot is None:
@@ -63,7 +63,7 @@ def main(argv: list[str]) -> int:
     frame = load_frame(args.config)  # before the evaluation: a bad config fails at start
     regions = load_regions(args.config)
     result = evaluate(args.tracks, args.truth, args.c, args.p, args.all_tracks, args.horizontal)
-    map_png = args.plot.with_name(args.plot.stem + "-map.png") if frame is not None else None
+    map_png = map_name if frame is not None else None
     if args.json:  # the files first: a reader that stops early (| head) does not cost them
         with output_file(args.json) as fh:
             fh.write(json.dumps(result))
