@@ -304,6 +304,10 @@ def main(argv: list[str] | None = None) -> int:
         # a file that cannot be opened, read or written
         print(f"fedtrack: error: {exc.filename}: {exc.strerror or exc}", file=sys.stderr)
         return 2
+    except MemoryError as exc:  # options asking for more than the machine has: a traceback before the tour60 session
+        print(f"fedtrack: error: out of memory: {exc or 'an allocation failed'} (ask for less: fewer --runs, "
+              "--targets or seconds of data)", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         return 130
 

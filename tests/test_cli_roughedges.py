@@ -311,3 +311,13 @@ def test_a_serve_option_of_nan_seconds_is_refused_at_start(role: str, option: st
     assert stop.value.code == 2 and "Traceback" not in err, (stop.value.code, err)
     assert err.strip().splitlines()[-1].endswith(f"error: argument {option}: must be a finite number, got 'nan'")
 
+
+def test_a_command_asked_for_more_memory_than_there_is_ends_in_one_error_line(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``reproduce fvdie --runs 10000000000000`` (14.4 PiB of positions, beyond any address space) ended in numpy's
+    MemoryError traceback; now exit 2 with the allocation that failed and what to ask for less of (tour60)."""
+    code = main(["reproduce", "fvdie", "--runs", "10000000000000", "--json", str(tmp_path / "r.json")])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err, (code, err)
+    assert err.strip().splitlines()[-1].startswith("fedtrack: error: out of memory: Unable to allocate 14.4 PiB")
+    assert not (tmp_path / "r.json").exists()
