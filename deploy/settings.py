@@ -82,8 +82,8 @@ class MultitargetSettings:
 @dataclass(frozen=True)
 class Settings:
     """``[fusion]``, ``[deployment]``, ``[[sensor]]``; ``[sonar]`` / ``[radar]`` for those sensor
-    kinds, ``[radar_filter]`` (its keys those of some radar filter; the one chosen with ``--filter`` reads its own), ``[imm]``
-    and ``[pda]``; ``[mtt]`` and ``[multitarget]`` (a live multi-target deployment,
+    kinds, ``[radar_filter]`` (its keys those of some radar filter; the one chosen with ``--filter`` reads its
+    own), ``[imm]`` and ``[pda]``; ``[mtt]`` and ``[multitarget]`` (a live multi-target deployment,
     :mod:`fedtrack.deploy.multitarget`); ``[zenoh]`` (the services' Zenoh configuration, :mod:`fedtrack.deploy.security`)."""
 
     fusion: FusionConfig = field(default_factory=FusionConfig)

@@ -128,7 +128,8 @@ def export_main(argv: list[str]) -> int:
     parser.add_argument("--truth", type=Path, metavar="U.jsonl", help="a truth file (simulate's truth.jsonl; "
                         "default: none)")
     args = parser.parse_args(argv)
-    check_outputs({"--geojson": args.geojson}, {"--config": args.config, "--tracks": args.tracks, "--truth": args.truth})
+    check_outputs({"--geojson": args.geojson},
+                  {"--config": args.config, "--tracks": args.tracks, "--truth": args.truth})
     if args.tracks is None and args.truth is None:
         parser.error("give --tracks, --truth or both")
     frame = load_frame(args.config)
