@@ -248,8 +248,12 @@ def main(argv: list[str]) -> int:
         parser.error(f"--measurements and --join-at apply to --kind scan only (a {args.kind} sensor simulates its "
                      "scans)")
     if args.kind == "scan":
-        if args.measurements is None or settings.deployment.pacing != "realtime":
-            parser.error("--kind scan needs --measurements FILE and realtime pacing")
+        if args.measurements is None:
+            parser.error("--kind scan needs --measurements FILE (the scans to publish)")
+        if settings.deployment.pacing != "realtime":  # named alone: a given --measurements was said missing too
+            source = "--pacing" if args.pacing else "deployment.pacing or its default"
+            parser.error(f"--kind scan paces its scans in real time: give --pacing realtime (the pacing is "
+                         f"{settings.deployment.pacing}, {source})")
         scans = own_scans(args.measurements, args.id)
         if args.join_at is not None:
             scans = [s for s in scans if s.t >= args.join_at]

@@ -321,3 +321,20 @@ def test_a_command_asked_for_more_memory_than_there_is_ends_in_one_error_line(
     assert code == 2 and "Traceback" not in err, (code, err)
     assert err.strip().splitlines()[-1].startswith("fedtrack: error: out of memory: Unable to allocate 14.4 PiB")
     assert not (tmp_path / "r.json").exists()
+
+
+def test_a_scan_sensor_without_realtime_pacing_is_told_that_alone(tmp_path: Path,
+                                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    """``serve sensor --kind scan --measurements M`` at the default lockstep pacing was told "--kind scan needs
+    --measurements FILE and realtime pacing", the file it was given said missing too; now the pacing alone, and the
+    file alone when it is the one missing (tour60)."""
+    meas = write_lines(tmp_path / "m.jsonl", [scan(0.0)])
+    said = []
+    for extra in (["--measurements", str(meas)], ["--pacing", "realtime"]):
+        with pytest.raises(SystemExit) as stop:
+            main(["serve", "sensor", "--kind", "scan", "--id", "s1", *extra])
+        assert stop.value.code == 2
+        said.append(capsys.readouterr().err.strip().splitlines()[-1])
+    assert said == ["fedtrack serve sensor: error: --kind scan paces its scans in real time: give --pacing realtime "
+                    "(the pacing is lockstep, deployment.pacing or its default)",
+                    "fedtrack serve sensor: error: --kind scan needs --measurements FILE (the scans to publish)"]
