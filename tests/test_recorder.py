@@ -711,3 +711,19 @@ def test_a_tracker_track_whose_id_no_integer_column_holds_is_rejected_and_counte
     svc._dispatch(("sample", sub, key, hpda_track(1, 3.0)))
     assert svc.counters.get("tracker_tracks_recorded", 0) == 1
     svc.recording.close()
+
+
+def test_verify_run_scales_a_difference_by_the_largest_entry_of_its_estimate() -> None:
+    """Round-off is mixed across a state's entries, so a difference counts against the largest entry: the
+    seed-5 decentralized demo's 1.5e-9 on an acceleration below 1 in a state up to 1e5 is round-off (before,
+    scaled by the entry itself: 1.5e-9 > 1e-9, a correct run failed), while 1e-3 m on that state is not."""
+    from fedtrack.deploy.verify_run import TOLERANCE, scaled_diff
+
+    replay = [95645.39671752996, 2532.7995085022308, 0.5, -1200.0, 3.0, -0.25]
+    live = list(replay)
+    live[2] += 1.5e-9
+    assert scaled_diff(live, replay) <= TOLERANCE
+    live[0] += 1e-3
+    assert scaled_diff(live, replay) > TOLERANCE
+    assert scaled_diff([1e-12, 0.0], [0.0, 2e-9]) == pytest.approx(2e-9)  # small states: absolute
+    assert scaled_diff([1.0, 2.0], [1.0]) == float("inf")
