@@ -259,3 +259,15 @@ def test_an_output_that_is_an_input_or_another_output_is_refused_and_nothing_is_
         proc = run_here(args)
         assert_one_line_error(proc, said)
     assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+
+
+@pytest.mark.parametrize("algorithm", ["kf", "mtt-centralized", "mtt-federated"])
+def test_an_empty_measurements_file_is_refused_by_every_replay(tmp_path: Path, run_here: Run, algorithm: str) -> None:
+    """A file of no scans is an error for every algorithm (before, the single-target replay said ``no
+    measurements``, exit 2, while ``mtt-*`` wrote 0 pictures and exited 0: tour60)."""
+    empty = tmp_path / "empty.jsonl"
+    empty.write_text("")
+    out = tmp_path / "out.jsonl"
+    assert_one_line_error(run_here(["replay", "--algorithm", algorithm, "--measurements", str(empty),
+                                    "--out", str(out)]), empty.name)
+    assert not out.exists()

@@ -293,6 +293,8 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
                                    max_time_jump(config), sites, None if frame is None else frame.frame)
     else:
         scans = read_scans(measurements, cfg, frame)
+        if not any(isinstance(s, SensorScan) for s in scans):  # as the single-target replay refuses an empty file
+            raise InputError(f"{measurements}: no scans")
         if sensor is not None and not any(s.sensor == sensor for s in scans):
             raise InputError(f"{measurements}: no scan of sensor {sensor!r} (its sensors: "
                              f"{', '.join(sorted({s.sensor for s in scans})) or 'none'})")
