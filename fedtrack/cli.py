@@ -111,6 +111,8 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     check_outputs({"--json": args.json}, {"--model": args.model})  # before minutes of Monte Carlo
     if args.runs < 2:
         raise InputError(f"--runs: must be at least 2 (standard errors need two runs), got {args.runs}")
+    if args.runs > sys.maxsize:  # numpy's largest array dimension (intp); fewer that do not fit in memory: MemoryError
+        raise InputError(f"--runs: at most {sys.maxsize} (the largest array dimension), got {args.runs}")
     if args.plots:
         output_folder(args.plots)
     fn = resolve(REPRODUCERS[args.name])

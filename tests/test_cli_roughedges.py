@@ -338,3 +338,15 @@ def test_a_scan_sensor_without_realtime_pacing_is_told_that_alone(tmp_path: Path
     assert said == ["fedtrack serve sensor: error: --kind scan paces its scans in real time: give --pacing realtime "
                     "(the pacing is lockstep, deployment.pacing or its default)",
                     "fedtrack serve sensor: error: --kind scan needs --measurements FILE (the scans to publish)"]
+
+
+def test_more_runs_than_an_array_can_index_end_in_one_error_line(tmp_path: Path,
+                                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    """``reproduce fvdie --runs 10**21`` is beyond numpy's largest dimension: its ValueError ended in a traceback
+    (tour60 noticed); now exit 2 naming ``--runs`` and its bound."""
+    code = main(["reproduce", "fvdie", "--runs", str(10**21), "--json", str(tmp_path / "r.json")])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err, (code, err)
+    assert err.strip().splitlines()[-1] == (f"fedtrack: error: --runs: at most {sys.maxsize} (the largest array "
+                                            f"dimension), got {10**21}")
+    assert not (tmp_path / "r.json").exists()
