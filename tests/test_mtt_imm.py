@@ -4,32 +4,38 @@
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
+import io
 from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy.special import chdtri
-from support import assert_same_pictures
+from support import assert_same_pictures, in_parallel
 from test_jipda import gated, jipda_replay
 from test_mht import replay_pictures
 from test_mtt_out_of_sequence import own_scans_out_of_sequence, replay, scans
 
 from fedtrack.config import ConfigError
 from fedtrack.fusion_center.mtt.central_track import CentralTracks
+from fedtrack.fusion_center.mtt.engines import central_params
 from fedtrack.local_filters.imm.filter import IMMState, combine
 from fedtrack.local_filters.linear.kalman import GaussianState, Innovation, log_likelihood, update_residual
 from fedtrack.local_filters.mtt.associators import jipda
-from fedtrack.local_filters.mtt.config import MttConfig
+from fedtrack.local_filters.mtt.config import MttConfig, SensorOverride
 from fedtrack.local_filters.mtt.models import (
     ModeRates,
     Modes,
     linearize,
+    maneuver_visible,
     mode_transition,
     modes_predict,
     modes_update,
     position_matrix,
     start_modes,
 )
+from fedtrack.local_filters.mtt.tracker import track_params
 from fedtrack.local_filters.pda.association import existence_predict
 
 RATES = ModeRates(1.0 / 60.0, 1.0 / 15.0)
@@ -276,3 +282,65 @@ def test_imm_mht_pinned_to_one_mode_equals_fixed(tmp_path: Path, scenario: str, 
     assert tracks > 100
     last_imm, last_fixed = imm[-1]["tracks"], fixed[-1]["tracks"]
     assert last_imm and not np.allclose(last_imm[0]["P"], last_fixed[0]["P"], rtol=1e-3)
+
+
+def test_a_position_sensor_too_coarse_to_see_a_maneuver_tracks_with_cv() -> None:
+    """``process_noise = "auto"``: a one-sensor tracker keeps two modes only where its sensor's noise floor
+    can see a maneuver, ``Q(maneuver_s)``'s position variance (``q tau^3 / 3``) at least ``floor^2``
+    (:func:`maneuver_visible`; docs/jipda.md#a-sensor-too-coarse-to-see-a-maneuver-coarse60-session). The
+    coarse60 case's 300 m sensor (q 2.467: 52.7 m over 15 s) tracks with CV, its 1 m one with two modes; a
+    tracker of every sensor's scans, an explicit ``"imm"`` and a sensor without a floor keep them."""
+    floors = {"fine": SensorOverride(noise_floor=(1.0, 1.0)), "coarse": SensorOverride(noise_floor=(300.0, 300.0))}
+    rates = ModeRates(1 / 60, 1 / 15)
+    spread = float(np.sqrt(2.467401 * 15.0**3 / 3.0))
+    for associator in ("jipda", "mht"):
+        cfg = MttConfig(q=2.467401, associator=associator, sensor=floors)
+        assert track_params(cfg, "fine", 4).modes == rates
+        assert track_params(cfg, "coarse", 4).modes is None
+        assert track_params(cfg, "unlisted", 4).modes == rates
+        assert central_params(cfg, "coarse", 4).modes == rates
+        assert track_params(dataclasses.replace(cfg, process_noise="imm"), "coarse", 4).modes == rates
+    assert maneuver_visible(2.467401, "continuous", 15.0, spread * (1 - 1e-9))
+    assert not maneuver_visible(2.467401, "continuous", 15.0, spread * (1 + 1e-9))
+
+
+def coarse_case(seed: int, folder: Path) -> Path:
+    """The coarse60 case of ``seed`` (10 targets, 150 s, a 1 m and a 300 m sensor every 1 s) in ``folder``."""
+    from fedtrack.sensors.multitarget import Scenario, parse_spec, simulate
+
+    out = folder / str(seed)
+    simulate(Scenario(targets=10, duration=150.0), parse_spec("pos:1.0/1,pos:1.0/300"), seed, out)
+    return out
+
+
+def coarse_nees(case: Path, associator: str, process_noise: str) -> float:
+    """The mean state NEES of ``s2``'s own tracker (mtt-local, ``associator``, ``process_noise``) on
+    ``case``, pairs assigned at c = 1000 m (its errors are 100-300 m)."""
+    from fedtrack.fusion_center.mtt.evaluation.scoring import evaluate
+    from fedtrack.fusion_center.mtt.replay import replay_mtt
+
+    config, tracks = case / f"{associator}-{process_noise}.toml", case / f"{associator}-{process_noise}.jsonl"
+    extra = f'associator = "{associator}"\nprocess_noise = "{process_noise}"\n'
+    config.write_text((case / "config.toml").read_text().replace("[mtt]\n", "[mtt]\n" + extra, 1))
+    with contextlib.redirect_stderr(io.StringIO()):
+        replay_mtt("mtt-local", case / "measurements.jsonl", config, tracks, sensor="s2")
+    state = [row for row in evaluate(tracks, case / "truth.jsonl", c=1000.0)["nees"] if row["part"] == "state"]
+    return float(state[0]["mean"])
+
+
+def test_a_coarse_sensors_own_jipda_and_mht_trackers_are_not_overconfident(tmp_path: Path) -> None:
+    """Seeded Monte Carlo, the coarse60 case's seeds 1-3 (3 runs): the 300 m sensor's own jipda and mht
+    trackers' mean state NEES (4 dof), mean over the runs ± standard error. Two modes (``"imm"``, what
+    ``"auto"`` gave before): jipda 8.64 / 6.48 / 13.38 (9.50 ± 2.04), mht 12.40 / 9.22 / 23.27 (14.96 ±
+    4.25), the maneuver mode unseen; ``"auto"`` now CV with ``q``: jipda 3.93 / 3.11 / 5.63 (4.22 ± 0.74),
+    mht 6.10 / 4.65 / 10.76 (7.17 ± 1.84). Asserted: ``"auto"`` below ``"imm"`` in every run and by more than
+    two standard errors of the paired difference (5.28 ± 1.29, 7.79 ± 2.41), jipda's mean within 1 of 4."""
+    cases = [coarse_case(seed, tmp_path) for seed in (1, 2, 3)]
+    runs = [(case, a, p) for a in ("jipda", "mht") for p in ("auto", "imm") for case in cases]
+    nees = dict(zip(runs, in_parallel([(coarse_nees, run) for run in runs])))
+    for associator in ("jipda", "mht"):
+        auto = np.array([nees[case, associator, "auto"] for case in cases])
+        diff = np.array([nees[case, associator, "imm"] for case in cases]) - auto
+        assert (diff > 0).all() and diff.mean() > 2 * diff.std(ddof=1) / np.sqrt(diff.size), (associator, auto, diff)
+    jipda_auto = np.array([nees[case, "jipda", "auto"] for case in cases])
+    assert abs(jipda_auto.mean() - 4.0) <= 1.0, jipda_auto

@@ -188,7 +188,9 @@ def central_params(cfg: MttConfig, sensor: str | None, dim: int, present: tuple[
     some sensors can see is tracked as well as by those sensors' own trackers. ``interval``: the
     sensor's latest time between its scans (``CentralizedEngine.intervals``); below 1 s a track
     it alone detected goes after at least the misses its own tracker takes there
-    (:func:`~fedtrack.local_filters.mtt.config.scan_lost`: ``LOST`` a second as well as a scan)."""
+    (:func:`~fedtrack.local_filters.mtt.config.scan_lost`: ``LOST`` a second as well as a scan). Its
+    motion modes are those of a tracker of every sensor (``MttConfig.modes_of(None, ...)``), whatever
+    sensor's scan: a coarse sensor's own tracker's CV would switch the tracks' model scan by scan."""
     p = track_params(cfg, sensor, dim, events=True)
     sensors = list(present) if isinstance(cfg.sensors, str) else cfg.sensors
     n = max(len(sensors), 1)
@@ -198,7 +200,8 @@ def central_params(cfg: MttConfig, sensor: str | None, dim: int, present: tuple[
         lone = max(lone, cfg.misses_to_delete(sensor, interval))
     return p._replace(delete_misses=max(lone, CENTRAL_MISSES * n), sensor_bit=bit, sensor_misses=CENTRAL_MISSES,
                       lone_misses=lone, maneuver=_every_sensor_window(p.maneuver, n),
-                      detector=_every_sensor_window(p.detector, n))
+                      detector=_every_sensor_window(p.detector, n),
+                      modes=cfg.modes_of(None, dim) if p.maneuver is None else None)
 
 
 @lru_cache(maxsize=16)

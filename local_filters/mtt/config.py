@@ -15,7 +15,7 @@ from fedtrack.config import ConfigError
 from fedtrack.deployment import DeploymentConfig
 from fedtrack.geodetic import FrameConfig
 from fedtrack.keys import InvalidName, check_id
-from fedtrack.local_filters.mtt.models import ModeRates
+from fedtrack.local_filters.mtt.models import ModeRates, maneuver_visible
 from fedtrack.local_filters.vdie.estimation import VdieParams
 from fedtrack.wire.limits import MAX_MAGNITUDE
 
@@ -336,6 +336,15 @@ class MttConfig:
     def mode_rates(self) -> ModeRates | None:
         """The two modes' switching rates (``process_noise = "imm"``), None: CV with ``q``."""
         return ModeRates(1.0 / self.straight_s, 1.0 / self.maneuver_s) if self.motion == "imm" else None
+
+    def modes_of(self, sensor: str | None, dim: int) -> ModeRates | None:
+        """The modes of the tracker of ``sensor``'s scans alone (None: of every sensor's), state size ``dim``:
+        :attr:`mode_rates`, except that with ``process_noise = "auto"`` a position sensor's (``dim`` 4) whose
+        ``noise_floor`` cannot see a maneuver (:func:`~.models.maneuver_visible`) tracks with CV and ``q``."""
+        floor = None if sensor is None or dim != 4 or self.process_noise != "auto" else self.noise_floor_of(sensor)
+        if floor is None or maneuver_visible(self.q, self.noise_model, self.maneuver_s, float(np.min(floor))):
+            return self.mode_rates
+        return None
 
     def validate(self) -> None:
         positive = {"q": self.q, "maneuver_s": self.maneuver_s, "straight_s": self.straight_s,

@@ -133,6 +133,17 @@ class ModeRates(NamedTuple):
         return np.array([self.to_straight / total, self.to_maneuver / total])
 
 
+def maneuver_visible(q: float, noise_model: str, maneuver_s: float, sigma: float) -> bool:
+    """Whether a position sensor of noise ``sigma`` [m] per axis (its least) can tell the two modes apart:
+    the maneuvering mode's own position spread over a mean maneuver, ``Q(maneuver_s)``'s position
+    variance (``q tau^3 / 3`` for the continuous model), reaches ``sigma^2`` (the straight mode's innovation
+    then shows a maneuver within its mean duration, the one-sigma rule of ``q``'s derivation). Below it the
+    mode probabilities stay near their long-run values, and the IMM's combination is a CV filter of about
+    ``q`` times the maneuver's long-run probability, below the ``q`` a turn needs
+    (docs/jipda.md#a-sensor-too-coarse-to-see-a-maneuver-coarse60-session)."""
+    return bool(motion(2, maneuver_s, q, noise_model).Q[0, 0] >= sigma**2)
+
+
 def mode_transition(dt: float | np.ndarray, rates: ModeRates) -> np.ndarray:
     """``Pi(dt)`` (2, 2) or (N, 2, 2), row = from: the two-state Markov chain of ``rates`` over
     ``dt`` (closed form: ``p_01 = r_01 / r (1 - e^(-r dt))``, ``r = r_01 + r_10``)."""

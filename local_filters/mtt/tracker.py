@@ -92,7 +92,9 @@ def track_params(cfg: MttConfig, sensor: str | None, dim: int, feedback: bool = 
     VDIE's parameters and window) to the tracks of a 3-D tracker whose tracks are the output (a
     track-to-track centre runs its own on the central tracks). A tracker of every sensor's scans
     (``mtt-centralized``) takes the fusion centre's policy on top
-    (:func:`fedtrack.fusion_center.mtt.engines.central_params`)."""
+    (:func:`fedtrack.fusion_center.mtt.engines.central_params`). Two motion modes where ``[mtt]
+    process_noise`` resolves to ``"imm"``, except on a sensor too coarse to see a maneuver
+    (:meth:`MttConfig.modes_of`)."""
     vdie = detect = None
     if cfg.maneuver == "vdie":  # both over the window of the tracker's own scans
         vdie = cfg.vdie if dim == 4 and not feedback else None
@@ -103,7 +105,8 @@ def track_params(cfg: MttConfig, sensor: str | None, dim: int, feedback: bool = 
                        cfg.thresholds.gate, cfg.confirm_hits, cfg.confirm_window, cfg.misses_to_delete(sensor), vdie, detect,
                        ASSOCIATORS[cfg.associator], jipda.BIRTH_EXISTENCE if cfg.associator == "jipda" else None,
                        mht=cfg.mht_settings if cfg.associator == "mht" else None,
-                       modes=cfg.mode_rates if vdie is None and not feedback else None, max_speed=cfg.max_speed)
+                       modes=cfg.modes_of(sensor, dim) if vdie is None and not feedback else None,
+                       max_speed=cfg.max_speed)
 
 
 class TrackerState(NamedTuple):
