@@ -76,15 +76,19 @@ def check(tmp_path: Path, algorithm: str, config: Path, live: list[dict[str, Any
 
 
 def run_on_bus(tmp_path: Path, algorithm: str, config: Path, cfg: Any, msgs: list[Any],
-               prepare: Callable[[list[Any]], None] | None = None) -> tuple[Any, Any, Any, Any, Bus]:
+               prepare: Callable[[list[Any]], None] | None = None, lost: type | None = None
+               ) -> tuple[Any, Any, Any, Any, Bus]:
     """The region deployment's services on the in-process bus: every scan published, then each
     service stopped in order (trackers, centres, merger; the recorder last, writing its files);
     returns the services and the bus (what crossed it). ``prepare``: called with the local trackers
-    before the first scan."""
+    before the first scan; ``lost``: the centres' messages of this type never arrive."""
     centres, local, merger, recorder = services(tmp_path, algorithm, config, cfg,
                                                 {"options": OPTIONS, "deployment": "hostile"})
     recorder.on_start()
     bus = Bus([*centres, *local, merger, recorder])
+    for c in centres if lost is not None else []:
+        c.publish = (lambda key, msg, publish=c.publish:  # type: ignore[method-assign]
+                     None if isinstance(msg, lost) else publish(key, msg))
     if prepare is not None:
         prepare(local)
     for m in msgs:
@@ -180,6 +184,18 @@ def test_a_region_not_yet_known_to_a_tracker_is_waited_for(tmp_path: Path) -> No
     live = [json.loads(x) for x in (tmp_path / "out" / "tracks.jsonl").read_text().splitlines()]
     check(tmp_path, "mtt-federated", config, live)  # the replay's pictures, none lost at a hand-over
     assert sum(svc.counters.get("unreached", 0) for svc in local) == 0
+
+
+def test_hand_overs_that_never_arrive_are_counted_expired_by_their_trackers(tmp_path: Path) -> None:
+    """Every ``HandOver`` lost on its way: each tracker flags a handed-over track's rows as awaiting its new
+    owner for ``[mtt] unsupported_s`` of data time, then frees them, counted ``handover_expired`` by the
+    tracker service, one per local track (before: its router counted them, the service never did: it looked
+    around the split of a report, and they expire where the answers are learnt)."""
+    msgs, cfg, config = scenario(tmp_path)
+    centres, local, _, _, _ = run_on_bus(tmp_path, "mtt-federated", config, cfg, msgs, lost=HandOver)
+    expired = [svc.router.expired for svc in local]
+    assert sum(c.counters.get("handed_over", 0) for c in centres) >= 2 and sum(expired) >= 2
+    assert [svc.counters.get("handover_expired", 0) for svc in local] == expired
 
 
 @pytest.mark.parametrize("algorithm", ["mtt-federated", "mtt-decentralized"])

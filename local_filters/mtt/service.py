@@ -265,7 +265,10 @@ class MttLocalService(Service):
         got = sorted(self.answers)
         answers = [self.answers[r][0] for r in got]
         if answers:
+            expired = self.router.expired
             self.router.learn([self.sent[r] for r in got], answers, got)
+            if self.router.expired > expired:  # hand-overs whose new owner did not hold them in time
+                self.count("handover_expired", self.router.expired - expired)
             if self.federated:
                 self.tracker.adopt(self.awaiting_scan, *join_answers(answers))
         if self.unreached and self.awaiting not in self.timed_out:  # an answer of a region not awaited that
@@ -329,10 +332,7 @@ class MttLocalService(Service):
                 require_covariances(f"scan {seq}: the local tracks", report.P)
                 contested = self.take_contested()
                 if self.router is not None and self.regions is not None:
-                    expired = self.router.expired
                     parts = self.router.split(report)
-                    if self.router.expired > expired:  # hand-overs whose new owner did not hold them in time
-                        self.count("handover_expired", self.router.expired - expired)
                     settled = self.link().settled(time.monotonic())
                     self.unreached = set()
                     for r, (rid, (sub, elsewhere)) in enumerate(zip(self.regions.ids, parts)):
