@@ -186,6 +186,30 @@ def test_a_region_not_yet_known_to_a_tracker_is_waited_for(tmp_path: Path) -> No
     assert sum(svc.counters.get("unreached", 0) for svc in local) == 0
 
 
+def test_the_merger_stopped_awaits_every_regions_closing_record(tmp_path: Path) -> None:
+    """At its stop the merger holds on (``held``, bounded by ``drain_deadline_s``) while a region that sent
+    pictures has not sent its closing record, the entries its centre processed after its last picture: before,
+    a merger stopped with x0y0's still on its way (the trackers, then the centres, stopped as the launcher
+    does) recorded a closing record without them, and the recording did not replay to the live pictures."""
+    msgs, cfg, config = scenario(tmp_path)
+    centres, local, merger, recorder = services(tmp_path, "mtt-federated", config, cfg,
+                                                {"options": OPTIONS, "deployment": "hostile"})
+    recorder.on_start()
+    bus = Bus([*centres, *local, merger, recorder])
+    for m in msgs:
+        bus.put(Keys("hostile").sensor_meas(m.sensor), encode(m))
+    for svc in local:
+        svc.on_stop()
+        bus.drain()
+    assert merger.held()  # pictures of both regions, no closing record yet
+    centres[1].on_stop()
+    bus.drain()
+    assert merger.held() and merger.closing[1] is not None  # x1y0's came, x0y0's is on its way
+    centres[0].on_stop()
+    bus.drain()
+    assert not merger.held()
+
+
 def test_hand_overs_that_never_arrive_are_counted_expired_by_their_trackers(tmp_path: Path) -> None:
     """Every ``HandOver`` lost on its way: each tracker flags a handed-over track's rows as awaiting its new
     owner for ``[mtt] unsupported_s`` of data time, then frees them, counted ``handover_expired`` by the
@@ -220,7 +244,8 @@ def test_region_centres_over_zenoh_equal_the_replay_of_their_recording(tmp_path:
             session.put(keys.sensor_meas(m.sensor), encode(m))
         sent = {s: sum(m.sensor == s for m in msgs) for s in ("s1", "s2", "s3")}
         assert wait_until(lambda: all(svc.counters.get("reports", 0) + svc.counters.get("late", 0) == sent[svc.sensor]
-                                      and svc.awaiting is None for svc in local), timeout=30.0)
+                                      and svc.awaiting is None for svc in local), timeout=30.0), \
+            {svc.id: (dict(svc.counters), getattr(svc, "awaiting", None)) for svc in [*local, *centres]}
         assert all(svc.counters.get("reset_timeouts", 0) == 0 for svc in local)
         for group in (local, centres, [merger]):
             for svc in group:

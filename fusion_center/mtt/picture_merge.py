@@ -301,6 +301,15 @@ class PictureMergeService(Service):
         self.closed[r] = digest(msg)
         self.closing[r] = msg
 
+    def held(self) -> bool:
+        """At a clean stop: a region that sent pictures has not sent its closing record (what its centre
+        processed after its last picture, published as it stops). The merger goes on until every such region's
+        has come, for at most ``drain_deadline_s`` (a centre that died sends none), so that the merged closing
+        record holds every region's last entries: stopped after its centres (the launcher's order) with one
+        still on its way, it left them out, and the recording did not replay to the live pictures."""
+        coming = {r for r, msg in self.settling if msg.closing}
+        return any(s and c is None and r not in coming for r, (s, c) in enumerate(zip(self.started, self.closing)))
+
     def _admit(self, r: int, msg: TrackPicture) -> None:
         """Take region ``r``'s picture, and those it witnesses, through the lead guard. Before the guard has
         taken any (it takes the first as it comes: nothing to lead yet), the pictures wait until two regions
@@ -508,9 +517,9 @@ class PictureMergeService(Service):
             self._release()
         self.note_leads(self.keys.region_picture(), self.lead.end())
         self._merge(force=True)
-        if any(self.closing) or any(self.late):
-            self._publish(max((c.t for c in self.closing if c is not None), default=self.merged_t or 0.0),
-                          self.closing, closing=True)
+        ended = [c for c in self.closing if c is not None and c.fused_sensors]  # a closing record lists entries
+        if ended or any(self.late):
+            self._publish(max((c.t for c in ended), default=self.merged_t or 0.0), self.closing, closing=True)
 
 
 def service_from_args(argv: list[str]) -> PictureMergeService:

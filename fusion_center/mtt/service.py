@@ -650,7 +650,8 @@ class MttCentreService(CentreFailover, Service):
 
     def on_stop(self) -> None:
         """The pictures still due at the end of the data (as the replay writes them), then the
-        closing record of the scans processed after the last picture, unless this primary stepped
+        closing record of the scans processed after the last picture (a region centre's even when none: the
+        merger awaits it at its own stop, :meth:`PictureMergeService.held`), unless this primary stepped
         aside for its standby (:meth:`_steps_aside`); messages still held for a witness (stamped far
         ahead) are counted ``rejected_time_lead``."""
         self.note_leads(self.keys.mtt_report(), self.lead.end())
@@ -658,7 +659,7 @@ class MttCentreService(CentreFailover, Service):
             return
         for T in self.clock.final():
             self._publish_picture(T)
-        if self.order:
+        if self.order or (self.region is not None and self.pictures):  # a region's always: the merger awaits it
             self._publish_picture(self.clock.high, closing=True)
 
 
