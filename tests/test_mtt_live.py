@@ -72,9 +72,11 @@ def run_live(tmp_path: Path, algorithm: str, associator: str = "gnn",
         expected = len(lines) if algorithm == "mtt-centralized" else None
         if expected is None:  # late scans stop at the local trackers
             assert wait_until(lambda: sum(svc.counters.get("reports", 0) + svc.counters.get("late", 0)
-                                          for svc in services[2:]) == len(lines), timeout=30.0)
+                                          for svc in services[2:]) == len(lines), timeout=30.0), \
+                {svc.id: dict(svc.counters) for svc in services[1:]}
             expected = sum(svc.counters.get("reports", 0) for svc in services[2:])
-        assert wait_until(lambda: processed() == expected, timeout=30.0)
+        assert wait_until(lambda: processed() == expected, timeout=30.0), \
+            (processed(), expected, {svc.id: dict(svc.counters) for svc in services[1:]})
         counters = dict(centre.counters)
         for svc in services[1:]:  # local trackers and the centre first: its last pictures reach the recorder
             svc.stop()
