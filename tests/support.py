@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import pytest
+import zenoh
 
 from fedtrack.deploy.demo import free_port
 from fedtrack.local_filters.mtt.scan import parse_scan, scan_to_measurement
@@ -25,8 +26,8 @@ from fedtrack.wire import Measurement
 
 WAIT_S = 10.0
 
-__all__ = ["WAIT_S", "CliOutcome", "Deployment", "SecureBus", "cli_in_process", "cli_in_subprocess", "free_port",
-           "in_parallel", "numbered_measurements", "replay_evaluated", "secure_router", "wait_until"]
+__all__ = ["WAIT_S", "CliOutcome", "Deployment", "SecureBus", "cli_in_process", "cli_in_subprocess", "feed",
+           "free_port", "in_parallel", "numbered_measurements", "replay_evaluated", "secure_router", "wait_until"]
 
 
 def patch_wire(monkeypatch: pytest.MonkeyPatch, name: str, value: Any) -> None:
@@ -106,6 +107,13 @@ def route_reports(centre: Any, local: dict[str, Any], published: list[Any], keys
         elif isinstance(msg, TrackResets):
             local[msg.sensor]._dispatch(("sample", 1, keys.mtt_resets(msg.sensor), encode(msg)))
     return done
+
+
+def feed(session: Any, key: str, payload: bytes) -> None:
+    """Put ``payload`` on ``key`` as the services publish, with BLOCK congestion control. A test's plain
+    ``session.put`` takes Zenoh's default, DROP: a message that finds the link's queue full is dropped without a
+    word, which Zenoh allows (a scan of s2 lost at a load of 18, and the test waited 30 s for its report)."""
+    session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK)
 
 
 def wait_until(predicate: Callable[[], bool], timeout: float = WAIT_S) -> bool:

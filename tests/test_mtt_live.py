@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from support import WAIT_S, assert_same_pictures, free_port, wait_until
+from support import WAIT_S, assert_same_pictures, feed, free_port, wait_until
 
 from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.fusion_center.mtt.service import MttCentreService
@@ -67,16 +67,16 @@ def run_live(tmp_path: Path, algorithm: str, associator: str = "gnn",
         for line in lines:  # arrival order; each sensor's own scans in order
             scan = parse_scan(line, "test")
             seq[scan.sensor] = seq.get(scan.sensor, -1) + 1
-            session.put(keys.sensor_meas(scan.sensor), encode(scan_to_measurement(scan, seq[scan.sensor], 1)))
+            feed(session, keys.sensor_meas(scan.sensor), encode(scan_to_measurement(scan, seq[scan.sensor], 1)))
         processed = lambda: sum(len(p.fused_seqs) for p in pictures) + len(centre.order)  # noqa: E731
         expected = len(lines) if algorithm == "mtt-centralized" else None
         if expected is None:  # late scans stop at the local trackers
             assert wait_until(lambda: sum(svc.counters.get("reports", 0) + svc.counters.get("late", 0)
                                           for svc in services[2:]) == len(lines), timeout=30.0), \
-                {svc.id: dict(svc.counters) for svc in services[1:]}
+                str({svc.id: dict(svc.counters) for svc in services[1:]})
             expected = sum(svc.counters.get("reports", 0) for svc in services[2:])
         assert wait_until(lambda: processed() == expected, timeout=30.0), \
-            (processed(), expected, {svc.id: dict(svc.counters) for svc in services[1:]})
+            str((processed(), expected, {svc.id: dict(svc.counters) for svc in services[1:]}))
         counters = dict(centre.counters)
         for svc in services[1:]:  # local trackers and the centre first: its last pictures reach the recorder
             svc.stop()
@@ -142,7 +142,7 @@ def publish_when_up(session: Any, keys: Keys, services: list[Any], scans: list[A
     """Once ``services`` are alive, publish ``scans`` as s2's, numbered from 0."""
     assert wait_alive(session, [keys.alive(svc.role, svc.id) for svc in services], WAIT_S) == set()
     for k, scan in enumerate(scans):
-        session.put(keys.sensor_meas("s2"), encode(scan_to_measurement(scan, k, 1)))
+        feed(session, keys.sensor_meas("s2"), encode(scan_to_measurement(scan, k, 1)))
 
 
 def test_a_federated_tracker_stopped_tracks_the_scans_it_holds_first(tmp_path: Path) -> None:
@@ -235,7 +235,7 @@ def test_sensors_join_and_leave_at_run_time(tmp_path: Path) -> None:
         for line in part:
             scan = parse_scan(line, "test")
             seq[scan.sensor] = seq.get(scan.sensor, -1) + 1
-            session.put(keys.sensor_meas(scan.sensor), encode(scan_to_measurement(scan, seq[scan.sensor], 1)))
+            feed(session, keys.sensor_meas(scan.sensor), encode(scan_to_measurement(scan, seq[scan.sensor], 1)))
 
     def settled() -> bool:
         """Every running tracker has taken every scan published to it and has its resets."""

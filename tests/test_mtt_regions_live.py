@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 import pytest
-from support import WAIT_S, assert_same_pictures, free_port, numbered_measurements, wait_until
+from support import WAIT_S, assert_same_pictures, feed, free_port, numbered_measurements, wait_until
 from test_hostile_messages import OPTIONS, Bus, _matches
 
 from fedtrack.fusion_center.mtt.picture_merge import PictureMergeService
@@ -241,11 +241,11 @@ def test_region_centres_over_zenoh_equal_the_replay_of_their_recording(tmp_path:
     try:
         assert wait_alive(session, [keys.alive(svc.role, svc.id) for svc in everyone], WAIT_S) == set()
         for m in msgs:
-            session.put(keys.sensor_meas(m.sensor), encode(m))
+            feed(session, keys.sensor_meas(m.sensor), encode(m))
         sent = {s: sum(m.sensor == s for m in msgs) for s in ("s1", "s2", "s3")}
         assert wait_until(lambda: all(svc.counters.get("reports", 0) + svc.counters.get("late", 0) == sent[svc.sensor]
                                       and svc.awaiting is None for svc in local), timeout=30.0), \
-            {svc.id: (dict(svc.counters), getattr(svc, "awaiting", None)) for svc in [*local, *centres]}
+            str({svc.id: (dict(svc.counters), getattr(svc, "awaiting", None)) for svc in [*local, *centres]})
         assert all(svc.counters.get("reset_timeouts", 0) == 0 for svc in local)
         for group in (local, centres, [merger]):
             for svc in group:
