@@ -252,7 +252,8 @@ def test_region_centres_over_zenoh_equal_the_replay_of_their_recording(tmp_path:
                 svc.stop()
             for svc in group:
                 threads[svc.id].join(WAIT_S)
-        assert wait_until(lambda: recorder.counters.get("pictures_recorded", 0) == merger.counters["pictures"])
+        assert wait_until(lambda: recorder.counters.get("pictures_recorded", 0) == merger.counters["pictures"]), \
+            str((dict(recorder.counters), dict(merger.counters)))
         recorder.stop()
         threads[recorder.id].join(WAIT_S)
     finally:
