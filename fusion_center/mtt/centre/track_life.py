@@ -92,6 +92,16 @@ class CentreLife:
     ``last_support``, the per-column ``column_interval`` and ``column_log_miss``, and on its methods ``_unmap`` and
     ``sensor_lists``."""
 
+    def _states_at(self, slots: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """What :meth:`CentralTracks.states_at` ``t`` gives for ``slots``: while a report's life rules run
+        (``report_states``), from its prediction (:meth:`_states_now`: the tracks the rules look at are those it
+        did not fuse into, whose estimates at its time it predicted already, row by row as a prediction of them
+        alone would), not predicted again (three to four predictions of a few tracks a report: perf60)."""
+        known = self.report_states
+        if known is None or known[0] != t:
+            return self.tracks.states_at(slots, t)
+        return self._states_now(slots, t, *known[1:])
+
     def _vouched(self, slots: np.ndarray, sensor: str) -> np.ndarray:
         """Per slot of ``slots``, whether a local track of ``sensor`` that its tracker confirmed (at its latest
         report, :attr:`own_confirmed`: of the rows taken, which hold every local track mapped here) maps to it;
@@ -180,7 +190,7 @@ class CentreLife:
             support = self._fused_support(confirmed)
             alone = ((np.count_nonzero(support, axis=1) == 1) & ~support[:, col] & ~hit[confirmed]).nonzero()[0]
             if alone.size:  # (most reports of an honest scene have none: no predictions made)
-                X, P = self.tracks.states_at(confirmed[alone], report.t)
+                X, P = self._states_at(confirmed[alone], report.t)
                 sees = self._view(X, P, report)[0] & surely_above(self.sites.get(report.sensor), X, P)
                 sees[sees] = ~self._duplicate_beside(confirmed[alone[sees]], support[alone[sees]], report)
                 seen = alone[sees]
@@ -279,7 +289,7 @@ class CentreLife:
         too (the sensor's track mapped to the target's track, which the supporter supports) is still questioned,
         and so is one beside the sensor's newly started tracks (its clutter, one detection)."""
         beside = np.zeros(slots.size, dtype=bool)
-        m, n = self._reach_pairs(*self.tracks.states_at(slots, report.t), report)
+        m, n = self._reach_pairs(*self._states_at(slots, report.t), report)
         updated = report.detected.copy()  # detected by this scan and not started by it: two detections or more
         updated[report.detected.nonzero()[0][report.started]] = False
         keep = report.confirmed[n] | updated[n]
@@ -352,7 +362,7 @@ class CentreLife:
             maybe[one] = self._own_confirmed(slots[one])
         if not maybe.any():
             return maybe
-        X, P = self.tracks.states_at(slots[maybe], report.t)
+        X, P = self._states_at(slots[maybe], report.t)
         inside, below = self._view(X, P, report)
         out = ~inside
         out[out] = ~self._reach(X[out], P[out], report)
@@ -400,7 +410,7 @@ class CentreLife:
         track raised above it as for a tentative one, and a far radar's misses deleted a position sensor's track of
         unknown height again and again: ``calibration/kiruna``, 23 id switches in 30 min), and beyond the reach of
         each of them (none of them may hold its detections)."""
-        X, P = self.tracks.states_at(slots, report.t)
+        X, P = self._states_at(slots, report.t)
         inside, _ = self._view(X, P, report)
         inside &= surely_above(self.sites.get(report.sensor), X, P)
         inside[inside] = ~self._reach(X[inside], P[inside], report)
@@ -442,7 +452,7 @@ class CentreLife:
         asking = self._counted(asking)
         sited = [(c, self.sites[name]) for c, name in enumerate(self.sensor_names) if name in self.sites]
         if sited:
-            X, P = self.tracks.states_at(slots, t)
+            X, P = self._states_at(slots, t)
             for c, site in sited:
                 asking[:, c] &= surely_above(site, X, P)
         return asking.any(axis=1)

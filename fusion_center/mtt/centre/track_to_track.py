@@ -219,6 +219,9 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         # started), one per fused row (an id may repeat; a track deleted since no longer has its id in
         # its slot): the only ones whose latest estimate moved (a region centre checks whether they left it)
         self.moved = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+        # while a report's life rules run (_fuse_rows): its time, its prediction (X, P, at) and the slots it
+        # fused into or started, from which CentreLife._states_at takes the estimates (None otherwise)
+        self.report_states: tuple[float, tuple[np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None
         self.departed = DepartedTracks(self.tracks)  # confirmed tracks deleted, for later pictures
         self.absorbed: set[int] = set()  # tracks whose local tracks moved to another (not departed)
         self.consistency = SensorConsistency(1.0 - cfg.gate_probability)
@@ -593,7 +596,9 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
             resets = Resets(s, t, report.ids[det_rows[rows]], x_post[rows, :d], beta * P_post[rows, :d, :d])
         else:
             resets = no_resets(s, t, d)
+        self.report_states = t, (X, P, at), supported
         self._count_scan(col, supported, report)
+        self.report_states = None
         still_live = tracks.ids[slots] == cid
         self._merge_duplicates(slots[still_live], t, (X, P, at), supported)
         return resets
