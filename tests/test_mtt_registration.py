@@ -280,3 +280,28 @@ def test_repeated_detections_on_the_sensors_schedule_are_tracked(tmp_path: Path,
     assert "mtt-centralized: 0 duplicate scans" in capsys.readouterr().err
     last = json.loads((tmp_path / "p.jsonl").read_text().splitlines()[-1])
     assert sum(track["status"] == "confirmed" for track in last["tracks"]) == 2
+
+
+class Untouchable(np.ndarray):
+    """An observation array the copy test must not read (indexing it fails)."""
+
+    def __getitem__(self, key: object) -> np.ndarray:
+        raise AssertionError("gathered")
+
+
+def test_feed_copies_gather_a_sub_reports_rows_only_to_compare() -> None:
+    """A region's sub-report (its rows ``rows`` of the report's observations): only ``z`` of the rows is gathered
+    while no other sensor reported at the time (``R``, ``H`` and ``started`` are read only to compare, perf60), and
+    a comparison of the rows finds the copy as the rows' own observations do."""
+    rng = np.random.default_rng(6)
+    z = rng.uniform(-5e3, 5e3, (12, 2))
+    rows = np.array([1, 2, 4, 7, 8, 11])
+    full = seen(z)
+    untouchable = Observations(z, *(a.view(Untouchable) for a in full[1:]))
+    assert not FeedCopies(5.0).is_copy("s1", 1.0, untouchable, rows)  # alone at t = 1: nothing compared
+    by_rows, gathered = FeedCopies(5.0), FeedCopies(5.0)
+    for t in (1.0, 2.0, 3.0):
+        for copies, obs, sub in ((by_rows, full, rows), (gathered, seen(z[rows]), None)):
+            assert not copies.is_copy("s1", t, seen(z[rows]))
+            copies.is_copy("s2", t, obs, sub)
+    assert by_rows.copy_of == gathered.copy_of == {"s2": "s1"}

@@ -89,8 +89,8 @@ class CentreLife:
     into it). It relies on the centre's ``cfg``, ``counters``, ``tracks``, ``departed``, ``absorbed``,
     ``mapping``, ``members``, ``local_confirmation``, ``own_confirmed``, ``n_live``, ``feedback``, ``excluded``,
     ``sensor_names``, ``usual``, the per-slot arrays ``support``, ``streak``, ``window``, ``vetting``, ``denied`` and
-    ``last_support``, the per-column ``column_interval`` and ``column_log_miss``, and on its methods ``_unmap`` and
-    ``sensor_lists``."""
+    ``last_support``, the per-column ``column_interval`` and ``column_log_miss``, the report's ``report_states``, and on
+    its methods ``_unmap``, ``sensor_lists`` and ``_states_now``."""
 
     def _states_at(self, slots: np.ndarray, t: float) -> tuple[np.ndarray, np.ndarray]:
         """What :meth:`CentralTracks.states_at` ``t`` gives for ``slots``: while a report's life rules run

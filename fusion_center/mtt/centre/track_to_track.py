@@ -466,9 +466,8 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         """Whether the report's sensor copies another's feed (its observations ``obs_rows`` compared, None:
         all); a copy found now (this sensor, or one whose report at this time came earlier) is forgotten."""
         logged = len(self.copies.found)
-        k = slice(None) if obs_rows is None else obs_rows
-        obs = Observations(report.obs_z[k], report.obs_R[k], report.obs_H[k], report.started[k])
-        copy = self.copies.is_copy(report.sensor, report.t, obs)
+        obs = Observations(report.obs_z, report.obs_R, report.obs_H, report.started)
+        copy = self.copies.is_copy(report.sensor, report.t, obs, obs_rows)
         for found in self.copies.found[logged:]:
             if found.found:
                 self._forget(found.copy)
