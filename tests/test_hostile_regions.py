@@ -13,6 +13,7 @@ import copy
 import time
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -26,6 +27,7 @@ from test_mtt_regions_live import CONFIG as REGIONS_CONFIG
 from fedtrack.deploy.launcher import Launcher
 from fedtrack.deploy.plan import failover_scopes
 from fedtrack.deploy.settings import load_settings
+from fedtrack.fusion_center.mtt import picture_merge
 from fedtrack.fusion_center.mtt.failover import ordered
 from fedtrack.fusion_center.mtt.failover import standby as standby_module
 from fedtrack.fusion_center.mtt.failover.standby import SILENT_S, Standby, claim_instance
@@ -849,3 +851,59 @@ def test_a_restarted_merger_keeps_an_id_with_the_track_shown_under_it(tmp_path: 
     assert all(len(ids) == 1 for ids in per_target), f"ids of A, B, C, D: {per_target}"
     assert [(p.seq, p.t, p.ids, p.x.tobytes()) for p in merged] == [(p.seq, p.t, p.ids, p.x.tobytes()) for p in clean]
     assert merger.counters["id_collision"] > 0 and len(clean) >= 25
+
+
+# ---------------------------------------------------------------- a start of one region's pictures
+
+def merged_after_a_forged_start(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, config: str,
+                                forged: tuple[float, ...] = (), wait_out: bool = False
+                                ) -> tuple[list[tuple[Any, ...]], PictureMergeService]:
+    """``serve picture`` of ``config``'s regions (x0y0 first) on a bus, its clock a fake one: x0y0's pictures at the
+    times ``forged`` first (numbered 10^9 on), then (``wait_out``: 5 s later, the merger ticking every half second,
+    so that they are released and merged alone after ``--wait``) 12 genuine pictures of each region, one period
+    apart, in the order x1y0, ..., x0y0. The merger and its merged pictures' (seq, t, ids, x, contested, missing)."""
+    now = [100.0]
+    monkeypatch.setattr(picture_merge, "time", SimpleNamespace(monotonic=lambda: now[0]))
+    tmp_path.mkdir()
+    (tmp_path / "r.toml").write_text(config)
+    regions = load_regions(tmp_path / "r.toml")
+    assert regions is not None
+    svc = PictureMergeService(regions, 4, 2.0, 1.0, service_id="picture", options=OPTIONS, deployment=KEYS.deployment)
+    bus, keys = Bus([svc]), [KEYS.region_picture(rid) for rid in regions.ids]
+    R = len(keys)
+    for j, t in enumerate(forged):
+        bus.put(keys[0], encode(replace(region_picture(0.0, (0, R), x=7.0), t=t, seq=10**9 + j)))
+    for _ in range(10 if wait_out else 0):
+        now[0] += 0.5
+        svc.on_tick()
+    for k in range(12):
+        for r in [*range(1, R), 0]:
+            bus.put(keys[r], encode(region_picture(float(k), (r, r + R), x=float(k))))
+        now[0] += 1.0
+        svc.on_tick()
+    svc.on_stop()
+    return [(p.seq, p.t, p.ids, p.x.tobytes(), p.contested, p.missing) for p in bus.of(TrackPicture)], svc
+
+
+@pytest.mark.parametrize("config", [THREE_REGIONS, REGIONS_CONFIG], ids=["3 regions", "2 regions"])
+@pytest.mark.parametrize(("forged", "wait_out"), [((1e9, 1e9 + 1.0), False), ((1e9,), True), ((1e9, 1e9 + 1.0), True),
+                                                  ((-1e12, -1e12 + 1.0), False), ((-1e12,), True)])
+def test_a_start_of_one_regions_pictures_is_abandoned_when_two_regions_agree_against_it(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, config: str, forged: tuple[float, ...],
+        wait_out: bool) -> None:
+    """x0y0's identity sending first two pictures that agree with each other (10^9 s ahead, or 10^12 s before the
+    data), or one more than ``--wait`` before any other region's (released alone: a region's first picture starts),
+    set the merger's start (lead.py, the start): 10^9 ahead, the genuine pictures came behind it and, once the forged
+    one was merged after ``--wait``, every one was late (``conflict``): 0 to 2 of 12 merged pictures the clean
+    run's; 10^12 before, 1 or 2 forged pictures merged and every genuine one numbered from them: 0 of 12. The
+    merger now abandons a start of one region's pictures when two regions' pictures agree against it, more than
+    ``max_time_jump_s`` away (lead.SoleStart, as serve mtt-centre): its state put back as before its first picture,
+    every genuine picture merged as in the clean run (those merged from the forged start before, when the genuine
+    ones came after ``--wait``, stay published)."""
+    clean, _ = merged_after_a_forged_start(tmp_path / "clean", monkeypatch, config)
+    attacked, merger = merged_after_a_forged_start(tmp_path / "attacked", monkeypatch, config, forged, wait_out)
+    extra = len(attacked) - len(clean)
+    assert attacked[extra:] == clean and len(clean) == 12
+    assert [p[1] for p in attacked[:extra]] == list(forged)[:extra]
+    assert merger.counters["start_abandoned"] == 1
+    assert merger.counters["rejected"] == 1  # the first genuine picture held against the start, then taken again

@@ -63,8 +63,8 @@ them; those more than ``start_gap`` before it are dropped, counted in ``behind``
 ``dropped``. ``start_gap`` is the deployment's bound on a plausible gap between two scans
 (``max_time_jump_s``, 3,600 s: a tracker predicts over no longer), so honest data agrees at its second
 message. One message cannot set the start; two of one identity that agree with each other, sent before any
-honest one, still can (and a lone region's, at ``serve picture``); at ``serve mtt-centre`` such a start is abandoned
-when two other sensors agree against it (:class:`SoleStart`, below).
+honest one, still can (and a lone region's, at ``serve picture``); at ``serve mtt-centre`` and ``serve picture``
+such a start is abandoned when two other sensors (regions) agree against it (:class:`SoleStart`, below).
 
 **The start at a one-sensor tracker** (:class:`LoneStart`: ``serve local-filter`` (the radar one too, since the
 redteam63 session: its first scan numbered 50 ahead left 0 of 39 estimates), ``imm``, ``hpda`` on scan numbers,
@@ -95,6 +95,11 @@ abandoned only when two other sensors agree on a time more than ``max_time_jump_
 predicts over. A message of another sensor taken ends the rule, so honest data never meets it. At most HELD_MAX
 messages and HELD_BYTES are held (the oldest dropped, counted as above). With two sensors, one of them the liar,
 nothing tells the two apart and the first start stands.
+
+``serve picture`` (since the redteam64 session) keeps one with regions for sensors, on two or more regions: a region's
+identity sending first two pictures that agree, or one released alone after ``--wait``, at 10^9 s (or -10^12 s) left
+0 of 12 merged pictures the clean run's; its state (what taking a picture changes) is put back as before its first
+picture (docs/multitarget.md, "The start of one region at the merger").
 
 ``serve mtt-centre`` (each region centre too) uses it live where a witness can come: ``[mtt] sensors`` lists two
 or more sensors or is ``"any"`` (one listed: the first message is taken as it comes). A sensor configured but not

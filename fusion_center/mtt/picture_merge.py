@@ -16,7 +16,9 @@ lost it: counted ``missing_region`` and the picture ``contested``) or its closin
 live centre (none of its centres, primary or standby, holds its token ``alive/mtt-region/<rid>/*``:
 counted ``missing_region`` and ``no_centre``, not waited for; a region that publishes while none of its
 tokens shows is waited for until one does; the first pictures wait until two regions with a live centre
-have sent one, and go through the lead guard in time order: :meth:`PictureMergeService._admit`); after
+have sent one, and go through the lead guard in time order: :meth:`PictureMergeService._admit`; a start of one
+region's pictures is abandoned when two regions' pictures agree against it, more than ``max_time_jump_s`` away:
+:meth:`PictureMergeService._against`, ``start_abandoned``); after
 ``--wait`` seconds (from the first region's picture of that time) without one, it is merged without
 that region: counted ``missing_region``, logged, and the picture marked ``contested`` when the region had
 published before. The merged picture names the regions it lacks (``missing``). A region centre's first
@@ -62,6 +64,7 @@ hold stays with the track shown under it (since the redteam63 session).
 
 from __future__ import annotations
 
+import pickle
 import time
 from collections import deque
 from functools import partial
@@ -94,7 +97,8 @@ from fedtrack.services.base import (
     service_kwargs,
     service_parser,
 )
-from fedtrack.services.lead import LeadGuard
+from fedtrack.services.dispatch import held_bytes
+from fedtrack.services.lead import LeadGuard, SoleStart
 from fedtrack.services.rejections import Conflict, Rejected
 from fedtrack.services.snapshot import MAX_SNAPSHOT_BYTES, unsealed, write_sealed
 from fedtrack.wire import TrackPicture
@@ -173,7 +177,11 @@ class PictureMergeService(Service):
     tick_period_s = 0.05
     state_attrs = ("pending", "started", "closing", "late", "merged_t", "shown", "seq", "clock", "lead", "latest",
                    "contested", "seen", "settle_until", "settling", "first", "first_at", "earliest", "uncovered",
-                   "closed", "tokenless")
+                   "closed", "tokenless", "sole")
+    # what a merger abandoning a start of one region's pictures puts back as before its first picture (SoleStart):
+    # what taking a picture changes, but the pictures published (``seq``) and the regions heard from (``started``)
+    start_attrs = ("pending", "late", "merged_t", "shown", "clock", "lead", "latest", "seen", "earliest", "first_seen",
+                   "sole")
 
     def __init__(self, regions: Regions, dim: int, wait_s: float, period: float, frame: Frame | None = None,
                  window: int | None = None, snapshot: Path | None = None, gate: float | None = None,
@@ -212,6 +220,10 @@ class PictureMergeService(Service):
         # ... and the first pictures until two agree within start_gap ([deployment] max_time_jump_s)
         self.lead: LeadGuard[TrackPicture] = LeadGuard(max_lag=0.0, usual=dict.fromkeys(regions.ids, period),
                                                        start_gap=start_gap)
+        # ... and a start of one region's pictures, abandoned when two regions' pictures agree against it (one region:
+        # none can; lead.SoleStart, as at serve mtt-centre)
+        self.sole: SoleStart[tuple[int, TrackPicture]] = SoleStart(start_gap, ended=len(regions.ids) < 2)
+        self.fresh: bytes | None = None  # the start_attrs before the first picture went through the lead guard
         # each region's centres' tokens (region_centre), once watched (token_watches; a Zenoh thread's)
         self.centres: dict[str, Peers] | None = None
         self.uncovered: frozenset[int] = frozenset()  # the regions last found without a live centre (logged)
@@ -317,6 +329,8 @@ class PictureMergeService(Service):
         region's identity sending first a picture stamped 10^9 s ahead made it a region that started later,
         and every genuine picture of it was refused (before the redteam59 session)."""
         if self.lead.newest is None:
+            if self.fresh is None:  # after on_start (the snapshot's ids shown), before the first picture
+                self.fresh = pickle.dumps(tuple(getattr(self, a) for a in self.start_attrs))
             self.first.append((r, msg))
             self.first_at = time.monotonic() if self.first_at is None else self.first_at
             covered = len(self.regions.ids) - len(self._uncovered(time.monotonic()))
@@ -334,10 +348,45 @@ class PictureMergeService(Service):
             self._guarded(r, msg)
 
     def _guarded(self, r: int, msg: TrackPicture) -> None:
-        """Region ``r``'s picture, and those it witnesses, through the lead guard (:meth:`_take`)."""
+        """Region ``r``'s picture, and those it witnesses, through the lead guard (:meth:`_take`); one that
+        contradicts a start of one region's pictures is held instead (:meth:`_against`). The first pictures the
+        start passed over (more than ``start_gap`` from it: counted by the lead guard) contradict it too: held."""
         rid = self.regions.ids[r]
-        for region, picture in self.in_time(self.lead, self.keys.region_picture(rid), msg, rid, (r, msg)):
+        if self.sole.contradicts(msg.t):
+            self._against(r, msg)
+            return
+        first = self.lead.first
+        released = self.in_time(self.lead, self.keys.region_picture(rid), msg, rid, (r, msg))
+        for region, picture in released:
             self._take(region, picture)
+        if released and first and not self.lead.first:  # the start: the first pictures not taken were dropped
+            for _, _, (q, picture), _ in first:
+                if not any(picture is p for _, p in released) and self.sole.contradicts(picture.t):
+                    self._against(q, picture, counted=True)
+
+    def _against(self, r: int, msg: TrackPicture, counted: bool = False) -> None:
+        """Region ``r``'s picture contradicts a start of one region's pictures (:class:`SoleStart`): held, counted
+        ``rejected_time_behind`` or ``rejected_time_lead`` (unless ``counted``); or, when a held one of another
+        region agrees with it, the start abandoned (``start_abandoned``): the merger's state as before its first
+        picture, then the held pictures near it and it taken again (the start rule: they agree)."""
+        rid = self.regions.ids[r]
+        again = self.sole.contradicted(rid, msg.t, (r, msg), held_bytes(msg))
+        if not again:
+            if not counted:
+                assert self.sole.span is not None
+                self.note_rejected(self.keys.region_picture(rid), Rejected(
+                    "time_behind" if msg.t < self.sole.span[0] else "time_lead",
+                    f"region {rid}'s picture at t={msg.t:g}, more than max_time_jump_s from the start, every picture "
+                    f"taken region {self.sole.sensor}'s (held: lead.SoleStart)"))
+            return
+        self.count("start_abandoned")
+        self.log.warning("region %s's picture at t=%g and another region's agree against the start, every picture "
+                         "taken region %s's: started again from them (lead.SoleStart)", rid, msg.t, self.sole.sensor)
+        assert self.fresh is not None  # a start was taken
+        for name, value in zip(self.start_attrs, pickle.loads(self.fresh)):
+            setattr(self, name, value)
+        for q, picture in again:
+            self._guarded(q, picture)
 
     def _take(self, r: int, msg: TrackPicture) -> None:
         """Queue region ``r``'s picture for its time, or count it late when that time was merged. A
@@ -370,6 +419,7 @@ class PictureMergeService(Service):
             self.latest[r] = msg
         self.earliest[r] = min(self.earliest[r], msg.t)
         self.lead.took(self.regions.ids[r], msg.t)
+        self.sole.took(self.regions.ids[r], msg.t)
         if self.clock.first is None:  # a merger started again numbers on from the last one's numbers
             self.clock.numbered(msg.seq, msg.t)
         if self.resumed_t is not None and msg.t <= self.resumed_t:  # the last merger published that time
