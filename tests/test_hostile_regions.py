@@ -894,8 +894,8 @@ def test_a_start_of_one_regions_pictures_is_abandoned_when_two_regions_agree_aga
     """x0y0's identity sending first two pictures that agree with each other (10^9 s ahead, or 10^12 s before the
     data), or one more than ``--wait`` before any other region's (released alone: a region's first picture starts),
     set the merger's start (lead.py, the start): 10^9 ahead, the genuine pictures came behind it and, once the forged
-    one was merged after ``--wait``, every one was late (``conflict``): 0 to 2 of 12 merged pictures the clean
-    run's; 10^12 before, 1 or 2 forged pictures merged and every genuine one numbered from them: 0 of 12. The
+    one was merged after ``--wait``, every one was late (``conflict``): 2 to 5 merged, 0 of 12 the clean run's;
+    10^12 before, 1 or 2 forged pictures merged and every genuine one numbered from them: 0 of 12. The
     merger now abandons a start of one region's pictures when two regions' pictures agree against it, more than
     ``max_time_jump_s`` away (lead.SoleStart, as serve mtt-centre): its state put back as before its first picture,
     every genuine picture merged as in the clean run (those merged from the forged start before, when the genuine
