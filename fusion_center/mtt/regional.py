@@ -47,7 +47,7 @@ from fedtrack.local_filters.regions import Regions
 
 class RegionPicture(NamedTuple):
     """A region centre's picture: the tracks it holds, and copies of the ones it handed over within
-    ``IN_FLIGHT_PERIODS`` picture periods before (``flying``, each with the latest data time the
+    ``[mtt] unsupported_s`` of data time before (``flying``, each with the latest data time the
     centre had seen at its hand-over: reports from several sensors come out of time order), shown
     in the merged picture while no region shows the track as its own."""
 
@@ -56,12 +56,13 @@ class RegionPicture(NamedTuple):
     flying_t: tuple[float, ...] = ()
 
 
-# A handed-over track's copy is shown by its old owner for pictures up to this many periods after the
-# hand-over: a picture made by the old owner after it and by the new owner before the track arrived
-# (each makes a picture when the first data after its time arrives) still shows it. The new owner
-# takes it over milliseconds after, so two periods cover it; a track deleted by its new owner right
-# after a hand-over is shown that long at most.
-IN_FLIGHT_PERIODS = 2.0
+# A handed-over track's copy is shown by its old owner for pictures up to ``[mtt] unsupported_s`` of data time
+# after the hand-over: a picture made by the old owner after it and by the new owner before the track arrived (each
+# makes a picture when the first data after its time arrives) still shows it. The record and the reports travel on
+# different keys, so under load it may arrive several reports late (flake60: after 2.6 s, when the copy was kept two
+# periods, and one merged picture lacked the track); the trackers await the new owner for ``unsupported_s``
+# (``RegionRouter.wait_s``), the new owner would delete the track as unsupported by then anyway, so the copy is kept
+# as long. The merger shows a copy only while no region shows the track as its own.
 
 
 @dataclass
@@ -118,9 +119,9 @@ class RegionEngine(Engine):
 
     def region_picture(self, T: float) -> RegionPicture:
         """The held tracks and the copies still shown (those handed over within
-        ``IN_FLIGHT_PERIODS`` periods before ``T``, not held here again) predicted to ``T``."""
+        ``unsupported_s`` before ``T``, not held here again) predicted to ``T``."""
         for cid, t in list(self.handed_t.items()):
-            if T >= t + IN_FLIGHT_PERIODS * self.cfg.period:
+            if T >= t + self.cfg.unsupported_s:
                 self.shadow.hand_over(cid)
                 del self.handed_t[cid]
         held = self.picture(T)
