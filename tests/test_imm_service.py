@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from support import WAIT_S, free_port, wait_until
+from support import WAIT_S, feed, free_port, wait_until
 
 from fedtrack.keys import Keys
 from fedtrack.local_filters.imm.config import IMMConfig
@@ -44,13 +44,13 @@ def test_service_tracks_like_the_replay_tracker():
         ref = IMMTracker(IMMConfig(), "ao-vsimm")
         expected = []
         for k in range(40):
-            session.put(keys.sensor_meas("radar-1"), encode(Measurement(
+            feed(session, keys.sensor_meas("radar-1"), encode(Measurement(
                 sensor="radar-1", seq=k, t=float(k + 1), kind="position", z=truth.z[0, k], R=R)))
             expected.append(ref.update(float(k + 1), truth.z[0, k], R))
         # skipped: another dimension, an older time
-        session.put(keys.sensor_meas("radar-1"), encode(Measurement(
+        feed(session, keys.sensor_meas("radar-1"), encode(Measurement(
             sensor="radar-1", seq=98, t=50.0, kind="position", z=np.zeros(3), R=np.eye(3))))
-        session.put(keys.sensor_meas("radar-1"), encode(Measurement(
+        feed(session, keys.sensor_meas("radar-1"), encode(Measurement(
             sensor="radar-1", seq=99, t=2.0, kind="position", z=np.zeros(2), R=R)))
         assert wait_until(lambda: service.counters.get("out_of_order", 0) == 1)
         assert wait_until(lambda: len(tracks) >= 40)  # tracks arrive here asynchronously
@@ -112,7 +112,7 @@ def test_the_recorder_stores_the_trackers_tracks_and_export_writes_them(tmp_path
         assert wait_alive(session, [keys.alive("imm", "imm-1"), keys.alive("recorder", "rec")], WAIT_S) == set()
         truth = simulate("S1", 1, np.random.default_rng(5), steps=10)
         for k in range(10):
-            session.put(keys.sensor_meas("radar-1"), encode(Measurement(
+            feed(session, keys.sensor_meas("radar-1"), encode(Measurement(
                 sensor="radar-1", seq=k, t=float(k + 1), kind="position", z=truth.z[0, k], R=400.0 * np.eye(2))))
         assert wait_until(lambda: len(tracks) == 10 and recorder.counters.get("tracker_tracks_recorded") == 10)
     finally:

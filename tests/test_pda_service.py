@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from support import WAIT_S, free_port, wait_until
+from support import WAIT_S, feed, free_port, wait_until
 
 from fedtrack.cli import main
 from fedtrack.keys import Keys
@@ -38,9 +38,9 @@ def test_service_confirms_the_sonar_target() -> None:
         lines = list(sonar_scans(cfg, 4))[:10]
         for seq, line in enumerate(lines):
             truth[line["t"]] = np.array(line.pop("truth"))[[0, 3]]
-            session.put(keys.sensor_meas("sonar1"), encode(measurement_from_replay(line, "test", seq)))
+            feed(session, keys.sensor_meas("sonar1"), encode(measurement_from_replay(line, "test", seq)))
         position = Measurement(sensor="sonar1", seq=99, t=1e6, kind="position", z=np.zeros(2), R=np.eye(2))
-        session.put(keys.sensor_meas("sonar1"), encode(position))
+        feed(session, keys.sensor_meas("sonar1"), encode(position))
         assert wait_until(lambda: service.counters.get("unsupported", 0) == 1)
         assert wait_until(lambda: service.counters["received"] == len(lines) + 1)
         # tracks reach this subscriber asynchronously: wait for the last scan's, not just the input count

@@ -16,7 +16,7 @@ import pytest
 import zenoh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from support import WAIT_S, free_port, wait_until
+from support import WAIT_S, feed, free_port, wait_until
 
 from fedtrack import wire
 from fedtrack.jsonl import InputError
@@ -270,10 +270,10 @@ def test_a_service_publishes_parts_and_a_subscriber_gets_the_message_once_whole(
     scan = make_scan(7, 2)
     with deployment(collector, splitter) as session:
         keys = Keys("parts")
-        session.put(keys.fusion_track(), encode(FusedTrack(seq=1, t=1.0, model="cv", x=np.zeros(4), P=np.eye(4),
+        feed(session, keys.fusion_track(), encode(FusedTrack(seq=1, t=1.0, model="cv", x=np.zeros(4), P=np.eye(4),
                                                            maneuver=False, degraded=False, sensors=(), stamp_ns=1)))
         for payload in reversed(payloads(scan)):  # any order
-            session.put(keys.sensor_meas("s3"), payload)
+            feed(session, keys.sensor_meas("s3"), payload)
         assert wait_until(lambda: len(collector.pictures) == 1 and len(collector.scans) == 1)
         time.sleep(0.3)  # nothing more comes
         assert len(collector.pictures) == 1 and len(collector.scans) == 1
@@ -356,13 +356,13 @@ def test_the_recorder_stores_each_part_and_gives_the_picture_whole(tmp_path: Pat
     scan = make_scan(7, 2)
     with deployment(recorder, splitter) as session:
         keys = Keys("parts")
-        session.put(keys.fusion_track(), encode(FusedTrack(seq=1, t=1.0, model="cv", x=np.zeros(4), P=np.eye(4),
+        feed(session, keys.fusion_track(), encode(FusedTrack(seq=1, t=1.0, model="cv", x=np.zeros(4), P=np.eye(4),
                                                            maneuver=False, degraded=False, sensors=(), stamp_ns=1)))
         for payload in payloads(scan):
-            session.put(keys.sensor_meas("s3"), payload)
+            feed(session, keys.sensor_meas("s3"), payload)
         lone = payloads(replaced(make_scan(7, 3), seq=8))[0]  # a scan whose other parts never come
-        session.put(keys.sensor_meas("s3"), lone)
-        session.put(keys.sensor_meas("s3"), lone)
+        feed(session, keys.sensor_meas("s3"), lone)
+        feed(session, keys.sensor_meas("s3"), lone)
         assert wait_until(lambda: recorder.counters.get("pictures_recorded") == 4
                           and recorder.counters.get("measurements_recorded") == 4)
         assert wait_until(lambda: recorder.counters.get("duplicate") == 1)

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import pytest
 import zenoh
-from support import WAIT_S, free_port, wait_until
+from support import WAIT_S, feed, free_port, wait_until
 
 from fedtrack.fusion_center.mtt.pictures import picture_window
 from fedtrack.fusion_center.mtt.service import MttCentreService
@@ -135,10 +135,10 @@ def test_router_and_recorder_processes(tmp_path: Path) -> None:
         assert len(encode(sonar)) > 3072  # large enough for zenoh's shared-memory path (disabled)
         track = FusedTrack(seq=0, t=0.0, model="cv", x=np.ones(4), P=np.eye(4), maneuver=False, degraded=True,
                            sensors=("a",), stamp_ns=5, extra={"existence": 0.5})
-        session.put(keys.sensor_meas("a"), encode(measurement("a", 1)))  # seq 1 before seq 0: reordered
-        session.put(keys.sensor_meas("a"), b"\x93not a message")
-        session.put(keys.sensor_meas("b"), encode(sonar))
-        session.put(keys.fusion_track(), encode(track))
+        feed(session, keys.sensor_meas("a"), encode(measurement("a", 1)))  # seq 1 before seq 0: reordered
+        feed(session, keys.sensor_meas("a"), b"\x93not a message")
+        feed(session, keys.sensor_meas("b"), encode(sonar))
+        feed(session, keys.fusion_track(), encode(track))
         assert wait_until(lambda: bool(health) and health[-1].counters["received"] == 3
                           and health[-1].counters["rejected"] == 1), f"health: {health[-1:]}"
 
@@ -241,7 +241,7 @@ def test_service_handlers_queryable_ticks_and_a_failing_handler() -> None:
         events, _sub = collect(session, keys.fusion_event(), ManeuverEvent)
         assert wait_alive(session, [keys.alive("echo", "e1")], WAIT_S) == set()
         assert query_state(session, keys) == []  # handler returned None: no reply
-        session.put(keys.sensor_meas("s1"), encode(measurement("s1", 3, stamp_ns=42)))
+        feed(session, keys.sensor_meas("s1"), encode(measurement("s1", 3, stamp_ns=42)))
         assert wait_until(lambda: len(events) == 1)
         assert events[0].seq == 3 and events[0].u.tolist() == [3.0, -1.0]
         state = query_state(session, keys)
@@ -249,11 +249,11 @@ def test_service_handlers_queryable_ticks_and_a_failing_handler() -> None:
         assert service.counters["published"] == 1 and service.counters["received"] == 1
         assert wait_until(lambda: service.ticks > 0)
 
-        session.put(keys.sensor_meas("s1"), encode(measurement("s1", 99)))
+        feed(session, keys.sensor_meas("s1"), encode(measurement("s1", 99)))
         # a handler error rejects the message (counted, logged), undoes its changes, and the service goes on
         assert wait_until(lambda: service.counters.get("rejected_handler_error") == 1)
         assert service.last is not None and service.last.seq == 3 and service.counters["rejected"] == 1
-        session.put(keys.sensor_meas("s1"), encode(measurement("s1", 4)))
+        feed(session, keys.sensor_meas("s1"), encode(measurement("s1", 4)))
         assert wait_until(lambda: len(events) == 2) and events[1].seq == 4
         assert alive_keys(session, keys.alive("echo", "e1")) and not code
     finally:
@@ -319,7 +319,7 @@ def test_plain_outputs_are_published_without_a_cache() -> None:
     with served(lambda options: PlainEcho(service_id="p1", options=options, deployment="t5")) as (session, service):
         live, _sub = collect(session, keys.fusion_event(), ManeuverEvent)
         for seq in (1, 2):
-            session.put(keys.sensor_meas("s1"), encode(measurement("s1", seq)))
+            feed(session, keys.sensor_meas("s1"), encode(measurement("s1", seq)))
         assert wait_until(lambda: len(live) == 2 and service.counters["published"] == 4)
         late = late_history(session, keys.fusion_track().rsplit("/", 1)[0] + "/*", lambda s: str(s.key_expr))
         assert late.count(keys.fusion_track()) == 2 and keys.fusion_event() not in late
@@ -348,11 +348,11 @@ def test_a_cache_outgrown_by_its_messages_keeps_about_cache_bytes_of_the_latest(
     monkeypatch.setattr(publishing, "MIN_CACHE_SAMPLES", 3)
     keys = Keys("t6")
     with served(lambda options: Grower(service_id="g1", options=options, deployment="t6")) as (session, service):
-        session.put(keys.sensor_meas("s1"), encode(measurement("s1", 0)))  # an empty scan: a deep cache
+        feed(session, keys.sensor_meas("s1"), encode(measurement("s1", 0)))  # an empty scan: a deep cache
         assert wait_until(lambda: keys.sensor_meas("g") in service._publishers)
         small = service._publishers[keys.sensor_meas("g")][1]
         for seq in range(5, 11):  # 500-1,000 detections: about 20-40 kB each
-            session.put(keys.sensor_meas("s1"), encode(measurement("s1", seq)))
+            feed(session, keys.sensor_meas("s1"), encode(measurement("s1", seq)))
         assert wait_until(lambda: service.last is not None and service.last.seq == 10)  # type: ignore[attr-defined]
         depth = service._publishers[keys.sensor_meas("g")][1]
         assert small > 2 * depth and depth == 3  # 40 kB of 20-40 kB scans: the floor
@@ -387,7 +387,7 @@ def test_a_region_centre_keeps_its_last_picture_window_of_pictures() -> None:
         service: RegionPictures = svc  # type: ignore[assignment]
         def upto(seqs: range) -> list[tuple[int, int]]:
             for seq in seqs:
-                session.put(keys.sensor_meas("s1"), encode(measurement("s1", seq)))
+                feed(session, keys.sensor_meas("s1"), encode(measurement("s1", seq)))
             assert wait_until(lambda: service.last is not None and service.last.seq == seqs[-1])
             return late_history(session, keys.region_picture("x0y0"),
                                 lambda s: (decode(s.payload.to_bytes(), TrackPicture), len(s.payload.to_bytes())))
@@ -452,7 +452,7 @@ def test_service_stop_is_clean_and_publishes_final_health() -> None:
     thread, code = run_in_thread(service)
     try:
         assert wait_alive(session, [keys.alive("echo", "e2")], WAIT_S) == set()
-        session.put(keys.sensor_meas("s1"), encode(measurement("s1", 1))[:-3])  # truncated payload
+        feed(session, keys.sensor_meas("s1"), encode(measurement("s1", 1))[:-3])  # truncated payload
         assert wait_until(lambda: service.counters["rejected"] == 1)
         service.stop()
         thread.join(WAIT_S)
