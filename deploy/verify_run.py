@@ -9,8 +9,8 @@ prints a JSON verdict. Exit code 0 when the run is complete and matches the repl
 With ``[multitarget]`` in the config (a live multi-target deployment) the replay is ``fedtrack
 replay --algorithm <[multitarget] algorithm>``, with ``--regions config`` when the config has
 ``[regions]``, and the verdict compares every picture: the same times, ids, statuses and
-sensors, states and covariances to ``TOLERANCE`` (relative, as above: :func:`scaled_diff`). ``--algorithm mtt-*`` does the
-same for a config without ``[multitarget]`` (the services started by hand, ``serve mtt-centre --algorithm``);
+sensors, states and covariances to ``TOLERANCE`` (relative, as above: :func:`scaled_diff`). ``--algorithm mtt-*``
+does the same for a config without ``[multitarget]`` (the services started by hand, ``serve mtt-centre --algorithm``);
 a run of pictures checked without either is refused in one line saying so (before the tour58 session the
 paper replay read the scans and said ``unknown field 'detections'``).
 
