@@ -32,8 +32,6 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from fedtrack.config import ConfigError, load_toml, parse_dataclass, seed_number, to_toml
 from fedtrack.deploy.launcher import (
     LaunchError,
@@ -46,13 +44,14 @@ from fedtrack.deploy.report import finish, unrecorded
 from fedtrack.deploy.security import ZenohSettings
 from fedtrack.deploy.settings import MultitargetSettings, Settings
 from fedtrack.deployment import MODES, DeploymentConfig, SensorConfig, port_in_use
-from fedtrack.geodetic import FrameConfig, median_lon
+from fedtrack.geodetic import FrameConfig
 from fedtrack.jsonl import InputError, check_output_folder, output_folder
 from fedtrack.local_filters.mtt.config import MttConfig, SensorOverride
 from fedtrack.local_filters.vdie.config import FusionConfig
 from fedtrack.sensors.multitarget import Scenario, clutter_density, parse_spec
 from fedtrack.sensors.scenarios import DEFAULT_R
 from fedtrack.sensors.state_vectors import UNITS, read_recording
+from fedtrack.sensors.traffic import window_origin
 
 MULTITARGET_SPEED = 5.0  # the live multi-target demo runs at 5x real time
 # the live recorded-traffic demo: 600 s of the committed Paris extract at 10x real time (docs/geodetic.md)
@@ -116,8 +115,9 @@ def multitarget_settings(mode: str, seed: int, port: int, out: Path, tls_dir: Pa
 def traffic_settings(source: Path | None, mode: str, seed: int, port: int, out: Path,
                      tls_dir: Path | None = None, units: str = "si") -> Settings:
     """A live deployment on recorded air traffic: without ``source``, the committed Paris extract with
-    two radars and a position sensor (docs/geodetic.md); with it, the recording's median position as
-    the origin and radars on the box's edge. The tracker keys are the ones ``simulate traffic`` derives,
+    two radars and a position sensor (docs/geodetic.md); with it, the median position of the recording's
+    airborne samples in the demo's window as the origin (:func:`~fedtrack.sensors.traffic.window_origin`) and radars
+    on the box's edge. The tracker keys are the ones ``simulate traffic`` derives,
     simulated here first (the launch simulates the same again into ``OUT/scenario``; ``tls_dir``: see
     :func:`transport`)."""
     if source is None:
@@ -127,7 +127,7 @@ def traffic_settings(source: Path | None, mode: str, seed: int, port: int, out: 
                              "tests/data/); give --source FILE")
     else:
         rec = read_recording(source, units)
-        origin = (float(np.median(rec.lla[:, 0])), median_lon(rec.lla[:, 1]), 0.0)
+        origin = tuple(window_origin(rec, TRAFFIC_START, TRAFFIC_DURATION))
         sensors = "radar:4,radar:5,pos:2"
     mt = MultitargetSettings(algorithm=f"mtt-{mode}", sensors=sensors, duration=TRAFFIC_DURATION, source=str(source),
                              origin=origin, box=TRAFFIC_BOX, start=TRAFFIC_START, units=units)

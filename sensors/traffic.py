@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from fedtrack.config import seed_number
-from fedtrack.geodetic import Frame, geodetic_error, wrap_lon
+from fedtrack.geodetic import Frame, gaussian_radius, geodetic_error, ground_angle, median_lon, wrap_lon
 from fedtrack.jsonl import InputError, check_output_folder
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.sensors.multitarget import (
@@ -134,7 +134,8 @@ def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, star
                          f"{frame.lat:g}, {frame.lon:g}; window {window}); the recording's airborne samples span "
                          f"{float(rec.t.max()) - t0:g} s, latitudes {rec.lla[:, 0].min():g} to "
                          f"{rec.lla[:, 0].max():g}, longitudes {rec.lla[:, 1].min():g} to {rec.lla[:, 1].max():g}"
-                         f"{_single(truth.dropped, max_gap)}move --origin, widen --box or change --start / --duration")
+                         f"{_centre(rec, frame, start, duration)}{_single(truth.dropped, max_gap)}move --origin, widen "
+                         "--box or change --start / --duration")
     # the site check's aircraft: the truth's highest (before 2026-11-28 the recording's, glitches included: an
     # altitude decoded 20 km high widened every radar's reach by 400 km; docs/geodetic.md)
     sensors = parse_sensors(spec, frame, box, rng, truth.highest)
@@ -174,6 +175,14 @@ def truth_row(frame: Frame, truth: Truth, second: int, dims: list[int]) -> dict[
     return {"t": float(second), "targets": targets}
 
 
+def _centre(rec: Recording, frame: Frame, start: float, duration: float | None) -> str:
+    """Where the error for a window without truth says the window's aircraft are: the origin ``--origin`` defaults
+    to (:func:`window_origin`) and its distance from the one given."""
+    centre = window_origin(rec, start, duration)
+    far = ground_angle(frame.lat, frame.lon, centre.lat, centre.lon) * gaussian_radius(frame.lat) / 1e3
+    return f"; the window's median position is {centre.lat:.4f}, {centre.lon:.4f}, {far:.0f} km from the origin"
+
+
 def _single(dropped: dict[str, int], max_gap: float) -> str:
     """What the error for a window without truth adds when ``--max-gap`` cut tracks to one sample each (a
     gap shorter than the recording's sampling interval: the box and window were not the cause)."""
@@ -186,6 +195,20 @@ def read_line(source: Path, info: dict[str, Any]) -> str:
     """What :func:`simulate` read of ``source`` and left out, by reason (nothing is left out silently)."""
     left_out = ", ".join(f"{n} {why}" for why, n in info["dropped"].items() if n) or "none"
     return f"read {source}: {info['rows']} rows; left out: {left_out}"
+
+
+def window_origin(rec: Recording, start: float = 0.0, duration: float | None = None) -> Frame:
+    """The median position of the recording's airborne samples within the window (``start`` to ``start + duration``
+    s after its first sample; the whole recording when the window holds none), at h = 0: the origin where the
+    window's aircraft are. The longitudes' median is about their circular mean (:func:`~fedtrack.geodetic.median_lon`:
+    a scene across the antimeridian is centred on it). The whole recording's median can be far from them: the
+    traffic package's multi-day and long-haul samples put it 85-1,900 km from the aircraft of the demo's window
+    (``featured/elal747`` 1,730 km), and ``demo --scenario traffic --source`` was refused on 20 of them
+    (docs/geodetic.md)."""
+    since = rec.t - rec.t.min()
+    inside = (since >= start) & (since <= start + (math.inf if duration is None else duration))
+    lla = rec.lla[inside] if inside.any() else rec.lla
+    return Frame(float(np.median(lla[:, 0])), median_lon(lla[:, 1]), 0.0)
 
 
 def _origin(text: str) -> Frame:
@@ -220,8 +243,9 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--source", required=True, type=Path, help="recorded state vectors (.csv, .json, .jsonl, "
                         ".parquet; .csv, .json and .jsonl may be gzipped; .json: pandas' to_json, as the traffic "
                         "package's samples)")
-    parser.add_argument("--origin", required=True, help="LAT,LON[,H]: the common frame's origin (deg, deg, m; "
-                        "south and west negative, e.g. -33.9,151.2)")
+    parser.add_argument("--origin", help="LAT,LON[,H]: the common frame's origin (deg, deg, m; south and west "
+                        "negative, e.g. -33.9,151.2; default: the median position of the window's airborne samples, "
+                        "h 0)")
     parser.add_argument("--sensors", default="radar:4,radar:5,pos:2",
                         help="comma-separated KIND:PERIOD[@LAT/LON/H] (below; default radar:4,radar:5,pos:2)")
     parser.add_argument("--seed", type=seed_number, default=1, help="seed of the sensors' noise, detections, clutter, "
@@ -252,8 +276,11 @@ def main(argv: list[str]) -> int:
                          ("max-gap", args.max_gap is None or args.max_gap > 0, "> 0"),
                          ("start", 0 <= args.start < math.inf, "finite and >= 0")))
     check_output_folder(args.out)  # created once the data is read and the sensors parsed
-    frame = _origin(args.origin)
+    frame = None if args.origin is None else _origin(args.origin)
     rec = read_recording(args.source, args.units)
+    if frame is None:
+        frame = window_origin(rec, args.start, args.duration)
+        print(f"origin {frame.lat:.6f},{frame.lon:.6f}: the median position of the window's airborne samples")
     info = simulate(rec, frame, args.sensors, args.seed, args.out, args.start, args.duration, args.box * 1e3,
                     args.max_gap, args.pd, args.clutter, args.late, args.nacp)
     print(read_line(args.source, info))

@@ -284,6 +284,54 @@ def test_demo_and_launch_read_a_recording_in_aviation_units(tmp_path: Path) -> N
     assert main(["launch", str(config), "--out", str(tmp_path / "o")]) == 2
 
 
+def _long_haul(tmp_path: Path) -> tuple[Path, np.ndarray]:
+    """One aircraft flying due north at 200 m/s for two hours, a sample every 10 s (1,440 km, as the traffic
+    package's long-haul samples), gzipped pandas JSON in ft and kt; and its latitudes."""
+    lat = 40.0 + 0.018 * np.arange(720)  # 2,001 m a sample
+    rows = [{"timestamp": T0_MS + 10_000 * i, "icao24": "3c6444", "latitude": round(float(la), 6), "longitude": 10.0,
+             "altitude": 30000.0, "groundspeed": 389.0, "track": 0.0, "vertical_rate": 0.0, "onground": False}
+            for i, la in enumerate(lat)]
+    sample = tmp_path / "long.json.gz"
+    with gzip.open(sample, "wt") as fh:
+        json.dump(rows, fh)
+    return sample, lat
+
+
+def test_the_demo_centres_a_long_recording_on_its_window(tmp_path: Path) -> None:
+    """``demo --scenario traffic --source`` centred its 150 km box on the whole recording's median position and ran
+    600 s from 60 s after its first sample: for a long flight the aircraft were hundreds of km away then, and the
+    demo was refused ("no airborne aircraft inside the box", naming options it does not have) on 20 of the traffic
+    package's 73 ``.json.gz`` samples (``featured/elal747``: 1,730 km; ``collections/savan``,
+    ``noisy/noisy_time_issue``: 490 and 780 km; before earth60)."""
+    from fedtrack.deploy.demo import TRAFFIC_DURATION, TRAFFIC_START, traffic_settings
+
+    sample, lat = _long_haul(tmp_path)
+    settings = traffic_settings(sample, "federated", 1, 7447, tmp_path, None, "aviation")
+    assert settings.multitarget is not None and settings.multitarget.origin is not None
+    in_window = lat[(np.arange(720) * 10 >= TRAFFIC_START) & (np.arange(720) * 10 <= TRAFFIC_START + TRAFFIC_DURATION)]
+    assert settings.multitarget.origin == pytest.approx((float(np.median(in_window)), 10.0, 0.0), abs=1e-9)
+    truth = [json.loads(line)["targets"] for line in (tmp_path / "scenario" / "truth.jsonl").read_text().splitlines()]
+    assert len(truth) == TRAFFIC_DURATION + 1 and all(len(t) == 1 for t in truth)
+
+
+def test_simulate_traffic_without_an_origin_centres_on_the_window(tmp_path: Path,
+                                                                  capsys: pytest.CaptureFixture[str]) -> None:
+    """``--origin`` was required (exit 2 without it); now it defaults to the median position of the window's
+    airborne samples, as the demo's, and says so."""
+    import tomllib
+
+    sample, lat = _long_haul(tmp_path)
+    out = tmp_path / "o"
+    assert main(["simulate", "traffic", "--source", str(sample), "--units", "aviation", "--start", "3600",
+                 "--duration", "300", "--sensors", "pos:2", "--out", str(out)]) == 0
+    median = float(np.median(lat[360:391]))  # the samples 3,600-3,900 s after the first
+    assert f"origin {median:.6f},10.000000: the median position of the window's airborne samples" in \
+        capsys.readouterr().out
+    assert tomllib.loads((out / "config.toml").read_text())["frame"]["origin"] == pytest.approx([median, 10.0, 0.0])
+    truth = [json.loads(line)["targets"] for line in (out / "truth.jsonl").read_text().splitlines()]
+    assert len(truth) == 301 and all(len(t) == 1 for t in truth)
+
+
 @pytest.mark.parametrize("period", ["inf", "1e300"])
 def test_a_picture_period_beyond_an_hour_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                                     period: str) -> None:
@@ -325,6 +373,8 @@ def test_no_aircraft_in_the_box_says_where_the_recording_is(tmp_path: Path, caps
     assert code == 2 and len(err) == 1, err
     assert "(box 100 km about 30, 2; window 0 s to the end after the first sample)" in err[0]
     assert "latitudes -33.9 to -33.8605, longitudes 151.18 to 151.2" in err[0]
+    # where the window's aircraft are, as --origin defaults to (earth60): 17,000 km away
+    assert "; the window's median position is -33.8803, 151.1900, 17077 km from the origin" in err[0]
     assert not (tmp_path / "o").exists()
 
 
