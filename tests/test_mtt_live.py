@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from support import WAIT_S, assert_same_pictures, feed, free_port, wait_until
+from support import WAIT_S, assert_same_pictures, feed, feed_one_by_one, free_port, wait_until
 
 from fedtrack.fusion_center.mtt.replay import replay_mtt
 from fedtrack.fusion_center.mtt.service import MttCentreService
@@ -64,10 +64,13 @@ def run_live(tmp_path: Path, algorithm: str, associator: str = "gnn",
         want = [keys.alive(svc.role, svc.id) for svc in services]
         assert wait_alive(session, want, WAIT_S) == set()
         seq: dict[str, int] = {}
+        local = {svc.id: svc for svc in services[2:]}
         for line in lines:  # arrival order; each sensor's own scans in order
             scan = parse_scan(line, "test")
             seq[scan.sensor] = seq.get(scan.sensor, -1) + 1
-            feed(session, keys.sensor_meas(scan.sensor), encode(scan_to_measurement(scan, seq[scan.sensor], 1)))
+            feed_one_by_one(session, keys.sensor_meas(scan.sensor),
+                            encode(scan_to_measurement(scan, seq[scan.sensor], 1)), local.get(scan.sensor),
+                            seq[scan.sensor] + 1)
         processed = lambda: sum(len(p.fused_seqs) for p in pictures) + len(centre.order)  # noqa: E731
         expected = len(lines) if algorithm == "mtt-centralized" else None
         if expected is None:  # late scans stop at the local trackers

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 import pytest
-from support import WAIT_S, assert_same_pictures, feed, free_port, numbered_measurements, wait_until
+from support import WAIT_S, assert_same_pictures, feed_one_by_one, free_port, numbered_measurements, wait_until
 from test_hostile_messages import OPTIONS, Bus, _matches
 
 from fedtrack.fusion_center.mtt.picture_merge import PictureMergeService
@@ -240,8 +240,11 @@ def test_region_centres_over_zenoh_equal_the_replay_of_their_recording(tmp_path:
     session = open_session(opts)
     try:
         assert wait_alive(session, [keys.alive(svc.role, svc.id) for svc in everyone], WAIT_S) == set()
+        trackers = {svc.sensor: svc for svc in local}
+        fed: dict[str, int] = {}
         for m in msgs:
-            feed(session, keys.sensor_meas(m.sensor), encode(m))
+            fed[m.sensor] = fed.get(m.sensor, 0) + 1
+            feed_one_by_one(session, keys.sensor_meas(m.sensor), encode(m), trackers.get(m.sensor), fed[m.sensor])
         sent = {s: sum(m.sensor == s for m in msgs) for s in ("s1", "s2", "s3")}
         assert wait_until(lambda: all(svc.counters.get("reports", 0) + svc.counters.get("late", 0) == sent[svc.sensor]
                                       and svc.awaiting is None for svc in local), timeout=30.0), \
