@@ -12,7 +12,8 @@ deployment and read every liveliness token, but subscribe to and query only what
 recovery (:func:`cache_keys`), and lets an identity publish, reply (its cache), declare queryables
 and liveliness tokens only on its own keys (:func:`own_keys`): ``sensor-<id>`` on
 ``sensor/<id>/meas``, ``local/<id>/estimate``, ``local/<id>/tracks`` and its health/alive keys;
-``fusion`` on ``fusion/**`` (resets, tracks, events, pictures, the state queryable);
+``fusion`` on ``fusion/**`` (resets, tracks, events, pictures, the state queryable) and the health/alive keys of
+its own services (``FUSION_SERVICES``: the ids the launcher gives them), not a region centre's;
 ``region-<rid>`` on its region's answers, picture, primary token and centre tokens, the health/alive keys of its centre
 (``<rid>``) and of its standby (``<rid>-standby``: :func:`fedtrack.keys.standby_id`) and on its own hand-over keys
 (``region/*/handover/<rid>``: it hands tracks to any neighbour, as itself), not on another region's
@@ -27,7 +28,7 @@ from __future__ import annotations
 from typing import Any
 
 from fedtrack.config import ConfigError
-from fedtrack.keys import Keys, standby_id
+from fedtrack.keys import AREA_CENTRE_ID, FUSION_CENTER_ID, MERGER_ID, Keys, standby_id
 
 OWN_MESSAGES = ["put", "delete", "reply", "declare_queryable", "liveliness_token"]
 READ_MESSAGES = ["declare_subscriber", "query"]  # each identity on what its roles read (read_keys)
@@ -38,6 +39,11 @@ ROUTER = "router"
 SENSOR_ROLES = ("sensor", "local-filter", "mtt-local")  # run on the sensor's host, under its identity
 CENTRE_ROLES = ("fusion-center", "mtt-centre", "picture")  # identity ``fusion`` (a region centre: ``region-<rid>``)
 REGION_PREFIX = "region-"
+# the services run as ``fusion`` (their ids the launcher's): it speaks (health, liveliness) for these only. It
+# might for every ``<role>/*``: a region centre's Health (a final ``stopped`` made a SIGKILL at its stop no failure,
+# its counters in the summary) and its ``alive`` token (the launcher's readiness wait) were forged by ``fusion``
+FUSION_SERVICES = [("fusion-center", FUSION_CENTER_ID), ("mtt-centre", AREA_CENTRE_ID),
+                   ("mtt-centre", standby_id(AREA_CENTRE_ID)), ("picture", MERGER_ID)]
 
 
 def identity(role: str, service_id: str, region: str | None = None) -> str:
@@ -71,7 +77,7 @@ def own_keys(keys: Keys, ident: str) -> list[str]:
     elif ident == "fusion":
         data = [keys.fusion_track().rsplit("/", 1)[0] + "/**", keys.primary("all"),  # the one centre's tokens
                 keys.region_centre("all")]
-        roles = [(role, None) for role in CENTRE_ROLES]
+        roles = FUSION_SERVICES
     elif ident.startswith(REGION_PREFIX):  # a region's centres: the region's id and its standby's
         rid = ident.removeprefix(REGION_PREFIX)
         data = [keys.region_resets(rid), keys.region_handover(None, rid), keys.region_picture(rid), keys.primary(rid),

@@ -39,6 +39,7 @@ from fedtrack.fusion_center.mtt.replay import read_scans, state_dim
 from fedtrack.geodetic import Frame, load_frame
 from fedtrack.geojson import feature_collection
 from fedtrack.jsonl import InputError, output_file, read_jsonl
+from fedtrack.keys import AREA_CENTRE_ID, MERGER_ID
 from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.recording import Recording
 from fedtrack.sensors.multitarget import Scenario, SensorSpec, check_room, parse_spec, simulate
@@ -170,10 +171,10 @@ def service_args(settings: Settings, measurements: Path, regions: Regions | None
     ids = sensor_ids(mt)
     dim = "6" if any(s.kind == "radar" for s in sensor_specs(mt)) else "4"
     if regions is None:
-        plan = [("mtt-centre", "centre", ["--algorithm", mt.algorithm, "--dim", dim])]
+        plan = [("mtt-centre", AREA_CENTRE_ID, ["--algorithm", mt.algorithm, "--dim", dim])]
     else:
         plan = [("mtt-centre", rid, ["--algorithm", mt.algorithm, "--dim", dim, "--region", rid]) for rid in regions.ids]
-        plan.append(("picture", "picture", ["--dim", dim]))
+        plan.append(("picture", MERGER_ID, ["--dim", dim]))
     if mt.algorithm != "mtt-centralized":
         mode = "federated" if mt.algorithm == "mtt-federated" else "decentralized"
         plan += [("mtt-local", s, ["--sensor", s, "--mode", mode]) for s in ids]

@@ -18,7 +18,7 @@ from fedtrack.deploy.multitarget import SCENARIO_DIR, sensor_ids, service_args
 from fedtrack.deploy.security import host_endpoints, router_limits, write_configs
 from fedtrack.deploy.settings import Settings
 from fedtrack.deployment import ROLES
-from fedtrack.keys import Keys, standby_id
+from fedtrack.keys import FUSION_CENTER_ID, Keys, standby_id
 from fedtrack.local_filters.mtt.service import RESET_TIMEOUT_S
 from fedtrack.local_filters.regions import load_regions
 
@@ -105,7 +105,7 @@ def service_plan(settings: Settings, config_path: Path, out_dir: Path, log_dir: 
         for s in here:
             add("local-filter", s, ["--sensor", s, *cfg, *common])
     if "fusion-center" in dep.services:
-        add("fusion-center", "fusion", [*cfg, *common, "--snapshot", str(out_dir / SNAPSHOT)])
+        add("fusion-center", FUSION_CENTER_ID, [*cfg, *common, "--snapshot", str(out_dir / SNAPSHOT)])
     if "recorder" in dep.services:
         add("recorder", "recorder", ["--db", str(out_dir / "recording.db"), *exports, *common])
     if "sensor" in dep.services:

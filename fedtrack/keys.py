@@ -31,6 +31,12 @@ MAX_ID_LENGTH = 64
 _FORBIDDEN = frozenset("/*$?#")
 
 
+# the ids the launcher gives the services run under the identity ``fusion``, the only ones that identity may speak
+# for (health, liveliness; ``deploy/access_control.py``): the fusion center, the one multi-target centre of the whole
+# area (and its standby, :func:`standby_id`) and the picture merger
+FUSION_CENTER_ID, AREA_CENTRE_ID, MERGER_ID = "fusion", "centre", "picture"
+
+
 def standby_id(centre: str) -> str:
     """The id of centre ``centre``'s hot standby (``launch``: ``serve mtt-centre --standby``), under the
     centre's identity (``deploy/access_control.py`` names it exactly)."""

@@ -37,7 +37,7 @@ import numpy as np
 
 from fedtrack.config import ConfigError, load_tables
 from fedtrack.geodetic import Frame, FrameConfig, enu_from_geodetic
-from fedtrack.keys import MAX_ID_LENGTH, InvalidName, check_id, is_identity_name, standby_id
+from fedtrack.keys import AREA_CENTRE_ID, MAX_ID_LENGTH, InvalidName, check_id, is_identity_name, standby_id
 from fedtrack.wire import MAX_MAGNITUDE
 
 MAX_REGIONS = 10_000
@@ -120,6 +120,9 @@ class RegionsConfig:
         if standbys:  # a region's centres would run as two identities' (deploy/access_control.py)
             raise ConfigError(f"polygon: id {standbys[0]!r} is the id of the standby of region "
                               f"{standbys[0].removesuffix(standby_id(''))!r}")
+        taken = sorted(set(ids) & {AREA_CENTRE_ID, standby_id(AREA_CENTRE_ID)})
+        if taken:  # its Health and token keys would be the identity fusion's too (deploy/access_control.py)
+            raise ConfigError(f"polygon: id {taken[0]!r} is the id of the whole area's centre (or its standby)")
         if len(ids) > MAX_REGIONS:
             raise ConfigError(f"polygon: at most {MAX_REGIONS} regions")
 

@@ -54,7 +54,7 @@ def test_identities_and_rules() -> None:
     assert not any("fusion" in k or "sensor/2" in k for k in own["own-sensor-1"])
     assert "fedtrack/d/local/1/tracks" in own["own-sensor-1"] and "fedtrack/d/health/mtt-local/1" in own["own-sensor-1"]
     assert "fedtrack/d/fusion/**" in own["own-fusion"] and acl["default_permission"] == "deny"
-    assert "fedtrack/d/alive/mtt-centre/*" in own["own-fusion"]
+    assert "fedtrack/d/alive/mtt-centre/centre" in own["own-fusion"]
     # serve picture (``fusion``) reads the region pictures with history: their caches
     assert own["query-fusion"] == ["fedtrack/d/**", "fedtrack/d/local/*/estimate/@adv/**",
                                    "fedtrack/d/region/*/picture/@adv/**"]
@@ -108,6 +108,60 @@ def test_a_region_identity_speaks_for_its_own_centres_only_whatever_the_ids(tmp_
     config.write_text("[regions]\nmargin = 1.0\n" + polygon.format("north", x=0.0, w=10.0)
                       + polygon.format("north-standby", x=20.0, w=30.0))
     with pytest.raises(ConfigError, match="'north-standby' is the id of the standby of region 'north'"):
+        load_regions(config)
+
+
+def test_the_fusion_identity_speaks_for_its_own_services_only(tmp_path: Path) -> None:
+    """``fusion`` (the fusion center, the whole area's centre, ``serve picture``) might publish every
+    ``health/{fusion-center,mtt-centre,picture}/*`` and declare every such ``alive`` token: a compromised merger's
+    certificate forged region x0y0's centre's Health (its counters in the launcher's summary, a final ``stopped``
+    that makes a SIGKILL at its stop no failure) and its token (the launcher's readiness wait). Over a loopback
+    router with the generated access control and real certificates, the launcher's monitor now gets ``fusion``'s
+    own services' Health and tokens only (the ids the launcher gives them), and a ``[regions]`` id that is the whole
+    area's centre's is refused."""
+    keys = Keys("x")
+    with secure_router(tmp_path, keys, ["fusion", "region-x0y0", "launcher"]) as client:
+        watcher, forger = client("launcher"), client("fusion")
+        seen: list[str] = []
+        done, probed = threading.Event(), threading.Event()
+
+        def on_sample(sample: Any) -> None:
+            body = sample.payload.to_bytes()
+            if body == b"probe":
+                probed.set()
+                return
+            seen.append(str(sample.key_expr))
+            if body == b"end":
+                done.set()
+
+        sub = watcher.declare_subscriber(keys.health(), on_sample)
+        tokens: list[str] = []
+        liveliness = watcher.liveliness().declare_subscriber("fedtrack/x/alive/**",
+                                                             lambda s: tokens.append(str(s.key_expr)), history=True)
+        assert wait_until(lambda: forger.put(keys.health("picture", "picture"), b"probe") or probed.is_set(), 30.0)
+        allowed = [keys.health("fusion-center", "fusion"), keys.health("mtt-centre", "centre"),
+                   keys.health("mtt-centre", "centre-standby")]
+        denied = [keys.health("mtt-centre", "x0y0"), keys.health("mtt-centre", "x0y0-standby"),
+                  keys.health("picture", "x0y0"), keys.health("fusion-center", "x0y0")]
+        for key in denied + allowed:
+            forger.put(key, b"x")
+        forged_tokens = [forger.liveliness().declare_token(key) for key in (  # the last: after the others
+            keys.alive("mtt-centre", "x0y0"), keys.alive("mtt-centre", "x0y0-standby"), keys.alive("picture", "x0y0"),
+            keys.alive("mtt-centre", "centre"), keys.alive("picture", "picture"))]
+        forger.put(keys.health("picture", "picture"), b"end")  # after the others on the same link
+        assert done.wait(30.0), seen
+        assert wait_until(lambda: keys.alive("picture", "picture") in tokens, 30.0), tokens
+        assert sorted(seen[:-1]) == sorted(allowed)
+        assert tokens == [keys.alive("mtt-centre", "centre"), keys.alive("picture", "picture")]
+        for t in forged_tokens:
+            t.undeclare()
+        sub.undeclare()
+        liveliness.undeclare()
+    config = tmp_path / "regions.toml"
+    polygon = '[[regions.polygon]]\nid = "{}"\npoints = [[{x}, 0.0], [{w}, 0.0], [{w}, 10.0]]\n'
+    config.write_text("[regions]\nmargin = 1.0\n" + polygon.format("north", x=0.0, w=10.0)
+                      + polygon.format("centre", x=20.0, w=30.0))
+    with pytest.raises(ConfigError, match="'centre' is the id of the whole area's centre"):
         load_regions(config)
 
 
