@@ -12,7 +12,7 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import pytest
@@ -83,6 +83,16 @@ def test_a_region_identity_hands_over_on_its_own_key_only() -> None:
     assert identity("mtt-centre", "x0y0-standby", "x0y0") == "region-x0y0"
 
 
+def refused_beside_north(tmp_path: Path, rid: str, says: str) -> None:
+    """A ``[regions]`` of two polygons, ``north`` and ``rid``, is refused, the error saying ``says``."""
+    config = tmp_path / "regions.toml"
+    polygon = '[[regions.polygon]]\nid = "{}"\npoints = [[{x}, 0.0], [{w}, 0.0], [{w}, 10.0]]\n'
+    config.write_text("[regions]\nmargin = 1.0\n" + polygon.format("north", x=0.0, w=10.0)
+                      + polygon.format(rid, x=20.0, w=30.0))
+    with pytest.raises(ConfigError, match=says):
+        load_regions(config)
+
+
 def test_a_region_identity_speaks_for_its_own_centres_only_whatever_the_ids(tmp_path: Path) -> None:
     """``region-<rid>`` might publish the Health and declare the token of every ``mtt-centre/<rid>-...`` (its
     standbys): with polygon regions ``north`` and ``north-east``, ``region-north`` could forge the Health of
@@ -103,12 +113,24 @@ def test_a_region_identity_speaks_for_its_own_centres_only_whatever_the_ids(tmp_
         assert not allows("region-north", keys.health("mtt-centre", centre))
         assert not allows("region-north", keys.alive("mtt-centre", centre))
         assert allows("region-north-east", keys.health("mtt-centre", centre))
-    config = tmp_path / "regions.toml"
-    polygon = '[[regions.polygon]]\nid = "{}"\npoints = [[{x}, 0.0], [{w}, 0.0], [{w}, 10.0]]\n'
-    config.write_text("[regions]\nmargin = 1.0\n" + polygon.format("north", x=0.0, w=10.0)
-                      + polygon.format("north-standby", x=20.0, w=30.0))
-    with pytest.raises(ConfigError, match="'north-standby' is the id of the standby of region 'north'"):
-        load_regions(config)
+    refused_beside_north(tmp_path, "north-standby", "'north-standby' is the id of the standby of region 'north'")
+
+
+def collector() -> tuple[list[str], threading.Event, threading.Event, Callable[[Any], None]]:
+    """The keys of the samples received (a ``probe`` payload sets ``probed`` instead, an ``end`` one sets ``done``
+    too), the two events, and the subscriber's callback."""
+    seen: list[str] = []
+    done, probed = threading.Event(), threading.Event()
+
+    def on_sample(sample: Any) -> None:
+        body = sample.payload.to_bytes()
+        if body == b"probe":
+            probed.set()
+            return
+        seen.append(str(sample.key_expr))
+        if body == b"end":
+            done.set()
+    return seen, done, probed, on_sample
 
 
 def test_the_fusion_identity_speaks_for_its_own_services_only(tmp_path: Path) -> None:
@@ -122,18 +144,7 @@ def test_the_fusion_identity_speaks_for_its_own_services_only(tmp_path: Path) ->
     keys = Keys("x")
     with secure_router(tmp_path, keys, ["fusion", "region-x0y0", "launcher"]) as client:
         watcher, forger = client("launcher"), client("fusion")
-        seen: list[str] = []
-        done, probed = threading.Event(), threading.Event()
-
-        def on_sample(sample: Any) -> None:
-            body = sample.payload.to_bytes()
-            if body == b"probe":
-                probed.set()
-                return
-            seen.append(str(sample.key_expr))
-            if body == b"end":
-                done.set()
-
+        seen, done, probed, on_sample = collector()
         sub = watcher.declare_subscriber(keys.health(), on_sample)
         tokens: list[str] = []
         liveliness = watcher.liveliness().declare_subscriber("fedtrack/x/alive/**",
@@ -157,12 +168,7 @@ def test_the_fusion_identity_speaks_for_its_own_services_only(tmp_path: Path) ->
             t.undeclare()
         sub.undeclare()
         liveliness.undeclare()
-    config = tmp_path / "regions.toml"
-    polygon = '[[regions.polygon]]\nid = "{}"\npoints = [[{x}, 0.0], [{w}, 0.0], [{w}, 10.0]]\n'
-    config.write_text("[regions]\nmargin = 1.0\n" + polygon.format("north", x=0.0, w=10.0)
-                      + polygon.format("centre", x=20.0, w=30.0))
-    with pytest.raises(ConfigError, match="'centre' is the id of the whole area's centre"):
-        load_regions(config)
+    refused_beside_north(tmp_path, "centre", "'centre' is the id of the whole area's centre")
 
 
 def test_a_region_centres_identity_publishes_its_own_regions_outputs_only(tmp_path: Path) -> None:
@@ -174,19 +180,7 @@ def test_a_region_centres_identity_publishes_its_own_regions_outputs_only(tmp_pa
     keys = Keys("x")
     with secure_router(tmp_path, keys, ["fusion", "region-x0y0", "region-x1y0"]) as client:
         watcher, west = client("fusion"), client("region-x0y0")
-        seen: list[str] = []
-        done = threading.Event()
-        probed = threading.Event()
-
-        def on_sample(sample: Any) -> None:
-            body = sample.payload.to_bytes()
-            if body == b"probe":
-                probed.set()
-                return
-            seen.append(str(sample.key_expr))
-            if body == b"end":
-                done.set()
-
+        seen, done, probed, on_sample = collector()
         sub = watcher.declare_subscriber("fedtrack/x/**", on_sample)
         tokens: list[str] = []
         liveliness = watcher.liveliness().declare_subscriber("fedtrack/x/alive/**",
