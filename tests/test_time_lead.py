@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -285,18 +286,24 @@ def test_the_centre_drops_a_second_scan_far_ahead_at_its_start(tmp_path: Path) -
     assert centre.counters.get("rejected_time_lead") == 1
 
 
+def clean_run(tmp_path: Path, algorithm: str) -> tuple[list[Measurement], dict[str, Any], Bus]:
+    """``mtt_lines``' messages, and the services and bus of their clean run at ``algorithm`` (its centre stopped)."""
+    msgs = mtt_lines(tmp_path)
+    services = mtt_services(tmp_path / "clean", algorithm)
+    bus = Bus(list(services.values()))
+    for m in msgs:
+        bus.put(KEYS.sensor_meas(m.sensor), encode(m))
+    services["centre"].on_stop()
+    return msgs, services, bus
+
+
 def first_forged(tmp_path: Path, algorithm: str, dt: float, forged: int = 1, opened: bool = False
                  ) -> tuple[list[tuple], list[tuple], MttCentreService]:
     """The clean run's pictures and those of a run whose first message of all at the centre is s1's first one (a
     scan at ``mtt-centralized``, the clean run's first report else) re-stamped ``dt`` s off and
     numbered 500 on (``forged`` 2: and a second such message half a second after it, numbered 501; ``opened``: the
     start's wait runs out before any honest message comes); and the attacked run's centre, stopped."""
-    msgs = mtt_lines(tmp_path)
-    clean_services = mtt_services(tmp_path / "clean", algorithm)
-    clean = Bus(list(clean_services.values()))
-    for m in msgs:
-        clean.put(KEYS.sensor_meas(m.sensor), encode(m))
-    clean_services["centre"].on_stop()
+    msgs, clean_services, clean = clean_run(tmp_path, algorithm)
     services = mtt_services(tmp_path / "forged", algorithm)
     forged_bus = Bus(list(services.values()))
     centre = services["centre"]
@@ -347,6 +354,83 @@ def test_a_start_of_one_sensor_is_abandoned_when_two_others_agree_against_it(
     assert attacked == clean and len(clean) > 5
     assert centre.counters.get("start_abandoned") == 1
     assert centre.counters.get("start_unwitnessed", 0) == (1 if opened else 0)
+
+
+@pytest.mark.parametrize("algorithm", ["mtt-centralized", "mtt-federated", "mtt-decentralized"])
+@pytest.mark.parametrize("dt", [1e9, -1e12])
+def test_what_an_abandoned_start_published_keeps_its_numbers(tmp_path: Path, algorithm: str, dt: float) -> None:
+    """s1's first 6 s of messages (scans, or its tracker's reports), re-stamped ``dt`` s off and numbered 500 on,
+    sent before any honest one: the centre publishes 5 pictures from that start, then abandons it (two other
+    sensors agree against it) with its state put back as before its first message. Its ids came again: of the 22
+    ids those 5 pictures showed, 18 (centralized) or 22 were shown again by the honest pictures, other tracks; and at
+    -10^12 s its pictures took the numbers 0-4, so the recorder refused 4 honest pictures as ``conflict``
+    (redteam65). Now no id nor number a published picture had is given again: every honest picture is recorded, and
+    each is the clean run's but for its track ids (one new id for each of the clean run's) and, at -10^12 s, its
+    number (the forged pictures' grid)."""
+    msgs, clean_services, clean = clean_run(tmp_path, algorithm)
+    services = mtt_services(tmp_path / "forged", algorithm)
+    bus = Bus(list(services.values()))
+    if algorithm == "mtt-centralized":
+        for m in (m for m in msgs if m.sensor == "s1" and m.t <= 6.0):
+            bus.put(KEYS.sensor_meas("s1"), encode(replace(m, seq=m.seq + 500, t=m.t + dt)))
+    else:
+        for r in (r for key, r in clean.published if key == KEYS.mtt_report("s1") and r.t <= 6.0):
+            bus.put(KEYS.mtt_report("s1"), encode(replace(r, seq=r.seq + 500, t=r.t + dt)))
+    forged = bus.of(TrackPicture)
+    for m in msgs:
+        bus.put(KEYS.sensor_meas(m.sensor), encode(m))
+    services["centre"].on_stop()
+    honest, expected = bus.of(TrackPicture)[len(forged):], clean.of(TrackPicture)
+    assert services["centre"].counters.get("start_abandoned") == 1 and len(forged) == 5
+    shown = {i for p in forged for i in p.ids}
+    assert len(shown) > 10 and not shown & {i for p in honest for i in p.ids}
+    assert not {p.seq for p in forged} & {p.seq for p in honest}
+    recorder = services["recorder"].counters
+    assert recorder.get("conflict", 0) == 0
+    assert recorder["pictures_recorded"] == len(forged) + clean_services["recorder"].counters["pictures_recorded"]
+    renamed: dict[int, int] = {}
+    assert len(honest) == len(expected) > 5
+    for got, want in zip(honest, expected):
+        assert (got.t, got.x.tobytes(), got.P.tobytes(), got.fused_sensors, got.fused_seqs) == \
+            (want.t, want.x.tobytes(), want.P.tobytes(), want.fused_sensors, want.fused_seqs)
+        assert got.seq - honest[0].seq == want.seq - expected[0].seq and (dt < 0 or got.seq == want.seq)
+        for new, old in zip(got.ids, want.ids):
+            assert renamed.setdefault(old, new) == new
+    assert len(set(renamed.values())) == len(renamed)
+
+
+@pytest.mark.parametrize("algorithm", ["mtt-federated", "mtt-decentralized"])
+@pytest.mark.parametrize("dt", [1e9, -1e12])
+def test_a_region_centre_issues_no_id_its_abandoned_start_showed(tmp_path: Path, algorithm: str, dt: float) -> None:
+    """Two region centres and ``serve picture`` on the in-process bus: s1's first 6 s of sub-reports to x0y0,
+    re-stamped ``dt`` s off and numbered 500 on, sent first. x0y0 publishes 5 pictures from that start and abandons
+    it; its engine put back, it showed the same 15 (federated) or 16 ids again, for other tracks (redteam65). Now
+    none; its later pictures are at the clean run's times with as many tracks (their states differ in 18 of 31 at
+    10^9 s, federated: not investigated, docs/multitarget.md)."""
+    msgs, cfg, config = region_scenario(tmp_path)
+    keys, runs = Keys("hostile"), []
+    for name in ("clean", "forged"):
+        centres, local, merger, recorder = region_services(tmp_path / name, algorithm, config, cfg,
+                                                           {"options": OPTIONS, "deployment": "hostile"})
+        recorder.on_start()
+        bus = Bus([*centres, *local, merger, recorder])
+        for key, r in runs[0][2] if runs else []:
+            bus.put(key, encode(replace(r, seq=r.seq + 500, t=r.t + dt)))
+        forged = [p for key, p in bus.published if key == keys.region_picture("x0y0")]
+        for m in msgs:
+            bus.put(keys.sensor_meas(m.sensor), encode(m))
+        for svc in [*local, *centres, merger]:
+            svc.on_stop()
+            bus.drain()
+        pictures = [p for key, p in bus.published if key == keys.region_picture("x0y0")][len(forged):]
+        first = [(key, r) for key, r in bus.published if key == keys.region_report("x0y0", "s1") and r.t <= 6.0]
+        runs.append((forged, pictures, first, centres[0]))
+    (_, expected, _, _), (forged, honest, _, centre) = runs
+    assert centre.counters.get("start_abandoned") == 1 and len(forged) == 5
+    shown = {i for p in forged for i in p.ids}
+    assert len(shown) > 10 and not shown & {i for p in honest for i in p.ids}
+    assert len(honest) == len(expected) > 20
+    assert [(p.t, len(p.ids)) for p in honest] == [(p.t, len(p.ids)) for p in expected]
 
 
 def test_a_start_of_one_sensor_holds_what_contradicts_it_within_bounds_and_ends_when_witnessed() -> None:

@@ -249,9 +249,15 @@ class Engine:
     repeated: int = 0  # detections equal to an earlier one of their scan, dropped (scan.distinct)
     stage_s: dict[str, float] = field(default_factory=dict)  # wall seconds per stage (replay's report)
     lead: LeadGuard | None = None  # the replay's guard against scans stamped far ahead (its `dropped`)
+    first_id: int = 0  # the first track id it issues (a live centre that abandoned a start: past those it showed)
 
     def ingest(self, scan: SensorScan) -> None:
         raise NotImplementedError
+
+    def issue_past(self, shown: int) -> None:
+        """Issue no track id up to ``shown`` (the largest id a published picture showed): a fresh engine of a live
+        centre that abandoned a start (docs/multitarget.md, "What an abandoned start published")."""
+        self.first_id = max(self.first_id, shown + 1)
 
     def took(self, stage: str, since: float) -> float:
         """Add the time since ``since`` (``time.perf_counter``) to ``stage``; returns now."""
@@ -304,7 +310,7 @@ class ScanTrackerEngine(Engine):
         if not self.takes(scan):
             return
         if self.history is None:
-            self.history = ScanHistory(initial_state(self.dim), self.cfg.max_lag)
+            self.history = ScanHistory(initial_state(self.dim, self.first_id), self.cfg.max_lag)
         if self.history.is_late(scan.t):
             self.late += 1
             return
@@ -530,7 +536,8 @@ class TrackToTrackEngine(Engine):
     def fuse(self, report: LocalReport) -> tuple[Resets, float]:
         """The centre's part of a scan, as the live centre does it per report."""
         if self.centre is None:
-            self.centre = (TrackToTrackCentre(self.cfg, self.dim, self.feedback, sites=self.sites, frame=self.frame)
+            self.centre = (TrackToTrackCentre(self.cfg, self.dim, self.feedback, sites=self.sites, frame=self.frame,
+                                              next_id=self.first_id)
                            if self.regions is None
                            else ShardedCentre(self.cfg, self.dim, self.feedback, self.regions, sites=self.sites,
                                             frame=self.frame))

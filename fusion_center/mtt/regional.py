@@ -86,6 +86,12 @@ class RegionEngine(Engine):
                                    frame=self.frame)
         self.shadow = TrackToTrackCentre(self.cfg, self.dim, self.feedback, sites=self.sites, frame=self.frame)
 
+    def issue_past(self, shown: int) -> None:
+        """:meth:`Engine.issue_past` in the region's sequence of ids (those of region ``index`` of R: ``index``
+        modulo R)."""
+        c = self.region.centre
+        c.next_id = max(c.next_id, shown + 1 + (c.next_id - shown - 1) % c.id_step)
+
     def answer(self, report: LocalReport, elsewhere: np.ndarray
                ) -> tuple[RegionAnswer, list[tuple[int, int, HandOver]]]:
         self.scans += 1

@@ -180,6 +180,7 @@ class MttCentreService(CentreFailover, Service):
         self.start_wait_s = min(cfg.leave_after_s, RESET_TIMEOUT_S / 2)
         # ... and a start of one sensor's messages, abandoned when two others agree against it (lead.SoleStart)
         self.sole: SoleStart[Measurement | TrackReport] = SoleStart(max_time_jump_s, ended=not witnessed)
+        self.sole_shown = -1  # the largest track id a picture published under such a start showed (_keep_published)
         self.start_held_at: float | None = None  # when the first message held for the start came (time.monotonic)
         self.order: list[tuple[str, int]] = []  # scans processed since the last picture
         self.left_at: list[int] = []  # positions in ``order`` that are departures
@@ -348,6 +349,8 @@ class MttCentreService(CentreFailover, Service):
             self._fuse(msg)
         for picture in pictures:
             self.publish(self.picture_key, picture)
+            if not self.sole.ended:  # a start it may abandon: what it showed stays issued (_keep_published)
+                self.sole_shown = max([self.sole_shown, *picture.ids])
         self.order.append((msg.sensor, msg.seq))
         self.silence.heard(msg.sensor, time.monotonic())
         self.lead.took(msg.sensor, msg.t)
@@ -372,10 +375,29 @@ class MttCentreService(CentreFailover, Service):
         self.log.warning("%s's message %d at t=%g and another sensor's agree against the start, every message "
                          "taken %s's: started again from them (lead.SoleStart)", msg.sensor, msg.seq, msg.t,
                          self.sole.sensor)
+        published = self.clock, self.engine.region.serial if isinstance(self.engine, RegionEngine) else 0
         for name, value in zip(self.start_attrs, pickle.loads(self.fresh)):
             setattr(self, name, value)
+        self._keep_published(*published)
         for held in again:
             self._take(held)
+
+    def _keep_published(self, clock: PictureClock, serial: int) -> None:
+        """After an abandoned start (its state put back as before the first message): what it published stays
+        published, so no number it gave is given again. Its pictures' numbers keep naming their times (``clock``'s
+        grid, once a picture fixed it: the recorder keys pictures by number, and the start's at -10^12 s took the
+        numbers 0, 1, ... that the honest pictures then took again, refused ``conflict``), the ids its pictures
+        showed are not issued again (``sole_shown``), nor its hand-overs' numbers (below ``serial``: each was
+        published as it was issued); a region centre's next picture says it began with those numbers
+        (docs/multitarget.md, "What an abandoned start published")."""
+        if clock.fixed:
+            self.clock.first, self.clock.fixed = clock.first, True
+        self.engine.issue_past(self.sole_shown)
+        if isinstance(self.engine, RegionEngine):
+            region = self.engine.region
+            region.serial = max(region.serial, serial)
+            if self.began is not None:
+                self.began = Numbers(region.centre.next_id, region.serial)
 
     def _restart(self, msg: TrackReport) -> None:
         """The first report of a tracker process from a sensor heard before: its tracker restarted

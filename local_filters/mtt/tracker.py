@@ -124,8 +124,8 @@ class ScanResult(NamedTuple):
     retired: np.ndarray  # ids deleted by this scan
 
 
-def initial_state(dim: int) -> TrackerState:
-    return TrackerState(empty_tracks(dim), None, 0)
+def initial_state(dim: int, next_id: int = 0) -> TrackerState:
+    return TrackerState(empty_tracks(dim), None, next_id)
 
 
 def associate(state: TrackerState, gating: Gating | None, scan: SensorScan, params: TrackParams,
