@@ -550,6 +550,75 @@ class Reordered:
                     self.svc._dispatch(item)
 
 
+def on_the_bus(standby: MttCentreService, bus: Bus) -> None:
+    """``standby`` publishes onto ``bus`` once it is the primary (CentreFailover.publish: withheld before), and finds
+    no token at its stop."""
+    def withheld(key: str, msg: Any) -> None:
+        if standby.standby.primary:
+            bus.published.append((key, msg))
+            bus.pending.append((key, encode(msg)))
+        else:
+            standby.standby.hold(key, msg, time.monotonic())
+
+    standby.publish = withheld  # type: ignore[method-assign]
+    standby.session = type("Tokens", (), {"liveliness": lambda self: self, "zid": lambda self: "b0",
+                                          "get": lambda self, key, timeout: [],  # no token found at its stop
+                                          "declare_token": lambda self, key: type("T", (), {"undeclare": print})()})()
+
+
+def forged_start_with_a_standby(tmp_path: Path, forged: list[tuple[str, Any]], kill_at: float | None
+                                ) -> tuple[MttCentreService, list[TrackPicture], list[tuple[str, Any]]]:
+    """Two region centres, x0y0's warm standby and ``serve picture`` on the bus: ``forged`` (key, message) put
+    first, then every scan; x0y0's primary dies at ``kill_at`` (its token with it) and the standby takes over.
+    The standby, the merged pictures and what crossed the bus."""
+    msgs, cfg, config = scenario(tmp_path)
+    centres, local, merger, recorder = services(tmp_path, "mtt-federated", config, cfg,
+                                                {"options": OPTIONS, "deployment": "hostile"})
+    standby = MttCentreService("mtt-federated", cfg, 4, region="x0y0", regions=load_regions(config), standby=True,
+                               service_id="x0y0-standby", options=OPTIONS, deployment="hostile")
+    recorder.on_start()
+    bus = Bus([*centres, *local, merger, recorder, standby])
+    on_the_bus(standby, bus)
+    keys = Keys("hostile")
+    for key, msg in forged:
+        bus.put(key, encode(msg))
+    for m in msgs:
+        if kill_at is not None and m.t >= kill_at and centres[0] in bus.services:
+            bus.services.remove(centres[0])
+            bus._routes.clear()
+            standby.standby.token(False, time.monotonic() - 1.0)
+            standby._failover_tick()
+            bus.drain()
+        bus.put(keys.sensor_meas(m.sensor), encode(m))
+    for svc in [*local, *centres[1:], standby, merger]:
+        svc.on_stop()
+        bus.drain()
+    return standby, [p for key, p in bus.published if key == keys.mtt_picture()], bus.published
+
+
+@pytest.mark.parametrize("dt", [1e9, -1e12])
+def test_a_warm_standby_begins_afresh_with_its_primary(tmp_path: Path, dt: float) -> None:
+    """s1's first 6 s of sub-reports to x0y0, re-stamped ``dt`` s off and numbered 500 on, sent first: x0y0's primary
+    publishes pictures from that start, then abandons it (lead.SoleStart) and says so in its next picture's
+    ``began`` entry. Its warm standby, following its pictures, went on from the forged start's state: at 10^9 s
+    every honest sub-report ``centre_late`` (125), 4 pictures compared; at -10^12 s 28 of 32 pictures not the
+    primary's; after a take-over at 16 s, 14 of the 29 merged pictures (those after it) not those of the run without
+    the kill (redteam65 (b)). It now begins afresh there too, numbering as its primary: every picture its
+    primary's, and the take-over changes no merged picture (but the last, as in the clean run)."""
+    keys = Keys("hostile")
+    _, _, clean = forged_start_with_a_standby(tmp_path / "clean", [], None)
+    forged = [(key, replace(r, seq=r.seq + 500, t=r.t + dt)) for key, r in clean
+              if key == keys.region_report("x0y0", "s1") and r.t <= 6.0]
+    standby, merged, _ = forged_start_with_a_standby(tmp_path / "attacked", forged, None)
+    assert standby.standby.differ == 0 and standby.standby.same >= 30
+    assert standby.counters.get("centre_late", 0) == 0 and standby.counters.get("start_abandoned") == 1
+    standby, failed_over, _ = forged_start_with_a_standby(tmp_path / "killed", forged, 16.0)
+    assert standby.counters.get("took_over") == 1 and standby.standby.differ == 0
+    # the last merged picture, at the stop, differs with the kill in the clean run too (the dead primary never stops)
+    assert [(p.t, p.ids, p.x.tobytes()) for p in failed_over[:-1]] == [(p.t, p.ids, p.x.tobytes()) for p in merged[:-1]]
+    assert len(merged) >= 25
+
+
 def test_a_standby_fed_in_another_order_takes_its_primarys_and_a_failover_replays(tmp_path: Path) -> None:
     """Region x0y0's standby gets the sub-reports and hand-overs in another order than its primary (on
     the in-process bus): it takes them in its primary's order (the fused lists of its pictures), so
@@ -567,17 +636,7 @@ def test_a_standby_fed_in_another_order_takes_its_primarys_and_a_failover_replay
     late = Reordered(standby)
     bus.services[-1] = late  # type: ignore[call-overload]
 
-    def withheld(key: str, msg: Any) -> None:  # CentreFailover.publish, onto the bus once it is the primary
-        if standby.standby.primary:
-            bus.published.append((key, msg))
-            bus.pending.append((key, encode(msg)))
-        else:
-            standby.standby.hold(key, msg, time.monotonic())
-
-    standby.publish = withheld  # type: ignore[method-assign]
-    standby.session = type("Tokens", (), {"liveliness": lambda self: self, "zid": lambda self: "b0",
-                                          "get": lambda self, key, timeout: [],  # no token found at its stop
-                                          "declare_token": lambda self, key: type("T", (), {"undeclare": print})()})()
+    on_the_bus(standby, bus)
     keys, primary = Keys("hostile"), centres[0]
     for k, m in enumerate(m for m in msgs if m.t < 16.0):
         if m.t >= 8.0 and primary in bus.services:  # the primary dies (its token with it)

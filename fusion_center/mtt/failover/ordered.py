@@ -29,17 +29,21 @@ from fedtrack.wire import HandOver, TrackPicture, TrackReport
 ORDER_WAIT_S = RESET_TIMEOUT_S
 
 
+NO_INPUT = ("left", "began")  # entries that name no input: a departure, the primary's start afresh
+
+
 def entries_listed(msg: TrackPicture) -> list[Hashable]:
     """The inputs a picture's fused lists name, in its centre's order: ``("report", sensor, seq)``,
-    ``("handover", source, serial)``, ``("left", sensor)`` (a restart is its report's, not listed; nor is
-    the primary's own start, ``began``)."""
-    left, handovers, skipped = set(msg.left), set(msg.handovers), {*msg.restarted, *msg.began}
+    ``("handover", source, serial)``, ``("left", sensor)``, and the primary's start afresh, ``("began", region,
+    first id, first hand-over number)`` (a restart is its report's, not listed)."""
+    left, handovers, restarted = set(msg.left), set(msg.handovers), set(msg.restarted)
+    began = dict(zip(msg.began, msg.began_serials))
     out: list[Hashable] = []
     for i, (name, seq) in enumerate(zip(msg.fused_sensors, msg.fused_seqs)):
-        if i in skipped:
+        if i in restarted:
             continue
-        out.append(("left", name) if i in left else ("handover", name, seq) if i in handovers
-                   else ("report", name, seq))
+        out.append(("began", name, seq, began[i]) if i in began else ("left", name) if i in left
+                   else ("handover", name, seq) if i in handovers else ("report", name, seq))
     return out
 
 
@@ -90,7 +94,7 @@ class PrimaryOrder:
         that lists none is its primary's first if numbered 0 (else this standby started later)."""
         entries = entries_listed(msg)
         if self.warm is None and not self.script:
-            inputs = [e for e in entries if e[0] != "left"]
+            inputs = [e for e in entries if e[0] not in NO_INPUT]
             self.missing = {e for e in inputs if e not in self.held}
             self.warm = (msg.seq == 0) if not inputs else True if not self.missing else None
         if self.warm is not False:
@@ -98,7 +102,7 @@ class PrimaryOrder:
             self.waiting.update(entries)
 
     def due(self, now: float) -> tuple[list[Item], list[Item]]:
-        """The listed entries to take now, in order, each with its input (None for a departure); one
+        """The listed entries to take now, in order, each with its input (None for a departure or a start); one
         whose input has not come ``ORDER_WAIT_S`` after it was listed is passed over (``skipped``); of
         the first picture, that makes this standby cold (``warm`` False). And the inputs held that long
         that no picture listed (its primary refused them, or published no picture meanwhile: a stuck
@@ -108,7 +112,7 @@ class PrimaryOrder:
             self.warm = False
         while self.warm and self.script:
             head, since = self.script[0]
-            if head[0] != "left" and head not in self.held:
+            if head[0] not in NO_INPUT and head not in self.held:
                 if now - since < ORDER_WAIT_S:
                     break
                 self.skipped += 1
@@ -137,7 +141,7 @@ class PrimaryOrder:
         """At a take-over (or once cold): the listed entries whose inputs are held, in order, and every
         other input held, in arrival order; nothing is held afterwards."""
         listed = [(e, self.held.pop(e)[0] if e in self.held else None) for e, _ in self.script
-                  if e[0] == "left" or e in self.held]
+                  if e[0] in NO_INPUT or e in self.held]
         rest: list[Item] = [(e, msg) for e, (msg, _) in self.held.items()]
         self.held.clear()
         self.script.clear()

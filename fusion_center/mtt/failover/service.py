@@ -137,6 +137,8 @@ class CentreFailover:
                 if msg is None:
                     if entry[0] == "left" and entry[1] in self.silence.last:
                         self._leave(entry[1])
+                    elif entry[0] == "began":
+                        self._began_again(entry[2], entry[3])
                 elif isinstance(msg, HandOver):
                     self.take_handover(msg)
                 elif listed:
