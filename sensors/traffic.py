@@ -24,7 +24,15 @@ from typing import Any
 import numpy as np
 
 from fedtrack.config import seed_number
-from fedtrack.geodetic import Frame, gaussian_radius, geodetic_error, ground_angle, median_lon, wrap_lon
+from fedtrack.geodetic import (
+    Frame,
+    enu_from_geodetic,
+    gaussian_radius,
+    geodetic_error,
+    ground_angle,
+    median_lon,
+    wrap_lon,
+)
 from fedtrack.jsonl import InputError, check_output_folder
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.sensors.multitarget import (
@@ -50,6 +58,7 @@ from fedtrack.sensors.traffic_truth import (
     Truth,
     build_truth,
     default_max_gap,
+    segments,
     truth_geodetic,
 )
 
@@ -134,8 +143,7 @@ def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, star
                          f"{frame.lat:g}, {frame.lon:g}; window {window}); the recording's airborne samples span "
                          f"{float(rec.t.max()) - t0:g} s, latitudes {rec.lla[:, 0].min():g} to "
                          f"{rec.lla[:, 0].max():g}, longitudes {rec.lla[:, 1].min():g} to {rec.lla[:, 1].max():g}"
-                         f"{_centre(rec, frame, start, duration)}{_single(truth.dropped, max_gap)}move --origin, widen "
-                         "--box or change --start / --duration")
+                         f"{_centre(rec, frame, start, duration)}{_cause(rec, frame, start, duration, box, max_gap)}")
     # the site check's aircraft: the truth's highest (before 2026-11-28 the recording's, glitches included: an
     # altitude decoded 20 km high widened every radar's reach by 400 km; docs/geodetic.md)
     sensors = parse_sensors(spec, frame, box, rng, truth.highest)
@@ -183,12 +191,28 @@ def _centre(rec: Recording, frame: Frame, start: float, duration: float | None) 
     return f"; the window's median position is {centre.lat:.4f}, {centre.lon:.4f}, {far:.0f} km from the origin"
 
 
-def _single(dropped: dict[str, int], max_gap: float) -> str:
-    """What the error for a window without truth adds when ``--max-gap`` cut tracks to one sample each (a
-    gap shorter than the recording's sampling interval: the box and window were not the cause)."""
-    n = dropped.get("in a track of one sample", 0)
-    return (f"; {n} samples left out as tracks of one sample (a gap of more than --max-gap {max_gap:g} s before "
-            "and after each): raise --max-gap above the recording's sampling interval, " if n else ": ")
+def _cause(rec: Recording, frame: Frame, start: float, duration: float | None, box: float, max_gap: float) -> str:
+    """How the error for a window without truth ends: what it says of the recording's samples inside the box during the window:
+    that each repeats its aircraft's previous position (a frozen position, as the traffic package's
+    ``noisy/noisy_spoofing`` holds for hours: the box and window were right, and ``--max-gap`` would not help), or
+    that ``--max-gap`` cut them into tracks of one sample (a gap shorter than the recording's sampling interval);
+    nothing when there are none (the origin, box or window is the cause: ``--max-gap`` was advised there too before
+    the tour61 session, when any sample of the recording was a track of one sample); then what to change."""
+    since = rec.t - rec.t.min()
+    pos = enu_from_geodetic(frame, *rec.lla.T)
+    here = ((since >= start) & (since <= start + (math.inf if duration is None else duration))
+            & np.all(np.abs(pos[:, :2]) <= box / 2, axis=1))
+    aircraft = rec.icao24[here].tolist()
+    places = len(set(zip(aircraft, *rec.lla[here, :2].T.tolist())))
+    if len(aircraft) > places == len(set(aircraft)):  # every aircraft inside holds one position, sample after sample
+        return (f"; its {len(aircraft)} samples inside the box are {places} frozen position{'s' * (places != 1)}, "
+                "each aircraft's samples repeating one (a spoofed or stuck report; a repeated position is left out "
+                "as stale): change --start / --duration to a window where the aircraft move")
+    lone = int(here[segments(rec, max_gap).single].sum())
+    advice = "move --origin, widen --box or change --start / --duration"
+    return (f"; {lone} samples inside the box left out as tracks of one sample (a gap of more than --max-gap "
+            f"{max_gap:g} s before and after each): raise --max-gap above the recording's sampling interval, {advice}"
+            if lone else f": {advice}")
 
 
 def read_line(source: Path, info: dict[str, Any]) -> str:

@@ -69,19 +69,20 @@ class Truth(NamedTuple):
 
 
 class Segments(NamedTuple):
-    """Row indices of each track (:func:`segments`), and how many rows were left out: ``repeated``
-    (a time or position repeated), ``single`` (a track of one sample)."""
+    """Row indices of each track (:func:`segments`), and the rows left out: how many ``repeated`` (a time or
+    position repeated), which ``single`` (row indices: tracks of one sample)."""
 
     pieces: list[np.ndarray]
     repeated: int
-    single: int
+    single: np.ndarray
 
 
 def segments(rec: Recording, max_gap: float) -> Segments:
     """Row indices of each track: one aircraft's samples, a repeated (stale) position or time dropped,
     split where the gap between samples exceeds ``max_gap`` [s]; tracks of one sample dropped."""
     out = []
-    repeated = single = 0
+    single: list[np.ndarray] = []
+    repeated = 0
     bounds = np.flatnonzero(np.r_[True, rec.icao24[1:] != rec.icao24[:-1], True])
     for a, b in zip(bounds[:-1], bounds[1:]):
         rows = np.arange(a, b)
@@ -90,11 +91,8 @@ def segments(rec: Recording, max_gap: float) -> Segments:
         repeated += int(same.sum())
         rows = rows[~same]
         for piece in np.split(rows, np.flatnonzero(np.diff(rec.t[rows]) > max_gap) + 1):
-            if len(piece) >= 2:
-                out.append(piece)
-            else:
-                single += len(piece)
-    return Segments(out, repeated, single)
+            (out if len(piece) >= 2 else single).append(piece)
+    return Segments(out, repeated, np.concatenate(single) if single else np.zeros(0, int))
 
 
 def default_max_gap(rec: Recording) -> float:
@@ -327,7 +325,7 @@ def build_truth(rec: Recording, frame: Frame, start: float, duration: float | No
         alive[live, j] = inside
     icao24 = [icao for *_, icao in kept]
     dropped = {**rec.dropped, "repeating a time or position": found.repeated,
-               "in a track of one sample": found.single + lone,
+               "in a track of one sample": len(found.single) + lone,
                "horizontal velocities at odds with the positions (their derivative taken)": at_odds,
                "positions farther from the previous one than the aircraft could fly (glitches)": glitched,
                "altitudes off those either side by more than the aircraft could climb or descend (altitude glitches)":

@@ -388,10 +388,40 @@ def test_tracks_cut_to_single_samples_by_max_gap_are_named_as_the_cause(tmp_path
             "--out", str(tmp_path / "o")]
     assert main([*argv, "--max-gap", "0.5"]) == 2
     err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
-    assert len(err) == 1 and "120 samples left out as tracks of one sample" in err[0], err
+    assert len(err) == 1 and "120 samples inside the box left out as tracks of one sample" in err[0], err
     assert "raise --max-gap above the recording's sampling interval" in err[0]
     assert main(argv) == 0 and not capsys.readouterr().err  # the same box and window, the default gap
     assert (tmp_path / "o" / "config.toml").exists()
+
+
+def test_a_wrong_origin_is_not_told_to_raise_max_gap(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A recording with one lone sample (a track of one sample) far from its aircraft, and an origin where none is:
+    the error advised raising --max-gap, which cannot put an aircraft into an empty box (tour61). Now only samples of
+    one sample inside the box and window name --max-gap."""
+    lone = {**_records()[0], "icao24": "aaaaaa", "latitude": 10.0, "longitude": 10.0}
+    source = _csv(tmp_path / "s.csv", [*_records(), lone])
+    code = main(["simulate", "traffic", "--source", str(source), "--origin", "30,2", "--units", "aviation",
+                 "--out", str(tmp_path / "o")])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 2 and len(err) == 1, err
+    assert "--max-gap" not in err[0] and err[0].endswith("from the origin: move --origin, widen --box or change "
+                                                         "--start / --duration"), err
+
+
+def test_a_frozen_position_is_named_as_the_cause(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The traffic package's ``noisy/noisy_spoofing`` holds one position for hours (a spoofed report): each repeat is
+    left out as stale, and the window about it was refused saying the box was right ("0 km from the origin") and
+    advising --max-gap, --origin and --box, none of which help (tour61). Now it names the frozen position."""
+    rows = [{**row, "latitude": -33.9, "longitude": 151.2} for row in _records()[:40]]  # one aircraft, 40 s, frozen
+    source = _csv(tmp_path / "s.csv", rows)
+    code = main(["simulate", "traffic", "--source", str(source), "--units", "aviation", "--start", "10",
+                 "--out", str(tmp_path / "o")])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 2 and len(err) == 1, err
+    assert ("0 km from the origin; its 30 samples inside the box are 1 frozen position, each aircraft's samples "
+            "repeating one (a spoofed or stuck report; a repeated position is left out as stale): change --start / "
+            "--duration to a window where the aircraft move") in err[0], err
+    assert "--max-gap" not in err[0]
 
 
 def test_version_into_a_closed_pipe_ends_quietly() -> None:
