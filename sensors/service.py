@@ -123,6 +123,21 @@ class SensorService(Service):
         self.last_publish = -float("inf")
         self.fused_up_to = -1
 
+    def start_problem(self, now: float) -> str | None:
+        """Why ``--start-at`` is refused at ``now`` (Unix s), None when it is taken: a time before 1970, or a realtime
+        start by which every scan was due (nothing to publish: the sensor exited 0 at once, as with ``--start-at -1``,
+        before the tour61 session). A start in the past with scans still due is a restarted sensor's, which resumes at
+        the scan then due; a lockstep sensor sends scan 0 at once."""
+        if self.start_at is None:
+            return None
+        if self.start_at < 0:
+            return f"--start-at: must be a Unix time >= 0 (seconds since 1970), got {self.start_at:g}"
+        if self.pacing == "realtime" and self.due_s and self.start_at + self.due_s[-1] < now:
+            return (f"--start-at {self.start_at:.3f}: every scan of this sensor was due by "
+                    f"{self.start_at + self.due_s[-1]:.3f}, {now - self.start_at - self.due_s[-1]:.0f} s ago: nothing "
+                    "left to publish (give a start ahead of now, or the first start's time to resume a sensor mid-run)")
+        return None
+
     def subscriptions(self) -> list[Subscription]:
         """Lockstep pacing follows the fused track and any single-sensor tracker of this sensor."""
         return [Subscription(self.keys.fusion_track(), FusedTrack, self.on_track),
@@ -218,8 +233,9 @@ def add_sensor_args(parser: argparse.ArgumentParser) -> None:
                         help="publish the next scan anyway after this long without a fused track "
                              "(default: %(default)s)")
     parser.add_argument("--start-at", type=finite_number, metavar="EPOCH_S",
-                        help="wall-clock time (Unix seconds) of scan 0, shared by the sensors of a deployment "
-                             "(default: when this sensor is ready)")
+                        help="wall-clock time (Unix seconds, >= 0) of scan 0, shared by the sensors of a deployment; "
+                             "in the past: a restart, resuming at the scan then due (realtime: refused when every "
+                             "scan was due; default: when this sensor is ready)")
     parser.add_argument("--start-file", type=Path, metavar="PATH",
                         help="without --start-at: wait until PATH holds the start time (Unix seconds; fedtrack "
                              "launch writes it once every sensor of its host is ready; default: none)")
@@ -257,16 +273,24 @@ def main(argv: list[str]) -> int:
         scans = own_scans(args.measurements, args.id)
         if args.join_at is not None:
             scans = [s for s in scans if s.t >= args.join_at]
-        return SensorService([], 1.0, "realtime", settings.deployment.speed, args.lockstep_timeout,
-                             args.start_at, scans=scans, start_file=args.start_file,
-                             **service_kwargs(parser, args)).run()
+        return checked_start(parser, SensorService([], 1.0, "realtime", settings.deployment.speed,
+                                                   args.lockstep_timeout, args.start_at, scans=scans,
+                                                   start_file=args.start_file, **service_kwargs(parser, args))).run()
     known = [sensor.id for sensor in settings.sensor]
     if args.kind == "position" and known and args.id not in known:  # was published with the default R, unheard
         parser.error(f"--id {args.id}: not a [[sensor]] id of {args.config} ({', '.join(known)})")
     lines, period = scan_source(args.kind, settings, args.id)
-    return SensorService(lines, period, settings.deployment.pacing, settings.deployment.speed,
-                         args.lockstep_timeout, args.start_at, start_file=args.start_file,
-                         **service_kwargs(parser, args)).run()
+    return checked_start(parser, SensorService(lines, period, settings.deployment.pacing, settings.deployment.speed,
+                                               args.lockstep_timeout, args.start_at, start_file=args.start_file,
+                                               **service_kwargs(parser, args))).run()
+
+
+def checked_start(parser: argparse.ArgumentParser, service: SensorService) -> SensorService:
+    """``service``, or exit 2 naming ``--start-at`` when :meth:`SensorService.start_problem` refuses it."""
+    problem = service.start_problem(time.time())
+    if problem:
+        parser.error(problem)
+    return service
 
 
 def read_start(path: Path) -> float | None:

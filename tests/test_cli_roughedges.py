@@ -312,6 +312,46 @@ def test_a_serve_option_of_nan_seconds_is_refused_at_start(role: str, option: st
     assert err.strip().splitlines()[-1].endswith(f"error: argument {option}: must be a finite number, got 'nan'")
 
 
+@pytest.mark.parametrize(("pacing", "start", "said"), [
+    ("realtime", "-1", "--start-at: must be a Unix time >= 0 (seconds since 1970), got -1"),
+    ("lockstep", "-1", "--start-at: must be a Unix time >= 0 (seconds since 1970), got -1"),
+    ("realtime", "1000", "--start-at 1000.000: every scan of this sensor was due by 1100.000, "),
+    ("realtime", "one hour ago", "--start-at "),
+])
+def test_a_sensor_start_with_nothing_left_to_publish_is_refused(pacing: str, start: str, said: str,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    """``serve sensor --start-at -1`` (a start in the past) was taken: a realtime sensor found every scan due, said
+    "resuming at scan 101" and exited 0 having published nothing, a lockstep one started at once (tour61). Now exit 2
+    before any session opens: a time before 1970, or a realtime start by which every scan of the paper scenario's
+    100 s was due. A start an hour ago at speed 1 is as refused (its last scan due 3,500 s ago)."""
+    import time
+
+    at = repr(time.time() - 3600.0) if start == "one hour ago" else start
+    with pytest.raises(SystemExit) as stop:
+        main(["serve", "sensor", "--connect", "tcp/127.0.0.1:1", "--connect-timeout", "0.2", "--pacing", pacing,
+              "--start-at", at])
+    err = capsys.readouterr().err
+    assert stop.value.code == 2 and "Traceback" not in err, (stop.value.code, err)
+    assert f"fedtrack serve sensor: error: {said}" in err.strip().splitlines()[-1], err
+
+
+def test_a_sensor_start_in_the_past_with_scans_still_due_is_taken() -> None:
+    """A restarted sensor is given its first start's time (the launcher's restarts, or by hand to resume): taken while
+    a scan is still due, and the sensor resumes at the scan then due."""
+    import time
+
+    from fedtrack.sensors.service import SensorService
+    from fedtrack.zsession import SessionOptions
+
+    now = time.time()
+    lines = [{"t": float(k)} for k in range(101)]
+    sensor = SensorService(lines, 1.0, "realtime", 1.0, 5.0, now - 50.0, service_id="s",
+                           options=SessionOptions())
+    assert sensor.start_problem(now) is None
+    assert sensor.start_problem(now + 51.0) is not None  # its scan 100 was due at now + 50
+    assert SensorService(lines, 1.0, "lockstep", 1.0, 5.0, 0.0, service_id="s", options=SessionOptions()).start_problem(now) is None
+
+
 def test_a_command_asked_for_more_memory_than_there_is_ends_in_one_error_line(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """``reproduce fvdie --runs 10000000000000`` (14.4 PiB of positions, beyond any address space) ended in numpy's
