@@ -43,8 +43,9 @@ from fedtrack.keys import AREA_CENTRE_ID, MERGER_ID
 from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.recording import Recording
 from fedtrack.sensors.multitarget import Scenario, SensorSpec, check_room, parse_spec, simulate
+from fedtrack.sensors.state_vectors import Recording as StateVectors
 from fedtrack.sensors.state_vectors import read_recording
-from fedtrack.sensors.traffic import read_line
+from fedtrack.sensors.traffic import read_line, window_origin
 from fedtrack.sensors.traffic import simulate as simulate_traffic
 from fedtrack.sensors.traffic_sensors import parse_kinds
 
@@ -149,15 +150,33 @@ def prepare(settings: Settings, out: Path, say: bool = True) -> Path:
     assert mt is not None
     folder = out / SCENARIO_DIR
     if mt.source:
-        assert mt.origin is not None
-        info = simulate_traffic(read_recording(Path(mt.source), mt.units), Frame(*mt.origin), mt.sensors,
-                                settings.deployment.seed, folder, mt.start, mt.duration, mt.box * 1e3, pd=mt.pd,
-                                clutter=mt.clutter, late=0.0)
+        rec = read_recording(Path(mt.source), mt.units)
+        frame = scenario_frame(settings, rec)
+        if say and mt.origin is None and settings.frame is None:
+            print(f"scenario: origin {frame.lat:.6f},{frame.lon:.6f}: the median position of the window's airborne "
+                  "samples (no [multitarget] or [frame] origin; the tracks get no lat, lon without [frame])",
+                  file=sys.stderr)
+        info = simulate_traffic(rec, frame, mt.sensors, settings.deployment.seed, folder, mt.start, mt.duration,
+                                mt.box * 1e3, pd=mt.pd, clutter=mt.clutter, late=0.0)
         if say:
             print(f"scenario: {read_line(Path(mt.source), info)}", file=sys.stderr)
         return folder / "measurements.jsonl"
     simulate(scenario(mt), parse_spec(mt.sensors), settings.deployment.seed, folder)
     return folder / "measurements.jsonl"
+
+
+def scenario_frame(settings: Settings, rec: StateVectors) -> Frame:
+    """The frame a recording's scenario is simulated in: ``[multitarget] origin``, else ``[frame] origin`` (the
+    tracks' own), else the median position of the window's airborne samples, as ``simulate traffic`` without
+    ``--origin`` (:func:`~fedtrack.sensors.traffic.window_origin`; before the tour61 session ``launch`` refused a
+    ``source`` without ``origin``)."""
+    mt = settings.multitarget
+    assert mt is not None
+    if mt.origin is not None:
+        return Frame(*mt.origin)
+    if settings.frame is not None:
+        return Frame(*settings.frame.origin)
+    return window_origin(rec, mt.start, mt.duration)
 
 
 def service_args(settings: Settings, measurements: Path, regions: Regions | None = None

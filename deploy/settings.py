@@ -47,7 +47,8 @@ class MultitargetSettings:
     standby: bool = False  # a hot standby per centre (region), promoted when its primary dies (docs/deploy.md)
     # recorded air traffic instead of simulated targets (``fedtrack simulate traffic``'s options; docs/geodetic.md)
     source: str = ""  # the recording; empty: simulated targets
-    origin: tuple[float, float, float] | None = None  # the common frame's WGS-84 origin (required with source)
+    # the common frame's WGS-84 origin; None with source: [frame] origin, else the window's (multitarget.prepare)
+    origin: tuple[float, float, float] | None = None
     box: float = 100.0  # km
     start: float = 0.0  # s after the recording's first sample
     units: str = "si"  # the recording's units (``simulate traffic --units``: si or aviation, the traffic library's)
@@ -65,8 +66,8 @@ class MultitargetSettings:
             raise ConfigError(f"half_width: must be finite and > 0, got {self.half_width:g}")
         if self.units not in UNITS:
             raise ConfigError(f"units: must be one of {', '.join(sorted(UNITS))}, got {self.units!r}")
-        if self.source and (self.origin is None or not 0 < self.box < math.inf or not 0 <= self.start < math.inf):
-            raise ConfigError("source: needs origin = [lat, lon, h], a finite box > 0 and a finite start >= 0")
+        if self.source and (not 0 < self.box < math.inf or not 0 <= self.start < math.inf):
+            raise ConfigError("source: needs a finite box > 0 and a finite start >= 0")
         problem = None if self.origin is None else geodetic_error(*self.origin)
         if problem:  # the [frame] range: the scenario's config.toml carries it as [frame] origin
             raise ConfigError(f"origin: {problem}, got {list(self.origin)}")
@@ -118,7 +119,8 @@ def check_launchable(settings: Settings, path: Path) -> None:
             check_paper_sensors(settings, ids)
         check_local_regions(settings.deployment, load_regions(path))
         mt = settings.multitarget
-        if mt is not None and mt.source and settings.frame is not None and settings.frame.origin != mt.origin:
+        if (mt is not None and mt.source and mt.origin is not None and settings.frame is not None
+                and settings.frame.origin != mt.origin):
             raise ConfigError(f"frame.origin: {list(settings.frame.origin)} is not multitarget.origin "
                               f"{list(mt.origin or ())}, "
                               "the frame the recording's scenario is simulated in (the tracks' lat, lon and lat_lon "

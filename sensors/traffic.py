@@ -192,8 +192,8 @@ def _centre(rec: Recording, frame: Frame, start: float, duration: float | None) 
 
 
 def _cause(rec: Recording, frame: Frame, start: float, duration: float | None, box: float, max_gap: float) -> str:
-    """How the error for a window without truth ends: what it says of the recording's samples inside the box during the window:
-    that each repeats its aircraft's previous position (a frozen position, as the traffic package's
+    """How the error for a window without truth ends: what it says of the recording's samples inside the box during
+    the window, that each repeats its aircraft's previous position (a frozen position, as the traffic package's
     ``noisy/noisy_spoofing`` holds for hours: the box and window were right, and ``--max-gap`` would not help), or
     that ``--max-gap`` cut them into tracks of one sample (a gap shorter than the recording's sampling interval);
     nothing when there are none (the origin, box or window is the cause: ``--max-gap`` was advised there too before

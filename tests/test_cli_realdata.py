@@ -266,6 +266,35 @@ def test_launch_refuses_a_frame_other_than_the_recordings(tmp_path: Path, capsys
     assert code == 2 and len(err) == 1 and says in err[0] and not made, err
 
 
+@pytest.mark.parametrize("frame", ["", "\n[frame]\norigin = [-33.88, 151.19, 0.0]\n"], ids=["window", "frame"])
+def test_launch_derives_a_recordings_origin_as_simulate_traffic(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                                frame: str) -> None:
+    """``[multitarget] source`` without ``origin`` was refused at start ("source: needs origin = [lat, lon, h]"),
+    while ``simulate traffic`` and the demo take the median position of the window's airborne samples (tour61). Now
+    ``launch`` takes ``[frame] origin`` (the tracks' frame) when given, else the window's, and says which."""
+    import tomllib
+
+    from fedtrack.deploy.multitarget import prepare
+    from fedtrack.deploy.settings import check_launchable, load_settings
+
+    source = _csv(tmp_path / "s.csv", _records())
+    config = tmp_path / "mt.toml"
+    config.write_text(f'[deployment]\npacing = "realtime"\n\n[multitarget]\nsource = "{source}"\nunits = "aviation"\n'
+                      f'sensors = "pos:2"\nduration = 30.0\n{frame}')
+    settings = load_settings(config)
+    check_launchable(settings, config)
+    prepare(settings, tmp_path / "o")
+    origin = tomllib.loads((tmp_path / "o" / "scenario" / "config.toml").read_text())["frame"]["origin"]
+    err = capsys.readouterr().err
+    if frame:
+        assert origin == [-33.88, 151.19, 0.0] and "origin" not in err.splitlines()[0], err
+    else:
+        lat = [r["latitude"] for r in _records() if r["timestamp"] <= T0_MS + 30_000]
+        assert origin == pytest.approx([float(np.median(lat)), 151.19, 0.0])
+        assert err.startswith(f"scenario: origin {np.median(lat):.6f},151.190000: the median position of the "
+                              "window's airborne samples"), err
+
+
 def test_demo_and_launch_read_a_recording_in_aviation_units(tmp_path: Path) -> None:
     """The traffic library's samples are in ft, kt and ft/min: ``demo --scenario traffic --source`` read them as
     m and m/s (aircraft 3.28 times higher than recorded), with no way to say otherwise."""

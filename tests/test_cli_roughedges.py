@@ -349,7 +349,8 @@ def test_a_sensor_start_in_the_past_with_scans_still_due_is_taken() -> None:
                            options=SessionOptions())
     assert sensor.start_problem(now) is None
     assert sensor.start_problem(now + 51.0) is not None  # its scan 100 was due at now + 50
-    assert SensorService(lines, 1.0, "lockstep", 1.0, 5.0, 0.0, service_id="s", options=SessionOptions()).start_problem(now) is None
+    lockstep = SensorService(lines, 1.0, "lockstep", 1.0, 5.0, 0.0, service_id="s", options=SessionOptions())
+    assert lockstep.start_problem(now) is None
 
 
 def test_a_command_asked_for_more_memory_than_there_is_ends_in_one_error_line(
