@@ -101,6 +101,17 @@ def _radar_filter(path: Path) -> object:
     ("[radar_filter]\nwindw = 3\n", "unknown config key radar_filter.windw: did you mean radar_filter.window",
      (_radar_filter,), "mtt-federated"),
     ("[radar_filter]\nq = -1.0\n", "radar_filter.q: must be > 0", (_radar_filter,), "fvdie"),
+    # TOML's inf passed every range check: q, init_velocity_std and init_z_std made every covariance non-finite
+    # (replay's traceback), picture_delay with max_lag inf an OverflowError, clutter_density made every detection
+    # clutter (tour61)
+    ("[mtt]\nq = inf\n", "mtt.q: must be a finite number, got inf", (_mtt,), "mtt-federated"),
+    ("[mtt]\ninit_velocity_std = inf\n", "mtt.init_velocity_std: must be a finite number", (_mtt,), "mtt-federated"),
+    ("[mtt]\ninit_z_std = inf\n", "mtt.init_z_std: must be a finite number", (_mtt,), "mtt-centralized"),
+    ("[mtt]\npicture_delay = inf\nmax_lag = inf\n", "mtt.picture_delay: must be a finite number", (_mtt,),
+     "mtt-centralized"),
+    ("[mtt]\nclutter_density = inf\n", "mtt.clutter_density: must be a finite number", (_mtt,), "mtt-federated"),
+    ("[mtt.sensor.s1]\nclutter_density = inf\n", "mtt.sensor.s1.clutter_density: must be finite and >= 0", (_mtt,),
+     "mtt-federated"),
 ])
 def test_config_errors_name_file_table_and_key(tmp_path: Path, text: str, message: str, consumers: tuple,
                                                algorithm: str, capsys: pytest.CaptureFixture[str]) -> None:

@@ -371,6 +371,13 @@ class MttConfig:
         for key in ("max_lag", "picture_delay", "clutter_density", "max_speed"):
             if not getattr(self, key) >= 0:
                 raise ConfigError(f"{key}: must be >= 0")
+        # inf (TOML's literal) passed every range check: q, init_velocity_std or init_z_std made every covariance
+        # non-finite (a traceback), picture_delay with max_lag inf an OverflowError, clutter_density every detection
+        # clutter (no track ever); before the tour61 session. maneuver_s, straight_s, max_lag, central_timeout and
+        # leave_after_s mean "never" when infinite (maneuver_s = inf: one mode, docs/mht.md)
+        for key in ("q", "init_velocity_std", "init_z_std", "picture_delay", "clutter_density"):
+            if not math.isfinite(getattr(self, key)):
+                raise ConfigError(f"{key}: must be a finite number, got {getattr(self, key):g}")
         if not self.picture_delay <= self.max_lag:  # the centre keeps its states max_lag back (engines.py)
             raise ConfigError(f"picture_delay: must be <= max_lag ({self.max_lag:g} s: a picture waits for late "
                               f"data at most as long as it is kept), got {self.picture_delay:g}")
@@ -409,8 +416,8 @@ class MttConfig:
         for sid, over in self.sensor.items():
             if over.pd is not None and not 0 < over.pd <= 1:
                 raise ConfigError(f"sensor.{sid}.pd: must be in (0, 1]")
-            if over.clutter_density is not None and not over.clutter_density >= 0:
-                raise ConfigError(f"sensor.{sid}.clutter_density: must be >= 0")
+            if over.clutter_density is not None and not 0 <= over.clutter_density < math.inf:
+                raise ConfigError(f"sensor.{sid}.clutter_density: must be finite and >= 0")
             floor = over.noise_floor
             # at most the wire's largest quantity: diag(floor²) stays finite (1e200 made it inf, the floor none)
             if floor is not None and not (len(floor) in (2, 3) and all(0 < v <= MAX_MAGNITUDE for v in floor)):
