@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any, Callable, NoReturn
 
 from fedtrack.config import ConfigError, seed_number
-from fedtrack.jsonl import InputError, check_outputs, output_folder
+from fedtrack.jsonl import InputError, check_output_folder, check_outputs
 
 # name -> "module:function(runs, seed, json_path, plots_dir) -> dict"
 REPRODUCERS: dict[str, str] = {
@@ -113,8 +113,8 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
         raise InputError(f"--runs: must be at least 2 (standard errors need two runs), got {args.runs}")
     if args.runs > sys.maxsize:  # numpy's largest array dimension (intp); fewer that do not fit in memory: MemoryError
         raise InputError(f"--runs: at most {sys.maxsize} (the largest array dimension), got {args.runs}")
-    if args.plots:
-        output_folder(args.plots)
+    if args.plots:  # created by the reproduction as it plots, at its end: a Ctrl-C before left it empty (tour61)
+        check_output_folder(args.plots)
     fn = resolve(REPRODUCERS[args.name])
     extra = {"model": Path(args.model)} if args.model else {}
     result = fn(runs=args.runs, seed=args.seed, json_path=Path(args.json),

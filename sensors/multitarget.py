@@ -48,7 +48,7 @@ import numpy as np
 
 from fedtrack.config import seed_number, to_toml
 from fedtrack.geodetic import RadarSite, above_radio_horizon, aer_from_enu, enu_from_aer
-from fedtrack.jsonl import InputError, output_file, output_folder
+from fedtrack.jsonl import InputError, check_output_folder, output_file
 from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.mtt.scan import MAX_DETECTIONS
 from fedtrack.local_filters.radar.measurement import polar_from_cartesian, wrap_angle
@@ -512,7 +512,7 @@ def main(argv: list[str]) -> int:
     sc = Scenario(targets=args.targets, duration=args.duration, region=args.half_width, pd=args.pd,
                   clutter=args.clutter, late=args.late, formation=int(args.formation), fifo=not args.non_fifo)
     check_room(sc, specs)
-    output_folder(args.out)
+    check_output_folder(args.out)  # created as the files are written: a Ctrl-C before left it empty (tour61)
     info = simulate(sc, specs, args.seed, args.out)
     print(f"wrote {args.out}/measurements.jsonl ({info['scans']} scans, {info['out_of_sequence']} out of "
           f"sequence), truth.jsonl ({args.targets} targets), config.toml; sensors: {', '.join(info['sensors'])}")

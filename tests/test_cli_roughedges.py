@@ -353,6 +353,24 @@ def test_a_sensor_start_in_the_past_with_scans_still_due_is_taken() -> None:
     assert lockstep.start_problem(now) is None
 
 
+def test_a_ctrl_c_before_any_file_leaves_no_empty_output_folder(tmp_path: Path,
+                                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    """``simulate multitarget --out DIR`` and ``reproduce --plots DIR`` made DIR before their work (seconds of
+    simulation, minutes of Monte Carlo): a Ctrl-C then left it empty, though nothing was written (tour61). Now each is
+    made as its files are written."""
+    from fedtrack.experiments import fvdie
+    from fedtrack.sensors import multitarget
+
+    def stopped(*args: object, **kwargs: object) -> None:
+        raise KeyboardInterrupt
+    monkeypatch.setattr(multitarget, "simulate", stopped)
+    monkeypatch.setattr(fvdie, "reproduce_fvdie", stopped)
+    assert main(["simulate", "multitarget", "--targets", "2", "--duration", "5", "--out", str(tmp_path / "s")]) == 130
+    assert main(["reproduce", "fvdie", "--runs", "2", "--json", str(tmp_path / "r.json"),
+                 "--plots", str(tmp_path / "p")]) == 130
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
 def test_a_command_asked_for_more_memory_than_there_is_ends_in_one_error_line(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """``reproduce fvdie --runs 10000000000000`` (14.4 PiB of positions, beyond any address space) ended in numpy's
