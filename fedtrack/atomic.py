@@ -13,7 +13,12 @@ after a power cut it may be empty, which its reader refuses like any unusable sn
 any exception (an OSError of the write, the fsync or the rename, the caller's own error raised in the
 block, Ctrl-C) the temporary file is removed, the target is as it was, and the exception propagates
 unchanged: each caller keeps its own error contract (:func:`fedtrack.jsonl.output_file` turns a full
-disk into an InputError naming the file; a snapshot's writer counts the OSError)."""
+disk into an InputError naming the file; a snapshot's writer counts the OSError).
+
+A target that exists and is neither a regular file nor a folder (``/dev/null``, ``/dev/stdout`` on a pipe, a FIFO:
+a stream, which no reader sees whole anyway) is written into, not renamed onto: before the tour61 session
+``replay --out /dev/stdout`` run as root replaced the link ``/dev/stdout`` with a regular file of the pictures (and
+``--out /dev/null`` would have replaced the device); as another user it failed, the folder ``/dev`` not writable."""
 
 from __future__ import annotations
 
@@ -37,6 +42,10 @@ def atomic_file(path: str | Path, mode: str = "wb", permissions: int = 0o666,
     or ``"wb"``), or leave it untouched if anything raises (the module's contract). OSError when the
     temporary file cannot be created (the folder missing or read-only)."""
     p = Path(path)
+    if p.exists() and not p.is_file() and not p.is_dir():  # a device or pipe: a stream, written into (above)
+        with open(p, mode) as stream:
+            yield stream
+        return
     tmp = temporary_name(p)
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, permissions)
     try:

@@ -85,3 +85,26 @@ def test_a_folder_that_does_not_exist_is_an_oserror_and_creates_nothing(tmp_path
     with pytest.raises(FileNotFoundError):
         write_atomic(tmp_path / "gone" / "out.bin", b"data")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_stream_is_written_into_not_replaced(tmp_path: Path) -> None:
+    """``replay --out /dev/stdout`` run as root replaced the link ``/dev/stdout`` (here: a FIFO, and a link to it)
+    with a regular file holding the output, which no reader got; now a target that is a device or pipe is written
+    into and stays what it was (tour61)."""
+    import threading
+
+    from fedtrack.jsonl import output_file
+
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    link = tmp_path / "stdout"
+    link.symlink_to(fifo)
+    got: list[bytes] = []
+    reader = threading.Thread(target=lambda: got.append(fifo.read_bytes()), daemon=True)
+    reader.start()
+    with output_file(link) as fh:
+        fh.write('{"t": 0.0}\n')
+    reader.join(timeout=10)
+    assert got == [b'{"t": 0.0}\n']
+    assert stat.S_ISFIFO(fifo.stat().st_mode) and link.is_symlink() and os.readlink(link) == str(fifo)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["pipe", "stdout"]
