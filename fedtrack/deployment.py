@@ -71,8 +71,8 @@ class DeploymentConfig:
         for role in self.services:
             if role not in ROLES:
                 raise ConfigError(f"services: unknown role {role!r} (roles: {', '.join(ROLES)})")
-        if not self.ready_timeout_s > 0:
-            raise ConfigError("ready_timeout_s: must be > 0")
+        if not 0 < self.ready_timeout_s < math.inf:  # inf: launch's traceback (its Zenoh connect timeout; tour61)
+            raise ConfigError("ready_timeout_s: must be finite and > 0")
         if self.mode not in MODES:
             raise ConfigError(f"mode: must be one of {', '.join(MODES)}, got {self.mode!r}")
         if self.pacing not in PACINGS:
@@ -81,8 +81,8 @@ class DeploymentConfig:
             raise ConfigError(f"scenario: paper 004 has scenarios 1 and 2, got {self.scenario}")
         if not 0 < self.speed < math.inf:
             raise ConfigError("speed: must be finite and > 0")
-        if not self.deadline_s > 0:
-            raise ConfigError("deadline_s: must be > 0")
+        if not 0 < self.deadline_s < math.inf:  # as serve fusion-center --deadline (tour60); inf passed (tour61)
+            raise ConfigError("deadline_s: must be finite and > 0")
         if not 0 < self.duration_s < math.inf:
             raise ConfigError("duration_s: must be finite and > 0")
         if self.seed < 0:

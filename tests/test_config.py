@@ -112,6 +112,10 @@ def _radar_filter(path: Path) -> object:
     ("[mtt]\nclutter_density = inf\n", "mtt.clutter_density: must be a finite number", (_mtt,), "mtt-federated"),
     ("[mtt.sensor.s1]\nclutter_density = inf\n", "mtt.sensor.s1.clutter_density: must be finite and >= 0", (_mtt,),
      "mtt-federated"),
+    # launch's Zenoh connect timeout int(inf * 1000): a traceback once the services ran; deadline_s as serve
+    # fusion-center --deadline, which refuses inf (tour61)
+    ("[deployment]\nready_timeout_s = inf\n", "deployment.ready_timeout_s: must be finite and > 0", (_pipeline,), "kf"),
+    ("[deployment]\ndeadline_s = inf\n", "deployment.deadline_s: must be finite and > 0", (_pipeline,), "kf"),
 ])
 def test_config_errors_name_file_table_and_key(tmp_path: Path, text: str, message: str, consumers: tuple,
                                                algorithm: str, capsys: pytest.CaptureFixture[str]) -> None:
