@@ -553,7 +553,12 @@ def prepare_launcher(settings: Settings, config_path: Path, out_dir: Path, quiet
         raise ConfigError(f"{config_path}: deployment.router_listen: {problem}, where the router would listen")
     if settings.multitarget is not None:
         settings = check_multitarget(settings, config_path)
-        prepare(settings, out_dir)
+        try:
+            prepare(settings, out_dir)
+        except InputError as exc:  # a recording missing, unreadable or without aircraft in the window: named as the
+            # key it came from, and the output folder this run made removed (before the tour61 session neither)
+            key = "multitarget.source" if settings.multitarget and settings.multitarget.source else "multitarget"
+            raise ConfigError(f"{config_path}: {key}: {exc}") from None
         if config_path.resolve() != (out_dir / "config.toml").resolve():  # ``demo`` writes it there itself
             shutil.copyfile(config_path, out_dir / "config.toml")  # what ``replay --config OUT/config.toml`` reads
     plan = service_plan(settings, config_path, out_dir, out_dir / "logs", recorder_exports=False)

@@ -266,6 +266,18 @@ def test_launch_refuses_a_frame_other_than_the_recordings(tmp_path: Path, capsys
     assert code == 2 and len(err) == 1 and says in err[0] and not made, err
 
 
+@pytest.mark.parametrize(("source", "says"), [("missing.csv", "multitarget.source: missing.csv: file does not exist"),
+                                              ("far", "multitarget.source: no airborne aircraft inside the box")])
+def test_launch_names_the_recordings_key_and_leaves_no_folder(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                              source: str, says: str) -> None:
+    """A ``[multitarget] source`` that is missing, or whose window holds no aircraft about ``origin``: the error named
+    neither the config nor the key, and the output folder the launch had made was left behind, empty (tour61)."""
+    path = source if source == "missing.csv" else str(_csv(tmp_path / "s.csv", _records()))
+    code, err, made = launch_config(tmp_path, capsys, f'[deployment]\npacing = "realtime"\n\n[multitarget]\n'
+                                    f'source = "{path}"\nunits = "aviation"\norigin = [30.0, 2.0, 0.0]\n')
+    assert code == 2 and len(err) == 1 and f"{tmp_path / 'c.toml'}: {says}" in err[0] and not made, err
+
+
 @pytest.mark.parametrize("frame", ["", "\n[frame]\norigin = [-33.88, 151.19, 0.0]\n"], ids=["window", "frame"])
 def test_launch_derives_a_recordings_origin_as_simulate_traffic(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                                                                 frame: str) -> None:
