@@ -33,6 +33,7 @@ from fedtrack.keys import DEFAULT_DEPLOYMENT, InvalidName, check_id
 
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"
 RETRY_PERIOD_MAX_S = 1.0  # a client retries its connection every 0.1 s, doubling up to this
+OPEN_POLL_S = 0.05  # s: how often a service opening its session checks for a stop (open_session_unless)
 MODES = ("client", "peer", "router")
 _RUST_LOCATION = re.compile(r"\s+at \S+\.rs:\d+\.?")
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/\S+$")
@@ -117,6 +118,42 @@ def open_session(opts: SessionOptions) -> zenoh.Session:
         where = f"connect {', '.join(opts.connect)}" if opts.connect else f"listen {', '.join(opts.listen)}"
         reason = _RUST_LOCATION.sub("", str(exc))
         raise SessionError(f"cannot open a zenoh {opts.mode} session ({where}): {reason}") from None
+
+
+def open_session_unless(opts: SessionOptions, stopped: Callable[[], bool]) -> zenoh.Session | None:
+    """:func:`open_session` in a thread of its own while the calling thread checks ``stopped`` every
+    ``OPEN_POLL_S``; None once ``stopped`` says so before the session is open (one that opens later is closed).
+    ``zenoh.open`` waits in native code, where no Python signal handler runs: a service connecting for ever
+    (``--connect-timeout -1``) to a router that was not there ignored SIGTERM and Ctrl-C, and only SIGKILL ended it
+    (before the tour61 session); with the default 10 s it answered them 10 s late."""
+    lock = threading.Lock()
+    outcome: list[zenoh.Session | Exception] = []  # the session, or the error to raise in the calling thread
+    given_up = False
+
+    def connect() -> None:
+        try:
+            result: zenoh.Session | Exception = open_session(opts)
+        except Exception as exc:
+            result = exc
+        with lock:
+            if not given_up:
+                outcome.append(result)
+                return
+        if isinstance(result, zenoh.Session):
+            close_session(result)
+
+    thread = threading.Thread(target=connect, name="zenoh-open", daemon=True)
+    thread.start()
+    while True:
+        thread.join(OPEN_POLL_S)
+        with lock:
+            if outcome:
+                if isinstance(outcome[0], Exception):
+                    raise outcome[0]
+                return outcome[0]
+            if stopped():
+                given_up = True
+                return None
 
 
 def close_session(session: zenoh.Session, deadline_s: float = 2.0) -> bool:

@@ -112,6 +112,22 @@ def test_client_without_router_fails_after_its_timeout() -> None:
     assert time.monotonic() - start < 5.0
 
 
+def test_a_service_connecting_for_ever_stops_when_asked() -> None:
+    """``serve ROLE --connect-timeout -1`` (wait for ever) with no router there: ``zenoh.open`` waited in native
+    code, where the service's SIGTERM and Ctrl-C handlers never ran, and only SIGKILL ended it (tour61). Now the
+    session opens in a thread of its own and a stop asked meanwhile (what the handlers do) ends ``run`` with 0."""
+    from fedtrack.sensors.service import SensorService
+
+    sensor = SensorService([{"t": 0.0}], 1.0, "lockstep", 1.0, 5.0, service_id="s1",
+                           options=SessionOptions(connect=(f"tcp/127.0.0.1:{free_port()}",), connect_timeout_s=-1.0))
+    codes: list[int] = []
+    runner = threading.Thread(target=lambda: codes.append(sensor.run()), daemon=True)
+    runner.start()
+    sensor.stop()
+    runner.join(WAIT_S)
+    assert not runner.is_alive() and codes == [0] and sensor.session is None
+
+
 def test_router_and_recorder_processes(tmp_path: Path) -> None:
     """A client publishes good and malformed payloads; the recorder writes the good ones in seq
     order and counts the bad one in its Health; both services exit 0 on SIGTERM."""

@@ -103,7 +103,7 @@ from fedtrack.zsession import (
     SessionOptions,
     add_endpoint_args,
     close_session,
-    open_session,
+    open_session_unless,
     options_from_args,
 )
 
@@ -291,11 +291,15 @@ class Service(Dispatch, Publishing):
         sys.setswitchinterval(0.0005)  # measured: callback latency ~5 ms -> ~1 ms under CPU load
         restore = self._install_signal_handlers()
         try:
-            self.session = open_session(self.options)
+            self.session = open_session_unless(self.options, lambda: self._stop_requested)
         except SessionError as exc:
             self.log.error("%s", exc)
             restore()
             return 1
+        if self.session is None:  # SIGTERM or Ctrl-C while it connected: nothing opened, nothing to say
+            self.log.info("stopped while connecting (exit code 0)")
+            restore()
+            return 0
         code = 0
         try:
             self._declare_inputs()
