@@ -103,7 +103,10 @@ def main(argv: list[str]) -> int:
         ap.error("--runs must be >= 1")
     out = check_output(args.out)
     ga = GAParams(population=args.population, generations=args.generations, max_rules=args.max_rules)
-    ga.validate()
+    try:
+        ga.validate()
+    except ConfigError as exc:  # named as the option (was "population: must be >= 1", a key of no file; tour61)
+        ap.error(f"--{str(exc).replace('_', '-')}")
     model, summary = train(args.runs, args.seed, ga)
     save_model(out, model, **_model_meta(args.runs, args.seed, EkfConfig.q, summary))
     print(f"wrote {out}: {summary['rules']} rules, fitness {summary['fitness']:.4f}, "

@@ -371,6 +371,18 @@ def test_a_ctrl_c_before_any_file_leaves_no_empty_output_folder(tmp_path: Path,
     assert sorted(p.name for p in tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("option", ["--population", "--generations", "--max-rules"])
+def test_a_training_option_below_one_is_named_as_the_option(option: str, tmp_path: Path,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """``train ts-fuzzy --population 0`` said ``fedtrack: error: population: must be >= 1``, a key of no file the
+    user gave (tour61); now the option's usage error, as ``--runs 0``'s, before any training."""
+    with pytest.raises(SystemExit) as stop:
+        main(["train", "ts-fuzzy", "--out", str(tmp_path / "m.npz"), option, "0"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert stop.value.code == 2 and err[-1] == f"fedtrack train ts-fuzzy: error: {option}: must be >= 1", err
+    assert not (tmp_path / "m.npz").exists()
+
+
 def test_a_command_asked_for_more_memory_than_there_is_ends_in_one_error_line(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """``reproduce fvdie --runs 10000000000000`` (14.4 PiB of positions, beyond any address space) ended in numpy's
