@@ -383,6 +383,26 @@ def test_a_training_option_below_one_is_named_as_the_option(option: str, tmp_pat
     assert not (tmp_path / "m.npz").exists()
 
 
+def test_a_sensor_table_of_no_sensor_in_the_data_is_said(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``[mtt.sensor.S1]`` (a mistyped ``s1``) without ``[mtt] sensors``: its noise floor went unused without a word
+    (tour61); now replay notes it, and the pictures are those without the table."""
+    sim = tmp_path / "S"
+    assert main(["simulate", "multitarget", "--targets", "2", "--duration", "5", "--sensors", "pos:1",
+                 "--out", str(sim)]) == 0
+    stray = tmp_path / "c.toml"
+    stray.write_text("[mtt.sensor.S1]\nnoise_floor = [10.0, 10.0]\n")
+    capsys.readouterr()
+    for config, out in ((stray, "a.jsonl"), (tmp_path / "none.toml", "b.jsonl")):
+        config.touch()
+        assert main(["replay", "--algorithm", "mtt-federated", "--config", str(config), "--measurements",
+                     str(sim / "measurements.jsonl"), "--out", str(tmp_path / out)]) == 0
+    err = capsys.readouterr().err
+    assert (f"mtt-federated: note: [mtt.sensor.S1] of {stray} names no sensor of {sim / 'measurements.jsonl'} "
+            "(its sensors: s1): its keys are not used") in err, err
+    assert err.count("names no sensor") == 1
+    assert (tmp_path / "a.jsonl").read_bytes() == (tmp_path / "b.jsonl").read_bytes()
+
+
 def test_a_command_asked_for_more_memory_than_there_is_ends_in_one_error_line(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """``reproduce fvdie --runs 10000000000000`` (14.4 PiB of positions, beyond any address space) ended in numpy's

@@ -308,6 +308,11 @@ def replay_mtt(algorithm: str, measurements: Path, config: Path | None, out: Pat
                           periods(scans))
     if note:
         print(f"{algorithm}: note: {note}", file=sys.stderr)
+    heard = {s.sensor for s in scans if isinstance(s, SensorScan)}
+    stray = sorted(set(cfg.sensor) - heard)
+    if stray:  # a mistyped id (S1 for s1): its noise_floor, pd, clutter_density unused, silently before tour61
+        print(f"{algorithm}: note: {', '.join(f'[mtt.sensor.{sid}]' for sid in stray)} of {config} names no sensor "
+              f"of {measurements} (its sensors: {', '.join(sorted(heard))}): its keys are not used", file=sys.stderr)
     read_s = time.perf_counter() - start
     n = onsets = 0
     detector = False  # whether the pictures carry maneuver events (a detector runs)
