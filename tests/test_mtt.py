@@ -397,8 +397,10 @@ def test_centre_in_heavy_clutter_confirms_only_what_a_local_tracker_confirmed(as
     holds clutter at the default density:
     count 0.964 (without the noise in the gate, as before the untuned4 session: 4.5e-5), where gnn's centre
     does not confirm on the count either: four hits of 500 m sensors are evidence ln(0.9 / 0.66) = +0.31
-    each, 1.2 in all, below Wald's 4.6 (before the untuned53 session it confirmed); the fifth scan's (10 m,
-    +7.6) confirms in every case."""
+    each, 1.2 in all, below Wald's 4.6 (before the untuned53 session it confirmed); the fifth scan's (10 m)
+    confirms the others, and beside the 500 m sensors the sixth: a 10 m hit weighs the chance of its clutter in
+    the gate of the central track, ``S = R + H P H'`` (central61), +1.3 on the 250 m wide track of the 500 m hits
+    (before, +7.6, the gate taken as 10 m wide), +6 on the track it made 10 m wide."""
     from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
     from fedtrack.local_filters.mtt.config import MhtConfig, MttConfig
 
@@ -418,6 +420,9 @@ def test_centre_in_heavy_clutter_confirms_only_what_a_local_tracker_confirmed(as
         assert slots.size == 1
         assert bool(centre.tracks.confirmed[slots[0]]) == counts
         centre.ingest(_one_point_report("s1", 2.0, True, False))
+        assert centre.tracks.live().size == 1
+        assert bool(centre.tracks.confirmed[centre.tracks.live()[0]]) == (noise < 500.0**2)
+        centre.ingest(_one_point_report("s1", 2.5, True, False))
         assert centre.tracks.live().size == 1 and bool(centre.tracks.confirmed[centre.tracks.live()[0]])
 
 

@@ -254,10 +254,11 @@ def test_a_confirmed_track_the_fine_sensor_lost_goes_though_the_coarse_one_hits_
 
 
 def scan(sensor: str, t: float, places: dict[int, tuple[float, float]], confirmed: set[int],
-         retired: tuple[int, ...] = ()) -> LocalReport:
-    """A position sensor's report of local tracks at ``places`` (local id -> x, y), each detected there by this
-    scan; ``confirmed``: those its tracker confirmed (the others started now); ``retired``: deleted at this scan."""
-    report = placed(sensor, t, places)
+         retired: tuple[int, ...] = (), sd: float = 10.0) -> LocalReport:
+    """A position sensor's report (noise ``sd`` m a axis) of local tracks at ``places`` (local id -> x, y), each
+    detected there by this scan; ``confirmed``: those its tracker confirmed (the others started now); ``retired``:
+    deleted at this scan."""
+    report = placed(sensor, t, places, sd)
     own = np.array([i in confirmed for i in sorted(places)], dtype=bool)
     return report._replace(confirmed=own, started=~own, retired=np.array(retired, dtype=np.int64))
 
@@ -424,3 +425,60 @@ def test_one_of_two_sensors_does_not_demote_the_others_confirmed_track() -> None
     centre, confirmed = crossing(("s2",))
     assert centre.n_live == 2 and confirmed[-1] == (13.75, True)
     assert any(c for t, c in confirmed if t < 4.0) and centre.counters.demoted == 0
+
+
+def test_a_fine_sensors_clutter_joining_a_coarse_sensors_second_track_does_not_confirm_it() -> None:
+    """A fine sensor ``f`` (1 m, every 1 s) and a coarse one ``c`` (300 m, every 1 s, half a second later) track
+    three targets; ``c`` holds a second track 250 m beside the one at the origin from 2.5 s (its clutter, which
+    its tracker confirms), which starts a central track of its own (``c``'s first track is on the target's), and
+    ``f``'s clutter starts a track 230 m from it at 3 s, retired at its next scan. ``f``'s track joins the coarse
+    track (300 m wide, it has no track of ``f``). The join weighs ``f``'s chance of clutter in that track's gate
+    (``S = R + H P H'``, 0.39 at 1e-7 m^-2): +0.85, and ``f``'s later misses of the place -2.3 each; the track
+    stays tentative, the targets' are confirmed. Before, the join weighed ``f``'s gate as 1 m wide (+12.2, a chance of
+    4e-6) and confirmed the duplicate at ``c``'s next scan (mixnoise60's duplicates beside a target: ``simulate
+    multitarget --targets 10 --duration 150 --sensors pos:1.0/1,pos:1.0/300``)."""
+    centre = TrackToTrackCentre(MttConfig(clutter_density=1e-7, associator="jipda"), 4, False)
+    targets = {1: (-2000.0, -2000.0), 2: (2000.0, 2000.0), 3: (0.0, 0.0)}
+    for k in range(12):
+        clutter = {9: (200.0, 100.0)} if k == 3 else {}
+        centre.answer(scan("f", float(k), {**targets, **clutter}, set(targets) if k else set(),
+                           (9,) if k == 4 else (), sd=1.0))
+        second = {5: (250.0, 0.0)} if k >= 2 else {}
+        own = (set(targets) if k else set()) | ({5} if k > 2 else set())
+        centre.answer(scan("c", k + 0.5, {**targets, **second}, own, sd=300.0))
+        if second:  # never confirmed (a confirmed one would go by f's misses, and c's track start another)
+            assert not centre.tracks.confirmed[centre.tracks.slot[centre.mapping[("c", 5)]]], k
+    duplicate = centre.mapping[("c", 5)]
+    assert ("f", 9) not in centre.mapping and centre.sensors_of(duplicate) == ["c"] and duplicate == 3
+    for lid in targets:
+        cid = centre.mapping[("f", lid)]
+        assert centre.mapping[("c", lid)] == cid and centre.tracks.confirmed[centre.tracks.slot[cid]]
+
+
+def test_a_coarse_sensors_duplicate_of_a_target_goes_once_the_fine_sensor_dropped_its_own() -> None:
+    """A fine sensor ``f`` (5 m, every 1 s) and a coarse one ``c`` (500 m, every 0.5 s) each hold two tracks 20 m
+    apart at the origin, confirmed on two central tracks; at 5 s ``f``'s tracker drops its second (a duplicate
+    of the one target there) and ``c`` goes on hitting its own. ``f``'s scans see the place (its tracks surround
+    it) and its track within reach is mapped to the other central track, which ``c`` supports too: ``c``'s two
+    tracks are two targets by its own word, so ``f``'s track is the other's, and ``f``'s misses count against the
+    duplicate (-2.3 a second against ``c``'s +0.31 a hit): it goes within 5 s; the target's track stays. Before,
+    ``f``'s track within reach might have held its detections and its misses did not count once ``c``'s next hit
+    ended its part as the tracker that gave the track up: the duplicate stayed for good (untuned53's twelve
+    sensors, ``mtt-decentralized`` jipda, seed 2: three coarse sensors' second tracks of a target for 40 s)."""
+    centre = TrackToTrackCentre(MttConfig(clutter_density=1e-7), 4, False)
+    pair = {3: (0.0, 0.0), 4: (20.0, 0.0)}
+    for t in np.arange(0.0, 10.01, 0.5):
+        if t == 5.0:
+            both = [centre.mapping[("f", lid)] for lid in pair]
+            assert [centre.sensors_of(cid) for cid in both] == [["c", "f"], ["c", "f"]] and both[0] != both[1]
+            assert all(centre.tracks.confirmed[centre.tracks.slot[cid]] for cid in both)
+        if t % 1.0 == 0.0:
+            fine = {**TARGETS, **pair} if t < 5.0 else {**TARGETS, 3: pair[3]}
+            centre.answer(placed("f", float(t), fine, 5.0)._replace(
+                retired=np.array([4] if t == 5.0 else [], dtype=np.int64)))
+        centre.answer(placed("c", float(t) + 0.25, {**TARGETS, **pair}, 500.0))
+    duplicate = both[1]
+    assert duplicate not in centre.tracks.slot
+    target = centre.mapping[("f", 3)]
+    assert target == both[0] and centre.tracks.confirmed[centre.tracks.slot[target]]
+    assert_targets_confirmed(centre)

@@ -5,7 +5,6 @@ The rules are in :mod:`.track_to_track`'s docstring."""
 from __future__ import annotations
 
 import math
-from functools import lru_cache
 from statistics import NormalDist
 
 import numpy as np
@@ -48,15 +47,15 @@ Z_FALSE_CONFIRM = NormalDist().inv_cdf(1.0 - FALSE_CONFIRM)
 # confirmed by its target's later detections
 
 
-@lru_cache(maxsize=256)
-def log_ratios(pd: float, clutter: float, gate: float, R: bytes, R_type: str) -> tuple[float, float]:
-    """:meth:`CentreLife._evidence` of a sensor of detection probability ``pd`` and clutter density ``clutter``,
-    gate ``gate`` and noise ``R`` (its bytes, 2 x 2, dtype ``R_type``), remembered: a sensor's plots claim the
-    same ``R`` report after report."""
-    area = math.pi * gate * math.sqrt(max(float(np.linalg.det(np.frombuffer(R, R_type).reshape(2, 2))), 0.0))
+def log_ratios(pd: float, clutter: float, gate: float, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`CentreLife._evidence` of a position sensor of detection probability ``pd`` and clutter density
+    ``clutter`` on tracks whose gates (at ``gate``, the 2-D chi-square quantile) have the covariances ``S``
+    (n, 2, 2): per track, the log-likelihood ratios of a detection and of a miss."""
+    area = math.pi * gate * np.sqrt(np.maximum(np.linalg.det(S), 0.0))
     pd = min(pd, 1.0 - 1e-12)
-    p = min(-math.expm1(-clutter * area), pd)
-    return (math.log(pd / p) if p > 0.0 else math.inf), math.log1p(-pd) - math.log1p(-p)
+    p = np.minimum(-np.expm1(-clutter * area), pd)
+    with np.errstate(divide="ignore"):
+        return np.log(pd) - np.log(p), math.log1p(-pd) - np.log1p(-p)
 
 
 def surely_above(site: RadarSite | None, X: np.ndarray, P: np.ndarray) -> np.ndarray:
@@ -129,7 +128,8 @@ class CentreLife:
         if seen.any():  # the misses since: a late detection's sensors' scans after it
             self.streak[seen] = np.minimum(self.streak[seen], self._scans_after(report.t))
             self.gave_up[seen] &= self.streak[seen] > 0
-            self.evidence[seen] = np.minimum(self.evidence[seen] + self.column_log_hit[col], 0.0)
+            seen = seen.nonzero()[0]
+            self.evidence[seen] = np.minimum(self.evidence[seen] + self._evidence(seen, hit[seen], col, report), 0.0)
         missed = (old > hit) & (report.t > self.last_support)  # confirmed, not detected, after its last detection
         missed = missed.nonzero()[0]
         dead = missed[:0]
@@ -144,7 +144,8 @@ class CentreLife:
             others = (~counts).nonzero()[0] if self.sensor_names[col] not in self.excluded else counts[:0]
             if others.size:
                 counts[others] = self._in_view(missed[others], report)
-            self.evidence[missed[counts]] += self.column_log_absent[col]
+            absent = missed[counts]
+            self.evidence[absent] += self._evidence(absent, hit[absent], col, report)
             bound = need[:, 0] * np.where(tracking, self.column_log_miss, 0.0).sum(axis=1)
             enough = self._misses_enough(streak, tracking, need) | (self.evidence[missed] <= bound)
             dead = missed[(n_tracking > 0) & enough]
@@ -153,7 +154,7 @@ class CentreLife:
         young = tentative[counts]
         window = np.concatenate([self.window[young, 1:], hit[young, None]], axis=1)
         self.window[young] = window
-        evidence = self.evidence[young] + np.where(hit[young], self.column_log_hit[col], self.column_log_absent[col])
+        evidence = self.evidence[young] + self._evidence(young, hit[young], col, report)
         self.evidence[young] = np.maximum(evidence, DROP_EVIDENCE)
         counted = (np.count_nonzero(window, axis=1) >= cfg.confirm_hits) & (self.evidence[young] >= CONFIRM_EVIDENCE)
         now = self._corroborated(tentative, counts, counted, hit, col, report)  # count, Wald, others
@@ -409,22 +410,70 @@ class CentreLife:
         radar's horizon (:func:`surely_above`: a miss there may be the horizon's; before 2026-11-28, kiruna57, the
         track raised above it as for a tentative one, and a far radar's misses deleted a position sensor's track of
         unknown height again and again: ``calibration/kiruna``, 23 id switches in 30 min), and beyond the reach of
-        each of them (none of them may hold its detections)."""
+        each of them that may hold its detections: a local track mapped to another central track that shares a
+        sensor with it does not (:meth:`_apart`)."""
         X, P = self._states_at(slots, report.t)
         inside, _ = self._view(X, P, report)
         inside &= surely_above(self.sites.get(report.sensor), X, P)
-        inside[inside] = ~self._reach(X[inside], P[inside], report)
+        rows = inside.nonzero()[0]
+        m, n = self._reach_pairs(X[rows], P[rows], report)
+        m = m[~self._apart(slots[rows[m]], report.ids[n], report.sensor)]
+        inside[rows[m]] = False
         return inside
 
-    def _evidence(self, sensor: str, R: np.ndarray) -> tuple[float, float]:
-        """A scan of position sensor ``sensor`` (noise ``R``) as evidence on a central track, the
-        log-likelihood ratios of a track on a target against one on clutter: ``ln(P_D / p)`` when it
-        detects the track and ``ln((1 - P_D) / (1 - p))`` when not, ``p = 1 - exp(-lambda pi g sqrt(det R))``
-        the chance that its clutter falls into the gate (``g`` at ``gate_probability``) of a track known far
-        better than its noise; a sensor whose clutter is in the gate as often as a target (``p >= P_D``)
-        says nothing either way (0, 0)."""
-        cfg = self.cfg
-        return log_ratios(cfg.pd_of(sensor), cfg.clutter_of(sensor), cfg.thresholds.gate[2], R.tobytes(), R.dtype.str)
+    def _apart(self, slots: np.ndarray, lids: np.ndarray, sensor: str) -> np.ndarray:
+        """Per pair of a central track's slot of ``slots`` and a local track of ``sensor`` (its id in ``lids``), whether
+        the local track is mapped to another central track that shares a sensor with the slot's: that sensor's two
+        local tracks, one on each, are two targets (a tracker keeps one track of a target), so the local track holds
+        the other target's detections, not the slot's. A sensor that sees the slot's place and holds no other local
+        track within reach of it missed its target: three coarse sensors' second tracks of a target, mapped
+        together, kept a duplicate of the target's track for 40 s that the nine finer sensors never detected, their
+        misses not counted beside their local tracks of the target (``mtt-decentralized`` jipda, untuned53's twelve
+        sensors, seed 2: ``tests/test_mtt_centre_life.py``)."""
+        slot_of, mapping = self.tracks.slot, self.mapping
+        other = np.array([slot_of.get(mapping.get((sensor, lid)), -1) for lid in lids.tolist()], dtype=np.int64)
+        apart = (other >= 0) & (other != slots)
+        if apart.any():
+            apart[apart] = (self._fused_support(slots[apart]) & self._fused_support(other[apart])).any(axis=1)
+        return apart
+
+    def _evidence(self, slots: np.ndarray, hit: np.ndarray, col: int, report: LocalReport) -> np.ndarray:
+        """Per slot of ``slots``, the scan (``report``, sensor column ``col``) as evidence on its central track, the
+        log-likelihood ratio of a track on a target against one on clutter: ``ln(P_D / p)`` where it detects the
+        track (``hit``) and ``ln((1 - P_D) / (1 - p))`` where not, ``p = 1 - exp(-lambda pi g sqrt(det S))`` the
+        chance that the sensor's clutter falls into the track's gate (``g`` at ``gate_probability``), ``S = R + H P
+        H'`` its noise and the track's position covariance before the scan (:meth:`_priors`), as ``mtt-centralized``'s
+        hit evidence takes its gate's ``S`` (``roles.life.hit_evidence``); a sensor whose clutter is in the gate as
+        often as a target (``p >= P_D``) says nothing either way (0, 0); a sensor without clutter, or a radar (no
+        such formula for its density per m rad^2): a hit is decisive (``inf``), a miss ``ln(1 - P_D)``. Before
+        central61 ``S`` was ``R``, a track known far better than the noise: a 1 m sensor's clutter track that
+        joined a track of a 300 m sensor alone weighed +12.2 (a chance of 4e-6) and confirmed it at once beside
+        the target's own track; its clutter falls into that gate with 0.39, +0.85 now
+        (``tests/test_mtt_centre_life.py``)."""
+        cfg, sensor, R = self.cfg, self.sensor_names[col], self.column_R[col]
+        lam = cfg.clutter_of(sensor)
+        if lam <= 0.0 or np.isnan(R).any() or not slots.size:
+            return np.where(hit, np.inf, self.column_log_miss[col])
+        S = R + self._priors(slots, hit, report)
+        log_hit, log_absent = log_ratios(cfg.pd_of(sensor), lam, cfg.thresholds.gate[2], S)
+        return np.where(hit, log_hit, log_absent)
+
+    def _priors(self, slots: np.ndarray, hit: np.ndarray, report: LocalReport) -> np.ndarray:
+        """Per slot of ``slots``, its central track's x-y covariance before the report's observations were fused:
+        where the report detects it (``hit``), the report's own prediction to its time (``report_states``), zero
+        for a track the report started (its detection is its own gate's centre); where not, the track's newest
+        estimate's (the life rules predict nothing of their own, perf60, and a report without detections, which
+        makes no prediction, leaves what the full path leaves)."""
+        xy = [0, 2]
+        out = self.tracks.latest(slots)[2][:, xy][:, :, xy]
+        known = self.report_states
+        if known is not None and known[0] == report.t and hit.any():
+            (_, P0, at), touched = known[1], known[2]
+            row = np.where(hit, at[slots], -1)
+            ahead = row >= 0
+            out[ahead] = P0[row[ahead]][:, xy][:, :, xy]
+            out[hit & ~ahead & np.isin(slots, touched)] = 0.0
+        return out
 
     def _below_horizon(self, X: np.ndarray, P: np.ndarray, report: LocalReport) -> np.ndarray:
         """Per central state of ``X`` (covariances ``P``, 3-D), whether the report's radar cannot see it: the

@@ -186,10 +186,9 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self._column: dict[str, int] = {}
         self.column_log_miss = np.zeros(0)  # per sensor column, ln(1 - P_D) of its sensor (MttConfig.log_miss)
         self.column_interval = np.zeros(0)  # per sensor column, its latest scan's time since its previous one
-        # per sensor column, a scan's log-likelihood ratio (target against clutter) for a confirmed track it
-        # detects and for one it does not (CentreLife._evidence; a sensor without clutter: inf and ln(1 - P_D))
-        self.column_log_hit = np.zeros(0)
-        self.column_log_absent = np.zeros(0)
+        # per sensor column, a position sensor's noise R (its latest report's first observation's; NaN: none, a radar),
+        # whose clutter in a central track's gate weighs its scans as evidence (CentreLife._evidence)
+        self.column_R = np.zeros((0, 2, 2))
         self.n_live = 0  # live sensors fused at the latest report's time (live_sensors less excluded)
         self.excluded: set[str] = set()  # flagged live sensors left out of the fusion now (_note_scan)
         self.usual: dict[str, float] = {}  # each sensor's usual interval at the latest report (_note_scan)
@@ -249,8 +248,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
             col = self._column[sensor] = len(self.sensor_names)
             self.sensor_names.append(sensor)
             self.column_log_miss = np.append(self.column_log_miss, self.cfg.log_miss(sensor))
-            self.column_log_hit = np.append(self.column_log_hit, np.inf)
-            self.column_log_absent = np.append(self.column_log_absent, self.cfg.log_miss(sensor))
+            self.column_R = np.concatenate([self.column_R, np.full((1, 2, 2), np.nan)])
             self.column_interval = np.append(self.column_interval, 0.0)
             self._fit()
         return col
@@ -333,8 +331,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.gave_up = np.delete(self.gave_up, col, axis=1)
         self.denied = np.delete(self.denied, col, axis=1)
         self.column_log_miss = np.delete(self.column_log_miss, col)
-        self.column_log_hit = np.delete(self.column_log_hit, col)
-        self.column_log_absent = np.delete(self.column_log_absent, col)
+        self.column_R = np.delete(self.column_R, col, axis=0)
         self.column_interval = np.delete(self.column_interval, col)
         self._column = {name: k for k, name in enumerate(self.sensor_names)}
         self.count_judged.discard(sensor)
@@ -501,7 +498,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         col = self._col(s)
         self.column_interval[col] = t - previous
         if report.obs_R.shape[0] and report.obs_R.shape[1:] == (2, 2):
-            self.column_log_hit[col], self.column_log_absent[col] = self._evidence(s, report.obs_R[0])
+            self.column_R[col] = report.obs_R[0]
         confirmed = report.confirmed if rows is None else report.confirmed & rows
         self.own_confirmed[s] = frozenset(report.ids[confirmed].tolist())
         self._unmap_retired(report)
