@@ -235,10 +235,16 @@ def test_sensors_join_and_leave_at_run_time(tmp_path: Path) -> None:
     skipped: dict[str, int] = {}
 
     def publish(part: list[dict[str, Any]]) -> None:
+        """Each scan fed after its running tracker's report of the one before is out (feed_one_by_one): fed at
+        once, s3's tracker, its thread slowed 0.3 s a scan, fell behind s2's and its last resets were s2's alone
+        (q_scale 1.0)."""
         for line in part:
             scan = parse_scan(line, "test")
             seq[scan.sensor] = seq.get(scan.sensor, -1) + 1
-            feed(session, keys.sensor_meas(scan.sensor), encode(scan_to_measurement(scan, seq[scan.sensor], 1)))
+            running = local[scan.sensor] if threads[scan.sensor].is_alive() else None
+            payload = encode(scan_to_measurement(scan, seq[scan.sensor], 1))
+            feed_one_by_one(session, keys.sensor_meas(scan.sensor), payload, running,
+                            seq[scan.sensor] + 1 - skipped.get(scan.sensor, 0))
 
     def settled() -> bool:
         """Every running tracker has taken every scan published to it and has its resets."""
