@@ -306,9 +306,9 @@ def test_a_picture_of_many_departures_and_restarts_exports_in_linear_time(tmp_pa
                        restarted=tuple(range(1, n, 2)), stamp_ns=1, closing=False)
     for part in parts(pic):
         assert rec.add(part, encode(part)) == RECORDED
-    start = time.perf_counter()
+    start = time.thread_time()  # the export's CPU time: the wall time took 7.3 s at a load of 30
     assert rec.export(tmp_path / "m.jsonl", tmp_path / "t.jsonl") == (n, 1)
-    took = time.perf_counter() - start
+    took = time.thread_time() - start
     rec.close()
     lines = (tmp_path / "m.jsonl").read_text().splitlines()
     assert [json.loads(line) for line in lines[:2]] == [{"t": 1.0, "sensor": "s1", "left": True},
