@@ -31,6 +31,8 @@ from test_mtt_regions_live import scenario, services
 from fedtrack.deploy.launcher import prepare_launcher
 from fedtrack.deploy.report import LaunchReport
 from fedtrack.deploy.settings import load_settings
+from fedtrack.fusion_center.mtt import service as centre_service
+from fedtrack.fusion_center.mtt.failover import service as failover_service
 from fedtrack.fusion_center.mtt.failover.standby import (
     SETTLE_S,
     SILENT_S,
@@ -550,7 +552,25 @@ class Reordered:
                     self.svc._dispatch(item)
 
 
-def on_the_bus(standby: MttCentreService, bus: Bus) -> None:
+class StillClock:
+    """``time`` as the centres' modules see it on the in-process bus, but for ``monotonic()``, which stands still:
+    the bus delivers every message at once, as an infinitely fast machine would. On the wall clock, at a load of
+    30, inputs a standby held were passed over as not listed within ``ORDER_WAIT_S`` (2 s) while the bus's one
+    thread was busy elsewhere, and 3 of its 7 pictures differed from its primary's."""
+
+    def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        self.now = time.monotonic()
+        monkeypatch.setattr(failover_service, "time", self)
+        monkeypatch.setattr(centre_service, "time", self)
+
+    def monotonic(self) -> float:
+        return self.now
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(time, name)
+
+
+def on_the_bus(standby: MttCentreService, bus: Bus, clock: StillClock) -> None:
     """``standby`` publishes onto ``bus`` once it is the primary (CentreFailover.publish: withheld before), and finds
     no token at its stop."""
     def withheld(key: str, msg: Any) -> None:
@@ -558,7 +578,7 @@ def on_the_bus(standby: MttCentreService, bus: Bus) -> None:
             bus.published.append((key, msg))
             bus.pending.append((key, encode(msg)))
         else:
-            standby.standby.hold(key, msg, time.monotonic())
+            standby.standby.hold(key, msg, clock.monotonic())
 
     standby.publish = withheld  # type: ignore[method-assign]
     standby.session = type("Tokens", (), {"liveliness": lambda self: self, "zid": lambda self: "b0",
@@ -566,7 +586,7 @@ def on_the_bus(standby: MttCentreService, bus: Bus) -> None:
                                           "declare_token": lambda self, key: type("T", (), {"undeclare": print})()})()
 
 
-def forged_start_with_a_standby(tmp_path: Path, forged: list[tuple[str, Any]], kill_at: float | None
+def forged_start_with_a_standby(tmp_path: Path, forged: list[tuple[str, Any]], kill_at: float | None, clock: StillClock
                                 ) -> tuple[MttCentreService, list[TrackPicture], list[tuple[str, Any]]]:
     """Two region centres, x0y0's warm standby and ``serve picture`` on the bus: ``forged`` (key, message) put
     first, then every scan; x0y0's primary dies at ``kill_at`` (its token with it) and the standby takes over.
@@ -578,7 +598,7 @@ def forged_start_with_a_standby(tmp_path: Path, forged: list[tuple[str, Any]], k
                                service_id="x0y0-standby", options=OPTIONS, deployment="hostile")
     recorder.on_start()
     bus = Bus([*centres, *local, merger, recorder, standby])
-    on_the_bus(standby, bus)
+    on_the_bus(standby, bus, clock)
     keys = Keys("hostile")
     for key, msg in forged:
         bus.put(key, encode(msg))
@@ -586,7 +606,7 @@ def forged_start_with_a_standby(tmp_path: Path, forged: list[tuple[str, Any]], k
         if kill_at is not None and m.t >= kill_at and centres[0] in bus.services:
             bus.services.remove(centres[0])
             bus._routes.clear()
-            standby.standby.token(False, time.monotonic() - 1.0)
+            standby.standby.token(False, clock.monotonic() - 1.0)
             standby._failover_tick()
             bus.drain()
         bus.put(keys.sensor_meas(m.sensor), encode(m))
@@ -597,7 +617,8 @@ def forged_start_with_a_standby(tmp_path: Path, forged: list[tuple[str, Any]], k
 
 
 @pytest.mark.parametrize("dt", [1e9, -1e12])
-def test_a_warm_standby_begins_afresh_with_its_primary(tmp_path: Path, dt: float) -> None:
+def test_a_warm_standby_begins_afresh_with_its_primary(tmp_path: Path, dt: float, monkeypatch: pytest.MonkeyPatch
+                                                       ) -> None:
     """s1's first 6 s of sub-reports to x0y0, re-stamped ``dt`` s off and numbered 500 on, sent first: x0y0's primary
     publishes pictures from that start, then abandons it (lead.SoleStart) and says so in its next picture's
     ``began`` entry. Its warm standby, following its pictures, went on from the forged start's state: at 10^9 s
@@ -605,26 +626,29 @@ def test_a_warm_standby_begins_afresh_with_its_primary(tmp_path: Path, dt: float
     primary's; after a take-over at 16 s, 14 of the 29 merged pictures (those after it) not those of the run without
     the kill (redteam65 (b)). It now begins afresh there too, numbering as its primary: every picture its
     primary's, and the take-over changes no merged picture (but the last, as in the clean run)."""
-    keys = Keys("hostile")
-    _, _, clean = forged_start_with_a_standby(tmp_path / "clean", [], None)
+    keys, clock = Keys("hostile"), StillClock(monkeypatch)
+    _, _, clean = forged_start_with_a_standby(tmp_path / "clean", [], None, clock)
     forged = [(key, replace(r, seq=r.seq + 500, t=r.t + dt)) for key, r in clean
               if key == keys.region_report("x0y0", "s1") and r.t <= 6.0]
-    standby, merged, _ = forged_start_with_a_standby(tmp_path / "attacked", forged, None)
+    standby, merged, _ = forged_start_with_a_standby(tmp_path / "attacked", forged, None, clock)
     assert standby.standby.differ == 0 and standby.standby.same >= 30
     assert standby.counters.get("centre_late", 0) == 0 and standby.counters.get("start_abandoned") == 1
-    standby, failed_over, _ = forged_start_with_a_standby(tmp_path / "killed", forged, 16.0)
+    standby, failed_over, _ = forged_start_with_a_standby(tmp_path / "killed", forged, 16.0, clock)
     assert standby.counters.get("took_over") == 1 and standby.standby.differ == 0
     # the last merged picture, at the stop, differs with the kill in the clean run too (the dead primary never stops)
     assert [(p.t, p.ids, p.x.tobytes()) for p in failed_over[:-1]] == [(p.t, p.ids, p.x.tobytes()) for p in merged[:-1]]
     assert len(merged) >= 25
 
 
-def test_a_standby_fed_in_another_order_takes_its_primarys_and_a_failover_replays(tmp_path: Path) -> None:
+def test_a_standby_fed_in_another_order_takes_its_primarys_and_a_failover_replays(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Region x0y0's standby gets the sub-reports and hand-overs in another order than its primary (on
     the in-process bus): it takes them in its primary's order (the fused lists of its pictures), so
     every picture it makes equals its primary's; the primary dies at t = 8 s, the standby takes over,
     and the recording replays to the live merged pictures. Before, it fused in its own arrival order,
-    its pictures differed from its primary's, and after the take-over live and replay parted."""
+    its pictures differed from its primary's, and after the take-over live and replay parted. The centres'
+    clock stands still (:class:`StillClock`)."""
+    clock = StillClock(monkeypatch)
     msgs, cfg, config = scenario(tmp_path)
     centres, local, merger, recorder = services(tmp_path, "mtt-federated", config, cfg,
                                                 {"options": OPTIONS, "deployment": "hostile"})
@@ -636,14 +660,14 @@ def test_a_standby_fed_in_another_order_takes_its_primarys_and_a_failover_replay
     late = Reordered(standby)
     bus.services[-1] = late  # type: ignore[call-overload]
 
-    on_the_bus(standby, bus)
+    on_the_bus(standby, bus, clock)
     keys, primary = Keys("hostile"), centres[0]
     for k, m in enumerate(m for m in msgs if m.t < 16.0):
         if m.t >= 8.0 and primary in bus.services:  # the primary dies (its token with it)
             bus.services.remove(primary)
             bus._routes.clear()
             late.flush()
-            standby.standby.token(False, time.monotonic() - 1.0)
+            standby.standby.token(False, clock.monotonic() - 1.0)
             standby._failover_tick()
             bus.drain()
             assert standby.standby.primary and standby.counters["took_over"] == 1
