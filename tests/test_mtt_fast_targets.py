@@ -127,9 +127,11 @@ CASES = [("gnn", alg) for alg in ("mtt-local", "mtt-centralized", "mtt-federated
 @pytest.mark.parametrize("associator, algorithm", CASES)
 def test_fast_targets_get_tracks_with_the_default_config(tmp_path: Path, associator: str, algorithm: str) -> None:
     """Four targets at 300-700 m/s seen every second by a 50 m position sensor, every key at its
-    default (``associator`` aside): every target has a confirmed track from the fifth scan on (a
-    pair's track counts from the pair: gnn confirms at the fourth detection, here the 300 m/s
-    target's one scan later, its third detection taken by the one-point start of its second; jipda
+    default (``associator`` aside): every target has a confirmed track from the fifth scan on, gnn's from the
+    sixth (a pair's track counts from the pair: gnn confirms at the fourth detection, here the 300 m/s
+    target's two scans later: its third detection was taken by the one-point start of its second, and a
+    miss and two hits in gates of 2-4e5 m^2 at the default 1e-7 m^-2 fall short of Wald's test, which gnn's
+    count passes as well since the clutter61 session: one scan later than the count alone; jipda
     at the fourth, mht at the fourth or fifth). Before two-point starts none got a track: each
     second detection fell outside the gate of the zero-velocity start (30 m/s) of the first and
     started another. 0.05-0.2 s each."""
@@ -139,7 +141,7 @@ def test_fast_targets_get_tracks_with_the_default_config(tmp_path: Path, associa
                sensor="s1" if algorithm == "mtt-local" else None)
     pictures = [json.loads(x) for x in (tmp_path / "t.jsonl").read_text().splitlines()]
     start = covered_from(pictures, truth, 1.0)
-    assert start is not None and start <= 4.0, (associator, algorithm, start)
+    assert start is not None and start <= (5.0 if associator == "gnn" else 4.0), (associator, algorithm, start)
 
 
 @pytest.mark.parametrize("period, radar", [(5.0, False), (1.0, True)])

@@ -46,6 +46,11 @@ Since the mixnoise59 session ``mtt-centralized`` gnn keeps the configured count 
 scan's evidence (:func:`~fedtrack.local_filters.mtt.roles.life.m_of_n`, ``keeps_evidence``):
 ``gnn-evidence.json.gz`` (frozen when it came) holds the centralized cases, and without that test they equal
 the references above.
+Since the clutter61 session every counting tracker keeps the evidence and its count confirms only where Wald's test
+passes too (``roles.life.passes_wald``: none of these cases changes), and a pair's track takes its start's evidence
+and births share plus the pair's ratio (``initiation.paired_evidence``): ``gnn-paired-evidence.json.gz`` (frozen
+when it came) holds the radar scenario's centralized cases, which that changes, and with a pair's track's evidence
+started afresh they equal ``gnn-evidence.json.gz``.
 """
 
 from __future__ import annotations
@@ -69,6 +74,7 @@ TWO_POINT = DATA / "gnn-two-point.json.gz"  # the cases two-point starts change
 START_WAITS = DATA / "gnn-start-waits.json.gz"  # the cases a start waiting while its velocity is unmeasured changes
 CLUTTERED = DATA / "gnn-cluttered-count.json.gz"  # the cases a count raised on a cluttered sensor changes
 EVIDENCE = DATA / "gnn-evidence.json.gz"  # the centralized cases: Wald's test on each scan's evidence
+PAIRED = DATA / "gnn-paired-evidence.json.gz"  # the cases a pair's track taking its start's evidence changes
 CASES = [(scenario, maneuver, algorithm) for scenario in ("pos", "radar") for maneuver in ("none", "vdie")
          for algorithm in ("mtt-local", "mtt-centralized", "mtt-federated", "mtt-decentralized")]
 LOCAL_SENSOR = {"pos": "s2", "radar": "r1"}
@@ -119,12 +125,17 @@ def test_gnn_pictures_equal_main_886cab1(tmp_path: Path, scenario: str, maneuver
                                          monkeypatch: pytest.MonkeyPatch) -> None:
     from fedtrack.fusion_center.mtt import engines
     from fedtrack.fusion_center.mtt.engines import CentralizedEngine
-    from fedtrack.local_filters.mtt import config, initiation
+    from fedtrack.local_filters.mtt import config, initiation, tracker
     from fedtrack.local_filters.mtt.roles import gating, life
 
     monkeypatch.setattr(config, "LOST_SCAN_S", 0.0)  # a count per scan only, as before the untuned3 session
 
     key = f"{scenario}-{maneuver}-{algorithm}"
+    paired_evidence = json.loads(gzip.decompress(PAIRED.read_bytes()))
+    if key in paired_evidence:
+        assert_fingerprints_equal(fingerprint(replay_case(tmp_path, scenario, maneuver, algorithm)),
+                                  paired_evidence[key])
+    monkeypatch.setattr(tracker, "paired_evidence", lambda new, init, partner: new)  # as before clutter61
     weighed = json.loads(gzip.decompress(EVIDENCE.read_bytes()))
     if key in weighed:
         assert_fingerprints_equal(fingerprint(replay_case(tmp_path, scenario, maneuver, algorithm)), weighed[key])

@@ -353,6 +353,21 @@ def initiate(starts: Starts, tracks: TrackSet, live: np.ndarray, scan: SensorSca
                      np.concatenate([np.arange(det.size), pairs.det]), kept, pairs, partners, alone)
 
 
+def paired_evidence(new: TrackSet, init: Initiated, partner: np.ndarray | None) -> TrackSet:
+    """New tracks (:func:`initiate`'s) with each pair's track's Wald evidence (``roles.life.tally``) as
+    :func:`paired_log_odds` gives its odds: where its start's track still had only its start's detection
+    (``alone``), the start's before the scan (``partner``, over the tracks given to :func:`initiate`: its births
+    share too) plus the pair's log-likelihood ratio, the start's track updated by the second detection; else
+    the scan's births share alone (:func:`births_share`). No evidence kept, no pair: as given."""
+    if new.evidence is None or partner is None or not init.pairs.det.size:
+        return new
+    evidence = new.evidence.copy()
+    rows = new.size - init.pairs.det.size + np.flatnonzero(init.alone)
+    evidence[rows] = partner[init.partners[init.alone]]
+    evidence[rows, 0] += init.pairs.log_lr[init.alone]
+    return new._replace(evidence=evidence)
+
+
 def paired_log_odds(log_odds: np.ndarray, init: Initiated, partner_log_odds: np.ndarray) -> np.ndarray:
     """New tracks' existence log odds (jipda's existence, mht's score): ``log_odds`` (the one-point
     starts'), then for each pair's track its start's before the scan (``partner_log_odds``, over the

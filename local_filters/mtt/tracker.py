@@ -52,7 +52,7 @@ from fedtrack.local_filters.mtt.association import Association, AssociationInput
 from fedtrack.local_filters.mtt.associators import jipda, mht
 from fedtrack.local_filters.mtt.associators.gnn import GNN
 from fedtrack.local_filters.mtt.config import MttConfig
-from fedtrack.local_filters.mtt.initiation import initiate, paired_log_odds
+from fedtrack.local_filters.mtt.initiation import initiate, paired_evidence, paired_log_odds
 from fedtrack.local_filters.mtt.roles.filtering import (
     detection_update,
     hard_update,
@@ -171,7 +171,7 @@ def tracker_step(state: TrackerState, scan: SensorScan, params: TrackParams,
     updated, live = (m_of_n if role.manage is None else role.manage)(upd.tracks, upd.detected, params, sees)
     det = np.flatnonzero(~assoc.claimed)
     init = initiate(state.starts, updated, live, scan, det, params, state.next_id)
-    new, obs_new = init.tracks, init.observations
+    new, obs_new = paired_evidence(init.tracks, init, tracks.evidence), init.observations
     if assoc.birth is not None or new.existence is not None:
         born = assoc.birth[det] if assoc.birth is not None else new.existence[:det.size]
         if init.pairs.det.size:  # a pair's track: its start's existence before the scan, predicted to it
@@ -237,7 +237,8 @@ def mht_step(state: TrackerState, scan: SensorScan, params: TrackParams, q_scale
                         detected_by=old.detected_by, evidence=old.evidence)
     fresh = br.births  # a detection that a kept hypothesis of its cluster leaves unused starts a track there
     init = initiate(state.starts, children, live, scan, fresh, params, state.next_id)
-    new, obs_new = init.tracks, init.observations
+    partner = None if leaves.evidence is None else leaves.evidence[br.parent]  # before the scan's tally
+    new, obs_new = paired_evidence(init.tracks, init, partner), init.observations
     new_score = mht.birth_scores(mp, None if scan.amplitude is None else scan.amplitude[fresh], fresh.size)
     if init.pairs.det.size:  # a pair's track: its start's leaf's score before the scan and the pair's ratio
         new_score = paired_log_odds(new_score, init, mem.score[br.parent])

@@ -5,6 +5,8 @@ duplicate central tracks. The rules are in :mod:`.track_to_track`'s docstring.""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from fedtrack.fusion_center.mtt.centre.candidates import XY, candidate_pairs
@@ -186,6 +188,11 @@ class CentreAssociation:
             picked = assign(len(rows), cands.size, ri, ci, cost - ASSOCIATION_SHIFT)
             cand_ids = self.tracks.ids[cands]
             assigned = {int(ri[k]): int(cand_ids[ci[k]]) for k in picked}
+        # Wald's threshold of the central tracks it starts (CentreLife._count_scan): raised by their births share
+        # and by the start's own detection, which the report counts as a hit and which is no evidence yet
+        births = sum(u not in assigned for u in range(len(unmapped))) if start else 0
+        log_hit = self.column_log_hit[self._col(s)]
+        share = math.log(max(births, 1)) + (log_hit if math.isfinite(log_hit) else 0.0)
         for u in range(len(unmapped) + len(alone)):
             row = int(rows[u])
             key = (s, int(report.ids[row]))
@@ -193,7 +200,7 @@ class CentreAssociation:
                 if self.mapping.get(key) != assigned[u]:  # a mover may stay
                     self._map(key, assigned[u])
             elif u < len(unmapped) and start:
-                self._map(key, self._start(t, report.x[row], report.P[row]))
+                self._map(key, self._start(t, report.x[row], report.P[row], share))
                 fresh.add(key)
         return fresh
 

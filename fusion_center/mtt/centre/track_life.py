@@ -156,7 +156,8 @@ class CentreLife:
         self.window[young] = window
         evidence = self.evidence[young] + self._evidence(young, hit[young], col, report)
         self.evidence[young] = np.maximum(evidence, DROP_EVIDENCE)
-        counted = (np.count_nonzero(window, axis=1) >= cfg.confirm_hits) & (self.evidence[young] >= CONFIRM_EVIDENCE)
+        counted = ((np.count_nonzero(window, axis=1) >= cfg.confirm_hits)
+                   & (self.evidence[young] >= CONFIRM_EVIDENCE + self.share[young]))  # the births share the bound
         now = self._corroborated(tentative, counts, counted, hit, col, report)  # count, Wald, others
         if cfg.confirm_bound is not None and self.n_live == 1:
             now = young[self._vouched(young, report.sensor)]  # one sensor: its tracker's own test

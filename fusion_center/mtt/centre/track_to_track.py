@@ -197,6 +197,9 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         # a slot's log-likelihood ratio of target against clutter (CentreLife._evidence): a tentative one's since
         # its start, a confirmed one's since its highest (<= 0)
         self.evidence = np.zeros(0)
+        # a tentative slot's rise of its Wald threshold (CentreLife._count_scan): the log of the central tracks its
+        # start's report started (the local trackers' initiation.births_share) and its start's hit, no evidence
+        self.share = np.zeros(0)
         # per confirmed slot and sensor, whether that sensor's tracker retired its last local track there
         # since the slot's last detection (its misses still count: CentreLife._tracking)
         self.gave_up = np.zeros((0, 0), dtype=bool)
@@ -241,6 +244,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.vetting = padded(self.vetting, (rows,))
         self.last_support = padded(self.last_support, (rows,))
         self.evidence = padded(self.evidence, (rows,))
+        self.share = padded(self.share, (rows,))
 
     def _col(self, sensor: str) -> int:
         col = self._column.get(sensor)
@@ -369,8 +373,9 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         Pc[4, 4], Pc[5, 5] = self.cfg.init_z_std**2, self.cfg.init_velocity_std**2
         return xc, Pc
 
-    def _start(self, t: float, x: np.ndarray, P: np.ndarray) -> int:
-        """A new tentative central track at ``t``; returns its id."""
+    def _start(self, t: float, x: np.ndarray, P: np.ndarray, share: float = 0.0) -> int:
+        """A new tentative central track at ``t``, its Wald threshold raised by ``share`` (:attr:`share`); returns
+        its id."""
         cid = self.next_id
         self.next_id += self.id_step
         slot = self.tracks.start(cid, t, *self._central_start(x, P))
@@ -378,7 +383,7 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         self.support[slot], self.streak[slot], self.window[slot], self.vetting[slot] = 0, 0, False, 0
         self.denied[slot] = 0
         self.gave_up[slot] = False
-        self.last_support[slot], self.evidence[slot] = t, 0.0
+        self.last_support[slot], self.evidence[slot], self.share[slot] = t, 0.0, share
         self.counters.started += 1
         return cid
 
@@ -710,7 +715,8 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
         cols = [self._col(record.sensors[k]) for k in keep]
         self.support[slot], self.streak[slot], self.gave_up[slot] = 0, 0, False  # gave_up not handed over
         self.vetting[slot], self.denied[slot] = 0, 0  # nor its vetting: the new owner's sensors vet it afresh
-        self.evidence[slot] = 0.0  # nor its evidence (a tentative one's since its start, else since its highest)
+        # nor its evidence (a tentative one's since its start, else since its highest) and births share
+        self.evidence[slot], self.share[slot] = 0.0, 0.0
         self.support[slot, cols], self.streak[slot, cols] = record.support[keep], record.streak[keep]
         self.window[slot], self.last_support[slot] = record.window, record.last_support
         for key, strikes in zip(record.members, record.strikes):

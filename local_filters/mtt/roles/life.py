@@ -98,7 +98,7 @@ def empty_shows_blind(pd: float, held_tracks: int) -> bool:
 
 def scan_sees(x: np.ndarray, gating: Gating | None, scan: SensorScan, params: TrackParams, held_tracks: int = 0
               ) -> Sight | None:
-    """In a tracker of several sensors' scans (``params.sensor_bit``; else None), per track (its
+    """In a tracker of several sensors' scans (``params.sensor_bit``), per track (its
     predicted state in ``x``) what the scan shows of its place (:class:`Sight`): a detection of the
     scan in the track's gate, or the track's position strictly inside the x-y extent of the scan's
     detections (targets' and clutter: a sensor's detections lie in what it sees; a sensor that
@@ -107,15 +107,17 @@ def scan_sees(x: np.ndarray, gating: Gating | None, scan: SensorScan, params: Tr
     A scan without a detection whose sensor had detected ``held_tracks`` confirmed tracks (:func:`held`),
     too many for it to miss them all at once (:func:`empty_shows_blind`: a sensor blinded, jammed or
     cut off that still sends its scans), shows no view: it counts only for the tracks no other
-    sensor detected (:meth:`Sight.counts`), as a sensor's silence counts for none."""
-    if not params.sensor_bit:
-        return None
+    sensor detected (:meth:`Sight.counts`), as a sensor's silence counts for none. One sensor's tracker sees every
+    track's place, and its Sight carries only the hits' evidence where it keeps it (:func:`keeps_evidence`; else
+    None)."""
     n = x.shape[0]
-    sees = np.zeros(n, dtype=bool) if gating is None else np.bincount(gating.pairs.rows, minlength=n) > 0
-    view = np.ones(n, dtype=bool)
     log_hit = None
     if keeps_evidence(params):  # no gating: no detection, no hit to weigh
         log_hit = np.zeros(n) if gating is None else hit_evidence(gating.logdet, scan.dim, params)
+    if not params.sensor_bit:
+        return None if log_hit is None else Sight(np.ones(n, dtype=bool), np.ones(n, dtype=bool), log_hit)
+    sees = np.zeros(n, dtype=bool) if gating is None else np.bincount(gating.pairs.rows, minlength=n) > 0
+    view = np.ones(n, dtype=bool)
     if not scan.z.shape[0] and empty_shows_blind(params.pd, held_tracks):
         return Sight(sees, ~view, log_hit)
     if n and scan.z.shape[0] > 1:
@@ -129,11 +131,10 @@ def scan_sees(x: np.ndarray, gating: Gating | None, scan: SensorScan, params: Tr
 
 
 def keeps_evidence(params: TrackParams) -> bool:
-    """Whether a tracker keeps each tentative track's evidence, for Wald's test (:func:`count_life`, where
-    ``params.weighed``): a tracker of several sensors' scans (``sensor_bit``) whose count rules its tracks
-    (``gnn``, mht's ``"counts"``; not jipda's existence, nor mht's score)."""
-    return (bool(params.sensor_bit) and params.initial_existence is None
-            and (params.mht is None or params.mht.management == "counts"))
+    """Whether a tracker keeps each tentative track's evidence, for Wald's test (:func:`count_life`): a tracker
+    whose count rules its tracks (``gnn``, mht's ``"counts"``; not jipda's existence, nor mht's score), one
+    sensor's or several sensors' (before the clutter61 session several sensors' alone)."""
+    return params.initial_existence is None and (params.mht is None or params.mht.management == "counts")
 
 
 def hit_evidence(logdet: np.ndarray, m: int, params: TrackParams) -> np.ndarray:
@@ -193,11 +194,22 @@ def tally(tracks: TrackSet, detected: np.ndarray, params: TrackParams, sees: Sig
                            misses=np.where(detected, 0, tracks.misses + counted), evidence=evidence), counted, need
 
 
+def passes_wald(evidence: np.ndarray | None) -> np.ndarray | bool:
+    """Per track, whether its evidence since its start (``evidence[:, 0]``, :func:`tally`) reaches Wald's
+    ``CONFIRM_EVIDENCE`` plus its births share (``evidence[:, 1]``); True where the tracker keeps none."""
+    return True if evidence is None else evidence[:, 0] >= CONFIRM_EVIDENCE + evidence[:, 1]
+
+
 def count_life(tracks: TrackSet, params: TrackParams, need: np.ndarray | int) -> tuple[np.ndarray, np.ndarray]:
     """The count's rule, gnn's (:func:`m_of_n`) and mht's ``"counts"`` (:func:`..tracker.mht_step`), on the
     counts :func:`tally` left: which tracks are confirmed and which stay. M-of-N: confirmed with
-    ``confirm_hits`` hits within the first ``confirm_window`` counted scans, a tentative track that can no
-    longer reach that deleted, a confirmed one after ``need`` misses in a row. Where the tracker weighs each
+    ``confirm_hits`` hits within the first ``confirm_window`` counted scans, and, where the tracker keeps the
+    evidence (:func:`keeps_evidence`) and the track's start's scan started more than one track, Wald's test passed
+    as below (the count bounds a start's false confirmation, and so a scan's only where it starts one; a hit in a
+    gate that the scan's clutter fills often is weak evidence: a coarse sensor's clutter confirmed as tracks by the
+    count alone, clutter61), a
+    tentative track that can no longer reach the count deleted, a confirmed one after ``need`` misses in a row.
+    Where the tracker weighs each
     scan's evidence (``params.weighed``: some present sensor's clutter would raise the count), the configured
     count with Wald's test instead of the window: confirmed once the track has ``confirm_hits`` hits and its
     evidence reaches ``CONFIRM_EVIDENCE`` plus the log of the tracks its start's scan started (``evidence[:,
@@ -208,11 +220,11 @@ def count_life(tracks: TrackSet, params: TrackParams, need: np.ndarray | int) ->
     fine sensor confirms (docs/multitarget.md, mixnoise60)."""
     hits, evidence = tracks.hits, tracks.evidence
     if params.weighed and evidence is not None:
-        confirmed = tracks.confirmed | ((hits >= params.confirm_hits)
-                                        & (evidence[:, 0] >= CONFIRM_EVIDENCE + evidence[:, 1]))
+        confirmed = tracks.confirmed | ((hits >= params.confirm_hits) & passes_wald(evidence))
         tentative_live = evidence[:, 0] > DROP_EVIDENCE
-    else:
-        confirmed = tracks.confirmed | (hits >= params.confirm_hits)
+    else:  # a lone birth: the count's own bound (raised_count's, a start's) is its scan's
+        lone = True if evidence is None else evidence[:, 1] <= 0.0
+        confirmed = tracks.confirmed | ((hits >= params.confirm_hits) & (lone | passes_wald(evidence)))
         tentative_live = params.confirm_window - tracks.age >= params.confirm_hits - hits
     return confirmed, np.where(confirmed, tracks.misses < need, tentative_live)
 
