@@ -131,7 +131,8 @@ def test_fast_targets_get_tracks_with_the_default_config(tmp_path: Path, associa
     sixth (a pair's track counts from the pair: gnn confirms at the fourth detection, here the 300 m/s
     target's two scans later: its third detection was taken by the one-point start of its second, and a
     miss and two hits in gates of 2-4e5 m^2 at the default 1e-7 m^-2 fall short of Wald's test, which gnn's
-    count passes as well since the clutter61 session: one scan later than the count alone; jipda
+    count passes as well since the clutter61 session: one scan later than the count alone, and the federated and
+    decentralized centres' one more (below); jipda
     at the fourth, mht at the fourth or fifth). Before two-point starts none got a track: each
     second detection fell outside the gate of the zero-velocity start (30 m/s) of the first and
     started another. 0.05-0.2 s each."""
@@ -141,7 +142,10 @@ def test_fast_targets_get_tracks_with_the_default_config(tmp_path: Path, associa
                sensor="s1" if algorithm == "mtt-local" else None)
     pictures = [json.loads(x) for x in (tmp_path / "t.jsonl").read_text().splitlines()]
     start = covered_from(pictures, truth, 1.0)
-    assert start is not None and start <= (5.0 if associator == "gnn" else 4.0), (associator, algorithm, start)
+    # gnn's track-to-track centre one scan later again: its hits weigh the central track's own gate (central61),
+    # wide on a fast target's young track, and the start's hit is no evidence (clutter61)
+    limit = 4.0 if associator != "gnn" else 6.0 if algorithm in ("mtt-federated", "mtt-decentralized") else 5.0
+    assert start is not None and start <= limit, (associator, algorithm, start)
 
 
 @pytest.mark.parametrize("period, radar", [(5.0, False), (1.0, True)])

@@ -191,7 +191,7 @@ class CentreAssociation:
         # Wald's threshold of the central tracks it starts (CentreLife._count_scan): raised by their births share
         # and by the start's own detection, which the report counts as a hit and which is no evidence yet
         births = sum(u not in assigned for u in range(len(unmapped))) if start else 0
-        log_hit = self.column_log_hit[self._col(s)]
+        log_hit = self._start_hit(self._col(s))
         share = math.log(max(births, 1)) + (log_hit if math.isfinite(log_hit) else 0.0)
         for u in range(len(unmapped) + len(alone)):
             row = int(rows[u])

@@ -459,6 +459,16 @@ class CentreLife:
         log_hit, log_absent = log_ratios(cfg.pd_of(sensor), lam, cfg.thresholds.gate[2], S)
         return np.where(hit, log_hit, log_absent)
 
+    def _start_hit(self, col: int) -> float:
+        """The evidence of a scan (sensor column ``col``) on a central track it starts: :meth:`_evidence`'s hit on a
+        gate of ``S = R`` (the detection is its own gate's centre, :meth:`_priors`); ``inf`` without clutter or
+        ``R`` (a radar)."""
+        sensor, R = self.sensor_names[col], self.column_R[col]
+        lam = self.cfg.clutter_of(sensor)
+        if lam <= 0.0 or np.isnan(R).any():
+            return math.inf
+        return float(log_ratios(self.cfg.pd_of(sensor), lam, self.cfg.thresholds.gate[2], R[None])[0][0])
+
     def _priors(self, slots: np.ndarray, hit: np.ndarray, report: LocalReport) -> np.ndarray:
         """Per slot of ``slots``, its central track's x-y covariance before the report's observations were fused:
         where the report detects it (``hit``), the report's own prediction to its time (``report_states``), zero
