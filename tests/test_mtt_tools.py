@@ -77,6 +77,26 @@ def test_evaluate_scores_an_altitude_nobody_measured_on_x_y(tmp_path: Path) -> N
         evaluate(tmp_path / "t.jsonl", tmp_path / "u.jsonl")
 
 
+def test_evaluate_nees_leaves_an_altitude_nobody_measured_out(tmp_path: Path) -> None:
+    """The NEES of a track marked ``"alt_measured": false`` is that of its ``[x, vx, y, vy]`` and their block of
+    ``P`` (4 and 2 dof), as its GOSPA is on x, y; a measured 3-D track keeps its 6 and 3. Before (untuned61), the
+    unmeasured z and vz, under the prior's variance, were counted as 2 dof that hold nearly no error: a
+    consistent horizontal state read 2.0 of 6 (traffic `featured/elal747`: 1.51 of 6, 44 % inside the band)."""
+    P = np.eye(6)
+    P[4, 4] = P[5, 5] = 1e8  # the prior's z, vz: nobody measured them
+    truth = [{"t": float(k), "targets": [{"id": 0, "x": [0.0, 1.0, 0.0, 0.0, 3000.0, 0.0]},
+                                         {"id": 1, "x": [5000.0, 1.0, 0.0, 0.0, 3000.0, 0.0]}]} for k in range(4)]
+    tracks = [{"t": float(k), "tracks": [
+        {"id": 5, "x": [1.0, 1.0, 1.0, 0.0, 0.0, 0.0], "P": P.tolist(), "status": "confirmed", "alt_measured": False},
+        {"id": 6, "x": [5001.0, 1.0, 1.0, 0.0, 3000.0, 0.0], "P": np.eye(6).tolist(), "status": "confirmed"}]}
+        for k in range(4)]
+    (tmp_path / "u.jsonl").write_text("".join(json.dumps(r) + "\n" for r in truth))
+    (tmp_path / "t.jsonl").write_text("".join(json.dumps(r) + "\n" for r in tracks))
+    res = evaluate(tmp_path / "t.jsonl", tmp_path / "u.jsonl")
+    got = [(r["part"], r["dof"], r["pairs"], pytest.approx(r["mean"])) for r in res["nees"]]
+    assert got == [("state", 4, 4, 2.0), ("position", 2, 4, 2.0), ("state", 6, 4, 2.0), ("position", 3, 4, 2.0)]
+
+
 def test_evaluate_shows_its_progress_over_the_pictures(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                        capsys: pytest.CaptureFixture[str]) -> None:
     """``evaluate`` shows a bar over the pictures on a terminal (forced here: ``FEDTRACK_PROGRESS=1``), as the

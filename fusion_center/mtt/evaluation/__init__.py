@@ -17,8 +17,9 @@
   altitude is far worse than its horizontal position); the **altitude error** (RMSE and mean of
   track minus truth z over the assigned pairs, when both are 3-D) is reported on its own. A track marked
   ``"alt_measured": false`` (its altitude nobody measured: ``fedtrack.geodetic.altitude_unmeasured``) is scored
-  on x, y in the 3-D GOSPA, OSPA and RMSE (its distance to every truth the horizontal one) and left out of
-  the altitude error; how many assigned pairs were so is reported.
+  on x, y in the 3-D GOSPA, OSPA and RMSE (its distance to every truth the horizontal one), in the NEES on its
+  ``[x, vx, y, vy]`` and their block of ``P`` (4 and 2 dof), and left out of the altitude error; how many
+  assigned pairs were so is reported.
 * Position RMSE over assigned pairs. **NEES** ``e' P^-1 e`` over the assigned pairs whose state
   sizes agree (a 2-D track against a 3-D truth: the truth's ``[x, vx, y, vy]``, the prefix of its
   ``[x, vx, y, vy, z, vz]``), in two parts with their degrees of freedom: the full ``state`` (4 or 6) and the

@@ -127,6 +127,8 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
                 by_sensors.setdefault(",".join(shown[j].get("sensors", [])) or "-", []).append((xt[:4], xe[:4]))
                 if xe.size == 4 and xt.size == 6:  # a 2-D tracker against a 3-D truth: its horizontal state
                     xt = xt[:4]
+                elif flat[j] and xe.size == 6 and xt.size >= 4:  # an altitude nobody measured: x, vx, y, vy
+                    xt, xe = xt[:4], xe[:4]
                 if "P" in shown[j] and xt.shape == xe.shape:
                     P = np.asarray(shown[j]["P"], float)
                     try:
@@ -135,7 +137,7 @@ def evaluate(tracks_path: Path, truth_path: Path, c: float = 100.0, p: float = 2
                         raise InputError(f"{tracks_path}: the picture at t = {t:g}: track {shown[j]['id']}'s P is "
                                          "not positive definite (a covariance must be)") from None
                     errors.append(xt - xe)
-                    covariances.append(P)
+                    covariances.append(P[:xe.size, :xe.size])
                     motions.append(kind)
     if not series:
         raise InputError(f"{tracks_path}: no picture has a truth line at its time in {truth_path}")
