@@ -85,7 +85,7 @@ def test_third_party_sensor_and_subscriber_against_a_launched_deployment(tmp_pat
             launch.communicate(timeout=30)
         except subprocess.TimeoutExpired:
             launch.kill()
-            launch.communicate()
+            launch.communicate(timeout=30)
     assert launch.returncode == 130
     recorded = (tmp_path / "out" / "tracks.jsonl").read_text().splitlines()
     assert len(recorded) == SCANS + 3

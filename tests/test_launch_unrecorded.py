@@ -62,7 +62,7 @@ def test_the_launcher_waits_for_a_slow_recorder_to_store_the_tracks_seen_before_
     tracks seen live: with every fsync slowed to 60 ms a lockstep run's recorder had stored 2 of 101 when
     the sensors ended, and the stop left 9 in tracks.jsonl (exit 0). Here a track is committed every
     0.1 s; a recording that stops growing is given up after RECORDER_STALL_S."""
-    monkeypatch.setattr(launcher, "RECORDER_STALL_S", 0.5)
+    monkeypatch.setattr(launcher, "RECORDER_STALL_S", 0.5)  # the waits' bounds below (4 s) stay under the default 5 s
     run = paper_launcher(tmp_path)
     run.report.track_arrivals_ns = dict.fromkeys(range(10), 1)
     db = tmp_path / "recording.db"  # the recorder's (--db of the plan)
@@ -90,11 +90,11 @@ def test_the_launcher_waits_for_a_slow_recorder_to_store_the_tracks_seen_before_
     run._await_recording()
     waited, held = time.monotonic() - started, stored()
     writer.join()
-    assert held == 10 and 0.5 <= waited < 2.0  # returned once all 10 were stored (before: at once, with 4)
+    assert held == 10 and 0.5 <= waited < 4.0  # returned once all 10 were stored (before: at once, with 4)
     run.report.track_arrivals_ns = dict.fromkeys(range(12), 1)  # 2 never stored
     started = time.monotonic()
     run._await_recording()
-    assert 0.5 <= time.monotonic() - started < 1.5
+    assert 0.5 <= time.monotonic() - started < 4.0
 
 
 MTT_CONFIG = """
@@ -150,11 +150,11 @@ def test_the_launcher_waits_for_a_slow_recorder_to_store_the_pictures_and_scans_
     recording = Recording(db, readonly=True)
     assert recording.pictures() == {0, 1, 2, 3} and recording.scans() == {"s1": 4}
     recording.close()
-    assert 0.4 <= waited < 2.0  # returned once all were stored (before: at once)
+    assert 0.4 <= waited < 4.0  # returned once all were stored (before: at once)
     run.report.picture_seqs.add(4)  # never stored
     started = time.monotonic()
     run._await_recording()
-    assert 0.5 <= time.monotonic() - started < 1.5
+    assert 0.5 <= time.monotonic() - started < 4.0
 
 
 def test_a_sender_publishing_during_the_wait_does_not_hold_the_launch(tmp_path: Path,
@@ -186,7 +186,7 @@ def test_a_sender_publishing_during_the_wait_does_not_hold_the_launch(tmp_path: 
     waited = time.monotonic() - started
     done.set()
     sender.join()
-    assert waited < 1.5
+    assert waited < 4.0
 
 
 @pytest.mark.parametrize("lacks", ["pictures", "scans"])

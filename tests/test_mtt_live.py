@@ -273,7 +273,7 @@ def test_sensors_join_and_leave_at_run_time(tmp_path: Path) -> None:
         threads["s1"].join(WAIT_S)
         stopped = time.monotonic()
         assert wait_until(lambda: centre.counters.get("sensors_left", 0) == 1, timeout=5.0)
-        assert time.monotonic() - stopped < 1.0
+        assert time.monotonic() - stopped < 3.0  # its final Health, not the 5 s silence rule (leave_after_s)
         assert seen <= set(fusion.tracks)  # the departure loses no track that s2 or s3 still sees
         assert not any("s1" in fusion.sensors_of(cid) for cid in fusion.tracks)
         before = len(resets)
