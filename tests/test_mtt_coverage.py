@@ -195,13 +195,14 @@ def test_a_fast_sensor_blind_to_a_target_leaves_it_to_the_one_that_sees_it(tmp_p
 def test_scan_sees_a_track_inside_the_extent_of_its_detections() -> None:
     """A position scan with detections at (0, 0) and (100, 50): a track at (50, 25) is inside their
     extent, one at (150, 25) and one on the edge (50, 50) are not, unless a detection of the scan
-    is in its gate; one sensor's tracker (``sensor_bit`` 0) has no such test."""
+    is in its gate; one sensor's tracker (``sensor_bit`` 0) has no such test (it sees every place)."""
     params = track_params(MttConfig(), None, 4)._replace(sensor_bit=2)
     scan = SensorScan(1.0, "s2", np.eye(2), np.array([[0.0, 0.0], [100.0, 50.0]]), None, None)
     x = np.array([[50.0, 0.0, 25.0, 0.0], [150.0, 0.0, 25.0, 0.0], [50.0, 0.0, 50.0, 0.0]])
     sight = scan_sees(x, None, scan, params)
     assert sight.place.tolist() == [True, False, False] and sight.view.all()
-    assert scan_sees(x, None, scan, params._replace(sensor_bit=0)) is None
+    lone = scan_sees(x, None, scan, params._replace(sensor_bit=0))  # its hits' evidence only (clutter61)
+    assert lone.place.all() and lone.view.all()
 
 
 def test_scan_counts_for_the_sensors_that_detected_or_see_a_track() -> None:
@@ -438,7 +439,7 @@ def test_an_empty_scan_of_a_sensor_holding_tracks_shows_no_view() -> None:
     x = np.zeros((3, 4))
     assert not scan_sees(x, None, empty, params, 3).view.any()
     assert scan_sees(x, None, empty, params, 2).view.all()
-    assert scan_sees(x, None, empty, params._replace(sensor_bit=0), 3) is None
+    assert scan_sees(x, None, empty, params._replace(sensor_bit=0), 3).view.all()
     both, own = 1 | 2, 2
     tracks = empty_tracks(4)._replace(ids=np.array([4, 5, 6, 6]), confirmed=np.array([True, True, True, True]),
                                       detected_by=np.array([both, both, own, own], dtype=np.int64))
