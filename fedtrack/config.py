@@ -57,6 +57,23 @@ def finite_number(text: str) -> float:
     return value
 
 
+def require_finite(record: object, keys: typing.Iterable[str]) -> None:
+    """Refuse TOML's ``inf``, ``-inf`` and ``nan`` in ``record``'s number (or nested tuple of numbers) ``keys``:
+    ``inf`` passes a ``> 0`` check and ``nan`` a ``< 0`` one (tour61, tour62)."""
+    def numbers(value: Any) -> typing.Iterator[float]:
+        if isinstance(value, tuple):
+            for v in value:
+                yield from numbers(v)
+        elif value is not None:
+            yield value
+
+    for key in keys:
+        value = getattr(record, key)
+        if not all(math.isfinite(v) for v in numbers(value)):
+            shown = f"{value:g}" if isinstance(value, float) else str(value)
+            raise ConfigError(f"{key}: must be a finite number, got {shown}")
+
+
 def read_small_file(path: Path, limit: int, what: str) -> bytes | None:
     """The bytes of the regular file ``path`` (``what`` it is, for the errors), None when there is none;
     ConfigError for one that cannot be read, is not a regular file (opened without blocking: a FIFO

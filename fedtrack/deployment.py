@@ -87,8 +87,8 @@ class DeploymentConfig:
             raise ConfigError("duration_s: must be finite and > 0")
         if self.seed < 0:
             raise ConfigError(f"seed: must be a whole number >= 0, got {self.seed}")
-        if not self.max_time_jump_s > 0:
-            raise ConfigError("max_time_jump_s: must be > 0")
+        if not 0 < self.max_time_jump_s < math.inf:  # inf passed: no gap refused, no picture skipped (tour62)
+            raise ConfigError("max_time_jump_s: must be finite and > 0")
         if not self.max_seq_jump >= 1:
             raise ConfigError("max_seq_jump: must be >= 1")
         if not self.name or any(c in self.name for c in "/*$?#@ "):

@@ -62,6 +62,10 @@ def _mtt(path: Path) -> MttSettings:
     return load_tables(path, MttSettings)
 
 
+def _sensor(path: Path) -> SensorSettings:
+    return load_tables(path, SensorSettings)
+
+
 def _radar_filter(path: Path) -> object:
     with in_file(path):
         return make_radar_filter("ekf-ie", load_tables(path, RadarFilterSettings).radar_filter)
@@ -116,6 +120,23 @@ def _radar_filter(path: Path) -> object:
     # fusion-center --deadline, which refuses inf (tour61)
     ("[deployment]\nready_timeout_s = inf\n", "deployment.ready_timeout_s: must be finite and > 0", (_pipeline,), "kf"),
     ("[deployment]\ndeadline_s = inf\n", "deployment.deadline_s: must be finite and > 0", (_pipeline,), "kf"),
+    # TOML's inf / nan passed the range checks of these tables (before tour62): [fusion] q made every estimate NaN,
+    # initial_velocity_std a LinAlgError traceback; [imm]'s initial stds and x0 left no estimate written;
+    # max_time_jump_s refused no gap; [sonar] / [radar] made NaN or endless scenarios
+    ("[fusion]\nq = inf\n", "fusion.q: must be a finite number, got inf", (_pipeline,), "kf"),
+    ("[fusion]\ninitial_velocity_std = inf\n", "fusion.initial_velocity_std: must be a finite number", (_pipeline,),
+     "kf"),
+    ("[fusion.vdie]\ncv_sigma = inf\n", "fusion.vdie.cv_sigma: must be a finite number", (_pipeline,), "fvdie"),
+    ("[imm]\ninitial_position_std = inf\n", "imm.initial_position_std: must be a finite number",
+     (load_imm_config,), "fsimm"),
+    ("[imm]\nx0 = [0.0, -inf, 0.0, 0.0]\nP0 = [[1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]]\n",
+     "imm.x0: must be a finite number, got ", (load_imm_config,), "fsimm"),
+    ("[deployment]\nmax_time_jump_s = inf\n", "deployment.max_time_jump_s: must be finite and > 0", (_pipeline,),
+     "kf"),
+    ("[sonar]\nsigma_r = inf\n", "sonar.sigma_r: must be a finite number", (_sensor,), "hpda"),
+    ("[sonar.scenario]\nduration = inf\n", "sonar.scenario.duration: must be a finite number", (_sensor,), "hpda"),
+    ("[radar]\nstraight_s = nan\n", "radar.straight_s: must be a finite number, got nan", (_sensor,), "kf"),
+    ("[radar]\nspeed = inf\n", "radar.speed: must be a finite number", (_sensor,), "kf"),
 ])
 def test_config_errors_name_file_table_and_key(tmp_path: Path, text: str, message: str, consumers: tuple,
                                                algorithm: str, capsys: pytest.CaptureFixture[str]) -> None:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fedtrack.config import ConfigError, load_tables
+from fedtrack.config import ConfigError, load_tables, require_finite
 from fedtrack.local_filters.imm.filter import (
     GROUP_PROBABILITY,
     TERMINATION_RULES,
@@ -94,6 +94,9 @@ class IMMConfig:
     transition_interval: float = 1.0  # s: the sampling interval the transition matrix is given for
 
     def validate(self) -> None:
+        # inf passed: an initial std made every estimate NaN (none written), x0's likewise (before tour62)
+        require_finite(self, ("transition_interval", "termination_likelihood_ratio", "x0", "P0",
+                              "initial_position_std", "initial_velocity_std"))
         if not self.transition_interval > 0:
             raise ConfigError("transition_interval: must be > 0")
         names = [m.name for m in self.models]
