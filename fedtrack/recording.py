@@ -92,6 +92,7 @@ from fedtrack.wire import (
 )
 
 SCHEMA_VERSION = 2
+DB_NAME = "recording.db"  # a run's recording database in its output folder
 RECORDED, DUPLICATE, CONFLICT = "recorded", "duplicate", "conflict"
 # SQLite's primary result codes of a store that cannot take a row (not a fault of the row itself)
 STORAGE_FAULTS = frozenset({sqlite3.SQLITE_FULL, sqlite3.SQLITE_IOERR, sqlite3.SQLITE_READONLY, sqlite3.SQLITE_CANTOPEN,
@@ -177,6 +178,10 @@ class Recording:
     def __init__(self, path: Path, readonly: bool = False) -> None:
         self.path = path
         if readonly:
+            if path.is_dir():  # was "no such recording database" (before tour62)
+                inside = path / DB_NAME
+                hint = f" (its recording: --db {inside})" if inside.is_file() else ""
+                raise InputError(f"{path}: is a folder, not a recording database{hint}")
             if not path.is_file():
                 raise InputError(f"{path}: no such recording database")
             self.db = sqlite3.connect(f"file:{path}?mode=ro", uri=True, isolation_level=None)

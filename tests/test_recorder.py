@@ -7,6 +7,7 @@ import json
 import logging
 import os
 import random
+import shutil
 import sqlite3
 import subprocess
 import sys
@@ -21,7 +22,7 @@ from support import Deployment, cli_in_process, wait_until
 from fedtrack import cli
 from fedtrack.fusion_center.replay import replay_fusion
 from fedtrack.jsonl import InputError
-from fedtrack.recording import CONFLICT, DUPLICATE, RECORDED, TABLE_OF, Recording
+from fedtrack.recording import CONFLICT, DB_NAME, DUPLICATE, RECORDED, TABLE_OF, Recording
 from fedtrack.wire import Detection, FusedTrack, Measurement, TrackPicture, encode, parts
 
 
@@ -69,8 +70,14 @@ def test_rows_are_stored_once_and_export_in_scan_order(tmp_path: Path, capsys: p
     assert json.loads(tracks.read_text())["sensors"] == ["a", "b"]
 
     # the refusals in this process (the exit code as a shell sees it: the export above)
+    run = tmp_path / "run"
+    run.mkdir()
+    shutil.copyfile(db, run / DB_NAME)
     for args, what in ((["--db", str(db), "--out", str(tmp_path / "missing" / "m.jsonl")], "does not exist"),
                        (["--db", str(tmp_path / "none.db"), "--out", str(out)], "no such recording database"),
+                       # a folder was "no such recording database" (before tour62)
+                       (["--db", str(tmp_path), "--out", str(out)], f"{tmp_path}: is a folder, not a recording"),
+                       (["--db", str(run), "--out", str(out)], f"(its recording: --db {run / DB_NAME})"),
                        (["--db", str(out), "--out", str(tmp_path / "x.jsonl")], "not a fedtrack recording")):
         bad = cli_in_process(["export", *args], capsys, monkeypatch)
         assert bad.returncode == 2 and what in bad.stderr and "Traceback" not in bad.stderr, bad.stderr

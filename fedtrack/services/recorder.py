@@ -28,13 +28,11 @@ from typing import Any, Iterator
 
 from fedtrack.deployment import deployment_of
 from fedtrack.jsonl import check_output, check_output_folder
-from fedtrack.recording import CONFLICT, RECORDED, TABLES, Recording, StorageError, Table
+from fedtrack.recording import CONFLICT, DB_NAME, RECORDED, TABLES, Recording, StorageError, Table
 from fedtrack.services.base import Service, Subscription, service_kwargs, service_parser
 from fedtrack.services.dispatch import ServiceFault
 from fedtrack.services.rejections import Rejected
 from fedtrack.wire import Message, TrackPicture
-
-DB_NAME = "recording.db"
 
 
 @contextmanager
