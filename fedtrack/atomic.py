@@ -18,7 +18,11 @@ disk into an InputError naming the file; a snapshot's writer counts the OSError)
 A target that exists and is neither a regular file nor a folder (``/dev/null``, ``/dev/stdout`` on a pipe, a FIFO:
 a stream, which no reader sees whole anyway) is written into, not renamed onto: before the tour61 session
 ``replay --out /dev/stdout`` run as root replaced the link ``/dev/stdout`` with a regular file of the pictures (and
-``--out /dev/null`` would have replaced the device); as another user it failed, the folder ``/dev`` not writable."""
+``--out /dev/null`` would have replaced the device); as another user it failed, the folder ``/dev`` not writable.
+
+A target that is a symbolic link is written through: the file it points to (followed to the end, created if missing)
+is replaced as above, in that file's folder, and the link stays (``--out latest.jsonl``, a link to this run's file);
+before the tour62 session the link itself was replaced by a regular file."""
 
 from __future__ import annotations
 
@@ -42,6 +46,8 @@ def atomic_file(path: str | Path, mode: str = "wb", permissions: int = 0o666,
     or ``"wb"``), or leave it untouched if anything raises (the module's contract). OSError when the
     temporary file cannot be created (the folder missing or read-only)."""
     p = Path(path)
+    if p.is_symlink():  # its target is replaced, the link kept (above)
+        p = Path(os.path.realpath(p))
     if p.exists() and not p.is_file() and not p.is_dir():  # a device or pipe: a stream, written into (above)
         with open(p, mode) as stream:
             yield stream

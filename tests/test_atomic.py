@@ -108,3 +108,25 @@ def test_a_stream_is_written_into_not_replaced(tmp_path: Path) -> None:
     assert got == [b'{"t": 0.0}\n']
     assert stat.S_ISFIFO(fifo.stat().st_mode) and link.is_symlink() and os.readlink(link) == str(fifo)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["pipe", "stdout"]
+
+
+def test_a_symlink_is_written_through_to_its_target_and_stays_a_link(tmp_path: Path) -> None:
+    """``--out latest.jsonl``, a link to a run's file in another folder: the run's file is replaced (its temporary
+    beside it) and the link kept, a dangling one's target created; before tour62 the link became a regular file."""
+    from fedtrack.jsonl import output_file
+
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    target = runs / "run5.jsonl"
+    target.write_text("old\n")
+    link, dangling = tmp_path / "latest.jsonl", tmp_path / "next.jsonl"
+    link.symlink_to(Path("runs") / "run5.jsonl")
+    dangling.symlink_to(runs / "run6.jsonl")
+    with output_file(link) as fh:
+        fh.write('{"t": 0.0}\n')
+    write_atomic(dangling, b"new\n")
+    assert target.read_text() == '{"t": 0.0}\n' and (runs / "run6.jsonl").read_bytes() == b"new\n"
+    assert link.is_symlink() and os.readlink(link) == str(Path("runs") / "run5.jsonl")
+    assert dangling.is_symlink() and os.readlink(dangling) == str(runs / "run6.jsonl")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["latest.jsonl", "next.jsonl", "runs"]
+    assert sorted(p.name for p in runs.iterdir()) == ["run5.jsonl", "run6.jsonl"]
