@@ -45,7 +45,7 @@ from fedtrack.recording import Recording
 from fedtrack.sensors.multitarget import Scenario, SensorSpec, check_room, parse_spec, simulate
 from fedtrack.sensors.state_vectors import Recording as StateVectors
 from fedtrack.sensors.state_vectors import read_recording
-from fedtrack.sensors.traffic import read_line, window_origin
+from fedtrack.sensors.traffic import Knobs, read_line, window_origin
 from fedtrack.sensors.traffic import simulate as simulate_traffic
 from fedtrack.sensors.traffic_sensors import parse_kinds
 
@@ -137,6 +137,10 @@ def check_central_timeout(timeout: float, specs: list[SensorSpec], duration: flo
                           f"scans; set it to {slow.period:g} s or more")
 
 
+# what a launch's recording without aircraft in the window advises: the [multitarget] keys, not simulate traffic's options
+KEYS = Knobs("multitarget.origin", "multitarget.box", "multitarget.start / multitarget.duration", None)
+
+
 def scenario(mt: MultitargetSettings) -> Scenario:
     """The simulated scenario of ``[multitarget]`` (no scan delivered late: the live links' own delays)."""
     return Scenario(targets=mt.targets, duration=mt.duration, region=mt.half_width, pd=mt.pd, clutter=mt.clutter,
@@ -157,7 +161,7 @@ def prepare(settings: Settings, out: Path, say: bool = True) -> Path:
                   "samples (no [multitarget] or [frame] origin; the tracks get no lat, lon without [frame])",
                   file=sys.stderr)
         info = simulate_traffic(rec, frame, mt.sensors, settings.deployment.seed, folder, mt.start, mt.duration,
-                                mt.box * 1e3, pd=mt.pd, clutter=mt.clutter, late=0.0)
+                                mt.box * 1e3, pd=mt.pd, clutter=mt.clutter, late=0.0, knobs=KEYS)
         if say:
             print(f"scenario: {read_line(Path(mt.source), info)}", file=sys.stderr)
         return folder / "measurements.jsonl"

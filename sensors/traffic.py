@@ -19,7 +19,7 @@ import argparse
 import math
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -124,12 +124,25 @@ def derived_tracker(truth: Truth, specs: list[SensorSpec], frame: Frame) -> dict
             "central_timeout": round(max(5.0, 2 * longest + 1.0), 3)}
 
 
+class Knobs(NamedTuple):
+    """What the error for a window without truth tells to change: ``simulate traffic``'s options (:data:`OPTIONS`)
+    or a launch's ``[multitarget]`` keys (before the tour62 session a launch was told the options)."""
+
+    origin: str
+    box: str
+    window: str
+    max_gap: str | None  # None: none to set (a launch takes the recording's default_max_gap)
+
+
+OPTIONS = Knobs("--origin", "--box", "--start / --duration", "--max-gap")
+
+
 def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, start: float = 0.0,
              duration: float | None = None, box: float = 100e3, max_gap: float | None = None, pd: float = 0.9,
-             clutter: float = 10.0, late: float = 0.2, nacp: int = 9) -> dict[str, Any]:
+             clutter: float = 10.0, late: float = 0.2, nacp: int = 9, knobs: Knobs = OPTIONS) -> dict[str, Any]:
     """Write ``measurements.jsonl``, ``truth.jsonl`` and ``config.toml`` to ``out``, each whole or not
     at all (a library caller's folder is created; the command checks it first: :func:`main`). ``max_gap`` None:
-    :func:`default_max_gap` of the recording."""
+    :func:`default_max_gap` of the recording; ``knobs``: what an error for a window without aircraft advises."""
     rng = np.random.default_rng(seed)
     max_gap = default_max_gap(rec) if max_gap is None else max_gap
     scan_bytes = sum((SCAN_BYTES + DETECTION_BYTES * (clutter if s.kind != "adsb" else 0.0)) / s.period
@@ -143,7 +156,7 @@ def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, star
                          f"{frame.lat:g}, {frame.lon:g}; window {window}); the recording's airborne samples span "
                          f"{float(rec.t.max()) - t0:g} s, latitudes {rec.lla[:, 0].min():g} to "
                          f"{rec.lla[:, 0].max():g}, longitudes {rec.lla[:, 1].min():g} to {rec.lla[:, 1].max():g}"
-                         f"{_centre(rec, frame, start, duration)}{_cause(rec, frame, start, duration, box, max_gap)}")
+                         f"{_centre(rec, frame, start, duration)}{_cause(rec, frame, start, duration, box, max_gap, knobs)}")
     # the site check's aircraft: the truth's highest (before 2026-11-28 the recording's, glitches included: an
     # altitude decoded 20 km high widened every radar's reach by 400 km; docs/geodetic.md)
     sensors = parse_sensors(spec, frame, box, rng, truth.highest)
@@ -191,13 +204,15 @@ def _centre(rec: Recording, frame: Frame, start: float, duration: float | None) 
     return f"; the window's median position is {centre.lat:.4f}, {centre.lon:.4f}, {far:.0f} km from the origin"
 
 
-def _cause(rec: Recording, frame: Frame, start: float, duration: float | None, box: float, max_gap: float) -> str:
+def _cause(rec: Recording, frame: Frame, start: float, duration: float | None, box: float, max_gap: float,
+           knobs: Knobs) -> str:
     """How the error for a window without truth ends: what it says of the recording's samples inside the box during
     the window, that each repeats its aircraft's previous position (a frozen position, as the traffic package's
     ``noisy/noisy_spoofing`` holds for hours: the box and window were right, and ``--max-gap`` would not help), or
     that ``--max-gap`` cut them into tracks of one sample (a gap shorter than the recording's sampling interval);
     nothing when there are none (the origin, box or window is the cause: ``--max-gap`` was advised there too before
-    the tour61 session, when any sample of the recording was a track of one sample); then what to change."""
+    the tour61 session, when any sample of the recording was a track of one sample); then what to change, named as
+    ``knobs``."""
     since = rec.t - rec.t.min()
     pos = enu_from_geodetic(frame, *rec.lla.T)
     here = ((since >= start) & (since <= start + (math.inf if duration is None else duration))
@@ -207,12 +222,15 @@ def _cause(rec: Recording, frame: Frame, start: float, duration: float | None, b
     if len(aircraft) > places == len(set(aircraft)):  # every aircraft inside holds one position, sample after sample
         return (f"; its {len(aircraft)} samples inside the box are {places} frozen position{'s' * (places != 1)}, "
                 "each aircraft's samples repeating one (a spoofed or stuck report; a repeated position is left out "
-                "as stale): change --start / --duration to a window where the aircraft move")
+                f"as stale): change {knobs.window} to a window where the aircraft move")
     lone = int(here[segments(rec, max_gap).single].sum())
-    advice = "move --origin, widen --box or change --start / --duration"
-    return (f"; {lone} samples inside the box left out as tracks of one sample (a gap of more than --max-gap "
-            f"{max_gap:g} s before and after each): raise --max-gap above the recording's sampling interval, {advice}"
-            if lone else f": {advice}")
+    advice = f"move {knobs.origin}, widen {knobs.box} or change {knobs.window}"
+    if not lone:
+        return f": {advice}"
+    gap = f"{knobs.max_gap} {max_gap:g} s" if knobs.max_gap else f"{max_gap:g} s"
+    raise_gap = f"raise {knobs.max_gap} above the recording's sampling interval, " if knobs.max_gap else ""
+    return (f"; {lone} samples inside the box left out as tracks of one sample (a gap of more than {gap} before and "
+            f"after each): {raise_gap}{advice}")
 
 
 def read_line(source: Path, info: dict[str, Any]) -> str:

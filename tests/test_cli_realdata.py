@@ -276,6 +276,9 @@ def test_launch_names_the_recordings_key_and_leaves_no_folder(tmp_path: Path, ca
     code, err, made = launch_config(tmp_path, capsys, f'[deployment]\npacing = "realtime"\n\n[multitarget]\n'
                                     f'source = "{path}"\nunits = "aviation"\norigin = [30.0, 2.0, 0.0]\n')
     assert code == 2 and len(err) == 1 and f"{tmp_path / 'c.toml'}: {says}" in err[0] and not made, err
+    if source == "far":  # the keys a launch takes, not simulate traffic's --origin / --box (before tour62)
+        assert err[0].endswith(": move multitarget.origin, widen multitarget.box or change multitarget.start / "
+                               "multitarget.duration") and "--" not in err[0], err
 
 
 @pytest.mark.parametrize("frame", ["", "\n[frame]\norigin = [-33.88, 151.19, 0.0]\n"], ids=["window", "frame"])
