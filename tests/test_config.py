@@ -137,6 +137,11 @@ def _radar_filter(path: Path) -> object:
     ("[sonar.scenario]\nduration = inf\n", "sonar.scenario.duration: must be a finite number", (_sensor,), "hpda"),
     ("[radar]\nstraight_s = nan\n", "radar.straight_s: must be a finite number, got nan", (_sensor,), "kf"),
     ("[radar]\nspeed = inf\n", "radar.speed: must be a finite number", (_sensor,), "kf"),
+    ("[pda.tracker]\ngate = inf\n", "pda.tracker.gate: must be a finite number", (load_pda_config,), "hpda"),
+    ("[pda.tracker]\nsigma_a = nan\n", "pda.tracker.sigma_a: must be a finite number", (load_pda_config,), "hpda"),
+    ("[pda.existence]\nmax_speed = inf\n", "pda.existence.max_speed: must be a finite number", (load_pda_config,),
+     "hpda"),
+    ("[radar_filter]\nq = inf\n", "radar_filter.q: must be a finite number", (_radar_filter,), "kf"),
 ])
 def test_config_errors_name_file_table_and_key(tmp_path: Path, text: str, message: str, consumers: tuple,
                                                algorithm: str, capsys: pytest.CaptureFixture[str]) -> None:

@@ -25,6 +25,7 @@ from typing import Any, Callable, NamedTuple
 import numpy as np
 
 from fedtrack.config import ConfigError, parse_dataclass
+from fedtrack.config import require_finite as require_finite_keys
 from fedtrack.jsonl import RADAR_FIELDS, InputError, as_covariance, as_float, as_vector, check_fields, require
 from fedtrack.local_filters.radar.ekf import (
     CV3,
@@ -61,6 +62,7 @@ class EkfConfig:
     q: float = 1.0
 
     def validate(self) -> None:
+        require_finite_keys(self, ("q",))  # inf passed the > 0 check
         if not self.q > 0.0:
             raise ConfigError("q: must be > 0")
 
