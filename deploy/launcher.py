@@ -49,6 +49,7 @@ from fedtrack.config import ConfigError
 from fedtrack.deploy.monitor import LaunchError, Monitor
 from fedtrack.deploy.multitarget import (
     check_multitarget,
+    derived_config,
     finish_multitarget,
     prepare,
     sensor_specs,
@@ -548,6 +549,7 @@ def prepare_launcher(settings: Settings, config_path: Path, out_dir: Path, quiet
     """What :func:`run_deployment` does before it runs: the checks (port, multi-target scenario), the
     plan and the Zenoh configurations; the launcher is ready to ``run()`` (from any thread)."""
     dep = settings.deployment
+    services_config = config_path
     problem = listen_problem(dep.router_listen) if "router" in dep.services and dep.router_listen else None
     if problem:
         raise ConfigError(f"{config_path}: deployment.router_listen: {problem}, where the router would listen")
@@ -559,9 +561,16 @@ def prepare_launcher(settings: Settings, config_path: Path, out_dir: Path, quiet
             # key it came from, and the output folder this run made removed (before the tour61 session neither)
             key = "multitarget.source" if settings.multitarget and settings.multitarget.source else "multitarget"
             raise ConfigError(f"{config_path}: {key}: {exc}") from None
-        if config_path.resolve() != (out_dir / "config.toml").resolve():  # ``demo`` writes it there itself
+        if settings.multitarget is not None and settings.multitarget.source:
+            settings, services_config, derived = derived_config(settings, config_path, out_dir)
+            if derived:  # none for ``demo``'s config, which holds them all
+                print(f"scenario: tracker keys derived as simulate traffic derives them (not in {config_path.name}): "
+                      f"{', '.join(derived)}", file=sys.stderr)
+        elif config_path.resolve() != (out_dir / "config.toml").resolve():  # ``demo`` writes it there itself
             shutil.copyfile(config_path, out_dir / "config.toml")  # what ``replay --config OUT/config.toml`` reads
-    plan = service_plan(settings, config_path, out_dir, out_dir / "logs", recorder_exports=False)
+    # the services read the recorded-traffic launch's derived [mtt] (every other path is the file's own: a tls_dir
+    # relative to it)
+    plan = service_plan(settings, services_config, out_dir, out_dir / "logs", recorder_exports=False)
     monitor_config = apply_zenoh_settings(settings, config_path, out_dir, plan)
     return Launcher(settings, plan, quiet=quiet, zenoh_config=monitor_config, title=title,
                     scopes=failover_scopes(settings, config_path))

@@ -29,17 +29,19 @@ from typing import Any, Callable, TypeVar
 
 import numpy as np
 
-from fedtrack.config import ConfigError, did_you_mean, in_file, load_toml
+from fedtrack.atomic import write_atomic
+from fedtrack.config import ConfigError, did_you_mean, in_file, load_toml, parse_dataclass, to_toml
 from fedtrack.deploy.membership import membership
 from fedtrack.deploy.report import LaunchReport
 from fedtrack.deploy.settings import MultitargetSettings, Settings
 from fedtrack.fusion_center.mtt.earthmap import plot_map
 from fedtrack.fusion_center.mtt.evaluation import evaluate, plot
 from fedtrack.fusion_center.mtt.replay import read_scans, state_dim
-from fedtrack.geodetic import Frame, load_frame
+from fedtrack.geodetic import Frame, FrameConfig, load_frame
 from fedtrack.geojson import feature_collection
 from fedtrack.jsonl import InputError, output_file, read_jsonl
 from fedtrack.keys import AREA_CENTRE_ID, MERGER_ID
+from fedtrack.local_filters.mtt.config import MttConfig
 from fedtrack.local_filters.regions import Regions, load_regions
 from fedtrack.recording import Recording
 from fedtrack.sensors.multitarget import Scenario, SensorSpec, check_room, parse_spec, simulate
@@ -158,7 +160,7 @@ def prepare(settings: Settings, out: Path, say: bool = True) -> Path:
         frame = scenario_frame(settings, rec)
         if say and mt.origin is None and settings.frame is None:
             print(f"scenario: origin {frame.lat:.6f},{frame.lon:.6f}: the median position of the window's airborne "
-                  "samples (no [multitarget] or [frame] origin; the tracks get no lat, lon without [frame])",
+                  "samples (no [multitarget] or [frame] origin)",
                   file=sys.stderr)
         info = simulate_traffic(rec, frame, mt.sensors, settings.deployment.seed, folder, mt.start, mt.duration,
                                 mt.box * 1e3, pd=mt.pd, clutter=mt.clutter, late=0.0, knobs=KEYS)
@@ -167,6 +169,40 @@ def prepare(settings: Settings, out: Path, say: bool = True) -> Path:
         return folder / "measurements.jsonl"
     simulate(scenario(mt), parse_spec(mt.sensors), settings.deployment.seed, folder)
     return folder / "measurements.jsonl"
+
+
+def derived_config(settings: Settings, config_path: Path, out: Path) -> tuple[Settings, Path, list[str]]:
+    """A recorded-traffic launch's tracker keys: those ``simulate traffic`` wrote for the scenario in
+    ``out/scenario/config.toml`` (``[mtt]``: :func:`~fedtrack.sensors.traffic.derived_tracker`, ``pd``, the clutter
+    densities, the sensors and their ``noise_floor``; ``[frame]``: the origin it was simulated about and the radars'
+    sites) for every key ``config_path`` does not set (its own win, key by key in ``[mtt.sensor.<id>]`` and
+    ``[frame.sites]``), as ``replay --config`` of that scenario. Written with the file's other tables to
+    ``out/config.toml``, the services' ``--config`` (and ``replay --config OUT/config.toml``'s); returns the
+    settings, that file and the keys derived (``mtt.q``, ``frame.sites.r1``, ...). Before the launchtraffic62 session
+    the services ran the file's own ``[mtt]`` (the defaults when absent) and ``[frame]`` (no radar sites)."""
+    scene = load_toml(out / SCENARIO_DIR / "config.toml")
+    own = load_toml(config_path)
+    mine = {**own, "mtt": own.get("mtt", {}), "frame": own.get("frame", {})}  # a table left out: its keys named
+    merged, derived = overlay(mine, {"mtt": scene["mtt"], "frame": scene["frame"]})
+    path = out / "config.toml"
+    write_atomic(path, to_toml(merged).encode())
+    with in_file(config_path):
+        updated = replace(settings, mtt=parse_dataclass(MttConfig, merged["mtt"], "mtt"),
+                          frame=parse_dataclass(FrameConfig, merged["frame"], "frame"))
+    return updated, path, derived
+
+
+def overlay(mine: dict[str, Any], theirs: dict[str, Any], where: str = "") -> tuple[dict[str, Any], list[str]]:
+    """``theirs`` with ``mine``'s keys over it, table by table; and the dotted names of those taken from ``theirs``
+    (a table ``mine`` lacks as one name)."""
+    merged, taken = {**theirs, **mine}, []
+    for key, value in theirs.items():
+        if key not in mine:
+            taken.append(where + key)
+        elif isinstance(value, dict) and isinstance(mine[key], dict):
+            merged[key], more = overlay(mine[key], value, f"{where}{key}.")
+            taken += more
+    return merged, taken
 
 
 def scenario_frame(settings: Settings, rec: StateVectors) -> Frame:

@@ -544,3 +544,40 @@ def test_an_endless_soak_is_refused_at_start(capsys: pytest.CaptureFixture[str],
         main(argv)
     err = capsys.readouterr().err
     assert exit_.value.code == 2 and "must be finite" in err and "Traceback" not in err, err
+
+
+def test_launch_on_a_recording_runs_the_keys_simulate_traffic_derives(tmp_path: Path,
+                                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    """``launch`` with ``[multitarget] source`` ran the file's own ``[mtt]`` (the defaults when absent) and
+    ``[frame]`` (no radar sites), not the keys ``simulate traffic`` derives for the recording (q, pd, the clutter
+    densities, the sites, ...; launchtraffic62: Paris, 60 s, GOSPA 136 m live against 81 m replayed). Now every key
+    the file does not set is the derived one, the file's own win (key by key in an ``[mtt.sensor.<id>]`` table), the
+    services read them and it says which it derived."""
+    import tomllib
+
+    from fedtrack.deploy.demo import free_port
+    from fedtrack.deploy.launcher import prepare_launcher
+    from fedtrack.deploy.settings import load_settings
+
+    source = _csv(tmp_path / "s.csv", _records())
+    config = tmp_path / "mt.toml"
+    config.write_text(f'[deployment]\npacing = "realtime"\nrouter_listen = "tcp/127.0.0.1:{free_port()}"\n\n'
+                      f'[multitarget]\nsource = "{source}"\nunits = "aviation"\nsensors = "radar:4,pos:3"\n'
+                      'duration = 30.0\npd = 0.8\n\n[mtt]\nmax_lag = 9.5\n\n[mtt.sensor.s2]\nclutter_density = 1e-9\n')
+    launcher = prepare_launcher(load_settings(config), config, tmp_path / "o", quiet=True)
+    scene = tomllib.loads((tmp_path / "o" / "scenario" / "config.toml").read_text())
+    centre = next(sp for sp in launcher.plan if sp.role == "mtt-centre")
+    ran = tomllib.loads(Path(centre.argv[centre.argv.index("--config") + 1]).read_text())
+    mtt = scene["mtt"]
+    assert {k: v for k, v in ran["mtt"].items() if k not in ("max_lag", "sensor")} == {
+        k: v for k, v in mtt.items() if k not in ("max_lag", "sensor")}
+    assert mtt["max_lag"] != 9.5 and ran["mtt"]["max_lag"] == 9.5 and ran["mtt"]["pd"] == 0.8
+    assert ran["mtt"]["sensor"] == {"r1": mtt["sensor"]["r1"], "s2": {**mtt["sensor"]["s2"], "clutter_density": 1e-9}}
+    assert ran["frame"] == scene["frame"] and set(ran["frame"]["sites"]) == {"r1"}
+    assert ran["multitarget"]["source"] == str(source) and launcher.settings.mtt.q == mtt["q"]
+    assert ran == tomllib.loads((tmp_path / "o" / "config.toml").read_text())  # replay --config OUT/config.toml's
+    said = [line for line in capsys.readouterr().err.splitlines() if "tracker keys derived" in line]
+    assert said and "mtt.q, " in said[0], said
+    assert "mtt.sensor.r1, mtt.sensor.s2.noise_floor, frame.origin, frame.sites" in said[0], said
+    assert "max_lag" not in said[0], said
+    assert "mtt.clutter_density, " in said[0] and "s2.clutter_density" not in said[0]
