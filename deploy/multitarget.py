@@ -139,7 +139,8 @@ def check_central_timeout(timeout: float, specs: list[SensorSpec], duration: flo
                           f"scans; set it to {slow.period:g} s or more")
 
 
-# what a launch's recording without aircraft in the window advises: the [multitarget] keys, not simulate traffic's options
+# what a launch's recording without aircraft in the window advises: the [multitarget] keys, not simulate traffic's
+# options
 KEYS = Knobs("multitarget.origin", "multitarget.box", "multitarget.start / multitarget.duration", None)
 
 

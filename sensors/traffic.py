@@ -156,7 +156,8 @@ def simulate(rec: Recording, frame: Frame, spec: str, seed: int, out: Path, star
                          f"{frame.lat:g}, {frame.lon:g}; window {window}); the recording's airborne samples span "
                          f"{float(rec.t.max()) - t0:g} s, latitudes {rec.lla[:, 0].min():g} to "
                          f"{rec.lla[:, 0].max():g}, longitudes {rec.lla[:, 1].min():g} to {rec.lla[:, 1].max():g}"
-                         f"{_centre(rec, frame, start, duration)}{_cause(rec, frame, start, duration, box, max_gap, knobs)}")
+                         f"{_centre(rec, frame, start, duration)}"
+                         f"{_cause(rec, frame, start, duration, box, max_gap, knobs)}")
     # the site check's aircraft: the truth's highest (before 2026-11-28 the recording's, glitches included: an
     # altitude decoded 20 km high widened every radar's reach by 400 km; docs/geodetic.md)
     sensors = parse_sensors(spec, frame, box, rng, truth.highest)
