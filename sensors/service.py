@@ -34,6 +34,7 @@ from __future__ import annotations
 import argparse
 import bisect
 import math
+import sys
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -124,19 +125,23 @@ class SensorService(Service):
         self.fused_up_to = -1
 
     def start_problem(self, now: float) -> str | None:
-        """Why ``--start-at`` is refused at ``now`` (Unix s), None when it is taken: a time before 1970, or a realtime
-        start by which every scan was due (nothing to publish: the sensor exited 0 at once, as with ``--start-at -1``,
-        before the tour61 session). A start in the past with scans still due is a restarted sensor's, which resumes at
-        the scan then due; a lockstep sensor sends scan 0 at once."""
-        if self.start_at is None:
-            return None
-        if self.start_at < 0:
+        """Why ``--start-at`` is refused at ``now`` (Unix s), None when it is taken: a time before 1970 (``-1`` was
+        taken before the tour61 session, the sensor publishing nothing). A start in the past is a restarted sensor's,
+        which resumes at the scan then due (:meth:`nothing_left`); a lockstep sensor sends scan 0 at once."""
+        if self.start_at is not None and self.start_at < 0:
             return f"--start-at: must be a Unix time >= 0 (seconds since 1970), got {self.start_at:g}"
-        if self.pacing == "realtime" and self.due_s and self.start_at + self.due_s[-1] < now:
-            return (f"--start-at {self.start_at:.3f}: every scan of this sensor was due by "
-                    f"{self.start_at + self.due_s[-1]:.3f}, {now - self.start_at - self.due_s[-1]:.0f} s ago: nothing "
-                    "left to publish (give a start ahead of now, or the first start's time to resume a sensor mid-run)")
         return None
+
+    def nothing_left(self, now: float) -> str | None:
+        """What to say when a realtime ``--start-at`` had every scan of this sensor due by ``now``, None otherwise: the
+        sensor then ends at once, exit 0, having published nothing. A launcher restarting a sensor that failed after
+        its last scan was due must see it finished (the tour61 session's exit 2 here made the launcher retry it,
+        give it up and end in exit 1); a mistyped start is said in one line, not taken silently as before."""
+        if self.start_at is None or self.pacing != "realtime" or not self.due_s or self.start_at + self.due_s[-1] >= now:
+            return None
+        return (f"--start-at {self.start_at:.3f}: every scan of this sensor was due by "
+                f"{self.start_at + self.due_s[-1]:.3f}, {now - self.start_at - self.due_s[-1]:.0f} s ago: nothing left "
+                "to publish (give a start ahead of now, or the first start's time to resume a sensor mid-run)")
 
     def subscriptions(self) -> list[Subscription]:
         """Lockstep pacing follows the fused track and any single-sensor tracker of this sensor."""
@@ -273,24 +278,29 @@ def main(argv: list[str]) -> int:
         scans = own_scans(args.measurements, args.id)
         if args.join_at is not None:
             scans = [s for s in scans if s.t >= args.join_at]
-        return checked_start(parser, SensorService([], 1.0, "realtime", settings.deployment.speed,
-                                                   args.lockstep_timeout, args.start_at, scans=scans,
-                                                   start_file=args.start_file, **service_kwargs(parser, args))).run()
+        return run_checked(parser, SensorService([], 1.0, "realtime", settings.deployment.speed,
+                                                 args.lockstep_timeout, args.start_at, scans=scans,
+                                                 start_file=args.start_file, **service_kwargs(parser, args)))
     known = [sensor.id for sensor in settings.sensor]
     if args.kind == "position" and known and args.id not in known:  # was published with the default R, unheard
         parser.error(f"--id {args.id}: not a [[sensor]] id of {args.config} ({', '.join(known)})")
     lines, period = scan_source(args.kind, settings, args.id)
-    return checked_start(parser, SensorService(lines, period, settings.deployment.pacing, settings.deployment.speed,
-                                               args.lockstep_timeout, args.start_at, start_file=args.start_file,
-                                               **service_kwargs(parser, args))).run()
+    return run_checked(parser, SensorService(lines, period, settings.deployment.pacing, settings.deployment.speed,
+                                             args.lockstep_timeout, args.start_at, start_file=args.start_file,
+                                             **service_kwargs(parser, args)))
 
 
-def checked_start(parser: argparse.ArgumentParser, service: SensorService) -> SensorService:
-    """``service``, or exit 2 naming ``--start-at`` when :meth:`SensorService.start_problem` refuses it."""
+def run_checked(parser: argparse.ArgumentParser, service: SensorService) -> int:
+    """Run ``service``; exit 2 naming ``--start-at`` when :meth:`SensorService.start_problem` refuses it; 0, having
+    said why, when it has nothing left to publish (:meth:`SensorService.nothing_left`)."""
     problem = service.start_problem(time.time())
     if problem:
         parser.error(problem)
-    return service
+    over = service.nothing_left(time.time())
+    if over:
+        print(f"{parser.prog}: {over}", file=sys.stderr)
+        return 0
+    return service.run()
 
 
 def read_start(path: Path) -> float | None:

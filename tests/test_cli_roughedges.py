@@ -312,27 +312,34 @@ def test_a_serve_option_of_nan_seconds_is_refused_at_start(role: str, option: st
     assert err.strip().splitlines()[-1].endswith(f"error: argument {option}: must be a finite number, got 'nan'")
 
 
-@pytest.mark.parametrize(("pacing", "start", "said"), [
-    ("realtime", "-1", "--start-at: must be a Unix time >= 0 (seconds since 1970), got -1"),
-    ("lockstep", "-1", "--start-at: must be a Unix time >= 0 (seconds since 1970), got -1"),
-    ("realtime", "1000", "--start-at 1000.000: every scan of this sensor was due by 1100.000, "),
-    ("realtime", "one hour ago", "--start-at "),
+@pytest.mark.parametrize(("pacing", "start", "code", "said"), [
+    ("realtime", "-1", 2, "error: --start-at: must be a Unix time >= 0 (seconds since 1970), got -1"),
+    ("lockstep", "-1", 2, "error: --start-at: must be a Unix time >= 0 (seconds since 1970), got -1"),
+    ("realtime", "1000", 0, "--start-at 1000.000: every scan of this sensor was due by 1100.000, "),
+    ("realtime", "one hour ago", 0, "--start-at "),
 ])
-def test_a_sensor_start_with_nothing_left_to_publish_is_refused(pacing: str, start: str, said: str,
-                                                               capsys: pytest.CaptureFixture[str]) -> None:
+def test_a_sensor_start_with_nothing_left_to_publish_is_said(pacing: str, start: str, code: int, said: str,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
     """``serve sensor --start-at -1`` (a start in the past) was taken: a realtime sensor found every scan due, said
-    "resuming at scan 101" and exited 0 having published nothing, a lockstep one started at once (tour61). Now exit 2
-    before any session opens: a time before 1970, or a realtime start by which every scan of the paper scenario's
-    100 s was due. A start an hour ago at speed 1 is as refused (its last scan due 3,500 s ago)."""
+    "resuming at scan 101" and exited 0 having published nothing, a lockstep one started at once (tour61). Now a time
+    before 1970 is exit 2; a realtime start by which every scan of the paper scenario's 100 s was due (an hour ago at
+    speed 1: its last scan due 3,500 s ago) ends at once, exit 0, saying so in one line, before any session opens: a
+    launcher restarting a sensor that failed after its last scan was due sees it finished (tour61 made it exit 2, and
+    the launcher retried it, gave it up and ended in exit 1)."""
     import time
 
     at = repr(time.time() - 3600.0) if start == "one hour ago" else start
-    with pytest.raises(SystemExit) as stop:
-        main(["serve", "sensor", "--connect", "tcp/127.0.0.1:1", "--connect-timeout", "0.2", "--pacing", pacing,
-              "--start-at", at])
+    args = ["serve", "sensor", "--connect", "tcp/127.0.0.1:1", "--connect-timeout", "0.2", "--pacing", pacing,
+            "--start-at", at]
+    if code:
+        with pytest.raises(SystemExit) as stop:
+            main(args)
+        got = stop.value.code
+    else:
+        got = main(args)
     err = capsys.readouterr().err
-    assert stop.value.code == 2 and "Traceback" not in err, (stop.value.code, err)
-    assert f"fedtrack serve sensor: error: {said}" in err.strip().splitlines()[-1], err
+    assert got == code and "Traceback" not in err, (got, err)
+    assert f"fedtrack serve sensor: {said}" in err.strip().splitlines()[-1], err
 
 
 def test_a_sensor_start_in_the_past_with_scans_still_due_is_taken() -> None:
@@ -347,10 +354,10 @@ def test_a_sensor_start_in_the_past_with_scans_still_due_is_taken() -> None:
     lines = [{"t": float(k)} for k in range(101)]
     sensor = SensorService(lines, 1.0, "realtime", 1.0, 5.0, now - 50.0, service_id="s",
                            options=SessionOptions())
-    assert sensor.start_problem(now) is None
-    assert sensor.start_problem(now + 51.0) is not None  # its scan 100 was due at now + 50
+    assert sensor.start_problem(now) is None and sensor.nothing_left(now) is None
+    assert sensor.nothing_left(now + 51.0) is not None  # its scan 100 was due at now + 50
     lockstep = SensorService(lines, 1.0, "lockstep", 1.0, 5.0, 0.0, service_id="s", options=SessionOptions())
-    assert lockstep.start_problem(now) is None
+    assert lockstep.start_problem(now) is None and lockstep.nothing_left(now) is None
 
 
 def test_a_ctrl_c_before_any_file_leaves_no_empty_output_folder(tmp_path: Path,
