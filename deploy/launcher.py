@@ -46,7 +46,7 @@ import time
 from pathlib import Path
 
 from fedtrack.config import ConfigError
-from fedtrack.deploy.monitor import LaunchError, Monitor
+from fedtrack.deploy.monitor import FINAL_STATUSES, LaunchError, Monitor
 from fedtrack.deploy.multitarget import (
     check_multitarget,
     derived_config,
@@ -89,6 +89,9 @@ START_MARGIN_S = 0.25
 # row's commit (an fsync: 3 ms here, 60 ms slowed on purpose), so only a recorder that stopped storing is given up on
 RECORDER_STALL_S = 5.0
 ROUTER_DRAIN_S = 0.5  # a router joined to other hosts' routers is stopped this long after the rest (in-flight data)
+# the routers wait at most this long for the final Health of the services stopped before them (stop_all); a
+# client's TCP queue to a reader drains in milliseconds, and a flood keeps it behind for about a second
+FINAL_HEALTH_WAIT_S = 2.0
 
 
 def describe_exit(code: int) -> str:
@@ -253,7 +256,9 @@ class Launcher(Monitor):
 
         Stages: sensors and local filters, then the fusion centres (whose last output, such as
         a multi-target centre's final pictures, still reaches the recorder), then the picture
-        merger of region centres, then the recorder, then the routers: their final Health (counters after the last line was
+        merger of region centres, then the recorder, then the routers (once the monitor has the final Health of each
+        service stopped before them, at most FINAL_HEALTH_WAIT_S: :meth:`_await_final_health`): their final Health
+        (counters after the last line was
         written) still reaches the monitor, so the report's counters are final. A router joined to
         other hosts' routers (``router_connect``) goes ``ROUTER_DRAIN_S`` after the rest: measured in
         deploy/netns-regions.sh, a region centre's final pictures were lost when its host's router
@@ -268,8 +273,10 @@ class Launcher(Monitor):
         for group in stages:
             if settle and any(sp.role == "recorder" for sp in group):
                 self._await_recording()  # what the services stopped before published last included
-            if self.settings.deployment.router_connect and any(sp.role == "router" for sp in group):
-                time.sleep(ROUTER_DRAIN_S)  # what the services sent last is still on its way to the other routers
+            if any(sp.role == "router" for sp in group):
+                self._await_final_health([sp for sp in running if sp.role != "router"])
+                if self.settings.deployment.router_connect:
+                    time.sleep(ROUTER_DRAIN_S)  # what the services sent last is on its way to the other routers
             for sp in group:
                 sp.proc.send_signal(signal.SIGTERM)
             deadline = time.monotonic() + (RECORDER_GRACE_S if any(sp.role == "recorder" for sp in group)
@@ -283,6 +290,19 @@ class Launcher(Monitor):
         for sp in self.plan:
             if sp.proc is not None:
                 self._note_exit(sp, starting)
+
+    def _await_final_health(self, stopped: list[ServiceProcess]) -> None:
+        """Before the routers stop: wait, at most FINAL_HEALTH_WAIT_S, until the monitor has the final Health of each
+        of ``stopped`` that exited 0 (said before its session closed, still in a router's queue behind a flood: a
+        hostile run's sensor said ``stopped`` and exited 0, and the router stopped before its final Health reached
+        the readers, ``tests/test_live_hostile.py`` at a load of 5)."""
+        deadline = time.monotonic() + FINAL_HEALTH_WAIT_S
+        names = {sp.name for sp in stopped if sp.proc is not None and sp.proc.returncode == 0}
+        while time.monotonic() < deadline:
+            with self._lock:
+                if all(self.report.statuses.get(name) in FINAL_STATUSES for name in names):
+                    return
+            time.sleep(0.02)
 
     def _note_exit(self, sp: ServiceProcess, starting: set[str]) -> None:
         """Record ``sp``'s exit code once the stop is over, and whether its signal is no failure: a restart

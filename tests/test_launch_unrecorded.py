@@ -373,3 +373,34 @@ def test_a_demo_stopped_by_ctrl_c_writes_its_summary_as_launch_does(
     assert "fedtrack demo: stopped; every service was shut down" in err
     assert json.loads((out / "summary.json").read_text())["pictures"] == 0
     assert (out / "truth.jsonl").is_file()
+
+
+def test_the_routers_wait_for_the_final_health_of_the_services_stopped_before_them(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A service that exited 0 said its final Health before its session closed; behind a flood it may still be in a
+    router's queue, and the routers, stopped at once after it, lost it (a hostile run's sensor, whose final
+    ``stopped`` the readers never saw). The router stage now waits until the monitor has it, at most
+    FINAL_HEALTH_WAIT_S: here it arrives 0.3 s late; one that never comes is waited for no longer than the bound."""
+    monkeypatch.setattr(launcher, "FINAL_HEALTH_WAIT_S", 3.0)
+    run = paper_launcher(tmp_path)
+    sensors = [sp for sp in run.plan if sp.role == "sensor"]
+    for sp in sensors:
+        sp.proc = subprocess.Popen(["true"])
+        sp.proc.wait()
+
+    def say_stopped() -> None:
+        time.sleep(0.3)
+        with run._lock:
+            run.report.statuses.update({sp.name: "stopped" for sp in sensors})
+
+    late = threading.Thread(target=say_stopped)
+    started = time.monotonic()
+    late.start()
+    run._await_final_health(sensors)
+    waited = time.monotonic() - started
+    late.join()
+    assert 0.3 <= waited < 2.5, waited  # returned once every final Health came (before: not waited for at all)
+    run.report.statuses.clear()
+    started = time.monotonic()
+    run._await_final_health(sensors)
+    assert 3.0 <= time.monotonic() - started < 6.0  # never said: given up after the bound
