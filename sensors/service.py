@@ -137,7 +137,8 @@ class SensorService(Service):
         sensor then ends at once, exit 0, having published nothing. A launcher restarting a sensor that failed after
         its last scan was due must see it finished (the tour61 session's exit 2 here made the launcher retry it,
         give it up and end in exit 1); a mistyped start is said in one line, not taken silently as before."""
-        if self.start_at is None or self.pacing != "realtime" or not self.due_s or self.start_at + self.due_s[-1] >= now:
+        if (self.start_at is None or self.pacing != "realtime" or not self.due_s
+                or self.start_at + self.due_s[-1] >= now):
             return None
         return (f"--start-at {self.start_at:.3f}: every scan of this sensor was due by "
                 f"{self.start_at + self.due_s[-1]:.3f}, {now - self.start_at - self.due_s[-1]:.0f} s ago: nothing left "
