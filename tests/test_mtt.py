@@ -503,7 +503,8 @@ def test_decentralized_centre_moves_a_local_track_to_the_central_track_it_fits(f
     passes (about 5 against 23.5), so the kept mapping held it there for good (B's estimate pulled
     towards a: the formation duplicates of the dense scenario). Decentralized, it takes part in its
     sensor's association with B as one more candidate and moves to A, which it fits better; with
-    federated resets (the local track is the central estimate) the mapping is kept, as before."""
+    federated resets too (they kept the mapping before the dupes62 session: the federated formation
+    duplicates of the dense scenario)."""
     from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
     from fedtrack.local_filters.mtt.config import MttConfig
 
@@ -514,7 +515,7 @@ def test_decentralized_centre_moves_a_local_track_to_the_central_track_it_fits(f
             assert centre.mapping[("s3", 1)] == centre.mapping[("s1", 2)]  # joined B
     a, b = centre.mapping[("s1", 1)], centre.mapping[("s1", 2)]
     assert a != b and centre.mapping[("s2", 1)] == a and centre.mapping[("s2", 2)] == b
-    assert centre.mapping[("s3", 1)] == (b if feedback else a)
+    assert centre.mapping[("s3", 1)] == a
     assert centre.counters.unmapped == 0  # never failed its test against B
 
 
@@ -525,7 +526,8 @@ def test_decentralized_centre_swaps_a_sensors_two_tracks_mapped_to_each_others_t
     then follow a and b. Each still passes its test (about 12 against 23.5) and neither A nor B lacks
     a track of that sensor, so no move was possible and the swap held for good (parallel targets 3-5
     sigma apart: mtt-decentralized's id switches). Decentralized, the two take part in their sensor's
-    association with each other's central tracks as candidates and trade places; federated, kept."""
+    association with each other's central tracks as candidates and trade places, federated too (before
+    the dupes62 session it kept them)."""
     from fedtrack.fusion_center.mtt.centre import TrackToTrackCentre
     from fedtrack.local_filters.mtt.config import MttConfig
 
@@ -538,7 +540,7 @@ def test_decentralized_centre_swaps_a_sensors_two_tracks_mapped_to_each_others_t
             assert centre.mapping[("s3", 2)] == centre.mapping[("s1", 1)]  # joined A
     a, b = centre.mapping[("s1", 1)], centre.mapping[("s1", 2)]
     assert a != b and centre.mapping[("s2", 1)] == a and centre.mapping[("s2", 2)] == b
-    assert (centre.mapping[("s3", 1)], centre.mapping[("s3", 2)]) == ((b, a) if feedback else (a, b))
+    assert (centre.mapping[("s3", 1)], centre.mapping[("s3", 2)]) == (a, b)
     assert centre.counters.unmapped == 0 and sorted(centre.tracks) == sorted([a, b])
 
 

@@ -1,6 +1,6 @@
 """The track-to-track centre's association of local tracks with central tracks (its mixin
 :class:`CentreAssociation`): the hysteresis check of mapped local tracks, the association of the
-unmapped and lonely ones (and, decentralized, the movers and swaps in formations), and the merge of
+unmapped and lonely ones (and the movers and swaps in formations), and the merge of
 duplicate central tracks. The rules are in :mod:`.track_to_track`'s docstring."""
 
 from __future__ import annotations
@@ -63,7 +63,7 @@ class CentreAssociation:
                 checked: tuple[np.ndarray, np.ndarray], alone: list[int], col: int,
                 states: tuple[np.ndarray, np.ndarray, np.ndarray]
                 ) -> tuple[list[int], tuple[np.ndarray, np.ndarray, np.ndarray]]:
-        """Decentralized: the rows of the mapped confirmed local tracks that share their central
+        """The rows of the mapped confirmed local tracks that share their central
         track with other local tracks (the ``alone`` ones aside) and pass the test with a confirmed
         central track of other sensors that has none of sensor column ``col``, or with another such
         row's confirmed central track (the two may swap): each takes part in the association, the

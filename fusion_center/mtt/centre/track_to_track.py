@@ -14,11 +14,12 @@ scan, the linearized observation of every track the scan detected, the tracks it
   confirmed local track alone on its central track (it started it and no other sensor's track
   joined) takes part in every association of its sensor's scans, so that a track that narrowly
   failed the test at its start (one detection, no velocity) joins the others' central track once
-  it passes; its own central track, left without a local track, is deleted. Decentralized (no
-  resets), a confirmed local track that shares its central track with others also takes part
-  when it passes the test with a confirmed central track lacking its sensor, its own central track
-  one more candidate at its own cost: in a formation, where the test passes the neighbours too, a
-  track kept on a neighbour's central track moves to the one it fits better. Two such tracks of one
+  it passes; its own central track, left without a local track, is deleted. A confirmed local
+  track that shares its central track with others also takes part when it passes the test with a
+  confirmed central track lacking its sensor, its own central track one more candidate at its own
+  cost: in a formation, where the test passes the neighbours too, a track kept on a neighbour's
+  central track moves to the one it fits better (federated too: a reset pulls a local track to its
+  central track, but its own detections pull it back to its target). Two such tracks of one
   sensor that each pass the test with the other's confirmed central track (mapped to each other's
   targets at their start) may also trade places, when one fits the other's better than its own.
   A detected local track whose covariance is vaguer than its observation's, which no Kalman update gives
@@ -564,9 +565,8 @@ class TrackToTrackCentre(CentreAssociation, CentreLife):
             tested = (ri, ci, *track_difference_d2(diff, S))
         stay = None
         staying = d2[:check.size] + logdet[:check.size]  # each checked row's cost on its own central track
-        movers, swaps = ([], None) if self.feedback else self._movers(report, det_rows, cid, slots, (check, staying),
-                                                                       alone, col, (X, P, at))
-        if movers:  # decentralized: a mapped confirmed track moves where it fits better than on its own
+        movers, swaps = self._movers(report, det_rows, cid, slots, (check, staying), alone, col, (X, P, at))
+        if movers:  # a mapped confirmed track moves where it fits better than on its own
             own = np.searchsorted(check, movers)
             m = np.arange(len(movers))
             stay = (slots[movers], np.concatenate([m, swaps[0]]), np.concatenate([m, swaps[1]]),
