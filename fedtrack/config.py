@@ -57,7 +57,7 @@ def finite_number(text: str) -> float:
     return value
 
 
-def require_finite(record: object, keys: typing.Iterable[str]) -> None:
+def require_finite_keys(record: object, keys: typing.Iterable[str]) -> None:
     """Refuse TOML's ``inf``, ``-inf`` and ``nan`` in ``record``'s number (or nested tuple of numbers) ``keys``:
     ``inf`` passes a ``> 0`` check and ``nan`` a ``< 0`` one (tour61, tour62)."""
     def numbers(value: Any) -> typing.Iterator[float]:

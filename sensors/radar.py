@@ -24,7 +24,7 @@ from typing import Any, Iterator, NamedTuple
 
 import numpy as np
 
-from fedtrack.config import ConfigError, require_finite
+from fedtrack.config import ConfigError, require_finite_keys
 from fedtrack.local_filters.radar.measurement import polar_from_cartesian, wrap_angle
 
 G0 = 9.80665  # standard gravity, m/s^2, used only to state accelerations in g
@@ -47,8 +47,8 @@ class RadarConfig:
     sensor: str = "radar-1"
 
     def validate(self) -> None:
-        require_finite(self, ("rate_hz", "sigma_range", "sigma_azimuth", "sigma_elevation", "speed", "start", "end",
-                              "apex_z", "straight_s", "sensor_position"))  # inf passed (before tour62)
+        require_finite_keys(self, ("rate_hz", "sigma_range", "sigma_azimuth", "sigma_elevation", "speed", "start",
+                                   "end", "apex_z", "straight_s", "sensor_position"))  # inf passed (before tour62)
         for name in ("rate_hz", "sigma_range", "sigma_azimuth", "sigma_elevation", "speed"):
             if not getattr(self, name) > 0.0:
                 raise ConfigError(f"{name}: must be > 0")

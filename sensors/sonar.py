@@ -17,7 +17,7 @@ from typing import Any, Iterator, NamedTuple
 
 import numpy as np
 
-from fedtrack.config import ConfigError, require_finite
+from fedtrack.config import ConfigError, require_finite_keys
 
 G0 = 9.80665  # standard gravity, m/s^2
 
@@ -38,7 +38,7 @@ class ScenarioConfig:
     maneuver_accel: tuple[float, float] = (0.0, -0.001 * G0)
 
     def validate(self) -> None:
-        require_finite(self, ("start", "velocity", "T", "duration", "maneuver_start", "maneuver_accel"))
+        require_finite_keys(self, ("start", "velocity", "T", "duration", "maneuver_start", "maneuver_accel"))
         if not self.T > 0.0:
             raise ConfigError(f"T: must be > 0, got {self.T}")
         if not self.duration >= self.T:
@@ -59,7 +59,7 @@ class SonarConfig:
     scenario: ScenarioConfig = ScenarioConfig()
 
     def validate(self) -> None:
-        require_finite(self, ("clutter_density", "snr", "sigma_r", "region_half_width"))  # inf passed (tour62)
+        require_finite_keys(self, ("clutter_density", "snr", "sigma_r", "region_half_width"))  # inf passed (tour62)
         if not 0.0 < self.pd < 1.0:
             raise ConfigError(f"pd: must lie in (0, 1), got {self.pd}")
         for name in ("clutter_density", "sigma_r", "region_half_width"):

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fedtrack.config import ConfigError, load_tables, require_finite
+from fedtrack.config import ConfigError, load_tables, require_finite_keys
 from fedtrack.local_filters.imm.filter import (
     GROUP_PROBABILITY,
     TERMINATION_RULES,
@@ -95,7 +95,7 @@ class IMMConfig:
 
     def validate(self) -> None:
         # inf passed: an initial std made every estimate NaN (none written), x0's likewise (before tour62)
-        require_finite(self, ("transition_interval", "termination_likelihood_ratio", "x0", "P0",
+        require_finite_keys(self, ("transition_interval", "termination_likelihood_ratio", "x0", "P0",
                               "initial_position_std", "initial_velocity_std"))
         if not self.transition_interval > 0:
             raise ConfigError("transition_interval: must be > 0")

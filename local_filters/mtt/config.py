@@ -11,7 +11,7 @@ from functools import cached_property, lru_cache
 
 import numpy as np
 
-from fedtrack.config import ConfigError, require_finite
+from fedtrack.config import ConfigError, require_finite_keys
 from fedtrack.deployment import DeploymentConfig
 from fedtrack.geodetic import FrameConfig
 from fedtrack.keys import InvalidName, check_id
@@ -375,7 +375,7 @@ class MttConfig:
         # non-finite (a traceback), picture_delay with max_lag inf an OverflowError, clutter_density every detection
         # clutter (no track ever); before the tour61 session. maneuver_s, straight_s, max_lag, central_timeout and
         # leave_after_s mean "never" when infinite (maneuver_s = inf: one mode, docs/mht.md)
-        require_finite(self, ("q", "init_velocity_std", "init_z_std", "picture_delay", "clutter_density"))
+        require_finite_keys(self, ("q", "init_velocity_std", "init_z_std", "picture_delay", "clutter_density"))
         if not self.picture_delay <= self.max_lag:  # the centre keeps its states max_lag back (engines.py)
             raise ConfigError(f"picture_delay: must be <= max_lag ({self.max_lag:g} s: a picture waits for late "
                               f"data at most as long as it is kept), got {self.picture_delay:g}")

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fedtrack.config import ConfigError, load_tables, require_finite
+from fedtrack.config import ConfigError, load_tables, require_finite_keys
 
 
 @dataclasses.dataclass(frozen=True)
@@ -30,7 +30,7 @@ class PDAParams:
     max_accel: float = 0.0  # m/s^2, the targets' largest acceleration: > 0 adds a maneuver model (IMM)
 
     def validate(self) -> None:
-        require_finite(self, ("clutter_density", "snr", "gate", "sigma_a", "tau_s"))  # inf passed their > 0 checks
+        require_finite_keys(self, ("clutter_density", "snr", "gate", "sigma_a", "tau_s"))  # inf passed their > 0 checks
         if not 0.0 < self.pd < 1.0:
             raise ConfigError(f"pd: must lie in (0, 1), got {self.pd}")
         if not self.clutter_density > 0.0:
@@ -94,7 +94,7 @@ class ExistenceConfig:
             raise ConfigError(f"confirm_scans: must be >= 1, got {self.confirm_scans}")
         if self.max_tentative < 1:
             raise ConfigError(f"max_tentative: must be >= 1, got {self.max_tentative}")
-        require_finite(self, ("max_speed",))
+        require_finite_keys(self, ("max_speed",))
         if not self.max_speed > 0.0:
             raise ConfigError(f"max_speed: must be > 0, got {self.max_speed}")
         if not self.false_track_rate >= 0.0:

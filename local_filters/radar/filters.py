@@ -24,8 +24,7 @@ from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
-from fedtrack.config import ConfigError, parse_dataclass
-from fedtrack.config import require_finite as require_finite_keys
+from fedtrack.config import ConfigError, parse_dataclass, require_finite_keys
 from fedtrack.jsonl import RADAR_FIELDS, InputError, as_covariance, as_float, as_vector, check_fields, require
 from fedtrack.local_filters.radar.ekf import (
     CV3,

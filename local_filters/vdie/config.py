@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from fedtrack.config import ConfigError, require_finite
+from fedtrack.config import ConfigError, require_finite_keys
 from fedtrack.deployment import DeploymentConfig, SensorConfig
 from fedtrack.local_filters.linear.tracking import equal_sharing, validate_sharing
 from fedtrack.local_filters.vdie.estimation import VdieParams
@@ -27,7 +27,7 @@ class FusionConfig:
 
     def validate(self) -> None:
         # inf passed: q made every estimate NaN, initial_velocity_std a LinAlgError traceback (before tour62)
-        require_finite(self, ("q", "initial_velocity_std", "sharing", "P0"))
+        require_finite_keys(self, ("q", "initial_velocity_std", "sharing", "P0"))
         if not self.q > 0:
             raise ConfigError("q: process noise must be > 0")
         if not self.initial_velocity_std > 0:

@@ -43,7 +43,7 @@ from typing import Callable, NamedTuple
 import numpy as np
 from scipy.special import chdtri, ndtr
 
-from fedtrack.config import ConfigError, require_finite
+from fedtrack.config import ConfigError, require_finite_keys
 from fedtrack.local_filters.linear.kalman import (
     GaussianState,
     from_information,
@@ -104,7 +104,7 @@ class VdieParams:
             raise ConfigError(f"p: must be between 1 and {MAX_WINDOW}")
         if not 1 <= self.min_samples <= self.window:
             raise ConfigError("min_samples: must be between 1 and window")
-        require_finite(self, ("detect_sigma", "cv_sigma"))  # inf passed: no onset or no return to CV ever (tour62)
+        require_finite_keys(self, ("detect_sigma", "cv_sigma"))  # inf passed: no onset or no return to CV ever (tour62)
         if not self.detect_sigma > 0:
             raise ConfigError("detect_sigma: must be > 0")
         if not self.cv_sigma > 0:

@@ -471,23 +471,28 @@ class CentreLife:
         joined a track of a 300 m sensor alone weighed +12.2 (a chance of 4e-6) and confirmed it at once beside
         the target's own track; its clutter falls into that gate with 0.39, +0.85 now
         (``tests/test_mtt_centre_life.py``)."""
-        cfg, sensor, R = self.cfg, self.sensor_names[col], self.column_R[col]
-        lam = cfg.clutter_of(sensor)
-        if lam <= 0.0 or np.isnan(R).any() or not slots.size:
+        R = self._gate_noise(col)
+        if R is None or not slots.size:
             return np.where(hit, np.inf, self.column_log_miss[col])
-        S = R + self._priors(slots, hit, report)
-        log_hit, log_absent = log_ratios(cfg.pd_of(sensor), lam, cfg.thresholds.gate[2], S)
-        return np.where(hit, log_hit, log_absent)
+        return np.where(hit, *self._gate_ratios(col, R + self._priors(slots, hit, report)))
 
     def _start_hit(self, col: int) -> float:
         """The evidence of a scan (sensor column ``col``) on a central track it starts: :meth:`_evidence`'s hit on a
         gate of ``S = R`` (the detection is its own gate's centre, :meth:`_priors`); ``inf`` without clutter or
         ``R`` (a radar)."""
-        sensor, R = self.sensor_names[col], self.column_R[col]
-        lam = self.cfg.clutter_of(sensor)
-        if lam <= 0.0 or np.isnan(R).any():
-            return math.inf
-        return float(log_ratios(self.cfg.pd_of(sensor), lam, self.cfg.thresholds.gate[2], R[None])[0][0])
+        R = self._gate_noise(col)
+        return math.inf if R is None else float(self._gate_ratios(col, R[None])[0][0])
+
+    def _gate_noise(self, col: int) -> np.ndarray | None:
+        """Sensor column ``col``'s noise ``R`` where its clutter weighs a scan as evidence in a gate (a position
+        sensor with clutter); None otherwise (no clutter, or a radar: no ``R`` kept)."""
+        R = self.column_R[col]
+        return None if self.cfg.clutter_of(self.sensor_names[col]) <= 0.0 or np.isnan(R).any() else R
+
+    def _gate_ratios(self, col: int, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`log_ratios` of sensor column ``col``'s scans on gates of covariances ``S``."""
+        sensor = self.sensor_names[col]
+        return log_ratios(self.cfg.pd_of(sensor), self.cfg.clutter_of(sensor), self.cfg.thresholds.gate[2], S)
 
     def _priors(self, slots: np.ndarray, hit: np.ndarray, report: LocalReport) -> np.ndarray:
         """Per slot of ``slots``, its central track's x-y covariance before the report's observations were fused:
